@@ -1,0 +1,64 @@
+"""Robot and controller parameters, with the paper's defaults (Table 1, e-puck; section 7.1).
+
+SI units throughout: metres, seconds, radians.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields, replace
+from typing import Any
+
+HOLONOMIC = "holonomic"
+DIFFDRIVE = "diffdrive"
+KINEMATICS = (HOLONOMIC, DIFFDRIVE)
+
+
+@dataclass(frozen=True)
+class RobotParams:
+    """What one robot knows about itself: its body and its controller settings."""
+
+    kinematics: str = DIFFDRIVE
+    radius: float = 0.045  # d_A / 2 (Table 1: d_A = 0.09 m)
+    v_max: float = 0.13  # maximum linear speed
+    omega_max: float = 4.96  # maximum angular speed (differential drive)
+    wheel_base: float = 0.0525  # l_w, distance between wheels
+    v_pref: float = 0.12  # V_p, preferred speed (eq. 9)
+    k_a: float = 0.1  # K_a, distance below which the preferred speed falls linearly (eq. 9)
+    tau: float = 2.0  # time-to-collision horizon for robots (eq. 10)
+    tau_obst: float = 2.0  # horizon for static obstacles
+    t_orient: float = 0.35  # T_o, time to achieve the desired orientation (NH-ORCA)
+    error_max: float = 0.01  # epsilon_max, maximum extension of the radius (tracking error, NH-ORCA)
+    error_min: float = 0.001  # smallest tracking error used when robots are very close
+    neighbour_dist: float = 0.6  # robots farther than this are ignored by ORCA
+    max_neighbours: int = 10
+    dt: float = 0.1  # control period (10 Hz)
+    goal_tolerance: float = 0.01  # a robot within this distance of its goal has arrived
+
+    def __post_init__(self) -> None:
+        if self.kinematics not in KINEMATICS:
+            raise ValueError(f"kinematics must be one of {KINEMATICS}, not {self.kinematics!r}")
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name == "kinematics":
+                continue
+            if not (isinstance(value, (int, float)) and value == value and value > 0):
+                raise ValueError(f"robot parameter {f.name} must be a positive number, not {value!r}")
+        if self.k_a < self.v_pref * self.dt:
+            # eq. 9 converges without oscillation only if K_a >= V_p * dt (paper 5.2)
+            raise ValueError(f"k_a ({self.k_a}) must be at least v_pref * dt ({self.v_pref * self.dt})")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "RobotParams":
+        known = {f.name for f in fields(cls)}
+        unknown = set(data) - known
+        if unknown:
+            raise ValueError(f"unknown robot parameter(s): {', '.join(sorted(unknown))}")
+        return cls(**data)
+
+    def with_(self, **changes: Any) -> "RobotParams":
+        return replace(self, **changes)
+
+
+EPUCK = RobotParams()
