@@ -1,0 +1,46 @@
+"""Entry point of an agent process: `python -m agent --config host.json [zenoh flags]`.
+
+One process runs the robots its config names (one by default; K with --agents-per-process).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from transport.bus import Bus
+from transport.faults import parse_faults
+from transport.session import TransportError, add_zenoh_args, settings_from_args
+
+from .runtime import AgentHost, HostConfig, install_stop_handlers
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m agent", description="Run robot agents (one per robot id).")
+    parser.add_argument("--config", required=True, help="host config JSON file (robots, parameters, map)")
+    parser.add_argument("--faults", default="", help="fault injection, e.g. 'state:drop=0.1,delay=0.05'")
+    add_zenoh_args(parser)
+    args = parser.parse_args(argv)
+    try:
+        with open(args.config) as f:
+            config = HostConfig.from_json(f.read())
+        faults = parse_faults(args.faults)
+    except (OSError, ValueError, KeyError) as err:
+        print(f"agent: error: bad config: {err}", file=sys.stderr)
+        return 2
+    try:
+        bus = Bus(settings_from_args(args), config.display, faults=faults, seed=config.seed,
+                  name=f"agent{config.robots[0]}")
+    except TransportError as err:
+        print(f"agent: error: {err}", file=sys.stderr)
+        return 2
+    with bus:
+        host = AgentHost(bus, config)
+        install_stop_handlers(host)
+        host.start()
+        host.run()
+        host.report()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,192 @@
+"""Holonomic ORCA (paper 5.2-5.3, eq. 9-14) over a batch of robots.
+
+Arrays carry a leading robot axis B; neighbours a second axis M (padded, with a ``valid`` mask);
+obstacle edges are shared by the batch. Lines follow `agent.core.lp`: point + unit direction,
+permissible side on the left.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from agent.core.lp import linear_program
+
+__all__ = ["Lines", "preferred_velocity", "orca_lines", "obstacle_lines", "polygon_segments",
+           "arena_segments", "concat_lines", "orca_velocity"]
+
+
+class Lines(NamedTuple):
+    """Half-planes of a batch: point (B,L,2), unit direction (B,L,2), valid (B,L)."""
+
+    point: np.ndarray
+    direction: np.ndarray
+    valid: np.ndarray
+
+
+def preferred_velocity(position: np.ndarray, goal: np.ndarray, v_pref, k_a) -> np.ndarray:
+    """Paper eq. 9: speed V_p toward the goal, falling linearly within K_a of it; zero without a goal (NaN)."""
+    position = np.asarray(position, dtype=float)
+    goal = np.asarray(goal, dtype=float)
+    ex = goal[..., 0] - position[..., 0]
+    ey = goal[..., 1] - position[..., 1]
+    dist = np.sqrt(ex * ex + ey * ey)
+    has = np.isfinite(dist) & (dist > 0.0)
+    safe = np.where(has, dist, 1.0)
+    # V_p min(1, d/K_a) / d, written so that within K_a it is V_p / K_a exactly (no division by d)
+    gain = np.where(safe > k_a, v_pref / safe, v_pref / np.asarray(k_a, dtype=float))
+    gain = np.where(has, gain, 0.0)
+    return np.stack([np.where(has, ex, 0.0) * gain, np.where(has, ey, 0.0) * gain], axis=-1)
+
+
+def orca_lines(position, velocity, radius, nbr_position, nbr_velocity, nbr_radius,
+               nbr_responsibility, nbr_valid, tau, dt) -> Lines:
+    """ORCA half-plane of each robot with respect to each neighbour (eq. 10-12).
+
+    The optimisation velocities are the current velocities. u is the smallest change of the relative
+    velocity that leaves the velocity obstacle VO^tau (truncated cone, eq. 10); the line passes through
+    v_opt + c u with c the responsibility (0.5 toward cooperating robots, 1 toward dynamic obstacles),
+    normal to the VO boundary. Overlapping pairs use the cut-off circle of horizon ``dt``: they separate
+    within one control period. Shapes: (B,2), (B,2), (B,), (B,M,2), (B,M,2), (B,M), (B,M), (B,M).
+    """
+    p = np.asarray(position, dtype=float)[:, None, :]
+    v = np.asarray(velocity, dtype=float)[:, None, :]
+    rpx = nbr_position[..., 0] - p[..., 0]
+    rpy = nbr_position[..., 1] - p[..., 1]
+    rvx = v[..., 0] - nbr_velocity[..., 0]
+    rvy = v[..., 1] - nbr_velocity[..., 1]
+    dist2 = rpx * rpx + rpy * rpy
+    big_r = np.asarray(radius, dtype=float)[:, None] + nbr_radius
+    big_r2 = big_r * big_r
+    apart = dist2 > big_r2
+    # cut-off circle centre: relative position / horizon (tau if apart, dt if overlapping)
+    inv_h = np.where(apart, 1.0 / tau, 1.0 / dt)
+    wx = rvx - inv_h * rpx
+    wy = rvy - inv_h * rpy
+    w2 = wx * wx + wy * wy
+    dot1 = wx * rpx + wy * rpy
+    on_circle = ~apart | ((dot1 < 0.0) & (dot1 * dot1 > big_r2 * w2))
+    # circle: u points from the relative velocity to the nearest point of the cut-off circle
+    wl = np.sqrt(w2)
+    degenerate = wl == 0.0  # only when overlapping with relative velocity exactly rel_p/dt
+    wl_safe = np.where(degenerate, 1.0, wl)
+    ux_c = np.where(degenerate, 1.0, wx / wl_safe)
+    uy_c = np.where(degenerate, 0.0, wy / wl_safe)
+    circ_dx, circ_dy = uy_c, -ux_c
+    scale = big_r * inv_h - wl
+    circ_ux, circ_uy = scale * ux_c, scale * uy_c
+    # legs: project the relative velocity on the nearer leg of the cone
+    leg = np.sqrt(np.maximum(dist2 - big_r2, 0.0))
+    d2 = np.where(dist2 > 0.0, dist2, 1.0)
+    left = rpx * wy - rpy * wx > 0.0
+    ldx = np.where(left, rpx * leg - rpy * big_r, -(rpx * leg + rpy * big_r)) / d2
+    ldy = np.where(left, rpx * big_r + rpy * leg, -(-rpx * big_r + rpy * leg)) / d2
+    dot2 = rvx * ldx + rvy * ldy
+    leg_ux = dot2 * ldx - rvx
+    leg_uy = dot2 * ldy - rvy
+    dx = np.where(on_circle, circ_dx, ldx)
+    dy = np.where(on_circle, circ_dy, ldy)
+    ux = np.where(on_circle, circ_ux, leg_ux)
+    uy = np.where(on_circle, circ_uy, leg_uy)
+    c = nbr_responsibility
+    point = np.stack([v[..., 0] + c * ux, v[..., 1] + c * uy], axis=-1)
+    return Lines(point, np.stack([dx, dy], axis=-1), np.asarray(nbr_valid, dtype=bool).copy())
+
+
+def polygon_segments(vertices) -> np.ndarray:
+    """Edges (S,2,2) of a closed polygon: counter-clockwise for an obstacle, clockwise for an enclosing
+    wall (RVO2's convention; the free side is then on the right of every edge)."""
+    vert = np.asarray(vertices, dtype=float)
+    return np.stack([vert, np.roll(vert, -1, axis=0)], axis=1)
+
+
+def arena_segments(xmin: float, ymin: float, xmax: float, ymax: float) -> np.ndarray:
+    """Walls enclosing the rectangle [xmin,xmax] x [ymin,ymax] (clockwise)."""
+    return polygon_segments([(xmin, ymin), (xmin, ymax), (xmax, ymax), (xmax, ymin)])
+
+
+def obstacle_lines(position, radius, max_speed, segments, tau_obst) -> Lines:
+    """Half-planes keeping each robot at least its radius from each obstacle edge for tau_obst.
+
+    Each edge is a segment; q is its point closest to the robot, n the unit vector from q to the robot
+    and d their distance. The segment lies in {x: (x - q).n <= 0} (q is a projection onto a convex set),
+    so a robot whose centre stays in {(x - q).n >= r} clears it: with velocity v for time tau_obst that
+    holds iff v.n >= -(d - r)/tau_obst. An overlapping robot may only move away (v.n >= 0). Edges whose
+    line the speed disk already satisfies are marked invalid. Shapes: (B,2), (B,), (B,) or scalar,
+    (S,2,2) -> (B,S) lines.
+    """
+    p = np.asarray(position, dtype=float)
+    b = p.shape[0]
+    seg = np.asarray(segments, dtype=float).reshape(-1, 2, 2)
+    if seg.shape[0] == 0:
+        return Lines(np.zeros((b, 0, 2)), np.zeros((b, 0, 2)), np.zeros((b, 0), dtype=bool))
+    ax, ay = seg[None, :, 0, 0], seg[None, :, 0, 1]
+    ex, ey = seg[None, :, 1, 0] - ax, seg[None, :, 1, 1] - ay
+    px, py = p[:, 0:1], p[:, 1:2]
+    len2 = ex * ex + ey * ey
+    t = np.clip(((px - ax) * ex + (py - ay) * ey) / np.where(len2 > 0.0, len2, 1.0), 0.0, 1.0)
+    nx = px - (ax + t * ex)
+    ny = py - (ay + t * ey)
+    d = np.sqrt(nx * nx + ny * ny)
+    on = d == 0.0
+    # centre exactly on the edge: the free side is on the edge's right
+    el = np.sqrt(np.where(len2 > 0.0, len2, 1.0))
+    nx = np.where(on, ey / el, nx / np.where(on, 1.0, d))
+    ny = np.where(on, -ex / el, ny / np.where(on, 1.0, d))
+    r = np.asarray(radius, dtype=float).reshape(-1, 1)
+    offset = np.maximum(d - r, 0.0) / tau_obst
+    point = np.stack([-nx * offset, -ny * offset], axis=-1)
+    direction = np.stack([ny, -nx], axis=-1)
+    vmax = np.broadcast_to(np.asarray(max_speed, dtype=float), (b,))[:, None]
+    valid = offset < vmax
+    return Lines(point, direction, valid)
+
+
+def concat_lines(*parts: Lines) -> Lines:
+    """Lines of several groups side by side (hard groups first)."""
+    return Lines(np.concatenate([x.point for x in parts], axis=1),
+                 np.concatenate([x.direction for x in parts], axis=1),
+                 np.concatenate([x.valid for x in parts], axis=1))
+
+
+def compact_lines(lines: Lines) -> Lines:
+    """Move each robot's valid lines to the front in their order and drop all-invalid columns
+    (fewer lines for the program; per-robot results are unchanged)."""
+    valid = lines.valid
+    if valid.shape[1] == 0:
+        return lines
+    order = np.argsort(~valid, axis=1, kind="stable")
+    n = int(valid.sum(axis=1).max()) if valid.size else 0
+    order = order[:, :n]
+    return Lines(np.take_along_axis(lines.point, order[..., None], axis=1),
+                 np.take_along_axis(lines.direction, order[..., None], axis=1),
+                 np.take_along_axis(valid, order, axis=1))
+
+
+def orca_velocity(position, velocity, pref_velocity, radius, max_speed, nbr_position, nbr_velocity,
+                  nbr_radius, nbr_responsibility, nbr_valid, obstacle_segments=None, *, tau: float,
+                  tau_obst: float, dt: float, extra_hard_lines: Lines | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Collision-free velocity of eq. 14 for a batch of holonomic robots.
+
+    Neighbours must be sorted nearest first (the fallback takes them in order). ``extra_hard_lines``
+    (e.g. a kinematic polygon) are kept hard with the obstacle lines. Returns (new velocity (B,2),
+    fallback (B,) bool where the program was infeasible and the least-violation fallback ran).
+    """
+    position = np.asarray(position, dtype=float)
+    b = position.shape[0]
+    radius = np.broadcast_to(np.asarray(radius, dtype=float), (b,))
+    max_speed = np.broadcast_to(np.asarray(max_speed, dtype=float), (b,))
+    hard = []
+    if obstacle_segments is not None and len(obstacle_segments):
+        hard.append(compact_lines(obstacle_lines(position, radius, max_speed, obstacle_segments,
+                                                 tau_obst)))
+    if extra_hard_lines is not None:
+        hard.append(extra_hard_lines)
+    n_hard = sum(h.valid.shape[1] for h in hard)
+    robots = orca_lines(position, velocity, radius, np.asarray(nbr_position, dtype=float),
+                        np.asarray(nbr_velocity, dtype=float), np.asarray(nbr_radius, dtype=float),
+                        np.asarray(nbr_responsibility, dtype=float), nbr_valid, tau, dt)
+    lines = concat_lines(*hard, robots) if hard else robots
+    return linear_program(lines.point, lines.direction, lines.valid, max_speed,
+                          np.asarray(pref_velocity, dtype=float), n_hard=n_hard)

@@ -1,0 +1,66 @@
+"""A robot's view of its neighbours, built only from their broadcasts."""
+from __future__ import annotations
+
+import numpy as np
+
+from transport.codec import State
+
+from .core.step import Neighbours
+
+
+class NeighbourTable:
+    """Latest broadcast states per robot id, keeping the two newest so a lock-step tick can use
+    exactly the states of the previous tick (the same information whatever the arrival order)."""
+
+    def __init__(self) -> None:
+        self._states: dict[int, list[State]] = {}
+
+    def update(self, state: State) -> None:
+        kept = self._states.setdefault(state.robot, [])
+        if any(s.tick == state.tick for s in kept):
+            return  # duplicate
+        kept.append(state)
+        kept.sort(key=lambda s: s.tick)
+        del kept[:-2]
+
+    def __len__(self) -> int:
+        return len(self._states)
+
+    def latest_before(self, tick: int) -> list[State]:
+        """For each robot, its newest state stamped before ``tick``."""
+        out = []
+        for kept in self._states.values():
+            for s in reversed(kept):
+                if s.tick < tick:
+                    out.append(s)
+                    break
+        return out
+
+    def gather(self, robot_ids: list[int], positions: np.ndarray, stamp: float, tick: int,
+               neighbour_dist: float, max_neighbours: int) -> Neighbours:
+        """Padded neighbour arrays for a batch: the nearest ``max_neighbours`` within ``neighbour_dist``."""
+        states = self.latest_before(tick)
+        batch = len(robot_ids)
+        if not states:
+            return Neighbours.empty(batch)
+        ids = np.array([s.robot for s in states])
+        pos = np.array([(s.x, s.y) for s in states], float)
+        vel = np.array([(s.vx, s.vy) for s in states], float)
+        rad = np.array([s.radius for s in states], float)
+        age = stamp - np.array([s.stamp for s in states], float)
+        # Order by id first so that ties in distance break the same way in every process.
+        order = np.argsort(ids, kind="stable")
+        ids, pos, vel, rad, age = ids[order], pos[order], vel[order], rad[order], age[order]
+        m = max_neighbours
+        out = Neighbours(np.zeros((batch, m, 2)), np.zeros((batch, m, 2)), np.ones((batch, m)),
+                         np.zeros((batch, m)), np.zeros((batch, m), bool))
+        for b, (rid, p) in enumerate(zip(robot_ids, positions)):
+            d2 = (pos[:, 0] - p[0]) ** 2 + (pos[:, 1] - p[1]) ** 2
+            cand = np.flatnonzero((ids != rid) & (d2 <= neighbour_dist**2))
+            if len(cand) == 0:
+                continue
+            cand = cand[np.argsort(d2[cand], kind="stable")[:m]]
+            k = len(cand)
+            out.position[b, :k], out.velocity[b, :k] = pos[cand], vel[cand]
+            out.radius[b, :k], out.age[b, :k], out.valid[b, :k] = rad[cand], age[cand], True
+        return out

@@ -1,0 +1,222 @@
+"""The agent runtime: binds the pure control core to the bus for K robots in one process.
+
+Per tick, each robot: takes its pose from the tracker, its neighbours' latest states from their
+broadcasts, computes its collision-free velocity and command, then publishes its state (to the
+spatial cell it is in) and its command and LED colour. Time comes only from messages: the tick and
+its stamp arrive with the pose.
+"""
+from __future__ import annotations
+
+import json
+import math
+import signal
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from transport.bus import Bus
+from transport.codec import Command, Event, Goals, Pose, State
+from transport.keys import cell_of
+
+from .core.params import DIFFDRIVE, RobotParams
+from .core.step import control_step
+from .neighbour_table import NeighbourTable
+
+IDLE_COLOR = (40, 40, 40)
+
+
+@dataclass
+class RobotMemory:
+    """What one robot carries from tick to tick."""
+
+    robot: int
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(2))  # v_cf of the last tick (v_opt)
+    goal: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
+    goal_index: int = -1
+    color: tuple[int, int, int] = IDLE_COLOR
+    last_tick: int = -1
+
+
+@dataclass
+class HostConfig:
+    """A robot's own configuration, as a real robot would read it from its config file."""
+
+    robots: list[int]
+    params: RobotParams
+    display: str = "default"
+    seed: int = 0
+    arena: tuple[float, float, float, float] | None = None
+    obstacles: list[list[tuple[float, float]]] = field(default_factory=list)
+    batch_wait: float = 0.05  # how long to wait for the other robots' poses of a tick (real time)
+
+    @classmethod
+    def from_json(cls, text: str) -> "HostConfig":
+        data = json.loads(text)
+        return cls(robots=[int(r) for r in data["robots"]], params=RobotParams.from_dict(data["params"]),
+                   display=data.get("display", "default"), seed=int(data.get("seed", 0)),
+                   arena=tuple(data["arena"]) if data.get("arena") else None,
+                   obstacles=[[tuple(v) for v in o] for o in data.get("obstacles", [])],
+                   batch_wait=float(data.get("batch_wait", 0.05)))
+
+    def to_json(self) -> str:
+        return json.dumps({"robots": self.robots, "params": self.params.to_dict(), "display": self.display,
+                           "seed": self.seed, "arena": self.arena, "obstacles": self.obstacles,
+                           "batch_wait": self.batch_wait})
+
+
+class CellSubscriptions:
+    """Subscriptions to the 3x3 spatial cells around each robot, shared by the robots of a host.
+
+    The cell is larger than the neighbour distance by what robots can close in three ticks, so a
+    cell is subscribed at least one tick before any robot in it can become a neighbour: the
+    neighbour set never depends on how fast a subscription reached the router.
+    """
+
+    def __init__(self, bus: Bus, inbox: Any, cell_size: float) -> None:
+        self.bus, self.inbox, self.cell_size = bus, inbox, cell_size
+        self._subs: dict[tuple[int, int], Any] = {}
+
+    def update(self, positions: np.ndarray) -> None:
+        wanted = set()
+        for x, y in positions:
+            cx, cy = cell_of(x, y, self.cell_size)
+            wanted.update((cx + dx, cy + dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1))
+        for cell in set(self._subs) - wanted:
+            self.bus.unsubscribe(self._subs.pop(cell))
+        for cell in sorted(wanted - set(self._subs)):
+            self._subs[cell] = self.bus.subscribe_into(self.bus.keys.state_cell(cell), self.inbox)
+
+    def __len__(self) -> int:
+        return len(self._subs)
+
+
+class AgentHost:
+    """K robots in one process, each deciding for itself from its own messages."""
+
+    def __init__(self, bus: Bus, config: HostConfig) -> None:
+        self.bus, self.config, self.params = bus, config, config.params
+        self.keys = bus.keys
+        self.memory = {r: RobotMemory(r) for r in config.robots}
+        self.table = NeighbourTable()
+        self.pending: dict[int, Pose] = {}
+        self.ticks_done = 0
+        self.fallbacks = 0
+        p = self.params
+        self.cell_size = p.neighbour_dist + 3 * p.v_max * p.dt + 0.02
+        # One subscription per own robot: a host receives only its robots' poses.
+        self.pose_inbox = bus.inbox(Pose)
+        for r in config.robots:
+            bus.subscribe_into(self.keys.pose(r), self.pose_inbox)
+        self.state_inbox = bus.inbox(State)  # fed by the spatial cells around the robots
+        self.cells = CellSubscriptions(bus, self.state_inbox, self.cell_size)
+        self.goal_inbox = bus.subscribe(self.keys.all_of("goals"), Goals)
+        self.running = True
+
+    # --- start ------------------------------------------------------------------------------
+    def start(self) -> None:
+        """Fetch the current goal set (late joiners too), then announce every robot alive."""
+        for _, goals in self.bus.query(self.keys.all_of("goals"), Goals, timeout=2.0):
+            self._on_goals(goals)
+        for r in self.config.robots:
+            self.bus.declare_alive("agent", r)
+
+    # --- messages -----------------------------------------------------------------------------
+    def _on_goals(self, goals: Goals) -> None:
+        if not goals.per_robot:
+            return  # shared goal sets are for the auction (issue 5)
+        for r, mem in self.memory.items():
+            if r < len(goals.positions):
+                mem.goal = goals.positions[r].astype(float)
+                mem.color = tuple(int(c) for c in goals.colors[r])
+
+    def _absorb(self) -> None:
+        for _, msg in self.goal_inbox.drain():
+            self._on_goals(msg)
+        for _, msg in self.state_inbox.drain():
+            self.table.update(msg)
+
+    # --- the loop -----------------------------------------------------------------------------
+    def run(self) -> None:
+        while self.running:
+            got = self.pose_inbox.get(timeout=0.2)
+            if got is None:
+                continue
+            self._take_pose(got[1])
+            # Collect the other robots' poses of this tick (they are published together).
+            deadline = time.monotonic() + self.config.batch_wait
+            while len(self.pending) < len(self.memory) and self.running:
+                got = self.pose_inbox.get(timeout=max(0.0, deadline - time.monotonic()))
+                if got is None:
+                    break
+                self._take_pose(got[1])
+            self.step()
+
+    def _take_pose(self, pose: Pose) -> None:
+        mem = self.memory.get(pose.robot)
+        if mem is None or pose.tick <= mem.last_tick:
+            return
+        held = self.pending.get(pose.robot)
+        if held is None or pose.tick > held.tick:
+            self.pending[pose.robot] = pose
+
+    def step(self) -> None:
+        """Compute and publish one tick for every robot whose pose has arrived."""
+        if not self.pending:
+            return
+        self._absorb()
+        poses = [self.pending.pop(r) for r in sorted(self.pending)]
+        # Robots of a host may hold poses of different ticks (real time): group by tick.
+        for tick in sorted({p.tick for p in poses}):
+            self._step_tick([p for p in poses if p.tick == tick])
+
+    def _step_tick(self, poses: list[Pose]) -> None:
+        p = self.params
+        ids = [q.robot for q in poses]
+        tick, stamp = poses[0].tick, poses[0].stamp
+        position = np.array([(q.x, q.y) for q in poses], float)
+        heading = np.array([q.theta for q in poses], float)
+        mems = [self.memory[r] for r in ids]
+        velocity = np.array([m.velocity for m in mems])
+        goal = np.array([m.goal for m in mems])
+        neighbours = self.table.gather(ids, position, stamp, tick, p.neighbour_dist, p.max_neighbours)
+        result = control_step(p, position, heading, velocity, goal, neighbours)
+        self.fallbacks += int(result.fallback.sum())
+        mode = Command.WHEELS if p.kinematics == DIFFDRIVE else Command.HOLONOMIC
+        for b, (pose, mem) in enumerate(zip(poses, mems)):
+            mem.velocity = result.velocity[b].copy()
+            mem.last_tick = tick
+            has_goal = bool(np.all(np.isfinite(mem.goal)))
+            at_goal = has_goal and math.dist(mem.goal, position[b]) <= p.goal_tolerance
+            flags = (State.HAS_GOAL if has_goal else 0) | (State.AT_GOAL if at_goal else 0)
+            gx, gy = (mem.goal if has_goal else (0.0, 0.0))
+            state = State(pose.robot, tick, stamp, pose.x, pose.y, float(result.velocity[b, 0]),
+                          float(result.velocity[b, 1]), float(result.radius[b]), float(gx), float(gy),
+                          mem.goal_index, flags)
+            # State before command: by the time the world moves on, neighbours have our state.
+            self.bus.publish(self.keys.state(cell_of(pose.x, pose.y, self.cell_size), pose.robot), state)
+            cmd = Command(pose.robot, tick, stamp, mode, float(result.command[b, 0]), float(result.command[b, 1]),
+                          *mem.color)
+            self.bus.publish(self.keys.cmd(pose.robot), cmd)
+        self.cells.update(position)
+        self.ticks_done += 1
+
+    def stats(self) -> dict[str, Any]:
+        drops: dict[str, int] = {}
+        for inbox in (self.pose_inbox, self.state_inbox, self.goal_inbox):
+            for reason, n in inbox.drops.items():
+                drops[reason] = drops.get(reason, 0) + n
+        return {"role": "agent", "robots": self.config.robots, "ticks": self.ticks_done,
+                "fallbacks": self.fallbacks, "dropped": drops, "neighbours_known": len(self.table)}
+
+    def report(self) -> None:
+        self.bus.publish(self.keys.event, Event({"kind": "stats", **self.stats()}))
+
+
+def install_stop_handlers(host: AgentHost) -> None:
+    def stop(signum: int, frame: object) -> None:
+        host.running = False
+
+    signal.signal(signal.SIGTERM, stop)
+    signal.signal(signal.SIGINT, stop)

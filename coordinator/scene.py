@@ -1,0 +1,297 @@
+"""Scenes: TOML files naming the robots, their layout and goals, the arena, obstacles, events and clock.
+
+A scene is data. ``load_scene`` validates everything a run needs before any process starts, and
+raises ``SceneError`` with one line saying what is wrong and how to fix it.
+
+    name = "circle"
+    robots = 20              # --robots overrides
+    seed = 1
+    clock = "lockstep"       # or "realtime"
+    duration = 120.0         # seconds of display time at most
+    [robot]                  # robot parameters (paper Table 1 defaults), e.g. kinematics = "holonomic"
+    [layout]                 # kind = "circle" | "grid" | "random" | "rows" | "blocks" | "file"
+    [goals]                  # kind = "antipodal" | "swap" | "list" | "none"
+    [arena]                  # size = [width, height] (centred on the origin), or "auto"
+    [[obstacles]]            # vertices = [[x, y], ...] counter-clockwise
+    [[events]]               # t = 10.0, kind = "teleport", robot = 3, pose = [x, y, theta]
+    [noise]                  # tracking_xy = 0.002, tracking_theta_deg = 3.0, actuation = 0.02
+    [end]                    # converge_hold = 1.0 (end after all robots hold their goals this long)
+"""
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+SCENE_DIR = Path(__file__).parent / "scenes"
+LAYOUTS = ("circle", "grid", "random", "rows", "blocks", "file")
+GOAL_KINDS = ("antipodal", "swap", "list", "none")
+CLOCKS = ("lockstep", "realtime")
+DEFAULT_RADIUS = 0.045
+
+
+class SceneError(ValueError):
+    """A scene cannot be run; the message is one line for the user."""
+
+
+@dataclass
+class Noise:
+    tracking_xy: float = 0.002  # paper 7.1: localised with a precision of 2 mm ...
+    tracking_theta_deg: float = 3.0  # ... and 3 degrees
+    actuation: float = 0.02  # relative std of wheel-speed / velocity execution
+
+
+@dataclass
+class Scene:
+    name: str
+    robots: int
+    robot: dict[str, Any]
+    layout: dict[str, Any]
+    goals: dict[str, Any]
+    arena: tuple[float, float, float, float]
+    obstacles: list[list[tuple[float, float]]]
+    events: list[dict[str, Any]]
+    clock: str = "lockstep"
+    duration: float = 120.0
+    seed: int = 1
+    noise: Noise = field(default_factory=Noise)
+    converge_hold: float = 1.0
+    source: str = ""
+    poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # initial poses (N,3)
+    goal_positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # per-robot goals (N,2), NaN: none
+
+    @property
+    def radius(self) -> float:
+        return float(self.robot.get("radius", DEFAULT_RADIUS))
+
+
+def shipped_scenes() -> list[str]:
+    return sorted(p.stem for p in SCENE_DIR.glob("*.toml"))
+
+
+def resolve_scene_path(name_or_path: str) -> Path:
+    path = Path(name_or_path)
+    if path.suffix == ".toml" or path.exists():
+        if not path.is_file():
+            raise SceneError(f"scene file {name_or_path} not found (shipped scenes: {', '.join(shipped_scenes())})")
+        return path
+    shipped = SCENE_DIR / f"{name_or_path}.toml"
+    if shipped.is_file():
+        return shipped
+    raise SceneError(f"unknown scene {name_or_path!r}: give a .toml path or one of {', '.join(shipped_scenes())}")
+
+
+def load_scene(name_or_path: str, *, robots: int | None = None, seed: int | None = None,
+               clock: str | None = None, duration: float | None = None) -> Scene:
+    """Read, complete and validate a scene; command-line overrides win over the file."""
+    path = resolve_scene_path(name_or_path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as err:
+        raise SceneError(f"{path}: not valid TOML: {err}") from None
+    except OSError as err:
+        raise SceneError(f"{path}: cannot read: {err.strerror}") from None
+    return scene_from_dict(data, source=str(path), robots=robots, seed=seed, clock=clock, duration=duration)
+
+
+def scene_from_dict(data: dict[str, Any], *, source: str = "<dict>", robots: int | None = None,
+                    seed: int | None = None, clock: str | None = None, duration: float | None = None) -> Scene:
+    where = source
+    known = {"name", "robots", "seed", "clock", "duration", "robot", "layout", "goals", "arena", "obstacles",
+             "events", "noise", "end", "description"}
+    unknown = set(data) - known
+    if unknown:
+        raise SceneError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
+    n = robots if robots is not None else data.get("robots", 14)
+    if not isinstance(n, int) or isinstance(n, bool) or n < 1:
+        raise SceneError(f"{where}: robots must be a whole number >= 1, not {n!r}")
+    robot = dict(data.get("robot", {}))
+    radius = robot.get("radius", DEFAULT_RADIUS)
+    if not _positive(radius):
+        raise SceneError(f"{where}: robot radius must be a positive number of metres, not {radius!r}")
+    scene = Scene(
+        name=str(data.get("name", Path(source).stem)),
+        robots=n,
+        robot=robot,
+        layout=dict(data.get("layout", {"kind": "grid"})),
+        goals=dict(data.get("goals", {"kind": "none"})),
+        arena=(0.0, 0.0, 0.0, 0.0),
+        obstacles=[],
+        events=list(data.get("events", [])),
+        clock=clock or data.get("clock", "lockstep"),
+        duration=float(duration if duration is not None else data.get("duration", 120.0)),
+        seed=int(seed if seed is not None else data.get("seed", 1)),
+        noise=_noise(data.get("noise", {}), where),
+        converge_hold=float(data.get("end", {}).get("converge_hold", 1.0)),
+        source=source,
+    )
+    if scene.clock not in CLOCKS:
+        raise SceneError(f"{where}: clock must be one of {', '.join(CLOCKS)}, not {scene.clock!r}")
+    if not _positive(scene.duration):
+        raise SceneError(f"{where}: duration must be a positive number of seconds")
+    scene.obstacles = [_polygon(o, where) for o in data.get("obstacles", [])]
+    scene.poses = initial_poses(scene.layout, n, radius, scene.seed, where)
+    scene.goal_positions = scene_goals(scene.goals, scene.poses, where)
+    scene.arena = _arena(data.get("arena", "auto"), scene, where)
+    _check_fit(scene, where)
+    for event in scene.events:
+        _check_event(event, scene, where)
+    return scene
+
+
+# --- layouts -------------------------------------------------------------------------------------
+def initial_poses(layout: dict[str, Any], n: int, radius: float, seed: int, where: str = "scene") -> np.ndarray:
+    """Initial poses (N,3) of a layout; headings face the arena centre for circle and rows."""
+    kind = layout.get("kind", "grid")
+    spacing = float(layout.get("spacing", 4.0 * radius))
+    if kind == "circle":
+        # Auto radius keeps neighbours on the circle `spacing` apart (RVO2's Circle, at display scale).
+        r = float(layout.get("radius", max(spacing * n / (2 * math.pi), 2 * spacing)))
+        a = 2 * math.pi * np.arange(n) / n
+        return np.stack([r * np.cos(a), r * np.sin(a), a + math.pi], axis=1)
+    if kind == "grid":
+        cols = int(layout.get("cols", math.ceil(math.sqrt(n))))
+        rows = math.ceil(n / cols)
+        i = np.arange(n)
+        x = (i % cols - (cols - 1) / 2) * spacing
+        y = ((rows - 1) / 2 - i // cols) * spacing
+        return np.stack([x, y, np.full(n, float(layout.get("heading", math.pi / 2)))], axis=1)
+    if kind == "rows":
+        # Two facing rows: robots 0..n/2-1 at the bottom facing up, the rest at the top facing down.
+        gap = float(layout.get("gap", 1.0))
+        bottom = (n + 1) // 2
+        xs_b = (np.arange(bottom) - (bottom - 1) / 2) * spacing
+        xs_t = (np.arange(n - bottom) - (n - bottom - 1) / 2) * spacing
+        y = np.r_[np.full(bottom, -gap / 2), np.full(n - bottom, gap / 2)]
+        th = np.r_[np.full(bottom, math.pi / 2), np.full(n - bottom, -math.pi / 2)]
+        return np.stack([np.r_[xs_b, xs_t], y, th], axis=1)
+    if kind == "blocks":
+        # RVO2's Blocks: four square groups in the corners, centre `offset` from the origin.
+        per = math.ceil(n / 4)
+        side = math.ceil(math.sqrt(per))
+        offset = float(layout.get("offset", 1.7))
+        pts = []
+        for q, (sx, sy) in enumerate([(1, 1), (-1, 1), (1, -1), (-1, -1)]):
+            for k in range(per):
+                if len(pts) == n:
+                    break
+                gx = (k % side - (side - 1) / 2) * spacing
+                gy = (k // side - (side - 1) / 2) * spacing
+                pts.append((sx * offset + gx, sy * offset + gy, math.atan2(-sy, -sx)))
+        return np.array(pts, float)
+    if kind == "random":
+        width, height = layout.get("size", [max(1.0, spacing * math.sqrt(n) * 1.5)] * 2)
+        rng = np.random.default_rng(seed)
+        pts: list[tuple[float, float]] = []
+        tries = 0
+        while len(pts) < n:
+            tries += 1
+            if tries > 200 * n:
+                raise SceneError(f"{where}: cannot place {n} robots {spacing} m apart in a {width} x {height} m area")
+            p = (rng.uniform(-width / 2, width / 2), rng.uniform(-height / 2, height / 2))
+            if all((p[0] - q[0]) ** 2 + (p[1] - q[1]) ** 2 >= spacing**2 for q in pts):
+                pts.append(p)
+        th = rng.uniform(-math.pi, math.pi, n)
+        return np.column_stack([np.array(pts), th])
+    if kind == "file":
+        path = Path(layout.get("path", ""))
+        try:
+            arr = np.loadtxt(path, delimiter=",", ndmin=2)
+        except (OSError, ValueError) as err:
+            raise SceneError(f"{where}: layout file {path}: {err}") from None
+        if arr.shape[1] == 2:
+            arr = np.column_stack([arr, np.zeros(len(arr))])
+        if arr.shape[1] != 3 or len(arr) < n:
+            raise SceneError(f"{where}: layout file {path} needs {n} rows of x,y[,theta]")
+        return arr[:n].astype(float)
+    raise SceneError(f"{where}: layout kind must be one of {', '.join(LAYOUTS)}, not {kind!r}")
+
+
+def scene_goals(goals: dict[str, Any], poses: np.ndarray, where: str = "scene") -> np.ndarray:
+    """Per-robot goals (N,2) of a scene; NaN rows where a robot has none."""
+    kind = goals.get("kind", "none")
+    xy = poses[:, :2]
+    if kind == "antipodal":
+        return -xy.copy()
+    if kind == "swap":
+        return np.column_stack([xy[:, 0], -xy[:, 1]])
+    if kind == "none":
+        return np.full_like(xy, np.nan)
+    if kind == "list":
+        pts = np.asarray(goals.get("positions", []), float)
+        if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < len(xy):
+            raise SceneError(f"{where}: goals.positions needs {len(xy)} [x, y] pairs")
+        return pts[: len(xy)].copy()
+    raise SceneError(f"{where}: goals kind must be one of {', '.join(GOAL_KINDS)}, not {kind!r}")
+
+
+# --- checks --------------------------------------------------------------------------------------
+def _arena(spec: Any, scene: Scene, where: str) -> tuple[float, float, float, float]:
+    if spec == "auto" or spec is None:
+        pts = [scene.poses[:, :2]]
+        goals = scene.goal_positions[~np.isnan(scene.goal_positions).any(axis=1)]
+        pts.append(goals)
+        pts += [np.asarray(o) for o in scene.obstacles]
+        allp = np.vstack(pts)
+        margin = 4 * scene.radius + 0.1
+        lo, hi = allp.min(axis=0) - margin, allp.max(axis=0) + margin
+        return (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+    size = spec.get("size") if isinstance(spec, dict) else None
+    if not (isinstance(size, list) and len(size) == 2 and all(_positive(s) for s in size)):
+        raise SceneError(f"{where}: arena must be \"auto\" or have size = [width, height] in metres")
+    w, h = float(size[0]), float(size[1])
+    return (-w / 2, -h / 2, w / 2, h / 2)
+
+
+def _check_fit(scene: Scene, where: str) -> None:
+    xmin, ymin, xmax, ymax = scene.arena
+    r = scene.radius
+    xy = scene.poses[:, :2]
+    outside = (xy[:, 0] - r < xmin) | (xy[:, 0] + r > xmax) | (xy[:, 1] - r < ymin) | (xy[:, 1] + r > ymax)
+    if outside.any():
+        raise SceneError(f"{where}: {int(outside.sum())} of {scene.robots} robots do not fit in the "
+                         f"{xmax - xmin:.2f} x {ymax - ymin:.2f} m arena; enlarge [arena] size or use fewer robots")
+    if len(xy) > 1:
+        from scipy.spatial import cKDTree
+
+        d, _ = cKDTree(xy).query(xy, k=2)
+        if d[:, 1].min() < 2 * r:
+            raise SceneError(f"{where}: robots start overlapping (closest centres {d[:, 1].min():.3f} m, "
+                             f"diameter {2 * r:.3f} m); increase layout spacing")
+
+
+def _check_event(event: dict[str, Any], scene: Scene, where: str) -> None:
+    if event.get("kind") != "teleport":
+        raise SceneError(f"{where}: event kind must be \"teleport\", not {event.get('kind')!r}")
+    robot, pose, t = event.get("robot"), event.get("pose"), event.get("t")
+    if not (isinstance(robot, int) and 0 <= robot < scene.robots):
+        raise SceneError(f"{where}: teleport event robot must be an index in 0..{scene.robots - 1}")
+    if not (isinstance(pose, list) and len(pose) == 3 and _positive(t)):
+        raise SceneError(f"{where}: teleport event needs t > 0 and pose = [x, y, theta]")
+
+
+def _noise(data: dict[str, Any], where: str) -> Noise:
+    try:
+        noise = Noise(**{k: float(v) for k, v in data.items()})
+    except (TypeError, ValueError):
+        raise SceneError(f"{where}: [noise] takes tracking_xy, tracking_theta_deg and actuation (numbers)") from None
+    if min(noise.tracking_xy, noise.tracking_theta_deg, noise.actuation) < 0:
+        raise SceneError(f"{where}: noise levels must be >= 0")
+    return noise
+
+
+def _polygon(obstacle: Any, where: str) -> list[tuple[float, float]]:
+    verts = obstacle.get("vertices") if isinstance(obstacle, dict) else None
+    if not (isinstance(verts, list) and len(verts) >= 3 and all(isinstance(v, list) and len(v) == 2 for v in verts)):
+        raise SceneError(f"{where}: each obstacle needs vertices = [[x, y], ...] with at least 3 points")
+    pts = [(float(x), float(y)) for x, y in verts]
+    area2 = sum(x0 * y1 - x1 * y0 for (x0, y0), (x1, y1) in zip(pts, pts[1:] + pts[:1]))
+    return pts if area2 > 0 else pts[::-1]  # counter-clockwise, as ORCA's obstacle lines expect
+
+
+def _positive(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0

@@ -1,0 +1,138 @@
+"""The `pixelswarm` command: run a scene, run a router, make goals from an image, list scenes."""
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import time
+from pathlib import Path
+
+from coordinator.scene import SceneError, load_scene, shipped_scenes
+from transport.faults import parse_faults
+from transport.session import TransportError, ZenohSettings, add_zenoh_args, open_session, settings_from_args
+
+from .rundir import default_run_path
+
+
+class UsageError(Exception):
+    """Bad input from the user: one line, exit code 2."""
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, not {value}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="pixelswarm", description="Image and animation display with robot swarms.")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    run = sub.add_parser("run", help="run a scene: router, world, tracker, coordinator and one process per robot")
+    run.add_argument("scene", help=f"a shipped scene ({', '.join(shipped_scenes())}) or a path to a scene .toml")
+    run.add_argument("--robots", "-n", type=_positive_int, help="number of robots (overrides the scene)")
+    run.add_argument("--seed", type=int, help="random seed (overrides the scene)")
+    run.add_argument("--clock", choices=["realtime", "lockstep"], help="clock (overrides the scene)")
+    run.add_argument("--duration", type=float, help="seconds of display time at most (overrides the scene)")
+    run.add_argument("--out", type=Path, help="run directory (default runs/<UTC time>-<scene>)")
+    run.add_argument("--no-video", dest="video", action="store_false", help="skip display.mp4")
+    run.add_argument("--agents-per-process", "-k", type=_positive_int, default=1, metavar="K",
+                     help="robots per agent process (default 1: one process per robot)")
+    run.add_argument("--faults", default="", metavar="PLAN",
+                     help="fault injection, e.g. 'state:drop=0.1,delay=0.05,jitter=0.01' (';' between kinds)")
+    run.add_argument("--deadline", type=float, default=2.0, help="lock-step: seconds to wait for late agents")
+    run.add_argument("--display", default="default", help="display name (key prefix), for several swarms")
+    run.add_argument("--quiet", "-q", action="store_true", help="no progress output")
+    add_zenoh_args(run, default_mode="router")
+    run.set_defaults(func=cmd_run)
+
+    router = sub.add_parser("router", help="run a standalone zenoh router (for several machines or processes)")
+    add_zenoh_args(router, default_mode="router")
+    router.set_defaults(func=cmd_router)
+
+    scenes = sub.add_parser("scenes", help="list the shipped scenes")
+    scenes.set_defaults(func=cmd_scenes)
+
+    try:
+        from coordinator.goals_cli import add_goals_parser
+    except ImportError:  # goal generation not installed in this build
+        pass
+    else:
+        add_goals_parser(sub)
+    return parser
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from .launcher import Interrupted, Launcher, RunOptions  # heavy imports only when running
+
+    try:
+        scene = load_scene(args.scene, robots=args.robots, seed=args.seed, clock=args.clock, duration=args.duration)
+        faults = parse_faults(args.faults)
+    except (SceneError, ValueError) as err:
+        raise UsageError(str(err)) from None
+    out = args.out or default_run_path(scene.name)
+    if out.exists() or out.with_name(out.name + ".partial").exists():
+        raise UsageError(f"run directory {out} already exists; choose another --out")
+    router = None
+    if args.mode != "router":
+        raise UsageError("pixelswarm run embeds a router; to join an existing one use -e tcp/HOST:PORT")
+    if args.listen:
+        router = ZenohSettings(mode="router", listen=list(args.listen), connect=list(args.connect))
+    options = RunOptions(out=out, video=args.video, agents_per_process=args.agents_per_process,
+                         display=args.display, router=router, connect=[] if args.listen else list(args.connect),
+                         faults=faults, deadline=args.deadline, progress=None if args.quiet else sys.stderr)
+    try:
+        path = Launcher(scene, options).run()
+    except TransportError as err:
+        raise UsageError(str(err)) from None
+    except Interrupted:
+        print("pixelswarm: interrupted; no run directory written", file=sys.stderr)
+        return 130
+    print(path)
+    return 0
+
+
+def cmd_router(args: argparse.Namespace) -> int:
+    settings = settings_from_args(args)
+    if settings.mode != "router":
+        raise UsageError("pixelswarm router runs in router mode; drop -m")
+    if not settings.listen:
+        settings.listen = ["tcp/127.0.0.1:7447"]
+    session = open_session(settings)
+    stop = []
+    for s in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(s, lambda *_: stop.append(1))
+    print(f"router listening on {', '.join(settings.listen)} (Ctrl-C to stop)", flush=True)
+    try:
+        while not stop:
+            time.sleep(0.1)
+    finally:
+        session.close()
+    return 0
+
+
+def cmd_scenes(args: argparse.Namespace) -> int:
+    for name in shipped_scenes():
+        scene = load_scene(name)
+        print(f"{name:16s} {scene.robots:4d} robots  {scene.robot.get('kinematics', 'diffdrive'):10s}  {scene.source}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except (UsageError, TransportError) as err:
+        print(f"pixelswarm {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,286 @@
+"""The launcher: embeds a router, starts coordinator, world and agent processes, records the run.
+
+Every participant is a real OS process talking over a real zenoh router on loopback. Children run
+in their own process group (a terminal's Ctrl-C reaches only the launcher, which then shuts them
+down in order) and exit by themselves if the launcher disappears.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+
+from agent.core.params import RobotParams
+from agent.runtime import HostConfig
+from coordinator.scene import Scene
+from transport.bus import Bus
+from transport.codec import Event
+from transport.faults import FaultPlan, format_faults
+from transport.session import ZenohSettings, client_of, loopback_router
+
+from .metrics import clearance_over_time, summarise
+from .recorder import Recorder
+from .render import write_plots, write_video
+from .rundir import RunDir, write_json, write_npz
+
+
+@dataclass
+class RunOptions:
+    out: Path
+    video: bool = True
+    agents_per_process: int = 1
+    display: str = "default"
+    router: ZenohSettings | None = None  # None: embed one on a free loopback port
+    connect: list[str] = field(default_factory=list)  # an external router to join instead of embedding
+    faults: FaultPlan = field(default_factory=dict)
+    deadline: float = 2.0
+    progress: TextIO | None = sys.stderr
+    startup_timeout: float = 90.0
+
+
+@dataclass
+class Child:
+    name: str
+    proc: subprocess.Popen
+    robots: list[int]
+    log: Path
+
+
+class Interrupted(Exception):
+    pass
+
+
+class Launcher:
+    def __init__(self, scene: Scene, options: RunOptions) -> None:
+        self.scene, self.opt = scene, options
+        self.params = RobotParams.from_dict(scene.robot)
+        self.children: list[Child] = []
+        self.crashes: list[dict[str, Any]] = []
+        self.stop_signal: int | None = None
+        self.run_dir = RunDir(options.out)
+
+    # --- processes ----------------------------------------------------------------------------
+    def _spawn(self, name: str, module: str, args: list[str], robots: list[int]) -> Child:
+        log = self.run_dir / "logs" / f"{name}.log"
+        log.parent.mkdir(exist_ok=True)
+        with open(log, "w") as fh:
+            proc = subprocess.Popen([sys.executable, "-m", module, *args, *self.client.to_args()],
+                                    stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                    start_new_session=True, cwd=os.getcwd())
+        child = Child(name, proc, robots, log)
+        self.children.append(child)
+        return child
+
+    def _scene_args(self) -> list[str]:
+        s = self.scene
+        return ["--scene", s.source, "--robots", str(s.robots), "--seed", str(s.seed), "--display", self.opt.display]
+
+    def _start_agents(self) -> None:
+        k = max(1, self.opt.agents_per_process)
+        ids = list(range(self.scene.robots))
+        cfg_dir = self.run_dir / "config"
+        cfg_dir.mkdir(exist_ok=True)
+        faults = ["--faults", format_faults(self.opt.faults)] if self.opt.faults else []
+        for h in range(math.ceil(len(ids) / k)):
+            robots = ids[h * k:(h + 1) * k]
+            config = HostConfig(robots=robots, params=self.params, display=self.opt.display, seed=self.scene.seed,
+                                arena=self.scene.arena, obstacles=self.scene.obstacles)
+            path = cfg_dir / f"agents-{h:04d}.json"
+            path.write_text(config.to_json())
+            self._spawn(f"agent-{h:04d}", "agent", ["--config", str(path), *faults], robots)
+
+    def _check_children(self, recorder: Recorder) -> None:
+        for child in self.children:
+            code = child.proc.poll()
+            if code is None or getattr(child, "reported", False):
+                continue
+            child.reported = True  # type: ignore[attr-defined]
+            if child.name.startswith("agent"):
+                self.crashes.append({"process": child.name, "pid": child.proc.pid, "robots": child.robots,
+                                     "returncode": code, "sim_time_s": recorder.sim_time,
+                                     "noticed_wall_time": time.time()})
+                self._say(f"agent process {child.name} (pid {child.proc.pid}, robots {child.robots}) exited "
+                          f"with code {code}; its robots stay in the world, stopped", force=True)
+            elif child.name == "world":
+                self.world_exit = code
+
+    def _stop_children(self) -> None:
+        self.shutdown_wall = min(time.time(), getattr(self, "shutdown_wall", float("inf")))
+        for child in self.children:
+            if child.proc.poll() is None:
+                child.proc.send_signal(signal.SIGTERM)
+        deadline = time.monotonic() + 5.0
+        for child in self.children:
+            try:
+                child.proc.wait(timeout=max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                child.proc.kill()
+                child.proc.wait(timeout=5)
+
+    # --- progress -----------------------------------------------------------------------------
+    def _say(self, text: str, force: bool = False) -> None:
+        out = self.opt.progress
+        if out is None:
+            return
+        now = time.monotonic()
+        if force or now - getattr(self, "_last_say", 0.0) >= 1.0:
+            self._last_say = now
+            print(text, file=out, flush=True)
+
+    def _progress(self, rec: Recorder) -> None:
+        if not rec.traj.t:
+            return
+        pose = rec.traj.pose[-1]
+        err = np.hypot(*(pose[:, :2] - rec.goal).T)
+        at_goal = int(np.sum(err <= self.params.goal_tolerance))
+        with_goal = int(np.sum(np.isfinite(err)))
+        self._say(f"[{self.scene.name}] t={rec.sim_time:6.1f} s  at goal {at_goal}/{with_goal}  "
+                  f"min clearance {rec.last_min_clearance:+.3f} m  contacts {len(rec.contacts)}")
+
+    # --- the run ------------------------------------------------------------------------------
+    def _on_signal(self, signum: int, frame: object) -> None:
+        if self.stop_signal is not None:
+            raise Interrupted()  # a second Ctrl-C: stop writing too
+        self.stop_signal = signum
+
+    def run(self) -> Path:
+        previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            return self._run()
+        except BaseException:
+            self._stop_children()
+            self.run_dir.abort()
+            raise
+        finally:
+            for s, handler in previous.items():
+                signal.signal(s, handler)
+
+    def _run(self) -> Path:
+        wall0 = time.time()
+        if self.opt.connect:
+            settings = ZenohSettings(mode="client", connect=list(self.opt.connect))
+            self.client = settings
+        else:
+            settings = self.opt.router or loopback_router()
+            self.client = client_of(settings)
+        bus = Bus(settings, self.opt.display, name="launcher")
+        self.world_exit: int | None = None
+        try:
+            recorder = Recorder(bus, self.scene.robots, self.params.goal_tolerance, str(self.run_dir / "log.mcap"))
+            endpoint = ", ".join(settings.listen or settings.connect)
+            self._say(f"[{self.scene.name}] {self.scene.robots} robots, {self.scene.clock} clock, router {endpoint}",
+                      force=True)
+            coord = self._spawn("coordinator", "coordinator.service", self._scene_args(), [])
+            self._wait_alive(recorder, "coordinator", 1, coord)
+            self._start_agents()
+            world_args = self._scene_args() + ["--clock", self.scene.clock, "--duration", str(self.scene.duration),
+                                               "--deadline", str(self.opt.deadline)]
+            self._spawn("world", "sim.world_node", world_args, [])
+            end_reason = self._loop(bus, recorder)
+            self._stop_children()
+            settle = time.monotonic() + 0.5  # final statistics from agents
+            while time.monotonic() < settle:
+                recorder.poll()
+                time.sleep(0.05)
+            recorder.close_log()
+        finally:
+            bus.close()
+        return self._write(recorder, end_reason, time.time() - wall0)
+
+    def _wait_alive(self, rec: Recorder, role: str, count: int, child: Child) -> None:
+        start = time.monotonic()
+        seen: set[str] = set()
+        while len(seen) < count:
+            rec.poll()
+            seen |= {e["id"] for e in rec.liveliness if e["role"] == role and e["alive"]}
+            if child.proc.poll() is not None:
+                raise RuntimeError(f"{child.name} exited with code {child.proc.returncode}: see {child.log}")
+            if self.stop_signal is not None:
+                raise Interrupted()
+            if time.monotonic() - start > self.opt.startup_timeout:
+                raise RuntimeError(f"{role} did not come alive within {self.opt.startup_timeout:.0f} s")
+            time.sleep(0.02)
+
+    def _loop(self, bus: Bus, rec: Recorder) -> str:
+        end_sent = False
+        while True:
+            rec.poll()
+            self._check_children(rec)
+            done = next((e for e in rec.events if e.get("kind") == "world-done"), None)
+            if done is not None:
+                self.world_stats = done
+                return "converged" if end_sent else str(done.get("reason", "duration"))
+            if self.world_exit is not None:
+                self.world_stats = {}
+                raise RuntimeError(f"the world process exited with code {self.world_exit}: see logs/world.log")
+            if self.stop_signal is not None and not end_sent:
+                bus.publish(bus.keys.event, Event({"kind": "end", "reason": "interrupted"}))
+                end_sent = True
+                self.interrupted = True
+            if not end_sent and rec.held_converged(rec.sim_time, self.scene.converge_hold):
+                bus.publish(bus.keys.event, Event({"kind": "end", "reason": "converged"}))
+                end_sent = True
+            self._progress(rec)
+            time.sleep(0.01)
+
+    # --- outputs ------------------------------------------------------------------------------
+    def _write(self, rec: Recorder, end_reason: str, wall_s: float) -> Path:
+        interrupted = getattr(self, "interrupted", False)
+        if interrupted:
+            end_reason = "interrupted"
+        arrays = rec.arrays()
+        n = self.scene.robots
+        radius = np.full(n, self.params.radius)
+        stats = getattr(self, "world_stats", {})
+        agent_stats = [e for e in rec.events if e.get("kind") == "stats" and e.get("role") == "agent"]
+        dropped: dict[str, int] = dict(rec.drops)
+        for s in agent_stats + [stats]:
+            for reason, k in (s.get("dropped") or {}).items():
+                dropped[reason] = dropped.get(reason, 0) + int(k)
+        clearance = clearance_over_time(arrays["pose"], radius) if len(arrays["t"]) else np.zeros(0)
+        if len(clearance) and stats.get("min_clearance") is not None:
+            clearance = clearance  # tick samples; the world's substep minimum is reported separately
+        lost = [e for e in rec.liveliness if e["role"] == "agent" and not e["alive"]
+                and e["wall_time"] < getattr(self, "shutdown_wall", float("inf"))]
+        self._say(f"[{self.scene.name}] run ended ({end_reason}); writing {self.run_dir.path.name}", force=True)
+        metrics = summarise(
+            t=arrays["t"], pose=arrays["pose"], radius=radius, wall_s=wall_s, contacts=len(stats.get("contacts", [])),
+            message_counts=rec.counts, message_bytes=rec.bytes, missed_ticks=int(stats.get("missed_ticks", 0)),
+            agents_crashed=len(self.crashes), goal=arrays["goal"], tolerance=self.params.goal_tolerance,
+            clearance=clearance,
+            scene=self.scene.name, seed=self.scene.seed, clock=self.scene.clock, end_reason=end_reason,
+            complete=not interrupted, engine="distributed", agents_per_process=self.opt.agents_per_process,
+            agent_processes=sum(c.name.startswith("agent") for c in self.children),
+            min_clearance_substep_m=stats.get("min_clearance"),
+            contact_events=stats.get("contacts", []),
+            commands_applied=int(sum(stats.get("commands_applied", []))),
+            commands_sent=int(rec.counts.get("cmd", 0)),
+            late_commands=int(stats.get("late_commands", 0)),
+            orca_fallbacks=int(sum(s.get("fallbacks", 0) for s in agent_stats)),
+            dropped_messages=dropped, crashes=self.crashes,
+            liveliness_lost=[{"robot": e["id"], "wall_time": e["wall_time"]} for e in lost],
+            faults=format_faults(self.opt.faults),
+        )
+        d = self.run_dir
+        write_json(d / "metrics.json", metrics)
+        write_npz(d / "trajectory.npz", radius=radius, **arrays)
+        if len(arrays["t"]):
+            write_plots(d.path, arrays["t"], clearance, arrays["pose"], radius, self.scene.arena,
+                        self.scene.obstacles, arrays["goal"], color=arrays["color"])
+            if self.opt.video and not interrupted:
+                write_video(d / "display.mp4", arrays["t"], arrays["pose"], radius, arrays["color"],
+                            self.scene.arena, self.scene.obstacles, arrays["goal"])
+        write_json(d / "scene.json", {"name": self.scene.name, "source": self.scene.source, "robots": n,
+                                      "seed": self.scene.seed, "clock": self.scene.clock,
+                                      "arena": self.scene.arena, "obstacles": self.scene.obstacles,
+                                      "robot": self.params.to_dict()})
+        return d.commit()

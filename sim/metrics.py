@@ -1,0 +1,235 @@
+"""Run metrics from true world poses.  Pure functions (numpy + scipy), no zenoh.
+
+Shapes: ``t`` (T,), ``pose`` (T,N,3) as (x, y, theta), ``radius`` (N,), ``goal`` (T,N,2) with NaN
+where a robot has no goal.  Robots with non-finite positions at a sample (not yet spawned,
+removed) are ignored at that sample.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+__all__ = [
+    "clearance_over_time",
+    "clearance_at",
+    "contact_events",
+    "path_lengths",
+    "time_to_converge",
+    "summarise",
+]
+
+
+def _check_pose(pose: np.ndarray) -> np.ndarray:
+    pose = np.asarray(pose, dtype=float)
+    if pose.ndim != 3 or pose.shape[2] < 2:
+        raise ValueError(f"pose must have shape (T, N, 3), got {pose.shape}")
+    return pose
+
+
+def _radius(radius: Any, n: int) -> np.ndarray:
+    r = np.asarray(radius, dtype=float)
+    return np.broadcast_to(r, (n,)).astype(float) if r.ndim == 0 else r.reshape(n)
+
+
+def clearance_at(xy: np.ndarray, radius: np.ndarray) -> float:
+    """Minimum over pairs of ``|p_i - p_j| - r_i - r_j`` at one instant; +inf for fewer than 2
+    robots.  Non-finite positions are ignored.  Exact for any radii."""
+    xy = np.asarray(xy, dtype=float)[:, :2]
+    radius = np.asarray(radius, dtype=float)
+    ok = np.isfinite(xy).all(axis=1)
+    if not ok.all():
+        xy, radius = xy[ok], radius[ok]
+    n = len(xy)
+    if n < 2:
+        return float("inf")
+    if n <= 48:  # small: brute force
+        d = np.sqrt(((xy[:, None, :] - xy[None, :, :]) ** 2).sum(-1)) - radius[:, None] - radius[None, :]
+        iu = np.triu_indices(n, 1)
+        return float(d[iu].min())
+    tree = cKDTree(xy)
+    dist, idx = tree.query(xy, k=2)
+    nn_d, nn_j = dist[:, 1], idx[:, 1]
+    ub = float((nn_d - radius - radius[nn_j]).min())
+    rmin, rmax = float(radius.min()), float(radius.max())
+    if rmax == rmin:
+        return ub  # equal radii: the nearest centres give the smallest clearance
+    # Unequal radii: any pair better than ub has |p_i - p_j| < ub + r_i + r_j <= ub + 2 rmax.
+    pairs = tree.query_pairs(max(ub + 2 * rmax, 0.0), output_type="ndarray")
+    if len(pairs) == 0:
+        return ub
+    i, j = pairs[:, 0], pairs[:, 1]
+    c = np.sqrt(((xy[i] - xy[j]) ** 2).sum(-1)) - radius[i] - radius[j]
+    return float(min(ub, c.min()))
+
+
+def clearance_over_time(pose: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """(T,) minimum pairwise clearance (centre distance minus both radii) per sample.
+
+    Negative means overlap (contact).  +inf where fewer than two robots are present (N=1).
+    Uses a k-d tree per sample: N=1000, T=3000 takes a few seconds.
+    """
+    pose = _check_pose(pose)
+    T, N = pose.shape[:2]
+    r = _radius(radius, N)
+    out = np.full(T, np.inf)
+    if N < 2:
+        return out
+    for k in range(T):
+        out[k] = clearance_at(pose[k, :, :2], r)
+    return out
+
+
+def contact_events(pose: np.ndarray, radius: np.ndarray, tolerance: float = 0.0) -> int:
+    """Number of pair-contact events: a pair (i, j) starting to overlap (clearance < -tolerance)
+    at a sample where it did not overlap at the previous sample (counts the first sample too)."""
+    pose = _check_pose(pose)
+    T, N = pose.shape[:2]
+    r = _radius(radius, N)
+    if N < 2:
+        return 0
+    rmax = float(r.max())
+    prev: set[tuple[int, int]] = set()
+    events = 0
+    for k in range(T):
+        xy = pose[k, :, :2]
+        ok = np.flatnonzero(np.isfinite(xy).all(axis=1))
+        cur: set[tuple[int, int]] = set()
+        if len(ok) >= 2:
+            sub = xy[ok]
+            pairs = cKDTree(sub).query_pairs(2 * rmax, output_type="ndarray")
+            if len(pairs):
+                i, j = ok[pairs[:, 0]], ok[pairs[:, 1]]
+                c = np.sqrt(((xy[i] - xy[j]) ** 2).sum(-1)) - r[i] - r[j]
+                hit = c < -tolerance
+                cur = set(zip(i[hit].tolist(), j[hit].tolist()))
+        events += len(cur - prev)
+        prev = cur
+    return events
+
+
+def path_lengths(pose: np.ndarray) -> np.ndarray:
+    """(N,) length of each robot's xy path (steps touching a non-finite sample are skipped)."""
+    pose = _check_pose(pose)
+    if pose.shape[0] < 2:
+        return np.zeros(pose.shape[1])
+    step = np.sqrt((np.diff(pose[:, :, :2], axis=0) ** 2).sum(-1))
+    return np.nansum(np.where(np.isfinite(step), step, np.nan), axis=0)
+
+
+def time_to_converge(t: np.ndarray, pose: np.ndarray, goal: np.ndarray, tolerance: float) -> float | None:
+    """First time ``t[k]`` such that from sample k to the end every robot that has a goal
+    (finite ``goal[s, i]``) at sample s is within ``tolerance`` of it (Euclidean, xy).
+
+    Returns a value of ``t`` (so with ``t[0] == 0`` it is the duration).  None if the condition
+    does not hold at the last sample, or if no robot ever has a goal.
+    """
+    t = np.asarray(t, dtype=float)
+    pose = _check_pose(pose)
+    goal = np.asarray(goal, dtype=float)
+    T, N = pose.shape[:2]
+    if goal.shape != (T, N, 2) or t.shape != (T,):
+        raise ValueError(f"shapes: t {t.shape}, pose {pose.shape}, goal {goal.shape}")
+    if T == 0:
+        return None
+    has_goal = np.isfinite(goal).all(axis=2)  # (T, N)
+    if not has_goal.any():
+        return None
+    err = np.sqrt(((pose[:, :, :2] - goal) ** 2).sum(-1))
+    within = np.where(has_goal, err <= tolerance, True)  # NaN pose -> err NaN -> False
+    ok = within.all(axis=1)  # (T,)
+    if not ok[-1]:
+        return None
+    bad = np.flatnonzero(~ok)
+    k = 0 if len(bad) == 0 else int(bad[-1]) + 1
+    return float(t[k])
+
+
+def _per_robot_second(values: Mapping[str, float] | None, robots: int, duration_s: float) -> dict[str, float | None]:
+    if not values:
+        return {}
+    denom = robots * duration_s
+    return {str(k): (float(v) / denom if denom > 0 else None) for k, v in values.items()}
+
+
+def summarise(
+    *,
+    t: np.ndarray,
+    pose: np.ndarray,
+    radius: np.ndarray,
+    wall_s: float,
+    contacts: int,
+    message_counts: Mapping[str, int] | None = None,
+    message_bytes: Mapping[str, int] | None = None,
+    missed_ticks: int = 0,
+    agents_crashed: int = 0,
+    goal: np.ndarray | None = None,
+    tolerance: float = 0.05,
+    clearance: np.ndarray | None = None,
+    **extra: Any,
+) -> dict[str, Any]:
+    """The metrics.json dict.
+
+    ``t`` (T,) seconds, ``pose`` (T,N,3), ``radius`` (N,) are the true world record; ``wall_s``
+    the wall-clock duration of the run; ``contacts`` the number of pair-contact events (counted by
+    the world, or with :func:`contact_events`); ``message_counts`` / ``message_bytes`` totals per
+    message kind over the whole run (all robots); ``goal`` (T,N,2) with NaN = no goal and
+    ``tolerance`` (m) for convergence; ``clearance`` (T,) if already computed.  Extra keyword
+    arguments are added as keys (e.g. ``assignment_cost``, ``scene``, ``seed``); they may not
+    replace a computed key.
+
+    Non-finite floats (e.g. ``min_clearance_m`` with one robot) are left as inf/NaN here;
+    :func:`sim.rundir.write_json` writes them as null.
+    """
+    t = np.asarray(t, dtype=float)
+    pose = _check_pose(pose)
+    T, N = pose.shape[:2]
+    if t.shape != (T,):
+        raise ValueError(f"t has shape {t.shape}, pose {pose.shape}")
+    r = _radius(radius, N)
+    clr = clearance_over_time(pose, r) if clearance is None else np.asarray(clearance, dtype=float)
+    duration = float(t[-1] - t[0]) if T else 0.0
+
+    finite = clr[np.isfinite(clr)]
+    if len(finite):
+        kmin = int(np.nanargmin(np.where(np.isfinite(clr), clr, np.inf)))
+        min_clear = float(clr[kmin])
+        min_clear_t = float(t[kmin] - t[0])
+    else:
+        min_clear, min_clear_t = float("inf"), None
+    max_overlap = max(0.0, -min_clear) if np.isfinite(min_clear) else 0.0
+
+    ttc = None
+    if goal is not None:
+        ttc_abs = time_to_converge(t, pose, goal, tolerance)
+        ttc = None if ttc_abs is None else float(ttc_abs - t[0])
+
+    wall_s = float(wall_s)
+    out: dict[str, Any] = {
+        "robots": int(N),
+        "samples": int(T),
+        "duration_s": duration,
+        "wall_s": wall_s,
+        "realtime_factor": (duration / wall_s) if wall_s > 0 else None,
+        "min_clearance_m": min_clear,
+        "min_clearance_at_s": min_clear_t,
+        "contacts": int(contacts),
+        "max_overlap_m": float(max_overlap),
+        "converged": ttc is not None,
+        "time_to_converge_s": ttc,
+        "convergence_tolerance_m": float(tolerance) if goal is not None else None,
+        "path_length_m": path_lengths(pose).tolist(),
+        "messages_per_robot_s": _per_robot_second(message_counts, N, duration),
+        "bytes_per_robot_s": _per_robot_second(message_bytes, N, duration),
+        "messages_total": {str(k): int(v) for k, v in (message_counts or {}).items()},
+        "bytes_total": {str(k): int(v) for k, v in (message_bytes or {}).items()},
+        "missed_ticks": int(missed_ticks),
+        "agents_crashed": int(agents_crashed),
+    }
+    clash = set(extra) & set(out)
+    if clash:
+        raise ValueError(f"summarise: extra keys would replace computed ones: {sorted(clash)}")
+    out.update(extra)
+    return out

@@ -1,0 +1,168 @@
+"""The recorder: subscribes to everything on the bus and keeps what the run directory needs.
+
+It measures the run from the world's TRUE poses (``sim/truth``), never from what agents believed;
+it logs every message kind on its own MCAP channel; it counts messages and bytes per kind, and it
+decides when the display has converged.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+import typing
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from transport.bus import Bus
+from transport.codec import BY_NAME, Contact, DropCounter, Event, State, Truth, decode
+from transport.keys import Keys
+
+from .mcaplog import McapLog
+
+_JSON_TYPES = {int: "integer", float: "number", str: "string", dict: "object"}
+
+
+def json_schema_of(message_type: type) -> dict[str, Any]:
+    """A JSON schema for a message dataclass (arrays become arrays of numbers)."""
+    hints = typing.get_type_hints(message_type)
+    props = {}
+    for f in dataclasses.fields(message_type):
+        hint = hints.get(f.name)
+        props[f.name] = {"type": _JSON_TYPES[hint]} if hint in _JSON_TYPES else {"type": "array"}
+    return {"type": "object", "title": message_type.__name__, "properties": props}
+
+
+@dataclass
+class Trajectory:
+    """Per-tick arrays, grown as truth messages arrive."""
+
+    t: list[float] = field(default_factory=list)
+    pose: list[np.ndarray] = field(default_factory=list)
+    velocity: list[np.ndarray] = field(default_factory=list)
+    color: list[np.ndarray] = field(default_factory=list)
+    goal: list[np.ndarray] = field(default_factory=list)
+    assignment: list[np.ndarray] = field(default_factory=list)
+    applied: np.ndarray | None = None
+
+
+class Recorder:
+    def __init__(self, bus: Bus, robots: int, tolerance: float, log_path: str | None = None) -> None:
+        self.bus, self.keys, self.n = bus, bus.keys, robots
+        self.tolerance = tolerance
+        self.raw = bus.subscribe_raw(bus.keys.everything)
+        self.alive = bus.watch_alive()
+        self.traj = Trajectory()
+        self.goal = np.full((robots, 2), np.nan)
+        self.goal_index = np.full(robots, -1)
+        self.counts: dict[str, int] = {}
+        self.bytes: dict[str, int] = {}
+        self.drops = DropCounter()
+        self.contacts: list[Contact] = []
+        self.events: list[dict[str, Any]] = []
+        self.liveliness: list[dict[str, Any]] = []
+        self.agent_alive = np.zeros(robots, bool)
+        self.converged_since: float | None = None
+        self.time_to_converge: float | None = None
+        self.last_min_clearance = np.inf
+        self.log = McapLog(log_path) if log_path else None
+        self._channels: dict[str, int] = {}
+        self.started_wall = time.time()
+
+    # --- intake -------------------------------------------------------------------------------
+    def poll(self) -> None:
+        for role, ident, alive, wall in self.alive.drain():
+            self.liveliness.append({"role": role, "id": ident, "alive": alive, "wall_time": wall})
+            if role == "agent" and ident.isdigit() and int(ident) < self.n:
+                self.agent_alive[int(ident)] = alive
+            self._log("alive", wall, {"role": role, "id": ident, "alive": alive})
+        for key, payload, wall in self.raw.drain():
+            kind = self.keys.kind_of(key)
+            self.counts[kind] = self.counts.get(kind, 0) + 1
+            self.bytes[kind] = self.bytes.get(kind, 0) + len(payload)
+            expected = BY_NAME.get(kind)
+            msg = decode(payload, expected, self.drops) if expected else None
+            if msg is None:
+                continue
+            self._log(kind, wall, msg.to_dict() | {"key": key})
+            if isinstance(msg, State):
+                self._on_state(msg)
+            elif isinstance(msg, Truth):
+                self._on_truth(msg)
+            elif isinstance(msg, Contact):
+                self.contacts.append(msg)
+            elif isinstance(msg, Event):
+                self.events.append(msg.data)
+
+    def _on_state(self, s: State) -> None:
+        if s.robot >= self.n:
+            return
+        if s.flags & State.HAS_GOAL:
+            self.goal[s.robot] = (s.goal_x, s.goal_y)
+        else:
+            self.goal[s.robot] = np.nan
+        self.goal_index[s.robot] = s.goal_index
+
+    def _on_truth(self, m: Truth) -> None:
+        if m.count != self.n:
+            return
+        tr = self.traj
+        if tr.t and m.stamp <= tr.t[-1]:
+            return
+        tr.t.append(m.stamp)
+        tr.pose.append(m.pose)
+        tr.velocity.append(m.velocity)
+        tr.color.append(m.color)
+        tr.goal.append(self.goal.copy())
+        tr.assignment.append(self.goal_index.copy())
+        tr.applied = m.applied
+        self.last_min_clearance = min(self.last_min_clearance, m.min_clearance)
+        self._check_converged(m.stamp, m.pose)
+
+    def _check_converged(self, t: float, pose: np.ndarray) -> None:
+        """Converged: every live robot has a goal and is within tolerance of it (true position)."""
+        live = self.agent_alive
+        if not live.any():
+            return
+        err = np.hypot(*(pose[live, :2] - self.goal[live]).T)
+        if np.all(np.isfinite(err)) and np.all(err <= self.tolerance):
+            if self.converged_since is None:
+                self.converged_since = t
+                self.time_to_converge = t
+        else:
+            self.converged_since = None
+            self.time_to_converge = None
+
+    def held_converged(self, t_now: float, hold: float) -> bool:
+        return self.converged_since is not None and t_now - self.converged_since >= hold
+
+    @property
+    def sim_time(self) -> float:
+        return self.traj.t[-1] if self.traj.t else 0.0
+
+    # --- mcap ---------------------------------------------------------------------------------
+    def _log(self, kind: str, wall: float, payload: dict[str, Any]) -> None:
+        if self.log is None:
+            return
+        cid = self._channels.get(kind)
+        if cid is None:
+            schema = json_schema_of(BY_NAME[kind]) if kind in BY_NAME else {"type": "object"}
+            name = BY_NAME[kind].__name__ if kind in BY_NAME else kind
+            cid = self._channels[kind] = self.log.add_channel("/" + kind, f"pixelswarm.{name}", schema)
+        self.log.write(cid, int(wall * 1e9), payload)
+
+    def close_log(self) -> None:
+        if self.log is not None:
+            self.log.close()
+
+    # --- results ------------------------------------------------------------------------------
+    def arrays(self) -> dict[str, np.ndarray]:
+        tr = self.traj
+        n = self.n
+        if not tr.t:
+            return {"t": np.zeros(0), "pose": np.zeros((0, n, 3)), "velocity": np.zeros((0, n, 2)),
+                    "color": np.zeros((0, n, 3), np.uint8), "goal": np.zeros((0, n, 2)),
+                    "assignment": np.zeros((0, n), int)}
+        return {"t": np.array(tr.t), "pose": np.stack(tr.pose), "velocity": np.stack(tr.velocity),
+                "color": np.stack(tr.color).astype(np.uint8), "goal": np.stack(tr.goal),
+                "assignment": np.stack(tr.assignment)}

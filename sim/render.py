@@ -1,0 +1,378 @@
+"""What an audience would see, and the plots of a run.  Pure writers, no zenoh.
+
+* :func:`render_frame` — one top-down BGR image: dark background (a robot display in a dark room),
+  obstacles as grey polygons, robots as discs in their LED colour with a thin heading tick, optional
+  faint goal rings, the time in the top-left corner.  OpenCV drawing, anti-aliased, sub-pixel.
+* :func:`write_video` — those frames into an MP4 with OpenCV's VideoWriter ('mp4v' = MPEG-4 part 2;
+  the pip OpenCV wheels have no H.264 encoder).
+* :func:`write_plots` — ``clearance.png`` and ``trajectories.png`` with matplotlib's Agg canvas
+  (no pyplot, so no global backend state is touched).
+
+Conventions: world x right, y up; ``pose`` (..., 3) is (x, y, theta) in metres/radians; ``color``
+is LED colour as **RGB** uint8; ``arena`` is (xmin, ymin, xmax, ymax); ``obstacles`` is a list of
+polygons, each a list of (x, y) vertices.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any, Sequence
+
+import cv2
+import numpy as np
+
+__all__ = ["render_frame", "write_video", "write_plots", "frame_indices"]
+
+BACKGROUND = (18, 18, 18)  # BGR
+ARENA_EDGE = (70, 70, 70)
+OBSTACLE_FILL = (105, 105, 105)
+OBSTACLE_EDGE = (150, 150, 150)
+ROBOT_RIM = (85, 85, 85)
+TEXT = (210, 210, 210)
+
+_SHIFT = 4  # sub-pixel bits for cv2 drawing
+_ONE = 1 << _SHIFT
+
+
+class _View:
+    """World -> pixel transform for an arena, plus the static background."""
+
+    def __init__(self, arena: Sequence[float], size_px: int, margin_frac: float = 0.03):
+        xmin, ymin, xmax, ymax = (float(v) for v in arena)
+        if not (xmax > xmin and ymax > ymin):
+            raise ValueError(f"bad arena {arena}")
+        self.arena = (xmin, ymin, xmax, ymax)
+        margin = max(2, int(round(size_px * margin_frac)))
+        self.scale = (size_px - 2 * margin) / max(xmax - xmin, ymax - ymin)  # px per metre
+        w = int(round((xmax - xmin) * self.scale)) + 2 * margin
+        h = int(round((ymax - ymin) * self.scale)) + 2 * margin
+        self.width, self.height = w + (w % 2), h + (h % 2)  # even sizes suit video codecs
+        self.ox = (self.width - (xmax - xmin) * self.scale) / 2
+        self.oy = (self.height - (ymax - ymin) * self.scale) / 2
+
+    def px(self, xy: np.ndarray) -> np.ndarray:
+        """(..., 2) world -> (..., 2) float pixel (col, row)."""
+        xy = np.asarray(xy, dtype=float)
+        xmin, _, _, ymax = self.arena
+        col = self.ox + (xy[..., 0] - xmin) * self.scale
+        row = self.oy + (ymax - xy[..., 1]) * self.scale
+        return np.stack([col, row], axis=-1)
+
+    def fixed(self, xy: np.ndarray) -> np.ndarray:
+        """Pixel coordinates as fixed-point ints for cv2 with ``shift=_SHIFT``."""
+        return np.round(self.px(xy) * _ONE).astype(np.int64)
+
+    def background(self, obstacles: Sequence[Sequence[Sequence[float]]] | None) -> np.ndarray:
+        img = np.empty((self.height, self.width, 3), np.uint8)
+        img[:] = BACKGROUND
+        xmin, ymin, xmax, ymax = self.arena
+        corners = self.fixed(np.array([[xmin, ymin], [xmax, ymin], [xmax, ymax], [xmin, ymax]]))
+        cv2.polylines(img, [corners.astype(np.int32)], True, ARENA_EDGE, 1, cv2.LINE_AA, _SHIFT)
+        for poly in obstacles or []:
+            pts = np.asarray(poly, dtype=float).reshape(-1, 2)
+            if len(pts) < 2:
+                continue
+            p = self.fixed(pts).astype(np.int32)
+            if len(pts) >= 3:
+                cv2.fillPoly(img, [p], OBSTACLE_FILL, cv2.LINE_AA, _SHIFT)
+            cv2.polylines(img, [p], True, OBSTACLE_EDGE, 1, cv2.LINE_AA, _SHIFT)
+        return img
+
+
+def _draw(
+    img: np.ndarray,
+    view: _View,
+    time_s: float | None,
+    pose: np.ndarray,
+    radius: np.ndarray,
+    color: np.ndarray | None,
+    goal: np.ndarray | None,
+) -> np.ndarray:
+    n = len(pose)
+    rpx = radius * view.scale
+    r_fx = np.maximum(np.round(rpx * _ONE), _ONE).astype(np.int64)
+    if color is None:
+        bgr = np.full((n, 3), 230, dtype=np.int64)
+    else:
+        bgr = np.asarray(color).reshape(n, 3)[:, ::-1].astype(np.int64)
+
+    if goal is not None:
+        g = np.asarray(goal, dtype=float).reshape(n, 2)
+        gok = np.isfinite(g).all(axis=1)
+        if gok.any():
+            gfx = view.fixed(np.where(gok[:, None], g, 0.0))
+            gcol = np.maximum(bgr * 0.45, 55).astype(np.int64)
+            for i in np.flatnonzero(gok).tolist():
+                cv2.circle(img, (int(gfx[i, 0]), int(gfx[i, 1])), int(r_fx[i]),
+                           tuple(int(c) for c in gcol[i]), 1, cv2.LINE_AA, _SHIFT)
+
+    xy = pose[:, :2]
+    ok = np.isfinite(xy).all(axis=1)
+    if ok.any():
+        has_th = np.isfinite(pose[:, 2])
+        th = np.where(has_th, pose[:, 2], 0.0)
+        xy0 = np.where(ok[:, None], xy, 0.0)
+        c = view.fixed(xy0)
+        tip = view.fixed(xy0 + 0.95 * radius[:, None] * np.stack([np.cos(th), np.sin(th)], axis=-1))
+        lum = 0.114 * bgr[:, 0] + 0.587 * bgr[:, 1] + 0.299 * bgr[:, 2]
+        tick_thick = np.clip(np.round(rpx * 0.18), 1, 4).astype(int)
+        cl, tl, rl, bl = c.tolist(), tip.tolist(), r_fx.tolist(), bgr.tolist()
+        for i in np.flatnonzero(ok).tolist():
+            centre = (cl[i][0], cl[i][1])
+            col = tuple(bl[i])
+            cv2.circle(img, centre, rl[i], col, -1, cv2.LINE_AA, _SHIFT)
+            cv2.circle(img, centre, rl[i], ROBOT_RIM, 1, cv2.LINE_AA, _SHIFT)
+            if has_th[i]:
+                tick = (20, 20, 20) if lum[i] > 110 else (200, 200, 200)
+                cv2.line(img, centre, (tl[i][0], tl[i][1]), tick, int(tick_thick[i]), cv2.LINE_AA, _SHIFT)
+
+    if time_s is not None and np.isfinite(time_s):
+        fs = max(0.35, view.height / 1300)
+        label = f"t = {time_s:7.2f} s"
+        (tw, th_), base = cv2.getTextSize(label, cv2.FONT_HERSHEY_SIMPLEX, fs, 1)
+        x0, y0 = 4, 4 + th_
+        cv2.rectangle(img, (x0 - 2, y0 - th_ - 3), (x0 + tw + 2, y0 + base), BACKGROUND, -1)
+        cv2.putText(img, label, (x0, y0), cv2.FONT_HERSHEY_SIMPLEX, fs, TEXT, 1, cv2.LINE_AA)
+    return img
+
+
+def render_frame(
+    time_s: float | None,
+    pose: np.ndarray,
+    radius: np.ndarray,
+    color: np.ndarray | None,
+    arena: Sequence[float],
+    obstacles: Sequence[Sequence[Sequence[float]]] | None = (),
+    goal: np.ndarray | None = None,
+    size_px: int = 720,
+) -> np.ndarray:
+    """One frame (H, W, 3) uint8 BGR.  ``pose`` (N,3), ``radius`` (N,) or scalar, ``color`` (N,3)
+    RGB uint8 (None: white), ``goal`` (N,2) with NaN = none.  The longer arena side spans
+    ``size_px`` pixels including a small margin; both sides are even."""
+    pose = np.asarray(pose, dtype=float).reshape(-1, 3)
+    n = len(pose)
+    radius = np.broadcast_to(np.asarray(radius, dtype=float), (n,))
+    view = _View(arena, size_px)
+    return _draw(view.background(obstacles), view, time_s, pose, radius, color, goal)
+
+
+def frame_indices(t: np.ndarray, fps: float, speed: float | None = 1.0, max_frames: int = 3000) -> np.ndarray:
+    """Sample indices shown by :func:`write_video`.
+
+    With ``speed`` (default 1.0 = real time) frames are taken at ``t[0] + k * speed / fps``
+    (the latest sample at or before each frame time), so the video plays at ``speed`` x real time.
+    With ``speed=None`` every sample is a frame.  Then, if there are more than ``max_frames``,
+    they are subsampled evenly to ``max_frames`` (the video plays faster).
+    """
+    t = np.asarray(t, dtype=float)
+    T = len(t)
+    if T == 0:
+        return np.zeros(0, dtype=int)
+    if speed is None:
+        idx = np.arange(T)
+    else:
+        if speed <= 0 or fps <= 0:
+            raise ValueError("fps and speed must be positive")
+        span = float(t[-1] - t[0])
+        nf = int(np.floor(span * fps / speed + 1e-9)) + 1
+        tf = t[0] + np.arange(nf) * (speed / fps)
+        idx = np.clip(np.searchsorted(t, tf + 1e-9, side="right") - 1, 0, T - 1)
+    if max_frames and len(idx) > max_frames:
+        idx = idx[np.round(np.linspace(0, len(idx) - 1, int(max_frames))).astype(int)]
+    return idx
+
+
+def write_video(
+    path: str | os.PathLike,
+    t: np.ndarray,
+    pose: np.ndarray,
+    radius: np.ndarray,
+    color: np.ndarray | None,
+    arena: Sequence[float],
+    obstacles: Sequence[Sequence[Sequence[float]]] | None = (),
+    goal: np.ndarray | None = None,
+    fps: float = 10,
+    size_px: int = 720,
+    *,
+    speed: float | None = 1.0,
+    max_frames: int = 3000,
+    fourcc: str = "mp4v",
+) -> int:
+    """Write the top-down video; returns the number of frames written.
+
+    ``t`` (T,), ``pose`` (T,N,3), ``radius`` (N,), ``color`` (T,N,3) or (N,3) RGB uint8,
+    ``goal`` (T,N,2) optional.  Frame choice: :func:`frame_indices`.  Raises RuntimeError if
+    OpenCV cannot open a writer for ``fourcc`` or writes an empty file.
+    """
+    path = Path(path)
+    t = np.asarray(t, dtype=float)
+    pose = np.asarray(pose, dtype=float)
+    if pose.ndim != 3 or pose.shape[0] != len(t):
+        raise ValueError(f"pose must be (T,N,3) with T = len(t); got {pose.shape}, T={len(t)}")
+    T, N = pose.shape[:2]
+    radius = np.broadcast_to(np.asarray(radius, dtype=float), (N,))
+    if color is not None:
+        color = np.asarray(color)
+        if color.ndim == 2:
+            color = np.broadcast_to(color, (T, N, 3))
+    if goal is not None:
+        goal = np.asarray(goal, dtype=float)
+        if goal.ndim == 2:
+            goal = np.broadcast_to(goal, (T, N, 2))
+    idx = frame_indices(t, fps, speed, max_frames)
+    if len(idx) == 0:
+        raise ValueError("write_video: no samples")
+
+    view = _View(arena, size_px)
+    bg = view.background(obstacles)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), float(fps), (view.width, view.height))
+    if not writer.isOpened():
+        raise RuntimeError(f"OpenCV VideoWriter could not open {path} with fourcc {fourcc!r}")
+    try:
+        for k in idx.tolist():
+            frame = _draw(bg.copy(), view, float(t[k]), pose[k], radius,
+                          None if color is None else color[k], None if goal is None else goal[k])
+            writer.write(frame)
+    finally:
+        writer.release()
+    if not path.exists() or path.stat().st_size == 0:
+        raise RuntimeError(f"OpenCV wrote no video data to {path}")
+    return int(len(idx))
+
+
+# ------------------------------------------------------------------------------------------------
+# Plots
+# ------------------------------------------------------------------------------------------------
+
+
+def _figure(w_in: float, h_in: float, dpi: int):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(w_in, h_in), dpi=dpi)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _robot_colours(n: int, color: np.ndarray | None) -> np.ndarray:
+    """(n, 4) RGBA for plotting: the given RGB colours, but dark LEDs replaced by a colormap."""
+    from matplotlib import colormaps
+
+    cmap = colormaps["turbo"] if n > 20 else colormaps["tab20"]
+    base = cmap(np.linspace(0.05, 0.95, n) if n > 20 else np.arange(n) % 20)
+    if color is None:
+        return base
+    rgb = np.asarray(color, dtype=float).reshape(n, 3) / 255.0
+    bright = rgb.max(axis=1) > 0.25
+    out = base.copy()
+    out[bright, :3] = rgb[bright]
+    return out
+
+
+def write_plots(
+    out_dir: str | os.PathLike,
+    t: np.ndarray,
+    clearance: np.ndarray,
+    pose: np.ndarray,
+    radius: np.ndarray,
+    arena: Sequence[float],
+    obstacles: Sequence[Sequence[Sequence[float]]] | None = (),
+    goal: np.ndarray | None = None,
+    *,
+    color: np.ndarray | None = None,
+    dpi: int = 120,
+    max_points: int = 1500,
+) -> dict[str, Path]:
+    """Write ``clearance.png`` (minimum pairwise clearance over time, zero line = contact) and
+    ``trajectories.png`` (every robot's path in the arena, start ○ and end ●, last goals ×).
+
+    ``color`` optional (N,3) or (T,N,3) RGB to colour paths (e.g. final LED colours; dark ones fall back to a
+    colormap).  Returns ``{"clearance": path, "trajectories": path}``.
+    """
+    from matplotlib.collections import LineCollection
+    from matplotlib.patches import Polygon, Rectangle
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    t = np.asarray(t, dtype=float)
+    clearance = np.asarray(clearance, dtype=float)
+    pose = np.asarray(pose, dtype=float)
+    T, N = pose.shape[:2]
+    radius = np.broadcast_to(np.asarray(radius, dtype=float), (N,))
+    paths: dict[str, Path] = {}
+
+    # -- clearance.png ---------------------------------------------------------------------------
+    fig = _figure(8, 3.6, dpi)
+    ax = fig.add_subplot(1, 1, 1)
+    fin = np.isfinite(clearance)
+    if fin.any():
+        ax.plot(t, np.where(fin, clearance, np.nan), color="#1f77b4", lw=1.2, label="minimum clearance")
+        neg = fin & (clearance < 0)
+        if neg.any():
+            ax.fill_between(t, np.where(neg, clearance, 0.0), 0.0, where=neg, color="#d62728", alpha=0.3,
+                            lw=0, label="overlap")
+        k = int(np.argmin(np.where(fin, clearance, np.inf)))
+        ax.plot([t[k]], [clearance[k]], "o", color="#d62728", ms=4)
+        ax.annotate(f"min {clearance[k]:.3f} m", (t[k], clearance[k]), textcoords="offset points",
+                    xytext=(6, 6), fontsize=8)
+    else:
+        ax.text(0.5, 0.5, "fewer than two robots: no pairs", transform=ax.transAxes, ha="center")
+    ax.axhline(0.0, color="#d62728", ls="--", lw=1.0, label="contact (0 m)")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("clearance [m]")
+    ax.set_title(f"Minimum clearance between robots (centre distance − radii), N = {N}")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper right", fontsize=8)
+    fig.tight_layout()
+    paths["clearance"] = out_dir / "clearance.png"
+    fig.savefig(paths["clearance"], format="png")
+
+    # -- trajectories.png ------------------------------------------------------------------------
+    xmin, ymin, xmax, ymax = (float(v) for v in arena)
+    aspect = (ymax - ymin) / (xmax - xmin)
+    fig = _figure(7.5, max(3.0, min(12.0, 7.0 * aspect + 0.8)), dpi)
+    ax = fig.add_subplot(1, 1, 1)
+    ax.add_patch(Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, fill=False, ec="0.3", lw=1.0))
+    for poly in obstacles or []:
+        pts = np.asarray(poly, dtype=float).reshape(-1, 2)
+        if len(pts) >= 2:
+            ax.add_patch(Polygon(pts, closed=True, fc="0.65", ec="0.4", lw=0.8, zorder=1))
+    if color is not None and np.ndim(color) == 3:
+        color = np.asarray(color)[-1]  # (T,N,3) given: use the final LED colours
+    cols = _robot_colours(N, color)
+    step = max(1, int(np.ceil(T / max_points))) if T else 1
+    sub = pose[::step, :, :2]
+    if T and (T - 1) % step:
+        sub = np.concatenate([sub, pose[-1:, :, :2]], axis=0)
+    segs = [sub[:, i][np.isfinite(sub[:, i]).all(axis=1)] for i in range(N)]
+    lw = 1.0 if N <= 50 else 0.6
+    ax.add_collection(LineCollection(segs, colors=cols, linewidths=lw, alpha=0.85, zorder=2))
+    starts = np.array([s[0] if len(s) else (np.nan, np.nan) for s in segs]).reshape(-1, 2)
+    ends = np.array([s[-1] if len(s) else (np.nan, np.nan) for s in segs]).reshape(-1, 2)
+    ms = 18 if N <= 50 else 6
+    ax.scatter(starts[:, 0], starts[:, 1], s=ms, facecolors="none", edgecolors=cols, lw=0.8, zorder=3,
+               label="start")
+    ax.scatter(ends[:, 0], ends[:, 1], s=ms, c=cols, zorder=4, label="end")
+    if goal is not None:
+        g = np.asarray(goal, dtype=float)
+        g = g.reshape(-1, N, 2)
+        last = np.full((N, 2), np.nan)
+        for i in range(N):
+            okk = np.flatnonzero(np.isfinite(g[:, i]).all(axis=1))
+            if len(okk):
+                last[i] = g[okk[-1], i]
+        if np.isfinite(last).any():
+            ax.scatter(last[:, 0], last[:, 1], s=ms, marker="x", c="0.35", lw=0.8, zorder=3, label="goal")
+    ax.set_xlim(xmin - 0.02 * (xmax - xmin), xmax + 0.02 * (xmax - xmin))
+    ax.set_ylim(ymin - 0.02 * (ymax - ymin), ymax + 0.02 * (ymax - ymin))
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    dur = float(t[-1] - t[0]) if len(t) else 0.0
+    ax.set_title(f"Trajectories, N = {N}, {dur:.1f} s")
+    ax.legend(loc="upper right", fontsize=8, markerscale=1.0)
+    fig.tight_layout()
+    paths["trajectories"] = out_dir / "trajectories.png"
+    fig.savefig(paths["trajectories"], format="png")
+    return paths

@@ -1,0 +1,248 @@
+"""The world process: the simulated bodies, the central tracker and the clock, on the bus.
+
+Real time: physics at 100 Hz on the wall clock; every control period (10 Hz) the tracker publishes
+each robot's pose (with seeded noise, paper 7.1: 2 mm / 3 deg) and commands are applied as they
+arrive, as on hardware. Lock-step: the world publishes tick k, waits until every live agent has
+answered with its command for tick k or a deadline passes (a missed tick: the robot keeps its
+last command), then advances one period. Lock-step runs are reproducible from the seed.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from agent.core.params import RobotParams
+from coordinator.scene import Scene, SceneError, load_scene
+from transport.bus import Bus
+from transport.codec import Command, Contact as ContactMsg, Event, Pose, Tick, Truth
+from transport.faults import parse_faults
+from transport.session import TransportError, add_zenoh_args, settings_from_args
+
+from .world import Body, World
+
+CONTACT_KINDS = {"robot": 0, "obstacle": 1, "wall": 2}
+
+
+def bodies_of(scene: Scene) -> tuple[RobotParams, list[Body]]:
+    params = RobotParams.from_dict(scene.robot)
+    body = Body(params.kinematics, params.radius, params.v_max, params.wheel_base, params.omega_max)
+    return params, [body] * scene.robots
+
+
+@dataclass
+class Tracker:
+    """The paper's central tracking: true poses plus seeded Gaussian noise."""
+
+    sigma_xy: float
+    sigma_theta: float
+    rng: np.random.Generator = field(default_factory=lambda: np.random.default_rng(0))
+
+    def measure(self, poses: np.ndarray) -> np.ndarray:
+        noise = self.rng.standard_normal(poses.shape)  # drawn for every robot, every tick: reproducible
+        out = poses.copy()
+        out[:, :2] += self.sigma_xy * noise[:, :2]
+        out[:, 2] = (out[:, 2] + self.sigma_theta * noise[:, 2] + math.pi) % (2 * math.pi) - math.pi
+        return out
+
+
+class WorldNode:
+    def __init__(self, bus: Bus, scene: Scene, *, deadline: float = 2.0, startup_timeout: float = 60.0) -> None:
+        self.bus, self.scene, self.keys = bus, scene, bus.keys
+        self.params, bodies = bodies_of(scene)
+        self.dt = self.params.dt
+        self.world = World(bodies, scene.poses, arena=scene.arena, obstacles=scene.obstacles,
+                           actuation_noise=scene.noise.actuation, seed=scene.seed)
+        self.tracker = Tracker(scene.noise.tracking_xy, math.radians(scene.noise.tracking_theta_deg),
+                               np.random.default_rng([scene.seed, 1]))
+        self.deadline = deadline
+        self.startup_timeout = startup_timeout
+        n = scene.robots
+        self.color = np.zeros((n, 3), np.uint8)
+        self.last_cmd_tick = np.full(n, -1)
+        self.live = np.zeros(n, bool)
+        self.ever_live = np.zeros(n, bool)
+        self.missed_ticks = 0
+        self.late_commands = 0
+        self.tick = 0
+        self.events = sorted(scene.events, key=lambda e: e["t"])
+        self.cmd_inbox = bus.subscribe(self.keys.all_of("cmd"), Command)
+        self.control_inbox = bus.subscribe(self.keys.event, Event)
+        self.alive = bus.watch_alive("agent")
+        self.running = True
+        self.end_reason = ""
+
+    # --- inputs -------------------------------------------------------------------------------
+    def _update_liveness(self) -> None:
+        for _, ident, alive, _ in self.alive.drain():
+            if not ident.isdigit() or int(ident) >= self.scene.robots:
+                continue
+            i = int(ident)
+            if alive:
+                self.live[i] = self.ever_live[i] = True
+            elif self.live[i]:
+                self.live[i] = False
+                self.world.stop(i)  # a dead agent's robot stays in the world, stopped
+
+    def _apply_commands(self, first: tuple | None = None) -> None:
+        arrived = ([first] if first is not None else []) + self.cmd_inbox.drain()
+        for _, cmd in arrived:
+            i = cmd.robot
+            if i >= self.scene.robots or not self.live[i]:
+                continue
+            if cmd.tick <= self.last_cmd_tick[i]:
+                self.late_commands += 1
+                continue
+            self.last_cmd_tick[i] = cmd.tick
+            self.world.set_command(i, cmd.a, cmd.b)
+            self.color[i] = (cmd.r, cmd.g, cmd.bl)
+
+    def _check_control(self) -> None:
+        for _, ev in self.control_inbox.drain():
+            if ev.data.get("kind") == "end":
+                self.running = False
+                self.end_reason = str(ev.data.get("reason", "end"))
+
+    # --- outputs ------------------------------------------------------------------------------
+    def _publish_tick(self) -> None:
+        t = self.tick * self.dt
+        self.bus.publish(self.keys.clock, Tick(self.tick, t, self.dt))
+        self.bus.publish(self.keys.truth, Truth(self.tick, t, self.world.step_min_clearance() if self.tick else
+                                                self.world.min_clearance, self.scene.robots,
+                                                self.world.poses, self.world.velocities, self.color,
+                                                self.world.commands_applied.astype(np.uint32)))
+        measured = self.tracker.measure(self.world.poses)
+        for i in np.flatnonzero(self.live):
+            x, y, th = measured[i]
+            self.bus.publish(self.keys.pose(int(i)), Pose(int(i), self.tick, t, x, y, th))
+
+    def _publish_contacts(self, contacts: list) -> None:
+        for c in contacts:
+            self.bus.publish(self.keys.contact, ContactMsg(CONTACT_KINDS[c.kind], c.i, c.j, c.t_start, c.max_depth))
+
+    def _apply_events(self) -> None:
+        t = self.tick * self.dt
+        while self.events and self.events[0]["t"] <= t + 1e-9:
+            ev = self.events.pop(0)
+            self.world.teleport(ev["robot"], tuple(ev["pose"]))
+
+    # --- loops --------------------------------------------------------------------------------
+    def wait_for_agents(self) -> bool:
+        """Start when every robot's agent is alive (progress events for the launcher)."""
+        start = time.monotonic()
+        while self.running and time.monotonic() - start < self.startup_timeout:
+            self._update_liveness()
+            self._check_control()
+            if self.live.all():
+                return True
+            time.sleep(0.02)
+        return self.live.any()
+
+    def run(self, clock: str) -> None:
+        self.bus.declare_alive("world", 0)
+        if not self.wait_for_agents():
+            self.end_reason = "no agent came alive"
+            return
+        if clock == "lockstep":
+            self._run_lockstep()
+        else:
+            self._run_realtime()
+        if not self.end_reason:
+            self.end_reason = "duration"
+
+    def _run_lockstep(self) -> None:
+        steps = round(self.scene.duration / self.dt)
+        while self.running and self.tick < steps:
+            self._apply_events()
+            self._update_liveness()
+            self._publish_tick()
+            deadline = time.monotonic() + self.deadline
+            while True:
+                got = self.cmd_inbox.get(timeout=max(0.0, min(0.05, deadline - time.monotonic())))
+                self._apply_commands(got)
+                self._update_liveness()
+                waiting = self.live & (self.last_cmd_tick < self.tick)
+                if not waiting.any() or time.monotonic() >= deadline:
+                    self.missed_ticks += int(waiting.sum())
+                    break
+            self._publish_contacts(self.world.step(self.dt))
+            self.tick += 1
+            self._check_control()
+
+    def _run_realtime(self) -> None:
+        steps = round(self.scene.duration / self.dt)
+        sub = self.world.substep
+        per_tick = round(self.dt / sub)
+        next_time = time.monotonic()
+        while self.running and self.tick < steps:
+            self._apply_events()
+            self._update_liveness()
+            self._publish_tick()
+            contacts = []
+            for _ in range(per_tick):
+                next_time += sub
+                pause = next_time - time.monotonic()
+                if pause > 0:
+                    time.sleep(pause)
+                self._apply_commands()
+                contacts += self.world.step(sub)
+            self.missed_ticks += int((self.live & (self.last_cmd_tick < self.tick)).sum())
+            self._publish_contacts(contacts)
+            self.tick += 1
+            self._check_control()
+
+    def stats(self) -> dict:
+        return {"kind": "world-done", "reason": self.end_reason, "ticks": self.tick,
+                "missed_ticks": self.missed_ticks, "late_commands": self.late_commands,
+                "commands_applied": self.world.commands_applied.astype(int).tolist(),
+                "min_clearance": _finite_or_none(self.world.min_clearance),
+                "dropped": dict(self.cmd_inbox.drops + self.control_inbox.drops),
+                "contacts": [{"kind": c.kind, "i": c.i, "j": c.j, "t_start": c.t_start,
+                              "t_end": c.t_end, "max_depth": c.max_depth} for c in self.world.contacts]}
+
+
+def _finite_or_none(x: float) -> float | None:
+    return x if math.isfinite(x) else None
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m sim.world_node")
+    parser.add_argument("--scene", required=True)
+    parser.add_argument("--robots", type=int)
+    parser.add_argument("--seed", type=int)
+    parser.add_argument("--clock", choices=["lockstep", "realtime"])
+    parser.add_argument("--duration", type=float)
+    parser.add_argument("--display", default="default")
+    parser.add_argument("--deadline", type=float, default=2.0, help="lock-step: seconds to wait for commands")
+    parser.add_argument("--faults", default="")
+    add_zenoh_args(parser)
+    args = parser.parse_args(argv)
+    try:
+        scene = load_scene(args.scene, robots=args.robots, seed=args.seed, clock=args.clock, duration=args.duration)
+        bus = Bus(settings_from_args(args), args.display, faults=parse_faults(args.faults), seed=scene.seed,
+                  name="world")
+    except (SceneError, TransportError, ValueError) as err:
+        print(f"world: error: {err}", file=sys.stderr)
+        return 2
+    with bus:
+        node = WorldNode(bus, scene, deadline=args.deadline)
+
+        def stop(signum: int, frame: object) -> None:
+            node.running = False
+            node.end_reason = node.end_reason or "stopped"
+
+        signal.signal(signal.SIGTERM, stop)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # the launcher decides; Ctrl-C reaches it too
+        node.run(scene.clock)
+        bus.publish(bus.keys.event, Event(node.stats()))
+        time.sleep(0.2)  # let the report leave before the session closes
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

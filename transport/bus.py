@@ -1,0 +1,267 @@
+"""The bus: a zenoh session with typed publishing, queued subscriptions, liveliness and faults.
+
+Zenoh calls subscriber callbacks on its own threads; here a callback only decodes and queues (never
+blocks, never calls zenoh), and the owner's loop drains the queue. Decoding failures are counted per
+inbox and never raise.
+"""
+from __future__ import annotations
+
+import heapq
+import itertools
+import queue
+import random
+import threading
+import time
+import zlib
+from collections import Counter
+from typing import Any, Callable, Iterator
+
+import zenoh
+
+from .codec import DropCounter, Message, decode
+from .faults import FaultPlan, FaultSpec
+from .keys import Keys
+from .session import ZenohSettings, open_session
+
+_NO_FAULT = FaultSpec()
+
+
+class Inbox:
+    """Messages of one subscription, decoded, filtered by faults, waiting for the owner's loop."""
+
+    def __init__(self, expected: type[Message] | None, fault: FaultSpec, seed: int) -> None:
+        self.expected = expected
+        self.fault = fault
+        self.drops = DropCounter()
+        self.received = 0
+        self.bytes = 0
+        self._queue: "queue.SimpleQueue[tuple[str, Message]]" = queue.SimpleQueue()
+        self._delayed: list[tuple[float, int, str, Message]] = []
+        self._order = itertools.count()
+        self._lock = threading.Lock()
+        self._rng = random.Random(seed)
+        self.subscriber: Any = None
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        payload = sample.payload.to_bytes()
+        self.received += 1
+        self.bytes += len(payload)
+        msg = decode(payload, self.expected, self.drops)
+        if msg is None:
+            return
+        key = str(sample.key_expr)
+        if self.fault is _NO_FAULT or not self.fault.active:
+            self._queue.put((key, msg))
+            return
+        with self._lock:
+            if self._rng.random() < self.fault.drop:
+                self.drops["fault"] += 1
+                return
+            release = time.monotonic() + self.fault.delay + self._rng.random() * self.fault.jitter
+            heapq.heappush(self._delayed, (release, next(self._order), key, msg))
+
+    def _release_delayed(self) -> None:
+        if not self._delayed:
+            return
+        now = time.monotonic()
+        with self._lock:
+            while self._delayed and self._delayed[0][0] <= now:
+                _, _, key, msg = heapq.heappop(self._delayed)
+                self._queue.put((key, msg))
+
+    def drain(self) -> list[tuple[str, Message]]:
+        """Every message that has arrived (and whose injected delay has passed), oldest first."""
+        self._release_delayed()
+        out = []
+        while True:
+            try:
+                out.append(self._queue.get_nowait())
+            except queue.Empty:
+                return out
+
+    def get(self, timeout: float | None = None) -> tuple[str, Message] | None:
+        """Wait for one message (None on timeout)."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            self._release_delayed()
+            wait = 0.005 if self._delayed else None
+            if deadline is not None:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return None
+                wait = remaining if wait is None else min(wait, remaining)
+            try:
+                return self._queue.get(timeout=wait)
+            except queue.Empty:
+                if deadline is not None and time.monotonic() >= deadline:
+                    return None
+
+    def __iter__(self) -> Iterator[tuple[str, Message]]:
+        return iter(self.drain())
+
+
+class RawInbox:
+    """Raw samples (key, bytes, wall time) for the recorder, which logs what crossed the bus."""
+
+    def __init__(self) -> None:
+        self._queue: "queue.SimpleQueue[tuple[str, bytes, float]]" = queue.SimpleQueue()
+        self.subscriber: Any = None
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        self._queue.put((str(sample.key_expr), sample.payload.to_bytes(), time.time()))
+
+    def drain(self, limit: int = 1_000_000) -> list[tuple[str, bytes, float]]:
+        out = []
+        while len(out) < limit:
+            try:
+                out.append(self._queue.get_nowait())
+            except queue.Empty:
+                break
+        return out
+
+
+class LivelinessWatch:
+    """Liveliness tokens: (role, ident, alive, wall time) events, tokens already there included."""
+
+    def __init__(self) -> None:
+        self._queue: "queue.SimpleQueue[tuple[str, str, bool, float]]" = queue.SimpleQueue()
+        self.subscriber: Any = None
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        role, ident = str(sample.key_expr).rsplit("/", 2)[-2:]
+        self._queue.put((role, ident, sample.kind == zenoh.SampleKind.PUT, time.time()))
+
+    def drain(self) -> list[tuple[str, str, bool, float]]:
+        out = []
+        while True:
+            try:
+                out.append(self._queue.get_nowait())
+            except queue.Empty:
+                return out
+
+
+class Bus:
+    """One participant's connection to the swarm: publish typed messages, subscribe to inboxes."""
+
+    def __init__(self, settings: ZenohSettings, display: str = "default", *, faults: FaultPlan | None = None,
+                 seed: int = 0, name: str = "") -> None:
+        self.keys = Keys(display)
+        self.settings = settings
+        self.faults = dict(faults or {})
+        self._seed = seed
+        self._name = name
+        self._n_subs = 0
+        self.sent: Counter[str] = Counter()
+        self.sent_bytes: Counter[str] = Counter()
+        self._publishers: dict[str, zenoh.Publisher] = {}
+        self._tokens: list[Any] = []
+        self._subscriptions: list[Any] = []
+        self.session = open_session(settings)
+
+    # --- publishing -----------------------------------------------------------------------
+    def publish(self, key: str, msg: Message) -> None:
+        payload = msg.encode()
+        self.put(key, payload, msg.NAME)
+
+    def put(self, key: str, payload: bytes, kind: str = "raw") -> None:
+        # BLOCK, not DROP: in lock-step runs a silently dropped message would break reproducibility.
+        self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
+        self.sent[kind] += 1
+        self.sent_bytes[kind] += len(payload)
+
+    # --- subscribing ----------------------------------------------------------------------
+    def inbox(self, expected: type[Message] | None = None) -> Inbox:
+        """An empty inbox; feed it with ``subscribe_into``. Faults for the expected kind apply here."""
+        fault = self.faults.get(expected.NAME, _NO_FAULT) if expected is not None else _NO_FAULT
+        self._n_subs += 1
+        seed = zlib.crc32(f"{self._seed}/{self._name}/{self._n_subs}".encode())
+        return Inbox(expected, fault, seed)
+
+    def subscribe(self, keyexpr: str, expected: type[Message] | None = None) -> Inbox:
+        """An inbox of decoded messages from one key expression."""
+        inbox = self.inbox(expected)
+        inbox.subscriber = self.subscribe_into(keyexpr, inbox)
+        return inbox
+
+    def subscribe_into(self, keyexpr: str, inbox: Inbox) -> Any:
+        """Add another key expression feeding an existing inbox; returns the subscriber to undeclare."""
+        sub = self.session.declare_subscriber(keyexpr, inbox._on_sample)
+        self._subscriptions.append(sub)
+        return sub
+
+    def unsubscribe(self, subscriber: Any) -> None:
+        subscriber.undeclare()
+        if subscriber in self._subscriptions:
+            self._subscriptions.remove(subscriber)
+
+    def subscribe_raw(self, keyexpr: str) -> RawInbox:
+        inbox = RawInbox()
+        inbox.subscriber = self.session.declare_subscriber(keyexpr, inbox._on_sample)
+        self._subscriptions.append(inbox.subscriber)
+        return inbox
+
+    def on_message(self, keyexpr: str, expected: type[Message], callback: Callable[[str, Message], None]) -> Any:
+        """Only for services whose callback is cheap and never blocks (e.g. answering state queries)."""
+        drops = DropCounter()
+
+        def handler(sample: zenoh.Sample) -> None:
+            msg = decode(sample.payload.to_bytes(), expected, drops)
+            if msg is not None:
+                callback(str(sample.key_expr), msg)
+
+        sub = self.session.declare_subscriber(keyexpr, handler)
+        self._subscriptions.append(sub)
+        return sub
+
+    # --- liveliness -----------------------------------------------------------------------
+    def declare_alive(self, role: str, ident: int | str) -> Any:
+        token = self.session.liveliness().declare_token(self.keys.alive(role, ident))
+        self._tokens.append(token)
+        return token
+
+    def watch_alive(self, role: str | None = None) -> LivelinessWatch:
+        watch = LivelinessWatch()
+        watch.subscriber = self.session.liveliness().declare_subscriber(
+            self.keys.alive_all(role), history=True, handler=watch._on_sample)
+        self._subscriptions.append(watch.subscriber)
+        return watch
+
+    # --- queries (late joiners fetch the current goal set) ------------------------------------
+    def serve(self, keyexpr: str, answer: Callable[[], list[tuple[str, bytes]]]) -> Any:
+        def handler(query: zenoh.Query) -> None:
+            for key, payload in answer():
+                query.reply(key, payload)
+
+        q = self.session.declare_queryable(keyexpr, handler)
+        self._subscriptions.append(q)
+        return q
+
+    def query(self, keyexpr: str, expected: type[Message], timeout: float = 2.0) -> list[tuple[str, Message]]:
+        out = []
+        drops = DropCounter()
+        for reply in self.session.get(keyexpr, timeout=timeout):
+            ok = getattr(reply, "ok", None)
+            if ok is None:
+                continue
+            msg = decode(ok.payload.to_bytes(), expected, drops)
+            if msg is not None:
+                out.append((str(ok.key_expr), msg))
+        return out
+
+    def close(self) -> None:
+        for token in self._tokens:
+            try:
+                token.undeclare()
+            except Exception:
+                pass
+        self._tokens.clear()
+        try:
+            self.session.close()
+        except Exception:
+            pass
+
+    def __enter__(self) -> "Bus":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

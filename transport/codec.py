@@ -1,0 +1,325 @@
+"""Versioned, compact binary codecs for every message kind, with validating decoders.
+
+Every message starts with a two-byte header (kind, version). ``decode`` never raises: a malformed,
+truncated, wrong-kind, wrong-version or non-finite message returns None and is counted in the
+``DropCounter`` passed in, so nothing a peer sends can break a control loop.
+"""
+from __future__ import annotations
+
+import json
+import math
+import struct
+from collections import Counter
+from dataclasses import asdict, dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+VERSION = 1
+_HEADER = struct.Struct("<BB")
+
+
+class DropCounter(Counter):
+    """Counts dropped messages by reason ('truncated', 'version', 'kind', 'non-finite', 'invalid')."""
+
+
+class Malformed(ValueError):
+    """Raised inside decoders; turned into a counted drop by ``decode``."""
+
+
+def _finite(*values: float) -> None:
+    for v in values:
+        if not math.isfinite(v):
+            raise Malformed("non-finite")
+
+
+@dataclass
+class Message:
+    """Base of all messages: a fixed part packed with ``_fixed`` and an optional variable tail."""
+
+    KIND: ClassVar[int] = 0
+    NAME: ClassVar[str] = ""
+    _fixed: ClassVar[struct.Struct]
+
+    def encode(self) -> bytes:
+        return _HEADER.pack(self.KIND, VERSION) + self._fixed.pack(*self._fixed_values()) + self._tail()
+
+    def _fixed_values(self) -> tuple:
+        return tuple(asdict(self).values())
+
+    def _tail(self) -> bytes:
+        return b""
+
+    @classmethod
+    def _from(cls, body: memoryview) -> "Message":
+        if len(body) != cls._fixed.size:
+            raise Malformed("truncated")
+        msg = cls(*cls._fixed.unpack(body))
+        msg.validate()
+        return msg
+
+    def validate(self) -> None:
+        _finite(*(v for v in self._fixed_values() if isinstance(v, float)))
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-friendly view (for logs)."""
+        return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in asdict(self).items()}
+
+
+@dataclass
+class Pose(Message):
+    """Tracker -> agent: the tracked pose of one robot at a tick (paper: central tracking, 10 Hz)."""
+
+    KIND: ClassVar[int] = 1
+    NAME: ClassVar[str] = "pose"
+    _fixed: ClassVar[struct.Struct] = struct.Struct("<IIdfff")
+    robot: int
+    tick: int
+    stamp: float
+    x: float
+    y: float
+    theta: float
+
+
+@dataclass
+class State(Message):
+    """Agent broadcast: what neighbours need for ORCA and the auction.
+
+    ``velocity`` is the robot's current collision-free velocity (v_opt of eq. 11), ``radius`` the
+    radius it asks others to avoid (r + tracking error for differential drive), ``goal_index`` the
+    goal it holds (-1 for none).
+    """
+
+    KIND: ClassVar[int] = 2
+    NAME: ClassVar[str] = "state"
+    _fixed: ClassVar[struct.Struct] = struct.Struct("<IIdfffffffiB")
+    robot: int
+    tick: int
+    stamp: float
+    x: float
+    y: float
+    vx: float
+    vy: float
+    radius: float
+    goal_x: float
+    goal_y: float
+    goal_index: int
+    flags: int  # bit 0: has a goal; bit 1: at its goal
+
+    HAS_GOAL: ClassVar[int] = 1
+    AT_GOAL: ClassVar[int] = 2
+
+    def validate(self) -> None:
+        super().validate()
+        if self.radius <= 0:
+            raise Malformed("invalid")
+
+
+@dataclass
+class Command(Message):
+    """Agent -> body: holonomic velocity (mode 0) or linear wheel speeds (mode 1), and LED colour."""
+
+    KIND: ClassVar[int] = 3
+    NAME: ClassVar[str] = "cmd"
+    _fixed: ClassVar[struct.Struct] = struct.Struct("<IIdBffBBB")
+    robot: int
+    tick: int
+    stamp: float
+    mode: int
+    a: float
+    b: float
+    r: int
+    g: int
+    bl: int
+
+    HOLONOMIC: ClassVar[int] = 0
+    WHEELS: ClassVar[int] = 1
+
+    def validate(self) -> None:
+        super().validate()
+        if self.mode not in (0, 1):
+            raise Malformed("invalid")
+
+
+@dataclass
+class Tick(Message):
+    """Clock: tick k starts at ``stamp`` seconds of display time; ``dt`` is the control period."""
+
+    KIND: ClassVar[int] = 4
+    NAME: ClassVar[str] = "clock"
+    _fixed: ClassVar[struct.Struct] = struct.Struct("<Idf")
+    tick: int
+    stamp: float
+    dt: float
+
+
+@dataclass
+class Goals(Message):
+    """Coordinator -> all: a goal set with colours.
+
+    ``per_robot`` set means goals[i] is robot i's own goal (scenes with fixed goals, as in RVO2's
+    Circle); otherwise the robots assign themselves to goals.
+    """
+
+    KIND: ClassVar[int] = 5
+    NAME: ClassVar[str] = "goals"
+    _fixed: ClassVar[struct.Struct] = struct.Struct("<IBdI")
+    _item: ClassVar[np.dtype] = np.dtype([("x", "<f4"), ("y", "<f4"), ("rgb", "u1", (3,))])
+    epoch: int
+    per_robot: int
+    stamp: float
+    count: int
+    positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    colors: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.uint8))
+
+    def _fixed_values(self) -> tuple:
+        return (self.epoch, self.per_robot, self.stamp, len(self.positions))
+
+    def _tail(self) -> bytes:
+        items = np.empty(len(self.positions), self._item)
+        items["x"], items["y"] = self.positions[:, 0], self.positions[:, 1]
+        items["rgb"] = self.colors
+        return items.tobytes()
+
+    @classmethod
+    def _from(cls, body: memoryview) -> "Goals":
+        n_fixed = cls._fixed.size
+        if len(body) < n_fixed:
+            raise Malformed("truncated")
+        epoch, per_robot, stamp, count = cls._fixed.unpack(body[:n_fixed])
+        if len(body) != n_fixed + count * cls._item.itemsize:
+            raise Malformed("truncated")
+        items = np.frombuffer(body[n_fixed:], cls._item)
+        positions = np.stack([items["x"], items["y"]], axis=1).astype(float)
+        _finite(stamp)
+        if not np.all(np.isfinite(positions)):
+            raise Malformed("non-finite")
+        return cls(epoch, per_robot, stamp, count, positions, items["rgb"].copy())
+
+
+@dataclass
+class Truth(Message):
+    """Simulation only: true poses, velocities and LED colours of all robots at a tick (recorder)."""
+
+    KIND: ClassVar[int] = 6
+    NAME: ClassVar[str] = "sim/truth"
+    _fixed: ClassVar[struct.Struct] = struct.Struct("<IdfI")
+    _item: ClassVar[np.dtype] = np.dtype(
+        [("pose", "<f8", (3,)), ("vel", "<f4", (2,)), ("rgb", "u1", (3,)), ("applied", "<u4")]
+    )
+    tick: int
+    stamp: float
+    min_clearance: float  # smallest robot-robot clearance during the last step (all substeps)
+    count: int
+    pose: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    color: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.uint8))
+    applied: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint32))  # commands applied per robot
+
+    def _fixed_values(self) -> tuple:
+        return (self.tick, self.stamp, self.min_clearance, len(self.pose))
+
+    def _tail(self) -> bytes:
+        items = np.empty(len(self.pose), self._item)
+        items["pose"], items["vel"], items["rgb"], items["applied"] = self.pose, self.velocity, self.color, self.applied
+        return items.tobytes()
+
+    @classmethod
+    def _from(cls, body: memoryview) -> "Truth":
+        n_fixed = cls._fixed.size
+        if len(body) < n_fixed:
+            raise Malformed("truncated")
+        tick, stamp, min_clearance, count = cls._fixed.unpack(body[:n_fixed])
+        if len(body) != n_fixed + count * cls._item.itemsize:
+            raise Malformed("truncated")
+        items = np.frombuffer(body[n_fixed:], cls._item)
+        _finite(stamp)
+        if not (np.all(np.isfinite(items["pose"])) and np.all(np.isfinite(items["vel"]))):
+            raise Malformed("non-finite")
+        return cls(tick, stamp, min_clearance, count, items["pose"].copy(), items["vel"].astype(float),
+                   items["rgb"].copy(), items["applied"].copy())
+
+    def validate(self) -> None:  # min_clearance may be +inf with one robot
+        _finite(self.stamp)
+
+
+@dataclass
+class Contact(Message):
+    """Simulation only: a contact event began (kind 0 robot-robot, 1 obstacle, 2 wall)."""
+
+    KIND: ClassVar[int] = 7
+    NAME: ClassVar[str] = "sim/contact"
+    _fixed: ClassVar[struct.Struct] = struct.Struct("<BIidf")
+    contact_kind: int
+    i: int
+    j: int
+    t_start: float
+    depth: float
+
+
+@dataclass
+class Event(Message):
+    """Low-rate run events as a JSON object (end of run, world statistics, crash reports)."""
+
+    KIND: ClassVar[int] = 8
+    NAME: ClassVar[str] = "event"
+    _fixed: ClassVar[struct.Struct] = struct.Struct("<")
+    data: dict = field(default_factory=dict)
+
+    def _fixed_values(self) -> tuple:
+        return ()
+
+    def _tail(self) -> bytes:
+        return json.dumps(self.data, allow_nan=False, separators=(",", ":")).encode()
+
+    @classmethod
+    def _from(cls, body: memoryview) -> "Event":
+        try:
+            data = json.loads(bytes(body), parse_constant=_reject_constant)
+        except (ValueError, UnicodeDecodeError) as err:
+            raise Malformed("invalid") from err
+        if not isinstance(data, dict):
+            raise Malformed("invalid")
+        return cls(data)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dict(self.data)
+
+
+def _reject_constant(name: str) -> None:
+    raise Malformed("non-finite")
+
+
+MESSAGE_TYPES: dict[int, type[Message]] = {t.KIND: t for t in (Pose, State, Command, Tick, Goals, Truth, Contact, Event)}
+BY_NAME: dict[str, type[Message]] = {t.NAME: t for t in MESSAGE_TYPES.values()}
+
+
+def register(message_type: type[Message]) -> type[Message]:
+    """Add a message kind defined elsewhere (e.g. the auction's) to the decoder tables."""
+    if message_type.KIND in MESSAGE_TYPES and MESSAGE_TYPES[message_type.KIND] is not message_type:
+        raise ValueError(f"message kind {message_type.KIND} is taken")
+    MESSAGE_TYPES[message_type.KIND] = message_type
+    BY_NAME[message_type.NAME] = message_type
+    return message_type
+
+
+def decode(data: bytes | memoryview, expected: type[Message] | None = None, drops: DropCounter | None = None) -> Message | None:
+    """Decode one message; None (and a counted drop) for anything malformed. Never raises."""
+    try:
+        view = memoryview(data)
+        if len(view) < _HEADER.size:
+            raise Malformed("truncated")
+        kind, version = _HEADER.unpack(view[: _HEADER.size])
+        if version != VERSION:
+            raise Malformed("version")
+        message_type = MESSAGE_TYPES.get(kind)
+        if message_type is None or (expected is not None and message_type is not expected):
+            raise Malformed("kind")
+        return message_type._from(view[_HEADER.size :])
+    except Malformed as err:
+        reason = str(err)
+    except (struct.error, ValueError, TypeError, OverflowError):
+        reason = "invalid"
+    if drops is not None:
+        drops[reason] += 1
+    return None

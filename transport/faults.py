@@ -1,0 +1,53 @@
+"""Fault injection for studies and tests: per message kind, drop probability and added delay.
+
+Faults act where a message is received (as a lossy, slow link would), so each receiver loses and
+delays its own copies independently. A plan reads like ``state:drop=0.1,delay=0.05,jitter=0.01``;
+several kinds are separated by ';'.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class FaultSpec:
+    drop: float = 0.0  # probability that a message is lost
+    delay: float = 0.0  # fixed added delay, seconds
+    jitter: float = 0.0  # uniform extra delay in [0, jitter], seconds
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.drop <= 1.0:
+            raise ValueError(f"drop probability must be in [0, 1], not {self.drop}")
+        if self.delay < 0 or self.jitter < 0:
+            raise ValueError("delay and jitter must be >= 0")
+
+    @property
+    def active(self) -> bool:
+        return self.drop > 0 or self.delay > 0 or self.jitter > 0
+
+
+FaultPlan = dict[str, FaultSpec]  # message kind name ('state', 'cmd', ...) -> spec
+
+
+def parse_faults(text: str) -> FaultPlan:
+    """Parse 'KIND:drop=P,delay=S,jitter=S[;KIND:...]' into a plan; ValueError with a clear message."""
+    plan: FaultPlan = {}
+    for part in filter(None, (p.strip() for p in text.split(";"))):
+        kind, sep, body = part.partition(":")
+        if not sep or not kind.strip():
+            raise ValueError(f"fault {part!r}: expected KIND:drop=P,delay=S,jitter=S")
+        values: dict[str, float] = {}
+        for item in filter(None, (i.strip() for i in body.split(","))):
+            name, eq, value = item.partition("=")
+            if not eq or name.strip() not in ("drop", "delay", "jitter"):
+                raise ValueError(f"fault {part!r}: unknown setting {item!r} (use drop, delay, jitter)")
+            try:
+                values[name.strip()] = float(value)
+            except ValueError:
+                raise ValueError(f"fault {part!r}: {value!r} is not a number") from None
+        plan[kind.strip()] = FaultSpec(**values)
+    return plan
+
+
+def format_faults(plan: FaultPlan) -> str:
+    return ";".join(f"{k}:drop={s.drop},delay={s.delay},jitter={s.jitter}" for k, s in plan.items())

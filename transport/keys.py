@@ -1,0 +1,101 @@
+"""The key-expression schema: every key the system uses is built here and nowhere else.
+
+    px/<display>/pose/<id>               tracker -> agent i: its tracked pose and the tick
+    px/<display>/state/<cx>/<cy>/<id>    agent broadcast, filed under its spatial cell
+    px/<display>/cmd/<id>                agent -> body: wheel speeds or velocity, LED colour
+    px/<display>/goals/<epoch>           coordinator -> all: the goal set and colours
+    px/<display>/auction/<epoch>/<id>    bids and prices of the distributed auction
+    px/<display>/alive/<role>/<id>       liveliness tokens (role: agent, world, coordinator, ...)
+    px/<display>/clock                   tick announcements
+    px/<display>/sim/truth               simulation only: true poses (for the recorder, never agents)
+    px/<display>/sim/contact             simulation only: contact events
+    px/<display>/event                   low-rate run events (end of run, reports)
+"""
+from __future__ import annotations
+
+import math
+import re
+
+PREFIX = "px"
+_NAME = re.compile(r"^[A-Za-z0-9_\-]+$")
+
+
+def cell_of(x: float, y: float, cell_size: float) -> tuple[int, int]:
+    """The spatial cell of a position: robots subscribe to the 3x3 cells around their own."""
+    return math.floor(x / cell_size), math.floor(y / cell_size)
+
+
+class Keys:
+    """Key expressions of one display (one swarm sharing a router)."""
+
+    def __init__(self, display: str = "default") -> None:
+        if not _NAME.match(display):
+            raise ValueError(f"display name {display!r} may hold only letters, digits, '_' and '-'")
+        self.display = display
+        self.root = f"{PREFIX}/{display}"
+
+    # tracker -> agent
+    def pose(self, robot: int) -> str:
+        return f"{self.root}/pose/{robot}"
+
+    # agent broadcasts
+    def state(self, cell: tuple[int, int], robot: int) -> str:
+        return f"{self.root}/state/{cell[0]}/{cell[1]}/{robot}"
+
+    def state_cell(self, cell: tuple[int, int]) -> str:
+        return f"{self.root}/state/{cell[0]}/{cell[1]}/*"
+
+    def cmd(self, robot: int) -> str:
+        return f"{self.root}/cmd/{robot}"
+
+    def goals(self, epoch: int) -> str:
+        return f"{self.root}/goals/{epoch}"
+
+    def auction(self, epoch: int, robot: int) -> str:
+        return f"{self.root}/auction/{epoch}/{robot}"
+
+    def alive(self, role: str, ident: int | str) -> str:
+        return f"{self.root}/alive/{role}/{ident}"
+
+    @property
+    def clock(self) -> str:
+        return f"{self.root}/clock"
+
+    @property
+    def truth(self) -> str:
+        return f"{self.root}/sim/truth"
+
+    @property
+    def contact(self) -> str:
+        return f"{self.root}/sim/contact"
+
+    @property
+    def event(self) -> str:
+        return f"{self.root}/event"
+
+    # wildcards for subscribers
+    def all_of(self, kind: str) -> str:
+        """Every key of one kind, e.g. all_of('cmd') -> px/<display>/cmd/**."""
+        return f"{self.root}/{kind}/**"
+
+    def alive_all(self, role: str | None = None) -> str:
+        return f"{self.root}/alive/{role}/*" if role else f"{self.root}/alive/**"
+
+    @property
+    def everything(self) -> str:
+        return f"{self.root}/**"
+
+    def kind_of(self, key: str) -> str:
+        """The message kind a key carries ('pose', 'state', 'sim/truth', ...), '' if not ours."""
+        if not key.startswith(self.root + "/"):
+            return ""
+        parts = key[len(self.root) + 1 :].split("/")
+        if parts[0] == "sim" and len(parts) > 1:
+            return "sim/" + parts[1]
+        return parts[0]
+
+    @staticmethod
+    def last_id(key: str) -> int | None:
+        """The trailing robot id of a key, None if it is not a number."""
+        tail = key.rsplit("/", 1)[-1]
+        return int(tail) if tail.lstrip("-").isdigit() else None

@@ -1,0 +1,106 @@
+"""Zenoh session configuration: embedded router, client and peer modes, zenoh-style flags.
+
+Multicast scouting is off unless asked for, and the embedded router listens on loopback only, so
+nothing leaves the machine unless the user points it elsewhere with -e/-l.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import socket
+from dataclasses import dataclass, field
+
+import zenoh
+
+MODES = ("router", "peer", "client")
+
+
+class TransportError(RuntimeError):
+    """A session could not be opened (port in use, router unreachable, bad endpoint)."""
+
+
+@dataclass
+class ZenohSettings:
+    mode: str = "client"
+    connect: list[str] = field(default_factory=list)
+    listen: list[str] = field(default_factory=list)
+    multicast_scouting: bool = False
+    lease_ms: int = 2000  # a frozen process is declared dead after ~0.75 x lease (zenoh default 10 s)
+
+    def to_config(self) -> zenoh.Config:
+        if self.mode not in MODES:
+            raise TransportError(f"zenoh mode must be one of {', '.join(MODES)}, not {self.mode!r}")
+        conf = zenoh.Config()
+        conf.insert_json5("mode", json.dumps(self.mode))
+        if self.connect:
+            conf.insert_json5("connect/endpoints", json.dumps(self.connect))
+        # Always set listen explicitly: zenoh's default would listen on every interface.
+        conf.insert_json5("listen/endpoints", json.dumps(self.listen))
+        conf.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast_scouting))
+        conf.insert_json5("transport/link/tx/lease", str(self.lease_ms))
+        if self.mode == "client":
+            # A client that loses its router should fail loudly, not wait forever.
+            conf.insert_json5("connect/timeout_ms", "5000")
+        return conf
+
+    def to_args(self) -> list[str]:
+        """The same settings as command-line flags, for child processes."""
+        args = ["-m", self.mode]
+        for e in self.connect:
+            args += ["-e", e]
+        for e in self.listen:
+            args += ["-l", e]
+        if not self.multicast_scouting:
+            args.append("--no-multicast-scouting")
+        return args
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    """A TCP port that is free on loopback right now."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind((host, 0))
+        return sock.getsockname()[1]
+
+
+def loopback_router(port: int | None = None) -> ZenohSettings:
+    """An embedded router listening on 127.0.0.1 (a free port unless one is given)."""
+    return ZenohSettings(mode="router", listen=[f"tcp/127.0.0.1:{port or free_port()}"])
+
+
+def client_of(router: ZenohSettings) -> ZenohSettings:
+    """Settings for a client of the given router."""
+    return ZenohSettings(mode="client", connect=list(router.listen))
+
+
+def open_session(settings: ZenohSettings) -> zenoh.Session:
+    """Open a session; any failure becomes a TransportError with a one-line reason."""
+    try:
+        return zenoh.open(settings.to_config())
+    except Exception as err:  # zenoh raises ZError with multi-line text
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        where = ", ".join(settings.listen or settings.connect) or "(no endpoint)"
+        hint = (
+            "is the port already in use? choose another with -l tcp/127.0.0.1:PORT"
+            if settings.mode == "router"
+            else "is a router running there? start one with `pixelswarm router`"
+        )
+        raise TransportError(f"cannot open zenoh {settings.mode} session on {where}: {first}; {hint}") from None
+
+
+def add_zenoh_args(parser: argparse.ArgumentParser, default_mode: str = "client") -> None:
+    """Zenoh-style flags: -m/--mode, -e/--connect, -l/--listen, --no-multicast-scouting."""
+    group = parser.add_argument_group("zenoh")
+    group.add_argument("-m", "--mode", choices=MODES, default=default_mode, help=f"session mode (default {default_mode})")
+    group.add_argument("-e", "--connect", action="append", default=[], metavar="ENDPOINT",
+                       help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    group.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT",
+                       help="endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    group.add_argument("--no-multicast-scouting", dest="multicast_scouting", action="store_false", default=False,
+                       help="disable multicast scouting (the default)")
+    group.add_argument("--multicast-scouting", dest="multicast_scouting", action="store_true",
+                       help="enable multicast scouting (finds peers on the LAN)")
+
+
+def settings_from_args(args: argparse.Namespace) -> ZenohSettings:
+    return ZenohSettings(mode=args.mode, connect=list(args.connect), listen=list(args.listen),
+                         multicast_scouting=args.multicast_scouting)
