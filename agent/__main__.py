@@ -5,6 +5,7 @@ One process runs the robots its config names (one by default; K with --agents-pe
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from transport.bus import Bus
@@ -17,6 +18,7 @@ from .runtime import AgentHost, HostConfig, install_stop_handlers
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m agent", description="Run robot agents (one per robot id).")
     parser.add_argument("--config", required=True, help="host config JSON file (robots, parameters, map)")
+    parser.add_argument("--exit-with-parent", action="store_true", help="stop when the parent process exits")
     parser.add_argument("--faults", default="", help="fault injection, e.g. 'state:drop=0.1,delay=0.05'")
     add_zenoh_args(parser)
     args = parser.parse_args(argv)
@@ -36,6 +38,8 @@ def main(argv: list[str] | None = None) -> int:
     with bus:
         host = AgentHost(bus, config)
         install_stop_handlers(host)
+        if args.exit_with_parent:
+            host.parent_pid = os.getppid()
         host.start()
         host.run()
         host.report()

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import signal
 import time
 from dataclasses import dataclass, field
@@ -113,6 +114,7 @@ class AgentHost:
         self.cells = CellSubscriptions(bus, self.state_inbox, self.cell_size)
         self.goal_inbox = bus.subscribe(self.keys.all_of("goals"), Goals)
         self.running = True
+        self.parent_pid: int | None = None  # exit when this process (the launcher) is gone
 
     # --- start ------------------------------------------------------------------------------
     def start(self) -> None:
@@ -142,6 +144,8 @@ class AgentHost:
         while self.running:
             got = self.pose_inbox.get(timeout=0.2)
             if got is None:
+                if self.parent_pid is not None and os.getppid() != self.parent_pid:
+                    self.running = False  # orphaned: the launcher died without stopping us
                 continue
             self._take_pose(got[1])
             # Collect the other robots' poses of this tick (they are published together).

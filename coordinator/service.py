@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import colorsys
+import os
 import signal
 import sys
 import time
@@ -40,6 +41,7 @@ class Coordinator:
         self.current = scene_goal_message(scene)
         bus.serve(bus.keys.all_of("goals"), self._answer)
         self.running = True
+        self.parent_pid: int | None = None
 
     def _answer(self) -> list[tuple[str, bytes]]:
         if self.current is None:
@@ -54,6 +56,8 @@ class Coordinator:
             end = time.monotonic() + period
             while self.running and time.monotonic() < end:
                 time.sleep(0.05)
+            if self.parent_pid is not None and os.getppid() != self.parent_pid:
+                self.running = False  # orphaned: the launcher died without stopping us
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -62,6 +66,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--robots", type=int)
     parser.add_argument("--seed", type=int)
     parser.add_argument("--display", default="default")
+    parser.add_argument("--exit-with-parent", action="store_true")
     add_zenoh_args(parser)
     args = parser.parse_args(argv)
     try:
@@ -72,6 +77,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     with bus:
         coordinator = Coordinator(bus, scene)
+        if args.exit_with_parent:
+            coordinator.parent_pid = os.getppid()
 
         def stop(signum: int, frame: object) -> None:
             coordinator.running = False

@@ -5,6 +5,7 @@ import argparse
 import signal
 import sys
 import time
+import typing
 from pathlib import Path
 
 from coordinator.scene import SceneError, load_scene, shipped_scenes
@@ -28,8 +29,15 @@ def _positive_int(text: str) -> int:
     return value
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """Usage errors as one line (and exit code 2), with `--help` for the rest."""
+
+    def error(self, message: str) -> typing.NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="pixelswarm", description="Image and animation display with robot swarms.")
+    parser = OneLineParser(prog="pixelswarm", description="Image and animation display with robot swarms.")
     sub = parser.add_subparsers(dest="command", required=True)
 
     run = sub.add_parser("run", help="run a scene: router, world, tracker, coordinator and one process per robot")
@@ -45,6 +53,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--faults", default="", metavar="PLAN",
                      help="fault injection, e.g. 'state:drop=0.1,delay=0.05,jitter=0.01' (';' between kinds)")
     run.add_argument("--deadline", type=float, default=2.0, help="lock-step: seconds to wait for late agents")
+    run.add_argument("--agents-connect", action="append", default=[], metavar="ENDPOINT",
+                     help="spread agent processes over these routers, round robin (repeatable; default: ours)")
     run.add_argument("--display", default="default", help="display name (key prefix), for several swarms")
     run.add_argument("--quiet", "-q", action="store_true", help="no progress output")
     add_zenoh_args(run, default_mode="router")
@@ -84,7 +94,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         router = ZenohSettings(mode="router", listen=list(args.listen), connect=list(args.connect))
     options = RunOptions(out=out, video=args.video, agents_per_process=args.agents_per_process,
                          display=args.display, router=router, connect=[] if args.listen else list(args.connect),
-                         faults=faults, deadline=args.deadline, progress=None if args.quiet else sys.stderr)
+                         faults=faults, agent_routers=list(args.agents_connect), deadline=args.deadline, progress=None if args.quiet else sys.stderr)
     try:
         path = Launcher(scene, options).run()
     except TransportError as err:

@@ -42,6 +42,7 @@ class RunOptions:
     router: ZenohSettings | None = None  # None: embed one on a free loopback port
     connect: list[str] = field(default_factory=list)  # an external router to join instead of embedding
     faults: FaultPlan = field(default_factory=dict)
+    agent_routers: list[str] = field(default_factory=list)  # spread agents over these routers (round robin)
     deadline: float = 2.0
     progress: TextIO | None = sys.stderr
     startup_timeout: float = 90.0
@@ -69,11 +70,13 @@ class Launcher:
         self.run_dir = RunDir(options.out)
 
     # --- processes ----------------------------------------------------------------------------
-    def _spawn(self, name: str, module: str, args: list[str], robots: list[int]) -> Child:
+    def _spawn(self, name: str, module: str, args: list[str], robots: list[int],
+               client: ZenohSettings | None = None) -> Child:
         log = self.run_dir / "logs" / f"{name}.log"
         log.parent.mkdir(exist_ok=True)
+        zenoh_args = (client or self.client).to_args()
         with open(log, "w") as fh:
-            proc = subprocess.Popen([sys.executable, "-m", module, *args, *self.client.to_args()],
+            proc = subprocess.Popen([sys.executable, "-m", module, *args, "--exit-with-parent", *zenoh_args],
                                     stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                     start_new_session=True, cwd=os.getcwd())
         child = Child(name, proc, robots, log)
@@ -96,7 +99,9 @@ class Launcher:
                                 arena=self.scene.arena, obstacles=self.scene.obstacles)
             path = cfg_dir / f"agents-{h:04d}.json"
             path.write_text(config.to_json())
-            self._spawn(f"agent-{h:04d}", "agent", ["--config", str(path), *faults], robots)
+            routers = self.opt.agent_routers
+            client = ZenohSettings(mode="client", connect=[routers[h % len(routers)]]) if routers else None
+            self._spawn(f"agent-{h:04d}", "agent", ["--config", str(path), *faults], robots, client)
 
     def _check_children(self, recorder: Recorder) -> None:
         for child in self.children:
@@ -108,8 +113,9 @@ class Launcher:
                 self.crashes.append({"process": child.name, "pid": child.proc.pid, "robots": child.robots,
                                      "returncode": code, "sim_time_s": recorder.sim_time,
                                      "noticed_wall_time": time.time()})
-                self._say(f"agent process {child.name} (pid {child.proc.pid}, robots {child.robots}) exited "
-                          f"with code {code}; its robots stay in the world, stopped", force=True)
+                # Always reported, --quiet or not: a crash is not progress.
+                print(f"pixelswarm: agent process {child.name} (pid {child.proc.pid}, robots {child.robots}) "
+                      f"exited with code {code}; its robots stay in the world, stopped", file=sys.stderr, flush=True)
             elif child.name == "world":
                 self.world_exit = code
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import signal
 import sys
 import time
@@ -76,6 +77,7 @@ class WorldNode:
         self.alive = bus.watch_alive("agent")
         self.running = True
         self.end_reason = ""
+        self.parent_pid: int | None = None
 
     # --- inputs -------------------------------------------------------------------------------
     def _update_liveness(self) -> None:
@@ -103,6 +105,9 @@ class WorldNode:
             self.color[i] = (cmd.r, cmd.g, cmd.bl)
 
     def _check_control(self) -> None:
+        if self.parent_pid is not None and os.getppid() != self.parent_pid:
+            self.running = False  # orphaned: the launcher died without stopping us
+            self.end_reason = "launcher gone"
         for _, ev in self.control_inbox.drain():
             if ev.data.get("kind") == "end":
                 self.running = False
@@ -112,14 +117,18 @@ class WorldNode:
     def _publish_tick(self) -> None:
         t = self.tick * self.dt
         self.bus.publish(self.keys.clock, Tick(self.tick, t, self.dt))
-        self.bus.publish(self.keys.truth, Truth(self.tick, t, self.world.step_min_clearance() if self.tick else
-                                                self.world.min_clearance, self.scene.robots,
-                                                self.world.poses, self.world.velocities, self.color,
-                                                self.world.commands_applied.astype(np.uint32)))
+        self._publish_truth()
         measured = self.tracker.measure(self.world.poses)
         for i in np.flatnonzero(self.live):
             x, y, th = measured[i]
             self.bus.publish(self.keys.pose(int(i)), Pose(int(i), self.tick, t, x, y, th))
+
+    def _publish_truth(self) -> None:
+        t = self.tick * self.dt
+        self.bus.publish(self.keys.truth, Truth(self.tick, t, self.world.step_min_clearance() if self.tick else
+                                                self.world.min_clearance, self.scene.robots,
+                                                self.world.poses, self.world.velocities, self.color,
+                                                self.world.commands_applied.astype(np.uint32)))
 
     def _publish_contacts(self, contacts: list) -> None:
         for c in contacts:
@@ -152,6 +161,7 @@ class WorldNode:
             self._run_lockstep()
         else:
             self._run_realtime()
+        self._publish_truth()  # the state after the last step
         if not self.end_reason:
             self.end_reason = "duration"
 
@@ -220,6 +230,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--display", default="default")
     parser.add_argument("--deadline", type=float, default=2.0, help="lock-step: seconds to wait for commands")
     parser.add_argument("--faults", default="")
+    parser.add_argument("--exit-with-parent", action="store_true")
     add_zenoh_args(parser)
     args = parser.parse_args(argv)
     try:
@@ -231,6 +242,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     with bus:
         node = WorldNode(bus, scene, deadline=args.deadline)
+        if args.exit_with_parent:
+            node.parent_pid = os.getppid()
 
         def stop(signum: int, frame: object) -> None:
             node.running = False

@@ -276,6 +276,8 @@ class Event(Message):
     def _from(cls, body: memoryview) -> "Event":
         try:
             data = json.loads(bytes(body), parse_constant=_reject_constant)
+        except Malformed:
+            raise
         except (ValueError, UnicodeDecodeError) as err:
             raise Malformed("invalid") from err
         if not isinstance(data, dict):

@@ -111,7 +111,8 @@ def optimise(point: np.ndarray, direction: np.ndarray, valid: np.ndarray, radius
 def _least_violation(px, py, dx, dy, valid, hard, radius, vx, vy):
     """Minimise the largest violation of the soft lines keeping the hard ones (RVO2 linearProgram3).
 
-    Starts from (vx, vy), which satisfies the hard lines; soft lines are taken in their given order.
+    Starts from (vx, vy), which satisfies the hard lines; soft lines are taken in their given order
+    and the hard lines lead.
     Each violated soft line i gives a 2-D program over the hard lines and the bisectors between line i
     and the earlier soft lines (where both are violated equally), maximising distance into line i.
     """
@@ -119,15 +120,15 @@ def _least_violation(px, py, dx, dy, valid, hard, radius, vx, vy):
     vx, vy = vx.copy(), vy.copy()
     distance = np.zeros(k)
     soft = valid & ~hard
-    index = np.arange(n)
     for i in range(n):
         viol = dx[:, i] * (py[:, i] - vy) - dy[:, i] * (px[:, i] - vx)
         rows = np.nonzero(soft[:, i] & (viol > distance))[0]
         if rows.size == 0:
             continue
-        pjx, pjy, djx, djy = px[rows], py[rows], dx[rows], dy[rows]
-        pix, piy = pjx[:, i:i + 1], pjy[:, i:i + 1]
-        dix, diy = djx[:, i:i + 1], djy[:, i:i + 1]
+        # hard lines lead, so lines before i are the hard ones and the earlier soft ones
+        pjx, pjy, djx, djy = px[rows, :i], py[rows, :i], dx[rows, :i], dy[rows, :i]
+        pix, piy = px[rows, i:i + 1], py[rows, i:i + 1]
+        dix, diy = dx[rows, i:i + 1], dy[rows, i:i + 1]
         den = dix * djy - diy * djx
         par = np.abs(den) <= EPSILON
         same = par & (dix * djx + diy * djy > 0.0)  # same direction: line i dominates, skip
@@ -137,8 +138,8 @@ def _least_violation(px, py, dx, dy, valid, hard, radius, vx, vy):
         bx, by = djx - dix, djy - diy
         bn = np.sqrt(bx * bx + by * by)
         bn = np.where(bn > 0.0, bn, 1.0)
-        h = hard[rows]
-        use = h | (soft[rows] & (index < i) & ~same)
+        h = hard[rows, :i]
+        use = h | (soft[rows, :i] & ~same)
         qx = np.where(h, pjx, qx)
         qy = np.where(h, pjy, qy)
         bx = np.where(h, djx, bx / bn)

@@ -13,7 +13,8 @@ import numpy as np
 from agent.core.lp import linear_program
 
 __all__ = ["Lines", "preferred_velocity", "orca_lines", "obstacle_lines", "polygon_segments",
-           "arena_segments", "concat_lines", "orca_velocity"]
+           "arena_segments", "concat_lines", "compact_lines", "drop_redundant", "safety_lines",
+           "orca_velocity"]
 
 
 class Lines(NamedTuple):
@@ -163,30 +164,63 @@ def compact_lines(lines: Lines) -> Lines:
                  np.take_along_axis(valid, order, axis=1))
 
 
+def drop_redundant(lines: Lines, max_speed: np.ndarray) -> Lines:
+    """Invalidate lines that the whole speed disk satisfies, then compact (results are unchanged)."""
+    p, d = lines.point, lines.direction
+    # min over the disk of det(d, v - p) is -R - det(d, p)
+    needed = d[..., 0] * p[..., 1] - d[..., 1] * p[..., 0] > -max_speed[:, None]
+    return compact_lines(Lines(p, d, lines.valid & needed))
+
+
+def safety_lines(position, radius, nbr_position, nbr_velocity, nbr_radius, nbr_responsibility,
+                 nbr_valid, dt) -> Lines:
+    """ORCA half-planes of horizon ``dt`` around zero optimisation velocities (cooperating neighbours).
+
+    Reciprocal and always jointly satisfiable by non-overlapping cooperating robots (v = 0 is in
+    every one): if both robots of a pair keep theirs, they do not overlap within the next control
+    period. Toward a cooperating neighbour this reads v.p_hat <= (gap)/(2 dt). Dynamic obstacles
+    (responsibility >= 1) keep their velocity.
+    """
+    b = np.asarray(position).shape[0]
+    keep = (np.asarray(nbr_responsibility) >= 1.0)[..., None]
+    return orca_lines(position, np.zeros((b, 2)), radius, nbr_position,
+                      np.where(keep, nbr_velocity, 0.0), nbr_radius, nbr_responsibility, nbr_valid,
+                      dt, dt)
+
+
 def orca_velocity(position, velocity, pref_velocity, radius, max_speed, nbr_position, nbr_velocity,
                   nbr_radius, nbr_responsibility, nbr_valid, obstacle_segments=None, *, tau: float,
-                  tau_obst: float, dt: float, extra_hard_lines: Lines | None = None
-                  ) -> tuple[np.ndarray, np.ndarray]:
+                  tau_obst: float, dt: float, extra_hard_lines: Lines | None = None,
+                  safety: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Collision-free velocity of eq. 14 for a batch of holonomic robots.
 
-    Neighbours must be sorted nearest first (the fallback takes them in order). ``extra_hard_lines``
-    (e.g. a kinematic polygon) are kept hard with the obstacle lines. Returns (new velocity (B,2),
-    fallback (B,) bool where the program was infeasible and the least-violation fallback ran).
+    Shapes: position, velocity, pref_velocity (B,2); radius, max_speed (B,) or scalars; neighbours
+    (B,M,...) sorted nearest first (the fallback takes them in order); obstacle_segments (S,2,2).
+    ``extra_hard_lines`` (e.g. a kinematic polygon) are kept hard with the obstacle lines.
+    ``safety`` adds the hard `safety_lines` (no overlap within dt); without it the result is RVO2's.
+    Returns (new velocity (B,2), fallback (B,) bool: the program was infeasible and the
+    least-violation fallback ran).
     """
     position = np.asarray(position, dtype=float)
     b = position.shape[0]
     radius = np.broadcast_to(np.asarray(radius, dtype=float), (b,))
     max_speed = np.broadcast_to(np.asarray(max_speed, dtype=float), (b,))
+    nbr = (np.asarray(nbr_position, dtype=float), np.asarray(nbr_velocity, dtype=float),
+           np.asarray(nbr_radius, dtype=float), np.asarray(nbr_responsibility, dtype=float),
+           np.asarray(nbr_valid, dtype=bool))
     hard = []
     if obstacle_segments is not None and len(obstacle_segments):
-        hard.append(compact_lines(obstacle_lines(position, radius, max_speed, obstacle_segments,
-                                                 tau_obst)))
+        hard.append(obstacle_lines(position, radius, max_speed, obstacle_segments, tau_obst))
     if extra_hard_lines is not None:
         hard.append(extra_hard_lines)
-    n_hard = sum(h.valid.shape[1] for h in hard)
-    robots = orca_lines(position, velocity, radius, np.asarray(nbr_position, dtype=float),
-                        np.asarray(nbr_velocity, dtype=float), np.asarray(nbr_radius, dtype=float),
-                        np.asarray(nbr_responsibility, dtype=float), nbr_valid, tau, dt)
-    lines = concat_lines(*hard, robots) if hard else robots
+    if safety:
+        hard.append(safety_lines(position, radius, *nbr, dt))
+    robots = drop_redundant(orca_lines(position, velocity, radius, *nbr, tau, dt), max_speed)
+    if hard:
+        hard_lines = drop_redundant(concat_lines(*hard), max_speed)
+        lines = concat_lines(hard_lines, robots)
+        n_hard = hard_lines.valid.shape[1]
+    else:
+        lines, n_hard = robots, 0
     return linear_program(lines.point, lines.direction, lines.valid, max_speed,
                           np.asarray(pref_velocity, dtype=float), n_hard=n_hard)

@@ -1,0 +1,101 @@
+"""A central, synchronous ORCA stepper over all robots with perfect information (like RVO2's doStep).
+
+The reference against which decentralisation is studied and the fast path for large swarms: one
+snapshot, every robot's new velocity from the same batch call of the core, then all move.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from agent.core.orca import orca_velocity, polygon_segments
+
+__all__ = ["CentralOrca"]
+
+
+class CentralOrca:
+    """RVO2-like simulator: ``add_agent``, ``add_obstacle``, ``set_pref_velocity``, ``do_step``.
+
+    Agent defaults mirror RVO2's ``setAgentDefaults`` (neighbour distance, max neighbours, horizons,
+    radius, max speed). ``safety_margin`` is added to every radius inside ORCA (not to the body).
+    """
+
+    def __init__(self, time_step: float, neighbor_dist: float, max_neighbors: int, time_horizon: float,
+                 time_horizon_obst: float, radius: float, max_speed: float, *,
+                 safety_margin: float = 0.0, safety: bool = True) -> None:
+        self.time_step = float(time_step)
+        self.neighbor_dist = float(neighbor_dist)
+        self.max_neighbors = int(max_neighbors)
+        self.time_horizon = float(time_horizon)
+        self.time_horizon_obst = float(time_horizon_obst)
+        self.default_radius = float(radius)
+        self.default_max_speed = float(max_speed)
+        self.safety_margin = float(safety_margin)
+        self.safety = bool(safety)
+        self.position = np.zeros((0, 2))
+        self.velocity = np.zeros((0, 2))
+        self.pref_velocity = np.zeros((0, 2))
+        self.radius = np.zeros(0)
+        self.max_speed = np.zeros(0)
+        self.segments = np.zeros((0, 2, 2))
+        self.global_time = 0.0
+        self.steps = 0
+        self.fallback_count = 0  # robot-steps where the linear program was infeasible
+        self.last_fallback = np.zeros(0, dtype=bool)
+
+    @property
+    def num_agents(self) -> int:
+        return len(self.radius)
+
+    def add_agent(self, position, velocity=(0.0, 0.0), radius: float | None = None,
+                  max_speed: float | None = None) -> int:
+        self.position = np.vstack([self.position, np.asarray(position, dtype=float)])
+        self.velocity = np.vstack([self.velocity, np.asarray(velocity, dtype=float)])
+        self.pref_velocity = np.vstack([self.pref_velocity, np.zeros(2)])
+        self.radius = np.append(self.radius, self.default_radius if radius is None else radius)
+        self.max_speed = np.append(self.max_speed,
+                                   self.default_max_speed if max_speed is None else max_speed)
+        return self.num_agents - 1
+
+    def add_obstacle(self, vertices) -> None:
+        """A polygon, counter-clockwise (clockwise for an enclosing wall), as in RVO2."""
+        self.segments = np.concatenate([self.segments, polygon_segments(vertices)])
+
+    def set_pref_velocity(self, agent: int, velocity) -> None:
+        self.pref_velocity[agent] = velocity
+
+    def set_pref_velocities(self, velocities: np.ndarray) -> None:
+        self.pref_velocity[:] = velocities
+
+    def neighbours(self) -> tuple[np.ndarray, np.ndarray]:
+        """Up to max_neighbors nearest agents within neighbor_dist, nearest first: (index, valid)."""
+        n = self.num_agents
+        k = min(self.max_neighbors + 1, n)
+        _, idx = cKDTree(self.position).query(self.position, k=k,
+                                              distance_upper_bound=self.neighbor_dist)
+        idx = np.asarray(idx).reshape(n, k)
+        valid = (idx < n) & (idx != np.arange(n)[:, None])
+        # drop self (normally column 0), keep order
+        order = np.argsort(~valid, axis=1, kind="stable")[:, :k - 1]
+        idx = np.take_along_axis(idx, order, axis=1)
+        valid = np.take_along_axis(valid, order, axis=1)
+        return np.where(valid, idx, 0), valid
+
+    def compute_new_velocities(self) -> tuple[np.ndarray, np.ndarray]:
+        idx, valid = self.neighbours()
+        m = self.safety_margin
+        return orca_velocity(
+            self.position, self.velocity, self.pref_velocity, self.radius + m, self.max_speed,
+            self.position[idx], self.velocity[idx], self.radius[idx] + m,
+            np.full(idx.shape, 0.5), valid, self.segments,
+            tau=self.time_horizon, tau_obst=self.time_horizon_obst, dt=self.time_step,
+            safety=self.safety)
+
+    def do_step(self) -> None:
+        new_velocity, fallback = self.compute_new_velocities()
+        self.velocity = new_velocity
+        self.position = self.position + new_velocity * self.time_step
+        self.last_fallback = fallback
+        self.fallback_count += int(fallback.sum())
+        self.global_time += self.time_step
+        self.steps += 1

@@ -1,0 +1,81 @@
+"""Shared helpers: run the real `pixelswarm` command, find and reap the processes it starts."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import psutil
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def pixelswarm_cmd(*args: str) -> list[str]:
+    return [sys.executable, "-m", "sim.cli", *args]
+
+
+def run_pixelswarm(*args: str, timeout: float = 240) -> subprocess.CompletedProcess:
+    return subprocess.run(pixelswarm_cmd(*args), capture_output=True, text=True, timeout=timeout, cwd=REPO)
+
+
+def descendants(pid: int) -> list[psutil.Process]:
+    try:
+        return psutil.Process(pid).children(recursive=True)
+    except psutil.NoSuchProcess:
+        return []
+
+
+def agent_processes(pid: int) -> list[psutil.Process]:
+    out = []
+    for p in descendants(pid):
+        try:
+            cmd = p.cmdline()
+        except psutil.Error:
+            continue
+        if "-m" in cmd and "agent" in cmd:
+            out.append(p)
+    return out
+
+
+def wait_for(predicate, timeout: float, interval: float = 0.1):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(interval)
+    return predicate()
+
+
+def reap(pids: list[int]) -> list[int]:
+    """Kill whatever of these (our own children) is still alive; return the ones that were."""
+    alive = []
+    for pid in pids:
+        try:
+            p = psutil.Process(pid)
+            if p.status() != psutil.STATUS_ZOMBIE:
+                alive.append(pid)
+                p.kill()
+        except psutil.NoSuchProcess:
+            pass
+    return alive
+
+
+@pytest.fixture
+def spawned():
+    """Processes a test starts; any left at the end are killed (and the test fails on its own checks)."""
+    procs: list[subprocess.Popen] = []
+    yield procs
+    for p in procs:
+        for child in descendants(p.pid):
+            try:
+                child.kill()
+            except psutil.Error:
+                pass
+        if p.poll() is None:
+            p.send_signal(signal.SIGKILL)
+        p.wait(timeout=10)

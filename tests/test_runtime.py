@@ -1,0 +1,221 @@
+"""The runtime end to end: real agent processes over a real zenoh router on loopback."""
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import psutil
+import pytest
+
+from transport.bus import Bus
+from transport.codec import VERSION, Pose
+from transport.session import ZenohSettings, free_port
+
+from .conftest import REPO, agent_processes, descendants, pixelswarm_cmd, reap, run_pixelswarm, wait_for
+
+SCENE = """
+name = "small"
+robots = 8
+seed = 7
+clock = "lockstep"
+duration = {duration}
+[robot]
+kinematics = "{kinematics}"
+[layout]
+kind = "circle"
+spacing = 0.25
+[goals]
+kind = "antipodal"
+"""
+
+
+def write_scene(tmp_path: Path, duration: float = 6.0, kinematics: str = "holonomic") -> Path:
+    path = tmp_path / "small.toml"
+    path.write_text(SCENE.format(duration=duration, kinematics=kinematics))
+    return path
+
+
+def metrics(run: Path) -> dict:
+    return json.loads((run / "metrics.json").read_text())
+
+
+def test_each_robot_is_its_own_process_and_commands_cross_the_router(tmp_path, spawned):
+    scene = write_scene(tmp_path, duration=8.0)
+    out = tmp_path / "run"
+    proc = subprocess.Popen(pixelswarm_cmd("run", str(scene), "--out", str(out), "--no-video", "-q"),
+                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    spawned.append(proc)
+    agents = wait_for(lambda: len(agent_processes(proc.pid)) == 8 and agent_processes(proc.pid), timeout=60)
+    assert len(agents) == 8
+    robots_of = {}
+    for p in agents:
+        config = json.loads(Path(p.cmdline()[p.cmdline().index("--config") + 1]).read_text())
+        robots_of[p.pid] = config["robots"]
+    assert sorted(r for rs in robots_of.values() for r in rs) == list(range(8))
+    assert all(len(rs) == 1 for rs in robots_of.values())  # one robot per OS process
+    stdout, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 0
+    assert Path(stdout.strip().splitlines()[-1]) == out
+    m = metrics(out)
+    assert m["agent_processes"] == 8
+    # every command the world applied was a message that crossed the router (the recorder saw it there)
+    assert m["commands_applied"] > 8 * 10
+    assert m["commands_applied"] <= m["commands_sent"]
+    assert m["messages_per_robot_s"]["pose"] == pytest.approx(10, rel=0.15)
+    assert not reap([p.pid for p in agents])
+
+
+def test_lockstep_is_reproducible_and_hosts_match_processes(tmp_path):
+    scene = write_scene(tmp_path, duration=4.0, kinematics="diffdrive")
+    runs = []
+    for name, extra in [("a", []), ("b", []), ("k4", ["--agents-per-process", "4"])]:
+        out = tmp_path / name
+        result = run_pixelswarm("run", str(scene), "--out", str(out), "--no-video", "-q", *extra)
+        assert result.returncode == 0, result.stderr
+        runs.append(np.load(out / "trajectory.npz"))
+    assert len(runs[0]["t"]) == 41
+    np.testing.assert_array_equal(runs[0]["pose"], runs[1]["pose"])
+    np.testing.assert_array_equal(runs[0]["pose"], runs[2]["pose"])
+    assert metrics(tmp_path / "k4")["agent_processes"] == 2
+    moved = np.hypot(*(runs[0]["pose"][-1, :, :2] - runs[0]["pose"][0, :, :2]).T)
+    assert moved.min() > 0.2  # the robots really drove
+
+
+def test_sigkill_of_an_agent(tmp_path, spawned):
+    scene = write_scene(tmp_path, duration=10.0)
+    out = tmp_path / "run"
+    proc = subprocess.Popen(pixelswarm_cmd("run", str(scene), "--out", str(out), "--no-video", "-q"),
+                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    spawned.append(proc)
+    agents = wait_for(lambda: len(agent_processes(proc.pid)) == 8 and agent_processes(proc.pid), timeout=60)
+    everyone = [p.pid for p in descendants(proc.pid)]
+    time.sleep(2.0)  # mid-run
+    victim = agents[3]
+    robot = json.loads(Path(victim.cmdline()[victim.cmdline().index("--config") + 1]).read_text())["robots"][0]
+    killed_at = time.time()
+    victim.send_signal(signal.SIGKILL)
+    _, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 0, stderr
+    assert "exited with code -9" in stderr
+    m = metrics(out)
+    assert m["agents_crashed"] == 1 and m["crashes"][0]["robots"] == [robot]
+    lost = [e for e in m["liveliness_lost"] if int(e["robot"]) == robot]
+    assert lost and 0 <= lost[0]["wall_time"] - killed_at < 1.0
+    # its robot stays in the world, stopped: the pose is frozen from shortly after the kill
+    traj = np.load(out / "trajectory.npz")
+    pose = traj["pose"][:, robot]
+    assert np.all(pose[-5:] == pose[-1])
+    assert m["duration_s"] >= 9.0  # the run went on
+    assert not reap(everyone)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_stopping_the_launcher_leaves_no_process(tmp_path, spawned, sig):
+    scene = write_scene(tmp_path, duration=60.0)
+    out = tmp_path / "run"
+    proc = subprocess.Popen(pixelswarm_cmd("run", str(scene), "--out", str(out), "--no-video", "-q"),
+                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    spawned.append(proc)
+    assert wait_for(lambda: len(agent_processes(proc.pid)) == 8, timeout=60)
+    time.sleep(1.0)
+    everyone = [p.pid for p in descendants(proc.pid)]
+    assert len(everyone) >= 10  # coordinator, world, 8 agents
+    proc.send_signal(sig)
+    proc.communicate(timeout=60)
+    still = [pid for pid in everyone if psutil.pid_exists(pid) and psutil.Process(pid).status() != psutil.STATUS_ZOMBIE]
+    assert still == []
+    # an interrupted run is kept, and says so
+    m = metrics(out)
+    assert m["complete"] is False and m["end_reason"] == "interrupted"
+    assert not Path(str(out) + ".partial").exists()
+
+
+def test_malformed_messages_on_every_key_are_dropped(tmp_path, spawned):
+    scene = write_scene(tmp_path, duration=6.0)
+    out = tmp_path / "run"
+    port = free_port()
+    proc = subprocess.Popen(pixelswarm_cmd("run", str(scene), "--out", str(out), "--no-video", "-q",
+                                           "-l", f"tcp/127.0.0.1:{port}"),
+                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    spawned.append(proc)
+    assert wait_for(lambda: len(agent_processes(proc.pid)) == 8, timeout=60)
+    rng = np.random.default_rng(0)
+    good = Pose(0, 1, 0.1, 0.0, 0.0, 0.0).encode()
+    bad = [rng.bytes(20), good[:-3], bytes([good[0], VERSION + 9]) + good[2:],
+           good[:18] + np.float32(np.nan).tobytes() + good[22:], b"", b"\x08\x01{not json"]
+    keys = ["pose/0", "pose/5", "state/0/0/3", "state/-1/0/2", "cmd/1", "goals/1", "clock", "sim/truth",
+            "sim/contact", "event", "auction/1/2"]
+    with Bus(ZenohSettings(mode="client", connect=[f"tcp/127.0.0.1:{port}"]), "default") as attacker:
+        time.sleep(1.0)
+        for _ in range(5):
+            for key in keys:
+                for payload in bad:
+                    attacker.put(f"px/default/{key}", payload)
+            time.sleep(0.3)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 0, stderr
+    m = metrics(out)
+    assert m["complete"] and m["duration_s"] >= 5.9
+    assert sum(m["dropped_messages"].values()) > 100
+    assert {"truncated", "version", "non-finite"} <= set(m["dropped_messages"])
+
+
+def test_swarm_spans_two_routers(tmp_path, spawned):
+    scene = write_scene(tmp_path, duration=5.0)
+    port_a, port_b = free_port(), free_port()
+    router_a = subprocess.Popen(pixelswarm_cmd("router", "-l", f"tcp/127.0.0.1:{port_a}"), cwd=REPO,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    spawned.append(router_a)
+    assert "listening" in router_a.stdout.readline()
+    out = tmp_path / "run"
+    result = run_pixelswarm("run", str(scene), "--out", str(out), "--no-video", "-q",
+                            "-l", f"tcp/127.0.0.1:{port_b}", "-e", f"tcp/127.0.0.1:{port_a}",
+                            "--agents-connect", f"tcp/127.0.0.1:{port_a}", "--agents-connect", f"tcp/127.0.0.1:{port_b}")
+    assert result.returncode == 0, result.stderr
+    configs = sorted((out / "logs").glob("agent-*.log"))
+    assert len(configs) == 8
+    m = metrics(out)
+    assert m["missed_ticks"] == 0
+    assert m["commands_applied"] >= 8 * 45  # every robot, both routers, every tick
+    router_a.send_signal(signal.SIGTERM)
+    assert router_a.wait(timeout=10) == 0
+
+
+@pytest.mark.parametrize("args, message", [
+    (["no-such-scene"], "unknown scene"),
+    (["{tmp}/missing.toml"], "not found"),
+    (["{tmp}/bad.toml"], "not valid TOML"),
+    (["circle", "--robots", "0"], "at least 1"),
+    (["{tmp}/negative.toml"], "radius must be a positive"),
+    (["{tmp}/crowded.toml"], "do not fit"),
+])
+def test_bad_input_is_one_line_and_exit_2(tmp_path, args, message):
+    (tmp_path / "bad.toml").write_text("robots = [")
+    (tmp_path / "negative.toml").write_text("robots = 3\n[robot]\nradius = -0.1\n")
+    (tmp_path / "crowded.toml").write_text("robots = 50\n[arena]\nsize = [0.5, 0.5]\n")
+    out = tmp_path / "out"
+    result = run_pixelswarm("run", *[a.format(tmp=tmp_path) for a in args], "--out", str(out), timeout=60)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0], result.stderr
+    assert "Traceback" not in result.stderr
+    assert not out.exists() and not Path(str(out) + ".partial").exists()
+
+
+def test_occupied_port_is_one_line_and_exit_2(tmp_path, spawned):
+    port = free_port()
+    router = subprocess.Popen(pixelswarm_cmd("router", "-l", f"tcp/127.0.0.1:{port}"), cwd=REPO,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    spawned.append(router)
+    assert "listening" in router.stdout.readline()
+    out = tmp_path / "out"
+    result = run_pixelswarm("run", "circle", "--out", str(out), "-l", f"tcp/127.0.0.1:{port}", timeout=60)
+    assert result.returncode == 2
+    assert len(result.stderr.strip().splitlines()) == 1 and "in use" in result.stderr
+    assert not out.exists() and not Path(str(out) + ".partial").exists()
+    router.send_signal(signal.SIGTERM)
+    router.wait(timeout=10)

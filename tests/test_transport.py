@@ -1,0 +1,164 @@
+"""Codecs, keys, faults and the bus on a real zenoh router on loopback."""
+from __future__ import annotations
+
+import math
+import struct
+import time
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from transport.bus import Bus
+from transport.codec import (BY_NAME, VERSION, Command, Contact, DropCounter, Event, Goals, Pose, State, Tick,
+                             Truth, decode)
+from transport.faults import FaultSpec, parse_faults
+from transport.keys import Keys, cell_of
+from transport.session import TransportError, client_of, loopback_router, open_session
+
+SAMPLES = [
+    Pose(3, 7, 0.7, 1.5, -2.0, 0.25),
+    State(3, 7, 0.7, 1.0, 2.0, 0.1, -0.1, 0.045, 0.5, 0.5, 4, State.HAS_GOAL),
+    Command(3, 7, 0.7, Command.WHEELS, 0.1, -0.05, 255, 10, 0),
+    Tick(7, 0.7, 0.1),
+    Goals(2, 0, 0.0, 3, np.array([[0.0, 1.0], [2.0, 3.0], [-1.0, 0.5]]), np.array([[255, 0, 0]] * 3, np.uint8)),
+    Truth(7, 0.7, 0.01, 2, np.zeros((2, 3)), np.ones((2, 2)), np.zeros((2, 3), np.uint8), np.array([1, 2], np.uint32)),
+    Contact(0, 1, 2, 0.5, 0.003),
+    Event({"kind": "end", "reason": "converged"}),
+]
+
+
+@pytest.mark.parametrize("msg", SAMPLES, ids=lambda m: m.NAME)
+def test_round_trip(msg):
+    back = decode(msg.encode())
+    assert type(back) is type(msg)
+    a, b = msg.to_dict(), back.to_dict()
+    for key in a:
+        np.testing.assert_allclose(np.asarray(a[key], float), np.asarray(b[key], float), rtol=1e-6) \
+            if not isinstance(a[key], (str, dict)) else None
+        if isinstance(a[key], (str, dict)):
+            assert a[key] == b[key]
+
+
+def test_messages_are_compact():
+    # 10 Hz per robot of each: the per-robot traffic budget (2 KB/s) leaves room for the auction.
+    assert len(SAMPLES[0].encode()) <= 32
+    assert len(SAMPLES[1].encode()) <= 56
+    assert len(SAMPLES[2].encode()) <= 32
+
+
+@pytest.mark.parametrize("msg", SAMPLES, ids=lambda m: m.NAME)
+def test_malformed_is_dropped_and_counted(msg):
+    data = msg.encode()
+    drops = DropCounter()
+    assert decode(data[:-1], drops=drops) is None  # truncated
+    assert decode(bytes([data[0], VERSION + 1]) + data[2:], drops=drops) is None  # wrong version
+    assert decode(b"", drops=drops) is None
+    assert decode(bytes([200, VERSION]) + data[2:], drops=drops) is None  # unknown kind
+    assert sum(drops.values()) == 4
+    assert drops["version"] == 1 and drops["kind"] == 1
+
+
+def test_non_finite_is_rejected():
+    drops = DropCounter()
+    assert decode(Pose(1, 1, 0.1, math.nan, 0.0, 0.0).encode(), drops=drops) is None
+    assert decode(State(1, 1, 0.1, 0, 0, math.inf, 0, 0.045, 0, 0, -1, 0).encode(), drops=drops) is None
+    bad_goals = Goals(1, 0, 0.0, 1, np.array([[np.nan, 0.0]]), np.zeros((1, 3), np.uint8)).encode()
+    assert decode(bad_goals, drops=drops) is None
+    assert decode(b"\x08\x01" + b'{"a": NaN}', drops=drops) is None
+    assert drops["non-finite"] == 4
+
+
+def test_wrong_kind_on_a_key_is_dropped():
+    drops = DropCounter()
+    assert decode(SAMPLES[2].encode(), Pose, drops) is None
+    assert drops["kind"] == 1
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.binary(max_size=200))
+def test_random_bytes_never_raise(data):
+    for expected in [None, *BY_NAME.values()]:
+        msg = decode(data, expected, DropCounter())
+        assert msg is None or isinstance(msg, tuple(BY_NAME.values()))
+
+
+def test_keys_and_cells():
+    k = Keys("lab")
+    assert k.pose(3) == "px/lab/pose/3"
+    assert k.state((-1, 2), 5) == "px/lab/state/-1/2/5"
+    assert k.kind_of(k.state((0, 0), 1)) == "state" and k.kind_of(k.truth) == "sim/truth"
+    assert cell_of(-0.01, 0.99, 0.5) == (-1, 1)
+    with pytest.raises(ValueError):
+        Keys("bad/name")
+
+
+def test_fault_plan_parsing():
+    plan = parse_faults("state:drop=0.1,delay=0.05,jitter=0.01; cmd:drop=0.5")
+    assert plan["state"] == FaultSpec(0.1, 0.05, 0.01) and plan["cmd"].drop == 0.5
+    for bad in ["state", "state:drop=2", "state:loss=0.1", "state:drop=x"]:
+        with pytest.raises(ValueError):
+            parse_faults(bad)
+
+
+@pytest.fixture
+def router():
+    settings = loopback_router()
+    session = open_session(settings)
+    yield settings
+    session.close()
+
+
+def _collect(inbox, n, timeout=3.0):
+    out, end = [], time.monotonic() + timeout
+    while len(out) < n and time.monotonic() < end:
+        got = inbox.get(timeout=0.05)
+        if got is not None:
+            out.append(got)
+    return out
+
+
+def test_bus_publish_subscribe_and_drop_malformed(router):
+    with Bus(client_of(router), "t") as a, Bus(client_of(router), "t") as b:
+        inbox = b.subscribe(b.keys.all_of("pose"), Pose)
+        time.sleep(0.3)
+        a.put(a.keys.pose(1), b"\x01\x01garbage")  # malformed: counted, not delivered
+        a.publish(a.keys.pose(1), Pose(1, 1, 0.1, 0.0, 0.0, 0.0))
+        a.publish(a.keys.pose(2), Command(2, 1, 0.1, 0, 0, 0, 0, 0, 0))  # wrong kind on a pose key
+        got = _collect(inbox, 1)
+        time.sleep(0.2)
+        assert [m.robot for _, m in got] == [1] and inbox.get(timeout=0.1) is None
+        assert inbox.drops["truncated"] == 1 and inbox.drops["kind"] == 1
+
+
+def test_fault_injection_drop_and_delay(router):
+    faults = {"state": FaultSpec(drop=0.3, delay=0.2)}
+    with Bus(client_of(router), "t") as a, Bus(client_of(router), "t", faults=faults, seed=3) as b:
+        lossy = b.subscribe(b.keys.all_of("state"), State)
+        time.sleep(0.3)
+        sent = time.monotonic()
+        for i in range(200):
+            a.publish(a.keys.state((0, 0), i), State(i, 1, 0.1, 0, 0, 0, 0, 0.045, 0, 0, -1, 0))
+        assert lossy.get(timeout=0.15) is None  # nothing before the added delay
+        got = _collect(lossy, 200, timeout=2.0)
+        assert time.monotonic() - sent >= 0.2
+        assert 100 < len(got) < 180  # ~30% lost
+        assert lossy.drops["fault"] == 200 - len(got)
+
+
+def test_liveliness_reports_death(router):
+    with Bus(client_of(router), "t") as watcher:
+        watch = watcher.watch_alive("agent")
+        agent = Bus(client_of(router), "t")
+        agent.declare_alive("agent", 4)
+        time.sleep(0.3)
+        agent.close()
+        time.sleep(0.3)
+        events = [(role, ident, alive) for role, ident, alive, _ in watch.drain()]
+        assert events == [("agent", "4", True), ("agent", "4", False)]
+
+
+def test_occupied_port_is_a_clear_error(router):
+    with pytest.raises(TransportError, match="in use"):
+        open_session(router)
