@@ -1,11 +1,13 @@
 # Two commands do all the set-up: `make run` and `make test`.
+# Each creates .venv when missing and installs the project from pyproject.toml.
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 TSTAMP := $(VENV)/.installed-test
-ROBOTS ?= 20
 SCENE  ?= circle
+ROBOTS ?= 20
+RUN_ARGS ?=
 
 .PHONY: run test lint bench clean
 
@@ -17,14 +19,15 @@ $(STAMP): pyproject.toml | $(PY)
 	$(PY) -m pip install -q -e .
 	touch $@
 
+# pyrvo (RVO2's bindings) is the reference of the ORCA cross-checks and benchmarks; its metadata
+# pins an old numpy, so it goes in without its dependencies (they are ours already).
 $(TSTAMP): pyproject.toml $(STAMP)
 	$(PY) -m pip install -q -e '.[test]'
-	# pyrvo (RVO2 bindings) is the reference for cross-checks; its metadata pins an old numpy, hence --no-deps.
 	$(PY) -m pip install -q --no-deps 'pyrvo>=0.4'
 	touch $@
 
 run: $(STAMP)
-	$(VENV)/bin/pixelswarm run $(SCENE) --robots $(ROBOTS)
+	$(VENV)/bin/pixelswarm run $(SCENE) --robots $(ROBOTS) $(RUN_ARGS)
 
 lint: $(TSTAMP)
 	$(VENV)/bin/lint-imports
@@ -37,4 +40,4 @@ bench: $(TSTAMP)
 	$(PY) -m bench.run_all
 
 clean:
-	rm -rf $(VENV) runs .pytest_cache
+	rm -rf $(VENV) .pytest_cache .hypothesis

@@ -1,0 +1,101 @@
+"""Small, pure geometry helpers for the simulated world: arena rectangle, polygon obstacles, arcs.
+
+All functions work on numpy arrays with a trailing coordinate axis; SI units (metres, radians).
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import shapely
+from shapely.geometry import Polygon
+
+__all__ = [
+    "arc_displacement",
+    "make_arena",
+    "make_polygon",
+    "polygon_signed_distance",
+    "rect_signed_distance",
+    "wrap_angle",
+]
+
+
+def wrap_angle(theta: np.ndarray) -> np.ndarray:
+    """Wrap angles to [-pi, pi)."""
+    return (np.asarray(theta, dtype=float) + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def arc_displacement(
+    speed: np.ndarray, heading: np.ndarray, omega: np.ndarray, t: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Exact displacement of a unicycle moving at constant (speed, omega) for time t from heading.
+
+    The chord of the circular arc has length ``speed * t * sinc(omega t / 2)`` and points along
+    ``heading + omega t / 2``; this form is exact for every omega, including 0 (a straight line),
+    with no division by a small omega. Arguments broadcast against each other.
+    """
+    half = omega * t * 0.5
+    chord = speed * t * np.sinc(half / math.pi)  # numpy's sinc is sin(pi x) / (pi x)
+    ang = heading + half
+    return chord * np.cos(ang), chord * np.sin(ang)
+
+
+def make_arena(arena: Sequence[float] | None) -> tuple[float, float, float, float] | None:
+    """Validate an arena (xmin, ymin, xmax, ymax); None means unbounded."""
+    if arena is None:
+        return None
+    try:
+        values = tuple(float(v) for v in arena)
+    except (TypeError, ValueError):
+        raise ValueError(f"arena must be (xmin, ymin, xmax, ymax) numbers, not {arena!r}") from None
+    if len(values) != 4 or not all(math.isfinite(v) for v in values):
+        raise ValueError(f"arena must be four finite numbers (xmin, ymin, xmax, ymax), not {arena!r}")
+    xmin, ymin, xmax, ymax = values
+    if not (xmin < xmax and ymin < ymax):
+        raise ValueError(f"arena must have xmin < xmax and ymin < ymax, not {values}")
+    return values
+
+
+def rect_signed_distance(xy: np.ndarray, arena: tuple[float, float, float, float]) -> np.ndarray:
+    """Signed distance from points to the arena boundary: positive inside, negative outside.
+
+    ``xy`` has shape (..., 2); the result has shape (...).
+    """
+    xmin, ymin, xmax, ymax = arena
+    x = xy[..., 0]
+    y = xy[..., 1]
+    inside = np.minimum(np.minimum(x - xmin, xmax - x), np.minimum(y - ymin, ymax - y))
+    ox = np.maximum(np.maximum(xmin - x, x - xmax), 0.0)
+    oy = np.maximum(np.maximum(ymin - y, y - ymax), 0.0)
+    outside = np.hypot(ox, oy)
+    return np.where(inside >= 0.0, inside, -outside)
+
+
+def make_polygon(vertices: Sequence[Sequence[float]], index: int = 0) -> Polygon:
+    """A simple polygon (no holes) from a vertex list; ValueError if degenerate or self-intersecting."""
+    try:
+        arr = np.asarray(vertices, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"obstacle {index}: vertices must be (x, y) number pairs") from None
+    if arr.ndim != 2 or arr.shape[1] != 2 or arr.shape[0] < 3:
+        raise ValueError(f"obstacle {index}: need at least 3 (x, y) vertices, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"obstacle {index}: vertices must be finite")
+    poly = Polygon(arr)
+    if not poly.is_valid:
+        raise ValueError(f"obstacle {index}: polygon is not valid ({shapely.is_valid_reason(poly)})")
+    if poly.area <= 0.0:
+        raise ValueError(f"obstacle {index}: polygon has zero area")
+    shapely.prepare(poly)
+    return poly
+
+
+def polygon_signed_distance(poly: Polygon, xy: np.ndarray) -> np.ndarray:
+    """Signed distance from points (M, 2) to a polygon: positive outside, negative inside."""
+    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+    if xy.shape[0] == 0:
+        return np.empty(0)
+    d = shapely.distance(poly.exterior, shapely.points(xy))
+    inside = shapely.contains_xy(poly, xy[:, 0], xy[:, 1])
+    return np.where(inside, -d, d)
