@@ -253,8 +253,8 @@ class Launcher:
             for reason, k in (s.get("dropped") or {}).items():
                 dropped[reason] = dropped.get(reason, 0) + int(k)
         clearance = clearance_over_time(arrays["pose"], radius) if len(arrays["t"]) else np.zeros(0)
-        if len(clearance) and stats.get("min_clearance") is not None:
-            clearance = clearance  # tick samples; the world's substep minimum is reported separately
+        walls = rec.traj.wall
+        stepping_wall = walls[-1] - walls[0] if len(walls) > 1 else 0.0  # start-up excluded
         lost = [e for e in rec.liveliness if e["role"] == "agent" and not e["alive"]
                 and e["wall_time"] < getattr(self, "shutdown_wall", float("inf"))]
         self._say(f"[{self.scene.name}] run ended ({end_reason}); writing {self.run_dir.path.name}", force=True)
@@ -275,6 +275,9 @@ class Launcher:
             dropped_messages=dropped, crashes=self.crashes,
             liveliness_lost=[{"robot": e["id"], "wall_time": e["wall_time"]} for e in lost],
             faults=format_faults(self.opt.faults),
+            stepping_wall_s=stepping_wall,
+            stepping_realtime_factor=(float(arrays["t"][-1] - arrays["t"][0]) / stepping_wall
+                                      if stepping_wall else None),
         )
         d = self.run_dir
         write_json(d / "metrics.json", metrics)

@@ -7,6 +7,7 @@ decides when the display has converged.
 from __future__ import annotations
 
 import dataclasses
+import json
 import time
 import typing
 from dataclasses import dataclass, field
@@ -15,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from transport.bus import Bus
-from transport.codec import BY_NAME, Contact, DropCounter, Event, State, Truth, decode
+from transport.codec import BY_NAME, Contact, DropCounter, Event, Goals, State, Truth, decode
 from transport.keys import Keys
 
 from .mcaplog import McapLog
@@ -44,6 +45,7 @@ class Trajectory:
     goal: list[np.ndarray] = field(default_factory=list)
     assignment: list[np.ndarray] = field(default_factory=list)
     applied: np.ndarray | None = None
+    wall: list[float] = field(default_factory=list)  # wall time each tick arrived (real-time factor)
 
 
 class Recorder:
@@ -84,11 +86,14 @@ class Recorder:
             msg = decode(payload, expected, self.drops) if expected else None
             if msg is None:
                 continue
-            self._log(kind, wall, msg.to_dict() | {"key": key})
+            payload = msg.to_dict()
+            payload["key"] = key
+            # Fixed-layout messages were validated finite: plain json.dumps is safe and 4x faster.
+            self._log(kind, wall, payload, fast=not isinstance(msg, (Truth, Goals)))
             if isinstance(msg, State):
                 self._on_state(msg)
             elif isinstance(msg, Truth):
-                self._on_truth(msg)
+                self._on_truth(msg, wall)
             elif isinstance(msg, Contact):
                 self.contacts.append(msg)
             elif isinstance(msg, Event):
@@ -103,13 +108,14 @@ class Recorder:
             self.goal[s.robot] = np.nan
         self.goal_index[s.robot] = s.goal_index
 
-    def _on_truth(self, m: Truth) -> None:
+    def _on_truth(self, m: Truth, wall: float) -> None:
         if m.count != self.n:
             return
         tr = self.traj
         if tr.t and m.stamp <= tr.t[-1]:
             return
         tr.t.append(m.stamp)
+        tr.wall.append(wall)
         tr.pose.append(m.pose)
         tr.velocity.append(m.velocity)
         tr.color.append(m.color)
@@ -141,7 +147,7 @@ class Recorder:
         return self.traj.t[-1] if self.traj.t else 0.0
 
     # --- mcap ---------------------------------------------------------------------------------
-    def _log(self, kind: str, wall: float, payload: dict[str, Any]) -> None:
+    def _log(self, kind: str, wall: float, payload: dict[str, Any], fast: bool = False) -> None:
         if self.log is None:
             return
         cid = self._channels.get(kind)
@@ -149,7 +155,10 @@ class Recorder:
             schema = json_schema_of(BY_NAME[kind]) if kind in BY_NAME else {"type": "object"}
             name = BY_NAME[kind].__name__ if kind in BY_NAME else kind
             cid = self._channels[kind] = self.log.add_channel("/" + kind, f"pixelswarm.{name}", schema)
-        self.log.write(cid, int(wall * 1e9), payload)
+        if fast:
+            self.log.write_bytes(cid, int(wall * 1e9), json.dumps(payload, separators=(",", ":")).encode())
+        else:
+            self.log.write(cid, int(wall * 1e9), payload)
 
     def close_log(self) -> None:
         if self.log is not None:

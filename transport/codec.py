@@ -10,7 +10,7 @@ import json
 import math
 import struct
 from collections import Counter
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar
 
 import numpy as np
@@ -40,12 +40,23 @@ class Message:
     KIND: ClassVar[int] = 0
     NAME: ClassVar[str] = ""
     _fixed: ClassVar[struct.Struct]
+    _names: ClassVar[tuple[str, ...]] = ()
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        cls._names = ()  # filled on first use: the dataclass decorator runs after this hook
+
+    @classmethod
+    def field_names(cls) -> tuple[str, ...]:
+        if not cls._names:
+            cls._names = tuple(f.name for f in fields(cls))
+        return cls._names
 
     def encode(self) -> bytes:
         return _HEADER.pack(self.KIND, VERSION) + self._fixed.pack(*self._fixed_values()) + self._tail()
 
     def _fixed_values(self) -> tuple:
-        return tuple(asdict(self).values())
+        return tuple(getattr(self, name) for name in self.field_names())
 
     def _tail(self) -> bytes:
         return b""
@@ -59,11 +70,17 @@ class Message:
         return msg
 
     def validate(self) -> None:
-        _finite(*(v for v in self._fixed_values() if isinstance(v, float)))
+        for v in self._fixed_values():
+            if isinstance(v, float) and not math.isfinite(v):
+                raise Malformed("non-finite")
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly view (for logs)."""
-        return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in asdict(self).items()}
+        out = {}
+        for name in self.field_names():
+            v = getattr(self, name)
+            out[name] = v.tolist() if isinstance(v, np.ndarray) else v
+        return out
 
 
 @dataclass
