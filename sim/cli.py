@@ -8,6 +8,7 @@ import time
 import typing
 from pathlib import Path
 
+from coordinator.goals_cli import add_goals_parser
 from coordinator.scene import SceneError, load_scene, shipped_scenes
 from transport.faults import parse_faults
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, open_session, settings_from_args
@@ -67,12 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
     scenes = sub.add_parser("scenes", help="list the shipped scenes")
     scenes.set_defaults(func=cmd_scenes)
 
-    try:
-        from coordinator.goals_cli import add_goals_parser
-    except ImportError:  # goal generation not installed in this build
-        pass
-    else:
-        add_goals_parser(sub)
+    add_goals_parser(sub)
     return parser
 
 

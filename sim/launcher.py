@@ -6,7 +6,6 @@ down in order) and exit by themselves if the launcher disappears.
 """
 from __future__ import annotations
 
-import json
 import math
 import os
 import signal
@@ -27,10 +26,9 @@ from transport.codec import Event
 from transport.faults import FaultPlan, format_faults
 from transport.session import ZenohSettings, client_of, loopback_router
 
-from .metrics import clearance_over_time, summarise
+from .output import write_run
 from .recorder import Recorder
-from .render import write_plots, write_video
-from .rundir import RunDir, write_json, write_npz
+from .rundir import RunDir
 
 
 @dataclass
@@ -244,30 +242,25 @@ class Launcher:
         if interrupted:
             end_reason = "interrupted"
         arrays = rec.arrays()
-        n = self.scene.robots
-        radius = np.full(n, self.params.radius)
         stats = getattr(self, "world_stats", {})
         agent_stats = [e for e in rec.events if e.get("kind") == "stats" and e.get("role") == "agent"]
         dropped: dict[str, int] = dict(rec.drops)
         for s in agent_stats + [stats]:
             for reason, k in (s.get("dropped") or {}).items():
                 dropped[reason] = dropped.get(reason, 0) + int(k)
-        clearance = clearance_over_time(arrays["pose"], radius) if len(arrays["t"]) else np.zeros(0)
         walls = rec.traj.wall
         stepping_wall = walls[-1] - walls[0] if len(walls) > 1 else 0.0  # start-up excluded
         lost = [e for e in rec.liveliness if e["role"] == "agent" and not e["alive"]
                 and e["wall_time"] < getattr(self, "shutdown_wall", float("inf"))]
         self._say(f"[{self.scene.name}] run ended ({end_reason}); writing {self.run_dir.path.name}", force=True)
-        metrics = summarise(
-            t=arrays["t"], pose=arrays["pose"], radius=radius, wall_s=wall_s, contacts=len(stats.get("contacts", [])),
+        return write_run(
+            self.run_dir, self.scene, self.params, arrays, wall_s=wall_s, contacts=stats.get("contacts", []),
+            video=self.opt.video and not interrupted,
             message_counts=rec.counts, message_bytes=rec.bytes, missed_ticks=int(stats.get("missed_ticks", 0)),
-            agents_crashed=len(self.crashes), goal=arrays["goal"], tolerance=self.params.goal_tolerance,
-            clearance=clearance,
-            scene=self.scene.name, seed=self.scene.seed, clock=self.scene.clock, end_reason=end_reason,
-            complete=not interrupted, engine="distributed", agents_per_process=self.opt.agents_per_process,
+            agents_crashed=len(self.crashes), end_reason=end_reason, complete=not interrupted,
+            engine="distributed", agents_per_process=self.opt.agents_per_process,
             agent_processes=sum(c.name.startswith("agent") for c in self.children),
             min_clearance_substep_m=stats.get("min_clearance"),
-            contact_events=stats.get("contacts", []),
             commands_applied=int(sum(stats.get("commands_applied", []))),
             commands_sent=int(rec.counts.get("cmd", 0)),
             late_commands=int(stats.get("late_commands", 0)),
@@ -279,17 +272,3 @@ class Launcher:
             stepping_realtime_factor=(float(arrays["t"][-1] - arrays["t"][0]) / stepping_wall
                                       if stepping_wall else None),
         )
-        d = self.run_dir
-        write_json(d / "metrics.json", metrics)
-        write_npz(d / "trajectory.npz", radius=radius, **arrays)
-        if len(arrays["t"]):
-            write_plots(d.path, arrays["t"], clearance, arrays["pose"], radius, self.scene.arena,
-                        self.scene.obstacles, arrays["goal"], color=arrays["color"])
-            if self.opt.video and not interrupted:
-                write_video(d / "display.mp4", arrays["t"], arrays["pose"], radius, arrays["color"],
-                            self.scene.arena, self.scene.obstacles, arrays["goal"])
-        write_json(d / "scene.json", {"name": self.scene.name, "source": self.scene.source, "robots": n,
-                                      "seed": self.scene.seed, "clock": self.scene.clock,
-                                      "arena": self.scene.arena, "obstacles": self.scene.obstacles,
-                                      "robot": self.params.to_dict()})
-        return d.commit()

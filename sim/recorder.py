@@ -17,7 +17,6 @@ import numpy as np
 
 from transport.bus import Bus
 from transport.codec import BY_NAME, Contact, DropCounter, Event, Goals, State, Truth, decode
-from transport.keys import Keys
 
 from .mcaplog import McapLog
 

@@ -1,0 +1,75 @@
+"""Goal-set families (paper 5.1.2, eq. 8): independent goal sets G_r for a range of robot counts r,
+so the display adapts when robots drop out or join. All sets share one arena, the largest any of
+them needs, so the picture keeps its size when the number of robots changes."""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from typing import Any, Iterable
+
+import numpy as np
+
+from .model import GoalError, GoalSet
+from .pipeline import goals_from_prepared, prepare_image
+
+FAMILY_FORMAT = "pixelswarm.goal-family/1"
+
+
+@dataclass
+class GoalFamily:
+    """Goal sets keyed by their number of robots r (eq. 8)."""
+
+    sets: dict[int, GoalSet] = field(default_factory=dict)
+
+    @property
+    def counts(self) -> list[int]:
+        return sorted(self.sets)
+
+    def for_robots(self, available: int) -> GoalSet:
+        """The goal set for the most robots not exceeding `available`."""
+        fitting = [r for r in self.sets if r <= available]
+        if not fitting:
+            raise GoalError(f"no goal set for {available} robots: the family starts at {min(self.sets)}")
+        return self.sets[max(fitting)]
+
+    def to_json(self, indent: int | None = None) -> str:
+        return json.dumps({"format": FAMILY_FORMAT, "sets": [self.sets[r].to_dict() for r in self.counts]},
+                          indent=indent)
+
+    @classmethod
+    def from_json(cls, text: str) -> "GoalFamily":
+        data = json.loads(text)
+        if data.get("format") != FAMILY_FORMAT:
+            raise ValueError(f"unsupported goal-family format {data.get('format')!r}")
+        sets = [GoalSet.from_dict(d) for d in data["sets"]]
+        return cls({len(s): s for s in sets})
+
+
+def _rescale(gs: GoalSet, arena: float) -> GoalSet:
+    """The same goals in an arena of another size (goals scale linearly with K_r)."""
+    k = arena / gs.arena
+    params = dict(gs.params, arena=float(arena))
+    if params.get("min_spacing") is not None:
+        params["min_spacing"] = params["min_spacing"] * k
+    params["regions"] = [dict(r, k_s=r["k_s"] * k) for r in params.get("regions", [])]
+    return GoalSet(gs.goals * k, gs.colors, gs.regions, gs.cost_history, params)
+
+
+def goal_family(image_or_path: str | os.PathLike[str] | np.ndarray, counts: Iterable[int], *,
+                arena: float | None = None, background: Any = None, min_area: int | None = None,
+                **kwargs: Any) -> GoalFamily:
+    """Goal sets for every robot count in `counts` (the image is segmented once).
+
+    With arena=None every set gets the conservative arena of the most demanding set; with an explicit
+    arena every set must fit it (GoalError otherwise). Other keyword arguments go to generate_goals."""
+    wanted = sorted({int(c) for c in counts})
+    if not wanted:
+        raise GoalError("a goal family needs at least one robot count")
+    prep = prepare_image(image_or_path, background=background, min_area=min_area)
+    sets = {r: goals_from_prepared(prep, r, arena=arena, **kwargs) for r in wanted}
+    if arena is None:
+        shared = max(s.arena for s in sets.values())  # each is its own conservative (auto) arena
+        sets = {r: _rescale(s, shared) for r, s in sets.items()}
+    return GoalFamily(sets)
+

@@ -1,0 +1,206 @@
+"""Input image and background subtraction (paper 4.1).
+
+Images are RGB uint8 arrays (H, W, 3), row 0 at the top; an optional alpha channel (H, W) marks
+transparent pixels as background. Colour distances are CIE76 Delta E in Lab.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import cv2
+import numpy as np
+
+from .model import GoalError
+
+# Named colours accepted by --background.
+NAMED_COLORS = {
+    "white": (255, 255, 255), "black": (0, 0, 0), "red": (255, 0, 0), "green": (0, 255, 0),
+    "blue": (0, 0, 255), "gray": (128, 128, 128), "grey": (128, 128, 128),
+}
+_MAGIC = (b"\x89PNG", b"\xff\xd8", b"BM", b"II*\x00", b"MM\x00*")
+BG_TOLERANCE = 12.0  # Delta E: colours closer than this to the background are background
+
+
+@dataclass
+class Foreground:
+    """Foreground mask and how it was found: 'alpha', 'color' (explicit) or 'border' (automatic)."""
+
+    mask: np.ndarray
+    source: str
+    work: np.ndarray  # the RGB image the decision was made on (denoised for noisy inputs)
+    background: tuple[int, int, int] | None
+    tolerance: float
+
+
+@contextlib.contextmanager
+def _quiet_opencv() -> Iterator[None]:
+    logging = cv2.utils.logging
+    old = logging.getLogLevel()
+    logging.setLogLevel(logging.LOG_LEVEL_SILENT)
+    try:
+        yield
+    finally:
+        logging.setLogLevel(old)
+
+
+def load_image(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray | None]:
+    """Read a PNG, JPEG, BMP or TIFF file: (RGB uint8, alpha uint8 or None). Raises GoalError."""
+    p = Path(path)
+    if not p.exists():
+        raise GoalError(f"no such file: {p}")
+    if p.is_dir():
+        raise GoalError(f"{p} is a directory, not an image")
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise GoalError(f"cannot read {p}: {exc.strerror or exc}") from None
+    if not data.startswith(_MAGIC):
+        raise GoalError(f"cannot read {p}: not a PNG, JPEG, BMP or TIFF image")
+    with _quiet_opencv():
+        raw = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if raw is None or raw.size == 0:
+        raise GoalError(f"cannot read {p}: the image data is damaged or unsupported")
+    return split_channels(raw, bgr=True)
+
+
+def split_channels(raw: np.ndarray, *, bgr: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+    """Any gray, RGB or RGBA array (uint8, uint16 or float in [0, 1]) to (RGB uint8, alpha or None)."""
+    a = np.asarray(raw)
+    if a.dtype == np.uint16:
+        a = (a.astype(np.float64) / 257.0).round()
+    elif a.dtype.kind == "f":
+        a = np.clip(a, 0.0, 1.0) * 255.0
+    elif a.dtype == bool:
+        a = a * 255
+    a = np.clip(a, 0, 255).astype(np.uint8)
+    if a.ndim == 2:
+        a = a[:, :, None]
+    if a.ndim != 3 or a.shape[2] not in (1, 2, 3, 4) or min(a.shape[:2]) < 1:
+        raise GoalError(f"an image must be H x W with 1 to 4 channels, not shape {tuple(np.shape(raw))}")
+    alpha = None
+    if a.shape[2] in (2, 4):
+        alpha = a[:, :, -1].copy()
+        a = a[:, :, :-1]
+    if a.shape[2] == 1:
+        a = np.repeat(a, 3, axis=2)
+    elif bgr:
+        a = a[:, :, ::-1]
+    return np.ascontiguousarray(a), alpha
+
+
+def parse_color(text: str | tuple[int, int, int] | list[int]) -> tuple[int, int, int]:
+    """'#rrggbb', 'r,g,b' or a name (white, black, ...) to an RGB tuple. Raises GoalError."""
+    if not isinstance(text, str):
+        vals = [int(v) for v in text]
+    else:
+        t = text.strip().lower()
+        if t in NAMED_COLORS:
+            return NAMED_COLORS[t]
+        try:
+            if t.startswith("#") and len(t) == 7:
+                vals = [int(t[i:i + 2], 16) for i in (1, 3, 5)]
+            else:
+                vals = [int(v) for v in t.split(",")]
+        except ValueError:
+            vals = []
+    if len(vals) != 3 or not all(0 <= v <= 255 for v in vals):
+        raise GoalError(f"bad colour {text!r}: use #rrggbb, r,g,b (0-255) or a name such as white")
+    return (vals[0], vals[1], vals[2])
+
+
+def to_lab(rgb: np.ndarray, *, precise: bool = False) -> np.ndarray:
+    """RGB uint8 (..., 3) to float32 CIE Lab (L in 0-100, a and b centred on 0). The fast default goes
+    through OpenCV's 8-bit conversion (resolution about 0.4 units, far below the tolerances used for
+    segmentation); precise=True converts in floating point (for goal colours)."""
+    if precise:
+        f = np.asarray(rgb, dtype=np.float32).reshape(-1, 1, 3) / 255.0
+        return cv2.cvtColor(f, cv2.COLOR_RGB2Lab).reshape(np.shape(rgb))
+    a = np.ascontiguousarray(np.asarray(rgb, dtype=np.uint8).reshape(-1, 1, 3))
+    lab = cv2.cvtColor(a, cv2.COLOR_RGB2Lab).reshape(-1, 3).astype(np.float32)
+    lab *= np.array([100.0 / 255.0, 1.0, 1.0], np.float32)
+    lab -= np.array([0.0, 128.0, 128.0], np.float32)
+    return lab.reshape(np.shape(rgb))
+
+
+def lab_to_rgb(lab: np.ndarray) -> np.ndarray:
+    """Float CIE Lab (..., 3) to RGB uint8."""
+    a = np.asarray(lab, dtype=np.float32).reshape(-1, 1, 3)
+    rgb = cv2.cvtColor(a, cv2.COLOR_Lab2RGB).reshape(np.shape(lab))
+    return np.clip(np.round(rgb * 255.0), 0, 255).astype(np.uint8)
+
+
+def _border(h: int, w: int) -> np.ndarray:
+    band = max(1, round(0.01 * min(h, w)))
+    m = np.zeros((h, w), bool)
+    m[:band], m[-band:], m[:, :band], m[:, -band:] = True, True, True, True
+    return m
+
+
+def _quadratic_terms(ys: np.ndarray, xs: np.ndarray, h: int, w: int) -> np.ndarray:
+    x = xs / max(w - 1, 1) - 0.5
+    y = ys / max(h - 1, 1) - 0.5
+    return np.stack([np.ones_like(x), x, y, x * x, x * y, y * y], axis=1)
+
+
+def _border_model(lab: np.ndarray, tol: float) -> tuple[np.ndarray, float, np.ndarray]:
+    """Fit a smooth (quadratic) Lab background to the border pixels that share the dominant colour.
+
+    Returns (background Lab per pixel, robust noise sigma in Delta E, dominant colour)."""
+    h, w = lab.shape[:2]
+    ys, xs = np.nonzero(_border(h, w))
+    vals = lab[ys, xs].astype(np.float64)
+    k = np.floor((vals + np.array([0.0, 128.0, 128.0])) / 8.0).astype(np.int64)
+    _, inv, counts = np.unique((k[:, 0] * 64 + k[:, 1]) * 64 + k[:, 2], return_inverse=True, return_counts=True)
+    dominant = vals[inv.reshape(-1) == np.argmax(counts)].mean(axis=0)
+    resid = np.linalg.norm(vals - dominant, axis=1)
+    inliers = resid < 2.0 * tol
+    if float(np.max(resid[inliers])) < 0.5:  # a flat background colour
+        return np.broadcast_to(dominant, lab.shape), 0.0, dominant
+    terms = _quadratic_terms(ys, xs, h, w)
+    coef = np.zeros((terms.shape[1], 3))
+    coef[0] = dominant
+    sigma = 0.0
+    for _ in range(4):
+        if inliers.sum() >= 4 * terms.shape[1]:
+            coef, *_ = np.linalg.lstsq(terms[inliers], vals[inliers], rcond=None)
+        resid = np.linalg.norm(vals - terms @ coef, axis=1)
+        sigma = 1.4826 * float(np.median(resid[inliers])) if inliers.any() else 0.0
+        inliers = resid < max(2.0 * tol, 4.0 * sigma)
+    x = (np.arange(w) / max(w - 1, 1) - 0.5)[None, :, None]
+    y = (np.arange(h) / max(h - 1, 1) - 0.5)[:, None, None]
+    c = coef[:, None, None, :]
+    model = c[0] + c[1] * x + c[2] * y + c[3] * x * x + c[4] * x * y + c[5] * y * y
+    return model, sigma, dominant
+
+
+def foreground_mask(rgb: np.ndarray, alpha: np.ndarray | None = None, *,
+                    background: str | tuple[int, int, int] | None = None,
+                    tolerance: float = BG_TOLERANCE) -> Foreground:
+    """Background subtraction. Transparent pixels (alpha < 128) are always background; an explicit
+    background colour removes the pixels within `tolerance` of it as well; without either, the dominant
+    border colour is the background (fitted as a smooth gradient, with a tolerance raised to 4 sigma of
+    the border's noise; noisy images are median-filtered first)."""
+    rgb = np.asarray(rgb, dtype=np.uint8)
+    opaque = alpha >= 128 if alpha is not None and int(alpha.min()) < 255 else None
+    if background is not None:
+        color = parse_color(background)
+        diff = np.linalg.norm(to_lab(rgb) - to_lab(np.array(color, np.uint8)), axis=-1)
+        mask = diff > tolerance if opaque is None else (diff > tolerance) & opaque
+        return Foreground(mask, "color", rgb, color, tolerance)
+    if opaque is not None:
+        return Foreground(opaque, "alpha", rgb, None, tolerance)
+    work = rgb
+    model, sigma, dominant = _border_model(to_lab(work), tolerance)
+    if sigma > 2.0:  # a noisy photo: decide on a denoised copy
+        work = cv2.medianBlur(rgb, 5)
+        model, sigma, dominant = _border_model(to_lab(work), tolerance)
+    tol = max(tolerance, 4.0 * sigma)
+    mask = np.linalg.norm(to_lab(work) - model, axis=-1) > tol
+    if sigma > 1.0:
+        mask = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
+    bg = tuple(int(v) for v in lab_to_rgb(dominant.astype(np.float32)))
+    return Foreground(mask, "border", work, bg, tol)  # type: ignore[arg-type]

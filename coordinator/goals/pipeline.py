@@ -1,0 +1,226 @@
+"""Goal generation end to end (paper section 4): image -> regions R_i -> N_i per region -> initial
+samples (K_s) -> Lloyd iterations (CVT with the mass density of eq. 2, or k-means) -> colours -> arena."""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .allocate import allocate_robots
+from .colors import cell_colors, voronoi_cells
+from .cvt import K_D, K_M, MAX_ITER, RELAX, TOLERANCE, binary_domain, density_domain, lloyd
+from .image import BG_TOLERANCE, Foreground, foreground_mask, load_image, split_channels
+from .model import GoalError, GoalSet
+from .resize import DEFAULT_ROBOT_RADIUS, auto_arena, check_feasible, normalised_spacing, to_arena
+from .sampling import KS_FACTOR, ks_distance, poisson_samples
+from .segment import COLOR_TOLERANCE, Segmentation, segment
+
+METHODS = ("cvt", "kmeans")
+MAX_SIDE = 1024  # longer image side (pixels) used for goal generation; larger images are scaled down
+
+
+@dataclass
+class PreparedImage:
+    """An image after background subtraction and segmentation; reusable for several N."""
+
+    rgb: np.ndarray
+    alpha: np.ndarray | None
+    foreground: Foreground
+    seg: Segmentation
+    source: str
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (int(self.rgb.shape[0]), int(self.rgb.shape[1]))
+
+    @property
+    def scale(self) -> float:
+        """Pixels per unit of the normalised square Q (the longer image side)."""
+        return float(max(self.shape))
+
+
+def _shrink(rgb: np.ndarray, alpha: np.ndarray | None, max_side: int
+            ) -> tuple[np.ndarray, np.ndarray | None, str | None]:
+    h, w = rgb.shape[:2]
+    if max(h, w) <= max_side:
+        return rgb, alpha, None
+    k = max_side / max(h, w)
+    size = (max(1, round(w * k)), max(1, round(h * k)))
+    small = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
+    a = None if alpha is None else cv2.resize(alpha, size, interpolation=cv2.INTER_AREA)
+    return small, a, f"image scaled from {w}x{h} to {size[0]}x{size[1]} pixels for goal generation"
+
+
+def prepare_image(image: str | os.PathLike[str] | np.ndarray, *, background: Any = None,
+                  bg_tolerance: float = BG_TOLERANCE, color_tol: float = COLOR_TOLERANCE,
+                  min_area: int | None = None, max_side: int = MAX_SIDE) -> PreparedImage:
+    """Load (path, or an RGB/RGBA/gray array), subtract the background and segment into regions R_i.
+
+    Images whose longer side exceeds max_side pixels are scaled down first (goals live in the
+    normalised square, so only their precision, a fraction of a max_side pixel, depends on it)."""
+    if isinstance(image, np.ndarray):
+        rgb, alpha = split_channels(image)
+        source = "<array>"
+    else:
+        rgb, alpha = load_image(image)
+        source = os.fspath(image)
+    rgb, alpha, scaled = _shrink(rgb, alpha, max_side)
+    fg = foreground_mask(rgb, alpha, background=background, tolerance=bg_tolerance)
+    seg = segment(fg.work, fg.mask, color_tol=color_tol, min_area=min_area)
+    if scaled:
+        seg.notes.insert(0, scaled)
+    if not seg.regions:
+        how = {"alpha": "every pixel is transparent",
+               "color": f"every pixel is within {bg_tolerance:g} of the background colour"}.get(
+            fg.source, "the image is a single background colour")
+        raise GoalError(f"no foreground in {source}: {how}")
+    return PreparedImage(rgb, alpha, fg, seg, source)
+
+
+def _snap_inside(gen: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, int]:
+    """Move generators that ended outside R_i (in a concavity or hole) to the nearest point of the
+    nearest pixel of R_i that no other generator lies within a pixel of."""
+    r0, c0 = int(rows.min()), int(cols.min())
+    inside = np.zeros((int(rows.max()) - r0 + 1, int(cols.max()) - c0 + 1), bool)
+    inside[rows - r0, cols - c0] = True
+    px = np.floor(gen[:, 0]).astype(int) - c0
+    py = np.floor(gen[:, 1]).astype(int) - r0
+    ok = (px >= 0) & (px < inside.shape[1]) & (py >= 0) & (py < inside.shape[0])
+    ok[ok] = inside[py[ok], px[ok]]
+    out_idx = np.nonzero(~ok)[0]
+    if len(out_idx) == 0:
+        return gen, 0
+    out = gen.copy()
+    centres = np.stack([cols + 0.5, rows + 0.5], axis=1)
+    tree = cKDTree(centres)
+    for j in out_idx:
+        others = np.delete(out, j, axis=0)
+        k = min(len(centres), 64)
+        _, near = tree.query(out[j], k=k)
+        for i in np.atleast_1d(near):
+            cand = np.clip(out[j], centres[i] - 0.49, centres[i] + 0.49)
+            if len(others) == 0 or np.min(np.hypot(*(others - cand).T)) >= 1.0:
+                break
+        out[j] = cand
+    return out, len(out_idx)
+
+
+def _sum_histories(histories: list[list[float]]) -> list[float]:
+    """Total cost per iteration; a region that has converged keeps its last cost."""
+    histories = [h for h in histories if h]
+    if not histories:
+        return []
+    length = max(len(h) for h in histories)
+    padded = np.array([h + [h[-1]] * (length - len(h)) for h in histories])
+    return padded.sum(axis=0).tolist()
+
+
+def _check_args(n: Any, method: str, seed: Any, arena: float | None, robot_radius: float,
+                tol: float, max_iter: int, relax: float) -> None:
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)):
+        raise GoalError(f"N must be an integer, not {n!r}")
+    if n < 1:
+        raise GoalError(f"N must be at least 1, not {n}")
+    if method not in METHODS:
+        raise GoalError(f"method must be one of {', '.join(METHODS)}, not {method!r}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise GoalError(f"seed must be a non-negative integer, not {seed!r}")
+    if arena is not None and not (np.isfinite(arena) and arena > 0):
+        raise GoalError(f"arena must be a positive size in metres, not {arena!r}")
+    if not (np.isfinite(robot_radius) and robot_radius > 0):
+        raise GoalError(f"robot radius must be a positive length in metres, not {robot_radius!r}")
+    if not (tol > 0) or max_iter < 1 or not (1.0 <= relax <= 4.0):
+        raise GoalError("the Lloyd settings need tol > 0, max_iter >= 1 and 1 <= relax <= 4")
+
+
+def goals_from_prepared(prep: PreparedImage, n: int, *, arena: float | None = None, method: str = "cvt",
+                        seed: int = 0, robot_radius: float = DEFAULT_ROBOT_RADIUS,
+                        region_counts: Mapping[int, int] | None = None, conservative: bool = False,
+                        tol: float = TOLERANCE, max_iter: int = MAX_ITER, relax: float = RELAX) -> GoalSet:
+    """N goals for a prepared image; see generate_goals."""
+    _check_args(n, method, seed, arena, robot_radius, tol, max_iter, relax)
+    seg, scale = prep.seg, prep.scale
+    counts, notes = allocate_robots([r.area for r in seg.regions], int(n), region_counts)
+    notes = list(seg.notes) + notes
+    goals, regions, histories, ks_used = [], [], [], {}
+    snapped = 0
+    for region, n_i in zip(seg.regions, counts):
+        if n_i == 0:
+            continue
+        if n_i > region.area:
+            raise GoalError(f"region {region.id} has {region.area} pixels, too few for {n_i} goals: "
+                            "use a larger image or fewer robots")
+        rows, cols = seg.pixels(region.id)
+        rng = np.random.default_rng([int(seed), region.id])
+        init, ks = poisson_samples(rows, cols, int(n_i), rng)
+        if ks < ks_distance(region.area, int(n_i)) * (1 - 1e-9):
+            notes.append(f"region {region.id} is too thin for K_s: initial samples used K_s "
+                         f"{ks / ks_distance(region.area, int(n_i)):.2f} x 1.2 sqrt(A_i/(pi N_i))")
+        ks_used[region.id] = ks / scale
+        domain = density_domain(rows, cols) if method == "cvt" else binary_domain(rows, cols)
+        gen, hist = lloyd(domain, init, scale, tol=tol, max_iter=max_iter, relax=relax)
+        gen, moved = _snap_inside(gen, rows, cols)
+        snapped += moved
+        goals.append(gen)
+        regions.append(np.full(len(gen), region.id))
+        histories.append(hist)
+    if snapped:
+        notes.append(f"{snapped} goal(s) ended in a concavity or hole and were moved into their region")
+    goals_px = np.concatenate(goals)
+    goal_regions = np.concatenate(regions)
+    cells = voronoi_cells(seg, goals_px, goal_regions)
+    colors = cell_colors(prep.rgb, cells, len(goals_px), goals_px, seg.labels)
+    d_min = normalised_spacing(goals_px, scale)
+    auto = arena is None
+    if auto:
+        arena = auto_arena(d_min, robot_radius)
+    else:
+        check_feasible(d_min, int(n), float(arena), robot_radius, conservative)
+    assert arena is not None
+    history = _sum_histories(histories)
+    params: dict[str, Any] = {
+        "n": int(n), "arena": float(arena), "arena_auto": auto, "method": method, "seed": int(seed),
+        "robot_radius": float(robot_radius), "conservative": bool(conservative),
+        "image": prep.source, "image_size": [prep.shape[1], prep.shape[0]],
+        "background": {"source": prep.foreground.source,
+                       "color": list(prep.foreground.background) if prep.foreground.background else None,
+                       "tolerance": round(float(prep.foreground.tolerance), 3)},
+        "regions": [{"id": r.id, "color": list(r.color), "area_px": r.area, "robots": int(c),
+                     "k_s": round(ks_used.get(r.id, 0.0) * float(arena), 6)}
+                    for r, c in zip(seg.regions, counts)],
+        "k_s_factor": KS_FACTOR, "k_m": K_M if method == "cvt" else None,
+        "k_d": K_D if method == "cvt" else None, "tol": tol, "max_iter": max_iter, "relax": relax,
+        "iterations": max(len(history) - 1, 0),
+        "cost": "eq. 1 / K_m in the normalised square Q (longer image side = 1)",
+        "min_spacing": float(d_min * arena) if np.isfinite(d_min) else None,
+        "notes": notes,
+    }
+    return GoalSet(to_arena(goals_px, prep.shape, float(arena)), colors, goal_regions, history, params)
+
+
+def generate_goals(image_or_path: str | os.PathLike[str] | np.ndarray, n: int, *,
+                   arena: float | None = None, method: str = "cvt", seed: int = 0,
+                   robot_radius: float = DEFAULT_ROBOT_RADIUS, background: Any = None,
+                   region_counts: Mapping[int, int] | None = None, conservative: bool = False,
+                   tol: float = TOLERANCE, max_iter: int = MAX_ITER, relax: float = RELAX,
+                   min_area: int | None = None) -> GoalSet:
+    """N goal positions and colours that represent an image (paper section 4).
+
+    image_or_path: a PNG/JPEG/BMP/TIFF path, or an RGB, RGBA or gray array (row 0 at the top).
+    arena: K_r in metres; None picks the conservative 2 K_r for robots of radius robot_radius
+      (default 0.045 m, the e-puck of Table 1), rounded up to a centimetre.
+    method: 'cvt' (Lloyd with the mass density of eq. 2) or 'kmeans' (binary density).
+    background: None (alpha channel, else the dominant border colour) or a colour ('#ffffff', 'r,g,b').
+    region_counts: the artist's N_i per region id (ids: regions by area, largest first).
+    conservative: with an explicit arena, require 2 K_r rather than K_r.
+    tol, max_iter, relax: Lloyd stopping rule and over-relaxation (relax=1: plain Lloyd), see cvt.lloyd.
+    Raises GoalError (a ValueError with a one-line message) on bad input.
+    """
+    prep = prepare_image(image_or_path, background=background, min_area=min_area)
+    return goals_from_prepared(prep, n, arena=arena, method=method, seed=seed,
+                               robot_radius=robot_radius, region_counts=region_counts,
+                               conservative=conservative, tol=tol, max_iter=max_iter, relax=relax)

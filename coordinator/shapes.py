@@ -1,0 +1,147 @@
+"""Test shapes drawn as RGB images: the paper's Fig. 4 patterns (disk, disk and line, line, L, T) and
+a few more (ring, two touching squares of different colour, a photo-like scene).
+
+Shapes live in the unit square (x right, y down) and are drawn on a size x size canvas; proportions
+follow the paper's figures. Every drawing function returns an (H, W, 3) uint8 RGB array, or (H, W, 4)
+RGBA with transparent background when alpha=True.
+"""
+from __future__ import annotations
+
+from typing import Callable, Sequence
+
+import cv2
+import numpy as np
+
+RGB = tuple[int, int, int]
+RED: RGB = (220, 40, 40)
+BLUE: RGB = (30, 80, 200)
+GREEN: RGB = (40, 160, 60)
+WHITE: RGB = (255, 255, 255)
+
+Inside = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def _rect(x0: float, x1: float, y0: float, y1: float) -> Inside:
+    return lambda x, y: (x >= x0) & (x < x1) & (y >= y0) & (y < y1)
+
+
+def _disk(cx: float, cy: float, r: float) -> Inside:
+    return lambda x, y: (x - cx) ** 2 + (y - cy) ** 2 < r * r
+
+
+def _union(*parts: Inside) -> Inside:
+    def inside(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        out = np.zeros(np.shape(x), bool)
+        for p in parts:
+            out |= p(x, y)
+        return out
+    return inside
+
+
+def _ring(cx: float, cy: float, r_out: float, r_in: float) -> Inside:
+    outer, inner = _disk(cx, cy, r_out), _disk(cx, cy, r_in)
+    return lambda x, y: outer(x, y) & ~inner(x, y)
+
+
+# name -> list of (part, default colour); proportions measured on the paper's Fig. 4 (512 px canvas)
+_SHAPES: dict[str, list[tuple[Inside, RGB]]] = {
+    "disk": [(_disk(0.5, 0.5, 150 / 512), RED)],
+    "disk_and_line": [(_disk(190 / 512, 0.5, 120 / 512), RED), (_rect(380 / 512, 420 / 512, 80 / 512, 430 / 512), BLUE)],
+    "line": [(_rect(236 / 512, 276 / 512, 60 / 512, 452 / 512), BLUE)],
+    "L": [(_union(_rect(140 / 512, 220 / 512, 80 / 512, 430 / 512), _rect(140 / 512, 400 / 512, 350 / 512, 430 / 512)), RED)],
+    "T": [(_union(_rect(100 / 512, 412 / 512, 80 / 512, 160 / 512), _rect(216 / 512, 296 / 512, 80 / 512, 440 / 512)), BLUE)],
+    "ring": [(_ring(0.5, 0.5, 0.36, 0.2), RED)],
+    "two_squares": [(_rect(0.15, 0.5, 0.3, 0.7), RED), (_rect(0.5, 0.85, 0.3, 0.7), BLUE)],
+}
+SHAPES = tuple(_SHAPES)
+
+
+def _coverage(inside: Inside, size: int, ss: int) -> np.ndarray:
+    """Fraction of each pixel covered by the shape, from ss x ss samples per pixel."""
+    offs = (np.arange(ss) + 0.5) / ss
+    g = (np.arange(size)[:, None] + offs[None, :]).ravel() / size
+    y, x = np.meshgrid(g, g, indexing="ij")
+    return inside(x, y).reshape(size, ss, size, ss).mean(axis=(1, 3))
+
+
+def part_masks(name: str, size: int = 256) -> list[np.ndarray]:
+    """Ground truth: the pixel mask (pixel centre inside) of each coloured part of a shape."""
+    if name not in _SHAPES:
+        raise ValueError(f"unknown shape {name!r}; choose from {', '.join(SHAPES)}")
+    return [_coverage(inside, size, 1) > 0.5 for inside, _ in _SHAPES[name]]
+
+
+def shape_mask(name: str, size: int = 256) -> np.ndarray:
+    """Ground truth foreground of a shape."""
+    return np.logical_or.reduce(part_masks(name, size))
+
+
+def draw(name: str, size: int = 256, *, colors: Sequence[RGB] | None = None, background: RGB = WHITE,
+         antialias: bool = False, alpha: bool = False) -> np.ndarray:
+    """Draw shape `name` (one of SHAPES) on a size x size canvas.
+
+    colors: one colour per part (disk_and_line and two_squares have two parts), else the paper's.
+    antialias: 4 x 4 supersampled edges (mixed colours along the boundary), else crisp pixels.
+    alpha: RGBA with alpha = coverage; the RGB of transparent pixels is then the background."""
+    if name not in _SHAPES:
+        raise ValueError(f"unknown shape {name!r}; choose from {', '.join(SHAPES)}")
+    parts = _SHAPES[name]
+    cols = [c for _, c in parts] if colors is None else list(colors)
+    if len(cols) != len(parts):
+        raise ValueError(f"shape {name!r} has {len(parts)} part(s), got {len(cols)} colour(s)")
+    img = np.empty((size, size, 3), float)
+    img[:] = background
+    total = np.zeros((size, size))
+    for (inside, _), col in zip(parts, cols):
+        cov = _coverage(inside, size, 4 if antialias else 1)
+        img = img * (1 - cov[..., None]) + np.asarray(col, float) * cov[..., None]
+        total = np.maximum(total, cov)
+    out = np.clip(np.round(img), 0, 255).astype(np.uint8)
+    if alpha:
+        a = np.clip(np.round(total * 255), 0, 255).astype(np.uint8)
+        return np.dstack([out, a])
+    return out
+
+
+def disk(size: int = 256, **kw: object) -> np.ndarray:
+    return draw("disk", size, **kw)  # type: ignore[arg-type]
+
+
+def disk_and_line(size: int = 256, **kw: object) -> np.ndarray:
+    return draw("disk_and_line", size, **kw)  # type: ignore[arg-type]
+
+
+def line(size: int = 256, **kw: object) -> np.ndarray:
+    return draw("line", size, **kw)  # type: ignore[arg-type]
+
+
+def l_shape(size: int = 256, **kw: object) -> np.ndarray:
+    return draw("L", size, **kw)  # type: ignore[arg-type]
+
+
+def t_shape(size: int = 256, **kw: object) -> np.ndarray:
+    return draw("T", size, **kw)  # type: ignore[arg-type]
+
+
+def ring(size: int = 256, **kw: object) -> np.ndarray:
+    return draw("ring", size, **kw)  # type: ignore[arg-type]
+
+
+def photo_like(size: int = 256, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A photo-like scene: a shaded orange subject with a green leaf on an uneven, noisy, vignetted
+    grey-beige background, slightly blurred. Returns (RGB, ground-truth subject mask)."""
+    rng = np.random.default_rng(seed)
+    g = (np.arange(size) + 0.5) / size
+    y, x = np.meshgrid(g, g, indexing="ij")
+    vignette = 1.0 - 0.35 * ((x - 0.45) ** 2 + (y - 0.5) ** 2)
+    bg = np.stack([205 + 30 * x - 20 * y, 200 + 15 * x - 25 * y, 185 - 10 * x - 30 * y], axis=-1)
+    img = bg * vignette[..., None]
+    body = _disk(0.5, 0.56, 0.25)(x, y) | (((x - 0.5) / 0.3) ** 2 + ((y - 0.6) / 0.22) ** 2 < 1)
+    leaf = (((x - 0.6) / 0.1) ** 2 + ((y - 0.25) / 0.05) ** 2 < 1)
+    shade = 1.0 - 0.45 * np.clip(np.hypot(x - 0.4, y - 0.45) / 0.4, 0, 1)
+    orange = np.array([235.0, 120.0, 30.0])
+    img[body] = orange * shade[body, None]
+    img[leaf & ~body] = np.array([50.0, 140.0, 45.0])
+    img = cv2.GaussianBlur(img, (0, 0), 0.8)
+    img = img + rng.normal(0.0, 9.0, img.shape)
+    return np.clip(np.round(img), 0, 255).astype(np.uint8), body | leaf

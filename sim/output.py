@@ -1,0 +1,39 @@
+"""Writing a finished run: metrics, trajectory, plots, video and the scene, then the atomic commit."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agent.core.params import RobotParams
+from coordinator.scene import Scene
+
+from .metrics import clearance_over_time, summarise
+from .render import write_plots, write_video
+from .rundir import RunDir, write_json, write_npz
+
+
+def write_run(run_dir: RunDir, scene: Scene, params: RobotParams, arrays: dict[str, np.ndarray], *,
+              wall_s: float, contacts: list[dict[str, Any]], video: bool, **metrics_extra: Any) -> Path:
+    """Everything a run directory holds, from the true trajectory; returns the committed path."""
+    n = scene.robots
+    radius = np.full(n, params.radius)
+    t = arrays["t"]
+    clearance = clearance_over_time(arrays["pose"], radius) if len(t) else np.zeros(0)
+    metrics = summarise(t=t, pose=arrays["pose"], radius=radius, wall_s=wall_s, contacts=len(contacts),
+                        goal=arrays["goal"], tolerance=params.goal_tolerance, clearance=clearance,
+                        scene=scene.name, seed=scene.seed, clock=scene.clock, contact_events=contacts,
+                        **metrics_extra)
+    write_json(run_dir / "metrics.json", metrics)
+    write_npz(run_dir / "trajectory.npz", radius=radius, **arrays)
+    if len(t):
+        write_plots(run_dir.path, t, clearance, arrays["pose"], radius, scene.arena, scene.obstacles,
+                    arrays["goal"], color=arrays["color"])
+        if video:
+            write_video(run_dir / "display.mp4", t, arrays["pose"], radius, arrays["color"], scene.arena,
+                        scene.obstacles, arrays["goal"])
+    write_json(run_dir / "scene.json", {"name": scene.name, "source": scene.source, "robots": n, "seed": scene.seed,
+                                        "clock": scene.clock, "arena": scene.arena, "obstacles": scene.obstacles,
+                                        "robot": params.to_dict()})
+    return run_dir.commit()
