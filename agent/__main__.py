@@ -40,7 +40,9 @@ def main(argv: list[str] | None = None) -> int:
         install_stop_handlers(host)
         if args.exit_with_parent:
             host.parent_pid = os.getppid()
-        host.start()
+        if not host.start():
+            print("agent: error: no pose arrived for my robots; is the tracker running?", file=sys.stderr)
+            return 1
         host.run()
         host.report()
     return 0

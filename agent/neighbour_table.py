@@ -5,7 +5,7 @@ import numpy as np
 
 from transport.codec import State
 
-from .core.step import Neighbours
+from .core.step import NeighbourStates
 
 
 class NeighbourTable:
@@ -37,23 +37,23 @@ class NeighbourTable:
         return out
 
     def gather(self, robot_ids: list[int], positions: np.ndarray, stamp: float, tick: int,
-               neighbour_dist: float, max_neighbours: int) -> Neighbours:
+               neighbour_dist: float, max_neighbours: int) -> NeighbourStates:
         """Padded neighbour arrays for a batch: the nearest ``max_neighbours`` within ``neighbour_dist``."""
         states = self.latest_before(tick)
         batch = len(robot_ids)
         if not states:
-            return Neighbours.empty(batch)
+            return NeighbourStates.empty(batch)
         ids = np.array([s.robot for s in states])
         pos = np.array([(s.x, s.y) for s in states], float)
         vel = np.array([(s.vx, s.vy) for s in states], float)
         rad = np.array([s.radius for s in states], float)
         age = stamp - np.array([s.stamp for s in states], float)
+        coop = np.array([not (s.flags & State.DYNAMIC) for s in states])
         # Order by id first so that ties in distance break the same way in every process.
         order = np.argsort(ids, kind="stable")
-        ids, pos, vel, rad, age = ids[order], pos[order], vel[order], rad[order], age[order]
+        ids, pos, vel, rad, age, coop = ids[order], pos[order], vel[order], rad[order], age[order], coop[order]
         m = max_neighbours
-        out = Neighbours(np.zeros((batch, m, 2)), np.zeros((batch, m, 2)), np.ones((batch, m)),
-                         np.zeros((batch, m)), np.zeros((batch, m), bool))
+        out = NeighbourStates.empty(batch, m)
         for b, (rid, p) in enumerate(zip(robot_ids, positions)):
             d2 = (pos[:, 0] - p[0]) ** 2 + (pos[:, 1] - p[1]) ** 2
             cand = np.flatnonzero((ids != rid) & (d2 <= neighbour_dist**2))
@@ -63,4 +63,5 @@ class NeighbourTable:
             k = len(cand)
             out.position[b, :k], out.velocity[b, :k] = pos[cand], vel[cand]
             out.radius[b, :k], out.age[b, :k], out.valid[b, :k] = rad[cand], age[cand], True
+            out.cooperative[b, :k] = coop[cand]
         return out

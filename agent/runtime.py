@@ -22,7 +22,7 @@ from transport.codec import Command, Event, Goals, Pose, State
 from transport.keys import cell_of
 
 from .core.params import DIFFDRIVE, RobotParams
-from .core.step import control_step
+from .core.step import control_step, static_segments
 from .neighbour_table import NeighbourTable
 
 IDLE_COLOR = (40, 40, 40)
@@ -51,6 +51,8 @@ class HostConfig:
     arena: tuple[float, float, float, float] | None = None
     obstacles: list[list[tuple[float, float]]] = field(default_factory=list)
     batch_wait: float = 0.05  # how long to wait for the other robots' poses of a tick (real time)
+    lockstep: bool = False  # wait for the previous tick's states of nearby robots (reproducible runs)
+    state_wait: float = 0.5  # lock-step: how long to wait for a nearby robot's state before going on
 
     @classmethod
     def from_json(cls, text: str) -> "HostConfig":
@@ -59,21 +61,28 @@ class HostConfig:
                    display=data.get("display", "default"), seed=int(data.get("seed", 0)),
                    arena=tuple(data["arena"]) if data.get("arena") else None,
                    obstacles=[[tuple(v) for v in o] for o in data.get("obstacles", [])],
-                   batch_wait=float(data.get("batch_wait", 0.05)))
+                   batch_wait=float(data.get("batch_wait", 0.05)), lockstep=bool(data.get("lockstep", False)),
+                   state_wait=float(data.get("state_wait", 0.5)))
 
     def to_json(self) -> str:
         return json.dumps({"robots": self.robots, "params": self.params.to_dict(), "display": self.display,
                            "seed": self.seed, "arena": self.arena, "obstacles": self.obstacles,
-                           "batch_wait": self.batch_wait})
+                           "batch_wait": self.batch_wait, "lockstep": self.lockstep,
+                           "state_wait": self.state_wait})
 
 
 class CellSubscriptions:
-    """Subscriptions to the 3x3 spatial cells around each robot, shared by the robots of a host.
+    """Subscriptions to the spatial cells around each robot, shared by the robots of a host.
 
-    The cell is larger than the neighbour distance by what robots can close in three ticks, so a
-    cell is subscribed at least one tick before any robot in it can become a neighbour: the
-    neighbour set never depends on how fast a subscription reached the router.
+    Cells are half the neighbour reach (neighbour distance plus what two robots close in three
+    ticks); a robot subscribes to the 7x7 cells around its own, which cover its neighbour reach
+    plus half a reach more. Zenoh tells publishers about a new subscriber asynchronously, so a
+    subscription must be in place well before anyone in that cell can become a neighbour: the extra
+    ring gives it over a second at full speed. The neighbour set then never depends on how fast a
+    declaration travelled, and lock-step runs stay reproducible.
     """
+
+    REACH = 3  # cells on each side
 
     def __init__(self, bus: Bus, inbox: Any, cell_size: float) -> None:
         self.bus, self.inbox, self.cell_size = bus, inbox, cell_size
@@ -83,7 +92,8 @@ class CellSubscriptions:
         wanted = set()
         for x, y in positions:
             cx, cy = cell_of(x, y, self.cell_size)
-            wanted.update((cx + dx, cy + dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1))
+            span = range(-self.REACH, self.REACH + 1)
+            wanted.update((cx + dx, cy + dy) for dx in span for dy in span)
         for cell in set(self._subs) - wanted:
             self.bus.unsubscribe(self._subs.pop(cell))
         for cell in sorted(wanted - set(self._subs)):
@@ -102,10 +112,13 @@ class AgentHost:
         self.memory = {r: RobotMemory(r) for r in config.robots}
         self.table = NeighbourTable()
         self.pending: dict[int, Pose] = {}
+        self.silent: set[int] = set()  # nearby robots that did not answer in time (lock-step)
+        self.state_waits = 0
         self.ticks_done = 0
         self.fallbacks = 0
         p = self.params
-        self.cell_size = p.neighbour_dist + 3 * p.v_max * p.dt + 0.02
+        self.cell_size = (p.neighbour_dist + 3 * p.v_max * p.dt + 0.02) / 2
+        self.segments = static_segments(config.arena, config.obstacles)
         # One subscription per own robot: a host receives only its robots' poses.
         self.pose_inbox = bus.inbox(Pose)
         for r in config.robots:
@@ -117,12 +130,24 @@ class AgentHost:
         self.parent_pid: int | None = None  # exit when this process (the launcher) is gone
 
     # --- start ------------------------------------------------------------------------------
-    def start(self) -> None:
-        """Fetch the current goal set (late joiners too), then announce every robot alive."""
+    def start(self, timeout: float = 60.0) -> bool:
+        """Fetch the current goal set (late joiners too), learn where the robots are and subscribe to
+        the cells around them, then announce every robot alive (so the first tick's neighbour
+        states reach us whatever the start-up timing)."""
         for _, goals in self.bus.query(self.keys.all_of("goals"), Goals, timeout=2.0):
             self._on_goals(goals)
+        where: dict[int, Pose] = {}
+        end = time.monotonic() + timeout
+        while len(where) < len(self.memory) and self.running and time.monotonic() < end:
+            got = self.pose_inbox.get(timeout=0.2)
+            if got is not None:
+                where[got[1].robot] = got[1]
+        if len(where) < len(self.memory):
+            return False
+        self.cells.update(np.array([(q.x, q.y) for q in where.values()]))
         for r in self.config.robots:
             self.bus.declare_alive("agent", r)
+        return True
 
     # --- messages -----------------------------------------------------------------------------
     def _on_goals(self, goals: Goals) -> None:
@@ -137,7 +162,36 @@ class AgentHost:
         for _, msg in self.goal_inbox.drain():
             self._on_goals(msg)
         for _, msg in self.state_inbox.drain():
-            self.table.update(msg)
+            self._on_state(msg)
+
+    def _on_state(self, msg: State) -> None:
+        self.table.update(msg)
+        self.silent.discard(msg.robot)
+
+    def _await_states(self, tick: int, position: np.ndarray) -> None:
+        """Lock-step: wait until every nearby robot's state of the previous tick is here.
+
+        Zenoh does not order a neighbour's state before the world's next pose (they travel different
+        paths), so without this wait the neighbour set would depend on timing. Only robots that were
+        within reach at the tick before can become neighbours now; one that stays silent for
+        ``state_wait`` is not waited for again until it speaks.
+        """
+        reach = self.params.neighbour_dist + 3 * self.params.v_max * self.params.dt + self.params.noise_bound
+        deadline = time.monotonic() + self.config.state_wait
+        while True:
+            missing = [s.robot for s in self.table.latest_before(tick)
+                       if s.tick < tick - 1 and s.robot not in self.silent
+                       and np.min(np.hypot(position[:, 0] - s.x, position[:, 1] - s.y)) <= reach]
+            if not missing:
+                return
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                self.silent.update(missing)
+                return
+            self.state_waits += 1
+            got = self.state_inbox.get(timeout=remaining)
+            if got is not None:
+                self._on_state(got[1])
 
     # --- the loop -----------------------------------------------------------------------------
     def run(self) -> None:
@@ -159,7 +213,7 @@ class AgentHost:
 
     def _take_pose(self, pose: Pose) -> None:
         mem = self.memory.get(pose.robot)
-        if mem is None or pose.tick <= mem.last_tick:
+        if mem is None or pose.tick <= mem.last_tick or pose.tick == Pose.BEFORE_START:
             return
         held = self.pending.get(pose.robot)
         if held is None or pose.tick > held.tick:
@@ -181,11 +235,14 @@ class AgentHost:
         tick, stamp = poses[0].tick, poses[0].stamp
         position = np.array([(q.x, q.y) for q in poses], float)
         heading = np.array([q.theta for q in poses], float)
+        if self.config.lockstep:
+            self._await_states(tick, position)
         mems = [self.memory[r] for r in ids]
         velocity = np.array([m.velocity for m in mems])
         goal = np.array([m.goal for m in mems])
         neighbours = self.table.gather(ids, position, stamp, tick, p.neighbour_dist, p.max_neighbours)
-        result = control_step(p, position, heading, velocity, goal, neighbours)
+        result = control_step(p, np.array(ids), position, heading, velocity, goal, neighbours, self.segments,
+                              seed=self.config.seed, tick=tick)
         self.fallbacks += int(result.fallback.sum())
         mode = Command.WHEELS if p.kinematics == DIFFDRIVE else Command.HOLONOMIC
         for b, (pose, mem) in enumerate(zip(poses, mems)):
@@ -196,7 +253,7 @@ class AgentHost:
             flags = (State.HAS_GOAL if has_goal else 0) | (State.AT_GOAL if at_goal else 0)
             gx, gy = (mem.goal if has_goal else (0.0, 0.0))
             state = State(pose.robot, tick, stamp, pose.x, pose.y, float(result.velocity[b, 0]),
-                          float(result.velocity[b, 1]), float(result.radius[b]), float(gx), float(gy),
+                          float(result.velocity[b, 1]), p.radius, float(gx), float(gy),
                           mem.goal_index, flags)
             # State before command: by the time the world moves on, neighbours have our state.
             self.bus.publish(self.keys.state(cell_of(pose.x, pose.y, self.cell_size), pose.robot), state)
@@ -212,7 +269,8 @@ class AgentHost:
             for reason, n in inbox.drops.items():
                 drops[reason] = drops.get(reason, 0) + n
         return {"role": "agent", "robots": self.config.robots, "ticks": self.ticks_done,
-                "fallbacks": self.fallbacks, "dropped": drops, "neighbours_known": len(self.table)}
+                "fallbacks": self.fallbacks, "dropped": drops, "neighbours_known": len(self.table),
+                "state_waits": self.state_waits, "silent": sorted(self.silent)}
 
     def report(self) -> None:
         self.bus.publish(self.keys.event, Event({"kind": "stats", **self.stats()}))

@@ -94,7 +94,8 @@ class Launcher:
         for h in range(math.ceil(len(ids) / k)):
             robots = ids[h * k:(h + 1) * k]
             config = HostConfig(robots=robots, params=self.params, display=self.opt.display, seed=self.scene.seed,
-                                arena=self.scene.arena, obstacles=self.scene.obstacles)
+                                arena=self.scene.arena, obstacles=self.scene.obstacles,
+                                lockstep=self.scene.clock == "lockstep")
             path = cfg_dir / f"agents-{h:04d}.json"
             path.write_text(config.to_json())
             routers = self.opt.agent_routers

@@ -122,6 +122,15 @@ class WorldNode:
         for i in np.flatnonzero(self.live):
             x, y, th = measured[i]
             self.bus.publish(self.keys.pose(int(i)), Pose(int(i), self.tick, t, x, y, th))
+        self._publish_before_start()
+
+    def _publish_before_start(self) -> None:
+        """Robots whose agent is not live yet hear where they are (true pose, no tracker noise drawn,
+        so start-up timing cannot change the noise sequence): they subscribe to their cells and join."""
+        t = self.tick * self.dt
+        for i in np.flatnonzero(~self.live):
+            x, y, th = self.world.poses[i]
+            self.bus.publish(self.keys.pose(int(i)), Pose(int(i), Pose.BEFORE_START, t, x, y, th))
 
     def _publish_truth(self) -> None:
         t = self.tick * self.dt
@@ -144,11 +153,15 @@ class WorldNode:
     def wait_for_agents(self) -> bool:
         """Start when every robot's agent is alive (progress events for the launcher)."""
         start = time.monotonic()
+        last_sent = 0.0
         while self.running and time.monotonic() - start < self.startup_timeout:
             self._update_liveness()
             self._check_control()
             if self.live.all():
                 return True
+            if time.monotonic() - last_sent > 0.2:
+                self._publish_before_start()
+                last_sent = time.monotonic()
             time.sleep(0.02)
         return self.live.any()
 

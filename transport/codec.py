@@ -89,6 +89,7 @@ class Pose(Message):
 
     KIND: ClassVar[int] = 1
     NAME: ClassVar[str] = "pose"
+    BEFORE_START: ClassVar[int] = 0xFFFFFFFF  # tick of poses sent to robots whose agent is not live yet
     _fixed: ClassVar[struct.Struct] = struct.Struct("<IIdfff")
     robot: int
     tick: int
@@ -121,10 +122,11 @@ class State(Message):
     goal_x: float
     goal_y: float
     goal_index: int
-    flags: int  # bit 0: has a goal; bit 1: at its goal
+    flags: int  # bit 0: has a goal; bit 1: at its goal; bit 2: a dynamic obstacle (does not avoid others)
 
     HAS_GOAL: ClassVar[int] = 1
     AT_GOAL: ClassVar[int] = 2
+    DYNAMIC: ClassVar[int] = 4
 
     def validate(self) -> None:
         super().validate()

@@ -1,7 +1,9 @@
 """One control step for a batch of robots: preferred velocity, collision avoidance, wheel commands.
 
 Pure: arrays in, arrays out. The same function serves one robot in its own process, K robots in an
-agent host, and the central engine that steps every robot with perfect information.
+agent host, and the central engine that steps every robot with perfect information. Per robot the
+result does not depend on the other robots of the batch (elementwise arithmetic only), so a host of
+K robots drives exactly as K separate processes would.
 """
 from __future__ import annotations
 
@@ -9,23 +11,27 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .neighbours import perturb_preferred_velocity, prepare_neighbours
+from .nhorca import nh_orca_wheel_speeds
+from .orca import arena_segments, orca_velocity, polygon_segments, preferred_velocity
 from .params import DIFFDRIVE, RobotParams
 
 
 @dataclass
-class Neighbours:
-    """What a batch of B robots knows of up to M neighbours each (padded; ``valid`` marks real ones)."""
+class NeighbourStates:
+    """What a batch of B robots heard from up to M neighbours each (padded; ``valid`` marks real ones)."""
 
-    position: np.ndarray  # (B,M,2) as last broadcast
+    position: np.ndarray  # (B,M,2) as broadcast
     velocity: np.ndarray  # (B,M,2) their collision-free velocity
     radius: np.ndarray  # (B,M)
     age: np.ndarray  # (B,M) seconds since the state was stamped (from message stamps, never a wall clock)
     valid: np.ndarray  # (B,M) bool
+    cooperative: np.ndarray  # (B,M) bool: runs the same ORCA (False: a dynamic obstacle)
 
     @classmethod
-    def empty(cls, batch: int, m: int = 0) -> "Neighbours":
+    def empty(cls, batch: int, m: int = 0) -> "NeighbourStates":
         return cls(np.zeros((batch, m, 2)), np.zeros((batch, m, 2)), np.ones((batch, m)), np.zeros((batch, m)),
-                   np.zeros((batch, m), bool))
+                   np.zeros((batch, m), bool), np.ones((batch, m), bool))
 
 
 @dataclass
@@ -34,46 +40,34 @@ class StepResult:
     command: np.ndarray  # (B,2) holonomic (vx, vy) or wheel speeds (v_left, v_right)
     pref_velocity: np.ndarray  # (B,2) eq. 9
     fallback: np.ndarray  # (B,) bool: the LP was infeasible and the fallback ran
-    radius: np.ndarray  # (B,) radius announced to neighbours (r + tracking error for differential drive)
 
 
-def preferred_velocity(position: np.ndarray, goal: np.ndarray, v_pref: float, k_a: float) -> np.ndarray:
-    """Paper eq. 9: V_p min(1, |g - p| / K_a) (g - p)/|g - p|; zero where there is no goal (NaN)."""
-    delta = goal - position
-    dist = np.hypot(delta[:, 0], delta[:, 1])
-    has = np.isfinite(dist) & (dist > 0)
-    scale = np.where(has, v_pref * np.minimum(1.0, np.where(has, dist, 0) / k_a) / np.where(has, dist, 1), 0.0)
-    return np.where(has[:, None], delta * scale[:, None], 0.0)
+def static_segments(arena: tuple[float, float, float, float] | None,
+                    obstacles: list[list[tuple[float, float]]]) -> np.ndarray:
+    """Edges (S,2,2) of the arena wall and the static obstacles (counter-clockwise polygons)."""
+    parts = [polygon_segments(o) for o in obstacles]
+    if arena is not None:
+        parts.append(arena_segments(*arena))
+    return np.concatenate(parts) if parts else np.zeros((0, 2, 2))
 
 
-def control_step(params: RobotParams, position: np.ndarray, heading: np.ndarray, velocity: np.ndarray,
-                 goal: np.ndarray, neighbours: Neighbours) -> StepResult:
-    """Preferred velocity toward the goal, then the kinematic mapping (collision avoidance: issue 3)."""
+def control_step(params: RobotParams, robot_ids: np.ndarray, position: np.ndarray, heading: np.ndarray,
+                 velocity: np.ndarray, goal: np.ndarray, neighbours: NeighbourStates,
+                 segments: np.ndarray | None = None, *, seed: int = 0, tick: int = 0) -> StepResult:
+    """Paper 5.2-5.4 for a batch: preferred velocity (eq. 9), ORCA or NH-ORCA, controls."""
     pref = preferred_velocity(position, goal, params.v_pref, params.k_a)
-    speed = np.hypot(pref[:, 0], pref[:, 1])
-    v_cf = pref * np.minimum(1.0, params.v_max / np.maximum(speed, 1e-12))[:, None]
-    fallback = np.zeros(len(position), bool)
-    radius = np.full(len(position), params.radius)
+    # A tiny deterministic perturbation breaks the symmetric head-on configurations that deadlock ORCA.
+    pref = np.where(np.any(pref != 0, axis=1, keepdims=True),
+                    perturb_preferred_velocity(pref, robot_ids, seed, tick), pref)
+    nb = prepare_neighbours(neighbours.position, neighbours.velocity, neighbours.radius, neighbours.age,
+                            neighbours.valid, max_speed=params.v_max, timeout=params.stale_after,
+                            noise=params.noise_bound, cooperative=neighbours.cooperative)
     if params.kinematics == DIFFDRIVE:
-        command = wheel_speeds(v_cf, heading, params)
-    else:
-        command = v_cf
-    return StepResult(v_cf, command, pref, fallback, radius)
-
-
-def wheel_speeds(v_h: np.ndarray, heading: np.ndarray, params: RobotParams) -> np.ndarray:
-    """NH-ORCA controls (paper 5.4): omega = sign(theta) min(|theta|/T, omega_max),
-    v = min(v*_E, v_max - |omega| l_w / 2), as linear wheel speeds (v_left, v_right)."""
-    speed = np.hypot(v_h[:, 0], v_h[:, 1])
-    moving = speed > 1e-9
-    theta = np.where(moving, np.arctan2(v_h[:, 1], v_h[:, 0]) - heading, 0.0)
-    theta = (theta + np.pi) % (2 * np.pi) - np.pi
-    omega = np.sign(theta) * np.minimum(np.abs(theta) / params.t_orient, params.omega_max)
-    # error-minimising speed v*_E = v_H theta sin(theta) / (2 (1 - cos theta)), -> v_H as theta -> 0
-    small = np.abs(theta) < 1e-6
-    safe = np.where(small, 1.0, theta)
-    v_star = np.where(small, speed, speed * safe * np.sin(safe) / (2 * (1 - np.cos(safe))))
-    v = np.minimum(v_star, params.v_max - np.abs(omega) * params.wheel_base / 2)
-    v = np.maximum(v, 0.0)
-    half = omega * params.wheel_base / 2
-    return np.stack([v - half, v + half], axis=1)
+        res = nh_orca_wheel_speeds(position, heading, velocity, pref, params.radius, nb.position, nb.velocity,
+                                   nb.radius, nb.responsibility, nb.valid, segments, params=params)
+        command = np.stack([res.wheel_left, res.wheel_right], axis=1)
+        return StepResult(res.velocity, command, pref, res.fallback)
+    v_cf, fallback = orca_velocity(position, velocity, pref, params.radius, params.v_max, nb.position,
+                                   nb.velocity, nb.radius, nb.responsibility, nb.valid, segments,
+                                   tau=params.tau, tau_obst=params.tau_obst, dt=params.dt)
+    return StepResult(v_cf, v_cf, pref, fallback)
