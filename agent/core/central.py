@@ -83,13 +83,12 @@ class CentralOrca:
 
     def compute_new_velocities(self) -> tuple[np.ndarray, np.ndarray]:
         idx, valid = self.neighbours()
-        m = self.safety_margin
         return orca_velocity(
-            self.position, self.velocity, self.pref_velocity, self.radius + m, self.max_speed,
-            self.position[idx], self.velocity[idx], self.radius[idx] + m,
+            self.position, self.velocity, self.pref_velocity, self.radius, self.max_speed,
+            self.position[idx], self.velocity[idx], self.radius[idx],
             np.full(idx.shape, 0.5), valid, self.segments,
             tau=self.time_horizon, tau_obst=self.time_horizon_obst, dt=self.time_step,
-            safety=self.safety)
+            safety=self.safety, margin=self.safety_margin)
 
     def do_step(self) -> None:
         new_velocity, fallback = self.compute_new_velocities()

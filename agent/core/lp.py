@@ -28,30 +28,36 @@ import numpy as np
 # Two unit directions are treated as parallel below this |det| (RVO2 uses the same tolerance).
 EPSILON = 1e-5
 
-__all__ = ["EPSILON", "linear_program", "optimise"]
+__all__ = ["EPSILON", "linear_program", "least_violation", "optimise"]
 
 
-def _candidates(px, py, dx, dy, valid, radius, tx, ty, directional):
-    """Best point on each line's feasible segment, for rows whose unconstrained optimum is infeasible.
+def _candidates(px, py, dx, dy, valid, radius, tx, ty, directional, violated):
+    """Best point on the feasible segment of each line violated by the disk's optimum.
 
-    Arrays are (k, L); radius, tx, ty are (k,). Returns (x, y, feasible), each (k,).
+    The optimum of a convex problem whose unconstrained optimum c0 is infeasible lies on a line that
+    c0 violates (moving from any other feasible point toward c0 would improve it), so only those
+    lines are candidates (axis 1, padded); every valid line clips them (axis 2). Arrays are (k, L);
+    radius, tx, ty are (k,). Returns (x, y, feasible), each (k,).
     """
+    n_cand = int(violated.sum(axis=1).max())
+    order = (np.arange(len(px))[:, None], np.argsort(~violated, axis=1, kind="stable")[:, :n_cand])
+    cpx, cpy, cdx, cdy, ok = px[order], py[order], dx[order], dy[order], violated[order]
     r2 = (radius * radius)[:, None]
-    # segment of line i inside the speed disk: p + t d, t in [t_left, t_right]
-    dot = px * dx + py * dy
-    disc = dot * dot + r2 - (px * px + py * py)
-    ok = valid & (disc >= 0.0)
+    # segment of candidate line i inside the speed disk: p + t d, t in [t_left, t_right]
+    dot = cpx * cdx + cpy * cdy
+    disc = dot * dot + r2 - (cpx * cpx + cpy * cpy)
+    ok &= disc >= 0.0
     sq = np.sqrt(np.maximum(disc, 0.0))
     t_left = -dot - sq
     t_right = -dot + sq
-    # clip by every other valid line j (axis 2)
-    dxi, dyi = dx[:, :, None], dy[:, :, None]
+    # clip by every valid line j (axis 2)
+    dxi, dyi = cdx[:, :, None], cdy[:, :, None]
     dxj, dyj = dx[:, None, :], dy[:, None, :]
     den = dxi * dyj - dyi * dxj  # det(d_i, d_j)
-    num = dxj * (py[:, :, None] - py[:, None, :]) - dyj * (px[:, :, None] - px[:, None, :])
+    num = dxj * (cpy[:, :, None] - py[:, None, :]) - dyj * (cpx[:, :, None] - px[:, None, :])
     vj = valid[:, None, :]
     par = np.abs(den) <= EPSILON
-    # a parallel line with line i on its forbidden side empties line i
+    # a parallel line with line i on its forbidden side empties line i (line i itself: num = 0)
     ok &= ~(vj & par & (num < 0.0)).any(axis=2)
     t = num / np.where(par, 1.0, den)
     use = vj & ~par
@@ -60,20 +66,19 @@ def _candidates(px, py, dx, dy, valid, radius, tx, ty, directional):
     ok &= t_left <= t_right
     txc, tyc = tx[:, None], ty[:, None]
     if directional:
-        t_best = np.where(txc * dx + tyc * dy > 0.0, t_right, t_left)
+        t_best = np.where(txc * cdx + tyc * cdy > 0.0, t_right, t_left)
     else:
-        t_best = np.minimum(np.maximum(dx * (txc - px) + dy * (tyc - py), t_left), t_right)
-    x = px + t_best * dx
-    y = py + t_best * dy
+        t_best = np.minimum(np.maximum(cdx * (txc - cpx) + cdy * (tyc - cpy), t_left), t_right)
+    x = cpx + t_best * cdx
+    y = cpy + t_best * cdy
     if directional:
         cost = -(txc * x + tyc * y)
     else:
         ex, ey = x - txc, y - tyc
         cost = ex * ex + ey * ey
     cost = np.where(ok, cost, np.inf)
-    best = np.argmin(cost, axis=1)[:, None]
-    feasible = ok.any(axis=1)
-    return (np.take_along_axis(x, best, axis=1)[:, 0], np.take_along_axis(y, best, axis=1)[:, 0], feasible)
+    best = (np.arange(len(x)), np.argmin(cost, axis=1))
+    return x[best], y[best], ok.any(axis=1)
 
 
 def optimise(point: np.ndarray, direction: np.ndarray, valid: np.ndarray, radius: np.ndarray,
@@ -100,7 +105,7 @@ def optimise(point: np.ndarray, direction: np.ndarray, valid: np.ndarray, radius
     feasible = np.ones(len(cx), dtype=bool)
     if rows.size:
         x, y, ok = _candidates(px[rows], py[rows], dx[rows], dy[rows], valid[rows], radius[rows],
-                               tx[rows], ty[rows], directional)
+                               tx[rows], ty[rows], directional, violated[rows])
         cx, cy = cx.copy(), cy.copy()
         cx[rows] = np.where(ok, x, cx[rows])
         cy[rows] = np.where(ok, y, cy[rows])
@@ -153,6 +158,27 @@ def _least_violation(px, py, dx, dy, valid, hard, radius, vx, vy):
     return vx, vy
 
 
+def least_violation(point: np.ndarray, direction: np.ndarray, valid: np.ndarray, max_speed,
+                    pref_velocity: np.ndarray, n_hard=0) -> np.ndarray:
+    """The fallback alone: keep the leading ``n_hard`` lines (int or (B,)) hard, minimise the largest
+    violation of the others (RVO2's linearProgram3), starting from the optimum over the hard lines.
+
+    If the hard lines and the disk are infeasible by themselves, every line is soft for that robot
+    (the least-violation point always exists). Returns the velocity (B,2).
+    """
+    point = np.asarray(point, dtype=float)
+    direction = np.asarray(direction, dtype=float)
+    valid = np.asarray(valid, dtype=bool)
+    b, n = valid.shape
+    radius = np.broadcast_to(np.asarray(max_speed, dtype=float), (b,))
+    hard = np.arange(n) < np.broadcast_to(np.asarray(n_hard), (b,))[:, None]
+    start, ok = optimise(point, direction, valid & hard, radius, np.asarray(pref_velocity, dtype=float))
+    hard &= ok[:, None]
+    vx, vy = _least_violation(point[..., 0], point[..., 1], direction[..., 0], direction[..., 1],
+                              valid, hard, radius, start[:, 0], start[:, 1])
+    return np.stack([vx, vy], axis=-1)
+
+
 def linear_program(point: np.ndarray, direction: np.ndarray, valid: np.ndarray, max_speed,
                    pref_velocity: np.ndarray, n_hard=0) -> tuple[np.ndarray, np.ndarray]:
     """New velocity of eq. 14 for a batch, with RVO2's fallback where it is infeasible.
@@ -160,27 +186,20 @@ def linear_program(point: np.ndarray, direction: np.ndarray, valid: np.ndarray, 
     point, direction: (B, L, 2) lines (unit directions, permissible side on the left);
     valid: (B, L) bool; max_speed: scalar or (B,) speed-disk radius; pref_velocity: (B, 2);
     n_hard: int or (B,) ints, how many leading lines are hard in the fallback (obstacle and kinematic
-    lines). Returns (velocity (B, 2), fallback (B,) bool: where the program was infeasible).
-
-    In the fallback, if the hard lines and the disk themselves are infeasible, every line is treated as
-    soft for that robot (the least-violation point always exists).
+    lines). Returns (velocity (B, 2), fallback (B,) bool: where the program was infeasible and
+    `least_violation` gave the velocity).
     """
     point = np.asarray(point, dtype=float)
     direction = np.asarray(direction, dtype=float)
     valid = np.asarray(valid, dtype=bool)
     pref_velocity = np.asarray(pref_velocity, dtype=float)
-    b, n = valid.shape
+    b = valid.shape[0]
     radius = np.broadcast_to(np.asarray(max_speed, dtype=float), (b,))
     velocity, feasible = optimise(point, direction, valid, radius, pref_velocity)
     fallback = ~feasible
     rows = np.nonzero(fallback)[0]
     if rows.size:
-        hard = np.arange(n) < np.broadcast_to(np.asarray(n_hard), (b,))[rows, None]
-        p, d, v = point[rows], direction[rows], valid[rows]
-        start, ok = optimise(p, d, v & hard, radius[rows], pref_velocity[rows])
-        hard &= ok[:, None]  # hard lines infeasible by themselves: all soft
-        vx, vy = _least_violation(p[..., 0], p[..., 1], d[..., 0], d[..., 1], v, hard, radius[rows],
-                                  start[:, 0], start[:, 1])
-        velocity[rows, 0] = vx
-        velocity[rows, 1] = vy
+        n_hard = np.broadcast_to(np.asarray(n_hard), (b,))[rows]
+        velocity[rows] = least_violation(point[rows], direction[rows], valid[rows], radius[rows],
+                                         pref_velocity[rows], n_hard)
     return velocity, fallback

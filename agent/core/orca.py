@@ -10,11 +10,16 @@ from typing import NamedTuple
 
 import numpy as np
 
-from agent.core.lp import linear_program
+from agent.core.lp import least_violation, linear_program, optimise
 
 __all__ = ["Lines", "preferred_velocity", "orca_lines", "obstacle_lines", "polygon_segments",
            "arena_segments", "concat_lines", "compact_lines", "drop_redundant", "safety_lines",
            "orca_velocity"]
+
+
+_BUFFER = 1.0 + 1e-6
+import os
+_SHRINK = float(os.environ.get("SHRINK", "2"))
 
 
 class Lines(NamedTuple):
@@ -156,12 +161,11 @@ def compact_lines(lines: Lines) -> Lines:
     valid = lines.valid
     if valid.shape[1] == 0:
         return lines
-    order = np.argsort(~valid, axis=1, kind="stable")
     n = int(valid.sum(axis=1).max()) if valid.size else 0
-    order = order[:, :n]
-    return Lines(np.take_along_axis(lines.point, order[..., None], axis=1),
-                 np.take_along_axis(lines.direction, order[..., None], axis=1),
-                 np.take_along_axis(valid, order, axis=1))
+    if n == valid.shape[1] and valid.all():
+        return lines
+    order = (np.arange(valid.shape[0])[:, None], np.argsort(~valid, axis=1, kind="stable")[:, :n])
+    return Lines(lines.point[order], lines.direction[order], valid[order])
 
 
 def drop_redundant(lines: Lines, max_speed: np.ndarray) -> Lines:
@@ -183,25 +187,38 @@ def safety_lines(position, radius, nbr_position, nbr_velocity, nbr_radius, nbr_r
     """
     b = np.asarray(position).shape[0]
     keep = (np.asarray(nbr_responsibility) >= 1.0)[..., None]
-    return orca_lines(position, np.zeros((b, 2)), radius, nbr_position,
-                      np.where(keep, nbr_velocity, 0.0), nbr_radius, nbr_responsibility, nbr_valid,
-                      dt, dt)
+    # radii 1 ppm larger: robots may close a gap completely in one step, rounding must not overlap
+    return orca_lines(position, np.zeros((b, 2)), radius * _BUFFER, nbr_position,
+                      np.where(keep, nbr_velocity, 0.0), nbr_radius * _BUFFER, nbr_responsibility,
+                      nbr_valid, dt, dt)
 
 
 def orca_velocity(position, velocity, pref_velocity, radius, max_speed, nbr_position, nbr_velocity,
                   nbr_radius, nbr_responsibility, nbr_valid, obstacle_segments=None, *, tau: float,
                   tau_obst: float, dt: float, extra_hard_lines: Lines | None = None,
-                  safety: bool = True) -> tuple[np.ndarray, np.ndarray]:
+                  safety: bool = True, margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Collision-free velocity of eq. 14 for a batch of holonomic robots.
 
-    Shapes: position, velocity, pref_velocity (B,2); radius, max_speed (B,) or scalars; neighbours
-    (B,M,...) sorted nearest first (the fallback takes them in order); obstacle_segments (S,2,2).
+    Shapes: position, velocity (the optimisation velocity: the current one), pref_velocity (B,2);
+    radius, max_speed (B,) or scalars; neighbours (B,M,...) sorted nearest first (the fallback takes
+    them in order), invalid entries padded; obstacle_segments (S,2,2) shared by the batch.
     ``extra_hard_lines`` (e.g. a kinematic polygon) are kept hard with the obstacle lines.
-    ``safety`` adds the hard `safety_lines` (no overlap within dt); without it the result is RVO2's.
-    Returns (new velocity (B,2), fallback (B,) bool: the program was infeasible and the
-    least-violation fallback ran).
+    ``margin`` is added to every radius (own and neighbours') in the ORCA lines of the robots.
+
+    With ``safety`` (the default):
+
+    * the `safety_lines` (no overlap within dt, true radii) are hard, like the obstacle lines;
+    * where the program is infeasible the robots' horizon is halved until it is feasible, down to dt
+      (paper 5.3);
+    * below that, the largest violation of the robot lines of horizon dt is minimised keeping the
+      hard lines (RVO2's fallback). The robot never stops dead, which jams crowds.
+
+    Without it the result is RVO2's (no safety lines, least violation at the full horizon).
+    Returns (new velocity (B,2), fallback (B,) bool: infeasible at the full horizon).
     """
     position = np.asarray(position, dtype=float)
+    velocity = np.asarray(velocity, dtype=float)
+    pref_velocity = np.asarray(pref_velocity, dtype=float)
     b = position.shape[0]
     radius = np.broadcast_to(np.asarray(radius, dtype=float), (b,))
     max_speed = np.broadcast_to(np.asarray(max_speed, dtype=float), (b,))
@@ -215,12 +232,36 @@ def orca_velocity(position, velocity, pref_velocity, radius, max_speed, nbr_posi
         hard.append(extra_hard_lines)
     if safety:
         hard.append(safety_lines(position, radius, *nbr, dt))
-    robots = drop_redundant(orca_lines(position, velocity, radius, *nbr, tau, dt), max_speed)
-    if hard:
-        hard_lines = drop_redundant(concat_lines(*hard), max_speed)
-        lines = concat_lines(hard_lines, robots)
-        n_hard = hard_lines.valid.shape[1]
-    else:
-        lines, n_hard = robots, 0
-    return linear_program(lines.point, lines.direction, lines.valid, max_speed,
-                          np.asarray(pref_velocity, dtype=float), n_hard=n_hard)
+    hard_lines = drop_redundant(concat_lines(*hard), max_speed) if hard else None
+    grown = (nbr[0], nbr[1], nbr[2] + margin, *nbr[3:])
+
+    def program(rows, horizon):
+        robots = orca_lines(position[rows], velocity[rows], radius[rows] + margin,
+                            *(x[rows] for x in grown), horizon, dt)
+        robots = drop_redundant(robots, max_speed[rows])
+        if hard_lines is None:
+            return robots, 0
+        return concat_lines(Lines(*(x[rows] for x in hard_lines)), robots), hard_lines.valid.shape[1]
+
+    everyone = np.arange(b)
+    lines, n_hard = program(everyone, tau)
+    if not safety:
+        return linear_program(lines.point, lines.direction, lines.valid, max_speed, pref_velocity,
+                              n_hard=n_hard)
+    new_velocity, feasible = optimise(lines.point, lines.direction, lines.valid, max_speed,
+                                      pref_velocity)
+    rows = np.nonzero(~feasible)[0]
+    lines = Lines(*(x[rows] for x in lines))
+    horizon = tau
+    while rows.size and horizon > dt:
+        horizon = max(horizon / _SHRINK, dt)
+        lines, n_hard = program(rows, horizon)
+        v, ok = optimise(lines.point, lines.direction, lines.valid, max_speed[rows],
+                         pref_velocity[rows])
+        new_velocity[rows[ok]] = v[ok]
+        rows = rows[~ok]
+        lines = Lines(*(x[~ok] for x in lines))
+    if rows.size:
+        new_velocity[rows] = least_violation(lines.point, lines.direction, lines.valid,
+                                             max_speed[rows], pref_velocity[rows], n_hard)
+    return new_velocity, ~feasible

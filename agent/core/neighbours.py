@@ -1,0 +1,86 @@
+"""What a robot assumes about neighbours it knows only from messages (issue 3, item 3).
+
+A neighbour's state was stamped ``age`` seconds ago. ORCA then needs where the neighbour is now and
+how sure we are: `prepare_neighbours` extrapolates and inflates; `perturb_preferred_velocity` breaks
+the perfect symmetries that deadlock ORCA head-on, deterministically from a robot id and a seed.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = ["Neighbours", "COOPERATING", "NON_COOPERATING", "prepare_neighbours",
+           "perturb_preferred_velocity"]
+
+COOPERATING = 0.5  # responsibility c toward a robot running the same ORCA (eq. 12)
+NON_COOPERATING = 1.0  # toward a dynamic obstacle, or a robot whose state is stale
+
+
+class Neighbours(NamedTuple):
+    """Neighbour arrays as `orca_velocity` takes them: (B,M,2), (B,M,2), (B,M), (B,M), (B,M)."""
+
+    position: np.ndarray
+    velocity: np.ndarray
+    radius: np.ndarray
+    responsibility: np.ndarray
+    valid: np.ndarray
+
+
+def prepare_neighbours(position, velocity, radius, age, valid, *, max_speed, timeout: float,
+                       noise: float = 0.0, cooperative=None) -> Neighbours:
+    """Neighbour states as of now, from states stamped ``age`` seconds ago.
+
+    * Fresh (0 <= age <= timeout): position extrapolated by age x velocity; radius grown by
+      ``noise + age x max_speed``. The growth covers a neighbour whose velocity changed by up to its
+      maximum speed since the stamp (a stop, a swerve; not a full reversal, which ORCA's smooth
+      velocities make unlikely within a timeout) plus the tracking noise of the stamped position.
+      Responsibility 0.5 (it avoids us too), or 1.0 where ``cooperative`` is False.
+    * Stale (age > timeout): last known position and velocity, not extrapolated (the message may be
+      from a robot that stopped or died); radius grown by ``noise + timeout x max_speed``;
+      responsibility 1.0: we avoid it alone.
+    * Invalid: not finite, or flagged invalid by the caller (a negative age, from clock skew, is 0).
+
+    Shapes: position, velocity (B,M,2); radius, age, valid (B,M); max_speed scalar or (B,M).
+    Elementwise, so deterministic per robot.
+    """
+    position = np.asarray(position, dtype=float)
+    velocity = np.asarray(velocity, dtype=float)
+    radius = np.asarray(radius, dtype=float)
+    age = np.maximum(np.asarray(age, dtype=float), 0.0)
+    finite = (np.isfinite(position).all(axis=-1) & np.isfinite(velocity).all(axis=-1)
+              & np.isfinite(radius) & np.isfinite(age))
+    valid = np.asarray(valid, dtype=bool) & finite
+    stale = age > timeout
+    horizon = np.where(stale, timeout, age)
+    shift = np.where(stale, 0.0, age)[..., None]
+    safe_p = np.where(valid[..., None], position, 0.0)
+    safe_v = np.where(valid[..., None], velocity, 0.0)
+    new_position = safe_p + shift * safe_v
+    new_radius = np.where(valid, radius, 0.0) + noise + np.where(valid, horizon, 0.0) * max_speed
+    coop = np.ones(valid.shape, dtype=bool) if cooperative is None else np.asarray(cooperative, bool)
+    responsibility = np.where(coop & ~stale, COOPERATING, NON_COOPERATING)
+    return Neighbours(new_position, safe_v, new_radius, responsibility, valid)
+
+
+def _splitmix64(x: np.ndarray) -> np.ndarray:
+    # integer hash (Steele et al.'s SplitMix64 finaliser): elementwise uint64 arithmetic, exact
+    with np.errstate(over="ignore"):
+        x = x + np.uint64(0x9E3779B97F4A7C15)
+        x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        return x ^ (x >> np.uint64(31))
+
+
+def perturb_preferred_velocity(pref_velocity, robot_id, seed: int, tick: int = 0,
+                               magnitude: float = 1e-4) -> np.ndarray:
+    """Add a tiny pseudo-random vector (each component in [-magnitude, magnitude]) to each preferred
+    velocity, a function of (robot id, seed, tick) only: symmetric configurations (head-on pairs,
+    rings) stop being symmetric, and every process computes the same perturbation."""
+    ids = np.asarray(robot_id).astype(np.uint64).reshape(-1)
+    key = _splitmix64(_splitmix64(ids ^ _splitmix64(np.uint64(seed % 2**64)))
+                      + np.uint64(tick % 2**64))
+    a = (key >> np.uint64(11)).astype(float) * 2.0 ** -53  # [0, 1)
+    b = (_splitmix64(key) >> np.uint64(11)).astype(float) * 2.0 ** -53
+    delta = np.stack([2.0 * a - 1.0, 2.0 * b - 1.0], axis=-1) * magnitude
+    return np.asarray(pref_velocity, dtype=float) + delta

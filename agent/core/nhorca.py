@@ -1,0 +1,212 @@
+"""NH-ORCA for differential-drive robots (paper 5.4; Alonso-Mora et al., DARS 2010).
+
+A differential-drive robot tracks a holonomic velocity v_H at angle theta to its heading by turning at
+omega = theta/T and driving an arc at speed v; the tracking error is largest at T. With the error bound
+E (the tracking error), the holonomic velocities it can track form S_AHV, approximated by the convex
+polygon P_AHV whose edges are hard lines of the ORCA program; robot radii are inflated by E.
+
+Closed forms (derived in the project notes, section 2; 1 - cos theta = 2 sin^2(theta/2) simplifies them):
+  squared error at T:      E(v)^2 = T^2 [v_H^2 - 2 v_H v sin(th)/th + 2 v^2 (1 - cos th)/th^2]
+  error-minimising speed:  v*_E = v_H (th/2) cot(th/2)          (-> v_H as th -> 0)
+  case A (v*_E reachable): V_H^max = E / (T |sin(th/2)|)
+  case B (v saturated at v_s = v_max - |omega| l_w/2): the larger root of E(v_s)^2 = E^2,
+                           V_H^max = v_s sin(th)/th + sqrt(E^2/T^2 - v_s^2 (1 - cos th)^2 / th^2)
+  case C (|th|/T > omega_max): A/B with T replaced by |th|/omega_max; finally clipped to v_max.
+omega_max is capped at 2 v_max / l_w so that the wheel speeds v +- omega l_w/2 stay within v_max.
+
+Trigonometry of per-robot angles uses Python's math module element by element, so that results are
+bit-identical whether a robot is computed alone or in a batch (numpy's vectorised transcendental
+functions may take different code paths with the array's length).
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from agent.core.orca import Lines, orca_velocity
+from agent.core.params import RobotParams
+
+__all__ = ["NHResult", "omega_cap", "vertex_angles", "max_trackable_speed", "min_error_speed", "tracking_error",
+           "ahv_polygon", "ahv_lines", "controls", "wheel_speeds", "nh_orca_wheel_speeds"]
+
+# P_AHV vertices: angles to the heading, denser ahead where the boundary turns fastest
+_N_VERTICES = 24
+
+
+def omega_cap(params: RobotParams) -> float:
+    """Largest usable angular speed: omega_max, and no more than keeps a wheel within v_max."""
+    return min(params.omega_max, 2.0 * params.v_max / params.wheel_base)
+
+
+def min_error_speed(v_h, theta):
+    """v*_E: the linear speed that minimises the tracking error of v_H at angle theta (numpy)."""
+    half = 0.5 * np.abs(np.asarray(theta, dtype=float))
+    safe = np.where(half > 1e-8, half, 1.0)
+    factor = np.where(half > 1e-8, safe * np.cos(safe) / np.sin(safe), 1.0)
+    return np.asarray(v_h, dtype=float) * factor
+
+
+def max_trackable_speed(theta, error, params: RobotParams):
+    """V_H^max(theta): the largest holonomic speed at angle theta to the heading trackable within
+    ``error`` (the boundary of S_AHV; cases A, B, C of the module docstring). numpy, broadcasting."""
+    a = np.abs(np.asarray(theta, dtype=float))
+    error = np.asarray(error, dtype=float)
+    w_cap = omega_cap(params)
+    t_eff = np.where(a > params.t_orient * w_cap, a / w_cap, params.t_orient)
+    v_s = np.maximum(params.v_max - (a / t_eff) * (0.5 * params.wheel_base), 0.0)
+    a_safe = np.where(a > 1e-8, a, 1.0)
+    s_half = np.sin(0.5 * a_safe)
+    with np.errstate(divide="ignore"):
+        v_a = np.where(a > 1e-8, error / (t_eff * s_half), np.inf)
+    k = np.where(a > 1e-8, 0.5 * a_safe * np.cos(0.5 * a_safe) / s_half, 1.0)
+    case_b = v_a * k > v_s
+    sinc = np.where(a > 1e-8, np.sin(a_safe) / a_safe, 1.0)
+    one_minus_cos = np.where(a > 1e-8, (1.0 - np.cos(a_safe)) / a_safe, 0.0)
+    root = (error / t_eff) ** 2 - (v_s * one_minus_cos) ** 2
+    v_b = v_s * sinc + np.sqrt(np.maximum(root, 0.0))
+    return np.minimum(np.where(case_b, v_b, v_a), params.v_max)
+
+
+def vertex_angles(params: RobotParams, n: int = _N_VERTICES) -> np.ndarray:
+    """Angles (to the heading) of the P_AHV vertices, increasing in (-pi, pi].
+
+    Denser ahead, where the boundary turns fastest. S_AHV is convex except for a dent where case C
+    begins (|theta| = T omega_cap); that angle is a vertex, so every edge is a chord of a convex arc
+    of the boundary and lies in S_AHV (the half-planes of the edges then cut a convex subset).
+    """
+    u = np.linspace(-1.0, 1.0, n, endpoint=False)[1:]
+    angles = np.concatenate([np.pi * np.sign(u) * np.abs(u) ** 1.5, [np.pi]])
+    dent = params.t_orient * omega_cap(params)
+    if dent < np.pi:
+        angles = np.concatenate([angles, [-dent, dent]])
+    return np.unique(angles)
+
+
+def tracking_error(position, radius, nbr_position, nbr_radius, nbr_valid, params: RobotParams):
+    """Tracking error E of each robot and an upper bound of each neighbour's.
+
+    Each robot takes at most half of the free gap to its nearest neighbour, between error_min and
+    error_max: E_i = clip(min_j gap_ij / 2, E_min, E_max). Both robots of a pair follow the rule, so
+    (r_i + E_i) + (r_j + E_j) <= |p_i - p_j| whenever the gap is at least 2 E_min; and
+    clip(gap_ij / 2, E_min, E_max) bounds E_j from i's side without knowing j's other neighbours.
+    Returns (E (B,), neighbour bound (B,M)).
+    """
+    p = np.asarray(position, dtype=float)
+    ex = nbr_position[..., 0] - p[:, None, 0]
+    ey = nbr_position[..., 1] - p[:, None, 1]
+    gap = np.sqrt(ex * ex + ey * ey) - (np.asarray(radius, dtype=float)[:, None] + nbr_radius)
+    half = np.clip(0.5 * gap, params.error_min, params.error_max)
+    nearest = np.where(nbr_valid, half, params.error_max).min(axis=1, initial=params.error_max)
+    return nearest, half
+
+
+def _heading_cos_sin(heading) -> tuple[np.ndarray, np.ndarray]:
+    h = np.asarray(heading, dtype=float).reshape(-1)
+    return (np.array([math.cos(x) for x in h], dtype=float),
+            np.array([math.sin(x) for x in h], dtype=float))
+
+
+def ahv_polygon(heading, error, params: RobotParams) -> np.ndarray:
+    """Vertices (B,K,2) of P_AHV in the world frame, counter-clockwise: V_H^max sampled at
+    `vertex_angles` to the heading."""
+    c, s = _heading_cos_sin(heading)
+    angles = vertex_angles(params)
+    radius = max_trackable_speed(angles[None, :], np.asarray(error, dtype=float)[:, None], params)
+    lx, ly = radius * np.cos(angles), radius * np.sin(angles)
+    return np.stack([c[:, None] * lx - s[:, None] * ly, s[:, None] * lx + c[:, None] * ly], axis=-1)
+
+
+def ahv_lines(vertices: np.ndarray) -> Lines:
+    """Edges of a counter-clockwise convex polygon as lines (interior on the left)."""
+    nxt = np.roll(vertices, -1, axis=1)
+    ex, ey = nxt[..., 0] - vertices[..., 0], nxt[..., 1] - vertices[..., 1]
+    n = np.sqrt(ex * ex + ey * ey)
+    return Lines(vertices.copy(), np.stack([ex / n, ey / n], axis=-1),
+                 np.ones(vertices.shape[:2], dtype=bool))
+
+
+def controls(velocity, heading, params: RobotParams, reverse=None) -> tuple[np.ndarray, np.ndarray]:
+    """Linear and angular speed (v, omega) tracking holonomic velocities (B,2) from headings (B,).
+
+    omega = sign(theta) min(|theta|/T, omega_cap), v = min(v*_E, v_max - |omega| l_w/2), theta the
+    angle from the heading (from the reversed heading, and v negated, where ``reverse``).
+    """
+    vel = np.asarray(velocity, dtype=float)
+    c, s = _heading_cos_sin(heading)
+    rev = np.zeros(len(c), dtype=bool) if reverse is None else np.asarray(reverse, dtype=bool)
+    w_cap = omega_cap(params)
+    half_base = 0.5 * params.wheel_base
+    v_out = np.empty(len(c))
+    w_out = np.empty(len(c))
+    for i in range(len(c)):
+        hx, hy = (-c[i], -s[i]) if rev[i] else (c[i], s[i])
+        vx, vy = float(vel[i, 0]), float(vel[i, 1])
+        speed = math.sqrt(vx * vx + vy * vy)
+        theta = math.atan2(hx * vy - hy * vx, hx * vx + hy * vy) if speed > 0.0 else 0.0
+        omega = math.copysign(min(abs(theta) / params.t_orient, w_cap), theta)
+        half = 0.5 * abs(theta)
+        v_star = speed * (half / math.tan(half)) if half > 1e-8 else speed
+        v = max(0.0, min(v_star, params.v_max - abs(omega) * half_base))
+        v_out[i] = -v if rev[i] else v
+        w_out[i] = omega
+    return v_out, w_out
+
+
+def wheel_speeds(v, omega, params: RobotParams) -> tuple[np.ndarray, np.ndarray]:
+    """Linear wheel speeds (left, right) in m/s of a unicycle command."""
+    half = 0.5 * params.wheel_base
+    return np.asarray(v) - np.asarray(omega) * half, np.asarray(v) + np.asarray(omega) * half
+
+
+class NHResult(NamedTuple):
+    wheel_left: np.ndarray  # (B,) m/s
+    wheel_right: np.ndarray  # (B,) m/s
+    velocity: np.ndarray  # (B,2) the collision-free holonomic velocity v_cf (next step's v_opt)
+    fallback: np.ndarray  # (B,) bool: infeasible with P_AHV (mirrored polygon or least violation)
+    reverse: np.ndarray  # (B,) bool: the mirrored polygon was used, the robot drives backwards
+    error: np.ndarray  # (B,) tracking error E used
+
+
+def _take(rows, *arrays):
+    return [None if a is None else np.asarray(a)[rows] for a in arrays]
+
+
+def nh_orca_wheel_speeds(position, heading, velocity, pref_velocity, radius, nbr_position,
+                         nbr_velocity, nbr_radius, nbr_responsibility, nbr_valid,
+                         obstacle_segments=None, *, params: RobotParams, safety: bool = True
+                         ) -> NHResult:
+    """NH-ORCA step for a batch of differential-drive robots.
+
+    ``velocity`` is each robot's previous v_cf and ``nbr_velocity`` the neighbours' broadcast v_cf.
+    Radii are inflated by the tracking error E (own) and its bound (neighbours'); P_AHV is kept hard;
+    where the program is infeasible the mirrored polygon -P_AHV (driving backwards) is tried, and
+    otherwise RVO2's least-violation fallback with P_AHV hard is used.
+    """
+    position = np.asarray(position, dtype=float)
+    b = position.shape[0]
+    radius = np.broadcast_to(np.asarray(radius, dtype=float), (b,))
+    nbr_position = np.asarray(nbr_position, dtype=float)
+    nbr_radius = np.asarray(nbr_radius, dtype=float)
+    nbr_valid = np.asarray(nbr_valid, dtype=bool)
+    error, nbr_error = tracking_error(position, radius, nbr_position, nbr_radius, nbr_valid, params)
+    polygon = ahv_lines(ahv_polygon(heading, error, params))
+    args = [position, velocity, pref_velocity, radius + error, nbr_position, nbr_velocity,
+            nbr_radius + nbr_error, nbr_responsibility, nbr_valid]
+    opts = dict(tau=params.tau, tau_obst=params.tau_obst, dt=params.dt, safety=safety)
+    v_cf, fallback = orca_velocity(*args[:4], params.v_max, *args[4:], obstacle_segments,
+                                   extra_hard_lines=polygon, **opts)
+    reverse = np.zeros(b, dtype=bool)
+    rows = np.nonzero(fallback)[0]
+    if rows.size:
+        sub = _take(rows, *args)
+        mirrored = Lines(-polygon.point[rows], -polygon.direction[rows], polygon.valid[rows])
+        v_back, fb_back = orca_velocity(*sub[:4], params.v_max, *sub[4:], obstacle_segments,
+                                        extra_hard_lines=mirrored, **opts)
+        use = ~fb_back
+        v_cf[rows[use]] = v_back[use]
+        reverse[rows[use]] = True
+    v, omega = controls(v_cf, heading, params, reverse)
+    left, right = wheel_speeds(v, omega, params)
+    return NHResult(left, right, v_cf, fallback, reverse, error)
