@@ -111,7 +111,7 @@ def main() -> None:
     out = Path(__file__).resolve().parent / "results" / "world.md"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(
-        "# sim.world.World.step(0.1): 10 substeps of 10 ms\n\n"
+        "## sim.world.World.step(0.1): 10 substeps of 10 ms\n\n"
         "Command: `.venv/bin/python bench/bench_world.py`\n\n"
         f"{env}\n\n{table}\n\n"
         "Scenarios: see the docstring of `bench/bench_world.py`. The last column is the detection a\n"

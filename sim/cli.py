@@ -48,6 +48,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--clock", choices=["realtime", "lockstep"], help="clock (overrides the scene)")
     run.add_argument("--duration", type=float, help="seconds of display time at most (overrides the scene)")
     run.add_argument("--out", type=Path, help="run directory (default runs/<UTC time>-<scene>)")
+    run.add_argument("--engine", choices=["distributed", "central"], default="distributed",
+                     help="distributed: one process per robot over zenoh (default); central: every robot "
+                          "stepped in one call with perfect information (reference, and fast for large swarms)")
     run.add_argument("--no-video", dest="video", action="store_false", help="skip display.mp4")
     run.add_argument("--agents-per-process", "-k", type=_positive_int, default=1, metavar="K",
                      help="robots per agent process (default 1: one process per robot)")
@@ -83,6 +86,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     out = args.out or default_run_path(scene.name)
     if out.exists() or out.with_name(out.name + ".partial").exists():
         raise UsageError(f"run directory {out} already exists; choose another --out")
+    if args.engine == "central":
+        from .central import run_central
+
+        print(run_central(scene, out, video=args.video, progress=None if args.quiet else sys.stderr))
+        return 0
     router = None
     if args.mode != "router":
         raise UsageError("pixelswarm run embeds a router; to join an existing one use -e tcp/HOST:PORT")

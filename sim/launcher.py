@@ -95,7 +95,9 @@ class Launcher:
             robots = ids[h * k:(h + 1) * k]
             config = HostConfig(robots=robots, params=self.params, display=self.opt.display, seed=self.scene.seed,
                                 arena=self.scene.arena, obstacles=self.scene.obstacles,
-                                lockstep=self.scene.clock == "lockstep")
+                                lockstep=self.scene.clock == "lockstep",
+                                # with injected loss or delay on states, waiting would only slow the run
+                                state_wait=0.0 if "state" in self.opt.faults else 0.5)
             path = cfg_dir / f"agents-{h:04d}.json"
             path.write_text(config.to_json())
             routers = self.opt.agent_routers

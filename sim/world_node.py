@@ -14,53 +14,26 @@ import os
 import signal
 import sys
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 
-from agent.core.params import RobotParams
 from coordinator.scene import Scene, SceneError, load_scene
 from transport.bus import Bus
 from transport.codec import Command, Contact as ContactMsg, Event, Pose, Tick, Truth
 from transport.faults import parse_faults
 from transport.session import TransportError, add_zenoh_args, settings_from_args
 
-from .world import Body, World
+from .tracker import tracker_of, world_of
 
 CONTACT_KINDS = {"robot": 0, "obstacle": 1, "wall": 2}
-
-
-def bodies_of(scene: Scene) -> tuple[RobotParams, list[Body]]:
-    params = RobotParams.from_dict(scene.robot)
-    body = Body(params.kinematics, params.radius, params.v_max, params.wheel_base, params.omega_max)
-    return params, [body] * scene.robots
-
-
-@dataclass
-class Tracker:
-    """The paper's central tracking: true poses plus seeded Gaussian noise."""
-
-    sigma_xy: float
-    sigma_theta: float
-    rng: np.random.Generator = field(default_factory=lambda: np.random.default_rng(0))
-
-    def measure(self, poses: np.ndarray) -> np.ndarray:
-        noise = self.rng.standard_normal(poses.shape)  # drawn for every robot, every tick: reproducible
-        out = poses.copy()
-        out[:, :2] += self.sigma_xy * noise[:, :2]
-        out[:, 2] = (out[:, 2] + self.sigma_theta * noise[:, 2] + math.pi) % (2 * math.pi) - math.pi
-        return out
 
 
 class WorldNode:
     def __init__(self, bus: Bus, scene: Scene, *, deadline: float = 2.0, startup_timeout: float = 60.0) -> None:
         self.bus, self.scene, self.keys = bus, scene, bus.keys
-        self.params, bodies = bodies_of(scene)
+        self.params, self.world = world_of(scene)
         self.dt = self.params.dt
-        self.world = World(bodies, scene.poses, arena=scene.arena, obstacles=scene.obstacles,
-                           actuation_noise=scene.noise.actuation, seed=scene.seed)
-        self.tracker = Tracker(scene.noise.tracking_xy, math.radians(scene.noise.tracking_theta_deg),
-                               np.random.default_rng([scene.seed, 1]))
+        self.tracker = tracker_of(scene)
         self.deadline = deadline
         self.startup_timeout = startup_timeout
         n = scene.robots

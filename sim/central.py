@@ -1,0 +1,106 @@
+"""The central engine: every robot stepped by the same control core in one call, perfect information.
+
+No messages: each tick every robot sees every neighbour's current state (tracked position, its
+collision-free velocity, age zero), as RVO2 does. It is the reference against which decentralisation
+is studied (`--engine central` against `--engine distributed`), and the fast path for large swarms.
+"""
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+from typing import TextIO
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from agent.core.step import NeighbourStates, control_step, static_segments
+from coordinator.scene import Scene
+from coordinator.service import palette
+
+from .output import write_run
+from .rundir import RunDir
+from .tracker import tracker_of, world_of
+
+
+def nearest_neighbours(position: np.ndarray, velocity: np.ndarray, radius: float, reach: float,
+                       max_neighbours: int) -> NeighbourStates:
+    """Every robot's nearest neighbours within reach, from one snapshot (perfect information)."""
+    n = len(position)
+    m = min(max_neighbours, n - 1)
+    out = NeighbourStates.empty(n, m)
+    if m <= 0:
+        return out
+    dist, idx = cKDTree(position).query(position, k=m + 1, distance_upper_bound=reach)
+    dist, idx = dist[:, 1:], idx[:, 1:]  # drop self
+    valid = np.isfinite(dist)
+    safe = np.where(valid, idx, 0)
+    out.position[:] = position[safe]
+    out.velocity[:] = velocity[safe]
+    out.radius[:] = radius
+    out.valid[:] = valid
+    return out
+
+
+def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO | None = sys.stderr) -> Path:
+    params, world = world_of(scene)
+    tracker = tracker_of(scene)
+    segments = static_segments(scene.arena, scene.obstacles)
+    n = scene.robots
+    ids = np.arange(n)
+    goal = scene.goal_positions
+    has_goal = np.isfinite(goal).all(axis=1)
+    color = np.where(has_goal[:, None], palette(n), 40).astype(np.uint8)
+    velocity = np.zeros((n, 2))
+    events = sorted(scene.events, key=lambda e: e["t"])
+    rec: dict[str, list] = {"t": [], "pose": [], "velocity": [], "color": [], "goal": [], "assignment": []}
+    steps = round(scene.duration / params.dt)
+    fallbacks, converged_since, end_reason = 0, None, "duration"
+    run_dir = RunDir(out)
+    wall0 = last_say = time.time()
+    try:
+        for tick in range(steps + 1):
+            t = tick * params.dt
+            while events and events[0]["t"] <= t + 1e-9:
+                ev = events.pop(0)
+                world.teleport(ev["robot"], tuple(ev["pose"]))
+            rec["t"].append(t)
+            rec["pose"].append(world.poses)
+            rec["velocity"].append(world.velocities)
+            rec["color"].append(color)
+            rec["goal"].append(goal)
+            rec["assignment"].append(np.where(has_goal, ids, -1))
+            err = np.hypot(*(world.poses[:, :2] - goal).T)
+            if has_goal.any() and np.all(err[has_goal] <= params.goal_tolerance):
+                converged_since = t if converged_since is None else converged_since
+                if t - converged_since >= scene.converge_hold:
+                    end_reason = "converged"
+                    break
+            else:
+                converged_since = None
+            if tick == steps:
+                break
+            measured = tracker.measure(world.poses)
+            nbs = nearest_neighbours(measured[:, :2], velocity, params.radius, params.neighbour_dist,
+                                     params.max_neighbours)
+            res = control_step(params, ids, measured[:, :2], measured[:, 2], velocity, goal, nbs, segments,
+                               seed=scene.seed, tick=tick)
+            velocity = res.velocity
+            fallbacks += int(res.fallback.sum())
+            for i in range(n):
+                world.set_command(i, float(res.command[i, 0]), float(res.command[i, 1]))
+            world.step(params.dt)
+            if progress is not None and time.time() - last_say >= 1.0:
+                last_say = time.time()
+                print(f"[{scene.name}] central t={t:6.1f} s  at goal {int(np.sum(err <= params.goal_tolerance))}/"
+                      f"{int(has_goal.sum())}  contacts {len(world.contacts)}", file=progress, flush=True)
+        arrays = {k: np.stack(v) if k != "t" else np.array(v) for k, v in rec.items()}
+        arrays["color"] = arrays["color"].astype(np.uint8)
+        contacts = [{"kind": c.kind, "i": c.i, "j": c.j, "t_start": c.t_start, "t_end": c.t_end,
+                     "max_depth": c.max_depth} for c in world.contacts]
+        return write_run(run_dir, scene, params, arrays, wall_s=time.time() - wall0, contacts=contacts, video=video,
+                         engine="central", end_reason=end_reason, complete=True, orca_fallbacks=fallbacks,
+                         min_clearance_substep_m=world.min_clearance if np.isfinite(world.min_clearance) else None)
+    except BaseException:
+        run_dir.abort()
+        raise
