@@ -53,6 +53,7 @@ class HostConfig:
     batch_wait: float = 0.05  # how long to wait for the other robots' poses of a tick (real time)
     lockstep: bool = False  # wait for the previous tick's states of nearby robots (reproducible runs)
     state_wait: float = 0.5  # lock-step: how long to wait for a nearby robot's state before going on
+    pursue: dict[int, int] = field(default_factory=dict)  # robot -> the robot whose broadcasts are its goal
 
     @classmethod
     def from_json(cls, text: str) -> "HostConfig":
@@ -62,13 +63,14 @@ class HostConfig:
                    arena=tuple(data["arena"]) if data.get("arena") else None,
                    obstacles=[[tuple(v) for v in o] for o in data.get("obstacles", [])],
                    batch_wait=float(data.get("batch_wait", 0.05)), lockstep=bool(data.get("lockstep", False)),
-                   state_wait=float(data.get("state_wait", 0.5)))
+                   state_wait=float(data.get("state_wait", 0.5)),
+                   pursue={int(k): int(v) for k, v in data.get("pursue", {}).items()})
 
     def to_json(self) -> str:
         return json.dumps({"robots": self.robots, "params": self.params.to_dict(), "display": self.display,
                            "seed": self.seed, "arena": self.arena, "obstacles": self.obstacles,
                            "batch_wait": self.batch_wait, "lockstep": self.lockstep,
-                           "state_wait": self.state_wait})
+                           "state_wait": self.state_wait, "pursue": self.pursue})
 
 
 class CellSubscriptions:
@@ -117,7 +119,7 @@ class AgentHost:
         self.ticks_done = 0
         self.fallbacks = 0
         p = self.params
-        self.cell_size = (p.neighbour_dist + 3 * p.v_max * p.dt + 0.02) / 2
+        self.cell_size = p.cell_size
         self.segments = static_segments(config.arena, config.obstacles)
         # One subscription per own robot: a host receives only its robots' poses.
         self.pose_inbox = bus.inbox(Pose)
@@ -125,6 +127,8 @@ class AgentHost:
             bus.subscribe_into(self.keys.pose(r), self.pose_inbox)
         self.state_inbox = bus.inbox(State)  # fed by the spatial cells around the robots
         self.cells = CellSubscriptions(bus, self.state_inbox, self.cell_size)
+        for target in set(config.pursue.values()):  # a pursuer hears its target wherever it is
+            bus.subscribe_into(self.keys.state_of(target), self.state_inbox)
         self.goal_inbox = bus.subscribe(self.keys.all_of("goals"), Goals)
         self.running = True
         self.parent_pid: int | None = None  # exit when this process (the launcher) is gone
@@ -167,6 +171,9 @@ class AgentHost:
     def _on_state(self, msg: State) -> None:
         self.table.update(msg)
         self.silent.discard(msg.robot)
+        for robot, target in self.config.pursue.items():
+            if msg.robot == target and robot in self.memory:
+                self.memory[robot].goal = np.array([msg.x, msg.y])
 
     def _await_states(self, tick: int, position: np.ndarray) -> None:
         """Lock-step: wait until every nearby robot's state of the previous tick is here.

@@ -14,6 +14,8 @@ raises ``SceneError`` with one line saying what is wrong and how to fix it.
     [arena]                  # size = [width, height] (centred on the origin), or "auto"
     [[obstacles]]            # vertices = [[x, y], ...] counter-clockwise
     [[events]]               # t = 10.0, kind = "teleport", robot = 3, pose = [x, y, theta]
+    [[scripted]]             # robot = 0, waypoints = [[t, x, y], ...]: a dynamic obstacle, no agent
+    [[pursuers]]             # robot = 1, target = 0: its goal is wherever the target last broadcast
     [noise]                  # tracking_xy = 0.002, tracking_theta_deg = 3.0, actuation = 0.02
     [end]                    # converge_hold = 1.0 (end after all robots hold their goals this long)
 """
@@ -28,8 +30,8 @@ from typing import Any
 import numpy as np
 
 SCENE_DIR = Path(__file__).parent / "scenes"
-LAYOUTS = ("circle", "grid", "random", "rows", "blocks", "file")
-GOAL_KINDS = ("antipodal", "swap", "list", "none")
+LAYOUTS = ("circle", "grid", "random", "rows", "blocks", "file", "list")
+GOAL_KINDS = ("antipodal", "swap", "list", "stay", "none")
 CLOCKS = ("lockstep", "realtime")
 DEFAULT_RADIUS = 0.045
 
@@ -61,6 +63,8 @@ class Scene:
     noise: Noise = field(default_factory=Noise)
     converge_hold: float = 1.0
     source: str = ""
+    scripted: dict[int, np.ndarray] = field(default_factory=dict)  # robot -> waypoints (K,3) of t, x, y
+    pursuers: dict[int, int] = field(default_factory=dict)  # robot -> the robot it pursues
     poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # initial poses (N,3)
     goal_positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # per-robot goals (N,2), NaN: none
 
@@ -102,7 +106,7 @@ def scene_from_dict(data: dict[str, Any], *, source: str = "<dict>", robots: int
                     seed: int | None = None, clock: str | None = None, duration: float | None = None) -> Scene:
     where = source
     known = {"name", "robots", "seed", "clock", "duration", "robot", "layout", "goals", "arena", "obstacles",
-             "events", "noise", "end", "description"}
+             "events", "noise", "end", "description", "scripted", "pursuers"}
     unknown = set(data) - known
     if unknown:
         raise SceneError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
@@ -140,6 +144,11 @@ def scene_from_dict(data: dict[str, Any], *, source: str = "<dict>", robots: int
     _check_fit(scene, where)
     for event in scene.events:
         _check_event(event, scene, where)
+    scene.scripted = {_robot_index(e, scene, where): _waypoints(e, where) for e in data.get("scripted", [])}
+    scene.pursuers = {_robot_index(e, scene, where): _robot_index(e, scene, where, "target")
+                      for e in data.get("pursuers", [])}
+    for r in scene.scripted:
+        scene.goal_positions[r] = np.nan  # a scripted robot follows its path, not a goal
     return scene
 
 
@@ -197,6 +206,11 @@ def initial_poses(layout: dict[str, Any], n: int, radius: float, seed: int, wher
                 pts.append(p)
         th = rng.uniform(-math.pi, math.pi, n)
         return np.column_stack([np.array(pts), th])
+    if kind == "list":
+        arr = np.asarray(layout.get("poses", []), float)
+        if arr.ndim != 2 or arr.shape[1] != 3 or len(arr) < n:
+            raise SceneError(f"{where}: layout.poses needs {n} [x, y, theta] rows")
+        return arr[:n].copy()
     if kind == "file":
         path = Path(layout.get("path", ""))
         try:
@@ -219,6 +233,8 @@ def scene_goals(goals: dict[str, Any], poses: np.ndarray, where: str = "scene") 
         return -xy.copy()
     if kind == "swap":
         return np.column_stack([xy[:, 0], -xy[:, 1]])
+    if kind == "stay":
+        return xy.copy()
     if kind == "none":
         return np.full_like(xy, np.nan)
     if kind == "list":
@@ -272,6 +288,28 @@ def _check_event(event: dict[str, Any], scene: Scene, where: str) -> None:
         raise SceneError(f"{where}: teleport event robot must be an index in 0..{scene.robots - 1}")
     if not (isinstance(pose, list) and len(pose) == 3 and _positive(t)):
         raise SceneError(f"{where}: teleport event needs t > 0 and pose = [x, y, theta]")
+
+
+def _robot_index(entry: Any, scene: Scene, where: str, key: str = "robot") -> int:
+    value = entry.get(key) if isinstance(entry, dict) else None
+    if not (isinstance(value, int) and 0 <= value < scene.robots):
+        raise SceneError(f"{where}: {key} must be a robot index in 0..{scene.robots - 1}, not {value!r}")
+    return value
+
+
+def _waypoints(entry: dict[str, Any], where: str) -> np.ndarray:
+    try:
+        pts = np.asarray(entry.get("waypoints"), float)
+    except (TypeError, ValueError):
+        pts = np.zeros((0, 0))
+    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 2 or np.any(np.diff(pts[:, 0]) <= 0):
+        raise SceneError(f"{where}: scripted waypoints must be [[t, x, y], ...] with increasing t (at least 2)")
+    return pts
+
+
+def scripted_position(waypoints: np.ndarray, t: float) -> np.ndarray:
+    """Where a scripted robot should be at time t (straight segments, holding the ends)."""
+    return np.array([np.interp(t, waypoints[:, 0], waypoints[:, 1]), np.interp(t, waypoints[:, 0], waypoints[:, 2])])
 
 
 def _noise(data: dict[str, Any], where: str) -> Noise:

@@ -32,7 +32,11 @@ def scene_goal_message(scene: Scene, epoch: int = 1) -> Goals | None:
     goals = scene.goal_positions
     if np.isnan(goals).all():
         return None
-    return Goals(epoch, 1, 0.0, len(goals), goals.copy(), palette(len(goals)))
+    # Robots without a goal of their own (scripted obstacles, pursuers) are told to stay put: a goal
+    # message carries finite numbers only.
+    none = np.isnan(goals).any(axis=1)
+    goals = np.where(none[:, None], scene.poses[:, :2], goals)
+    return Goals(epoch, 1, 0.0, len(goals), goals, palette(len(goals)))
 
 
 class Coordinator:

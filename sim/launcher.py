@@ -87,7 +87,7 @@ class Launcher:
 
     def _start_agents(self) -> None:
         k = max(1, self.opt.agents_per_process)
-        ids = list(range(self.scene.robots))
+        ids = [i for i in range(self.scene.robots) if i not in self.scene.scripted]
         cfg_dir = self.run_dir / "config"
         cfg_dir.mkdir(exist_ok=True)
         faults = ["--faults", format_faults(self.opt.faults)] if self.opt.faults else []
@@ -97,7 +97,8 @@ class Launcher:
                                 arena=self.scene.arena, obstacles=self.scene.obstacles,
                                 lockstep=self.scene.clock == "lockstep",
                                 # with injected loss or delay on states, waiting would only slow the run
-                                state_wait=0.0 if "state" in self.opt.faults else 0.5)
+                                state_wait=0.0 if "state" in self.opt.faults else 0.5,
+                                pursue={r: t for r, t in self.scene.pursuers.items() if r in robots})
             path = cfg_dir / f"agents-{h:04d}.json"
             path.write_text(config.to_json())
             routers = self.opt.agent_routers

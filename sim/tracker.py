@@ -13,9 +13,11 @@ from .world import Body, World
 
 
 def bodies_of(scene: Scene) -> tuple[RobotParams, list[Body]]:
+    """Every robot's body; scripted robots (dynamic obstacles) move holonomically along their path."""
     params = RobotParams.from_dict(scene.robot)
     body = Body(params.kinematics, params.radius, params.v_max, params.wheel_base, params.omega_max)
-    return params, [body] * scene.robots
+    scripted = Body("holonomic", params.radius, params.v_max)
+    return params, [scripted if i in scene.scripted else body for i in range(scene.robots)]
 
 
 def world_of(scene: Scene) -> tuple[RobotParams, World]:

@@ -17,9 +17,10 @@ import time
 
 import numpy as np
 
-from coordinator.scene import Scene, SceneError, load_scene
+from coordinator.scene import Scene, SceneError, load_scene, scripted_position
 from transport.bus import Bus
-from transport.codec import Command, Contact as ContactMsg, Event, Pose, Tick, Truth
+from transport.codec import Command, Contact as ContactMsg, Event, Pose, State, Tick, Truth
+from transport.keys import cell_of
 from transport.faults import parse_faults
 from transport.session import TransportError, add_zenoh_args, settings_from_args
 
@@ -40,6 +41,8 @@ class WorldNode:
         self.color = np.zeros((n, 3), np.uint8)
         self.last_cmd_tick = np.full(n, -1)
         self.live = np.zeros(n, bool)
+        self.agent_robot = np.array([i not in scene.scripted for i in range(n)])  # scripted: no agent
+        self.color[~self.agent_robot] = 255
         self.ever_live = np.zeros(n, bool)
         self.missed_ticks = 0
         self.late_commands = 0
@@ -96,12 +99,26 @@ class WorldNode:
             x, y, th = measured[i]
             self.bus.publish(self.keys.pose(int(i)), Pose(int(i), self.tick, t, x, y, th))
         self._publish_before_start()
+        self._drive_scripted()
+
+    def _drive_scripted(self) -> None:
+        """Scripted robots are dynamic obstacles: they follow their path and broadcast a state flagged
+        as not avoiding anybody, so agents take full responsibility (paper Fig. 19)."""
+        t = self.tick * self.dt
+        for i, waypoints in self.scene.scripted.items():
+            x, y, _ = self.world.poses[i]
+            target = scripted_position(waypoints, t + self.dt)
+            vx, vy = (target - (x, y)) / self.dt
+            self.world.set_command(i, float(vx), float(vy))
+            cell = cell_of(x, y, self.params.cell_size)
+            self.bus.publish(self.keys.state(cell, i), State(i, self.tick, t, x, y, vx, vy, self.params.radius,
+                                                              0.0, 0.0, -1, State.DYNAMIC))
 
     def _publish_before_start(self) -> None:
         """Robots whose agent is not live yet hear where they are (true pose, no tracker noise drawn,
         so start-up timing cannot change the noise sequence): they subscribe to their cells and join."""
         t = self.tick * self.dt
-        for i in np.flatnonzero(~self.live):
+        for i in np.flatnonzero(~self.live & self.agent_robot):
             x, y, th = self.world.poses[i]
             self.bus.publish(self.keys.pose(int(i)), Pose(int(i), Pose.BEFORE_START, t, x, y, th))
 
@@ -130,7 +147,7 @@ class WorldNode:
         while self.running and time.monotonic() - start < self.startup_timeout:
             self._update_liveness()
             self._check_control()
-            if self.live.all():
+            if self.live[self.agent_robot].all():
                 return True
             if time.monotonic() - last_sent > 0.2:
                 self._publish_before_start()

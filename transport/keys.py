@@ -42,6 +42,10 @@ class Keys:
     def state(self, cell: tuple[int, int], robot: int) -> str:
         return f"{self.root}/state/{cell[0]}/{cell[1]}/{robot}"
 
+    def state_of(self, robot: int) -> str:
+        """One robot's broadcasts, whatever cell it is in."""
+        return f"{self.root}/state/*/*/{robot}"
+
     def state_cell(self, cell: tuple[int, int]) -> str:
         return f"{self.root}/state/{cell[0]}/{cell[1]}/*"
 

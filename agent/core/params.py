@@ -48,6 +48,12 @@ class RobotParams:
             # eq. 9 converges without oscillation only if K_a >= V_p * dt (paper 5.2)
             raise ValueError(f"k_a ({self.k_a}) must be at least v_pref * dt ({self.v_pref * self.dt})")
 
+    @property
+    def cell_size(self) -> float:
+        """Spatial cell of state broadcasts: half of the neighbour distance plus what two robots close
+        in three ticks plus the tracking noise (see agent.runtime.CellSubscriptions)."""
+        return (self.neighbour_dist + 3 * self.v_max * self.dt + 0.02) / 2
+
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
