@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from agent.core.neighbours import perturb_preferred_velocity
 from agent.core.orca import orca_velocity, polygon_segments
 
 __all__ = ["CentralOrca"]
@@ -17,12 +18,16 @@ class CentralOrca:
     """RVO2-like simulator: ``add_agent``, ``add_obstacle``, ``set_pref_velocity``, ``do_step``.
 
     Agent defaults mirror RVO2's ``setAgentDefaults`` (neighbour distance, max neighbours, horizons,
-    radius, max speed). ``safety_margin`` is added to every radius inside ORCA (not to the body).
+    radius, max speed). The options go to `orca_velocity`: ``safety_margin`` is added to every radius
+    in the robots' ORCA lines (not to the bodies, nor to the safety lines), ``safety=False`` gives
+    RVO2's semantics; ``perturbation`` > 0 adds the seeded symmetry breaking of
+    `perturb_preferred_velocity` (robot id = agent index, tick = step).
     """
 
     def __init__(self, time_step: float, neighbor_dist: float, max_neighbors: int, time_horizon: float,
                  time_horizon_obst: float, radius: float, max_speed: float, *,
-                 safety_margin: float = 0.0, safety: bool = True) -> None:
+                 safety_margin: float = 0.0, safety: bool = True, perturbation: float = 0.0,
+                 seed: int = 0) -> None:
         self.time_step = float(time_step)
         self.neighbor_dist = float(neighbor_dist)
         self.max_neighbors = int(max_neighbors)
@@ -32,6 +37,8 @@ class CentralOrca:
         self.default_max_speed = float(max_speed)
         self.safety_margin = float(safety_margin)
         self.safety = bool(safety)
+        self.perturbation = float(perturbation)
+        self.seed = int(seed)
         self.position = np.zeros((0, 2))
         self.velocity = np.zeros((0, 2))
         self.pref_velocity = np.zeros((0, 2))
@@ -83,8 +90,12 @@ class CentralOrca:
 
     def compute_new_velocities(self) -> tuple[np.ndarray, np.ndarray]:
         idx, valid = self.neighbours()
+        pref = self.pref_velocity
+        if self.perturbation:
+            pref = perturb_preferred_velocity(pref, np.arange(self.num_agents), self.seed,
+                                              self.steps, self.perturbation)
         return orca_velocity(
-            self.position, self.velocity, self.pref_velocity, self.radius, self.max_speed,
+            self.position, self.velocity, pref, self.radius, self.max_speed,
             self.position[idx], self.velocity[idx], self.radius[idx],
             np.full(idx.shape, 0.5), valid, self.segments,
             tau=self.time_horizon, tau_obst=self.time_horizon_obst, dt=self.time_step,

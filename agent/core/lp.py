@@ -4,22 +4,20 @@ A constraint line is a point ``p`` and a unit direction ``d``; the permissible h
 LEFT of ``d`` (RVO2's convention): ``det(d, v - p) >= 0``. A velocity violates a line by
 ``det(d, p - v)`` when that is positive.
 
-Two problems are solved:
+Two problems are solved, with RVO2's algorithms and semantics:
 
-* the optimum (eq. 14): the velocity in the speed disk and in every half-plane closest to the preferred
-  velocity, or (``directional``) the one furthest along a unit direction;
-* the fallback when that is infeasible (RVO2's "linearProgram3" semantics): the leading ``n_hard``
-  lines (obstacles, kinematic polygon) stay hard and the largest violation of the remaining (robot)
-  lines is minimised, solved as RVO2 does, one 2-D program per soft line over projected lines.
+* the optimum (eq. 14, `optimise`): the velocity in the speed disk and in every half-plane closest to
+  the preferred velocity, or (``directional``) the one furthest along a unit direction. Incremental:
+  lines are added in order; where the current optimum violates a line, the new optimum lies on it
+  (a 1-D problem on that line, clipped by the earlier lines and the disk);
+* the fallback when that is infeasible (`least_violation`, RVO2's "linearProgram3"): the leading
+  ``n_hard`` lines (obstacles, kinematic polygon, safety) stay hard and the largest violation of the
+  remaining (robot) lines is minimised, one directional 2-D program per soft line.
 
-Instead of the incremental (randomised) algorithm, the optimum is taken among candidates: the
-unconstrained optimum if feasible, else the best point of each line's feasible segment (the optimum of a
-convex problem lies on the boundary). Results equal the incremental algorithm's where the optimum is
-unique, and it vectorises over lines as well as robots.
-
-Determinism: only elementwise + - * / sqrt and comparisons, and min/max/argmin along the line axis are
-used, never a reduction across robots, so a robot's result is bit-identical whether it is solved alone
-or in a batch (padded lines being invalid).
+Vectorised across robots with numpy, looping in Python over the line index only.
+Determinism: only elementwise + - * / sqrt and comparisons, and min/max/any along the line axis, never
+a reduction across robots, so a robot's result is bit-identical whether it is solved alone or in a
+batch (padded lines being invalid).
 """
 from __future__ import annotations
 
@@ -28,66 +26,87 @@ import numpy as np
 # Two unit directions are treated as parallel below this |det| (RVO2 uses the same tolerance).
 EPSILON = 1e-5
 
-__all__ = ["EPSILON", "linear_program", "least_violation", "optimise"]
+__all__ = ["EPSILON", "linear_program", "least_violation", "optimise", "optimise_few"]
 
 
-def _candidates(px, py, dx, dy, valid, radius, tx, ty, directional, violated):
-    """Best point on the feasible segment of each line violated by the disk's optimum.
+def _on_line(pix, piy, dix, diy, px, py, dx, dy, valid, radius, tx, ty, directional, axis=0):
+    """The 1-D problem on lines i clipped by the disk and the lines j, along ``axis`` of the j
+    arrays; the i arrays have length 1 on that axis, and so have the results.
 
-    The optimum of a convex problem whose unconstrained optimum c0 is infeasible lies on a line that
-    c0 violates (moving from any other feasible point toward c0 would improve it), so only those
-    lines are candidates (axis 1, padded); every valid line clips them (axis 2). Arrays are (k, L);
-    radius, tx, ty are (k,). Returns (x, y, feasible), each (k,).
+    Returns (x, y, ok); not ok where the disk and the lines leave nothing of line i.
     """
-    n_cand = int(violated.sum(axis=1).max())
-    order = (np.arange(len(px))[:, None], np.argsort(~violated, axis=1, kind="stable")[:, :n_cand])
-    cpx, cpy, cdx, cdy, ok = px[order], py[order], dx[order], dy[order], violated[order]
-    r2 = (radius * radius)[:, None]
-    # segment of candidate line i inside the speed disk: p + t d, t in [t_left, t_right]
-    dot = cpx * cdx + cpy * cdy
-    disc = dot * dot + r2 - (cpx * cpx + cpy * cpy)
-    ok &= disc >= 0.0
+    dot = pix * dix + piy * diy
+    disc = dot * dot + radius * radius - (pix * pix + piy * piy)
+    ok = disc >= 0.0
     sq = np.sqrt(np.maximum(disc, 0.0))
     t_left = -dot - sq
     t_right = -dot + sq
-    # clip by every valid line j (axis 2)
-    dxi, dyi = cdx[:, :, None], cdy[:, :, None]
-    dxj, dyj = dx[:, None, :], dy[:, None, :]
-    den = dxi * dyj - dyi * dxj  # det(d_i, d_j)
-    num = dxj * (cpy[:, :, None] - py[:, None, :]) - dyj * (cpx[:, :, None] - px[:, None, :])
-    vj = valid[:, None, :]
-    par = np.abs(den) <= EPSILON
-    # a parallel line with line i on its forbidden side empties line i (line i itself: num = 0)
-    ok &= ~(vj & par & (num < 0.0)).any(axis=2)
-    t = num / np.where(par, 1.0, den)
-    use = vj & ~par
-    t_right = np.minimum(t_right, np.where(use & (den > 0.0), t, np.inf).min(axis=2))
-    t_left = np.maximum(t_left, np.where(use & (den < 0.0), t, -np.inf).max(axis=2))
-    ok &= t_left <= t_right
-    txc, tyc = tx[:, None], ty[:, None]
+    if px.shape[axis]:
+        den = dix * dy - diy * dx  # det(d_i, d_j)
+        num = dx * (piy - py) - dy * (pix - px)
+        par = np.abs(den) <= EPSILON
+        # a parallel line with line i on its forbidden side empties line i
+        ok = ok & ~(valid & par & (num < 0.0)).any(axis=axis, keepdims=True)
+        t = num / np.where(par, 1.0, den)
+        use = valid & ~par
+        t_right = np.minimum(t_right, np.where(use & (den > 0.0), t, np.inf).min(axis=axis,
+                                                                                    keepdims=True))
+        t_left = np.maximum(t_left, np.where(use & (den < 0.0), t, -np.inf).max(axis=axis,
+                                                                                 keepdims=True))
+        ok &= t_left <= t_right
     if directional:
-        t_best = np.where(txc * cdx + tyc * cdy > 0.0, t_right, t_left)
+        t_best = np.where(tx * dix + ty * diy > 0.0, t_right, t_left)
     else:
-        t_best = np.minimum(np.maximum(cdx * (txc - cpx) + cdy * (tyc - cpy), t_left), t_right)
-    x = cpx + t_best * cdx
-    y = cpy + t_best * cdy
-    if directional:
-        cost = -(txc * x + tyc * y)
-    else:
-        ex, ey = x - txc, y - tyc
-        cost = ex * ex + ey * ey
-    cost = np.where(ok, cost, np.inf)
-    best = (np.arange(len(x)), np.argmin(cost, axis=1))
-    return x[best], y[best], ok.any(axis=1)
+        t_best = np.minimum(np.maximum(dix * (tx - pix) + diy * (ty - piy), t_left), t_right)
+    return pix + t_best * dix, piy + t_best * diy, ok
 
 
 def optimise(point: np.ndarray, direction: np.ndarray, valid: np.ndarray, radius: np.ndarray,
              target: np.ndarray, directional: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Optimum over the speed disk D(0, radius) and the valid half-planes.
+    """Optimum over the speed disk D(0, radius) and the valid half-planes (RVO2's linearProgram2).
 
     ``target`` (B,2) is the velocity to get closest to, or with ``directional`` a unit direction to
-    go furthest along. Returns (velocity (B,2), feasible (B,)); where infeasible the velocity is the
-    disk's optimum, which violates some line.
+    go furthest along. Returns (velocity (B,2), feasible (B,)); where infeasible the velocity is
+    the optimum over the lines before the first one that could not be met.
+    """
+    # line-major copies (L, B): the loop over lines reads contiguous rows
+    px, py = np.ascontiguousarray(point[..., 0].T), np.ascontiguousarray(point[..., 1].T)
+    dx, dy = np.ascontiguousarray(direction[..., 0].T), np.ascontiguousarray(direction[..., 1].T)
+    valid = np.asarray(valid, dtype=bool).T
+    radius = np.asarray(radius, dtype=float)
+    tx, ty = target[:, 0], target[:, 1]
+    if directional:
+        rx, ry = tx * radius, ty * radius
+    else:
+        n2 = tx * tx + ty * ty
+        outside = n2 > radius * radius
+        scale = np.where(outside, radius / np.sqrt(np.where(outside, n2, 1.0)), 1.0)
+        rx, ry = tx * scale, ty * scale
+    feasible = np.ones(len(rx), dtype=bool)
+    for i in range(valid.shape[0]):
+        viol = valid[i] & feasible & (dx[i] * (py[i] - ry) - dy[i] * (px[i] - rx) > 0.0)
+        rows = np.nonzero(viol)[0]
+        if rows.size == 0:
+            continue
+        one = slice(i, i + 1)
+        x, y, ok = _on_line(px[one, rows], py[one, rows], dx[one, rows], dy[one, rows], px[:i, rows],
+                            py[:i, rows], dx[:i, rows], dy[:i, rows], valid[:i, rows], radius[rows],
+                            tx[rows], ty[rows], directional)
+        x, y, ok = x[0], y[0], ok[0]
+        rx[rows] = np.where(ok, x, rx[rows])
+        ry[rows] = np.where(ok, y, ry[rows])
+        feasible[rows[~ok]] = False  # a robot stops at its first unsatisfiable line
+    return np.stack([rx, ry], axis=-1), feasible
+
+
+def optimise_few(point: np.ndarray, direction: np.ndarray, valid: np.ndarray, radius: np.ndarray,
+                 target: np.ndarray, directional: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """`optimise` without a loop over lines, for few robots (fewer, larger numpy operations).
+
+    The optimum is on a line that the disk's optimum c0 violates (from any other feasible point,
+    moving toward c0 would improve it): each such line's 1-D optimum, clipped by the disk and every
+    valid line at once (arrays (k, candidates, L)), is a candidate; the best one wins. Same optimum
+    as `optimise` up to rounding; a call site must always use the same one (determinism).
     """
     px, py = point[..., 0], point[..., 1]
     dx, dy = direction[..., 0], direction[..., 1]
@@ -101,15 +120,30 @@ def optimise(point: np.ndarray, direction: np.ndarray, valid: np.ndarray, radius
         scale = np.where(outside, radius / np.sqrt(np.where(outside, n2, 1.0)), 1.0)
         cx, cy = tx * scale, ty * scale
     violated = valid & (dx * (py - cy[:, None]) - dy * (px - cx[:, None]) > 0.0)
-    rows = np.nonzero(violated.any(axis=1))[0]
     feasible = np.ones(len(cx), dtype=bool)
-    if rows.size:
-        x, y, ok = _candidates(px[rows], py[rows], dx[rows], dy[rows], valid[rows], radius[rows],
-                               tx[rows], ty[rows], directional, violated[rows])
-        cx, cy = cx.copy(), cy.copy()
-        cx[rows] = np.where(ok, x, cx[rows])
-        cy[rows] = np.where(ok, y, cy[rows])
-        feasible[rows] = ok
+    rows = np.nonzero(violated.any(axis=1))[0]
+    if rows.size == 0:
+        return np.stack([cx, cy], axis=-1), feasible
+    px, py, dx, dy, valid, violated = (a[rows] for a in (px, py, dx, dy, valid, violated))
+    k = len(rows)
+    n_cand = int(violated.sum(axis=1).max())
+    pick = (np.arange(k)[:, None], np.argsort(~violated, axis=1, kind="stable")[:, :n_cand])
+    cand = [a[pick][..., None] for a in (px, py, dx, dy)]  # (k, candidates, 1)
+    x, y, ok = _on_line(*cand, px[:, None, :], py[:, None, :], dx[:, None, :], dy[:, None, :],
+                        valid[:, None, :], radius[rows, None, None], tx[rows, None, None],
+                        ty[rows, None, None], directional, axis=2)
+    x, y, ok = x[..., 0], y[..., 0], ok[..., 0] & violated[pick]
+    if directional:
+        cost = -(tx[rows, None] * x + ty[rows, None] * y)
+    else:
+        ex, ey = x - tx[rows, None], y - ty[rows, None]
+        cost = ex * ex + ey * ey
+    best = (np.arange(k), np.argmin(np.where(ok, cost, np.inf), axis=1))
+    cx, cy = cx.copy(), cy.copy()
+    good = ok.any(axis=1)
+    cx[rows] = np.where(good, x[best], cx[rows])
+    cy[rows] = np.where(good, y[best], cy[rows])
+    feasible[rows] = good
     return np.stack([cx, cy], axis=-1), feasible
 
 
@@ -150,8 +184,8 @@ def _least_violation(px, py, dx, dy, valid, hard, radius, vx, vy):
         bx = np.where(h, djx, bx / bn)
         by = np.where(h, djy, by / bn)
         target = np.stack([-diy[:, 0], dix[:, 0]], axis=-1)  # left normal: into line i's half-plane
-        res, ok = optimise(np.stack([qx, qy], -1), np.stack([bx, by], -1), use, radius[rows], target,
-                           directional=True)
+        res, ok = optimise_few(np.stack([qx, qy], -1), np.stack([bx, by], -1), use, radius[rows],
+                               target, directional=True)
         vx[rows] = np.where(ok, res[:, 0], vx[rows])
         vy[rows] = np.where(ok, res[:, 1], vy[rows])
         distance[rows] = dix[:, 0] * (piy[:, 0] - vy[rows]) - diy[:, 0] * (pix[:, 0] - vx[rows])
@@ -172,7 +206,8 @@ def least_violation(point: np.ndarray, direction: np.ndarray, valid: np.ndarray,
     b, n = valid.shape
     radius = np.broadcast_to(np.asarray(max_speed, dtype=float), (b,))
     hard = np.arange(n) < np.broadcast_to(np.asarray(n_hard), (b,))[:, None]
-    start, ok = optimise(point, direction, valid & hard, radius, np.asarray(pref_velocity, dtype=float))
+    start, ok = optimise_few(point, direction, valid & hard, radius,
+                             np.asarray(pref_velocity, dtype=float))
     hard &= ok[:, None]
     vx, vy = _least_violation(point[..., 0], point[..., 1], direction[..., 0], direction[..., 1],
                               valid, hard, radius, start[:, 0], start[:, 1])

@@ -10,7 +10,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["Neighbours", "COOPERATING", "NON_COOPERATING", "prepare_neighbours",
+__all__ = ["Neighbours", "COOPERATING", "NON_COOPERATING", "prepare_neighbours", "nearest_first",
            "perturb_preferred_velocity"]
 
 COOPERATING = 0.5  # responsibility c toward a robot running the same ORCA (eq. 12)
@@ -28,16 +28,18 @@ class Neighbours(NamedTuple):
 
 
 def prepare_neighbours(position, velocity, radius, age, valid, *, max_speed, timeout: float,
-                       noise: float = 0.0, cooperative=None) -> Neighbours:
+                       noise: float = 0.0, cooperative=None, committed: float = 0.0) -> Neighbours:
     """Neighbour states as of now, from states stamped ``age`` seconds ago.
 
     * Fresh (0 <= age <= timeout): position extrapolated by age x velocity; radius grown by
-      ``noise + age x max_speed``. The growth covers a neighbour whose velocity changed by up to its
-      maximum speed since the stamp (a stop, a swerve; not a full reversal, which ORCA's smooth
-      velocities make unlikely within a timeout) plus the tracking noise of the stamped position.
+      ``noise + max(age - committed, 0) x 2 max_speed``. A broadcast velocity is executed until the
+      neighbour's next tick (``committed``, one control period), so only the time beyond it is time
+      in which the neighbour may have changed its velocity, by up to twice its maximum speed (a
+      full reversal: robots in a jam do reverse); ``noise`` covers the tracking noise of the
+      stamped positions.
       Responsibility 0.5 (it avoids us too), or 1.0 where ``cooperative`` is False.
     * Stale (age > timeout): last known position and velocity, not extrapolated (the message may be
-      from a robot that stopped or died); radius grown by ``noise + timeout x max_speed``;
+      from a robot that stopped or died); radius grown by ``noise + (timeout - committed) x 2 max_speed``;
       responsibility 1.0: we avoid it alone.
     * Invalid: not finite, or flagged invalid by the caller (a negative age, from clock skew, is 0).
 
@@ -52,15 +54,35 @@ def prepare_neighbours(position, velocity, radius, age, valid, *, max_speed, tim
               & np.isfinite(radius) & np.isfinite(age))
     valid = np.asarray(valid, dtype=bool) & finite
     stale = age > timeout
-    horizon = np.where(stale, timeout, age)
+    # A broadcast velocity is what the neighbour executes until its next tick (``committed``
+    # seconds): only time beyond that is time in which it may have changed its mind.
+    horizon = np.maximum(np.where(stale, timeout, age) - committed, 0.0)
     shift = np.where(stale, 0.0, age)[..., None]
     safe_p = np.where(valid[..., None], position, 0.0)
     safe_v = np.where(valid[..., None], velocity, 0.0)
     new_position = safe_p + shift * safe_v
-    new_radius = np.where(valid, radius, 0.0) + noise + np.where(valid, horizon, 0.0) * max_speed
+    # Extrapolating with a velocity that may since have turned into its opposite: the position can
+    # be off by up to twice the maximum speed times the uncommitted time.
+    new_radius = np.where(valid, radius, 0.0) + noise + np.where(valid, horizon, 0.0) * 2.0 * max_speed
     coop = np.ones(valid.shape, dtype=bool) if cooperative is None else np.asarray(cooperative, bool)
     responsibility = np.where(coop & ~stale, COOPERATING, NON_COOPERATING)
     return Neighbours(new_position, safe_v, new_radius, responsibility, valid)
+
+
+def nearest_first(position, neighbours: Neighbours, max_neighbours: int,
+                  neighbour_dist: float = np.inf) -> Neighbours:
+    """Each robot's valid neighbours within ``neighbour_dist`` (centre to centre), nearest first, at
+    most ``max_neighbours`` (ORCA's fallback takes them in this order, as RVO2 does)."""
+    p = np.asarray(position, dtype=float)
+    ex = neighbours.position[..., 0] - p[:, None, 0]
+    ey = neighbours.position[..., 1] - p[:, None, 1]
+    dist2 = np.where(neighbours.valid, ex * ex + ey * ey, np.inf)
+    keep = dist2 < neighbour_dist * neighbour_dist
+    dist2 = np.where(keep, dist2, np.inf)
+    m = min(max_neighbours, dist2.shape[1])
+    order = (np.arange(p.shape[0])[:, None], np.argsort(dist2, axis=1, kind="stable")[:, :m])
+    return Neighbours(neighbours.position[order], neighbours.velocity[order],
+                      neighbours.radius[order], neighbours.responsibility[order], keep[order])
 
 
 def _splitmix64(x: np.ndarray) -> np.ndarray:

@@ -28,8 +28,9 @@ import numpy as np
 from agent.core.orca import Lines, orca_velocity
 from agent.core.params import RobotParams
 
-__all__ = ["NHResult", "omega_cap", "vertex_angles", "max_trackable_speed", "min_error_speed", "tracking_error",
-           "ahv_polygon", "ahv_lines", "controls", "wheel_speeds", "nh_orca_wheel_speeds"]
+__all__ = ["NHResult", "omega_cap", "vertex_angles", "max_trackable_speed", "min_error_speed",
+           "tracking_error", "ahv_polygon", "ahv_lines", "controls", "wheel_speeds",
+           "nh_orca_wheel_speeds"]
 
 # P_AHV vertices: angles to the heading, denser ahead where the boundary turns fastest
 _N_VERTICES = 24
@@ -180,9 +181,10 @@ def nh_orca_wheel_speeds(position, heading, velocity, pref_velocity, radius, nbr
     """NH-ORCA step for a batch of differential-drive robots.
 
     ``velocity`` is each robot's previous v_cf and ``nbr_velocity`` the neighbours' broadcast v_cf.
-    Radii are inflated by the tracking error E (own) and its bound (neighbours'); P_AHV is kept hard;
-    where the program is infeasible the mirrored polygon -P_AHV (driving backwards) is tried, and
-    otherwise RVO2's least-violation fallback with P_AHV hard is used.
+    Radii are inflated by the tracking error E (own) and its bound (neighbours'); P_AHV is kept hard.
+    Where the program is infeasible at the full horizon the mirrored polygon -P_AHV (driving
+    backwards) is tried at the full horizon; if that is infeasible too, the forward result of
+    `orca_velocity`'s fallback (shrunk horizon, else least violation) stands.
     """
     position = np.asarray(position, dtype=float)
     b = position.shape[0]

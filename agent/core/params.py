@@ -32,7 +32,7 @@ class RobotParams:
     max_neighbours: int = 10
     dt: float = 0.1  # control period (10 Hz)
     goal_tolerance: float = 0.01  # a robot within this distance of its goal has arrived
-    noise_bound: float = 0.006  # bound on the tracking error of a broadcast position (3 sigma of 2 mm)
+    noise_bound: float = 0.01  # bound on the relative tracking error of two robots (3.5 sigma of 2 x 2 mm)
     stale_after: float = 0.5  # a neighbour not heard from this long is a non-cooperating obstacle
 
     def __post_init__(self) -> None:

@@ -61,7 +61,7 @@ def control_step(params: RobotParams, robot_ids: np.ndarray, position: np.ndarra
                     perturb_preferred_velocity(pref, robot_ids, seed, tick), pref)
     nb = prepare_neighbours(neighbours.position, neighbours.velocity, neighbours.radius, neighbours.age,
                             neighbours.valid, max_speed=params.v_max, timeout=params.stale_after,
-                            noise=params.noise_bound, cooperative=neighbours.cooperative)
+                            noise=params.noise_bound, cooperative=neighbours.cooperative, committed=params.dt)
     if params.kinematics == DIFFDRIVE:
         res = nh_orca_wheel_speeds(position, heading, velocity, pref, params.radius, nb.position, nb.velocity,
                                    nb.radius, nb.responsibility, nb.valid, segments, params=params)
@@ -69,5 +69,5 @@ def control_step(params: RobotParams, robot_ids: np.ndarray, position: np.ndarra
         return StepResult(res.velocity, command, pref, res.fallback)
     v_cf, fallback = orca_velocity(position, velocity, pref, params.radius, params.v_max, nb.position,
                                    nb.velocity, nb.radius, nb.responsibility, nb.valid, segments,
-                                   tau=params.tau, tau_obst=params.tau_obst, dt=params.dt)
+                                   tau=params.tau, tau_obst=params.tau_obst, dt=params.dt, margin=params.noise_bound)
     return StepResult(v_cf, v_cf, pref, fallback)

@@ -1,0 +1,178 @@
+"""NH-ORCA for differential-drive robots (agent.core.nhorca): closed forms against a numerical
+simulation of the tracking error, P_AHV, the controls, and a small closed-loop run."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from agent.core.nhorca import (ahv_lines, ahv_polygon, controls, max_trackable_speed,
+                               min_error_speed, nh_orca_wheel_speeds, omega_cap, tracking_error,
+                               wheel_speeds)
+from agent.core.neighbours import perturb_preferred_velocity
+from agent.core.params import EPUCK
+
+
+def simulate_error(theta, v_h, v, omega, duration, steps=4000):
+    """Largest distance between a unicycle (speed v, turn rate omega, heading 0) and the holonomic
+    trajectory t v_h (cos theta, sin theta) over [0, duration], by small exact-arc steps."""
+    x = y = h = 0.0
+    dt = duration / steps
+    worst = 0.0
+    for k in range(1, steps + 1):
+        mid = h + 0.5 * omega * dt
+        x += v * dt * math.cos(mid)
+        y += v * dt * math.sin(mid)
+        h += omega * dt
+        t = k * dt
+        worst = max(worst, math.hypot(x - v_h * t * math.cos(theta), y - v_h * t * math.sin(theta)))
+    return worst
+
+
+def epuck_controls(theta, v_h):
+    w = math.copysign(min(abs(theta) / EPUCK.t_orient, omega_cap(EPUCK)), theta)
+    v = max(0.0, min(float(min_error_speed(v_h, theta)), EPUCK.v_max - abs(w) * EPUCK.wheel_base / 2))
+    return v, w, (abs(theta) / abs(w) if w else EPUCK.t_orient)
+
+
+# angles covering case A (~0.8), case B (0.3, 1.5), case C (> T omega_cap = 1.73), clipped (0.05)
+@pytest.mark.parametrize("theta", [0.05, 0.3, 0.8, 1.2, 1.5, 1.8, 2.5, 3.1, -0.8, -2.5])
+@pytest.mark.parametrize("error", [0.01, 0.003])
+def test_closed_form_max_speed_matches_simulated_tracking_error(theta, error):
+    v_max_h = float(max_trackable_speed(theta, error, EPUCK))
+    v, w, duration = epuck_controls(theta, v_max_h)
+    err = simulate_error(theta, v_max_h, v, w, duration)
+    assert err <= error * (1 + 1e-3)
+    if v_max_h < EPUCK.v_max - 1e-12:  # not clipped: the bound is tight
+        assert err >= error * (1 - 1e-3)
+        v2, w2, d2 = epuck_controls(theta, 1.02 * v_max_h)
+        assert simulate_error(theta, 1.02 * v_max_h, v2, w2, d2) > error
+
+
+@pytest.mark.parametrize("theta", [0.2, 0.7, 1.3, 2.0, 2.9])
+def test_min_error_speed_minimises_the_tracking_error(theta):
+    v_h, t = 0.1, EPUCK.t_orient
+    grid = np.linspace(0.0, 0.2, 401)
+    errs = [simulate_error(theta, v_h, v, theta / t, t, steps=400) for v in grid]
+    assert abs(grid[int(np.argmin(errs))] - float(min_error_speed(v_h, theta))) <= 0.2 / 400 + 1e-12
+
+
+def test_ahv_polygon_lies_in_s_ahv_and_contains_the_origin():
+    rng = np.random.default_rng(5)
+    for error in (EPUCK.error_min, 0.004, EPUCK.error_max):
+        heading = rng.uniform(-np.pi, np.pi)
+        vert = ahv_polygon(np.array([heading]), np.array([error]), EPUCK)[0]
+        lines = ahv_lines(vert[None])
+        p, d = lines.point[0], lines.direction[0]
+        assert np.all(d[:, 0] * (0 - p[:, 1]) - d[:, 1] * (0 - p[:, 0]) > 0)  # origin strictly inside
+        for k in range(len(vert)):
+            for s in np.linspace(0, 1, 51):
+                q = vert[k] + s * (vert[(k + 1) % len(vert)] - vert[k])
+                rel = math.atan2(q[1], q[0]) - heading
+                bound = float(max_trackable_speed(math.atan2(math.sin(rel), math.cos(rel)), error, EPUCK))
+                assert np.hypot(*q) <= bound * (1 + 1e-9)
+
+
+def test_controls_respect_wheel_speed_and_turn_rate_limits():
+    rng = np.random.default_rng(6)
+    vel = rng.uniform(-1, 1, (500, 2)) * rng.choice([0.01, 0.13, 1.0], (500, 1))
+    heading = rng.uniform(-np.pi, np.pi, 500)
+    reverse = rng.random(500) < 0.3
+    v, w = controls(vel, heading, EPUCK, reverse)
+    left, right = wheel_speeds(v, w, EPUCK)
+    assert np.all(np.abs(left) <= EPUCK.v_max * (1 + 1e-12))
+    assert np.all(np.abs(right) <= EPUCK.v_max * (1 + 1e-12))
+    assert np.all(np.abs(w) <= EPUCK.omega_max)
+    assert np.all(v[reverse] <= 0) and np.all(v[~reverse] >= 0)
+
+
+def test_tracking_errors_leave_the_inflated_disks_apart():
+    rng = np.random.default_rng(8)
+    pos = rng.uniform(0, 0.6, (40, 2))
+    r = np.full(40, EPUCK.radius)
+    keep = [0]
+    for i in range(1, 40):  # non-overlapping with gaps >= 2 E_min
+        if all(np.linalg.norm(pos[i] - pos[j]) >= 2 * EPUCK.radius + 2 * EPUCK.error_min for j in keep):
+            keep.append(i)
+    pos, r = pos[keep], r[keep]
+    n = len(pos)
+    others = np.array([[j for j in range(n) if j != i] for i in range(n)])
+    err, nbr_err = tracking_error(pos, r, pos[others], r[others], np.ones(others.shape, bool), EPUCK)
+    assert np.all((err >= EPUCK.error_min) & (err <= EPUCK.error_max))
+    for i in range(n):
+        for k, j in enumerate(others[i]):
+            assert r[i] + err[i] + r[j] + err[j] <= np.linalg.norm(pos[i] - pos[j]) + 1e-12
+            assert err[j] <= nbr_err[i, k]
+
+
+def run_diffdrive(pos, heading, goal, steps, params=EPUCK):
+    """A small closed loop: NH-ORCA on every robot, unicycle kinematics with the wheel speeds."""
+    n = len(pos)
+    vel = np.zeros((n, 2))
+    others = np.array([[j for j in range(n) if j != i] for i in range(n)])
+    min_dist = np.inf
+    for tick in range(steps):
+        pref = np.where(np.linalg.norm(goal - pos, axis=1, keepdims=True) > 1e-9,
+                        (goal - pos) * np.minimum(1.0, params.k_a / np.maximum(
+                            np.linalg.norm(goal - pos, axis=1, keepdims=True), 1e-12)), 0.0)
+        pref = perturb_preferred_velocity(pref / params.k_a * params.v_pref, np.arange(n), seed=3,
+                                          tick=tick)
+        res = nh_orca_wheel_speeds(pos, heading, vel, pref, params.radius, pos[others], vel[others],
+                                   np.full(others.shape, params.radius), np.full(others.shape, 0.5),
+                                   np.ones(others.shape, bool), params=params)
+        assert np.all(np.abs(res.wheel_left) <= params.v_max + 1e-12)
+        assert np.all(np.abs(res.wheel_right) <= params.v_max + 1e-12)
+        v = 0.5 * (res.wheel_left + res.wheel_right)
+        w = (res.wheel_right - res.wheel_left) / params.wheel_base
+        sub = 20  # integrate the arc finely over the control period
+        for _ in range(sub):
+            h = params.dt / sub
+            pos = pos + h * v[:, None] * np.stack([np.cos(heading + 0.5 * w * h),
+                                                   np.sin(heading + 0.5 * w * h)], -1)
+            heading = heading + w * h
+            d = np.linalg.norm(pos[:, None] - pos[None], axis=-1) + np.eye(n) * 1e9
+            min_dist = min(min_dist, d.min())
+        vel = res.velocity
+    return pos, min_dist
+
+
+def test_differential_drive_robots_swap_places_without_contact():
+    # a perfectly symmetric ring is ORCA's classic deadlock (deadlock detection handles it); jitter
+    ang = np.arange(6) * 2 * np.pi / 6
+    rng = np.random.default_rng(0)
+    pos = 0.25 * np.stack([np.cos(ang), np.sin(ang)], -1) + rng.uniform(-0.02, 0.02, (6, 2))
+    heading = ang + np.pi  # facing the centre
+    goal = -pos
+    final, min_dist = run_diffdrive(pos, heading, goal, steps=150)
+    assert min_dist >= 2 * EPUCK.radius
+    assert np.all(np.linalg.norm(final - goal, axis=1) < 0.05)
+
+
+def test_mirrored_polygon_drives_backwards_when_forward_is_infeasible():
+    # a dynamic obstacle (c = 1) right ahead closing at 0.1 m/s: backing off faster than P_AHV allows
+    pos = np.array([[0.0, 0.0]])
+    res = nh_orca_wheel_speeds(pos, np.array([0.0]), np.zeros((1, 2)), np.array([[0.12, 0.0]]),
+                               EPUCK.radius, np.array([[[0.1 + 0.002, 0.0]]]),
+                               np.array([[[-0.1, 0.0]]]), np.array([[EPUCK.radius]]),
+                               np.array([[1.0]]), np.array([[True]]), params=EPUCK)
+    assert res.fallback[0] and res.reverse[0]
+    assert res.velocity[0, 0] < -float(max_trackable_speed(np.pi, res.error[0], EPUCK))
+    assert res.wheel_left[0] < 0 and res.wheel_right[0] < 0
+
+
+def test_a_differential_drive_robot_gets_bit_identical_results_alone_or_in_a_batch():
+    rng = np.random.default_rng(9)
+    b, m = 64, 6
+    pos = rng.uniform(0, 0.8, (b, 2))
+    nbr = pos[:, None] + rng.uniform(-0.2, 0.2, (b, m, 2))
+    args = (pos, rng.uniform(-np.pi, np.pi, b), rng.uniform(-0.1, 0.1, (b, 2)),
+            rng.uniform(-0.12, 0.12, (b, 2)), np.full(b, EPUCK.radius), nbr,
+            rng.uniform(-0.1, 0.1, (b, m, 2)), np.full((b, m), EPUCK.radius),
+            rng.choice([0.5, 1.0], (b, m)), rng.random((b, m)) < 0.8)
+    full = nh_orca_wheel_speeds(*args, params=EPUCK)
+    assert full.fallback.any() and not full.fallback.all()
+    for i in range(b):
+        one = nh_orca_wheel_speeds(*(a[i:i + 1] for a in args), params=EPUCK)
+        for a, c in zip(full, one):
+            assert np.asarray(a)[i].tobytes() == np.asarray(c)[0].tobytes()

@@ -1,0 +1,209 @@
+"""Holonomic ORCA (agent.core.orca) against the geometric definitions of eq. 9-12, obstacles, and the
+neighbour preparation for real communication (agent.core.neighbours)."""
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+
+from agent.core.neighbours import perturb_preferred_velocity, prepare_neighbours
+from agent.core.orca import (arena_segments, obstacle_lines, orca_lines, orca_velocity,
+                             polygon_segments, preferred_velocity)
+
+coord = st.floats(-5.0, 5.0, allow_nan=False)
+speed = st.floats(-2.0, 2.0, allow_nan=False)
+
+
+def in_vo(w, p, big_r, tau):
+    """Eq. 10: does relative velocity w reach the disk D(p, R) within tau?"""
+    ww = w @ w
+    t = np.clip((w @ p) / ww, 0.0, tau) if ww > 0 else 0.0
+    return np.linalg.norm(t * w - p) < big_r
+
+
+def vo_boundary(p, big_r, tau, n=20000):
+    """Dense samples of the boundary of VO^tau: the cut-off arc facing the origin and both legs."""
+    dist = np.linalg.norm(p)
+    base = np.arctan2(p[1], p[0])
+    half = np.arcsin(big_r / dist)
+    s0 = np.sqrt(dist ** 2 - big_r ** 2) / tau
+    pts = []
+    for sign in (-1.0, 1.0):
+        a = base + sign * half
+        s = np.linspace(s0, s0 + 20.0, n)
+        pts.append(np.stack([s * np.cos(a), s * np.sin(a)], -1))
+    # near arc: from the centre p/tau, the tangent points are at angle base+pi -/+ (pi/2 - half)
+    arc = base + np.pi + np.linspace(-(np.pi / 2 - half), np.pi / 2 - half, n)
+    pts.append(p / tau + (big_r / tau) * np.stack([np.cos(arc), np.sin(arc)], -1))
+    return np.concatenate(pts)
+
+
+def one_line(p_i, v_i, r_i, p_j, v_j, r_j, c, tau, dt=0.1):
+    lines = orca_lines(np.array([p_i]), np.array([v_i]), np.array([r_i]), np.array([[p_j]]),
+                       np.array([[v_j]]), np.array([[r_j]]), np.array([[c]]), np.array([[True]]),
+                       tau, dt)
+    return lines.point[0, 0], lines.direction[0, 0]
+
+
+@settings(max_examples=60, deadline=None, derandomize=True, database=None)
+@given(coord, coord, speed, speed, speed, speed, st.floats(0.1, 1.0), st.floats(0.1, 1.0),
+       st.floats(0.5, 5.0), st.sampled_from([0.5, 1.0]))
+def test_orca_half_plane_matches_the_velocity_obstacle(px, py, vix, viy, vjx, vjy, r_i, r_j, tau, c):
+    p = np.array([px, py])
+    big_r = r_i + r_j
+    assume(np.linalg.norm(p) > big_r + 1e-3)
+    v_i, v_j = np.array([vix, viy]), np.array([vjx, vjy])
+    point, direction = one_line(np.zeros(2), v_i, r_i, p, v_j, r_j, c, tau)
+    v_rel = v_i - v_j
+    boundary = vo_boundary(p, big_r, tau)
+    nearest = boundary[np.argmin(np.linalg.norm(boundary - v_rel, axis=1))]
+    u = nearest - v_rel  # eq. 11, numerically
+    # the point v_opt + c u lies on the line
+    off = direction[0] * (v_i[1] + c * u[1] - point[1]) - direction[1] * (v_i[0] + c * u[0] - point[0])
+    assert abs(off) < 5e-3
+    assert np.allclose(point, v_i + c * u, atol=5e-3)
+    # the line is normal to u (u is along the VO's normal at v_rel + u)
+    if np.linalg.norm(u) > 1e-2:
+        assert abs(direction @ u) / np.linalg.norm(u) < 1e-2
+    # its left (permissible) normal is the VO's outward normal at v_rel + u
+    normal = np.array([-direction[1], direction[0]])
+    assert not in_vo(nearest + 1e-2 * normal, p, big_r, tau)
+    assert in_vo(nearest - 1e-2 * normal, p, big_r, tau)
+
+
+@settings(max_examples=60, deadline=None, derandomize=True, database=None)
+@given(coord, coord, speed, speed, speed, speed, st.floats(0.1, 1.0), st.floats(0.1, 1.0),
+       st.floats(0.5, 5.0), st.integers(0, 2**32 - 1))
+def test_velocities_in_the_half_plane_with_full_responsibility_leave_the_vo(
+        px, py, vix, viy, vjx, vjy, r_i, r_j, tau, seed):
+    p = np.array([px, py])
+    big_r = r_i + r_j
+    assume(np.linalg.norm(p) > big_r + 1e-3)
+    v_i, v_j = np.array([vix, viy]), np.array([vjx, vjy])
+    point, direction = one_line(np.zeros(2), v_i, r_i, p, v_j, r_j, 1.0, tau)
+    rng = np.random.default_rng(seed)
+    for v in rng.uniform(-6, 6, (200, 2)):
+        if direction[0] * (v[1] - point[1]) - direction[1] * (v[0] - point[0]) > 1e-9:
+            assert not in_vo(v - v_j, p, big_r * (1 - 1e-9), tau)
+
+
+def test_overlapping_robots_separate_within_one_control_period():
+    rng = np.random.default_rng(3)
+    dt = 0.1
+    for _ in range(200):
+        p = rng.uniform(-0.5, 0.5, 2)
+        r_i, r_j = rng.uniform(0.3, 0.6, 2)
+        v_i, v_j = rng.uniform(-1, 1, (2, 2))
+        point, direction = one_line(np.zeros(2), v_i, r_i, p, v_j, r_j, 1.0, tau=2.0, dt=dt)
+        for v in rng.uniform(-20, 20, (50, 2)):
+            if direction[0] * (v[1] - point[1]) - direction[1] * (v[0] - point[0]) >= 0:
+                assert np.linalg.norm(p - dt * (v - v_j)) >= (r_i + r_j) * (1 - 1e-9)
+
+
+def test_velocities_in_obstacle_half_planes_keep_the_radius_from_the_edges():
+    rng = np.random.default_rng(4)
+    square = polygon_segments([(1, 1), (3, 1), (3, 3), (1, 3)])  # counter-clockwise
+    segments = np.concatenate([square, arena_segments(-5, -5, 5, 5)])
+    pos = rng.uniform(-4.5, 4.5, (400, 2))
+    radius, tau_obst = 0.3, 2.0
+    lines = obstacle_lines(pos, np.full(400, radius), 1e9, segments, tau_obst)
+    t = np.linspace(0.0, tau_obst, 41)
+    for b in range(400):
+        for v in rng.uniform(-3, 3, (20, 2)):
+            p, d = lines.point[b], lines.direction[b]
+            if np.all(d[:, 0] * (v[1] - p[:, 1]) - d[:, 1] * (v[0] - p[:, 0]) >= 0):
+                path = pos[b] + t[:, None] * v
+                for a, e in segments:
+                    s = np.clip(((path - a) @ (e - a)) / ((e - a) @ (e - a)), 0, 1)
+                    gap = np.linalg.norm(path - (a + s[:, None] * (e - a)), axis=1)
+                    start = np.linalg.norm(pos[b] - (a + s[0] * (e - a)))
+                    assert np.all(gap >= min(radius, start) - 1e-9)
+
+
+def test_obstacle_lines_beyond_reach_are_dropped():
+    lines = obstacle_lines(np.array([[0.0, 0.0]]), np.array([0.1]), 0.1,
+                           arena_segments(-10, -10, 10, 10), 2.0)
+    assert not lines.valid.any()  # walls 9.9 m away, reach 0.2 m
+
+
+def test_preferred_velocity_follows_eq_9():
+    pos = np.array([[0.0, 0.0], [0.0, 0.0], [1.0, 1.0], [0.0, 0.0]])
+    goal = np.array([[3.0, 4.0], [0.03, 0.04], [1.0, 1.0], [np.nan, np.nan]])
+    v = preferred_velocity(pos, goal, 0.12, 0.1)
+    assert np.allclose(v[0], [0.072, 0.096])  # full speed V_p toward the goal
+    assert np.allclose(v[1], [0.036, 0.048])  # within K_a: V_p * d / K_a
+    assert np.array_equal(v[2], [0.0, 0.0]) and np.array_equal(v[3], [0.0, 0.0])
+
+
+def test_two_robots_head_on_pass_without_overlap():
+    pos = np.array([[-1.0, 0.0], [1.0, 0.0]])
+    vel = np.zeros((2, 2))
+    goal = -pos
+    r, dt = 0.1, 0.1
+    for _ in range(200):
+        pref = perturb_preferred_velocity(preferred_velocity(pos, goal, 0.5, 0.1), [0, 1], seed=1)
+        other = pos[::-1][:, None]
+        vel, fb = orca_velocity(pos, vel, pref, r, 0.5, other, vel[::-1][:, None], np.full((2, 1), r),
+                                np.full((2, 1), 0.5), np.ones((2, 1), bool), tau=2.0, tau_obst=2.0,
+                                dt=dt)
+        pos = pos + dt * vel
+        assert np.linalg.norm(pos[0] - pos[1]) >= 2 * r
+    assert np.allclose(pos, goal, atol=0.02)
+
+
+def test_neighbour_states_are_extrapolated_by_age_and_stale_ones_become_obstacles():
+    pos = np.array([[[1.0, 0.0], [2.0, 0.0], [3.0, 0.0]]])
+    vel = np.array([[[0.1, 0.0], [0.1, 0.0], [0.1, 0.0]]])
+    radius = np.full((1, 3), 0.05)
+    age = np.array([[0.0, 0.2, 5.0]])
+    nb = prepare_neighbours(pos, vel, radius, age, np.ones((1, 3), bool), max_speed=0.13,
+                            timeout=1.0, noise=0.002, committed=0.1)
+    assert np.allclose(nb.position[0, :, 0], [1.0, 2.02, 3.0])  # stale: last known position
+    # grown by noise + (uncommitted age) x 2 max_speed: the velocity may have reversed since
+    assert np.allclose(nb.radius[0], [0.052, 0.05 + 0.002 + 0.1 * 0.26, 0.05 + 0.002 + 0.9 * 0.26])
+    assert np.array_equal(nb.responsibility[0], [0.5, 0.5, 1.0])
+    bad = prepare_neighbours(np.full((1, 1, 2), np.nan), vel[:, :1], radius[:, :1], age[:, :1],
+                             np.ones((1, 1), bool), max_speed=0.13, timeout=1.0)
+    assert not bad.valid.any() and np.isfinite(bad.position).all()
+
+
+def test_symmetry_breaking_is_tiny_distinct_and_reproducible():
+    pref = np.zeros((100, 2))
+    a = perturb_preferred_velocity(pref, np.arange(100), seed=42, tick=7)
+    b = perturb_preferred_velocity(pref[:1], [0], seed=42, tick=7)
+    assert np.abs(a).max() <= 1e-4 and len(np.unique(a[:, 0])) == 100
+    assert a[0].tobytes() == b[0].tobytes()
+    assert not np.array_equal(a, perturb_preferred_velocity(pref, np.arange(100), seed=43, tick=7))
+
+
+def test_orca_velocity_is_bit_identical_alone_or_in_a_batch():
+    """An agent host runs K robots per process: each robot's velocity must not depend on K."""
+    rng = np.random.default_rng(11)
+    b, m = 120, 8
+    pos = rng.uniform(-2, 2, (b, 2))
+    nbr = pos[:, None] + rng.uniform(-0.6, 0.6, (b, m, 2))
+    valid = rng.random((b, m)) < 0.8
+    args = (pos, rng.uniform(-0.5, 0.5, (b, 2)), rng.uniform(-1, 1, (b, 2)), np.full(b, 0.1),
+            np.full(b, 0.6), nbr, rng.uniform(-0.5, 0.5, (b, m, 2)), np.full((b, m), 0.1),
+            rng.choice([0.5, 1.0], (b, m)), valid)
+    walls = np.concatenate([arena_segments(-2.2, -2.2, 2.2, 2.2),
+                            polygon_segments([(0, 0), (0.5, 0), (0.5, 0.5), (0, 0.5)])])
+    opts = dict(tau=2.0, tau_obst=1.0, dt=0.1, margin=0.01)
+    v, fb = orca_velocity(*args, walls, **opts)
+    assert 10 < fb.sum() < b - 10
+    for i in range(b):
+        k = m if i % 2 else int(np.nonzero(valid[i])[0].max(initial=0)) + 1  # less padding
+        one = [a[i:i + 1] for a in args[:5]] + [a[i:i + 1, :k] for a in args[5:]]
+        vi, fbi = orca_velocity(*one, walls, **opts)
+        assert vi[0].tobytes() == v[i].tobytes() and fbi[0] == fb[i]
+
+
+def test_nearest_first_keeps_the_closest_valid_neighbours_in_order():
+    from agent.core.neighbours import Neighbours, nearest_first
+    pos = np.array([[0.0, 0.0]])
+    npos = np.array([[[3.0, 0.0], [1.0, 0.0], [0.5, 0.0], [2.0, 0.0], [9.0, 0.0]]])
+    valid = np.array([[True, True, False, True, True]])
+    nb = Neighbours(npos, np.zeros_like(npos), np.arange(5.0)[None], np.full((1, 5), 0.5), valid)
+    out = nearest_first(pos, nb, max_neighbours=3, neighbour_dist=5.0)
+    assert np.array_equal(out.position[0, :, 0], [1.0, 2.0, 3.0])
+    assert np.array_equal(out.radius[0], [1.0, 3.0, 0.0]) and out.valid.all()
