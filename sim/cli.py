@@ -106,6 +106,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     except Interrupted:
         print("pixelswarm: interrupted; no run directory written", file=sys.stderr)
         return 130
+    except RuntimeError as err:  # a run that failed (a process died at start-up, ...): one line
+        print(f"pixelswarm run: error: {err}", file=sys.stderr)
+        return 1
     print(path)
     return 0
 

@@ -228,6 +228,14 @@ class Launcher:
                 self.world_stats = done
                 return "converged" if end_sent else str(done.get("reason", "duration"))
             if self.world_exit is not None:
+                # The world's last report may still be queued behind a busy recorder: look once more.
+                end = time.monotonic() + 5.0
+                while self.world_exit == 0 and time.monotonic() < end and not any(
+                        e.get("kind") == "world-done" for e in rec.events):
+                    rec.poll()
+                    time.sleep(0.02)
+                if any(e.get("kind") == "world-done" for e in rec.events):
+                    continue
                 self.world_stats = {}
                 raise RuntimeError(f"the world process exited with code {self.world_exit}: see logs/world.log")
             if self.stop_signal is not None and not end_sent:

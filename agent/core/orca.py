@@ -237,7 +237,9 @@ def orca_velocity(position, velocity, pref_velocity, radius, max_speed, nbr_posi
            np.asarray(nbr_valid, dtype=bool))
     hard = []
     if obstacle_segments is not None and len(obstacle_segments):
-        hard.append(obstacle_lines(position, radius, max_speed, obstacle_segments, tau_obst))
+        # Static obstacles do not move and do not help: the margin (e.g. the tracking-noise bound)
+        # keeps a noisy own position off them.
+        hard.append(obstacle_lines(position, radius + margin, max_speed, obstacle_segments, tau_obst))
     if extra_hard_lines is not None:
         hard.append(extra_hard_lines)
     if safety:
