@@ -51,11 +51,27 @@ def static_segments(arena: tuple[float, float, float, float] | None,
     return np.concatenate(parts) if parts else np.zeros((0, 2, 2))
 
 
+_COS, _SIN = np.cos(-np.pi / 4), np.sin(-np.pi / 4)  # 45 degrees clockwise
+
+
+def keep_right_when_blocked(pref: np.ndarray, velocity: np.ndarray, v_pref: float) -> np.ndarray:
+    """A robot that wants to move but barely does (a symmetric jam: ORCA's reciprocal half-planes
+    can cancel exactly) turns its preferred velocity 45 degrees to the right. Every robot applying
+    the same rule turns a standoff into a roundabout. Stateless, so every process agrees."""
+    want = np.hypot(pref[:, 0], pref[:, 1])
+    moving = np.hypot(velocity[:, 0], velocity[:, 1])
+    blocked = (want > 0.5 * v_pref) & (moving < 0.25 * want)
+    # elementwise, not a matrix product: BLAS may sum differently for different batch sizes
+    turned = np.stack([_COS * pref[:, 0] - _SIN * pref[:, 1], _SIN * pref[:, 0] + _COS * pref[:, 1]], axis=1)
+    return np.where(blocked[:, None], turned, pref)
+
+
 def control_step(params: RobotParams, robot_ids: np.ndarray, position: np.ndarray, heading: np.ndarray,
                  velocity: np.ndarray, goal: np.ndarray, neighbours: NeighbourStates,
                  segments: np.ndarray | None = None, *, seed: int = 0, tick: int = 0) -> StepResult:
     """Paper 5.2-5.4 for a batch: preferred velocity (eq. 9), ORCA or NH-ORCA, controls."""
-    pref = preferred_velocity(position, goal, params.v_pref, params.k_a)
+    pref = keep_right_when_blocked(preferred_velocity(position, goal, params.v_pref, params.k_a), velocity,
+                                   params.v_pref)
     # A tiny deterministic perturbation breaks the symmetric head-on configurations that deadlock ORCA.
     pref = np.where(np.any(pref != 0, axis=1, keepdims=True),
                     perturb_preferred_velocity(pref, robot_ids, seed, tick), pref)
