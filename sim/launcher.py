@@ -6,6 +6,7 @@ down in order) and exit by themselves if the launcher disappears.
 """
 from __future__ import annotations
 
+import json
 import math
 import os
 import signal
@@ -236,6 +237,10 @@ class Launcher:
                     time.sleep(0.02)
                 if any(e.get("kind") == "world-done" for e in rec.events):
                     continue
+                report = self._world_report_from_log()
+                if self.world_exit == 0 and report is not None:
+                    self.world_stats = report
+                    return "converged" if end_sent else str(report.get("reason", "duration"))
                 self.world_stats = {}
                 raise RuntimeError(f"the world process exited with code {self.world_exit}: see logs/world.log")
             if self.stop_signal is not None and not end_sent:
@@ -247,6 +252,15 @@ class Launcher:
                 end_sent = True
             self._progress(rec)
             time.sleep(0.01)
+
+    def _world_report_from_log(self) -> dict | None:
+        log = next((c.log for c in self.children if c.name == "world"), None)
+        if log is None or not log.exists():
+            return None
+        for line in reversed(log.read_text().splitlines()):
+            if line.startswith("WORLD-DONE "):
+                return json.loads(line[len("WORLD-DONE "):])
+        return None
 
     # --- outputs ------------------------------------------------------------------------------
     def _write(self, rec: Recorder, end_reason: str, wall_s: float) -> Path:

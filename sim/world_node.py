@@ -9,6 +9,7 @@ last command), then advances one period. Lock-step runs are reproducible from th
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import signal
@@ -255,7 +256,11 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(signal.SIGTERM, stop)
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # the launcher decides; Ctrl-C reaches it too
         node.run(scene.clock)
-        bus.publish(bus.keys.event, Event(node.stats()))
+        stats = node.stats()
+        bus.publish(bus.keys.event, Event(stats))
+        # The same report on stdout (the launcher's log file): a loaded router may not deliver the
+        # message before this session closes.
+        print("WORLD-DONE " + json.dumps(stats), flush=True)
         time.sleep(0.2)  # let the report leave before the session closes
     return 0
 
