@@ -9,7 +9,7 @@ that both see the same machine load:
 * Blocks: 100 agents in four 5x5 groups cross to the opposite corner between four square obstacles
   (timeHorizon 5, timeHorizonObst 5, radius 2); preferred velocities perturbed by up to 1e-4; done
   when every agent is within 20 of its goal.
-* Circle at N = 1000 (radius 800: the same spacing), for the time per step.
+* Circle at N = 1000 (radius 800: the same spacing), mostly for the time per step.
 
 Reported: steps to completion, steps with overlapping agents (centres closer than 2 radius),
 the minimum pairwise distance, the minimum clearance to obstacles, robot-steps in the fallback
@@ -21,6 +21,7 @@ the minimum pairwise distance, the minimum clearance to obstacles, robot-steps i
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import sys
 import time
@@ -35,6 +36,9 @@ from agent.core.orca import polygon_segments, preferred_velocity
 
 # added to every radius inside our ORCA lines (not to the body); ~7% of Circle's radius 1.5
 MARGIN = 0.1
+# seeded symmetry breaking of preferred velocities (our float64 keeps symmetric scenes symmetric,
+# where RVO2's float32 rounding breaks them); the size of Blocks' own perturbation
+PERTURBATION = 1e-4
 RESULTS = Path(__file__).resolve().parent / "results" / "orca.md"
 
 
@@ -101,7 +105,7 @@ class CentralEngine:
     label = "ours (CentralOrca)"
 
     def __init__(self, scn: Scenario) -> None:
-        self.sim = CentralOrca(*scn.params, safety_margin=MARGIN)
+        self.sim = CentralOrca(*scn.params, safety_margin=MARGIN, perturbation=PERTURBATION)
         for p in scn.positions:
             self.sim.add_agent(p)
         for obstacle in scn.obstacles:
@@ -189,7 +193,7 @@ def table(scn: Scenario, records: list[Record]) -> str:
             "|---|---|---|---|---|---|---|---|"]
     for r in records:
         steps = f"{r.steps}" if r.done else f"not done in {r.steps}"
-        clear = "-" if not np.isfinite(r.min_obstacle_clearance) else f"{r.min_obstacle_clearance:.3f}"
+        clear = "-" if not np.isfinite(r.min_obstacle_clearance) else f"{r.min_obstacle_clearance:.2g}"
         fb = "-" if r.fallback is None else str(r.fallback)
         rows.append(f"| {r.engine} | {steps} | {r.overlap_steps} | {r.max_overlapping_pairs} | "
                     f"{r.min_distance:.4f} | {clear} | {fb} | {1e3 * r.seconds / max(r.steps, 1):.2f} |")
@@ -199,10 +203,8 @@ def table(scn: Scenario, records: list[Record]) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="small smoke run; does not write results")
-    ap.add_argument("--big-steps", type=int, default=1000,
-                    help="steps of the N=1000 Circle timed (its dense middle phase starts ~step 1500)")
-    ap.add_argument("--big-start", type=int, default=1400,
-                    help="skip this many steps of the N=1000 Circle before timing (both engines)")
+    ap.add_argument("--big-steps", type=int, default=30000,
+                    help="at most this many steps of the N=1000 Circle")
     args = ap.parse_args(argv)
     try:
         import pyrvo  # noqa: F401
@@ -214,38 +216,22 @@ def main(argv: list[str] | None = None) -> int:
                                                                         (blocks(), 15000)]
     for scn, max_steps in scenarios:
         records = run(scn, [RVO2Engine(scn), CentralEngine(scn)], max_steps)
-        out.append(table(scn, records))
+        out.append(table(scn, records) + ratio_line(records))
         print(out[-1], flush=True)
     if not args.quick:
-        out.append(time_big(args.big_start, args.big_steps))
+        scn = circle(1000)
+        records = run(scn, [RVO2Engine(scn), CentralEngine(scn)], args.big_steps)
+        out.append(table(scn, records) + ratio_line(records))
         print(out[-1], flush=True)
         write(out)
     return 0
 
 
-def time_big(start: int, steps: int) -> str:
-    """Time per step at N = 1000 over a window of the Circle (both engines advanced alike)."""
-    scn = circle(1000)
-    engines = [RVO2Engine(scn), CentralEngine(scn)]
-    seconds = [0.0, 0.0]
-    fallbacks = 0
-    for step in range(start + steps):
-        for k, eng in enumerate(engines):
-            eng.set_pref_velocities(preferred_velocity(eng.positions(), scn.goals, 1.0, 1.0))
-            t0 = time.perf_counter()
-            eng.step()
-            if step >= start:
-                seconds[k] += time.perf_counter() - t0
-        if step == start - 1:
-            fallbacks = engines[1].fallback_count
-    fallbacks = engines[1].fallback_count - fallbacks
-    ratio = seconds[1] / seconds[0]
-    return (f"### Time per step at N = 1000 (Circle of radius 800, steps {start}..{start + steps})\n\n"
-            f"| engine | ms per step |\n|---|---|\n"
-            f"| RVO2 (pyrvo) | {1e3 * seconds[0] / steps:.2f} |\n"
-            f"| ours (CentralOrca) | {1e3 * seconds[1] / steps:.2f} |\n\n"
-            f"ours / RVO2 = {ratio:.1f}x; our fallback robot-steps in the window: {fallbacks} "
-            f"({fallbacks / (1000 * steps):.1%} of robot-steps).\n")
+def ratio_line(records: list[Record]) -> str:
+    ref, ours = records
+    per_step = (ours.seconds / max(ours.steps, 1)) / (ref.seconds / max(ref.steps, 1))
+    return (f"\nours / RVO2: {ours.steps / ref.steps:.2f}x the steps, {per_step:.1f}x the time per "
+            "step.\n")
 
 
 def write(sections: list[str]) -> None:
@@ -255,14 +241,32 @@ def write(sections: list[str]) -> None:
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     head = ("# ORCA: central engine against RVO2\n\n"
             "Reproduce: `.venv/bin/python -m bench.bench_orca` (from the repository root).\n\n"
-            f"Machine: {platform.machine()}, {platform.processor() or 'cpu'}, "
+            f"Machine: {platform.machine()}, {os.cpu_count()} cores (shared with other work), "
             f"Python {platform.python_version()}, numpy {numpy.__version__}, scipy {scipy.__version__}; "
             f"date {time.strftime('%Y-%m-%d')}. Both engines stepped alternately in one process; "
             "times are wall-clock of `do_step` and noisy on a shared machine.\n\n"
             f"Ours: `CentralOrca(..., safety_margin={MARGIN})`: safety lines (no overlap within dt) "
             "hard, horizon shrunk by 4 until feasible down to dt, then least violation; "
-            f"ORCA radii +{MARGIN}. RVO2: pyrvo 0.4.3 (RVO2 v2.0.3, float32).\n\n")
-    RESULTS.write_text(head + "\n".join(sections))
+            f"ORCA radii +{MARGIN}; preferred velocities perturbed by up to {PERTURBATION} "
+            "(seeded, per robot and step). RVO2: pyrvo 0.4.3 (RVO2 v2.0.3, float32).\n\n")
+    notes = (
+        "\n### Notes\n\n"
+        "* Overlaps: RVO2 overlaps whenever its least-violation fallback runs: the fallback gives up "
+        "part of each robot's half of the avoidance. Ours keeps the safety lines (each robot closes at "
+        "most half of a gap per control period) hard in every program, including the fallback, so two "
+        "robots overlap only if one of them found even those infeasible (an overlap already there, "
+        "or a non-cooperating neighbour). The margin keeps crowds from packing at contact, where "
+        "they jam; it is not what prevents overlaps.\n"
+        "* Steps: shrinking the horizon where the program is infeasible (paper 5.3) lets crowded "
+        "robots keep moving where RVO2 compromises every line of the full horizon; in Blocks our "
+        "obstacle lines (half-plane from the nearest point of each edge) also let robots slide along "
+        "the blocks; the margin applies to static obstacles too (their clearance). Completion is "
+        "reported, not tuned for.\n"
+        "* Time: ours is numpy over the batch with a Python loop over the lines; at N = 250 most of "
+        "a step is the overhead of a few hundred numpy calls on small arrays, and the ratio falls "
+        "as N grows. The kd-tree query alone (scipy, one thread) costs about as much as a whole "
+        "RVO2 step at N = 1000.\n")
+    RESULTS.write_text(head + "\n".join(sections) + notes)
 
 
 if __name__ == "__main__":

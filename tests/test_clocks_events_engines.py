@@ -44,13 +44,14 @@ def test_realtime_clock_follows_the_wall_clock(tmp_path):
 
 
 def test_a_robot_picked_up_by_hand_returns_to_its_goal(tmp_path):
-    extra = "[[events]]\nt = 12.0\nkind = \"teleport\"\nrobot = 2\npose = [0.45, 0.45, 0.0]\n[end]\nconverge_hold = 3.0"
+    # moved at t = 16 s, after the swarm has arrived, to a free spot; the run ends 8 s after all hold
+    extra = "[[events]]\nt = 16.0\nkind = \"teleport\"\nrobot = 2\npose = [0.0, 0.65, 0.0]\n[end]\nconverge_hold = 8.0"
     m, traj = run(tmp_path, SMALL.format(duration=60.0, clock="lockstep", extra=extra))
     t, pose = traj["t"], traj["pose"]
-    k = int(np.searchsorted(t, 12.0))
-    assert np.allclose(pose[k, 2, :2], [0.45, 0.45])  # the event happened
+    k = int(np.searchsorted(t, 16.0))
+    assert np.allclose(pose[k, 2, :2], [0.0, 0.65])  # the event happened
     assert m["converged"] and m["contacts"] == 0
-    assert m["time_to_converge_s"] > 12.0  # converged again after being moved
+    assert m["time_to_converge_s"] > 16.0  # converged again after being moved
 
 
 def test_central_engine_matches_the_scene_and_is_safe(tmp_path):

@@ -22,6 +22,7 @@ batch (padded lines being invalid).
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 # Two unit directions are treated as parallel below this |det| (RVO2 uses the same tolerance).
 EPSILON = 1e-5
@@ -192,8 +193,8 @@ def _least_violation(px, py, dx, dy, valid, hard, radius, vx, vy):
     return vx, vy
 
 
-def least_violation(point: np.ndarray, direction: np.ndarray, valid: np.ndarray, max_speed,
-                    pref_velocity: np.ndarray, n_hard=0) -> np.ndarray:
+def least_violation(point: np.ndarray, direction: np.ndarray, valid: np.ndarray, max_speed: ArrayLike,
+                    pref_velocity: np.ndarray, n_hard: ArrayLike = 0) -> np.ndarray:
     """The fallback alone: keep the leading ``n_hard`` lines (int or (B,)) hard, minimise the largest
     violation of the others (RVO2's linearProgram3), starting from the optimum over the hard lines.
 
@@ -214,8 +215,8 @@ def least_violation(point: np.ndarray, direction: np.ndarray, valid: np.ndarray,
     return np.stack([vx, vy], axis=-1)
 
 
-def linear_program(point: np.ndarray, direction: np.ndarray, valid: np.ndarray, max_speed,
-                   pref_velocity: np.ndarray, n_hard=0) -> tuple[np.ndarray, np.ndarray]:
+def linear_program(point: np.ndarray, direction: np.ndarray, valid: np.ndarray, max_speed: ArrayLike,
+                   pref_velocity: np.ndarray, n_hard: ArrayLike = 0) -> tuple[np.ndarray, np.ndarray]:
     """New velocity of eq. 14 for a batch, with RVO2's fallback where it is infeasible.
 
     point, direction: (B, L, 2) lines (unit directions, permissible side on the left);

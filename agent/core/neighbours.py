@@ -9,6 +9,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 __all__ = ["Neighbours", "COOPERATING", "NON_COOPERATING", "prepare_neighbours", "nearest_first",
            "perturb_preferred_velocity"]
@@ -27,8 +28,10 @@ class Neighbours(NamedTuple):
     valid: np.ndarray
 
 
-def prepare_neighbours(position, velocity, radius, age, valid, *, max_speed, timeout: float,
-                       noise: float = 0.0, cooperative=None, committed: float = 0.0) -> Neighbours:
+def prepare_neighbours(position: ArrayLike, velocity: ArrayLike, radius: ArrayLike, age: ArrayLike,
+                       valid: ArrayLike, *, max_speed: ArrayLike, timeout: float,
+                       noise: float = 0.0, cooperative: ArrayLike | None = None,
+                       committed: float = 0.0) -> Neighbours:
     """Neighbour states as of now, from states stamped ``age`` seconds ago.
 
     * Fresh (0 <= age <= timeout): position extrapolated by age x velocity; radius grown by
@@ -69,7 +72,7 @@ def prepare_neighbours(position, velocity, radius, age, valid, *, max_speed, tim
     return Neighbours(new_position, safe_v, new_radius, responsibility, valid)
 
 
-def nearest_first(position, neighbours: Neighbours, max_neighbours: int,
+def nearest_first(position: ArrayLike, neighbours: Neighbours, max_neighbours: int,
                   neighbour_dist: float = np.inf) -> Neighbours:
     """Each robot's valid neighbours within ``neighbour_dist`` (centre to centre), nearest first, at
     most ``max_neighbours`` (ORCA's fallback takes them in this order, as RVO2 does)."""
@@ -94,7 +97,7 @@ def _splitmix64(x: np.ndarray) -> np.ndarray:
         return x ^ (x >> np.uint64(31))
 
 
-def perturb_preferred_velocity(pref_velocity, robot_id, seed: int, tick: int = 0,
+def perturb_preferred_velocity(pref_velocity: ArrayLike, robot_id: ArrayLike, seed: int, tick: int = 0,
                                magnitude: float = 1e-4) -> np.ndarray:
     """Add a tiny pseudo-random vector (each component in [-magnitude, magnitude]) to each preferred
     velocity, a function of (robot id, seed, tick) only: symmetric configurations (head-on pairs,

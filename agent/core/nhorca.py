@@ -24,6 +24,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from agent.core.orca import Lines, orca_velocity
 from agent.core.params import RobotParams
@@ -41,7 +42,7 @@ def omega_cap(params: RobotParams) -> float:
     return min(params.omega_max, 2.0 * params.v_max / params.wheel_base)
 
 
-def min_error_speed(v_h, theta):
+def min_error_speed(v_h: ArrayLike, theta: ArrayLike) -> np.ndarray:
     """v*_E: the linear speed that minimises the tracking error of v_H at angle theta (numpy)."""
     half = 0.5 * np.abs(np.asarray(theta, dtype=float))
     safe = np.where(half > 1e-8, half, 1.0)
@@ -49,7 +50,7 @@ def min_error_speed(v_h, theta):
     return np.asarray(v_h, dtype=float) * factor
 
 
-def max_trackable_speed(theta, error, params: RobotParams):
+def max_trackable_speed(theta: ArrayLike, error: ArrayLike, params: RobotParams) -> np.ndarray:
     """V_H^max(theta): the largest holonomic speed at angle theta to the heading trackable within
     ``error`` (the boundary of S_AHV; cases A, B, C of the module docstring). numpy, broadcasting."""
     a = np.abs(np.asarray(theta, dtype=float))
@@ -85,7 +86,9 @@ def vertex_angles(params: RobotParams, n: int = _N_VERTICES) -> np.ndarray:
     return np.unique(angles)
 
 
-def tracking_error(position, radius, nbr_position, nbr_radius, nbr_valid, params: RobotParams):
+def tracking_error(position: ArrayLike, radius: ArrayLike, nbr_position: np.ndarray,
+                   nbr_radius: np.ndarray, nbr_valid: np.ndarray,
+                   params: RobotParams) -> tuple[np.ndarray, np.ndarray]:
     """Tracking error E of each robot and an upper bound of each neighbour's.
 
     Each robot takes at most half of the free gap to its nearest neighbour, between error_min and
@@ -109,7 +112,7 @@ def _heading_cos_sin(heading) -> tuple[np.ndarray, np.ndarray]:
             np.array([math.sin(x) for x in h], dtype=float))
 
 
-def ahv_polygon(heading, error, params: RobotParams) -> np.ndarray:
+def ahv_polygon(heading: ArrayLike, error: ArrayLike, params: RobotParams) -> np.ndarray:
     """Vertices (B,K,2) of P_AHV in the world frame, counter-clockwise: V_H^max sampled at
     `vertex_angles` to the heading."""
     c, s = _heading_cos_sin(heading)
@@ -128,7 +131,8 @@ def ahv_lines(vertices: np.ndarray) -> Lines:
                  np.ones(vertices.shape[:2], dtype=bool))
 
 
-def controls(velocity, heading, params: RobotParams, reverse=None) -> tuple[np.ndarray, np.ndarray]:
+def controls(velocity: ArrayLike, heading: ArrayLike, params: RobotParams,
+             reverse: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Linear and angular speed (v, omega) tracking holonomic velocities (B,2) from headings (B,).
 
     omega = sign(theta) min(|theta|/T, omega_cap), v = min(v*_E, v_max - |omega| l_w/2), theta the
@@ -155,7 +159,7 @@ def controls(velocity, heading, params: RobotParams, reverse=None) -> tuple[np.n
     return v_out, w_out
 
 
-def wheel_speeds(v, omega, params: RobotParams) -> tuple[np.ndarray, np.ndarray]:
+def wheel_speeds(v: ArrayLike, omega: ArrayLike, params: RobotParams) -> tuple[np.ndarray, np.ndarray]:
     """Linear wheel speeds (left, right) in m/s of a unicycle command."""
     half = 0.5 * params.wheel_base
     return np.asarray(v) - np.asarray(omega) * half, np.asarray(v) + np.asarray(omega) * half
@@ -174,10 +178,12 @@ def _take(rows, *arrays):
     return [None if a is None else np.asarray(a)[rows] for a in arrays]
 
 
-def nh_orca_wheel_speeds(position, heading, velocity, pref_velocity, radius, nbr_position,
-                         nbr_velocity, nbr_radius, nbr_responsibility, nbr_valid,
-                         obstacle_segments=None, *, params: RobotParams, safety: bool = True
-                         ) -> NHResult:
+def nh_orca_wheel_speeds(position: ArrayLike, heading: ArrayLike, velocity: ArrayLike,
+                         pref_velocity: ArrayLike, radius: ArrayLike, nbr_position: ArrayLike,
+                         nbr_velocity: ArrayLike, nbr_radius: ArrayLike,
+                         nbr_responsibility: ArrayLike, nbr_valid: ArrayLike,
+                         obstacle_segments: ArrayLike | None = None, *, params: RobotParams,
+                         safety: bool = True) -> NHResult:
     """NH-ORCA step for a batch of differential-drive robots.
 
     ``velocity`` is each robot's previous v_cf and ``nbr_velocity`` the neighbours' broadcast v_cf.

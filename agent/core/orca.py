@@ -9,6 +9,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from agent.core.lp import least_violation, linear_program, optimise, optimise_few
 
@@ -33,7 +34,8 @@ class Lines(NamedTuple):
     valid: np.ndarray
 
 
-def preferred_velocity(position: np.ndarray, goal: np.ndarray, v_pref, k_a) -> np.ndarray:
+def preferred_velocity(position: ArrayLike, goal: ArrayLike, v_pref: ArrayLike,
+                       k_a: ArrayLike) -> np.ndarray:
     """Paper eq. 9: speed V_p toward the goal, falling linearly within K_a of it; zero without a goal (NaN)."""
     position = np.asarray(position, dtype=float)
     goal = np.asarray(goal, dtype=float)
@@ -48,8 +50,9 @@ def preferred_velocity(position: np.ndarray, goal: np.ndarray, v_pref, k_a) -> n
     return np.stack([np.where(has, ex, 0.0) * gain, np.where(has, ey, 0.0) * gain], axis=-1)
 
 
-def orca_lines(position, velocity, radius, nbr_position, nbr_velocity, nbr_radius,
-               nbr_responsibility, nbr_valid, tau, dt) -> Lines:
+def orca_lines(position: ArrayLike, velocity: ArrayLike, radius: ArrayLike, nbr_position: np.ndarray,
+               nbr_velocity: np.ndarray, nbr_radius: np.ndarray, nbr_responsibility: ArrayLike,
+               nbr_valid: ArrayLike, tau: float, dt: float) -> Lines:
     """ORCA half-plane of each robot with respect to each neighbour (eq. 10-12).
 
     The optimisation velocities are the current velocities. u is the smallest change of the relative
@@ -102,7 +105,7 @@ def orca_lines(position, velocity, radius, nbr_position, nbr_velocity, nbr_radiu
     return Lines(point, np.stack([dx, dy], axis=-1), np.asarray(nbr_valid, dtype=bool).copy())
 
 
-def polygon_segments(vertices) -> np.ndarray:
+def polygon_segments(vertices: ArrayLike) -> np.ndarray:
     """Edges (S,2,2) of a closed polygon: counter-clockwise for an obstacle, clockwise for an enclosing
     wall (RVO2's convention; the free side is then on the right of every edge)."""
     vert = np.asarray(vertices, dtype=float)
@@ -114,7 +117,8 @@ def arena_segments(xmin: float, ymin: float, xmax: float, ymax: float) -> np.nda
     return polygon_segments([(xmin, ymin), (xmin, ymax), (xmax, ymax), (xmax, ymin)])
 
 
-def obstacle_lines(position, radius, max_speed, segments, tau_obst) -> Lines:
+def obstacle_lines(position: ArrayLike, radius: ArrayLike, max_speed: ArrayLike, segments: ArrayLike,
+                   tau_obst: float) -> Lines:
     """Half-planes keeping each robot at least its radius from each obstacle edge for tau_obst.
 
     Each edge is a segment; q is its point closest to the robot, n the unit vector from q to the robot
@@ -179,8 +183,9 @@ def drop_redundant(lines: Lines, max_speed: np.ndarray) -> Lines:
     return compact_lines(Lines(p, d, lines.valid & needed))
 
 
-def safety_lines(position, radius, max_speed, nbr_position, nbr_velocity, nbr_radius,
-                 nbr_responsibility, nbr_valid, dt) -> Lines:
+def safety_lines(position: ArrayLike, radius: ArrayLike, max_speed: np.ndarray,
+                 nbr_position: np.ndarray, nbr_velocity: np.ndarray, nbr_radius: np.ndarray,
+                 nbr_responsibility: ArrayLike, nbr_valid: ArrayLike, dt: float) -> Lines:
     """ORCA half-planes of horizon ``dt`` around zero optimisation velocities (cooperating neighbours).
 
     Reciprocal and always jointly satisfiable by non-overlapping cooperating robots (v = 0 is in
@@ -202,8 +207,10 @@ def safety_lines(position, radius, max_speed, nbr_position, nbr_velocity, nbr_ra
                       nbr_radius[order] * _BUFFER, nbr_responsibility[order], needed[order], dt, dt)
 
 
-def orca_velocity(position, velocity, pref_velocity, radius, max_speed, nbr_position, nbr_velocity,
-                  nbr_radius, nbr_responsibility, nbr_valid, obstacle_segments=None, *, tau: float,
+def orca_velocity(position: ArrayLike, velocity: ArrayLike, pref_velocity: ArrayLike,
+                  radius: ArrayLike, max_speed: ArrayLike, nbr_position: ArrayLike,
+                  nbr_velocity: ArrayLike, nbr_radius: ArrayLike, nbr_responsibility: ArrayLike,
+                  nbr_valid: ArrayLike, obstacle_segments: ArrayLike | None = None, *, tau: float,
                   tau_obst: float, dt: float, extra_hard_lines: Lines | None = None,
                   safety: bool = True, margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Collision-free velocity of eq. 14 for a batch of holonomic robots.
