@@ -26,6 +26,17 @@ from .session import ZenohSettings, open_session
 _NO_FAULT = FaultSpec()
 
 
+def _drain(q: "queue.SimpleQueue", limit: int | None = None) -> list:
+    """Everything waiting in a queue (at most ``limit`` items), without blocking."""
+    out: list = []
+    while limit is None or len(out) < limit:
+        try:
+            out.append(q.get_nowait())
+        except queue.Empty:
+            break
+    return out
+
+
 class Inbox:
     """Messages of one subscription, decoded, filtered by faults, waiting for the owner's loop."""
 
@@ -72,12 +83,7 @@ class Inbox:
     def drain(self) -> list[tuple[str, Message]]:
         """Every message that has arrived (and whose injected delay has passed), oldest first."""
         self._release_delayed()
-        out = []
-        while True:
-            try:
-                out.append(self._queue.get_nowait())
-            except queue.Empty:
-                return out
+        return _drain(self._queue)
 
     def get(self, timeout: float | None = None) -> tuple[str, Message] | None:
         """Wait for one message (None on timeout)."""
@@ -111,13 +117,7 @@ class RawInbox:
         self._queue.put((str(sample.key_expr), sample.payload.to_bytes(), time.time()))
 
     def drain(self, limit: int = 1_000_000) -> list[tuple[str, bytes, float]]:
-        out = []
-        while len(out) < limit:
-            try:
-                out.append(self._queue.get_nowait())
-            except queue.Empty:
-                break
-        return out
+        return _drain(self._queue, limit)
 
 
 class LivelinessWatch:
@@ -132,12 +132,7 @@ class LivelinessWatch:
         self._queue.put((role, ident, sample.kind == zenoh.SampleKind.PUT, time.time()))
 
     def drain(self) -> list[tuple[str, str, bool, float]]:
-        out = []
-        while True:
-            try:
-                out.append(self._queue.get_nowait())
-            except queue.Empty:
-                return out
+        return _drain(self._queue)
 
 
 class Bus:

@@ -33,6 +33,16 @@ def _finite(*values: float) -> None:
             raise Malformed("non-finite")
 
 
+def _fixed_and_items(body: memoryview, fixed: struct.Struct, item: np.dtype) -> tuple[tuple, np.ndarray]:
+    """A fixed part whose last field counts the items that follow; lengths must agree exactly."""
+    if len(body) < fixed.size:
+        raise Malformed("truncated")
+    values = fixed.unpack(body[: fixed.size])
+    if len(body) != fixed.size + values[-1] * item.itemsize:
+        raise Malformed("truncated")
+    return values, np.frombuffer(body[fixed.size:], item)
+
+
 @dataclass
 class Message:
     """Base of all messages: a fixed part packed with ``_fixed`` and an optional variable tail."""
@@ -202,13 +212,7 @@ class Goals(Message):
 
     @classmethod
     def _from(cls, body: memoryview) -> "Goals":
-        n_fixed = cls._fixed.size
-        if len(body) < n_fixed:
-            raise Malformed("truncated")
-        epoch, per_robot, stamp, count = cls._fixed.unpack(body[:n_fixed])
-        if len(body) != n_fixed + count * cls._item.itemsize:
-            raise Malformed("truncated")
-        items = np.frombuffer(body[n_fixed:], cls._item)
+        (epoch, per_robot, stamp, count), items = _fixed_and_items(body, cls._fixed, cls._item)
         positions = np.stack([items["x"], items["y"]], axis=1).astype(float)
         _finite(stamp)
         if not np.all(np.isfinite(positions)):
@@ -245,13 +249,7 @@ class Truth(Message):
 
     @classmethod
     def _from(cls, body: memoryview) -> "Truth":
-        n_fixed = cls._fixed.size
-        if len(body) < n_fixed:
-            raise Malformed("truncated")
-        tick, stamp, min_clearance, count = cls._fixed.unpack(body[:n_fixed])
-        if len(body) != n_fixed + count * cls._item.itemsize:
-            raise Malformed("truncated")
-        items = np.frombuffer(body[n_fixed:], cls._item)
+        (tick, stamp, min_clearance, count), items = _fixed_and_items(body, cls._fixed, cls._item)
         _finite(stamp)
         if not (np.all(np.isfinite(items["pose"])) and np.all(np.isfinite(items["vel"]))):
             raise Malformed("non-finite")
