@@ -239,7 +239,7 @@ def write(sections: list[str]) -> None:
     import scipy
 
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    head = ("# ORCA: central engine against RVO2\n\n"
+    head = ("## ORCA: central engine against RVO2\n\n"
             "Reproduce: `.venv/bin/python -m bench.bench_orca` (from the repository root).\n\n"
             f"Machine: {platform.machine()}, {os.cpu_count()} cores (shared with other work), "
             f"Python {platform.python_version()}, numpy {numpy.__version__}, scipy {scipy.__version__}; "
