@@ -43,20 +43,28 @@ def metrics(run: Path) -> dict:
     return json.loads((run / "metrics.json").read_text())
 
 
-def test_each_robot_is_its_own_process_and_commands_cross_the_router(tmp_path, spawned):
-    scene = write_scene(tmp_path, duration=8.0)
-    out = tmp_path / "run"
-    proc = subprocess.Popen(pixelswarm_cmd("run", str(scene), "--out", str(out), "--no-video", "-q"),
+def start_run(spawned: list, scene: Path, out: Path, *extra: str) -> tuple[subprocess.Popen, list[psutil.Process]]:
+    """`pixelswarm run` in the background; returns it once its 8 agent processes are up."""
+    proc = subprocess.Popen(pixelswarm_cmd("run", str(scene), "--out", str(out), "--no-video", "-q", *extra),
                             cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     spawned.append(proc)
     agents = wait_for(lambda: len(agent_processes(proc.pid)) == 8 and agent_processes(proc.pid), timeout=60)
+    return proc, agents or []
+
+
+def robots_of(agent: psutil.Process) -> list[int]:
+    cmd = agent.cmdline()
+    return json.loads(Path(cmd[cmd.index("--config") + 1]).read_text())["robots"]
+
+
+def test_each_robot_is_its_own_process_and_commands_cross_the_router(tmp_path, spawned):
+    scene = write_scene(tmp_path, duration=8.0)
+    out = tmp_path / "run"
+    proc, agents = start_run(spawned, scene, out)
     assert len(agents) == 8
-    robots_of = {}
-    for p in agents:
-        config = json.loads(Path(p.cmdline()[p.cmdline().index("--config") + 1]).read_text())
-        robots_of[p.pid] = config["robots"]
-    assert sorted(r for rs in robots_of.values() for r in rs) == list(range(8))
-    assert all(len(rs) == 1 for rs in robots_of.values())  # one robot per OS process
+    robots = {p.pid: robots_of(p) for p in agents}
+    assert sorted(r for rs in robots.values() for r in rs) == list(range(8))
+    assert all(len(rs) == 1 for rs in robots.values())  # one robot per OS process
     stdout, _ = proc.communicate(timeout=120)
     assert proc.returncode == 0
     assert Path(stdout.strip().splitlines()[-1]) == out
@@ -88,14 +96,11 @@ def test_lockstep_is_reproducible_and_hosts_match_processes(tmp_path):
 def test_sigkill_of_an_agent(tmp_path, spawned):
     scene = write_scene(tmp_path, duration=10.0)
     out = tmp_path / "run"
-    proc = subprocess.Popen(pixelswarm_cmd("run", str(scene), "--out", str(out), "--no-video", "-q"),
-                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    spawned.append(proc)
-    agents = wait_for(lambda: len(agent_processes(proc.pid)) == 8 and agent_processes(proc.pid), timeout=60)
+    proc, agents = start_run(spawned, scene, out)
     everyone = [p.pid for p in descendants(proc.pid)]
     time.sleep(2.0)  # mid-run
     victim = agents[3]
-    robot = json.loads(Path(victim.cmdline()[victim.cmdline().index("--config") + 1]).read_text())["robots"][0]
+    robot = robots_of(victim)[0]
     killed_at = time.time()
     victim.send_signal(signal.SIGKILL)
     _, stderr = proc.communicate(timeout=120)
@@ -117,10 +122,8 @@ def test_sigkill_of_an_agent(tmp_path, spawned):
 def test_stopping_the_launcher_leaves_no_process(tmp_path, spawned, sig):
     scene = write_scene(tmp_path, duration=60.0)
     out = tmp_path / "run"
-    proc = subprocess.Popen(pixelswarm_cmd("run", str(scene), "--out", str(out), "--no-video", "-q"),
-                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    spawned.append(proc)
-    assert wait_for(lambda: len(agent_processes(proc.pid)) == 8, timeout=60)
+    proc, agents = start_run(spawned, scene, out)
+    assert len(agents) == 8
     time.sleep(1.0)
     everyone = [p.pid for p in descendants(proc.pid)]
     assert len(everyone) >= 10  # coordinator, world, 8 agents
@@ -138,11 +141,8 @@ def test_malformed_messages_on_every_key_are_dropped(tmp_path, spawned):
     scene = write_scene(tmp_path, duration=6.0)
     out = tmp_path / "run"
     port = free_port()
-    proc = subprocess.Popen(pixelswarm_cmd("run", str(scene), "--out", str(out), "--no-video", "-q",
-                                           "-l", f"tcp/127.0.0.1:{port}"),
-                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    spawned.append(proc)
-    assert wait_for(lambda: len(agent_processes(proc.pid)) == 8, timeout=60)
+    proc, agents = start_run(spawned, scene, out, "-l", f"tcp/127.0.0.1:{port}")
+    assert len(agents) == 8
     rng = np.random.default_rng(0)
     good = Pose(0, 1, 0.1, 0.0, 0.0, 0.0).encode()
     bad = [rng.bytes(20), good[:-3], bytes([good[0], VERSION + 9]) + good[2:],
