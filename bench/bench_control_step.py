@@ -47,10 +47,9 @@ def per_robot_ms(kinematics: str, batch: int, repeat: int) -> float:
 
 def rvo2_per_agent_ms() -> float | None:
     try:
-        import pyrvo  # noqa: F401
+        import pyrvo
     except ImportError:
         return None
-    import pyrvo
 
     sim = pyrvo.RVOSimulator(0.1, 0.6, 10, 2.0, 2.0, 0.045, 0.13)
     rng = np.random.default_rng(0)

@@ -1,7 +1,6 @@
 """Shared helpers: run the real `pixelswarm` command, find and reap the processes it starts."""
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import sys

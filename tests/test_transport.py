@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import math
-import struct
 import time
 
 import numpy as np
