@@ -77,24 +77,22 @@ class CellSubscriptions:
     """Subscriptions to the spatial cells around each robot, shared by the robots of a host.
 
     Cells are half the neighbour reach (neighbour distance plus what two robots close in three
-    ticks); a robot subscribes to the 7x7 cells around its own, which cover its neighbour reach
-    plus half a reach more. Zenoh tells publishers about a new subscriber asynchronously, so a
-    subscription must be in place well before anyone in that cell can become a neighbour: the extra
-    ring gives it over a second at full speed. The neighbour set then never depends on how fast a
-    declaration travelled, and lock-step runs stay reproducible.
+    ticks); the 5x5 cells around a robot's own cover its neighbour reach. Zenoh tells publishers
+    about a new subscriber asynchronously, so in lock-step a robot subscribes to 7x7 cells: the
+    extra ring puts a subscription in place over a second before anyone in that cell can become a
+    neighbour, and the neighbour set never depends on how fast a declaration travelled (runs stay
+    reproducible). In real time the 5x5 cells suffice and halve the traffic.
     """
 
-    REACH = 3  # cells on each side
-
-    def __init__(self, bus: Bus, inbox: Any, cell_size: float) -> None:
-        self.bus, self.inbox, self.cell_size = bus, inbox, cell_size
+    def __init__(self, bus: Bus, inbox: Any, cell_size: float, reach: int = 3) -> None:
+        self.bus, self.inbox, self.cell_size, self.reach = bus, inbox, cell_size, reach
         self._subs: dict[tuple[int, int], Any] = {}
 
     def update(self, positions: np.ndarray) -> None:
         wanted = set()
         for x, y in positions:
             cx, cy = cell_of(x, y, self.cell_size)
-            span = range(-self.REACH, self.REACH + 1)
+            span = range(-self.reach, self.reach + 1)
             wanted.update((cx + dx, cy + dy) for dx in span for dy in span)
         for cell in set(self._subs) - wanted:
             self.bus.unsubscribe(self._subs.pop(cell))
@@ -126,7 +124,7 @@ class AgentHost:
         for r in config.robots:
             bus.subscribe_into(self.keys.pose(r), self.pose_inbox)
         self.state_inbox = bus.inbox(State)  # fed by the spatial cells around the robots
-        self.cells = CellSubscriptions(bus, self.state_inbox, self.cell_size)
+        self.cells = CellSubscriptions(bus, self.state_inbox, self.cell_size, reach=3 if config.lockstep else 2)
         for target in set(config.pursue.values()):  # a pursuer hears its target wherever it is
             bus.subscribe_into(self.keys.state_of(target), self.state_inbox)
         self.goal_inbox = bus.subscribe(self.keys.all_of("goals"), Goals)

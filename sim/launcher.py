@@ -196,8 +196,11 @@ class Launcher:
             self._spawn("world", "sim.world_node", world_args, [])
             end_reason = self._loop(bus, recorder)
             self._stop_children()
-            settle = time.monotonic() + 0.5  # final statistics from agents
-            while time.monotonic() < settle:
+            # Final statistics from agents, and on a loaded machine the last ticks still in flight:
+            # wait (bounded) until the world's final state has been recorded.
+            last_t = float(getattr(self, "world_stats", {}).get("ticks", 0)) * self.params.dt
+            settle, patience = time.monotonic() + 0.5, time.monotonic() + 10.0
+            while time.monotonic() < settle or (recorder.sim_time < last_t - 1e-6 and time.monotonic() < patience):
                 recorder.poll()
                 time.sleep(0.05)
             recorder.close_log()
