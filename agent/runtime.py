@@ -157,7 +157,8 @@ class AgentHost:
             return  # shared goal sets are for the auction (issue 5)
         for r, mem in self.memory.items():
             if r < len(goals.positions):
-                mem.goal = goals.positions[r].astype(float)
+                if r not in self.config.pursue:  # a pursuer's goal comes from its target's broadcasts
+                    mem.goal = goals.positions[r].astype(float)
                 mem.color = tuple(int(c) for c in goals.colors[r])
 
     def _absorb(self) -> None:
