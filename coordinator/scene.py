@@ -31,7 +31,8 @@ import numpy as np
 
 SCENE_DIR = Path(__file__).parent / "scenes"
 LAYOUTS = ("circle", "grid", "random", "rows", "blocks", "file", "list")
-GOAL_KINDS = ("antipodal", "swap", "list", "stay", "none")
+GOAL_KINDS = ("antipodal", "swap", "list", "stay", "none", "image")
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 CLOCKS = ("lockstep", "realtime")
 DEFAULT_RADIUS = 0.045
 
@@ -65,6 +66,8 @@ class Scene:
     source: str = ""
     scripted: dict[int, np.ndarray] = field(default_factory=dict)  # robot -> waypoints (K,3) of t, x, y
     pursuers: dict[int, int] = field(default_factory=dict)  # robot -> the robot it pursues
+    goal_set: np.ndarray | None = None  # (N,2) goals the robots assign themselves to (image scenes)
+    goal_colors: np.ndarray | None = None  # (N,3) uint8 LED colours of those goals
     poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # initial poses (N,3)
     goal_positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # per-robot goals (N,2), NaN: none
 
@@ -91,7 +94,13 @@ def resolve_scene_path(name_or_path: str) -> Path:
 
 def load_scene(name_or_path: str, *, robots: int | None = None, seed: int | None = None,
                clock: str | None = None, duration: float | None = None) -> Scene:
-    """Read, complete and validate a scene; command-line overrides win over the file."""
+    """Read, complete and validate a scene; command-line overrides win over the file. An image file
+    is a scene too: its goals, a grid of robots."""
+    if Path(name_or_path).suffix.lower() in IMAGE_SUFFIXES:
+        if not Path(name_or_path).is_file():
+            raise SceneError(f"image {name_or_path} not found")
+        return scene_from_dict(image_scene(name_or_path, robots or 14), source=name_or_path, seed=seed,
+                               clock=clock, duration=duration)
     path = resolve_scene_path(name_or_path)
     try:
         data = tomllib.loads(path.read_text())
@@ -139,7 +148,11 @@ def scene_from_dict(data: dict[str, Any], *, source: str = "<dict>", robots: int
         raise SceneError(f"{where}: duration must be a positive number of seconds")
     scene.obstacles = [_polygon(o, where) for o in data.get("obstacles", [])]
     scene.poses = initial_poses(scene.layout, n, radius, scene.seed, where)
-    scene.goal_positions = scene_goals(scene.goals, scene.poses, where)
+    if scene.goals.get("kind") == "image":
+        scene.goal_set, scene.goal_colors = _image_goals(scene.goals, n, radius, scene.seed, source, where)
+        scene.goal_positions = np.full((n, 2), np.nan)
+    else:
+        scene.goal_positions = scene_goals(scene.goals, scene.poses, where)
     scene.arena = _arena(data.get("arena", "auto"), scene, where)
     _check_fit(scene, where)
     for event in scene.events:
@@ -246,9 +259,41 @@ def scene_goals(goals: dict[str, Any], poses: np.ndarray, where: str = "scene") 
 
 
 # --- checks --------------------------------------------------------------------------------------
+def _image_goals(goals: dict[str, Any], n: int, radius: float, seed: int, source: str,
+                 where: str) -> tuple[np.ndarray, np.ndarray]:
+    """Goal positions and colours of an image (paper section 4): a file, or a shape the project draws."""
+    from .goals import GoalError, generate_goals
+    from .shapes import SHAPES, draw
+
+    if "shape" in goals:
+        if goals["shape"] not in SHAPES:
+            raise SceneError(f"{where}: goals.shape must be one of {', '.join(SHAPES)}")
+        image: Any = draw(goals["shape"], 256)
+    elif "image" in goals:
+        image = Path(goals["image"])
+        if not image.is_absolute() and source and Path(source).suffix == ".toml":
+            image = Path(source).parent / image
+    else:
+        raise SceneError(f"{where}: image goals need image = \"path\" or shape = \"name\"")
+    try:
+        gs = generate_goals(image, n, arena=goals.get("arena"), seed=seed, robot_radius=radius,
+                            method=goals.get("method", "cvt"))
+    except GoalError as err:
+        raise SceneError(f"{where}: {err}") from None
+    return np.asarray(gs.goals, float), np.asarray(gs.colors, np.uint8)
+
+
+def image_scene(path: str, robots: int) -> dict[str, Any]:
+    """The scene for `pixelswarm run picture.png --robots N`: a grid of e-pucks, the picture's goals."""
+    return {"name": Path(path).stem, "robots": robots, "goals": {"kind": "image", "image": str(Path(path).resolve())},
+            "layout": {"kind": "grid", "spacing": 0.2}, "duration": 120.0}
+
+
 def _arena(spec: Any, scene: Scene, where: str) -> tuple[float, float, float, float]:
     if spec == "auto" or spec is None:
         pts = [scene.poses[:, :2]]
+        if scene.goal_set is not None:
+            pts.append(scene.goal_set)
         goals = scene.goal_positions[~np.isnan(scene.goal_positions).any(axis=1)]
         pts.append(goals)
         pts += [np.asarray(o) for o in scene.obstacles]

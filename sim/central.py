@@ -14,6 +14,7 @@ from typing import TextIO
 import numpy as np
 from scipy.spatial import cKDTree
 
+from agent.core.auction import solve
 from agent.core.step import NeighbourStates, control_step, static_segments
 from coordinator.scene import Scene
 from coordinator.service import palette
@@ -21,6 +22,10 @@ from coordinator.service import palette
 from .output import write_run
 from .rundir import RunDir
 from .tracker import tracker_of, world_of
+
+
+ASSIGNMENT_EPS = 1e-3  # epsilon_A, m^2: the assignment is within N eps of the optimum
+ASSIGNMENT_HYSTERESIS = 5e-3  # Delta C, m^2: ~2 x 0.5 m x the 2 mm tracking noise, x 2.5
 
 
 def nearest_neighbours(position: np.ndarray, velocity: np.ndarray, radius: float, reach: float,
@@ -51,6 +56,8 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
     goal = scene.goal_positions
     has_goal = np.isfinite(goal).all(axis=1)
     color = np.where(has_goal[:, None], palette(n), 40).astype(np.uint8)
+    view = None  # image scenes: the robots' assignment to the goal set, re-auctioned every iteration
+    assignment = np.where(has_goal, ids, -1)  # goal index per robot (scene goals: its own)
     velocity = np.zeros((n, 2))
     events = sorted(scene.events, key=lambda e: e["t"])
     rec: dict[str, list] = {"t": [], "pose": [], "velocity": [], "color": [], "goal": [], "assignment": []}
@@ -69,7 +76,7 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
             rec["velocity"].append(world.velocities)
             rec["color"].append(color)
             rec["goal"].append(goal)
-            rec["assignment"].append(np.where(has_goal, ids, -1))
+            rec["assignment"].append(assignment)
             err = np.hypot(*(world.poses[:, :2] - goal).T)
             if has_goal.any() and np.all(err[has_goal] <= params.goal_tolerance):
                 converged_since = t if converged_since is None else converged_since
@@ -81,6 +88,20 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
             if tick == steps:
                 break
             measured = tracker.measure(world.poses)
+            if scene.goal_set is not None:
+                # Paper 5.1: re-assign every iteration, warm-started from the previous prices, with
+                # the hysteresis Delta C against flip-flops from tracking noise.
+                view, _ = solve({i: measured[i, :2] for i in range(n)}, scene.goal_set, ASSIGNMENT_EPS,
+                                view=view, hysteresis=ASSIGNMENT_HYSTERESIS)
+                owner = view.owner
+                assignment = np.full(n, -1)
+                assignment[owner[owner >= 0]] = np.flatnonzero(owner >= 0)
+                goal = np.where((assignment >= 0)[:, None], scene.goal_set[assignment], np.nan)
+                color = np.where((assignment >= 0)[:, None], scene.goal_colors[assignment], 40).astype(np.uint8)
+                has_goal = assignment >= 0
+                rec["assignment"][-1] = assignment
+                rec["goal"][-1] = goal
+                rec["color"][-1] = color
             nbs = nearest_neighbours(measured[:, :2], velocity, params.radius, params.neighbour_dist,
                                      params.max_neighbours)
             res = control_step(params, ids, measured[:, :2], measured[:, 2], velocity, goal, nbs, segments,

@@ -42,7 +42,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     run = sub.add_parser("run", help="run a scene: router, world, tracker, coordinator and one process per robot")
-    run.add_argument("scene", help=f"a shipped scene ({', '.join(shipped_scenes())}) or a path to a scene .toml")
+    run.add_argument("scene", help=f"a shipped scene ({', '.join(shipped_scenes())}), a path to a scene .toml, "
+                                   "or an image (PNG, JPEG, BMP, TIFF) to display")
     run.add_argument("--robots", "-n", type=_positive_int, help="number of robots (overrides the scene)")
     run.add_argument("--seed", type=int, help="random seed (overrides the scene)")
     run.add_argument("--clock", choices=["realtime", "lockstep"], help="clock (overrides the scene)")
@@ -91,6 +92,9 @@ def cmd_run(args: argparse.Namespace) -> int:
 
         print(run_central(scene, out, video=args.video, progress=None if args.quiet else sys.stderr))
         return 0
+    if scene.goal_set is not None:
+        raise UsageError("image scenes run with --engine central for now (the robots' distributed "
+                         "auction is not on the bus yet)")
     router = None
     if args.mode != "router":
         raise UsageError("pixelswarm run embeds a router; to join an existing one use -e tcp/HOST:PORT")
