@@ -227,23 +227,11 @@ class Launcher:
         while True:
             rec.poll()
             self._check_children(rec)
-            done = next((e for e in rec.events if e.get("kind") == "world-done"), None)
+            done = self._world_done(rec)
             if done is not None:
                 self.world_stats = done
                 return "converged" if end_sent else str(done.get("reason", "duration"))
             if self.world_exit is not None:
-                # The world's last report may still be queued behind a busy recorder: look once more.
-                end = time.monotonic() + 5.0
-                while self.world_exit == 0 and time.monotonic() < end and not any(
-                        e.get("kind") == "world-done" for e in rec.events):
-                    rec.poll()
-                    time.sleep(0.02)
-                if any(e.get("kind") == "world-done" for e in rec.events):
-                    continue
-                report = self._world_report_from_log()
-                if self.world_exit == 0 and report is not None:
-                    self.world_stats = report
-                    return "converged" if end_sent else str(report.get("reason", "duration"))
                 self.world_stats = {}
                 raise RuntimeError(f"the world process exited with code {self.world_exit}: see logs/world.log")
             if self.stop_signal is not None and not end_sent:
@@ -256,14 +244,24 @@ class Launcher:
             self._progress(rec)
             time.sleep(0.01)
 
-    def _world_report_from_log(self) -> dict | None:
+    def _world_done(self, rec: Recorder) -> dict | None:
+        """The world's final report: from the bus, or once the world has exited cleanly and a busy
+        recorder still has not seen it (bounded wait), from the world's log."""
+        def on_bus() -> dict | None:
+            return next((e for e in rec.events if e.get("kind") == "world-done"), None)
+
+        if on_bus() is not None or self.world_exit != 0:
+            return on_bus()
+        end = time.monotonic() + 5.0
+        while on_bus() is None and time.monotonic() < end:
+            rec.poll()
+            time.sleep(0.02)
+        if on_bus() is not None:
+            return on_bus()
         log = next((c.log for c in self.children if c.name == "world"), None)
-        if log is None or not log.exists():
-            return None
-        for line in reversed(log.read_text().splitlines()):
-            if line.startswith("WORLD-DONE "):
-                return json.loads(line[len("WORLD-DONE "):])
-        return None
+        lines = log.read_text().splitlines() if log is not None and log.exists() else []
+        report = next((ln for ln in reversed(lines) if ln.startswith("WORLD-DONE ")), None)
+        return json.loads(report[len("WORLD-DONE "):]) if report else None
 
     # --- outputs ------------------------------------------------------------------------------
     def _write(self, rec: Recorder, end_reason: str, wall_s: float) -> Path:

@@ -9,6 +9,13 @@ from pathlib import Path
 
 import psutil
 import pytest
+from hypothesis import HealthCheck, settings
+
+# Property tests are seeded (same examples every run) and never fail for being slow on a loaded
+# 2-core machine: a health check on generation time is not something a user relies on.
+settings.register_profile("pixelswarm", derandomize=True, database=None, deadline=None,
+                          suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("pixelswarm")
 
 REPO = Path(__file__).resolve().parent.parent
 

@@ -62,6 +62,18 @@ def _on_line(pix, piy, dix, diy, px, py, dx, dy, valid, radius, tx, ty, directio
     return pix + t_best * dix, piy + t_best * diy, ok
 
 
+def _disk_optimum(tx: np.ndarray, ty: np.ndarray, radius: np.ndarray,
+                  directional: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The optimum over the speed disk alone: the target clipped to the disk, or with
+    ``directional`` the disk's furthest point along the unit direction."""
+    if directional:
+        return tx * radius, ty * radius
+    n2 = tx * tx + ty * ty
+    outside = n2 > radius * radius
+    scale = np.where(outside, radius / np.sqrt(np.where(outside, n2, 1.0)), 1.0)
+    return tx * scale, ty * scale
+
+
 def optimise(point: np.ndarray, direction: np.ndarray, valid: np.ndarray, radius: np.ndarray,
              target: np.ndarray, directional: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Optimum over the speed disk D(0, radius) and the valid half-planes (RVO2's linearProgram2).
@@ -76,13 +88,7 @@ def optimise(point: np.ndarray, direction: np.ndarray, valid: np.ndarray, radius
     valid = np.asarray(valid, dtype=bool).T
     radius = np.asarray(radius, dtype=float)
     tx, ty = target[:, 0], target[:, 1]
-    if directional:
-        rx, ry = tx * radius, ty * radius
-    else:
-        n2 = tx * tx + ty * ty
-        outside = n2 > radius * radius
-        scale = np.where(outside, radius / np.sqrt(np.where(outside, n2, 1.0)), 1.0)
-        rx, ry = tx * scale, ty * scale
+    rx, ry = _disk_optimum(tx, ty, radius, directional)
     feasible = np.ones(len(rx), dtype=bool)
     for i in range(valid.shape[0]):
         viol = valid[i] & feasible & (dx[i] * (py[i] - ry) - dy[i] * (px[i] - rx) > 0.0)
@@ -113,13 +119,7 @@ def optimise_few(point: np.ndarray, direction: np.ndarray, valid: np.ndarray, ra
     dx, dy = direction[..., 0], direction[..., 1]
     radius = np.asarray(radius, dtype=float)
     tx, ty = target[:, 0], target[:, 1]
-    if directional:
-        cx, cy = tx * radius, ty * radius
-    else:
-        n2 = tx * tx + ty * ty
-        outside = n2 > radius * radius
-        scale = np.where(outside, radius / np.sqrt(np.where(outside, n2, 1.0)), 1.0)
-        cx, cy = tx * scale, ty * scale
+    cx, cy = _disk_optimum(tx, ty, radius, directional)
     violated = valid & (dx * (py - cy[:, None]) - dy * (px - cx[:, None]) > 0.0)
     feasible = np.ones(len(cx), dtype=bool)
     rows = np.nonzero(violated.any(axis=1))[0]
