@@ -21,6 +21,7 @@ from transport.bus import Bus
 from transport.codec import Command, Event, Goals, Pose, State
 from transport.keys import cell_of
 
+from .assignment import AuctionLink
 from .core.params import DIFFDRIVE, RobotParams
 from .core.step import control_step, static_segments
 from .neighbour_table import NeighbourTable
@@ -38,6 +39,10 @@ class RobotMemory:
     goal_index: int = -1
     color: tuple[int, int, int] = IDLE_COLOR
     last_tick: int = -1
+    position: np.ndarray | None = None  # tracked position of the last tick
+    assign_epoch: int = 0  # the agreed assignment that gave goal_index (image scenes)
+    assign_instance: int = 0
+    blocked: int = 0  # consecutive iterations near the goal with v_cf far from v_pref (deadlock, 5.5.5)
 
 
 @dataclass
@@ -128,6 +133,7 @@ class AgentHost:
         for target in set(config.pursue.values()):  # a pursuer hears its target wherever it is
             bus.subscribe_into(self.keys.state_of(target), self.state_inbox)
         self.goal_inbox = bus.subscribe(self.keys.all_of("goals"), Goals)
+        self.auction = AuctionLink(bus, config.robots, self.params, self._on_agreed)
         self.running = True
         self.parent_pid: int | None = None  # exit when this process (the launcher) is gone
 
@@ -154,18 +160,35 @@ class AgentHost:
     # --- messages -----------------------------------------------------------------------------
     def _on_goals(self, goals: Goals) -> None:
         if not goals.per_robot:
-            return  # shared goal sets are for the auction (issue 5)
+            self.auction.on_goals(goals, self._positions())
+            for r in self.auction.idle_robots():
+                mem = self.memory[r]  # not in this goal set (e.g. it joined late): it waits
+                mem.goal, mem.goal_index, mem.color = np.full(2, np.nan), -1, IDLE_COLOR
+            return
         for r, mem in self.memory.items():
             if r < len(goals.positions):
                 if r not in self.config.pursue:  # a pursuer's goal comes from its target's broadcasts
                     mem.goal = goals.positions[r].astype(float)
                 mem.color = tuple(int(c) for c in goals.colors[r])
 
+    def _positions(self) -> dict[int, np.ndarray]:
+        return {r: m.position for r, m in self.memory.items() if m.position is not None}
+
+    def _on_agreed(self, epoch: int, instance: int, goals: dict[int, int], positions: np.ndarray,
+                   colors: np.ndarray) -> None:
+        """An auction instance is agreed: each own robot drives to its goal and lights its colour."""
+        for r, g in goals.items():
+            mem = self.memory[r]
+            mem.goal, mem.goal_index = positions[g].astype(float), g
+            mem.color = tuple(int(c) for c in colors[g])
+            mem.assign_epoch, mem.assign_instance = epoch, instance
+
     def _absorb(self) -> None:
         for _, msg in self.goal_inbox.drain():
             self._on_goals(msg)
         for _, msg in self.state_inbox.drain():
             self._on_state(msg)
+        self.auction.poll(self._positions())
 
     def _on_state(self, msg: State) -> None:
         self.table.update(msg)
@@ -202,7 +225,12 @@ class AgentHost:
     # --- the loop -----------------------------------------------------------------------------
     def run(self) -> None:
         while self.running:
-            got = self.pose_inbox.get(timeout=0.2)
+            # While an auction is running its messages are handled between ticks too.
+            got = self.pose_inbox.get(timeout=0.005 if self.auction.busy else 0.2)
+            if self.auction.active:
+                for _, msg in self.goal_inbox.drain():
+                    self._on_goals(msg)
+                self.auction.poll(self._positions())
             if got is None:
                 if self.parent_pid is not None and os.getppid() != self.parent_pid:
                     self.running = False  # orphaned: the launcher died without stopping us
@@ -244,12 +272,16 @@ class AgentHost:
         if self.config.lockstep:
             self._await_states(tick, position)
         mems = [self.memory[r] for r in ids]
+        for mem, xy in zip(mems, position):
+            mem.position = xy.copy()
+        self.auction.on_tick(stamp, self._positions())
         velocity = np.array([m.velocity for m in mems])
         goal = np.array([m.goal for m in mems])
         neighbours = self.table.gather(ids, position, stamp, tick, p.neighbour_dist, p.max_neighbours)
         result = control_step(p, np.array(ids), position, heading, velocity, goal, neighbours, self.segments,
                               seed=self.config.seed, tick=tick)
         self.fallbacks += int(result.fallback.sum())
+        self._detect_deadlocks(mems, position, result.pref_velocity, result.velocity)
         mode = Command.WHEELS if p.kinematics == DIFFDRIVE else Command.HOLONOMIC
         for b, (pose, mem) in enumerate(zip(poses, mems)):
             mem.velocity = result.velocity[b].copy()
@@ -260,7 +292,7 @@ class AgentHost:
             gx, gy = (mem.goal if has_goal else (0.0, 0.0))
             state = State(pose.robot, tick, stamp, pose.x, pose.y, float(result.velocity[b, 0]),
                           float(result.velocity[b, 1]), p.radius, float(gx), float(gy),
-                          mem.goal_index, flags)
+                          mem.goal_index, flags, mem.assign_epoch, mem.assign_instance)
             # State before command: by the time the world moves on, neighbours have our state.
             self.bus.publish(self.keys.state(cell_of(pose.x, pose.y, self.cell_size), pose.robot), state)
             cmd = Command(pose.robot, tick, stamp, mode, float(result.command[b, 0]), float(result.command[b, 1]),
@@ -269,14 +301,29 @@ class AgentHost:
         self.cells.update(position)
         self.ticks_done += 1
 
+    def _detect_deadlocks(self, mems: list[RobotMemory], position: np.ndarray, pref: np.ndarray,
+                          velocity: np.ndarray) -> None:
+        """Paper 5.5.5: near its goal, a collision-free velocity far from the preferred one for N_d
+        iterations is a deadlock; the robot's cost of that goal rises by C_d for good."""
+        p = self.params
+        if not self.auction.active or p.deadlock_cost == 0:
+            return
+        for b, mem in enumerate(mems):
+            near = mem.goal_index >= 0 and math.dist(mem.goal, position[b]) <= p.deadlock_near
+            blocked = near and float(np.hypot(*(pref[b] - velocity[b]))) > p.deadlock_speed
+            mem.blocked = mem.blocked + 1 if blocked else 0
+            if mem.blocked >= p.deadlock_iterations:
+                mem.blocked = 0
+                self.auction.penalise(mem.robot, mem.assign_epoch, mem.goal_index)
+
     def stats(self) -> dict[str, Any]:
         drops: dict[str, int] = {}
-        for inbox in (self.pose_inbox, self.state_inbox, self.goal_inbox):
+        for inbox in (self.pose_inbox, self.state_inbox, self.goal_inbox, self.auction.inbox):
             for reason, n in inbox.drops.items():
                 drops[reason] = drops.get(reason, 0) + n
         return {"role": "agent", "robots": self.config.robots, "ticks": self.ticks_done,
                 "fallbacks": self.fallbacks, "dropped": drops, "neighbours_known": len(self.table),
-                "state_waits": self.state_waits, "silent": sorted(self.silent)}
+                "state_waits": self.state_waits, "silent": sorted(self.silent), "auction": self.auction.stats()}
 
     def report(self) -> None:
         self.bus.publish(self.keys.event, Event({"kind": "stats", **self.stats()}))

@@ -10,7 +10,8 @@ raises ``SceneError`` with one line saying what is wrong and how to fix it.
     duration = 120.0         # seconds of display time at most
     [robot]                  # robot parameters (paper Table 1 defaults), e.g. kinematics = "holonomic"
     [layout]                 # kind = "circle" | "grid" | "random" | "rows" | "blocks" | "file"
-    [goals]                  # kind = "antipodal" | "swap" | "list" | "none"
+    [goals]                  # kind = "antipodal" | "swap" | "list" | "stay" | "none" | "image"
+    [[steps]]                # an image sequence: shape = "disk" or image = "a.png", hold = 25.0 (see coordinator.steps)
     [arena]                  # size = [width, height] (centred on the origin), or "auto"
     [[obstacles]]            # vertices = [[x, y], ...] counter-clockwise
     [[events]]               # t = 10.0, kind = "teleport", robot = 3, pose = [x, y, theta]
@@ -28,6 +29,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from .goals import GoalError
+from .steps import ImageStep, StepGoals, parse_step
 
 SCENE_DIR = Path(__file__).parent / "scenes"
 LAYOUTS = ("circle", "grid", "random", "rows", "blocks", "file", "list")
@@ -66,14 +70,26 @@ class Scene:
     source: str = ""
     scripted: dict[int, np.ndarray] = field(default_factory=dict)  # robot -> waypoints (K,3) of t, x, y
     pursuers: dict[int, int] = field(default_factory=dict)  # robot -> the robot it pursues
-    goal_set: np.ndarray | None = None  # (N,2) goals the robots assign themselves to (image scenes)
+    goal_set: np.ndarray | None = None  # (N,2) goals the robots assign themselves to (image scenes): step 0's
     goal_colors: np.ndarray | None = None  # (N,3) uint8 LED colours of those goals
+    steps: list[ImageStep] = field(default_factory=list)  # image scenes: the images in order, with hold times
+    image_goals: StepGoals | None = field(default=None, repr=False)  # every step's goal sets, shared K_r
     poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # initial poses (N,3)
     goal_positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # per-robot goals (N,2), NaN: none
 
     @property
     def radius(self) -> float:
         return float(self.robot.get("radius", DEFAULT_RADIUS))
+
+    @property
+    def step_starts(self) -> list[float]:
+        """When each step's hold begins: step k spans [sum of the previous holds, + hold_k)."""
+        return [float(s) for s in np.cumsum([0.0] + [s.hold for s in self.steps[:-1]])] if self.steps else []
+
+    def step_at(self, t: float) -> int:
+        """The step shown at time t (the last one stays after its hold ends); 0 without steps."""
+        starts = self.step_starts
+        return max(0, int(np.searchsorted(starts, t + 1e-9, side="right")) - 1) if starts else 0
 
 
 def shipped_scenes() -> list[str]:
@@ -115,7 +131,7 @@ def scene_from_dict(data: dict[str, Any], *, source: str = "<dict>", robots: int
                     seed: int | None = None, clock: str | None = None, duration: float | None = None) -> Scene:
     where = source
     known = {"name", "robots", "seed", "clock", "duration", "robot", "layout", "goals", "arena", "obstacles",
-             "events", "noise", "end", "description", "scripted", "pursuers"}
+             "events", "noise", "end", "description", "scripted", "pursuers", "steps"}
     unknown = set(data) - known
     if unknown:
         raise SceneError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
@@ -126,6 +142,11 @@ def scene_from_dict(data: dict[str, Any], *, source: str = "<dict>", robots: int
     radius = robot.get("radius", DEFAULT_RADIUS)
     if not _positive(radius):
         raise SceneError(f"{where}: robot radius must be a positive number of metres, not {radius!r}")
+    steps = _steps(data, source, where)
+    if duration is None:
+        duration = data.get("duration", sum(s.hold for s in steps) if steps else 120.0)
+    if not _positive(duration):
+        raise SceneError(f"{where}: duration must be a positive number of seconds")
     scene = Scene(
         name=str(data.get("name", Path(source).stem)),
         robots=n,
@@ -136,7 +157,7 @@ def scene_from_dict(data: dict[str, Any], *, source: str = "<dict>", robots: int
         obstacles=[],
         events=list(data.get("events", [])),
         clock=clock or data.get("clock", "lockstep"),
-        duration=float(duration if duration is not None else data.get("duration", 120.0)),
+        duration=float(duration),
         seed=int(seed if seed is not None else data.get("seed", 1)),
         noise=_noise(data.get("noise", {}), where),
         converge_hold=float(data.get("end", {}).get("converge_hold", 1.0)),
@@ -144,12 +165,19 @@ def scene_from_dict(data: dict[str, Any], *, source: str = "<dict>", robots: int
     )
     if scene.clock not in CLOCKS:
         raise SceneError(f"{where}: clock must be one of {', '.join(CLOCKS)}, not {scene.clock!r}")
-    if not _positive(scene.duration):
-        raise SceneError(f"{where}: duration must be a positive number of seconds")
     scene.obstacles = [_polygon(o, where) for o in data.get("obstacles", [])]
     scene.poses = initial_poses(scene.layout, n, radius, scene.seed, where)
     if scene.goals.get("kind") == "image":
-        scene.goal_set, scene.goal_colors = _image_goals(scene.goals, n, radius, scene.seed, source, where)
+        # One image is a sequence of one step, shown for the whole run.
+        steps = [_wrap(lambda: parse_step(_image_step(scene.goals, scene.duration), "goals", source), where)]
+    if steps:
+        scene.steps = steps
+        labels = ["goals"] if "steps" not in data else None
+        written_for = data.get("robots", n)  # region_counts were written for the file's count: --robots scales them
+        written_for = written_for if isinstance(written_for, int) and written_for >= 1 else n
+        scene.image_goals = _wrap(lambda: StepGoals(steps, n, scene.seed, float(radius), scene.goals.get("arena"),
+                                                    labels, written_for), where)
+        scene.goal_set, scene.goal_colors = scene_goal_set(scene, 0, n)
         scene.goal_positions = np.full((n, 2), np.nan)
     else:
         scene.goal_positions = scene_goals(scene.goals, scene.poses, where)
@@ -259,28 +287,40 @@ def scene_goals(goals: dict[str, Any], poses: np.ndarray, where: str = "scene") 
 
 
 # --- checks --------------------------------------------------------------------------------------
-def _image_goals(goals: dict[str, Any], n: int, radius: float, seed: int, source: str,
-                 where: str) -> tuple[np.ndarray, np.ndarray]:
-    """Goal positions and colours of an image (paper section 4): a file, or a shape the project draws."""
-    from .goals import GoalError, generate_goals
-    from .shapes import SHAPES, draw
+def _steps(data: dict[str, Any], source: str, where: str) -> list[ImageStep]:
+    if "steps" not in data:
+        return []
+    if "goals" in data:
+        raise SceneError(f"{where}: give either [[steps]] (an image sequence) or [goals], not both")
+    entries = data["steps"]
+    if not (isinstance(entries, list) and entries):
+        raise SceneError(f"{where}: steps must be one or more [[steps]] tables")
+    return [_wrap(lambda: parse_step(e, f"steps[{k}]", source), where) for k, e in enumerate(entries)]
 
-    if "shape" in goals:
-        if goals["shape"] not in SHAPES:
-            raise SceneError(f"{where}: goals.shape must be one of {', '.join(SHAPES)}")
-        image: Any = draw(goals["shape"], 256)
-    elif "image" in goals:
-        image = Path(goals["image"])
-        if not image.is_absolute() and source and Path(source).suffix == ".toml":
-            image = Path(source).parent / image
-    else:
-        raise SceneError(f"{where}: image goals need image = \"path\" or shape = \"name\"")
+
+def _image_step(goals: dict[str, Any], hold: float) -> dict[str, Any]:
+    """The [goals] kind = "image" table as a step (its own `arena` is K_r, read by StepGoals)."""
+    if "shape" not in goals and "image" not in goals:
+        raise GoalError("image goals need image = \"path\" or shape = \"name\"")
+    keys = ("name", "image", "shape", "region_counts", "method")
+    return {k: goals[k] for k in keys if k in goals} | {"hold": hold}
+
+
+def _wrap(make: Any, where: str) -> Any:
+    """Run a goal-generation call, its GoalError becoming this scene's one-line SceneError."""
     try:
-        gs = generate_goals(image, n, arena=goals.get("arena"), seed=seed, robot_radius=radius,
-                            method=goals.get("method", "cvt"))
+        return make()
     except GoalError as err:
         raise SceneError(f"{where}: {err}") from None
-    return np.asarray(gs.goals, float), np.asarray(gs.colors, np.uint8)
+
+
+def scene_goal_set(scene: Scene, step: int, robots: int) -> tuple[np.ndarray, np.ndarray]:
+    """Goals (n,2) and colours (n,3) uint8 of image step `step` for n = robots <= scene.robots, e.g.
+    the live count when robots drop out (paper 5.1.2). Seeded with scene.seed and cached; every step
+    and count shares one arena K_r, so the picture keeps its size. Arrays are read-only."""
+    if scene.image_goals is None:
+        raise SceneError(f"{scene.name}: the scene shows no image (no [[steps]] or [goals] kind = \"image\")")
+    return _wrap(lambda: scene.image_goals.goal_set(step, robots), scene.name)  # type: ignore[union-attr]
 
 
 def image_scene(path: str, robots: int) -> dict[str, Any]:
@@ -292,8 +332,8 @@ def image_scene(path: str, robots: int) -> dict[str, Any]:
 def _arena(spec: Any, scene: Scene, where: str) -> tuple[float, float, float, float]:
     if spec == "auto" or spec is None:
         pts = [scene.poses[:, :2]]
-        if scene.goal_set is not None:
-            pts.append(scene.goal_set)
+        if scene.image_goals is not None:  # every step's picture, all robots (fewer robots: inside it)
+            pts += [scene_goal_set(scene, k, scene.robots)[0] for k in range(len(scene.steps))]
         goals = scene.goal_positions[~np.isnan(scene.goal_positions).any(axis=1)]
         pts.append(goals)
         pts += [np.asarray(o) for o in scene.obstacles]

@@ -1,5 +1,8 @@
 """The coordinator service: publishes what the display should show (goal sets, with an epoch).
 
+Image scenes: each scene step (an image and its hold time) is shown with the goal set for the robots
+alive (paper 5.1.2: eq. 8's set for the current count); a new step, or an agent dying or joining,
+starts a new epoch, and the robots re-auction. Display time comes from the world's clock ticks.
 Late joiners ask for the current goal set with a query; the set is also re-published every second,
 so a lost message costs at most a second.
 """
@@ -15,10 +18,12 @@ import time
 import numpy as np
 
 from transport.bus import Bus
-from transport.codec import Goals
+from transport.codec import Goals, Tick
 from transport.session import TransportError, add_zenoh_args, settings_from_args
 
-from .scene import Scene, SceneError, load_scene
+from .scene import Scene, SceneError, load_scene, scene_goal_set
+
+SETTLE_S = 0.5  # a change in the live robots must hold this long before a new goal set (debounce)
 
 
 def palette(n: int) -> np.ndarray:
@@ -43,23 +48,61 @@ class Coordinator:
     def __init__(self, bus: Bus, scene: Scene) -> None:
         self.bus, self.scene = bus, scene
         self.current = scene_goal_message(scene)
+        self.images = bool(scene.steps)
+        self.epoch = 0
+        self.t: float | None = None  # display time of the last tick
+        self.live: set[int] = set()
+        self.live_changed = 0.0  # wall time of the last change in the live robots
+        self.shown: tuple[int, frozenset[int]] | None = None  # (step, robots) of the current epoch
+        if self.images:
+            self.clock = bus.subscribe(bus.keys.clock, Tick)
+            self.alive = bus.watch_alive("agent")
         bus.serve(bus.keys.all_of("goals"), self._answer)
         self.running = True
         self.parent_pid: int | None = None
 
     def _answer(self) -> list[tuple[str, bytes]]:
-        if self.current is None:
+        current = self.current
+        if current is None:
             return []
-        return [(self.bus.keys.goals(self.current.epoch), self.current.encode())]
+        return [(self.bus.keys.goals(current.epoch), current.encode())]
+
+    def _follow_show(self) -> bool:
+        """Image scenes: a new goal set when the step or the live robots change; True if published."""
+        for _, tick in self.clock.drain():
+            self.t = tick.stamp if self.t is None else max(self.t, tick.stamp)
+        for _, ident, alive, _ in self.alive.drain():
+            if ident.isdigit() and int(ident) < self.scene.robots:
+                before = set(self.live)
+                (self.live.add if alive else self.live.discard)(int(ident))
+                if self.live != before:
+                    self.live_changed = time.monotonic()
+        if self.t is None or not self.live:
+            return False  # the show starts with the world's first tick
+        step, robots = self.scene.step_at(self.t), frozenset(self.live)
+        if self.shown is not None:
+            if (step, robots) == self.shown:
+                return False
+            if robots != self.shown[1] and time.monotonic() - self.live_changed < SETTLE_S:
+                return False
+        goals, colors = scene_goal_set(self.scene, step, len(robots))
+        self.epoch += 1
+        self.shown = (step, robots)
+        self.current = Goals(self.epoch, 0, self.t, len(goals), np.asarray(goals), np.asarray(colors), step,
+                             float(self.scene.steps[step].hold), np.array(sorted(robots)))
+        self.bus.publish(self.bus.keys.goals(self.epoch), self.current)
+        return True
 
     def run(self, period: float = 1.0) -> None:
         self.bus.declare_alive("coordinator", 0)
+        next_publish = 0.0
         while self.running:
-            if self.current is not None:
+            if self.images and self._follow_show():
+                next_publish = time.monotonic() + period
+            if self.current is not None and time.monotonic() >= next_publish:
                 self.bus.publish(self.bus.keys.goals(self.current.epoch), self.current)
-            end = time.monotonic() + period
-            while self.running and time.monotonic() < end:
-                time.sleep(0.05)
+                next_publish = time.monotonic() + period
+            time.sleep(0.02)
             if self.parent_pid is not None and os.getppid() != self.parent_pid:
                 self.running = False  # orphaned: the launcher died without stopping us
 

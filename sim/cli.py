@@ -92,9 +92,6 @@ def cmd_run(args: argparse.Namespace) -> int:
 
         print(run_central(scene, out, video=args.video, progress=None if args.quiet else sys.stderr))
         return 0
-    if scene.goal_set is not None:
-        raise UsageError("image scenes run with --engine central for now (the robots' distributed "
-                         "auction is not on the bus yet)")
     router = None
     if args.mode != "router":
         raise UsageError("pixelswarm run embeds a router; to join an existing one use -e tcp/HOST:PORT")

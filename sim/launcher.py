@@ -238,7 +238,8 @@ class Launcher:
                 bus.publish(bus.keys.event, Event({"kind": "end", "reason": "interrupted"}))
                 end_sent = True
                 self.interrupted = True
-            if not end_sent and rec.held_converged(rec.sim_time, self.scene.converge_hold):
+            last_step = not self.scene.steps or self.scene.step_at(rec.sim_time) == len(self.scene.steps) - 1
+            if not end_sent and last_step and rec.held_converged(rec.sim_time, self.scene.converge_hold):
                 bus.publish(bus.keys.event, Event({"kind": "end", "reason": "converged"}))
                 end_sent = True
             self._progress(rec)

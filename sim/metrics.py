@@ -17,6 +17,7 @@ __all__ = [
     "clearance_at",
     "contact_events",
     "path_lengths",
+    "step_metrics",
     "time_to_converge",
     "summarise",
 ]
@@ -147,6 +148,53 @@ def time_to_converge(t: np.ndarray, pose: np.ndarray, goal: np.ndarray, toleranc
     return float(t[k])
 
 
+def step_metrics(t: np.ndarray, pose: np.ndarray, goal: np.ndarray, step: np.ndarray,
+                 tolerance: float, current: np.ndarray | None = None,
+                 members: np.ndarray | None = None) -> list[dict[str, Any]]:
+    """Per image step (``step`` (T,) int, the step shown at each sample; negative: none): its first
+    and last sample times ``t_start`` / ``t_end``, ``converged_at`` (seconds after t_start of the
+    first sample at which every robot with a goal is within ``tolerance``, or None),
+    ``max_goal_error_at_end`` (m, at its last sample; None if no robot has a goal there) and
+    ``path_length_m`` (all robots' xy path while the step was shown, summed).
+
+    Distributed runs also give ``members`` (T, N): the robots of the newest goal set (the others,
+    e.g. dead ones, are not waited for) and ``current`` (T, N): whose goal comes from that set (until
+    the robots agree on a new set they still drive to the last one's goals, which do not count).
+
+    From arrays only, so the central engine and the distributed recorder report alike."""
+    t = np.asarray(t, dtype=float)
+    pose = _check_pose(pose)
+    goal = np.asarray(goal, dtype=float)
+    step = np.asarray(step).astype(int).reshape(-1)
+    if step.shape != t.shape or goal.shape != pose.shape[:2] + (2,):
+        raise ValueError(f"shapes: t {t.shape}, step {step.shape}, pose {pose.shape}, goal {goal.shape}")
+    err = np.sqrt(((pose[:, :, :2] - goal) ** 2).sum(-1))  # (T, N); NaN where no goal or no pose
+    has_goal = np.isfinite(goal).all(axis=2)
+    if members is not None:
+        has_goal = has_goal & members
+        err = np.where(members, err, np.nan)
+    arrived = err <= tolerance if current is None else (err <= tolerance) & current
+    within = np.where(has_goal, arrived, True).all(axis=1) & has_goal.any(axis=1)
+    moved = np.sqrt((np.diff(pose[:, :, :2], axis=0) ** 2).sum(-1))  # (T-1, N): sample k to k+1
+    out = []
+    for k in sorted(set(step[step >= 0].tolist()), key=lambda s: int(np.argmax(step == s))):
+        idx = np.flatnonzero(step == k)
+        first, last = int(idx[0]), int(idx[-1])
+        ok = idx[within[idx]]
+        at_end = err[last][has_goal[last]]
+        # Motion from each of the step's samples to the next one belongs to the step.
+        legs = moved[idx[idx < len(moved)]]
+        out.append({
+            "index": int(k),
+            "t_start": float(t[first]),
+            "t_end": float(t[last]),
+            "converged_at": float(t[ok[0]] - t[first]) if len(ok) else None,
+            "max_goal_error_at_end": float(np.nanmax(at_end)) if len(at_end) and np.isfinite(at_end).any() else None,
+            "path_length_m": float(np.nansum(legs)),
+        })
+    return out
+
+
 def _per_robot_second(values: Mapping[str, float] | None, robots: int, duration_s: float) -> dict[str, float | None]:
     if not values:
         return {}
@@ -168,6 +216,9 @@ def summarise(
     goal: np.ndarray | None = None,
     tolerance: float = 0.05,
     clearance: np.ndarray | None = None,
+    step: np.ndarray | None = None,
+    step_current: np.ndarray | None = None,
+    step_members: np.ndarray | None = None,
     **extra: Any,
 ) -> dict[str, Any]:
     """The metrics.json dict.
@@ -176,7 +227,8 @@ def summarise(
     the wall-clock duration of the run; ``contacts`` the number of pair-contact events (counted by
     the world, or with :func:`contact_events`); ``message_counts`` / ``message_bytes`` totals per
     message kind over the whole run (all robots); ``goal`` (T,N,2) with NaN = no goal and
-    ``tolerance`` (m) for convergence; ``clearance`` (T,) if already computed.  Extra keyword
+    ``tolerance`` (m) for convergence; ``clearance`` (T,) if already computed; ``step`` (T,) the
+    image step per sample (with ``goal``, adds ``steps``: see :func:`step_metrics`).  Extra keyword
     arguments are added as keys (e.g. ``assignment_cost``, ``scene``, ``seed``); they may not
     replace a computed key.
 
@@ -228,6 +280,8 @@ def summarise(
         "missed_ticks": int(missed_ticks),
         "agents_crashed": int(agents_crashed),
     }
+    if step is not None and goal is not None:
+        out["steps"] = step_metrics(t, pose, goal, step, tolerance, step_current, step_members)
     clash = set(extra) & set(out)
     if clash:
         raise ValueError(f"summarise: extra keys would replace computed ones: {sorted(clash)}")

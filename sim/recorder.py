@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from transport.bus import Bus
-from transport.codec import BY_NAME, Contact, DropCounter, Event, Goals, State, Truth, decode
+from transport.codec import BY_NAME, Bid, Contact, DropCounter, Event, Goals, State, Truth, decode
 
 from .mcaplog import McapLog
 
@@ -43,6 +43,10 @@ class Trajectory:
     color: list[np.ndarray] = field(default_factory=list)
     goal: list[np.ndarray] = field(default_factory=list)
     assignment: list[np.ndarray] = field(default_factory=list)
+    assignment_epoch: list[np.ndarray] = field(default_factory=list)
+    assignment_instance: list[np.ndarray] = field(default_factory=list)
+    step: list[int] = field(default_factory=list)
+    goal_set_epoch: list[int] = field(default_factory=list)
     applied: np.ndarray | None = None
     wall: list[float] = field(default_factory=list)  # wall time each tick arrived (real-time factor)
 
@@ -56,6 +60,11 @@ class Recorder:
         self.traj = Trajectory()
         self.goal = np.full((robots, 2), np.nan)
         self.goal_index = np.full(robots, -1)
+        self.assign_epoch = np.zeros(robots, np.int64)
+        self.assign_instance = np.zeros(robots, np.int64)
+        self.step = 0  # the scene step of the newest goal set
+        self.goal_sets: dict[int, Goals] = {}  # epoch -> the coordinator's goal set
+        self.bid_positions: dict[tuple[int, int], dict[int, tuple[float, float]]] = {}  # (epoch, instance) -> robot -> xy
         self.counts: dict[str, int] = {}
         self.bytes: dict[str, int] = {}
         self.drops = DropCounter()
@@ -93,6 +102,13 @@ class Recorder:
                 self._on_state(msg)
             elif isinstance(msg, Truth):
                 self._on_truth(msg, wall)
+            elif isinstance(msg, Bid):
+                self._on_bid(msg)
+            elif isinstance(msg, Goals):
+                if not msg.per_robot and msg.epoch not in self.goal_sets:
+                    self.goal_sets[msg.epoch] = msg
+                    if msg.epoch == max(self.goal_sets):
+                        self.step = msg.step
             elif isinstance(msg, Contact):
                 self.contacts.append(msg)
             elif isinstance(msg, Event):
@@ -106,6 +122,16 @@ class Recorder:
         else:
             self.goal[s.robot] = np.nan
         self.goal_index[s.robot] = s.goal_index
+        self.assign_epoch[s.robot] = s.assign_epoch
+        self.assign_instance[s.robot] = s.assign_instance
+
+    def _on_bid(self, m: Bid) -> None:
+        """Keep the positions each robot bid from in each instance (its frozen position), so the
+        agreed assignments can be checked against the optimum on the same positions."""
+        seen = self.bid_positions.setdefault((m.epoch, m.instance), {})
+        for rec in m.records:
+            if not rec["flags"] & 2 and int(rec["robot"]) < self.n:  # claims, not releases
+                seen[int(rec["robot"])] = (float(rec["x"]), float(rec["y"]))
 
     def _on_truth(self, m: Truth, wall: float) -> None:
         if m.count != self.n:
@@ -120,6 +146,10 @@ class Recorder:
         tr.color.append(m.color)
         tr.goal.append(self.goal.copy())
         tr.assignment.append(self.goal_index.copy())
+        tr.assignment_epoch.append(self.assign_epoch.copy())
+        tr.assignment_instance.append(self.assign_instance.copy())
+        tr.step.append(self.step)
+        tr.goal_set_epoch.append(max(self.goal_sets) if self.goal_sets else 0)
         tr.applied = m.applied
         self.last_min_clearance = min(self.last_min_clearance, m.min_clearance)
         self._check_converged(m.stamp, m.pose)
@@ -130,7 +160,9 @@ class Recorder:
         if not live.any():
             return
         err = np.hypot(*(pose[live, :2] - self.goal[live]).T)
-        if np.all(np.isfinite(err)) and np.all(err <= self.tolerance):
+        # Image scenes: only goals agreed on the newest goal set count (not the last image's).
+        current = not self.goal_sets or bool(np.all(self.assign_epoch[live] == max(self.goal_sets)))
+        if current and np.all(np.isfinite(err)) and np.all(err <= self.tolerance):
             if self.converged_since is None:
                 self.converged_since = t
                 self.time_to_converge = t
@@ -171,6 +203,34 @@ class Recorder:
             return {"t": np.zeros(0), "pose": np.zeros((0, n, 3)), "velocity": np.zeros((0, n, 2)),
                     "color": np.zeros((0, n, 3), np.uint8), "goal": np.zeros((0, n, 2)),
                     "assignment": np.zeros((0, n), int)}
-        return {"t": np.array(tr.t), "pose": np.stack(tr.pose), "velocity": np.stack(tr.velocity),
-                "color": np.stack(tr.color).astype(np.uint8), "goal": np.stack(tr.goal),
-                "assignment": np.stack(tr.assignment)}
+        out = {"t": np.array(tr.t), "pose": np.stack(tr.pose), "velocity": np.stack(tr.velocity),
+               "color": np.stack(tr.color).astype(np.uint8), "goal": np.stack(tr.goal),
+               "assignment": np.stack(tr.assignment)}
+        if self.goal_sets:
+            out.update(self._auction_arrays())
+        return out
+
+    def _auction_arrays(self) -> dict[str, np.ndarray]:
+        """The agreed assignments as the agents announced them (per tick: goal index, and the goal set
+        and instance it belongs to), the goal sets, and the positions the robots bid from in every
+        instance somebody announced."""
+        tr, n = self.traj, self.n
+        epoch = np.stack(tr.assignment_epoch)
+        instance = np.stack(tr.assignment_instance)
+        announced = sorted({(int(e), int(k)) for e, k in zip(epoch.ravel(), instance.ravel()) if e > 0})
+        positions = np.full((len(announced), n, 2), np.nan)
+        for a, key in enumerate(announced):
+            for r, xy in self.bid_positions.get(key, {}).items():
+                positions[a, r] = xy
+        epochs = sorted(self.goal_sets)
+        g_max = max(len(self.goal_sets[e].positions) for e in epochs)
+        goal_sets = np.full((len(epochs), g_max, 2), np.nan)
+        members = np.zeros((len(epochs), n), bool)
+        for i, e in enumerate(epochs):
+            gs = self.goal_sets[e]
+            goal_sets[i, : len(gs.positions)] = gs.positions
+            members[i, gs.robots[gs.robots < n]] = True
+        return {"step": np.array(tr.step), "goal_set_epoch": np.array(tr.goal_set_epoch), "assignment_epoch": epoch, "assignment_instance": instance,
+                "agreements": np.array(announced, np.int64).reshape(-1, 2), "agreement_positions": positions,
+                "goal_set_epochs": np.array(epochs), "goal_sets": goal_sets, "goal_set_robots": members,
+                "goal_set_steps": np.array([self.goal_sets[e].step for e in epochs])}

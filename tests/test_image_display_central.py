@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from agent.core.params import EPUCK
 from coordinator import shapes
-from sim.central import ASSIGNMENT_EPS, ASSIGNMENT_HYSTERESIS
 
 from .conftest import run_pixelswarm
 
@@ -33,7 +33,7 @@ def test_disk_and_line_shown_by_14_robots(tmp_path):
     cost = ((pose[1, :, None, :2] - goals_by_index[None]) ** 2).sum(-1)
     r, c = linear_sum_assignment(cost)
     ours = cost[np.arange(14), assignment[1]].sum()
-    assert ours <= cost[r, c].sum() + 14 * (ASSIGNMENT_EPS + ASSIGNMENT_HYSTERESIS)
+    assert ours <= cost[r, c].sum() + 14 * (EPUCK.assign_eps + EPUCK.assign_hysteresis)
     # LEDs: red on the disk, blue on the line (the picture's colours)
     final = color[-1].astype(int)
     assert (final[:, 0] > 150).sum() >= 9 and (final[:, 2] > 150).sum() >= 2

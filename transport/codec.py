@@ -115,12 +115,13 @@ class State(Message):
 
     ``velocity`` is the robot's current collision-free velocity (v_opt of eq. 11), ``radius`` the
     radius it asks others to avoid (r + tracking error for differential drive), ``goal_index`` the
-    goal it holds (-1 for none).
+    goal it holds (-1 for none): in image scenes, its goal in the agreed assignment of auction
+    instance ``assign_instance`` of goal set ``assign_epoch``.
     """
 
     KIND: ClassVar[int] = 2
     NAME: ClassVar[str] = "state"
-    _fixed: ClassVar[struct.Struct] = struct.Struct("<IIdfffffffiB")
+    _fixed: ClassVar[struct.Struct] = struct.Struct("<IIdfffffffiBII")
     robot: int
     tick: int
     stamp: float
@@ -133,6 +134,8 @@ class State(Message):
     goal_y: float
     goal_index: int
     flags: int  # bit 0: has a goal; bit 1: at its goal; bit 2: a dynamic obstacle (does not avoid others)
+    assign_epoch: int = 0  # the goal set (epoch) and auction instance whose agreed assignment gave
+    assign_instance: int = 0  # goal_index (0, 0 for goals that were not auctioned)
 
     HAS_GOAL: ClassVar[int] = 1
     AT_GOAL: ClassVar[int] = 2
@@ -187,12 +190,13 @@ class Goals(Message):
     """Coordinator -> all: a goal set with colours.
 
     ``per_robot`` set means goals[i] is robot i's own goal (scenes with fixed goals, as in RVO2's
-    Circle); otherwise the robots assign themselves to goals.
+    Circle); otherwise the robots in ``robots`` assign themselves to the goals by auction. ``step``
+    is the scene step (image) the set shows and ``hold`` how long it is shown (s).
     """
 
     KIND: ClassVar[int] = 5
     NAME: ClassVar[str] = "goals"
-    _fixed: ClassVar[struct.Struct] = struct.Struct("<IBdI")
+    _fixed: ClassVar[struct.Struct] = struct.Struct("<IBdIHfI")
     _item: ClassVar[np.dtype] = np.dtype([("x", "<f4"), ("y", "<f4"), ("rgb", "u1", (3,))])
     epoch: int
     per_robot: int
@@ -200,24 +204,76 @@ class Goals(Message):
     count: int
     positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     colors: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.uint8))
+    step: int = 0
+    hold: float = 0.0
+    robots: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
     def _fixed_values(self) -> tuple:
-        return (self.epoch, self.per_robot, self.stamp, len(self.positions))
+        return (self.epoch, self.per_robot, self.stamp, len(self.positions), self.step, self.hold, len(self.robots))
 
     def _tail(self) -> bytes:
         items = np.empty(len(self.positions), self._item)
         items["x"], items["y"] = self.positions[:, 0], self.positions[:, 1]
         items["rgb"] = self.colors
-        return items.tobytes()
+        return items.tobytes() + np.asarray(self.robots, "<u2").tobytes()
 
     @classmethod
     def _from(cls, body: memoryview) -> "Goals":
-        (epoch, per_robot, stamp, count), items = _fixed_and_items(body, cls._fixed, cls._item)
+        if len(body) < cls._fixed.size:
+            raise Malformed("truncated")
+        epoch, per_robot, stamp, count, step, hold, n_robots = cls._fixed.unpack(body[: cls._fixed.size])
+        end = cls._fixed.size + count * cls._item.itemsize
+        if len(body) != end + 2 * n_robots:
+            raise Malformed("truncated")
+        items = np.frombuffer(body[cls._fixed.size:end], cls._item)
         positions = np.stack([items["x"], items["y"]], axis=1).astype(float)
-        _finite(stamp)
+        _finite(stamp, hold)
         if not np.all(np.isfinite(positions)):
             raise Malformed("non-finite")
-        return cls(epoch, per_robot, stamp, count, positions, items["rgb"].copy())
+        robots = np.frombuffer(body[end:], "<u2").astype(np.int64)
+        return cls(epoch, per_robot, stamp, count, positions, items["rgb"].copy(), step, hold, robots)
+
+
+@dataclass
+class Bid(Message):
+    """Agent host -> all: its robots' word in the goal auction (paper 5.1.1), one record per robot
+    and per goal it released, with the host's board digest (see agent.core.bidder)."""
+
+    KIND: ClassVar[int] = 9
+    NAME: ClassVar[str] = "auction"
+    _fixed: ClassVar[struct.Struct] = struct.Struct("<IIIIQI")
+    _item: ClassVar[np.dtype] = np.dtype([("robot", "<u2"), ("goal", "<i4"), ("price", "<f8"), ("flags", "u1"),
+                                          ("x", "<f4"), ("y", "<f4")])
+    epoch: int
+    instance: int
+    sender: int
+    serial: int  # the sender's message counter: a later message supersedes an earlier one
+    digest: int  # hash of the sender's board (prices, owners, releases) when it wrote the records
+    count: int
+    records: np.ndarray = field(default_factory=lambda: np.zeros(0, Bid._item))
+
+    CONTENT: ClassVar[int] = 1  # the robot holds ``goal`` and no other goal is better by more than epsilon
+    RELEASED: ClassVar[int] = 2  # the robot gave ``goal`` up at ``price`` (it bids elsewhere)
+
+    def _fixed_values(self) -> tuple:
+        return (self.epoch, self.instance, self.sender, self.serial, self.digest, len(self.records))
+
+    def _tail(self) -> bytes:
+        return np.asarray(self.records, self._item).tobytes()
+
+    @classmethod
+    def _from(cls, body: memoryview) -> "Bid":
+        (epoch, instance, sender, serial, digest, count), items = _fixed_and_items(body, cls._fixed, cls._item)
+        if not (np.all(np.isfinite(items["price"])) and np.all(np.isfinite(items["x"]))
+                and np.all(np.isfinite(items["y"]))):
+            raise Malformed("non-finite")
+        return cls(epoch, instance, sender, serial, digest, count, items.copy())
+
+    def to_dict(self) -> dict[str, Any]:
+        out = {name: getattr(self, name) for name in self.field_names() if name != "records"}
+        out["records"] = [{k: (v.item() if hasattr(v, "item") else v) for k, v in zip(self._item.names, r)}
+                          for r in self.records]
+        return out
 
 
 @dataclass
@@ -309,7 +365,8 @@ def _reject_constant(name: str) -> None:
     raise Malformed("non-finite")
 
 
-MESSAGE_TYPES: dict[int, type[Message]] = {t.KIND: t for t in (Pose, State, Command, Tick, Goals, Truth, Contact, Event)}
+MESSAGE_TYPES: dict[int, type[Message]] = {t.KIND: t for t in (Pose, State, Command, Tick, Goals, Truth, Contact, Event,
+                                                                 Bid)}
 BY_NAME: dict[str, type[Message]] = {t.NAME: t for t in MESSAGE_TYPES.values()}
 
 

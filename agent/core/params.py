@@ -10,6 +10,7 @@ from typing import Any
 HOLONOMIC = "holonomic"
 DIFFDRIVE = "diffdrive"
 KINEMATICS = (HOLONOMIC, DIFFDRIVE)
+_MAY_BE_ZERO = {"assign_hysteresis", "deadlock_cost"}  # 0 turns the feature off
 
 
 @dataclass(frozen=True)
@@ -34,6 +35,14 @@ class RobotParams:
     goal_tolerance: float = 0.01  # a robot within this distance of its goal has arrived
     noise_bound: float = 0.01  # bound on the relative tracking error of two robots (3.5 sigma of 2 x 2 mm)
     stale_after: float = 0.5  # a neighbour not heard from this long is a non-cooperating obstacle
+    # Goal assignment (paper 5.1) and deadlocks (5.5.5); costs in m^2 (squared distance, eq. 7)
+    assign_eps: float = 1e-3  # epsilon_A: the agreed assignment costs at most N epsilon_A over the optimum
+    assign_hysteresis: float = 5e-3  # Delta C: keep the goal unless another is better by this much
+    assign_period: float = 0.1  # s between auction instances (paper 5.1: every control iteration)
+    deadlock_cost: float = 0.1  # C_d, added for good to the cost of the goal a robot is stuck before
+    deadlock_iterations: int = 30  # N_d, iterations of a blocked velocity before a deadlock is declared
+    deadlock_speed: float = 0.03  # |v_pref - v_cf| above this counts as blocked (m/s)
+    deadlock_near: float = 0.3  # only robots this close to their goal are checked (m)
 
     def __post_init__(self) -> None:
         if self.kinematics not in KINEMATICS:
@@ -41,6 +50,8 @@ class RobotParams:
         for f in fields(self):
             value = getattr(self, f.name)
             if f.name == "kinematics":
+                continue
+            if f.name in _MAY_BE_ZERO and value == 0:
                 continue
             if not (isinstance(value, (int, float)) and value == value and value > 0):
                 raise ValueError(f"robot parameter {f.name} must be a positive number, not {value!r}")

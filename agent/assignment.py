@@ -1,0 +1,158 @@
+"""The goal auction on the bus: binds the pure participant (core/bidder.py) of a host's robots to
+zenoh. One message per host carries all its robots' records, so an agent host of K robots costs the
+swarm what one robot does.
+
+When to publish: at once when an own claim changed (a bid or a release); when only the board changed
+(others need our digest to see agreement), at most every DIGEST_EVERY seconds; and again every
+RESEND_BUSY seconds while an instance is open (a lost message costs one resend), RESEND_IDLE when
+agreed (late joiners and lost final records).
+"""
+from __future__ import annotations
+
+import time
+from typing import Callable
+
+import numpy as np
+
+from transport.bus import Bus
+from transport.codec import Bid, Goals
+
+from .core.bidder import Participant, Record
+from .core.params import RobotParams
+
+DIGEST_EVERY = 0.01
+RESEND_BUSY = 0.1
+RESEND_IDLE = 1.0
+
+OnAgreed = Callable[[int, int, dict[int, int], np.ndarray, np.ndarray], None]
+
+
+def to_items(records: list[Record]) -> np.ndarray:
+    return np.array([(r.robot, r.goal, r.price, r.flags, r.x, r.y) for r in records], Bid._item)
+
+
+def from_items(items: np.ndarray) -> list[Record]:
+    return [Record(int(i["robot"]), int(i["goal"]), float(i["price"]), int(i["flags"]), float(i["x"]), float(i["y"]))
+            for i in items]
+
+
+class AuctionLink:
+    """The auction of one host's robots: goal sets in, agreed goals out through ``on_agreed``."""
+
+    def __init__(self, bus: Bus, robots: list[int], params: RobotParams, on_agreed: OnAgreed) -> None:
+        self.bus, self.robots, self.params, self.on_agreed = bus, sorted(robots), params, on_agreed
+        self.inbox = bus.subscribe(bus.keys.all_of("auction"), Bid)
+        self.sender = self.robots[0]
+        self.part: Participant | None = None
+        self.goal_set: Goals | None = None
+        self.serial = 0
+        self.last_sent = -np.inf
+        self.instance_stamp = -np.inf  # display time the current instance started
+        self.reported = -1  # the last agreed instance handed to on_agreed
+        self.epoch_wall = 0.0
+        self.sent = self.received = self.agreements = self.penalties = 0
+        self.first_agreement_s: list[float] = []  # per goal set: wall time from its arrival to agreement
+
+    @property
+    def active(self) -> bool:
+        return self.part is not None
+
+    @property
+    def busy(self) -> bool:
+        return self.part is not None and not self.part.is_agreed
+
+    def idle_robots(self) -> list[int]:
+        own = set(self.part.own) if self.part else set()
+        return [r for r in self.robots if r not in own]
+
+    # --- inputs -----------------------------------------------------------------------------------
+    def on_goals(self, goals: Goals, positions: dict[int, np.ndarray]) -> None:
+        if self.part is not None and goals.epoch <= self.part.epoch:
+            return
+        self.goal_set = goals
+        self.part = Participant(goals.epoch, goals.positions, goals.robots.tolist(), self.robots,
+                                self.params.assign_eps, self.params.assign_hysteresis)
+        self.epoch_wall = time.monotonic()
+        self.reported = -1
+        self._try_start(positions)
+
+    def _try_start(self, positions: dict[int, np.ndarray]) -> bool:
+        part = self.part
+        if part is None or part.started:
+            return part is not None
+        if not all(r in positions for r in part.own):
+            return False
+        part.begin(0, positions)
+        self._publish()
+        return True
+
+    def on_tick(self, stamp: float, positions: dict[int, np.ndarray]) -> None:
+        """Each control iteration: start the next instance (warm, on this tick's positions) once the
+        last is agreed (paper 5.1: re-assign every iteration)."""
+        if not self._try_start(positions):
+            return
+        part = self.part
+        if part.is_agreed and stamp - self.instance_stamp >= self.params.assign_period - 1e-9:
+            self.instance_stamp = stamp
+            part.begin(part.instance + 1, positions)
+            self._settle()
+            self._publish()
+
+    def penalise(self, robot: int, epoch: int, goal: int) -> None:
+        if self.part is not None and epoch == self.part.epoch:
+            self.part.penalise(robot, goal, self.params.deadlock_cost)
+            self.penalties += 1
+
+    def poll(self, positions: dict[int, np.ndarray]) -> None:
+        """Take in what arrived, bid, check agreement, publish what others need."""
+        part = self.part
+        for _, msg in self.inbox.drain():
+            self.received += 1
+            if part is None or msg.epoch != part.epoch or not self._try_start(positions):
+                continue
+            if msg.instance > part.instance:  # the sender saw our instance agreed
+                part.begin(msg.instance, positions)
+            part.absorb(msg.instance, msg.serial, msg.digest, from_items(msg.records))
+        if part is None or not part.started:
+            return
+        self._settle()
+        now = time.monotonic()
+        resend = RESEND_IDLE if part.is_agreed else RESEND_BUSY
+        if part.claims_changed or now - self.last_sent >= resend or \
+                (part.has_news and now - self.last_sent >= DIGEST_EVERY):
+            self._publish()
+
+    # --- internals --------------------------------------------------------------------------------
+    def _settle(self) -> None:
+        part = self.part
+        for _ in range(100):  # the cold start's phases can pass here when one host holds every robot
+            part.bid_until_quiet()
+            instance = part.instance
+            part.check_agreement()
+            if part.is_agreed or part.instance == instance:
+                break
+        if part.agreed_instance > self.reported:
+            if self.reported < 0:  # the first agreement on this goal set
+                self.first_agreement_s.append(time.monotonic() - self.epoch_wall)
+            self.reported = part.agreed_instance
+            self.agreements += 1
+            gs = self.goal_set
+            self.on_agreed(part.epoch, part.agreed_instance, dict(part.agreed), gs.positions, gs.colors)
+
+    def _publish(self) -> None:
+        part = self.part
+        digest, records = part.outgoing()
+        self.serial += 1
+        items = to_items(records)
+        self.bus.publish(self.bus.keys.auction(part.epoch, self.sender),
+                         Bid(part.epoch, part.instance, self.sender, self.serial, digest, len(items), items))
+        self.last_sent = time.monotonic()
+        self.sent += 1
+
+    def stats(self) -> dict:
+        part = self.part
+        return {"epoch": part.epoch if part else 0, "instance": part.instance if part else -1,
+                "agreed_instance": part.agreed_instance if part else -1, "bids": part.bids if part else 0,
+                "messages_sent": self.sent, "messages_received": self.received, "agreements": self.agreements,
+                "deadlock_penalties": self.penalties,
+                "first_agreement_s": [round(x, 4) for x in self.first_agreement_s]}

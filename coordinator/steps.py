@@ -1,0 +1,162 @@
+"""Image sequences (paper 7.2, Fig. 12): a scene's ``[[steps]]``, each an image shown for ``hold`` seconds.
+
+    [[steps]]
+    shape = "disk_and_line"              # or image = "picture.png" (relative to the scene file)
+    region_counts = { 0 = 10, 1 = 4 }    # the artist's N_i per region (ids: by area, largest first)
+    hold = 25.0
+
+region_counts are for the scene's `robots`; other counts (--robots, robots lost) get them scaled.
+Every step's goal set, for every robot count r the swarm may have (paper 5.1.2: the set for the
+live count when robots drop out), lives in ONE arena of size K_r: the largest conservative arena any
+step needs with all N robots. The picture therefore keeps its size across steps and robot losses.
+Errors are GoalError (one line); the scene loader prefixes them with the scene's name.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from .goals import GoalError, GoalSet, PreparedImage, goals_from_prepared, prepare_image
+from .shapes import SHAPES, draw
+
+STEP_KEYS = ("name", "image", "shape", "hold", "region_counts", "method")
+METHODS = ("cvt", "kmeans")
+SHAPE_PIXELS = 256  # canvas side of the drawn shapes (goals live in the normalised square anyway)
+
+
+@dataclass(frozen=True)
+class ImageStep:
+    """One image of a sequence and how long it is shown."""
+
+    name: str
+    image: Path | None  # a picture file, or None for a drawn shape
+    shape: str | None  # a name from coordinator.shapes.SHAPES
+    hold: float  # seconds the image is shown
+    region_counts: dict[int, int] | None = None  # the artist's N_i per region id
+    method: str = "cvt"  # Lloyd with the density of eq. 2, or k-means
+
+
+def parse_step(data: Any, label: str, source: str = "") -> ImageStep:
+    """An ImageStep from a TOML table; `label` names it in errors (e.g. "steps[2]")."""
+    if not isinstance(data, dict):
+        raise GoalError(f"{label} must be a table with shape = \"name\" or image = \"path\", and hold")
+    unknown = set(data) - set(STEP_KEYS)
+    if unknown:
+        raise GoalError(f"{label}: unknown key(s) {', '.join(sorted(unknown))} (allowed: {', '.join(STEP_KEYS)})")
+    hold = data.get("hold")
+    if not (isinstance(hold, (int, float)) and not isinstance(hold, bool) and math.isfinite(hold) and hold > 0):
+        raise GoalError(f"{label}: hold must be a positive number of seconds, not {hold!r}")
+    if ("image" in data) == ("shape" in data):
+        raise GoalError(f"{label} needs exactly one of image = \"path\" or shape = \"name\"")
+    image, shape = None, None
+    if "shape" in data:
+        shape = data["shape"]
+        if shape not in SHAPES:
+            raise GoalError(f"{label}: shape must be one of {', '.join(SHAPES)}, not {shape!r}")
+    else:
+        image = Path(str(data["image"]))
+        if not image.is_absolute() and Path(source).suffix == ".toml":
+            image = Path(source).parent / image  # relative to the scene file, like [layout] files
+        if not image.is_file():
+            raise GoalError(f"{label}: image {image} not found")
+    method = data.get("method", "cvt")
+    if method not in METHODS:
+        raise GoalError(f"{label}: method must be one of {', '.join(METHODS)}, not {method!r}")
+    name = str(data.get("name", shape if shape is not None else image.stem))  # type: ignore[union-attr]
+    return ImageStep(name, image, shape, float(hold), _region_counts(data.get("region_counts"), label), method)
+
+
+def _region_counts(value: Any, label: str) -> dict[int, int] | None:
+    if value is None:
+        return None
+    try:
+        counts = {int(k): v for k, v in dict(value).items()}  # TOML keys are strings: { 0 = 10 }
+    except (TypeError, ValueError):
+        raise GoalError(f"{label}: region_counts must map region ids to robots, e.g. {{ 0 = 10, 1 = 4 }}") from None
+    if not all(isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in counts.values()):
+        raise GoalError(f"{label}: region_counts values must be whole numbers of robots >= 0")
+    return counts
+
+
+def scale_region_counts(counts: Mapping[int, int] | None, full: int, n: int) -> dict[int, int] | None:
+    """The artist's N_i for `full` robots scaled to n robots: largest remainder, so the counts plus
+    the share of the regions left to the allocator sum to exactly n, keeping every region shown
+    (>= 1 robot) while n allows it. Regions the artist left empty stay empty."""
+    if counts is None or n == full:
+        return None if counts is None else dict(counts)
+    ids = sorted(counts)
+    free = full - sum(counts.values())  # robots the allocator spreads over the regions not named
+    wanted = np.array([counts[i] for i in ids] + [max(free, 0)], float)
+    quota = wanted * n / max(wanted.sum(), 1.0)
+    out = np.floor(quota).astype(int)
+    order = np.lexsort((np.arange(len(quota)), -(quota - out)))  # largest remainder, ties to lower id
+    out[order[: n - int(out.sum())]] += 1
+    shown = wanted > 0
+    if n >= int(shown.sum()):
+        for j in np.flatnonzero(shown & (out == 0)):  # a region rounded away: take one from the fullest
+            donor = int(np.argmax(np.where(out >= 2, out - quota, -np.inf)))
+            out[donor] -= 1
+            out[j] = 1
+    return {i: int(c) for i, c in zip(ids, out[:-1])}
+
+
+class StepGoals:
+    """Goal sets (goals, colours) of a scene's steps for any robot count, generated on demand,
+    cached, deterministic (seeded), and all in the shared arena K_r."""
+
+    def __init__(self, steps: list[ImageStep], robots: int, seed: int, radius: float,
+                 arena: float | None = None, labels: list[str] | None = None,
+                 counts_for: int | None = None) -> None:
+        self.steps = steps
+        self.counts_for = counts_for or robots  # the robot count the artist's region_counts were written for
+        self.labels = labels or [f"steps[{k}]" for k in range(len(steps))]  # how errors name each step
+        self.robots = robots
+        self.seed = seed
+        self.radius = radius
+        self._prepared: dict[int, PreparedImage] = {}
+        self._sets: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+        self.arena = float(arena) if arena is not None else self._shared_arena()
+
+    def goal_set(self, step: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Goals (n,2) in metres (arena frame, origin at the centre) and colours (n,3) uint8."""
+        if not 0 <= step < len(self.steps):
+            raise GoalError(f"step {step} does not exist: the scene has steps 0..{len(self.steps) - 1}")
+        if not 1 <= n <= self.robots:
+            raise GoalError(f"goal sets exist for 1..{self.robots} robots, not {n}")
+        key = (step, n)
+        if key not in self._sets:
+            gs = self._generate(step, n, self.arena)
+            self._sets[key] = self._freeze((gs.goals, gs.colors))
+        return self._sets[key]
+
+    def _shared_arena(self) -> float:
+        """K_r: the largest of the steps' own conservative arenas with all N robots."""
+        own = {k: self._generate(k, self.robots, None) for k in range(len(self.steps))}
+        shared = max(gs.arena for gs in own.values())
+        for k, gs in own.items():
+            # Goals scale linearly with K_r, so rescaling equals regenerating with arena=shared.
+            self._sets[(k, self.robots)] = self._freeze((gs.goals * (shared / gs.arena), gs.colors))
+        return shared
+
+    def _generate(self, k: int, n: int, arena: float | None) -> GoalSet:
+        step = self.steps[k]
+        try:
+            if k not in self._prepared:  # background and regions once per image, for every count
+                source: Any = draw(step.shape, SHAPE_PIXELS) if step.shape is not None else step.image
+                self._prepared[k] = prepare_image(source)
+            return goals_from_prepared(self._prepared[k], n, arena=arena, method=step.method, seed=self.seed,
+                                       robot_radius=self.radius,
+                                       region_counts=scale_region_counts(step.region_counts, self.counts_for, n))
+        except GoalError as err:
+            raise GoalError(f"{self.labels[k]} ({step.name}), {n} robots: {err}") from None
+
+    @staticmethod
+    def _freeze(pair: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        goals, colors = np.array(pair[0], float), np.array(pair[1], np.uint8)
+        goals.setflags(write=False)  # shared by every caller of the cache
+        colors.setflags(write=False)
+        return goals, colors
