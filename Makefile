@@ -5,8 +5,8 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 TSTAMP := $(VENV)/.installed-test
-SCENE  ?= circle
-ROBOTS ?= 20
+SCENE  ?= paper-sequence
+ROBOTS ?=
 RUN_ARGS ?=
 
 .PHONY: run test lint bench clean
@@ -27,7 +27,7 @@ $(TSTAMP): pyproject.toml $(STAMP)
 	touch $@
 
 run: $(STAMP)
-	$(VENV)/bin/pixelswarm run $(SCENE) --robots $(ROBOTS) $(RUN_ARGS)
+	$(VENV)/bin/pixelswarm run $(SCENE) $(if $(ROBOTS),--robots $(ROBOTS)) $(RUN_ARGS)
 
 lint: $(TSTAMP)
 	$(VENV)/bin/lint-imports

@@ -37,8 +37,13 @@ class NeighbourTable:
         return out
 
     def gather(self, robot_ids: list[int], positions: np.ndarray, stamp: float, tick: int,
-               neighbour_dist: float, max_neighbours: int) -> NeighbourStates:
-        """Padded neighbour arrays for a batch: the nearest ``max_neighbours`` within ``neighbour_dist``."""
+               neighbour_dist: float, max_neighbours: int, stopped: dict[int, float] | None = None) -> NeighbourStates:
+        """Padded neighbour arrays for a batch: the nearest ``max_neighbours`` within ``neighbour_dist``.
+
+        ``stopped``: robots whose agent is dead (liveliness lost), with how far they may have moved
+        after their last state. Their bodies stand still (the world or hardware proxy stops a robot
+        whose agent died), so they are static obstacles at their last position, grown by that
+        distance, instead of silent robots whose possible position grows with age without bound."""
         states = self.latest_before(tick)
         batch = len(robot_ids)
         if not states:
@@ -49,6 +54,11 @@ class NeighbourTable:
         rad = np.array([s.radius for s in states], float)
         age = stamp - np.array([s.stamp for s in states], float)
         coop = np.array([not (s.flags & State.DYNAMIC) for s in states])
+        if stopped:
+            for i, s in enumerate(states):
+                if s.robot in stopped:
+                    vel[i], age[i], coop[i] = 0.0, 0.0, False
+                    rad[i] += stopped[s.robot]
         # Order by id first so that ties in distance break the same way in every process.
         order = np.argsort(ids, kind="stable")
         ids, pos, vel, rad, age, coop = ids[order], pos[order], vel[order], rad[order], age[order], coop[order]

@@ -134,6 +134,8 @@ class AgentHost:
             bus.subscribe_into(self.keys.state_of(target), self.state_inbox)
         self.goal_inbox = bus.subscribe(self.keys.all_of("goals"), Goals)
         self.auction = AuctionLink(bus, config.robots, self.params, self._on_agreed)
+        self.alive = bus.watch_alive("agent")
+        self.dead: set[int] = set()  # robots whose agent died: their bodies stand still (5.1.2)
         self.running = True
         self.parent_pid: int | None = None  # exit when this process (the launcher) is gone
 
@@ -277,7 +279,11 @@ class AgentHost:
         self.auction.on_tick(stamp, self._positions())
         velocity = np.array([m.velocity for m in mems])
         goal = np.array([m.goal for m in mems])
-        neighbours = self.table.gather(ids, position, stamp, tick, p.neighbour_dist, p.max_neighbours)
+        for _, ident, alive, _ in self.alive.drain():
+            if ident.isdigit():
+                (self.dead.discard if alive else self.dead.add)(int(ident))
+        stopped = {r: p.v_max * p.dt for r in self.dead}  # it may have moved one period after its last state
+        neighbours = self.table.gather(ids, position, stamp, tick, p.neighbour_dist, p.max_neighbours, stopped)
         result = control_step(p, np.array(ids), position, heading, velocity, goal, neighbours, self.segments,
                               seed=self.config.seed, tick=tick)
         self.fallbacks += int(result.fallback.sum())

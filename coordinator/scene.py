@@ -365,13 +365,22 @@ def _check_fit(scene: Scene, where: str) -> None:
                              f"diameter {2 * r:.3f} m); increase layout spacing")
 
 
+EVENT_KINDS = ("teleport", "fail")
+
+
 def _check_event(event: dict[str, Any], scene: Scene, where: str) -> None:
-    if event.get("kind") != "teleport":
-        raise SceneError(f"{where}: event kind must be \"teleport\", not {event.get('kind')!r}")
-    robot, pose, t = event.get("robot"), event.get("pose"), event.get("t")
+    """teleport: the world moves a robot (picked up by hand, paper 7.4.3); fail: the launcher kills the
+    agent process of a robot (SIGKILL) at display time t, its body stays in the world, stopped."""
+    kind = event.get("kind")
+    if kind not in EVENT_KINDS:
+        raise SceneError(f"{where}: event kind must be one of {', '.join(EVENT_KINDS)}, not {kind!r}")
+    robot, t = event.get("robot"), event.get("t")
     if not (isinstance(robot, int) and 0 <= robot < scene.robots):
-        raise SceneError(f"{where}: teleport event robot must be an index in 0..{scene.robots - 1}")
-    if not (isinstance(pose, list) and len(pose) == 3 and _positive(t)):
+        raise SceneError(f"{where}: {kind} event robot must be an index in 0..{scene.robots - 1}")
+    if not _positive(t):
+        raise SceneError(f"{where}: {kind} event needs a time t > 0")
+    pose = event.get("pose")
+    if kind == "teleport" and not (isinstance(pose, list) and len(pose) == 3):
         raise SceneError(f"{where}: teleport event needs t > 0 and pose = [x, y, theta]")
 
 

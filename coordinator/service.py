@@ -14,16 +14,31 @@ import os
 import signal
 import sys
 import time
+from typing import Any
 
 import numpy as np
 
 from transport.bus import Bus
-from transport.codec import Goals, Tick
+from transport.codec import Goals, Pose, Tick
 from transport.session import TransportError, add_zenoh_args, settings_from_args
 
 from .scene import Scene, SceneError, load_scene, scene_goal_set
 
 SETTLE_S = 0.5  # a change in the live robots must hold this long before a new goal set (debounce)
+BODY_WAIT_S = 1.0  # how long to wait for the tracked position of a dead robot's body
+
+
+def clear_of_bodies(goals: np.ndarray, bodies: np.ndarray, clearance: float) -> np.ndarray:
+    """Goals pushed radially out of the disks around dead robots' bodies (which stay where they
+    stopped, obstacles the others cannot take the place of)."""
+    out = np.array(goals, float)
+    for b in bodies:
+        d = out - b
+        dist = np.hypot(d[:, 0], d[:, 1])
+        near = dist < clearance
+        direction = np.where(dist[near, None] > 1e-9, d[near] / np.maximum(dist[near, None], 1e-9), [1.0, 0.0])
+        out[near] = b + direction * clearance
+    return out
 
 
 def palette(n: int) -> np.ndarray:
@@ -54,6 +69,10 @@ class Coordinator:
         self.live: set[int] = set()
         self.live_changed = 0.0  # wall time of the last change in the live robots
         self.shown: tuple[int, frozenset[int]] | None = None  # (step, robots) of the current epoch
+        self.ever_live: set[int] = set()
+        self.bodies: dict[int, np.ndarray] = {}  # dead robots' tracked positions
+        self.body_inboxes: dict[int, Any] = {}
+        self.body_wait_since: float | None = None
         if self.images:
             self.clock = bus.subscribe(bus.keys.clock, Tick)
             self.alive = bus.watch_alive("agent")
@@ -77,6 +96,13 @@ class Coordinator:
                 (self.live.add if alive else self.live.discard)(int(ident))
                 if self.live != before:
                     self.live_changed = time.monotonic()
+                if alive:
+                    self.ever_live.add(int(ident))
+                elif int(ident) not in self.body_inboxes:  # where does its body stay?
+                    self.body_inboxes[int(ident)] = self.bus.subscribe(self.bus.keys.pose(int(ident)), Pose)
+        for r, inbox in self.body_inboxes.items():
+            for _, pose in inbox.drain():
+                self.bodies[r] = np.array([pose.x, pose.y])
         if self.t is None or not self.live:
             return False  # the show starts with the world's first tick
         step, robots = self.scene.step_at(self.t), frozenset(self.live)
@@ -85,7 +111,16 @@ class Coordinator:
                 return False
             if robots != self.shown[1] and time.monotonic() - self.live_changed < SETTLE_S:
                 return False
+        dead = [r for r in self.ever_live - robots]
+        if any(r not in self.bodies for r in dead):
+            self.body_wait_since = self.body_wait_since or time.monotonic()
+            if time.monotonic() - self.body_wait_since < BODY_WAIT_S:
+                return False
+        self.body_wait_since = None
         goals, colors = scene_goal_set(self.scene, step, len(robots))
+        bodies = np.array([self.bodies[r] for r in dead if r in self.bodies]).reshape(-1, 2)
+        if len(bodies):
+            goals = clear_of_bodies(goals, bodies, 2 * self.scene.radius + 0.05)  # room for its inflated radius
         self.epoch += 1
         self.shown = (step, robots)
         self.current = Goals(self.epoch, 0, self.t, len(goals), np.asarray(goals), np.asarray(colors), step,

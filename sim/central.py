@@ -59,6 +59,8 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
     view = None  # image scenes: the robots' assignment to the goal set, re-auctioned every iteration
     assignment = np.where(has_goal, ids, -1)  # goal index per robot (scene goals: its own)
     velocity = np.zeros((n, 2))
+    if any(e["kind"] == "fail" for e in scene.events):
+        raise ValueError("fail events (agent processes killed) need the distributed engine")
     events = sorted(scene.events, key=lambda e: e["t"])
     last_step = max(len(scene.steps) - 1, 0)
     shown = -1  # the image step whose goal set the auction works on

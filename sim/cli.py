@@ -90,6 +90,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.engine == "central":
         from .central import run_central
 
+        if any(e["kind"] == "fail" for e in scene.events):
+            raise UsageError("fail events (agent processes killed) need the distributed engine")
+
         print(run_central(scene, out, video=args.video, progress=None if args.quiet else sys.stderr))
         return 0
     router = None

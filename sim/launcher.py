@@ -67,6 +67,8 @@ class Launcher:
         self.crashes: list[dict[str, Any]] = []
         self.stop_signal: int | None = None
         self.run_dir = RunDir(options.out)
+        self.failures = sorted((e for e in scene.events if e["kind"] == "fail"), key=lambda e: e["t"])
+        self.failed: list[dict[str, Any]] = []
 
     # --- processes ----------------------------------------------------------------------------
     def _spawn(self, name: str, module: str, args: list[str], robots: list[int],
@@ -242,8 +244,22 @@ class Launcher:
             if not end_sent and last_step and rec.held_converged(rec.sim_time, self.scene.converge_hold):
                 bus.publish(bus.keys.event, Event({"kind": "end", "reason": "converged"}))
                 end_sent = True
+            self._fail_agents(rec.sim_time)
             self._progress(rec)
             time.sleep(0.01)
+
+    def _fail_agents(self, t: float) -> None:
+        """Scene 'fail' events: SIGKILL the process hosting the robot (a robot that dies, 5.1.2)."""
+        due = [e for e in getattr(self, "failures", []) if e["t"] <= t + 1e-9]
+        for event in due:
+            self.failures.remove(event)
+            for child in self.children:
+                if child.name.startswith("agent") and event["robot"] in child.robots and child.proc.poll() is None:
+                    child.proc.send_signal(signal.SIGKILL)
+                    child.reported = True  # type: ignore[attr-defined]  # killed on purpose, not a crash
+                    self.failed.append({"robots": child.robots, "sim_time_s": t, "wall_time": time.time()})
+                    self._say(f"[{self.scene.name}] t={t:.1f} s: killed agent process {child.name} "
+                              f"(robots {child.robots}) as the scene says", force=True)
 
     def _world_done(self, rec: Recorder) -> dict | None:
         """The world's final report: from the bus, or once the world has exited cleanly and a busy
@@ -285,7 +301,7 @@ class Launcher:
             self.run_dir, self.scene, self.params, arrays, wall_s=wall_s, contacts=stats.get("contacts", []),
             video=self.opt.video and not interrupted,
             message_counts=rec.counts, message_bytes=rec.bytes, missed_ticks=int(stats.get("missed_ticks", 0)),
-            agents_crashed=len(self.crashes), end_reason=end_reason, complete=not interrupted,
+            agents_crashed=len(self.crashes), agents_failed_by_scene=self.failed, end_reason=end_reason, complete=not interrupted,
             engine="distributed", agents_per_process=self.opt.agents_per_process,
             agent_processes=sum(c.name.startswith("agent") for c in self.children),
             min_clearance_substep_m=stats.get("min_clearance"),

@@ -225,12 +225,14 @@ class Recorder:
         epochs = sorted(self.goal_sets)
         g_max = max(len(self.goal_sets[e].positions) for e in epochs)
         goal_sets = np.full((len(epochs), g_max, 2), np.nan)
+        colors = np.zeros((len(epochs), g_max, 3), np.uint8)
         members = np.zeros((len(epochs), n), bool)
         for i, e in enumerate(epochs):
             gs = self.goal_sets[e]
             goal_sets[i, : len(gs.positions)] = gs.positions
+            colors[i, : len(gs.colors)] = gs.colors
             members[i, gs.robots[gs.robots < n]] = True
         return {"step": np.array(tr.step), "goal_set_epoch": np.array(tr.goal_set_epoch), "assignment_epoch": epoch, "assignment_instance": instance,
                 "agreements": np.array(announced, np.int64).reshape(-1, 2), "agreement_positions": positions,
-                "goal_set_epochs": np.array(epochs), "goal_sets": goal_sets, "goal_set_robots": members,
+                "goal_set_epochs": np.array(epochs), "goal_sets": goal_sets, "goal_set_colors": colors, "goal_set_robots": members,
                 "goal_set_steps": np.array([self.goal_sets[e].step for e in epochs])}

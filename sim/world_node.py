@@ -48,7 +48,7 @@ class WorldNode:
         self.missed_ticks = 0
         self.late_commands = 0
         self.tick = 0
-        self.events = sorted(scene.events, key=lambda e: e["t"])
+        self.events = sorted((e for e in scene.events if e["kind"] == "teleport"), key=lambda e: e["t"])
         self.cmd_inbox = bus.subscribe(self.keys.all_of("cmd"), Command)
         self.control_inbox = bus.subscribe(self.keys.event, Event)
         self.alive = bus.watch_alive("agent")

@@ -1,4 +1,6 @@
-"""`make run` as a newcomer types it: a swarm of 20 robot processes and a complete run directory."""
+"""`make run` as a newcomer types it: the paper's sequence (Fig. 12) by 14 e-puck processes deciding
+among themselves who goes where, and a complete run directory. Also the issue 5 end-to-end check of
+the paper sequence: every hold formed, zero contacts, agreed assignments valid and optimal."""
 from __future__ import annotations
 
 import json
@@ -11,6 +13,7 @@ import pytest
 from mcap.reader import make_reader
 
 from .conftest import REPO
+from .test_image_display_distributed import assert_agreements_valid, assert_every_hold_formed
 
 pytestmark = pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
 
@@ -18,30 +21,31 @@ pytestmark = pytest.mark.skipif(shutil.which("make") is None, reason="make is no
 def test_make_run_writes_a_complete_run_directory(tmp_path):
     out = tmp_path / "run"
     result = subprocess.run(["make", "-s", "run", f"RUN_ARGS=--out {out}"], cwd=REPO, capture_output=True,
-                            text=True, timeout=600)
+                            text=True, timeout=900)
     assert result.returncode == 0, result.stderr[-2000:]
     assert result.stdout.strip().splitlines()[-1] == str(out)
-    assert "[circle] 20 robots" in result.stderr  # progress output
+    assert "[paper-sequence] 14 robots" in result.stderr  # progress output
 
     metrics = json.loads((out / "metrics.json").read_text())
-    assert metrics["robots"] == 20 and metrics["agent_processes"] == 20
+    assert metrics["robots"] == 14 and metrics["agent_processes"] == 14
     for key in ["duration_s", "wall_s", "realtime_factor", "min_clearance_m", "contacts", "max_overlap_m",
                 "converged", "time_to_converge_s", "path_length_m", "messages_per_robot_s", "bytes_per_robot_s",
                 "missed_ticks", "agents_crashed"]:
         assert key in metrics
-    assert len(metrics["path_length_m"]) == 20
+    assert len(metrics["path_length_m"]) == 14
 
     traj = np.load(out / "trajectory.npz")
     T = len(traj["t"])
     assert T > 10
-    assert traj["pose"].shape == (T, 20, 3) and traj["velocity"].shape == (T, 20, 2)
-    assert traj["color"].shape == (T, 20, 3) and traj["color"].dtype == np.uint8
-    assert traj["goal"].shape == (T, 20, 2) and traj["radius"].shape == (20,)
+    assert traj["pose"].shape == (T, 14, 3) and traj["velocity"].shape == (T, 14, 2)
+    assert traj["color"].shape == (T, 14, 3) and traj["color"].dtype == np.uint8
+    assert traj["goal"].shape == (T, 14, 2) and traj["radius"].shape == (14,)
 
     with open(out / "log.mcap", "rb") as f:
         reader = make_reader(f)
-        topics = {channel.topic for _, channel, _ in reader.iter_messages(topics=["/pose", "/state", "/cmd"])}
-    assert topics == {"/pose", "/state", "/cmd"}
+        topics = {channel.topic for _, channel, _ in
+                  reader.iter_messages(topics=["/pose", "/state", "/cmd", "/auction", "/goals"])}
+    assert topics == {"/pose", "/state", "/cmd", "/auction", "/goals"}
 
     video = cv2.VideoCapture(str(out / "display.mp4"))
     frames = int(video.get(cv2.CAP_PROP_FRAME_COUNT))
@@ -50,3 +54,15 @@ def test_make_run_writes_a_complete_run_directory(tmp_path):
     assert ok and frames >= T * 0.9 and frame.max() > 0
     for plot in ["clearance.png", "trajectories.png"]:
         assert (out / plot).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+    # Issue 5, end to end: the six images formed in turn, each within 1 cm by the end of its hold
+    assert [s["index"] for s in metrics["steps"]] == list(range(6))
+    assert_every_hold_formed(metrics)
+    gaps = assert_agreements_valid(dict(traj), min_complete=200)
+    assert np.mean(gaps <= 1e-9) >= 0.99  # at epsilon_A = 0.001 m^2 the agreed assignment is the optimum
+    # the LEDs show the goals' colours: at the end every robot lights its agreed goal's colour
+    last = len(traj["t"]) - 1
+    row = list(traj["goal_set_epochs"]).index(int(traj["assignment_epoch"][last, 0]))
+    goal = traj["assignment"][last]
+    assert np.all(goal >= 0)
+    assert np.array_equal(traj["color"][last], traj["goal_set_colors"][row][goal])

@@ -1,0 +1,485 @@
+"""Reproduce the paper's Figs. 13, 14 and 15 (section 7.2) with the central engine.
+
+Fig. 13: path length per robot and in total over R runs of the Fig. 12 sequence (paper-sequence,
+14 e-pucks, seeds 1..R: the goal sets are regenerated per run, the start grid is the same), at
+epsilon_A = 0.001 m^2. Fig. 14: for epsilon_A in {1, 0.1, 0.01, 0.001} m^2, (a) the computation time
+of the goal auction (every control iteration, 10 Hz; cold starts at image changes marked) and (b) the
+execution time (time to converge, per transition and summed), plus the assignment cost against the
+optimum (scipy's linear_sum_assignment on the same positions). Fig. 15: the trajectories of one
+transition under a poor (1 m^2) and a good (0.001 m^2) epsilon_A.
+
+The paper's runs are physical e-pucks; these are simulated e-pucks (differential drive, 2 mm / 3 deg
+tracking noise, 2 % actuation noise) stepped by the central engine, which re-auctions every iteration
+warm-started, with the hysteresis Delta C of the scene's robot parameters.
+
+    .venv/bin/python -m bench.paper_figures              # 25 runs x 4 epsilons, docs/fig1[345]_*.png
+    .venv/bin/python -m bench.paper_figures --quick      # 2 runs x 2 epsilons, 3 short steps
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import shlex
+import sys
+import tempfile
+import time
+import tomllib
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+import sim.central as central
+from agent.core.params import RobotParams
+from coordinator.scene import Scene, resolve_scene_path, scene_from_dict, scene_goal_set
+
+from .common import REPO, RESULTS, machine
+
+SCENE = "paper-sequence"
+EPSILONS = (1.0, 0.1, 0.01, 0.001)  # m^2, paper 7.2.2
+FIG13_EPS = 0.001
+QUICK_EPSILONS = (1.0, 0.001)
+QUICK_STEPS, QUICK_HOLD = 3, 25.0
+ENGINE_NOTE = "central engine, simulated e-pucks with 2 mm tracking noise"
+
+
+# --- measuring the auction -----------------------------------------------------------------------
+@dataclass
+class AuctionCalls:
+    """Every call of the goal auction in one run: its timing and how good its assignment is."""
+
+    wall_s: list[float] = field(default_factory=list)
+    cpu_s: list[float] = field(default_factory=list)  # thread CPU time: insensitive to a loaded machine
+    rounds: list[int] = field(default_factory=list)
+    cold: list[bool] = field(default_factory=list)  # view=None: the first call after an image change
+    cost: list[float] = field(default_factory=list)  # eq. 7 on the positions the auction saw (m^2)
+    optimum: list[float] = field(default_factory=list)  # linear_sum_assignment on the same positions
+
+
+class TimedSolve:
+    """Stands in for sim.central.solve: times each call, then (outside the timed part) scores it."""
+
+    def __init__(self, solve: Any) -> None:
+        self.solve = solve
+        self.calls = AuctionCalls()
+
+    def __call__(self, positions: dict[int, np.ndarray], goals: np.ndarray, eps_final: float,
+                 view: Any = None, **kwargs: Any) -> Any:
+        c0, w0 = time.thread_time(), time.perf_counter()
+        out = self.solve(positions, goals, eps_final, view=view, **kwargs)
+        w1, c1 = time.perf_counter(), time.thread_time()
+        result, rounds = out
+        robots = sorted(positions)
+        p = np.array([positions[r] for r in robots])
+        cost = ((p[:, None, :] - goals[None, :, :]) ** 2).sum(-1)
+        held = np.array([result.goal_of(r) for r in robots])
+        r, c = linear_sum_assignment(cost)
+        calls = self.calls
+        calls.wall_s.append(w1 - w0)
+        calls.cpu_s.append(c1 - c0)
+        calls.rounds.append(int(rounds))
+        calls.cold.append(view is None)
+        calls.cost.append(float(cost[np.arange(len(robots)), held].sum()) if (held >= 0).all() else math.nan)
+        calls.optimum.append(float(cost[r, c].sum()))
+        return out
+
+
+@contextmanager
+def timed_auction() -> Iterator[AuctionCalls]:
+    """Patch the central engine's auction for the duration of one run (sim/central.py untouched)."""
+    timed = TimedSolve(central.solve)
+    central.solve = timed
+    try:
+        yield timed.calls
+    finally:
+        central.solve = timed.solve
+
+
+# --- one run -------------------------------------------------------------------------------------
+@dataclass
+class Run:
+    eps: float
+    seed: int
+    wall_s: float
+    path: np.ndarray  # (K, N) m: each robot's path while step k was shown
+    converged_at: list[float | None]  # per step, seconds after the image change (None: not within the hold)
+    reassignments: np.ndarray  # (K,) goal changes after each step's first iteration (all robots)
+    contacts: int
+    calls: AuctionCalls
+    xy: np.ndarray | None = None  # (T, N, 2) true positions, kept only for the Fig. 15 epsilons
+    step: np.ndarray | None = None  # (T,)
+    goal_sets: list[np.ndarray] = field(default_factory=list)
+
+
+def scene_data(quick: bool) -> dict[str, Any]:
+    data = tomllib.loads(resolve_scene_path(SCENE).read_text())
+    if quick:  # the first transitions only, shorter holds: a bounded smoke run for the test
+        data["steps"] = [dict(s, hold=QUICK_HOLD) for s in data["steps"][:QUICK_STEPS]]
+    return data
+
+
+def make_scene(data: dict[str, Any], eps: float, seed: int) -> Scene:
+    data = dict(data, robot=dict(data.get("robot", {}), assign_eps=eps))
+    return scene_from_dict(data, source=str(resolve_scene_path(SCENE)), seed=seed)
+
+
+def run_once(data: dict[str, Any], eps: float, seed: int, keep_xy: bool) -> Run:
+    scene = make_scene(data, eps, seed)
+    assert RobotParams.from_dict(scene.robot).assign_eps == eps  # the override reaches the engine
+    with tempfile.TemporaryDirectory(prefix="paper_figures_") as tmp, timed_auction() as calls:
+        w0 = time.perf_counter()
+        out = central.run_central(scene, Path(tmp) / "run", video=False, progress=None)
+        wall = time.perf_counter() - w0
+        metrics = json.loads((out / "metrics.json").read_text())
+        traj = np.load(out / "trajectory.npz")
+        pose, step, assignment = traj["pose"], traj["step"].astype(int), traj["assignment"]
+    k_steps = len(scene.steps)
+    moved = np.sqrt((np.diff(pose[:, :, :2], axis=0) ** 2).sum(-1))  # (T-1, N), sample k -> k+1
+    path = np.array([moved[step[:-1] == k].sum(axis=0) for k in range(k_steps)])
+    # Robots whose goal changed from one tick to the next within a step (a swap counts two).
+    same = np.r_[False, step[1:] == step[:-1]]
+    n_changes = np.r_[0, (assignment[1:] != assignment[:-1]).sum(axis=1)]
+    reassign = np.array([int(n_changes[same & (step == k)].sum()) for k in range(k_steps)])
+    steps = sorted(metrics["steps"], key=lambda s: s["index"])
+    run = Run(eps, seed, wall, path, [s["converged_at"] for s in steps], reassign, int(metrics["contacts"]),
+              calls)
+    if keep_xy:
+        run.xy, run.step = pose[:, :, :2].astype(np.float32), step
+        run.goal_sets = [np.array(scene_goal_set(scene, k, scene.robots)[0]) for k in range(k_steps)]
+    return run
+
+
+# --- statistics ----------------------------------------------------------------------------------
+def transition_labels(data: dict[str, Any]) -> list[str]:
+    def short(s: dict[str, Any]) -> str:
+        return str(s.get("name", s.get("shape"))).replace("disk_and_line_", "disk+line ").replace("_", "/")
+    names = [data.get("layout", {}).get("kind", "start")] + [short(s) for s in data["steps"]]
+    return [f"{a} -> {b}" for a, b in zip(names, names[1:])]
+
+
+def execution_times(run: Run, holds: list[float]) -> tuple[np.ndarray, np.ndarray]:
+    """Per step the time to converge (censored at the hold when it never converged) and the mask of
+    censored steps."""
+    t = np.array([c if c is not None else h for c, h in zip(run.converged_at, holds)], float)
+    return t, np.array([c is None for c in run.converged_at])
+
+
+def first_call_ratio(run: Run) -> np.ndarray:
+    """(K,) cost / optimum of each step's cold-start assignment."""
+    cold = np.flatnonzero(run.calls.cold)
+    return np.array(run.calls.cost)[cold] / np.array(run.calls.optimum)[cold]
+
+
+def mean_std(x: np.ndarray) -> str:
+    return f"{np.mean(x):.2f} ± {np.std(x):.2f}"
+
+
+@dataclass
+class Summary:
+    """The numbers behind the figures (also what the test checks)."""
+
+    labels: list[str]
+    holds: list[float]
+    runs: dict[float, list[Run]]
+    fig15: tuple[int, int]  # (step, seed)
+    wall_s: float = 0.0
+
+    def per_eps(self, eps: float) -> dict[str, Any]:
+        runs = self.runs[eps]
+        wall = np.concatenate([r.calls.wall_s for r in runs])
+        cpu = np.concatenate([r.calls.cpu_s for r in runs])
+        cold = np.concatenate([r.calls.cold for r in runs]).astype(bool)
+        rounds = np.concatenate([r.calls.rounds for r in runs])
+        ratio_all = np.concatenate([np.array(r.calls.cost) / np.array(r.calls.optimum) for r in runs])
+        first = np.array([first_call_ratio(r) for r in runs])  # (R, K)
+        first_cost = np.array([np.array(r.calls.cost)[np.array(r.calls.cold)] for r in runs])
+        ex = [execution_times(r, self.holds) for r in runs]
+        return {
+            "wall_ms": 1e3 * wall, "cpu_ms": 1e3 * cpu, "cold": cold, "rounds": rounds,
+            "ratio_all": ratio_all, "ratio_first": first, "first_cost": first_cost,
+            "exec": np.array([e[0] for e in ex]), "censored": np.array([e[1] for e in ex]),
+            "path_total": np.array([r.path.sum() for r in runs]),
+            "reassign": np.array([r.reassignments for r in runs]),
+            "contacts": sum(r.contacts for r in runs),
+        }
+
+
+# --- figures -------------------------------------------------------------------------------------
+def _figure(size: tuple[float, float]) -> Any:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=size)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def plot_fig13(s: Summary, path: Path) -> None:
+    runs = s.runs[FIG13_EPS]
+    per_robot = np.array([r.path.sum(axis=0) for r in runs])  # (R, N)
+    per_step = np.array([r.path.sum(axis=1) for r in runs])  # (R, K)
+    n = per_robot.shape[1]
+    fig = _figure((12, 8.5))
+    ax = fig.add_subplot(2, 1, 1)
+    ax.boxplot(list(per_robot.T), positions=np.arange(1, n + 1), widths=0.6, manage_ticks=False)
+    ax.set_ylabel("path length over the sequence (m)")
+    right = ax.twinx()  # the summed total on its own axis, as in the paper
+    red = {"color": "tab:red"}
+    right.boxplot([per_robot.sum(axis=1)], positions=[n + 1.2], widths=0.6, manage_ticks=False, boxprops=red,
+                  medianprops=red, whiskerprops=red, capprops=red, flierprops={"markeredgecolor": "tab:red"})
+    right.set_ylabel("summed total path length (m)", color="tab:red")
+    # Ticks last: the twin axis shares x, and its boxplot would otherwise relabel it.
+    ax.set_xlim(0.3, n + 1.9)
+    ax.set_xticks(list(range(1, n + 1)) + [n + 1.2], [str(i) for i in range(n)] + ["total"])
+    ax.set_xlabel("robot id")
+    ax.axvline(n + 0.6, color="grey", lw=0.6)
+    ax.set_title(f"Fig. 13: path length per robot (left axis) and summed over the 14 robots (right axis), "
+                 f"{len(runs)} runs, epsilon_A = {FIG13_EPS:g} m²", fontsize=10)
+    ax = fig.add_subplot(2, 1, 2)
+    ax.boxplot(list(per_step.T), widths=0.6)
+    ax.set_xticks(range(1, len(s.labels) + 1), s.labels, fontsize=8)
+    for k, col in enumerate(per_step.T):
+        ax.annotate(f"{col.mean():.1f}", (k + 1, col.max()), textcoords="offset points", xytext=(0, 4),
+                    ha="center", fontsize=8)
+    ax.set_ylabel("summed path length (m)")
+    ax.set_title("per transition: all 14 robots' path while the image was shown (mean above each box)",
+                 fontsize=10)
+    fig.suptitle(f"Paper-sequence, {ENGINE_NOTE}; seeds 1..{len(runs)} (goal sets regenerated per run, "
+                 "same start grid)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def plot_fig14(s: Summary, path: Path) -> None:
+    eps_list = sorted(s.runs, reverse=True)
+    stats = [s.per_eps(e) for e in eps_list]
+    x = np.arange(1, len(eps_list) + 1)
+    names = [f"{e:g}" for e in eps_list]
+    fig = _figure((13, 9))
+    ax = fig.add_subplot(2, 2, 1)
+    ax.boxplot([st["wall_ms"] for st in stats], positions=x - 0.18, widths=0.3, sym=".")
+    ax.boxplot([st["wall_ms"][st["cold"]] for st in stats], positions=x + 0.18, widths=0.3, sym=".",
+               boxprops={"color": "tab:red"}, medianprops={"color": "tab:red"})
+    for xi, st in zip(x, stats):
+        ax.plot(xi - 0.18, st["wall_ms"].mean(), "k^", ms=5)
+    ax.set_yscale("log")
+    ax.set_xticks(x, names)
+    ax.set_xlabel("epsilon_A (m²)")
+    ax.set_ylabel("auction wall time per call (ms)")
+    ax.set_title("(a) computation time: every iteration (black, ▲ mean) and\n"
+                 "cold starts at an image change (red)", fontsize=10)
+    ax = fig.add_subplot(2, 2, 2)
+    ax.boxplot([st["exec"].sum(axis=1) for st in stats], widths=0.5)
+    ax.set_xticks(x, names)
+    ax.set_xlabel("epsilon_A (m²)")
+    ax.set_ylabel("execution time, summed over the transitions (s)")
+    cens = [int(st["censored"].sum()) for st in stats]
+    ax.set_title("(b) execution time: time to converge, all transitions" +
+                 (f"\n(not converged within a hold, counted as the hold: {cens})" if any(cens) else ""),
+                 fontsize=10)
+    ax = fig.add_subplot(2, 2, 3)
+    k = len(s.labels)
+    width = 0.8 / len(eps_list)
+    for j, (e, st) in enumerate(zip(eps_list, stats)):
+        pos = np.arange(k) + (j - (len(eps_list) - 1) / 2) * width
+        ax.bar(pos, st["exec"].mean(axis=0), width, yerr=st["exec"].std(axis=0), capsize=2, label=f"{e:g} m²")
+    ax.set_xticks(range(k), s.labels, fontsize=8, rotation=15)
+    ax.set_ylabel("time to converge (s), mean ± std")
+    ax.legend(title="epsilon_A", fontsize=8)
+    ax.set_title("(b') execution time per transition", fontsize=10)
+    ax = fig.add_subplot(2, 2, 4)
+    ax.boxplot([st["ratio_first"].ravel() for st in stats], positions=x - 0.18, widths=0.3, sym=".")
+    ax.boxplot([st["ratio_all"] for st in stats], positions=x + 0.18, widths=0.3, sym=".",
+               boxprops={"color": "tab:blue"}, medianprops={"color": "tab:blue"})
+    ax.set_xticks(x, names)
+    ax.set_xlabel("epsilon_A (m²)")
+    ax.set_yscale("log")
+    ax.set_ylabel("assignment cost / optimal cost (eq. 7)")
+    ax.set_title("cost against linear_sum_assignment on the same positions:\n"
+                 "each transition's first iteration (black), every iteration (blue)", fontsize=10)
+    runs = len(next(iter(s.runs.values())))
+    fig.suptitle(f"Fig. 14: effect of epsilon_A, {runs} runs per value of paper-sequence; {ENGINE_NOTE}",
+                 fontsize=11)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def plot_fig15(s: Summary, path: Path) -> None:
+    k, seed = s.fig15
+    eps_pair = (max(s.runs), min(s.runs))
+    fig = _figure((13, 6.3))
+    from matplotlib import colormaps
+
+    cmap = colormaps["tab20"]
+    for j, eps in enumerate(eps_pair):
+        run = next(r for r in s.runs[eps] if r.seed == seed)
+        assert run.xy is not None and run.step is not None
+        xy = run.xy[run.step == k]
+        ax = fig.add_subplot(1, 2, j + 1)
+        for i in range(xy.shape[1]):
+            ax.plot(xy[:, i, 0], xy[:, i, 1], color=cmap(i % 20), lw=1.2)
+            ax.plot(*xy[0, i], "o", color=cmap(i % 20), ms=5, mfc="none")
+            ax.plot(*xy[-1, i], "o", color=cmap(i % 20), ms=4)
+        g = run.goal_sets[k]
+        ax.plot(g[:, 0], g[:, 1], "kx", ms=8, mew=1.5, label="goals")
+        ax.set_aspect("equal")
+        ex = run.converged_at[k]
+        ax.set_title(f"epsilon_A = {eps:g} m²: path {run.path[k].sum():.1f} m, "
+                     f"{run.reassignments[k]} reassignments,\nconverged "
+                     + (f"after {ex:.1f} s" if ex is not None else "not within the hold"), fontsize=10)
+        ax.legend(loc="upper right", fontsize=8)
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+    fig.suptitle(f"Fig. 15: trajectories of the 14 robots, transition {s.labels[k]} (seed {seed}); "
+                 f"o start, ● end, x goals; {ENGINE_NOTE}", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def pick_fig15(runs: dict[float, list[Run]]) -> tuple[int, int]:
+    """The transition where a poor epsilon_A lengthens the paths most on average (paired by seed),
+    and on it the run whose excess is the median one: a typical example, not the worst."""
+    poor = {r.seed: r for r in runs[max(runs)]}
+    good = {r.seed: r for r in runs[min(runs)]}
+    seeds = sorted(poor)
+    excess = np.array([poor[s].path.sum(axis=1) - good[s].path.sum(axis=1) for s in seeds])  # (R, K)
+    start = 1 if excess.shape[1] > 1 else 0  # not the move out of the start grid
+    k = start + int(np.argmax(excess[:, start:].mean(axis=0)))
+    order = np.argsort(excess[:, k])
+    return k, seeds[int(order[len(order) // 2])]
+
+
+# --- the results file ----------------------------------------------------------------------------
+def results_lines(s: Summary, hysteresis: float) -> list[str]:
+    runs13 = s.runs[FIG13_EPS]
+    n_runs = len(runs13)
+    per_step = np.array([r.path.sum(axis=1) for r in runs13])
+    per_robot = np.array([r.path.sum(axis=0) for r in runs13])
+    out = [f"{n_runs} runs per epsilon_A of `{SCENE}` (paper Fig. 12: 14 differential-drive e-pucks, "
+           f"{len(s.labels)} images, {s.holds[0]:g} s holds), seeds 1..{n_runs}, {ENGINE_NOTE} (3 deg, 2 % "
+           f"actuation noise). The goal auction re-runs every 0.1 s iteration warm-started, Delta C = "
+           f"{hysteresis:g} m²; cold start (epsilon scaling) at each image change. Total wall time "
+           f"{s.wall_s / 60:.1f} min; load average {os.getloadavg()[0]:.2f} at the end (2-core machine shared with "
+           "other work: wall times of the auction are inflated accordingly, its CPU time is given beside).", "",
+           f"### Fig. 13: path length at epsilon_A = {FIG13_EPS:g} m² (`docs/fig13_path_length.png`)", "",
+           "| transition | summed path length (m), mean ± std | min | max |", "|---|---:|---:|---:|"]
+    for label, col in zip(s.labels, per_step.T):
+        out.append(f"| {label} | {mean_std(col)} | {col.min():.2f} | {col.max():.2f} |")
+    tot = per_step.sum(axis=1)
+    out += [f"| **whole sequence** | {mean_std(tot)} | {tot.min():.2f} | {tot.max():.2f} |", "",
+            "Per robot over the sequence (m, mean ± std): " +
+            ", ".join(f"{i}: {mean_std(c)}" for i, c in enumerate(per_robot.T)) +
+            f". Relative spread (std / mean): per robot {np.mean(per_robot.std(0) / per_robot.mean(0)):.1%} "
+            f"on average, summed total {tot.std() / tot.mean():.1%} (paper: large per robot, small in total).", "",
+            "### Fig. 14: epsilon_A (`docs/fig14_epsilon.png`)", "",
+            "| epsilon_A (m²) | auction calls | per iteration, mean wall (ms) | median / p99 wall (ms) | "
+            "mean CPU (ms) | cold start mean / max wall (ms) | cold start rounds | execution time (s) | "
+            "not converged | cost ratio, first iteration: mean / max | cost ratio, every iteration: median | "
+            "reassignments per run | total path (m) | contacts |",
+            "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    eps_list = sorted(s.runs, reverse=True)
+    for e in eps_list:
+        st = s.per_eps(e)
+        w, c = st["wall_ms"], st["cold"]
+        out.append(f"| {e:g} | {len(w)} | {w.mean():.3f} | {np.median(w):.3f} / {np.percentile(w, 99):.2f} | "
+                   f"{st['cpu_ms'].mean():.3f} | {w[c].mean():.2f} / {w[c].max():.2f} | "
+                   f"{st['rounds'][c].mean():.0f} | {mean_std(st['exec'].sum(axis=1))} | "
+                   f"{int(st['censored'].sum())} of {st['censored'].size} | "
+                   f"{st['ratio_first'].mean():.3f} / {st['ratio_first'].max():.3f} | "
+                   f"{np.nanmedian(st['ratio_all']):.4f} | {st['reassign'].sum(axis=1).mean():.1f} | "
+                   f"{mean_std(st['path_total'])} | {st['contacts']} |")
+    out += ["", "Execution time per transition (s, mean ± std; a transition not converged within its hold "
+            "counts as the hold):", "", "| epsilon_A (m²) | " + " | ".join(s.labels) + " |",
+            "|---:|" + "---:|" * len(s.labels)]
+    for e in eps_list:
+        ex = s.per_eps(e)["exec"]
+        out.append(f"| {e:g} | " + " | ".join(mean_std(col) for col in ex.T) + " |")
+    out += ["", "Cost ratio of each transition's first (cold-start) assignment, mean (max):", "",
+            "| epsilon_A (m²) | " + " | ".join(s.labels) + " |", "|---:|" + "---:|" * len(s.labels)]
+    for e in eps_list:
+        r = s.per_eps(e)["ratio_first"]
+        out.append(f"| {e:g} | " + " | ".join(f"{col.mean():.3f} ({col.max():.3f})" for col in r.T) + " |")
+    k, seed = s.fig15
+    out += ["", "### Fig. 15: trajectories (`docs/fig15_trajectories.png`)", "",
+            f"Transition {s.labels[k]}, seed {seed}: the transition where epsilon_A = {max(s.runs):g} m² lengthens "
+            f"the summed path most on average over the paired runs, and its median run.", "",
+            "| epsilon_A (m²) | summed path (m) | reassignments | time to converge (s) |", "|---:|---:|---:|---:|"]
+    for e in (max(s.runs), min(s.runs)):
+        run = next(r for r in s.runs[e] if r.seed == seed)
+        ex = run.converged_at[k]
+        out.append(f"| {e:g} | {run.path[k].sum():.2f} | {run.reassignments[k]} | "
+                   f"{'not within the hold' if ex is None else f'{ex:.1f}'} |")
+    out += ["", "Auction wall time is measured around each `agent.core.auction.solve` call of the central engine "
+            "(patched in by the script, sim/central.py unchanged); a cold start is the first call after an image "
+            "change (no prices yet: epsilon scaling from the goal set's extent² / 10 down to epsilon_A). "
+            "Execution time is `steps[k].converged_at` of metrics.json: the first sample at which every robot "
+            "is within 1 cm of its goal. Path lengths are of the true (not tracked) positions. Cost ratio: eq. 7 "
+            "of the auction's assignment over scipy's `linear_sum_assignment` on the same tracked positions."]
+    return out
+
+
+def write_results(path: Path, command: str, lines: list[str]) -> None:
+    text = ["## Paper Figs. 13-15: path length, epsilon_A and trajectories (central engine)", "",
+            f"Command: `{command}`", f"Machine: {machine()}; measured {time.strftime('%Y-%m-%d', time.gmtime())}.",
+            "", *lines, ""]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(text))
+
+
+# --- main ----------------------------------------------------------------------------------------
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--runs", type=int, default=None, help="runs per epsilon_A, seeds 1..R (default 25, quick 2)")
+    p.add_argument("--out", type=Path, default=REPO / "docs", help="where the PNGs go")
+    p.add_argument("--results", type=Path, default=None,
+                   help="the markdown results (default bench/results/paper_figures.md; quick: <out>/paper_figures.md)")
+    p.add_argument("--quick", action="store_true",
+                   help=f"{len(QUICK_EPSILONS)} epsilons, the first {QUICK_STEPS} steps held {QUICK_HOLD:g} s")
+    args = p.parse_args(argv)
+    args.runs = args.runs or (2 if args.quick else 25)
+    if args.results is None:  # a quick run never overwrites the stored results
+        args.results = args.out / "paper_figures.md" if args.quick else RESULTS / "paper_figures.md"
+    return args
+
+
+def main(argv: list[str] | None = None) -> Summary:
+    args = parse_args(argv)
+    command = ".venv/bin/python -m bench.paper_figures " + shlex.join(sys.argv[1:] if argv is None else argv)
+    data = scene_data(args.quick)
+    epsilons = QUICK_EPSILONS if args.quick else EPSILONS
+    keep = {max(epsilons), min(epsilons)}  # Fig. 15's poor and good epsilon_A
+    holds = [float(s["hold"]) for s in data["steps"]]
+    w0 = time.perf_counter()
+    runs: dict[float, list[Run]] = {}
+    total = len(epsilons) * args.runs
+    for e in epsilons:
+        for seed in range(1, args.runs + 1):
+            run = run_once(data, e, seed, keep_xy=e in keep)
+            runs.setdefault(e, []).append(run)
+            ex, cens = execution_times(run, holds)
+            done = sum(len(v) for v in runs.values())
+            print(f"[{done:3d}/{total}] epsilon_A {e:g} m² seed {seed:2d}: {run.wall_s:5.1f} s wall, "
+                  f"path {run.path.sum():6.2f} m, execution {ex.sum():6.1f} s"
+                  f"{f' ({int(cens.sum())} not converged)' if cens.any() else ''}, "
+                  f"auction {1e3 * np.mean(run.calls.wall_s):.2f} ms/call, contacts {run.contacts}", flush=True)
+    if FIG13_EPS not in runs:
+        raise SystemExit(f"Fig. 13 needs epsilon_A = {FIG13_EPS:g}")
+    summary = Summary(transition_labels(data), holds, runs, pick_fig15(runs), time.perf_counter() - w0)
+    args.out.mkdir(parents=True, exist_ok=True)
+    for name, plot in (("fig13_path_length.png", plot_fig13), ("fig14_epsilon.png", plot_fig14),
+                       ("fig15_trajectories.png", plot_fig15)):
+        plot(summary, args.out / name)
+        print(f"wrote {args.out / name}", flush=True)
+    hysteresis = RobotParams.from_dict(data.get("robot", {})).assign_hysteresis
+    write_results(args.results, command, results_lines(summary, hysteresis))
+    print(f"wrote {args.results} ({summary.wall_s / 60:.1f} min)", flush=True)
+    return summary
+
+
+if __name__ == "__main__":
+    main()
