@@ -103,8 +103,10 @@ class Participant:
         self.board = Board(len(self.goals))
         self.instance = -1  # not started: waits for the robots' positions
         self.position: dict[int, np.ndarray] = {}
+        self.row = {r: i for i, r in enumerate(self.own)}
+        self.cost = np.zeros((len(self.own), len(self.goals)))  # c_ij at the frozen positions, eq. 7
         self.goal = {r: -1 for r in self.own}  # what each own robot claims
-        self.penalty = {r: np.zeros(len(self.goals)) for r in self.own}  # C_d per goal (deadlocks)
+        self.penalty = np.zeros((len(self.own), len(self.goals)))  # C_d per robot and goal (deadlocks)
         self.heard: dict[int, Heard] = {}
         self.agreed_instance = -1
         self.agreed: dict[int, int] = {}  # own robot -> its goal in the agreed instance
@@ -144,34 +146,44 @@ class Participant:
             self._adopt_if_settled()  # someone reached a later instance: ours was agreed
         if not self.started or instance >= self.phases:
             self.position = {r: np.asarray(positions[r], float) for r in self.own}
+            if self.own:
+                p = np.array([self.position[r] for r in self.own])
+                d = self.goals[None, :, :] - p[:, None, :]
+                self.cost = d[..., 0] ** 2 + d[..., 1] ** 2
         self.instance = instance
         self.heard = {r: h for r, h in self.heard.items() if h.instance >= instance}
         self.claims_changed = True  # the new instance's records are news
         self.bid()
 
     def _adopt_if_settled(self) -> None:
-        if self.instance >= self.phases - 1 and all(self._content(r) for r in self.own):
+        if self.instance >= self.phases - 1 and self._content_all().all():
             self.agreed_instance = self.instance
             self.agreed = dict(self.goal)
 
     # --- bidding ----------------------------------------------------------------------------------
     def _values(self, robot: int) -> np.ndarray:
-        return net_values(self.position[robot], self.goals, self.board.price, self.penalty[robot])
+        """Net values -c_ij - b_j of one robot (its private cost includes its deadlock penalties)."""
+        i = self.row[robot]
+        return -(self.cost[i] + self.penalty[i]) - self.board.price
 
-    def _content(self, robot: int) -> bool:
-        g = self.goal[robot]
-        if not self.board.holds(robot, g):
-            return False
-        values = self._values(robot)
-        return bool(values[g] >= values.max() - self.slack)
+    def _content_all(self) -> np.ndarray:
+        """(K,) bool: each own robot holds its goal and no goal is better by more than the slack."""
+        if not self.own:
+            return np.zeros(0, bool)
+        goal = np.array([self.goal[r] for r in self.own])
+        holds = (goal >= 0) & (self.board.owner[goal] == np.array(self.own)) & ~self.board.released[goal]
+        values = -(self.cost + self.penalty) - self.board.price[None, :]
+        held = values[np.arange(len(goal)), goal]
+        return holds & (held >= values.max(axis=1) - self.slack)
 
     def bid(self) -> bool:
         """One round for the own robots (in id order, each seeing the others' bids); True if any bid."""
         if not self.started:
             return False
         any_bid = False
-        for r in self.own:
-            if self._content(r):
+        content = self._content_all()
+        for r, ok in zip(self.own, content):
+            if ok or (any_bid and self._content(r)):  # an earlier bid this round may have settled it
                 continue
             values = self._values(r)
             best = int(np.argmax(values))  # ties: lowest goal index, the same everywhere
@@ -188,6 +200,13 @@ class Participant:
             self.claims_changed = True
         return any_bid
 
+    def _content(self, robot: int) -> bool:
+        g = self.goal[robot]
+        if not self.board.holds(robot, g):
+            return False
+        values = self._values(robot)
+        return bool(values[g] >= values.max() - self.slack)
+
     def bid_until_quiet(self, max_rounds: int = 100_000) -> int:
         """Rounds until no own robot wants to bid (own robots outbid each other without messages)."""
         rounds = 0
@@ -197,8 +216,8 @@ class Participant:
 
     def penalise(self, robot: int, goal: int, cost: float) -> None:
         """Deadlock (5.5.5): the robot's cost of this goal rises by C_d for good."""
-        if robot in self.penalty and 0 <= goal < len(self.goals):
-            self.penalty[robot][goal] += cost
+        if robot in self.row and 0 <= goal < len(self.goals):
+            self.penalty[self.row[robot], goal] += cost
 
     # --- messages ---------------------------------------------------------------------------------
     @property
@@ -216,11 +235,11 @@ class Participant:
         """What the own robots say now: a claim each, and the goals they released that still carry
         their release on the board (so that others learn the price even if a message was lost)."""
         out = []
-        for r in self.own:
+        for r, content in zip(self.own, self._content_all()):
             g = self.goal[r]
             x, y = (float(v) for v in self.position.get(r, (0.0, 0.0)))
             holds = self.board.holds(r, g)
-            flags = CONTENT if holds and self._content(r) else 0
+            flags = CONTENT if content else 0
             out.append(Record(r, g if holds else -1, float(self.board.price[g]) if holds else 0.0, flags, x, y))
         mine = set(self.own)
         for g in np.flatnonzero(self.board.released):
@@ -248,7 +267,7 @@ class Participant:
         phase of the cold start only moves on to the next phase."""
         if not self.started or self.is_agreed:
             return False
-        if not all(self._content(r) for r in self.own):
+        if not self._content_all().all():
             return False
         digest = self.board.digest()
         taken = {self.goal[r] for r in self.own}
