@@ -240,8 +240,10 @@ class Launcher:
                 bus.publish(bus.keys.event, Event({"kind": "end", "reason": "interrupted"}))
                 end_sent = True
                 self.interrupted = True
-            last_step = not self.scene.steps or self.scene.step_at(rec.sim_time) == len(self.scene.steps) - 1
-            if not end_sent and last_step and rec.held_converged(rec.sim_time, self.scene.converge_hold):
+            # With image steps, only convergence that began within the last step ends a run early.
+            last_start = self.scene.step_starts[-1] if self.scene.steps else 0.0
+            in_last = rec.converged_since is not None and rec.converged_since >= last_start - 1e-9
+            if not end_sent and in_last and rec.held_converged(rec.sim_time, self.scene.converge_hold):
                 bus.publish(bus.keys.event, Event({"kind": "end", "reason": "converged"}))
                 end_sent = True
             self._fail_agents(rec.sim_time)

@@ -39,9 +39,21 @@ def test_disk_and_line_shown_by_14_robots(tmp_path):
     assert (final[:, 0] > 150).sum() >= 9 and (final[:, 2] > 150).sum() >= 2
 
 
-def test_distributed_engine_says_image_scenes_need_central(tmp_path):
-    image = tmp_path / "disk.png"
-    cv2.imwrite(str(image), shapes.draw("disk", 128)[:, :, ::-1])
-    result = run_pixelswarm("run", str(image), "--robots", "6", "--out", str(tmp_path / "run"), timeout=120)
-    assert result.returncode == 2 and "--engine central" in result.stderr
-    assert len(result.stderr.strip().splitlines()) == 1
+def test_any_image_displays_with_the_distributed_engine_by_default(tmp_path):
+    """`pixelswarm run picture.png --robots N`: no scene file, the robots' own auction, LEDs in the
+    picture's colours."""
+    image = tmp_path / "two.png"
+    cv2.imwrite(str(image), shapes.draw("two_squares", 128)[:, :, ::-1])
+    out = tmp_path / "run"
+    result = run_pixelswarm("run", str(image), "--robots", "6", "--out", str(out), "--no-video", "-q", timeout=300)
+    assert result.returncode == 0, result.stderr[-2000:]
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["engine"] == "distributed" and metrics["contacts"] == 0
+    assert metrics["steps"][0]["max_goal_error_at_end"] <= 0.01
+    traj = np.load(out / "trajectory.npz")
+    last = len(traj["t"]) - 1
+    goal = traj["assignment"][last]
+    assert sorted(goal.tolist()) == list(range(6))  # one robot per goal, as the agents announced
+    row = list(traj["goal_set_epochs"]).index(int(traj["assignment_epoch"][last, 0]))
+    assert np.array_equal(traj["color"][last], traj["goal_set_colors"][row][goal])
+    assert {tuple(c) for c in traj["color"][last]} == {shapes.RED, shapes.BLUE}
