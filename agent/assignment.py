@@ -3,7 +3,8 @@ zenoh. One message per host carries all its robots' records, so an agent host of
 swarm what one robot does.
 
 When to publish: at once when an own claim changed (a bid or a release); when only the board changed
-(others need our digest to see agreement), at most every DIGEST_EVERY seconds; and again every
+(others need our digest to see agreement), once the board has been quiet for QUIET seconds (while
+bids fly, digests would only be stale) and at most every DIGEST_EVERY seconds; and again every
 RESEND_BUSY seconds while an instance is open (a lost message costs one resend), RESEND_IDLE when
 agreed (late joiners and lost final records).
 """
@@ -21,6 +22,7 @@ from .core.bidder import Participant, Record
 from .core.params import RobotParams
 
 DIGEST_EVERY = 0.01
+QUIET = 0.02  # digest-only news waits until the board has not changed for this long (no storms)
 RESEND_BUSY = 0.1
 RESEND_IDLE = 1.0
 
@@ -49,6 +51,7 @@ class AuctionLink:
         self.last_sent = -np.inf
         self.instance_stamp = -np.inf  # display time the current instance started
         self.reported = -1  # the last agreed instance handed to on_agreed
+        self.board_changed = 0.0  # monotonic time of the last change of the board
         self.epoch_wall = 0.0
         self.sent = self.received = self.agreements = self.penalties = 0
         self.first_agreement_s: list[float] = []  # per goal set: wall time from its arrival to agreement
@@ -103,23 +106,42 @@ class AuctionLink:
             self.part.penalise(robot, goal, self.params.deadlock_cost)
             self.penalties += 1
 
+    def next_due(self) -> float:
+        """Seconds until something is due without a message arriving (a resend, a throttled digest,
+        an injected delay ending)."""
+        part = self.part
+        if part is None or not part.started:
+            return 1.0
+        if self.inbox.has_delayed:
+            return 0.005
+        now = time.monotonic()
+        due = self.last_sent + (RESEND_IDLE if part.is_agreed else RESEND_BUSY)
+        if part.claims_changed:
+            return 0.0
+        if part.has_news:
+            due = min(due, max(self.last_sent + DIGEST_EVERY, self.board_changed + QUIET))
+        return max(0.0, due - now)
+
     def poll(self, positions: dict[int, np.ndarray]) -> None:
         """Take in what arrived, bid, check agreement, publish what others need."""
         part = self.part
-        for _, msg in self.inbox.drain():
+        arrived = self.inbox.drain()
+        if not arrived and part is not None and part.started and self.next_due() > 0:
+            return  # nothing new, nothing due
+        for _, msg in arrived:
             self.received += 1
             if part is None or msg.epoch != part.epoch or not self._try_start(positions):
                 continue
             if msg.instance > part.instance:  # the sender saw our instance agreed
                 part.begin(msg.instance, positions)
-            part.absorb(msg.instance, msg.serial, msg.digest, from_items(msg.records))
+            if part.absorb(msg.instance, msg.serial, msg.digest, from_items(msg.records)):
+                self.board_changed = time.monotonic()
         if part is None or not part.started:
             return
         self._settle()
-        now = time.monotonic()
-        resend = RESEND_IDLE if part.is_agreed else RESEND_BUSY
-        if part.claims_changed or now - self.last_sent >= resend or \
-                (part.has_news and now - self.last_sent >= DIGEST_EVERY):
+        if part.claims_changed:
+            self.board_changed = time.monotonic()
+        if self.next_due() <= 0:
             self._publish()
 
     # --- internals --------------------------------------------------------------------------------

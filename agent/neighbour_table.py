@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from transport.codec import State
+from transport.keys import cell_of
 
 from .core.step import NeighbourStates
 
@@ -22,6 +23,15 @@ class NeighbourTable:
         kept.append(state)
         kept.sort(key=lambda s: s.tick)
         del kept[:-2]
+
+    def forget_outside(self, cells: set[tuple[int, int]], cell_size: float) -> int:
+        """Drop robots whose newest state lies in a cell we no longer listen to. We cannot hear them
+        any more, so their state would only age, and an aged state's uncertainty grows without bound:
+        a phantom obstacle where the robot was long ago. Returns how many were dropped."""
+        gone = [r for r, kept in self._states.items() if cell_of(kept[-1].x, kept[-1].y, cell_size) not in cells]
+        for r in gone:
+            del self._states[r]
+        return len(gone)
 
     def __len__(self) -> int:
         return len(self._states)

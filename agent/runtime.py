@@ -11,6 +11,7 @@ import json
 import math
 import os
 import signal
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -103,6 +104,10 @@ class CellSubscriptions:
             self.bus.unsubscribe(self._subs.pop(cell))
         for cell in sorted(wanted - set(self._subs)):
             self._subs[cell] = self.bus.subscribe_into(self.bus.keys.state_cell(cell), self.inbox)
+
+    @property
+    def cells(self) -> set[tuple[int, int]]:
+        return set(self._subs)
 
     def __len__(self) -> int:
         return len(self._subs)
@@ -226,16 +231,25 @@ class AgentHost:
 
     # --- the loop -----------------------------------------------------------------------------
     def run(self) -> None:
+        # One bell rung by poses, goal sets and auction messages: the loop sleeps until any arrives
+        # (auction rounds go on between ticks) or something is due.
+        bell = threading.Event()
+        for inbox in (self.pose_inbox, self.goal_inbox, self.auction.inbox):
+            inbox.bell = bell
         while self.running:
-            # While an auction is running its messages are handled between ticks too.
-            got = self.pose_inbox.get(timeout=0.005 if self.auction.busy else 0.2)
-            if self.auction.active:
+            bell.clear()
+            got = self.pose_inbox.get(timeout=0)
+            if self.auction.active or self.goal_inbox.has_delayed:
                 for _, msg in self.goal_inbox.drain():
                     self._on_goals(msg)
                 self.auction.poll(self._positions())
             if got is None:
                 if self.parent_pid is not None and os.getppid() != self.parent_pid:
                     self.running = False  # orphaned: the launcher died without stopping us
+                wait = min(0.2, self.auction.next_due()) if self.auction.active else 0.2
+                if self.pose_inbox.has_delayed:
+                    wait = min(wait, 0.005)
+                bell.wait(wait)
                 continue
             self._take_pose(got[1])
             # Collect the other robots' poses of this tick (they are published together).
@@ -305,6 +319,7 @@ class AgentHost:
                           *mem.color)
             self.bus.publish(self.keys.cmd(pose.robot), cmd)
         self.cells.update(position)
+        self.table.forget_outside(self.cells.cells, self.cell_size)
         self.ticks_done += 1
 
     def _detect_deadlocks(self, mems: list[RobotMemory], position: np.ndarray, pref: np.ndarray,

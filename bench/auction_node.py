@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import threading
 import time
 
 import numpy as np
@@ -51,9 +52,12 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.monotonic()
         link.on_goals(got[1], positions)
         rng = np.random.default_rng(robots[0])
+        bell = threading.Event()
+        link.inbox.bell = bell
         while not agreed_at and time.monotonic() < end:
+            bell.clear()
             link.poll(positions)
-            time.sleep(0.001)
+            bell.wait(min(0.2, link.next_due()))
         first = agreed_at[0] - t0 if agreed_at else None
         sent0, bytes0 = bus.sent["auction"], bus.sent_bytes["auction"]
         steady_end = time.monotonic() + args.steady
@@ -65,8 +69,9 @@ def main(argv: list[str] | None = None) -> int:
                 next_tick += 0.1
                 noisy = {r: p + rng.normal(0, 0.002, 2) for r, p in positions.items()}
                 link.on_tick(stamp, noisy)
+            bell.clear()
             link.poll(positions)
-            time.sleep(0.002)
+            bell.wait(min(link.next_due(), max(0.0, next_tick - time.monotonic())))
         bus.publish(bus.keys.event, Event({
             "kind": "auction-bench", "robots": robots, "first_agreement_s": first,
             "goals": {str(r): g for r, g in (link.part.agreed.items() if link.part else [])},

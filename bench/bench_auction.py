@@ -47,10 +47,10 @@ def run(n: int, per_process: int, steady: float, faults: str = "", seed: int = 1
         for robots in hosts:
             xy = ",".join(f"{v:.6f}" for v in positions[robots].ravel())
             cmd = [sys.executable, "-m", "bench.auction_node", "--robots", ",".join(map(str, robots)),
-                   "--positions", xy, "--steady", str(steady), *client_of(router).to_args()]
+                   f"--positions={xy}", "--steady", str(steady), *client_of(router).to_args()]
             if faults:
                 cmd += ["--faults", faults]
-            procs.append(subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True))
+            procs.append(subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, text=True))
         try:
             seen: set[str] = set()
             end = time.monotonic() + 120

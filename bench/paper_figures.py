@@ -295,7 +295,7 @@ def plot_fig14(s: Summary, path: Path) -> None:
     for j, (e, st) in enumerate(zip(eps_list, stats)):
         pos = np.arange(k) + (j - (len(eps_list) - 1) / 2) * width
         ax.bar(pos, st["exec"].mean(axis=0), width, yerr=st["exec"].std(axis=0), capsize=2, label=f"{e:g} m²")
-    ax.set_xticks(range(k), [label.replace(" -> ", "\n-> ") for label in s.labels], fontsize=8)
+    ax.set_xticks(range(k), s.labels, fontsize=8, rotation=20, ha="right")
     ax.set_ylabel("time to converge (s), mean ± std")
     ax.legend(title="epsilon_A", fontsize=8)
     ax.set_title("(b') execution time per transition", fontsize=10)
@@ -321,15 +321,17 @@ def plot_fig14(s: Summary, path: Path) -> None:
 def plot_fig15(s: Summary, path: Path) -> None:
     k, seed = s.fig15
     eps_pair = (max(s.runs), min(s.runs))
-    fig = _figure((13, 6.3))
+    fig = _figure((11, 6.5))
     from matplotlib import colormaps
 
     cmap = colormaps["tab20"]
+    first = None
     for j, eps in enumerate(eps_pair):
         run = next(r for r in s.runs[eps] if r.seed == seed)
         assert run.xy is not None and run.step is not None
         xy = run.xy[run.step == k]
-        ax = fig.add_subplot(1, 2, j + 1)
+        ax = fig.add_subplot(1, 2, j + 1, sharex=first, sharey=first)
+        first = first or ax
         for i in range(xy.shape[1]):
             ax.plot(xy[:, i, 0], xy[:, i, 1], color=cmap(i % 20), lw=1.2)
             ax.plot(*xy[0, i], "o", color=cmap(i % 20), ms=5, mfc="none")
@@ -345,7 +347,7 @@ def plot_fig15(s: Summary, path: Path) -> None:
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
     fig.suptitle(f"Fig. 15: trajectories of the 14 robots, transition {s.labels[k]} (seed {seed}); "
-                 f"o start, ● end, x goals; {ENGINE_NOTE}", fontsize=10)
+                 f"o start, ● end, x goals\n{ENGINE_NOTE}", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
@@ -374,7 +376,8 @@ def results_lines(s: Summary, hysteresis: float) -> list[str]:
            f"actuation noise). The goal auction re-runs every 0.1 s iteration warm-started, Delta C = "
            f"{hysteresis:g} m²; cold start (epsilon scaling) at each image change. Total wall time "
            f"{s.wall_s / 60:.1f} min; load average {os.getloadavg()[0]:.2f} at the end (2-core machine shared with "
-           "other work: wall times of the auction are inflated accordingly, its CPU time is given beside).", "",
+           "other work: the auction's thread CPU time is given beside its wall time, as a load-insensitive "
+           "check).", "",
            f"### Fig. 13: path length at epsilon_A = {FIG13_EPS:g} m² (`docs/fig13_path_length.png`)", "",
            "| transition | summed path length (m), mean ± std | min | max |", "|---|---:|---:|---:|"]
     for label, col in zip(s.labels, per_step.T):

@@ -2,8 +2,6 @@
 3 short steps), into a temporary directory."""
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 
@@ -11,11 +9,10 @@ from agent.core.params import EPUCK
 from bench import paper_figures
 
 
-@pytest.mark.timeout(120)
+# About 15 s on an idle 2-core machine; the timeout leaves room for a loaded one (no wall-time assertion).
+@pytest.mark.timeout(300)
 def test_quick_reproduction_writes_sane_figures(tmp_path):
-    t0 = time.monotonic()
     summary = paper_figures.main(["--quick", "--out", str(tmp_path)])
-    assert time.monotonic() - t0 < 60
 
     for name in ("fig13_path_length.png", "fig14_epsilon.png", "fig15_trajectories.png"):
         png = tmp_path / name

@@ -52,6 +52,7 @@ class Inbox:
         self._lock = threading.Lock()
         self._rng = random.Random(seed)
         self.subscriber: Any = None
+        self.bell: threading.Event | None = None  # rung on every arrival: one wait serves several inboxes
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         payload = sample.payload.to_bytes()
@@ -63,6 +64,8 @@ class Inbox:
         key = str(sample.key_expr)
         if self.fault is _NO_FAULT or not self.fault.active:
             self._queue.put((key, msg))
+            if self.bell is not None:
+                self.bell.set()
             return
         with self._lock:
             if self._rng.random() < self.fault.drop:
@@ -80,6 +83,11 @@ class Inbox:
                 _, _, key, msg = heapq.heappop(self._delayed)
                 self._queue.put((key, msg))
 
+    @property
+    def has_delayed(self) -> bool:
+        """Messages held back by an injected delay (their owner must poll: no bell rings for them)."""
+        return bool(self._delayed)
+
     def drain(self) -> list[tuple[str, Message]]:
         """Every message that has arrived (and whose injected delay has passed), oldest first."""
         self._release_delayed()
@@ -90,6 +98,10 @@ class Inbox:
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
             self._release_delayed()
+            try:
+                return self._queue.get_nowait()
+            except queue.Empty:
+                pass
             wait = 0.005 if self._delayed else None
             if deadline is not None:
                 remaining = deadline - time.monotonic()
