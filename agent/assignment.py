@@ -3,10 +3,12 @@ zenoh. One message per host carries all its robots' records, so an agent host of
 swarm what one robot does.
 
 When to publish: at once when an own claim changed (a bid or a release); when only the board changed
-(others need our digest to see agreement), once the board has been quiet for QUIET seconds (while
-bids fly, digests would only be stale) and at most every DIGEST_EVERY seconds; and again every
-RESEND_BUSY seconds while an instance is open (a lost message costs one resend), RESEND_IDLE when
-agreed (late joiners and lost final records).
+(others need our digest to see agreement) and nobody seems to be bidding any more (no storms of
+digests that are stale at once), or when a message arrived written against another board
+than ours (one of us missed something: answering lets the other catch up, so a lost message costs a
+round trip, not a timeout), once the board has been quiet for QUIET seconds (while bids fly, digests
+would only be stale) and at most every DIGEST_EVERY seconds; and as a backstop every RESEND_BUSY
+seconds while an instance is open, RESEND_IDLE when agreed (late joiners).
 """
 from __future__ import annotations
 
@@ -23,7 +25,7 @@ from .core.params import RobotParams
 
 DIGEST_EVERY = 0.01
 QUIET = 0.02  # digest-only news waits until the board has not changed for this long (no storms)
-RESEND_BUSY = 0.1
+RESEND_BUSY = 0.5
 RESEND_IDLE = 1.0
 
 OnAgreed = Callable[[int, int, dict[int, int], np.ndarray, np.ndarray], None]
@@ -52,6 +54,7 @@ class AuctionLink:
         self.instance_stamp = -np.inf  # display time the current instance started
         self.reported = -1  # the last agreed instance handed to on_agreed
         self.board_changed = 0.0  # monotonic time of the last change of the board
+        self.mismatch = False  # a message of this instance came from a host with another board
         self.epoch_wall = 0.0
         self.sent = self.received = self.agreements = self.penalties = 0
         self.first_agreement_s: list[float] = []  # per goal set: wall time from its arrival to agreement
@@ -118,7 +121,7 @@ class AuctionLink:
         due = self.last_sent + (RESEND_IDLE if part.is_agreed else RESEND_BUSY)
         if part.claims_changed:
             return 0.0
-        if part.has_news:
+        if (part.has_news or self.mismatch) and part.view_complete():
             due = min(due, max(self.last_sent + DIGEST_EVERY, self.board_changed + QUIET))
         return max(0.0, due - now)
 
@@ -136,6 +139,8 @@ class AuctionLink:
                 part.begin(msg.instance, positions)
             if part.absorb(msg.instance, msg.serial, msg.digest, from_items(msg.records)):
                 self.board_changed = time.monotonic()
+            if msg.instance == part.instance and msg.digest != part.board.digest():
+                self.mismatch = True
         if part is None or not part.started:
             return
         self._settle()
@@ -164,6 +169,7 @@ class AuctionLink:
     def _publish(self) -> None:
         part = self.part
         digest, records = part.outgoing()
+        self.mismatch = False
         self.serial += 1
         items = to_items(records)
         self.bus.publish(self.bus.keys.auction(part.epoch, self.sender),

@@ -262,14 +262,13 @@ class Participant:
                 self.heard[rec.robot] = Heard(instance, serial, rec, digest)
         return changed
 
-    def check_agreement(self) -> bool:
-        """True (once per instance) when this host sees instance k agreed; sets ``agreed``. An agreed
-        phase of the cold start only moves on to the next phase."""
-        if not self.started or self.is_agreed:
+    def _settled_view(self, same_board: bool) -> bool:
+        """Every robot content on a distinct goal, as far as this host knows: own robots now, the
+        others by their newest records of this instance, which still hold on our board (and, with
+        ``same_board``, were written against a board with our digest)."""
+        if not self.started or not self._content_all().all():
             return False
-        if not self._content_all().all():
-            return False
-        digest = self.board.digest()
+        digest = self.board.digest() if same_board else None
         taken = {self.goal[r] for r in self.own}
         if len(taken) < len(self.own):
             return False
@@ -277,13 +276,25 @@ class Participant:
             if r in self.goal:
                 continue
             h = self.heard.get(r)
-            if h is None or h.instance != self.instance or h.digest != digest:
+            if h is None or h.instance != self.instance or (same_board and h.digest != digest):
                 return False
             rec = h.record
             if not (rec.flags & CONTENT) or rec.goal in taken or not self.board.holds(r, rec.goal) \
                     or self.board.price[rec.goal] != rec.price:
                 return False
             taken.add(rec.goal)
+        return True
+
+    def view_complete(self) -> bool:
+        """Nobody is bidding as far as we know: the moment to tell others our board's digest (earlier,
+        while bids fly, digests would be stale at once)."""
+        return self._settled_view(same_board=False)
+
+    def check_agreement(self) -> bool:
+        """True (once per instance) when this host sees instance k agreed; sets ``agreed``. An agreed
+        phase of the cold start only moves on to the next phase."""
+        if self.is_agreed or not self._settled_view(same_board=True):
+            return False
         if self.instance < self.phases - 1:  # a cold-start phase: go on with a smaller epsilon
             self.begin(self.instance + 1, self.position)
             return False
