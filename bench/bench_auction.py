@@ -112,6 +112,8 @@ def main() -> None:
     notes = ["", f"With 10% loss and 50 ms delay on auction messages (N = 14 processes): agreement in "
              f"{lossy['agreement_s']:.2f} s, one-to-one {lossy['one_to_one']}, cost / optimum "
              f"{lossy['cost_ratio']:.5f}.", "",
+             "nan: not every host saw an agreement within the hosts' 60 s limit (agreed goals, when any, are "
+             "those reported at the end of the steady phase).",
              "Time to agreement: from the goal set's arrival at a host to its first agreed instance (after "
              "the epsilon-scaling phases of the cold start), slowest host. Steady state: one instance per "
              "0.1 s (paper 5.1: re-assign every iteration) on positions with 2 mm noise. Targets: 1 s at "

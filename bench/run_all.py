@@ -12,8 +12,9 @@ from pathlib import Path
 
 from .common import REPO, RESULTS
 
-BENCHES = ["bench.bench_world", "bench.bench_goals", "bench.bench_orca", "bench.bench_runtime"]
-ORDER = ["runtime", "world", "orca", "goals"]
+BENCHES = ["bench.bench_world", "bench.bench_goals", "bench.bench_orca", "bench.bench_runtime", "bench.bench_auction",
+           "bench.paper_figures"]
+ORDER = ["runtime", "auction", "world", "orca", "goals", "paper_figures"]
 
 
 def assemble() -> Path:

@@ -90,17 +90,17 @@ robots = 100
 seed = 4
 [robot]
 kinematics = "holonomic"
-v_max = 0.5
-v_pref = 0.45
+v_max = 0.8
+v_pref = 0.7
 [layout]
 kind = "grid"
 spacing = 0.3
 [[steps]]
 shape = "disk"
-hold = 35.0
+hold = 25.0
 [[steps]]
 shape = "disk_and_line"
-hold = 35.0
+hold = 25.0
 """
 
 
