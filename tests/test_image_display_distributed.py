@@ -90,17 +90,17 @@ robots = 100
 seed = 4
 [robot]
 kinematics = "holonomic"
-v_max = 0.8
-v_pref = 0.7
+v_max = 0.5
+v_pref = 0.45
 [layout]
 kind = "grid"
 spacing = 0.3
 [[steps]]
 shape = "disk"
-hold = 25.0
+hold = 20.0
 [[steps]]
 shape = "disk_and_line"
-hold = 25.0
+hold = 33.0
 """
 
 
