@@ -100,7 +100,7 @@ shape = "disk"
 hold = 20.0
 [[steps]]
 shape = "disk_and_line"
-hold = 33.0
+hold = 45.0
 """
 
 

@@ -52,6 +52,23 @@ def start_run(spawned: list, scene: Path, out: Path, *extra: str) -> tuple[subpr
     return proc, agents or []
 
 
+def wait_until_alive(agent: psutil.Process, robot: int, timeout: float = 60.0) -> None:
+    """Join the run's router (the endpoint the agent was given) and wait for the robot's token."""
+    from transport.bus import Bus
+    from transport.session import ZenohSettings
+
+    cmd = agent.cmdline()
+    endpoint = cmd[cmd.index("-e") + 1]
+    with Bus(ZenohSettings(mode="client", connect=[endpoint]), "default", name="test") as bus:
+        watch = bus.watch_alive("agent")
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if any(ident == str(robot) and up for _, ident, up, _ in watch.drain()):
+                return
+            time.sleep(0.05)
+    raise AssertionError(f"robot {robot}'s agent never came alive")
+
+
 def robots_of(agent: psutil.Process) -> list[int]:
     cmd = agent.cmdline()
     return json.loads(Path(cmd[cmd.index("--config") + 1]).read_text())["robots"]
@@ -98,9 +115,10 @@ def test_sigkill_of_an_agent(tmp_path, spawned):
     out = tmp_path / "run"
     proc, agents = start_run(spawned, scene, out)
     everyone = [p.pid for p in descendants(proc.pid)]
-    time.sleep(2.0)  # mid-run
     victim = agents[3]
     robot = robots_of(victim)[0]
+    wait_until_alive(victim, robot)  # mid-run: its liveliness token is on the router
+    time.sleep(1.0)
     killed_at = time.time()
     victim.send_signal(signal.SIGKILL)
     _, stderr = proc.communicate(timeout=120)
