@@ -131,6 +131,7 @@ class AuctionLink:
         arrived = self.inbox.drain()
         if not arrived and part is not None and part.started and self.next_due() > 0:
             return  # nothing new, nothing due
+        theirs: set[int] = set()  # digests of this instance's messages, compared once below
         for _, msg in arrived:
             self.received += 1
             if part is None or msg.epoch != part.epoch or not self._try_start(positions):
@@ -139,10 +140,11 @@ class AuctionLink:
                 part.begin(msg.instance, positions)
             if part.absorb(msg.instance, msg.serial, msg.digest, from_items(msg.records)):
                 self.board_changed = time.monotonic()
-            if msg.instance == part.instance and msg.digest != part.board.digest():
-                self.mismatch = True
+            if msg.instance == part.instance:
+                theirs.add(msg.digest)
         if part is None or not part.started:
             return
+        self.mismatch |= bool(theirs - {part.board.digest()})
         self._settle()
         if part.claims_changed:
             self.board_changed = time.monotonic()
