@@ -109,6 +109,22 @@ def _snap_inside(gen: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple[n
     return out, len(out_idx)
 
 
+def _check_init(init: Mapping[int, np.ndarray] | None, counts: np.ndarray) -> dict[int, np.ndarray]:
+    """The caller's initial samples per region id, checked: N_i finite (x, y) pixel positions each."""
+    out: dict[int, np.ndarray] = {}
+    for rid, pts in (init or {}).items():
+        if not 0 <= int(rid) < len(counts):
+            raise GoalError(f"initial samples name region {rid}, but the image has regions 0..{len(counts) - 1}")
+        a = np.asarray(pts, dtype=float)
+        if a.ndim != 2 or a.shape[1] != 2 or len(a) != counts[int(rid)] or not np.isfinite(a).all():
+            raise GoalError(f"region {rid} needs {int(counts[int(rid)])} finite initial samples (x, y), "
+                            f"got an array of shape {a.shape}")
+        if len(np.unique(a, axis=0)) < len(a):  # two generators on one point would stay together
+            raise GoalError(f"initial samples of region {rid} coincide")
+        out[int(rid)] = a
+    return out
+
+
 def _sum_histories(histories: list[list[float]]) -> list[float]:
     """Total cost per iteration; a region that has converged keeps its last cost."""
     histories = [h for h in histories if h]
@@ -140,14 +156,18 @@ def _check_args(n: Any, method: str, seed: Any, arena: float | None, robot_radiu
 def goals_from_prepared(prep: PreparedImage, n: int, *, arena: float | None = None, method: str = "cvt",
                         seed: int = 0, robot_radius: float = DEFAULT_ROBOT_RADIUS,
                         region_counts: Mapping[int, int] | None = None, conservative: bool = False,
-                        tol: float = TOLERANCE, max_iter: int = MAX_ITER, relax: float = RELAX) -> GoalSet:
+                        tol: float = TOLERANCE, max_iter: int = MAX_ITER, relax: float = RELAX,
+                        init: Mapping[int, np.ndarray] | None = None) -> GoalSet:
     """N goals for a prepared image; see generate_goals."""
     _check_args(n, method, seed, arena, robot_radius, tol, max_iter, relax)
     seg, scale = prep.seg, prep.scale
     counts, notes = allocate_robots([r.area for r in seg.regions], int(n), region_counts)
     notes = list(seg.notes) + notes
+    given = _check_init(init, counts)
+    if given:
+        notes.append(f"initial samples of region(s) {', '.join(map(str, sorted(given)))} given by the caller")
     goals, regions, histories, ks_used = [], [], [], {}
-    snapped = 0
+    snapped = snapped_init = 0
     for region, n_i in zip(seg.regions, counts):
         if n_i == 0:
             continue
@@ -155,19 +175,28 @@ def goals_from_prepared(prep: PreparedImage, n: int, *, arena: float | None = No
             raise GoalError(f"region {region.id} has {region.area} pixels, too few for {n_i} goals: "
                             "use a larger image or fewer robots")
         rows, cols = seg.pixels(region.id)
-        rng = np.random.default_rng([int(seed), region.id])
-        init, ks = poisson_samples(rows, cols, int(n_i), rng)
-        if ks < ks_distance(region.area, int(n_i)) * (1 - 1e-9):
-            notes.append(f"region {region.id} is too thin for K_s: initial samples used K_s "
-                         f"{ks / ks_distance(region.area, int(n_i)):.2f} x 1.2 sqrt(A_i/(pi N_i))")
-        ks_used[region.id] = ks / scale
+        if region.id in given:
+            # a caller's start (e.g. the previous keyframe's goals, paper 6.1): generators outside R_i
+            # could sit outside the Lloyd domain with an empty cell for ever, so they start inside
+            start, moved = _snap_inside(given[region.id], rows, cols)
+            snapped_init += moved
+            ks_used[region.id] = ks_distance(region.area, int(n_i)) / scale
+        else:
+            rng = np.random.default_rng([int(seed), region.id])
+            start, ks = poisson_samples(rows, cols, int(n_i), rng)
+            ks_used[region.id] = ks / scale
+            if ks < ks_distance(region.area, int(n_i)) * (1 - 1e-9):
+                notes.append(f"region {region.id} is too thin for K_s: initial samples used K_s "
+                             f"{ks / ks_distance(region.area, int(n_i)):.2f} x 1.2 sqrt(A_i/(pi N_i))")
         domain = density_domain(rows, cols) if method == "cvt" else binary_domain(rows, cols)
-        gen, hist = lloyd(domain, init, scale, tol=tol, max_iter=max_iter, relax=relax)
+        gen, hist = lloyd(domain, start, scale, tol=tol, max_iter=max_iter, relax=relax)
         gen, moved = _snap_inside(gen, rows, cols)
         snapped += moved
         goals.append(gen)
         regions.append(np.full(len(gen), region.id))
         histories.append(hist)
+    if snapped_init:
+        notes.append(f"{snapped_init} given initial sample(s) lay outside their region and were moved into it")
     if snapped:
         notes.append(f"{snapped} goal(s) ended in a concavity or hole and were moved into their region")
     goals_px = np.concatenate(goals)
@@ -207,7 +236,7 @@ def generate_goals(image_or_path: str | os.PathLike[str] | np.ndarray, n: int, *
                    robot_radius: float = DEFAULT_ROBOT_RADIUS, background: Any = None,
                    region_counts: Mapping[int, int] | None = None, conservative: bool = False,
                    tol: float = TOLERANCE, max_iter: int = MAX_ITER, relax: float = RELAX,
-                   min_area: int | None = None) -> GoalSet:
+                   min_area: int | None = None, init: Mapping[int, np.ndarray] | None = None) -> GoalSet:
     """N goal positions and colours that represent an image (paper section 4).
 
     image_or_path: a PNG/JPEG/BMP/TIFF path, or an RGB, RGBA or gray array (row 0 at the top).
@@ -218,9 +247,12 @@ def generate_goals(image_or_path: str | os.PathLike[str] | np.ndarray, n: int, *
     region_counts: the artist's N_i per region id (ids: regions by area, largest first).
     conservative: with an explicit arena, require 2 K_r rather than K_r.
     tol, max_iter, relax: Lloyd stopping rule and over-relaxation (relax=1: plain Lloyd), see cvt.lloyd.
+    init: initial samples {region id: (N_i, 2) pixel positions (x, y)} that replace the random ones of
+      section 4.2 for those regions (paper 6.1: the previous keyframe's goals, moved); samples outside
+      R_i are first moved to its nearest free pixel.
     Raises GoalError (a ValueError with a one-line message) on bad input.
     """
     prep = prepare_image(image_or_path, background=background, min_area=min_area)
     return goals_from_prepared(prep, n, arena=arena, method=method, seed=seed,
                                robot_radius=robot_radius, region_counts=region_counts,
-                               conservative=conservative, tol=tol, max_iter=max_iter, relax=relax)
+                               conservative=conservative, tol=tol, max_iter=max_iter, relax=relax, init=init)

@@ -1,0 +1,213 @@
+"""Keyframe drawings for the animations pixelswarm ships (paper 6 and 7.3), drawn procedurally.
+
+- "leaf": a leaf on a branch that grows in spring, withers in fall (turning yellow, then brown,
+  shrinking and curling) and is blown from the branch in winter (falling and turning), the paper's
+  1000-robot animation;
+- "story": the paper's 14-robot story (Fig. 16): a walking human (three poses), a heap, then a flower
+  circled by a bee;
+- "triangle": a triangle that rotates and grows.
+
+Like coordinator.shapes, drawings live in the unit square (x right, y down), parts are painted in order
+(later parts cover earlier ones) with crisp pixel-centre edges on a white background, and every
+keyframe is an (H, W, 3) uint8 RGB array. Colours of touching parts differ by far more than the
+segmentation's colour tolerance, so each part is its own region R_i in every keyframe.
+"""
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import Callable
+
+import cv2
+import numpy as np
+
+from .shapes import RED, RGB, WHITE, Inside, _coverage, _disk, _union
+
+SIZE = 256  # default canvas side in pixels
+
+# leaf colours from spring to winter; the branch is a cool dark grey, far from every leaf colour
+BRANCH: RGB = (75, 78, 90)
+LEAF_GREENS: tuple[RGB, ...] = ((110, 190, 70), (70, 170, 60), (50, 150, 50), (40, 140, 45))
+LEAF_FALL: tuple[RGB, ...] = ((150, 175, 50), (220, 190, 45), (215, 135, 40), (160, 90, 40))
+HUMAN: RGB = (30, 80, 200)
+STEM: RGB = (40, 150, 60)
+PETAL: RGB = RED
+FLOWER_CENTRE: RGB = (245, 215, 50)
+BEE: RGB = (120, 60, 170)  # violet: far from the petals, the centre and the stem
+
+Part = tuple[Inside, RGB]
+
+
+def paint(parts: list[Part], size: int = SIZE, background: RGB = WHITE) -> np.ndarray:
+    """Paint the parts in order (later ones on top) on a size x size canvas; crisp pixel edges."""
+    img = np.empty((size, size, 3), np.uint8)
+    img[:] = background
+    for inside, colour in parts:
+        img[_coverage(inside, size, 1) > 0.5] = colour
+    return img
+
+
+def capsule(a: tuple[float, float], b: tuple[float, float], r: float) -> Inside:
+    """Points within r of the segment ab: a limb, a stem or a branch."""
+    ax, ay = a
+    dx, dy = b[0] - ax, b[1] - ay
+    length2 = max(dx * dx + dy * dy, 1e-12)
+
+    def inside(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        t = np.clip(((x - ax) * dx + (y - ay) * dy) / length2, 0.0, 1.0)
+        return (x - ax - t * dx) ** 2 + (y - ay - t * dy) ** 2 < r * r
+    return inside
+
+
+def ellipse(cx: float, cy: float, a: float, b: float, angle: float = 0.0) -> Inside:
+    """An ellipse with semi-axes a (along `angle`, radians, y down) and b."""
+    c, s = math.cos(angle), math.sin(angle)
+
+    def inside(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        u, v = (x - cx) * c + (y - cy) * s, -(x - cx) * s + (y - cy) * c
+        return (u / a) ** 2 + (v / b) ** 2 < 1.0
+    return inside
+
+
+def polygon(points: list[tuple[float, float]]) -> Inside:
+    """A convex polygon (vertices in order)."""
+    p = np.asarray(points, float)
+    q = np.roll(p, -1, axis=0)
+    sign = np.sign(np.sum(p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1]))
+
+    def inside(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        out = np.ones(np.shape(x), bool)
+        for (x0, y0), (x1, y1) in zip(p, q):
+            out &= sign * ((x1 - x0) * (y - y0) - (y1 - y0) * (x - x0)) > 0
+        return out
+    return inside
+
+
+def leaf(anchor: tuple[float, float], angle: float, length: float, *, bend: float = 0.0,
+         wilt: float = 0.0) -> Inside:
+    """A leaf whose stalk (petiole) starts at `anchor` and whose midrib points along `angle` (radians,
+    y down). The blade is widest near its base and pointed at the tip, so its outline has no symmetry
+    that would make its rotation ambiguous. bend curls the midrib sideways (fall), wilt narrows one
+    half of the blade (0: fresh, 1: gone)."""
+    c, s = math.cos(angle), math.sin(angle)
+    stalk = 0.16  # petiole length, in leaf lengths
+
+    def inside(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        dx, dy = (x - anchor[0]) / length, (y - anchor[1]) / length
+        u = dx * c + dy * s - stalk  # along the midrib, blade from 0 to 1
+        v = -dx * s + dy * c
+        v = v - bend * np.clip(u, 0.0, None) ** 2  # curled midrib
+        uc = np.clip(u, 0.0, 1.0)
+        half = 0.62 * uc ** 0.55 * (1.0 - uc) ** 1.1  # half-width of the blade
+        half = np.where(v > 0, half * (1.0 - wilt), half)
+        blade = (u >= 0) & (u <= 1) & (np.abs(v) < half)
+        petiole = (u >= -stalk) & (u < 0.05) & (np.abs(v) < 0.035)
+        return blade | petiole
+    return inside
+
+
+# the leaf animation, per keyframe: (size, colour, bend, wilt, None while on the branch, else the blade
+# centre (x, y) and the turn (degrees) since it was blown off)
+_LeafFrame = tuple[float, RGB, float, float, "tuple[float, float, float] | None"]
+_LEAF_FRAMES: tuple[_LeafFrame, ...] = (
+    (0.50, LEAF_GREENS[0], 0.0, 0.0, None),  # spring: a young leaf grows
+    (0.66, LEAF_GREENS[1], 0.0, 0.0, None),
+    (0.83, LEAF_GREENS[2], 0.0, 0.0, None),
+    (1.00, LEAF_GREENS[3], 0.0, 0.0, None),
+    (1.00, LEAF_FALL[0], 0.15, 0.05, None),  # fall: it yellows, curls and shrinks
+    (0.95, LEAF_FALL[1], 0.30, 0.15, None),
+    (0.90, LEAF_FALL[2], 0.45, 0.25, None),
+    (0.85, LEAF_FALL[3], 0.55, 0.30, None),
+    (0.85, LEAF_FALL[3], 0.55, 0.30, (0.58, 0.48, 40.0)),  # winter: blown off, it falls and turns
+    (0.85, LEAF_FALL[3], 0.55, 0.30, (0.62, 0.62, 85.0)),
+    (0.85, LEAF_FALL[3], 0.55, 0.30, (0.55, 0.74, 130.0)),
+)
+_ANCHOR = (0.36, 0.165)  # where the stalk meets the branch
+_LEAF_ANGLE = math.radians(50.0)  # the grown leaf hangs down and to the right
+_LEAF_LENGTH = 0.55
+_BLADE_CENTRE = 0.16 + 0.45  # from the stalk's end to the blade's middle, in leaf lengths
+
+
+def leaf_frame(k: int, size: int = SIZE) -> np.ndarray:
+    """Keyframe k of the leaf animation (0 <= k < 11)."""
+    scale, colour, bend, wilt, falling = _LEAF_FRAMES[k]
+    length, angle, anchor = _LEAF_LENGTH * scale, _LEAF_ANGLE, _ANCHOR
+    if falling is not None:  # turn about the blade's middle, which follows the falling path
+        cx, cy, turn = falling
+        angle += math.radians(turn)
+        reach = _BLADE_CENTRE * length
+        anchor = (cx - reach * math.cos(angle), cy - reach * math.sin(angle))
+    blade = leaf(anchor, angle, length, bend=bend, wilt=wilt)
+    branch = capsule((0.10, 0.185), (0.82, 0.115), 0.017)
+    return paint([(blade, colour), (branch, BRANCH)], size)
+
+
+def walker(x: float, phase: float) -> list[Part]:
+    """A walking human at horizontal position x; phase in [-1, 1] swings the legs and arms."""
+    head = _disk(x, 0.19, 0.065)
+    hip, neck, shoulder = (x, 0.55), (x, 0.26), (x, 0.31)
+    step, swing = 0.13 * phase, 0.10 * phase
+    limbs = [capsule(neck, hip, 0.042),
+             capsule(hip, (x + step, 0.86), 0.032), capsule(hip, (x - step, 0.86), 0.032),
+             capsule(shoulder, (x - swing, 0.56), 0.026), capsule(shoulder, (x + swing, 0.56), 0.026)]
+    return [(_union(head, *limbs), HUMAN)]
+
+
+def heap() -> list[Part]:
+    """The human fallen into a heap: a lumpy mound on the ground."""
+    ground = 0.86
+    lumps = _union(_disk(0.42, 0.80, 0.11), _disk(0.56, 0.77, 0.13), _disk(0.70, 0.81, 0.09))
+    return [(lambda x, y: lumps(x, y) & (y < ground), HUMAN)]
+
+
+def flower(bee_angle: float | None) -> list[Part]:
+    """A flower (stem with a leaf, petals, centre) and a bee at `bee_angle` (radians, y down) on a
+    circle round the flower head, its body along the circle as if flying round it."""
+    cx, cy = 0.5, 0.40
+    stem = _union(capsule((cx, 0.88), (cx, cy), 0.022), ellipse(0.59, 0.70, 0.09, 0.035, math.radians(-30)))
+    petals = _union(*(_disk(cx + 0.10 * math.cos(a), cy + 0.10 * math.sin(a), 0.068)
+                      for a in np.linspace(0, 2 * math.pi, 6, endpoint=False) + math.pi / 2))
+    parts: list[Part] = [(stem, STEM), (petals, PETAL), (_disk(cx, cy, 0.06), FLOWER_CENTRE)]
+    if bee_angle is not None:
+        bx, by = cx + 0.33 * math.cos(bee_angle), cy + 0.30 * math.sin(bee_angle)
+        parts.append((ellipse(bx, by, 0.045, 0.028, bee_angle + math.pi / 2), BEE))
+    return parts
+
+
+def triangle(angle: float, radius: float, centre: tuple[float, float] = (0.5, 0.5)) -> list[Part]:
+    """An equilateral triangle with circumradius `radius`, turned by `angle` (radians, y down)."""
+    pts = [(centre[0] + radius * math.cos(angle + a), centre[1] + radius * math.sin(angle + a))
+           for a in (-math.pi / 2, math.pi / 6, 5 * math.pi / 6)]
+    return [(polygon(pts), RED)]
+
+
+_BEE_ANGLES = (-0.15, -1.6, -3.0)  # the bee flies round the flower head, right to top to left
+_ANIMATIONS: dict[str, Callable[[int], list[np.ndarray]]] = {
+    "leaf": lambda size: [leaf_frame(k, size) for k in range(len(_LEAF_FRAMES))],
+    "story": lambda size: [paint(walker(0.36 + 0.09 * k, p), size) for k, p in enumerate((1.0, 0.15, -1.0))]
+    + [paint(heap(), size)] + [paint(flower(a), size) for a in _BEE_ANGLES],
+    "triangle": lambda size: [paint(triangle(math.radians(20 * k), 0.16 + 0.035 * k), size) for k in range(7)],
+}
+KEYFRAME_ANIMATIONS = tuple(_ANIMATIONS)
+
+
+def keyframes(name: str, size: int = SIZE) -> list[np.ndarray]:
+    """The keyframes I_1..I_F of animation `name` (one of KEYFRAME_ANIMATIONS), RGB uint8 arrays."""
+    if name not in _ANIMATIONS:
+        raise ValueError(f"unknown animation {name!r}; choose from {', '.join(KEYFRAME_ANIMATIONS)}")
+    return _ANIMATIONS[name](size)
+
+
+def write_keyframe_folder(name: str, folder: str | os.PathLike[str], size: int = SIZE) -> list[Path]:
+    """Write the keyframes of `name` as 000.png, 001.png, ... into `folder` (created if missing);
+    keyframe folders are played in file-name order. Returns the paths written."""
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for k, img in enumerate(keyframes(name, size)):
+        path = out / f"{k:03d}.png"
+        if not cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR)):
+            raise OSError(f"cannot write {path}")
+        paths.append(path)
+    return paths

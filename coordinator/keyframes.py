@@ -1,0 +1,272 @@
+"""Goal generation for animations (paper 6.1): one goal set G_f per keyframe I_f, f = 1..N_F.
+
+"In parts of the animation where the number of regions remains constant and there is sufficient
+correlation, the goal positions computed for region R_i in the previous frame G_{f-1} serve to
+initialize the computation of the goal positions of region R_i in the current frame G_f." Here:
+
+1. Correspondence: the regions of I_f and I_{f-1} are paired by an optimal assignment (scipy's
+   linear_sum_assignment) on a cost that adds their colour difference (Delta E in Lab), centroid
+   distance and area ratio. Colour alone would fail for a leaf that turns from green to brown, position
+   alone for shapes that cross, so each term only needs to be roughly right.
+2. Motion: the translation T_i^f is the difference of the region centroids; the rotation M_i^f comes
+   from the region border (Canny edges), see keyframe_motion.estimate_motion.
+3. Initial samples: G_{f-1} of R_i, moved by T_i^f and M_i^f (and scaled with the area per goal when
+   `scale_init`), then thinned or filled to this frame's N_i, start the Lloyd iterations (section 4.3).
+   A region whose border correlation is below `min_correlation`, and every region of a frame whose
+   region count differs from the previous frame's, starts from fresh random samples (section 4.2).
+
+All frames share one arena K_r (the largest conservative arena any frame needs), so the frames line up
+and one metre is the same number of pixels in every frame, as coordinator.steps does for image steps.
+"""
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.spatial.distance import cdist
+
+from .goals import DEFAULT_ROBOT_RADIUS, GoalError, GoalSet, PreparedImage, goals_from_prepared, prepare_image
+from .goals.allocate import allocate_robots
+from .goals.family import _rescale
+from .goals.resize import from_arena
+from .keyframe_motion import MIN_CORRELATION, RegionShape, estimate_motion, fit_count, region_shape
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+# scales of the correspondence cost: a Delta E of 25, a shift of a quarter of the image and an area
+# ratio of 2 each cost 1
+COLOR_SCALE, SHIFT_SCALE, AREA_SCALE = 25.0, 0.25, float(np.log(2.0))
+
+ImageLike = np.ndarray | str | os.PathLike[str]
+
+
+@dataclass
+class RegionMotion:
+    """How region R_i of frame f relates to its region in frame f-1 (paper 6.1)."""
+
+    region: int  # R_i in frame f
+    previous: int  # the corresponding region of frame f-1
+    translation: tuple[float, float]  # T_i^f: centroid shift in metres (arena frame, y up)
+    rotation: float  # M_i^f: turn in radians, counter-clockwise as seen
+    scale: float  # sqrt of the area ratio A_f / A_{f-1}
+    correlation: float  # match of the border features at the estimated rotation, -1..1
+    initialised: bool  # G_{f-1} of this region started the Lloyd iterations
+
+
+@dataclass
+class FrameReport:
+    """How frame f's goals were found: mode "first", "previous" (every region from G_{f-1}),
+    "partial" (some) or "fresh" (none, with the reason)."""
+
+    frame: int
+    mode: str
+    reason: str
+    regions: list[RegionMotion] = field(default_factory=list)
+    iterations: int = 0
+    seconds: float = 0.0
+
+
+@dataclass
+class KeyframeGoals:
+    """Goal sets G_1..G_F of an animation in one arena, with a report per frame."""
+
+    sets: list[GoalSet]
+    reports: list[FrameReport]
+    image_size: tuple[int, int]  # (width, height) in pixels
+
+    @property
+    def goals(self) -> np.ndarray:
+        """(F, N, 2) goal positions in metres (arena frame: origin at the centre, y up)."""
+        return np.stack([s.goals for s in self.sets])
+
+    @property
+    def colors(self) -> np.ndarray:
+        """(F, N, 3) uint8 RGB goal colours."""
+        return np.stack([s.colors for s in self.sets])
+
+    @property
+    def regions(self) -> np.ndarray:
+        """(F, N) region id of each goal in its own frame's segmentation."""
+        return np.stack([s.regions for s in self.sets])
+
+    @property
+    def arena(self) -> float:
+        """K_r, the common side of the arena in metres."""
+        return self.sets[0].arena
+
+    @property
+    def metres_per_pixel(self) -> float:
+        """The common scale of every frame."""
+        return self.arena / max(self.image_size)
+
+    def disparities(self) -> np.ndarray:
+        """(F-1,) goal_disparity between consecutive frames, in metres."""
+        return np.array([goal_disparity(a.goals, b.goals) for a, b in zip(self.sets, self.sets[1:])])
+
+
+def goal_disparity(a: np.ndarray, b: np.ndarray) -> float:
+    """Mean distance between corresponding goals of two goal sets, the correspondence being the
+    assignment of least total squared distance, eq. 7 (how far robots standing on G_{f-1} move to
+    G_f when the real-time control assigns them optimally, paper 5.1)."""
+    a, b = np.asarray(a, float).reshape(-1, 2), np.asarray(b, float).reshape(-1, 2)
+    if len(a) != len(b) or len(a) == 0:
+        raise GoalError(f"goal disparity needs two non-empty goal sets of one size, not {len(a)} and {len(b)}")
+    d2 = cdist(a, b, "sqeuclidean")
+    rows, cols = linear_sum_assignment(d2)
+    return float(np.sqrt(d2[rows, cols]).mean())
+
+
+def keyframe_paths(folder: str | os.PathLike[str]) -> list[Path]:
+    """The keyframe images of a folder, in file-name order. Raises GoalError if there are none."""
+    root = Path(folder)
+    if not root.is_dir():
+        raise GoalError(f"keyframe folder {root} does not exist or is not a folder")
+    paths = sorted(p for p in root.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    if not paths:
+        raise GoalError(f"keyframe folder {root} holds no image ({', '.join(IMAGE_SUFFIXES)})")
+    return paths
+
+
+def match_regions(prev: Sequence[RegionShape], cur: Sequence[RegionShape]) -> list[int]:
+    """For each region of the current frame, the index of its region in the previous frame (same
+    counts): the assignment of least total cost of colour, centroid shift and area ratio."""
+    if len(prev) != len(cur):
+        raise ValueError("match_regions needs two frames with the same number of regions")
+    cost = np.zeros((len(cur), len(prev)))
+    for i, c in enumerate(cur):
+        for j, p in enumerate(prev):
+            cost[i, j] = (np.linalg.norm(c.lab - p.lab) / COLOR_SCALE
+                          + np.linalg.norm(c.centroid - p.centroid) / SHIFT_SCALE
+                          + abs(np.log(c.area / p.area)) / AREA_SCALE)
+    rows, cols = linear_sum_assignment(cost)
+    out = [0] * len(cur)
+    for r, c in zip(rows, cols):
+        out[int(r)] = int(c)
+    return out
+
+
+def _shapes(prep: PreparedImage) -> list[RegionShape]:
+    return [region_shape(prep.seg, r.id, r.lab) for r in prep.seg.regions]
+
+
+def _initial_samples(prep: PreparedImage, shapes: list[RegionShape], prev_shapes: list[RegionShape],
+                     match: list[int], prev_set: GoalSet, counts: np.ndarray, min_correlation: float,
+                     scale_init: bool) -> tuple[dict[int, np.ndarray], list[RegionMotion], str]:
+    """Initial samples (pixel units) per region of frame f: the goals of its region in frame f-1
+    (G_{f-1}) moved by T_i^f and M_i^f; also the regions' motions and which regions match poorly."""
+    prev_goals = prev_set.goals / prev_set.arena  # normalised arena frame, like the region shapes
+    init: dict[int, np.ndarray] = {}
+    motions, poor = [], []
+    for rid, pid in enumerate(match):
+        cur, old = shapes[rid], prev_shapes[pid]
+        rotation, scale, corr = estimate_motion(old, cur)
+        pts = prev_goals[prev_set.regions == pid]
+        if corr < min_correlation:
+            poor.append(f"region {rid} (border correlation {corr:.2f} < {min_correlation:g})")
+        elif counts[rid] > 0 and len(pts) > 0:
+            c, s = np.cos(rotation), np.sin(rotation)
+            # spacing follows the area per goal A_i / N_i: the region's growth, less what N_i changed by
+            spread = scale * np.sqrt(len(pts) / counts[rid]) if scale_init else 1.0
+            m = np.array([[c, -s], [s, c]]) * spread  # M_i^f
+            moved = (pts - old.centroid) @ m.T + cur.centroid  # M_i^f about the centroid, then T_i^f
+            init[rid] = fit_count(from_arena(moved, prep.shape, 1.0), int(counts[rid]), *prep.seg.pixels(rid))
+        shift = cur.centroid - old.centroid  # T_i^f, in units of the image's longer side for now
+        motions.append(RegionMotion(rid, pid, (float(shift[0]), float(shift[1])), rotation, scale, corr,
+                                    rid in init))
+    return init, motions, ("poor match of " + ", ".join(poor)) if poor else ""
+
+
+def _carried_counts(prep: PreparedImage, match: list[int], prev_set: GoalSet) -> dict[int, int] | None:
+    """N_i of each region's corresponding region in frame f-1, if every region has room for them."""
+    carried = {rid: int(np.sum(prev_set.regions == pid)) for rid, pid in enumerate(match)}
+    return carried if all(carried[r.id] <= r.area for r in prep.seg.regions) else None
+
+
+def _load(images: Sequence[ImageLike] | str | os.PathLike[str], background: Any) -> list[PreparedImage]:
+    if isinstance(images, (str, os.PathLike)):
+        images = keyframe_paths(images)
+    if len(images) == 0:
+        raise GoalError("an animation needs at least one keyframe")
+    preps = []
+    for k, img in enumerate(images):
+        try:
+            preps.append(prepare_image(img, background=background))
+        except GoalError as err:
+            raise GoalError(f"keyframe {k}: {err}") from None
+    if len({p.shape for p in preps}) > 1:
+        sizes = ", ".join(sorted({f"{p.shape[1]}x{p.shape[0]}" for p in preps}))
+        raise GoalError(f"keyframes must all have one size in pixels, got {sizes}")
+    return preps
+
+
+def keyframe_goals(images: Sequence[ImageLike] | str | os.PathLike[str], n: int, *,
+                   init_from_previous: bool = True, keep_counts: bool = False, arena: float | None = None,
+                   method: str = "cvt", seed: int = 0, robot_radius: float = DEFAULT_ROBOT_RADIUS,
+                   region_counts: dict[int, int] | None = None, min_correlation: float = MIN_CORRELATION,
+                   scale_init: bool = True, background: Any = None) -> KeyframeGoals:
+    """N goals per keyframe I_1..I_F (paper 6.1), all in one arena.
+
+    images: RGB/RGBA/gray arrays or image paths, or a folder of images (played in file-name order);
+      all keyframes must have the same size in pixels, so that one pixel is one length in every frame.
+    init_from_previous: start each frame's Lloyd iterations from the previous frame's goals moved by
+      T_i^f and M_i^f (else every frame starts from random samples, section 4.2).
+    keep_counts: a region keeps the N_i of its region in the previous frame (when the regions
+      correspond and it has room), instead of N_i proportional to its area in every frame; robots then
+      stay in their region rather than stream between regions whose areas change.
+    region_counts: the artist's N_i for the first frame (and frames that do not correspond).
+    arena: K_r in metres, or None for the largest conservative arena any frame needs.
+    min_correlation: the "sufficient correlation" of the region borders below which a region starts
+      from fresh samples.
+    scale_init: also scale the moved goals about the centroid so that their spacing follows the area
+      per goal, sqrt((A_f / N_f) / (A_{f-1} / N_{f-1})) (a growing leaf); else move them rigidly.
+    seed: frame f uses seed + f for its random samples. Other arguments as in generate_goals.
+    Raises GoalError on bad input."""
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise GoalError(f"N must be a whole number of robots, at least 1, not {n!r}")
+    preps = _load(images, background)
+    matching = init_from_previous or keep_counts
+    shapes: list[list[RegionShape]] = []
+    sets: list[GoalSet] = []
+    reports: list[FrameReport] = []
+    for f, prep in enumerate(preps):
+        t0 = time.perf_counter()
+        match, reason = None, "first keyframe"
+        if matching:
+            shapes.append(_shapes(prep))
+            if f > 0 and len(shapes[f]) != len(shapes[f - 1]):
+                reason = f"the number of regions changed from {len(shapes[f - 1])} to {len(shapes[f])}"
+            elif f > 0:
+                match = match_regions(shapes[f - 1], shapes[f])
+        counts = region_counts
+        if keep_counts and match is not None:
+            counts = _carried_counts(prep, match, sets[-1]) or region_counts
+        init: dict[int, np.ndarray] = {}
+        motions: list[RegionMotion] = []
+        if f > 0 and not init_from_previous:
+            reason = "init_from_previous is off"
+        elif match is not None:
+            n_i, _ = allocate_robots([r.area for r in prep.seg.regions], int(n), counts)
+            init, motions, reason = _initial_samples(prep, shapes[f], shapes[f - 1], match, sets[-1], n_i,
+                                                     min_correlation, scale_init)
+        try:
+            gs = goals_from_prepared(prep, n, arena=arena, method=method, seed=seed + f,
+                                     robot_radius=robot_radius, region_counts=counts, init=init)
+        except GoalError as err:
+            raise GoalError(f"keyframe {f}: {err}") from None
+        done = {m.region for m in motions if m.initialised}
+        used = {int(r) for r in np.unique(gs.regions)}
+        mode = "first" if f == 0 else "fresh" if not done else "previous" if done >= used else "partial"
+        reports.append(FrameReport(f, mode, reason, motions, int(gs.params["iterations"]),
+                                   time.perf_counter() - t0))
+        sets.append(gs)
+    shared = float(arena) if arena is not None else max(s.arena for s in sets)
+    sets = [_rescale(s, shared) for s in sets]
+    for r in reports:  # translations in metres of the common arena
+        r.regions = [RegionMotion(m.region, m.previous, (m.translation[0] * shared, m.translation[1] * shared),
+                                  m.rotation, m.scale, m.correlation, m.initialised) for m in r.regions]
+    h, w = preps[0].shape
+    return KeyframeGoals(sets, reports, (w, h))
