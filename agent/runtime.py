@@ -23,6 +23,7 @@ from transport.codec import Command, Event, Goals, Pose, State
 from transport.keys import cell_of
 
 from .assignment import AuctionLink
+from .core.deadlock import blocked, count_blocked
 from .core.params import DIFFDRIVE, RobotParams
 from .core.step import control_step, static_segments
 from .neighbour_table import NeighbourTable
@@ -324,17 +325,18 @@ class AgentHost:
 
     def _detect_deadlocks(self, mems: list[RobotMemory], position: np.ndarray, pref: np.ndarray,
                           velocity: np.ndarray) -> None:
-        """Paper 5.5.5: near its goal, a collision-free velocity far from the preferred one for N_d
-        iterations is a deadlock; the robot's cost of that goal rises by C_d for good."""
+        """Paper 5.5.5 (agent.core.deadlock): N_d blocked iterations before the goal raise the robot's
+        cost of that goal by C_d for good."""
         p = self.params
         if not self.auction.active or p.deadlock_cost == 0:
             return
-        for b, mem in enumerate(mems):
-            near = mem.goal_index >= 0 and math.dist(mem.goal, position[b]) <= p.deadlock_near
-            blocked = near and float(np.hypot(*(pref[b] - velocity[b]))) > p.deadlock_speed
-            mem.blocked = mem.blocked + 1 if blocked else 0
-            if mem.blocked >= p.deadlock_iterations:
-                mem.blocked = 0
+        distance = np.array([math.dist(m.goal, position[b]) if m.goal_index >= 0 else np.nan
+                             for b, m in enumerate(mems)])
+        counts = np.array([m.blocked for m in mems])
+        counts, deadlocked = count_blocked(counts, blocked(p, distance, pref, velocity), p.deadlock_iterations)
+        for mem, n, dead in zip(mems, counts.tolist(), deadlocked.tolist()):
+            mem.blocked = n
+            if dead:
                 self.auction.penalise(mem.robot, mem.assign_epoch, mem.goal_index)
 
     def stats(self) -> dict[str, Any]:

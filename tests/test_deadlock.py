@@ -1,0 +1,28 @@
+"""Deadlock detection (paper 5.5.5): near the goal but not on it, v_cf far from v_pref for N_d iterations."""
+from __future__ import annotations
+
+import numpy as np
+
+from agent.core.deadlock import blocked, count_blocked
+from agent.core.params import RobotParams
+
+P = RobotParams()
+
+
+def test_blocked_only_near_the_goal_and_not_on_it() -> None:
+    pref = np.array([[0.1, 0.0]] * 4)
+    stuck = np.zeros((4, 2))
+    distance = np.array([0.005, 0.1, 1.0, np.nan])  # on the goal, near it, far from it, no goal
+    assert blocked(P, distance, pref, stuck).tolist() == [False, True, False, False]
+    assert not blocked(P, distance, pref, pref).any()  # moving as it prefers: not blocked
+
+
+def test_deadlock_after_n_d_blocked_iterations_then_the_count_restarts() -> None:
+    counts = np.zeros(2, int)
+    declared = []
+    for k in range(2 * P.deadlock_iterations):
+        counts, dead = count_blocked(counts, np.array([True, k % 2 == 0]), P.deadlock_iterations)
+        declared.append(dead.copy())
+    declared = np.array(declared)
+    assert np.flatnonzero(declared[:, 0]).tolist() == [P.deadlock_iterations - 1, 2 * P.deadlock_iterations - 1]
+    assert not declared[:, 1].any()  # blocked every other iteration only: never N_d in a row
