@@ -20,7 +20,7 @@ import numpy as np
 from transport.bus import Bus
 from transport.codec import Bid, Goals
 
-from .core.bidder import Participant, Record
+from .core.bidder import RECORD, Participant
 from .core.params import RobotParams
 
 DIGEST_EVERY = 0.01
@@ -31,13 +31,7 @@ RESEND_IDLE = 1.0
 OnAgreed = Callable[[int, int, dict[int, int], np.ndarray, np.ndarray], None]
 
 
-def to_items(records: list[Record]) -> np.ndarray:
-    return np.array([(r.robot, r.goal, r.price, r.flags, r.x, r.y) for r in records], Bid._item)
-
-
-def from_items(items: np.ndarray) -> list[Record]:
-    return [Record(int(i["robot"]), int(i["goal"]), float(i["price"]), int(i["flags"]), float(i["x"]), float(i["y"]))
-            for i in items]
+assert RECORD == Bid._item, "the bidder's records are the wire layout of Bid"
 
 
 class AuctionLink:
@@ -138,7 +132,7 @@ class AuctionLink:
                 continue
             if msg.instance > part.instance:  # the sender saw our instance agreed
                 part.begin(msg.instance, positions)
-            if part.absorb(msg.instance, msg.serial, msg.digest, from_items(msg.records)):
+            if part.absorb(msg.instance, msg.serial, msg.digest, msg.records):
                 self.board_changed = time.monotonic()
             if msg.instance == part.instance:
                 theirs.add(msg.digest)
@@ -170,10 +164,9 @@ class AuctionLink:
 
     def _publish(self) -> None:
         part = self.part
-        digest, records = part.outgoing()
+        digest, items = part.outgoing()
         self.mismatch = False
         self.serial += 1
-        items = to_items(records)
         self.bus.publish(self.bus.keys.auction(part.epoch, self.sender),
                          Bid(part.epoch, part.instance, self.sender, self.serial, digest, len(items), items))
         self.last_sent = time.monotonic()

@@ -8,6 +8,7 @@ an embedded loopback router; no control loop runs (the full-system figures are i
 from __future__ import annotations
 
 import argparse
+import signal
 import subprocess
 import sys
 import time
@@ -96,8 +97,13 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--quick", action="store_true", help="N = 14 only")
     parser.add_argument("--steady", type=float, default=5.0)
+    parser.add_argument("--cases", default="", help="e.g. 100x1,1000x250 (robots x robots per process)")
     args = parser.parse_args()
+    # SIGTERM unwinds like Ctrl-C, so the finally blocks stop every node process this bench started
+    signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
     cases = [(14, 1)] if args.quick else [(14, 1), (50, 1), (100, 1), (1000, 250)]
+    if args.cases:
+        cases = [tuple(int(v) for v in c.split("x")) for c in args.cases.split(",")]
     rows = ["| N robots | robots per process (processes) | time to agreement s (slowest host) | scipy solve s | "
             "agreed cost / optimum | one-to-one | bids per robot | cold-start msgs / robot (KB) | "
             "steady msgs / robot-s | steady bytes / robot-s |", "|---|---|---|---|---|---|---|---|---|---|"]

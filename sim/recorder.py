@@ -64,7 +64,7 @@ class Recorder:
         self.assign_instance = np.zeros(robots, np.int64)
         self.step = 0  # the scene step of the newest goal set
         self.goal_sets: dict[int, Goals] = {}  # epoch -> the coordinator's goal set
-        self.bid_positions: dict[tuple[int, int], dict[int, tuple[float, float]]] = {}  # (epoch, instance) -> robot -> xy
+        self.bid_positions: dict[tuple[int, int], dict[int, tuple[float, float, float]]] = {}  # (epoch, instance) -> robot -> x, y, penalty
         self.counts: dict[str, int] = {}
         self.bytes: dict[str, int] = {}
         self.drops = DropCounter()
@@ -131,7 +131,7 @@ class Recorder:
         seen = self.bid_positions.setdefault((m.epoch, m.instance), {})
         for rec in m.records:
             if not rec["flags"] & 2 and int(rec["robot"]) < self.n:  # claims, not releases
-                seen[int(rec["robot"])] = (float(rec["x"]), float(rec["y"]))
+                seen[int(rec["robot"])] = (float(rec["x"]), float(rec["y"]), float(rec["penalty"]))
 
     def _on_truth(self, m: Truth, wall: float) -> None:
         if m.count != self.n:
@@ -219,9 +219,10 @@ class Recorder:
         instance = np.stack(tr.assignment_instance)
         announced = sorted({(int(e), int(k)) for e, k in zip(epoch.ravel(), instance.ravel()) if e > 0})
         positions = np.full((len(announced), n, 2), np.nan)
+        penalties = np.full((len(announced), n), np.nan)
         for a, key in enumerate(announced):
-            for r, xy in self.bid_positions.get(key, {}).items():
-                positions[a, r] = xy
+            for r, (x, y, penalty) in self.bid_positions.get(key, {}).items():
+                positions[a, r], penalties[a, r] = (x, y), penalty
         epochs = sorted(self.goal_sets)
         g_max = max(len(self.goal_sets[e].positions) for e in epochs)
         goal_sets = np.full((len(epochs), g_max, 2), np.nan)
@@ -234,5 +235,6 @@ class Recorder:
             members[i, gs.robots[gs.robots < n]] = True
         return {"step": np.array(tr.step), "goal_set_epoch": np.array(tr.goal_set_epoch), "assignment_epoch": epoch, "assignment_instance": instance,
                 "agreements": np.array(announced, np.int64).reshape(-1, 2), "agreement_positions": positions,
+                "agreement_penalties": penalties,
                 "goal_set_epochs": np.array(epochs), "goal_sets": goal_sets, "goal_set_colors": colors, "goal_set_robots": members,
                 "goal_set_steps": np.array([self.goal_sets[e].step for e in epochs])}

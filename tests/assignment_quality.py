@@ -16,6 +16,8 @@ class Agreement:
     members: list[int]  # the robots of the goal set
     cost: float = np.nan
     optimum: float = np.nan
+    penalties: float = 0.0  # the members' deadlock penalties in force (m^2): the auction's costs exceed
+    # squared distance by at most this much, so the agreed cost may exceed the optimum by it too
 
 
 @dataclass
@@ -58,5 +60,6 @@ def agreements(npz: dict) -> Report:
             rows, cols = linear_sum_assignment(cost)
             ag.optimum = float(cost[rows, cols].sum())
             ag.cost = float(sum(cost[i, announced[r]] for i, r in enumerate(members)))
+            ag.penalties = float(np.nansum(npz["agreement_penalties"][a][members]))
         rep.agreements.append(ag)
     return rep

@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linear_sum_assignment
 
-from agent.core.bidder import CONTENT, Participant, Record
+from agent.core.bidder import CONTENT, RECORD, Participant, records
 
 
 def optimum(positions: np.ndarray, goals: np.ndarray) -> float:
@@ -58,6 +58,7 @@ def run_protocol(positions: np.ndarray, goals: np.ndarray, hosts: list[list[int]
     for i in range(len(parts)):
         start(i, 0, now)
     agreed_seen: dict[int, dict[int, int]] = {}
+    reported = -1
     while now < max_time:
         if queue:
             now = max(now, queue[0][0])
@@ -76,13 +77,14 @@ def run_protocol(positions: np.ndarray, goals: np.ndarray, hosts: list[list[int]
                 p.check_agreement()
                 if p.is_agreed or p.instance == instance:
                     break
-            if p.agreed_instance >= 0:
+            if p.agreed_instance > reported:  # an instance already reported is not news
                 agreed_seen.setdefault(p.agreed_instance, {}).update(p.agreed)
             if p.has_news or now >= next_resend[i]:
                 publish(i, now)
         done = [k for k, a in agreed_seen.items() if len(a) == len(robots)]
         for k in done:
             a = agreed_seen.pop(k)
+            reported = max(reported, k)
             outcome.append({"instance": k, "assignment": a, "positions": pos.copy(),
                             "bids": sum(p.bids for p in parts), "time": now})
             if len(outcome) >= instances:
@@ -173,12 +175,13 @@ def test_deadlock_penalty_moves_the_robot_to_another_goal() -> None:
 def test_records_round_trip_through_the_codec() -> None:
     from transport.codec import Bid, decode
 
-    recs = [Record(3, 1, 0.25, CONTENT, 0.5, -0.5), Record(4, -1, 0.0, 0)]
-    items = np.array([(r.robot, r.goal, r.price, r.flags, r.x, r.y) for r in recs], Bid._item)
+    assert RECORD == Bid._item
+    items = records([(3, 1, 0.25, CONTENT, 0.2, 0.5, -0.5), (4, -1, 0.0, 0)])
     msg = Bid(2, 7, 3, 11, 2**63 + 5, len(items), items)
     back = decode(msg.encode())
     assert isinstance(back, Bid) and back.digest == 2**63 + 5 and back.instance == 7
     assert [int(g) for g in back.records["goal"]] == [1, -1]
+    assert back.records["penalty"][0] == np.float32(0.2) and back.records["y"][0] == -0.5
     assert decode(msg.encode()[:-3]) is None
 
 

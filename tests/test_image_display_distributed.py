@@ -34,7 +34,7 @@ def assert_agreements_valid(traj: dict, bound_per_robot: float = EPS_A, min_comp
     complete = [a for a in rep.agreements if np.isfinite(a.cost)]
     assert len(complete) >= min_complete
     for a in complete:
-        assert a.cost <= a.optimum + len(a.members) * bound_per_robot + 1e-9, (a.epoch, a.instance)
+        assert a.cost <= a.optimum + len(a.members) * bound_per_robot + a.penalties + 1e-6, (a.epoch, a.instance)
     return rep.gaps()
 
 

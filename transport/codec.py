@@ -242,8 +242,9 @@ class Bid(Message):
     KIND: ClassVar[int] = 9
     NAME: ClassVar[str] = "auction"
     _fixed: ClassVar[struct.Struct] = struct.Struct("<IIIIQI")
+    # penalty: the robot's total deadlock penalty in force (m^2), so its agreed cost can be checked
     _item: ClassVar[np.dtype] = np.dtype([("robot", "<u2"), ("goal", "<i4"), ("price", "<f8"), ("flags", "u1"),
-                                          ("x", "<f4"), ("y", "<f4")])
+                                          ("penalty", "<f4"), ("x", "<f4"), ("y", "<f4")])
     epoch: int
     instance: int
     sender: int
@@ -264,8 +265,7 @@ class Bid(Message):
     @classmethod
     def _from(cls, body: memoryview) -> "Bid":
         (epoch, instance, sender, serial, digest, count), items = _fixed_and_items(body, cls._fixed, cls._item)
-        if not (np.all(np.isfinite(items["price"])) and np.all(np.isfinite(items["x"]))
-                and np.all(np.isfinite(items["y"]))):
+        if not all(np.all(np.isfinite(items[k])) for k in ("price", "penalty", "x", "y")):
             raise Malformed("non-finite")
         return cls(epoch, instance, sender, serial, digest, count, items.copy())
 

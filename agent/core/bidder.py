@@ -10,8 +10,10 @@ are agreed by max-consensus, as in Zavlanos et al. 2008:
 - **Bids.** A robot that holds no goal, or whose goal was taken by a greater record, bids on its best
   goal: the price rises by the difference between the best and second-best net value plus epsilon.
   Costs are private: squared distance (eq. 7) plus the robot's own deadlock penalties (5.5.5).
+  Own robots bid together (Jacobi rounds, vectorised), so a host of hundreds of robots stays fast.
 - **Instances.** An auction instance runs on positions frozen when it starts, so costs stay fixed
-  while prices settle. Instance k is *agreed* when every robot of the goal set has published, for k,
+  while prices settle; a deadlock penalty declared meanwhile counts from the next instance (a cost
+  that changed after a robot said it was content would break the quiescence argument below). Instance k is *agreed* when every robot of the goal set has published, for k,
   a content record (it holds its goal and no other is better by more than epsilon) on distinct goals,
   all written against the same board (equal digests). Such a snapshot is quiescent: every bid anyone
   made is on that board, so nobody can bid again in instance k. Every agent checks this for itself,
@@ -22,41 +24,31 @@ are agreed by max-consensus, as in Zavlanos et al. 2008:
   epsilon (epsilon scaling), so a cold start needs few price rises.
 
 The agreed assignment costs at most N (epsilon + Delta C) more than the optimum for the frozen
-positions (epsilon-complementary slackness against one common price vector).
+positions and the robots' private costs (epsilon-complementary slackness against one common price
+vector); each robot's record carries its total deadlock penalty, so the squared-distance cost can be
+checked against the optimum plus the penalties in force.
 """
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
 
 import numpy as np
 
-from .auction import NO_OWNER, epsilon_schedule, net_values
+from .auction import NO_OWNER, epsilon_schedule
 
 CONTENT = 1  # record flag: the robot holds the goal and is content with it
 RELEASED = 2  # record flag: the robot gave the goal up at this price
+SMALL = 8  # messages with up to this many records are merged record by record (numpy costs more there)
+
+# One robot's word on one goal (goal -1: it holds none yet); the wire layout of transport.codec.Bid.
+RECORD = np.dtype([("robot", "<u2"), ("goal", "<i4"), ("price", "<f8"), ("flags", "u1"), ("penalty", "<f4"),
+                   ("x", "<f4"), ("y", "<f4")])
 
 
-@dataclass(frozen=True)
-class Record:
-    """One robot's word on one goal (goal -1: it holds none yet)."""
-
-    robot: int
-    goal: int
-    price: float
-    flags: int
-    x: float = 0.0
-    y: float = 0.0
-
-
-@dataclass
-class Heard:
-    """The newest record of another robot in the current instance, and the board it was written on."""
-
-    instance: int
-    serial: int
-    record: Record
-    digest: int
+def records(rows: list[tuple]) -> np.ndarray:
+    """Records from (robot, goal, price, flags[, penalty, x, y]) tuples (tests, tools)."""
+    full = [tuple(r) + (0.0, 0.0, 0.0)[len(r) - 4:] for r in rows]
+    return np.array(full, RECORD)
 
 
 class Board:
@@ -66,26 +58,55 @@ class Board:
         self.price = np.zeros(goals)
         self.owner = np.full(goals, NO_OWNER, dtype=np.int64)
         self.released = np.zeros(goals, bool)
+        self.version = 0  # counts changes: cached digests and views key on it
+        self._digest: tuple[int, int] | None = None
 
-    def merge(self, goal: int, price: float, robot: int, released: bool) -> bool:
-        """Max-consensus; True when the record is new information."""
-        if not 0 <= goal < len(self.price):
+    def merge(self, goal: np.ndarray, price: np.ndarray, robot: np.ndarray, released: np.ndarray) -> bool:
+        """Max-consensus of a batch of records into the board; True when any was new information."""
+        goal = np.asarray(goal, np.int64)
+        ok = (goal >= 0) & (goal < len(self.price))
+        if not ok.any():
             return False
-        if self.owner[goal] != NO_OWNER:
-            mine = (self.price[goal], -self.owner[goal], self.released[goal])
-            if (price, -robot, released) <= mine:
-                return False
-        self.price[goal], self.owner[goal], self.released[goal] = price, robot, released
+        goal, price = goal[ok], np.asarray(price, float)[ok]
+        robot, released = np.asarray(robot, np.int64)[ok], np.asarray(released, bool)[ok]
+        # the greatest record per goal in the batch: sorted by (goal, price, -robot, released), last wins
+        order = np.lexsort((released, -robot, price, goal))
+        g = goal[order]
+        last = order[np.r_[g[1:] != g[:-1], True]]
+        g, p, r, rel = goal[last], price[last], robot[last], released[last]
+        bp, bo, br = self.price[g], self.owner[g], self.released[g]
+        greater = (bo == NO_OWNER) | (p > bp) | ((p == bp) & ((r < bo) | ((r == bo) & rel & ~br)))
+        if not greater.any():
+            return False
+        g = g[greater]
+        self.price[g], self.owner[g], self.released[g] = p[greater], r[greater], rel[greater]
+        self.version += 1
         return True
 
-    def holds(self, robot: int, goal: int) -> bool:
-        return goal >= 0 and self.owner[goal] == robot and not self.released[goal]
+    def merge_one(self, goal: int, price: float, robot: int, released: bool) -> bool:
+        """The same for one record (a robot per host: most messages carry one or two records)."""
+        if not 0 <= goal < len(self.price):
+            return False
+        owner = int(self.owner[goal])
+        if owner != NO_OWNER and (price, -robot, released) <= (self.price[goal], -owner, bool(self.released[goal])):
+            return False
+        self.price[goal], self.owner[goal], self.released[goal] = price, robot, released
+        self.version += 1
+        return True
+
+    def holds(self, robot: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        """Per (robot, goal) pair: the robot owns the goal on this board and has not released it."""
+        goal = np.asarray(goal, np.int64)
+        safe = np.minimum(np.maximum(goal, 0), max(len(self.price) - 1, 0))  # np.clip costs 10x more here
+        return (goal >= 0) & (self.owner[safe] == robot) & ~self.released[safe]
 
     def digest(self) -> int:
-        h = hashlib.blake2b(digest_size=8)
-        for a in (self.price, self.owner, self.released):
-            h.update(a.tobytes())
-        return int.from_bytes(h.digest(), "little")
+        if self._digest is None or self._digest[0] != self.version:
+            h = hashlib.blake2b(digest_size=8)
+            for a in (self.price, self.owner, self.released):
+                h.update(a.tobytes())
+            self._digest = (self.version, int.from_bytes(h.digest(), "little"))
+        return self._digest[1]
 
 
 class Participant:
@@ -95,24 +116,44 @@ class Participant:
                  hysteresis: float = 0.0) -> None:
         self.epoch = epoch
         self.goals = np.asarray(goals, float)
-        self.robots = sorted(int(r) for r in robots)
-        members = set(self.robots)
-        self.own = sorted(r for r in own if r in members)
+        self.robots = np.array(sorted(int(r) for r in robots), np.int64)
+        self.row_of = {int(r): i for i, r in enumerate(self.robots)}
+        members = set(self.robots.tolist())
+        self.own = sorted(int(r) for r in own if r in members)
+        self.own_ids = np.array(self.own, np.int64)
+        self.own_rows = np.searchsorted(self.robots, self.own_ids)  # own robots' rows among all robots
+        self.is_own = np.zeros(len(self.robots), bool)
+        self.is_own[self.own_rows] = True
+        self.is_own_id = np.zeros(int(self.robots.max(initial=0)) + 2, bool)  # by robot id + 1 (owner -1: none)
+        self.is_own_id[self.own_ids + 1] = True
         self.schedule = epsilon_schedule(self.goals, eps, factor=10.0)  # fewer phases: each costs a global snapshot
         self.hysteresis = hysteresis
         self.board = Board(len(self.goals))
         self.instance = -1  # not started: waits for the robots' positions
-        self.position: dict[int, np.ndarray] = {}
-        self.row = {r: i for i, r in enumerate(self.own)}
-        self.cost = np.zeros((len(self.own), len(self.goals)))  # c_ij at the frozen positions, eq. 7
-        self.goal = {r: -1 for r in self.own}  # what each own robot claims
-        self.penalty = np.zeros((len(self.own), len(self.goals)))  # C_d per robot and goal (deadlocks)
-        self.heard: dict[int, Heard] = {}
+        k, g = len(self.own), len(self.goals)
+        self.position = np.zeros((k, 2))  # frozen per instance
+        self.cost = np.zeros((k, g))  # c_ij at the frozen positions, eq. 7, plus the penalties in force
+        self.penalty = np.zeros((k, g))  # C_d per robot and goal in force this instance (deadlocks)
+        self.pending = np.zeros((k, g))  # penalties declared during this instance: in force from the next
+        self.goal = np.full(k, -1, np.int64)  # what each own robot claims
+        # the newest record of every other robot in the current instance, and the board it was written on
+        r = len(self.robots)
+        self.heard_instance = np.full(r, -1, np.int64)
+        self.heard_serial = np.zeros(r, np.int64)
+        self.heard_goal = np.full(r, -1, np.int64)
+        self.heard_price = np.zeros(r)
+        self.heard_content = np.zeros(r, bool)
+        self.heard_digest = np.zeros(r, np.uint64)
+        self.heard_version = 0
         self.agreed_instance = -1
         self.agreed: dict[int, int] = {}  # own robot -> its goal in the agreed instance
         self.claims_changed = False  # own claims changed since the last publication
         self.published_digest: int | None = None  # the board digest of the last publication
         self.bids = 0
+        self._content_cache: tuple[tuple, np.ndarray] | None = None
+        self._best: tuple[np.ndarray, np.ndarray] | None = None  # best goal and value per own robot
+        self._price_seen = np.zeros(len(self.goals))
+        self._view_cache: dict[bool, tuple[tuple, bool]] = {}
 
     # --- the epsilon of an instance ----------------------------------------------------------------
     @property
@@ -141,71 +182,96 @@ class Participant:
 
     def begin(self, instance: int, positions: dict[int, np.ndarray]) -> None:
         """Start an instance, warm from the current board. The cold start's phases share the
-        positions frozen at instance 0; later instances freeze the positions given."""
+        positions frozen at instance 0; later instances freeze the positions given. Penalties
+        declared during the last instance come into force now."""
         if self.started and not self.is_agreed and instance > self.instance:
             self._adopt_if_settled()  # someone reached a later instance: ours was agreed
         if not self.started or instance >= self.phases:
-            self.position = {r: np.asarray(positions[r], float) for r in self.own}
             if self.own:
-                p = np.array([self.position[r] for r in self.own])
-                d = self.goals[None, :, :] - p[:, None, :]
-                self.cost = d[..., 0] ** 2 + d[..., 1] ** 2
+                self.position = np.array([positions[r] for r in self.own], float).reshape(-1, 2)
+        self.penalty += self.pending
+        self.pending[:] = 0.0
+        d = self.goals[None, :, :] - self.position[:, None, :]
+        self.cost = d[..., 0] ** 2 + d[..., 1] ** 2 + self.penalty
         self.instance = instance
-        self.heard = {r: h for r, h in self.heard.items() if h.instance >= instance}
         self.claims_changed = True  # the new instance's records are news
+        self._content_cache = None
+        self._best = None  # costs changed: every best value is recomputed
         self.bid()
 
     def _adopt_if_settled(self) -> None:
         if self.instance >= self.phases - 1 and self._content_all().all():
             self.agreed_instance = self.instance
-            self.agreed = dict(self.goal)
+            self.agreed = dict(zip(self.own, self.goal.tolist()))
 
     # --- bidding ----------------------------------------------------------------------------------
-    def _values(self, robot: int) -> np.ndarray:
-        """Net values -c_ij - b_j of one robot (its private cost includes its deadlock penalties)."""
-        i = self.row[robot]
-        return -(self.cost[i] + self.penalty[i]) - self.board.price
+    def _values(self, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """Net values -c_ij - b_j of own robots (their private costs include deadlock penalties)."""
+        return -self.cost[rows] - self.board.price[None, :]
+
+    def _best_values(self) -> np.ndarray:
+        """(K,) each own robot's best net value max_j (-c_ij - b_j), kept up to date cheaply: prices
+        only rise, so a robot's best value changes only when the price of its best goal did."""
+        price = self.board.price
+        if self._best is None:
+            stale = np.arange(len(self.own))
+        else:
+            rose = price != self._price_seen
+            stale = np.flatnonzero(rose[self._best[0]]) if rose.any() else np.zeros(0, np.int64)
+        if self._best is None or len(stale):
+            best, value = self._best if self._best is not None else (np.zeros(len(self.own), np.int64),
+                                                                      np.zeros(len(self.own)))
+            values = self._values(stale)
+            best[stale] = np.argmax(values, axis=1)
+            value[stale] = values[np.arange(len(stale)), best[stale]]
+            self._best = (best, value)
+            self._price_seen = price.copy()
+        return self._best[1]
 
     def _content_all(self) -> np.ndarray:
         """(K,) bool: each own robot holds its goal and no goal is better by more than the slack."""
-        if not self.own:
-            return np.zeros(0, bool)
-        goal = np.array([self.goal[r] for r in self.own])
-        holds = (goal >= 0) & (self.board.owner[goal] == np.array(self.own)) & ~self.board.released[goal]
-        values = -(self.cost + self.penalty) - self.board.price[None, :]
-        held = values[np.arange(len(goal)), goal]
-        return holds & (held >= values.max(axis=1) - self.slack)
+        key = (self.board.version, self.instance, self.goal.tobytes())
+        if self._content_cache is not None and self._content_cache[0] == key:
+            return self._content_cache[1]
+        if not self.own or not len(self.goals):
+            content = np.zeros(len(self.own), bool)
+        else:
+            holds = self.board.holds(self.own_ids, self.goal)
+            g = np.maximum(self.goal, 0)
+            held = -self.cost[np.arange(len(self.own)), g] - self.board.price[g]
+            content = holds & (held >= self._best_values() - self.slack)
+        self._content_cache = (key, content)
+        return content
 
     def bid(self) -> bool:
-        """One round for the own robots (in id order, each seeing the others' bids); True if any bid."""
+        """One Jacobi round: every own robot that is not content bids on its best goal at once; per goal
+        the greatest bid wins, by the same max-consensus as messages. True if any robot bid."""
         if not self.started:
             return False
-        any_bid = False
-        content = self._content_all()
-        for r, ok in zip(self.own, content):
-            if ok or (any_bid and self._content(r)):  # an earlier bid this round may have settled it
-                continue
-            values = self._values(r)
-            best = int(np.argmax(values))  # ties: lowest goal index, the same everywhere
-            second = float(np.max(np.delete(values, best))) if len(values) > 1 else values[best] - self.eps
-            price = float(self.board.price[best] + (values[best] - second) + self.eps)
-            held = self.goal[r]
-            if self.board.holds(r, held):  # it gives its goal up for a better one
-                self.board.merge(held, float(self.board.price[held]), r, True)
-            self.board.merge(best, price, r, False)
-            self.goal[r] = best
-            self.bids += 1
-            any_bid = True
-        if any_bid:
-            self.claims_changed = True
-        return any_bid
-
-    def _content(self, robot: int) -> bool:
-        g = self.goal[robot]
-        if not self.board.holds(robot, g):
+        bidders = np.flatnonzero(~self._content_all())
+        if len(bidders) == 0:
             return False
-        values = self._values(robot)
-        return bool(values[g] >= values.max() - self.slack)
+        values = self._values(bidders)
+        best = np.argmax(values, axis=1)  # ties: lowest goal index, the same everywhere
+        rows = np.arange(len(bidders))
+        v_best = values[rows, best]
+        if values.shape[1] > 1:
+            values[rows, best] = -np.inf
+            second = values.max(axis=1)
+        else:
+            second = v_best - self.eps
+        price = self.board.price[best] + (v_best - second) + self.eps
+        robot = self.own_ids[bidders]
+        held = self.goal[bidders]
+        gives_up = self.board.holds(robot, held)  # it gives its goal up for a better one
+        g_rel = held[gives_up]
+        # releases and bids merge in one batch: max-consensus does not care about order
+        self.board.merge(np.r_[g_rel, best], np.r_[self.board.price[g_rel], price], np.r_[robot[gives_up], robot],
+                         np.r_[np.ones(len(g_rel), bool), np.zeros(len(best), bool)])
+        self.goal[bidders] = best
+        self.bids += len(bidders)
+        self.claims_changed = True
+        return True
 
     def bid_until_quiet(self, max_rounds: int = 100_000) -> int:
         """Rounds until no own robot wants to bid (own robots outbid each other without messages)."""
@@ -215,9 +281,9 @@ class Participant:
         return rounds
 
     def penalise(self, robot: int, goal: int, cost: float) -> None:
-        """Deadlock (5.5.5): the robot's cost of this goal rises by C_d for good."""
-        if robot in self.row and 0 <= goal < len(self.goals):
-            self.penalty[self.row[robot], goal] += cost
+        """Deadlock (5.5.5): the robot's cost of this goal rises by C_d for good, from the next instance."""
+        if robot in self.own and 0 <= goal < len(self.goals):
+            self.pending[self.own.index(robot), goal] += cost
 
     # --- messages ---------------------------------------------------------------------------------
     @property
@@ -225,65 +291,98 @@ class Participant:
         """Own claims changed, or the board did since the last publication (others need our digest)."""
         return self.started and (self.claims_changed or self.board.digest() != self.published_digest)
 
-    def outgoing(self) -> tuple[int, list[Record]]:
+    def outgoing(self) -> tuple[int, np.ndarray]:
         """The digest and records to publish now (marks them published)."""
         self.claims_changed = False
         self.published_digest = self.board.digest()
         return self.published_digest, self.records()
 
-    def records(self) -> list[Record]:
+    def records(self) -> np.ndarray:
         """What the own robots say now: a claim each, and the goals they released that still carry
         their release on the board (so that others learn the price even if a message was lost)."""
-        out = []
-        for r, content in zip(self.own, self._content_all()):
-            g = self.goal[r]
-            x, y = (float(v) for v in self.position.get(r, (0.0, 0.0)))
-            holds = self.board.holds(r, g)
-            flags = CONTENT if content else 0
-            out.append(Record(r, g if holds else -1, float(self.board.price[g]) if holds else 0.0, flags, x, y))
-        mine = set(self.own)
-        for g in np.flatnonzero(self.board.released):
-            owner = int(self.board.owner[g])
-            if owner in mine:
-                out.append(Record(owner, int(g), float(self.board.price[g]), RELEASED))
-        return out
+        holds = self.board.holds(self.own_ids, self.goal)
+        claims = np.zeros(len(self.own), RECORD)
+        claims["robot"] = self.own_ids
+        claims["goal"] = np.where(holds, self.goal, -1)
+        claims["price"] = np.where(holds, self.board.price[np.maximum(self.goal, 0)], 0.0)
+        claims["flags"] = np.where(self._content_all(), CONTENT, 0)
+        claims["penalty"] = self.penalty.sum(axis=1)
+        claims["x"], claims["y"] = self.position[:, 0], self.position[:, 1]
+        rel = np.flatnonzero(self.board.released & self.is_own_id[self.board.owner + 1])
+        releases = np.zeros(len(rel), RECORD)
+        releases["robot"], releases["goal"] = self.board.owner[rel], rel
+        releases["price"], releases["flags"] = self.board.price[rel], RELEASED
+        return np.concatenate([claims, releases])
 
-    def absorb(self, instance: int, serial: int, digest: int, records: list[Record]) -> bool:
+    def absorb(self, instance: int, serial: int, digest: int, recs: np.ndarray) -> bool:
         """Merge another host's records; True when the board changed. Records of the current instance
         are remembered per robot (the newest by serial) for the agreement check."""
+        recs = np.asarray(recs, RECORD)
+        if len(recs) <= SMALL:
+            return self._absorb_each(instance, serial, digest, recs.tolist())
+        robot = recs["robot"].astype(np.int64)
+        released = (recs["flags"] & RELEASED) != 0
+        changed = self.board.merge(recs["goal"], recs["price"], robot, released)
+        if instance != self.instance or len(self.robots) == 0:
+            return changed
+        row = np.searchsorted(self.robots, robot)
+        known = (row < len(self.robots)) & (self.robots[np.minimum(row, len(self.robots) - 1)] == robot)
+        row = np.minimum(row, len(self.robots) - 1)
+        newer = (self.heard_instance[row] < instance) | (serial > self.heard_serial[row])
+        take = known & ~released & ~self.is_own[row] & newer
+        if take.any():
+            r, rec = row[take], recs[take]
+            self.heard_instance[r], self.heard_serial[r] = instance, serial
+            self.heard_goal[r], self.heard_price[r] = rec["goal"], rec["price"]
+            self.heard_content[r] = (rec["flags"] & CONTENT) != 0
+            self.heard_digest[r] = np.uint64(digest)
+            self.heard_version += 1
+        return changed
+
+    def _absorb_each(self, instance: int, serial: int, digest: int, recs: list[tuple]) -> bool:
+        """absorb() record by record: cheaper than array operations for a few records."""
         changed = False
-        for rec in records:
-            if rec.goal >= 0:
-                changed |= self.board.merge(rec.goal, rec.price, rec.robot, bool(rec.flags & RELEASED))
-            if rec.flags & RELEASED or rec.robot in self.goal:
+        for robot, goal, price, flags, _, _, _ in recs:
+            released = bool(flags & RELEASED)
+            changed |= self.board.merge_one(goal, price, robot, released)
+            row = self.row_of.get(robot)
+            if instance != self.instance or released or row is None or self.is_own[row]:
                 continue
-            old = self.heard.get(rec.robot)
-            if instance == self.instance and (old is None or old.instance < instance or serial > old.serial):
-                self.heard[rec.robot] = Heard(instance, serial, rec, digest)
+            if self.heard_instance[row] < instance or serial > self.heard_serial[row]:
+                self.heard_instance[row], self.heard_serial[row] = instance, serial
+                self.heard_goal[row], self.heard_price[row] = goal, price
+                self.heard_content[row] = bool(flags & CONTENT)
+                self.heard_digest[row] = digest
+                self.heard_version += 1
         return changed
 
     def _settled_view(self, same_board: bool) -> bool:
         """Every robot content on a distinct goal, as far as this host knows: own robots now, the
         others by their newest records of this instance, which still hold on our board (and, with
         ``same_board``, were written against a board with our digest)."""
-        if not self.started or not self._content_all().all():
+        if not self.started:
             return False
-        digest = self.board.digest() if same_board else None
-        taken = {self.goal[r] for r in self.own}
-        if len(taken) < len(self.own):
+        key = (self.board.version, self.heard_version, self.instance, self.goal.tobytes())
+        cached = self._view_cache.get(same_board)
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        self._view_cache[same_board] = (key, settled := self._compute_settled(same_board))
+        return settled
+
+    def _compute_settled(self, same_board: bool) -> bool:
+        if not self._content_all().all():
             return False
-        for r in self.robots:
-            if r in self.goal:
-                continue
-            h = self.heard.get(r)
-            if h is None or h.instance != self.instance or (same_board and h.digest != digest):
-                return False
-            rec = h.record
-            if not (rec.flags & CONTENT) or rec.goal in taken or not self.board.holds(r, rec.goal) \
-                    or self.board.price[rec.goal] != rec.price:
-                return False
-            taken.add(rec.goal)
-        return True
+        others = ~self.is_own
+        ok = (self.heard_instance[others] == self.instance) & self.heard_content[others]
+        if same_board:
+            ok &= self.heard_digest[others] == np.uint64(self.board.digest())
+        if not ok.all():
+            return False
+        goal, price, robot = self.heard_goal[others], self.heard_price[others], self.robots[others]
+        if not (self.board.holds(robot, goal).all() and (self.board.price[goal] == price).all()):
+            return False
+        taken = np.concatenate([self.goal, goal])
+        return len(np.unique(taken)) == len(taken)
 
     def view_complete(self) -> bool:
         """Nobody is bidding as far as we know: the moment to tell others our board's digest (earlier,
@@ -291,13 +390,17 @@ class Participant:
         return self._settled_view(same_board=False)
 
     def check_agreement(self) -> bool:
-        """True (once per instance) when this host sees instance k agreed; sets ``agreed``. An agreed
-        phase of the cold start only moves on to the next phase."""
+        """True (once per instance) when this host sees instance k agreed; sets ``agreed``.
+
+        A phase of the cold start moves on to the next, smaller epsilon as soon as this host sees
+        nobody bidding (no common snapshot: the phases only speed the auction up, the guarantee comes
+        from the final phase's snapshot), and others follow when they hear of the later instance."""
+        if self.started and self.instance < self.phases - 1:
+            if self._settled_view(same_board=False):
+                self.begin(self.instance + 1, {})
+            return False
         if self.is_agreed or not self._settled_view(same_board=True):
             return False
-        if self.instance < self.phases - 1:  # a cold-start phase: go on with a smaller epsilon
-            self.begin(self.instance + 1, self.position)
-            return False
         self.agreed_instance = self.instance
-        self.agreed = dict(self.goal)
+        self.agreed = dict(zip(self.own, self.goal.tolist()))
         return True
