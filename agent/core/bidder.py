@@ -18,10 +18,13 @@ are agreed by max-consensus, as in Zavlanos et al. 2008:
   all written against the same board (equal digests). Such a snapshot is quiescent: every bid anyone
   made is on that board, so nobody can bid again in instance k. Every agent checks this for itself,
   and a record of instance k+1 from anyone proves k was agreed.
-- **Warm start.** Instances follow one another, each starting from the prices and owners of the last
-  (paper 5.1 re-assigns each iteration); a robot keeps its goal unless another is better by more
-  than epsilon plus the hysteresis Delta C. The first instances of a new goal set use decreasing
-  epsilon (epsilon scaling), so a cold start needs few price rises.
+- **Warm start and epsilon scaling.** Instances follow one another, each starting from the prices
+  and owners of the last (paper 5.1 re-assigns each iteration); a robot keeps its goal unless
+  another is better by more than epsilon plus the hysteresis Delta C. Instances come in blocks, one
+  per set of frozen positions, of decreasing epsilon (Bertsekas' epsilon scaling); only the block's
+  final phase is agreed by a snapshot. Scaling pays off on warm starts too: once robots have moved,
+  the last prices are far from equilibrium, and at epsilon_A alone one instance of 100 robots in 10
+  hosts needed 1428 rounds (a price war), against 107 with the schedule.
 
 The agreed assignment costs at most N (epsilon + Delta C) more than the optimum for the frozen
 positions and the robots' private costs (epsilon-complementary slackness against one common price
@@ -157,14 +160,22 @@ class Participant:
 
     # --- the epsilon of an instance ----------------------------------------------------------------
     @property
+    def phase(self) -> int:
+        """Which epsilon-scaling phase the current instance is (instances come in blocks of phases)."""
+        return max(self.instance, 0) % self.phases
+
+    @property
+    def final_phase(self) -> bool:
+        return self.phase == self.phases - 1
+
+    @property
     def eps(self) -> float:
-        return self.schedule[min(max(self.instance, 0), len(self.schedule) - 1)]
+        return self.schedule[self.phase]
 
     @property
     def slack(self) -> float:
-        """Epsilon, plus Delta C once epsilon scaling is over (paper 5.1's hysteresis)."""
-        final = self.instance >= len(self.schedule) - 1
-        return self.eps + (self.hysteresis if final else 0.0)
+        """Epsilon, plus Delta C in the final phase (paper 5.1's hysteresis)."""
+        return self.eps + (self.hysteresis if self.final_phase else 0.0)
 
     @property
     def started(self) -> bool:
@@ -177,16 +188,16 @@ class Participant:
     # --- instances --------------------------------------------------------------------------------
     @property
     def phases(self) -> int:
-        """Instances 0 .. phases-1 are the epsilon-scaling phases of the cold start."""
+        """Instances come in blocks of this many epsilon-scaling phases, on one set of positions."""
         return len(self.schedule)
 
     def begin(self, instance: int, positions: dict[int, np.ndarray]) -> None:
-        """Start an instance, warm from the current board. The cold start's phases share the
-        positions frozen at instance 0; later instances freeze the positions given. Penalties
-        declared during the last instance come into force now."""
+        """Start an instance, warm from the current board. The first instance of a block of phases
+        freezes the positions given; the block's other phases share them. Penalties declared during
+        the last instance come into force now."""
         if self.started and not self.is_agreed and instance > self.instance:
             self._adopt_if_settled()  # someone reached a later instance: ours was agreed
-        if not self.started or instance >= self.phases:
+        if not self.started or instance // self.phases != self.instance // self.phases:
             if self.own:
                 self.position = np.array([positions[r] for r in self.own], float).reshape(-1, 2)
         self.penalty += self.pending
@@ -200,7 +211,7 @@ class Participant:
         self.bid()
 
     def _adopt_if_settled(self) -> None:
-        if self.instance >= self.phases - 1 and self._content_all().all():
+        if self.final_phase and self._content_all().all():
             self.agreed_instance = self.instance
             self.agreed = dict(zip(self.own, self.goal.tolist()))
 
@@ -392,10 +403,10 @@ class Participant:
     def check_agreement(self) -> bool:
         """True (once per instance) when this host sees instance k agreed; sets ``agreed``.
 
-        A phase of the cold start moves on to the next, smaller epsilon as soon as this host sees
+        A phase before the final one moves on to the next, smaller epsilon as soon as this host sees
         nobody bidding (no common snapshot: the phases only speed the auction up, the guarantee comes
         from the final phase's snapshot), and others follow when they hear of the later instance."""
-        if self.started and self.instance < self.phases - 1:
+        if self.started and not self.final_phase:
             if self._settled_view(same_board=False):
                 self.begin(self.instance + 1, {})
             return False
