@@ -12,9 +12,16 @@ P = RobotParams()
 def test_blocked_only_near_the_goal_and_not_on_it() -> None:
     pref = np.array([[0.1, 0.0]] * 4)
     stuck = np.zeros((4, 2))
-    distance = np.array([0.005, 0.1, 1.0, np.nan])  # on the goal, near it, far from it, no goal
-    assert blocked(P, distance, pref, stuck).tolist() == [False, True, False, False]
-    assert not blocked(P, distance, pref, pref).any()  # moving as it prefers: not blocked
+    to_goal = np.array([[0.005, 0.0], [0.1, 0.0], [1.0, 0.0], [np.nan, np.nan]])  # on it, near, far, no goal
+    assert blocked(P, to_goal, pref, stuck).tolist() == [False, True, False, False]
+    assert not blocked(P, to_goal, pref, pref).any()  # moving as it prefers: not blocked
+
+
+def test_a_robot_slowed_by_a_crowd_but_making_headway_is_not_blocked() -> None:
+    pref = np.array([[0.4, 0.0], [0.4, 0.0]])
+    to_goal = np.array([[0.2, 0.0], [0.2, 0.0]])
+    slowed = np.array([[0.1, 0.05], [0.0, 0.1]])  # toward the goal at 10 cm/s; sideways, no headway
+    assert blocked(P, to_goal, pref, slowed).tolist() == [False, True]
 
 
 def test_deadlock_after_n_d_blocked_iterations_then_the_count_restarts() -> None:

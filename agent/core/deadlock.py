@@ -1,11 +1,14 @@
 """Deadlock detection (paper 5.5.5), over a batch of robots: pure, no clock.
 
-A robot is *blocked* in an iteration when it is near its goal but not on it, and its collision-free
-velocity differs from its preferred velocity by more than a threshold: others stand in its way. N_d
-blocked iterations in a row are a deadlock; the runtime then adds C_d to the robot's cost of that goal
+A robot is *blocked* in an iteration when it is near its goal but not on it, its collision-free
+velocity differs from its preferred velocity by more than a threshold, and it makes no headway
+toward the goal (its collision-free velocity's component toward the goal is below that threshold):
+others stand in its way. N_d blocked iterations in a row are a deadlock; the runtime then adds C_d to the robot's cost of that goal
 (agent.core.bidder), which triggers a reassignment. A robot already on its goal is never blocked:
 yielding to a passing neighbour there is ORCA's shared responsibility, not a deadlock, and penalising
-it would pull a robot off a formed image.
+it would pull a robot off a formed image. The headway condition tells a deadlock from a crowd: at
+100 robots crowding into a line, robots slowed (not stopped) near their goals drew 75 penalties in
+one sequence and the reassignments they caused kept the line from forming.
 """
 from __future__ import annotations
 
@@ -14,13 +17,17 @@ import numpy as np
 from .params import RobotParams
 
 
-def blocked(params: RobotParams, distance_to_goal: np.ndarray, pref_velocity: np.ndarray,
+def blocked(params: RobotParams, to_goal: np.ndarray, pref_velocity: np.ndarray,
             velocity: np.ndarray) -> np.ndarray:
-    """(B,) bool: near the goal (not on it) with v_cf far from v_pref. NaN distance: no goal."""
-    d = np.asarray(distance_to_goal, float)
+    """(B,) bool: near the goal (not on it), v_cf far from v_pref and no headway toward the goal.
+    ``to_goal`` (B,2): goal minus position (NaN: no goal)."""
+    to_goal = np.asarray(to_goal, float)
+    d = np.hypot(to_goal[:, 0], to_goal[:, 1])
     near = np.isfinite(d) & (d > params.goal_tolerance) & (d <= params.deadlock_near)
-    gap = np.hypot(*(np.asarray(pref_velocity) - np.asarray(velocity)).T)
-    return near & (gap > params.deadlock_speed)
+    velocity = np.asarray(velocity, float)
+    gap = np.hypot(*(np.asarray(pref_velocity) - velocity).T)
+    headway = np.where(near, (velocity * to_goal).sum(axis=1) / np.where(near, d, 1.0), 0.0)
+    return near & (gap > params.deadlock_speed) & (headway < params.deadlock_speed)
 
 
 def count_blocked(counts: np.ndarray, now_blocked: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray]:

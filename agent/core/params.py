@@ -40,8 +40,8 @@ class RobotParams:
     assign_hysteresis: float = 5e-3  # Delta C: keep the goal unless another is better by this much
     assign_period: float = 0.1  # s between auction instances (paper 5.1: every control iteration)
     deadlock_cost: float = 0.1  # C_d, added for good to the cost of the goal a robot is stuck before
-    deadlock_iterations: int = 30  # N_d, iterations of a blocked velocity before a deadlock is declared
-    deadlock_speed: float = 0.03  # |v_pref - v_cf| above this counts as blocked (m/s)
+    deadlock_iterations: int = 50  # N_d, iterations blocked before a deadlock is declared (5 s: outlasts a crowd)
+    deadlock_speed: float = 0.03  # |v_pref - v_cf| above this, and headway below it, count as blocked (m/s)
     deadlock_near: float = 0.3  # only robots this close to their goal are checked (m)
 
     def __post_init__(self) -> None:
