@@ -25,7 +25,7 @@ from .core.params import RobotParams
 
 DIGEST_EVERY = 0.01
 QUIET = 0.02  # digest-only news waits until the board has not changed for this long (no storms)
-RESEND_BUSY = 0.5
+RESEND_BUSY = 0.25  # a lost message stalls a phase until a resend: short while an instance is open
 RESEND_IDLE = 1.0
 
 OnAgreed = Callable[[int, int, dict[int, int], np.ndarray, np.ndarray], None]

@@ -61,7 +61,7 @@ converge_hold = {converge_hold}
 
 
 def test_auction_survives_loss_and_delay(tmp_path):
-    m, traj = run(tmp_path, DISK.format(hold=40.0, converge_hold=3.0, events=""), "--faults", "auction:drop=0.1,delay=0.05")
+    m, traj = run(tmp_path, DISK.format(hold=40.0, converge_hold=8.0, events=""), "--faults", "auction:drop=0.1,delay=0.05")
     assert m["faults"], "the fault plan was not applied"
     assert_every_hold_formed(m)
     assert_agreements_valid(traj, min_complete=3)
