@@ -8,7 +8,7 @@ digests that are stale at once), or when a message arrived written against anoth
 than ours (one of us missed something: answering lets the other catch up, so a lost message costs a
 round trip, not a timeout), once the board has been quiet for QUIET seconds (while bids fly, digests
 would only be stale) and at most every DIGEST_EVERY seconds; and as a backstop every RESEND_BUSY
-seconds while an instance is open, RESEND_IDLE when agreed (late joiners).
+seconds (more in large swarms) while an instance is open, RESEND_IDLE when agreed (late joiners).
 """
 from __future__ import annotations
 
@@ -26,6 +26,7 @@ from .core.params import RobotParams
 DIGEST_EVERY = 0.01
 QUIET = 0.02  # digest-only news waits until the board has not changed for this long (no storms)
 RESEND_BUSY = 0.25  # a lost message stalls a phase until a resend: short while an instance is open
+RESEND_PER_ROBOT = 0.01  # ... but every resend reaches every host: the backstop grows with the swarm
 RESEND_IDLE = 1.0
 
 OnAgreed = Callable[[int, int, dict[int, int], np.ndarray, np.ndarray], None]
@@ -112,7 +113,8 @@ class AuctionLink:
         if self.inbox.has_delayed:
             return 0.005
         now = time.monotonic()
-        due = self.last_sent + (RESEND_IDLE if part.is_agreed else RESEND_BUSY)
+        busy = max(RESEND_BUSY, RESEND_PER_ROBOT * len(part.robots))
+        due = self.last_sent + (RESEND_IDLE if part.is_agreed else busy)
         if part.claims_changed:
             return 0.0
         if (part.has_news or self.mismatch) and part.view_complete():
