@@ -12,6 +12,9 @@ raises ``SceneError`` with one line saying what is wrong and how to fix it.
     [layout]                 # kind = "circle" | "grid" | "random" | "rows" | "blocks" | "file"
     [goals]                  # kind = "antipodal" | "swap" | "list" | "stay" | "none" | "image"
     [[steps]]                # an image sequence: shape = "disk" or image = "a.png", hold = 25.0 (see coordinator.steps)
+                             # [steps.motion]: a dynamic image, the goal set moves (coordinator.motion)
+    [animation]              # keyframes = "story" | "folder/" | ["a.png", ...], frame_time = 5.0
+                             # (an animation, see coordinator.animation)
     [arena]                  # size = [width, height] (centred on the origin), or "auto"
     [[obstacles]]            # vertices = [[x, y], ...] counter-clockwise
     [[events]]               # t = 10.0, kind = "teleport", robot = 3, pose = [x, y, theta]
@@ -30,7 +33,9 @@ from typing import Any
 
 import numpy as np
 
+from .animation import FrameGoals, folder_table, parse_animation
 from .goals import GoalError
+from .motion import check_window
 from .steps import ImageStep, StepGoals, parse_step
 
 SCENE_DIR = Path(__file__).parent / "scenes"
@@ -38,6 +43,8 @@ LAYOUTS = ("circle", "grid", "random", "rows", "blocks", "file", "list")
 GOAL_KINDS = ("antipodal", "swap", "list", "stay", "none", "image")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 CLOCKS = ("lockstep", "realtime")
+ENGINES = ("distributed", "central")
+ASSIGNMENTS = ("auction", "optimal")
 DEFAULT_RADIUS = 0.045
 
 
@@ -63,6 +70,9 @@ class Scene:
     obstacles: list[list[tuple[float, float]]]
     events: list[dict[str, Any]]
     clock: str = "lockstep"
+    engine: str = "distributed"  # the default of `pixelswarm run --engine` for this scene
+    assignment: str = "auction"  # central engine: the auction protocol, or scipy's optimum with Delta C
+    agents_per_process: int = 1  # the default of `pixelswarm run -k` for this scene
     duration: float = 120.0
     seed: int = 1
     noise: Noise = field(default_factory=Noise)
@@ -73,7 +83,7 @@ class Scene:
     goal_set: np.ndarray | None = None  # (N,2) goals the robots assign themselves to (image scenes): step 0's
     goal_colors: np.ndarray | None = None  # (N,3) uint8 LED colours of those goals
     steps: list[ImageStep] = field(default_factory=list)  # image scenes: the images in order, with hold times
-    image_goals: StepGoals | None = field(default=None, repr=False)  # every step's goal sets, shared K_r
+    image_goals: StepGoals | FrameGoals | None = field(default=None, repr=False)  # every step's goal sets, shared K_r
     poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # initial poses (N,3)
     goal_positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # per-robot goals (N,2), NaN: none
 
@@ -90,6 +100,18 @@ class Scene:
         """The step shown at time t (the last one stays after its hold ends); 0 without steps."""
         starts = self.step_starts
         return max(0, int(np.searchsorted(starts, t + 1e-9, side="right")) - 1) if starts else 0
+
+    @property
+    def ends_on_convergence(self) -> bool:
+        """A run ends early once the robots hold the last image; not while it moves (a dynamic image
+        has no final position to hold)."""
+        return not (self.steps and self.steps[-1].motion is not None)
+
+    def step_window(self, k: int) -> float:
+        """How long step k is shown: its hold, the last step until the run ends (if later)."""
+        if k < len(self.steps) - 1:
+            return self.steps[k].hold
+        return max(self.steps[k].hold, self.duration - self.step_starts[k])
 
 
 def shipped_scenes() -> list[str]:
@@ -117,6 +139,9 @@ def load_scene(name_or_path: str, *, robots: int | None = None, seed: int | None
             raise SceneError(f"image {name_or_path} not found")
         return scene_from_dict(image_scene(name_or_path, robots or 14), source=name_or_path, seed=seed,
                                clock=clock, duration=duration)
+    if Path(name_or_path).is_dir():  # a folder of keyframes: an animation with the default timing
+        return scene_from_dict(folder_scene(name_or_path, robots or 14), source=name_or_path, seed=seed,
+                               clock=clock, duration=duration)
     path = resolve_scene_path(name_or_path)
     try:
         data = tomllib.loads(path.read_text())
@@ -131,7 +156,8 @@ def scene_from_dict(data: dict[str, Any], *, source: str = "<dict>", robots: int
                     seed: int | None = None, clock: str | None = None, duration: float | None = None) -> Scene:
     where = source
     known = {"name", "robots", "seed", "clock", "duration", "robot", "layout", "goals", "arena", "obstacles",
-             "events", "noise", "end", "description", "scripted", "pursuers", "steps"}
+             "events", "noise", "end", "description", "scripted", "pursuers", "steps", "animation", "engine",
+             "assignment", "agents_per_process"}
     unknown = set(data) - known
     if unknown:
         raise SceneError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
@@ -142,7 +168,10 @@ def scene_from_dict(data: dict[str, Any], *, source: str = "<dict>", robots: int
     radius = robot.get("radius", DEFAULT_RADIUS)
     if not _positive(radius):
         raise SceneError(f"{where}: robot radius must be a positive number of metres, not {radius!r}")
-    steps = _steps(data, source, where)
+    animation = _wrap(lambda: parse_animation(data["animation"], source), where) if "animation" in data else None
+    steps = list(animation.steps) if animation is not None else _steps(data, source, where)
+    if animation is not None and ("steps" in data or "goals" in data):
+        raise SceneError(f"{where}: give one of [animation], [[steps]] or [goals], not several")
     if duration is None:
         duration = data.get("duration", sum(s.hold for s in steps) if steps else 120.0)
     if not _positive(duration):
@@ -157,6 +186,9 @@ def scene_from_dict(data: dict[str, Any], *, source: str = "<dict>", robots: int
         obstacles=[],
         events=list(data.get("events", [])),
         clock=clock or data.get("clock", "lockstep"),
+        engine=data.get("engine", "distributed"),
+        assignment=data.get("assignment", "auction"),
+        agents_per_process=data.get("agents_per_process", 1),
         duration=float(duration),
         seed=int(seed if seed is not None else data.get("seed", 1)),
         noise=_noise(data.get("noise", {}), where),
@@ -165,6 +197,13 @@ def scene_from_dict(data: dict[str, Any], *, source: str = "<dict>", robots: int
     )
     if scene.clock not in CLOCKS:
         raise SceneError(f"{where}: clock must be one of {', '.join(CLOCKS)}, not {scene.clock!r}")
+    if scene.engine not in ENGINES:
+        raise SceneError(f"{where}: engine must be one of {', '.join(ENGINES)}, not {scene.engine!r}")
+    k = scene.agents_per_process
+    if not isinstance(k, int) or isinstance(k, bool) or k < 1:
+        raise SceneError(f"{where}: agents_per_process must be a whole number >= 1, not {k!r}")
+    if scene.assignment not in ASSIGNMENTS:
+        raise SceneError(f"{where}: assignment must be one of {', '.join(ASSIGNMENTS)}, not {scene.assignment!r}")
     scene.obstacles = [_polygon(o, where) for o in data.get("obstacles", [])]
     scene.poses = initial_poses(scene.layout, n, radius, scene.seed, where)
     if scene.goals.get("kind") == "image":
@@ -175,8 +214,15 @@ def scene_from_dict(data: dict[str, Any], *, source: str = "<dict>", robots: int
         labels = ["goals"] if "steps" not in data else None
         written_for = data.get("robots", n)  # region_counts were written for the file's count: --robots scales them
         written_for = written_for if isinstance(written_for, int) and written_for >= 1 else n
-        scene.image_goals = _wrap(lambda: StepGoals(steps, n, scene.seed, float(radius), scene.goals.get("arena"),
-                                                    labels, written_for), where)
+        if animation is not None:
+            scene.image_goals = _wrap(lambda: FrameGoals(animation, n, scene.seed, float(radius),
+                                                         counts_for=written_for), where)
+        else:
+            scene.image_goals = _wrap(lambda: StepGoals(steps, n, scene.seed, float(radius),
+                                                        scene.goals.get("arena"), labels, written_for), where)
+        for k, step in enumerate(steps):
+            if step.motion is not None:
+                _wrap(lambda: check_window(step.motion, f"steps[{k}]", scene.step_window(k)), where)
         scene.goal_set, scene.goal_colors = scene_goal_set(scene, 0, n)
         scene.goal_positions = np.full((n, 2), np.nan)
     else:
@@ -323,6 +369,14 @@ def scene_goal_set(scene: Scene, step: int, robots: int) -> tuple[np.ndarray, np
     return _wrap(lambda: scene.image_goals.goal_set(step, robots), scene.name)  # type: ignore[union-attr]
 
 
+def folder_scene(path: str, robots: int) -> dict[str, Any]:
+    """The scene for `pixelswarm run folder/ --robots N`: a grid of e-pucks playing the folder's images
+    as keyframes in file-name order, with coordinator.animation's default timing (30 s to form the first
+    keyframe, then one every 5 s, the last shown 5 s more)."""
+    return {"name": Path(path).resolve().name, "robots": robots, "animation": folder_table(Path(path).resolve()),
+            "layout": {"kind": "grid", "spacing": 0.2}}
+
+
 def image_scene(path: str, robots: int) -> dict[str, Any]:
     """The scene for `pixelswarm run picture.png --robots N`: a grid of e-pucks, the picture's goals."""
     return {"name": Path(path).stem, "robots": robots, "goals": {"kind": "image", "image": str(Path(path).resolve())},
@@ -334,6 +388,7 @@ def _arena(spec: Any, scene: Scene, where: str) -> tuple[float, float, float, fl
         pts = [scene.poses[:, :2]]
         if scene.image_goals is not None:  # every step's picture, all robots (fewer robots: inside it)
             pts += [scene_goal_set(scene, k, scene.robots)[0] for k in range(len(scene.steps))]
+            pts += _swept(scene)  # a moving picture: wherever it goes
         goals = scene.goal_positions[~np.isnan(scene.goal_positions).any(axis=1)]
         pts.append(goals)
         pts += [np.asarray(o) for o in scene.obstacles]
@@ -345,7 +400,19 @@ def _arena(spec: Any, scene: Scene, where: str) -> tuple[float, float, float, fl
     if not (isinstance(size, list) and len(size) == 2 and all(_positive(s) for s in size)):
         raise SceneError(f"{where}: arena must be \"auto\" or have size = [width, height] in metres")
     w, h = float(size[0]), float(size[1])
+    for k, box in enumerate(_swept(scene)):
+        box = box + np.array([[-scene.radius], [scene.radius]])  # the robots on the goals, too
+        if box[0, 0] < -w / 2 or box[0, 1] < -h / 2 or box[1, 0] > w / 2 or box[1, 1] > h / 2:
+            raise SceneError(f"{where}: the moving image of step {k} leaves the {w:g} x {h:g} m arena "
+                             f"(it reaches [{box[0, 0]:.2f}, {box[0, 1]:.2f}] to [{box[1, 0]:.2f}, {box[1, 1]:.2f}]); "
+                             "enlarge [arena] size or slow the [steps.motion]")
     return (-w / 2, -h / 2, w / 2, h / 2)
+
+
+def _swept(scene: Scene) -> list[np.ndarray]:
+    """Boxes (2,2) holding each moving step's goal set for as long as the step is shown."""
+    return [s.motion.swept_box(scene_goal_set(scene, k, scene.robots)[0], scene.step_window(k))
+            for k, s in enumerate(scene.steps) if s.motion is not None]
 
 
 def _check_fit(scene: Scene, where: str) -> None:

@@ -4,7 +4,8 @@ Image scenes: each scene step (an image and its hold time) is shown with the goa
 alive (paper 5.1.2: eq. 8's set for the current count); a new step, or an agent dying or joining,
 starts a new epoch, and the robots re-auction. Display time comes from the world's clock ticks.
 Late joiners ask for the current goal set with a query; the set is also re-published every second,
-so a lost message costs at most a second.
+so a lost message costs at most a second. Animation keyframes are steps too (one epoch per keyframe,
+with its K_f dt for eq. 27); a dynamic image's motion (eq. 28) is published once with its goal set.
 """
 from __future__ import annotations
 
@@ -57,6 +58,19 @@ def scene_goal_message(scene: Scene, epoch: int = 1) -> Goals | None:
     none = np.isnan(goals).any(axis=1)
     goals = np.where(none[:, None], scene.poses[:, :2], goals)
     return Goals(epoch, 1, 0.0, len(goals), goals, palette(len(goals)))
+
+
+def step_timing(scene: Scene, step: int) -> dict[str, float | int]:
+    """The Goals fields of a step beyond its goals: when it began (t = 0 of eq. 28, and the start of
+    an animation keyframe), its K_f dt (eq. 27) and the motion of a dynamic image (eq. 28). The robots
+    compute their moving goals and synchronised velocities from these themselves."""
+    s = scene.steps[step]
+    out: dict[str, float | int] = {"t_start": scene.step_starts[step], "frame_period": s.frame_period}
+    m = s.motion
+    if m is not None:
+        out.update(v_gx=m.velocity[0], v_gy=m.velocity[1], omega_g=m.angular_velocity, p_ogx=m.center[0],
+                   p_ogy=m.center[1], k_eg=m.expansion, geometric=int(m.geometric))
+    return out
 
 
 class Coordinator:
@@ -124,7 +138,8 @@ class Coordinator:
         self.epoch += 1
         self.shown = (step, robots)
         self.current = Goals(self.epoch, 0, self.t, len(goals), np.asarray(goals), np.asarray(colors), step,
-                             float(self.scene.steps[step].hold), np.array(sorted(robots)))
+                             float(self.scene.steps[step].hold), np.array(sorted(robots)),
+                             **step_timing(self.scene, step))
         self.bus.publish(self.bus.keys.goals(self.epoch), self.current)
         return True
 

@@ -1,5 +1,5 @@
 """Test shapes drawn as RGB images: the paper's Fig. 4 patterns (disk, disk and line, line, L, T) and
-a few more (ring, two touching squares of different colour, a photo-like scene).
+a few more (ring, two touching squares of different colour, the triangle of Fig. 18, a photo-like scene).
 
 Shapes live in the unit square (x right, y down) and are drawn on a size x size canvas; proportions
 follow the paper's figures. Every drawing function returns an (H, W, 3) uint8 RGB array, or (H, W, 4)
@@ -7,6 +7,7 @@ RGBA with transparent background when alpha=True.
 """
 from __future__ import annotations
 
+import math
 from typing import Callable, Sequence
 
 import cv2
@@ -43,6 +44,19 @@ def _ring(cx: float, cy: float, r_out: float, r_in: float) -> Inside:
     return lambda x, y: outer(x, y) & ~inner(x, y)
 
 
+def _triangle(cx: float, cy: float, r: float) -> Inside:
+    """An equilateral triangle, apex up, centroid (cx, cy), circumradius r (the rotating and growing
+    triangle of the paper's Fig. 18 turns about its centroid)."""
+    corners = [(cx + r * math.cos(a), cy - r * math.sin(a)) for a in (math.pi / 2, math.pi * 7 / 6, -math.pi / 6)]
+
+    def inside(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        out = np.ones(np.shape(x), bool)
+        for (x0, y0), (x1, y1) in zip(corners, corners[1:] + corners[:1]):
+            out &= (x1 - x0) * (y - y0) - (y1 - y0) * (x - x0) <= 0  # inside: the same side of every edge
+        return out
+    return inside
+
+
 # name -> list of (part, default colour); proportions measured on the paper's Fig. 4 (512 px canvas)
 _SHAPES: dict[str, list[tuple[Inside, RGB]]] = {
     "disk": [(_disk(0.5, 0.5, 150 / 512), RED)],
@@ -52,6 +66,7 @@ _SHAPES: dict[str, list[tuple[Inside, RGB]]] = {
     "T": [(_union(_rect(100 / 512, 412 / 512, 80 / 512, 160 / 512), _rect(216 / 512, 296 / 512, 80 / 512, 440 / 512)), BLUE)],
     "ring": [(_ring(0.5, 0.5, 0.36, 0.2), RED)],
     "two_squares": [(_rect(0.15, 0.5, 0.3, 0.7), RED), (_rect(0.5, 0.85, 0.3, 0.7), BLUE)],
+    "triangle": [(_triangle(0.5, 0.5, 0.3), RED)],
 }
 SHAPES = tuple(_SHAPES)
 

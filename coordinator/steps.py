@@ -4,6 +4,8 @@
     shape = "disk_and_line"              # or image = "picture.png" (relative to the scene file)
     region_counts = { 0 = 10, 1 = 4 }    # the artist's N_i per region (ids: by area, largest first)
     hold = 25.0
+    [steps.motion]                       # optional: a dynamic image (paper 7.4.1, coordinator.motion)
+    angular_velocity = 0.05
 
 region_counts are for the scene's `robots`; other counts (--robots, robots lost) get them scaled.
 Every step's goal set, for every robot count r the swarm may have (paper 5.1.2: the set for the
@@ -21,9 +23,10 @@ from typing import Any, Mapping
 import numpy as np
 
 from .goals import GoalError, GoalSet, PreparedImage, goals_from_prepared, prepare_image
+from .motion import StepMotion, parse_motion
 from .shapes import SHAPES, draw
 
-STEP_KEYS = ("name", "image", "shape", "hold", "region_counts", "method")
+STEP_KEYS = ("name", "image", "shape", "hold", "region_counts", "method", "motion")
 METHODS = ("cvt", "kmeans")
 SHAPE_PIXELS = 256  # canvas side of the drawn shapes (goals live in the normalised square anyway)
 
@@ -38,6 +41,9 @@ class ImageStep:
     hold: float  # seconds the image is shown
     region_counts: dict[int, int] | None = None  # the artist's N_i per region id
     method: str = "cvt"  # Lloyd with the density of eq. 2, or k-means
+    motion: StepMotion | None = None  # a dynamic image (paper 7.4.1): the goal set moves (eq. 28)
+    frame_period: float = 0.0  # an animation keyframe's K_f dt (paper 6.2, eq. 27); 0: not a keyframe
+    keyframe: int | None = None  # an animation keyframe: its index (goals from coordinator.animation)
 
 
 def parse_step(data: Any, label: str, source: str = "") -> ImageStep:
@@ -67,7 +73,9 @@ def parse_step(data: Any, label: str, source: str = "") -> ImageStep:
     if method not in METHODS:
         raise GoalError(f"{label}: method must be one of {', '.join(METHODS)}, not {method!r}")
     name = str(data.get("name", shape if shape is not None else image.stem))  # type: ignore[union-attr]
-    return ImageStep(name, image, shape, float(hold), _region_counts(data.get("region_counts"), label), method)
+    motion = parse_motion(data["motion"], label) if "motion" in data else None
+    return ImageStep(name, image, shape, float(hold), _region_counts(data.get("region_counts"), label), method,
+                     motion)
 
 
 def _region_counts(value: Any, label: str) -> dict[int, int] | None:

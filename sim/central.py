@@ -5,7 +5,10 @@ collision-free velocity, age zero), as RVO2 does. It is the reference against wh
 is studied (`--engine central` against `--engine distributed`), and the fast path for large swarms.
 
 Image scenes play their steps: at time t the robots are auctioned (paper 5.1) onto the goal set of
-the step whose hold contains t; the `step` array records which one, tick by tick.
+the step whose hold contains t; the `step` array records which one, tick by tick. Animation keyframes
+are steps whose robots hold eq. 27's velocity (agent.core.animation); a dynamic image's goals move by
+eq. 28 and the robots drive with the goals' velocity fed forward (agent.core.goal_motion), auctioned
+on the published goal set with their positions mapped back, as the agents do (agent.runtime).
 """
 from __future__ import annotations
 
@@ -15,10 +18,14 @@ from pathlib import Path
 from typing import TextIO
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
+from agent.core.animation import frame_hold, iterations_left
 from agent.core.auction import solve
+from agent.core.goal_motion import GoalMotion, tracking_velocity
 from agent.core.step import NeighbourStates, control_step, static_segments
+from coordinator.motion import StepMotion
 from coordinator.scene import Scene, scene_goal_set
 from coordinator.service import palette
 
@@ -47,6 +54,33 @@ def nearest_neighbours(position: np.ndarray, velocity: np.ndarray, radius: float
     return out
 
 
+def goal_motion(motion: StepMotion | None) -> GoalMotion | None:
+    """A scene step's motion as the agents' core takes it (eq. 28); None for a still image."""
+    if motion is None:
+        return None
+    out = GoalMotion(motion.velocity, motion.angular_velocity, motion.center, motion.expansion, motion.geometric)
+    return None if out.is_static else out
+
+
+def optimal_assignment(position: np.ndarray, goals: np.ndarray, previous: np.ndarray | None,
+                       hysteresis: float) -> np.ndarray:
+    """Goal index per robot: the assignment of least total squared distance (eq. 5-7, scipy's
+    linear_sum_assignment), kept only if it lowers the cost of the previous iteration's assignment by
+    at least Delta C (paper 5.1's hysteresis for noisy positions). The fast path for very large
+    swarms (scene `assignment = "optimal"`, solved every `assign_period`): the reference auction
+    (agent.core.auction.solve) runs its rounds in Python, seconds per iteration at a few hundred
+    robots; scipy takes 10 ms for 1000 robots near their goals, about 1 s while they cross the arena."""
+    cost = ((position[:, None, :] - goals[None, :, :]) ** 2).sum(-1)
+    rows, cols = linear_sum_assignment(cost)
+    best = np.full(len(position), -1)
+    best[rows] = cols
+    if previous is not None and (previous >= 0).all():
+        keep = cost[np.arange(len(position)), previous].sum()
+        if keep - cost[rows, cols].sum() < hysteresis:
+            return previous
+    return best
+
+
 def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO | None = sys.stderr) -> Path:
     params, world = world_of(scene)
     tracker = tracker_of(scene)
@@ -59,6 +93,9 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
     view = None  # image scenes: the robots' assignment to the goal set, re-auctioned every iteration
     assignment = np.where(has_goal, ids, -1)  # goal index per robot (scene goals: its own)
     velocity = np.zeros((n, 2))
+    held, left, hold_for = np.zeros((n, 2)), np.zeros(n, np.int64), np.full(n, -1)  # eq. 27's hold per robot
+    motion: GoalMotion | None = None
+    solved_at: float | None = None  # assignment = "optimal": when the step's assignment was last solved
     if any(e["kind"] == "fail" for e in scene.events):
         raise ValueError("fail events (agent processes killed) need the distributed engine")
     events = sorted(scene.events, key=lambda e: e["t"])
@@ -78,22 +115,38 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
                 world.teleport(ev["robot"], tuple(ev["pose"]))
             k = scene.step_at(t)
             if k != shown:  # a new image: its goal set, and a fresh auction (the old prices mean nothing)
-                shown, view = k, None
+                shown, view, solved_at = k, None, None
                 converged_since = None
+                hold_for[:] = -1  # every robot's goal is new: a keyframe's hold restarts
                 if scene.steps:
                     goal_set, goal_colors = scene_goal_set(scene, k, n)
+                    motion, t_start = goal_motion(scene.steps[k].motion), scene.step_starts[k]
             measured = tracker.measure(world.poses)
+            preferred = None
             if scene.steps:
                 # Paper 5.1: re-assign every iteration, warm-started from the previous prices, with
-                # the hysteresis Delta C against flip-flops from tracking noise.
-                view, _ = solve({i: measured[i, :2] for i in range(n)}, goal_set, params.assign_eps,
-                                view=view, hysteresis=params.assign_hysteresis)
-                owner = view.owner
-                assignment = np.full(n, -1)
-                assignment[owner[owner >= 0]] = np.flatnonzero(owner >= 0)
+                # the hysteresis Delta C against flip-flops from tracking noise. A moving goal set is
+                # auctioned with the positions mapped back to t = 0 (GoalMotion.to_initial_frame).
+                bid_from = measured[:, :2] if motion is None else motion.to_initial_frame(measured[:, :2], t - t_start)
+                if scene.assignment == "optimal":
+                    if solved_at is None or t - solved_at >= params.assign_period - 1e-9:
+                        assignment = optimal_assignment(bid_from, goal_set, None if solved_at is None else assignment,
+                                                        params.assign_hysteresis)
+                        solved_at = t
+                else:
+                    view, _ = solve({i: bid_from[i] for i in range(n)}, goal_set, params.assign_eps,
+                                    view=view, hysteresis=params.assign_hysteresis)
+                    owner = view.owner
+                    assignment = np.full(n, -1)
+                    assignment[owner[owner >= 0]] = np.flatnonzero(owner >= 0)
                 has_goal = assignment >= 0
                 goal = np.where(has_goal[:, None], goal_set[assignment], np.nan)
                 color = np.where(has_goal[:, None], goal_colors[assignment], 40).astype(np.uint8)
+                preferred, held, left = _preferred(scene, params, k, motion, t - t_start, t, measured[:, :2], goal,
+                                                   assignment, hold_for, held, left)
+                if motion is not None:
+                    goal = motion.positions(goal, t - t_start)
+                hold_for = assignment.copy()
             rec["t"].append(t)
             rec["pose"].append(world.poses)
             rec["velocity"].append(world.velocities)
@@ -103,7 +156,8 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
             rec["step"].append(k)
             err = np.hypot(*(world.poses[:, :2] - goal).T)
             # Converging ends the run only once the last image is up: earlier images keep their hold.
-            if k == last_step and has_goal.any() and np.all(err[has_goal] <= params.goal_tolerance):
+            if (k == last_step and scene.ends_on_convergence and has_goal.any()
+                    and np.all(err[has_goal] <= params.goal_tolerance)):
                 converged_since = t if converged_since is None else converged_since
                 if t - converged_since >= scene.converge_hold:
                     end_reason = "converged"
@@ -115,7 +169,7 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
             nbs = nearest_neighbours(measured[:, :2], velocity, params.radius, params.neighbour_dist,
                                      params.max_neighbours)
             res = control_step(params, ids, measured[:, :2], measured[:, 2], velocity, goal, nbs, segments,
-                               seed=scene.seed, tick=tick)
+                               seed=scene.seed, tick=tick, preferred=preferred)
             velocity = res.velocity
             fallbacks += int(res.fallback.sum())
             for i in range(n):
@@ -137,3 +191,20 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
     except BaseException:
         run_dir.abort()
         raise
+
+
+def _preferred(scene: Scene, params, k: int, motion: GoalMotion | None, t_rel: float, t: float,
+               position: np.ndarray, goal0: np.ndarray, assignment: np.ndarray, hold_for: np.ndarray,
+               held: np.ndarray, left: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Preferred velocities where eq. 9 does not apply (NaN rows), as agent.runtime computes them:
+    toward a moving goal v_goal + eq. 9 (eq. 28); in a keyframe eq. 27, held K_f iterations from
+    the robot's goal change. Returns (preferred, held, left)."""
+    if motion is not None:
+        pref = tracking_velocity(position, motion.positions(goal0, t_rel), motion.velocities(goal0, t_rel),
+                                 params.v_pref, params.k_a, params.v_max)
+        return pref, held, np.zeros_like(left)
+    period = scene.steps[k].frame_period
+    iterations = iterations_left(scene.step_starts[k], period, t, params.dt) if period > 0 else 0
+    restart = assignment != hold_for
+    return frame_hold(position, goal0, restart, np.full(len(position), iterations), held, left, params.v_max,
+                      params.dt)

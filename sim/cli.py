@@ -43,18 +43,21 @@ def build_parser() -> argparse.ArgumentParser:
 
     run = sub.add_parser("run", help="run a scene: router, world, tracker, coordinator and one process per robot")
     run.add_argument("scene", help=f"a shipped scene ({', '.join(shipped_scenes())}), a path to a scene .toml, "
-                                   "or an image (PNG, JPEG, BMP, TIFF) to display")
+                                   "an image (PNG, JPEG, BMP, TIFF) to display, or a folder of keyframe images "
+                                   "to play as an animation (file-name order)")
     run.add_argument("--robots", "-n", type=_positive_int, help="number of robots (overrides the scene)")
     run.add_argument("--seed", type=int, help="random seed (overrides the scene)")
     run.add_argument("--clock", choices=["realtime", "lockstep"], help="clock (overrides the scene)")
     run.add_argument("--duration", type=float, help="seconds of display time at most (overrides the scene)")
     run.add_argument("--out", type=Path, help="run directory (default runs/<UTC time>-<scene>)")
-    run.add_argument("--engine", choices=["distributed", "central"], default="distributed",
-                     help="distributed: one process per robot over zenoh (default); central: every robot "
-                          "stepped in one call with perfect information (reference, and fast for large swarms)")
+    run.add_argument("--engine", choices=["distributed", "central"],
+                     help="distributed: one process per robot over zenoh (default, unless the scene says "
+                          "engine = \"central\"); central: every robot stepped in one call with perfect "
+                          "information (reference, and fast for large swarms)")
     run.add_argument("--no-video", dest="video", action="store_false", help="skip display.mp4")
-    run.add_argument("--agents-per-process", "-k", type=_positive_int, default=1, metavar="K",
-                     help="robots per agent process (default 1: one process per robot)")
+    run.add_argument("--agents-per-process", "-k", type=_positive_int, metavar="K",
+                     help="robots per agent process (default 1: one process per robot, unless the scene "
+                          "says agents_per_process = K)")
     run.add_argument("--faults", default="", metavar="PLAN",
                      help="fault injection, e.g. 'state:drop=0.1,delay=0.05,jitter=0.01' (';' between kinds)")
     run.add_argument("--deadline", type=float, default=2.0, help="lock-step: seconds to wait for late agents")
@@ -87,7 +90,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     out = args.out or default_run_path(scene.name)
     if out.exists() or out.with_name(out.name + ".partial").exists():
         raise UsageError(f"run directory {out} already exists; choose another --out")
-    if args.engine == "central":
+    if (args.engine or scene.engine) == "central":
         from .central import run_central
 
         if any(e["kind"] == "fail" for e in scene.events):
@@ -100,7 +103,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise UsageError("pixelswarm run embeds a router; to join an existing one use -e tcp/HOST:PORT")
     if args.listen:
         router = ZenohSettings(mode="router", listen=list(args.listen), connect=list(args.connect))
-    options = RunOptions(out=out, video=args.video, agents_per_process=args.agents_per_process,
+    k = args.agents_per_process or scene.agents_per_process
+    options = RunOptions(out=out, video=args.video, agents_per_process=k,
                          display=args.display, router=router, connect=[] if args.listen else list(args.connect),
                          faults=faults, agent_routers=list(args.agents_connect), deadline=args.deadline, progress=None if args.quiet else sys.stderr)
     try:

@@ -243,6 +243,7 @@ class Launcher:
             # With image steps, only convergence that began within the last step ends a run early.
             last_start = self.scene.step_starts[-1] if self.scene.steps else 0.0
             in_last = rec.converged_since is not None and rec.converged_since >= last_start - 1e-9
+            in_last = in_last and self.scene.ends_on_convergence
             if not end_sent and in_last and rec.held_converged(rec.sim_time, self.scene.converge_hold):
                 bus.publish(bus.keys.event, Event({"kind": "end", "reason": "converged"}))
                 end_sent = True

@@ -22,6 +22,9 @@ SAMPLES = [
     Command(3, 7, 0.7, Command.WHEELS, 0.1, -0.05, 255, 10, 0),
     Tick(7, 0.7, 0.1),
     Goals(2, 0, 0.0, 3, np.array([[0.0, 1.0], [2.0, 3.0], [-1.0, 0.5]]), np.array([[255, 0, 0]] * 3, np.uint8)),
+    Goals(3, 0, 30.1, 2, np.array([[0.0, 1.0], [2.0, 3.0]]), np.array([[255, 0, 0]] * 2, np.uint8), 4, 6.0,
+          np.array([0, 5]), t_start=30.0, frame_period=6.0, v_gx=0.01, v_gy=-0.02, omega_g=0.05, p_ogx=0.1,
+          p_ogy=-0.1, k_eg=0.004, geometric=1),
     Truth(7, 0.7, 0.01, 2, np.zeros((2, 3)), np.ones((2, 2)), np.zeros((2, 3), np.uint8), np.array([1, 2], np.uint32)),
     Contact(0, 1, 2, 0.5, 0.003),
     Event({"kind": "end", "reason": "converged"}),
@@ -67,6 +70,23 @@ def test_non_finite_is_rejected():
     assert decode(bad_goals, drops=drops) is None
     assert decode(b"\x08\x01" + b'{"a": NaN}', drops=drops) is None
     assert drops["non-finite"] == 4
+
+
+def test_goals_of_an_older_coordinator_decode_as_a_still_image():
+    """The keyframe timing and the motion (eq. 27, 28) ride in a trailer: a message without it is read
+    as before (no motion, not a keyframe); a torn trailer is dropped; bad values are refused."""
+    full = SAMPLES[5]
+    data = full.encode()
+    old = data[:-Goals._trailer.size]
+    back = decode(old)
+    assert back is not None and back.epoch == 3 and back.step == 4 and back.robots.tolist() == [0, 5]
+    assert (back.t_start, back.frame_period, back.moves) == (0.0, 0.0, False)
+    drops = DropCounter()
+    assert decode(data[:-3], drops=drops) is None and drops["truncated"] == 1
+    for bad in (dict(frame_period=-1.0), dict(geometric=2), dict(geometric=1, k_eg=-1.0), dict(omega_g=math.inf)):
+        assert decode(Goals(**{**full.to_dict(), **bad, "positions": full.positions, "colors": full.colors,
+                               "robots": full.robots}).encode(), drops=drops) is None, bad
+    assert drops["invalid"] == 3 and drops["non-finite"] == 1
 
 
 def test_wrong_kind_on_a_key_is_dropped():

@@ -192,6 +192,12 @@ class Goals(Message):
     ``per_robot`` set means goals[i] is robot i's own goal (scenes with fixed goals, as in RVO2's
     Circle); otherwise the robots in ``robots`` assign themselves to the goals by auction. ``step``
     is the scene step (image) the set shows and ``hold`` how long it is shown (s).
+
+    Animations and dynamic images (a trailer after the robots; a message without it, as older
+    coordinators send, decodes as a still image): ``t_start`` is the display time the step began,
+    ``frame_period`` the K_f dt of an animation keyframe (paper 6.2, eq. 27; 0: not a keyframe), and
+    v_G, omega_G, p_OG, K_eG and ``geometric`` the goal set's motion (paper 7.4.1, eq. 28, with
+    t = display time - t_start; all zero: it stands still).
     """
 
     KIND: ClassVar[int] = 5
@@ -207,6 +213,22 @@ class Goals(Message):
     step: int = 0
     hold: float = 0.0
     robots: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    t_start: float = 0.0  # display time the step began (t = 0 of eq. 28, the keyframe's start)
+    frame_period: float = 0.0  # K_f dt of an animation keyframe (s), 0: not a keyframe
+    v_gx: float = 0.0  # v_G (m/s)
+    v_gy: float = 0.0
+    omega_g: float = 0.0  # omega_G (rad/s)
+    p_ogx: float = 0.0  # p_OG (m)
+    p_ogy: float = 0.0
+    k_eg: float = 0.0  # K_eG (1/s)
+    geometric: int = 0  # 1: s(t) = (1 + K_eG)^t, 0: s(t) = 1 + K_eG t
+
+    _trailer: ClassVar[struct.Struct] = struct.Struct("<dfffffffB")
+
+    @property
+    def moves(self) -> bool:
+        """The goal set translates, rotates or scales (a dynamic image)."""
+        return any((self.v_gx, self.v_gy, self.omega_g, self.k_eg))
 
     def _fixed_values(self) -> tuple:
         return (self.epoch, self.per_robot, self.stamp, len(self.positions), self.step, self.hold, len(self.robots))
@@ -215,7 +237,9 @@ class Goals(Message):
         items = np.empty(len(self.positions), self._item)
         items["x"], items["y"] = self.positions[:, 0], self.positions[:, 1]
         items["rgb"] = self.colors
-        return items.tobytes() + np.asarray(self.robots, "<u2").tobytes()
+        trailer = self._trailer.pack(self.t_start, self.frame_period, self.v_gx, self.v_gy, self.omega_g,
+                                     self.p_ogx, self.p_ogy, self.k_eg, self.geometric)
+        return items.tobytes() + np.asarray(self.robots, "<u2").tobytes() + trailer
 
     @classmethod
     def _from(cls, body: memoryview) -> "Goals":
@@ -223,15 +247,21 @@ class Goals(Message):
             raise Malformed("truncated")
         epoch, per_robot, stamp, count, step, hold, n_robots = cls._fixed.unpack(body[: cls._fixed.size])
         end = cls._fixed.size + count * cls._item.itemsize
-        if len(body) != end + 2 * n_robots:
+        rest = len(body) - (end + 2 * n_robots)
+        if rest not in (0, cls._trailer.size):
             raise Malformed("truncated")
         items = np.frombuffer(body[cls._fixed.size:end], cls._item)
         positions = np.stack([items["x"], items["y"]], axis=1).astype(float)
         _finite(stamp, hold)
         if not np.all(np.isfinite(positions)):
             raise Malformed("non-finite")
-        robots = np.frombuffer(body[end:], "<u2").astype(np.int64)
-        return cls(epoch, per_robot, stamp, count, positions, items["rgb"].copy(), step, hold, robots)
+        robots = np.frombuffer(body[end:end + 2 * n_robots], "<u2").astype(np.int64)
+        extra = cls._trailer.unpack(body[len(body) - rest:]) if rest else ()
+        _finite(*extra)
+        msg = cls(epoch, per_robot, stamp, count, positions, items["rgb"].copy(), step, hold, robots, *extra)
+        if msg.frame_period < 0 or msg.geometric not in (0, 1) or (msg.geometric and msg.k_eg <= -1):
+            raise Malformed("invalid")
+        return msg
 
 
 @dataclass

@@ -68,10 +68,18 @@ def keep_right_when_blocked(pref: np.ndarray, velocity: np.ndarray, v_pref: floa
 
 def control_step(params: RobotParams, robot_ids: np.ndarray, position: np.ndarray, heading: np.ndarray,
                  velocity: np.ndarray, goal: np.ndarray, neighbours: NeighbourStates,
-                 segments: np.ndarray | None = None, *, seed: int = 0, tick: int = 0) -> StepResult:
-    """Paper 5.2-5.4 for a batch: preferred velocity (eq. 9), ORCA or NH-ORCA, controls."""
-    pref = keep_right_when_blocked(preferred_velocity(position, goal, params.v_pref, params.k_a), velocity,
-                                   params.v_pref)
+                 segments: np.ndarray | None = None, *, seed: int = 0, tick: int = 0,
+                 preferred: np.ndarray | None = None) -> StepResult:
+    """Paper 5.2-5.4 for a batch: preferred velocity (eq. 9), ORCA or NH-ORCA, controls.
+
+    preferred (B,2), optional: rows with finite values replace eq. 9 (eq. 27 held in an animation
+    frame, or the feed-forward toward a moving goal of a dynamic image, agent.core.animation and
+    agent.core.goal_motion); NaN rows use eq. 9."""
+    pref = preferred_velocity(position, goal, params.v_pref, params.k_a)
+    if preferred is not None:
+        given = np.isfinite(preferred).all(axis=1)
+        pref = np.where(given[:, None], np.where(given[:, None], preferred, 0.0), pref)
+    pref = keep_right_when_blocked(pref, velocity, params.v_pref)
     # A tiny deterministic perturbation breaks the symmetric head-on configurations that deadlock ORCA.
     pref = np.where(np.any(pref != 0, axis=1, keepdims=True),
                     perturb_preferred_velocity(pref, robot_ids, seed, tick), pref)

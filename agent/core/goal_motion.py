@@ -1,0 +1,119 @@
+"""Dynamic image display (paper 7.4.1): a goal set that translates, rotates and scales, eq. 28.
+
+The coordinator publishes the goal set G^0 once, with its motion; each robot computes its own moving
+goal g_j(t) and the goal's velocity from the clock of its ticks, so nothing is re-sent while the image
+moves. With t the display time since the goal set's step began,
+
+    g_j(t) = p_OG + t v_G + s(t) R(omega_G t) (g_j^0 - p_OG),
+    s(t)   = (1 + K_peG)^t (1 + K_leG t)            (K_peG = K_eG, geometric; K_leG = K_eG, linear)
+
+which is eq. 28 written with the polar form (r_j^0, theta_j^0 + omega_G t) as a rotation matrix. Its
+derivative (the goal's velocity, the feed-forward term of the preferred velocity) is
+
+    v_j(t) = v_G + (s'(t) / s(t) + omega_G J) (g_j(t) - p_OG - t v_G),   J = [[0, -1], [1, 0]],
+    s'(t)  = (1 + K_peG)^t (ln(1 + K_peG) (1 + K_leG t) + K_leG).
+
+Pure: arrays in, arrays out; t is a scalar or one time per row.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .orca import preferred_velocity
+
+
+@dataclass(frozen=True)
+class GoalMotion:
+    """The constant motion and deformation of a goal set (paper 7.4.1), in SI units."""
+
+    v_g: tuple[float, float] = (0.0, 0.0)  # v_G, translation of the pattern's centre (m/s)
+    omega_g: float = 0.0  # omega_G, rotation about the centre (rad/s, counter-clockwise)
+    p_og: tuple[float, float] = (0.0, 0.0)  # p_OG, the pattern's centre at t = 0 (m)
+    k_eg: float = 0.0  # K_eG, expansion (> 0) or contraction (< 0) per second
+    geometric: bool = False  # geometric: s(t) = (1 + K_eG)^t; linear: s(t) = 1 + K_eG t
+
+    def __post_init__(self) -> None:
+        if self.geometric and not self.k_eg > -1.0:
+            raise ValueError(f"a geometric expansion K_eG must be > -1, not {self.k_eg}")
+
+    @property
+    def is_static(self) -> bool:
+        return self.v_g == (0.0, 0.0) and self.omega_g == 0.0 and self.k_eg == 0.0
+
+    def scale(self, t: ArrayLike) -> np.ndarray:
+        """s(t): how much the pattern has grown since t = 0 (1 at t = 0)."""
+        t = np.asarray(t, float)
+        if self.geometric:
+            return (1.0 + self.k_eg) ** t
+        return 1.0 + self.k_eg * t
+
+    def scale_rate(self, t: ArrayLike) -> np.ndarray:
+        """s'(t)."""
+        t = np.asarray(t, float)
+        if self.geometric:
+            return (1.0 + self.k_eg) ** t * np.log1p(self.k_eg)
+        return np.full_like(t, self.k_eg)
+
+    def _rotation(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        a = self.omega_g * t
+        return np.cos(a)[..., None], np.sin(a)[..., None]
+
+    def positions(self, g0: ArrayLike, t: ArrayLike) -> np.ndarray:
+        """g_j(t) (eq. 28) of goals g0 (B,2) at time t (scalar or (B,))."""
+        g0 = np.asarray(g0, float)
+        t = np.broadcast_to(np.asarray(t, float), g0.shape[:-1])
+        centre = np.asarray(self.p_og, float)
+        d = g0 - centre
+        c, s = self._rotation(t)
+        k = self.scale(t)[..., None]
+        turned = np.stack([c[..., 0] * d[..., 0] - s[..., 0] * d[..., 1],
+                           s[..., 0] * d[..., 0] + c[..., 0] * d[..., 1]], axis=-1)
+        return centre + t[..., None] * np.asarray(self.v_g, float) + k * turned
+
+    def velocities(self, g0: ArrayLike, t: ArrayLike) -> np.ndarray:
+        """dg_j/dt (B,2): the derivative of eq. 28 at time t."""
+        g0 = np.asarray(g0, float)
+        t = np.broadcast_to(np.asarray(t, float), g0.shape[:-1])
+        v_g = np.asarray(self.v_g, float)
+        d = self.positions(g0, t) - np.asarray(self.p_og, float) - t[..., None] * v_g  # Delta g_j,OG(t)
+        growth = (self.scale_rate(t) / self.scale(t))[..., None]
+        return v_g + growth * d + self.omega_g * np.stack([-d[..., 1], d[..., 0]], axis=-1)
+
+    def to_initial_frame(self, points: ArrayLike, t: ArrayLike) -> np.ndarray:
+        """The inverse of eq. 28's map at time t: where points (B,2) sit relative to G^0.
+
+        The map is a similarity (rotation, uniform scale s(t), translation), so for every robot i and
+        goal j |g_j(t) - p_i|^2 = s(t)^2 |g_j^0 - p_i'|^2 with p_i' the robot mapped back: the
+        assignment of least total squared distance (eq. 7) of the robots to G^t is the one of the
+        mapped-back robots to G^0. The auction therefore runs on G^0 unchanged, with mapped-back
+        positions, and assigns as if it ran on the moving goals of the instance's time.
+        """
+        p = np.asarray(points, float)
+        t = np.broadcast_to(np.asarray(t, float), p.shape[:-1])
+        centre = np.asarray(self.p_og, float)
+        d = p - centre - t[..., None] * np.asarray(self.v_g, float)
+        c, s = self._rotation(t)
+        back = np.stack([c[..., 0] * d[..., 0] + s[..., 0] * d[..., 1],
+                         -s[..., 0] * d[..., 0] + c[..., 0] * d[..., 1]], axis=-1)
+        return centre + back / self.scale(t)[..., None]
+
+
+def tracking_velocity(position: ArrayLike, goal: ArrayLike, goal_velocity: ArrayLike, v_pref: float,
+                      k_a: float, v_max: float) -> np.ndarray:
+    """Preferred velocity toward a moving goal: v_goal + eq. 9's correction, clipped to v_max.
+
+    The feed-forward term v_goal lets a robot that stands on its goal move with it (eq. 9 alone
+    would only follow behind, |lag| = |v_goal| K_a / V_p); the eq. 9 term pulls it onto the goal.
+    Clipping keeps the direction: if the image moves faster than a robot can, the robot falls behind
+    (and the auction may reassign, as the paper observes). Rows without a goal (NaN) get zero.
+    """
+    correction = preferred_velocity(position, goal, v_pref, k_a)
+    gv = np.asarray(goal_velocity, float)
+    has = np.isfinite(np.asarray(goal, float)).all(axis=-1) & np.isfinite(gv).all(axis=-1)
+    v = np.where(has[..., None], correction + np.where(has[..., None], gv, 0.0), 0.0)
+    speed = np.hypot(v[..., 0], v[..., 1])
+    factor = np.where(speed > v_max, v_max / np.maximum(speed, 1e-12), 1.0)
+    return v * factor[..., None]

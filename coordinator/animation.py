@@ -1,0 +1,200 @@
+"""Animations in scenes (paper 6): the ``[animation]`` table, keyframe timing, and the goal sets.
+
+    [animation]
+    keyframes = "story"         # a drawn animation (coordinator.drawings: leaf, story, triangle),
+                                # a folder of images (played in file-name order), or a list of files
+    frame_time = 5.0            # K_f dt: seconds from one keyframe to the next (default 5 s)
+    first_hold = 30.0           # seconds to form the first keyframe from the start layout (default 30 s)
+    last_hold = 5.0             # the last keyframe stays this long after the robots reach it (default frame_time)
+    # times = [0, 30, 35, 42]   # or: when each keyframe begins (first 0, increasing), instead of the above
+    region_counts = { 0 = 10 }  # optional: the artist's N_i in the first keyframe (paper 4.2)
+    method = "cvt"              # or "kmeans"
+    keep_counts = false         # a region keeps its N_i from frame to frame (coordinator.keyframes)
+    init_from_previous = true   # paper 6.1: each frame's goals start from the previous frame's
+    size = 256                  # drawn animations: canvas side in pixels (512 for 1000 robots)
+    arena = 2.5                 # optional: K_r in metres (default: the largest conservative arena of any frame)
+
+Each keyframe becomes one scene step. Keyframe f begins at its start time and its robots arrive at its
+goals when keyframe f+1 begins (eq. 27 over K_f dt = the time between the two starts); the first
+keyframe's K_f dt is `first_hold` (the robots come from wherever the layout put them), the last's is
+`frame_time`, after which it is shown for `last_hold`. The goal sets come from
+coordinator.keyframes.keyframe_goals (each frame initialised from the previous one, paper 6.1), all in
+one arena K_r.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .drawings import KEYFRAME_ANIMATIONS, keyframes
+from .goals import GoalError
+from .keyframes import IMAGE_SUFFIXES, KeyframeGoals, keyframe_goals, keyframe_paths
+from .steps import METHODS, ImageStep, _region_counts, scale_region_counts
+
+ANIMATION_KEYS = ("keyframes", "frame_time", "first_hold", "last_hold", "times", "region_counts", "method",
+                  "keep_counts", "init_from_previous", "size", "arena")
+DEFAULT_FRAME_TIME = 5.0  # s between keyframes: K_f = 50 control periods at 10 Hz
+DEFAULT_FIRST_HOLD = 30.0  # s to form the first keyframe from the start layout (as an image step of Fig. 12)
+
+
+@dataclass(frozen=True)
+class Animation:
+    """The keyframes of a scene and how their goal sets are made."""
+
+    name: str
+    images: tuple[Any, ...]  # RGB arrays (drawn) or image paths, in play order
+    steps: tuple[ImageStep, ...]  # one per keyframe, with its hold and K_f dt
+    region_counts: dict[int, int] | None = None
+    method: str = "cvt"
+    keep_counts: bool = False
+    init_from_previous: bool = True
+    arena: float | None = None  # K_r, metres; None: the largest conservative arena any keyframe needs
+
+
+def folder_table(folder: str | Path) -> dict[str, Any]:
+    """The [animation] table of `pixelswarm run folder/`: its images in name order, default timing."""
+    return {"keyframes": str(folder)}
+
+
+def parse_animation(data: Any, source: str = "") -> Animation:
+    """An Animation from the [animation] table; paths are relative to the scene file. GoalError on
+    bad input (one line)."""
+    if not isinstance(data, dict):
+        raise GoalError("animation must be a table with keyframes = \"name\", \"folder/\" or [\"a.png\", ...]")
+    unknown = set(data) - set(ANIMATION_KEYS)
+    if unknown:
+        raise GoalError(f"animation: unknown key(s) {', '.join(sorted(unknown))} "
+                        f"(allowed: {', '.join(ANIMATION_KEYS)})")
+    name, images = _keyframes(data.get("keyframes"), source, data.get("size", 256))
+    frame_time = _seconds(data.get("frame_time", DEFAULT_FRAME_TIME), "frame_time")
+    last_hold = _seconds(data.get("last_hold", frame_time), "last_hold")
+    if "times" in data:
+        if "first_hold" in data:
+            raise GoalError("animation: give either times or first_hold (times[1] is when the first keyframe ends)")
+        starts = _times(data["times"], len(images))
+    else:
+        first = _seconds(data.get("first_hold", DEFAULT_FIRST_HOLD), "first_hold")
+        starts = [0.0] + [first + frame_time * f for f in range(len(images) - 1)]
+    periods = [b - a for a, b in zip(starts, starts[1:])] + [frame_time]
+    holds = periods[:-1] + [frame_time + last_hold]
+    method = data.get("method", "cvt")
+    if method not in METHODS:
+        raise GoalError(f"animation: method must be one of {', '.join(METHODS)}, not {method!r}")
+    steps = tuple(ImageStep(f"{name}[{f}]", None, None, hold, method=method, frame_period=period, keyframe=f)
+                  for f, (hold, period) in enumerate(zip(holds, periods)))
+    return Animation(name, tuple(images), steps, _region_counts(data.get("region_counts"), "animation"), method,
+                     _flag(data.get("keep_counts", False), "keep_counts"),
+                     _flag(data.get("init_from_previous", True), "init_from_previous"),
+                     _length(data["arena"], "arena") if "arena" in data else None)
+
+
+def _keyframes(value: Any, source: str, size: Any) -> tuple[str, list[Any]]:
+    """(name, images) of a drawn animation, a folder or a list of image files."""
+    if isinstance(value, str) and value in KEYFRAME_ANIMATIONS:
+        if not (isinstance(size, int) and not isinstance(size, bool) and 32 <= size <= 2048):
+            raise GoalError(f"animation: size must be a whole number of pixels in 32..2048, not {size!r}")
+        return value, keyframes(value, size)
+    if isinstance(value, str):
+        folder = _relative(value, source)
+        if not folder.is_dir():
+            raise GoalError(f"animation: keyframes {value!r} is neither a drawn animation "
+                            f"({', '.join(KEYFRAME_ANIMATIONS)}) nor a folder")
+        return folder.name, list(keyframe_paths(folder))
+    if isinstance(value, list) and value and all(isinstance(v, str) for v in value):
+        paths = [_relative(v, source) for v in value]
+        for p in paths:
+            if p.suffix.lower() not in IMAGE_SUFFIXES or not p.is_file():
+                raise GoalError(f"animation: keyframe {p} is not an image file ({', '.join(IMAGE_SUFFIXES)})")
+        return paths[0].parent.name or "animation", paths
+    raise GoalError("animation: keyframes must be a drawn animation "
+                    f"({', '.join(KEYFRAME_ANIMATIONS)}), a folder, or a list of image files, not {value!r}")
+
+
+def _relative(path: str, source: str) -> Path:
+    p = Path(path)
+    if not p.is_absolute() and Path(source).suffix == ".toml":
+        p = Path(source).parent / p  # relative to the scene file, like [[steps]] images
+    return p
+
+
+def _seconds(value: Any, key: str) -> float:
+    if not (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0):
+        raise GoalError(f"animation: {key} must be a positive number of seconds, not {value!r}")
+    return float(value)
+
+
+def _length(value: Any, key: str) -> float:
+    if not (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0):
+        raise GoalError(f"animation: {key} must be a positive number of metres, not {value!r}")
+    return float(value)
+
+
+def _flag(value: Any, key: str) -> bool:
+    if not isinstance(value, bool):
+        raise GoalError(f"animation: {key} must be true or false, not {value!r}")
+    return value
+
+
+def _times(value: Any, frames: int) -> list[float]:
+    ok = isinstance(value, list) and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                         and math.isfinite(v) for v in value)
+    if not ok or len(value) != frames:
+        raise GoalError(f"animation: times must list the start of each of the {frames} keyframes in seconds")
+    starts = [float(v) for v in value]
+    if starts[0] != 0.0 or any(b <= a for a, b in zip(starts, starts[1:])):
+        raise GoalError("animation: times must begin at 0 and increase")
+    return starts
+
+
+class FrameGoals:
+    """The keyframes' goal sets for any robot count (the interface of coordinator.steps.StepGoals):
+    generated on demand with keyframe_goals, cached, seeded, and all in one arena K_r."""
+
+    def __init__(self, animation: Animation, robots: int, seed: int, radius: float,
+                 arena: float | None = None, counts_for: int | None = None) -> None:
+        self.animation, self.robots, self.seed, self.radius = animation, robots, seed, radius
+        self.steps = list(animation.steps)
+        self.counts_for = counts_for or robots
+        self._sets: dict[int, KeyframeGoals] = {}
+        self._frozen: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+        arena = arena if arena is not None else animation.arena
+        self.arena = float(arena) if arena is not None else self._generate(robots, None).arena
+
+    def goal_set(self, step: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Goals (n,2) in metres (arena frame) and colours (n,3) uint8 of keyframe `step`."""
+        if not 0 <= step < len(self.steps):
+            raise GoalError(f"keyframe {step} does not exist: the animation has keyframes 0..{len(self.steps) - 1}")
+        if not 1 <= n <= self.robots:
+            raise GoalError(f"goal sets exist for 1..{self.robots} robots, not {n}")
+        key = (step, n)
+        if key not in self._frozen:
+            kg = self._sets.get(n) or self._generate(n, self.arena)
+            self._frozen[key] = (_frozen(kg.sets[step].goals), _frozen(kg.sets[step].colors, np.uint8))
+        return self._frozen[key]
+
+    def keyframe_goals(self, n: int) -> KeyframeGoals:
+        """Every keyframe's goals for n robots, with keyframe_goals' reports (tools, tests)."""
+        self.goal_set(0, n)
+        return self._sets[n]
+
+    def _generate(self, n: int, arena: float | None) -> KeyframeGoals:
+        a = self.animation
+        counts = scale_region_counts(a.region_counts, self.counts_for, n)
+        try:
+            kg = keyframe_goals(list(a.images), n, init_from_previous=a.init_from_previous, keep_counts=a.keep_counts,
+                                arena=arena, method=a.method, seed=self.seed, robot_radius=self.radius,
+                                region_counts=counts)
+        except GoalError as err:
+            raise GoalError(f"animation {a.name}, {n} robots: {err}") from None
+        self._sets[n] = kg
+        return kg
+
+
+def _frozen(values: np.ndarray, dtype: Any = float) -> np.ndarray:
+    out = np.array(values, dtype)
+    out.setflags(write=False)  # shared by every caller of the cache
+    return out

@@ -1,0 +1,100 @@
+"""Dynamic images (paper 7.4.1): the ``[steps.motion]`` table of an image step.
+
+    [[steps]]
+    shape = "triangle"
+    hold = 90.0
+    [steps.motion]
+    velocity = [0.0, 0.0]          # v_G, m/s: the pattern's centre moves
+    angular_velocity = 0.05        # omega_G, rad/s, counter-clockwise about the centre
+    center = [0.0, 0.0]            # p_OG at the step's start, m (default: the arena centre, where the
+                                   # picture is centred)
+    expansion = 0.01               # K_eG, 1/s: > 0 grows, < 0 shrinks
+    expansion_kind = "linear"      # s(t) = 1 + K_eG t, or "geometric": s(t) = (1 + K_eG)^t
+
+The coordinator publishes the goal set once with these numbers (transport.codec.Goals); the robots
+compute their moving goals themselves (agent.core.goal_motion, eq. 28). This module only parses and
+bounds the motion: the arena must hold the pattern wherever it goes.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .goals import GoalError
+
+MOTION_KEYS = ("velocity", "angular_velocity", "center", "expansion", "expansion_kind")
+EXPANSION_KINDS = ("linear", "geometric")
+
+
+@dataclass(frozen=True)
+class StepMotion:
+    """A goal set's constant motion and deformation (eq. 28), as the scene gives it."""
+
+    velocity: tuple[float, float] = (0.0, 0.0)  # v_G
+    angular_velocity: float = 0.0  # omega_G
+    center: tuple[float, float] = (0.0, 0.0)  # p_OG
+    expansion: float = 0.0  # K_eG
+    expansion_kind: str = "linear"
+
+    @property
+    def geometric(self) -> bool:
+        return self.expansion_kind == "geometric"
+
+    def scale(self, t: float) -> float:
+        """s(t) of eq. 28 (the one formula the coordinator needs: for the arena's size)."""
+        if self.geometric:
+            return (1.0 + self.expansion) ** t
+        return 1.0 + self.expansion * t
+
+    def swept_box(self, goals: np.ndarray, duration: float) -> np.ndarray:
+        """Corners (2,2) [[xmin, ymin], [xmax, ymax]] of a box that holds the goal set at every t in
+        [0, duration]: s(t) is monotonic, so the farthest a goal gets from the centre is at an end;
+        the centre moves on a straight line; the rotation can point any way."""
+        centre = np.asarray(self.center, float)
+        reach = float(np.max(np.hypot(*(np.asarray(goals, float) - centre).T), initial=0.0))
+        reach *= max(self.scale(0.0), self.scale(duration))
+        ends = np.array([centre, centre + duration * np.asarray(self.velocity, float)])
+        return np.array([ends.min(axis=0) - reach, ends.max(axis=0) + reach])
+
+
+def parse_motion(data: Any, label: str) -> StepMotion:
+    """A StepMotion from a TOML table. Raises GoalError (one line)."""
+    if not isinstance(data, dict):
+        raise GoalError(f"{label}.motion must be a table (keys: {', '.join(MOTION_KEYS)})")
+    unknown = set(data) - set(MOTION_KEYS)
+    if unknown:
+        raise GoalError(f"{label}.motion: unknown key(s) {', '.join(sorted(unknown))} "
+                        f"(allowed: {', '.join(MOTION_KEYS)})")
+    velocity = _pair(data.get("velocity", [0.0, 0.0]), f"{label}.motion.velocity", "[vx, vy] in m/s")
+    center = _pair(data.get("center", [0.0, 0.0]), f"{label}.motion.center", "[x, y] in metres")
+    omega = _number(data.get("angular_velocity", 0.0), f"{label}.motion.angular_velocity", "rad/s")
+    expansion = _number(data.get("expansion", 0.0), f"{label}.motion.expansion", "per second")
+    kind = data.get("expansion_kind", "linear")
+    if kind not in EXPANSION_KINDS:
+        raise GoalError(f"{label}.motion.expansion_kind must be one of {', '.join(EXPANSION_KINDS)}, not {kind!r}")
+    if kind == "geometric" and expansion <= -1.0:
+        raise GoalError(f"{label}.motion.expansion must be > -1 for a geometric expansion, not {expansion}")
+    return StepMotion(velocity, omega, center, expansion, kind)
+
+
+def check_window(motion: StepMotion, label: str, duration: float) -> None:
+    """A linear contraction must not shrink the pattern to nothing while the step is shown
+    (`duration` seconds). Raises GoalError."""
+    if not motion.geometric and motion.expansion < 0 and motion.scale(duration) <= 0.0:
+        raise GoalError(f"{label}.motion: a linear contraction of {motion.expansion}/s shrinks the pattern to "
+                        f"nothing after {-1.0 / motion.expansion:.1f} s, within the {duration:.1f} s it is shown")
+
+
+def _number(value: Any, label: str, unit: str) -> float:
+    if not (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)):
+        raise GoalError(f"{label} must be a number ({unit}), not {value!r}")
+    return float(value)
+
+
+def _pair(value: Any, label: str, what: str) -> tuple[float, float]:
+    if not (isinstance(value, list) and len(value) == 2):
+        raise GoalError(f"{label} must be {what}, not {value!r}")
+    return (_number(value[0], label, what), _number(value[1], label, what))
