@@ -4,6 +4,12 @@ Per tick, each robot: takes its pose from the tracker, its neighbours' latest st
 broadcasts, computes its collision-free velocity and command, then publishes its state (to the
 spatial cell it is in) and its command and LED colour. Time comes only from messages: the tick and
 its stamp arrive with the pose.
+
+Animations and dynamic images: the goal set's message says when its step began, an animation
+keyframe's K_f dt and a dynamic image's motion. A robot whose agreed goal belongs to a keyframe holds
+eq. 27's velocity (agent.core.animation); one whose goal set moves computes its goal g_j(t) and the
+goal's velocity from its tick's stamp (eq. 28, agent.core.goal_motion) and drives with that velocity
+as a feed-forward term.
 """
 from __future__ import annotations
 
@@ -23,12 +29,15 @@ from transport.codec import Command, Event, Goals, Pose, State
 from transport.keys import cell_of
 
 from .assignment import AuctionLink
+from .core.animation import frame_hold, iterations_left
 from .core.deadlock import blocked, count_blocked
+from .core.goal_motion import GoalMotion, tracking_velocity
 from .core.params import DIFFDRIVE, RobotParams
 from .core.step import control_step, static_segments
 from .neighbour_table import NeighbourTable
 
 IDLE_COLOR = (40, 40, 40)
+GOAL_SETS_KEPT = 4  # goal sets remembered (an agreed assignment may still be of an older epoch)
 
 
 @dataclass
@@ -45,6 +54,11 @@ class RobotMemory:
     assign_epoch: int = 0  # the agreed assignment that gave goal_index (image scenes)
     assign_instance: int = 0
     blocked: int = 0  # consecutive iterations near the goal with v_cf far from v_pref (deadlock, 5.5.5)
+    stamp: float = 0.0  # display time of `position`
+    goal0: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))  # the agreed goal in G^0 (eq. 28 at t=0)
+    held: np.ndarray = field(default_factory=lambda: np.zeros(2))  # eq. 27's velocity, held in a keyframe
+    hold_left: int = 0  # iterations it is still held
+    hold_for: tuple[int, int] = (0, -1)  # (epoch, goal index) the held velocity was computed for
 
 
 @dataclass
@@ -78,6 +92,9 @@ class HostConfig:
                            "seed": self.seed, "arena": self.arena, "obstacles": self.obstacles,
                            "batch_wait": self.batch_wait, "lockstep": self.lockstep,
                            "state_wait": self.state_wait, "pursue": self.pursue})
+
+
+AUCTION_SHARE = 0.2  # of a control period, spent on auction rounds after each tick while one is open
 
 
 class CellSubscriptions:
@@ -139,6 +156,7 @@ class AgentHost:
         for target in set(config.pursue.values()):  # a pursuer hears its target wherever it is
             bus.subscribe_into(self.keys.state_of(target), self.state_inbox)
         self.goal_inbox = bus.subscribe(self.keys.all_of("goals"), Goals)
+        self.goal_sets: dict[int, Goals] = {}  # the latest auctioned goal sets by epoch (timing, motion)
         self.auction = AuctionLink(bus, config.robots, self.params, self._on_agreed)
         self.alive = bus.watch_alive("agent")
         self.dead: set[int] = set()  # robots whose agent died: their bodies stand still (5.1.2)
@@ -168,6 +186,9 @@ class AgentHost:
     # --- messages -----------------------------------------------------------------------------
     def _on_goals(self, goals: Goals) -> None:
         if not goals.per_robot:
+            self.goal_sets[goals.epoch] = goals
+            for old in sorted(self.goal_sets)[:-GOAL_SETS_KEPT]:
+                del self.goal_sets[old]
             self.auction.on_goals(goals, self._positions())
             for r in self.auction.idle_robots():
                 mem = self.memory[r]  # not in this goal set (e.g. it joined late): it waits
@@ -180,7 +201,21 @@ class AgentHost:
                 mem.color = tuple(int(c) for c in goals.colors[r])
 
     def _positions(self) -> dict[int, np.ndarray]:
-        return {r: m.position for r, m in self.memory.items() if m.position is not None}
+        """The own robots' positions as the auction takes them. A moving goal set (paper 7.4.1) is
+        auctioned on G^0, the goals as published, with each robot's position mapped back through
+        eq. 28's similarity at the time it was tracked: the squared distances then differ from
+        those to the moving goals by the common factor s(t)^2 only, so the auction assigns as if it
+        ran on the goals where they are at the instance's start (agent.core.goal_motion), while the
+        auction code and its messages stay those of a still image. Epsilon_A and Delta C then count
+        in G^0's frame: s(t)^2 times them in the display's."""
+        newest = self.goal_sets[max(self.goal_sets)] if self.goal_sets else None
+        motion = motion_of(newest) if newest is not None else None
+        out = {}
+        for r, m in self.memory.items():
+            if m.position is None:
+                continue
+            out[r] = m.position if motion is None else motion.to_initial_frame(m.position, m.stamp - newest.t_start)
+        return out
 
     def _on_agreed(self, epoch: int, instance: int, goals: dict[int, int], positions: np.ndarray,
                    colors: np.ndarray) -> None:
@@ -188,6 +223,7 @@ class AgentHost:
         for r, g in goals.items():
             mem = self.memory[r]
             mem.goal, mem.goal_index = positions[g].astype(float), g
+            mem.goal0 = mem.goal.copy()  # a moving goal set's goal moves from here (eq. 28)
             mem.color = tuple(int(c) for c in colors[g])
             mem.assign_epoch, mem.assign_instance = epoch, instance
 
@@ -261,6 +297,20 @@ class AgentHost:
                     break
                 self._take_pose(got[1])
             self.step()
+            self._auction_rounds(bell)
+
+    def _auction_rounds(self, bell: threading.Event) -> None:
+        """After a tick, while an auction instance is open, keep trading messages for a part of the
+        control period. Otherwise a lock-step run gets one auction round per tick (the next pose is
+        already waiting), and a cold start of 100 robots took 300 ticks."""
+        end = time.monotonic() + AUCTION_SHARE * self.params.dt
+        while self.auction.busy and self.running:
+            bell.clear()
+            self.auction.poll(self._positions())
+            remaining = end - time.monotonic()
+            if remaining <= 0:
+                return
+            bell.wait(min(remaining, self.auction.next_due()))
 
     def _take_pose(self, pose: Pose) -> None:
         mem = self.memory.get(pose.robot)
@@ -291,16 +341,17 @@ class AgentHost:
         mems = [self.memory[r] for r in ids]
         for mem, xy in zip(mems, position):
             mem.position = xy.copy()
+            mem.stamp = stamp
         self.auction.on_tick(stamp, self._positions())
         velocity = np.array([m.velocity for m in mems])
-        goal = np.array([m.goal for m in mems])
+        goal, preferred = self._goals_now(mems, position, stamp)
         for _, ident, alive, _ in self.alive.drain():
             if ident.isdigit():
                 (self.dead.discard if alive else self.dead.add)(int(ident))
         stopped = {r: p.v_max * p.dt for r in self.dead}  # it may have moved one period after its last state
         neighbours = self.table.gather(ids, position, stamp, tick, p.neighbour_dist, p.max_neighbours, stopped)
         result = control_step(p, np.array(ids), position, heading, velocity, goal, neighbours, self.segments,
-                              seed=self.config.seed, tick=tick)
+                              seed=self.config.seed, tick=tick, preferred=preferred)
         self.fallbacks += int(result.fallback.sum())
         self._detect_deadlocks(mems, position, result.pref_velocity, result.velocity)
         mode = Command.WHEELS if p.kinematics == DIFFDRIVE else Command.HOLONOMIC
@@ -319,9 +370,48 @@ class AgentHost:
             cmd = Command(pose.robot, tick, stamp, mode, float(result.command[b, 0]), float(result.command[b, 1]),
                           *mem.color)
             self.bus.publish(self.keys.cmd(pose.robot), cmd)
-        self.cells.update(position)
+        # The cells around EVERY own robot, not only those of this tick's batch: under load a tick's
+        # poses can arrive split, and cells dropped for the robots not in the batch took their
+        # neighbours' states with them (forget_outside): at 100 robots one robot then saw nobody.
+        known = [m.position for m in self.memory.values() if m.position is not None]
+        self.cells.update(np.array(known))
         self.table.forget_outside(self.cells.cells, self.cell_size)
         self.ticks_done += 1
+
+    def _goals_now(self, mems: list[RobotMemory], position: np.ndarray, stamp: float
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """Each robot's goal at this tick, and its preferred velocity where eq. 9 does not apply (NaN
+        rows): toward a moving goal, v_goal + eq. 9 (eq. 28); in a keyframe, eq. 27 held."""
+        p = self.params
+        b = len(mems)
+        sets = [self.goal_sets.get(m.assign_epoch) if m.goal_index >= 0 else None for m in mems]
+        preferred = np.full((b, 2), np.nan)
+        for epoch in {m.assign_epoch for m, gs in zip(mems, sets) if gs is not None and gs.moves}:
+            gs = self.goal_sets[epoch]
+            rows = [i for i, m in enumerate(mems) if sets[i] is gs]
+            motion, t = motion_of(gs), stamp - gs.t_start
+            g0 = np.array([mems[i].goal0 for i in rows])
+            goal = motion.positions(g0, t)
+            preferred[rows] = tracking_velocity(position[rows], goal, motion.velocities(g0, t), p.v_pref, p.k_a,
+                                                p.v_max)
+            for i, g in zip(rows, goal):
+                mems[i].goal = g
+        keyframe = np.array([gs is not None and gs.frame_period > 0 and not gs.moves for gs in sets])
+        if keyframe.any() or any(m.hold_left for m in mems):
+            key = [(m.assign_epoch, m.goal_index) for m in mems]
+            # a new goal restarts the hold: over what is left of its keyframe, or (not a keyframe) ends it
+            restart = np.array([k != m.hold_for for k, m in zip(key, mems)])
+            iterations = np.array([iterations_left(gs.t_start, gs.frame_period, stamp, p.dt) if f else 0
+                                   for gs, f in zip(sets, keyframe)])
+            pref, held, left = frame_hold(position, np.array([m.goal for m in mems]), restart, iterations,
+                                          np.array([m.held for m in mems]), np.array([m.hold_left for m in mems]),
+                                          p.v_max, p.dt)
+            for i, m in enumerate(mems):
+                m.held, m.hold_left = held[i], int(left[i])
+                if restart[i]:
+                    m.hold_for = key[i]
+            preferred = np.where(np.isfinite(pref), pref, preferred)
+        return np.array([m.goal for m in mems]), preferred
 
     def _detect_deadlocks(self, mems: list[RobotMemory], position: np.ndarray, pref: np.ndarray,
                           velocity: np.ndarray) -> None:
@@ -330,10 +420,10 @@ class AgentHost:
         p = self.params
         if not self.auction.active or p.deadlock_cost == 0:
             return
-        distance = np.array([math.dist(m.goal, position[b]) if m.goal_index >= 0 else np.nan
-                             for b, m in enumerate(mems)])
+        to_goal = np.array([m.goal - position[b] if m.goal_index >= 0 else (np.nan, np.nan)
+                            for b, m in enumerate(mems)], float).reshape(-1, 2)
         counts = np.array([m.blocked for m in mems])
-        counts, deadlocked = count_blocked(counts, blocked(p, distance, pref, velocity), p.deadlock_iterations)
+        counts, deadlocked = count_blocked(counts, blocked(p, to_goal, pref, velocity), p.deadlock_iterations)
         for mem, n, dead in zip(mems, counts.tolist(), deadlocked.tolist()):
             mem.blocked = n
             if dead:
@@ -350,6 +440,14 @@ class AgentHost:
 
     def report(self) -> None:
         self.bus.publish(self.keys.event, Event({"kind": "stats", **self.stats()}))
+
+
+def motion_of(goals: Goals) -> GoalMotion | None:
+    """The motion of a goal set (eq. 28) from its message; None for a still one."""
+    if not goals.moves:
+        return None
+    return GoalMotion((goals.v_gx, goals.v_gy), goals.omega_g, (goals.p_ogx, goals.p_ogy), goals.k_eg,
+                      bool(goals.geometric))
 
 
 def install_stop_handlers(host: AgentHost) -> None:
