@@ -107,6 +107,7 @@ hold = 45.0
 """
 
 
+@pytest.mark.timeout(900)
 def test_hundred_holonomic_robots_in_agent_hosts(tmp_path):
     m, traj = run(tmp_path, HUNDRED, "--agents-per-process", "10", timeout=900)
     assert_every_hold_formed(m)
