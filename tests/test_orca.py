@@ -53,8 +53,10 @@ def test_orca_half_plane_matches_the_velocity_obstacle(px, py, vix, viy, vjx, vj
     big_r = r_i + r_j
     assume(np.linalg.norm(p) > big_r + 1e-3)
     v_i, v_j = np.array([vix, viy]), np.array([vjx, vjy])
-    point, direction = one_line(np.zeros(2), v_i, r_i, p, v_j, r_j, c, tau)
     v_rel = v_i - v_j
+    # v_rel on the line through p (or 0): both legs are equally near, and either is a right answer
+    assume(abs(p[0] * v_rel[1] - p[1] * v_rel[0]) > 1e-3 * np.linalg.norm(p))
+    point, direction = one_line(np.zeros(2), v_i, r_i, p, v_j, r_j, c, tau)
     boundary = vo_boundary(p, big_r, tau)
     nearest = boundary[np.argmin(np.linalg.norm(boundary - v_rel, axis=1))]
     u = nearest - v_rel  # eq. 11, numerically
