@@ -13,8 +13,8 @@ from pathlib import Path
 from .common import REPO, RESULTS
 
 BENCHES = ["bench.bench_world", "bench.bench_goals", "bench.bench_orca", "bench.bench_runtime", "bench.bench_auction",
-           "bench.paper_figures"]
-ORDER = ["runtime", "auction", "world", "orca", "goals", "paper_figures"]
+           "bench.bench_sequence", "bench.bench_keyframes", "bench.bench_large", "bench.paper_figures"]
+ORDER = ["runtime", "auction", "sequence", "large", "world", "orca", "goals", "keyframes", "paper_figures"]
 
 
 def assemble() -> Path:
