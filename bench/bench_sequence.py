@@ -48,7 +48,8 @@ def main() -> int:
     ok_steps = all(s["converged_at"] is not None and s["max_goal_error_at_end"] <= 0.01 for s in m["steps"])
     passed = m["contacts"] == 0 and ok_steps and not beyond and rep.inconsistent == 0 and rep.shared_goals == 0
     rows = ["| step | converged s into hold | max goal error at end (mm) |", "|---|---|---|"]
-    rows += [f"| {s['index']} | {s['converged_at']} | {1e3 * s['max_goal_error_at_end']:.1f} |" for s in m["steps"]]
+    rows += [f"| {s['index']} | {'never' if s['converged_at'] is None else round(s['converged_at'], 1)} | "
+             f"{1e3 * s['max_goal_error_at_end']:.1f} |" for s in m["steps"]]
     notes = ["", f"Scene `{args.scene}`, {m['robots']} robots, {args.k} per agent process; wall {wall:.0f} s for "
              f"{m['duration_s']:.0f} s of display time; contacts {m['contacts']}; min clearance "
              f"{m['min_clearance_m'] * 1e3:.1f} mm.",
