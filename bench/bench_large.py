@@ -1,11 +1,11 @@
 """Large-scale display (paper 7.2 / 7.5, Fig. 12 bottom row): the six images of the paper's sequence
 with 1000 simulated holonomic robots, stepped by the central engine.
 
-    .venv/bin/python -m bench.bench_large                   # both parts below (about an hour on 2 cores)
+    .venv/bin/python -m bench.bench_large                   # both parts (30 min on 2 quiet cores)
     .venv/bin/python -m bench.bench_large --robots 200      # a smaller swarm, same scene (a trial)
     .venv/bin/python -m bench.bench_large --auction-window 0 --results large-trial   # part 1 only
 
-It runs what `pixelswarm run paper-sequence-1000 --engine central --no-video` runs
+It runs what `pixelswarm run paper-sequence-1000 --no-video` runs (the scene says engine = "central")
 (`sim.central.run_central`), in this process so that the engine's hot calls can be timed from outside
 (sim/central.py is not changed): the goal assignment and the control core `control_step` (ORCA for
 every robot). The rest of a control step is the neighbour search, the tracker, the world step (10
@@ -138,9 +138,9 @@ def describe(scene: Any, cli: str) -> list[str]:
             f"v_max {r.get('v_max')} m/s, v_pref {r.get('v_pref')} m/s, neighbour_dist {r.get('neighbour_dist')} m, "
             f"max_neighbours {r.get('max_neighbours')}), seed {scene.seed}, arena K_r {scene.image_goals.arena:.2f} m, "
             f"tracking noise {scene.noise.tracking_xy * 1000:.0f} mm / {scene.noise.tracking_theta_deg:.0f} deg, "
-            f"actuation noise {scene.noise.actuation * 100:.0f} %. Equivalent command: "
-            f"`pixelswarm run {cli} --engine central --no-video`, in part 1 with `assignment = \"optimal\"` "
-            f"added to the scene."]
+            f"actuation noise {scene.noise.actuation * 100:.0f} %. Part 1 is "
+            f"`pixelswarm run {cli} --engine central --no-video` with the scene's `assignment = \"optimal\"`; "
+            f"part 2 the same with `assignment = \"auction\"`."]
 
 
 def report_full(scene: Any, metrics: dict, step: np.ndarray, tm: Timings, total_wall: float) -> list[str]:
