@@ -14,9 +14,10 @@ from .render import write_plots, write_video
 from .rundir import RunDir, write_json, write_npz
 
 
-def _newest_goal_set(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Distributed image runs: per tick, the robots of the newest goal set and whose announced goal
-    comes from it (see metrics.step_metrics)."""
+def newest_goal_set(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Distributed image runs (trajectory.npz arrays): per tick, the robots of the newest goal set
+    (``step_members``) and whose announced goal comes from it (``step_current``); see
+    metrics.step_metrics."""
     if "goal_set_epoch" not in arrays:
         return {}
     epochs = list(arrays["goal_set_epochs"])
@@ -36,7 +37,7 @@ def write_run(run_dir: RunDir, scene: Scene, params: RobotParams, arrays: dict[s
     clearance = clearance_over_time(arrays["pose"], radius) if len(t) else np.zeros(0)
     metrics = summarise(t=t, pose=arrays["pose"], radius=radius, wall_s=wall_s, contacts=len(contacts),
                         goal=arrays["goal"], tolerance=params.goal_tolerance, clearance=clearance,
-                        step=arrays.get("step"), **_newest_goal_set(arrays),
+                        step=arrays.get("step"), **newest_goal_set(arrays),
                         scene=scene.name, seed=scene.seed, clock=scene.clock, contact_events=contacts,
                         **metrics_extra)
     write_json(run_dir / "metrics.json", metrics)

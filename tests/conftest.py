@@ -1,12 +1,14 @@
 """Shared helpers: run the real `pixelswarm` command, find and reap the processes it starts."""
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import psutil
 import pytest
 from hypothesis import HealthCheck, settings
@@ -26,6 +28,19 @@ def pixelswarm_cmd(*args: str) -> list[str]:
 
 def run_pixelswarm(*args: str, timeout: float = 240) -> subprocess.CompletedProcess:
     return subprocess.run(pixelswarm_cmd(*args), capture_output=True, text=True, timeout=timeout, cwd=REPO)
+
+
+def run_scene(tmp_path: Path, scene: str, *extra: str, name: str = "run", timeout: float = 600) -> tuple[dict, dict]:
+    """`pixelswarm run` of a shipped scene, a scene file or inline scene TOML, without video; returns
+    metrics.json and trajectory.npz."""
+    if scene.lstrip().startswith(("robots", "name", "[", "seed")):
+        path = tmp_path / f"{name}.toml"
+        path.write_text(scene)
+        scene = str(path)
+    out = tmp_path / name
+    result = run_pixelswarm("run", scene, "--out", str(out), "--no-video", "-q", *extra, timeout=timeout)
+    assert result.returncode == 0, result.stderr[-3000:]
+    return json.loads((out / "metrics.json").read_text()), dict(np.load(out / "trajectory.npz"))
 
 
 def descendants(pid: int) -> list[psutil.Process]:

@@ -5,15 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from sim.output import newest_goal_set
+
 
 def members_and_current(traj: dict) -> tuple[np.ndarray, np.ndarray]:
     """(T, N) robots of the newest goal set at each tick, and whose announced goal comes from it."""
-    epochs = [int(e) for e in traj["goal_set_epochs"]]
-    newest = traj["goal_set_epoch"]
-    rows = np.array([epochs.index(int(e)) if int(e) in epochs else -1 for e in newest])
-    members = np.where(rows[:, None] >= 0, traj["goal_set_robots"][np.maximum(rows, 0)], False)
-    current = traj["assignment_epoch"] == newest[:, None]
-    return members.astype(bool), current
+    sets = newest_goal_set(traj)
+    return sets["step_members"].astype(bool), sets["step_current"]
 
 
 def goal_error(traj: dict) -> np.ndarray:

@@ -5,13 +5,11 @@ responsibility for avoiding them; the world counts every contact (robot-robot, m
 robot-wall, robot-obstacle) in metrics.json's `contacts`."""
 from __future__ import annotations
 
-import json
-
 import numpy as np
 
 from coordinator.scene import load_scene
 
-from .conftest import run_pixelswarm
+from .conftest import run_scene
 from .formation import first_formed_after, formed, goal_error, members_and_current, stays_formed_from
 
 TOLERANCE = 0.01  # m
@@ -25,11 +23,7 @@ def test_fourteen_hold_a_disk_while_two_movers_cross_it_without_contact(tmp_path
     controlled = [i for i in range(scene.robots) if i not in scene.scripted]
     assert len(controlled) == 14
 
-    out = tmp_path / "run"
-    result = run_pixelswarm("run", "dynamic-obstacles", "--out", str(out), "--no-video", "-q", timeout=300)
-    assert result.returncode == 0, result.stderr[-3000:]
-    m = json.loads((out / "metrics.json").read_text())
-    traj = dict(np.load(out / "trajectory.npz"))
+    m, traj = run_scene(tmp_path, "dynamic-obstacles", timeout=300)
     assert m["engine"] == "distributed" and m["agent_processes"] == 14
 
     # No contact of any kind: between agents, between agents and movers, with the walls.

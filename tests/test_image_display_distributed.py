@@ -4,27 +4,14 @@ on the positions they bid from; lost and late auction messages, dying agents and
 agent hosts. The paper's sequence with 14 e-pucks is `make run`, checked in test_make_run.py."""
 from __future__ import annotations
 
-import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from .assignment_quality import agreements
-from .conftest import run_pixelswarm
+from .conftest import run_scene as run
 
 EPS_A = 1e-3  # m^2, the default epsilon_A (agent.core.params)
-
-
-def run(tmp_path: Path, scene: str, *extra: str, name: str = "run", timeout: float = 600) -> tuple[dict, dict]:
-    if scene.lstrip().startswith(("robots", "name", "[", "seed")):
-        path = tmp_path / f"{name}.toml"
-        path.write_text(scene)
-        scene = str(path)
-    out = tmp_path / name
-    result = run_pixelswarm("run", scene, "--out", str(out), "--no-video", "-q", *extra, timeout=timeout)
-    assert result.returncode == 0, result.stderr[-3000:]
-    return json.loads((out / "metrics.json").read_text()), dict(np.load(out / "trajectory.npz"))
 
 
 def assert_agreements_valid(traj: dict, bound_per_robot: float = EPS_A, min_complete: int = 10) -> np.ndarray:

@@ -3,13 +3,11 @@ e-puck agents form a disk; at t = 10 s two of them are picked up and put down ou
 events of the world). The swarm re-forms the disk through goal reassignment, without contact."""
 from __future__ import annotations
 
-import json
-
 import numpy as np
 
 from coordinator.scene import load_scene
 
-from .conftest import run_pixelswarm
+from .conftest import run_scene
 from .formation import first_formed_after, formed, stays_formed_from
 
 TOLERANCE = 0.01  # m: every robot within 1 cm of its agreed goal
@@ -21,11 +19,7 @@ def test_two_robots_teleported_out_of_a_disk_of_14_recover_within_10_s_without_c
     assert len(moves) == 2 and len({e["t"] for e in moves}) == 1
     t_move = moves[0]["t"]
 
-    out = tmp_path / "run"
-    result = run_pixelswarm("run", "perturbation", "--out", str(out), "--no-video", "-q", timeout=300)
-    assert result.returncode == 0, result.stderr[-3000:]
-    m = json.loads((out / "metrics.json").read_text())
-    traj = dict(np.load(out / "trajectory.npz"))
+    m, traj = run_scene(tmp_path, "perturbation", timeout=300)
     assert m["engine"] == "distributed" and m["agent_processes"] == 14
 
     assert m["contacts"] == 0, m["contact_events"][:5]
