@@ -1,7 +1,7 @@
 """Animations in scenes (paper 6): the ``[animation]`` table, keyframe timing, and the goal sets.
 
     [animation]
-    keyframes = "story"         # a drawn animation (coordinator.drawings: leaf, story, triangle),
+    keyframes = "story"         # a drawn animation (coordinator.drawings: leaf, story, triangle, history),
                                 # a folder of images (played in file-name order), or a list of files
     frame_time = 5.0            # K_f dt: seconds from one keyframe to the next (default 5 s)
     first_hold = 30.0           # seconds to form the first keyframe from the start layout (default 30 s)

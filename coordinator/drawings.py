@@ -5,7 +5,10 @@
   1000-robot animation;
 - "story": the paper's 14-robot story (Fig. 16): a walking human (three poses), a heap, then a flower
   circled by a bee;
-- "triangle": a triangle that rotates and grows.
+- "triangle": a triangle that rotates and grows;
+- "history": the History of the Universe of the paper's 50-robot show (7.5.2, Fig. 21): the big bang,
+  the Solar system with the Earth orbiting the Sun and the Moon orbiting the Earth, a zoom onto the
+  Earth, the sea where a microbe and a fish appear, a dinosaur stretching its neck and a human.
 
 Like coordinator.shapes, drawings live in the unit square (x right, y down), parts are painted in order
 (later parts cover earlier ones) with crisp pixel-centre edges on a white background, and every
@@ -35,6 +38,19 @@ STEM: RGB = (40, 150, 60)
 PETAL: RGB = RED
 FLOWER_CENTRE: RGB = (245, 215, 50)
 BEE: RGB = (120, 60, 170)  # violet: far from the petals, the centre and the stem
+# the History of the Universe: parts that share a keyframe differ in colour by far more than the
+# segmentation's tolerance, and none is near the white background
+BANG_CORE: RGB = (250, 215, 40)
+BANG_FIRE: RGB = (230, 70, 30)
+SUN: RGB = (245, 165, 30)
+EARTH: RGB = (40, 100, 220)
+MOON: RGB = (140, 140, 150)
+LAND: RGB = (60, 165, 60)
+SEA: RGB = (30, 90, 190)
+MICROBE: RGB = (150, 215, 60)
+FISH: RGB = (245, 120, 30)
+DINOSAUR: RGB = (80, 140, 50)
+PERSON: RGB = (215, 60, 120)
 
 Part = tuple[Inside, RGB]
 
@@ -182,12 +198,111 @@ def triangle(angle: float, radius: float, centre: tuple[float, float] = (0.5, 0.
     return [(polygon(pts), RED)]
 
 
+# --- the History of the Universe (paper 7.5.2, Fig. 21) ----------------------------------------------
+# Everything is drawn within 0.47 of the canvas centre, so that on the paper's circular table (2 m
+# across) the picture, centred and K_r = 2 m wide, keeps the robots 3.5 cm inside the rim.
+_CENTRE = (0.5, 0.5)
+
+
+def _on_circle(centre: tuple[float, float], radius: float, angle: float) -> tuple[float, float]:
+    """The point at `angle` (radians, counter-clockwise as seen: image rows point down) on a circle."""
+    return centre[0] + radius * math.cos(angle), centre[1] - radius * math.sin(angle)
+
+
+def big_bang(burst: float) -> list[Part]:
+    """A hot core in a ball of fire (burst 0) that bursts into rays, long and short in turn (burst 1)."""
+    fire: list[Inside] = [_disk(*_CENTRE, 0.2 - 0.03 * burst)]
+    for k in range(8):
+        a = math.pi / 8 + k * math.pi / 4
+        reach = 0.2 + burst * (0.25 if k % 2 == 0 else 0.13)
+        fire.append(polygon([_on_circle(_CENTRE, 0.12, a - 0.3), _on_circle(_CENTRE, reach, a),
+                             _on_circle(_CENTRE, 0.12, a + 0.3)]))
+    return [(_union(*fire), BANG_FIRE), (_disk(*_CENTRE, 0.09 + 0.01 * burst), BANG_CORE)]
+
+
+def solar_system(earth_angle: float) -> list[Part]:
+    """The Sun, the Earth at `earth_angle` on its orbit and the Moon on its own orbit round the Earth,
+    twice as fast (so that a few keyframes show both orbits)."""
+    # as large as fits (the robots' spacing grows with the area): the Moon passes the Sun 0.023 clear
+    earth = _on_circle(_CENTRE, 0.314, earth_angle)
+    moon = _on_circle(earth, 0.118, 2.0 * earth_angle + math.pi / 2)
+    return [(_disk(*_CENTRE, 0.135), SUN), (_disk(*earth, 0.065), EARTH), (_disk(*moon, 0.038), MOON)]
+
+
+# continents as ellipses (centre, semi-axes, angle) in units of the Earth's radius, about its centre
+_CONTINENTS = (((-0.38, -0.28), 0.36, 0.22, 0.35), ((0.34, 0.05), 0.22, 0.42, -0.5), ((-0.12, 0.55), 0.32, 0.16, 0.1))
+
+
+def planet_earth(radius: float) -> list[Part]:
+    """The Earth seen from close by: ocean and three continents, `radius` of the canvas (a zoom)."""
+    cx, cy = _CENTRE
+    globe = _disk(cx, cy, radius)
+    parts: list[Part] = [(globe, EARTH)]
+    for (u, v), a, b, angle in _CONTINENTS:
+        land = ellipse(cx + u * radius, cy + v * radius, a * radius, b * radius, angle)
+        parts.append((lambda x, y, land=land: land(x, y) & globe(x, y), LAND))
+    return parts
+
+
+def sea(microbe: tuple[float, float], fish: tuple[float, float] | None) -> list[Part]:
+    """The sea below a wavy surface, a microbe (a blob with bumps) and, if given, a fish swimming left."""
+    cx, cy = _CENTRE
+
+    def water(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        surface = 0.46 + 0.025 * np.sin(6 * math.pi * x)
+        return ((x - cx) ** 2 + (y - cy) ** 2 < 0.42 ** 2) & (y > surface)
+    mx, my = microbe
+    bumps = [_disk(mx + 0.1 * math.cos(a), my + 0.068 * math.sin(a), 0.026) for a in (0.4, 1.9, 3.5, 5.0)]
+    parts: list[Part] = [(water, SEA), (_union(ellipse(mx, my, 0.1, 0.068, 0.3), *bumps), MICROBE)]
+    if fish is not None:
+        fx, fy = fish
+        tail = polygon([(fx + 0.12, fy), (fx + 0.23, fy - 0.08), (fx + 0.23, fy + 0.08)])
+        parts.append((_union(ellipse(fx, fy, 0.16, 0.08), tail), FISH))
+    return parts
+
+
+def dinosaur(stretch: float) -> list[Part]:
+    """A long-necked dinosaur facing right, its head low (stretch 0) or its neck stretched up (1)."""
+    base = (0.56, 0.53)
+    head = (0.72 - 0.06 * stretch, 0.42 - 0.29 * stretch)
+    legs = [capsule((x, 0.6), (x, 0.82), 0.028) for x in (0.30, 0.37, 0.48, 0.55)]
+    body = _union(ellipse(0.42, 0.58, 0.19, 0.1), *legs, capsule((0.26, 0.58), (0.1, 0.65), 0.03),
+                  capsule(base, head, 0.032), ellipse(head[0] + 0.03, head[1], 0.05, 0.03))
+    return [(body, DINOSAUR)]
+
+
+def person(arms_up: bool) -> list[Part]:
+    """A human (limbs thicker than the story's walker, so that the robots on them stay apart): walking
+    in from the left, or standing in the middle and waving both arms."""
+    x = 0.4 if not arms_up else 0.5
+    hip, neck, shoulder = (x, 0.56), (x, 0.27), (x, 0.32)
+    feet = [(x - 0.14, 0.86), (x + 0.14, 0.86)] if not arms_up else [(x - 0.07, 0.86), (x + 0.07, 0.86)]
+    hands = [(x - 0.12, 0.56), (x + 0.12, 0.56)] if not arms_up else [(x - 0.18, 0.13), (x + 0.18, 0.13)]
+    limbs = [capsule(neck, hip, 0.05)] + [capsule(hip, f, 0.038) for f in feet] + [capsule(shoulder, h, 0.034)
+                                                                                   for h in hands]
+    return [(_union(_disk(x, 0.19, 0.07), *limbs), PERSON)]
+
+
+def history_frames() -> list[list[Part]]:
+    """The parts of the 23 keyframes of the History of the Universe, in play order: the big bang (2), a
+    whole orbit of the Earth in eighths (9, the first and last alike), the zoom onto the Earth (2), the
+    sea (2), the dinosaur (2) and the human (2). The robots reach a keyframe's goals just as the next
+    keyframe begins (eq. 27), so the picture that ends each of the first four chapters is given twice:
+    the second time the robots hold it still."""
+    bang, earth = [big_bang(0.0), big_bang(1.0)], [planet_earth(0.22), planet_earth(0.44)]
+    life = [sea((0.45, 0.7), None), sea((0.32, 0.72), (0.55, 0.62))]
+    dino = [dinosaur(0.0), dinosaur(1.0)]
+    return (bang + bang[-1:] + [solar_system(math.radians(45.0 * k)) for k in range(9)] + earth + earth[-1:]
+            + life + life[-1:] + dino + dino[-1:] + [person(False), person(True)])
+
+
 _BEE_ANGLES = (-0.15, -1.6, -3.0)  # the bee flies round the flower head, right to top to left
 _ANIMATIONS: dict[str, Callable[[int], list[np.ndarray]]] = {
     "leaf": lambda size: [leaf_frame(k, size) for k in range(len(_LEAF_FRAMES))],
     "story": lambda size: [paint(walker(0.36 + 0.09 * k, p), size) for k, p in enumerate((1.0, 0.15, -1.0))]
     + [paint(heap(), size)] + [paint(flower(a), size) for a in _BEE_ANGLES],
     "triangle": lambda size: [paint(triangle(math.radians(20 * k), 0.16 + 0.035 * k), size) for k in range(7)],
+    "history": lambda size: [paint(parts, size) for parts in history_frames()],
 }
 KEYFRAME_ANIMATIONS = tuple(_ANIMATIONS)
 

@@ -92,6 +92,13 @@ class Scene:
         return float(self.robot.get("radius", DEFAULT_RADIUS))
 
     @property
+    def pixel_robots(self) -> list[int]:
+        """The robot pixels, which show the image: every robot but the scripted movers and the pursuers
+        (paper Fig. 19's uncontrolled objects), which move on their own account and take no goal of
+        the goal set."""
+        return [i for i in range(self.robots) if i not in self.scripted and i not in self.pursuers]
+
+    @property
     def step_starts(self) -> list[float]:
         """When each step's hold begins: step k spans [sum of the previous holds, + hold_k)."""
         return [float(s) for s in np.cumsum([0.0] + [s.hold for s in self.steps[:-1]])] if self.steps else []

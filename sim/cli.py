@@ -5,11 +5,12 @@ import argparse
 import signal
 import sys
 import time
+import tomllib
 import typing
 from pathlib import Path
 
 from coordinator.goals_cli import add_goals_parser
-from coordinator.scene import SceneError, load_scene, shipped_scenes
+from coordinator.scene import SceneError, load_scene, resolve_scene_path, shipped_scenes
 from transport.faults import parse_faults
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, open_session, settings_from_args
 
@@ -141,9 +142,19 @@ def cmd_router(args: argparse.Namespace) -> int:
 
 
 def cmd_scenes(args: argparse.Namespace) -> int:
+    # The files as written, not loaded: loading an animation draws its keyframes and generates
+    # every goal set (seconds per scene). `pixelswarm run` validates a scene in full.
+    rows = []
     for name in shipped_scenes():
-        scene = load_scene(name)
-        print(f"{name:16s} {scene.robots:4d} robots  {scene.robot.get('kinematics', 'diffdrive'):10s}  {scene.source}")
+        with open(resolve_scene_path(name), "rb") as f:
+            data = tomllib.load(f)
+        rows.append((name, int(data.get("robots", 0)), data.get("robot", {}).get("kinematics", "diffdrive"),
+                     data.get("description", "")))
+    # columns as wide as their longest entry, so that any name length keeps them aligned
+    name_width = max((len(name) for name, *_ in rows), default=0)
+    robots_width = max((len(str(robots)) for _, robots, *_ in rows), default=0)
+    for name, robots, kinematics, description in rows:
+        print(f"{name:<{name_width}}  {robots:>{robots_width}d} robots  {kinematics:10s}  {description}")
     return 0
 
 

@@ -9,15 +9,19 @@ import numpy as np
 from agent.core.params import RobotParams
 from coordinator.scene import Scene
 
+from .movers import scripted_speed_limit
 from .world import Body, World
 
 
 def bodies_of(scene: Scene) -> tuple[RobotParams, list[Body]]:
-    """Every robot's body; scripted robots (dynamic obstacles) move holonomically along their path."""
+    """Every robot's body; scripted robots (dynamic obstacles) move holonomically along their path, as
+    fast as their script says (not capped at the robot pixels' v_max)."""
     params = RobotParams.from_dict(scene.robot)
     body = Body(params.kinematics, params.radius, params.v_max, params.wheel_base, params.omega_max)
-    scripted = Body("holonomic", params.radius, params.v_max)
-    return params, [scripted if i in scene.scripted else body for i in range(scene.robots)]
+
+    def scripted(i: int) -> Body:
+        return Body("holonomic", params.radius, scripted_speed_limit(scene.scripted[i], params.v_max))
+    return params, [scripted(i) if i in scene.scripted else body for i in range(scene.robots)]
 
 
 def world_of(scene: Scene) -> tuple[RobotParams, World]:

@@ -18,13 +18,14 @@ import time
 
 import numpy as np
 
-from coordinator.scene import Scene, SceneError, load_scene, scripted_position
+from coordinator.scene import Scene, SceneError, load_scene
 from transport.bus import Bus
 from transport.codec import Command, Contact as ContactMsg, Event, Pose, State, Tick, Truth
 from transport.keys import cell_of
 from transport.faults import parse_faults
 from transport.session import TransportError, add_zenoh_args, settings_from_args
 
+from .movers import scripted_velocity
 from .tracker import tracker_of, world_of
 
 CONTACT_KINDS = {"robot": 0, "obstacle": 1, "wall": 2}
@@ -108,8 +109,7 @@ class WorldNode:
         t = self.tick * self.dt
         for i, waypoints in self.scene.scripted.items():
             x, y, _ = self.world.poses[i]
-            target = scripted_position(waypoints, t + self.dt)
-            vx, vy = (target - (x, y)) / self.dt
+            vx, vy = scripted_velocity(waypoints, self.world.poses[i], t, self.dt)
             self.world.set_command(i, float(vx), float(vy))
             cell = cell_of(x, y, self.params.cell_size)
             self.bus.publish(self.keys.state(cell, i), State(i, self.tick, t, x, y, vx, vy, self.params.radius,
