@@ -20,7 +20,7 @@ import numpy as np
 from transport.bus import Bus
 from transport.codec import Bid, Goals
 
-from .core.bidder import RECORD, Participant
+from .core.bidder import RECORD, Participant, frames_close
 from .core.params import RobotParams
 
 DIGEST_EVERY = 0.01
@@ -28,6 +28,7 @@ QUIET = 0.02  # digest-only news waits until the board has not changed for this 
 RESEND_BUSY = 0.25  # a lost message stalls a phase until a resend: short while an instance is open
 RESEND_PER_ROBOT = 0.01  # ... but every resend reaches every host: the backstop grows with the swarm
 RESEND_IDLE = 1.0
+MAX_LEAD = 4.0  # s: the longest latency the robots' bid positions compensate (core.bidder.bid_position)
 
 OnAgreed = Callable[[int, int, dict[int, int], np.ndarray, np.ndarray], None]
 
@@ -47,6 +48,9 @@ class AuctionLink:
         self.serial = 0
         self.last_sent = -np.inf
         self.instance_stamp = -np.inf  # display time the current instance started
+        self.now = 0.0  # display time of the last tick
+        self.frozen_at: dict[int, float] = {}  # block of instances -> display time its positions froze here
+        self.latency = 0.0  # display seconds from freezing a block's positions to adopting its agreement
         self.reported = -1  # the last agreed instance handed to on_agreed
         self.board_changed = 0.0  # monotonic time of the last change of the board
         self.mismatch = False  # a message of this instance came from a host with another board
@@ -67,15 +71,24 @@ class AuctionLink:
         return [r for r in self.robots if r not in own]
 
     # --- inputs -----------------------------------------------------------------------------------
-    def on_goals(self, goals: Goals, positions: dict[int, np.ndarray]) -> None:
+    def on_goals(self, goals: Goals, positions: dict[int, np.ndarray]) -> dict[int, int]:
+        """A new goal set: a new auction. The next keyframe of an animation starts from the last
+        one's board, carried over by the goals' correspondence; returns the own robots' carried
+        goals (robot -> goal index), which they may drive to until the auction agrees."""
         if self.part is not None and goals.epoch <= self.part.epoch:
-            return
+            return {}
+        before = self.part
         self.goal_set = goals
         self.part = Participant(goals.epoch, goals.positions, goals.robots.tolist(), self.robots,
                                 self.params.assign_eps, self.params.assign_hysteresis)
+        carried = {}
+        if goals.follows and before is not None and before.epoch == goals.follows and before.started:
+            close = frames_close(before.goals, goals.positions, goals.previous)
+            carried = self.part.carry(before, goals.previous, claim=close)
         self.epoch_wall = time.monotonic()
         self.reported = -1
         self._try_start(positions)
+        return carried
 
     def _try_start(self, positions: dict[int, np.ndarray]) -> bool:
         part = self.part
@@ -84,18 +97,29 @@ class AuctionLink:
         if not all(r in positions for r in part.own):
             return False
         part.begin(0, positions)
+        self._note_block()
         self._publish()
         return True
+
+    def _note_block(self) -> None:
+        part = self.part
+        block = part.instance // part.phases
+        if block not in self.frozen_at:
+            self.frozen_at[block] = self.now
+            for old in [b for b in self.frozen_at if b < block - 4]:
+                del self.frozen_at[old]
 
     def on_tick(self, stamp: float, positions: dict[int, np.ndarray]) -> None:
         """Each control iteration: start the next instance (warm, on this tick's positions) once the
         last is agreed (paper 5.1: re-assign every iteration)."""
+        self.now = max(self.now, stamp)
         if not self._try_start(positions):
             return
         part = self.part
         if part.is_agreed and stamp - self.instance_stamp >= self.params.assign_period - 1e-9:
             self.instance_stamp = stamp
             part.begin(part.instance + 1, positions)
+            self._note_block()
             self._settle()
             self._publish()
 
@@ -134,6 +158,7 @@ class AuctionLink:
                 continue
             if msg.instance > part.instance:  # the sender saw our instance agreed
                 part.begin(msg.instance, positions)
+                self._note_block()
             if part.absorb(msg.instance, msg.serial, msg.digest, msg.records):
                 self.board_changed = time.monotonic()
             if msg.instance == part.instance:
@@ -161,6 +186,9 @@ class AuctionLink:
                 self.first_agreement_s.append(time.monotonic() - self.epoch_wall)
             self.reported = part.agreed_instance
             self.agreements += 1
+            frozen = self.frozen_at.get(part.agreed_instance // part.phases)
+            if frozen is not None:
+                self.latency = min(MAX_LEAD, max(0.0, self.now - frozen))
             gs = self.goal_set
             self.on_agreed(part.epoch, part.agreed_instance, dict(part.agreed), gs.positions, gs.colors)
 
@@ -179,5 +207,5 @@ class AuctionLink:
         return {"epoch": part.epoch if part else 0, "instance": part.instance if part else -1,
                 "agreed_instance": part.agreed_instance if part else -1, "bids": part.bids if part else 0,
                 "messages_sent": self.sent, "messages_received": self.received, "agreements": self.agreements,
-                "deadlock_penalties": self.penalties,
+                "deadlock_penalties": self.penalties, "latency_s": round(self.latency, 3),
                 "first_agreement_s": [round(x, 4) for x in self.first_agreement_s]}

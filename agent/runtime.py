@@ -30,6 +30,7 @@ from transport.keys import cell_of
 
 from .assignment import AuctionLink
 from .core.animation import frame_hold, iterations_left
+from .core.bidder import bid_position
 from .core.deadlock import blocked, count_blocked
 from .core.goal_motion import GoalMotion, tracking_velocity
 from .core.params import DIFFDRIVE, RobotParams
@@ -37,6 +38,7 @@ from .core.step import control_step, static_segments
 from .neighbour_table import NeighbourTable
 
 IDLE_COLOR = (40, 40, 40)
+CARRIED = State.CARRIED  # assign_instance of a goal carried over from the previous keyframe
 GOAL_SETS_KEPT = 4  # goal sets remembered (an agreed assignment may still be of an older epoch)
 
 
@@ -73,7 +75,8 @@ class HostConfig:
     obstacles: list[list[tuple[float, float]]] = field(default_factory=list)
     batch_wait: float = 0.05  # how long to wait for the other robots' poses of a tick (real time)
     lockstep: bool = False  # wait for the previous tick's states of nearby robots (reproducible runs)
-    state_wait: float = 0.5  # lock-step: how long to wait for a nearby robot's state before going on
+    state_wait: float = 1.5  # lock-step: how long to wait for a nearby robot's state before going on
+    # (a loaded machine delayed states past 0.5 s and broke reproducibility; the world waits 2 s)
     pursue: dict[int, int] = field(default_factory=dict)  # robot -> the robot whose broadcasts are its goal
 
     @classmethod
@@ -84,7 +87,7 @@ class HostConfig:
                    arena=tuple(data["arena"]) if data.get("arena") else None,
                    obstacles=[[tuple(v) for v in o] for o in data.get("obstacles", [])],
                    batch_wait=float(data.get("batch_wait", 0.05)), lockstep=bool(data.get("lockstep", False)),
-                   state_wait=float(data.get("state_wait", 0.5)),
+                   state_wait=float(data.get("state_wait", 1.5)),
                    pursue={int(k): int(v) for k, v in data.get("pursue", {}).items()})
 
     def to_json(self) -> str:
@@ -189,8 +192,12 @@ class AgentHost:
             self.goal_sets[goals.epoch] = goals
             for old in sorted(self.goal_sets)[:-GOAL_SETS_KEPT]:
                 del self.goal_sets[old]
-            self.auction.on_goals(goals, self._positions())
+            carried = self.auction.on_goals(goals, self._positions())
+            for r, g in carried.items():  # the next keyframe: drive on at once (6.2), the auction follows
+                self._drive_to(r, goals.epoch, CARRIED, g, goals.positions, goals.colors)
             for r in self.auction.idle_robots():
+                if r in self.config.pursue:
+                    continue  # not a pixel: its goal comes from its target's broadcasts (_on_state)
                 mem = self.memory[r]  # not in this goal set (e.g. it joined late): it waits
                 mem.goal, mem.goal_index, mem.color = np.full(2, np.nan), -1, IDLE_COLOR
             return
@@ -207,25 +214,37 @@ class AgentHost:
         those to the moving goals by the common factor s(t)^2 only, so the auction assigns as if it
         ran on the goals where they are at the instance's start (agent.core.goal_motion), while the
         auction code and its messages stay those of a still image. Epsilon_A and Delta C then count
-        in G^0's frame: s(t)^2 times them in the display's."""
+        in G^0's frame: s(t)^2 times them in the display's. A robot on its way to a goal of the
+        newest set bids from where it will be when the instance is adopted (core.bidder.bid_position,
+        lead: this host's last measured latency of the auction)."""
         newest = self.goal_sets[max(self.goal_sets)] if self.goal_sets else None
         motion = motion_of(newest) if newest is not None else None
+        lead = self.auction.latency
         out = {}
         for r, m in self.memory.items():
             if m.position is None:
                 continue
-            out[r] = m.position if motion is None else motion.to_initial_frame(m.position, m.stamp - newest.t_start)
+            if motion is not None:
+                out[r] = motion.to_initial_frame(m.position, m.stamp - newest.t_start)
+            elif newest is not None and m.assign_epoch == newest.epoch and m.goal_index >= 0:
+                out[r] = bid_position(m.position, m.goal, m.velocity, lead)  # on its way: where it will be
+            else:
+                out[r] = m.position
         return out
 
     def _on_agreed(self, epoch: int, instance: int, goals: dict[int, int], positions: np.ndarray,
                    colors: np.ndarray) -> None:
         """An auction instance is agreed: each own robot drives to its goal and lights its colour."""
         for r, g in goals.items():
-            mem = self.memory[r]
-            mem.goal, mem.goal_index = positions[g].astype(float), g
-            mem.goal0 = mem.goal.copy()  # a moving goal set's goal moves from here (eq. 28)
-            mem.color = tuple(int(c) for c in colors[g])
-            mem.assign_epoch, mem.assign_instance = epoch, instance
+            self._drive_to(r, epoch, instance, g, positions, colors)
+
+    def _drive_to(self, robot: int, epoch: int, instance: int, goal: int, positions: np.ndarray,
+                  colors: np.ndarray) -> None:
+        mem = self.memory[robot]
+        mem.goal, mem.goal_index = positions[goal].astype(float), goal
+        mem.goal0 = mem.goal.copy()  # a moving goal set's goal moves from here (eq. 28)
+        mem.color = tuple(int(c) for c in colors[goal])
+        mem.assign_epoch, mem.assign_instance = epoch, instance
 
     def _absorb(self) -> None:
         for _, msg in self.goal_inbox.drain():

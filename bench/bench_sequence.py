@@ -9,18 +9,13 @@ cores), so it lives here; the suite runs its first two images (test_image_displa
 from __future__ import annotations
 
 import argparse
-import json
-import subprocess
 import sys
-import tempfile
-import time
-from pathlib import Path
 
 import numpy as np
 
 from tests.assignment_quality import agreements
 
-from .common import REPO, write_results
+from .common import run_cli_scene, write_results
 
 EPS_A, DELTA_C = 1e-3, 5e-3  # agent.core.params defaults
 
@@ -30,17 +25,10 @@ def main() -> int:
     parser.add_argument("--scene", default="paper-sequence-100")
     parser.add_argument("-k", type=int, default=10, help="robots per agent process")
     args = parser.parse_args()
-    with tempfile.TemporaryDirectory() as tmp:
-        out = Path(tmp) / "run"
-        start = time.monotonic()
-        proc = subprocess.run([sys.executable, "-m", "sim.cli", "run", args.scene, "-k", str(args.k), "--out", str(out),
-                               "--no-video", "-q"], cwd=REPO, capture_output=True, text=True)
-        wall = time.monotonic() - start
-        if proc.returncode != 0:
-            print(proc.stderr[-2000:], file=sys.stderr)
-            return 1
-        m = json.loads((out / "metrics.json").read_text())
-        traj = dict(np.load(out / "trajectory.npz"))
+    ran = run_cli_scene([args.scene, "-k", str(args.k)])
+    if ran is None:
+        return 1
+    m, traj, wall = ran
     rep = agreements(traj)
     complete = [a for a in rep.agreements if np.isfinite(a.cost)]
     beyond = [a for a in complete if a.cost > a.optimum + len(a.members) * (EPS_A + DELTA_C) + a.penalties + 1e-6]

@@ -57,3 +57,20 @@ def write_results(name: str, title: str, command: str, lines: list[str]) -> Path
     path.write_text("\n".join(text))
     print("\n".join(text))
     return path
+
+
+def run_cli_scene(args: list[str]) -> tuple[dict, dict, float] | None:
+    """`pixelswarm run ARGS --out TMP --no-video -q` in a child process: (metrics, trajectory
+    arrays, wall seconds), or None after printing the run's error output."""
+    import numpy as np
+
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "run"
+        start = time.monotonic()
+        proc = subprocess.run([sys.executable, "-m", "sim.cli", "run", *args, "--out", str(out), "--no-video", "-q"],
+                              cwd=REPO, capture_output=True, text=True)
+        wall = time.monotonic() - start
+        if proc.returncode != 0:
+            print(proc.stderr[-2000:], file=sys.stderr)
+            return None
+        return json.loads((out / "metrics.json").read_text()), dict(np.load(out / "trajectory.npz")), wall

@@ -113,11 +113,22 @@ def goal_disparity(a: np.ndarray, b: np.ndarray) -> float:
     assignment of least total squared distance, eq. 7 (how far robots standing on G_{f-1} move to
     G_f when the real-time control assigns them optimally, paper 5.1)."""
     a, b = np.asarray(a, float).reshape(-1, 2), np.asarray(b, float).reshape(-1, 2)
+    previous = goal_correspondence(a, b)
+    return float(np.hypot(*(b - a[previous]).T).mean())
+
+
+def goal_correspondence(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """For each goal of G_f (``b``), the index of its corresponding goal in G_{f-1} (``a``): the
+    one-to-one matching of least total squared distance (eq. 7). The robots use it to carry their
+    assignment from one keyframe to the next (a robot on goal i of G_{f-1} drives on to the goal that
+    corresponds to it) while they auction G_f. Raises GoalError unless both sets have one size."""
+    a, b = np.asarray(a, float).reshape(-1, 2), np.asarray(b, float).reshape(-1, 2)
     if len(a) != len(b) or len(a) == 0:
-        raise GoalError(f"goal disparity needs two non-empty goal sets of one size, not {len(a)} and {len(b)}")
-    d2 = cdist(a, b, "sqeuclidean")
-    rows, cols = linear_sum_assignment(d2)
-    return float(np.sqrt(d2[rows, cols]).mean())
+        raise GoalError(f"goal correspondence needs two non-empty goal sets of one size, not {len(a)} and {len(b)}")
+    rows, cols = linear_sum_assignment(cdist(a, b, "sqeuclidean"))
+    previous = np.empty(len(b), np.int64)
+    previous[cols] = rows
+    return previous
 
 
 def keyframe_paths(folder: str | os.PathLike[str]) -> list[Path]:

@@ -23,6 +23,7 @@ from transport.bus import Bus
 from transport.codec import Goals, Pose, Tick
 from transport.session import TransportError, add_zenoh_args, settings_from_args
 
+from .keyframes import goal_correspondence
 from .scene import Scene, SceneError, load_scene, scene_goal_set
 
 SETTLE_S = 0.5  # a change in the live robots must hold this long before a new goal set (debounce)
@@ -73,6 +74,14 @@ def step_timing(scene: Scene, step: int) -> dict[str, float | int]:
     return out
 
 
+def follows_keyframe(before: Goals | None, goals: Goals) -> bool:
+    """Consecutive keyframes of an animation (paper 6.1-6.2) for the same robots: the robots carry
+    their goals over by the goals' correspondence while they auction the new frame."""
+    return (before is not None and not before.per_robot and before.frame_period > 0 and goals.frame_period > 0
+            and goals.step == before.step + 1 and len(before.positions) == len(goals.positions)
+            and np.array_equal(before.robots, goals.robots) and not before.moves and not goals.moves)
+
+
 class Coordinator:
     def __init__(self, bus: Bus, scene: Scene) -> None:
         self.bus, self.scene = bus, scene
@@ -84,6 +93,7 @@ class Coordinator:
         self.live_changed = 0.0  # wall time of the last change in the live robots
         self.shown: tuple[int, frozenset[int]] | None = None  # (step, robots) of the current epoch
         self.ever_live: set[int] = set()
+        self.pixels = frozenset(scene.pixel_robots)  # the robots that show the image
         self.bodies: dict[int, np.ndarray] = {}  # dead robots' tracked positions
         self.body_inboxes: dict[int, Any] = {}
         self.body_wait_since: float | None = None
@@ -117,15 +127,18 @@ class Coordinator:
         for r, inbox in self.body_inboxes.items():
             for _, pose in inbox.drain():
                 self.bodies[r] = np.array([pose.x, pose.y])
-        if self.t is None or not self.live:
+        # Only robot pixels take goals: a pursuer is a live agent but chases its target, and a scripted
+        # mover has no agent at all (paper Fig. 19's uncontrolled objects).
+        robots = frozenset(self.live) & self.pixels
+        if self.t is None or not robots:
             return False  # the show starts with the world's first tick
-        step, robots = self.scene.step_at(self.t), frozenset(self.live)
+        step = self.scene.step_at(self.t)
         if self.shown is not None:
             if (step, robots) == self.shown:
                 return False
             if robots != self.shown[1] and time.monotonic() - self.live_changed < SETTLE_S:
                 return False
-        dead = [r for r in self.ever_live - robots]
+        dead = [r for r in self.ever_live - frozenset(self.live)]
         if any(r not in self.bodies for r in dead):
             self.body_wait_since = self.body_wait_since or time.monotonic()
             if time.monotonic() - self.body_wait_since < BODY_WAIT_S:
@@ -135,11 +148,15 @@ class Coordinator:
         bodies = np.array([self.bodies[r] for r in dead if r in self.bodies]).reshape(-1, 2)
         if len(bodies):
             goals = clear_of_bodies(goals, bodies, 2 * self.scene.radius + 0.05)  # room for its inflated radius
+        before = self.current
         self.epoch += 1
         self.shown = (step, robots)
         self.current = Goals(self.epoch, 0, self.t, len(goals), np.asarray(goals), np.asarray(colors), step,
                              float(self.scene.steps[step].hold), np.array(sorted(robots)),
                              **step_timing(self.scene, step))
+        if follows_keyframe(before, self.current):
+            self.current.follows = before.epoch
+            self.current.previous = goal_correspondence(before.positions, self.current.positions)
         self.bus.publish(self.bus.keys.goals(self.epoch), self.current)
         return True
 

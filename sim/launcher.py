@@ -100,7 +100,7 @@ class Launcher:
                                 arena=self.scene.arena, obstacles=self.scene.obstacles,
                                 lockstep=self.scene.clock == "lockstep",
                                 # with injected loss or delay on states, waiting would only slow the run
-                                state_wait=0.0 if "state" in self.opt.faults else 0.5,
+                                state_wait=0.0 if "state" in self.opt.faults else 1.5,
                                 pursue={r: t for r, t in self.scene.pursuers.items() if r in robots})
             path = cfg_dir / f"agents-{h:04d}.json"
             path.write_text(config.to_json())

@@ -287,3 +287,35 @@ def summarise(
         raise ValueError(f"summarise: extra keys would replace computed ones: {sorted(clash)}")
     out.update(extra)
     return out
+
+
+def keyframe_errors(traj: Mapping[str, np.ndarray], step_starts: list[float], frame_periods: list[float],
+                    v_max: float) -> list[np.ndarray]:
+    """Per keyframe of a distributed animation (paper 6.2): the distance of each robot to its goal
+    when the keyframe's K_f dt is over, for the robots whose move the speed allows (distance from
+    where the robot was when it got its goal of this keyframe, carried or agreed, over the time left
+    is at most v_max); NaN for the others. From trajectory.npz's arrays (the recorder's names)."""
+    t, pose = traj["t"], traj["pose"][:, :, :2]
+    epochs = [int(e) for e in traj["goal_set_epochs"]]
+    steps = [int(s) for s in traj["goal_set_steps"]]
+    assignment, epoch = traj["assignment"], traj["assignment_epoch"]
+    out = []
+    for f, (start, period) in enumerate(zip(step_starts, frame_periods)):
+        errors = np.full(pose.shape[1], np.nan)
+        sets = [e for e, s in zip(epochs, steps) if s == f]
+        end = int(np.argmin(np.abs(t - (start + period))))
+        if sets:
+            e = sets[-1]
+            goals = traj["goal_sets"][epochs.index(e)]
+            for i in range(pose.shape[1]):
+                # its goal of this keyframe as last announced by K_f dt (the next keyframe's goal set
+                # may already have reached it in the sample at K_f dt)
+                rows = np.flatnonzero((epoch[:, i] == e) & (t >= start - 1e-9) & (t <= t[end] + 1e-9))
+                if not len(rows):
+                    continue
+                got, goal = int(rows[0]), goals[assignment[rows[-1], i]]
+                left = t[end] - t[got]
+                if left > 0 and np.hypot(*(pose[got, i] - goal)) / left <= v_max:
+                    errors[i] = np.hypot(*(pose[end, i] - goal))
+        out.append(errors)
+    return out

@@ -217,7 +217,8 @@ class Recorder:
         tr, n = self.traj, self.n
         epoch = np.stack(tr.assignment_epoch)
         instance = np.stack(tr.assignment_instance)
-        announced = sorted({(int(e), int(k)) for e, k in zip(epoch.ravel(), instance.ravel()) if e > 0})
+        announced = sorted({(int(e), int(k)) for e, k in zip(epoch.ravel(), instance.ravel())
+                            if e > 0 and k != State.CARRIED})  # carried goals were never agreed
         positions = np.full((len(announced), n, 2), np.nan)
         penalties = np.full((len(announced), n), np.nan)
         for a, key in enumerate(announced):

@@ -216,7 +216,7 @@ def test_the_central_engine_follows_a_sliding_growing_turning_triangle(tmp_path)
 
 
 def test_fourteen_epucks_follow_the_rotating_growing_triangle_over_zenoh(tmp_path):
-    """Paper Fig. 18 with the shipped scene, cut to 50 s: the robots form the triangle from random
+    """Paper Fig. 18 with the shipped scene, cut to 40 s: the robots form the triangle from random
     places within 20 s (about 10 s measured), then track it. Bound on the mean distance to the
     moving goals: 1 cm, NH-ORCA's tracking-error bound epsilon_max (the distance a differential-drive
     robot may stray from the holonomic velocity it tracks); the feed-forward removes the lag eq. 9
@@ -226,14 +226,14 @@ def test_fourteen_epucks_follow_the_rotating_growing_triangle_over_zenoh(tmp_pat
     robot is reassigned: the agreed assignment stays constant."""
     scene = load_scene("rotating-triangle")
     out = tmp_path / "run"
-    result = run_pixelswarm("run", "rotating-triangle", "--duration", "50", "--out", str(out), "--no-video", "-q",
+    result = run_pixelswarm("run", "rotating-triangle", "--duration", "40", "--out", str(out), "--no-video", "-q",
                             timeout=240)
     assert result.returncode == 0, result.stderr[-3000:]
     m, traj = json.loads((out / "metrics.json").read_text()), dict(np.load(out / "trajectory.npz"))
     assert m["contacts"] == 0 and m["engine"] == "distributed" and m["end_reason"] == "duration"
     t, a, epoch = traj["t"], traj["assignment"], traj["assignment_epoch"]
     after = t >= 20.0
-    assert after.sum() >= 250 and (a[after] >= 0).all() and len(traj["goal_set_epochs"]) == 1
+    assert after.sum() >= 150 and (a[after] >= 0).all() and len(traj["goal_set_epochs"]) == 1
     assert (a[after] == a[after][0]).all(), "a robot was reassigned while the triangle moved within its speed"
     assert sorted(a[after][0].tolist()) == list(range(14))
     step = scene.steps[0].motion

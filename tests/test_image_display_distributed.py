@@ -25,11 +25,31 @@ def assert_agreements_valid(traj: dict, bound_per_robot: float = EPS_A, min_comp
     return rep.gaps()
 
 
-def assert_every_hold_formed(m: dict, tolerance: float = 0.01) -> None:
+def assert_every_hold_formed(m: dict, tolerance: float = 0.01, traj: dict | None = None) -> None:
     assert m["contacts"] == 0, m["contact_events"][:5]
     for step in m["steps"]:
-        assert step["converged_at"] is not None, step
-        assert step["max_goal_error_at_end"] <= tolerance, step
+        why = f"{step}; {why_not_formed(m, traj, tolerance)}" if traj is not None else step
+        assert step["converged_at"] is not None, why
+        assert step["max_goal_error_at_end"] <= tolerance, why
+
+
+def why_not_formed(m: dict, traj: dict, tolerance: float) -> str:
+    """What a failed hold looked like at the run's last sample (CI prints only the message): the
+    robots off their goals, whose assignment gave each goal and when it last changed, and the run's
+    goal sets, agreements, lost liveliness and end."""
+    t, err = traj["t"], np.hypot(*(traj["pose"][:, :, :2] - traj["goal"]).transpose(2, 0, 1))
+    off = [int(r) for r in np.flatnonzero(err[-1] > tolerance)]
+    rows = []
+    for r in off[:5]:
+        key = np.stack([traj["assignment_epoch"][:, r], traj["assignment_instance"][:, r], traj["assignment"][:, r]], 1)
+        changes = np.flatnonzero((key[1:] != key[:-1]).any(axis=1)) + 1
+        goal_changes = np.flatnonzero(traj["assignment"][1:, r] != traj["assignment"][:-1, r]) + 1
+        rows.append(f"robot {r}: {err[-1, r]:.3f} m off goal {key[-1, 2]} (epoch {key[-1, 0]}, instance {key[-1, 1]}),"
+                    f" goal changed at t={[round(float(t[i]), 1) for i in goal_changes[-4:]]},"
+                    f" assignment at t={[round(float(t[i]), 1) for i in changes[-3:]]}")
+    return (f"end {m.get('end_reason')} at t={float(t[-1]):.1f}; goal sets {[int(e) for e in traj['goal_set_epochs']]};"
+            f" agreements {len(traj['agreements'])}; liveliness lost {m.get('liveliness_lost')};"
+            f" off goal at the end: {rows or 'none'}")
 
 
 DISK = """
@@ -50,25 +70,28 @@ converge_hold = {converge_hold}
 def test_auction_survives_loss_and_delay(tmp_path):
     m, traj = run(tmp_path, DISK.format(hold=40.0, converge_hold=8.0, events=""), "--faults", "auction:drop=0.1,delay=0.05")
     assert m["faults"], "the fault plan was not applied"
-    assert_every_hold_formed(m)
+    assert_every_hold_formed(m, traj=traj)
     assert_agreements_valid(traj, min_complete=3)
 
 
+KILL_AT = 20.0  # s: the disk of 14 forms in about 10 s
+
+
 def test_two_of_fourteen_agents_die_and_twelve_reform_the_image(tmp_path):
-    events = "\n".join(f"[[events]]\nkind = \"fail\"\nt = 30.0\nrobot = {r}" for r in (3, 9))
-    m, traj = run(tmp_path, DISK.format(hold=50.0, converge_hold=100.0, events=events))
+    events = "\n".join(f"[[events]]\nkind = \"fail\"\nt = {KILL_AT}\nrobot = {r}" for r in (3, 9))
+    m, traj = run(tmp_path, DISK.format(hold=KILL_AT + 15.0, converge_hold=100.0, events=events))
     assert m["contacts"] == 0
     assert len(m["agents_failed_by_scene"]) == 2
     t = traj["t"]
     members = traj["goal_set_robots"][list(traj["goal_set_epochs"]).index(int(traj["goal_set_epochs"][-1]))]
     assert members.sum() == 12 and not members[3] and not members[9]
     newest = traj["goal_set_epochs"][-1]
-    after = np.flatnonzero(t >= 30.0)
+    after = np.flatnonzero(t >= KILL_AT)
     err = np.hypot(*(traj["pose"][:, members, :2] - traj["goal"][:, members]).T).T
     formed = (traj["assignment_epoch"][:, members] == newest).all(axis=1) & (err <= 0.01).all(axis=1)
     first = after[formed[after]]
     assert len(first), "the twelve never re-formed the image"
-    assert t[first[0]] - 30.0 <= 10.0
+    assert t[first[0]] - KILL_AT <= 10.0
     assert formed[-1]
     assert_agreements_valid(traj)
 
@@ -97,6 +120,6 @@ hold = 45.0
 @pytest.mark.timeout(900)
 def test_hundred_holonomic_robots_in_agent_hosts(tmp_path):
     m, traj = run(tmp_path, HUNDRED, "--agents-per-process", "10", timeout=900)
-    assert_every_hold_formed(m)
+    assert_every_hold_formed(m, traj=traj)
     # with hysteresis Delta C the bound is N (epsilon_A + Delta C) (plus deadlock penalties in force)
     assert_agreements_valid(traj, bound_per_robot=EPS_A + 5e-3)

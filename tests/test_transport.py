@@ -25,6 +25,8 @@ SAMPLES = [
     Goals(3, 0, 30.1, 2, np.array([[0.0, 1.0], [2.0, 3.0]]), np.array([[255, 0, 0]] * 2, np.uint8), 4, 6.0,
           np.array([0, 5]), t_start=30.0, frame_period=6.0, v_gx=0.01, v_gy=-0.02, omega_g=0.05, p_ogx=0.1,
           p_ogy=-0.1, k_eg=0.004, geometric=1),
+    Goals(4, 0, 36.1, 2, np.array([[0.5, 1.0], [2.0, 2.5]]), np.array([[0, 255, 0]] * 2, np.uint8), 5, 6.0,
+          np.array([0, 5]), t_start=36.0, frame_period=6.0, follows=3, previous=np.array([1, 0])),
     Truth(7, 0.7, 0.01, 2, np.zeros((2, 3)), np.ones((2, 2)), np.zeros((2, 3), np.uint8), np.array([1, 2], np.uint32)),
     Contact(0, 1, 2, 0.5, 0.003),
     Event({"kind": "end", "reason": "converged"}),
@@ -87,6 +89,21 @@ def test_goals_of_an_older_coordinator_decode_as_a_still_image():
         assert decode(Goals(**{**full.to_dict(), **bad, "positions": full.positions, "colors": full.colors,
                                "robots": full.robots}).encode(), drops=drops) is None, bad
     assert drops["invalid"] == 3 and drops["non-finite"] == 1
+
+
+def test_keyframe_correspondence_rides_in_a_second_trailer():
+    """The goals' correspondence to the previous keyframe's (6.1) is optional: without it a keyframe
+    decodes as before; indices outside the goal set are refused."""
+    keyframe = SAMPLES[6]
+    back = decode(keyframe.encode())
+    assert back.follows == 3 and back.previous.tolist() == [1, 0] and back.frame_period == 6.0
+    plain = decode(Goals(**{**keyframe.to_dict(), "follows": 0, "positions": keyframe.positions,
+                            "colors": keyframe.colors, "robots": keyframe.robots}).encode())
+    assert plain.follows == 0 and len(plain.previous) == 0 and plain.frame_period == 6.0
+    drops = DropCounter()
+    bad = Goals(**{**keyframe.to_dict(), "previous": np.array([0, 2]), "positions": keyframe.positions,
+                   "colors": keyframe.colors, "robots": keyframe.robots})
+    assert decode(bad.encode(), drops=drops) is None and drops["invalid"] == 1
 
 
 def test_wrong_kind_on_a_key_is_dropped():

@@ -116,11 +116,13 @@ class State(Message):
     ``velocity`` is the robot's current collision-free velocity (v_opt of eq. 11), ``radius`` the
     radius it asks others to avoid (r + tracking error for differential drive), ``goal_index`` the
     goal it holds (-1 for none): in image scenes, its goal in the agreed assignment of auction
-    instance ``assign_instance`` of goal set ``assign_epoch``.
+    instance ``assign_instance`` of goal set ``assign_epoch``, or (instance CARRIED) the goal its
+    goal in the previous keyframe carried over to while the new keyframe's auction runs.
     """
 
     KIND: ClassVar[int] = 2
     NAME: ClassVar[str] = "state"
+    CARRIED: ClassVar[int] = 0xFFFFFFFF  # assign_instance of a carried goal: not an agreed instance
     _fixed: ClassVar[struct.Struct] = struct.Struct("<IIdfffffffiBII")
     robot: int
     tick: int
@@ -222,8 +224,12 @@ class Goals(Message):
     p_ogy: float = 0.0
     k_eg: float = 0.0  # K_eG (1/s)
     geometric: int = 0  # 1: s(t) = (1 + K_eG)^t, 0: s(t) = 1 + K_eG t
+    follows: int = 0  # the goal set (epoch) whose goals ``previous`` refers to; 0: none
+    previous: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # per goal: its
+    # corresponding goal in set ``follows`` (consecutive keyframes, coordinator.keyframes.goal_correspondence)
 
     _trailer: ClassVar[struct.Struct] = struct.Struct("<dfffffffB")
+    _follows: ClassVar[struct.Struct] = struct.Struct("<I")
 
     @property
     def moves(self) -> bool:
@@ -239,6 +245,10 @@ class Goals(Message):
         items["rgb"] = self.colors
         trailer = self._trailer.pack(self.t_start, self.frame_period, self.v_gx, self.v_gy, self.omega_g,
                                      self.p_ogx, self.p_ogy, self.k_eg, self.geometric)
+        if self.follows:  # a second, optional trailer: the correspondence to the previous keyframe
+            if len(self.previous) != len(self.positions):
+                raise ValueError("previous needs one index per goal")
+            trailer += self._follows.pack(self.follows) + np.asarray(self.previous, "<i4").tobytes()
         return items.tobytes() + np.asarray(self.robots, "<u2").tobytes() + trailer
 
     @classmethod
@@ -248,17 +258,25 @@ class Goals(Message):
         epoch, per_robot, stamp, count, step, hold, n_robots = cls._fixed.unpack(body[: cls._fixed.size])
         end = cls._fixed.size + count * cls._item.itemsize
         rest = len(body) - (end + 2 * n_robots)
-        if rest not in (0, cls._trailer.size):
+        correspondence = cls._follows.size + 4 * count
+        if rest not in (0, cls._trailer.size, cls._trailer.size + correspondence):
             raise Malformed("truncated")
         items = np.frombuffer(body[cls._fixed.size:end], cls._item)
         positions = np.stack([items["x"], items["y"]], axis=1).astype(float)
         _finite(stamp, hold)
         if not np.all(np.isfinite(positions)):
             raise Malformed("non-finite")
-        robots = np.frombuffer(body[end:end + 2 * n_robots], "<u2").astype(np.int64)
-        extra = cls._trailer.unpack(body[len(body) - rest:]) if rest else ()
+        at = end + 2 * n_robots
+        robots = np.frombuffer(body[end:at], "<u2").astype(np.int64)
+        extra = cls._trailer.unpack(body[at:at + cls._trailer.size]) if rest else ()
         _finite(*extra)
         msg = cls(epoch, per_robot, stamp, count, positions, items["rgb"].copy(), step, hold, robots, *extra)
+        if rest > cls._trailer.size:
+            at += cls._trailer.size
+            (msg.follows,) = cls._follows.unpack(body[at:at + cls._follows.size])
+            msg.previous = np.frombuffer(body[at + cls._follows.size:], "<i4").astype(np.int64)
+            if msg.follows == 0 or (msg.previous < -1).any() or (msg.previous >= count).any():
+                raise Malformed("invalid")
         if msg.frame_period < 0 or msg.geometric not in (0, 1) or (msg.geometric and msg.k_eg <= -1):
             raise Malformed("invalid")
         return msg

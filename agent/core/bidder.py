@@ -10,7 +10,10 @@ are agreed by max-consensus, as in Zavlanos et al. 2008:
 - **Bids.** A robot that holds no goal, or whose goal was taken by a greater record, bids on its best
   goal: the price rises by the difference between the best and second-best net value plus epsilon.
   Costs are private: squared distance (eq. 7) plus the robot's own deadlock penalties (5.5.5).
-  Own robots bid together (Jacobi rounds, vectorised), so a host of hundreds of robots stays fast.
+  Own robots bid together (Jacobi rounds, vectorised), so a host of hundreds of robots stays fast:
+  each robot's best and second-best values are kept between rounds (prices only rise), and only
+  the rows that may have changed are ranked anew over every goal. A host that owns every robot (the
+  central engine, sim.central) settles each block of phases in-process (``settle_alone``).
 - **Instances.** An auction instance runs on positions frozen when it starts, so costs stay fixed
   while prices settle; a deadlock penalty declared meanwhile counts from the next instance (a cost
   that changed after a robot said it was content would break the quiescence argument below). Instance k is *agreed* when every robot of the goal set has published, for k,
@@ -34,8 +37,10 @@ checked against the optimum plus the penalties in force.
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Mapping
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .auction import NO_OWNER, epsilon_schedule
 
@@ -48,10 +53,63 @@ RECORD = np.dtype([("robot", "<u2"), ("goal", "<i4"), ("price", "<f8"), ("flags"
                    ("x", "<f4"), ("y", "<f4")])
 
 
+def bid_position(position: np.ndarray, goal: np.ndarray, velocity: np.ndarray, lead: float) -> np.ndarray:
+    """Where a robot driving to its agreed goal will be ``lead`` seconds on (the host's last delay
+    from freezing positions to adopting their agreement): along the straight line to the goal, as far
+    as its velocity component toward the goal carries it, never past the goal (a blocked robot stays
+    put). Bidding from there compensates the auction's latency: an assignment computed from where
+    the robots were when its instance began, but adopted seconds later once they have moved on toward
+    the last one's goals, sent them back, and at 100 robots in 10 hosts on a loaded machine (3 s
+    latency) five robots swapped goals back and forth for good. For squared distances, robots that
+    have all covered the same fraction of their straight way to optimally assigned goals keep that
+    assignment optimal, so leading agrees with the assignment being carried out."""
+    to_goal = np.asarray(goal, float) - np.asarray(position, float)
+    d = float(np.hypot(*to_goal))
+    if d <= 1e-9 or lead <= 0:
+        return np.asarray(position, float)
+    toward = max(0.0, float(np.dot(velocity, to_goal)) / d)
+    return np.asarray(position, float) + to_goal * min(1.0, toward * lead / d)
+
+
+def frames_close(before: np.ndarray, goals: np.ndarray, previous: np.ndarray) -> bool:
+    """Whether consecutive keyframes differ little enough for the auction to start from the carried
+    assignment (Participant.carry): their corresponding goals are on average less than half the
+    typical goal spacing (the median distance from a goal to its nearest neighbour) apart."""
+    goals = np.asarray(goals, float)
+    ok = previous >= 0
+    if len(goals) < 2 or not ok.any():
+        return False
+    disparity = float(np.hypot(*(goals[ok] - np.asarray(before, float)[previous[ok]]).T).mean())
+    spacing = float(np.median(cKDTree(goals).query(goals, k=2)[0][:, 1]))
+    return disparity <= 0.5 * spacing
+
+
 def records(rows: list[tuple]) -> np.ndarray:
     """Records from (robot, goal, price, flags[, penalty, x, y]) tuples (tests, tools)."""
     full = [tuple(r) + (0.0, 0.0, 0.0)[len(r) - 4:] for r in rows]
     return np.array(full, RECORD)
+
+
+ROW_BLOCK = 64  # rows of a (K, G) array worked on at a time: a block stays in cache through its passes
+
+
+def _squared_distances(position: np.ndarray, goals: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """(K, G) |g_j - p_i|^2 (eq. 7), into ``out`` when it has that shape, in blocks of rows (at
+    1000 robots twice as fast as whole arrays, which do not fit the cache)."""
+    k, g = len(position), len(goals)
+    if out is None or out.shape != (k, g):
+        out = np.empty((k, g))
+    gx, gy = np.ascontiguousarray(goals[:, 0]), np.ascontiguousarray(goals[:, 1])
+    dy = np.empty((min(ROW_BLOCK, k), g))
+    for a in range(0, k, ROW_BLOCK):
+        cost, p = out[a:a + ROW_BLOCK], position[a:a + ROW_BLOCK]
+        d = dy[:len(cost)]
+        np.subtract(gx, p[:, 0, None], out=cost)
+        cost *= cost
+        np.subtract(gy, p[:, 1, None], out=d)
+        d *= d
+        cost += d
+    return out
 
 
 class Board:
@@ -75,7 +133,7 @@ class Board:
         # the greatest record per goal in the batch: sorted by (goal, price, -robot, released), last wins
         order = np.lexsort((released, -robot, price, goal))
         g = goal[order]
-        last = order[np.r_[g[1:] != g[:-1], True]]
+        last = order[np.append(g[1:] != g[:-1], True)]
         g, p, r, rel = goal[last], price[last], robot[last], released[last]
         bp, bo, br = self.price[g], self.owner[g], self.released[g]
         greater = (bo == NO_OWNER) | (p > bp) | ((p == bp) & ((r < bo) | ((r == bo) & rel & ~br)))
@@ -153,9 +211,12 @@ class Participant:
         self.claims_changed = False  # own claims changed since the last publication
         self.published_digest: int | None = None  # the board digest of the last publication
         self.bids = 0
+        self.rounds = 0  # Jacobi rounds in which some own robot bid
         self._content_cache: tuple[tuple, np.ndarray] | None = None
         self._best: tuple[np.ndarray, np.ndarray] | None = None  # best goal and value per own robot
         self._price_seen = np.zeros(len(self.goals))
+        self._has_penalty = False  # any penalty in force: costs are more than squared distances
+        self._pending_any = False  # penalise() was called since the last begin()
         self._view_cache: dict[bool, tuple[tuple, bool]] = {}
 
     # --- the epsilon of an instance ----------------------------------------------------------------
@@ -191,24 +252,73 @@ class Participant:
         """Instances come in blocks of this many epsilon-scaling phases, on one set of positions."""
         return len(self.schedule)
 
-    def begin(self, instance: int, positions: dict[int, np.ndarray]) -> None:
+    def begin(self, instance: int, positions: Mapping[int, np.ndarray] | np.ndarray) -> None:
         """Start an instance, warm from the current board. The first instance of a block of phases
-        freezes the positions given; the block's other phases share them. Penalties declared during
-        the last instance come into force now."""
+        freezes the positions given (a mapping robot -> (x, y), or an array whose row r is robot r's
+        position); the block's other phases share them. Penalties declared during the last instance
+        come into force now."""
         if self.started and not self.is_agreed and instance > self.instance:
             self._adopt_if_settled()  # someone reached a later instance: ours was agreed
-        if not self.started or instance // self.phases != self.instance // self.phases:
-            if self.own:
+        new_block = not self.started or instance // self.phases != self.instance // self.phases
+        if new_block and self.own:
+            if isinstance(positions, np.ndarray):
+                self.position = np.asarray(positions, float)[self.own_ids].reshape(-1, 2)
+            else:
                 self.position = np.array([positions[r] for r in self.own], float).reshape(-1, 2)
-        self.penalty += self.pending
-        self.pending[:] = 0.0
-        d = self.goals[None, :, :] - self.position[:, None, :]
-        self.cost = d[..., 0] ** 2 + d[..., 1] ** 2 + self.penalty
+        penalised = self._pending_any and bool(self.pending.any())  # a flag first: any() reads K x G
+        if penalised:
+            self.penalty += self.pending
+            self.pending[:] = 0.0
+            self._pending_any = False
+            self._has_penalty = True
+        # The costs change only with the positions (a new block) or a penalty: the other phases of a
+        # block keep them, and the best values too (prices only rise, _best_values follows them).
+        if new_block or penalised:
+            self.cost = _squared_distances(self.position, self.goals, out=self.cost)  # the last block's costs are done with
+            if self._has_penalty:
+                self.cost += self.penalty
+            self._best = None  # costs changed: every best value is recomputed
         self.instance = instance
         self.claims_changed = True  # the new instance's records are news
         self._content_cache = None
-        self._best = None  # costs changed: every best value is recomputed
         self.bid()
+
+    def carry(self, before: "Participant", previous: np.ndarray, claim: bool = True) -> dict[int, int]:
+        """The assignment of the previous keyframe's auction carried over by the goals'
+        correspondence (paper 6.1; ``previous[j]``: the goal of ``before`` that goal j continues, -1
+        none): a robot holding goal i there gets i's successor. Returns the own robots' carried
+        goals (robot -> goal), which they drive to until this auction agrees.
+
+        With ``claim`` the auction also starts from it: each robot claims its carried goal at price
+        zero (all hosts carry from boards that agree up to the last messages; max-consensus merges the
+        rest). When the frames differ little most robots are then content at once, and agreement
+        takes a few message rounds instead of a cold start's hundreds; when they differ much, the
+        claims skip the coarse epsilon phases that build the prices, and the fine ones fight a price
+        war that costs more than a cold start (bench/bench_carry.py; see frames_close). Carrying the
+        prices too costs more in both cases: they are in equilibrium for the old costs only.
+        Call before the first instance."""
+        previous = np.asarray(previous, np.int64)
+        if self.started or not before.started or len(previous) != len(self.goals):
+            return {}
+        j = np.flatnonzero((previous >= 0) & (previous < len(before.goals)))
+        i = previous[j]
+        held = np.isin(before.board.owner[i], self.robots) & ~before.board.released[i]
+        owner = np.full(len(self.goals), NO_OWNER, np.int64)
+        owner[j[held]] = before.board.owner[i[held]]
+        successor = np.full(len(before.goals), -1, np.int64)
+        successor[i] = j
+        carried: dict[int, int] = {}
+        for k, r in enumerate(self.own):
+            if r in before.own:
+                g = int(before.goal[before.own.index(r)])
+                if g >= 0 and successor[g] >= 0 and owner[successor[g]] == r:
+                    carried[r] = int(successor[g])
+        if claim:
+            self.board.owner[:] = owner  # prices stay zero
+            self.board.version += 1
+            for k, r in enumerate(self.own):
+                self.goal[k] = carried.get(r, -1)
+        return carried
 
     def _adopt_if_settled(self) -> None:
         if self.final_phase and self._content_all().all():
@@ -218,26 +328,80 @@ class Participant:
     # --- bidding ----------------------------------------------------------------------------------
     def _values(self, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
         """Net values -c_ij - b_j of own robots (their private costs include deadlock penalties)."""
-        return -self.cost[rows] - self.board.price[None, :]
+        values = -self.cost[rows]
+        values -= self.board.price[None, :]  # in place: one (rows, G) array, not three
+        return values
 
     def _best_values(self) -> np.ndarray:
-        """(K,) each own robot's best net value max_j (-c_ij - b_j), kept up to date cheaply: prices
-        only rise, so a robot's best value changes only when the price of its best goal did."""
+        """(K,) each own robot's best net value max_j (-c_ij - b_j), kept up to date cheaply. Prices
+        only rise, so values only fall: a robot's best goal can change only when its price rose, and
+        it stays the best (the same argmax) while its value now still beats the robot's second-best
+        value as last ranked, which bounds the second best now from above. Only the other rows are
+        ranked anew over every goal."""
         price = self.board.price
         if self._best is None:
-            stale = np.arange(len(self.own))
+            k = len(self.own)
+            self._best = (np.zeros(k, np.int64), np.zeros(k), np.full(k, np.inf))
+            self._rank(np.arange(k))
         else:
             rose = price != self._price_seen
-            stale = np.flatnonzero(rose[self._best[0]]) if rose.any() else np.zeros(0, np.int64)
-        if self._best is None or len(stale):
-            best, value = self._best if self._best is not None else (np.zeros(len(self.own), np.int64),
-                                                                      np.zeros(len(self.own)))
-            values = self._values(stale)
-            best[stale] = np.argmax(values, axis=1)
-            value[stale] = values[np.arange(len(stale)), best[stale]]
-            self._best = (best, value)
-            self._price_seen = price.copy()
+            best, value, second = self._best
+            stale = np.flatnonzero(rose[best]) if rose.any() else ()
+            if len(stale):
+                g = best[stale]
+                now = -self.cost[stale, g] - price[g]
+                value[stale] = now
+                lost = stale[~(now > second[stale])]  # another goal may be as good now
+                if len(lost):
+                    self._rank(lost)
+        self._price_seen = price.copy()
         return self._best[1]
+
+    def _rank(self, rows: np.ndarray, third: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Rank these own robots' net values over every goal: their best goal and value, and their
+        second-best value, into the cache. Returns the runner-up goal and, with ``third``, the
+        third-best value (-inf where there is none). In blocks of rows that stay in cache."""
+        if len(rows) <= ROW_BLOCK:
+            return self._rank_block(rows, third)
+        runner_up, third_value = np.zeros(len(rows), np.int64), np.full(len(rows), -np.inf)
+        for a in range(0, len(rows), ROW_BLOCK):
+            block = slice(a, a + ROW_BLOCK)
+            runner_up[block], third_value[block] = self._rank_block(rows[block], third)
+        return runner_up, third_value
+
+    def _rank_block(self, rows: np.ndarray, third: bool) -> tuple[np.ndarray, np.ndarray]:
+        best, value, second = self._best
+        values = self._values(rows)
+        at = np.arange(len(rows))
+        first = np.argmax(values, axis=1)  # ties: lowest goal index, the same everywhere
+        best[rows], value[rows] = first, values[at, first]
+        runner_up, third_value = first, np.full(len(rows), -np.inf)
+        if values.shape[1] > 1:
+            values[at, first] = -np.inf
+            runner_up = np.argmax(values, axis=1)
+            second[rows] = values[at, runner_up]
+            if third and values.shape[1] > 2:
+                values[at, runner_up] = -np.inf
+                third_value = values.max(axis=1)
+        else:
+            second[rows] = -np.inf
+        return runner_up, third_value
+
+    def _after_bids(self, bidders: np.ndarray, bid_on: np.ndarray, runner_up: np.ndarray,
+                    third: np.ndarray) -> None:
+        """The bidders' best goals once their bids are merged, from the ranking they bid on: the goal
+        bid on rose in price, so the runner-up is the best now if it beats that goal's value now and
+        the third-best value (an upper bound) outright; otherwise the row is ranked anew when next
+        needed (second = inf, and the goal bid on counts as risen since _price_seen)."""
+        best, value, second = self._best
+        price = self.board.price
+        v_bid = -self.cost[bidders, bid_on] - price[bid_on]
+        v_run = -self.cost[bidders, runner_up] - price[runner_up]
+        bound = np.maximum(v_bid, third)
+        moved = (v_run > bound) & (runner_up != bid_on)
+        best[bidders] = np.where(moved, runner_up, bid_on)
+        value[bidders] = np.where(moved, v_run, v_bid)
+        second[bidders] = np.where(moved, bound, np.inf)
 
     def _content_all(self) -> np.ndarray:
         """(K,) bool: each own robot holds its goal and no goal is better by more than the slack."""
@@ -262,13 +426,17 @@ class Participant:
         bidders = np.flatnonzero(~self._content_all())
         if len(bidders) == 0:
             return False
-        values = self._values(bidders)
-        best = np.argmax(values, axis=1)  # ties: lowest goal index, the same everywhere
-        rows = np.arange(len(bidders))
-        v_best = values[rows, best]
-        if values.shape[1] > 1:
-            values[rows, best] = -np.inf
-            second = values.max(axis=1)
+        self._bid_rows(bidders)
+        return True
+
+    def _bid_rows(self, bidders: np.ndarray) -> np.ndarray:
+        """These own robots (rows, none of them content) bid on their best goals at once; returns the
+        goals whose records were merged (their bids and releases)."""
+        runner_up, third = self._rank(bidders, third=True)  # the same best as _content_all's
+        _, value, second = self._best
+        best, v_best = self._best[0][bidders], value[bidders]
+        if len(self.goals) > 1:
+            second = second[bidders]
         else:
             second = v_best - self.eps
         price = self.board.price[best] + (v_best - second) + self.eps
@@ -277,12 +445,99 @@ class Participant:
         gives_up = self.board.holds(robot, held)  # it gives its goal up for a better one
         g_rel = held[gives_up]
         # releases and bids merge in one batch: max-consensus does not care about order
-        self.board.merge(np.r_[g_rel, best], np.r_[self.board.price[g_rel], price], np.r_[robot[gives_up], robot],
-                         np.r_[np.ones(len(g_rel), bool), np.zeros(len(best), bool)])
+        # (np.concatenate: np.r_ costs several times more on these short arrays, every round)
+        self.board.merge(np.concatenate([g_rel, best]), np.concatenate([self.board.price[g_rel], price]),
+                         np.concatenate([robot[gives_up], robot]),
+                         np.concatenate([np.ones(len(g_rel), bool), np.zeros(len(best), bool)]))
+        self._after_bids(bidders, best, runner_up, third)
         self.goal[bidders] = best
         self.bids += len(bidders)
+        self.rounds += 1
         self.claims_changed = True
-        return True
+        return np.concatenate([g_rel, best])
+
+    def _bid_one(self, i: int, eps: float) -> list[int]:
+        """_bid_rows for a single bidder (row i; eps: this phase's), in scalars: the same bid, merge
+        and cache, at a fraction of the array calls (most rounds of a long chain of displacements
+        have one bidder)."""
+        values = -self.cost[i]
+        values -= self.board.price
+        j1 = int(values.argmax())  # ties: lowest goal index, the same everywhere
+        v1 = values[j1]
+        j2, v2, v3 = j1, v1 - eps, -np.inf
+        if len(values) > 1:
+            values[j1] = -np.inf
+            j2 = int(values.argmax())
+            v2 = values[j2]
+            if len(values) > 2:
+                values[j2] = -np.inf
+                v3 = values.max()
+        best, value, second = self._best
+        best[i], value[i], second[i] = j1, v1, v2 if len(values) > 1 else -np.inf
+        board = self.board
+        robot, held = int(self.own_ids[i]), int(self.goal[i])
+        touched = [j1]
+        if held >= 0 and board.owner[held] == robot and not board.released[held]:  # it gives its goal up
+            board.merge_one(held, board.price[held], robot, True)
+            touched.append(held)
+        board.merge_one(j1, board.price[j1] + (v1 - v2) + eps, robot, False)
+        # _after_bids for one row
+        v_bid = -self.cost[i, j1] - board.price[j1]
+        v_run = -self.cost[i, j2] - board.price[j2]
+        bound = max(v_bid, v3)
+        if v_run > bound and j2 != j1:
+            best[i], value[i], second[i] = j2, v_run, bound
+        else:
+            best[i], value[i], second[i] = j1, v_bid, np.inf
+        self.goal[i] = j1
+        self.bids += 1
+        self.rounds += 1
+        self.claims_changed = True
+        return touched
+
+    def _bid_alone_until_quiet(self, max_rounds: int = 100_000) -> int:
+        """bid_until_quiet() for a host that owns every robot while no message arrives (settle_alone):
+        the same Jacobi rounds, bids and board, but each round re-checks contentment only for the
+        robots its bids can have touched, those claiming or preferring a goal whose record changed
+        (the bidders among them): every other robot's goal record, held value and best value are as
+        they were. While 1000 robots cross the arena a warm block can run thousands of rounds of one
+        or two bidders (each displaced robot displaces the next), and checking every robot was most
+        of a round's cost."""
+        content = self._content_all().copy()
+        best, value, second = self._best
+        eps, slack = self.eps, self.slack
+        mark = np.zeros(len(self.goals), bool)
+        rounds = 0
+        while rounds < max_rounds:
+            bidders = np.flatnonzero(~content)
+            if len(bidders) == 0:
+                break
+            touched = self._bid_one(int(bidders[0]), eps) if len(bidders) == 1 else self._bid_rows(bidders)
+            rounds += 1
+            mark[touched] = True
+            rows = np.flatnonzero(mark[self.goal] | mark[best])  # goal -1 reads mark[-1]: a harmless extra row
+            stale = rows[mark[best[rows]]]  # best goal's record changed: as _best_values, for these rows only
+            mark[touched] = False
+            if len(stale):
+                g = best[stale]
+                now = -self.cost[stale, g] - self.board.price[g]
+                value[stale] = now
+                lost = stale[~(now > second[stale])]
+                if len(lost):
+                    self._rank(lost)
+            content[rows] = self._content_rows(rows, slack)
+        self._price_seen = self.board.price.copy()  # every row whose best goal's price rose is refreshed
+        self._content_cache = ((self.board.version, self.instance, self.goal.tobytes()), content)
+        return rounds
+
+    def _content_rows(self, rows: np.ndarray, slack: float) -> np.ndarray:
+        """_content_all() for these rows (slack: this phase's), from the cached best values."""
+        goal = self.goal[rows]
+        g = np.maximum(goal, 0)
+        board = self.board
+        holds = (goal >= 0) & (board.owner[g] == self.own_ids[rows]) & ~board.released[g]  # Board.holds
+        held = -self.cost[rows, g] - board.price[g]
+        return holds & (held >= self._best[1][rows] - slack)
 
     def bid_until_quiet(self, max_rounds: int = 100_000) -> int:
         """Rounds until no own robot wants to bid (own robots outbid each other without messages)."""
@@ -291,10 +546,28 @@ class Participant:
             rounds += 1
         return rounds
 
+    def settle_alone(self, positions: Mapping[int, np.ndarray] | np.ndarray) -> np.ndarray:
+        """For a host that owns every robot of the goal set (the central engine): begin the next
+        block of phases on these positions, warm from the board, and bid it through its phases to
+        an agreed final phase. Nobody else bids, so no message is needed: every phase's snapshot is
+        this host's own board. Returns each own robot's agreed goal, in the order of ``own``."""
+        if len(self.own) != len(self.robots):
+            raise ValueError("settle_alone needs a host that owns every robot of the goal set")
+        block = self.instance // self.phases + 1 if self.started else 0
+        self.begin(block * self.phases, positions)
+        while not self.is_agreed:
+            instance = self.instance
+            self._bid_alone_until_quiet()
+            self.check_agreement()  # an earlier phase begins the next one; the final phase is agreed
+            if not self.is_agreed and self.instance == instance:
+                raise RuntimeError(f"auction instance {instance} did not settle")
+        return self.goal.copy()
+
     def penalise(self, robot: int, goal: int, cost: float) -> None:
         """Deadlock (5.5.5): the robot's cost of this goal rises by C_d for good, from the next instance."""
         if robot in self.own and 0 <= goal < len(self.goals):
             self.pending[self.own.index(robot), goal] += cost
+            self._pending_any = True
 
     # --- messages ---------------------------------------------------------------------------------
     @property

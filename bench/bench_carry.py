@@ -1,0 +1,88 @@
+"""Consecutive keyframes: bids to agree on frame f's goal set when the auction starts cold, from the
+previous frame's assignment carried over by the goals' correspondence (agent.core.bidder.carry,
+prices zero), or from that assignment with the previous prices carried too.
+
+Robots stand on frame f-1's goals (2 mm noise); frame f is frame f-1 turned and moved, its goals
+listed in another order. Hosts exchange their records in lossless rounds (no zenoh: this measures
+the protocol, not the transport). `frames_close` is the agents' rule for starting the auction from
+the carried claims (otherwise it starts cold while the robots drive to their carried goals).
+
+    .venv/bin/python -m bench.bench_carry [--robots 100] [--hosts 10]
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from agent.core.bidder import Participant, frames_close
+from coordinator.keyframes import goal_correspondence
+
+EPS, HYSTERESIS = 1e-3, 5e-3  # the defaults of agent.core.params
+
+
+def agree(parts: list[Participant], positions: np.ndarray, max_rounds: int = 100_000) -> int:
+    """Message rounds until every host has adopted a final-phase instance; returns the rounds."""
+    for p in parts:
+        if not p.started:
+            p.begin(0, {r: positions[r] for r in p.own})
+    for rounds in range(1, max_rounds):
+        for p in parts:
+            p.bid_until_quiet()
+            before = p.instance
+            p.check_agreement()
+            if p.instance != before:
+                p.bid_until_quiet()
+        if all(p.is_agreed and p.final_phase for p in parts):
+            return rounds
+        sent = [(p.instance, p.outgoing()) for p in parts]
+        for i, (instance, (digest, recs)) in enumerate(sent):
+            for j, q in enumerate(parts):
+                if j != i:
+                    if instance > q.instance:
+                        q.begin(instance, {r: positions[r] for r in q.own})
+                    q.absorb(instance, rounds, digest, recs)
+    raise RuntimeError("no agreement")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--robots", type=int, default=100)
+    ap.add_argument("--hosts", type=int, default=10)
+    ap.add_argument("--seed", type=int, default=5)
+    a = ap.parse_args(argv)
+    n, k = a.robots, a.hosts
+    robots = list(range(n))
+    hosts = [robots[h::k] for h in range(k)]
+    print(f"{n} robots in {k} hosts, epsilon_A {EPS}, Delta C {HYSTERESIS}, seed {a.seed}\n")
+    print("| frame f moved by | turned by | frames_close | start | bids | message rounds | wall s |")
+    print("|---|---|---|---|---|---|---|")
+    for shift, turn in ((0.03, 0.02), (0.1, 0.09), (0.3, 0.2)):
+        rng = np.random.default_rng(a.seed)
+        g1 = rng.uniform(-1.5, 1.5, (n, 2))
+        c, s = np.cos(turn), np.sin(turn)
+        g2 = (g1 @ np.array([[c, -s], [s, c]]).T + [shift, 0.0])[rng.permutation(n)]
+        pos = g1 + rng.normal(0.0, 0.002, g1.shape)
+        first = [Participant(1, g1, robots, h, EPS, HYSTERESIS) for h in hosts]
+        agree(first, pos)
+        previous = goal_correspondence(g1, g2)
+        close = "yes" if frames_close(g1, g2, previous) else "no"
+        for start in ("cold", "carried, prices zero", "carried, prices carried"):
+            parts = [Participant(2, g2, robots, h, EPS, HYSTERESIS) for h in hosts]
+            if start != "cold":
+                for new, old in zip(parts, first):
+                    new.carry(old, previous)
+                    if start.endswith("carried"):
+                        j = np.flatnonzero(previous >= 0)
+                        new.board.price[j] = old.board.price[previous[j]]
+                        new.board.version += 1
+            t0 = time.perf_counter()
+            rounds = agree(parts, pos)
+            print(f"| {shift} m | {np.degrees(turn):.1f} deg | {close} | {start} | {sum(p.bids for p in parts)} | {rounds} "
+                  f"| {time.perf_counter() - t0:.2f} |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

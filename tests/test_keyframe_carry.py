@@ -1,0 +1,100 @@
+"""Consecutive keyframes (paper 6.1-6.2): the auction of frame f starts from frame f-1's board carried
+over by the goals' correspondence, and the robots drive on to their carried goals at once."""
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from agent.core.bidder import Participant, frames_close
+from bench.bench_carry import agree
+from coordinator.keyframes import goal_correspondence, goal_disparity
+
+EPS = 1e-3
+
+
+def optimum(positions: np.ndarray, goals: np.ndarray) -> float:
+    cost = ((positions[:, None, :] - goals[None, :, :]) ** 2).sum(-1)
+    rows, cols = linear_sum_assignment(cost)
+    return float(cost[rows, cols].sum())
+
+
+def exchange(parts: list[Participant], positions: np.ndarray) -> dict[int, int]:
+    """Lossless message rounds between hosts (bench.bench_carry.agree) until each has adopted an
+    agreed final-phase instance; the agreed assignment."""
+    agree(parts, positions)
+    out: dict[int, int] = {}
+    for p in parts:
+        out.update(p.agreed)
+    return out
+
+
+def two_frames(n: int = 40, seed: int = 5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Robots on frame f-1's goals; frame f is the same shape moved 0.1 m and turned 5 degrees, its
+    goals listed in another order (a keyframe's goal generation keeps no order)."""
+    rng = np.random.default_rng(seed)
+    g1 = rng.uniform(-1.0, 1.0, (n, 2))
+    c, s = np.cos(0.09), np.sin(0.09)
+    g2 = (g1 @ np.array([[c, -s], [s, c]]).T + [0.1, 0.0])[rng.permutation(n)]
+    return g1, g2, g1 + rng.normal(0.0, 0.002, g1.shape)
+
+
+def test_goal_correspondence_is_the_matching_of_least_squared_distance() -> None:
+    g1, g2, _ = two_frames()
+    previous = goal_correspondence(g1, g2)
+    assert sorted(previous.tolist()) == list(range(len(g1)))  # one-to-one
+    cost = ((g2 - g1[previous]) ** 2).sum()
+    assert abs(cost - optimum(g1, g2)) < 1e-9
+    assert np.isclose(goal_disparity(g1, g2), np.hypot(*(g2 - g1[previous]).T).mean())
+
+
+def test_carried_board_agrees_with_fewer_bids_and_within_the_bound() -> None:
+    g1, g2, pos = two_frames()
+    robots = list(range(len(g1)))
+    hosts = [robots[:20], robots[20:]]
+    first = [Participant(1, g1, robots, h, EPS) for h in hosts]
+    agreed1 = exchange(first, pos)
+    assert sorted(agreed1.values()) == robots
+
+    previous = goal_correspondence(g1, g2)
+    successor = np.argsort(previous)
+    carried_parts = [Participant(2, g2, robots, h, EPS) for h in hosts]
+    carried: dict[int, int] = {}
+    for new, old in zip(carried_parts, first):
+        carried.update(new.carry(old, previous))
+    # every robot carries its goal over to the corresponding goal: one-to-one at once
+    assert carried == {r: int(successor[g]) for r, g in agreed1.items()}
+    moved = pos + (g2[successor[[agreed1[r] for r in robots]]] - g1[[agreed1[r] for r in robots]]) * 0.3
+    warm = exchange(carried_parts, moved)
+    cold_parts = [Participant(2, g2, robots, h, EPS) for h in hosts]
+    cold = exchange(cold_parts, moved)
+    for result in (warm, cold):
+        assert sorted(result.values()) == robots
+        cost = sum(((moved[r] - g2[g]) ** 2).sum() for r, g in result.items())
+        assert cost <= optimum(moved, g2) + len(robots) * EPS + 1e-9
+    assert sum(p.bids for p in carried_parts) < sum(p.bids for p in cold_parts) / 2
+
+
+def test_nothing_is_carried_without_a_started_previous_auction_or_matching_size() -> None:
+    g1, g2, pos = two_frames(n=6)
+    robots = list(range(6))
+    old = Participant(1, g1, robots, robots, EPS)
+    new = Participant(2, g2, robots, robots, EPS)
+    assert new.carry(old, goal_correspondence(g1, g2)) == {}  # the old auction never started
+    new2 = Participant(2, g2[:5], robots[:5], robots[:5], EPS)
+    old.begin(0, {r: pos[r] for r in robots})
+    assert new2.carry(old, np.arange(6)) == {}
+
+
+def test_the_auction_starts_from_carried_claims_only_when_frames_are_close() -> None:
+    g1, g2, pos = two_frames(n=40)  # moved 0.1 m and turned 5 degrees: about the goal spacing
+    previous = goal_correspondence(g1, g2)
+    assert not frames_close(g1, g2, previous)
+    near = g1 + 0.01  # moved 1 cm, listed in the same order
+    assert frames_close(g1, near, np.arange(len(g1)))
+    robots = list(range(40))
+    old = Participant(1, g1, robots, robots, EPS)
+    exchange([old], pos)
+    driving = Participant(2, g2, robots, robots, EPS)
+    carried = driving.carry(old, previous, claim=False)
+    assert sorted(carried.values()) == robots  # every robot still gets a goal to drive to
+    assert (driving.board.owner == -1).all() and (driving.goal == -1).all()  # the auction starts cold
