@@ -15,6 +15,7 @@ import argparse
 import time
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from agent.core.bidder import Participant, frames_close
 from coordinator.keyframes import goal_correspondence
@@ -56,8 +57,8 @@ def main(argv: list[str] | None = None) -> int:
     robots = list(range(n))
     hosts = [robots[h::k] for h in range(k)]
     print(f"{n} robots in {k} hosts, epsilon_A {EPS}, Delta C {HYSTERESIS}, seed {a.seed}\n")
-    print("| frame f moved by | turned by | frames_close | start | bids | message rounds | wall s |")
-    print("|---|---|---|---|---|---|---|")
+    print("| frame f moved by | turned by | disparity / spacing | frames_close | start | bids | message rounds | wall s |")
+    print("|---|---|---|---|---|---|---|---|")
     for shift, turn in ((0.03, 0.02), (0.1, 0.09), (0.3, 0.2)):
         rng = np.random.default_rng(a.seed)
         g1 = rng.uniform(-1.5, 1.5, (n, 2))
@@ -68,6 +69,8 @@ def main(argv: list[str] | None = None) -> int:
         agree(first, pos)
         previous = goal_correspondence(g1, g2)
         close = "yes" if frames_close(g1, g2, previous) else "no"
+        disparity = np.hypot(*(g2 - g1[previous]).T).mean()
+        ratio = disparity / np.median(cKDTree(g2).query(g2, k=2)[0][:, 1])  # as frames_close measures it
         for start in ("cold", "carried, prices zero", "carried, prices carried"):
             parts = [Participant(2, g2, robots, h, EPS, HYSTERESIS) for h in hosts]
             if start != "cold":
@@ -79,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
                         new.board.version += 1
             t0 = time.perf_counter()
             rounds = agree(parts, pos)
-            print(f"| {shift} m | {np.degrees(turn):.1f} deg | {close} | {start} | {sum(p.bids for p in parts)} | {rounds} "
+            print(f"| {shift} m | {np.degrees(turn):.1f} deg | {ratio:.2f} | {close} | {start} | {sum(p.bids for p in parts)} | {rounds} "
                   f"| {time.perf_counter() - t0:.2f} |", flush=True)
     return 0
 

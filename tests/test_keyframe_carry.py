@@ -88,13 +88,13 @@ def test_nothing_is_carried_without_a_started_previous_auction_or_matching_size(
 def test_the_auction_starts_from_carried_claims_only_when_frames_are_close() -> None:
     g1, g2, pos = two_frames(n=40)  # moved 0.1 m and turned 5 degrees: about the goal spacing
     previous = goal_correspondence(g1, g2)
-    assert not frames_close(g1, g2, previous)
-    near = g1 + 0.01  # moved 1 cm, listed in the same order
-    assert frames_close(g1, near, np.arange(len(g1)))
+    assert frames_close(g1, g2, previous)
+    far = g1 + [0.6, 0.0]  # moved about three goal spacings
+    assert not frames_close(g1, far, np.arange(len(g1)))
     robots = list(range(40))
     old = Participant(1, g1, robots, robots, EPS)
     exchange([old], pos)
-    driving = Participant(2, g2, robots, robots, EPS)
-    carried = driving.carry(old, previous, claim=False)
+    driving = Participant(2, far, robots, robots, EPS)
+    carried = driving.carry(old, np.arange(len(g1)), claim=False)
     assert sorted(carried.values()) == robots  # every robot still gets a goal to drive to
     assert (driving.board.owner == -1).all() and (driving.goal == -1).all()  # the auction starts cold
