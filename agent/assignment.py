@@ -63,6 +63,11 @@ class AuctionLink:
         return self.part is not None
 
     @property
+    def cold(self) -> bool:
+        """The goal set's auction has not agreed yet (its robots have no goal of it, unless carried)."""
+        return self.part is not None and self.part.agreed_instance < 0
+
+    @property
     def busy(self) -> bool:
         return self.part is not None and not self.part.is_agreed
 

@@ -98,6 +98,9 @@ class HostConfig:
 
 
 AUCTION_SHARE = 0.2  # of a control period, spent on auction rounds after each tick while one is open
+AUCTION_SHARE_COLD = 0.8  # ... until the newest goal set's first agreement: robots wait for it (in real
+# time the auction has the whole period but the control step; lock-step at 0.2 left a cold start of
+# 100 robots in 10 hosts 30 s of display time on a loaded machine, longer than an animation's keyframe)
 
 
 class CellSubscriptions:
@@ -322,7 +325,8 @@ class AgentHost:
         """After a tick, while an auction instance is open, keep trading messages for a part of the
         control period. Otherwise a lock-step run gets one auction round per tick (the next pose is
         already waiting), and a cold start of 100 robots took 300 ticks."""
-        end = time.monotonic() + AUCTION_SHARE * self.params.dt
+        share = AUCTION_SHARE_COLD if self.auction.cold else AUCTION_SHARE
+        end = time.monotonic() + share * self.params.dt
         while self.auction.busy and self.running:
             bell.clear()
             self.auction.poll(self._positions())

@@ -5,7 +5,10 @@ collision-free velocity, age zero), as RVO2 does. It is the reference against wh
 is studied (`--engine central` against `--engine distributed`), and the fast path for large swarms.
 
 Image scenes play their steps: at time t the robots are auctioned (paper 5.1) onto the goal set of
-the step whose hold contains t; the `step` array records which one, tick by tick. Animation keyframes
+the step whose hold contains t; the `step` array records which one, tick by tick. The auction is the
+agents' own (agent.core.bidder) with one participant holding every robot: each `assign_period` the
+next block of epsilon-scaling phases starts from the measured positions, warm from the last prices,
+and settles in this process without messages (`auction_assignment`). Animation keyframes
 are steps whose robots hold eq. 27's velocity (agent.core.animation); a dynamic image's goals move by
 eq. 28 and the robots drive with the goals' velocity fed forward (agent.core.goal_motion), auctioned
 on the published goal set with their positions mapped back, as the agents do (agent.runtime).
@@ -22,7 +25,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
 from agent.core.animation import frame_hold, iterations_left
-from agent.core.auction import solve
+from agent.core.bidder import Participant
 from agent.core.goal_motion import GoalMotion, tracking_velocity
 from agent.core.step import NeighbourStates, control_step, static_segments
 from coordinator.motion import StepMotion
@@ -31,6 +34,7 @@ from coordinator.service import palette
 
 from .output import write_run
 from .rundir import RunDir
+from .stepclock import StepClock
 from .tracker import tracker_of, world_of
 
 
@@ -66,10 +70,9 @@ def optimal_assignment(position: np.ndarray, goals: np.ndarray, previous: np.nda
                        hysteresis: float) -> np.ndarray:
     """Goal index per robot: the assignment of least total squared distance (eq. 5-7, scipy's
     linear_sum_assignment), kept only if it lowers the cost of the previous iteration's assignment by
-    at least Delta C (paper 5.1's hysteresis for noisy positions). The fast path for very large
-    swarms (scene `assignment = "optimal"`, solved every `assign_period`): the reference auction
-    (agent.core.auction.solve) runs its rounds in Python, seconds per iteration at a few hundred
-    robots; scipy takes 10 ms for 1000 robots near their goals, about 1 s while they cross the arena."""
+    at least Delta C (paper 5.1's hysteresis for noisy positions). Scene `assignment = "optimal"`,
+    solved every `assign_period`: scipy takes 10 ms for 1000 robots near their goals, about 1 s
+    while they cross the arena (bench/bench_large.py compares it with the auction)."""
     cost = ((position[:, None, :] - goals[None, :, :]) ** 2).sum(-1)
     rows, cols = linear_sum_assignment(cost)
     best = np.full(len(position), -1)
@@ -81,7 +84,20 @@ def optimal_assignment(position: np.ndarray, goals: np.ndarray, previous: np.nda
     return best
 
 
-def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO | None = sys.stderr) -> Path:
+def auction_assignment(auction: Participant, position: np.ndarray) -> np.ndarray:
+    """Goal index per robot (-1: none): the auction's next block of phases (paper 5.1.1) settled on
+    these positions (rows by robot id), warm from the last prices, as the agents settle theirs; a
+    robot keeps its goal unless another is better by epsilon_A + Delta C. The participant holds
+    every robot, so every phase's snapshot is its own board."""
+    assignment = np.full(len(position), -1)
+    assignment[auction.own_ids] = auction.settle_alone(position)
+    return assignment
+
+
+def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO | None = sys.stderr,
+                clock: StepClock | None = None) -> Path:
+    """Run the scene with every robot in this process; returns the run directory. ``clock`` (if
+    given) receives the wall and CPU time per part of each control step (bench/bench_large.py)."""
     params, world = world_of(scene)
     tracker = tracker_of(scene)
     segments = static_segments(scene.arena, scene.obstacles)
@@ -90,12 +106,12 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
     goal = scene.goal_positions
     has_goal = np.isfinite(goal).all(axis=1)
     color = np.where(has_goal[:, None], palette(n), 40).astype(np.uint8)
-    view = None  # image scenes: the robots' assignment to the goal set, re-auctioned every iteration
+    auction: Participant | None = None  # image scenes: the auction of the shown goal set
     assignment = np.where(has_goal, ids, -1)  # goal index per robot (scene goals: its own)
     velocity = np.zeros((n, 2))
     held, left, hold_for = np.zeros((n, 2)), np.zeros(n, np.int64), np.full(n, -1)  # eq. 27's hold per robot
     motion: GoalMotion | None = None
-    solved_at: float | None = None  # assignment = "optimal": when the step's assignment was last solved
+    assigned_at: float | None = None  # when the shown goal set was last assigned
     if any(e["kind"] == "fail" for e in scene.events):
         raise ValueError("fail events (agent processes killed) need the distributed engine")
     events = sorted(scene.events, key=lambda e: e["t"])
@@ -106,39 +122,45 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
     steps = round(scene.duration / params.dt)
     fallbacks, converged_since, end_reason = 0, None, "duration"
     run_dir = RunDir(out)
+    clock = clock if clock is not None else StepClock()
     wall0 = last_say = time.time()
     try:
         for tick in range(steps + 1):
+            clock.start()
             t = tick * params.dt
             while events and events[0]["t"] <= t + 1e-9:
                 ev = events.pop(0)
                 world.teleport(ev["robot"], tuple(ev["pose"]))
             k = scene.step_at(t)
             if k != shown:  # a new image: its goal set, and a fresh auction (the old prices mean nothing)
-                shown, view, solved_at = k, None, None
+                shown, auction, assigned_at = k, None, None
                 converged_since = None
                 hold_for[:] = -1  # every robot's goal is new: a keyframe's hold restarts
                 if scene.steps:
                     goal_set, goal_colors = scene_goal_set(scene, k, n)
                     motion, t_start = goal_motion(scene.steps[k].motion), scene.step_starts[k]
+            clock.lap("other")
             measured = tracker.measure(world.poses)
+            clock.lap("tracker")
             preferred = None
             if scene.steps:
-                # Paper 5.1: re-assign every iteration, warm-started from the previous prices, with
-                # the hysteresis Delta C against flip-flops from tracking noise. A moving goal set is
-                # auctioned with the positions mapped back to t = 0 (GoalMotion.to_initial_frame).
-                bid_from = measured[:, :2] if motion is None else motion.to_initial_frame(measured[:, :2], t - t_start)
-                if scene.assignment == "optimal":
-                    if solved_at is None or t - solved_at >= params.assign_period - 1e-9:
-                        assignment = optimal_assignment(bid_from, goal_set, None if solved_at is None else assignment,
+                # Paper 5.1: re-assign every iteration (every assign_period, as the agents do),
+                # warm-started from the previous prices, with the hysteresis Delta C against flip-flops
+                # from tracking noise. A moving goal set is auctioned with the positions mapped back
+                # to t = 0 (GoalMotion.to_initial_frame).
+                if assigned_at is None or t - assigned_at >= params.assign_period - 1e-9:
+                    bid_from = (measured[:, :2] if motion is None
+                                else motion.to_initial_frame(measured[:, :2], t - t_start))
+                    if scene.assignment == "optimal":
+                        assignment = optimal_assignment(bid_from, goal_set, None if assigned_at is None else assignment,
                                                         params.assign_hysteresis)
-                        solved_at = t
-                else:
-                    view, _ = solve({i: bid_from[i] for i in range(n)}, goal_set, params.assign_eps,
-                                    view=view, hysteresis=params.assign_hysteresis)
-                    owner = view.owner
-                    assignment = np.full(n, -1)
-                    assignment[owner[owner >= 0]] = np.flatnonzero(owner >= 0)
+                    else:
+                        if auction is None:  # a new image: a cold start (the old prices mean nothing)
+                            auction = Participant(k, goal_set, list(range(n)), list(range(n)), params.assign_eps,
+                                                  params.assign_hysteresis)
+                        assignment = auction_assignment(auction, bid_from)
+                    assigned_at = t
+                clock.lap("assignment")
                 has_goal = assignment >= 0
                 goal = np.where(has_goal[:, None], goal_set[assignment], np.nan)
                 color = np.where(has_goal[:, None], goal_colors[assignment], 40).astype(np.uint8)
@@ -147,6 +169,7 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
                 if motion is not None:
                     goal = motion.positions(goal, t - t_start)
                 hold_for = assignment.copy()
+                clock.lap("preferred")
             rec["t"].append(t)
             rec["pose"].append(world.poses)
             rec["velocity"].append(world.velocities)
@@ -154,6 +177,7 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
             rec["goal"].append(goal)
             rec["assignment"].append(assignment)
             rec["step"].append(k)
+            clock.lap("record")
             err = np.hypot(*(world.poses[:, :2] - goal).T)
             # Converging ends the run only once the last image is up: earlier images keep their hold.
             if (k == last_step and scene.ends_on_convergence and has_goal.any()
@@ -166,20 +190,24 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
                 converged_since = None
             if tick == steps:
                 break
+            clock.lap("other")
             nbs = nearest_neighbours(measured[:, :2], velocity, params.radius, params.neighbour_dist,
                                      params.max_neighbours)
+            clock.lap("neighbours")
             res = control_step(params, ids, measured[:, :2], measured[:, 2], velocity, goal, nbs, segments,
                                seed=scene.seed, tick=tick, preferred=preferred)
             velocity = res.velocity
             fallbacks += int(res.fallback.sum())
-            for i in range(n):
-                world.set_command(i, float(res.command[i, 0]), float(res.command[i, 1]))
+            clock.lap("control")
+            world.set_commands(res.command)
             world.step(params.dt)
+            clock.lap("world")
             if progress is not None and time.time() - last_say >= 1.0:
                 last_say = time.time()
                 print(f"[{scene.name}] central t={t:6.1f} s  step {k}  at goal "
                       f"{int(np.sum(err <= params.goal_tolerance))}/{int(has_goal.sum())}  "
                       f"contacts {len(world.contacts)}", file=progress, flush=True)
+            clock.lap("other")
         arrays = {k: np.stack(v) if k != "t" else np.array(v) for k, v in rec.items()}
         arrays["color"] = arrays["color"].astype(np.uint8)
         arrays["step"] = arrays["step"].astype(np.int64)

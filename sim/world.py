@@ -325,6 +325,24 @@ class World:
         self._cmd[i] = (a, b)
         self._n_cmd[i] += 1
 
+    def set_commands(self, commands: np.ndarray) -> None:
+        """Every robot's command at once, (N, 2) with rows as ``set_command`` takes them, clipped the
+        same way (the norm by numpy's hypot, which may differ from math.hypot in the last bit). One
+        call instead of N: the central engine commands every robot each tick."""
+        c = np.array(commands, dtype=float)
+        if c.shape != (self._n, 2):
+            raise ValueError(f"commands must have shape ({self._n}, 2), not {c.shape}")
+        bad = np.flatnonzero(~np.isfinite(c).all(axis=1))
+        if bad.size:
+            raise ValueError(f"command for robot {bad[0]} must be finite, not {tuple(c[bad[0]])}")
+        d, vmax = self._is_diff, self._v_max
+        c[d] = np.clip(c[d], -vmax[d, None], vmax[d, None])
+        norm = np.hypot(c[:, 0], c[:, 1])
+        over = ~d & (norm > vmax)
+        c[over] = c[over] * vmax[over, None] / norm[over, None]  # (a v_max) / |c|, as set_command
+        self._cmd[:] = c
+        self._n_cmd += 1
+
     def stop(self, i: int) -> None:
         """Zero robot i's command (e.g. its agent crashed); it stays zero until the next set_command."""
         self._cmd[self._index(i)] = 0.0

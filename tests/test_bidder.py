@@ -192,3 +192,83 @@ def test_fifty_robots_in_five_hosts_with_loss(n: int) -> None:
     hosts = [list(range(k, n, 5)) for k in range(5)]
     [res] = run_protocol(pos, goals, hosts, loss=0.1, delay=0.05, seed=1)
     check(res, goals, 1e-3, 0.0)
+
+
+# --- one host holding every robot (the central engine) -------------------------------------------
+def test_settle_alone_agrees_each_block_within_the_bound_of_the_optimum() -> None:
+    rng = np.random.default_rng(7)
+    n = 40
+    pos, goals = rng.uniform(-2, 2, (n, 2)), rng.uniform(-1, 1, (n, 2))
+    p = Participant(1, goals, range(n), range(n), 1e-3, 5e-3)
+    for block in range(5):  # a cold start, then warm blocks while the robots move
+        goal = p.settle_alone(pos)
+        assert p.is_agreed and p.final_phase and p.instance == (block + 1) * p.phases - 1
+        assert sorted(goal.tolist()) == list(range(n))  # one robot per goal
+        assert p.agreed == dict(enumerate(goal.tolist()))
+        cost = float(((pos - goals[goal]) ** 2).sum())
+        assert cost <= optimum(pos, goals) + n * (1e-3 + 5e-3) + 1e-9
+        pos = pos + rng.normal(0, 0.05, pos.shape)
+
+
+def test_settle_alone_is_the_message_free_settling_of_the_protocol() -> None:
+    """The same instances, bids and agreed goals as the settling loop an agent host runs (and with
+    positions given as an array indexed by robot id as with a mapping)."""
+    rng = np.random.default_rng(8)
+    n = 25
+    pos, goals = rng.uniform(-1, 1, (n, 2)), rng.uniform(-1, 1, (n, 2))
+    alone = Participant(1, goals, range(n), range(n), 1e-3, 5e-3)
+    looped = Participant(1, goals, range(n), range(n), 1e-3, 5e-3)
+    for _ in range(4):
+        goal = alone.settle_alone(pos)
+        looped.begin(looped.instance + 1 if looped.started else 0, {r: pos[r] for r in range(n)})
+        for _ in range(100):  # as agent.assignment.AuctionLink settles a host's own robots
+            looped.bid_until_quiet()
+            instance = looped.instance
+            looped.check_agreement()
+            if looped.is_agreed or looped.instance == instance:
+                break
+        assert looped.is_agreed
+        assert (alone.instance, alone.bids, alone.agreed) == (looped.instance, looped.bids, looped.agreed)
+        np.testing.assert_array_equal(alone.board.price, looped.board.price)
+        assert goal.tolist() == [looped.agreed[r] for r in range(n)]
+        pos = pos + rng.normal(0, 0.1, pos.shape)
+
+
+def test_settle_alone_needs_every_robot() -> None:
+    p = Participant(1, np.zeros((2, 2)), [0, 1], [0], 1e-3)
+    with pytest.raises(ValueError, match="every robot"):
+        p.settle_alone({0: np.zeros(2)})
+
+
+@settings(max_examples=15, deadline=None)
+@given(n=st.integers(1, 30), g_extra=st.integers(0, 3), seed=st.integers(0, 10_000), grid=st.booleans())
+def test_cached_best_goals_are_a_full_ranking_after_every_round(n: int, g_extra: int, seed: int, grid: bool) -> None:
+    """The participant keeps each robot's best goal and value across rounds and only re-ranks rows
+    whose best goal rose in price past their second best: after every round they must equal a
+    ranking over every goal from scratch (ties to the lowest goal index), penalties included."""
+    rng = np.random.default_rng(seed)
+    if grid:  # ties everywhere
+        side = int(np.ceil(np.sqrt(n + g_extra)))
+        goals = np.array([(i % side, i // side) for i in range(n + g_extra)], float) * 0.1
+        pos = goals[:n][::-1] + 0.05
+    else:
+        pos, goals = rng.uniform(-1, 1, (n, 2)), rng.uniform(-1, 1, (n + g_extra, 2))
+    p = Participant(1, goals, range(n), range(n), 1e-3, 5e-3)
+
+    def check() -> None:
+        value = p._best_values()
+        values = -(((pos[:, None, :] - goals[None, :, :]) ** 2).sum(-1) + p.penalty) - p.board.price
+        np.testing.assert_array_equal(p._best[0], values.argmax(axis=1))
+        np.testing.assert_allclose(value, values.max(axis=1), rtol=0, atol=1e-12)
+
+    for block in range(3):
+        p.begin(p.instance + 1 if p.started else 0, pos)
+        for _ in range(100_000):
+            check()
+            if not p.bid():
+                p.check_agreement()  # a phase before the last begins the next; the last is agreed
+            if p.is_agreed:
+                break
+        assert p.is_agreed
+        p.penalise(int(rng.integers(n)), int(rng.integers(len(goals))), 0.3)
+        pos = pos + rng.normal(0, 0.05, pos.shape)

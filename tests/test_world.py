@@ -27,6 +27,27 @@ def run(world: World, seconds: float, dt: float = 0.1) -> list[Contact]:
 # ------------------------------------------------------------------ kinematics
 
 
+def test_set_commands_clips_every_robot_as_set_command_does():
+    """The batch setter (the central engine's) against one set_command per robot, on a mixed swarm
+    with commands inside, on and beyond the limits: the same commands up to the last bit of the
+    norm (numpy's hypot, not math.hypot), the same count of commands applied, the same motion."""
+    rng = np.random.default_rng(4)
+    bodies = [EPUCK_BODY, HOLO, FAST_HOLO] * 20
+    poses = np.column_stack((np.arange(60) * 0.3, np.zeros(60), rng.uniform(-3, 3, 60)))
+    one, batch = World(bodies, poses, seed=2), World(bodies, poses, seed=2)
+    for _ in range(5):
+        cmd = rng.normal(0.0, 0.2, (60, 2)) * rng.choice([0.1, 1.0, 30.0], (60, 1))
+        cmd[::9] *= 0.13 / np.hypot(cmd[::9, 0], cmd[::9, 1])[:, None]  # exactly on the holonomic limit
+        for i, (a, b) in enumerate(cmd):
+            one.set_command(i, a, b)
+        batch.set_commands(cmd)
+        np.testing.assert_allclose(batch.commands, one.commands, rtol=1e-15, atol=1e-17)
+        one.step(0.1)
+        batch.step(0.1)
+    np.testing.assert_array_equal(batch.commands_applied, one.commands_applied)
+    np.testing.assert_allclose(batch.poses, one.poses, rtol=1e-12, atol=1e-14)
+
+
 def test_holonomic_straight_line_exact_with_no_noise():
     w = World([HOLO], [[0.1, -0.2, 0.7]], actuation_noise=0.0)
     w.set_command(0, 0.06, -0.08)  # |v| = 0.1
@@ -512,6 +533,8 @@ def test_state_arrays_are_copies():
         lambda: World([HOLO], [[0, 0, 0]], seed=-1),
         lambda: World([HOLO], [[0, 0, 0]]).set_command(1, 0.0, 0.0),
         lambda: World([HOLO], [[0, 0, 0]]).set_command(0, float("inf"), 0.0),
+        lambda: World([HOLO], [[0, 0, 0]]).set_commands(np.zeros((2, 2))),
+        lambda: World([HOLO], [[0, 0, 0]]).set_commands([[0.0, float("nan")]]),
         lambda: World([HOLO], [[0, 0, 0]]).stop(-1),
         lambda: World([HOLO], [[0, 0, 0]]).teleport(0, (0.0, float("nan"), 0.0)),
         lambda: World([HOLO], [[0, 0, 0]]).step(0.0),

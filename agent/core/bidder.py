@@ -363,6 +363,8 @@ class Participant:
         """Rank these own robots' net values over every goal: their best goal and value, and their
         second-best value, into the cache. Returns the runner-up goal and, with ``third``, the
         third-best value (-inf where there is none). In blocks of rows that stay in cache."""
+        if len(rows) == 1 and not third:
+            return self._rank_one(int(rows[0]))
         if len(rows) <= ROW_BLOCK:
             return self._rank_block(rows, third)
         runner_up, third_value = np.zeros(len(rows), np.int64), np.full(len(rows), -np.inf)
@@ -370,6 +372,22 @@ class Participant:
             block = slice(a, a + ROW_BLOCK)
             runner_up[block], third_value[block] = self._rank_block(rows[block], third)
         return runner_up, third_value
+
+    def _rank_one(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """_rank_block for one row without the third-best value, in scalars (the common case)."""
+        best, value, second = self._best
+        values = -self.cost[i]
+        values -= self.board.price
+        first = int(values.argmax())  # ties: lowest goal index, the same everywhere
+        best[i], value[i] = first, values[first]
+        runner_up = first
+        if len(values) > 1:
+            values[first] = -np.inf
+            runner_up = int(values.argmax())
+            second[i] = values[runner_up]
+        else:
+            second[i] = -np.inf
+        return np.array([runner_up]), np.array([-np.inf])
 
     def _rank_block(self, rows: np.ndarray, third: bool) -> tuple[np.ndarray, np.ndarray]:
         best, value, second = self._best
@@ -433,7 +451,7 @@ class Participant:
 
     def _bid_rows(self, bidders: np.ndarray) -> np.ndarray:
         """These own robots (rows, none of them content) bid on their best goals at once; returns the
-        goals whose records were merged (their bids and releases)."""
+        robots that lost to these bids a goal they owned."""
         runner_up, third = self._rank(bidders, third=True)  # the same best as _content_all's
         _, value, second = self._best
         best, v_best = self._best[0][bidders], value[bidders]
@@ -446,6 +464,7 @@ class Participant:
         held = self.goal[bidders]
         gives_up = self.board.holds(robot, held)  # it gives its goal up for a better one
         g_rel = held[gives_up]
+        owner = self.board.owner[best]  # a copy: who owned the goals bid on
         # releases and bids merge in one batch: max-consensus does not care about order
         # (np.concatenate: np.r_ costs several times more on these short arrays, every round)
         self.board.merge(np.concatenate([g_rel, best]), np.concatenate([self.board.price[g_rel], price]),
@@ -456,81 +475,132 @@ class Participant:
         self.bids += len(bidders)
         self.rounds += 1
         self.claims_changed = True
-        return np.concatenate([g_rel, best])
+        return owner[(owner != self.board.owner[best]) & (owner != NO_OWNER)]
 
-    def _bid_one(self, i: int, eps: float) -> list[int]:
-        """_bid_rows for a single bidder (row i; eps: this phase's), in scalars: the same bid, merge
-        and cache, at a fraction of the array calls (most rounds of a long chain of displacements
-        have one bidder)."""
-        values = -self.cost[i]
-        values -= self.board.price
-        j1 = int(values.argmax())  # ties: lowest goal index, the same everywhere
-        v1 = values[j1]
-        j2, v2, v3 = j1, v1 - eps, -np.inf
-        if len(values) > 1:
-            values[j1] = -np.inf
-            j2 = int(values.argmax())
-            v2 = values[j2]
-            if len(values) > 2:
-                values[j2] = -np.inf
-                v3 = values.max()
+    def _bid_few(self, rows: list[int], eps: float) -> list[int]:
+        """_bid_rows for a few bidders (rows ascending; eps: this phase's), in scalars: the same bids
+        on the same pre-round board, the same merge (max-consensus does not depend on the order in
+        which records merge) and cache, at a fraction of the array calls: most rounds of a long
+        chain of displacements have one or two bidders. Returns the robots outbid from a goal."""
+        board, cost = self.board, self.cost
         best, value, second = self._best
-        best[i], value[i], second[i] = j1, v1, v2 if len(values) > 1 else -np.inf
-        board = self.board
-        robot, held = int(self.own_ids[i]), int(self.goal[i])
-        touched = [j1]
-        if held >= 0 and board.owner[held] == robot and not board.released[held]:  # it gives its goal up
-            board.merge_one(held, board.price[held], robot, True)
-            touched.append(held)
-        board.merge_one(j1, board.price[j1] + (v1 - v2) + eps, robot, False)
-        # _after_bids for one row
-        v_bid = -self.cost[i, j1] - board.price[j1]
-        v_run = -self.cost[i, j2] - board.price[j2]
-        bound = max(v_bid, v3)
-        if v_run > bound and j2 != j1:
-            best[i], value[i], second[i] = j2, v_run, bound
-        else:
-            best[i], value[i], second[i] = j1, v_bid, np.inf
-        self.goal[i] = j1
-        self.bids += 1
+        records, after = [], []
+        for i in rows:  # every bid against the board as the round found it
+            values = -cost[i]
+            values -= board.price
+            j1 = int(values.argmax())  # ties: lowest goal index, the same everywhere
+            v1 = values[j1]
+            j2, v2, v3 = j1, v1 - eps, -np.inf
+            if len(values) > 1:
+                values[j1] = -np.inf
+                j2 = int(values.argmax())
+                v2 = values[j2]
+                if len(values) > 2:
+                    values[j2] = -np.inf
+                    v3 = values.max()
+            best[i], value[i], second[i] = j1, v1, v2 if len(values) > 1 else -np.inf
+            robot, held = int(self.own_ids[i]), int(self.goal[i])
+            if held >= 0 and board.owner[held] == robot and not board.released[held]:  # it gives its goal up
+                records.append((held, board.price[held], robot, True))
+            records.append((j1, board.price[j1] + (v1 - v2) + eps, robot, False))
+            after.append((i, j1, j2, v3, int(board.owner[j1])))
+        for record in records:
+            board.merge_one(*record)
+        outbid = []
+        for i, j1, j2, v3, owner in after:  # _after_bids, row by row
+            v_bid = -cost[i, j1] - board.price[j1]
+            v_run = -cost[i, j2] - board.price[j2]
+            bound = max(v_bid, v3)
+            if v_run > bound and j2 != j1:
+                best[i], value[i], second[i] = j2, v_run, bound
+            else:
+                best[i], value[i], second[i] = j1, v_bid, np.inf
+            self.goal[i] = j1
+            if owner != NO_OWNER and board.owner[j1] != owner:
+                outbid.append(owner)
+        self.bids += len(rows)
         self.rounds += 1
         self.claims_changed = True
-        return touched
+        return outbid
 
     def _bid_alone_until_quiet(self, max_rounds: int = 100_000) -> int:
         """bid_until_quiet() for a host that owns every robot while no message arrives (settle_alone):
-        the same Jacobi rounds, bids and board, but each round re-checks contentment only for the
-        robots its bids can have touched, those claiming or preferring a goal whose record changed
-        (the bidders among them): every other robot's goal record, held value and best value are as
-        they were. While 1000 robots cross the arena a warm block can run thousands of rounds of one
-        or two bidders (each displaced robot displaces the next), and checking every robot was most
-        of a round's cost."""
-        content = self._content_all().copy()
+        the same Jacobi rounds, bids and board, but after a round only the bidders and the robots
+        they outbid are looked at again. Nobody else's contentment can have changed: every content
+        robot holds its claim (or it would bid), so a bid on its goal outbids it; otherwise its
+        held value stays and its best value can only fall (prices only rise). While 1000 robots
+        cross the arena a warm block can run thousands of rounds of one or two bidders (each
+        outbid robot outbids the next), and checking every robot was most of a round's cost.
+
+        A robot's cached best value is made exact again only when it is looked at, if the price of
+        its best goal changed since (``seen``); the others are left to _best_values, which finds
+        them stale against the prices at the start (``_price_seen`` is not moved on)."""
+        content = self._content_all()
         best, value, second = self._best
+        price = self.board.price  # merged into in place
+        seen = price[best]  # per robot: its best goal's price when its best value was last exact
         eps, slack = self.eps, self.slack
-        mark = np.zeros(len(self.goals), bool)
+        waiting = set(np.flatnonzero(~content).tolist())  # robots not content: the next round's bidders
         rounds = 0
-        while rounds < max_rounds:
-            bidders = np.flatnonzero(~content)
-            if len(bidders) == 0:
-                break
-            touched = self._bid_one(int(bidders[0]), eps) if len(bidders) == 1 else self._bid_rows(bidders)
+        while waiting and rounds < max_rounds:
+            bidders = np.array(sorted(waiting))  # ascending, as np.flatnonzero gives them
+            outbid = self._bid_few(bidders.tolist(), eps) if len(bidders) <= 4 else self._bid_rows(bidders).tolist()
+            outbid_rows = [self.row_of[r] for r in outbid]
             rounds += 1
-            mark[touched] = True
-            rows = np.flatnonzero(mark[self.goal] | mark[best])  # goal -1 reads mark[-1]: a harmless extra row
-            stale = rows[mark[best[rows]]]  # best goal's record changed: as _best_values, for these rows only
-            mark[touched] = False
-            if len(stale):
-                g = best[stale]
-                now = -self.cost[stale, g] - self.board.price[g]
-                value[stale] = now
-                lost = stale[~(now > second[stale])]
-                if len(lost):
-                    self._rank(lost)
-            content[rows] = self._content_rows(rows, slack)
-        self._price_seen = self.board.price.copy()  # every row whose best goal's price rose is refreshed
-        self._content_cache = ((self.board.version, self.instance, self.goal.tobytes()), content)
+            # the bidders' best values are exact now, or marked for a new ranking (second = inf)
+            seen[bidders] = np.where(second[bidders] < np.inf, price[best[bidders]], np.nan)
+            rows = bidders.tolist() + outbid_rows  # a robot twice is harmless
+            if len(rows) <= 4:  # most rounds: in scalars
+                content = [self._look_again(r, seen, slack) for r in rows]
+            else:
+                rows = np.array(rows)
+                self._refresh_best(rows, seen)
+                content = self._content_rows(rows, slack).tolist()
+                rows = rows.tolist()
+            for r, ok in zip(rows, content):
+                if ok:
+                    waiting.discard(r)
+                else:
+                    waiting.add(r)
+        if not waiting:
+            self._content_cache = ((self.board.version, self.instance, self.goal.tobytes()),
+                                   np.ones(len(self.own), bool))
         return rounds
+
+    def _refresh_best(self, rows: np.ndarray, seen: np.ndarray) -> None:
+        """_best_values for these rows only, against each row's own ``seen`` price."""
+        best, value, second = self._best
+        price = self.board.price
+        stale = rows[~(price[best[rows]] == seen[rows])]  # NaN: ranked anew
+        if not len(stale):
+            return
+        g = best[stale]
+        now = -self.cost[stale, g] - price[g]
+        value[stale] = now
+        kept = now > second[stale]
+        seen[stale[kept]] = price[g[kept]]
+        lost = stale[~kept]
+        if len(lost):
+            self._rank(lost)
+            seen[lost] = price[best[lost]]
+
+    def _look_again(self, i: int, seen: np.ndarray, slack: float) -> bool:
+        """_refresh_best and _content_rows for one row, in scalars: is robot row i content?"""
+        best, value, second = self._best
+        price = self.board.price
+        b = best[i]
+        if not price[b] == seen[i]:  # NaN: ranked anew
+            now = -self.cost[i, b] - price[b]
+            value[i] = now
+            if now > second[i]:
+                seen[i] = price[b]
+            else:
+                self._rank_one(i)
+                seen[i] = price[best[i]]
+        g, board = self.goal[i], self.board
+        if g < 0 or board.owner[g] != self.own_ids[i] or board.released[g]:  # not Board.holds
+            return False
+        return bool(-self.cost[i, g] - price[g] >= value[i] - slack)
 
     def _content_rows(self, rows: np.ndarray, slack: float) -> np.ndarray:
         """_content_all() for these rows (slack: this phase's), from the cached best values."""

@@ -1,0 +1,41 @@
+"""Wall and CPU time per part of each control step of the central engine (bench/bench_large.py).
+
+The engine calls ``start()`` at the top of every tick and ``lap(part)`` after each part, which
+charges the time since the last lap to that part; a few clock reads per tick, so the engine always
+keeps one. CPU time (this process's) is kept beside wall time because on a shared machine the wall
+time of a part counts whatever else ran meanwhile.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+# The parts of a control step, in the order the engine runs them.
+PARTS = ("tracker", "assignment", "preferred", "record", "neighbours", "control", "world", "other")
+
+
+class StepClock:
+    """Seconds per part and tick: ``wall[part][tick]`` and ``cpu[part][tick]``."""
+
+    def __init__(self) -> None:
+        self.wall: dict[str, list[float]] = {part: [] for part in PARTS}
+        self.cpu: dict[str, list[float]] = {part: [] for part in PARTS}
+        self._last = (0.0, 0.0)
+
+    def start(self) -> None:
+        """A new tick: every part starts at zero."""
+        for part in PARTS:
+            self.wall[part].append(0.0)
+            self.cpu[part].append(0.0)
+        self._last = (time.perf_counter(), time.process_time())
+
+    def lap(self, part: str) -> None:
+        now = (time.perf_counter(), time.process_time())
+        self.wall[part][-1] += now[0] - self._last[0]
+        self.cpu[part][-1] += now[1] - self._last[1]
+        self._last = now
+
+    def arrays(self, cpu: bool = False) -> dict[str, np.ndarray]:
+        """(ticks,) seconds per part, wall time (or this process's CPU time)."""
+        return {part: np.array(spent) for part, spent in (self.cpu if cpu else self.wall).items()}
