@@ -13,8 +13,10 @@ from pathlib import Path
 from .common import REPO, RESULTS
 
 BENCHES = ["bench.bench_world", "bench.bench_goals", "bench.bench_orca", "bench.bench_runtime", "bench.bench_auction",
-           "bench.bench_sequence", "bench.bench_keyframes", "bench.bench_large", "bench.paper_figures"]
-ORDER = ["runtime", "auction", "sequence", "large", "world", "orca", "goals", "keyframes", "paper_figures"]
+           "bench.bench_sequence", "bench.bench_keyframes", "bench.bench_carry", "bench.bench_large",
+           "bench.paper_figures", "bench.bench_animation"]
+ORDER = ["runtime", "auction", "sequence", "large", "large-trial", "world", "orca", "goals", "keyframes", "animation",
+         "carry", "paper_figures"]
 
 
 def assemble() -> Path:
