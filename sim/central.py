@@ -32,6 +32,7 @@ from coordinator.motion import StepMotion
 from coordinator.scene import Scene, scene_goal_set
 from coordinator.service import palette
 
+from .movers import Movers
 from .output import write_run
 from .rundir import RunDir
 from .stepclock import StepClock
@@ -40,7 +41,7 @@ from .tracker import tracker_of, world_of
 
 
 def nearest_neighbours(position: np.ndarray, velocity: np.ndarray, radius: float, reach: float,
-                       max_neighbours: int) -> NeighbourStates:
+                       max_neighbours: int, cooperative: np.ndarray | None = None) -> NeighbourStates:
     """Every robot's nearest neighbours within reach, from one snapshot (perfect information)."""
     n = len(position)
     m = min(max_neighbours, n - 1)
@@ -55,6 +56,8 @@ def nearest_neighbours(position: np.ndarray, velocity: np.ndarray, radius: float
     out.velocity[:] = velocity[safe]
     out.radius[:] = radius
     out.valid[:] = valid
+    if cooperative is not None:  # a scripted mover avoids nobody: its neighbours take full responsibility
+        out.cooperative[:] = cooperative[safe]
     return out
 
 
@@ -102,6 +105,7 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
     tracker = tracker_of(scene)
     segments = static_segments(scene.arena, scene.obstacles)
     n = scene.robots
+    movers = Movers(scene)  # scripted movers and pursuers: not robot pixels (sim.movers)
     ids = np.arange(n)
     goal = scene.goal_positions
     has_goal = np.isfinite(goal).all(axis=1)
@@ -137,7 +141,7 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
                 converged_since = None
                 hold_for[:] = -1  # every robot's goal is new: a keyframe's hold restarts
                 if scene.steps:
-                    goal_set, goal_colors = scene_goal_set(scene, k, n)
+                    goal_set, goal_colors = scene_goal_set(scene, k, len(movers.pixels))
                     motion, t_start = goal_motion(scene.steps[k].motion), scene.step_starts[k]
             clock.lap("other")
             measured = tracker.measure(world.poses)
@@ -152,11 +156,13 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
                     bid_from = (measured[:, :2] if motion is None
                                 else motion.to_initial_frame(measured[:, :2], t - t_start))
                     if scene.assignment == "optimal":
-                        assignment = optimal_assignment(bid_from, goal_set, None if assigned_at is None else assignment,
-                                                        params.assign_hysteresis)
+                        assignment = movers.pixel_assignment(optimal_assignment(
+                            bid_from[movers.pixels], goal_set, None if assigned_at is None else assignment[movers.pixels],
+                            params.assign_hysteresis))
                     else:
                         if auction is None:  # a new image: a cold start (the old prices mean nothing)
-                            auction = Participant(k, goal_set, list(range(n)), list(range(n)), params.assign_eps,
+                            pixels = movers.pixels.tolist()
+                            auction = Participant(k, goal_set, pixels, pixels, params.assign_eps,
                                                   params.assign_hysteresis)
                         assignment = auction_assignment(auction, bid_from)
                     assigned_at = t
@@ -170,6 +176,7 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
                     goal = motion.positions(goal, t - t_start)
                 hold_for = assignment.copy()
                 clock.lap("preferred")
+            goal, color = movers.goals(goal, color, measured)  # a pursuer heads for its target
             rec["t"].append(t)
             rec["pose"].append(world.poses)
             rec["velocity"].append(world.velocities)
@@ -192,14 +199,15 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
                 break
             clock.lap("other")
             nbs = nearest_neighbours(measured[:, :2], velocity, params.radius, params.neighbour_dist,
-                                     params.max_neighbours)
+                                     params.max_neighbours, movers.cooperative)
             clock.lap("neighbours")
             res = control_step(params, ids, measured[:, :2], measured[:, 2], velocity, goal, nbs, segments,
                                seed=scene.seed, tick=tick, preferred=preferred)
             velocity = res.velocity
             fallbacks += int(res.fallback.sum())
             clock.lap("control")
-            world.set_commands(res.command)
+            command, velocity = movers.commands(res.command, velocity, world.poses, t, params.dt)
+            world.set_commands(command)  # scripted movers: along their script
             world.step(params.dt)
             clock.lap("world")
             if progress is not None and time.time() - last_say >= 1.0:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 
 import numpy as np
-import pytest
 
 from coordinator.scene import scene_from_dict, scene_goal_set, scripted_position
 from coordinator.service import Coordinator
@@ -121,8 +120,6 @@ def test_movers_give_the_central_engine_goals_commands_and_who_avoids_whom():
     assert np.hypot(*(world.poses[3, :2] - scripted_position(scene.scripted[3], 1.1))) < 0.001
 
 
-@pytest.mark.xfail(strict=True, reason="run_central does not drive scripted movers and pursuers yet: the change "
-                                       "to sim/central.py is described with sim/movers.Movers")
 def test_the_central_engine_drives_scripted_movers_and_pursuers(tmp_path):
     scene = scene_from_dict(chase_scene(), source=str(tmp_path / "chase.toml"))
     out = run_central(scene, tmp_path / "run", video=False, progress=None)
