@@ -154,11 +154,13 @@ def summary_table(runs: list[Run]) -> list[str]:
         row(f"ms per control step, {label} (median / mean / p90)",
             [f"{ms(np.median(t))} / {ms(t.mean())} / {ms(np.percentile(t, 90))}"
              for t in (r.per_tick(cpu) for r in runs)])
-    row("cold starts (new image): count, s each (mean, wall)",
-        [f"{int(r.cold.sum())}, {r.wall['assignment'][r.cold].mean():.2f}" for r in runs])
-    row("assignment ms per warm step, wall (mean / p90 / max)",
-        [f"{ms(a.mean())} / {ms(np.percentile(a, 90))} / {ms(a.max())}"
-         for a in (r.wall["assignment"][~r.cold] for r in runs)])
+    row("cold starts (new image): count, s each (mean, wall / CPU)",
+        [f"{int(r.cold.sum())}, {r.wall['assignment'][r.cold].mean():.2f} / {r.cpu['assignment'][r.cold].mean():.2f}"
+         for r in runs])
+    for label, cpu in (("wall", False), ("CPU", True)):
+        row(f"assignment ms per warm step, {label} (mean / p90 / max)",
+            [f"{ms(a.mean())} / {ms(np.percentile(a, 90))} / {ms(a.max())}"
+             for a in ((r.cpu if cpu else r.wall)["assignment"][~r.cold] for r in runs)])
     row("contacts; min clearance m (at 100 Hz)",
         [f"{r.metrics['contacts']}; {r.metrics['min_clearance_m']:.4f} ({fmt(r.metrics.get('min_clearance_substep_m'), 4)})"
          for r in runs])
@@ -180,8 +182,8 @@ def split_table(runs: list[Run]) -> list[str]:
 
 def image_table(scene: Any, runs: list[Run]) -> list[str]:
     lines = ["| step | image | hold s | " + " | ".join(f"`{r.assignment}` converged_at s | `{r.assignment}` max error "
-                                                       f"at end m | `{r.assignment}` ms per warm step (wall)"
-                                                       for r in runs) + " |",
+                                                       f"at end m | `{r.assignment}` ms per warm step, wall / CPU "
+                                                       f"(assignment CPU)" for r in runs) + " |",
              "|---|---|---|" + "---|---|---|" * len(runs)]
     by_run = [{s["index"]: s for s in r.metrics["steps"]} for r in runs]
     for k in sorted(by_run[0]):
@@ -189,8 +191,9 @@ def image_table(scene: Any, runs: list[Run]) -> list[str]:
         for r, steps in zip(runs, by_run):
             s = steps.get(k)
             mine = (r.step == k) & ~r.cold
-            cells.append(f"{fmt(s and s['converged_at'])} | {fmt(s and s['max_goal_error_at_end'], 4)} | "
-                         f"{ms(r.per_tick()[mine].mean()) if mine.any() else '-'}")
+            spent = (f"{ms(r.per_tick()[mine].mean())} / {ms(r.per_tick(True)[mine].mean())} "
+                     f"({ms(r.cpu['assignment'][mine].mean())})" if mine.any() else "-")
+            cells.append(f"{fmt(s and s['converged_at'])} | {fmt(s and s['max_goal_error_at_end'], 4)} | {spent}")
         lines.append(f"| {k} | {scene.steps[k].name} | {scene.steps[k].hold:.0f} | " + " | ".join(cells) + " |")
     return lines
 
