@@ -75,6 +75,19 @@ def test_hard_lines_stay_satisfied_in_the_fallback():
     assert fb and np.hypot(*v) <= 2.0 + 1e-12
 
 
+def test_an_invalid_line_in_the_hard_block_constrains_nothing():
+    # Padding and dropped lines of a batch keep their geometry; in the fallback they must not count,
+    # or a robot's velocity would depend on the robots it is solved with.
+    lines = [X_GE_1, Y_GE_2, Y_LE_1]
+    point = np.array([[p for p, _ in lines]], dtype=float)
+    direction = np.array([[d for _, d in lines]], dtype=float)
+    valid = np.array([[False, True, True]])
+    with_padding = least_violation(point, direction, valid, 5.0, np.array([[-3.0, 0.0]]), 1)
+    without = least_violation(point[:, 1:], direction[:, 1:], valid[:, 1:], 5.0, np.array([[-3.0, 0.0]]), 0)
+    assert with_padding.tobytes() == without.tobytes()
+    assert with_padding[0, 0] < 1.0  # x >= 1 was not applied
+
+
 def random_problem(rng, b, n_lines, spread=2.0):
     angle = rng.uniform(0, 2 * np.pi, (b, n_lines))
     direction = np.stack([np.cos(angle), np.sin(angle)], -1)

@@ -206,7 +206,9 @@ def least_violation(point: np.ndarray, direction: np.ndarray, valid: np.ndarray,
     valid = np.asarray(valid, dtype=bool)
     b, n = valid.shape
     radius = np.broadcast_to(np.asarray(max_speed, dtype=float), (b,))
-    hard = np.arange(n) < np.broadcast_to(np.asarray(n_hard), (b,))[:, None]
+    # Padding and dropped lines inside the hard block keep their geometry: only valid ones are hard
+    # (else a robot's result would depend on the batch it is solved in).
+    hard = valid & (np.arange(n) < np.broadcast_to(np.asarray(n_hard), (b,))[:, None])
     start, ok = optimise_few(point, direction, valid & hard, radius,
                              np.asarray(pref_velocity, dtype=float))
     hard &= ok[:, None]

@@ -188,23 +188,30 @@ def safety_lines(position: ArrayLike, radius: ArrayLike, max_speed: np.ndarray,
                  nbr_responsibility: ArrayLike, nbr_valid: ArrayLike, dt: float) -> Lines:
     """ORCA half-planes of horizon ``dt`` around zero optimisation velocities (cooperating neighbours).
 
-    Reciprocal and always jointly satisfiable by non-overlapping cooperating robots (v = 0 is in
-    every one): if both robots of a pair keep theirs, they do not overlap within the next control
-    period. Toward a cooperating neighbour this reads v.p_hat <= gap / (2 dt), so only neighbours
+    Reciprocal and always jointly satisfiable by cooperating robots (v = 0 is in every one): if both
+    robots of a pair keep theirs, they do not overlap within the next control period. Toward a cooperating neighbour this reads v.p_hat <= gap / (2 dt), so only neighbours
     closer than 2 dt max_speed are kept. Dynamic obstacles (responsibility >= 1) keep their velocity.
     """
     p = np.asarray(position, dtype=float)
     b = p.shape[0]
     ex = nbr_position[..., 0] - p[:, None, 0]
     ey = nbr_position[..., 1] - p[:, None, 1]
-    gap = np.sqrt(ex * ex + ey * ey) - (np.asarray(radius, dtype=float)[:, None] + nbr_radius)
+    dist = np.sqrt(ex * ex + ey * ey)
+    own = np.asarray(radius, dtype=float)[:, None] * _BUFFER
+    # A neighbour heard late has its radius grown by how far it may have strayed (prepare_neighbours).
+    # Grown over us, its line would say "leave its possible positions within dt"; several such lines
+    # at once have no common solution, and the least-violation answer then broke the lines of the
+    # neighbours we know well (contacts under 10% loss). Grown only up to our surface it says "do not
+    # approach it", which v = 0 always keeps.
+    nbr_radius = np.minimum(nbr_radius * _BUFFER, dist * (1.0 - 1e-9) - own)
+    gap = dist - (own + nbr_radius)
     keep = np.asarray(nbr_responsibility) >= 1.0
     needed = np.asarray(nbr_valid, dtype=bool) & (keep | (gap < 2.0 * dt * max_speed[:, None]))
     n = int(needed.sum(axis=1).max()) if needed.size else 0
     order = (np.arange(b)[:, None], np.argsort(~needed, axis=1, kind="stable")[:, :n])
-    return orca_lines(p, np.zeros((b, 2)), np.asarray(radius, dtype=float) * _BUFFER,
-                      nbr_position[order], np.where(keep[order][..., None], nbr_velocity[order], 0.0),
-                      nbr_radius[order] * _BUFFER, nbr_responsibility[order], needed[order], dt, dt)
+    return orca_lines(p, np.zeros((b, 2)), own[:, 0], nbr_position[order],
+                      np.where(keep[order][..., None], nbr_velocity[order], 0.0), nbr_radius[order],
+                      nbr_responsibility[order], needed[order], dt, dt)
 
 
 def orca_velocity(position: ArrayLike, velocity: ArrayLike, pref_velocity: ArrayLike,
