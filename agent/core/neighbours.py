@@ -23,9 +23,10 @@ class Neighbours(NamedTuple):
 
     position: np.ndarray
     velocity: np.ndarray
-    radius: np.ndarray
+    radius: np.ndarray  # grown: the body, the tracking noise and how far it may have strayed
     responsibility: np.ndarray
     valid: np.ndarray
+    growth: np.ndarray | None = None  # (B,M) the part of ``radius`` that is how far it may have strayed
 
 
 def prepare_neighbours(position: ArrayLike, velocity: ArrayLike, radius: ArrayLike, age: ArrayLike,
@@ -66,10 +67,11 @@ def prepare_neighbours(position: ArrayLike, velocity: ArrayLike, radius: ArrayLi
     new_position = safe_p + shift * safe_v
     # Extrapolating with a velocity that may since have turned into its opposite: the position can
     # be off by up to twice the maximum speed times the uncommitted time.
-    new_radius = np.where(valid, radius, 0.0) + noise + np.where(valid, horizon, 0.0) * 2.0 * max_speed
+    growth = np.where(valid, horizon, 0.0) * 2.0 * max_speed
+    new_radius = np.where(valid, radius, 0.0) + noise + growth
     coop = np.ones(valid.shape, dtype=bool) if cooperative is None else np.asarray(cooperative, bool)
     responsibility = np.where(coop & ~stale, COOPERATING, NON_COOPERATING)
-    return Neighbours(new_position, safe_v, new_radius, responsibility, valid)
+    return Neighbours(new_position, safe_v, new_radius, responsibility, valid, growth)
 
 
 def nearest_first(position: ArrayLike, neighbours: Neighbours, max_neighbours: int,
@@ -84,8 +86,9 @@ def nearest_first(position: ArrayLike, neighbours: Neighbours, max_neighbours: i
     dist2 = np.where(keep, dist2, np.inf)
     m = min(max_neighbours, dist2.shape[1])
     order = (np.arange(p.shape[0])[:, None], np.argsort(dist2, axis=1, kind="stable")[:, :m])
+    growth = None if neighbours.growth is None else neighbours.growth[order]
     return Neighbours(neighbours.position[order], neighbours.velocity[order],
-                      neighbours.radius[order], neighbours.responsibility[order], keep[order])
+                      neighbours.radius[order], neighbours.responsibility[order], keep[order], growth)
 
 
 def _splitmix64(x: np.ndarray) -> np.ndarray:

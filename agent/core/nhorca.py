@@ -183,11 +183,12 @@ def nh_orca_wheel_speeds(position: ArrayLike, heading: ArrayLike, velocity: Arra
                          nbr_velocity: ArrayLike, nbr_radius: ArrayLike,
                          nbr_responsibility: ArrayLike, nbr_valid: ArrayLike,
                          obstacle_segments: ArrayLike | None = None, *, params: RobotParams,
-                         safety: bool = True) -> NHResult:
+                         safety: bool = True, nbr_growth: ArrayLike | None = None) -> NHResult:
     """NH-ORCA step for a batch of differential-drive robots.
 
     ``velocity`` is each robot's previous v_cf and ``nbr_velocity`` the neighbours' broadcast v_cf.
     Radii are inflated by the tracking error E (own) and its bound (neighbours'); P_AHV is kept hard.
+    ``nbr_growth``: how far each neighbour may have strayed since its state (see `orca_velocity`).
     Where the program is infeasible at the full horizon the mirrored polygon -P_AHV (driving
     backwards) is tried at the full horizon; if that is infeasible too, the forward result of
     `orca_velocity`'s fallback (shrunk horizon, else least violation) stands.
@@ -200,18 +201,19 @@ def nh_orca_wheel_speeds(position: ArrayLike, heading: ArrayLike, velocity: Arra
     nbr_valid = np.asarray(nbr_valid, dtype=bool)
     error, nbr_error = tracking_error(position, radius, nbr_position, nbr_radius, nbr_valid, params)
     polygon = ahv_lines(ahv_polygon(heading, error, params))
+    growth = np.zeros(nbr_radius.shape) if nbr_growth is None else np.asarray(nbr_growth, dtype=float)
     args = [position, velocity, pref_velocity, radius + error, nbr_position, nbr_velocity,
-            nbr_radius + nbr_error, nbr_responsibility, nbr_valid]
+            nbr_radius + nbr_error, nbr_responsibility, nbr_valid, growth]
     opts = dict(tau=params.tau, tau_obst=params.tau_obst, dt=params.dt, safety=safety)
-    v_cf, fallback = orca_velocity(*args[:4], params.v_max, *args[4:], obstacle_segments,
-                                   extra_hard_lines=polygon, **opts)
+    v_cf, fallback = orca_velocity(*args[:4], params.v_max, *args[4:9], obstacle_segments,
+                                   extra_hard_lines=polygon, nbr_growth=args[9], **opts)
     reverse = np.zeros(b, dtype=bool)
     rows = np.nonzero(fallback)[0]
     if rows.size:
         sub = _take(rows, *args)
         mirrored = Lines(-polygon.point[rows], -polygon.direction[rows], polygon.valid[rows])
-        v_back, fb_back = orca_velocity(*sub[:4], params.v_max, *sub[4:], obstacle_segments,
-                                        extra_hard_lines=mirrored, **opts)
+        v_back, fb_back = orca_velocity(*sub[:4], params.v_max, *sub[4:9], obstacle_segments,
+                                        extra_hard_lines=mirrored, nbr_growth=sub[9], **opts)
         use = ~fb_back
         v_cf[rows[use]] = v_back[use]
         reverse[rows[use]] = True

@@ -185,7 +185,8 @@ def drop_redundant(lines: Lines, max_speed: np.ndarray) -> Lines:
 
 def safety_lines(position: ArrayLike, radius: ArrayLike, max_speed: np.ndarray,
                  nbr_position: np.ndarray, nbr_velocity: np.ndarray, nbr_radius: np.ndarray,
-                 nbr_responsibility: ArrayLike, nbr_valid: ArrayLike, dt: float) -> Lines:
+                 nbr_responsibility: ArrayLike, nbr_valid: ArrayLike, dt: float,
+                 nbr_growth: np.ndarray | None = None) -> Lines:
     """ORCA half-planes of horizon ``dt`` around zero optimisation velocities (cooperating neighbours).
 
     Reciprocal and always jointly satisfiable by cooperating robots (v = 0 is in every one): if both
@@ -198,12 +199,15 @@ def safety_lines(position: ArrayLike, radius: ArrayLike, max_speed: np.ndarray,
     ey = nbr_position[..., 1] - p[:, None, 1]
     dist = np.sqrt(ex * ex + ey * ey)
     own = np.asarray(radius, dtype=float)[:, None] * _BUFFER
-    # A neighbour heard late has its radius grown by how far it may have strayed (prepare_neighbours).
-    # Grown over us, its line would say "leave its possible positions within dt"; several such lines
-    # at once have no common solution, and the least-violation answer then broke the lines of the
-    # neighbours we know well (contacts under 10% loss). Grown only up to our surface it says "do not
-    # approach it", which v = 0 always keeps.
-    nbr_radius = np.minimum(nbr_radius * _BUFFER, dist * (1.0 - 1e-9) - own)
+    nbr_radius = nbr_radius * _BUFFER
+    if nbr_growth is not None:
+        # A neighbour heard late has its radius grown by how far it may have strayed
+        # (``nbr_growth``, prepare_neighbours). Grown over us, its line would say "leave its possible
+        # positions within dt"; several such lines at once have no common solution, and the
+        # least-violation answer then broke the lines of the neighbours we know well (contacts under
+        # 10% loss). Grown only up to our surface it says "do not approach it", which v = 0 keeps.
+        certain = nbr_radius - np.asarray(nbr_growth, dtype=float) * _BUFFER
+        nbr_radius = np.minimum(nbr_radius, np.maximum(dist * (1.0 - 1e-9) - own, certain))
     gap = dist - (own + nbr_radius)
     keep = np.asarray(nbr_responsibility) >= 1.0
     needed = np.asarray(nbr_valid, dtype=bool) & (keep | (gap < 2.0 * dt * max_speed[:, None]))
@@ -219,7 +223,8 @@ def orca_velocity(position: ArrayLike, velocity: ArrayLike, pref_velocity: Array
                   nbr_velocity: ArrayLike, nbr_radius: ArrayLike, nbr_responsibility: ArrayLike,
                   nbr_valid: ArrayLike, obstacle_segments: ArrayLike | None = None, *, tau: float,
                   tau_obst: float, dt: float, extra_hard_lines: Lines | None = None,
-                  safety: bool = True, margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+                  safety: bool = True, margin: float = 0.0,
+                  nbr_growth: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Collision-free velocity of eq. 14 for a batch of holonomic robots.
 
     Shapes: position, velocity (the optimisation velocity: the current one), pref_velocity (B,2);
@@ -228,6 +233,8 @@ def orca_velocity(position: ArrayLike, velocity: ArrayLike, pref_velocity: Array
     ``extra_hard_lines`` (e.g. a kinematic polygon) are kept hard with the obstacle lines.
     ``margin`` is added to every radius (own and neighbours') in the ORCA lines of the robots (not
     in the safety lines): crowds keep a little slack, the fallback may squeeze into it.
+    ``nbr_growth`` (B,M): the part of each neighbour's radius that is how far it may have strayed
+    since its state (`prepare_neighbours`); the safety lines grow it only up to our surface.
 
     With ``safety`` (the default):
 
@@ -257,7 +264,7 @@ def orca_velocity(position: ArrayLike, velocity: ArrayLike, pref_velocity: Array
     if extra_hard_lines is not None:
         hard.append(extra_hard_lines)
     if safety:
-        hard.append(safety_lines(position, radius, max_speed, *nbr, dt))
+        hard.append(safety_lines(position, radius, max_speed, *nbr, dt, nbr_growth))
     hard_lines = drop_redundant(concat_lines(*hard), max_speed) if hard else None
     grown = (nbr[0], nbr[1], nbr[2] + margin, *nbr[3:])
 

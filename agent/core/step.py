@@ -88,10 +88,12 @@ def control_step(params: RobotParams, robot_ids: np.ndarray, position: np.ndarra
                             noise=params.noise_bound, cooperative=neighbours.cooperative, committed=params.dt)
     if params.kinematics == DIFFDRIVE:
         res = nh_orca_wheel_speeds(position, heading, velocity, pref, params.radius, nb.position, nb.velocity,
-                                   nb.radius, nb.responsibility, nb.valid, segments, params=params)
+                                   nb.radius, nb.responsibility, nb.valid, segments, params=params,
+                                   nbr_growth=nb.growth)
         command = np.stack([res.wheel_left, res.wheel_right], axis=1)
         return StepResult(res.velocity, command, pref, res.fallback)
     v_cf, fallback = orca_velocity(position, velocity, pref, params.radius, params.v_max, nb.position,
                                    nb.velocity, nb.radius, nb.responsibility, nb.valid, segments,
-                                   tau=params.tau, tau_obst=params.tau_obst, dt=params.dt, margin=params.noise_bound)
+                                   tau=params.tau, tau_obst=params.tau_obst, dt=params.dt, margin=params.noise_bound,
+                                   nbr_growth=nb.growth)
     return StepResult(v_cf, v_cf, pref, fallback)
