@@ -87,7 +87,7 @@ class AuctionLink:
         self.part = Participant(goals.epoch, goals.positions, goals.robots.tolist(), self.robots,
                                 self.params.assign_eps, self.params.assign_hysteresis)
         carried = {}
-        if goals.follows and before is not None and before.epoch == goals.follows and before.started:
+        if goals.follows and before is not None and before.epoch == goals.follows:
             close = frames_close(before.goals, goals.positions, goals.previous)
             carried = self.part.carry(before, goals.previous, claim=close)
         self.epoch_wall = time.monotonic()
@@ -101,13 +101,15 @@ class AuctionLink:
             return part is not None
         if not all(r in positions for r in part.own):
             return False
-        part.begin(0, positions)
-        self._note_block()
+        self._begin(0, positions)
         self._publish()
         return True
 
-    def _note_block(self) -> None:
+    def _begin(self, instance: int, positions: dict[int, np.ndarray]) -> None:
+        """Begin an instance; note when this host froze the positions of a new block of phases (the
+        auction's latency, which the robots' bid positions compensate, runs from there)."""
         part = self.part
+        part.begin(instance, positions)
         block = part.instance // part.phases
         if block not in self.frozen_at:
             self.frozen_at[block] = self.now
@@ -123,8 +125,7 @@ class AuctionLink:
         part = self.part
         if part.is_agreed and stamp - self.instance_stamp >= self.params.assign_period - 1e-9:
             self.instance_stamp = stamp
-            part.begin(part.instance + 1, positions)
-            self._note_block()
+            self._begin(part.instance + 1, positions)
             self._settle()
             self._publish()
 
@@ -162,8 +163,7 @@ class AuctionLink:
             if part is None or msg.epoch != part.epoch or not self._try_start(positions):
                 continue
             if msg.instance > part.instance:  # the sender saw our instance agreed
-                part.begin(msg.instance, positions)
-                self._note_block()
+                self._begin(msg.instance, positions)
             if part.absorb(msg.instance, msg.serial, msg.digest, msg.records):
                 self.board_changed = time.monotonic()
             if msg.instance == part.instance:

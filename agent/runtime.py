@@ -167,6 +167,7 @@ class AgentHost:
         self.alive = bus.watch_alive("agent")
         self.dead: set[int] = set()  # robots whose agent died: their bodies stand still (5.1.2)
         self.running = True
+        self._bid_from: dict[int, np.ndarray] | None = None  # _positions(), until positions or goals change
         self.parent_pid: int | None = None  # exit when this process (the launcher) is gone
 
     # --- start ------------------------------------------------------------------------------
@@ -192,6 +193,7 @@ class AgentHost:
     # --- messages -----------------------------------------------------------------------------
     def _on_goals(self, goals: Goals) -> None:
         if not goals.per_robot:
+            self._bid_from = None
             self.goal_sets[goals.epoch] = goals
             for old in sorted(self.goal_sets)[:-GOAL_SETS_KEPT]:
                 del self.goal_sets[old]
@@ -219,7 +221,10 @@ class AgentHost:
         auction code and its messages stay those of a still image. Epsilon_A and Delta C then count
         in G^0's frame: s(t)^2 times them in the display's. A robot on its way to a goal of the
         newest set bids from where it will be when the instance is adopted (core.bidder.bid_position,
-        lead: this host's last measured latency of the auction)."""
+        lead: this host's last measured latency of the auction). Kept until the positions, goals or
+        goal sets change: the auction polls it many times a tick."""
+        if self._bid_from is not None:
+            return self._bid_from
         newest = self.goal_sets[max(self.goal_sets)] if self.goal_sets else None
         motion = motion_of(newest) if newest is not None else None
         lead = self.auction.latency
@@ -233,6 +238,7 @@ class AgentHost:
                 out[r] = bid_position(m.position, m.goal, m.velocity, lead)  # on its way: where it will be
             else:
                 out[r] = m.position
+        self._bid_from = out
         return out
 
     def _on_agreed(self, epoch: int, instance: int, goals: dict[int, int], positions: np.ndarray,
@@ -243,6 +249,7 @@ class AgentHost:
 
     def _drive_to(self, robot: int, epoch: int, instance: int, goal: int, positions: np.ndarray,
                   colors: np.ndarray) -> None:
+        self._bid_from = None
         mem = self.memory[robot]
         mem.goal, mem.goal_index = positions[goal].astype(float), goal
         mem.goal0 = mem.goal.copy()  # a moving goal set's goal moves from here (eq. 28)
@@ -365,6 +372,7 @@ class AgentHost:
         for mem, xy in zip(mems, position):
             mem.position = xy.copy()
             mem.stamp = stamp
+        self._bid_from = None
         self.auction.on_tick(stamp, self._positions())
         velocity = np.array([m.velocity for m in mems])
         goal, preferred = self._goals_now(mems, position, stamp)

@@ -3,19 +3,14 @@ over by the goals' correspondence, and the robots drive on to their carried goal
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from agent.core.bidder import Participant, frames_close
 from bench.bench_carry import agree
 from coordinator.keyframes import goal_correspondence, goal_disparity
 
+from .test_bidder import optimum
+
 EPS = 1e-3
-
-
-def optimum(positions: np.ndarray, goals: np.ndarray) -> float:
-    cost = ((positions[:, None, :] - goals[None, :, :]) ** 2).sum(-1)
-    rows, cols = linear_sum_assignment(cost)
-    return float(cost[rows, cols].sum())
 
 
 def exchange(parts: list[Participant], positions: np.ndarray) -> dict[int, int]:
