@@ -225,28 +225,32 @@ class Launcher:
             time.sleep(0.02)
 
     def _loop(self, bus: Bus, rec: Recorder) -> str:
-        end_sent = False
+        end_sent: str | None = None  # the reason of the end event published, if any
+        end_at = 0.0
         while True:
             rec.poll()
             self._check_children(rec)
             done = self._world_done(rec)
             if done is not None:
                 self.world_stats = done
-                return "converged" if end_sent else str(done.get("reason", "duration"))
+                return end_sent or str(done.get("reason", "duration"))
             if self.world_exit is not None:
                 self.world_stats = {}
                 raise RuntimeError(f"the world process exited with code {self.world_exit}: see logs/world.log")
             if self.stop_signal is not None and not end_sent:
-                bus.publish(bus.keys.event, Event({"kind": "end", "reason": "interrupted"}))
-                end_sent = True
+                end_sent, end_at = "interrupted", 0.0
                 self.interrupted = True
             # With image steps, only convergence that began within the last step ends a run early.
             last_start = self.scene.step_starts[-1] if self.scene.steps else 0.0
             in_last = rec.converged_since is not None and rec.converged_since >= last_start - 1e-9
             in_last = in_last and self.scene.ends_on_convergence
             if not end_sent and in_last and rec.held_converged(rec.sim_time, self.scene.converge_hold):
-                bus.publish(bus.keys.event, Event({"kind": "end", "reason": "converged"}))
-                end_sent = True
+                end_sent, end_at = "converged", 0.0
+            if end_sent and time.monotonic() - end_at >= 0.5:
+                # Again until the world is done: an event published before the world subscribed
+                # (Ctrl-C during start-up) is lost, and the run would go on to its full duration.
+                bus.publish(bus.keys.event, Event({"kind": "end", "reason": end_sent}))
+                end_at = time.monotonic()
             self._fail_agents(rec.sim_time)
             self._progress(rec)
             time.sleep(0.01)

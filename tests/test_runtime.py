@@ -152,6 +152,7 @@ def test_stopping_the_launcher_leaves_no_process(tmp_path, spawned, sig):
     # an interrupted run is kept, and says so
     m = metrics(out)
     assert m["complete"] is False and m["end_reason"] == "interrupted"
+    assert m["duration_s"] < 30.0  # stopped there, not at the scene's 60 s (even when stopped during start-up)
     assert not Path(str(out) + ".partial").exists()
 
 
