@@ -14,8 +14,8 @@ from .common import REPO, RESULTS
 
 BENCHES = ["bench.bench_world", "bench.bench_goals", "bench.bench_orca", "bench.bench_runtime", "bench.bench_auction",
            "bench.bench_sequence", "bench.bench_keyframes", "bench.bench_carry", "bench.bench_large",
-           "bench.paper_figures", "bench.bench_animation"]
-ORDER = ["runtime", "auction", "sequence", "large", "large-trial", "world", "orca", "goals", "keyframes", "animation",
+           "bench.paper_figures", "bench.bench_animation", "bench.bench_loss"]
+ORDER = ["runtime", "auction", "sequence", "large", "large-trial", "world", "orca", "loss", "goals", "keyframes", "animation",
          "carry", "paper_figures"]
 
 
