@@ -27,7 +27,9 @@ from .keyframes import goal_correspondence
 from .scene import Scene, SceneError, load_scene, scene_goal_set
 
 SETTLE_S = 0.5  # a change in the live robots must hold this long before a new goal set (debounce)
-BODY_WAIT_S = 1.0  # how long to wait for the tracked position of a dead robot's body
+BODY_WAIT_S = 1.0  # display seconds to wait for the tracked position of a dead robot's body (display
+# time, not wall time: a lock-step world waits up to its deadline for the dead robot's command before
+# its next tick, and a wall-clock wait ran out before the body's first pose on a loaded machine)
 
 
 def clear_of_bodies(goals: np.ndarray, bodies: np.ndarray, clearance: float) -> np.ndarray:
@@ -140,8 +142,8 @@ class Coordinator:
                 return False
         dead = [r for r in self.ever_live - frozenset(self.live)]
         if any(r not in self.bodies for r in dead):
-            self.body_wait_since = self.body_wait_since or time.monotonic()
-            if time.monotonic() - self.body_wait_since < BODY_WAIT_S:
+            self.body_wait_since = self.t if self.body_wait_since is None else self.body_wait_since
+            if self.t - self.body_wait_since < BODY_WAIT_S:
                 return False
         self.body_wait_since = None
         goals, colors = scene_goal_set(self.scene, step, len(robots))

@@ -97,7 +97,9 @@ class WorldNode:
         self.bus.publish(self.keys.clock, Tick(self.tick, t, self.dt))
         self._publish_truth()
         measured = self.tracker.measure(self.world.poses)
-        for i in np.flatnonzero(self.live):
+        # The tracker sees bodies, not agents: a robot whose agent died is still tracked, so the
+        # coordinator learns where its body stays and keeps the goals clear of it (5.1.2).
+        for i in np.flatnonzero(self.ever_live):
             x, y, th = measured[i]
             self.bus.publish(self.keys.pose(int(i)), Pose(int(i), self.tick, t, x, y, th))
         self._publish_before_start()
