@@ -221,8 +221,8 @@ class AgentHost:
         auction code and its messages stay those of a still image. Epsilon_A and Delta C then count
         in G^0's frame: s(t)^2 times them in the display's. A robot on its way to a goal of the
         newest set bids from where it will be when the instance is adopted (core.bidder.bid_position,
-        lead: this host's last measured latency of the auction). Kept until the positions, goals or
-        goal sets change: the auction polls it many times a tick."""
+        lead: this host's last measured latency of the auction). Kept until the positions, velocities,
+        goals or goal sets change: the auction polls it many times a tick."""
         if self._bid_from is not None:
             return self._bid_from
         newest = self.goal_sets[max(self.goal_sets)] if self.goal_sets else None
@@ -407,6 +407,7 @@ class AgentHost:
         known = [m.position for m in self.memory.values() if m.position is not None]
         self.cells.update(np.array(known))
         self.table.forget_outside(self.cells.cells, self.cell_size)
+        self._bid_from = None  # the robots' velocities changed: they move where they bid from
         self.ticks_done += 1
 
     def _goals_now(self, mems: list[RobotMemory], position: np.ndarray, stamp: float

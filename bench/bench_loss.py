@@ -7,14 +7,11 @@ heard at the next tick, what the central engine and a lock-step run without faul
 from __future__ import annotations
 
 import argparse
-import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
 
-from coordinator.scene import load_scene
-from sim.lossy import run_lossy
+from sim.lossy import circle_crossing, run_lossy
 
 from .common import write_results
 
@@ -29,35 +26,25 @@ EXPLAIN = ("Antipodal circle (spacing 0.2 m, 25 s: past the crowd at the centre)
            "case touched in 5 of 8 seeds at 30% lost and 50% late.")
 
 
-def scene_file(folder: Path, kinematics: str, robots: int) -> str:
-    path = folder / f"{kinematics}-{robots}.toml"
-    path.write_text(f'robots = {robots}\nduration = 25\n[robot]\nkinematics = "{kinematics}"\n'
-                    '[layout]\nkind = "circle"\nspacing = 0.2\n[goals]\nkind = "antipodal"\n')
-    return str(path)
-
-
 def main() -> int:
     parser = argparse.ArgumentParser()
     parser.add_argument("--seeds", type=int, default=10)
     args = parser.parse_args()
     lines = ["| robots | lost | late | heard on time | runs with contact | contacts | min clearance mm (worst, median) "
              "| fallbacks per robot-tick | s per run |", "|---|---|---|---|---|---|---|---|---|"]
-    with tempfile.TemporaryDirectory() as tmp:
-        for kinematics, robots in CASES:
-            path = scene_file(Path(tmp), kinematics, robots)
-            for drop, late in LOSS:
-                rows, start = [], time.perf_counter()
-                for seed in range(args.seeds):
-                    scene = load_scene(path, seed=seed)
-                    rows.append(run_lossy(scene, drop, late, seed))
-                    print(f"{kinematics} {robots} lost {drop} late {late} seed {seed}: {rows[-1]}", flush=True)
-                per_run = (time.perf_counter() - start) / args.seeds
-                clear = np.array([r.min_clearance for r in rows]) * 1000
-                lines.append(f"| {robots} {kinematics} | {drop:.0%} | {late:.0%} "
-                             f"| {np.mean([r.heard_on_time for r in rows]):.0%} "
-                             f"| {sum(r.contacts > 0 for r in rows)} of {len(rows)} | {sum(r.contacts for r in rows)} "
-                             f"| {clear.min():.1f}, {np.median(clear):.1f} "
-                             f"| {sum(r.fallbacks for r in rows) / sum(r.robot_ticks for r in rows):.3f} | {per_run:.1f} |")
+    for kinematics, robots in CASES:
+        for drop, late in LOSS:
+            rows, start = [], time.perf_counter()
+            for seed in range(args.seeds):
+                rows.append(run_lossy(circle_crossing(robots, kinematics, seed), drop, late, seed))
+                print(f"{kinematics} {robots} lost {drop} late {late} seed {seed}: {rows[-1]}", flush=True)
+            per_run = (time.perf_counter() - start) / args.seeds
+            clear = np.array([r.min_clearance for r in rows]) * 1000
+            lines.append(f"| {robots} {kinematics} | {drop:.0%} | {late:.0%} "
+                         f"| {np.mean([r.heard_on_time for r in rows]):.0%} "
+                         f"| {sum(r.contacts > 0 for r in rows)} of {len(rows)} | {sum(r.contacts for r in rows)} "
+                         f"| {clear.min():.1f}, {np.median(clear):.1f} "
+                         f"| {sum(r.fallbacks for r in rows) / sum(r.robot_ticks for r in rows):.3f} | {per_run:.1f} |")
     write_results("loss", "Lost and late neighbour states: contacts beside perfect information",
                   f".venv/bin/python -m bench.bench_loss --seeds {args.seeds}", [*lines, "", EXPLAIN])
     return 0

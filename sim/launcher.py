@@ -226,7 +226,7 @@ class Launcher:
 
     def _loop(self, bus: Bus, rec: Recorder) -> str:
         end_sent: str | None = None  # the reason of the end event published, if any
-        end_at = 0.0
+        end_at = 0.0  # when it was last published
         while True:
             rec.poll()
             self._check_children(rec)
@@ -238,14 +238,14 @@ class Launcher:
                 self.world_stats = {}
                 raise RuntimeError(f"the world process exited with code {self.world_exit}: see logs/world.log")
             if self.stop_signal is not None and not end_sent:
-                end_sent, end_at = "interrupted", 0.0
+                end_sent = "interrupted"
                 self.interrupted = True
             # With image steps, only convergence that began within the last step ends a run early.
             last_start = self.scene.step_starts[-1] if self.scene.steps else 0.0
             in_last = rec.converged_since is not None and rec.converged_since >= last_start - 1e-9
             in_last = in_last and self.scene.ends_on_convergence
             if not end_sent and in_last and rec.held_converged(rec.sim_time, self.scene.converge_hold):
-                end_sent, end_at = "converged", 0.0
+                end_sent = "converged"
             if end_sent and time.monotonic() - end_at >= 0.5:
                 # Again until the world is done: an event published before the world subscribed
                 # (Ctrl-C during start-up) is lost, and the run would go on to its full duration.

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from agent.core.step import NeighbourStates, control_step
-from coordinator.scene import Scene
+from coordinator.scene import Scene, scene_from_dict
 
 from .tracker import tracker_of, world_of
 
@@ -29,6 +29,14 @@ class LossyResult:
     fallbacks: int  # robot-ticks where ORCA's program was infeasible
     robot_ticks: int
     heard_on_time: float  # share of (receiver, sender) states heard at the next tick
+
+
+def circle_crossing(robots: int, kinematics: str, seed: int, duration: float = 25.0) -> Scene:
+    """The study's case: robots on a circle (0.2 m apart) crossing to the antipodal point, through
+    the crowd at the centre, where lost states matter most; 25 s takes them past it."""
+    return scene_from_dict({"robots": robots, "duration": duration, "robot": {"kinematics": kinematics},
+                            "layout": {"kind": "circle", "spacing": 0.2}, "goals": {"kind": "antipodal"}},
+                           source="circle-crossing", seed=seed)
 
 
 def run_lossy(scene: Scene, drop: float, late: float, seed: int = 0) -> LossyResult:

@@ -9,11 +9,12 @@ import json
 
 import numpy as np
 import pytest
-from scipy.optimize import linear_sum_assignment
 
 import sim.central as central
 from agent.core.params import RobotParams
 from coordinator.scene import load_scene
+
+from .test_bidder import optimum
 
 
 @pytest.fixture
@@ -30,12 +31,6 @@ def auctions(monkeypatch) -> list[dict]:
 
     monkeypatch.setattr(central, "auction_assignment", spy)
     return calls
-
-
-def optimum(position: np.ndarray, goals: np.ndarray) -> float:
-    cost = ((position[:, None, :] - goals[None, :, :]) ** 2).sum(-1)
-    rows, cols = linear_sum_assignment(cost)
-    return float(cost[rows, cols].sum())
 
 
 def test_every_auction_assignment_is_one_to_one_and_within_the_bound_of_the_optimum(tmp_path, auctions):

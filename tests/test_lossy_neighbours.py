@@ -11,26 +11,18 @@ from __future__ import annotations
 
 import pytest
 
-from coordinator.scene import load_scene
-from sim.lossy import run_lossy
-
-
-def circle(tmp_path, robots: int, kinematics: str, seed: int):
-    path = tmp_path / "circle.toml"
-    path.write_text(f'robots = {robots}\nduration = 25\n[robot]\nkinematics = "{kinematics}"\n'
-                    '[layout]\nkind = "circle"\nspacing = 0.2\n[goals]\nkind = "antipodal"\n')
-    return load_scene(str(path), seed=seed)
+from sim.lossy import circle_crossing, run_lossy
 
 
 @pytest.mark.parametrize("kinematics, robots, seed", [
     ("holonomic", 50, 0), ("holonomic", 50, 3), ("holonomic", 50, 4), ("holonomic", 50, 5),
     ("diffdrive", 30, 0)])
-def test_lost_and_late_states_cause_no_contact(tmp_path, kinematics, robots, seed):
-    res = run_lossy(circle(tmp_path, robots, kinematics, seed), drop=0.3, late=0.5, seed=seed)
+def test_lost_and_late_states_cause_no_contact(kinematics, robots, seed):
+    res = run_lossy(circle_crossing(robots, kinematics, seed), drop=0.3, late=0.5, seed=seed)
     assert 0.15 < res.heard_on_time < 0.25  # the loss really happened
     assert res.contacts == 0 and res.min_clearance > 0, res
 
 
-def test_bad_probabilities_are_refused(tmp_path):
+def test_bad_probabilities_are_refused():
     with pytest.raises(ValueError, match="probabilities"):
-        run_lossy(circle(tmp_path, 3, "holonomic", 0), drop=0.6, late=0.5)
+        run_lossy(circle_crossing(3, "holonomic", 0), drop=0.6, late=0.5)

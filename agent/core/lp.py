@@ -209,7 +209,7 @@ def least_violation(point: np.ndarray, direction: np.ndarray, valid: np.ndarray,
     # Padding and dropped lines inside the hard block keep their geometry: only valid ones are hard
     # (else a robot's result would depend on the batch it is solved in).
     hard = valid & (np.arange(n) < np.broadcast_to(np.asarray(n_hard), (b,))[:, None])
-    start, ok = optimise_few(point, direction, valid & hard, radius,
+    start, ok = optimise_few(point, direction, hard, radius,
                              np.asarray(pref_velocity, dtype=float))
     hard &= ok[:, None]
     vx, vy = _least_violation(point[..., 0], point[..., 1], direction[..., 0], direction[..., 1],

@@ -201,9 +201,8 @@ def nh_orca_wheel_speeds(position: ArrayLike, heading: ArrayLike, velocity: Arra
     nbr_valid = np.asarray(nbr_valid, dtype=bool)
     error, nbr_error = tracking_error(position, radius, nbr_position, nbr_radius, nbr_valid, params)
     polygon = ahv_lines(ahv_polygon(heading, error, params))
-    growth = np.zeros(nbr_radius.shape) if nbr_growth is None else np.asarray(nbr_growth, dtype=float)
     args = [position, velocity, pref_velocity, radius + error, nbr_position, nbr_velocity,
-            nbr_radius + nbr_error, nbr_responsibility, nbr_valid, growth]
+            nbr_radius + nbr_error, nbr_responsibility, nbr_valid, nbr_growth]
     opts = dict(tau=params.tau, tau_obst=params.tau_obst, dt=params.dt, safety=safety)
     v_cf, fallback = orca_velocity(*args[:4], params.v_max, *args[4:9], obstacle_segments,
                                    extra_hard_lines=polygon, nbr_growth=args[9], **opts)

@@ -190,8 +190,9 @@ def safety_lines(position: ArrayLike, radius: ArrayLike, max_speed: np.ndarray,
     """ORCA half-planes of horizon ``dt`` around zero optimisation velocities (cooperating neighbours).
 
     Reciprocal and always jointly satisfiable by cooperating robots (v = 0 is in every one): if both
-    robots of a pair keep theirs, they do not overlap within the next control period. Toward a cooperating neighbour this reads v.p_hat <= gap / (2 dt), so only neighbours
-    closer than 2 dt max_speed are kept. Dynamic obstacles (responsibility >= 1) keep their velocity.
+    robots of a pair keep theirs, they do not overlap within the next control period. Toward a
+    cooperating neighbour this reads v.p_hat <= gap / (2 dt), so only neighbours closer than
+    2 dt max_speed are kept. Dynamic obstacles (responsibility >= 1) keep their velocity.
     """
     p = np.asarray(position, dtype=float)
     b = p.shape[0]
