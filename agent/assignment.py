@@ -56,6 +56,8 @@ class AuctionLink:
         self.mismatch = False  # a message of this instance came from a host with another board
         self.epoch_wall = 0.0
         self.sent = self.received = self.agreements = self.penalties = 0
+        self.heard = 0  # messages of the current goal set from other hosts (lock-step counts rounds by them)
+        self.others: set[int] = set()  # ... and the hosts they came from
         self.first_agreement_s: list[float] = []  # per goal set: wall time from its arrival to agreement
 
     @property
@@ -76,10 +78,13 @@ class AuctionLink:
         return [r for r in self.robots if r not in own]
 
     # --- inputs -----------------------------------------------------------------------------------
-    def on_goals(self, goals: Goals, positions: dict[int, np.ndarray]) -> dict[int, int]:
-        """A new goal set: a new auction. The next keyframe of an animation starts from the last
-        one's board, carried over by the goals' correspondence; returns the own robots' carried
-        goals (robot -> goal index), which they may drive to until the auction agrees."""
+    def on_goals(self, goals: Goals, positions: dict[int, np.ndarray],
+                 current: dict[int, int] | None = None) -> dict[int, int]:
+        """A new goal set: a new auction. The next keyframe of an animation carries each own robot's
+        ``current`` goal in the last one (robot -> goal index) over by the goals' correspondence;
+        returns the carried goals, which the robots drive to until the auction agrees. The auction
+        starts from the carried claims only when the last keyframe's auction had agreed (a board
+        still in a price war is no assignment) and the frames are close (bidder.frames_close)."""
         if self.part is not None and goals.epoch <= self.part.epoch:
             return {}
         before = self.part
@@ -88,10 +93,11 @@ class AuctionLink:
                                 self.params.assign_eps, self.params.assign_hysteresis)
         carried = {}
         if goals.follows and before is not None and before.epoch == goals.follows:
-            close = frames_close(before.goals, goals.positions, goals.previous)
-            carried = self.part.carry(before, goals.previous, claim=close)
+            close = before.agreed_instance >= 0 and frames_close(before.goals, goals.positions, goals.previous)
+            carried = self.part.carry(before, goals.previous, claim=close, current=current)
         self.epoch_wall = time.monotonic()
         self.reported = -1
+        self.others = set()
         self._try_start(positions)
         return carried
 
@@ -162,6 +168,9 @@ class AuctionLink:
             self.received += 1
             if part is None or msg.epoch != part.epoch or not self._try_start(positions):
                 continue
+            if msg.sender != self.sender:
+                self.heard += 1
+                self.others.add(msg.sender)
             if msg.instance > part.instance:  # the sender saw our instance agreed
                 self._begin(msg.instance, positions)
             if part.absorb(msg.instance, msg.serial, msg.digest, msg.records):

@@ -99,8 +99,15 @@ class HostConfig:
 
 AUCTION_SHARE = 0.2  # of a control period, spent on auction rounds after each tick while one is open
 AUCTION_SHARE_COLD = 0.8  # ... until the newest goal set's first agreement: robots wait for it (in real
-# time the auction has the whole period but the control step; lock-step at 0.2 left a cold start of
-# 100 robots in 10 hosts 30 s of display time on a loaded machine, longer than an animation's keyframe)
+# time the auction has the whole period but the control step)
+# Lock-step counts a cold auction's message rounds instead of wall time: what a period buys must not
+# depend on how loaded the machine is (2 saturated cores made a round of 100 robots in 10 hosts 28 ms
+# against 8 ms alone, and the leaf's first keyframe went unagreed for its 30 s). A round: one message
+# from each other host. 10 per period is what AUCTION_SHARE_COLD buys on an unloaded machine. Warm
+# instances agree in a few rounds and keep AUCTION_SHARE.
+LOCKSTEP_ROUNDS = 10
+LOCKSTEP_IDLE = 0.15  # s of wall time without a message that ends a tick's rounds (the auction is quiet)
+LOCKSTEP_CAP = 2.0  # s of wall time a tick's rounds may take at most
 
 
 class CellSubscriptions:
@@ -197,7 +204,9 @@ class AgentHost:
             self.goal_sets[goals.epoch] = goals
             for old in sorted(self.goal_sets)[:-GOAL_SETS_KEPT]:
                 del self.goal_sets[old]
-            carried = self.auction.on_goals(goals, self._positions())
+            driving = {r: m.goal_index for r, m in self.memory.items()
+                       if m.goal_index >= 0 and m.assign_epoch == goals.follows}  # agreed or itself carried
+            carried = self.auction.on_goals(goals, self._positions(), driving)
             for r, g in carried.items():  # the next keyframe: drive on at once (6.2), the auction follows
                 self._drive_to(r, goals.epoch, CARRIED, g, goals.positions, goals.colors)
             for r in self.auction.idle_robots():
@@ -330,8 +339,12 @@ class AgentHost:
 
     def _auction_rounds(self, bell: threading.Event) -> None:
         """After a tick, while an auction instance is open, keep trading messages for a part of the
-        control period. Otherwise a lock-step run gets one auction round per tick (the next pose is
-        already waiting), and a cold start of 100 robots took 300 ticks."""
+        control period (lock-step, until the goal set's first agreement: for LOCKSTEP_ROUNDS rounds).
+        Otherwise a lock-step run gets one auction round per tick (the next pose is already waiting),
+        and a cold start of 100 robots took 300 ticks."""
+        if self.config.lockstep and self.auction.cold:
+            self._lockstep_rounds(bell)
+            return
         share = AUCTION_SHARE_COLD if self.auction.cold else AUCTION_SHARE
         end = time.monotonic() + share * self.params.dt
         while self.auction.busy and self.running:
@@ -341,6 +354,21 @@ class AgentHost:
             if remaining <= 0:
                 return
             bell.wait(min(remaining, self.auction.next_due()))
+
+    def _lockstep_rounds(self, bell: threading.Event) -> None:
+        link = self.auction
+        enough = link.heard + LOCKSTEP_ROUNDS * max(1, len(link.others))
+        start = last_news = time.monotonic()
+        while link.busy and self.running and link.heard < enough:
+            bell.clear()
+            heard = link.heard
+            link.poll(self._positions())
+            now = time.monotonic()
+            if link.heard > heard:
+                last_news = now
+            if now - last_news >= LOCKSTEP_IDLE or now - start >= LOCKSTEP_CAP:
+                return
+            bell.wait(min(LOCKSTEP_IDLE, link.next_due()))
 
     def _take_pose(self, pose: Pose) -> None:
         mem = self.memory.get(pose.robot)

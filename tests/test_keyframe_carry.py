@@ -93,3 +93,22 @@ def test_the_auction_starts_from_carried_claims_only_when_frames_are_close() -> 
     carried = driving.carry(old, np.arange(len(g1)), claim=False)
     assert sorted(carried.values()) == robots  # every robot still gets a goal to drive to
     assert (driving.board.owner == -1).all() and (driving.goal == -1).all()  # the auction starts cold
+
+
+def test_a_robot_carries_the_goal_it_drives_to_even_when_the_last_auction_never_agreed() -> None:
+    """Keyframes shorter than an auction: frame f-1's auction is still in its price war when frame f
+    arrives. Each robot then carries the goal it drives to (itself carried from f-2), not its claim
+    on the unsettled board, so the robots keep one goal each (the board's claims are not one-to-one
+    mid-auction: at 100 robots most of them had no goal to drive to)."""
+    g1, g2, pos = two_frames(n=12)
+    robots = list(range(12))
+    old = Participant(1, g1, robots, robots, EPS)
+    old.begin(0, {r: pos[r] for r in robots})  # started, never settled: no claims yet
+    driving = {r: (r * 5) % 12 for r in robots}  # what they drive to, carried from the frame before
+    previous = goal_correspondence(g1, g2)
+    new = Participant(2, g2, robots, robots, EPS)
+    carried = new.carry(old, previous, claim=False, current=driving)
+    successor = np.argsort(previous)
+    assert carried == {r: int(successor[g]) for r, g in driving.items()}
+    assert sorted(carried.values()) == robots  # one-to-one, as what they carried
+    assert (new.board.owner == -1).all()  # nothing claimed from a board that never agreed

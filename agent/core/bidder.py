@@ -285,41 +285,43 @@ class Participant:
         self._content_cache = None
         self.bid()
 
-    def carry(self, before: "Participant", previous: np.ndarray, claim: bool = True) -> dict[int, int]:
-        """The assignment of the previous keyframe's auction carried over by the goals'
-        correspondence (paper 6.1; ``previous[j]``: the goal of ``before`` that goal j continues, -1
-        none): a robot holding goal i there gets i's successor. Returns the own robots' carried
-        goals (robot -> goal), which they drive to until this auction agrees.
+    def carry(self, before: "Participant", previous: np.ndarray, claim: bool = True,
+              current: Mapping[int, int] | None = None) -> dict[int, int]:
+        """The assignment of the previous keyframe carried over by the goals' correspondence (paper
+        6.1; ``previous[j]``: the goal of ``before`` that goal j continues, -1 none): a robot driving to
+        goal i there gets i's successor. ``current``: each own robot's goal in ``before`` (the one it
+        drives to: agreed, or itself carried when that auction never agreed); by default its claim on
+        ``before``'s board. Returns the own robots' carried goals (robot -> goal), which they drive to
+        until this auction agrees.
 
         With ``claim`` the auction also starts from it: each robot claims its carried goal at price
-        zero (all hosts carry from boards that agree up to the last messages; max-consensus merges the
-        rest). When the frames differ little most robots are then content at once, and agreement
-        takes a few message rounds instead of a cold start's hundreds; when they differ much, the
-        claims skip the coarse epsilon phases that build the prices, and the fine ones fight a price
-        war that costs more than a cold start (bench/bench_carry.py; see frames_close). Carrying the
-        prices too costs more in both cases: they are in equilibrium for the old costs only.
-        Call before the first instance."""
+        zero where ``before``'s board says it owns the goal it continues (all hosts carry from boards
+        that agree up to the last messages; max-consensus merges the rest). When the frames differ
+        little most robots are then content at once, and agreement takes a few message rounds
+        instead of a cold start's hundreds; when they differ much, the claims skip the coarse epsilon
+        phases that build the prices, and the fine ones fight a price war that costs more than a cold
+        start (bench/bench_carry.py; see frames_close). Carrying the prices too costs more in both
+        cases: they are in equilibrium for the old costs only. Call before the first instance."""
         previous = np.asarray(previous, np.int64)
         if self.started or not before.started or len(previous) != len(self.goals):
             return {}
         j = np.flatnonzero((previous >= 0) & (previous < len(before.goals)))
-        i = previous[j]
-        held = np.isin(before.board.owner[i], self.robots) & ~before.board.released[i]
-        owner = np.full(len(self.goals), NO_OWNER, np.int64)
-        owner[j[held]] = before.board.owner[i[held]]
         successor = np.full(len(before.goals), -1, np.int64)
-        successor[i] = j
-        carried: dict[int, int] = {}
-        for k, r in enumerate(self.own):
-            if r in before.own:
-                g = int(before.goal[before.own.index(r)])
-                if g >= 0 and successor[g] >= 0 and owner[successor[g]] == r:
-                    carried[r] = int(successor[g])
+        successor[previous[j]] = j
+        if current is None:
+            current = {r: int(g) for r, g in zip(before.own, before.goal.tolist())}
+        carried = {r: int(successor[g]) for r, g in current.items()
+                   if r in self.own and 0 <= g < len(successor) and successor[g] >= 0}
         if claim:
+            i = previous[j]
+            held = np.isin(before.board.owner[i], self.robots) & ~before.board.released[i]
+            owner = np.full(len(self.goals), NO_OWNER, np.int64)
+            owner[j[held]] = before.board.owner[i[held]]
             self.board.owner[:] = owner  # prices stay zero
             self.board.version += 1
             for k, r in enumerate(self.own):
-                self.goal[k] = carried.get(r, -1)
+                g = carried.get(r, -1)
+                self.goal[k] = g if g >= 0 and owner[g] == r else -1
         return carried
 
     def _adopt_if_settled(self) -> None:
