@@ -40,7 +40,6 @@ import hashlib
 from collections.abc import Mapping
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from .auction import NO_OWNER, epsilon_schedule
 
@@ -81,6 +80,9 @@ def frames_close(before: np.ndarray, goals: np.ndarray, previous: np.ndarray) ->
     ok = previous >= 0
     if len(goals) < 2 or not ok.any():
         return False
+    # Imported here: scipy.spatial costs every agent process 0.4 s of start-up, only keyframes need it.
+    from scipy.spatial import cKDTree
+
     disparity = float(np.hypot(*(goals[ok] - np.asarray(before, float)[previous[ok]]).T).mean())
     spacing = float(np.median(cKDTree(goals).query(goals, k=2)[0][:, 1]))
     return disparity <= 1.5 * spacing
