@@ -13,9 +13,9 @@ from pathlib import Path
 from .common import REPO, RESULTS
 
 BENCHES = ["bench.bench_world", "bench.bench_goals", "bench.bench_orca", "bench.bench_runtime", "bench.bench_auction",
-           "bench.bench_sequence", "bench.bench_keyframes", "bench.bench_carry", "bench.bench_large",
+           "bench.bench_sequence", "bench.bench_keyframes", "bench.bench_carry", "bench.bench_large", "bench.bench_hosted",
            "bench.paper_figures", "bench.bench_animation", "bench.bench_loss"]
-ORDER = ["runtime", "auction", "sequence", "large", "large-trial", "world", "orca", "loss", "goals", "keyframes", "animation",
+ORDER = ["runtime", "auction", "sequence", "large", "large-trial", "hosted", "world", "orca", "loss", "goals", "keyframes", "animation",
          "carry", "paper_figures"]
 
 

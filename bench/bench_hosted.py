@@ -1,0 +1,74 @@
+"""The paper's 1000-robot sequence (paper 7.5, scene `paper-sequence-1000`) distributed in agent
+hosts (issue 6): every robot decides for itself, K robots per process, over zenoh. Reported per
+image: when every robot was within 1 cm of its goal (converged_at, display seconds after the image
+change) and the largest error at the end; contacts and clearance; the realtime factor; messages per
+robot-second by kind. The whole sequence is 390 s of display time, over an hour of wall time on 2
+cores at the realtime factor measured, so ``--duration`` runs its first images only.
+
+    .venv/bin/python -m bench.bench_hosted --duration 100            # the first two images (about 20 min)
+    .venv/bin/python -m bench.bench_hosted --from RUN_DIR [--from RUN_DIR2]  # summarise finished runs
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from .common import run_cli_scene, write_results
+
+SCENE = "paper-sequence-1000"
+
+
+def summary(m: dict, wall: float, k: int) -> list[str]:
+    rows = [f"**{m['duration_s']:.0f} s of display** ({m['robots']} robots in {m['agent_processes']} agent hosts of "
+            f"{k}): wall {wall:.0f} s, realtime factor {m['duration_s'] / wall:.3f} (while stepping "
+            f"{m['stepping_realtime_factor']:.3f}: {100 / m['stepping_realtime_factor']:.0f} ms of wall time per "
+            f"0.1 s control step); contacts {m['contacts']}; min clearance "
+            f"{m['min_clearance_m'] * 1e3:.1f} mm; missed ticks {m['missed_ticks']}; ORCA fallbacks "
+            f"{m.get('orca_fallbacks')}.", "",
+            "| image | shown from s | converged s after the change | max goal error at the end mm |",
+            "|---|---|---|---|"]
+    for s in m["steps"]:
+        converged = "not yet" if s["converged_at"] is None else f"{s['converged_at']:.1f}"
+        rows.append(f"| {s['index']} | {s['t_start']:.1f} | {converged} | {1e3 * s['max_goal_error_at_end']:.1f} |")
+    per_kind = ", ".join(f"{kind} {n:.1f}" for kind, n in sorted(m["messages_per_robot_s"].items()) if n >= 0.05)
+    rows += ["", f"Messages per robot-second: {per_kind}; bytes per robot-second, all kinds: "
+             f"{sum(m['bytes_per_robot_s'].values()):.0f}.", ""]
+    return rows
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("-k", type=int, default=250, help="robots per agent process (default 250: 4 hosts)")
+    parser.add_argument("--duration", type=float, default=100.0, help="display seconds (default 100)")
+    parser.add_argument("--from", dest="runs", action="append", type=Path, help="a finished run directory")
+    args = parser.parse_args()
+    lines: list[str] = []
+    commands = []
+    if args.runs:
+        for run in args.runs:
+            metrics = run / "metrics.json"
+            if not metrics.is_file():
+                print(f"error: {run} has no metrics.json", file=sys.stderr)
+                return 2
+            m = json.loads(metrics.read_text())
+            k = m.get("agents_per_process") or args.k
+            lines += summary(m, m["wall_s"], k)
+            commands.append(f"pixelswarm run {SCENE} --engine distributed -k {k} --duration {m['duration_s']:g} "
+                            f"--no-video --out RUN")
+        commands.append(".venv/bin/python -m bench.bench_hosted --from RUN ...")
+    else:
+        ran = run_cli_scene([SCENE, "--engine", "distributed", "-k", str(args.k), "--duration", str(args.duration)])
+        if ran is None:
+            return 1
+        m, _, wall = ran
+        lines += summary(m, wall, args.k)
+        commands.append(f".venv/bin/python -m bench.bench_hosted -k {args.k} --duration {args.duration:g}")
+    write_results("hosted", "The 1000-robot sequence, distributed in agent hosts (issue 6)", "`; `".join(commands),
+                  lines)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
