@@ -340,26 +340,17 @@ class AgentHost:
 
     def _auction_rounds(self, bell: threading.Event) -> None:
         """After a tick, while an auction instance is open, keep trading messages for a part of the
-        control period (lock-step, until the goal set's first agreement: for LOCKSTEP_ROUNDS rounds).
-        Otherwise a lock-step run gets one auction round per tick (the next pose is already waiting),
-        and a cold start of 100 robots took 300 ticks."""
-        if self.config.lockstep and self.auction.cold:
-            self._lockstep_rounds(bell)
-            return
-        share = AUCTION_SHARE_COLD if self.auction.cold else AUCTION_SHARE
-        end = time.monotonic() + share * self.params.dt
-        while self.auction.busy and self.running:
-            bell.clear()
-            self.auction.poll(self._positions())
-            remaining = end - time.monotonic()
-            if remaining <= 0:
-                return
-            bell.wait(min(remaining, self.auction.next_due()))
-
-    def _lockstep_rounds(self, bell: threading.Event) -> None:
+        control period (lock-step, until the goal set's first agreement: for LOCKSTEP_ROUNDS rounds,
+        ended early by a quiet auction). Otherwise a lock-step run gets one auction round per tick
+        (the next pose is already waiting), and a cold start of 100 robots took 300 ticks."""
         link = self.auction
-        enough = link.heard + LOCKSTEP_ROUNDS * max(1, len(link.others))
         start = last_news = time.monotonic()
+        by_rounds = self.config.lockstep and link.cold
+        if by_rounds:
+            enough, end = link.heard + LOCKSTEP_ROUNDS * max(1, len(link.others)), start + LOCKSTEP_CAP
+        else:
+            share = AUCTION_SHARE_COLD if link.cold else AUCTION_SHARE
+            enough, end = math.inf, start + share * self.params.dt
         while link.busy and self.running and link.heard < enough:
             bell.clear()
             heard = link.heard
@@ -367,9 +358,9 @@ class AgentHost:
             now = time.monotonic()
             if link.heard > heard:
                 last_news = now
-            if now - last_news >= LOCKSTEP_IDLE or now - start >= LOCKSTEP_CAP:
+            if now >= end or (by_rounds and now - last_news >= LOCKSTEP_IDLE):
                 return
-            bell.wait(min(LOCKSTEP_IDLE, link.next_due()))
+            bell.wait(min(end - now, LOCKSTEP_IDLE, link.next_due()))
 
     def _take_pose(self, pose: Pose) -> None:
         mem = self.memory.get(pose.robot)

@@ -10,10 +10,12 @@ over. Too long for the test suite (minutes on 2 cores); the suite plays four key
 robots (tests/test_animation.py).
 
     .venv/bin/python -m bench.bench_animation [--scene leaf] [-k 10]
+    .venv/bin/python -m bench.bench_animation --from RUN_DIR   # a finished `pixelswarm run leaf --engine distributed -k 10`
 """
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 import numpy as np
 
@@ -22,7 +24,7 @@ from coordinator.scene import load_scene
 from sim.metrics import keyframe_errors
 from transport.codec import State
 
-from .common import run_cli_scene, write_results
+from .common import load_run, run_cli_scene, write_results
 
 WITHIN = 0.03  # m: "reached" (tracking noise, actuation noise and ORCA's yielding on the way)
 
@@ -41,12 +43,14 @@ def main() -> int:
     parser = argparse.ArgumentParser()
     parser.add_argument("--scene", default="leaf")
     parser.add_argument("-k", type=int, default=10, help="robots per agent process")
+    parser.add_argument("--from", dest="run", type=Path,
+                        help="summarise this finished run of the scene instead of running it")
     args = parser.parse_args()
     scene = load_scene(args.scene)
     args_run = [args.scene, "--engine", "distributed", "-k", str(args.k)]
-    ran = run_cli_scene(args_run)
+    ran = load_run(args.run) if args.run else run_cli_scene(args_run)
     if ran is None:
-        return 1
+        return 2 if args.run else 1
     m, traj, wall = ran
     periods = [s.frame_period for s in scene.steps]
     per_frame = keyframe_errors(traj, scene.step_starts, periods, RobotParams.from_dict(scene.robot).v_max)

@@ -11,11 +11,10 @@ cores at the realtime factor measured, so ``--duration`` runs its first images o
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
-from .common import run_cli_scene, write_results
+from .common import load_run, run_cli_scene, steps_table, write_results
 
 SCENE = "paper-sequence-1000"
 
@@ -26,12 +25,7 @@ def summary(m: dict, wall: float, k: int) -> list[str]:
             f"{m['stepping_realtime_factor']:.3f}: {100 / m['stepping_realtime_factor']:.0f} ms of wall time per "
             f"0.1 s control step); contacts {m['contacts']}; min clearance "
             f"{m['min_clearance_m'] * 1e3:.1f} mm; missed ticks {m['missed_ticks']}; ORCA fallbacks "
-            f"{m.get('orca_fallbacks')}.", "",
-            "| image | shown from s | converged s after the change | max goal error at the end mm |",
-            "|---|---|---|---|"]
-    for s in m["steps"]:
-        converged = "not yet" if s["converged_at"] is None else f"{s['converged_at']:.1f}"
-        rows.append(f"| {s['index']} | {s['t_start']:.1f} | {converged} | {1e3 * s['max_goal_error_at_end']:.1f} |")
+            f"{m.get('orca_fallbacks')}.", "", *steps_table(m)]
     per_kind = ", ".join(f"{kind} {n:.1f}" for kind, n in sorted(m["messages_per_robot_s"].items()) if n >= 0.05)
     rows += ["", f"Messages per robot-second: {per_kind}; bytes per robot-second, all kinds: "
              f"{sum(m['bytes_per_robot_s'].values()):.0f}.", ""]
@@ -48,13 +42,12 @@ def main() -> int:
     commands = []
     if args.runs:
         for run in args.runs:
-            metrics = run / "metrics.json"
-            if not metrics.is_file():
-                print(f"error: {run} has no metrics.json", file=sys.stderr)
+            loaded = load_run(run)
+            if loaded is None:
                 return 2
-            m = json.loads(metrics.read_text())
+            m, _, wall = loaded
             k = m.get("agents_per_process") or args.k
-            lines += summary(m, m["wall_s"], k)
+            lines += summary(m, wall, k)
             commands.append(f"pixelswarm run {SCENE} --engine distributed -k {k} --duration {m['duration_s']:g} "
                             f"--no-video --out RUN")
         commands.append(".venv/bin/python -m bench.bench_hosted --from RUN ...")

@@ -15,7 +15,7 @@ import numpy as np
 
 from tests.assignment_quality import agreements
 
-from .common import run_cli_scene, write_results
+from .common import run_cli_scene, steps_table, write_results
 
 EPS_A, DELTA_C = 1e-3, 5e-3  # agent.core.params defaults
 
@@ -35,9 +35,7 @@ def main() -> int:
     gaps = rep.gaps()
     ok_steps = all(s["converged_at"] is not None and s["max_goal_error_at_end"] <= 0.01 for s in m["steps"])
     passed = m["contacts"] == 0 and ok_steps and not beyond and rep.inconsistent == 0 and rep.shared_goals == 0
-    rows = ["| step | converged s into hold | max goal error at end (mm) |", "|---|---|---|"]
-    rows += [f"| {s['index']} | {'never' if s['converged_at'] is None else round(s['converged_at'], 1)} | "
-             f"{1e3 * s['max_goal_error_at_end']:.1f} |" for s in m["steps"]]
+    rows = steps_table(m)
     notes = ["", f"Scene `{args.scene}`, {m['robots']} robots, {args.k} per agent process; wall {wall:.0f} s for "
              f"{m['duration_s']:.0f} s of display time; contacts {m['contacts']}; min clearance "
              f"{m['min_clearance_m'] * 1e3:.1f} mm.",

@@ -59,6 +59,21 @@ def write_results(name: str, title: str, command: str, lines: list[str]) -> Path
     return path
 
 
+def load_run(run: Path) -> tuple[dict, dict, float] | None:
+    """A finished distributed run directory as run_cli_scene returns it (its wall time from
+    metrics.json), or None after a one-line error."""
+    import numpy as np
+
+    if not (run / "metrics.json").is_file() or not (run / "trajectory.npz").is_file():
+        print(f"error: {run} is not a finished run directory (no metrics.json or trajectory.npz)", file=sys.stderr)
+        return None
+    m = json.loads((run / "metrics.json").read_text())
+    if m.get("engine") != "distributed":
+        print(f"error: {run} was run with the {m.get('engine')} engine, not the distributed one", file=sys.stderr)
+        return None
+    return m, dict(np.load(run / "trajectory.npz")), float(m["wall_s"])
+
+
 def run_cli_scene(args: list[str]) -> tuple[dict, dict, float] | None:
     """`pixelswarm run ARGS --out TMP --no-video -q` in a child process: (metrics, trajectory
     arrays, wall seconds), or None after printing the run's error output."""
@@ -74,3 +89,14 @@ def run_cli_scene(args: list[str]) -> tuple[dict, dict, float] | None:
             print(proc.stderr[-2000:], file=sys.stderr)
             return None
         return json.loads((out / "metrics.json").read_text()), dict(np.load(out / "trajectory.npz")), wall
+
+
+def steps_table(m: dict) -> list[str]:
+    """Per image of a run's metrics.json: when it was shown, when every robot was within the
+    convergence tolerance of a goal of its set (seconds after the change), the largest error at its end."""
+    rows = ["| image | shown from s | converged s after the change | max goal error at the end mm |",
+            "|---|---|---|---|"]
+    for s in m["steps"]:
+        converged = "not by its end" if s["converged_at"] is None else f"{s['converged_at']:.1f}"
+        rows.append(f"| {s['index']} | {s['t_start']:.1f} | {converged} | {1e3 * s['max_goal_error_at_end']:.1f} |")
+    return rows
