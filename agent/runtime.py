@@ -205,8 +205,9 @@ class AgentHost:
             self.goal_sets[goals.epoch] = goals
             for old in sorted(self.goal_sets)[:-GOAL_SETS_KEPT]:
                 del self.goal_sets[old]
+            follows = goals.follows or self.auction.epoch  # a keyframe names its predecessor; an image follows the last
             driving = {r: m.goal_index for r, m in self.memory.items()
-                       if m.goal_index >= 0 and m.assign_epoch == goals.follows}  # agreed or itself carried
+                       if m.goal_index >= 0 and m.assign_epoch == follows}  # agreed or itself carried
             carried = self.auction.on_goals(goals, self._positions(), driving)
             for r, g in carried.items():  # the next keyframe: drive on at once (6.2), the auction follows
                 self._drive_to(r, goals.epoch, CARRIED, g, goals.positions, goals.colors)

@@ -7,6 +7,7 @@ raises ``SceneError`` with one line saying what is wrong and how to fix it.
     robots = 20              # --robots overrides
     seed = 1
     clock = "lockstep"       # or "realtime"
+    deadline = 2.0           # lock-step: seconds the world waits for a late command (--deadline overrides)
     duration = 120.0         # seconds of display time at most
     [robot]                  # robot parameters (paper Table 1 defaults), e.g. kinematics = "holonomic"
     [layout]                 # kind = "circle" | "grid" | "random" | "rows" | "blocks" | "file"
@@ -73,6 +74,7 @@ class Scene:
     engine: str = "distributed"  # the default of `pixelswarm run --engine` for this scene
     assignment: str = "auction"  # central engine: the auction protocol, or scipy's optimum with Delta C
     agents_per_process: int = 1  # the default of `pixelswarm run -k` for this scene
+    deadline: float = 2.0  # lock-step: seconds the world waits for a late command (a missed tick after)
     duration: float = 120.0
     seed: int = 1
     noise: Noise = field(default_factory=Noise)
@@ -164,7 +166,7 @@ def scene_from_dict(data: dict[str, Any], *, source: str = "<dict>", robots: int
     where = source
     known = {"name", "robots", "seed", "clock", "duration", "robot", "layout", "goals", "arena", "obstacles",
              "events", "noise", "end", "description", "scripted", "pursuers", "steps", "animation", "engine",
-             "assignment", "agents_per_process"}
+             "assignment", "agents_per_process", "deadline"}
     unknown = set(data) - known
     if unknown:
         raise SceneError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
@@ -196,6 +198,7 @@ def scene_from_dict(data: dict[str, Any], *, source: str = "<dict>", robots: int
         engine=data.get("engine", "distributed"),
         assignment=data.get("assignment", "auction"),
         agents_per_process=data.get("agents_per_process", 1),
+        deadline=data.get("deadline", 2.0),
         duration=float(duration),
         seed=int(seed if seed is not None else data.get("seed", 1)),
         noise=_noise(data.get("noise", {}), where),
@@ -209,6 +212,9 @@ def scene_from_dict(data: dict[str, Any], *, source: str = "<dict>", robots: int
     k = scene.agents_per_process
     if not isinstance(k, int) or isinstance(k, bool) or k < 1:
         raise SceneError(f"{where}: agents_per_process must be a whole number >= 1, not {k!r}")
+    if not _positive(scene.deadline):
+        raise SceneError(f"{where}: deadline must be a positive number of seconds, not {scene.deadline!r}")
+    scene.deadline = float(scene.deadline)
     if scene.assignment not in ASSIGNMENTS:
         raise SceneError(f"{where}: assignment must be one of {', '.join(ASSIGNMENTS)}, not {scene.assignment!r}")
     scene.obstacles = [_polygon(o, where) for o in data.get("obstacles", [])]

@@ -61,7 +61,8 @@ def build_parser() -> argparse.ArgumentParser:
                           "says agents_per_process = K)")
     run.add_argument("--faults", default="", metavar="PLAN",
                      help="fault injection, e.g. 'state:drop=0.1,delay=0.05,jitter=0.01' (';' between kinds)")
-    run.add_argument("--deadline", type=float, default=2.0, help="lock-step: seconds to wait for late agents")
+    run.add_argument("--deadline", type=float, default=None,
+                     help="lock-step: seconds to wait for a late agent's command (default: the scene's, 2 s)")
     run.add_argument("--agents-connect", action="append", default=[], metavar="ENDPOINT",
                      help="spread agent processes over these routers, round robin (repeatable; default: ours)")
     run.add_argument("--display", default="default", help="display name (key prefix), for several swarms")
@@ -88,6 +89,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         faults = parse_faults(args.faults)
     except (SceneError, ValueError) as err:
         raise UsageError(str(err)) from None
+    if args.deadline is not None and not args.deadline > 0:
+        raise UsageError(f"--deadline must be a positive number of seconds, not {args.deadline}")
     out = args.out or default_run_path(scene.name)
     if out.exists() or out.with_name(out.name + ".partial").exists():
         raise UsageError(f"run directory {out} already exists; choose another --out")
@@ -107,7 +110,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     k = args.agents_per_process or scene.agents_per_process
     options = RunOptions(out=out, video=args.video, agents_per_process=k,
                          display=args.display, router=router, connect=[] if args.listen else list(args.connect),
-                         faults=faults, agent_routers=list(args.agents_connect), deadline=args.deadline, progress=None if args.quiet else sys.stderr)
+                         faults=faults, agent_routers=list(args.agents_connect), deadline=scene.deadline if args.deadline is None else args.deadline, progress=None if args.quiet else sys.stderr)
     try:
         path = Launcher(scene, options).run()
     except TransportError as err:

@@ -7,13 +7,13 @@ decides when the display has converged.
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 import typing
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import orjson
 
 from transport.bus import Bus
 from transport.codec import BY_NAME, Bid, Contact, DropCounter, Event, Goals, State, Truth, decode
@@ -29,7 +29,13 @@ def json_schema_of(message_type: type) -> dict[str, Any]:
     props = {}
     for f in dataclasses.fields(message_type):
         hint = hints.get(f.name)
-        props[f.name] = {"type": _JSON_TYPES[hint]} if hint in _JSON_TYPES else {"type": "array"}
+        if hint in _JSON_TYPES:
+            props[f.name] = {"type": _JSON_TYPES[hint]}
+        elif f.default_factory is not dataclasses.MISSING and getattr(f.default_factory(), "dtype", None) is not None \
+                and f.default_factory().dtype.names:
+            props[f.name] = {"type": "object"}  # records of several fields: one array per field (Bid)
+        else:
+            props[f.name] = {"type": "array"}
     return {"type": "object", "title": message_type.__name__, "properties": props}
 
 
@@ -96,8 +102,7 @@ class Recorder:
                 continue
             payload = msg.to_dict()
             payload["key"] = key
-            # Fixed-layout messages were validated finite: plain json.dumps is safe and 4x faster.
-            self._log(kind, wall, payload, fast=not isinstance(msg, (Truth, Goals)))
+            self._log(kind, wall, payload)
             if isinstance(msg, State):
                 self._on_state(msg)
             elif isinstance(msg, Truth):
@@ -178,7 +183,9 @@ class Recorder:
         return self.traj.t[-1] if self.traj.t else 0.0
 
     # --- mcap ---------------------------------------------------------------------------------
-    def _log(self, kind: str, wall: float, payload: dict[str, Any], fast: bool = False) -> None:
+    def _log(self, kind: str, wall: float, payload: dict[str, Any]) -> None:
+        """One message on its kind's channel, as JSON (orjson: numpy arrays as lists, NaN and inf as
+        null; at 1000 robots json.dumps of every message took a fifth of the recorder's time)."""
         if self.log is None:
             return
         cid = self._channels.get(kind)
@@ -186,10 +193,7 @@ class Recorder:
             schema = json_schema_of(BY_NAME[kind]) if kind in BY_NAME else {"type": "object"}
             name = BY_NAME[kind].__name__ if kind in BY_NAME else kind
             cid = self._channels[kind] = self.log.add_channel("/" + kind, f"pixelswarm.{name}", schema)
-        if fast:
-            self.log.write_bytes(cid, int(wall * 1e9), json.dumps(payload, separators=(",", ":")).encode())
-        else:
-            self.log.write(cid, int(wall * 1e9), payload)
+        self.log.write_bytes(cid, int(wall * 1e9), orjson.dumps(payload, option=orjson.OPT_SERIALIZE_NUMPY))
 
     def close_log(self) -> None:
         if self.log is not None:

@@ -318,9 +318,10 @@ class Bid(Message):
         return cls(epoch, instance, sender, serial, digest, count, items.copy())
 
     def to_dict(self) -> dict[str, Any]:
+        """Records as columns (one array per field): a host's message holds up to K records, and a
+        dict per record made the recorder's log of a 1000-robot auction cost more than the auction."""
         out = {name: getattr(self, name) for name in self.field_names() if name != "records"}
-        out["records"] = [{k: (v.item() if hasattr(v, "item") else v) for k, v in zip(self._item.names, r)}
-                          for r in self.records]
+        out["records"] = {k: self.records[k] for k in self._item.names}
         return out
 
 
