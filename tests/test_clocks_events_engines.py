@@ -79,7 +79,21 @@ def test_shipped_scenes_load(name):
     ({"robots": 3, "events": [{"kind": "teleport", "robot": 9, "t": 1.0, "pose": [0, 0, 0]}]}, "robot must be"),
     ({"robots": 3, "scripted": [{"robot": 0, "waypoints": [[1, 0, 0]]}]}, "waypoints"),
     ({"robots": 3, "colour": "red"}, "unknown key"),
+    ({"robots": 3, "deadline": 0}, "deadline must be"),
 ])
 def test_invalid_scenes_say_what_is_wrong(data, message):
     with pytest.raises(SceneError, match=message):
         scene_from_dict(data)
+
+
+def test_a_scene_sets_the_lock_step_deadline_and_the_command_line_checks_its_own(tmp_path, capsys):
+    """A scene whose agents take longer than 2 s at an image change (1000 robots match the goal sets)
+    names its own deadline; a bad --deadline is a one-line usage error that starts nothing."""
+    from sim.cli import main
+
+    assert load_scene("paper-sequence-1000").deadline == 8.0
+    assert scene_from_dict({"robots": 3}).deadline == 2.0
+    out = tmp_path / "run"
+    assert main(["run", "circle", "--robots", "3", "--deadline", "-1", "--out", str(out)]) == 2
+    assert "--deadline must be a positive number" in capsys.readouterr().err
+    assert not out.exists() and not out.with_name("run.partial").exists()
