@@ -39,6 +39,13 @@ def json_schema_of(message_type: type) -> dict[str, Any]:
     return {"type": "object", "title": message_type.__name__, "properties": props}
 
 
+def _as_list(value: Any) -> Any:
+    """What orjson leaves to us: numpy arrays that are views with strides (e.g. a column of records)."""
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"cannot log a {type(value).__name__} as JSON")
+
+
 @dataclass
 class Trajectory:
     """Per-tick arrays, grown as truth messages arrive."""
@@ -193,7 +200,7 @@ class Recorder:
             schema = json_schema_of(BY_NAME[kind]) if kind in BY_NAME else {"type": "object"}
             name = BY_NAME[kind].__name__ if kind in BY_NAME else kind
             cid = self._channels[kind] = self.log.add_channel("/" + kind, f"pixelswarm.{name}", schema)
-        self.log.write_bytes(cid, int(wall * 1e9), orjson.dumps(payload, option=orjson.OPT_SERIALIZE_NUMPY))
+        self.log.write_bytes(cid, int(wall * 1e9), orjson.dumps(payload, default=_as_list, option=orjson.OPT_SERIALIZE_NUMPY))
 
     def close_log(self) -> None:
         if self.log is not None:
