@@ -26,19 +26,6 @@ from .session import ZenohSettings, open_session
 _NO_FAULT = FaultSpec()
 
 
-def _direct(callback: Callable[[zenoh.Sample], None]) -> Any:
-    """Run a subscriber's callback on zenoh's own receiving thread. By default zenoh-python gives
-    every subscriber a Python thread of its own: an agent host of 250 robots, subscribed to their
-    poses and to the cells around them, ran 900 threads fighting for the GIL, and at 1000 robots
-    the hosts idled waiting for each other. Our callbacks only decode and queue (they never block
-    and never call zenoh), which is what running on the receiving thread asks of them. zenoh marks
-    the switch unstable: where it is missing, the default applies."""
-    try:
-        return zenoh.handlers.Callback(callback, indirect=False)
-    except (AttributeError, TypeError):
-        return callback
-
-
 def _drain(q: "queue.SimpleQueue", limit: int | None = None) -> list:
     """Everything waiting in a queue (at most ``limit`` items), without blocking."""
     out: list = []
@@ -205,7 +192,7 @@ class Bus:
 
     def subscribe_into(self, keyexpr: str, inbox: Inbox) -> Any:
         """Add another key expression feeding an existing inbox; returns the subscriber to undeclare."""
-        sub = self.session.declare_subscriber(keyexpr, _direct(inbox._on_sample))
+        sub = self.session.declare_subscriber(keyexpr, inbox._on_sample)
         self._subscriptions.append(sub)
         return sub
 
@@ -216,7 +203,7 @@ class Bus:
 
     def subscribe_raw(self, keyexpr: str) -> RawInbox:
         inbox = RawInbox()
-        inbox.subscriber = self.session.declare_subscriber(keyexpr, _direct(inbox._on_sample))
+        inbox.subscriber = self.session.declare_subscriber(keyexpr, inbox._on_sample)
         self._subscriptions.append(inbox.subscriber)
         return inbox
 
@@ -242,7 +229,7 @@ class Bus:
     def watch_alive(self, role: str | None = None) -> LivelinessWatch:
         watch = LivelinessWatch()
         watch.subscriber = self.session.liveliness().declare_subscriber(
-            self.keys.alive_all(role), history=True, handler=_direct(watch._on_sample))
+            self.keys.alive_all(role), history=True, handler=watch._on_sample)
         self._subscriptions.append(watch.subscriber)
         return watch
 
