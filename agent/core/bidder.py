@@ -72,7 +72,8 @@ def bid_position(position: np.ndarray, goal: np.ndarray, velocity: np.ndarray, l
 
 def frames_close(before: np.ndarray, goals: np.ndarray, previous: np.ndarray) -> bool:
     """Whether consecutive keyframes differ little enough for the auction to start from the carried
-    assignment (Participant.carry): their corresponding goals are on average at most one and a half
+    assignment (Participant.carry) at prices zero, when goal_matching's warm start does not apply (the
+    last auction never agreed, or the robots changed): corresponding goals on average at most one and a half
     typical goal spacings (the median distance from a goal to its nearest neighbour) apart. Measured
     (bench/bench_carry.py, 100 robots in 10 hosts): at 0.3 and 1.0 spacings the carried claims agree in
     5 and 126 message rounds against a cold start's 147 and 267; at 2.7 they need 1181 against 461."""
