@@ -209,7 +209,7 @@ class AgentHost:
             driving = {r: m.goal_index for r, m in self.memory.items()
                        if m.goal_index >= 0 and m.assign_epoch == follows}  # agreed or itself carried
             carried = self.auction.on_goals(goals, self._positions(), driving)
-            for r, g in carried.items():  # the next keyframe: drive on at once (6.2), the auction follows
+            for r, g in carried.items():  # the next keyframe or image: drive on at once (6.2), the auction follows
                 self._drive_to(r, goals.epoch, CARRIED, g, goals.positions, goals.colors)
             for r in self.auction.idle_robots():
                 if r in self.config.pursue:

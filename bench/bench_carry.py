@@ -69,6 +69,14 @@ def agree(parts: list[Participant], positions: np.ndarray, max_rounds: int = 100
     raise RuntimeError("no agreement")
 
 
+def start_from_matching(parts: list[Participant], first: list[Participant], g1: np.ndarray, g2: np.ndarray) -> None:
+    """What the agents do after an agreed frame (agent.assignment.AuctionLink._warm_start): claims and
+    prices from the goal sets' matching."""
+    matched, prices = goal_matching(g1, g2, EPS, HYSTERESIS)
+    for new, old in zip(parts, first):
+        new.carry(old, matched, prices=prices)
+
+
 def paper_transition(n: int = 1000, k: int = 4, steps: tuple[int, int] = (0, 1)) -> list[str]:
     """The paper's sequence at 1000 robots (scene paper-sequence-1000), its first transition (disk to
     disk and line): robots 2 mm off the disk's goals, in 4 hosts of 250, the auction cold and from
@@ -89,9 +97,7 @@ def paper_transition(n: int = 1000, k: int = 4, steps: tuple[int, int] = (0, 1))
         parts = [Participant(2, g2, robots, h, EPS, HYSTERESIS) for h in hosts]
         t0 = time.perf_counter()
         if start != "cold":
-            matched, prices = goal_matching(g1, g2, EPS, HYSTERESIS)
-            for new, old in zip(parts, first):
-                new.carry(old, matched, prices=prices)
+            start_from_matching(parts, first, g1, g2)
         rounds = agree(parts, pos)
         out.append(f"| {start} | {sum(p.bids for p in parts)} | {rounds} | {time.perf_counter() - t0:.2f} |")
         print(out[-1], flush=True)
@@ -126,10 +132,8 @@ def main(argv: list[str] | None = None) -> int:
         for start in ("cold", "carried, prices zero", "carried, prices carried", "goal matching, its prices"):
             parts = [Participant(2, g2, robots, h, EPS, HYSTERESIS) for h in hosts]
             t0 = time.perf_counter()
-            if start.startswith("goal matching"):  # what the agents do after an agreed frame (AuctionLink._warm_start)
-                matched, prices = goal_matching(g1, g2, EPS, HYSTERESIS)
-                for new, old in zip(parts, first):
-                    new.carry(old, matched, prices=prices)
+            if start.startswith("goal matching"):
+                start_from_matching(parts, first, g1, g2)
             elif start != "cold":
                 for new, old in zip(parts, first):
                     new.carry(old, previous)

@@ -29,10 +29,10 @@ def json_schema_of(message_type: type) -> dict[str, Any]:
     props = {}
     for f in dataclasses.fields(message_type):
         hint = hints.get(f.name)
+        default = f.default_factory() if f.default_factory is not dataclasses.MISSING else None
         if hint in _JSON_TYPES:
             props[f.name] = {"type": _JSON_TYPES[hint]}
-        elif f.default_factory is not dataclasses.MISSING and getattr(f.default_factory(), "dtype", None) is not None \
-                and f.default_factory().dtype.names:
+        elif getattr(getattr(default, "dtype", None), "names", None):
             props[f.name] = {"type": "object"}  # records of several fields: one array per field (Bid)
         else:
             props[f.name] = {"type": "array"}

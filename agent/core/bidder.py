@@ -91,9 +91,9 @@ def frames_close(before: np.ndarray, goals: np.ndarray, previous: np.ndarray) ->
 
 def goal_matching(before: np.ndarray, goals: np.ndarray, eps: float, hysteresis: float = 0.0
                   ) -> tuple[np.ndarray, np.ndarray]:
-    """A warm start for the auction of the next image (paper 7.2's sequences) from what every host
-    knows alike, the two goal sets: the auction's own assignment of the last image's goals to this
-    image's goals, run in-process as if a robot stood on each old goal. Returns ``previous`` (per new
+    """A warm start for the auction of the next image of a sequence (paper 7.2) or keyframe of an
+    animation (6.1) from what every host knows alike, the two goal sets: the auction's own assignment
+    of the last set's goals to this set's goals, run in-process as if a robot stood on each old goal. Returns ``previous`` (per new
     goal, the old goal matched to it, as Participant.carry takes it) and the prices that settled it.
 
     Robots stand within a few millimetres of their goals once an image has formed, so these prices
