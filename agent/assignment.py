@@ -100,8 +100,7 @@ class AuctionLink:
                                 self.params.assign_eps, self.params.assign_hysteresis)
         carried = {}
         if self._warm_start(before, goals):
-            previous, prices = goal_matching(before.goals, goals.positions, self.params.assign_eps,
-                                             self.params.assign_hysteresis)
+            previous, prices = goal_matching(before.goals, goals.positions)
             carried = self.part.carry(before, previous, current=current, prices=prices)
         elif goals.follows and before is not None and before.epoch == goals.follows:
             close = before.agreed_instance >= 0 and frames_close(before.goals, goals.positions, goals.previous)

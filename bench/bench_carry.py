@@ -72,7 +72,7 @@ def agree(parts: list[Participant], positions: np.ndarray, max_rounds: int = 100
 def start_from_matching(parts: list[Participant], first: list[Participant], g1: np.ndarray, g2: np.ndarray) -> None:
     """What the agents do after an agreed frame (agent.assignment.AuctionLink._warm_start): claims and
     prices from the goal sets' matching."""
-    matched, prices = goal_matching(g1, g2, EPS, HYSTERESIS)
+    matched, prices = goal_matching(g1, g2)
     for new, old in zip(parts, first):
         new.carry(old, matched, prices=prices)
 

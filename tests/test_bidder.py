@@ -272,3 +272,20 @@ def test_cached_best_goals_are_a_full_ranking_after_every_round(n: int, g_extra:
         assert p.is_agreed
         p.penalise(int(rng.integers(n)), int(rng.integers(len(goals))), 0.3)
         pos = pos + rng.normal(0, 0.05, pos.shape)
+
+
+def test_a_robot_is_content_with_the_goal_it_just_won_whatever_the_prices() -> None:
+    """A bid leaves the bidder's value of its goal epsilon below its next best; in floats that can land
+    an ulp short. Without a margin for it, 33 of these 2000 robots gave their new goal up at once and
+    bid again: in a warm start of 1000 robots at prices near 8000 every such bid released a goal, and
+    4 hosts fought a price war that never ended."""
+    rebid = 0
+    for seed in range(2000):
+        rng = np.random.default_rng(seed)
+        goals = rng.uniform(0.0, 30.0, (5, 2))
+        part = Participant(1, goals, [0, 1], [0], 1e-3)
+        part.board.price[:] = rng.uniform(7000.0, 9000.0, 5)
+        part.begin(part.phases - 1, {0: rng.uniform(0.0, 30.0, 2)})  # the final phase: it bids at once
+        assert part.goal[0] >= 0
+        rebid += part.bid()
+    assert rebid == 0
