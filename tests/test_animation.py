@@ -62,7 +62,7 @@ def test_eq_27_is_held_k_f_iterations_and_arrives_in_k_f_dt_when_the_speed_allow
     goal = np.array([[0.3, -0.2], [1.0, 1.45], [0.0, 0.0]])  # 0.36 m, 0.45 m: < 0.52 m = v_max K_f dt; 1 m: not
     prefs, path = simulate_hold(start, goal, k_f, 60)
     assert np.isfinite(prefs[:k_f]).all() and np.isnan(prefs[k_f:]).all()  # held K_f iterations, then eq. 9
-    np.testing.assert_array_equal(prefs[:k_f], np.broadcast_to(prefs[0], prefs[:k_f].shape))  # constant
+    np.testing.assert_allclose(prefs[:k_f], np.broadcast_to(prefs[0], prefs[:k_f].shape), atol=1e-12)  # constant
     speeds = np.hypot(*prefs[0].T)
     assert speeds[:2] == pytest.approx(np.hypot(*(goal - start)[:2].T) / (k_f * DT))
     assert speeds[2] == pytest.approx(0.13)  # capped at v_max
@@ -82,7 +82,22 @@ def test_a_late_or_new_goal_uses_what_is_left_of_the_frame():
     assert pref[0] == pytest.approx([0.1, 0.0]) and left[0] == 34  # 0.35 m over the 35 iterations left
     assert np.isnan(pref[1]).all() and left[1] == 0  # the frame is over: eq. 9, and the old hold ends
     pref, _, left = frame_hold(position, goal, np.array([False, False]), np.array([35, 0]), held, left, 0.13, DT)
-    assert pref[0] == pytest.approx([0.1, 0.0]) and left[0] == 33  # held, not recomputed from the new position
+    assert pref[0] == pytest.approx([0.35 / 3.4, 0.0]) and left[0] == 33  # it did not move: it catches up
+
+
+def test_a_robot_held_up_during_the_hold_still_arrives_when_the_frame_ends():
+    """Collision avoidance may slow a robot down in a keyframe; eq. 27's arrival time is held, not its
+    velocity, so it catches up while the speed allows (a velocity held constant arrives late by what
+    was lost)."""
+    k_f, v_max = 40, 0.13
+    position, goal = np.zeros((1, 2)), np.array([[0.3, 0.0]])  # 0.3 m in 4 s: 0.075 m/s, v_max 0.13 m/s
+    held, left = np.zeros((1, 2)), np.zeros(1, np.int64)
+    for tick in range(k_f):
+        pref, held, left = frame_hold(position, goal, np.array([tick == 0]), np.array([k_f]), held, left, v_max, DT)
+        assert np.hypot(*pref[0]) <= v_max + 1e-12
+        if not 5 <= tick < 15:  # a neighbour in the way for a second: it stands still
+            position = position + DT * pref
+    np.testing.assert_allclose(position, goal, atol=1e-12)
 
 
 def test_control_step_takes_the_preferred_velocity_given():
