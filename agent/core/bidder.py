@@ -345,16 +345,16 @@ class Participant:
         6.1; ``previous[j]``: the goal of ``before`` that goal j continues, -1 none): a robot driving to
         goal i there gets i's successor. ``current``: each own robot's goal in ``before`` (the one it
         drives to: agreed, or itself carried when that auction never agreed); by default its goal in
-        ``before``'s last agreed instance, or its claim on the board when none was agreed. Returns the own robots' carried goals (robot -> goal), which they drive to
-        until this auction agrees.
+        ``before``'s last agreed instance, or its claim on the board when none was agreed. Returns
+        the own robots' carried goals (robot -> goal), which they drive to until this auction agrees.
 
         With ``claim`` the auction also starts from it: each robot claims its carried goal at price
         zero where ``before``'s last agreed board says it owns the goal it continues. Every host
         adopted that board alike; the live one may be in the middle of the next instance (paper 5.1
         re-assigns every iteration). Replayed from a 1000-robot run in 4 hosts whose new image came
-        while 4 robots were between goals: 165 message rounds from the agreed board, 359 from the live one. When the frames differ
-        little most robots are then content at once, and agreement takes a few message rounds
-        instead of a cold start's hundreds; when they differ much, the claims skip the coarse epsilon
+        while 4 robots were between goals: 165 message rounds from the agreed board, 359 from the
+        live one. When the frames differ little most robots are then content at once, and agreement
+        takes a few message rounds instead of a cold start's hundreds; when they differ much, the claims skip the coarse epsilon
         phases that build the prices, and the fine ones fight a price war that costs more than a cold
         start (bench/bench_carry.py; see frames_close). Carrying the prices too costs more in both
         cases: they are in equilibrium for the old costs only. ``prices`` (with ``claim``): prices in
