@@ -58,8 +58,7 @@ class RobotMemory:
     blocked: int = 0  # consecutive iterations near the goal with v_cf far from v_pref (deadlock, 5.5.5)
     stamp: float = 0.0  # display time of `position`
     goal0: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))  # the agreed goal in G^0 (eq. 28 at t=0)
-    held: np.ndarray = field(default_factory=lambda: np.zeros(2))  # eq. 27's velocity, held in a keyframe
-    hold_left: int = 0  # iterations it is still held
+    hold_left: int = 0  # iterations eq. 27's hold still lasts in a keyframe
     hold_for: tuple[int, int] = (0, -1)  # (epoch, goal index) the held velocity was computed for
 
 
@@ -456,11 +455,10 @@ class AgentHost:
             restart = np.array([k != m.hold_for for k, m in zip(key, mems)])
             iterations = np.array([iterations_left(gs.t_start, gs.frame_period, stamp, p.dt) if f else 0
                                    for gs, f in zip(sets, keyframe)])
-            pref, held, left = frame_hold(position, np.array([m.goal for m in mems]), restart, iterations,
-                                          np.array([m.held for m in mems]), np.array([m.hold_left for m in mems]),
-                                          p.v_max, p.dt)
+            pref, left = frame_hold(position, np.array([m.goal for m in mems]), restart, iterations,
+                                    np.array([m.hold_left for m in mems]), p.v_max, p.dt)
             for i, m in enumerate(mems):
-                m.held, m.hold_left = held[i], int(left[i])
+                m.hold_left = int(left[i])
                 if restart[i]:
                     m.hold_for = key[i]
             preferred = np.where(np.isfinite(pref), pref, preferred)

@@ -35,8 +35,8 @@ EXPLAIN = ("Robots stand on frame f-1's goals; frame f is that frame moved and t
 MATCHING = ("What the agents do (`agent.assignment.AuctionLink._warm_start`): after an agreed frame every host "
             "computes the same matching of frame f-1's goals to frame f's, with prices in equilibrium for it "
             "(`agent.core.bidder.goal_matching`: scipy's `linear_sum_assignment` as if a robot stood on each old "
-            "goal, its dual prices by shortest paths; its wall time is included), each robot claims the goal its last one is matched to, and the "
-            "auction starts from those claims and prices. The prices are nearly in equilibrium for the real "
+            "goal, its dual prices by shortest paths; its wall time is included), each robot claims the goal its "
+            "last one is matched to, and the auction starts from those claims and prices. The prices are nearly in equilibrium for the real "
             "positions, whatever the frames' disparity. `frames_close` now only decides for a frame whose "
             "robots changed (a robot died).")
 RULE = ("The rule (`agent.core.bidder.frames_close`): start from the carried claims when corresponding goals are on "

@@ -113,7 +113,7 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
     auction: Participant | None = None  # image scenes: the auction of the shown goal set
     assignment = np.where(has_goal, ids, -1)  # goal index per robot (scene goals: its own)
     velocity = np.zeros((n, 2))
-    held, left, hold_for = np.zeros((n, 2)), np.zeros(n, np.int64), np.full(n, -1)  # eq. 27's hold per robot
+    left, hold_for = np.zeros(n, np.int64), np.full(n, -1)  # eq. 27's hold per robot
     motion: GoalMotion | None = None
     assigned_at: float | None = None  # when the shown goal set was last assigned
     if any(e["kind"] == "fail" for e in scene.events):
@@ -170,8 +170,8 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
                 has_goal = assignment >= 0
                 goal = np.where(has_goal[:, None], goal_set[assignment], np.nan)
                 color = np.where(has_goal[:, None], goal_colors[assignment], 40).astype(np.uint8)
-                preferred, held, left = _preferred(scene, params, k, motion, t - t_start, t, measured[:, :2], goal,
-                                                   assignment, hold_for, held, left)
+                preferred, left = _preferred(scene, params, k, motion, t - t_start, t, measured[:, :2], goal,
+                                             assignment, hold_for, left)
                 if motion is not None:
                     goal = motion.positions(goal, t - t_start)
                 hold_for = assignment.copy()
@@ -231,16 +231,15 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
 
 def _preferred(scene: Scene, params, k: int, motion: GoalMotion | None, t_rel: float, t: float,
                position: np.ndarray, goal0: np.ndarray, assignment: np.ndarray, hold_for: np.ndarray,
-               held: np.ndarray, left: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               left: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Preferred velocities where eq. 9 does not apply (NaN rows), as agent.runtime computes them:
     toward a moving goal v_goal + eq. 9 (eq. 28); in a keyframe eq. 27, held K_f iterations from
-    the robot's goal change. Returns (preferred, held, left)."""
+    the robot's goal change. Returns (preferred, left)."""
     if motion is not None:
         pref = tracking_velocity(position, motion.positions(goal0, t_rel), motion.velocities(goal0, t_rel),
                                  params.v_pref, params.k_a, params.v_max)
-        return pref, held, np.zeros_like(left)
+        return pref, np.zeros_like(left)
     period = scene.steps[k].frame_period
     iterations = iterations_left(scene.step_starts[k], period, t, params.dt) if period > 0 else 0
     restart = assignment != hold_for
-    return frame_hold(position, goal0, restart, np.full(len(position), iterations), held, left, params.v_max,
-                      params.dt)
+    return frame_hold(position, goal0, restart, np.full(len(position), iterations), left, params.v_max, params.dt)

@@ -43,11 +43,11 @@ def test_eq_27_covers_the_distance_in_k_f_periods_capped_at_v_max():
 def simulate_hold(position: np.ndarray, goal: np.ndarray, k_f: int, ticks: int, v_max: float = 0.13):
     """A holonomic point robot that moves exactly with its preferred velocity: frame_hold, else eq. 9."""
     n = len(position)
-    held, left = np.zeros((n, 2)), np.zeros(n, np.int64)
+    left = np.zeros(n, np.int64)
     restart = np.ones(n, bool)
     prefs, path = [], [position.copy()]
     for _ in range(ticks):
-        pref, held, left = frame_hold(position, goal, restart, np.full(n, k_f), held, left, v_max, DT)
+        pref, left = frame_hold(position, goal, restart, np.full(n, k_f), left, v_max, DT)
         restart[:] = False
         prefs.append(pref)
         step = np.where(np.isfinite(pref), pref, 0.0)
@@ -77,11 +77,11 @@ def test_a_late_or_new_goal_uses_what_is_left_of_the_frame():
     assert iterations_left(20.0, 5.0, 26.0, DT) == 0
     np.testing.assert_array_equal(iterations_left(np.array([0.0, 10.0]), 5.0, np.array([1.0, 10.0]), DT), [40, 50])
     position, goal = np.zeros((2, 2)), np.array([[0.35, 0.0], [0.35, 0.0]])
-    held, left = np.zeros((2, 2)), np.array([12, 12])
-    pref, held, left = frame_hold(position, goal, np.array([True, True]), np.array([35, 0]), held, left, 0.13, DT)
+    left = np.array([12, 12])
+    pref, left = frame_hold(position, goal, np.array([True, True]), np.array([35, 0]), left, 0.13, DT)
     assert pref[0] == pytest.approx([0.1, 0.0]) and left[0] == 34  # 0.35 m over the 35 iterations left
     assert np.isnan(pref[1]).all() and left[1] == 0  # the frame is over: eq. 9, and the old hold ends
-    pref, _, left = frame_hold(position, goal, np.array([False, False]), np.array([35, 0]), held, left, 0.13, DT)
+    pref, left = frame_hold(position, goal, np.array([False, False]), np.array([35, 0]), left, 0.13, DT)
     assert pref[0] == pytest.approx([0.35 / 3.4, 0.0]) and left[0] == 33  # it did not move: it catches up
 
 
@@ -91,9 +91,9 @@ def test_a_robot_held_up_during_the_hold_still_arrives_when_the_frame_ends():
     was lost)."""
     k_f, v_max = 40, 0.13
     position, goal = np.zeros((1, 2)), np.array([[0.3, 0.0]])  # 0.3 m in 4 s: 0.075 m/s, v_max 0.13 m/s
-    held, left = np.zeros((1, 2)), np.zeros(1, np.int64)
+    left = np.zeros(1, np.int64)
     for tick in range(k_f):
-        pref, held, left = frame_hold(position, goal, np.array([tick == 0]), np.array([k_f]), held, left, v_max, DT)
+        pref, left = frame_hold(position, goal, np.array([tick == 0]), np.array([k_f]), left, v_max, DT)
         assert np.hypot(*pref[0]) <= v_max + 1e-12
         if not 5 <= tick < 15:  # a neighbour in the way for a second: it stands still
             position = position + DT * pref

@@ -44,23 +44,19 @@ def iterations_left(t_start: ArrayLike, frame_period: ArrayLike, t: ArrayLike, d
 
 
 def frame_hold(position: ArrayLike, goal: ArrayLike, restart: ArrayLike, iterations: ArrayLike,
-               held: ArrayLike, left: ArrayLike, v_max: float, dt: float
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               left: ArrayLike, v_max: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """One control iteration of eq. 27's hold for a batch.
 
     restart (B,) bool: the robot's goal changed (a new frame, or reassigned within one): it takes
     eq. 27 toward the new goal over ``iterations`` (B,) periods (K_f, or what is left of the frame),
-    and each later iteration of the hold eq. 27 over the periods left. held (B,2) and left (B,) are
-    the velocity of the last iteration and the iterations the hold still lasts.
-    Returns (preferred velocity (B,2), NaN rows where no hold applies and eq. 9 is used, the new
-    held, the new left).
+    and each later iteration of the hold eq. 27 over the periods left. left (B,): the iterations the
+    hold still lasts. Returns (preferred velocity (B,2), NaN rows where no hold applies and eq. 9 is
+    used, the new left).
     """
     p = np.asarray(position, float)
     restart = np.asarray(restart, bool)
     k = np.maximum(np.asarray(iterations, np.int64), 0)
     left = np.where(restart, k, np.asarray(left, np.int64))  # a goal after its frame ended: no hold, eq. 9
     holding = left > 0
-    held = np.where(holding[:, None], synchronised_velocity(p, goal, v_max, np.maximum(left, 1), dt),
-                    np.asarray(held, float))
-    pref = np.where(holding[:, None], held, np.nan)
-    return pref, held, np.where(holding, left - 1, 0)
+    pref = np.where(holding[:, None], synchronised_velocity(p, goal, v_max, np.maximum(left, 1), dt), np.nan)
+    return pref, np.where(holding, left - 1, 0)
