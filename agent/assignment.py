@@ -28,9 +28,10 @@ QUIET = 0.02  # digest-only news waits until the board has not changed for this 
 RESEND_BUSY = 0.25  # a lost message stalls a phase until a resend: short while an instance is open
 RESEND_PER_ROBOT = 0.01  # ... but every resend reaches every host: the backstop grows with the swarm
 RESEND_IDLE = 1.0
-MAX_LEAD = 4.0  # s: the longest latency the robots' bid positions compensate (core.bidder.bid_position)
+MAX_LEAD = 15.0  # s: the longest latency the robots' bid positions compensate (core.bidder.bid_position)
 
 OnAgreed = Callable[[int, int, dict[int, int], np.ndarray, np.ndarray], None]
+Where = Callable[[], dict[int, np.ndarray]]
 
 
 assert RECORD == Bid._item, "the bidder's records are the wire layout of Bid"
@@ -39,8 +40,12 @@ assert RECORD == Bid._item, "the bidder's records are the wire layout of Bid"
 class AuctionLink:
     """The auction of one host's robots: goal sets in, agreed goals out through ``on_agreed``."""
 
-    def __init__(self, bus: Bus, robots: list[int], params: RobotParams, on_agreed: OnAgreed) -> None:
+    def __init__(self, bus: Bus, robots: list[int], params: RobotParams, on_agreed: OnAgreed,
+                 where: Where | None = None) -> None:
+        """``where``: the own robots' bid positions now (the runtime's), asked again when an agreement
+        was handed to ``on_agreed`` just before a new block freezes its positions."""
         self.bus, self.robots, self.params, self.on_agreed = bus, sorted(robots), params, on_agreed
+        self.where = where
         self.inbox = bus.subscribe(bus.keys.all_of("auction"), Bid)
         self.sender = self.robots[0]
         self.part: Participant | None = None
@@ -136,8 +141,14 @@ class AuctionLink:
 
     def _begin(self, instance: int, positions: dict[int, np.ndarray]) -> None:
         """Begin an instance; note when this host froze the positions of a new block of phases (the
-        auction's latency, which the robots' bid positions compensate, runs from there)."""
+        auction's latency, which the robots' bid positions compensate, runs from there). A later
+        instance proves ours agreed: its agreement goes to the robots first, so the new block
+        freezes where they are going now, not where the last agreement but one sent them."""
         part = self.part
+        if part.started and not part.is_agreed and instance > part.instance:
+            part.adopt_if_settled()
+        if self._report() and self.where is not None:
+            positions = self.where()
         part.begin(instance, positions)
         block = part.instance // part.phases
         if block not in self.frozen_at:
@@ -218,16 +229,23 @@ class AuctionLink:
             part.check_agreement()
             if part.is_agreed or part.instance == instance:
                 break
-        if part.agreed_instance > self.reported:
-            if self.reported < 0:  # the first agreement on this goal set
-                self.first_agreement_s.append(time.monotonic() - self.epoch_wall)
-            self.reported = part.agreed_instance
-            self.agreements += 1
-            frozen = self.frozen_at.get(part.agreed_instance // part.phases)
-            if frozen is not None:
-                self.latency = min(MAX_LEAD, max(0.0, self.now - frozen))
-            gs = self.goal_set
-            self.on_agreed(part.epoch, part.agreed_instance, dict(part.agreed), gs.positions, gs.colors)
+        self._report()
+
+    def _report(self) -> bool:
+        """Hand a new agreement to on_agreed (once per agreed instance); True when there was one."""
+        part = self.part
+        if part.agreed_instance <= self.reported:
+            return False
+        if self.reported < 0:  # the first agreement on this goal set
+            self.first_agreement_s.append(time.monotonic() - self.epoch_wall)
+        self.reported = part.agreed_instance
+        self.agreements += 1
+        frozen = self.frozen_at.get(part.agreed_instance // part.phases)
+        if frozen is not None:
+            self.latency = min(MAX_LEAD, max(0.0, self.now - frozen))
+        gs = self.goal_set
+        self.on_agreed(part.epoch, part.agreed_instance, dict(part.agreed), gs.positions, gs.colors)
+        return True
 
     def _publish(self) -> None:
         part = self.part

@@ -105,6 +105,9 @@ AUCTION_SHARE_COLD = 0.8  # ... until the newest goal set's first agreement: rob
 # from each other host. 10 per period is what AUCTION_SHARE_COLD buys on an unloaded machine. Warm
 # instances agree in a few rounds and keep AUCTION_SHARE.
 LOCKSTEP_ROUNDS = 10
+LOCKSTEP_ROUNDS_WARM = 3  # ... and for the re-assignment instances after it (paper 5.1): at 1000 robots in 4
+# hosts a warm block took up to 20 s of display by wall time (AUCTION_SHARE buys less than one round
+# there), long enough for its assignment to be stale when adopted
 LOCKSTEP_IDLE = 0.15  # s of wall time without a message that ends a tick's rounds (the auction is quiet)
 LOCKSTEP_CAP = 1.0  # s of wall time a tick's rounds may take at most: the next tick's pose waits meanwhile,
 # and the world counts a missed tick after 2 s (at 1000 robots in 4 hosts a 2 s cap missed 216 robot-ticks)
@@ -170,7 +173,7 @@ class AgentHost:
             bus.subscribe_into(self.keys.state_of(target), self.state_inbox)
         self.goal_inbox = bus.subscribe(self.keys.all_of("goals"), Goals)
         self.goal_sets: dict[int, Goals] = {}  # the latest auctioned goal sets by epoch (timing, motion)
-        self.auction = AuctionLink(bus, config.robots, self.params, self._on_agreed)
+        self.auction = AuctionLink(bus, config.robots, self.params, self._on_agreed, where=self._positions)
         self.alive = bus.watch_alive("agent")
         self.dead: set[int] = set()  # robots whose agent died: their bodies stand still (5.1.2)
         self.running = True
@@ -345,9 +348,10 @@ class AgentHost:
         (the next pose is already waiting), and a cold start of 100 robots took 300 ticks."""
         link = self.auction
         start = last_news = time.monotonic()
-        by_rounds = self.config.lockstep and link.cold
+        by_rounds = self.config.lockstep
         if by_rounds:
-            enough, end = link.heard + LOCKSTEP_ROUNDS * max(1, len(link.others)), start + LOCKSTEP_CAP
+            rounds = LOCKSTEP_ROUNDS if link.cold else LOCKSTEP_ROUNDS_WARM
+            enough, end = link.heard + rounds * max(1, len(link.others)), start + LOCKSTEP_CAP
         else:
             share = AUCTION_SHARE_COLD if link.cold else AUCTION_SHARE
             enough, end = math.inf, start + share * self.params.dt

@@ -14,13 +14,21 @@ def test_a_robot_bids_from_ahead_on_its_way_to_the_goal():
     assert p == pytest.approx([0.6, 0.0])
 
 
-def test_never_past_the_goal_and_not_without_headway():
+def test_never_past_the_goal_and_not_without_speed():
     goal = np.array([1.0, 1.0])
     assert bid_position(np.zeros(2), goal, np.array([0.5, 0.5]), lead=10.0) == pytest.approx(goal)
-    assert bid_position(np.zeros(2), goal, np.array([-0.3, 0.1]), lead=2.0) == pytest.approx([0.0, 0.0])  # away
     assert bid_position(np.zeros(2), goal, np.zeros(2), lead=2.0) == pytest.approx([0.0, 0.0])  # blocked
     assert bid_position(goal, goal, np.array([0.1, 0.0]), lead=2.0) == pytest.approx(goal)  # on the goal
     assert bid_position(np.zeros(2), goal, np.array([0.5, 0.5]), lead=0.0) == pytest.approx([0.0, 0.0])
+
+
+def test_a_robot_that_just_got_another_goal_is_led_toward_it_at_its_speed():
+    """The next block freezes right after an agreement, while a robot sent elsewhere still moves as
+    it did for its last goal: it will turn, so it bids from ahead on the way to the new one (bidding
+    from where it stood sent robots back and forth every block)."""
+    goal = np.array([1.0, 0.0])
+    ahead = bid_position(np.zeros(2), goal, np.array([-0.3, 0.4]), lead=1.0)  # speed 0.5, moving away
+    assert ahead == pytest.approx([0.5, 0.0])
 
 
 def test_the_optimal_assignment_stands_for_robots_partway_to_their_goals():

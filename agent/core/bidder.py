@@ -53,21 +53,27 @@ RECORD = np.dtype([("robot", "<u2"), ("goal", "<i4"), ("price", "<f8"), ("flags"
 
 
 def bid_position(position: np.ndarray, goal: np.ndarray, velocity: np.ndarray, lead: float) -> np.ndarray:
-    """Where a robot driving to its agreed goal will be ``lead`` seconds on (the host's last delay
-    from freezing positions to adopting their agreement): along the straight line to the goal, as far
-    as its velocity component toward the goal carries it, never past the goal (a blocked robot stays
-    put). Bidding from there compensates the auction's latency: an assignment computed from where
-    the robots were when its instance began, but adopted seconds later once they have moved on toward
-    the last one's goals, sent them back, and at 100 robots in 10 hosts on a loaded machine (3 s
-    latency) five robots swapped goals back and forth for good. For squared distances, robots that
-    have all covered the same fraction of their straight way to optimally assigned goals keep that
-    assignment optimal, so leading agrees with the assignment being carried out."""
+    """Where a robot driving to its goal will be ``lead`` seconds on (the host's last delay from
+    freezing positions to adopting their agreement): along the straight line to the goal, as far as
+    its speed carries it, never past the goal (a blocked robot stays put). Bidding from there
+    compensates the auction's latency: an assignment computed from where the robots were when its
+    instance began, but adopted seconds later once they have moved on, sent them back, and at 100
+    robots in 10 hosts on a loaded machine (3 s latency) five robots swapped goals back and forth for
+    good. For squared distances, robots that have all covered the same fraction of their straight
+    way to optimally assigned goals keep that assignment optimal, so leading agrees with the
+    assignment being carried out.
+
+    The speed counts, not its component toward the goal: the next block of instances freezes its
+    positions right after an agreement, when a robot that got another goal still moves as it did
+    for its last one. Counting only the way toward the goal bid such robots from where they were
+    (or, before the agreement reached them, from their old goals), the next agreement sent them
+    back, and four robots of 100 rotated goals every block for 25 s (4 s blocks, suite load)."""
     to_goal = np.asarray(goal, float) - np.asarray(position, float)
     d = float(np.hypot(*to_goal))
     if d <= 1e-9 or lead <= 0:
         return np.asarray(position, float)
-    toward = max(0.0, float(np.dot(velocity, to_goal)) / d)
-    return np.asarray(position, float) + to_goal * min(1.0, toward * lead / d)
+    speed = float(np.hypot(*np.asarray(velocity, float)))
+    return np.asarray(position, float) + to_goal * min(1.0, speed * lead / d)
 
 
 def frames_close(before: np.ndarray, goals: np.ndarray, previous: np.ndarray) -> bool:
@@ -314,7 +320,7 @@ class Participant:
         position); the block's other phases share them. Penalties declared during the last instance
         come into force now."""
         if self.started and not self.is_agreed and instance > self.instance:
-            self._adopt_if_settled()  # someone reached a later instance: ours was agreed
+            self.adopt_if_settled()  # someone reached a later instance: ours was agreed
         new_block = not self.started or instance // self.phases != self.instance // self.phases
         if new_block and self.own:
             if isinstance(positions, np.ndarray):
@@ -387,7 +393,8 @@ class Participant:
                 self.goal[k] = g if g >= 0 and owner[g] == r else -1
         return carried
 
-    def _adopt_if_settled(self) -> None:
+    def adopt_if_settled(self) -> None:
+        """Adopt the current instance if every robot is content on one board (someone reached a later one)."""
         if self.final_phase and self._content_all().all():
             self._adopt()
 
