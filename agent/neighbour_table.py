@@ -36,6 +36,9 @@ class NeighbourTable:
     def __len__(self) -> int:
         return len(self._states)
 
+    def __contains__(self, robot: int) -> bool:
+        return robot in self._states
+
     def latest_before(self, tick: int) -> list[State]:
         """For each robot, its newest state stamped before ``tick``."""
         out = []

@@ -77,6 +77,7 @@ class HostConfig:
     state_wait: float = 1.5  # lock-step: how long to wait for a nearby robot's state before going on
     # (a loaded machine delayed states past 0.5 s and broke reproducibility; the world waits 2 s)
     pursue: dict[int, int] = field(default_factory=dict)  # robot -> the robot whose broadcasts are its goal
+    greet: list[int] = field(default_factory=list)  # lock-step: robots near ours at the start (see AgentHost.start)
 
     @classmethod
     def from_json(cls, text: str) -> "HostConfig":
@@ -87,13 +88,14 @@ class HostConfig:
                    obstacles=[[tuple(v) for v in o] for o in data.get("obstacles", [])],
                    batch_wait=float(data.get("batch_wait", 0.05)), lockstep=bool(data.get("lockstep", False)),
                    state_wait=float(data.get("state_wait", 1.5)),
-                   pursue={int(k): int(v) for k, v in data.get("pursue", {}).items()})
+                   pursue={int(k): int(v) for k, v in data.get("pursue", {}).items()},
+                   greet=[int(r) for r in data.get("greet", [])])
 
     def to_json(self) -> str:
         return json.dumps({"robots": self.robots, "params": self.params.to_dict(), "display": self.display,
                            "seed": self.seed, "arena": self.arena, "obstacles": self.obstacles,
                            "batch_wait": self.batch_wait, "lockstep": self.lockstep,
-                           "state_wait": self.state_wait, "pursue": self.pursue})
+                           "state_wait": self.state_wait, "pursue": self.pursue, "greet": self.greet})
 
 
 AUCTION_SHARE = 0.2  # of a control period, spent on auction rounds after each tick while one is open
@@ -108,6 +110,8 @@ LOCKSTEP_ROUNDS = 10
 LOCKSTEP_ROUNDS_WARM = 3  # ... and for the re-assignment instances after it (paper 5.1): at 1000 robots in 4
 # hosts a warm block took up to 20 s of display by wall time (AUCTION_SHARE buys less than one round
 # there), long enough for its assignment to be stale when adopted
+HELLO_EVERY = 0.1  # s between a lock-step host's hellos before the first tick
+HELLO_TIMEOUT = 30.0  # s a host waits for its neighbours' hellos before it says it is alive anyway
 LOCKSTEP_IDLE = 0.15  # s of wall time without a message that ends a tick's rounds (the auction is quiet)
 LOCKSTEP_CAP = 1.0  # s of wall time a tick's rounds may take at most: the next tick's pose waits meanwhile,
 # and the world counts a missed tick after 2 s (at 1000 robots in 4 hosts a 2 s cap missed 216 robot-ticks)
@@ -157,6 +161,9 @@ class AgentHost:
         self.table = NeighbourTable()
         self.pending: dict[int, Pose] = {}
         self.silent: set[int] = set()  # nearby robots that did not answer in time (lock-step)
+        self.greeted: dict[int, State] = {}  # lock-step: hellos heard before the first tick, by robot
+        self.hello_from: list[State] = []  # our own hellos, sent until the first tick
+        self.last_hello = -np.inf
         self.state_waits = 0
         self.ticks_done = 0
         self.fallbacks = 0
@@ -183,8 +190,16 @@ class AgentHost:
     # --- start ------------------------------------------------------------------------------
     def start(self, timeout: float = 60.0) -> bool:
         """Fetch the current goal set (late joiners too), learn where the robots are and subscribe to
-        the cells around them, then announce every robot alive (so the first tick's neighbour
-        states reach us whatever the start-up timing)."""
+        the cells around them, then announce every robot alive.
+
+        Lock-step first greets: zenoh tells a publisher about a new subscriber asynchronously, so a
+        neighbour's state of tick 0 could go unsent to us, and our tick 1 then depended on timing
+        (test_runtime's reproducibility check failed 2 runs in 5 under load, each at tick 1, with a
+        0.5 s pause before tick 0 that was meant to cover it). So each host sends a hello per robot
+        on its cells until its first tick, and says it is alive (the world starts once everybody
+        is) only when it has heard the hello of every robot near its own at the start
+        (``config.greet``, from the launcher): a hello heard proves the sender's session knows our
+        subscription, so its tick-0 state reaches us too."""
         for _, goals in self.bus.query(self.keys.all_of("goals"), Goals, timeout=2.0):
             self._on_goals(goals)
         where: dict[int, Pose] = {}
@@ -196,9 +211,29 @@ class AgentHost:
         if len(where) < len(self.memory):
             return False
         self.cells.update(np.array([(q.x, q.y) for q in where.values()]))
+        if self.config.lockstep:
+            self.hello_from = [State(r, Pose.BEFORE_START, 0.0, q.x, q.y, 0.0, 0.0, self.params.radius, 0.0, 0.0,
+                                     -1, 0, 0, 0) for r, q in sorted(where.items())]
+            self._await_hellos(min(HELLO_TIMEOUT, timeout))
         for r in self.config.robots:
             self.bus.declare_alive("agent", r)
         return True
+
+    def _await_hellos(self, timeout: float) -> None:
+        expected = set(self.config.greet) - set(self.memory)
+        end = time.monotonic() + timeout
+        while self.running and not expected <= set(self.greeted) and time.monotonic() < end:
+            self._say_hello()
+            got = self.state_inbox.get(timeout=HELLO_EVERY / 2)
+            if got is not None:
+                self._on_state(got[1])
+
+    def _say_hello(self) -> None:
+        if not self.hello_from or time.monotonic() - self.last_hello < HELLO_EVERY:
+            return
+        for h in self.hello_from:
+            self.bus.publish(self.keys.state(cell_of(h.x, h.y, self.cell_size), h.robot), h)
+        self.last_hello = time.monotonic()
 
     # --- messages -----------------------------------------------------------------------------
     def _on_goals(self, goals: Goals) -> None:
@@ -277,6 +312,9 @@ class AgentHost:
         self.auction.poll(self._positions())
 
     def _on_state(self, msg: State) -> None:
+        if msg.tick == Pose.BEFORE_START:  # a hello (lock-step start-up), not a state to steer by
+            self.greeted[msg.robot] = msg
+            return
         self.table.update(msg)
         self.silent.discard(msg.robot)
         for robot, target in self.config.pursue.items():
@@ -291,11 +329,13 @@ class AgentHost:
         within reach at the tick before can become neighbours now; one that stays silent for
         ``state_wait`` is not waited for again until it speaks.
         """
-        reach = self.params.neighbour_dist + 3 * self.params.v_max * self.params.dt + self.params.noise_bound
+        reach = self.params.state_reach
         deadline = time.monotonic() + self.config.state_wait
         while True:
-            missing = [s.robot for s in self.table.latest_before(tick)
-                       if s.tick < tick - 1 and s.robot not in self.silent
+            behind = [s for s in self.table.latest_before(tick) if s.tick < tick - 1]
+            if tick > 0:  # robots that greeted us and whose first state is still on its way
+                behind += [h for r, h in self.greeted.items() if r not in self.table]
+            missing = [s.robot for s in behind if s.robot not in self.silent
                        and np.min(np.hypot(position[:, 0] - s.x, position[:, 1] - s.y)) <= reach]
             if not missing:
                 return
@@ -323,9 +363,13 @@ class AgentHost:
                     self._on_goals(msg)
                 self.auction.poll(self._positions())
             if got is None:
+                if not self.ticks_done:
+                    self._say_hello()  # until the first tick: a neighbour may still wait for it
                 if self.parent_pid is not None and os.getppid() != self.parent_pid:
                     self.running = False  # orphaned: the launcher died without stopping us
                 wait = min(0.2, self.auction.next_due()) if self.auction.active else 0.2
+                if not self.ticks_done and self.hello_from:
+                    wait = min(wait, HELLO_EVERY)
                 if self.pose_inbox.has_delayed:
                     wait = min(wait, 0.005)
                 bell.wait(wait)

@@ -94,11 +94,12 @@ class Launcher:
         cfg_dir = self.run_dir / "config"
         cfg_dir.mkdir(exist_ok=True)
         faults = ["--faults", format_faults(self.opt.faults)] if self.opt.faults else []
+        lockstep = self.scene.clock == "lockstep"
         for h in range(math.ceil(len(ids) / k)):
             robots = ids[h * k:(h + 1) * k]
             config = HostConfig(robots=robots, params=self.params, display=self.opt.display, seed=self.scene.seed,
                                 arena=self.scene.arena, obstacles=self.scene.obstacles,
-                                lockstep=self.scene.clock == "lockstep",
+                                lockstep=lockstep, greet=self._near_at_start(robots, ids) if lockstep else [],
                                 # with injected loss or delay on states, waiting would only slow the run
                                 state_wait=0.0 if "state" in self.opt.faults else 1.5,
                                 pursue={r: t for r, t in self.scene.pursuers.items() if r in robots})
@@ -107,6 +108,13 @@ class Launcher:
             routers = self.opt.agent_routers
             client = ZenohSettings(mode="client", connect=[routers[h % len(routers)]]) if routers else None
             self._spawn(f"agent-{h:04d}", "agent", ["--config", str(path), *faults], robots, client)
+
+    def _near_at_start(self, robots: list[int], agents: list[int]) -> list[int]:
+        """The agent robots whose state may reach ``robots`` at the first ticks (within state reach at
+        the start): a lock-step host hears their hellos before it says it is alive (AgentHost.start)."""
+        xy = np.asarray(self.scene.poses, float)[:, :2]
+        own, mine = xy[robots], set(robots)
+        return [j for j in agents if j not in mine and np.min(np.hypot(*(own - xy[j]).T)) <= self.params.state_reach]
 
     def _check_children(self, recorder: Recorder) -> None:
         for child in self.children:

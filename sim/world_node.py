@@ -29,12 +29,6 @@ from .movers import scripted_velocity
 from .tracker import tracker_of, world_of
 
 CONTACT_KINDS = {"robot": 0, "obstacle": 1, "wall": 2}
-# Lock-step waits this long after the last agent came alive before tick 0. An agent subscribes to its
-# neighbours' cells before it says it is alive, but zenoh tells the publishers about a subscriber
-# asynchronously: on a loaded machine a neighbour's state of tick 0 could still go unsent, and the
-# robot's tick 1 then differed between two runs of the same seed (test_runtime failed so once under
-# the suite's load). Later subscriptions have a ring of cells to spare (agent.runtime.CellSubscriptions).
-LOCKSTEP_SETTLE = 0.5
 
 
 class WorldNode:
@@ -169,8 +163,7 @@ class WorldNode:
         if not self.wait_for_agents():
             self.end_reason = "no agent came alive"
             return
-        if clock == "lockstep":
-            time.sleep(LOCKSTEP_SETTLE)
+        if clock == "lockstep":  # every agent heard its neighbours' hellos before it came alive
             self._run_lockstep()
         else:
             self._run_realtime()

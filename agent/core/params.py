@@ -60,6 +60,12 @@ class RobotParams:
             raise ValueError(f"k_a ({self.k_a}) must be at least v_pref * dt ({self.v_pref * self.dt})")
 
     @property
+    def state_reach(self) -> float:
+        """How far a robot whose state we miss may be and still become a neighbour by the next tick:
+        the neighbour distance plus what two robots close in three ticks plus the tracking noise."""
+        return self.neighbour_dist + 3 * self.v_max * self.dt + self.noise_bound
+
+    @property
     def cell_size(self) -> float:
         """Spatial cell of state broadcasts: half of the neighbour distance plus what two robots close
         in three ticks plus the tracking noise (see agent.runtime.CellSubscriptions)."""
