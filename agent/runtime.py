@@ -313,7 +313,8 @@ class AgentHost:
 
     def _on_state(self, msg: State) -> None:
         if msg.tick == Pose.BEFORE_START:  # a hello (lock-step start-up), not a state to steer by
-            self.greeted[msg.robot] = msg
+            if self.ticks_done < 2:
+                self.greeted[msg.robot] = msg
             return
         self.table.update(msg)
         self.silent.discard(msg.robot)
@@ -333,8 +334,8 @@ class AgentHost:
         deadline = time.monotonic() + self.config.state_wait
         while True:
             behind = [s for s in self.table.latest_before(tick) if s.tick < tick - 1]
-            if tick > 0:  # robots that greeted us and whose first state is still on its way
-                behind += [h for r, h in self.greeted.items() if r not in self.table]
+            if tick > 0 and self.ticks_done < 2:  # the first tick after tick 0: robots that greeted us
+                behind += [h for r, h in self.greeted.items() if r not in self.table]  # ... state on its way
             missing = [s.robot for s in behind if s.robot not in self.silent
                        and np.min(np.hypot(position[:, 0] - s.x, position[:, 1] - s.y)) <= reach]
             if not missing:

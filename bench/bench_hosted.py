@@ -14,9 +14,44 @@ import argparse
 import sys
 from pathlib import Path
 
+import numpy as np
+
+from transport.codec import State
+
 from .common import load_run, run_cli_scene, steps_table, write_results
 
 SCENE = "paper-sequence-1000"
+RESHUFFLE = 100  # an agreement that sends more than this many robots to other goals is a reshuffle
+
+
+def reassignments(traj: dict) -> list[str]:
+    """Per image, from trajectory.npz: when every robot first drove to a goal of an agreed instance
+    of the new goal set (display s after the change), how many instances were agreed, and how many
+    of those sent more than RESHUFFLE robots to other goals than the agreed instance before (each
+    robot's goal in an instance as recorded while it drove to it)."""
+    t, goal = traj["t"], traj["assignment"]
+    epoch, instance = traj["assignment_epoch"], traj["assignment_instance"].astype(np.int64)
+    rows = ["| image | every robot on an agreed goal, s after the change | agreed instances driven to | "
+            f"re-assignments of >{RESHUFFLE} robots |", "|---|---|---|---|"]
+    for e, step in zip(traj["goal_set_epochs"], traj["goal_set_steps"]):
+        e, step = int(e), int(step)
+        mine = (epoch == e) & (instance != State.CARRIED)
+        seen = np.flatnonzero(mine.any(axis=1))
+        if not len(seen):
+            rows.append(f"| {step} | never | 0 | 0 |")
+            continue
+        change = float(t[np.flatnonzero((epoch == e).any(axis=1))[0]])  # the goal set's first sample
+        everyone = np.flatnonzero(mine.all(axis=1))
+        agreed = sorted(set(instance[mine].tolist()))
+        goals_of = {}
+        for i in agreed:  # robot -> goal in instance i
+            r_idx = np.nonzero(mine & (instance == i))
+            goals_of[i] = dict(zip(r_idx[1].tolist(), goal[r_idx].tolist()))
+        moved = sum(1 for a, b in zip(agreed, agreed[1:])
+                    if sum(goals_of[a].get(r, g) != g for r, g in goals_of[b].items()) > RESHUFFLE)
+        first = f"{t[everyone[0]] - change:.1f}" if len(everyone) else "never"
+        rows.append(f"| {step} | {first} | {len(agreed)} | {moved} |")
+    return rows
 
 
 def summary(m: dict, wall: float, k: int) -> list[str]:
@@ -45,9 +80,9 @@ def main() -> int:
             loaded = load_run(run)
             if loaded is None:
                 return 2
-            m, _, wall = loaded
+            m, traj, wall = loaded
             k = m.get("agents_per_process") or args.k
-            lines += summary(m, wall, k)
+            lines += summary(m, wall, k) + reassignments(traj) + [""]
             commands.append(f"pixelswarm run {SCENE} --engine distributed -k {k} --duration {m['duration_s']:g} "
                             f"--no-video --out RUN")
         commands.append(".venv/bin/python -m bench.bench_hosted --from RUN ...")
@@ -55,8 +90,8 @@ def main() -> int:
         ran = run_cli_scene([SCENE, "--engine", "distributed", "-k", str(args.k), "--duration", str(args.duration)])
         if ran is None:
             return 1
-        m, _, wall = ran
-        lines += summary(m, wall, args.k)
+        m, traj, wall = ran
+        lines += summary(m, wall, args.k) + reassignments(traj) + [""]
         commands.append(f".venv/bin/python -m bench.bench_hosted -k {args.k} --duration {args.duration:g}")
     write_results("hosted", "The 1000-robot sequence, distributed in agent hosts (issue 6)", "`; `".join(commands),
                   lines)
