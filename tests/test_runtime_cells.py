@@ -24,3 +24,25 @@ def test_a_split_tick_keeps_the_neighbours_of_the_robots_not_in_it() -> None:
         host._step_tick([Pose(0, 2, 0.2, 0.0, 0.0, 0.0)])  # only robot 0's pose of tick 2 so far
         assert cell_of(*far, host.cell_size) in host.cells.cells
         assert [s.robot for s in host.table.latest_before(3)] == [5], "robot 1's neighbour was forgotten"
+
+
+def test_a_neighbour_silent_for_seconds_is_forgotten_not_a_phantom_obstacle() -> None:
+    """Regression (1000 robots in 4 hosts): a robot of another host left this host's cells, its last
+    state stayed in a cell the host still listened to, and 37 s later an own robot arriving there
+    stopped 3.8 m short of its goal, avoiding a robot that was long gone. A robot whose agent died
+    stays: its body stands where it was last heard (5.1.2)."""
+    params = RobotParams(kinematics="holonomic")
+    with Bus(loopback_router(), "forget") as bus:
+        host = AgentHost(bus, HostConfig(robots=[0], params=params))
+        gone = State(5, 1, 0.1, 0.5, 0.0, 0.3, 0.0, params.radius, 0.0, 0.0, -1, 0, 0, 0)
+        dead = State(6, 1, 0.1, -0.5, 0.0, 0.0, 0.0, params.radius, 0.0, 0.0, -1, 0, 0, 0)
+        host.table.update(gone)
+        host.table.update(dead)
+        host.dead.add(6)
+        host._step_tick([Pose(0, 2, 0.2, 0.0, 0.0, 0.0)])
+        assert 5 in host.table  # silent for 0.1 s: a neighbour (stale after 0.5 s, still avoided)
+        ticks = round((params.forget_after + 0.2) / params.dt)
+        for k in range(3, 3 + ticks):
+            host._step_tick([Pose(0, k, k * params.dt, 0.0, 0.0, 0.0)])
+        assert 5 not in host.table, "a robot silent for longer than forget_after is still an obstacle"
+        assert 6 in host.table, "a dead robot's body was forgotten"

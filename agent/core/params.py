@@ -35,6 +35,7 @@ class RobotParams:
     goal_tolerance: float = 0.01  # a robot within this distance of its goal has arrived
     noise_bound: float = 0.01  # bound on the relative tracking error of two robots (3.5 sigma of 2 x 2 mm)
     stale_after: float = 0.5  # a neighbour not heard from this long is a non-cooperating obstacle
+    forget_after: float = 2.0  # ... and this long has left the cells we listen to: forgotten (agent.neighbour_table)
     # Goal assignment (paper 5.1) and deadlocks (5.5.5); costs in m^2 (squared distance, eq. 7)
     assign_eps: float = 1e-3  # epsilon_A: the agreed assignment costs at most N epsilon_A over the optimum
     assign_hysteresis: float = 5e-3  # Delta C: keep the goal unless another is better by this much
@@ -55,6 +56,8 @@ class RobotParams:
                 continue
             if not (isinstance(value, (int, float)) and value == value and value > 0):
                 raise ValueError(f"robot parameter {f.name} must be a positive number, not {value!r}")
+        if self.forget_after <= self.stale_after:
+            raise ValueError(f"forget_after ({self.forget_after}) must be longer than stale_after ({self.stale_after})")
         if self.k_a < self.v_pref * self.dt:
             # eq. 9 converges without oscillation only if K_a >= V_p * dt (paper 5.2)
             raise ValueError(f"k_a ({self.k_a}) must be at least v_pref * dt ({self.v_pref * self.dt})")
