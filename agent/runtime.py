@@ -59,7 +59,7 @@ class RobotMemory:
     stamp: float = 0.0  # display time of `position`
     goal0: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))  # the agreed goal in G^0 (eq. 28 at t=0)
     hold_left: int = 0  # iterations eq. 27's hold still lasts in a keyframe
-    hold_for: tuple[int, int] = (0, -1)  # (epoch, goal index) the held velocity was computed for
+    hold_for: tuple[int, int] = (0, -1)  # (epoch, goal index) the hold was started for
 
 
 @dataclass
@@ -101,11 +101,11 @@ class HostConfig:
 AUCTION_SHARE = 0.2  # of a control period, spent on auction rounds after each tick while one is open
 AUCTION_SHARE_COLD = 0.8  # ... until the newest goal set's first agreement: robots wait for it (in real
 # time the auction has the whole period but the control step)
-# Lock-step counts a cold auction's message rounds instead of wall time: what a period buys must not
-# depend on how loaded the machine is (2 saturated cores made a round of 100 robots in 10 hosts 28 ms
-# against 8 ms alone, and the leaf's first keyframe went unagreed for its 30 s). A round: one message
-# from each other host. 10 per period is what AUCTION_SHARE_COLD buys on an unloaded machine. Warm
-# instances agree in a few rounds and keep AUCTION_SHARE.
+# Lock-step counts message rounds instead of wall time: what a period buys must not depend on how
+# loaded the machine is (2 saturated cores made a round of 100 robots in 10 hosts 28 ms against 8 ms
+# alone, and the leaf's first keyframe went unagreed for its 30 s). A round: one message from each
+# other host. 10 per period until a goal set's first agreement is what AUCTION_SHARE_COLD buys on an
+# unloaded machine.
 LOCKSTEP_ROUNDS = 10
 LOCKSTEP_ROUNDS_WARM = 3  # ... and for the re-assignment instances after it (paper 5.1): at 1000 robots in 4
 # hosts a warm block took up to 20 s of display by wall time (AUCTION_SHARE buys less than one round
@@ -388,13 +388,13 @@ class AgentHost:
 
     def _auction_rounds(self, bell: threading.Event) -> None:
         """After a tick, while an auction instance is open, keep trading messages for a part of the
-        control period (lock-step, until the goal set's first agreement: for LOCKSTEP_ROUNDS rounds,
-        ended early by a quiet auction). Otherwise a lock-step run gets one auction round per tick
-        (the next pose is already waiting), and a cold start of 100 robots took 300 ticks."""
+        control period; in lock-step for LOCKSTEP_ROUNDS (cold) or LOCKSTEP_ROUNDS_WARM rounds, ended
+        early by a quiet auction. Without it a lock-step run gets one auction round per tick (the
+        next pose is already waiting), and a cold start of 100 robots took 300 ticks."""
         link = self.auction
         start = last_news = time.monotonic()
-        by_rounds = self.config.lockstep
-        if by_rounds:
+        lockstep = self.config.lockstep
+        if lockstep:
             rounds = LOCKSTEP_ROUNDS if link.cold else LOCKSTEP_ROUNDS_WARM
             enough, end = link.heard + rounds * max(1, len(link.others)), start + LOCKSTEP_CAP
         else:
@@ -407,7 +407,7 @@ class AgentHost:
             now = time.monotonic()
             if link.heard > heard:
                 last_news = now
-            if now >= end or (by_rounds and now - last_news >= LOCKSTEP_IDLE):
+            if now >= end or (lockstep and now - last_news >= LOCKSTEP_IDLE):
                 return
             bell.wait(min(end - now, LOCKSTEP_IDLE, link.next_due()))
 
