@@ -40,7 +40,7 @@ class NeighbourTable:
         for seconds has left those cells, and its last state, in a cell we still listen to, would
         stay for good as a phantom obstacle (forget_outside keeps it). At 1000 robots one robot
         stopped 3.8 m short of its goal with nobody within 3.8 m, beside where a robot of another
-        host had left its host's cells 40 s earlier. Returns how many were dropped."""
+        host had left its host's cells 37 s earlier. Returns how many were dropped."""
         gone = [r for r, kept in self._states.items() if kept[-1].stamp < before and r not in keep]
         for r in gone:
             del self._states[r]
