@@ -79,6 +79,16 @@ class AuctionLink:
         return self.part is not None and not self.part.is_agreed
 
     @property
+    def open_for(self) -> float:
+        """Display seconds since this host froze the positions of the current block of phases (its
+        auction latency so far; 0 before the first block)."""
+        part = self.part
+        if part is None or not part.started:
+            return 0.0
+        frozen = self.frozen_at.get(part.instance // part.phases)
+        return 0.0 if frozen is None else max(0.0, self.now - frozen)
+
+    @property
     def epoch(self) -> int:
         """The goal set of the current auction (0: none yet)."""
         return self.part.epoch if self.part is not None else 0
