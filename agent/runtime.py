@@ -279,17 +279,21 @@ class AgentHost:
             return self._bid_from
         newest = self.goal_sets[max(self.goal_sets)] if self.goal_sets else None
         motion = motion_of(newest) if newest is not None else None
-        lead = self.auction.latency
-        out = {}
+        out, on_way = {}, []
         for r, m in self.memory.items():
             if m.position is None:
                 continue
             if motion is not None:
                 out[r] = motion.to_initial_frame(m.position, m.stamp - newest.t_start)
             elif newest is not None and m.assign_epoch == newest.epoch and m.goal_index >= 0:
-                out[r] = bid_position(m.position, m.goal, m.velocity, lead)  # on its way: where it will be
+                on_way.append(m)  # on its way: where it will be
             else:
                 out[r] = m.position
+        if on_way:
+            lead = bid_position(np.array([m.position for m in on_way]), np.array([m.goal for m in on_way]),
+                                np.array([m.velocity for m in on_way]), self.auction.latency)
+            out.update(zip([m.robot for m in on_way], lead))
+            out = {r: out[r] for r in self.memory if r in out}  # in the robots' order, as before
         self._bid_from = out
         return out
 

@@ -67,13 +67,17 @@ def bid_position(position: np.ndarray, goal: np.ndarray, velocity: np.ndarray, l
     positions right after an agreement, when a robot that got another goal still moves as it did
     for its last one. Counting only the way toward the goal bid such robots from where they were
     (or, before the agreement reached them, from their old goals), the next agreement sent them
-    back, and four robots of 100 rotated goals every block for 25 s (4 s blocks, suite load)."""
-    to_goal = np.asarray(goal, float) - np.asarray(position, float)
-    d = float(np.hypot(*to_goal))
-    if d <= 1e-9 or lead <= 0:
-        return np.asarray(position, float)
-    speed = float(np.hypot(*np.asarray(velocity, float)))
-    return np.asarray(position, float) + to_goal * min(1.0, speed * lead / d)
+    back, and four robots of 100 rotated goals every block for 25 s (4 s blocks, suite load).
+
+    A batch: rows of positions, goals and velocities (one call for a host's robots)."""
+    position = np.asarray(position, float)
+    to_goal = np.asarray(goal, float) - position
+    if lead <= 0:
+        return position.copy()
+    d = np.hypot(to_goal[..., 0], to_goal[..., 1])
+    speed = np.hypot(*np.moveaxis(np.asarray(velocity, float), -1, 0))
+    reach = np.minimum(1.0, speed * lead / np.maximum(d, 1e-9))
+    return position + to_goal * np.where(d <= 1e-9, 0.0, reach)[..., None]
 
 
 def frames_close(before: np.ndarray, goals: np.ndarray, previous: np.ndarray) -> bool:
