@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from transport.bus import Bus
-from transport.codec import Command, Event, Goals, Pose, State
+from transport.codec import Command, Commands, Event, Goals, Pose, Poses, State
 from transport.keys import cell_of
 
 from .assignment import AuctionLink
@@ -78,6 +78,7 @@ class HostConfig:
     # (a loaded machine delayed states past 0.5 s and broke reproducibility; the world waits 2 s)
     pursue: dict[int, int] = field(default_factory=dict)  # robot -> the robot whose broadcasts are its goal
     greet: list[int] = field(default_factory=list)  # lock-step: robots near ours at the start (see AgentHost.start)
+    frames: bool = False  # poses from the tracker's frames, one command frame a tick (codec.Poses, Commands)
 
     @classmethod
     def from_json(cls, text: str) -> "HostConfig":
@@ -89,13 +90,14 @@ class HostConfig:
                    batch_wait=float(data.get("batch_wait", 0.05)), lockstep=bool(data.get("lockstep", False)),
                    state_wait=float(data.get("state_wait", 1.5)),
                    pursue={int(k): int(v) for k, v in data.get("pursue", {}).items()},
-                   greet=[int(r) for r in data.get("greet", [])])
+                   greet=[int(r) for r in data.get("greet", [])], frames=bool(data.get("frames", False)))
 
     def to_json(self) -> str:
         return json.dumps({"robots": self.robots, "params": self.params.to_dict(), "display": self.display,
                            "seed": self.seed, "arena": self.arena, "obstacles": self.obstacles,
                            "batch_wait": self.batch_wait, "lockstep": self.lockstep,
-                           "state_wait": self.state_wait, "pursue": self.pursue, "greet": self.greet})
+                           "state_wait": self.state_wait, "pursue": self.pursue, "greet": self.greet,
+                           "frames": self.frames})
 
 
 AUCTION_SHARE = 0.2  # of a control period, spent on auction rounds after each tick while one is open
@@ -178,6 +180,9 @@ class AgentHost:
         self.pose_inbox = bus.inbox(Pose)
         for r in config.robots:
             bus.subscribe_into(self.keys.pose(r), self.pose_inbox)
+        # ... and, once live, the tracker's frames of every robot's pose (a host of K takes K rows)
+        self.frame_inbox = bus.subscribe(self.keys.poses, Poses) if config.frames else None
+        self.own = np.array(sorted(config.robots))
         self.state_inbox = bus.inbox(State)  # fed by the spatial cells around the robots
         self.cells = CellSubscriptions(bus, self.state_inbox, self.cell_size, reach=3 if config.lockstep else 2)
         for target in set(config.pursue.values()):  # a pursuer hears its target wherever it is
@@ -362,16 +367,17 @@ class AgentHost:
         # One bell rung by poses, goal sets and auction messages: the loop sleeps until any arrives
         # (auction rounds go on between ticks) or something is due.
         bell = threading.Event()
-        for inbox in (self.pose_inbox, self.goal_inbox, self.auction.inbox):
-            inbox.bell = bell
+        for inbox in (self.pose_inbox, self.frame_inbox, self.goal_inbox, self.auction.inbox):
+            if inbox is not None:
+                inbox.bell = bell
         while self.running:
             bell.clear()
-            got = self.pose_inbox.get(timeout=0)
+            arrived = self._take_poses()
             if self.auction.active or self.goal_inbox.has_delayed:
                 for _, msg in self.goal_inbox.drain():
                     self._on_goals(msg)
                 self.auction.poll(self._positions())
-            if got is None:
+            if not arrived:
                 if not self.ticks_done:
                     self._say_hello()  # until the first tick: a neighbour may still wait for it
                 if self.parent_pid is not None and os.getppid() != self.parent_pid:
@@ -383,14 +389,15 @@ class AgentHost:
                     wait = min(wait, 0.005)
                 bell.wait(wait)
                 continue
-            self._take_pose(got[1])
             # Collect the other robots' poses of this tick (they are published together).
             deadline = time.monotonic() + self.config.batch_wait
             while len(self.pending) < len(self.memory) and self.running:
-                got = self.pose_inbox.get(timeout=max(0.0, deadline - time.monotonic()))
-                if got is None:
+                left = deadline - time.monotonic()
+                if left <= 0:
                     break
-                self._take_pose(got[1])
+                bell.clear()
+                if not self._take_poses():
+                    bell.wait(min(left, 0.005) if self.pose_inbox.has_delayed else left)
             self.step()
             self._auction_rounds(bell)
 
@@ -421,6 +428,18 @@ class AgentHost:
             if now >= end or (lockstep and now - last_news >= LOCKSTEP_IDLE):
                 return
             bell.wait(min(end - now, LOCKSTEP_IDLE, link.next_due()))
+
+    def _take_poses(self) -> bool:
+        """Take the poses that arrived, one per robot or the own rows of tracker frames; True if any
+        message did."""
+        got = self.pose_inbox.drain()
+        for _, pose in got:
+            self._take_pose(pose)
+        frames = self.frame_inbox.drain() if self.frame_inbox is not None else []
+        for _, frame in frames:
+            for row in np.flatnonzero(np.isin(frame.records["robot"], self.own)):
+                self._take_pose(frame.pose(int(row)))
+        return bool(got or frames)
 
     def _take_pose(self, pose: Pose) -> None:
         mem = self.memory.get(pose.robot)
@@ -466,6 +485,7 @@ class AgentHost:
         self.fallbacks += int(result.fallback.sum())
         self._detect_deadlocks(mems, position, result.pref_velocity, result.velocity)
         mode = Command.WHEELS if p.kinematics == DIFFDRIVE else Command.HOLONOMIC
+        frame = np.zeros(len(poses), Commands._item) if self.config.frames else None
         for b, (pose, mem) in enumerate(zip(poses, mems)):
             mem.velocity = result.velocity[b].copy()
             mem.last_tick = tick
@@ -478,9 +498,14 @@ class AgentHost:
                           mem.goal_index, flags, mem.assign_epoch, mem.assign_instance)
             # State before command: by the time the world moves on, neighbours have our state.
             self.bus.publish(self.keys.state(cell_of(pose.x, pose.y, self.cell_size), pose.robot), state)
+            if frame is not None:
+                frame[b] = (pose.robot, mode, result.command[b, 0], result.command[b, 1], *mem.color)
+                continue
             cmd = Command(pose.robot, tick, stamp, mode, float(result.command[b, 0]), float(result.command[b, 1]),
                           *mem.color)
             self.bus.publish(self.keys.cmd(pose.robot), cmd)
+        if frame is not None:  # after the states, as each robot's command follows its state
+            self.bus.publish(self.keys.cmds(self.own[0]), Commands(tick, stamp, int(self.own[0]), len(frame), frame))
         # The cells around EVERY own robot, not only those of this tick's batch: under load a tick's
         # poses can arrive split, and cells dropped for the robots not in the batch took their
         # neighbours' states with them (forget_outside): at 100 robots one robot then saw nobody.

@@ -102,12 +102,19 @@ class Launcher:
                                 lockstep=lockstep, greet=self._near_at_start(robots, ids) if lockstep else [],
                                 # with injected loss or delay on states, waiting would only slow the run
                                 state_wait=0.0 if "state" in self.opt.faults else 1.5,
-                                pursue={r: t for r, t in self.scene.pursuers.items() if r in robots})
+                                pursue={r: t for r, t in self.scene.pursuers.items() if r in robots},
+                                frames=self._frames)
             path = cfg_dir / f"agents-{h:04d}.json"
             path.write_text(config.to_json())
             routers = self.opt.agent_routers
             client = ZenohSettings(mode="client", connect=[routers[h % len(routers)]]) if routers else None
             self._spawn(f"agent-{h:04d}", "agent", ["--config", str(path), *faults], robots, client)
+
+    @property
+    def _frames(self) -> bool:
+        """Agent hosts of several robots trade one pose frame and one command frame a tick with the
+        world (codec.Poses, Commands); a robot alone in its process keeps its own keys, as on hardware."""
+        return self.opt.agents_per_process > 1
 
     def _near_at_start(self, robots: list[int], agents: list[int]) -> list[int]:
         """The agent robots whose state may reach ``robots`` at the first ticks (within state reach at
@@ -203,6 +210,7 @@ class Launcher:
             self._start_agents()
             world_args = self._scene_args() + ["--clock", self.scene.clock, "--duration", str(self.scene.duration),
                                                "--deadline", str(self.opt.deadline)]
+            world_args += ["--pose-frames"] if self._frames else []
             self._spawn("world", "sim.world_node", world_args, [])
             end_reason = self._loop(bus, recorder)
             self._stop_children()
@@ -321,7 +329,7 @@ class Launcher:
             agent_processes=sum(c.name.startswith("agent") for c in self.children),
             min_clearance_substep_m=stats.get("min_clearance"),
             commands_applied=int(sum(stats.get("commands_applied", []))),
-            commands_sent=int(rec.counts.get("cmd", 0)),
+            commands_sent=int(rec.counts.get("cmd", 0)) + rec.framed_commands,
             late_commands=int(stats.get("late_commands", 0)),
             orca_fallbacks=int(sum(s.get("fallbacks", 0) for s in agent_stats)),
             dropped_messages=dropped, crashes=self.crashes,

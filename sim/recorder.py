@@ -16,7 +16,7 @@ import numpy as np
 import orjson
 
 from transport.bus import Bus
-from transport.codec import BY_NAME, Bid, Contact, DropCounter, Event, Goals, State, Truth, decode
+from transport.codec import BY_NAME, Bid, Commands, Contact, DropCounter, Event, Goals, State, Truth, decode
 
 from .mcaplog import McapLog
 
@@ -79,6 +79,7 @@ class Recorder:
         self.goal_sets: dict[int, Goals] = {}  # epoch -> the coordinator's goal set
         self.bid_positions: dict[tuple[int, int], dict[int, tuple[float, float, float]]] = {}  # (epoch, instance) -> robot -> x, y, penalty
         self.counts: dict[str, int] = {}
+        self.framed_commands = 0  # commands inside agent hosts' frames (codec.Commands)
         self.bytes: dict[str, int] = {}
         self.drops = DropCounter()
         self.contacts: list[Contact] = []
@@ -121,6 +122,8 @@ class Recorder:
                     self.goal_sets[msg.epoch] = msg
                     if msg.epoch == max(self.goal_sets):
                         self.step = msg.step
+            elif isinstance(msg, Commands):
+                self.framed_commands += len(msg.records)
             elif isinstance(msg, Contact):
                 self.contacts.append(msg)
             elif isinstance(msg, Event):

@@ -14,13 +14,14 @@ import math
 import os
 import signal
 import sys
+import threading
 import time
 
 import numpy as np
 
 from coordinator.scene import Scene, SceneError, load_scene
 from transport.bus import Bus
-from transport.codec import Command, Contact as ContactMsg, Event, Pose, State, Tick, Truth
+from transport.codec import Command, Commands, Contact as ContactMsg, Event, Pose, Poses, State, Tick, Truth
 from transport.keys import cell_of
 from transport.faults import parse_faults
 from transport.session import TransportError, add_zenoh_args, settings_from_args
@@ -32,7 +33,10 @@ CONTACT_KINDS = {"robot": 0, "obstacle": 1, "wall": 2}
 
 
 class WorldNode:
-    def __init__(self, bus: Bus, scene: Scene, *, deadline: float = 2.0, startup_timeout: float = 60.0) -> None:
+    def __init__(self, bus: Bus, scene: Scene, *, deadline: float = 2.0, startup_timeout: float = 60.0,
+                 pose_frames: bool = False) -> None:
+        """``pose_frames``: the tracker sends each tick's poses as one frame (codec.Poses), for agent
+        hosts of several robots, instead of one message per robot."""
         self.bus, self.scene, self.keys = bus, scene, bus.keys
         self.params, self.world = world_of(scene)
         self.dt = self.params.dt
@@ -50,7 +54,11 @@ class WorldNode:
         self.late_commands = 0
         self.tick = 0
         self.events = sorted((e for e in scene.events if e["kind"] == "teleport"), key=lambda e: e["t"])
+        self.pose_frames = pose_frames
         self.cmd_inbox = bus.subscribe(self.keys.all_of("cmd"), Command)
+        self.frame_inbox = bus.subscribe(self.keys.all_of("cmds"), Commands)  # agent hosts' command frames
+        self.cmd_bell = threading.Event()  # rung by either
+        self.cmd_inbox.bell = self.frame_inbox.bell = self.cmd_bell
         self.control_inbox = bus.subscribe(self.keys.event, Event)
         self.alive = bus.watch_alive("agent")
         self.running = True
@@ -69,9 +77,11 @@ class WorldNode:
                 self.live[i] = False
                 self.world.stop(i)  # a dead agent's robot stays in the world, stopped
 
-    def _apply_commands(self, first: tuple | None = None) -> None:
-        arrived = ([first] if first is not None else []) + self.cmd_inbox.drain()
-        for _, cmd in arrived:
+    def _apply_commands(self) -> None:
+        arrived = [cmd for _, cmd in self.cmd_inbox.drain()]
+        for _, frame in self.frame_inbox.drain():
+            arrived += frame.commands()
+        for cmd in arrived:
             i = cmd.robot
             if i >= self.scene.robots or not self.live[i]:
                 continue
@@ -99,7 +109,13 @@ class WorldNode:
         measured = self.tracker.measure(self.world.poses)
         # The tracker sees bodies, not agents: a robot whose agent died is still tracked, so the
         # coordinator learns where its body stays and keeps the goals clear of it (5.1.2).
-        for i in np.flatnonzero(self.ever_live):
+        tracked = np.flatnonzero(self.ever_live)
+        if self.pose_frames:
+            frame = np.zeros(len(tracked), Poses._item)
+            frame["robot"] = tracked
+            frame["x"], frame["y"], frame["theta"] = measured[tracked].T
+            self.bus.publish(self.keys.poses, Poses(self.tick, t, 0, len(frame), frame))
+        for i in [] if self.pose_frames else tracked:
             x, y, th = measured[i]
             self.bus.publish(self.keys.pose(int(i)), Pose(int(i), self.tick, t, x, y, th))
         self._publish_before_start()
@@ -179,13 +195,15 @@ class WorldNode:
             self._publish_tick()
             deadline = time.monotonic() + self.deadline
             while True:
-                got = self.cmd_inbox.get(timeout=max(0.0, min(0.05, deadline - time.monotonic())))
-                self._apply_commands(got)
+                self.cmd_bell.clear()
+                self._apply_commands()
                 self._update_liveness()
                 waiting = self.live & (self.last_cmd_tick < self.tick)
                 if not waiting.any() or time.monotonic() >= deadline:
                     self.missed_ticks += int(waiting.sum())
                     break
+                delayed = self.cmd_inbox.has_delayed or self.frame_inbox.has_delayed  # no bell rings for those
+                self.cmd_bell.wait(max(0.0, min(0.005 if delayed else 0.05, deadline - time.monotonic())))
             self._publish_contacts(self.world.step(self.dt))
             self.tick += 1
             self._check_control()
@@ -236,6 +254,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--display", default="default")
     parser.add_argument("--deadline", type=float, default=2.0, help="lock-step: seconds to wait for commands")
     parser.add_argument("--faults", default="")
+    parser.add_argument("--pose-frames", action="store_true", help="send each tick's poses as one frame (agent hosts)")
     parser.add_argument("--exit-with-parent", action="store_true")
     add_zenoh_args(parser)
     args = parser.parse_args(argv)
@@ -247,7 +266,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"world: error: {err}", file=sys.stderr)
         return 2
     with bus:
-        node = WorldNode(bus, scene, deadline=args.deadline)
+        node = WorldNode(bus, scene, deadline=args.deadline, pose_frames=args.pose_frames)
         if args.exit_with_parent:
             node.parent_pid = os.getppid()
 

@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from transport.bus import Bus
-from transport.codec import (BY_NAME, VERSION, Command, Contact, DropCounter, Event, Goals, Pose, State, Tick,
-                             Truth, decode)
+from transport.codec import (BY_NAME, VERSION, Command, Commands, Contact, DropCounter, Event, Goals, Pose, Poses,
+                             State, Tick, Truth, decode)
 from transport.faults import FaultSpec, parse_faults
 from transport.keys import Keys, cell_of
 from transport.session import TransportError, client_of, loopback_router, open_session
@@ -30,6 +30,8 @@ SAMPLES = [
     Truth(7, 0.7, 0.01, 2, np.zeros((2, 3)), np.ones((2, 2)), np.zeros((2, 3), np.uint8), np.array([1, 2], np.uint32)),
     Contact(0, 1, 2, 0.5, 0.003),
     Event({"kind": "end", "reason": "converged"}),
+    Poses(7, 0.7, 0, 2, np.array([(3, 1.5, -2.0, 0.25), (9, 0.5, 0.5, -3.0)], Poses._item)),
+    Commands(7, 0.7, 3, 2, np.array([(3, 1, 0.1, -0.05, 255, 10, 0), (4, 1, 0.0, 0.02, 0, 0, 255)], Commands._item)),
 ]
 
 
@@ -39,10 +41,14 @@ def test_round_trip(msg):
     assert type(back) is type(msg)
     a, b = msg.to_dict(), back.to_dict()
     for key in a:
-        np.testing.assert_allclose(np.asarray(a[key], float), np.asarray(b[key], float), rtol=1e-6) \
-            if not isinstance(a[key], (str, dict)) else None
-        if isinstance(a[key], (str, dict)):
+        if isinstance(a[key], dict):  # an event's data, or a frame's records as columns
+            assert a[key].keys() == b[key].keys()
+            for column in a[key]:
+                np.testing.assert_array_equal(np.asarray(a[key][column]), np.asarray(b[key][column]))
+        elif isinstance(a[key], str):
             assert a[key] == b[key]
+        else:
+            np.testing.assert_allclose(np.asarray(a[key], float), np.asarray(b[key], float), rtol=1e-6)
 
 
 def test_messages_are_compact():
@@ -72,6 +78,26 @@ def test_non_finite_is_rejected():
     assert decode(bad_goals, drops=drops) is None
     assert decode(b"\x08\x01" + b'{"a": NaN}', drops=drops) is None
     assert drops["non-finite"] == 4
+
+
+def test_a_frame_with_one_bad_record_is_dropped_whole():
+    """A tracker or host frame is one message: one non-finite pose or command, or an unknown
+    command mode, drops it (a robot must not steer by half a frame)."""
+    drops = DropCounter()
+    poses = SAMPLES[-2].records.copy()
+    poses["theta"][1] = np.inf
+    assert decode(Poses(7, 0.7, 0, 2, poses).encode(), drops=drops) is None
+    commands = SAMPLES[-1].records.copy()
+    commands["b"][0] = np.nan
+    assert decode(Commands(7, 0.7, 3, 2, commands).encode(), drops=drops) is None
+    commands = SAMPLES[-1].records.copy()
+    commands["mode"][1] = 7
+    assert decode(Commands(7, 0.7, 3, 2, commands).encode(), drops=drops) is None
+    assert drops == {"non-finite": 2, "invalid": 1}
+    assert decode(SAMPLES[-2].encode()[:-4], drops=drops) is None and drops["truncated"] == 1
+    frame = decode(SAMPLES[-2].encode())
+    assert frame.pose(1) == Pose(9, 7, 0.7, 0.5, 0.5, -3.0)
+    assert decode(SAMPLES[-1].encode()).commands()[0] == Command(3, 7, 0.7, 1, *np.float32([0.1, -0.05]), 255, 10, 0)
 
 
 def test_goals_of_an_older_coordinator_decode_as_a_still_image():

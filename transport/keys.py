@@ -1,8 +1,10 @@
 """The key-expression schema: every key the system uses is built here and nowhere else.
 
     px/<display>/pose/<id>               tracker -> agent i: its tracked pose and the tick
+    px/<display>/poses                   tracker -> agent hosts: every robot's pose of a tick, one frame
     px/<display>/state/<cx>/<cy>/<id>    agent broadcast, filed under its spatial cell
     px/<display>/cmd/<id>                agent -> body: wheel speeds or velocity, LED colour
+    px/<display>/cmds/<id>               agent host -> bodies: its robots' commands of a tick (<id>: its first)
     px/<display>/goals/<epoch>           coordinator -> all: the goal set and colours
     px/<display>/auction/<epoch>/<id>    bids and prices of the distributed auction
     px/<display>/alive/<role>/<id>       liveliness tokens (role: agent, world, coordinator, ...)
@@ -38,6 +40,10 @@ class Keys:
     def pose(self, robot: int) -> str:
         return f"{self.root}/pose/{robot}"
 
+    @property
+    def poses(self) -> str:
+        return f"{self.root}/poses"
+
     # agent broadcasts
     def state(self, cell: tuple[int, int], robot: int) -> str:
         return f"{self.root}/state/{cell[0]}/{cell[1]}/{robot}"
@@ -51,6 +57,9 @@ class Keys:
 
     def cmd(self, robot: int) -> str:
         return f"{self.root}/cmd/{robot}"
+
+    def cmds(self, host: int) -> str:
+        return f"{self.root}/cmds/{host}"
 
     def goals(self, epoch: int) -> str:
         return f"{self.root}/goals/{epoch}"
