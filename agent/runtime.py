@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from transport.bus import Bus
-from transport.codec import Command, Commands, Event, Goals, Pose, Poses, State
+from transport.codec import Command, Commands, Event, Goals, Pose, Poses, State, States
 from transport.keys import cell_of
 
 from .assignment import AuctionLink
@@ -78,7 +78,8 @@ class HostConfig:
     # (a loaded machine delayed states past 0.5 s and broke reproducibility; the world waits 2 s)
     pursue: dict[int, int] = field(default_factory=dict)  # robot -> the robot whose broadcasts are its goal
     greet: list[int] = field(default_factory=list)  # lock-step: robots near ours at the start (see AgentHost.start)
-    frames: bool = False  # poses from the tracker's frames, one command frame a tick (codec.Poses, Commands)
+    frames: bool = False  # poses from the tracker's frames; one frame a tick of the robots' states, heard from
+    # every host, and one of their commands (codec.Poses, States, Commands)
 
     @classmethod
     def from_json(cls, text: str) -> "HostConfig":
@@ -183,7 +184,9 @@ class AgentHost:
         # ... and, once live, the tracker's frames of every robot's pose (a host of K takes K rows)
         self.frame_inbox = bus.subscribe(self.keys.poses, Poses) if config.frames else None
         self.own = np.array(sorted(config.robots))
-        self.state_inbox = bus.inbox(State)  # fed by the spatial cells around the robots
+        self.state_inbox = bus.inbox(State, frames=States)  # fed by the spatial cells around the robots ...
+        if config.frames:  # ... and by every host's frames
+            bus.subscribe_into(self.keys.all_of("states"), self.state_inbox)
         self.cells = CellSubscriptions(bus, self.state_inbox, self.cell_size, reach=3 if config.lockstep else 2)
         for target in set(config.pursue.values()):  # a pursuer hears its target wherever it is
             bus.subscribe_into(self.keys.state_of(target), self.state_inbox)
@@ -240,9 +243,17 @@ class AgentHost:
     def _say_hello(self) -> None:
         if not self.hello_from or time.monotonic() - self.last_hello < HELLO_EVERY:
             return
-        for h in self.hello_from:
-            self.bus.publish(self.keys.state(cell_of(h.x, h.y, self.cell_size), h.robot), h)
+        if self.config.frames:
+            self._publish_states(Pose.BEFORE_START, 0.0, self.hello_from)
+        else:
+            for h in self.hello_from:
+                self.bus.publish(self.keys.state(cell_of(h.x, h.y, self.cell_size), h.robot), h)
         self.last_hello = time.monotonic()
+
+    def _publish_states(self, tick: int, stamp: float, states: list[State]) -> None:
+        """One frame of the own robots' states (HostConfig.frames)."""
+        host = int(self.own[0])
+        self.bus.publish(self.keys.states(host), States.of(tick, stamp, host, states))
 
     # --- messages -----------------------------------------------------------------------------
     def _on_goals(self, goals: Goals) -> None:
@@ -486,6 +497,7 @@ class AgentHost:
         self._detect_deadlocks(mems, position, result.pref_velocity, result.velocity)
         mode = Command.WHEELS if p.kinematics == DIFFDRIVE else Command.HOLONOMIC
         frame = np.zeros(len(poses), Commands._item) if self.config.frames else None
+        states = []
         for b, (pose, mem) in enumerate(zip(poses, mems)):
             mem.velocity = result.velocity[b].copy()
             mem.last_tick = tick
@@ -497,7 +509,10 @@ class AgentHost:
                           float(result.velocity[b, 1]), p.radius, float(gx), float(gy),
                           mem.goal_index, flags, mem.assign_epoch, mem.assign_instance)
             # State before command: by the time the world moves on, neighbours have our state.
-            self.bus.publish(self.keys.state(cell_of(pose.x, pose.y, self.cell_size), pose.robot), state)
+            if frame is not None:
+                states.append(state)
+            else:
+                self.bus.publish(self.keys.state(cell_of(pose.x, pose.y, self.cell_size), pose.robot), state)
             if frame is not None:
                 frame[b] = (pose.robot, mode, result.command[b, 0], result.command[b, 1], *mem.color)
                 continue
@@ -505,6 +520,7 @@ class AgentHost:
                           *mem.color)
             self.bus.publish(self.keys.cmd(pose.robot), cmd)
         if frame is not None:  # after the states, as each robot's command follows its state
+            self._publish_states(tick, stamp, states)
             self.bus.publish(self.keys.cmds(self.own[0]), Commands(tick, stamp, int(self.own[0]), len(frame), frame))
         # The cells around EVERY own robot, not only those of this tick's batch: under load a tick's
         # poses can arrive split, and cells dropped for the robots not in the batch took their

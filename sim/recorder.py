@@ -16,7 +16,7 @@ import numpy as np
 import orjson
 
 from transport.bus import Bus
-from transport.codec import BY_NAME, Bid, Commands, Contact, DropCounter, Event, Goals, State, Truth, decode
+from transport.codec import BY_NAME, Bid, Commands, Contact, DropCounter, Event, Goals, State, States, Truth, decode
 
 from .mcaplog import McapLog
 
@@ -122,6 +122,9 @@ class Recorder:
                     self.goal_sets[msg.epoch] = msg
                     if msg.epoch == max(self.goal_sets):
                         self.step = msg.step
+            elif isinstance(msg, States):
+                for state in msg.messages():
+                    self._on_state(state)
             elif isinstance(msg, Commands):
                 self.framed_commands += len(msg.records)
             elif isinstance(msg, Contact):

@@ -107,11 +107,13 @@ def test_lockstep_is_reproducible_and_hosts_match_processes(tmp_path):
     np.testing.assert_array_equal(runs[0]["pose"], runs[2]["pose"])
     hosted = metrics(tmp_path / "k4")
     assert hosted["agent_processes"] == 2
-    # the hosts traded one pose frame and one command frame per tick, not a message per robot, and
-    # still every command the world applied crossed the router
+    # the hosts traded frames, a pose frame from the world and a state and a command frame per host
+    # per tick, not a message per robot, and still every command the world applied crossed the router
     per_robot_s = hosted["messages_per_robot_s"]
     assert per_robot_s["poses"] == pytest.approx(10 / 8, rel=0.15) and per_robot_s["cmds"] == pytest.approx(2 * 10 / 8, rel=0.15)
-    assert per_robot_s.get("cmd", 0) == 0 and per_robot_s.get("pose", 0) < 1  # poses only before the agents are live
+    assert per_robot_s["states"] >= 2 * 10 / 8 * 0.85  # (and hellos before the first tick)
+    assert per_robot_s.get("cmd", 0) == 0 and per_robot_s.get("state", 0) == 0
+    assert per_robot_s.get("pose", 0) < 1  # poses only before the agents are live
     assert 8 * 30 < hosted["commands_applied"] <= hosted["commands_sent"]
     moved = np.hypot(*(runs[0]["pose"][-1, :, :2] - runs[0]["pose"][0, :, :2]).T)
     assert moved.min() > 0.2  # the robots really drove
@@ -173,7 +175,7 @@ def test_malformed_messages_on_every_key_are_dropped(tmp_path, spawned):
     good = Pose(0, 1, 0.1, 0.0, 0.0, 0.0).encode()
     bad = [rng.bytes(20), good[:-3], bytes([good[0], VERSION + 9]) + good[2:],
            good[:18] + np.float32(np.nan).tobytes() + good[22:], b"", b"\x08\x01{not json"]
-    keys = ["pose/0", "pose/5", "poses", "state/0/0/3", "state/-1/0/2", "cmd/1", "cmds/1", "goals/1", "clock",
+    keys = ["pose/0", "pose/5", "poses", "state/0/0/3", "state/-1/0/2", "cmd/1", "cmds/1", "states/1", "goals/1", "clock",
             "sim/truth", "sim/contact", "event", "auction/1/2"]
     with Bus(ZenohSettings(mode="client", connect=[f"tcp/127.0.0.1:{port}"]), "default") as attacker:
         time.sleep(1.0)

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from transport.bus import Bus
 from transport.codec import (BY_NAME, VERSION, Command, Commands, Contact, DropCounter, Event, Goals, Pose, Poses,
-                             State, Tick, Truth, decode)
+                             State, States, Tick, Truth, decode)
 from transport.faults import FaultSpec, parse_faults
 from transport.keys import Keys, cell_of
 from transport.session import TransportError, client_of, loopback_router, open_session
@@ -30,6 +30,8 @@ SAMPLES = [
     Truth(7, 0.7, 0.01, 2, np.zeros((2, 3)), np.ones((2, 2)), np.zeros((2, 3), np.uint8), np.array([1, 2], np.uint32)),
     Contact(0, 1, 2, 0.5, 0.003),
     Event({"kind": "end", "reason": "converged"}),
+    States.of(7, 0.7, 3, [State(3, 7, 0.7, 1.0, 2.0, 0.1, -0.1, 0.045, 0.5, 0.5, 4, State.HAS_GOAL, 2, 9),
+                          State(4, 7, 0.7, -1.0, 0.5, 0.0, 0.2, 0.045, 0.0, 0.0, -1, 0)]),
     Poses(7, 0.7, 0, 2, np.array([(3, 1.5, -2.0, 0.25), (9, 0.5, 0.5, -3.0)], Poses._item)),
     Commands(7, 0.7, 3, 2, np.array([(3, 1, 0.1, -0.05, 255, 10, 0), (4, 1, 0.0, 0.02, 0, 0, 255)], Commands._item)),
 ]
@@ -93,11 +95,17 @@ def test_a_frame_with_one_bad_record_is_dropped_whole():
     commands = SAMPLES[-1].records.copy()
     commands["mode"][1] = 7
     assert decode(Commands(7, 0.7, 3, 2, commands).encode(), drops=drops) is None
-    assert drops == {"non-finite": 2, "invalid": 1}
+    states = SAMPLES[-3].records.copy()
+    states["radius"][0] = 0.0
+    assert decode(States(7, 0.7, 3, 2, states).encode(), drops=drops) is None
+    assert drops == {"non-finite": 2, "invalid": 2}
     assert decode(SAMPLES[-2].encode()[:-4], drops=drops) is None and drops["truncated"] == 1
     frame = decode(SAMPLES[-2].encode())
     assert frame.pose(1) == Pose(9, 7, 0.7, 0.5, 0.5, -3.0)
     assert decode(SAMPLES[-1].encode()).commands()[0] == Command(3, 7, 0.7, 1, *np.float32([0.1, -0.05]), 255, 10, 0)
+    # each record is exactly the State its robot would have sent alone
+    one = State(3, 7, 0.7, 1.0, 2.0, 0.1, -0.1, 0.045, 0.5, 0.5, 4, State.HAS_GOAL, 2, 9)
+    assert decode(SAMPLES[-3].encode()).messages()[0] == decode(one.encode())
 
 
 def test_goals_of_an_older_coordinator_decode_as_a_still_image():

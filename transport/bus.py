@@ -40,8 +40,12 @@ def _drain(q: "queue.SimpleQueue", limit: int | None = None) -> list:
 class Inbox:
     """Messages of one subscription, decoded, filtered by faults, waiting for the owner's loop."""
 
-    def __init__(self, expected: type[Message] | None, fault: FaultSpec, seed: int) -> None:
+    def __init__(self, expected: type[Message] | None, fault: FaultSpec, seed: int,
+                 frames: type[Message] | None = None) -> None:
+        """``frames``: a frame kind that carries many ``expected`` messages (codec.States); each
+        arrives as its messages, and a fault drops or delays the frame whole."""
         self.expected = expected
+        self.frames = frames
         self.fault = fault
         self.drops = DropCounter()
         self.received = 0
@@ -58,12 +62,22 @@ class Inbox:
         payload = sample.payload.to_bytes()
         self.received += 1
         self.bytes += len(payload)
-        msg = decode(payload, self.expected, self.drops)
+        msg = decode(payload, self.expected if self.frames is None else None, self.drops)
         if msg is None:
+            return
+        if self.frames is None:
+            msgs = [msg]
+        elif isinstance(msg, self.frames):
+            msgs = msg.messages()
+        elif self.expected is None or isinstance(msg, self.expected):
+            msgs = [msg]
+        else:
+            self.drops["kind"] += 1
             return
         key = str(sample.key_expr)
         if self.fault is _NO_FAULT or not self.fault.active:
-            self._queue.put((key, msg))
+            for m in msgs:
+                self._queue.put((key, m))
             if self.bell is not None:
                 self.bell.set()
             return
@@ -72,7 +86,8 @@ class Inbox:
                 self.drops["fault"] += 1
                 return
             release = time.monotonic() + self.fault.delay + self._rng.random() * self.fault.jitter
-            heapq.heappush(self._delayed, (release, next(self._order), key, msg))
+            for m in msgs:
+                heapq.heappush(self._delayed, (release, next(self._order), key, m))
 
     def _release_delayed(self) -> None:
         if not self._delayed:
@@ -177,12 +192,13 @@ class Bus:
         self.sent_bytes[kind] += len(payload)
 
     # --- subscribing ----------------------------------------------------------------------
-    def inbox(self, expected: type[Message] | None = None) -> Inbox:
-        """An empty inbox; feed it with ``subscribe_into``. Faults for the expected kind apply here."""
+    def inbox(self, expected: type[Message] | None = None, frames: type[Message] | None = None) -> Inbox:
+        """An empty inbox; feed it with ``subscribe_into``. Faults for the expected kind apply here
+        (to its ``frames`` too, each frame as one message: see Inbox)."""
         fault = self.faults.get(expected.NAME, _NO_FAULT) if expected is not None else _NO_FAULT
         self._n_subs += 1
         seed = zlib.crc32(f"{self._seed}/{self._name}/{self._n_subs}".encode())
-        return Inbox(expected, fault, seed)
+        return Inbox(expected, fault, seed, frames)
 
     def subscribe(self, keyexpr: str, expected: type[Message] | None = None) -> Inbox:
         """An inbox of decoded messages from one key expression."""

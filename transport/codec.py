@@ -408,6 +408,42 @@ class Commands(_Frame):
 
 
 @dataclass
+class States(_Frame):
+    """Agent host -> agent hosts: the states of its robots at one tick, one record per robot (fields
+    as State's; a host's hellos before its first tick too, tick Pose.BEFORE_START). Every host hears
+    every frame: a host of hundreds of robots spread over the display listens to most cells anyway,
+    and one frame costs each process it crosses what one robot's state did."""
+
+    KIND: ClassVar[int] = 12
+    NAME: ClassVar[str] = "states"
+    _item: ClassVar[np.dtype] = np.dtype([("robot", "<u4"), ("x", "<f4"), ("y", "<f4"), ("vx", "<f4"), ("vy", "<f4"),
+                                          ("radius", "<f4"), ("goal_x", "<f4"), ("goal_y", "<f4"),
+                                          ("goal_index", "<i4"), ("flags", "u1"), ("assign_epoch", "<u4"),
+                                          ("assign_instance", "<u4")])
+    _floats: ClassVar[tuple[str, ...]] = ("x", "y", "vx", "vy", "radius", "goal_x", "goal_y")
+    tick: int
+    stamp: float
+    sender: int  # the host's first robot
+    count: int
+    records: np.ndarray = field(default_factory=lambda: np.zeros(0, States._item))
+
+    def check_records(self) -> None:
+        if np.any(self.records["radius"] <= 0):
+            raise Malformed("invalid")
+
+    @classmethod
+    def of(cls, tick: int, stamp: float, sender: int, states: list[State]) -> "States":
+        """The frame of these robots' states (their tick and stamp are the frame's)."""
+        records = np.array([(v := s._fixed_values())[:1] + v[3:] for s in states], cls._item).reshape(-1)
+        return cls(tick, stamp, sender, len(records), records)
+
+    def messages(self) -> list[State]:
+        """One State per record, as each robot would have sent it."""
+        tick, stamp = self.tick, self.stamp
+        return [State(robot, tick, stamp, *rest) for robot, *rest in self.records.tolist()]
+
+
+@dataclass
 class Truth(Message):
     """Simulation only: true poses, velocities and LED colours of all robots at a tick (recorder)."""
 
@@ -497,7 +533,7 @@ def _reject_constant(name: str) -> None:
 
 
 MESSAGE_TYPES: dict[int, type[Message]] = {t.KIND: t for t in (Pose, State, Command, Tick, Goals, Truth, Contact, Event,
-                                                                 Bid, Poses, Commands)}
+                                                                 Bid, Poses, Commands, States)}
 BY_NAME: dict[str, type[Message]] = {t.NAME: t for t in MESSAGE_TYPES.values()}
 
 

@@ -3,6 +3,7 @@
     px/<display>/pose/<id>               tracker -> agent i: its tracked pose and the tick
     px/<display>/poses                   tracker -> agent hosts: every robot's pose of a tick, one frame
     px/<display>/state/<cx>/<cy>/<id>    agent broadcast, filed under its spatial cell
+    px/<display>/states/<id>             agent host broadcast: its robots' states of a tick (<id>: its first)
     px/<display>/cmd/<id>                agent -> body: wheel speeds or velocity, LED colour
     px/<display>/cmds/<id>               agent host -> bodies: its robots' commands of a tick (<id>: its first)
     px/<display>/goals/<epoch>           coordinator -> all: the goal set and colours
@@ -47,6 +48,9 @@ class Keys:
     # agent broadcasts
     def state(self, cell: tuple[int, int], robot: int) -> str:
         return f"{self.root}/state/{cell[0]}/{cell[1]}/{robot}"
+
+    def states(self, host: int) -> str:
+        return f"{self.root}/states/{host}"
 
     def state_of(self, robot: int) -> str:
         """One robot's broadcasts, whatever cell it is in."""
