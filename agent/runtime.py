@@ -177,7 +177,8 @@ class AgentHost:
         p = self.params
         self.cell_size = p.cell_size
         self.segments = static_segments(config.arena, config.obstacles)
-        # One subscription per own robot: a host receives only its robots' poses.
+        # One subscription per own robot: a host receives only its robots' poses (with frames, those
+        # sent before its robots are live) ...
         self.pose_inbox = bus.inbox(Pose)
         for r in config.robots:
             bus.subscribe_into(self.keys.pose(r), self.pose_inbox)
@@ -509,13 +510,11 @@ class AgentHost:
                           float(result.velocity[b, 1]), p.radius, float(gx), float(gy),
                           mem.goal_index, flags, mem.assign_epoch, mem.assign_instance)
             # State before command: by the time the world moves on, neighbours have our state.
-            if frame is not None:
+            if frame is not None:  # sent below, all in one frame each
                 states.append(state)
-            else:
-                self.bus.publish(self.keys.state(cell_of(pose.x, pose.y, self.cell_size), pose.robot), state)
-            if frame is not None:
                 frame[b] = (pose.robot, mode, result.command[b, 0], result.command[b, 1], *mem.color)
                 continue
+            self.bus.publish(self.keys.state(cell_of(pose.x, pose.y, self.cell_size), pose.robot), state)
             cmd = Command(pose.robot, tick, stamp, mode, float(result.command[b, 0]), float(result.command[b, 1]),
                           *mem.color)
             self.bus.publish(self.keys.cmd(pose.robot), cmd)
