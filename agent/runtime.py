@@ -178,13 +178,13 @@ class AgentHost:
         self.cell_size = p.cell_size
         self.segments = static_segments(config.arena, config.obstacles)
         # One subscription per own robot: a host receives only its robots' poses (with frames, those
-        # sent before its robots are live) ...
-        self.pose_inbox = bus.inbox(Pose)
+        # sent before its robots are live, and then its robots' rows of the tracker's frames).
+        self.own = np.array(sorted(config.robots))
+        self.pose_inbox = bus.inbox(Pose, frames=Poses, only=self.own)
         for r in config.robots:
             bus.subscribe_into(self.keys.pose(r), self.pose_inbox)
-        # ... and, once live, the tracker's frames of every robot's pose (a host of K takes K rows)
-        self.frame_inbox = bus.subscribe(self.keys.poses, Poses) if config.frames else None
-        self.own = np.array(sorted(config.robots))
+        if config.frames:
+            bus.subscribe_into(self.keys.poses, self.pose_inbox)
         self.state_inbox = bus.inbox(State, frames=States)  # fed by the spatial cells around the robots ...
         if config.frames:  # ... and by every host's frames
             bus.subscribe_into(self.keys.all_of("states"), self.state_inbox)
@@ -379,17 +379,16 @@ class AgentHost:
         # One bell rung by poses, goal sets and auction messages: the loop sleeps until any arrives
         # (auction rounds go on between ticks) or something is due.
         bell = threading.Event()
-        for inbox in (self.pose_inbox, self.frame_inbox, self.goal_inbox, self.auction.inbox):
-            if inbox is not None:
-                inbox.bell = bell
+        for inbox in (self.pose_inbox, self.goal_inbox, self.auction.inbox):
+            inbox.bell = bell
         while self.running:
             bell.clear()
-            arrived = self._take_poses()
+            got = self.pose_inbox.get(timeout=0)
             if self.auction.active or self.goal_inbox.has_delayed:
                 for _, msg in self.goal_inbox.drain():
                     self._on_goals(msg)
                 self.auction.poll(self._positions())
-            if not arrived:
+            if got is None:
                 if not self.ticks_done:
                     self._say_hello()  # until the first tick: a neighbour may still wait for it
                 if self.parent_pid is not None and os.getppid() != self.parent_pid:
@@ -401,15 +400,14 @@ class AgentHost:
                     wait = min(wait, 0.005)
                 bell.wait(wait)
                 continue
+            self._take_pose(got[1])
             # Collect the other robots' poses of this tick (they are published together).
             deadline = time.monotonic() + self.config.batch_wait
             while len(self.pending) < len(self.memory) and self.running:
-                left = deadline - time.monotonic()
-                if left <= 0:
+                got = self.pose_inbox.get(timeout=max(0.0, deadline - time.monotonic()))
+                if got is None:
                     break
-                bell.clear()
-                if not self._take_poses():
-                    bell.wait(min(left, 0.005) if self.pose_inbox.has_delayed else left)
+                self._take_pose(got[1])
             self.step()
             self._auction_rounds(bell)
 
@@ -440,18 +438,6 @@ class AgentHost:
             if now >= end or (lockstep and now - last_news >= LOCKSTEP_IDLE):
                 return
             bell.wait(min(end - now, LOCKSTEP_IDLE, link.next_due()))
-
-    def _take_poses(self) -> bool:
-        """Take the poses that arrived, one per robot or the own rows of tracker frames; True if any
-        message did."""
-        got = self.pose_inbox.drain()
-        for _, pose in got:
-            self._take_pose(pose)
-        frames = self.frame_inbox.drain() if self.frame_inbox is not None else []
-        for _, frame in frames:
-            for row in np.flatnonzero(np.isin(frame.records["robot"], self.own)):
-                self._take_pose(frame.pose(int(row)))
-        return bool(got or frames)
 
     def _take_pose(self, pose: Pose) -> None:
         mem = self.memory.get(pose.robot)
@@ -497,8 +483,7 @@ class AgentHost:
         self.fallbacks += int(result.fallback.sum())
         self._detect_deadlocks(mems, position, result.pref_velocity, result.velocity)
         mode = Command.WHEELS if p.kinematics == DIFFDRIVE else Command.HOLONOMIC
-        frame = np.zeros(len(poses), Commands._item) if self.config.frames else None
-        states = []
+        states, commands = [], []
         for b, (pose, mem) in enumerate(zip(poses, mems)):
             mem.velocity = result.velocity[b].copy()
             mem.last_tick = tick
@@ -506,21 +491,19 @@ class AgentHost:
             at_goal = has_goal and math.dist(mem.goal, position[b]) <= p.goal_tolerance
             flags = (State.HAS_GOAL if has_goal else 0) | (State.AT_GOAL if at_goal else 0)
             gx, gy = (mem.goal if has_goal else (0.0, 0.0))
-            state = State(pose.robot, tick, stamp, pose.x, pose.y, float(result.velocity[b, 0]),
-                          float(result.velocity[b, 1]), p.radius, float(gx), float(gy),
-                          mem.goal_index, flags, mem.assign_epoch, mem.assign_instance)
-            # State before command: by the time the world moves on, neighbours have our state.
-            if frame is not None:  # sent below, all in one frame each
-                states.append(state)
-                frame[b] = (pose.robot, mode, result.command[b, 0], result.command[b, 1], *mem.color)
-                continue
-            self.bus.publish(self.keys.state(cell_of(pose.x, pose.y, self.cell_size), pose.robot), state)
-            cmd = Command(pose.robot, tick, stamp, mode, float(result.command[b, 0]), float(result.command[b, 1]),
-                          *mem.color)
-            self.bus.publish(self.keys.cmd(pose.robot), cmd)
-        if frame is not None:  # after the states, as each robot's command follows its state
+            states.append(State(pose.robot, tick, stamp, pose.x, pose.y, float(result.velocity[b, 0]),
+                                float(result.velocity[b, 1]), p.radius, float(gx), float(gy),
+                                mem.goal_index, flags, mem.assign_epoch, mem.assign_instance))
+            commands.append(Command(pose.robot, tick, stamp, mode, float(result.command[b, 0]),
+                                    float(result.command[b, 1]), *mem.color))
+        # States before commands: by the time the world moves on, neighbours have our states.
+        if self.config.frames:
             self._publish_states(tick, stamp, states)
-            self.bus.publish(self.keys.cmds(self.own[0]), Commands(tick, stamp, int(self.own[0]), len(frame), frame))
+            self.bus.publish(self.keys.cmds(int(self.own[0])), Commands.of(tick, stamp, int(self.own[0]), commands))
+        else:
+            for state, cmd in zip(states, commands):
+                self.bus.publish(self.keys.state(cell_of(state.x, state.y, self.cell_size), state.robot), state)
+                self.bus.publish(self.keys.cmd(cmd.robot), cmd)
         # The cells around EVERY own robot, not only those of this tick's batch: under load a tick's
         # poses can arrive split, and cells dropped for the robots not in the batch took their
         # neighbours' states with them (forget_outside): at 100 robots one robot then saw nobody.

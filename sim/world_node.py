@@ -14,7 +14,6 @@ import math
 import os
 import signal
 import sys
-import threading
 import time
 
 import numpy as np
@@ -55,10 +54,9 @@ class WorldNode:
         self.tick = 0
         self.events = sorted((e for e in scene.events if e["kind"] == "teleport"), key=lambda e: e["t"])
         self.pose_frames = pose_frames
-        self.cmd_inbox = bus.subscribe(self.keys.all_of("cmd"), Command)
-        self.frame_inbox = bus.subscribe(self.keys.all_of("cmds"), Commands)  # agent hosts' command frames
-        self.cmd_bell = threading.Event()  # rung by either
-        self.cmd_inbox.bell = self.frame_inbox.bell = self.cmd_bell
+        self.cmd_inbox = bus.inbox(Command, frames=Commands)  # one per robot, or agent hosts' frames
+        bus.subscribe_into(self.keys.all_of("cmd"), self.cmd_inbox)
+        bus.subscribe_into(self.keys.all_of("cmds"), self.cmd_inbox)
         self.control_inbox = bus.subscribe(self.keys.event, Event)
         self.alive = bus.watch_alive("agent")
         self.running = True
@@ -77,11 +75,9 @@ class WorldNode:
                 self.live[i] = False
                 self.world.stop(i)  # a dead agent's robot stays in the world, stopped
 
-    def _apply_commands(self) -> None:
-        arrived = [cmd for _, cmd in self.cmd_inbox.drain()]
-        for _, frame in self.frame_inbox.drain():
-            arrived += frame.commands()
-        for cmd in arrived:
+    def _apply_commands(self, first: tuple | None = None) -> None:
+        arrived = ([first] if first is not None else []) + self.cmd_inbox.drain()
+        for _, cmd in arrived:
             i = cmd.robot
             if i >= self.scene.robots or not self.live[i]:
                 continue
@@ -195,15 +191,13 @@ class WorldNode:
             self._publish_tick()
             deadline = time.monotonic() + self.deadline
             while True:
-                self.cmd_bell.clear()
-                self._apply_commands()
+                got = self.cmd_inbox.get(timeout=max(0.0, min(0.05, deadline - time.monotonic())))
+                self._apply_commands(got)
                 self._update_liveness()
                 waiting = self.live & (self.last_cmd_tick < self.tick)
                 if not waiting.any() or time.monotonic() >= deadline:
                     self.missed_ticks += int(waiting.sum())
                     break
-                delayed = self.cmd_inbox.has_delayed or self.frame_inbox.has_delayed  # no bell rings for those
-                self.cmd_bell.wait(max(0.0, min(0.005 if delayed else 0.05, deadline - time.monotonic())))
             self._publish_contacts(self.world.step(self.dt))
             self.tick += 1
             self._check_control()

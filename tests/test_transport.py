@@ -101,8 +101,8 @@ def test_a_frame_with_one_bad_record_is_dropped_whole():
     assert drops == {"non-finite": 2, "invalid": 2}
     assert decode(SAMPLES[-2].encode()[:-4], drops=drops) is None and drops["truncated"] == 1
     frame = decode(SAMPLES[-2].encode())
-    assert frame.pose(1) == Pose(9, 7, 0.7, 0.5, 0.5, -3.0)
-    assert decode(SAMPLES[-1].encode()).commands()[0] == Command(3, 7, 0.7, 1, *np.float32([0.1, -0.05]), 255, 10, 0)
+    assert frame.messages()[1] == Pose(9, 7, 0.7, 0.5, 0.5, -3.0)
+    assert decode(SAMPLES[-1].encode()).messages()[0] == Command(3, 7, 0.7, 1, *np.float32([0.1, -0.05]), 255, 10, 0)
     # each record is exactly the State its robot would have sent alone
     one = State(3, 7, 0.7, 1.0, 2.0, 0.1, -0.1, 0.045, 0.5, 0.5, 4, State.HAS_GOAL, 2, 9)
     assert decode(SAMPLES[-3].encode()).messages()[0] == decode(one.encode())

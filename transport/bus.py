@@ -16,6 +16,7 @@ import zlib
 from collections import Counter
 from typing import Any, Callable, Iterator
 
+import numpy as np
 import zenoh
 
 from .codec import DropCounter, Message, decode
@@ -41,11 +42,13 @@ class Inbox:
     """Messages of one subscription, decoded, filtered by faults, waiting for the owner's loop."""
 
     def __init__(self, expected: type[Message] | None, fault: FaultSpec, seed: int,
-                 frames: type[Message] | None = None) -> None:
-        """``frames``: a frame kind that carries many ``expected`` messages (codec.States); each
-        arrives as its messages, and a fault drops or delays the frame whole."""
+                 frames: type[Message] | None = None, only: np.ndarray | None = None) -> None:
+        """``frames``: a frame kind that carries many ``expected`` messages (codec.Poses, States,
+        Commands); each arrives as its messages (only those of robots ``only``, if given), and a
+        fault drops or delays the frame whole."""
         self.expected = expected
         self.frames = frames
+        self.only = only
         self.fault = fault
         self.drops = DropCounter()
         self.received = 0
@@ -68,7 +71,7 @@ class Inbox:
         if self.frames is None:
             msgs = [msg]
         elif isinstance(msg, self.frames):
-            msgs = msg.messages()
+            msgs = msg.messages(None if self.only is None else np.isin(msg.records["robot"], self.only))
         elif self.expected is None or isinstance(msg, self.expected):
             msgs = [msg]
         else:
@@ -192,13 +195,14 @@ class Bus:
         self.sent_bytes[kind] += len(payload)
 
     # --- subscribing ----------------------------------------------------------------------
-    def inbox(self, expected: type[Message] | None = None, frames: type[Message] | None = None) -> Inbox:
+    def inbox(self, expected: type[Message] | None = None, frames: type[Message] | None = None,
+              only: np.ndarray | None = None) -> Inbox:
         """An empty inbox; feed it with ``subscribe_into``. Faults for the expected kind apply here
         (to its ``frames`` too, each frame as one message: see Inbox)."""
         fault = self.faults.get(expected.NAME, _NO_FAULT) if expected is not None else _NO_FAULT
         self._n_subs += 1
         seed = zlib.crc32(f"{self._seed}/{self._name}/{self._n_subs}".encode())
-        return Inbox(expected, fault, seed, frames)
+        return Inbox(expected, fault, seed, frames, only)
 
     def subscribe(self, keyexpr: str, expected: type[Message] | None = None) -> Inbox:
         """An inbox of decoded messages from one key expression."""

@@ -325,15 +325,34 @@ class Bid(Message):
         return out
 
 
+@dataclass
 class _Frame(Message):
-    """A tick's records of many robots in one message: the fixed part (tick, stamp, sender, count)
-    and one record per robot. An agent host of K robots takes its poses from one tracker frame and
-    answers with one command frame: per robot, every message costs each process it crosses as much
-    as a whole frame does (at 1000 robots in 4 hosts, 2000 of the 3000 messages a tick)."""
+    """A tick's messages of many robots in one: the fixed part (tick, stamp, sender, count) and one
+    record per robot, the fields of ``_message`` after its (robot, tick, stamp). Agent hosts of K
+    robots trade frames: per robot, every message costs each process it crosses as much as a whole
+    frame does (at 1000 robots in 4 hosts, 3000 messages a tick before frames)."""
 
     _fixed: ClassVar[struct.Struct] = struct.Struct("<IdII")
+    _message: ClassVar[type[Message]]
     _item: ClassVar[np.dtype]
     _floats: ClassVar[tuple[str, ...]]
+    tick: int
+    stamp: float
+    sender: int  # the host's first robot (0 for the tracker)
+    count: int
+    records: np.ndarray
+
+    @classmethod
+    def of(cls, tick: int, stamp: float, sender: int, messages: list) -> "_Frame":
+        """The frame of these robots' messages (their tick and stamp are the frame's)."""
+        records = np.array([(v := m._fixed_values())[:1] + v[3:] for m in messages], cls._item).reshape(-1)
+        return cls(tick, stamp, sender, len(records), records)
+
+    def messages(self, rows: np.ndarray | None = None) -> list:
+        """One message per record (or per selected record), as each robot would have sent it alone."""
+        records = self.records if rows is None else self.records[rows]
+        tick, stamp, message = self.tick, self.stamp, self._message
+        return [message(robot, tick, stamp, *rest) for robot, *rest in records.tolist()]
 
     def _fixed_values(self) -> tuple:
         return (self.tick, self.stamp, self.sender, len(self.records))
@@ -363,84 +382,52 @@ class _Frame(Message):
 
 @dataclass
 class Poses(_Frame):
-    """Tracker -> agent hosts: the tracked poses of a tick, one record per robot (what a motion
-    capture frame holds). The tracker sends it instead of one Pose per robot when told that every
-    agent process hosts several robots; before a robot's agent is live its poses stay Pose."""
+    """Tracker -> agent hosts: the tracked poses of a tick (what a motion capture frame holds), sent
+    instead of one Pose per robot when every agent process hosts several robots; before a robot's
+    agent is live its poses stay Pose."""
 
     KIND: ClassVar[int] = 10
     NAME: ClassVar[str] = "poses"
+    _message: ClassVar[type[Message]] = Pose
     _item: ClassVar[np.dtype] = np.dtype([("robot", "<u4"), ("x", "<f4"), ("y", "<f4"), ("theta", "<f4")])
     _floats: ClassVar[tuple[str, ...]] = ("x", "y", "theta")
-    tick: int
-    stamp: float
-    sender: int  # 0: the tracker
-    count: int
-    records: np.ndarray = field(default_factory=lambda: np.zeros(0, Poses._item))
-
-    def pose(self, row: int) -> Pose:
-        rec = self.records[row]
-        return Pose(int(rec["robot"]), self.tick, self.stamp, float(rec["x"]), float(rec["y"]), float(rec["theta"]))
 
 
 @dataclass
 class Commands(_Frame):
-    """Agent host -> bodies: the commands of its robots for one tick, one record per robot (fields
-    as Command's)."""
+    """Agent host -> bodies: the commands of its robots for one tick."""
 
     KIND: ClassVar[int] = 11
     NAME: ClassVar[str] = "cmds"
+    _message: ClassVar[type[Message]] = Command
     _item: ClassVar[np.dtype] = np.dtype([("robot", "<u4"), ("mode", "u1"), ("a", "<f4"), ("b", "<f4"),
                                           ("r", "u1"), ("g", "u1"), ("bl", "u1")])
     _floats: ClassVar[tuple[str, ...]] = ("a", "b")
-    tick: int
-    stamp: float
-    sender: int  # the host's first robot
-    count: int
-    records: np.ndarray = field(default_factory=lambda: np.zeros(0, Commands._item))
 
     def check_records(self) -> None:
         if np.any(self.records["mode"] > 1):
             raise Malformed("invalid")
 
-    def commands(self) -> list[Command]:
-        return [Command(int(r["robot"]), self.tick, self.stamp, int(r["mode"]), float(r["a"]), float(r["b"]),
-                        int(r["r"]), int(r["g"]), int(r["bl"])) for r in self.records]
-
 
 @dataclass
 class States(_Frame):
-    """Agent host -> agent hosts: the states of its robots at one tick, one record per robot (fields
-    as State's; a host's hellos before its first tick too, tick Pose.BEFORE_START). Every host hears
-    every frame: a host of hundreds of robots spread over the display listens to most cells anyway,
-    and one frame costs each process it crosses what one robot's state did."""
+    """Agent host -> agent hosts: the states of its robots at one tick (a host's hellos before its
+    first tick too, tick Pose.BEFORE_START). Every host hears every frame: a host of hundreds of
+    robots spread over the display listens to most cells anyway, and one frame costs each process
+    it crosses what one robot's state did."""
 
     KIND: ClassVar[int] = 12
     NAME: ClassVar[str] = "states"
+    _message: ClassVar[type[Message]] = State
     _item: ClassVar[np.dtype] = np.dtype([("robot", "<u4"), ("x", "<f4"), ("y", "<f4"), ("vx", "<f4"), ("vy", "<f4"),
                                           ("radius", "<f4"), ("goal_x", "<f4"), ("goal_y", "<f4"),
                                           ("goal_index", "<i4"), ("flags", "u1"), ("assign_epoch", "<u4"),
                                           ("assign_instance", "<u4")])
     _floats: ClassVar[tuple[str, ...]] = ("x", "y", "vx", "vy", "radius", "goal_x", "goal_y")
-    tick: int
-    stamp: float
-    sender: int  # the host's first robot
-    count: int
-    records: np.ndarray = field(default_factory=lambda: np.zeros(0, States._item))
 
     def check_records(self) -> None:
         if np.any(self.records["radius"] <= 0):
             raise Malformed("invalid")
-
-    @classmethod
-    def of(cls, tick: int, stamp: float, sender: int, states: list[State]) -> "States":
-        """The frame of these robots' states (their tick and stamp are the frame's)."""
-        records = np.array([(v := s._fixed_values())[:1] + v[3:] for s in states], cls._item).reshape(-1)
-        return cls(tick, stamp, sender, len(records), records)
-
-    def messages(self) -> list[State]:
-        """One State per record, as each robot would have sent it."""
-        tick, stamp = self.tick, self.stamp
-        return [State(robot, tick, stamp, *rest) for robot, *rest in self.records.tolist()]
 
 
 @dataclass
