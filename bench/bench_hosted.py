@@ -4,8 +4,8 @@ image: when every robot was within 1 cm of its goal (converged_at, display secon
 change) and the largest error at the end; contacts and clearance; the realtime factor; messages per
 robot-second by kind; per image, from trajectory.npz, when every robot drove to an agreed goal,
 how many instances were agreed and how many sent more than RESHUFFLE robots elsewhere. The whole
-sequence is up to 390 s of display time, 7 minutes of wall time on 2 cores at the realtime factor
-measured (0.88), so ``--duration`` runs its first images only.
+sequence is up to 390 s of display time, 5-6 minutes of wall time on 2 cores at the realtime factors
+measured (1.09-1.15), so ``--duration`` runs its first images only.
 
     .venv/bin/python -m bench.bench_hosted --duration 100            # the first two images (about 2 min)
     .venv/bin/python -m bench.bench_hosted --from RUN_DIR [--from RUN_DIR2]  # summarise finished runs
