@@ -20,7 +20,7 @@ import numpy as np
 from transport.bus import Bus
 from transport.codec import Bid, Goals
 
-from .core.bidder import RECORD, Participant, frames_close, goal_matching
+from .core.bidder import RECORD, Participant, frames_close
 from .core.params import RobotParams
 
 DIGEST_EVERY = 0.01
@@ -115,8 +115,7 @@ class AuctionLink:
                                 self.params.assign_eps, self.params.assign_hysteresis)
         carried = {}
         if self._warm_start(before, goals):
-            previous, prices = goal_matching(before.goals, goals.positions)
-            carried = self.part.carry(before, previous, current=current, prices=prices)
+            carried = self.part.carry(before, goals.matched, current=current, prices=goals.prices)
         elif goals.follows and before is not None and before.epoch == goals.follows:
             close = before.agreed_instance >= 0 and frames_close(before.goals, goals.positions, goals.previous)
             carried = self.part.carry(before, goals.previous, claim=close, current=current)
@@ -129,14 +128,15 @@ class AuctionLink:
     @staticmethod
     def _warm_start(before: Participant | None, goals: Goals) -> bool:
         """The next image of a sequence or keyframe of an animation, with the same robots, after an
-        agreed last one: the auction starts warm from the two goal sets' own matching and its prices
-        (core.bidder.goal_matching), and each robot drives to the goal its last one is matched to.
+        agreed last one: the auction starts warm from the two goal sets' matching and its prices, as
+        the coordinator sends them with the new set (Goals.matched_from, matched, prices), and each
+        robot drives to the goal its last one is matched to.
         A cold start of 1000 robots in 4 hosts takes 4575 message rounds for the paper's first
         transition (it did not agree within its 60 s hold), the warm one 252; 100 robots in 10 hosts
         agree on a keyframe turned and moved by up to 1 m in 5-54 rounds against 110-646 cold
         (bench/bench_carry.py)."""
         return (before is not None and before.agreed_instance >= 0 and not goals.per_robot
-                and len(before.goals) == len(goals.positions)
+                and goals.matched_from == before.epoch and len(before.goals) == len(goals.positions)
                 and np.array_equal(before.robots, np.sort(np.asarray(goals.robots, np.int64))))
 
     def _try_start(self, positions: dict[int, np.ndarray]) -> bool:

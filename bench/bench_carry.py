@@ -1,7 +1,7 @@
 """Consecutive keyframes: bids to agree on frame f's goal set when the auction starts cold, from the
 previous frame's assignment carried over by the goals' correspondence (agent.core.bidder.carry,
 prices zero), from that assignment with the previous prices carried too, or from the goal sets'
-own matching and its prices (agent.core.bidder.goal_matching: what the agents do after an agreed
+own matching and its prices (coordinator.keyframes.goal_matching, sent with the goal set: what the agents do after an agreed
 frame).
 
 Robots stand on frame f-1's goals (2 mm noise); frame f is frame f-1 turned and moved, its goals
@@ -19,7 +19,8 @@ import time
 import numpy as np
 from scipy.spatial import cKDTree
 
-from agent.core.bidder import Participant, frames_close, goal_matching
+from agent.core.bidder import Participant, frames_close
+from coordinator.keyframes import goal_matching
 from coordinator.keyframes import goal_correspondence
 
 from .common import write_results
@@ -32,13 +33,13 @@ EXPLAIN = ("Robots stand on frame f-1's goals; frame f is that frame moved and t
            "the previous prices carried too. In every case the robots drive to their carried goals at once; this "
            "measures only how soon the auction confirms or corrects them. Wall times are of this in-process "
            "exchange (no zenoh) and grow with other work on the machine; bids and rounds do not.")
-MATCHING = ("What the agents do (`agent.assignment.AuctionLink._warm_start`): after an agreed frame every host "
-            "computes the same matching of frame f-1's goals to frame f's, with prices in equilibrium for it "
-            "(`agent.core.bidder.goal_matching`: scipy's `linear_sum_assignment` as if a robot stood on each old "
-            "goal, its dual prices by shortest paths; its wall time is included), each robot claims the goal its "
-            "last one is matched to, and the auction starts from those claims and prices. The prices are nearly in equilibrium for the real "
-            "positions, whatever the frames' disparity. `frames_close` now only decides for a frame whose "
-            "robots changed (a robot died).")
+MATCHING = ("What the agents do (`agent.assignment.AuctionLink._warm_start`): after an agreed frame the "
+            "coordinator sends with frame f's goal set the matching of frame f-1's goals to frame f's, with prices "
+            "in equilibrium for it (`coordinator.keyframes.goal_matching`: scipy's `linear_sum_assignment` as if a "
+            "robot stood on each old goal, its dual prices by shortest paths; its wall time is included here), each "
+            "robot claims the goal its last one is matched to, and the auction starts from those claims and prices. "
+            "The prices are nearly in equilibrium for the real positions, whatever the frames' disparity. "
+            "`frames_close` now only decides for a frame whose robots changed (a robot died).")
 RULE = ("The rule (`agent.core.bidder.frames_close`): start from the carried claims when corresponding goals are on "
         "average at most 1.5 goal spacings apart (the third column). Beyond that the claims skip the coarse "
         "epsilon phases that build the prices, and the fine phases fight a price war that costs more than a "

@@ -3,7 +3,8 @@ hosts (issue 6): every robot decides for itself, K robots per process, over zeno
 image: when every robot was within 1 cm of its goal (converged_at, display seconds after the image
 change) and the largest error at the end; contacts and clearance; the realtime factor; messages per
 robot-second by kind; per image, from trajectory.npz, when every robot drove to an agreed goal,
-how many instances were agreed and how many sent more than RESHUFFLE robots elsewhere. The whole
+how many instances were agreed and how many sent more than RESHUFFLE robots elsewhere; per agent
+host, from log.mcap (runs given with --from), how late its commands came after each tick. The whole
 sequence is up to 390 s of display time, 5-6 minutes of wall time on 2 cores at the realtime factors
 measured (1.09-1.15), so ``--duration`` runs its first images only.
 
@@ -17,6 +18,8 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import orjson
+from mcap.reader import make_reader
 
 from transport.codec import State
 
@@ -56,9 +59,37 @@ def reassignments(traj: dict) -> list[str]:
     return rows
 
 
+def command_latency(run: Path) -> list[str]:
+    """Per agent host, from the run's log.mcap: how long after the world's tick k its command frame
+    for tick k arrived (both as the recorder received them), and how many arrived more than one
+    control period late, per 10 s of display. In real time a late command is a missed tick: the
+    robots drive on with their last one."""
+    clock: dict[int, tuple[int, float]] = {}
+    sent: dict[str, dict[int, int]] = {}
+    with open(run / "log.mcap", "rb") as f:
+        for _, channel, message in make_reader(f).iter_messages(topics=["/clock", "/cmds"]):
+            d = orjson.loads(message.data)
+            if channel.topic == "/clock":
+                clock.setdefault(d["tick"], (message.log_time, d["dt"]))
+            else:
+                sent.setdefault(d["key"].rsplit("/", 1)[-1], {}).setdefault(d["tick"], message.log_time)
+    if not sent:
+        return []
+    rows = ["| host (first robot) | latency ms, median / p90 / max | later than a period | of those, per 100 ticks (10 s) |",
+            "|---|---|---|---|"]
+    for host, ticks in sorted(sent.items(), key=lambda kv: int(kv[0])):
+        tick = np.array([t for t in sorted(ticks) if t in clock])
+        latency = np.array([(ticks[t] - clock[t][0]) / 1e9 for t in tick])
+        late = latency > np.array([clock[t][1] for t in tick])
+        per_10s = np.bincount(tick[late] // 100, minlength=int(tick.max()) // 100 + 1)
+        rows.append(f"| {host} | {np.median(latency) * 1e3:.0f} / {np.percentile(latency, 90) * 1e3:.0f} / "
+                    f"{latency.max() * 1e3:.0f} | {int(late.sum())} of {len(tick)} | {' '.join(map(str, per_10s))} |")
+    return rows + [""]
+
+
 def summary(m: dict, wall: float, k: int) -> list[str]:
     rows = [f"**{m['duration_s']:.0f} s of display** ({m['robots']} robots in {m['agent_processes']} agent hosts of "
-            f"{k}): wall {wall:.0f} s, realtime factor {m['duration_s'] / wall:.3f} (while stepping "
+            f"{k}, {m.get('clock', 'lockstep')} clock): wall {wall:.0f} s, realtime factor {m['duration_s'] / wall:.3f} (while stepping "
             f"{m['stepping_realtime_factor']:.3f}: {100 / m['stepping_realtime_factor']:.0f} ms of wall time per "
             f"0.1 s control step); contacts {m['contacts']}; min clearance "
             f"{m['min_clearance_m'] * 1e3:.1f} mm; missed ticks {m['missed_ticks']}; ORCA fallbacks "
@@ -84,9 +115,9 @@ def main() -> int:
                 return 2
             m, traj, wall = loaded
             k = m.get("agents_per_process") or args.k
-            lines += summary(m, wall, k) + reassignments(traj) + [""]
-            commands.append(f"pixelswarm run {SCENE} --engine distributed -k {k} --duration {m['duration_s']:g} "
-                            f"--no-video --out RUN")
+            lines += summary(m, wall, k) + reassignments(traj) + [""] + command_latency(run)
+            commands.append(f"pixelswarm run {SCENE} --engine distributed -k {k} --clock {m['clock']} "
+                            f"--duration {m['duration_s']:g} --no-video --out RUN")
         commands.append(".venv/bin/python -m bench.bench_hosted --from RUN ...")
     else:
         ran = run_cli_scene([SCENE, "--engine", "distributed", "-k", str(args.k), "--duration", str(args.duration)])

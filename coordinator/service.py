@@ -23,7 +23,7 @@ from transport.bus import Bus
 from transport.codec import Goals, Pose, Tick
 from transport.session import TransportError, add_zenoh_args, settings_from_args
 
-from .keyframes import goal_correspondence
+from .keyframes import goal_matching
 from .scene import Scene, SceneError, load_scene, scene_goal_set
 
 SETTLE_S = 0.5  # a change in the live robots must hold this long before a new goal set (debounce)
@@ -76,6 +76,14 @@ def step_timing(scene: Scene, step: int) -> dict[str, float | int]:
     return out
 
 
+PREPARE_AHEAD = 5.0  # s of display before an image change that the coordinator prepares its warm start
+
+
+def _as_sent(positions: np.ndarray) -> np.ndarray:
+    """Goal positions as the agents decode them from a Goals message (float32 on the wire)."""
+    return np.asarray(positions, np.float32).astype(float)
+
+
 def follows_keyframe(before: Goals | None, goals: Goals) -> bool:
     """Consecutive keyframes of an animation (paper 6.1-6.2) for the same robots: the robots carry
     their goals over by the goals' correspondence while they auction the new frame."""
@@ -99,6 +107,7 @@ class Coordinator:
         self.bodies: dict[int, np.ndarray] = {}  # dead robots' tracked positions
         self.body_inboxes: dict[int, Any] = {}
         self.body_wait_since: float | None = None
+        self._matching: tuple[tuple[int, bytes], tuple[np.ndarray, np.ndarray]] | None = None  # goal_matching's last
         if self.images:
             self.clock = bus.subscribe(bus.keys.clock, Tick)
             self.alive = bus.watch_alive("agent")
@@ -156,11 +165,33 @@ class Coordinator:
         self.current = Goals(self.epoch, 0, self.t, len(goals), np.asarray(goals), np.asarray(colors), step,
                              float(self.scene.steps[step].hold), np.array(sorted(robots)),
                              **step_timing(self.scene, step))
-        if follows_keyframe(before, self.current):
-            self.current.follows = before.epoch
-            self.current.previous = goal_correspondence(before.positions, self.current.positions)
+        if before is not None and not before.per_robot and len(before.positions) == len(goals):
+            self.current.matched_from = before.epoch
+            self.current.matched, self.current.prices = self._warm_start(before, goals)
+            if follows_keyframe(before, self.current):  # the same matching is a keyframe's correspondence (6.1)
+                self.current.follows, self.current.previous = before.epoch, self.current.matched
         self.bus.publish(self.bus.keys.goals(self.epoch), self.current)
         return True
+
+    def _warm_start(self, before: Goals, goals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The auction's warm start from goal set ``before`` to these goals (goal_matching, on the
+        positions as the agents decode them: float32), computed once per pair and kept."""
+        key = (before.epoch, np.asarray(goals, float).tobytes())
+        if self._matching is None or self._matching[0] != key:
+            self._matching = (key, goal_matching(_as_sent(before.positions), _as_sent(goals)))
+        return self._matching[1]
+
+    def _prepare_next(self) -> None:
+        """While an image is held, the next one's warm start, PREPARE_AHEAD s before it is due: at
+        1000 goals the matching takes 0.3-0.5 s, which would otherwise delay the change."""
+        if self.shown is None or self.t is None or self.current is None:
+            return
+        step, robots = self.shown[0] + 1, self.shown[1]
+        if step >= len(self.scene.steps) or self.scene.step_starts[step] - self.t > PREPARE_AHEAD:
+            return
+        goals, _ = scene_goal_set(self.scene, step, len(robots))
+        if len(goals) == len(self.current.positions) and not self.bodies:
+            self._warm_start(self.current, goals)
 
     def run(self, period: float = 1.0) -> None:
         self.bus.declare_alive("coordinator", 0)
@@ -168,6 +199,8 @@ class Coordinator:
         while self.running:
             if self.images and self._follow_show():
                 next_publish = time.monotonic() + period
+            elif self.images:
+                self._prepare_next()
             if self.current is not None and time.monotonic() >= next_publish:
                 self.bus.publish(self.bus.keys.goals(self.current.epoch), self.current)
                 next_publish = time.monotonic() + period

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from agent.core.bidder import Participant, frames_close, goal_matching
+from agent.core.bidder import Participant, frames_close
 from bench.bench_carry import agree
-from coordinator.keyframes import goal_correspondence, goal_disparity
+from coordinator.keyframes import goal_correspondence, goal_disparity, goal_matching
 
 from .test_bidder import optimum
 
@@ -135,8 +135,8 @@ def assert_equilibrium(stand_ins: np.ndarray, goals: np.ndarray, prices: np.ndar
 
 
 def test_the_next_image_starts_warm_from_the_goal_sets_matching_and_agrees_far_sooner() -> None:
-    """Paper 7.2's sequences: every host computes the same matching of the last image's goals to the
-    next one's, with its prices (goal_matching); the robots carry their goals over by it and the
+    """Paper 7.2's sequences: the coordinator sends the matching of the last image's goals to the
+    next one's with its prices (goal_matching); the robots carry their goals over by it and the
     auction corrects what their few millimetres off the old goals change. The agreed assignment
     keeps the auction's bound against the optimum on the robots' real positions."""
     g1, g2, pos = two_images()
@@ -154,8 +154,7 @@ def test_the_next_image_starts_warm_from_the_goal_sets_matching_and_agrees_far_s
     for new, old in zip(warm_parts, first):
         carried.update(new.carry(old, previous, prices=prices))
     assert sorted(carried.values()) == robots  # every robot drives to a distinct goal at once
-    again = goal_matching(g1, g2)  # what another host computes: the same arrays
-    assert np.array_equal(again[0], previous) and np.array_equal(again[1], prices)
+    assert np.array_equal(goal_correspondence(g1, g2), previous)  # a keyframe's correspondence is this matching
     assert all(np.array_equal(p.board.price, prices) for p in warm_parts)
     warm_rounds = agree(warm_parts, pos)
     cold_parts = [Participant(2, g2, robots, h, EPS) for h in hosts]
@@ -193,3 +192,36 @@ def test_a_warm_start_of_four_hosts_agrees_at_any_price_level(offset: float) -> 
     cost = sum(((pos[r] - g2[g]) ** 2).sum() for r, g in result.items())
     assert cost <= optimum(pos, g2) + len(robots) * EPS + 1e-9
     assert rounds < 1000, rounds
+
+
+def test_the_coordinator_sends_the_next_image_with_its_matching_and_prices(monkeypatch) -> None:
+    """The warm start is computed once, by the coordinator, on the goals as the agents decode them,
+    a few seconds before the image change (PREPARE_AHEAD) so the change is not delayed: the next image
+    of the paper's sequence carries the matching to the last one's goals and prices in equilibrium
+    for it; the first image carries none (its auction starts cold)."""
+    from coordinator import service
+    from coordinator.scene import load_scene
+    from transport.codec import Goals, Tick, decode
+
+    from .test_scripted_movers import Bus
+
+    calls = []
+    monkeypatch.setattr(service, "goal_matching", lambda *a: calls.append(1) or goal_matching(*a))
+    scene = load_scene("paper-sequence")
+    bus = Bus()
+    coordinator = service.Coordinator(bus, scene)
+    bus.alive.items = [(f"agent/{r}", str(r), True, 0.0) for r in range(scene.robots)]
+    sent = []
+    change = scene.step_starts[1]
+    for t in (0.0, change - service.PREPARE_AHEAD - 1.0, change - 1.0, change + 0.1):
+        bus.clock.items = [("clock", Tick(round(t / 0.1), t, 0.1))]
+        if coordinator._follow_show():
+            sent.append(decode(bus.published[-1].encode(), Goals))
+        else:
+            coordinator._prepare_next()
+        assert len(calls) == (t >= change - service.PREPARE_AHEAD)  # prepared ahead, then reused
+    first, second = sent
+    assert first.matched_from == 0 and len(first.prices) == 0
+    assert second.matched_from == first.epoch and second.follows == 0  # an image, not a keyframe
+    assert sorted(second.matched.tolist()) == list(range(scene.robots))
+    assert_equilibrium(first.positions[second.matched], second.positions, second.prices)

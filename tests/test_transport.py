@@ -140,6 +140,26 @@ def test_keyframe_correspondence_rides_in_a_second_trailer():
     assert decode(bad.encode(), drops=drops) is None and drops["invalid"] == 1
 
 
+def test_the_auctions_warm_start_rides_in_a_third_trailer():
+    """The matching to the last goal set and its prices (coordinator.keyframes.goal_matching) ride
+    after the keyframe correspondence, or alone for the next image of a sequence; a matched index
+    outside the set or a non-finite price drops the message."""
+    keyframe = SAMPLES[6]
+    fields = {**keyframe.to_dict(), "positions": keyframe.positions, "colors": keyframe.colors, "robots": keyframe.robots}
+    warm = {"matched_from": 3, "matched": np.array([1, 0]), "prices": np.array([0.0, 0.125])}
+    both = decode(Goals(**{**fields, **warm}).encode())
+    assert both.follows == 3 and both.previous.tolist() == [1, 0]
+    assert both.matched_from == 3 and both.matched.tolist() == [1, 0] and both.prices.tolist() == [0.0, 0.125]
+    image = decode(Goals(**{**fields, "follows": 0, "frame_period": 0.0, **warm}).encode())
+    assert image.follows == 0 and len(image.previous) == 0
+    assert image.matched_from == 3 and image.matched.tolist() == [1, 0] and image.prices.tolist() == [0.0, 0.125]
+    assert decode(keyframe.encode()).matched_from == 0  # without it: cold, as before
+    drops = DropCounter()
+    assert decode(Goals(**{**fields, **warm, "matched": np.array([0, 2])}).encode(), drops=drops) is None
+    assert decode(Goals(**{**fields, **warm, "prices": np.array([0.0, math.nan])}).encode(), drops=drops) is None
+    assert drops["invalid"] == 1 and drops["non-finite"] == 1
+
+
 def test_wrong_kind_on_a_key_is_dropped():
     drops = DropCounter()
     assert decode(SAMPLES[2].encode(), Pose, drops) is None

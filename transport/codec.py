@@ -227,9 +227,16 @@ class Goals(Message):
     follows: int = 0  # the goal set (epoch) whose goals ``previous`` refers to; 0: none
     previous: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # per goal: its
     # corresponding goal in set ``follows`` (consecutive keyframes, coordinator.keyframes.goal_correspondence)
+    matched_from: int = 0  # the goal set (epoch) ``matched`` and ``prices`` start the auction from; 0: none
+    matched: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # per goal: the goal of
+    # set ``matched_from`` matched to it, and ``prices`` in equilibrium for that matching: the auction's
+    # warm start after an image or keyframe (coordinator.keyframes.goal_matching, computed once by the
+    # coordinator rather than by every agent host at once while its robots drive)
+    prices: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     _trailer: ClassVar[struct.Struct] = struct.Struct("<dfffffffB")
-    _follows: ClassVar[struct.Struct] = struct.Struct("<I")
+    _follows: ClassVar[struct.Struct] = struct.Struct("<I")  # and one <i4 per goal (previous)
+    _matched: ClassVar[struct.Struct] = struct.Struct("<I")  # and one <i4 (matched), then one <f8 (prices), per goal
 
     @property
     def moves(self) -> bool:
@@ -249,6 +256,11 @@ class Goals(Message):
             if len(self.previous) != len(self.positions):
                 raise ValueError("previous needs one index per goal")
             trailer += self._follows.pack(self.follows) + np.asarray(self.previous, "<i4").tobytes()
+        if self.matched_from and len(self.positions):  # a third, optional trailer: the auction's warm start
+            if len(self.matched) != len(self.positions) or len(self.prices) != len(self.positions):
+                raise ValueError("matched and prices need one entry per goal")
+            trailer += (self._matched.pack(self.matched_from) + np.asarray(self.matched, "<i4").tobytes()
+                        + np.asarray(self.prices, "<f8").tobytes())
         return items.tobytes() + np.asarray(self.robots, "<u2").tobytes() + trailer
 
     @classmethod
@@ -258,9 +270,15 @@ class Goals(Message):
         epoch, per_robot, stamp, count, step, hold, n_robots = cls._fixed.unpack(body[: cls._fixed.size])
         end = cls._fixed.size + count * cls._item.itemsize
         rest = len(body) - (end + 2 * n_robots)
+        # the optional trailers tell themselves apart by length (4 + 4 count and 4 + 12 count bytes)
         correspondence = cls._follows.size + 4 * count
-        if rest not in (0, cls._trailer.size, cls._trailer.size + correspondence):
+        matching = cls._matched.size + 12 * count if count else -1
+        trailers = {0: (False, False), cls._trailer.size: (False, False),
+                    cls._trailer.size + correspondence: (True, False), cls._trailer.size + matching: (False, True),
+                    cls._trailer.size + correspondence + matching: (True, True)}
+        if rest not in trailers:
             raise Malformed("truncated")
+        has_previous, has_matching = trailers[rest]
         items = np.frombuffer(body[cls._fixed.size:end], cls._item)
         positions = np.stack([items["x"], items["y"]], axis=1).astype(float)
         _finite(stamp, hold)
@@ -271,12 +289,22 @@ class Goals(Message):
         extra = cls._trailer.unpack(body[at:at + cls._trailer.size]) if rest else ()
         _finite(*extra)
         msg = cls(epoch, per_robot, stamp, count, positions, items["rgb"].copy(), step, hold, robots, *extra)
-        if rest > cls._trailer.size:
-            at += cls._trailer.size
+        at += cls._trailer.size
+        if has_previous:
             (msg.follows,) = cls._follows.unpack(body[at:at + cls._follows.size])
-            msg.previous = np.frombuffer(body[at + cls._follows.size:], "<i4").astype(np.int64)
+            at += cls._follows.size
+            msg.previous = np.frombuffer(body[at:at + 4 * count], "<i4").astype(np.int64)
+            at += 4 * count
             if msg.follows == 0 or (msg.previous < -1).any() or (msg.previous >= count).any():
                 raise Malformed("invalid")
+        if has_matching:
+            (msg.matched_from,) = cls._matched.unpack(body[at:at + cls._matched.size])
+            at += cls._matched.size
+            msg.matched = np.frombuffer(body[at:at + 4 * count], "<i4").astype(np.int64)
+            msg.prices = np.frombuffer(body[at + 4 * count:], "<f8").copy()
+            if msg.matched_from == 0 or (msg.matched < 0).any() or (msg.matched >= count).any():
+                raise Malformed("invalid")
+            _finite(*msg.prices)
         if msg.frame_period < 0 or msg.geometric not in (0, 1) or (msg.geometric and msg.k_eg <= -1):
             raise Malformed("invalid")
         return msg

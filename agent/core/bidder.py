@@ -82,8 +82,8 @@ def bid_position(position: np.ndarray, goal: np.ndarray, velocity: np.ndarray, l
 
 def frames_close(before: np.ndarray, goals: np.ndarray, previous: np.ndarray) -> bool:
     """Whether consecutive keyframes differ little enough for the auction to start from the carried
-    assignment (Participant.carry) at prices zero, when goal_matching's warm start does not apply (the
-    last auction never agreed, or the robots changed): corresponding goals on average at most one and a half
+    assignment (Participant.carry) at prices zero, when the warm start from the goal sets' matching
+    (Goals.matched) does not apply (the last auction never agreed, or the robots changed): corresponding goals on average at most one and a half
     typical goal spacings (the median distance from a goal to its nearest neighbour) apart. Measured
     (bench/bench_carry.py, 100 robots in 10 hosts): at 0.3 and 1.0 spacings the carried claims agree in
     5 and 126 message rounds against a cold start's 147 and 267; at 2.7 they need 1181 against 461."""
@@ -97,56 +97,6 @@ def frames_close(before: np.ndarray, goals: np.ndarray, previous: np.ndarray) ->
     disparity = float(np.hypot(*(goals[ok] - np.asarray(before, float)[previous[ok]]).T).mean())
     spacing = float(np.median(cKDTree(goals).query(goals, k=2)[0][:, 1]))
     return disparity <= 1.5 * spacing
-
-
-def goal_matching(before: np.ndarray, goals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A warm start for the auction of the next image of a sequence (paper 7.2) or keyframe of an
-    animation (6.1) from what every host knows alike, the two goal sets: the optimal matching of the
-    last set's goals to this set's goals (squared distances, as if a robot stood on each old goal)
-    and prices in equilibrium for it. Returns ``previous`` (per new goal, the old goal matched to it,
-    as Participant.carry takes it) and the prices, lowest zero.
-
-    Robots stand within a few millimetres of their goals once an image has formed, so these prices
-    are nearly in equilibrium for the real positions: the distributed auction then starts from the
-    carried claims and only corrects what the millimetres change. Every host computes the same
-    arrays from the same message bytes with the same code, so their boards start alike.
-
-    The matching is scipy's linear_sum_assignment. Its prices are the LP duals, which scipy does not
-    return: with old goal i matched to new goal j, equilibrium asks p_j <= p_k + c_ik - c_ij for every
-    k, so p is the shortest-path distance to each goal in the graph of those edges (no negative
-    cycle: the matching is optimal), found by relaxing every edge at once until nothing changes.
-    At 1000 goals (the paper sequence's third image after its second): 1.5 s, against 31 s for the
-    auction run in-process as before, and 0.3 s of relaxation against 4.6 s for scipy's
-    csgraph.bellman_ford on the same dense graph."""
-    before, goals = np.asarray(before, float), np.asarray(goals, float)
-    n = len(goals)
-    if len(before) != n:
-        raise ValueError("goal_matching needs two goal sets of one size")
-    previous = np.full(n, -1, np.int64)
-    if n == 0:
-        return previous, np.zeros(0)
-    from scipy.optimize import linear_sum_assignment  # here: scipy.optimize adds to every agent's start-up
-
-    cost = _squared_distances(before, goals)
-    rows, cols = linear_sum_assignment(cost)
-    previous[cols] = rows
-    # edge k -> j: what goal k costs the robot on j's old goal more than goal j does
-    edge = cost[previous].T - cost[previous, np.arange(n)][None, :]
-    price = _shortest_paths(edge)
-    return previous, price - price.min()
-
-
-def _shortest_paths(edge: np.ndarray) -> np.ndarray:
-    """Distances to every node from a source with a zero edge to each, over ``edge[k, j]`` (k -> j; no
-    negative cycle), relaxing every edge at once until nothing changes."""
-    n = len(edge)
-    dist = np.zeros(n)
-    for _ in range(n):  # a shortest path has at most n edges
-        relaxed = np.minimum(dist, (dist[:, None] + edge).min(axis=0))
-        if np.array_equal(relaxed, dist):
-            break
-        dist = relaxed
-    return dist
 
 
 def records(rows: list[tuple]) -> np.ndarray:
@@ -368,7 +318,7 @@ class Participant:
         phases that build the prices, and the fine ones fight a price war that costs more than a cold
         start (bench/bench_carry.py; see frames_close). Carrying the prices too costs more in both
         cases: they are in equilibrium for the old costs only. ``prices`` (with ``claim``): prices in
-        equilibrium for the new goals (goal_matching's) to start from instead of zero. Call before the
+        equilibrium for the new goals (Goals.prices) to start from instead of zero. Call before the
         first instance."""
         previous = np.asarray(previous, np.int64)
         if self.started or not before.started or len(previous) != len(self.goals):
