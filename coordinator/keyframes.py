@@ -122,10 +122,10 @@ def goal_correspondence(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     one-to-one matching of least total squared distance (eq. 7). The robots use it to carry their
     assignment from one keyframe to the next (a robot on goal i of G_{f-1} drives on to the goal that
     corresponds to it) while they auction G_f. Raises GoalError unless both sets have one size."""
-    return goal_matching(a, b, with_prices=False)[0]
+    return _matching(a, b)[1]
 
 
-def goal_matching(a: np.ndarray, b: np.ndarray, with_prices: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def goal_matching(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A warm start for the auction of the next image of a sequence (paper 7.2) or keyframe of an
     animation (6.1): goal_correspondence (as if a robot stood on each goal of ``a``) and prices in
     equilibrium for it, lowest zero. The coordinator sends both with the goal set (Goals.matched,
@@ -140,6 +140,16 @@ def goal_matching(a: np.ndarray, b: np.ndarray, with_prices: bool = True) -> tup
     k, so p is the shortest-path distance to each goal in the graph of those edges (no negative
     cycle: the matching is optimal), found by relaxing every edge at once until nothing changes
     (0.1 s at 1000 goals, against 4.6 s for scipy's csgraph.bellman_ford on the same dense graph)."""
+    cost, previous = _matching(a, b)
+    # edge k -> j: what goal k costs the robot on j's old goal more than goal j does
+    edge = cost[previous].T - cost[previous, np.arange(len(previous))][None, :]
+    price = _shortest_paths(edge)
+    return previous, price - price.min()
+
+
+def _matching(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The squared distances from the goals of ``a`` to those of ``b``, and per goal of ``b`` the goal
+    of ``a`` matched to it (least total squared distance)."""
     a, b = np.asarray(a, float).reshape(-1, 2), np.asarray(b, float).reshape(-1, 2)
     if len(a) != len(b) or len(a) == 0:
         raise GoalError(f"goal correspondence needs two non-empty goal sets of one size, not {len(a)} and {len(b)}")
@@ -147,12 +157,7 @@ def goal_matching(a: np.ndarray, b: np.ndarray, with_prices: bool = True) -> tup
     rows, cols = linear_sum_assignment(cost)
     previous = np.empty(len(b), np.int64)
     previous[cols] = rows
-    if not with_prices:
-        return previous, np.zeros(0)
-    # edge k -> j: what goal k costs the robot on j's old goal more than goal j does
-    edge = cost[previous].T - cost[previous, np.arange(len(b))][None, :]
-    price = _shortest_paths(edge)
-    return previous, price - price.min()
+    return cost, previous
 
 
 def _shortest_paths(edge: np.ndarray) -> np.ndarray:

@@ -235,8 +235,8 @@ class Goals(Message):
     prices: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     _trailer: ClassVar[struct.Struct] = struct.Struct("<dfffffffB")
-    _follows: ClassVar[struct.Struct] = struct.Struct("<I")  # and one <i4 per goal (previous)
-    _matched: ClassVar[struct.Struct] = struct.Struct("<I")  # and one <i4 (matched), then one <f8 (prices), per goal
+    _epoch: ClassVar[struct.Struct] = struct.Struct("<I")  # opens each optional trailer: follows, then one <i4
+    # per goal (previous); matched_from, then one <i4 (matched) and one <f8 (prices) per goal
 
     @property
     def moves(self) -> bool:
@@ -255,11 +255,11 @@ class Goals(Message):
         if self.follows:  # a second, optional trailer: the correspondence to the previous keyframe
             if len(self.previous) != len(self.positions):
                 raise ValueError("previous needs one index per goal")
-            trailer += self._follows.pack(self.follows) + np.asarray(self.previous, "<i4").tobytes()
+            trailer += self._epoch.pack(self.follows) + np.asarray(self.previous, "<i4").tobytes()
         if self.matched_from and len(self.positions):  # a third, optional trailer: the auction's warm start
             if len(self.matched) != len(self.positions) or len(self.prices) != len(self.positions):
                 raise ValueError("matched and prices need one entry per goal")
-            trailer += (self._matched.pack(self.matched_from) + np.asarray(self.matched, "<i4").tobytes()
+            trailer += (self._epoch.pack(self.matched_from) + np.asarray(self.matched, "<i4").tobytes()
                         + np.asarray(self.prices, "<f8").tobytes())
         return items.tobytes() + np.asarray(self.robots, "<u2").tobytes() + trailer
 
@@ -271,8 +271,8 @@ class Goals(Message):
         end = cls._fixed.size + count * cls._item.itemsize
         rest = len(body) - (end + 2 * n_robots)
         # the optional trailers tell themselves apart by length (4 + 4 count and 4 + 12 count bytes)
-        correspondence = cls._follows.size + 4 * count
-        matching = cls._matched.size + 12 * count if count else -1
+        correspondence = cls._epoch.size + 4 * count
+        matching = cls._epoch.size + 12 * count if count else -1
         trailers = {0: (False, False), cls._trailer.size: (False, False),
                     cls._trailer.size + correspondence: (True, False), cls._trailer.size + matching: (False, True),
                     cls._trailer.size + correspondence + matching: (True, True)}
@@ -291,15 +291,15 @@ class Goals(Message):
         msg = cls(epoch, per_robot, stamp, count, positions, items["rgb"].copy(), step, hold, robots, *extra)
         at += cls._trailer.size
         if has_previous:
-            (msg.follows,) = cls._follows.unpack(body[at:at + cls._follows.size])
-            at += cls._follows.size
+            (msg.follows,) = cls._epoch.unpack(body[at:at + cls._epoch.size])
+            at += cls._epoch.size
             msg.previous = np.frombuffer(body[at:at + 4 * count], "<i4").astype(np.int64)
             at += 4 * count
             if msg.follows == 0 or (msg.previous < -1).any() or (msg.previous >= count).any():
                 raise Malformed("invalid")
         if has_matching:
-            (msg.matched_from,) = cls._matched.unpack(body[at:at + cls._matched.size])
-            at += cls._matched.size
+            (msg.matched_from,) = cls._epoch.unpack(body[at:at + cls._epoch.size])
+            at += cls._epoch.size
             msg.matched = np.frombuffer(body[at:at + 4 * count], "<i4").astype(np.int64)
             msg.prices = np.frombuffer(body[at + 4 * count:], "<f8").copy()
             if msg.matched_from == 0 or (msg.matched < 0).any() or (msg.matched >= count).any():
