@@ -213,6 +213,7 @@ class Launcher:
             world_args += ["--pose-frames"] if self._frames else []
             self._spawn("world", "sim.world_node", world_args, [])
             end_reason = self._loop(bus, recorder)
+            self._check_children(recorder)  # an agent that died as the world finished is still a crash
             self._stop_children()
             # Final statistics from agents, and on a loaded machine the last ticks still in flight:
             # wait (bounded) until the world's final state has been recorded.

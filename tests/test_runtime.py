@@ -122,7 +122,8 @@ def test_lockstep_is_reproducible_and_hosts_match_processes(tmp_path):
 def test_sigkill_of_an_agent(tmp_path, spawned):
     scene = write_scene(tmp_path, duration=10.0)
     out = tmp_path / "run"
-    proc, agents = start_run(spawned, scene, out)
+    # Real time: in lock-step 8 robots can finish their 10 s of display before the kill lands
+    proc, agents = start_run(spawned, scene, out, "--clock", "realtime")
     everyone = [p.pid for p in descendants(proc.pid)]
     victim = agents[3]
     robot = robots_of(victim)[0]
