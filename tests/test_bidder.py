@@ -234,6 +234,47 @@ def test_settle_alone_is_the_message_free_settling_of_the_protocol() -> None:
         pos = pos + rng.normal(0, 0.1, pos.shape)
 
 
+@settings(max_examples=25, deadline=None)
+@given(n=st.integers(1, 40), g_extra=st.integers(0, 3), seed=st.integers(0, 10_000), grid=st.booleans(),
+       stride=st.integers(1, 3))
+def test_compiled_rounds_settle_to_the_protocols_board_bit_for_bit(n: int, g_extra: int, seed: int, grid: bool,
+                                                                   stride: int) -> None:
+    """settle_alone's rounds are compiled (agent.core.jacobi); the agent hosts' are numpy. Over ties
+    (a grid), more goals than robots, robot ids with gaps, deadlock penalties and warm blocks on
+    moving robots, both must end every block on the same board, claims, bids and agreement."""
+    rng = np.random.default_rng(seed)
+    if grid:  # ties everywhere
+        side = int(np.ceil(np.sqrt(n + g_extra)))
+        goals = np.array([(i % side, i // side) for i in range(n + g_extra)], float) * 0.1
+        pos = goals[:n][::-1] + 0.05
+    else:
+        pos, goals = rng.uniform(-1, 1, (n, 2)), rng.uniform(-1, 1, (n + g_extra, 2))
+    ids = [1 + stride * i for i in range(n)]
+    alone = Participant(1, goals, ids, ids, 1e-3, 5e-3)
+    looped = Participant(1, goals, ids, ids, 1e-3, 5e-3)
+    for _ in range(3):
+        at = {r: pos[i] for i, r in enumerate(ids)}
+        goal = alone.settle_alone(at)
+        looped.begin(looped.instance + 1 if looped.started else 0, at)
+        for _ in range(100):
+            looped.bid_until_quiet()
+            instance = looped.instance
+            looped.check_agreement()
+            if looped.is_agreed or looped.instance == instance:
+                break
+        assert looped.is_agreed
+        assert (alone.instance, alone.bids, alone.agreed) == (looped.instance, looped.bids, looped.agreed)
+        np.testing.assert_array_equal(alone.board.price, looped.board.price)
+        np.testing.assert_array_equal(alone.board.owner, looped.board.owner)
+        np.testing.assert_array_equal(alone.board.released, looped.board.released)
+        assert alone.board.digest() == looped.board.digest()
+        assert goal.tolist() == looped.goal.tolist()
+        robot, target = ids[int(rng.integers(n))], int(rng.integers(len(goals)))
+        alone.penalise(robot, target, 0.3)
+        looped.penalise(robot, target, 0.3)
+        pos = pos + rng.normal(0, 0.05, pos.shape)
+
+
 def test_settle_alone_needs_every_robot() -> None:
     p = Participant(1, np.zeros((2, 2)), [0, 1], [0], 1e-3)
     with pytest.raises(ValueError, match="every robot"):

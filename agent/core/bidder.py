@@ -41,7 +41,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from .auction import NO_OWNER, epsilon_schedule, is_content
+from .auction import NO_OWNER, ROUNDING, epsilon_schedule, is_content
 
 CONTENT = 1  # record flag: the robot holds the goal and is content with it
 RELEASED = 2  # record flag: the robot gave the goal up at this price
@@ -502,139 +502,36 @@ class Participant:
         self.claims_changed = True
         return owner[(owner != self.board.owner[best]) & (owner != NO_OWNER)]
 
-    def _bid_few(self, rows: list[int], eps: float) -> list[int]:
-        """_bid_rows for a few bidders (rows ascending; eps: this phase's), in scalars: the same bids
-        on the same pre-round board, the same merge (max-consensus does not depend on the order in
-        which records merge) and cache, at a fraction of the array calls: most rounds of a long
-        chain of displacements have one or two bidders. Returns the robots outbid from a goal."""
-        board, cost = self.board, self.cost
-        best, value, second = self._best
-        records, after = [], []
-        for i in rows:  # every bid against the board as the round found it
-            values = -cost[i]
-            values -= board.price
-            j1 = int(values.argmax())  # ties: lowest goal index, the same everywhere
-            v1 = values[j1]
-            j2, v2, v3 = j1, v1 - eps, -np.inf
-            if len(values) > 1:
-                values[j1] = -np.inf
-                j2 = int(values.argmax())
-                v2 = values[j2]
-                if len(values) > 2:
-                    values[j2] = -np.inf
-                    v3 = values.max()
-            best[i], value[i], second[i] = j1, v1, v2 if len(values) > 1 else -np.inf
-            robot, held = int(self.own_ids[i]), int(self.goal[i])
-            if held >= 0 and board.owner[held] == robot and not board.released[held]:  # it gives its goal up
-                records.append((held, board.price[held], robot, True))
-            records.append((j1, board.price[j1] + (v1 - v2) + eps, robot, False))
-            after.append((i, j1, j2, v3, int(board.owner[j1])))
-        for record in records:
-            board.merge_one(*record)
-        outbid = []
-        for i, j1, j2, v3, owner in after:  # _after_bids, row by row
-            v_bid = -cost[i, j1] - board.price[j1]
-            v_run = -cost[i, j2] - board.price[j2]
-            bound = max(v_bid, v3)
-            if v_run > bound and j2 != j1:
-                best[i], value[i], second[i] = j2, v_run, bound
-            else:
-                best[i], value[i], second[i] = j1, v_bid, np.inf
-            self.goal[i] = j1
-            if owner != NO_OWNER and board.owner[j1] != owner:
-                outbid.append(owner)
-        self.bids += len(rows)
-        self.rounds += 1
-        self.claims_changed = True
-        return outbid
-
     def _bid_alone_until_quiet(self, max_rounds: int = 100_000) -> int:
         """bid_until_quiet() for a host that owns every robot while no message arrives (settle_alone):
-        the same Jacobi rounds, bids and board, but after a round only the bidders and the robots
-        they outbid are looked at again. Nobody else's contentment can have changed: every content
-        robot holds its claim (or it would bid), so a bid on its goal outbids it; otherwise its
-        held value stays and its best value can only fall (prices only rise). While 1000 robots
-        cross the arena a warm block can run thousands of rounds of one or two bidders (each
-        outbid robot outbids the next), and checking every robot was most of a round's cost.
+        the same Jacobi rounds, bids and board, compiled (agent.core.jacobi: while 1000 robots cross
+        the arena a warm block runs thousands of rounds of one or two bidders). Imported here, not
+        at the top: agent hosts never settle alone and need not load numba.
 
-        A robot's cached best value is made exact again only when it is looked at, if the price of
-        its best goal changed since (``seen``); the others are left to _best_values, which finds
-        them stale against the prices at the start (``_price_seen`` is not moved on)."""
+        The cached best values stay an upper bound of what they were, as _best_values expects: the
+        robots looked at are exact, the others are found stale against the prices at the start
+        (``_price_seen`` is not moved on)."""
+        from .jacobi import jacobi_rounds
+
         content = self._content_all()
         best, value, second = self._best
-        price = self.board.price  # merged into in place
-        seen = price[best]  # per robot: its best goal's price when its best value was last exact
-        eps, slack = self.eps, self.slack
-        waiting = set(np.flatnonzero(~content).tolist())  # robots not content: the next round's bidders
-        rounds = 0
-        while waiting and rounds < max_rounds:
-            bidders = np.array(sorted(waiting))  # ascending, as np.flatnonzero gives them
-            outbid = self._bid_few(bidders.tolist(), eps) if len(bidders) <= 4 else self._bid_rows(bidders).tolist()
-            outbid_rows = [self.row_of[r] for r in outbid]
-            rounds += 1
-            # the bidders' best values are exact now, or marked for a new ranking (second = inf)
-            seen[bidders] = np.where(second[bidders] < np.inf, price[best[bidders]], np.nan)
-            rows = bidders.tolist() + outbid_rows  # a robot twice is harmless
-            if len(rows) <= 4:  # most rounds: in scalars
-                content = [self._look_again(r, seen, slack) for r in rows]
-            else:
-                rows = np.array(rows)
-                self._refresh_best(rows, seen)
-                content = self._content_rows(rows, slack).tolist()
-                rows = rows.tolist()
-            for r, ok in zip(rows, content):
-                if ok:
-                    waiting.discard(r)
-                else:
-                    waiting.add(r)
-        if not waiting:
-            self._content_cache = ((self.board.version, self.instance, self.goal.tobytes()),
+        waiting = np.flatnonzero(~content)
+        if not len(waiting):
+            return 0
+        board = self.board
+        row_of_id = np.full(int(self.own_ids.max(initial=0)) + 1, -1, np.int64)
+        row_of_id[self.own_ids] = np.arange(len(self.own_ids))
+        rounds, bids, left = jacobi_rounds(self.cost, board.price, board.owner, board.released, self.goal,
+                                           self.own_ids, row_of_id, best, value, second, waiting,
+                                           float(self.eps), float(self.slack), ROUNDING, max_rounds)
+        board.version += 1
+        self.bids += bids
+        self.rounds += rounds
+        self.claims_changed = True
+        if not left:
+            self._content_cache = ((board.version, self.instance, self.goal.tobytes()),
                                    np.ones(len(self.own), bool))
         return rounds
-
-    def _refresh_best(self, rows: np.ndarray, seen: np.ndarray) -> None:
-        """_best_values for these rows only, against each row's own ``seen`` price."""
-        best, value, second = self._best
-        price = self.board.price
-        stale = rows[~(price[best[rows]] == seen[rows])]  # NaN: ranked anew
-        if not len(stale):
-            return
-        g = best[stale]
-        now = -self.cost[stale, g] - price[g]
-        value[stale] = now
-        kept = now > second[stale]
-        seen[stale[kept]] = price[g[kept]]
-        lost = stale[~kept]
-        if len(lost):
-            self._rank(lost)
-            seen[lost] = price[best[lost]]
-
-    def _look_again(self, i: int, seen: np.ndarray, slack: float) -> bool:
-        """_refresh_best and _content_rows for one row, in scalars: is robot row i content?"""
-        best, value, second = self._best
-        price = self.board.price
-        b = best[i]
-        if not price[b] == seen[i]:  # NaN: ranked anew
-            now = -self.cost[i, b] - price[b]
-            value[i] = now
-            if now > second[i]:
-                seen[i] = price[b]
-            else:
-                self._rank_one(i)
-                seen[i] = price[best[i]]
-        g, board = self.goal[i], self.board
-        if g < 0 or board.owner[g] != self.own_ids[i] or board.released[g]:  # not Board.holds
-            return False
-        return bool(is_content(-self.cost[i, g] - price[g], value[i], slack))
-
-    def _content_rows(self, rows: np.ndarray, slack: float) -> np.ndarray:
-        """_content_all() for these rows (slack: this phase's), from the cached best values."""
-        goal = self.goal[rows]
-        g = np.maximum(goal, 0)
-        board = self.board
-        holds = (goal >= 0) & (board.owner[g] == self.own_ids[rows]) & ~board.released[g]  # Board.holds
-        held = -self.cost[rows, g] - board.price[g]
-        return holds & is_content(held, self._best[1][rows], slack)
 
     def bid_until_quiet(self, max_rounds: int = 100_000) -> int:
         """Rounds until no own robot wants to bid (own robots outbid each other without messages)."""

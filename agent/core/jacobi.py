@@ -1,0 +1,173 @@
+"""The Jacobi rounds of the forward auction (paper 5.1.1) for a host that holds every robot and hears
+no message (the central engine's `Participant.settle_alone`), compiled with numba.
+
+The same rounds, bids and board as `Participant.bid_until_quiet`: every robot that is not content
+bids at once on its best goal against the board as the round found it, releasing the goal it held;
+per goal the greatest record wins (price, then the lower robot id, then "released"). The outcome
+is the protocol's to the bit (tests/test_bidder.py checks it against the Python rounds).
+
+Why compiled: while 1000 robots cross the arena a warm block runs chains of 10,000 and more rounds of
+one or two bidders (each outbid robot outbids the next). Each round is a scan over the goals for one
+robot: microseconds compiled, about 10 us in Python, where the chains cost 110 ms per control step
+(bench/results/large.md). After a round only the bidders and the robots they outbid are looked at
+again; nobody else's contentment can have changed (a content robot holds its goal, so only a bid
+on that goal changes it, and every other price only rises).
+
+Each robot keeps its best goal, its net value (exact when the price of that goal is ``seen``) and
+an upper bound of its second-best value, as the Python rounds do: a robot looked at again is
+ranked over every goal only if its best goal may have changed.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+NO_OWNER = -1  # as agent.core.auction.NO_OWNER (this module compiles on its own)
+
+
+@njit(cache=True)
+def _greater(price: float, robot: int, released: bool, b_price: float, b_owner: int, b_released: bool) -> bool:
+    """Is the record (price, robot, released) greater than the board's for its goal?"""
+    if b_owner == NO_OWNER:
+        return True
+    if price != b_price:
+        return price > b_price
+    if robot != b_owner:
+        return robot < b_owner
+    return released and not b_released
+
+
+@njit(cache=True)
+def _rank(cost_row: np.ndarray, price: np.ndarray) -> tuple[int, float, int, float, float]:
+    """A robot's best goal and net value, runner-up goal and value, and third-best value over every
+    goal (ties: the lowest goal index, as numpy's argmax)."""
+    j1, j2 = -1, -1
+    v1, v2, v3 = -np.inf, -np.inf, -np.inf
+    for j in range(len(price)):
+        v = -cost_row[j] - price[j]
+        if j1 < 0 or v > v1:
+            j2, v2, v3 = j1, v1, v2
+            j1, v1 = j, v
+        elif j2 < 0 or v > v2:
+            j2, v3 = j, v2
+            v2 = v
+        elif v > v3:
+            v3 = v
+    return j1, v1, j2, v2, v3
+
+
+@njit(cache=True)
+def _content(i: int, cost: np.ndarray, price: np.ndarray, owner: np.ndarray, released: np.ndarray,
+             goal: np.ndarray, own_ids: np.ndarray, best: np.ndarray, value: np.ndarray, second: np.ndarray,
+             seen: np.ndarray, slack: float, rounding: float) -> bool:
+    """Make robot row i's best value exact, then: does it hold its goal within ``slack`` of the best?
+    (agent.core.auction.is_content)"""
+    b = best[i]
+    if not price[b] == seen[i]:  # NaN: rank anew
+        now = -cost[i, b] - price[b]
+        value[i] = now
+        if now > second[i]:
+            seen[i] = price[b]
+        else:
+            j1, v1, j2, v2, _ = _rank(cost[i], price)
+            best[i], value[i] = j1, v1
+            second[i] = v2 if j2 >= 0 else -np.inf
+            seen[i] = price[j1]
+    g = goal[i]
+    if g < 0 or owner[g] != own_ids[i] or released[g]:
+        return False
+    return -cost[i, g] - price[g] >= value[i] - slack - rounding * abs(value[i])
+
+
+@njit(cache=True)
+def jacobi_rounds(cost: np.ndarray, price: np.ndarray, owner: np.ndarray, released: np.ndarray,
+                  goal: np.ndarray, own_ids: np.ndarray, row_of_id: np.ndarray, best: np.ndarray,
+                  value: np.ndarray, second: np.ndarray, waiting: np.ndarray, eps: float, slack: float,
+                  rounding: float, max_rounds: int) -> tuple[int, int, int]:
+    """Bid the robots in ``waiting`` (rows not content, ascending) and those they outbid until every
+    robot is content. The board (price, owner, released), the claims ``goal`` and the cached best
+    goals (best, value, second; exact for the prices as they are on entry) change in place.
+    ``row_of_id``: each robot id's row. Returns (rounds, bids, robots still waiting)."""
+    k = len(goal)
+    seen = price[best].copy()  # per robot: its best goal's price when its best value was last exact
+    is_waiting = np.zeros(k, np.bool_)
+    queue = np.empty(k, np.int64)
+    n = 0
+    for r in waiting:
+        if not is_waiting[r]:
+            is_waiting[r] = True
+            queue[n] = r
+            n += 1
+    look = np.empty(2 * k, np.int64)  # bidders and the robots they outbid (an id twice is harmless)
+    bid_goal = np.empty(k, np.int64)
+    bid_price = np.empty(k)
+    before = np.empty(k, np.int64)  # owner of the goal bid on, as the round found it
+    runner_up = np.empty(k, np.int64)  # the bidder's second-best goal and third-best value
+    third = np.empty(k)
+    held = np.empty(k, np.int64)  # the goal each bidder releases (-1: none) and its price
+    held_price = np.empty(k)
+    rounds, bids = 0, 0
+    while n > 0 and rounds < max_rounds:
+        bidders = np.sort(queue[:n])
+        # every bid against the board as the round found it
+        for a in range(n):
+            i = bidders[a]
+            j1, v1, j2, v2, v3 = _rank(cost[i], price)
+            if j2 < 0:  # one goal: the bid rises by epsilon
+                v2 = v1 - eps
+            bid_goal[a], bid_price[a], before[a] = j1, price[j1] + (v1 - v2) + eps, owner[j1]
+            runner_up[a], third[a] = j2, v3
+        for a in range(n):  # the releases, at the price the round found
+            i = bidders[a]
+            h = goal[i]
+            if h >= 0 and owner[h] == own_ids[i] and not released[h]:
+                held[a], held_price[a] = h, price[h]
+            else:
+                held[a] = -1
+        for a in range(n):  # max-consensus: the order of the merges does not matter
+            i = bidders[a]
+            h = held[a]
+            if h >= 0 and _greater(held_price[a], own_ids[i], True, price[h], owner[h], released[h]):
+                price[h], owner[h], released[h] = held_price[a], own_ids[i], True
+            j = bid_goal[a]
+            if _greater(bid_price[a], own_ids[i], False, price[j], owner[j], released[j]):
+                price[j], owner[j], released[j] = bid_price[a], own_ids[i], False
+        m = 0
+        for a in range(n):
+            i = bidders[a]
+            # the cache from the bid's ranking (Participant._after_bids)
+            j1, j2, v3 = bid_goal[a], runner_up[a], third[a]
+            v_bid = -cost[i, j1] - price[j1]
+            v_run = -cost[i, j2] - price[j2] if j2 >= 0 else -np.inf
+            bound = max(v_bid, v3)
+            if v_run > bound and j2 != j1:  # the runner-up is the best now
+                best[i], value[i], second[i] = j2, v_run, bound
+                seen[i] = price[j2]
+            else:  # ranked anew when next looked at
+                best[i], value[i], second[i] = j1, v_bid, np.inf
+                seen[i] = np.nan
+            goal[i] = j1
+            look[m] = i
+            m += 1
+            o = before[a]
+            if o != NO_OWNER and owner[j1] != o:
+                look[m] = row_of_id[o]
+                m += 1
+        bids += n
+        rounds += 1
+        for a in range(m):
+            r = look[a]
+            ok = _content(r, cost, price, owner, released, goal, own_ids, best, value, second, seen, slack,
+                          rounding)
+            is_waiting[r] = not ok
+        n2 = 0  # the queue anew: every robot waiting was a bidder, so all were looked at
+        for a in range(m):
+            r = look[a]
+            if is_waiting[r]:
+                queue[n2] = r
+                n2 += 1
+                is_waiting[r] = False  # queued once
+        for a in range(n2):
+            is_waiting[queue[a]] = True
+        n = n2
+    return rounds, bids, n
