@@ -44,15 +44,16 @@ def _rank(cost_row: np.ndarray, price: np.ndarray) -> tuple[int, float, int, flo
     j1, j2 = -1, -1
     v1, v2, v3 = -np.inf, -np.inf, -np.inf
     for j in range(len(price)):
-        v = -cost_row[j] - price[j]
-        if j1 < 0 or v > v1:
-            j2, v2, v3 = j1, v1, v2
-            j1, v1 = j, v
-        elif j2 < 0 or v > v2:
-            j2, v3 = j, v2
-            v2 = v
-        elif v > v3:
-            v3 = v
+        v = -cost_row[j] - price[j]  # finite: costs and prices are
+        if v > v3:  # v3 <= v2 <= v1: most goals fail this one test
+            if v > v1:
+                j2, v2, v3 = j1, v1, v2
+                j1, v1 = j, v
+            elif v > v2:
+                j2, v3 = j, v2
+                v2 = v
+            else:
+                v3 = v
     return j1, v1, j2, v2, v3
 
 
@@ -82,14 +83,14 @@ def _content(i: int, cost: np.ndarray, price: np.ndarray, owner: np.ndarray, rel
 @njit(cache=True)
 def jacobi_rounds(cost: np.ndarray, price: np.ndarray, owner: np.ndarray, released: np.ndarray,
                   goal: np.ndarray, own_ids: np.ndarray, row_of_id: np.ndarray, best: np.ndarray,
-                  value: np.ndarray, second: np.ndarray, waiting: np.ndarray, eps: float, slack: float,
-                  rounding: float, max_rounds: int) -> tuple[int, int, int]:
+                  value: np.ndarray, second: np.ndarray, seen: np.ndarray, waiting: np.ndarray, eps: float,
+                  slack: float, rounding: float, max_rounds: int) -> tuple[int, int, int]:
     """Bid the robots in ``waiting`` (rows not content, ascending) and those they outbid until every
     robot is content. The board (price, owner, released), the claims ``goal`` and the cached best
-    goals (best, value, second; exact for the prices as they are on entry) change in place.
-    ``row_of_id``: each robot id's row. Returns (rounds, bids, robots still waiting)."""
+    goals (best, value, second, and ``seen``: the price of the best goal when its value was last
+    exact) change in place. ``row_of_id``: each robot id's row. Returns (rounds, bids, robots still
+    waiting)."""
     k = len(goal)
-    seen = price[best].copy()  # per robot: its best goal's price when its best value was last exact
     is_waiting = np.zeros(k, np.bool_)
     queue = np.empty(k, np.int64)
     n = 0
@@ -171,3 +172,49 @@ def jacobi_rounds(cost: np.ndarray, price: np.ndarray, owner: np.ndarray, releas
             is_waiting[queue[a]] = True
         n = n2
     return rounds, bids, n
+
+
+@njit(cache=True)
+def settle_block(position: np.ndarray, goals: np.ndarray, penalty: np.ndarray, has_penalty: bool,
+                 cost: np.ndarray, price: np.ndarray, owner: np.ndarray, released: np.ndarray, goal: np.ndarray,
+                 own_ids: np.ndarray, row_of_id: np.ndarray, best: np.ndarray, value: np.ndarray,
+                 second: np.ndarray, eps: np.ndarray, slack: np.ndarray, rounding: float,
+                 max_rounds: int) -> tuple[int, int, int]:
+    """One block of epsilon-scaling phases on frozen positions, warm from the board: the costs
+    (eq. 7, |g_j - p_i|^2 in the same float operations as agent.core.bidder, plus the penalties in
+    force) into ``cost``, every robot ranked over every goal, then per phase (``eps``, ``slack``)
+    the Jacobi rounds until every robot is content. Leaves every cached best value exact. Returns
+    (rounds, bids, phases settled): fewer than len(eps) when a phase ran out of rounds."""
+    k, g = cost.shape
+    gx, gy = goals[:, 0].copy(), goals[:, 1].copy()
+    for i in range(k):
+        px, py = position[i, 0], position[i, 1]
+        row = cost[i]
+        for j in range(g):  # apart from the ranking, so that it vectorises
+            dx, dy = gx[j] - px, gy[j] - py
+            row[j] = dx * dx + dy * dy
+        if has_penalty:
+            row += penalty[i]
+        j1, v1, j2, v2, _ = _rank(cost[i], price)
+        best[i], value[i] = j1, v1
+        second[i] = v2 if j2 >= 0 else -np.inf
+    seen = np.empty(k)
+    for i in range(k):
+        seen[i] = price[best[i]]
+    waiting = np.empty(k, np.int64)
+    rounds, bids = 0, 0
+    for phase in range(len(eps)):
+        n = 0
+        for i in range(k):  # who is not content at this phase's slack
+            if not _content(i, cost, price, owner, released, goal, own_ids, best, value, second, seen,
+                            slack[phase], rounding):
+                waiting[n] = i
+                n += 1
+        r, b, left = jacobi_rounds(cost, price, owner, released, goal, own_ids, row_of_id, best, value, second,
+                                   seen, waiting[:n], eps[phase], slack[phase], rounding, max_rounds)
+        rounds, bids = rounds + r, bids + b
+        if left:
+            return rounds, bids, phase
+    for i in range(k):  # every best value exact for the prices as they are now
+        _content(i, cost, price, owner, released, goal, own_ids, best, value, second, seen, 0.0, rounding)
+    return rounds, bids, len(eps)
