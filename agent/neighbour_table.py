@@ -4,7 +4,6 @@ from __future__ import annotations
 import numpy as np
 
 from transport.codec import State
-from transport.keys import cell_of
 
 from .core.step import NeighbourStates
 
@@ -17,18 +16,31 @@ class NeighbourTable:
         self._states: dict[int, list[State]] = {}
 
     def update(self, state: State) -> None:
-        kept = self._states.setdefault(state.robot, [])
-        if any(s.tick == state.tick for s in kept):
+        """Keep the two newest states by tick, oldest first (a host takes a thousand a tick)."""
+        kept = self._states.get(state.robot)
+        if kept is None:
+            self._states[state.robot] = [state]
+            return
+        tick = state.tick
+        if any(s.tick == tick for s in kept):
             return  # duplicate
-        kept.append(state)
-        kept.sort(key=lambda s: s.tick)
+        if tick > kept[-1].tick:
+            kept.append(state)
+        elif tick > kept[0].tick or len(kept) < 2:
+            kept.insert(len(kept) - 1 if tick > kept[0].tick else 0, state)
+        else:
+            return  # older than both kept
         del kept[:-2]
 
     def forget_outside(self, cells: set[tuple[int, int]], cell_size: float) -> int:
         """Drop robots whose newest state lies in a cell we no longer listen to. We cannot hear them
         any more, so their state would only age, and an aged state's uncertainty grows without bound:
         a phantom obstacle where the robot was long ago. Returns how many were dropped."""
-        gone = [r for r, kept in self._states.items() if cell_of(kept[-1].x, kept[-1].y, cell_size) not in cells]
+        if not self._states:
+            return 0
+        xy = np.array([(kept[-1].x, kept[-1].y) for kept in self._states.values()], float)
+        at = np.floor(xy / cell_size).astype(np.int64).tolist()  # cell_of for all at once
+        gone = [r for r, (cx, cy) in zip(self._states, at) if (cx, cy) not in cells]
         for r in gone:
             del self._states[r]
         return len(gone)
@@ -74,12 +86,12 @@ class NeighbourTable:
         batch = len(robot_ids)
         if not states:
             return NeighbourStates.empty(batch)
-        ids = np.array([s.robot for s in states])
-        pos = np.array([(s.x, s.y) for s in states], float)
-        vel = np.array([(s.vx, s.vy) for s in states], float)
-        rad = np.array([s.radius for s in states], float)
-        age = stamp - np.array([s.stamp for s in states], float)
-        coop = np.array([not (s.flags & State.DYNAMIC) for s in states])
+        fields = np.array([(s.robot, s.x, s.y, s.vx, s.vy, s.radius, s.stamp, s.flags & State.DYNAMIC)
+                           for s in states], float)  # one pass over the states, one array
+        ids = fields[:, 0].astype(np.int64)
+        pos, vel, rad = fields[:, 1:3], fields[:, 3:5], fields[:, 5].copy()
+        age = stamp - fields[:, 6]
+        coop = fields[:, 7] == 0
         if stopped:
             for i, s in enumerate(states):
                 if s.robot in stopped:
@@ -90,14 +102,17 @@ class NeighbourTable:
         ids, pos, vel, rad, age, coop = ids[order], pos[order], vel[order], rad[order], age[order], coop[order]
         m = max_neighbours
         out = NeighbourStates.empty(batch, m)
-        for b, (rid, p) in enumerate(zip(robot_ids, positions)):
-            d2 = (pos[:, 0] - p[0]) ** 2 + (pos[:, 1] - p[1]) ** 2
-            cand = np.flatnonzero((ids != rid) & (d2 <= neighbour_dist**2))
-            if len(cand) == 0:
-                continue
-            cand = cand[np.argsort(d2[cand], kind="stable")[:m]]
-            k = len(cand)
-            out.position[b, :k], out.velocity[b, :k] = pos[cand], vel[cand]
-            out.radius[b, :k], out.age[b, :k], out.valid[b, :k] = rad[cand], age[cand], True
-            out.cooperative[b, :k] = coop[cand]
+        # The whole batch at once: (batch, states) squared distances, the candidates in reach, ranked
+        # per robot by distance, then by id (their column order).
+        p = np.asarray(positions, float).reshape(batch, 2)
+        d2 = (pos[None, :, 0] - p[:, 0, None]) ** 2 + (pos[None, :, 1] - p[:, 1, None]) ** 2
+        rows, cols = np.nonzero((ids[None, :] != np.asarray(robot_ids)[:, None]) & (d2 <= neighbour_dist**2))
+        order = np.lexsort((cols, d2[rows, cols], rows))
+        rows, cols = rows[order], cols[order]
+        rank = np.arange(len(rows)) - np.searchsorted(rows, rows)  # place among the robot's candidates
+        near = rank < m
+        rows, cols, rank = rows[near], cols[near], rank[near]
+        out.position[rows, rank], out.velocity[rows, rank] = pos[cols], vel[cols]
+        out.radius[rows, rank], out.age[rows, rank], out.valid[rows, rank] = rad[cols], age[cols], True
+        out.cooperative[rows, rank] = coop[cols]
         return out

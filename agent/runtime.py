@@ -127,6 +127,9 @@ LOCKSTEP_CAP = 1.0  # s of wall time a tick's rounds may take at most: the next 
 # and the world counts a missed tick after 2 s (at 1000 robots in 4 hosts a 2 s cap missed 216 robot-ticks)
 
 
+CELL_KEY = 1 << 32  # cells as one int64 each: cx * CELL_KEY + cy (|cy| < 2^31 cells)
+
+
 class CellSubscriptions:
     """Subscriptions to the spatial cells around each robot, shared by the robots of a host.
 
@@ -143,11 +146,13 @@ class CellSubscriptions:
         self._subs: dict[tuple[int, int], Any] = {}
 
     def update(self, positions: np.ndarray) -> None:
-        wanted = set()
-        for x, y in positions:
-            cx, cy = cell_of(x, y, self.cell_size)
-            span = range(-self.reach, self.reach + 1)
-            wanted.update((cx + dx, cy + dy) for dx in span for dy in span)
+        # cell_of for every robot at once, then the square of cells around each (a host of 250
+        # robots spent 6 ms a tick here in Python loops)
+        own = np.floor(np.asarray(positions, float).reshape(-1, 2) / self.cell_size).astype(np.int64)
+        span = np.arange(-self.reach, self.reach + 1)
+        cx = np.unique(own[:, 0, None] * CELL_KEY + own[:, 1, None] + (span[:, None] * CELL_KEY + span).ravel())
+        cy = (cx + CELL_KEY // 2) % CELL_KEY - CELL_KEY // 2  # one int per cell: cx * CELL_KEY + cy, taken apart
+        wanted = set(zip(((cx - cy) // CELL_KEY).tolist(), cy.tolist()))
         for cell in set(self._subs) - wanted:
             self.bus.unsubscribe(self._subs.pop(cell))
         for cell in sorted(wanted - set(self._subs)):
@@ -493,7 +498,7 @@ class AgentHost:
         for b, (pose, mem) in enumerate(zip(poses, mems)):
             mem.velocity = result.velocity[b].copy()
             mem.last_tick = tick
-            has_goal = bool(np.all(np.isfinite(mem.goal)))
+            has_goal = math.isfinite(mem.goal[0]) and math.isfinite(mem.goal[1])  # np.all costs 6 us a robot
             at_goal = has_goal and math.dist(mem.goal, position[b]) <= p.goal_tolerance
             flags = (State.HAS_GOAL if has_goal else 0) | (State.AT_GOAL if at_goal else 0)
             gx, gy = (mem.goal if has_goal else (0.0, 0.0))

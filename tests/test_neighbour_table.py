@@ -43,3 +43,61 @@ def test_bid_positions_of_a_batch_are_those_of_each_robot():
     velocity[1] = 0.0  # blocked
     batch = bid_position(position, goal, velocity, lead=2.5)
     assert np.array_equal(batch, [bid_position(p, g, v, lead=2.5) for p, g, v in zip(position, goal, velocity)])
+
+
+def test_the_table_keeps_each_robots_two_newest_states_whatever_the_arrival_order():
+    """States arrive late, twice and out of order (zenoh orders nothing across publishers); a lock-step
+    tick steers by each robot's newest state before it, so the table must hold the two newest."""
+    rng = np.random.default_rng(9)
+    table = NeighbourTable()
+    sent = {r: rng.permutation(np.repeat(np.arange(8), 2)).tolist() for r in range(5)}  # every tick twice
+    for _ in range(16):
+        for robot, ticks in sent.items():
+            table.update(_state(robot, 0.0, 0.0, tick=ticks.pop()))
+            kept = table._states[robot]
+            assert [s.tick for s in kept] == sorted({s.tick for s in kept}) and len(kept) <= 2
+    assert all([s.tick for s in table._states[r]] == [6, 7] for r in range(5))
+    assert [s.tick for s in table.latest_before(7)] == [6] * 5
+
+
+def test_robots_whose_newest_state_left_the_cells_heard_are_forgotten():
+    table = NeighbourTable()
+    for robot, x in enumerate([0.1, 0.9, 1.1, -0.1, 2.5]):
+        table.update(_state(robot, x, 0.2))
+    table.update(_state(4, 0.5, 0.2, tick=2))  # robot 4 came into cell (0, 0)
+    assert table.forget_outside({(0, 0)}, cell_size=1.0) == 2  # robots 2 (cell 1) and 3 (cell -1)
+    assert sorted(s.robot for s in table.latest_before(3)) == [0, 1, 4]
+
+
+class _Cells:
+    """A bus stand-in: which cells a host subscribes to."""
+
+    def __init__(self) -> None:
+        self.keys = self
+        self.live: set = set()
+
+    def state_cell(self, cell: tuple[int, int]) -> tuple[int, int]:
+        return cell
+
+    def subscribe_into(self, cell: tuple[int, int], inbox: object) -> tuple[int, int]:
+        self.live.add(cell)
+        return cell
+
+    def unsubscribe(self, cell: tuple[int, int]) -> None:
+        self.live.remove(cell)
+
+
+def test_a_host_listens_to_the_square_of_cells_around_each_of_its_robots():
+    from agent.runtime import CellSubscriptions
+    from transport.keys import cell_of
+
+    rng = np.random.default_rng(4)
+    bus = _Cells()
+    cells = CellSubscriptions(bus, inbox=None, cell_size=0.7, reach=2)
+    for _ in range(3):  # the robots move: cells are added and dropped
+        positions = rng.uniform(-3, 3, (25, 2))
+        cells.update(positions)
+        expect = {(cx + dx, cy + dy) for cx, cy in (cell_of(x, y, 0.7) for x, y in positions)
+                  for dx in range(-2, 3) for dy in range(-2, 3)}
+        assert cells.cells == bus.live == expect
+        assert all(type(c) is int for cell in cells.cells for c in cell)  # key expressions print ints
