@@ -8,7 +8,8 @@ Image scenes play their steps: at time t the robots are auctioned (paper 5.1) on
 the step whose hold contains t; the `step` array records which one, tick by tick. The auction is the
 agents' own (agent.core.bidder) with one participant holding every robot: each `assign_period` the
 next block of epsilon-scaling phases starts from the measured positions, warm from the last prices,
-and settles in this process without messages (`auction_assignment`). Animation keyframes
+and settles in this process without messages (`auction_assignment`; its rounds are compiled,
+agent.core.jacobi). Animation keyframes
 are steps whose robots hold eq. 27's velocity (agent.core.animation); a dynamic image's goals move by
 eq. 28 and the robots drive with the goals' velocity fed forward (agent.core.goal_motion), auctioned
 on the published goal set with their positions mapped back, as the agents do (agent.runtime).

@@ -13,7 +13,8 @@ are agreed by max-consensus, as in Zavlanos et al. 2008:
   Own robots bid together (Jacobi rounds, vectorised), so a host of hundreds of robots stays fast:
   each robot's best and second-best values are kept between rounds (prices only rise), and only
   the rows that may have changed are ranked anew over every goal. A host that owns every robot (the
-  central engine, sim.central) settles each block of phases in-process (``settle_alone``).
+  central engine, sim.central) settles each block of phases in-process (``settle_alone``), compiled
+  (agent.core.jacobi), to the same board.
 - **Instances.** An auction instance runs on positions frozen when it starts, so costs stay fixed
   while prices settle; a deadlock penalty declared meanwhile counts from the next instance (a cost
   that changed after a robot said it was content would break the quiescence argument below). Instance k is *agreed* when every robot of the goal set has published, for k,
