@@ -210,6 +210,28 @@ def test_settle_alone_agrees_each_block_within_the_bound_of_the_optimum() -> Non
         pos = pos + rng.normal(0, 0.05, pos.shape)
 
 
+def robots_and_goals(rng: np.random.Generator, n: int, g_extra: int, grid: bool) -> tuple[np.ndarray, np.ndarray]:
+    """n robots and n + g_extra goals: at random, or on a grid (ties everywhere)."""
+    if grid:
+        side = int(np.ceil(np.sqrt(n + g_extra)))
+        goals = np.array([(i % side, i // side) for i in range(n + g_extra)], float) * 0.1
+        return goals[:n][::-1] + 0.05, goals
+    return rng.uniform(-1, 1, (n, 2)), rng.uniform(-1, 1, (n + g_extra, 2))
+
+
+def settle_as_a_host(part: Participant, at: dict[int, np.ndarray]) -> None:
+    """The next block on these positions, settled as agent.assignment.AuctionLink settles a host's
+    own robots: numpy rounds until quiet, then the agreement check, phase by phase."""
+    part.begin(part.instance + 1 if part.started else 0, at)
+    for _ in range(100):
+        part.bid_until_quiet()
+        instance = part.instance
+        part.check_agreement()
+        if part.is_agreed or part.instance == instance:
+            break
+    assert part.is_agreed
+
+
 def test_settle_alone_is_the_message_free_settling_of_the_protocol() -> None:
     """The same instances, bids and agreed goals as the settling loop an agent host runs (and with
     positions given as an array indexed by robot id as with a mapping)."""
@@ -220,14 +242,7 @@ def test_settle_alone_is_the_message_free_settling_of_the_protocol() -> None:
     looped = Participant(1, goals, range(n), range(n), 1e-3, 5e-3)
     for _ in range(4):
         goal = alone.settle_alone(pos)
-        looped.begin(looped.instance + 1 if looped.started else 0, {r: pos[r] for r in range(n)})
-        for _ in range(100):  # as agent.assignment.AuctionLink settles a host's own robots
-            looped.bid_until_quiet()
-            instance = looped.instance
-            looped.check_agreement()
-            if looped.is_agreed or looped.instance == instance:
-                break
-        assert looped.is_agreed
+        settle_as_a_host(looped, {r: pos[r] for r in range(n)})
         assert (alone.instance, alone.bids, alone.agreed) == (looped.instance, looped.bids, looped.agreed)
         np.testing.assert_array_equal(alone.board.price, looped.board.price)
         assert goal.tolist() == [looped.agreed[r] for r in range(n)]
@@ -243,26 +258,14 @@ def test_compiled_rounds_settle_to_the_protocols_board_bit_for_bit(n: int, g_ext
     (a grid), more goals than robots, robot ids with gaps, deadlock penalties and warm blocks on
     moving robots, both must end every block on the same board, claims, bids and agreement."""
     rng = np.random.default_rng(seed)
-    if grid:  # ties everywhere
-        side = int(np.ceil(np.sqrt(n + g_extra)))
-        goals = np.array([(i % side, i // side) for i in range(n + g_extra)], float) * 0.1
-        pos = goals[:n][::-1] + 0.05
-    else:
-        pos, goals = rng.uniform(-1, 1, (n, 2)), rng.uniform(-1, 1, (n + g_extra, 2))
+    pos, goals = robots_and_goals(rng, n, g_extra, grid)
     ids = [1 + stride * i for i in range(n)]
     alone = Participant(1, goals, ids, ids, 1e-3, 5e-3)
     looped = Participant(1, goals, ids, ids, 1e-3, 5e-3)
     for _ in range(3):
         at = {r: pos[i] for i, r in enumerate(ids)}
         goal = alone.settle_alone(at)
-        looped.begin(looped.instance + 1 if looped.started else 0, at)
-        for _ in range(100):
-            looped.bid_until_quiet()
-            instance = looped.instance
-            looped.check_agreement()
-            if looped.is_agreed or looped.instance == instance:
-                break
-        assert looped.is_agreed
+        settle_as_a_host(looped, at)
         assert (alone.instance, alone.bids, alone.agreed) == (looped.instance, looped.bids, looped.agreed)
         np.testing.assert_array_equal(alone.board.price, looped.board.price)
         np.testing.assert_array_equal(alone.board.owner, looped.board.owner)
@@ -288,12 +291,7 @@ def test_cached_best_goals_are_a_full_ranking_after_every_round(n: int, g_extra:
     whose best goal rose in price past their second best: after every round they must equal a
     ranking over every goal from scratch (ties to the lowest goal index), penalties included."""
     rng = np.random.default_rng(seed)
-    if grid:  # ties everywhere
-        side = int(np.ceil(np.sqrt(n + g_extra)))
-        goals = np.array([(i % side, i // side) for i in range(n + g_extra)], float) * 0.1
-        pos = goals[:n][::-1] + 0.05
-    else:
-        pos, goals = rng.uniform(-1, 1, (n, 2)), rng.uniform(-1, 1, (n + g_extra, 2))
+    pos, goals = robots_and_goals(rng, n, g_extra, grid)
     p = Participant(1, goals, range(n), range(n), 1e-3, 5e-3)
 
     def check() -> None:

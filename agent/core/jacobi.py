@@ -1,21 +1,23 @@
 """The Jacobi rounds of the forward auction (paper 5.1.1) for a host that holds every robot and hears
 no message (the central engine's `Participant.settle_alone`), compiled with numba.
 
-The same rounds, bids and board as `Participant.bid_until_quiet`: every robot that is not content
-bids at once on its best goal against the board as the round found it, releasing the goal it held;
-per goal the greatest record wins (price, then the lower robot id, then "released"). The outcome
-is the protocol's to the bit (tests/test_bidder.py checks it against the Python rounds).
+`settle_block` runs one block of epsilon-scaling phases: the costs (eq. 7) on the frozen positions,
+then per phase `jacobi_rounds` until every robot is content. The rounds, bids and board are those
+of `Participant.begin`, `bid` and `check_agreement`: every robot that is not content bids at once on
+its best goal against the board as the round found it, releasing the goal it held; per goal the
+greatest record wins (price, then the lower robot id, then "released"). The outcome is the
+protocol's to the bit (tests/test_bidder.py checks it against the numpy rounds of the agent hosts).
 
 Why compiled: while 1000 robots cross the arena a warm block runs chains of 10,000 and more rounds of
 one or two bidders (each outbid robot outbids the next). Each round is a scan over the goals for one
-robot: microseconds compiled, about 10 us in Python, where the chains cost 110 ms per control step
-(bench/results/large.md). After a round only the bidders and the robots they outbid are looked at
-again; nobody else's contentment can have changed (a content robot holds its goal, so only a bid
-on that goal changes it, and every other price only rises).
+robot: about a microsecond compiled, 10 us in Python (bench/results/large.md). After a round only the
+bidders and the robots they outbid are looked at again; nobody else's contentment can have changed
+(a content robot holds its goal, so only a bid on that goal changes it, and every other price only
+rises).
 
 Each robot keeps its best goal, its net value (exact when the price of that goal is ``seen``) and
-an upper bound of its second-best value, as the Python rounds do: a robot looked at again is
-ranked over every goal only if its best goal may have changed.
+an upper bound of its second-best value, as the numpy rounds do: a robot looked at again is ranked
+over every goal only if its best goal may have changed.
 """
 from __future__ import annotations
 
@@ -58,11 +60,10 @@ def _rank(cost_row: np.ndarray, price: np.ndarray) -> tuple[int, float, int, flo
 
 
 @njit(cache=True)
-def _content(i: int, cost: np.ndarray, price: np.ndarray, owner: np.ndarray, released: np.ndarray,
-             goal: np.ndarray, own_ids: np.ndarray, best: np.ndarray, value: np.ndarray, second: np.ndarray,
-             seen: np.ndarray, slack: float, rounding: float) -> bool:
-    """Make robot row i's best value exact, then: does it hold its goal within ``slack`` of the best?
-    (agent.core.auction.is_content)"""
+def _refresh(i: int, cost: np.ndarray, price: np.ndarray, best: np.ndarray, value: np.ndarray,
+             second: np.ndarray, seen: np.ndarray) -> None:
+    """Make robot row i's best goal and value exact: ranked anew over every goal only if the price
+    of its best goal rose past its second-best value (an upper bound)."""
     b = best[i]
     if not price[b] == seen[i]:  # NaN: rank anew
         now = -cost[i, b] - price[b]
@@ -74,9 +75,20 @@ def _content(i: int, cost: np.ndarray, price: np.ndarray, owner: np.ndarray, rel
             best[i], value[i] = j1, v1
             second[i] = v2 if j2 >= 0 else -np.inf
             seen[i] = price[j1]
+
+
+@njit(cache=True)
+def _content(i: int, cost: np.ndarray, price: np.ndarray, owner: np.ndarray, released: np.ndarray,
+             goal: np.ndarray, own_ids: np.ndarray, best: np.ndarray, value: np.ndarray, second: np.ndarray,
+             seen: np.ndarray, slack: float, rounding: float) -> bool:
+    """Does robot row i hold its goal within ``slack`` of its best (agent.core.auction.is_content)?
+    A robot that holds none bids next round, which ranks it anyway: its best value is left stale
+    (``seen`` says so) rather than ranked twice (while 1000 robots cross the arena most bids are
+    by robots just outbid)."""
     g = goal[i]
     if g < 0 or owner[g] != own_ids[i] or released[g]:
         return False
+    _refresh(i, cost, price, best, value, second, seen)
     return -cost[i, g] - price[g] >= value[i] - slack - rounding * abs(value[i])
 
 
@@ -216,5 +228,5 @@ def settle_block(position: np.ndarray, goals: np.ndarray, penalty: np.ndarray, h
         if left:
             return rounds, bids, phase
     for i in range(k):  # every best value exact for the prices as they are now
-        _content(i, cost, price, owner, released, goal, own_ids, best, value, second, seen, 0.0, rounding)
+        _refresh(i, cost, price, best, value, second, seen)
     return rounds, bids, len(eps)
