@@ -154,8 +154,8 @@ def step_metrics(t: np.ndarray, pose: np.ndarray, goal: np.ndarray, step: np.nda
     """Per image step (``step`` (T,) int, the step shown at each sample; negative: none): its first
     and last sample times ``t_start`` / ``t_end``, ``converged_at`` (seconds after t_start of the
     first sample at which every robot with a goal is within ``tolerance``, or None),
-    ``max_goal_error_at_end`` (m, at its last sample; None if no robot has a goal there) and
-    ``path_length_m`` (all robots' xy path while the step was shown, summed).
+    ``max_goal_error_at_end`` and ``median_goal_error_at_end`` (m, at its last sample; None if no
+    robot has a goal there: an animation's keyframe ends before all robots arrive) and ``path_length_m`` (all robots' xy path while the step was shown, summed).
 
     Distributed runs also give ``members`` (T, N): the robots of the newest goal set (the others,
     e.g. dead ones, are not waited for) and ``current`` (T, N): whose goal comes from that set (until
@@ -182,6 +182,7 @@ def step_metrics(t: np.ndarray, pose: np.ndarray, goal: np.ndarray, step: np.nda
         first, last = int(idx[0]), int(idx[-1])
         ok = idx[within[idx]]
         at_end = err[last][has_goal[last]]
+        known = bool(len(at_end) and np.isfinite(at_end).any())
         # Motion from each of the step's samples to the next one belongs to the step.
         legs = moved[idx[idx < len(moved)]]
         out.append({
@@ -189,7 +190,8 @@ def step_metrics(t: np.ndarray, pose: np.ndarray, goal: np.ndarray, step: np.nda
             "t_start": float(t[first]),
             "t_end": float(t[last]),
             "converged_at": float(t[ok[0]] - t[first]) if len(ok) else None,
-            "max_goal_error_at_end": float(np.nanmax(at_end)) if len(at_end) and np.isfinite(at_end).any() else None,
+            "max_goal_error_at_end": float(np.nanmax(at_end)) if known else None,
+            "median_goal_error_at_end": float(np.nanmedian(at_end)) if known else None,
             "path_length_m": float(np.nansum(legs)),
         })
     return out

@@ -220,10 +220,13 @@ def test_step_metrics_from_arrays():
     goal[3:, 1, 1] = math.nan
     rows = step_metrics(t, pose, goal, np.array([0, 0, 0, 1, 1, 1]), 0.01)
     assert rows[0] == pytest.approx({"index": 0, "t_start": 0.0, "t_end": 1.0, "converged_at": 1.0,
-                                     "max_goal_error_at_end": 0.0, "path_length_m": 0.5})
+                                     "max_goal_error_at_end": 0.0, "median_goal_error_at_end": 0.0,
+                                     "path_length_m": 0.5})
     assert rows[1] == pytest.approx({"index": 1, "t_start": 1.5, "t_end": 2.5, "converged_at": 1.0,
-                                     "max_goal_error_at_end": 0.0, "path_length_m": 0.5})
+                                     "max_goal_error_at_end": 0.0, "median_goal_error_at_end": 0.0,
+                                     "path_length_m": 0.5})
     never = step_metrics(t[:2], pose[:2], goal[:2], np.array([0, 0]), 0.01)
     assert never[0]["converged_at"] is None and never[0]["max_goal_error_at_end"] == pytest.approx(0.2)
+    assert never[0]["median_goal_error_at_end"] == pytest.approx(0.1)  # robots 0.2 m and 0 m off
     plain = summarise(t=t, pose=pose, radius=np.full(2, 0.045), wall_s=1.0, contacts=0, goal=goal)
     assert "steps" not in plain  # runs without a step record keep their metrics as they were
