@@ -6,7 +6,7 @@ robot-second by kind; per image, from trajectory.npz, when every robot drove to 
 how many instances were agreed and how many sent more than RESHUFFLE robots elsewhere; per agent
 host, from log.mcap (runs given with --from), how late its commands came after each tick. The whole
 sequence is up to 390 s of display time, 5-6 minutes of wall time on 2 cores at the realtime factors
-measured (1.00-1.15), so ``--duration`` runs its first images only.
+measured (1.00-1.27), so ``--duration`` runs its first images only.
 
     .venv/bin/python -m bench.bench_hosted --duration 100            # the first two images (about 2 min)
     .venv/bin/python -m bench.bench_hosted --from RUN_DIR [--from RUN_DIR2]  # summarise finished runs
