@@ -1,12 +1,17 @@
 """Entry point of an agent process: `python -m agent --config host.json [zenoh flags]`.
 
-One process runs the robots its config names (one by default; K with --agents-per-process).
+One process runs the robots its config names (one by default; K with --agents-per-process). With
+PIXELSWARM_PROFILE=DIR in its environment (`pixelswarm run` passes its own on), the host's loop runs
+under cProfile and its statistics go to DIR/agent<first robot>.prof when it stops (`python -m pstats`).
 """
 from __future__ import annotations
 
 import argparse
+import cProfile
 import os
 import sys
+from collections.abc import Callable
+from pathlib import Path
 
 from transport.bus import Bus
 from transport.faults import parse_faults
@@ -43,9 +48,26 @@ def main(argv: list[str] | None = None) -> int:
         if not host.start():
             print("agent: error: no pose arrived for my robots; is the tracker running?", file=sys.stderr)
             return 1
-        host.run()
+        profile_to = os.environ.get("PIXELSWARM_PROFILE")
+        if profile_to:
+            run_profiled(host.run, Path(profile_to) / f"agent{config.robots[0]}.prof")
+        else:
+            host.run()
         host.report()
     return 0
+
+
+def run_profiled(run: Callable[[], None], path: Path) -> None:
+    """Run under cProfile (this thread only: zenoh's callbacks are not counted) and write the
+    statistics to ``path`` even if ``run`` raises."""
+    profile = cProfile.Profile()
+    profile.enable()
+    try:
+        run()
+    finally:
+        profile.disable()
+        path.parent.mkdir(parents=True, exist_ok=True)
+        profile.dump_stats(path)
 
 
 if __name__ == "__main__":

@@ -248,3 +248,22 @@ def test_occupied_port_is_one_line_and_exit_2(tmp_path, spawned):
     assert not out.exists() and not Path(str(out) + ".partial").exists()
     router.send_signal(signal.SIGTERM)
     router.wait(timeout=10)
+
+
+def test_agent_hosts_write_their_profiles_when_asked(tmp_path):
+    """PIXELSWARM_PROFILE=DIR: each agent host's loop runs under cProfile and leaves DIR/agent<first
+    robot>.prof, readable by pstats, with one control step per tick it stepped."""
+    import os
+    import pstats
+
+    scene = write_scene(tmp_path, duration=2.0)
+    out, profiles = tmp_path / "run", tmp_path / "profiles"
+    result = subprocess.run(pixelswarm_cmd("run", str(scene), "--out", str(out), "--no-video", "-q", "-k", "4"),
+                            cwd=REPO, capture_output=True, text=True, timeout=240,
+                            env={**os.environ, "PIXELSWARM_PROFILE": str(profiles)})
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert sorted(p.name for p in profiles.iterdir()) == ["agent0.prof", "agent4.prof"]
+    ticks = len(np.load(out / "trajectory.npz")["t"])
+    for path in profiles.iterdir():
+        calls = {f[2]: s[1] for f, s in pstats.Stats(str(path)).stats.items()}  # function name -> calls
+        assert ticks - 2 <= calls["_step_tick"] <= ticks + 1, (ticks, calls["_step_tick"])
