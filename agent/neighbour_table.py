@@ -1,11 +1,17 @@
 """A robot's view of its neighbours, built only from their broadcasts."""
 from __future__ import annotations
 
+from operator import attrgetter
+
 import numpy as np
 
 from transport.codec import State
+from transport.keys import cells_of
 
 from .core.step import NeighbourStates
+
+
+_tick = attrgetter("tick")
 
 
 class NeighbourTable:
@@ -21,15 +27,11 @@ class NeighbourTable:
         if kept is None:
             self._states[state.robot] = [state]
             return
-        tick = state.tick
-        if any(s.tick == tick for s in kept):
+        if any(s.tick == state.tick for s in kept):
             return  # duplicate
-        if tick > kept[-1].tick:
-            kept.append(state)
-        elif tick > kept[0].tick or len(kept) < 2:
-            kept.insert(len(kept) - 1 if tick > kept[0].tick else 0, state)
-        else:
-            return  # older than both kept
+        kept.append(state)
+        if state.tick < kept[-2].tick:  # out of order (rare): sort only then
+            kept.sort(key=_tick)
         del kept[:-2]
 
     def forget_outside(self, cells: set[tuple[int, int]], cell_size: float) -> int:
@@ -38,8 +40,7 @@ class NeighbourTable:
         a phantom obstacle where the robot was long ago. Returns how many were dropped."""
         if not self._states:
             return 0
-        xy = np.array([(kept[-1].x, kept[-1].y) for kept in self._states.values()], float)
-        at = np.floor(xy / cell_size).astype(np.int64).tolist()  # cell_of for all at once
+        at = cells_of([(kept[-1].x, kept[-1].y) for kept in self._states.values()], cell_size).tolist()
         gone = [r for r, (cx, cy) in zip(self._states, at) if (cx, cy) not in cells]
         for r in gone:
             del self._states[r]

@@ -26,7 +26,7 @@ import numpy as np
 
 from transport.bus import Bus
 from transport.codec import Command, Commands, Event, Goals, Pose, Poses, State, States
-from transport.keys import cell_of
+from transport.keys import cell_of, cells_of
 
 from .assignment import AuctionLink
 from .core.animation import frame_hold, iterations_left
@@ -148,7 +148,7 @@ class CellSubscriptions:
     def update(self, positions: np.ndarray) -> None:
         # cell_of for every robot at once, then the square of cells around each (a host of 250
         # robots spent 6 ms a tick here in Python loops)
-        own = np.floor(np.asarray(positions, float).reshape(-1, 2) / self.cell_size).astype(np.int64)
+        own = cells_of(positions, self.cell_size)
         span = np.arange(-self.reach, self.reach + 1)
         cx = np.unique(own[:, 0, None] * CELL_KEY + own[:, 1, None] + (span[:, None] * CELL_KEY + span).ravel())
         cy = (cx + CELL_KEY // 2) % CELL_KEY - CELL_KEY // 2  # one int per cell: cx * CELL_KEY + cy, taken apart

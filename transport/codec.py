@@ -52,6 +52,7 @@ class Message:
     NAME: ClassVar[str] = ""
     _fixed: ClassVar[struct.Struct]
     _names: ClassVar[tuple[str, ...]] = ()
+    _values: ClassVar[Any] = None  # reads every field at once (a host encodes 500 records a tick)
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -61,16 +62,16 @@ class Message:
     def field_names(cls) -> tuple[str, ...]:
         if not cls._names:
             cls._names = tuple(f.name for f in fields(cls))
+            get = attrgetter(*cls._names)
+            cls._values = get if len(cls._names) > 1 else lambda m: (get(m),)  # one name: no tuple
         return cls._names
 
     def encode(self) -> bytes:
         return _HEADER.pack(self.KIND, VERSION) + self._fixed.pack(*self._fixed_values()) + self._tail()
 
     def _fixed_values(self) -> tuple:
-        names = self.field_names()
-        if len(names) == 1:
-            return (getattr(self, names[0]),)
-        return attrgetter(*names)(self)  # a host encodes 500 records a tick: 4x faster than a loop
+        self.field_names()
+        return type(self)._values(self)  # the class attribute: a lambda would bind to self
 
     def _tail(self) -> bytes:
         return b""

@@ -19,6 +19,8 @@ from __future__ import annotations
 import math
 import re
 
+import numpy as np
+
 PREFIX = "px"
 _NAME = re.compile(r"^[A-Za-z0-9_\-]+$")
 
@@ -26,6 +28,11 @@ _NAME = re.compile(r"^[A-Za-z0-9_\-]+$")
 def cell_of(x: float, y: float, cell_size: float) -> tuple[int, int]:
     """The spatial cell of a position: robots subscribe to the 3x3 cells around their own."""
     return math.floor(x / cell_size), math.floor(y / cell_size)
+
+
+def cells_of(xy: np.ndarray, cell_size: float) -> np.ndarray:
+    """cell_of for rows of positions at once: (N, 2) int64 (a host places a thousand a tick)."""
+    return np.floor(np.asarray(xy, float).reshape(-1, 2) / cell_size).astype(np.int64)
 
 
 class Keys:

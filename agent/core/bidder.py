@@ -537,12 +537,13 @@ class Participant:
         best, value, second = self._best
         row_of_id = np.full(int(self.own_ids.max(initial=0)) + 1, -1, np.int64)
         row_of_id[self.own_ids] = np.arange(k)
-        slack = np.array(self.schedule)
+        eps = np.array(self.schedule)
+        slack = eps.copy()
         slack[-1] += self.hysteresis  # Delta C in the final phase only
         rounds, bids, settled = settle_block(
             self.position, self.goals, self.penalty, self._has_penalty, self.cost, board.price, board.owner,
-            board.released, self.goal, self.own_ids, row_of_id, best, value, second, np.array(self.schedule),
-            slack, ROUNDING, max_rounds)
+            board.released, self.goal, self.own_ids, row_of_id, best, value, second, eps, slack, ROUNDING,
+            max_rounds)
         self.instance = first + min(settled, self.phases - 1)
         board.version += 1
         self.bids, self.rounds, self.claims_changed = self.bids + bids, self.rounds + rounds, True

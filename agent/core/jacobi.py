@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-NO_OWNER = -1  # as agent.core.auction.NO_OWNER (this module compiles on its own)
+NO_OWNER = -1  # as agent.core.auction.NO_OWNER: numba's cache would keep an imported constant stale
 
 
 @njit(cache=True)
@@ -103,14 +103,10 @@ def jacobi_rounds(cost: np.ndarray, price: np.ndarray, owner: np.ndarray, releas
     exact) change in place. ``row_of_id``: each robot id's row. Returns (rounds, bids, robots still
     waiting)."""
     k = len(goal)
-    is_waiting = np.zeros(k, np.bool_)
     queue = np.empty(k, np.int64)
-    n = 0
-    for r in waiting:
-        if not is_waiting[r]:
-            is_waiting[r] = True
-            queue[n] = r
-            n += 1
+    n = len(waiting)
+    queue[:n] = waiting
+    unhappy = np.zeros(k, np.bool_)  # scratch: looked at this round and not content
     look = np.empty(2 * k, np.int64)  # bidders and the robots they outbid (an id twice is harmless)
     bid_goal = np.empty(k, np.int64)
     bid_price = np.empty(k)
@@ -130,9 +126,7 @@ def jacobi_rounds(cost: np.ndarray, price: np.ndarray, owner: np.ndarray, releas
                 v2 = v1 - eps
             bid_goal[a], bid_price[a], before[a] = j1, price[j1] + (v1 - v2) + eps, owner[j1]
             runner_up[a], third[a] = j2, v3
-        for a in range(n):  # the releases, at the price the round found
-            i = bidders[a]
-            h = goal[i]
+            h = goal[i]  # the goal it gives up, at the price the round found
             if h >= 0 and owner[h] == own_ids[i] and not released[h]:
                 held[a], held_price[a] = h, price[h]
             else:
@@ -170,19 +164,15 @@ def jacobi_rounds(cost: np.ndarray, price: np.ndarray, owner: np.ndarray, releas
         rounds += 1
         for a in range(m):
             r = look[a]
-            ok = _content(r, cost, price, owner, released, goal, own_ids, best, value, second, seen, slack,
-                          rounding)
-            is_waiting[r] = not ok
-        n2 = 0  # the queue anew: every robot waiting was a bidder, so all were looked at
+            unhappy[r] = not _content(r, cost, price, owner, released, goal, own_ids, best, value, second,
+                                      seen, slack, rounding)
+        n = 0  # the next bidders: every robot not content was looked at (it bid or was outbid)
         for a in range(m):
             r = look[a]
-            if is_waiting[r]:
-                queue[n2] = r
-                n2 += 1
-                is_waiting[r] = False  # queued once
-        for a in range(n2):
-            is_waiting[queue[a]] = True
-        n = n2
+            if unhappy[r]:
+                queue[n] = r
+                n += 1
+                unhappy[r] = False  # queued once
     return rounds, bids, n
 
 
