@@ -23,7 +23,6 @@ from typing import TextIO
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
-from scipy.spatial import cKDTree
 
 from agent.core.animation import frame_hold, iterations_left
 from agent.core.bidder import Participant
@@ -34,6 +33,7 @@ from coordinator.scene import Scene, scene_goal_set
 from coordinator.service import palette
 
 from .movers import Movers
+from .nearest import nearest_within
 from .output import write_run
 from .rundir import RunDir
 from .stepclock import StepClock
@@ -46,20 +46,15 @@ def nearest_neighbours(position: np.ndarray, velocity: np.ndarray, radius: float
     """Every robot's nearest neighbours within reach, from one snapshot (perfect information)."""
     n = len(position)
     m = min(max_neighbours, n - 1)
-    out = NeighbourStates.empty(n, m)
     if m <= 0:
-        return out
-    dist, idx = cKDTree(position).query(position, k=m + 1, distance_upper_bound=reach)
-    dist, idx = dist[:, 1:], idx[:, 1:]  # drop self
-    valid = np.isfinite(dist)
+        return NeighbourStates.empty(n, 0)
+    idx = nearest_within(np.ascontiguousarray(position, dtype=float), float(reach), m)
+    valid = idx >= 0
     safe = np.where(valid, idx, 0)
-    out.position[:] = position[safe]
-    out.velocity[:] = velocity[safe]
-    out.radius[:] = radius
-    out.valid[:] = valid
-    if cooperative is not None:  # a scripted mover avoids nobody: its neighbours take full responsibility
-        out.cooperative[:] = cooperative[safe]
-    return out
+    # a scripted mover avoids nobody: its neighbours take full responsibility
+    coop = np.ones((n, m), bool) if cooperative is None else cooperative[safe]
+    return NeighbourStates(np.take(position, safe, axis=0), np.take(velocity, safe, axis=0),
+                           np.full((n, m), float(radius)), np.zeros((n, m)), valid, coop)
 
 
 def goal_motion(motion: StepMotion | None) -> GoalMotion | None:
@@ -203,7 +198,7 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
                                      params.max_neighbours, movers.cooperative)
             clock.lap("neighbours")
             res = control_step(params, ids, measured[:, :2], measured[:, 2], velocity, goal, nbs, segments,
-                               seed=scene.seed, tick=tick, preferred=preferred)
+                               seed=scene.seed, tick=tick, preferred=preferred, compiled=True)
             velocity = res.velocity
             fallbacks += int(res.fallback.sum())
             clock.lap("control")

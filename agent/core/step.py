@@ -69,12 +69,14 @@ def keep_right_when_blocked(pref: np.ndarray, velocity: np.ndarray, v_pref: floa
 def control_step(params: RobotParams, robot_ids: np.ndarray, position: np.ndarray, heading: np.ndarray,
                  velocity: np.ndarray, goal: np.ndarray, neighbours: NeighbourStates,
                  segments: np.ndarray | None = None, *, seed: int = 0, tick: int = 0,
-                 preferred: np.ndarray | None = None) -> StepResult:
+                 preferred: np.ndarray | None = None, compiled: bool = False) -> StepResult:
     """Paper 5.2-5.4 for a batch: preferred velocity (eq. 9), ORCA or NH-ORCA, controls.
 
     preferred (B,2), optional: rows with finite values replace eq. 9 (eq. 27 held in an animation
     frame, or the feed-forward toward a moving goal of a dynamic image, agent.core.animation and
-    agent.core.goal_motion); NaN rows use eq. 9."""
+    agent.core.goal_motion); NaN rows use eq. 9.
+    compiled: holonomic robots get the same velocities, bit for bit, from the compiled core
+    (agent.core.orca_kernel: the central engine's fast path; agent processes never load numba)."""
     pref = preferred_velocity(position, goal, params.v_pref, params.k_a)
     if preferred is not None:
         given = np.isfinite(preferred).all(axis=1)
@@ -83,6 +85,15 @@ def control_step(params: RobotParams, robot_ids: np.ndarray, position: np.ndarra
     # A tiny deterministic perturbation breaks the symmetric head-on configurations that deadlock ORCA.
     pref = np.where(np.any(pref != 0, axis=1, keepdims=True),
                     perturb_preferred_velocity(pref, robot_ids, seed, tick), pref)
+    if compiled and params.kinematics != DIFFDRIVE:
+        from .orca_kernel import control_core
+
+        seg = np.zeros((0, 2, 2)) if segments is None else np.ascontiguousarray(segments, dtype=float).reshape(-1, 2, 2)
+        v_cf, fallback = control_core(position, velocity, pref, params.radius, params.v_max, neighbours.position,
+                                      neighbours.velocity, neighbours.radius, neighbours.age, neighbours.valid,
+                                      neighbours.cooperative, seg, params.tau, params.tau_obst, params.dt,
+                                      params.noise_bound, params.stale_after, params.noise_bound, params.dt)
+        return StepResult(v_cf, v_cf, pref, fallback)
     nb = prepare_neighbours(neighbours.position, neighbours.velocity, neighbours.radius, neighbours.age,
                             neighbours.valid, max_speed=params.v_max, timeout=params.stale_after,
                             noise=params.noise_bound, cooperative=neighbours.cooperative, committed=params.dt)

@@ -1,0 +1,332 @@
+"""The holonomic control core of a batch (what `control_step` does after the preferred velocity:
+`prepare_neighbours`, then `orca_velocity` with its safety lines, shrinking horizon and fallback),
+one robot at a time, compiled with numba.
+
+Why: the numpy core is vectorised over the batch but loops over lines and neighbours in Python,
+and at 1000 robots a control step spends about 5 ms in array bookkeeping (bench/results/large.md).
+Per robot the same arithmetic, in the same order, takes a fraction of that. The central engine
+(sim.central) uses this; agent processes keep the numpy core and never load numba.
+
+Same results, bit for bit: every line, bound and optimum is computed with the float operations of
+agent.core.neighbours, agent.core.orca and agent.core.lp in the same order, taking each robot's
+valid lines in the order the numpy core keeps them (hard lines first: obstacle edges, then safety
+lines; then the robot lines, nearest neighbour first). tests/test_orca_kernel.py checks it against
+the numpy core on random crowds, including infeasible ones.
+"""
+from __future__ import annotations
+
+import math
+import os
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+# numba's OpenMP layer keeps its worker threads spinning between parallel calls: in an engine loop
+# that calls in every few ms they burn a second core for nothing. The work queue parks them.
+if "NUMBA_THREADING_LAYER" not in os.environ:
+    numba.config.THREADING_LAYER = "workqueue"
+
+# As agent.core.orca and agent.core.lp (numba's cache keys on this file only: an imported constant
+# that changed there would stay stale in the cache).
+BUFFER = 1.0 + 1e-6  # orca._BUFFER: radii 1 ppm larger in the safety and obstacle lines
+SHRINK = 4.0  # orca._SHRINK: the horizon divisor where infeasible
+EPSILON = 1e-5  # lp.EPSILON: two unit directions are parallel below this |det|
+COOPERATING, NON_COOPERATING = 0.5, 1.0  # neighbours.COOPERATING / NON_COOPERATING
+
+
+@njit(cache=True)
+def _on_line(pix, piy, dix, diy, px, py, dx, dy, use, n, radius, tx, ty, directional):
+    """lp._on_line for one line i, clipped by the disk and the lines j < n with use[j]."""
+    dot = pix * dix + piy * diy
+    disc = dot * dot + radius * radius - (pix * pix + piy * piy)
+    ok = disc >= 0.0
+    sq = math.sqrt(max(disc, 0.0))
+    t_left = -dot - sq
+    t_right = -dot + sq
+    right, left = np.inf, -np.inf
+    for j in range(n):
+        if not use[j]:
+            continue
+        den = dix * dy[j] - diy * dx[j]
+        num = dx[j] * (piy - py[j]) - dy[j] * (pix - px[j])
+        if abs(den) <= EPSILON:  # parallel: line j empties line i if i lies on its forbidden side
+            if num < 0.0:
+                ok = False
+            continue
+        t = num / den
+        if den > 0.0:
+            right = min(right, t)
+        else:
+            left = max(left, t)
+    t_right = min(t_right, right)
+    t_left = max(t_left, left)
+    ok = ok and t_left <= t_right
+    if directional:
+        t_best = t_right if tx * dix + ty * diy > 0.0 else t_left
+    else:
+        t_best = min(max(dix * (tx - pix) + diy * (ty - piy), t_left), t_right)
+    return pix + t_best * dix, piy + t_best * diy, ok
+
+
+@njit(cache=True)
+def _disk_optimum(tx, ty, radius, directional):
+    if directional:
+        return tx * radius, ty * radius
+    n2 = tx * tx + ty * ty
+    if n2 > radius * radius:
+        scale = radius / math.sqrt(n2)
+        return tx * scale, ty * scale
+    return tx * 1.0, ty * 1.0
+
+
+@njit(cache=True)
+def _optimise(px, py, dx, dy, n, radius, tx, ty):
+    """lp.optimise (RVO2's linearProgram2) over lines 0..n-1: (x, y, feasible)."""
+    rx, ry = _disk_optimum(tx, ty, radius, False)
+    every = np.ones(n, np.bool_)
+    for i in range(n):
+        if dx[i] * (py[i] - ry) - dy[i] * (px[i] - rx) > 0.0:
+            x, y, ok = _on_line(px[i], py[i], dx[i], dy[i], px, py, dx, dy, every, i, radius, tx, ty, False)
+            if not ok:
+                return rx, ry, False  # a robot stops at its first unsatisfiable line
+            rx, ry = x, y
+    return rx, ry, True
+
+
+@njit(cache=True)
+def _optimise_few(px, py, dx, dy, use, n, radius, tx, ty, directional):
+    """lp.optimise_few over the lines 0..n-1 with use[j]: the best 1-D optimum of the lines that the
+    disk's optimum violates, each clipped by every line (itself included); ties to the first."""
+    cx, cy = _disk_optimum(tx, ty, radius, directional)
+    violated, good = False, False
+    best_x, best_y, best_cost = cx, cy, np.inf
+    for c in range(n):
+        if not use[c] or not dx[c] * (py[c] - cy) - dy[c] * (px[c] - cx) > 0.0:
+            continue
+        violated = True
+        x, y, ok = _on_line(px[c], py[c], dx[c], dy[c], px, py, dx, dy, use, n, radius, tx, ty, directional)
+        if not ok:
+            continue
+        if directional:
+            cost = -(tx * x + ty * y)
+        else:
+            ex, ey = x - tx, y - ty
+            cost = ex * ex + ey * ey
+        if cost < best_cost:
+            best_x, best_y, best_cost, good = x, y, cost, True
+    if not violated:
+        return cx, cy, True
+    if good:
+        return best_x, best_y, True
+    return cx, cy, False
+
+
+@njit(cache=True)
+def _least_violation(px, py, dx, dy, n, n_hard, radius, tx, ty):
+    """lp.least_violation (RVO2's linearProgram3): the first n_hard lines stay hard (all soft if they
+    leave nothing of the disk), the largest violation of the others is minimised."""
+    hard = np.zeros(n, np.bool_)
+    hard[:n_hard] = True
+    vx, vy, ok = _optimise_few(px, py, dx, dy, hard, n, radius, tx, ty, False)
+    if not ok:
+        hard[:] = False
+    qx, qy = np.empty(n), np.empty(n)
+    bx, by = np.empty(n), np.empty(n)
+    use = np.empty(n, np.bool_)
+    distance = 0.0
+    for i in range(n):
+        if hard[i] or not dx[i] * (py[i] - vy) - dy[i] * (px[i] - vx) > distance:
+            continue
+        pix, piy, dix, diy = px[i], py[i], dx[i], dy[i]
+        for j in range(i):  # the hard lines, and the bisectors with the earlier soft lines
+            pjx, pjy, djx, djy = px[j], py[j], dx[j], dy[j]
+            if hard[j]:
+                qx[j], qy[j], bx[j], by[j], use[j] = pjx, pjy, djx, djy, True
+                continue
+            den = dix * djy - diy * djx
+            par = abs(den) <= EPSILON
+            use[j] = not (par and dix * djx + diy * djy > 0.0)  # same direction: line i dominates
+            if par:
+                qx[j], qy[j] = 0.5 * (pix + pjx), 0.5 * (piy + pjy)
+            else:
+                t = (djx * (piy - pjy) - djy * (pix - pjx)) / den
+                qx[j], qy[j] = pix + t * dix, piy + t * diy
+            ex, ey = djx - dix, djy - diy
+            norm = math.sqrt(ex * ex + ey * ey)
+            norm = norm if norm > 0.0 else 1.0
+            bx[j], by[j] = ex / norm, ey / norm
+        x, y, ok = _optimise_few(qx, qy, bx, by, use, i, radius, -diy, dix, True)
+        if ok:
+            vx, vy = x, y
+        distance = dix * (piy - vy) - diy * (pix - vx)
+    return vx, vy
+
+
+@njit(cache=True)
+def _orca_line(px, py, vx, vy, radius, nx, ny, nvx, nvy, nradius, c, tau, dt):
+    """orca.orca_lines for one pair: (point x, point y, direction x, direction y)."""
+    rpx = nx - px
+    rpy = ny - py
+    rvx = vx - nvx
+    rvy = vy - nvy
+    dist2 = rpx * rpx + rpy * rpy
+    big_r = radius + nradius
+    big_r2 = big_r * big_r
+    apart = dist2 > big_r2
+    inv_h = 1.0 / tau if apart else 1.0 / dt
+    wx = rvx - inv_h * rpx
+    wy = rvy - inv_h * rpy
+    w2 = wx * wx + wy * wy
+    dot1 = wx * rpx + wy * rpy
+    if not apart or (dot1 < 0.0 and dot1 * dot1 > big_r2 * w2):  # the cut-off circle
+        wl = math.sqrt(w2)
+        if wl == 0.0:
+            ux, uy = 1.0, 0.0
+        else:
+            ux, uy = wx / wl, wy / wl
+        scale = big_r * inv_h - wl
+        return vx + c * (scale * ux), vy + c * (scale * uy), uy, -ux
+    leg = math.sqrt(max(dist2 - big_r2, 0.0))  # a leg of the cone
+    if not rpx * wy - rpy * wx > 0.0:
+        leg = -leg
+    inv_d2 = 1.0 / (dist2 if dist2 > 0.0 else 1.0)
+    ldx = (rpx * leg - rpy * big_r) * inv_d2
+    ldy = (rpy * leg + rpx * big_r) * inv_d2
+    dot2 = rvx * ldx + rvy * ldy
+    return vx + c * (dot2 * ldx - rvx), vy + c * (dot2 * ldy - rvy), ldx, ldy
+
+
+@njit(cache=True)
+def _keep(px, py, dx, dy, vmax):
+    """orca.drop_redundant: is the line not satisfied by the whole speed disk?"""
+    return dx * py - dy * px > -vmax
+
+
+@njit(cache=True)
+def _robot_lines(i, position, velocity, radius, nbr_p, nbr_v, nbr_r, nbr_c, nbr_ok, m, vmax, margin, horizon, dt,
+                 px, py, dx, dy, start):
+    """The robot lines (horizon ``horizon``, margin on both radii) from index ``start``: the new count."""
+    n = start
+    for k in range(m):
+        if not nbr_ok[k]:
+            continue
+        a, b, c, d = _orca_line(position[i, 0], position[i, 1], velocity[i, 0], velocity[i, 1], radius + margin,
+                                nbr_p[k, 0], nbr_p[k, 1], nbr_v[k, 0], nbr_v[k, 1], nbr_r[k] + margin, nbr_c[k],
+                                horizon, dt)
+        if _keep(a, b, c, d, vmax):
+            px[n], py[n], dx[n], dy[n] = a, b, c, d
+            n += 1
+    return n
+
+
+@njit(cache=True)
+def _control_core_one(i, position, velocity, pref, radius, vmax, nbr_position, nbr_velocity, nbr_radius, nbr_age,
+                      nbr_valid, nbr_cooperative, segments, tau, tau_obst, dt, margin, timeout, noise, committed):
+    """One robot: its neighbours prepared (neighbours.prepare_neighbours), then eq. 14 with the safety
+    lines, the shrinking horizon and the fallback (orca.orca_velocity). Returns (vx, vy, fallback)."""
+    m = nbr_valid.shape[1]
+    n_seg = segments.shape[0]
+    px_, py_ = position[i, 0], position[i, 1]
+    # prepare_neighbours: where each neighbour is now, how big, how responsible
+    nbr_p = np.empty((m, 2))
+    nbr_v = np.empty((m, 2))
+    nbr_r = np.empty(m)
+    nbr_g = np.empty(m)
+    nbr_c = np.empty(m)
+    nbr_ok = np.empty(m, np.bool_)
+    for k in range(m):
+        x, y = nbr_position[i, k, 0], nbr_position[i, k, 1]
+        u, w = nbr_velocity[i, k, 0], nbr_velocity[i, k, 1]
+        r = nbr_radius[i, k]
+        age = max(nbr_age[i, k], 0.0)
+        ok = (nbr_valid[i, k] and np.isfinite(x) and np.isfinite(y) and np.isfinite(u) and np.isfinite(w)
+              and np.isfinite(r) and np.isfinite(age))
+        stale = age > timeout
+        horizon = max((timeout if stale else age) - committed, 0.0)
+        shift = 0.0 if stale else age
+        if not ok:
+            x, y, u, w, r, horizon = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        nbr_p[k, 0], nbr_p[k, 1] = x + shift * u, y + shift * w
+        nbr_v[k, 0], nbr_v[k, 1] = u, w
+        nbr_g[k] = horizon * 2.0 * vmax
+        nbr_r[k] = r + noise + nbr_g[k]
+        nbr_c[k] = COOPERATING if nbr_cooperative[i, k] and not stale else NON_COOPERATING
+        nbr_ok[k] = ok
+    size = n_seg + 2 * m
+    px, py = np.empty(size), np.empty(size)
+    dx, dy = np.empty(size), np.empty(size)
+    n = 0
+    # hard lines: the obstacle edges (own radius with the margin) ...
+    r_obst = (radius + margin) * BUFFER
+    for s in range(n_seg):
+        ax, ay = segments[s, 0, 0], segments[s, 0, 1]
+        ex, ey = segments[s, 1, 0] - ax, segments[s, 1, 1] - ay
+        len2 = ex * ex + ey * ey
+        t = min(max(((px_ - ax) * ex + (py_ - ay) * ey) / (len2 if len2 > 0.0 else 1.0), 0.0), 1.0)
+        nx = px_ - (ax + t * ex)
+        ny = py_ - (ay + t * ey)
+        d = math.sqrt(nx * nx + ny * ny)
+        if d == 0.0:  # centre on the edge: the free side is on its right
+            el = math.sqrt(len2 if len2 > 0.0 else 1.0)
+            nx, ny = ey / el, -ex / el
+        else:
+            nx, ny = nx / d, ny / d
+        offset = max(d - r_obst, 0.0) / tau_obst
+        if offset < vmax:
+            a, b, c, e = -nx * offset, -ny * offset, ny, -nx
+            if _keep(a, b, c, e, vmax):
+                px[n], py[n], dx[n], dy[n] = a, b, c, e
+                n += 1
+    # ... and the safety lines (horizon dt around zero velocities, true radii, growth up to our surface)
+    own = radius * BUFFER
+    for k in range(m):
+        if not nbr_ok[k]:
+            continue
+        ex, ey = nbr_p[k, 0] - px_, nbr_p[k, 1] - py_
+        dist = math.sqrt(ex * ex + ey * ey)
+        nr = nbr_r[k] * BUFFER
+        certain = nr - nbr_g[k] * BUFFER
+        nr = min(nr, max(dist * (1.0 - 1e-9) - own, certain))
+        gap = dist - (own + nr)
+        keep = nbr_c[k] >= 1.0
+        if not (keep or gap < 2.0 * dt * vmax):
+            continue
+        nvx, nvy = (nbr_v[k, 0], nbr_v[k, 1]) if keep else (0.0, 0.0)
+        a, b, c, e = _orca_line(px_, py_, 0.0, 0.0, own, nbr_p[k, 0], nbr_p[k, 1], nvx, nvy, nr, nbr_c[k], dt, dt)
+        if _keep(a, b, c, e, vmax):
+            px[n], py[n], dx[n], dy[n] = a, b, c, e
+            n += 1
+    n_hard = n
+    n = _robot_lines(i, position, velocity, radius, nbr_p, nbr_v, nbr_r, nbr_c, nbr_ok, m, vmax, margin, tau, dt,
+                     px, py, dx, dy, n_hard)
+    tx, ty = pref[i, 0], pref[i, 1]
+    vx, vy, feasible = _optimise(px, py, dx, dy, n, vmax, tx, ty)
+    if feasible:
+        return vx, vy, False
+    every = np.ones(size, np.bool_)
+    horizon = tau
+    while horizon > dt:  # paper 5.3: a shorter horizon until feasible, down to dt
+        horizon = max(horizon / SHRINK, dt)
+        n = _robot_lines(i, position, velocity, radius, nbr_p, nbr_v, nbr_r, nbr_c, nbr_ok, m, vmax, margin, horizon,
+                         dt, px, py, dx, dy, n_hard)
+        vx, vy, ok = _optimise_few(px, py, dx, dy, every, n, vmax, tx, ty, False)
+        if ok:
+            return vx, vy, True
+    vx, vy = _least_violation(px, py, dx, dy, n, n_hard, vmax, tx, ty)
+    return vx, vy, True
+
+
+@njit(cache=True, parallel=True)
+def control_core(position, velocity, pref, radius, vmax, nbr_position, nbr_velocity, nbr_radius, nbr_age, nbr_valid,
+                 nbr_cooperative, segments, tau, tau_obst, dt, margin, timeout, noise, committed):
+    """The collision-free velocity (B,2) and fallback flags (B,) of a batch: the robots are
+    independent, so they run in parallel on every core (each robot's result is its own)."""
+    b = position.shape[0]
+    out = np.empty((b, 2))
+    fallback = np.empty(b, np.bool_)
+    for i in prange(b):
+        out[i, 0], out[i, 1], fallback[i] = _control_core_one(
+            i, position, velocity, pref, radius, vmax, nbr_position, nbr_velocity, nbr_radius, nbr_age, nbr_valid,
+            nbr_cooperative, segments, tau, tau_obst, dt, margin, timeout, noise, committed)
+    return out, fallback

@@ -1,0 +1,37 @@
+"""The central engine's neighbour search (sim.nearest) against scipy's kd-tree: the same neighbours,
+nearest first, strictly within reach, self excluded."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from sim.nearest import nearest_within
+
+
+def kd_tree_neighbours(position: np.ndarray, reach: float, m: int) -> np.ndarray:
+    dist, idx = cKDTree(position).query(position, k=m + 1, distance_upper_bound=reach)
+    idx = np.where(np.isfinite(dist), idx, -1)[:, 1:]  # the first is the robot itself
+    return idx
+
+
+@pytest.mark.parametrize("seed, n, side, reach, m", [(0, 1000, 25.0, 1.2, 16), (1, 300, 3.0, 1.0, 8),
+                                                    (2, 50, 100.0, 5.0, 4), (3, 2, 1.0, 2.0, 1)])
+def test_the_same_neighbours_as_a_kd_tree(seed, n, side, reach, m):
+    position = np.random.default_rng(seed).uniform(0.0, side, (n, 2))
+    np.testing.assert_array_equal(nearest_within(position, reach, m), kd_tree_neighbours(position, reach, m))
+
+
+def test_reach_is_strict_and_ties_go_to_the_lower_index():
+    position = np.array([[0.0, 0.0], [1.0, 0.0], [-1.0, 0.0], [0.0, 2.0]])
+    got = nearest_within(position, 1.0 + 1e-12, 3)
+    assert got[0].tolist() == [1, 2, -1]  # 1 and 2 tie at distance 1; robot 3 is out of reach
+    assert nearest_within(position, 1.0, 3)[0].tolist() == [-1, -1, -1]  # exactly at reach: out
+
+
+def test_robots_far_apart_and_not_finite():
+    position = np.array([[0.0, 0.0], [0.5, 0.0], [1e7, 1e7], [np.nan, 0.0], [0.2, 0.0]])
+    got = nearest_within(position, 1.0, 2)
+    assert got[0].tolist() == [4, 1]
+    assert got[2].tolist() == [-1, -1]  # alone, 10^7 m away (the grid widens its cells)
+    assert got[3].tolist() == [-1, -1] and 3 not in got
