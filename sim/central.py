@@ -33,7 +33,7 @@ from coordinator.scene import Scene, scene_goal_set
 from coordinator.service import palette
 
 from .movers import Movers
-from .nearest import nearest_within
+from .proximity import nearest_within
 from .output import write_run
 from .rundir import RunDir
 from .stepclock import StepClock

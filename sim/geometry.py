@@ -33,8 +33,15 @@ def arc_displacement(
 
     The chord of the circular arc has length ``speed * t * sinc(omega t / 2)`` and points along
     ``heading + omega t / 2``; this form is exact for every omega, including 0 (a straight line),
-    with no division by a small omega. Arguments broadcast against each other.
+    with no division by a small omega. Arguments broadcast against each other; t >= 0.
     """
+    if np.count_nonzero(omega) == 0:
+        # no robot turns (holonomic ones): sinc(0) is exactly 1 and heading + omega t / 2 is heading
+        # + omega to the bit (both a zero of omega's sign when t >= 0), so one cos and sin per robot
+        # give the same numbers as one per (t, robot)
+        ang = heading + omega
+        chord = speed * t
+        return chord * np.cos(ang), chord * np.sin(ang)
     half = omega * t * 0.5
     chord = speed * t * np.sinc(half / math.pi)  # numpy's sinc is sin(pi x) / (pi x)
     ang = heading + half

@@ -42,11 +42,12 @@ that start overlapping are recorded at t = 0. Touching (distance exactly r_i + r
 ``min_clearance`` is the exact smallest robot-robot clearance (centre distance minus both radii)
 over every substep state so far (negative means overlap); ``step_min_clearance()`` is the same over
 the states of the last step, its start included. Both are +inf with fewer than two robots. Finding
-it exactly and cheaply: one cKDTree on the positions at the start of the step; all pairs within
-(clearance of the last step's closest pair now) + 2 r_max + 2 * (largest distance travelled in the
-step) are checked at every substep (when that pair has drifted far apart: pairs within
-2.5 r_max + 2 * travel, then if none came closer than r_max / 2, a nearest-neighbour query bounds
-the radius).
+it exactly and cheaply: a grid of cells on the positions at the start of the step (sim.proximity); all
+pairs within (clearance of the last step's closest pair now) + 2 r_max + 2 * (largest distance
+travelled in the step) are looked at, and checked at every substep unless they can neither overlap
+nor come closer than the smallest clearance found so far (when that radius takes in too many
+pairs, e.g. the pair was teleported apart: pairs within 2.5 r_max + 2 * travel, then if none came
+closer than r_max / 2, a nearest-neighbour query bounds the radius).
 
 ``teleport(i, pose)`` moves a robot as if picked up by hand: no path length, velocity zero, the
 command kept (the controller decides what to send next). The new state is checked for contacts at
@@ -71,6 +72,7 @@ from sim.geometry import (
     rect_signed_distance,
     wrap_angle,
 )
+from sim.proximity import close_pairs
 
 __all__ = ["Body", "Contact", "World", "HOLONOMIC", "DIFFDRIVE"]
 
@@ -187,6 +189,7 @@ class World:
         self._bodies = tuple(bodies)
         self._n = n = len(bodies)
         self._is_diff = np.array([b.kinematics == DIFFDRIVE for b in bodies])
+        self._any_diff = bool(self._is_diff.any())
         self._radius = np.array([b.radius for b in bodies], dtype=float)
         self._v_max = np.array([b.v_max for b in bodies], dtype=float)
         self._wheel_base = np.array([b.wheel_base for b in bodies], dtype=float)
@@ -366,21 +369,17 @@ class World:
     def _actuate(self, noise: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Realised (speed, heading of motion, turn rate) per robot, noise included."""
         cmd = self._cmd
-        moving = np.any(cmd != 0.0, axis=1)
-        speed = np.empty(self._n)
-        heading = np.empty(self._n)
+        moving = (cmd[:, 0] != 0.0) | (cmd[:, 1] != 0.0)
         omega = np.zeros(self._n)
         d = self._is_diff
+        if not self._any_diff:  # an all-holonomic swarm: whole arrays, no masked copies
+            speed, heading = self._holonomic(cmd, noise, moving, self._v_max)
+            return speed, heading, omega
+        speed = np.empty(self._n)
+        heading = np.empty(self._n)
         h = ~d
         if h.any():
-            c = cmd[h]
-            v = c + self._noise_rel * np.hypot(c[:, 0], c[:, 1])[:, None] * noise[h, :2]
-            v += self._noise_abs * moving[h, None] * noise[h, 2:]
-            norm = np.hypot(v[:, 0], v[:, 1])
-            vmax = self._v_max[h]
-            scale = np.where(norm > vmax, vmax / np.where(norm > 0.0, norm, 1.0), 1.0)
-            speed[h] = norm * scale
-            heading[h] = np.arctan2(v[:, 1], v[:, 0])
+            speed[h], heading[h] = self._holonomic(cmd[h], noise[h], moving[h], self._v_max[h])
         if d.any():
             vmax = self._v_max[d][:, None]
             w = cmd[d] * (1.0 + self._noise_rel * noise[d, :2])
@@ -391,6 +390,16 @@ class World:
             omega[d] = np.clip(om, -self._omega_max[d], self._omega_max[d])
             heading[d] = theta[d]
         return speed, heading, omega
+
+    def _holonomic(
+        self, c: np.ndarray, noise: np.ndarray, moving: np.ndarray, vmax: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(speed, heading of motion) of holonomic robots from their commands c (M, 2) and noise (M, 4)."""
+        v = c + self._noise_rel * np.hypot(c[:, 0], c[:, 1])[:, None] * noise[:, :2]
+        v += self._noise_abs * moving[:, None] * noise[:, 2:]
+        norm = np.hypot(v[:, 0], v[:, 1])
+        scale = np.where(norm > vmax, vmax / np.where(norm > 0.0, norm, 1.0), 1.0)
+        return norm * scale, np.arctan2(v[:, 1], v[:, 0])
 
     def step(self, dt: float) -> list[Contact]:
         """Advance by dt seconds in substeps; return the contact events that started during this step."""
@@ -423,14 +432,15 @@ class World:
                 self._draw_noise(self._noise_index + 1)
             speed, heading, omega = self._actuate(self._noise, theta)
             end = k + 1 if seg == len(bounds) - 2 else int(np.searchsorted(tk, sb + eps, side="right"))
-            if end > row:
-                dx, dy = arc_displacement(speed, heading, omega, (tk[row:end] - sa)[:, None])
-                traj[row:end, :, 0] = pos[:, 0] + dx
-                traj[row:end, :, 1] = pos[:, 1] + dy
-                row = end
             length = sb - sa
-            dx, dy = arc_displacement(speed, heading, omega, length)
-            pos = pos + np.column_stack((dx, dy))
+            # one call for the substeps in the segment and its end (the last t)
+            t = np.append(tk[row:end] - sa, length)[:, None]
+            dx, dy = arc_displacement(speed, heading, omega, t)
+            if end > row:
+                np.add(pos[:, 0], dx[:-1], out=traj[row:end, :, 0])
+                np.add(pos[:, 1], dy[:-1], out=traj[row:end, :, 1])
+                row = end
+            pos = pos + np.column_stack((dx[-1], dy[-1]))
             theta = theta + omega * length
             self._path += np.abs(speed) * length
             motion += float(np.max(np.abs(speed))) * length
@@ -482,50 +492,26 @@ class World:
         groups: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]] = []  # kind, i, j, depth (rows, H)
         step_min = math.inf
 
-        # robot-robot: candidate pairs from one tree on the positions at the start of the step
+        # robot-robot: the pairs within a search radius of each other at the start of the step
         if self._n >= 2:
-            xs, ys = traj[..., 0], traj[..., 1]
-            tree = cKDTree(traj[0])
-            base = 2.0 * self._r_max + 2.0 * motion  # any pair that can overlap is within this
-            base += 1e-9 * (1.0 + base)
-            radius = None
-            if self._closest is not None:
-                # the clearance, in row 0, of the pair closest in the last step bounds this step's
-                # minimum: no pair farther than that + base can beat it
-                a, b = self._closest
-                upper = math.hypot(*(traj[0, a] - traj[0, b])) - r[a] - r[b]
-                if upper <= 8.0 * self._r_max:
-                    radius = max(upper, 0.0) + base
-            if radius is None:
-                # pairs beyond base + margin keep a clearance above margin in every row
-                margin = 0.5 * self._r_max
-                pairs = tree.query_pairs(base + margin, output_type="ndarray")
-                d2, s = self._pair_d2(xs, ys, pairs)
-                clear = np.sqrt(d2.min(axis=0)) - s
-                if not (clear.size and clear.min() < margin):
-                    # none came that close: bound the search by the nearest neighbours in row 0
-                    dist, idx = tree.query(traj[0], k=2)
-                    radius = max(float(np.min(dist[:, 1] - r - r[idx[:, 1]])), 0.0) + base
-            if radius is not None:
-                pairs = tree.query_pairs(radius, output_type="ndarray")
-                d2, s = self._pair_d2(xs, ys, pairs)
-                clear = np.sqrt(d2.min(axis=0)) - s
-            best = int(np.argmin(clear))
-            step_min = float(clear[best])
-            self._closest = (int(pairs[best, 0]), int(pairs[best, 1]))
-            sub = d2[first_row:]
-            hit = np.flatnonzero(np.any(sub < s * s, axis=0))
-            if hit.size:
-                depth = s[hit] - np.sqrt(sub[:, hit])
-                groups.append(("robot", pairs[hit, 0], pairs[hit, 1], depth))
+            step_min, closest, ii, jj, depth = self._robot_pairs(traj, motion, first_row)
+            self._closest = closest
+            if ii.size:
+                groups.append(("robot", ii, jj, depth))
 
         rows = traj[first_row:]
-        # walls
+        # walls: only robots that start within r + motion of one can reach it
         if self._arena is not None and rows.shape[0]:
-            depth = r - rect_signed_distance(rows, self._arena)  # (rows, N)
-            hit = np.flatnonzero(np.any(depth > 0.0, axis=0))
-            if hit.size:
-                groups.append(("wall", hit, np.full(hit.size, -1), depth[:, hit]))
+            xmin, ymin, xmax, ymax = self._arena
+            x, y = traj[0, :, 0], traj[0, :, 1]
+            reach = r + motion + 1e-9
+            near = (x - xmin < reach) | (xmax - x < reach) | (y - ymin < reach) | (ymax - y < reach)
+            near = np.flatnonzero(near)
+            if near.size:
+                depth = r[near] - rect_signed_distance(rows[:, near], self._arena)  # (rows, near)
+                hit = np.flatnonzero(np.any(depth > 0.0, axis=0))
+                if hit.size:
+                    groups.append(("wall", near[hit], np.full(hit.size, -1), depth[:, hit]))
 
         # obstacles: only robots whose swept disc may reach the obstacle's bounding box
         if self._obstacles and rows.shape[0]:
@@ -546,12 +532,35 @@ class World:
         self._min_clearance = min(self._min_clearance, step_min)
         return self._update_events(groups, times[first_row:]), step_min
 
-    def _pair_d2(self, xs: np.ndarray, ys: np.ndarray, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Squared centre distances (rows, M) of the candidate pairs in every row, and r_a + r_b (M,)."""
-        a, b = pairs[:, 0], pairs[:, 1]
-        dx = xs[:, a] - xs[:, b]
-        dy = ys[:, a] - ys[:, b]
-        return dx * dx + dy * dy, self._radius[a] + self._radius[b]
+    def _robot_pairs(
+        self, traj: np.ndarray, motion: float, first_row: int
+    ) -> tuple[float, tuple[int, int], np.ndarray, np.ndarray, np.ndarray]:
+        """The smallest robot-robot clearance over the rows, a pair that has it, and the overlapping
+        pairs (i, j, depth (rows - first_row, H)), exactly: every pair that can overlap or be the
+        closest is searched (sim.proximity.close_pairs)."""
+        r = self._radius
+        base = 2.0 * self._r_max + 2.0 * motion  # any pair that can overlap is within this
+        base += 1e-9 * (1.0 + base)
+        found = None
+        if self._closest is not None:
+            # the clearance, in row 0, of the pair closest in the last step bounds this step's
+            # minimum: no pair farther than that + base can beat it. If that pair has drifted far
+            # apart (a teleport) while others are close, this looks at too many pairs: given up
+            a, b = self._closest
+            upper = math.hypot(*(traj[0, a] - traj[0, b])) - r[a] - r[b]
+            found = close_pairs(traj, r, max(upper, 0.0) + base, motion, first_row, bound=upper,
+                                budget=64 * self._n)
+        if found is None:
+            # pairs beyond base + margin keep a clearance above margin in every row
+            margin = 0.5 * self._r_max
+            found = close_pairs(traj, r, base + margin, motion, first_row)
+            if not found[0] < margin:
+                # none came that close: bound the search by the nearest neighbours in row 0
+                dist, idx = cKDTree(traj[0]).query(traj[0], k=2)
+                radius = max(float(np.min(dist[:, 1] - r - r[idx[:, 1]])), 0.0) + base
+                found = close_pairs(traj, r, radius, motion, first_row)
+        step_min, a, b, pairs, depth = found
+        return step_min, (a, b), pairs[:, 0], pairs[:, 1], depth
 
     def _update_events(
         self, groups: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]], times: np.ndarray
