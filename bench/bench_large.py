@@ -50,7 +50,7 @@ SCENE = "paper-sequence-1000"
 ASSIGNMENTS = ("auction", "optimal")
 TARGET = 30.0  # the realtime factor issue 6 asks of the central engine at 1000 robots
 PART_NAMES = {"tracker": "tracker", "assignment": "goal assignment", "preferred": "preferred velocities",
-              "record": "recording", "neighbours": "neighbour search (kd-tree)", "control": "control core (ORCA)",
+              "record": "recording", "neighbours": "neighbour search (grid)", "control": "control core (ORCA, compiled)",
               "world": "world (commands + step)", "other": "the rest"}
 
 

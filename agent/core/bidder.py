@@ -46,6 +46,7 @@ from .auction import NO_OWNER, ROUNDING, epsilon_schedule, is_content
 
 CONTENT = 1  # record flag: the robot holds the goal and is content with it
 RELEASED = 2  # record flag: the robot gave the goal up at this price
+CANDIDATES = 16  # goals a robot ranks in settle_alone's rounds while no other can beat them (agent.core.jacobi)
 SMALL = 8  # messages with up to this many records are merged record by record (numpy costs more there)
 
 # One robot's word on one goal (goal -1: it holds none yet); the wire layout of transport.codec.Bid.
@@ -98,6 +99,20 @@ def frames_close(before: np.ndarray, goals: np.ndarray, previous: np.ndarray) ->
     disparity = float(np.hypot(*(goals[ok] - np.asarray(before, float)[previous[ok]]).T).mean())
     spacing = float(np.median(cKDTree(goals).query(goals, k=2)[0][:, 1]))
     return disparity <= 1.5 * spacing
+
+
+def _hull_vertices(goals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(x, y) of points whose support function bounds the goal set's (agent.core.jacobi carries
+    candidate lists by it): its convex hull's vertices, or its bounding box's corners when the
+    hull is degenerate (goals on a line, fewer than three)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    try:
+        corners = goals[ConvexHull(goals).vertices]
+    except (QhullError, ValueError):
+        lo, hi = goals.min(axis=0), goals.max(axis=0)
+        corners = np.array([[lo[0], lo[1]], [lo[0], hi[1]], [hi[0], lo[1]], [hi[0], hi[1]]])
+    return np.ascontiguousarray(corners[:, 0], float), np.ascontiguousarray(corners[:, 1], float)
 
 
 def records(rows: list[tuple]) -> np.ndarray:
@@ -231,6 +246,8 @@ class Participant:
         self.rounds = 0  # Jacobi rounds in which some own robot bid
         self._content_cache: tuple[tuple, np.ndarray] | None = None
         self._best: tuple[np.ndarray, np.ndarray] | None = None  # best goal and value per own robot
+        self._lists: tuple | None = None  # settle_alone's candidate goals and scratch (agent.core.jacobi), hull
+        self.without_list = 0  # robots that had no candidate list at the start of settle_alone's last block
         self._price_seen = np.zeros(len(self.goals))
         self._has_penalty = False  # any penalty in force: costs are more than squared distances
         self._pending_any = False  # penalise() was called since the last begin()
@@ -514,7 +531,8 @@ class Participant:
             rounds += 1
         return rounds
 
-    def settle_alone(self, positions: Mapping[int, np.ndarray] | np.ndarray, max_rounds: int = 100_000) -> np.ndarray:
+    def settle_alone(self, positions: Mapping[int, np.ndarray] | np.ndarray, max_rounds: int = 100_000,
+                     candidates: int = CANDIDATES) -> np.ndarray:
         """For a host that owns every robot of the goal set (the central engine): begin the next
         block of phases on these positions, warm from the board, and bid it through its phases to
         an agreed final phase. Nobody else bids, so no message is needed: every phase's snapshot is
@@ -524,26 +542,37 @@ class Participant:
         The block runs compiled (agent.core.jacobi): the same costs, rounds, bids and board as
         begin(), bid() and check_agreement() give, at 1000 robots a hundred times faster (while
         they cross the arena a warm block runs chains of 10,000 rounds of one or two bidders).
+        Each robot ranks only its ``candidates`` best goals while no other goal can beat them
+        (prices only rise), and the lists carry over to the next block where the robot's motion
+        cannot have changed that: the same ranking, a fraction of the scan.
         Imported here, not at the top: agent hosts never settle alone and need not load numba."""
-        from .jacobi import settle_block
+        from .jacobi import first_ranking, new_lists, settle_block
 
         if len(self.own) != len(self.robots):
             raise ValueError("settle_alone needs a host that owns every robot of the goal set")
+        if candidates < 3:
+            raise ValueError("settle_alone ranks at least 3 candidate goals per robot")
         first = (self.instance // self.phases + 1) * self.phases if self.started else 0
-        self._freeze(first, positions, costs=False)
+        self._freeze(first, positions, costs=False)  # costs are computed where needed
         k, board = len(self.own), self.board
         if self._best is None:
             self._best = (np.zeros(k, np.int64), np.zeros(k), np.full(k, np.inf))
         best, value, second = self._best
+        if self._lists is None or self._lists[0].cand.shape[1] != candidates:
+            self._lists = (*new_lists(k, len(self.goals), candidates), _hull_vertices(self.goals))
+        lists, work, (hull_x, hull_y) = self._lists
         row_of_id = np.full(int(self.own_ids.max(initial=0)) + 1, -1, np.int64)
         row_of_id[self.own_ids] = np.arange(k)
         eps = np.array(self.schedule)
         slack = eps.copy()
         slack[-1] += self.hysteresis  # Delta C in the final phase only
+        px, py = np.ascontiguousarray(self.position[:, 0]), np.ascontiguousarray(self.position[:, 1])
+        gx, gy = np.ascontiguousarray(self.goals[:, 0]), np.ascontiguousarray(self.goals[:, 1])
+        self.without_list = first_ranking(px, py, gx, gy, board.price, self.penalty, self._has_penalty, best, value,
+                                          second, lists, work, hull_x, hull_y)
         rounds, bids, settled = settle_block(
-            self.position, self.goals, self.penalty, self._has_penalty, self.cost, board.price, board.owner,
-            board.released, self.goal, self.own_ids, row_of_id, best, value, second, eps, slack, ROUNDING,
-            max_rounds)
+            px, py, gx, gy, board.price, self.penalty, self._has_penalty, board.owner, board.released, self.goal,
+            self.own_ids, row_of_id, best, value, second, lists, work, eps, slack, ROUNDING, max_rounds)
         self.instance = first + min(settled, self.phases - 1)
         board.version += 1
         self.bids, self.rounds, self.claims_changed = self.bids + bids, self.rounds + rounds, True

@@ -1,33 +1,79 @@
 """The Jacobi rounds of the forward auction (paper 5.1.1) for a host that holds every robot and hears
 no message (the central engine's `Participant.settle_alone`), compiled with numba.
 
-`settle_block` runs one block of epsilon-scaling phases: the costs (eq. 7) on the frozen positions,
-then per phase `jacobi_rounds` until every robot is content. The rounds, bids and board are those
-of `Participant.begin`, `bid` and `check_agreement`: every robot that is not content bids at once on
-its best goal against the board as the round found it, releasing the goal it held; per goal the
-greatest record wins (price, then the lower robot id, then "released"). The outcome is the
-protocol's to the bit (tests/test_bidder.py checks it against the numpy rounds of the agent hosts).
+A block of epsilon-scaling phases on frozen positions starts with `first_ranking` (every robot's
+best goals), then `settle_block` runs per phase the Jacobi rounds until every robot is content.
+The rounds, bids and board are those of `Participant.begin`, `bid` and `check_agreement`: every
+robot that is not content bids at once on its best goal against the board as the round found it,
+releasing the goal it held; per goal the greatest record wins (price, then the lower robot id, then
+"released"). The outcome is the protocol's to the bit (tests/test_bidder.py checks it against the
+numpy rounds of the agent hosts).
 
 Why compiled: while 1000 robots cross the arena a warm block runs chains of 10,000 and more rounds of
-one or two bidders (each outbid robot outbids the next). Each round is a scan over the goals for one
-robot: about a microsecond compiled, 10 us in Python (bench/results/large.md). After a round only the
-bidders and the robots they outbid are looked at again; nobody else's contentment can have changed
-(a content robot holds its goal, so only a bid on that goal changes it, and every other price only
-rises).
+one or two bidders (each outbid robot outbids the next), about a microsecond each compiled, ten
+in Python. After a round only the bidders and the robots they outbid are looked at again; nobody
+else's contentment can have changed (a content robot holds its goal, so only a bid on that goal
+changes it, and every other price only rises).
 
-Each robot keeps its best goal, its net value (exact when the price of that goal is ``seen``) and
-an upper bound of its second-best value, as the numpy rounds do: a robot looked at again is ranked
-over every goal only if its best goal may have changed.
+What makes a round cheap is knowing a robot's best goals without scanning every goal:
+
+- **Cached best goal.** Each robot keeps its best goal, its net value (exact when the price of that
+  goal is ``seen``) and an upper bound of its second-best value: it is ranked again only if its
+  best goal may have changed.
+- **Candidate goals** (`Lists`). A ranking over every goal also keeps the robot's K best goals and
+  ``bound``, an upper bound of every other goal's value. Prices only rise, so the bound holds while
+  the prices change; if the three best candidates beat it, they are the three best goals (ties
+  included) and a ranking costs K goals, not all of them.
+- **Carried across blocks.** A robot that moved by d since its list was made: the value of goal j
+  changed by 2 (g_j - p).d - |d|^2, so the bound moved by at most 2 (h(d) - p.d) - |d|^2 with h the
+  goal set's support function (over its convex hull). While robots hold their goals the lists
+  survive from control step to control step, and a block no longer starts by scanning 10^6 costs.
+- **No cost matrix.** Costs are computed where needed, |g_j - p_i|^2 plus the penalties in force, in
+  the same float operations as the agent hosts' (agent.core.bidder._squared_distances).
+- **Phases with nothing to do** are passed over: a robot content at the smallest slack left is
+  content at every larger one, so one scan finds every robot that may bid in any later phase.
+
+Measured (bench/results/large.md): 1000 robots, the paper's sequence, 6.4 -> 1.7 ms of assignment
+per control step, the same assignments.
 """
 from __future__ import annotations
+
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
 
 NO_OWNER = -1  # as agent.core.auction.NO_OWNER: numba's cache would keep an imported constant stale
 
+# Per robot: its K candidate goals (-1: none), an upper bound of every other goal's value (+inf: no
+# list), the value window that list-making aims for (adapted so that about K goals fall in it), and
+# where the list was made with the bound it had there (a later block moves the bound from there:
+# a robot that jitters in place keeps its list).
+Lists = namedtuple("Lists", ["cand", "bound", "width", "made_x", "made_y", "made_bound"])
+# Scratch for a ranking over every goal: the values (G,), the goals in the window (4K,) and the
+# K + 1 best of them.
+Work = namedtuple("Work", ["values", "window_value", "window_goal", "top_value", "top_goal"])
 
-@njit(cache=True)
+
+def new_lists(robots: int, goals: int, k: int) -> tuple[Lists, Work]:
+    """Empty candidate lists of k goals for each robot, and the scratch to fill them."""
+    return (Lists(np.full((robots, k), -1, np.int64), np.full(robots, np.inf), np.ones(robots),
+                  np.zeros(robots), np.zeros(robots), np.full(robots, np.inf)),
+            Work(np.empty(goals), np.empty(4 * k), np.empty(4 * k, np.int64), np.empty(k + 1),
+                 np.empty(k + 1, np.int64)))
+
+
+@njit(cache=True, inline="always")
+def _cost(i, j, px, py, gx, gy, penalty, has_penalty):
+    """c_ij (eq. 7) plus robot i's penalty on goal j, as agent.core.bidder computes it."""
+    dx, dy = gx[j] - px[i], gy[j] - py[i]
+    c = dx * dx + dy * dy
+    if has_penalty:
+        c = c + penalty[i, j]
+    return c
+
+
+@njit(cache=True, inline="always")
 def _greater(price: float, robot: int, released: bool, b_price: float, b_owner: int, b_released: bool) -> bool:
     """Is the record (price, robot, released) greater than the board's for its goal?"""
     if b_owner == NO_OWNER:
@@ -40,14 +86,26 @@ def _greater(price: float, robot: int, released: bool, b_price: float, b_owner: 
 
 
 @njit(cache=True)
-def _rank(cost_row: np.ndarray, price: np.ndarray) -> tuple[int, float, int, float, float]:
-    """A robot's best goal and net value, runner-up goal and value, and third-best value over every
-    goal (ties: the lowest goal index, as numpy's argmax)."""
+def _rank_all(i, px, py, gx, gy, price, penalty, has_penalty, lists, work):
+    """Robot i's best goal and net value, runner-up goal and value, and third-best value over every
+    goal (ties: the lower goal index, as numpy's argmax in the agent hosts' rounds). Renews its
+    candidates: the best K of the goals worth at least T = third best - width (T is then the bound
+    of the others); none when more than 4K fall in the window."""
+    values = work.values  # _cost for every goal, in loops that vectorise
+    x, y = px[i], py[i]
+    for j in range(len(price)):
+        dx, dy = gx[j] - x, gy[j] - y
+        values[j] = dx * dx + dy * dy
+    if has_penalty:
+        for j in range(len(price)):
+            values[j] += penalty[i, j]
+    for j in range(len(price)):
+        values[j] = -values[j] - price[j]
     j1, j2 = -1, -1
     v1, v2, v3 = -np.inf, -np.inf, -np.inf
     for j in range(len(price)):
-        v = -cost_row[j] - price[j]  # finite: costs and prices are
-        if v > v3:  # v3 <= v2 <= v1: most goals fail this one test
+        v = values[j]
+        if v > v3:  # most goals fail this one test
             if v > v1:
                 j2, v2, v3 = j1, v1, v2
                 j1, v1 = j, v
@@ -56,58 +114,147 @@ def _rank(cost_row: np.ndarray, price: np.ndarray) -> tuple[int, float, int, flo
                 v2 = v
             else:
                 v3 = v
+    # the window, in ascending goal index
+    k = lists.cand.shape[1]
+    t = v3 - lists.width[i]
+    n = 0
+    for j in range(len(price)):
+        if values[j] >= t:
+            if n < len(work.window_goal):
+                work.window_value[n], work.window_goal[n] = values[j], j
+            n += 1
+    if n > len(work.window_goal) or not t > -np.inf:  # no list this time: a narrower window next
+        lists.width[i] *= 0.25
+        lists.cand[i, :] = -1
+        lists.bound[i] = lists.made_bound[i] = np.inf
+        return j1, v1, j2, v2, v3
+    if n < k:
+        lists.width[i] *= 2.0
+    elif n > 2 * k:
+        lists.width[i] *= 0.5
+    top_value, top_goal = work.top_value, work.top_goal  # the k + 1 best of the window
+    top_value[:] = -np.inf
+    top_goal[:] = -1
+    for a in range(n):  # ascending goal index: a strict > keeps the lower index first among equals
+        v = work.window_value[a]
+        if v > top_value[k]:
+            s = k
+            while s > 0 and v > top_value[s - 1]:
+                top_value[s], top_goal[s] = top_value[s - 1], top_goal[s - 1]
+                s -= 1
+            top_value[s], top_goal[s] = v, work.window_goal[a]
+    lists.cand[i, :] = top_goal[:k]
+    lists.bound[i] = lists.made_bound[i] = max(t, top_value[k])
+    lists.made_x[i], lists.made_y[i] = px[i], py[i]
     return j1, v1, j2, v2, v3
 
 
-@njit(cache=True)
-def _refresh(i: int, cost: np.ndarray, price: np.ndarray, best: np.ndarray, value: np.ndarray,
-             second: np.ndarray, seen: np.ndarray) -> None:
-    """Make robot row i's best goal and value exact: ranked anew over every goal only if the price
-    of its best goal rose past its second-best value (an upper bound)."""
+@njit(cache=True, inline="always")
+def _before(v, j, w, m):
+    """Does goal j of value v rank before goal m of value w (value, then the lower index)?"""
+    return v > w or (v == w and j < m)
+
+
+@njit(cache=True, inline="always")
+def _rank(i, px, py, gx, gy, price, penalty, has_penalty, lists, work):
+    """`_rank_all`, from robot i's candidates when they provably hold its three best goals."""
+    j1, j2, j3 = -1, -1, -1
+    v1, v2, v3 = -np.inf, -np.inf, -np.inf
+    for s in range(lists.cand.shape[1]):
+        j = lists.cand[i, s]
+        if j < 0:
+            continue
+        dx, dy = gx[j] - px[i], gy[j] - py[i]  # _cost, written out: inlined in a loop it costs more
+        c = dx * dx + dy * dy
+        if has_penalty:
+            c = c + penalty[i, j]
+        v = -c - price[j]
+        if _before(v, j, v3, j3):
+            if _before(v, j, v1, j1):
+                j3, v3, j2, v2, j1, v1 = j2, v2, j1, v1, j, v
+            elif _before(v, j, v2, j2):
+                j3, v3, j2, v2 = j2, v2, j, v
+            else:
+                j3, v3 = j, v
+    if v3 > lists.bound[i]:  # ties at the bound: ranked over every goal
+        return j1, v1, j2, v2, v3
+    return _rank_all(i, px, py, gx, gy, price, penalty, has_penalty, lists, work)
+
+
+@njit(cache=True, inline="always")
+def _refresh(i, px, py, gx, gy, price, penalty, has_penalty, best, value, second, seen, lists, work) -> None:
+    """Make robot i's best goal and value exact: ranked anew only if the price of its best goal
+    rose past its second-best value (an upper bound)."""
     b = best[i]
     if not price[b] == seen[i]:  # NaN: rank anew
-        now = -cost[i, b] - price[b]
+        now = -_cost(i, b, px, py, gx, gy, penalty, has_penalty) - price[b]
         value[i] = now
         if now > second[i]:
             seen[i] = price[b]
         else:
-            j1, v1, j2, v2, _ = _rank(cost[i], price)
+            j1, v1, j2, v2, _ = _rank(i, px, py, gx, gy, price, penalty, has_penalty, lists, work)
             best[i], value[i] = j1, v1
             second[i] = v2 if j2 >= 0 else -np.inf
             seen[i] = price[j1]
 
 
-@njit(cache=True)
-def _content(i: int, cost: np.ndarray, price: np.ndarray, owner: np.ndarray, released: np.ndarray,
-             goal: np.ndarray, own_ids: np.ndarray, best: np.ndarray, value: np.ndarray, second: np.ndarray,
-             seen: np.ndarray, slack: float, rounding: float) -> bool:
-    """Does robot row i hold its goal within ``slack`` of its best (agent.core.auction.is_content)?
+@njit(cache=True, inline="always")
+def _content(i, px, py, gx, gy, price, penalty, has_penalty, owner, released, goal, own_ids, best, value, second,
+             seen, lists, work, slack, rounding) -> bool:
+    """Does robot i hold its goal within ``slack`` of its best (agent.core.auction.is_content)?
     A robot that holds none bids next round, which ranks it anyway: its best value is left stale
-    (``seen`` says so) rather than ranked twice (while 1000 robots cross the arena most bids are
-    by robots just outbid)."""
+    (``seen`` says so) rather than ranked twice."""
     g = goal[i]
     if g < 0 or owner[g] != own_ids[i] or released[g]:
         return False
-    _refresh(i, cost, price, best, value, second, seen)
-    return -cost[i, g] - price[g] >= value[i] - slack - rounding * abs(value[i])
+    _refresh(i, px, py, gx, gy, price, penalty, has_penalty, best, value, second, seen, lists, work)
+    held = -_cost(i, g, px, py, gx, gy, penalty, has_penalty) - price[g]
+    return held >= value[i] - slack - rounding * abs(value[i])
 
 
 @njit(cache=True)
-def jacobi_rounds(cost: np.ndarray, price: np.ndarray, owner: np.ndarray, released: np.ndarray,
-                  goal: np.ndarray, own_ids: np.ndarray, row_of_id: np.ndarray, best: np.ndarray,
-                  value: np.ndarray, second: np.ndarray, seen: np.ndarray, waiting: np.ndarray, eps: float,
-                  slack: float, rounding: float, max_rounds: int) -> tuple[int, int, int]:
-    """Bid the robots in ``waiting`` (rows not content, ascending) and those they outbid until every
-    robot is content. The board (price, owner, released), the claims ``goal`` and the cached best
-    goals (best, value, second, and ``seen``: the price of the best goal when its value was last
-    exact) change in place. ``row_of_id``: each robot id's row. Returns (rounds, bids, robots still
-    waiting)."""
+def first_ranking(px, py, gx, gy, price, penalty, has_penalty, best, value, second, lists, work, hull_x,
+                  hull_y) -> int:
+    """Every robot's best goal, value and second-best bound at a block's start, from its candidates
+    where they still prove it, else over every goal. Since its list was made the robot moved by D:
+    every other goal's value rose by at most 2 (h(D) - p.D) - |D|^2 (p where it was made, h the
+    support function of the goal set, over its hull's vertices (hull_x, hull_y)), and prices and
+    penalties only rose. Returns how many robots had no list to start from."""
+    none = 0
+    for i in range(len(px)):
+        if lists.made_bound[i] == np.inf:
+            none += 1
+            j1, v1, j2, v2, _ = _rank_all(i, px, py, gx, gy, price, penalty, has_penalty, lists, work)
+        else:
+            x0, y0 = lists.made_x[i], lists.made_y[i]
+            dx, dy = px[i] - x0, py[i] - y0
+            h = -np.inf
+            for a in range(len(hull_x)):
+                h = max(h, hull_x[a] * dx + hull_y[a] * dy)
+            grow = 2.0 * (h - (x0 * dx + y0 * dy)) - (dx * dx + dy * dy)
+            moved = lists.made_bound[i] + grow
+            lists.bound[i] = moved + 1e-9 * (abs(moved) + abs(grow) + 1.0)  # room for rounding
+            j1, v1, j2, v2, _ = _rank(i, px, py, gx, gy, price, penalty, has_penalty, lists, work)
+        best[i], value[i] = j1, v1
+        second[i] = v2 if j2 >= 0 else -np.inf
+    return none
+
+
+@njit(cache=True)
+def jacobi_rounds(px, py, gx, gy, price, penalty, has_penalty, owner, released, goal, own_ids, row_of_id, best,
+                  value, second, seen, lists, work, waiting, eps, slack, rounding, max_rounds):
+    """Bid the robots in ``waiting`` (rows not content) and those they outbid until every robot is
+    content. The board (price, owner, released), the claims ``goal``, the cached best goals (best,
+    value, second, and ``seen``: the price of the best goal when its value was last exact) and the
+    candidate lists change in place. ``row_of_id``: each robot id's row. Returns (rounds, bids,
+    robots still waiting)."""
     k = len(goal)
     queue = np.empty(k, np.int64)
     n = len(waiting)
     queue[:n] = waiting
     unhappy = np.zeros(k, np.bool_)  # scratch: looked at this round and not content
     look = np.empty(2 * k, np.int64)  # bidders and the robots they outbid (an id twice is harmless)
+    bidders = np.empty(k, np.int64)
     bid_goal = np.empty(k, np.int64)
     bid_price = np.empty(k)
     before = np.empty(k, np.int64)  # owner of the goal bid on, as the round found it
@@ -117,11 +264,16 @@ def jacobi_rounds(cost: np.ndarray, price: np.ndarray, owner: np.ndarray, releas
     held_price = np.empty(k)
     rounds, bids = 0, 0
     while n > 0 and rounds < max_rounds:
-        bidders = np.sort(queue[:n])
+        for a in range(n):  # ascending rows; mostly one or two bidders: an insertion sort
+            q, s = queue[a], a
+            while s > 0 and bidders[s - 1] > q:
+                bidders[s] = bidders[s - 1]
+                s -= 1
+            bidders[s] = q
         # every bid against the board as the round found it
         for a in range(n):
             i = bidders[a]
-            j1, v1, j2, v2, v3 = _rank(cost[i], price)
+            j1, v1, j2, v2, v3 = _rank(i, px, py, gx, gy, price, penalty, has_penalty, lists, work)
             if j2 < 0:  # one goal: the bid rises by epsilon
                 v2 = v1 - eps
             bid_goal[a], bid_price[a], before[a] = j1, price[j1] + (v1 - v2) + eps, owner[j1]
@@ -144,11 +296,11 @@ def jacobi_rounds(cost: np.ndarray, price: np.ndarray, owner: np.ndarray, releas
             i = bidders[a]
             # the cache from the bid's ranking (Participant._after_bids)
             j1, j2, v3 = bid_goal[a], runner_up[a], third[a]
-            v_bid = -cost[i, j1] - price[j1]
-            v_run = -cost[i, j2] - price[j2] if j2 >= 0 else -np.inf
-            bound = max(v_bid, v3)
-            if v_run > bound and j2 != j1:  # the runner-up is the best now
-                best[i], value[i], second[i] = j2, v_run, bound
+            v_bid = -_cost(i, j1, px, py, gx, gy, penalty, has_penalty) - price[j1]
+            v_run = -_cost(i, j2, px, py, gx, gy, penalty, has_penalty) - price[j2] if j2 >= 0 else -np.inf
+            others = max(v_bid, v3)  # bounds every goal but the runner-up
+            if v_run > others and j2 != j1:  # the runner-up is the best now
+                best[i], value[i], second[i] = j2, v_run, others
                 seen[i] = price[j2]
             else:  # ranked anew when next looked at
                 best[i], value[i], second[i] = j1, v_bid, np.inf
@@ -164,8 +316,8 @@ def jacobi_rounds(cost: np.ndarray, price: np.ndarray, owner: np.ndarray, releas
         rounds += 1
         for a in range(m):
             r = look[a]
-            unhappy[r] = not _content(r, cost, price, owner, released, goal, own_ids, best, value, second,
-                                      seen, slack, rounding)
+            unhappy[r] = not _content(r, px, py, gx, gy, price, penalty, has_penalty, owner, released, goal, own_ids,
+                                      best, value, second, seen, lists, work, slack, rounding)
         n = 0  # the next bidders: every robot not content was looked at (it bid or was outbid)
         for a in range(m):
             r = look[a]
@@ -177,46 +329,42 @@ def jacobi_rounds(cost: np.ndarray, price: np.ndarray, owner: np.ndarray, releas
 
 
 @njit(cache=True)
-def settle_block(position: np.ndarray, goals: np.ndarray, penalty: np.ndarray, has_penalty: bool,
-                 cost: np.ndarray, price: np.ndarray, owner: np.ndarray, released: np.ndarray, goal: np.ndarray,
-                 own_ids: np.ndarray, row_of_id: np.ndarray, best: np.ndarray, value: np.ndarray,
-                 second: np.ndarray, eps: np.ndarray, slack: np.ndarray, rounding: float,
-                 max_rounds: int) -> tuple[int, int, int]:
-    """One block of epsilon-scaling phases on frozen positions, warm from the board: the costs
-    (eq. 7, |g_j - p_i|^2 in the same float operations as agent.core.bidder, plus the penalties in
-    force) into ``cost``, every robot ranked over every goal, then per phase (``eps``, ``slack``)
-    the Jacobi rounds until every robot is content. Leaves every cached best value exact. Returns
-    (rounds, bids, phases settled): fewer than len(eps) when a phase ran out of rounds."""
-    k, g = cost.shape
-    gx, gy = goals[:, 0].copy(), goals[:, 1].copy()
-    for i in range(k):
-        px, py = position[i, 0], position[i, 1]
-        row = cost[i]
-        for j in range(g):  # apart from the ranking, so that it vectorises
-            dx, dy = gx[j] - px, gy[j] - py
-            row[j] = dx * dx + dy * dy
-        if has_penalty:
-            row += penalty[i]
-        j1, v1, j2, v2, _ = _rank(cost[i], price)
-        best[i], value[i] = j1, v1
-        second[i] = v2 if j2 >= 0 else -np.inf
+def settle_block(px, py, gx, gy, price, penalty, has_penalty, owner, released, goal, own_ids, row_of_id, best, value,
+                 second, lists, work, eps, slack, rounding, max_rounds):
+    """One block of epsilon-scaling phases (``eps``, ``slack``) on frozen positions, warm from the
+    board and from `first_ranking`: per phase the Jacobi rounds until every robot is content.
+    Leaves every cached best value exact. Returns (rounds, bids, phases settled): fewer than
+    len(eps) when a phase ran out of rounds."""
+    k = len(goal)
     seen = np.empty(k)
     for i in range(k):
         seen[i] = price[best[i]]
+    may_bid = np.empty(k, np.int64)  # robots not content at the smallest slack left
     waiting = np.empty(k, np.int64)
+    n_may, scan = 0, True
     rounds, bids = 0, 0
     for phase in range(len(eps)):
+        if scan:  # after bids (or at first): who is not content at the smallest slack left
+            least = slack[phase:].min()
+            n_may = 0
+            for i in range(k):
+                if not _content(i, px, py, gx, gy, price, penalty, has_penalty, owner, released, goal, own_ids, best,
+                                value, second, seen, lists, work, least, rounding):
+                    may_bid[n_may] = i
+                    n_may += 1
         n = 0
-        for i in range(k):  # who is not content at this phase's slack
-            if not _content(i, cost, price, owner, released, goal, own_ids, best, value, second, seen,
-                            slack[phase], rounding):
+        for a in range(n_may):  # who is not content at this phase's slack
+            i = may_bid[a]
+            if not _content(i, px, py, gx, gy, price, penalty, has_penalty, owner, released, goal, own_ids, best,
+                            value, second, seen, lists, work, slack[phase], rounding):
                 waiting[n] = i
                 n += 1
-        r, b, left = jacobi_rounds(cost, price, owner, released, goal, own_ids, row_of_id, best, value, second,
-                                   seen, waiting[:n], eps[phase], slack[phase], rounding, max_rounds)
-        rounds, bids = rounds + r, bids + b
+        r, b, left = jacobi_rounds(px, py, gx, gy, price, penalty, has_penalty, owner, released, goal, own_ids,
+                                   row_of_id, best, value, second, seen, lists, work, waiting[:n], eps[phase],
+                                   slack[phase], rounding, max_rounds)
+        rounds, bids, scan = rounds + r, bids + b, r > 0
         if left:
             return rounds, bids, phase
     for i in range(k):  # every best value exact for the prices as they are now
-        _refresh(i, cost, price, best, value, second, seen)
+        _refresh(i, px, py, gx, gy, price, penalty, has_penalty, best, value, second, seen, lists, work)
     return rounds, bids, len(eps)
