@@ -81,10 +81,10 @@ def _disk_optimum(tx, ty, radius, directional):
 
 
 @njit(cache=True)
-def _optimise(px, py, dx, dy, n, radius, tx, ty):
-    """lp.optimise (RVO2's linearProgram2) over lines 0..n-1: (x, y, feasible)."""
+def _optimise(px, py, dx, dy, n, radius, tx, ty, every):
+    """lp.optimise (RVO2's linearProgram2) over lines 0..n-1 (``every``: n or more True flags):
+    (x, y, feasible)."""
     rx, ry = _disk_optimum(tx, ty, radius, False)
-    every = np.ones(n, np.bool_)
     for i in range(n):
         if dx[i] * (py[i] - ry) - dy[i] * (px[i] - rx) > 0.0:
             x, y, ok = _on_line(px[i], py[i], dx[i], dy[i], px, py, dx, dy, every, i, radius, tx, ty, False)
@@ -222,19 +222,18 @@ def _robot_lines(i, position, velocity, radius, nbr_p, nbr_v, nbr_r, nbr_c, nbr_
 
 @njit(cache=True)
 def _control_core_one(i, position, velocity, pref, radius, vmax, nbr_position, nbr_velocity, nbr_radius, nbr_age,
-                      nbr_valid, nbr_cooperative, segments, tau, tau_obst, dt, margin, timeout, noise, committed):
+                      nbr_valid, nbr_cooperative, segments, tau, tau_obst, dt, margin, timeout, noise, committed,
+                      nbr_p, nbr_v, nbr_f, nbr_ok, lines, every):
     """One robot: its neighbours prepared (neighbours.prepare_neighbours), then eq. 14 with the safety
-    lines, the shrinking horizon and the fallback (orca.orca_velocity). Returns (vx, vy, fallback)."""
+    lines, the shrinking horizon and the fallback (orca.orca_velocity). Returns (vx, vy, fallback).
+    Scratch, so that a robot allocates nothing: nbr_p, nbr_v (M,2), nbr_f (3,M), nbr_ok (M,),
+    lines (4, S + 2M), every (S + 2M,) all True."""
     m = nbr_valid.shape[1]
     n_seg = segments.shape[0]
     px_, py_ = position[i, 0], position[i, 1]
-    # prepare_neighbours: where each neighbour is now, how big, how responsible
-    nbr_p = np.empty((m, 2))
-    nbr_v = np.empty((m, 2))
-    nbr_r = np.empty(m)
-    nbr_g = np.empty(m)
-    nbr_c = np.empty(m)
-    nbr_ok = np.empty(m, np.bool_)
+    # prepare_neighbours: where each neighbour is now, how big (and how much of it is growth), how
+    # responsible
+    nbr_r, nbr_g, nbr_c = nbr_f[0], nbr_f[1], nbr_f[2]
     for k in range(m):
         x, y = nbr_position[i, k, 0], nbr_position[i, k, 1]
         u, w = nbr_velocity[i, k, 0], nbr_velocity[i, k, 1]
@@ -253,9 +252,7 @@ def _control_core_one(i, position, velocity, pref, radius, vmax, nbr_position, n
         nbr_r[k] = r + noise + nbr_g[k]
         nbr_c[k] = COOPERATING if nbr_cooperative[i, k] and not stale else NON_COOPERATING
         nbr_ok[k] = ok
-    size = n_seg + 2 * m
-    px, py = np.empty(size), np.empty(size)
-    dx, dy = np.empty(size), np.empty(size)
+    px, py, dx, dy = lines[0], lines[1], lines[2], lines[3]
     n = 0
     # hard lines: the obstacle edges (own radius with the margin) ...
     r_obst = (radius + margin) * BUFFER
@@ -301,10 +298,9 @@ def _control_core_one(i, position, velocity, pref, radius, vmax, nbr_position, n
     n = _robot_lines(i, position, velocity, radius, nbr_p, nbr_v, nbr_r, nbr_c, nbr_ok, m, vmax, margin, tau, dt,
                      px, py, dx, dy, n_hard)
     tx, ty = pref[i, 0], pref[i, 1]
-    vx, vy, feasible = _optimise(px, py, dx, dy, n, vmax, tx, ty)
+    vx, vy, feasible = _optimise(px, py, dx, dy, n, vmax, tx, ty, every)
     if feasible:
         return vx, vy, False
-    every = np.ones(size, np.bool_)
     horizon = tau
     while horizon > dt:  # paper 5.3: a shorter horizon until feasible, down to dt
         horizon = max(horizon / SHRINK, dt)
@@ -321,12 +317,19 @@ def _control_core_one(i, position, velocity, pref, radius, vmax, nbr_position, n
 def control_core(position, velocity, pref, radius, vmax, nbr_position, nbr_velocity, nbr_radius, nbr_age, nbr_valid,
                  nbr_cooperative, segments, tau, tau_obst, dt, margin, timeout, noise, committed):
     """The collision-free velocity (B,2) and fallback flags (B,) of a batch: the robots are
-    independent, so they run in parallel on every core (each robot's result is its own)."""
-    b = position.shape[0]
+    independent, so they run in parallel on every core (each robot's result is its own), in
+    chunks that share their scratch."""
+    b, m = nbr_valid.shape
+    size = segments.shape[0] + 2 * m
     out = np.empty((b, 2))
     fallback = np.empty(b, np.bool_)
-    for i in prange(b):
-        out[i, 0], out[i, 1], fallback[i] = _control_core_one(
-            i, position, velocity, pref, radius, vmax, nbr_position, nbr_velocity, nbr_radius, nbr_age, nbr_valid,
-            nbr_cooperative, segments, tau, tau_obst, dt, margin, timeout, noise, committed)
+    chunks = min(b, 16)  # each with its scratch: a robot allocates nothing
+    for c in prange(chunks):
+        nbr_p, nbr_v, nbr_f = np.empty((m, 2)), np.empty((m, 2)), np.empty((3, m))
+        nbr_ok, lines, every = np.empty(m, np.bool_), np.empty((4, size)), np.ones(size, np.bool_)
+        for i in range(c * b // chunks, (c + 1) * b // chunks):
+            out[i, 0], out[i, 1], fallback[i] = _control_core_one(
+                i, position, velocity, pref, radius, vmax, nbr_position, nbr_velocity, nbr_radius, nbr_age,
+                nbr_valid, nbr_cooperative, segments, tau, tau_obst, dt, margin, timeout, noise, committed,
+                nbr_p, nbr_v, nbr_f, nbr_ok, lines, every)
     return out, fallback
