@@ -107,6 +107,8 @@ def _hull_vertices(goals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     hull is degenerate (goals on a line, fewer than three)."""
     from scipy.spatial import ConvexHull, QhullError
 
+    if len(goals) == 0:
+        return np.zeros(0), np.zeros(0)
     try:
         corners = goals[ConvexHull(goals).vertices]
     except (QhullError, ValueError):
