@@ -39,8 +39,8 @@ What makes a round cheap is knowing a robot's best goals without scanning every 
   assignment's time. ``_cost`` and friends are inlined; inlined in a loop, ``_cost``'s array
   arguments cost more than its arithmetic, so the two loops over goals write it out.
 
-Measured (bench/results/large.md): 1000 robots, the paper's sequence, the same assignments in a
-fraction of the time.
+Measured (bench/results/large.md): 1000 robots, the paper's whole sequence, the same assignments;
+6.0 -> 2.4 ms of assignment per control step, about 4000 bids a block at 0.4 us each.
 """
 from __future__ import annotations
 
