@@ -547,6 +547,8 @@ class Participant:
         Each robot ranks only its ``candidates`` best goals while no other goal can beat them
         (prices only rise), and the lists carry over to the next block where the robot's motion
         cannot have changed that: the same ranking, a fraction of the scan.
+        The compiled rounds compute costs where needed and leave ``cost`` as it was: a participant
+        that settles alone is settled alone, not also with bid().
         Imported here, not at the top: agent hosts never settle alone and need not load numba."""
         from .jacobi import first_ranking, new_lists, settle_block
 
