@@ -84,3 +84,22 @@ def test_no_segments_and_no_neighbours():
     speed = np.hypot(*c["pref"].T)
     alone = speed <= P.v_max
     np.testing.assert_array_equal(got[0][alone], c["pref"][alone])
+
+
+@pytest.mark.parametrize("segments", [None, "arena"])
+def test_control_step_compiled_is_the_control_step(segments):
+    """The central engine's switch (`control_step(..., compiled=True)`): the same step result, from
+    the preferred velocity on, with or without obstacle edges."""
+    from agent.core.step import NeighbourStates, control_step
+
+    c = crowd(5, n=200, m=10, side=1.5, stale=True)
+    b = c["nbr"]
+    nbrs = NeighbourStates(b["position"], b["velocity"], b["radius"], b["age"], b["valid"], b["cooperative"])
+    goal = np.random.default_rng(6).uniform(0.0, 1.5, (200, 2))
+    seg = None if segments is None else arena_segments(0.0, 0.0, 1.5, 1.5)
+    args = (P, np.arange(200), c["position"], np.zeros(200), c["velocity"], goal, nbrs, seg)
+    want = control_step(*args, seed=3, tick=7)
+    got = control_step(*args, seed=3, tick=7, compiled=True)
+    for name in ("velocity", "command", "pref_velocity", "fallback"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
+    assert want.fallback.any()  # the crowd is dense enough for the fallback to matter
