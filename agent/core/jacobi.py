@@ -230,19 +230,16 @@ def first_ranking(px, py, gx, gy, price, penalty, has_penalty, best, value, seco
     penalties only rose. Returns how many robots had no list to start from."""
     none = 0
     for i in range(len(px)):
-        if lists.made_bound[i] == np.inf:
-            none += 1
-            j1, v1, j2, v2, _ = _rank_all(i, px, py, gx, gy, price, penalty, has_penalty, lists, work)
-        else:
-            x0, y0 = lists.made_x[i], lists.made_y[i]
-            dx, dy = px[i] - x0, py[i] - y0
-            h = -np.inf
-            for a in range(len(hull_x)):
-                h = max(h, hull_x[a] * dx + hull_y[a] * dy)
-            grow = 2.0 * (h - (x0 * dx + y0 * dy)) - (dx * dx + dy * dy)
-            moved = lists.made_bound[i] + grow
-            lists.bound[i] = moved + 1e-9 * (abs(moved) + abs(grow) + 1.0)  # room for rounding
-            j1, v1, j2, v2, _ = _rank(i, px, py, gx, gy, price, penalty, has_penalty, lists, work)
+        x0, y0 = lists.made_x[i], lists.made_y[i]
+        dx, dy = px[i] - x0, py[i] - y0
+        h = -np.inf
+        for a in range(len(hull_x)):
+            h = max(h, hull_x[a] * dx + hull_y[a] * dy)
+        grow = 2.0 * (h - (x0 * dx + y0 * dy)) - (dx * dx + dy * dy)
+        moved = lists.made_bound[i] + grow  # no list: +inf, and _rank ranks over every goal
+        lists.bound[i] = moved + 1e-9 * (abs(moved) + abs(grow) + 1.0)  # room for rounding
+        none += lists.made_bound[i] == np.inf
+        j1, v1, j2, v2, _ = _rank(i, px, py, gx, gy, price, penalty, has_penalty, lists, work)
         best[i], value[i] = j1, v1
         second[i] = v2 if j2 >= 0 else -np.inf
     return none
