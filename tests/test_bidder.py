@@ -194,6 +194,32 @@ def test_fifty_robots_in_five_hosts_with_loss(n: int) -> None:
     check(res, goals, 1e-3, 0.0)
 
 
+
+@pytest.mark.parametrize("alone", [False, True])
+@pytest.mark.parametrize("gain, switches", [(0.005, False), (0.008, True)])
+def test_a_robot_keeps_its_goal_unless_another_is_better_by_epsilon_plus_delta_c(alone: bool, gain: float,
+                                                                                 switches: bool) -> None:
+    """Paper 5.1's hysteresis in every phase of a block: a goal better by less than epsilon_A + Delta C
+    (0.006) is not worth a move, even in a phase of smaller epsilon than that (this goal set's
+    schedule has one at 0.004, which alone would move the robot for a gain of 0.005)."""
+    goals = np.array([[0.0, 0.0], [0.2, 0.0]])  # extent^2 / 10: phases 0.004, then epsilon_A = 0.001
+    p = Participant(1, goals, [0], [0], 1e-3, 5e-3)
+    assert p.schedule == pytest.approx([0.004, 0.001])
+
+    def settle_block(x: float) -> None:
+        if alone:
+            p.settle_alone(np.array([[x, 0.0]]))
+        else:
+            settle_as_a_host(p, {0: np.array([x, 0.0])})
+
+    settle_block(0.0)
+    assert p.agreed == {0: 0}
+    # on the x axis, goal 1's net value minus goal 0's is 2 x d - d^2 - price_1 + price_0 (d = 0.2)
+    price = p.board.price
+    settle_block((gain + 0.04 + price[1] - price[0]) / 0.4)
+    assert p.agreed == {0: 1 if switches else 0}
+
+
 # --- one host holding every robot (the central engine) -------------------------------------------
 def test_settle_alone_agrees_each_block_within_the_bound_of_the_optimum() -> None:
     rng = np.random.default_rng(7)

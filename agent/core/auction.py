@@ -68,7 +68,7 @@ ROUNDING = 1e-12
 
 def is_content(held: np.ndarray | float, best: np.ndarray | float, slack: float) -> np.ndarray | bool:
     """The held goal's net value is within ``slack`` of the best (epsilon-complementary slackness, with
-    the hysteresis Delta C in the final phase), up to the rounding of the bid that set it."""
+    the hysteresis Delta C: Participant.slack), up to the rounding of the bid that set it."""
     return held >= best - slack - ROUNDING * np.abs(best)
 
 
@@ -143,10 +143,11 @@ def solve(positions: dict[int, np.ndarray], goals: np.ndarray, eps_final: float,
         view = AuctionView.fresh(len(goals))
     else:
         phases = [eps_final]
-    for k, eps in enumerate(phases):
+    for eps in phases:
         # A new phase releases only the robots whose goal violates eps-CS for the smaller epsilon.
         while rounds < max_rounds:
-            bids = [make_bid(r, positions[r], goals, view, eps, hysteresis if k == len(phases) - 1 else 0.0,
+            # no phase tighter than the final one (Participant.slack)
+            bids = [make_bid(r, positions[r], goals, view, eps, max(phases[-1] + hysteresis - eps, 0.0),
                              penalties.get(r)) for r in robots]
             rounds += 1
             view, _ = merge(view, bids)

@@ -271,8 +271,10 @@ class Participant:
 
     @property
     def slack(self) -> float:
-        """Epsilon, plus Delta C in the final phase (paper 5.1's hysteresis)."""
-        return self.eps + (self.hysteresis if self.final_phase else 0.0)
+        """How much better another goal must be before a robot bids: the phase's epsilon, and never
+        less than the final phase's epsilon_A + Delta C (paper 5.1's hysteresis). A phase tighter
+        than the final one would move robots for gains that Delta C is there to ignore."""
+        return max(self.eps, self.schedule[-1] + self.hysteresis)
 
     @property
     def started(self) -> bool:
@@ -568,8 +570,7 @@ class Participant:
         row_of_id = np.full(int(self.own_ids.max(initial=0)) + 1, -1, np.int64)
         row_of_id[self.own_ids] = np.arange(k)
         eps = np.array(self.schedule)
-        slack = eps.copy()
-        slack[-1] += self.hysteresis  # Delta C in the final phase only
+        slack = np.maximum(eps, eps[-1] + self.hysteresis)  # as self.slack, phase by phase
         px, py = np.ascontiguousarray(self.position[:, 0]), np.ascontiguousarray(self.position[:, 1])
         gx, gy = np.ascontiguousarray(self.goals[:, 0]), np.ascontiguousarray(self.goals[:, 1])
         self.without_list = first_ranking(px, py, gx, gy, board.price, self.penalty, self._has_penalty, best, value,
