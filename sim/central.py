@@ -18,8 +18,9 @@ from __future__ import annotations
 
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import TextIO
+from typing import NamedTuple, TextIO
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -94,23 +95,27 @@ def auction_assignment(auction: Participant, position: np.ndarray) -> np.ndarray
 
 
 def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO | None = sys.stderr,
-                clock: StepClock | None = None) -> Path:
+                clock: StepClock | None = None, overlap: bool = True) -> Path:
     """Run the scene with every robot in this process; returns the run directory. ``clock`` (if
-    given) receives the wall and CPU time per part of each control step (bench/bench_large.py)."""
+    given) receives the wall and CPU time per part of each control step (bench/bench_large.py).
+    ``overlap``: a warm auction runs on a second thread while this one searches neighbours and steps
+    the control core on the goals the robots hold, and only the robots whose goal changed are
+    stepped again (the same run, to the bit, as without: tests/test_central_overlap.py)."""
     params, world = world_of(scene)
     tracker = tracker_of(scene)
     segments = static_segments(scene.arena, scene.obstacles)
     n = scene.robots
     movers = Movers(scene)  # scripted movers and pursuers: not robot pixels (sim.movers)
     ids = np.arange(n)
-    goal = scene.goal_positions
-    has_goal = np.isfinite(goal).all(axis=1)
-    color = np.where(has_goal[:, None], palette(n), 40).astype(np.uint8)
+    goal_set = scene.goal_positions  # the scene's goals; image scenes: the shown step's goal set
+    has_goal = np.isfinite(goal_set).all(axis=1)
+    goal_colors = np.where(has_goal[:, None], palette(n), 40).astype(np.uint8)
     auction: Participant | None = None  # image scenes: the auction of the shown goal set
     assignment = np.where(has_goal, ids, -1)  # goal index per robot (scene goals: its own)
     velocity = np.zeros((n, 2))
     left, hold_for = np.zeros(n, np.int64), np.full(n, -1)  # eq. 27's hold per robot
     motion: GoalMotion | None = None
+    t_start = 0.0  # when the shown step started
     assigned_at: float | None = None  # when the shown goal set was last assigned
     if any(e["kind"] == "fail" for e in scene.events):
         raise ValueError("fail events (agent processes killed) need the distributed engine")
@@ -124,6 +129,7 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
     run_dir = RunDir(out)
     clock = clock if clock is not None else StepClock()
     wall0 = last_say = time.time()
+    beside = ThreadPoolExecutor(1, thread_name_prefix="auction")  # the auction beside the control core
     try:
         for tick in range(steps + 1):
             clock.start()
@@ -142,37 +148,54 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
             clock.lap("other")
             measured = tracker.measure(world.poses)
             clock.lap("tracker")
-            preferred = None
-            if scene.steps:
+            pending = None  # this tick's auction, running beside the control core
+            if scene.steps and (assigned_at is None or t - assigned_at >= params.assign_period - 1e-9):
                 # Paper 5.1: re-assign every iteration (every assign_period, as the agents do),
                 # warm-started from the previous prices, with the hysteresis Delta C against flip-flops
                 # from tracking noise. A moving goal set is auctioned with the positions mapped back
                 # to t = 0 (GoalMotion.to_initial_frame).
-                if assigned_at is None or t - assigned_at >= params.assign_period - 1e-9:
-                    bid_from = (measured[:, :2] if motion is None
-                                else motion.to_initial_frame(measured[:, :2], t - t_start))
-                    if scene.assignment == "optimal":
-                        assignment = movers.pixel_assignment(optimal_assignment(
-                            bid_from[movers.pixels], goal_set, None if assigned_at is None else assignment[movers.pixels],
-                            params.assign_hysteresis))
-                    else:
-                        if auction is None:  # a new image: a cold start (the old prices mean nothing)
-                            pixels = movers.pixels.tolist()
-                            auction = Participant(k, goal_set, pixels, pixels, params.assign_eps,
-                                                  params.assign_hysteresis)
-                        assignment = auction_assignment(auction, bid_from)
-                    assigned_at = t
+                bid_from = (measured[:, :2] if motion is None
+                            else motion.to_initial_frame(measured[:, :2], t - t_start))
+                if scene.assignment == "optimal":
+                    assignment = movers.pixel_assignment(optimal_assignment(
+                        bid_from[movers.pixels], goal_set, None if assigned_at is None else assignment[movers.pixels],
+                        params.assign_hysteresis))
+                elif auction is None:  # a new image: a cold start (the old prices mean nothing)
+                    pixels = movers.pixels.tolist()
+                    auction = Participant(k, goal_set, pixels, pixels, params.assign_eps, params.assign_hysteresis)
+                    assignment = auction_assignment(auction, bid_from)
+                else:
+                    pending = beside.submit(auction_assignment, auction, bid_from)
+                assigned_at = t
+            clock.lap("assignment")
+            nbs = nearest_neighbours(measured[:, :2], velocity, params.radius, params.neighbour_dist,
+                                     params.max_neighbours, movers.cooperative)
+            clock.lap("neighbours")
+            if pending is not None and not overlap:
+                assignment, pending = pending.result(), None
                 clock.lap("assignment")
-                has_goal = assignment >= 0
-                goal = np.where(has_goal[:, None], goal_set[assignment], np.nan)
-                color = np.where(has_goal[:, None], goal_colors[assignment], 40).astype(np.uint8)
-                preferred, left = _preferred(scene, params, k, motion, t - t_start, t, measured[:, :2], goal,
-                                             assignment, hold_for, left)
-                if motion is not None:
-                    goal = motion.positions(goal, t - t_start)
-                hold_for = assignment.copy()
-                clock.lap("preferred")
-            goal, color = movers.goals(goal, color, measured)  # a pursuer heads for its target
+            # While the auction runs, the control core steps every robot toward the goal it holds: a
+            # robot's control depends on its own goal and on the neighbours' last states only, and
+            # most robots keep their goals, so only the robots whose goal changed are stepped again.
+            plan = _plan(scene, params, k, motion, t - t_start, t, measured, goal_set,
+                         goal_colors, assignment, hold_for, left, movers)
+            clock.lap("preferred")
+            res = control_step(params, ids, measured[:, :2], measured[:, 2], velocity, plan.goal, nbs, segments,
+                               seed=scene.seed, tick=tick, preferred=plan.preferred, compiled=True)
+            clock.lap("control")
+            if pending is not None:
+                settled = pending.result()
+                clock.lap("assignment")
+                if not np.array_equal(settled, assignment):
+                    guess, assignment = plan, settled
+                    plan = _plan(scene, params, k, motion, t - t_start, t, measured, goal_set, goal_colors,
+                                 assignment, hold_for, left, movers)
+                    clock.lap("preferred")
+                    _step_again(res, _changed_rows(guess, plan), params, ids, measured, velocity, plan, nbs,
+                                segments, scene.seed, tick)
+                    clock.lap("control")
+            goal, color, left, has_goal = plan.goal, plan.color, plan.left, plan.has_goal
+            hold_for = assignment.copy()
             rec["t"].append(t)
             rec["pose"].append(world.poses)
             rec["velocity"].append(world.velocities)
@@ -193,15 +216,9 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
                 converged_since = None
             if tick == steps:
                 break
-            clock.lap("other")
-            nbs = nearest_neighbours(measured[:, :2], velocity, params.radius, params.neighbour_dist,
-                                     params.max_neighbours, movers.cooperative)
-            clock.lap("neighbours")
-            res = control_step(params, ids, measured[:, :2], measured[:, 2], velocity, goal, nbs, segments,
-                               seed=scene.seed, tick=tick, preferred=preferred, compiled=True)
             velocity = res.velocity
             fallbacks += int(res.fallback.sum())
-            clock.lap("control")
+            clock.lap("other")
             command, velocity = movers.commands(res.command, velocity, world.poses, t, params.dt)
             world.set_commands(command)  # scripted movers: along their script
             world.step(params.dt)
@@ -223,6 +240,61 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
     except BaseException:
         run_dir.abort()
         raise
+    finally:
+        beside.shutdown()
+
+
+class Plan(NamedTuple):
+    """What one tick's goal assignment asks of the robots (rows by robot)."""
+    goal: np.ndarray  # (N, 2) where each robot heads now (NaN: no goal)
+    color: np.ndarray  # (N, 3) its LED colour
+    preferred: np.ndarray | None  # (N, 2) where eq. 9 does not apply (NaN rows: eq. 9)
+    left: np.ndarray  # (N,) iterations left of eq. 27's hold
+    has_goal: np.ndarray  # (N,) bool: a pixel with a goal (what convergence is judged on)
+
+
+def _plan(scene: Scene, params, k: int, motion: GoalMotion | None, t_rel: float, t: float, measured: np.ndarray,
+          goal_set: np.ndarray, goal_colors: np.ndarray, assignment: np.ndarray, hold_for: np.ndarray,
+          left: np.ndarray, movers: Movers) -> Plan:
+    """The goals, colours and preferred velocities that an assignment gives this tick (pure: the
+    engine computes it for the assignment held while the auction runs, and again if that changed)."""
+    preferred = None
+    if scene.steps:
+        has_goal = assignment >= 0
+        goal = np.where(has_goal[:, None], goal_set[assignment], np.nan)
+        color = np.where(has_goal[:, None], goal_colors[assignment], 40).astype(np.uint8)
+        preferred, left = _preferred(scene, params, k, motion, t_rel, t, measured[:, :2], goal, assignment,
+                                     hold_for, left)
+        if motion is not None:
+            goal = motion.positions(goal, t_rel)
+    else:
+        goal, color, has_goal = goal_set, goal_colors, np.isfinite(goal_set).all(axis=1)
+    goal, color = movers.goals(goal, color, measured)  # a pursuer heads for its target
+    return Plan(goal, color, preferred, left, has_goal)
+
+
+def _changed_rows(old: Plan, new: Plan) -> np.ndarray:
+    """The robots whose goal or preferred velocity differ, to the bit, between two plans."""
+    def bits(a: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(a, dtype=float).view(np.int64)
+
+    changed = (bits(old.goal) != bits(new.goal)).any(axis=1)
+    if new.preferred is not None:
+        changed |= (bits(old.preferred) != bits(new.preferred)).any(axis=1)
+    return np.flatnonzero(changed)
+
+
+def _step_again(res, rows: np.ndarray, params, ids: np.ndarray, measured: np.ndarray, velocity: np.ndarray,
+                plan: Plan, nbs: NeighbourStates, segments: np.ndarray, seed: int, tick: int) -> None:
+    """Step the control core again for the robots at ``rows`` (their plan changed) and write their
+    results into ``res``: per robot, control_step does not depend on the rest of the batch."""
+    if rows.size == 0:
+        return
+    again = control_step(params, ids[rows], measured[rows, :2], measured[rows, 2], velocity[rows], plan.goal[rows],
+                         nbs.rows(rows), segments, seed=seed, tick=tick,
+                         preferred=None if plan.preferred is None else plan.preferred[rows], compiled=True)
+    res.velocity[rows], res.command[rows] = again.velocity, again.command
+    res.pref_velocity[rows], res.fallback[rows] = again.pref_velocity, again.fallback
 
 
 def _preferred(scene: Scene, params, k: int, motion: GoalMotion | None, t_rel: float, t: float,

@@ -56,7 +56,7 @@ def _grid(x: np.ndarray, y: np.ndarray, reach: float) -> tuple:
     return cx, cy, nx, ny, start, order
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _close_pairs(
     traj: np.ndarray, radius: np.ndarray, reach: float, motion: float, bound: float, first_row: int,
     budget: int,
@@ -155,7 +155,7 @@ def close_pairs(
     return float(best), int(i), int(j), hits, depth.T
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def nearest_within(position: np.ndarray, reach: float, m: int) -> np.ndarray:
     """(N, m) indices of each robot's m nearest other robots strictly within ``reach``, nearest
     first (equal distances: the lower index first), -1 past the last."""

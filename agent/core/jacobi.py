@@ -220,7 +220,7 @@ def _content(i, px, py, gx, gy, price, penalty, has_penalty, owner, released, go
     return held >= value[i] - slack - rounding * abs(value[i])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # nogil: it runs beside the control core (sim.central)
 def first_ranking(px, py, gx, gy, price, penalty, has_penalty, best, value, second, lists, work, hull_x,
                   hull_y) -> int:
     """Every robot's best goal, value and second-best bound at a block's start, from its candidates
@@ -333,7 +333,7 @@ def jacobi_rounds(px, py, gx, gy, price, penalty, has_penalty, owner, released, 
     return rounds, bids, n
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def settle_block(px, py, gx, gy, price, penalty, has_penalty, owner, released, goal, own_ids, row_of_id, best, value,
                  second, lists, work, eps, slack, rounding, max_rounds):
     """One block of epsilon-scaling phases (``eps``, ``slack``) on frozen positions, warm from the

@@ -313,7 +313,7 @@ def _control_core_one(i, position, velocity, pref, radius, vmax, nbr_position, n
     return vx, vy, True
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def control_core(position, velocity, pref, radius, vmax, nbr_position, nbr_velocity, nbr_radius, nbr_age, nbr_valid,
                  nbr_cooperative, segments, tau, tau_obst, dt, margin, timeout, noise, committed):
     """The collision-free velocity (B,2) and fallback flags (B,) of a batch: the robots are

@@ -33,6 +33,11 @@ class NeighbourStates:
         return cls(np.zeros((batch, m, 2)), np.zeros((batch, m, 2)), np.ones((batch, m)), np.zeros((batch, m)),
                    np.zeros((batch, m), bool), np.ones((batch, m), bool))
 
+    def rows(self, index: np.ndarray) -> "NeighbourStates":
+        """What the robots at rows ``index`` of the batch heard (a smaller batch)."""
+        return NeighbourStates(self.position[index], self.velocity[index], self.radius[index], self.age[index],
+                               self.valid[index], self.cooperative[index])
+
 
 @dataclass
 class StepResult:
