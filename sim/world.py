@@ -212,6 +212,7 @@ class World:
         self._check_start = False
         self._closest: tuple[int, int] | None = None  # the pair closest during the last step
         self.last_substeps = 0  # number of substeps the last step() ran
+        self._unchecked: tuple | None = None  # a step whose contacts are not yet detected (step(check=False))
 
         # the initial state: contacts at t = 0 and the initial clearance
         self._step_min_clearance = self._detect(self._pos[None], np.zeros(1), 0.0, first_row=0)[1]
@@ -286,20 +287,24 @@ class World:
 
     @property
     def min_clearance(self) -> float:
+        self.check()
         return self._min_clearance
 
     def step_min_clearance(self) -> float:
         """Minimum robot-robot clearance over the states of the last step (before any step: t = 0)."""
+        self.check()
         return self._step_min_clearance
 
     @property
     def contacts(self) -> list[Contact]:
         """Every contact event so far, in order of start (a new list of the live event objects)."""
+        self.check()
         return list(self._contacts)
 
     @property
     def active_contacts(self) -> list[Contact]:
         """The ongoing contact events."""
+        self.check()
         return sorted(self._active.values(), key=_contact_order)
 
     # ---------------------------------------------------------------- inputs
@@ -401,9 +406,13 @@ class World:
         scale = np.where(norm > vmax, vmax / np.where(norm > 0.0, norm, 1.0), 1.0)
         return norm * scale, np.arctan2(v[:, 1], v[:, 0])
 
-    def step(self, dt: float) -> list[Contact]:
-        """Advance by dt seconds in substeps; return the contact events that started during this step."""
+    def step(self, dt: float, *, check: bool = True) -> list[Contact]:
+        """Advance by dt seconds in substeps; return the contact events that started during this step.
+        ``check=False`` leaves the contacts of this step to be detected by `check()` (or by anything
+        that reads contacts or clearance, or the next step, which returns them with its own): the
+        central engine moves robots on and looks for contacts while the next auction runs."""
         dt = _positive("dt", dt)
+        before = self.check()
         k = max(1, math.ceil(dt / self._substep - 1e-9))
         h = dt / k
         tk = np.linspace(0.0, dt, k + 1)  # substep times relative to the start of the step
@@ -448,8 +457,7 @@ class World:
         self._advance_time(dt)
         times = t0 + tk
         times[-1] = self.time
-        first_row = 0 if self._check_start else 1
-        started, step_min = self._detect(traj, times, motion * (1.0 + 1e-9), first_row)
+        self._unchecked = (traj, times, motion * (1.0 + 1e-9), 0 if self._check_start else 1)
 
         # velocity: the chord of the last substep, computed directly (no cancellation) if it lies in
         # the last segment
@@ -460,9 +468,18 @@ class World:
             self._vel = (traj[k] - traj[k - 1]) / h
         self._pos = traj[k].copy()
         self._theta = wrap_angle(theta)
-        self._step_min_clearance = step_min
         self._check_start = False
         self.last_substeps = k
+        return before + (self.check() if check else [])
+
+    def check(self) -> list[Contact]:
+        """Detect the contacts of a step run with ``check=False``; the contact events that started
+        during it (none if every step is checked)."""
+        if self._unchecked is None:
+            return []
+        traj, times, motion, first_row = self._unchecked
+        self._unchecked = None
+        started, self._step_min_clearance = self._detect(traj, times, motion, first_row)
         return started
 
     def _draw_noise(self, index: int) -> None:

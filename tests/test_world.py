@@ -467,6 +467,38 @@ def test_clearance_over_substeps_matches_brute_force_on_every_substep(seed, n, s
     assert [key(c) for c in coarse.contacts] == [key(c) for c in fine.contacts]
 
 
+
+@settings(max_examples=15, deadline=None, derandomize=True)
+@given(seed=st.integers(0, 2**31), n=st.integers(6, 25))
+def test_contacts_checked_later_are_the_contacts_checked_at_once(seed, n):
+    """step(check=False), then check() (or any read of contacts or clearance, or the next step),
+    with teleports between: the same events, depths and clearances as checking every step."""
+    rng = np.random.default_rng(seed)
+    bodies = [Body("holonomic" if k % 2 else "diffdrive", 0.05, 1.0) for k in range(n)]
+    poses = np.column_stack([rng.uniform(0, 0.4, (n, 2)), rng.uniform(-3, 3, n)])  # crowded: contacts
+    now, later = (World(bodies, poses, seed=seed, arena=(-0.1, -0.1, 0.5, 0.5)) for _ in range(2))
+    started_now, started_later = [], []
+    for k in range(12):
+        cmds = rng.uniform(-1.0, 1.0, (n, 2))
+        now.set_commands(cmds)
+        later.set_commands(cmds)
+        started_now += now.step(0.1)
+        started_later += later.step(0.1, check=False)
+        if k % 3 == 0:
+            pose = (*rng.uniform(0, 0.4, 2), 0.0)
+            now.teleport(k % n, pose)
+            later.teleport(k % n, pose)
+        if k % 2:  # (reading the clearance first would check the step too, and return nothing)
+            started_later += later.check()
+            assert later.step_min_clearance() == now.step_min_clearance()
+    started_later += later.check()
+    np.testing.assert_array_equal(later.poses, now.poses)
+    assert later.min_clearance == now.min_clearance
+    event = lambda c: (c.kind, c.i, c.j, c.t_start, c.t_end, c.max_depth)
+    assert [event(c) for c in later.contacts] == [event(c) for c in now.contacts]
+    assert sorted(map(event, started_later), key=str) == sorted(map(event, started_now), key=str) and started_now
+
+
 # ------------------------------------------------------------------ perturbations
 
 
