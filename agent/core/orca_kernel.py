@@ -313,23 +313,53 @@ def _control_core_one(i, position, velocity, pref, radius, vmax, nbr_position, n
     return vx, vy, True
 
 
-@njit(cache=True, parallel=True, nogil=True)
+PARALLEL_FROM = 128  # robots: a smaller batch runs on one core (starting the threads costs ~0.1 ms)
+
+
 def control_core(position, velocity, pref, radius, vmax, nbr_position, nbr_velocity, nbr_radius, nbr_age, nbr_valid,
                  nbr_cooperative, segments, tau, tau_obst, dt, margin, timeout, noise, committed):
     """The collision-free velocity (B,2) and fallback flags (B,) of a batch: the robots are
-    independent, so they run in parallel on every core (each robot's result is its own), in
-    chunks that share their scratch."""
+    independent, so a large batch runs in parallel on every core (each robot's result is its own),
+    in chunks that share their scratch."""
+    run = _chunks_in_parallel if len(position) >= PARALLEL_FROM else _chunks_in_turn
+    return run(position, velocity, pref, radius, vmax, nbr_position, nbr_velocity, nbr_radius, nbr_age, nbr_valid,
+               nbr_cooperative, segments, tau, tau_obst, dt, margin, timeout, noise, committed)
+
+
+@njit(cache=True, nogil=True)
+def _chunk(c, chunks, out, fallback, position, velocity, pref, radius, vmax, nbr_position, nbr_velocity, nbr_radius,
+           nbr_age, nbr_valid, nbr_cooperative, segments, tau, tau_obst, dt, margin, timeout, noise, committed):
+    """Robots c B / chunks to (c + 1) B / chunks, with one scratch: a robot allocates nothing."""
     b, m = nbr_valid.shape
     size = segments.shape[0] + 2 * m
-    out = np.empty((b, 2))
-    fallback = np.empty(b, np.bool_)
-    chunks = min(b, 16)  # each with its scratch: a robot allocates nothing
+    nbr_p, nbr_v, nbr_f = np.empty((m, 2)), np.empty((m, 2)), np.empty((3, m))
+    nbr_ok, lines, every = np.empty(m, np.bool_), np.empty((4, size)), np.ones(size, np.bool_)
+    for i in range(c * b // chunks, (c + 1) * b // chunks):
+        out[i, 0], out[i, 1], fallback[i] = _control_core_one(
+            i, position, velocity, pref, radius, vmax, nbr_position, nbr_velocity, nbr_radius, nbr_age,
+            nbr_valid, nbr_cooperative, segments, tau, tau_obst, dt, margin, timeout, noise, committed,
+            nbr_p, nbr_v, nbr_f, nbr_ok, lines, every)
+
+
+@njit(cache=True, parallel=True, nogil=True)
+def _chunks_in_parallel(position, velocity, pref, radius, vmax, nbr_position, nbr_velocity, nbr_radius, nbr_age,
+                        nbr_valid, nbr_cooperative, segments, tau, tau_obst, dt, margin, timeout, noise, committed):
+    b = len(position)
+    out, fallback = np.empty((b, 2)), np.empty(b, np.bool_)
+    chunks = min(b, 16)
     for c in prange(chunks):
-        nbr_p, nbr_v, nbr_f = np.empty((m, 2)), np.empty((m, 2)), np.empty((3, m))
-        nbr_ok, lines, every = np.empty(m, np.bool_), np.empty((4, size)), np.ones(size, np.bool_)
-        for i in range(c * b // chunks, (c + 1) * b // chunks):
-            out[i, 0], out[i, 1], fallback[i] = _control_core_one(
-                i, position, velocity, pref, radius, vmax, nbr_position, nbr_velocity, nbr_radius, nbr_age,
-                nbr_valid, nbr_cooperative, segments, tau, tau_obst, dt, margin, timeout, noise, committed,
-                nbr_p, nbr_v, nbr_f, nbr_ok, lines, every)
+        _chunk(c, chunks, out, fallback, position, velocity, pref, radius, vmax, nbr_position, nbr_velocity,
+               nbr_radius, nbr_age, nbr_valid, nbr_cooperative, segments, tau, tau_obst, dt, margin, timeout, noise,
+               committed)
+    return out, fallback
+
+
+@njit(cache=True, nogil=True)
+def _chunks_in_turn(position, velocity, pref, radius, vmax, nbr_position, nbr_velocity, nbr_radius, nbr_age,
+                    nbr_valid, nbr_cooperative, segments, tau, tau_obst, dt, margin, timeout, noise, committed):
+    b = len(position)
+    out, fallback = np.empty((b, 2)), np.empty(b, np.bool_)
+    if b:
+        _chunk(0, 1, out, fallback, position, velocity, pref, radius, vmax, nbr_position, nbr_velocity, nbr_radius,
+               nbr_age, nbr_valid, nbr_cooperative, segments, tau, tau_obst, dt, margin, timeout, noise, committed)
     return out, fallback
