@@ -240,7 +240,7 @@ class Participant:
         self.heard_digest = np.zeros(r, np.uint64)
         self.heard_version = 0
         self.agreed_instance = -1
-        self.agreed: dict[int, int] = {}  # own robot -> its goal in the agreed instance
+        self._agreed: tuple[np.ndarray, dict[int, int] | None] = (np.zeros(0, np.int64), {})  # see agreed
         self.agreed_owner: np.ndarray | None = None  # per goal: its robot in the agreed instance (NO_OWNER: none)
         self.claims_changed = False  # own claims changed since the last publication
         self.published_digest: int | None = None  # the board digest of the last publication
@@ -248,7 +248,7 @@ class Participant:
         self.rounds = 0  # Jacobi rounds in which some own robot bid
         self._content_cache: tuple[tuple, np.ndarray] | None = None
         self._best: tuple[np.ndarray, np.ndarray] | None = None  # best goal and value per own robot
-        self._lists: tuple | None = None  # settle_alone's candidate goals and scratch (agent.core.jacobi), hull
+        self._lists: tuple | None = None  # settle_alone's candidate goals, scratch (agent.core.jacobi), hull, ...
         self.without_list = 0  # robots that had no candidate list at the start of settle_alone's last block
         self._price_seen = np.zeros(len(self.goals))
         self._has_penalty = False  # any penalty in force: costs are more than squared distances
@@ -565,14 +565,15 @@ class Participant:
             self._best = (np.zeros(k, np.int64), np.zeros(k), np.full(k, np.inf))
         best, value, second = self._best
         if self._lists is None or self._lists[0].cand.shape[1] != candidates:
-            self._lists = (*new_lists(k, len(self.goals), candidates), _hull_vertices(self.goals))
-        lists, work, (hull_x, hull_y) = self._lists
-        row_of_id = np.full(int(self.own_ids.max(initial=0)) + 1, -1, np.int64)
-        row_of_id[self.own_ids] = np.arange(k)
-        eps = np.array(self.schedule)
-        slack = np.maximum(eps, eps[-1] + self.hysteresis)  # as self.slack, phase by phase
+            row_of_id = np.full(int(self.own_ids.max(initial=0)) + 1, -1, np.int64)
+            row_of_id[self.own_ids] = np.arange(k)
+            eps = np.array(self.schedule)
+            slack = np.maximum(eps, eps[-1] + self.hysteresis)  # as self.slack, phase by phase
+            gx, gy = np.ascontiguousarray(self.goals[:, 0]), np.ascontiguousarray(self.goals[:, 1])
+            self._lists = (*new_lists(k, len(self.goals), candidates), _hull_vertices(self.goals), (gx, gy),
+                           row_of_id, eps, slack)
+        lists, work, (hull_x, hull_y), (gx, gy), row_of_id, eps, slack = self._lists
         px, py = np.ascontiguousarray(self.position[:, 0]), np.ascontiguousarray(self.position[:, 1])
-        gx, gy = np.ascontiguousarray(self.goals[:, 0]), np.ascontiguousarray(self.goals[:, 1])
         self.without_list = first_ranking(px, py, gx, gy, board.price, self.penalty, self._has_penalty, best, value,
                                           second, lists, work, hull_x, hull_y)
         rounds, bids, settled = settle_block(
@@ -713,8 +714,18 @@ class Participant:
         self._adopt()
         return True
 
+    @property
+    def agreed(self) -> dict[int, int]:
+        """Own robot -> its goal in the agreed instance (made when first asked for: the central
+        engine settles 1000 robots every control step and never asks)."""
+        goal, made = self._agreed
+        if made is None:
+            made = dict(zip(self.own, goal.tolist()))
+            self._agreed = (goal, made)
+        return made
+
     def _adopt(self) -> None:
         """The current instance is agreed: note the own robots' goals and every goal's owner in it."""
         self.agreed_instance = self.instance
-        self.agreed = dict(zip(self.own, self.goal.tolist()))
+        self._agreed = (self.goal.copy(), None)
         self.agreed_owner = np.where(self.board.released, NO_OWNER, self.board.owner)
