@@ -185,6 +185,11 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
             res = control_step(params, ids, measured[:, :2], measured[:, 2], velocity, plan.goal, nbs, segments,
                                seed=scene.seed, tick=tick, preferred=plan.preferred, compiled=True)
             clock.lap("control")
+            # ... and the world moves on those commands: stepped again from here if the auction changed any
+            pose, moving = world.poses, world.velocities  # this tick's, recorded below
+            before = world.snapshot()
+            velocity_next = _move(world, movers, res, pose, t, params.dt)
+            clock.lap("world")
             if pending is not None:
                 settled = pending.result()
                 clock.lap("assignment")
@@ -196,35 +201,36 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
                     _step_again(res, _changed_rows(guess, plan), params, ids, measured, velocity, plan, nbs,
                                 segments, scene.seed, tick)
                     clock.lap("control")
+                    world.restore(before)
+                    velocity_next = _move(world, movers, res, pose, t, params.dt)
+                    clock.lap("world")
             goal, color, left, has_goal = plan.goal, plan.color, plan.left, plan.has_goal
             hold_for = assignment.copy()
             rec["t"].append(t)
-            rec["pose"].append(world.poses)
-            rec["velocity"].append(world.velocities)
+            rec["pose"].append(pose)
+            rec["velocity"].append(moving)
             rec["color"].append(color)
             rec["goal"].append(goal)
             rec["assignment"].append(assignment)
             rec["step"].append(k)
             clock.lap("record")
-            err = np.hypot(*(world.poses[:, :2] - goal).T)
+            err = np.hypot(*(pose[:, :2] - goal).T)
             # Converging ends the run only once the last image is up: earlier images keep their hold.
             if (k == last_step and scene.ends_on_convergence and has_goal.any()
                     and np.all(err[has_goal] <= params.goal_tolerance)):
                 converged_since = t if converged_since is None else converged_since
                 if t - converged_since >= scene.converge_hold:
                     end_reason = "converged"
+                    world.restore(before)  # the run ends here: no last step
                     break
             else:
                 converged_since = None
             if tick == steps:
+                world.restore(before)
                 break
-            velocity = res.velocity
+            velocity = velocity_next
             fallbacks += int(res.fallback.sum())
             clock.lap("other")
-            command, velocity = movers.commands(res.command, velocity, world.poses, t, params.dt)
-            world.set_commands(command)  # scripted movers: along their script
-            world.step(params.dt, check=False)  # its contacts: looked for while the next auction runs
-            clock.lap("world")
             if progress is not None and time.time() - last_say >= 1.0:
                 last_say = time.time()
                 print(f"[{scene.name}] central t={t:6.1f} s  step {k}  at goal "
@@ -284,6 +290,16 @@ def _changed_rows(old: Plan, new: Plan) -> np.ndarray:
     if new.preferred is not None:
         changed |= (bits(old.preferred) != bits(new.preferred)).any(axis=1)
     return np.flatnonzero(changed)
+
+
+def _move(world, movers: Movers, res, pose: np.ndarray, t: float, dt: float) -> np.ndarray:
+    """Command the robots (scripted movers along their script) and step the world; returns the
+    collision-free velocities their neighbours hear next tick. The step's contacts are looked for
+    while the next auction runs (World.check)."""
+    command, velocity = movers.commands(res.command, res.velocity, pose, t, dt)
+    world.set_commands(command)
+    world.step(dt, check=False)
+    return velocity
 
 
 def _step_again(res, rows: np.ndarray, params, ids: np.ndarray, measured: np.ndarray, velocity: np.ndarray,

@@ -213,6 +213,7 @@ class World:
         self._closest: tuple[int, int] | None = None  # the pair closest during the last step
         self.last_substeps = 0  # number of substeps the last step() ran
         self._unchecked: tuple | None = None  # a step whose contacts are not yet detected (step(check=False))
+        self._checked = 0  # steps checked for contacts (restore() cannot undo a checked one)
 
         # the initial state: contacts at t = 0 and the initial clearance
         self._step_min_clearance = self._detect(self._pos[None], np.zeros(1), 0.0, first_row=0)[1]
@@ -369,6 +370,27 @@ class World:
         self._vel[i] = 0.0
         self._check_start = True
 
+    def snapshot(self) -> tuple:
+        """The state that steps, commands and teleports change, for `restore` (the contacts so far
+        are checked first; they are not part of it)."""
+        self.check()
+        return (self._checked, self._pos.copy(), self._theta.copy(), self._vel.copy(), self._path.copy(),
+                self._cmd.copy(), self._n_cmd.copy(), self._noise.copy(), self._noise_index,
+                self._rng.bit_generator.state, self._t_sum, self._t_comp, self._check_start, self.last_substeps)
+
+    def restore(self, saved: tuple) -> None:
+        """Back to a `snapshot`, as if nothing had happened since: the central engine steps the
+        world on the commands it expects while the auction runs, and again if the auction changed
+        them. Contacts are not undone, so no step since may have been checked (one step with
+        ``check=False`` and nothing that reads contacts or clearance)."""
+        if saved[0] != self._checked:
+            raise ValueError("cannot restore: contacts were checked since the snapshot")
+        (_, pos, theta, vel, path, cmd, n_cmd, noise, self._noise_index, self._rng.bit_generator.state, self._t_sum,
+         self._t_comp, self._check_start, self.last_substeps) = saved
+        self._pos, self._theta, self._vel, self._path = pos.copy(), theta.copy(), vel.copy(), path.copy()
+        self._cmd, self._n_cmd, self._noise = cmd.copy(), n_cmd.copy(), noise.copy()
+        self._unchecked = None
+
     # ---------------------------------------------------------------- dynamics
 
     def _actuate(self, noise: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -479,6 +501,7 @@ class World:
             return []
         traj, times, motion, first_row = self._unchecked
         self._unchecked = None
+        self._checked += 1
         started, self._step_min_clearance = self._detect(traj, times, motion, first_row)
         return started
 
