@@ -165,7 +165,7 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
                     auction = Participant(k, goal_set, pixels, pixels, params.assign_eps, params.assign_hysteresis)
                     assignment = auction_assignment(auction, bid_from)
                 else:
-                    pending = beside.submit(auction_assignment, auction, bid_from)
+                    pending = beside.submit(clock.timed_beside, auction_assignment, auction, bid_from)
                 assigned_at = t
             clock.lap("assignment")
             world.check()  # the contacts of the last step

@@ -2,12 +2,15 @@
 
 The engine calls ``start()`` at the top of every tick and ``lap(part)`` after each part, which
 charges the time since the last lap to that part; a few clock reads per tick, so the engine always
-keeps one. CPU time (this process's) is kept beside wall time because on a shared machine the wall
-time of a part counts whatever else ran meanwhile.
+keeps one. The laps are the engine's own thread: a warm auction runs on a second thread meanwhile
+(sim.central), and the "assignment" part is the time spent waiting for it; its own time is kept
+apart, in ``beside``. CPU time (this process's, both threads) is kept beside wall time because on a
+shared machine the wall time of a part counts whatever else ran meanwhile.
 """
 from __future__ import annotations
 
 import time
+from typing import Any, Callable
 
 import numpy as np
 
@@ -21,6 +24,7 @@ class StepClock:
     def __init__(self) -> None:
         self.wall: dict[str, list[float]] = {part: [] for part in PARTS}
         self.cpu: dict[str, list[float]] = {part: [] for part in PARTS}
+        self.beside: list[float] = []  # per tick: wall seconds of the auction on the second thread (0: none)
         self._last = (0.0, 0.0)
 
     def start(self) -> None:
@@ -28,6 +32,7 @@ class StepClock:
         for part in PARTS:
             self.wall[part].append(0.0)
             self.cpu[part].append(0.0)
+        self.beside.append(0.0)
         self._last = (time.perf_counter(), time.process_time())
 
     def lap(self, part: str) -> None:
@@ -35,6 +40,14 @@ class StepClock:
         self.wall[part][-1] += now[0] - self._last[0]
         self.cpu[part][-1] += now[1] - self._last[1]
         self._last = now
+
+    def timed_beside(self, work: Callable[..., Any], *args: Any) -> Any:
+        """Run work(*args) on whichever thread calls this, adding its wall time to this tick's
+        ``beside`` (the engine submits its auction to a second thread through it)."""
+        t = time.perf_counter()
+        out = work(*args)
+        self.beside[-1] += time.perf_counter() - t
+        return out
 
     def arrays(self, cpu: bool = False) -> dict[str, np.ndarray]:
         """(ticks,) seconds per part, wall time (or this process's CPU time)."""

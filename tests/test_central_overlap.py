@@ -13,6 +13,7 @@ import pytest
 
 import sim.central as central
 from coordinator.scene import load_scene
+from sim.stepclock import StepClock
 
 
 def fast_turning_triangle(duration: float):
@@ -40,12 +41,14 @@ def test_a_run_with_the_auction_beside_the_control_core_is_the_same_to_the_bit(t
         return real(res, rows, *args)
 
     monkeypatch.setattr(central, "_step_again", spy)
-    runs = {}
+    runs, clock = {}, StepClock()
     for overlap in (False, True):
         scene = SCENES[name]()
         runs[overlap] = central.run_central(scene, tmp_path / f"run-{overlap}", video=False, progress=None,
-                                            overlap=overlap)
+                                            overlap=overlap, clock=clock if overlap else None)
     assert sum(stepped_again) > 0  # the auction did change goals while the control core ran on the old
+    # the clock kept the auction's own time on the second thread: none at the cold start, some after
+    assert clock.beside[0] == 0.0 and sum(clock.beside[1:]) > 0.0
     waited, beside = (np.load(runs[o] / "trajectory.npz") for o in (False, True))
     assert sorted(waited.files) == sorted(beside.files)
     for key in waited.files:
