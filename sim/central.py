@@ -34,7 +34,7 @@ from coordinator.scene import Scene, scene_goal_set
 from coordinator.service import palette
 
 from .movers import Movers
-from .proximity import nearest_within
+from .proximity import gather, nearest_within
 from .output import write_run
 from .rundir import RunDir
 from .stepclock import StepClock
@@ -49,13 +49,12 @@ def nearest_neighbours(position: np.ndarray, velocity: np.ndarray, radius: float
     m = min(max_neighbours, n - 1)
     if m <= 0:
         return NeighbourStates.empty(n, 0)
-    idx = nearest_within(np.ascontiguousarray(position, dtype=float), float(reach), m)
-    valid = idx >= 0
-    safe = np.where(valid, idx, 0)
+    position = np.ascontiguousarray(position, dtype=float)
+    idx = nearest_within(position, float(reach), m)
     # a scripted mover avoids nobody: its neighbours take full responsibility
-    coop = np.ones((n, m), bool) if cooperative is None else cooperative[safe]
-    return NeighbourStates(np.take(position, safe, axis=0), np.take(velocity, safe, axis=0),
-                           np.full((n, m), float(radius)), np.zeros((n, m)), valid, coop)
+    coop = np.ones(n, bool) if cooperative is None else np.ascontiguousarray(cooperative, dtype=bool)
+    pos, vel, valid, coop = gather(idx, position, np.ascontiguousarray(velocity, dtype=float), coop)
+    return NeighbourStates(pos, vel, np.full((n, m), float(radius)), np.zeros((n, m)), valid, coop)
 
 
 def goal_motion(motion: StepMotion | None) -> GoalMotion | None:

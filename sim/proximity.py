@@ -4,6 +4,8 @@ numba: every pair within that distance lies in the 3 x 3 cells around either one
 - `nearest_within`: each robot's nearest neighbours within reach (the central engine's neighbour
   search, sim.central). scipy's kd-tree took about 0.7 ms for 1000 robots plus the bookkeeping
   around it; the grid finds the same neighbours in a tenth of that (tests/test_proximity.py).
+- `gather`: the neighbours' positions, velocities and flags that `nearest_within` found, in one pass
+  (numpy's takes and masks cost 0.15 ms a step at 1000 robots).
 - `close_pairs`: the world's robot-robot detection (sim.world.World._detect): every pair whose
   centres are within ``reach`` in the first state is found on the grid, then checked in every
   state. It returns the smallest clearance over the pairs checked and the pairs that overlap, with
@@ -21,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["close_pairs", "nearest_within"]
+__all__ = ["close_pairs", "gather", "nearest_within"]
 
 _CELLS_PER_ROBOT = 16  # the grid's cell count is capped at this many per robot (coarser cells past it)
 
@@ -188,3 +190,22 @@ def nearest_within(position: np.ndarray, reach: float, m: int) -> np.ndarray:
                     out[i, p] = j
                     k = min(k + 1, m)
     return out
+
+
+@njit(cache=True, nogil=True)
+def gather(index: np.ndarray, position: np.ndarray, velocity: np.ndarray, cooperative: np.ndarray) -> tuple:
+    """For neighbour indices (N, m) (-1: none): their positions and velocities (N, m, 2), whether
+    each is one (N, m) and whether it cooperates (N, m); a padded slot holds robot 0's state (as
+    numpy's take of index 0 would), and is not valid."""
+    n, m = index.shape
+    pos, vel = np.empty((n, m, 2)), np.empty((n, m, 2))
+    valid, coop = np.empty((n, m), np.bool_), np.empty((n, m), np.bool_)
+    for i in range(n):
+        for s in range(m):
+            j = index[i, s]
+            valid[i, s] = j >= 0
+            j = max(j, 0)
+            pos[i, s, 0], pos[i, s, 1] = position[j, 0], position[j, 1]
+            vel[i, s, 0], vel[i, s, 1] = velocity[j, 0], velocity[j, 1]
+            coop[i, s] = cooperative[j]
+    return pos, vel, valid, coop
