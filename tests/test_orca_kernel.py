@@ -4,6 +4,8 @@ fallback). The same velocities and fallback flags to the bit, on crowds dense en
 branch runs: feasible programs, programs feasible only at a shorter horizon, and the fallback."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -92,20 +94,34 @@ def test_no_segments_and_no_neighbours():
     np.testing.assert_array_equal(got[0][alone], c["pref"][alone])
 
 
-@pytest.mark.parametrize("segments", [None, "arena"])
-def test_control_step_compiled_is_the_control_step(segments):
-    """The central engine's switch (`control_step(..., compiled=True)`): the same step result, from
-    the preferred velocity on, with or without obstacle edges."""
+@pytest.mark.parametrize("segments, given", [(None, False), ("arena", False), ("arena", True)])
+def test_control_step_compiled_is_the_control_step(segments, given):
+    """The central engine's switch (`control_step(..., compiled=True)`): the same step result, the
+    preferred velocity included (eq. 9, a robot without a goal or at it, given rows, turning right
+    when blocked, the perturbation), with or without obstacle edges."""
     from agent.core.step import NeighbourStates, control_step
 
+    rng = np.random.default_rng(6)
     c = crowd(5, n=200, m=10, side=1.5, stale=True)
     b = c["nbr"]
     nbrs = NeighbourStates(b["position"], b["velocity"], b["radius"], b["age"], b["valid"], b["cooperative"])
-    goal = np.random.default_rng(6).uniform(0.0, 1.5, (200, 2))
+    goal = rng.uniform(0.0, 1.5, (200, 2))
+    goal[:10] = np.nan  # no goal
+    goal[10:20] = c["position"][10:20]  # at its goal
+    goal[20:40] = c["position"][20:40] + rng.uniform(-0.05, 0.05, (20, 2))  # within K_a
+    velocity = c["velocity"].copy()
+    velocity[40:60] = 0.0  # wants to move and does not: blocked
+    preferred = None
+    if given:
+        preferred = np.full((200, 2), np.nan)
+        preferred[60:90] = rng.uniform(-0.3, 0.3, (30, 2))
+        preferred[90:95, 0] = 0.1  # half a row: eq. 9
     seg = None if segments is None else arena_segments(0.0, 0.0, 1.5, 1.5)
-    args = (P, np.arange(200), c["position"], np.zeros(200), c["velocity"], goal, nbrs, seg)
-    want = control_step(*args, seed=3, tick=7)
-    got = control_step(*args, seed=3, tick=7, compiled=True)
+    holonomic = dataclasses.replace(P, kinematics="holonomic")  # the switch is for holonomic robots
+    args = (holonomic, np.arange(200) * 7 + 3, c["position"], np.zeros(200), velocity, goal, nbrs, seg)
+    want = control_step(*args, seed=3, tick=7, preferred=preferred)
+    got = control_step(*args, seed=3, tick=7, preferred=preferred, compiled=True)
     for name in ("velocity", "command", "pref_velocity", "fallback"):
         np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
     assert want.fallback.any()  # the crowd is dense enough for the fallback to matter
+    assert (want.pref_velocity[:10] == 0.0).all()  # no goal, no perturbation

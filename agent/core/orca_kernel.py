@@ -33,6 +33,47 @@ BUFFER = 1.0 + 1e-6  # orca._BUFFER: radii 1 ppm larger in the safety and obstac
 SHRINK = 4.0  # orca._SHRINK: the horizon divisor where infeasible
 EPSILON = 1e-5  # lp.EPSILON: two unit directions are parallel below this |det|
 COOPERATING, NON_COOPERATING = 0.5, 1.0  # neighbours.COOPERATING / NON_COOPERATING
+COS_RIGHT, SIN_RIGHT = np.cos(-np.pi / 4), np.sin(-np.pi / 4)  # step._COS, step._SIN: 45 degrees clockwise
+PERTURBATION = 1e-4  # neighbours.perturb_preferred_velocity's magnitude
+
+
+@njit(cache=True)
+def _splitmix64(x):
+    """neighbours._splitmix64 for one uint64 (wrapping arithmetic, as numpy's)."""
+    x = x + np.uint64(0x9E3779B97F4A7C15)
+    x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return x ^ (x >> np.uint64(31))
+
+
+@njit(cache=True, nogil=True)
+def preferred_core(position, goal, preferred, velocity, robot_id, v_pref, k_a, seed_key, tick):
+    """What control_step does before the control core, per robot, in the numpy code's float
+    operations: eq. 9 toward the goal (orca.preferred_velocity), rows of ``preferred`` that are
+    finite instead, 45 degrees to the right when blocked (step.keep_right_when_blocked), and the
+    tiny perturbation of a non-zero preferred velocity (neighbours.perturb_preferred_velocity, with
+    seed_key = splitmix64(seed) and robot_id as uint64)."""
+    b = len(position)
+    out = np.empty((b, 2))
+    for i in range(b):
+        ex, ey = goal[i, 0] - position[i, 0], goal[i, 1] - position[i, 1]
+        dist = np.sqrt(ex * ex + ey * ey)
+        has = np.isfinite(dist) and dist > 0.0
+        safe = dist if has else 1.0
+        gain = (v_pref / safe if safe > k_a else v_pref / k_a) if has else 0.0
+        px, py = (ex if has else 0.0) * gain, (ey if has else 0.0) * gain
+        if np.isfinite(preferred[i, 0]) and np.isfinite(preferred[i, 1]):
+            px, py = preferred[i, 0], preferred[i, 1]
+        want = np.hypot(px, py)
+        if want > 0.5 * v_pref and np.hypot(velocity[i, 0], velocity[i, 1]) < 0.25 * want:
+            px, py = COS_RIGHT * px - SIN_RIGHT * py, SIN_RIGHT * px + COS_RIGHT * py
+        if px != 0 or py != 0:
+            key = _splitmix64(_splitmix64(robot_id[i] ^ seed_key) + tick)
+            a = np.float64(key >> np.uint64(11)) * 2.0 ** -53
+            c = np.float64(_splitmix64(key) >> np.uint64(11)) * 2.0 ** -53
+            px, py = px + (2.0 * a - 1.0) * PERTURBATION, py + (2.0 * c - 1.0) * PERTURBATION
+        out[i, 0], out[i, 1] = px, py
+    return out
 
 
 @njit(cache=True)

@@ -8,10 +8,11 @@ K robots drives exactly as K separate processes would.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
-from .neighbours import perturb_preferred_velocity, prepare_neighbours
+from .neighbours import _splitmix64, perturb_preferred_velocity, prepare_neighbours
 from .nhorca import nh_orca_wheel_speeds
 from .orca import arena_segments, orca_velocity, polygon_segments, preferred_velocity
 from .params import DIFFDRIVE, RobotParams
@@ -57,6 +58,7 @@ def static_segments(arena: tuple[float, float, float, float] | None,
 
 
 _COS, _SIN = np.cos(-np.pi / 4), np.sin(-np.pi / 4)  # 45 degrees clockwise
+_f64 = partial(np.ascontiguousarray, dtype=float)
 
 
 def keep_right_when_blocked(pref: np.ndarray, velocity: np.ndarray, v_pref: float) -> np.ndarray:
@@ -82,6 +84,8 @@ def control_step(params: RobotParams, robot_ids: np.ndarray, position: np.ndarra
     agent.core.goal_motion); NaN rows use eq. 9.
     compiled: holonomic robots get the same velocities, bit for bit, from the compiled core
     (agent.core.orca_kernel: the central engine's fast path; agent processes never load numba)."""
+    if compiled and params.kinematics != DIFFDRIVE:
+        return _compiled_step(params, robot_ids, position, velocity, goal, neighbours, segments, seed, tick, preferred)
     pref = preferred_velocity(position, goal, params.v_pref, params.k_a)
     if preferred is not None:
         given = np.isfinite(preferred).all(axis=1)
@@ -90,15 +94,6 @@ def control_step(params: RobotParams, robot_ids: np.ndarray, position: np.ndarra
     # A tiny deterministic perturbation breaks the symmetric head-on configurations that deadlock ORCA.
     pref = np.where(np.any(pref != 0, axis=1, keepdims=True),
                     perturb_preferred_velocity(pref, robot_ids, seed, tick), pref)
-    if compiled and params.kinematics != DIFFDRIVE:
-        from .orca_kernel import control_core
-
-        seg = np.zeros((0, 2, 2)) if segments is None else np.ascontiguousarray(segments, dtype=float).reshape(-1, 2, 2)
-        v_cf, fallback = control_core(position, velocity, pref, params.radius, params.v_max, neighbours.position,
-                                      neighbours.velocity, neighbours.radius, neighbours.age, neighbours.valid,
-                                      neighbours.cooperative, seg, params.tau, params.tau_obst, params.dt,
-                                      params.noise_bound, params.stale_after, params.noise_bound, params.dt)
-        return StepResult(v_cf, v_cf, pref, fallback)
     nb = prepare_neighbours(neighbours.position, neighbours.velocity, neighbours.radius, neighbours.age,
                             neighbours.valid, max_speed=params.v_max, timeout=params.stale_after,
                             noise=params.noise_bound, cooperative=neighbours.cooperative, committed=params.dt)
@@ -112,4 +107,23 @@ def control_step(params: RobotParams, robot_ids: np.ndarray, position: np.ndarra
                                    nb.velocity, nb.radius, nb.responsibility, nb.valid, segments,
                                    tau=params.tau, tau_obst=params.tau_obst, dt=params.dt, margin=params.noise_bound,
                                    nbr_growth=nb.growth)
+    return StepResult(v_cf, v_cf, pref, fallback)
+
+
+def _compiled_step(params: RobotParams, robot_ids: np.ndarray, position: np.ndarray, velocity: np.ndarray,
+                   goal: np.ndarray, neighbours: NeighbourStates, segments: np.ndarray | None, seed: int, tick: int,
+                   preferred: np.ndarray | None) -> StepResult:
+    """control_step for holonomic robots, compiled (agent.core.orca_kernel): the same result."""
+    from .orca_kernel import control_core, preferred_core
+
+    given = np.full((len(position), 2), np.nan) if preferred is None else _f64(preferred)
+    seed_key = _splitmix64(np.uint64(seed % 2**64))
+    pref = preferred_core(_f64(position), _f64(goal), given, _f64(velocity),
+                          np.ascontiguousarray(robot_ids).astype(np.uint64), float(params.v_pref), float(params.k_a),
+                          seed_key, np.uint64(tick % 2**64))
+    seg = np.zeros((0, 2, 2)) if segments is None else np.ascontiguousarray(segments, dtype=float).reshape(-1, 2, 2)
+    v_cf, fallback = control_core(position, velocity, pref, params.radius, params.v_max, neighbours.position,
+                                  neighbours.velocity, neighbours.radius, neighbours.age, neighbours.valid,
+                                  neighbours.cooperative, seg, params.tau, params.tau_obst, params.dt,
+                                  params.noise_bound, params.stale_after, params.noise_bound, params.dt)
     return StepResult(v_cf, v_cf, pref, fallback)
