@@ -31,7 +31,9 @@ What makes a round cheap is knowing a robot's best goals without scanning every 
 - **No cost matrix.** Costs are computed where needed, |g_j - p_i|^2 plus the penalties in force, in
   the same float operations as the agent hosts' (agent.core.bidder._squared_distances).
 - **Phases with nothing to do** are passed over: a robot content at the smallest slack left is
-  content at every larger one, so one scan finds every robot that may bid in any later phase.
+  content at every larger one, so one scan finds every robot that may bid in any later phase. The
+  scan after a phase's rounds looks only at the robots the rounds looked at and at those that
+  might bid before: nobody else's goal was bid on, and every other price only rose.
 - **No reference counting in the per-robot helpers.** numba counts references to every array a
   function is handed; the helpers take about twenty and run a million times a block. They
   allocate nothing and only borrow their caller's arrays, so they are compiled without numba's
@@ -247,12 +249,13 @@ def first_ranking(px, py, gx, gy, price, penalty, has_penalty, best, value, seco
 
 @njit(cache=True)
 def jacobi_rounds(px, py, gx, gy, price, penalty, has_penalty, owner, released, goal, own_ids, row_of_id, best,
-                  value, second, seen, lists, work, waiting, eps, slack, rounding, max_rounds):
+                  value, second, seen, lists, work, waiting, eps, slack, rounding, max_rounds, touched):
     """Bid the robots in ``waiting`` (rows not content) and those they outbid until every robot is
     content. The board (price, owner, released), the claims ``goal``, the cached best goals (best,
     value, second, and ``seen``: the price of the best goal when its value was last exact) and the
-    candidate lists change in place. ``row_of_id``: each robot id's row. Returns (rounds, bids,
-    robots still waiting)."""
+    candidate lists change in place. ``row_of_id``: each robot id's row; ``touched`` marks every
+    robot the rounds looked at (bidders and the robots they outbid). Returns (rounds, bids, robots
+    still waiting)."""
     k = len(goal)
     queue = np.empty(k, np.int64)
     n = len(waiting)
@@ -321,6 +324,7 @@ def jacobi_rounds(px, py, gx, gy, price, penalty, has_penalty, owner, released, 
         rounds += 1
         for a in range(m):
             r = look[a]
+            touched[r] = True
             unhappy[r] = not _content(r, px, py, gx, gy, price, penalty, has_penalty, owner, released, goal, own_ids,
                                       best, value, second, seen, lists, work, slack, rounding)
         n = 0  # the next bidders: every robot not content was looked at (it bid or was outbid)
@@ -346,17 +350,22 @@ def settle_block(px, py, gx, gy, price, penalty, has_penalty, owner, released, g
         seen[i] = price[best[i]]
     may_bid = np.empty(k, np.int64)  # robots not content at the smallest slack left
     waiting = np.empty(k, np.int64)
+    touched = np.zeros(k, np.bool_)  # robots whose contentment may have changed since the last scan
     n_may, scan = 0, True
     rounds, bids = 0, 0
     for phase in range(len(eps)):
         if scan:  # after bids (or at first): who is not content at the smallest slack left
             least = slack[phase:].min()
+            for a in range(n_may):
+                touched[may_bid[a]] = True
             n_may = 0
-            for i in range(k):
-                if not _content(i, px, py, gx, gy, price, penalty, has_penalty, owner, released, goal, own_ids, best,
-                                value, second, seen, lists, work, least, rounding):
-                    may_bid[n_may] = i
-                    n_may += 1
+            for i in range(k):  # in ascending rows, as a scan of every robot
+                if phase == 0 or touched[i]:
+                    touched[i] = False
+                    if not _content(i, px, py, gx, gy, price, penalty, has_penalty, owner, released, goal, own_ids,
+                                    best, value, second, seen, lists, work, least, rounding):
+                        may_bid[n_may] = i
+                        n_may += 1
         n = 0
         for a in range(n_may):  # who is not content at this phase's slack
             i = may_bid[a]
@@ -366,7 +375,7 @@ def settle_block(px, py, gx, gy, price, penalty, has_penalty, owner, released, g
                 n += 1
         r, b, left = jacobi_rounds(px, py, gx, gy, price, penalty, has_penalty, owner, released, goal, own_ids,
                                    row_of_id, best, value, second, seen, lists, work, waiting[:n], eps[phase],
-                                   slack[phase], rounding, max_rounds)
+                                   slack[phase], rounding, max_rounds, touched)
         rounds, bids, scan = rounds + r, bids + b, r > 0
         if left:
             return rounds, bids, phase
