@@ -9,7 +9,10 @@ the step whose hold contains t; the `step` array records which one, tick by tick
 agents' own (agent.core.bidder) with one participant holding every robot: each `assign_period` the
 next block of epsilon-scaling phases starts from the measured positions, warm from the last prices,
 and settles in this process without messages (`auction_assignment`; its rounds are compiled,
-agent.core.jacobi). Animation keyframes
+agent.core.jacobi), on a second thread while this one searches neighbours, steps the control core
+and moves the world on the goals the robots hold: a robot's control depends on its own goal and its
+neighbours' last states only, so only the robots whose goal the auction changed are stepped again,
+and the run is the one that waiting for the auction would give, to the bit. Animation keyframes
 are steps whose robots hold eq. 27's velocity (agent.core.animation); a dynamic image's goals move by
 eq. 28 and the robots drive with the goals' velocity fed forward (agent.core.goal_motion), auctioned
 on the published goal set with their positions mapped back, as the agents do (agent.runtime).

@@ -42,7 +42,9 @@ What makes a round cheap is knowing a robot's best goals without scanning every 
   arguments cost more than its arithmetic, so the two loops over goals write it out.
 
 Measured (bench/results/large.md): 1000 robots, the paper's whole sequence, the same assignments;
-6.0 -> 2.4 ms of assignment per control step, about 4000 bids a block at 0.4 us each.
+6.0 -> 2.4 ms of assignment per control step, about 4000 bids a block at 0.4 us each (2.0 ms since
+Delta C holds in every phase and the scans look only at the robots a phase's rounds touched; the
+central engine runs it on a second thread, beside its control core).
 """
 from __future__ import annotations
 
