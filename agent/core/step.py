@@ -121,7 +121,7 @@ def _compiled_step(params: RobotParams, robot_ids: np.ndarray, position: np.ndar
     pref = preferred_core(_f64(position), _f64(goal), given, _f64(velocity),
                           np.ascontiguousarray(robot_ids).astype(np.uint64), float(params.v_pref), float(params.k_a),
                           seed_key, np.uint64(tick % 2**64))
-    seg = np.zeros((0, 2, 2)) if segments is None else np.ascontiguousarray(segments, dtype=float).reshape(-1, 2, 2)
+    seg = np.zeros((0, 2, 2)) if segments is None else _f64(segments).reshape(-1, 2, 2)
     v_cf, fallback = control_core(position, velocity, pref, params.radius, params.v_max, neighbours.position,
                                   neighbours.velocity, neighbours.radius, neighbours.age, neighbours.valid,
                                   neighbours.cooperative, seg, params.tau, params.tau_obst, params.dt,
