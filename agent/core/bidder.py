@@ -572,13 +572,13 @@ class Participant:
             gx, gy = np.ascontiguousarray(self.goals[:, 0]), np.ascontiguousarray(self.goals[:, 1])
             self._lists = (*new_lists(k, len(self.goals), candidates), _hull_vertices(self.goals), (gx, gy),
                            row_of_id, eps, slack)
-        lists, work, (hull_x, hull_y), (gx, gy), row_of_id, eps, slack = self._lists
+        lists, work, scratch, (hull_x, hull_y), (gx, gy), row_of_id, eps, slack = self._lists
         px, py = np.ascontiguousarray(self.position[:, 0]), np.ascontiguousarray(self.position[:, 1])
         self.without_list = first_ranking(px, py, gx, gy, board.price, self.penalty, self._has_penalty, best, value,
                                           second, lists, work, hull_x, hull_y)
         rounds, bids, settled = settle_block(
             px, py, gx, gy, board.price, self.penalty, self._has_penalty, board.owner, board.released, self.goal,
-            self.own_ids, row_of_id, best, value, second, lists, work, eps, slack, ROUNDING, max_rounds)
+            self.own_ids, row_of_id, best, value, second, lists, work, scratch, eps, slack, ROUNDING, max_rounds)
         self.instance = first + min(settled, self.phases - 1)
         board.version += 1
         self.bids, self.rounds, self.claims_changed = self.bids + bids, self.rounds + rounds, True

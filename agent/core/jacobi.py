@@ -34,17 +34,21 @@ What makes a round cheap is knowing a robot's best goals without scanning every 
   content at every larger one, so one scan finds every robot that may bid in any later phase. The
   scan after a phase's rounds looks only at the robots the rounds looked at and at those that
   might bid before: nobody else's goal was bid on, and every other price only rose.
-- **No reference counting in the per-robot helpers.** numba counts references to every array a
-  function is handed; the helpers take about twenty and run a million times a block. They
-  allocate nothing and only borrow their caller's arrays, so they are compiled without numba's
-  runtime (``_nrt=False``: the compiler refuses any that would allocate). That halved the
-  assignment's time. ``_cost`` and friends are inlined; inlined in a loop, ``_cost``'s array
-  arguments cost more than its arithmetic, so the two loops over goals write it out.
+- **No reference counting, no calls in the rounds.** numba counts references to every array a
+  function is handed, and a call hands over every field of some thirty arrays. So nothing in the
+  rounds allocates: the scratch is made once with the lists (`Rounds`), and the block, its rounds
+  and `first_ranking` are compiled without numba's runtime (``_nrt=False``: the compiler refuses
+  any that would allocate). The per-robot helpers (`_rank`, `_refresh`, `_content`) are inlined
+  into them; only a ranking over every goal is a call. Each step halved the assignment's time
+  (inlined into rounds that count references, the helpers were slower than called).
+  ``_cost`` is inlined too; inlined in a loop, its array arguments cost more than its arithmetic,
+  so the two loops over goals write it out.
 
 Measured (bench/results/large.md): 1000 robots, the paper's whole sequence, the same assignments;
 6.0 -> 2.4 ms of assignment per control step, about 4000 bids a block at 0.4 us each (2.0 ms since
 Delta C holds in every phase and the scans look only at the robots a phase's rounds touched; the
-central engine runs it on a second thread, beside its control core).
+central engine runs it on a second thread, beside its control core); 1.2 ms with the helpers inlined
+into rounds that allocate nothing (the L and T images: 2.9 -> 1.4 ms per block settled).
 """
 from __future__ import annotations
 
@@ -64,14 +68,25 @@ Lists = namedtuple("Lists", ["cand", "bound", "width", "made_x", "made_y", "made
 # Scratch for a ranking over every goal: the values (G,), the goals in the window (4K,) and the
 # K + 1 best of them.
 Work = namedtuple("Work", ["values", "window_value", "window_goal", "top_value", "top_goal"])
+# Scratch for a block's phases and rounds, per robot: the price of its best goal when its value was
+# last exact (`seen`), who may bid, who waits, who was looked at since the last scan, and per
+# round the queue, the bids (goal, price, the goal's owner before, the bidder's runner-up goal and
+# third value, the goal it releases and that goal's price) and the robots looked at.
+Rounds = namedtuple("Rounds", ["seen", "may_bid", "waiting", "touched", "queue", "unhappy", "look", "bidders",
+                               "bid_goal", "bid_price", "before", "runner_up", "third", "held", "held_price"])
 
 
-def new_lists(robots: int, goals: int, k: int) -> tuple[Lists, Work]:
-    """Empty candidate lists of k goals for each robot, and the scratch to fill them."""
+def new_lists(robots: int, goals: int, k: int) -> tuple[Lists, Work, Rounds]:
+    """Empty candidate lists of k goals for each robot, and the scratch to fill them and to settle
+    blocks with (made once: the compiled rounds allocate nothing)."""
+    ints, floats = (lambda: np.zeros(robots, np.int64)), (lambda: np.zeros(robots))
     return (Lists(np.full((robots, k), -1, np.int64), np.full(robots, np.inf), np.ones(robots),
                   np.zeros(robots), np.zeros(robots), np.full(robots, np.inf)),
             Work(np.empty(goals), np.empty(4 * k), np.empty(4 * k, np.int64), np.empty(k + 1),
-                 np.empty(k + 1, np.int64)))
+                 np.empty(k + 1, np.int64)),
+            Rounds(floats(), ints(), ints(), np.zeros(robots, np.bool_), ints(), np.zeros(robots, np.bool_),
+                   np.zeros(2 * robots, np.int64), ints(), ints(), floats(), ints(), ints(), floats(), ints(),
+                   floats()))
 
 
 @njit(cache=True, inline="always")
@@ -167,7 +182,7 @@ def _before(v, j, w, m):
     return v > w or (v == w and j < m)
 
 
-@njit(**BORROWS)
+@njit(cache=True, inline="always")  # into rounds compiled without NRT
 def _rank(i, px, py, gx, gy, price, penalty, has_penalty, lists, work):
     """`_rank_all`, from robot i's candidates when they provably hold its three best goals."""
     j1, j2, j3 = -1, -1, -1
@@ -193,7 +208,7 @@ def _rank(i, px, py, gx, gy, price, penalty, has_penalty, lists, work):
     return _rank_all(i, px, py, gx, gy, price, penalty, has_penalty, lists, work)
 
 
-@njit(**BORROWS)
+@njit(cache=True, inline="always")  # into rounds compiled without NRT
 def _refresh(i, px, py, gx, gy, price, penalty, has_penalty, best, value, second, seen, lists, work) -> None:
     """Make robot i's best goal and value exact: ranked anew only if the price of its best goal
     rose past its second-best value (an upper bound)."""
@@ -210,7 +225,7 @@ def _refresh(i, px, py, gx, gy, price, penalty, has_penalty, best, value, second
             seen[i] = price[j1]
 
 
-@njit(**BORROWS)
+@njit(cache=True, inline="always")  # into rounds compiled without NRT
 def _content(i, px, py, gx, gy, price, penalty, has_penalty, owner, released, goal, own_ids, best, value, second,
              seen, lists, work, slack, rounding) -> bool:
     """Does robot i hold its goal within ``slack`` of its best (agent.core.auction.is_content)?
@@ -224,7 +239,7 @@ def _content(i, px, py, gx, gy, price, penalty, has_penalty, owner, released, go
     return held >= value[i] - slack - rounding * abs(value[i])
 
 
-@njit(cache=True, nogil=True)  # nogil: it runs beside the control core (sim.central)
+@njit(cache=True, nogil=True, _nrt=False)  # nogil: it runs beside the control core (sim.central)
 def first_ranking(px, py, gx, gy, price, penalty, has_penalty, best, value, second, lists, work, hull_x,
                   hull_y) -> int:
     """Every robot's best goal, value and second-best bound at a block's start, from its candidates
@@ -249,29 +264,24 @@ def first_ranking(px, py, gx, gy, price, penalty, has_penalty, best, value, seco
     return none
 
 
-@njit(cache=True)
+@njit(**BORROWS)
 def jacobi_rounds(px, py, gx, gy, price, penalty, has_penalty, owner, released, goal, own_ids, row_of_id, best,
-                  value, second, seen, lists, work, waiting, eps, slack, rounding, max_rounds, touched):
-    """Bid the robots in ``waiting`` (rows not content) and those they outbid until every robot is
-    content. The board (price, owner, released), the claims ``goal``, the cached best goals (best,
-    value, second, and ``seen``: the price of the best goal when its value was last exact) and the
-    candidate lists change in place. ``row_of_id``: each robot id's row; ``touched`` marks every
-    robot the rounds looked at (bidders and the robots they outbid). Returns (rounds, bids, robots
-    still waiting)."""
-    k = len(goal)
-    queue = np.empty(k, np.int64)
-    n = len(waiting)
-    queue[:n] = waiting
-    unhappy = np.zeros(k, np.bool_)  # scratch: looked at this round and not content
-    look = np.empty(2 * k, np.int64)  # bidders and the robots they outbid (an id twice is harmless)
-    bidders = np.empty(k, np.int64)
-    bid_goal = np.empty(k, np.int64)
-    bid_price = np.empty(k)
-    before = np.empty(k, np.int64)  # owner of the goal bid on, as the round found it
-    runner_up = np.empty(k, np.int64)  # the bidder's second-best goal and third-best value
-    third = np.empty(k)
-    held = np.empty(k, np.int64)  # the goal each bidder releases (-1: none) and its price
-    held_price = np.empty(k)
+                  value, second, lists, work, scratch, n, eps, slack, rounding, max_rounds):
+    """Bid the first ``n`` robots of ``scratch.waiting`` (rows not content) and those they outbid
+    until every robot is content. The board (price, owner, released), the claims ``goal``, the
+    cached best goals (best, value, second, and ``scratch.seen``: the price of the best goal when
+    its value was last exact) and the candidate lists change in place. ``row_of_id``: each robot
+    id's row; ``scratch.touched`` marks every robot the rounds looked at (bidders and the robots
+    they outbid). Returns (rounds, bids, robots still waiting)."""
+    seen, touched, queue = scratch.seen, scratch.touched, scratch.queue
+    unhappy = scratch.unhappy  # looked at this round and not content (False between rounds)
+    look = scratch.look  # bidders and the robots they outbid (an id twice is harmless)
+    bidders, bid_goal, bid_price = scratch.bidders, scratch.bid_goal, scratch.bid_price
+    before = scratch.before  # owner of the goal bid on, as the round found it
+    runner_up, third = scratch.runner_up, scratch.third  # the bidder's second-best goal and third-best value
+    held, held_price = scratch.held, scratch.held_price  # the goal each bidder releases (-1: none), its price
+    for a in range(n):
+        queue[a] = scratch.waiting[a]
     rounds, bids = 0, 0
     while n > 0 and rounds < max_rounds:
         for a in range(n):  # ascending rows; mostly one or two bidders: an insertion sort
@@ -339,25 +349,27 @@ def jacobi_rounds(px, py, gx, gy, price, penalty, has_penalty, owner, released, 
     return rounds, bids, n
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def settle_block(px, py, gx, gy, price, penalty, has_penalty, owner, released, goal, own_ids, row_of_id, best, value,
-                 second, lists, work, eps, slack, rounding, max_rounds):
+                 second, lists, work, scratch, eps, slack, rounding, max_rounds):
     """One block of epsilon-scaling phases (``eps``, ``slack``) on frozen positions, warm from the
     board and from `first_ranking`: per phase the Jacobi rounds until every robot is content.
     Leaves every cached best value exact. Returns (rounds, bids, phases settled): fewer than
     len(eps) when a phase ran out of rounds."""
     k = len(goal)
-    seen = np.empty(k)
+    seen, touched = scratch.seen, scratch.touched
+    may_bid = scratch.may_bid  # robots not content at the smallest slack left
+    waiting = scratch.waiting
     for i in range(k):
         seen[i] = price[best[i]]
-    may_bid = np.empty(k, np.int64)  # robots not content at the smallest slack left
-    waiting = np.empty(k, np.int64)
-    touched = np.zeros(k, np.bool_)  # robots whose contentment may have changed since the last scan
+        touched[i] = False  # robots whose contentment may have changed since the last scan
     n_may, scan = 0, True
     rounds, bids = 0, 0
     for phase in range(len(eps)):
         if scan:  # after bids (or at first): who is not content at the smallest slack left
-            least = slack[phase:].min()
+            least = slack[phase]
+            for later in range(phase + 1, len(slack)):
+                least = min(least, slack[later])
             for a in range(n_may):
                 touched[may_bid[a]] = True
             n_may = 0
@@ -376,8 +388,8 @@ def settle_block(px, py, gx, gy, price, penalty, has_penalty, owner, released, g
                 waiting[n] = i
                 n += 1
         r, b, left = jacobi_rounds(px, py, gx, gy, price, penalty, has_penalty, owner, released, goal, own_ids,
-                                   row_of_id, best, value, second, seen, lists, work, waiting[:n], eps[phase],
-                                   slack[phase], rounding, max_rounds, touched)
+                                   row_of_id, best, value, second, lists, work, scratch, n, eps[phase],
+                                   slack[phase], rounding, max_rounds)
         rounds, bids, scan = rounds + r, bids + b, r > 0
         if left:
             return rounds, bids, phase
