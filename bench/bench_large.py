@@ -188,7 +188,7 @@ def split_table(runs: list[Run]) -> list[str]:
 def image_table(scene: Any, runs: list[Run]) -> list[str]:
     lines = ["| step | image | hold s | " + " | ".join(f"`{r.assignment}` converged_at s | `{r.assignment}` max error "
                                                        f"at end m | `{r.assignment}` ms per warm step, wall / CPU "
-                                                       f"(auction beside)" for r in runs) + " |",
+                                                       f"{' (auction beside)' if r.assignment == 'auction' else ''}" for r in runs) + " |",
              "|---|---|---|" + "---|---|---|" * len(runs)]
     by_run = [{s["index"]: s for s in r.metrics["steps"]} for r in runs]
     for k in sorted(by_run[0]):
@@ -196,8 +196,9 @@ def image_table(scene: Any, runs: list[Run]) -> list[str]:
         for r, steps in zip(runs, by_run):
             s = steps.get(k)
             mine = (r.step == k) & ~r.cold
-            spent = (f"{ms(r.per_tick()[mine].mean())} / {ms(r.per_tick(True)[mine].mean())} "
-                     f"({ms(r.beside[mine].mean())})" if mine.any() else "-")
+            beside = f" ({ms(r.beside[mine].mean())})" if r.assignment == "auction" else ""  # nothing beside
+            spent = (f"{ms(r.per_tick()[mine].mean())} / {ms(r.per_tick(True)[mine].mean())}{beside}"
+                     if mine.any() else "-")
             cells.append(f"{fmt(s and s['converged_at'])} | {fmt(s and s['max_goal_error_at_end'], 4)} | {spent}")
         lines.append(f"| {k} | {scene.steps[k].name} | {scene.steps[k].hold:.0f} | " + " | ".join(cells) + " |")
     return lines
