@@ -1,9 +1,11 @@
 """A robot's view of its neighbours, built only from their broadcasts."""
 from __future__ import annotations
 
+import itertools
 from operator import attrgetter
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from transport.codec import State
 from transport.keys import cells_of
@@ -27,12 +29,13 @@ class NeighbourTable:
         if kept is None:
             self._states[state.robot] = [state]
             return
-        if any(s.tick == state.tick for s in kept):
-            return  # duplicate
+        if kept[-1].tick == state.tick or kept[0].tick == state.tick:
+            return  # duplicate (of one of the at most two kept)
         kept.append(state)
         if state.tick < kept[-2].tick:  # out of order (rare): sort only then
             kept.sort(key=_tick)
-        del kept[:-2]
+        if len(kept) > 2:
+            del kept[0]
 
     def forget_outside(self, cells: set[tuple[int, int]], cell_size: float) -> int:
         """Drop robots whose newest state lies in a cell we no longer listen to. We cannot hear them
@@ -103,12 +106,18 @@ class NeighbourTable:
         ids, pos, vel, rad, age, coop = ids[order], pos[order], vel[order], rad[order], age[order], coop[order]
         m = max_neighbours
         out = NeighbourStates.empty(batch, m)
-        # The whole batch at once: (batch, states) squared distances, the candidates in reach, ranked
-        # per robot by distance, then by id (their column order).
+        # The whole batch at once: the candidates from a k-d tree over the states (a ball a hair wider
+        # than the neighbour distance: the tree's rounding loses no pair in reach), then their squared
+        # distances, those in reach ranked per robot by distance, then by id (their column order).
+        # A dense (batch, states) matrix of distances cost a 250-robot host 4 ms a tick at 1000 robots.
         p = np.asarray(positions, float).reshape(batch, 2)
-        d2 = (pos[None, :, 0] - p[:, 0, None]) ** 2 + (pos[None, :, 1] - p[:, 1, None]) ** 2
-        rows, cols = np.nonzero((ids[None, :] != np.asarray(robot_ids)[:, None]) & (d2 <= neighbour_dist**2))
-        order = np.lexsort((cols, d2[rows, cols], rows))
+        ball = cKDTree(pos).query_ball_point(p, neighbour_dist * (1.0 + 1e-9) + 1e-12, return_sorted=False)
+        rows = np.repeat(np.arange(batch), [len(c) for c in ball])
+        cols = np.fromiter(itertools.chain.from_iterable(ball), np.int64, len(rows))
+        d2 = (pos[cols, 0] - p[rows, 0]) ** 2 + (pos[cols, 1] - p[rows, 1]) ** 2
+        keep = (ids[cols] != np.asarray(robot_ids)[rows]) & (d2 <= neighbour_dist**2)
+        rows, cols, d2 = rows[keep], cols[keep], d2[keep]
+        order = np.lexsort((cols, d2, rows))
         rows, cols = rows[order], cols[order]
         rank = np.arange(len(rows)) - np.searchsorted(rows, rows)  # place among the robot's candidates
         near = rank < m
