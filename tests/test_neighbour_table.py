@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from agent import neighbour_table
 from agent.core.bidder import bid_position
 from agent.neighbour_table import NeighbourTable
 from transport.codec import State
@@ -34,6 +35,29 @@ def test_each_robot_gets_its_nearest_neighbours_in_reach_ties_broken_by_id():
         assert k == len(expect) and got.valid[b, :k].all()
         assert np.allclose(got.position[b, :k], [by_id[r] for r in expect])
         assert np.allclose(got.velocity[b, :k, 0], [0.01 * r for r in expect])  # the states of those robots
+
+
+def test_a_large_batch_finds_the_same_neighbours_from_its_k_d_tree(monkeypatch):
+    """A host of hundreds of robots takes its candidate pairs from a k-d tree (agent.neighbour_table
+    DENSE_UP_TO); the pairs, their order and every gathered array must be those of the dense
+    search, ties (a grid of positions) and pairs at exactly the neighbour distance included."""
+    rng = np.random.default_rng(11)
+    table = NeighbourTable()
+    points = np.round(rng.uniform(-2.0, 2.0, (400, 2)) * 10) / 10
+    ids = rng.permutation(1000)[:400]
+    for robot, (x, y) in zip(ids, points):
+        table.update(_state(int(robot), float(x), float(y)))
+    own, here = [int(r) for r in ids[:90]], points[:90]
+
+    def gathered(dense_up_to: int) -> list[np.ndarray]:
+        monkeypatch.setattr(neighbour_table, "DENSE_UP_TO", dense_up_to)
+        got = table.gather(own, here, stamp=0.2, tick=2, neighbour_dist=0.5, max_neighbours=8)
+        return [got.position, got.velocity, got.radius, got.age, got.valid, got.cooperative]
+
+    dense, tree = gathered(10**9), gathered(0)
+    assert dense[4].sum() > 500  # many neighbours, many of them at equal distances
+    for a, b in zip(dense, tree):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_bid_positions_of_a_batch_are_those_of_each_robot():
