@@ -19,20 +19,19 @@ DENSE_UP_TO = 20_000  # (batch robot, state) pairs measured all at once; more: c
 def _pairs_in_reach(p: np.ndarray, robot_ids: np.ndarray, pos: np.ndarray, ids: np.ndarray,
                     reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(row in the batch, column in the states, squared distance) of every pair within ``reach``,
-    but a robot and its own state. A small batch (a robot per process) measures every pair; a
-    host of hundreds of robots takes the candidates from a k-d tree over the states, in a ball a
-    hair wider than ``reach`` (the tree's rounding loses no pair), then the same exact test: the
-    same pairs, 1.7 ms a tick instead of 4 for 250 robots among 1000. Only then is scipy.spatial
-    loaded (0.7 s and 28 MB that a single robot's process does without)."""
+    but a robot and its own state. The candidates: every pair for a small batch (a robot per
+    process); for a host of hundreds of robots, those a k-d tree over the states finds in a ball a
+    hair wider than ``reach`` (the tree's rounding loses no pair): 1.7 ms a tick instead of 4 for
+    250 robots among 1000. Only then is scipy.spatial loaded (0.7 s and 28 MB that a single
+    robot's process does without). Then one exact test for both, so both give the same pairs."""
     if len(p) * len(pos) <= DENSE_UP_TO:
-        d2 = (pos[None, :, 0] - p[:, 0, None]) ** 2 + (pos[None, :, 1] - p[:, 1, None]) ** 2
-        rows, cols = np.nonzero((ids[None, :] != robot_ids[:, None]) & (d2 <= reach**2))
-        return rows, cols, d2[rows, cols]
-    from scipy.spatial import cKDTree
+        rows, cols = np.repeat(np.arange(len(p)), len(pos)), np.tile(np.arange(len(pos)), len(p))
+    else:
+        from scipy.spatial import cKDTree
 
-    ball = cKDTree(pos).query_ball_point(p, reach * (1.0 + 1e-9) + 1e-12, return_sorted=False)
-    rows = np.repeat(np.arange(len(p)), [len(c) for c in ball])
-    cols = np.fromiter(itertools.chain.from_iterable(ball), np.int64, len(rows))
+        ball = cKDTree(pos).query_ball_point(p, reach * (1.0 + 1e-9) + 1e-12, return_sorted=False)
+        rows = np.repeat(np.arange(len(p)), [len(c) for c in ball])
+        cols = np.fromiter(itertools.chain.from_iterable(ball), np.int64, len(rows))
     d2 = (pos[cols, 0] - p[rows, 0]) ** 2 + (pos[cols, 1] - p[rows, 1]) ** 2
     keep = (ids[cols] != robot_ids[rows]) & (d2 <= reach**2)
     return rows[keep], cols[keep], d2[keep]
