@@ -4,6 +4,7 @@ One process runs the robots its config names (one by default; K with --agents-pe
 PIXELSWARM_PROFILE=DIR in its environment (`pixelswarm run` passes its own on), the host's loop runs
 under cProfile and its statistics go to DIR/agent<first robot>.prof when it stops (`python -m pstats`).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -35,8 +36,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"agent: error: bad config: {err}", file=sys.stderr)
         return 2
     try:
-        bus = Bus(settings_from_args(args), config.display, faults=faults, seed=config.seed,
-                  name=f"agent{config.robots[0]}")
+        bus = Bus(
+            settings_from_args(args), config.display, faults=faults, seed=config.seed, name=f"agent{config.robots[0]}"
+        )
     except TransportError as err:
         print(f"agent: error: {err}", file=sys.stderr)
         return 2

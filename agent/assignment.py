@@ -10,10 +10,11 @@ round trip, not a timeout), once the board has been quiet for QUIET seconds (whi
 would only be stale) and at most every DIGEST_EVERY seconds; and as a backstop every RESEND_BUSY
 seconds (more in large swarms) while an instance is open, RESEND_IDLE when agreed (late joiners).
 """
+
 from __future__ import annotations
 
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -40,8 +41,9 @@ assert RECORD == Bid._item, "the bidder's records are the wire layout of Bid"
 class AuctionLink:
     """The auction of one host's robots: goal sets in, agreed goals out through ``on_agreed``."""
 
-    def __init__(self, bus: Bus, robots: list[int], params: RobotParams, on_agreed: OnAgreed,
-                 where: Where | None = None) -> None:
+    def __init__(
+        self, bus: Bus, robots: list[int], params: RobotParams, on_agreed: OnAgreed, where: Where | None = None
+    ) -> None:
         """``where``: the own robots' bid positions now (the runtime's), asked again when an agreement
         was handed to ``on_agreed`` just before a new block freezes its positions."""
         self.bus, self.robots, self.params, self.on_agreed = bus, sorted(robots), params, on_agreed
@@ -98,8 +100,9 @@ class AuctionLink:
         return [r for r in self.robots if r not in own]
 
     # --- inputs -----------------------------------------------------------------------------------
-    def on_goals(self, goals: Goals, positions: dict[int, np.ndarray],
-                 current: dict[int, int] | None = None) -> dict[int, int]:
+    def on_goals(
+        self, goals: Goals, positions: dict[int, np.ndarray], current: dict[int, int] | None = None
+    ) -> dict[int, int]:
         """A new goal set: a new auction. Each own robot carries its ``current`` goal in the last set
         (robot -> goal index) over to the new set; returns the carried goals, which the robots drive
         to until the auction agrees. After an agreed last set of the same robots the goals carry over
@@ -111,8 +114,14 @@ class AuctionLink:
             return {}
         before = self.part
         self.goal_set = goals
-        self.part = Participant(goals.epoch, goals.positions, goals.robots.tolist(), self.robots,
-                                self.params.assign_eps, self.params.assign_hysteresis)
+        self.part = Participant(
+            goals.epoch,
+            goals.positions,
+            goals.robots.tolist(),
+            self.robots,
+            self.params.assign_eps,
+            self.params.assign_hysteresis,
+        )
         carried = {}
         if self._warm_start(before, goals):
             carried = self.part.carry(before, goals.matched, current=current, prices=goals.prices)
@@ -135,9 +144,14 @@ class AuctionLink:
         transition (it did not agree within its 60 s hold), the warm one 252; 100 robots in 10 hosts
         agree on a keyframe turned and moved by up to 1 m in 5-54 rounds against 110-646 cold
         (bench/bench_carry.py)."""
-        return (before is not None and before.agreed_instance >= 0 and not goals.per_robot
-                and goals.matched_from == before.epoch and len(before.goals) == len(goals.positions)
-                and np.array_equal(before.robots, np.sort(np.asarray(goals.robots, np.int64))))
+        return (
+            before is not None
+            and before.agreed_instance >= 0
+            and not goals.per_robot
+            and goals.matched_from == before.epoch
+            and len(before.goals) == len(goals.positions)
+            and np.array_equal(before.robots, np.sort(np.asarray(goals.robots, np.int64)))
+        )
 
     def _try_start(self, positions: dict[int, np.ndarray]) -> bool:
         part = self.part
@@ -262,15 +276,24 @@ class AuctionLink:
         digest, items = part.outgoing()
         self.mismatch = False
         self.serial += 1
-        self.bus.publish(self.bus.keys.auction(part.epoch, self.sender),
-                         Bid(part.epoch, part.instance, self.sender, self.serial, digest, len(items), items))
+        self.bus.publish(
+            self.bus.keys.auction(part.epoch, self.sender),
+            Bid(part.epoch, part.instance, self.sender, self.serial, digest, len(items), items),
+        )
         self.last_sent = time.monotonic()
         self.sent += 1
 
     def stats(self) -> dict:
         part = self.part
-        return {"epoch": part.epoch if part else 0, "instance": part.instance if part else -1,
-                "agreed_instance": part.agreed_instance if part else -1, "bids": part.bids if part else 0,
-                "messages_sent": self.sent, "messages_received": self.received, "agreements": self.agreements,
-                "deadlock_penalties": self.penalties, "latency_s": round(self.latency, 3),
-                "first_agreement_s": [round(x, 4) for x in self.first_agreement_s]}
+        return {
+            "epoch": part.epoch if part else 0,
+            "instance": part.instance if part else -1,
+            "agreed_instance": part.agreed_instance if part else -1,
+            "bids": part.bids if part else 0,
+            "messages_sent": self.sent,
+            "messages_received": self.received,
+            "agreements": self.agreements,
+            "deadlock_penalties": self.penalties,
+            "latency_s": round(self.latency, 3),
+            "first_agreement_s": [round(x, 4) for x in self.first_agreement_s],
+        }

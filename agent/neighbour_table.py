@@ -1,4 +1,5 @@
 """A robot's view of its neighbours, built only from their broadcasts."""
+
 from __future__ import annotations
 
 import itertools
@@ -11,13 +12,13 @@ from transport.keys import cells_of
 
 from .core.step import NeighbourStates
 
-
 _tick = attrgetter("tick")
 DENSE_UP_TO = 20_000  # (batch robot, state) pairs measured all at once; more: candidates from a k-d tree
 
 
-def _pairs_in_reach(p: np.ndarray, robot_ids: np.ndarray, pos: np.ndarray, ids: np.ndarray,
-                    reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _pairs_in_reach(
+    p: np.ndarray, robot_ids: np.ndarray, pos: np.ndarray, ids: np.ndarray, reach: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(row in the batch, column in the states, squared distance) of every pair within ``reach``,
     but a robot and its own state. The candidates: every pair for a small batch (a robot per
     process); for a host of hundreds of robots, those a k-d tree over the states finds in a ball a
@@ -99,8 +100,16 @@ class NeighbourTable:
                     break
         return out
 
-    def gather(self, robot_ids: list[int], positions: np.ndarray, stamp: float, tick: int,
-               neighbour_dist: float, max_neighbours: int, stopped: dict[int, float] | None = None) -> NeighbourStates:
+    def gather(
+        self,
+        robot_ids: list[int],
+        positions: np.ndarray,
+        stamp: float,
+        tick: int,
+        neighbour_dist: float,
+        max_neighbours: int,
+        stopped: dict[int, float] | None = None,
+    ) -> NeighbourStates:
         """Padded neighbour arrays for a batch: the nearest ``max_neighbours`` within ``neighbour_dist``.
 
         ``stopped``: robots whose agent is dead (liveliness lost), with how far they may have moved
@@ -111,8 +120,9 @@ class NeighbourTable:
         batch = len(robot_ids)
         if not states:
             return NeighbourStates.empty(batch)
-        fields = np.array([(s.robot, s.x, s.y, s.vx, s.vy, s.radius, s.stamp, s.flags & State.DYNAMIC)
-                           for s in states], float)  # one pass over the states, one array
+        fields = np.array(
+            [(s.robot, s.x, s.y, s.vx, s.vy, s.radius, s.stamp, s.flags & State.DYNAMIC) for s in states], float
+        )  # one pass over the states, one array
         ids = fields[:, 0].astype(np.int64)
         pos, vel, rad = fields[:, 1:3], fields[:, 3:5], fields[:, 5].copy()
         age = stamp - fields[:, 6]

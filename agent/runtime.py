@@ -11,6 +11,7 @@ eq. 27's velocity (agent.core.animation); one whose goal set moves computes its 
 goal's velocity from its tick's stamp (eq. 28, agent.core.goal_motion) and drives with that velocity
 as a feed-forward term.
 """
+
 from __future__ import annotations
 
 import json
@@ -82,23 +83,40 @@ class HostConfig:
     # every host, and one of their commands (codec.Poses, States, Commands)
 
     @classmethod
-    def from_json(cls, text: str) -> "HostConfig":
+    def from_json(cls, text: str) -> HostConfig:
         data = json.loads(text)
-        return cls(robots=[int(r) for r in data["robots"]], params=RobotParams.from_dict(data["params"]),
-                   display=data.get("display", "default"), seed=int(data.get("seed", 0)),
-                   arena=tuple(data["arena"]) if data.get("arena") else None,
-                   obstacles=[[tuple(v) for v in o] for o in data.get("obstacles", [])],
-                   batch_wait=float(data.get("batch_wait", 0.05)), lockstep=bool(data.get("lockstep", False)),
-                   state_wait=float(data.get("state_wait", 1.5)),
-                   pursue={int(k): int(v) for k, v in data.get("pursue", {}).items()},
-                   greet=[int(r) for r in data.get("greet", [])], frames=bool(data.get("frames", False)))
+        return cls(
+            robots=[int(r) for r in data["robots"]],
+            params=RobotParams.from_dict(data["params"]),
+            display=data.get("display", "default"),
+            seed=int(data.get("seed", 0)),
+            arena=tuple(data["arena"]) if data.get("arena") else None,
+            obstacles=[[tuple(v) for v in o] for o in data.get("obstacles", [])],
+            batch_wait=float(data.get("batch_wait", 0.05)),
+            lockstep=bool(data.get("lockstep", False)),
+            state_wait=float(data.get("state_wait", 1.5)),
+            pursue={int(k): int(v) for k, v in data.get("pursue", {}).items()},
+            greet=[int(r) for r in data.get("greet", [])],
+            frames=bool(data.get("frames", False)),
+        )
 
     def to_json(self) -> str:
-        return json.dumps({"robots": self.robots, "params": self.params.to_dict(), "display": self.display,
-                           "seed": self.seed, "arena": self.arena, "obstacles": self.obstacles,
-                           "batch_wait": self.batch_wait, "lockstep": self.lockstep,
-                           "state_wait": self.state_wait, "pursue": self.pursue, "greet": self.greet,
-                           "frames": self.frames})
+        return json.dumps(
+            {
+                "robots": self.robots,
+                "params": self.params.to_dict(),
+                "display": self.display,
+                "seed": self.seed,
+                "arena": self.arena,
+                "obstacles": self.obstacles,
+                "batch_wait": self.batch_wait,
+                "lockstep": self.lockstep,
+                "state_wait": self.state_wait,
+                "pursue": self.pursue,
+                "greet": self.greet,
+                "frames": self.frames,
+            }
+        )
 
 
 AUCTION_SHARE = 0.2  # of a control period from a tick's first pose, spent on auction rounds after the
@@ -233,8 +251,10 @@ class AgentHost:
             return False
         self.cells.update(np.array([(q.x, q.y) for q in where.values()]))
         if self.config.lockstep:
-            self.hello_from = [State(r, Pose.BEFORE_START, 0.0, q.x, q.y, 0.0, 0.0, self.params.radius, 0.0, 0.0,
-                                     -1, 0, 0, 0) for r, q in sorted(where.items())]
+            self.hello_from = [
+                State(r, Pose.BEFORE_START, 0.0, q.x, q.y, 0.0, 0.0, self.params.radius, 0.0, 0.0, -1, 0, 0, 0)
+                for r, q in sorted(where.items())
+            ]
             self._await_hellos(min(HELLO_TIMEOUT, timeout))
         for r in self.config.robots:
             self.bus.declare_alive("agent", r)
@@ -272,8 +292,9 @@ class AgentHost:
             for old in sorted(self.goal_sets)[:-GOAL_SETS_KEPT]:
                 del self.goal_sets[old]
             follows = goals.follows or self.auction.epoch  # a keyframe names its predecessor; an image follows the last
-            driving = {r: m.goal_index for r, m in self.memory.items()
-                       if m.goal_index >= 0 and m.assign_epoch == follows}  # agreed or itself carried
+            driving = {
+                r: m.goal_index for r, m in self.memory.items() if m.goal_index >= 0 and m.assign_epoch == follows
+            }  # agreed or itself carried
             carried = self.auction.on_goals(goals, self._positions(), driving)
             for r, g in carried.items():  # the next keyframe or image: drive on at once (6.2), the auction follows
                 self._drive_to(r, goals.epoch, CARRIED, g, goals.positions, goals.colors)
@@ -315,21 +336,27 @@ class AgentHost:
             else:
                 out[r] = m.position
         if on_way:
-            lead = bid_position(np.array([m.position for m in on_way]), np.array([m.goal for m in on_way]),
-                                np.array([m.velocity for m in on_way]), self.auction.latency)
+            lead = bid_position(
+                np.array([m.position for m in on_way]),
+                np.array([m.goal for m in on_way]),
+                np.array([m.velocity for m in on_way]),
+                self.auction.latency,
+            )
             out.update(zip([m.robot for m in on_way], lead))
             out = {r: out[r] for r in self.memory if r in out}  # in the robots' order, as before
         self._bid_from = out
         return out
 
-    def _on_agreed(self, epoch: int, instance: int, goals: dict[int, int], positions: np.ndarray,
-                   colors: np.ndarray) -> None:
+    def _on_agreed(
+        self, epoch: int, instance: int, goals: dict[int, int], positions: np.ndarray, colors: np.ndarray
+    ) -> None:
         """An auction instance is agreed: each own robot drives to its goal and lights its colour."""
         for r, g in goals.items():
             self._drive_to(r, epoch, instance, g, positions, colors)
 
-    def _drive_to(self, robot: int, epoch: int, instance: int, goal: int, positions: np.ndarray,
-                  colors: np.ndarray) -> None:
+    def _drive_to(
+        self, robot: int, epoch: int, instance: int, goal: int, positions: np.ndarray, colors: np.ndarray
+    ) -> None:
         self._bid_from = None
         mem = self.memory[robot]
         mem.goal, mem.goal_index = positions[goal].astype(float), goal
@@ -369,8 +396,11 @@ class AgentHost:
             behind = [s for s in self.table.latest_before(tick) if s.tick < tick - 1]
             if tick > 0 and self.ticks_done < 2:  # the first tick after tick 0: robots that greeted us
                 behind += [h for r, h in self.greeted.items() if r not in self.table]  # ... state on its way
-            missing = [s.robot for s in behind if s.robot not in self.silent
-                       and np.min(np.hypot(position[:, 0] - s.x, position[:, 1] - s.y)) <= reach]
+            missing = [
+                s.robot
+                for s in behind
+                if s.robot not in self.silent and np.min(np.hypot(position[:, 0] - s.x, position[:, 1] - s.y)) <= reach
+            ]
             if not missing:
                 return
             remaining = deadline - time.monotonic()
@@ -489,8 +519,19 @@ class AgentHost:
                 (self.dead.discard if alive else self.dead.add)(int(ident))
         stopped = {r: p.v_max * p.dt for r in self.dead}  # it may have moved one period after its last state
         neighbours = self.table.gather(ids, position, stamp, tick, p.neighbour_dist, p.max_neighbours, stopped)
-        result = control_step(p, np.array(ids), position, heading, velocity, goal, neighbours, self.segments,
-                              seed=self.config.seed, tick=tick, preferred=preferred)
+        result = control_step(
+            p,
+            np.array(ids),
+            position,
+            heading,
+            velocity,
+            goal,
+            neighbours,
+            self.segments,
+            seed=self.config.seed,
+            tick=tick,
+            preferred=preferred,
+        )
         self.fallbacks += int(result.fallback.sum())
         self._detect_deadlocks(mems, position, result.pref_velocity, result.velocity)
         mode = Command.WHEELS if p.kinematics == DIFFDRIVE else Command.HOLONOMIC
@@ -501,12 +542,30 @@ class AgentHost:
             has_goal = math.isfinite(mem.goal[0]) and math.isfinite(mem.goal[1])  # np.all costs 6 us a robot
             at_goal = has_goal and math.dist(mem.goal, position[b]) <= p.goal_tolerance
             flags = (State.HAS_GOAL if has_goal else 0) | (State.AT_GOAL if at_goal else 0)
-            gx, gy = (mem.goal if has_goal else (0.0, 0.0))
-            states.append(State(pose.robot, tick, stamp, pose.x, pose.y, float(result.velocity[b, 0]),
-                                float(result.velocity[b, 1]), p.radius, float(gx), float(gy),
-                                mem.goal_index, flags, mem.assign_epoch, mem.assign_instance))
-            commands.append(Command(pose.robot, tick, stamp, mode, float(result.command[b, 0]),
-                                    float(result.command[b, 1]), *mem.color))
+            gx, gy = mem.goal if has_goal else (0.0, 0.0)
+            states.append(
+                State(
+                    pose.robot,
+                    tick,
+                    stamp,
+                    pose.x,
+                    pose.y,
+                    float(result.velocity[b, 0]),
+                    float(result.velocity[b, 1]),
+                    p.radius,
+                    float(gx),
+                    float(gy),
+                    mem.goal_index,
+                    flags,
+                    mem.assign_epoch,
+                    mem.assign_instance,
+                )
+            )
+            commands.append(
+                Command(
+                    pose.robot, tick, stamp, mode, float(result.command[b, 0]), float(result.command[b, 1]), *mem.color
+                )
+            )
         # States before commands: by the time the world moves on, neighbours have our states.
         if self.config.frames:
             self._publish_states(tick, stamp, states)
@@ -525,8 +584,7 @@ class AgentHost:
         self._bid_from = None  # the robots' velocities changed: they move where they bid from
         self.ticks_done += 1
 
-    def _goals_now(self, mems: list[RobotMemory], position: np.ndarray, stamp: float
-                   ) -> tuple[np.ndarray, np.ndarray]:
+    def _goals_now(self, mems: list[RobotMemory], position: np.ndarray, stamp: float) -> tuple[np.ndarray, np.ndarray]:
         """Each robot's goal at this tick, and its preferred velocity where eq. 9 does not apply (NaN
         rows): toward a moving goal, v_goal + eq. 9 (eq. 28); in a keyframe, eq. 27 held."""
         p = self.params
@@ -539,8 +597,9 @@ class AgentHost:
             motion, t = motion_of(gs), stamp - gs.t_start
             g0 = np.array([mems[i].goal0 for i in rows])
             goal = motion.positions(g0, t)
-            preferred[rows] = tracking_velocity(position[rows], goal, motion.velocities(g0, t), p.v_pref, p.k_a,
-                                                p.v_max)
+            preferred[rows] = tracking_velocity(
+                position[rows], goal, motion.velocities(g0, t), p.v_pref, p.k_a, p.v_max
+            )
             for i, g in zip(rows, goal):
                 mems[i].goal = g
         keyframe = np.array([gs is not None and gs.frame_period > 0 and not gs.moves for gs in sets])
@@ -548,10 +607,18 @@ class AgentHost:
             key = [(m.assign_epoch, m.goal_index) for m in mems]
             # a new goal restarts the hold: over what is left of its keyframe, or (not a keyframe) ends it
             restart = np.array([k != m.hold_for for k, m in zip(key, mems)])
-            iterations = np.array([iterations_left(gs.t_start, gs.frame_period, stamp, p.dt) if f else 0
-                                   for gs, f in zip(sets, keyframe)])
-            pref, left = frame_hold(position, np.array([m.goal for m in mems]), restart, iterations,
-                                    np.array([m.hold_left for m in mems]), p.v_max, p.dt)
+            iterations = np.array(
+                [iterations_left(gs.t_start, gs.frame_period, stamp, p.dt) if f else 0 for gs, f in zip(sets, keyframe)]
+            )
+            pref, left = frame_hold(
+                position,
+                np.array([m.goal for m in mems]),
+                restart,
+                iterations,
+                np.array([m.hold_left for m in mems]),
+                p.v_max,
+                p.dt,
+            )
             for i, m in enumerate(mems):
                 m.hold_left = int(left[i])
                 if restart[i]:
@@ -559,15 +626,17 @@ class AgentHost:
             preferred = np.where(np.isfinite(pref), pref, preferred)
         return np.array([m.goal for m in mems]), preferred
 
-    def _detect_deadlocks(self, mems: list[RobotMemory], position: np.ndarray, pref: np.ndarray,
-                          velocity: np.ndarray) -> None:
+    def _detect_deadlocks(
+        self, mems: list[RobotMemory], position: np.ndarray, pref: np.ndarray, velocity: np.ndarray
+    ) -> None:
         """Paper 5.5.5 (agent.core.deadlock): N_d blocked iterations before the goal raise the robot's
         cost of that goal by C_d for good."""
         p = self.params
         if not self.auction.active or p.deadlock_cost == 0:
             return
-        to_goal = np.array([m.goal - position[b] if m.goal_index >= 0 else (np.nan, np.nan)
-                            for b, m in enumerate(mems)], float).reshape(-1, 2)
+        to_goal = np.array(
+            [m.goal - position[b] if m.goal_index >= 0 else (np.nan, np.nan) for b, m in enumerate(mems)], float
+        ).reshape(-1, 2)
         counts = np.array([m.blocked for m in mems])
         counts, deadlocked = count_blocked(counts, blocked(p, to_goal, pref, velocity), p.deadlock_iterations)
         for mem, n, dead in zip(mems, counts.tolist(), deadlocked.tolist()):
@@ -580,9 +649,17 @@ class AgentHost:
         for inbox in (self.pose_inbox, self.state_inbox, self.goal_inbox, self.auction.inbox):
             for reason, n in inbox.drops.items():
                 drops[reason] = drops.get(reason, 0) + n
-        return {"role": "agent", "robots": self.config.robots, "ticks": self.ticks_done,
-                "fallbacks": self.fallbacks, "dropped": drops, "neighbours_known": len(self.table),
-                "state_waits": self.state_waits, "silent": sorted(self.silent), "auction": self.auction.stats()}
+        return {
+            "role": "agent",
+            "robots": self.config.robots,
+            "ticks": self.ticks_done,
+            "fallbacks": self.fallbacks,
+            "dropped": drops,
+            "neighbours_known": len(self.table),
+            "state_waits": self.state_waits,
+            "silent": sorted(self.silent),
+            "auction": self.auction.stats(),
+        }
 
     def report(self) -> None:
         self.bus.publish(self.keys.event, Event({"kind": "stats", **self.stats()}))
@@ -592,8 +669,9 @@ def motion_of(goals: Goals) -> GoalMotion | None:
     """The motion of a goal set (eq. 28) from its message; None for a still one."""
     if not goals.moves:
         return None
-    return GoalMotion((goals.v_gx, goals.v_gy), goals.omega_g, (goals.p_ogx, goals.p_ogy), goals.k_eg,
-                      bool(goals.geometric))
+    return GoalMotion(
+        (goals.v_gx, goals.v_gy), goals.omega_g, (goals.p_ogx, goals.p_ogy), goals.k_eg, bool(goals.geometric)
+    )
 
 
 def install_stop_handlers(host: AgentHost) -> None:

@@ -6,6 +6,7 @@ and reports what it measured as an event.
 
     python -m bench.auction_node --robots 0,1,2 --positions x0,y0,x1,y1,... [zenoh flags]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -36,11 +37,16 @@ def main(argv: list[str] | None = None) -> int:
     positions = {r: xy[i] for i, r in enumerate(robots)}
     from transport.faults import parse_faults
 
-    with Bus(settings_from_args(args), "bench", faults=parse_faults(args.faults), seed=robots[0],
-             name=f"host{robots[0]}") as bus:
+    with Bus(
+        settings_from_args(args), "bench", faults=parse_faults(args.faults), seed=robots[0], name=f"host{robots[0]}"
+    ) as bus:
         agreed_at: list[float] = []
-        link = AuctionLink(bus, robots, RobotParams(kinematics="holonomic"),
-                           lambda e, k, goals, pos, col: agreed_at.append(time.monotonic()))
+        link = AuctionLink(
+            bus,
+            robots,
+            RobotParams(kinematics="holonomic"),
+            lambda e, k, goals, pos, col: agreed_at.append(time.monotonic()),
+        )
         goals_inbox = bus.subscribe(bus.keys.all_of("goals"), Goals)
         bus.declare_alive("agent", robots[0])
         end = time.monotonic() + args.timeout
@@ -72,13 +78,25 @@ def main(argv: list[str] | None = None) -> int:
             bell.clear()
             link.poll(positions)
             bell.wait(min(link.next_due(), max(0.0, next_tick - time.monotonic())))
-        bus.publish(bus.keys.event, Event({
-            "kind": "auction-bench", "robots": robots, "first_agreement_s": first,
-            "goals": {str(r): g for r, g in (link.part.agreed.items() if link.part else [])},
-            "bids": link.part.bids if link.part else 0,
-            "agreements": link.agreements, "cold_messages": sent0, "cold_bytes": bytes0,
-            "steady_messages": bus.sent["auction"] - sent0, "steady_bytes": bus.sent_bytes["auction"] - bytes0,
-            "steady_s": args.steady, "received": link.received}))
+        bus.publish(
+            bus.keys.event,
+            Event(
+                {
+                    "kind": "auction-bench",
+                    "robots": robots,
+                    "first_agreement_s": first,
+                    "goals": {str(r): g for r, g in (link.part.agreed.items() if link.part else [])},
+                    "bids": link.part.bids if link.part else 0,
+                    "agreements": link.agreements,
+                    "cold_messages": sent0,
+                    "cold_bytes": bytes0,
+                    "steady_messages": bus.sent["auction"] - sent0,
+                    "steady_bytes": bus.sent_bytes["auction"] - bytes0,
+                    "steady_s": args.steady,
+                    "received": link.received,
+                }
+            ),
+        )
         time.sleep(0.3)
     return 0
 

@@ -5,6 +5,7 @@ an embedded loopback router; no control loop runs (the full-system figures are i
 
     .venv/bin/python -m bench.bench_auction [--quick]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -47,11 +48,22 @@ def run(n: int, per_process: int, steady: float, faults: str = "", seed: int = 1
         hosts = [list(range(h, min(h + per_process, n))) for h in range(0, n, per_process)]
         for robots in hosts:
             xy = ",".join(f"{v:.6f}" for v in positions[robots].ravel())
-            cmd = [sys.executable, "-m", "bench.auction_node", "--robots", ",".join(map(str, robots)),
-                   f"--positions={xy}", "--steady", str(steady), *client_of(router).to_args()]
+            cmd = [
+                sys.executable,
+                "-m",
+                "bench.auction_node",
+                "--robots",
+                ",".join(map(str, robots)),
+                f"--positions={xy}",
+                "--steady",
+                str(steady),
+                *client_of(router).to_args(),
+            ]
             if faults:
                 cmd += ["--faults", faults]
-            procs.append(subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, text=True))
+            procs.append(
+                subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, text=True)
+            )
         try:
             seen: set[str] = set()
             end = time.monotonic() + 120
@@ -63,8 +75,9 @@ def run(n: int, per_process: int, steady: float, faults: str = "", seed: int = 1
             cost = ((positions[:, None] - goals[None]) ** 2).sum(-1)
             rows, cols = linear_sum_assignment(cost)
             scipy_s = time.perf_counter() - t
-            bus.publish(bus.keys.goals(1), Goals(1, 0, 0.0, n, goals, np.zeros((n, 3), np.uint8), 0, 10.0,
-                                                 np.arange(n)))
+            bus.publish(
+                bus.keys.goals(1), Goals(1, 0, 0.0, n, goals, np.zeros((n, 3), np.uint8), 0, 10.0, np.arange(n))
+            )
             reports = []
             end = time.monotonic() + 120 + steady
             while len(reports) < len(hosts) and time.monotonic() < end:
@@ -81,16 +94,22 @@ def run(n: int, per_process: int, steady: float, faults: str = "", seed: int = 1
     firsts = [r["first_agreement_s"] for r in reports if r["first_agreement_s"] is not None]
     assigned = {int(k): v for r in reports for k, v in r["goals"].items()}
     agreed_cost = float(sum(cost[r, g] for r, g in assigned.items())) if len(assigned) == n else float("nan")
-    return {"n": n, "k": per_process, "hosts": len(hosts), "reports": len(reports),
-            "agreement_s": max(firsts) if len(firsts) == len(hosts) else float("nan"),
-            "scipy_s": scipy_s, "cost_ratio": agreed_cost / float(cost[rows, cols].sum()),
-            "one_to_one": len(set(assigned.values())) == len(assigned) == n,
-            "bids_per_robot": sum(r["bids"] for r in reports) / n,
-            "cold_msgs_per_robot": sum(r["cold_messages"] for r in reports) / n,
-            "cold_kb_per_robot": sum(r["cold_bytes"] for r in reports) / n / 1024,
-            "steady_msgs_per_robot_s": sum(r["steady_messages"] for r in reports) / n / steady,
-            "steady_bytes_per_robot_s": sum(r["steady_bytes"] for r in reports) / n / steady,
-            "received_per_host": np.mean([r["received"] for r in reports]) if reports else 0}
+    return {
+        "n": n,
+        "k": per_process,
+        "hosts": len(hosts),
+        "reports": len(reports),
+        "agreement_s": max(firsts) if len(firsts) == len(hosts) else float("nan"),
+        "scipy_s": scipy_s,
+        "cost_ratio": agreed_cost / float(cost[rows, cols].sum()),
+        "one_to_one": len(set(assigned.values())) == len(assigned) == n,
+        "bids_per_robot": sum(r["bids"] for r in reports) / n,
+        "cold_msgs_per_robot": sum(r["cold_messages"] for r in reports) / n,
+        "cold_kb_per_robot": sum(r["cold_bytes"] for r in reports) / n / 1024,
+        "steady_msgs_per_robot_s": sum(r["steady_messages"] for r in reports) / n / steady,
+        "steady_bytes_per_robot_s": sum(r["steady_bytes"] for r in reports) / n / steady,
+        "received_per_host": np.mean([r["received"] for r in reports]) if reports else 0,
+    }
 
 
 def main() -> None:
@@ -104,28 +123,41 @@ def main() -> None:
     cases = [(14, 1)] if args.quick else [(14, 1), (50, 1), (100, 1), (1000, 250)]
     if args.cases:
         cases = [tuple(int(v) for v in c.split("x")) for c in args.cases.split(",")]
-    rows = ["| N robots | robots per process (processes) | time to agreement s (slowest host) | scipy solve s | "
-            "agreed cost / optimum | one-to-one | bids per robot | cold-start msgs / robot (KB) | "
-            "steady msgs / robot-s | steady bytes / robot-s |", "|---|---|---|---|---|---|---|---|---|---|"]
+    rows = [
+        "| N robots | robots per process (processes) | time to agreement s (slowest host) | scipy solve s | "
+        "agreed cost / optimum | one-to-one | bids per robot | cold-start msgs / robot (KB) | "
+        "steady msgs / robot-s | steady bytes / robot-s |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for n, k in cases:
         r = run(n, k, args.steady)
-        rows.append(f"| {n} | {k} ({r['hosts']}) | {r['agreement_s']:.3f} | {r['scipy_s'] * 1e3:.2f} ms | "
-                    f"{r['cost_ratio']:.5f} | {r['one_to_one']} | {r['bids_per_robot']:.1f} | "
-                    f"{r['cold_msgs_per_robot']:.1f} ({r['cold_kb_per_robot']:.2f}) | "
-                    f"{r['steady_msgs_per_robot_s']:.1f} | {r['steady_bytes_per_robot_s']:.0f} |")
+        rows.append(
+            f"| {n} | {k} ({r['hosts']}) | {r['agreement_s']:.3f} | {r['scipy_s'] * 1e3:.2f} ms | "
+            f"{r['cost_ratio']:.5f} | {r['one_to_one']} | {r['bids_per_robot']:.1f} | "
+            f"{r['cold_msgs_per_robot']:.1f} ({r['cold_kb_per_robot']:.2f}) | "
+            f"{r['steady_msgs_per_robot_s']:.1f} | {r['steady_bytes_per_robot_s']:.0f} |"
+        )
         print(rows[-1], flush=True)
     lossy = run(14, 1, args.steady, faults="auction:drop=0.1,delay=0.05")
-    notes = ["", f"With 10% loss and 50 ms delay on auction messages (N = 14 processes): agreement in "
-             f"{lossy['agreement_s']:.2f} s, one-to-one {lossy['one_to_one']}, cost / optimum "
-             f"{lossy['cost_ratio']:.5f}.", "",
-             "nan: not every host saw an agreement within the hosts' 60 s limit (agreed goals, when any, are "
-             "those reported at the end of the steady phase).",
-             "Time to agreement: from the goal set's arrival at a host to its first agreed instance (after "
-             "the epsilon-scaling phases of the cold start), slowest host. Steady state: one instance per "
-             "0.1 s (paper 5.1: re-assign every iteration) on positions with 2 mm noise. Targets: 1 s at "
-             "N = 100 processes, 5 s at N = 1000 hosted, 2 KB/s per robot."]
-    write_results("auction", "Distributed auction: agreement time and traffic (issue 5)",
-                  ".venv/bin/python -m bench.bench_auction", rows + notes)
+    notes = [
+        "",
+        f"With 10% loss and 50 ms delay on auction messages (N = 14 processes): agreement in "
+        f"{lossy['agreement_s']:.2f} s, one-to-one {lossy['one_to_one']}, cost / optimum "
+        f"{lossy['cost_ratio']:.5f}.",
+        "",
+        "nan: not every host saw an agreement within the hosts' 60 s limit (agreed goals, when any, are "
+        "those reported at the end of the steady phase).",
+        "Time to agreement: from the goal set's arrival at a host to its first agreed instance (after "
+        "the epsilon-scaling phases of the cold start), slowest host. Steady state: one instance per "
+        "0.1 s (paper 5.1: re-assign every iteration) on positions with 2 mm noise. Targets: 1 s at "
+        "N = 100 processes, 5 s at N = 1000 hosted, 2 KB/s per robot.",
+    ]
+    write_results(
+        "auction",
+        "Distributed auction: agreement time and traffic (issue 5)",
+        ".venv/bin/python -m bench.bench_auction",
+        rows + notes,
+    )
 
 
 if __name__ == "__main__":

@@ -11,6 +11,7 @@ the carried claims when the matching cannot be used (the robots changed).
 
     .venv/bin/python -m bench.bench_carry [--robots 100] [--hosts 10]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -20,30 +21,35 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from agent.core.bidder import Participant, frames_close
-from coordinator.keyframes import goal_matching
-from coordinator.keyframes import goal_correspondence
+from coordinator.keyframes import goal_correspondence, goal_matching
 
 from .common import write_results
 
 EPS, HYSTERESIS = 1e-3, 5e-3  # the defaults of agent.core.params
-EXPLAIN = ("Robots stand on frame f-1's goals; frame f is that frame moved and turned, its goals listed in another "
-           "order. Bids and message rounds until every host adopts an agreed final-phase instance of frame f's "
-           "auction, starting cold, from the goal sets' matching with its prices (what the agents do), from the carried assignment (each robot claims the goal its last one "
-           "corresponds to, prices zero; what the agents do when `frames_close`), or from that assignment with "
-           "the previous prices carried too. In every case the robots drive to their carried goals at once; this "
-           "measures only how soon the auction confirms or corrects them. Wall times are of this in-process "
-           "exchange (no zenoh) and grow with other work on the machine; bids and rounds do not.")
-MATCHING = ("What the agents do (`agent.assignment.AuctionLink._warm_start`): after an agreed frame the "
-            "coordinator sends with frame f's goal set the matching of frame f-1's goals to frame f's, with prices "
-            "in equilibrium for it (`coordinator.keyframes.goal_matching`: scipy's `linear_sum_assignment` as if a "
-            "robot stood on each old goal, its dual prices by shortest paths; its wall time is included here), each "
-            "robot claims the goal its last one is matched to, and the auction starts from those claims and prices. "
-            "The prices are nearly in equilibrium for the real positions, whatever the frames' disparity. "
-            "`frames_close` now only decides for a frame whose robots changed (a robot died).")
-RULE = ("The rule (`agent.core.bidder.frames_close`): start from the carried claims when corresponding goals are on "
-        "average at most 1.5 goal spacings apart (the third column). Beyond that the claims skip the coarse "
-        "epsilon phases that build the prices, and the fine phases fight a price war that costs more than a "
-        "cold start.")
+EXPLAIN = (
+    "Robots stand on frame f-1's goals; frame f is that frame moved and turned, its goals listed in another "
+    "order. Bids and message rounds until every host adopts an agreed final-phase instance of frame f's "
+    "auction, starting cold, from the goal sets' matching with its prices (what the agents do), from the carried assignment (each robot claims the goal its last one "
+    "corresponds to, prices zero; what the agents do when `frames_close`), or from that assignment with "
+    "the previous prices carried too. In every case the robots drive to their carried goals at once; this "
+    "measures only how soon the auction confirms or corrects them. Wall times are of this in-process "
+    "exchange (no zenoh) and grow with other work on the machine; bids and rounds do not."
+)
+MATCHING = (
+    "What the agents do (`agent.assignment.AuctionLink._warm_start`): after an agreed frame the "
+    "coordinator sends with frame f's goal set the matching of frame f-1's goals to frame f's, with prices "
+    "in equilibrium for it (`coordinator.keyframes.goal_matching`: scipy's `linear_sum_assignment` as if a "
+    "robot stood on each old goal, its dual prices by shortest paths; its wall time is included here), each "
+    "robot claims the goal its last one is matched to, and the auction starts from those claims and prices. "
+    "The prices are nearly in equilibrium for the real positions, whatever the frames' disparity. "
+    "`frames_close` now only decides for a frame whose robots changed (a robot died)."
+)
+RULE = (
+    "The rule (`agent.core.bidder.frames_close`): start from the carried claims when corresponding goals are on "
+    "average at most 1.5 goal spacings apart (the third column). Beyond that the claims skip the coarse "
+    "epsilon phases that build the prices, and the fine phases fight a price war that costs more than a "
+    "cold start."
+)
 
 
 def agree(parts: list[Participant], positions: np.ndarray, max_rounds: int = 100_000) -> int:
@@ -88,12 +94,16 @@ def paper_transition(n: int = 1000, k: int = 4, steps: tuple[int, int] = (0, 1))
     g1, g2 = (np.asarray(goals.goal_set(s, n)[0]) for s in steps)
     pos = g1 + np.random.default_rng(0).normal(0.0, 0.002, g1.shape)
     robots = list(range(n))
-    hosts = [robots[h * n // k:(h + 1) * n // k] for h in range(k)]
+    hosts = [robots[h * n // k : (h + 1) * n // k] for h in range(k)]
     first = [Participant(1, g1, robots, h, EPS, HYSTERESIS) for h in hosts]
     agree(first, pos)
-    out = [f"The paper's sequence with {n} robots in {k} hosts (scene `paper-sequence-1000`), image {steps[0]} to "
-           f"image {steps[1]}, robots 2 mm off image {steps[0]}'s goals:", "",
-           "| start | bids | message rounds | wall s |", "|---|---|---|---|"]
+    out = [
+        f"The paper's sequence with {n} robots in {k} hosts (scene `paper-sequence-1000`), image {steps[0]} to "
+        f"image {steps[1]}, robots 2 mm off image {steps[0]}'s goals:",
+        "",
+        "| start | bids | message rounds | wall s |",
+        "|---|---|---|---|",
+    ]
     for start in ("cold", "goal matching, its prices"):
         parts = [Participant(2, g2, robots, h, EPS, HYSTERESIS) for h in hosts]
         t0 = time.perf_counter()
@@ -115,9 +125,14 @@ def main(argv: list[str] | None = None) -> int:
     n, k = a.robots, a.hosts
     robots = list(range(n))
     hosts = [robots[h::k] for h in range(k)]
-    lines = [EXPLAIN, "", f"{n} robots in {k} hosts, epsilon_A {EPS}, Delta C {HYSTERESIS}, seed {a.seed}.", "",
-             "| frame f moved by | turned by | disparity / spacing | frames_close | start | bids | message rounds | wall s |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        EXPLAIN,
+        "",
+        f"{n} robots in {k} hosts, epsilon_A {EPS}, Delta C {HYSTERESIS}, seed {a.seed}.",
+        "",
+        "| frame f moved by | turned by | disparity / spacing | frames_close | start | bids | message rounds | wall s |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for shift, turn in ((0.03, 0.02), (0.1, 0.09), (0.3, 0.2), (1.0, 0.5)):
         rng = np.random.default_rng(a.seed)
         g1 = rng.uniform(-1.5, 1.5, (n, 2))
@@ -143,14 +158,20 @@ def main(argv: list[str] | None = None) -> int:
                         new.board.price[j] = old.board.price[previous[j]]
                         new.board.version += 1
             rounds = agree(parts, pos)
-            lines.append(f"| {shift} m | {np.degrees(turn):.1f} deg | {ratio:.2f} | {close} | {start} | "
-                         f"{sum(p.bids for p in parts)} | {rounds} | {time.perf_counter() - t0:.2f} |")
+            lines.append(
+                f"| {shift} m | {np.degrees(turn):.1f} deg | {ratio:.2f} | {close} | {start} | "
+                f"{sum(p.bids for p in parts)} | {rounds} | {time.perf_counter() - t0:.2f} |"
+            )
             print(lines[-1], flush=True)
     lines += ["", MATCHING, "", RULE, ""]
     if not a.no_paper:
         lines += paper_transition()
-    write_results("carry", "Consecutive keyframes: the carried assignment (issue 6)",
-                  ".venv/bin/python -m bench.bench_carry", lines)
+    write_results(
+        "carry",
+        "Consecutive keyframes: the carried assignment (issue 6)",
+        ".venv/bin/python -m bench.bench_carry",
+        lines,
+    )
     return 0
 
 

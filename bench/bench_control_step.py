@@ -5,6 +5,7 @@ robot in a host batch (B = 250). Reference in the same run: RVO2's per-agent sha
 
     .venv/bin/python -m bench.bench_control_step
 """
+
 from __future__ import annotations
 
 import time
@@ -33,8 +34,16 @@ def per_robot_ms(kinematics: str, batch: int, repeat: int) -> float:
     rng = np.random.default_rng(0)
     p = RobotParams(kinematics=kinematics)
     nb = neighbours(batch, 10, rng)
-    args = (p, np.arange(batch), np.zeros((batch, 2)), rng.uniform(-3, 3, batch), rng.normal(0, 0.05, (batch, 2)),
-            rng.uniform(-1, 1, (batch, 2)), nb, None)
+    args = (
+        p,
+        np.arange(batch),
+        np.zeros((batch, 2)),
+        rng.uniform(-3, 3, batch),
+        rng.normal(0, 0.05, (batch, 2)),
+        rng.uniform(-1, 1, (batch, 2)),
+        nb,
+        None,
+    )
     control_step(*args)
     best = np.inf
     for _ in range(3):
@@ -73,11 +82,17 @@ def main() -> None:
             rows.append(f"| {kin} | {batch} | {ms:.3f} |")
             print(rows[-1], flush=True)
     ref = rvo2_per_agent_ms()
-    rows.append(f"| RVO2 (pyrvo), holonomic | 250 (do_step) | {ref:.4f} |" if ref is not None else
-                "| RVO2 (pyrvo) | - | not installed |")
-    write_results("control_step", "Control step per robot, 10 neighbours (issue 3)",
-                  ".venv/bin/python -m bench.bench_control_step", rows + [
-                      "", "Target: at most 1 ms per robot with 10 neighbours inside an agent process (batch 1)."])
+    rows.append(
+        f"| RVO2 (pyrvo), holonomic | 250 (do_step) | {ref:.4f} |"
+        if ref is not None
+        else "| RVO2 (pyrvo) | - | not installed |"
+    )
+    write_results(
+        "control_step",
+        "Control step per robot, 10 neighbours (issue 3)",
+        ".venv/bin/python -m bench.bench_control_step",
+        rows + ["", "Target: at most 1 ms per robot with 10 neighbours inside an agent process (batch 1)."],
+    )
 
 
 if __name__ == "__main__":

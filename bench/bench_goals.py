@@ -12,6 +12,7 @@ Times are medians over --repeat runs (wall clock).
 
     .venv/bin/python -m bench.bench_goals      # prints the table, writes bench/results/goals.md
 """
+
 from __future__ import annotations
 
 import argparse
@@ -43,7 +44,7 @@ def _median_time(fn, repeat: int):
 
 def _binary_cost(points: np.ndarray, centres: np.ndarray, scale: float) -> float:
     d, _ = cKDTree(centres).query(points, workers=-1)
-    return float(np.dot(d, d)) / scale ** 4
+    return float(np.dot(d, d)) / scale**4
 
 
 def run(n: int, size: int, shape: str, repeat: int, seed: int) -> tuple[list[dict], dict]:
@@ -56,14 +57,25 @@ def run(n: int, size: int, shape: str, repeat: int, seed: int) -> tuple[list[dic
     dens = density_domain(rows, cols)
     scale = prep.scale
     out = []
-    for method, label in (("cvt", "pixelswarm CVT, eq. 2 density (image -> goals)"),
-                          ("kmeans", "pixelswarm k-means variant (image -> goals)")):
+    for method, label in (
+        ("cvt", "pixelswarm CVT, eq. 2 density (image -> goals)"),
+        ("kmeans", "pixelswarm k-means variant (image -> goals)"),
+    ):
+
         def job(method=method):
             return goals_from_prepared(prepare_image(img), n, method=method, seed=seed)
+
         t, gs = _median_time(job, repeat)
         g = from_arena(gs.goals, prep.shape, gs.arena)
-        out.append({"name": label, "time": t, "iters": gs.params["iterations"],
-                    "kmeans_cost": _binary_cost(pts, g, scale), "eq1_cost": cvt_cost(dens, g, scale)})
+        out.append(
+            {
+                "name": label,
+                "time": t,
+                "iters": gs.params["iterations"],
+                "kmeans_cost": _binary_cost(pts, g, scale),
+                "eq1_cost": cvt_cost(dens, g, scale),
+            }
+        )
     try:
         from sklearn import __version__ as skv
         from sklearn.cluster import KMeans
@@ -71,26 +83,40 @@ def run(n: int, size: int, shape: str, repeat: int, seed: int) -> tuple[list[dic
         skv = None
     if skv is not None:
         init, _ = poisson_samples(rows, cols, n, np.random.default_rng([seed, 0]))
-        for label, kw in (("scikit-learn KMeans, n_init=1, k-means++ (fit only)", {"init": "k-means++"}),
-                          ("scikit-learn KMeans from pixelswarm's initial samples (fit only)", {"init": init})):
+        for label, kw in (
+            ("scikit-learn KMeans, n_init=1, k-means++ (fit only)", {"init": "k-means++"}),
+            ("scikit-learn KMeans from pixelswarm's initial samples (fit only)", {"init": init}),
+        ):
+
             def job(kw=kw):
                 return KMeans(n_clusters=n, n_init=1, random_state=seed, **kw).fit(pts)
+
             t, km = _median_time(job, repeat)
             c = km.cluster_centers_
-            out.append({"name": label, "time": t, "iters": int(km.n_iter_),
-                        "kmeans_cost": _binary_cost(pts, c, scale), "eq1_cost": cvt_cost(dens, c, scale)})
+            out.append(
+                {
+                    "name": label,
+                    "time": t,
+                    "iters": int(km.n_iter_),
+                    "kmeans_cost": _binary_cost(pts, c, scale),
+                    "eq1_cost": cvt_cost(dens, c, scale),
+                }
+            )
     info = {"pixels": len(pts), "sklearn": skv}
     return out, info
 
 
 def table(rows: list[dict]) -> str:
     ref = next((r for r in rows if r["name"].startswith("scikit-learn KMeans, n_init=1")), None)
-    lines = ["| method | time (s) | iterations | k-means cost | vs KMeans | eq. 1 cost |",
-             "|---|---:|---:|---:|---:|---:|"]
+    lines = [
+        "| method | time (s) | iterations | k-means cost | vs KMeans | eq. 1 cost |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
     for r in rows:
         rel = f"{r['kmeans_cost'] / ref['kmeans_cost']:.4f}" if ref else "-"
-        lines.append(f"| {r['name']} | {r['time']:.3f} | {r['iters']} | {r['kmeans_cost']:.5e} | {rel} | "
-                     f"{r['eq1_cost']:.5e} |")
+        lines.append(
+            f"| {r['name']} | {r['time']:.3f} | {r['iters']} | {r['kmeans_cost']:.5e} | {rel} | {r['eq1_cost']:.5e} |"
+        )
     return "\n".join(lines)
 
 
@@ -105,8 +131,15 @@ def main(argv: list[str] | None = None) -> int:
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     rows, info = run(args.n, args.size, args.shape, args.repeat, args.seed)
     cmd = ".venv/bin/python -m bench.bench_goals" + "".join(
-        f" --{k} {v}" for k, v in (("n", args.n), ("size", args.size), ("shape", args.shape),
-                                   ("repeat", args.repeat), ("seed", args.seed)))
+        f" --{k} {v}"
+        for k, v in (
+            ("n", args.n),
+            ("size", args.size),
+            ("shape", args.shape),
+            ("repeat", args.repeat),
+            ("seed", args.seed),
+        )
+    )
     ours = [r for r in rows if r["name"].startswith("pixelswarm")]
     ref = next((r for r in rows if r["name"].startswith("scikit-learn KMeans, n_init=1")), None)
     lines = [
@@ -117,13 +150,17 @@ def main(argv: list[str] | None = None) -> int:
         "",
         table(rows),
         "",
-        "- goal `<= 1 s` (image -> goals): " + ", ".join(
-            f"{r['name'].split(' (')[0]} {r['time']:.2f} s" for r in ours),
+        "- goal `<= 1 s` (image -> goals): " + ", ".join(f"{r['name'].split(' (')[0]} {r['time']:.2f} s" for r in ours),
     ]
     if ref:
-        lines.append("- goal `cost <= KMeans`: " + ", ".join(
-            f"{r['name'].split(' (')[0]} {'yes' if r['kmeans_cost'] <= ref['kmeans_cost'] else 'no'} "
-            f"({r['kmeans_cost'] / ref['kmeans_cost']:.4f})" for r in ours))
+        lines.append(
+            "- goal `cost <= KMeans`: "
+            + ", ".join(
+                f"{r['name'].split(' (')[0]} {'yes' if r['kmeans_cost'] <= ref['kmeans_cost'] else 'no'} "
+                f"({r['kmeans_cost'] / ref['kmeans_cost']:.4f})"
+                for r in ours
+            )
+        )
     lines += [
         "",
         "k-means cost: sum over the foreground pixels of the squared distance to the nearest goal (binary "

@@ -11,6 +11,7 @@ measured (1.00-1.27), so ``--duration`` runs its first images only.
     .venv/bin/python -m bench.bench_hosted --duration 100            # the first two images (about 2 min)
     .venv/bin/python -m bench.bench_hosted --from RUN_DIR [--from RUN_DIR2]  # summarise finished runs
 """
+
 from __future__ import annotations
 
 import argparse
@@ -36,8 +37,11 @@ def reassignments(traj: dict) -> list[str]:
     robot's goal in an instance as recorded while it drove to it)."""
     t, goal = traj["t"], traj["assignment"]
     epoch, instance = traj["assignment_epoch"], traj["assignment_instance"].astype(np.int64)
-    rows = ["| image | every robot on an agreed goal, s after the change | agreed instances driven to | "
-            f"re-assignments of >{RESHUFFLE} robots |", "|---|---|---|---|"]
+    rows = [
+        "| image | every robot on an agreed goal, s after the change | agreed instances driven to | "
+        f"re-assignments of >{RESHUFFLE} robots |",
+        "|---|---|---|---|",
+    ]
     for e, step in zip(traj["goal_set_epochs"], traj["goal_set_steps"]):
         e, step = int(e), int(step)
         mine = (epoch == e) & (instance != State.CARRIED)
@@ -52,8 +56,11 @@ def reassignments(traj: dict) -> list[str]:
         for i in agreed:  # robot -> goal in instance i
             r_idx = np.nonzero(mine & (instance == i))
             goals_of[i] = dict(zip(r_idx[1].tolist(), goal[r_idx].tolist()))
-        moved = sum(1 for a, b in zip(agreed, agreed[1:])
-                    if sum(goals_of[a].get(r, g) != g for r, g in goals_of[b].items()) > RESHUFFLE)
+        moved = sum(
+            1
+            for a, b in zip(agreed, agreed[1:])
+            if sum(goals_of[a].get(r, g) != g for r, g in goals_of[b].items()) > RESHUFFLE
+        )
         first = f"{t[everyone[0]] - change:.1f}" if len(everyone) else "never"
         rows.append(f"| {step} | {first} | {len(agreed)} | {moved} |")
     return rows
@@ -75,28 +82,40 @@ def command_latency(run: Path) -> list[str]:
                 sent.setdefault(d["key"].rsplit("/", 1)[-1], {}).setdefault(d["tick"], message.log_time)
     if not sent:
         return []
-    rows = ["| host (first robot) | latency ms, median / p90 / max | later than a period | of those, per 100 ticks (10 s) |",
-            "|---|---|---|---|"]
+    rows = [
+        "| host (first robot) | latency ms, median / p90 / max | later than a period | of those, per 100 ticks (10 s) |",
+        "|---|---|---|---|",
+    ]
     for host, ticks in sorted(sent.items(), key=lambda kv: int(kv[0])):
         tick = np.array([t for t in sorted(ticks) if t in clock])
         latency = np.array([(ticks[t] - clock[t][0]) / 1e9 for t in tick])
         late = latency > np.array([clock[t][1] for t in tick])
         per_10s = np.bincount(tick[late] // 100, minlength=int(tick.max()) // 100 + 1)
-        rows.append(f"| {host} | {np.median(latency) * 1e3:.0f} / {np.percentile(latency, 90) * 1e3:.0f} / "
-                    f"{latency.max() * 1e3:.0f} | {int(late.sum())} of {len(tick)} | {' '.join(map(str, per_10s))} |")
+        rows.append(
+            f"| {host} | {np.median(latency) * 1e3:.0f} / {np.percentile(latency, 90) * 1e3:.0f} / "
+            f"{latency.max() * 1e3:.0f} | {int(late.sum())} of {len(tick)} | {' '.join(map(str, per_10s))} |"
+        )
     return rows + [""]
 
 
 def summary(m: dict, wall: float, k: int) -> list[str]:
-    rows = [f"**{m['duration_s']:.0f} s of display** ({m['robots']} robots in {m['agent_processes']} agent hosts of "
-            f"{k}, {m.get('clock', 'lockstep')} clock): wall {wall:.0f} s, realtime factor {m['duration_s'] / wall:.3f} (while stepping "
-            f"{m['stepping_realtime_factor']:.3f}: {100 / m['stepping_realtime_factor']:.0f} ms of wall time per "
-            f"0.1 s control step); contacts {m['contacts']}; min clearance "
-            f"{m['min_clearance_m'] * 1e3:.1f} mm; missed ticks {m['missed_ticks']}; ORCA fallbacks "
-            f"{m.get('orca_fallbacks')}.", "", *steps_table(m)]
+    rows = [
+        f"**{m['duration_s']:.0f} s of display** ({m['robots']} robots in {m['agent_processes']} agent hosts of "
+        f"{k}, {m.get('clock', 'lockstep')} clock): wall {wall:.0f} s, realtime factor {m['duration_s'] / wall:.3f} (while stepping "
+        f"{m['stepping_realtime_factor']:.3f}: {100 / m['stepping_realtime_factor']:.0f} ms of wall time per "
+        f"0.1 s control step); contacts {m['contacts']}; min clearance "
+        f"{m['min_clearance_m'] * 1e3:.1f} mm; missed ticks {m['missed_ticks']}; ORCA fallbacks "
+        f"{m.get('orca_fallbacks')}.",
+        "",
+        *steps_table(m),
+    ]
     per_kind = ", ".join(f"{kind} {n:.1f}" for kind, n in sorted(m["messages_per_robot_s"].items()) if n >= 0.05)
-    rows += ["", f"Messages per robot-second: {per_kind}; bytes per robot-second, all kinds: "
-             f"{sum(m['bytes_per_robot_s'].values()):.0f}.", ""]
+    rows += [
+        "",
+        f"Messages per robot-second: {per_kind}; bytes per robot-second, all kinds: "
+        f"{sum(m['bytes_per_robot_s'].values()):.0f}.",
+        "",
+    ]
     return rows
 
 
@@ -116,8 +135,10 @@ def main() -> int:
             m, traj, wall = loaded
             k = m.get("agents_per_process") or args.k
             lines += summary(m, wall, k) + reassignments(traj) + [""] + command_latency(run)
-            commands.append(f"pixelswarm run {SCENE} --engine distributed -k {k} --clock {m['clock']} "
-                            f"--duration {m['duration_s']:g} --no-video --out RUN")
+            commands.append(
+                f"pixelswarm run {SCENE} --engine distributed -k {k} --clock {m['clock']} "
+                f"--duration {m['duration_s']:g} --no-video --out RUN"
+            )
         commands.append(".venv/bin/python -m bench.bench_hosted --from RUN ...")
     else:
         ran = run_cli_scene([SCENE, "--engine", "distributed", "-k", str(args.k), "--duration", str(args.duration)])
@@ -126,8 +147,9 @@ def main() -> int:
         m, traj, wall = ran
         lines += summary(m, wall, args.k) + reassignments(traj) + [""]
         commands.append(f".venv/bin/python -m bench.bench_hosted -k {args.k} --duration {args.duration:g}")
-    write_results("hosted", "The 1000-robot sequence, distributed in agent hosts (issue 6)", "`; `".join(commands),
-                  lines)
+    write_results(
+        "hosted", "The 1000-robot sequence, distributed in agent hosts (issue 6)", "`; `".join(commands), lines
+    )
     return 0
 
 

@@ -14,6 +14,7 @@ default) and keep_counts (each region keeps the N_i of its region in the previou
 
     .venv/bin/python -m bench.bench_keyframes     # prints the tables, writes bench/results/keyframes.md
 """
+
 from __future__ import annotations
 
 import argparse
@@ -32,8 +33,9 @@ from .common import write_results
 CASES = (("leaf", 100, 256), ("leaf", 1000, 512), ("story", 14, 256))
 
 
-def _run(frames: list[np.ndarray], n: int, init: bool, keep: bool, seed: int, repeat: int
-         ) -> tuple[float, KeyframeGoals]:
+def _run(
+    frames: list[np.ndarray], n: int, init: bool, keep: bool, seed: int, repeat: int
+) -> tuple[float, KeyframeGoals]:
     times, out = [], None
     for _ in range(repeat):
         t = time.perf_counter()
@@ -44,17 +46,22 @@ def _run(frames: list[np.ndarray], n: int, init: bool, keep: bool, seed: int, re
 
 
 def _summary(kg: KeyframeGoals) -> dict:
-    return {"disp": kg.disparities() / kg.metres_per_pixel,
-            "iters": sum(r.iterations for r in kg.reports),
-            "cost": sum(s.cost_history[-1] for s in kg.sets)}
+    return {
+        "disp": kg.disparities() / kg.metres_per_pixel,
+        "iters": sum(r.iterations for r in kg.reports),
+        "cost": sum(s.cost_history[-1] for s in kg.sets),
+    }
 
 
 def case_lines(name: str, n: int, size: int, seed: int, repeat: int) -> list[str]:
     frames = keyframes(name, size)
-    lines = [f"### {name}, N = {n}, {len(frames)} keyframes of {size} x {size} px", "",
-             "| robot counts | start | mean disparity (px) | time (s) | Lloyd iterations | eq. 1 cost (sum) "
-             "| frames (f first, p from G_{f-1}, r partly, x fresh) |",
-             "|---|---|---:|---:|---:|---:|---|"]
+    lines = [
+        f"### {name}, N = {n}, {len(frames)} keyframes of {size} x {size} px",
+        "",
+        "| robot counts | start | mean disparity (px) | time (s) | Lloyd iterations | eq. 1 cost (sum) "
+        "| frames (f first, p from G_{f-1}, r partly, x fresh) |",
+        "|---|---|---:|---:|---:|---:|---|",
+    ]
     per_frame = []
     for keep in (False, True):
         rows = {}
@@ -62,17 +69,20 @@ def case_lines(name: str, n: int, size: int, seed: int, repeat: int) -> list[str
             t, kg = _run(frames, n, init, keep, seed, repeat)
             s = _summary(kg)
             rows[init] = s
-            modes = "".join({"first": "f", "previous": "p", "partial": "r", "fresh": "x"}[r.mode]
-                            for r in kg.reports)
-            lines.append(f"| {'kept' if keep else 'by area'} | {'previous frame' if init else 'fresh'} | "
-                         f"{s['disp'].mean():.2f} | {t:.2f} | {s['iters']} | {s['cost']:.4e} | {modes} |")
+            modes = "".join({"first": "f", "previous": "p", "partial": "r", "fresh": "x"}[r.mode] for r in kg.reports)
+            lines.append(
+                f"| {'kept' if keep else 'by area'} | {'previous frame' if init else 'fresh'} | "
+                f"{s['disp'].mean():.2f} | {t:.2f} | {s['iters']} | {s['cost']:.4e} | {modes} |"
+            )
         per_frame.append((keep, rows))
     lines += ["", "Disparity per frame pair (px), init from previous / fresh:", ""]
     for keep, rows in per_frame:
         pairs = " ".join(f"{a:.1f}/{b:.1f}" for a, b in zip(rows[True]["disp"], rows[False]["disp"]))
         better = int(np.sum(rows[True]["disp"] <= rows[False]["disp"]))
-        lines.append(f"- {'kept' if keep else 'by area'}: {pairs} (lower or equal with init in "
-                     f"{better} of {len(rows[True]['disp'])})")
+        lines.append(
+            f"- {'kept' if keep else 'by area'}: {pairs} (lower or equal with init in "
+            f"{better} of {len(rows[True]['disp'])})"
+        )
     return lines + [""]
 
 
@@ -82,8 +92,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    lines = [f"Seed {args.seed}, median wall time of {args.repeat} runs; load average {load:.2f} at start; "
-             f"numpy {np.__version__}, scipy {scipy.__version__}.", ""]
+    lines = [
+        f"Seed {args.seed}, median wall time of {args.repeat} runs; load average {load:.2f} at start; "
+        f"numpy {np.__version__}, scipy {scipy.__version__}.",
+        "",
+    ]
     for name, n, size in CASES:
         lines += case_lines(name, n, size, args.seed, args.repeat)
     lines += [
@@ -96,8 +109,7 @@ def main(argv: list[str] | None = None) -> int:
         "(the branch gives robots to the growing leaf), which no per-region initialisation can anticipate.",
     ]
     cmd = f".venv/bin/python -m bench.bench_keyframes --repeat {args.repeat} --seed {args.seed}"
-    write_results("keyframes", "Keyframe animation goals: initialised from the previous frame vs fresh", cmd,
-                  lines)
+    write_results("keyframes", "Keyframe animation goals: initialised from the previous frame vs fresh", cmd, lines)
     return 0
 
 

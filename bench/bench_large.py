@@ -25,6 +25,7 @@ auction at every new image), contacts and clearance; per image when every robot 
 its goal (`converged_at`, seconds after the image change) and the mean time per control step; and
 what bounds the realtime factor, from the measured parts.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -50,10 +51,16 @@ from .common import write_results
 SCENE = "paper-sequence-1000"
 ASSIGNMENTS = ("auction", "optimal")
 TARGET, GOAL_ROBOTS = 30.0, 1000  # the realtime factor issue 6 asks of the central engine, at 1000 robots
-PART_NAMES = {"tracker": "tracker", "assignment": "goal assignment (waiting for the auction; cold starts)",
-              "preferred": "preferred velocities",
-              "record": "recording", "neighbours": "neighbour search (grid)", "control": "control core (ORCA, compiled)",
-              "world": "world (commands + step)", "other": "the rest"}
+PART_NAMES = {
+    "tracker": "tracker",
+    "assignment": "goal assignment (waiting for the auction; cold starts)",
+    "preferred": "preferred velocities",
+    "record": "recording",
+    "neighbours": "neighbour search (grid)",
+    "control": "control core (ORCA, compiled)",
+    "world": "world (commands + step)",
+    "other": "the rest",
+}
 
 
 @dataclass
@@ -104,7 +111,7 @@ def scene_for(name: str, robots: int | None, images: int | None) -> tuple[Any, i
         return scene, total
     k = max(images, 1)
     end = scene.step_starts[k - 1] + scene.steps[k - 1].hold - RobotParams.from_dict(scene.robot).dt  # the last tick
-    return load_scene(name, robots=robots, duration=end), k                                            # shows image k
+    return load_scene(name, robots=robots, duration=end), k  # shows image k
 
 
 def timed_run(scene: Any, assignment: str, echo: bool) -> Run:
@@ -128,17 +135,22 @@ def fmt(value: float | None, digits: int = 1) -> str:
 
 def describe(scene: Any, shown: int) -> list[str]:
     r = scene.robot
-    cut = (f"**Only the first {shown} of the {len(scene.steps)} images** (`--images {shown}`): the run ends "
-           f"at {scene.duration:.0f} s of display." if shown < len(scene.steps) else
-           f"All {shown} images; the run ends once the last is held (converge_hold {scene.converge_hold:g} s) "
-           "or at the end of its hold.")
-    return [f"Scene `{scene.name}`: {scene.robots} {r.get('kinematics', 'diffdrive')} robots (radius {scene.radius} m, "
-            f"v_max {r.get('v_max')} m/s, v_pref {r.get('v_pref')} m/s, neighbour_dist {r.get('neighbour_dist')} m, "
-            f"max_neighbours {r.get('max_neighbours')}), seed {scene.seed}, arena K_r {scene.image_goals.arena:.2f} m, "
-            f"tracking noise {scene.noise.tracking_xy * 1000:.0f} mm / {scene.noise.tracking_theta_deg:.0f} deg, "
-            f"actuation noise {scene.noise.actuation * 100:.0f} %, control period {RobotParams.from_dict(r).dt:g} s. "
-            f"Each column is `pixelswarm run {scene.name} --engine central --no-video` with the scene's "
-            f"`assignment` set as named. {cut}"]
+    cut = (
+        f"**Only the first {shown} of the {len(scene.steps)} images** (`--images {shown}`): the run ends "
+        f"at {scene.duration:.0f} s of display."
+        if shown < len(scene.steps)
+        else f"All {shown} images; the run ends once the last is held (converge_hold {scene.converge_hold:g} s) "
+        "or at the end of its hold."
+    )
+    return [
+        f"Scene `{scene.name}`: {scene.robots} {r.get('kinematics', 'diffdrive')} robots (radius {scene.radius} m, "
+        f"v_max {r.get('v_max')} m/s, v_pref {r.get('v_pref')} m/s, neighbour_dist {r.get('neighbour_dist')} m, "
+        f"max_neighbours {r.get('max_neighbours')}), seed {scene.seed}, arena K_r {scene.image_goals.arena:.2f} m, "
+        f"tracking noise {scene.noise.tracking_xy * 1000:.0f} mm / {scene.noise.tracking_theta_deg:.0f} deg, "
+        f"actuation noise {scene.noise.actuation * 100:.0f} %, control period {RobotParams.from_dict(r).dt:g} s. "
+        f"Each column is `pixelswarm run {scene.name} --engine central --no-video` with the scene's "
+        f"`assignment` set as named. {cut}"
+    ]
 
 
 def summary_table(runs: list[Run]) -> list[str]:
@@ -154,43 +166,76 @@ def summary_table(runs: list[Run]) -> list[str]:
     row("**realtime factor** (display s per wall s)", [f"**{r.display / r.metrics['wall_s']:.2f}**" for r in runs])
     row("realtime factor per CPU s of the control loop", [f"{r.display / r.per_tick(True).sum():.2f}" for r in runs])
     for label, cpu in (("wall", False), ("CPU", True)):
-        row(f"ms per control step, {label} (median / mean / p90)",
-            [f"{ms(np.median(t))} / {ms(t.mean())} / {ms(np.percentile(t, 90))}"
-             for t in (r.per_tick(cpu) for r in runs)])
-    row("cold starts (new image): count, s each (mean, wall / CPU)",
-        [f"{int(r.cold.sum())}, {r.wall['assignment'][r.cold].mean():.2f} / {r.cpu['assignment'][r.cold].mean():.2f}"
-         for r in runs])
-    row("assignment ms per warm step, waited for (mean / p90 / max)",
-        [f"{ms(a.mean())} / {ms(np.percentile(a, 90))} / {ms(a.max())}"
-         for a in (r.wall["assignment"][~r.cold] for r in runs)])
-    row("auction ms per warm step, its own time on the second thread (mean / p90 / max)",
-        [f"{ms(a.mean())} / {ms(np.percentile(a, 90))} / {ms(a.max())}" if a.any() else "-"
-         for a in (r.beside[~r.cold] for r in runs)])
-    row("contacts; min clearance m (at 100 Hz)",
-        [f"{r.metrics['contacts']}; {r.metrics['min_clearance_m']:.4f} ({fmt(r.metrics.get('min_clearance_substep_m'), 4)})"
-         for r in runs])
+        row(
+            f"ms per control step, {label} (median / mean / p90)",
+            [
+                f"{ms(np.median(t))} / {ms(t.mean())} / {ms(np.percentile(t, 90))}"
+                for t in (r.per_tick(cpu) for r in runs)
+            ],
+        )
+    row(
+        "cold starts (new image): count, s each (mean, wall / CPU)",
+        [
+            f"{int(r.cold.sum())}, {r.wall['assignment'][r.cold].mean():.2f} / {r.cpu['assignment'][r.cold].mean():.2f}"
+            for r in runs
+        ],
+    )
+    row(
+        "assignment ms per warm step, waited for (mean / p90 / max)",
+        [
+            f"{ms(a.mean())} / {ms(np.percentile(a, 90))} / {ms(a.max())}"
+            for a in (r.wall["assignment"][~r.cold] for r in runs)
+        ],
+    )
+    row(
+        "auction ms per warm step, its own time on the second thread (mean / p90 / max)",
+        [
+            f"{ms(a.mean())} / {ms(np.percentile(a, 90))} / {ms(a.max())}" if a.any() else "-"
+            for a in (r.beside[~r.cold] for r in runs)
+        ],
+    )
+    row(
+        "contacts; min clearance m (at 100 Hz)",
+        [
+            f"{r.metrics['contacts']}; {r.metrics['min_clearance_m']:.4f} ({fmt(r.metrics.get('min_clearance_substep_m'), 4)})"
+            for r in runs
+        ],
+    )
     row("ORCA fallbacks", [str(r.metrics.get("orca_fallbacks")) for r in runs])
     return lines
 
 
 def split_table(runs: list[Run]) -> list[str]:
     """Mean ms per control step by part, wall and CPU, every tick counted (cold starts included)."""
-    lines = ["| part | " + " | ".join(f"`{r.assignment}` wall ms | `{r.assignment}` CPU ms" for r in runs) + " |",
-             "|---|" + "---|---|" * len(runs)]
+    lines = [
+        "| part | " + " | ".join(f"`{r.assignment}` wall ms | `{r.assignment}` CPU ms" for r in runs) + " |",
+        "|---|" + "---|---|" * len(runs),
+    ]
     for p in PARTS:
-        lines.append(f"| {PART_NAMES[p]} | " + " | ".join(f"{ms(r.wall[p].mean())} | {ms(r.cpu[p].mean())}"
-                                                          for r in runs) + " |")
-    lines.append("| **total** | " + " | ".join(f"**{ms(r.per_tick().mean())}** | **{ms(r.per_tick(True).mean())}**"
-                                              for r in runs) + " |")
+        lines.append(
+            f"| {PART_NAMES[p]} | " + " | ".join(f"{ms(r.wall[p].mean())} | {ms(r.cpu[p].mean())}" for r in runs) + " |"
+        )
+    lines.append(
+        "| **total** | "
+        + " | ".join(f"**{ms(r.per_tick().mean())}** | **{ms(r.per_tick(True).mean())}**" for r in runs)
+        + " |"
+    )
     return lines
 
 
 def image_table(scene: Any, runs: list[Run]) -> list[str]:
     beside = {"auction": " (auction beside)"}  # scipy's optimum runs on the engine's thread
-    lines = ["| step | image | hold s | " + " | ".join(f"`{r.assignment}` converged_at s | `{r.assignment}` max error "
-                                                       f"at end m | `{r.assignment}` ms per warm step, wall / CPU"
-                                                       f"{beside.get(r.assignment, '')}" for r in runs) + " |",
-             "|---|---|---|" + "---|---|---|" * len(runs)]
+    lines = [
+        "| step | image | hold s | "
+        + " | ".join(
+            f"`{r.assignment}` converged_at s | `{r.assignment}` max error "
+            f"at end m | `{r.assignment}` ms per warm step, wall / CPU"
+            f"{beside.get(r.assignment, '')}"
+            for r in runs
+        )
+        + " |",
+        "|---|---|---|" + "---|---|---|" * len(runs),
+    ]
     by_run = [{s["index"]: s for s in r.metrics["steps"]} for r in runs]
     for k in sorted(by_run[0]):
         cells = []
@@ -198,8 +243,9 @@ def image_table(scene: Any, runs: list[Run]) -> list[str]:
             s = steps.get(k)
             mine = (r.step == k) & ~r.cold
             aside = f" ({ms(r.beside[mine].mean())})" if r.assignment in beside else ""
-            spent = (f"{ms(r.per_tick()[mine].mean())} / {ms(r.per_tick(True)[mine].mean())}{aside}"
-                     if mine.any() else "-")
+            spent = (
+                f"{ms(r.per_tick()[mine].mean())} / {ms(r.per_tick(True)[mine].mean())}{aside}" if mine.any() else "-"
+            )
             cells.append(f"{fmt(s and s['converged_at'])} | {fmt(s and s['max_goal_error_at_end'], 4)} | {spent}")
         lines.append(f"| {k} | {scene.steps[k].name} | {scene.steps[k].hold:.0f} | " + " | ".join(cells) + " |")
     return lines
@@ -210,17 +256,24 @@ def bounds(runs: list[Run], dt: float, robots: int) -> list[str]:
     thread while the engine's thread searches neighbours, steps the control core and the world on
     the goals the robots hold (sim.central): a step takes about the longer of the two, plus the
     parts before the auction starts and after its result is in."""
-    lines = [f"Realtime factor {TARGET:g} at a {dt:g} s control period leaves {dt / TARGET * 1e3:.1f} ms per "
-             "control step. Measured (wall ms per step, mean):"]
+    lines = [
+        f"Realtime factor {TARGET:g} at a {dt:g} s control period leaves {dt / TARGET * 1e3:.1f} ms per "
+        "control step. Measured (wall ms per step, mean):"
+    ]
     for r in runs:
         total = r.per_tick().mean()
         own = total - r.wall["assignment"].mean()
         auction = r.beside[~r.cold]
-        lines.append(f"- `{r.assignment}`: {ms(total)} ms per step ({r.display / r.metrics['wall_s']:.2f}x). The engine's "
-                     f"thread works {ms(own)} ms of it ({dt / own:.1f}x if it never waited)"
-                     + (f"; the auction beside it {ms(auction.mean())} ms (p90 {ms(np.percentile(auction, 90))}), "
-                        f"longer than that in {100 * np.mean(auction > own):.0f} % of the steps." if auction.any()
-                        else "; its assignment runs on this thread."))
+        lines.append(
+            f"- `{r.assignment}`: {ms(total)} ms per step ({r.display / r.metrics['wall_s']:.2f}x). The engine's "
+            f"thread works {ms(own)} ms of it ({dt / own:.1f}x if it never waited)"
+            + (
+                f"; the auction beside it {ms(auction.mean())} ms (p90 {ms(np.percentile(auction, 90))}), "
+                f"longer than that in {100 * np.mean(auction > own):.0f} % of the steps."
+                if auction.any()
+                else "; its assignment runs on this thread."
+            )
+        )
     met = [r.assignment for r in runs if r.display / r.metrics["wall_s"] >= TARGET]
     if met:
         verdict = f"met by {', '.join(met)}."
@@ -240,31 +293,56 @@ def main() -> int:
     parser.add_argument("--scene", default=SCENE)
     parser.add_argument("--robots", type=int, help="override the scene's robot count (a trial)")
     parser.add_argument("--images", type=int, help="run only the first K images (default: all)")
-    parser.add_argument("--assignment", choices=ASSIGNMENTS, action="append",
-                        help="only this assignment (repeatable; default: both)")
+    parser.add_argument(
+        "--assignment", choices=ASSIGNMENTS, action="append", help="only this assignment (repeatable; default: both)"
+    )
     parser.add_argument("--results", default="large", help="bench/results/<name>.md (default large)")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
     args = parser.parse_args()
 
-    command = ".venv/bin/python -m bench.bench_large" + "".join(
-        f" --{k} {v}" for k, v in (("scene", args.scene if args.scene != SCENE else None), ("robots", args.robots),
-                                   ("images", args.images), ("results", args.results if args.results != "large"
-                                                             else None)) if v is not None) + "".join(
-        f" --assignment {a}" for a in args.assignment or ())
+    command = (
+        ".venv/bin/python -m bench.bench_large"
+        + "".join(
+            f" --{k} {v}"
+            for k, v in (
+                ("scene", args.scene if args.scene != SCENE else None),
+                ("robots", args.robots),
+                ("images", args.images),
+                ("results", args.results if args.results != "large" else None),
+            )
+            if v is not None
+        )
+        + "".join(f" --assignment {a}" for a in args.assignment or ())
+    )
     scene, shown = scene_for(args.scene, args.robots, args.images)
     runs = [timed_run(scene, a, not args.quiet) for a in args.assignment or ASSIGNMENTS]
     load = " ".join(f"{x:.1f}" for x in os.getloadavg())
     lines = describe(scene, shown) + [
-        "", "### Side by side", "", *summary_table(runs),
-        "", "### Time per control step by part (mean over every step, cold starts included)", "", *split_table(runs),
-        "", "### Per image", "", *image_table(scene, runs),
-        "", "### What bounds the realtime factor", "", *bounds(runs, RobotParams.from_dict(scene.robot).dt, scene.robots),
-        "", f"Peak memory of the process {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB; load "
-            f"average at the end {load} (other work on the machine inflates wall times, not CPU times). "
-            "converged_at counts from the image change in display time; an assignment's wall time does not "
-            "advance display time."]
-    write_results(args.results, f"Large-scale display: {scene.robots} robots, central engine (paper 7.5, Fig. 12)",
-                  command, lines)
+        "",
+        "### Side by side",
+        "",
+        *summary_table(runs),
+        "",
+        "### Time per control step by part (mean over every step, cold starts included)",
+        "",
+        *split_table(runs),
+        "",
+        "### Per image",
+        "",
+        *image_table(scene, runs),
+        "",
+        "### What bounds the realtime factor",
+        "",
+        *bounds(runs, RobotParams.from_dict(scene.robot).dt, scene.robots),
+        "",
+        f"Peak memory of the process {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB; load "
+        f"average at the end {load} (other work on the machine inflates wall times, not CPU times). "
+        "converged_at counts from the image change in display time; an assignment's wall time does not "
+        "advance display time.",
+    ]
+    write_results(
+        args.results, f"Large-scale display: {scene.robots} robots, central engine (paper 7.5, Fig. 12)", command, lines
+    )
     return 0
 
 

@@ -18,6 +18,7 @@ the minimum pairwise distance, the minimum clearance to obstacles, robot-steps i
     .venv/bin/python -m bench.bench_orca            # writes bench/results/orca.md
     .venv/bin/python -m bench.bench_orca --quick    # a short smoke run, prints only
 """
+
 from __future__ import annotations
 
 import argparse
@@ -67,11 +68,21 @@ def blocks() -> Scenario:
             for sx, sy in ((1, 1), (-1, 1), (1, -1), (-1, -1)):
                 pos.append((sx * (55.0 + 10.0 * i), sy * (55.0 + 10.0 * j)))
                 goals.append((-sx * 75.0, -sy * 75.0))
-    obstacles = [[(-10, 40), (-40, 40), (-40, 10), (-10, 10)], [(10, 40), (10, 10), (40, 10), (40, 40)],
-                 [(10, -40), (40, -40), (40, -10), (10, -10)],
-                 [(-10, -40), (-10, -10), (-40, -10), (-40, -40)]]
-    return Scenario("Blocks", np.array(pos, float), np.array(goals, float),
-                    (0.25, 15.0, 10, 5.0, 5.0, 2.0, 2.0), 20.0, obstacles, 1e-4)
+    obstacles = [
+        [(-10, 40), (-40, 40), (-40, 10), (-10, 10)],
+        [(10, 40), (10, 10), (40, 10), (40, 40)],
+        [(10, -40), (40, -40), (40, -10), (10, -10)],
+        [(-10, -40), (-10, -10), (-40, -10), (-40, -40)],
+    ]
+    return Scenario(
+        "Blocks",
+        np.array(pos, float),
+        np.array(goals, float),
+        (0.25, 15.0, 10, 5.0, 5.0, 2.0, 2.0),
+        20.0,
+        obstacles,
+        1e-4,
+    )
 
 
 class RVO2Engine:
@@ -148,8 +159,7 @@ def clearance(pos: np.ndarray, segments: np.ndarray, radius: float) -> float:
 def run(scn: Scenario, engines: list, max_steps: int, seed: int = 0) -> list[Record]:
     radius = scn.params[5]
     contact = 2.0 * radius
-    segments = (np.concatenate([polygon_segments(o) for o in scn.obstacles])
-                if scn.obstacles else None)
+    segments = np.concatenate([polygon_segments(o) for o in scn.obstacles]) if scn.obstacles else None
     records = [Record(e.label) for e in engines]
     rngs = [np.random.default_rng(seed) for _ in engines]
     for step in range(1, max_steps + 1):
@@ -177,34 +187,37 @@ def run(scn: Scenario, engines: list, max_steps: int, seed: int = 0) -> list[Rec
                 rec.overlap_steps += 1
                 rec.max_overlapping_pairs = max(rec.max_overlapping_pairs, int((gaps < contact).sum()))
             if segments is not None:
-                rec.min_obstacle_clearance = min(rec.min_obstacle_clearance,
-                                                 clearance(pos, segments, radius))
+                rec.min_obstacle_clearance = min(rec.min_obstacle_clearance, clearance(pos, segments, radius))
             rec.steps = step
-            rec.done = bool(np.all(((pos - scn.goals) ** 2).sum(-1) <= scn.goal_tolerance ** 2))
+            rec.done = bool(np.all(((pos - scn.goals) ** 2).sum(-1) <= scn.goal_tolerance**2))
             rec.fallback = eng.fallback_count
     return records
 
 
 def table(scn: Scenario, records: list[Record]) -> str:
     radius = scn.params[5]
-    rows = [f"### {scn.name} (contact distance {2 * radius:g})", "",
-            "| engine | steps to completion | overlap steps | max overlapping pairs | min distance "
-            "| min obstacle clearance | fallback robot-steps | ms per step |",
-            "|---|---|---|---|---|---|---|---|"]
+    rows = [
+        f"### {scn.name} (contact distance {2 * radius:g})",
+        "",
+        "| engine | steps to completion | overlap steps | max overlapping pairs | min distance "
+        "| min obstacle clearance | fallback robot-steps | ms per step |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for r in records:
         steps = f"{r.steps}" if r.done else f"not done in {r.steps}"
         clear = "-" if not np.isfinite(r.min_obstacle_clearance) else f"{r.min_obstacle_clearance:.2g}"
         fb = "-" if r.fallback is None else str(r.fallback)
-        rows.append(f"| {r.engine} | {steps} | {r.overlap_steps} | {r.max_overlapping_pairs} | "
-                    f"{r.min_distance:.4f} | {clear} | {fb} | {1e3 * r.seconds / max(r.steps, 1):.2f} |")
+        rows.append(
+            f"| {r.engine} | {steps} | {r.overlap_steps} | {r.max_overlapping_pairs} | "
+            f"{r.min_distance:.4f} | {clear} | {fb} | {1e3 * r.seconds / max(r.steps, 1):.2f} |"
+        )
     return "\n".join(rows) + "\n"
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="small smoke run; does not write results")
-    ap.add_argument("--big-steps", type=int, default=30000,
-                    help="at most this many steps of the N=1000 Circle")
+    ap.add_argument("--big-steps", type=int, default=30000, help="at most this many steps of the N=1000 Circle")
     args = ap.parse_args(argv)
     try:
         import pyrvo  # noqa: F401
@@ -212,8 +225,7 @@ def main(argv: list[str] | None = None) -> int:
         print("pyrvo is not installed: `pip install --no-deps pyrvo`", file=sys.stderr)
         return 2
     out = []
-    scenarios = [(circle(64), 4000), (blocks(), 400)] if args.quick else [(circle(250), 8000),
-                                                                        (blocks(), 15000)]
+    scenarios = [(circle(64), 4000), (blocks(), 400)] if args.quick else [(circle(250), 8000), (blocks(), 15000)]
     for scn, max_steps in scenarios:
         records = run(scn, [RVO2Engine(scn), CentralEngine(scn)], max_steps)
         out.append(table(scn, records) + ratio_line(records))
@@ -230,8 +242,7 @@ def main(argv: list[str] | None = None) -> int:
 def ratio_line(records: list[Record]) -> str:
     ref, ours = records
     per_step = (ours.seconds / max(ours.steps, 1)) / (ref.seconds / max(ref.steps, 1))
-    return (f"\nours / RVO2: {ours.steps / ref.steps:.2f}x the steps, {per_step:.1f}x the time per "
-            "step.\n")
+    return f"\nours / RVO2: {ours.steps / ref.steps:.2f}x the steps, {per_step:.1f}x the time per step.\n"
 
 
 def write(sections: list[str]) -> None:
@@ -239,16 +250,18 @@ def write(sections: list[str]) -> None:
     import scipy
 
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    head = ("## ORCA: central engine against RVO2\n\n"
-            "Reproduce: `.venv/bin/python -m bench.bench_orca` (from the repository root).\n\n"
-            f"Machine: {platform.machine()}, {os.cpu_count()} cores (shared with other work), "
-            f"Python {platform.python_version()}, numpy {numpy.__version__}, scipy {scipy.__version__}; "
-            f"date {time.strftime('%Y-%m-%d')}. Both engines stepped alternately in one process; "
-            "times are wall-clock of `do_step` and noisy on a shared machine.\n\n"
-            f"Ours: `CentralOrca(..., safety_margin={MARGIN})`: safety lines (no overlap within dt) "
-            "hard, horizon shrunk by 4 until feasible down to dt, then least violation; "
-            f"ORCA radii +{MARGIN}; preferred velocities perturbed by up to {PERTURBATION} "
-            "(seeded, per robot and step). RVO2: pyrvo 0.4.3 (RVO2 v2.0.3, float32).\n\n")
+    head = (
+        "## ORCA: central engine against RVO2\n\n"
+        "Reproduce: `.venv/bin/python -m bench.bench_orca` (from the repository root).\n\n"
+        f"Machine: {platform.machine()}, {os.cpu_count()} cores (shared with other work), "
+        f"Python {platform.python_version()}, numpy {numpy.__version__}, scipy {scipy.__version__}; "
+        f"date {time.strftime('%Y-%m-%d')}. Both engines stepped alternately in one process; "
+        "times are wall-clock of `do_step` and noisy on a shared machine.\n\n"
+        f"Ours: `CentralOrca(..., safety_margin={MARGIN})`: safety lines (no overlap within dt) "
+        "hard, horizon shrunk by 4 until feasible down to dt, then least violation; "
+        f"ORCA radii +{MARGIN}; preferred velocities perturbed by up to {PERTURBATION} "
+        "(seeded, per robot and step). RVO2: pyrvo 0.4.3 (RVO2 v2.0.3, float32).\n\n"
+    )
     notes = (
         "\n### Notes\n\n"
         "* Overlaps: RVO2 overlaps whenever its least-violation fallback runs: the fallback gives up "
@@ -265,7 +278,8 @@ def write(sections: list[str]) -> None:
         "* Time: ours is numpy over the batch with a Python loop over the lines; at N = 250 most of "
         "a step is the overhead of a few hundred numpy calls on small arrays, and the ratio falls "
         "as N grows. The kd-tree query alone (scipy, one thread) costs about as much as a whole "
-        "RVO2 step at N = 1000.\n")
+        "RVO2 step at N = 1000.\n"
+    )
     RESULTS.write_text(head + "\n".join(sections) + notes)
 
 

@@ -6,6 +6,7 @@ cores), so it lives here; the suite runs its first two images (test_image_displa
 
     .venv/bin/python -m bench.bench_sequence [--scene paper-sequence-100] [-k 10]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -36,15 +37,23 @@ def main() -> int:
     ok_steps = all(s["converged_at"] is not None and s["max_goal_error_at_end"] <= 0.01 for s in m["steps"])
     passed = m["contacts"] == 0 and ok_steps and not beyond and rep.inconsistent == 0 and rep.shared_goals == 0
     rows = steps_table(m)
-    notes = ["", f"Scene `{args.scene}`, {m['robots']} robots, {args.k} per agent process; wall {wall:.0f} s for "
-             f"{m['duration_s']:.0f} s of display time; contacts {m['contacts']}; min clearance "
-             f"{m['min_clearance_m'] * 1e3:.1f} mm.",
-             f"Agreements: {len(complete)} complete, {len(beyond)} beyond N (eps_A + Delta C) + penalties, "
-             f"{np.mean(gaps <= 1e-9) * 100:.1f} % equal to scipy's optimum, largest gap {np.max(gaps):.4f} m^2; "
-             f"a robot announcing two goals for one instance: {rep.inconsistent}; two robots on one goal: "
-             f"{rep.shared_goals}.", f"Acceptance (issue 5): {'PASS' if passed else 'FAIL'}."]
-    write_results("sequence", "The paper's sequence with 100 robots, distributed in agent hosts (issue 5)",
-                  f".venv/bin/python -m bench.bench_sequence --scene {args.scene} -k {args.k}", rows + notes)
+    notes = [
+        "",
+        f"Scene `{args.scene}`, {m['robots']} robots, {args.k} per agent process; wall {wall:.0f} s for "
+        f"{m['duration_s']:.0f} s of display time; contacts {m['contacts']}; min clearance "
+        f"{m['min_clearance_m'] * 1e3:.1f} mm.",
+        f"Agreements: {len(complete)} complete, {len(beyond)} beyond N (eps_A + Delta C) + penalties, "
+        f"{np.mean(gaps <= 1e-9) * 100:.1f} % equal to scipy's optimum, largest gap {np.max(gaps):.4f} m^2; "
+        f"a robot announcing two goals for one instance: {rep.inconsistent}; two robots on one goal: "
+        f"{rep.shared_goals}.",
+        f"Acceptance (issue 5): {'PASS' if passed else 'FAIL'}.",
+    ]
+    write_results(
+        "sequence",
+        "The paper's sequence with 100 robots, distributed in agent hosts (issue 5)",
+        f".venv/bin/python -m bench.bench_sequence --scene {args.scene} -k {args.k}",
+        rows + notes,
+    )
     return 0 if passed else 1
 
 

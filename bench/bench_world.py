@@ -14,6 +14,7 @@ Scenarios (e-puck bodies, radius 0.045 m, actuation noise 0.02, seed 0):
 Reference, side by side: the naive detection a world could do instead, scipy's pdist over all
 pairs at each of the 10 substeps (detection only: no integration, no event bookkeeping).
 """
+
 from __future__ import annotations
 
 import os
@@ -95,10 +96,7 @@ def main() -> None:
         for name in ("sparse", "packed", "crowded"):
             med, p90, events = time_world(name, n)
             rows.append((n, name, med, p90, events / REPEATS, naive))
-    header = (
-        "| N | scenario | step(0.1) median ms | p90 ms | contact events per 4 s run "
-        "| naive pdist detection ms |"
-    )
+    header = "| N | scenario | step(0.1) median ms | p90 ms | contact events per 4 s run | naive pdist detection ms |"
     lines = [header, "|---|---|---|---|---|---|"]
     lines += [f"| {n} | {name} | {m:.2f} | {p:.2f} | {e:.0f} | {nv:.2f} |" for n, name, m, p, e, nv in rows]
     table = "\n".join(lines)

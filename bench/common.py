@@ -1,4 +1,5 @@
 """Helpers for benchmarks: run the real command, sample its processes, write a results table."""
+
 from __future__ import annotations
 
 import json
@@ -23,8 +24,13 @@ def run_and_sample(args: list[str], period: float = 0.5) -> tuple[dict, list[dic
     """Run `pixelswarm run ...` and sample every agent process's CPU and memory while it runs."""
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "run"
-        proc = subprocess.Popen([sys.executable, "-m", "sim.cli", "run", *args, "--out", str(out), "--no-video", "-q"],
-                                cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "sim.cli", "run", *args, "--out", str(out), "--no-video", "-q"],
+            cwd=REPO,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         samples: list[dict] = []
         tracked: dict[int, psutil.Process] = {}
         while proc.poll() is None:
@@ -39,8 +45,15 @@ def run_and_sample(args: list[str], period: float = 0.5) -> tuple[dict, list[dic
             for pid, p in list(tracked.items()):
                 try:
                     mem = p.memory_full_info()
-                    samples.append({"pid": pid, "cpu": p.cpu_percent(), "rss": mem.rss, "uss": mem.uss,
-                                    "pss": getattr(mem, "pss", mem.uss)})
+                    samples.append(
+                        {
+                            "pid": pid,
+                            "cpu": p.cpu_percent(),
+                            "rss": mem.rss,
+                            "uss": mem.uss,
+                            "pss": getattr(mem, "pss", mem.uss),
+                        }
+                    )
                 except psutil.Error:
                     tracked.pop(pid)
         stdout, stderr = proc.communicate()
@@ -52,8 +65,15 @@ def run_and_sample(args: list[str], period: float = 0.5) -> tuple[dict, list[dic
 def write_results(name: str, title: str, command: str, lines: list[str]) -> Path:
     RESULTS.mkdir(parents=True, exist_ok=True)
     path = RESULTS / f"{name}.md"
-    text = [f"## {title}", "", f"Command: `{command}`", f"Machine: {machine()}; "
-            f"measured {time.strftime('%Y-%m-%d', time.gmtime())}.", "", *lines, ""]
+    text = [
+        f"## {title}",
+        "",
+        f"Command: `{command}`",
+        f"Machine: {machine()}; measured {time.strftime('%Y-%m-%d', time.gmtime())}.",
+        "",
+        *lines,
+        "",
+    ]
     path.write_text("\n".join(text))
     print("\n".join(text))
     return path
@@ -82,8 +102,12 @@ def run_cli_scene(args: list[str]) -> tuple[dict, dict, float] | None:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "run"
         start = time.monotonic()
-        proc = subprocess.run([sys.executable, "-m", "sim.cli", "run", *args, "--out", str(out), "--no-video", "-q"],
-                              cwd=REPO, capture_output=True, text=True)
+        proc = subprocess.run(
+            [sys.executable, "-m", "sim.cli", "run", *args, "--out", str(out), "--no-video", "-q"],
+            cwd=REPO,
+            capture_output=True,
+            text=True,
+        )
         wall = time.monotonic() - start
         if proc.returncode != 0:
             print(proc.stderr[-2000:], file=sys.stderr)
@@ -94,8 +118,10 @@ def run_cli_scene(args: list[str]) -> tuple[dict, dict, float] | None:
 def steps_table(m: dict) -> list[str]:
     """Per image of a run's metrics.json: when it was shown, when every robot was within the
     convergence tolerance of a goal of its set (seconds after the change), the largest error at its end."""
-    rows = ["| image | shown from s | converged s after the change | max goal error at the end mm |",
-            "|---|---|---|---|"]
+    rows = [
+        "| image | shown from s | converged s after the change | max goal error at the end mm |",
+        "|---|---|---|---|",
+    ]
     for s in m["steps"]:
         converged = "not by its end" if s["converged_at"] is None else f"{s['converged_at']:.1f}"
         rows.append(f"| {s['index']} | {s['t_start']:.1f} | {converged} | {1e3 * s['max_goal_error_at_end']:.1f} |")

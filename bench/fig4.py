@@ -7,6 +7,7 @@ plain Lloyd (as in the paper, relax=1) and of pixelswarm's default (over-relaxed
 
     .venv/bin/python -m bench.fig4          # writes docs/fig4_cvt_cost.png and prints a summary
 """
+
 from __future__ import annotations
 
 import argparse
@@ -20,9 +21,14 @@ from coordinator.goals.cvt import RELAX
 from coordinator.goals.resize import from_arena
 
 OUT = Path(__file__).resolve().parent.parent / "docs" / "fig4_cvt_cost.png"
-CASES = [("disk", None, "disk"), ("disk_and_line", {0: 10, 1: 4}, "disk and line 10+4"),
-         ("disk_and_line", {0: 6, 1: 8}, "disk and line 6+8"), ("line", None, "line"),
-         ("L", None, "L"), ("T", None, "T")]
+CASES = [
+    ("disk", None, "disk"),
+    ("disk_and_line", {0: 10, 1: 4}, "disk and line 10+4"),
+    ("disk_and_line", {0: 6, 1: 8}, "disk and line 6+8"),
+    ("line", None, "line"),
+    ("L", None, "L"),
+    ("T", None, "T"),
+]
 COLOURS = ["tab:red", "tab:orange", "tab:purple", "tab:blue", "tab:green", "tab:brown"]
 
 
@@ -46,8 +52,10 @@ def summary(label: str, cases: list[dict]) -> list[str]:
         rises = sum(int(np.any(np.diff(h) > 1e-12 * h[:-1])) for h in c["hists"])
         at30 = max(h[min(30, len(h) - 1)] / h[-1] - 1 for h in c["hists"])
         iters = [len(h) - 1 for h in c["hists"]]
-        lines.append(f"{label:>9} | {c['title']:<20} | runs with a rise: {rises} | worst gap to final at "
-                     f"iteration 30: {100 * at30:.2f} % | iterations {min(iters)}-{max(iters)}")
+        lines.append(
+            f"{label:>9} | {c['title']:<20} | runs with a rise: {rises} | worst gap to final at "
+            f"iteration 30: {100 * at30:.2f} % | iterations {min(iters)}-{max(iters)}"
+        )
     return lines
 
 
@@ -69,9 +77,10 @@ def plot(plain: list[dict], default: list[dict], path: Path, relax: float) -> No
         ax.imshow(0.35 * c["img"] / 255.0 + 0.65, interpolation="nearest")
         ax.scatter(px[:, 0] - 0.5, px[:, 1] - 0.5, s=22, c=best.colors / 255.0, edgecolors="black", linewidths=0.5)
         ax.axis("off")
-    for j, (cases, title) in enumerate(((plain, "plain Lloyd (paper)"),
-                                        (default, f"pixelswarm default (over-relaxed, relax={relax:g})"))):
-        ax = fig.add_subplot(gs[2, 3 * j:3 * j + 3])
+    for j, (cases, title) in enumerate(
+        ((plain, "plain Lloyd (paper)"), (default, f"pixelswarm default (over-relaxed, relax={relax:g})"))
+    ):
+        ax = fig.add_subplot(gs[2, 3 * j : 3 * j + 3])
         for c, col in zip(cases, COLOURS):
             for k, h in enumerate(c["hists"]):
                 ax.plot(np.arange(len(h)), h, color=col, lw=0.7, alpha=0.6, label=c["title"] if k == 0 else None)

@@ -15,6 +15,7 @@ warm-started, with the hysteresis Delta C of the scene's robot parameters.
     .venv/bin/python -m bench.paper_figures              # 25 runs x 4 epsilons, docs/fig1[345]_*.png
     .venv/bin/python -m bench.paper_figures --quick      # 2 runs x 2 epsilons, 3 short steps
 """
+
 from __future__ import annotations
 
 import argparse
@@ -26,10 +27,11 @@ import sys
 import tempfile
 import time
 import tomllib
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -144,8 +146,7 @@ def run_once(data: dict[str, Any], eps: float, seed: int, keep_xy: bool) -> Run:
     n_changes = np.r_[0, (assignment[1:] != assignment[:-1]).sum(axis=1)]
     reassign = np.array([int(n_changes[same & (step == k)].sum()) for k in range(k_steps)])
     steps = sorted(metrics["steps"], key=lambda s: s["index"])
-    run = Run(eps, seed, wall, path, [s["converged_at"] for s in steps], reassign, int(metrics["contacts"]),
-              calls)
+    run = Run(eps, seed, wall, path, [s["converged_at"] for s in steps], reassign, int(metrics["contacts"]), calls)
     if keep_xy:
         run.xy, run.step = pose[:, :, :2].astype(np.float32), step
         run.goal_sets = [np.array(scene_goal_set(scene, k, scene.robots)[0]) for k in range(k_steps)]
@@ -156,6 +157,7 @@ def run_once(data: dict[str, Any], eps: float, seed: int, keep_xy: bool) -> Run:
 def transition_labels(data: dict[str, Any]) -> list[str]:
     def short(s: dict[str, Any]) -> str:
         return str(s.get("name", s.get("shape"))).replace("disk_and_line_", "disk+line ").replace("_", "/")
+
     names = [data.get("layout", {}).get("kind", "start")] + [short(s) for s in data["steps"]]
     return [f"{a} -> {b}" for a, b in zip(names, names[1:])]
 
@@ -199,9 +201,15 @@ class Summary:
         first_cost = np.array([np.array(r.calls.cost)[np.array(r.calls.cold)] for r in runs])
         ex = [execution_times(r, self.holds) for r in runs]
         return {
-            "wall_ms": 1e3 * wall, "cpu_ms": 1e3 * cpu, "cold": cold, "rounds": rounds,
-            "excess": excess, "ratio_first": first, "first_cost": first_cost,
-            "exec": np.array([e[0] for e in ex]), "censored": np.array([e[1] for e in ex]),
+            "wall_ms": 1e3 * wall,
+            "cpu_ms": 1e3 * cpu,
+            "cold": cold,
+            "rounds": rounds,
+            "excess": excess,
+            "ratio_first": first,
+            "first_cost": first_cost,
+            "exec": np.array([e[0] for e in ex]),
+            "censored": np.array([e[1] for e in ex]),
             "path_total": np.array([r.path.sum() for r in runs]),
             "reassign": np.array([r.reassignments for r in runs]),
             "contacts": sum(r.contacts for r in runs),
@@ -229,27 +237,41 @@ def plot_fig13(s: Summary, path: Path) -> None:
     ax.set_ylabel("path length over the sequence (m)")
     right = ax.twinx()  # the summed total on its own axis, as in the paper
     red = {"color": "tab:red"}
-    right.boxplot([per_robot.sum(axis=1)], positions=[n + 1.2], widths=0.6, manage_ticks=False, boxprops=red,
-                  medianprops=red, whiskerprops=red, capprops=red, flierprops={"markeredgecolor": "tab:red"})
+    right.boxplot(
+        [per_robot.sum(axis=1)],
+        positions=[n + 1.2],
+        widths=0.6,
+        manage_ticks=False,
+        boxprops=red,
+        medianprops=red,
+        whiskerprops=red,
+        capprops=red,
+        flierprops={"markeredgecolor": "tab:red"},
+    )
     right.set_ylabel("summed total path length (m)", color="tab:red")
     # Ticks last: the twin axis shares x, and its boxplot would otherwise relabel it.
     ax.set_xlim(0.3, n + 1.9)
     ax.set_xticks(list(range(1, n + 1)) + [n + 1.2], [str(i) for i in range(n)] + ["total"])
     ax.set_xlabel("robot id")
     ax.axvline(n + 0.6, color="grey", lw=0.6)
-    ax.set_title(f"Fig. 13: path length per robot (left axis) and summed over the 14 robots (right axis), "
-                 f"{len(runs)} runs, epsilon_A = {FIG13_EPS:g} m²", fontsize=10)
+    ax.set_title(
+        f"Fig. 13: path length per robot (left axis) and summed over the 14 robots (right axis), "
+        f"{len(runs)} runs, epsilon_A = {FIG13_EPS:g} m²",
+        fontsize=10,
+    )
     ax = fig.add_subplot(2, 1, 2)
     ax.boxplot(list(per_step.T), widths=0.6)
     ax.set_xticks(range(1, len(s.labels) + 1), s.labels, fontsize=8)
     for k, col in enumerate(per_step.T):
-        ax.annotate(f"{col.mean():.1f}", (k + 1, col.max()), textcoords="offset points", xytext=(0, 4),
-                    ha="center", fontsize=8)
+        ax.annotate(
+            f"{col.mean():.1f}", (k + 1, col.max()), textcoords="offset points", xytext=(0, 4), ha="center", fontsize=8
+        )
     ax.set_ylabel("summed path length (m)")
-    ax.set_title("per transition: all 14 robots' path while the image was shown (mean above each box)",
-                 fontsize=10)
-    fig.suptitle(f"Paper-sequence, {ENGINE_NOTE}; seeds 1..{len(runs)} (goal sets regenerated per run, "
-                 "same start grid)", fontsize=10)
+    ax.set_title("per transition: all 14 robots' path while the image was shown (mean above each box)", fontsize=10)
+    fig.suptitle(
+        f"Paper-sequence, {ENGINE_NOTE}; seeds 1..{len(runs)} (goal sets regenerated per run, same start grid)",
+        fontsize=10,
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
@@ -264,29 +286,53 @@ def plot_fig14(s: Summary, path: Path) -> None:
     # Tens of thousands of calls: whiskers at the 1st / 99th percentile, the maximum as a bar.
     red = {"color": "tab:red"}
     ax.boxplot([st["wall_ms"] for st in stats], positions=x - 0.18, widths=0.3, whis=(1, 99), showfliers=False)
-    ax.boxplot([st["wall_ms"][st["cold"]] for st in stats], positions=x + 0.18, widths=0.3, whis=(1, 99),
-               showfliers=False, boxprops=red, medianprops=red, whiskerprops=red, capprops=red)
+    ax.boxplot(
+        [st["wall_ms"][st["cold"]] for st in stats],
+        positions=x + 0.18,
+        widths=0.3,
+        whis=(1, 99),
+        showfliers=False,
+        boxprops=red,
+        medianprops=red,
+        whiskerprops=red,
+        capprops=red,
+    )
     for xi, st in zip(x, stats):  # CPU time beside: what the wall time would be on an idle machine
         cold = st["cold"]
         ax.plot([xi - 0.18, xi + 0.18], [st["wall_ms"].max(), st["wall_ms"][cold].max()], "_", color="grey", ms=12)
         ax.plot([xi - 0.18, xi + 0.18], [st["wall_ms"].mean(), st["wall_ms"][cold].mean()], "k^", ms=6, zorder=5)
-        ax.plot([xi - 0.18, xi + 0.18], [st["cpu_ms"].mean(), st["cpu_ms"][cold].mean()], "D", color="tab:green",
-                ms=5, zorder=5)
+        ax.plot(
+            [xi - 0.18, xi + 0.18],
+            [st["cpu_ms"].mean(), st["cpu_ms"][cold].mean()],
+            "D",
+            color="tab:green",
+            ms=5,
+            zorder=5,
+        )
     ax.set_yscale("log")
     ax.set_xticks(x, names)
     ax.set_xlabel("epsilon_A (m²)")
     ax.set_ylabel("auction wall time per call (ms)")
-    ax.set_title("(a) auction time per call: every iteration (black), cold starts at an image change (red);\n"
-                 "whiskers 1-99 %, ▲ mean wall, ◆ mean thread CPU, – max", fontsize=10)
+    ax.set_title(
+        "(a) auction time per call: every iteration (black), cold starts at an image change (red);\n"
+        "whiskers 1-99 %, ▲ mean wall, ◆ mean thread CPU, – max",
+        fontsize=10,
+    )
     ax = fig.add_subplot(2, 2, 2)
     ax.boxplot([st["exec"].sum(axis=1) for st in stats], widths=0.5)
     ax.set_xticks(x, names)
     ax.set_xlabel("epsilon_A (m²)")
     ax.set_ylabel("execution time, summed over the transitions (s)")
     cens = ", ".join(f"{int(st['censored'].sum())}" for st in stats)
-    ax.set_title("(b) execution time: time to converge, summed over the transitions" +
-                 (f"\ntransitions not converged within the hold (counted as the hold): {cens} of "
-                  f"{stats[0]['censored'].size}" if any(st["censored"].any() for st in stats) else ""), fontsize=10)
+    ax.set_title(
+        "(b) execution time: time to converge, summed over the transitions"
+        + (
+            f"\ntransitions not converged within the hold (counted as the hold): {cens} of {stats[0]['censored'].size}"
+            if any(st["censored"].any() for st in stats)
+            else ""
+        ),
+        fontsize=10,
+    )
     ax = fig.add_subplot(2, 2, 3)
     k = len(s.labels)
     width = 0.8 / len(eps_list)
@@ -301,17 +347,25 @@ def plot_fig14(s: Summary, path: Path) -> None:
     ax.boxplot([st["ratio_first"].ravel() for st in stats], widths=0.5, sym=".")
     for xi, st in zip(x, stats):
         off = np.mean(st["excess"] > 1e-9)
-        ax.annotate(f"not optimal at\n{100 * off:.1f} % of iterations", (xi, st["ratio_first"].max()),
-                    textcoords="offset points", xytext=(0, 6), ha="center", fontsize=8)
+        ax.annotate(
+            f"not optimal at\n{100 * off:.1f} % of iterations",
+            (xi, st["ratio_first"].max()),
+            textcoords="offset points",
+            xytext=(0, 6),
+            ha="center",
+            fontsize=8,
+        )
     ax.set_xticks(x, names)
     ax.set_xlabel("epsilon_A (m²)")
     ax.set_ylabel("assignment cost / optimal cost (eq. 7)")
     ax.margins(y=0.2)
-    ax.set_title("(c) cost of each transition's first (cold-start) assignment against\n"
-                 "linear_sum_assignment on the same positions", fontsize=10)
+    ax.set_title(
+        "(c) cost of each transition's first (cold-start) assignment against\n"
+        "linear_sum_assignment on the same positions",
+        fontsize=10,
+    )
     runs = len(next(iter(s.runs.values())))
-    fig.suptitle(f"Fig. 14: effect of epsilon_A, {runs} runs per value of paper-sequence; {ENGINE_NOTE}",
-                 fontsize=11)
+    fig.suptitle(f"Fig. 14: effect of epsilon_A, {runs} runs per value of paper-sequence; {ENGINE_NOTE}", fontsize=11)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
@@ -338,14 +392,20 @@ def plot_fig15(s: Summary, path: Path) -> None:
         ax.plot(g[:, 0], g[:, 1], "kx", ms=8, mew=1.5, label="goals")
         ax.set_aspect("equal")
         ex = run.converged_at[k]
-        ax.set_title(f"epsilon_A = {eps:g} m²: path {run.path[k].sum():.1f} m, "
-                     f"{run.reassignments[k]} reassignments,\nconverged "
-                     + (f"after {ex:.1f} s" if ex is not None else "not within the hold"), fontsize=10)
+        ax.set_title(
+            f"epsilon_A = {eps:g} m²: path {run.path[k].sum():.1f} m, "
+            f"{run.reassignments[k]} reassignments,\nconverged "
+            + (f"after {ex:.1f} s" if ex is not None else "not within the hold"),
+            fontsize=10,
+        )
         ax.legend(loc="upper right", fontsize=8)
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
-    fig.suptitle(f"Fig. 15: trajectories of the 14 robots, transition {s.labels[k]} (seed {seed}); "
-                 f"o start, ● end, x goals\n{ENGINE_NOTE}", fontsize=10)
+    fig.suptitle(
+        f"Fig. 15: trajectories of the 14 robots, transition {s.labels[k]} (seed {seed}); "
+        f"o start, ● end, x goals\n{ENGINE_NOTE}",
+        fontsize=10,
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
@@ -369,81 +429,124 @@ def results_lines(s: Summary, hysteresis: float) -> list[str]:
     n_runs = len(runs13)
     per_step = np.array([r.path.sum(axis=1) for r in runs13])
     per_robot = np.array([r.path.sum(axis=0) for r in runs13])
-    out = [f"{n_runs} runs per epsilon_A of `{SCENE}` (paper Fig. 12: 14 differential-drive e-pucks, "
-           f"{len(s.labels)} images, {s.holds[0]:g} s holds), seeds 1..{n_runs}, {ENGINE_NOTE} (3 deg, 2 % "
-           f"actuation noise). The goal auction re-runs every 0.1 s iteration warm-started, Delta C = "
-           f"{hysteresis:g} m²; cold start (epsilon scaling) at each image change. Total wall time "
-           f"{s.wall_s / 60:.1f} min; load average {os.getloadavg()[0]:.2f} at the end (2-core machine shared with "
-           "other work: the auction's thread CPU time is given beside its wall time, as a load-insensitive "
-           "check).", "",
-           f"### Fig. 13: path length at epsilon_A = {FIG13_EPS:g} m² (`docs/fig13_path_length.png`)", "",
-           "| transition | summed path length (m), mean ± std | min | max |", "|---|---:|---:|---:|"]
+    out = [
+        f"{n_runs} runs per epsilon_A of `{SCENE}` (paper Fig. 12: 14 differential-drive e-pucks, "
+        f"{len(s.labels)} images, {s.holds[0]:g} s holds), seeds 1..{n_runs}, {ENGINE_NOTE} (3 deg, 2 % "
+        f"actuation noise). The goal auction re-runs every 0.1 s iteration warm-started, Delta C = "
+        f"{hysteresis:g} m²; cold start (epsilon scaling) at each image change. Total wall time "
+        f"{s.wall_s / 60:.1f} min; load average {os.getloadavg()[0]:.2f} at the end (2-core machine shared with "
+        "other work: the auction's thread CPU time is given beside its wall time, as a load-insensitive "
+        "check).",
+        "",
+        f"### Fig. 13: path length at epsilon_A = {FIG13_EPS:g} m² (`docs/fig13_path_length.png`)",
+        "",
+        "| transition | summed path length (m), mean ± std | min | max |",
+        "|---|---:|---:|---:|",
+    ]
     for label, col in zip(s.labels, per_step.T):
         out.append(f"| {label} | {mean_std(col)} | {col.min():.2f} | {col.max():.2f} |")
     tot = per_step.sum(axis=1)
-    out += [f"| **whole sequence** | {mean_std(tot)} | {tot.min():.2f} | {tot.max():.2f} |", "",
-            "Per robot over the sequence (m, mean ± std): " +
-            ", ".join(f"{i}: {mean_std(c)}" for i, c in enumerate(per_robot.T)) +
-            f". Relative spread (std / mean): per robot {np.mean(per_robot.std(0) / per_robot.mean(0)):.1%} "
-            f"on average, summed total {tot.std() / tot.mean():.1%} (paper: large per robot, small in total).", "",
-            "### Fig. 14: epsilon_A (`docs/fig14_epsilon.png`)", "",
-            "| epsilon_A (m²) | auction calls | per iteration, mean wall (ms) | median / p99 wall (ms) | "
-            "mean CPU (ms) | cold start mean wall / CPU / max wall (ms) | cold start rounds | execution time (s) | "
-            "not converged | cost ratio, first iteration: mean / max | iterations not optimal | "
-            "reassignments per run | total path (m) | contacts |",
-            "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    out += [
+        f"| **whole sequence** | {mean_std(tot)} | {tot.min():.2f} | {tot.max():.2f} |",
+        "",
+        "Per robot over the sequence (m, mean ± std): "
+        + ", ".join(f"{i}: {mean_std(c)}" for i, c in enumerate(per_robot.T))
+        + f". Relative spread (std / mean): per robot {np.mean(per_robot.std(0) / per_robot.mean(0)):.1%} "
+        f"on average, summed total {tot.std() / tot.mean():.1%} (paper: large per robot, small in total).",
+        "",
+        "### Fig. 14: epsilon_A (`docs/fig14_epsilon.png`)",
+        "",
+        "| epsilon_A (m²) | auction calls | per iteration, mean wall (ms) | median / p99 wall (ms) | "
+        "mean CPU (ms) | cold start mean wall / CPU / max wall (ms) | cold start rounds | execution time (s) | "
+        "not converged | cost ratio, first iteration: mean / max | iterations not optimal | "
+        "reassignments per run | total path (m) | contacts |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     eps_list = sorted(s.runs, reverse=True)
     for e in eps_list:
         st = s.per_eps(e)
         w, c = st["wall_ms"], st["cold"]
-        out.append(f"| {e:g} | {len(w)} | {w.mean():.3f} | {np.median(w):.3f} / {np.percentile(w, 99):.2f} | "
-                   f"{st['cpu_ms'].mean():.3f} | {w[c].mean():.2f} / {st['cpu_ms'][c].mean():.2f} / {w[c].max():.2f} | "
-                   f"{st['rounds'][c].mean():.0f} | {mean_std(st['exec'].sum(axis=1))} | "
-                   f"{int(st['censored'].sum())} of {st['censored'].size} | "
-                   f"{st['ratio_first'].mean():.3f} / {st['ratio_first'].max():.3f} | "
-                   f"{100 * np.mean(st['excess'] > 1e-9):.1f} % | {st['reassign'].sum(axis=1).mean():.1f} | "
-                   f"{mean_std(st['path_total'])} | {st['contacts']} |")
-    out += ["", "Execution time per transition (s, mean ± std; a transition not converged within its hold "
-            "counts as the hold):", "", "| epsilon_A (m²) | " + " | ".join(s.labels) + " |",
-            "|---:|" + "---:|" * len(s.labels)]
+        out.append(
+            f"| {e:g} | {len(w)} | {w.mean():.3f} | {np.median(w):.3f} / {np.percentile(w, 99):.2f} | "
+            f"{st['cpu_ms'].mean():.3f} | {w[c].mean():.2f} / {st['cpu_ms'][c].mean():.2f} / {w[c].max():.2f} | "
+            f"{st['rounds'][c].mean():.0f} | {mean_std(st['exec'].sum(axis=1))} | "
+            f"{int(st['censored'].sum())} of {st['censored'].size} | "
+            f"{st['ratio_first'].mean():.3f} / {st['ratio_first'].max():.3f} | "
+            f"{100 * np.mean(st['excess'] > 1e-9):.1f} % | {st['reassign'].sum(axis=1).mean():.1f} | "
+            f"{mean_std(st['path_total'])} | {st['contacts']} |"
+        )
+    out += [
+        "",
+        "Execution time per transition (s, mean ± std; a transition not converged within its hold counts as the hold):",
+        "",
+        "| epsilon_A (m²) | " + " | ".join(s.labels) + " |",
+        "|---:|" + "---:|" * len(s.labels),
+    ]
     for e in eps_list:
         ex = s.per_eps(e)["exec"]
         out.append(f"| {e:g} | " + " | ".join(mean_std(col) for col in ex.T) + " |")
-    out += ["", "Summed path length per transition (m, mean ± std):", "",
-            "| epsilon_A (m²) | " + " | ".join(s.labels) + " |", "|---:|" + "---:|" * len(s.labels)]
+    out += [
+        "",
+        "Summed path length per transition (m, mean ± std):",
+        "",
+        "| epsilon_A (m²) | " + " | ".join(s.labels) + " |",
+        "|---:|" + "---:|" * len(s.labels),
+    ]
     for e in eps_list:
         paths = np.array([r.path.sum(axis=1) for r in s.runs[e]])
         out.append(f"| {e:g} | " + " | ".join(mean_std(col) for col in paths.T) + " |")
-    out += ["", "Cost ratio of each transition's first (cold-start) assignment, mean (max):", "",
-            "| epsilon_A (m²) | " + " | ".join(s.labels) + " |", "|---:|" + "---:|" * len(s.labels)]
+    out += [
+        "",
+        "Cost ratio of each transition's first (cold-start) assignment, mean (max):",
+        "",
+        "| epsilon_A (m²) | " + " | ".join(s.labels) + " |",
+        "|---:|" + "---:|" * len(s.labels),
+    ]
     for e in eps_list:
         r = s.per_eps(e)["ratio_first"]
         out.append(f"| {e:g} | " + " | ".join(f"{col.mean():.3f} ({col.max():.3f})" for col in r.T) + " |")
     k, seed = s.fig15
-    out += ["", "### Fig. 15: trajectories (`docs/fig15_trajectories.png`)", "",
-            f"Transition {s.labels[k]}, seed {seed}: the transition where epsilon_A = {max(s.runs):g} m² lengthens "
-            f"the summed path most on average over the paired runs, and its median run.", "",
-            "| epsilon_A (m²) | summed path (m) | reassignments | time to converge (s) |", "|---:|---:|---:|---:|"]
+    out += [
+        "",
+        "### Fig. 15: trajectories (`docs/fig15_trajectories.png`)",
+        "",
+        f"Transition {s.labels[k]}, seed {seed}: the transition where epsilon_A = {max(s.runs):g} m² lengthens "
+        f"the summed path most on average over the paired runs, and its median run.",
+        "",
+        "| epsilon_A (m²) | summed path (m) | reassignments | time to converge (s) |",
+        "|---:|---:|---:|---:|",
+    ]
     for e in (max(s.runs), min(s.runs)):
         run = next(r for r in s.runs[e] if r.seed == seed)
         ex = run.converged_at[k]
-        out.append(f"| {e:g} | {run.path[k].sum():.2f} | {run.reassignments[k]} | "
-                   f"{'not within the hold' if ex is None else f'{ex:.1f}'} |")
-    out += ["", "Auction wall time is measured around each `sim.central.auction_assignment` call of the central "
-            "engine (one block of the agents' auction, agent.core.bidder, with one participant holding every robot; "
-            "patched in by the script, sim/central.py unchanged); rounds are Jacobi rounds in which some robot bid; "
-            "a cold start is the first call after an image change (a fresh participant, no prices yet: epsilon "
-            "scaling from the goal set's extent² / 10 down to epsilon_A, by factors of 10). "
-            "Execution time is `steps[k].converged_at` of metrics.json: the first sample at which every robot "
-            "is within 1 cm of its goal. Path lengths are of the true (not tracked) positions. Cost ratio: eq. 7 "
-            "of the auction's assignment over scipy's `linear_sum_assignment` on the same tracked positions."]
+        out.append(
+            f"| {e:g} | {run.path[k].sum():.2f} | {run.reassignments[k]} | "
+            f"{'not within the hold' if ex is None else f'{ex:.1f}'} |"
+        )
+    out += [
+        "",
+        "Auction wall time is measured around each `sim.central.auction_assignment` call of the central "
+        "engine (one block of the agents' auction, agent.core.bidder, with one participant holding every robot; "
+        "patched in by the script, sim/central.py unchanged); rounds are Jacobi rounds in which some robot bid; "
+        "a cold start is the first call after an image change (a fresh participant, no prices yet: epsilon "
+        "scaling from the goal set's extent² / 10 down to epsilon_A, by factors of 10). "
+        "Execution time is `steps[k].converged_at` of metrics.json: the first sample at which every robot "
+        "is within 1 cm of its goal. Path lengths are of the true (not tracked) positions. Cost ratio: eq. 7 "
+        "of the auction's assignment over scipy's `linear_sum_assignment` on the same tracked positions.",
+    ]
     return out
 
 
 def write_results(path: Path, command: str, lines: list[str]) -> None:
-    text = ["## Paper Figs. 13-15: path length, epsilon_A and trajectories (central engine)", "",
-            f"Command: `{command}`", f"Machine: {machine()}; measured {time.strftime('%Y-%m-%d', time.gmtime())}.",
-            "", *lines, ""]
+    text = [
+        "## Paper Figs. 13-15: path length, epsilon_A and trajectories (central engine)",
+        "",
+        f"Command: `{command}`",
+        f"Machine: {machine()}; measured {time.strftime('%Y-%m-%d', time.gmtime())}.",
+        "",
+        *lines,
+        "",
+    ]
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(text))
 
@@ -453,10 +556,17 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--runs", type=int, default=None, help="runs per epsilon_A, seeds 1..R (default 25, quick 2)")
     p.add_argument("--out", type=Path, default=REPO / "docs", help="where the PNGs go")
-    p.add_argument("--results", type=Path, default=None,
-                   help="the markdown results (default bench/results/paper_figures.md; quick: <out>/paper_figures.md)")
-    p.add_argument("--quick", action="store_true",
-                   help=f"{len(QUICK_EPSILONS)} epsilons, the first {QUICK_STEPS} steps held {QUICK_HOLD:g} s")
+    p.add_argument(
+        "--results",
+        type=Path,
+        default=None,
+        help="the markdown results (default bench/results/paper_figures.md; quick: <out>/paper_figures.md)",
+    )
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help=f"{len(QUICK_EPSILONS)} epsilons, the first {QUICK_STEPS} steps held {QUICK_HOLD:g} s",
+    )
     args = p.parse_args(argv)
     args.runs = args.runs or (2 if args.quick else 25)
     if args.results is None:  # a quick run never overwrites the stored results
@@ -466,8 +576,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> Summary:
     args = parse_args(argv)
-    command = " ".join([".venv/bin/python -m bench.paper_figures",
-                        shlex.join(sys.argv[1:] if argv is None else argv)]).strip()
+    command = " ".join(
+        [".venv/bin/python -m bench.paper_figures", shlex.join(sys.argv[1:] if argv is None else argv)]
+    ).strip()
     data = scene_data(args.quick)
     epsilons = QUICK_EPSILONS if args.quick else EPSILONS
     keep = {max(epsilons), min(epsilons)}  # Fig. 15's poor and good epsilon_A
@@ -482,16 +593,22 @@ def main(argv: list[str] | None = None) -> Summary:
             runs[e].append(run)
             ex, cens = execution_times(run, holds)
             done = sum(len(v) for v in runs.values())
-            print(f"[{done:3d}/{total}] epsilon_A {e:g} m² seed {seed:2d}: {run.wall_s:5.1f} s wall, "
-                  f"path {run.path.sum():6.2f} m, execution {ex.sum():6.1f} s"
-                  f"{f' ({int(cens.sum())} not converged)' if cens.any() else ''}, "
-                  f"auction {1e3 * np.mean(run.calls.wall_s):.2f} ms/call, contacts {run.contacts}", flush=True)
+            print(
+                f"[{done:3d}/{total}] epsilon_A {e:g} m² seed {seed:2d}: {run.wall_s:5.1f} s wall, "
+                f"path {run.path.sum():6.2f} m, execution {ex.sum():6.1f} s"
+                f"{f' ({int(cens.sum())} not converged)' if cens.any() else ''}, "
+                f"auction {1e3 * np.mean(run.calls.wall_s):.2f} ms/call, contacts {run.contacts}",
+                flush=True,
+            )
     if FIG13_EPS not in runs:
         raise SystemExit(f"Fig. 13 needs epsilon_A = {FIG13_EPS:g}")
     summary = Summary(transition_labels(data), holds, runs, pick_fig15(runs), time.perf_counter() - w0)
     args.out.mkdir(parents=True, exist_ok=True)
-    for name, plot in (("fig13_path_length.png", plot_fig13), ("fig14_epsilon.png", plot_fig14),
-                       ("fig15_trajectories.png", plot_fig15)):
+    for name, plot in (
+        ("fig13_path_length.png", plot_fig13),
+        ("fig14_epsilon.png", plot_fig14),
+        ("fig15_trajectories.png", plot_fig15),
+    ):
         plot(summary, args.out / name)
         print(f"wrote {args.out / name}", flush=True)
     hysteresis = RobotParams.from_dict(data.get("robot", {})).assign_hysteresis

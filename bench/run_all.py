@@ -1,8 +1,9 @@
 """Run every benchmark and assemble BENCHMARKS.md from their results (bench/results/*.md).
 
-    make bench                      # everything (tens of minutes on 2 cores)
-    .venv/bin/python -m bench.run_all --assemble   # only rebuild BENCHMARKS.md from stored results
+make bench                      # everything (tens of minutes on 2 cores)
+.venv/bin/python -m bench.run_all --assemble   # only rebuild BENCHMARKS.md from stored results
 """
+
 from __future__ import annotations
 
 import argparse
@@ -12,19 +13,49 @@ from pathlib import Path
 
 from .common import REPO, RESULTS
 
-BENCHES = ["bench.bench_world", "bench.bench_goals", "bench.bench_orca", "bench.bench_runtime", "bench.bench_auction",
-           "bench.bench_sequence", "bench.bench_keyframes", "bench.bench_carry", "bench.bench_large", "bench.bench_hosted",
-           "bench.paper_figures", "bench.bench_animation", "bench.bench_loss"]
-ORDER = ["runtime", "auction", "sequence", "large", "large-trial", "hosted", "world", "orca", "loss", "goals", "keyframes", "animation",
-         "carry", "paper_figures"]
+BENCHES = [
+    "bench.bench_world",
+    "bench.bench_goals",
+    "bench.bench_orca",
+    "bench.bench_runtime",
+    "bench.bench_auction",
+    "bench.bench_sequence",
+    "bench.bench_keyframes",
+    "bench.bench_carry",
+    "bench.bench_large",
+    "bench.bench_hosted",
+    "bench.paper_figures",
+    "bench.bench_animation",
+    "bench.bench_loss",
+]
+ORDER = [
+    "runtime",
+    "auction",
+    "sequence",
+    "large",
+    "large-trial",
+    "hosted",
+    "world",
+    "orca",
+    "loss",
+    "goals",
+    "keyframes",
+    "animation",
+    "carry",
+    "paper_figures",
+]
 
 
 def assemble() -> Path:
-    parts = ["# Benchmarks", "",
-             "Every figure below was measured by the command shown with it, on the machine named (2 cores, "
-             "shared with other work at the time, so expect +-30 % between runs). Each benchmark compares "
-             "side by side in one run against its reference where there is one (RVO2 through pyrvo, "
-             "scikit-learn's KMeans, scipy's linear_sum_assignment). `make bench` reruns them all.", ""]
+    parts = [
+        "# Benchmarks",
+        "",
+        "Every figure below was measured by the command shown with it, on the machine named (2 cores, "
+        "shared with other work at the time, so expect +-30 % between runs). Each benchmark compares "
+        "side by side in one run against its reference where there is one (RVO2 through pyrvo, "
+        "scikit-learn's KMeans, scipy's linear_sum_assignment). `make bench` reruns them all.",
+        "",
+    ]
     files = sorted(RESULTS.glob("*.md"), key=lambda p: (ORDER.index(p.stem) if p.stem in ORDER else 99, p.stem))
     for f in files:
         parts += [f.read_text().strip(), ""]

@@ -21,6 +21,7 @@ keyframe's K_f dt is `first_hold` (the robots come from wherever the layout put 
 coordinator.keyframes.keyframe_goals (each frame initialised from the previous one, paper 6.1), all in
 one arena K_r.
 """
+
 from __future__ import annotations
 
 import math
@@ -35,8 +36,19 @@ from .goals import GoalError
 from .keyframes import IMAGE_SUFFIXES, KeyframeGoals, keyframe_goals, keyframe_paths
 from .steps import METHODS, ImageStep, _region_counts, scale_region_counts
 
-ANIMATION_KEYS = ("keyframes", "frame_time", "first_hold", "last_hold", "times", "region_counts", "method",
-                  "keep_counts", "init_from_previous", "size", "arena")
+ANIMATION_KEYS = (
+    "keyframes",
+    "frame_time",
+    "first_hold",
+    "last_hold",
+    "times",
+    "region_counts",
+    "method",
+    "keep_counts",
+    "init_from_previous",
+    "size",
+    "arena",
+)
 DEFAULT_FRAME_TIME = 5.0  # s between keyframes: K_f = 50 control periods at 10 Hz
 DEFAULT_FIRST_HOLD = 30.0  # s to form the first keyframe from the start layout (as an image step of Fig. 12)
 
@@ -64,11 +76,12 @@ def parse_animation(data: Any, source: str = "") -> Animation:
     """An Animation from the [animation] table; paths are relative to the scene file. GoalError on
     bad input (one line)."""
     if not isinstance(data, dict):
-        raise GoalError("animation must be a table with keyframes = \"name\", \"folder/\" or [\"a.png\", ...]")
+        raise GoalError('animation must be a table with keyframes = "name", "folder/" or ["a.png", ...]')
     unknown = set(data) - set(ANIMATION_KEYS)
     if unknown:
-        raise GoalError(f"animation: unknown key(s) {', '.join(sorted(unknown))} "
-                        f"(allowed: {', '.join(ANIMATION_KEYS)})")
+        raise GoalError(
+            f"animation: unknown key(s) {', '.join(sorted(unknown))} (allowed: {', '.join(ANIMATION_KEYS)})"
+        )
     name, images = _keyframes(data.get("keyframes"), source, data.get("size", 256))
     frame_time = _seconds(data.get("frame_time", DEFAULT_FRAME_TIME), "frame_time")
     last_hold = _seconds(data.get("last_hold", frame_time), "last_hold")
@@ -84,12 +97,20 @@ def parse_animation(data: Any, source: str = "") -> Animation:
     method = data.get("method", "cvt")
     if method not in METHODS:
         raise GoalError(f"animation: method must be one of {', '.join(METHODS)}, not {method!r}")
-    steps = tuple(ImageStep(f"{name}[{f}]", None, None, hold, method=method, frame_period=period, keyframe=f)
-                  for f, (hold, period) in enumerate(zip(holds, periods)))
-    return Animation(name, tuple(images), steps, _region_counts(data.get("region_counts"), "animation"), method,
-                     _flag(data.get("keep_counts", False), "keep_counts"),
-                     _flag(data.get("init_from_previous", True), "init_from_previous"),
-                     _length(data["arena"], "arena") if "arena" in data else None)
+    steps = tuple(
+        ImageStep(f"{name}[{f}]", None, None, hold, method=method, frame_period=period, keyframe=f)
+        for f, (hold, period) in enumerate(zip(holds, periods))
+    )
+    return Animation(
+        name,
+        tuple(images),
+        steps,
+        _region_counts(data.get("region_counts"), "animation"),
+        method,
+        _flag(data.get("keep_counts", False), "keep_counts"),
+        _flag(data.get("init_from_previous", True), "init_from_previous"),
+        _length(data["arena"], "arena") if "arena" in data else None,
+    )
 
 
 def _keyframes(value: Any, source: str, size: Any) -> tuple[str, list[Any]]:
@@ -101,8 +122,10 @@ def _keyframes(value: Any, source: str, size: Any) -> tuple[str, list[Any]]:
     if isinstance(value, str):
         folder = _relative(value, source)
         if not folder.is_dir():
-            raise GoalError(f"animation: keyframes {value!r} is neither a drawn animation "
-                            f"({', '.join(KEYFRAME_ANIMATIONS)}) nor a folder")
+            raise GoalError(
+                f"animation: keyframes {value!r} is neither a drawn animation "
+                f"({', '.join(KEYFRAME_ANIMATIONS)}) nor a folder"
+            )
         return folder.name, list(keyframe_paths(folder))
     if isinstance(value, list) and value and all(isinstance(v, str) for v in value):
         paths = [_relative(v, source) for v in value]
@@ -110,8 +133,10 @@ def _keyframes(value: Any, source: str, size: Any) -> tuple[str, list[Any]]:
             if p.suffix.lower() not in IMAGE_SUFFIXES or not p.is_file():
                 raise GoalError(f"animation: keyframe {p} is not an image file ({', '.join(IMAGE_SUFFIXES)})")
         return paths[0].parent.name or "animation", paths
-    raise GoalError("animation: keyframes must be a drawn animation "
-                    f"({', '.join(KEYFRAME_ANIMATIONS)}), a folder, or a list of image files, not {value!r}")
+    raise GoalError(
+        "animation: keyframes must be a drawn animation "
+        f"({', '.join(KEYFRAME_ANIMATIONS)}), a folder, or a list of image files, not {value!r}"
+    )
 
 
 def _relative(path: str, source: str) -> Path:
@@ -140,8 +165,9 @@ def _flag(value: Any, key: str) -> bool:
 
 
 def _times(value: Any, frames: int) -> list[float]:
-    ok = isinstance(value, list) and all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                                         and math.isfinite(v) for v in value)
+    ok = isinstance(value, list) and all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value
+    )
     if not ok or len(value) != frames:
         raise GoalError(f"animation: times must list the start of each of the {frames} keyframes in seconds")
     starts = [float(v) for v in value]
@@ -154,8 +180,15 @@ class FrameGoals:
     """The keyframes' goal sets for any robot count (the interface of coordinator.steps.StepGoals):
     generated on demand with keyframe_goals, cached, seeded, and all in one arena K_r."""
 
-    def __init__(self, animation: Animation, robots: int, seed: int, radius: float,
-                 arena: float | None = None, counts_for: int | None = None) -> None:
+    def __init__(
+        self,
+        animation: Animation,
+        robots: int,
+        seed: int,
+        radius: float,
+        arena: float | None = None,
+        counts_for: int | None = None,
+    ) -> None:
         self.animation, self.robots, self.seed, self.radius = animation, robots, seed, radius
         self.steps = list(animation.steps)
         self.counts_for = counts_for or robots
@@ -185,9 +218,17 @@ class FrameGoals:
         a = self.animation
         counts = scale_region_counts(a.region_counts, self.counts_for, n)
         try:
-            kg = keyframe_goals(list(a.images), n, init_from_previous=a.init_from_previous, keep_counts=a.keep_counts,
-                                arena=arena, method=a.method, seed=self.seed, robot_radius=self.radius,
-                                region_counts=counts)
+            kg = keyframe_goals(
+                list(a.images),
+                n,
+                init_from_previous=a.init_from_previous,
+                keep_counts=a.keep_counts,
+                arena=arena,
+                method=a.method,
+                seed=self.seed,
+                robot_radius=self.radius,
+                region_counts=counts,
+            )
         except GoalError as err:
             raise GoalError(f"animation {a.name}, {n} robots: {err}") from None
         self._sets[n] = kg

@@ -15,12 +15,13 @@ Like coordinator.shapes, drawings live in the unit square (x right, y down), par
 keyframe is an (H, W, 3) uint8 RGB array. Colours of touching parts differ by far more than the
 segmentation's colour tolerance, so each part is its own region R_i in every keyframe.
 """
+
 from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import cv2
 import numpy as np
@@ -73,6 +74,7 @@ def capsule(a: tuple[float, float], b: tuple[float, float], r: float) -> Inside:
     def inside(x: np.ndarray, y: np.ndarray) -> np.ndarray:
         t = np.clip(((x - ax) * dx + (y - ay) * dy) / length2, 0.0, 1.0)
         return (x - ax - t * dx) ** 2 + (y - ay - t * dy) ** 2 < r * r
+
     return inside
 
 
@@ -83,6 +85,7 @@ def ellipse(cx: float, cy: float, a: float, b: float, angle: float = 0.0) -> Ins
     def inside(x: np.ndarray, y: np.ndarray) -> np.ndarray:
         u, v = (x - cx) * c + (y - cy) * s, -(x - cx) * s + (y - cy) * c
         return (u / a) ** 2 + (v / b) ** 2 < 1.0
+
     return inside
 
 
@@ -97,11 +100,11 @@ def polygon(points: list[tuple[float, float]]) -> Inside:
         for (x0, y0), (x1, y1) in zip(p, q):
             out &= sign * ((x1 - x0) * (y - y0) - (y1 - y0) * (x - x0)) > 0
         return out
+
     return inside
 
 
-def leaf(anchor: tuple[float, float], angle: float, length: float, *, bend: float = 0.0,
-         wilt: float = 0.0) -> Inside:
+def leaf(anchor: tuple[float, float], angle: float, length: float, *, bend: float = 0.0, wilt: float = 0.0) -> Inside:
     """A leaf whose stalk (petiole) starts at `anchor` and whose midrib points along `angle` (radians,
     y down). The blade is widest near its base and pointed at the tip, so its outline has no symmetry
     that would make its rotation ambiguous. bend curls the midrib sideways (fall), wilt narrows one
@@ -115,11 +118,12 @@ def leaf(anchor: tuple[float, float], angle: float, length: float, *, bend: floa
         v = -dx * s + dy * c
         v = v - bend * np.clip(u, 0.0, None) ** 2  # curled midrib
         uc = np.clip(u, 0.0, 1.0)
-        half = 0.62 * uc ** 0.55 * (1.0 - uc) ** 1.1  # half-width of the blade
+        half = 0.62 * uc**0.55 * (1.0 - uc) ** 1.1  # half-width of the blade
         half = np.where(v > 0, half * (1.0 - wilt), half)
         blade = (u >= 0) & (u <= 1) & (np.abs(v) < half)
         petiole = (u >= -stalk) & (u < 0.05) & (np.abs(v) < 0.035)
         return blade | petiole
+
     return inside
 
 
@@ -164,9 +168,13 @@ def walker(x: float, phase: float) -> list[Part]:
     head = _disk(x, 0.19, 0.065)
     hip, neck, shoulder = (x, 0.55), (x, 0.26), (x, 0.31)
     step, swing = 0.13 * phase, 0.10 * phase
-    limbs = [capsule(neck, hip, 0.042),
-             capsule(hip, (x + step, 0.86), 0.032), capsule(hip, (x - step, 0.86), 0.032),
-             capsule(shoulder, (x - swing, 0.56), 0.026), capsule(shoulder, (x + swing, 0.56), 0.026)]
+    limbs = [
+        capsule(neck, hip, 0.042),
+        capsule(hip, (x + step, 0.86), 0.032),
+        capsule(hip, (x - step, 0.86), 0.032),
+        capsule(shoulder, (x - swing, 0.56), 0.026),
+        capsule(shoulder, (x + swing, 0.56), 0.026),
+    ]
     return [(_union(head, *limbs), HUMAN)]
 
 
@@ -182,8 +190,12 @@ def flower(bee_angle: float | None) -> list[Part]:
     circle round the flower head, its body along the circle as if flying round it."""
     cx, cy = 0.5, 0.40
     stem = _union(capsule((cx, 0.88), (cx, cy), 0.022), ellipse(0.59, 0.70, 0.09, 0.035, math.radians(-30)))
-    petals = _union(*(_disk(cx + 0.10 * math.cos(a), cy + 0.10 * math.sin(a), 0.068)
-                      for a in np.linspace(0, 2 * math.pi, 6, endpoint=False) + math.pi / 2))
+    petals = _union(
+        *(
+            _disk(cx + 0.10 * math.cos(a), cy + 0.10 * math.sin(a), 0.068)
+            for a in np.linspace(0, 2 * math.pi, 6, endpoint=False) + math.pi / 2
+        )
+    )
     parts: list[Part] = [(stem, STEM), (petals, PETAL), (_disk(cx, cy, 0.06), FLOWER_CENTRE)]
     if bee_angle is not None:
         bx, by = cx + 0.33 * math.cos(bee_angle), cy + 0.30 * math.sin(bee_angle)
@@ -193,8 +205,10 @@ def flower(bee_angle: float | None) -> list[Part]:
 
 def triangle(angle: float, radius: float, centre: tuple[float, float] = (0.5, 0.5)) -> list[Part]:
     """An equilateral triangle with circumradius `radius`, turned by `angle` (radians, y down)."""
-    pts = [(centre[0] + radius * math.cos(angle + a), centre[1] + radius * math.sin(angle + a))
-           for a in (-math.pi / 2, math.pi / 6, 5 * math.pi / 6)]
+    pts = [
+        (centre[0] + radius * math.cos(angle + a), centre[1] + radius * math.sin(angle + a))
+        for a in (-math.pi / 2, math.pi / 6, 5 * math.pi / 6)
+    ]
     return [(polygon(pts), RED)]
 
 
@@ -215,8 +229,11 @@ def big_bang(burst: float) -> list[Part]:
     for k in range(8):
         a = math.pi / 8 + k * math.pi / 4
         reach = 0.2 + burst * (0.25 if k % 2 == 0 else 0.13)
-        fire.append(polygon([_on_circle(_CENTRE, 0.12, a - 0.3), _on_circle(_CENTRE, reach, a),
-                             _on_circle(_CENTRE, 0.12, a + 0.3)]))
+        fire.append(
+            polygon(
+                [_on_circle(_CENTRE, 0.12, a - 0.3), _on_circle(_CENTRE, reach, a), _on_circle(_CENTRE, 0.12, a + 0.3)]
+            )
+        )
     return [(_union(*fire), BANG_FIRE), (_disk(*_CENTRE, 0.09 + 0.01 * burst), BANG_CORE)]
 
 
@@ -250,7 +267,8 @@ def sea(microbe: tuple[float, float], fish: tuple[float, float] | None) -> list[
 
     def water(x: np.ndarray, y: np.ndarray) -> np.ndarray:
         surface = 0.46 + 0.025 * np.sin(6 * math.pi * x)
-        return ((x - cx) ** 2 + (y - cy) ** 2 < 0.42 ** 2) & (y > surface)
+        return ((x - cx) ** 2 + (y - cy) ** 2 < 0.42**2) & (y > surface)
+
     mx, my = microbe
     bumps = [_disk(mx + 0.1 * math.cos(a), my + 0.068 * math.sin(a), 0.026) for a in (0.4, 1.9, 3.5, 5.0)]
     parts: list[Part] = [(water, SEA), (_union(ellipse(mx, my, 0.1, 0.068, 0.3), *bumps), MICROBE)]
@@ -266,8 +284,13 @@ def dinosaur(stretch: float) -> list[Part]:
     base = (0.56, 0.53)
     head = (0.72 - 0.06 * stretch, 0.42 - 0.29 * stretch)
     legs = [capsule((x, 0.6), (x, 0.82), 0.028) for x in (0.30, 0.37, 0.48, 0.55)]
-    body = _union(ellipse(0.42, 0.58, 0.19, 0.1), *legs, capsule((0.26, 0.58), (0.1, 0.65), 0.03),
-                  capsule(base, head, 0.032), ellipse(head[0] + 0.03, head[1], 0.05, 0.03))
+    body = _union(
+        ellipse(0.42, 0.58, 0.19, 0.1),
+        *legs,
+        capsule((0.26, 0.58), (0.1, 0.65), 0.03),
+        capsule(base, head, 0.032),
+        ellipse(head[0] + 0.03, head[1], 0.05, 0.03),
+    )
     return [(body, DINOSAUR)]
 
 
@@ -278,8 +301,11 @@ def person(arms_up: bool) -> list[Part]:
     hip, neck, shoulder = (x, 0.56), (x, 0.27), (x, 0.32)
     feet = [(x - 0.14, 0.86), (x + 0.14, 0.86)] if not arms_up else [(x - 0.07, 0.86), (x + 0.07, 0.86)]
     hands = [(x - 0.12, 0.56), (x + 0.12, 0.56)] if not arms_up else [(x - 0.18, 0.13), (x + 0.18, 0.13)]
-    limbs = [capsule(neck, hip, 0.05)] + [capsule(hip, f, 0.038) for f in feet] + [capsule(shoulder, h, 0.034)
-                                                                                   for h in hands]
+    limbs = (
+        [capsule(neck, hip, 0.05)]
+        + [capsule(hip, f, 0.038) for f in feet]
+        + [capsule(shoulder, h, 0.034) for h in hands]
+    )
     return [(_union(_disk(x, 0.19, 0.07), *limbs), PERSON)]
 
 
@@ -292,15 +318,28 @@ def history_frames() -> list[list[Part]]:
     bang, earth = [big_bang(0.0), big_bang(1.0)], [planet_earth(0.22), planet_earth(0.44)]
     life = [sea((0.45, 0.7), None), sea((0.32, 0.72), (0.55, 0.62))]
     dino = [dinosaur(0.0), dinosaur(1.0)]
-    return (bang + bang[-1:] + [solar_system(math.radians(45.0 * k)) for k in range(9)] + earth + earth[-1:]
-            + life + life[-1:] + dino + dino[-1:] + [person(False), person(True)])
+    return (
+        bang
+        + bang[-1:]
+        + [solar_system(math.radians(45.0 * k)) for k in range(9)]
+        + earth
+        + earth[-1:]
+        + life
+        + life[-1:]
+        + dino
+        + dino[-1:]
+        + [person(False), person(True)]
+    )
 
 
 _BEE_ANGLES = (-0.15, -1.6, -3.0)  # the bee flies round the flower head, right to top to left
 _ANIMATIONS: dict[str, Callable[[int], list[np.ndarray]]] = {
     "leaf": lambda size: [leaf_frame(k, size) for k in range(len(_LEAF_FRAMES))],
-    "story": lambda size: [paint(walker(0.36 + 0.09 * k, p), size) for k, p in enumerate((1.0, 0.15, -1.0))]
-    + [paint(heap(), size)] + [paint(flower(a), size) for a in _BEE_ANGLES],
+    "story": lambda size: (
+        [paint(walker(0.36 + 0.09 * k, p), size) for k, p in enumerate((1.0, 0.15, -1.0))]
+        + [paint(heap(), size)]
+        + [paint(flower(a), size) for a in _BEE_ANGLES]
+    ),
     "triangle": lambda size: [paint(triangle(math.radians(20 * k), 0.16 + 0.035 * k), size) for k in range(7)],
     "history": lambda size: [paint(parts, size) for parts in history_frames()],
 }

@@ -3,14 +3,16 @@
 Bad input (missing or unreadable file, no foreground, N too small or too large for the arena) prints
 one line `pixelswarm goals: error: ...` on stderr and returns exit code 2, writing no output file.
 """
+
 from __future__ import annotations
 
 import argparse
 import os
 import sys
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from .goals import DEFAULT_ROBOT_RADIUS, GoalError, goals_from_prepared, prepare_image
 from .goals.cvt import MAX_ITER, RELAX, TOLERANCE
@@ -35,33 +37,71 @@ def _region_counts(text: str) -> dict[int, int]:
 def add_goals_parser(subparsers: Any) -> None:
     """Add the `goals` subcommand to an argparse subparsers object (sets func=run_goals)."""
     p = subparsers.add_parser(
-        "goals", help="turn an image into N goal positions and colours",
-        description="Turn an image into N goal positions and colours (Alonso-Mora et al. 2012, section 4).")
+        "goals",
+        help="turn an image into N goal positions and colours",
+        description="Turn an image into N goal positions and colours (Alonso-Mora et al. 2012, section 4).",
+    )
     p.add_argument("image", help="PNG, JPEG, BMP or TIFF image (transparent pixels are background)")
     p.add_argument("-n", "--robots", dest="n", type=int, required=True, help="number of robots N")
-    p.add_argument("--arena", type=float, default=None, metavar="METRES",
-                   help="side K_r of the square arena; default: the conservative 2 K_r for the robot radius "
-                        "(paper 4.4), rounded up to a centimetre")
-    p.add_argument("--method", choices=METHODS, default="cvt",
-                   help="cvt: Lloyd with the mass density of eq. 2; kmeans: binary density (faster)")
+    p.add_argument(
+        "--arena",
+        type=float,
+        default=None,
+        metavar="METRES",
+        help="side K_r of the square arena; default: the conservative 2 K_r for the robot radius "
+        "(paper 4.4), rounded up to a centimetre",
+    )
+    p.add_argument(
+        "--method",
+        choices=METHODS,
+        default="cvt",
+        help="cvt: Lloyd with the mass density of eq. 2; kmeans: binary density (faster)",
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of the initial samples (default 0)")
-    p.add_argument("-o", "--output", default="goals.json", metavar="goals.json",
-                   help="output file (default goals.json)")
-    p.add_argument("--preview", default=None, metavar="preview.png",
-                   help="also draw the image, the goals in their colours and their Voronoi cells")
-    p.add_argument("--background", default=None, metavar="COLOUR",
-                   help="background colour (#rrggbb, r,g,b or a name); default: alpha, else the border colour")
-    p.add_argument("--robot-radius", type=float, default=DEFAULT_ROBOT_RADIUS, metavar="METRES",
-                   help=f"robot radius r_A (default {DEFAULT_ROBOT_RADIUS}, the e-puck)")
-    p.add_argument("--conservative", action="store_true",
-                   help="with --arena, require twice the minimum arena (2 K_r, paper 4.4)")
-    p.add_argument("--region-counts", default=None, metavar="ID=N,...",
-                   help="the artist's robots per region, e.g. 0=10,1=4 (region 0 is the largest)")
-    p.add_argument("--tol", type=float, default=TOLERANCE,
-                   help=f"stop when the cost of eq. 1 falls by less than this fraction (default {TOLERANCE:g})")
+    p.add_argument(
+        "-o", "--output", default="goals.json", metavar="goals.json", help="output file (default goals.json)"
+    )
+    p.add_argument(
+        "--preview",
+        default=None,
+        metavar="preview.png",
+        help="also draw the image, the goals in their colours and their Voronoi cells",
+    )
+    p.add_argument(
+        "--background",
+        default=None,
+        metavar="COLOUR",
+        help="background colour (#rrggbb, r,g,b or a name); default: alpha, else the border colour",
+    )
+    p.add_argument(
+        "--robot-radius",
+        type=float,
+        default=DEFAULT_ROBOT_RADIUS,
+        metavar="METRES",
+        help=f"robot radius r_A (default {DEFAULT_ROBOT_RADIUS}, the e-puck)",
+    )
+    p.add_argument(
+        "--conservative", action="store_true", help="with --arena, require twice the minimum arena (2 K_r, paper 4.4)"
+    )
+    p.add_argument(
+        "--region-counts",
+        default=None,
+        metavar="ID=N,...",
+        help="the artist's robots per region, e.g. 0=10,1=4 (region 0 is the largest)",
+    )
+    p.add_argument(
+        "--tol",
+        type=float,
+        default=TOLERANCE,
+        help=f"stop when the cost of eq. 1 falls by less than this fraction (default {TOLERANCE:g})",
+    )
     p.add_argument("--max-iter", type=int, default=MAX_ITER, help=f"most Lloyd iterations (default {MAX_ITER})")
-    p.add_argument("--relax", type=float, default=RELAX,
-                   help=f"over-relaxation of the Lloyd step, 1 to 4 (default {RELAX}; 1 = plain Lloyd)")
+    p.add_argument(
+        "--relax",
+        type=float,
+        default=RELAX,
+        help=f"over-relaxation of the Lloyd step, 1 to 4 (default {RELAX}; 1 = plain Lloyd)",
+    )
     p.set_defaults(func=run_goals)
 
 
@@ -73,8 +113,9 @@ def _write_all(jobs: list[tuple[Path, Callable[[Path], None]]]) -> None:
     os.umask(umask)
     try:
         for path, write in jobs:
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix or ".tmp",
-                                       dir=path.parent if str(path.parent) else ".")
+            fd, tmp = tempfile.mkstemp(
+                prefix=f".{path.name}.", suffix=path.suffix or ".tmp", dir=path.parent if str(path.parent) else "."
+            )
             os.close(fd)
             os.chmod(tmp, 0o666 & ~umask)
             temps.append(Path(tmp))
@@ -104,10 +145,19 @@ def run_goals(args: argparse.Namespace) -> int:
             _check_output(preview, "preview")
         counts = _region_counts(args.region_counts) if args.region_counts else None
         prep = prepare_image(args.image, background=args.background)
-        gs = goals_from_prepared(prep, args.n, arena=args.arena, method=args.method, seed=args.seed,
-                                 robot_radius=args.robot_radius, region_counts=counts,
-                                 conservative=args.conservative, tol=args.tol, max_iter=args.max_iter,
-                                 relax=args.relax)
+        gs = goals_from_prepared(
+            prep,
+            args.n,
+            arena=args.arena,
+            method=args.method,
+            seed=args.seed,
+            robot_radius=args.robot_radius,
+            region_counts=counts,
+            conservative=args.conservative,
+            tol=args.tol,
+            max_iter=args.max_iter,
+            relax=args.relax,
+        )
         text = gs.to_json(indent=1) + "\n"
         jobs: list[tuple[Path, Callable[[Path], None]]] = [(out, lambda p: p.write_text(text))]
         if preview is not None:
@@ -124,7 +174,9 @@ def run_goals(args: argparse.Namespace) -> int:
     for note in gs.params["notes"]:
         print(f"{PROG}: note: {note}", file=sys.stderr)
     p = gs.params
-    print(f"{len(gs)} goals in {len(p['regions'])} region(s), arena {p['arena']:g} m, min spacing "
-          f"{p['min_spacing'] if p['min_spacing'] is not None else float('nan'):.3f} m, "
-          f"{p['iterations']} Lloyd iterations -> {out}" + (f", preview {preview}" if preview else ""))
+    print(
+        f"{len(gs)} goals in {len(p['regions'])} region(s), arena {p['arena']:g} m, min spacing "
+        f"{p['min_spacing'] if p['min_spacing'] is not None else float('nan'):.3f} m, "
+        f"{p['iterations']} Lloyd iterations -> {out}" + (f", preview {preview}" if preview else "")
+    )
     return 0

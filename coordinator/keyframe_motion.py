@@ -20,6 +20,7 @@ Accuracy: within 0.7 degree and 0.6 px on a rasterised L some 140 px tall (tests
 what is left is Canny's whole-pixel edge points. All angles are counter-clockwise as seen, in the arena
 frame (y up).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -56,9 +57,9 @@ def region_shape(seg: Segmentation, region_id: int, lab: np.ndarray) -> RegionSh
     side = float(max(shape))
     pts = to_arena(np.stack([cols + 0.5, rows + 0.5], axis=1), shape, 1.0)
     centroid = pts.mean(axis=0)
-    area = len(rows) / side ** 2
+    area = len(rows) / side**2
     r0, c0 = max(int(rows.min()) - 2, 0), max(int(cols.min()) - 2, 0)
-    crop = (seg.labels[r0:int(rows.max()) + 3, c0:int(cols.max()) + 3] == region_id).astype(np.uint8) * 255
+    crop = (seg.labels[r0 : int(rows.max()) + 3, c0 : int(cols.max()) + 3] == region_id).astype(np.uint8) * 255
     er, ec = np.nonzero(cv2.Canny(crop, 50, 150))
     if len(er) == 0:  # a region of a pixel or two: its pixels are its border
         er, ec = rows - r0, cols - c0
@@ -112,8 +113,8 @@ def estimate_motion(prev: RegionShape, cur: RegionShape) -> tuple[float, float, 
     round_a, round_b = sa.std() < noise_a, sb.std() < noise_b
     if round_a and round_b:
         return 0.0, scale, 1.0
-    za = (sa - sa.mean()) / np.sqrt(sa.var() + noise_a ** 2)
-    zb = (sb - sb.mean()) / np.sqrt(sb.var() + noise_b ** 2)
+    za = (sa - sa.mean()) / np.sqrt(sa.var() + noise_a**2)
+    zb = (sb - sb.mean()) / np.sqrt(sb.var() + noise_b**2)
     corr = np.fft.ifft(np.conj(np.fft.fft(za)) * np.fft.fft(zb)).real / BINS  # corr[k] = mean za[b] zb[b+k]
     shifts = (np.arange(BINS) + BINS // 2) % BINS - BINS // 2
     turns = shifts * (2 * np.pi / BINS)
@@ -161,7 +162,7 @@ def fit_count(px: np.ndarray, n: int, rows: np.ndarray, cols: np.ndarray) -> np.
         added = [pts]
         for _ in range(n - len(pts)):
             i = int(np.argmax(gap))
-            added.append(centres[i:i + 1])
+            added.append(centres[i : i + 1])
             gap = np.minimum(gap, np.hypot(centres[:, 0] - centres[i, 0], centres[:, 1] - centres[i, 1]))
         pts = np.concatenate(added)
     return pts

@@ -18,13 +18,15 @@ initialize the computation of the goal positions of region R_i in the current fr
 All frames share one arena K_r (the largest conservative arena any frame needs), so the frames line up
 and one metre is the same number of pixels in every frame, as coordinator.steps does for image steps.
 """
+
 from __future__ import annotations
 
 import os
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -192,9 +194,11 @@ def match_regions(prev: Sequence[RegionShape], cur: Sequence[RegionShape]) -> li
     cost = np.zeros((len(cur), len(prev)))
     for i, c in enumerate(cur):
         for j, p in enumerate(prev):
-            cost[i, j] = (np.linalg.norm(c.lab - p.lab) / COLOR_SCALE
-                          + np.linalg.norm(c.centroid - p.centroid) / SHIFT_SCALE
-                          + abs(np.log(c.area / p.area)) / AREA_SCALE)
+            cost[i, j] = (
+                np.linalg.norm(c.lab - p.lab) / COLOR_SCALE
+                + np.linalg.norm(c.centroid - p.centroid) / SHIFT_SCALE
+                + abs(np.log(c.area / p.area)) / AREA_SCALE
+            )
     rows, cols = linear_sum_assignment(cost)
     out = [0] * len(cur)
     for r, c in zip(rows, cols):
@@ -206,9 +210,16 @@ def _shapes(prep: PreparedImage) -> list[RegionShape]:
     return [region_shape(prep.seg, r.id, r.lab) for r in prep.seg.regions]
 
 
-def _initial_samples(prep: PreparedImage, shapes: list[RegionShape], prev_shapes: list[RegionShape],
-                     match: list[int], prev_set: GoalSet, counts: np.ndarray, min_correlation: float,
-                     scale_init: bool) -> tuple[dict[int, np.ndarray], list[RegionMotion], str]:
+def _initial_samples(
+    prep: PreparedImage,
+    shapes: list[RegionShape],
+    prev_shapes: list[RegionShape],
+    match: list[int],
+    prev_set: GoalSet,
+    counts: np.ndarray,
+    min_correlation: float,
+    scale_init: bool,
+) -> tuple[dict[int, np.ndarray], list[RegionMotion], str]:
     """Initial samples (pixel units) per region of frame f: the goals of its region in frame f-1
     (G_{f-1}) moved by T_i^f and M_i^f; also the regions' motions and which regions match poorly."""
     prev_goals = prev_set.goals / prev_set.arena  # normalised arena frame, like the region shapes
@@ -228,8 +239,7 @@ def _initial_samples(prep: PreparedImage, shapes: list[RegionShape], prev_shapes
             moved = (pts - old.centroid) @ m.T + cur.centroid  # M_i^f about the centroid, then T_i^f
             init[rid] = fit_count(from_arena(moved, prep.shape, 1.0), int(counts[rid]), *prep.seg.pixels(rid))
         shift = cur.centroid - old.centroid  # T_i^f, in units of the image's longer side for now
-        motions.append(RegionMotion(rid, pid, (float(shift[0]), float(shift[1])), rotation, scale, corr,
-                                    rid in init))
+        motions.append(RegionMotion(rid, pid, (float(shift[0]), float(shift[1])), rotation, scale, corr, rid in init))
     return init, motions, ("poor match of " + ", ".join(poor)) if poor else ""
 
 
@@ -256,11 +266,21 @@ def _load(images: Sequence[ImageLike] | str | os.PathLike[str], background: Any)
     return preps
 
 
-def keyframe_goals(images: Sequence[ImageLike] | str | os.PathLike[str], n: int, *,
-                   init_from_previous: bool = True, keep_counts: bool = False, arena: float | None = None,
-                   method: str = "cvt", seed: int = 0, robot_radius: float = DEFAULT_ROBOT_RADIUS,
-                   region_counts: dict[int, int] | None = None, min_correlation: float = MIN_CORRELATION,
-                   scale_init: bool = True, background: Any = None) -> KeyframeGoals:
+def keyframe_goals(
+    images: Sequence[ImageLike] | str | os.PathLike[str],
+    n: int,
+    *,
+    init_from_previous: bool = True,
+    keep_counts: bool = False,
+    arena: float | None = None,
+    method: str = "cvt",
+    seed: int = 0,
+    robot_radius: float = DEFAULT_ROBOT_RADIUS,
+    region_counts: dict[int, int] | None = None,
+    min_correlation: float = MIN_CORRELATION,
+    scale_init: bool = True,
+    background: Any = None,
+) -> KeyframeGoals:
     """N goals per keyframe I_1..I_F (paper 6.1), all in one arena.
 
     images: RGB/RGBA/gray arrays or image paths, or a folder of images (played in file-name order);
@@ -303,23 +323,41 @@ def keyframe_goals(images: Sequence[ImageLike] | str | os.PathLike[str], n: int,
             reason = "init_from_previous is off"
         elif match is not None:
             n_i, _ = allocate_robots([r.area for r in prep.seg.regions], int(n), counts)
-            init, motions, reason = _initial_samples(prep, shapes[f], shapes[f - 1], match, sets[-1], n_i,
-                                                     min_correlation, scale_init)
+            init, motions, reason = _initial_samples(
+                prep, shapes[f], shapes[f - 1], match, sets[-1], n_i, min_correlation, scale_init
+            )
         try:
-            gs = goals_from_prepared(prep, n, arena=arena, method=method, seed=seed + f,
-                                     robot_radius=robot_radius, region_counts=counts, init=init)
+            gs = goals_from_prepared(
+                prep,
+                n,
+                arena=arena,
+                method=method,
+                seed=seed + f,
+                robot_radius=robot_radius,
+                region_counts=counts,
+                init=init,
+            )
         except GoalError as err:
             raise GoalError(f"keyframe {f}: {err}") from None
         done = {m.region for m in motions if m.initialised}
         used = {int(r) for r in np.unique(gs.regions)}
         mode = "first" if f == 0 else "fresh" if not done else "previous" if done >= used else "partial"
-        reports.append(FrameReport(f, mode, reason, motions, int(gs.params["iterations"]),
-                                   time.perf_counter() - t0))
+        reports.append(FrameReport(f, mode, reason, motions, int(gs.params["iterations"]), time.perf_counter() - t0))
         sets.append(gs)
     shared = float(arena) if arena is not None else max(s.arena for s in sets)
     sets = [_rescale(s, shared) for s in sets]
     for r in reports:  # translations in metres of the common arena
-        r.regions = [RegionMotion(m.region, m.previous, (m.translation[0] * shared, m.translation[1] * shared),
-                                  m.rotation, m.scale, m.correlation, m.initialised) for m in r.regions]
+        r.regions = [
+            RegionMotion(
+                m.region,
+                m.previous,
+                (m.translation[0] * shared, m.translation[1] * shared),
+                m.rotation,
+                m.scale,
+                m.correlation,
+                m.initialised,
+            )
+            for m in r.regions
+        ]
     h, w = preps[0].shape
     return KeyframeGoals(sets, reports, (w, h))

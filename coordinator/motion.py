@@ -15,6 +15,7 @@ The coordinator publishes the goal set once with these numbers (transport.codec.
 compute their moving goals themselves (agent.core.goal_motion, eq. 28). This module only parses and
 bounds the motion: the arena must hold the pattern wherever it goes.
 """
+
 from __future__ import annotations
 
 import math
@@ -66,8 +67,9 @@ def parse_motion(data: Any, label: str) -> StepMotion:
         raise GoalError(f"{label}.motion must be a table (keys: {', '.join(MOTION_KEYS)})")
     unknown = set(data) - set(MOTION_KEYS)
     if unknown:
-        raise GoalError(f"{label}.motion: unknown key(s) {', '.join(sorted(unknown))} "
-                        f"(allowed: {', '.join(MOTION_KEYS)})")
+        raise GoalError(
+            f"{label}.motion: unknown key(s) {', '.join(sorted(unknown))} (allowed: {', '.join(MOTION_KEYS)})"
+        )
     velocity = _pair(data.get("velocity", [0.0, 0.0]), f"{label}.motion.velocity", "[vx, vy] in m/s")
     center = _pair(data.get("center", [0.0, 0.0]), f"{label}.motion.center", "[x, y] in metres")
     omega = _number(data.get("angular_velocity", 0.0), f"{label}.motion.angular_velocity", "rad/s")
@@ -84,8 +86,10 @@ def check_window(motion: StepMotion, label: str, duration: float) -> None:
     """A linear contraction must not shrink the pattern to nothing while the step is shown
     (`duration` seconds). Raises GoalError."""
     if not motion.geometric and motion.expansion < 0 and motion.scale(duration) <= 0.0:
-        raise GoalError(f"{label}.motion: a linear contraction of {motion.expansion}/s shrinks the pattern to "
-                        f"nothing after {-1.0 / motion.expansion:.1f} s, within the {duration:.1f} s it is shown")
+        raise GoalError(
+            f"{label}.motion: a linear contraction of {motion.expansion}/s shrinks the pattern to "
+            f"nothing after {-1.0 / motion.expansion:.1f} s, within the {duration:.1f} s it is shown"
+        )
 
 
 def _number(value: Any, label: str, unit: str) -> float:

@@ -24,6 +24,7 @@ raises ``SceneError`` with one line saying what is wrong and how to fix it.
     [noise]                  # tracking_xy = 0.002, tracking_theta_deg = 3.0, actuation = 0.02
     [end]                    # converge_hold = 1.0 (end after all robots hold their goals this long)
 """
+
 from __future__ import annotations
 
 import math
@@ -139,18 +140,26 @@ def resolve_scene_path(name_or_path: str) -> Path:
     raise SceneError(f"unknown scene {name_or_path!r}: give a .toml path or one of {', '.join(shipped_scenes())}")
 
 
-def load_scene(name_or_path: str, *, robots: int | None = None, seed: int | None = None,
-               clock: str | None = None, duration: float | None = None) -> Scene:
+def load_scene(
+    name_or_path: str,
+    *,
+    robots: int | None = None,
+    seed: int | None = None,
+    clock: str | None = None,
+    duration: float | None = None,
+) -> Scene:
     """Read, complete and validate a scene; command-line overrides win over the file. An image file
     is a scene too: its goals, a grid of robots."""
     if Path(name_or_path).suffix.lower() in IMAGE_SUFFIXES:
         if not Path(name_or_path).is_file():
             raise SceneError(f"image {name_or_path} not found")
-        return scene_from_dict(image_scene(name_or_path, robots or 14), source=name_or_path, seed=seed,
-                               clock=clock, duration=duration)
+        return scene_from_dict(
+            image_scene(name_or_path, robots or 14), source=name_or_path, seed=seed, clock=clock, duration=duration
+        )
     if Path(name_or_path).is_dir():  # a folder of keyframes: an animation with the default timing
-        return scene_from_dict(folder_scene(name_or_path, robots or 14), source=name_or_path, seed=seed,
-                               clock=clock, duration=duration)
+        return scene_from_dict(
+            folder_scene(name_or_path, robots or 14), source=name_or_path, seed=seed, clock=clock, duration=duration
+        )
     path = resolve_scene_path(name_or_path)
     try:
         data = tomllib.loads(path.read_text())
@@ -161,12 +170,40 @@ def load_scene(name_or_path: str, *, robots: int | None = None, seed: int | None
     return scene_from_dict(data, source=str(path), robots=robots, seed=seed, clock=clock, duration=duration)
 
 
-def scene_from_dict(data: dict[str, Any], *, source: str = "<dict>", robots: int | None = None,
-                    seed: int | None = None, clock: str | None = None, duration: float | None = None) -> Scene:
+def scene_from_dict(
+    data: dict[str, Any],
+    *,
+    source: str = "<dict>",
+    robots: int | None = None,
+    seed: int | None = None,
+    clock: str | None = None,
+    duration: float | None = None,
+) -> Scene:
     where = source
-    known = {"name", "robots", "seed", "clock", "duration", "robot", "layout", "goals", "arena", "obstacles",
-             "events", "noise", "end", "description", "scripted", "pursuers", "steps", "animation", "engine",
-             "assignment", "agents_per_process", "deadline"}
+    known = {
+        "name",
+        "robots",
+        "seed",
+        "clock",
+        "duration",
+        "robot",
+        "layout",
+        "goals",
+        "arena",
+        "obstacles",
+        "events",
+        "noise",
+        "end",
+        "description",
+        "scripted",
+        "pursuers",
+        "steps",
+        "animation",
+        "engine",
+        "assignment",
+        "agents_per_process",
+        "deadline",
+    }
     unknown = set(data) - known
     if unknown:
         raise SceneError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
@@ -228,14 +265,17 @@ def scene_from_dict(data: dict[str, Any], *, source: str = "<dict>", robots: int
         written_for = data.get("robots", n)  # region_counts were written for the file's count: --robots scales them
         written_for = written_for if isinstance(written_for, int) and written_for >= 1 else n
         if animation is not None:
-            scene.image_goals = _wrap(lambda: FrameGoals(animation, n, scene.seed, float(radius),
-                                                         counts_for=written_for), where)
+            scene.image_goals = _wrap(
+                lambda: FrameGoals(animation, n, scene.seed, float(radius), counts_for=written_for), where
+            )
         else:
-            scene.image_goals = _wrap(lambda: StepGoals(steps, n, scene.seed, float(radius),
-                                                        scene.goals.get("arena"), labels, written_for), where)
+            scene.image_goals = _wrap(
+                lambda: StepGoals(steps, n, scene.seed, float(radius), scene.goals.get("arena"), labels, written_for),
+                where,
+            )
         for k, step in enumerate(steps):
             if step.motion is not None:
-                _wrap(lambda: check_window(step.motion, f"steps[{k}]", scene.step_window(k)), where)
+                _wrap(lambda: check_window(step.motion, f"steps[{k}]", scene.step_window(k)), where)  # noqa: B023 (called at once)
         scene.goal_set, scene.goal_colors = scene_goal_set(scene, 0, n)
         scene.goal_positions = np.full((n, 2), np.nan)
     else:
@@ -245,8 +285,9 @@ def scene_from_dict(data: dict[str, Any], *, source: str = "<dict>", robots: int
     for event in scene.events:
         _check_event(event, scene, where)
     scene.scripted = {_robot_index(e, scene, where): _waypoints(e, where) for e in data.get("scripted", [])}
-    scene.pursuers = {_robot_index(e, scene, where): _robot_index(e, scene, where, "target")
-                      for e in data.get("pursuers", [])}
+    scene.pursuers = {
+        _robot_index(e, scene, where): _robot_index(e, scene, where, "target") for e in data.get("pursuers", [])
+    }
     for r in scene.scripted:
         scene.goal_positions[r] = np.nan  # a scripted robot follows its path, not a goal
     return scene
@@ -284,7 +325,7 @@ def initial_poses(layout: dict[str, Any], n: int, radius: float, seed: int, wher
         side = math.ceil(math.sqrt(per))
         offset = float(layout.get("offset", 1.7))
         pts = []
-        for q, (sx, sy) in enumerate([(1, 1), (-1, 1), (1, -1), (-1, -1)]):
+        for _q, (sx, sy) in enumerate([(1, 1), (-1, 1), (1, -1), (-1, -1)]):
             for k in range(per):
                 if len(pts) == n:
                     break
@@ -354,13 +395,13 @@ def _steps(data: dict[str, Any], source: str, where: str) -> list[ImageStep]:
     entries = data["steps"]
     if not (isinstance(entries, list) and entries):
         raise SceneError(f"{where}: steps must be one or more [[steps]] tables")
-    return [_wrap(lambda: parse_step(e, f"steps[{k}]", source), where) for k, e in enumerate(entries)]
+    return [_wrap(lambda: parse_step(e, f"steps[{k}]", source), where) for k, e in enumerate(entries)]  # noqa: B023
 
 
 def _image_step(goals: dict[str, Any], hold: float) -> dict[str, Any]:
     """The [goals] kind = "image" table as a step (its own `arena` is K_r, read by StepGoals)."""
     if "shape" not in goals and "image" not in goals:
-        raise GoalError("image goals need image = \"path\" or shape = \"name\"")
+        raise GoalError('image goals need image = "path" or shape = "name"')
     keys = ("name", "image", "shape", "region_counts", "method")
     return {k: goals[k] for k in keys if k in goals} | {"hold": hold}
 
@@ -378,7 +419,7 @@ def scene_goal_set(scene: Scene, step: int, robots: int) -> tuple[np.ndarray, np
     the live count when robots drop out (paper 5.1.2). Seeded with scene.seed and cached; every step
     and count shares one arena K_r, so the picture keeps its size. Arrays are read-only."""
     if scene.image_goals is None:
-        raise SceneError(f"{scene.name}: the scene shows no image (no [[steps]] or [goals] kind = \"image\")")
+        raise SceneError(f'{scene.name}: the scene shows no image (no [[steps]] or [goals] kind = "image")')
     return _wrap(lambda: scene.image_goals.goal_set(step, robots), scene.name)  # type: ignore[union-attr]
 
 
@@ -386,14 +427,23 @@ def folder_scene(path: str, robots: int) -> dict[str, Any]:
     """The scene for `pixelswarm run folder/ --robots N`: a grid of e-pucks playing the folder's images
     as keyframes in file-name order, with coordinator.animation's default timing (30 s to form the first
     keyframe, then one every 5 s, the last shown 5 s more)."""
-    return {"name": Path(path).resolve().name, "robots": robots, "animation": folder_table(Path(path).resolve()),
-            "layout": {"kind": "grid", "spacing": 0.2}}
+    return {
+        "name": Path(path).resolve().name,
+        "robots": robots,
+        "animation": folder_table(Path(path).resolve()),
+        "layout": {"kind": "grid", "spacing": 0.2},
+    }
 
 
 def image_scene(path: str, robots: int) -> dict[str, Any]:
     """The scene for `pixelswarm run picture.png --robots N`: a grid of e-pucks, the picture's goals."""
-    return {"name": Path(path).stem, "robots": robots, "goals": {"kind": "image", "image": str(Path(path).resolve())},
-            "layout": {"kind": "grid", "spacing": 0.2}, "duration": 120.0}
+    return {
+        "name": Path(path).stem,
+        "robots": robots,
+        "goals": {"kind": "image", "image": str(Path(path).resolve())},
+        "layout": {"kind": "grid", "spacing": 0.2},
+        "duration": 120.0,
+    }
 
 
 def _arena(spec: Any, scene: Scene, where: str) -> tuple[float, float, float, float]:
@@ -411,21 +461,26 @@ def _arena(spec: Any, scene: Scene, where: str) -> tuple[float, float, float, fl
         return (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
     size = spec.get("size") if isinstance(spec, dict) else None
     if not (isinstance(size, list) and len(size) == 2 and all(_positive(s) for s in size)):
-        raise SceneError(f"{where}: arena must be \"auto\" or have size = [width, height] in metres")
+        raise SceneError(f'{where}: arena must be "auto" or have size = [width, height] in metres')
     w, h = float(size[0]), float(size[1])
     for k, box in enumerate(_swept(scene)):
         box = box + np.array([[-scene.radius], [scene.radius]])  # the robots on the goals, too
         if box[0, 0] < -w / 2 or box[0, 1] < -h / 2 or box[1, 0] > w / 2 or box[1, 1] > h / 2:
-            raise SceneError(f"{where}: the moving image of step {k} leaves the {w:g} x {h:g} m arena "
-                             f"(it reaches [{box[0, 0]:.2f}, {box[0, 1]:.2f}] to [{box[1, 0]:.2f}, {box[1, 1]:.2f}]); "
-                             "enlarge [arena] size or slow the [steps.motion]")
+            raise SceneError(
+                f"{where}: the moving image of step {k} leaves the {w:g} x {h:g} m arena "
+                f"(it reaches [{box[0, 0]:.2f}, {box[0, 1]:.2f}] to [{box[1, 0]:.2f}, {box[1, 1]:.2f}]); "
+                "enlarge [arena] size or slow the [steps.motion]"
+            )
     return (-w / 2, -h / 2, w / 2, h / 2)
 
 
 def _swept(scene: Scene) -> list[np.ndarray]:
     """Boxes (2,2) holding each moving step's goal set for as long as the step is shown."""
-    return [s.motion.swept_box(scene_goal_set(scene, k, scene.robots)[0], scene.step_window(k))
-            for k, s in enumerate(scene.steps) if s.motion is not None]
+    return [
+        s.motion.swept_box(scene_goal_set(scene, k, scene.robots)[0], scene.step_window(k))
+        for k, s in enumerate(scene.steps)
+        if s.motion is not None
+    ]
 
 
 def _check_fit(scene: Scene, where: str) -> None:
@@ -434,15 +489,19 @@ def _check_fit(scene: Scene, where: str) -> None:
     xy = scene.poses[:, :2]
     outside = (xy[:, 0] - r < xmin) | (xy[:, 0] + r > xmax) | (xy[:, 1] - r < ymin) | (xy[:, 1] + r > ymax)
     if outside.any():
-        raise SceneError(f"{where}: {int(outside.sum())} of {scene.robots} robots do not fit in the "
-                         f"{xmax - xmin:.2f} x {ymax - ymin:.2f} m arena; enlarge [arena] size or use fewer robots")
+        raise SceneError(
+            f"{where}: {int(outside.sum())} of {scene.robots} robots do not fit in the "
+            f"{xmax - xmin:.2f} x {ymax - ymin:.2f} m arena; enlarge [arena] size or use fewer robots"
+        )
     if len(xy) > 1:
         from scipy.spatial import cKDTree
 
         d, _ = cKDTree(xy).query(xy, k=2)
         if d[:, 1].min() < 2 * r:
-            raise SceneError(f"{where}: robots start overlapping (closest centres {d[:, 1].min():.3f} m, "
-                             f"diameter {2 * r:.3f} m); increase layout spacing")
+            raise SceneError(
+                f"{where}: robots start overlapping (closest centres {d[:, 1].min():.3f} m, "
+                f"diameter {2 * r:.3f} m); increase layout spacing"
+            )
 
 
 EVENT_KINDS = ("teleport", "fail")

@@ -7,6 +7,7 @@ Late joiners ask for the current goal set with a query; the set is also re-publi
 so a lost message costs at most a second. Animation keyframes are steps too (one epoch per keyframe,
 with its K_f dt for eq. 27); a dynamic image's motion (eq. 28) is published once with its goal set.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -71,8 +72,15 @@ def step_timing(scene: Scene, step: int) -> dict[str, float | int]:
     out: dict[str, float | int] = {"t_start": scene.step_starts[step], "frame_period": s.frame_period}
     m = s.motion
     if m is not None:
-        out.update(v_gx=m.velocity[0], v_gy=m.velocity[1], omega_g=m.angular_velocity, p_ogx=m.center[0],
-                   p_ogy=m.center[1], k_eg=m.expansion, geometric=int(m.geometric))
+        out.update(
+            v_gx=m.velocity[0],
+            v_gy=m.velocity[1],
+            omega_g=m.angular_velocity,
+            p_ogx=m.center[0],
+            p_ogy=m.center[1],
+            k_eg=m.expansion,
+            geometric=int(m.geometric),
+        )
     return out
 
 
@@ -87,9 +95,17 @@ def _as_sent(positions: np.ndarray) -> np.ndarray:
 def follows_keyframe(before: Goals | None, goals: Goals) -> bool:
     """Consecutive keyframes of an animation (paper 6.1-6.2) for the same robots: the robots carry
     their goals over by the goals' correspondence while they auction the new frame."""
-    return (before is not None and not before.per_robot and before.frame_period > 0 and goals.frame_period > 0
-            and goals.step == before.step + 1 and len(before.positions) == len(goals.positions)
-            and np.array_equal(before.robots, goals.robots) and not before.moves and not goals.moves)
+    return (
+        before is not None
+        and not before.per_robot
+        and before.frame_period > 0
+        and goals.frame_period > 0
+        and goals.step == before.step + 1
+        and len(before.positions) == len(goals.positions)
+        and np.array_equal(before.robots, goals.robots)
+        and not before.moves
+        and not goals.moves
+    )
 
 
 class Coordinator:
@@ -162,9 +178,18 @@ class Coordinator:
         before = self.current
         self.epoch += 1
         self.shown = (step, robots)
-        self.current = Goals(self.epoch, 0, self.t, len(goals), np.asarray(goals), np.asarray(colors), step,
-                             float(self.scene.steps[step].hold), np.array(sorted(robots)),
-                             **step_timing(self.scene, step))
+        self.current = Goals(
+            self.epoch,
+            0,
+            self.t,
+            len(goals),
+            np.asarray(goals),
+            np.asarray(colors),
+            step,
+            float(self.scene.steps[step].hold),
+            np.array(sorted(robots)),
+            **step_timing(self.scene, step),
+        )
         if before is not None and not before.per_robot and len(before.positions) == len(goals):
             self.current.matched_from = before.epoch
             self.current.matched, self.current.prices = self._warm_start(before, goals)

@@ -5,10 +5,11 @@ Shapes live in the unit square (x right, y down) and are drawn on a size x size 
 follow the paper's figures. Every drawing function returns an (H, W, 3) uint8 RGB array, or (H, W, 4)
 RGBA with transparent background when alpha=True.
 """
+
 from __future__ import annotations
 
 import math
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 import cv2
 import numpy as np
@@ -36,6 +37,7 @@ def _union(*parts: Inside) -> Inside:
         for p in parts:
             out |= p(x, y)
         return out
+
     return inside
 
 
@@ -54,16 +56,30 @@ def _triangle(cx: float, cy: float, r: float) -> Inside:
         for (x0, y0), (x1, y1) in zip(corners, corners[1:] + corners[:1]):
             out &= (x1 - x0) * (y - y0) - (y1 - y0) * (x - x0) <= 0  # inside: the same side of every edge
         return out
+
     return inside
 
 
 # name -> list of (part, default colour); proportions measured on the paper's Fig. 4 (512 px canvas)
 _SHAPES: dict[str, list[tuple[Inside, RGB]]] = {
     "disk": [(_disk(0.5, 0.5, 150 / 512), RED)],
-    "disk_and_line": [(_disk(190 / 512, 0.5, 120 / 512), RED), (_rect(380 / 512, 420 / 512, 80 / 512, 430 / 512), BLUE)],
+    "disk_and_line": [
+        (_disk(190 / 512, 0.5, 120 / 512), RED),
+        (_rect(380 / 512, 420 / 512, 80 / 512, 430 / 512), BLUE),
+    ],
     "line": [(_rect(236 / 512, 276 / 512, 60 / 512, 452 / 512), BLUE)],
-    "L": [(_union(_rect(140 / 512, 220 / 512, 80 / 512, 430 / 512), _rect(140 / 512, 400 / 512, 350 / 512, 430 / 512)), RED)],
-    "T": [(_union(_rect(100 / 512, 412 / 512, 80 / 512, 160 / 512), _rect(216 / 512, 296 / 512, 80 / 512, 440 / 512)), BLUE)],
+    "L": [
+        (
+            _union(_rect(140 / 512, 220 / 512, 80 / 512, 430 / 512), _rect(140 / 512, 400 / 512, 350 / 512, 430 / 512)),
+            RED,
+        )
+    ],
+    "T": [
+        (
+            _union(_rect(100 / 512, 412 / 512, 80 / 512, 160 / 512), _rect(216 / 512, 296 / 512, 80 / 512, 440 / 512)),
+            BLUE,
+        )
+    ],
     "ring": [(_ring(0.5, 0.5, 0.36, 0.2), RED)],
     "two_squares": [(_rect(0.15, 0.5, 0.3, 0.7), RED), (_rect(0.5, 0.85, 0.3, 0.7), BLUE)],
     "triangle": [(_triangle(0.5, 0.5, 0.3), RED)],
@@ -91,8 +107,15 @@ def shape_mask(name: str, size: int = 256) -> np.ndarray:
     return np.logical_or.reduce(part_masks(name, size))
 
 
-def draw(name: str, size: int = 256, *, colors: Sequence[RGB] | None = None, background: RGB = WHITE,
-         antialias: bool = False, alpha: bool = False) -> np.ndarray:
+def draw(
+    name: str,
+    size: int = 256,
+    *,
+    colors: Sequence[RGB] | None = None,
+    background: RGB = WHITE,
+    antialias: bool = False,
+    alpha: bool = False,
+) -> np.ndarray:
     """Draw shape `name` (one of SHAPES) on a size x size canvas.
 
     colors: one colour per part (disk_and_line and two_squares have two parts), else the paper's.
@@ -152,7 +175,7 @@ def photo_like(size: int = 256, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     bg = np.stack([205 + 30 * x - 20 * y, 200 + 15 * x - 25 * y, 185 - 10 * x - 30 * y], axis=-1)
     img = bg * vignette[..., None]
     body = _disk(0.5, 0.56, 0.25)(x, y) | (((x - 0.5) / 0.3) ** 2 + ((y - 0.6) / 0.22) ** 2 < 1)
-    leaf = (((x - 0.6) / 0.1) ** 2 + ((y - 0.25) / 0.05) ** 2 < 1)
+    leaf = ((x - 0.6) / 0.1) ** 2 + ((y - 0.25) / 0.05) ** 2 < 1
     shade = 1.0 - 0.45 * np.clip(np.hypot(x - 0.4, y - 0.45) / 0.4, 0, 1)
     orange = np.array([235.0, 120.0, 30.0])
     img[body] = orange * shade[body, None]

@@ -13,12 +13,14 @@ live count when robots drop out), lives in ONE arena of size K_r: the largest co
 step needs with all N robots. The picture therefore keeps its size across steps and robot losses.
 Errors are GoalError (one line); the scene loader prefixes them with the scene's name.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -49,7 +51,7 @@ class ImageStep:
 def parse_step(data: Any, label: str, source: str = "") -> ImageStep:
     """An ImageStep from a TOML table; `label` names it in errors (e.g. "steps[2]")."""
     if not isinstance(data, dict):
-        raise GoalError(f"{label} must be a table with shape = \"name\" or image = \"path\", and hold")
+        raise GoalError(f'{label} must be a table with shape = "name" or image = "path", and hold')
     unknown = set(data) - set(STEP_KEYS)
     if unknown:
         raise GoalError(f"{label}: unknown key(s) {', '.join(sorted(unknown))} (allowed: {', '.join(STEP_KEYS)})")
@@ -57,7 +59,7 @@ def parse_step(data: Any, label: str, source: str = "") -> ImageStep:
     if not (isinstance(hold, (int, float)) and not isinstance(hold, bool) and math.isfinite(hold) and hold > 0):
         raise GoalError(f"{label}: hold must be a positive number of seconds, not {hold!r}")
     if ("image" in data) == ("shape" in data):
-        raise GoalError(f"{label} needs exactly one of image = \"path\" or shape = \"name\"")
+        raise GoalError(f'{label} needs exactly one of image = "path" or shape = "name"')
     image, shape = None, None
     if "shape" in data:
         shape = data["shape"]
@@ -74,8 +76,7 @@ def parse_step(data: Any, label: str, source: str = "") -> ImageStep:
         raise GoalError(f"{label}: method must be one of {', '.join(METHODS)}, not {method!r}")
     name = str(data.get("name", shape if shape is not None else image.stem))  # type: ignore[union-attr]
     motion = parse_motion(data["motion"], label) if "motion" in data else None
-    return ImageStep(name, image, shape, float(hold), _region_counts(data.get("region_counts"), label), method,
-                     motion)
+    return ImageStep(name, image, shape, float(hold), _region_counts(data.get("region_counts"), label), method, motion)
 
 
 def _region_counts(value: Any, label: str) -> dict[int, int] | None:
@@ -116,9 +117,16 @@ class StepGoals:
     """Goal sets (goals, colours) of a scene's steps for any robot count, generated on demand,
     cached, deterministic (seeded), and all in the shared arena K_r."""
 
-    def __init__(self, steps: list[ImageStep], robots: int, seed: int, radius: float,
-                 arena: float | None = None, labels: list[str] | None = None,
-                 counts_for: int | None = None) -> None:
+    def __init__(
+        self,
+        steps: list[ImageStep],
+        robots: int,
+        seed: int,
+        radius: float,
+        arena: float | None = None,
+        labels: list[str] | None = None,
+        counts_for: int | None = None,
+    ) -> None:
         self.steps = steps
         self.counts_for = counts_for or robots  # the robot count the artist's region_counts were written for
         self.labels = labels or [f"steps[{k}]" for k in range(len(steps))]  # how errors name each step
@@ -156,9 +164,15 @@ class StepGoals:
             if k not in self._prepared:  # background and regions once per image, for every count
                 source: Any = draw(step.shape, SHAPE_PIXELS) if step.shape is not None else step.image
                 self._prepared[k] = prepare_image(source)
-            return goals_from_prepared(self._prepared[k], n, arena=arena, method=step.method, seed=self.seed,
-                                       robot_radius=self.radius,
-                                       region_counts=scale_region_counts(step.region_counts, self.counts_for, n))
+            return goals_from_prepared(
+                self._prepared[k],
+                n,
+                arena=arena,
+                method=step.method,
+                seed=self.seed,
+                robot_radius=self.radius,
+                region_counts=scale_region_counts(step.region_counts, self.counts_for, n),
+            )
         except GoalError as err:
             raise GoalError(f"{self.labels[k]} ({step.name}), {n} robots: {err}") from None
 

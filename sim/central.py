@@ -17,6 +17,7 @@ are steps whose robots hold eq. 27's velocity (agent.core.animation); a dynamic 
 eq. 28 and the robots drive with the goals' velocity fed forward (agent.core.goal_motion), auctioned
 on the published goal set with their positions mapped back, as the agents do (agent.runtime).
 """
+
 from __future__ import annotations
 
 import sys
@@ -37,16 +38,21 @@ from coordinator.scene import Scene, scene_goal_set
 from coordinator.service import palette
 
 from .movers import Movers
-from .proximity import gather, nearest_within
 from .output import write_run
+from .proximity import gather, nearest_within
 from .rundir import RunDir
 from .stepclock import StepClock
 from .tracker import tracker_of, world_of
 
 
-
-def nearest_neighbours(position: np.ndarray, velocity: np.ndarray, radius: float, reach: float,
-                       max_neighbours: int, cooperative: np.ndarray | None = None) -> NeighbourStates:
+def nearest_neighbours(
+    position: np.ndarray,
+    velocity: np.ndarray,
+    radius: float,
+    reach: float,
+    max_neighbours: int,
+    cooperative: np.ndarray | None = None,
+) -> NeighbourStates:
     """Every robot's nearest neighbours within reach, from one snapshot (perfect information)."""
     n = len(position)
     m = min(max_neighbours, n - 1)
@@ -68,8 +74,9 @@ def goal_motion(motion: StepMotion | None) -> GoalMotion | None:
     return None if out.is_static else out
 
 
-def optimal_assignment(position: np.ndarray, goals: np.ndarray, previous: np.ndarray | None,
-                       hysteresis: float) -> np.ndarray:
+def optimal_assignment(
+    position: np.ndarray, goals: np.ndarray, previous: np.ndarray | None, hysteresis: float
+) -> np.ndarray:
     """Goal index per robot: the assignment of least total squared distance (eq. 5-7, scipy's
     linear_sum_assignment), kept only if it lowers the cost of the previous iteration's assignment by
     at least Delta C (paper 5.1's hysteresis for noisy positions). Scene `assignment = "optimal"`,
@@ -96,8 +103,15 @@ def auction_assignment(auction: Participant, position: np.ndarray) -> np.ndarray
     return assignment
 
 
-def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO | None = sys.stderr,
-                clock: StepClock | None = None, overlap: bool = True) -> Path:
+def run_central(
+    scene: Scene,
+    out: Path,
+    *,
+    video: bool = True,
+    progress: TextIO | None = sys.stderr,
+    clock: StepClock | None = None,
+    overlap: bool = True,
+) -> Path:
     """Run the scene with every robot in this process; returns the run directory. ``clock`` (if
     given) receives the wall and CPU time per part of each control step (bench/bench_large.py).
     ``overlap``: a warm auction runs on a second thread while this one searches neighbours and steps
@@ -124,8 +138,7 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
     events = sorted(scene.events, key=lambda e: e["t"])
     last_step = max(len(scene.steps) - 1, 0)
     shown = -1  # the image step whose goal set the auction works on
-    rec: dict[str, list] = {"t": [], "pose": [], "velocity": [], "color": [], "goal": [], "assignment": [],
-                            "step": []}
+    rec: dict[str, list] = {"t": [], "pose": [], "velocity": [], "color": [], "goal": [], "assignment": [], "step": []}
     steps = round(scene.duration / params.dt)
     fallbacks, converged_since, end_reason = 0, None, "duration"
     run_dir = RunDir(out)
@@ -156,12 +169,16 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
                 # warm-started from the previous prices, with the hysteresis Delta C against flip-flops
                 # from tracking noise. A moving goal set is auctioned with the positions mapped back
                 # to t = 0 (GoalMotion.to_initial_frame).
-                bid_from = (measured[:, :2] if motion is None
-                            else motion.to_initial_frame(measured[:, :2], t - t_start))
+                bid_from = measured[:, :2] if motion is None else motion.to_initial_frame(measured[:, :2], t - t_start)
                 if scene.assignment == "optimal":
-                    assignment = movers.pixel_assignment(optimal_assignment(
-                        bid_from[movers.pixels], goal_set, None if assigned_at is None else assignment[movers.pixels],
-                        params.assign_hysteresis))
+                    assignment = movers.pixel_assignment(
+                        optimal_assignment(
+                            bid_from[movers.pixels],
+                            goal_set,
+                            None if assigned_at is None else assignment[movers.pixels],
+                            params.assign_hysteresis,
+                        )
+                    )
                 elif auction is None:  # a new image: a cold start (the old prices mean nothing)
                     pixels = movers.pixels.tolist()
                     auction = Participant(k, goal_set, pixels, pixels, params.assign_eps, params.assign_hysteresis)
@@ -172,8 +189,14 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
             clock.lap("assignment")
             world.check()  # the contacts of the last step
             clock.lap("world")
-            nbs = nearest_neighbours(measured[:, :2], velocity, params.radius, params.neighbour_dist,
-                                     params.max_neighbours, movers.cooperative)
+            nbs = nearest_neighbours(
+                measured[:, :2],
+                velocity,
+                params.radius,
+                params.neighbour_dist,
+                params.max_neighbours,
+                movers.cooperative,
+            )
             clock.lap("neighbours")
             if pending is not None and not overlap:
                 assignment, pending = pending.result(), None
@@ -181,11 +204,36 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
             # While the auction runs, the control core steps every robot toward the goal it holds: a
             # robot's control depends on its own goal and on the neighbours' last states only, and
             # most robots keep their goals, so only the robots whose goal changed are stepped again.
-            plan = _plan(scene, params, k, motion, t - t_start, t, measured, goal_set,
-                         goal_colors, assignment, hold_for, left, movers)
+            plan = _plan(
+                scene,
+                params,
+                k,
+                motion,
+                t - t_start,
+                t,
+                measured,
+                goal_set,
+                goal_colors,
+                assignment,
+                hold_for,
+                left,
+                movers,
+            )
             clock.lap("preferred")
-            res = control_step(params, ids, measured[:, :2], measured[:, 2], velocity, plan.goal, nbs, segments,
-                               seed=scene.seed, tick=tick, preferred=plan.preferred, compiled=True)
+            res = control_step(
+                params,
+                ids,
+                measured[:, :2],
+                measured[:, 2],
+                velocity,
+                plan.goal,
+                nbs,
+                segments,
+                seed=scene.seed,
+                tick=tick,
+                preferred=plan.preferred,
+                compiled=True,
+            )
             clock.lap("control")
             # ... and the world moves on those commands: stepped again from here if the auction changed any
             pose, moving = world.poses, world.velocities  # this tick's, recorded below
@@ -197,11 +245,35 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
                 clock.lap("assignment")
                 if not np.array_equal(settled, assignment):
                     guess, assignment = plan, settled
-                    plan = _plan(scene, params, k, motion, t - t_start, t, measured, goal_set, goal_colors,
-                                 assignment, hold_for, left, movers)
+                    plan = _plan(
+                        scene,
+                        params,
+                        k,
+                        motion,
+                        t - t_start,
+                        t,
+                        measured,
+                        goal_set,
+                        goal_colors,
+                        assignment,
+                        hold_for,
+                        left,
+                        movers,
+                    )
                     clock.lap("preferred")
-                    _step_again(res, _changed_rows(guess, plan), params, ids, measured, velocity, plan, nbs,
-                                segments, scene.seed, tick)
+                    _step_again(
+                        res,
+                        _changed_rows(guess, plan),
+                        params,
+                        ids,
+                        measured,
+                        velocity,
+                        plan,
+                        nbs,
+                        segments,
+                        scene.seed,
+                        tick,
+                    )
                     clock.lap("control")
                     world.restore(before)
                     velocity_next = _move(world, movers, res, pose, t, params.dt)
@@ -218,8 +290,12 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
             clock.lap("record")
             err = np.hypot(*(pose[:, :2] - goal).T)
             # Converging ends the run only once the last image is up: earlier images keep their hold.
-            if (k == last_step and scene.ends_on_convergence and has_goal.any()
-                    and np.all(err[has_goal] <= params.goal_tolerance)):
+            if (
+                k == last_step
+                and scene.ends_on_convergence
+                and has_goal.any()
+                and np.all(err[has_goal] <= params.goal_tolerance)
+            ):
                 converged_since = t if converged_since is None else converged_since
                 if t - converged_since >= scene.converge_hold:
                     end_reason = "converged"
@@ -235,18 +311,35 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
             clock.lap("other")
             if progress is not None and time.time() - last_say >= 1.0:
                 last_say = time.time()
-                print(f"[{scene.name}] central t={t:6.1f} s  step {k}  at goal "
-                      f"{int(np.sum(err <= params.goal_tolerance))}/{int(has_goal.sum())}  "
-                      f"contacts {len(world.contacts)}", file=progress, flush=True)
+                print(
+                    f"[{scene.name}] central t={t:6.1f} s  step {k}  at goal "
+                    f"{int(np.sum(err <= params.goal_tolerance))}/{int(has_goal.sum())}  "
+                    f"contacts {len(world.contacts)}",
+                    file=progress,
+                    flush=True,
+                )
             clock.lap("other")
         arrays = {k: np.stack(v) if k != "t" else np.array(v) for k, v in rec.items()}
         arrays["color"] = arrays["color"].astype(np.uint8)
         arrays["step"] = arrays["step"].astype(np.int64)
-        contacts = [{"kind": c.kind, "i": c.i, "j": c.j, "t_start": c.t_start, "t_end": c.t_end,
-                     "max_depth": c.max_depth} for c in world.contacts]
-        return write_run(run_dir, scene, params, arrays, wall_s=time.time() - wall0, contacts=contacts, video=video,
-                         engine="central", end_reason=end_reason, complete=True, orca_fallbacks=fallbacks,
-                         min_clearance_substep_m=world.min_clearance if np.isfinite(world.min_clearance) else None)
+        contacts = [
+            {"kind": c.kind, "i": c.i, "j": c.j, "t_start": c.t_start, "t_end": c.t_end, "max_depth": c.max_depth}
+            for c in world.contacts
+        ]
+        return write_run(
+            run_dir,
+            scene,
+            params,
+            arrays,
+            wall_s=time.time() - wall0,
+            contacts=contacts,
+            video=video,
+            engine="central",
+            end_reason=end_reason,
+            complete=True,
+            orca_fallbacks=fallbacks,
+            min_clearance_substep_m=world.min_clearance if np.isfinite(world.min_clearance) else None,
+        )
     except BaseException:
         run_dir.abort()
         raise
@@ -256,6 +349,7 @@ def run_central(scene: Scene, out: Path, *, video: bool = True, progress: TextIO
 
 class Plan(NamedTuple):
     """What one tick's goal assignment asks of the robots (rows by robot)."""
+
     goal: np.ndarray  # (N, 2) where each robot heads now (NaN: no goal)
     color: np.ndarray  # (N, 3) its LED colour
     preferred: np.ndarray | None  # (N, 2) where eq. 9 does not apply (NaN rows: eq. 9)
@@ -263,9 +357,21 @@ class Plan(NamedTuple):
     has_goal: np.ndarray  # (N,) bool: a pixel with a goal (what convergence is judged on)
 
 
-def _plan(scene: Scene, params, k: int, motion: GoalMotion | None, t_rel: float, t: float, measured: np.ndarray,
-          goal_set: np.ndarray, goal_colors: np.ndarray, assignment: np.ndarray, hold_for: np.ndarray,
-          left: np.ndarray, movers: Movers) -> Plan:
+def _plan(
+    scene: Scene,
+    params,
+    k: int,
+    motion: GoalMotion | None,
+    t_rel: float,
+    t: float,
+    measured: np.ndarray,
+    goal_set: np.ndarray,
+    goal_colors: np.ndarray,
+    assignment: np.ndarray,
+    hold_for: np.ndarray,
+    left: np.ndarray,
+    movers: Movers,
+) -> Plan:
     """The goals, colours and preferred velocities that an assignment gives this tick (pure: the
     engine computes it for the assignment held while the auction runs, and again if that changed)."""
     preferred = None
@@ -273,8 +379,9 @@ def _plan(scene: Scene, params, k: int, motion: GoalMotion | None, t_rel: float,
         has_goal = assignment >= 0
         goal = np.where(has_goal[:, None], goal_set[assignment], np.nan)
         color = np.where(has_goal[:, None], goal_colors[assignment], 40).astype(np.uint8)
-        preferred, left = _preferred(scene, params, k, motion, t_rel, t, measured[:, :2], goal, assignment,
-                                     hold_for, left)
+        preferred, left = _preferred(
+            scene, params, k, motion, t_rel, t, measured[:, :2], goal, assignment, hold_for, left
+        )
         if motion is not None:
             goal = motion.positions(goal, t_rel)
     else:
@@ -285,6 +392,7 @@ def _plan(scene: Scene, params, k: int, motion: GoalMotion | None, t_rel: float,
 
 def _changed_rows(old: Plan, new: Plan) -> np.ndarray:
     """The robots whose goal or preferred velocity differ, to the bit, between two plans."""
+
     def bits(a: np.ndarray) -> np.ndarray:
         return np.ascontiguousarray(a, dtype=float).view(np.int64)
 
@@ -304,28 +412,66 @@ def _move(world, movers: Movers, res, pose: np.ndarray, t: float, dt: float) -> 
     return velocity
 
 
-def _step_again(res, rows: np.ndarray, params, ids: np.ndarray, measured: np.ndarray, velocity: np.ndarray,
-                plan: Plan, nbs: NeighbourStates, segments: np.ndarray, seed: int, tick: int) -> None:
+def _step_again(
+    res,
+    rows: np.ndarray,
+    params,
+    ids: np.ndarray,
+    measured: np.ndarray,
+    velocity: np.ndarray,
+    plan: Plan,
+    nbs: NeighbourStates,
+    segments: np.ndarray,
+    seed: int,
+    tick: int,
+) -> None:
     """Step the control core again for the robots at ``rows`` (their plan changed) and write their
     results into ``res``: per robot, control_step does not depend on the rest of the batch."""
     if rows.size == 0:
         return
-    again = control_step(params, ids[rows], measured[rows, :2], measured[rows, 2], velocity[rows], plan.goal[rows],
-                         nbs.rows(rows), segments, seed=seed, tick=tick,
-                         preferred=None if plan.preferred is None else plan.preferred[rows], compiled=True)
+    again = control_step(
+        params,
+        ids[rows],
+        measured[rows, :2],
+        measured[rows, 2],
+        velocity[rows],
+        plan.goal[rows],
+        nbs.rows(rows),
+        segments,
+        seed=seed,
+        tick=tick,
+        preferred=None if plan.preferred is None else plan.preferred[rows],
+        compiled=True,
+    )
     res.velocity[rows], res.command[rows] = again.velocity, again.command
     res.pref_velocity[rows], res.fallback[rows] = again.pref_velocity, again.fallback
 
 
-def _preferred(scene: Scene, params, k: int, motion: GoalMotion | None, t_rel: float, t: float,
-               position: np.ndarray, goal0: np.ndarray, assignment: np.ndarray, hold_for: np.ndarray,
-               left: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _preferred(
+    scene: Scene,
+    params,
+    k: int,
+    motion: GoalMotion | None,
+    t_rel: float,
+    t: float,
+    position: np.ndarray,
+    goal0: np.ndarray,
+    assignment: np.ndarray,
+    hold_for: np.ndarray,
+    left: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
     """Preferred velocities where eq. 9 does not apply (NaN rows), as agent.runtime computes them:
     toward a moving goal v_goal + eq. 9 (eq. 28); in a keyframe eq. 27, held K_f iterations from
     the robot's goal change. Returns (preferred, left)."""
     if motion is not None:
-        pref = tracking_velocity(position, motion.positions(goal0, t_rel), motion.velocities(goal0, t_rel),
-                                 params.v_pref, params.k_a, params.v_max)
+        pref = tracking_velocity(
+            position,
+            motion.positions(goal0, t_rel),
+            motion.velocities(goal0, t_rel),
+            params.v_pref,
+            params.k_a,
+            params.v_max,
+        )
         return pref, np.zeros_like(left)
     period = scene.steps[k].frame_period
     iterations = iterations_left(scene.step_starts[k], period, t, params.dt) if period > 0 else 0

@@ -1,4 +1,5 @@
 """The `pixelswarm` command: run a scene, run a router, make goals from an image, list scenes."""
+
 from __future__ import annotations
 
 import argparse
@@ -43,28 +44,52 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     run = sub.add_parser("run", help="run a scene: router, world, tracker, coordinator and one process per robot")
-    run.add_argument("scene", help=f"a shipped scene ({', '.join(shipped_scenes())}), a path to a scene .toml, "
-                                   "an image (PNG, JPEG, BMP, TIFF) to display, or a folder of keyframe images "
-                                   "to play as an animation (file-name order)")
+    run.add_argument(
+        "scene",
+        help=f"a shipped scene ({', '.join(shipped_scenes())}), a path to a scene .toml, "
+        "an image (PNG, JPEG, BMP, TIFF) to display, or a folder of keyframe images "
+        "to play as an animation (file-name order)",
+    )
     run.add_argument("--robots", "-n", type=_positive_int, help="number of robots (overrides the scene)")
     run.add_argument("--seed", type=int, help="random seed (overrides the scene)")
     run.add_argument("--clock", choices=["realtime", "lockstep"], help="clock (overrides the scene)")
     run.add_argument("--duration", type=float, help="seconds of display time at most (overrides the scene)")
     run.add_argument("--out", type=Path, help="run directory (default runs/<UTC time>-<scene>)")
-    run.add_argument("--engine", choices=["distributed", "central"],
-                     help="distributed: one process per robot over zenoh (default, unless the scene says "
-                          "engine = \"central\"); central: every robot stepped in one call with perfect "
-                          "information (reference, and fast for large swarms)")
+    run.add_argument(
+        "--engine",
+        choices=["distributed", "central"],
+        help="distributed: one process per robot over zenoh (default, unless the scene says "
+        'engine = "central"); central: every robot stepped in one call with perfect '
+        "information (reference, and fast for large swarms)",
+    )
     run.add_argument("--no-video", dest="video", action="store_false", help="skip display.mp4")
-    run.add_argument("--agents-per-process", "-k", type=_positive_int, metavar="K",
-                     help="robots per agent process (default 1: one process per robot, unless the scene "
-                          "says agents_per_process = K)")
-    run.add_argument("--faults", default="", metavar="PLAN",
-                     help="fault injection, e.g. 'state:drop=0.1,delay=0.05,jitter=0.01' (';' between kinds)")
-    run.add_argument("--deadline", type=float, default=None,
-                     help="lock-step: seconds to wait for a late agent's command (default: the scene's, 2 s)")
-    run.add_argument("--agents-connect", action="append", default=[], metavar="ENDPOINT",
-                     help="spread agent processes over these routers, round robin (repeatable; default: ours)")
+    run.add_argument(
+        "--agents-per-process",
+        "-k",
+        type=_positive_int,
+        metavar="K",
+        help="robots per agent process (default 1: one process per robot, unless the scene "
+        "says agents_per_process = K)",
+    )
+    run.add_argument(
+        "--faults",
+        default="",
+        metavar="PLAN",
+        help="fault injection, e.g. 'state:drop=0.1,delay=0.05,jitter=0.01' (';' between kinds)",
+    )
+    run.add_argument(
+        "--deadline",
+        type=float,
+        default=None,
+        help="lock-step: seconds to wait for a late agent's command (default: the scene's, 2 s)",
+    )
+    run.add_argument(
+        "--agents-connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="spread agent processes over these routers, round robin (repeatable; default: ours)",
+    )
     run.add_argument("--display", default="default", help="display name (key prefix), for several swarms")
     run.add_argument("--quiet", "-q", action="store_true", help="no progress output")
     add_zenoh_args(run, default_mode="router")
@@ -108,9 +133,18 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.listen:
         router = ZenohSettings(mode="router", listen=list(args.listen), connect=list(args.connect))
     k = args.agents_per_process or scene.agents_per_process
-    options = RunOptions(out=out, video=args.video, agents_per_process=k,
-                         display=args.display, router=router, connect=[] if args.listen else list(args.connect),
-                         faults=faults, agent_routers=list(args.agents_connect), deadline=scene.deadline if args.deadline is None else args.deadline, progress=None if args.quiet else sys.stderr)
+    options = RunOptions(
+        out=out,
+        video=args.video,
+        agents_per_process=k,
+        display=args.display,
+        router=router,
+        connect=[] if args.listen else list(args.connect),
+        faults=faults,
+        agent_routers=list(args.agents_connect),
+        deadline=scene.deadline if args.deadline is None else args.deadline,
+        progress=None if args.quiet else sys.stderr,
+    )
     try:
         path = Launcher(scene, options).run()
     except TransportError as err:
@@ -151,8 +185,14 @@ def cmd_scenes(args: argparse.Namespace) -> int:
     for name in shipped_scenes():
         with open(resolve_scene_path(name), "rb") as f:
             data = tomllib.load(f)
-        rows.append((name, int(data.get("robots", 0)), data.get("robot", {}).get("kinematics", "diffdrive"),
-                     data.get("description", "")))
+        rows.append(
+            (
+                name,
+                int(data.get("robots", 0)),
+                data.get("robot", {}).get("kinematics", "diffdrive"),
+                data.get("description", ""),
+            )
+        )
     # columns as wide as their longest entry, so that any name length keeps them aligned
     name_width = max((len(name) for name, *_ in rows), default=0)
     robots_width = max((len(str(robots)) for _, robots, *_ in rows), default=0)

@@ -2,6 +2,7 @@
 
 All functions work on numpy arrays with a trailing coordinate axis; SI units (metres, radians).
 """
+
 from __future__ import annotations
 
 import math

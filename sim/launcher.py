@@ -4,6 +4,7 @@ Every participant is a real OS process talking over a real zenoh router on loopb
 in their own process group (a terminal's Ctrl-C reaches only the launcher, which then shuts them
 down in order) and exit by themselves if the launcher disappears.
 """
+
 from __future__ import annotations
 
 import json
@@ -71,15 +72,21 @@ class Launcher:
         self.failed: list[dict[str, Any]] = []
 
     # --- processes ----------------------------------------------------------------------------
-    def _spawn(self, name: str, module: str, args: list[str], robots: list[int],
-               client: ZenohSettings | None = None) -> Child:
+    def _spawn(
+        self, name: str, module: str, args: list[str], robots: list[int], client: ZenohSettings | None = None
+    ) -> Child:
         log = self.run_dir / "logs" / f"{name}.log"
         log.parent.mkdir(exist_ok=True)
         zenoh_args = (client or self.client).to_args()
         with open(log, "w") as fh:
-            proc = subprocess.Popen([sys.executable, "-m", module, *args, "--exit-with-parent", *zenoh_args],
-                                    stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                    start_new_session=True, cwd=os.getcwd())
+            proc = subprocess.Popen(
+                [sys.executable, "-m", module, *args, "--exit-with-parent", *zenoh_args],
+                stdout=fh,
+                stderr=subprocess.STDOUT,
+                stdin=subprocess.DEVNULL,
+                start_new_session=True,
+                cwd=os.getcwd(),
+            )
         child = Child(name, proc, robots, log)
         self.children.append(child)
         return child
@@ -96,14 +103,21 @@ class Launcher:
         faults = ["--faults", format_faults(self.opt.faults)] if self.opt.faults else []
         lockstep = self.scene.clock == "lockstep"
         for h in range(math.ceil(len(ids) / k)):
-            robots = ids[h * k:(h + 1) * k]
-            config = HostConfig(robots=robots, params=self.params, display=self.opt.display, seed=self.scene.seed,
-                                arena=self.scene.arena, obstacles=self.scene.obstacles,
-                                lockstep=lockstep, greet=self._near_at_start(robots, ids) if lockstep else [],
-                                # with injected loss or delay on states, waiting would only slow the run
-                                state_wait=0.0 if "state" in self.opt.faults else 1.5,
-                                pursue={r: t for r, t in self.scene.pursuers.items() if r in robots},
-                                frames=self._frames)
+            robots = ids[h * k : (h + 1) * k]
+            config = HostConfig(
+                robots=robots,
+                params=self.params,
+                display=self.opt.display,
+                seed=self.scene.seed,
+                arena=self.scene.arena,
+                obstacles=self.scene.obstacles,
+                lockstep=lockstep,
+                greet=self._near_at_start(robots, ids) if lockstep else [],
+                # with injected loss or delay on states, waiting would only slow the run
+                state_wait=0.0 if "state" in self.opt.faults else 1.5,
+                pursue={r: t for r, t in self.scene.pursuers.items() if r in robots},
+                frames=self._frames,
+            )
             path = cfg_dir / f"agents-{h:04d}.json"
             path.write_text(config.to_json())
             routers = self.opt.agent_routers
@@ -130,12 +144,23 @@ class Launcher:
                 continue
             child.reported = True  # type: ignore[attr-defined]
             if child.name.startswith("agent"):
-                self.crashes.append({"process": child.name, "pid": child.proc.pid, "robots": child.robots,
-                                     "returncode": code, "sim_time_s": recorder.sim_time,
-                                     "noticed_wall_time": time.time()})
+                self.crashes.append(
+                    {
+                        "process": child.name,
+                        "pid": child.proc.pid,
+                        "robots": child.robots,
+                        "returncode": code,
+                        "sim_time_s": recorder.sim_time,
+                        "noticed_wall_time": time.time(),
+                    }
+                )
                 # Always reported, --quiet or not: a crash is not progress.
-                print(f"pixelswarm: agent process {child.name} (pid {child.proc.pid}, robots {child.robots}) "
-                      f"exited with code {code}; its robots stay in the world, stopped", file=sys.stderr, flush=True)
+                print(
+                    f"pixelswarm: agent process {child.name} (pid {child.proc.pid}, robots {child.robots}) "
+                    f"exited with code {code}; its robots stay in the world, stopped",
+                    file=sys.stderr,
+                    flush=True,
+                )
             elif child.name == "world":
                 self.world_exit = code
 
@@ -169,8 +194,10 @@ class Launcher:
         err = np.hypot(*(pose[:, :2] - rec.goal).T)
         at_goal = int(np.sum(err <= self.params.goal_tolerance))
         with_goal = int(np.sum(np.isfinite(err)))
-        self._say(f"[{self.scene.name}] t={rec.sim_time:6.1f} s  at goal {at_goal}/{with_goal}  "
-                  f"min clearance {rec.last_min_clearance:+.3f} m  contacts {len(rec.contacts)}")
+        self._say(
+            f"[{self.scene.name}] t={rec.sim_time:6.1f} s  at goal {at_goal}/{with_goal}  "
+            f"min clearance {rec.last_min_clearance:+.3f} m  contacts {len(rec.contacts)}"
+        )
 
     # --- the run ------------------------------------------------------------------------------
     def _on_signal(self, signum: int, frame: object) -> None:
@@ -203,13 +230,21 @@ class Launcher:
         try:
             recorder = Recorder(bus, self.scene.robots, self.params.goal_tolerance, str(self.run_dir / "log.mcap"))
             endpoint = ", ".join(settings.listen or settings.connect)
-            self._say(f"[{self.scene.name}] {self.scene.robots} robots, {self.scene.clock} clock, router {endpoint}",
-                      force=True)
+            self._say(
+                f"[{self.scene.name}] {self.scene.robots} robots, {self.scene.clock} clock, router {endpoint}",
+                force=True,
+            )
             coord = self._spawn("coordinator", "coordinator.service", self._scene_args(), [])
             self._wait_alive(recorder, "coordinator", 1, coord)
             self._start_agents()
-            world_args = self._scene_args() + ["--clock", self.scene.clock, "--duration", str(self.scene.duration),
-                                               "--deadline", str(self.opt.deadline)]
+            world_args = self._scene_args() + [
+                "--clock",
+                self.scene.clock,
+                "--duration",
+                str(self.scene.duration),
+                "--deadline",
+                str(self.opt.deadline),
+            ]
             world_args += ["--pose-frames"] if self._frames else []
             self._spawn("world", "sim.world_node", world_args, [])
             end_reason = self._loop(bus, recorder)
@@ -282,12 +317,16 @@ class Launcher:
                     child.proc.send_signal(signal.SIGKILL)
                     child.reported = True  # type: ignore[attr-defined]  # killed on purpose, not a crash
                     self.failed.append({"robots": child.robots, "sim_time_s": t, "wall_time": time.time()})
-                    self._say(f"[{self.scene.name}] t={t:.1f} s: killed agent process {child.name} "
-                              f"(robots {child.robots}) as the scene says", force=True)
+                    self._say(
+                        f"[{self.scene.name}] t={t:.1f} s: killed agent process {child.name} "
+                        f"(robots {child.robots}) as the scene says",
+                        force=True,
+                    )
 
     def _world_done(self, rec: Recorder) -> dict | None:
         """The world's final report: from the bus, or once the world has exited cleanly and a busy
         recorder still has not seen it (bounded wait), from the world's log."""
+
         def on_bus() -> dict | None:
             return next((e for e in rec.events if e.get("kind") == "world-done"), None)
 
@@ -302,7 +341,7 @@ class Launcher:
         log = next((c.log for c in self.children if c.name == "world"), None)
         lines = log.read_text().splitlines() if log is not None and log.exists() else []
         report = next((ln for ln in reversed(lines) if ln.startswith("WORLD-DONE ")), None)
-        return json.loads(report[len("WORLD-DONE "):]) if report else None
+        return json.loads(report[len("WORLD-DONE ") :]) if report else None
 
     # --- outputs ------------------------------------------------------------------------------
     def _write(self, rec: Recorder, end_reason: str, wall_s: float) -> Path:
@@ -318,25 +357,41 @@ class Launcher:
                 dropped[reason] = dropped.get(reason, 0) + int(k)
         walls = rec.traj.wall
         stepping_wall = walls[-1] - walls[0] if len(walls) > 1 else 0.0  # start-up excluded
-        lost = [e for e in rec.liveliness if e["role"] == "agent" and not e["alive"]
-                and e["wall_time"] < getattr(self, "shutdown_wall", float("inf"))]
+        lost = [
+            e
+            for e in rec.liveliness
+            if e["role"] == "agent" and not e["alive"] and e["wall_time"] < getattr(self, "shutdown_wall", float("inf"))
+        ]
         self._say(f"[{self.scene.name}] run ended ({end_reason}); writing {self.run_dir.path.name}", force=True)
         return write_run(
-            self.run_dir, self.scene, self.params, arrays, wall_s=wall_s, contacts=stats.get("contacts", []),
+            self.run_dir,
+            self.scene,
+            self.params,
+            arrays,
+            wall_s=wall_s,
+            contacts=stats.get("contacts", []),
             video=self.opt.video and not interrupted,
-            message_counts=rec.counts, message_bytes=rec.bytes, missed_ticks=int(stats.get("missed_ticks", 0)),
-            agents_crashed=len(self.crashes), agents_failed_by_scene=self.failed, end_reason=end_reason, complete=not interrupted,
-            engine="distributed", agents_per_process=self.opt.agents_per_process,
+            message_counts=rec.counts,
+            message_bytes=rec.bytes,
+            missed_ticks=int(stats.get("missed_ticks", 0)),
+            agents_crashed=len(self.crashes),
+            agents_failed_by_scene=self.failed,
+            end_reason=end_reason,
+            complete=not interrupted,
+            engine="distributed",
+            agents_per_process=self.opt.agents_per_process,
             agent_processes=sum(c.name.startswith("agent") for c in self.children),
             min_clearance_substep_m=stats.get("min_clearance"),
             commands_applied=int(sum(stats.get("commands_applied", []))),
             commands_sent=int(rec.counts.get("cmd", 0)) + rec.framed_commands,
             late_commands=int(stats.get("late_commands", 0)),
             orca_fallbacks=int(sum(s.get("fallbacks", 0) for s in agent_stats)),
-            dropped_messages=dropped, crashes=self.crashes,
+            dropped_messages=dropped,
+            crashes=self.crashes,
             liveliness_lost=[{"robot": e["id"], "wall_time": e["wall_time"]} for e in lost],
             faults=format_faults(self.opt.faults),
             stepping_wall_s=stepping_wall,
-            stepping_realtime_factor=(float(arrays["t"][-1] - arrays["t"][0]) / stepping_wall
-                                      if stepping_wall else None),
+            stepping_realtime_factor=(
+                float(arrays["t"][-1] - arrays["t"][0]) / stepping_wall if stepping_wall else None
+            ),
         )

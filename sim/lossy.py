@@ -8,6 +8,7 @@ of minutes, so sweeps over loss rates and seeds are cheap (bench/bench_loss.py).
 newest state it heard of each neighbour and its age, exactly as agent.neighbour_table does, and
 the control step is the agents' own (agent.core.step.control_step).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -34,9 +35,17 @@ class LossyResult:
 def circle_crossing(robots: int, kinematics: str, seed: int, duration: float = 25.0) -> Scene:
     """The study's case: robots on a circle (0.2 m apart) crossing to the antipodal point, through
     the crowd at the centre, where lost states matter most; 25 s takes them past it."""
-    return scene_from_dict({"robots": robots, "duration": duration, "robot": {"kinematics": kinematics},
-                            "layout": {"kind": "circle", "spacing": 0.2}, "goals": {"kind": "antipodal"}},
-                           source="circle-crossing", seed=seed)
+    return scene_from_dict(
+        {
+            "robots": robots,
+            "duration": duration,
+            "robot": {"kinematics": kinematics},
+            "layout": {"kind": "circle", "spacing": 0.2},
+            "goals": {"kind": "antipodal"},
+        },
+        source="circle-crossing",
+        seed=seed,
+    )
 
 
 def run_lossy(scene: Scene, drop: float, late: float, seed: int = 0) -> LossyResult:
@@ -71,8 +80,9 @@ def run_lossy(scene: Scene, drop: float, late: float, seed: int = 0) -> LossyRes
             heard_pos = np.where(arrive[..., None], pos[None], heard_pos)
             heard_vel = np.where(arrive[..., None], vel[None], heard_vel)
         nb = _nearest_heard(measured[:, :2], heard_tick, heard_pos, heard_vel, tick, params, m)
-        res = control_step(params, ids, measured[:, :2], measured[:, 2], velocity, goal, nb, None,
-                           seed=scene.seed, tick=tick)
+        res = control_step(
+            params, ids, measured[:, :2], measured[:, 2], velocity, goal, nb, None, seed=scene.seed, tick=tick
+        )
         velocity = res.velocity
         fallbacks += int(res.fallback.sum())
         sent.append((measured[:, :2].copy(), velocity.copy()))

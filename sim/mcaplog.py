@@ -15,8 +15,9 @@ from __future__ import annotations
 import json
 import os
 import threading
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 import numpy as np
 from mcap.reader import make_reader
@@ -193,7 +194,7 @@ class McapLog:
             finally:
                 self._fh.close()
 
-    def __enter__(self) -> "McapLog":
+    def __enter__(self) -> McapLog:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
@@ -262,8 +263,12 @@ def _num() -> dict:
 
 
 def _obj(title: str, props: dict, required: list[str] | None = None) -> dict:
-    return {"title": title, "type": "object", "properties": props,
-            "required": list(props) if required is None else required}
+    return {
+        "title": title,
+        "type": "object",
+        "properties": props,
+        "required": list(props) if required is None else required,
+    }
 
 
 def _vec3() -> dict:
@@ -271,15 +276,22 @@ def _vec3() -> dict:
 
 
 def _time() -> dict:
-    return {"title": "time", "type": "object",
-            "properties": {"sec": {"type": "integer", "minimum": 0},
-                           "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}}}
+    return {
+        "title": "time",
+        "type": "object",
+        "properties": {
+            "sec": {"type": "integer", "minimum": 0},
+            "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999},
+        },
+    }
 
 
 def _duration() -> dict:
-    return {"title": "duration", "type": "object",
-            "properties": {"sec": {"type": "integer"},
-                           "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}}}
+    return {
+        "title": "duration",
+        "type": "object",
+        "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}},
+    }
 
 
 def _pose() -> dict:
@@ -294,27 +306,50 @@ def _color() -> dict:
 def scene_update_schema() -> dict:
     """JSON schema for the subset of ``foxglove.SceneUpdate`` that :func:`scene_update` emits
     (entities with cylinders and arrows; deletions)."""
-    cylinder = _obj("foxglove.CylinderPrimitive", {
-        "pose": _pose(), "size": _vec3(), "bottom_scale": _num(), "top_scale": _num(), "color": _color(),
-    })
-    arrow = _obj("foxglove.ArrowPrimitive", {
-        "pose": _pose(), "shaft_length": _num(), "shaft_diameter": _num(),
-        "head_length": _num(), "head_diameter": _num(), "color": _color(),
-    })
+    cylinder = _obj(
+        "foxglove.CylinderPrimitive",
+        {
+            "pose": _pose(),
+            "size": _vec3(),
+            "bottom_scale": _num(),
+            "top_scale": _num(),
+            "color": _color(),
+        },
+    )
+    arrow = _obj(
+        "foxglove.ArrowPrimitive",
+        {
+            "pose": _pose(),
+            "shaft_length": _num(),
+            "shaft_diameter": _num(),
+            "head_length": _num(),
+            "head_diameter": _num(),
+            "color": _color(),
+        },
+    )
     kv = _obj("foxglove.KeyValuePair", {"key": {"type": "string"}, "value": {"type": "string"}})
-    entity = _obj("foxglove.SceneEntity", {
-        "timestamp": _time(),
-        "frame_id": {"type": "string"},
-        "id": {"type": "string"},
-        "lifetime": _duration(),
-        "frame_locked": {"type": "boolean"},
-        "metadata": {"type": "array", "items": kv},
-        "cylinders": {"type": "array", "items": cylinder},
-        "arrows": {"type": "array", "items": arrow},
-    }, required=["timestamp", "frame_id", "id", "lifetime", "frame_locked"])
-    deletion = _obj("foxglove.SceneEntityDeletion", {
-        "timestamp": _time(), "type": {"type": "integer", "enum": [0, 1]}, "id": {"type": "string"},
-    })
+    entity = _obj(
+        "foxglove.SceneEntity",
+        {
+            "timestamp": _time(),
+            "frame_id": {"type": "string"},
+            "id": {"type": "string"},
+            "lifetime": _duration(),
+            "frame_locked": {"type": "boolean"},
+            "metadata": {"type": "array", "items": kv},
+            "cylinders": {"type": "array", "items": cylinder},
+            "arrows": {"type": "array", "items": arrow},
+        },
+        required=["timestamp", "frame_id", "id", "lifetime", "frame_locked"],
+    )
+    deletion = _obj(
+        "foxglove.SceneEntityDeletion",
+        {
+            "timestamp": _time(),
+            "type": {"type": "integer", "enum": [0, 1]},
+            "id": {"type": "string"},
+        },
+    )
     return {
         "title": SCENE_UPDATE_SCHEMA_NAME,
         "description": "An update to the entities displayed in a 3D scene (pixelswarm subset)",
@@ -350,8 +385,7 @@ def scene_update(
     pose = np.asarray(pose, dtype=float).reshape(-1, 3)
     n = len(pose)
     radius = np.broadcast_to(np.asarray(radius, dtype=float), (n,))
-    rgb = (np.full((n, 3), 160, dtype=float) if color is None
-           else np.asarray(color, dtype=float).reshape(n, 3)) / 255.0
+    rgb = (np.full((n, 3), 160, dtype=float) if color is None else np.asarray(color, dtype=float).reshape(n, 3)) / 255.0
     ids = [str(i) for i in (range(n) if ids is None else ids)]
     stamp = _stamp(t_ns)
     entities = []
@@ -370,19 +404,27 @@ def scene_update(
             "lifetime": {"sec": 0, "nsec": 0},
             "frame_locked": False,
             "metadata": [],
-            "cylinders": [{
-                "pose": {"position": {"x": float(x), "y": float(y), "z": height / 2}, "orientation": q},
-                "size": {"x": 2 * r, "y": 2 * r, "z": height},
-                "bottom_scale": 1.0, "top_scale": 1.0, "color": col,
-            }],
+            "cylinders": [
+                {
+                    "pose": {"position": {"x": float(x), "y": float(y), "z": height / 2}, "orientation": q},
+                    "size": {"x": 2 * r, "y": 2 * r, "z": height},
+                    "bottom_scale": 1.0,
+                    "top_scale": 1.0,
+                    "color": col,
+                }
+            ],
             "arrows": [],
         }
         if heading:
-            ent["arrows"].append({
-                "pose": {"position": {"x": float(x), "y": float(y), "z": height + 0.001}, "orientation": q},
-                "shaft_length": 0.6 * r, "shaft_diameter": 0.15 * r,
-                "head_length": 0.35 * r, "head_diameter": 0.35 * r,
-                "color": {"r": 0.1, "g": 0.1, "b": 0.1, "a": 1.0},
-            })
+            ent["arrows"].append(
+                {
+                    "pose": {"position": {"x": float(x), "y": float(y), "z": height + 0.001}, "orientation": q},
+                    "shaft_length": 0.6 * r,
+                    "shaft_diameter": 0.15 * r,
+                    "head_length": 0.35 * r,
+                    "head_diameter": 0.35 * r,
+                    "color": {"r": 0.1, "g": 0.1, "b": 0.1, "a": 1.0},
+                }
+            )
         entities.append(ent)
     return {"deletions": [], "entities": entities}

@@ -7,7 +7,8 @@ removed) are ignored at that sample.
 
 from __future__ import annotations
 
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -148,9 +149,15 @@ def time_to_converge(t: np.ndarray, pose: np.ndarray, goal: np.ndarray, toleranc
     return float(t[k])
 
 
-def step_metrics(t: np.ndarray, pose: np.ndarray, goal: np.ndarray, step: np.ndarray,
-                 tolerance: float, current: np.ndarray | None = None,
-                 members: np.ndarray | None = None) -> list[dict[str, Any]]:
+def step_metrics(
+    t: np.ndarray,
+    pose: np.ndarray,
+    goal: np.ndarray,
+    step: np.ndarray,
+    tolerance: float,
+    current: np.ndarray | None = None,
+    members: np.ndarray | None = None,
+) -> list[dict[str, Any]]:
     """Per image step (``step`` (T,) int, the step shown at each sample; negative: none): its first
     and last sample times ``t_start`` / ``t_end``, ``converged_at`` (seconds after t_start of the
     first sample at which every robot with a goal is within ``tolerance``, or None),
@@ -185,15 +192,17 @@ def step_metrics(t: np.ndarray, pose: np.ndarray, goal: np.ndarray, step: np.nda
         known = bool(len(at_end) and np.isfinite(at_end).any())
         # Motion from each of the step's samples to the next one belongs to the step.
         legs = moved[idx[idx < len(moved)]]
-        out.append({
-            "index": int(k),
-            "t_start": float(t[first]),
-            "t_end": float(t[last]),
-            "converged_at": float(t[ok[0]] - t[first]) if len(ok) else None,
-            "max_goal_error_at_end": float(np.nanmax(at_end)) if known else None,
-            "median_goal_error_at_end": float(np.nanmedian(at_end)) if known else None,
-            "path_length_m": float(np.nansum(legs)),
-        })
+        out.append(
+            {
+                "index": int(k),
+                "t_start": float(t[first]),
+                "t_end": float(t[last]),
+                "converged_at": float(t[ok[0]] - t[first]) if len(ok) else None,
+                "max_goal_error_at_end": float(np.nanmax(at_end)) if known else None,
+                "median_goal_error_at_end": float(np.nanmedian(at_end)) if known else None,
+                "path_length_m": float(np.nansum(legs)),
+            }
+        )
     return out
 
 
@@ -291,8 +300,9 @@ def summarise(
     return out
 
 
-def keyframe_errors(traj: Mapping[str, np.ndarray], step_starts: list[float], frame_periods: list[float],
-                    v_max: float) -> list[np.ndarray]:
+def keyframe_errors(
+    traj: Mapping[str, np.ndarray], step_starts: list[float], frame_periods: list[float], v_max: float
+) -> list[np.ndarray]:
     """Per keyframe of a distributed animation (paper 6.2): the distance of each robot to its goal
     when the keyframe's K_f dt is over, for the robots whose move the speed allows (distance from
     where the robot was when it got its goal of this keyframe, carried or agreed, over the time left

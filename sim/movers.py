@@ -7,6 +7,7 @@ avoids nobody, a dynamic obstacle the robot pixels take full responsibility for.
 scripted movers over the bus (sim.world_node); the central engine drives both kinds in one call with
 ``Movers``.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -63,8 +64,9 @@ class Movers:
         color[list(self.scripted)] = 255
         return goal, color
 
-    def commands(self, command: np.ndarray, velocity: np.ndarray, poses: np.ndarray, t: float,
-                 dt: float) -> tuple[np.ndarray, np.ndarray]:
+    def commands(
+        self, command: np.ndarray, velocity: np.ndarray, poses: np.ndarray, t: float, dt: float
+    ) -> tuple[np.ndarray, np.ndarray]:
         """The robots' commands and collision-free velocities, with each scripted mover's replaced by
         its scripted velocity for the period from t (a holonomic body's command; whatever the control
         step computed for it is dropped). The velocity is also what its neighbours hear, as the world

@@ -1,4 +1,5 @@
 """Writing a finished run: metrics, trajectory, plots, video and the scene, then the atomic commit."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -28,27 +29,75 @@ def newest_goal_set(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     return {"step_members": members, "step_current": current}
 
 
-def write_run(run_dir: RunDir, scene: Scene, params: RobotParams, arrays: dict[str, np.ndarray], *,
-              wall_s: float, contacts: list[dict[str, Any]], video: bool, **metrics_extra: Any) -> Path:
+def write_run(
+    run_dir: RunDir,
+    scene: Scene,
+    params: RobotParams,
+    arrays: dict[str, np.ndarray],
+    *,
+    wall_s: float,
+    contacts: list[dict[str, Any]],
+    video: bool,
+    **metrics_extra: Any,
+) -> Path:
     """Everything a run directory holds, from the true trajectory; returns the committed path."""
     n = scene.robots
     radius = np.full(n, params.radius)
     t = arrays["t"]
     clearance = clearance_over_time(arrays["pose"], radius) if len(t) else np.zeros(0)
-    metrics = summarise(t=t, pose=arrays["pose"], radius=radius, wall_s=wall_s, contacts=len(contacts),
-                        goal=arrays["goal"], tolerance=params.goal_tolerance, clearance=clearance,
-                        step=arrays.get("step"), **newest_goal_set(arrays),
-                        scene=scene.name, seed=scene.seed, clock=scene.clock, contact_events=contacts,
-                        **metrics_extra)
+    metrics = summarise(
+        t=t,
+        pose=arrays["pose"],
+        radius=radius,
+        wall_s=wall_s,
+        contacts=len(contacts),
+        goal=arrays["goal"],
+        tolerance=params.goal_tolerance,
+        clearance=clearance,
+        step=arrays.get("step"),
+        **newest_goal_set(arrays),
+        scene=scene.name,
+        seed=scene.seed,
+        clock=scene.clock,
+        contact_events=contacts,
+        **metrics_extra,
+    )
     write_json(run_dir / "metrics.json", metrics)
     write_npz(run_dir / "trajectory.npz", radius=radius, **arrays)
     if len(t):
-        write_plots(run_dir.path, t, clearance, arrays["pose"], radius, scene.arena, scene.obstacles,
-                    arrays["goal"], color=arrays["color"])
+        write_plots(
+            run_dir.path,
+            t,
+            clearance,
+            arrays["pose"],
+            radius,
+            scene.arena,
+            scene.obstacles,
+            arrays["goal"],
+            color=arrays["color"],
+        )
         if video:
-            write_video(run_dir / "display.mp4", t, arrays["pose"], radius, arrays["color"], scene.arena,
-                        scene.obstacles, arrays["goal"])
-    write_json(run_dir / "scene.json", {"name": scene.name, "source": scene.source, "robots": n, "seed": scene.seed,
-                                        "clock": scene.clock, "arena": scene.arena, "obstacles": scene.obstacles,
-                                        "robot": params.to_dict()})
+            write_video(
+                run_dir / "display.mp4",
+                t,
+                arrays["pose"],
+                radius,
+                arrays["color"],
+                scene.arena,
+                scene.obstacles,
+                arrays["goal"],
+            )
+    write_json(
+        run_dir / "scene.json",
+        {
+            "name": scene.name,
+            "source": scene.source,
+            "robots": n,
+            "seed": scene.seed,
+            "clock": scene.clock,
+            "arena": scene.arena,
+            "obstacles": scene.obstacles,
+            "robot": params.to_dict(),
+        },
+    )
     return run_dir.commit()

@@ -18,6 +18,7 @@ numba: every pair within that distance lies in the 3 x 3 cells around either one
 
 Positions must be finite.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -60,7 +61,12 @@ def _grid(x: np.ndarray, y: np.ndarray, reach: float) -> tuple:
 
 @njit(cache=True, nogil=True)
 def _close_pairs(
-    traj: np.ndarray, radius: np.ndarray, reach: float, motion: float, bound: float, first_row: int,
+    traj: np.ndarray,
+    radius: np.ndarray,
+    reach: float,
+    motion: float,
+    bound: float,
+    first_row: int,
     budget: int,
 ) -> tuple:
     """close_pairs, compiled: (done, clearance, i, j, pairs, depth (H, rows - first_row))."""
@@ -150,8 +156,14 @@ def close_pairs(
     """
     budget = np.iinfo(np.int64).max if budget < 0 else budget
     done, best, i, j, hits, depth = _close_pairs(
-        np.ascontiguousarray(traj, dtype=float), np.ascontiguousarray(radius, dtype=float),
-        float(reach), float(motion), float(bound), int(first_row), int(budget))
+        np.ascontiguousarray(traj, dtype=float),
+        np.ascontiguousarray(radius, dtype=float),
+        float(reach),
+        float(motion),
+        float(bound),
+        int(first_row),
+        int(budget),
+    )
     if not done:
         return None
     return float(best), int(i), int(j), hits, depth.T

@@ -4,6 +4,7 @@ It measures the run from the world's TRUE poses (``sim/truth``), never from what
 it logs every message kind on its own MCAP channel; it counts messages and bytes per kind, and it
 decides when the display has converged.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -77,7 +78,9 @@ class Recorder:
         self.assign_instance = np.zeros(robots, np.int64)
         self.step = 0  # the scene step of the newest goal set
         self.goal_sets: dict[int, Goals] = {}  # epoch -> the coordinator's goal set
-        self.bid_positions: dict[tuple[int, int], dict[int, tuple[float, float, float]]] = {}  # (epoch, instance) -> robot -> x, y, penalty
+        self.bid_positions: dict[
+            tuple[int, int], dict[int, tuple[float, float, float]]
+        ] = {}  # (epoch, instance) -> robot -> x, y, penalty
         self.counts: dict[str, int] = {}
         self.framed_commands = 0  # commands inside agent hosts' frames (codec.Commands)
         self.bytes: dict[str, int] = {}
@@ -206,7 +209,9 @@ class Recorder:
             schema = json_schema_of(BY_NAME[kind]) if kind in BY_NAME else {"type": "object"}
             name = BY_NAME[kind].__name__ if kind in BY_NAME else kind
             cid = self._channels[kind] = self.log.add_channel("/" + kind, f"pixelswarm.{name}", schema)
-        self.log.write_bytes(cid, int(wall * 1e9), orjson.dumps(payload, default=_as_list, option=orjson.OPT_SERIALIZE_NUMPY))
+        self.log.write_bytes(
+            cid, int(wall * 1e9), orjson.dumps(payload, default=_as_list, option=orjson.OPT_SERIALIZE_NUMPY)
+        )
 
     def close_log(self) -> None:
         if self.log is not None:
@@ -217,12 +222,22 @@ class Recorder:
         tr = self.traj
         n = self.n
         if not tr.t:
-            return {"t": np.zeros(0), "pose": np.zeros((0, n, 3)), "velocity": np.zeros((0, n, 2)),
-                    "color": np.zeros((0, n, 3), np.uint8), "goal": np.zeros((0, n, 2)),
-                    "assignment": np.zeros((0, n), int)}
-        out = {"t": np.array(tr.t), "pose": np.stack(tr.pose), "velocity": np.stack(tr.velocity),
-               "color": np.stack(tr.color).astype(np.uint8), "goal": np.stack(tr.goal),
-               "assignment": np.stack(tr.assignment)}
+            return {
+                "t": np.zeros(0),
+                "pose": np.zeros((0, n, 3)),
+                "velocity": np.zeros((0, n, 2)),
+                "color": np.zeros((0, n, 3), np.uint8),
+                "goal": np.zeros((0, n, 2)),
+                "assignment": np.zeros((0, n), int),
+            }
+        out = {
+            "t": np.array(tr.t),
+            "pose": np.stack(tr.pose),
+            "velocity": np.stack(tr.velocity),
+            "color": np.stack(tr.color).astype(np.uint8),
+            "goal": np.stack(tr.goal),
+            "assignment": np.stack(tr.assignment),
+        }
         if self.goal_sets:
             out.update(self._auction_arrays())
         return out
@@ -234,8 +249,9 @@ class Recorder:
         tr, n = self.traj, self.n
         epoch = np.stack(tr.assignment_epoch)
         instance = np.stack(tr.assignment_instance)
-        announced = sorted({(int(e), int(k)) for e, k in zip(epoch.ravel(), instance.ravel())
-                            if e > 0 and k != State.CARRIED})  # carried goals were never agreed
+        announced = sorted(
+            {(int(e), int(k)) for e, k in zip(epoch.ravel(), instance.ravel()) if e > 0 and k != State.CARRIED}
+        )  # carried goals were never agreed
         positions = np.full((len(announced), n, 2), np.nan)
         penalties = np.full((len(announced), n), np.nan)
         for a, key in enumerate(announced):
@@ -251,8 +267,17 @@ class Recorder:
             goal_sets[i, : len(gs.positions)] = gs.positions
             colors[i, : len(gs.colors)] = gs.colors
             members[i, gs.robots[gs.robots < n]] = True
-        return {"step": np.array(tr.step), "goal_set_epoch": np.array(tr.goal_set_epoch), "assignment_epoch": epoch, "assignment_instance": instance,
-                "agreements": np.array(announced, np.int64).reshape(-1, 2), "agreement_positions": positions,
-                "agreement_penalties": penalties,
-                "goal_set_epochs": np.array(epochs), "goal_sets": goal_sets, "goal_set_colors": colors, "goal_set_robots": members,
-                "goal_set_steps": np.array([self.goal_sets[e].step for e in epochs])}
+        return {
+            "step": np.array(tr.step),
+            "goal_set_epoch": np.array(tr.goal_set_epoch),
+            "assignment_epoch": epoch,
+            "assignment_instance": instance,
+            "agreements": np.array(announced, np.int64).reshape(-1, 2),
+            "agreement_positions": positions,
+            "agreement_penalties": penalties,
+            "goal_set_epochs": np.array(epochs),
+            "goal_sets": goal_sets,
+            "goal_set_colors": colors,
+            "goal_set_robots": members,
+            "goal_set_steps": np.array([self.goal_sets[e].step for e in epochs]),
+        }

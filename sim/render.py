@@ -16,8 +16,8 @@ polygons, each a list of (x, y) vertices.
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import cv2
 import numpy as np
@@ -104,8 +104,15 @@ def _draw(
             gfx = view.fixed(np.where(gok[:, None], g, 0.0))
             gcol = np.maximum(bgr * 0.45, 55).astype(np.int64)
             for i in np.flatnonzero(gok).tolist():
-                cv2.circle(img, (int(gfx[i, 0]), int(gfx[i, 1])), int(r_fx[i]),
-                           tuple(int(c) for c in gcol[i]), 1, cv2.LINE_AA, _SHIFT)
+                cv2.circle(
+                    img,
+                    (int(gfx[i, 0]), int(gfx[i, 1])),
+                    int(r_fx[i]),
+                    tuple(int(c) for c in gcol[i]),
+                    1,
+                    cv2.LINE_AA,
+                    _SHIFT,
+                )
 
     xy = pose[:, :2]
     ok = np.isfinite(xy).all(axis=1)
@@ -231,8 +238,15 @@ def write_video(
         raise RuntimeError(f"OpenCV VideoWriter could not open {path} with fourcc {fourcc!r}")
     try:
         for k in idx.tolist():
-            frame = _draw(bg.copy(), view, float(t[k]), pose[k], radius,
-                          None if color is None else color[k], None if goal is None else goal[k])
+            frame = _draw(
+                bg.copy(),
+                view,
+                float(t[k]),
+                pose[k],
+                radius,
+                None if color is None else color[k],
+                None if goal is None else goal[k],
+            )
             writer.write(frame)
     finally:
         writer.release()
@@ -310,12 +324,14 @@ def write_plots(
         ax.plot(t, np.where(fin, clearance, np.nan), color="#1f77b4", lw=1.2, label="minimum clearance")
         neg = fin & (clearance < 0)
         if neg.any():
-            ax.fill_between(t, np.where(neg, clearance, 0.0), 0.0, where=neg, color="#d62728", alpha=0.3,
-                            lw=0, label="overlap")
+            ax.fill_between(
+                t, np.where(neg, clearance, 0.0), 0.0, where=neg, color="#d62728", alpha=0.3, lw=0, label="overlap"
+            )
         k = int(np.argmin(np.where(fin, clearance, np.inf)))
         ax.plot([t[k]], [clearance[k]], "o", color="#d62728", ms=4)
-        ax.annotate(f"min {clearance[k]:.3f} m", (t[k], clearance[k]), textcoords="offset points",
-                    xytext=(6, 6), fontsize=8)
+        ax.annotate(
+            f"min {clearance[k]:.3f} m", (t[k], clearance[k]), textcoords="offset points", xytext=(6, 6), fontsize=8
+        )
     else:
         ax.text(0.5, 0.5, "fewer than two robots: no pairs", transform=ax.transAxes, ha="center")
     ax.axhline(0.0, color="#d62728", ls="--", lw=1.0, label="contact (0 m)")
@@ -351,8 +367,7 @@ def write_plots(
     starts = np.array([s[0] if len(s) else (np.nan, np.nan) for s in segs]).reshape(-1, 2)
     ends = np.array([s[-1] if len(s) else (np.nan, np.nan) for s in segs]).reshape(-1, 2)
     ms = 18 if N <= 50 else 6
-    ax.scatter(starts[:, 0], starts[:, 1], s=ms, facecolors="none", edgecolors=cols, lw=0.8, zorder=3,
-               label="start")
+    ax.scatter(starts[:, 0], starts[:, 1], s=ms, facecolors="none", edgecolors=cols, lw=0.8, zorder=3, label="start")
     ax.scatter(ends[:, 0], ends[:, 1], s=ms, c=cols, zorder=4, label="end")
     if goal is not None:
         g = np.asarray(goal, dtype=float)

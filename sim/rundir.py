@@ -170,16 +170,15 @@ def _slug(name: str) -> str:
     return s or "run"
 
 
-def default_run_path(scene_name: str, *, root: str | os.PathLike = "runs",
-                     now: _dt.datetime | None = None) -> Path:
+def default_run_path(scene_name: str, *, root: str | os.PathLike = "runs", now: _dt.datetime | None = None) -> Path:
     """``<root>/<UTC timestamp>-<scene>``, e.g. ``runs/20250131T142501Z-circle``.
 
     Unique: if the name is already taken (final or ``.partial`` directory on disk, or handed out
     earlier in this process) a suffix ``-2``, ``-3``, ... is appended.  The directory is not created.
     """
-    now = now or _dt.datetime.now(_dt.timezone.utc)
+    now = now or _dt.datetime.now(_dt.UTC)
     if now.tzinfo is not None:
-        now = now.astimezone(_dt.timezone.utc)
+        now = now.astimezone(_dt.UTC)
     stamp = now.strftime("%Y%m%dT%H%M%SZ")
     base = f"{stamp}-{_slug(scene_name)}"
     root = Path(root)
@@ -189,8 +188,7 @@ def default_run_path(scene_name: str, *, root: str | os.PathLike = "runs",
             name = base if k == 1 else f"{base}-{k}"
             cand = root / name
             key = cand.resolve()
-            if (key not in _issued and not cand.exists()
-                    and not cand.with_name(name + PARTIAL_SUFFIX).exists()):
+            if key not in _issued and not cand.exists() and not cand.with_name(name + PARTIAL_SUFFIX).exists():
                 _issued.add(key)
                 return cand
             k += 1
@@ -223,8 +221,7 @@ class RunDir:
             self.partial_path.mkdir()
         except FileExistsError:
             raise FileExistsError(
-                f"partial run directory already exists (another run, or a killed one: remove it): "
-                f"{self.partial_path}"
+                f"partial run directory already exists (another run, or a killed one: remove it): {self.partial_path}"
             ) from None
         self._state = "open"  # open | committed | aborted
 
@@ -270,7 +267,7 @@ class RunDir:
         shutil.rmtree(self.partial_path, ignore_errors=True)
 
     # -- context manager ---------------------------------------------------------------------
-    def __enter__(self) -> "RunDir":
+    def __enter__(self) -> RunDir:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:

@@ -7,10 +7,12 @@ keeps one. The laps are the engine's own thread: a warm auction runs on a second
 apart, in ``beside``. CPU time (this process's, both threads) is kept beside wall time because on a
 shared machine the wall time of a part counts whatever else ran meanwhile.
 """
+
 from __future__ import annotations
 
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 

@@ -1,4 +1,5 @@
 """The central tracker (paper 7.1: an overhead camera, 2 mm / 3 deg) and the bodies of a scene."""
+
 from __future__ import annotations
 
 import math
@@ -21,18 +22,26 @@ def bodies_of(scene: Scene) -> tuple[RobotParams, list[Body]]:
 
     def scripted(i: int) -> Body:
         return Body("holonomic", params.radius, scripted_speed_limit(scene.scripted[i], params.v_max))
+
     return params, [scripted(i) if i in scene.scripted else body for i in range(scene.robots)]
 
 
 def world_of(scene: Scene) -> tuple[RobotParams, World]:
     params, bodies = bodies_of(scene)
-    return params, World(bodies, scene.poses, arena=scene.arena, obstacles=scene.obstacles,
-                         actuation_noise=scene.noise.actuation, seed=scene.seed)
+    return params, World(
+        bodies,
+        scene.poses,
+        arena=scene.arena,
+        obstacles=scene.obstacles,
+        actuation_noise=scene.noise.actuation,
+        seed=scene.seed,
+    )
 
 
-def tracker_of(scene: Scene) -> "Tracker":
-    return Tracker(scene.noise.tracking_xy, math.radians(scene.noise.tracking_theta_deg),
-                   np.random.default_rng([scene.seed, 1]))
+def tracker_of(scene: Scene) -> Tracker:
+    return Tracker(
+        scene.noise.tracking_xy, math.radians(scene.noise.tracking_theta_deg), np.random.default_rng([scene.seed, 1])
+    )
 
 
 @dataclass

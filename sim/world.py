@@ -53,6 +53,7 @@ closer than r_max / 2, a nearest-neighbour query bounds the radius).
 command kept (the controller decides what to send next). The new state is checked for contacts at
 the current time at the start of the next step.
 """
+
 from __future__ import annotations
 
 import math
@@ -117,7 +118,7 @@ class Body:
             _positive(f"body {name}", getattr(self, name))
 
     @classmethod
-    def from_params(cls, params: Any) -> "Body":
+    def from_params(cls, params: Any) -> Body:
         """The body part of an ``agent.core.params.RobotParams`` (or anything with those fields)."""
         return cls(
             kinematics=params.kinematics,
@@ -221,7 +222,7 @@ class World:
     # ---------------------------------------------------------------- construction helpers
 
     @classmethod
-    def from_params(cls, params: Any, poses: np.ndarray, **kwargs: Any) -> "World":
+    def from_params(cls, params: Any, poses: np.ndarray, **kwargs: Any) -> World:
         """A world from one ``RobotParams`` (for every robot) or a sequence of them (one per robot)."""
         n = len(np.asarray(poses))
         if isinstance(params, (list, tuple)):
@@ -374,9 +375,22 @@ class World:
         """The state that steps, commands and teleports change, for `restore` (the contacts so far
         are checked first; they are not part of it)."""
         self.check()
-        return (self._checked, self._pos.copy(), self._theta.copy(), self._vel.copy(), self._path.copy(),
-                self._cmd.copy(), self._n_cmd.copy(), self._noise.copy(), self._noise_index,
-                self._rng.bit_generator.state, self._t_sum, self._t_comp, self._check_start, self.last_substeps)
+        return (
+            self._checked,
+            self._pos.copy(),
+            self._theta.copy(),
+            self._vel.copy(),
+            self._path.copy(),
+            self._cmd.copy(),
+            self._n_cmd.copy(),
+            self._noise.copy(),
+            self._noise_index,
+            self._rng.bit_generator.state,
+            self._t_sum,
+            self._t_comp,
+            self._check_start,
+            self.last_substeps,
+        )
 
     def restore(self, saved: tuple) -> None:
         """Back to a `snapshot`, as if nothing had happened since: the central engine steps the
@@ -385,8 +399,22 @@ class World:
         ``check=False`` and nothing that reads contacts or clearance)."""
         if saved[0] != self._checked:
             raise ValueError("cannot restore: contacts were checked since the snapshot")
-        (_, pos, theta, vel, path, cmd, n_cmd, noise, self._noise_index, self._rng.bit_generator.state, self._t_sum,
-         self._t_comp, self._check_start, self.last_substeps) = saved
+        (
+            _,
+            pos,
+            theta,
+            vel,
+            path,
+            cmd,
+            n_cmd,
+            noise,
+            self._noise_index,
+            self._rng.bit_generator.state,
+            self._t_sum,
+            self._t_comp,
+            self._check_start,
+            self.last_substeps,
+        ) = saved
         self._pos, self._theta, self._vel, self._path = pos.copy(), theta.copy(), vel.copy(), path.copy()
         self._cmd, self._n_cmd, self._noise = cmd.copy(), n_cmd.copy(), noise.copy()
         self._unchecked = None
@@ -588,8 +616,7 @@ class World:
             # apart (a teleport) while others are close, this looks at too many pairs: given up
             a, b = self._closest
             upper = math.hypot(*(traj[0, a] - traj[0, b])) - r[a] - r[b]
-            found = close_pairs(traj, r, max(upper, 0.0) + base, motion, first_row, bound=upper,
-                                budget=64 * self._n)
+            found = close_pairs(traj, r, max(upper, 0.0) + base, motion, first_row, bound=upper, budget=64 * self._n)
         if found is None:
             # pairs beyond base + margin keep a clearance above margin in every row
             margin = 0.5 * self._r_max

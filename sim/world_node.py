@@ -6,6 +6,7 @@ arrive, as on hardware. Lock-step: the world publishes tick k, waits until every
 answered with its command for tick k or a deadline passes (a missed tick: the robot keeps its
 last command), then advances one period. Lock-step runs are reproducible from the seed.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -20,9 +21,10 @@ import numpy as np
 
 from coordinator.scene import Scene, SceneError, load_scene
 from transport.bus import Bus
-from transport.codec import Command, Commands, Contact as ContactMsg, Event, Pose, Poses, State, Tick, Truth
-from transport.keys import cell_of
+from transport.codec import Command, Commands, Event, Pose, Poses, State, Tick, Truth
+from transport.codec import Contact as ContactMsg
 from transport.faults import parse_faults
+from transport.keys import cell_of
 from transport.session import TransportError, add_zenoh_args, settings_from_args
 
 from .movers import scripted_velocity
@@ -32,8 +34,9 @@ CONTACT_KINDS = {"robot": 0, "obstacle": 1, "wall": 2}
 
 
 class WorldNode:
-    def __init__(self, bus: Bus, scene: Scene, *, deadline: float = 2.0, startup_timeout: float = 60.0,
-                 pose_frames: bool = False) -> None:
+    def __init__(
+        self, bus: Bus, scene: Scene, *, deadline: float = 2.0, startup_timeout: float = 60.0, pose_frames: bool = False
+    ) -> None:
         """``pose_frames``: the tracker sends each tick's poses as one frame (codec.Poses), for agent
         hosts of several robots, instead of one message per robot."""
         self.bus, self.scene, self.keys = bus, scene, bus.keys
@@ -126,8 +129,10 @@ class WorldNode:
             vx, vy = scripted_velocity(waypoints, self.world.poses[i], t, self.dt)
             self.world.set_command(i, float(vx), float(vy))
             cell = cell_of(x, y, self.params.cell_size)
-            self.bus.publish(self.keys.state(cell, i), State(i, self.tick, t, x, y, vx, vy, self.params.radius,
-                                                              0.0, 0.0, -1, State.DYNAMIC))
+            self.bus.publish(
+                self.keys.state(cell, i),
+                State(i, self.tick, t, x, y, vx, vy, self.params.radius, 0.0, 0.0, -1, State.DYNAMIC),
+            )
 
     def _publish_before_start(self) -> None:
         """Robots whose agent is not live yet hear where they are (true pose, no tracker noise drawn,
@@ -139,10 +144,19 @@ class WorldNode:
 
     def _publish_truth(self) -> None:
         t = self.tick * self.dt
-        self.bus.publish(self.keys.truth, Truth(self.tick, t, self.world.step_min_clearance() if self.tick else
-                                                self.world.min_clearance, self.scene.robots,
-                                                self.world.poses, self.world.velocities, self.color,
-                                                self.world.commands_applied.astype(np.uint32)))
+        self.bus.publish(
+            self.keys.truth,
+            Truth(
+                self.tick,
+                t,
+                self.world.step_min_clearance() if self.tick else self.world.min_clearance,
+                self.scene.robots,
+                self.world.poses,
+                self.world.velocities,
+                self.color,
+                self.world.commands_applied.astype(np.uint32),
+            ),
+        )
 
     def _publish_contacts(self, contacts: list) -> None:
         for c in contacts:
@@ -225,13 +239,20 @@ class WorldNode:
             self._check_control()
 
     def stats(self) -> dict:
-        return {"kind": "world-done", "reason": self.end_reason, "ticks": self.tick,
-                "missed_ticks": self.missed_ticks, "late_commands": self.late_commands,
-                "commands_applied": self.world.commands_applied.astype(int).tolist(),
-                "min_clearance": _finite_or_none(self.world.min_clearance),
-                "dropped": dict(self.cmd_inbox.drops + self.control_inbox.drops),
-                "contacts": [{"kind": c.kind, "i": c.i, "j": c.j, "t_start": c.t_start,
-                              "t_end": c.t_end, "max_depth": c.max_depth} for c in self.world.contacts]}
+        return {
+            "kind": "world-done",
+            "reason": self.end_reason,
+            "ticks": self.tick,
+            "missed_ticks": self.missed_ticks,
+            "late_commands": self.late_commands,
+            "commands_applied": self.world.commands_applied.astype(int).tolist(),
+            "min_clearance": _finite_or_none(self.world.min_clearance),
+            "dropped": dict(self.cmd_inbox.drops + self.control_inbox.drops),
+            "contacts": [
+                {"kind": c.kind, "i": c.i, "j": c.j, "t_start": c.t_start, "t_end": c.t_end, "max_depth": c.max_depth}
+                for c in self.world.contacts
+            ],
+        }
 
 
 def _finite_or_none(x: float) -> float | None:
@@ -254,8 +275,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         scene = load_scene(args.scene, robots=args.robots, seed=args.seed, clock=args.clock, duration=args.duration)
-        bus = Bus(settings_from_args(args), args.display, faults=parse_faults(args.faults), seed=scene.seed,
-                  name="world")
+        bus = Bus(
+            settings_from_args(args), args.display, faults=parse_faults(args.faults), seed=scene.seed, name="world"
+        )
     except (SceneError, TransportError, ValueError) as err:
         print(f"world: error: {err}", file=sys.stderr)
         return 2

@@ -1,5 +1,6 @@
 """Checks of the agents' agreed assignments, from a run's trajectory.npz: the optimum is computed
 here, by scipy, never by the system under test."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field

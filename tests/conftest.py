@@ -1,4 +1,5 @@
 """Shared helpers: run the real `pixelswarm` command, find and reap the processes it starts."""
+
 from __future__ import annotations
 
 import json
@@ -15,8 +16,9 @@ from hypothesis import HealthCheck, settings
 
 # Property tests are seeded (same examples every run) and never fail for being slow on a loaded
 # 2-core machine: a health check on generation time is not something a user relies on.
-settings.register_profile("pixelswarm", derandomize=True, database=None, deadline=None,
-                          suppress_health_check=[HealthCheck.too_slow])
+settings.register_profile(
+    "pixelswarm", derandomize=True, database=None, deadline=None, suppress_health_check=[HealthCheck.too_slow]
+)
 settings.load_profile("pixelswarm")
 
 REPO = Path(__file__).resolve().parent.parent

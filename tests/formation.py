@@ -1,6 +1,7 @@
 """When is an image formed? From a distributed run's trajectory.npz: at each tick, every robot of the
 newest goal set is within a tolerance of the goal it announced from that set (the rule of
 metrics.json's `steps[].converged_at`, tick by tick, so recoveries after a perturbation can be timed)."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -1,6 +1,7 @@
 """Animation display (paper 6): eq. 27 held for K_f iterations, the [animation] scene table (keyframes
 drawn, from a folder or a list; their timing), the keyframes' goal sets published as steps with their
 K_f dt, and the story played by the central engine and by 14 agents over zenoh."""
+
 from __future__ import annotations
 
 import json
@@ -36,8 +37,9 @@ def test_eq_27_covers_the_distance_in_k_f_periods_capped_at_v_max():
     np.testing.assert_allclose(v[0], np.array([0.3, 0.4]) / 5.0)  # 0.5 m in 5 s: 0.1 m/s toward the goal
     assert np.hypot(*v[1]) == pytest.approx(0.13) and v[1, 1] / v[1, 0] == pytest.approx(4 / 3)  # capped
     np.testing.assert_array_equal(v[2:], 0.0)  # on the goal, or no goal
-    np.testing.assert_allclose(synchronised_velocity(position[:2], goal[:2], 0.13, np.array([10, 1000]), DT)[:, 0],
-                               [0.13 * 0.6, 0.05 * 0.6])  # K_f per robot: capped, and 5 m in 100 s
+    np.testing.assert_allclose(
+        synchronised_velocity(position[:2], goal[:2], 0.13, np.array([10, 1000]), DT)[:, 0], [0.13 * 0.6, 0.05 * 0.6]
+    )  # K_f per robot: capped, and 5 m in 100 s
 
 
 def simulate_hold(position: np.ndarray, goal: np.ndarray, k_f: int, ticks: int, v_max: float = 0.13):
@@ -105,8 +107,7 @@ def test_control_step_takes_the_preferred_velocity_given():
     position, goal = np.array([[0.0, 0.0], [1.0, 0.0]]), np.array([[0.5, 0.0], [1.5, 0.0]])
     given = np.array([[0.02, 0.01], [np.nan, np.nan]])
     moving = np.array([[0.02, 0.01], [p.v_pref, 0.0]])  # (a robot at rest that wants to move turns right)
-    res = control_step(p, np.arange(2), position, np.zeros(2), moving, goal, NeighbourStates.empty(2),
-                       preferred=given)
+    res = control_step(p, np.arange(2), position, np.zeros(2), moving, goal, NeighbourStates.empty(2), preferred=given)
     np.testing.assert_allclose(res.pref_velocity[0], [0.02, 0.01], atol=1e-4)  # eq. 27 (a tiny perturbation)
     np.testing.assert_allclose(res.pref_velocity[1], [p.v_pref, 0.0], atol=1e-4)  # eq. 9 where none is given
     np.testing.assert_allclose(res.velocity[0], [0.02, 0.01], atol=1e-4)
@@ -138,14 +139,16 @@ def test_a_drawn_animation_becomes_one_step_per_keyframe_with_its_timing():
         np.testing.assert_allclose(scene_goal_set(scene, k, 6)[0], expected.sets[k].goals)
     fewer = scene_goal_set(scene, 3, 4)[0]  # robots lost: the same arena K_r
     assert fewer.shape == (4, 2) and np.abs(fewer).max() <= scene.image_goals.arena / 2
-    msg = decode(Goals(5, 0, 16.1, 6, *scene_goal_set(scene, 2, 6), 2, 4.0, np.arange(6),
-                       **step_timing(scene, 2)).encode())
+    msg = decode(
+        Goals(5, 0, 16.1, 6, *scene_goal_set(scene, 2, 6), 2, 4.0, np.arange(6), **step_timing(scene, 2)).encode()
+    )
     assert (msg.t_start, msg.frame_period, msg.moves) == (16.0, 4.0, False)  # the keyframe's start and K_f dt
 
 
 def test_times_set_when_each_keyframe_begins():
-    scene = scene_from_dict(animation(keyframes="triangle", times=[0, 10, 12, 15, 20, 21, 30], frame_time=2.0,
-                                      size=128))
+    scene = scene_from_dict(
+        animation(keyframes="triangle", times=[0, 10, 12, 15, 20, 21, 30], frame_time=2.0, size=128)
+    )
     assert scene.step_starts == [0.0, 10.0, 12.0, 15.0, 20.0, 21.0, 30.0]
     assert [s.frame_period for s in scene.steps] == [10.0, 2.0, 3.0, 5.0, 1.0, 9.0, 2.0]
     assert scene.steps[-1].hold == 4.0 and scene.duration == 34.0  # last_hold defaults to frame_time
@@ -166,8 +169,21 @@ def test_a_folder_plays_in_file_name_order_with_the_default_timing(tmp_path):
 def test_pixelswarm_run_plays_a_folder(tmp_path):
     write_frames(tmp_path / "clip", count=3)
     out = tmp_path / "run"
-    result = run_pixelswarm("run", str(tmp_path / "clip") + "/", "--robots", "5", "--engine", "central",
-                            "--duration", "36", "--out", str(out), "--no-video", "-q", timeout=120)
+    result = run_pixelswarm(
+        "run",
+        str(tmp_path / "clip") + "/",
+        "--robots",
+        "5",
+        "--engine",
+        "central",
+        "--duration",
+        "36",
+        "--out",
+        str(out),
+        "--no-video",
+        "-q",
+        timeout=120,
+    )
     assert result.returncode == 0, result.stderr[-2000:]
     m = json.loads((out / "metrics.json").read_text())
     assert m["scene"] == "clip" and m["robots"] == 5 and m["contacts"] == 0
@@ -177,29 +193,34 @@ def test_pixelswarm_run_plays_a_folder(tmp_path):
 def test_a_list_of_keyframes_is_read_relative_to_the_scene_file(tmp_path):
     write_frames(tmp_path / "art", count=2)
     path = tmp_path / "clip.toml"
-    path.write_text('robots = 5\n[layout]\nkind = "grid"\nspacing = 0.2\n[animation]\n'
-                    'keyframes = ["art/frame01.png", "art/frame00.png"]\nframe_time = 6.0\nfirst_hold = 20.0\n')
+    path.write_text(
+        'robots = 5\n[layout]\nkind = "grid"\nspacing = 0.2\n[animation]\n'
+        'keyframes = ["art/frame01.png", "art/frame00.png"]\nframe_time = 6.0\nfirst_hold = 20.0\n'
+    )
     scene = load_scene(str(path))
     assert [s.frame_period for s in scene.steps] == [20.0, 6.0] and scene.step_starts == [0.0, 20.0]
 
 
-@pytest.mark.parametrize("table, message", [
-    ({"keyframes": "cartoon"}, "neither a drawn animation"),
-    ({"keyframes": 7}, "keyframes must be"),
-    ({"keyframes": ["missing.png"]}, "not an image file"),
-    ({"keyframes": "triangle", "speed": 2}, "unknown key"),
-    ({"keyframes": "triangle", "frame_time": 0}, "frame_time must be a positive"),
-    ({"keyframes": "triangle", "first_hold": -5.0}, "first_hold must be a positive"),
-    ({"keyframes": "triangle", "times": [0, 1, 2]}, "each of the 7 keyframes"),
-    ({"keyframes": "triangle", "times": [1, 2, 3, 4, 5, 6, 7]}, "begin at 0 and increase"),
-    ({"keyframes": "triangle", "times": [0, 2, 1, 4, 5, 6, 7]}, "begin at 0 and increase"),
-    ({"keyframes": "triangle", "times": [0, 1, 2, 3, 4, 5, 6], "first_hold": 3.0}, "either times or first_hold"),
-    ({"keyframes": "triangle", "keep_counts": "yes"}, "true or false"),
-    ({"keyframes": "triangle", "method": "magic"}, "method must be"),
-    ({"keyframes": "triangle", "arena": 0.0}, "arena must be a positive"),
-    ({"keyframes": "triangle", "arena": 0.2}, "too close"),  # K_r too small for the robots
-    ({"keyframes": "triangle", "size": 10}, "size must be"),
-])
+@pytest.mark.parametrize(
+    "table, message",
+    [
+        ({"keyframes": "cartoon"}, "neither a drawn animation"),
+        ({"keyframes": 7}, "keyframes must be"),
+        ({"keyframes": ["missing.png"]}, "not an image file"),
+        ({"keyframes": "triangle", "speed": 2}, "unknown key"),
+        ({"keyframes": "triangle", "frame_time": 0}, "frame_time must be a positive"),
+        ({"keyframes": "triangle", "first_hold": -5.0}, "first_hold must be a positive"),
+        ({"keyframes": "triangle", "times": [0, 1, 2]}, "each of the 7 keyframes"),
+        ({"keyframes": "triangle", "times": [1, 2, 3, 4, 5, 6, 7]}, "begin at 0 and increase"),
+        ({"keyframes": "triangle", "times": [0, 2, 1, 4, 5, 6, 7]}, "begin at 0 and increase"),
+        ({"keyframes": "triangle", "times": [0, 1, 2, 3, 4, 5, 6], "first_hold": 3.0}, "either times or first_hold"),
+        ({"keyframes": "triangle", "keep_counts": "yes"}, "true or false"),
+        ({"keyframes": "triangle", "method": "magic"}, "method must be"),
+        ({"keyframes": "triangle", "arena": 0.0}, "arena must be a positive"),
+        ({"keyframes": "triangle", "arena": 0.2}, "too close"),  # K_r too small for the robots
+        ({"keyframes": "triangle", "size": 10}, "size must be"),
+    ],
+)
 def test_bad_animations_say_what_is_wrong_in_one_line(table, message):
     with pytest.raises(SceneError, match=message) as err:
         scene_from_dict(animation(**table))
@@ -217,10 +238,10 @@ def test_an_empty_folder_and_mixed_tables_are_refused(tmp_path):
 def test_the_shipped_animations_load():
     story = load_scene("story")
     assert story.robots == 14 and len(story.steps) == 7 and story.robot["kinematics"] == "diffdrive"
-    for k, s in enumerate(story.steps[:-1]):  # every transition leaves the e-puck time for its longest move
+    for k, _s in enumerate(story.steps[:-1]):  # every transition leaves the e-puck time for its longest move
         a, b = scene_goal_set(story, k, 14)[0], scene_goal_set(story, k + 1, 14)[0]
         d = np.hypot(*(a[:, None] - b[None]).transpose(2, 0, 1))
-        r, c = linear_sum_assignment(d ** 2)
+        r, c = linear_sum_assignment(d**2)
         assert d[r, c].max() <= EPUCK.v_max * story.steps[k + 1].frame_period
     assert load_scene("leaf").robots == 100 and load_scene("leaf-1000").engine == "central"
 
@@ -246,9 +267,12 @@ def test_the_central_engine_plays_keyframes_in_time(tmp_path):
     of e-puck speed, 15 s to form the first and 7 s for each next: every robot is within 1 cm of its
     goal once its keyframe's K_f dt is over (the pose at the first tick of the next keyframe is where
     K_f iterations of eq. 27 took it)."""
-    scene = scene_from_dict({**animation(keyframes="triangle", first_hold=15.0, frame_time=7.0, last_hold=1.0,
-                                         size=128),
-                             "robot": {"kinematics": "holonomic"}})
+    scene = scene_from_dict(
+        {
+            **animation(keyframes="triangle", first_hold=15.0, frame_time=7.0, last_hold=1.0, size=128),
+            "robot": {"kinematics": "holonomic"},
+        }
+    )
     out = run_central(scene, tmp_path / "run", video=False, progress=None)
     m, traj = json.loads((out / "metrics.json").read_text()), dict(np.load(out / "trajectory.npz"))
     assert m["contacts"] == 0 and [s["index"] for s in m["steps"]] == list(range(7))
@@ -274,9 +298,11 @@ def test_fourteen_agents_play_four_keyframes_of_the_story_over_zenoh(tmp_path):
     not catch up (paper 6.2); measured: worst 1.75 cm after the 1.3 m fall into the heap, mean 4.6 mm."""
     write_frames(tmp_path / "walk", "story", count=4, size=256)
     scene_file = tmp_path / "walk.toml"
-    scene_file.write_text('name = "walk"\nrobots = 14\nseed = 2\n[robot]\nkinematics = "holonomic"\n'
-                          '[layout]\nkind = "grid"\nspacing = 0.2\n[animation]\nkeyframes = "walk"\narena = 2.6\n'
-                          'times = [0.0, 20.0, 30.0, 40.0]\nframe_time = 15.0\nlast_hold = 2.0\n')
+    scene_file.write_text(
+        'name = "walk"\nrobots = 14\nseed = 2\n[robot]\nkinematics = "holonomic"\n'
+        '[layout]\nkind = "grid"\nspacing = 0.2\n[animation]\nkeyframes = "walk"\narena = 2.6\n'
+        "times = [0.0, 20.0, 30.0, 40.0]\nframe_time = 15.0\nlast_hold = 2.0\n"
+    )
     scene = load_scene(str(scene_file))
     out = tmp_path / "run"
     result = run_pixelswarm("run", str(scene_file), "--out", str(out), "--no-video", "-q", timeout=240)
@@ -288,6 +314,8 @@ def test_fourteen_agents_play_four_keyframes_of_the_story_over_zenoh(tmp_path):
     per_frame = keyframe_errors(traj, scene.step_starts, [s.frame_period for s in scene.steps], EPUCK.v_max)
     errors = np.concatenate([e[np.isfinite(e)] for e in per_frame])
     assert errors.max() <= 0.03, [np.nanmax(e) for e in per_frame]
-    print(f"measured: {len(errors)} robot-keyframes within the speed, at the end of K_f dt at most "
-          f"{max(errors) * 1000:.1f} mm (mean {np.mean(errors) * 1000:.1f} mm) from the goal")
+    print(
+        f"measured: {len(errors)} robot-keyframes within the speed, at the end of K_f dt at most "
+        f"{max(errors) * 1000:.1f} mm (mean {np.mean(errors) * 1000:.1f} mm) from the goal"
+    )
     assert len(errors) >= 4 * 13 and np.mean(errors) <= 0.01  # nearly every robot's move was within the speed

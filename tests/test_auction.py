@@ -1,4 +1,5 @@
 """The goal auction's pure core against scipy's optimal assignment (paper 5.1.1)."""
+
 from __future__ import annotations
 
 import numpy as np

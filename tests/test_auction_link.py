@@ -5,6 +5,7 @@ agreement reaches the robots before this host freezes the new block's positions.
 Regression: a host froze the next block from positions taken before it had handed the agreement
 over, so its robots bid from their old goals (their velocity still pointed there), the next
 agreement sent them back, and four robots of 100 rotated goals every block (25 s in one run)."""
+
 from __future__ import annotations
 
 import time

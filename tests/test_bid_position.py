@@ -1,5 +1,6 @@
 """The auction's latency compensation (agent.core.bidder.bid_position): a robot on its way bids from
 where it will be when the instance's agreement is adopted."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -1,6 +1,7 @@
 """The distributed auction's participant logic over an in-process network that loses, duplicates,
 delays and reorders messages (the zenoh runs are in test_auction_bus.py): every instance ends in one
 agreed, one-to-one assignment within N (epsilon + Delta C) of scipy's optimum."""
+
 from __future__ import annotations
 
 import heapq
@@ -21,9 +22,21 @@ def optimum(positions: np.ndarray, goals: np.ndarray) -> float:
     return float(cost[rows, cols].sum())
 
 
-def run_protocol(positions: np.ndarray, goals: np.ndarray, hosts: list[list[int]], *, eps: float = 1e-3,
-                 hysteresis: float = 0.0, loss: float = 0.0, dup: float = 0.0, delay: float = 0.0,
-                 seed: int = 0, instances: int = 1, drift: float = 0.0, max_time: float = 60.0) -> list[dict]:
+def run_protocol(
+    positions: np.ndarray,
+    goals: np.ndarray,
+    hosts: list[list[int]],
+    *,
+    eps: float = 1e-3,
+    hysteresis: float = 0.0,
+    loss: float = 0.0,
+    dup: float = 0.0,
+    delay: float = 0.0,
+    seed: int = 0,
+    instances: int = 1,
+    drift: float = 0.0,
+    max_time: float = 60.0,
+) -> list[dict]:
     """Discrete-event run: each host publishes after every change and resends every 0.2 s; every
     copy is lost, duplicated and delayed independently."""
     rng = np.random.default_rng(seed)
@@ -85,8 +98,15 @@ def run_protocol(positions: np.ndarray, goals: np.ndarray, hosts: list[list[int]
         for k in done:
             a = agreed_seen.pop(k)
             reported = max(reported, k)
-            outcome.append({"instance": k, "assignment": a, "positions": pos.copy(),
-                            "bids": sum(p.bids for p in parts), "time": now})
+            outcome.append(
+                {
+                    "instance": k,
+                    "assignment": a,
+                    "positions": pos.copy(),
+                    "bids": sum(p.bids for p in parts),
+                    "time": now,
+                }
+            )
             if len(outcome) >= instances:
                 return outcome
             pos = pos + drift * rng.standard_normal(pos.shape)
@@ -114,11 +134,18 @@ def test_single_host_matches_the_optimum() -> None:
 
 
 @settings(max_examples=20, deadline=None)
-@given(n=st.integers(1, 16), hosts=st.integers(1, 16), seed=st.integers(0, 10_000),
-       loss=st.sampled_from([0.0, 0.1, 0.3]), dup=st.sampled_from([0.0, 0.2]),
-       delay=st.sampled_from([0.0, 0.05]), grid=st.booleans())
-def test_lossy_network_agrees_on_one_owner_per_goal(n: int, hosts: int, seed: int, loss: float, dup: float,
-                                                     delay: float, grid: bool) -> None:
+@given(
+    n=st.integers(1, 16),
+    hosts=st.integers(1, 16),
+    seed=st.integers(0, 10_000),
+    loss=st.sampled_from([0.0, 0.1, 0.3]),
+    dup=st.sampled_from([0.0, 0.2]),
+    delay=st.sampled_from([0.0, 0.05]),
+    grid=st.booleans(),
+)
+def test_lossy_network_agrees_on_one_owner_per_goal(
+    n: int, hosts: int, seed: int, loss: float, dup: float, delay: float, grid: bool
+) -> None:
     rng = np.random.default_rng(seed)
     if grid:  # ties everywhere: the tie-breaks must be the same in every process
         side = int(np.ceil(np.sqrt(n)))
@@ -127,8 +154,17 @@ def test_lossy_network_agrees_on_one_owner_per_goal(n: int, hosts: int, seed: in
     else:
         pos, goals = rng.uniform(-1, 1, (n, 2)), rng.uniform(-1, 1, (n, 2))
     split = np.array_split(rng.permutation(n), min(hosts, n))
-    results = run_protocol(pos, goals, [sorted(int(r) for r in s) for s in split], loss=loss, dup=dup,
-                           delay=delay, seed=seed, instances=3, drift=0.02)
+    results = run_protocol(
+        pos,
+        goals,
+        [sorted(int(r) for r in s) for s in split],
+        loss=loss,
+        dup=dup,
+        delay=delay,
+        seed=seed,
+        instances=3,
+        drift=0.02,
+    )
     for res in results:
         check(res, goals, 1e-3, 0.0)
 
@@ -194,11 +230,11 @@ def test_fifty_robots_in_five_hosts_with_loss(n: int) -> None:
     check(res, goals, 1e-3, 0.0)
 
 
-
 @pytest.mark.parametrize("alone", [False, True])
 @pytest.mark.parametrize("gain, switches", [(0.005, False), (0.008, True)])
-def test_a_robot_keeps_its_goal_unless_another_is_better_by_epsilon_plus_delta_c(alone: bool, gain: float,
-                                                                                 switches: bool) -> None:
+def test_a_robot_keeps_its_goal_unless_another_is_better_by_epsilon_plus_delta_c(
+    alone: bool, gain: float, switches: bool
+) -> None:
     """Paper 5.1's hysteresis in every phase of a block: a goal better by less than epsilon_A + Delta C
     (0.006) is not worth a move, even in a phase of smaller epsilon than that (this goal set's
     schedule has one at 0.004, which alone would move the robot for a gain of 0.005)."""
@@ -276,10 +312,17 @@ def test_settle_alone_is_the_message_free_settling_of_the_protocol() -> None:
 
 
 @settings(max_examples=25, deadline=None)
-@given(n=st.integers(1, 40), g_extra=st.integers(0, 3), seed=st.integers(0, 10_000), grid=st.booleans(),
-       stride=st.integers(1, 3), candidates=st.sampled_from([3, 4, 16]))
-def test_compiled_rounds_settle_to_the_protocols_board_bit_for_bit(n: int, g_extra: int, seed: int, grid: bool,
-                                                                   stride: int, candidates: int) -> None:
+@given(
+    n=st.integers(1, 40),
+    g_extra=st.integers(0, 3),
+    seed=st.integers(0, 10_000),
+    grid=st.booleans(),
+    stride=st.integers(1, 3),
+    candidates=st.sampled_from([3, 4, 16]),
+)
+def test_compiled_rounds_settle_to_the_protocols_board_bit_for_bit(
+    n: int, g_extra: int, seed: int, grid: bool, stride: int, candidates: int
+) -> None:
     """settle_alone's rounds are compiled (agent.core.jacobi); the agent hosts' are numpy. Over ties
     (a grid), more goals than robots, robot ids with gaps, deadlock penalties and warm blocks on
     moving robots, both must end every block on the same board, claims, bids and agreement. Few
@@ -328,7 +371,7 @@ def test_cached_best_goals_are_a_full_ranking_after_every_round(n: int, g_extra:
         np.testing.assert_array_equal(p._best[0], values.argmax(axis=1))
         np.testing.assert_allclose(value, values.max(axis=1), rtol=0, atol=1e-12)
 
-    for block in range(3):
+    for _block in range(3):
         p.begin(p.instance + 1 if p.started else 0, pos)
         for _ in range(100_000):
             check()

@@ -3,6 +3,7 @@ participant holds every robot, and each assign_period the next block of epsilon-
 settled in-process on the measured positions, warm from the last prices. Every assignment it makes
 must be one-to-one and within N (epsilon_A + Delta C) of scipy's optimum for the positions it bid
 from; a new image starts a fresh auction."""
+
 from __future__ import annotations
 
 import json
@@ -25,8 +26,14 @@ def auctions(monkeypatch) -> list[dict]:
 
     def spy(auction, position):
         out = real(auction, position)
-        calls.append({"position": position.copy(), "goals": auction.goals.copy(), "assignment": out.copy(),
-                      "block": auction.instance // auction.phases})
+        calls.append(
+            {
+                "position": position.copy(),
+                "goals": auction.goals.copy(),
+                "assignment": out.copy(),
+                "block": auction.instance // auction.phases,
+            }
+        )
         return out
 
     monkeypatch.setattr(central, "auction_assignment", spy)
@@ -45,7 +52,9 @@ def test_every_auction_assignment_is_one_to_one_and_within_the_bound_of_the_opti
         a = call["assignment"]
         assert sorted(a.tolist()) == list(range(n))
         cost = float(((call["position"] - call["goals"][a]) ** 2).sum())
-        assert cost <= optimum(call["position"], call["goals"]) + n * (params.assign_eps + params.assign_hysteresis) + 1e-9
+        assert (
+            cost <= optimum(call["position"], call["goals"]) + n * (params.assign_eps + params.assign_hysteresis) + 1e-9
+        )
     # a cold start (the first block of a fresh participant) at each image, warm blocks in between
     assert [i for i, c in enumerate(auctions) if c["block"] == 0] == [0, round(30.0 / params.dt)]
     metrics = json.loads((out / "metrics.json").read_text())

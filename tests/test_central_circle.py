@@ -1,6 +1,7 @@
 """RVO2's Circle scenario on the central engine, scaled down to 64 agents (radius 51.2, the same
 spacing as the 250-agent original) to stay within seconds; the full Circle and Blocks run side by
 side with RVO2 in bench/bench_orca.py."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -18,8 +19,7 @@ def test_scaled_circle_completes_within_rvo2_steps_without_any_overlap():
     angle = np.arange(n) * 2.0 * np.pi / n
     start = 51.2 * np.stack([np.cos(angle), np.sin(angle)], -1)
     goal = -start
-    sim = CentralOrca(0.25, 15.0, 10, 10.0, 10.0, radius, 2.0, safety_margin=0.1,
-                      perturbation=1e-4, seed=0)
+    sim = CentralOrca(0.25, 15.0, 10, 10.0, 10.0, radius, 2.0, safety_margin=0.1, perturbation=1e-4, seed=0)
     for p in start:
         sim.add_agent(p)
     done_at = None

@@ -3,6 +3,7 @@ goals the robots hold, and steps again only the robots whose goal the auction ch
 ``overlap``). That is a speed-up, not a different engine: a run must be the same to the bit as one
 that waits for the auction before any control, on scenes where the auction does change goals (an
 image sequence, animation keyframes with eq. 27's hold, a moving goal set)."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -44,8 +45,14 @@ def test_a_run_with_the_auction_beside_the_control_core_is_the_same_to_the_bit(t
     runs, clock = {}, StepClock()
     for overlap in (False, True):
         scene = SCENES[name]()
-        runs[overlap] = central.run_central(scene, tmp_path / f"run-{overlap}", video=False, progress=None,
-                                            overlap=overlap, clock=clock if overlap else None)
+        runs[overlap] = central.run_central(
+            scene,
+            tmp_path / f"run-{overlap}",
+            video=False,
+            progress=None,
+            overlap=overlap,
+            clock=clock if overlap else None,
+        )
     assert sum(stepped_again) > 0  # the auction did change goals while the control core ran on the old
     # the clock kept the auction's own time on the second thread: none at the cold start, some after
     assert clock.beside[0] == 0.0 and sum(clock.beside[1:]) > 0.0

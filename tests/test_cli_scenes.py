@@ -1,4 +1,5 @@
 """`pixelswarm scenes`: one line per shipped scene, its columns aligned whatever the names' lengths."""
+
 from __future__ import annotations
 
 from types import SimpleNamespace
@@ -10,8 +11,9 @@ def test_scene_list_columns_align_for_long_names(monkeypatch, capsys, tmp_path):
     names = ["swap", "paper-sequence-1000", "a-scene-with-a-much-longer-name-than-sixteen"]
     robots = {"swap": 14, "paper-sequence-1000": 1000, "a-scene-with-a-much-longer-name-than-sixteen": 7}
     for name in names:
-        (tmp_path / f"{name}.toml").write_text(f'robots = {robots[name]}\ndescription = "shows {name}"\n'
-                                               '[robot]\nkinematics = "holonomic"\n')
+        (tmp_path / f"{name}.toml").write_text(
+            f'robots = {robots[name]}\ndescription = "shows {name}"\n[robot]\nkinematics = "holonomic"\n'
+        )
     monkeypatch.setattr(cli, "shipped_scenes", lambda: names)
     monkeypatch.setattr(cli, "resolve_scene_path", lambda name: tmp_path / f"{name}.toml")
     assert cli.cmd_scenes(SimpleNamespace()) == 0

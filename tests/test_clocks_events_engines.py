@@ -1,4 +1,5 @@
 """The real-time clock, perturbation events, the central engine, and scene validation."""
+
 from __future__ import annotations
 
 import json
@@ -45,7 +46,7 @@ def test_realtime_clock_follows_the_wall_clock(tmp_path):
 
 def test_a_robot_picked_up_by_hand_returns_to_its_goal(tmp_path):
     # moved at t = 16 s, after the swarm has arrived, to a free spot; the run ends 8 s after all hold
-    extra = "[[events]]\nt = 16.0\nkind = \"teleport\"\nrobot = 2\npose = [0.0, 0.65, 0.0]\n[end]\nconverge_hold = 8.0"
+    extra = '[[events]]\nt = 16.0\nkind = "teleport"\nrobot = 2\npose = [0.0, 0.65, 0.0]\n[end]\nconverge_hold = 8.0'
     m, traj = run(tmp_path, SMALL.format(duration=60.0, clock="lockstep", extra=extra))
     t, pose = traj["t"], traj["pose"]
     k = int(np.searchsorted(t, 16.0))
@@ -72,15 +73,18 @@ def test_shipped_scenes_load(name):
     assert scene.robots >= 1 and scene.poses.shape == (scene.robots, 3)
 
 
-@pytest.mark.parametrize("data, message", [
-    ({"robots": 3, "layout": {"kind": "spiral"}}, "layout kind"),
-    ({"robots": 3, "goals": {"kind": "everywhere"}}, "goals kind"),
-    ({"robots": 3, "clock": "sundial"}, "clock must be"),
-    ({"robots": 3, "events": [{"kind": "teleport", "robot": 9, "t": 1.0, "pose": [0, 0, 0]}]}, "robot must be"),
-    ({"robots": 3, "scripted": [{"robot": 0, "waypoints": [[1, 0, 0]]}]}, "waypoints"),
-    ({"robots": 3, "colour": "red"}, "unknown key"),
-    ({"robots": 3, "deadline": 0}, "deadline must be"),
-])
+@pytest.mark.parametrize(
+    "data, message",
+    [
+        ({"robots": 3, "layout": {"kind": "spiral"}}, "layout kind"),
+        ({"robots": 3, "goals": {"kind": "everywhere"}}, "goals kind"),
+        ({"robots": 3, "clock": "sundial"}, "clock must be"),
+        ({"robots": 3, "events": [{"kind": "teleport", "robot": 9, "t": 1.0, "pose": [0, 0, 0]}]}, "robot must be"),
+        ({"robots": 3, "scripted": [{"robot": 0, "waypoints": [[1, 0, 0]]}]}, "waypoints"),
+        ({"robots": 3, "colour": "red"}, "unknown key"),
+        ({"robots": 3, "deadline": 0}, "deadline must be"),
+    ],
+)
 def test_invalid_scenes_say_what_is_wrong(data, message):
     with pytest.raises(SceneError, match=message):
         scene_from_dict(data)

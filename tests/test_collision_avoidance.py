@@ -1,5 +1,6 @@
 """Collision avoidance in the distributed runtime (issue 3): agents over zenoh, tracking noise on,
 contacts and clearance measured by the recorder from the world's TRUE poses."""
+
 from __future__ import annotations
 
 import json
@@ -63,8 +64,14 @@ def test_fifty_holonomic(tmp_path, layout, goals):
 @pytest.mark.parametrize("kinematics, robots, k", [("diffdrive", 14, "1"), ("holonomic", 50, "5")])
 def test_loss_and_delay_on_states_cause_no_contact(tmp_path, kinematics, robots, k):
     # 25 s: past the crowd in the circle's centre, where the states lost and late matter
-    m, _ = run_scene(tmp_path, scene(robots, kinematics, CIRCLE, "antipodal", 25),
-                     "--faults", "state:drop=0.1,delay=0.05", "--agents-per-process", k)
+    m, _ = run_scene(
+        tmp_path,
+        scene(robots, kinematics, CIRCLE, "antipodal", 25),
+        "--faults",
+        "state:drop=0.1,delay=0.05",
+        "--agents-per-process",
+        k,
+    )
     assert m["dropped_messages"].get("fault", 0) > 0  # the faults really happened
     assert m["contacts"] == 0, m["contact_events"][:5]
     assert m["min_clearance_m"] > 0

@@ -1,4 +1,5 @@
 """Deadlock detection (paper 5.5.5): near the goal but not on it, v_cf far from v_pref for N_d iterations."""
+
 from __future__ import annotations
 
 import numpy as np

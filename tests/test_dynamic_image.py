@@ -1,6 +1,7 @@
 """Dynamic image display (paper 7.4.1): eq. 28 and its derivative, the auction on a moving goal set,
 the feed-forward preferred velocity, the [steps.motion] scene table, the Goals message, and a
 rotating and growing triangle followed by 14 e-pucks over zenoh (paper Fig. 18)."""
+
 from __future__ import annotations
 
 import json
@@ -66,7 +67,7 @@ def test_linear_and_geometric_expansion_differ_as_the_paper_says():
     linear, geometric = GoalMotion(k_eg=0.1), GoalMotion(k_eg=0.1, geometric=True)
     for t in (1.0, 5.0, 10.0):
         assert np.hypot(*linear.positions(g0, t)[0]) == pytest.approx(1 + 0.1 * t)
-        assert np.hypot(*geometric.positions(g0, t)[0]) == pytest.approx(1.1 ** t)
+        assert np.hypot(*geometric.positions(g0, t)[0]) == pytest.approx(1.1**t)
     # same rate at t = 0 only to first order: ln(1.1) < 0.1
     assert linear.velocities(g0, 0.0)[0, 0] == pytest.approx(0.1)
     assert geometric.velocities(g0, 0.0)[0, 0] == pytest.approx(math.log(1.1))
@@ -77,7 +78,7 @@ def test_linear_and_geometric_expansion_differ_as_the_paper_says():
 def test_time_per_row_batches_robots_of_different_ticks():
     m = MOTIONS["geometric"]
     t = np.array([0.0, 1.0, 3.0])
-    one_by_one = np.array([m.positions(G0[i:i + 1], t[i])[0] for i in range(3)])
+    one_by_one = np.array([m.positions(G0[i : i + 1], t[i])[0] for i in range(3)])
     np.testing.assert_allclose(m.positions(G0[:3], t), one_by_one, atol=1e-14)
 
 
@@ -146,11 +147,25 @@ def triangle(motion: dict | None = None, **extra) -> dict:
 
 
 def test_motion_table_is_parsed_and_published_with_the_goal_set():
-    scene = scene_from_dict(triangle({"velocity": [0.01, 0.0], "angular_velocity": 0.05, "center": [0.1, 0.0],
-                                      "expansion": 0.02, "expansion_kind": "geometric"}))
+    scene = scene_from_dict(
+        triangle(
+            {
+                "velocity": [0.01, 0.0],
+                "angular_velocity": 0.05,
+                "center": [0.1, 0.0],
+                "expansion": 0.02,
+                "expansion_kind": "geometric",
+            }
+        )
+    )
     m = scene.steps[0].motion
-    assert (m.velocity, m.angular_velocity, m.center, m.expansion, m.geometric) == ((0.01, 0.0), 0.05, (0.1, 0.0),
-                                                                                  0.02, True)
+    assert (m.velocity, m.angular_velocity, m.center, m.expansion, m.geometric) == (
+        (0.01, 0.0),
+        0.05,
+        (0.1, 0.0),
+        0.02,
+        True,
+    )
     assert not scene.ends_on_convergence  # a moving image has no final position to hold
     goals, colors = scene_goal_set(scene, 0, 6)
     msg = Goals(3, 0, 0.0, 6, goals, colors, 0, 40.0, np.arange(6), **step_timing(scene, 0))
@@ -158,8 +173,11 @@ def test_motion_table_is_parsed_and_published_with_the_goal_set():
     assert back.moves and back.frame_period == 0.0 and back.t_start == 0.0
     motion = motion_of(back)
     assert motion.geometric and motion.omega_g == pytest.approx(0.05) and motion.p_og == pytest.approx((0.1, 0.0))
-    np.testing.assert_allclose(motion.positions(back.positions, 10.0), GoalMotion(
-        (0.01, 0.0), 0.05, (0.1, 0.0), 0.02, True).positions(goals, 10.0), atol=1e-6)  # float32 on the wire
+    np.testing.assert_allclose(
+        motion.positions(back.positions, 10.0),
+        GoalMotion((0.01, 0.0), 0.05, (0.1, 0.0), 0.02, True).positions(goals, 10.0),
+        atol=1e-6,
+    )  # float32 on the wire
     still = decode(Goals(3, 0, 0.0, 6, goals, colors, 0, 40.0, np.arange(6)).encode())
     assert not still.moves and motion_of(still) is None
 
@@ -173,17 +191,20 @@ def test_the_auto_arena_holds_the_picture_wherever_it_goes():
     assert sliding.arena[2] >= still.arena[2] + 0.8 - 1e-9  # 40 s at 2 cm/s
 
 
-@pytest.mark.parametrize("motion, message", [
-    ({"spin": 1.0}, "unknown key"),
-    ({"velocity": [0.1]}, r"\[vx, vy\]"),
-    ({"velocity": "fast"}, r"\[vx, vy\]"),
-    ({"angular_velocity": "quick"}, "must be a number"),
-    ({"center": [0.0, float("nan")]}, "must be"),
-    ({"expansion_kind": "cubic"}, "expansion_kind must be one of"),
-    ({"expansion": -1.0, "expansion_kind": "geometric"}, "> -1"),
-    ({"expansion": -0.05}, "shrinks the pattern to nothing"),  # 1 - 0.05 t reaches 0 at 20 s < 40 s
-    ("turn", "must be a table"),
-])
+@pytest.mark.parametrize(
+    "motion, message",
+    [
+        ({"spin": 1.0}, "unknown key"),
+        ({"velocity": [0.1]}, r"\[vx, vy\]"),
+        ({"velocity": "fast"}, r"\[vx, vy\]"),
+        ({"angular_velocity": "quick"}, "must be a number"),
+        ({"center": [0.0, float("nan")]}, "must be"),
+        ({"expansion_kind": "cubic"}, "expansion_kind must be one of"),
+        ({"expansion": -1.0, "expansion_kind": "geometric"}, "> -1"),
+        ({"expansion": -0.05}, "shrinks the pattern to nothing"),  # 1 - 0.05 t reaches 0 at 20 s < 40 s
+        ("turn", "must be a table"),
+    ],
+)
 def test_bad_motion_says_what_is_wrong_in_one_line(motion, message):
     with pytest.raises(SceneError, match=message) as err:
         scene_from_dict(triangle(motion))
@@ -198,17 +219,22 @@ def test_a_moving_image_must_stay_in_a_given_arena():
 
 # --- end to end ---------------------------------------------------------------------------------
 def test_the_central_engine_follows_a_sliding_growing_turning_triangle(tmp_path):
-    scene = scene_from_dict(triangle({"velocity": [0.004, -0.003], "angular_velocity": -0.04, "expansion": 0.01,
-                                      "expansion_kind": "geometric"}, robot={"kinematics": "holonomic"},
-                                     duration=40.0))
+    scene = scene_from_dict(
+        triangle(
+            {"velocity": [0.004, -0.003], "angular_velocity": -0.04, "expansion": 0.01, "expansion_kind": "geometric"},
+            robot={"kinematics": "holonomic"},
+            duration=40.0,
+        )
+    )
     out = run_central(scene, tmp_path / "run", video=False, progress=None)
     m, traj = json.loads((out / "metrics.json").read_text()), dict(np.load(out / "trajectory.npz"))
     assert m["contacts"] == 0 and m["end_reason"] == "duration"
     t, a = traj["t"], traj["assignment"]
     goals = scene_goal_set(scene, 0, 6)[0]
     after = t >= 20.0
-    moving = np.stack([GoalMotion((0.004, -0.003), -0.04, (0.0, 0.0), 0.01, True).positions(goals[a[k]], t[k])
-                       for k in range(len(t))])
+    moving = np.stack(
+        [GoalMotion((0.004, -0.003), -0.04, (0.0, 0.0), 0.01, True).positions(goals[a[k]], t[k]) for k in range(len(t))]
+    )
     np.testing.assert_allclose(traj["goal"], moving, atol=1e-9)  # the recorded goals are eq. 28's
     err = np.hypot(*(traj["pose"][:, :, :2] - moving).transpose(2, 0, 1))
     assert err[after].mean() < 0.005
@@ -226,8 +252,9 @@ def test_fourteen_epucks_follow_the_rotating_growing_triangle_over_zenoh(tmp_pat
     robot is reassigned: the agreed assignment stays constant."""
     scene = load_scene("rotating-triangle")
     out = tmp_path / "run"
-    result = run_pixelswarm("run", "rotating-triangle", "--duration", "40", "--out", str(out), "--no-video", "-q",
-                            timeout=240)
+    result = run_pixelswarm(
+        "run", "rotating-triangle", "--duration", "40", "--out", str(out), "--no-video", "-q", timeout=240
+    )
     assert result.returncode == 0, result.stderr[-3000:]
     m, traj = json.loads((out / "metrics.json").read_text()), dict(np.load(out / "trajectory.npz"))
     assert m["contacts"] == 0 and m["engine"] == "distributed" and m["end_reason"] == "duration"
@@ -243,8 +270,10 @@ def test_fourteen_epucks_follow_the_rotating_growing_triangle_over_zenoh(tmp_pat
     err = np.hypot(*(traj["pose"][after, :, :2] - moving).transpose(2, 0, 1))
     # the robots announced their moving goals: one tick behind the truth record (the goal moves <= 5 mm a tick)
     announced = np.hypot(*(traj["goal"][after] - moving).transpose(2, 0, 1))
-    print(f"measured: mean distance to the moving goals {err.mean() * 1000:.2f} mm (largest {err.max() * 1000:.1f} "
-          f"mm), announced goals at most {announced.max() * 1000:.1f} mm from eq. 28 at the truth's time")
+    print(
+        f"measured: mean distance to the moving goals {err.mean() * 1000:.2f} mm (largest {err.max() * 1000:.1f} "
+        f"mm), announced goals at most {announced.max() * 1000:.1f} mm from eq. 28 at the truth's time"
+    )
     assert err.mean() < 0.01, err.mean()
     assert announced.max() < 0.006
     assert (epoch[after] == traj["goal_set_epochs"][0]).all()

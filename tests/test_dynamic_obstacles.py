@@ -3,6 +3,7 @@ e-puck agents hold a disk while two uncontrolled movers (scripted robots: no age
 waypoints and avoid nobody) cross it, the second pursuing the first. The agents take full
 responsibility for avoiding them; the world counts every contact (robot-robot, movers included,
 robot-wall, robot-obstacle) in metrics.json's `contacts`."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -30,8 +31,11 @@ def test_fourteen_hold_a_disk_while_two_movers_cross_it_without_contact(tmp_path
     assert m["contacts"] == 0, m["contact_events"][:5]
     assert m["min_clearance_m"] > 0 and m["min_clearance_substep_m"] > 0
     t, pose, radius = traj["t"], traj["pose"], traj["radius"]
-    gap = (np.hypot(*(pose[:, controlled, None, :2] - pose[:, None, movers, :2]).transpose(3, 0, 1, 2))
-           - radius[controlled][None, :, None] - radius[movers][None, None, :])  # (T, 14, 2)
+    gap = (
+        np.hypot(*(pose[:, controlled, None, :2] - pose[:, None, movers, :2]).transpose(3, 0, 1, 2))
+        - radius[controlled][None, :, None]
+        - radius[movers][None, None, :]
+    )  # (T, 14, 2)
     assert gap.min() > 0
 
     # The movers are uncontrolled (not in the goal set) and really crossed the disk, close enough
@@ -50,9 +54,11 @@ def test_fourteen_hold_a_disk_while_two_movers_cross_it_without_contact(tmp_path
 
     # Once the movers have left, the disk re-forms within 1 cm and stays formed.
     reform = first_formed_after(traj, leave, TOLERANCE)
-    print(f"\ndynamic obstacles: movers near the disk from {arrive:.1f} s to {leave:.1f} s, disk re-formed "
-          f"{reform} s after they left; contacts {m['contacts']}, closest mover-robot gap {gap.min():.4f} m, "
-          f"min clearance {m['min_clearance_m']:.4f} m")
+    print(
+        f"\ndynamic obstacles: movers near the disk from {arrive:.1f} s to {leave:.1f} s, disk re-formed "
+        f"{reform} s after they left; contacts {m['contacts']}, closest mover-robot gap {gap.min():.4f} m, "
+        f"min clearance {m['min_clearance_m']:.4f} m"
+    )
     assert reform is not None
     assert stays_formed_from(traj, leave + reform, TOLERANCE)
     assert ok[-1]

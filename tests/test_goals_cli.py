@@ -1,4 +1,5 @@
 """`pixelswarm goals`: the command, its goals.json and preview, and one-line errors with exit code 2."""
+
 from __future__ import annotations
 
 import argparse
@@ -14,9 +15,11 @@ from coordinator import shapes
 from coordinator.goals_cli import add_goals_parser
 
 REPO = Path(__file__).resolve().parent.parent
-HELPER = ("import argparse,sys; from coordinator.goals_cli import add_goals_parser; "
-          "p=argparse.ArgumentParser(prog='pixelswarm'); s=p.add_subparsers(); add_goals_parser(s); "
-          "a=p.parse_args(sys.argv[1:]); sys.exit(a.func(a))")
+HELPER = (
+    "import argparse,sys; from coordinator.goals_cli import add_goals_parser; "
+    "p=argparse.ArgumentParser(prog='pixelswarm'); s=p.add_subparsers(); add_goals_parser(s); "
+    "a=p.parse_args(sys.argv[1:]); sys.exit(a.func(a))"
+)
 
 
 def _parse(*argv: str) -> argparse.Namespace:
@@ -33,8 +36,23 @@ def _image(path: Path, name: str = "disk_and_line", size: int = 128) -> Path:
 def test_goals_command_writes_goals_and_preview(tmp_path, capsys):
     img = _image(tmp_path / "in.png")
     out, preview = tmp_path / "goals.json", tmp_path / "preview.png"
-    args = _parse(img, "-n", 14, "--arena", 2.0, "--method", "kmeans", "--seed", 3, "-o", out,
-                  "--preview", preview, "--region-counts", "0=10,1=4")
+    args = _parse(
+        img,
+        "-n",
+        14,
+        "--arena",
+        2.0,
+        "--method",
+        "kmeans",
+        "--seed",
+        3,
+        "-o",
+        out,
+        "--preview",
+        preview,
+        "--region-counts",
+        "0=10,1=4",
+    )
     assert args.func(args) == 0
     data = json.loads(out.read_text())
     assert len(data["goals"]) == len(data["colors"]) == len(data["regions"]) == 14
@@ -78,8 +96,9 @@ def test_bad_inputs_give_one_line_and_exit_2(tmp_path, capsys):
 
 def test_command_in_a_subprocess(tmp_path):
     img = _image(tmp_path / "in.png", "T")
-    run = lambda *argv: subprocess.run([sys.executable, "-c", HELPER, "goals", *map(str, argv)], cwd=REPO,
-                                       capture_output=True, text=True, timeout=120)
+    run = lambda *argv: subprocess.run(
+        [sys.executable, "-c", HELPER, "goals", *map(str, argv)], cwd=REPO, capture_output=True, text=True, timeout=120
+    )
     ok = run(img, "-n", 12, "-o", tmp_path / "g.json")
     assert ok.returncode == 0, ok.stderr
     assert len(json.loads((tmp_path / "g.json").read_text())["goals"]) == 12

@@ -1,5 +1,6 @@
 """Goal generation: initial samples (K_s), mass density (eq. 2), Lloyd iterations and the cost of
 eq. 1 (paper 4.2, 4.3, Fig. 4)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -11,8 +12,14 @@ from coordinator.goals import goals_from_prepared, prepare_image
 from coordinator.goals.cvt import _Assigner, binary_domain, cell_centroids, cvt_cost, density_domain, lloyd
 from coordinator.goals.sampling import poisson_samples
 
-FIG4 = [("disk", None), ("disk_and_line", {0: 10, 1: 4}), ("disk_and_line", {0: 6, 1: 8}),
-        ("line", None), ("L", None), ("T", None)]
+FIG4 = [
+    ("disk", None),
+    ("disk_and_line", {0: 10, 1: 4}),
+    ("disk_and_line", {0: 6, 1: 8}),
+    ("line", None),
+    ("L", None),
+    ("T", None),
+]
 
 
 def _region(name: str, size: int = 160):

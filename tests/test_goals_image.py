@@ -1,4 +1,5 @@
 """Goal generation, input side: image files, alpha, background subtraction (paper 4.1)."""
+
 from __future__ import annotations
 
 import cv2
@@ -80,7 +81,7 @@ def test_dominant_border_colour_is_background(bg):
 def test_explicit_background_colour_wins_over_the_border():
     g = (np.arange(SIZE) + 0.5) / SIZE
     y, x = np.meshgrid(g, g, indexing="ij")
-    big = (x - 0.5) ** 2 + (y - 0.5) ** 2 < 0.62 ** 2  # a disk that covers most of the border
+    big = (x - 0.5) ** 2 + (y - 0.5) ** 2 < 0.62**2  # a disk that covers most of the border
     img = np.full((SIZE, SIZE, 3), 255, np.uint8)
     img[big] = shapes.RED
     assert np.array_equal(foreground_mask(img).mask, ~big)  # the border's red looks like background
@@ -110,8 +111,12 @@ def test_unreadable_inputs_give_one_line_errors(tmp_path):
     good = tmp_path / "good.png"
     _write(good, shapes.draw("disk", SIZE))
     (tmp_path / "cut.png").write_bytes(good.read_bytes()[:60])
-    cases = {tmp_path / "missing.png": "no such file", tmp_path: "directory",
-             tmp_path / "text.png": "not a PNG", tmp_path / "cut.png": "damaged"}
+    cases = {
+        tmp_path / "missing.png": "no such file",
+        tmp_path: "directory",
+        tmp_path / "text.png": "not a PNG",
+        tmp_path / "cut.png": "damaged",
+    }
     for path, words in cases.items():
         with pytest.raises(GoalError) as err:
             load_image(path)

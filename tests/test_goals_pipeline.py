@@ -1,5 +1,6 @@
 """Goal generation end to end: goals inside the foreground, colours, resizing (paper 4.4), goal-set
 families (5.1.2) and the goal-set file."""
+
 from __future__ import annotations
 
 import cv2
@@ -152,8 +153,19 @@ def test_artist_region_counts_and_fewer_robots_than_regions():
     assert one.regions.tolist() == [0] and any("no robot" in note for note in one.params["notes"])
 
 
-@pytest.mark.parametrize("bad", [{"n": 0}, {"n": -3}, {"n": 2.5}, {"seed": -1}, {"arena": -1.0},
-                                 {"method": "voronoi"}, {"robot_radius": 0.0}, {"n": 10_000}])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"n": 0},
+        {"n": -3},
+        {"n": 2.5},
+        {"seed": -1},
+        {"arena": -1.0},
+        {"method": "voronoi"},
+        {"robot_radius": 0.0},
+        {"n": 10_000},
+    ],
+)
 def test_bad_arguments_are_goal_errors(bad):
     args = {"n": 10, **bad}
     n = args.pop("n")

@@ -1,4 +1,5 @@
 """Goal generation: segmentation into regions R_i and robots per region N_i (paper 4.1, 4.2)."""
+
 from __future__ import annotations
 
 import numpy as np

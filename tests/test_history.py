@@ -3,6 +3,7 @@ Elisa-like robots on the paper's 2 m table show the big bang, the Earth orbiting
 orbiting the Earth, a zoom onto the Earth, a microbe and a fish in the sea, a dinosaur stretching its
 neck and a human. Checked: every keyframe's goals fit the table with room between the robots, and the
 central engine plays the first keyframes in time without contact (the whole show: README)."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -80,5 +81,7 @@ def test_the_central_engine_forms_the_big_bang_in_time_without_contact(history, 
     error = np.hypot(*(pose[held] - goal[held]).transpose(2, 0, 1))
     formed = np.flatnonzero((error <= RobotParams.from_dict(history.robot).goal_tolerance).all(axis=1))
     assert len(formed), f"the burst was not formed within 1 cm (at best {error.max(axis=1).min():.3f} m)"
-    print(f"\nhistory: fireball and burst reached within {lags[0] * 100:.1f} and {lags[1] * 100:.1f} cm; the held "
-          f"burst formed within 1 cm at t = {t[held[formed[0]]]:.1f} s; min clearance {m['min_clearance_m']:.4f} m")
+    print(
+        f"\nhistory: fireball and burst reached within {lags[0] * 100:.1f} and {lags[1] * 100:.1f} cm; the held "
+        f"burst formed within 1 cm at t = {t[held[formed[0]]]:.1f} s; min clearance {m['min_clearance_m']:.4f} m"
+    )

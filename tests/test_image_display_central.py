@@ -1,5 +1,6 @@
 """An image displayed by the central engine: goals from the picture, re-assigned every iteration
 by the auction (paper 5.1), LEDs in the goals' colours. The distributed auction is issue 5."""
+
 from __future__ import annotations
 
 import json
@@ -18,8 +19,9 @@ def test_disk_and_line_shown_by_14_robots(tmp_path):
     image = tmp_path / "disk_and_line.png"
     cv2.imwrite(str(image), shapes.draw("disk_and_line", 256)[:, :, ::-1])
     out = tmp_path / "run"
-    result = run_pixelswarm("run", str(image), "--robots", "14", "--engine", "central", "--out", str(out),
-                            "--no-video", "-q", timeout=300)
+    result = run_pixelswarm(
+        "run", str(image), "--robots", "14", "--engine", "central", "--out", str(out), "--no-video", "-q", timeout=300
+    )
     assert result.returncode == 0, result.stderr
     m = json.loads((out / "metrics.json").read_text())
     traj = np.load(out / "trajectory.npz")

@@ -2,8 +2,8 @@
 assignment is one-to-one by the agents' own announcements and within N epsilon_A of scipy's optimum
 on the positions they bid from; lost and late auction messages, dying agents and a hundred robots in
 agent hosts. The paper's sequence with 14 e-pucks is `make run`, checked in test_make_run.py."""
-from __future__ import annotations
 
+from __future__ import annotations
 
 import numpy as np
 import pytest
@@ -44,12 +44,16 @@ def why_not_formed(m: dict, traj: dict, tolerance: float) -> str:
         key = np.stack([traj["assignment_epoch"][:, r], traj["assignment_instance"][:, r], traj["assignment"][:, r]], 1)
         changes = np.flatnonzero((key[1:] != key[:-1]).any(axis=1)) + 1
         goal_changes = np.flatnonzero(traj["assignment"][1:, r] != traj["assignment"][:-1, r]) + 1
-        rows.append(f"robot {r}: {err[-1, r]:.3f} m off goal {key[-1, 2]} (epoch {key[-1, 0]}, instance {key[-1, 1]}),"
-                    f" goal changed at t={[round(float(t[i]), 1) for i in goal_changes[-4:]]},"
-                    f" assignment at t={[round(float(t[i]), 1) for i in changes[-3:]]}")
-    return (f"end {m.get('end_reason')} at t={float(t[-1]):.1f}; goal sets {[int(e) for e in traj['goal_set_epochs']]};"
-            f" agreements {len(traj['agreements'])}; liveliness lost {m.get('liveliness_lost')};"
-            f" off goal at the end: {rows or 'none'}")
+        rows.append(
+            f"robot {r}: {err[-1, r]:.3f} m off goal {key[-1, 2]} (epoch {key[-1, 0]}, instance {key[-1, 1]}),"
+            f" goal changed at t={[round(float(t[i]), 1) for i in goal_changes[-4:]]},"
+            f" assignment at t={[round(float(t[i]), 1) for i in changes[-3:]]}"
+        )
+    return (
+        f"end {m.get('end_reason')} at t={float(t[-1]):.1f}; goal sets {[int(e) for e in traj['goal_set_epochs']]};"
+        f" agreements {len(traj['agreements'])}; liveliness lost {m.get('liveliness_lost')};"
+        f" off goal at the end: {rows or 'none'}"
+    )
 
 
 DISK = """
@@ -68,7 +72,9 @@ converge_hold = {converge_hold}
 
 
 def test_auction_survives_loss_and_delay(tmp_path):
-    m, traj = run(tmp_path, DISK.format(hold=40.0, converge_hold=8.0, events=""), "--faults", "auction:drop=0.1,delay=0.05")
+    m, traj = run(
+        tmp_path, DISK.format(hold=40.0, converge_hold=8.0, events=""), "--faults", "auction:drop=0.1,delay=0.05"
+    )
     assert m["faults"], "the fault plan was not applied"
     assert_every_hold_formed(m, traj=traj)
     assert_agreements_valid(traj, min_complete=3)
@@ -78,7 +84,7 @@ KILL_AT = 20.0  # s: the disk of 14 forms in about 10 s
 
 
 def test_two_of_fourteen_agents_die_and_twelve_reform_the_image(tmp_path):
-    events = "\n".join(f"[[events]]\nkind = \"fail\"\nt = {KILL_AT}\nrobot = {r}" for r in (3, 9))
+    events = "\n".join(f'[[events]]\nkind = "fail"\nt = {KILL_AT}\nrobot = {r}' for r in (3, 9))
     m, traj = run(tmp_path, DISK.format(hold=KILL_AT + 15.0, converge_hold=100.0, events=events))
     assert m["contacts"] == 0
     assert len(m["agents_failed_by_scene"]) == 2
@@ -91,8 +97,10 @@ def test_two_of_fourteen_agents_die_and_twelve_reform_the_image(tmp_path):
     formed = (traj["assignment_epoch"][:, members] == newest).all(axis=1) & (err <= 0.01).all(axis=1)
     first = after[formed[after]]
     agreed = np.flatnonzero((traj["assignment_epoch"][:, members] == newest).all(axis=1))
-    why = (f"goal set for 12 agreed from t = {t[agreed[0]] if len(agreed) else None} s; errors at the end (mm): "
-           f"{np.round(err[-1] * 1000).astype(int).tolist()}; {why_not_formed(m, traj, 0.01)}")
+    why = (
+        f"goal set for 12 agreed from t = {t[agreed[0]] if len(agreed) else None} s; errors at the end (mm): "
+        f"{np.round(err[-1] * 1000).astype(int).tolist()}; {why_not_formed(m, traj, 0.01)}"
+    )
     assert len(first), "the twelve never re-formed the image: " + why
     assert t[first[0]] - KILL_AT <= 10.0, why
     assert formed[-1]

@@ -1,5 +1,6 @@
 """Consecutive keyframes (paper 6.1-6.2): the auction of frame f starts from frame f-1's board carried
 over by the goals' correspondence, and the robots drive on to their carried goals at once."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -143,7 +144,7 @@ def test_the_next_image_starts_warm_from_the_goal_sets_matching_and_agrees_far_s
     robots = list(range(len(g1)))
     hosts = [robots[0::3], robots[1::3], robots[2::3]]
     first = [Participant(1, g1, robots, h, EPS) for h in hosts]
-    agreed1 = exchange(first, pos)
+    exchange(first, pos)
     previous, prices = goal_matching(g1, g2)
     assert sorted(previous.tolist()) == robots  # a one-to-one matching of the goals
     assert ((g2 - g1[previous]) ** 2).sum() <= optimum(g1, g2) + 1e-9

@@ -1,6 +1,7 @@
 """Keyframe animation goal generation (paper 6.1): region motion (T_i^f, M_i^f), region correspondence
 across frames, goal sets in one arena, the disparity between consecutive goal sets, fallback to fresh
 sampling, the keyframe drawings, and errors."""
+
 from __future__ import annotations
 
 import math
@@ -70,8 +71,13 @@ def test_a_symmetric_shape_takes_the_smallest_rotation():
 
 
 def _disk_and_bar(disk_r: float, bar_half: float, dx: float = 0.0) -> np.ndarray:
-    return paint([(ellipse(0.35 + dx, 0.5, disk_r, disk_r), RED), (capsule((0.75 + dx, 0.5 - bar_half),
-                                                                            (0.75 + dx, 0.5 + bar_half), 0.05), BLUE)], 256)
+    return paint(
+        [
+            (ellipse(0.35 + dx, 0.5, disk_r, disk_r), RED),
+            (capsule((0.75 + dx, 0.5 - bar_half), (0.75 + dx, 0.5 + bar_half), 0.05), BLUE),
+        ],
+        256,
+    )
 
 
 def test_regions_correspond_across_frames_when_their_order_swaps():
@@ -90,8 +96,10 @@ def test_regions_correspond_across_frames_when_their_order_swaps():
     red = next(m for m in report.regions if m.region == 1)
     assert red.translation[0] == pytest.approx(0.03 * kg.arena, abs=0.5 * kg.metres_per_pixel)
     # two regions of one colour are told apart by position
-    twins = [paint([(ellipse(0.3 + d, 0.5, 0.1, 0.1), RED), (ellipse(0.7 + d, 0.5, 0.12, 0.12), RED)], 256)
-             for d in (0.0, 0.04)]
+    twins = [
+        paint([(ellipse(0.3 + d, 0.5, 0.1, 0.1), RED), (ellipse(0.7 + d, 0.5, 0.12, 0.12), RED)], 256)
+        for d in (0.0, 0.04)
+    ]
     t0, t1 = ([region_shape(p.seg, r.id, r.lab) for r in p.seg.regions] for p in map(prepare_image, twins))
     assert match_regions(t0, t1) == [0, 1]
 
@@ -99,8 +107,11 @@ def test_regions_correspond_across_frames_when_their_order_swaps():
 @pytest.fixture(scope="module")
 def leaf_runs():
     frames = keyframes("leaf")
-    return frames, {(init, keep): keyframe_goals(frames, 100, init_from_previous=init, keep_counts=keep)
-                    for init in (True, False) for keep in (False, True)}
+    return frames, {
+        (init, keep): keyframe_goals(frames, 100, init_from_previous=init, keep_counts=keep)
+        for init in (True, False)
+        for keep in (False, True)
+    }
 
 
 def test_every_frame_has_n_distinct_goals_in_its_foreground_on_one_scale(leaf_runs):
@@ -143,8 +154,10 @@ def test_initialising_from_the_previous_frame_lowers_the_disparity(leaf_runs):
 
 def test_leaf_motion_is_tracked_through_the_animation(leaf_runs):
     _, runs = leaf_runs
-    leaf = [[m for m in r.regions if m.correlation > 0.9 and m.translation != (0.0, 0.0)]
-            for r in runs[(True, False)].reports[1:]]
+    leaf = [
+        [m for m in r.regions if m.correlation > 0.9 and m.translation != (0.0, 0.0)]
+        for r in runs[(True, False)].reports[1:]
+    ]
     assert all(len(m) == 1 for m in leaf)  # the branch stays, the leaf moves
     turns = [math.degrees(m[0].rotation) for m in leaf]
     # blown off, it turns clockwise as seen by 40, 45 and 45 degrees (drawings._LEAF_FRAMES)

@@ -1,6 +1,7 @@
 """The shipped 1000-robot scene (paper 7.5, Fig. 12 bottom row) is the paper's sequence at 1000 robots.
 Running it takes the central engine tens of minutes on 2 cores: bench/bench_large.py is its check;
 this only checks the scene itself (a few seconds)."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -6,6 +6,7 @@ starts later is not left waiting.
 Regression: with a fixed 0.5 s pause before tick 0 instead, a neighbour's tick-0 state could go
 unsent (zenoh tells a publisher about a new subscriber asynchronously) and the reproducibility check
 of tests/test_runtime.py failed 2 runs in 5 under load, each at tick 1."""
+
 from __future__ import annotations
 
 import threading
@@ -34,8 +35,11 @@ def test_a_host_is_alive_only_after_its_neighbours_hello_and_greets_until_its_fi
     session = open_session(router)
     stop = threading.Event()
     try:
-        with Bus(client_of(router), "greet") as world, Bus(client_of(router), "greet") as bus_a, \
-                Bus(client_of(router), "greet") as bus_b:
+        with (
+            Bus(client_of(router), "greet") as world,
+            Bus(client_of(router), "greet") as bus_a,
+            Bus(client_of(router), "greet") as bus_b,
+        ):
             alive = world.watch_alive("agent")
             threading.Thread(target=tracker, args=(world, stop), daemon=True).start()
             a = AgentHost(bus_a, HostConfig(robots=[0], params=params, lockstep=True, greet=[1]))

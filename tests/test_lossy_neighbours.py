@@ -7,6 +7,7 @@ The crowd at the circle's centre is where it matters: with the old hard lines, a
 (radius grown by how far it may have strayed) could make them infeasible, and robots touched in the
 holonomic cases below (5 of 8 seeds at 30% loss, 50% late).
 """
+
 from __future__ import annotations
 
 import pytest
@@ -14,9 +15,10 @@ import pytest
 from sim.lossy import circle_crossing, run_lossy
 
 
-@pytest.mark.parametrize("kinematics, robots, seed", [
-    ("holonomic", 50, 0), ("holonomic", 50, 3), ("holonomic", 50, 4), ("holonomic", 50, 5),
-    ("diffdrive", 30, 0)])
+@pytest.mark.parametrize(
+    "kinematics, robots, seed",
+    [("holonomic", 50, 0), ("holonomic", 50, 3), ("holonomic", 50, 4), ("holonomic", 50, 5), ("diffdrive", 30, 0)],
+)
 def test_lost_and_late_states_cause_no_contact(kinematics, robots, seed):
     res = run_lossy(circle_crossing(robots, kinematics, seed), drop=0.3, late=0.5, seed=seed)
     assert 0.15 < res.heard_on_time < 0.25  # the loss really happened

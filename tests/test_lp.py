@@ -1,4 +1,5 @@
 """The 2-D linear program of ORCA (agent.core.lp): hand-worked cases, optimality, determinism."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -110,10 +111,16 @@ def test_feasible_result_is_the_closest_point_of_the_feasible_set(seed, n_lines)
     v, fb = linear_program(point, direction, valid, radius, pref)
     p, d = point[0][valid[0]], direction[0][valid[0]]
     cons = [{"type": "ineq", "fun": lambda x: radius[0] ** 2 - x @ x}]
-    cons += [{"type": "ineq", "fun": lambda x, k=k: -violation(p[k:k + 1], d[k:k + 1], x)[0]}
-             for k in range(len(p))]
-    ref = minimize(lambda x: np.sum((x - pref[0]) ** 2), np.zeros(2), constraints=cons,
-                   method="SLSQP", options={"ftol": 1e-12, "maxiter": 500})
+    cons += [
+        {"type": "ineq", "fun": lambda x, k=k: -violation(p[k : k + 1], d[k : k + 1], x)[0]} for k in range(len(p))
+    ]
+    ref = minimize(
+        lambda x: np.sum((x - pref[0]) ** 2),
+        np.zeros(2),
+        constraints=cons,
+        method="SLSQP",
+        options={"ftol": 1e-12, "maxiter": 500},
+    )
     ref_ok = ref.success and np.all(violation(p, d, ref.x) <= 1e-7) and ref.x @ ref.x <= radius[0] ** 2 + 1e-7
     if not fb[0]:
         assert np.all(violation(p, d, v[0]) <= 1e-9)
@@ -136,17 +143,20 @@ def test_fallback_minimises_the_largest_violation_of_soft_lines(seed, n_lines, n
     hard = violation(p[:n_hard], d[:n_hard], v)
     # reference: min delta s.t. soft violations <= delta, hard <= 0, |v| <= R
     cons = [{"type": "ineq", "fun": lambda x: radius[0] ** 2 - x[:2] @ x[:2]}]
-    cons += [{"type": "ineq", "fun": lambda x, k=k: -violation(p[k:k + 1], d[k:k + 1], x[:2])[0]}
-             for k in range(n_hard)]
-    cons += [{"type": "ineq", "fun": lambda x, k=k: x[2] - violation(p[k:k + 1], d[k:k + 1], x[:2])[0]}
-             for k in range(n_hard, n_lines)]
+    cons += [
+        {"type": "ineq", "fun": lambda x, k=k: -violation(p[k : k + 1], d[k : k + 1], x[:2])[0]} for k in range(n_hard)
+    ]
+    cons += [
+        {"type": "ineq", "fun": lambda x, k=k: x[2] - violation(p[k : k + 1], d[k : k + 1], x[:2])[0]}
+        for k in range(n_hard, n_lines)
+    ]
     best = np.inf
     for x0 in ([0.0, 0.0, 10.0], [*v, 10.0]):
-        ref = minimize(lambda x: x[2], np.array(x0), constraints=cons, method="SLSQP",
-                       options={"ftol": 1e-12, "maxiter": 500})
+        ref = minimize(
+            lambda x: x[2], np.array(x0), constraints=cons, method="SLSQP", options={"ftol": 1e-12, "maxiter": 500}
+        )
         x = ref.x
-        if (x[:2] @ x[:2] <= radius[0] ** 2 + 1e-7
-                and np.all(violation(p[:n_hard], d[:n_hard], x[:2]) <= 1e-7)):
+        if x[:2] @ x[:2] <= radius[0] ** 2 + 1e-7 and np.all(violation(p[:n_hard], d[:n_hard], x[:2]) <= 1e-7):
             best = min(best, max(0.0, np.max(violation(p[n_hard:], d[n_hard:], x[:2]))))
     if not np.isfinite(best):
         return  # hard lines infeasible: everything is soft, nothing to compare
@@ -175,7 +185,13 @@ def test_a_robot_gets_bit_identical_results_alone_or_in_a_batch():
     assert 20 < fb.sum() < b - 20  # both paths exercised
     for i in range(b):
         k = n if i % 2 else int(np.nonzero(valid[i])[0].max(initial=0)) + 1  # with or without padding
-        vi, fbi = linear_program(point[i:i + 1, :k], direction[i:i + 1, :k], valid[i:i + 1, :k],
-                                 radius[i:i + 1], pref[i:i + 1], n_hard[i:i + 1])
+        vi, fbi = linear_program(
+            point[i : i + 1, :k],
+            direction[i : i + 1, :k],
+            valid[i : i + 1, :k],
+            radius[i : i + 1],
+            pref[i : i + 1],
+            n_hard[i : i + 1],
+        )
         assert fbi[0] == fb[i]
         assert vi[0].tobytes() == v[i].tobytes(), i

@@ -1,6 +1,7 @@
 """`make run` as a newcomer types it: the paper's sequence (Fig. 12) by 14 e-puck processes deciding
 among themselves who goes where, and a complete run directory. Also the issue 5 end-to-end check of
 the paper sequence: every hold formed, zero contacts, agreed assignments valid and optimal."""
+
 from __future__ import annotations
 
 import json
@@ -21,17 +22,30 @@ pytestmark = pytest.mark.skipif(shutil.which("make") is None, reason="make is no
 @pytest.mark.timeout(900)  # six 30 s holds in lock-step, plus the video: minutes on 2 busy cores
 def test_make_run_writes_a_complete_run_directory(tmp_path):
     out = tmp_path / "run"
-    result = subprocess.run(["make", "-s", "run", f"RUN_ARGS=--out {out}"], cwd=REPO, capture_output=True,
-                            text=True, timeout=900)
+    result = subprocess.run(
+        ["make", "-s", "run", f"RUN_ARGS=--out {out}"], cwd=REPO, capture_output=True, text=True, timeout=900
+    )
     assert result.returncode == 0, result.stderr[-2000:]
     assert result.stdout.strip().splitlines()[-1] == str(out)
     assert "[paper-sequence] 14 robots" in result.stderr  # progress output
 
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["robots"] == 14 and metrics["agent_processes"] == 14
-    for key in ["duration_s", "wall_s", "realtime_factor", "min_clearance_m", "contacts", "max_overlap_m",
-                "converged", "time_to_converge_s", "path_length_m", "messages_per_robot_s", "bytes_per_robot_s",
-                "missed_ticks", "agents_crashed"]:
+    for key in [
+        "duration_s",
+        "wall_s",
+        "realtime_factor",
+        "min_clearance_m",
+        "contacts",
+        "max_overlap_m",
+        "converged",
+        "time_to_converge_s",
+        "path_length_m",
+        "messages_per_robot_s",
+        "bytes_per_robot_s",
+        "missed_ticks",
+        "agents_crashed",
+    ]:
         assert key in metrics
     assert len(metrics["path_length_m"]) == 14
 
@@ -44,8 +58,10 @@ def test_make_run_writes_a_complete_run_directory(tmp_path):
 
     with open(out / "log.mcap", "rb") as f:
         reader = make_reader(f)
-        topics = {channel.topic for _, channel, _ in
-                  reader.iter_messages(topics=["/pose", "/state", "/cmd", "/auction", "/goals"])}
+        topics = {
+            channel.topic
+            for _, channel, _ in reader.iter_messages(topics=["/pose", "/state", "/cmd", "/auction", "/goals"])
+        }
     assert topics == {"/pose", "/state", "/cmd", "/auction", "/goals"}
 
     video = cv2.VideoCapture(str(out / "display.mp4"))

@@ -1,4 +1,5 @@
 """A host's neighbour table (agent.neighbour_table): which broadcast states each of its robots steers by."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -121,7 +122,11 @@ def test_a_host_listens_to_the_square_of_cells_around_each_of_its_robots():
     for _ in range(3):  # the robots move: cells are added and dropped
         positions = rng.uniform(-3, 3, (25, 2))
         cells.update(positions)
-        expect = {(cx + dx, cy + dy) for cx, cy in (cell_of(x, y, 0.7) for x, y in positions)
-                  for dx in range(-2, 3) for dy in range(-2, 3)}
+        expect = {
+            (cx + dx, cy + dy)
+            for cx, cy in (cell_of(x, y, 0.7) for x, y in positions)
+            for dx in range(-2, 3)
+            for dy in range(-2, 3)
+        }
         assert cells.cells == bus.live == expect
         assert all(type(c) is int for cell in cells.cells for c in cell)  # key expressions print ints

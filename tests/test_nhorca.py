@@ -1,5 +1,6 @@
 """NH-ORCA for differential-drive robots (agent.core.nhorca): closed forms against a numerical
 simulation of the tracking error, P_AHV, the controls, and a small closed-loop run."""
+
 from __future__ import annotations
 
 import math
@@ -7,10 +8,18 @@ import math
 import numpy as np
 import pytest
 
-from agent.core.nhorca import (ahv_lines, ahv_polygon, controls, max_trackable_speed,
-                               min_error_speed, nh_orca_wheel_speeds, omega_cap, tracking_error,
-                               wheel_speeds)
 from agent.core.neighbours import perturb_preferred_velocity
+from agent.core.nhorca import (
+    ahv_lines,
+    ahv_polygon,
+    controls,
+    max_trackable_speed,
+    min_error_speed,
+    nh_orca_wheel_speeds,
+    omega_cap,
+    tracking_error,
+    wheel_speeds,
+)
 from agent.core.params import EPUCK
 
 
@@ -113,14 +122,26 @@ def run_diffdrive(pos, heading, goal, steps, params=EPUCK):
     others = np.array([[j for j in range(n) if j != i] for i in range(n)])
     min_dist = np.inf
     for tick in range(steps):
-        pref = np.where(np.linalg.norm(goal - pos, axis=1, keepdims=True) > 1e-9,
-                        (goal - pos) * np.minimum(1.0, params.k_a / np.maximum(
-                            np.linalg.norm(goal - pos, axis=1, keepdims=True), 1e-12)), 0.0)
-        pref = perturb_preferred_velocity(pref / params.k_a * params.v_pref, np.arange(n), seed=3,
-                                          tick=tick)
-        res = nh_orca_wheel_speeds(pos, heading, vel, pref, params.radius, pos[others], vel[others],
-                                   np.full(others.shape, params.radius), np.full(others.shape, 0.5),
-                                   np.ones(others.shape, bool), params=params)
+        pref = np.where(
+            np.linalg.norm(goal - pos, axis=1, keepdims=True) > 1e-9,
+            (goal - pos)
+            * np.minimum(1.0, params.k_a / np.maximum(np.linalg.norm(goal - pos, axis=1, keepdims=True), 1e-12)),
+            0.0,
+        )
+        pref = perturb_preferred_velocity(pref / params.k_a * params.v_pref, np.arange(n), seed=3, tick=tick)
+        res = nh_orca_wheel_speeds(
+            pos,
+            heading,
+            vel,
+            pref,
+            params.radius,
+            pos[others],
+            vel[others],
+            np.full(others.shape, params.radius),
+            np.full(others.shape, 0.5),
+            np.ones(others.shape, bool),
+            params=params,
+        )
         assert np.all(np.abs(res.wheel_left) <= params.v_max + 1e-12)
         assert np.all(np.abs(res.wheel_right) <= params.v_max + 1e-12)
         v = 0.5 * (res.wheel_left + res.wheel_right)
@@ -128,8 +149,7 @@ def run_diffdrive(pos, heading, goal, steps, params=EPUCK):
         sub = 20  # integrate the arc finely over the control period
         for _ in range(sub):
             h = params.dt / sub
-            pos = pos + h * v[:, None] * np.stack([np.cos(heading + 0.5 * w * h),
-                                                   np.sin(heading + 0.5 * w * h)], -1)
+            pos = pos + h * v[:, None] * np.stack([np.cos(heading + 0.5 * w * h), np.sin(heading + 0.5 * w * h)], -1)
             heading = heading + w * h
             d = np.linalg.norm(pos[:, None] - pos[None], axis=-1) + np.eye(n) * 1e9
             min_dist = min(min_dist, d.min())
@@ -152,10 +172,19 @@ def test_differential_drive_robots_swap_places_without_contact():
 def test_mirrored_polygon_drives_backwards_when_forward_is_infeasible():
     # a dynamic obstacle (c = 1) right ahead closing at 0.1 m/s: backing off faster than P_AHV allows
     pos = np.array([[0.0, 0.0]])
-    res = nh_orca_wheel_speeds(pos, np.array([0.0]), np.zeros((1, 2)), np.array([[0.12, 0.0]]),
-                               EPUCK.radius, np.array([[[0.1 + 0.002, 0.0]]]),
-                               np.array([[[-0.1, 0.0]]]), np.array([[EPUCK.radius]]),
-                               np.array([[1.0]]), np.array([[True]]), params=EPUCK)
+    res = nh_orca_wheel_speeds(
+        pos,
+        np.array([0.0]),
+        np.zeros((1, 2)),
+        np.array([[0.12, 0.0]]),
+        EPUCK.radius,
+        np.array([[[0.1 + 0.002, 0.0]]]),
+        np.array([[[-0.1, 0.0]]]),
+        np.array([[EPUCK.radius]]),
+        np.array([[1.0]]),
+        np.array([[True]]),
+        params=EPUCK,
+    )
     assert res.fallback[0] and res.reverse[0]
     assert res.velocity[0, 0] < -float(max_trackable_speed(np.pi, res.error[0], EPUCK))
     assert res.wheel_left[0] < 0 and res.wheel_right[0] < 0
@@ -166,13 +195,21 @@ def test_a_differential_drive_robot_gets_bit_identical_results_alone_or_in_a_bat
     b, m = 64, 6
     pos = rng.uniform(0, 0.8, (b, 2))
     nbr = pos[:, None] + rng.uniform(-0.2, 0.2, (b, m, 2))
-    args = (pos, rng.uniform(-np.pi, np.pi, b), rng.uniform(-0.1, 0.1, (b, 2)),
-            rng.uniform(-0.12, 0.12, (b, 2)), np.full(b, EPUCK.radius), nbr,
-            rng.uniform(-0.1, 0.1, (b, m, 2)), np.full((b, m), EPUCK.radius),
-            rng.choice([0.5, 1.0], (b, m)), rng.random((b, m)) < 0.8)
+    args = (
+        pos,
+        rng.uniform(-np.pi, np.pi, b),
+        rng.uniform(-0.1, 0.1, (b, 2)),
+        rng.uniform(-0.12, 0.12, (b, 2)),
+        np.full(b, EPUCK.radius),
+        nbr,
+        rng.uniform(-0.1, 0.1, (b, m, 2)),
+        np.full((b, m), EPUCK.radius),
+        rng.choice([0.5, 1.0], (b, m)),
+        rng.random((b, m)) < 0.8,
+    )
     full = nh_orca_wheel_speeds(*args, params=EPUCK)
     assert full.fallback.any() and not full.fallback.all()
     for i in range(b):
-        one = nh_orca_wheel_speeds(*(a[i:i + 1] for a in args), params=EPUCK)
+        one = nh_orca_wheel_speeds(*(a[i : i + 1] for a in args), params=EPUCK)
         for a, c in zip(full, one):
             assert np.asarray(a)[i].tobytes() == np.asarray(c)[0].tobytes()

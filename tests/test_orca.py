@@ -1,5 +1,6 @@
 """Holonomic ORCA (agent.core.orca) against the geometric definitions of eq. 9-12, obstacles, and the
 neighbour preparation for real communication (agent.core.neighbours)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -7,8 +8,14 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from agent.core.neighbours import perturb_preferred_velocity, prepare_neighbours
-from agent.core.orca import (arena_segments, obstacle_lines, orca_lines, orca_velocity,
-                             polygon_segments, preferred_velocity)
+from agent.core.orca import (
+    arena_segments,
+    obstacle_lines,
+    orca_lines,
+    orca_velocity,
+    polygon_segments,
+    preferred_velocity,
+)
 
 coord = st.floats(-5.0, 5.0, allow_nan=False)
 speed = st.floats(-2.0, 2.0, allow_nan=False)
@@ -26,7 +33,7 @@ def vo_boundary(p, big_r, tau, n=20000):
     dist = np.linalg.norm(p)
     base = np.arctan2(p[1], p[0])
     half = np.arcsin(big_r / dist)
-    s0 = np.sqrt(dist ** 2 - big_r ** 2) / tau
+    s0 = np.sqrt(dist**2 - big_r**2) / tau
     pts = []
     for sign in (-1.0, 1.0):
         a = base + sign * half
@@ -39,15 +46,34 @@ def vo_boundary(p, big_r, tau, n=20000):
 
 
 def one_line(p_i, v_i, r_i, p_j, v_j, r_j, c, tau, dt=0.1):
-    lines = orca_lines(np.array([p_i]), np.array([v_i]), np.array([r_i]), np.array([[p_j]]),
-                       np.array([[v_j]]), np.array([[r_j]]), np.array([[c]]), np.array([[True]]),
-                       tau, dt)
+    lines = orca_lines(
+        np.array([p_i]),
+        np.array([v_i]),
+        np.array([r_i]),
+        np.array([[p_j]]),
+        np.array([[v_j]]),
+        np.array([[r_j]]),
+        np.array([[c]]),
+        np.array([[True]]),
+        tau,
+        dt,
+    )
     return lines.point[0, 0], lines.direction[0, 0]
 
 
 @settings(max_examples=60, deadline=None, derandomize=True, database=None)
-@given(coord, coord, speed, speed, speed, speed, st.floats(0.1, 1.0), st.floats(0.1, 1.0),
-       st.floats(0.5, 5.0), st.sampled_from([0.5, 1.0]))
+@given(
+    coord,
+    coord,
+    speed,
+    speed,
+    speed,
+    speed,
+    st.floats(0.1, 1.0),
+    st.floats(0.1, 1.0),
+    st.floats(0.5, 5.0),
+    st.sampled_from([0.5, 1.0]),
+)
 def test_orca_half_plane_matches_the_velocity_obstacle(px, py, vix, viy, vjx, vjy, r_i, r_j, tau, c):
     p = np.array([px, py])
     big_r = r_i + r_j
@@ -74,10 +100,21 @@ def test_orca_half_plane_matches_the_velocity_obstacle(px, py, vix, viy, vjx, vj
 
 
 @settings(max_examples=60, deadline=None, derandomize=True, database=None)
-@given(coord, coord, speed, speed, speed, speed, st.floats(0.1, 1.0), st.floats(0.1, 1.0),
-       st.floats(0.5, 5.0), st.integers(0, 2**32 - 1))
+@given(
+    coord,
+    coord,
+    speed,
+    speed,
+    speed,
+    speed,
+    st.floats(0.1, 1.0),
+    st.floats(0.1, 1.0),
+    st.floats(0.5, 5.0),
+    st.integers(0, 2**32 - 1),
+)
 def test_velocities_in_the_half_plane_with_full_responsibility_leave_the_vo(
-        px, py, vix, viy, vjx, vjy, r_i, r_j, tau, seed):
+    px, py, vix, viy, vjx, vjy, r_i, r_j, tau, seed
+):
     p = np.array([px, py])
     big_r = r_i + r_j
     assume(np.linalg.norm(p) > big_r + 1e-3)
@@ -123,8 +160,7 @@ def test_velocities_in_obstacle_half_planes_keep_the_radius_from_the_edges():
 
 
 def test_obstacle_lines_beyond_reach_are_dropped():
-    lines = obstacle_lines(np.array([[0.0, 0.0]]), np.array([0.1]), 0.1,
-                           arena_segments(-10, -10, 10, 10), 2.0)
+    lines = obstacle_lines(np.array([[0.0, 0.0]]), np.array([0.1]), 0.1, arena_segments(-10, -10, 10, 10), 2.0)
     assert not lines.valid.any()  # walls 9.9 m away, reach 0.2 m
 
 
@@ -145,9 +181,21 @@ def test_two_robots_head_on_pass_without_overlap():
     for _ in range(200):
         pref = perturb_preferred_velocity(preferred_velocity(pos, goal, 0.5, 0.1), [0, 1], seed=1)
         other = pos[::-1][:, None]
-        vel, fb = orca_velocity(pos, vel, pref, r, 0.5, other, vel[::-1][:, None], np.full((2, 1), r),
-                                np.full((2, 1), 0.5), np.ones((2, 1), bool), tau=2.0, tau_obst=2.0,
-                                dt=dt)
+        vel, fb = orca_velocity(
+            pos,
+            vel,
+            pref,
+            r,
+            0.5,
+            other,
+            vel[::-1][:, None],
+            np.full((2, 1), r),
+            np.full((2, 1), 0.5),
+            np.ones((2, 1), bool),
+            tau=2.0,
+            tau_obst=2.0,
+            dt=dt,
+        )
         pos = pos + dt * vel
         assert np.linalg.norm(pos[0] - pos[1]) >= 2 * r
     assert np.allclose(pos, goal, atol=0.02)
@@ -158,14 +206,22 @@ def test_neighbour_states_are_extrapolated_by_age_and_stale_ones_become_obstacle
     vel = np.array([[[0.1, 0.0], [0.1, 0.0], [0.1, 0.0]]])
     radius = np.full((1, 3), 0.05)
     age = np.array([[0.0, 0.2, 5.0]])
-    nb = prepare_neighbours(pos, vel, radius, age, np.ones((1, 3), bool), max_speed=0.13,
-                            timeout=1.0, noise=0.002, committed=0.1)
+    nb = prepare_neighbours(
+        pos, vel, radius, age, np.ones((1, 3), bool), max_speed=0.13, timeout=1.0, noise=0.002, committed=0.1
+    )
     assert np.allclose(nb.position[0, :, 0], [1.0, 2.02, 3.0])  # stale: last known position
     # grown by noise + (uncommitted age) x 2 max_speed: the velocity may have reversed since
     assert np.allclose(nb.radius[0], [0.052, 0.05 + 0.002 + 0.1 * 0.26, 0.05 + 0.002 + 0.9 * 0.26])
     assert np.array_equal(nb.responsibility[0], [0.5, 0.5, 1.0])
-    bad = prepare_neighbours(np.full((1, 1, 2), np.nan), vel[:, :1], radius[:, :1], age[:, :1],
-                             np.ones((1, 1), bool), max_speed=0.13, timeout=1.0)
+    bad = prepare_neighbours(
+        np.full((1, 1, 2), np.nan),
+        vel[:, :1],
+        radius[:, :1],
+        age[:, :1],
+        np.ones((1, 1), bool),
+        max_speed=0.13,
+        timeout=1.0,
+    )
     assert not bad.valid.any() and np.isfinite(bad.position).all()
 
 
@@ -185,23 +241,34 @@ def test_orca_velocity_is_bit_identical_alone_or_in_a_batch():
     pos = rng.uniform(-2, 2, (b, 2))
     nbr = pos[:, None] + rng.uniform(-0.6, 0.6, (b, m, 2))
     valid = rng.random((b, m)) < 0.8
-    args = (pos, rng.uniform(-0.5, 0.5, (b, 2)), rng.uniform(-1, 1, (b, 2)), np.full(b, 0.1),
-            np.full(b, 0.6), nbr, rng.uniform(-0.5, 0.5, (b, m, 2)), np.full((b, m), 0.1),
-            rng.choice([0.5, 1.0], (b, m)), valid)
-    walls = np.concatenate([arena_segments(-2.2, -2.2, 2.2, 2.2),
-                            polygon_segments([(0, 0), (0.5, 0), (0.5, 0.5), (0, 0.5)])])
+    args = (
+        pos,
+        rng.uniform(-0.5, 0.5, (b, 2)),
+        rng.uniform(-1, 1, (b, 2)),
+        np.full(b, 0.1),
+        np.full(b, 0.6),
+        nbr,
+        rng.uniform(-0.5, 0.5, (b, m, 2)),
+        np.full((b, m), 0.1),
+        rng.choice([0.5, 1.0], (b, m)),
+        valid,
+    )
+    walls = np.concatenate(
+        [arena_segments(-2.2, -2.2, 2.2, 2.2), polygon_segments([(0, 0), (0.5, 0), (0.5, 0.5), (0, 0.5)])]
+    )
     opts = dict(tau=2.0, tau_obst=1.0, dt=0.1, margin=0.01)
     v, fb = orca_velocity(*args, walls, **opts)
     assert 10 < fb.sum() < b - 10
     for i in range(b):
         k = m if i % 2 else int(np.nonzero(valid[i])[0].max(initial=0)) + 1  # less padding
-        one = [a[i:i + 1] for a in args[:5]] + [a[i:i + 1, :k] for a in args[5:]]
+        one = [a[i : i + 1] for a in args[:5]] + [a[i : i + 1, :k] for a in args[5:]]
         vi, fbi = orca_velocity(*one, walls, **opts)
         assert vi[0].tobytes() == v[i].tobytes() and fbi[0] == fb[i]
 
 
 def test_nearest_first_keeps_the_closest_valid_neighbours_in_order():
     from agent.core.neighbours import Neighbours, nearest_first
+
     pos = np.array([[0.0, 0.0]])
     npos = np.array([[[3.0, 0.0], [1.0, 0.0], [0.5, 0.0], [2.0, 0.0], [9.0, 0.0]]])
     valid = np.array([[True, True, False, True, True]])

@@ -2,6 +2,7 @@
 central engine: `prepare_neighbours` then `orca_velocity` (safety lines, shrinking horizon, RVO2's
 fallback). The same velocities and fallback flags to the bit, on crowds dense enough that every
 branch runs: feasible programs, programs feasible only at a shorter horizon, and the fallback."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -27,12 +28,14 @@ def crowd(seed: int, n: int, m: int, side: float, stale: bool) -> dict:
     pick = np.stack([rng.permutation(np.delete(np.arange(n), i))[:m] for i in range(n)])
     order = np.argsort(np.hypot(*(position[pick] - position[:, None]).transpose(2, 0, 1)), axis=1)
     pick = np.take_along_axis(pick, order, axis=1)  # nearest first, as the engines give them
-    nbr = {"position": position[pick] + rng.normal(0.0, 0.002, (n, m, 2)),
-           "velocity": velocity[pick].copy(),
-           "radius": np.full((n, m), P.radius),
-           "age": np.zeros((n, m)) if not stale else rng.choice([0.0, 0.05, 0.3, 0.9, -0.1], (n, m)),
-           "valid": rng.random((n, m)) > 0.1,
-           "cooperative": rng.random((n, m)) > 0.1}
+    nbr = {
+        "position": position[pick] + rng.normal(0.0, 0.002, (n, m, 2)),
+        "velocity": velocity[pick].copy(),
+        "radius": np.full((n, m), P.radius),
+        "age": np.zeros((n, m)) if not stale else rng.choice([0.0, 0.05, 0.3, 0.9, -0.1], (n, m)),
+        "valid": rng.random((n, m)) > 0.1,
+        "cooperative": rng.random((n, m)) > 0.1,
+    }
     if stale:
         nbr["position"][rng.random((n, m)) < 0.02] = np.nan
     return {"position": position, "velocity": velocity, "pref": pref, "nbr": nbr}
@@ -40,26 +43,69 @@ def crowd(seed: int, n: int, m: int, side: float, stale: bool) -> dict:
 
 def numpy_core(c: dict, segments: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     b = c["nbr"]
-    nb = prepare_neighbours(b["position"], b["velocity"], b["radius"], b["age"], b["valid"], max_speed=P.v_max,
-                            timeout=P.stale_after, noise=P.noise_bound, cooperative=b["cooperative"],
-                            committed=P.dt)
-    return orca_velocity(c["position"], c["velocity"], c["pref"], P.radius, P.v_max, nb.position, nb.velocity,
-                         nb.radius, nb.responsibility, nb.valid, segments, tau=P.tau, tau_obst=P.tau_obst,
-                         dt=P.dt, margin=P.noise_bound, nbr_growth=nb.growth)
+    nb = prepare_neighbours(
+        b["position"],
+        b["velocity"],
+        b["radius"],
+        b["age"],
+        b["valid"],
+        max_speed=P.v_max,
+        timeout=P.stale_after,
+        noise=P.noise_bound,
+        cooperative=b["cooperative"],
+        committed=P.dt,
+    )
+    return orca_velocity(
+        c["position"],
+        c["velocity"],
+        c["pref"],
+        P.radius,
+        P.v_max,
+        nb.position,
+        nb.velocity,
+        nb.radius,
+        nb.responsibility,
+        nb.valid,
+        segments,
+        tau=P.tau,
+        tau_obst=P.tau_obst,
+        dt=P.dt,
+        margin=P.noise_bound,
+        nbr_growth=nb.growth,
+    )
 
 
 def compiled_core(c: dict, segments: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     b = c["nbr"]
-    return control_core(c["position"], c["velocity"], c["pref"], P.radius, P.v_max, b["position"], b["velocity"],
-                        b["radius"], b["age"], b["valid"], b["cooperative"], segments.reshape(-1, 2, 2), P.tau,
-                        P.tau_obst, P.dt, P.noise_bound, P.stale_after, P.noise_bound, P.dt)
+    return control_core(
+        c["position"],
+        c["velocity"],
+        c["pref"],
+        P.radius,
+        P.v_max,
+        b["position"],
+        b["velocity"],
+        b["radius"],
+        b["age"],
+        b["valid"],
+        b["cooperative"],
+        segments.reshape(-1, 2, 2),
+        P.tau,
+        P.tau_obst,
+        P.dt,
+        P.noise_bound,
+        P.stale_after,
+        P.noise_bound,
+        P.dt,
+    )
 
 
 @pytest.mark.parametrize("seed, side, stale", [(0, 3.0, False), (1, 1.2, False), (2, 0.9, True), (3, 2.0, True)])
 def test_compiled_core_equals_the_numpy_core_bit_for_bit(seed, side, stale):
     c = crowd(seed, n=300, m=12, side=side, stale=stale)
-    segments = np.concatenate([arena_segments(0.0, 0.0, side, side),
-                               polygon_segments([(0.4, 0.4), (0.6, 0.4), (0.6, 0.6), (0.4, 0.6)])])
+    segments = np.concatenate(
+        [arena_segments(0.0, 0.0, side, side), polygon_segments([(0.4, 0.4), (0.6, 0.4), (0.6, 0.6), (0.4, 0.6)])]
+    )
     want_v, want_fallback = numpy_core(c, segments)
     got_v, got_fallback = compiled_core(c, segments)
     np.testing.assert_array_equal(got_fallback, want_fallback)

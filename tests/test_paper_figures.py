@@ -1,5 +1,6 @@
 """bench.paper_figures --quick: the paper's Figs. 13-15 pipeline end to end, small (2 runs x 2 epsilons,
 3 short steps), into a temporary directory."""
+
 from __future__ import annotations
 
 import numpy as np

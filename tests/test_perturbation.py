@@ -1,6 +1,7 @@
 """Perturbation recovery (paper 7.4.3, Fig. 20), distributed: the shipped scene `perturbation` has 14
 e-puck agents form a disk; at t = 10 s two of them are picked up and put down outside it (teleport
 events of the world). The swarm re-forms the disk through goal reassignment, without contact."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -35,8 +36,10 @@ def test_two_robots_teleported_out_of_a_disk_of_14_recover_within_10_s_without_c
     assert not ok[k]
 
     recovery = first_formed_after(traj, t_move, TOLERANCE)
-    print(f"\nperturbation: disk formed at {m['steps'][0]['converged_at']} s, recovered {recovery} s after "
-          f"the two robots were moved; contacts {m['contacts']}, min clearance {m['min_clearance_m']:.4f} m")
+    print(
+        f"\nperturbation: disk formed at {m['steps'][0]['converged_at']} s, recovered {recovery} s after "
+        f"the two robots were moved; contacts {m['contacts']}, min clearance {m['min_clearance_m']:.4f} m"
+    )
     assert recovery is not None and recovery <= 10.0
     assert stays_formed_from(traj, t_move + recovery, TOLERANCE), "the disk came apart again"
 

@@ -1,5 +1,6 @@
 """The central engine's neighbour search (sim.proximity.nearest_within) against scipy's kd-tree: the same neighbours,
 nearest first, strictly within reach, self excluded."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -15,8 +16,10 @@ def kd_tree_neighbours(position: np.ndarray, reach: float, m: int) -> np.ndarray
     return idx
 
 
-@pytest.mark.parametrize("seed, n, side, reach, m", [(0, 1000, 25.0, 1.2, 16), (1, 300, 3.0, 1.0, 8),
-                                                    (2, 50, 100.0, 5.0, 4), (3, 2, 1.0, 2.0, 1)])
+@pytest.mark.parametrize(
+    "seed, n, side, reach, m",
+    [(0, 1000, 25.0, 1.2, 16), (1, 300, 3.0, 1.0, 8), (2, 50, 100.0, 5.0, 4), (3, 2, 1.0, 2.0, 1)],
+)
 def test_the_same_neighbours_as_a_kd_tree(seed, n, side, reach, m):
     position = np.random.default_rng(seed).uniform(0.0, side, (n, 2))
     np.testing.assert_array_equal(nearest_within(position, reach, m), kd_tree_neighbours(position, reach, m))

@@ -53,10 +53,10 @@ def test_mcap_round_trip(tmp_path):
         log.add_channel("swarm/empty", "pixelswarm.Status", STATUS_SCHEMA)
         assert len({pose_ch, pose1_ch, status_ch}) == 3
         # written out of log-time order on purpose
-        log.write(pose_ch, 2_000_000_000, {"id": np.int64(0), "pose": np.array([1.0, np.nan, 0.5]),
-                                           "stamp": np.float32(2.0)})
-        log.write(pose_ch, 1_000_000_000, {"id": 0, "pose": [0.0, 0.0, np.inf], "stamp": 1.0},
-                  publish_time_ns=999)
+        log.write(
+            pose_ch, 2_000_000_000, {"id": np.int64(0), "pose": np.array([1.0, np.nan, 0.5]), "stamp": np.float32(2.0)}
+        )
+        log.write(pose_ch, 1_000_000_000, {"id": 0, "pose": [0.0, 0.0, np.inf], "stamp": 1.0}, publish_time_ns=999)
         log.write(pose1_ch, 1_500_000_000, {"id": 1, "pose": np.arange(3, dtype=np.float32)})
         log.write_bytes(status_ch, 1_200_000_000, b'{"ok":true,"note":"raw"}')
         log.write(status_ch, 1_300_000_000, {"ok": np.bool_(False), "note": "x", "extra": {1: (np.nan,)}})
@@ -75,8 +75,7 @@ def test_mcap_round_trip(tmp_path):
     assert p0[0]["pose"] == [0.0, 0.0, None]  # inf -> null
     assert p0[1] == {"id": 0, "pose": [1.0, None, 0.5], "stamp": 2.0}  # NaN -> null
     assert msgs["swarm/robot/1/pose"][0]["pose"] == [0.0, 1.0, 2.0]
-    assert msgs["swarm/status"] == [{"ok": True, "note": "raw"},
-                                    {"ok": False, "note": "x", "extra": {"1": [None]}}]
+    assert msgs["swarm/status"] == [{"ok": True, "note": "raw"}, {"ok": False, "note": "x", "extra": {"1": [None]}}]
 
     ch = mcap_channels(path)
     for topic in msgs:
@@ -93,11 +92,15 @@ def test_mcap_round_trip(tmp_path):
         summary = reader.get_summary()
         assert len(summary.schemas) == 2
         assert summary.statistics.message_count == 5
-        recs = [(c.topic, m.log_time, m.publish_time, m.sequence)
-                for _s, c, m in reader.iter_messages(topics=["swarm/robot/0/pose"])]
+        recs = [
+            (c.topic, m.log_time, m.publish_time, m.sequence)
+            for _s, c, m in reader.iter_messages(topics=["swarm/robot/0/pose"])
+        ]
         meta = list(reader.iter_metadata())
-    assert recs == [("swarm/robot/0/pose", 1_000_000_000, 999, 1),
-                    ("swarm/robot/0/pose", 2_000_000_000, 2_000_000_000, 0)]
+    assert recs == [
+        ("swarm/robot/0/pose", 1_000_000_000, 999, 1),
+        ("swarm/robot/0/pose", 2_000_000_000, 2_000_000_000, 0),
+    ]
     assert meta[0].name == "run" and meta[0].metadata == {"scene": "circle", "seed": "7"}
 
 
@@ -106,8 +109,13 @@ def test_mcap_scene_update(tmp_path):
     pose = np.array([[0.0, 0.0, 0.0], [1.0, 2.0, math.pi / 2], [np.nan, np.nan, np.nan]])
     with McapLog(path, compression="lz4") as log:
         cid = log.add_channel("/display", SCENE_UPDATE_SCHEMA_NAME, scene_update_schema())
-        log.write(cid, 1_500_000_000, scene_update(1_500_000_000, pose, [0.1, 0.2, 0.1],
-                                                   np.array([[255, 0, 0], [0, 255, 0], [0, 0, 255]], np.uint8)))
+        log.write(
+            cid,
+            1_500_000_000,
+            scene_update(
+                1_500_000_000, pose, [0.1, 0.2, 0.1], np.array([[255, 0, 0], [0, 255, 0], [0, 0, 255]], np.uint8)
+            ),
+        )
     (msg,) = read_mcap(path)["/display"]
     assert mcap_channels(path)["/display"]["schema_name"] == "foxglove.SceneUpdate"
     ents = msg["entities"]
@@ -221,14 +229,36 @@ def test_summarise_and_json(tmp_path):
     t, pose, r = _approach(T=101)
     goal = np.full((101, 2, 2), np.nan)
     m = metrics.summarise(
-        t=t, pose=pose, radius=r, wall_s=5.0, contacts=1,
-        message_counts={"pose": 2020, "plan": 202}, message_bytes={"pose": 202000},
-        missed_ticks=3, agents_crashed=0, goal=goal, tolerance=0.05,
-        scene="head-on", seed=np.int64(4),
+        t=t,
+        pose=pose,
+        radius=r,
+        wall_s=5.0,
+        contacts=1,
+        message_counts={"pose": 2020, "plan": 202},
+        message_bytes={"pose": 202000},
+        missed_ticks=3,
+        agents_crashed=0,
+        goal=goal,
+        tolerance=0.05,
+        scene="head-on",
+        seed=np.int64(4),
     )
-    required = {"robots", "duration_s", "wall_s", "realtime_factor", "min_clearance_m", "contacts",
-                "max_overlap_m", "converged", "time_to_converge_s", "path_length_m",
-                "messages_per_robot_s", "bytes_per_robot_s", "missed_ticks", "agents_crashed"}
+    required = {
+        "robots",
+        "duration_s",
+        "wall_s",
+        "realtime_factor",
+        "min_clearance_m",
+        "contacts",
+        "max_overlap_m",
+        "converged",
+        "time_to_converge_s",
+        "path_length_m",
+        "messages_per_robot_s",
+        "bytes_per_robot_s",
+        "missed_ticks",
+        "agents_crashed",
+    }
     assert required <= set(m)
     assert m["robots"] == 2
     assert m["duration_s"] == pytest.approx(10.0)
@@ -249,8 +279,9 @@ def test_summarise_and_json(tmp_path):
     p1[:, 0, 0] = np.minimum(np.arange(T) * 0.2, 1.0)
     g1 = np.zeros((T, 1, 2))
     g1[:, 0, 0] = 1.0
-    m1 = metrics.summarise(t=np.arange(T) + 100.0, pose=p1, radius=[0.1], wall_s=0.0, contacts=0,
-                           goal=g1, tolerance=1e-9)
+    m1 = metrics.summarise(
+        t=np.arange(T) + 100.0, pose=p1, radius=[0.1], wall_s=0.0, contacts=0, goal=g1, tolerance=1e-9
+    )
     assert m1["converged"] is True and m1["time_to_converge_s"] == pytest.approx(5.0)
     assert m1["realtime_factor"] is None
     out = write_json(tmp_path / "metrics.json", m1)
@@ -326,13 +357,14 @@ def test_write_video_frames(tmp_path):
         c, rr = np.round(view.px(_behind(pose[k, 0], r[0]))).astype(int)
         b, g, red = (int(v) for v in frames[k][rr, c])
         assert red > 150 and g < 100 and b < 100
-    assert frames[0][5:15, view.width - 15:view.width - 5].mean() < 40
+    assert frames[0][5:15, view.width - 15 : view.width - 5].mean() < 40
 
     # subsampling: real-time frames at 5 fps, and capped
     assert len(frame_indices(t, fps=5)) == 13
     assert len(frame_indices(t, fps=10, speed=None, max_frames=10)) == 10
-    n2 = write_video(tmp_path / "short.mp4", t, pose, r, color[0], ARENA, [], None, fps=10, size_px=160,
-                     speed=None, max_frames=7)
+    n2 = write_video(
+        tmp_path / "short.mp4", t, pose, r, color[0], ARENA, [], None, fps=10, size_px=160, speed=None, max_frames=7
+    )
     cap = cv2.VideoCapture(str(tmp_path / "short.mp4"))
     count = 0
     while cap.read()[0]:
@@ -375,7 +407,7 @@ def test_rundir_abort_leaves_nothing(tmp_path):
     with pytest.raises(ZeroDivisionError):
         with RunDir(tmp_path / "runs" / "r2") as rd2:
             write_json(rd2 / "metrics.json", {"x": 1})
-            1 / 0
+            raise ZeroDivisionError
     assert list((tmp_path / "runs").iterdir()) == []
 
 
@@ -403,7 +435,7 @@ def test_rundir_commit_leaves_only_final(tmp_path):
 
 
 def test_default_run_path_unique(tmp_path):
-    now = dt.datetime(2025, 1, 31, 14, 25, 1, tzinfo=dt.timezone.utc)
+    now = dt.datetime(2025, 1, 31, 14, 25, 1, tzinfo=dt.UTC)
     a = default_run_path("circle", root=tmp_path, now=now)
     b = default_run_path("circle", root=tmp_path, now=now)
     assert a.parent == tmp_path and a.name == "20250131T142501Z-circle"
@@ -415,10 +447,22 @@ def test_default_run_path_unique(tmp_path):
 
 
 def test_json_safe():
-    obj = {"a": np.float32(1.5), "b": [np.nan, -np.inf, 2], "c": np.array([[1, 2]], np.int16),
-           "d": (np.bool_(True), None), 3: "k", "e": np.array([np.nan, 1.0])}
-    assert json_safe(obj) == {"a": 1.5, "b": [None, None, 2], "c": [[1, 2]], "d": [True, None], "3": "k",
-                              "e": [None, 1.0]}
+    obj = {
+        "a": np.float32(1.5),
+        "b": [np.nan, -np.inf, 2],
+        "c": np.array([[1, 2]], np.int16),
+        "d": (np.bool_(True), None),
+        3: "k",
+        "e": np.array([np.nan, 1.0]),
+    }
+    assert json_safe(obj) == {
+        "a": 1.5,
+        "b": [None, None, 2],
+        "c": [[1, 2]],
+        "d": [True, None],
+        "3": "k",
+        "e": [None, 1.0],
+    }
     assert "NaN" not in dumps_json({"x": float("nan")})
     with pytest.raises(TypeError):
         json_safe(object())

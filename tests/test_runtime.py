@@ -1,4 +1,5 @@
 """The runtime end to end: real agent processes over a real zenoh router on loopback."""
+
 from __future__ import annotations
 
 import json
@@ -45,8 +46,13 @@ def metrics(run: Path) -> dict:
 
 def start_run(spawned: list, scene: Path, out: Path, *extra: str) -> tuple[subprocess.Popen, list[psutil.Process]]:
     """`pixelswarm run` in the background; returns it once its 8 agent processes are up."""
-    proc = subprocess.Popen(pixelswarm_cmd("run", str(scene), "--out", str(out), "--no-video", "-q", *extra),
-                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        pixelswarm_cmd("run", str(scene), "--out", str(out), "--no-video", "-q", *extra),
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     spawned.append(proc)
     agents = wait_for(lambda: len(agent_processes(proc.pid)) == 8 and agent_processes(proc.pid), timeout=60)
     return proc, agents or []
@@ -110,7 +116,9 @@ def test_lockstep_is_reproducible_and_hosts_match_processes(tmp_path):
     # the hosts traded frames, a pose frame from the world and a state and a command frame per host
     # per tick, not a message per robot, and still every command the world applied crossed the router
     per_robot_s = hosted["messages_per_robot_s"]
-    assert per_robot_s["poses"] == pytest.approx(10 / 8, rel=0.15) and per_robot_s["cmds"] == pytest.approx(2 * 10 / 8, rel=0.15)
+    assert per_robot_s["poses"] == pytest.approx(10 / 8, rel=0.15) and per_robot_s["cmds"] == pytest.approx(
+        2 * 10 / 8, rel=0.15
+    )
     assert per_robot_s["states"] >= 2 * 10 / 8 * 0.85  # (and hellos before the first tick)
     assert per_robot_s.get("cmd", 0) == 0 and per_robot_s.get("state", 0) == 0
     assert per_robot_s.get("pose", 0) < 1  # poses only before the agents are live
@@ -174,10 +182,30 @@ def test_malformed_messages_on_every_key_are_dropped(tmp_path, spawned):
     assert len(agents) == 8
     rng = np.random.default_rng(0)
     good = Pose(0, 1, 0.1, 0.0, 0.0, 0.0).encode()
-    bad = [rng.bytes(20), good[:-3], bytes([good[0], VERSION + 9]) + good[2:],
-           good[:18] + np.float32(np.nan).tobytes() + good[22:], b"", b"\x08\x01{not json"]
-    keys = ["pose/0", "pose/5", "poses", "state/0/0/3", "state/-1/0/2", "cmd/1", "cmds/1", "states/1", "goals/1", "clock",
-            "sim/truth", "sim/contact", "event", "auction/1/2"]
+    bad = [
+        rng.bytes(20),
+        good[:-3],
+        bytes([good[0], VERSION + 9]) + good[2:],
+        good[:18] + np.float32(np.nan).tobytes() + good[22:],
+        b"",
+        b"\x08\x01{not json",
+    ]
+    keys = [
+        "pose/0",
+        "pose/5",
+        "poses",
+        "state/0/0/3",
+        "state/-1/0/2",
+        "cmd/1",
+        "cmds/1",
+        "states/1",
+        "goals/1",
+        "clock",
+        "sim/truth",
+        "sim/contact",
+        "event",
+        "auction/1/2",
+    ]
     with Bus(ZenohSettings(mode="client", connect=[f"tcp/127.0.0.1:{port}"]), "default") as attacker:
         time.sleep(1.0)
         for _ in range(5):
@@ -196,14 +224,32 @@ def test_malformed_messages_on_every_key_are_dropped(tmp_path, spawned):
 def test_swarm_spans_two_routers(tmp_path, spawned):
     scene = write_scene(tmp_path, duration=5.0)
     port_a, port_b = free_port(), free_port()
-    router_a = subprocess.Popen(pixelswarm_cmd("router", "-l", f"tcp/127.0.0.1:{port_a}"), cwd=REPO,
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    router_a = subprocess.Popen(
+        pixelswarm_cmd("router", "-l", f"tcp/127.0.0.1:{port_a}"),
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     spawned.append(router_a)
     assert "listening" in router_a.stdout.readline()
     out = tmp_path / "run"
-    result = run_pixelswarm("run", str(scene), "--out", str(out), "--no-video", "-q",
-                            "-l", f"tcp/127.0.0.1:{port_b}", "-e", f"tcp/127.0.0.1:{port_a}",
-                            "--agents-connect", f"tcp/127.0.0.1:{port_a}", "--agents-connect", f"tcp/127.0.0.1:{port_b}")
+    result = run_pixelswarm(
+        "run",
+        str(scene),
+        "--out",
+        str(out),
+        "--no-video",
+        "-q",
+        "-l",
+        f"tcp/127.0.0.1:{port_b}",
+        "-e",
+        f"tcp/127.0.0.1:{port_a}",
+        "--agents-connect",
+        f"tcp/127.0.0.1:{port_a}",
+        "--agents-connect",
+        f"tcp/127.0.0.1:{port_b}",
+    )
     assert result.returncode == 0, result.stderr
     configs = sorted((out / "logs").glob("agent-*.log"))
     assert len(configs) == 8
@@ -214,14 +260,17 @@ def test_swarm_spans_two_routers(tmp_path, spawned):
     assert router_a.wait(timeout=10) == 0
 
 
-@pytest.mark.parametrize("args, message", [
-    (["no-such-scene"], "unknown scene"),
-    (["{tmp}/missing.toml"], "not found"),
-    (["{tmp}/bad.toml"], "not valid TOML"),
-    (["circle", "--robots", "0"], "at least 1"),
-    (["{tmp}/negative.toml"], "radius must be a positive"),
-    (["{tmp}/crowded.toml"], "do not fit"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["no-such-scene"], "unknown scene"),
+        (["{tmp}/missing.toml"], "not found"),
+        (["{tmp}/bad.toml"], "not valid TOML"),
+        (["circle", "--robots", "0"], "at least 1"),
+        (["{tmp}/negative.toml"], "radius must be a positive"),
+        (["{tmp}/crowded.toml"], "do not fit"),
+    ],
+)
 def test_bad_input_is_one_line_and_exit_2(tmp_path, args, message):
     (tmp_path / "bad.toml").write_text("robots = [")
     (tmp_path / "negative.toml").write_text("robots = 3\n[robot]\nradius = -0.1\n")
@@ -237,8 +286,13 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, args, message):
 
 def test_occupied_port_is_one_line_and_exit_2(tmp_path, spawned):
     port = free_port()
-    router = subprocess.Popen(pixelswarm_cmd("router", "-l", f"tcp/127.0.0.1:{port}"), cwd=REPO,
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    router = subprocess.Popen(
+        pixelswarm_cmd("router", "-l", f"tcp/127.0.0.1:{port}"),
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     spawned.append(router)
     assert "listening" in router.stdout.readline()
     out = tmp_path / "out"
@@ -258,9 +312,14 @@ def test_agent_hosts_write_their_profiles_when_asked(tmp_path):
 
     scene = write_scene(tmp_path, duration=2.0)
     out, profiles = tmp_path / "run", tmp_path / "profiles"
-    result = subprocess.run(pixelswarm_cmd("run", str(scene), "--out", str(out), "--no-video", "-q", "-k", "4"),
-                            cwd=REPO, capture_output=True, text=True, timeout=240,
-                            env={**os.environ, "PIXELSWARM_PROFILE": str(profiles)})
+    result = subprocess.run(
+        pixelswarm_cmd("run", str(scene), "--out", str(out), "--no-video", "-q", "-k", "4"),
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=240,
+        env={**os.environ, "PIXELSWARM_PROFILE": str(profiles)},
+    )
     assert result.returncode == 0, result.stderr[-2000:]
     assert sorted(p.name for p in profiles.iterdir()) == ["agent0.prof", "agent4.prof"]
     ticks = len(np.load(out / "trajectory.npz")["t"])

@@ -3,6 +3,7 @@
 Regression: at 100 robots in hosts of 10, a tick's poses arrived in two batches under load; the
 host re-subscribed only to the cells around the batch, forgot the neighbours around its other
 robots, and one robot drove into a neighbour it no longer knew of."""
+
 from __future__ import annotations
 
 from agent.core.params import RobotParams

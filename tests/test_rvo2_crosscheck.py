@@ -6,6 +6,7 @@ infeasible both run the least-violation fallback; its optimum need not be unique
 it from the optimum over the hard lines where RVO2 starts from its partial result, so there agreement
 is checked in the aggregate.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -13,8 +14,9 @@ import pytest
 
 from agent.core.orca import orca_lines, orca_velocity
 
-pyrvo = pytest.importorskip("pyrvo", reason="pyrvo (RVO2 bindings) is not installed; "
-                                            "`pip install --no-deps pyrvo` to run the cross-check")
+pyrvo = pytest.importorskip(
+    "pyrvo", reason="pyrvo (RVO2 bindings) is not installed; `pip install --no-deps pyrvo` to run the cross-check"
+)
 
 MAX_NBRS = 8
 
@@ -26,19 +28,31 @@ def f32(a):
 def random_config(rng):
     m = int(rng.integers(1, MAX_NBRS + 1))
     return dict(
-        m=m, dt=float(f32(rng.choice([0.1, 0.25]))), tau=float(f32(rng.choice([1.0, 2.5, 5.0, 10.0]))),
-        vmax=float(f32(rng.uniform(0.5, 3.0))), radius=f32(rng.uniform(0.2, 1.0, m + 1)),
-        pos=f32(rng.uniform(-4.0, 4.0, (m + 1, 2))), vel=f32(rng.uniform(-1.5, 1.5, (m + 1, 2))),
-        pref=f32(rng.uniform(-2.0, 2.0, 2)))
+        m=m,
+        dt=float(f32(rng.choice([0.1, 0.25]))),
+        tau=float(f32(rng.choice([1.0, 2.5, 5.0, 10.0]))),
+        vmax=float(f32(rng.uniform(0.5, 3.0))),
+        radius=f32(rng.uniform(0.2, 1.0, m + 1)),
+        pos=f32(rng.uniform(-4.0, 4.0, (m + 1, 2))),
+        vel=f32(rng.uniform(-1.5, 1.5, (m + 1, 2))),
+        pref=f32(rng.uniform(-2.0, 2.0, 2)),
+    )
 
 
 def rvo2_step(cfg):
     """RVO2's new velocity of agent 0, its ORCA lines, and whether it satisfies them (feasible)."""
-    sim = pyrvo.RVOSimulator(cfg["dt"], 100.0, 20, cfg["tau"], cfg["tau"], float(cfg["radius"][0]),
-                             cfg["vmax"])
+    sim = pyrvo.RVOSimulator(cfg["dt"], 100.0, 20, cfg["tau"], cfg["tau"], float(cfg["radius"][0]), cfg["vmax"])
     for k in range(cfg["m"] + 1):
-        sim.add_agent(tuple(cfg["pos"][k]), 100.0, 20, cfg["tau"], cfg["tau"],
-                      float(cfg["radius"][k]), cfg["vmax"], tuple(cfg["vel"][k]))
+        sim.add_agent(
+            tuple(cfg["pos"][k]),
+            100.0,
+            20,
+            cfg["tau"],
+            cfg["tau"],
+            float(cfg["radius"][k]),
+            cfg["vmax"],
+            tuple(cfg["vel"][k]),
+        )
         sim.set_agent_pref_velocity(k, tuple(cfg["pref"]) if k == 0 else (0.0, 0.0))
     sim.do_step()
     v = np.array(sim.get_agent_velocity(0).to_tuple())
@@ -52,9 +66,17 @@ def rvo2_step(cfg):
 def batch(cfgs):
     """Our inputs for all configurations at once, neighbours nearest first, padded."""
     b = len(cfgs)
-    out = dict(pos=np.zeros((b, 2)), vel=np.zeros((b, 2)), pref=np.zeros((b, 2)), r=np.zeros(b),
-               vmax=np.zeros(b), npos=np.zeros((b, MAX_NBRS, 2)), nvel=np.zeros((b, MAX_NBRS, 2)),
-               nr=np.zeros((b, MAX_NBRS)), valid=np.zeros((b, MAX_NBRS), bool))
+    out = dict(
+        pos=np.zeros((b, 2)),
+        vel=np.zeros((b, 2)),
+        pref=np.zeros((b, 2)),
+        r=np.zeros(b),
+        vmax=np.zeros(b),
+        npos=np.zeros((b, MAX_NBRS, 2)),
+        nvel=np.zeros((b, MAX_NBRS, 2)),
+        nr=np.zeros((b, MAX_NBRS)),
+        valid=np.zeros((b, MAX_NBRS), bool),
+    )
     for i, c in enumerate(cfgs):
         order = np.argsort(((c["pos"][1:] - c["pos"][0]) ** 2).sum(1), kind="stable") + 1
         m = c["m"]
@@ -81,12 +103,24 @@ def test_new_velocity_matches_rvo2_where_its_program_is_feasible():
             x = batch([group[i][0] for i in idx])
             half = np.full(x["valid"].shape, 0.5)
             ours[idx], fallback[idx] = orca_velocity(
-                x["pos"], x["vel"], x["pref"], x["r"], x["vmax"], x["npos"], x["nvel"], x["nr"],
-                half, x["valid"], tau=tau, tau_obst=tau, dt=dt, safety=False)
+                x["pos"],
+                x["vel"],
+                x["pref"],
+                x["r"],
+                x["vmax"],
+                x["npos"],
+                x["nvel"],
+                x["nr"],
+                half,
+                x["valid"],
+                tau=tau,
+                tau_obst=tau,
+                dt=dt,
+                safety=False,
+            )
             if label == "feasible":
                 # the ORCA lines themselves agree, in RVO2's order (nearest first)
-                lines = orca_lines(x["pos"], x["vel"], x["r"], x["npos"], x["nvel"], x["nr"], half,
-                                   x["valid"], tau, dt)
+                lines = orca_lines(x["pos"], x["vel"], x["r"], x["npos"], x["nvel"], x["nr"], half, x["valid"], tau, dt)
                 for row, i in enumerate(idx):
                     m = group[i][0]["m"]
                     assert np.allclose(lines.point[row, :m], group[i][2], atol=1e-4)

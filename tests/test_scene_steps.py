@@ -1,5 +1,6 @@
 """Image sequences in scenes ([[steps]], paper 7.2 / Fig. 12): parsing, the goal sets of every step
 and robot count in one shared arena, the central engine playing them, and per-step metrics."""
+
 from __future__ import annotations
 
 import json
@@ -21,9 +22,16 @@ BLUE_GOAL = 150  # blue channel above this: a goal on the blue part (the line of
 
 
 def two_steps(**extra):
-    return {"robots": 14, "seed": 1, "layout": {"kind": "grid", "spacing": 0.2},
-            "steps": [{"shape": "disk", "hold": 10.0},
-                      {"shape": "disk_and_line", "region_counts": {"0": 10, "1": 4}, "hold": 12.0}], **extra}
+    return {
+        "robots": 14,
+        "seed": 1,
+        "layout": {"kind": "grid", "spacing": 0.2},
+        "steps": [
+            {"shape": "disk", "hold": 10.0},
+            {"shape": "disk_and_line", "region_counts": {"0": 10, "1": 4}, "hold": 12.0},
+        ],
+        **extra,
+    }
 
 
 @pytest.fixture(scope="module")
@@ -55,8 +63,14 @@ def test_step_windows_and_duration():
 
 
 def test_a_single_image_is_one_step_held_for_the_run():
-    scene = scene_from_dict({"robots": 8, "duration": 40.0, "layout": {"kind": "grid", "spacing": 0.2},
-                             "goals": {"kind": "image", "shape": "line"}})
+    scene = scene_from_dict(
+        {
+            "robots": 8,
+            "duration": 40.0,
+            "layout": {"kind": "grid", "spacing": 0.2},
+            "goals": {"kind": "image", "shape": "line"},
+        }
+    )
     assert len(scene.steps) == 1 and scene.steps[0].hold == 40.0 and scene.steps[0].shape == "line"
     assert scene.goal_set.shape == (8, 2) and scene.goal_colors.dtype == np.uint8
     np.testing.assert_array_equal(scene.goal_set, scene_goal_set(scene, 0, 8)[0])
@@ -65,27 +79,32 @@ def test_a_single_image_is_one_step_held_for_the_run():
 def test_image_steps_are_read_relative_to_the_scene_file(tmp_path):
     cv2.imwrite(str(tmp_path / "pic.png"), shapes.draw("T", 128)[:, :, ::-1])
     path = tmp_path / "seq.toml"
-    path.write_text('robots = 6\n[layout]\nkind = "grid"\nspacing = 0.2\n'
-                    '[[steps]]\nimage = "pic.png"\nhold = 5.0\n[[steps]]\nshape = "disk"\nhold = 5.0\n')
+    path.write_text(
+        'robots = 6\n[layout]\nkind = "grid"\nspacing = 0.2\n'
+        '[[steps]]\nimage = "pic.png"\nhold = 5.0\n[[steps]]\nshape = "disk"\nhold = 5.0\n'
+    )
     scene = load_scene(str(path))
     assert scene.steps[0].name == "pic" and scene.steps[0].image == tmp_path / "pic.png"
     assert scene_goal_set(scene, 0, 6)[0].shape == (6, 2)
 
 
-@pytest.mark.parametrize("step, message", [
-    ({"shape": "disk", "hold": 5.0, "colour": "red"}, "unknown key"),
-    ({"shape": "disk", "hold": 0.0}, "hold must be a positive"),
-    ({"shape": "disk", "hold": -3}, "hold must be a positive"),
-    ({"shape": "disk"}, "hold must be a positive"),
-    ({"hold": 5.0}, "exactly one of image"),
-    ({"shape": "disk", "image": "a.png", "hold": 5.0}, "exactly one of image"),
-    ({"shape": "hexagon", "hold": 5.0}, "shape must be one of"),
-    ({"image": "/nonexistent/picture.png", "hold": 5.0}, "not found"),
-    ({"shape": "disk_and_line", "region_counts": {"0": 20}, "hold": 5.0}, "more than N"),
-    ({"shape": "disk_and_line", "region_counts": {"7": 2}, "hold": 5.0}, "regions 0..1"),
-    ({"shape": "disk", "region_counts": {"0": "many"}, "hold": 5.0}, "whole numbers"),
-    ({"shape": "disk", "method": "magic", "hold": 5.0}, "method must be"),
-])
+@pytest.mark.parametrize(
+    "step, message",
+    [
+        ({"shape": "disk", "hold": 5.0, "colour": "red"}, "unknown key"),
+        ({"shape": "disk", "hold": 0.0}, "hold must be a positive"),
+        ({"shape": "disk", "hold": -3}, "hold must be a positive"),
+        ({"shape": "disk"}, "hold must be a positive"),
+        ({"hold": 5.0}, "exactly one of image"),
+        ({"shape": "disk", "image": "a.png", "hold": 5.0}, "exactly one of image"),
+        ({"shape": "hexagon", "hold": 5.0}, "shape must be one of"),
+        ({"image": "/nonexistent/picture.png", "hold": 5.0}, "not found"),
+        ({"shape": "disk_and_line", "region_counts": {"0": 20}, "hold": 5.0}, "more than N"),
+        ({"shape": "disk_and_line", "region_counts": {"7": 2}, "hold": 5.0}, "regions 0..1"),
+        ({"shape": "disk", "region_counts": {"0": "many"}, "hold": 5.0}, "whole numbers"),
+        ({"shape": "disk", "method": "magic", "hold": 5.0}, "method must be"),
+    ],
+)
 def test_bad_steps_say_what_is_wrong_in_one_line(step, message):
     data = {"robots": 6, "layout": {"kind": "grid", "spacing": 0.2}, "steps": [{"shape": "disk", "hold": 5.0}, step]}
     with pytest.raises(SceneError, match=message) as err:
@@ -93,27 +112,33 @@ def test_bad_steps_say_what_is_wrong_in_one_line(step, message):
     assert "\n" not in str(err.value) and "steps[1]" in str(err.value)
 
 
-@pytest.mark.parametrize("data, message", [
-    ({"steps": [{"shape": "disk", "hold": 5.0}], "goals": {"kind": "image", "shape": "disk"}}, "not both"),
-    ({"steps": []}, "one or more"),
-    ({"steps": {"shape": "disk"}}, "one or more"),
-    ({"goals": {"kind": "image"}}, "image"),
-])
+@pytest.mark.parametrize(
+    "data, message",
+    [
+        ({"steps": [{"shape": "disk", "hold": 5.0}], "goals": {"kind": "image", "shape": "disk"}}, "not both"),
+        ({"steps": []}, "one or more"),
+        ({"steps": {"shape": "disk"}}, "one or more"),
+        ({"goals": {"kind": "image"}}, "image"),
+    ],
+)
 def test_bad_sequences_say_what_is_wrong(data, message):
     with pytest.raises(SceneError, match=message):
         scene_from_dict({"robots": 6, "layout": {"kind": "grid", "spacing": 0.2}, **data})
 
 
 # --- goal sets of a step for a robot count ------------------------------------------------------
-@pytest.mark.parametrize("counts, full, n, expected", [
-    ({0: 10, 1: 4}, 14, 14, {0: 10, 1: 4}),
-    ({0: 10, 1: 4}, 14, 13, {0: 9, 1: 4}),
-    ({0: 10, 1: 4}, 14, 7, {0: 5, 1: 2}),
-    ({0: 13, 1: 1}, 14, 5, {0: 4, 1: 1}),  # the small region keeps its robot
-    ({0: 6, 1: 8}, 14, 2, {0: 1, 1: 1}),
-    ({1: 4}, 14, 7, {1: 2}),  # the rest is the allocator's, for the regions not named
-    (None, 14, 9, None),
-])
+@pytest.mark.parametrize(
+    "counts, full, n, expected",
+    [
+        ({0: 10, 1: 4}, 14, 14, {0: 10, 1: 4}),
+        ({0: 10, 1: 4}, 14, 13, {0: 9, 1: 4}),
+        ({0: 10, 1: 4}, 14, 7, {0: 5, 1: 2}),
+        ({0: 13, 1: 1}, 14, 5, {0: 4, 1: 1}),  # the small region keeps its robot
+        ({0: 6, 1: 8}, 14, 2, {0: 1, 1: 1}),
+        ({1: 4}, 14, 7, {1: 2}),  # the rest is the allocator's, for the regions not named
+        (None, 14, 9, None),
+    ],
+)
 def test_region_counts_scale_with_the_robots(counts, full, n, expected):
     assert scale_region_counts(counts, full, n) == expected
 
@@ -143,8 +168,10 @@ def test_goal_sets_are_deterministic_and_cached(sequence):
 
 def test_every_step_and_count_shares_one_arena(sequence):
     k_r = sequence.image_goals.arena
-    own = [generate_goals(shapes.draw(s.shape, 256), 14, seed=sequence.seed, region_counts=s.region_counts).arena
-           for s in sequence.steps]
+    own = [
+        generate_goals(shapes.draw(s.shape, 256), 14, seed=sequence.seed, region_counts=s.region_counts).arena
+        for s in sequence.steps
+    ]
     assert k_r == pytest.approx(max(own))  # the largest conservative arena of the N-robot sets
     disk_radius = 150 / 512 * k_r  # coordinator.shapes: the disk's radius is 150/512 of the image
     for n in (14, 10, 6):
@@ -201,8 +228,9 @@ def test_the_assignment_is_one_to_one_onto_the_shown_step(played):
 
 
 def test_scenes_without_steps_record_step_zero(tmp_path):
-    scene = scene_from_dict({"robots": 2, "duration": 1.0, "layout": {"kind": "rows", "spacing": 0.2},
-                             "goals": {"kind": "swap"}})
+    scene = scene_from_dict(
+        {"robots": 2, "duration": 1.0, "layout": {"kind": "rows", "spacing": 0.2}, "goals": {"kind": "swap"}}
+    )
     out = run_central(scene, tmp_path / "run", video=False, progress=None)
     traj = np.load(out / "trajectory.npz")
     assert traj["step"].tolist() == [0] * len(traj["t"])
@@ -219,12 +247,28 @@ def test_step_metrics_from_arrays():
     goal[3:, :, 0] = [1.0, math.nan]  # robot 1 has no goal in step 1
     goal[3:, 1, 1] = math.nan
     rows = step_metrics(t, pose, goal, np.array([0, 0, 0, 1, 1, 1]), 0.01)
-    assert rows[0] == pytest.approx({"index": 0, "t_start": 0.0, "t_end": 1.0, "converged_at": 1.0,
-                                     "max_goal_error_at_end": 0.0, "median_goal_error_at_end": 0.0,
-                                     "path_length_m": 0.5})
-    assert rows[1] == pytest.approx({"index": 1, "t_start": 1.5, "t_end": 2.5, "converged_at": 1.0,
-                                     "max_goal_error_at_end": 0.0, "median_goal_error_at_end": 0.0,
-                                     "path_length_m": 0.5})
+    assert rows[0] == pytest.approx(
+        {
+            "index": 0,
+            "t_start": 0.0,
+            "t_end": 1.0,
+            "converged_at": 1.0,
+            "max_goal_error_at_end": 0.0,
+            "median_goal_error_at_end": 0.0,
+            "path_length_m": 0.5,
+        }
+    )
+    assert rows[1] == pytest.approx(
+        {
+            "index": 1,
+            "t_start": 1.5,
+            "t_end": 2.5,
+            "converged_at": 1.0,
+            "max_goal_error_at_end": 0.0,
+            "median_goal_error_at_end": 0.0,
+            "path_length_m": 0.5,
+        }
+    )
     never = step_metrics(t[:2], pose[:2], goal[:2], np.array([0, 0]), 0.01)
     assert never[0]["converged_at"] is None and never[0]["max_goal_error_at_end"] == pytest.approx(0.2)
     assert never[0]["median_goal_error_at_end"] == pytest.approx(0.1)  # robots 0.2 m and 0 m off

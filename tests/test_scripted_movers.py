@@ -1,5 +1,6 @@
 """Uncontrolled robots (paper 7.4.2, Fig. 19): scripted movers follow their waypoints at the scripted
 speed, and neither they nor pursuers are robot pixels of the image."""
+
 from __future__ import annotations
 
 import json
@@ -19,11 +20,15 @@ DT = 0.1
 
 def mover_scene(**extra) -> dict:
     """Three e-pucks (v_max 0.13 m/s) in a row and a scripted mover that crosses below them at 0.5 m/s."""
-    return {"robots": 4, "seed": 3, "robot": {"kinematics": "diffdrive"},
-            "layout": {"kind": "list",
-                       "poses": [[-0.2, 0.3, 0.0], [0.0, 0.3, 0.0], [0.2, 0.3, 0.0], [-0.8, -0.3, 0.0]]},
-            "arena": {"size": [2.4, 1.6]},
-            "scripted": [{"robot": 3, "waypoints": [[0.0, -0.8, -0.3], [1.0, -0.8, -0.3], [4.0, 0.7, -0.3]]}], **extra}
+    return {
+        "robots": 4,
+        "seed": 3,
+        "robot": {"kinematics": "diffdrive"},
+        "layout": {"kind": "list", "poses": [[-0.2, 0.3, 0.0], [0.0, 0.3, 0.0], [0.2, 0.3, 0.0], [-0.8, -0.3, 0.0]]},
+        "arena": {"size": [2.4, 1.6]},
+        "scripted": [{"robot": 3, "waypoints": [[0.0, -0.8, -0.3], [1.0, -0.8, -0.3], [4.0, 0.7, -0.3]]}],
+        **extra,
+    }
 
 
 def test_a_scripted_mover_moves_at_its_scripted_speed_not_the_robots_v_max():
@@ -75,11 +80,17 @@ class Bus:
 def test_the_goal_set_goes_to_the_robot_pixels_only():
     """Robot 3 is scripted (no agent), robot 4 pursues it (an agent that declares itself alive): the
     disk's goal set is for robots 0-2 alone, three goals."""
-    scene = scene_from_dict(mover_scene(robots=5, steps=[{"shape": "disk", "hold": 20.0}],
-                                        pursuers=[{"robot": 4, "target": 3}],
-                                        layout={"kind": "list", "poses": [[-0.2, 0.3, 0.0], [0.0, 0.3, 0.0],
-                                                                          [0.2, 0.3, 0.0], [-0.8, -0.3, 0.0],
-                                                                          [-0.8, 0.0, 0.0]]}))
+    scene = scene_from_dict(
+        mover_scene(
+            robots=5,
+            steps=[{"shape": "disk", "hold": 20.0}],
+            pursuers=[{"robot": 4, "target": 3}],
+            layout={
+                "kind": "list",
+                "poses": [[-0.2, 0.3, 0.0], [0.0, 0.3, 0.0], [0.2, 0.3, 0.0], [-0.8, -0.3, 0.0], [-0.8, 0.0, 0.0]],
+            },
+        )
+    )
     assert scene.pixel_robots == [0, 1, 2]
     bus = Bus()
     coordinator = Coordinator(bus, scene)
@@ -94,11 +105,17 @@ def test_the_goal_set_goes_to_the_robot_pixels_only():
 # --- the central engine ----------------------------------------------------------------------------
 def chase_scene() -> dict:
     """Robots 0-2 show a disk; robot 3 is scripted across below them at 0.2 m/s, robot 4 pursues it."""
-    return mover_scene(robots=5, steps=[{"shape": "disk", "hold": 8.0}], pursuers=[{"robot": 4, "target": 3}],
-                       end={"converge_hold": 60.0},  # the whole 8 s, not just until the disk has formed
-                       scripted=[{"robot": 3, "waypoints": [[0.0, -0.8, -0.3], [1.0, -0.8, -0.3], [8.0, 0.6, -0.3]]}],
-                       layout={"kind": "list", "poses": [[-0.2, 0.3, 0.0], [0.0, 0.3, 0.0], [0.2, 0.3, 0.0],
-                                                         [-0.8, -0.3, 0.0], [-0.9, 0.0, 0.0]]})
+    return mover_scene(
+        robots=5,
+        steps=[{"shape": "disk", "hold": 8.0}],
+        pursuers=[{"robot": 4, "target": 3}],
+        end={"converge_hold": 60.0},  # the whole 8 s, not just until the disk has formed
+        scripted=[{"robot": 3, "waypoints": [[0.0, -0.8, -0.3], [1.0, -0.8, -0.3], [8.0, 0.6, -0.3]]}],
+        layout={
+            "kind": "list",
+            "poses": [[-0.2, 0.3, 0.0], [0.0, 0.3, 0.0], [0.2, 0.3, 0.0], [-0.8, -0.3, 0.0], [-0.9, 0.0, 0.0]],
+        },
+    )
 
 
 def test_movers_give_the_central_engine_goals_commands_and_who_avoids_whom():

@@ -1,4 +1,5 @@
 """Codecs, keys, faults and the bus on a real zenoh router on loopback."""
+
 from __future__ import annotations
 
 import math
@@ -10,8 +11,23 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from transport.bus import Bus
-from transport.codec import (BY_NAME, VERSION, Command, Commands, Contact, DropCounter, Event, Goals, Pose, Poses,
-                             State, States, Tick, Truth, decode)
+from transport.codec import (
+    BY_NAME,
+    VERSION,
+    Command,
+    Commands,
+    Contact,
+    DropCounter,
+    Event,
+    Goals,
+    Pose,
+    Poses,
+    State,
+    States,
+    Tick,
+    Truth,
+    decode,
+)
 from transport.faults import FaultSpec, parse_faults
 from transport.keys import Keys, cell_of
 from transport.session import TransportError, client_of, loopback_router, open_session
@@ -22,16 +38,53 @@ SAMPLES = [
     Command(3, 7, 0.7, Command.WHEELS, 0.1, -0.05, 255, 10, 0),
     Tick(7, 0.7, 0.1),
     Goals(2, 0, 0.0, 3, np.array([[0.0, 1.0], [2.0, 3.0], [-1.0, 0.5]]), np.array([[255, 0, 0]] * 3, np.uint8)),
-    Goals(3, 0, 30.1, 2, np.array([[0.0, 1.0], [2.0, 3.0]]), np.array([[255, 0, 0]] * 2, np.uint8), 4, 6.0,
-          np.array([0, 5]), t_start=30.0, frame_period=6.0, v_gx=0.01, v_gy=-0.02, omega_g=0.05, p_ogx=0.1,
-          p_ogy=-0.1, k_eg=0.004, geometric=1),
-    Goals(4, 0, 36.1, 2, np.array([[0.5, 1.0], [2.0, 2.5]]), np.array([[0, 255, 0]] * 2, np.uint8), 5, 6.0,
-          np.array([0, 5]), t_start=36.0, frame_period=6.0, follows=3, previous=np.array([1, 0])),
+    Goals(
+        3,
+        0,
+        30.1,
+        2,
+        np.array([[0.0, 1.0], [2.0, 3.0]]),
+        np.array([[255, 0, 0]] * 2, np.uint8),
+        4,
+        6.0,
+        np.array([0, 5]),
+        t_start=30.0,
+        frame_period=6.0,
+        v_gx=0.01,
+        v_gy=-0.02,
+        omega_g=0.05,
+        p_ogx=0.1,
+        p_ogy=-0.1,
+        k_eg=0.004,
+        geometric=1,
+    ),
+    Goals(
+        4,
+        0,
+        36.1,
+        2,
+        np.array([[0.5, 1.0], [2.0, 2.5]]),
+        np.array([[0, 255, 0]] * 2, np.uint8),
+        5,
+        6.0,
+        np.array([0, 5]),
+        t_start=36.0,
+        frame_period=6.0,
+        follows=3,
+        previous=np.array([1, 0]),
+    ),
     Truth(7, 0.7, 0.01, 2, np.zeros((2, 3)), np.ones((2, 2)), np.zeros((2, 3), np.uint8), np.array([1, 2], np.uint32)),
     Contact(0, 1, 2, 0.5, 0.003),
     Event({"kind": "end", "reason": "converged"}),
-    States.of(7, 0.7, 3, [State(3, 7, 0.7, 1.0, 2.0, 0.1, -0.1, 0.045, 0.5, 0.5, 4, State.HAS_GOAL, 2, 9),
-                          State(4, 7, 0.7, -1.0, 0.5, 0.0, 0.2, 0.045, 0.0, 0.0, -1, 0)]),
+    States.of(
+        7,
+        0.7,
+        3,
+        [
+            State(3, 7, 0.7, 1.0, 2.0, 0.1, -0.1, 0.045, 0.5, 0.5, 4, State.HAS_GOAL, 2, 9),
+            State(4, 7, 0.7, -1.0, 0.5, 0.0, 0.2, 0.045, 0.0, 0.0, -1, 0),
+        ],
+    ),
     Poses(7, 0.7, 0, 2, np.array([(3, 1.5, -2.0, 0.25), (9, 0.5, 0.5, -3.0)], Poses._item)),
     Commands(7, 0.7, 3, 2, np.array([(3, 1, 0.1, -0.05, 255, 10, 0), (4, 1, 0.0, 0.02, 0, 0, 255)], Commands._item)),
 ]
@@ -113,15 +166,28 @@ def test_goals_of_an_older_coordinator_decode_as_a_still_image():
     as before (no motion, not a keyframe); a torn trailer is dropped; bad values are refused."""
     full = SAMPLES[5]
     data = full.encode()
-    old = data[:-Goals._trailer.size]
+    old = data[: -Goals._trailer.size]
     back = decode(old)
     assert back is not None and back.epoch == 3 and back.step == 4 and back.robots.tolist() == [0, 5]
     assert (back.t_start, back.frame_period, back.moves) == (0.0, 0.0, False)
     drops = DropCounter()
     assert decode(data[:-3], drops=drops) is None and drops["truncated"] == 1
     for bad in (dict(frame_period=-1.0), dict(geometric=2), dict(geometric=1, k_eg=-1.0), dict(omega_g=math.inf)):
-        assert decode(Goals(**{**full.to_dict(), **bad, "positions": full.positions, "colors": full.colors,
-                               "robots": full.robots}).encode(), drops=drops) is None, bad
+        assert (
+            decode(
+                Goals(
+                    **{
+                        **full.to_dict(),
+                        **bad,
+                        "positions": full.positions,
+                        "colors": full.colors,
+                        "robots": full.robots,
+                    }
+                ).encode(),
+                drops=drops,
+            )
+            is None
+        ), bad
     assert drops["invalid"] == 3 and drops["non-finite"] == 1
 
 
@@ -131,12 +197,28 @@ def test_keyframe_correspondence_rides_in_a_second_trailer():
     keyframe = SAMPLES[6]
     back = decode(keyframe.encode())
     assert back.follows == 3 and back.previous.tolist() == [1, 0] and back.frame_period == 6.0
-    plain = decode(Goals(**{**keyframe.to_dict(), "follows": 0, "positions": keyframe.positions,
-                            "colors": keyframe.colors, "robots": keyframe.robots}).encode())
+    plain = decode(
+        Goals(
+            **{
+                **keyframe.to_dict(),
+                "follows": 0,
+                "positions": keyframe.positions,
+                "colors": keyframe.colors,
+                "robots": keyframe.robots,
+            }
+        ).encode()
+    )
     assert plain.follows == 0 and len(plain.previous) == 0 and plain.frame_period == 6.0
     drops = DropCounter()
-    bad = Goals(**{**keyframe.to_dict(), "previous": np.array([0, 2]), "positions": keyframe.positions,
-                   "colors": keyframe.colors, "robots": keyframe.robots})
+    bad = Goals(
+        **{
+            **keyframe.to_dict(),
+            "previous": np.array([0, 2]),
+            "positions": keyframe.positions,
+            "colors": keyframe.colors,
+            "robots": keyframe.robots,
+        }
+    )
     assert decode(bad.encode(), drops=drops) is None and drops["invalid"] == 1
 
 
@@ -145,7 +227,12 @@ def test_the_auctions_warm_start_rides_in_a_third_trailer():
     after the keyframe correspondence, or alone for the next image of a sequence; a matched index
     outside the set or a non-finite price drops the message."""
     keyframe = SAMPLES[6]
-    fields = {**keyframe.to_dict(), "positions": keyframe.positions, "colors": keyframe.colors, "robots": keyframe.robots}
+    fields = {
+        **keyframe.to_dict(),
+        "positions": keyframe.positions,
+        "colors": keyframe.colors,
+        "robots": keyframe.robots,
+    }
     warm = {"matched_from": 3, "matched": np.array([1, 0]), "prices": np.array([0.0, 0.125])}
     both = decode(Goals(**{**fields, **warm}).encode())
     assert both.follows == 3 and both.previous.tolist() == [1, 0]

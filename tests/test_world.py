@@ -1,4 +1,5 @@
 """Tests of the simulated world (sim/world.py): kinematics, noise, substeps, contacts, perturbations."""
+
 from __future__ import annotations
 
 import math
@@ -467,7 +468,6 @@ def test_clearance_over_substeps_matches_brute_force_on_every_substep(seed, n, s
     assert [key(c) for c in coarse.contacts] == [key(c) for c in fine.contacts]
 
 
-
 @settings(max_examples=15, deadline=None, derandomize=True)
 @given(seed=st.integers(0, 2**31), n=st.integers(6, 25))
 def test_contacts_checked_later_are_the_contacts_checked_at_once(seed, n):
@@ -497,7 +497,6 @@ def test_contacts_checked_later_are_the_contacts_checked_at_once(seed, n):
     event = lambda c: (c.kind, c.i, c.j, c.t_start, c.t_end, c.max_depth)
     assert [event(c) for c in later.contacts] == [event(c) for c in now.contacts]
     assert sorted(map(event, started_later), key=str) == sorted(map(event, started_now), key=str) and started_now
-
 
 
 def test_a_restored_snapshot_undoes_steps_commands_and_teleports():

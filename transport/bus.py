@@ -4,6 +4,7 @@ Zenoh calls subscriber callbacks on its own threads; here a callback only decode
 blocks, never calls zenoh), and the owner's loop drains the queue. Decoding failures are counted per
 inbox and never raise.
 """
+
 from __future__ import annotations
 
 import heapq
@@ -14,7 +15,8 @@ import threading
 import time
 import zlib
 from collections import Counter
-from typing import Any, Callable, Iterator
+from collections.abc import Callable, Iterator
+from typing import Any
 
 import numpy as np
 import zenoh
@@ -27,7 +29,7 @@ from .session import ZenohSettings, open_session
 _NO_FAULT = FaultSpec()
 
 
-def _drain(q: "queue.SimpleQueue", limit: int | None = None) -> list:
+def _drain(q: queue.SimpleQueue, limit: int | None = None) -> list:
     """Everything waiting in a queue (at most ``limit`` items), without blocking."""
     out: list = []
     while limit is None or len(out) < limit:
@@ -41,8 +43,14 @@ def _drain(q: "queue.SimpleQueue", limit: int | None = None) -> list:
 class Inbox:
     """Messages of one subscription, decoded, filtered by faults, waiting for the owner's loop."""
 
-    def __init__(self, expected: type[Message] | None, fault: FaultSpec, seed: int,
-                 frames: type[Message] | None = None, only: np.ndarray | None = None) -> None:
+    def __init__(
+        self,
+        expected: type[Message] | None,
+        fault: FaultSpec,
+        seed: int,
+        frames: type[Message] | None = None,
+        only: np.ndarray | None = None,
+    ) -> None:
         """``frames``: a frame kind that carries many ``expected`` messages (codec.Poses, States,
         Commands); each arrives as its messages (only those of robots ``only``, if given), and a
         fault drops or delays the frame whole."""
@@ -53,7 +61,7 @@ class Inbox:
         self.drops = DropCounter()
         self.received = 0
         self.bytes = 0
-        self._queue: "queue.SimpleQueue[tuple[str, Message]]" = queue.SimpleQueue()
+        self._queue: queue.SimpleQueue[tuple[str, Message]] = queue.SimpleQueue()
         self._delayed: list[tuple[float, int, str, Message]] = []
         self._order = itertools.count()
         self._lock = threading.Lock()
@@ -140,7 +148,7 @@ class RawInbox:
     """Raw samples (key, bytes, wall time) for the recorder, which logs what crossed the bus."""
 
     def __init__(self) -> None:
-        self._queue: "queue.SimpleQueue[tuple[str, bytes, float]]" = queue.SimpleQueue()
+        self._queue: queue.SimpleQueue[tuple[str, bytes, float]] = queue.SimpleQueue()
         self.subscriber: Any = None
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
@@ -154,7 +162,7 @@ class LivelinessWatch:
     """Liveliness tokens: (role, ident, alive, wall time) events, tokens already there included."""
 
     def __init__(self) -> None:
-        self._queue: "queue.SimpleQueue[tuple[str, str, bool, float]]" = queue.SimpleQueue()
+        self._queue: queue.SimpleQueue[tuple[str, str, bool, float]] = queue.SimpleQueue()
         self.subscriber: Any = None
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
@@ -168,8 +176,15 @@ class LivelinessWatch:
 class Bus:
     """One participant's connection to the swarm: publish typed messages, subscribe to inboxes."""
 
-    def __init__(self, settings: ZenohSettings, display: str = "default", *, faults: FaultPlan | None = None,
-                 seed: int = 0, name: str = "") -> None:
+    def __init__(
+        self,
+        settings: ZenohSettings,
+        display: str = "default",
+        *,
+        faults: FaultPlan | None = None,
+        seed: int = 0,
+        name: str = "",
+    ) -> None:
         self.keys = Keys(display)
         self.settings = settings
         self.faults = dict(faults or {})
@@ -195,8 +210,9 @@ class Bus:
         self.sent_bytes[kind] += len(payload)
 
     # --- subscribing ----------------------------------------------------------------------
-    def inbox(self, expected: type[Message] | None = None, frames: type[Message] | None = None,
-              only: np.ndarray | None = None) -> Inbox:
+    def inbox(
+        self, expected: type[Message] | None = None, frames: type[Message] | None = None, only: np.ndarray | None = None
+    ) -> Inbox:
         """An empty inbox; feed it with ``subscribe_into``. Faults for the expected kind apply here
         (to its ``frames`` too, each frame as one message: see Inbox)."""
         fault = self.faults.get(expected.NAME, _NO_FAULT) if expected is not None else _NO_FAULT
@@ -249,7 +265,8 @@ class Bus:
     def watch_alive(self, role: str | None = None) -> LivelinessWatch:
         watch = LivelinessWatch()
         watch.subscriber = self.session.liveliness().declare_subscriber(
-            self.keys.alive_all(role), history=True, handler=watch._on_sample)
+            self.keys.alive_all(role), history=True, handler=watch._on_sample
+        )
         self._subscriptions.append(watch.subscriber)
         return watch
 
@@ -287,7 +304,7 @@ class Bus:
         except Exception:
             pass
 
-    def __enter__(self) -> "Bus":
+    def __enter__(self) -> Bus:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -4,6 +4,7 @@ Every message starts with a two-byte header (kind, version). ``decode`` never ra
 truncated, wrong-kind, wrong-version or non-finite message returns None and is counted in the
 ``DropCounter`` passed in, so nothing a peer sends can break a control loop.
 """
+
 from __future__ import annotations
 
 import json
@@ -41,7 +42,7 @@ def _fixed_and_items(body: memoryview, fixed: struct.Struct, item: np.dtype) -> 
     values = fixed.unpack(body[: fixed.size])
     if len(body) != fixed.size + values[-1] * item.itemsize:
         raise Malformed("truncated")
-    return values, np.frombuffer(body[fixed.size:], item)
+    return values, np.frombuffer(body[fixed.size :], item)
 
 
 @dataclass
@@ -77,7 +78,7 @@ class Message:
         return b""
 
     @classmethod
-    def _from(cls, body: memoryview) -> "Message":
+    def _from(cls, body: memoryview) -> Message:
         if len(body) != cls._fixed.size:
             raise Malformed("truncated")
         msg = cls(*cls._fixed.unpack(body))
@@ -255,8 +256,17 @@ class Goals(Message):
         items = np.empty(len(self.positions), self._item)
         items["x"], items["y"] = self.positions[:, 0], self.positions[:, 1]
         items["rgb"] = self.colors
-        trailer = self._trailer.pack(self.t_start, self.frame_period, self.v_gx, self.v_gy, self.omega_g,
-                                     self.p_ogx, self.p_ogy, self.k_eg, self.geometric)
+        trailer = self._trailer.pack(
+            self.t_start,
+            self.frame_period,
+            self.v_gx,
+            self.v_gy,
+            self.omega_g,
+            self.p_ogx,
+            self.p_ogy,
+            self.k_eg,
+            self.geometric,
+        )
         if self.follows:  # a second, optional trailer: the correspondence to the previous keyframe
             if len(self.previous) != len(self.positions):
                 raise ValueError("previous needs one index per goal")
@@ -264,12 +274,15 @@ class Goals(Message):
         if self.matched_from and len(self.positions):  # a third, optional trailer: the auction's warm start
             if len(self.matched) != len(self.positions) or len(self.prices) != len(self.positions):
                 raise ValueError("matched and prices need one entry per goal")
-            trailer += (self._epoch.pack(self.matched_from) + np.asarray(self.matched, "<i4").tobytes()
-                        + np.asarray(self.prices, "<f8").tobytes())
+            trailer += (
+                self._epoch.pack(self.matched_from)
+                + np.asarray(self.matched, "<i4").tobytes()
+                + np.asarray(self.prices, "<f8").tobytes()
+            )
         return items.tobytes() + np.asarray(self.robots, "<u2").tobytes() + trailer
 
     @classmethod
-    def _from(cls, body: memoryview) -> "Goals":
+    def _from(cls, body: memoryview) -> Goals:
         if len(body) < cls._fixed.size:
             raise Malformed("truncated")
         epoch, per_robot, stamp, count, step, hold, n_robots = cls._fixed.unpack(body[: cls._fixed.size])
@@ -278,35 +291,39 @@ class Goals(Message):
         # the optional trailers tell themselves apart by length (4 + 4 count and 4 + 12 count bytes)
         correspondence = cls._epoch.size + 4 * count
         matching = cls._epoch.size + 12 * count if count else -1
-        trailers = {0: (False, False), cls._trailer.size: (False, False),
-                    cls._trailer.size + correspondence: (True, False), cls._trailer.size + matching: (False, True),
-                    cls._trailer.size + correspondence + matching: (True, True)}
+        trailers = {
+            0: (False, False),
+            cls._trailer.size: (False, False),
+            cls._trailer.size + correspondence: (True, False),
+            cls._trailer.size + matching: (False, True),
+            cls._trailer.size + correspondence + matching: (True, True),
+        }
         if rest not in trailers:
             raise Malformed("truncated")
         has_previous, has_matching = trailers[rest]
-        items = np.frombuffer(body[cls._fixed.size:end], cls._item)
+        items = np.frombuffer(body[cls._fixed.size : end], cls._item)
         positions = np.stack([items["x"], items["y"]], axis=1).astype(float)
         _finite(stamp, hold)
         if not np.all(np.isfinite(positions)):
             raise Malformed("non-finite")
         at = end + 2 * n_robots
         robots = np.frombuffer(body[end:at], "<u2").astype(np.int64)
-        extra = cls._trailer.unpack(body[at:at + cls._trailer.size]) if rest else ()
+        extra = cls._trailer.unpack(body[at : at + cls._trailer.size]) if rest else ()
         _finite(*extra)
         msg = cls(epoch, per_robot, stamp, count, positions, items["rgb"].copy(), step, hold, robots, *extra)
         at += cls._trailer.size
         if has_previous:
-            (msg.follows,) = cls._epoch.unpack(body[at:at + cls._epoch.size])
+            (msg.follows,) = cls._epoch.unpack(body[at : at + cls._epoch.size])
             at += cls._epoch.size
-            msg.previous = np.frombuffer(body[at:at + 4 * count], "<i4").astype(np.int64)
+            msg.previous = np.frombuffer(body[at : at + 4 * count], "<i4").astype(np.int64)
             at += 4 * count
             if msg.follows == 0 or (msg.previous < -1).any() or (msg.previous >= count).any():
                 raise Malformed("invalid")
         if has_matching:
-            (msg.matched_from,) = cls._epoch.unpack(body[at:at + cls._epoch.size])
+            (msg.matched_from,) = cls._epoch.unpack(body[at : at + cls._epoch.size])
             at += cls._epoch.size
-            msg.matched = np.frombuffer(body[at:at + 4 * count], "<i4").astype(np.int64)
-            msg.prices = np.frombuffer(body[at + 4 * count:], "<f8").copy()
+            msg.matched = np.frombuffer(body[at : at + 4 * count], "<i4").astype(np.int64)
+            msg.prices = np.frombuffer(body[at + 4 * count :], "<f8").copy()
             if msg.matched_from == 0 or (msg.matched < 0).any() or (msg.matched >= count).any():
                 raise Malformed("invalid")
             _finite(*msg.prices)
@@ -324,8 +341,17 @@ class Bid(Message):
     NAME: ClassVar[str] = "auction"
     _fixed: ClassVar[struct.Struct] = struct.Struct("<IIIIQI")
     # penalty: the robot's total deadlock penalty in force (m^2), so its agreed cost can be checked
-    _item: ClassVar[np.dtype] = np.dtype([("robot", "<u2"), ("goal", "<i4"), ("price", "<f8"), ("flags", "u1"),
-                                          ("penalty", "<f4"), ("x", "<f4"), ("y", "<f4")])
+    _item: ClassVar[np.dtype] = np.dtype(
+        [
+            ("robot", "<u2"),
+            ("goal", "<i4"),
+            ("price", "<f8"),
+            ("flags", "u1"),
+            ("penalty", "<f4"),
+            ("x", "<f4"),
+            ("y", "<f4"),
+        ]
+    )
     epoch: int
     instance: int
     sender: int
@@ -344,7 +370,7 @@ class Bid(Message):
         return np.asarray(self.records, self._item).tobytes()
 
     @classmethod
-    def _from(cls, body: memoryview) -> "Bid":
+    def _from(cls, body: memoryview) -> Bid:
         (epoch, instance, sender, serial, digest, count), items = _fixed_and_items(body, cls._fixed, cls._item)
         if not all(np.all(np.isfinite(items[k])) for k in ("price", "penalty", "x", "y")):
             raise Malformed("non-finite")
@@ -376,7 +402,7 @@ class _Frame(Message):
     records: np.ndarray
 
     @classmethod
-    def of(cls, tick: int, stamp: float, sender: int, messages: list) -> "_Frame":
+    def of(cls, tick: int, stamp: float, sender: int, messages: list) -> _Frame:
         """The frame of these robots' messages (their tick and stamp are the frame's)."""
         records = np.array([(v := m._fixed_values())[:1] + v[3:] for m in messages], cls._item).reshape(-1)
         return cls(tick, stamp, sender, len(records), records)
@@ -394,7 +420,7 @@ class _Frame(Message):
         return np.asarray(self.records, self._item).tobytes()
 
     @classmethod
-    def _from(cls, body: memoryview) -> "_Frame":
+    def _from(cls, body: memoryview) -> _Frame:
         (tick, stamp, sender, count), items = _fixed_and_items(body, cls._fixed, cls._item)
         _finite(stamp)
         if not all(np.all(np.isfinite(items[k])) for k in cls._floats):
@@ -433,8 +459,9 @@ class Commands(_Frame):
     KIND: ClassVar[int] = 11
     NAME: ClassVar[str] = "cmds"
     _message: ClassVar[type[Message]] = Command
-    _item: ClassVar[np.dtype] = np.dtype([("robot", "<u4"), ("mode", "u1"), ("a", "<f4"), ("b", "<f4"),
-                                          ("r", "u1"), ("g", "u1"), ("bl", "u1")])
+    _item: ClassVar[np.dtype] = np.dtype(
+        [("robot", "<u4"), ("mode", "u1"), ("a", "<f4"), ("b", "<f4"), ("r", "u1"), ("g", "u1"), ("bl", "u1")]
+    )
     _floats: ClassVar[tuple[str, ...]] = ("a", "b")
 
     def check_records(self) -> None:
@@ -452,10 +479,22 @@ class States(_Frame):
     KIND: ClassVar[int] = 12
     NAME: ClassVar[str] = "states"
     _message: ClassVar[type[Message]] = State
-    _item: ClassVar[np.dtype] = np.dtype([("robot", "<u4"), ("x", "<f4"), ("y", "<f4"), ("vx", "<f4"), ("vy", "<f4"),
-                                          ("radius", "<f4"), ("goal_x", "<f4"), ("goal_y", "<f4"),
-                                          ("goal_index", "<i4"), ("flags", "u1"), ("assign_epoch", "<u4"),
-                                          ("assign_instance", "<u4")])
+    _item: ClassVar[np.dtype] = np.dtype(
+        [
+            ("robot", "<u4"),
+            ("x", "<f4"),
+            ("y", "<f4"),
+            ("vx", "<f4"),
+            ("vy", "<f4"),
+            ("radius", "<f4"),
+            ("goal_x", "<f4"),
+            ("goal_y", "<f4"),
+            ("goal_index", "<i4"),
+            ("flags", "u1"),
+            ("assign_epoch", "<u4"),
+            ("assign_instance", "<u4"),
+        ]
+    )
     _floats: ClassVar[tuple[str, ...]] = ("x", "y", "vx", "vy", "radius", "goal_x", "goal_y")
 
     def check_records(self) -> None:
@@ -491,13 +530,21 @@ class Truth(Message):
         return items.tobytes()
 
     @classmethod
-    def _from(cls, body: memoryview) -> "Truth":
+    def _from(cls, body: memoryview) -> Truth:
         (tick, stamp, min_clearance, count), items = _fixed_and_items(body, cls._fixed, cls._item)
         _finite(stamp)
         if not (np.all(np.isfinite(items["pose"])) and np.all(np.isfinite(items["vel"]))):
             raise Malformed("non-finite")
-        return cls(tick, stamp, min_clearance, count, items["pose"].copy(), items["vel"].astype(float),
-                   items["rgb"].copy(), items["applied"].copy())
+        return cls(
+            tick,
+            stamp,
+            min_clearance,
+            count,
+            items["pose"].copy(),
+            items["vel"].astype(float),
+            items["rgb"].copy(),
+            items["applied"].copy(),
+        )
 
     def validate(self) -> None:  # min_clearance may be +inf with one robot
         _finite(self.stamp)
@@ -533,7 +580,7 @@ class Event(Message):
         return json.dumps(self.data, allow_nan=False, separators=(",", ":")).encode()
 
     @classmethod
-    def _from(cls, body: memoryview) -> "Event":
+    def _from(cls, body: memoryview) -> Event:
         try:
             data = json.loads(bytes(body), parse_constant=_reject_constant)
         except Malformed:
@@ -552,8 +599,9 @@ def _reject_constant(name: str) -> None:
     raise Malformed("non-finite")
 
 
-MESSAGE_TYPES: dict[int, type[Message]] = {t.KIND: t for t in (Pose, State, Command, Tick, Goals, Truth, Contact, Event,
-                                                                 Bid, Poses, Commands, States)}
+MESSAGE_TYPES: dict[int, type[Message]] = {
+    t.KIND: t for t in (Pose, State, Command, Tick, Goals, Truth, Contact, Event, Bid, Poses, Commands, States)
+}
 BY_NAME: dict[str, type[Message]] = {t.NAME: t for t in MESSAGE_TYPES.values()}
 
 
@@ -566,7 +614,9 @@ def register(message_type: type[Message]) -> type[Message]:
     return message_type
 
 
-def decode(data: bytes | memoryview, expected: type[Message] | None = None, drops: DropCounter | None = None) -> Message | None:
+def decode(
+    data: bytes | memoryview, expected: type[Message] | None = None, drops: DropCounter | None = None
+) -> Message | None:
     """Decode one message; None (and a counted drop) for anything malformed. Never raises."""
     try:
         view = memoryview(data)

@@ -4,6 +4,7 @@ Faults act where a message is received (as a lossy, slow link would), so each re
 delays its own copies independently. A plan reads like ``state:drop=0.1,delay=0.05,jitter=0.01``;
 several kinds are separated by ';'.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass

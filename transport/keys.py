@@ -1,19 +1,20 @@
 """The key-expression schema: every key the system uses is built here and nowhere else.
 
-    px/<display>/pose/<id>               tracker -> agent i: its tracked pose and the tick
-    px/<display>/poses                   tracker -> agent hosts: every robot's pose of a tick, one frame
-    px/<display>/state/<cx>/<cy>/<id>    agent broadcast, filed under its spatial cell
-    px/<display>/states/<id>             agent host broadcast: its robots' states of a tick (<id>: its first)
-    px/<display>/cmd/<id>                agent -> body: wheel speeds or velocity, LED colour
-    px/<display>/cmds/<id>               agent host -> bodies: its robots' commands of a tick (<id>: its first)
-    px/<display>/goals/<epoch>           coordinator -> all: the goal set and colours
-    px/<display>/auction/<epoch>/<id>    bids and prices of the distributed auction
-    px/<display>/alive/<role>/<id>       liveliness tokens (role: agent, world, coordinator, ...)
-    px/<display>/clock                   tick announcements
-    px/<display>/sim/truth               simulation only: true poses (for the recorder, never agents)
-    px/<display>/sim/contact             simulation only: contact events
-    px/<display>/event                   low-rate run events (end of run, reports)
+px/<display>/pose/<id>               tracker -> agent i: its tracked pose and the tick
+px/<display>/poses                   tracker -> agent hosts: every robot's pose of a tick, one frame
+px/<display>/state/<cx>/<cy>/<id>    agent broadcast, filed under its spatial cell
+px/<display>/states/<id>             agent host broadcast: its robots' states of a tick (<id>: its first)
+px/<display>/cmd/<id>                agent -> body: wheel speeds or velocity, LED colour
+px/<display>/cmds/<id>               agent host -> bodies: its robots' commands of a tick (<id>: its first)
+px/<display>/goals/<epoch>           coordinator -> all: the goal set and colours
+px/<display>/auction/<epoch>/<id>    bids and prices of the distributed auction
+px/<display>/alive/<role>/<id>       liveliness tokens (role: agent, world, coordinator, ...)
+px/<display>/clock                   tick announcements
+px/<display>/sim/truth               simulation only: true poses (for the recorder, never agents)
+px/<display>/sim/contact             simulation only: contact events
+px/<display>/event                   low-rate run events (end of run, reports)
 """
+
 from __future__ import annotations
 
 import math

@@ -3,6 +3,7 @@
 Multicast scouting is off unless asked for, and the embedded router listens on loopback only, so
 nothing leaves the machine unless the user points it elsewhere with -e/-l.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -90,17 +91,41 @@ def open_session(settings: ZenohSettings) -> zenoh.Session:
 def add_zenoh_args(parser: argparse.ArgumentParser, default_mode: str = "client") -> None:
     """Zenoh-style flags: -m/--mode, -e/--connect, -l/--listen, --no-multicast-scouting."""
     group = parser.add_argument_group("zenoh")
-    group.add_argument("-m", "--mode", choices=MODES, default=default_mode, help=f"session mode (default {default_mode})")
-    group.add_argument("-e", "--connect", action="append", default=[], metavar="ENDPOINT",
-                       help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
-    group.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT",
-                       help="endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)")
-    group.add_argument("--no-multicast-scouting", dest="multicast_scouting", action="store_false", default=False,
-                       help="disable multicast scouting (the default)")
-    group.add_argument("--multicast-scouting", dest="multicast_scouting", action="store_true",
-                       help="enable multicast scouting (finds peers on the LAN)")
+    group.add_argument(
+        "-m", "--mode", choices=MODES, default=default_mode, help=f"session mode (default {default_mode})"
+    )
+    group.add_argument(
+        "-e",
+        "--connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)",
+    )
+    group.add_argument(
+        "-l",
+        "--listen",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)",
+    )
+    group.add_argument(
+        "--no-multicast-scouting",
+        dest="multicast_scouting",
+        action="store_false",
+        default=False,
+        help="disable multicast scouting (the default)",
+    )
+    group.add_argument(
+        "--multicast-scouting",
+        dest="multicast_scouting",
+        action="store_true",
+        help="enable multicast scouting (finds peers on the LAN)",
+    )
 
 
 def settings_from_args(args: argparse.Namespace) -> ZenohSettings:
-    return ZenohSettings(mode=args.mode, connect=list(args.connect), listen=list(args.listen),
-                         multicast_scouting=args.multicast_scouting)
+    return ZenohSettings(
+        mode=args.mode, connect=list(args.connect), listen=list(args.listen), multicast_scouting=args.multicast_scouting
+    )

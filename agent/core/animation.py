@@ -17,14 +17,14 @@ same velocity every time (the paper's constant hold); one that collision avoidan
 catches up, up to v_max, instead of arriving late by what it lost. With the velocity held, 24 of
 the 100 robots of the leaf ended its growing keyframe 3-6 cm short (bench/bench_animation.py).
 """
+
 from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 
-def synchronised_velocity(position: ArrayLike, goal: ArrayLike, v_max: float, k_f: ArrayLike,
-                          dt: float) -> np.ndarray:
+def synchronised_velocity(position: ArrayLike, goal: ArrayLike, v_max: float, k_f: ArrayLike, dt: float) -> np.ndarray:
     """Eq. 27 for a batch: (B,2) velocities that cover |g - p| in k_f periods, at most v_max.
     k_f is a scalar or (B,) and must be >= 1; rows without a goal (NaN) or on it get zero."""
     p, g = np.asarray(position, float), np.asarray(goal, float)
@@ -43,8 +43,15 @@ def iterations_left(t_start: ArrayLike, frame_period: ArrayLike, t: ArrayLike, d
     return np.maximum(left, 0).astype(np.int64)
 
 
-def frame_hold(position: ArrayLike, goal: ArrayLike, restart: ArrayLike, iterations: ArrayLike,
-               left: ArrayLike, v_max: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
+def frame_hold(
+    position: ArrayLike,
+    goal: ArrayLike,
+    restart: ArrayLike,
+    iterations: ArrayLike,
+    left: ArrayLike,
+    v_max: float,
+    dt: float,
+) -> tuple[np.ndarray, np.ndarray]:
     """One control iteration of eq. 27's hold for a batch.
 
     restart (B,) bool: the robot's goal changed (a new frame, or reassigned within one): it takes

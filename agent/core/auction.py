@@ -12,6 +12,7 @@ Warm start (paper 5.1: re-assign every iteration): prices and owners carry over 
 iteration; a robot gives up its goal only when another goal is better by more than epsilon plus the
 hysteresis Delta C. Epsilon scaling (cold start): phases with decreasing epsilon, prices kept.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -37,19 +38,20 @@ class AuctionView:
     owner: np.ndarray  # (G,) robot id or NO_OWNER
 
     @classmethod
-    def fresh(cls, goals: int) -> "AuctionView":
+    def fresh(cls, goals: int) -> AuctionView:
         return cls(np.zeros(goals), np.full(goals, NO_OWNER, dtype=np.int64))
 
     def goal_of(self, robot: int) -> int:
         held = np.flatnonzero(self.owner == robot)
         return int(held[0]) if len(held) else -1
 
-    def copy(self) -> "AuctionView":
+    def copy(self) -> AuctionView:
         return AuctionView(self.prices.copy(), self.owner.copy())
 
 
-def net_values(position: np.ndarray, goals: np.ndarray, prices: np.ndarray,
-               penalty: np.ndarray | None = None) -> np.ndarray:
+def net_values(
+    position: np.ndarray, goals: np.ndarray, prices: np.ndarray, penalty: np.ndarray | None = None
+) -> np.ndarray:
     """-c_ij - b_j for one robot: c_ij = |g_j - p_i|^2 (eq. 7) plus its own deadlock penalty C_d."""
     d = goals - position
     cost = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]
@@ -72,8 +74,15 @@ def is_content(held: np.ndarray | float, best: np.ndarray | float, slack: float)
     return held >= best - slack - ROUNDING * np.abs(best)
 
 
-def make_bid(robot: int, position: np.ndarray, goals: np.ndarray, view: AuctionView, eps: float,
-             hysteresis: float = 0.0, penalty: np.ndarray | None = None) -> Bid:
+def make_bid(
+    robot: int,
+    position: np.ndarray,
+    goals: np.ndarray,
+    view: AuctionView,
+    eps: float,
+    hysteresis: float = 0.0,
+    penalty: np.ndarray | None = None,
+) -> Bid:
     """What one robot announces this round: hold its goal (eps-complementary slackness still holds,
     with the hysteresis Delta C as extra slack) or bid for its best goal."""
     values = net_values(position, goals, view.prices, penalty)
@@ -130,9 +139,15 @@ def epsilon_schedule(goals: np.ndarray, eps_final: float, factor: float = 5.0) -
     return out
 
 
-def solve(positions: dict[int, np.ndarray], goals: np.ndarray, eps_final: float,
-          view: AuctionView | None = None, hysteresis: float = 0.0, max_rounds: int = 100_000,
-          penalties: dict[int, np.ndarray] | None = None) -> tuple[AuctionView, int]:
+def solve(
+    positions: dict[int, np.ndarray],
+    goals: np.ndarray,
+    eps_final: float,
+    view: AuctionView | None = None,
+    hysteresis: float = 0.0,
+    max_rounds: int = 100_000,
+    penalties: dict[int, np.ndarray] | None = None,
+) -> tuple[AuctionView, int]:
     """Run the synchronous protocol in one process (every robot's bid computed here): the reference
     for tests and for the central engine. Cold start with epsilon scaling when no view is given."""
     robots = sorted(positions)
@@ -147,8 +162,10 @@ def solve(positions: dict[int, np.ndarray], goals: np.ndarray, eps_final: float,
         # A new phase releases only the robots whose goal violates eps-CS for the smaller epsilon.
         while rounds < max_rounds:
             # no phase tighter than the final one (Participant.slack)
-            bids = [make_bid(r, positions[r], goals, view, eps, max(phases[-1] + hysteresis - eps, 0.0),
-                             penalties.get(r)) for r in robots]
+            bids = [
+                make_bid(r, positions[r], goals, view, eps, max(phases[-1] + hysteresis - eps, 0.0), penalties.get(r))
+                for r in robots
+            ]
             rounds += 1
             view, _ = merge(view, bids)
             if all(b.holds for b in bids) and is_complete(view, robots):

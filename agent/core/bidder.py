@@ -35,6 +35,7 @@ positions and the robots' private costs (epsilon-complementary slackness against
 vector); each robot's record carries its total deadlock penalty, so the squared-distance cost can be
 checked against the optimum plus the penalties in force.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -50,8 +51,17 @@ CANDIDATES = 16  # goals a robot ranks in settle_alone's rounds while no other c
 SMALL = 8  # messages with up to this many records are merged record by record (numpy costs more there)
 
 # One robot's word on one goal (goal -1: it holds none yet); the wire layout of transport.codec.Bid.
-RECORD = np.dtype([("robot", "<u2"), ("goal", "<i4"), ("price", "<f8"), ("flags", "u1"), ("penalty", "<f4"),
-                   ("x", "<f4"), ("y", "<f4")])
+RECORD = np.dtype(
+    [
+        ("robot", "<u2"),
+        ("goal", "<i4"),
+        ("price", "<f8"),
+        ("flags", "u1"),
+        ("penalty", "<f4"),
+        ("x", "<f4"),
+        ("y", "<f4"),
+    ]
+)
 
 
 def bid_position(position: np.ndarray, goal: np.ndarray, velocity: np.ndarray, lead: float) -> np.ndarray:
@@ -119,7 +129,7 @@ def _hull_vertices(goals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def records(rows: list[tuple]) -> np.ndarray:
     """Records from (robot, goal, price, flags[, penalty, x, y]) tuples (tests, tools)."""
-    full = [tuple(r) + (0.0, 0.0, 0.0)[len(r) - 4:] for r in rows]
+    full = [tuple(r) + (0.0, 0.0, 0.0)[len(r) - 4 :] for r in rows]
     return np.array(full, RECORD)
 
 
@@ -135,8 +145,8 @@ def _squared_distances(position: np.ndarray, goals: np.ndarray, out: np.ndarray 
     gx, gy = np.ascontiguousarray(goals[:, 0]), np.ascontiguousarray(goals[:, 1])
     dy = np.empty((min(ROW_BLOCK, k), g))
     for a in range(0, k, ROW_BLOCK):
-        cost, p = out[a:a + ROW_BLOCK], position[a:a + ROW_BLOCK]
-        d = dy[:len(cost)]
+        cost, p = out[a : a + ROW_BLOCK], position[a : a + ROW_BLOCK]
+        d = dy[: len(cost)]
         np.subtract(gx, p[:, 0, None], out=cost)
         cost *= cost
         np.subtract(gy, p[:, 1, None], out=d)
@@ -206,8 +216,9 @@ class Board:
 class Participant:
     """The own robots of one host in the auction of one goal set (epoch)."""
 
-    def __init__(self, epoch: int, goals: np.ndarray, robots: list[int], own: list[int], eps: float,
-                 hysteresis: float = 0.0) -> None:
+    def __init__(
+        self, epoch: int, goals: np.ndarray, robots: list[int], own: list[int], eps: float, hysteresis: float = 0.0
+    ) -> None:
         self.epoch = epoch
         self.goals = np.asarray(goals, float)
         self.robots = np.array(sorted(int(r) for r in robots), np.int64)
@@ -317,7 +328,9 @@ class Participant:
         # The costs change only with the positions (a new block) or a penalty: the other phases of a
         # block keep them, and the best values too (prices only rise, _best_values follows them).
         if (new_block or penalised) and costs:
-            self.cost = _squared_distances(self.position, self.goals, out=self.cost)  # the last block's costs are done with
+            self.cost = _squared_distances(
+                self.position, self.goals, out=self.cost
+            )  # the last block's costs are done with
             if self._has_penalty:
                 self.cost += self.penalty
             self._best = None  # costs changed: every best value is recomputed
@@ -325,8 +338,14 @@ class Participant:
         self.claims_changed = True  # the new instance's records are news
         self._content_cache = None
 
-    def carry(self, before: "Participant", previous: np.ndarray, claim: bool = True,
-              current: Mapping[int, int] | None = None, prices: np.ndarray | None = None) -> dict[int, int]:
+    def carry(
+        self,
+        before: Participant,
+        previous: np.ndarray,
+        claim: bool = True,
+        current: Mapping[int, int] | None = None,
+        prices: np.ndarray | None = None,
+    ) -> dict[int, int]:
         """The assignment of the previous keyframe carried over by the goals' correspondence (paper
         6.1; ``previous[j]``: the goal of ``before`` that goal j continues, -1 none): a robot driving to
         goal i there gets i's successor. ``current``: each own robot's goal in ``before`` (the one it
@@ -354,8 +373,11 @@ class Participant:
         successor[previous[j]] = j
         if current is None:
             current = before.agreed or {r: int(g) for r, g in zip(before.own, before.goal.tolist())}
-        carried = {r: int(successor[g]) for r, g in current.items()
-                   if r in self.own and 0 <= g < len(successor) and successor[g] >= 0}
+        carried = {
+            r: int(successor[g])
+            for r, g in current.items()
+            if r in self.own and 0 <= g < len(successor) and successor[g] >= 0
+        }
         if claim:
             i = previous[j]
             last = before.agreed_owner  # every host adopted the same board; the live one may be mid-instance
@@ -458,8 +480,7 @@ class Participant:
             second[rows] = -np.inf
         return runner_up, third_value
 
-    def _after_bids(self, bidders: np.ndarray, bid_on: np.ndarray, runner_up: np.ndarray,
-                    third: np.ndarray) -> None:
+    def _after_bids(self, bidders: np.ndarray, bid_on: np.ndarray, runner_up: np.ndarray, third: np.ndarray) -> None:
         """The bidders' best goals once their bids are merged, from the ranking they bid on: the goal
         bid on rose in price, so the runner-up is the best now if it beats that goal's value now and
         the third-best value (an upper bound) outright; otherwise the row is ranked anew when next
@@ -518,9 +539,12 @@ class Participant:
         owner = self.board.owner[best]  # a copy: who owned the goals bid on
         # releases and bids merge in one batch: max-consensus does not care about order
         # (np.concatenate: np.r_ costs several times more on these short arrays, every round)
-        self.board.merge(np.concatenate([g_rel, best]), np.concatenate([self.board.price[g_rel], price]),
-                         np.concatenate([robot[gives_up], robot]),
-                         np.concatenate([np.ones(len(g_rel), bool), np.zeros(len(best), bool)]))
+        self.board.merge(
+            np.concatenate([g_rel, best]),
+            np.concatenate([self.board.price[g_rel], price]),
+            np.concatenate([robot[gives_up], robot]),
+            np.concatenate([np.ones(len(g_rel), bool), np.zeros(len(best), bool)]),
+        )
         self._after_bids(bidders, best, runner_up, third)
         self.goal[bidders] = best
         self.bids += len(bidders)
@@ -535,8 +559,9 @@ class Participant:
             rounds += 1
         return rounds
 
-    def settle_alone(self, positions: Mapping[int, np.ndarray] | np.ndarray, max_rounds: int = 100_000,
-                     candidates: int = CANDIDATES) -> np.ndarray:
+    def settle_alone(
+        self, positions: Mapping[int, np.ndarray] | np.ndarray, max_rounds: int = 100_000, candidates: int = CANDIDATES
+    ) -> np.ndarray:
         """For a host that owns every robot of the goal set (the central engine): begin the next
         block of phases on these positions, warm from the board, and bid it through its phases to
         an agreed final phase. Nobody else bids, so no message is needed: every phase's snapshot is
@@ -570,15 +595,56 @@ class Participant:
             eps = np.array(self.schedule)
             slack = np.maximum(eps, eps[-1] + self.hysteresis)  # as self.slack, phase by phase
             gx, gy = np.ascontiguousarray(self.goals[:, 0]), np.ascontiguousarray(self.goals[:, 1])
-            self._lists = (*new_lists(k, len(self.goals), candidates), _hull_vertices(self.goals), (gx, gy),
-                           row_of_id, eps, slack)
+            self._lists = (
+                *new_lists(k, len(self.goals), candidates),
+                _hull_vertices(self.goals),
+                (gx, gy),
+                row_of_id,
+                eps,
+                slack,
+            )
         lists, work, scratch, (hull_x, hull_y), (gx, gy), row_of_id, eps, slack = self._lists
         px, py = np.ascontiguousarray(self.position[:, 0]), np.ascontiguousarray(self.position[:, 1])
-        self.without_list = first_ranking(px, py, gx, gy, board.price, self.penalty, self._has_penalty, best, value,
-                                          second, lists, work, hull_x, hull_y)
+        self.without_list = first_ranking(
+            px,
+            py,
+            gx,
+            gy,
+            board.price,
+            self.penalty,
+            self._has_penalty,
+            best,
+            value,
+            second,
+            lists,
+            work,
+            hull_x,
+            hull_y,
+        )
         rounds, bids, settled = settle_block(
-            px, py, gx, gy, board.price, self.penalty, self._has_penalty, board.owner, board.released, self.goal,
-            self.own_ids, row_of_id, best, value, second, lists, work, scratch, eps, slack, ROUNDING, max_rounds)
+            px,
+            py,
+            gx,
+            gy,
+            board.price,
+            self.penalty,
+            self._has_penalty,
+            board.owner,
+            board.released,
+            self.goal,
+            self.own_ids,
+            row_of_id,
+            best,
+            value,
+            second,
+            lists,
+            work,
+            scratch,
+            eps,
+            slack,
+            ROUNDING,
+            max_rounds,
+        )
         self.instance = first + min(settled, self.phases - 1)
         board.version += 1
         self.bids, self.rounds, self.claims_changed = self.bids + bids, self.rounds + rounds, True

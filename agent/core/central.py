@@ -3,6 +3,7 @@
 The reference against which decentralisation is studied and the fast path for large swarms: one
 snapshot, every robot's new velocity from the same batch call of the core, then all move.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -24,10 +25,21 @@ class CentralOrca:
     `perturb_preferred_velocity` (robot id = agent index, tick = step).
     """
 
-    def __init__(self, time_step: float, neighbor_dist: float, max_neighbors: int, time_horizon: float,
-                 time_horizon_obst: float, radius: float, max_speed: float, *,
-                 safety_margin: float = 0.0, safety: bool = True, perturbation: float = 0.0,
-                 seed: int = 0) -> None:
+    def __init__(
+        self,
+        time_step: float,
+        neighbor_dist: float,
+        max_neighbors: int,
+        time_horizon: float,
+        time_horizon_obst: float,
+        radius: float,
+        max_speed: float,
+        *,
+        safety_margin: float = 0.0,
+        safety: bool = True,
+        perturbation: float = 0.0,
+        seed: int = 0,
+    ) -> None:
         self.time_step = float(time_step)
         self.neighbor_dist = float(neighbor_dist)
         self.max_neighbors = int(max_neighbors)
@@ -54,14 +66,14 @@ class CentralOrca:
     def num_agents(self) -> int:
         return len(self.radius)
 
-    def add_agent(self, position, velocity=(0.0, 0.0), radius: float | None = None,
-                  max_speed: float | None = None) -> int:
+    def add_agent(
+        self, position, velocity=(0.0, 0.0), radius: float | None = None, max_speed: float | None = None
+    ) -> int:
         self.position = np.vstack([self.position, np.asarray(position, dtype=float)])
         self.velocity = np.vstack([self.velocity, np.asarray(velocity, dtype=float)])
         self.pref_velocity = np.vstack([self.pref_velocity, np.zeros(2)])
         self.radius = np.append(self.radius, self.default_radius if radius is None else radius)
-        self.max_speed = np.append(self.max_speed,
-                                   self.default_max_speed if max_speed is None else max_speed)
+        self.max_speed = np.append(self.max_speed, self.default_max_speed if max_speed is None else max_speed)
         return self.num_agents - 1
 
     def add_obstacle(self, vertices) -> None:
@@ -78,12 +90,11 @@ class CentralOrca:
         """Up to max_neighbors nearest agents within neighbor_dist, nearest first: (index, valid)."""
         n = self.num_agents
         k = min(self.max_neighbors + 1, n)
-        _, idx = cKDTree(self.position).query(self.position, k=k,
-                                              distance_upper_bound=self.neighbor_dist)
+        _, idx = cKDTree(self.position).query(self.position, k=k, distance_upper_bound=self.neighbor_dist)
         idx = np.asarray(idx).reshape(n, k)
         valid = (idx < n) & (idx != np.arange(n)[:, None])
         # drop self (normally column 0), keep order
-        order = np.argsort(~valid, axis=1, kind="stable")[:, :k - 1]
+        order = np.argsort(~valid, axis=1, kind="stable")[:, : k - 1]
         idx = np.take_along_axis(idx, order, axis=1)
         valid = np.take_along_axis(valid, order, axis=1)
         return np.where(valid, idx, 0), valid
@@ -92,14 +103,27 @@ class CentralOrca:
         idx, valid = self.neighbours()
         pref = self.pref_velocity
         if self.perturbation:
-            pref = perturb_preferred_velocity(pref, np.arange(self.num_agents), self.seed,
-                                              self.steps, self.perturbation)
+            pref = perturb_preferred_velocity(
+                pref, np.arange(self.num_agents), self.seed, self.steps, self.perturbation
+            )
         return orca_velocity(
-            self.position, self.velocity, pref, self.radius, self.max_speed,
-            self.position[idx], self.velocity[idx], self.radius[idx],
-            np.full(idx.shape, 0.5), valid, self.segments,
-            tau=self.time_horizon, tau_obst=self.time_horizon_obst, dt=self.time_step,
-            safety=self.safety, margin=self.safety_margin)
+            self.position,
+            self.velocity,
+            pref,
+            self.radius,
+            self.max_speed,
+            self.position[idx],
+            self.velocity[idx],
+            self.radius[idx],
+            np.full(idx.shape, 0.5),
+            valid,
+            self.segments,
+            tau=self.time_horizon,
+            tau_obst=self.time_horizon_obst,
+            dt=self.time_step,
+            safety=self.safety,
+            margin=self.safety_margin,
+        )
 
     def do_step(self) -> None:
         new_velocity, fallback = self.compute_new_velocities()

@@ -10,6 +10,7 @@ it would pull a robot off a formed image. The headway condition tells a deadlock
 100 robots crowding into a line, robots slowed (not stopped) near their goals drew 75 penalties in
 one sequence and the reassignments they caused kept the line from forming.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -17,8 +18,7 @@ import numpy as np
 from .params import RobotParams
 
 
-def blocked(params: RobotParams, to_goal: np.ndarray, pref_velocity: np.ndarray,
-            velocity: np.ndarray) -> np.ndarray:
+def blocked(params: RobotParams, to_goal: np.ndarray, pref_velocity: np.ndarray, velocity: np.ndarray) -> np.ndarray:
     """(B,) bool: near the goal (not on it), v_cf far from v_pref and no headway toward the goal.
     ``to_goal`` (B,2): goal minus position (NaN: no goal)."""
     to_goal = np.asarray(to_goal, float)

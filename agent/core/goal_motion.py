@@ -15,6 +15,7 @@ derivative (the goal's velocity, the feed-forward term of the preferred velocity
 
 Pure: arrays in, arrays out; t is a scalar or one time per row.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -69,8 +70,9 @@ class GoalMotion:
         d = g0 - centre
         c, s = self._rotation(t)
         k = self.scale(t)[..., None]
-        turned = np.stack([c[..., 0] * d[..., 0] - s[..., 0] * d[..., 1],
-                           s[..., 0] * d[..., 0] + c[..., 0] * d[..., 1]], axis=-1)
+        turned = np.stack(
+            [c[..., 0] * d[..., 0] - s[..., 0] * d[..., 1], s[..., 0] * d[..., 0] + c[..., 0] * d[..., 1]], axis=-1
+        )
         return centre + t[..., None] * np.asarray(self.v_g, float) + k * turned
 
     def velocities(self, g0: ArrayLike, t: ArrayLike) -> np.ndarray:
@@ -96,13 +98,15 @@ class GoalMotion:
         centre = np.asarray(self.p_og, float)
         d = p - centre - t[..., None] * np.asarray(self.v_g, float)
         c, s = self._rotation(t)
-        back = np.stack([c[..., 0] * d[..., 0] + s[..., 0] * d[..., 1],
-                         -s[..., 0] * d[..., 0] + c[..., 0] * d[..., 1]], axis=-1)
+        back = np.stack(
+            [c[..., 0] * d[..., 0] + s[..., 0] * d[..., 1], -s[..., 0] * d[..., 0] + c[..., 0] * d[..., 1]], axis=-1
+        )
         return centre + back / self.scale(t)[..., None]
 
 
-def tracking_velocity(position: ArrayLike, goal: ArrayLike, goal_velocity: ArrayLike, v_pref: float,
-                      k_a: float, v_max: float) -> np.ndarray:
+def tracking_velocity(
+    position: ArrayLike, goal: ArrayLike, goal_velocity: ArrayLike, v_pref: float, k_a: float, v_max: float
+) -> np.ndarray:
     """Preferred velocity toward a moving goal: v_goal + eq. 9's correction, clipped to v_max.
 
     The feed-forward term v_goal lets a robot that stands on its goal move with it (eq. 9 alone

@@ -50,6 +50,7 @@ Delta C holds in every phase and the scans look only at the robots a phase's rou
 central engine runs it on a second thread, beside its control core); 1.2 ms with the helpers inlined
 into rounds that allocate nothing (the L and T images: 2.9 -> 1.4 ms per block settled).
 """
+
 from __future__ import annotations
 
 from collections import namedtuple
@@ -72,21 +73,60 @@ Work = namedtuple("Work", ["values", "window_value", "window_goal", "top_value",
 # last exact (`seen`), who may bid, who waits, who was looked at since the last scan, and per
 # round the queue, the bids (goal, price, the goal's owner before, the bidder's runner-up goal and
 # third value, the goal it releases and that goal's price) and the robots looked at.
-Rounds = namedtuple("Rounds", ["seen", "may_bid", "waiting", "touched", "queue", "unhappy", "look", "bidders",
-                               "bid_goal", "bid_price", "before", "runner_up", "third", "held", "held_price"])
+Rounds = namedtuple(
+    "Rounds",
+    [
+        "seen",
+        "may_bid",
+        "waiting",
+        "touched",
+        "queue",
+        "unhappy",
+        "look",
+        "bidders",
+        "bid_goal",
+        "bid_price",
+        "before",
+        "runner_up",
+        "third",
+        "held",
+        "held_price",
+    ],
+)
 
 
 def new_lists(robots: int, goals: int, k: int) -> tuple[Lists, Work, Rounds]:
     """Empty candidate lists of k goals for each robot, and the scratch to fill them and to settle
     blocks with (made once: the compiled rounds allocate nothing)."""
     ints, floats = (lambda: np.zeros(robots, np.int64)), (lambda: np.zeros(robots))
-    return (Lists(np.full((robots, k), -1, np.int64), np.full(robots, np.inf), np.ones(robots),
-                  np.zeros(robots), np.zeros(robots), np.full(robots, np.inf)),
-            Work(np.empty(goals), np.empty(4 * k), np.empty(4 * k, np.int64), np.empty(k + 1),
-                 np.empty(k + 1, np.int64)),
-            Rounds(floats(), ints(), ints(), np.zeros(robots, np.bool_), ints(), np.zeros(robots, np.bool_),
-                   np.zeros(2 * robots, np.int64), ints(), ints(), floats(), ints(), ints(), floats(), ints(),
-                   floats()))
+    return (
+        Lists(
+            np.full((robots, k), -1, np.int64),
+            np.full(robots, np.inf),
+            np.ones(robots),
+            np.zeros(robots),
+            np.zeros(robots),
+            np.full(robots, np.inf),
+        ),
+        Work(np.empty(goals), np.empty(4 * k), np.empty(4 * k, np.int64), np.empty(k + 1), np.empty(k + 1, np.int64)),
+        Rounds(
+            floats(),
+            ints(),
+            ints(),
+            np.zeros(robots, np.bool_),
+            ints(),
+            np.zeros(robots, np.bool_),
+            np.zeros(2 * robots, np.int64),
+            ints(),
+            ints(),
+            floats(),
+            ints(),
+            ints(),
+            floats(),
+            ints(),
+            floats(),
+        ),
+    )
 
 
 @njit(cache=True, inline="always")
@@ -226,8 +266,28 @@ def _refresh(i, px, py, gx, gy, price, penalty, has_penalty, best, value, second
 
 
 @njit(cache=True, inline="always")  # into rounds compiled without NRT
-def _content(i, px, py, gx, gy, price, penalty, has_penalty, owner, released, goal, own_ids, best, value, second,
-             seen, lists, work, slack, rounding) -> bool:
+def _content(
+    i,
+    px,
+    py,
+    gx,
+    gy,
+    price,
+    penalty,
+    has_penalty,
+    owner,
+    released,
+    goal,
+    own_ids,
+    best,
+    value,
+    second,
+    seen,
+    lists,
+    work,
+    slack,
+    rounding,
+) -> bool:
     """Does robot i hold its goal within ``slack`` of its best (agent.core.auction.is_content)?
     A robot that holds none bids next round, which ranks it anyway: its best value is left stale
     (``seen`` says so) rather than ranked twice."""
@@ -240,8 +300,7 @@ def _content(i, px, py, gx, gy, price, penalty, has_penalty, owner, released, go
 
 
 @njit(cache=True, nogil=True, _nrt=False)  # nogil: it runs beside the control core (sim.central)
-def first_ranking(px, py, gx, gy, price, penalty, has_penalty, best, value, second, lists, work, hull_x,
-                  hull_y) -> int:
+def first_ranking(px, py, gx, gy, price, penalty, has_penalty, best, value, second, lists, work, hull_x, hull_y) -> int:
     """Every robot's best goal, value and second-best bound at a block's start, from its candidates
     where they still prove it, else over every goal. Since its list was made the robot moved by D:
     every other goal's value rose by at most 2 (h(D) - p.D) - |D|^2 (p where it was made, h the
@@ -265,8 +324,31 @@ def first_ranking(px, py, gx, gy, price, penalty, has_penalty, best, value, seco
 
 
 @njit(**BORROWS)
-def jacobi_rounds(px, py, gx, gy, price, penalty, has_penalty, owner, released, goal, own_ids, row_of_id, best,
-                  value, second, lists, work, scratch, n, eps, slack, rounding, max_rounds):
+def jacobi_rounds(
+    px,
+    py,
+    gx,
+    gy,
+    price,
+    penalty,
+    has_penalty,
+    owner,
+    released,
+    goal,
+    own_ids,
+    row_of_id,
+    best,
+    value,
+    second,
+    lists,
+    work,
+    scratch,
+    n,
+    eps,
+    slack,
+    rounding,
+    max_rounds,
+):
     """Bid the first ``n`` robots of ``scratch.waiting`` (rows not content) and those they outbid
     until every robot is content. The board (price, owner, released), the claims ``goal``, the
     cached best goals (best, value, second, and ``scratch.seen``: the price of the best goal when
@@ -337,8 +419,28 @@ def jacobi_rounds(px, py, gx, gy, price, penalty, has_penalty, owner, released, 
         for a in range(m):
             r = look[a]
             touched[r] = True
-            unhappy[r] = not _content(r, px, py, gx, gy, price, penalty, has_penalty, owner, released, goal, own_ids,
-                                      best, value, second, seen, lists, work, slack, rounding)
+            unhappy[r] = not _content(
+                r,
+                px,
+                py,
+                gx,
+                gy,
+                price,
+                penalty,
+                has_penalty,
+                owner,
+                released,
+                goal,
+                own_ids,
+                best,
+                value,
+                second,
+                seen,
+                lists,
+                work,
+                slack,
+                rounding,
+            )
         n = 0  # the next bidders: every robot not content was looked at (it bid or was outbid)
         for a in range(m):
             r = look[a]
@@ -350,8 +452,30 @@ def jacobi_rounds(px, py, gx, gy, price, penalty, has_penalty, owner, released, 
 
 
 @njit(cache=True, nogil=True, _nrt=False)
-def settle_block(px, py, gx, gy, price, penalty, has_penalty, owner, released, goal, own_ids, row_of_id, best, value,
-                 second, lists, work, scratch, eps, slack, rounding, max_rounds):
+def settle_block(
+    px,
+    py,
+    gx,
+    gy,
+    price,
+    penalty,
+    has_penalty,
+    owner,
+    released,
+    goal,
+    own_ids,
+    row_of_id,
+    best,
+    value,
+    second,
+    lists,
+    work,
+    scratch,
+    eps,
+    slack,
+    rounding,
+    max_rounds,
+):
     """One block of epsilon-scaling phases (``eps``, ``slack``) on frozen positions, warm from the
     board and from `first_ranking`: per phase the Jacobi rounds until every robot is content.
     Leaves every cached best value exact. Returns (rounds, bids, phases settled): fewer than
@@ -376,20 +500,82 @@ def settle_block(px, py, gx, gy, price, penalty, has_penalty, owner, released, g
             for i in range(k):  # in ascending rows, as a scan of every robot
                 if phase == 0 or touched[i]:
                     touched[i] = False
-                    if not _content(i, px, py, gx, gy, price, penalty, has_penalty, owner, released, goal, own_ids,
-                                    best, value, second, seen, lists, work, least, rounding):
+                    if not _content(
+                        i,
+                        px,
+                        py,
+                        gx,
+                        gy,
+                        price,
+                        penalty,
+                        has_penalty,
+                        owner,
+                        released,
+                        goal,
+                        own_ids,
+                        best,
+                        value,
+                        second,
+                        seen,
+                        lists,
+                        work,
+                        least,
+                        rounding,
+                    ):
                         may_bid[n_may] = i
                         n_may += 1
         n = 0
         for a in range(n_may):  # who is not content at this phase's slack
             i = may_bid[a]
-            if not _content(i, px, py, gx, gy, price, penalty, has_penalty, owner, released, goal, own_ids, best,
-                            value, second, seen, lists, work, slack[phase], rounding):
+            if not _content(
+                i,
+                px,
+                py,
+                gx,
+                gy,
+                price,
+                penalty,
+                has_penalty,
+                owner,
+                released,
+                goal,
+                own_ids,
+                best,
+                value,
+                second,
+                seen,
+                lists,
+                work,
+                slack[phase],
+                rounding,
+            ):
                 waiting[n] = i
                 n += 1
-        r, b, left = jacobi_rounds(px, py, gx, gy, price, penalty, has_penalty, owner, released, goal, own_ids,
-                                   row_of_id, best, value, second, lists, work, scratch, n, eps[phase],
-                                   slack[phase], rounding, max_rounds)
+        r, b, left = jacobi_rounds(
+            px,
+            py,
+            gx,
+            gy,
+            price,
+            penalty,
+            has_penalty,
+            owner,
+            released,
+            goal,
+            own_ids,
+            row_of_id,
+            best,
+            value,
+            second,
+            lists,
+            work,
+            scratch,
+            n,
+            eps[phase],
+            slack[phase],
+            rounding,
+            max_rounds,
+        )
         rounds, bids, scan = rounds + r, bids + b, r > 0
         if left:
             return rounds, bids, phase

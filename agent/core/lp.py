@@ -19,6 +19,7 @@ Determinism: only elementwise + - * / sqrt and comparisons, and min/max/any alon
 a reduction across robots, so a robot's result is bit-identical whether it is solved alone or in a
 batch (padded lines being invalid).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -50,10 +51,8 @@ def _on_line(pix, piy, dix, diy, px, py, dx, dy, valid, radius, tx, ty, directio
         ok = ok & ~(valid & par & (num < 0.0)).any(axis=axis, keepdims=True)
         t = num / np.where(par, 1.0, den)
         use = valid & ~par
-        t_right = np.minimum(t_right, np.where(use & (den > 0.0), t, np.inf).min(axis=axis,
-                                                                                    keepdims=True))
-        t_left = np.maximum(t_left, np.where(use & (den < 0.0), t, -np.inf).max(axis=axis,
-                                                                                 keepdims=True))
+        t_right = np.minimum(t_right, np.where(use & (den > 0.0), t, np.inf).min(axis=axis, keepdims=True))
+        t_left = np.maximum(t_left, np.where(use & (den < 0.0), t, -np.inf).max(axis=axis, keepdims=True))
         ok &= t_left <= t_right
     if directional:
         t_best = np.where(tx * dix + ty * diy > 0.0, t_right, t_left)
@@ -62,8 +61,9 @@ def _on_line(pix, piy, dix, diy, px, py, dx, dy, valid, radius, tx, ty, directio
     return pix + t_best * dix, piy + t_best * diy, ok
 
 
-def _disk_optimum(tx: np.ndarray, ty: np.ndarray, radius: np.ndarray,
-                  directional: bool) -> tuple[np.ndarray, np.ndarray]:
+def _disk_optimum(
+    tx: np.ndarray, ty: np.ndarray, radius: np.ndarray, directional: bool
+) -> tuple[np.ndarray, np.ndarray]:
     """The optimum over the speed disk alone: the target clipped to the disk, or with
     ``directional`` the disk's furthest point along the unit direction."""
     if directional:
@@ -74,8 +74,14 @@ def _disk_optimum(tx: np.ndarray, ty: np.ndarray, radius: np.ndarray,
     return tx * scale, ty * scale
 
 
-def optimise(point: np.ndarray, direction: np.ndarray, valid: np.ndarray, radius: np.ndarray,
-             target: np.ndarray, directional: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def optimise(
+    point: np.ndarray,
+    direction: np.ndarray,
+    valid: np.ndarray,
+    radius: np.ndarray,
+    target: np.ndarray,
+    directional: bool = False,
+) -> tuple[np.ndarray, np.ndarray]:
     """Optimum over the speed disk D(0, radius) and the valid half-planes (RVO2's linearProgram2).
 
     ``target`` (B,2) is the velocity to get closest to, or with ``directional`` a unit direction to
@@ -96,9 +102,21 @@ def optimise(point: np.ndarray, direction: np.ndarray, valid: np.ndarray, radius
         if rows.size == 0:
             continue
         one = slice(i, i + 1)
-        x, y, ok = _on_line(px[one, rows], py[one, rows], dx[one, rows], dy[one, rows], px[:i, rows],
-                            py[:i, rows], dx[:i, rows], dy[:i, rows], valid[:i, rows], radius[rows],
-                            tx[rows], ty[rows], directional)
+        x, y, ok = _on_line(
+            px[one, rows],
+            py[one, rows],
+            dx[one, rows],
+            dy[one, rows],
+            px[:i, rows],
+            py[:i, rows],
+            dx[:i, rows],
+            dy[:i, rows],
+            valid[:i, rows],
+            radius[rows],
+            tx[rows],
+            ty[rows],
+            directional,
+        )
         x, y, ok = x[0], y[0], ok[0]
         rx[rows] = np.where(ok, x, rx[rows])
         ry[rows] = np.where(ok, y, ry[rows])
@@ -106,8 +124,14 @@ def optimise(point: np.ndarray, direction: np.ndarray, valid: np.ndarray, radius
     return np.stack([rx, ry], axis=-1), feasible
 
 
-def optimise_few(point: np.ndarray, direction: np.ndarray, valid: np.ndarray, radius: np.ndarray,
-                 target: np.ndarray, directional: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def optimise_few(
+    point: np.ndarray,
+    direction: np.ndarray,
+    valid: np.ndarray,
+    radius: np.ndarray,
+    target: np.ndarray,
+    directional: bool = False,
+) -> tuple[np.ndarray, np.ndarray]:
     """`optimise` without a loop over lines, for few robots (fewer, larger numpy operations).
 
     The optimum is on a line that the disk's optimum c0 violates (from any other feasible point,
@@ -130,9 +154,19 @@ def optimise_few(point: np.ndarray, direction: np.ndarray, valid: np.ndarray, ra
     n_cand = int(violated.sum(axis=1).max())
     pick = (np.arange(k)[:, None], np.argsort(~violated, axis=1, kind="stable")[:, :n_cand])
     cand = [a[pick][..., None] for a in (px, py, dx, dy)]  # (k, candidates, 1)
-    x, y, ok = _on_line(*cand, px[:, None, :], py[:, None, :], dx[:, None, :], dy[:, None, :],
-                        valid[:, None, :], radius[rows, None, None], tx[rows, None, None],
-                        ty[rows, None, None], directional, axis=2)
+    x, y, ok = _on_line(
+        *cand,
+        px[:, None, :],
+        py[:, None, :],
+        dx[:, None, :],
+        dy[:, None, :],
+        valid[:, None, :],
+        radius[rows, None, None],
+        tx[rows, None, None],
+        ty[rows, None, None],
+        directional,
+        axis=2,
+    )
     x, y, ok = x[..., 0], y[..., 0], ok[..., 0] & violated[pick]
     if directional:
         cost = -(tx[rows, None] * x + ty[rows, None] * y)
@@ -167,8 +201,8 @@ def _least_violation(px, py, dx, dy, valid, hard, radius, vx, vy):
             continue
         # hard lines lead, so lines before i are the hard ones and the earlier soft ones
         pjx, pjy, djx, djy = px[rows, :i], py[rows, :i], dx[rows, :i], dy[rows, :i]
-        pix, piy = px[rows, i:i + 1], py[rows, i:i + 1]
-        dix, diy = dx[rows, i:i + 1], dy[rows, i:i + 1]
+        pix, piy = px[rows, i : i + 1], py[rows, i : i + 1]
+        dix, diy = dx[rows, i : i + 1], dy[rows, i : i + 1]
         den = dix * djy - diy * djx
         par = np.abs(den) <= EPSILON
         same = par & (dix * djx + diy * djy > 0.0)  # same direction: line i dominates, skip
@@ -185,16 +219,23 @@ def _least_violation(px, py, dx, dy, valid, hard, radius, vx, vy):
         bx = np.where(h, djx, bx / bn)
         by = np.where(h, djy, by / bn)
         target = np.stack([-diy[:, 0], dix[:, 0]], axis=-1)  # left normal: into line i's half-plane
-        res, ok = optimise_few(np.stack([qx, qy], -1), np.stack([bx, by], -1), use, radius[rows],
-                               target, directional=True)
+        res, ok = optimise_few(
+            np.stack([qx, qy], -1), np.stack([bx, by], -1), use, radius[rows], target, directional=True
+        )
         vx[rows] = np.where(ok, res[:, 0], vx[rows])
         vy[rows] = np.where(ok, res[:, 1], vy[rows])
         distance[rows] = dix[:, 0] * (piy[:, 0] - vy[rows]) - diy[:, 0] * (pix[:, 0] - vx[rows])
     return vx, vy
 
 
-def least_violation(point: np.ndarray, direction: np.ndarray, valid: np.ndarray, max_speed: ArrayLike,
-                    pref_velocity: np.ndarray, n_hard: ArrayLike = 0) -> np.ndarray:
+def least_violation(
+    point: np.ndarray,
+    direction: np.ndarray,
+    valid: np.ndarray,
+    max_speed: ArrayLike,
+    pref_velocity: np.ndarray,
+    n_hard: ArrayLike = 0,
+) -> np.ndarray:
     """The fallback alone: keep the leading ``n_hard`` lines (int or (B,)) hard, minimise the largest
     violation of the others (RVO2's linearProgram3), starting from the optimum over the hard lines.
 
@@ -209,16 +250,30 @@ def least_violation(point: np.ndarray, direction: np.ndarray, valid: np.ndarray,
     # Padding and dropped lines inside the hard block keep their geometry: only valid ones are hard
     # (else a robot's result would depend on the batch it is solved in).
     hard = valid & (np.arange(n) < np.broadcast_to(np.asarray(n_hard), (b,))[:, None])
-    start, ok = optimise_few(point, direction, hard, radius,
-                             np.asarray(pref_velocity, dtype=float))
+    start, ok = optimise_few(point, direction, hard, radius, np.asarray(pref_velocity, dtype=float))
     hard &= ok[:, None]
-    vx, vy = _least_violation(point[..., 0], point[..., 1], direction[..., 0], direction[..., 1],
-                              valid, hard, radius, start[:, 0], start[:, 1])
+    vx, vy = _least_violation(
+        point[..., 0],
+        point[..., 1],
+        direction[..., 0],
+        direction[..., 1],
+        valid,
+        hard,
+        radius,
+        start[:, 0],
+        start[:, 1],
+    )
     return np.stack([vx, vy], axis=-1)
 
 
-def linear_program(point: np.ndarray, direction: np.ndarray, valid: np.ndarray, max_speed: ArrayLike,
-                   pref_velocity: np.ndarray, n_hard: ArrayLike = 0) -> tuple[np.ndarray, np.ndarray]:
+def linear_program(
+    point: np.ndarray,
+    direction: np.ndarray,
+    valid: np.ndarray,
+    max_speed: ArrayLike,
+    pref_velocity: np.ndarray,
+    n_hard: ArrayLike = 0,
+) -> tuple[np.ndarray, np.ndarray]:
     """New velocity of eq. 14 for a batch, with RVO2's fallback where it is infeasible.
 
     point, direction: (B, L, 2) lines (unit directions, permissible side on the left);
@@ -238,6 +293,7 @@ def linear_program(point: np.ndarray, direction: np.ndarray, valid: np.ndarray, 
     rows = np.nonzero(fallback)[0]
     if rows.size:
         n_hard = np.broadcast_to(np.asarray(n_hard), (b,))[rows]
-        velocity[rows] = least_violation(point[rows], direction[rows], valid[rows], radius[rows],
-                                         pref_velocity[rows], n_hard)
+        velocity[rows] = least_violation(
+            point[rows], direction[rows], valid[rows], radius[rows], pref_velocity[rows], n_hard
+        )
     return velocity, fallback

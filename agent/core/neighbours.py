@@ -4,6 +4,7 @@ A neighbour's state was stamped ``age`` seconds ago. ORCA then needs where the n
 how sure we are: `prepare_neighbours` extrapolates and inflates; `perturb_preferred_velocity` breaks
 the perfect symmetries that deadlock ORCA head-on, deterministically from a robot id and a seed.
 """
+
 from __future__ import annotations
 
 from typing import NamedTuple
@@ -11,8 +12,14 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["Neighbours", "COOPERATING", "NON_COOPERATING", "prepare_neighbours", "nearest_first",
-           "perturb_preferred_velocity"]
+__all__ = [
+    "Neighbours",
+    "COOPERATING",
+    "NON_COOPERATING",
+    "prepare_neighbours",
+    "nearest_first",
+    "perturb_preferred_velocity",
+]
 
 COOPERATING = 0.5  # responsibility c toward a robot running the same ORCA (eq. 12)
 NON_COOPERATING = 1.0  # toward a dynamic obstacle, or a robot whose state is stale
@@ -29,10 +36,19 @@ class Neighbours(NamedTuple):
     growth: np.ndarray | None = None  # (B,M) the part of ``radius`` that is how far it may have strayed
 
 
-def prepare_neighbours(position: ArrayLike, velocity: ArrayLike, radius: ArrayLike, age: ArrayLike,
-                       valid: ArrayLike, *, max_speed: ArrayLike, timeout: float,
-                       noise: float = 0.0, cooperative: ArrayLike | None = None,
-                       committed: float = 0.0) -> Neighbours:
+def prepare_neighbours(
+    position: ArrayLike,
+    velocity: ArrayLike,
+    radius: ArrayLike,
+    age: ArrayLike,
+    valid: ArrayLike,
+    *,
+    max_speed: ArrayLike,
+    timeout: float,
+    noise: float = 0.0,
+    cooperative: ArrayLike | None = None,
+    committed: float = 0.0,
+) -> Neighbours:
     """Neighbour states as of now, from states stamped ``age`` seconds ago.
 
     * Fresh (0 <= age <= timeout): position extrapolated by age x velocity; radius grown by
@@ -54,8 +70,9 @@ def prepare_neighbours(position: ArrayLike, velocity: ArrayLike, radius: ArrayLi
     velocity = np.asarray(velocity, dtype=float)
     radius = np.asarray(radius, dtype=float)
     age = np.maximum(np.asarray(age, dtype=float), 0.0)
-    finite = (np.isfinite(position).all(axis=-1) & np.isfinite(velocity).all(axis=-1)
-              & np.isfinite(radius) & np.isfinite(age))
+    finite = (
+        np.isfinite(position).all(axis=-1) & np.isfinite(velocity).all(axis=-1) & np.isfinite(radius) & np.isfinite(age)
+    )
     valid = np.asarray(valid, dtype=bool) & finite
     stale = age > timeout
     # A broadcast velocity is what the neighbour executes until its next tick (``committed``
@@ -74,8 +91,9 @@ def prepare_neighbours(position: ArrayLike, velocity: ArrayLike, radius: ArrayLi
     return Neighbours(new_position, safe_v, new_radius, responsibility, valid, growth)
 
 
-def nearest_first(position: ArrayLike, neighbours: Neighbours, max_neighbours: int,
-                  neighbour_dist: float = np.inf) -> Neighbours:
+def nearest_first(
+    position: ArrayLike, neighbours: Neighbours, max_neighbours: int, neighbour_dist: float = np.inf
+) -> Neighbours:
     """Each robot's valid neighbours within ``neighbour_dist`` (centre to centre), nearest first, at
     most ``max_neighbours`` (ORCA's fallback takes them in this order, as RVO2 does)."""
     p = np.asarray(position, dtype=float)
@@ -87,8 +105,14 @@ def nearest_first(position: ArrayLike, neighbours: Neighbours, max_neighbours: i
     m = min(max_neighbours, dist2.shape[1])
     order = (np.arange(p.shape[0])[:, None], np.argsort(dist2, axis=1, kind="stable")[:, :m])
     growth = None if neighbours.growth is None else neighbours.growth[order]
-    return Neighbours(neighbours.position[order], neighbours.velocity[order],
-                      neighbours.radius[order], neighbours.responsibility[order], keep[order], growth)
+    return Neighbours(
+        neighbours.position[order],
+        neighbours.velocity[order],
+        neighbours.radius[order],
+        neighbours.responsibility[order],
+        keep[order],
+        growth,
+    )
 
 
 def _splitmix64(x: np.ndarray) -> np.ndarray:
@@ -100,15 +124,15 @@ def _splitmix64(x: np.ndarray) -> np.ndarray:
         return x ^ (x >> np.uint64(31))
 
 
-def perturb_preferred_velocity(pref_velocity: ArrayLike, robot_id: ArrayLike, seed: int, tick: int = 0,
-                               magnitude: float = 1e-4) -> np.ndarray:
+def perturb_preferred_velocity(
+    pref_velocity: ArrayLike, robot_id: ArrayLike, seed: int, tick: int = 0, magnitude: float = 1e-4
+) -> np.ndarray:
     """Add a tiny pseudo-random vector (each component in [-magnitude, magnitude]) to each preferred
     velocity, a function of (robot id, seed, tick) only: symmetric configurations (head-on pairs,
     rings) stop being symmetric, and every process computes the same perturbation."""
     ids = np.asarray(robot_id).astype(np.uint64).reshape(-1)
-    key = _splitmix64(_splitmix64(ids ^ _splitmix64(np.uint64(seed % 2**64)))
-                      + np.uint64(tick % 2**64))
-    a = (key >> np.uint64(11)).astype(float) * 2.0 ** -53  # [0, 1)
-    b = (_splitmix64(key) >> np.uint64(11)).astype(float) * 2.0 ** -53
+    key = _splitmix64(_splitmix64(ids ^ _splitmix64(np.uint64(seed % 2**64))) + np.uint64(tick % 2**64))
+    a = (key >> np.uint64(11)).astype(float) * 2.0**-53  # [0, 1)
+    b = (_splitmix64(key) >> np.uint64(11)).astype(float) * 2.0**-53
     delta = np.stack([2.0 * a - 1.0, 2.0 * b - 1.0], axis=-1) * magnitude
     return np.asarray(pref_velocity, dtype=float) + delta

@@ -18,6 +18,7 @@ Trigonometry of per-robot angles uses Python's math module element by element, s
 bit-identical whether a robot is computed alone or in a batch (numpy's vectorised transcendental
 functions may take different code paths with the array's length).
 """
+
 from __future__ import annotations
 
 import math
@@ -29,9 +30,19 @@ from numpy.typing import ArrayLike
 from agent.core.orca import Lines, orca_velocity
 from agent.core.params import RobotParams
 
-__all__ = ["NHResult", "omega_cap", "vertex_angles", "max_trackable_speed", "min_error_speed",
-           "tracking_error", "ahv_polygon", "ahv_lines", "controls", "wheel_speeds",
-           "nh_orca_wheel_speeds"]
+__all__ = [
+    "NHResult",
+    "omega_cap",
+    "vertex_angles",
+    "max_trackable_speed",
+    "min_error_speed",
+    "tracking_error",
+    "ahv_polygon",
+    "ahv_lines",
+    "controls",
+    "wheel_speeds",
+    "nh_orca_wheel_speeds",
+]
 
 # P_AHV vertices: angles to the heading, denser ahead where the boundary turns fastest
 _N_VERTICES = 24
@@ -86,9 +97,14 @@ def vertex_angles(params: RobotParams, n: int = _N_VERTICES) -> np.ndarray:
     return np.unique(angles)
 
 
-def tracking_error(position: ArrayLike, radius: ArrayLike, nbr_position: np.ndarray,
-                   nbr_radius: np.ndarray, nbr_valid: np.ndarray,
-                   params: RobotParams) -> tuple[np.ndarray, np.ndarray]:
+def tracking_error(
+    position: ArrayLike,
+    radius: ArrayLike,
+    nbr_position: np.ndarray,
+    nbr_radius: np.ndarray,
+    nbr_valid: np.ndarray,
+    params: RobotParams,
+) -> tuple[np.ndarray, np.ndarray]:
     """Tracking error E of each robot and an upper bound of each neighbour's.
 
     Each robot takes at most half of the free gap to its nearest neighbour, between error_min and
@@ -108,8 +124,7 @@ def tracking_error(position: ArrayLike, radius: ArrayLike, nbr_position: np.ndar
 
 def _heading_cos_sin(heading) -> tuple[np.ndarray, np.ndarray]:
     h = np.asarray(heading, dtype=float).reshape(-1)
-    return (np.array([math.cos(x) for x in h], dtype=float),
-            np.array([math.sin(x) for x in h], dtype=float))
+    return (np.array([math.cos(x) for x in h], dtype=float), np.array([math.sin(x) for x in h], dtype=float))
 
 
 def ahv_polygon(heading: ArrayLike, error: ArrayLike, params: RobotParams) -> np.ndarray:
@@ -127,12 +142,12 @@ def ahv_lines(vertices: np.ndarray) -> Lines:
     nxt = np.roll(vertices, -1, axis=1)
     ex, ey = nxt[..., 0] - vertices[..., 0], nxt[..., 1] - vertices[..., 1]
     n = np.sqrt(ex * ex + ey * ey)
-    return Lines(vertices.copy(), np.stack([ex / n, ey / n], axis=-1),
-                 np.ones(vertices.shape[:2], dtype=bool))
+    return Lines(vertices.copy(), np.stack([ex / n, ey / n], axis=-1), np.ones(vertices.shape[:2], dtype=bool))
 
 
-def controls(velocity: ArrayLike, heading: ArrayLike, params: RobotParams,
-             reverse: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
+def controls(
+    velocity: ArrayLike, heading: ArrayLike, params: RobotParams, reverse: ArrayLike | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Linear and angular speed (v, omega) tracking holonomic velocities (B,2) from headings (B,).
 
     omega = sign(theta) min(|theta|/T, omega_cap), v = min(v*_E, v_max - |omega| l_w/2), theta the
@@ -178,12 +193,23 @@ def _take(rows, *arrays):
     return [None if a is None else np.asarray(a)[rows] for a in arrays]
 
 
-def nh_orca_wheel_speeds(position: ArrayLike, heading: ArrayLike, velocity: ArrayLike,
-                         pref_velocity: ArrayLike, radius: ArrayLike, nbr_position: ArrayLike,
-                         nbr_velocity: ArrayLike, nbr_radius: ArrayLike,
-                         nbr_responsibility: ArrayLike, nbr_valid: ArrayLike,
-                         obstacle_segments: ArrayLike | None = None, *, params: RobotParams,
-                         safety: bool = True, nbr_growth: ArrayLike | None = None) -> NHResult:
+def nh_orca_wheel_speeds(
+    position: ArrayLike,
+    heading: ArrayLike,
+    velocity: ArrayLike,
+    pref_velocity: ArrayLike,
+    radius: ArrayLike,
+    nbr_position: ArrayLike,
+    nbr_velocity: ArrayLike,
+    nbr_radius: ArrayLike,
+    nbr_responsibility: ArrayLike,
+    nbr_valid: ArrayLike,
+    obstacle_segments: ArrayLike | None = None,
+    *,
+    params: RobotParams,
+    safety: bool = True,
+    nbr_growth: ArrayLike | None = None,
+) -> NHResult:
     """NH-ORCA step for a batch of differential-drive robots.
 
     ``velocity`` is each robot's previous v_cf and ``nbr_velocity`` the neighbours' broadcast v_cf.
@@ -201,18 +227,30 @@ def nh_orca_wheel_speeds(position: ArrayLike, heading: ArrayLike, velocity: Arra
     nbr_valid = np.asarray(nbr_valid, dtype=bool)
     error, nbr_error = tracking_error(position, radius, nbr_position, nbr_radius, nbr_valid, params)
     polygon = ahv_lines(ahv_polygon(heading, error, params))
-    args = [position, velocity, pref_velocity, radius + error, nbr_position, nbr_velocity,
-            nbr_radius + nbr_error, nbr_responsibility, nbr_valid, nbr_growth]
+    args = [
+        position,
+        velocity,
+        pref_velocity,
+        radius + error,
+        nbr_position,
+        nbr_velocity,
+        nbr_radius + nbr_error,
+        nbr_responsibility,
+        nbr_valid,
+        nbr_growth,
+    ]
     opts = dict(tau=params.tau, tau_obst=params.tau_obst, dt=params.dt, safety=safety)
-    v_cf, fallback = orca_velocity(*args[:4], params.v_max, *args[4:9], obstacle_segments,
-                                   extra_hard_lines=polygon, nbr_growth=args[9], **opts)
+    v_cf, fallback = orca_velocity(
+        *args[:4], params.v_max, *args[4:9], obstacle_segments, extra_hard_lines=polygon, nbr_growth=args[9], **opts
+    )
     reverse = np.zeros(b, dtype=bool)
     rows = np.nonzero(fallback)[0]
     if rows.size:
         sub = _take(rows, *args)
         mirrored = Lines(-polygon.point[rows], -polygon.direction[rows], polygon.valid[rows])
-        v_back, fb_back = orca_velocity(*sub[:4], params.v_max, *sub[4:9], obstacle_segments,
-                                        extra_hard_lines=mirrored, nbr_growth=sub[9], **opts)
+        v_back, fb_back = orca_velocity(
+            *sub[:4], params.v_max, *sub[4:9], obstacle_segments, extra_hard_lines=mirrored, nbr_growth=sub[9], **opts
+        )
         use = ~fb_back
         v_cf[rows[use]] = v_back[use]
         reverse[rows[use]] = True

@@ -4,6 +4,7 @@ Arrays carry a leading robot axis B; neighbours a second axis M (padded, with a 
 obstacle edges are shared by the batch. Lines follow `agent.core.lp`: point + unit direction,
 permissible side on the left.
 """
+
 from __future__ import annotations
 
 from typing import NamedTuple
@@ -13,9 +14,19 @@ from numpy.typing import ArrayLike
 
 from agent.core.lp import least_violation, linear_program, optimise, optimise_few
 
-__all__ = ["Lines", "preferred_velocity", "orca_lines", "obstacle_lines", "polygon_segments",
-           "arena_segments", "concat_lines", "compact_lines", "drop_redundant", "safety_lines",
-           "orca_velocity"]
+__all__ = [
+    "Lines",
+    "preferred_velocity",
+    "orca_lines",
+    "obstacle_lines",
+    "polygon_segments",
+    "arena_segments",
+    "concat_lines",
+    "compact_lines",
+    "drop_redundant",
+    "safety_lines",
+    "orca_velocity",
+]
 
 
 # radii 1 ppm larger in the safety and obstacle lines: gaps may close completely, rounding must not
@@ -34,8 +45,7 @@ class Lines(NamedTuple):
     valid: np.ndarray
 
 
-def preferred_velocity(position: ArrayLike, goal: ArrayLike, v_pref: ArrayLike,
-                       k_a: ArrayLike) -> np.ndarray:
+def preferred_velocity(position: ArrayLike, goal: ArrayLike, v_pref: ArrayLike, k_a: ArrayLike) -> np.ndarray:
     """Paper eq. 9: speed V_p toward the goal, falling linearly within K_a of it; zero without a goal (NaN)."""
     position = np.asarray(position, dtype=float)
     goal = np.asarray(goal, dtype=float)
@@ -50,9 +60,18 @@ def preferred_velocity(position: ArrayLike, goal: ArrayLike, v_pref: ArrayLike,
     return np.stack([np.where(has, ex, 0.0) * gain, np.where(has, ey, 0.0) * gain], axis=-1)
 
 
-def orca_lines(position: ArrayLike, velocity: ArrayLike, radius: ArrayLike, nbr_position: np.ndarray,
-               nbr_velocity: np.ndarray, nbr_radius: np.ndarray, nbr_responsibility: ArrayLike,
-               nbr_valid: ArrayLike, tau: float, dt: float) -> Lines:
+def orca_lines(
+    position: ArrayLike,
+    velocity: ArrayLike,
+    radius: ArrayLike,
+    nbr_position: np.ndarray,
+    nbr_velocity: np.ndarray,
+    nbr_radius: np.ndarray,
+    nbr_responsibility: ArrayLike,
+    nbr_valid: ArrayLike,
+    tau: float,
+    dt: float,
+) -> Lines:
     """ORCA half-plane of each robot with respect to each neighbour (eq. 10-12).
 
     The optimisation velocities are the current velocities. u is the smallest change of the relative
@@ -117,8 +136,9 @@ def arena_segments(xmin: float, ymin: float, xmax: float, ymax: float) -> np.nda
     return polygon_segments([(xmin, ymin), (xmin, ymax), (xmax, ymax), (xmax, ymin)])
 
 
-def obstacle_lines(position: ArrayLike, radius: ArrayLike, max_speed: ArrayLike, segments: ArrayLike,
-                   tau_obst: float) -> Lines:
+def obstacle_lines(
+    position: ArrayLike, radius: ArrayLike, max_speed: ArrayLike, segments: ArrayLike, tau_obst: float
+) -> Lines:
     """Half-planes keeping each robot at least its radius from each obstacle edge for tau_obst.
 
     Each edge is a segment; q is its point closest to the robot, n the unit vector from q to the robot
@@ -157,9 +177,11 @@ def obstacle_lines(position: ArrayLike, radius: ArrayLike, max_speed: ArrayLike,
 
 def concat_lines(*parts: Lines) -> Lines:
     """Lines of several groups side by side (hard groups first)."""
-    return Lines(np.concatenate([x.point for x in parts], axis=1),
-                 np.concatenate([x.direction for x in parts], axis=1),
-                 np.concatenate([x.valid for x in parts], axis=1))
+    return Lines(
+        np.concatenate([x.point for x in parts], axis=1),
+        np.concatenate([x.direction for x in parts], axis=1),
+        np.concatenate([x.valid for x in parts], axis=1),
+    )
 
 
 def compact_lines(lines: Lines) -> Lines:
@@ -183,10 +205,18 @@ def drop_redundant(lines: Lines, max_speed: np.ndarray) -> Lines:
     return compact_lines(Lines(p, d, lines.valid & needed))
 
 
-def safety_lines(position: ArrayLike, radius: ArrayLike, max_speed: np.ndarray,
-                 nbr_position: np.ndarray, nbr_velocity: np.ndarray, nbr_radius: np.ndarray,
-                 nbr_responsibility: ArrayLike, nbr_valid: ArrayLike, dt: float,
-                 nbr_growth: np.ndarray | None = None) -> Lines:
+def safety_lines(
+    position: ArrayLike,
+    radius: ArrayLike,
+    max_speed: np.ndarray,
+    nbr_position: np.ndarray,
+    nbr_velocity: np.ndarray,
+    nbr_radius: np.ndarray,
+    nbr_responsibility: ArrayLike,
+    nbr_valid: ArrayLike,
+    dt: float,
+    nbr_growth: np.ndarray | None = None,
+) -> Lines:
     """ORCA half-planes of horizon ``dt`` around zero optimisation velocities (cooperating neighbours).
 
     Reciprocal and always jointly satisfiable by cooperating robots (v = 0 is in every one): if both
@@ -214,18 +244,41 @@ def safety_lines(position: ArrayLike, radius: ArrayLike, max_speed: np.ndarray,
     needed = np.asarray(nbr_valid, dtype=bool) & (keep | (gap < 2.0 * dt * max_speed[:, None]))
     n = int(needed.sum(axis=1).max()) if needed.size else 0
     order = (np.arange(b)[:, None], np.argsort(~needed, axis=1, kind="stable")[:, :n])
-    return orca_lines(p, np.zeros((b, 2)), own[:, 0], nbr_position[order],
-                      np.where(keep[order][..., None], nbr_velocity[order], 0.0), nbr_radius[order],
-                      nbr_responsibility[order], needed[order], dt, dt)
+    return orca_lines(
+        p,
+        np.zeros((b, 2)),
+        own[:, 0],
+        nbr_position[order],
+        np.where(keep[order][..., None], nbr_velocity[order], 0.0),
+        nbr_radius[order],
+        nbr_responsibility[order],
+        needed[order],
+        dt,
+        dt,
+    )
 
 
-def orca_velocity(position: ArrayLike, velocity: ArrayLike, pref_velocity: ArrayLike,
-                  radius: ArrayLike, max_speed: ArrayLike, nbr_position: ArrayLike,
-                  nbr_velocity: ArrayLike, nbr_radius: ArrayLike, nbr_responsibility: ArrayLike,
-                  nbr_valid: ArrayLike, obstacle_segments: ArrayLike | None = None, *, tau: float,
-                  tau_obst: float, dt: float, extra_hard_lines: Lines | None = None,
-                  safety: bool = True, margin: float = 0.0,
-                  nbr_growth: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
+def orca_velocity(
+    position: ArrayLike,
+    velocity: ArrayLike,
+    pref_velocity: ArrayLike,
+    radius: ArrayLike,
+    max_speed: ArrayLike,
+    nbr_position: ArrayLike,
+    nbr_velocity: ArrayLike,
+    nbr_radius: ArrayLike,
+    nbr_responsibility: ArrayLike,
+    nbr_valid: ArrayLike,
+    obstacle_segments: ArrayLike | None = None,
+    *,
+    tau: float,
+    tau_obst: float,
+    dt: float,
+    extra_hard_lines: Lines | None = None,
+    safety: bool = True,
+    margin: float = 0.0,
+    nbr_growth: ArrayLike | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """Collision-free velocity of eq. 14 for a batch of holonomic robots.
 
     Shapes: position, velocity (the optimisation velocity: the current one), pref_velocity (B,2);
@@ -254,9 +307,13 @@ def orca_velocity(position: ArrayLike, velocity: ArrayLike, pref_velocity: Array
     b = position.shape[0]
     radius = np.broadcast_to(np.asarray(radius, dtype=float), (b,))
     max_speed = np.broadcast_to(np.asarray(max_speed, dtype=float), (b,))
-    nbr = (np.asarray(nbr_position, dtype=float), np.asarray(nbr_velocity, dtype=float),
-           np.asarray(nbr_radius, dtype=float), np.asarray(nbr_responsibility, dtype=float),
-           np.asarray(nbr_valid, dtype=bool))
+    nbr = (
+        np.asarray(nbr_position, dtype=float),
+        np.asarray(nbr_velocity, dtype=float),
+        np.asarray(nbr_radius, dtype=float),
+        np.asarray(nbr_responsibility, dtype=float),
+        np.asarray(nbr_valid, dtype=bool),
+    )
     hard = []
     if obstacle_segments is not None and len(obstacle_segments):
         # Static obstacles do not move and do not help: the margin (e.g. the tracking-noise bound)
@@ -270,8 +327,9 @@ def orca_velocity(position: ArrayLike, velocity: ArrayLike, pref_velocity: Array
     grown = (nbr[0], nbr[1], nbr[2] + margin, *nbr[3:])
 
     def program(rows, horizon):
-        robots = orca_lines(position[rows], velocity[rows], radius[rows] + margin,
-                            *(x[rows] for x in grown), horizon, dt)
+        robots = orca_lines(
+            position[rows], velocity[rows], radius[rows] + margin, *(x[rows] for x in grown), horizon, dt
+        )
         robots = drop_redundant(robots, max_speed[rows])
         if hard_lines is None:
             return robots, 0
@@ -279,22 +337,20 @@ def orca_velocity(position: ArrayLike, velocity: ArrayLike, pref_velocity: Array
 
     lines, n_hard = program(slice(None), tau)
     if not safety:
-        return linear_program(lines.point, lines.direction, lines.valid, max_speed, pref_velocity,
-                              n_hard=n_hard)
-    new_velocity, feasible = optimise(lines.point, lines.direction, lines.valid, max_speed,
-                                      pref_velocity)
+        return linear_program(lines.point, lines.direction, lines.valid, max_speed, pref_velocity, n_hard=n_hard)
+    new_velocity, feasible = optimise(lines.point, lines.direction, lines.valid, max_speed, pref_velocity)
     rows = np.nonzero(~feasible)[0]
     lines = Lines(*(x[rows] for x in lines))
     horizon = tau
     while rows.size and horizon > dt:
         horizon = max(horizon / _SHRINK, dt)
         lines, n_hard = program(rows, horizon)
-        v, ok = optimise_few(lines.point, lines.direction, lines.valid, max_speed[rows],
-                         pref_velocity[rows])
+        v, ok = optimise_few(lines.point, lines.direction, lines.valid, max_speed[rows], pref_velocity[rows])
         new_velocity[rows[ok]] = v[ok]
         rows = rows[~ok]
         lines = Lines(*(x[~ok] for x in lines))
     if rows.size:
-        new_velocity[rows] = least_violation(lines.point, lines.direction, lines.valid,
-                                             max_speed[rows], pref_velocity[rows], n_hard)
+        new_velocity[rows] = least_violation(
+            lines.point, lines.direction, lines.valid, max_speed[rows], pref_velocity[rows], n_hard
+        )
     return new_velocity, ~feasible

@@ -17,6 +17,7 @@ valid lines in the order the numpy core keeps them (hard lines first: obstacle e
 lines; then the robot lines, nearest neighbour first). tests/test_orca_kernel.py checks it against
 the numpy core on random crowds, including infeasible ones.
 """
+
 from __future__ import annotations
 
 import math
@@ -66,8 +67,8 @@ def preferred_core(position, goal, preferred, velocity, robot_id, v_pref, k_a, s
             px, py = COS_RIGHT * px - SIN_RIGHT * py, SIN_RIGHT * px + COS_RIGHT * py
         if px != 0 or py != 0:
             key = _splitmix64(_splitmix64(robot_id[i] ^ seed_key) + tick)
-            a = np.float64(key >> np.uint64(11)) * 2.0 ** -53
-            c = np.float64(_splitmix64(key) >> np.uint64(11)) * 2.0 ** -53
+            a = np.float64(key >> np.uint64(11)) * 2.0**-53
+            c = np.float64(_splitmix64(key) >> np.uint64(11)) * 2.0**-53
             px, py = px + (2.0 * a - 1.0) * PERTURBATION, py + (2.0 * c - 1.0) * PERTURBATION
         out[i, 0], out[i, 1] = px, py
     return out
@@ -243,16 +244,47 @@ def _keep(px, py, dx, dy, vmax):
 
 
 @njit(cache=True, _nrt=False)
-def _robot_lines(i, position, velocity, radius, nbr_p, nbr_v, nbr_r, nbr_c, nbr_ok, m, vmax, margin, horizon, dt,
-                 px, py, dx, dy, start):
+def _robot_lines(
+    i,
+    position,
+    velocity,
+    radius,
+    nbr_p,
+    nbr_v,
+    nbr_r,
+    nbr_c,
+    nbr_ok,
+    m,
+    vmax,
+    margin,
+    horizon,
+    dt,
+    px,
+    py,
+    dx,
+    dy,
+    start,
+):
     """The robot lines (horizon ``horizon``, margin on both radii) from index ``start``: the new count."""
     n = start
     for k in range(m):
         if not nbr_ok[k]:
             continue
-        a, b, c, d = _orca_line(position[i, 0], position[i, 1], velocity[i, 0], velocity[i, 1], radius + margin,
-                                nbr_p[k, 0], nbr_p[k, 1], nbr_v[k, 0], nbr_v[k, 1], nbr_r[k] + margin, nbr_c[k],
-                                horizon, dt)
+        a, b, c, d = _orca_line(
+            position[i, 0],
+            position[i, 1],
+            velocity[i, 0],
+            velocity[i, 1],
+            radius + margin,
+            nbr_p[k, 0],
+            nbr_p[k, 1],
+            nbr_v[k, 0],
+            nbr_v[k, 1],
+            nbr_r[k] + margin,
+            nbr_c[k],
+            horizon,
+            dt,
+        )
         if _keep(a, b, c, d, vmax):
             px[n], py[n], dx[n], dy[n] = a, b, c, d
             n += 1
@@ -260,9 +292,36 @@ def _robot_lines(i, position, velocity, radius, nbr_p, nbr_v, nbr_r, nbr_c, nbr_
 
 
 @njit(cache=True, _nrt=False)
-def _control_core_one(i, position, velocity, pref, radius, vmax, nbr_position, nbr_velocity, nbr_radius, nbr_age,
-                      nbr_valid, nbr_cooperative, segments, tau, tau_obst, dt, margin, timeout, noise, committed,
-                      nbr_p, nbr_v, nbr_f, nbr_ok, lines, every, bisectors, flags):
+def _control_core_one(
+    i,
+    position,
+    velocity,
+    pref,
+    radius,
+    vmax,
+    nbr_position,
+    nbr_velocity,
+    nbr_radius,
+    nbr_age,
+    nbr_valid,
+    nbr_cooperative,
+    segments,
+    tau,
+    tau_obst,
+    dt,
+    margin,
+    timeout,
+    noise,
+    committed,
+    nbr_p,
+    nbr_v,
+    nbr_f,
+    nbr_ok,
+    lines,
+    every,
+    bisectors,
+    flags,
+):
     """One robot: its neighbours prepared (neighbours.prepare_neighbours), then eq. 14 with the safety
     lines, the shrinking horizon and the fallback (orca.orca_velocity). Returns (vx, vy, fallback).
     Scratch, so that a robot allocates nothing: nbr_p, nbr_v (M,2), nbr_f (3,M), nbr_ok (M,),
@@ -278,8 +337,15 @@ def _control_core_one(i, position, velocity, pref, radius, vmax, nbr_position, n
         u, w = nbr_velocity[i, k, 0], nbr_velocity[i, k, 1]
         r = nbr_radius[i, k]
         age = max(nbr_age[i, k], 0.0)
-        ok = (nbr_valid[i, k] and np.isfinite(x) and np.isfinite(y) and np.isfinite(u) and np.isfinite(w)
-              and np.isfinite(r) and np.isfinite(age))
+        ok = (
+            nbr_valid[i, k]
+            and np.isfinite(x)
+            and np.isfinite(y)
+            and np.isfinite(u)
+            and np.isfinite(w)
+            and np.isfinite(r)
+            and np.isfinite(age)
+        )
         stale = age > timeout
         horizon = max((timeout if stale else age) - committed, 0.0)
         shift = 0.0 if stale else age
@@ -334,8 +400,27 @@ def _control_core_one(i, position, velocity, pref, radius, vmax, nbr_position, n
             px[n], py[n], dx[n], dy[n] = a, b, c, e
             n += 1
     n_hard = n
-    n = _robot_lines(i, position, velocity, radius, nbr_p, nbr_v, nbr_r, nbr_c, nbr_ok, m, vmax, margin, tau, dt,
-                     px, py, dx, dy, n_hard)
+    n = _robot_lines(
+        i,
+        position,
+        velocity,
+        radius,
+        nbr_p,
+        nbr_v,
+        nbr_r,
+        nbr_c,
+        nbr_ok,
+        m,
+        vmax,
+        margin,
+        tau,
+        dt,
+        px,
+        py,
+        dx,
+        dy,
+        n_hard,
+    )
     tx, ty = pref[i, 0], pref[i, 1]
     vx, vy, feasible = _optimise(px, py, dx, dy, n, vmax, tx, ty, every)
     if feasible:
@@ -343,8 +428,27 @@ def _control_core_one(i, position, velocity, pref, radius, vmax, nbr_position, n
     horizon = tau
     while horizon > dt:  # paper 5.3: a shorter horizon until feasible, down to dt
         horizon = max(horizon / SHRINK, dt)
-        n = _robot_lines(i, position, velocity, radius, nbr_p, nbr_v, nbr_r, nbr_c, nbr_ok, m, vmax, margin, horizon,
-                         dt, px, py, dx, dy, n_hard)
+        n = _robot_lines(
+            i,
+            position,
+            velocity,
+            radius,
+            nbr_p,
+            nbr_v,
+            nbr_r,
+            nbr_c,
+            nbr_ok,
+            m,
+            vmax,
+            margin,
+            horizon,
+            dt,
+            px,
+            py,
+            dx,
+            dy,
+            n_hard,
+        )
         vx, vy, ok = _optimise_few(px, py, dx, dy, every, n, vmax, tx, ty, False)
         if ok:
             return vx, vy, True
@@ -353,8 +457,27 @@ def _control_core_one(i, position, velocity, pref, radius, vmax, nbr_position, n
 
 
 @njit(cache=True, nogil=True)
-def control_core(position, velocity, pref, radius, vmax, nbr_position, nbr_velocity, nbr_radius, nbr_age, nbr_valid,
-                 nbr_cooperative, segments, tau, tau_obst, dt, margin, timeout, noise, committed):
+def control_core(
+    position,
+    velocity,
+    pref,
+    radius,
+    vmax,
+    nbr_position,
+    nbr_velocity,
+    nbr_radius,
+    nbr_age,
+    nbr_valid,
+    nbr_cooperative,
+    segments,
+    tau,
+    tau_obst,
+    dt,
+    margin,
+    timeout,
+    noise,
+    committed,
+):
     """The collision-free velocity (B,2) and fallback flags (B,) of a batch, one robot after the
     other with one scratch (a robot allocates nothing). One core: in the central engine the other
     runs the auction (sim.central), and at 1000 robots two numba threads were no faster than one
@@ -367,7 +490,33 @@ def control_core(position, velocity, pref, radius, vmax, nbr_position, nbr_veloc
     out, fallback = np.empty((b, 2)), np.empty(b, np.bool_)
     for i in range(b):
         out[i, 0], out[i, 1], fallback[i] = _control_core_one(
-            i, position, velocity, pref, radius, vmax, nbr_position, nbr_velocity, nbr_radius, nbr_age,
-            nbr_valid, nbr_cooperative, segments, tau, tau_obst, dt, margin, timeout, noise, committed,
-            nbr_p, nbr_v, nbr_f, nbr_ok, lines, every, bisectors, flags)
+            i,
+            position,
+            velocity,
+            pref,
+            radius,
+            vmax,
+            nbr_position,
+            nbr_velocity,
+            nbr_radius,
+            nbr_age,
+            nbr_valid,
+            nbr_cooperative,
+            segments,
+            tau,
+            tau_obst,
+            dt,
+            margin,
+            timeout,
+            noise,
+            committed,
+            nbr_p,
+            nbr_v,
+            nbr_f,
+            nbr_ok,
+            lines,
+            every,
+            bisectors,
+            flags,
+        )
     return out, fallback

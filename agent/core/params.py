@@ -2,6 +2,7 @@
 
 SI units throughout: metres, seconds, radians.
 """
+
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields, replace
@@ -78,14 +79,14 @@ class RobotParams:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> "RobotParams":
+    def from_dict(cls, data: dict[str, Any]) -> RobotParams:
         known = {f.name for f in fields(cls)}
         unknown = set(data) - known
         if unknown:
             raise ValueError(f"unknown robot parameter(s): {', '.join(sorted(unknown))}")
         return cls(**data)
 
-    def with_(self, **changes: Any) -> "RobotParams":
+    def with_(self, **changes: Any) -> RobotParams:
         return replace(self, **changes)
 
 

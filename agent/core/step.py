@@ -5,6 +5,7 @@ agent host, and the central engine that steps every robot with perfect informati
 result does not depend on the other robots of the batch (elementwise arithmetic only), so a host of
 K robots drives exactly as K separate processes would.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -30,14 +31,26 @@ class NeighbourStates:
     cooperative: np.ndarray  # (B,M) bool: runs the same ORCA (False: a dynamic obstacle)
 
     @classmethod
-    def empty(cls, batch: int, m: int = 0) -> "NeighbourStates":
-        return cls(np.zeros((batch, m, 2)), np.zeros((batch, m, 2)), np.ones((batch, m)), np.zeros((batch, m)),
-                   np.zeros((batch, m), bool), np.ones((batch, m), bool))
+    def empty(cls, batch: int, m: int = 0) -> NeighbourStates:
+        return cls(
+            np.zeros((batch, m, 2)),
+            np.zeros((batch, m, 2)),
+            np.ones((batch, m)),
+            np.zeros((batch, m)),
+            np.zeros((batch, m), bool),
+            np.ones((batch, m), bool),
+        )
 
-    def rows(self, index: np.ndarray) -> "NeighbourStates":
+    def rows(self, index: np.ndarray) -> NeighbourStates:
         """What the robots at rows ``index`` of the batch heard (a smaller batch)."""
-        return NeighbourStates(self.position[index], self.velocity[index], self.radius[index], self.age[index],
-                               self.valid[index], self.cooperative[index])
+        return NeighbourStates(
+            self.position[index],
+            self.velocity[index],
+            self.radius[index],
+            self.age[index],
+            self.valid[index],
+            self.cooperative[index],
+        )
 
 
 @dataclass
@@ -48,8 +61,9 @@ class StepResult:
     fallback: np.ndarray  # (B,) bool: the LP was infeasible and the fallback ran
 
 
-def static_segments(arena: tuple[float, float, float, float] | None,
-                    obstacles: list[list[tuple[float, float]]]) -> np.ndarray:
+def static_segments(
+    arena: tuple[float, float, float, float] | None, obstacles: list[list[tuple[float, float]]]
+) -> np.ndarray:
     """Edges (S,2,2) of the arena wall and the static obstacles (counter-clockwise polygons)."""
     parts = [polygon_segments(o) for o in obstacles]
     if arena is not None:
@@ -73,10 +87,21 @@ def keep_right_when_blocked(pref: np.ndarray, velocity: np.ndarray, v_pref: floa
     return np.where(blocked[:, None], turned, pref)
 
 
-def control_step(params: RobotParams, robot_ids: np.ndarray, position: np.ndarray, heading: np.ndarray,
-                 velocity: np.ndarray, goal: np.ndarray, neighbours: NeighbourStates,
-                 segments: np.ndarray | None = None, *, seed: int = 0, tick: int = 0,
-                 preferred: np.ndarray | None = None, compiled: bool = False) -> StepResult:
+def control_step(
+    params: RobotParams,
+    robot_ids: np.ndarray,
+    position: np.ndarray,
+    heading: np.ndarray,
+    velocity: np.ndarray,
+    goal: np.ndarray,
+    neighbours: NeighbourStates,
+    segments: np.ndarray | None = None,
+    *,
+    seed: int = 0,
+    tick: int = 0,
+    preferred: np.ndarray | None = None,
+    compiled: bool = False,
+) -> StepResult:
     """Paper 5.2-5.4 for a batch: preferred velocity (eq. 9), ORCA or NH-ORCA, controls.
 
     preferred (B,2), optional: rows with finite values replace eq. 9 (eq. 27 held in an animation
@@ -92,38 +117,108 @@ def control_step(params: RobotParams, robot_ids: np.ndarray, position: np.ndarra
         pref = np.where(given[:, None], np.where(given[:, None], preferred, 0.0), pref)
     pref = keep_right_when_blocked(pref, velocity, params.v_pref)
     # A tiny deterministic perturbation breaks the symmetric head-on configurations that deadlock ORCA.
-    pref = np.where(np.any(pref != 0, axis=1, keepdims=True),
-                    perturb_preferred_velocity(pref, robot_ids, seed, tick), pref)
-    nb = prepare_neighbours(neighbours.position, neighbours.velocity, neighbours.radius, neighbours.age,
-                            neighbours.valid, max_speed=params.v_max, timeout=params.stale_after,
-                            noise=params.noise_bound, cooperative=neighbours.cooperative, committed=params.dt)
+    pref = np.where(
+        np.any(pref != 0, axis=1, keepdims=True), perturb_preferred_velocity(pref, robot_ids, seed, tick), pref
+    )
+    nb = prepare_neighbours(
+        neighbours.position,
+        neighbours.velocity,
+        neighbours.radius,
+        neighbours.age,
+        neighbours.valid,
+        max_speed=params.v_max,
+        timeout=params.stale_after,
+        noise=params.noise_bound,
+        cooperative=neighbours.cooperative,
+        committed=params.dt,
+    )
     if params.kinematics == DIFFDRIVE:
-        res = nh_orca_wheel_speeds(position, heading, velocity, pref, params.radius, nb.position, nb.velocity,
-                                   nb.radius, nb.responsibility, nb.valid, segments, params=params,
-                                   nbr_growth=nb.growth)
+        res = nh_orca_wheel_speeds(
+            position,
+            heading,
+            velocity,
+            pref,
+            params.radius,
+            nb.position,
+            nb.velocity,
+            nb.radius,
+            nb.responsibility,
+            nb.valid,
+            segments,
+            params=params,
+            nbr_growth=nb.growth,
+        )
         command = np.stack([res.wheel_left, res.wheel_right], axis=1)
         return StepResult(res.velocity, command, pref, res.fallback)
-    v_cf, fallback = orca_velocity(position, velocity, pref, params.radius, params.v_max, nb.position,
-                                   nb.velocity, nb.radius, nb.responsibility, nb.valid, segments,
-                                   tau=params.tau, tau_obst=params.tau_obst, dt=params.dt, margin=params.noise_bound,
-                                   nbr_growth=nb.growth)
+    v_cf, fallback = orca_velocity(
+        position,
+        velocity,
+        pref,
+        params.radius,
+        params.v_max,
+        nb.position,
+        nb.velocity,
+        nb.radius,
+        nb.responsibility,
+        nb.valid,
+        segments,
+        tau=params.tau,
+        tau_obst=params.tau_obst,
+        dt=params.dt,
+        margin=params.noise_bound,
+        nbr_growth=nb.growth,
+    )
     return StepResult(v_cf, v_cf, pref, fallback)
 
 
-def _compiled_step(params: RobotParams, robot_ids: np.ndarray, position: np.ndarray, velocity: np.ndarray,
-                   goal: np.ndarray, neighbours: NeighbourStates, segments: np.ndarray | None, seed: int, tick: int,
-                   preferred: np.ndarray | None) -> StepResult:
+def _compiled_step(
+    params: RobotParams,
+    robot_ids: np.ndarray,
+    position: np.ndarray,
+    velocity: np.ndarray,
+    goal: np.ndarray,
+    neighbours: NeighbourStates,
+    segments: np.ndarray | None,
+    seed: int,
+    tick: int,
+    preferred: np.ndarray | None,
+) -> StepResult:
     """control_step for holonomic robots, compiled (agent.core.orca_kernel): the same result."""
     from .orca_kernel import control_core, preferred_core
 
     given = np.full((len(position), 2), np.nan) if preferred is None else _f64(preferred)
     seed_key = _splitmix64(np.uint64(seed % 2**64))
-    pref = preferred_core(_f64(position), _f64(goal), given, _f64(velocity),
-                          np.ascontiguousarray(robot_ids).astype(np.uint64), float(params.v_pref), float(params.k_a),
-                          seed_key, np.uint64(tick % 2**64))
+    pref = preferred_core(
+        _f64(position),
+        _f64(goal),
+        given,
+        _f64(velocity),
+        np.ascontiguousarray(robot_ids).astype(np.uint64),
+        float(params.v_pref),
+        float(params.k_a),
+        seed_key,
+        np.uint64(tick % 2**64),
+    )
     seg = np.zeros((0, 2, 2)) if segments is None else _f64(segments).reshape(-1, 2, 2)
-    v_cf, fallback = control_core(position, velocity, pref, params.radius, params.v_max, neighbours.position,
-                                  neighbours.velocity, neighbours.radius, neighbours.age, neighbours.valid,
-                                  neighbours.cooperative, seg, params.tau, params.tau_obst, params.dt,
-                                  params.noise_bound, params.stale_after, params.noise_bound, params.dt)
+    v_cf, fallback = control_core(
+        position,
+        velocity,
+        pref,
+        params.radius,
+        params.v_max,
+        neighbours.position,
+        neighbours.velocity,
+        neighbours.radius,
+        neighbours.age,
+        neighbours.valid,
+        neighbours.cooperative,
+        seg,
+        params.tau,
+        params.tau_obst,
+        params.dt,
+        params.noise_bound,
+        params.stale_after,
+        params.noise_bound,
+        params.dt,
+    )
     return StepResult(v_cf, v_cf, pref, fallback)

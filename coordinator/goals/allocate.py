@@ -10,9 +10,10 @@ Rules, in order:
 4. When N is smaller than the number of regions, the N largest regions get one robot each and the
    others are left empty (with a note).
 """
+
 from __future__ import annotations
 
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -43,8 +44,9 @@ def _proportional(areas: np.ndarray, total: int) -> np.ndarray:
     return counts
 
 
-def allocate_robots(areas: Sequence[float], n: int,
-                    overrides: Mapping[int, int] | None = None) -> tuple[np.ndarray, list[str]]:
+def allocate_robots(
+    areas: Sequence[float], n: int, overrides: Mapping[int, int] | None = None
+) -> tuple[np.ndarray, list[str]]:
     """N_i per region R_i (see the module docstring); returns (counts, notes). Raises GoalError."""
     a = np.asarray(areas, dtype=float)
     m = len(a)
@@ -69,6 +71,7 @@ def allocate_robots(areas: Sequence[float], n: int,
     counts[free] = _proportional(a[free], rest)
     empty = [int(i) for i in free if counts[i] == 0]
     if empty:
-        notes.append(f"N={n} is smaller than the number of regions: region(s) {', '.join(map(str, empty))} "
-                     "get no robot")
+        notes.append(
+            f"N={n} is smaller than the number of regions: region(s) {', '.join(map(str, empty))} get no robot"
+        )
     return counts, notes

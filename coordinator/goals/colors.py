@@ -1,6 +1,7 @@
 """Goal colours (paper 4.1/4.3): each goal takes the mean colour, in CIE Lab, of the image pixels of
 its Voronoi cell within its own region R_i. Pixels on the region's edge (anti-aliased, mixed with the
 background) count only for cells that have no other pixel."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -40,8 +41,9 @@ def _means(lab: np.ndarray, cells: np.ndarray, n: int) -> tuple[np.ndarray, np.n
     return sums, cnt
 
 
-def cell_colors(rgb: np.ndarray, cells: np.ndarray, n: int, fallback_px: np.ndarray,
-                labels: np.ndarray | None = None) -> np.ndarray:
+def cell_colors(
+    rgb: np.ndarray, cells: np.ndarray, n: int, fallback_px: np.ndarray, labels: np.ndarray | None = None
+) -> np.ndarray:
     """(n, 3) uint8: the Lab mean of the pixels of each cell (away from region edges when `labels`,
     the region map, is given); a cell without pixels takes the colour of the pixel under its goal
     (fallback_px, (x, y) in pixel units)."""

@@ -12,6 +12,7 @@ moves each generator towards the mass centroid of its cell (eq. 4), over-relaxed
 cost (see `lloyd`). The reported cost is eq. 1 divided by K_m in the normalised square Q (longer image
 side = 1), each pixel weighing its area, so it does not depend on the image resolution. It never rises.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -128,11 +129,18 @@ def cell_centroids(domain: Domain, idx: np.ndarray, gen: np.ndarray) -> np.ndarr
 def cvt_cost(domain: Domain, gen: np.ndarray, scale: float) -> float:
     """Cost of eq. 1 (divided by K_m, in units of Q whose side is `scale` pixels) of generators gen."""
     _, d2 = _Assigner(domain).assign(gen)
-    return float(np.dot(domain.weights, d2)) / scale ** 4
+    return float(np.dot(domain.weights, d2)) / scale**4
 
 
-def lloyd(domain: Domain, init: np.ndarray, scale: float, *, tol: float = TOLERANCE,
-          max_iter: int = MAX_ITER, relax: float = RELAX) -> tuple[np.ndarray, list[float]]:
+def lloyd(
+    domain: Domain,
+    init: np.ndarray,
+    scale: float,
+    *,
+    tol: float = TOLERANCE,
+    max_iter: int = MAX_ITER,
+    relax: float = RELAX,
+) -> tuple[np.ndarray, list[float]]:
     """Lloyd iterations from `init` until the cost of eq. 1 falls by less than `tol` (relative).
 
     Each iteration computes the Voronoi cells and their mass centroids C_j (eq. 4). With relax = 1 the
@@ -148,7 +156,7 @@ def lloyd(domain: Domain, init: np.ndarray, scale: float, *, tol: float = TOLERA
     if len(gen) == 0:
         return gen, []
     assigner = _Assigner(domain)
-    norm = 1.0 / scale ** 4
+    norm = 1.0 / scale**4
 
     def cost_of(g: np.ndarray) -> float:
         return float(np.dot(domain.weights, assigner.assign(g)[1])) * norm

@@ -1,12 +1,14 @@
 """Goal-set families (paper 5.1.2, eq. 8): independent goal sets G_r for a range of robot counts r,
 so the display adapts when robots drop out or join. All sets share one arena, the largest any of
 them needs, so the picture keeps its size when the number of robots changes."""
+
 from __future__ import annotations
 
 import json
 import os
+from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Any, Iterable
+from typing import Any
 
 import numpy as np
 
@@ -34,11 +36,12 @@ class GoalFamily:
         return self.sets[max(fitting)]
 
     def to_json(self, indent: int | None = None) -> str:
-        return json.dumps({"format": FAMILY_FORMAT, "sets": [self.sets[r].to_dict() for r in self.counts]},
-                          indent=indent)
+        return json.dumps(
+            {"format": FAMILY_FORMAT, "sets": [self.sets[r].to_dict() for r in self.counts]}, indent=indent
+        )
 
     @classmethod
-    def from_json(cls, text: str) -> "GoalFamily":
+    def from_json(cls, text: str) -> GoalFamily:
         data = json.loads(text)
         if data.get("format") != FAMILY_FORMAT:
             raise ValueError(f"unsupported goal-family format {data.get('format')!r}")
@@ -56,9 +59,15 @@ def _rescale(gs: GoalSet, arena: float) -> GoalSet:
     return GoalSet(gs.goals * k, gs.colors, gs.regions, gs.cost_history, params)
 
 
-def goal_family(image_or_path: str | os.PathLike[str] | np.ndarray, counts: Iterable[int], *,
-                arena: float | None = None, background: Any = None, min_area: int | None = None,
-                **kwargs: Any) -> GoalFamily:
+def goal_family(
+    image_or_path: str | os.PathLike[str] | np.ndarray,
+    counts: Iterable[int],
+    *,
+    arena: float | None = None,
+    background: Any = None,
+    min_area: int | None = None,
+    **kwargs: Any,
+) -> GoalFamily:
     """Goal sets for every robot count in `counts` (the image is segmented once).
 
     With arena=None every set gets the conservative arena of the most demanding set; with an explicit
@@ -72,4 +81,3 @@ def goal_family(image_or_path: str | os.PathLike[str] | np.ndarray, counts: Iter
         shared = max(s.arena for s in sets.values())  # each is its own conservative (auto) arena
         sets = {r: _rescale(s, shared) for r, s in sets.items()}
     return GoalFamily(sets)
-

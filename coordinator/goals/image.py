@@ -3,13 +3,14 @@
 Images are RGB uint8 arrays (H, W, 3), row 0 at the top; an optional alpha channel (H, W) marks
 transparent pixels as background. Colour distances are CIE76 Delta E in Lab.
 """
+
 from __future__ import annotations
 
 import contextlib
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
 
 import cv2
 import numpy as np
@@ -18,8 +19,13 @@ from .model import GoalError
 
 # Named colours accepted by --background.
 NAMED_COLORS = {
-    "white": (255, 255, 255), "black": (0, 0, 0), "red": (255, 0, 0), "green": (0, 255, 0),
-    "blue": (0, 0, 255), "gray": (128, 128, 128), "grey": (128, 128, 128),
+    "white": (255, 255, 255),
+    "black": (0, 0, 0),
+    "red": (255, 0, 0),
+    "green": (0, 255, 0),
+    "blue": (0, 0, 255),
+    "gray": (128, 128, 128),
+    "grey": (128, 128, 128),
 }
 _MAGIC = (b"\x89PNG", b"\xff\xd8", b"BM", b"II*\x00", b"MM\x00*")
 BG_TOLERANCE = 12.0  # Delta E: colours closer than this to the background are background
@@ -102,7 +108,7 @@ def parse_color(text: str | tuple[int, int, int] | list[int]) -> tuple[int, int,
             return NAMED_COLORS[t]
         try:
             if t.startswith("#") and len(t) == 7:
-                vals = [int(t[i:i + 2], 16) for i in (1, 3, 5)]
+                vals = [int(t[i : i + 2], 16) for i in (1, 3, 5)]
             else:
                 vals = [int(v) for v in t.split(",")]
         except ValueError:
@@ -177,9 +183,13 @@ def _border_model(lab: np.ndarray, tol: float) -> tuple[np.ndarray, float, np.nd
     return model, sigma, dominant
 
 
-def foreground_mask(rgb: np.ndarray, alpha: np.ndarray | None = None, *,
-                    background: str | tuple[int, int, int] | None = None,
-                    tolerance: float = BG_TOLERANCE) -> Foreground:
+def foreground_mask(
+    rgb: np.ndarray,
+    alpha: np.ndarray | None = None,
+    *,
+    background: str | tuple[int, int, int] | None = None,
+    tolerance: float = BG_TOLERANCE,
+) -> Foreground:
     """Background subtraction. Transparent pixels (alpha < 128) are always background; an explicit
     background colour removes the pixels within `tolerance` of it as well; without either, the dominant
     border colour is the background (fitted as a smooth gradient, with a tolerance raised to 4 sigma of

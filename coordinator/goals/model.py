@@ -1,4 +1,5 @@
 """The result of goal generation (a goal set G of paper 4.4) and the error it raises."""
+
 from __future__ import annotations
 
 import json
@@ -84,7 +85,7 @@ class GoalSet:
         return "{\n" + ",\n".join(lines) + "\n}"
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> "GoalSet":
+    def from_dict(cls, data: dict[str, Any]) -> GoalSet:
         if data.get("format", FORMAT) != FORMAT:
             raise ValueError(f"unsupported goal-set format {data.get('format')!r}")
         return cls(
@@ -96,5 +97,5 @@ class GoalSet:
         )
 
     @classmethod
-    def from_json(cls, text: str) -> "GoalSet":
+    def from_json(cls, text: str) -> GoalSet:
         return cls.from_dict(json.loads(text))

@@ -1,10 +1,12 @@
 """Goal generation end to end (paper section 4): image -> regions R_i -> N_i per region -> initial
 samples (K_s) -> Lloyd iterations (CVT with the mass density of eq. 2, or k-means) -> colours -> arena."""
+
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
 
 import cv2
 import numpy as np
@@ -43,8 +45,9 @@ class PreparedImage:
         return float(max(self.shape))
 
 
-def _shrink(rgb: np.ndarray, alpha: np.ndarray | None, max_side: int
-            ) -> tuple[np.ndarray, np.ndarray | None, str | None]:
+def _shrink(
+    rgb: np.ndarray, alpha: np.ndarray | None, max_side: int
+) -> tuple[np.ndarray, np.ndarray | None, str | None]:
     h, w = rgb.shape[:2]
     if max(h, w) <= max_side:
         return rgb, alpha, None
@@ -55,9 +58,15 @@ def _shrink(rgb: np.ndarray, alpha: np.ndarray | None, max_side: int
     return small, a, f"image scaled from {w}x{h} to {size[0]}x{size[1]} pixels for goal generation"
 
 
-def prepare_image(image: str | os.PathLike[str] | np.ndarray, *, background: Any = None,
-                  bg_tolerance: float = BG_TOLERANCE, color_tol: float = COLOR_TOLERANCE,
-                  min_area: int | None = None, max_side: int = MAX_SIDE) -> PreparedImage:
+def prepare_image(
+    image: str | os.PathLike[str] | np.ndarray,
+    *,
+    background: Any = None,
+    bg_tolerance: float = BG_TOLERANCE,
+    color_tol: float = COLOR_TOLERANCE,
+    min_area: int | None = None,
+    max_side: int = MAX_SIDE,
+) -> PreparedImage:
     """Load (path, or an RGB/RGBA/gray array), subtract the background and segment into regions R_i.
 
     Images whose longer side exceeds max_side pixels are scaled down first (goals live in the
@@ -74,9 +83,10 @@ def prepare_image(image: str | os.PathLike[str] | np.ndarray, *, background: Any
     if scaled:
         seg.notes.insert(0, scaled)
     if not seg.regions:
-        how = {"alpha": "every pixel is transparent",
-               "color": f"every pixel is within {bg_tolerance:g} of the background colour"}.get(
-            fg.source, "the image is a single background colour")
+        how = {
+            "alpha": "every pixel is transparent",
+            "color": f"every pixel is within {bg_tolerance:g} of the background colour",
+        }.get(fg.source, "the image is a single background colour")
         raise GoalError(f"no foreground in {source}: {how}")
     return PreparedImage(rgb, alpha, fg, seg, source)
 
@@ -117,8 +127,10 @@ def _check_init(init: Mapping[int, np.ndarray] | None, counts: np.ndarray) -> di
             raise GoalError(f"initial samples name region {rid}, but the image has regions 0..{len(counts) - 1}")
         a = np.asarray(pts, dtype=float)
         if a.ndim != 2 or a.shape[1] != 2 or len(a) != counts[int(rid)] or not np.isfinite(a).all():
-            raise GoalError(f"region {rid} needs {int(counts[int(rid)])} finite initial samples (x, y), "
-                            f"got an array of shape {a.shape}")
+            raise GoalError(
+                f"region {rid} needs {int(counts[int(rid)])} finite initial samples (x, y), "
+                f"got an array of shape {a.shape}"
+            )
         if len(np.unique(a, axis=0)) < len(a):  # two generators on one point would stay together
             raise GoalError(f"initial samples of region {rid} coincide")
         out[int(rid)] = a
@@ -135,8 +147,9 @@ def _sum_histories(histories: list[list[float]]) -> list[float]:
     return padded.sum(axis=0).tolist()
 
 
-def _check_args(n: Any, method: str, seed: Any, arena: float | None, robot_radius: float,
-                tol: float, max_iter: int, relax: float) -> None:
+def _check_args(
+    n: Any, method: str, seed: Any, arena: float | None, robot_radius: float, tol: float, max_iter: int, relax: float
+) -> None:
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)):
         raise GoalError(f"N must be an integer, not {n!r}")
     if n < 1:
@@ -153,11 +166,21 @@ def _check_args(n: Any, method: str, seed: Any, arena: float | None, robot_radiu
         raise GoalError("the Lloyd settings need tol > 0, max_iter >= 1 and 1 <= relax <= 4")
 
 
-def goals_from_prepared(prep: PreparedImage, n: int, *, arena: float | None = None, method: str = "cvt",
-                        seed: int = 0, robot_radius: float = DEFAULT_ROBOT_RADIUS,
-                        region_counts: Mapping[int, int] | None = None, conservative: bool = False,
-                        tol: float = TOLERANCE, max_iter: int = MAX_ITER, relax: float = RELAX,
-                        init: Mapping[int, np.ndarray] | None = None) -> GoalSet:
+def goals_from_prepared(
+    prep: PreparedImage,
+    n: int,
+    *,
+    arena: float | None = None,
+    method: str = "cvt",
+    seed: int = 0,
+    robot_radius: float = DEFAULT_ROBOT_RADIUS,
+    region_counts: Mapping[int, int] | None = None,
+    conservative: bool = False,
+    tol: float = TOLERANCE,
+    max_iter: int = MAX_ITER,
+    relax: float = RELAX,
+    init: Mapping[int, np.ndarray] | None = None,
+) -> GoalSet:
     """N goals for a prepared image; see generate_goals."""
     _check_args(n, method, seed, arena, robot_radius, tol, max_iter, relax)
     seg, scale = prep.seg, prep.scale
@@ -172,8 +195,10 @@ def goals_from_prepared(prep: PreparedImage, n: int, *, arena: float | None = No
         if n_i == 0:
             continue
         if n_i > region.area:
-            raise GoalError(f"region {region.id} has {region.area} pixels, too few for {n_i} goals: "
-                            "use a larger image or fewer robots")
+            raise GoalError(
+                f"region {region.id} has {region.area} pixels, too few for {n_i} goals: "
+                "use a larger image or fewer robots"
+            )
         rows, cols = seg.pixels(region.id)
         if region.id in given:
             # a caller's start (e.g. the previous keyframe's goals, paper 6.1): generators outside R_i
@@ -186,8 +211,10 @@ def goals_from_prepared(prep: PreparedImage, n: int, *, arena: float | None = No
             start, ks = poisson_samples(rows, cols, int(n_i), rng)
             ks_used[region.id] = ks / scale
             if ks < ks_distance(region.area, int(n_i)) * (1 - 1e-9):
-                notes.append(f"region {region.id} is too thin for K_s: initial samples used K_s "
-                             f"{ks / ks_distance(region.area, int(n_i)):.2f} x 1.2 sqrt(A_i/(pi N_i))")
+                notes.append(
+                    f"region {region.id} is too thin for K_s: initial samples used K_s "
+                    f"{ks / ks_distance(region.area, int(n_i)):.2f} x 1.2 sqrt(A_i/(pi N_i))"
+                )
         domain = density_domain(rows, cols) if method == "cvt" else binary_domain(rows, cols)
         gen, hist = lloyd(domain, start, scale, tol=tol, max_iter=max_iter, relax=relax)
         gen, moved = _snap_inside(gen, rows, cols)
@@ -212,17 +239,36 @@ def goals_from_prepared(prep: PreparedImage, n: int, *, arena: float | None = No
     assert arena is not None
     history = _sum_histories(histories)
     params: dict[str, Any] = {
-        "n": int(n), "arena": float(arena), "arena_auto": auto, "method": method, "seed": int(seed),
-        "robot_radius": float(robot_radius), "conservative": bool(conservative),
-        "image": prep.source, "image_size": [prep.shape[1], prep.shape[0]],
-        "background": {"source": prep.foreground.source,
-                       "color": list(prep.foreground.background) if prep.foreground.background else None,
-                       "tolerance": round(float(prep.foreground.tolerance), 3)},
-        "regions": [{"id": r.id, "color": list(r.color), "area_px": r.area, "robots": int(c),
-                     "k_s": round(ks_used.get(r.id, 0.0) * float(arena), 6)}
-                    for r, c in zip(seg.regions, counts)],
-        "k_s_factor": KS_FACTOR, "k_m": K_M if method == "cvt" else None,
-        "k_d": K_D if method == "cvt" else None, "tol": tol, "max_iter": max_iter, "relax": relax,
+        "n": int(n),
+        "arena": float(arena),
+        "arena_auto": auto,
+        "method": method,
+        "seed": int(seed),
+        "robot_radius": float(robot_radius),
+        "conservative": bool(conservative),
+        "image": prep.source,
+        "image_size": [prep.shape[1], prep.shape[0]],
+        "background": {
+            "source": prep.foreground.source,
+            "color": list(prep.foreground.background) if prep.foreground.background else None,
+            "tolerance": round(float(prep.foreground.tolerance), 3),
+        },
+        "regions": [
+            {
+                "id": r.id,
+                "color": list(r.color),
+                "area_px": r.area,
+                "robots": int(c),
+                "k_s": round(ks_used.get(r.id, 0.0) * float(arena), 6),
+            }
+            for r, c in zip(seg.regions, counts)
+        ],
+        "k_s_factor": KS_FACTOR,
+        "k_m": K_M if method == "cvt" else None,
+        "k_d": K_D if method == "cvt" else None,
+        "tol": tol,
+        "max_iter": max_iter,
+        "relax": relax,
         "iterations": max(len(history) - 1, 0),
         "cost": "eq. 1 / K_m in the normalised square Q (longer image side = 1)",
         "min_spacing": float(d_min * arena) if np.isfinite(d_min) else None,
@@ -231,12 +277,23 @@ def goals_from_prepared(prep: PreparedImage, n: int, *, arena: float | None = No
     return GoalSet(to_arena(goals_px, prep.shape, float(arena)), colors, goal_regions, history, params)
 
 
-def generate_goals(image_or_path: str | os.PathLike[str] | np.ndarray, n: int, *,
-                   arena: float | None = None, method: str = "cvt", seed: int = 0,
-                   robot_radius: float = DEFAULT_ROBOT_RADIUS, background: Any = None,
-                   region_counts: Mapping[int, int] | None = None, conservative: bool = False,
-                   tol: float = TOLERANCE, max_iter: int = MAX_ITER, relax: float = RELAX,
-                   min_area: int | None = None, init: Mapping[int, np.ndarray] | None = None) -> GoalSet:
+def generate_goals(
+    image_or_path: str | os.PathLike[str] | np.ndarray,
+    n: int,
+    *,
+    arena: float | None = None,
+    method: str = "cvt",
+    seed: int = 0,
+    robot_radius: float = DEFAULT_ROBOT_RADIUS,
+    background: Any = None,
+    region_counts: Mapping[int, int] | None = None,
+    conservative: bool = False,
+    tol: float = TOLERANCE,
+    max_iter: int = MAX_ITER,
+    relax: float = RELAX,
+    min_area: int | None = None,
+    init: Mapping[int, np.ndarray] | None = None,
+) -> GoalSet:
     """N goal positions and colours that represent an image (paper section 4).
 
     image_or_path: a PNG/JPEG/BMP/TIFF path, or an RGB, RGBA or gray array (row 0 at the top).
@@ -253,6 +310,17 @@ def generate_goals(image_or_path: str | os.PathLike[str] | np.ndarray, n: int, *
     Raises GoalError (a ValueError with a one-line message) on bad input.
     """
     prep = prepare_image(image_or_path, background=background, min_area=min_area)
-    return goals_from_prepared(prep, n, arena=arena, method=method, seed=seed,
-                               robot_radius=robot_radius, region_counts=region_counts,
-                               conservative=conservative, tol=tol, max_iter=max_iter, relax=relax, init=init)
+    return goals_from_prepared(
+        prep,
+        n,
+        arena=arena,
+        method=method,
+        seed=seed,
+        robot_radius=robot_radius,
+        region_counts=region_counts,
+        conservative=conservative,
+        tol=tol,
+        max_iter=max_iter,
+        relax=relax,
+        init=init,
+    )

@@ -1,5 +1,6 @@
 """Preview of a goal set: the image in the arena frame, the Voronoi cells of the goals within their
 regions, and each goal drawn as a robot footprint (radius r_A) in its colour."""
+
 from __future__ import annotations
 
 import os
@@ -45,7 +46,9 @@ def render_preview(prep: PreparedImage, gs: GoalSet, path: str | os.PathLike[str
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     p = gs.params
-    ax.set_title(f"{len(gs)} goals, {p.get('method', '?')}, arena {arena:g} m, "
-                 f"{len(p.get('regions', []))} region(s)", fontsize=10)
+    ax.set_title(
+        f"{len(gs)} goals, {p.get('method', '?')}, arena {arena:g} m, {len(p.get('regions', []))} region(s)",
+        fontsize=10,
+    )
     fig.tight_layout()
     fig.savefig(os.fspath(path), dpi=dpi, format="png")

@@ -9,6 +9,7 @@ the smallest distance between two goals in Q. The conservative option asks for t
 which also keeps every goal accessible. The default arena (`arena=None`) is that conservative size,
 rounded up to the next centimetre.
 """
+
 from __future__ import annotations
 
 import math
@@ -43,8 +44,7 @@ def auto_arena(d_min: float, robot_radius: float) -> float:
     return math.ceil(round(k_r * 100.0, 6)) / 100.0
 
 
-def check_feasible(d_min: float, n: int, arena: float, robot_radius: float,
-                   conservative: bool = False) -> None:
+def check_feasible(d_min: float, n: int, arena: float, robot_radius: float, conservative: bool = False) -> None:
     """Raise GoalError naming the smallest arena and the largest N (an estimate) that fit."""
     need = min_arena(d_min, robot_radius, conservative)
     if arena >= need * (1.0 - 1e-9):
@@ -56,7 +56,8 @@ def check_feasible(d_min: float, n: int, arena: float, robot_radius: float,
     raise GoalError(
         f"N={n} goals are as close as {arena * d_min:.3f} m in a {arena:g} m arena, too close for robots of "
         f"radius {robot_radius:g} m ({rule}): use an arena of at least {math.ceil(need * 100) / 100:.2f} m "
-        f"or at most about {fit} robots")
+        f"or at most about {fit} robots"
+    )
 
 
 def to_arena(goals_px: np.ndarray, shape: tuple[int, ...], arena: float) -> np.ndarray:

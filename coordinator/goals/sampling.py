@@ -3,6 +3,7 @@ distance of at least K_s = 1.2 sqrt(A_i / (pi N_i)) from every accepted sample (
 
 Coordinates are in pixel units: pixel (row r, column c) is the square [c, c+1) x [r, r+1).
 """
+
 from __future__ import annotations
 
 import math
@@ -19,8 +20,9 @@ def ks_distance(area: float, n: int, factor: float = KS_FACTOR) -> float:
     return factor * math.sqrt(area / (math.pi * n))
 
 
-def poisson_samples(rows: np.ndarray, cols: np.ndarray, n: int, rng: np.random.Generator,
-                    ks: float | None = None) -> tuple[np.ndarray, float]:
+def poisson_samples(
+    rows: np.ndarray, cols: np.ndarray, n: int, rng: np.random.Generator, ks: float | None = None
+) -> tuple[np.ndarray, float]:
     """n samples (x, y) in pixel units inside the pixels (rows, cols) of R_i, pairwise >= K_s apart.
 
     If n samples at K_s cannot be placed within 40 n darts (a thin or fragmented region), K_s is

@@ -9,6 +9,7 @@ the neighbouring region they share the longest border with; weak pieces touching
 with each other and kept if together they reach `min_area`, otherwise dropped with a note.
 Region ids are ordered by area, largest first.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -54,7 +55,7 @@ class Segmentation:
         if self._order is None or self._starts is None:
             self._order = np.argsort(flat, kind="stable")
             self._starts = np.searchsorted(flat[self._order], np.arange(-1, len(self.regions) + 1))
-        idx = self._order[self._starts[region_id + 1]:self._starts[region_id + 2]]
+        idx = self._order[self._starts[region_id + 1] : self._starts[region_id + 2]]
         return np.divmod(idx, self.labels.shape[1])
 
 
@@ -98,8 +99,9 @@ def _components(pal_img: np.ndarray) -> np.ndarray:
     return comp
 
 
-def _neighbour_pairs(comp: np.ndarray, lab: np.ndarray | None = None
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+def _neighbour_pairs(
+    comp: np.ndarray, lab: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """(a, b, colour step) for every pair of 8-adjacent pixels in different components, both
     directions; the colour step (Delta E between the two pixels) only if lab is given."""
     h, w = comp.shape
@@ -143,7 +145,7 @@ def _interior_counts(comp: np.ndarray, n: int) -> np.ndarray:
     inside = comp >= 0
     for dy in (-1, 0, 1):
         for dx in (-1, 0, 1):
-            inside &= p[1 + dy:1 + dy + h, 1 + dx:1 + dx + w] == comp
+            inside &= p[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w] == comp
     return np.bincount(comp[inside], minlength=n)
 
 
@@ -172,8 +174,9 @@ def _absorb_weak(comp: np.ndarray, weak: np.ndarray) -> tuple[np.ndarray, int]:
     return comp, absorbed
 
 
-def segment(rgb: np.ndarray, mask: np.ndarray, *, color_tol: float = COLOR_TOLERANCE,
-            min_area: int | None = None) -> Segmentation:
+def segment(
+    rgb: np.ndarray, mask: np.ndarray, *, color_tol: float = COLOR_TOLERANCE, min_area: int | None = None
+) -> Segmentation:
     """Split the foreground `mask` of `rgb` into regions R_i (see the module docstring)."""
     h, w = mask.shape
     min_area = default_min_area(mask.shape) if min_area is None else int(min_area)
