@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+from dataclasses import dataclass
 from operator import attrgetter
 
 import numpy as np
@@ -117,36 +118,63 @@ class NeighbourTable:
         whose agent died), so they are static obstacles at their last position, grown by that
         distance, instead of silent robots whose possible position grows with age without bound."""
         states = self.latest_before(tick)
-        batch = len(robot_ids)
         if not states:
-            return NeighbourStates.empty(batch)
+            return NeighbourStates.empty(len(robot_ids))
         fields = np.array(
             [(s.robot, s.x, s.y, s.vx, s.vy, s.radius, s.stamp, s.flags & State.DYNAMIC) for s in states], float
         )  # one pass over the states, one array
-        ids = fields[:, 0].astype(np.int64)
-        pos, vel, rad = fields[:, 1:3], fields[:, 3:5], fields[:, 5].copy()
-        age = stamp - fields[:, 6]
-        coop = fields[:, 7] == 0
+        heard = Heard(
+            fields[:, 0].astype(np.int64),
+            fields[:, 1:3],
+            fields[:, 3:5],
+            fields[:, 5].copy(),
+            fields[:, 6],
+            fields[:, 7] == 0,
+        )
         if stopped:
             for i, s in enumerate(states):
                 if s.robot in stopped:
-                    vel[i], age[i], coop[i] = 0.0, 0.0, False
-                    rad[i] += stopped[s.robot]
-        # Order by id first so that ties in distance break the same way in every process.
-        order = np.argsort(ids, kind="stable")
-        ids, pos, vel, rad, age, coop = ids[order], pos[order], vel[order], rad[order], age[order], coop[order]
-        m = max_neighbours
-        out = NeighbourStates.empty(batch, m)
-        # The whole batch at once: the pairs in reach (not itself), ranked per robot by distance, then
-        # by id (their column order).
-        p = np.asarray(positions, float).reshape(batch, 2)
-        rows, cols, d2 = _pairs_in_reach(p, np.asarray(robot_ids), pos, ids, neighbour_dist)
-        order = np.lexsort((cols, d2, rows))
-        rows, cols = rows[order], cols[order]
-        rank = np.arange(len(rows)) - np.searchsorted(rows, rows)  # place among the robot's candidates
-        near = rank < m
-        rows, cols, rank = rows[near], cols[near], rank[near]
-        out.position[rows, rank], out.velocity[rows, rank] = pos[cols], vel[cols]
-        out.radius[rows, rank], out.age[rows, rank], out.valid[rows, rank] = rad[cols], age[cols], True
-        out.cooperative[rows, rank] = coop[cols]
-        return out
+                    heard.velocity[i], heard.stamp[i], heard.cooperative[i] = 0.0, stamp, False
+                    heard.radius[i] += stopped[s.robot]
+        return nearest_heard(robot_ids, positions, stamp, heard, neighbour_dist, max_neighbours)
+
+
+@dataclass
+class Heard:
+    """The newest state heard of each of S robots, as arrays (any order)."""
+
+    ids: np.ndarray  # (S,) robot ids
+    position: np.ndarray  # (S,2) as broadcast
+    velocity: np.ndarray  # (S,2) its collision-free velocity
+    radius: np.ndarray  # (S,)
+    stamp: np.ndarray  # (S,) display time of the state
+    cooperative: np.ndarray  # (S,) bool: runs the same ORCA (False: a dynamic obstacle)
+
+
+def nearest_heard(
+    robot_ids, positions: np.ndarray, stamp: float, heard: Heard, neighbour_dist: float, max_neighbours: int
+) -> NeighbourStates:
+    """Padded neighbour arrays for a batch at display time ``stamp``: each robot's nearest
+    ``max_neighbours`` heard states within ``neighbour_dist`` of it (never its own), nearest first,
+    ties by robot id, so every process and engine picks the same neighbours from the same states."""
+    batch = len(robot_ids)
+    if len(heard.ids) == 0:
+        return NeighbourStates.empty(batch)
+    order = np.argsort(heard.ids, kind="stable")
+    ids, pos, vel = heard.ids[order], heard.position[order], heard.velocity[order]
+    rad, age, coop = heard.radius[order], stamp - heard.stamp[order], heard.cooperative[order]
+    m = max_neighbours
+    out = NeighbourStates.empty(batch, m)
+    # The whole batch at once: the pairs in reach (not itself), ranked per robot by distance, then
+    # by id (their column order).
+    p = np.asarray(positions, float).reshape(batch, 2)
+    rows, cols, d2 = _pairs_in_reach(p, np.asarray(robot_ids), pos, ids, neighbour_dist)
+    order = np.lexsort((cols, d2, rows))
+    rows, cols = rows[order], cols[order]
+    rank = np.arange(len(rows)) - np.searchsorted(rows, rows)  # place among the robot's candidates
+    near = rank < m
+    rows, cols, rank = rows[near], cols[near], rank[near]
+    out.position[rows, rank], out.velocity[rows, rank] = pos[cols], vel[cols]
+    out.radius[rows, rank], out.age[rows, rank], out.valid[rows, rank] = rad[cols], age[cols], True
+    out.cooperative[rows, rank] = coop[cols]
+    return out

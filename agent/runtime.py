@@ -30,12 +30,11 @@ from transport.codec import Command, Commands, Event, Goals, Pose, Poses, State,
 from transport.keys import cell_of, cells_of
 
 from .assignment import AuctionLink
-from .core.animation import frame_hold, iterations_left
 from .core.bidder import bid_position
-from .core.deadlock import blocked, count_blocked
-from .core.goal_motion import GoalMotion, tracking_velocity
 from .core.params import DIFFDRIVE, RobotParams
-from .core.step import control_step, static_segments
+from .core.policy import GoalTiming, Memory, decide
+from .core.step import static_segments
+from .goal_sets import motion_of, timing_of
 from .neighbour_table import NeighbourTable
 
 IDLE_COLOR = (40, 40, 40)
@@ -48,7 +47,6 @@ class RobotMemory:
     """What one robot carries from tick to tick."""
 
     robot: int
-    velocity: np.ndarray = field(default_factory=lambda: np.zeros(2))  # v_cf of the last tick (v_opt)
     goal: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
     goal_index: int = -1
     color: tuple[int, int, int] = IDLE_COLOR
@@ -56,11 +54,8 @@ class RobotMemory:
     position: np.ndarray | None = None  # tracked position of the last tick
     assign_epoch: int = 0  # the agreed assignment that gave goal_index (image scenes)
     assign_instance: int = 0
-    blocked: int = 0  # consecutive iterations near the goal with v_cf far from v_pref (deadlock, 5.5.5)
     stamp: float = 0.0  # display time of `position`
     goal0: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))  # the agreed goal in G^0 (eq. 28 at t=0)
-    hold_left: int = 0  # iterations eq. 27's hold still lasts in a keyframe
-    hold_for: tuple[int, int] = (0, -1)  # (epoch, goal index) the hold was started for
 
 
 @dataclass
@@ -206,6 +201,7 @@ class AgentHost:
         # One subscription per own robot: a host receives only its robots' poses (with frames, those
         # sent before its robots are live, and then its robots' rows of the tracker's frames).
         self.own = np.array(sorted(config.robots))
+        self.policy_memory = Memory.new(len(self.own))  # rows: the own robots in id order
         self.pose_inbox = bus.inbox(Pose, frames=Poses, only=self.own)
         for r in config.robots:
             bus.subscribe_into(self.keys.pose(r), self.pose_inbox)
@@ -310,6 +306,10 @@ class AgentHost:
                     mem.goal = goals.positions[r].astype(float)
                 mem.color = tuple(int(c) for c in goals.colors[r])
 
+    @property
+    def timing(self) -> dict[int, GoalTiming]:
+        return {epoch: timing_of(gs) for epoch, gs in self.goal_sets.items()}
+
     def _positions(self) -> dict[int, np.ndarray]:
         """The own robots' positions as the auction takes them. A moving goal set (paper 7.4.1) is
         auctioned on G^0, the goals as published, with each robot's position mapped back through
@@ -339,7 +339,7 @@ class AgentHost:
             lead = bid_position(
                 np.array([m.position for m in on_way]),
                 np.array([m.goal for m in on_way]),
-                np.array([m.velocity for m in on_way]),
+                self.policy_memory.velocity[np.searchsorted(self.own, [m.robot for m in on_way])],
                 self.auction.latency,
             )
             out.update(zip([m.robot for m in on_way], lead))
@@ -512,32 +512,40 @@ class AgentHost:
             mem.stamp = stamp
         self._bid_from = None
         self.auction.on_tick(stamp, self._positions())
-        velocity = np.array([m.velocity for m in mems])
-        goal, preferred = self._goals_now(mems, position, stamp)
         for _, ident, alive, _ in self.alive.drain():
             if ident.isdigit():
                 (self.dead.discard if alive else self.dead.add)(int(ident))
         stopped = {r: p.v_max * p.dt for r in self.dead}  # it may have moved one period after its last state
         neighbours = self.table.gather(ids, position, stamp, tick, p.neighbour_dist, p.max_neighbours, stopped)
-        result = control_step(
+        rows = np.searchsorted(self.own, ids)
+        key = np.array([(m.assign_epoch, m.goal_index) for m in mems], np.int64).reshape(-1, 2)
+        goal0 = np.array([m.goal0 if m.goal_index >= 0 else m.goal for m in mems], float).reshape(-1, 2)
+        decision = decide(
             p,
             np.array(ids),
             position,
             heading,
-            velocity,
-            goal,
+            stamp,
+            goal0,
+            key,
+            self.timing,
+            self.policy_memory.rows(rows),
             neighbours,
             self.segments,
             seed=self.config.seed,
             tick=tick,
-            preferred=preferred,
+            watch_deadlocks=self.auction.active,
         )
+        self.policy_memory.put(rows, decision.memory)
+        result = decision.step
         self.fallbacks += int(result.fallback.sum())
-        self._detect_deadlocks(mems, position, result.pref_velocity, result.velocity)
+        for mem, goal, dead in zip(mems, decision.intent.goal, decision.deadlocked.tolist()):
+            mem.goal = goal  # a moving goal set's goal moved (eq. 28)
+            if dead:  # paper 5.5.5: the robot's cost of this goal rises by C_d for good
+                self.auction.penalise(mem.robot, mem.assign_epoch, mem.goal_index)
         mode = Command.WHEELS if p.kinematics == DIFFDRIVE else Command.HOLONOMIC
         states, commands = [], []
         for b, (pose, mem) in enumerate(zip(poses, mems)):
-            mem.velocity = result.velocity[b].copy()
             mem.last_tick = tick
             has_goal = math.isfinite(mem.goal[0]) and math.isfinite(mem.goal[1])  # np.all costs 6 us a robot
             at_goal = has_goal and math.dist(mem.goal, position[b]) <= p.goal_tolerance
@@ -584,66 +592,6 @@ class AgentHost:
         self._bid_from = None  # the robots' velocities changed: they move where they bid from
         self.ticks_done += 1
 
-    def _goals_now(self, mems: list[RobotMemory], position: np.ndarray, stamp: float) -> tuple[np.ndarray, np.ndarray]:
-        """Each robot's goal at this tick, and its preferred velocity where eq. 9 does not apply (NaN
-        rows): toward a moving goal, v_goal + eq. 9 (eq. 28); in a keyframe, eq. 27 held."""
-        p = self.params
-        b = len(mems)
-        sets = [self.goal_sets.get(m.assign_epoch) if m.goal_index >= 0 else None for m in mems]
-        preferred = np.full((b, 2), np.nan)
-        for epoch in {m.assign_epoch for m, gs in zip(mems, sets) if gs is not None and gs.moves}:
-            gs = self.goal_sets[epoch]
-            rows = [i for i, m in enumerate(mems) if sets[i] is gs]
-            motion, t = motion_of(gs), stamp - gs.t_start
-            g0 = np.array([mems[i].goal0 for i in rows])
-            goal = motion.positions(g0, t)
-            preferred[rows] = tracking_velocity(
-                position[rows], goal, motion.velocities(g0, t), p.v_pref, p.k_a, p.v_max
-            )
-            for i, g in zip(rows, goal):
-                mems[i].goal = g
-        keyframe = np.array([gs is not None and gs.frame_period > 0 and not gs.moves for gs in sets])
-        if keyframe.any() or any(m.hold_left for m in mems):
-            key = [(m.assign_epoch, m.goal_index) for m in mems]
-            # a new goal restarts the hold: over what is left of its keyframe, or (not a keyframe) ends it
-            restart = np.array([k != m.hold_for for k, m in zip(key, mems)])
-            iterations = np.array(
-                [iterations_left(gs.t_start, gs.frame_period, stamp, p.dt) if f else 0 for gs, f in zip(sets, keyframe)]
-            )
-            pref, left = frame_hold(
-                position,
-                np.array([m.goal for m in mems]),
-                restart,
-                iterations,
-                np.array([m.hold_left for m in mems]),
-                p.v_max,
-                p.dt,
-            )
-            for i, m in enumerate(mems):
-                m.hold_left = int(left[i])
-                if restart[i]:
-                    m.hold_for = key[i]
-            preferred = np.where(np.isfinite(pref), pref, preferred)
-        return np.array([m.goal for m in mems]), preferred
-
-    def _detect_deadlocks(
-        self, mems: list[RobotMemory], position: np.ndarray, pref: np.ndarray, velocity: np.ndarray
-    ) -> None:
-        """Paper 5.5.5 (agent.core.deadlock): N_d blocked iterations before the goal raise the robot's
-        cost of that goal by C_d for good."""
-        p = self.params
-        if not self.auction.active or p.deadlock_cost == 0:
-            return
-        to_goal = np.array(
-            [m.goal - position[b] if m.goal_index >= 0 else (np.nan, np.nan) for b, m in enumerate(mems)], float
-        ).reshape(-1, 2)
-        counts = np.array([m.blocked for m in mems])
-        counts, deadlocked = count_blocked(counts, blocked(p, to_goal, pref, velocity), p.deadlock_iterations)
-        for mem, n, dead in zip(mems, counts.tolist(), deadlocked.tolist()):
-            mem.blocked = n
-            if dead:
-                self.auction.penalise(mem.robot, mem.assign_epoch, mem.goal_index)
-
     def stats(self) -> dict[str, Any]:
         drops: dict[str, int] = {}
         for inbox in (self.pose_inbox, self.state_inbox, self.goal_inbox, self.auction.inbox):
@@ -663,15 +611,6 @@ class AgentHost:
 
     def report(self) -> None:
         self.bus.publish(self.keys.event, Event({"kind": "stats", **self.stats()}))
-
-
-def motion_of(goals: Goals) -> GoalMotion | None:
-    """The motion of a goal set (eq. 28) from its message; None for a still one."""
-    if not goals.moves:
-        return None
-    return GoalMotion(
-        (goals.v_gx, goals.v_gy), goals.omega_g, (goals.p_ogx, goals.p_ogy), goals.k_eg, bool(goals.geometric)
-    )
 
 
 def install_stop_handlers(host: AgentHost) -> None:

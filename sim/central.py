@@ -23,20 +23,25 @@ from __future__ import annotations
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 from pathlib import Path
 from typing import NamedTuple, TextIO
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from agent.core.animation import frame_hold, iterations_left
 from agent.core.bidder import Participant
-from agent.core.goal_motion import GoalMotion, tracking_velocity
-from agent.core.step import NeighbourStates, control_step, static_segments
+from agent.core.goal_motion import GoalMotion
+from agent.core.policy import NO_GOAL, Decision, GoalTiming, Intent, Memory, act, intend
+from agent.core.step import NeighbourStates, static_segments
+from agent.goal_sets import timing_of
+from agent.neighbour_table import Heard
 from coordinator.motion import StepMotion
 from coordinator.scene import Scene, scene_goal_set
-from coordinator.service import palette
+from coordinator.service import scene_goal_message, step_timing
+from transport.codec import Goals, as_sent, decode
 
+from .link import InProcessLink
 from .movers import Movers
 from .output import write_run
 from .proximity import gather, nearest_within
@@ -103,16 +108,37 @@ def auction_assignment(auction: Participant, position: np.ndarray) -> np.ndarray
     return assignment
 
 
-def run_central(
+class Outcome(NamedTuple):
+    """What a central run produced: the recorded ticks and what the world and the robots counted."""
+
+    arrays: dict[str, np.ndarray]  # t, pose, velocity, color, goal, assignment, step (rows by tick)
+    contacts: list  # the world's contact events
+    min_clearance: float  # m, over the run's sub-steps
+    fallbacks: int  # robot-ticks where ORCA's program was infeasible
+    penalties: int  # deadlocks declared (paper 5.5.5)
+    end_reason: str
+    wall_s: float
+
+
+class _Goals(NamedTuple):
+    """The goals an assignment gives the robots this tick (rows by robot)."""
+
+    goal0: np.ndarray  # (N,2) the goal as its set was published (NaN: none)
+    key: np.ndarray  # (N,2) (epoch, goal index)
+    color: np.ndarray  # (N,3) LED colour
+    has_goal: np.ndarray  # (N,) a pixel with a goal (what convergence is judged on)
+
+
+def simulate(
     scene: Scene,
-    out: Path,
     *,
-    video: bool = True,
+    link: InProcessLink | None = None,
     progress: TextIO | None = sys.stderr,
     clock: StepClock | None = None,
     overlap: bool = True,
-) -> Path:
-    """Run the scene with every robot in this process; returns the run directory. ``clock`` (if
+) -> Outcome:
+    """Step every robot of the scene in this process, each deciding by the robot policy from what the
+    link let it hear (agent.core.policy), until the scene's duration or convergence. ``clock`` (if
     given) receives the wall and CPU time per part of each control step (bench/bench_large.py).
     ``overlap``: a warm auction runs on a second thread while this one searches neighbours and steps
     the control core on the goals the robots hold, and only the robots whose goal changed are
@@ -121,15 +147,14 @@ def run_central(
     tracker = tracker_of(scene)
     segments = static_segments(scene.arena, scene.obstacles)
     n = scene.robots
+    link = link if link is not None else InProcessLink(n)
     movers = Movers(scene)  # scripted movers and pursuers: not robot pixels (sim.movers)
     ids = np.arange(n)
-    goal_set = scene.goal_positions  # the scene's goals; image scenes: the shown step's goal set
-    has_goal = np.isfinite(goal_set).all(axis=1)
-    goal_colors = np.where(has_goal[:, None], palette(n), 40).astype(np.uint8)
+    goal_set, goal_colors = _scene_goals(scene)  # image scenes: the shown step's goal set, below
     auction: Participant | None = None  # image scenes: the auction of the shown goal set
-    assignment = np.where(has_goal, ids, -1)  # goal index per robot (scene goals: its own)
-    velocity = np.zeros((n, 2))
-    left, hold_for = np.zeros(n, np.int64), np.full(n, -1)  # eq. 27's hold per robot
+    assignment = np.where(np.isfinite(goal_set).all(axis=1), ids, -1)  # goal index per robot (scene goals: its own)
+    memory = Memory.new(n)
+    timing: dict[int, GoalTiming] = {}
     motion: GoalMotion | None = None
     t_start = 0.0  # when the shown step started
     assigned_at: float | None = None  # when the shown goal set was last assigned
@@ -140,10 +165,23 @@ def run_central(
     shown = -1  # the image step whose goal set the auction works on
     rec: dict[str, list] = {"t": [], "pose": [], "velocity": [], "color": [], "goal": [], "assignment": [], "step": []}
     steps = round(scene.duration / params.dt)
-    fallbacks, converged_since, end_reason = 0, None, "duration"
-    run_dir = RunDir(out)
+    fallbacks = penalties = 0
+    converged_since, end_reason = None, "duration"
     clock = clock if clock is not None else StepClock()
     wall0 = last_say = time.time()
+
+    def goals_of(assignment: np.ndarray, measured: np.ndarray) -> _Goals:
+        if scene.steps:
+            has_goal = assignment >= 0
+            goal0 = np.where(has_goal[:, None], goal_set[assignment], np.nan)
+            color = np.where(has_goal[:, None], goal_colors[assignment], 40).astype(np.uint8)
+            key = np.stack([np.full(n, shown + 1), np.where(has_goal, assignment, NO_GOAL)], axis=1)
+        else:  # the scene's own goals, one per robot, as the agents hold them: no goal set, no auction
+            goal0, color, has_goal = goal_set, goal_colors, np.isfinite(goal_set).all(axis=1)
+            key = np.stack([np.zeros(n, np.int64), np.full(n, NO_GOAL)], axis=1)
+        goal0, color = movers.goals(goal0, color, measured)  # a pursuer heads for its target
+        return _Goals(goal0, key, color, has_goal)
+
     beside = ThreadPoolExecutor(1, thread_name_prefix="auction")  # the auction beside the control core
     try:
         for tick in range(steps + 1):
@@ -156,12 +194,11 @@ def run_central(
             if k != shown:  # a new image: its goal set, and a fresh auction (the old prices mean nothing)
                 shown, auction, assigned_at = k, None, None
                 converged_since = None
-                hold_for[:] = -1  # every robot's goal is new: a keyframe's hold restarts
                 if scene.steps:
-                    goal_set, goal_colors = scene_goal_set(scene, k, len(movers.pixels))
-                    motion, t_start = goal_motion(scene.steps[k].motion), scene.step_starts[k]
+                    goal_set, goal_colors, shown_timing = _step_goals(scene, k, movers.pixels)
+                    motion, t_start, timing = shown_timing.motion, shown_timing.t_start, {k + 1: shown_timing}
             clock.lap("other")
-            measured = tracker.measure(world.poses)
+            measured = as_sent(tracker.measure(world.poses))  # the poses as the tracker's messages carry them
             clock.lap("tracker")
             pending = None  # this tick's auction, running beside the control core
             if scene.steps and (assigned_at is None or t - assigned_at >= params.assign_period - 1e-9):
@@ -189,101 +226,52 @@ def run_central(
             clock.lap("assignment")
             world.check()  # the contacts of the last step
             clock.lap("world")
-            nbs = nearest_neighbours(
-                measured[:, :2],
-                velocity,
-                params.radius,
-                params.neighbour_dist,
-                params.max_neighbours,
-                movers.cooperative,
-            )
+            nbs = link.neighbours(ids, measured[:, :2], t, params.neighbour_dist, params.max_neighbours)
             clock.lap("neighbours")
             if pending is not None and not overlap:
                 assignment, pending = pending.result(), None
                 clock.lap("assignment")
-            # While the auction runs, the control core steps every robot toward the goal it holds: a
-            # robot's control depends on its own goal and on the neighbours' last states only, and
-            # most robots keep their goals, so only the robots whose goal changed are stepped again.
-            plan = _plan(
-                scene,
-                params,
-                k,
-                motion,
-                t - t_start,
-                t,
-                measured,
-                goal_set,
-                goal_colors,
-                assignment,
-                hold_for,
-                left,
-                movers,
-            )
+            # While the auction runs, every robot decides on the goal it holds: a robot's decision
+            # depends on its own goal and its neighbours' states only, and most robots keep their
+            # goals, so only the robots whose goal changed decide again.
+            goals = goals_of(assignment, measured)
+            intent = intend(params, measured[:, :2], t, goals.goal0, goals.key, timing, memory)
             clock.lap("preferred")
-            res = control_step(
-                params,
-                ids,
-                measured[:, :2],
-                measured[:, 2],
-                velocity,
-                plan.goal,
-                nbs,
-                segments,
-                seed=scene.seed,
-                tick=tick,
-                preferred=plan.preferred,
-                compiled=True,
+            decide_now = partial(
+                act, params, seed=scene.seed, tick=tick, watch_deadlocks=auction is not None, compiled=True
             )
+            decision = decide_now(ids, measured[:, :2], measured[:, 2], intent, memory, nbs, segments)
             clock.lap("control")
             # ... and the world moves on those commands: stepped again from here if the auction changed any
             pose, moving = world.poses, world.velocities  # this tick's, recorded below
             before = world.snapshot()
-            velocity_next = _move(world, movers, res, pose, t, params.dt)
+            velocity_next = _move(world, movers, decision.step, pose, t, params.dt)
             clock.lap("world")
             if pending is not None:
                 settled = pending.result()
                 clock.lap("assignment")
                 if not np.array_equal(settled, assignment):
-                    guess, assignment = plan, settled
-                    plan = _plan(
-                        scene,
-                        params,
-                        k,
-                        motion,
-                        t - t_start,
-                        t,
-                        measured,
-                        goal_set,
-                        goal_colors,
-                        assignment,
-                        hold_for,
-                        left,
-                        movers,
-                    )
+                    assignment = settled
+                    goals = goals_of(assignment, measured)
+                    again = intend(params, measured[:, :2], t, goals.goal0, goals.key, timing, memory)
                     clock.lap("preferred")
                     _step_again(
-                        res,
-                        _changed_rows(guess, plan),
-                        params,
-                        ids,
-                        measured,
-                        velocity,
-                        plan,
-                        nbs,
-                        segments,
-                        scene.seed,
-                        tick,
+                        decision, _changed_rows(intent, again), again, decide_now, measured, memory, nbs, segments
                     )
                     clock.lap("control")
                     world.restore(before)
-                    velocity_next = _move(world, movers, res, pose, t, params.dt)
+                    velocity_next = _move(world, movers, decision.step, pose, t, params.dt)
                     clock.lap("world")
-            goal, color, left, has_goal = plan.goal, plan.color, plan.left, plan.has_goal
-            hold_for = assignment.copy()
+            if auction is not None:
+                for robot in np.flatnonzero(decision.deadlocked).tolist():
+                    auction.penalise(robot, int(decision.intent.key[robot, 1]), params.deadlock_cost)
+                    penalties += 1
+            goal, has_goal = decision.intent.goal, goals.has_goal
+            memory = decision.memory
             rec["t"].append(t)
             rec["pose"].append(pose)
             rec["velocity"].append(moving)
-            rec["color"].append(color)
+            rec["color"].append(goals.color)
             rec["goal"].append(goal)
             rec["assignment"].append(assignment)
             rec["step"].append(k)
@@ -306,8 +294,9 @@ def run_central(
             if tick == steps:
                 world.restore(before)
                 break
-            velocity = velocity_next
-            fallbacks += int(res.fallback.sum())
+            # what the robots broadcast this tick: heard by their neighbours at the next
+            link.broadcast(_states(params, measured, pose, velocity_next, t, movers))
+            fallbacks += int(decision.step.fallback.sum())
             clock.lap("other")
             if progress is not None and time.time() - last_say >= 1.0:
                 last_say = time.time()
@@ -319,86 +308,97 @@ def run_central(
                     flush=True,
                 )
             clock.lap("other")
-        arrays = {k: np.stack(v) if k != "t" else np.array(v) for k, v in rec.items()}
-        arrays["color"] = arrays["color"].astype(np.uint8)
-        arrays["step"] = arrays["step"].astype(np.int64)
+    finally:
+        beside.shutdown()
+    arrays = {k: np.stack(v) if k != "t" else np.array(v) for k, v in rec.items()}
+    arrays["color"] = arrays["color"].astype(np.uint8)
+    arrays["step"] = arrays["step"].astype(np.int64)
+    return Outcome(
+        arrays, list(world.contacts), float(world.min_clearance), fallbacks, penalties, end_reason, time.time() - wall0
+    )
+
+
+def run_central(
+    scene: Scene,
+    out: Path,
+    *,
+    video: bool = True,
+    progress: TextIO | None = sys.stderr,
+    clock: StepClock | None = None,
+    overlap: bool = True,
+) -> Path:
+    """Run the scene with every robot in this process (``simulate``); returns the run directory."""
+    run_dir = RunDir(out)
+    try:
+        outcome = simulate(scene, progress=progress, clock=clock, overlap=overlap)
+        params, _ = world_of(scene)
         contacts = [
             {"kind": c.kind, "i": c.i, "j": c.j, "t_start": c.t_start, "t_end": c.t_end, "max_depth": c.max_depth}
-            for c in world.contacts
+            for c in outcome.contacts
         ]
         return write_run(
             run_dir,
             scene,
             params,
-            arrays,
-            wall_s=time.time() - wall0,
+            outcome.arrays,
+            wall_s=outcome.wall_s,
             contacts=contacts,
             video=video,
             engine="central",
-            end_reason=end_reason,
+            end_reason=outcome.end_reason,
             complete=True,
-            orca_fallbacks=fallbacks,
-            min_clearance_substep_m=world.min_clearance if np.isfinite(world.min_clearance) else None,
+            orca_fallbacks=outcome.fallbacks,
+            deadlock_penalties=outcome.penalties,
+            min_clearance_substep_m=outcome.min_clearance if np.isfinite(outcome.min_clearance) else None,
         )
     except BaseException:
         run_dir.abort()
         raise
-    finally:
-        beside.shutdown()
 
 
-class Plan(NamedTuple):
-    """What one tick's goal assignment asks of the robots (rows by robot)."""
-
-    goal: np.ndarray  # (N, 2) where each robot heads now (NaN: no goal)
-    color: np.ndarray  # (N, 3) its LED colour
-    preferred: np.ndarray | None  # (N, 2) where eq. 9 does not apply (NaN rows: eq. 9)
-    left: np.ndarray  # (N,) iterations left of eq. 27's hold
-    has_goal: np.ndarray  # (N,) bool: a pixel with a goal (what convergence is judged on)
-
-
-def _plan(
-    scene: Scene,
-    params,
-    k: int,
-    motion: GoalMotion | None,
-    t_rel: float,
-    t: float,
-    measured: np.ndarray,
-    goal_set: np.ndarray,
-    goal_colors: np.ndarray,
-    assignment: np.ndarray,
-    hold_for: np.ndarray,
-    left: np.ndarray,
-    movers: Movers,
-) -> Plan:
-    """The goals, colours and preferred velocities that an assignment gives this tick (pure: the
-    engine computes it for the assignment held while the auction runs, and again if that changed)."""
-    preferred = None
-    if scene.steps:
-        has_goal = assignment >= 0
-        goal = np.where(has_goal[:, None], goal_set[assignment], np.nan)
-        color = np.where(has_goal[:, None], goal_colors[assignment], 40).astype(np.uint8)
-        preferred, left = _preferred(
-            scene, params, k, motion, t_rel, t, measured[:, :2], goal, assignment, hold_for, left
-        )
-        if motion is not None:
-            goal = motion.positions(goal, t_rel)
-    else:
-        goal, color, has_goal = goal_set, goal_colors, np.isfinite(goal_set).all(axis=1)
-    goal, color = movers.goals(goal, color, measured)  # a pursuer heads for its target
-    return Plan(goal, color, preferred, left, has_goal)
+def _scene_goals(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """The scene's own goals, one per robot, as the agents decode them from the coordinator's message
+    (NaN rows and grey: no goal of its own)."""
+    goals = scene.goal_positions
+    message = scene_goal_message(scene)
+    if message is None:
+        return goals, np.full((len(goals), 3), 40, np.uint8)
+    heard = decode(message.encode(), Goals)
+    has_goal = np.isfinite(goals).all(axis=1)[:, None]
+    return np.where(has_goal, heard.positions, np.nan), np.where(has_goal, heard.colors, 40).astype(np.uint8)
 
 
-def _changed_rows(old: Plan, new: Plan) -> np.ndarray:
-    """The robots whose goal or preferred velocity differ, to the bit, between two plans."""
+def _step_goals(scene: Scene, k: int, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray, GoalTiming]:
+    """Step k's goal set, colours and timing as the agents decode them from the coordinator's message."""
+    goals, colors = scene_goal_set(scene, k, len(pixels))
+    message = Goals(1, 0, 0.0, len(goals), goals, colors, k, 0.0, pixels, **step_timing(scene, k))
+    heard = decode(message.encode(), Goals)
+    return heard.positions, heard.colors, timing_of(heard)
+
+
+def _states(params, measured: np.ndarray, pose: np.ndarray, velocity: np.ndarray, t: float, movers: Movers) -> Heard:
+    """What every robot broadcasts this tick: its tracked position and its collision-free velocity (a
+    scripted mover: its true position and scripted velocity, as the world process broadcasts them)."""
+    n = len(measured)
+    position = np.where(movers.cooperative[:, None], measured[:, :2], pose[:, :2])
+    return Heard(
+        np.arange(n),
+        as_sent(position),
+        as_sent(velocity),
+        as_sent(np.full(n, params.radius)),
+        np.full(n, t),
+        movers.cooperative,
+    )
+
+
+def _changed_rows(old: Intent, new: Intent) -> np.ndarray:
+    """The robots whose goal, its key or preferred velocity differ, to the bit, between two intents."""
 
     def bits(a: np.ndarray) -> np.ndarray:
         return np.ascontiguousarray(a, dtype=float).view(np.int64)
 
-    changed = (bits(old.goal) != bits(new.goal)).any(axis=1)
-    if new.preferred is not None:
-        changed |= (bits(old.preferred) != bits(new.preferred)).any(axis=1)
+    changed = (bits(old.goal) != bits(new.goal)).any(axis=1) | (old.key != new.key).any(axis=1)
+    changed |= (bits(old.preferred) != bits(new.preferred)).any(axis=1)
     return np.flatnonzero(changed)
 
 
@@ -407,73 +407,28 @@ def _move(world, movers: Movers, res, pose: np.ndarray, t: float, dt: float) -> 
     collision-free velocities their neighbours hear next tick. The step's contacts are looked for
     while the next auction runs (World.check)."""
     command, velocity = movers.commands(res.command, res.velocity, pose, t, dt)
-    world.set_commands(command)
+    world.set_commands(as_sent(command))
     world.step(dt, check=False)
     return velocity
 
 
 def _step_again(
-    res,
+    decision: Decision,
     rows: np.ndarray,
-    params,
-    ids: np.ndarray,
+    intent: Intent,
+    decide_now,
     measured: np.ndarray,
-    velocity: np.ndarray,
-    plan: Plan,
+    memory: Memory,
     nbs: NeighbourStates,
     segments: np.ndarray,
-    seed: int,
-    tick: int,
 ) -> None:
-    """Step the control core again for the robots at ``rows`` (their plan changed) and write their
-    results into ``res``: per robot, control_step does not depend on the rest of the batch."""
-    if rows.size == 0:
-        return
-    again = control_step(
-        params,
-        ids[rows],
-        measured[rows, :2],
-        measured[rows, 2],
-        velocity[rows],
-        plan.goal[rows],
-        nbs.rows(rows),
-        segments,
-        seed=seed,
-        tick=tick,
-        preferred=None if plan.preferred is None else plan.preferred[rows],
-        compiled=True,
-    )
-    res.velocity[rows], res.command[rows] = again.velocity, again.command
-    res.pref_velocity[rows], res.fallback[rows] = again.pref_velocity, again.fallback
-
-
-def _preferred(
-    scene: Scene,
-    params,
-    k: int,
-    motion: GoalMotion | None,
-    t_rel: float,
-    t: float,
-    position: np.ndarray,
-    goal0: np.ndarray,
-    assignment: np.ndarray,
-    hold_for: np.ndarray,
-    left: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Preferred velocities where eq. 9 does not apply (NaN rows), as agent.runtime computes them:
-    toward a moving goal v_goal + eq. 9 (eq. 28); in a keyframe eq. 27, held K_f iterations from
-    the robot's goal change. Returns (preferred, left)."""
-    if motion is not None:
-        pref = tracking_velocity(
-            position,
-            motion.positions(goal0, t_rel),
-            motion.velocities(goal0, t_rel),
-            params.v_pref,
-            params.k_a,
-            params.v_max,
+    """The robots at ``rows`` decide again on their new intent; the decision takes the new intent for
+    every robot (the others' is the same, to the bit). Per robot, a decision does not depend on
+    the rest of the batch."""
+    if rows.size:
+        again = decide_now(
+            rows, measured[rows, :2], measured[rows, 2], intent.rows(rows), memory.rows(rows), nbs.rows(rows), segments
         )
-        return pref, np.zeros_like(left)
-    period = scene.steps[k].frame_period
-    iterations = iterations_left(scene.step_starts[k], period, t, params.dt) if period > 0 else 0
-    restart = assignment != hold_for
-    return frame_hold(position, goal0, restart, np.full(len(position), iterations), left, params.v_max, params.dt)
+        decision.put(rows, again)
+    decision.intent = intent
+    decision.memory.hold_left, decision.memory.hold_for = intent.hold_left, intent.hold_for

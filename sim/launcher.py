@@ -229,6 +229,7 @@ class Launcher:
         self.world_exit: int | None = None
         try:
             recorder = Recorder(bus, self.scene.robots, self.params.goal_tolerance, str(self.run_dir / "log.mcap"))
+            recorder.ends = self._ends_on_convergence
             endpoint = ", ".join(settings.listen or settings.connect)
             self._say(
                 f"[{self.scene.name}] {self.scene.robots} robots, {self.scene.clock} clock, router {endpoint}",
@@ -292,11 +293,7 @@ class Launcher:
             if self.stop_signal is not None and not end_sent:
                 end_sent = "interrupted"
                 self.interrupted = True
-            # With image steps, only convergence that began within the last step ends a run early.
-            last_start = self.scene.step_starts[-1] if self.scene.steps else 0.0
-            in_last = rec.converged_since is not None and rec.converged_since >= last_start - 1e-9
-            in_last = in_last and self.scene.ends_on_convergence
-            if not end_sent and in_last and rec.held_converged(rec.sim_time, self.scene.converge_hold):
+            if not end_sent and rec.ended_at is not None:
                 end_sent = "converged"
             if end_sent and time.monotonic() - end_at >= 0.5:
                 # Again until the world is done: an event published before the world subscribed
@@ -306,6 +303,12 @@ class Launcher:
             self._fail_agents(rec.sim_time)
             self._progress(rec)
             time.sleep(0.01)
+
+    def _ends_on_convergence(self, since: float, now: float) -> bool:
+        """The run ends at the tick where the display has held converged for the scene's hold; with
+        image steps, only convergence that began within the last step counts (as sim.central ends)."""
+        last_start = self.scene.step_starts[-1] if self.scene.steps else 0.0
+        return self.scene.ends_on_convergence and since >= last_start - 1e-9 and now - since >= self.scene.converge_hold
 
     def _fail_agents(self, t: float) -> None:
         """Scene 'fail' events: SIGKILL the process hosting the robot (a robot that dies, 5.1.2)."""

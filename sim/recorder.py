@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import time
 import typing
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -90,6 +91,8 @@ class Recorder:
         self.liveliness: list[dict[str, Any]] = []
         self.agent_alive = np.zeros(robots, bool)
         self.converged_since: float | None = None
+        self.ends: Callable[[float, float], bool] | None = None  # (converged since, now): the run ends here
+        self.ended_at: int | None = None  # ticks recorded when it ended (none recorded after)
         self.time_to_converge: float | None = None
         self.last_min_clearance = np.inf
         self.log = McapLog(log_path) if log_path else None
@@ -155,7 +158,7 @@ class Recorder:
                 seen[int(rec["robot"])] = (float(rec["x"]), float(rec["y"]), float(rec["penalty"]))
 
     def _on_truth(self, m: Truth, wall: float) -> None:
-        if m.count != self.n:
+        if m.count != self.n or self.ended_at is not None:
             return
         tr = self.traj
         if tr.t and m.stamp <= tr.t[-1]:
@@ -174,6 +177,8 @@ class Recorder:
         tr.applied = m.applied
         self.last_min_clearance = min(self.last_min_clearance, m.min_clearance)
         self._check_converged(m.stamp, m.pose)
+        if self.converged_since is not None and self.ends is not None and self.ends(self.converged_since, m.stamp):
+            self.ended_at = len(tr.t)  # the run ends with this tick, whenever the world hears of it
 
     def _check_converged(self, t: float, pose: np.ndarray) -> None:
         """Converged: every live robot has a goal and is within tolerance of it (true position)."""

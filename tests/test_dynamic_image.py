@@ -13,7 +13,7 @@ from scipy.optimize import linear_sum_assignment
 
 from agent.core.goal_motion import GoalMotion, tracking_velocity
 from agent.core.params import EPUCK
-from agent.runtime import motion_of
+from agent.goal_sets import motion_of
 from coordinator.scene import SceneError, load_scene, scene_from_dict, scene_goal_set
 from coordinator.service import step_timing
 from sim.central import run_central

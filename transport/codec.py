@@ -21,6 +21,13 @@ VERSION = 1
 _HEADER = struct.Struct("<BB")
 
 
+def as_sent(values: Any) -> np.ndarray:
+    """Poses, states and commands as a receiver decodes them: their coordinates, velocities, radii and
+    wheel speeds cross the wire as float32. An in-process link rounds through this, so a robot there
+    knows exactly what it would have heard over the bus."""
+    return np.asarray(values, np.float32).astype(np.float64)
+
+
 class DropCounter(Counter):
     """Counts dropped messages by reason ('truncated', 'version', 'kind', 'non-finite', 'invalid')."""
 

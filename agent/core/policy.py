@@ -1,0 +1,223 @@
+"""The robot policy: what a batch of robots decides in one tick from what each of them knows.
+
+Every engine calls this and nothing else to decide: an agent process (one robot or a host of K), the
+central engine (every robot in one batch) and the loss study. Per robot the result depends only on
+that robot's row, so a robot decides the same whatever batch it is stepped in.
+
+A tick has two stages, kept apart so the central engine can redo the second for the robots whose goal
+an auction changed while the first ran:
+
+- ``intend``: where each robot heads now and the preferred velocity where eq. 9 does not apply: in an
+  animation keyframe eq. 27, held K_f iterations from the goal's change (agent.core.animation); toward
+  a moving goal set its goal's velocity fed forward (eq. 28, agent.core.goal_motion).
+- ``act``: ORCA or NH-ORCA with symmetry breaking (agent.core.step), then deadlock detection (paper
+  5.5.5): the robots whose goal is to carry the penalty C_d in the next auction.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from .animation import frame_hold, iterations_left
+from .deadlock import blocked, count_blocked
+from .goal_motion import GoalMotion, tracking_velocity
+from .params import RobotParams
+from .step import NeighbourStates, StepResult, control_step
+
+NO_GOAL = -1  # goal index of a robot that holds no goal of a goal set
+
+
+@dataclass(frozen=True)
+class GoalTiming:
+    """What a goal set's message says about time: when its step began, an animation keyframe's
+    K_f dt (0: a still image) and a dynamic image's motion (None: the goals stand still)."""
+
+    t_start: float = 0.0
+    frame_period: float = 0.0
+    motion: GoalMotion | None = None
+
+
+@dataclass
+class Memory:
+    """What a batch of robots carries from tick to tick (rows = robots)."""
+
+    velocity: np.ndarray  # (B,2) v_cf of the last tick: ORCA's v_opt, and what neighbours heard
+    hold_left: np.ndarray  # (B,) iterations eq. 27's hold still lasts
+    hold_for: np.ndarray  # (B,2) (epoch, goal index) the hold was started for
+    blocked: np.ndarray  # (B,) consecutive blocked iterations (deadlock detection)
+
+    @classmethod
+    def new(cls, batch: int) -> Memory:
+        hold_for = np.zeros((batch, 2), np.int64)
+        hold_for[:, 1] = NO_GOAL
+        return cls(np.zeros((batch, 2)), np.zeros(batch, np.int64), hold_for, np.zeros(batch, np.int64))
+
+    def rows(self, index: np.ndarray) -> Memory:
+        return Memory(self.velocity[index], self.hold_left[index], self.hold_for[index], self.blocked[index])
+
+    def put(self, index: np.ndarray, other: Memory) -> None:
+        self.velocity[index], self.hold_left[index] = other.velocity, other.hold_left
+        self.hold_for[index], self.blocked[index] = other.hold_for, other.blocked
+
+
+@dataclass
+class Intent:
+    """Where a batch heads this tick (stage one of the policy)."""
+
+    key: np.ndarray  # (B,2) (epoch, goal index) of each robot's goal (goal index NO_GOAL: none)
+    goal: np.ndarray  # (B,2) the goal now (NaN: none)
+    preferred: np.ndarray  # (B,2) preferred velocity where eq. 9 does not apply (NaN rows: eq. 9)
+    hold_left: np.ndarray  # (B,) the hold's memory after this tick
+    hold_for: np.ndarray  # (B,2)
+
+    def rows(self, index: np.ndarray) -> Intent:
+        return Intent(
+            self.key[index], self.goal[index], self.preferred[index], self.hold_left[index], self.hold_for[index]
+        )
+
+
+@dataclass
+class Decision:
+    """A batch's tick: its intent, the control step, its memory for the next tick, and deadlocks."""
+
+    intent: Intent
+    step: StepResult
+    memory: Memory
+    deadlocked: np.ndarray  # (B,) bool: raise this robot's cost of its goal by C_d
+
+    def put(self, index: np.ndarray, other: Decision) -> None:
+        """Overwrite the rows ``index`` with a smaller batch's decision for those robots."""
+        for name in ("key", "goal", "preferred", "hold_left", "hold_for"):
+            getattr(self.intent, name)[index] = getattr(other.intent, name)
+        for name in ("velocity", "command", "pref_velocity", "fallback"):
+            getattr(self.step, name)[index] = getattr(other.step, name)
+        self.memory.put(index, other.memory)
+        self.deadlocked[index] = other.deadlocked
+
+
+def intend(
+    params: RobotParams,
+    position: np.ndarray,
+    stamp: float,
+    goal0: np.ndarray,
+    key: np.ndarray,
+    timing: Mapping[int, GoalTiming],
+    memory: Memory,
+) -> Intent:
+    """Stage one for a batch at display time ``stamp``. ``goal0`` (B,2): each robot's goal as its goal
+    set was published (NaN: none); ``key`` (B,2): (epoch, goal index) of that goal; ``timing``: the
+    goal sets' timing by epoch (a robot whose goal set is not in it drives to goal0 by eq. 9)."""
+    b = len(position)
+    key = np.asarray(key, np.int64).reshape(b, 2)
+    goal = np.array(goal0, float).reshape(b, 2)
+    preferred = np.full((b, 2), np.nan)
+    of_set = np.where(key[:, 1] >= 0, key[:, 0], NO_GOAL)
+    keyframe = np.zeros(b, bool)
+    t_start, period = np.zeros(b), np.zeros(b)
+    for epoch in np.unique(of_set[of_set != NO_GOAL]).tolist():
+        gs = timing.get(epoch)
+        if gs is None:
+            continue
+        rows = of_set == epoch
+        if gs.motion is not None:  # eq. 28: the goal moves, its velocity is fed forward
+            t = stamp - gs.t_start
+            goal[rows] = gs.motion.positions(goal0[rows], t)
+            preferred[rows] = tracking_velocity(
+                position[rows],
+                goal[rows],
+                gs.motion.velocities(goal0[rows], t),
+                params.v_pref,
+                params.k_a,
+                params.v_max,
+            )
+        elif gs.frame_period > 0:
+            keyframe[rows] = True
+            t_start[rows], period[rows] = gs.t_start, gs.frame_period
+    hold_left, hold_for = memory.hold_left.copy(), memory.hold_for.copy()
+    if keyframe.any() or hold_left.any():
+        # a new goal restarts the hold: over what is left of its keyframe, or (not a keyframe) ends it
+        restart = (key != hold_for).any(axis=1)
+        iterations = np.where(keyframe, iterations_left(t_start, period, stamp, params.dt), 0)
+        pref, hold_left = frame_hold(position, goal, restart, iterations, hold_left, params.v_max, params.dt)
+        hold_for = np.where(restart[:, None], key, hold_for)
+        preferred = np.where(np.isfinite(pref), pref, preferred)
+    return Intent(key, goal, preferred, hold_left, hold_for)
+
+
+def act(
+    params: RobotParams,
+    robot_ids: np.ndarray,
+    position: np.ndarray,
+    heading: np.ndarray,
+    intent: Intent,
+    memory: Memory,
+    neighbours: NeighbourStates,
+    segments: np.ndarray | None,
+    *,
+    seed: int,
+    tick: int,
+    watch_deadlocks: bool,
+    compiled: bool = False,
+) -> Decision:
+    """Stage two: collision-free velocity and command, and deadlock detection while an auction can
+    act on it (``watch_deadlocks``; otherwise the blocked counts wait as they are)."""
+    res = control_step(
+        params,
+        robot_ids,
+        position,
+        heading,
+        memory.velocity,
+        intent.goal,
+        neighbours,
+        segments,
+        seed=seed,
+        tick=tick,
+        preferred=intent.preferred,
+        compiled=compiled,
+    )
+    counts, deadlocked = memory.blocked, np.zeros(len(position), bool)
+    if watch_deadlocks and params.deadlock_cost > 0:
+        to_goal = np.where((intent.key[:, 1] >= 0)[:, None], intent.goal - position, np.nan)
+        now = blocked(params, to_goal, res.pref_velocity, res.velocity)
+        counts, deadlocked = count_blocked(counts, now, params.deadlock_iterations)
+    new_memory = Memory(res.velocity.copy(), intent.hold_left, intent.hold_for, counts)
+    return Decision(intent, res, new_memory, deadlocked)
+
+
+def decide(
+    params: RobotParams,
+    robot_ids: np.ndarray,
+    position: np.ndarray,
+    heading: np.ndarray,
+    stamp: float,
+    goal0: np.ndarray,
+    key: np.ndarray,
+    timing: Mapping[int, GoalTiming],
+    memory: Memory,
+    neighbours: NeighbourStates,
+    segments: np.ndarray | None,
+    *,
+    seed: int,
+    tick: int,
+    watch_deadlocks: bool,
+    compiled: bool = False,
+) -> Decision:
+    """One tick of the policy for a batch: ``intend`` then ``act``."""
+    intent = intend(params, position, stamp, goal0, key, timing, memory)
+    return act(
+        params,
+        robot_ids,
+        position,
+        heading,
+        intent,
+        memory,
+        neighbours,
+        segments,
+        seed=seed,
+        tick=tick,
+        watch_deadlocks=watch_deadlocks,
+        compiled=compiled,
+    )

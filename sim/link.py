@@ -1,0 +1,88 @@
+"""How robots hear each other inside one process: the central engine's and the loss study's link.
+
+A robot's state of tick k (its tracked position, its collision-free velocity) reaches the others at
+tick k + 1, as over the bus in lock-step, so with no impairment a central run and a distributed run of
+one seed are the same run. Impairment is a property of the link: a seeded draw per (receiver, sender)
+and tick loses a state (``drop``) or makes it a tick late (``late``), as an agent under
+``--faults state:drop=P,delay=S`` lives with; each receiver keeps the newest state it heard of each
+sender and steers by its age (agent.core.neighbours).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from agent.core.step import NeighbourStates
+from agent.neighbour_table import Heard, nearest_heard
+
+_UNHEARD = -np.inf
+
+
+class InProcessLink:
+    """The states of one tick, heard by every robot at the next (optionally lost or late)."""
+
+    def __init__(self, robots: int, *, drop: float = 0.0, late: float = 0.0, seed: int = 0) -> None:
+        if not (0.0 <= drop and 0.0 <= late and drop + late <= 1.0):
+            raise ValueError(f"drop and late must be probabilities with drop + late <= 1, not {drop}, {late}")
+        self.robots, self.drop, self.late = robots, drop, late
+        self.impaired = drop > 0 or late > 0
+        self.rng = np.random.default_rng(seed)
+        self.last: Heard | None = None  # what everybody heard (no impairment)
+        n = robots if self.impaired else 0
+        self.heard_stamp = np.full((n, n), _UNHEARD)  # [receiver, sender]: stamp of the newest state heard
+        self.heard_pos, self.heard_vel = np.zeros((n, n, 2)), np.zeros((n, n, 2))
+        self.delayed: tuple[np.ndarray, Heard] | None = None  # states of the last tick that arrive a tick late
+        self.on_time = self.draws = 0
+
+    def broadcast(self, states: Heard) -> None:
+        """Every robot's state of this tick (rows by robot id)."""
+        if not self.impaired:
+            self.last = states
+            return
+        n = self.robots
+        if self.delayed is not None:  # last tick's late states arrive first, so this tick's overwrite them
+            self._arrive(*self.delayed)
+        u = self.rng.random((n, n))
+        arrive, late = u >= self.drop + self.late, (u >= self.drop) & (u < self.drop + self.late)
+        self.on_time, self.draws = self.on_time + int(arrive.sum()), self.draws + n * n
+        self._arrive(arrive, states)
+        self.delayed = (late, states)
+        self._template = states
+
+    def _arrive(self, arrive: np.ndarray, states: Heard) -> None:
+        self.heard_stamp = np.where(arrive, states.stamp[None, :], self.heard_stamp)
+        self.heard_pos = np.where(arrive[..., None], states.position[None], self.heard_pos)
+        self.heard_vel = np.where(arrive[..., None], states.velocity[None], self.heard_vel)
+
+    def neighbours(
+        self, robot_ids: np.ndarray, position: np.ndarray, stamp: float, neighbour_dist: float, max_neighbours: int
+    ) -> NeighbourStates:
+        """Each robot's nearest neighbours as it last heard them, by the agents' own rule."""
+        if not self.impaired:
+            if self.last is None:
+                return NeighbourStates.empty(len(robot_ids))
+            return nearest_heard(robot_ids, position, stamp, self.last, neighbour_dist, max_neighbours)
+        out = NeighbourStates.empty(len(robot_ids), max_neighbours)
+        if self.delayed is None:
+            return out
+        t = self._template
+        for b, i in enumerate(np.asarray(robot_ids).tolist()):
+            known = np.isfinite(self.heard_stamp[i])
+            heard = Heard(
+                t.ids[known],
+                self.heard_pos[i, known],
+                self.heard_vel[i, known],
+                t.radius[known],
+                self.heard_stamp[i, known],
+                t.cooperative[known],
+            )
+            one = nearest_heard([i], position[b : b + 1], stamp, heard, neighbour_dist, max_neighbours)
+            k = one.position.shape[1]
+            for name in ("position", "velocity", "radius", "age", "valid", "cooperative"):
+                getattr(out, name)[b, :k] = getattr(one, name)[0]
+        return out
+
+    @property
+    def heard_on_time(self) -> float:
+        """Share of (receiver, sender) states heard at the next tick."""
+        return self.on_time / max(self.draws, 1)
