@@ -29,6 +29,7 @@ GOAL_SIZE = 0.4  # goal sphere diameter, as a fraction of the robot's diameter
 GOAL_ALPHA = 0.5  # a goal is where the robot's colour will be, not a robot
 NO_LED = (160, 160, 160)  # RGB of a robot whose LED colour is not known
 MATCHING_ID = 0  # foxglove.SceneEntityDeletionType
+DECIMALS = 4  # lengths to 0.1 mm and colours to 1e-4: far below what a viewer sees, and a shorter log
 
 
 # ------------------------------------------------------------------------------------------------
@@ -226,14 +227,14 @@ def scene_update(
     n = len(pose)
     radius = np.broadcast_to(np.asarray(radius, dtype=float), (n,))
     rgb = np.broadcast_to(NO_LED, (n, 3)) if color is None else np.asarray(color).reshape(n, 3)
-    rgb_unit = (np.asarray(rgb, dtype=float) / 255.0).tolist()
+    rgb_unit = (np.asarray(rgb, dtype=float) / 255.0).round(DECIMALS).tolist()
     goal_xy = np.full((n, 2), np.nan) if goal is None else np.asarray(goal, dtype=float).reshape(n, 2)
     ids = [str(i) for i in (range(n) if ids is None else ids)]
     theta = np.where(np.isfinite(pose[:, 2]), pose[:, 2], 0.0)
-    qz, qw = np.sin(theta / 2).tolist(), np.cos(theta / 2).tolist()
+    qz, qw = np.sin(theta / 2).round(DECIMALS).tolist(), np.cos(theta / 2).round(DECIMALS).tolist()
     drawn = np.isfinite(pose[:, :2]).all(axis=1) & np.isfinite(radius) & (radius > 0)
     has_goal = np.isfinite(goal_xy).all(axis=1).tolist()
-    xy, r, gxy = pose[:, :2].tolist(), radius.tolist(), goal_xy.tolist()
+    xy, r, gxy = (np.round(a, DECIMALS).tolist() for a in (pose[:, :2], radius, goal_xy))
     stamp = _stamp(t_ns)
 
     entities, deletions = [], []
@@ -267,15 +268,15 @@ def scene_update(
             entity["arrows"].append(
                 {
                     "pose": {"position": _xyz(x, y, height), "orientation": facing},
-                    "shaft_length": 0.6 * r[i],
-                    "shaft_diameter": 0.15 * r[i],
-                    "head_length": 0.35 * r[i],
-                    "head_diameter": 0.35 * r[i],
+                    "shaft_length": round(0.6 * r[i], DECIMALS),
+                    "shaft_diameter": round(0.15 * r[i], DECIMALS),
+                    "head_length": round(0.35 * r[i], DECIMALS),
+                    "head_diameter": round(0.35 * r[i], DECIMALS),
                     "color": {"r": 0.1, "g": 0.1, "b": 0.1, "a": 1.0},
                 }
             )
         if has_goal[i]:
-            d = 2 * r[i] * GOAL_SIZE
+            d = round(2 * r[i] * GOAL_SIZE, DECIMALS)
             entity["spheres"].append(
                 {
                     "pose": {"position": _xyz(gxy[i][0], gxy[i][1], d / 2), "orientation": flat},

@@ -227,7 +227,7 @@ def test_scene_update_messages_validate_and_read_back(tmp_path):
     (disc,) = second["cylinders"]
     assert disc["size"] == {"x": pytest.approx(0.2), "y": pytest.approx(0.2), "z": pytest.approx(0.01)}
     assert disc["color"] == {"r": 0.0, "g": 1.0, "b": 0.0, "a": 1.0}
-    assert disc["pose"]["orientation"]["z"] == pytest.approx(np.sin(np.pi / 4))
+    assert disc["pose"]["orientation"]["z"] == pytest.approx(np.sin(np.pi / 4), abs=1e-4)
     assert second["spheres"] == []  # no goal
     (target,) = first["spheres"]
     assert target["pose"]["position"]["x"] == 0.5 and target["pose"]["position"]["y"] == 0.5
@@ -255,10 +255,10 @@ def test_a_run_shows_in_foxglove_and_in_a_browser(tmp_path):
         assert [e["id"] for e in update["entities"]] == [f"robot/{i}" for i in range(4)]
         discs = [e["cylinders"][0] for e in update["entities"]]
         rgb = np.array([[d["color"][c] for c in "rgb"] for d in discs])
-        np.testing.assert_allclose(rgb * 255, traj["color"][k], atol=1e-9)
+        np.testing.assert_allclose(rgb * 255, traj["color"][k], atol=0.02)  # to 1e-4 of full scale
         centres = np.array([[d["pose"]["position"]["x"], d["pose"]["position"]["y"]] for d in discs])
-        np.testing.assert_allclose(centres, traj["pose"][k, :, :2], atol=1e-9)
-        np.testing.assert_allclose([d["size"]["x"] for d in discs], 2 * traj["radius"], rtol=1e-6)
+        np.testing.assert_allclose(centres, traj["pose"][k, :, :2], atol=0.5e-4)  # to 0.1 mm
+        np.testing.assert_allclose([d["size"]["x"] for d in discs], 2 * traj["radius"], atol=1e-4)
 
     codec, frames = _decode(out / "display.mp4")
     assert codec.name == "h264" and codec.pix_fmt == "yuv420p"
