@@ -4,8 +4,8 @@ Every channel has message encoding ``json`` and a schema with encoding ``jsonsch
 are Python dicts that may contain numpy scalars/arrays and NaN/inf; they are converted to JSON-safe
 values (NaN/inf -> ``null``) before writing.
 
-Also: :func:`read_mcap` / :func:`mcap_channels` (read back with mcap's reader, used by tests), and
-helpers that build a ``foxglove.SceneUpdate`` message so the 3D panel shows the robots as discs.
+Also: :func:`read_mcap` / :func:`mcap_channels` (read back with mcap's reader, used by tests); the
+``foxglove.SceneUpdate`` schema and messages (robots as discs in the 3D panel) are in :mod:`sim.foxglove`.
 
 No zenoh here: the recorder (a bus subscriber) calls this.
 """
@@ -19,10 +19,10 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
+from sim.foxglove import SCENE_UPDATE_SCHEMA_NAME, scene_update, scene_update_schema
 from sim.rundir import dumps_json, json_safe
 
 __all__ = [
@@ -249,182 +249,3 @@ def mcap_channels(path: str | os.PathLike) -> dict[str, dict[str, Any]]:
             "message_count": int(counts.get(cid, 0)),
         }
     return out
-
-
-# ------------------------------------------------------------------------------------------------
-# foxglove.SceneUpdate (robots as discs in Foxglove's 3D panel)
-# ------------------------------------------------------------------------------------------------
-
-SCENE_UPDATE_SCHEMA_NAME = "foxglove.SceneUpdate"
-
-
-def _num() -> dict:
-    return {"type": "number"}
-
-
-def _obj(title: str, props: dict, required: list[str] | None = None) -> dict:
-    return {
-        "title": title,
-        "type": "object",
-        "properties": props,
-        "required": list(props) if required is None else required,
-    }
-
-
-def _vec3() -> dict:
-    return _obj("foxglove.Vector3", {"x": _num(), "y": _num(), "z": _num()})
-
-
-def _time() -> dict:
-    return {
-        "title": "time",
-        "type": "object",
-        "properties": {
-            "sec": {"type": "integer", "minimum": 0},
-            "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999},
-        },
-    }
-
-
-def _duration() -> dict:
-    return {
-        "title": "duration",
-        "type": "object",
-        "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}},
-    }
-
-
-def _pose() -> dict:
-    quat = _obj("foxglove.Quaternion", {"x": _num(), "y": _num(), "z": _num(), "w": _num()})
-    return _obj("foxglove.Pose", {"position": _vec3(), "orientation": quat})
-
-
-def _color() -> dict:
-    return _obj("foxglove.Color", {"r": _num(), "g": _num(), "b": _num(), "a": _num()})
-
-
-def scene_update_schema() -> dict:
-    """JSON schema for the subset of ``foxglove.SceneUpdate`` that :func:`scene_update` emits
-    (entities with cylinders and arrows; deletions)."""
-    cylinder = _obj(
-        "foxglove.CylinderPrimitive",
-        {
-            "pose": _pose(),
-            "size": _vec3(),
-            "bottom_scale": _num(),
-            "top_scale": _num(),
-            "color": _color(),
-        },
-    )
-    arrow = _obj(
-        "foxglove.ArrowPrimitive",
-        {
-            "pose": _pose(),
-            "shaft_length": _num(),
-            "shaft_diameter": _num(),
-            "head_length": _num(),
-            "head_diameter": _num(),
-            "color": _color(),
-        },
-    )
-    kv = _obj("foxglove.KeyValuePair", {"key": {"type": "string"}, "value": {"type": "string"}})
-    entity = _obj(
-        "foxglove.SceneEntity",
-        {
-            "timestamp": _time(),
-            "frame_id": {"type": "string"},
-            "id": {"type": "string"},
-            "lifetime": _duration(),
-            "frame_locked": {"type": "boolean"},
-            "metadata": {"type": "array", "items": kv},
-            "cylinders": {"type": "array", "items": cylinder},
-            "arrows": {"type": "array", "items": arrow},
-        },
-        required=["timestamp", "frame_id", "id", "lifetime", "frame_locked"],
-    )
-    deletion = _obj(
-        "foxglove.SceneEntityDeletion",
-        {
-            "timestamp": _time(),
-            "type": {"type": "integer", "enum": [0, 1]},
-            "id": {"type": "string"},
-        },
-    )
-    return {
-        "title": SCENE_UPDATE_SCHEMA_NAME,
-        "description": "An update to the entities displayed in a 3D scene (pixelswarm subset)",
-        "type": "object",
-        "properties": {
-            "deletions": {"type": "array", "items": deletion},
-            "entities": {"type": "array", "items": entity},
-        },
-        "required": ["deletions", "entities"],
-    }
-
-
-def _stamp(t_ns: int) -> dict:
-    t_ns = int(t_ns)
-    return {"sec": t_ns // 1_000_000_000, "nsec": t_ns % 1_000_000_000}
-
-
-def scene_update(
-    t_ns: int,
-    pose: np.ndarray,
-    radius: np.ndarray,
-    color: np.ndarray | None = None,
-    *,
-    ids: Iterable[Any] | None = None,
-    frame_id: str = "world",
-    height: float = 0.05,
-    heading: bool = True,
-) -> dict:
-    """A ``foxglove.SceneUpdate`` payload with one entity per robot: a disc (flat cylinder) in its
-    LED colour (``color`` (N,3) uint8 RGB; grey if None) and a small heading arrow.
-    Robots with non-finite poses are skipped.  Write it on a channel added with
-    ``add_channel(topic, SCENE_UPDATE_SCHEMA_NAME, scene_update_schema())``."""
-    pose = np.asarray(pose, dtype=float).reshape(-1, 3)
-    n = len(pose)
-    radius = np.broadcast_to(np.asarray(radius, dtype=float), (n,))
-    rgb = (np.full((n, 3), 160, dtype=float) if color is None else np.asarray(color, dtype=float).reshape(n, 3)) / 255.0
-    ids = [str(i) for i in (range(n) if ids is None else ids)]
-    stamp = _stamp(t_ns)
-    entities = []
-    for i in range(n):
-        x, y, th = pose[i]
-        if not (np.isfinite(x) and np.isfinite(y)):
-            continue
-        th = float(th) if np.isfinite(th) else 0.0
-        q = {"x": 0.0, "y": 0.0, "z": float(np.sin(th / 2)), "w": float(np.cos(th / 2))}
-        r = float(radius[i])
-        col = {"r": float(rgb[i, 0]), "g": float(rgb[i, 1]), "b": float(rgb[i, 2]), "a": 1.0}
-        ent = {
-            "timestamp": stamp,
-            "frame_id": frame_id,
-            "id": f"robot/{ids[i]}",
-            "lifetime": {"sec": 0, "nsec": 0},
-            "frame_locked": False,
-            "metadata": [],
-            "cylinders": [
-                {
-                    "pose": {"position": {"x": float(x), "y": float(y), "z": height / 2}, "orientation": q},
-                    "size": {"x": 2 * r, "y": 2 * r, "z": height},
-                    "bottom_scale": 1.0,
-                    "top_scale": 1.0,
-                    "color": col,
-                }
-            ],
-            "arrows": [],
-        }
-        if heading:
-            ent["arrows"].append(
-                {
-                    "pose": {"position": {"x": float(x), "y": float(y), "z": height + 0.001}, "orientation": q},
-                    "shaft_length": 0.6 * r,
-                    "shaft_diameter": 0.15 * r,
-                    "head_length": 0.35 * r,
-                    "head_diameter": 0.35 * r,
-                    "color": {"r": 0.1, "g": 0.1, "b": 0.1, "a": 1.0},
-                }
-            )
-        entities.append(ent)
-    return {"deletions": [], "entities": entities}

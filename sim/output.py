@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -77,16 +78,19 @@ def write_run(
             color=arrays["color"],
         )
         if video:
-            write_video(
-                run_dir / "display.mp4",
-                t,
-                arrays["pose"],
-                radius,
-                arrays["color"],
-                scene.arena,
-                scene.obstacles,
-                arrays["goal"],
-            )
+            try:
+                write_video(
+                    run_dir / "display.mp4",
+                    t,
+                    arrays["pose"],
+                    radius,
+                    arrays["color"],
+                    scene.arena,
+                    scene.obstacles,
+                    arrays["goal"],
+                )
+            except RuntimeError as err:  # no encoder here: the run's data matter more than its video
+                print(f"pixelswarm: warning: no display.mp4: {err}", file=sys.stderr)
     write_json(
         run_dir / "scene.json",
         {

@@ -1,7 +1,8 @@
 """The recorder: subscribes to everything on the bus and keeps what the run directory needs.
 
 It measures the run from the world's TRUE poses (``sim/truth``), never from what agents believed;
-it logs every message kind on its own MCAP channel; it counts messages and bytes per kind, and it
+it logs every message kind on its own MCAP channel, and at every recorded tick the display as a
+``foxglove.SceneUpdate`` on :data:`SCENE_TOPIC`; it counts messages and bytes per kind, and it
 decides when the display has converged.
 """
 
@@ -20,7 +21,10 @@ import orjson
 from transport.bus import Bus
 from transport.codec import BY_NAME, Bid, Commands, Contact, DropCounter, Event, Goals, State, States, Truth, decode
 
+from .foxglove import SCENE_UPDATE_SCHEMA_NAME, scene_update, scene_update_schema
 from .mcaplog import McapLog
+
+SCENE_TOPIC = "/display/scene"  # what Foxglove's 3D panel shows: robots in their LED colours, and goals
 
 _JSON_TYPES = {int: "integer", float: "number", str: "string", dict: "object"}
 
@@ -74,6 +78,7 @@ class Recorder:
         self.alive = bus.watch_alive()
         self.traj = Trajectory()
         self.goal = np.full((robots, 2), np.nan)
+        self.radius = np.full(robots, np.nan)  # as each robot announces it in its state
         self.goal_index = np.full(robots, -1)
         self.assign_epoch = np.zeros(robots, np.int64)
         self.assign_instance = np.zeros(robots, np.int64)
@@ -141,6 +146,7 @@ class Recorder:
     def _on_state(self, s: State) -> None:
         if s.robot >= self.n:
             return
+        self.radius[s.robot] = s.radius
         if s.flags & State.HAS_GOAL:
             self.goal[s.robot] = (s.goal_x, s.goal_y)
         else:
@@ -177,6 +183,7 @@ class Recorder:
         tr.applied = m.applied
         self.last_min_clearance = min(self.last_min_clearance, m.min_clearance)
         self._check_converged(m.stamp, m.pose)
+        self._log_scene(wall, m)
         if self.converged_since is not None and self.ends is not None and self.ends(self.converged_since, m.stamp):
             self.ended_at = len(tr.t)  # the run ends with this tick, whenever the world hears of it
 
@@ -217,6 +224,20 @@ class Recorder:
         self.log.write_bytes(
             cid, int(wall * 1e9), orjson.dumps(payload, default=_as_list, option=orjson.OPT_SERIALIZE_NUMPY)
         )
+
+    def _log_scene(self, wall: float, m: Truth) -> None:
+        """The display at this tick for Foxglove's 3D panel (stamped, like every channel, with the
+        wall time it arrived, so the panels of one file play in step)."""
+        if self.log is None:
+            return
+        cid = self._channels.get(SCENE_TOPIC)
+        if cid is None:
+            cid = self._channels[SCENE_TOPIC] = self.log.add_channel(
+                SCENE_TOPIC, SCENE_UPDATE_SCHEMA_NAME, scene_update_schema()
+            )
+        t_ns = int(wall * 1e9)
+        update = scene_update(t_ns, m.pose, self.radius, m.color, goal=self.goal)
+        self.log.write_bytes(cid, t_ns, orjson.dumps(update))
 
     def close_log(self) -> None:
         if self.log is not None:

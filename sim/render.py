@@ -3,8 +3,8 @@
 * :func:`render_frame` — one top-down BGR image: dark background (a robot display in a dark room),
   obstacles as grey polygons, robots as discs in their LED colour with a thin heading tick, optional
   faint goal rings, the time in the top-left corner.  OpenCV drawing, anti-aliased, sub-pixel.
-* :func:`write_video` — those frames into an MP4 with OpenCV's VideoWriter ('mp4v' = MPEG-4 part 2;
-  the pip OpenCV wheels have no H.264 encoder).
+* :func:`write_video` — those frames into an H.264 MP4 (yuv420p, High profile, 'faststart') that
+  browsers play, encoded with PyAV's bundled libx264 (the pip OpenCV wheels have no H.264 encoder).
 * :func:`write_plots` — ``clearance.png`` and ``trajectories.png`` with matplotlib's Agg canvas
   (no pyplot, so no global backend state is touched).
 
@@ -16,11 +16,14 @@ polygons, each a list of (x, y) vertices.
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
+from fractions import Fraction
 from pathlib import Path
 
+import av
 import cv2
 import numpy as np
+from av.codec.codec import UnknownCodecError
 
 __all__ = ["render_frame", "write_video", "write_plots", "frame_indices"]
 
@@ -30,6 +33,14 @@ OBSTACLE_FILL = (105, 105, 105)
 OBSTACLE_EDGE = (150, 150, 150)
 ROBOT_RIM = (85, 85, 85)
 TEXT = (210, 210, 210)
+
+# H.264 as every browser decodes it: 4:2:0 chroma, High profile; moov atom first so playback starts
+# before the whole file has downloaded.  CRF 23 is x264's own default quality.
+H264_ENCODER = "libx264"
+H264_OPTIONS = {"crf": "23", "preset": "veryfast"}
+H264_PROFILE = "High"
+H264_PIX_FMT = "yuv420p"
+MP4_OPTIONS = {"movflags": "+faststart"}
 
 _SHIFT = 4  # sub-pixel bits for cv2 drawing
 _ONE = 1 << _SHIFT
@@ -204,13 +215,14 @@ def write_video(
     *,
     speed: float | None = 1.0,
     max_frames: int = 3000,
-    fourcc: str = "mp4v",
+    fourcc: str | None = None,
 ) -> int:
     """Write the top-down video; returns the number of frames written.
 
     ``t`` (T,), ``pose`` (T,N,3), ``radius`` (N,), ``color`` (T,N,3) or (N,3) RGB uint8,
-    ``goal`` (T,N,2) optional.  Frame choice: :func:`frame_indices`.  Raises RuntimeError if
-    OpenCV cannot open a writer for ``fourcc`` or writes an empty file.
+    ``goal`` (T,N,2) optional.  Frame choice: :func:`frame_indices`.  The video is H.264 (PyAV);
+    a ``fourcc`` (e.g. 'mp4v') writes with OpenCV's VideoWriter in that codec instead.  Raises
+    RuntimeError if the encoder cannot be opened or fails; then no file is left at ``path``.
     """
     path = Path(path)
     t = np.asarray(t, dtype=float)
@@ -233,26 +245,56 @@ def write_video(
 
     view = _View(arena, size_px)
     bg = view.background(obstacles)
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), float(fps), (view.width, view.height))
+    frames = (
+        _draw(
+            bg.copy(),
+            view,
+            float(t[k]),
+            pose[k],
+            radius,
+            None if color is None else color[k],
+            None if goal is None else goal[k],
+        )
+        for k in idx.tolist()
+    )
+    try:
+        if fourcc is None:
+            _encode_h264(path, frames, fps, view.width, view.height)
+        else:
+            _encode_opencv(path, frames, fps, view.width, view.height, fourcc)
+    except BaseException:
+        path.unlink(missing_ok=True)  # a half-written video is worse than none
+        raise
+    return int(len(idx))
+
+
+def _encode_h264(path: Path, frames: Iterable[np.ndarray], fps: float, width: int, height: int) -> None:
+    """BGR frames -> H.264 in MP4 with PyAV's libx264 (the encoder converts BGR to yuv420p)."""
+    try:
+        with av.open(str(path), "w", format="mp4", options=MP4_OPTIONS) as container:
+            stream = container.add_stream(
+                H264_ENCODER, rate=Fraction(fps).limit_denominator(1001), options=H264_OPTIONS
+            )
+            stream.width, stream.height, stream.pix_fmt = width, height, H264_PIX_FMT
+            stream.codec_context.profile = H264_PROFILE
+            for frame in frames:
+                container.mux(stream.encode(av.VideoFrame.from_ndarray(frame, format="bgr24")))
+            container.mux(stream.encode())  # flush the frames the encoder still holds
+    except (av.FFmpegError, UnknownCodecError) as e:
+        raise RuntimeError(f"H.264 encoding of {path} failed ({H264_ENCODER} via PyAV): {e}") from e
+
+
+def _encode_opencv(path: Path, frames: Iterable[np.ndarray], fps: float, width: int, height: int, fourcc: str) -> None:
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), float(fps), (width, height))
     if not writer.isOpened():
         raise RuntimeError(f"OpenCV VideoWriter could not open {path} with fourcc {fourcc!r}")
     try:
-        for k in idx.tolist():
-            frame = _draw(
-                bg.copy(),
-                view,
-                float(t[k]),
-                pose[k],
-                radius,
-                None if color is None else color[k],
-                None if goal is None else goal[k],
-            )
+        for frame in frames:
             writer.write(frame)
     finally:
         writer.release()
     if not path.exists() or path.stat().st_size == 0:
         raise RuntimeError(f"OpenCV wrote no video data to {path}")
-    return int(len(idx))
 
 
 # ------------------------------------------------------------------------------------------------

@@ -124,7 +124,7 @@ def test_mcap_scene_update(tmp_path):
     cyl = ents[1]["cylinders"][0]
     assert cyl["size"]["x"] == pytest.approx(0.4)
     assert cyl["color"] == {"r": 0.0, "g": 1.0, "b": 0.0, "a": 1.0}
-    assert cyl["pose"]["orientation"]["z"] == pytest.approx(math.sin(math.pi / 4))
+    assert cyl["pose"]["orientation"]["z"] == pytest.approx(math.sin(math.pi / 4), abs=1e-4)
 
 
 # ------------------------------------------------------------------------------------------------
