@@ -15,6 +15,7 @@ from coordinator.scene import SceneError, load_scene, resolve_scene_path, shippe
 from transport.faults import parse_faults
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, open_session, settings_from_args
 
+from .certs_cli import add_certs_parser
 from .rundir import default_run_path
 
 
@@ -103,6 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
     scenes.set_defaults(func=cmd_scenes)
 
     add_goals_parser(sub)
+    add_certs_parser(sub)
     return parser
 
 
@@ -163,7 +165,7 @@ def cmd_router(args: argparse.Namespace) -> int:
     settings = settings_from_args(args)
     if settings.mode != "router":
         raise UsageError("pixelswarm router runs in router mode; drop -m")
-    if not settings.listen:
+    if not settings.listen and not settings.config_file:
         settings.listen = ["tcp/127.0.0.1:7447"]
     session = open_session(settings)
     stop = []
