@@ -17,7 +17,9 @@ and the world publish poses, robot i publishes only its own state, command and a
 only reads. The rules are enforced by the router, so every session must go through it (clients only).
 
 Endpoints: the files hold the router endpoint given to `make_certificates(connect=...)`, or none; then
-`client_config(dir, role, connect)` / `router_config(dir, listen)` fill it in when a session opens.
+`client_config(dir, role, connect)` / `router_config(dir, listen)` give it when a session opens. Both
+return ZenohSettings (open_session, Bus) that start from the role's file, which names the folder's
+files by absolute path: use the folder where it was made, or at the same path on another machine.
 """
 
 from __future__ import annotations
@@ -32,13 +34,13 @@ import tempfile
 from collections.abc import Iterable
 from pathlib import Path
 
-import zenoh
 from cryptography import x509
 from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from .keys import Keys
+from .session import ZenohSettings
 
 SERVICES = ("coordinator", "tracker", "world", "recorder")
 ROUTER = "router"
@@ -321,37 +323,35 @@ def _manifest(directory: Path) -> dict:
         ) from None
 
 
-def _check_auth(auth: str) -> None:
+def _role_file(directory: str | Path, role: str, auth: str) -> str:
+    """The role's configuration file in a folder made by make_certificates."""
     if auth not in AUTH_MODES:
         raise SecurityError(f"auth must be one of {', '.join(AUTH_MODES)}, not {auth!r}")
-
-
-def _passwords(directory: Path) -> dict[str, str]:
-    lines = (directory / USRPWD / "credentials.txt").read_text().splitlines()
-    return dict(line.split(":", 1) for line in lines if line)
-
-
-def router_config(directory: str | Path, listen: str | list[str], *, auth: str = "tls") -> zenoh.Config:
-    """A router enforcing the folder's access rules, listening on ``listen`` (tls/HOST:PORT)."""
-    _check_auth(auth)
     directory = Path(directory).resolve()
-    manifest = _manifest(directory)
-    listen = [listen] if isinstance(listen, str) else list(listen)
-    return zenoh.Config.from_json5(
-        json.dumps(_router_dict(directory, listen, auth, manifest["robots"], manifest["display"]))
-    )
+    robots = _manifest(directory)["robots"]
+    if role not in roles(robots):
+        raise SecurityError(f"no role {role!r} in {directory} (robots 0..{robots - 1})")
+    return str(directory / (USRPWD if auth == "usrpwd" else "") / f"{role}.json5")
 
 
-def client_config(directory: str | Path, role: str, connect: str | list[str], *, auth: str = "tls") -> zenoh.Config:
-    """A client session as ``role``, connecting to the router at ``connect`` (tls/HOST:PORT)."""
-    _check_auth(auth)
-    directory = Path(directory).resolve()
-    manifest = _manifest(directory)
-    if role not in roles(manifest["robots"]) or role == ROUTER:
-        raise SecurityError(f"no client role {role!r} in {directory} (robots 0..{manifest['robots'] - 1})")
-    connect = [connect] if isinstance(connect, str) else list(connect)
-    password = _passwords(directory)[role] if auth == "usrpwd" else None
-    return zenoh.Config.from_json5(json.dumps(_client_dict(directory, role, connect, auth, password)))
+def _endpoints(endpoints: str | list[str] | None) -> list[str]:
+    return [endpoints] if isinstance(endpoints, str) else list(endpoints or [])
+
+
+def router_config(directory: str | Path, listen: str | list[str] | None = None, *, auth: str = "tls") -> ZenohSettings:
+    """A router enforcing the folder's access rules, listening on ``listen`` (tls/HOST:PORT; default:
+    the endpoint the folder was made with)."""
+    return ZenohSettings(mode="router", listen=_endpoints(listen), config_file=_role_file(directory, ROUTER, auth))
+
+
+def client_config(
+    directory: str | Path, role: str, connect: str | list[str] | None = None, *, auth: str = "tls"
+) -> ZenohSettings:
+    """A client session as ``role``, connecting to the router at ``connect`` (tls/HOST:PORT; default:
+    the endpoint the folder was made with)."""
+    if role == ROUTER:
+        raise SecurityError("the router is not a client role")
+    return ZenohSettings(mode="client", connect=_endpoints(connect), config_file=_role_file(directory, role, auth))
 
 
 # --- the folder -------------------------------------------------------------------------------

@@ -27,6 +27,7 @@ class ZenohSettings:
     listen: list[str] = field(default_factory=list)
     multicast_scouting: bool = False
     lease_ms: int = 2000  # a frozen process is declared dead after ~0.75 x lease (zenoh default 10 s)
+    connect_timeout_ms: int = 5000  # a client that cannot reach (or is refused by) its router fails after this
     config_file: str | None = None  # a zenoh JSON5 file (e.g. a role's from `pixelswarm certs`); the rest overrides it
 
     def to_config(self) -> zenoh.Config:
@@ -44,7 +45,7 @@ class ZenohSettings:
         conf.insert_json5("transport/link/tx/lease", str(self.lease_ms))
         if self.mode == "client":
             # A client that loses its router should fail loudly, not wait forever.
-            conf.insert_json5("connect/timeout_ms", "5000")
+            conf.insert_json5("connect/timeout_ms", str(self.connect_timeout_ms))
         return conf
 
     def to_args(self) -> list[str]:
