@@ -130,6 +130,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(run_central(scene, out, video=args.video, progress=None if args.quiet else sys.stderr))
         return 0
     router = None
+    if args.zenoh_config:
+        raise UsageError("--zenoh-config is not supported here: each process of a run needs its own role's file")
     if args.mode != "router":
         raise UsageError("pixelswarm run embeds a router; to join an existing one use -e tcp/HOST:PORT")
     if args.listen:
@@ -171,7 +173,8 @@ def cmd_router(args: argparse.Namespace) -> int:
     stop = []
     for s in (signal.SIGINT, signal.SIGTERM):
         signal.signal(s, lambda *_: stop.append(1))
-    print(f"router listening on {', '.join(settings.listen)} (Ctrl-C to stop)", flush=True)
+    where = ", ".join(settings.listen) or f"the endpoints of {settings.config_file}"
+    print(f"router listening on {where} (Ctrl-C to stop)", flush=True)
     try:
         while not stop:
             time.sleep(0.1)

@@ -209,3 +209,19 @@ def test_certs_refuses_an_unwritable_or_full_folder(tmp_path):
     make_certificates(full, 2, overwrite=True)  # asked: the old contents go, the new folder is whole
     assert not (full / "keep.txt").exists() and (full / "robot-1.pem").is_file()
     assert sorted(os.listdir(tmp_path)) == ["a-file", "full"]
+
+
+def test_the_routers_own_session_is_not_subject_to_the_rules(certs):
+    """A run's launcher embeds the router and records and ends the run from its session."""
+    endpoint = f"tls/127.0.0.1:{free_port()}"
+    with Bus(router_config(certs, endpoint)) as launcher, Bus(client_config(certs, "world", endpoint)) as world:
+        everything = launcher.subscribe_raw(KEYS.everything)
+        events = world.subscribe_raw(KEYS.event)
+        with Bus(client_config(certs, "robot-2", endpoint)) as robot:
+
+            def routed() -> bool:
+                launcher.put(KEYS.event, b"end")
+                robot.put(KEYS.cmd(2), b"own")
+                return bool(events.drain()) and KEYS.cmd(2) in {key for key, _, _ in everything.drain()}
+
+            assert _wait_until(routed)
