@@ -14,6 +14,7 @@ from cryptography.x509.oid import NameOID
 
 from tests.conftest import run_pixelswarm
 from transport.bus import Bus
+from transport.codec import Goals
 from transport.keys import Keys
 from transport.security import (
     AUTH_MODES,
@@ -225,3 +226,24 @@ def test_the_routers_own_session_is_not_subject_to_the_rules(certs):
                 return bool(events.drain()) and KEYS.cmd(2) in {key for key, _, _ in everything.drain()}
 
             assert _wait_until(routed)
+
+
+def test_only_the_coordinator_answers_a_robots_question_for_the_goal_set(secured, certs):
+    auth, endpoint = secured
+
+    def bus(role: str) -> Bus:
+        return Bus(client_config(certs, role, endpoint, auth=auth))
+
+    with bus("coordinator") as coordinator, bus("robot-5") as impostor, bus("robot-3") as robot:
+        states = robot.subscribe_raw(KEYS.all_of("state"))
+        impostor.serve(KEYS.all_of("goals"), lambda: [(KEYS.goals(666), Goals(666, 0, 0.0, 0).encode())])
+
+        def impostor_heard() -> bool:  # its state follows its queryable on one link: the router has seen both
+            impostor.put(KEYS.state((0, 0), 5), b"own")
+            return bool(states.drain())
+
+        assert _wait_until(impostor_heard)
+        coordinator.serve(KEYS.all_of("goals"), lambda: [(KEYS.goals(4), Goals(4, 0, 0.0, 0).encode())])
+        answers: list = []
+        assert _wait_until(lambda: answers.extend(robot.query(KEYS.all_of("goals"), Goals, timeout=0.5)) or answers)
+        assert {msg.epoch for _, msg in answers} == {4}
