@@ -15,6 +15,7 @@ from coordinator.scene import SceneError, load_scene, resolve_scene_path, shippe
 from transport.faults import parse_faults
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, open_session, settings_from_args
 
+from .certs_cli import add_certs_parser
 from .rundir import default_run_path
 
 
@@ -103,6 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
     scenes.set_defaults(func=cmd_scenes)
 
     add_goals_parser(sub)
+    add_certs_parser(sub)
     return parser
 
 
@@ -128,6 +130,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(run_central(scene, out, video=args.video, progress=None if args.quiet else sys.stderr))
         return 0
     router = None
+    if args.zenoh_config:
+        raise UsageError("--zenoh-config is not supported here: each process of a run needs its own role's file")
     if args.mode != "router":
         raise UsageError("pixelswarm run embeds a router; to join an existing one use -e tcp/HOST:PORT")
     if args.listen:
@@ -163,13 +167,14 @@ def cmd_router(args: argparse.Namespace) -> int:
     settings = settings_from_args(args)
     if settings.mode != "router":
         raise UsageError("pixelswarm router runs in router mode; drop -m")
-    if not settings.listen:
+    if not settings.listen and not settings.config_file:
         settings.listen = ["tcp/127.0.0.1:7447"]
     session = open_session(settings)
     stop = []
     for s in (signal.SIGINT, signal.SIGTERM):
         signal.signal(s, lambda *_: stop.append(1))
-    print(f"router listening on {', '.join(settings.listen)} (Ctrl-C to stop)", flush=True)
+    where = ", ".join(settings.listen) or f"the endpoints of {settings.config_file}"
+    print(f"router listening on {where} (Ctrl-C to stop)", flush=True)
     try:
         while not stop:
             time.sleep(0.1)

@@ -79,6 +79,10 @@ class Keys:
     def auction(self, epoch: int, robot: int) -> str:
         return f"{self.root}/auction/{epoch}/{robot}"
 
+    def auction_of(self, robot: int) -> str:
+        """One robot's bids and prices, whatever the epoch."""
+        return f"{self.root}/auction/*/{robot}"
+
     def alive(self, role: str, ident: int | str) -> str:
         return f"{self.root}/alive/{role}/{ident}"
 

@@ -27,21 +27,25 @@ class ZenohSettings:
     listen: list[str] = field(default_factory=list)
     multicast_scouting: bool = False
     lease_ms: int = 2000  # a frozen process is declared dead after ~0.75 x lease (zenoh default 10 s)
+    connect_timeout_ms: int = 5000  # a client that cannot reach (or is refused by) its router fails after this
+    config_file: str | None = None  # a zenoh JSON5 file (e.g. a role's from `pixelswarm certs`); the rest overrides it
 
     def to_config(self) -> zenoh.Config:
         if self.mode not in MODES:
             raise TransportError(f"zenoh mode must be one of {', '.join(MODES)}, not {self.mode!r}")
-        conf = zenoh.Config()
+        conf = zenoh.Config.from_file(self.config_file) if self.config_file else zenoh.Config()
         conf.insert_json5("mode", json.dumps(self.mode))
         if self.connect:
             conf.insert_json5("connect/endpoints", json.dumps(self.connect))
-        # Always set listen explicitly: zenoh's default would listen on every interface.
-        conf.insert_json5("listen/endpoints", json.dumps(self.listen))
+        # Always set listen explicitly (zenoh's default would listen on every interface), unless
+        # a configuration file sets it.
+        if self.listen or not self.config_file:
+            conf.insert_json5("listen/endpoints", json.dumps(self.listen))
         conf.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast_scouting))
         conf.insert_json5("transport/link/tx/lease", str(self.lease_ms))
         if self.mode == "client":
             # A client that loses its router should fail loudly, not wait forever.
-            conf.insert_json5("connect/timeout_ms", "5000")
+            conf.insert_json5("connect/timeout_ms", str(self.connect_timeout_ms))
         return conf
 
     def to_args(self) -> list[str]:
@@ -53,6 +57,8 @@ class ZenohSettings:
             args += ["-l", e]
         if not self.multicast_scouting:
             args.append("--no-multicast-scouting")
+        if self.config_file:
+            args += ["--zenoh-config", self.config_file]
         return args
 
 
@@ -123,9 +129,18 @@ def add_zenoh_args(parser: argparse.ArgumentParser, default_mode: str = "client"
         action="store_true",
         help="enable multicast scouting (finds peers on the LAN)",
     )
+    group.add_argument(
+        "--zenoh-config",
+        metavar="FILE",
+        help="zenoh JSON5 configuration to start from, e.g. a role's file from `pixelswarm certs` (the flags override it)",
+    )
 
 
 def settings_from_args(args: argparse.Namespace) -> ZenohSettings:
     return ZenohSettings(
-        mode=args.mode, connect=list(args.connect), listen=list(args.listen), multicast_scouting=args.multicast_scouting
+        mode=args.mode,
+        connect=list(args.connect),
+        listen=list(args.listen),
+        multicast_scouting=args.multicast_scouting,
+        config_file=args.zenoh_config,
     )

@@ -1,0 +1,452 @@
+"""A secured bus: one certificate authority per deployment, a certificate per role, and access control.
+
+`make_certificates(dir, robots)` writes a folder with everything a secured run needs:
+
+    ca.pem, ca-key.pem            the deployment's certificate authority (keep ca-key.pem off the robots)
+    <role>.pem, <role>-key.pem    a certificate whose common name is the role, and its private key
+    <role>.json5                  a Zenoh client configuration opening a session as that role (mutual TLS)
+    router.json5                  the router: mutual TLS, access control keyed on certificate common names
+    usrpwd/credentials.txt        the alternative, user/password: the router's user:password dictionary
+    usrpwd/<role>.json5           a client as that user (TLS checks the router; the password names the role)
+    usrpwd/router.json5           the router: user/password and access control keyed on user names
+    roles.json                    how many robots and which display the access rules were written for
+
+Roles: coordinator, tracker, world, recorder, router and robot-<id>. The access rules follow the key
+schema (transport/keys.py) and deny by default: only the coordinator publishes goal sets, only the tracker
+and the world publish poses, robot i publishes only its own state, command and auction keys, the recorder
+only reads. The rules are enforced by the router, so every session must go through it (clients only).
+
+Endpoints: the files hold the router endpoint given to `make_certificates(connect=...)`, or none; then
+`client_config(dir, role, connect)` / `router_config(dir, listen)` give it when a session opens. Both
+return ZenohSettings (open_session, Bus) that start from the role's file, which names the folder's
+files by absolute path: use the folder where it was made, or at the same path on another machine.
+"""
+
+from __future__ import annotations
+
+import datetime
+import ipaddress
+import json
+import os
+import secrets
+import shutil
+import tempfile
+from collections.abc import Iterable
+from pathlib import Path
+
+from cryptography import x509
+from cryptography.hazmat.primitives import hashes, serialization
+from cryptography.hazmat.primitives.asymmetric import ec
+from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
+from .keys import Keys
+from .session import ZenohSettings
+
+SERVICES = ("coordinator", "tracker", "world", "recorder")
+ROUTER = "router"
+AUTH_MODES = ("tls", "usrpwd")
+VALID_DAYS = 365  # certificates are renewed by making a new folder, once a deployment season
+LOOPBACK_NAMES = ("127.0.0.1", "localhost")  # the router certificate always names these
+USRPWD = "usrpwd"
+MANIFEST = "roles.json"
+
+
+class SecurityError(ValueError):
+    """Bad input for the secured bus (folder exists, unknown role, no robots): one line for the user."""
+
+
+def robot_role(robot: int) -> str:
+    return f"robot-{robot}"
+
+
+def roles(robots: int) -> list[str]:
+    """Every role of a deployment with robots 0..robots-1, the router last."""
+    return [*SERVICES, *(robot_role(i) for i in range(robots)), ROUTER]
+
+
+# --- certificates -----------------------------------------------------------------------------
+
+
+def _name(common_name: str) -> x509.Name:
+    return x509.Name(
+        [
+            x509.NameAttribute(NameOID.ORGANIZATION_NAME, "pixelswarm"),
+            x509.NameAttribute(NameOID.COMMON_NAME, common_name),
+        ]
+    )
+
+
+def _san(hosts: Iterable[str]) -> x509.SubjectAlternativeName:
+    names: list[x509.GeneralName] = []
+    for host in dict.fromkeys(hosts):
+        try:
+            names.append(x509.IPAddress(ipaddress.ip_address(host)))
+        except ValueError:
+            names.append(x509.DNSName(host))
+    return x509.SubjectAlternativeName(names)
+
+
+def _pem_key(key: ec.EllipticCurvePrivateKey) -> bytes:
+    return key.private_bytes(
+        serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
+    )
+
+
+def _sign(
+    subject: str,
+    key: ec.EllipticCurvePrivateKey,
+    issuer: x509.Name,
+    issuer_key: ec.EllipticCurvePrivateKey,
+    now: datetime.datetime,
+) -> x509.CertificateBuilder:
+    # Back-dated an hour so that a robot whose clock lags a little still accepts the certificate.
+    return (
+        x509.CertificateBuilder()
+        .subject_name(_name(subject))
+        .issuer_name(issuer)
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now - datetime.timedelta(hours=1))
+        .not_valid_after(now + datetime.timedelta(days=VALID_DAYS))
+        .add_extension(x509.SubjectKeyIdentifier.from_public_key(key.public_key()), critical=False)
+        .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(issuer_key.public_key()), critical=False)
+    )
+
+
+def _certificate_authority(now: datetime.datetime) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
+    key = ec.generate_private_key(ec.SECP256R1())
+    cert = (
+        _sign("pixelswarm CA", key, _name("pixelswarm CA"), key, now)
+        .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
+        .add_extension(
+            x509.KeyUsage(False, False, False, False, False, True, True, False, False),  # cert and CRL signing
+            critical=True,
+        )
+        .sign(key, hashes.SHA256())
+    )
+    return key, cert
+
+
+def _role_certificate(
+    role: str, hosts: Iterable[str], ca_key: ec.EllipticCurvePrivateKey, ca: x509.Certificate, now: datetime.datetime
+) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
+    """A certificate naming the role. The router's also names its hosts (clients check the name they
+    dialled) and serves TLS; the others only prove who is connecting."""
+    key = ec.generate_private_key(ec.SECP256R1())
+    usage = [ExtendedKeyUsageOID.CLIENT_AUTH]
+    if role == ROUTER:
+        usage.append(ExtendedKeyUsageOID.SERVER_AUTH)
+    cert = (
+        _sign(role, key, ca.subject, ca_key, now)
+        .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+        .add_extension(
+            x509.KeyUsage(True, False, False, False, False, False, False, False, False),  # digital signature
+            critical=True,
+        )
+        .add_extension(x509.ExtendedKeyUsage(usage), critical=False)
+        .add_extension(_san([*hosts, role] if role == ROUTER else [role]), critical=False)
+        .sign(ca_key, hashes.SHA256())
+    )
+    return key, cert
+
+
+# --- access control ---------------------------------------------------------------------------
+
+
+def _rule(rule_id: str, messages: list[str], flow: str, key_exprs: list[str]) -> dict:
+    return {"id": rule_id, "permission": "allow", "flows": [flow], "messages": messages, "key_exprs": key_exprs}
+
+
+def _grants(prefix: str, *, put=(), read=(), token=(), watch=(), query=(), serve=()) -> list[dict]:
+    """The router's allow rules for what one subject may do. Every flow is seen from the router:
+    what a client sends comes in (ingress), what it receives goes out (egress)."""
+    rules = []
+    if put:
+        rules.append(_rule(f"{prefix} publishes", ["put"], "ingress", list(put)))
+    if read:  # a subscription is declared in, and its samples go out
+        rules.append(_rule(f"{prefix} subscribes", ["declare_subscriber"], "ingress", list(read)))
+        rules.append(_rule(f"{prefix} receives", ["put"], "egress", list(read)))
+    if token:
+        rules.append(_rule(f"{prefix} declares alive", ["liveliness_token"], "ingress", list(token)))
+    if watch:
+        rules.append(
+            _rule(f"{prefix} watches", ["declare_liveliness_subscriber", "liveliness_query"], "ingress", list(watch))
+        )
+        rules.append(_rule(f"{prefix} sees alive", ["liveliness_token"], "egress", list(watch)))
+    if query:
+        rules.append(_rule(f"{prefix} asks", ["query"], "ingress", list(query)))
+        rules.append(_rule(f"{prefix} hears answers", ["reply"], "egress", list(query)))
+    if serve:
+        rules.append(_rule(f"{prefix} serves", ["declare_queryable", "reply"], "ingress", list(serve)))
+        rules.append(_rule(f"{prefix} is asked", ["query"], "egress", list(serve)))
+    return rules
+
+
+def _service_grants(keys: Keys) -> dict[str, list[dict]]:
+    alive = keys.alive_all()
+    return {
+        "coordinator": _grants(
+            "coordinator",
+            put=[keys.all_of("goals")],
+            serve=[keys.all_of("goals")],
+            read=[keys.clock, keys.all_of("pose"), keys.poses],
+            token=[keys.alive_all("coordinator")],
+            watch=[alive],
+        ),
+        "tracker": _grants(
+            "tracker",
+            put=[keys.all_of("pose"), keys.poses],
+            read=[keys.clock],
+            token=[keys.alive_all("tracker")],
+            watch=[alive],
+        ),
+        # The simulated world is the tracker of a simulation, and also drives its scripted obstacles,
+        # which broadcast states like robots.
+        "world": _grants(
+            "world",
+            put=[keys.clock, keys.all_of("pose"), keys.poses, keys.all_of("state"), keys.all_of("sim"), keys.event],
+            read=[keys.all_of("cmd"), keys.all_of("cmds"), keys.event],
+            token=[keys.alive_all("world")],
+            watch=[alive],
+        ),
+        "recorder": _grants("recorder", read=[keys.everything], watch=[alive]),
+    }
+
+
+def _robot_grants(keys: Keys, robot: int) -> list[dict]:
+    """What only robot i may do: publish its own keys, hear its own pose and command."""
+    role = robot_role(robot)
+    return _grants(
+        role,
+        put=[
+            keys.state_of(robot),
+            keys.states(robot),
+            keys.cmd(robot),
+            keys.cmds(robot),
+            keys.auction_of(robot),
+            keys.event,
+        ],
+        read=[keys.pose(robot), keys.cmd(robot)],
+        token=[keys.alive("agent", robot)],
+    )
+
+
+def _every_robot_grants(keys: Keys) -> list[dict]:
+    """What every robot may read: neighbours' states, poses frames, goals, bids, the clock."""
+    return _grants(
+        "robots",
+        read=[
+            keys.poses,
+            keys.all_of("state"),
+            keys.all_of("states"),
+            keys.all_of("goals"),
+            keys.all_of("auction"),
+            keys.clock,
+        ],
+        query=[keys.all_of("goals")],
+        watch=[keys.alive_all()],
+    )
+
+
+def access_control(robots: int, *, by: str = "cert_common_names", display: str = "default") -> dict:
+    """Zenoh `access_control` for a router: default deny, and the grants of every role. ``by`` names
+    how the router knows a role: "cert_common_names" (mutual TLS) or "usernames" (user/password)."""
+    if robots < 1:
+        raise SecurityError(f"robots must be at least 1, not {robots}")
+    keys = Keys(display)
+    rules: list[dict] = []
+    subjects: list[dict] = []
+    policies: list[dict] = []
+
+    def grant(subject_id: str, names: list[str], grants: list[dict]) -> None:
+        rules.extend(grants)
+        subjects.append({"id": subject_id, by: names})
+        policies.append({"id": subject_id, "rules": [g["id"] for g in grants], "subjects": [subject_id]})
+
+    for role, grants in _service_grants(keys).items():
+        grant(role, [role], grants)
+    for i in range(robots):
+        grant(robot_role(i), [robot_role(i)], _robot_grants(keys, i))
+    grant("robots", [robot_role(i) for i in range(robots)], _every_robot_grants(keys))
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
+
+
+# --- configurations ---------------------------------------------------------------------------
+
+
+def _common(mode: str, connect: list[str], listen: list[str]) -> dict:
+    # Listen is always explicit (zenoh's default listens on every interface), and no multicast
+    # scouting: a secured session goes to the router it was given and nowhere else.
+    conf: dict = {"mode": mode, "listen": {"endpoints": listen}, "scouting": {"multicast": {"enabled": False}}}
+    if connect:
+        conf["connect"] = {"endpoints": connect}
+    return conf
+
+
+def _client_dict(directory: Path, role: str, connect: list[str], auth: str, password: str | None = None) -> dict:
+    conf = _common("client", connect, [])
+    tls: dict = {"root_ca_certificate": str(directory / "ca.pem")}
+    if auth == "tls":
+        tls |= {
+            "connect_certificate": str(directory / f"{role}.pem"),
+            "connect_private_key": str(directory / f"{role}-key.pem"),
+            "enable_mtls": True,  # without it a client never presents its certificate
+        }
+    else:
+        conf["transport"] = {"auth": {"usrpwd": {"user": role, "password": password}}}
+    conf.setdefault("transport", {})["link"] = {"tls": tls}
+    return conf
+
+
+def _router_dict(directory: Path, listen: list[str], auth: str, robots: int, display: str) -> dict:
+    conf = _common("router", [], listen)
+    tls = {
+        "root_ca_certificate": str(directory / "ca.pem"),
+        "listen_certificate": str(directory / f"{ROUTER}.pem"),
+        "listen_private_key": str(directory / f"{ROUTER}-key.pem"),
+        "enable_mtls": auth == "tls",
+    }
+    conf["transport"] = {"link": {"tls": tls}}
+    if auth == "usrpwd":
+        conf["transport"]["auth"] = {"usrpwd": {"dictionary_file": str(directory / USRPWD / "credentials.txt")}}
+    by = "cert_common_names" if auth == "tls" else "usernames"
+    conf["access_control"] = access_control(robots, by=by, display=display)
+    return conf
+
+
+def _manifest(directory: Path) -> dict:
+    try:
+        return json.loads((directory / MANIFEST).read_text())
+    except (OSError, ValueError):
+        raise SecurityError(
+            f"{directory} holds no certificates made by `pixelswarm certs` ({MANIFEST} missing)"
+        ) from None
+
+
+def _role_file(directory: str | Path, role: str, auth: str) -> str:
+    """The role's configuration file in a folder made by make_certificates."""
+    if auth not in AUTH_MODES:
+        raise SecurityError(f"auth must be one of {', '.join(AUTH_MODES)}, not {auth!r}")
+    directory = Path(directory).resolve()
+    robots = _manifest(directory)["robots"]
+    if role not in roles(robots):
+        raise SecurityError(f"no role {role!r} in {directory} (robots 0..{robots - 1})")
+    return str(directory / (USRPWD if auth == "usrpwd" else "") / f"{role}.json5")
+
+
+def _endpoints(endpoints: str | list[str] | None) -> list[str]:
+    return [endpoints] if isinstance(endpoints, str) else list(endpoints or [])
+
+
+def router_config(directory: str | Path, listen: str | list[str] | None = None, *, auth: str = "tls") -> ZenohSettings:
+    """A router enforcing the folder's access rules, listening on ``listen`` (tls/HOST:PORT; default:
+    the endpoint the folder was made with)."""
+    return ZenohSettings(mode="router", listen=_endpoints(listen), config_file=_role_file(directory, ROUTER, auth))
+
+
+def client_config(
+    directory: str | Path, role: str, connect: str | list[str] | None = None, *, auth: str = "tls"
+) -> ZenohSettings:
+    """A client session as ``role``, connecting to the router at ``connect`` (tls/HOST:PORT; default:
+    the endpoint the folder was made with)."""
+    if role == ROUTER:
+        raise SecurityError("the router is not a client role")
+    return ZenohSettings(mode="client", connect=_endpoints(connect), config_file=_role_file(directory, role, auth))
+
+
+# --- the folder -------------------------------------------------------------------------------
+
+
+def _write(path: Path, data: bytes | str, secret: bool = False) -> None:
+    path.write_bytes(data.encode() if isinstance(data, str) else data)
+    if secret:
+        path.chmod(0o600)
+
+
+def _json5(conf: dict, what: str) -> str:
+    return f"// {what} (written by `pixelswarm certs`)\n" + json.dumps(conf, indent=2) + "\n"
+
+
+def _tls_host(endpoint: str) -> str:
+    """HOST of tls/HOST:PORT ([v6] brackets dropped); SecurityError for anything else."""
+    proto, _, address = endpoint.partition("/")
+    host, _, port = address.split("#", 1)[0].rpartition(":")
+    if proto != "tls" or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise SecurityError(f"the router endpoint must be tls/HOST:PORT, not {endpoint!r}")
+    return host.strip("[]")
+
+
+def make_certificates(
+    directory: str | Path,
+    robots: int,
+    *,
+    connect: str | None = None,
+    display: str = "default",
+    overwrite: bool = False,
+) -> Path:
+    """Write the folder described at the top of this module; return its absolute path.
+
+    ``connect``: the router endpoint (tls/HOST:PORT) written into every configuration; HOST is also
+    named by the router certificate. Without it the configurations hold no endpoint and the router
+    certificate names only 127.0.0.1 and localhost. The folder appears whole or not at all; an
+    existing non-empty one is replaced only with ``overwrite``.
+    """
+    if robots < 1:
+        raise SecurityError(f"robots must be at least 1, not {robots}")
+    Keys(display)  # the display name must be one the key schema accepts
+    hosts = [*LOOPBACK_NAMES, *([_tls_host(connect)] if connect else [])]
+    final = Path(directory).resolve()
+    if final.exists() and not final.is_dir():
+        raise SecurityError(f"{final} exists and is not a folder")
+    if final.is_dir() and any(final.iterdir()) and not overwrite:
+        raise SecurityError(f"{final} already holds files; choose another folder or replace it (--force)")
+    parent = final.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        raise SecurityError(f"cannot write into {parent}")
+
+    connect_list = [connect] if connect else []
+    staging = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial", dir=parent))
+    try:
+        now = datetime.datetime.now(datetime.UTC)
+        ca_key, ca = _certificate_authority(now)
+        _write(staging / "ca.pem", ca.public_bytes(serialization.Encoding.PEM))
+        _write(staging / "ca-key.pem", _pem_key(ca_key), secret=True)
+        (staging / USRPWD).mkdir()
+        passwords = {}
+        for role in roles(robots):
+            key, cert = _role_certificate(role, hosts, ca_key, ca, now)
+            _write(staging / f"{role}.pem", cert.public_bytes(serialization.Encoding.PEM))
+            _write(staging / f"{role}-key.pem", _pem_key(key), secret=True)
+            if role == ROUTER:
+                continue
+            passwords[role] = secrets.token_urlsafe(24)
+            _write(staging / f"{role}.json5", _json5(_client_dict(final, role, connect_list, "tls"), f"client {role}"))
+            _write(
+                staging / USRPWD / f"{role}.json5",
+                _json5(_client_dict(final, role, connect_list, "usrpwd", passwords[role]), f"client {role}"),
+                secret=True,
+            )
+        _write(staging / USRPWD / "credentials.txt", "".join(f"{r}:{p}\n" for r, p in passwords.items()), secret=True)
+        for auth, where in (("tls", staging), ("usrpwd", staging / USRPWD)):
+            conf = _router_dict(final, connect_list, auth, robots, display)
+            _write(where / "router.json5", _json5(conf, f"router, {auth}"))
+        _write(staging / MANIFEST, json.dumps({"robots": robots, "display": display}) + "\n")
+        _replace(staging, final)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return final
+
+
+def _replace(staging: Path, final: Path) -> None:
+    """Rename the finished folder into place (an old one moved aside first, removed after)."""
+    old = None
+    if final.is_dir() and any(final.iterdir()):
+        old = final.with_name(f".{final.name}.old-{secrets.token_hex(4)}")
+        final.rename(old)
+    elif final.is_dir():
+        final.rmdir()
+    staging.chmod(0o700)
+    staging.rename(final)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
