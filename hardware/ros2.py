@@ -246,20 +246,20 @@ class Ros2Backend:
         self._lock = threading.Lock()
         self._halt = threading.Event()
         self._session: Any = None
-        self._node: RosNode | None = None
+        self.node: RosNode | None = None  # the ROS 2 node this backend appears as, once started
         self._watchdog: threading.Thread | None = None
 
     def start(self) -> None:
         self._session = open_session(self.session_config)
-        self._node = RosNode(self._session, self.NODE_NAME, self.config.domain)
+        self.node = RosNode(self._session, self.NODE_NAME, self.config.domain)
         twist_hash = self.messages.type_hash(TWIST)
         color_hash = self.messages.type_hash(COLOR_RGBA)
         robots = range(len(self.config.namespaces))
         self._cmd = [
-            self._node.publisher(self.config.topic(i, self.config.cmd_topic), TWIST, twist_hash) for i in robots
+            self.node.publisher(self.config.topic(i, self.config.cmd_topic), TWIST, twist_hash) for i in robots
         ]
         self._led = [
-            self._node.publisher(self.config.topic(i, self.config.led_topic), COLOR_RGBA, color_hash) for i in robots
+            self.node.publisher(self.config.topic(i, self.config.led_topic), COLOR_RGBA, color_hash) for i in robots
         ]
         self._zero = self.messages.twist(0.0, 0.0)
         self._watchdog = threading.Thread(target=self._watch, name="ros2-watchdog", daemon=True)
@@ -324,8 +324,8 @@ class Ros2Backend:
         if self._watchdog is not None:
             self._watchdog.join()
         self.stop_all()
-        assert self._node is not None
-        self._node.close()
+        assert self.node is not None
+        self.node.close()
         self._session.close()
         self._session = None
 
@@ -362,9 +362,9 @@ class Ros2PoseSource:
     def start(self) -> None:
         self._session = open_session(self.session_config)
         domain = 0 if self.config.domain is None else self.config.domain
-        self._node = RosNode(self._session, self.NODE_NAME, domain)
+        self.node = RosNode(self._session, self.NODE_NAME, domain)
         pose_hash = self.messages.type_hash(POSE_STAMPED)
-        self._sub = self._node.subscriber(
+        self._sub = self.node.subscriber(
             self.config.wildcard, POSE_STAMPED, pose_hash, any_domain=self.config.domain is None, capacity=self.RING
         )
 
@@ -402,7 +402,7 @@ class Ros2PoseSource:
     def close(self) -> None:
         if self._session is None:
             return
-        self._node.close()
+        self.node.close()
         self._session.close()
         self._session = None
 
