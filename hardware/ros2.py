@@ -35,7 +35,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
 
-from transport.rmw_zenoh import TYPE_HASH_NOT_SUPPORTED, RosNameError, RosNode, check_name, qualified
+from transport.rmw_zenoh import TYPE_HASH_NOT_SUPPORTED, RosNameError, RosNode, RosSubscriber, check_name, qualified
 from transport.session import ZenohSettings, open_session
 
 from .config import HardwareConfigError
@@ -89,13 +89,16 @@ class Ros2Messages:
     def read_pose_stamped(self, cdr: bytes) -> tuple[float, float, float, float]:
         """(x, y, yaw, stamp in s) of a PoseStamped; raises ValueError if the bytes are not one."""
         try:
-            msg = self.store.deserialize_cdr(cdr, POSE_STAMPED)
+            msg: Any = self.store.deserialize_cdr(cdr, POSE_STAMPED)
         except Exception as err:  # rosbags raises several kinds on truncated or foreign bytes
             raise ValueError(f"not a PoseStamped: {err}") from None
-        q = msg.pose.orientation
+        p, q = msg.pose.position, msg.pose.orientation
+        # Motion-capture drivers publish NaN (or a zero quaternion) for a body they have lost.
+        if not all(math.isfinite(v) for v in (p.x, p.y, q.x, q.y, q.z, q.w)) or q.x**2 + q.y**2 + q.z**2 + q.w**2 < 0.5:
+            raise ValueError("not a valid pose: non-finite position or orientation")
         yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        return msg.pose.position.x, msg.pose.position.y, yaw, stamp
+        return p.x, p.y, yaw, stamp
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -358,6 +361,8 @@ class Ros2PoseSource:
         self._latest: dict[int, tuple[float, float, float, float, float]] = {}  # robot -> pose, stamp, arrival
         self._counts = {"received": 0, "undecodable": 0, "foreign": 0, "without_attachment": 0}
         self._session: Any = None
+        self.node: RosNode | None = None  # the ROS 2 node this source appears as, once started
+        self._sub: RosSubscriber | None = None
 
     def start(self) -> None:
         self._session = open_session(self.session_config)
@@ -370,7 +375,8 @@ class Ros2PoseSource:
 
     def latest(self) -> dict[int, PoseSample]:
         """Every robot heard from so far, by id, with its newest pose."""
-        now = time.monotonic()
+        if self._sub is None:
+            raise RuntimeError("start() the pose source before reading it")
         for sample in self._sub.drain():
             self._counts["received"] += 1
             self._counts["without_attachment"] += sample.attachment is None
@@ -384,6 +390,7 @@ class Ros2PoseSource:
                 self._counts["undecodable"] += 1
                 continue
             self._latest[robot] = (x, y, theta, stamp, sample.arrival)
+        now = time.monotonic()
         return {r: PoseSample(x, y, th, st, now - at) for r, (x, y, th, st, at) in sorted(self._latest.items())}
 
     def ticks(self) -> Iterator[dict[int, PoseSample]]:
@@ -402,6 +409,7 @@ class Ros2PoseSource:
     def close(self) -> None:
         if self._session is None:
             return
+        assert self.node is not None
         self.node.close()
         self._session.close()
         self._session = None

@@ -60,9 +60,9 @@ def dds_type_name(ros_type: str) -> str:
 
 def check_name(name: str, what: str = "topic") -> str:
     """A ROS 2 name (topic or namespace), relative or absolute; returned unchanged if valid."""
-    chunks = name.strip("/").split("/")
     if name in ("", "/") and what == "namespace":
-        return name
+        return name  # the root namespace
+    chunks = name.strip("/").split("/")
     if not name or "//" in name or name.endswith("/") or not all(_NAME_CHUNK.match(c) for c in chunks):
         raise RosNameError(f"{what} {name!r} is not a ROS 2 name (letters, digits and '_', separated by '/')")
     return name
@@ -177,6 +177,11 @@ class RosNode:
         self.token = node_token(domain, self.zid, node_id, namespace, name)
         self._liveliness = session.liveliness().declare_token(self.token)
         self._entities: list[RosPublisher | RosSubscriber] = []
+        self._closed = False
+
+    def next_entity_id(self) -> int:
+        """A fresh id for a publisher or subscription of this node."""
+        return next(self._entity_ids)
 
     def publisher(self, topic: str, ros_type: str, type_hash: str, qos: str = DEFAULT_QOS) -> RosPublisher:
         pub = RosPublisher(self, qualified(check_name(topic), self.namespace), ros_type, type_hash, qos)
@@ -191,6 +196,10 @@ class RosNode:
         return sub
 
     def close(self) -> None:
+        """Undeclare every entity, then the node: ROS graph tools see them go."""
+        if self._closed:
+            return
+        self._closed = True
         for entity in self._entities:
             entity.close()
         self._entities.clear()
@@ -207,7 +216,7 @@ class RosPublisher:
             node.domain,
             node.zid,
             node.node_id,
-            next(node._entity_ids),
+            node.next_entity_id(),
             PUBLISHER,
             node.namespace,
             node.name,
@@ -268,7 +277,7 @@ class RosSubscriber:
                 node.domain,
                 node.zid,
                 node.node_id,
-                next(node._entity_ids),
+                node.next_entity_id(),
                 SUBSCRIPTION,
                 node.namespace,
                 node.name,

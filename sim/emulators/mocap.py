@@ -20,6 +20,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -57,7 +58,7 @@ class MocapEmulator:
         self._publishers: list[RosPublisher] = []
         self._halt = threading.Event()
         self._thread: threading.Thread | None = None
-        self._session = None
+        self._session: Any = None  # a zenoh session once started
 
     def start(self) -> None:
         self._session = open_session(self.session_config)
