@@ -27,7 +27,7 @@ from hardware.ros2 import (
     Ros2PosesConfig,
     Ros2PoseSource,
 )
-from sim.emulators.mocap import MocapEmulator
+from sim.emulators.mocap import MocapEmulator, circle
 from tests.conftest import REPO, wait_for
 from transport.rmw_zenoh import (
     Attachment,
@@ -413,6 +413,17 @@ def test_bad_poses_table_is_one_clear_error(table, words):
 
 
 # --- the emulator's command line, as a real process ----------------------------------------------
+
+
+@pytest.mark.parametrize("speed", [0.2, -0.2])
+def test_circle_headings_follow_the_direction_of_travel(speed):
+    poses = circle(5, 0.5, speed)
+    dt = 1e-6
+    for t in (0.0, 3.0):
+        now, later = poses(t), poses(t + dt)
+        travel = np.arctan2(later[:, 1] - now[:, 1], later[:, 0] - now[:, 0])
+        assert np.allclose(np.remainder(now[:, 2] - travel + np.pi, 2 * np.pi) - np.pi, 0.0, atol=1e-5)
+        assert np.allclose(np.hypot(now[:, 0], now[:, 1]), 0.5)
 
 
 def mocap_cmd(*args: str) -> list[str]:

@@ -109,12 +109,14 @@ class MocapEmulator:
 
 
 def circle(robots: int, radius: float, speed: float) -> PoseFunction:
-    """Robots evenly spaced on a circle about the origin, driving round it at ``speed`` m/s, heading along it."""
+    """Robots evenly spaced on a circle about the origin, driving round it at ``speed`` m/s (anticlockwise
+    if positive), each heading along its direction of travel."""
     phase = 2 * math.pi * np.arange(robots) / robots
+    travel = math.copysign(math.pi / 2, speed)  # heading relative to the robot's bearing from the centre
 
     def poses(t: float) -> np.ndarray:
         angle = phase + speed / radius * t
-        heading = np.arctan2(np.sin(angle + math.pi / 2), np.cos(angle + math.pi / 2))
+        heading = np.arctan2(np.sin(angle + travel), np.cos(angle + travel))
         return np.column_stack([radius * np.cos(angle), radius * np.sin(angle), heading])
 
     return poses
@@ -146,7 +148,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--robots", type=_positive(int), default=4, help="number of robots (default 4)")
     parser.add_argument("--rate", type=_positive(float), default=100.0, help="Hz (default 100)")
     parser.add_argument("--radius", type=_positive(float), default=0.5, help="circle radius in m (default 0.5)")
-    parser.add_argument("--speed", type=float, default=0.1, help="speed along the circle in m/s (default 0.1)")
+    parser.add_argument(
+        "--speed", type=float, default=0.1, help="speed along the circle in m/s, negative for clockwise (default 0.1)"
+    )
     parser.add_argument("--topic", default=Ros2PosesConfig.topic, help="topic with {id} (default %(default)s)")
     parser.add_argument("--domain", type=int, default=0, help="ROS domain id (default 0)")
     parser.add_argument("--frame", default="world", help="header frame_id (default world)")
