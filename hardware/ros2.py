@@ -35,7 +35,15 @@ from typing import Any, NamedTuple
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
 
-from transport.rmw_zenoh import TYPE_HASH_NOT_SUPPORTED, RosNameError, RosNode, RosSubscriber, check_name, qualified
+from transport.rmw_zenoh import (
+    TYPE_HASH_NOT_SUPPORTED,
+    RosNameError,
+    RosNode,
+    RosPublisher,
+    RosSubscriber,
+    check_name,
+    qualified,
+)
 from transport.session import ZenohSettings, open_session
 
 from .config import HardwareConfigError
@@ -110,15 +118,16 @@ def _from_table(cls: type, table: Any, where: str) -> Any:
         raise HardwareConfigError(f"{where}: expected a table, not {type(table).__name__}")
     if table.get("kind", "ros2") != "ros2":
         raise HardwareConfigError(f"{where}: kind must be 'ros2', not {table['kind']!r}")
-    known = [f.name for f in dataclasses.fields(cls)]
+    fields = dataclasses.fields(cls)
+    known = [f.name for f in fields]
     unknown = sorted(set(table) - set(known) - {"kind"})
     if unknown:
         raise HardwareConfigError(f"{where}: unknown key {unknown[0]!r} (known: kind, {', '.join(known)})")
+    missing = [f.name for f in fields if f.default is dataclasses.MISSING and f.name not in table]
+    if missing:
+        raise HardwareConfigError(f"{where}: missing key {missing[0]!r}")
     try:
         return cls(**{k: v for k, v in table.items() if k != "kind"})
-    except TypeError as err:  # a required key is missing
-        missing = re.findall(r"'(\w+)'", str(err))
-        raise HardwareConfigError(f"{where}: missing key {missing[0] if missing else '?'!r}") from None
     except HardwareConfigError as err:
         raise HardwareConfigError(f"{where}: {err}") from None
 
@@ -157,7 +166,7 @@ class Ros2BackendConfig:
     led_topic: str = "led"
     domain: int = 0
     distro: str = "jazzy"  # humble keys carry no type hash
-    watchdog: float = 0.3  # s: a robot commanded no longer than this is sent a zero Twist
+    watchdog: float = 0.3  # s: a robot left this long without a command is sent a zero Twist
 
     def __post_init__(self) -> None:
         _need(isinstance(self.namespaces, list) and len(self.namespaces) > 0, "namespaces must be a non-empty list")
@@ -213,6 +222,7 @@ class Ros2PosesConfig:
         return _from_table(cls, table, where)
 
     def topic_of(self, robot: int) -> str:
+        """The fully qualified pose topic of one robot, e.g. /robot3/pose."""
         return qualified(self.topic.replace(ROBOT_ID, str(robot)))
 
     def robot_of(self, topic: str) -> int | None:
@@ -250,6 +260,8 @@ class Ros2Backend:
         self._halt = threading.Event()
         self._session: Any = None
         self.node: RosNode | None = None  # the ROS 2 node this backend appears as, once started
+        self._cmd: list[RosPublisher] = []  # per robot, once started
+        self._led: list[RosPublisher] = []
         self._watchdog: threading.Thread | None = None
 
     def start(self) -> None:
@@ -270,6 +282,8 @@ class Ros2Backend:
 
     def set_commands(self, robot_ids: Any, v_linear: Any, omega: Any, colors_rgb255: Any | None = None) -> None:
         """Forward speed (m/s) and turn rate (rad/s) per robot, and optionally its LED colour (0-255 RGB)."""
+        if not self._cmd:
+            raise RuntimeError("start() the backend before commanding robots")
         ids = np.asarray(robot_ids, dtype=np.int64).reshape(-1)
         v = np.asarray(v_linear, float).reshape(-1)
         w = np.asarray(omega, float).reshape(-1)
@@ -279,7 +293,9 @@ class Ros2Backend:
             raise ValueError(f"robot ids must be 0-{len(self._cmd) - 1}")
         if not (np.isfinite(v).all() and np.isfinite(w).all()):
             raise ValueError("speeds and turn rates must be finite")
-        colors = None if colors_rgb255 is None else np.asarray(colors_rgb255, float).reshape(len(ids), 3)
+        colors = None if colors_rgb255 is None else np.asarray(colors_rgb255, float)
+        if colors is not None and colors.shape != (len(ids), 3):
+            raise ValueError(f"colours must be one RGB row per robot, shape ({len(ids)}, 3), not {colors.shape}")
         now = time.monotonic()
         with self._lock:
             for k, robot in enumerate(ids):

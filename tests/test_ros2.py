@@ -237,6 +237,25 @@ def test_watchdog_sends_a_zero_twist_to_a_silent_robot(router):
         assert backend.stats()["moving"] == 0
 
 
+def test_bad_commands_are_refused_whole(router):
+    backend = Ros2Backend(Ros2BackendConfig(namespaces=["robot0", "robot1"]), client_of(router))
+    with pytest.raises(RuntimeError):
+        backend.set_commands([0], [0.1], [0.0])  # not started
+    with raw_session(router) as observer, backend:
+        wire = observer.declare_subscriber("0/**")
+        time.sleep(0.2)
+        for bad in (
+            ([0, 2], [0.1, 0.1], [0.0, 0.0], None),  # no robot 2
+            ([0, 1], [0.1, math.nan], [0.0, 0.0], None),
+            ([0, 1], [0.1, 0.1], [0.0], None),
+            ([0, 1], [0.1, 0.1], [0.0, 0.0], [[255, 0, 0]]),  # one colour for two robots
+        ):
+            with pytest.raises(ValueError):
+                backend.set_commands(*bad)
+        assert drain(wire, timeout=0.5) == []  # nothing went out, not even for robot 0
+        assert backend.stats()["commands"] == 0
+
+
 # --- an independent ROS 2-over-Zenoh client, both directions -------------------------------------
 
 
