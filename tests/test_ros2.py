@@ -330,12 +330,24 @@ def test_round_trip_with_zenoh_ros2_sdk(router, ros2_sdk):
 
 def test_mocap_emulator_poses_arrive_with_their_yaw(router):
     truth = np.array([[1.0, 2.0, 3.0], [0.5, -0.5, -2.5], [-1.25, 0.0, 0.4]])  # yaw near +-pi too
-    with Ros2PoseSource(Ros2PosesConfig(), client_of(router)) as source:
+    with Ros2PoseSource(Ros2PosesConfig(), client_of(router)) as source, raw_session(router) as observer:
+        wire = observer.declare_subscriber("0/robot1/pose/**")
+        time.sleep(0.2)
         with MocapEmulator(lambda t: truth, client_of(router), rate=50.0) as mocap:
             latest = wait_for(lambda: (p := source.latest()) and len(p) == 3 and p, timeout=5)
             ticks = source.ticks()
             resampled = [next(ticks) for _ in range(3)]
         assert mocap.error is None and mocap.published >= 3
+        sample = drain(wire)[0]
+    # what the emulator sent, read by Foxglove's decoder from the .msg text
+    assert str(sample.key_expr) == "0/robot1/pose/geometry_msgs::msg::dds_::PoseStamped_/" + JAZZY.hash_rihs01(
+        POSE_STAMPED
+    )
+    sent = foxglove_decode(POSE_STAMPED, sample.payload.to_bytes())
+    assert sent.header.frame_id == "world"
+    assert (sent.pose.position.x, sent.pose.position.y, sent.pose.position.z) == (0.5, -0.5, 0.0)
+    q = sent.pose.orientation
+    assert (q.x, q.y, q.z, q.w) == pytest.approx((0.0, 0.0, math.sin(-1.25), math.cos(-1.25)), abs=1e-12)
     now = time.time()
     for robot, (x, y, theta) in enumerate(truth):
         got = latest[robot]
