@@ -27,6 +27,7 @@ BENCHES = [
     "bench.paper_figures",
     "bench.bench_animation",
     "bench.bench_loss",
+    "bench.bench_ros2",
 ]
 ORDER = [
     "runtime",
@@ -42,6 +43,7 @@ ORDER = [
     "keyframes",
     "animation",
     "carry",
+    "ros2",
     "paper_figures",
 ]
 

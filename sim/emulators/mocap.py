@@ -1,0 +1,194 @@
+"""A motion-capture system as ROS 2 sees it: PoseStamped per robot over rmw_zenoh, at a fixed rate.
+
+Real systems (OptiTrack, Vicon, Qualisys) reach ROS 2 through a driver node that publishes one
+PoseStamped per rigid body; this stands in for that node. In Python:
+
+    with MocapEmulator(lambda t: poses_at(t), client_of(router), rate=100.0):
+        ...  # /robot0/pose, /robot1/pose, ... at 100 Hz
+
+From a shell (robots on a circle, turning; Ctrl-C stops):
+
+    python -m sim.emulators.mocap --robots 4 --rate 100 -e tcp/127.0.0.1:7447
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from hardware.config import HardwareConfigError
+from hardware.ros2 import POSE_STAMPED, Ros2Messages, Ros2PosesConfig
+from transport.rmw_zenoh import RosNode, RosPublisher
+from transport.session import TransportError, ZenohSettings, add_zenoh_args, open_session, settings_from_args
+
+RMW_ZENOHD = "tcp/127.0.0.1:7447"  # where rmw_zenohd listens by default
+
+PoseFunction = Callable[[float], np.ndarray]  # s since start -> (N, 3) rows of x (m), y (m), theta (rad)
+
+
+class MocapEmulator:
+    """Publishes ``poses(t)`` (row i: robot i) as PoseStamped on ``topic`` (with {id}) at ``rate`` Hz."""
+
+    NODE_NAME = "mocap_emulator"
+
+    def __init__(
+        self,
+        poses: PoseFunction,
+        session_config: ZenohSettings,
+        topic: str = Ros2PosesConfig.topic,
+        domain: int = 0,
+        rate: float = 100.0,
+        frame_id: str = "world",
+    ) -> None:
+        self.config = Ros2PosesConfig(topic=topic, domain=domain, rate=rate)  # the same checks as a reader's
+        self.poses = poses
+        self.session_config = session_config
+        self.frame_id = frame_id
+        self.messages = Ros2Messages()
+        self.published = 0
+        self.error: Exception | None = None  # what stopped the publishing thread, if anything did
+        self._publishers: list[RosPublisher] = []
+        self._halt = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._session: Any = None  # a zenoh session once started
+
+    def start(self) -> None:
+        self._session = open_session(self.session_config)
+        self._node = RosNode(self._session, self.NODE_NAME, self.config.domain or 0)
+        self._start = time.monotonic()
+        self._thread = threading.Thread(target=self._run, name="mocap", daemon=True)
+        self._thread.start()
+
+    def publish_once(self, t: float) -> int:
+        """Publish the poses of time ``t``; returns how many robots."""
+        rows = np.asarray(self.poses(t), float).reshape(-1, 3)
+        stamp = time.time()
+        pose_hash = self.messages.type_hash(POSE_STAMPED)
+        while len(self._publishers) < len(rows):
+            topic = self.config.topic_of(len(self._publishers))
+            self._publishers.append(self._node.publisher(topic, POSE_STAMPED, pose_hash))
+        for pub, (x, y, theta) in zip(self._publishers, rows):
+            pub.publish(self.messages.pose_stamped(x, y, theta, stamp, self.frame_id))
+        self.published += len(rows)
+        return len(rows)
+
+    def _run(self) -> None:
+        period = 1.0 / self.config.rate
+        deadline = self._start
+        try:
+            while not self._halt.wait(max(0.0, deadline - time.monotonic())):
+                self.publish_once(time.monotonic() - self._start)
+                deadline = max(deadline + period, time.monotonic() - period)
+        except Exception as err:  # a bad pose function: keep the reason for the owner
+            self.error = err
+
+    def close(self) -> None:
+        if self._session is None:
+            return
+        self._halt.set()
+        if self._thread is not None:
+            self._thread.join()
+        self._node.close()
+        self._session.close()
+        self._session = None
+
+    def __enter__(self) -> MocapEmulator:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def circle(robots: int, radius: float, speed: float) -> PoseFunction:
+    """Robots evenly spaced on a circle about the origin, driving round it at ``speed`` m/s (anticlockwise
+    if positive), each heading along its direction of travel."""
+    phase = 2 * math.pi * np.arange(robots) / robots
+    travel = math.copysign(math.pi / 2, speed)  # heading relative to the robot's bearing from the centre
+
+    def poses(t: float) -> np.ndarray:
+        angle = phase + speed / radius * t
+        heading = np.arctan2(np.sin(angle + travel), np.cos(angle + travel))
+        return np.column_stack([radius * np.cos(angle), radius * np.sin(angle), heading])
+
+    return poses
+
+
+class _OneLineParser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _positive(kind: type) -> Callable[[str], float]:
+    def parse(text: str) -> float:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not (math.isfinite(value) and value > 0):
+            raise argparse.ArgumentTypeError(f"must be positive, not {text}")
+        return value
+
+    return parse
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _OneLineParser(
+        prog="python -m sim.emulators.mocap",
+        description="Publish motion-capture poses (geometry_msgs/PoseStamped) over rmw_zenoh: robots on a circle.",
+    )
+    parser.add_argument("--robots", type=_positive(int), default=4, help="number of robots (default 4)")
+    parser.add_argument("--rate", type=_positive(float), default=100.0, help="Hz (default 100)")
+    parser.add_argument("--radius", type=_positive(float), default=0.5, help="circle radius in m (default 0.5)")
+    parser.add_argument(
+        "--speed", type=float, default=0.1, help="speed along the circle in m/s, negative for clockwise (default 0.1)"
+    )
+    parser.add_argument("--topic", default=Ros2PosesConfig.topic, help="topic with {id} (default %(default)s)")
+    parser.add_argument("--domain", type=int, default=0, help="ROS domain id (default 0)")
+    parser.add_argument("--frame", default="world", help="header frame_id (default world)")
+    parser.add_argument("--duration", type=_positive(float), help="stop after this many s (default: run until Ctrl-C)")
+    add_zenoh_args(parser, default_mode="client")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    settings = settings_from_args(args)
+    if not settings.connect and settings.mode != "router":
+        settings.connect = [RMW_ZENOHD]
+    prog = "python -m sim.emulators.mocap"
+    try:
+        emulator = MocapEmulator(
+            circle(args.robots, args.radius, args.speed), settings, args.topic, args.domain, args.rate, args.frame
+        )
+    except HardwareConfigError as err:
+        print(f"{prog}: error: {err}", file=sys.stderr)
+        return 2
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        with emulator:
+            print(f"mocap: {args.robots} robots on {emulator.config.topic} at {args.rate:g} Hz", flush=True)
+            try:
+                stop.wait(args.duration)
+            except KeyboardInterrupt:
+                pass
+            if emulator.error is not None:
+                print(f"{prog}: error: the pose function failed: {emulator.error}", file=sys.stderr)
+                return 1
+    except TransportError as err:
+        print(f"{prog}: error: {err}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

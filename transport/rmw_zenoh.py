@@ -1,0 +1,325 @@
+"""ROS 2 over Zenoh as rmw_zenoh_cpp puts it on the wire: keys, attachments, liveliness tokens.
+
+A ROS 2 node running rmw_zenoh publishes a message as a Zenoh put of its CDR bytes on
+
+    <domain>/<topic without leading slash>/<dds type name>/<type hash>
+    e.g. 0/robot1/cmd_vel/geometry_msgs::msg::dds_::Twist_/RIHS01_9c45...8d2a
+
+(Humble builds write `TypeHashNotSupported` for the hash) with encoding `application/cdr` and an
+attachment: int64 LE sequence number, int64 LE source timestamp (ns since the UNIX epoch), one byte
+holding the gid's length (16) and the 16-byte gid. Every node, publisher and subscription also holds a
+liveliness token that ROS graph tools (`ros2 topic list`, `ros2 node list`) read:
+
+    @ros2_lv/<domain>/<zid>/<node id>/<node id>/NN/<enclave>/<namespace>/<node>
+    @ros2_lv/<domain>/<zid>/<node id>/<entity id>/<MP|MS>/<enclave>/<namespace>/<node>/<topic>/<type>/<hash>/<qos>
+
+with every `/` inside a name written as `%` (an empty namespace or enclave is just `%`).
+Source: ros2/rmw_zenoh docs/design.md. This module knows only bytes; message semantics (CDR through
+rosbags) live with the caller.
+"""
+
+from __future__ import annotations
+
+import itertools
+import re
+import struct
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+
+import xxhash
+import zenoh
+
+ADMIN_SPACE = "@ros2_lv"
+CDR = zenoh.Encoding.APPLICATION_CDR
+TYPE_HASH_NOT_SUPPORTED = "TypeHashNotSupported"  # what Humble's rmw_zenoh writes in place of a hash
+# Reliable, volatile, keep-last 10 (rclcpp's default profile) in rmw_zenoh's compact form: a field
+# equal to rmw_zenoh's own default (reliable, volatile, keep-last, depth 42, infinite times) is left empty.
+DEFAULT_QOS = "::,10:,:,:,,"
+GID_SIZE = 16
+NODE, PUBLISHER, SUBSCRIPTION = "NN", "MP", "MS"
+
+_ATTACHMENT = struct.Struct(f"<qqB{GID_SIZE}s")
+_ROS_TYPE = re.compile(r"^([A-Za-z][A-Za-z0-9_]*)/(msg|srv|action)/([A-Za-z][A-Za-z0-9_]*)$")
+_NAME_CHUNK = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+
+class RosNameError(ValueError):
+    """A topic, namespace or type name that ROS 2 would not accept."""
+
+
+def dds_type_name(ros_type: str) -> str:
+    """`geometry_msgs/msg/Twist` -> `geometry_msgs::msg::dds_::Twist_`, the name rmw_zenoh puts in keys."""
+    match = _ROS_TYPE.match(ros_type)
+    if match is None:
+        raise RosNameError(f"{ros_type!r} is not a ROS 2 type name like geometry_msgs/msg/Twist")
+    package, kind, name = match.groups()
+    return f"{package}::{kind}::dds_::{name}_"
+
+
+def check_name(name: str, what: str = "topic") -> str:
+    """A ROS 2 name (topic or namespace), relative or absolute; returned unchanged if valid."""
+    if name in ("", "/") and what == "namespace":
+        return name  # the root namespace
+    chunks = name.strip("/").split("/")
+    if not name or "//" in name or name.endswith("/") or not all(_NAME_CHUNK.match(c) for c in chunks):
+        raise RosNameError(f"{what} {name!r} is not a ROS 2 name (letters, digits and '_', separated by '/')")
+    return name
+
+
+def qualified(topic: str, namespace: str = "/") -> str:
+    """The fully qualified topic name: absolute names stay, relative ones go under the namespace."""
+    if topic.startswith("/"):
+        return topic
+    return f"{namespace.rstrip('/')}/{topic}"
+
+
+def topic_key(domain: int, topic: str, ros_type: str, type_hash: str) -> str:
+    """The data key of a topic: `<domain>/<topic without leading slash>/<dds type name>/<type hash>`."""
+    return f"{domain}/{topic.strip('/')}/{dds_type_name(ros_type)}/{type_hash}"
+
+
+def mangle(name: str) -> str:
+    """A name as one key chunk: every `/` becomes `%`; the empty name (or just `/`) is `%`."""
+    return name.replace("/", "%") or "%"
+
+
+def node_token(domain: int, zid: str, node_id: int, namespace: str, node: str, enclave: str = "/") -> str:
+    """The liveliness token of a node (its id stands as both node id and entity id)."""
+    return f"{ADMIN_SPACE}/{domain}/{zid}/{node_id}/{node_id}/{NODE}/{mangle(enclave)}/{mangle(namespace)}/{node}"
+
+
+def entity_token(
+    domain: int,
+    zid: str,
+    node_id: int,
+    entity_id: int,
+    kind: str,
+    namespace: str,
+    node: str,
+    topic: str,
+    ros_type: str,
+    type_hash: str,
+    qos: str = DEFAULT_QOS,
+    enclave: str = "/",
+) -> str:
+    """The liveliness token of a publisher (MP) or subscription (MS) of a node; `topic` fully qualified."""
+    head = f"{ADMIN_SPACE}/{domain}/{zid}/{node_id}/{entity_id}/{kind}/{mangle(enclave)}/{mangle(namespace)}/{node}"
+    return f"{head}/{mangle(topic)}/{dds_type_name(ros_type)}/{mangle(type_hash)}/{qos}"
+
+
+def gid_of(token: str) -> bytes:
+    """An entity's gid as rmw_zenoh_cpp derives it: the XXH3 128-bit hash of its liveliness token,
+    low 64 bits then high 64 bits, each little-endian."""
+    return xxhash.xxh3_128_intdigest(token.encode()).to_bytes(GID_SIZE, "little")
+
+
+@dataclass(frozen=True)
+class Attachment:
+    """What rmw_zenoh attaches to every message; its subscribers drop a sample that has none."""
+
+    sequence_number: int
+    source_timestamp: int  # ns since the UNIX epoch
+    gid: bytes
+
+    def encode(self) -> bytes:
+        if len(self.gid) != GID_SIZE:
+            raise ValueError(f"a gid has {GID_SIZE} bytes, not {len(self.gid)}")
+        return _ATTACHMENT.pack(self.sequence_number, self.source_timestamp, GID_SIZE, self.gid)
+
+    @classmethod
+    def decode(cls, data: bytes) -> Attachment:
+        if len(data) != _ATTACHMENT.size:
+            raise ValueError(f"an rmw_zenoh attachment has {_ATTACHMENT.size} bytes, not {len(data)}")
+        sequence_number, source_timestamp, gid_size, gid = _ATTACHMENT.unpack(data)
+        if gid_size != GID_SIZE:
+            raise ValueError(f"gid length byte is {gid_size}, not {GID_SIZE}")
+        return cls(sequence_number, source_timestamp, gid)
+
+
+@dataclass(frozen=True)
+class RosSample:
+    """One message as it arrived: the CDR bytes, where from, and its attachment (None if it had none
+    or it was malformed: some bridges send none, and a reader may still want the message)."""
+
+    domain: int
+    topic: str  # fully qualified
+    type_hash: str
+    payload: bytes
+    attachment: Attachment | None
+    arrival: float  # time.monotonic() when it arrived
+
+
+def parse_topic_key(key: str) -> tuple[int, str, str, str]:
+    """(domain, fully qualified topic, dds type name, type hash) of a data key."""
+    parts = key.split("/")
+    if len(parts) < 4 or not parts[0].isdigit():
+        raise RosNameError(f"{key!r} is not an rmw_zenoh topic key")
+    return int(parts[0]), "/" + "/".join(parts[1:-2]), parts[-2], parts[-1]
+
+
+class RosNode:
+    """A ROS 2 node on a Zenoh session: its token, and the publishers and subscriptions it declares."""
+
+    def __init__(
+        self, session: zenoh.Session, name: str, domain: int = 0, namespace: str = "/", node_id: int = 0
+    ) -> None:
+        if not _NAME_CHUNK.match(name):
+            raise RosNameError(f"node name {name!r} may hold only letters, digits and '_'")
+        self.session = session
+        self.name = name
+        self.domain = domain
+        self.namespace = check_name(namespace, "namespace")
+        self.node_id = node_id
+        self.zid = str(session.info.zid())
+        self._entity_ids = itertools.count(node_id + 1)
+        self.token = node_token(domain, self.zid, node_id, namespace, name)
+        self._liveliness = session.liveliness().declare_token(self.token)
+        self._entities: list[RosPublisher | RosSubscriber] = []
+        self._closed = False
+
+    def next_entity_id(self) -> int:
+        """A fresh id for a publisher or subscription of this node."""
+        return next(self._entity_ids)
+
+    def publisher(self, topic: str, ros_type: str, type_hash: str, qos: str = DEFAULT_QOS) -> RosPublisher:
+        pub = RosPublisher(self, qualified(check_name(topic), self.namespace), ros_type, type_hash, qos)
+        self._entities.append(pub)
+        return pub
+
+    def subscriber(
+        self, topic: str, ros_type: str, type_hash: str, any_domain: bool = False, capacity: int = 1024
+    ) -> RosSubscriber:
+        sub = RosSubscriber(self, topic, ros_type, type_hash, any_domain, capacity)
+        self._entities.append(sub)
+        return sub
+
+    def close(self) -> None:
+        """Undeclare every entity, then the node: ROS graph tools see them go."""
+        if self._closed:
+            return
+        self._closed = True
+        for entity in self._entities:
+            entity.close()
+        self._entities.clear()
+        self._liveliness.undeclare()
+
+
+class RosPublisher:
+    """Puts CDR bytes on a topic's key with rmw_zenoh's attachment; holds an MP token meanwhile."""
+
+    def __init__(self, node: RosNode, topic: str, ros_type: str, type_hash: str, qos: str = DEFAULT_QOS) -> None:
+        self.topic = topic
+        self.key = topic_key(node.domain, topic, ros_type, type_hash)
+        self.token = entity_token(
+            node.domain,
+            node.zid,
+            node.node_id,
+            node.next_entity_id(),
+            PUBLISHER,
+            node.namespace,
+            node.name,
+            topic,
+            ros_type,
+            type_hash,
+            qos,
+        )
+        self.gid = gid_of(self.token)
+        self.sequence_number = 0
+        self._lock = threading.Lock()  # the watchdog and the control loop may publish at once
+        self._publisher = node.session.declare_publisher(self.key, encoding=CDR)
+        self._liveliness = node.session.liveliness().declare_token(self.token)
+        self._closed = False
+
+    def publish(self, cdr: bytes) -> Attachment:
+        """Send one message (CDR bytes with their 4-byte header); returns the attachment sent with it."""
+        with self._lock:
+            self.sequence_number += 1
+            attachment = Attachment(self.sequence_number, time.time_ns(), self.gid)
+            self._publisher.put(bytes(cdr), attachment=attachment.encode())
+        return attachment
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self._liveliness.undeclare()
+            self._publisher.undeclare()
+
+
+class RosSubscriber:
+    """Receives a topic from any type hash (Humble's `TypeHashNotSupported` too) and, with
+    ``any_domain``, from any domain. ``topic`` may hold Zenoh wildcards (`*` for a whole name,
+    `$*` inside one, e.g. `/robot$*/pose`). Samples wait in a ring of ``capacity`` (the oldest go
+    first) until drained. When the topic and domain are exact it holds an MS token naming
+    ``type_hash``, so that ROS graph tools list it."""
+
+    def __init__(
+        self,
+        node: RosNode,
+        topic: str,
+        ros_type: str,
+        type_hash: str,
+        any_domain: bool = False,
+        capacity: int = 1024,
+    ) -> None:
+        self.topic = qualified(topic, node.namespace)
+        domain = "*" if any_domain else str(node.domain)
+        self.key = f"{domain}/{self.topic.strip('/')}/{dds_type_name(ros_type)}/*"
+        self.received = 0
+        self.without_attachment = 0
+        self.foreign = 0
+        self.token: str | None = None
+        self._liveliness = None
+        if not any_domain and "*" not in self.topic:
+            check_name(self.topic)
+            self.token = entity_token(
+                node.domain,
+                node.zid,
+                node.node_id,
+                node.next_entity_id(),
+                SUBSCRIPTION,
+                node.namespace,
+                node.name,
+                self.topic,
+                ros_type,
+                type_hash,
+            )
+            self._liveliness = node.session.liveliness().declare_token(self.token)
+        self._ring: deque[tuple[float, str, bytes, bytes | None]] = deque(maxlen=capacity)
+        self._subscriber = node.session.declare_subscriber(self.key, self._on_sample)
+        self._closed = False
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        # Runs on a zenoh thread: only copy out and keep (a deque's append is thread-safe).
+        attachment = None if sample.attachment is None else sample.attachment.to_bytes()
+        self._ring.append((time.monotonic(), str(sample.key_expr), sample.payload.to_bytes(), attachment))
+
+    def drain(self) -> list[RosSample]:
+        """Every sample waiting, oldest first."""
+        out = []
+        while self._ring:
+            arrival, key, payload, raw_attachment = self._ring.popleft()
+            self.received += 1
+            try:
+                domain, topic, _, type_hash = parse_topic_key(key)
+            except RosNameError:  # a non-numeric domain chunk: not an rmw_zenoh key
+                self.foreign += 1
+                continue
+            attachment = None
+            if raw_attachment is not None:
+                try:
+                    attachment = Attachment.decode(raw_attachment)
+                except ValueError:
+                    pass
+            if attachment is None:
+                self.without_attachment += 1
+            out.append(RosSample(domain, topic, type_hash, payload, attachment, arrival))
+        return out
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            if self._liveliness is not None:
+                self._liveliness.undeclare()
+            self._subscriber.undeclare()
