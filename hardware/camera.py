@@ -256,8 +256,10 @@ class ArucoTracker:
             if m in self._reference_sum
         ]
         if moved and sum(moved) * 2 > len(moved):
+            # the old calibration is wrong now: no poses until the references are seen again
             self._reference_sum.clear()
             self._reference_count.clear()
+            self.homography = None
         for m, p in centres.items():
             self._reference_sum[m] = self._reference_sum.get(m, 0.0) + p
             self._reference_count[m] = self._reference_count.get(m, 0) + 1

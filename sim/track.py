@@ -23,7 +23,7 @@ from typing import Any, TextIO
 
 import cv2
 
-from hardware.camera import ArucoTracker, CameraConfig, CameraError, open_capture
+from hardware.camera import MIN_REFERENCES, ArucoTracker, CameraConfig, CameraError, open_capture
 from hardware.config import HardwareConfigError
 
 PROG = "pixelswarm track"
@@ -101,7 +101,9 @@ def track_video(video: Path, config: CameraConfig, out: TextIO, progress: TextIO
     if frames == 0:
         raise TrackError(f"no frames could be read from {video}")
     if not tracker.calibrated:
-        raise TrackError(f"the reference markers {sorted(config.reference)} were never seen together in {video}")
+        raise TrackError(
+            f"fewer than {MIN_REFERENCES} of the reference markers {sorted(config.reference)} were ever seen in {video}"
+        )
     return frames, rows
 
 
