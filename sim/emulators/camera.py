@@ -14,11 +14,13 @@ OUT_DIR/hardware.toml (its `[poses]` table) for `pixelswarm track`.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import functools
 import math
+import os
+import shutil
 import sys
+import tempfile
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,7 +32,10 @@ Pose = tuple[float, float, float]  # x, y (metres), theta (radians)
 
 SUPERSAMPLE = 4  # hi-res pixels per image pixel, per axis, when drawing a marker
 CELL_PX = 24  # pixels per marker cell in the drawn marker image
-FOURCC = "FFV1"  # lossless, and written by opencv-python-headless's FFmpeg
+FOURCC = "FFV1"
+MAX_WANDERING = (
+    24  # robots whose plates the wandering grid keeps apart  # lossless, and written by opencv-python-headless's FFmpeg
+)
 
 
 def _default_reference() -> dict[int, tuple[float, float]]:
@@ -82,7 +87,11 @@ class OverheadCamera:
             self._draw_marker(frame, to_image, _marker_image(self.dictionary, marker), pose)
         if self.blur_sigma > 0:
             frame = cv2.GaussianBlur(frame, (0, 0), self.blur_sigma)
-        frame = cv2.scaleAdd(rng.standard_normal(frame.shape, dtype=np.float32), self.noise_sigma, frame)
+        # OpenCV's generator, seeded from rng for each frame: many times faster than numpy's here
+        noise = np.empty_like(frame)
+        cv2.setRNGSeed(int(rng.integers(2**31)))
+        cv2.randn(noise, 0.0, self.noise_sigma)
+        frame += noise
         return np.clip(frame + 0.5, 0, 255).astype(np.uint8)  # + 0.5 then truncation: rounding
 
     def _background(self) -> np.ndarray:
@@ -144,6 +153,8 @@ def _marker_image(dictionary_name: str, marker: int) -> np.ndarray:
 
 def wandering_robots(n: int, frames: int, fps: float, seed: int) -> list[dict[int, Pose]]:
     """n robots (ids 0..n-1) on a grid, each circling its own spot and turning at its own rate."""
+    if not 1 <= n <= MAX_WANDERING:
+        raise ValueError(f"wandering robots: 1 to {MAX_WANDERING}, not {n}")
     rng = np.random.default_rng(seed)
     columns = math.ceil(math.sqrt(n * 4 / 3))
     rows = math.ceil(n / columns)
@@ -210,24 +221,39 @@ def poses_toml(camera: OverheadCamera) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m sim.emulators.camera", description=__doc__.split("\n\n")[0])
-    parser.add_argument("out", type=Path, help="folder to write video.avi, truth.csv and hardware.toml into")
-    parser.add_argument("--robots", type=int, default=14, help="robots, ids 0..N-1 (default 14)")
+    from sim.cli import OneLineParser  # usage errors as one line, like pixelswarm's
+
+    parser = OneLineParser(prog="python -m sim.emulators.camera", description=__doc__.split("\n\n")[0])
+    parser.add_argument("out", type=Path, help="new folder to write video.avi, truth.csv and hardware.toml into")
+    parser.add_argument("--robots", type=int, default=14, help=f"robots, ids 0..N-1, 1 to {MAX_WANDERING} (default 14)")
     parser.add_argument("--frames", type=int, default=60, help="frames (default 60)")
     parser.add_argument("--fps", type=float, default=10.0, help="frame rate (default 10)")
     parser.add_argument("--seed", type=int, default=0, help="seed of motion and pixel noise (default 0)")
     args = parser.parse_args(argv)
+    if not 1 <= args.robots <= MAX_WANDERING or args.frames < 1 or not 0 < args.fps < math.inf:
+        parser.error(f"need 1 to {MAX_WANDERING} robots, 1 or more frames and a positive fps")
+    if args.out.exists():
+        parser.error(f"{args.out} already exists; choose a new folder")
     camera = OverheadCamera()
-    if not 1 <= args.robots <= min(camera.reference) or args.frames < 1 or not args.fps > 0:
-        print(
-            f"{parser.prog}: error: need 1..{min(camera.reference)} robots, 1 or more frames, fps > 0", file=sys.stderr
-        )
-        return 2
-    args.out.mkdir(parents=True, exist_ok=True)
     poses = wandering_robots(args.robots, args.frames, args.fps, args.seed)
-    write_video(args.out / "video.avi", render_frames(camera, poses, args.seed), args.fps)
-    write_truth(args.out / "truth.csv", poses, args.fps)
-    (args.out / "hardware.toml").write_text(poses_toml(camera))
+    # everything is written into a temporary folder beside OUT, renamed when complete
+    temp = None
+    try:
+        temp = Path(tempfile.mkdtemp(prefix=f".{args.out.name}.", dir=args.out.parent))
+        write_video(temp / "video.avi", render_frames(camera, poses, args.seed), args.fps)
+        write_truth(temp / "truth.csv", poses, args.fps)
+        (temp / "hardware.toml").write_text(poses_toml(camera))
+        umask = os.umask(0)
+        os.umask(umask)
+        temp.chmod(0o777 & ~umask)  # mkdtemp's 0700 would outlive the rename
+        temp.rename(args.out)
+        temp = None
+    except OSError as err:
+        print(f"{parser.prog}: error: cannot write {args.out}: {err.strerror or err}", file=sys.stderr)
+        return 2
+    finally:
+        if temp is not None:
+            shutil.rmtree(temp, ignore_errors=True)
     print(args.out)
     return 0
 
