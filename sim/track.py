@@ -1,4 +1,4 @@
-"""`pixelswarm track VIDEO --hardware FILE --out poses.csv`: the overhead-camera tracker, offline.
+"""`pixelswarm track SOURCE --hardware FILE --out poses.csv`: the overhead-camera tracker, offline.
 
 Reads the `[poses]` table (kind "camera") of a hardware file, runs hardware.camera's ArucoTracker over
 every frame of the video and writes one CSV row per robot seen per frame: `t,id,x,y,theta,frame`
@@ -41,11 +41,15 @@ def add_track_parser(subparsers: Any) -> None:
         help="track robots' ArUco markers in an overhead-camera video, offline, into a CSV of poses",
         description="Track robots' ArUco markers in an overhead-camera video into a CSV t,id,x,y,theta,frame.",
     )
-    p.add_argument("video", type=Path, help="video file (any format OpenCV's FFmpeg reads)")
+    p.add_argument("video", type=Path, metavar="SOURCE", help="a video file (any format OpenCV's FFmpeg reads)")
     p.add_argument(
-        "--hardware", type=Path, required=True, help="hardware TOML file with a [poses] table, kind 'camera'"
+        "--hardware",
+        type=Path,
+        required=True,
+        metavar="FILE",
+        help="hardware TOML file with a [poses] table, kind 'camera'",
     )
-    p.add_argument("--out", type=Path, required=True, help="CSV file to write")
+    p.add_argument("--out", type=Path, required=True, metavar="CSV", help="CSV file to write")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress output")
     p.set_defaults(func=run_track)
 
