@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 
 from .config import HardwareConfigError
+from .poses import PoseSample
 
 # A detection whose side on the floor is off by more than this fraction is not a robot's marker
 # (a false detection, or a marker far from the calibrated plane): dropped rather than believed.
@@ -307,7 +308,7 @@ class CameraPoseSource:
         self.clock = clock
         self._lock = threading.Lock()
         self._frame: TrackedFrame | None = None
-        self._latest: dict[int, MarkerPose] = {}
+        self._latest: dict[int, tuple[MarkerPose, float]] = {}  # robot -> newest pose, when it was tracked
         self._stop = threading.Event()
         self.finished = threading.Event()  # set when the source ends or fails
         self.error: str | None = None
@@ -322,10 +323,13 @@ class CameraPoseSource:
         self._thread.start()
         return self
 
-    def latest(self) -> dict[int, MarkerPose]:
-        """Every robot seen so far -> its latest pose; compare its `t` with `frame().t` for its age."""
+    def latest(self) -> dict[int, PoseSample]:
+        """Every robot seen so far, by id, with its newest pose: stamped with its frame's time, aged
+        since it was tracked (`time.monotonic()`)."""
         with self._lock:
-            return dict(self._latest)
+            latest = dict(self._latest)
+        now = time.monotonic()
+        return {r: PoseSample(p.x, p.y, p.theta, p.t, now - at) for r, (p, at) in sorted(latest.items())}
 
     def frame(self) -> TrackedFrame | None:
         """The latest frame's result (robots seen in it and robots lost), or None before the first."""
@@ -360,9 +364,10 @@ class CameraPoseSource:
                     break
                 t = index / fps if from_file else self.clock()
                 frame = self.tracker.update(image, t, index)
-                latest = self.tracker.last_seen()
+                tracked = time.monotonic()
                 with self._lock:
-                    self._frame, self._latest = frame, latest
+                    self._frame = frame
+                    self._latest.update((r, (pose, tracked)) for r, pose in frame.poses.items())
                 index += 1
                 if from_file and self.realtime:
                     self._stop.wait(max(0.0, started + index / fps - time.monotonic()))
