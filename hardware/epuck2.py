@@ -299,6 +299,8 @@ class RobotLink:
                     backoff = 0.0
                     self._resend_wanted()
                 else:
+                    with self._cond:
+                        self._out.urgent = False  # the immediate attempt was made: back to the backoff
                     backoff = min(self.config.reconnect_backoff_max, max(self.config.reconnect_backoff, 2 * backoff))
                     self._sleep_unless_urgent(backoff)
                     continue

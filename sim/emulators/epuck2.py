@@ -362,29 +362,27 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
     stop = threading.Event()
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, lambda *_: stop.set())
+    previous = {signum: signal.signal(signum, lambda *_: stop.set()) for signum in (signal.SIGINT, signal.SIGTERM)}
     try:
         poses = read_poses(args.poses, args.robots) if args.poses else None
-        emulator = Epuck2Emulator(args.robots, poses=poses)
-    except (UsageError, OSError) as err:
-        print(f"{build_parser().prog}: error: {err}", file=sys.stderr)
-        return 2
-    with emulator:
-        try:
+        with Epuck2Emulator(args.robots, poses=poses) as emulator:
             if args.write_hardware:
                 write_atomically(args.write_hardware, emulator.hardware_toml())
-        except UsageError as err:
-            print(f"{build_parser().prog}: error: {err}", file=sys.stderr)
-            return 2
-        print(f"{args.robots} emulated e-puck2 robots at {' '.join(emulator.addresses)}", flush=True)
-        while not stop.wait(0.2):
-            pass
-        for rid in range(args.robots):
-            x, y, theta = emulator.pose(rid)
-            print(f"robot {rid}: x={x:.4f} m y={y:.4f} m theta={theta:.4f} rad", flush=True)
+            print(f"{args.robots} emulated e-puck2 robots at {' '.join(emulator.addresses)}", flush=True)
+            while not stop.wait(0.2):
+                pass
+            for rid in range(args.robots):
+                x, y, theta = emulator.pose(rid)
+                print(f"robot {rid}: x={x:.4f} m y={y:.4f} m theta={theta:.4f} rad", flush=True)
+    except (UsageError, OSError) as err:
+        print(f"{parser.prog}: error: {err}", file=sys.stderr)
+        return 2
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
     return 0
 
 
