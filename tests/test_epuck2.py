@@ -216,9 +216,9 @@ def test_close_sends_stops():
         backend = backend_for(emu)
         backend.start()
         command_periods(backend, 2)
-        assert all(emu.log(r)[-1][1] == 388 for r in range(3))
+        assert wait_for(lambda: all(emu.log(r)[-1][1] == 388 for r in range(3)), timeout=3)
         assert backend.close() == []
-        assert all(emu.log(r)[-1][1:] == (0, 0) for r in range(3))
+        assert wait_for(lambda: all(emu.log(r)[-1][1:] == (0, 0) for r in range(3)), timeout=3)
         assert all(not s.connected for s in backend.stats().values())
 
 
@@ -233,7 +233,7 @@ def test_stop_all_waits_until_the_stops_are_sent_and_names_robots_out_of_reach(t
         command_periods(backend, 3)
         assert backend.stats()[1].late_commands == 2  # never sent: each replaced by the next
         assert backend.stop_all() == [1]
-        assert emu.log(0)[-1][1:] == (0, 0)
+        assert wait_for(lambda: emu.log(0)[-1][1:] == (0, 0), timeout=3)
         assert backend.close() == [1]
 
 
@@ -248,7 +248,7 @@ def test_stop_from_the_hardware_file_stops_robots_left_moving(tmp_path):
         time.sleep(0.05)
         assert emu.pose(1) != moving
         assert stop_all(load_hardware(path)) == []
-        assert all(emu.log(r)[-1][1:] == (0, 0) for r in range(2))
+        assert wait_for(lambda: all(emu.log(r)[-1][1:] == (0, 0) for r in range(2)), timeout=3)
 
 
 # --- the hardware file -----------------------------------------------------------------------------------
@@ -313,13 +313,13 @@ def test_emulator_command_serves_robots_and_writes_their_hardware_file(tmp_path)
     cmd = [sys.executable, "-m", "sim.emulators.epuck2", "--robots", "2", "--poses", str(poses)]
     proc = subprocess.Popen([*cmd, "--write-hardware", str(path)], cwd=REPO, stdout=subprocess.PIPE, text=True)
     try:
-        assert wait_for(path.exists, timeout=15)
+        assert wait_for(path.exists, timeout=60), "the emulator did not start"
         config = load_hardware(path)
         with Epuck2Backend(config.backend) as backend:
             command_periods(backend, 2)
     finally:
         proc.send_signal(signal.SIGTERM)
-        out, _ = proc.communicate(timeout=10)
+        out, _ = proc.communicate(timeout=30)
     assert proc.returncode == 0
     final_x = [float(line.split("x=")[1].split()[0]) for line in out.splitlines() if line.startswith("robot ")]
     assert final_x == pytest.approx([0.5, 1.0], abs=0.05)  # stopped by close() after a few periods
