@@ -42,6 +42,7 @@ COMMAND_SIZE = struct.calcsize(COMMAND_FORMAT)
 IMAGE_ID, SENSORS_ID, EMPTY_ID = 0x01, 0x02, 0x03
 ANSWER_SIZES = {IMAGE_ID: 160 * 120 * 2, SENSORS_ID: 104, EMPTY_ID: 0}
 REQUEST_IMAGE, REQUEST_SENSORS = 0x01, 0x02
+STEPS_OFFSET = 79  # in the sensors answer
 RGB_LEDS = 4  # LED2, LED4, LED6, LED8
 RGB_LEVEL_MAX = 100
 
@@ -124,6 +125,12 @@ def make_command(left: float, right: float, colour_rgb255: Sequence[float], limi
     return Command(left=wheel_steps(left, limit), right=wheel_steps(right, limit), rgb=(rgb,) * RGB_LEDS)
 
 
+def motor_steps(sensors: bytes) -> tuple[int, int]:
+    """Left and right motor step counters from a sensors answer (bytes 79-82, int16 little-endian)."""
+    left, right = struct.unpack_from("<hh", sensors, STEPS_OFFSET)
+    return left, right
+
+
 class AnswerReader:
     """Splits the robot's byte stream into answers (id, payload)."""
 
@@ -167,6 +174,7 @@ class Epuck2Config:
     reconnect_backoff: float = 0.1  # wait after a failed attempt; doubles up to reconnect_backoff_max
     reconnect_backoff_max: float = 2.0
     max_wheel_speed: float = FIRMWARE_MAX_WHEEL_SPEED  # wheel speeds are clipped to this before they leave
+    request_sensors: bool = False  # ask for the 104-byte sensors answer with every command
     kind: str = "epuck2"
 
     @classmethod
@@ -179,14 +187,18 @@ class Epuck2Config:
         endpoints = [parse_address(a, where) for a in addresses]
         if len(set(endpoints)) != len(endpoints):
             raise HardwareConfigError(f"{where}: addresses must not repeat a robot")
-        numbers = {key: positive_number(table, key, defaults[key], where) for key in defaults if key != "kind"}
+        flags = {"kind", "request_sensors"}
+        numbers = {key: positive_number(table, key, defaults[key], where) for key in defaults if key not in flags}
+        request_sensors = table.get("request_sensors", defaults["request_sensors"])
+        if not isinstance(request_sensors, bool):
+            raise HardwareConfigError(f"{where}: request_sensors must be true or false, not {request_sensors!r}")
         if numbers["max_wheel_speed"] > FIRMWARE_MAX_WHEEL_SPEED:
             raise HardwareConfigError(
                 f"{where}: max_wheel_speed must be at most {FIRMWARE_MAX_WHEEL_SPEED:.4f} m/s (the firmware's limit)"
             )
         if numbers["reconnect_backoff_max"] < numbers["reconnect_backoff"]:
             raise HardwareConfigError(f"{where}: reconnect_backoff_max must be at least reconnect_backoff")
-        return cls(addresses=tuple(a.strip() for a in addresses), **numbers)
+        return cls(addresses=tuple(a.strip() for a in addresses), request_sensors=request_sensors, **numbers)
 
     @property
     def robot_ids(self) -> list[int]:
@@ -443,8 +455,10 @@ class Epuck2Backend:
         if not len(robot_ids) == len(wheel_left_mps) == len(wheel_right_mps) == len(colors_rgb255):
             raise ValueError("set_commands needs one left speed, right speed and colour per robot id")
         limit = self.config.max_wheel_speed
+        request = REQUEST_SENSORS if self.config.request_sensors else 0
         for rid, left, right, colour in zip(robot_ids, wheel_left_mps, wheel_right_mps, colors_rgb255):
-            self.links[rid].submit(make_command(float(left), float(right), colour, limit), from_controller=True)
+            command = replace(make_command(float(left), float(right), colour, limit), request=request)
+            self.links[rid].submit(command, from_controller=True)
 
     def stop_all(self) -> list[int]:
         """Send a stop to every robot and wait until the stops have left; returns the robots not reached."""
@@ -465,6 +479,10 @@ class Epuck2Backend:
         if unreached:
             log.error("e-puck2 robots %s were not reached by the stop", unreached)
         return unreached
+
+    def sensors(self, robot_id: int) -> bytes | None:
+        """The robot's last 104-byte sensors answer (with `request_sensors = true`), or None."""
+        return self.links[robot_id].sensors
 
     def stats(self) -> dict[int, RobotStats]:
         return {link.robot_id: replace(link.stats) for link in self.links}

@@ -23,6 +23,7 @@ from hardware.epuck2 import (
     Epuck2Config,
     encode_command,
     make_command,
+    motor_steps,
 )
 from hardware.stop import stop_all
 from sim.emulators.epuck2 import Epuck2Emulator, parse_command
@@ -182,6 +183,14 @@ def command_periods(backend: Epuck2Backend, periods: int, left=0.05, right=0.05,
     return last
 
 
+def test_backend_reads_the_sensors_it_requests():
+    with Epuck2Emulator(1) as emu, backend_for(emu, request_sensors=True) as backend:
+        command_periods(backend, 3, left=0.05, right=-0.05)
+        assert wait_for(lambda: backend.sensors(0) is not None and motor_steps(backend.sensors(0))[0] > 0, timeout=3)
+        left, right = motor_steps(backend.sensors(0))
+        assert left == -right
+
+
 def test_backend_reconnects_when_the_robot_drops_the_connection():
     with Epuck2Emulator(2) as emu, backend_for(emu) as backend:
         command_periods(backend, 3)
@@ -278,6 +287,7 @@ EPUCK2 = '[backend]\nkind = "epuck2"\naddresses = ["127.0.0.1:41000"]\n'
         (EPUCK2 + "command_timeout = -1\n", "command_timeout must be a positive number"),
         (EPUCK2 + 'command_timeout = "fast"\n', "command_timeout must be a positive number"),
         (EPUCK2 + "max_wheel_speed = 1.0\n", "max_wheel_speed must be at most"),
+        (EPUCK2 + "request_sensors = 1\n", "request_sensors must be true or false"),
         ('[backend]\nkind = "epuck2"\naddresses = []\n', "addresses must be a non-empty list"),
         ('[backend]\nkind = "epuck2"\naddresses = ["127.0.0.1:0"]\n', "is not 'host:port'"),
         ('[backend]\nkind = "epuck2"\naddresses = ["a:1", "a:1"]\n', "must not repeat"),
