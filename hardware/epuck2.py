@@ -20,15 +20,15 @@ Usage, once per control period: `backend.set_commands(ids, left_mps, right_mps, 
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import math
-import selectors
 import socket
 import struct
 import threading
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 from .config import HardwareConfigError, check_keys, positive_number
@@ -218,220 +218,167 @@ class Epuck2Config:
 class RobotStats:
     commands_sent: int = 0  # packets that left, stops included
     late_commands: int = 0  # commands replaced by the next one before they could leave
+    connections: int = 0  # connections made
     reconnects: int = 0  # connections made again after one was lost
     watchdog_stops: int = 0  # stops sent because commands ceased for command_timeout
     connected: bool = False
 
 
-@dataclass
-class _Outbox:
-    """What one robot's link should send, shared between the control loop and the link's thread."""
-
-    wanted: Command = field(default_factory=Command)  # what the robot should be doing now
-    pending: Command | None = None  # not yet sent
-    pending_seq: int = 0
-    sent_seq: int = 0
-    last_command_time: float | None = None  # monotonic time of the last set_commands for this robot
-    urgent: bool = False  # a stop waits: connect without waiting out the backoff
-
-
 class RobotLink:
-    """One robot's TCP connection, run by its own thread so that a slow or lost robot delays no other."""
+    """One robot's TCP connection: a task on the backend's event loop, so a slow or lost robot delays no other.
+    Everything here runs on the loop's thread."""
 
     def __init__(self, robot_id: int, host: str, port: int, config: Epuck2Config) -> None:
         self.robot_id, self.host, self.port, self.config = robot_id, host, port, config
         self.stats = RobotStats()
         self.sensors: bytes | None = None  # the last sensors answer, when they were requested
-        self._out = _Outbox()
-        self._cond = threading.Condition()
-        self._wake_r, self._wake_w = socket.socketpair()
-        self._wake_r.setblocking(False)
-        self._sock: socket.socket | None = None
-        self._reader = AnswerReader()
-        self._closing = False
-        self._thread = threading.Thread(target=self._run, name=f"epuck2-{robot_id}", daemon=True)
+        self.wanted = Command()  # what the robot should be doing now
+        self.pending: Command | None = None  # not yet sent
+        self.pending_seq = self.sent_seq = 0
+        self.last_command_time: float | None = None  # time.monotonic() of the last set_commands for this robot
+        self.urgent = False  # a stop waits: connect without waiting out the backoff
+        self._changed = asyncio.Event()  # a command came, or the connection was lost
+        self._sent = asyncio.Condition()
+        self._lost: Exception | None = None
 
-    # --- called by the control loop ---
-    def start(self) -> None:
-        self._thread.start()
-
-    def submit(self, command: Command, *, from_controller: bool) -> int:
+    def submit(self, command: Command, now: float, *, urgent: bool = False) -> int:
         """Queue a command (replacing an unsent one); returns its sequence number."""
-        with self._cond:
-            out = self._out
-            if out.pending is not None:
-                self.stats.late_commands += 1
-            out.wanted = out.pending = command
-            out.pending_seq += 1
-            if from_controller:
-                out.last_command_time = time.monotonic()
-            else:
-                out.urgent = True
-            seq = out.pending_seq
-        self._wake()
-        return seq
+        if self.pending is not None:
+            self.stats.late_commands += 1
+        self.wanted = self.pending = command
+        self.pending_seq += 1
+        if urgent:
+            self.urgent = True
+        else:
+            self.last_command_time = now
+        self._changed.set()
+        return self.pending_seq
 
-    def submit_stop(self) -> int:
-        """Queue a stop that keeps the LEDs; the link connects for it without waiting out a backoff."""
-        with self._cond:
-            stop = self._out.wanted.stopped()
-        return self.submit(stop, from_controller=False)
-
-    def wait_sent(self, seq: int, deadline: float) -> bool:
-        with self._cond:
-            return self._cond.wait_for(lambda: self._out.sent_seq >= seq, max(0.0, deadline - time.monotonic()))
-
-    def close(self) -> None:
-        with self._cond:
-            self._closing = True
-        self._wake()
-        if self._thread.is_alive():
-            self._thread.join()
-        self._disconnect()
-        self._wake_r.close()
-        self._wake_w.close()
-
-    def _wake(self) -> None:
-        try:
-            self._wake_w.send(b"\0")
-        except (BlockingIOError, OSError):
-            pass  # already awake (buffer full) or closing
-
-    # --- the link's thread ---
-    def _run(self) -> None:
-        backoff = 0.0  # the first attempt, and the first after a drop, is immediate
-        ever_connected = False
-        while not self._closing:
-            if self._sock is None:
-                if self._connect():
-                    if ever_connected:
-                        self.stats.reconnects += 1
-                        log.warning("e-puck2 %d (%s:%d): connected again", self.robot_id, self.host, self.port)
-                    ever_connected = True
-                    backoff = 0.0
-                    self._resend_wanted()
-                else:
-                    with self._cond:
-                        self._out.urgent = False  # the immediate attempt was made: back to the backoff
-                    backoff = min(self.config.reconnect_backoff_max, max(self.config.reconnect_backoff, 2 * backoff))
-                    self._sleep_unless_urgent(backoff)
-                    continue
-            self._watchdog()
-            self._send_pending()
-            self._wait_and_read()
-        self._disconnect()
-
-    def _connect(self) -> bool:
-        try:
-            sock = socket.create_connection((self.host, self.port), timeout=self.config.connect_timeout)
-        except OSError:
-            return False
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # one small packet per period: no batching
-        self._sock, self._reader = sock, AnswerReader()
-        self.stats.connected = True
+    async def wait_sent(self, seq: int, timeout: float) -> bool:
+        async with self._sent:
+            try:
+                await asyncio.wait_for(self._sent.wait_for(lambda: self.sent_seq >= seq), timeout)
+            except TimeoutError:
+                return False
         return True
 
-    def _disconnect(self) -> None:
-        if self._sock is not None:
-            self._sock.close()
-            self._sock = None
-        self.stats.connected = False
+    async def run(self) -> None:
+        """Connect, serve the connection until it is lost, connect again: until cancelled."""
+        backoff = 0.0  # the first attempt, and the first after a drop, is immediate
+        while True:
+            try:
+                connecting = asyncio.open_connection(self.host, self.port)
+                reader, writer = await asyncio.wait_for(connecting, self.config.connect_timeout)
+            except (OSError, TimeoutError):
+                self.urgent = False  # the immediate attempt was made: back to the backoff
+                backoff = min(self.config.reconnect_backoff_max, max(self.config.reconnect_backoff, 2 * backoff))
+                await self._sleep_unless_urgent(backoff)
+                continue
+            backoff = 0.0
+            try:
+                await self._serve(reader, writer)
+            except OSError as err:
+                log.warning("e-puck2 %d (%s:%d): connection lost (%s)", self.robot_id, self.host, self.port, err)
+            except Exception:  # a fault of ours must not leave the robot unattended: log it, connect again
+                log.exception("e-puck2 %d: link failed", self.robot_id)
+                await asyncio.sleep(self.config.reconnect_backoff_max)
+            finally:
+                self.stats.connected = False
+                writer.close()
 
-    def _resend_wanted(self) -> None:
-        """After a (re)connection the robot gets what it should be doing now (a stop once commands are stale)."""
-        with self._cond:
-            if self._out.pending is None:
-                self._out.pending = self._out.wanted
-                self._out.pending_seq += 1
+    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        writer.get_extra_info("socket").setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # no batching
+        self._count_connection()
+        if self.pending is None:  # the robot gets what it should be doing now (a stop once commands are stale)
+            self.pending = self.wanted
+            self.pending_seq += 1
+        self._lost = None
+        reading = asyncio.create_task(self._read(reader))
+        try:
+            while True:
+                self._changed.clear()
+                if self._lost is not None:
+                    raise self._lost
+                self._watchdog()
+                if self.pending is not None:
+                    await self._send(writer)
+                    continue
+                try:
+                    await asyncio.wait_for(self._changed.wait(), self._watchdog_due())
+                except TimeoutError:
+                    pass
+        finally:
+            reading.cancel()
 
-    def _sleep_unless_urgent(self, duration: float) -> None:
-        deadline = time.monotonic() + duration
-        while not self._closing and time.monotonic() < deadline:
-            with self._cond:
-                if self._out.urgent:
-                    return
-            self._wait_readable([self._wake_r], deadline - time.monotonic())
+    def _count_connection(self) -> None:
+        if self.stats.connections:
+            self.stats.reconnects += 1
+            log.warning("e-puck2 %d (%s:%d): connected again", self.robot_id, self.host, self.port)
+        self.stats.connections += 1
+        self.stats.connected = True
+
+    async def _send(self, writer: asyncio.StreamWriter) -> None:
+        command, seq = self.pending, self.pending_seq
+        assert command is not None
+        writer.write(encode_command(command))
+        await asyncio.wait_for(writer.drain(), self.config.connect_timeout)
+        if self.pending_seq == seq:
+            self.pending = None
+            self.urgent = False
+        self.sent_seq = max(self.sent_seq, seq)
+        self.stats.commands_sent += 1
+        async with self._sent:
+            self._sent.notify_all()
+
+    async def _read(self, reader: asyncio.StreamReader) -> None:
+        answers = AnswerReader()
+        try:
+            while data := await reader.read(65536):
+                for answer_id, payload in answers.feed(data):
+                    if answer_id == SENSORS_ID:
+                        self.sensors = payload
+            raise ConnectionError("closed by the robot")
+        except OSError as err:
+            self._lost = err
+            self._changed.set()
 
     def _watchdog(self) -> None:
-        with self._cond:
-            out = self._out
-            stale = out.last_command_time is not None and (
-                time.monotonic() - out.last_command_time >= self.config.command_timeout
-            )
-            if stale and out.wanted.moving:
-                out.wanted = out.pending = out.wanted.stopped()
-                out.pending_seq += 1
-                self.stats.watchdog_stops += 1
-                log.warning("e-puck2 %d: no command for %.2f s: stopped", self.robot_id, self.config.command_timeout)
+        due = self._watchdog_due()
+        if due is not None and due <= 0:
+            self.wanted = self.pending = self.wanted.stopped()
+            self.pending_seq += 1
+            self.stats.watchdog_stops += 1
+            log.warning("e-puck2 %d: no command for %.2f s: stopped", self.robot_id, self.config.command_timeout)
 
-    def _send_pending(self) -> None:
-        with self._cond:
-            command, seq = self._out.pending, self._out.pending_seq
-        if command is None or self._sock is None:
-            return
-        try:
-            self._sock.sendall(encode_command(command))
-        except OSError as err:
-            self._lost(err)
-            return
-        with self._cond:
-            if self._out.pending_seq == seq:
-                self._out.pending = None
-                self._out.urgent = False
-            self._out.sent_seq = max(self._out.sent_seq, seq)
-            self.stats.commands_sent += 1
-            self._cond.notify_all()
+    def _watchdog_due(self) -> float | None:
+        """Seconds until a moving robot's commands are stale (None: nothing to watch)."""
+        if self.last_command_time is None or not self.wanted.moving:
+            return None
+        return self.last_command_time + self.config.command_timeout - time.monotonic()
 
-    def _wait_and_read(self) -> None:
-        """Sleep until a command comes, the robot answers or the watchdog is due."""
-        with self._cond:
-            if self._out.pending is not None:
-                return
-            due = None
-            if self._out.last_command_time is not None and self._out.wanted.moving:
-                due = self._out.last_command_time + self.config.command_timeout - time.monotonic()
-        assert self._sock is not None
-        ready = self._wait_readable([self._wake_r, self._sock], due)
-        if self._sock in ready:
-            self._read()
-
-    def _wait_readable(self, sockets: list[socket.socket], timeout: float | None) -> list[socket.socket]:
-        with selectors.DefaultSelector() as selector:
-            for s in sockets:
-                selector.register(s, selectors.EVENT_READ)
-            ready = [key.fileobj for key, _ in selector.select(None if timeout is None else max(0.0, timeout))]
-        if self._wake_r in ready:
+    async def _sleep_unless_urgent(self, duration: float) -> None:
+        deadline = time.monotonic() + duration
+        while not self.urgent and (left := deadline - time.monotonic()) > 0:
+            self._changed.clear()
             try:
-                while self._wake_r.recv(4096):
-                    pass
-            except BlockingIOError:
-                pass
-        return ready  # type: ignore[return-value]
-
-    def _read(self) -> None:
-        assert self._sock is not None
-        try:
-            data = self._sock.recv(65536)
-            if not data:
-                raise ConnectionError("closed by the robot")
-            for answer_id, payload in self._reader.feed(data):
-                if answer_id == SENSORS_ID:
-                    self.sensors = payload
-        except OSError as err:
-            self._lost(err)
-
-    def _lost(self, err: Exception) -> None:
-        log.warning("e-puck2 %d (%s:%d): connection lost (%s)", self.robot_id, self.host, self.port, err)
-        self._disconnect()
+                await asyncio.wait_for(self._changed.wait(), left)
+            except TimeoutError:
+                return
 
 
 class Epuck2Backend:
-    """Drives e-puck2 robots over Wi-Fi; robot ids are positions in `config.addresses`."""
+    """Drives e-puck2 robots over Wi-Fi; robot ids are positions in `config.addresses`.
+
+    One thread runs an asyncio event loop with one task per robot; the control loop's calls hand their work
+    to it and return at once (stop_all and close wait for the stops to leave)."""
 
     def __init__(self, config: Epuck2Config) -> None:
         self.config = config
         self.links = [RobotLink(i, host, port, config) for i, (host, port) in enumerate(config.endpoints)]
-        self._started = self._closed = False
+        self._loop = asyncio.new_event_loop()
+        self._thread = threading.Thread(target=self._loop.run_forever, name="epuck2-io", daemon=True)
+        self._tasks: list[asyncio.Task[None]] = []
+        self._closed = False
 
     @property
     def robot_ids(self) -> list[int]:
@@ -439,10 +386,12 @@ class Epuck2Backend:
 
     def start(self) -> None:
         """Connect to every robot in the background (a robot out of reach is tried again with backoff)."""
-        if not self._started:
-            self._started = True
-            for link in self.links:
-                link.start()
+        if not self._thread.is_alive() and not self._closed:
+            self._thread.start()
+            asyncio.run_coroutine_threadsafe(self._start_links(), self._loop).result()
+
+    async def _start_links(self) -> None:
+        self._tasks = [asyncio.create_task(link.run(), name=f"epuck2-{link.robot_id}") for link in self.links]
 
     def set_commands(
         self,
@@ -456,29 +405,53 @@ class Epuck2Backend:
             raise ValueError("set_commands needs one left speed, right speed and colour per robot id")
         limit = self.config.max_wheel_speed
         request = REQUEST_SENSORS if self.config.request_sensors else 0
+        commands = []
         for rid, left, right, colour in zip(robot_ids, wheel_left_mps, wheel_right_mps, colors_rgb255):
+            if not 0 <= rid < len(self.links):
+                raise ValueError(f"no robot {rid}: the hardware file has robots 0-{len(self.links) - 1}")
             command = replace(make_command(float(left), float(right), colour, limit), request=request)
-            self.links[rid].submit(command, from_controller=True)
+            commands.append((self.links[rid], command))
+        self._loop.call_soon_threadsafe(self._submit, commands, time.monotonic())
+
+    @staticmethod
+    def _submit(commands: list[tuple[RobotLink, Command]], now: float) -> None:
+        for link, command in commands:
+            link.submit(command, now)
 
     def stop_all(self) -> list[int]:
         """Send a stop to every robot and wait until the stops have left; returns the robots not reached."""
-        seqs = [link.submit_stop() for link in self.links]
-        deadline = time.monotonic() + self.config.stop_wait
-        if not self._started:
-            self.start()
-        return [link.robot_id for link, seq in zip(self.links, seqs) if not link.wait_sent(seq, deadline)]
+        if self._closed:
+            return []
+        self.start()
+        return asyncio.run_coroutine_threadsafe(self._stop_all(), self._loop).result()
+
+    async def _stop_all(self) -> list[int]:
+        now = time.monotonic()
+        seqs = [link.submit(link.wanted.stopped(), now, urgent=True) for link in self.links]
+        sent = await asyncio.gather(
+            *(link.wait_sent(seq, self.config.stop_wait) for link, seq in zip(self.links, seqs))
+        )
+        return [link.robot_id for link, ok in zip(self.links, sent) if not ok]
 
     def close(self) -> list[int]:
         """Stop every robot, then close the connections; returns the robots the stop did not reach."""
         if self._closed:
             return []
         unreached = self.stop_all()
-        for link in self.links:
-            link.close()
+        asyncio.run_coroutine_threadsafe(self._cancel_links(), self._loop).result()
+        self._loop.call_soon_threadsafe(self._loop.stop)
+        self._thread.join()
+        self._loop.close()
         self._closed = True
         if unreached:
             log.error("e-puck2 robots %s were not reached by the stop", unreached)
         return unreached
+
+    async def _cancel_links(self) -> None:
+        for task in self._tasks:
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        await asyncio.sleep(0)  # let the transports finish closing
 
     def sensors(self, robot_id: int) -> bytes | None:
         """The robot's last 104-byte sensors answer (with `request_sensors = true`), or None."""

@@ -3,6 +3,7 @@ motion, reconnection, the safety stops, and the hardware file."""
 
 from __future__ import annotations
 
+import json
 import math
 import signal
 import socket
@@ -321,7 +322,9 @@ def test_emulator_command_serves_robots_and_writes_their_hardware_file(tmp_path)
     poses = tmp_path / "poses.json"
     poses.write_text("[[0.5, 0.5, 0.0], [1.0, 0.5, 3.14]]")
     cmd = [sys.executable, "-m", "sim.emulators.epuck2", "--robots", "2", "--poses", str(poses)]
-    proc = subprocess.Popen([*cmd, "--write-hardware", str(path)], cwd=REPO, stdout=subprocess.PIPE, text=True)
+    log = tmp_path / "log.json"
+    cmd += ["--write-hardware", str(path), "--log", str(log)]
+    proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, text=True)
     try:
         assert wait_for(path.exists, timeout=60), "the emulator did not start"
         config = load_hardware(path)
@@ -333,6 +336,9 @@ def test_emulator_command_serves_robots_and_writes_their_hardware_file(tmp_path)
     assert proc.returncode == 0
     final_x = [float(line.split("x=")[1].split()[0]) for line in out.splitlines() if line.startswith("robot ")]
     assert final_x == pytest.approx([0.5, 1.0], abs=0.05)  # stopped by close() after a few periods
+    robots = json.loads(log.read_text())["robots"]
+    assert [r["address"] for r in robots] == list(config.backend.addresses)
+    assert all(r["log"][-1][1:] == [0, 0] and any(e[1] == 388 for e in r["log"]) for r in robots)
 
 
 @pytest.mark.parametrize(

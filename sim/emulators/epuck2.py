@@ -199,6 +199,14 @@ class Epuck2Emulator:
         """Close the robot's connection from its side (as a Wi-Fi drop does); it keeps its wheel speeds."""
         self._in_server_thread(lambda: self._drop(robot_id))
 
+    def report(self) -> dict:
+        """Each robot's address, final pose and commands received (time.monotonic() seconds, steps/s)."""
+        robots = [
+            {"address": address, "pose": list(self.pose(rid)), "log": [list(entry) for entry in self.log(rid)]}
+            for rid, address in enumerate(self.addresses)
+        ]
+        return {"robots": robots}
+
     def hardware_toml(self) -> str:
         addresses = ", ".join(f'"{a}"' for a in self.addresses)
         return (
@@ -358,6 +366,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--robots", type=_positive_int, required=True, help="number of robots")
     parser.add_argument("--poses", type=Path, help="JSON list of [x, y, theta] starting poses, one per robot")
     parser.add_argument("--write-hardware", type=Path, metavar="FILE.toml", help="write a hardware file for them")
+    parser.add_argument(
+        "--log", type=Path, metavar="FILE.json", help="on exit, write each robot's received commands and final pose"
+    )
     return parser
 
 
@@ -377,6 +388,8 @@ def main(argv: list[str] | None = None) -> int:
             for rid in range(args.robots):
                 x, y, theta = emulator.pose(rid)
                 print(f"robot {rid}: x={x:.4f} m y={y:.4f} m theta={theta:.4f} rad", flush=True)
+            if args.log:
+                write_atomically(args.log, json.dumps(emulator.report()))
     except (UsageError, OSError) as err:
         print(f"{parser.prog}: error: {err}", file=sys.stderr)
         return 2
