@@ -27,6 +27,7 @@ BENCHES = [
     "bench.paper_figures",
     "bench.bench_animation",
     "bench.bench_loss",
+    "bench.bench_epuck2",
 ]
 ORDER = [
     "runtime",

@@ -14,6 +14,7 @@ the PC sends a 21-byte command packet, 0x80 followed by
 and the robot answers each command with 0x03 (nothing requested), 0x02 + 104 bytes of sensors or 0x01 +
 38,400 bytes of QQVGA RGB565 image. A robot keeps its last wheel speeds until told otherwise, so the
 backend stops every robot whose commands cease (the watchdog), on `stop_all()` and on `close()`.
+One thread runs an asyncio event loop with a task per robot; the control loop's calls hand work to it.
 
 Usage, once per control period: `backend.set_commands(ids, left_mps, right_mps, colours_rgb255)`.
 """
@@ -179,7 +180,7 @@ class Epuck2Config:
 
     @classmethod
     def from_table(cls, table: Mapping[str, Any], where: str) -> Epuck2Config:
-        defaults = {f.name: f.default for f in fields(cls) if f.name != "addresses"}
+        defaults: dict[str, Any] = {f.name: f.default for f in fields(cls) if f.name != "addresses"}
         check_keys(table, ["addresses", *defaults], where)
         addresses = table.get("addresses")
         if not isinstance(addresses, list) or not addresses:
@@ -188,7 +189,9 @@ class Epuck2Config:
         if len(set(endpoints)) != len(endpoints):
             raise HardwareConfigError(f"{where}: addresses must not repeat a robot")
         flags = {"kind", "request_sensors"}
-        numbers = {key: positive_number(table, key, defaults[key], where) for key in defaults if key not in flags}
+        numbers: dict[str, Any] = {
+            key: positive_number(table, key, defaults[key], where) for key in defaults if key not in flags
+        }
         request_sensors = table.get("request_sensors", defaults["request_sensors"])
         if not isinstance(request_sensors, bool):
             raise HardwareConfigError(f"{where}: request_sensors must be true or false, not {request_sensors!r}")
@@ -452,6 +455,7 @@ class Epuck2Backend:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
         await asyncio.sleep(0)  # let the transports finish closing
+        await self._loop.shutdown_default_executor()  # the threads that resolved host names
 
     def sensors(self, robot_id: int) -> bytes | None:
         """The robot's last 104-byte sensors answer (with `request_sensors = true`), or None."""

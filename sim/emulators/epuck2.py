@@ -153,7 +153,9 @@ class Epuck2Emulator:
             raise ValueError(f"need one pose and one port for each of {count} robots")
         self.clock = clock
         now = clock()
-        self.robots = [EmulatedRobot(pose=tuple(map(float, p)), params=params, since=now) for p in poses]
+        self.robots = [
+            EmulatedRobot(pose=(float(x), float(y), float(t)), params=params, since=now) for x, y, t in poses
+        ]
         self._lock = threading.Lock()
         self._selector = selectors.DefaultSelector()
         self._listeners: list[socket.socket] = []
@@ -344,7 +346,7 @@ def read_poses(path: Path, count: int) -> list[Pose]:
         raise UsageError(f"{path}: poses must be a JSON list of [x, y, theta] numbers")
     if len(data) != count:
         raise UsageError(f"{path}: {len(data)} poses for {count} robots")
-    return [tuple(map(float, p)) for p in data]
+    return [(float(x), float(y), float(t)) for x, y, t in data]
 
 
 def write_atomically(path: Path, text: str) -> None:
