@@ -28,6 +28,7 @@ BENCHES = [
     "bench.bench_animation",
     "bench.bench_loss",
     "bench.bench_ros2",
+    "bench.bench_epuck2",
 ]
 ORDER = [
     "runtime",
