@@ -29,6 +29,9 @@ BENCHES = [
     "bench.bench_loss",
     "bench.bench_ros2",
     "bench.bench_epuck2",
+    "bench.bench_tracker",
+    "bench.bench_outputs",
+    "bench.bench_security",
 ]
 ORDER = [
     "runtime",
@@ -45,6 +48,10 @@ ORDER = [
     "animation",
     "carry",
     "ros2",
+    "epuck2",
+    "tracker",
+    "outputs",
+    "security",
     "paper_figures",
 ]
 
