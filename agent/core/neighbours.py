@@ -1,4 +1,4 @@
-"""What a robot assumes about neighbours it knows only from messages (issue 3, item 3).
+"""What a robot assumes about neighbours it knows only from messages.
 
 A neighbour's state was stamped ``age`` seconds ago. ORCA then needs where the neighbour is now and
 how sure we are: `prepare_neighbours` extrapolates and inflates; `perturb_preferred_velocity` breaks
