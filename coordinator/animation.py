@@ -32,8 +32,8 @@ from typing import Any
 import numpy as np
 
 from .drawings import KEYFRAME_ANIMATIONS, keyframes
-from .goals import GoalError
-from .keyframes import IMAGE_SUFFIXES, KeyframeGoals, keyframe_goals, keyframe_paths
+from .goals import IMAGE_SUFFIXES, GoalError
+from .keyframes import KeyframeGoals, keyframe_goals, keyframe_paths
 from .steps import METHODS, ImageStep, _region_counts, scale_region_counts
 
 ANIMATION_KEYS = (

@@ -32,13 +32,14 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial.distance import cdist
 
-from .goals import DEFAULT_ROBOT_RADIUS, GoalError, GoalSet, PreparedImage, goals_from_prepared, prepare_image
+from transport import epuck
+
+from .goals import IMAGE_SUFFIXES, GoalError, GoalSet, PreparedImage, goals_from_prepared, prepare_image
 from .goals.allocate import allocate_robots
 from .goals.family import _rescale
 from .goals.resize import from_arena
 from .keyframe_motion import MIN_CORRELATION, RegionShape, estimate_motion, fit_count, region_shape
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 # scales of the correspondence cost: a Delta E of 25, a shift of a quarter of the image and an area
 # ratio of 2 each cost 1
 COLOR_SCALE, SHIFT_SCALE, AREA_SCALE = 25.0, 0.25, float(np.log(2.0))
@@ -274,7 +275,7 @@ def keyframe_goals(
     arena: float | None = None,
     method: str = "cvt",
     seed: int = 0,
-    robot_radius: float = DEFAULT_ROBOT_RADIUS,
+    robot_radius: float = epuck.RADIUS,
     region_counts: dict[int, int] | None = None,
     min_correlation: float = MIN_CORRELATION,
     scale_init: bool = True,

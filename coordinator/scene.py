@@ -35,19 +35,19 @@ from typing import Any
 
 import numpy as np
 
+from transport import epuck
+
 from .animation import FrameGoals, folder_table, parse_animation
-from .goals import GoalError
+from .goals import IMAGE_SUFFIXES, GoalError
 from .motion import check_window
 from .steps import ImageStep, StepGoals, parse_step
 
 SCENE_DIR = Path(__file__).parent / "scenes"
 LAYOUTS = ("circle", "grid", "random", "rows", "blocks", "file", "list")
 GOAL_KINDS = ("antipodal", "swap", "list", "stay", "none", "image")
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 CLOCKS = ("lockstep", "realtime")
 ENGINES = ("distributed", "central")
 ASSIGNMENTS = ("auction", "optimal")
-DEFAULT_RADIUS = 0.045
 
 
 class SceneError(ValueError):
@@ -92,7 +92,7 @@ class Scene:
 
     @property
     def radius(self) -> float:
-        return float(self.robot.get("radius", DEFAULT_RADIUS))
+        return float(self.robot.get("radius", epuck.RADIUS))
 
     @property
     def pixel_robots(self) -> list[int]:
@@ -211,7 +211,7 @@ def scene_from_dict(
     if not isinstance(n, int) or isinstance(n, bool) or n < 1:
         raise SceneError(f"{where}: robots must be a whole number >= 1, not {n!r}")
     robot = dict(data.get("robot", {}))
-    radius = robot.get("radius", DEFAULT_RADIUS)
+    radius = robot.get("radius", epuck.RADIUS)
     if not _positive(radius):
         raise SceneError(f"{where}: robot radius must be a positive number of metres, not {radius!r}")
     animation = _wrap(lambda: parse_animation(data["animation"], source), where) if "animation" in data else None

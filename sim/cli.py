@@ -10,6 +10,7 @@ import tomllib
 import typing
 from pathlib import Path
 
+from agent.core.params import EPUCK
 from coordinator.goals_cli import add_goals_parser
 from coordinator.scene import SceneError, load_scene, resolve_scene_path, shipped_scenes
 from transport.faults import parse_faults
@@ -194,7 +195,7 @@ def cmd_scenes(args: argparse.Namespace) -> int:
             (
                 name,
                 int(data.get("robots", 0)),
-                data.get("robot", {}).get("kinematics", "diffdrive"),
+                data.get("robot", {}).get("kinematics", EPUCK.kinematics),
                 data.get("description", ""),
             )
         )
