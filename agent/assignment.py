@@ -35,7 +35,7 @@ OnAgreed = Callable[[int, int, dict[int, int], np.ndarray, np.ndarray], None]
 Where = Callable[[], dict[int, np.ndarray]]
 
 
-assert RECORD == Bid._item, "the bidder's records are the wire layout of Bid"
+assert RECORD == Bid.RECORD, "the bidder's records are the wire layout of Bid"
 
 
 class AuctionLink:

@@ -36,7 +36,7 @@ from transport import epuck
 
 from .goals import IMAGE_SUFFIXES, GoalError, GoalSet, PreparedImage, goals_from_prepared, prepare_image
 from .goals.allocate import allocate_robots
-from .goals.family import _rescale
+from .goals.family import rescale
 from .goals.resize import from_arena
 from .keyframe_motion import MIN_CORRELATION, RegionShape, estimate_motion, fit_count, region_shape
 
@@ -345,7 +345,7 @@ def keyframe_goals(
         reports.append(FrameReport(f, mode, reason, motions, int(gs.params["iterations"]), time.perf_counter() - t0))
         sets.append(gs)
     shared = float(arena) if arena is not None else max(s.arena for s in sets)
-    sets = [_rescale(s, shared) for s in sets]
+    sets = [rescale(s, shared) for s in sets]
     for r in reports:  # translations in metres of the common arena
         r.regions = [
             RegionMotion(

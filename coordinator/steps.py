@@ -76,10 +76,13 @@ def parse_step(data: Any, label: str, source: str = "") -> ImageStep:
         raise GoalError(f"{label}: method must be one of {', '.join(METHODS)}, not {method!r}")
     name = str(data.get("name", shape if shape is not None else image.stem))  # type: ignore[union-attr]
     motion = parse_motion(data["motion"], label) if "motion" in data else None
-    return ImageStep(name, image, shape, float(hold), _region_counts(data.get("region_counts"), label), method, motion)
+    return ImageStep(
+        name, image, shape, float(hold), parse_region_counts(data.get("region_counts"), label), method, motion
+    )
 
 
-def _region_counts(value: Any, label: str) -> dict[int, int] | None:
+def parse_region_counts(value: Any, label: str) -> dict[int, int] | None:
+    """A scene's ``region_counts`` table (region id -> robots), checked; None when it has none."""
     if value is None:
         return None
     try:

@@ -37,7 +37,7 @@ PERTURBATION = 1e-4  # neighbours.perturb_preferred_velocity's magnitude
 
 @njit(cache=True)
 def _splitmix64(x):
-    """neighbours._splitmix64 for one uint64 (wrapping arithmetic, as numpy's)."""
+    """neighbours.splitmix64 for one uint64 (wrapping arithmetic, as numpy's)."""
     x = x + np.uint64(0x9E3779B97F4A7C15)
     x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
     x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
