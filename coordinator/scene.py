@@ -15,7 +15,7 @@ raises ``SceneError`` with one line saying what is wrong and how to fix it.
     [[steps]]                # an image sequence: shape = "disk" or image = "a.png", hold = 25.0 (see coordinator.steps)
                              # [steps.motion]: a dynamic image, the goal set moves (coordinator.motion)
     [animation]              # keyframes = "story" | "folder/" | ["a.png", ...], frame_time = 5.0
-                             # (an animation, see coordinator.animation)
+                             # (an animation, see coordinator.keyframe_steps)
     [arena]                  # size = [width, height] (centred on the origin), or "auto"
     [[obstacles]]            # vertices = [[x, y], ...] counter-clockwise
     [[events]]               # t = 10.0, kind = "teleport", robot = 3, pose = [x, y, theta]
@@ -37,8 +37,8 @@ import numpy as np
 
 from transport import epuck
 
-from .animation import FrameGoals, folder_table, parse_animation
 from .goals import IMAGE_SUFFIXES, GoalError
+from .keyframe_steps import FrameGoals, folder_table, parse_animation
 from .motion import check_window
 from .steps import ImageStep, StepGoals, parse_step
 
@@ -425,8 +425,8 @@ def scene_goal_set(scene: Scene, step: int, robots: int) -> tuple[np.ndarray, np
 
 def folder_scene(path: str, robots: int) -> dict[str, Any]:
     """The scene for `pixelswarm run folder/ --robots N`: a grid of e-pucks playing the folder's images
-    as keyframes in file-name order, with coordinator.animation's default timing (30 s to form the first
-    keyframe, then one every 5 s, the last shown 5 s more)."""
+    as keyframes in file-name order, with coordinator.keyframe_steps' default timing (30 s to form the
+    first keyframe, then one every 5 s, the last shown 5 s more)."""
     return {
         "name": Path(path).resolve().name,
         "robots": robots,

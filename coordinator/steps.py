@@ -45,7 +45,7 @@ class ImageStep:
     method: str = "cvt"  # Lloyd with the density of eq. 2, or k-means
     motion: StepMotion | None = None  # a dynamic image (paper 7.4.1): the goal set moves (eq. 28)
     frame_period: float = 0.0  # an animation keyframe's K_f dt (paper 6.2, eq. 27); 0: not a keyframe
-    keyframe: int | None = None  # an animation keyframe: its index (goals from coordinator.animation)
+    keyframe: int | None = None  # an animation keyframe: its index (goals from coordinator.keyframe_steps)
 
 
 def parse_step(data: Any, label: str, source: str = "") -> ImageStep:
