@@ -219,7 +219,7 @@ def scene_from_dict(
     if animation is not None and ("steps" in data or "goals" in data):
         raise SceneError(f"{where}: give one of [animation], [[steps]] or [goals], not several")
     if duration is None:
-        duration = data.get("duration", sum(s.hold for s in steps) if steps else 120.0)
+        duration = data.get("duration", sum(s.hold for s in steps) if steps else Scene.duration)
     if not _positive(duration):
         raise SceneError(f"{where}: duration must be a positive number of seconds")
     scene = Scene(
@@ -231,15 +231,15 @@ def scene_from_dict(
         arena=(0.0, 0.0, 0.0, 0.0),
         obstacles=[],
         events=list(data.get("events", [])),
-        clock=clock or data.get("clock", "lockstep"),
-        engine=data.get("engine", "distributed"),
-        assignment=data.get("assignment", "auction"),
-        agents_per_process=data.get("agents_per_process", 1),
-        deadline=data.get("deadline", 2.0),
+        clock=clock or data.get("clock", Scene.clock),
+        engine=data.get("engine", Scene.engine),
+        assignment=data.get("assignment", Scene.assignment),
+        agents_per_process=data.get("agents_per_process", Scene.agents_per_process),
+        deadline=data.get("deadline", Scene.deadline),
         duration=float(duration),
-        seed=int(seed if seed is not None else data.get("seed", 1)),
+        seed=int(seed if seed is not None else data.get("seed", Scene.seed)),
         noise=_noise(data.get("noise", {}), where),
-        converge_hold=float(data.get("end", {}).get("converge_hold", 1.0)),
+        converge_hold=float(data.get("end", {}).get("converge_hold", Scene.converge_hold)),
         source=source,
     )
     if scene.clock not in CLOCKS:
