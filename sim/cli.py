@@ -10,8 +10,9 @@ import tomllib
 import typing
 from pathlib import Path
 
+from agent.core.params import EPUCK
 from coordinator.goals_cli import add_goals_parser
-from coordinator.scene import SceneError, load_scene, resolve_scene_path, shipped_scenes
+from coordinator.scene import CLOCKS, ENGINES, SceneError, load_scene, resolve_scene_path, shipped_scenes
 from transport.faults import parse_faults
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, open_session, settings_from_args
 
@@ -54,12 +55,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument("--robots", "-n", type=_positive_int, help="number of robots (overrides the scene)")
     run.add_argument("--seed", type=int, help="random seed (overrides the scene)")
-    run.add_argument("--clock", choices=["realtime", "lockstep"], help="clock (overrides the scene)")
+    run.add_argument("--clock", choices=CLOCKS, help="clock (overrides the scene)")
     run.add_argument("--duration", type=float, help="seconds of display time at most (overrides the scene)")
     run.add_argument("--out", type=Path, help="run directory (default runs/<UTC time>-<scene>)")
     run.add_argument(
         "--engine",
-        choices=["distributed", "central"],
+        choices=ENGINES,
         help="distributed: one process per robot over zenoh (default, unless the scene says "
         'engine = "central"); central: every robot stepped in one call with perfect '
         "information (reference, and fast for large swarms)",
@@ -196,7 +197,7 @@ def cmd_scenes(args: argparse.Namespace) -> int:
             (
                 name,
                 int(data.get("robots", 0)),
-                data.get("robot", {}).get("kinematics", "diffdrive"),
+                data.get("robot", {}).get("kinematics", EPUCK.kinematics),
                 data.get("description", ""),
             )
         )
