@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from .codec import DropCounter, Message, decode
+from .codec import DropCounter, Message, _Frame, decode
 from .faults import FaultPlan, FaultSpec
 from .keys import Keys
 from .session import ZenohSettings, open_session
@@ -48,7 +48,7 @@ class Inbox:
         expected: type[Message] | None,
         fault: FaultSpec,
         seed: int,
-        frames: type[Message] | None = None,
+        frames: type[_Frame] | None = None,
         only: np.ndarray | None = None,
     ) -> None:
         """``frames``: a frame kind that carries many ``expected`` messages (codec.Poses, States,
@@ -211,7 +211,7 @@ class Bus:
 
     # --- subscribing ----------------------------------------------------------------------
     def inbox(
-        self, expected: type[Message] | None = None, frames: type[Message] | None = None, only: np.ndarray | None = None
+        self, expected: type[Message] | None = None, frames: type[_Frame] | None = None, only: np.ndarray | None = None
     ) -> Inbox:
         """An empty inbox; feed it with ``subscribe_into``. Faults for the expected kind apply here
         (to its ``frames`` too, each frame as one message: see Inbox)."""

@@ -11,9 +11,10 @@ import json
 import math
 import struct
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from operator import attrgetter
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar, overload
 
 import numpy as np
 
@@ -50,6 +51,13 @@ def _fixed_and_items(body: memoryview, fixed: struct.Struct, item: np.dtype) -> 
     if len(body) != fixed.size + values[-1] * item.itemsize:
         raise Malformed("truncated")
     return values, np.frombuffer(body[fixed.size :], item)
+
+
+def _field_names(item: np.dtype) -> tuple[str, ...]:
+    """The fields of a record dtype (numpy types ``names`` optional: a plain dtype has none)."""
+    if item.names is None:
+        raise TypeError(f"{item} is not a record dtype")
+    return item.names
 
 
 @dataclass
@@ -387,7 +395,7 @@ class Bid(Message):
         """Records as columns (one array per field): a host's message holds up to K records, and a
         dict per record made the recorder's log of a 1000-robot auction cost more than the auction."""
         out = {name: getattr(self, name) for name in self.field_names() if name != "records"}
-        out["records"] = {k: self.records[k] for k in self._item.names}
+        out["records"] = {k: self.records[k] for k in _field_names(self._item)}
         return out
 
 
@@ -417,7 +425,8 @@ class _Frame(Message):
     def messages(self, rows: np.ndarray | None = None) -> list:
         """One message per record (or per selected record), as each robot would have sent it alone."""
         records = self.records if rows is None else self.records[rows]
-        tick, stamp, message = self.tick, self.stamp, self._message
+        tick, stamp = self.tick, self.stamp
+        message: Callable[..., Message] = self._message  # each kind's fields follow (robot, tick, stamp)
         return [message(robot, tick, stamp, *rest) for robot, *rest in records.tolist()]
 
     def _fixed_values(self) -> tuple:
@@ -442,7 +451,7 @@ class _Frame(Message):
     def to_dict(self) -> dict[str, Any]:
         """Records as columns, one array per field (as Bid)."""
         out = {name: getattr(self, name) for name in self.field_names() if name != "records"}
-        out["records"] = {k: self.records[k] for k in self._item.names}
+        out["records"] = {k: self.records[k] for k in _field_names(self._item)}
         return out
 
 
@@ -619,6 +628,19 @@ def register(message_type: type[Message]) -> type[Message]:
     MESSAGE_TYPES[message_type.KIND] = message_type
     BY_NAME[message_type.NAME] = message_type
     return message_type
+
+
+M = TypeVar("M", bound=Message)
+
+
+@overload
+def decode(data: bytes | memoryview, expected: type[M], drops: DropCounter | None = None) -> M | None: ...
+
+
+@overload
+def decode(
+    data: bytes | memoryview, expected: type[Message] | None = None, drops: DropCounter | None = None
+) -> Message | None: ...
 
 
 def decode(
