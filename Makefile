@@ -9,7 +9,7 @@ SCENE  ?= paper-sequence
 ROBOTS ?=
 RUN_ARGS ?=
 
-.PHONY: run test lint bench clean
+.PHONY: run test test-fast lint bench clean
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -29,12 +29,19 @@ $(TSTAMP): pyproject.toml $(STAMP)
 run: $(STAMP)
 	$(VENV)/bin/pixelswarm run $(SCENE) $(if $(ROBOTS),--robots $(ROBOTS)) $(RUN_ARGS)
 
+# Lint and format (ruff), the packages' import contracts and types (mypy): part of every test run.
 lint: $(TSTAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
 	$(VENV)/bin/lint-imports
+	$(VENV)/bin/mypy
 
-test: $(TSTAMP)
-	$(VENV)/bin/lint-imports
+test: lint
 	$(PY) -m pytest -q
+
+# Everyday work: the suite without the end-to-end runs marked slow.
+test-fast: lint
+	$(PY) -m pytest -q -m "not slow"
 
 bench: $(TSTAMP)
 	$(PY) -m bench.run_all

@@ -28,6 +28,10 @@ BENCHES = [
     "bench.bench_animation",
     "bench.bench_loss",
     "bench.bench_ros2",
+    "bench.bench_epuck2",
+    "bench.bench_tracker",
+    "bench.bench_outputs",
+    "bench.bench_security",
 ]
 ORDER = [
     "runtime",
@@ -44,6 +48,10 @@ ORDER = [
     "animation",
     "carry",
     "ros2",
+    "epuck2",
+    "tracker",
+    "outputs",
+    "security",
     "paper_figures",
 ]
 

@@ -1,2 +1,131 @@
+"""The hardware file: which robots a run drives (`[backend]`) and where their poses come from (`[poses]`).
+
+    [backend]
+    kind = "epuck2"
+    addresses = ["127.0.0.1:41000", "127.0.0.1:41001"]
+    [poses]
+    kind = "ros2"
+    topic = "/robot{id}/pose"
+
+Each table names its `kind`; the kind's config class (found through an import string, so backends and
+pose sources written in other modules plug in here) validates the rest with `from_table(table, where)`.
+Robot ids are positions in the backend's list of robots.
+"""
+
+from __future__ import annotations
+
+import importlib
+import tomllib
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+BACKEND_KINDS = {
+    "epuck2": "hardware.epuck2:Epuck2Config",
+    "ros2": "hardware.ros2:Ros2BackendConfig",
+    "sim": "hardware.config:SimBackendConfig",
+}
+POSE_KINDS = {
+    "ros2": "hardware.ros2:Ros2PosesConfig",
+    "camera": "hardware.camera:CameraConfig",
+}
+TABLES = ("backend", "poses")
+
+
 class HardwareConfigError(ValueError):
-    """A hardware configuration table that cannot be used: unknown key, bad value, missing field."""
+    """A hardware file that cannot be used: one line naming the file, the table and what is wrong."""
+
+
+def check_keys(table: Mapping[str, Any], known: Iterable[str], where: str) -> None:
+    """Refuse keys a table does not know (a typo would otherwise silently fall back to a default)."""
+    known = set(known)
+    unknown = sorted(set(table) - known)
+    if unknown:
+        raise HardwareConfigError(f"{where}: unknown key {unknown[0]!r} (known: {', '.join(sorted(known))})")
+
+
+def positive_number(table: Mapping[str, Any], key: str, default: float, where: str) -> float:
+    """A key holding a finite number > 0, or the default when the key is absent."""
+    value = table.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (0 < value < float("inf")):
+        raise HardwareConfigError(f"{where}: {key} must be a positive number, not {value!r}")
+    return float(value)
+
+
+@dataclass(frozen=True)
+class SimBackendConfig:
+    """The simulated world stands in for the robots: nothing to configure besides the kind."""
+
+    kind: str = "sim"
+
+    @classmethod
+    def from_table(cls, table: Mapping[str, Any], where: str) -> SimBackendConfig:
+        check_keys(table, ["kind"], where)
+        return cls()
+
+
+@dataclass(frozen=True)
+class HardwareConfig:
+    """A loaded hardware file: the backend's config and the pose source's config (None when absent)."""
+
+    path: Path
+    backend: Any
+    poses: Any | None
+
+
+def load_object(target: str, kind: str, where: str) -> Any:
+    """ "module:name" -> the object; a kind whose module is not installed is a HardwareConfigError."""
+    module_name, _, name = target.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as err:
+        if err.name is not None and module_name.startswith(err.name):
+            raise HardwareConfigError(f"{where}: kind {kind!r} is not available in this installation") from None
+        raise
+    if not hasattr(module, name):
+        raise HardwareConfigError(f"{where}: kind {kind!r} is not available in this installation ({target} missing)")
+    return getattr(module, name)
+
+
+def _config_class(kind: Any, kinds: Mapping[str, str], where: str) -> Any:
+    if not isinstance(kind, str) or kind not in kinds:
+        raise HardwareConfigError(f"{where}: unknown kind {kind!r} (known: {', '.join(sorted(kinds))})")
+    return load_object(kinds[kind], kind, where)
+
+
+def parse_table(table: Any, kinds: Mapping[str, str], where: str) -> Any:
+    """One `[backend]` or `[poses]` table -> its kind's config object."""
+    if not isinstance(table, dict):
+        raise HardwareConfigError(f"{where}: must be a table")
+    if "kind" not in table:
+        raise HardwareConfigError(f"{where}: missing key 'kind' (one of: {', '.join(sorted(kinds))})")
+    return _config_class(table["kind"], kinds, where).from_table(table, where)
+
+
+def parse_hardware(data: Mapping[str, Any], path: Path) -> HardwareConfig:
+    """A parsed hardware document -> HardwareConfig; `path` only names the file in messages."""
+    unknown = sorted(set(data) - set(TABLES))
+    if unknown:
+        raise HardwareConfigError(f"{path}: unknown table [{unknown[0]}] (known: {', '.join(TABLES)})")
+    if "backend" not in data:
+        raise HardwareConfigError(f"{path}: missing table [backend]")
+    backend = parse_table(data["backend"], BACKEND_KINDS, f"{path} [backend]")
+    poses = parse_table(data["poses"], POSE_KINDS, f"{path} [poses]") if "poses" in data else None
+    return HardwareConfig(path=path, backend=backend, poses=poses)
+
+
+def load_hardware(path: str | Path) -> HardwareConfig:
+    """Read and validate a hardware TOML file; every problem is a one-line HardwareConfigError."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise HardwareConfigError(f"{path}: no such hardware file") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise HardwareConfigError(f"{path}: cannot read: {err}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise HardwareConfigError(f"{path}: not valid TOML: {err}") from None
+    return parse_hardware(data, path)

@@ -30,7 +30,7 @@ import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
@@ -47,6 +47,7 @@ from transport.rmw_zenoh import (
 from transport.session import ZenohSettings, open_session
 
 from .config import HardwareConfigError
+from .poses import PoseSample
 
 TWIST = "geometry_msgs/msg/Twist"
 COLOR_RGBA = "std_msgs/msg/ColorRGBA"
@@ -354,14 +355,6 @@ class Ros2Backend:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-class PoseSample(NamedTuple):
-    x: float  # m
-    y: float  # m
-    theta: float  # rad, yaw from the quaternion
-    stamp: float  # s, from the message header (the publisher's clock)
-    age: float  # s since it arrived here (this machine's clock; the stamp's clock may differ)
 
 
 class Ros2PoseSource:

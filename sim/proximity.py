@@ -24,14 +24,18 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["close_pairs", "gather", "nearest_within"]
+from agent.core.step import NeighbourStates
+from agent.neighbour_table import Heard
+
+__all__ = ["close_pairs", "gather", "nearest_heard_compiled", "nearest_within"]
 
 _CELLS_PER_ROBOT = 16  # the grid's cell count is capped at this many per robot (coarser cells past it)
 
 
 @njit(cache=True)
 def _grid(x: np.ndarray, y: np.ndarray, reach: float) -> tuple:
-    """Cells of the points: per point its cell (cx, cy); the points sorted by cell; cell starts."""
+    """Cells of the points: per point its cell (cx, cy); the points sorted by cell; cell starts; the
+    grid's origin and cell size."""
     n = x.size
     x0, x1, y0, y1 = x.min(), x.max(), y.min(), y.max()
     # a little wider than reach, so two points within reach are never two cells apart by rounding
@@ -56,7 +60,7 @@ def _grid(x: np.ndarray, y: np.ndarray, reach: float) -> tuple:
         c = cx[i] * ny + cy[i]
         order[fill[c]] = i
         fill[c] += 1
-    return cx, cy, nx, ny, start, order
+    return cx, cy, nx, ny, start, order, x0, y0, cell
 
 
 @njit(cache=True, nogil=True)
@@ -72,7 +76,7 @@ def _close_pairs(
     """close_pairs, compiled: (done, clearance, i, j, pairs, depth (H, rows - first_row))."""
     rows, n = traj.shape[0], traj.shape[1]
     x, y = traj[0, :, 0].copy(), traj[0, :, 1].copy()
-    cx, cy, nx, ny, start, order = _grid(x, y, reach)
+    cx, cy, nx, ny, start, order, _, _, _ = _grid(x, y, reach)
     reach2 = reach * reach
     slack = 2.0 * motion + 1e-9  # no row brings a pair closer than its row-0 distance less this
     best, best_i, best_j = np.inf, -1, -1
@@ -178,7 +182,7 @@ def nearest_within(position: np.ndarray, reach: float, m: int) -> np.ndarray:
     if n == 0 or m == 0:
         return out
     x, y = position[:, 0].copy(), position[:, 1].copy()
-    cx, cy, nx, ny, start, order = _grid(x, y, reach)
+    cx, cy, nx, ny, start, order, _, _, _ = _grid(x, y, reach)
     best_d = np.empty(m)
     for i in range(n):
         k = 0  # neighbours kept so far, sorted by (distance, index)
@@ -221,3 +225,70 @@ def gather(index: np.ndarray, position: np.ndarray, velocity: np.ndarray, cooper
             vel[i, s, 0], vel[i, s, 1] = velocity[j, 0], velocity[j, 1]
             coop[i, s] = cooperative[j]
     return pos, vel, valid, coop
+
+
+@njit(cache=True, nogil=True)
+def _nearest_of(qx, qy, qid, x, y, ids, reach: float, m: int) -> np.ndarray:
+    """(Q, m) indices into (x, y) of each query point's m nearest points within ``reach`` (d^2 <=
+    reach^2), not its own id, nearest first, equal distances by index; -1 past the last."""
+    q, n = qx.size, x.size
+    out = np.full((q, m), -1, np.int64)
+    if q == 0 or n == 0 or m == 0:
+        return out
+    _, _, nx, ny, start, order, x0, y0, cell = _grid(x, y, reach)
+    reach2 = reach * reach
+    best = np.empty(m)
+    for i in range(q):
+        gx0 = int(np.floor((qx[i] - x0) / cell))
+        gy0 = int(np.floor((qy[i] - y0) / cell))
+        k = 0
+        for gx in range(max(gx0 - 1, 0), min(gx0 + 2, nx)):
+            for gy in range(max(gy0 - 1, 0), min(gy0 + 2, ny)):
+                c = gx * ny + gy
+                for a in range(start[c], start[c + 1]):
+                    j = order[a]
+                    if ids[j] == qid[i]:
+                        continue
+                    dx, dy = x[j] - qx[i], y[j] - qy[i]
+                    d2 = dx * dx + dy * dy
+                    if not d2 <= reach2 or (k == m and (d2 > best[m - 1] or (d2 == best[m - 1] and j > out[i, m - 1]))):
+                        continue
+                    p = min(k, m - 1)
+                    while p > 0 and (best[p - 1] > d2 or (best[p - 1] == d2 and out[i, p - 1] > j)):
+                        best[p] = best[p - 1]
+                        out[i, p] = out[i, p - 1]
+                        p -= 1
+                    best[p] = d2
+                    out[i, p] = j
+                    k = min(k + 1, m)
+    return out
+
+
+def nearest_heard_compiled(
+    robot_ids: np.ndarray, positions: np.ndarray, stamp: float, heard: Heard, reach: float, m: int
+) -> NeighbourStates:
+    """agent.neighbour_table.nearest_heard on the grid, compiled: the same neighbours in the same order
+    (the same squared distances, ties by id), for the central engine's thousand robots a tick."""
+    order = np.argsort(heard.ids, kind="stable")
+    ids = heard.ids[order]
+    pos = np.ascontiguousarray(heard.position[order], dtype=float)
+    p = np.ascontiguousarray(positions, dtype=float).reshape(-1, 2)
+    idx = _nearest_of(
+        p[:, 0].copy(),
+        p[:, 1].copy(),
+        np.ascontiguousarray(robot_ids, dtype=np.int64),
+        pos[:, 0].copy(),
+        pos[:, 1].copy(),
+        np.ascontiguousarray(ids, dtype=np.int64),
+        float(reach),
+        int(m),
+    )
+    valid = idx >= 0
+    take = np.where(valid, idx, 0)
+    out = NeighbourStates.empty(len(p), m)
+    out.position[valid], out.velocity[valid] = pos[take[valid]], heard.velocity[order][take[valid]]
+    out.radius[valid] = heard.radius[order][take[valid]]
+    out.age[valid] = stamp - heard.stamp[order][take[valid]]
+    out.valid[:] = valid
+    out.cooperative[valid] = heard.cooperative[order][take[valid]]
+    return out

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from sim.proximity import nearest_within
+from agent.neighbour_table import Heard, nearest_heard
+from sim.proximity import nearest_heard_compiled, nearest_within
 
 
 def kd_tree_neighbours(position: np.ndarray, reach: float, m: int) -> np.ndarray:
@@ -54,3 +55,29 @@ def test_gather_takes_what_numpy_takes():
     np.testing.assert_array_equal(vel, np.take(velocity, safe, axis=0))
     np.testing.assert_array_equal(valid, index >= 0)
     np.testing.assert_array_equal(coop, cooperative[safe])
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_the_compiled_neighbour_choice_is_the_agents_own(seed):
+    """The central engine picks neighbours on a compiled grid (sim.proximity.nearest_heard_compiled);
+    the agents pick them with agent.neighbour_table.nearest_heard. Same states in, the same
+    neighbours out, in the same order, ties in distance included (points on a lattice)."""
+    rng = np.random.default_rng(seed)
+    n, q = int(rng.integers(1, 60)), int(rng.integers(1, 40))
+    lattice = seed % 2 == 0
+    pos = rng.integers(-5, 5, (n, 2)) * 0.1 if lattice else rng.uniform(-1, 1, (n, 2))
+    ids = rng.permutation(200)[:n]
+    heard = Heard(
+        ids, pos, rng.normal(size=(n, 2)), rng.uniform(0.02, 0.05, n), rng.uniform(0, 1, n), rng.random(n) < 0.8
+    )
+    own = np.concatenate([ids[: q // 2], rng.integers(200, 300, q)])[:q]  # some of the queries are heard robots
+    where = rng.integers(-5, 5, (len(own), 2)) * 0.1 if lattice else rng.uniform(-1.2, 1.2, (len(own), 2))
+    m, reach = int(rng.integers(1, 12)), float(rng.choice([0.1, 0.3, 0.6, 2.0]))
+    numpy_pick = nearest_heard(own, where, 1.5, heard, reach, m)
+    compiled = nearest_heard_compiled(own, where, 1.5, heard, reach, m)
+    k = numpy_pick.position.shape[1]  # numpy pads only to the states there are
+    assert not compiled.valid[:, k:].any()
+    np.testing.assert_array_equal(compiled.valid[:, :k], numpy_pick.valid)
+    ok = numpy_pick.valid
+    for name in ("position", "velocity", "radius", "age", "cooperative"):
+        np.testing.assert_array_equal(getattr(compiled, name)[:, :k][ok], getattr(numpy_pick, name)[ok], err_msg=name)

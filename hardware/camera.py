@@ -1,0 +1,375 @@
+"""The overhead-camera pose source: one ArUco marker on top of each robot, seen by a fixed camera.
+
+The paper tracks its robots with an overhead camera at 10 Hz to 2 mm and 3 deg. Here each robot
+carries a square ArUco marker whose id is the robot's id; the floor plane is calibrated by a
+homography (image -> floor, metres) fitted to reference markers lying at known floor positions, or
+given as a matrix. A robot's position is its marker's centre on the floor, its heading the direction
+from that centre to the middle of the marker's top edge (OpenCV's corners 0 and 1). A robot not seen
+in a frame is reported lost; its last pose keeps its own time and ages, it is never invented.
+
+The `[poses]` table of the hardware file::
+
+    [poses]
+    kind = "camera"
+    source = 0                    # a device number, a video file or a stream URL ("rtsp://...")
+    dictionary = "DICT_4X4_50"    # any cv2.aruco dictionary
+    marker_size = 0.05            # side of the black square, metres
+    rate = 10.0                   # frames per second asked of a device
+    [poses.reference]             # marker id -> [x, y] of its centre on the floor, metres
+    "46" = [0.1, 0.1]
+    ...                           # (or: homography = [[...], [...], [...]], image pixels -> floor metres)
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+import cv2
+import numpy as np
+
+from .config import HardwareConfigError
+from .poses import PoseSample
+
+# A detection whose side on the floor is off by more than this fraction is not a robot's marker
+# (a false detection, or a marker far from the calibrated plane): dropped rather than believed.
+SIDE_TOLERANCE = 0.25
+# Reference markers that move by more than this many pixels mean the camera moved: calibrate anew.
+CAMERA_MOVED_PX = 3.0
+# Fits lines to the marker's edges: on blurred, noisy frames it measured markedly more precise than
+# CORNER_REFINE_SUBPIX (whose saddle-point model does not fit a square's outer corners) at no cost in
+# speed (bench/bench_tracker.py).
+CORNER_REFINEMENT = cv2.aruco.CORNER_REFINE_CONTOUR
+# Fewer floor points than this do not determine a homography.
+MIN_REFERENCES = 4
+
+
+class CameraError(RuntimeError):
+    """A camera or video that cannot be read: one line saying which and why."""
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """The `[poses]` table of kind "camera", validated. Every default is written here, once."""
+
+    source: int | str = 0
+    dictionary: str = "DICT_4X4_50"
+    marker_size: float = 0.05
+    reference: dict[int, tuple[float, float]] = field(default_factory=dict)
+    homography: tuple[tuple[float, ...], ...] | None = None
+    rate: float = 10.0
+
+    @classmethod
+    def from_table(cls, table: Mapping[str, Any], where: str) -> CameraConfig:
+        """Validate a parsed `[poses]` table; `where` names it in errors (e.g. "robots.toml [poses]")."""
+        if not isinstance(table, Mapping):
+            raise HardwareConfigError(f"{where}: must be a table")
+        known = {f.name for f in fields(cls)} | {"kind"}
+        unknown = sorted(set(table) - known)
+        if unknown:
+            raise HardwareConfigError(f"{where}: unknown key {unknown[0]!r} (known: {', '.join(sorted(known))})")
+        if table.get("kind", "camera") != "camera":
+            raise HardwareConfigError(f"{where}: kind must be 'camera', not {table['kind']!r}")
+        values: dict[str, Any] = {}
+        if "source" in table:
+            values["source"] = _source(table["source"], where)
+        if "dictionary" in table:
+            values["dictionary"] = _dictionary_name(table["dictionary"], where)
+        for key in ("marker_size", "rate"):
+            if key in table:
+                values[key] = _positive(table[key], f"{where}: {key}")
+        size = _dictionary_size(values.get("dictionary", cls.dictionary))
+        if "reference" in table:
+            values["reference"] = _reference(table["reference"], size, f"{where}: reference")
+        if "homography" in table:
+            values["homography"] = _homography(table["homography"], f"{where}: homography")
+        if ("reference" in values) == ("homography" in values):
+            raise HardwareConfigError(f"{where}: give exactly one of [poses.reference] markers and a homography")
+        return cls(**values)
+
+
+def _source(value: Any, where: str) -> int | str:
+    if isinstance(value, int) and not isinstance(value, bool) and value >= 0:
+        return value
+    if isinstance(value, str) and value.strip():
+        return value
+    raise HardwareConfigError(f"{where}: source must be a device number, a video file or a stream URL, not {value!r}")
+
+
+def _dictionary_name(value: Any, where: str) -> str:
+    if not (isinstance(value, str) and value.startswith("DICT_") and hasattr(cv2.aruco, value)):
+        raise HardwareConfigError(f"{where}: dictionary {value!r} is not a cv2.aruco dictionary (e.g. 'DICT_4X4_50')")
+    return value
+
+
+def _dictionary_size(name: str) -> int:
+    return len(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name)).bytesList)
+
+
+def _number(value: Any, what: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise HardwareConfigError(f"{what} must be a finite number, not {value!r}")
+    return float(value)
+
+
+def _positive(value: Any, what: str) -> float:
+    number = _number(value, what)
+    if number <= 0:
+        raise HardwareConfigError(f"{what} must be positive, not {value!r}")
+    return number
+
+
+def _reference(value: Any, dictionary_size: int, where: str) -> dict[int, tuple[float, float]]:
+    if not isinstance(value, Mapping):
+        raise HardwareConfigError(f"{where}: must be a table of marker id -> [x, y]")
+    out: dict[int, tuple[float, float]] = {}
+    for key, xy in value.items():
+        try:
+            marker = int(key)
+        except ValueError:
+            raise HardwareConfigError(f"{where}: marker id {key!r} is not a whole number") from None
+        if not 0 <= marker < dictionary_size:
+            raise HardwareConfigError(
+                f"{where}: marker id {marker} is outside the dictionary (0..{dictionary_size - 1})"
+            )
+        if not (isinstance(xy, list | tuple) and len(xy) == 2):
+            raise HardwareConfigError(f"{where}: marker {marker} must be at [x, y] metres, not {xy!r}")
+        out[marker] = (_number(xy[0], f"{where}: {marker} x"), _number(xy[1], f"{where}: {marker} y"))
+    points = np.array(list(out.values()), dtype=float).reshape(-1, 2)
+    if len(out) < MIN_REFERENCES:
+        raise HardwareConfigError(f"{where}: needs at least {MIN_REFERENCES} markers, not {len(out)}")
+    # a homography needs the points to span the plane: not all on one line
+    if np.linalg.matrix_rank(points - points.mean(axis=0), tol=1e-3) < 2:
+        raise HardwareConfigError(f"{where}: the markers lie on one line; spread them over the floor")
+    return out
+
+
+def _homography(value: Any, where: str) -> tuple[tuple[float, ...], ...]:
+    rows = value if isinstance(value, list) else []
+    if len(rows) != 3 or not all(isinstance(r, list) and len(r) == 3 for r in rows):
+        raise HardwareConfigError(f"{where}: must be a 3x3 list of numbers (image pixels -> floor metres)")
+    matrix = tuple(tuple(_number(v, where) for v in row) for row in rows)
+    if abs(np.linalg.det(np.array(matrix))) < 1e-12:
+        raise HardwareConfigError(f"{where}: the matrix is singular")
+    return matrix
+
+
+@dataclass(frozen=True)
+class MarkerPose:
+    """A robot's pose on the floor (metres, radians) and the time of the frame it was seen in."""
+
+    id: int
+    x: float
+    y: float
+    theta: float
+    t: float
+
+
+@dataclass(frozen=True)
+class TrackedFrame:
+    """One frame's result: the robots seen in it, and those seen before but not in it."""
+
+    t: float
+    index: int
+    poses: dict[int, MarkerPose]
+    lost: frozenset[int]
+
+
+def make_detector(dictionary: str, corner_refinement: int = CORNER_REFINEMENT) -> cv2.aruco.ArucoDetector:
+    """OpenCV's ArUco detector for a dictionary name, with the given corner refinement."""
+    parameters = cv2.aruco.DetectorParameters()
+    parameters.cornerRefinementMethod = corner_refinement
+    return cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary)), parameters)
+
+
+def marker_centre(corners: np.ndarray) -> np.ndarray:
+    """The centre of a square seen in perspective: where its diagonals cross (not its corners' mean)."""
+    h = np.hstack([corners, np.ones((4, 1))])
+    point = np.cross(np.cross(h[0], h[2]), np.cross(h[1], h[3]))
+    return point[:2] / point[2]
+
+
+class ArucoTracker:
+    """Marker detections -> robot poses on the floor, one frame at a time."""
+
+    def __init__(self, config: CameraConfig, corner_refinement: int = CORNER_REFINEMENT) -> None:
+        self.config = config
+        self.detector = make_detector(config.dictionary, corner_refinement)
+        self.homography: np.ndarray | None = None if config.homography is None else np.array(config.homography)
+        # the running mean of each reference marker's image centre: a fixed camera's calibration
+        # grows more precise with every frame
+        self._reference_sum: dict[int, np.ndarray] = {}
+        self._reference_count: dict[int, int] = {}
+        self._last: dict[int, MarkerPose] = {}
+
+    @property
+    def calibrated(self) -> bool:
+        return self.homography is not None
+
+    def detect(self, image: np.ndarray) -> dict[int, np.ndarray]:
+        """Marker id -> its four image corners (4x2, OpenCV's order); ids seen twice are dropped."""
+        grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
+        corners, ids, _ = self.detector.detectMarkers(grey)
+        if ids is None:
+            return {}
+        found: dict[int, np.ndarray] = {}
+        twice: set[int] = set()
+        for marker, c in zip(ids.ravel().tolist(), corners):
+            if marker in found:
+                twice.add(marker)
+            found[marker] = c.reshape(4, 2).astype(float)
+        return {m: c for m, c in found.items() if m not in twice}
+
+    def update(self, image: np.ndarray, t: float, index: int = 0) -> TrackedFrame:
+        """Track one frame taken at time `t` (seconds)."""
+        markers = self.detect(image)
+        if self.config.reference:
+            self._calibrate({m: c for m, c in markers.items() if m in self.config.reference})
+        poses: dict[int, MarkerPose] = {}
+        robots = {m: c for m, c in markers.items() if m not in self.config.reference}
+        if self.homography is not None and robots:
+            ids = list(robots)
+            floor = cv2.perspectiveTransform(np.array([robots[m] for m in ids]).reshape(-1, 1, 2), self.homography)
+            floor = floor.reshape(-1, 4, 2)
+            centre = floor.mean(axis=1)  # the floor is the marker's own plane: the corners' mean is its centre
+            ahead = floor[:, 0] + floor[:, 1] - floor[:, 2] - floor[:, 3]  # centre -> middle of the top edge
+            side = np.linalg.norm(floor - np.roll(floor, 1, axis=1), axis=2).mean(axis=1)
+            for k, marker in enumerate(ids):
+                if abs(side[k] / self.config.marker_size - 1.0) <= SIDE_TOLERANCE:
+                    theta = math.atan2(ahead[k, 1], ahead[k, 0])
+                    poses[marker] = MarkerPose(marker, float(centre[k, 0]), float(centre[k, 1]), theta, t)
+        self._last.update(poses)
+        return TrackedFrame(t, index, poses, frozenset(set(self._last) - set(poses)))
+
+    def last_seen(self) -> dict[int, MarkerPose]:
+        """Every robot ever seen -> its latest pose (with the time it was seen)."""
+        return dict(self._last)
+
+    def _calibrate(self, seen: dict[int, np.ndarray]) -> None:
+        centres = {m: marker_centre(c) for m, c in seen.items()}
+        moved = [
+            np.linalg.norm(p - self._reference_sum[m] / self._reference_count[m]) > CAMERA_MOVED_PX
+            for m, p in centres.items()
+            if m in self._reference_sum
+        ]
+        if moved and sum(moved) * 2 > len(moved):
+            # the old calibration is wrong now: no poses until the references are seen again
+            self._reference_sum.clear()
+            self._reference_count.clear()
+            self.homography = None
+        for m, p in centres.items():
+            self._reference_sum[m] = self._reference_sum.get(m, 0.0) + p
+            self._reference_count[m] = self._reference_count.get(m, 0) + 1
+        if len(self._reference_sum) < MIN_REFERENCES:
+            return
+        ids = sorted(self._reference_sum)
+        image = np.array([self._reference_sum[m] / self._reference_count[m] for m in ids])
+        floor = np.array([self.config.reference[m] for m in ids])
+        homography, _ = cv2.findHomography(image, floor)
+        if homography is not None:
+            self.homography = homography
+
+
+def open_capture(source: int | str) -> cv2.VideoCapture:
+    """Open a camera device, video file or stream, or raise CameraError."""
+    capture = cv2.VideoCapture(source)
+    if not capture.isOpened():
+        capture.release()
+        raise CameraError(f"cannot open video source {source!r}")
+    return capture
+
+
+def is_file(source: int | str) -> bool:
+    return isinstance(source, str) and "://" not in source
+
+
+class CameraPoseSource:
+    """Reads frames in a thread and hands out each robot's latest pose with its frame's time.
+
+    A file's frames are timed by its frame rate from 0 and, with `realtime`, played at that rate like
+    a camera; a device's or stream's frames are timed by the wall clock (`time.time()`) when read.
+    """
+
+    def __init__(
+        self,
+        config: CameraConfig,
+        *,
+        realtime: bool = True,
+        tracker: ArucoTracker | None = None,
+        clock: Callable[[], float] = time.time,
+    ) -> None:
+        self.config = config
+        self.tracker = tracker or ArucoTracker(config)
+        self.realtime = realtime
+        self.clock = clock
+        self._lock = threading.Lock()
+        self._frame: TrackedFrame | None = None
+        self._latest: dict[int, tuple[MarkerPose, float]] = {}  # robot -> newest pose, when it was tracked
+        self._stop = threading.Event()
+        self.finished = threading.Event()  # set when the source ends or fails
+        self.error: str | None = None
+        self._thread: threading.Thread | None = None
+        self._capture: cv2.VideoCapture | None = None
+
+    def start(self) -> CameraPoseSource:
+        self._capture = open_capture(self.config.source)
+        if not is_file(self.config.source):
+            self._capture.set(cv2.CAP_PROP_FPS, self.config.rate)
+        self._thread = threading.Thread(target=self._run, name="camera-poses", daemon=True)
+        self._thread.start()
+        return self
+
+    def latest(self) -> dict[int, PoseSample]:
+        """Every robot seen so far, by id, with its newest pose: stamped with its frame's time, aged
+        since it was tracked (`time.monotonic()`)."""
+        with self._lock:
+            latest = dict(self._latest)
+        now = time.monotonic()
+        return {r: PoseSample(p.x, p.y, p.theta, p.t, now - at) for r, (p, at) in sorted(latest.items())}
+
+    def frame(self) -> TrackedFrame | None:
+        """The latest frame's result (robots seen in it and robots lost), or None before the first."""
+        with self._lock:
+            return self._frame
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        if self._capture is not None:
+            self._capture.release()
+
+    def __enter__(self) -> CameraPoseSource:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _run(self) -> None:
+        assert self._capture is not None
+        from_file = is_file(self.config.source)
+        fps = self._capture.get(cv2.CAP_PROP_FPS) or self.config.rate
+        started = time.monotonic()
+        index = 0
+        try:
+            while not self._stop.is_set():
+                ok, image = self._capture.read()
+                if not ok:
+                    if not from_file:
+                        self.error = f"video source {self.config.source!r} stopped delivering frames"
+                    break
+                t = index / fps if from_file else self.clock()
+                frame = self.tracker.update(image, t, index)
+                tracked = time.monotonic()
+                with self._lock:
+                    self._frame = frame
+                    self._latest.update((r, (pose, tracked)) for r, pose in frame.poses.items())
+                index += 1
+                if from_file and self.realtime:
+                    self._stop.wait(max(0.0, started + index / fps - time.monotonic()))
+        finally:
+            self.finished.set()

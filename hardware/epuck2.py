@@ -1,0 +1,477 @@
+"""GCtronic e-puck2 robots over Wi-Fi: one TCP connection per robot, the robot being the server.
+
+Protocol (GCtronic wiki, "e-puck2 PC side development", section "Communication protocol: WiFi"):
+the PC sends a 21-byte command packet, 0x80 followed by
+
+    byte  1      request: bit 0 image stream, bit 1 sensors
+    byte  2      settings: bit 0 calibrate IR sensors, bit 1 onboard obstacle avoidance, bit 2 set motor steps
+    bytes 3-4    left motor speed, int16 little-endian, steps/s
+    bytes 5-6    right motor speed, int16 little-endian, steps/s
+    byte  7      LEDs: bit 0 LED1, bit 1 LED3, bit 2 LED5, bit 3 LED7, bit 4 body LED, bit 5 front LED
+    bytes 8-19   red, green, blue of LED2, LED4, LED6, LED8, each 0-100
+    byte  20     speaker (0: leave the sound as it is)
+
+and the robot answers each command with 0x03 (nothing requested), 0x02 + 104 bytes of sensors or 0x01 +
+38,400 bytes of QQVGA RGB565 image. A robot keeps its last wheel speeds until told otherwise, so the
+backend stops every robot whose commands cease (the watchdog), on `stop_all()` and on `close()`.
+One thread runs an asyncio event loop with a task per robot; the control loop's calls hand work to it.
+
+Usage, once per control period: `backend.set_commands(ids, left_mps, right_mps, colours_rgb255)`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import socket
+import struct
+import threading
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, fields, replace
+from typing import Any
+
+from .config import HardwareConfigError, check_keys, positive_number
+
+log = logging.getLogger(__name__)
+
+DEFAULT_PORT = 1000
+COMMAND_ID = 0x80
+COMMAND_FORMAT = "<BBBhhB12BB"  # id, request, settings, left, right, LEDs, 4 x RGB, speaker
+COMMAND_SIZE = struct.calcsize(COMMAND_FORMAT)
+IMAGE_ID, SENSORS_ID, EMPTY_ID = 0x01, 0x02, 0x03
+ANSWER_SIZES = {IMAGE_ID: 160 * 120 * 2, SENSORS_ID: 104, EMPTY_ID: 0}
+REQUEST_IMAGE, REQUEST_SENSORS = 0x01, 0x02
+STEPS_OFFSET = 79  # in the sensors answer
+RGB_LEDS = 4  # LED2, LED4, LED6, LED8
+RGB_LEVEL_MAX = 100
+
+STEPS_PER_REVOLUTION = 1000
+WHEEL_DIAMETER = 0.041  # m
+FIRMWARE_SPEED_LIMIT = 1100  # steps/s: the firmware clamps wheel speeds here
+
+
+def steps_per_second(speed: float) -> float:
+    """Wheel rim speed (m/s) -> motor steps/s."""
+    return speed / (math.pi * WHEEL_DIAMETER) * STEPS_PER_REVOLUTION
+
+
+def metres_per_second(steps: float) -> float:
+    """Motor steps/s -> wheel rim speed (m/s)."""
+    return steps / STEPS_PER_REVOLUTION * math.pi * WHEEL_DIAMETER
+
+
+FIRMWARE_MAX_WHEEL_SPEED = metres_per_second(FIRMWARE_SPEED_LIMIT)
+
+
+@dataclass(frozen=True)
+class Command:
+    """One command packet's fields, in the protocol's units (steps/s, LED levels 0-100)."""
+
+    left: int = 0
+    right: int = 0
+    rgb: tuple[tuple[int, int, int], ...] = ((0, 0, 0),) * RGB_LEDS  # LED2, LED4, LED6, LED8
+    leds: int = 0
+    request: int = 0
+    settings: int = 0
+    speaker: int = 0
+
+    @property
+    def moving(self) -> bool:
+        return self.left != 0 or self.right != 0
+
+    def stopped(self) -> Command:
+        """The same LEDs, wheels at rest."""
+        return replace(self, left=0, right=0)
+
+
+def encode_command(command: Command) -> bytes:
+    """The 21-byte packet for a command."""
+    levels = [level for led in command.rgb for level in led]
+    return struct.pack(
+        COMMAND_FORMAT,
+        COMMAND_ID,
+        command.request,
+        command.settings,
+        command.left,
+        command.right,
+        command.leds,
+        *levels,
+        command.speaker,
+    )
+
+
+def wheel_steps(speed: float, limit: float) -> int:
+    """A wheel speed (m/s) clipped to `limit` (m/s), in whole steps/s within the firmware's limit.
+    A speed that is not a number becomes 0: a controller's fault must not drive a robot."""
+    if not math.isfinite(speed):
+        return 0
+    steps = round(steps_per_second(max(-limit, min(limit, speed))))
+    return max(-FIRMWARE_SPEED_LIMIT, min(FIRMWARE_SPEED_LIMIT, steps))
+
+
+def led_level(channel: float) -> int:
+    """A colour channel 0-255 -> an LED level 0-100."""
+    if not math.isfinite(channel):
+        return 0
+    return round(max(0.0, min(255.0, channel)) * RGB_LEVEL_MAX / 255)
+
+
+def make_command(left: float, right: float, colour_rgb255: Sequence[float], limit: float) -> Command:
+    """Wheel speeds (m/s) and a robot's colour (0-255, shown on all four RGB LEDs) -> a Command."""
+    rgb = tuple(led_level(c) for c in colour_rgb255)
+    if len(rgb) != 3:
+        raise ValueError(f"a colour has three channels, not {len(rgb)}")
+    return Command(left=wheel_steps(left, limit), right=wheel_steps(right, limit), rgb=(rgb,) * RGB_LEDS)
+
+
+def motor_steps(sensors: bytes) -> tuple[int, int]:
+    """Left and right motor step counters from a sensors answer (bytes 79-82, int16 little-endian)."""
+    left, right = struct.unpack_from("<hh", sensors, STEPS_OFFSET)
+    return left, right
+
+
+class AnswerReader:
+    """Splits the robot's byte stream into answers (id, payload)."""
+
+    def __init__(self) -> None:
+        self._buffer = bytearray()
+
+    def feed(self, data: bytes) -> list[tuple[int, bytes]]:
+        self._buffer += data
+        answers = []
+        while self._buffer:
+            answer_id = self._buffer[0]
+            if answer_id not in ANSWER_SIZES:
+                raise ConnectionError(f"unknown answer id 0x{answer_id:02x}")
+            end = 1 + ANSWER_SIZES[answer_id]
+            if len(self._buffer) < end:
+                break
+            answers.append((answer_id, bytes(self._buffer[1:end])))
+            del self._buffer[:end]
+        return answers
+
+
+def parse_address(address: Any, where: str) -> tuple[str, int]:
+    """ "host:port" or "host" (port 1000) -> (host, port)."""
+    if not isinstance(address, str) or not address.strip():
+        raise HardwareConfigError(f"{where}: an address must be a non-empty string like 'host:port', not {address!r}")
+    host, colon, port_text = address.strip().rpartition(":")
+    if not colon:
+        return port_text, DEFAULT_PORT
+    if not host or not port_text.isdigit() or not 0 < int(port_text) < 65536:
+        raise HardwareConfigError(f"{where}: address {address!r} is not 'host:port' with a port 1-65535")
+    return host, int(port_text)
+
+
+@dataclass(frozen=True)
+class Epuck2Config:
+    """The `[backend]` table of kind "epuck2". Times in s, speeds in m/s."""
+
+    addresses: tuple[str, ...]
+    command_timeout: float = 0.3  # a robot whose last command is older than this is stopped
+    connect_timeout: float = 1.0  # one attempt to connect, or to send a packet
+    reconnect_backoff: float = 0.1  # wait after a failed attempt; doubles up to reconnect_backoff_max
+    reconnect_backoff_max: float = 2.0
+    max_wheel_speed: float = FIRMWARE_MAX_WHEEL_SPEED  # wheel speeds are clipped to this before they leave
+    request_sensors: bool = False  # ask for the 104-byte sensors answer with every command
+    kind: str = "epuck2"
+
+    @classmethod
+    def from_table(cls, table: Mapping[str, Any], where: str) -> Epuck2Config:
+        defaults: dict[str, Any] = {f.name: f.default for f in fields(cls) if f.name != "addresses"}
+        check_keys(table, ["addresses", *defaults], where)
+        addresses = table.get("addresses")
+        if not isinstance(addresses, list) or not addresses:
+            raise HardwareConfigError(f"{where}: addresses must be a non-empty list of 'host:port' strings")
+        endpoints = [parse_address(a, where) for a in addresses]
+        if len(set(endpoints)) != len(endpoints):
+            raise HardwareConfigError(f"{where}: addresses must not repeat a robot")
+        flags = {"kind", "request_sensors"}
+        numbers: dict[str, Any] = {
+            key: positive_number(table, key, defaults[key], where) for key in defaults if key not in flags
+        }
+        request_sensors = table.get("request_sensors", defaults["request_sensors"])
+        if not isinstance(request_sensors, bool):
+            raise HardwareConfigError(f"{where}: request_sensors must be true or false, not {request_sensors!r}")
+        if numbers["max_wheel_speed"] > FIRMWARE_MAX_WHEEL_SPEED:
+            raise HardwareConfigError(
+                f"{where}: max_wheel_speed must be at most {FIRMWARE_MAX_WHEEL_SPEED:.4f} m/s (the firmware's limit)"
+            )
+        if numbers["reconnect_backoff_max"] < numbers["reconnect_backoff"]:
+            raise HardwareConfigError(f"{where}: reconnect_backoff_max must be at least reconnect_backoff")
+        return cls(addresses=tuple(a.strip() for a in addresses), request_sensors=request_sensors, **numbers)
+
+    @property
+    def robot_ids(self) -> list[int]:
+        return list(range(len(self.addresses)))
+
+    @property
+    def endpoints(self) -> list[tuple[str, int]]:
+        return [parse_address(a, "address") for a in self.addresses]
+
+    @property
+    def stop_wait(self) -> float:
+        """How long stop_all() waits for the stops to leave: a connection attempt, then the send."""
+        return 2 * self.connect_timeout
+
+
+@dataclass
+class RobotStats:
+    commands_sent: int = 0  # packets that left, stops included
+    late_commands: int = 0  # commands replaced by the next one before they could leave
+    connections: int = 0  # connections made
+    reconnects: int = 0  # connections made again after one was lost
+    watchdog_stops: int = 0  # stops sent because commands ceased for command_timeout
+    connected: bool = False
+
+
+class RobotLink:
+    """One robot's TCP connection: a task on the backend's event loop, so a slow or lost robot delays no other.
+    Everything here runs on the loop's thread."""
+
+    def __init__(self, robot_id: int, host: str, port: int, config: Epuck2Config) -> None:
+        self.robot_id, self.host, self.port, self.config = robot_id, host, port, config
+        self.stats = RobotStats()
+        self.sensors: bytes | None = None  # the last sensors answer, when they were requested
+        self.wanted = Command()  # what the robot should be doing now
+        self.pending: Command | None = None  # not yet sent
+        self.pending_seq = self.sent_seq = 0
+        self.last_command_time: float | None = None  # time.monotonic() of the last set_commands for this robot
+        self.urgent = False  # a stop waits: connect without waiting out the backoff
+        self._changed = asyncio.Event()  # a command came, or the connection was lost
+        self._sent = asyncio.Condition()
+        self._lost: Exception | None = None
+
+    def submit(self, command: Command, now: float, *, urgent: bool = False) -> int:
+        """Queue a command (replacing an unsent one); returns its sequence number."""
+        if self.pending is not None:
+            self.stats.late_commands += 1
+        self.wanted = self.pending = command
+        self.pending_seq += 1
+        if urgent:
+            self.urgent = True
+        else:
+            self.last_command_time = now
+        self._changed.set()
+        return self.pending_seq
+
+    async def wait_sent(self, seq: int, timeout: float) -> bool:
+        async with self._sent:
+            try:
+                await asyncio.wait_for(self._sent.wait_for(lambda: self.sent_seq >= seq), timeout)
+            except TimeoutError:
+                return False
+        return True
+
+    async def run(self) -> None:
+        """Connect, serve the connection until it is lost, connect again: until cancelled."""
+        backoff = 0.0  # the first attempt, and the first after a drop, is immediate
+        while True:
+            try:
+                connecting = asyncio.open_connection(self.host, self.port)
+                reader, writer = await asyncio.wait_for(connecting, self.config.connect_timeout)
+            except (OSError, TimeoutError):
+                self.urgent = False  # the immediate attempt was made: back to the backoff
+                backoff = min(self.config.reconnect_backoff_max, max(self.config.reconnect_backoff, 2 * backoff))
+                await self._sleep_unless_urgent(backoff)
+                continue
+            backoff = 0.0
+            try:
+                await self._serve(reader, writer)
+            except OSError as err:
+                log.warning("e-puck2 %d (%s:%d): connection lost (%s)", self.robot_id, self.host, self.port, err)
+            except Exception:  # a fault of ours must not leave the robot unattended: log it, connect again
+                log.exception("e-puck2 %d: link failed", self.robot_id)
+                await asyncio.sleep(self.config.reconnect_backoff_max)
+            finally:
+                self.stats.connected = False
+                writer.close()
+
+    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        writer.get_extra_info("socket").setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # no batching
+        self._count_connection()
+        if self.pending is None:  # the robot gets what it should be doing now (a stop once commands are stale)
+            self.pending = self.wanted
+            self.pending_seq += 1
+        self._lost = None
+        reading = asyncio.create_task(self._read(reader))
+        try:
+            while True:
+                self._changed.clear()
+                if self._lost is not None:
+                    raise self._lost
+                self._watchdog()
+                if self.pending is not None:
+                    await self._send(writer)
+                    continue
+                try:
+                    await asyncio.wait_for(self._changed.wait(), self._watchdog_due())
+                except TimeoutError:
+                    pass
+        finally:
+            reading.cancel()
+
+    def _count_connection(self) -> None:
+        if self.stats.connections:
+            self.stats.reconnects += 1
+            log.warning("e-puck2 %d (%s:%d): connected again", self.robot_id, self.host, self.port)
+        self.stats.connections += 1
+        self.stats.connected = True
+
+    async def _send(self, writer: asyncio.StreamWriter) -> None:
+        command, seq = self.pending, self.pending_seq
+        assert command is not None
+        writer.write(encode_command(command))
+        await asyncio.wait_for(writer.drain(), self.config.connect_timeout)
+        if self.pending_seq == seq:
+            self.pending = None
+            self.urgent = False
+        self.sent_seq = max(self.sent_seq, seq)
+        self.stats.commands_sent += 1
+        async with self._sent:
+            self._sent.notify_all()
+
+    async def _read(self, reader: asyncio.StreamReader) -> None:
+        answers = AnswerReader()
+        try:
+            while data := await reader.read(65536):
+                for answer_id, payload in answers.feed(data):
+                    if answer_id == SENSORS_ID:
+                        self.sensors = payload
+            raise ConnectionError("closed by the robot")
+        except OSError as err:
+            self._lost = err
+            self._changed.set()
+
+    def _watchdog(self) -> None:
+        due = self._watchdog_due()
+        if due is not None and due <= 0:
+            self.wanted = self.pending = self.wanted.stopped()
+            self.pending_seq += 1
+            self.stats.watchdog_stops += 1
+            log.warning("e-puck2 %d: no command for %.2f s: stopped", self.robot_id, self.config.command_timeout)
+
+    def _watchdog_due(self) -> float | None:
+        """Seconds until a moving robot's commands are stale (None: nothing to watch)."""
+        if self.last_command_time is None or not self.wanted.moving:
+            return None
+        return self.last_command_time + self.config.command_timeout - time.monotonic()
+
+    async def _sleep_unless_urgent(self, duration: float) -> None:
+        deadline = time.monotonic() + duration
+        while not self.urgent and (left := deadline - time.monotonic()) > 0:
+            self._changed.clear()
+            try:
+                await asyncio.wait_for(self._changed.wait(), left)
+            except TimeoutError:
+                return
+
+
+class Epuck2Backend:
+    """Drives e-puck2 robots over Wi-Fi; robot ids are positions in `config.addresses`.
+
+    One thread runs an asyncio event loop with one task per robot; the control loop's calls hand their work
+    to it and return at once (stop_all and close wait for the stops to leave)."""
+
+    def __init__(self, config: Epuck2Config) -> None:
+        self.config = config
+        self.links = [RobotLink(i, host, port, config) for i, (host, port) in enumerate(config.endpoints)]
+        self._loop = asyncio.new_event_loop()
+        self._thread = threading.Thread(target=self._loop.run_forever, name="epuck2-io", daemon=True)
+        self._tasks: list[asyncio.Task[None]] = []
+        self._closed = False
+
+    @property
+    def robot_ids(self) -> list[int]:
+        return self.config.robot_ids
+
+    def start(self) -> None:
+        """Connect to every robot in the background (a robot out of reach is tried again with backoff)."""
+        if not self._thread.is_alive() and not self._closed:
+            self._thread.start()
+            asyncio.run_coroutine_threadsafe(self._start_links(), self._loop).result()
+
+    async def _start_links(self) -> None:
+        self._tasks = [asyncio.create_task(link.run(), name=f"epuck2-{link.robot_id}") for link in self.links]
+
+    def set_commands(
+        self,
+        robot_ids: Sequence[int],
+        wheel_left_mps: Sequence[float],
+        wheel_right_mps: Sequence[float],
+        colors_rgb255: Sequence[Sequence[float]],
+    ) -> None:
+        """This control period's wheel speeds (m/s) and colours (0-255); returns without waiting for the network."""
+        if not len(robot_ids) == len(wheel_left_mps) == len(wheel_right_mps) == len(colors_rgb255):
+            raise ValueError("set_commands needs one left speed, right speed and colour per robot id")
+        limit = self.config.max_wheel_speed
+        request = REQUEST_SENSORS if self.config.request_sensors else 0
+        commands = []
+        for rid, left, right, colour in zip(robot_ids, wheel_left_mps, wheel_right_mps, colors_rgb255):
+            if not 0 <= rid < len(self.links):
+                raise ValueError(f"no robot {rid}: the hardware file has robots 0-{len(self.links) - 1}")
+            command = replace(make_command(float(left), float(right), colour, limit), request=request)
+            commands.append((self.links[rid], command))
+        self._loop.call_soon_threadsafe(self._submit, commands, time.monotonic())
+
+    @staticmethod
+    def _submit(commands: list[tuple[RobotLink, Command]], now: float) -> None:
+        for link, command in commands:
+            link.submit(command, now)
+
+    def stop_all(self) -> list[int]:
+        """Send a stop to every robot and wait until the stops have left; returns the robots not reached."""
+        if self._closed:
+            return []
+        self.start()
+        return asyncio.run_coroutine_threadsafe(self._stop_all(), self._loop).result()
+
+    async def _stop_all(self) -> list[int]:
+        now = time.monotonic()
+        seqs = [link.submit(link.wanted.stopped(), now, urgent=True) for link in self.links]
+        sent = await asyncio.gather(
+            *(link.wait_sent(seq, self.config.stop_wait) for link, seq in zip(self.links, seqs))
+        )
+        return [link.robot_id for link, ok in zip(self.links, sent) if not ok]
+
+    def close(self) -> list[int]:
+        """Stop every robot, then close the connections; returns the robots the stop did not reach."""
+        if self._closed:
+            return []
+        unreached = self.stop_all()
+        asyncio.run_coroutine_threadsafe(self._cancel_links(), self._loop).result()
+        self._loop.call_soon_threadsafe(self._loop.stop)
+        self._thread.join()
+        self._loop.close()
+        self._closed = True
+        if unreached:
+            log.error("e-puck2 robots %s were not reached by the stop", unreached)
+        return unreached
+
+    async def _cancel_links(self) -> None:
+        for task in self._tasks:
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        await asyncio.sleep(0)  # let the transports finish closing
+        await self._loop.shutdown_default_executor()  # the threads that resolved host names
+
+    def sensors(self, robot_id: int) -> bytes | None:
+        """The robot's last 104-byte sensors answer (with `request_sensors = true`), or None."""
+        return self.links[robot_id].sensors
+
+    def stats(self) -> dict[int, RobotStats]:
+        return {link.robot_id: replace(link.stats) for link in self.links}
+
+    def __enter__(self) -> Epuck2Backend:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def stop_robots(config: Epuck2Config) -> list[int]:
+    """Connect to every robot of a config and stop it (`pixelswarm stop`); returns the robots not reached."""
+    return Epuck2Backend(config).close()

@@ -1,0 +1,262 @@
+"""An overhead-camera emulator: ArUco markers on robots, seen by a tilted camera over the floor.
+
+A floor of `floor` metres (x right, y away from the camera) is seen through a perspective camera:
+a homography floor -> image that draws the far edge narrower than the near one. Each robot is a white
+plate carrying its marker (id = robot id, top edge ahead); reference markers lie at known floor
+positions. Markers are drawn supersampled and area-averaged (sub-pixel edges), then the frame is
+blurred and given Gaussian pixel noise from a seeded generator.
+
+    python -m sim.emulators.camera OUT_DIR --robots 14 --frames 60
+
+writes OUT_DIR/video.avi (lossless FFV1), OUT_DIR/truth.csv (t,id,x,y,theta,frame) and
+OUT_DIR/hardware.toml (its `[poses]` table) for `pixelswarm track`.
+"""
+
+from __future__ import annotations
+
+import csv
+import functools
+import math
+import os
+import shutil
+import sys
+import tempfile
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+Pose = tuple[float, float, float]  # x, y (metres), theta (radians)
+
+SUPERSAMPLE = 4  # hi-res pixels per image pixel, per axis, when drawing a marker
+CELL_PX = 24  # pixels per marker cell in the drawn marker image
+FOURCC = "FFV1"
+MAX_WANDERING = (
+    24  # robots whose plates the wandering grid keeps apart  # lossless, and written by opencv-python-headless's FFmpeg
+)
+
+
+def _default_reference() -> dict[int, tuple[float, float]]:
+    # the last four ids of DICT_4X4_50 near the floor's corners, clear of the robots' area
+    return {46: (0.1, 0.1), 47: (1.9, 0.1), 48: (1.9, 1.4), 49: (0.1, 1.4)}
+
+
+@dataclass(frozen=True)
+class OverheadCamera:
+    """The camera, the floor and how frames are spoiled."""
+
+    width: int = 1280
+    height: int = 960
+    floor: tuple[float, float] = (2.0, 1.5)
+    margin: float = 40.0  # pixels between the floor's near corners and the image edge
+    keystone: float = 0.1  # the far edge is drawn this fraction narrower: the camera is tilted
+    dictionary: str = "DICT_4X4_50"
+    marker_size: float = 0.05
+    reference: dict[int, tuple[float, float]] = field(default_factory=_default_reference)
+    blur_sigma: float = 1.0  # pixels
+    noise_sigma: float = 4.0  # grey levels
+    floor_grey: float = 110.0
+    plate_grey: float = 235.0
+
+    def floor_to_image(self) -> np.ndarray:
+        """The 3x3 homography from floor metres to image pixels (pixel centres at whole numbers)."""
+        fw, fh = self.floor
+        m, w, h = self.margin, self.width - 1.0, self.height - 1.0
+        inset = self.keystone * (w - 2 * m) / 2
+        floor = np.float32([[0, 0], [fw, 0], [fw, fh], [0, fh]])
+        image = np.float32([[m, h - m], [w - m, h - m], [w - m - inset, m], [m + inset, m]])
+        return cv2.getPerspectiveTransform(floor, image).astype(float)
+
+    def poses_table(self) -> dict:
+        """The hardware file's `[poses]` table that tracks this camera."""
+        return {
+            "kind": "camera",
+            "dictionary": self.dictionary,
+            "marker_size": self.marker_size,
+            "reference": {str(m): list(xy) for m, xy in self.reference.items()},
+        }
+
+    def render(self, robots: dict[int, Pose], rng: np.random.Generator) -> np.ndarray:
+        """A grey frame (uint8, height x width) with each robot's marker at its pose."""
+        frame = self._background().copy()
+        to_image = self.floor_to_image()
+        plates = [(m, (x, y, 0.0)) for m, (x, y) in self.reference.items()] + list(robots.items())
+        for marker, pose in plates:
+            self._draw_marker(frame, to_image, _marker_image(self.dictionary, marker), pose)
+        if self.blur_sigma > 0:
+            frame = cv2.GaussianBlur(frame, (0, 0), self.blur_sigma)
+        # OpenCV's generator, seeded from rng for each frame: many times faster than numpy's here
+        noise = np.empty_like(frame)
+        cv2.setRNGSeed(int(rng.integers(2**31)))
+        cv2.randn(noise, 0.0, self.noise_sigma)
+        frame += noise
+        return np.clip(frame + 0.5, 0, 255).astype(np.uint8)  # + 0.5 then truncation: rounding
+
+    def _background(self) -> np.ndarray:
+        key = (self.width, self.height, self.floor, self.margin, self.keystone, self.floor_grey)
+        if key not in _BACKGROUNDS:
+            frame = np.full((self.height, self.width), self.floor_grey / 2, np.float32)
+            fw, fh = self.floor
+            outline = np.float64([[[0, 0], [fw, 0], [fw, fh], [0, fh]]])
+            corners = cv2.perspectiveTransform(outline, self.floor_to_image())
+            cv2.fillConvexPoly(frame, np.rint(corners[0]).astype(np.int32), float(self.floor_grey), cv2.LINE_AA)
+            _BACKGROUNDS[key] = frame
+        return _BACKGROUNDS[key]
+
+    def _draw_marker(self, frame: np.ndarray, floor_to_image: np.ndarray, image: np.ndarray, pose: Pose) -> None:
+        n = image.shape[0]
+        metres_per_px = self.marker_size / (n - 2 * CELL_PX)
+        x, y, theta = pose
+        ahead, right = np.array([math.cos(theta), math.sin(theta)]), np.array([math.sin(theta), -math.cos(theta)])
+        # marker image pixels -> floor: its centre (pixel edges at half-integers) at (x, y), its top edge ahead
+        centre = (n - 1) / 2
+        to_floor = np.eye(3)
+        to_floor[:2, 0] = right * metres_per_px
+        to_floor[:2, 1] = -ahead * metres_per_px
+        to_floor[:2, 2] = np.array([x, y]) - centre * metres_per_px * (right - ahead)
+        to_image = floor_to_image @ to_floor
+        outline = cv2.perspectiveTransform(
+            np.float64([[[-0.5, -0.5], [n - 0.5, -0.5], [n - 0.5, n - 0.5], [-0.5, n - 0.5]]]), to_image
+        )[0]
+        x0, y0 = np.floor(outline.min(axis=0)).astype(int) - 1
+        x1, y1 = np.ceil(outline.max(axis=0)).astype(int) + 2
+        x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, self.width), min(y1, self.height)
+        if x0 >= x1 or y0 >= y1:
+            return
+        s = SUPERSAMPLE
+        # image pixel (i, j) is the mean of hi-res pixels s*(i - x0) .. s*(i - x0) + s - 1
+        to_hires = np.array([[s, 0, s * (0.5 - x0) - 0.5], [0, s, s * (0.5 - y0) - 0.5], [0, 0, 1]])
+        size = (s * (x1 - x0), s * (y1 - y0))
+        warp = to_hires @ to_image
+        ink = cv2.warpPerspective(image, warp, size, flags=cv2.INTER_LINEAR, borderValue=0.0)
+        cover = cv2.warpPerspective(np.ones_like(image), warp, size, flags=cv2.INTER_LINEAR, borderValue=0.0)
+        ink = cv2.resize(ink, (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA)
+        cover = cv2.resize(cover, (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA)
+        roi = frame[y0:y1, x0:x1]
+        roi[:] = roi * (1.0 - cover) + ink * self.plate_grey
+
+
+_BACKGROUNDS: dict[tuple, np.ndarray] = {}
+
+
+@functools.cache
+def _marker_image(dictionary_name: str, marker: int) -> np.ndarray:
+    """The marker (6 cells with its black border) on a white plate one cell wide all round, 0..1."""
+    dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary_name))
+    side = (dictionary.markerSize + 2) * CELL_PX
+    image = cv2.aruco.generateImageMarker(dictionary, marker, side)
+    image = cv2.copyMakeBorder(image, CELL_PX, CELL_PX, CELL_PX, CELL_PX, cv2.BORDER_CONSTANT, value=255)
+    return image.astype(np.float32) / 255.0
+
+
+def wandering_robots(n: int, frames: int, fps: float, seed: int) -> list[dict[int, Pose]]:
+    """n robots (ids 0..n-1) on a grid, each circling its own spot and turning at its own rate."""
+    if not 1 <= n <= MAX_WANDERING:
+        raise ValueError(f"wandering robots: 1 to {MAX_WANDERING}, not {n}")
+    rng = np.random.default_rng(seed)
+    columns = math.ceil(math.sqrt(n * 4 / 3))
+    rows = math.ceil(n / columns)
+    xs, ys = np.linspace(0.4, 1.6, columns), np.linspace(0.4, 1.1, rows) if rows > 1 else np.array([0.75])
+    spots = [(x, y) for y in ys for x in xs][:n]
+    phase, speed = rng.uniform(0, 2 * np.pi, n), rng.uniform(-1.5, 1.5, n)
+    heading, turn = rng.uniform(-np.pi, np.pi, n), rng.uniform(-1.0, 1.0, n)
+    radius = 0.06
+    out = []
+    for k in range(frames):
+        t = k / fps
+        out.append(
+            {
+                i: (
+                    spots[i][0] + radius * math.cos(phase[i] + speed[i] * t),
+                    spots[i][1] + radius * math.sin(phase[i] + speed[i] * t),
+                    math.remainder(heading[i] + turn[i] * t, 2 * math.pi),
+                )
+                for i in range(n)
+            }
+        )
+    return out
+
+
+def render_frames(camera: OverheadCamera, poses: Iterable[dict[int, Pose]], seed: int) -> Iterator[np.ndarray]:
+    rng = np.random.default_rng(seed)
+    for robots in poses:
+        yield camera.render(robots, rng)
+
+
+def write_video(path: Path, frames: Iterable[np.ndarray], fps: float) -> None:
+    """Write grey frames to a lossless grey FFV1 video (e.g. `video.avi`)."""
+    writer: cv2.VideoWriter | None = None
+    try:
+        for frame in frames:
+            if writer is None:
+                height, width = frame.shape[:2]
+                writer = cv2.VideoWriter(
+                    str(path), cv2.VideoWriter_fourcc(*FOURCC), fps, (width, height), isColor=False
+                )
+                if not writer.isOpened():
+                    raise OSError(f"cannot write video {path} with codec {FOURCC}")
+            writer.write(frame)
+    finally:
+        if writer is not None:
+            writer.release()
+
+
+def write_truth(path: Path, poses: Iterable[dict[int, Pose]], fps: float) -> None:
+    """The true poses as CSV, in the columns `pixelswarm track` writes."""
+    with open(path, "w", newline="") as f:
+        out = csv.writer(f)
+        out.writerow(["t", "id", "x", "y", "theta", "frame"])
+        for k, robots in enumerate(poses):
+            for i, (x, y, theta) in sorted(robots.items()):
+                out.writerow([f"{k / fps:.4f}", i, f"{x:.6f}", f"{y:.6f}", f"{theta:.6f}", k])
+
+
+def poses_toml(camera: OverheadCamera) -> str:
+    """The hardware file's `[poses]` table as TOML text."""
+    lines = ["[poses]", 'kind = "camera"', f'dictionary = "{camera.dictionary}"', f"marker_size = {camera.marker_size}"]
+    lines += ["", "[poses.reference]"] + [f'"{m}" = [{x}, {y}]' for m, (x, y) in camera.reference.items()]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    from sim.cli import OneLineParser  # usage errors as one line, like pixelswarm's
+
+    parser = OneLineParser(prog="python -m sim.emulators.camera", description=__doc__.split("\n\n")[0])
+    parser.add_argument("out", type=Path, help="new folder to write video.avi, truth.csv and hardware.toml into")
+    parser.add_argument("--robots", type=int, default=14, help=f"robots, ids 0..N-1, 1 to {MAX_WANDERING} (default 14)")
+    parser.add_argument("--frames", type=int, default=60, help="frames (default 60)")
+    parser.add_argument("--fps", type=float, default=10.0, help="frame rate (default 10)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of motion and pixel noise (default 0)")
+    args = parser.parse_args(argv)
+    if not 1 <= args.robots <= MAX_WANDERING or args.frames < 1 or not 0 < args.fps < math.inf:
+        parser.error(f"need 1 to {MAX_WANDERING} robots, 1 or more frames and a positive fps")
+    if args.out.exists():
+        parser.error(f"{args.out} already exists; choose a new folder")
+    camera = OverheadCamera()
+    poses = wandering_robots(args.robots, args.frames, args.fps, args.seed)
+    # everything is written into a temporary folder beside OUT, renamed when complete
+    temp = None
+    try:
+        temp = Path(tempfile.mkdtemp(prefix=f".{args.out.name}.", dir=args.out.parent))
+        write_video(temp / "video.avi", render_frames(camera, poses, args.seed), args.fps)
+        write_truth(temp / "truth.csv", poses, args.fps)
+        (temp / "hardware.toml").write_text(poses_toml(camera))
+        umask = os.umask(0)
+        os.umask(umask)
+        temp.chmod(0o777 & ~umask)  # mkdtemp's 0700 would outlive the rename
+        temp.rename(args.out)
+        temp = None
+    except OSError as err:
+        print(f"{parser.prog}: error: cannot write {args.out}: {err.strerror or err}", file=sys.stderr)
+        return 2
+    finally:
+        if temp is not None:
+            shutil.rmtree(temp, ignore_errors=True)
+    print(args.out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,405 @@
+"""Emulated e-puck2 robots on Wi-Fi: one TCP server per robot on 127.0.0.1, speaking the robot's protocol.
+
+Written from GCtronic's documentation ("e-puck2 PC side development", "Communication protocol: WiFi"),
+independently of hardware/epuck2.py so that each checks the other. Each robot parses the 21-byte command
+packets byte for byte, answers as the robot does (0x03, or the sensors / image it was asked for), keeps its
+last wheel speeds until told otherwise, and moves as a differential-drive body with the paper's e-puck
+parameters. Tests read its true poses and the log of (receive time, left, right) commands.
+
+    python -m sim.emulators.epuck2 --robots 4 --write-hardware hw.toml
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import queue
+import selectors
+import signal
+import socket
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from agent.core.params import EPUCK, RobotParams
+from sim.cli import OneLineParser, _positive_int
+
+COMMAND_PACKET = 0x80
+COMMAND_LENGTH = 21
+ANSWER_IMAGE, ANSWER_SENSORS, ANSWER_EMPTY = 0x01, 0x02, 0x03
+IMAGE_LENGTH = 160 * 120 * 2  # QQVGA, RGB565
+SENSORS_LENGTH = 104
+STEPS_OFFSET = 79  # in the sensors answer: left and right motor steps, int16 little-endian
+STEPS_PER_TURN = 1000
+WHEEL_CIRCUMFERENCE = math.pi * 0.041  # m
+FIRMWARE_LIMIT = 1100  # steps/s
+HOST = "127.0.0.1"
+
+Pose = tuple[float, float, float]  # x (m), y (m), heading (rad)
+
+
+@dataclass(frozen=True)
+class ReceivedCommand:
+    """A command packet as the robot reads it."""
+
+    request: int
+    settings: int
+    left: int  # steps/s
+    right: int
+    leds: int
+    rgb: tuple[tuple[int, int, int], ...]  # LED2, LED4, LED6, LED8, 0-100
+    speaker: int
+
+
+def parse_command(packet: bytes) -> ReceivedCommand:
+    """The 21 bytes of a command packet (starting with 0x80), field by field."""
+    if len(packet) != COMMAND_LENGTH or packet[0] != COMMAND_PACKET:
+        raise ValueError("not a command packet")
+    rgb = tuple((packet[i], packet[i + 1], packet[i + 2]) for i in range(8, 20, 3))
+    return ReceivedCommand(
+        request=packet[1],
+        settings=packet[2],
+        left=int.from_bytes(packet[3:5], "little", signed=True),
+        right=int.from_bytes(packet[5:7], "little", signed=True),
+        leds=packet[7],
+        rgb=rgb,
+        speaker=packet[20],
+    )
+
+
+def step_pose(pose: Pose, left: float, right: float, wheel_base: float, dt: float) -> Pose:
+    """Exact differential-drive motion for dt seconds at constant wheel speeds (m/s)."""
+    x, y, theta = pose
+    v, omega = (left + right) / 2, (right - left) / wheel_base
+    if abs(omega) < 1e-12:
+        return x + v * dt * math.cos(theta), y + v * dt * math.sin(theta), theta
+    turned = theta + omega * dt
+    r = v / omega
+    return x + r * (math.sin(turned) - math.sin(theta)), y - r * (math.cos(turned) - math.cos(theta)), turned
+
+
+@dataclass
+class EmulatedRobot:
+    """One robot's body: pose, wheel speeds and the commands it received."""
+
+    pose: Pose
+    params: RobotParams
+    since: float  # time of `pose`
+    left: float = 0.0  # wheel speeds (m/s) since `since`
+    right: float = 0.0
+    steps: list[float] = field(default_factory=lambda: [0.0, 0.0])  # motor step counters
+    rgb: tuple[tuple[int, int, int], ...] = ((0, 0, 0),) * 4
+    log: list[tuple[float, int, int]] = field(default_factory=list)  # (receive time, left, right steps/s)
+    connections: int = 0
+
+    def advance(self, now: float) -> None:
+        dt = max(0.0, now - self.since)
+        self.pose = step_pose(self.pose, self.left, self.right, self.params.wheel_base, dt)
+        for i, speed in enumerate((self.left, self.right)):
+            self.steps[i] += speed / WHEEL_CIRCUMFERENCE * STEPS_PER_TURN * dt
+        self.since = now
+
+    def wheel_speed(self, steps: int) -> float:
+        """steps/s as the motors turn them: the firmware's clamp, then the paper's e-puck speed limit."""
+        steps = max(-FIRMWARE_LIMIT, min(FIRMWARE_LIMIT, steps))
+        speed = steps / STEPS_PER_TURN * WHEEL_CIRCUMFERENCE
+        return max(-self.params.v_max, min(self.params.v_max, speed))
+
+    def apply(self, command: ReceivedCommand, now: float) -> None:
+        self.advance(now)
+        self.left, self.right = self.wheel_speed(command.left), self.wheel_speed(command.right)
+        self.rgb = command.rgb
+        self.log.append((now, command.left, command.right))
+
+    def answer(self, command: ReceivedCommand) -> bytes:
+        parts = []
+        if command.request & 0x01:
+            parts.append(bytes([ANSWER_IMAGE]) + bytes(IMAGE_LENGTH))  # a black image
+        if command.request & 0x02:
+            sensors = bytearray(SENSORS_LENGTH)  # only the motor steps are emulated; the rest read 0
+            for i, count in enumerate(self.steps):
+                wrapped = (round(count) + 2**15) % 2**16 - 2**15
+                sensors[STEPS_OFFSET + 2 * i : STEPS_OFFSET + 2 * i + 2] = wrapped.to_bytes(2, "little", signed=True)
+            parts.append(bytes([ANSWER_SENSORS]) + bytes(sensors))
+        return b"".join(parts) or bytes([ANSWER_EMPTY])
+
+
+def default_poses(count: int, params: RobotParams = EPUCK) -> list[Pose]:
+    """Robots in a row along x, two diameters apart, facing +x."""
+    return [(i * 4 * params.radius, 0.0, 0.0) for i in range(count)]
+
+
+class Epuck2Emulator:
+    """N emulated e-puck2 robots, each its own TCP server on 127.0.0.1, served by one thread.
+
+    A robot serves one connection at a time: a new connection replaces the old one."""
+
+    def __init__(
+        self,
+        count: int,
+        poses: Sequence[Pose] | None = None,
+        ports: Sequence[int] | None = None,
+        params: RobotParams = EPUCK,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        poses = list(poses) if poses is not None else default_poses(count, params)
+        ports = list(ports) if ports is not None else [0] * count
+        if count < 1 or len(poses) != count or len(ports) != count:
+            raise ValueError(f"need one pose and one port for each of {count} robots")
+        self.clock = clock
+        now = clock()
+        self.robots = [
+            EmulatedRobot(pose=(float(x), float(y), float(t)), params=params, since=now) for x, y, t in poses
+        ]
+        self._lock = threading.Lock()
+        self._selector = selectors.DefaultSelector()
+        self._listeners: list[socket.socket] = []
+        self._clients: dict[int, tuple[socket.socket, bytearray]] = {}
+        self._requests: queue.Queue[Callable[[], None]] = queue.Queue()
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._wake_r.setblocking(False)
+        self._selector.register(self._wake_r, selectors.EVENT_READ, ("wake", -1))
+        try:
+            for rid, port in enumerate(ports):
+                listener = socket.create_server((HOST, port))
+                listener.setblocking(False)
+                self._listeners.append(listener)
+                self._selector.register(listener, selectors.EVENT_READ, ("listen", rid))
+        except OSError:
+            self._close_sockets()
+            raise
+        self._closing = False
+        self._thread = threading.Thread(target=self._serve, name="epuck2-emulator", daemon=True)
+
+    # --- for tests and the CLI ---
+    @property
+    def addresses(self) -> list[str]:
+        return [f"{HOST}:{listener.getsockname()[1]}" for listener in self._listeners]
+
+    def pose(self, robot_id: int) -> Pose:
+        """The robot's true pose now."""
+        with self._lock:
+            robot = self.robots[robot_id]
+            robot.advance(self.clock())
+            return robot.pose
+
+    def log(self, robot_id: int) -> list[tuple[float, int, int]]:
+        """(receive time, left, right steps/s) of every command the robot received."""
+        with self._lock:
+            return list(self.robots[robot_id].log)
+
+    def connections(self, robot_id: int) -> int:
+        with self._lock:
+            return self.robots[robot_id].connections
+
+    def drop_connection(self, robot_id: int) -> None:
+        """Close the robot's connection from its side (as a Wi-Fi drop does); it keeps its wheel speeds."""
+        self._in_server_thread(lambda: self._drop(robot_id))
+
+    def report(self) -> dict:
+        """Each robot's address, final pose and commands received (time.monotonic() seconds, steps/s)."""
+        robots = [
+            {"address": address, "pose": list(self.pose(rid)), "log": [list(entry) for entry in self.log(rid)]}
+            for rid, address in enumerate(self.addresses)
+        ]
+        return {"robots": robots}
+
+    def hardware_toml(self) -> str:
+        addresses = ", ".join(f'"{a}"' for a in self.addresses)
+        return (
+            f"# {len(self.robots)} emulated e-puck2 robots (python -m sim.emulators.epuck2)\n"
+            f'[backend]\nkind = "epuck2"\naddresses = [{addresses}]\n'
+        )
+
+    def start(self) -> Epuck2Emulator:
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        self._closing = True
+        self._wake_w.send(b"\0")
+        if self._thread.is_alive():
+            self._thread.join()
+        self._close_sockets()
+
+    def __enter__(self) -> Epuck2Emulator:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # --- the server thread ---
+    def _in_server_thread(self, action: Callable[[], None]) -> None:
+        done = threading.Event()
+
+        def run() -> None:
+            action()
+            done.set()
+
+        self._requests.put(run)
+        self._wake_w.send(b"\0")
+        done.wait()
+
+    def _serve(self) -> None:
+        while not self._closing:
+            for key, _ in self._selector.select():
+                kind, rid = key.data
+                if kind == "wake":
+                    self._drain_wake()
+                elif kind == "listen":
+                    self._accept(rid)
+                elif kind == "client":
+                    self._receive(rid)
+
+    def _drain_wake(self) -> None:
+        try:
+            while self._wake_r.recv(4096):
+                pass
+        except BlockingIOError:
+            pass
+        while not self._requests.empty():
+            self._requests.get()()
+
+    def _accept(self, rid: int) -> None:
+        try:
+            conn, _ = self._listeners[rid].accept()
+        except BlockingIOError:
+            return
+        self._drop(rid)
+        conn.setblocking(True)
+        conn.settimeout(1.0)  # answers are sent whole; a client that stops reading is dropped
+        conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._clients[rid] = (conn, bytearray())
+        self._selector.register(conn, selectors.EVENT_READ, ("client", rid))
+        with self._lock:
+            self.robots[rid].connections += 1
+
+    def _drop(self, rid: int) -> None:
+        if rid in self._clients:
+            conn, _ = self._clients.pop(rid)
+            self._selector.unregister(conn)
+            conn.close()
+
+    def _receive(self, rid: int) -> None:
+        conn, buffer = self._clients[rid]
+        try:
+            data = conn.recv(4096)
+        except OSError:
+            data = b""
+        if not data:
+            self._drop(rid)
+            return
+        buffer += data
+        while buffer:
+            if buffer[0] != COMMAND_PACKET:
+                del buffer[0]  # not the start of a packet: the robot skips it
+                continue
+            if len(buffer) < COMMAND_LENGTH:
+                break
+            command = parse_command(bytes(buffer[:COMMAND_LENGTH]))
+            del buffer[:COMMAND_LENGTH]
+            with self._lock:
+                robot = self.robots[rid]
+                robot.apply(command, self.clock())
+                answer = robot.answer(command)
+            try:
+                conn.sendall(answer)
+            except OSError:
+                self._drop(rid)
+                return
+
+    def _close_sockets(self) -> None:
+        for rid in list(self._clients):
+            self._drop(rid)
+        for listener in self._listeners:
+            listener.close()
+        self._selector.close()
+        self._wake_r.close()
+        self._wake_w.close()
+
+
+# --- command line ---
+class UsageError(Exception):
+    """Bad input: one line on stderr, exit code 2."""
+
+
+def read_poses(path: Path, count: int) -> list[Pose]:
+    """A JSON list of [x, y, theta], one per robot."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise UsageError(f"{path}: no such poses file") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise UsageError(f"{path}: not a JSON list of poses: {err}") from None
+    ok = isinstance(data, list) and all(
+        isinstance(p, list)
+        and len(p) == 3
+        and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in p)
+        for p in data
+    )
+    if not ok:
+        raise UsageError(f"{path}: poses must be a JSON list of [x, y, theta] numbers")
+    if len(data) != count:
+        raise UsageError(f"{path}: {len(data)} poses for {count} robots")
+    return [(float(x), float(y), float(t)) for x, y, t in data]
+
+
+def write_atomically(path: Path, text: str) -> None:
+    """A reader never sees half a file: write beside it, then rename."""
+    partial = path.with_name(path.name + ".partial")
+    try:
+        partial.write_text(text, encoding="utf-8")
+        os.replace(partial, path)
+    except OSError as err:
+        partial.unlink(missing_ok=True)
+        raise UsageError(f"{path}: cannot write: {err.strerror or err}") from None
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = OneLineParser(
+        prog="python -m sim.emulators.epuck2",
+        description="Emulated e-puck2 robots on Wi-Fi (TCP servers on 127.0.0.1) until SIGINT or SIGTERM.",
+    )
+    parser.add_argument("--robots", type=_positive_int, required=True, help="number of robots")
+    parser.add_argument("--poses", type=Path, help="JSON list of [x, y, theta] starting poses, one per robot")
+    parser.add_argument("--write-hardware", type=Path, metavar="FILE.toml", help="write a hardware file for them")
+    parser.add_argument(
+        "--log", type=Path, metavar="FILE.json", help="on exit, write each robot's received commands and final pose"
+    )
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    stop = threading.Event()
+    previous = {signum: signal.signal(signum, lambda *_: stop.set()) for signum in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        poses = read_poses(args.poses, args.robots) if args.poses else None
+        with Epuck2Emulator(args.robots, poses=poses) as emulator:
+            if args.write_hardware:
+                write_atomically(args.write_hardware, emulator.hardware_toml())
+            print(f"{args.robots} emulated e-puck2 robots at {' '.join(emulator.addresses)}", flush=True)
+            while not stop.wait(0.2):
+                pass
+            for rid in range(args.robots):
+                x, y, theta = emulator.pose(rid)
+                print(f"robot {rid}: x={x:.4f} m y={y:.4f} m theta={theta:.4f} rad", flush=True)
+            if args.log:
+                write_atomically(args.log, json.dumps(emulator.report()))
+    except (UsageError, OSError) as err:
+        print(f"{parser.prog}: error: {err}", file=sys.stderr)
+        return 2
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
