@@ -21,7 +21,7 @@ from typing import Any, Generic, cast, overload
 import numpy as np
 import zenoh
 
-from .codec import DropCounter, M, Message, _Frame, decode
+from .codec import DropCounter, Frame, Message, MessageT, decode
 from .faults import FaultPlan, FaultSpec
 from .keys import Keys
 from .session import ZenohSettings, open_session
@@ -40,15 +40,15 @@ def _drain(q: queue.SimpleQueue, limit: int | None = None) -> list:
     return out
 
 
-class Inbox(Generic[M]):
+class Inbox(Generic[MessageT]):
     """Messages of one subscription, decoded, filtered by faults, waiting for the owner's loop."""
 
     def __init__(
         self,
-        expected: type[M] | None,
+        expected: type[MessageT] | None,
         fault: FaultSpec,
         seed: int,
-        frames: type[_Frame] | None = None,
+        frames: type[Frame] | None = None,
         only: np.ndarray | None = None,
     ) -> None:
         """``frames``: a frame kind that carries many ``expected`` messages (codec.Poses, States,
@@ -61,8 +61,8 @@ class Inbox(Generic[M]):
         self.drops = DropCounter()
         self.received = 0
         self.bytes = 0
-        self._queue: queue.SimpleQueue[tuple[str, M]] = queue.SimpleQueue()
-        self._delayed: list[tuple[float, int, str, M]] = []
+        self._queue: queue.SimpleQueue[tuple[str, MessageT]] = queue.SimpleQueue()
+        self._delayed: list[tuple[float, int, str, MessageT]] = []
         self._order = itertools.count()
         self._lock = threading.Lock()
         self._rng = random.Random(seed)
@@ -76,13 +76,13 @@ class Inbox(Generic[M]):
         msg = decode(payload, self.expected if self.frames is None else None, self.drops)
         if msg is None:
             return
-        msgs: list[M]
+        msgs: list[MessageT]
         if self.frames is None:
-            msgs = [cast(M, msg)]  # decoded as ``expected``
+            msgs = [cast(MessageT, msg)]  # decoded as ``expected``
         elif isinstance(msg, self.frames):
             msgs = msg.messages(None if self.only is None else np.isin(msg.records["robot"], self.only))
         elif self.expected is None or isinstance(msg, self.expected):
-            msgs = [cast(M, msg)]
+            msgs = [cast(MessageT, msg)]
         else:
             self.drops["kind"] += 1
             return
@@ -115,12 +115,12 @@ class Inbox(Generic[M]):
         """Messages held back by an injected delay (their owner must poll: no bell rings for them)."""
         return bool(self._delayed)
 
-    def drain(self) -> list[tuple[str, M]]:
+    def drain(self) -> list[tuple[str, MessageT]]:
         """Every message that has arrived (and whose injected delay has passed), oldest first."""
         self._release_delayed()
         return _drain(self._queue)
 
-    def get(self, timeout: float | None = None) -> tuple[str, M] | None:
+    def get(self, timeout: float | None = None) -> tuple[str, MessageT] | None:
         """Wait for one message (None on timeout)."""
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
@@ -141,7 +141,7 @@ class Inbox(Generic[M]):
                 if deadline is not None and time.monotonic() >= deadline:
                     return None
 
-    def __iter__(self) -> Iterator[tuple[str, M]]:
+    def __iter__(self) -> Iterator[tuple[str, MessageT]]:
         return iter(self.drain())
 
 
@@ -213,16 +213,16 @@ class Bus:
     # --- subscribing ----------------------------------------------------------------------
     @overload
     def inbox(
-        self, expected: type[M], frames: type[_Frame] | None = None, only: np.ndarray | None = None
-    ) -> Inbox[M]: ...
+        self, expected: type[MessageT], frames: type[Frame] | None = None, only: np.ndarray | None = None
+    ) -> Inbox[MessageT]: ...
 
     @overload
     def inbox(
-        self, expected: None = None, frames: type[_Frame] | None = None, only: np.ndarray | None = None
+        self, expected: None = None, frames: type[Frame] | None = None, only: np.ndarray | None = None
     ) -> Inbox[Message]: ...
 
     def inbox(
-        self, expected: type[Message] | None = None, frames: type[_Frame] | None = None, only: np.ndarray | None = None
+        self, expected: type[Message] | None = None, frames: type[Frame] | None = None, only: np.ndarray | None = None
     ) -> Inbox[Any]:
         """An empty inbox; feed it with ``subscribe_into``. Faults for the expected kind apply here
         (to its ``frames`` too, each frame as one message: see Inbox)."""
@@ -232,7 +232,7 @@ class Bus:
         return Inbox(expected, fault, seed, frames, only)
 
     @overload
-    def subscribe(self, keyexpr: str, expected: type[M]) -> Inbox[M]: ...
+    def subscribe(self, keyexpr: str, expected: type[MessageT]) -> Inbox[MessageT]: ...
 
     @overload
     def subscribe(self, keyexpr: str, expected: None = None) -> Inbox[Message]: ...
@@ -260,7 +260,7 @@ class Bus:
         self._subscriptions.append(inbox.subscriber)
         return inbox
 
-    def on_message(self, keyexpr: str, expected: type[M], callback: Callable[[str, M], None]) -> Any:
+    def on_message(self, keyexpr: str, expected: type[MessageT], callback: Callable[[str, MessageT], None]) -> Any:
         """Only for services whose callback is cheap and never blocks (e.g. answering state queries)."""
         drops = DropCounter()
 
@@ -297,7 +297,7 @@ class Bus:
         self._subscriptions.append(q)
         return q
 
-    def query(self, keyexpr: str, expected: type[M], timeout: float = 2.0) -> list[tuple[str, M]]:
+    def query(self, keyexpr: str, expected: type[MessageT], timeout: float = 2.0) -> list[tuple[str, MessageT]]:
         out = []
         drops = DropCounter()
         for reply in self.session.get(keyexpr, timeout=timeout):
