@@ -123,7 +123,7 @@ class AuctionLink:
             self.params.assign_hysteresis,
         )
         carried = {}
-        if self._warm_start(before, goals):
+        if before is not None and self._warm_start(before, goals):
             carried = self.part.carry(before, goals.matched, current=current, prices=goals.prices)
         elif goals.follows and before is not None and before.epoch == goals.follows:
             close = before.agreed_instance >= 0 and frames_close(before.goals, goals.positions, goals.previous)
@@ -135,15 +135,14 @@ class AuctionLink:
         return carried
 
     @staticmethod
-    def _warm_start(before: Participant | None, goals: Goals) -> bool:
+    def _warm_start(before: Participant, goals: Goals) -> bool:
         """The next image of a sequence or keyframe of an animation, with the same robots, after an
         agreed last one: the auction starts warm from the two goal sets' matching and its prices, as
         the coordinator sends them with the new set (Goals.matched_from, matched, prices), and each
         robot drives to the goal its last one is matched to: a warm start agrees in a fraction of a
         cold start's message rounds (bench/results/carry.md)."""
         return (
-            before is not None
-            and before.agreed_instance >= 0
+            before.agreed_instance >= 0
             and not goals.per_robot
             and goals.matched_from == before.epoch
             and len(before.goals) == len(goals.positions)
@@ -165,7 +164,7 @@ class AuctionLink:
         auction's latency, which the robots' bid positions compensate, runs from there). A later
         instance proves ours agreed: its agreement goes to the robots first, so the new block
         freezes where they are going now, not where the last agreement but one sent them."""
-        part = self.part
+        part, _ = self._under_way()
         if part.started and not part.is_agreed and instance > part.instance:
             part.adopt_if_settled()
         if self._report() and self.where is not None:
@@ -183,7 +182,7 @@ class AuctionLink:
         self.now = max(self.now, stamp)
         if not self._try_start(positions):
             return
-        part = self.part
+        part, _ = self._under_way()
         if part.is_agreed and stamp - self.instance_stamp >= self.params.assign_period - 1e-9:
             self.instance_stamp = stamp
             self._begin(part.instance + 1, positions)
@@ -242,8 +241,15 @@ class AuctionLink:
             self._publish()
 
     # --- internals --------------------------------------------------------------------------------
+    def _under_way(self) -> tuple[Participant, Goals]:
+        """The participant and goal set of the auction under way (the steps below run only once
+        on_goals has begun one)."""
+        if self.part is None or self.goal_set is None:
+            raise RuntimeError("no auction under way")
+        return self.part, self.goal_set
+
     def _settle(self) -> None:
-        part = self.part
+        part, _ = self._under_way()
         for _ in range(100):  # the cold start's phases can pass here when one host holds every robot
             part.bid_until_quiet()
             instance = part.instance
@@ -254,7 +260,7 @@ class AuctionLink:
 
     def _report(self) -> bool:
         """Hand a new agreement to on_agreed (once per agreed instance); True when there was one."""
-        part = self.part
+        part, gs = self._under_way()
         if part.agreed_instance <= self.reported:
             return False
         if self.reported < 0:  # the first agreement on this goal set
@@ -264,12 +270,11 @@ class AuctionLink:
         frozen = self.frozen_at.get(part.agreed_instance // part.phases)
         if frozen is not None:
             self.latency = min(MAX_LEAD, max(0.0, self.now - frozen))
-        gs = self.goal_set
         self.on_agreed(part.epoch, part.agreed_instance, dict(part.agreed), gs.positions, gs.colors)
         return True
 
     def _publish(self) -> None:
-        part = self.part
+        part, _ = self._under_way()
         digest, items = part.outgoing()
         self.mismatch = False
         self.serial += 1

@@ -250,6 +250,11 @@ def solar_system(earth_angle: float) -> list[Part]:
 _CONTINENTS = (((-0.38, -0.28), 0.36, 0.22, 0.35), ((0.34, 0.05), 0.22, 0.42, -0.5), ((-0.12, 0.55), 0.32, 0.16, 0.1))
 
 
+def _both(a: Inside, b: Inside) -> Inside:
+    """Inside both shapes."""
+    return lambda x, y: a(x, y) & b(x, y)
+
+
 def planet_earth(radius: float) -> list[Part]:
     """The Earth seen from close by: ocean and three continents, `radius` of the canvas (a zoom)."""
     cx, cy = _CENTRE
@@ -257,7 +262,7 @@ def planet_earth(radius: float) -> list[Part]:
     parts: list[Part] = [(globe, EARTH)]
     for (u, v), a, b, angle in _CONTINENTS:
         land = ellipse(cx + u * radius, cy + v * radius, a * radius, b * radius, angle)
-        parts.append((lambda x, y, land=land: land(x, y) & globe(x, y), LAND))
+        parts.append((_both(land, globe), LAND))
     return parts
 
 

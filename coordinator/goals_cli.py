@@ -107,7 +107,7 @@ def add_goals_parser(subparsers: Any) -> None:
     p.set_defaults(func=run_goals)
 
 
-def _write_all(jobs: list[tuple[Path, Callable[[Path], None]]]) -> None:
+def _write_all(jobs: list[tuple[Path, Callable[[Path], object]]]) -> None:
     """Write every file to a temporary file beside it, then rename them all: on any failure no
     output file (partial or not) is left behind."""
     temps: list[Path] = []
@@ -115,13 +115,13 @@ def _write_all(jobs: list[tuple[Path, Callable[[Path], None]]]) -> None:
     os.umask(umask)
     try:
         for path, write in jobs:
-            fd, tmp = tempfile.mkstemp(
+            fd, name = tempfile.mkstemp(
                 prefix=f".{path.name}.", suffix=path.suffix or ".tmp", dir=path.parent if str(path.parent) else "."
             )
             os.close(fd)
-            os.chmod(tmp, 0o666 & ~umask)
-            temps.append(Path(tmp))
-            write(Path(tmp))
+            os.chmod(name, 0o666 & ~umask)
+            temps.append(Path(name))
+            write(Path(name))
         for (path, _), tmp in zip(jobs, temps):
             os.replace(tmp, path)
     finally:
@@ -161,7 +161,7 @@ def run_goals(args: argparse.Namespace) -> int:
             relax=args.relax,
         )
         text = gs.to_json(indent=1) + "\n"
-        jobs: list[tuple[Path, Callable[[Path], None]]] = [(out, lambda p: p.write_text(text))]
+        jobs: list[tuple[Path, Callable[[Path], object]]] = [(out, lambda p: p.write_text(text))]
         if preview is not None:
             from .goals.preview import render_preview
 

@@ -324,15 +324,15 @@ def initial_poses(layout: dict[str, Any], n: int, radius: float, seed: int, wher
         per = math.ceil(n / 4)
         side = math.ceil(math.sqrt(per))
         offset = float(layout.get("offset", 1.7))
-        pts = []
+        corners: list[tuple[float, float, float]] = []
         for _q, (sx, sy) in enumerate([(1, 1), (-1, 1), (1, -1), (-1, -1)]):
             for k in range(per):
-                if len(pts) == n:
+                if len(corners) == n:
                     break
                 gx = (k % side - (side - 1) / 2) * spacing
                 gy = (k // side - (side - 1) / 2) * spacing
-                pts.append((sx * offset + gx, sy * offset + gy, math.atan2(-sy, -sx)))
-        return np.array(pts, float)
+                corners.append((sx * offset + gx, sy * offset + gy, math.atan2(-sy, -sx)))
+        return np.array(corners, float)
     if kind == "random":
         width, height = layout.get("size", [max(1.0, spacing * math.sqrt(n) * 1.5)] * 2)
         rng = np.random.default_rng(seed)

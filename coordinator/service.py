@@ -16,7 +16,7 @@ import os
 import signal
 import sys
 import time
-from typing import Any
+from typing import Any, Required, TypedDict
 
 import numpy as np
 
@@ -64,22 +64,38 @@ def scene_goal_message(scene: Scene, epoch: int = 1) -> Goals | None:
     return Goals(epoch, 1, 0.0, len(goals), goals, palette(len(goals)))
 
 
-def step_timing(scene: Scene, step: int) -> dict[str, float | int]:
+class StepTiming(TypedDict, total=False):
+    """Keyword arguments of Goals for a step's timing and motion (a still image has no motion)."""
+
+    t_start: Required[float]
+    frame_period: Required[float]
+    v_gx: float
+    v_gy: float
+    omega_g: float
+    p_ogx: float
+    p_ogy: float
+    k_eg: float
+    geometric: int
+
+
+def step_timing(scene: Scene, step: int) -> StepTiming:
     """The Goals fields of a step beyond its goals: when it began (t = 0 of eq. 28, and the start of
     an animation keyframe), its K_f dt (eq. 27) and the motion of a dynamic image (eq. 28). The robots
     compute their moving goals and synchronised velocities from these themselves."""
     s = scene.steps[step]
-    out: dict[str, float | int] = {"t_start": scene.step_starts[step], "frame_period": s.frame_period}
+    out: StepTiming = {"t_start": scene.step_starts[step], "frame_period": s.frame_period}
     m = s.motion
     if m is not None:
         out.update(
-            v_gx=m.velocity[0],
-            v_gy=m.velocity[1],
-            omega_g=m.angular_velocity,
-            p_ogx=m.center[0],
-            p_ogy=m.center[1],
-            k_eg=m.expansion,
-            geometric=int(m.geometric),
+            {
+                "v_gx": m.velocity[0],
+                "v_gy": m.velocity[1],
+                "omega_g": m.angular_velocity,
+                "p_ogx": m.center[0],
+                "p_ogy": m.center[1],
+                "k_eg": m.expansion,
+                "geometric": int(m.geometric),
+            }
         )
     return out
 
@@ -143,9 +159,9 @@ class Coordinator:
             self.t = tick.stamp if self.t is None else max(self.t, tick.stamp)
         for _, ident, alive, _ in self.alive.drain():
             if ident.isdigit() and int(ident) < self.scene.robots:
-                before = set(self.live)
+                was_live = set(self.live)
                 (self.live.add if alive else self.live.discard)(int(ident))
-                if self.live != before:
+                if self.live != was_live:
                     self.live_changed = time.monotonic()
                 if alive:
                     self.ever_live.add(int(ident))

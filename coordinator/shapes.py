@@ -176,7 +176,7 @@ def photo_like(size: int = 256, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     y, x = np.meshgrid(g, g, indexing="ij")
     vignette = 1.0 - 0.35 * ((x - 0.45) ** 2 + (y - 0.5) ** 2)
     bg = np.stack([205 + 30 * x - 20 * y, 200 + 15 * x - 25 * y, 185 - 10 * x - 30 * y], axis=-1)
-    img = bg * vignette[..., None]
+    img: np.ndarray = bg * vignette[..., None]
     body = circle(0.5, 0.56, 0.25)(x, y) | (((x - 0.5) / 0.3) ** 2 + ((y - 0.6) / 0.22) ** 2 < 1)
     leaf = ((x - 0.6) / 0.1) ** 2 + ((y - 0.25) / 0.05) ** 2 < 1
     shade = 1.0 - 0.45 * np.clip(np.hypot(x - 0.4, y - 0.45) / 0.4, 0, 1)

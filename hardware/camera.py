@@ -218,7 +218,7 @@ class ArucoTracker:
             return {}
         found: dict[int, np.ndarray] = {}
         twice: set[int] = set()
-        for marker, c in zip(ids.ravel().tolist(), corners):
+        for marker, c in zip((int(i) for i in ids.ravel()), corners):
             if marker in found:
                 twice.add(marker)
             found[marker] = c.reshape(4, 2).astype(float)

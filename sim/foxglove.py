@@ -245,7 +245,7 @@ def scene_update(
         x, y = xy[i]
         flat = {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}
         facing = {"x": 0.0, "y": 0.0, "z": qz[i], "w": qw[i]}
-        entity = {
+        entity: dict[str, Any] = {
             "timestamp": stamp,
             "frame_id": frame_id,
             "id": f"robot/{ids[i]}",

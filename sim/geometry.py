@@ -22,13 +22,13 @@ __all__ = [
 ]
 
 
-def wrap_angle(theta: np.ndarray) -> np.ndarray:
+def wrap_angle(theta: np.ndarray | float) -> np.ndarray:
     """Wrap angles to [-pi, pi)."""
     return (np.asarray(theta, dtype=float) + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def arc_displacement(
-    speed: np.ndarray, heading: np.ndarray, omega: np.ndarray, t: np.ndarray
+    speed: np.ndarray, heading: np.ndarray, omega: np.ndarray, t: np.ndarray | float
 ) -> tuple[np.ndarray, np.ndarray]:
     """Exact displacement of a unicycle moving at constant (speed, omega) for time t from heading.
 

@@ -141,7 +141,7 @@ def time_to_converge(t: np.ndarray, pose: np.ndarray, goal: np.ndarray, toleranc
         return None
     err = np.sqrt(((pose[:, :, :2] - goal) ** 2).sum(-1))
     within = np.where(has_goal, err <= tolerance, True)  # NaN pose -> err NaN -> False
-    ok = within.all(axis=1)  # (T,)
+    ok = np.all(within, axis=1)  # (T,)
     if not ok[-1]:
         return None
     bad = np.flatnonzero(~ok)

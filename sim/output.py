@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -16,7 +16,14 @@ from .render import write_plots, write_video
 from .rundir import RunDir, write_json, write_npz
 
 
-def newest_goal_set(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+class NewestGoalSet(TypedDict, total=False):
+    """metrics.summarise's arguments for the newest goal set (none in runs without goal sets)."""
+
+    step_members: np.ndarray
+    step_current: np.ndarray
+
+
+def newest_goal_set(arrays: dict[str, np.ndarray]) -> NewestGoalSet:
     """Distributed image runs (trajectory.npz arrays): per tick, the robots of the newest goal set
     (``step_members``) and whose announced goal comes from it (``step_current``); see
     metrics.step_metrics."""
@@ -64,7 +71,8 @@ def write_run(
         **metrics_extra,
     )
     write_json(run_dir / "metrics.json", metrics)
-    write_npz(run_dir / "trajectory.npz", radius=radius, **arrays)
+    # ignored: to mypy a key of arrays could be write_npz's own ``compress`` (none is)
+    write_npz(run_dir / "trajectory.npz", radius=radius, **arrays)  # type: ignore[arg-type]
     if len(t):
         write_plots(
             run_dir.path,

@@ -19,6 +19,7 @@ import os
 from collections.abc import Iterable, Sequence
 from fractions import Fraction
 from pathlib import Path
+from typing import Final
 
 import av
 import cv2
@@ -36,7 +37,7 @@ TEXT = (210, 210, 210)
 
 # H.264 as every browser decodes it: 4:2:0 chroma, High profile; moov atom first so playback starts
 # before the whole file has downloaded.  CRF 23 is x264's own default quality.
-H264_ENCODER = "libx264"
+H264_ENCODER: Final = "libx264"  # Final: PyAV then knows add_stream makes a video stream
 H264_OPTIONS = {"crf": "23", "preset": "veryfast"}
 H264_PROFILE = "High"
 H264_PIX_FMT = "yuv420p"
@@ -285,7 +286,7 @@ def _encode_h264(path: Path, frames: Iterable[np.ndarray], fps: float, width: in
 
 
 def _encode_opencv(path: Path, frames: Iterable[np.ndarray], fps: float, width: int, height: int, fourcc: str) -> None:
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), float(fps), (width, height))
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter.fourcc(*fourcc), float(fps), (width, height))
     if not writer.isOpened():
         raise RuntimeError(f"OpenCV VideoWriter could not open {path} with fourcc {fourcc!r}")
     try:

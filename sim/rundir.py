@@ -151,7 +151,8 @@ def write_npz(path: str | os.PathLike, *, compress: bool = True, **arrays: Any) 
     save = np.savez_compressed if compress else np.savez
 
     def _w(fh: io.BufferedWriter) -> None:
-        save(fh, **clean)
+        # ignored: to mypy a key of clean could be savez's own ``allow_pickle``
+        save(fh, **clean)  # type: ignore[arg-type]
 
     _atomic_write_bytes(path, _w)
     return path

@@ -487,7 +487,7 @@ class World:
         row = 1
         for seg, (sa, sb) in enumerate(zip(bounds[:-1], bounds[1:])):
             if seg:
-                self._draw_noise(self._noise_index + 1)
+                self._draw_noise(index + seg)  # the period after the last segment's
             speed, heading, omega = self._actuate(self._noise, theta)
             end = k + 1 if seg == len(bounds) - 2 else int(np.searchsorted(tk, sb + eps, side="right"))
             length = sb - sa
@@ -572,8 +572,7 @@ class World:
             xmin, ymin, xmax, ymax = self._arena
             x, y = traj[0, :, 0], traj[0, :, 1]
             reach = r + motion + 1e-9
-            near = (x - xmin < reach) | (xmax - x < reach) | (y - ymin < reach) | (ymax - y < reach)
-            near = np.flatnonzero(near)
+            near = np.flatnonzero((x - xmin < reach) | (xmax - x < reach) | (y - ymin < reach) | (ymax - y < reach))
             if near.size:
                 depth = r[near] - rect_signed_distance(rows[:, near], self._arena)  # (rows, near)
                 hit = np.flatnonzero(np.any(depth > 0.0, axis=0))
@@ -620,11 +619,13 @@ class World:
             # pairs beyond base + margin keep a clearance above margin in every row
             margin = 0.5 * self._r_max
             found = close_pairs(traj, r, base + margin, motion, first_row)
+            assert found is not None  # without a budget the search is never given up
             if not found[0] < margin:
                 # none came that close: bound the search by the nearest neighbours in row 0
                 dist, idx = cKDTree(traj[0]).query(traj[0], k=2)
                 radius = max(float(np.min(dist[:, 1] - r - r[idx[:, 1]])), 0.0) + base
                 found = close_pairs(traj, r, radius, motion, first_row)
+                assert found is not None
         step_min, a, b, pairs, depth = found
         return step_min, (a, b), pairs[:, 0], pairs[:, 1], depth
 
@@ -638,7 +639,7 @@ class World:
         t_list = times.tolist()
         for kind, ii, jj, depth in groups:
             over = depth > 0.0
-            steady = over.all(axis=0).tolist()  # overlapping in every row: at most a deeper max
+            steady = np.all(over, axis=0).tolist()  # overlapping in every row: at most a deeper max
             peak = depth.max(axis=0).tolist()
             for c, (i, j) in enumerate(zip(ii.tolist(), jj.tolist())):
                 key = (kind, i, j)

@@ -14,7 +14,6 @@ import pytest
 
 from sim.lossy import circle_crossing, run_lossy
 
-
 # Seed 0 touches since the link rounds states as the wire does: with most states lost or late, robots
 # in the crowd spend ticks in ORCA's fallback (the program infeasible), which does not guarantee
 # clearance, and which seeds pass is chance. Kept here, strict, as the known gap to close (issue 23).

@@ -16,12 +16,12 @@ import time
 import zlib
 from collections import Counter
 from collections.abc import Callable, Iterator
-from typing import Any
+from typing import Any, Generic, cast, overload
 
 import numpy as np
 import zenoh
 
-from .codec import DropCounter, Message, decode
+from .codec import DropCounter, Frame, Message, MessageT, decode
 from .faults import FaultPlan, FaultSpec
 from .keys import Keys
 from .session import ZenohSettings, open_session
@@ -40,15 +40,15 @@ def _drain(q: queue.SimpleQueue, limit: int | None = None) -> list:
     return out
 
 
-class Inbox:
+class Inbox(Generic[MessageT]):
     """Messages of one subscription, decoded, filtered by faults, waiting for the owner's loop."""
 
     def __init__(
         self,
-        expected: type[Message] | None,
+        expected: type[MessageT] | None,
         fault: FaultSpec,
         seed: int,
-        frames: type[Message] | None = None,
+        frames: type[Frame] | None = None,
         only: np.ndarray | None = None,
     ) -> None:
         """``frames``: a frame kind that carries many ``expected`` messages (codec.Poses, States,
@@ -61,8 +61,8 @@ class Inbox:
         self.drops = DropCounter()
         self.received = 0
         self.bytes = 0
-        self._queue: queue.SimpleQueue[tuple[str, Message]] = queue.SimpleQueue()
-        self._delayed: list[tuple[float, int, str, Message]] = []
+        self._queue: queue.SimpleQueue[tuple[str, MessageT]] = queue.SimpleQueue()
+        self._delayed: list[tuple[float, int, str, MessageT]] = []
         self._order = itertools.count()
         self._lock = threading.Lock()
         self._rng = random.Random(seed)
@@ -76,12 +76,13 @@ class Inbox:
         msg = decode(payload, self.expected if self.frames is None else None, self.drops)
         if msg is None:
             return
+        msgs: list[MessageT]
         if self.frames is None:
-            msgs = [msg]
+            msgs = [cast(MessageT, msg)]  # decoded as ``expected``
         elif isinstance(msg, self.frames):
             msgs = msg.messages(None if self.only is None else np.isin(msg.records["robot"], self.only))
         elif self.expected is None or isinstance(msg, self.expected):
-            msgs = [msg]
+            msgs = [cast(MessageT, msg)]
         else:
             self.drops["kind"] += 1
             return
@@ -114,12 +115,12 @@ class Inbox:
         """Messages held back by an injected delay (their owner must poll: no bell rings for them)."""
         return bool(self._delayed)
 
-    def drain(self) -> list[tuple[str, Message]]:
+    def drain(self) -> list[tuple[str, MessageT]]:
         """Every message that has arrived (and whose injected delay has passed), oldest first."""
         self._release_delayed()
         return _drain(self._queue)
 
-    def get(self, timeout: float | None = None) -> tuple[str, Message] | None:
+    def get(self, timeout: float | None = None) -> tuple[str, MessageT] | None:
         """Wait for one message (None on timeout)."""
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
@@ -140,7 +141,7 @@ class Inbox:
                 if deadline is not None and time.monotonic() >= deadline:
                     return None
 
-    def __iter__(self) -> Iterator[tuple[str, Message]]:
+    def __iter__(self) -> Iterator[tuple[str, MessageT]]:
         return iter(self.drain())
 
 
@@ -210,9 +211,19 @@ class Bus:
         self.sent_bytes[kind] += len(payload)
 
     # --- subscribing ----------------------------------------------------------------------
+    @overload
     def inbox(
-        self, expected: type[Message] | None = None, frames: type[Message] | None = None, only: np.ndarray | None = None
-    ) -> Inbox:
+        self, expected: type[MessageT], frames: type[Frame] | None = None, only: np.ndarray | None = None
+    ) -> Inbox[MessageT]: ...
+
+    @overload
+    def inbox(
+        self, expected: None = None, frames: type[Frame] | None = None, only: np.ndarray | None = None
+    ) -> Inbox[Message]: ...
+
+    def inbox(
+        self, expected: type[Message] | None = None, frames: type[Frame] | None = None, only: np.ndarray | None = None
+    ) -> Inbox[Any]:
         """An empty inbox; feed it with ``subscribe_into``. Faults for the expected kind apply here
         (to its ``frames`` too, each frame as one message: see Inbox)."""
         fault = self.faults.get(expected.NAME, _NO_FAULT) if expected is not None else _NO_FAULT
@@ -220,13 +231,19 @@ class Bus:
         seed = zlib.crc32(f"{self._seed}/{self._name}/{self._n_subs}".encode())
         return Inbox(expected, fault, seed, frames, only)
 
-    def subscribe(self, keyexpr: str, expected: type[Message] | None = None) -> Inbox:
+    @overload
+    def subscribe(self, keyexpr: str, expected: type[MessageT]) -> Inbox[MessageT]: ...
+
+    @overload
+    def subscribe(self, keyexpr: str, expected: None = None) -> Inbox[Message]: ...
+
+    def subscribe(self, keyexpr: str, expected: type[Message] | None = None) -> Inbox[Any]:
         """An inbox of decoded messages from one key expression."""
         inbox = self.inbox(expected)
         inbox.subscriber = self.subscribe_into(keyexpr, inbox)
         return inbox
 
-    def subscribe_into(self, keyexpr: str, inbox: Inbox) -> Any:
+    def subscribe_into(self, keyexpr: str, inbox: Inbox[Any]) -> Any:
         """Add another key expression feeding an existing inbox; returns the subscriber to undeclare."""
         sub = self.session.declare_subscriber(keyexpr, inbox._on_sample)
         self._subscriptions.append(sub)
@@ -243,7 +260,7 @@ class Bus:
         self._subscriptions.append(inbox.subscriber)
         return inbox
 
-    def on_message(self, keyexpr: str, expected: type[Message], callback: Callable[[str, Message], None]) -> Any:
+    def on_message(self, keyexpr: str, expected: type[MessageT], callback: Callable[[str, MessageT], None]) -> Any:
         """Only for services whose callback is cheap and never blocks (e.g. answering state queries)."""
         drops = DropCounter()
 
@@ -280,7 +297,7 @@ class Bus:
         self._subscriptions.append(q)
         return q
 
-    def query(self, keyexpr: str, expected: type[Message], timeout: float = 2.0) -> list[tuple[str, Message]]:
+    def query(self, keyexpr: str, expected: type[MessageT], timeout: float = 2.0) -> list[tuple[str, MessageT]]:
         out = []
         drops = DropCounter()
         for reply in self.session.get(keyexpr, timeout=timeout):

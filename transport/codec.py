@@ -11,9 +11,10 @@ import json
 import math
 import struct
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from operator import attrgetter
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar, overload
 
 import numpy as np
 
@@ -50,6 +51,13 @@ def _fixed_and_items(body: memoryview, fixed: struct.Struct, item: np.dtype) -> 
     if len(body) != fixed.size + values[-1] * item.itemsize:
         raise Malformed("truncated")
     return values, np.frombuffer(body[fixed.size :], item)
+
+
+def _field_names(item: np.dtype) -> tuple[str, ...]:
+    """The fields of a record dtype (numpy types ``names`` optional: a plain dtype has none)."""
+    if item.names is None:
+        raise TypeError(f"{item} is not a record dtype")
+    return item.names
 
 
 @dataclass
@@ -387,12 +395,12 @@ class Bid(Message):
         """Records as columns (one array per field): a host's message holds up to K records, and a
         dict per record made the recorder's log of a 1000-robot auction cost more than the auction."""
         out = {name: getattr(self, name) for name in self.field_names() if name != "records"}
-        out["records"] = {k: self.records[k] for k in self.RECORD.names}
+        out["records"] = {k: self.records[k] for k in _field_names(self.RECORD)}
         return out
 
 
 @dataclass
-class _Frame(Message):
+class Frame(Message):
     """A tick's messages of many robots in one: the fixed part (tick, stamp, sender, count) and one
     record per robot, the fields of ``_message`` after its (robot, tick, stamp). Agent hosts of K
     robots trade frames: per robot, every message costs each process it crosses as much as a whole
@@ -409,7 +417,7 @@ class _Frame(Message):
     records: np.ndarray
 
     @classmethod
-    def of(cls, tick: int, stamp: float, sender: int, messages: list) -> _Frame:
+    def of(cls, tick: int, stamp: float, sender: int, messages: list) -> Frame:
         """The frame of these robots' messages (their tick and stamp are the frame's)."""
         records = np.array([(v := m._fixed_values())[:1] + v[3:] for m in messages], cls.RECORD).reshape(-1)
         return cls(tick, stamp, sender, len(records), records)
@@ -417,7 +425,8 @@ class _Frame(Message):
     def messages(self, rows: np.ndarray | None = None) -> list:
         """One message per record (or per selected record), as each robot would have sent it alone."""
         records = self.records if rows is None else self.records[rows]
-        tick, stamp, message = self.tick, self.stamp, self._message
+        tick, stamp = self.tick, self.stamp
+        message: Callable[..., Message] = self._message  # each kind's fields follow (robot, tick, stamp)
         return [message(robot, tick, stamp, *rest) for robot, *rest in records.tolist()]
 
     def _fixed_values(self) -> tuple:
@@ -427,7 +436,7 @@ class _Frame(Message):
         return np.asarray(self.records, self.RECORD).tobytes()
 
     @classmethod
-    def _from(cls, body: memoryview) -> _Frame:
+    def _from(cls, body: memoryview) -> Frame:
         (tick, stamp, sender, count), items = _fixed_and_items(body, cls._fixed, cls.RECORD)
         _finite(stamp)
         if not all(np.all(np.isfinite(items[k])) for k in cls._floats):
@@ -442,12 +451,12 @@ class _Frame(Message):
     def to_dict(self) -> dict[str, Any]:
         """Records as columns, one array per field (as Bid)."""
         out = {name: getattr(self, name) for name in self.field_names() if name != "records"}
-        out["records"] = {k: self.records[k] for k in self.RECORD.names}
+        out["records"] = {k: self.records[k] for k in _field_names(self.RECORD)}
         return out
 
 
 @dataclass
-class Poses(_Frame):
+class Poses(Frame):
     """Tracker -> agent hosts: the tracked poses of a tick (what a motion capture frame holds), sent
     instead of one Pose per robot when every agent process hosts several robots; before a robot's
     agent is live its poses stay Pose."""
@@ -460,7 +469,7 @@ class Poses(_Frame):
 
 
 @dataclass
-class Commands(_Frame):
+class Commands(Frame):
     """Agent host -> bodies: the commands of its robots for one tick."""
 
     KIND: ClassVar[int] = 11
@@ -477,7 +486,7 @@ class Commands(_Frame):
 
 
 @dataclass
-class States(_Frame):
+class States(Frame):
     """Agent host -> agent hosts: the states of its robots at one tick (a host's hellos before its
     first tick too, tick Pose.BEFORE_START). Every host hears every frame: a host of hundreds of
     robots spread over the display listens to most cells anyway, and one frame costs each process
@@ -619,6 +628,19 @@ def register(message_type: type[Message]) -> type[Message]:
     MESSAGE_TYPES[message_type.KIND] = message_type
     BY_NAME[message_type.NAME] = message_type
     return message_type
+
+
+MessageT = TypeVar("MessageT", bound=Message)
+
+
+@overload
+def decode(data: bytes | memoryview, expected: type[MessageT], drops: DropCounter | None = None) -> MessageT | None: ...
+
+
+@overload
+def decode(
+    data: bytes | memoryview, expected: type[Message] | None = None, drops: DropCounter | None = None
+) -> Message | None: ...
 
 
 def decode(

@@ -21,6 +21,7 @@ import math
 import re
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 PREFIX = "px"
 _NAME = re.compile(r"^[A-Za-z0-9_\-]+$")
@@ -31,7 +32,7 @@ def cell_of(x: float, y: float, cell_size: float) -> tuple[int, int]:
     return math.floor(x / cell_size), math.floor(y / cell_size)
 
 
-def cells_of(xy: np.ndarray, cell_size: float) -> np.ndarray:
+def cells_of(xy: ArrayLike, cell_size: float) -> np.ndarray:
     """cell_of for rows of positions at once: (N, 2) int64 (a host places a thousand a tick)."""
     return np.floor(np.asarray(xy, float).reshape(-1, 2) / cell_size).astype(np.int64)
 

@@ -255,7 +255,8 @@ class Participant:
         self.bids = 0
         self.rounds = 0  # Jacobi rounds in which some own robot bid
         self._content_cache: tuple[tuple, np.ndarray] | None = None
-        self._best: tuple[np.ndarray, np.ndarray] | None = None  # best goal and value per own robot
+        # per own robot: its best goal, that goal's value and its second-best value (see _best_values)
+        self._best: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._lists: tuple | None = None  # settle_alone's candidate goals, scratch (agent.core.jacobi), hull, ...
         self.without_list = 0  # robots that had no candidate list at the start of settle_alone's last block
         self._price_seen = np.zeros(len(self.goals))
@@ -441,9 +442,15 @@ class Participant:
             runner_up[block], third_value[block] = self._rank_block(rows[block], third)
         return runner_up, third_value
 
+    def _ranking(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The cache _rank fills (made by _best_values or settle_alone before any ranking)."""
+        if self._best is None:
+            raise RuntimeError("no ranking cache yet")
+        return self._best
+
     def _rank_one(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """_rank_block for one row without the third-best value, in scalars (the common case)."""
-        best, value, second = self._best
+        best, value, second = self._ranking()
         values = -self.cost[i]
         values -= self.board.price
         first = int(values.argmax())  # ties: lowest goal index, the same everywhere
@@ -458,7 +465,7 @@ class Participant:
         return np.array([runner_up]), np.array([-np.inf])
 
     def _rank_block(self, rows: np.ndarray, third: bool) -> tuple[np.ndarray, np.ndarray]:
-        best, value, second = self._best
+        best, value, second = self._ranking()
         values = self._values(rows)
         at = np.arange(len(rows))
         first = np.argmax(values, axis=1)  # ties: lowest goal index, the same everywhere
@@ -480,7 +487,7 @@ class Participant:
         bid on rose in price, so the runner-up is the best now if it beats that goal's value now and
         the third-best value (an upper bound) outright; otherwise the row is ranked anew when next
         needed (second = inf, and the goal bid on counts as risen since _price_seen)."""
-        best, value, second = self._best
+        best, value, second = self._ranking()
         price = self.board.price
         v_bid = -self.cost[bidders, bid_on] - price[bid_on]
         v_run = -self.cost[bidders, runner_up] - price[runner_up]
@@ -520,8 +527,8 @@ class Participant:
         """These own robots (rows, none of them content) bid on their best goals at once; returns the
         robots that lost to these bids a goal they owned."""
         runner_up, third = self._rank(bidders, third=True)  # the same best as _content_all's
-        _, value, second = self._best
-        best, v_best = self._best[0][bidders], value[bidders]
+        best, value, second = self._ranking()
+        best, v_best = best[bidders], value[bidders]
         if len(self.goals) > 1:
             second = second[bidders]
         else:

@@ -146,7 +146,7 @@ def _greater(price: float, robot: int, released: bool, b_price: float, b_owner: 
     return released and not b_released
 
 
-@njit(**BORROWS)
+@njit(**BORROWS)  # type: ignore[call-overload]  # numba's stubs lack its _nrt option
 def _rank_all(i, px, py, gx, gy, price, penalty, has_penalty, lists, work):
     """Robot i's best goal and net value, runner-up goal and value, and third-best value over every
     goal (ties: the lower goal index, as numpy's argmax in the agent hosts' rounds). Renews its
@@ -294,7 +294,8 @@ def _content(
     return held >= value[i] - slack - rounding * abs(value[i])
 
 
-@njit(cache=True, nogil=True, _nrt=False)  # nogil: it runs beside the control core (sim.central)
+# nogil: it runs beside the control core (sim.central)
+@njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # numba's stubs lack its _nrt option
 def first_ranking(px, py, gx, gy, price, penalty, has_penalty, best, value, second, lists, work, hull_x, hull_y) -> int:
     """Every robot's best goal, value and second-best bound at a block's start, from its candidates
     where they still prove it, else over every goal. Since its list was made the robot moved by D:
@@ -318,7 +319,7 @@ def first_ranking(px, py, gx, gy, price, penalty, has_penalty, best, value, seco
     return none
 
 
-@njit(**BORROWS)
+@njit(**BORROWS)  # type: ignore[call-overload]  # numba's stubs lack its _nrt option
 def jacobi_rounds(
     px,
     py,
@@ -446,7 +447,7 @@ def jacobi_rounds(
     return rounds, bids, n
 
 
-@njit(cache=True, nogil=True, _nrt=False)
+@njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # numba's stubs lack its _nrt option
 def settle_block(
     px,
     py,

@@ -153,9 +153,12 @@ def optimise_few(
     k = len(rows)
     n_cand = int(violated.sum(axis=1).max())
     pick = (np.arange(k)[:, None], np.argsort(~violated, axis=1, kind="stable")[:, :n_cand])
-    cand = [a[pick][..., None] for a in (px, py, dx, dy)]  # (k, candidates, 1)
+    cpx, cpy, cdx, cdy = (a[pick][..., None] for a in (px, py, dx, dy))  # (k, candidates, 1)
     x, y, ok = _on_line(
-        *cand,
+        cpx,
+        cpy,
+        cdx,
+        cdy,
         px[:, None, :],
         py[:, None, :],
         dx[:, None, :],

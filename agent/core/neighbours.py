@@ -7,9 +7,10 @@ the perfect symmetries that deadlock ORCA head-on, deterministically from a robo
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import NamedTuple, TypeVar
 
 import numpy as np
+import numpy.typing as npt
 from numpy.typing import ArrayLike
 
 __all__ = [
@@ -43,7 +44,7 @@ def prepare_neighbours(
     age: ArrayLike,
     valid: ArrayLike,
     *,
-    max_speed: ArrayLike,
+    max_speed: float | np.ndarray,
     timeout: float,
     noise: float = 0.0,
     cooperative: ArrayLike | None = None,
@@ -69,16 +70,19 @@ def prepare_neighbours(
     position = np.asarray(position, dtype=float)
     velocity = np.asarray(velocity, dtype=float)
     radius = np.asarray(radius, dtype=float)
-    age = np.maximum(np.asarray(age, dtype=float), 0.0)
-    finite = (
-        np.isfinite(position).all(axis=-1) & np.isfinite(velocity).all(axis=-1) & np.isfinite(radius) & np.isfinite(age)
+    elapsed = np.maximum(np.asarray(age, dtype=float), 0.0)
+    finite: npt.NDArray[np.bool_] = (
+        np.isfinite(position).all(axis=-1)
+        & np.isfinite(velocity).all(axis=-1)
+        & np.isfinite(radius)
+        & np.isfinite(elapsed)
     )
     valid = np.asarray(valid, dtype=bool) & finite
-    stale = age > timeout
+    stale = elapsed > timeout
     # A broadcast velocity is what the neighbour executes until its next tick (``committed``
     # seconds): only time beyond that is time in which it may have changed its mind.
-    horizon = np.maximum(np.where(stale, timeout, age) - committed, 0.0)
-    shift = np.where(stale, 0.0, age)[..., None]
+    horizon = np.maximum(np.where(stale, timeout, elapsed) - committed, 0.0)
+    shift = np.where(stale, 0.0, elapsed)[..., None]
     safe_p = np.where(valid[..., None], position, 0.0)
     safe_v = np.where(valid[..., None], velocity, 0.0)
     new_position = safe_p + shift * safe_v
@@ -115,7 +119,10 @@ def nearest_first(
     )
 
 
-def splitmix64(x: np.ndarray) -> np.ndarray:
+_Words = TypeVar("_Words", np.ndarray, np.uint64)
+
+
+def splitmix64(x: _Words) -> _Words:
     # integer hash (Steele et al.'s SplitMix64 finaliser): elementwise uint64 arithmetic, exact
     with np.errstate(over="ignore"):
         x = x + np.uint64(0x9E3779B97F4A7C15)

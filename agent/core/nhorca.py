@@ -22,7 +22,8 @@ functions may take different code paths with the array's length).
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from collections.abc import Sequence
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -204,7 +205,7 @@ def nh_orca_wheel_speeds(
     nbr_radius: ArrayLike,
     nbr_responsibility: ArrayLike,
     nbr_valid: ArrayLike,
-    obstacle_segments: ArrayLike | None = None,
+    obstacle_segments: np.ndarray | None = None,
     *,
     params: RobotParams,
     safety: bool = True,
@@ -239,18 +240,36 @@ def nh_orca_wheel_speeds(
         nbr_valid,
         nbr_growth,
     ]
-    opts = dict(tau=params.tau, tau_obst=params.tau_obst, dt=params.dt, safety=safety)
-    v_cf, fallback = orca_velocity(
-        *args[:4], params.v_max, *args[4:9], obstacle_segments, extra_hard_lines=polygon, nbr_growth=args[9], **opts
-    )
+
+    def solve(robots: Sequence[Any], hard: Lines) -> tuple[np.ndarray, np.ndarray]:
+        """orca_velocity of these robots' ``args`` (all of them or some rows) with hard lines ``hard``."""
+        pos, vel, pref, rad, nbr_pos, nbr_vel, nbr_rad, nbr_resp, nbr_ok, nbr_grow = robots
+        return orca_velocity(
+            pos,
+            vel,
+            pref,
+            rad,
+            params.v_max,
+            nbr_pos,
+            nbr_vel,
+            nbr_rad,
+            nbr_resp,
+            nbr_ok,
+            obstacle_segments,
+            tau=params.tau,
+            tau_obst=params.tau_obst,
+            dt=params.dt,
+            safety=safety,
+            extra_hard_lines=hard,
+            nbr_growth=nbr_grow,
+        )
+
+    v_cf, fallback = solve(args, polygon)
     reverse = np.zeros(b, dtype=bool)
     rows = np.nonzero(fallback)[0]
     if rows.size:
-        sub = _take(rows, *args)
         mirrored = Lines(-polygon.point[rows], -polygon.direction[rows], polygon.valid[rows])
-        v_back, fb_back = orca_velocity(
-            *sub[:4], params.v_max, *sub[4:9], obstacle_segments, extra_hard_lines=mirrored, nbr_growth=sub[9], **opts
-        )
+        v_back, fb_back = solve(_take(rows, *args), mirrored)
         use = ~fb_back
         v_cf[rows[use]] = v_back[use]
         reverse[rows[use]] = True

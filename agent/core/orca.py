@@ -212,10 +212,10 @@ def safety_lines(
     nbr_position: np.ndarray,
     nbr_velocity: np.ndarray,
     nbr_radius: np.ndarray,
-    nbr_responsibility: ArrayLike,
+    nbr_responsibility: np.ndarray,
     nbr_valid: ArrayLike,
     dt: float,
-    nbr_growth: np.ndarray | None = None,
+    nbr_growth: ArrayLike | None = None,
 ) -> Lines:
     """ORCA half-planes of horizon ``dt`` around zero optimisation velocities (cooperating neighbours).
 
@@ -269,7 +269,7 @@ def orca_velocity(
     nbr_radius: ArrayLike,
     nbr_responsibility: ArrayLike,
     nbr_valid: ArrayLike,
-    obstacle_segments: ArrayLike | None = None,
+    obstacle_segments: np.ndarray | None = None,
     *,
     tau: float,
     tau_obst: float,

@@ -74,7 +74,7 @@ def preferred_core(position, goal, preferred, velocity, robot_id, v_pref, k_a, s
     return out
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # numba's stubs lack its _nrt option
 def _on_line(pix, piy, dix, diy, px, py, dx, dy, use, n, radius, tx, ty, directional):
     """lp._on_line for one line i, clipped by the disk and the lines j < n with use[j]."""
     dot = pix * dix + piy * diy
@@ -119,7 +119,7 @@ def _disk_optimum(tx, ty, radius, directional):
     return tx * 1.0, ty * 1.0
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # numba's stubs lack its _nrt option
 def _optimise(px, py, dx, dy, n, radius, tx, ty, every):
     """lp.optimise (RVO2's linearProgram2) over lines 0..n-1 (``every``: n or more True flags):
     (x, y, feasible)."""
@@ -133,7 +133,7 @@ def _optimise(px, py, dx, dy, n, radius, tx, ty, every):
     return rx, ry, True
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # numba's stubs lack its _nrt option
 def _optimise_few(px, py, dx, dy, use, n, radius, tx, ty, directional):
     """lp.optimise_few over the lines 0..n-1 with use[j]: the best 1-D optimum of the lines that the
     disk's optimum violates, each clipped by every line (itself included); ties to the first."""
@@ -161,7 +161,7 @@ def _optimise_few(px, py, dx, dy, use, n, radius, tx, ty, directional):
     return cx, cy, False
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # numba's stubs lack its _nrt option
 def _least_violation(px, py, dx, dy, n, n_hard, radius, tx, ty, bisectors, flags):
     """lp.least_violation (RVO2's linearProgram3): the first n_hard lines stay hard (all soft if they
     leave nothing of the disk), the largest violation of the others is minimised. Scratch: the
@@ -243,7 +243,7 @@ def _keep(px, py, dx, dy, vmax):
     return dx * py - dy * px > -vmax
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # numba's stubs lack its _nrt option
 def _robot_lines(
     i,
     position,
@@ -291,7 +291,7 @@ def _robot_lines(
     return n
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False)  # type: ignore[call-overload]  # numba's stubs lack its _nrt option
 def _control_core_one(
     i,
     position,

@@ -234,7 +234,7 @@ def goals_from_prepared(
     colors = cell_colors(prep.rgb, cells, len(goals_px), goals_px, seg.labels)
     d_min = normalised_spacing(goals_px, scale)
     auto = arena is None
-    if auto:
+    if arena is None:
         arena = auto_arena(d_min, robot_radius)
     else:
         check_feasible(d_min, int(n), float(arena), robot_radius, conservative)

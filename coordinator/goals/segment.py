@@ -221,8 +221,10 @@ def segment(
     sel = lflat >= 0
     lf = to_lab(np.asarray(rgb).reshape(-1, 3)[sel], precise=True).astype(np.float64)
     cnt = np.bincount(lflat[sel], minlength=len(ids))
-    means = np.stack([np.bincount(lflat[sel], lf[:, c], len(ids)) for c in range(3)], axis=1)
+    means: np.ndarray = np.stack([np.bincount(lflat[sel], lf[:, c], len(ids)) for c in range(3)], axis=1)
     means /= np.maximum(cnt, 1)[:, None]
     rgbs = lab_to_rgb(means)
-    regions = [Region(i, int(cnt[i]), tuple(int(v) for v in rgbs[i]), means[i]) for i in range(len(ids))]
+    regions = [
+        Region(i, int(cnt[i]), (int(rgbs[i, 0]), int(rgbs[i, 1]), int(rgbs[i, 2])), means[i]) for i in range(len(ids))
+    ]
     return Segmentation(labels, regions, notes)

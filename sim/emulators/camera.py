@@ -65,8 +65,8 @@ class OverheadCamera:
         fw, fh = self.floor
         m, w, h = self.margin, self.width - 1.0, self.height - 1.0
         inset = self.keystone * (w - 2 * m) / 2
-        floor = np.float32([[0, 0], [fw, 0], [fw, fh], [0, fh]])
-        image = np.float32([[m, h - m], [w - m, h - m], [w - m - inset, m], [m + inset, m]])
+        floor = np.array([[0, 0], [fw, 0], [fw, fh], [0, fh]], np.float32)
+        image = np.array([[m, h - m], [w - m, h - m], [w - m - inset, m], [m + inset, m]], np.float32)
         return cv2.getPerspectiveTransform(floor, image).astype(float)
 
     def poses_table(self) -> dict:
@@ -90,7 +90,7 @@ class OverheadCamera:
         # OpenCV's generator, seeded from rng for each frame: many times faster than numpy's here
         noise = np.empty_like(frame)
         cv2.setRNGSeed(int(rng.integers(2**31)))
-        cv2.randn(noise, 0.0, self.noise_sigma)
+        cv2.randn(noise, 0.0, self.noise_sigma)  # type: ignore[call-overload]  # stubs lack the Scalar form
         frame += noise
         return np.clip(frame + 0.5, 0, 255).astype(np.uint8)  # + 0.5 then truncation: rounding
 
@@ -99,7 +99,7 @@ class OverheadCamera:
         if key not in _BACKGROUNDS:
             frame = np.full((self.height, self.width), self.floor_grey / 2, np.float32)
             fw, fh = self.floor
-            outline = np.float64([[[0, 0], [fw, 0], [fw, fh], [0, fh]]])
+            outline = np.array([[[0, 0], [fw, 0], [fw, fh], [0, fh]]], np.float64)
             corners = cv2.perspectiveTransform(outline, self.floor_to_image())
             cv2.fillConvexPoly(frame, np.rint(corners[0]).astype(np.int32), float(self.floor_grey), cv2.LINE_AA)
             _BACKGROUNDS[key] = frame
@@ -118,7 +118,7 @@ class OverheadCamera:
         to_floor[:2, 2] = np.array([x, y]) - centre * metres_per_px * (right - ahead)
         to_image = floor_to_image @ to_floor
         outline = cv2.perspectiveTransform(
-            np.float64([[[-0.5, -0.5], [n - 0.5, -0.5], [n - 0.5, n - 0.5], [-0.5, n - 0.5]]]), to_image
+            np.array([[[-0.5, -0.5], [n - 0.5, -0.5], [n - 0.5, n - 0.5], [-0.5, n - 0.5]]], np.float64), to_image
         )[0]
         x0, y0 = np.floor(outline.min(axis=0)).astype(int) - 1
         x1, y1 = np.ceil(outline.max(axis=0)).astype(int) + 2
@@ -193,7 +193,7 @@ def write_video(path: Path, frames: Iterable[np.ndarray], fps: float) -> None:
             if writer is None:
                 height, width = frame.shape[:2]
                 writer = cv2.VideoWriter(
-                    str(path), cv2.VideoWriter_fourcc(*FOURCC), fps, (width, height), isColor=False
+                    str(path), cv2.VideoWriter.fourcc(*FOURCC), fps, (width, height), isColor=False
                 )
                 if not writer.isOpened():
                     raise OSError(f"cannot write video {path} with codec {FOURCC}")
