@@ -295,7 +295,7 @@ class AgentHost:
             if r < len(goals.positions):
                 if r not in self.config.pursue:  # a pursuer's goal comes from its target's broadcasts
                     mem.goal = goals.positions[r].astype(float)
-                mem.color = tuple(int(c) for c in goals.colors[r])
+                mem.color = color_of(goals.colors[r])
 
     @property
     def timing(self) -> dict[int, GoalTiming]:
@@ -320,7 +320,7 @@ class AgentHost:
         for r, m in self.memory.items():
             if m.position is None:
                 continue
-            if motion is not None:
+            if motion is not None and newest is not None:
                 out[r] = motion.to_initial_frame(m.position, m.stamp - newest.t_start)
             elif newest is not None and m.assign_epoch == newest.epoch and m.goal_index >= 0:
                 on_way.append(m)  # on its way: where it will be
@@ -352,14 +352,14 @@ class AgentHost:
         mem = self.memory[robot]
         mem.goal, mem.goal_index = positions[goal].astype(float), goal
         mem.goal0 = mem.goal.copy()  # a moving goal set's goal moves from here (eq. 28)
-        mem.color = tuple(int(c) for c in colors[goal])
+        mem.color = color_of(colors[goal])
         mem.assign_epoch, mem.assign_instance = epoch, instance
 
     def _absorb(self) -> None:
-        for _, msg in self.goal_inbox.drain():
-            self._on_goals(msg)
-        for _, msg in self.state_inbox.drain():
-            self._on_state(msg)
+        for _, goals in self.goal_inbox.drain():
+            self._on_goals(goals)
+        for _, state in self.state_inbox.drain():
+            self._on_state(state)
         self.auction.poll(self._positions())
 
     def _on_state(self, msg: State) -> None:
@@ -456,7 +456,7 @@ class AgentHost:
                 rounds = LOCKSTEP_ROUNDS
             else:
                 rounds = LOCKSTEP_ROUNDS_WARM if link.open_for >= WARM_ROUNDS_AFTER - 1e-9 else 0
-            enough, end = link.heard + rounds * max(1, len(link.others)), start + LOCKSTEP_CAP
+            enough, end = float(link.heard + rounds * max(1, len(link.others))), start + LOCKSTEP_CAP
         else:
             share = AUCTION_SHARE_COLD if link.cold else AUCTION_SHARE
             enough, end = math.inf, tick_start + share * self.params.dt
@@ -602,6 +602,11 @@ class AgentHost:
 
     def report(self) -> None:
         self.bus.publish(self.keys.event, Event({"kind": "stats", **self.stats()}))
+
+
+def color_of(rgb: np.ndarray) -> tuple[int, int, int]:
+    """An LED colour from a goal set's row."""
+    return int(rgb[0]), int(rgb[1]), int(rgb[2])
 
 
 def install_stop_handlers(host: AgentHost) -> None:

@@ -26,7 +26,7 @@ class UsageError(Exception):
     """Bad input from the user: one line, exit code 2."""
 
 
-def _positive_int(text: str) -> int:
+def positive_int(text: str) -> int:
     try:
         value = int(text)
     except ValueError:
@@ -54,7 +54,7 @@ def build_parser() -> argparse.ArgumentParser:
         "an image (PNG, JPEG, BMP, TIFF) to display, or a folder of keyframe images "
         "to play as an animation (file-name order)",
     )
-    run.add_argument("--robots", "-n", type=_positive_int, help="number of robots (overrides the scene)")
+    run.add_argument("--robots", "-n", type=positive_int, help="number of robots (overrides the scene)")
     run.add_argument("--seed", type=int, help="random seed (overrides the scene)")
     run.add_argument("--clock", choices=CLOCKS, help="clock (overrides the scene)")
     run.add_argument("--duration", type=float, help="seconds of display time at most (overrides the scene)")
@@ -70,7 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument(
         "--agents-per-process",
         "-k",
-        type=_positive_int,
+        type=positive_int,
         metavar="K",
         help="robots per agent process (default 1: one process per robot, unless the scene "
         "says agents_per_process = K)",

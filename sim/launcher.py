@@ -64,6 +64,7 @@ class Interrupted(Exception):
 
 class Launcher:
     def __init__(self, scene: Scene, options: RunOptions) -> None:
+        self.world_exit: int | None = None  # the world process's exit code, once it exited
         self.scene, self.opt = scene, options
         self.params = RobotParams.from_dict(scene.robot)
         self.children: list[Child] = []
@@ -236,7 +237,7 @@ class Launcher:
             settings = self.opt.router or self._embedded_router()
             self.client = client_of(settings)
         bus = Bus(settings, self.opt.display, name="launcher")
-        self.world_exit: int | None = None
+        self.world_exit = None
         try:
             recorder = Recorder(bus, self.scene.robots, self.params.goal_tolerance, str(self.run_dir / "log.mcap"))
             recorder.ends = self._ends_on_convergence

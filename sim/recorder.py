@@ -119,9 +119,9 @@ class Recorder:
             msg = decode(payload, expected, self.drops) if expected else None
             if msg is None:
                 continue
-            payload = msg.to_dict()
-            payload["key"] = key
-            self._log(kind, wall, payload)
+            record = msg.to_dict()
+            record["key"] = key
+            self._log(kind, wall, record)
             if isinstance(msg, State):
                 self._on_state(msg)
             elif isinstance(msg, Truth):

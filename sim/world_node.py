@@ -182,7 +182,7 @@ class WorldNode:
                 self._publish_before_start()
                 last_sent = time.monotonic()
             time.sleep(0.02)
-        return self.live.any()
+        return bool(self.live.any())
 
     def run(self, clock: str) -> None:
         self.bus.declare_alive("world", 0)
