@@ -28,6 +28,7 @@ from transport.codec import Event
 from transport.faults import FaultPlan, format_faults
 from transport.session import ZenohSettings, client_of, loopback_router
 
+from .hardware_node import ERROR as HARDWARE_ERROR
 from .output import write_run
 from .recorder import Recorder
 from .rundir import RunDir
@@ -46,6 +47,11 @@ class RunOptions:
     deadline: float = 2.0
     progress: TextIO | None = sys.stderr
     startup_timeout: float = 90.0
+    hardware: Path | None = None  # a hardware file: real robots (sim/hardware_node.py) in place of the world
+
+
+class HardwareStartError(Exception):
+    """The hardware node refused to start (robot out of reach, no poses): its one line for the user."""
 
 
 @dataclass
@@ -235,6 +241,8 @@ class Launcher:
                 f"[{self.scene.name}] {self.scene.robots} robots, {self.scene.clock} clock, router {endpoint}",
                 force=True,
             )
+            if self.opt.hardware is not None:
+                self._start_hardware(recorder)
             coord = self._spawn("coordinator", "coordinator.service", self._scene_args(), [])
             self._wait_alive(recorder, "coordinator", 1, coord)
             self._start_agents()
@@ -247,7 +255,8 @@ class Launcher:
                 str(self.opt.deadline),
             ]
             world_args += ["--pose-frames"] if self._frames else []
-            self._spawn("world", "sim.world_node", world_args, [])
+            if self.opt.hardware is None:
+                self._spawn("world", "sim.world_node", world_args, [])
             end_reason = self._loop(bus, recorder)
             self._check_children(recorder)  # an agent that died as the world finished is still a crash
             self._stop_children()
@@ -262,6 +271,20 @@ class Launcher:
         finally:
             bus.close()
         return self._write(recorder, end_reason, time.time() - wall0)
+
+    def _start_hardware(self, rec: Recorder) -> None:
+        """The hardware node stands in for the world; it is started first, since the agents learn where
+        they are from it, and is alive once every robot is reached and tracked."""
+        args = self._scene_args() + ["--hardware", str(self.opt.hardware), "--duration", str(self.scene.duration)]
+        child = self._spawn("world", "sim.hardware_node", args + (["--pose-frames"] if self._frames else []), [])
+        try:
+            self._wait_alive(rec, "world", 1, child)
+        except RuntimeError:
+            lines = child.log.read_text().splitlines() if child.log.exists() else []
+            refusal = next((ln for ln in reversed(lines) if ln.startswith(HARDWARE_ERROR)), None)
+            if refusal is not None:
+                raise HardwareStartError(refusal.removeprefix(HARDWARE_ERROR)) from None
+            raise
 
     def _wait_alive(self, rec: Recorder, role: str, count: int, child: Child) -> None:
         start = time.monotonic()
@@ -394,6 +417,7 @@ class Launcher:
             liveliness_lost=[{"robot": e["id"], "wall_time": e["wall_time"]} for e in lost],
             faults=format_faults(self.opt.faults),
             stepping_wall_s=stepping_wall,
+            **({"hardware": stats["hardware"]} if "hardware" in stats else {}),
             stepping_realtime_factor=(
                 float(arrays["t"][-1] - arrays["t"][0]) / stepping_wall if stepping_wall else None
             ),
