@@ -236,13 +236,13 @@ class Launcher:
         try:
             recorder = Recorder(bus, self.scene.robots, self.params.goal_tolerance, str(self.run_dir / "log.mcap"))
             recorder.ends = self._ends_on_convergence
+            if self.opt.hardware is not None:  # refused at once (one line) if a robot or its pose is missing
+                self._start_hardware(recorder)
             endpoint = ", ".join(settings.listen or settings.connect)
             self._say(
                 f"[{self.scene.name}] {self.scene.robots} robots, {self.scene.clock} clock, router {endpoint}",
                 force=True,
             )
-            if self.opt.hardware is not None:
-                self._start_hardware(recorder)
             coord = self._spawn("coordinator", "coordinator.service", self._scene_args(), [])
             self._wait_alive(recorder, "coordinator", 1, coord)
             self._start_agents()

@@ -1,0 +1,292 @@
+"""`pixelswarm run SCENE --hardware FILE` through emulated e-puck2 robots and emulated motion capture.
+
+Real processes, real TCP and Zenoh on 127.0.0.1: the lab (sim/emulators/lab.py) is the robots' side,
+the run is the pixelswarm side, and the assertions read the emulated bodies' TRUE poses and the commands
+the robots received, never what the run believed.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import psutil
+import pytest
+
+from coordinator.scene import load_scene
+from sim.cli import main as cli_main
+from sim.emulators.epuck2 import Epuck2Emulator
+from sim.emulators.lab import Lab
+from sim.emulators.lab import main as lab_main
+from transport.session import free_port, loopback_router
+
+from .conftest import REPO, descendants, pixelswarm_cmd, run_pixelswarm, wait_for
+
+TIMEOUT = 0.3  # s: the hardware file's command_timeout (the e-puck2 default)
+PERIOD = 0.1  # s: the control period (paper Table 1)
+
+SCENE = """name = "hw-circle"
+robots = {robots}
+seed = 1
+clock = "realtime"
+duration = {duration}
+
+[robot]
+kinematics = "diffdrive"
+
+[layout]
+kind = "circle"
+spacing = 0.25
+
+[goals]
+kind = "antipodal"
+"""
+
+
+def scene_file(tmp_path: Path, robots: int = 4, duration: float = 60.0) -> Path:
+    path = tmp_path / "hw-circle.toml"
+    path.write_text(SCENE.format(robots=robots, duration=duration))
+    return path
+
+
+def start_lab(tmp_path: Path, scene: Path, spawned: list) -> tuple[subprocess.Popen, str, Path, Path]:
+    """The lab as its own process, embedding the router: (process, endpoint, hardware file, log file)."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    hw, log = tmp_path / "hw.toml", tmp_path / "lab.json"
+    cmd = [sys.executable, "-m", "sim.emulators.lab", "--scene", str(scene), "-m", "router", "-l", endpoint]
+    proc = subprocess.Popen(
+        [*cmd, "--write-hardware", str(hw), "--log", str(log)],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    spawned.append(proc)
+    assert wait_for(lambda: hw.exists() or proc.poll() is not None, 30), "the lab wrote no hardware file"
+    assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
+    return proc, endpoint, hw, log
+
+
+def stop_lab(proc: subprocess.Popen, log: Path) -> tuple[dict, str]:
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
+    return json.loads(log.read_text()), out
+
+
+def moving_commands(log: list) -> np.ndarray:
+    rows = np.array(log, float).reshape(-1, 3)
+    return rows[(rows[:, 1] != 0) | (rows[:, 2] != 0)]
+
+
+def assert_one_line_error(result: subprocess.CompletedProcess, words: str) -> None:
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and words in lines[0], result.stderr
+    assert "Traceback" not in result.stderr
+
+
+def in_process(main, args: list[str], capsys) -> subprocess.CompletedProcess:
+    """A command's main() called here (bad input is refused before any process or socket is made)."""
+    try:
+        code = main(args)
+    except SystemExit as exit:
+        code = exit.code
+    captured = capsys.readouterr()
+    return subprocess.CompletedProcess(args, code, captured.out, captured.err)
+
+
+@pytest.mark.slow
+def test_a_circle_through_emulated_robots_converges_without_contacts(tmp_path, spawned):
+    scene = scene_file(tmp_path)
+    lab, endpoint, hw, log = start_lab(tmp_path, scene, spawned)
+    out = tmp_path / "run"
+    run = run_pixelswarm(
+        "run", str(scene), "--hardware", str(hw), "-e", endpoint, "--out", str(out), "--no-video", "-q", timeout=120
+    )
+    report, printed = stop_lab(lab, log)
+    assert run.returncode == 0, run.stderr[-3000:]
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["end_reason"] == "converged"
+
+    # Every robot within 1 cm of its goal, measured on the emulated bodies themselves.
+    start = load_scene(str(scene)).poses[:, :2]
+    true_xy = np.array([robot["pose"][:2] for robot in report["robots"]])
+    assert np.all(np.hypot(*(true_xy + start).T) <= 0.01), true_xy  # antipodal goals: -start
+    assert report["contacts"] == [] and "contacts: 0" in printed
+    assert len(report["trajectory"]["t"]) > 0
+
+    # Commands reached every robot at about the control rate while it moved.
+    for robot in report["robots"]:
+        moving = moving_commands(robot["log"])
+        rate = (len(moving) - 1) / (moving[-1, 0] - moving[0, 0])
+        assert 8.0 <= rate <= 12.0, rate
+        assert robot["log"][-1][1:] == [0, 0]  # stopped when the run ended
+
+    # The run's per-robot hardware statistics reach metrics.json.
+    robots = metrics["hardware"]["robots"]
+    assert len(robots) == 4 and all(r["commands_sent"] > 0 and r["reconnects"] == 0 for r in robots)
+    assert metrics["hardware"]["not_stopped_at_end"] == []
+
+
+def agent_of(run: subprocess.Popen, robot: int) -> psutil.Process | None:
+    for p in descendants(run.pid):
+        try:
+            if any(arg.endswith(f"agents-{robot:04d}.json") for arg in p.cmdline()):
+                return p
+        except psutil.Error:
+            pass
+    return None
+
+
+@pytest.mark.slow
+def test_a_killed_agent_stops_its_robot_and_the_end_of_the_run_stops_all(tmp_path, spawned):
+    scene_path = scene_file(tmp_path)
+    router = loopback_router()
+    with Lab(load_scene(str(scene_path)), router) as lab:
+        hw = tmp_path / "hw.toml"
+        hw.write_text(lab.hardware_toml())
+        cmd = pixelswarm_cmd("run", str(scene_path), "--hardware", str(hw), "-e", router.listen[0])
+        run = subprocess.Popen(
+            [*cmd, "--out", str(tmp_path / "run"), "--no-video", "-q"], cwd=REPO, stderr=subprocess.PIPE, text=True
+        )
+        spawned.append(run)
+        victim = 0
+        # Mid-run: the robot has been driving for a second.
+        started = wait_for(lambda: len(moving_commands(lab.emulator.log(victim))) >= 10, 60)
+        assert started, "the robot never moved"
+        agent = agent_of(run, victim)
+        assert agent is not None
+        killed_at = time.monotonic()
+        agent.kill()
+        time.sleep(1.0)
+        after_kill = lab.emulator.pose(victim)
+        time.sleep(0.5)
+        still = lab.emulator.pose(victim)
+        moving_elsewhere = any(moving_commands(lab.emulator.log(r))[-1, 0] > killed_at for r in (1, 2, 3))
+        if run.poll() is None:  # the others may have converged already: the run ended by itself
+            run.send_signal(signal.SIGTERM)  # interrupted: every robot is stopped too
+        _, err = run.communicate(timeout=60)
+        logs = [np.array(lab.emulator.log(r), float) for r in range(4)]
+    assert run.returncode in (0, 130), err
+
+    log = logs[victim]
+    by_then = log[log[:, 0] <= killed_at + TIMEOUT + PERIOD]
+    assert by_then[-1, 1] == 0 and by_then[-1, 2] == 0, log[-5:]  # stopped within the timeout plus a period
+    later = log[log[:, 0] > killed_at + TIMEOUT + PERIOD]
+    assert not np.any(later[:, 1:] != 0)  # and never driven again
+    assert np.allclose(after_kill, still, atol=1e-9)  # the body stands still
+    assert moving_elsewhere  # the other robots went on
+    for other in logs:
+        assert other[-1, 1] == 0 and other[-1, 2] == 0  # all stopped at the end
+
+
+def drive(address: str, left_steps: int, right_steps: int) -> None:
+    """A command packet straight to a robot, and the connection closed: the robot keeps its speeds."""
+    host, port = address.rsplit(":", 1)
+    packet = bytes([0x80, 0, 0]) + left_steps.to_bytes(2, "little", signed=True)
+    packet += right_steps.to_bytes(2, "little", signed=True) + bytes(14)
+    with socket.create_connection((host, int(port)), timeout=5) as sock:
+        sock.sendall(packet)
+        sock.recv(1)  # its answer: the command was applied
+
+
+def test_pixelswarm_stop_halts_moving_robots(tmp_path):
+    with Epuck2Emulator(3) as emulator:
+        hw = tmp_path / "hw.toml"
+        hw.write_text(emulator.hardware_toml())
+        for address in emulator.addresses:
+            drive(address, 300, 200)
+        before = [emulator.pose(r) for r in range(3)]
+        result = run_pixelswarm("stop", "--hardware", str(hw), timeout=60)
+        assert result.returncode == 0, result.stderr
+        stopped = [emulator.pose(r) for r in range(3)]
+        time.sleep(0.3)
+        assert [emulator.pose(r) for r in range(3)] == stopped  # standing still
+        assert all(emulator.log(r)[-1][1:] == (0, 0) for r in range(3))
+        assert stopped != before  # they were moving
+
+
+BACKEND = '[backend]\nkind = "epuck2"\naddresses = ["127.0.0.1:{port}"]\n'
+POSES = '[poses]\nkind = "ros2"\ntopic = "/robot{id}/pose"\n'
+
+
+@pytest.mark.parametrize(
+    "text, words",
+    [
+        (None, "no such hardware file"),
+        (BACKEND + "comand_timeout = 0.3\n" + POSES, "unknown key 'comand_timeout'"),
+        (BACKEND, "needs a [poses] table"),
+        ('[backend]\nkind = "sim"\n' + POSES, "drives no robots"),
+    ],
+)
+def test_bad_hardware_files_are_refused_in_one_line(tmp_path, capsys, text, words):
+    hw = tmp_path / "hw.toml"
+    if text is not None:
+        hw.write_text(text.replace("{port}", "41000"))
+    out = tmp_path / "run"
+    result = in_process(cli_main, ["run", str(scene_file(tmp_path)), "--hardware", str(hw), "--out", str(out)], capsys)
+    assert_one_line_error(result, words)
+    assert not out.exists() and not out.with_name("run.partial").exists()
+
+
+def test_bad_run_options_with_hardware_are_refused(tmp_path, capsys):
+    hw = tmp_path / "hw.toml"
+    hw.write_text(BACKEND.replace("{port}", "41000") + POSES)
+    scene = str(scene_file(tmp_path))
+    for args, words in [
+        (["run", "circle", "--hardware", str(hw)], "holonomic"),
+        (["run", scene, "--hardware", str(hw), "-n", "3"], "--robots"),
+        (["run", scene, "--hardware", str(hw), "--clock", "lockstep"], "wall clock"),
+        (["stop", "--hardware", str(tmp_path / "nope.toml")], "no such hardware file"),
+        (["stop"], "--hardware"),
+    ]:
+        assert_one_line_error(in_process(cli_main, args, capsys), words)
+
+
+def test_the_lab_refuses_bad_input(capsys):
+    for args, words in [
+        (["--scene", "no-such-scene", "-m", "router", "-l", f"tcp/127.0.0.1:{free_port()}"], "no-such-scene"),
+        (["--scene", "paper-sequence"], "-e ENDPOINT"),
+        (["--scene", "paper-sequence", "-e", "tcp/127.0.0.1:7447", "--rate", "0"], "--rate"),
+    ]:
+        assert_one_line_error(in_process(lab_main, args, capsys), words)
+
+
+def test_a_bad_hardware_file_is_refused_by_the_real_command(tmp_path):
+    out = tmp_path / "run"
+    args = ("run", str(scene_file(tmp_path)), "--hardware", str(tmp_path / "nope.toml"), "--out", str(out))
+    assert_one_line_error(run_pixelswarm(*args, timeout=60), "no such hardware file")
+    assert not out.exists() and not out.with_name("run.partial").exists()
+
+
+@pytest.mark.slow
+def test_an_unreachable_robot_refuses_the_run(tmp_path):
+    with socket.socket() as sock:  # a port nobody listens on
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    hw = tmp_path / "hw.toml"
+    hw.write_text(BACKEND.replace("{port}", str(port)) + POSES)
+    out = tmp_path / "run"
+    result = run_pixelswarm("run", str(scene_file(tmp_path, robots=1)), "--hardware", str(hw), "--out", str(out))
+    assert_one_line_error(result, f"not reachable within 5 s: 0 (127.0.0.1:{port})")
+    assert not out.exists() and not out.with_name("run.partial").exists()
+
+
+@pytest.mark.slow
+def test_robots_without_poses_refuse_the_run(tmp_path):
+    with Epuck2Emulator(2) as emulator:
+        hw = tmp_path / "hw.toml"
+        hw.write_text(emulator.hardware_toml() + POSES)
+        out = tmp_path / "run"
+        result = run_pixelswarm("run", str(scene_file(tmp_path, robots=2)), "--hardware", str(hw), "--out", str(out))
+        log = emulator.log(0)
+    assert_one_line_error(result, "no pose within 5 s for robots 0, 1 (topic /robot{id}/pose)")
+    assert not out.exists() and not out.with_name("run.partial").exists()
+    assert log and log[-1][1:] == (0, 0)  # reached, and only ever told to stand still
