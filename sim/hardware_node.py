@@ -350,12 +350,11 @@ class HardwareNode:
             if not unreached and not lost:
                 return None
             if time.monotonic() >= end:
-                if unreached:
-                    where = ", ".join(f"{r} ({self.drive.where(r)})" for r in unreached)
-                    return f"robots not reachable within {startup_timeout:g} s: {where}"
-                return (
-                    f"no pose within {startup_timeout:g} s for robots {', '.join(map(str, lost))} ({self.poses_name})"
-                )
+                where = ", ".join(f"{r} ({self.drive.where(r)})" for r in unreached)
+                problems = [f"robots not reachable: {where}"] if unreached else []
+                if lost:
+                    problems.append(f"no pose for robots {', '.join(map(str, lost))} ({self.poses_name})")
+                return f"within {startup_timeout:g} s, " + "; ".join(problems)
             time.sleep(POLL)
         return "stopped during start-up"
 

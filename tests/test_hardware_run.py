@@ -267,26 +267,18 @@ def test_a_bad_hardware_file_is_refused_by_the_real_command(tmp_path):
 
 
 @pytest.mark.slow
-def test_an_unreachable_robot_refuses_the_run(tmp_path):
+def test_an_unreachable_robot_or_a_robot_without_poses_refuses_the_run(tmp_path):
     with socket.socket() as sock:  # a port nobody listens on
         sock.bind(("127.0.0.1", 0))
         port = sock.getsockname()[1]
-    hw = tmp_path / "hw.toml"
-    hw.write_text(BACKEND.replace("{port}", str(port)) + POSES)
-    out = tmp_path / "run"
-    result = run_pixelswarm("run", str(scene_file(tmp_path, robots=1)), "--hardware", str(hw), "--out", str(out))
-    assert_one_line_error(result, f"not reachable within 5 s: 0 (127.0.0.1:{port})")
-    assert not out.exists() and not out.with_name("run.partial").exists()
-
-
-@pytest.mark.slow
-def test_robots_without_poses_refuse_the_run(tmp_path):
-    with Epuck2Emulator(2) as emulator:
+    with Epuck2Emulator(1) as emulator:
         hw = tmp_path / "hw.toml"
-        hw.write_text(emulator.hardware_toml() + POSES)
+        addresses = f'addresses = ["{emulator.addresses[0]}", "127.0.0.1:{port}"]'
+        hw.write_text(f'[backend]\nkind = "epuck2"\n{addresses}\n' + POSES)  # and no motion capture
         out = tmp_path / "run"
         result = run_pixelswarm("run", str(scene_file(tmp_path, robots=2)), "--hardware", str(hw), "--out", str(out))
         log = emulator.log(0)
-    assert_one_line_error(result, "no pose within 5 s for robots 0, 1 (topic /robot{id}/pose)")
+    words = f"within 5 s, robots not reachable: 1 (127.0.0.1:{port}); no pose for robots 0, 1 (topic /robot{{id}}/pose)"
+    assert_one_line_error(result, words)
     assert not out.exists() and not out.with_name("run.partial").exists()
-    assert log and log[-1][1:] == (0, 0)  # reached, and only ever told to stand still
+    assert log and log[-1][1:] == (0, 0)  # the reachable robot was only ever told to stand still
