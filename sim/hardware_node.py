@@ -85,6 +85,7 @@ def command_timeout(config: HardwareConfig) -> float:
 
 def describe_poses(config: HardwareConfig) -> str:
     poses = config.poses
+    assert poses is not None
     return f"topic {poses.topic}" if poses_kind(config) == "ros2" else f"camera {poses.source!r}"
 
 
@@ -111,7 +112,7 @@ class WheelDrive:
         self.backend.start()
 
     def send(self, ids: list[int], left: np.ndarray, right: np.ndarray, colors: np.ndarray) -> None:
-        self.backend.set_commands(ids, left, right, colors)
+        self.backend.set_commands(ids, left.tolist(), right.tolist(), colors.tolist())
 
     def unreached(self) -> list[int]:
         return [rid for rid, s in self.backend.stats().items() if not s.connected]
@@ -174,6 +175,7 @@ class PoseSource(Protocol):
 
 
 def open_pose_source(config: HardwareConfig, settings: ZenohSettings) -> PoseSource:
+    assert config.poses is not None  # check_runnable() refuses a file without
     if poses_kind(config) == "ros2":
         from hardware.ros2 import Ros2PoseSource
 
@@ -292,7 +294,7 @@ class HardwareNode:
             self.running = False  # orphaned: the launcher died without stopping us
             self.end_reason = "launcher gone"
         for _, ev in self.control_inbox.drain():
-            if ev.data.get("kind") == "end":
+            if isinstance(ev, Event) and ev.data.get("kind") == "end":
                 self.running = False
                 self.end_reason = str(ev.data.get("reason", "end"))
 

@@ -13,13 +13,16 @@ import socket
 import subprocess
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 import numpy as np
 import psutil
 import pytest
 
-from coordinator.scene import load_scene
+from coordinator.scene import load_scene, resolve_scene_path
+from hardware.config import load_hardware
+from hardware.ros2 import Ros2PosesConfig
 from sim.cli import main as cli_main
 from sim.emulators.epuck2 import Epuck2Emulator
 from sim.emulators.lab import Lab
@@ -282,3 +285,12 @@ def test_an_unreachable_robot_or_a_robot_without_poses_refuses_the_run(tmp_path)
     assert_one_line_error(result, words)
     assert not out.exists() and not out.with_name("run.partial").exists()
     assert log and log[-1][1:] == (0, 0)  # the reachable robot was only ever told to stand still
+
+
+def test_the_shipped_lab_file_names_the_paper_sequence_robots_on_the_labs_ports():
+    config = load_hardware(REPO / "examples" / "epuck2-emulated.toml")
+    with open(resolve_scene_path("paper-sequence"), "rb") as f:
+        robots = tomllib.load(f)["robots"]
+    # python -m sim.emulators.lab --scene paper-sequence --port 41000: robot i on port 41000 + i
+    assert list(config.backend.addresses) == [f"127.0.0.1:{41000 + i}" for i in range(robots)]
+    assert config.poses.topic == Ros2PosesConfig.topic  # where the lab's motion capture publishes
