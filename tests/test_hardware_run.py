@@ -12,6 +12,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 import tomllib
 from pathlib import Path
@@ -20,19 +21,25 @@ import numpy as np
 import psutil
 import pytest
 
+from agent.core.params import RobotParams
 from coordinator.scene import load_scene, resolve_scene_path
 from hardware.config import load_hardware
-from hardware.ros2 import Ros2PosesConfig
+from hardware.ros2 import Ros2PosesConfig, Ros2PoseSource
 from sim.cli import main as cli_main
 from sim.emulators.epuck2 import Epuck2Emulator
 from sim.emulators.lab import Lab
 from sim.emulators.lab import main as lab_main
-from transport.session import free_port, loopback_router
+from sim.emulators.mocap import MocapEmulator
+from sim.hardware_node import HardwareNode, WheelDrive
+from transport.bus import Bus
+from transport.codec import Command, Pose, Tick
+from transport.session import client_of, free_port, loopback_router
 
 from .conftest import REPO, descendants, pixelswarm_cmd, run_pixelswarm, wait_for
 
 TIMEOUT = 0.3  # s: the hardware file's command_timeout (the e-puck2 default)
 PERIOD = 0.1  # s: the control period (paper Table 1)
+MOCAP_RATE = 50.0  # Hz
 
 SCENE = """name = "hw-circle"
 robots = {robots}
@@ -294,3 +301,77 @@ def test_the_shipped_lab_file_names_the_paper_sequence_robots_on_the_labs_ports(
     # python -m sim.emulators.lab --scene paper-sequence --port 41000: robot i on port 41000 + i
     assert list(config.backend.addresses) == [f"127.0.0.1:{41000 + i}" for i in range(robots)]
     assert config.poses.topic == Ros2PosesConfig.topic  # where the lab's motion capture publishes
+
+
+def test_the_hardware_node_stops_a_robot_whose_pose_is_lost_or_whose_commands_cease(tmp_path):
+    """The node between real parts: emulated robots over TCP, motion capture over rmw_zenoh, and this test
+    in the agents' place (liveliness tokens, a command per tick)."""
+    router = loopback_router()
+    client = client_of(router)
+    scene = load_scene(str(scene_file(tmp_path, robots=2, duration=60.0)), clock="realtime")
+    lost = threading.Event()  # robot 1 out of the motion capture's sight
+    with Bus(router, name="agents") as agents, Epuck2Emulator(2, poses=[(0, 0, 0), (0, 0.5, 0)]) as emulator:
+
+        def mocap(t: float) -> np.ndarray:
+            rows = np.array([emulator.pose(r) for r in range(2)])
+            rows[1] = np.nan if lost.is_set() else rows[1]  # a lost body: NaN, as mocap drivers send
+            return rows
+
+        hw = tmp_path / "hw.toml"
+        hw.write_text(emulator.hardware_toml() + POSES)
+        config = load_hardware(hw)
+        with MocapEmulator(mocap, client, rate=MOCAP_RATE), Bus(client, name="hardware") as node_bus:
+            drive = WheelDrive(config.backend, RobotParams.from_dict(scene.robot))
+            poses = Ros2PoseSource(config.poses, client)
+            node = HardwareNode(node_bus, scene, drive, poses, timeout=TIMEOUT)
+            runner = threading.Thread(target=node.run)
+            last_tick = [0]
+            try:
+                drive.start()
+                poses.start()
+                assert node.wait_for_hardware(10.0) is None
+                runner.start()
+                ticks = agents.subscribe(agents.keys.clock, Tick)
+                seen_1 = agents.subscribe(agents.keys.pose(1), Pose)
+                for robot in (0, 1):
+                    agents.declare_alive("agent", robot)
+
+                def drive_for(seconds: float, robots: tuple[int, ...]) -> None:
+                    end = time.monotonic() + seconds
+                    while time.monotonic() < end:
+                        got = ticks.get(timeout=0.2)
+                        for robot in robots if got is not None else ():
+                            tick = last_tick[0] = got[1].tick
+                            agents.publish(agents.keys.cmd(robot), Command(robot, tick, 0.0, 1, 0.05, 0.05, 0, 0, 0))
+
+                drive_for(1.5, (0, 1))
+                lost.set()
+                lost_at, lost_tick = time.monotonic(), last_tick[0]
+                drive_for(1.5, (0, 1))  # robot 1 is still commanded, but out of sight
+                quiet_at = time.monotonic()
+                time.sleep(1.0)  # and now robot 0's commands cease
+            finally:
+                node.running = False
+                if runner.is_alive():
+                    runner.join(timeout=30)
+                unreached = drive.close()
+                poses.close()
+        logs = [np.array(emulator.log(r), float) for r in range(2)]
+        shown_1 = [pose.tick for _, pose in seen_1.drain() if pose.tick != Pose.BEFORE_START]
+    stats = node.stats(unreached)["hardware"]["robots"]
+
+    # Robot 1: stopped once its pose was older than the timeout (plus a period, plus a mocap frame) ...
+    log = logs[1]
+    by_then = log[log[:, 0] <= lost_at + TIMEOUT + PERIOD + 1 / MOCAP_RATE]
+    assert by_then[-1, 1:].tolist() == [0, 0] and len(moving_commands(by_then)) > 5
+    assert not np.any(log[log[:, 0] > by_then[-1, 0], 1:])  # ... and never driven blind
+    assert stats[1]["stops"]["pose_lost"] == 1
+    # Its agent heard its pose until it was lost, then no more (so it waits).
+    assert shown_1 and max(shown_1) <= lost_tick + round((TIMEOUT + PERIOD) / PERIOD) + 1 < last_tick[0]
+    # Robot 0: stopped when its commands ceased for the timeout.
+    log = logs[0]
+    assert len(moving_commands(log[log[:, 0] > lost_at])) > 5  # it went on while robot 1 was lost
+    by_then = log[log[:, 0] <= quiet_at + TIMEOUT + PERIOD]
+    assert by_then[-1, 1:].tolist() == [0, 0]
+    assert stats[0]["stops"]["command_timeout"] == 1
+    assert unreached == []
