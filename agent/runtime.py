@@ -114,30 +114,21 @@ class HostConfig:
         )
 
 
-AUCTION_SHARE = 0.2  # of a control period from a tick's first pose, spent on auction rounds after the
-# tick's step while an instance is open
-AUCTION_SHARE_COLD = 0.8  # ... until the newest goal set's first agreement: robots wait for it. Both
-# count from the tick's first pose, not from the end of its step: with 80 ms of rounds after a step of
-# 1000 robots in 4 hosts every host fell further behind each tick until the first agreement (real time,
-# 130 s: 15 % of robot-ticks missed, most in the seconds after an image change; 7 % counted from the pose)
-# Lock-step counts message rounds instead of wall time: what a period buys must not depend on how
-# loaded the machine is (2 saturated cores made a round of 100 robots in 10 hosts 28 ms against 8 ms
-# alone, and the leaf's first keyframe went unagreed for its 30 s). A round: one message from each
-# other host. 10 per period until a goal set's first agreement is what AUCTION_SHARE_COLD buys on an
-# unloaded machine.
+AUCTION_SHARE = 0.2  # of a control period, counted from a tick's first pose, spent on auction rounds after the
+# tick's step while an instance is open (counted from the pose so that rounds never push a host behind)
+AUCTION_SHARE_COLD = 0.8  # ... until the newest goal set's first agreement: robots wait for it
+# Lock-step counts message rounds (one message from each other host), not wall time, so that what a
+# period buys does not depend on how loaded the machine is; 10 is what AUCTION_SHARE_COLD buys unloaded.
 LOCKSTEP_ROUNDS = 10
-LOCKSTEP_ROUNDS_WARM = 3  # ... and for the re-assignment instances after it (paper 5.1): at 1000 robots in 4
-# hosts a warm block took up to 20 s of display by wall time (AUCTION_SHARE buys less than one round
-# there), long enough for its assignment to be stale when adopted ...
-WARM_ROUNDS_AFTER = 0.3  # s of display a warm block has been open before it gets them: small swarms
-# agree on most blocks between ticks anyway, and paid the rounds' idle waits every tick (`make run`'s
-# 14 robots took 166 s of wall time with rounds for every warm block, 109 s with this; the 100-robot
-# leaf's realtime factor rose from 0.77 to 0.87, still 1100 of 1100 moves within 3 cm)
+LOCKSTEP_ROUNDS_WARM = 3  # ... and for the re-assignment instances after it (paper 5.1), so that a warm
+# block agrees before its assignment is stale
+WARM_ROUNDS_AFTER = 0.3  # s of display a warm block has been open before it gets them: small swarms agree on
+# most blocks between ticks anyway, and would pay the rounds' idle waits every tick
 HELLO_EVERY = 0.1  # s between a lock-step host's hellos before the first tick
 HELLO_TIMEOUT = 30.0  # s a host waits for its neighbours' hellos before it says it is alive anyway
 LOCKSTEP_IDLE = 0.15  # s of wall time without a message that ends a tick's rounds (the auction is quiet)
 LOCKSTEP_CAP = 1.0  # s of wall time a tick's rounds may take at most: the next tick's pose waits meanwhile,
-# and the world counts a missed tick after 2 s (at 1000 robots in 4 hosts a 2 s cap missed 216 robot-ticks)
+# and the world counts a missed tick after 2 s
 
 
 CELL_KEY = 1 << 32  # cells as one int64 each: cx * CELL_KEY + cy (|cy| < 2^31 cells)

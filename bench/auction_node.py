@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 from agent.assignment import AuctionLink
-from agent.core.params import RobotParams
+from agent.core.params import HOLONOMIC, RobotParams
 from transport.bus import Bus
 from transport.codec import Event, Goals
 from transport.session import add_zenoh_args, settings_from_args
@@ -44,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
         link = AuctionLink(
             bus,
             robots,
-            RobotParams(kinematics="holonomic"),
+            RobotParams(kinematics=HOLONOMIC),
             lambda e, k, goals, pos, col: agreed_at.append(time.monotonic()),
         )
         goals_inbox = bus.subscribe(bus.keys.all_of("goals"), Goals)

@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 
-from agent.core.params import RobotParams
+from agent.core.params import DIFFDRIVE, HOLONOMIC, RobotParams
 from agent.core.step import NeighbourStates, control_step
 
 from .common import write_results
@@ -76,7 +76,7 @@ def rvo2_per_agent_ms() -> float | None:
 
 def main() -> None:
     rows = ["| kinematics | batch (robots per call) | ms per robot per step |", "|---|---|---|"]
-    for kin in ["holonomic", "diffdrive"]:
+    for kin in [HOLONOMIC, DIFFDRIVE]:
         for batch, repeat in [(1, 200), (250, 5)]:
             ms = per_robot_ms(kin, batch, repeat)
             rows.append(f"| {kin} | {batch} | {ms:.3f} |")

@@ -12,11 +12,12 @@ import time
 
 import numpy as np
 
+from agent.core.params import DIFFDRIVE, HOLONOMIC
 from sim.lossy import circle_crossing, run_lossy
 
 from .common import write_results
 
-CASES = [("holonomic", 50), ("diffdrive", 30)]
+CASES = [(HOLONOMIC, 50), (DIFFDRIVE, 30)]
 LOSS = [(0.0, 0.0), (0.1, 0.5), (0.2, 0.5), (0.3, 0.5), (0.3, 0.7)]  # (lost, a tick late); first: the reference
 EXPLAIN = (
     "Antipodal circle (spacing 0.2 m, 25 s: past the crowd at the centre), tracking noise on. Each robot "

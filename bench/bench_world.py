@@ -29,9 +29,10 @@ from scipy.spatial.distance import pdist
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from agent.core.params import EPUCK as EPUCK_PARAMS  # noqa: E402
 from sim.world import Body, World  # noqa: E402
 
-EPUCK = Body("diffdrive", radius=0.045, v_max=0.13)
+EPUCK = Body.from_params(EPUCK_PARAMS)
 STEPS = 40
 REPEATS = 5
 

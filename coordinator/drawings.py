@@ -26,7 +26,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .shapes import RED, RGB, WHITE, Inside, _coverage, _disk, _union
+from .shapes import RED, RGB, WHITE, Inside, circle, coverage, union
 
 SIZE = 256  # default canvas side in pixels
 
@@ -61,7 +61,7 @@ def paint(parts: list[Part], size: int = SIZE, background: RGB = WHITE) -> np.nd
     img = np.empty((size, size, 3), np.uint8)
     img[:] = background
     for inside, colour in parts:
-        img[_coverage(inside, size, 1) > 0.5] = colour
+        img[coverage(inside, size, 1) > 0.5] = colour
     return img
 
 
@@ -165,7 +165,7 @@ def leaf_frame(k: int, size: int = SIZE) -> np.ndarray:
 
 def walker(x: float, phase: float) -> list[Part]:
     """A walking human at horizontal position x; phase in [-1, 1] swings the legs and arms."""
-    head = _disk(x, 0.19, 0.065)
+    head = circle(x, 0.19, 0.065)
     hip, neck, shoulder = (x, 0.55), (x, 0.26), (x, 0.31)
     step, swing = 0.13 * phase, 0.10 * phase
     limbs = [
@@ -175,13 +175,13 @@ def walker(x: float, phase: float) -> list[Part]:
         capsule(shoulder, (x - swing, 0.56), 0.026),
         capsule(shoulder, (x + swing, 0.56), 0.026),
     ]
-    return [(_union(head, *limbs), HUMAN)]
+    return [(union(head, *limbs), HUMAN)]
 
 
 def heap() -> list[Part]:
     """The human fallen into a heap: a lumpy mound on the ground."""
     ground = 0.86
-    lumps = _union(_disk(0.42, 0.80, 0.11), _disk(0.56, 0.77, 0.13), _disk(0.70, 0.81, 0.09))
+    lumps = union(circle(0.42, 0.80, 0.11), circle(0.56, 0.77, 0.13), circle(0.70, 0.81, 0.09))
     return [(lambda x, y: lumps(x, y) & (y < ground), HUMAN)]
 
 
@@ -189,14 +189,14 @@ def flower(bee_angle: float | None) -> list[Part]:
     """A flower (stem with a leaf, petals, centre) and a bee at `bee_angle` (radians, y down) on a
     circle round the flower head, its body along the circle as if flying round it."""
     cx, cy = 0.5, 0.40
-    stem = _union(capsule((cx, 0.88), (cx, cy), 0.022), ellipse(0.59, 0.70, 0.09, 0.035, math.radians(-30)))
-    petals = _union(
+    stem = union(capsule((cx, 0.88), (cx, cy), 0.022), ellipse(0.59, 0.70, 0.09, 0.035, math.radians(-30)))
+    petals = union(
         *(
-            _disk(cx + 0.10 * math.cos(a), cy + 0.10 * math.sin(a), 0.068)
+            circle(cx + 0.10 * math.cos(a), cy + 0.10 * math.sin(a), 0.068)
             for a in np.linspace(0, 2 * math.pi, 6, endpoint=False) + math.pi / 2
         )
     )
-    parts: list[Part] = [(stem, STEM), (petals, PETAL), (_disk(cx, cy, 0.06), FLOWER_CENTRE)]
+    parts: list[Part] = [(stem, STEM), (petals, PETAL), (circle(cx, cy, 0.06), FLOWER_CENTRE)]
     if bee_angle is not None:
         bx, by = cx + 0.33 * math.cos(bee_angle), cy + 0.30 * math.sin(bee_angle)
         parts.append((ellipse(bx, by, 0.045, 0.028, bee_angle + math.pi / 2), BEE))
@@ -225,7 +225,7 @@ def _on_circle(centre: tuple[float, float], radius: float, angle: float) -> tupl
 
 def big_bang(burst: float) -> list[Part]:
     """A hot core in a ball of fire (burst 0) that bursts into rays, long and short in turn (burst 1)."""
-    fire: list[Inside] = [_disk(*_CENTRE, 0.2 - 0.03 * burst)]
+    fire: list[Inside] = [circle(*_CENTRE, 0.2 - 0.03 * burst)]
     for k in range(8):
         a = math.pi / 8 + k * math.pi / 4
         reach = 0.2 + burst * (0.25 if k % 2 == 0 else 0.13)
@@ -234,7 +234,7 @@ def big_bang(burst: float) -> list[Part]:
                 [_on_circle(_CENTRE, 0.12, a - 0.3), _on_circle(_CENTRE, reach, a), _on_circle(_CENTRE, 0.12, a + 0.3)]
             )
         )
-    return [(_union(*fire), BANG_FIRE), (_disk(*_CENTRE, 0.09 + 0.01 * burst), BANG_CORE)]
+    return [(union(*fire), BANG_FIRE), (circle(*_CENTRE, 0.09 + 0.01 * burst), BANG_CORE)]
 
 
 def solar_system(earth_angle: float) -> list[Part]:
@@ -243,7 +243,7 @@ def solar_system(earth_angle: float) -> list[Part]:
     # as large as fits (the robots' spacing grows with the area): the Moon passes the Sun 0.023 clear
     earth = _on_circle(_CENTRE, 0.314, earth_angle)
     moon = _on_circle(earth, 0.118, 2.0 * earth_angle + math.pi / 2)
-    return [(_disk(*_CENTRE, 0.135), SUN), (_disk(*earth, 0.065), EARTH), (_disk(*moon, 0.038), MOON)]
+    return [(circle(*_CENTRE, 0.135), SUN), (circle(*earth, 0.065), EARTH), (circle(*moon, 0.038), MOON)]
 
 
 # continents as ellipses (centre, semi-axes, angle) in units of the Earth's radius, about its centre
@@ -253,7 +253,7 @@ _CONTINENTS = (((-0.38, -0.28), 0.36, 0.22, 0.35), ((0.34, 0.05), 0.22, 0.42, -0
 def planet_earth(radius: float) -> list[Part]:
     """The Earth seen from close by: ocean and three continents, `radius` of the canvas (a zoom)."""
     cx, cy = _CENTRE
-    globe = _disk(cx, cy, radius)
+    globe = circle(cx, cy, radius)
     parts: list[Part] = [(globe, EARTH)]
     for (u, v), a, b, angle in _CONTINENTS:
         land = ellipse(cx + u * radius, cy + v * radius, a * radius, b * radius, angle)
@@ -270,12 +270,12 @@ def sea(microbe: tuple[float, float], fish: tuple[float, float] | None) -> list[
         return ((x - cx) ** 2 + (y - cy) ** 2 < 0.42**2) & (y > surface)
 
     mx, my = microbe
-    bumps = [_disk(mx + 0.1 * math.cos(a), my + 0.068 * math.sin(a), 0.026) for a in (0.4, 1.9, 3.5, 5.0)]
-    parts: list[Part] = [(water, SEA), (_union(ellipse(mx, my, 0.1, 0.068, 0.3), *bumps), MICROBE)]
+    bumps = [circle(mx + 0.1 * math.cos(a), my + 0.068 * math.sin(a), 0.026) for a in (0.4, 1.9, 3.5, 5.0)]
+    parts: list[Part] = [(water, SEA), (union(ellipse(mx, my, 0.1, 0.068, 0.3), *bumps), MICROBE)]
     if fish is not None:
         fx, fy = fish
         tail = polygon([(fx + 0.12, fy), (fx + 0.23, fy - 0.08), (fx + 0.23, fy + 0.08)])
-        parts.append((_union(ellipse(fx, fy, 0.16, 0.08), tail), FISH))
+        parts.append((union(ellipse(fx, fy, 0.16, 0.08), tail), FISH))
     return parts
 
 
@@ -284,7 +284,7 @@ def dinosaur(stretch: float) -> list[Part]:
     base = (0.56, 0.53)
     head = (0.72 - 0.06 * stretch, 0.42 - 0.29 * stretch)
     legs = [capsule((x, 0.6), (x, 0.82), 0.028) for x in (0.30, 0.37, 0.48, 0.55)]
-    body = _union(
+    body = union(
         ellipse(0.42, 0.58, 0.19, 0.1),
         *legs,
         capsule((0.26, 0.58), (0.1, 0.65), 0.03),
@@ -306,7 +306,7 @@ def person(arms_up: bool) -> list[Part]:
         + [capsule(hip, f, 0.038) for f in feet]
         + [capsule(shoulder, h, 0.034) for h in hands]
     )
-    return [(_union(_disk(x, 0.19, 0.07), *limbs), PERSON)]
+    return [(union(circle(x, 0.19, 0.07), *limbs), PERSON)]
 
 
 def history_frames() -> list[list[Part]]:

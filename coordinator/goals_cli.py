@@ -14,7 +14,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from .goals import DEFAULT_ROBOT_RADIUS, GoalError, goals_from_prepared, prepare_image
+from transport import epuck
+
+from .goals import GoalError, goals_from_prepared, prepare_image
 from .goals.cvt import MAX_ITER, RELAX, TOLERANCE
 from .goals.pipeline import METHODS
 
@@ -76,9 +78,9 @@ def add_goals_parser(subparsers: Any) -> None:
     p.add_argument(
         "--robot-radius",
         type=float,
-        default=DEFAULT_ROBOT_RADIUS,
+        default=epuck.RADIUS,
         metavar="METRES",
-        help=f"robot radius r_A (default {DEFAULT_ROBOT_RADIUS}, the e-puck)",
+        help=f"robot radius r_A (default {epuck.RADIUS}, the e-puck)",
     )
     p.add_argument(
         "--conservative", action="store_true", help="with --arena, require twice the minimum arena (2 K_r, paper 4.4)"

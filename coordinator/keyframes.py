@@ -32,13 +32,14 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial.distance import cdist
 
-from .goals import DEFAULT_ROBOT_RADIUS, GoalError, GoalSet, PreparedImage, goals_from_prepared, prepare_image
+from transport import epuck
+
+from .goals import IMAGE_SUFFIXES, GoalError, GoalSet, PreparedImage, goals_from_prepared, prepare_image
 from .goals.allocate import allocate_robots
-from .goals.family import _rescale
+from .goals.family import rescale
 from .goals.resize import from_arena
 from .keyframe_motion import MIN_CORRELATION, RegionShape, estimate_motion, fit_count, region_shape
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 # scales of the correspondence cost: a Delta E of 25, a shift of a quarter of the image and an area
 # ratio of 2 each cost 1
 COLOR_SCALE, SHIFT_SCALE, AREA_SCALE = 25.0, 0.25, float(np.log(2.0))
@@ -134,14 +135,13 @@ def goal_matching(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     Goals.prices): robots stand within millimetres of their goals once an image has formed, so the
     prices are nearly in equilibrium for the real positions, and the agents' auction starts from the
     carried claims and only corrects what the millimetres change. Computed once here, not by every
-    agent host: at 1000 goals it takes 0.3-0.5 s, and 4 hosts on 2 cores that did it at once were
-    late with their commands for up to 2 s while the robots drove.
+    agent host: hosts that all did it at once would be late with their commands while robots drive.
 
     The matching is scipy's linear_sum_assignment. Its prices are the LP duals, which scipy does not
     return: with old goal i matched to new goal j, equilibrium asks p_j <= p_k + c_ik - c_ij for every
     k, so p is the shortest-path distance to each goal in the graph of those edges (no negative
     cycle: the matching is optimal), found by relaxing every edge at once until nothing changes
-    (0.1 s at 1000 goals, against 4.6 s for scipy's csgraph.bellman_ford on the same dense graph)."""
+    (on this dense graph far faster than scipy's csgraph.bellman_ford)."""
     cost, previous = _matching(a, b)
     # edge k -> j: what goal k costs the robot on j's old goal more than goal j does
     edge = cost[previous].T - cost[previous, np.arange(len(previous))][None, :]
@@ -275,7 +275,7 @@ def keyframe_goals(
     arena: float | None = None,
     method: str = "cvt",
     seed: int = 0,
-    robot_radius: float = DEFAULT_ROBOT_RADIUS,
+    robot_radius: float = epuck.RADIUS,
     region_counts: dict[int, int] | None = None,
     min_correlation: float = MIN_CORRELATION,
     scale_init: bool = True,
@@ -345,7 +345,7 @@ def keyframe_goals(
         reports.append(FrameReport(f, mode, reason, motions, int(gs.params["iterations"]), time.perf_counter() - t0))
         sets.append(gs)
     shared = float(arena) if arena is not None else max(s.arena for s in sets)
-    sets = [_rescale(s, shared) for s in sets]
+    sets = [rescale(s, shared) for s in sets]
     for r in reports:  # translations in metres of the common arena
         r.regions = [
             RegionMotion(

@@ -15,7 +15,7 @@ raises ``SceneError`` with one line saying what is wrong and how to fix it.
     [[steps]]                # an image sequence: shape = "disk" or image = "a.png", hold = 25.0 (see coordinator.steps)
                              # [steps.motion]: a dynamic image, the goal set moves (coordinator.motion)
     [animation]              # keyframes = "story" | "folder/" | ["a.png", ...], frame_time = 5.0
-                             # (an animation, see coordinator.animation)
+                             # (an animation, see coordinator.keyframe_steps)
     [arena]                  # size = [width, height] (centred on the origin), or "auto"
     [[obstacles]]            # vertices = [[x, y], ...] counter-clockwise
     [[events]]               # t = 10.0, kind = "teleport", robot = 3, pose = [x, y, theta]
@@ -35,19 +35,19 @@ from typing import Any
 
 import numpy as np
 
-from .animation import FrameGoals, folder_table, parse_animation
-from .goals import GoalError
+from transport import epuck
+
+from .goals import IMAGE_SUFFIXES, GoalError
+from .keyframe_steps import FrameGoals, folder_table, parse_animation
 from .motion import check_window
 from .steps import ImageStep, StepGoals, parse_step
 
 SCENE_DIR = Path(__file__).parent / "scenes"
 LAYOUTS = ("circle", "grid", "random", "rows", "blocks", "file", "list")
 GOAL_KINDS = ("antipodal", "swap", "list", "stay", "none", "image")
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 CLOCKS = ("lockstep", "realtime")
 ENGINES = ("distributed", "central")
 ASSIGNMENTS = ("auction", "optimal")
-DEFAULT_RADIUS = 0.045
 
 
 class SceneError(ValueError):
@@ -92,7 +92,7 @@ class Scene:
 
     @property
     def radius(self) -> float:
-        return float(self.robot.get("radius", DEFAULT_RADIUS))
+        return float(self.robot.get("radius", epuck.RADIUS))
 
     @property
     def pixel_robots(self) -> list[int]:
@@ -211,7 +211,7 @@ def scene_from_dict(
     if not isinstance(n, int) or isinstance(n, bool) or n < 1:
         raise SceneError(f"{where}: robots must be a whole number >= 1, not {n!r}")
     robot = dict(data.get("robot", {}))
-    radius = robot.get("radius", DEFAULT_RADIUS)
+    radius = robot.get("radius", epuck.RADIUS)
     if not _positive(radius):
         raise SceneError(f"{where}: robot radius must be a positive number of metres, not {radius!r}")
     animation = _wrap(lambda: parse_animation(data["animation"], source), where) if "animation" in data else None
@@ -219,7 +219,7 @@ def scene_from_dict(
     if animation is not None and ("steps" in data or "goals" in data):
         raise SceneError(f"{where}: give one of [animation], [[steps]] or [goals], not several")
     if duration is None:
-        duration = data.get("duration", sum(s.hold for s in steps) if steps else 120.0)
+        duration = data.get("duration", sum(s.hold for s in steps) if steps else Scene.duration)
     if not _positive(duration):
         raise SceneError(f"{where}: duration must be a positive number of seconds")
     scene = Scene(
@@ -231,15 +231,15 @@ def scene_from_dict(
         arena=(0.0, 0.0, 0.0, 0.0),
         obstacles=[],
         events=list(data.get("events", [])),
-        clock=clock or data.get("clock", "lockstep"),
-        engine=data.get("engine", "distributed"),
-        assignment=data.get("assignment", "auction"),
-        agents_per_process=data.get("agents_per_process", 1),
-        deadline=data.get("deadline", 2.0),
+        clock=clock or data.get("clock", Scene.clock),
+        engine=data.get("engine", Scene.engine),
+        assignment=data.get("assignment", Scene.assignment),
+        agents_per_process=data.get("agents_per_process", Scene.agents_per_process),
+        deadline=data.get("deadline", Scene.deadline),
         duration=float(duration),
-        seed=int(seed if seed is not None else data.get("seed", 1)),
+        seed=int(seed if seed is not None else data.get("seed", Scene.seed)),
         noise=_noise(data.get("noise", {}), where),
-        converge_hold=float(data.get("end", {}).get("converge_hold", 1.0)),
+        converge_hold=float(data.get("end", {}).get("converge_hold", Scene.converge_hold)),
         source=source,
     )
     if scene.clock not in CLOCKS:
@@ -425,8 +425,8 @@ def scene_goal_set(scene: Scene, step: int, robots: int) -> tuple[np.ndarray, np
 
 def folder_scene(path: str, robots: int) -> dict[str, Any]:
     """The scene for `pixelswarm run folder/ --robots N`: a grid of e-pucks playing the folder's images
-    as keyframes in file-name order, with coordinator.animation's default timing (30 s to form the first
-    keyframe, then one every 5 s, the last shown 5 s more)."""
+    as keyframes in file-name order, with coordinator.keyframe_steps' default timing (30 s to form the
+    first keyframe, then one every 5 s, the last shown 5 s more)."""
     return {
         "name": Path(path).resolve().name,
         "robots": robots,

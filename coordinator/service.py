@@ -30,7 +30,7 @@ from .scene import Scene, SceneError, load_scene, scene_goal_set
 SETTLE_S = 0.5  # a change in the live robots must hold this long before a new goal set (debounce)
 BODY_WAIT_S = 1.0  # display seconds to wait for the tracked position of a dead robot's body (display
 # time, not wall time: a lock-step world waits up to its deadline for the dead robot's command before
-# its next tick, and a wall-clock wait ran out before the body's first pose on a loaded machine)
+# its next tick, so on a loaded machine a wall-clock wait can run out before the body's first pose)
 
 
 def clear_of_bodies(goals: np.ndarray, bodies: np.ndarray, clearance: float) -> np.ndarray:
@@ -207,8 +207,8 @@ class Coordinator:
         return self._matching[1]
 
     def _prepare_next(self) -> None:
-        """While an image is held, the next one's warm start, PREPARE_AHEAD s before it is due: at
-        1000 goals the matching takes 0.3-0.5 s, which would otherwise delay the change."""
+        """While an image is held, the next one's warm start, PREPARE_AHEAD s before it is due: the
+        matching of a large goal set would otherwise delay the change."""
         if self.shown is None or self.t is None or self.current is None:
             return
         step, robots = self.shown[0] + 1, self.shown[1]

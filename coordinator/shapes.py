@@ -27,11 +27,14 @@ def _rect(x0: float, x1: float, y0: float, y1: float) -> Inside:
     return lambda x, y: (x >= x0) & (x < x1) & (y >= y0) & (y < y1)
 
 
-def _disk(cx: float, cy: float, r: float) -> Inside:
+def circle(cx: float, cy: float, r: float) -> Inside:
+    """The disk of radius r around (cx, cy)."""
     return lambda x, y: (x - cx) ** 2 + (y - cy) ** 2 < r * r
 
 
-def _union(*parts: Inside) -> Inside:
+def union(*parts: Inside) -> Inside:
+    """Inside any of the parts."""
+
     def inside(x: np.ndarray, y: np.ndarray) -> np.ndarray:
         out = np.zeros(np.shape(x), bool)
         for p in parts:
@@ -42,7 +45,7 @@ def _union(*parts: Inside) -> Inside:
 
 
 def _ring(cx: float, cy: float, r_out: float, r_in: float) -> Inside:
-    outer, inner = _disk(cx, cy, r_out), _disk(cx, cy, r_in)
+    outer, inner = circle(cx, cy, r_out), circle(cx, cy, r_in)
     return lambda x, y: outer(x, y) & ~inner(x, y)
 
 
@@ -62,21 +65,21 @@ def _triangle(cx: float, cy: float, r: float) -> Inside:
 
 # name -> list of (part, default colour); proportions measured on the paper's Fig. 4 (512 px canvas)
 _SHAPES: dict[str, list[tuple[Inside, RGB]]] = {
-    "disk": [(_disk(0.5, 0.5, 150 / 512), RED)],
+    "disk": [(circle(0.5, 0.5, 150 / 512), RED)],
     "disk_and_line": [
-        (_disk(190 / 512, 0.5, 120 / 512), RED),
+        (circle(190 / 512, 0.5, 120 / 512), RED),
         (_rect(380 / 512, 420 / 512, 80 / 512, 430 / 512), BLUE),
     ],
     "line": [(_rect(236 / 512, 276 / 512, 60 / 512, 452 / 512), BLUE)],
     "L": [
         (
-            _union(_rect(140 / 512, 220 / 512, 80 / 512, 430 / 512), _rect(140 / 512, 400 / 512, 350 / 512, 430 / 512)),
+            union(_rect(140 / 512, 220 / 512, 80 / 512, 430 / 512), _rect(140 / 512, 400 / 512, 350 / 512, 430 / 512)),
             RED,
         )
     ],
     "T": [
         (
-            _union(_rect(100 / 512, 412 / 512, 80 / 512, 160 / 512), _rect(216 / 512, 296 / 512, 80 / 512, 440 / 512)),
+            union(_rect(100 / 512, 412 / 512, 80 / 512, 160 / 512), _rect(216 / 512, 296 / 512, 80 / 512, 440 / 512)),
             BLUE,
         )
     ],
@@ -87,7 +90,7 @@ _SHAPES: dict[str, list[tuple[Inside, RGB]]] = {
 SHAPES = tuple(_SHAPES)
 
 
-def _coverage(inside: Inside, size: int, ss: int) -> np.ndarray:
+def coverage(inside: Inside, size: int, ss: int) -> np.ndarray:
     """Fraction of each pixel covered by the shape, from ss x ss samples per pixel."""
     offs = (np.arange(ss) + 0.5) / ss
     g = (np.arange(size)[:, None] + offs[None, :]).ravel() / size
@@ -99,7 +102,7 @@ def part_masks(name: str, size: int = 256) -> list[np.ndarray]:
     """Ground truth: the pixel mask (pixel centre inside) of each coloured part of a shape."""
     if name not in _SHAPES:
         raise ValueError(f"unknown shape {name!r}; choose from {', '.join(SHAPES)}")
-    return [_coverage(inside, size, 1) > 0.5 for inside, _ in _SHAPES[name]]
+    return [coverage(inside, size, 1) > 0.5 for inside, _ in _SHAPES[name]]
 
 
 def shape_mask(name: str, size: int = 256) -> np.ndarray:
@@ -131,7 +134,7 @@ def draw(
     img[:] = background
     total = np.zeros((size, size))
     for (inside, _), col in zip(parts, cols):
-        cov = _coverage(inside, size, 4 if antialias else 1)
+        cov = coverage(inside, size, 4 if antialias else 1)
         img = img * (1 - cov[..., None]) + np.asarray(col, float) * cov[..., None]
         total = np.maximum(total, cov)
     out = np.clip(np.round(img), 0, 255).astype(np.uint8)
@@ -174,7 +177,7 @@ def photo_like(size: int = 256, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     vignette = 1.0 - 0.35 * ((x - 0.45) ** 2 + (y - 0.5) ** 2)
     bg = np.stack([205 + 30 * x - 20 * y, 200 + 15 * x - 25 * y, 185 - 10 * x - 30 * y], axis=-1)
     img = bg * vignette[..., None]
-    body = _disk(0.5, 0.56, 0.25)(x, y) | (((x - 0.5) / 0.3) ** 2 + ((y - 0.6) / 0.22) ** 2 < 1)
+    body = circle(0.5, 0.56, 0.25)(x, y) | (((x - 0.5) / 0.3) ** 2 + ((y - 0.6) / 0.22) ** 2 < 1)
     leaf = ((x - 0.6) / 0.1) ** 2 + ((y - 0.25) / 0.05) ** 2 < 1
     shade = 1.0 - 0.45 * np.clip(np.hypot(x - 0.4, y - 0.45) / 0.4, 0, 1)
     orange = np.array([235.0, 120.0, 30.0])

@@ -45,7 +45,7 @@ class ImageStep:
     method: str = "cvt"  # Lloyd with the density of eq. 2, or k-means
     motion: StepMotion | None = None  # a dynamic image (paper 7.4.1): the goal set moves (eq. 28)
     frame_period: float = 0.0  # an animation keyframe's K_f dt (paper 6.2, eq. 27); 0: not a keyframe
-    keyframe: int | None = None  # an animation keyframe: its index (goals from coordinator.animation)
+    keyframe: int | None = None  # an animation keyframe: its index (goals from coordinator.keyframe_steps)
 
 
 def parse_step(data: Any, label: str, source: str = "") -> ImageStep:
@@ -76,10 +76,13 @@ def parse_step(data: Any, label: str, source: str = "") -> ImageStep:
         raise GoalError(f"{label}: method must be one of {', '.join(METHODS)}, not {method!r}")
     name = str(data.get("name", shape if shape is not None else image.stem))  # type: ignore[union-attr]
     motion = parse_motion(data["motion"], label) if "motion" in data else None
-    return ImageStep(name, image, shape, float(hold), _region_counts(data.get("region_counts"), label), method, motion)
+    return ImageStep(
+        name, image, shape, float(hold), parse_region_counts(data.get("region_counts"), label), method, motion
+    )
 
 
-def _region_counts(value: Any, label: str) -> dict[int, int] | None:
+def parse_region_counts(value: Any, label: str) -> dict[int, int] | None:
+    """A scene's ``region_counts`` table (region id -> robots), checked; None when it has none."""
     if value is None:
         return None
     try:

@@ -363,7 +363,7 @@ def _scene_goals(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     message = scene_goal_message(scene)
     if message is None:
         return goals, np.full((len(goals), 3), 40, np.uint8)
-    heard = decode(message.encode(), Goals)
+    heard = _as_heard(message)
     has_goal = np.isfinite(goals).all(axis=1)[:, None]
     return np.where(has_goal, heard.positions, np.nan), np.where(has_goal, heard.colors, 40).astype(np.uint8)
 
@@ -371,9 +371,19 @@ def _scene_goals(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
 def _step_goals(scene: Scene, k: int, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray, GoalTiming]:
     """Step k's goal set, colours and timing as the agents decode them from the coordinator's message."""
     goals, colors = scene_goal_set(scene, k, len(pixels))
-    message = Goals(1, 0, 0.0, len(goals), goals, colors, k, 0.0, pixels, **step_timing(scene, k))
-    heard = decode(message.encode(), Goals)
+    message = Goals(1, 0, 0.0, len(goals), goals, colors, k, 0.0, pixels)
+    for name, value in step_timing(scene, k).items():
+        setattr(message, name, value)
+    heard = _as_heard(message)
     return heard.positions, heard.colors, timing_of(heard)
+
+
+def _as_heard(message: Goals) -> Goals:
+    """A goal set as the agents decode it (the wire rounds its positions and timing)."""
+    heard = decode(message.encode(), Goals)
+    if not isinstance(heard, Goals):
+        raise ValueError(f"goal set {message.epoch} does not survive its own encoding")
+    return heard
 
 
 def _states(params, measured: np.ndarray, pose: np.ndarray, velocity: np.ndarray, t: float, movers: Movers) -> Heard:

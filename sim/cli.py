@@ -10,9 +10,11 @@ import tomllib
 import typing
 from pathlib import Path
 
+from agent.core.params import EPUCK
 from coordinator.goals_cli import add_goals_parser
-from coordinator.scene import Scene, SceneError, load_scene, resolve_scene_path, shipped_scenes
+from coordinator.scene import CLOCKS, ENGINES, Scene, SceneError, load_scene, resolve_scene_path, shipped_scenes
 from transport.faults import parse_faults
+from transport.security import SecurityError, check_folder, router_config
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, open_session, settings_from_args
 
 from .certs_cli import add_certs_parser
@@ -24,7 +26,7 @@ class UsageError(Exception):
     """Bad input from the user: one line, exit code 2."""
 
 
-def _positive_int(text: str) -> int:
+def positive_int(text: str) -> int:
     try:
         value = int(text)
     except ValueError:
@@ -52,14 +54,14 @@ def build_parser() -> argparse.ArgumentParser:
         "an image (PNG, JPEG, BMP, TIFF) to display, or a folder of keyframe images "
         "to play as an animation (file-name order)",
     )
-    run.add_argument("--robots", "-n", type=_positive_int, help="number of robots (overrides the scene)")
+    run.add_argument("--robots", "-n", type=positive_int, help="number of robots (overrides the scene)")
     run.add_argument("--seed", type=int, help="random seed (overrides the scene)")
-    run.add_argument("--clock", choices=["realtime", "lockstep"], help="clock (overrides the scene)")
+    run.add_argument("--clock", choices=CLOCKS, help="clock (overrides the scene)")
     run.add_argument("--duration", type=float, help="seconds of display time at most (overrides the scene)")
     run.add_argument("--out", type=Path, help="run directory (default runs/<UTC time>-<scene>)")
     run.add_argument(
         "--engine",
-        choices=["distributed", "central"],
+        choices=ENGINES,
         help="distributed: one process per robot over zenoh (default, unless the scene says "
         'engine = "central"); central: every robot stepped in one call with perfect '
         "information (reference, and fast for large swarms)",
@@ -68,7 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument(
         "--agents-per-process",
         "-k",
-        type=_positive_int,
+        type=positive_int,
         metavar="K",
         help="robots per agent process (default 1: one process per robot, unless the scene "
         "says agents_per_process = K)",
@@ -93,6 +95,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="spread agent processes over these routers, round robin (repeatable; default: ours)",
     )
     run.add_argument("--display", default="default", help="display name (key prefix), for several swarms")
+    run.add_argument(
+        "--secure",
+        type=Path,
+        metavar="DIR",
+        help="a secured bus from a folder made by `pixelswarm certs`: mutual TLS, and each process "
+        "allowed only its role's keys (docs/security.md); one robot per agent process",
+    )
     run.add_argument(
         "--hardware",
         type=Path,
@@ -133,6 +142,10 @@ def _hardware_scene(args: argparse.Namespace) -> Scene:
         raise UsageError("--hardware runs on the wall clock: drop --clock lockstep")
     if args.robots is not None:
         raise UsageError("--hardware takes the number of robots from the hardware file: drop --robots")
+    if args.secure is not None:
+        raise UsageError(
+            "--hardware cannot be combined with --secure yet: its pose source joins outside the access rules"
+        )
     try:
         return load_run(str(args.hardware), args.scene, args.seed, args.duration)[1]
     except (HardwareError, HardwareConfigError, SceneError) as err:
@@ -158,6 +171,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.hardware is None and (args.engine or scene.engine) == "central":
         from .central import run_central
 
+        if args.secure is not None:
+            raise UsageError("--secure secures the bus between processes; the central engine has none")
+
         if any(e["kind"] == "fail" for e in scene.events):
             raise UsageError("fail events (agent processes killed) need the distributed engine")
 
@@ -168,9 +184,11 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise UsageError("--zenoh-config is not supported here: each process of a run needs its own role's file")
     if args.mode != "router":
         raise UsageError("pixelswarm run embeds a router; to join an existing one use -e tcp/HOST:PORT")
-    if args.listen:
-        router = ZenohSettings(mode="router", listen=list(args.listen), connect=list(args.connect))
     k = args.agents_per_process or scene.agents_per_process
+    if args.secure is not None:
+        router = _secured_router(args, scene.robots, k)
+    elif args.listen:
+        router = ZenohSettings(mode="router", listen=list(args.listen), connect=list(args.connect))
     options = RunOptions(
         out=out,
         video=args.video,
@@ -182,6 +200,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         agent_routers=list(args.agents_connect),
         deadline=scene.deadline if args.deadline is None else args.deadline,
         progress=None if args.quiet else sys.stderr,
+        secure=args.secure,
         hardware=args.hardware,
     )
     try:
@@ -196,6 +215,28 @@ def cmd_run(args: argparse.Namespace) -> int:
         return 1
     print(path)
     return 0
+
+
+def _secured_router(args: argparse.Namespace, robots: int, k: int) -> ZenohSettings | None:
+    """`run --secure DIR`: the embedded router's settings if --listen names its endpoint (None: the
+    launcher picks a free loopback port); UsageError for anything a secured run cannot do."""
+    if k > 1:
+        raise UsageError(
+            f"--secure runs one robot per agent process, not {k} (-k or the scene's agents_per_process): "
+            "the access rules let a process speak for its own robot only"
+        )
+    if args.connect or args.agents_connect:
+        raise UsageError(
+            "--secure embeds its router and every process joins it; it cannot be used with -e or --agents-connect"
+        )
+    plain = [e for e in args.listen if not e.startswith("tls/")]
+    if plain:
+        raise UsageError(f"--secure listens with TLS only: --listen tls/HOST:PORT, not {plain[0]}")
+    try:
+        args.secure = check_folder(args.secure, robots, display=args.display)
+        return router_config(args.secure, args.listen) if args.listen else None
+    except SecurityError as err:
+        raise UsageError(f"--secure: {err}") from None
 
 
 def cmd_router(args: argparse.Namespace) -> int:
@@ -251,7 +292,7 @@ def cmd_scenes(args: argparse.Namespace) -> int:
             (
                 name,
                 int(data.get("robots", 0)),
-                data.get("robot", {}).get("kinematics", "diffdrive"),
+                data.get("robot", {}).get("kinematics", EPUCK.kinematics),
                 data.get("description", ""),
             )
         )

@@ -34,7 +34,6 @@ from transport.bus import Bus
 from transport.codec import Command, Commands, Event, Pose, Poses, Tick, Truth
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, settings_from_args
 
-DEFAULT_TIMEOUT = 0.3  # s: for a backend whose hardware file names no command timeout
 STARTUP_TIMEOUT = 5.0  # s: every robot reached and every robot's pose seen, or the run is refused
 AGENTS_TIMEOUT = 60.0  # s: the agents' start-up (as the world node waits)
 BEFORE_START_EVERY = 0.2  # s: poses to robots whose agent is not live yet
@@ -80,7 +79,7 @@ def check_runnable(config: HardwareConfig) -> int:
 def command_timeout(config: HardwareConfig) -> float:
     """The hardware file's own command timeout (e-puck2 `command_timeout`, ROS 2 `watchdog`)."""
     backend = config.backend
-    return float(getattr(backend, "command_timeout", getattr(backend, "watchdog", DEFAULT_TIMEOUT)))
+    return float(backend.command_timeout if backend_kind(config) == "epuck2" else backend.watchdog)
 
 
 def describe_poses(config: HardwareConfig) -> str:
@@ -194,7 +193,7 @@ class HardwareNode:
         drive: Drive,
         poses: PoseSource,
         *,
-        timeout: float = DEFAULT_TIMEOUT,
+        timeout: float,
         pose_frames: bool = False,
         poses_name: str = "the pose source",
     ) -> None:
@@ -307,7 +306,7 @@ class HardwareNode:
         # published, so the coordinator keeps goals clear of it); a robot out of sight is not.
         shown = np.flatnonzero(self.ever_live & self.tracked)
         if self.pose_frames:
-            frame = np.zeros(len(shown), Poses._item)
+            frame = np.zeros(len(shown), Poses.RECORD)
             frame["robot"] = shown
             frame["x"], frame["y"], frame["theta"] = self.pose[shown].T
             self.bus.publish(self.keys.poses, Poses(self.tick, t, 0, len(frame), frame))

@@ -26,7 +26,8 @@ from coordinator.scene import Scene
 from transport.bus import Bus
 from transport.codec import Event
 from transport.faults import FaultPlan, format_faults
-from transport.session import ZenohSettings, client_of, loopback_router
+from transport.security import client_config, robot_role, router_config
+from transport.session import ZenohSettings, client_of, free_port, loopback_router
 
 from .hardware_node import ERROR as HARDWARE_ERROR
 from .output import write_run
@@ -47,6 +48,7 @@ class RunOptions:
     deadline: float = 2.0
     progress: TextIO | None = sys.stderr
     startup_timeout: float = 90.0
+    secure: Path | None = None  # a folder from `pixelswarm certs`: each process joins as its role (docs/security.md)
     hardware: Path | None = None  # a hardware file: real robots (sim/hardware_node.py) in place of the world
 
 
@@ -76,6 +78,10 @@ class Launcher:
         self.run_dir = RunDir(options.out)
         self.failures = sorted((e for e in scene.events if e["kind"] == "fail"), key=lambda e: e["t"])
         self.failed: list[dict[str, Any]] = []
+        if options.secure is not None and options.agents_per_process > 1:
+            raise ValueError("a secured run has one robot per agent process: the access rules give each its own keys")
+        if options.secure is not None and (options.connect or options.agent_routers):
+            raise ValueError("a secured run embeds its router: every process joins it, the recorder in its session")
 
     # --- processes ----------------------------------------------------------------------------
     def _spawn(
@@ -127,7 +133,11 @@ class Launcher:
             path = cfg_dir / f"agents-{h:04d}.json"
             path.write_text(config.to_json())
             routers = self.opt.agent_routers
-            client = ZenohSettings(mode="client", connect=[routers[h % len(routers)]]) if routers else None
+            client = (
+                ZenohSettings(mode="client", connect=[routers[h % len(routers)]])
+                if routers
+                else self._as(robot_role(robots[0]))
+            )
             self._spawn(f"agent-{h:04d}", "agent", ["--config", str(path), *faults], robots, client)
 
     @property
@@ -229,7 +239,7 @@ class Launcher:
             settings = ZenohSettings(mode="client", connect=list(self.opt.connect))
             self.client = settings
         else:
-            settings = self.opt.router or loopback_router()
+            settings = self.opt.router or self._embedded_router()
             self.client = client_of(settings)
         bus = Bus(settings, self.opt.display, name="launcher")
         self.world_exit: int | None = None
@@ -243,7 +253,7 @@ class Launcher:
                 f"[{self.scene.name}] {self.scene.robots} robots, {self.scene.clock} clock, router {endpoint}",
                 force=True,
             )
-            coord = self._spawn("coordinator", "coordinator.service", self._scene_args(), [])
+            coord = self._spawn("coordinator", "coordinator.service", self._scene_args(), [], self._as("coordinator"))
             self._wait_alive(recorder, "coordinator", 1, coord)
             self._start_agents()
             world_args = self._scene_args() + [
@@ -256,7 +266,7 @@ class Launcher:
             ]
             world_args += ["--pose-frames"] if self._frames else []
             if self.opt.hardware is None:
-                self._spawn("world", "sim.world_node", world_args, [])
+                self._spawn("world", "sim.world_node", world_args, [], self._as("world"))
             end_reason = self._loop(bus, recorder)
             self._check_children(recorder)  # an agent that died as the world finished is still a crash
             self._stop_children()
@@ -276,7 +286,8 @@ class Launcher:
         """The hardware node stands in for the world; it is started first, since the agents learn where
         they are from it, and is alive once every robot is reached and tracked."""
         args = self._scene_args() + ["--hardware", str(self.opt.hardware), "--duration", str(self.scene.duration)]
-        child = self._spawn("world", "sim.hardware_node", args + (["--pose-frames"] if self._frames else []), [])
+        args += ["--pose-frames"] if self._frames else []
+        child = self._spawn("world", "sim.hardware_node", args, [], self._as("world"))
         try:
             self._wait_alive(rec, "world", 1, child)
         except RuntimeError:
@@ -285,6 +296,17 @@ class Launcher:
             if refusal is not None:
                 raise HardwareStartError(refusal.removeprefix(HARDWARE_ERROR)) from None
             raise
+
+    def _embedded_router(self) -> ZenohSettings:
+        """A router on a free loopback port; in a secured run, with mutual TLS and the folder's rules."""
+        if self.opt.secure is None:
+            return loopback_router()
+        return router_config(self.opt.secure, f"tls/127.0.0.1:{free_port()}")
+
+    def _as(self, role: str) -> ZenohSettings | None:
+        """A secured run: the session of a child of this role (None: the run's plain client). The
+        launcher's own session, the router's, is outside the rules: it records and ends the run."""
+        return None if self.opt.secure is None else client_config(self.opt.secure, role, self.client.connect)
 
     def _wait_alive(self, rec: Recorder, role: str, count: int, child: Child) -> None:
         start = time.monotonic()

@@ -2,19 +2,17 @@
 numba: every pair within that distance lies in the 3 x 3 cells around either one's cell.
 
 - `nearest_within`: each robot's nearest neighbours within reach (the central engine's neighbour
-  search, sim.central). scipy's kd-tree took about 0.7 ms for 1000 robots plus the bookkeeping
-  around it; the grid finds the same neighbours in a tenth of that (tests/test_proximity.py).
+  search, sim.central): the same neighbours as scipy's kd-tree (tests/test_proximity.py), without
+  its build and the bookkeeping around it.
 - `gather`: the neighbours' positions, velocities and flags that `nearest_within` found, in one pass
-  (numpy's takes and masks cost 0.15 ms a step at 1000 robots).
+  instead of numpy's takes and masks.
 - `close_pairs`: the world's robot-robot detection (sim.world.World._detect): every pair whose
   centres are within ``reach`` in the first state is found on the grid, then checked in every
   state. It returns the smallest clearance over the pairs checked and the pairs that overlap, with
-  their depths. At 1000 robots scipy's cKDTree build plus ``query_pairs`` cost about 0.2 ms a step
-  even with no pair in reach (and a spread-out swarm needed a nearest-neighbour query, 0.3 ms,
-  every step), then numpy gathers over the pairs; the grid and the loop over the pairs and states
-  take 20-40 us. Only +, -, * and sqrt touch the coordinates, in the order the numpy code used
-  ((xa - xb)^2 + (ya - yb)^2 with a < b, then sqrt), so the distances are the same to the bit
-  (numba does not fuse multiply-adds without fastmath).
+  their depths (a kd-tree costs its build every step, even with no pair in reach). Only +, -, *
+  and sqrt touch the coordinates, in the order the numpy code used ((xa - xb)^2 + (ya - yb)^2 with
+  a < b, then sqrt), so the distances are the same to the bit (numba does not fuse multiply-adds
+  without fastmath).
 
 Positions must be finite.
 """

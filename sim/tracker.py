@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from agent.core.params import RobotParams
+from agent.core.params import HOLONOMIC, RobotParams
 from coordinator.scene import Scene
 
 from .movers import scripted_speed_limit
@@ -21,7 +21,7 @@ def bodies_of(scene: Scene) -> tuple[RobotParams, list[Body]]:
     body = Body(params.kinematics, params.radius, params.v_max, params.wheel_base, params.omega_max)
 
     def scripted(i: int) -> Body:
-        return Body("holonomic", params.radius, scripted_speed_limit(scene.scripted[i], params.v_max))
+        return Body(HOLONOMIC, params.radius, scripted_speed_limit(scene.scripted[i], params.v_max))
 
     return params, [scripted(i) if i in scene.scripted else body for i in range(scene.robots)]
 

@@ -12,7 +12,7 @@ Kinematics (per robot, so one world may hold a mixed swarm):
   +-``omega_max``. Integration is the exact unicycle arc (no Euler error).
 
 Actuation noise: the actuation error is held for ``noise_period`` seconds of world time (default
-0.1 s, the 10 Hz control period) on a fixed time grid: on entering each period the world draws an
+the control period, RobotParams.dt) on a fixed time grid: on entering each period the world draws an
 (N, 4) standard-normal array from its own ``numpy.random.Generator`` (seeded at construction),
 whatever the commands are. So the noise a robot gets never depends on the order in which commands
 arrived, nor on how time is chunked into ``step`` calls (one step(0.1) or ten step(0.01) draw the
@@ -65,6 +65,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from shapely.geometry import Polygon
 
+from agent.core.params import DIFFDRIVE, EPUCK, HOLONOMIC, KINEMATICS
 from sim.geometry import (
     arc_displacement,
     make_arena,
@@ -75,10 +76,8 @@ from sim.geometry import (
 )
 from sim.proximity import close_pairs
 
-__all__ = ["Body", "Contact", "World", "HOLONOMIC", "DIFFDRIVE"]
+__all__ = ["Body", "Contact", "World"]
 
-HOLONOMIC = "holonomic"
-DIFFDRIVE = "diffdrive"
 _KINDS = ("robot", "obstacle", "wall")
 _KIND_ORDER = {k: n for n, k in enumerate(_KINDS)}
 
@@ -105,15 +104,15 @@ def _non_negative(name: str, value: Any) -> float:
 class Body:
     """What the world knows of one robot's body (defaults: the paper's e-puck, Table 1)."""
 
-    kinematics: str  # "holonomic" | "diffdrive"
+    kinematics: str  # HOLONOMIC | DIFFDRIVE
     radius: float
     v_max: float
-    wheel_base: float = 0.0525
-    omega_max: float = 4.96
+    wheel_base: float = EPUCK.wheel_base
+    omega_max: float = EPUCK.omega_max
 
     def __post_init__(self) -> None:
-        if self.kinematics not in (HOLONOMIC, DIFFDRIVE):
-            raise ValueError(f"kinematics must be 'holonomic' or 'diffdrive', not {self.kinematics!r}")
+        if self.kinematics not in KINEMATICS:
+            raise ValueError(f"kinematics must be {HOLONOMIC!r} or {DIFFDRIVE!r}, not {self.kinematics!r}")
         for name in ("radius", "v_max", "wheel_base", "omega_max"):
             _positive(f"body {name}", getattr(self, name))
 
@@ -159,7 +158,7 @@ class World:
         actuation_noise_abs: float = 0.0,
         seed: int = 0,
         substep: float = 0.01,
-        noise_period: float = 0.1,
+        noise_period: float = EPUCK.dt,
     ) -> None:
         bodies = list(bodies)
         if not bodies:

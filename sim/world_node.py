@@ -110,7 +110,7 @@ class WorldNode:
         # coordinator learns where its body stays and keeps the goals clear of it (5.1.2).
         tracked = np.flatnonzero(self.ever_live)
         if self.pose_frames:
-            frame = np.zeros(len(tracked), Poses._item)
+            frame = np.zeros(len(tracked), Poses.RECORD)
             frame["robot"] = tracked
             frame["x"], frame["y"], frame["theta"] = measured[tracked].T
             self.bus.publish(self.keys.poses, Poses(self.tick, t, 0, len(frame), frame))

@@ -15,8 +15,8 @@ from scipy.optimize import linear_sum_assignment
 from agent.core.animation import frame_hold, iterations_left, synchronised_velocity
 from agent.core.params import EPUCK
 from agent.core.step import NeighbourStates, control_step
-from coordinator.animation import DEFAULT_FIRST_HOLD, DEFAULT_FRAME_TIME
 from coordinator.drawings import keyframes
+from coordinator.keyframe_steps import DEFAULT_FIRST_HOLD, DEFAULT_FRAME_TIME
 from coordinator.keyframes import keyframe_goals
 from coordinator.scene import SceneError, load_scene, scene_from_dict, scene_goal_set
 from coordinator.service import step_timing

@@ -211,7 +211,7 @@ def test_deadlock_penalty_moves_the_robot_to_another_goal() -> None:
 def test_records_round_trip_through_the_codec() -> None:
     from transport.codec import Bid, decode
 
-    assert RECORD == Bid._item
+    assert RECORD == Bid.RECORD
     items = records([(3, 1, 0.25, CONTENT, 0.2, 0.5, -0.5), (4, -1, 0.0, 0)])
     msg = Bid(2, 7, 3, 11, 2**63 + 5, len(items), items)
     back = decode(msg.encode())

@@ -17,7 +17,7 @@ from agent.goal_sets import motion_of
 from coordinator.scene import SceneError, load_scene, scene_from_dict, scene_goal_set
 from coordinator.service import step_timing
 from sim.central import run_central
-from transport.codec import Goals, decode
+from transport.codec import Goals, as_sent, decode
 
 from .conftest import run_pixelswarm
 
@@ -230,11 +230,12 @@ def test_the_central_engine_follows_a_sliding_growing_turning_triangle(tmp_path)
     m, traj = json.loads((out / "metrics.json").read_text()), dict(np.load(out / "trajectory.npz"))
     assert m["contacts"] == 0 and m["end_reason"] == "duration"
     t, a = traj["t"], traj["assignment"]
-    goals = scene_goal_set(scene, 0, 6)[0]
+    # the goal set and its motion as the robots decode them (the wire carries float32)
+    goals = as_sent(scene_goal_set(scene, 0, 6)[0])
+    f32 = as_sent
+    motion = GoalMotion(tuple(f32([0.004, -0.003])), float(f32(-0.04)), (0.0, 0.0), float(f32(0.01)), True)
     after = t >= 20.0
-    moving = np.stack(
-        [GoalMotion((0.004, -0.003), -0.04, (0.0, 0.0), 0.01, True).positions(goals[a[k]], t[k]) for k in range(len(t))]
-    )
+    moving = np.stack([motion.positions(goals[a[k]], t[k]) for k in range(len(t))])
     np.testing.assert_allclose(traj["goal"], moving, atol=1e-9)  # the recorded goals are eq. 28's
     err = np.hypot(*(traj["pose"][:, :, :2] - moving).transpose(2, 0, 1))
     assert err[after].mean() < 0.005

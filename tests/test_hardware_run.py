@@ -21,25 +21,25 @@ import numpy as np
 import psutil
 import pytest
 
-from agent.core.params import RobotParams
+from agent.core.params import EPUCK, RobotParams
 from coordinator.scene import load_scene, resolve_scene_path
 from hardware.config import load_hardware
+from hardware.epuck2 import Epuck2Config
 from hardware.ros2 import Ros2PosesConfig, Ros2PoseSource
 from sim.cli import main as cli_main
 from sim.emulators.epuck2 import Epuck2Emulator
-from sim.emulators.lab import Lab
+from sim.emulators.lab import MOCAP_RATE, Lab
 from sim.emulators.lab import main as lab_main
 from sim.emulators.mocap import MocapEmulator
-from sim.hardware_node import HardwareNode, WheelDrive
+from sim.hardware_node import STARTUP_TIMEOUT, HardwareNode, WheelDrive
 from transport.bus import Bus
 from transport.codec import Command, Pose, Tick
 from transport.session import client_of, free_port, loopback_router
 
 from .conftest import REPO, descendants, pixelswarm_cmd, run_pixelswarm, wait_for
 
-TIMEOUT = 0.3  # s: the hardware file's command_timeout (the e-puck2 default)
-PERIOD = 0.1  # s: the control period (paper Table 1)
-MOCAP_RATE = 50.0  # Hz
+TIMEOUT = Epuck2Config.command_timeout  # s: the hardware files here keep the default
+PERIOD = EPUCK.dt  # s: the control period
 
 SCENE = """name = "hw-circle"
 robots = {robots}
@@ -288,7 +288,7 @@ def test_an_unreachable_robot_or_a_robot_without_poses_refuses_the_run(tmp_path)
         out = tmp_path / "run"
         result = run_pixelswarm("run", str(scene_file(tmp_path, robots=2)), "--hardware", str(hw), "--out", str(out))
         log = emulator.log(0)
-    words = f"within 5 s, robots not reachable: 1 (127.0.0.1:{port}); no pose for robots 0, 1 (topic /robot{{id}}/pose)"
+    words = f"within {STARTUP_TIMEOUT:g} s, robots not reachable: 1 (127.0.0.1:{port}); no pose for robots 0, 1 (topic /robot{{id}}/pose)"
     assert_one_line_error(result, words)
     assert not out.exists() and not out.with_name("run.partial").exists()
     assert log and log[-1][1:] == (0, 0)  # the reachable robot was only ever told to stand still

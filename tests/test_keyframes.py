@@ -15,7 +15,7 @@ from coordinator.goals import GoalError, generate_goals, prepare_image
 from coordinator.goals.resize import from_arena
 from coordinator.keyframe_motion import estimate_motion, fit_count, region_shape
 from coordinator.keyframes import goal_disparity, keyframe_goals, match_regions
-from coordinator.shapes import BLUE, RED, _union
+from coordinator.shapes import BLUE, RED, union
 
 SIZE = 400  # canvas of the rigid-motion tests: the moved L never touches its border
 
@@ -32,7 +32,7 @@ def _l_shape(angle_deg: float, shift: tuple[float, float], scale: float) -> np.n
         return 0.5 + shift[0] + c * x - s * y, 0.5 + shift[1] + s * x + c * y
 
     bars = ([(0, 0), (0.16, 0), (0.16, 0.7), (0, 0.7)], [(0, 0.54), (0.52, 0.54), (0.52, 0.7), (0, 0.7)])
-    return paint([(_union(*(polygon([tf(*p) for p in bar]) for bar in bars)), RED)], SIZE)
+    return paint([(union(*(polygon([tf(*p) for p in bar]) for bar in bars)), RED)], SIZE)
 
 
 def _shape(img: np.ndarray, region: int = 0):

@@ -22,7 +22,9 @@ ENGINES = {
 @pytest.mark.parametrize("scene, seed", [("swap", 1), ("circle", 2)])
 def test_central_and_distributed_runs_of_one_seed_are_the_same_run(tmp_path, scene, seed):
     runs = {
-        name: run_scene(tmp_path, scene, "--clock", "lockstep", "--seed", str(seed), *flags, name=name.replace(" ", "-"))
+        name: run_scene(
+            tmp_path, scene, "--clock", "lockstep", "--seed", str(seed), *flags, name=name.replace(" ", "-")
+        )
         for name, flags in ENGINES.items()
     }
     (m_central, central) = runs["central"]

@@ -17,6 +17,7 @@ from coordinator.scene import SCENE_DIR, SceneError, load_scene, scene_from_dict
 from coordinator.steps import scale_region_counts
 from sim.central import run_central
 from sim.metrics import step_metrics, summarise
+from transport.codec import as_sent
 
 BLUE_GOAL = 150  # blue channel above this: a goal on the blue part (the line of disk_and_line)
 
@@ -224,7 +225,8 @@ def test_the_assignment_is_one_to_one_onto_the_shown_step(played):
     scene, _, traj = played
     for k, a, g in zip(traj["step"], traj["assignment"], traj["goal"]):
         assert sorted(a.tolist()) == list(range(scene.robots))
-        np.testing.assert_array_equal(g, scene_goal_set(scene, int(k), scene.robots)[0][a])
+        # the goals as every robot decodes them from the goal set's message (float32 on the wire)
+        np.testing.assert_array_equal(g, as_sent(scene_goal_set(scene, int(k), scene.robots)[0])[a])
 
 
 def test_scenes_without_steps_record_step_zero(tmp_path):

@@ -218,7 +218,7 @@ class Goals(Message):
     KIND: ClassVar[int] = 5
     NAME: ClassVar[str] = "goals"
     _fixed: ClassVar[struct.Struct] = struct.Struct("<IBdIHfI")
-    _item: ClassVar[np.dtype] = np.dtype([("x", "<f4"), ("y", "<f4"), ("rgb", "u1", (3,))])
+    RECORD: ClassVar[np.dtype] = np.dtype([("x", "<f4"), ("y", "<f4"), ("rgb", "u1", (3,))])
     epoch: int
     per_robot: int
     stamp: float
@@ -260,7 +260,7 @@ class Goals(Message):
         return (self.epoch, self.per_robot, self.stamp, len(self.positions), self.step, self.hold, len(self.robots))
 
     def _tail(self) -> bytes:
-        items = np.empty(len(self.positions), self._item)
+        items = np.empty(len(self.positions), self.RECORD)
         items["x"], items["y"] = self.positions[:, 0], self.positions[:, 1]
         items["rgb"] = self.colors
         trailer = self._trailer.pack(
@@ -293,7 +293,7 @@ class Goals(Message):
         if len(body) < cls._fixed.size:
             raise Malformed("truncated")
         epoch, per_robot, stamp, count, step, hold, n_robots = cls._fixed.unpack(body[: cls._fixed.size])
-        end = cls._fixed.size + count * cls._item.itemsize
+        end = cls._fixed.size + count * cls.RECORD.itemsize
         rest = len(body) - (end + 2 * n_robots)
         # the optional trailers tell themselves apart by length (4 + 4 count and 4 + 12 count bytes)
         correspondence = cls._epoch.size + 4 * count
@@ -308,7 +308,7 @@ class Goals(Message):
         if rest not in trailers:
             raise Malformed("truncated")
         has_previous, has_matching = trailers[rest]
-        items = np.frombuffer(body[cls._fixed.size : end], cls._item)
+        items = np.frombuffer(body[cls._fixed.size : end], cls.RECORD)
         positions = np.stack([items["x"], items["y"]], axis=1).astype(float)
         _finite(stamp, hold)
         if not np.all(np.isfinite(positions)):
@@ -348,7 +348,7 @@ class Bid(Message):
     NAME: ClassVar[str] = "auction"
     _fixed: ClassVar[struct.Struct] = struct.Struct("<IIIIQI")
     # penalty: the robot's total deadlock penalty in force (m^2), so its agreed cost can be checked
-    _item: ClassVar[np.dtype] = np.dtype(
+    RECORD: ClassVar[np.dtype] = np.dtype(
         [
             ("robot", "<u2"),
             ("goal", "<i4"),
@@ -365,7 +365,7 @@ class Bid(Message):
     serial: int  # the sender's message counter: a later message supersedes an earlier one
     digest: int  # hash of the sender's board (prices, owners, releases) when it wrote the records
     count: int
-    records: np.ndarray = field(default_factory=lambda: np.zeros(0, Bid._item))
+    records: np.ndarray = field(default_factory=lambda: np.zeros(0, Bid.RECORD))
 
     CONTENT: ClassVar[int] = 1  # the robot holds ``goal`` and no other goal is better by more than epsilon
     RELEASED: ClassVar[int] = 2  # the robot gave ``goal`` up at ``price`` (it bids elsewhere)
@@ -374,11 +374,11 @@ class Bid(Message):
         return (self.epoch, self.instance, self.sender, self.serial, self.digest, len(self.records))
 
     def _tail(self) -> bytes:
-        return np.asarray(self.records, self._item).tobytes()
+        return np.asarray(self.records, self.RECORD).tobytes()
 
     @classmethod
     def _from(cls, body: memoryview) -> Bid:
-        (epoch, instance, sender, serial, digest, count), items = _fixed_and_items(body, cls._fixed, cls._item)
+        (epoch, instance, sender, serial, digest, count), items = _fixed_and_items(body, cls._fixed, cls.RECORD)
         if not all(np.all(np.isfinite(items[k])) for k in ("price", "penalty", "x", "y")):
             raise Malformed("non-finite")
         return cls(epoch, instance, sender, serial, digest, count, items.copy())
@@ -387,7 +387,7 @@ class Bid(Message):
         """Records as columns (one array per field): a host's message holds up to K records, and a
         dict per record made the recorder's log of a 1000-robot auction cost more than the auction."""
         out = {name: getattr(self, name) for name in self.field_names() if name != "records"}
-        out["records"] = {k: self.records[k] for k in self._item.names}
+        out["records"] = {k: self.records[k] for k in self.RECORD.names}
         return out
 
 
@@ -396,11 +396,11 @@ class _Frame(Message):
     """A tick's messages of many robots in one: the fixed part (tick, stamp, sender, count) and one
     record per robot, the fields of ``_message`` after its (robot, tick, stamp). Agent hosts of K
     robots trade frames: per robot, every message costs each process it crosses as much as a whole
-    frame does (at 1000 robots in 4 hosts, 3000 messages a tick before frames)."""
+    frame does."""
 
     _fixed: ClassVar[struct.Struct] = struct.Struct("<IdII")
     _message: ClassVar[type[Message]]
-    _item: ClassVar[np.dtype]
+    RECORD: ClassVar[np.dtype]
     _floats: ClassVar[tuple[str, ...]]
     tick: int
     stamp: float
@@ -411,7 +411,7 @@ class _Frame(Message):
     @classmethod
     def of(cls, tick: int, stamp: float, sender: int, messages: list) -> _Frame:
         """The frame of these robots' messages (their tick and stamp are the frame's)."""
-        records = np.array([(v := m._fixed_values())[:1] + v[3:] for m in messages], cls._item).reshape(-1)
+        records = np.array([(v := m._fixed_values())[:1] + v[3:] for m in messages], cls.RECORD).reshape(-1)
         return cls(tick, stamp, sender, len(records), records)
 
     def messages(self, rows: np.ndarray | None = None) -> list:
@@ -424,11 +424,11 @@ class _Frame(Message):
         return (self.tick, self.stamp, self.sender, len(self.records))
 
     def _tail(self) -> bytes:
-        return np.asarray(self.records, self._item).tobytes()
+        return np.asarray(self.records, self.RECORD).tobytes()
 
     @classmethod
     def _from(cls, body: memoryview) -> _Frame:
-        (tick, stamp, sender, count), items = _fixed_and_items(body, cls._fixed, cls._item)
+        (tick, stamp, sender, count), items = _fixed_and_items(body, cls._fixed, cls.RECORD)
         _finite(stamp)
         if not all(np.all(np.isfinite(items[k])) for k in cls._floats):
             raise Malformed("non-finite")
@@ -442,7 +442,7 @@ class _Frame(Message):
     def to_dict(self) -> dict[str, Any]:
         """Records as columns, one array per field (as Bid)."""
         out = {name: getattr(self, name) for name in self.field_names() if name != "records"}
-        out["records"] = {k: self.records[k] for k in self._item.names}
+        out["records"] = {k: self.records[k] for k in self.RECORD.names}
         return out
 
 
@@ -455,7 +455,7 @@ class Poses(_Frame):
     KIND: ClassVar[int] = 10
     NAME: ClassVar[str] = "poses"
     _message: ClassVar[type[Message]] = Pose
-    _item: ClassVar[np.dtype] = np.dtype([("robot", "<u4"), ("x", "<f4"), ("y", "<f4"), ("theta", "<f4")])
+    RECORD: ClassVar[np.dtype] = np.dtype([("robot", "<u4"), ("x", "<f4"), ("y", "<f4"), ("theta", "<f4")])
     _floats: ClassVar[tuple[str, ...]] = ("x", "y", "theta")
 
 
@@ -466,7 +466,7 @@ class Commands(_Frame):
     KIND: ClassVar[int] = 11
     NAME: ClassVar[str] = "cmds"
     _message: ClassVar[type[Message]] = Command
-    _item: ClassVar[np.dtype] = np.dtype(
+    RECORD: ClassVar[np.dtype] = np.dtype(
         [("robot", "<u4"), ("mode", "u1"), ("a", "<f4"), ("b", "<f4"), ("r", "u1"), ("g", "u1"), ("bl", "u1")]
     )
     _floats: ClassVar[tuple[str, ...]] = ("a", "b")
@@ -486,7 +486,7 @@ class States(_Frame):
     KIND: ClassVar[int] = 12
     NAME: ClassVar[str] = "states"
     _message: ClassVar[type[Message]] = State
-    _item: ClassVar[np.dtype] = np.dtype(
+    RECORD: ClassVar[np.dtype] = np.dtype(
         [
             ("robot", "<u4"),
             ("x", "<f4"),
@@ -516,7 +516,7 @@ class Truth(Message):
     KIND: ClassVar[int] = 6
     NAME: ClassVar[str] = "sim/truth"
     _fixed: ClassVar[struct.Struct] = struct.Struct("<IdfI")
-    _item: ClassVar[np.dtype] = np.dtype(
+    RECORD: ClassVar[np.dtype] = np.dtype(
         [("pose", "<f8", (3,)), ("vel", "<f4", (2,)), ("rgb", "u1", (3,)), ("applied", "<u4")]
     )
     tick: int
@@ -532,13 +532,13 @@ class Truth(Message):
         return (self.tick, self.stamp, self.min_clearance, len(self.pose))
 
     def _tail(self) -> bytes:
-        items = np.empty(len(self.pose), self._item)
+        items = np.empty(len(self.pose), self.RECORD)
         items["pose"], items["vel"], items["rgb"], items["applied"] = self.pose, self.velocity, self.color, self.applied
         return items.tobytes()
 
     @classmethod
     def _from(cls, body: memoryview) -> Truth:
-        (tick, stamp, min_clearance, count), items = _fixed_and_items(body, cls._fixed, cls._item)
+        (tick, stamp, min_clearance, count), items = _fixed_and_items(body, cls._fixed, cls.RECORD)
         _finite(stamp)
         if not (np.all(np.isfinite(items["pose"])) and np.all(np.isfinite(items["vel"]))):
             raise Malformed("non-finite")

@@ -20,6 +20,7 @@ Endpoints: the files hold the router endpoint given to `make_certificates(connec
 `client_config(dir, role, connect)` / `router_config(dir, listen)` give it when a session opens. Both
 return ZenohSettings (open_session, Bus) that start from the role's file, which names the folder's
 files by absolute path: use the folder where it was made, or at the same path on another machine.
+`check_folder(dir, robots, display=...)` says, before anything starts, whether a run can use a folder.
 """
 
 from __future__ import annotations
@@ -315,12 +316,20 @@ def _router_dict(directory: Path, listen: list[str], auth: str, robots: int, dis
 
 
 def _manifest(directory: Path) -> dict:
+    path = directory / MANIFEST
     try:
-        return json.loads((directory / MANIFEST).read_text())
-    except (OSError, ValueError):
+        manifest = json.loads(path.read_text())
+    except FileNotFoundError:
         raise SecurityError(
             f"{directory} holds no certificates made by `pixelswarm certs` ({MANIFEST} missing)"
         ) from None
+    except OSError as err:
+        raise SecurityError(f"cannot read {path}: {err.strerror or err}") from None
+    except ValueError:
+        manifest = None
+    if not isinstance(manifest, dict) or not isinstance(manifest.get("robots"), int):
+        raise SecurityError(f"{path} is not a manifest written by `pixelswarm certs`")
+    return manifest
 
 
 def _role_file(directory: str | Path, role: str, auth: str) -> str:
@@ -332,6 +341,51 @@ def _role_file(directory: str | Path, role: str, auth: str) -> str:
     if role not in roles(robots):
         raise SecurityError(f"no role {role!r} in {directory} (robots 0..{robots - 1})")
     return str(directory / (USRPWD if auth == "usrpwd" else "") / f"{role}.json5")
+
+
+def _files(role: str, auth: str) -> list[str]:
+    """The files a session of this role reads, relative to the folder."""
+    where = f"{USRPWD}/" if auth == "usrpwd" else ""
+    files = ["ca.pem", f"{where}{role}.json5"]
+    if role == ROUTER or auth == "tls":  # the router presents its certificate in both modes
+        files += [f"{role}.pem", f"{role}-key.pem"]
+    if role == ROUTER and auth == "usrpwd":
+        files.append(f"{USRPWD}/credentials.txt")
+    return files
+
+
+def check_folder(
+    directory: str | Path,
+    robots: int,
+    *,
+    display: str = "default",
+    services: Iterable[str] = ("coordinator", "world"),
+    auth: str = "tls",
+) -> Path:
+    """The folder, resolved, if a run of robots 0..robots-1 on ``display`` can use it: its access rules
+    cover those robots and that display, and the files of the router, the services and every robot
+    are there and readable. Otherwise SecurityError, with one line saying what is wrong."""
+    if auth not in AUTH_MODES:
+        raise SecurityError(f"auth must be one of {', '.join(AUTH_MODES)}, not {auth!r}")
+    directory = Path(directory).resolve()
+    if not directory.is_dir():
+        raise SecurityError(f"{directory} is not a folder; make one with `pixelswarm certs DIR --robots N`")
+    if not os.access(directory, os.R_OK | os.X_OK):
+        raise SecurityError(f"cannot read {directory}")
+    manifest = _manifest(directory)
+    if manifest["robots"] < robots:
+        raise SecurityError(
+            f"{directory} was made for {manifest['robots']} robots and this run has {robots}; "
+            f"make a folder for them with `pixelswarm certs DIR --robots {robots}`"
+        )
+    made_for = manifest.get("display", "default")
+    if made_for != display:
+        raise SecurityError(f"{directory} holds access rules for display {made_for!r}, not {display!r}")
+    for role in [ROUTER, *services, *(robot_role(i) for i in range(robots))]:
+        for name in _files(role, auth):
+            if not os.access(directory / name, os.R_OK):
+                raise SecurityError(f"cannot read {directory / name} (the {role}'s)")
+    return directory
 
 
 def _endpoints(endpoints: str | list[str] | None) -> list[str]:

@@ -14,8 +14,7 @@ the others (``iterations_left``).
 What is held here is the arrival time rather than the velocity: each iteration of the hold takes
 eq. 27 from where the robot is over the iterations left. A robot that moves as it prefers gets the
 same velocity every time (the paper's constant hold); one that collision avoidance slowed down
-catches up, up to v_max, instead of arriving late by what it lost. With the velocity held, 24 of
-the 100 robots of the leaf ended its growing keyframe 3-6 cm short (bench/bench_animation.py).
+catches up, up to v_max, instead of arriving late by what it lost.
 """
 
 from __future__ import annotations

@@ -63,8 +63,7 @@ def net_values(
 # Relative slack for the rounding of a bid. A bid leaves its robot's value of the goal exactly epsilon
 # below its next-best value in real numbers; in floats, price + (v1 - v2) + eps then -cost - price can
 # land an ulp short, the robot is not content with the goal it just won, gives it up and bids again.
-# Each such bid released a goal: 1000 robots in 4 hosts, warm from prices of about 8000, fought a price
-# war that never ended (the unassigned robots grew from 4 to 37 in 200 rounds).
+# Each such bid releases a goal, and at large warm prices the releases feed a price war that never ends.
 ROUNDING = 1e-12
 
 

@@ -27,8 +27,7 @@ are agreed by max-consensus, as in Zavlanos et al. 2008:
   another is better by more than epsilon plus the hysteresis Delta C. Instances come in blocks, one
   per set of frozen positions, of decreasing epsilon (Bertsekas' epsilon scaling); only the block's
   final phase is agreed by a snapshot. Scaling pays off on warm starts too: once robots have moved,
-  the last prices are far from equilibrium, and at epsilon_A alone one instance of 100 robots in 10
-  hosts needed 1428 rounds (a price war), against 107 with the schedule.
+  the last prices are far from equilibrium, and at epsilon_A alone they settle in a price war.
 
 The agreed assignment costs at most N (epsilon + Delta C) more than the optimum for the frozen
 positions and the robots' private costs (epsilon-complementary slackness against one common price
@@ -69,17 +68,15 @@ def bid_position(position: np.ndarray, goal: np.ndarray, velocity: np.ndarray, l
     freezing positions to adopting their agreement): along the straight line to the goal, as far as
     its speed carries it, never past the goal (a blocked robot stays put). Bidding from there
     compensates the auction's latency: an assignment computed from where the robots were when its
-    instance began, but adopted seconds later once they have moved on, sent them back, and at 100
-    robots in 10 hosts on a loaded machine (3 s latency) five robots swapped goals back and forth for
-    good. For squared distances, robots that have all covered the same fraction of their straight
+    instance began, but adopted seconds later once they have moved on, sends them back, and robots
+    then swap goals back and forth for good. For squared distances, robots that have all covered the same fraction of their straight
     way to optimally assigned goals keep that assignment optimal, so leading agrees with the
     assignment being carried out.
 
     The speed counts, not its component toward the goal: the next block of instances freezes its
     positions right after an agreement, when a robot that got another goal still moves as it did
-    for its last one. Counting only the way toward the goal bid such robots from where they were
-    (or, before the agreement reached them, from their old goals), the next agreement sent them
-    back, and four robots of 100 rotated goals every block for 25 s (4 s blocks, suite load).
+    for its last one. Counting only the way toward the goal would bid such robots from where they
+    were (or from their old goals), and the next agreement would send them back.
 
     A batch: rows of positions, goals and velocities (one call for a host's robots)."""
     position = np.asarray(position, float)
@@ -96,14 +93,14 @@ def frames_close(before: np.ndarray, goals: np.ndarray, previous: np.ndarray) ->
     """Whether consecutive keyframes differ little enough for the auction to start from the carried
     assignment (Participant.carry) at prices zero, when the warm start from the goal sets' matching
     (Goals.matched) does not apply (the last auction never agreed, or the robots changed): corresponding goals on average at most one and a half
-    typical goal spacings (the median distance from a goal to its nearest neighbour) apart. Measured
-    (bench/bench_carry.py, 100 robots in 10 hosts): at 0.3 and 1.0 spacings the carried claims agree in
-    5 and 126 message rounds against a cold start's 147 and 267; at 2.7 they need 1181 against 461."""
+    typical goal spacings (the median distance from a goal to its nearest neighbour) apart: closer,
+    the carried claims agree in fewer rounds than a cold start; further, in more
+    (bench/results/carry.md)."""
     goals = np.asarray(goals, float)
     ok = previous >= 0
     if len(goals) < 2 or not ok.any():
         return False
-    # Imported here: scipy.spatial costs every agent process 0.4 s of start-up, only keyframes need it.
+    # Imported here: scipy.spatial slows every agent process's start-up, and only keyframes need it.
     from scipy.spatial import cKDTree
 
     disparity = float(np.hypot(*(goals[ok] - np.asarray(before, float)[previous[ok]]).T).mean())
@@ -137,8 +134,8 @@ ROW_BLOCK = 64  # rows of a (K, G) array worked on at a time: a block stays in c
 
 
 def _squared_distances(position: np.ndarray, goals: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """(K, G) |g_j - p_i|^2 (eq. 7), into ``out`` when it has that shape, in blocks of rows (at
-    1000 robots twice as fast as whole arrays, which do not fit the cache)."""
+    """(K, G) |g_j - p_i|^2 (eq. 7), into ``out`` when it has that shape, in blocks of rows (large
+    whole arrays do not fit the cache)."""
     k, g = len(position), len(goals)
     if out is None or out.shape != (k, g):
         out = np.empty((k, g))
@@ -356,11 +353,9 @@ class Participant:
         With ``claim`` the auction also starts from it: each robot claims its carried goal at price
         zero where ``before``'s last agreed board says it owns the goal it continues. Every host
         adopted that board alike; the live one may be in the middle of the next instance (paper 5.1
-        re-assigns every iteration). Replayed from a 1000-robot run in 4 hosts whose new image came
-        while 4 robots were between goals: 165 message rounds from the agreed board, 359 from the
-        live one. When the frames differ little most robots are then content at once, and agreement
-        takes a few message rounds instead of a cold start's hundreds; when they differ much, the claims skip the coarse epsilon
-        phases that build the prices, and the fine ones fight a price war that costs more than a cold
+        re-assigns every iteration), and claims from it agree later. When the frames differ little most robots are then content at once, and agreement
+        takes a few message rounds instead of a cold start's many; when they differ much, the claims
+        skip the coarse epsilon phases that build the prices, and the fine ones fight a price war that costs more than a cold
         start (bench/bench_carry.py; see frames_close). Carrying the prices too costs more in both
         cases: they are in equilibrium for the old costs only. ``prices`` (with ``claim``): prices in
         equilibrium for the new goals (Goals.prices) to start from instead of zero. Call before the
@@ -569,8 +564,8 @@ class Participant:
         robot's agreed goal, in the order of ``own``.
 
         The block runs compiled (agent.core.jacobi): the same costs, rounds, bids and board as
-        begin(), bid() and check_agreement() give, at 1000 robots a hundred times faster (while
-        they cross the arena a warm block runs chains of 10,000 rounds of one or two bidders).
+        begin(), bid() and check_agreement() give, far faster (while they cross the arena a warm
+        block runs chains of thousands of rounds of one or two bidders).
         Each robot ranks only its ``candidates`` best goals while no other goal can beat them
         (prices only rise), and the lists carry over to the next block where the robot's motion
         cannot have changed that: the same ranking, a fraction of the scan.
@@ -783,7 +778,7 @@ class Participant:
     @property
     def agreed(self) -> dict[int, int]:
         """Own robot -> its goal in the agreed instance (made when first asked for: the central
-        engine settles 1000 robots every control step and never asks)."""
+        engine settles every control step and never asks)."""
         goal, made = self._agreed
         if made is None:
             made = dict(zip(self.own, goal.tolist()))

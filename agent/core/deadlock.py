@@ -6,9 +6,9 @@ toward the goal (its collision-free velocity's component toward the goal is belo
 others stand in its way. N_d blocked iterations in a row are a deadlock; the runtime then adds C_d to the robot's cost of that goal
 (agent.core.bidder), which triggers a reassignment. A robot already on its goal is never blocked:
 yielding to a passing neighbour there is ORCA's shared responsibility, not a deadlock, and penalising
-it would pull a robot off a formed image. The headway condition tells a deadlock from a crowd: at
-100 robots crowding into a line, robots slowed (not stopped) near their goals drew 75 penalties in
-one sequence and the reassignments they caused kept the line from forming.
+it would pull a robot off a formed image. The headway condition tells a deadlock from a crowd:
+robots slowed (not stopped) near their goals are not blocked, and reassigning them would keep a
+crowded image from forming.
 """
 
 from __future__ import annotations

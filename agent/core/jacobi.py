@@ -10,8 +10,7 @@ releasing the goal it held; per goal the greatest record wins (price, then the l
 numpy rounds of the agent hosts).
 
 Why compiled: while 1000 robots cross the arena a warm block runs chains of 10,000 and more rounds of
-one or two bidders (each outbid robot outbids the next), about a microsecond each compiled, ten
-in Python. After a round only the bidders and the robots they outbid are looked at again; nobody
+one or two bidders (each outbid robot outbids the next), each round a tenth of its cost in Python. After a round only the bidders and the robots they outbid are looked at again; nobody
 else's contentment can have changed (a content robot holds its goal, so only a bid on that goal
 changes it, and every other price only rises).
 
@@ -27,7 +26,7 @@ What makes a round cheap is knowing a robot's best goals without scanning every 
 - **Carried across blocks.** A robot that moved by d since its list was made: the value of goal j
   changed by 2 (g_j - p).d - |d|^2, so the bound moved by at most 2 (h(d) - p.d) - |d|^2 with h the
   goal set's support function (over its convex hull). While robots hold their goals the lists
-  survive from control step to control step, and a block no longer starts by scanning 10^6 costs.
+  survive from control step to control step, and a block need not start by scanning every cost.
 - **No cost matrix.** Costs are computed where needed, |g_j - p_i|^2 plus the penalties in force, in
   the same float operations as the agent hosts' (agent.core.bidder._squared_distances).
 - **Phases with nothing to do** are passed over: a robot content at the smallest slack left is
@@ -39,16 +38,12 @@ What makes a round cheap is knowing a robot's best goals without scanning every 
   rounds allocates: the scratch is made once with the lists (`Rounds`), and the block, its rounds
   and `first_ranking` are compiled without numba's runtime (``_nrt=False``: the compiler refuses
   any that would allocate). The per-robot helpers (`_rank`, `_refresh`, `_content`) are inlined
-  into them; only a ranking over every goal is a call. Each step halved the assignment's time
-  (inlined into rounds that count references, the helpers were slower than called).
+  into them; only a ranking over every goal is a call (inlined into rounds that count references,
+  they would be slower than called).
   ``_cost`` is inlined too; inlined in a loop, its array arguments cost more than its arithmetic,
   so the two loops over goals write it out.
 
-Measured (bench/results/large.md): 1000 robots, the paper's whole sequence, the same assignments;
-6.0 -> 2.4 ms of assignment per control step, about 4000 bids a block at 0.4 us each (2.0 ms since
-Delta C holds in every phase and the scans look only at the robots a phase's rounds touched; the
-central engine runs it on a second thread, beside its control core); 1.2 ms with the helpers inlined
-into rounds that allocate nothing (the L and T images: 2.9 -> 1.4 ms per block settled).
+How long the assignment takes per control step: bench/results/large.md.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""What a robot assumes about neighbours it knows only from messages (issue 3, item 3).
+"""What a robot assumes about neighbours it knows only from messages.
 
 A neighbour's state was stamped ``age`` seconds ago. ORCA then needs where the neighbour is now and
 how sure we are: `prepare_neighbours` extrapolates and inflates; `perturb_preferred_velocity` breaks
@@ -115,7 +115,7 @@ def nearest_first(
     )
 
 
-def _splitmix64(x: np.ndarray) -> np.ndarray:
+def splitmix64(x: np.ndarray) -> np.ndarray:
     # integer hash (Steele et al.'s SplitMix64 finaliser): elementwise uint64 arithmetic, exact
     with np.errstate(over="ignore"):
         x = x + np.uint64(0x9E3779B97F4A7C15)
@@ -131,8 +131,8 @@ def perturb_preferred_velocity(
     velocity, a function of (robot id, seed, tick) only: symmetric configurations (head-on pairs,
     rings) stop being symmetric, and every process computes the same perturbation."""
     ids = np.asarray(robot_id).astype(np.uint64).reshape(-1)
-    key = _splitmix64(_splitmix64(ids ^ _splitmix64(np.uint64(seed % 2**64))) + np.uint64(tick % 2**64))
+    key = splitmix64(splitmix64(ids ^ splitmix64(np.uint64(seed % 2**64))) + np.uint64(tick % 2**64))
     a = (key >> np.uint64(11)).astype(float) * 2.0**-53  # [0, 1)
-    b = (_splitmix64(key) >> np.uint64(11)).astype(float) * 2.0**-53
+    b = (splitmix64(key) >> np.uint64(11)).astype(float) * 2.0**-53
     delta = np.stack([2.0 * a - 1.0, 2.0 * b - 1.0], axis=-1) * magnitude
     return np.asarray(pref_velocity, dtype=float) + delta

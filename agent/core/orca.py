@@ -32,8 +32,8 @@ __all__ = [
 # radii 1 ppm larger in the safety and obstacle lines: gaps may close completely, rounding must not
 # turn that into an overlap
 _BUFFER = 1.0 + 1e-6
-# where infeasible, the horizon is divided by this until feasible (paper 5.3), down to dt; in the
-# Circle benchmark factors 2, 4 and "straight to dt" gave the same completion within 1%
+# where infeasible, the horizon is divided by this until feasible (paper 5.3), down to dt; the
+# completion hardly depends on the factor
 _SHRINK = 4.0
 
 
@@ -235,8 +235,8 @@ def safety_lines(
         # A neighbour heard late has its radius grown by how far it may have strayed
         # (``nbr_growth``, prepare_neighbours). Grown over us, its line would say "leave its possible
         # positions within dt"; several such lines at once have no common solution, and the
-        # least-violation answer then broke the lines of the neighbours we know well (contacts under
-        # 10% loss). Grown only up to our surface it says "do not approach it", which v = 0 keeps.
+        # least-violation answer then breaks the lines of the neighbours we know well (contacts under
+        # loss). Grown only up to our surface it says "do not approach it", which v = 0 keeps.
         certain = nbr_radius - np.asarray(nbr_growth, dtype=float) * _BUFFER
         nbr_radius = np.minimum(nbr_radius, np.maximum(dist * (1.0 - 1e-9) - own, certain))
     gap = dist - (own + nbr_radius)

@@ -3,13 +3,13 @@
 one robot at a time, compiled with numba.
 
 Why: the numpy core is vectorised over the batch but loops over lines and neighbours in Python,
-and at 1000 robots a control step spends about 5 ms in array bookkeeping (bench/results/large.md).
-Per robot the same arithmetic, in the same order, takes a fraction of that. The central engine
+so a large batch spends most of its step in array bookkeeping; per robot, the same arithmetic in
+the same order takes a fraction of that. The central engine
 (sim.central) uses this; agent processes keep the numpy core and never load numba.
 
 Per robot nothing allocates (`control_core` makes the scratch), so the per-robot functions are compiled
 without numba's runtime (``_nrt=False``), which would count references to every array at every
-call, and the small scalar helpers are inlined: 0.49 -> 0.32 ms for 1000 robots.
+call, and the small scalar helpers are inlined.
 
 Same results, bit for bit: every line, bound and optimum is computed with the float operations of
 agent.core.neighbours, agent.core.orca and agent.core.lp in the same order, taking each robot's
@@ -37,7 +37,7 @@ PERTURBATION = 1e-4  # neighbours.perturb_preferred_velocity's magnitude
 
 @njit(cache=True)
 def _splitmix64(x):
-    """neighbours._splitmix64 for one uint64 (wrapping arithmetic, as numpy's)."""
+    """neighbours.splitmix64 for one uint64 (wrapping arithmetic, as numpy's)."""
     x = x + np.uint64(0x9E3779B97F4A7C15)
     x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
     x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
@@ -480,8 +480,7 @@ def control_core(
 ):
     """The collision-free velocity (B,2) and fallback flags (B,) of a batch, one robot after the
     other with one scratch (a robot allocates nothing). One core: in the central engine the other
-    runs the auction (sim.central), and at 1000 robots two numba threads were no faster than one
-    (0.32 ms) even with the second core free, for the cost of starting them."""
+    runs the auction (sim.central), and a second numba thread does not pay for starting it."""
     b, m = nbr_valid.shape
     size = segments.shape[0] + 2 * m
     nbr_p, nbr_v, nbr_f = np.empty((m, 2)), np.empty((m, 2)), np.empty((3, m))

@@ -8,6 +8,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
+from transport import epuck
+
 HOLONOMIC = "holonomic"
 DIFFDRIVE = "diffdrive"
 KINEMATICS = (HOLONOMIC, DIFFDRIVE)
@@ -19,10 +21,10 @@ class RobotParams:
     """What one robot knows about itself: its body and its controller settings."""
 
     kinematics: str = DIFFDRIVE
-    radius: float = 0.045  # d_A / 2 (Table 1: d_A = 0.09 m)
-    v_max: float = 0.13  # maximum linear speed
-    omega_max: float = 4.96  # maximum angular speed (differential drive)
-    wheel_base: float = 0.0525  # l_w, distance between wheels
+    radius: float = epuck.RADIUS  # r_A
+    v_max: float = epuck.V_MAX  # maximum linear speed
+    omega_max: float = epuck.OMEGA_MAX  # maximum angular speed (differential drive)
+    wheel_base: float = epuck.WHEEL_BASE  # l_w, distance between wheels
     v_pref: float = 0.12  # V_p, preferred speed (eq. 9)
     k_a: float = 0.1  # K_a, distance below which the preferred speed falls linearly (eq. 9)
     tau: float = 2.0  # time-to-collision horizon for robots (eq. 10)

@@ -13,7 +13,7 @@ from functools import partial
 
 import numpy as np
 
-from .neighbours import _splitmix64, perturb_preferred_velocity, prepare_neighbours
+from .neighbours import perturb_preferred_velocity, prepare_neighbours, splitmix64
 from .nhorca import nh_orca_wheel_speeds
 from .orca import arena_segments, orca_velocity, polygon_segments, preferred_velocity
 from .params import DIFFDRIVE, RobotParams
@@ -187,7 +187,7 @@ def _compiled_step(
     from .orca_kernel import control_core, preferred_core
 
     given = np.full((len(position), 2), np.nan) if preferred is None else _f64(preferred)
-    seed_key = _splitmix64(np.uint64(seed % 2**64))
+    seed_key = splitmix64(np.uint64(seed % 2**64))
     pref = preferred_core(
         _f64(position),
         _f64(goal),

@@ -7,12 +7,12 @@ gs.colors  # (50, 3) uint8
 """
 
 from .family import GoalFamily, goal_family
+from .image import IMAGE_SUFFIXES
 from .model import GoalError, GoalSet
 from .pipeline import PreparedImage, generate_goals, goals_from_prepared, prepare_image
-from .resize import DEFAULT_ROBOT_RADIUS
 
 __all__ = [
-    "DEFAULT_ROBOT_RADIUS",
+    "IMAGE_SUFFIXES",
     "GoalError",
     "GoalFamily",
     "GoalSet",

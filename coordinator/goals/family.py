@@ -49,7 +49,7 @@ class GoalFamily:
         return cls({len(s): s for s in sets})
 
 
-def _rescale(gs: GoalSet, arena: float) -> GoalSet:
+def rescale(gs: GoalSet, arena: float) -> GoalSet:
     """The same goals in an arena of another size (goals scale linearly with K_r)."""
     k = arena / gs.arena
     params = dict(gs.params, arena=float(arena))
@@ -79,5 +79,5 @@ def goal_family(
     sets = {r: goals_from_prepared(prep, r, arena=arena, **kwargs) for r in wanted}
     if arena is None:
         shared = max(s.arena for s in sets.values())  # each is its own conservative (auto) arena
-        sets = {r: _rescale(s, shared) for r, s in sets.items()}
+        sets = {r: rescale(s, shared) for r, s in sets.items()}
     return GoalFamily(sets)

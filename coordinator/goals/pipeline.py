@@ -12,12 +12,14 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from transport import epuck
+
 from .allocate import allocate_robots
 from .colors import cell_colors, voronoi_cells
 from .cvt import K_D, K_M, MAX_ITER, RELAX, TOLERANCE, binary_domain, density_domain, lloyd
 from .image import BG_TOLERANCE, Foreground, foreground_mask, load_image, split_channels
 from .model import GoalError, GoalSet
-from .resize import DEFAULT_ROBOT_RADIUS, auto_arena, check_feasible, normalised_spacing, to_arena
+from .resize import auto_arena, check_feasible, normalised_spacing, to_arena
 from .sampling import KS_FACTOR, ks_distance, poisson_samples
 from .segment import COLOR_TOLERANCE, Segmentation, segment
 
@@ -173,7 +175,7 @@ def goals_from_prepared(
     arena: float | None = None,
     method: str = "cvt",
     seed: int = 0,
-    robot_radius: float = DEFAULT_ROBOT_RADIUS,
+    robot_radius: float = epuck.RADIUS,
     region_counts: Mapping[int, int] | None = None,
     conservative: bool = False,
     tol: float = TOLERANCE,
@@ -284,7 +286,7 @@ def generate_goals(
     arena: float | None = None,
     method: str = "cvt",
     seed: int = 0,
-    robot_radius: float = DEFAULT_ROBOT_RADIUS,
+    robot_radius: float = epuck.RADIUS,
     background: Any = None,
     region_counts: Mapping[int, int] | None = None,
     conservative: bool = False,
@@ -298,7 +300,7 @@ def generate_goals(
 
     image_or_path: a PNG/JPEG/BMP/TIFF path, or an RGB, RGBA or gray array (row 0 at the top).
     arena: K_r in metres; None picks the conservative 2 K_r for robots of radius robot_radius
-      (default 0.045 m, the e-puck of Table 1), rounded up to a centimetre.
+      (default: the e-puck's, transport.epuck.RADIUS), rounded up to a centimetre.
     method: 'cvt' (Lloyd with the mass density of eq. 2) or 'kmeans' (binary density).
     background: None (alpha channel, else the dominant border colour) or a colour ('#ffffff', 'r,g,b').
     region_counts: the artist's N_i per region id (ids: regions by area, largest first).

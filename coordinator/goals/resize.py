@@ -19,8 +19,6 @@ from scipy.spatial import cKDTree
 
 from .model import GoalError
 
-DEFAULT_ROBOT_RADIUS = 0.045  # r_A of the e-puck, d_A / 2 of the paper's Table 1
-
 
 def normalised_spacing(goals_px: np.ndarray, scale: float) -> float:
     """d_min: the smallest distance between two goals in Q (inf for fewer than two goals)."""

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from agent.core.params import EPUCK, RobotParams
-from sim.cli import OneLineParser, _positive_int
+from sim.cli import OneLineParser, positive_int
 
 COMMAND_PACKET = 0x80
 COMMAND_LENGTH = 21
@@ -365,7 +365,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="python -m sim.emulators.epuck2",
         description="Emulated e-puck2 robots on Wi-Fi (TCP servers on 127.0.0.1) until SIGINT or SIGTERM.",
     )
-    parser.add_argument("--robots", type=_positive_int, required=True, help="number of robots")
+    parser.add_argument("--robots", type=positive_int, required=True, help="number of robots")
     parser.add_argument("--poses", type=Path, help="JSON list of [x, y, theta] starting poses, one per robot")
     parser.add_argument("--write-hardware", type=Path, metavar="FILE.toml", help="write a hardware file for them")
     parser.add_argument(

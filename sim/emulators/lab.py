@@ -27,7 +27,7 @@ import numpy as np
 
 from agent.core.params import RobotParams
 from coordinator.scene import Scene, SceneError, load_scene
-from sim.cli import OneLineParser, _positive_int
+from sim.cli import OneLineParser, positive_int
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, settings_from_args
 
 from .epuck2 import Epuck2Emulator, UsageError, write_atomically
@@ -158,10 +158,10 @@ def build_parser() -> argparse.ArgumentParser:
         "(PoseStamped over rmw_zenoh), until SIGINT or SIGTERM.",
     )
     parser.add_argument("--scene", required=True, help="a shipped scene or a scene file: its start layout")
-    parser.add_argument("--robots", "-n", type=_positive_int, help="number of robots (overrides the scene)")
+    parser.add_argument("--robots", "-n", type=positive_int, help="number of robots (overrides the scene)")
     parser.add_argument("--seed", type=int, help="random seed (overrides the scene's, for random layouts)")
     parser.add_argument("--rate", type=float, default=MOCAP_RATE, help=f"motion capture Hz (default {MOCAP_RATE:g})")
-    parser.add_argument("--port", type=_positive_int, help="robot i listens on PORT + i (default: free ports)")
+    parser.add_argument("--port", type=positive_int, help="robot i listens on PORT + i (default: free ports)")
     parser.add_argument("--write-hardware", type=Path, metavar="FILE.toml", help="write a hardware file for the lab")
     parser.add_argument(
         "--log", type=Path, metavar="FILE.json", help="on exit, write commands, final and recorded true poses, contacts"

@@ -32,9 +32,9 @@ from typing import Any
 import numpy as np
 
 from .drawings import KEYFRAME_ANIMATIONS, keyframes
-from .goals import GoalError
-from .keyframes import IMAGE_SUFFIXES, KeyframeGoals, keyframe_goals, keyframe_paths
-from .steps import METHODS, ImageStep, _region_counts, scale_region_counts
+from .goals import IMAGE_SUFFIXES, GoalError
+from .keyframes import KeyframeGoals, keyframe_goals, keyframe_paths
+from .steps import METHODS, ImageStep, parse_region_counts, scale_region_counts
 
 ANIMATION_KEYS = (
     "keyframes",
@@ -105,7 +105,7 @@ def parse_animation(data: Any, source: str = "") -> Animation:
         name,
         tuple(images),
         steps,
-        _region_counts(data.get("region_counts"), "animation"),
+        parse_region_counts(data.get("region_counts"), "animation"),
         method,
         _flag(data.get("keep_counts", False), "keep_counts"),
         _flag(data.get("init_from_previous", True), "init_from_previous"),
