@@ -20,21 +20,22 @@ from pathlib import Path
 import numpy as np
 import psutil
 import pytest
+from rosbags.typesys import Stores, get_typestore
 
 from agent.core.params import EPUCK, RobotParams
 from coordinator.scene import load_scene, resolve_scene_path
 from hardware.config import load_hardware
 from hardware.epuck2 import Epuck2Config
-from hardware.ros2 import Ros2PosesConfig, Ros2PoseSource
+from hardware.ros2 import TWIST, Ros2BackendConfig, Ros2PosesConfig, Ros2PoseSource
 from sim.cli import main as cli_main
 from sim.emulators.epuck2 import Epuck2Emulator
 from sim.emulators.lab import MOCAP_RATE, Lab
 from sim.emulators.lab import main as lab_main
 from sim.emulators.mocap import MocapEmulator
-from sim.hardware_node import STARTUP_TIMEOUT, HardwareNode, WheelDrive
+from sim.hardware_node import STARTUP_TIMEOUT, HardwareNode, TwistDrive, WheelDrive
 from transport.bus import Bus
 from transport.codec import Command, Pose, Tick
-from transport.session import client_of, free_port, loopback_router
+from transport.session import client_of, free_port, loopback_router, open_session
 
 from .conftest import REPO, descendants, pixelswarm_cmd, run_pixelswarm, wait_for
 
@@ -375,3 +376,22 @@ def test_the_hardware_node_stops_a_robot_whose_pose_is_lost_or_whose_commands_ce
     assert by_then[-1, 1:].tolist() == [0, 0]
     assert stats[0]["stops"]["command_timeout"] == 1
     assert unreached == []
+
+
+def test_a_ros2_backend_gets_wheel_speeds_as_a_body_velocity():
+    """v = (l + r) / 2 along x and omega = (r - l) / wheel base about z, as Twist on rmw_zenoh."""
+    router = loopback_router()
+    config = Ros2BackendConfig(namespaces=["robot0", "robot1"])
+    twists: list[bytes] = []
+    with open_session(router) as observer:
+        observer.declare_subscriber("0/robot1/cmd_vel/**", lambda sample: twists.append(sample.payload.to_bytes()))
+        drive = TwistDrive(config, client_of(router), EPUCK)
+        drive.start()
+        try:
+            assert wait_for(lambda: drive.send([1], np.array([0.04]), np.array([0.06]), np.zeros((1, 3))) or twists, 10)
+        finally:
+            drive.close()  # a zero Twist to every robot
+    first, last = (get_typestore(Stores.ROS2_JAZZY).deserialize_cdr(t, TWIST) for t in (twists[0], twists[-1]))
+    assert first.linear.x == pytest.approx(0.05) and first.angular.z == pytest.approx(0.02 / EPUCK.wheel_base)
+    assert (first.linear.y, first.linear.z, first.angular.x, first.angular.y) == (0, 0, 0, 0)
+    assert last.linear.x == 0 and last.angular.z == 0
