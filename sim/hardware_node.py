@@ -229,14 +229,13 @@ class HardwareNode:
         self.parent_pid: int | None = None
 
     # --- inputs -------------------------------------------------------------------------------
-    def _read_poses(self) -> dict[int, PoseSample]:
-        samples = {r: s for r, s in self.poses.latest().items() if 0 <= r < self.n}
+    def _read_poses(self) -> None:
+        """Each robot's newest pose; a robot whose pose is older than the timeout is not tracked now."""
         self.tracked[:] = False
-        for r, s in samples.items():
-            if s.age <= self.timeout:
+        for r, s in self.poses.latest().items():
+            if 0 <= r < self.n and s.age <= self.timeout:
                 self.pose[r] = (s.x, s.y, s.theta)
                 self.tracked[r] = True
-        return samples
 
     def _update_liveness(self) -> None:
         for _, ident, alive, _ in self.alive.drain():
