@@ -12,7 +12,7 @@ from pathlib import Path
 
 from agent.core.params import EPUCK
 from coordinator.goals_cli import add_goals_parser
-from coordinator.scene import CLOCKS, ENGINES, SceneError, load_scene, resolve_scene_path, shipped_scenes
+from coordinator.scene import CLOCKS, ENGINES, Scene, SceneError, load_scene, resolve_scene_path, shipped_scenes
 from transport.faults import parse_faults
 from transport.security import SecurityError, check_folder, router_config
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, open_session, settings_from_args
@@ -102,6 +102,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="a secured bus from a folder made by `pixelswarm certs`: mutual TLS, and each process "
         "allowed only its role's keys (docs/security.md); one robot per agent process",
     )
+    run.add_argument(
+        "--hardware",
+        type=Path,
+        metavar="FILE",
+        help="drive real robots (or emulated ones) named in a hardware file with [backend] and [poses], "
+        "on the wall clock; the robot count and start poses come from it (docs/hardware.md)",
+    )
     run.add_argument("--quiet", "-q", action="store_true", help="no progress output")
     add_zenoh_args(run, default_mode="router")
     run.set_defaults(func=cmd_run)
@@ -109,6 +116,10 @@ def build_parser() -> argparse.ArgumentParser:
     router = sub.add_parser("router", help="run a standalone zenoh router (for several machines or processes)")
     add_zenoh_args(router, default_mode="router")
     router.set_defaults(func=cmd_router)
+
+    stop = sub.add_parser("stop", help="stop every robot of a hardware file at once (after a run died)")
+    stop.add_argument("--hardware", type=Path, metavar="FILE", required=True, help="the hardware file")
+    stop.set_defaults(func=cmd_stop)
 
     scenes = sub.add_parser("scenes", help="list the shipped scenes")
     scenes.set_defaults(func=cmd_scenes)
@@ -119,11 +130,36 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _hardware_scene(args: argparse.Namespace) -> Scene:
+    """The scene as a hardware run plays it: the hardware file's robots, on the wall clock."""
+    from hardware.config import HardwareConfigError
+
+    from .hardware_node import HardwareError, load_run
+
+    if (args.engine or "distributed") != "distributed":
+        raise UsageError("--hardware runs the distributed engine: drop --engine central")
+    if args.clock == "lockstep":
+        raise UsageError("--hardware runs on the wall clock: drop --clock lockstep")
+    if args.robots is not None:
+        raise UsageError("--hardware takes the number of robots from the hardware file: drop --robots")
+    if args.secure is not None:
+        raise UsageError(
+            "--hardware cannot be combined with --secure yet: its pose source joins outside the access rules"
+        )
+    try:
+        return load_run(str(args.hardware), args.scene, args.seed, args.duration)[1]
+    except (HardwareError, HardwareConfigError, SceneError) as err:
+        raise UsageError(str(err)) from None
+
+
 def cmd_run(args: argparse.Namespace) -> int:
-    from .launcher import Interrupted, Launcher, RunOptions  # heavy imports only when running
+    from .launcher import HardwareStartError, Interrupted, Launcher, RunOptions  # heavy imports only when running
 
     try:
-        scene = load_scene(args.scene, robots=args.robots, seed=args.seed, clock=args.clock, duration=args.duration)
+        if args.hardware is not None:
+            scene = _hardware_scene(args)
+        else:
+            scene = load_scene(args.scene, robots=args.robots, seed=args.seed, clock=args.clock, duration=args.duration)
         faults = parse_faults(args.faults)
     except (SceneError, ValueError) as err:
         raise UsageError(str(err)) from None
@@ -132,7 +168,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     out = args.out or default_run_path(scene.name)
     if out.exists() or out.with_name(out.name + ".partial").exists():
         raise UsageError(f"run directory {out} already exists; choose another --out")
-    if (args.engine or scene.engine) == "central":
+    if args.hardware is None and (args.engine or scene.engine) == "central":
         from .central import run_central
 
         if args.secure is not None:
@@ -165,10 +201,11 @@ def cmd_run(args: argparse.Namespace) -> int:
         deadline=scene.deadline if args.deadline is None else args.deadline,
         progress=None if args.quiet else sys.stderr,
         secure=args.secure,
+        hardware=args.hardware,
     )
     try:
         path = Launcher(scene, options).run()
-    except TransportError as err:
+    except (TransportError, HardwareStartError) as err:
         raise UsageError(str(err)) from None
     except Interrupted:
         print("pixelswarm: interrupted; no run directory written", file=sys.stderr)
@@ -219,6 +256,28 @@ def cmd_router(args: argparse.Namespace) -> int:
             time.sleep(0.1)
     finally:
         session.close()
+    return 0
+
+
+def cmd_stop(args: argparse.Namespace) -> int:
+    from hardware.config import HardwareConfigError, load_hardware
+    from hardware.stop import stop_all
+
+    from .hardware_node import backend_kind
+
+    try:
+        config = load_hardware(args.hardware)
+        if backend_kind(config) == "ros2":
+            raise UsageError(
+                f"{args.hardware}: stopping ROS 2 robots from here is not supported; their own watchdog stops them"
+            )
+        unreached = stop_all(config)
+    except HardwareConfigError as err:
+        raise UsageError(str(err)) from None
+    if unreached:
+        print(f"pixelswarm stop: error: robots {', '.join(map(str, unreached))} were not reached", file=sys.stderr)
+        return 1
+    print(f"stopped every robot of {args.hardware}")
     return 0
 
 

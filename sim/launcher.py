@@ -29,6 +29,7 @@ from transport.faults import FaultPlan, format_faults
 from transport.security import client_config, robot_role, router_config
 from transport.session import ZenohSettings, client_of, free_port, loopback_router
 
+from .hardware_node import ERROR as HARDWARE_ERROR
 from .output import write_run
 from .recorder import Recorder
 from .rundir import RunDir
@@ -48,6 +49,11 @@ class RunOptions:
     progress: TextIO | None = sys.stderr
     startup_timeout: float = 90.0
     secure: Path | None = None  # a folder from `pixelswarm certs`: each process joins as its role (docs/security.md)
+    hardware: Path | None = None  # a hardware file: real robots (sim/hardware_node.py) in place of the world
+
+
+class HardwareStartError(Exception):
+    """The hardware node refused to start (robot out of reach, no poses): its one line for the user."""
 
 
 @dataclass
@@ -241,6 +247,8 @@ class Launcher:
         try:
             recorder = Recorder(bus, self.scene.robots, self.params.goal_tolerance, str(self.run_dir / "log.mcap"))
             recorder.ends = self._ends_on_convergence
+            if self.opt.hardware is not None:  # refused at once (one line) if a robot or its pose is missing
+                self._start_hardware(recorder)
             endpoint = ", ".join(settings.listen or settings.connect)
             self._say(
                 f"[{self.scene.name}] {self.scene.robots} robots, {self.scene.clock} clock, router {endpoint}",
@@ -258,7 +266,8 @@ class Launcher:
                 str(self.opt.deadline),
             ]
             world_args += ["--pose-frames"] if self._frames else []
-            self._spawn("world", "sim.world_node", world_args, [], self._as("world"))
+            if self.opt.hardware is None:
+                self._spawn("world", "sim.world_node", world_args, [], self._as("world"))
             end_reason = self._loop(bus, recorder)
             self._check_children(recorder)  # an agent that died as the world finished is still a crash
             self._stop_children()
@@ -273,6 +282,21 @@ class Launcher:
         finally:
             bus.close()
         return self._write(recorder, end_reason, time.time() - wall0)
+
+    def _start_hardware(self, rec: Recorder) -> None:
+        """The hardware node stands in for the world; it is started first, since the agents learn where
+        they are from it, and is alive once every robot is reached and tracked."""
+        args = self._scene_args() + ["--hardware", str(self.opt.hardware), "--duration", str(self.scene.duration)]
+        args += ["--pose-frames"] if self._frames else []
+        child = self._spawn("world", "sim.hardware_node", args, [], self._as("world"))
+        try:
+            self._wait_alive(rec, "world", 1, child)
+        except RuntimeError:
+            lines = child.log.read_text().splitlines() if child.log.exists() else []
+            refusal = next((ln for ln in reversed(lines) if ln.startswith(HARDWARE_ERROR)), None)
+            if refusal is not None:
+                raise HardwareStartError(refusal.removeprefix(HARDWARE_ERROR)) from None
+            raise
 
     def _embedded_router(self) -> ZenohSettings:
         """A router on a free loopback port; in a secured run, with mutual TLS and the folder's rules."""
@@ -416,6 +440,7 @@ class Launcher:
             liveliness_lost=[{"robot": e["id"], "wall_time": e["wall_time"]} for e in lost],
             faults=format_faults(self.opt.faults),
             stepping_wall_s=stepping_wall,
+            **({"hardware": stats["hardware"]} if "hardware" in stats else {}),
             stepping_realtime_factor=(
                 float(arrays["t"][-1] - arrays["t"][0]) / stepping_wall if stepping_wall else None
             ),
