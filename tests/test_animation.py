@@ -166,6 +166,7 @@ def test_a_folder_plays_in_file_name_order_with_the_default_timing(tmp_path):
     np.testing.assert_allclose(scene_goal_set(scene, 2, 5)[0], expected.sets[2].goals)
 
 
+@pytest.mark.slow
 def test_pixelswarm_run_plays_a_folder(tmp_path):
     write_frames(tmp_path / "clip", count=3)
     out = tmp_path / "run"
@@ -235,6 +236,7 @@ def test_an_empty_folder_and_mixed_tables_are_refused(tmp_path):
         scene_from_dict({**animation(keyframes="triangle"), "steps": [{"shape": "disk", "hold": 5.0}]})
 
 
+@pytest.mark.slow
 def test_the_shipped_animations_load():
     story = load_scene("story")
     assert story.robots == 14 and len(story.steps) == 7 and story.robot["kinematics"] == "diffdrive"
@@ -284,6 +286,7 @@ def test_the_central_engine_plays_keyframes_in_time(tmp_path):
         assert times.max() <= periods[f] + 1e-9
 
 
+@pytest.mark.slow
 def test_fourteen_agents_play_four_keyframes_of_the_story_over_zenoh(tmp_path):
     """The walking figure's three poses and the heap (paper Fig. 16), as a folder of PNGs, played by
     14 holonomic robots of e-puck speed. Generous K_f dt: the longest move of each transition needs

@@ -143,6 +143,7 @@ def test_single_host_matches_the_optimum() -> None:
     delay=st.sampled_from([0.0, 0.05]),
     grid=st.booleans(),
 )
+@pytest.mark.slow
 def test_lossy_network_agrees_on_one_owner_per_goal(
     n: int, hosts: int, seed: int, loss: float, dup: float, delay: float, grid: bool
 ) -> None:

@@ -36,6 +36,7 @@ def run(tmp_path, toml, *args, name="run"):
     return json.loads((out / "metrics.json").read_text()), np.load(out / "trajectory.npz")
 
 
+@pytest.mark.slow
 def test_realtime_clock_follows_the_wall_clock(tmp_path):
     m, traj = run(tmp_path, SMALL.format(duration=5.0, clock="realtime", extra=""))
     assert len(traj["t"]) == 51 and traj["t"][-1] == pytest.approx(5.0)
@@ -44,6 +45,7 @@ def test_realtime_clock_follows_the_wall_clock(tmp_path):
     assert m["commands_applied"] >= 6 * 40  # agents kept up (a few missed ticks are allowed)
 
 
+@pytest.mark.slow
 def test_a_robot_picked_up_by_hand_returns_to_its_goal(tmp_path):
     # moved at t = 16 s, after the swarm has arrived, to a free spot; the run ends 8 s after all hold
     extra = '[[events]]\nt = 16.0\nkind = "teleport"\nrobot = 2\npose = [0.0, 0.65, 0.0]\n[end]\nconverge_hold = 8.0'
@@ -55,6 +57,7 @@ def test_a_robot_picked_up_by_hand_returns_to_its_goal(tmp_path):
     assert m["time_to_converge_s"] > 16.0  # converged again after being moved
 
 
+@pytest.mark.slow
 def test_central_engine_matches_the_scene_and_is_safe(tmp_path):
     toml = SMALL.format(duration=60.0, clock="lockstep", extra="")
     m, traj = run(tmp_path, toml, "--engine", "central")
@@ -67,6 +70,7 @@ def test_central_engine_matches_the_scene_and_is_safe(tmp_path):
     np.testing.assert_allclose(traj["goal"][-1], traj2["goal"][-1], atol=1e-6)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", shipped_scenes())
 def test_shipped_scenes_load(name):
     scene = load_scene(name)

@@ -47,6 +47,7 @@ def assert_safe_and_arrived(m: dict, traj: dict) -> None:
     assert np.all(err <= 0.01)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("layout, goals", [(CIRCLE, "antipodal"), (ROWS, "swap")], ids=["circle", "swap"])
 def test_fourteen_epucks(tmp_path, layout, goals):
     m, traj = run_scene(tmp_path, scene(14, "diffdrive", layout, goals, 90))
@@ -54,6 +55,7 @@ def test_fourteen_epucks(tmp_path, layout, goals):
     assert_safe_and_arrived(m, traj)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("layout, goals", [(CIRCLE, "antipodal"), (ROWS, "swap")], ids=["circle", "swap"])
 def test_fifty_holonomic(tmp_path, layout, goals):
     # 50 robots, 5 per agent process (the same agent code; 50 interpreters would need minutes here)
@@ -61,6 +63,7 @@ def test_fifty_holonomic(tmp_path, layout, goals):
     assert_safe_and_arrived(m, traj)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kinematics, robots, k", [("diffdrive", 14, "1"), ("holonomic", 50, "5")])
 def test_loss_and_delay_on_states_cause_no_contact(tmp_path, kinematics, robots, k):
     # 25 s: past the crowd in the circle's centre, where the states lost and late matter
@@ -94,6 +97,7 @@ positions = [[0.6, 0.0], [0.0, 0.115], [0.0, -0.115]]
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("toml", [HEAD_ON, CROSSING, PASS_BETWEEN], ids=["head-on", "4-way", "pass-between"])
 def test_symmetric_and_tight_cases_resolve_without_deadlock(tmp_path, toml):
     m, traj = run_scene(tmp_path, toml)
@@ -101,6 +105,7 @@ def test_symmetric_and_tight_cases_resolve_without_deadlock(tmp_path, toml):
     assert m["time_to_converge_s"] < 30
 
 
+@pytest.mark.slow
 def test_dynamic_obstacle_and_pursuer_through_a_formation(tmp_path):
     """Paper Fig. 19: an uncontrolled robot crosses a formation of 14, another pursues it."""
     from coordinator.scene import SCENE_DIR

@@ -242,6 +242,7 @@ def test_the_central_engine_follows_a_sliding_growing_turning_triangle(tmp_path)
     assert (a[after] == a[after][0]).all()
 
 
+@pytest.mark.slow
 def test_fourteen_epucks_follow_the_rotating_growing_triangle_over_zenoh(tmp_path):
     """Paper Fig. 18 with the shipped scene, cut to 40 s: the robots form the triangle from random
     places within 20 s (about 10 s measured), then track it. Bound on the mean distance to the

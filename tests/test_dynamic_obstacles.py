@@ -7,6 +7,7 @@ robot-wall, robot-obstacle) in metrics.json's `contacts`."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from coordinator.scene import load_scene
 
@@ -17,6 +18,7 @@ TOLERANCE = 0.01  # m
 CLEAR_OF_DISK = 0.3  # m of clearance from every controlled robot: a mover has left the disk
 
 
+@pytest.mark.slow
 def test_fourteen_hold_a_disk_while_two_movers_cross_it_without_contact(tmp_path):
     scene = load_scene("dynamic-obstacles")
     movers = sorted(scene.scripted)

@@ -7,6 +7,7 @@ import json
 
 import cv2
 import numpy as np
+import pytest
 from scipy.optimize import linear_sum_assignment
 
 from agent.core.params import EPUCK
@@ -15,6 +16,7 @@ from coordinator import shapes
 from .conftest import run_pixelswarm
 
 
+@pytest.mark.slow
 def test_disk_and_line_shown_by_14_robots(tmp_path):
     image = tmp_path / "disk_and_line.png"
     cv2.imwrite(str(image), shapes.draw("disk_and_line", 256)[:, :, ::-1])
@@ -41,6 +43,7 @@ def test_disk_and_line_shown_by_14_robots(tmp_path):
     assert (final[:, 0] > 150).sum() >= 9 and (final[:, 2] > 150).sum() >= 2
 
 
+@pytest.mark.slow
 def test_any_image_displays_with_the_distributed_engine_by_default(tmp_path):
     """`pixelswarm run picture.png --robots N`: no scene file, the robots' own auction, LEDs in the
     picture's colours."""

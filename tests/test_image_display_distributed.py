@@ -71,6 +71,7 @@ converge_hold = {converge_hold}
 """
 
 
+@pytest.mark.slow
 def test_auction_survives_loss_and_delay(tmp_path):
     m, traj = run(
         tmp_path, DISK.format(hold=40.0, converge_hold=8.0, events=""), "--faults", "auction:drop=0.1,delay=0.05"
@@ -83,6 +84,7 @@ def test_auction_survives_loss_and_delay(tmp_path):
 KILL_AT = 20.0  # s: the disk of 14 forms in about 10 s
 
 
+@pytest.mark.slow
 def test_two_of_fourteen_agents_die_and_twelve_reform_the_image(tmp_path):
     events = "\n".join(f'[[events]]\nkind = "fail"\nt = {KILL_AT}\nrobot = {r}' for r in (3, 9))
     m, traj = run(tmp_path, DISK.format(hold=KILL_AT + 15.0, converge_hold=100.0, events=events))
@@ -128,6 +130,7 @@ hold = 45.0
 """
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(900)
 def test_hundred_holonomic_robots_in_agent_hosts(tmp_path):
     m, traj = run(tmp_path, HUNDRED, "--agents-per-process", "10", timeout=900)

@@ -30,6 +30,7 @@ SAFETY_GAP = pytest.mark.xfail(strict=True, reason="contact in ORCA's fallback w
         ("diffdrive", 30, 0),
     ],
 )
+@pytest.mark.slow
 def test_lost_and_late_states_cause_no_contact(kinematics, robots, seed):
     res = run_lossy(circle_crossing(robots, kinematics, seed), drop=0.3, late=0.5, seed=seed)
     assert 0.15 < res.heard_on_time < 0.25  # the loss really happened

@@ -19,6 +19,7 @@ from .test_image_display_distributed import assert_agreements_valid, assert_ever
 pytestmark = pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(900)  # six 30 s holds in lock-step, plus the video: minutes on 2 busy cores
 def test_make_run_writes_a_complete_run_directory(tmp_path):
     out = tmp_path / "run"

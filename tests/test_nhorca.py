@@ -190,6 +190,7 @@ def test_mirrored_polygon_drives_backwards_when_forward_is_infeasible():
     assert res.wheel_left[0] < 0 and res.wheel_right[0] < 0
 
 
+@pytest.mark.slow
 def test_a_differential_drive_robot_gets_bit_identical_results_alone_or_in_a_batch():
     rng = np.random.default_rng(9)
     b, m = 64, 6

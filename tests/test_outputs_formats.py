@@ -234,6 +234,7 @@ def test_scene_update_messages_validate_and_read_back(tmp_path):
     assert target["color"]["r"] == 1.0 and target["color"]["a"] < 1.0
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_a_run_shows_in_foxglove_and_in_a_browser(tmp_path):
     """The real command: four robots swap places for 3 s (one agent process); then log.mcap has the

@@ -11,6 +11,7 @@ from bench import paper_figures
 
 
 # About 15 s on an idle 2-core machine; the timeout leaves room for a loaded one (no wall-time assertion).
+@pytest.mark.slow
 @pytest.mark.timeout(300)
 def test_quick_reproduction_writes_sane_figures(tmp_path):
     summary = paper_figures.main(["--quick", "--out", str(tmp_path)])

@@ -5,6 +5,7 @@ events of the world). The swarm re-forms the disk through goal reassignment, wit
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from coordinator.scene import load_scene
 
@@ -14,6 +15,7 @@ from .formation import first_formed_after, formed, stays_formed_from
 TOLERANCE = 0.01  # m: every robot within 1 cm of its agreed goal
 
 
+@pytest.mark.slow
 def test_two_robots_teleported_out_of_a_disk_of_14_recover_within_10_s_without_contact(tmp_path):
     scene = load_scene("perturbation")
     moves = [e for e in scene.events if e["kind"] == "teleport"]

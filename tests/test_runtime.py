@@ -80,6 +80,7 @@ def robots_of(agent: psutil.Process) -> list[int]:
     return json.loads(Path(cmd[cmd.index("--config") + 1]).read_text())["robots"]
 
 
+@pytest.mark.slow
 def test_each_robot_is_its_own_process_and_commands_cross_the_router(tmp_path, spawned):
     scene = write_scene(tmp_path, duration=8.0)
     out = tmp_path / "run"
@@ -100,6 +101,7 @@ def test_each_robot_is_its_own_process_and_commands_cross_the_router(tmp_path, s
     assert not reap([p.pid for p in agents])
 
 
+@pytest.mark.slow
 def test_lockstep_is_reproducible_and_hosts_match_processes(tmp_path):
     scene = write_scene(tmp_path, duration=4.0, kinematics="diffdrive")
     runs = []
@@ -127,6 +129,7 @@ def test_lockstep_is_reproducible_and_hosts_match_processes(tmp_path):
     assert moved.min() > 0.2  # the robots really drove
 
 
+@pytest.mark.slow
 def test_sigkill_of_an_agent(tmp_path, spawned):
     scene = write_scene(tmp_path, duration=10.0)
     out = tmp_path / "run"
@@ -154,6 +157,7 @@ def test_sigkill_of_an_agent(tmp_path, spawned):
     assert not reap(everyone)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_stopping_the_launcher_leaves_no_process(tmp_path, spawned, sig):
     scene = write_scene(tmp_path, duration=60.0)
@@ -174,6 +178,7 @@ def test_stopping_the_launcher_leaves_no_process(tmp_path, spawned, sig):
     assert not Path(str(out) + ".partial").exists()
 
 
+@pytest.mark.slow
 def test_malformed_messages_on_every_key_are_dropped(tmp_path, spawned):
     scene = write_scene(tmp_path, duration=6.0)
     out = tmp_path / "run"
@@ -221,6 +226,7 @@ def test_malformed_messages_on_every_key_are_dropped(tmp_path, spawned):
     assert {"truncated", "version", "non-finite"} <= set(m["dropped_messages"])
 
 
+@pytest.mark.slow
 def test_swarm_spans_two_routers(tmp_path, spawned):
     scene = write_scene(tmp_path, duration=5.0)
     port_a, port_b = free_port(), free_port()
@@ -304,6 +310,7 @@ def test_occupied_port_is_one_line_and_exit_2(tmp_path, spawned):
     router.wait(timeout=10)
 
 
+@pytest.mark.slow
 def test_agent_hosts_write_their_profiles_when_asked(tmp_path):
     """PIXELSWARM_PROFILE=DIR: each agent host's loop runs under cProfile and leaves DIR/agent<first
     robot>.prof, readable by pstats, with one control step per tick it stepped."""
