@@ -17,6 +17,7 @@ from transport.session import TransportError, ZenohSettings, add_zenoh_args, ope
 
 from .certs_cli import add_certs_parser
 from .rundir import default_run_path
+from .study import add_study_parser
 
 
 class UsageError(Exception):
@@ -105,6 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_goals_parser(sub)
     add_certs_parser(sub)
+    add_study_parser(sub)
     return parser
 
 
