@@ -195,8 +195,7 @@ def plot_axis(spec: Spec, axis: str, rows: list[dict[str, Any]], metrics: list[s
                 ax.errorbar(xs, [by[v][0] for v in values if by[v][2]], marker="s", color="0.3", label=label)
         ax.set_title(metric, fontsize=10)
         ax.set_xlabel(axis)
-        if not numeric:
-            ax.set_xticks(list(position.values()), [str(v) for v in values])
+        ax.set_xticks(list(position.values()), [_short(v) for v in values])
         ax.grid(alpha=0.3)
         if k == 0:
             ax.legend(fontsize=7)

@@ -8,15 +8,17 @@ import itertools
 import json
 import math
 import shutil
+import signal
 import subprocess
 import sys
 from html.parser import HTMLParser
 from pathlib import Path
 
+import psutil
 import pytest
 
 from sim.cli import main
-from tests.conftest import REPO
+from tests.conftest import REPO, descendants, wait_for
 
 GRID = """
 name = "grid"
@@ -173,19 +175,21 @@ def test_loss_reaches_the_distributed_runs_beside_a_central_baseline(tmp_path):
     spec = tmp_path / "loss.toml"
     spec.write_text(
         'seeds = [3]\n[base]\nscene = "swap"\nrobots = 2\nengine = "distributed"\nagents_per_process = 2\n'
-        'duration = 1.0\n[axes]\nloss = [0.0, 0.5]\n[baseline]\nengine = "central"\nloss = 0.0\n'
+        'duration = 1.0\n[axes]\nloss = [0.5]\ndelay = [0.05]\n[baseline]\nengine = "central"\nloss = 0.0\n'
+        "delay = 0.0\n"
     )
     result = study(spec, tmp_path / "out", "--jobs", "2")
     assert result.returncode == 0, result.stderr[-3000:]
     rows = {r["id"]: r for r in read_csv(tmp_path / "out" / "runs.csv")}
-    assert set(rows) == {"loss-0_seed-3", "loss-0.5_seed-3", "baseline_seed-3"}
-    assert "state:drop=0.5" in rows["loss-0.5_seed-3"]["faults"]
-    assert rows["loss-0_seed-3"]["faults"] == ""  # no fault plan at all without loss
-    assert rows["loss-0.5_seed-3"]["engine"] == "distributed"
+    assert set(rows) == {"loss-0.5_delay-0.05_seed-3", "baseline_seed-3"}
+    lossy = rows["loss-0.5_delay-0.05_seed-3"]
+    assert lossy["faults"] == "state:drop=0.5,delay=0.05,jitter=0.0"  # as the run itself records it
+    assert (lossy["engine"], lossy["status"]) == ("distributed", "done")
     baseline = rows["baseline_seed-3"]
     assert (baseline["engine"], baseline["loss"], baseline["status"]) == ("central", "0.0", "done")
+    assert baseline["faults"] == ""  # the central engine has none
     summary = read_csv(tmp_path / "out" / "summary.csv")
-    assert [s["condition"] for s in summary] == ["loss-0", "loss-0.5", "baseline"]
+    assert [s["condition"] for s in summary] == ["loss-0.5_delay-0.05", "baseline"]
 
 
 BAD_SPECS = {
@@ -215,14 +219,49 @@ def test_a_bad_spec_is_one_line_exit_2_and_starts_nothing(case, tmp_path, capsys
     assert not (tmp_path / "out").exists()
 
 
-def test_bad_command_lines_exit_2_from_a_real_process(tmp_path):
+def test_bad_command_lines_exit_2(tmp_path, capsys):
     spec = tmp_path / "ok.toml"
     spec.write_text(GRID)
-    for result in (
-        study(spec, tmp_path / "out", "--jobs", "0"),
-        study(spec, spec),  # --out names a file
-        study(tmp_path / "missing.toml", tmp_path / "out"),
-    ):
-        assert result.returncode == 2, result.stderr
-        assert result.stderr.count("\n") == 1 and result.stderr.startswith("pixelswarm study: error: ")
+    for argv in (["study", str(spec), "--out", str(spec)], ["study", str(tmp_path / "missing.toml")]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.startswith("pixelswarm study: error: "), err
+    result = study(spec, tmp_path / "out", "--jobs", "0")  # and from a real process: its exit code
+    assert result.returncode == 2 and result.stderr == "pixelswarm study: error: --jobs must be at least 1, not 0\n"
     assert not (tmp_path / "out").exists()
+
+
+def test_ctrl_c_stops_the_runs_it_started_and_keeps_the_finished_ones(tmp_path):
+    spec = tmp_path / "spec.toml"  # a short central run, then a long distributed one to interrupt
+    spec.write_text(
+        'seeds = [1]\n[base]\nscene = "swap"\nrobots = 2\nengine = "central"\nduration = 1.0\n'
+        '[baseline]\nengine = "distributed"\nagents_per_process = 2\nduration = 90.0\n'
+    )
+    out = tmp_path / "out"
+    command = [sys.executable, "-m", "sim.cli", "study", str(spec), "--out", str(out), "--jobs", "1"]
+    # Ctrl-C's SIGINT as a terminal delivers it, even if whoever started pytest ignores SIGINT
+    study_process = subprocess.Popen(
+        command,
+        cwd=REPO,
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    try:
+        assert wait_for(lambda: (out / "runs" / "baseline_seed-1.partial").exists(), timeout=120)
+        started = descendants(study_process.pid)
+        assert started  # the run and its processes
+        study_process.send_signal(signal.SIGINT)
+        _, err = study_process.communicate(timeout=120)
+    finally:
+        if study_process.poll() is None:
+            study_process.kill()
+            study_process.wait()
+    assert study_process.returncode == 130, err[-3000:]
+    assert "interrupted; 1 of 2 runs done" in err
+    assert not [p.pid for p in started if p.is_running() and p.status() != psutil.STATUS_ZOMBIE]
+    assert json.loads((out / "runs" / "base_seed-1" / "metrics.json").read_text())["complete"] is True
+    interrupted = out / "runs" / "baseline_seed-1" / "metrics.json"
+    assert not interrupted.exists() or json.loads(interrupted.read_text())["complete"] is False
+    assert not (out / "report.html").exists()
