@@ -41,7 +41,7 @@ def main() -> int:
     lines = ["| --jobs | runs | study wall s | runs per hour | mean run wall s |", "|---|---|---|---|---|"]
     for jobs in args.jobs:
         wall, rows = run_study(args.spec.resolve(), jobs)
-        per_run = sum(float(r["wall_s"]) for r in rows) / len(rows)
+        per_run = sum(float(r["process_wall_s"]) for r in rows) / len(rows)
         lines.append(f"| {jobs} | {len(rows)} | {wall:.0f} | {len(rows) / wall * 3600:.0f} | {per_run:.1f} |")
         print(lines[-1], flush=True)
     spec = args.spec.resolve().relative_to(REPO) if args.spec.resolve().is_relative_to(REPO) else args.spec

@@ -89,6 +89,8 @@ SETTINGS = {
 
 
 def _check_setting(where: str, key: str, value: Any) -> Any:
+    if key in ("seed", "seeds"):
+        raise StudyError(f"{where}: seeds are not a setting; list them in seeds = [...]")
     if key in NOT_YET:
         raise StudyError(f"{where}: {key!r}: {NOT_YET[key]}")
     if key not in SETTINGS:
@@ -173,8 +175,8 @@ def load_spec(path: Path) -> Spec:
     if not isinstance(seeds, list) or not seeds:
         raise StudyError("seeds: give a non-empty list of whole numbers, e.g. seeds = [1, 2, 3]")
     for s in seeds:
-        if isinstance(s, bool) or not isinstance(s, int):
-            raise StudyError(f"seeds: {s!r} is not a whole number")
+        if isinstance(s, bool) or not isinstance(s, int) or s < 0:
+            raise StudyError(f"seeds: {s!r} is not a whole number >= 0")
     if len(set(seeds)) != len(seeds):
         raise StudyError("seeds: a seed is listed twice")
 
@@ -191,8 +193,6 @@ def load_spec(path: Path) -> Spec:
 
     axes: dict[str, list[Any]] = {}
     for key, values in _table(data, "axes").items():
-        if key in ("seed", "seeds"):
-            raise StudyError("axes: seeds are not an axis; list them in seeds = [...]")
         if key == "scene":
             raise StudyError("axes: scene is not an axis; write one spec per scene")
         if not isinstance(values, list) or not values:
@@ -440,7 +440,12 @@ def execute(spec: Spec, study: StudyDir, jobs: int, stream: TextIO | None) -> Pr
 def _finish(child: _Child, study: StudyDir, progress: Progress) -> None:
     child.log.close()
     wall = time.monotonic() - child.started
-    record = {"id": child.run.id, "wall_s": wall, "returncode": child.process.returncode, "command": child.command}
+    record = {
+        "id": child.run.id,
+        "process_wall_s": wall,
+        "returncode": child.process.returncode,
+        "command": child.command,
+    }
     if study.metrics(child.run) is not None:
         progress.done += 1
         progress.walls.append(wall)
@@ -453,15 +458,19 @@ def _finish(child: _Child, study: StudyDir, progress: Progress) -> None:
 
 
 def _stop(running: list[_Child]) -> None:
-    """SIGTERM each child we started (each stops its own processes), then SIGKILL what is left."""
+    """SIGTERM each child we started (each stops its own processes), then SIGKILL what is left after
+    the grace time, or at once on a second Ctrl-C."""
     for child in running:
         if child.process.poll() is None:
             child.process.send_signal(signal.SIGTERM)
     end = time.monotonic() + STOP_GRACE_S
-    for child in running:
-        try:
+    try:
+        for child in running:
             child.process.wait(timeout=max(0.0, end - time.monotonic()))
-        except subprocess.TimeoutExpired:
+    except (subprocess.TimeoutExpired, KeyboardInterrupt):
+        pass
+    for child in running:
+        if child.process.poll() is None:
             try:
                 os.killpg(child.process.pid, signal.SIGKILL)  # the session it leads, made by us
             except ProcessLookupError:

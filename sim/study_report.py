@@ -67,7 +67,7 @@ def _is_number(value: Any) -> bool:
 def collect(spec: Spec, study: StudyDir) -> tuple[list[str], list[dict[str, Any]]]:
     """One row per run of the spec, in the spec's order, and the column names."""
     settings = spec.columns()
-    head = ["id", "condition", *settings, "seed", "status", "wall_s", "error"]
+    head = ["id", "condition", *settings, "seed", "status", "process_wall_s", "error"]
     metric_names: dict[str, None] = {}
     rows = []
     for run in spec.runs():
@@ -76,7 +76,7 @@ def collect(spec: Spec, study: StudyDir) -> tuple[list[str], list[dict[str, Any]
         status = "done" if metrics is not None else record.get("status", "not run")
         row: dict[str, Any] = {"id": run.id, "condition": run.condition, "seed": run.seed, "status": status}
         row.update({k: run.settings.get(k) for k in settings})
-        row["wall_s"] = record.get("wall_s") if status == record.get("status") else None
+        row["process_wall_s"] = record.get("process_wall_s") if status == record.get("status") else None
         row["error"] = _one_line(record.get("error", "")) if status == "failed" else ""
         if metrics is not None:
             flat = flatten(metrics)
