@@ -283,7 +283,7 @@ def render_html(
         "<h2>Spec</h2>",
         f"<pre>{html.escape(spec.text)}</pre>",
         "<h2>Machine and software</h2>",
-        _table(["", ""], [[k, v] for k, v in {**machine(), **versions()}.items()]),
+        _table(["what", "value"], [[k, v] for k, v in {**machine(), **versions()}.items()]),
         "<h2>Plots</h2>",
         "<p>Each point: the mean over the seeds, bars one standard deviation, dots the seeds; "
         "a dashed line and grey band: the baseline's mean and standard deviation.</p>",
