@@ -32,6 +32,7 @@ BENCHES = [
     "bench.bench_tracker",
     "bench.bench_outputs",
     "bench.bench_security",
+    "bench.bench_study",
 ]
 ORDER = [
     "runtime",
@@ -52,6 +53,7 @@ ORDER = [
     "tracker",
     "outputs",
     "security",
+    "study",
     "paper_figures",
 ]
 

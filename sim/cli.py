@@ -20,6 +20,7 @@ from transport.session import TransportError, ZenohSettings, add_zenoh_args, ope
 from .certs_cli import add_certs_parser
 from .rundir import default_run_path
 from .track import add_track_parser
+from .study import add_study_parser
 
 
 class UsageError(Exception):
@@ -127,6 +128,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_goals_parser(sub)
     add_certs_parser(sub)
     add_track_parser(sub)
+    add_study_parser(sub)
     return parser
 
 

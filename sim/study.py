@@ -1,0 +1,552 @@
+"""`pixelswarm study SPEC.toml`: run a grid of conditions x seeds as `pixelswarm run` processes.
+
+A study spec names a scene and its settings (`[base]`), the settings to vary (`[axes]`, every
+combination) and the seeds; an optional `[baseline]` is one more condition (e.g. the central engine
+at zero loss) run for every seed and drawn beside the grid. The spec is checked in full before any
+run starts. Each run is a `pixelswarm run ... --no-video -q --out DIR/runs/<id>` subprocess; a run
+directory appears under its final name only when written (sim/rundir.py), so a study resumes by
+skipping the runs whose directory says `"complete": true`. The report is sim/study_report.py.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import fcntl
+import itertools
+import json
+import math
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+import tomllib
+from pathlib import Path
+from typing import Any, TextIO
+
+from coordinator.scene import SceneError, load_scene
+
+ENGINES = ("distributed", "central")
+CLOCKS = ("lockstep", "realtime")
+FAULT_SETTINGS = ("loss", "delay", "jitter")  # the state messages' fault plan (transport/faults.py)
+NOT_YET = {"range": "the range-limited auction is not implemented yet"}
+STOP_GRACE_S = 30.0  # a child stopped by SIGTERM writes what it recorded; after this it is killed
+POLL_S = 0.2
+STDERR_TAIL_CHARS = 2000
+
+
+class StudyError(Exception):
+    """A spec or command line that cannot be run: one line for the user, exit code 2."""
+
+
+class Interrupted(Exception):
+    """Ctrl-C or SIGTERM: the running children were stopped, finished runs kept."""
+
+
+# --------------------------------------------------------------------------------------------
+# The spec: settings, their checks, and the grid of runs they make
+# --------------------------------------------------------------------------------------------
+
+
+def _number(key: str, value: Any, *, minimum: float = 0.0, maximum: float = math.inf, positive=False) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise StudyError(f"{key}: {value!r} is not a number")
+    if value < minimum or value > maximum or (positive and value <= 0):
+        bound = "> 0" if positive else f"in [{minimum:g}, {maximum:g}]"
+        raise StudyError(f"{key}: {value!r} must be {bound}")
+    return float(value)
+
+
+def _whole(key: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise StudyError(f"{key}: {value!r} is not a whole number >= 1")
+    return value
+
+
+def _choice(choices: tuple[str, ...]):
+    def check(key: str, value: Any) -> str:
+        if value not in choices:
+            raise StudyError(f"{key}: {value!r} is not one of {', '.join(choices)}")
+        return value
+
+    return check
+
+
+# Every setting a condition may give, with its check: the flags of `pixelswarm run` a study can vary.
+SETTINGS = {
+    "engine": _choice(ENGINES),
+    "clock": _choice(CLOCKS),
+    "robots": _whole,
+    "agents_per_process": _whole,
+    "duration": lambda k, v: _number(k, v, positive=True),
+    "deadline": lambda k, v: _number(k, v, positive=True),
+    "loss": lambda k, v: _number(k, v, maximum=1.0),
+    "delay": lambda k, v: _number(k, v),
+    "jitter": lambda k, v: _number(k, v),
+}
+
+
+def _check_setting(where: str, key: str, value: Any) -> Any:
+    if key in ("seed", "seeds"):
+        raise StudyError(f"{where}: seeds are not a setting; list them in seeds = [...]")
+    if key in NOT_YET:
+        raise StudyError(f"{where}: {key!r}: {NOT_YET[key]}")
+    if key not in SETTINGS:
+        raise StudyError(f"{where}: unknown setting {key!r} (known: {', '.join(SETTINGS)})")
+    return SETTINGS[key](f"{where}.{key}", value)
+
+
+@dataclasses.dataclass(frozen=True)
+class Run:
+    """One `pixelswarm run`: its condition's settings and a seed."""
+
+    condition: str  # stable name of the settings that vary, e.g. "loss-0.2_agents_per_process-3"
+    settings: dict[str, Any]  # base, then the baseline's or the axes' values
+    seed: int
+
+    @property
+    def id(self) -> str:
+        return f"{self.condition}_seed-{self.seed}"
+
+
+@dataclasses.dataclass
+class Spec:
+    name: str
+    scene: str  # a shipped scene name or a path (made absolute)
+    seeds: list[int]
+    base: dict[str, Any]
+    axes: dict[str, list[Any]]
+    baseline: dict[str, Any] | None
+    text: str  # the spec file as written
+
+    def runs(self) -> list[Run]:
+        """Every combination of the axes for every seed, then the baseline's runs."""
+        runs = []
+        for condition, settings in self.conditions():
+            runs += [Run(condition, settings, seed) for seed in self.seeds]
+        return runs
+
+    def conditions(self) -> list[tuple[str, dict[str, Any]]]:
+        out = [(_name(values), {**self.base, **values}) for values in _grid(self.axes)]
+        if self.baseline is not None:
+            # the baseline is crossed with the axes it does not set itself
+            free = {k: v for k, v in self.axes.items() if k not in self.baseline}
+            for values in _grid(free):
+                out.append((_name(values, prefix="baseline"), {**self.base, **values, **self.baseline}))
+        return out
+
+    def columns(self) -> list[str]:
+        """The settings that tell conditions apart: the axes, then what the baseline changes."""
+        extra = [k for k in (self.baseline or {}) if k not in self.axes]
+        return list(self.axes) + extra
+
+
+def _grid(axes: dict[str, list[Any]]) -> list[dict[str, Any]]:
+    return [dict(zip(axes, combo)) for combo in itertools.product(*axes.values())]
+
+
+def _format(value: Any) -> str:
+    return format(value, ".12g") if isinstance(value, float) else str(value)
+
+
+def _name(values: dict[str, Any], prefix: str = "") -> str:
+    parts = ([prefix] if prefix else []) + [f"{k}-{_format(v)}" for k, v in values.items()]
+    return "_".join(parts) or "base"
+
+
+def load_spec(path: Path) -> Spec:
+    """Read and check a study spec; StudyError (one line) on anything that cannot be run."""
+    try:
+        text = path.read_text()
+        data = tomllib.loads(text)
+    except OSError as err:
+        raise StudyError(f"cannot read {path}: {err.strerror}") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise StudyError(f"{path}: not valid TOML: {err}") from None
+    unknown = set(data) - {"name", "seeds", "base", "axes", "baseline"}
+    if unknown:
+        raise StudyError(f"{path}: unknown key {sorted(unknown)[0]!r} (known: name, seeds, base, axes, baseline)")
+    name = data.get("name", path.stem)
+    if not isinstance(name, str) or not name.strip() or "/" in name:
+        raise StudyError(f"name: {name!r} must be a non-empty string without '/'")
+    seeds = data.get("seeds")
+    if not isinstance(seeds, list) or not seeds:
+        raise StudyError("seeds: give a non-empty list of whole numbers, e.g. seeds = [1, 2, 3]")
+    for s in seeds:
+        if isinstance(s, bool) or not isinstance(s, int) or s < 0:
+            raise StudyError(f"seeds: {s!r} is not a whole number >= 0")
+    if len(set(seeds)) != len(seeds):
+        raise StudyError("seeds: a seed is listed twice")
+
+    base = _table(data, "base")
+    scene = base.pop("scene", None)
+    if not isinstance(scene, str):
+        raise StudyError('base.scene: give the scene to run, e.g. scene = "circle"')
+    # a file or folder beside the spec (else where the command runs), made absolute for the children
+    for candidate in (path.parent / scene, Path(scene)):
+        if candidate.exists():
+            scene = str(candidate.resolve())
+            break
+    base = {k: _check_setting("base", k, v) for k, v in base.items()}
+
+    axes: dict[str, list[Any]] = {}
+    for key, values in _table(data, "axes").items():
+        if key == "scene":
+            raise StudyError("axes: scene is not an axis; write one spec per scene")
+        if not isinstance(values, list) or not values:
+            raise StudyError(f"axes.{key}: give a non-empty list of values")
+        checked = [_check_setting("axes", key, v) for v in values]
+        if len(set(checked)) != len(checked):
+            raise StudyError(f"axes.{key}: a value is listed twice")
+        axes[key] = checked
+
+    baseline = None
+    if "baseline" in data:
+        baseline = {k: _check_setting("baseline", k, v) for k, v in _table(data, "baseline").items()}
+        if not baseline:
+            raise StudyError('baseline: give the settings it changes, e.g. engine = "central"')
+
+    spec = Spec(name.strip(), scene, list(seeds), base, axes, baseline, text)
+    _check_conditions(spec)
+    return spec
+
+
+def _table(data: dict[str, Any], key: str) -> dict[str, Any]:
+    table = data.get(key, {})
+    if not isinstance(table, dict):
+        raise StudyError(f"{key}: must be a table ([{key}])")
+    return dict(table)
+
+
+def _check_conditions(spec: Spec) -> None:
+    """Load the scene as each condition changes it, and refuse what its engine cannot honour."""
+    scenes: dict[tuple, Any] = {}
+    for condition, settings in spec.conditions():
+        key = (settings.get("robots"), settings.get("clock"), settings.get("duration"))
+        if key not in scenes:
+            try:
+                scenes[key] = load_scene(spec.scene, robots=key[0], clock=key[1], duration=key[2])
+            except SceneError as err:
+                raise StudyError(str(err)) from None
+        scene = scenes[key]
+        if settings.get("engine", scene.engine) == "central":
+            faulty = [k for k in FAULT_SETTINGS if settings.get(k, 0.0) != 0.0]
+            if faulty:
+                raise StudyError(
+                    f"condition {condition}: engine central has no messages to lose or delay "
+                    f'({faulty[0]} = {settings[faulty[0]]:g}); use a [baseline] with engine = "central" and {faulty[0]} = 0'
+                )
+            if settings.get("clock", scene.clock) == "realtime":
+                raise StudyError(f"condition {condition}: engine central steps without a real-time clock")
+
+
+def run_command(spec: Spec, run: Run, out: Path) -> list[str]:
+    """The `pixelswarm run` command line of one run."""
+    s = run.settings
+    cmd = [sys.executable, "-m", "sim.cli", "run", spec.scene, "--seed", str(run.seed)]
+    for key, flag in (("engine", "--engine"), ("robots", "--robots"), ("clock", "--clock")):
+        if key in s:
+            cmd += [flag, str(s[key])]
+    for key, flag in (("duration", "--duration"), ("deadline", "--deadline")):
+        if key in s:
+            cmd += [flag, repr(s[key])]
+    if s.get("engine") != "central":
+        if "agents_per_process" in s:
+            cmd += ["--agents-per-process", str(s["agents_per_process"])]
+        if any(s.get(k, 0.0) for k in FAULT_SETTINGS):
+            drop, delay, jitter = (s.get(k, 0.0) for k in FAULT_SETTINGS)
+            cmd += ["--faults", f"state:drop={drop!r},delay={delay!r},jitter={jitter!r}"]
+    return cmd + ["--no-video", "-q", "--out", str(out)]
+
+
+# --------------------------------------------------------------------------------------------
+# The study directory: run directories, a record per run, the lock
+# --------------------------------------------------------------------------------------------
+
+
+class StudyDir:
+    """DIR/runs/<id> (run directories), DIR/records/<id>.json (status, wall time, error),
+    DIR/logs/<id>.log (the run's output), DIR/spec.toml and the report."""
+
+    def __init__(self, root: Path):
+        self.root = root
+        self.runs = root / "runs"
+        self.records = root / "records"
+        self.logs = root / "logs"
+
+    def run_dir(self, run: Run) -> Path:
+        return self.runs / run.id
+
+    def metrics(self, run: Run) -> dict[str, Any] | None:
+        """metrics.json of a finished run, or None if the run is missing or incomplete."""
+        try:
+            metrics = json.loads((self.run_dir(run) / "metrics.json").read_text())
+        except (OSError, ValueError):
+            return None
+        return metrics if isinstance(metrics, dict) and metrics.get("complete") is True else None
+
+    def record(self, run: Run) -> dict[str, Any]:
+        try:
+            return json.loads((self.records / f"{run.id}.json").read_text())
+        except (OSError, ValueError):
+            return {}
+
+    def write_record(self, run: Run, record: dict[str, Any]) -> None:
+        write_text(self.records / f"{run.id}.json", json.dumps(record, indent=2) + "\n")
+
+    def clear(self, run: Run) -> None:
+        """Remove what an interrupted or killed attempt of this run left, before running it again."""
+        final = self.run_dir(run)
+        for leftover in (final, final.with_name(final.name + ".partial")):
+            if leftover.exists():
+                shutil.rmtree(leftover)
+
+
+def write_text(path: Path, text: str | bytes) -> None:
+    """Write through a temporary sibling and rename, so that no reader sees half a file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        tmp.write_bytes(text.encode() if isinstance(text, str) else text)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def _lock(root: Path) -> Any:
+    """Hold DIR/.lock for the study's life: two studies on one directory would run the same runs."""
+    root.mkdir(parents=True, exist_ok=True)
+    handle = open(root / ".lock", "w")  # noqa: SIM115 - held open until the study ends
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        handle.close()
+        raise StudyError(f"another study is running in {root}") from None
+    return handle
+
+
+def _check_same_study(spec: Spec, root: Path) -> None:
+    """A directory resumes only the study it holds: runs are named by what varies, so the base must match."""
+    try:
+        held = json.loads((root / "study.json").read_text())
+    except (OSError, ValueError):
+        return
+    mine = {"scene": spec.scene, "base": spec.base, "baseline": spec.baseline}
+    if held != json.loads(json.dumps(mine)):
+        raise StudyError(f"{root} holds another study (its scene, [base] or [baseline] differ); choose another --out")
+
+
+# --------------------------------------------------------------------------------------------
+# Running: up to `jobs` children at once, progress on stderr, Ctrl-C stops the children
+# --------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class _Child:
+    run: Run
+    process: subprocess.Popen
+    log: TextIO
+    started: float
+    command: list[str]
+
+
+class Progress:
+    """One line per event: a bar, runs done / failed / total, and the time left at the pace so far."""
+
+    def __init__(self, total: int, jobs: int, stream: TextIO | None):
+        self.total, self.jobs, self.stream = total, jobs, stream
+        self.done = self.failed = 0
+        self.walls: list[float] = []
+
+    def line(self, running: int, note: str) -> None:
+        if self.stream is None:
+            return
+        finished = self.done + self.failed
+        width = 20
+        filled = round(width * finished / self.total) if self.total else width
+        left = self.total - finished
+        if not left:
+            eta = "finished"
+        elif self.walls:
+            eta = f"~{_duration(sum(self.walls) / len(self.walls) * left / min(self.jobs, left))} left"
+        else:
+            eta = "time left: after the first run"
+        bar = "#" * filled + "-" * (width - filled)
+        print(
+            f"[{bar}] {self.done} done, {self.failed} failed of {self.total}, {running} running, {eta}  {note}",
+            file=self.stream,
+            flush=True,
+        )
+
+
+def _duration(seconds: float) -> str:
+    seconds = round(seconds)
+    h, rest = divmod(seconds, 3600)
+    m, s = divmod(rest, 60)
+    return f"{h}h{m:02d}m" if h else f"{m}m{s:02d}s" if m else f"{s}s"
+
+
+def _child_env() -> dict[str, str]:
+    # the children run this checkout's code, whatever the working directory
+    root = str(Path(__file__).resolve().parents[1])
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [root, env.get("PYTHONPATH")]))
+    return env
+
+
+def execute(spec: Spec, study: StudyDir, jobs: int, stream: TextIO | None) -> Progress:
+    """Run every run not finished yet, `jobs` at a time; record each one's outcome."""
+    runs = spec.runs()
+    todo = [r for r in runs if study.metrics(r) is None]
+    progress = Progress(len(runs), jobs, stream)
+    progress.done = len(runs) - len(todo)
+    if stream is not None:
+        print(
+            f"study {spec.name}: {len(runs)} runs, {progress.done} already done, {len(todo)} to run, "
+            f"{jobs} at a time, in {study.root}",
+            file=stream,
+            flush=True,
+        )
+    study.logs.mkdir(parents=True, exist_ok=True)
+    study.runs.mkdir(parents=True, exist_ok=True)
+    env = _child_env()
+    running: list[_Child] = []
+    try:
+        while todo or running:
+            while todo and len(running) < jobs:
+                run = todo.pop(0)
+                study.clear(run)
+                command = run_command(spec, run, study.run_dir(run))
+                log = open(study.logs / f"{run.id}.log", "w")  # noqa: SIM115 - closed when the child ends
+                # a session of its own: the terminal's Ctrl-C reaches the study, which stops its children
+                process = subprocess.Popen(
+                    command, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True
+                )
+                running.append(_Child(run, process, log, time.monotonic(), command))
+            time.sleep(POLL_S)
+            for child in [c for c in running if c.process.poll() is not None]:
+                running.remove(child)
+                _finish(child, study, progress)
+                progress.line(len(running), f"{child.run.id}: {'done' if study.metrics(child.run) else 'FAILED'}")
+    except KeyboardInterrupt:
+        _stop(running)
+        raise Interrupted from None
+    return progress
+
+
+def _finish(child: _Child, study: StudyDir, progress: Progress) -> None:
+    child.log.close()
+    wall = time.monotonic() - child.started
+    record = {
+        "id": child.run.id,
+        "process_wall_s": wall,
+        "returncode": child.process.returncode,
+        "command": child.command,
+    }
+    if study.metrics(child.run) is not None:
+        progress.done += 1
+        progress.walls.append(wall)
+        record.update(status="done", error="")
+    else:
+        progress.failed += 1
+        tail = (study.logs / f"{child.run.id}.log").read_text(errors="replace")[-STDERR_TAIL_CHARS:]
+        record.update(status="failed", error=tail.strip() or f"exit code {child.process.returncode}, no output")
+    study.write_record(child.run, record)
+
+
+def _stop(running: list[_Child]) -> None:
+    """SIGTERM each child we started (each stops its own processes), then SIGKILL what is left after
+    the grace time, or at once on a second Ctrl-C."""
+    for child in running:
+        if child.process.poll() is None:
+            child.process.send_signal(signal.SIGTERM)
+    end = time.monotonic() + STOP_GRACE_S
+    try:
+        for child in running:
+            child.process.wait(timeout=max(0.0, end - time.monotonic()))
+    except (subprocess.TimeoutExpired, KeyboardInterrupt):
+        pass
+    for child in running:
+        if child.process.poll() is None:
+            try:
+                os.killpg(child.process.pid, signal.SIGKILL)  # the session it leads, made by us
+            except ProcessLookupError:
+                pass
+            child.process.wait()
+        child.log.close()
+
+
+# --------------------------------------------------------------------------------------------
+# The command
+# --------------------------------------------------------------------------------------------
+
+
+def default_jobs() -> int:
+    # a distributed run is several processes (router, world, agents): half the cores each
+    return max(1, (os.cpu_count() or 1) // 2)
+
+
+def add_study_parser(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "study",
+        help="run a grid of conditions x seeds (pixelswarm run each) and write a report",
+        description="Run every condition of a study spec for every seed and write runs.csv, summary.csv, "
+        "plots and report.html (docs/study.md). Rerun the same command to resume.",
+    )
+    p.add_argument("spec", type=Path, help="the study spec (TOML; see studies/ and docs/study.md)")
+    p.add_argument("--out", type=Path, help="study directory (default runs/study-<name>); reused to resume")
+    p.add_argument(
+        "--jobs", "-j", type=int, default=None, help=f"runs at once (default: half the cores, here {default_jobs()})"
+    )
+    p.set_defaults(func=cmd_study)
+
+
+def cmd_study(args: argparse.Namespace) -> int:
+    try:
+        if args.jobs is not None and args.jobs < 1:
+            raise StudyError(f"--jobs must be at least 1, not {args.jobs}")
+        spec = load_spec(args.spec)
+        root = args.out or Path("runs") / f"study-{spec.name}"
+        if root.exists() and not root.is_dir():
+            raise StudyError(f"--out {root} is a file, not a directory")
+        _check_same_study(spec, root)
+        lock = _lock(root)
+    except StudyError as err:
+        print(f"pixelswarm study: error: {err}", file=sys.stderr)
+        return 2
+    try:
+        return _study(spec, StudyDir(root), args.jobs or default_jobs(), args)
+    finally:
+        lock.close()
+
+
+def _study(spec: Spec, study: StudyDir, jobs: int, args: argparse.Namespace) -> int:
+    from .study_report import write_report  # matplotlib only once runs are done
+
+    write_text(study.root / "spec.toml", spec.text)
+    held = {"scene": spec.scene, "base": spec.base, "baseline": spec.baseline}
+    write_text(study.root / "study.json", json.dumps(held, indent=2) + "\n")
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        progress = execute(spec, study, jobs, sys.stderr)
+    except Interrupted:
+        done = sum(study.metrics(r) is not None for r in spec.runs())
+        print(
+            f"pixelswarm study: interrupted; {done} of {len(spec.runs())} runs done and kept. "
+            f"Run the same command again to resume.",
+            file=sys.stderr,
+        )
+        return 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    command = f"pixelswarm study {study.root / 'spec.toml'} --out NEW_DIR --jobs {jobs}"
+    report = write_report(spec, study, command)
+    print(report)
+    return 1 if progress.failed else 0
+
+
+def _raise_interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
