@@ -19,8 +19,8 @@ from transport.session import TransportError, ZenohSettings, add_zenoh_args, ope
 
 from .certs_cli import add_certs_parser
 from .rundir import default_run_path
-from .track import add_track_parser
 from .study import add_study_parser
+from .track import add_track_parser
 
 
 class UsageError(Exception):

@@ -178,7 +178,8 @@ def plot_axis(spec: Spec, axis: str, rows: list[dict[str, Any]], metrics: list[s
             line = ax.errorbar(xs, means, yerr=stds, marker="o", capsize=3, label=label)
             dots = [(position[r[axis]] + offset, r.get(metric)) for r in members if _is_number(r.get(metric))]
             if dots:
-                ax.scatter(*zip(*dots), s=10, alpha=0.45, color=line[0].get_color())
+                dot_x, dot_y = zip(*dots)
+                ax.scatter(dot_x, dot_y, s=10, alpha=0.45, color=line[0].get_color())
         for condition in dict.fromkeys(r["condition"] for r in base):
             mine = [r for r in base if r["condition"] == condition]
             m, s, n = stats([r.get(metric) for r in mine])
