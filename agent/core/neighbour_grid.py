@@ -23,17 +23,19 @@ from numba import njit
 __all__ = ["grid_cells", "nearest_within"]
 
 CELLS_PER_ROBOT = 16  # the grid's cell count is capped at this many per robot (coarser cells past it)
+RINGS = 4  # nearest_within's cells are reach / RINGS wide
 
 
 @njit(cache=True)
-def grid_cells(x: np.ndarray, y: np.ndarray, reach: float) -> tuple:
-    """Cells of the points: per point its cell (cx, cy); the grid's size (nx, ny); cell starts and the
-    points sorted by cell (the points of cell c = gx * ny + gy are order[start[c]:start[c + 1]]);
-    the grid's origin (x0, y0) and cell size."""
+def grid_cells(x: np.ndarray, y: np.ndarray, width: float) -> tuple:
+    """Cells of the points, at least ``width`` wide (wider where there would be too many): per point
+    its cell (cx, cy); the grid's size (nx, ny); cell starts and the points sorted by cell (the
+    points of cell c = gx * ny + gy are order[start[c]:start[c + 1]]); the grid's origin (x0, y0)
+    and cell size."""
     n = x.size
     x0, x1, y0, y1 = x.min(), x.max(), y.min(), y.max()
-    # a little wider than reach, so two points within reach are never two cells apart by rounding
-    cell = reach * (1.0 + 1e-6) + 1e-12
+    # a little wider, so two points within a width are never two cells apart by rounding
+    cell = width * (1.0 + 1e-6) + 1e-12
     cap = max(CELLS_PER_ROBOT * n, 1024)
     while ((x1 - x0) / cell + 1.0) * ((y1 - y0) / cell + 1.0) > cap:
         cell *= 2.0
@@ -60,33 +62,49 @@ def grid_cells(x: np.ndarray, y: np.ndarray, reach: float) -> tuple:
 @njit(cache=True, nogil=True)
 def nearest_within(position: np.ndarray, reach: float, m: int) -> np.ndarray:
     """(N, m) indices of each robot's m nearest other robots strictly within ``reach`` (distance
-    sqrt(dx^2 + dy^2)), nearest first (equal distances: the lower index first), -1 past the last."""
+    sqrt(dx^2 + dy^2)), nearest first (equal distances: the lower index first), -1 past the last.
+
+    Cells are reach / RINGS wide; each robot looks at the rings of cells around its own, nearest
+    ring first, and stops when it has m neighbours all nearer than the next ring can be (in a crowd
+    the m nearest are much nearer than reach, as RVO2's k-d tree shrinks its range)."""
     n = position.shape[0]
     out = np.full((n, m), -1, np.int64)
     if n == 0 or m == 0:
         return out
     x, y = position[:, 0].copy(), position[:, 1].copy()
-    cx, cy, nx, ny, start, order, _, _, _ = grid_cells(x, y, reach)
+    cx, cy, nx, ny, start, order, _, _, cell = grid_cells(x, y, reach / RINGS)
+    rings = int(reach / cell) + 1  # a point r rings away is at least (r - 1) cells away
+    # how far rounding may move a point across a cell border: far below a cell, above any ulp
+    slack = 1e-9 * (cell + max(np.abs(x).max(), np.abs(y).max()))
     best_d = np.empty(m)
     for i in range(n):
         k = 0  # neighbours kept so far, sorted by (distance, index)
-        for gx in range(max(cx[i] - 1, 0), min(cx[i] + 2, nx)):
-            for gy in range(max(cy[i] - 1, 0), min(cy[i] + 2, ny)):
-                c = gx * ny + gy
-                for a in range(start[c], start[c + 1]):
-                    j = order[a]
-                    if j == i:
+        for r in range(rings + 1):
+            if k == m and (r - 1) * cell - slack > best_d[m - 1]:
+                break
+            for gx in range(max(cx[i] - r, 0), min(cx[i] + r + 1, nx)):
+                edge = gx == cx[i] - r or gx == cx[i] + r
+                step = 1 if edge else 2 * r  # inside the ring's columns only its top and bottom cells
+                for gy in range(cy[i] - r, cy[i] + r + 1, max(step, 1)):
+                    if gy < 0 or gy >= ny:
                         continue
-                    dx, dy = x[j] - x[i], y[j] - y[i]
-                    d = np.sqrt(dx * dx + dy * dy)
-                    if not d < reach or (k == m and (d > best_d[m - 1] or (d == best_d[m - 1] and j > out[i, m - 1]))):
-                        continue
-                    p = min(k, m - 1)  # insert (d, j) in order, dropping the last when full
-                    while p > 0 and (best_d[p - 1] > d or (best_d[p - 1] == d and out[i, p - 1] > j)):
-                        best_d[p] = best_d[p - 1]
-                        out[i, p] = out[i, p - 1]
-                        p -= 1
-                    best_d[p] = d
-                    out[i, p] = j
-                    k = min(k + 1, m)
+                    c = gx * ny + gy
+                    for a in range(start[c], start[c + 1]):
+                        j = order[a]
+                        if j == i:
+                            continue
+                        dx, dy = x[j] - x[i], y[j] - y[i]
+                        d = np.sqrt(dx * dx + dy * dy)
+                        if not d < reach or (
+                            k == m and (d > best_d[m - 1] or (d == best_d[m - 1] and j > out[i, m - 1]))
+                        ):
+                            continue
+                        p = min(k, m - 1)  # insert (d, j) in order, dropping the last when full
+                        while p > 0 and (best_d[p - 1] > d or (best_d[p - 1] == d and out[i, p - 1] > j)):
+                            best_d[p] = best_d[p - 1]
+                            out[i, p] = out[i, p - 1]
+                            p -= 1
+                        best_d[p] = d
+                        out[i, p] = j
+                        k = min(k + 1, m)
     return out
