@@ -2,8 +2,8 @@
 numba: every pair within that distance lies in the 3 x 3 cells around either one's cell.
 
 - `nearest_within`: each robot's nearest neighbours within reach (the central engine's neighbour
-  search, sim.central): the same neighbours as scipy's kd-tree (tests/test_proximity.py), without
-  its build and the bookkeeping around it.
+  search, sim.central), from agent.core.neighbour_grid, whose grid (`grid_cells`) the searches
+  here share.
 - `gather`: the neighbours' positions, velocities and flags that `nearest_within` found, in one pass
   instead of numpy's takes and masks.
 - `close_pairs`: the world's robot-robot detection (sim.world.World._detect): every pair whose
@@ -22,43 +22,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from agent.core.neighbour_grid import grid_cells, nearest_within
 from agent.core.step import NeighbourStates
 from agent.neighbour_table import Heard
 
 __all__ = ["close_pairs", "gather", "nearest_heard_compiled", "nearest_within"]
-
-_CELLS_PER_ROBOT = 16  # the grid's cell count is capped at this many per robot (coarser cells past it)
-
-
-@njit(cache=True)
-def _grid(x: np.ndarray, y: np.ndarray, reach: float) -> tuple:
-    """Cells of the points: per point its cell (cx, cy); the points sorted by cell; cell starts; the
-    grid's origin and cell size."""
-    n = x.size
-    x0, x1, y0, y1 = x.min(), x.max(), y.min(), y.max()
-    # a little wider than reach, so two points within reach are never two cells apart by rounding
-    cell = reach * (1.0 + 1e-6) + 1e-12
-    cap = max(_CELLS_PER_ROBOT * n, 1024)
-    while ((x1 - x0) / cell + 1.0) * ((y1 - y0) / cell + 1.0) > cap:
-        cell *= 2.0
-    nx = int((x1 - x0) / cell) + 1
-    ny = int((y1 - y0) / cell) + 1
-    cx = np.empty(n, dtype=np.int64)
-    cy = np.empty(n, dtype=np.int64)
-    start = np.zeros(nx * ny + 1, dtype=np.int64)
-    for i in range(n):
-        cx[i] = min(int((x[i] - x0) / cell), nx - 1)
-        cy[i] = min(int((y[i] - y0) / cell), ny - 1)
-        start[cx[i] * ny + cy[i] + 1] += 1
-    for c in range(nx * ny):
-        start[c + 1] += start[c]
-    fill = start[:-1].copy()
-    order = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        c = cx[i] * ny + cy[i]
-        order[fill[c]] = i
-        fill[c] += 1
-    return cx, cy, nx, ny, start, order, x0, y0, cell
 
 
 @njit(cache=True, nogil=True)
@@ -74,7 +42,7 @@ def _close_pairs(
     """close_pairs, compiled: (done, clearance, i, j, pairs, depth (H, rows - first_row))."""
     rows, n = traj.shape[0], traj.shape[1]
     x, y = traj[0, :, 0].copy(), traj[0, :, 1].copy()
-    cx, cy, nx, ny, start, order, _, _, _ = _grid(x, y, reach)
+    cx, cy, nx, ny, start, order, _, _, _ = grid_cells(x, y, reach)
     reach2 = reach * reach
     slack = 2.0 * motion + 1e-9  # no row brings a pair closer than its row-0 distance less this
     best, best_i, best_j = np.inf, -1, -1
@@ -172,41 +140,6 @@ def close_pairs(
 
 
 @njit(cache=True, nogil=True)
-def nearest_within(position: np.ndarray, reach: float, m: int) -> np.ndarray:
-    """(N, m) indices of each robot's m nearest other robots strictly within ``reach``, nearest
-    first (equal distances: the lower index first), -1 past the last."""
-    n = position.shape[0]
-    out = np.full((n, m), -1, np.int64)
-    if n == 0 or m == 0:
-        return out
-    x, y = position[:, 0].copy(), position[:, 1].copy()
-    cx, cy, nx, ny, start, order, _, _, _ = _grid(x, y, reach)
-    best_d = np.empty(m)
-    for i in range(n):
-        k = 0  # neighbours kept so far, sorted by (distance, index)
-        for gx in range(max(cx[i] - 1, 0), min(cx[i] + 2, nx)):
-            for gy in range(max(cy[i] - 1, 0), min(cy[i] + 2, ny)):
-                c = gx * ny + gy
-                for a in range(start[c], start[c + 1]):
-                    j = order[a]
-                    if j == i:
-                        continue
-                    dx, dy = x[j] - x[i], y[j] - y[i]
-                    d = np.sqrt(dx * dx + dy * dy)
-                    if not d < reach or (k == m and (d > best_d[m - 1] or (d == best_d[m - 1] and j > out[i, m - 1]))):
-                        continue
-                    p = min(k, m - 1)  # insert (d, j) in order, dropping the last when full
-                    while p > 0 and (best_d[p - 1] > d or (best_d[p - 1] == d and out[i, p - 1] > j)):
-                        best_d[p] = best_d[p - 1]
-                        out[i, p] = out[i, p - 1]
-                        p -= 1
-                    best_d[p] = d
-                    out[i, p] = j
-                    k = min(k + 1, m)
-    return out
-
-
-@njit(cache=True, nogil=True)
 def gather(index: np.ndarray, position: np.ndarray, velocity: np.ndarray, cooperative: np.ndarray) -> tuple:
     """For neighbour indices (N, m) (-1: none): their positions and velocities (N, m, 2), whether
     each is one (N, m) and whether it cooperates (N, m); a padded slot holds robot 0's state (as
@@ -233,7 +166,7 @@ def _nearest_of(qx, qy, qid, x, y, ids, reach: float, m: int) -> np.ndarray:
     out = np.full((q, m), -1, np.int64)
     if q == 0 or n == 0 or m == 0:
         return out
-    _, _, nx, ny, start, order, x0, y0, cell = _grid(x, y, reach)
+    _, _, nx, ny, start, order, x0, y0, cell = grid_cells(x, y, reach)
     reach2 = reach * reach
     best = np.empty(m)
     for i in range(q):

@@ -165,3 +165,59 @@ def test_control_step_compiled_is_the_control_step(segments, given):
         np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
     assert want.fallback.any()  # the crowd is dense enough for the fallback to matter
     assert (want.pref_velocity[:10] == 0.0).all()  # no goal, no perturbation
+
+
+@pytest.mark.parametrize("seed, side, safety", [(7, 1.2, True), (8, 1.2, False), (9, 3.0, False)])
+def test_central_core_equals_orca_velocity_bit_for_bit(seed, side, safety):
+    """The central engine's entry (agent.core.rvo.CentralOrca): neighbours are rows of the batch,
+    known now and cooperating (responsibility 0.5, no growth), radius and speed per robot, RVO2's
+    program without ``safety`` (no safety lines, least violation at the full horizon)."""
+    from agent.core.orca_kernel import central_core
+
+    rng = np.random.default_rng(seed)
+    n, m = 300, 12
+    c = crowd(seed, n=n, m=m, side=side, stale=False)
+    radius = rng.uniform(0.5, 1.5, n) * P.radius
+    vmax = rng.uniform(0.5, 1.5, n) * P.v_max
+    pick = np.stack([rng.permutation(np.delete(np.arange(n), i))[:m] for i in range(n)])
+    dist = np.hypot(*(c["position"][pick] - c["position"][:, None]).transpose(2, 0, 1))
+    pick = np.take_along_axis(pick, np.argsort(dist, axis=1), axis=1)
+    valid = rng.random((n, m)) > 0.1
+    segments = np.concatenate(
+        [arena_segments(0.0, 0.0, side, side), polygon_segments([(0.4, 0.4), (0.6, 0.4), (0.6, 0.6), (0.4, 0.6)])]
+    )
+    want_v, want_fallback = orca_velocity(
+        c["position"],
+        c["velocity"],
+        c["pref"],
+        radius,
+        vmax,
+        c["position"][pick],
+        c["velocity"][pick],
+        radius[pick],
+        np.full((n, m), 0.5),
+        valid,
+        segments,
+        tau=P.tau,
+        tau_obst=P.tau_obst,
+        dt=P.dt,
+        safety=safety,
+        margin=P.noise_bound,
+    )
+    got_v, got_fallback = central_core(
+        c["position"],
+        c["velocity"],
+        c["pref"],
+        radius,
+        vmax,
+        np.where(valid, pick, -1),
+        segments,
+        P.tau,
+        P.tau_obst,
+        P.dt,
+        P.noise_bound,
+        safety,
+    )
+    assert 0 < want_fallback.sum() < n  # the fallback ran for some, not all
+    np.testing.assert_array_equal(got_fallback, want_fallback)
+    np.testing.assert_array_equal(got_v, want_v)

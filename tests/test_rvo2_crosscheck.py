@@ -1,10 +1,15 @@
-"""Our holonomic ORCA against RVO2 v2.0.3 (through pyrvo) on random one-step configurations.
+"""Our holonomic ORCA against RVO2 v2.0.3 (through pyrvo) on random one-step configurations, and
+our RVO2-shaped engine (agent.core.rvo.CentralOrca) on RVO2's own scenes.
 
 RVO2 computes in float32, we in float64: inputs are drawn as float32 values so both see the same
 numbers, and results agree to float32 rounding (measured: at most 2e-6). Where RVO2's program is
 infeasible both run the least-violation fallback; its optimum need not be unique (ties) and we start
 it from the optimum over the hard lines where RVO2 starts from its partial result, so there agreement
 is checked in the aggregate.
+
+CentralOrca steps with compiled kernels by default: on bench/bench_orca.py's scenes they give the
+numpy path's velocities to the bit, and the engine keeps the benchmark's results (no overlap, clear of
+the obstacles, done). These need no pyrvo.
 """
 
 from __future__ import annotations
@@ -12,11 +17,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from agent.core.orca import orca_lines, orca_velocity
+from agent.core.orca import orca_lines, orca_velocity, preferred_velocity
+from agent.core.rvo import CentralOrca
+from bench.bench_orca import MARGIN, PERTURBATION, CentralEngine, Scenario, blocks, circle, run
 
-pyrvo = pytest.importorskip(
-    "pyrvo", reason="pyrvo (RVO2 bindings) is not installed; `pip install --no-deps pyrvo` to run the cross-check"
-)
+
+@pytest.fixture
+def pyrvo():
+    return pytest.importorskip(
+        "pyrvo", reason="pyrvo (RVO2 bindings) is not installed; `pip install --no-deps pyrvo` to run the cross-check"
+    )
+
 
 MAX_NBRS = 8
 
@@ -39,7 +50,7 @@ def random_config(rng):
     )
 
 
-def rvo2_step(cfg):
+def rvo2_step(pyrvo, cfg):
     """RVO2's new velocity of agent 0, its ORCA lines, and whether it satisfies them (feasible)."""
     sim = pyrvo.RVOSimulator(cfg["dt"], 100.0, 20, cfg["tau"], cfg["tau"], float(cfg["radius"][0]), cfg["vmax"])
     for k in range(cfg["m"] + 1):
@@ -87,12 +98,12 @@ def batch(cfgs):
     return out
 
 
-def test_new_velocity_matches_rvo2_where_its_program_is_feasible():
+def test_new_velocity_matches_rvo2_where_its_program_is_feasible(pyrvo):
     rng = np.random.default_rng(2024)
     feasible, infeasible = [], []
     while len(feasible) < 1000:
         cfg = random_config(rng)
-        v, point, direction, ok = rvo2_step(cfg)
+        v, point, direction, ok = rvo2_step(pyrvo, cfg)
         (feasible if ok else infeasible).append((cfg, v, point, direction))
     for group, label in ((feasible, "feasible"), (infeasible, "infeasible")):
         ours = np.zeros((len(group), 2))
@@ -133,3 +144,59 @@ def test_new_velocity_matches_rvo2_where_its_program_is_feasible():
             assert fallback.all()
             # measured: all 261 within 5e-5; a tie in the min-max optimum may legitimately differ
             assert np.mean(diff < 1e-4) >= 0.98
+
+
+def central(scn: Scenario, compiled: bool, safety: bool) -> CentralOrca:
+    sim = CentralOrca(*scn.params, safety_margin=MARGIN, perturbation=PERTURBATION, safety=safety, compiled=compiled)
+    for p in scn.positions:
+        sim.add_agent(p)
+    for obstacle in scn.obstacles:
+        sim.add_obstacle(obstacle)
+    return sim
+
+
+@pytest.mark.parametrize("scene", ["Circle 50", "Blocks"])
+@pytest.mark.parametrize("safety", [True, False])
+def test_central_orca_compiled_is_the_numpy_path_bit_for_bit(scene, safety):
+    """300 steps of each scene, both paths from the same preferred velocities: the same velocities and
+    fallback flags at every step (Circle 50 packs into a ring at contact in them, Blocks brings
+    robots to the obstacles and into the fallback); ``safety=False`` is RVO2's program."""
+    scn = circle(50) if scene == "Circle 50" else blocks()
+    compiled, reference = central(scn, True, safety), central(scn, False, safety)
+    for step in range(300):
+        pref = preferred_velocity(reference.position, scn.goals, 1.0, 1.0)
+        for sim in (compiled, reference):
+            sim.set_pref_velocities(pref)
+            sim.do_step()
+        np.testing.assert_array_equal(compiled.velocity, reference.velocity, err_msg=f"step {step}")
+        np.testing.assert_array_equal(compiled.last_fallback, reference.last_fallback, err_msg=f"step {step}")
+    np.testing.assert_array_equal(compiled.position, reference.position)
+    if scene == "Blocks":
+        assert reference.fallback_count > 0
+
+
+def test_the_neighbours_of_both_paths_are_rvo2s():
+    """Up to max_neighbors agents closer than neighbor_dist, nearest first, equal distances by index:
+    on a lattice (ties everywhere, distances exactly at reach) both paths pick the same."""
+    sims = [CentralOrca(0.25, 2.0, 5, 5.0, 5.0, 0.2, 1.0, compiled=c) for c in (True, False)]
+    for sim in sims:
+        for x in range(8):
+            for y in range(6):
+                sim.add_agent((float(x), float(y)))
+    (grid_idx, grid_valid), (tree_idx, tree_valid) = (sim.neighbours() for sim in sims)
+    np.testing.assert_array_equal(grid_valid, tree_valid)
+    np.testing.assert_array_equal(grid_idx[grid_valid], tree_idx[tree_valid])
+    # agent 9 at (1, 3): four at distance 1 (indices 3, 8, 10, 15), then sqrt(2) (2, 4, 14, 16); 2 is out
+    assert grid_idx[9].tolist() == [3, 8, 10, 15, 2]
+    assert grid_valid.sum(axis=1).max() == 5 and grid_valid.sum(axis=1).min() == 3  # a corner: 3 in reach
+
+
+def test_bench_orca_results_hold_on_blocks():
+    """bench_orca's Blocks with our engine (compiled): every robot reaches its goal, no two overlap at
+    any step, and every robot keeps the margin from the obstacles."""
+    scn = blocks()
+    record = run(scn, [CentralEngine(scn)], 6000)[0]
+    assert record.done
+    assert record.overlap_steps == 0 and record.min_distance >= 2 * scn.params[5]
+    assert record.min_obstacle_clearance >= MARGIN
+    assert record.fallback > 0  # the crowds at the blocks ran the fallback

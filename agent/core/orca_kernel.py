@@ -4,8 +4,8 @@ one robot at a time, compiled with numba.
 
 Why: the numpy core is vectorised over the batch but loops over lines and neighbours in Python,
 so a large batch spends most of its step in array bookkeeping; per robot, the same arithmetic in
-the same order takes a fraction of that. The central engine
-(sim.central) uses this; agent processes keep the numpy core and never load numba.
+the same order takes a fraction of that. The central engines (sim.central's `control_core`,
+agent.core.rvo's `central_core`) use this; agent processes keep the numpy core and never load numba.
 
 Per robot nothing allocates (`control_core` makes the scratch), so the per-robot functions are compiled
 without numba's runtime (``_nrt=False``), which would count references to every array at every
@@ -313,6 +313,7 @@ def _control_core_one(
     timeout,
     noise,
     committed,
+    safety,
     nbr_p,
     nbr_v,
     nbr_f,
@@ -323,7 +324,8 @@ def _control_core_one(
     flags,
 ):
     """One robot: its neighbours prepared (neighbours.prepare_neighbours), then eq. 14 with the safety
-    lines, the shrinking horizon and the fallback (orca.orca_velocity). Returns (vx, vy, fallback).
+    lines, the shrinking horizon and the fallback (orca.orca_velocity); without ``safety``, RVO2's
+    program (no safety lines, least violation at the full horizon). Returns (vx, vy, fallback).
     Scratch, so that a robot allocates nothing: nbr_p, nbr_v (M,2), nbr_f (3,M), nbr_ok (M,),
     lines and bisectors (4, S + 2M), every (S + 2M,) all True, flags (2, S + 2M)."""
     m = nbr_valid.shape[1]
@@ -383,7 +385,7 @@ def _control_core_one(
     # ... and the safety lines (horizon dt around zero velocities, true radii, growth up to our surface)
     own = radius * BUFFER
     for k in range(m):
-        if not nbr_ok[k]:
+        if not (safety and nbr_ok[k]):
             continue
         ex, ey = nbr_p[k, 0] - px_, nbr_p[k, 1] - py_
         dist = math.sqrt(ex * ex + ey * ey)
@@ -426,7 +428,7 @@ def _control_core_one(
     if feasible:
         return vx, vy, False
     horizon = tau
-    while horizon > dt:  # paper 5.3: a shorter horizon until feasible, down to dt
+    while safety and horizon > dt:  # paper 5.3: a shorter horizon until feasible, down to dt
         horizon = max(horizon / SHRINK, dt)
         n = _robot_lines(
             i,
@@ -509,6 +511,65 @@ def control_core(
             timeout,
             noise,
             committed,
+            True,
+            nbr_p,
+            nbr_v,
+            nbr_f,
+            nbr_ok,
+            lines,
+            every,
+            bisectors,
+            flags,
+        )
+    return out, fallback
+
+
+@njit(cache=True, nogil=True)
+def central_core(position, velocity, pref, radius, vmax, index, segments, tau, tau_obst, dt, margin, safety):
+    """The collision-free velocity (B,2) and fallback flags (B,) of robots that know each other
+    perfectly (agent.core.rvo.CentralOrca): each robot's neighbours are the rows ``index`` (B,M) of
+    the batch itself (-1: none), now, cooperating, of their own radius; radius and vmax are per robot
+    (B,). The numpy twin: orca.orca_velocity with responsibility 0.5 and no growth."""
+    b, m = index.shape
+    nbr_position, nbr_velocity = np.zeros((b, m, 2)), np.zeros((b, m, 2))
+    nbr_radius, nbr_valid = np.zeros((b, m)), index >= 0
+    for i in range(b):
+        for k in range(m):
+            j = index[i, k]
+            if j >= 0:
+                nbr_position[i, k, 0], nbr_position[i, k, 1] = position[j, 0], position[j, 1]
+                nbr_velocity[i, k, 0], nbr_velocity[i, k, 1] = velocity[j, 0], velocity[j, 1]
+                nbr_radius[i, k] = radius[j]
+    # as prepare_neighbours leaves them: age 0 and nothing committed (no growth), never stale
+    nbr_age, nbr_cooperative = np.zeros((b, m)), np.ones((b, m), np.bool_)
+    size = segments.shape[0] + 2 * m
+    nbr_p, nbr_v, nbr_f = np.empty((m, 2)), np.empty((m, 2)), np.empty((3, m))
+    nbr_ok, lines, every = np.empty(m, np.bool_), np.empty((4, size)), np.ones(size, np.bool_)
+    bisectors, flags = np.empty((4, size)), np.empty((2, size), np.bool_)
+    out, fallback = np.empty((b, 2)), np.empty(b, np.bool_)
+    for i in range(b):
+        out[i, 0], out[i, 1], fallback[i] = _control_core_one(
+            i,
+            position,
+            velocity,
+            pref,
+            radius[i],
+            vmax[i],
+            nbr_position,
+            nbr_velocity,
+            nbr_radius,
+            nbr_age,
+            nbr_valid,
+            nbr_cooperative,
+            segments,
+            tau,
+            tau_obst,
+            dt,
+            margin,
+            0.0,
+            0.0,
+            0.0,
+            safety,
             nbr_p,
             nbr_v,
             nbr_f,

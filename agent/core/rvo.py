@@ -2,6 +2,11 @@
 
 The reference against which decentralisation is studied and the fast path for large swarms: one
 snapshot, every robot's new velocity from the same batch call of the core, then all move.
+
+Two paths to the same velocities, bit for bit (tests/test_rvo2_crosscheck.py): compiled (the
+default: neighbours from agent.core.neighbour_grid, velocities from agent.core.orca_kernel, both
+numba, imported on first use so that importing this module does not load numba), and numpy
+(``compiled=False``: a scipy k-d tree and agent.core.orca.orca_velocity), the reference.
 """
 
 from __future__ import annotations
@@ -22,7 +27,11 @@ class CentralOrca:
     radius, max speed). The options go to `orca_velocity`: ``safety_margin`` is added to every radius
     in the robots' ORCA lines (not to the bodies, nor to the safety lines), ``safety=False`` gives
     RVO2's semantics; ``perturbation`` > 0 adds the seeded symmetry breaking of
-    `perturb_preferred_velocity` (robot id = agent index, tick = step).
+    `perturb_preferred_velocity` (robot id = agent index, tick = step). ``compiled=False`` steps
+    with numpy (the same results, slower).
+
+    Neighbours, as RVO2's: up to max_neighbors agents closer than neighbor_dist (centre to centre),
+    nearest first, equal distances by index.
     """
 
     def __init__(
@@ -39,6 +48,7 @@ class CentralOrca:
         safety: bool = True,
         perturbation: float = 0.0,
         seed: int = 0,
+        compiled: bool = True,
     ) -> None:
         self.time_step = float(time_step)
         self.neighbor_dist = float(neighbor_dist)
@@ -51,6 +61,7 @@ class CentralOrca:
         self.safety = bool(safety)
         self.perturbation = float(perturbation)
         self.seed = int(seed)
+        self.compiled = bool(compiled)
         self.position = np.zeros((0, 2))
         self.velocity = np.zeros((0, 2))
         self.pref_velocity = np.zeros((0, 2))
@@ -87,29 +98,70 @@ class CentralOrca:
         self.pref_velocity[:] = velocities
 
     def neighbours(self) -> tuple[np.ndarray, np.ndarray]:
-        """Up to max_neighbors nearest agents within neighbor_dist, nearest first: (index, valid)."""
-        n = self.num_agents
-        k = min(self.max_neighbors + 1, n)
-        _, idx = cKDTree(self.position).query(self.position, k=k, distance_upper_bound=self.neighbor_dist)
-        idx = np.asarray(idx).reshape(n, k)
-        valid = (idx < n) & (idx != np.arange(n)[:, None])
-        # drop self (normally column 0), keep order
-        order = np.argsort(~valid, axis=1, kind="stable")[:, : k - 1]
-        idx = np.take_along_axis(idx, order, axis=1)
-        valid = np.take_along_axis(valid, order, axis=1)
-        return np.where(valid, idx, 0), valid
+        """Up to max_neighbors agents closer than neighbor_dist, nearest first (ties by index):
+        (index (N,M), valid (N,M)); invalid slots hold 0."""
+        if self.compiled:
+            idx = self._neighbours_grid()
+            return np.where(idx >= 0, idx, 0), idx >= 0
+        return self._neighbours_kd_tree()
+
+    def _neighbours_grid(self) -> np.ndarray:
+        from agent.core.neighbour_grid import nearest_within
+
+        return nearest_within(self.position, self.neighbor_dist, self.max_neighbors)
+
+    def _neighbours_kd_tree(self) -> tuple[np.ndarray, np.ndarray]:
+        # the pairs a little beyond reach from the tree, then the distance as the grid computes it
+        # (sqrt(dx^2 + dy^2)), strictly within reach, sorted by (distance, index)
+        n, m, p = self.num_agents, self.max_neighbors, self.position
+        pairs = cKDTree(p).query_pairs(self.neighbor_dist * (1.0 + 1e-9), output_type="ndarray")
+        i = np.concatenate([pairs[:, 0], pairs[:, 1]])
+        j = np.concatenate([pairs[:, 1], pairs[:, 0]])
+        dx, dy = p[j, 0] - p[i, 0], p[j, 1] - p[i, 1]
+        d = np.sqrt(dx * dx + dy * dy)
+        near = d < self.neighbor_dist
+        i, j, d = i[near], j[near], d[near]
+        order = np.lexsort((j, d, i))
+        i, j = i[order], j[order]
+        rank = np.arange(len(i)) - np.searchsorted(i, i)  # place among the robot's own neighbours
+        keep = rank < m
+        idx = np.zeros((n, m), dtype=np.int64)
+        valid = np.zeros((n, m), dtype=bool)
+        idx[i[keep], rank[keep]], valid[i[keep], rank[keep]] = j[keep], True
+        return idx, valid
+
+    def preferred(self) -> np.ndarray:
+        """The preferred velocities of this step, perturbed if asked for."""
+        if not self.perturbation:
+            return self.pref_velocity
+        return perturb_preferred_velocity(
+            self.pref_velocity, np.arange(self.num_agents), self.seed, self.steps, self.perturbation
+        )
 
     def compute_new_velocities(self) -> tuple[np.ndarray, np.ndarray]:
-        idx, valid = self.neighbours()
-        pref = self.pref_velocity
-        if self.perturbation:
-            pref = perturb_preferred_velocity(
-                pref, np.arange(self.num_agents), self.seed, self.steps, self.perturbation
+        """The new velocities (N,2) and fallback flags (N,): infeasible at the full horizon."""
+        if self.compiled:
+            from agent.core.orca_kernel import central_core
+
+            return central_core(
+                self.position,
+                self.velocity,
+                np.ascontiguousarray(self.preferred(), dtype=float),
+                self.radius,
+                self.max_speed,
+                self._neighbours_grid(),
+                self.segments,
+                self.time_horizon,
+                self.time_horizon_obst,
+                self.time_step,
+                self.safety_margin,
+                self.safety,
             )
+        idx, valid = self._neighbours_kd_tree()
         return orca_velocity(
             self.position,
             self.velocity,
-            pref,
+            self.preferred(),
             self.radius,
             self.max_speed,
             self.position[idx],
