@@ -264,6 +264,7 @@ def arrivals(traj: dict, starts: list[float], periods: list[float], goal_of, tol
     return out
 
 
+@pytest.mark.slow
 def test_the_central_engine_plays_keyframes_in_time(tmp_path):
     """The drawn triangle's 7 keyframes (turning by 20 degrees and growing, paper 6), 6 holonomic robots
     of e-puck speed, 15 s to form the first and 7 s for each next: every robot is within 1 cm of its

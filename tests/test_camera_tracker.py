@@ -66,6 +66,7 @@ def assert_paper_precision(
     assert np.percentile(np.degrees(heading), 95) <= 3.0
 
 
+@pytest.mark.slow
 def test_every_robot_found_to_two_millimetres_and_three_degrees(footage):
     camera, drawn, frames = footage
     config = CameraConfig.from_table(camera.poses_table(), "test [poses]")

@@ -32,7 +32,7 @@ SCENES = {
 }
 
 
-@pytest.mark.parametrize("name", SCENES)
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if "100 robots" in n else n for n in SCENES])
 def test_a_run_with_the_auction_beside_the_control_core_is_the_same_to_the_bit(tmp_path, monkeypatch, name):
     stepped_again: list[int] = []
     real = central._step_again

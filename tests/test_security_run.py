@@ -72,6 +72,7 @@ def _forge(folder: Path, endpoint: str, forged: np.ndarray, stop: threading.Even
         report["error"] = repr(err)
 
 
+@pytest.mark.slow
 def test_a_secured_run_converges_and_a_robots_forged_goal_set_changes_no_goal(tmp_path, spawned):
     made = run_pixelswarm("certs", str(tmp_path / "certs"), "--robots", str(ROBOTS), timeout=60)
     assert made.returncode == 0, made.stderr
