@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from agent.core.neighbour_grid import grid_cells, nearest_within
+from agent.core.neighbour_grid import RINGS, grid_cells, nearest_within
 from agent.core.step import NeighbourStates
 from agent.neighbour_table import Heard
 
@@ -161,38 +161,71 @@ def gather(index: np.ndarray, position: np.ndarray, velocity: np.ndarray, cooper
 @njit(cache=True, nogil=True)
 def _nearest_of(qx, qy, qid, x, y, ids, reach: float, m: int) -> np.ndarray:
     """(Q, m) indices into (x, y) of each query point's m nearest points within ``reach`` (d^2 <=
-    reach^2), not its own id, nearest first, equal distances by index; -1 past the last."""
+    reach^2), not its own id, nearest first, equal distances by index; -1 past the last. Cells are
+    reach / RINGS wide, searched in rings outward until no nearer point can remain (as
+    agent.core.neighbour_grid.nearest_within)."""
     q, n = qx.size, x.size
     out = np.full((q, m), -1, np.int64)
     if q == 0 or n == 0 or m == 0:
         return out
-    _, _, nx, ny, start, order, x0, y0, cell = grid_cells(x, y, reach)
+    _, _, nx, ny, start, order, x0, y0, cell = grid_cells(x, y, reach / RINGS)
+    rings = int(reach / cell) + 1  # a point r rings away is at least (r - 1) cells away
+    slack = 1e-9 * (cell + max(np.abs(x).max(), np.abs(y).max(), np.abs(qx).max(), np.abs(qy).max()))
     reach2 = reach * reach
     best = np.empty(m)
     for i in range(q):
         gx0 = int(np.floor((qx[i] - x0) / cell))
         gy0 = int(np.floor((qy[i] - y0) / cell))
         k = 0
-        for gx in range(max(gx0 - 1, 0), min(gx0 + 2, nx)):
-            for gy in range(max(gy0 - 1, 0), min(gy0 + 2, ny)):
-                c = gx * ny + gy
-                for a in range(start[c], start[c + 1]):
-                    j = order[a]
-                    if ids[j] == qid[i]:
+        for r in range(rings + 1):
+            near = (r - 1) * cell - slack  # no point of this ring is nearer
+            if k == m and near > 0.0 and near * near > best[m - 1]:
+                break
+            for gx in range(max(gx0 - r, 0), min(gx0 + r + 1, nx)):
+                edge = gx == gx0 - r or gx == gx0 + r
+                step = 1 if edge else 2 * r  # inside the ring's columns only its top and bottom cells
+                for gy in range(gy0 - r, gy0 + r + 1, max(step, 1)):
+                    if gy < 0 or gy >= ny:
                         continue
-                    dx, dy = x[j] - qx[i], y[j] - qy[i]
-                    d2 = dx * dx + dy * dy
-                    if not d2 <= reach2 or (k == m and (d2 > best[m - 1] or (d2 == best[m - 1] and j > out[i, m - 1]))):
-                        continue
-                    p = min(k, m - 1)
-                    while p > 0 and (best[p - 1] > d2 or (best[p - 1] == d2 and out[i, p - 1] > j)):
-                        best[p] = best[p - 1]
-                        out[i, p] = out[i, p - 1]
-                        p -= 1
-                    best[p] = d2
-                    out[i, p] = j
-                    k = min(k + 1, m)
+                    c = gx * ny + gy
+                    for a in range(start[c], start[c + 1]):
+                        j = order[a]
+                        if ids[j] == qid[i]:
+                            continue
+                        dx, dy = x[j] - qx[i], y[j] - qy[i]
+                        d2 = dx * dx + dy * dy
+                        if not d2 <= reach2 or (
+                            k == m and (d2 > best[m - 1] or (d2 == best[m - 1] and j > out[i, m - 1]))
+                        ):
+                            continue
+                        p = min(k, m - 1)
+                        while p > 0 and (best[p - 1] > d2 or (best[p - 1] == d2 and out[i, p - 1] > j)):
+                            best[p] = best[p - 1]
+                            out[i, p] = out[i, p - 1]
+                            p -= 1
+                        best[p] = d2
+                        out[i, p] = j
+                        k = min(k + 1, m)
     return out
+
+
+@njit(cache=True, nogil=True)
+def _gather_heard(idx, pos, vel, rad, stamp, coop, now):
+    """The chosen states as padded neighbour arrays (a padded slot: zeros, radius 1, not valid)."""
+    q, m = idx.shape
+    position, velocity = np.zeros((q, m, 2)), np.zeros((q, m, 2))
+    radius, age = np.ones((q, m)), np.zeros((q, m))
+    valid, cooperative = np.zeros((q, m), np.bool_), np.ones((q, m), np.bool_)
+    for i in range(q):
+        for k in range(m):
+            j = idx[i, k]
+            if j < 0:
+                break
+            position[i, k, 0], position[i, k, 1] = pos[j, 0], pos[j, 1]
+            velocity[i, k, 0], velocity[i, k, 1] = vel[j, 0], vel[j, 1]
+            radius[i, k], age[i, k] = rad[j], now - stamp[j]
+            valid[i, k], cooperative[i, k] = True, coop[j]
+    return position, velocity, radius, age, valid, cooperative
 
 
 def nearest_heard_compiled(
@@ -200,26 +233,39 @@ def nearest_heard_compiled(
 ) -> NeighbourStates:
     """agent.neighbour_table.nearest_heard on the grid, compiled: the same neighbours in the same order
     (the same squared distances, ties by id), for the central engine's thousand robots a tick."""
-    order = np.argsort(heard.ids, kind="stable")
-    ids = heard.ids[order]
-    pos = np.ascontiguousarray(heard.position[order], dtype=float)
-    p = np.ascontiguousarray(positions, dtype=float).reshape(-1, 2)
+    ids = np.ascontiguousarray(heard.ids, dtype=np.int64)
+    if len(ids) > 1 and not (ids[1:] > ids[:-1]).all():  # by id, as nearest_heard ranks ties
+        order = np.argsort(ids, kind="stable")
+        heard = Heard(
+            ids[order],
+            heard.position[order],
+            heard.velocity[order],
+            heard.radius[order],
+            heard.stamp[order],
+            heard.cooperative[order],
+        )
+        ids = heard.ids
+    f64 = np.ascontiguousarray
+    pos = f64(heard.position, dtype=float)
+    p = f64(positions, dtype=float).reshape(-1, 2)
     idx = _nearest_of(
         p[:, 0].copy(),
         p[:, 1].copy(),
-        np.ascontiguousarray(robot_ids, dtype=np.int64),
+        f64(robot_ids, dtype=np.int64),
         pos[:, 0].copy(),
         pos[:, 1].copy(),
-        np.ascontiguousarray(ids, dtype=np.int64),
+        ids,
         float(reach),
         int(m),
     )
-    valid = idx >= 0
-    take = np.where(valid, idx, 0)
-    out = NeighbourStates.empty(len(p), m)
-    out.position[valid], out.velocity[valid] = pos[take[valid]], heard.velocity[order][take[valid]]
-    out.radius[valid] = heard.radius[order][take[valid]]
-    out.age[valid] = stamp - heard.stamp[order][take[valid]]
-    out.valid[:] = valid
-    out.cooperative[valid] = heard.cooperative[order][take[valid]]
-    return out
+    return NeighbourStates(
+        *_gather_heard(
+            idx,
+            pos,
+            f64(heard.velocity, dtype=float),
+            f64(heard.radius, dtype=float),
+            f64(heard.stamp, dtype=float),
+            f64(heard.cooperative, dtype=np.bool_),
+            float(stamp),
+        )
+    )
