@@ -8,6 +8,7 @@ the robots received, never what the run believed.
 from __future__ import annotations
 
 import json
+import os
 import signal
 import socket
 import subprocess
@@ -198,11 +199,18 @@ def test_a_killed_agent_stops_its_robot_and_the_end_of_the_run_stops_all(tmp_pat
         assert other[-1, 1] == 0 and other[-1, 2] == 0  # all stopped at the end
 
 
-def start_run(tmp_path: Path, scene: Path, hw: Path, endpoint: str, spawned: list) -> subprocess.Popen:
-    """`pixelswarm run SCENE --hardware FILE` as its own process, a client of the router at ``endpoint``."""
+def start_run(
+    tmp_path: Path, scene: Path, hw: Path, endpoint: str, spawned: list, own_group: bool = False
+) -> subprocess.Popen:
+    """`pixelswarm run SCENE --hardware FILE` as its own process, a client of the router at ``endpoint``;
+    ``own_group``: in a process group of its own, as a shell starts a command."""
     cmd = pixelswarm_cmd("run", str(scene), "--hardware", str(hw), "-e", endpoint)
     run = subprocess.Popen(
-        [*cmd, "--out", str(tmp_path / "run"), "--no-video", "-q"], cwd=REPO, stderr=subprocess.PIPE, text=True
+        [*cmd, "--out", str(tmp_path / "run"), "--no-video", "-q"],
+        cwd=REPO,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=own_group,
     )
     spawned.append(run)
     return run
@@ -255,17 +263,23 @@ def test_robots_stop_while_the_pose_source_is_down_and_the_display_completes_whe
 
 
 @pytest.mark.slow
-def test_ctrl_c_stops_every_robot_and_leaves_no_process(tmp_path, spawned):
+@pytest.mark.parametrize("to", ["the run", "its process group"])
+def test_ctrl_c_stops_every_robot_and_leaves_no_process(tmp_path, spawned, to):
+    """SIGINT to the run's process only, or to its whole process group (Ctrl-C in a terminal)."""
     scene_path = scene_file(tmp_path)
     router = loopback_router()
     with Lab(load_scene(str(scene_path)), router) as lab:
         hw = tmp_path / "hw.toml"
         hw.write_text(lab.hardware_toml())
-        run = start_run(tmp_path, scene_path, hw, router.listen[0], spawned)
+        group = to == "its process group"
+        run = start_run(tmp_path, scene_path, hw, router.listen[0], spawned, own_group=group)
         assert wait_for(lambda: all_moving(lab), 60), "the robots never moved"
         processes = [p.pid for p in descendants(run.pid)]
         assert len(processes) >= 6  # the hardware node, the coordinator, four agents
-        run.send_signal(signal.SIGINT)
+        if group:
+            os.killpg(run.pid, signal.SIGINT)
+        else:
+            run.send_signal(signal.SIGINT)
         _, err = run.communicate(timeout=60)
         stopped = lab.true_poses()
         time.sleep(0.5)
