@@ -8,6 +8,7 @@ the robots received, never what the run believed.
 from __future__ import annotations
 
 import json
+import os
 import signal
 import socket
 import subprocess
@@ -37,7 +38,7 @@ from transport.bus import Bus
 from transport.codec import Command, Pose, Tick
 from transport.session import client_of, free_port, loopback_router, open_session
 
-from .conftest import REPO, descendants, pixelswarm_cmd, run_pixelswarm, wait_for
+from .conftest import REPO, descendants, pixelswarm_cmd, reap, run_pixelswarm, wait_for
 
 TIMEOUT = Epuck2Config.command_timeout  # s: the hardware files here keep the default
 PERIOD = EPUCK.dt  # s: the control period
@@ -196,6 +197,98 @@ def test_a_killed_agent_stops_its_robot_and_the_end_of_the_run_stops_all(tmp_pat
     assert moving_elsewhere  # the other robots went on
     for other in logs:
         assert other[-1, 1] == 0 and other[-1, 2] == 0  # all stopped at the end
+
+
+def start_run(
+    tmp_path: Path, scene: Path, hw: Path, endpoint: str, spawned: list, own_group: bool = False
+) -> subprocess.Popen:
+    """`pixelswarm run SCENE --hardware FILE` as its own process, a client of the router at ``endpoint``;
+    ``own_group``: in a process group of its own, as a shell starts a command."""
+    cmd = pixelswarm_cmd("run", str(scene), "--hardware", str(hw), "-e", endpoint)
+    run = subprocess.Popen(
+        [*cmd, "--out", str(tmp_path / "run"), "--no-video", "-q"],
+        cwd=REPO,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=own_group,
+    )
+    spawned.append(run)
+    return run
+
+
+def all_moving(lab: Lab, commands: int = 10) -> bool:
+    return all(len(moving_commands(lab.emulator.log(r))) >= commands for r in range(lab.scene.robots))
+
+
+@pytest.mark.slow
+def test_robots_stop_while_the_pose_source_is_down_and_the_display_completes_when_it_returns(tmp_path, spawned):
+    """The motion capture stops mid-run (its session closes) and restarts 1.5 s later; the router stays up."""
+    scene_path = scene_file(tmp_path)
+    router = loopback_router()
+    with open_session(router), Lab(load_scene(str(scene_path)), client_of(router)) as lab:
+        hw = tmp_path / "hw.toml"
+        hw.write_text(lab.hardware_toml())
+        run = start_run(tmp_path, scene_path, hw, router.listen[0], spawned)
+        assert wait_for(lambda: all_moving(lab), 60), "the robots never moved"
+        off_at = time.monotonic()
+        lab.mocap.close()
+        time.sleep(1.0)
+        dark = lab.true_poses()
+        time.sleep(0.5)
+        still = lab.true_poses()
+        on_at = time.monotonic()
+        lab.mocap.start()
+        _, err = run.communicate(timeout=90)
+        report = lab.close()
+    assert run.returncode == 0, err[-3000:]
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert metrics["end_reason"] == "converged"
+
+    stopped_by = off_at + TIMEOUT + PERIOD + 1 / MOCAP_RATE  # the last pose may have left a frame before
+    for robot in report["robots"]:
+        log = np.array(robot["log"], float)
+        by_then = log[log[:, 0] <= stopped_by]
+        assert by_then[-1, 1:].tolist() == [0, 0], log[-5:]  # stopped within the timeout plus a period
+        while_dark = log[(log[:, 0] > by_then[-1, 0]) & (log[:, 0] < on_at)]
+        assert not np.any(while_dark[:, 1:])  # and not driven blind while the poses are missing
+        assert len(moving_commands(log[log[:, 0] > on_at])) > 0  # driven again once they are back
+    assert np.allclose(dark, still, atol=1e-9)  # every body stands still while the pose source is down
+    assert all(r["stops"]["pose_lost"] >= 1 for r in metrics["hardware"]["robots"])
+
+    # The display completes: every robot within 1 cm of its goal by its TRUE pose, no contacts.
+    start = load_scene(str(scene_path)).poses[:, :2]
+    true_xy = np.array([robot["pose"][:2] for robot in report["robots"]])
+    assert np.all(np.hypot(*(true_xy + start).T) <= 0.01), true_xy  # antipodal goals: -start
+    assert report["contacts"] == []
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("to", ["the run", "its process group"])
+def test_ctrl_c_stops_every_robot_and_leaves_no_process(tmp_path, spawned, to):
+    """SIGINT to the run's process only, or to its whole process group (Ctrl-C in a terminal)."""
+    scene_path = scene_file(tmp_path)
+    router = loopback_router()
+    with Lab(load_scene(str(scene_path)), router) as lab:
+        hw = tmp_path / "hw.toml"
+        hw.write_text(lab.hardware_toml())
+        group = to == "its process group"
+        run = start_run(tmp_path, scene_path, hw, router.listen[0], spawned, own_group=group)
+        assert wait_for(lambda: all_moving(lab), 60), "the robots never moved"
+        processes = [p.pid for p in descendants(run.pid)]
+        assert len(processes) >= 6  # the hardware node, the coordinator, four agents
+        if group:
+            os.killpg(run.pid, signal.SIGINT)
+        else:
+            run.send_signal(signal.SIGINT)
+        _, err = run.communicate(timeout=60)
+        stopped = lab.true_poses()
+        time.sleep(0.5)
+        still = lab.true_poses()
+        logs = [lab.emulator.log(r) for r in range(lab.scene.robots)]
+    assert run.returncode in (0, 130), err[-3000:]
+    assert all(len(moving_commands(log)) >= 10 and log[-1][1:] == (0, 0) for log in logs)  # last: a stop
+    assert np.allclose(stopped, still, atol=1e-9)  # and every body stands still
+    assert reap(processes) == []  # no process of the run remains
 
 
 def drive(address: str, left_steps: int, right_steps: int) -> None:

@@ -73,6 +73,7 @@ class Lab:
         self.contacts: list[ContactEpisode] = []
         self._open: dict[tuple[int, int], ContactEpisode] = {}
         self._halt = threading.Event()
+        self._final: dict[str, Any] | None = None  # the report, once closed
         self._recorder = threading.Thread(target=self._record, name="lab-recorder", daemon=True)
         self.started = time.monotonic()
 
@@ -99,15 +100,17 @@ class Lab:
         return self
 
     def close(self) -> dict[str, Any]:
-        """Stop everything; returns the final report()."""
+        """Stop everything; returns the final report() (again, if already closed)."""
+        if self._final is not None:
+            return self._final
         self._halt.set()
         if self._recorder.is_alive():
             self._recorder.join()
         self.mocap.close()
         self._close_contacts()
-        final = self.report()
+        self._final = self.report()
         self.emulator.close()
-        return final
+        return self._final
 
     def __enter__(self) -> Lab:
         return self.start()

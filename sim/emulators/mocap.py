@@ -61,6 +61,9 @@ class MocapEmulator:
         self._session: Any = None  # a zenoh session once started
 
     def start(self) -> None:
+        """Open the session and publish; after close(), start() again publishes anew (a mocap restarted)."""
+        self._halt.clear()
+        self._publishers = []
         self._session = open_session(self.session_config)
         self._node = RosNode(self._session, self.NODE_NAME, self.config.domain or 0)
         self._start = time.monotonic()
