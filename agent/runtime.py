@@ -530,10 +530,12 @@ class AgentHost:
         self.policy_memory.put(rows, decision.memory)
         result = decision.step
         self.fallbacks += int(result.fallback.sum())
-        for mem, goal, dead in zip(mems, decision.intent.goal, decision.deadlocked.tolist()):
-            mem.goal = goal  # a moving goal set's goal moved (eq. 28)
-            if dead:  # paper 5.5.5: the robot's cost of this goal rises by C_d for good
-                self.auction.penalise(mem.robot, mem.assign_epoch, mem.goal_index)
+        goal = decision.intent.goal
+        moved = ~((goal == goal0) | (np.isnan(goal) & np.isnan(goal0))).all(axis=1)
+        for b in np.flatnonzero(moved).tolist():  # a moving goal set's goal moved (eq. 28)
+            mems[b].goal = goal[b].copy()
+        for b in np.flatnonzero(decision.deadlocked).tolist():  # paper 5.5.5: C_d on this goal for good
+            self.auction.penalise(mems[b].robot, mems[b].assign_epoch, mems[b].goal_index)
         mode = Command.WHEELS if p.kinematics == DIFFDRIVE else Command.HOLONOMIC
         states, commands = [], []
         for b, (pose, mem) in enumerate(zip(poses, mems)):
