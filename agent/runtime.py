@@ -32,7 +32,7 @@ from transport.keys import cell_of, cells_of
 from .assignment import AuctionLink
 from .core.bidder import bid_position
 from .core.params import DIFFDRIVE, RobotParams
-from .core.policy import GoalTiming, Memory, decide
+from .core.policy import GoalTiming, Memory, act, intend
 from .core.step import static_segments
 from .goal_sets import motion_of, timing_of
 from .neighbour_table import NeighbourTable
@@ -511,16 +511,15 @@ class AgentHost:
         rows = np.searchsorted(self.own, ids)
         key = np.array([(m.assign_epoch, m.goal_index) for m in mems], np.int64).reshape(-1, 2)
         goal0 = np.array([m.goal0 if m.goal_index >= 0 else m.goal for m in mems], float).reshape(-1, 2)
-        decision = decide(
+        memory = self.policy_memory.rows(rows)
+        intent = intend(p, position, stamp, goal0, key, self.timing, memory)
+        decision = act(
             p,
             np.array(ids),
             position,
             heading,
-            stamp,
-            goal0,
-            key,
-            self.timing,
-            self.policy_memory.rows(rows),
+            intent,
+            memory,
             neighbours,
             self.segments,
             seed=self.config.seed,

@@ -13,17 +13,9 @@ from typing import Any
 
 from transport.security import SecurityError, make_certificates
 
+from .cli_args import positive_int
+
 PROG = "pixelswarm certs"
-
-
-def _robots(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, not {value}")
-    return value
 
 
 def add_certs_parser(subparsers: Any) -> None:
@@ -35,7 +27,7 @@ def add_certs_parser(subparsers: Any) -> None:
         "(coordinator, tracker, world, recorder, router, robot-<id>), and the router's access rules.",
     )
     p.add_argument("dir", help="folder to create (must not exist or be empty)")
-    p.add_argument("-n", "--robots", type=_robots, required=True, help="number of robots (ids 0..N-1)")
+    p.add_argument("-n", "--robots", type=positive_int, required=True, help="number of robots (ids 0..N-1)")
     p.add_argument(
         "--listen",
         metavar="tls/HOST:PORT",

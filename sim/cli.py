@@ -18,6 +18,7 @@ from transport.security import SecurityError, check_folder, router_config
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, open_session, settings_from_args
 
 from .certs_cli import add_certs_parser
+from .cli_args import positive_int
 from .rundir import default_run_path
 from .study import add_study_parser
 from .track import add_track_parser
@@ -25,16 +26,6 @@ from .track import add_track_parser
 
 class UsageError(Exception):
     """Bad input from the user: one line, exit code 2."""
-
-
-def positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, not {value}")
-    return value
 
 
 class OneLineParser(argparse.ArgumentParser):

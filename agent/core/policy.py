@@ -1,6 +1,6 @@
 """The robot policy: what a batch of robots decides in one tick from what each of them knows.
 
-Every engine calls this and nothing else to decide: an agent process (one robot or a host of K), the
+Every engine calls ``intend`` then ``act`` and nothing else to decide: an agent process (one robot or a host of K), the
 central engine (every robot in one batch) and the loss study. Per robot the result depends only on
 that robot's row, so a robot decides the same whatever batch it is stepped in.
 
@@ -185,39 +185,3 @@ def act(
         counts, deadlocked = count_blocked(counts, now, params.deadlock_iterations)
     new_memory = Memory(res.velocity.copy(), intent.hold_left, intent.hold_for, counts)
     return Decision(intent, res, new_memory, deadlocked)
-
-
-def decide(
-    params: RobotParams,
-    robot_ids: np.ndarray,
-    position: np.ndarray,
-    heading: np.ndarray,
-    stamp: float,
-    goal0: np.ndarray,
-    key: np.ndarray,
-    timing: Mapping[int, GoalTiming],
-    memory: Memory,
-    neighbours: NeighbourStates,
-    segments: np.ndarray | None,
-    *,
-    seed: int,
-    tick: int,
-    watch_deadlocks: bool,
-    compiled: bool = False,
-) -> Decision:
-    """One tick of the policy for a batch: ``intend`` then ``act``."""
-    intent = intend(params, position, stamp, goal0, key, timing, memory)
-    return act(
-        params,
-        robot_ids,
-        position,
-        heading,
-        intent,
-        memory,
-        neighbours,
-        segments,
-        seed=seed,
-        tick=tick,
-        watch_deadlocks=watch_deadlocks,
-        compiled=compiled,
-    )
