@@ -36,6 +36,7 @@ BENCHES = [
     "bench.bench_study",
 ]
 ORDER = [
+    "one-controller",
     "runtime",
     "auction",
     "sequence",
