@@ -1,21 +1,19 @@
-"""The central engine: every robot stepped by the same control core in one call, perfect information.
+"""The central engine: every robot of a scene in this process, each deciding by the robot policy.
 
-No messages: each tick every robot sees every neighbour's current state (tracked position, its
-collision-free velocity, age zero), as RVO2 does. It is the reference against which decentralisation
-is studied (`--engine central` against `--engine distributed`), and the fast path for large swarms.
+Robots hear each other through an in-process link (sim.link): each robot's state of a tick reaches
+its neighbours at the next, rounded as the wire rounds it, and goal sets arrive as the agents decode
+them. Without impairment that is exactly what lock-step agents over the bus know, so a central run
+and a distributed run of one seed are the same run where no auction is involved; with a seeded loss
+the same loop is the loss study (sim.lossy). It is the reference against which decentralisation is
+studied and the fast path for large swarms.
 
 Image scenes play their steps: at time t the robots are auctioned (paper 5.1) onto the goal set of
-the step whose hold contains t; the `step` array records which one, tick by tick. The auction is the
-agents' own (agent.core.bidder) with one participant holding every robot: each `assign_period` the
-next block of epsilon-scaling phases starts from the measured positions, warm from the last prices,
-and settles in this process without messages (`auction_assignment`; its rounds are compiled,
-agent.core.jacobi), on a second thread while this one searches neighbours, steps the control core
-and moves the world on the goals the robots hold: a robot's control depends on its own goal and its
-neighbours' last states only, so only the robots whose goal the auction changed are stepped again,
-and the run is the one that waiting for the auction would give, to the bit. Animation keyframes
-are steps whose robots hold eq. 27's velocity (agent.core.animation); a dynamic image's goals move by
-eq. 28 and the robots drive with the goals' velocity fed forward (agent.core.goal_motion), auctioned
-on the published goal set with their positions mapped back, as the agents do (agent.runtime).
+the step whose hold contains t. The auction is the agents' own (agent.core.bidder) with one
+participant holding every robot: each `assign_period` the next block of epsilon-scaling phases starts
+from the measured positions, warm from the last prices, and settles without messages (compiled,
+agent.core.jacobi) on a second thread while this one decides every robot's tick on the goal it holds;
+only the robots whose goal the auction changed decide again, so the run is the one that waiting for
+the auction would give, to the bit.
 """
 
 from __future__ import annotations
