@@ -72,6 +72,8 @@ class HardwareConfig:
     path: Path
     backend: Any
     poses: Any | None
+    backend_kind: str = ""  # the [backend] table's kind
+    poses_kind: str | None = None  # the [poses] table's kind (None: no such table)
 
 
 def load_object(target: str, kind: str, where: str) -> Any:
@@ -112,7 +114,8 @@ def parse_hardware(data: Mapping[str, Any], path: Path) -> HardwareConfig:
         raise HardwareConfigError(f"{path}: missing table [backend]")
     backend = parse_table(data["backend"], BACKEND_KINDS, f"{path} [backend]")
     poses = parse_table(data["poses"], POSE_KINDS, f"{path} [poses]") if "poses" in data else None
-    return HardwareConfig(path=path, backend=backend, poses=poses)
+    poses_kind = data["poses"]["kind"] if poses is not None else None
+    return HardwareConfig(path, backend, poses, data["backend"]["kind"], poses_kind)
 
 
 def load_hardware(path: str | Path) -> HardwareConfig:

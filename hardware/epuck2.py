@@ -472,6 +472,7 @@ class Epuck2Backend:
         self.close()
 
 
-def stop_robots(config: Epuck2Config) -> list[int]:
-    """Connect to every robot of a config and stop it (`pixelswarm stop`); returns the robots not reached."""
+def stop_robots(config: Epuck2Config, settings: object = None) -> list[int]:
+    """Connect to every robot of a config and stop it (`pixelswarm stop`); returns the robots not reached.
+    ``settings`` (a bus's, for backends reached through one) is not needed: each robot is its own TCP server."""
     return Epuck2Backend(config).close()

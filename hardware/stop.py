@@ -3,6 +3,8 @@ robots moving (a real e-puck2 keeps its last wheel speeds until told otherwise).
 
 from __future__ import annotations
 
+from transport.session import ZenohSettings
+
 from .config import HardwareConfig, HardwareConfigError, load_object
 
 # kind -> "module:function" taking the backend's config and returning the robot ids the stop did not reach
@@ -13,12 +15,13 @@ STOPPERS = {
 }
 
 
-def stop_all(config: HardwareConfig) -> list[int]:
-    """Connect to every robot of the file and send it a stop; returns the robot ids that were not reached."""
-    kind = config.backend.kind
+def stop_all(config: HardwareConfig, settings: ZenohSettings | None = None) -> list[int]:
+    """Connect to every robot of the file and send it a stop; returns the robot ids that were not reached.
+    ``settings``: the session to a router, for robots reached through one (ROS 2)."""
+    kind = config.backend_kind
     if kind not in STOPPERS:
         raise HardwareConfigError(f"{config.path} [backend]: kind {kind!r} has no stop")
     target = STOPPERS[kind]
     if target is None:
         return []
-    return load_object(target, kind, f"{config.path} [backend]")(config.backend)
+    return load_object(target, kind, f"{config.path} [backend]")(config.backend, settings)

@@ -111,6 +111,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     stop = sub.add_parser("stop", help="stop every robot of a hardware file at once (after a run died)")
     stop.add_argument("--hardware", type=Path, metavar="FILE", required=True, help="the hardware file")
+    stop.add_argument(
+        "-e", "--connect", metavar="ENDPOINT", help="the router robots are reached through (ROS 2: rmw_zenohd)"
+    )
     stop.set_defaults(func=cmd_stop)
 
     scenes = sub.add_parser("scenes", help="list the shipped scenes")
@@ -121,6 +124,16 @@ def build_parser() -> argparse.ArgumentParser:
     add_track_parser(sub)
     add_study_parser(sub)
     return parser
+
+
+def _names_the_simulator(path: Path) -> bool:
+    """A hardware file whose backend is the simulated world (`kind = "sim"`)."""
+    from hardware.config import HardwareConfigError, load_hardware
+
+    try:
+        return load_hardware(path).backend_kind == "sim"
+    except HardwareConfigError as err:
+        raise UsageError(str(err)) from None
 
 
 def _hardware_scene(args: argparse.Namespace) -> Scene:
@@ -149,6 +162,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     from .launcher import HardwareStartError, Interrupted, Launcher, RunOptions  # heavy imports only when running
 
     try:
+        if args.hardware is not None and _names_the_simulator(args.hardware):
+            args.hardware = None  # the simulated world, as without a hardware file
         if args.hardware is not None:
             scene = _hardware_scene(args)
         else:
@@ -260,12 +275,13 @@ def cmd_stop(args: argparse.Namespace) -> int:
 
     try:
         config = load_hardware(args.hardware)
+        settings = None
         if backend_kind(config) == "ros2":
-            raise UsageError(
-                f"{args.hardware}: stopping ROS 2 robots from here is not supported; their own watchdog stops them"
-            )
-        unreached = stop_all(config)
-    except HardwareConfigError as err:
+            if not args.connect:
+                raise UsageError(f"{args.hardware}: ROS 2 robots are reached through a router: give -e ENDPOINT")
+            settings = ZenohSettings(mode="client", connect=[args.connect])
+        unreached = stop_all(config, settings)
+    except (HardwareConfigError, TransportError) as err:
         raise UsageError(str(err)) from None
     if unreached:
         print(f"pixelswarm stop: error: robots {', '.join(map(str, unreached))} were not reached", file=sys.stderr)

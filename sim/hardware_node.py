@@ -28,7 +28,7 @@ import numpy as np
 
 from agent.core.params import DIFFDRIVE, RobotParams
 from coordinator.scene import Scene, SceneError, load_scene
-from hardware.config import BACKEND_KINDS, POSE_KINDS, HardwareConfig, HardwareConfigError, load_hardware
+from hardware.config import HardwareConfig, HardwareConfigError, load_hardware
 from hardware.poses import PoseSample
 from transport.bus import Bus
 from transport.codec import Command, Commands, Event, Pose, Poses, Tick, Truth
@@ -48,18 +48,12 @@ class HardwareError(Exception):
 
 
 # --- the hardware file, for a run ------------------------------------------------------------------
-def kind_of(table_config: Any, kinds: dict[str, str]) -> str:
-    """The `kind` a config object was made for (not every config class keeps it as a field)."""
-    target = f"{type(table_config).__module__}:{type(table_config).__name__}"
-    return next(kind for kind, where in kinds.items() if where == target)
-
-
 def backend_kind(config: HardwareConfig) -> str:
-    return kind_of(config.backend, BACKEND_KINDS)
+    return config.backend_kind
 
 
-def poses_kind(config: HardwareConfig) -> str:
-    return kind_of(config.poses, POSE_KINDS)
+def poses_kind(config: HardwareConfig) -> str | None:
+    return config.poses_kind
 
 
 def check_runnable(config: HardwareConfig) -> int:

@@ -327,7 +327,6 @@ POSES = '[poses]\nkind = "ros2"\ntopic = "/robot{id}/pose"\n'
         (None, "no such hardware file"),
         (BACKEND + "comand_timeout = 0.3\n" + POSES, "unknown key 'comand_timeout'"),
         (BACKEND, "needs a [poses] table"),
-        ('[backend]\nkind = "sim"\n' + POSES, "drives no robots"),
     ],
 )
 def test_bad_hardware_files_are_refused_in_one_line(tmp_path, capsys, text, words):
@@ -343,6 +342,8 @@ def test_bad_hardware_files_are_refused_in_one_line(tmp_path, capsys, text, word
 def test_bad_run_options_with_hardware_are_refused(tmp_path, capsys):
     hw = tmp_path / "hw.toml"
     hw.write_text(BACKEND.replace("{port}", "41000") + POSES)
+    ros2 = tmp_path / "ros2.toml"
+    ros2.write_text('[backend]\nkind = "ros2"\nnamespaces = ["robot0"]\n' + POSES)
     scene = str(scene_file(tmp_path))
     for args, words in [
         (["run", "circle", "--hardware", str(hw)], "holonomic"),
@@ -350,6 +351,7 @@ def test_bad_run_options_with_hardware_are_refused(tmp_path, capsys):
         (["run", scene, "--hardware", str(hw), "--clock", "lockstep"], "wall clock"),
         (["stop", "--hardware", str(tmp_path / "nope.toml")], "no such hardware file"),
         (["stop"], "--hardware"),
+        (["stop", "--hardware", str(ros2)], "-e ENDPOINT"),
     ]:
         assert_one_line_error(in_process(cli_main, args, capsys), words)
 
@@ -488,3 +490,27 @@ def test_a_ros2_backend_gets_wheel_speeds_as_a_body_velocity():
     assert first.linear.x == pytest.approx(0.05) and first.angular.z == pytest.approx(0.02 / EPUCK.wheel_base)
     assert (first.linear.y, first.linear.z, first.angular.x, first.angular.y) == (0, 0, 0, 0)
     assert last.linear.x == 0 and last.angular.z == 0
+
+
+def test_a_hardware_file_can_name_the_simulator(tmp_path):
+    """`[backend] kind = "sim"`: the same run on the simulated world, so one command line serves both."""
+    hw = tmp_path / "sim.toml"
+    hw.write_text('[backend]\nkind = "sim"\n')
+    out = tmp_path / "run"
+    result = run_pixelswarm(
+        "run",
+        "circle",
+        "--robots",
+        "4",
+        "--hardware",
+        str(hw),
+        "--duration",
+        "1",
+        "--no-video",
+        "-q",
+        "--out",
+        str(out),
+    )
+    assert result.returncode == 0, result.stderr[-2000:]
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["engine"] == "distributed" and metrics["robots"] == 4 and "hardware" not in metrics

@@ -237,6 +237,28 @@ def test_watchdog_sends_a_zero_twist_to_a_silent_robot(router):
         assert backend.stats()["moving"] == 0
 
 
+def test_pixelswarm_stop_sends_every_robot_a_zero_twist(router, tmp_path):
+    hw = tmp_path / "ros2.toml"
+    hw.write_text('[backend]\nkind = "ros2"\nnamespaces = ["robot0", "robot1"]\n')
+    with raw_session(router) as observer:
+        wire = observer.declare_subscriber("0/*/cmd_vel/**")
+        time.sleep(0.2)  # let the subscription reach the router
+        endpoint = client_of(router).connect[0]
+        result = subprocess.run(
+            [sys.executable, "-m", "sim.cli", "stop", "--hardware", str(hw), "-e", endpoint],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            cwd=REPO,
+        )
+        assert result.returncode == 0, result.stderr
+        samples = drain(wire, at_least=2)
+    assert {str(s.key_expr).split("/")[1] for s in samples} == {"robot0", "robot1"}
+    for s in samples:
+        stop = foxglove_decode(TWIST, s.payload.to_bytes())
+        assert (stop.linear.x, stop.linear.y, stop.angular.z) == (0.0, 0.0, 0.0)
+
+
 def test_bad_commands_are_refused_whole(router):
     backend = Ros2Backend(Ros2BackendConfig(namespaces=["robot0", "robot1"]), client_of(router))
     with pytest.raises(RuntimeError):
