@@ -193,8 +193,9 @@ class Launcher:
             if self.world_exit is None and any(c.name == "world" and c.proc.poll() is not None for c in self.children):
                 raise RuntimeError("the world process exited while waiting for agents: see logs/world.log")
             if time.monotonic() - started > self.opt.agents_timeout:
+                absent = [i for i in ids if not rec.agent_alive[i]]
                 raise AgentsMissing(
-                    f"no agent came for robots {format_ids(missing)} within {self.opt.agents_timeout:g} s "
+                    f"no agent came for robots {format_ids(absent)} within {self.opt.agents_timeout:g} s "
                     f"(start them with `pixelswarm agents --connect {endpoint}`)"
                 )
             self._say(f"[{self.scene.name}] waiting for agents: {len(ids) - len(missing)}/{len(ids)} robots {stage}")
