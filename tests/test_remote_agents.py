@@ -7,6 +7,7 @@ a router's endpoint on loopback, directly or through a second router joined to t
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 from pathlib import Path
 
@@ -31,12 +32,12 @@ def start(spawned: list, log: Path, *args: str) -> subprocess.Popen:
     return proc
 
 
-def start_run(spawned: list, tmp_path: Path, port: int, *extra: str) -> subprocess.Popen:
+def start_run(spawned: list, tmp_path: Path, port: int, *extra: str, clock: str = "lockstep") -> subprocess.Popen:
     return start(
         spawned,
         tmp_path / "run.err",
         *("run", "circle", "--robots", "6", "--listen", f"tcp/127.0.0.1:{port}", "--remote-agents"),
-        *("--clock", "lockstep", "--no-video", "--out", str(tmp_path / "run"), *extra),
+        *("--clock", clock, "--no-video", "--out", str(tmp_path / "run"), *extra),
     )
 
 
@@ -100,21 +101,33 @@ def test_agents_through_a_second_router_form_the_picture(tmp_path, spawned):
 
 
 @pytest.mark.slow
-def test_a_run_whose_agents_never_come_names_the_missing_robots(tmp_path, spawned):
+def test_a_run_whose_agents_never_all_come_names_the_missing_robots(tmp_path, spawned):
     port = free_port()
-    run = start_run(spawned, tmp_path, port, "--agents-timeout", "5", "-q")
+    endpoint = f"tcp/127.0.0.1:{port}"
+    # on the wall clock: a lock-step agent would wait for its missing neighbours' hellos first
+    run = start_run(spawned, tmp_path, port, "--agents-timeout", "20", "-q", clock="realtime")
     # robots the run does not have: refused with one line, nothing started
-    wrong = run_pixelswarm("agents", "--connect", f"tcp/127.0.0.1:{port}", "--robots", "4-9", timeout=TIMEOUT)
+    wrong = run_pixelswarm("agents", "--connect", endpoint, "--robots", "4-9", timeout=TIMEOUT)
     assert wrong.returncode == 2, wrong.stderr
     assert wrong.stderr.strip().splitlines() == [
-        f"pixelswarm agents: error: robots 6-9 are not agent robots of the run on tcp/127.0.0.1:{port} "
-        "(display default)"
+        f"pixelswarm agents: error: robots 6-9 are not agent robots of the run on {endpoint} (display default)"
     ]
+    some = start(spawned, tmp_path / "some.err", "agents", "--connect", endpoint, "--robots", "0-2")
+    other = start(spawned, tmp_path / "other.err", "agents", "--connect", endpoint, "--robots", "3", "-q")
+    some_agents = wait_for(lambda: len(agent_processes(some.pid)) == 3 and agent_processes(some.pid), timeout=30)
+    other_agent = wait_for(lambda: agent_processes(other.pid), timeout=30)
+    assert some_agents and len(other_agent) == 1
+    other.send_signal(signal.SIGINT)  # passed on: its agent stops with it
+    assert finish(other) == "" and other.returncode == 130, (tmp_path / "other.err").read_text()
+    assert not other_agent[0].is_running() or other_agent[0].status() == psutil.STATUS_ZOMBIE
+    # robots 0-2 came alive; 3 left with its agent, 4 and 5 were only asked about
     assert finish(run) == "" and run.returncode == 2
     lines = (tmp_path / "run.err").read_text().strip().splitlines()
-    assert len(lines) == 1 and "no agent came for robots 0-5 within 5 s" in lines[0], lines
-    assert "Traceback" not in lines[0]
+    assert len(lines) == 1 and "no agent came for robots 3-5 within 20 s" in lines[0], lines
     assert not (tmp_path / "run").exists() and not (tmp_path / "run.partial").exists()
+    # the run went away: the remaining agents stop, and their command exits 0
+    assert finish(some) == "" and some.returncode == 0, (tmp_path / "some.err").read_text()
+    assert not any(p.is_running() and p.status() != psutil.STATUS_ZOMBIE for p in some_agents)
     assert processes_on(port) == []
 
 
