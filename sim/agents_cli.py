@@ -29,7 +29,6 @@ from typing import Any
 
 from agent.runtime import HostConfig
 from transport.bus import Bus, LivelinessWatch
-from transport.faults import parse_faults
 from transport.keys import Keys
 from transport.session import TransportError, ZenohSettings
 
@@ -232,7 +231,6 @@ class Supervisor:
         self.failed = False
 
     def start(self, config: HostConfig, faults: str) -> None:
-        parse_faults(faults)  # the run's plan, checked before it reaches an agent
         cmd = [sys.executable, "-m", "agent", "--config", "-", "--exit-with-parent"]
         cmd += ["--faults", faults] if faults else []
         # Its own session: a terminal's Ctrl-C reaches this command only, which passes it on.

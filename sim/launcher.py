@@ -198,7 +198,8 @@ class Launcher:
                     f"no agent came for robots {format_ids(absent)} within {self.opt.agents_timeout:g} s "
                     f"(start them with `pixelswarm agents --connect {endpoint}`)"
                 )
-            self._say(f"[{self.scene.name}] waiting for agents: {len(ids) - len(missing)}/{len(ids)} robots {stage}")
+            what = "configurations fetched" if stage == "fetched" else "agents alive"
+            self._say(f"[{self.scene.name}] waiting for agents: {len(ids) - len(missing)}/{len(ids)} robots' {what}")
             time.sleep(0.05)
 
     @property
@@ -509,7 +510,10 @@ class Launcher:
             complete=not interrupted,
             engine="distributed",
             agents_per_process=self.opt.agents_per_process,
-            agent_processes=sum(c.name.startswith("agent") for c in self.children),
+            # remote agents: the hosts that reported, one stats event each
+            agent_processes=len(agent_stats)
+            if self.opt.remote_agents
+            else sum(c.name.startswith("agent") for c in self.children),
             min_clearance_substep_m=stats.get("min_clearance"),
             commands_applied=int(sum(stats.get("commands_applied", []))),
             commands_sent=int(rec.counts.get("cmd", 0)) + rec.framed_commands,

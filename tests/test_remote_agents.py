@@ -50,6 +50,13 @@ def processes_on(port: int) -> list[psutil.Process]:
     return found
 
 
+def agents_of(command: subprocess.Popen, count: int) -> list[psutil.Process]:
+    """The agent processes a `pixelswarm agents` started, once there are ``count`` (or what there is
+    after a while, for the assertion to show)."""
+    wait_for(lambda: len(agent_processes(command.pid)) >= count, timeout=30)
+    return agent_processes(command.pid)
+
+
 def finish(proc: subprocess.Popen) -> str:
     out, _ = proc.communicate(timeout=TIMEOUT)
     return out
@@ -65,6 +72,7 @@ def check_picture(tmp_path: Path, run: subprocess.Popen, agents: subprocess.Pope
     assert metrics["converged"] and metrics["end_reason"] == "converged"
     assert metrics["contacts"] == 0 and metrics["missed_ticks"] == 0
     assert metrics["agents_crashed"] == 0 and metrics["liveliness_lost"] == []
+    assert metrics["agent_processes"] == len(started)  # every host's statistics reached the run
     assert not (tmp_path / "run" / "config").exists()  # no config file written for the agents
     assert not any(p.is_running() and p.status() != psutil.STATUS_ZOMBIE for p in started)
 
@@ -74,7 +82,7 @@ def test_agents_from_another_process_tree_form_the_picture(tmp_path, spawned):
     port = free_port()
     run = start_run(spawned, tmp_path, port)
     agents = start(spawned, tmp_path / "agents.err", "agents", "--connect", f"tcp/127.0.0.1:{port}")
-    started = wait_for(lambda: agent_processes(agents.pid), timeout=30)
+    started = agents_of(agents, 6)
     assert len(started) == 6, (tmp_path / "agents.err").read_text()  # one robot per process by default
     check_picture(tmp_path, run, agents, started)
     assert "waiting for agents" in (tmp_path / "run.err").read_text()
@@ -91,7 +99,7 @@ def test_agents_through_a_second_router_form_the_picture(tmp_path, spawned):
     )
     assert "listening" in router.stdout.readline()
     agents = start(spawned, tmp_path / "agents.err", "agents", "--connect", f"tcp/127.0.0.1:{second}", "-k", "2")
-    started = wait_for(lambda: agent_processes(agents.pid), timeout=30)
+    started = agents_of(agents, 3)
     assert len(started) == 3  # -k 2: six robots in three processes
     assert all(f"tcp/127.0.0.1:{second}" in p.cmdline() for p in started)  # they joined the second router only
     check_picture(tmp_path, run, agents, started)
@@ -114,9 +122,8 @@ def test_a_run_whose_agents_never_all_come_names_the_missing_robots(tmp_path, sp
     ]
     some = start(spawned, tmp_path / "some.err", "agents", "--connect", endpoint, "--robots", "0-2")
     other = start(spawned, tmp_path / "other.err", "agents", "--connect", endpoint, "--robots", "3", "-q")
-    some_agents = wait_for(lambda: len(agent_processes(some.pid)) == 3 and agent_processes(some.pid), timeout=30)
-    other_agent = wait_for(lambda: agent_processes(other.pid), timeout=30)
-    assert some_agents and len(other_agent) == 1
+    some_agents, other_agent = agents_of(some, 3), agents_of(other, 1)
+    assert len(some_agents) == 3 and len(other_agent) == 1
     other.send_signal(signal.SIGINT)  # passed on: its agent stops with it
     assert finish(other) == "" and other.returncode == 130, (tmp_path / "other.err").read_text()
     assert not other_agent[0].is_running() or other_agent[0].status() == psutil.STATUS_ZOMBIE
