@@ -185,14 +185,14 @@ def _run(args: argparse.Namespace) -> int:
             )
             return 1
         configs = fetch_configs(bus, robots)
-        if not configs:
-            raise UsageError(f"the run on {args.connect} (display {args.display}) has no agent robots to start")
         unknown = [r for r in robots or [] if r not in configs]
         if unknown:
             raise UsageError(
                 f"robots {format_ids(unknown)} are not agent robots of the run on {args.connect} "
                 f"(display {args.display})"
             )
+        if not configs:
+            raise UsageError(f"the run on {args.connect} (display {args.display}) has no agent robots to start")
         hosts = _hosts(configs, args.agents_per_process)
         supervisor = Supervisor(settings)
         with supervisor.forwarding_signals():
