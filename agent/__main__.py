@@ -1,5 +1,8 @@
 """Entry point of an agent process: `python -m agent --config host.json [zenoh flags]`.
 
+`--config -` reads the config from stdin: `pixelswarm agents` hands over what it fetched from the
+run that way, so a robot's computer needs no file shared with the run.
+
 One process runs the robots its config names (one by default; K with --agents-per-process). With
 PIXELSWARM_PROFILE=DIR in its environment (`pixelswarm run` passes its own on), the host's loop runs
 under cProfile and its statistics go to DIR/agent<first robot>.prof when it stops (`python -m pstats`).
@@ -23,14 +26,19 @@ from .runtime import AgentHost, HostConfig, install_stop_handlers
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m agent", description="Run robot agents (one per robot id).")
-    parser.add_argument("--config", required=True, help="host config JSON file (robots, parameters, map)")
+    parser.add_argument(
+        "--config", required=True, help="host config JSON file (robots, parameters, map); - reads it from stdin"
+    )
     parser.add_argument("--exit-with-parent", action="store_true", help="stop when the parent process exits")
     parser.add_argument("--faults", default="", help="fault injection, e.g. 'state:drop=0.1,delay=0.05'")
     add_zenoh_args(parser)
     args = parser.parse_args(argv)
     try:
-        with open(args.config) as f:
-            config = HostConfig.from_json(f.read())
+        if args.config == "-":
+            config = HostConfig.from_json(sys.stdin.read())
+        else:
+            with open(args.config) as f:
+                config = HostConfig.from_json(f.read())
         faults = parse_faults(args.faults)
     except (OSError, ValueError, KeyError) as err:
         print(f"agent: error: bad config: {err}", file=sys.stderr)

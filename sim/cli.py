@@ -17,6 +17,7 @@ from transport.faults import parse_faults
 from transport.security import SecurityError, check_folder, router_config
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, open_session, settings_from_args
 
+from .agents_cli import add_agents_parser
 from .certs_cli import add_certs_parser
 from .cli_args import positive_int
 from .rundir import default_run_path
@@ -88,6 +89,18 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument("--display", default="default", help="display name (key prefix), for several swarms")
     run.add_argument(
+        "--remote-agents",
+        action="store_true",
+        help="start no agents: serve each robot's configuration on the bus and wait for `pixelswarm agents "
+        "--connect ENDPOINT` to start them (on this machine or others); give the endpoint with --listen",
+    )
+    run.add_argument(
+        "--agents-timeout",
+        type=float,
+        metavar="SECONDS",
+        help="--remote-agents: how long to wait for every robot's agent (default 60 s)",
+    )
+    run.add_argument(
         "--secure",
         type=Path,
         metavar="DIR",
@@ -120,6 +133,7 @@ def build_parser() -> argparse.ArgumentParser:
     scenes.set_defaults(func=cmd_scenes)
 
     add_goals_parser(sub)
+    add_agents_parser(sub)
     add_certs_parser(sub)
     add_track_parser(sub)
     add_study_parser(sub)
@@ -159,7 +173,14 @@ def _hardware_scene(args: argparse.Namespace) -> Scene:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from .launcher import HardwareStartError, Interrupted, Launcher, RunOptions  # heavy imports only when running
+    from .launcher import (  # heavy imports only when running
+        AGENTS_TIMEOUT,
+        AgentsMissing,
+        HardwareStartError,
+        Interrupted,
+        Launcher,
+        RunOptions,
+    )
 
     try:
         if args.hardware is not None and _names_the_simulator(args.hardware):
@@ -173,6 +194,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise UsageError(str(err)) from None
     if args.deadline is not None and not args.deadline > 0:
         raise UsageError(f"--deadline must be a positive number of seconds, not {args.deadline}")
+    _check_remote_agents(args, scene)
     out = args.out or default_run_path(scene.name)
     if out.exists() or out.with_name(out.name + ".partial").exists():
         raise UsageError(f"run directory {out} already exists; choose another --out")
@@ -182,6 +204,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         if args.secure is not None:
             raise UsageError("--secure secures the bus between processes; the central engine has none")
 
+        if args.remote_agents:
+            raise UsageError("--remote-agents needs the distributed engine: the central engine has no agents")
         if any(e["kind"] == "fail" for e in scene.events):
             raise UsageError("fail events (agent processes killed) need the distributed engine")
 
@@ -210,10 +234,12 @@ def cmd_run(args: argparse.Namespace) -> int:
         progress=None if args.quiet else sys.stderr,
         secure=args.secure,
         hardware=args.hardware,
+        remote_agents=args.remote_agents,
+        agents_timeout=AGENTS_TIMEOUT if args.agents_timeout is None else args.agents_timeout,
     )
     try:
         path = Launcher(scene, options).run()
-    except (TransportError, HardwareStartError) as err:
+    except (TransportError, HardwareStartError, AgentsMissing) as err:
         raise UsageError(str(err)) from None
     except Interrupted:
         print("pixelswarm: interrupted; no run directory written", file=sys.stderr)
@@ -223,6 +249,18 @@ def cmd_run(args: argparse.Namespace) -> int:
         return 1
     print(path)
     return 0
+
+
+def _check_remote_agents(args: argparse.Namespace, scene: Scene) -> None:
+    """UsageError for what a run whose agents join from elsewhere cannot do."""
+    if args.agents_timeout is not None and not args.remote_agents:
+        raise UsageError("--agents-timeout goes with --remote-agents")
+    if args.agents_timeout is not None and not args.agents_timeout > 0:
+        raise UsageError(f"--agents-timeout must be a positive number of seconds, not {args.agents_timeout}")
+    if args.remote_agents and (args.secure is not None or args.agents_connect):
+        raise UsageError("--remote-agents: the agents join by themselves; drop --secure and --agents-connect")
+    if args.remote_agents and any(e["kind"] == "fail" for e in scene.events):
+        raise UsageError("--remote-agents: the scene's fail events kill agent processes, which the run has none of")
 
 
 def _secured_router(args: argparse.Namespace, robots: int, k: int) -> ZenohSettings | None:

@@ -29,10 +29,13 @@ from transport.faults import FaultPlan, format_faults
 from transport.security import client_config, robot_role, router_config
 from transport.session import ZenohSettings, client_of, free_port, loopback_router
 
+from .agents_cli import encode_remote_config, format_ids
 from .hardware_node import ERROR as HARDWARE_ERROR
 from .output import write_run
 from .recorder import Recorder
 from .rundir import RunDir
+
+AGENTS_TIMEOUT = 60.0  # s a run with remote agents waits for every robot's agent to come alive
 
 
 @dataclass
@@ -50,6 +53,8 @@ class RunOptions:
     startup_timeout: float = 90.0
     secure: Path | None = None  # a folder from `pixelswarm certs`: each process joins as its role (docs/security.md)
     hardware: Path | None = None  # a hardware file: real robots (sim/hardware_node.py) in place of the world
+    remote_agents: bool = False  # spawn no agents: serve their configs, `pixelswarm agents` starts them elsewhere
+    agents_timeout: float = AGENTS_TIMEOUT
 
 
 class HardwareStartError(Exception):
@@ -68,6 +73,10 @@ class Interrupted(Exception):
     pass
 
 
+class AgentsMissing(Exception):
+    """Remote agents that did not come within the timeout: one line naming their robots."""
+
+
 class Launcher:
     def __init__(self, scene: Scene, options: RunOptions) -> None:
         self.world_exit: int | None = None  # the world process's exit code, once it exited
@@ -83,6 +92,8 @@ class Launcher:
             raise ValueError("a secured run has one robot per agent process: the access rules give each its own keys")
         if options.secure is not None and (options.connect or options.agent_routers):
             raise ValueError("a secured run embeds its router: every process joins it, the recorder in its session")
+        if options.remote_agents and (options.secure is not None or options.agent_routers):
+            raise ValueError("remote agents join by themselves: not with --secure or --agents-connect")
 
     # --- processes ----------------------------------------------------------------------------
     def _spawn(
@@ -108,29 +119,37 @@ class Launcher:
         s = self.scene
         return ["--scene", s.source, "--robots", str(s.robots), "--seed", str(s.seed), "--display", self.opt.display]
 
+    @property
+    def _agent_robots(self) -> list[int]:
+        """The robots an agent drives (scripted movers have none)."""
+        return [i for i in range(self.scene.robots) if i not in self.scene.scripted]
+
+    def _host_config(self, robots: list[int]) -> HostConfig:
+        lockstep = self.scene.clock == "lockstep"
+        return HostConfig(
+            robots=robots,
+            params=self.params,
+            display=self.opt.display,
+            seed=self.scene.seed,
+            arena=self.scene.arena,
+            obstacles=self.scene.obstacles,
+            lockstep=lockstep,
+            greet=self._near_at_start(robots, self._agent_robots) if lockstep else [],
+            # with injected loss or delay on states, waiting would only slow the run
+            state_wait=0.0 if "state" in self.opt.faults else 1.5,
+            pursue={r: t for r, t in self.scene.pursuers.items() if r in robots},
+            frames=self._frames,
+        )
+
     def _start_agents(self) -> None:
         k = max(1, self.opt.agents_per_process)
-        ids = [i for i in range(self.scene.robots) if i not in self.scene.scripted]
+        ids = self._agent_robots
         cfg_dir = self.run_dir / "config"
         cfg_dir.mkdir(exist_ok=True)
         faults = ["--faults", format_faults(self.opt.faults)] if self.opt.faults else []
-        lockstep = self.scene.clock == "lockstep"
         for h in range(math.ceil(len(ids) / k)):
             robots = ids[h * k : (h + 1) * k]
-            config = HostConfig(
-                robots=robots,
-                params=self.params,
-                display=self.opt.display,
-                seed=self.scene.seed,
-                arena=self.scene.arena,
-                obstacles=self.scene.obstacles,
-                lockstep=lockstep,
-                greet=self._near_at_start(robots, ids) if lockstep else [],
-                # with injected loss or delay on states, waiting would only slow the run
-                state_wait=0.0 if "state" in self.opt.faults else 1.5,
-                pursue={r: t for r, t in self.scene.pursuers.items() if r in robots},
-                frames=self._frames,
-            )
+            config = self._host_config(robots)
             path = cfg_dir / f"agents-{h:04d}.json"
             path.write_text(config.to_json())
             routers = self.opt.agent_routers
@@ -140,6 +159,48 @@ class Launcher:
                 else self._as(robot_role(robots[0]))
             )
             self._spawn(f"agent-{h:04d}", "agent", ["--config", str(path), *faults], robots, client)
+
+    # --- remote agents (`pixelswarm agents` on other machines) -----------------------------------
+    def _serve_configs(self, bus: Bus) -> None:
+        """Each agent robot's host config, as for a robot alone in its process, answers a query on
+        px/<display>/config/<robot>; `pixelswarm agents` merges K of them into one host. The 'run'
+        token tells those agents when the run is over."""
+        self.fetched: set[int] = set()  # robots whose config was asked for (zenoh's threads add to it)
+        faults = format_faults(self.opt.faults)
+        for r in self._agent_robots:
+            key, payload = bus.keys.config(r), encode_remote_config(self._host_config([r]), faults)
+
+            def answer(r: int = r, key: str = key, payload: bytes = payload) -> list[tuple[str, bytes]]:
+                self.fetched.add(r)
+                return [(key, payload)]
+
+            bus.serve(key, answer)
+        bus.declare_alive("run", 0)
+
+    def _await_remote(self, rec: Recorder, stage: str, started: float) -> None:
+        """Wait until every agent robot's config was fetched (stage 'fetched': the world starts only
+        then, as its own wait for agents is bounded) or its agent is alive (stage 'alive')."""
+        ids = self._agent_robots
+        endpoint = ", ".join((self.opt.router.listen if self.opt.router else []) or self.client.connect)
+        while True:
+            rec.poll()
+            done = set(self.fetched) if stage == "fetched" else {i for i in ids if rec.agent_alive[i]}
+            missing = [i for i in ids if i not in done]
+            if not missing:
+                return
+            if self.stop_signal is not None:
+                raise Interrupted()
+            if self.world_exit is None and any(c.name == "world" and c.proc.poll() is not None for c in self.children):
+                raise RuntimeError("the world process exited while waiting for agents: see logs/world.log")
+            if time.monotonic() - started > self.opt.agents_timeout:
+                absent = [i for i in ids if not rec.agent_alive[i]]
+                raise AgentsMissing(
+                    f"no agent came for robots {format_ids(absent)} within {self.opt.agents_timeout:g} s "
+                    f"(start them with `pixelswarm agents --connect {endpoint}`)"
+                )
+            what = "configurations fetched" if stage == "fetched" else "agents alive"
+            self._say(f"[{self.scene.name}] waiting for agents: {len(ids) - len(missing)}/{len(ids)} robots' {what}")
+            time.sleep(0.05)
 
     @property
     def _frames(self) -> bool:
@@ -256,7 +317,12 @@ class Launcher:
             )
             coord = self._spawn("coordinator", "coordinator.service", self._scene_args(), [], self._as("coordinator"))
             self._wait_alive(recorder, "coordinator", 1, coord)
-            self._start_agents()
+            if self.opt.remote_agents:
+                self._serve_configs(bus)
+                waiting_since = time.monotonic()
+                self._await_remote(recorder, "fetched", waiting_since)
+            else:
+                self._start_agents()
             world_args = self._scene_args() + [
                 "--clock",
                 self.scene.clock,
@@ -268,6 +334,8 @@ class Launcher:
             world_args += ["--pose-frames"] if self._frames else []
             if self.opt.hardware is None:
                 self._spawn("world", "sim.world_node", world_args, [], self._as("world"))
+            if self.opt.remote_agents:
+                self._await_remote(recorder, "alive", waiting_since)
             end_reason = self._loop(bus, recorder)
             self._check_children(recorder)  # an agent that died as the world finished is still a crash
             self._stop_children()
@@ -275,13 +343,26 @@ class Launcher:
             # wait (bounded) until the world's final state has been recorded.
             last_t = float(getattr(self, "world_stats", {}).get("ticks", 0)) * self.params.dt
             settle, patience = time.monotonic() + 0.5, time.monotonic() + 10.0
-            while time.monotonic() < settle or (recorder.sim_time < last_t - 1e-6 and time.monotonic() < patience):
+            while (
+                time.monotonic() < settle
+                or (recorder.sim_time < last_t - 1e-6 or self._stats_missing(recorder))
+                and time.monotonic() < patience
+            ):
                 recorder.poll()
                 time.sleep(0.05)
             recorder.close_log()
         finally:
             bus.close()
         return self._write(recorder, end_reason, time.time() - wall0)
+
+    def _stats_missing(self, rec: Recorder) -> bool:
+        """Remote agents report their statistics only once their `pixelswarm agents` has seen the
+        world end and stopped them: the run waits for them (bounded, with the world's last ticks)."""
+        if not self.opt.remote_agents:
+            return False
+        came = {int(e["id"]) for e in rec.liveliness if e["role"] == "agent" and e["alive"]}
+        reported = {r for e in rec.events if e.get("kind") == "stats" for r in e.get("robots", [])}
+        return not came <= reported
 
     def _start_hardware(self, rec: Recorder) -> None:
         """The hardware node stands in for the world; it is started first, since the agents learn where
@@ -429,7 +510,10 @@ class Launcher:
             complete=not interrupted,
             engine="distributed",
             agents_per_process=self.opt.agents_per_process,
-            agent_processes=sum(c.name.startswith("agent") for c in self.children),
+            # remote agents: the hosts that reported, one stats event each
+            agent_processes=len(agent_stats)
+            if self.opt.remote_agents
+            else sum(c.name.startswith("agent") for c in self.children),
             min_clearance_substep_m=stats.get("min_clearance"),
             commands_applied=int(sum(stats.get("commands_applied", []))),
             commands_sent=int(rec.counts.get("cmd", 0)) + rec.framed_commands,

@@ -8,8 +8,9 @@ px/<display>/cmd/<id>                agent -> body: wheel speeds or velocity, LE
 px/<display>/cmds/<id>               agent host -> bodies: its robots' commands of a tick (<id>: its first)
 px/<display>/goals/<epoch>           coordinator -> all: the goal set and colours
 px/<display>/auction/<epoch>/<id>    bids and prices of the distributed auction
-px/<display>/alive/<role>/<id>       liveliness tokens (role: agent, world, coordinator, ...)
+px/<display>/alive/<role>/<id>       liveliness tokens (role: agent, world, coordinator, run, ...)
 px/<display>/clock                   tick announcements
+px/<display>/config/<id>             run -> agents on other machines: robot <id>'s host configuration (a queryable)
 px/<display>/sim/truth               simulation only: true poses (for the recorder, never agents)
 px/<display>/sim/contact             simulation only: contact events
 px/<display>/event                   low-rate run events (end of run, reports)
@@ -83,6 +84,10 @@ class Keys:
     def auction_of(self, robot: int) -> str:
         """One robot's bids and prices, whatever the epoch."""
         return f"{self.root}/auction/*/{robot}"
+
+    def config(self, robot: int | str) -> str:
+        """A robot's host configuration, served by a run whose agents join from elsewhere ('*': every robot's)."""
+        return f"{self.root}/config/{robot}"
 
     def alive(self, role: str, ident: int | str) -> str:
         return f"{self.root}/alive/{role}/{ident}"
