@@ -97,14 +97,11 @@ def fetch_configs(bus: Bus, robots: list[int] | None) -> dict[int, tuple[HostCon
     """The configurations the run serves for ``robots`` (None: every agent robot of the run). One
     query per named robot, all in flight at once: the run counts a robot as claimed when asked."""
     keys = [bus.keys.config("*")] if robots is None else [bus.keys.config(r) for r in robots]
-    pending = [bus.session.get(key, timeout=QUERY_TIMEOUT) for key in keys]
     found: dict[int, tuple[HostConfig, str]] = {}
-    for replies in pending:
-        for reply in replies:
-            ok = getattr(reply, "ok", None)
-            robot = Keys.last_id(str(ok.key_expr)) if ok is not None else None
-            if robot is not None:
-                found[robot] = decode_remote_config(ok.payload.to_bytes())
+    for key, payload in bus.query_raw(keys, QUERY_TIMEOUT):
+        robot = Keys.last_id(key)
+        if robot is not None:
+            found[robot] = decode_remote_config(payload)
     return found
 
 

@@ -300,13 +300,21 @@ class Bus:
     def query(self, keyexpr: str, expected: type[MessageT], timeout: float = 2.0) -> list[tuple[str, MessageT]]:
         out = []
         drops = DropCounter()
-        for reply in self.session.get(keyexpr, timeout=timeout):
-            ok = getattr(reply, "ok", None)
-            if ok is None:
-                continue
-            msg = decode(ok.payload.to_bytes(), expected, drops)
+        for key, payload in self.query_raw([keyexpr], timeout):
+            msg = decode(payload, expected, drops)
             if msg is not None:
-                out.append((str(ok.key_expr), msg))
+                out.append((key, msg))
+        return out
+
+    def query_raw(self, keyexprs: list[str], timeout: float = 2.0) -> list[tuple[str, bytes]]:
+        """Every answer to these queries, all in flight at once: (key, payload bytes)."""
+        pending = [self.session.get(keyexpr, timeout=timeout) for keyexpr in keyexprs]
+        out = []
+        for replies in pending:
+            for reply in replies:
+                ok = getattr(reply, "ok", None)
+                if ok is not None:
+                    out.append((str(ok.key_expr), ok.payload.to_bytes()))
         return out
 
     def close(self) -> None:
