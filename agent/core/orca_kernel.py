@@ -480,48 +480,33 @@ def control_core(
     noise,
     committed,
 ):
-    """The collision-free velocity (B,2) and fallback flags (B,) of a batch, one robot after the
-    other with one scratch (a robot allocates nothing). One core: in the central engine the other
-    runs the auction (sim.central), and a second numba thread does not pay for starting it."""
-    b, m = nbr_valid.shape
-    size = segments.shape[0] + 2 * m
-    nbr_p, nbr_v, nbr_f = np.empty((m, 2)), np.empty((m, 2)), np.empty((3, m))
-    nbr_ok, lines, every = np.empty(m, np.bool_), np.empty((4, size)), np.ones(size, np.bool_)
-    bisectors, flags = np.empty((4, size)), np.empty((2, size), np.bool_)
-    out, fallback = np.empty((b, 2)), np.empty(b, np.bool_)
-    for i in range(b):
-        out[i, 0], out[i, 1], fallback[i] = _control_core_one(
-            i,
-            position,
-            velocity,
-            pref,
-            radius,
-            vmax,
-            nbr_position,
-            nbr_velocity,
-            nbr_radius,
-            nbr_age,
-            nbr_valid,
-            nbr_cooperative,
-            segments,
-            tau,
-            tau_obst,
-            dt,
-            margin,
-            timeout,
-            noise,
-            committed,
-            True,
-            nbr_p,
-            nbr_v,
-            nbr_f,
-            nbr_ok,
-            lines,
-            every,
-            bisectors,
-            flags,
-        )
-    return out, fallback
+    """The collision-free velocity (B,2) and fallback flags (B,) of a batch of robots of one radius and
+    maximum speed, from their neighbours' states (agent.core.step's compiled path). One core: in the
+    central engine the other runs the auction (sim.central), and a second numba thread does not pay
+    for starting it."""
+    b = position.shape[0]
+    return _each_robot(
+        position,
+        velocity,
+        pref,
+        np.full(b, radius),
+        np.full(b, vmax),
+        nbr_position,
+        nbr_velocity,
+        nbr_radius,
+        nbr_age,
+        nbr_valid,
+        nbr_cooperative,
+        segments,
+        tau,
+        tau_obst,
+        dt,
+        margin,
+        timeout,
+        noise,
+        committed,
+        True,
+    )
 
 
 @njit(cache=True, nogil=True)
@@ -542,6 +527,55 @@ def central_core(position, velocity, pref, radius, vmax, index, segments, tau, t
                 nbr_radius[i, k] = radius[j]
     # as prepare_neighbours leaves them: age 0 and nothing committed (no growth), never stale
     nbr_age, nbr_cooperative = np.zeros((b, m)), np.ones((b, m), np.bool_)
+    return _each_robot(
+        position,
+        velocity,
+        pref,
+        radius,
+        vmax,
+        nbr_position,
+        nbr_velocity,
+        nbr_radius,
+        nbr_age,
+        nbr_valid,
+        nbr_cooperative,
+        segments,
+        tau,
+        tau_obst,
+        dt,
+        margin,
+        0.0,
+        0.0,
+        0.0,
+        safety,
+    )
+
+
+@njit(cache=True, nogil=True)
+def _each_robot(
+    position,
+    velocity,
+    pref,
+    radius,
+    vmax,
+    nbr_position,
+    nbr_velocity,
+    nbr_radius,
+    nbr_age,
+    nbr_valid,
+    nbr_cooperative,
+    segments,
+    tau,
+    tau_obst,
+    dt,
+    margin,
+    timeout,
+    noise,
+    committed,
+    safety,
+):
+    """One robot after the other with one scratch (a robot allocates nothing); radius and vmax (B,)."""
+    b, m = nbr_valid.shape
     size = segments.shape[0] + 2 * m
     nbr_p, nbr_v, nbr_f = np.empty((m, 2)), np.empty((m, 2)), np.empty((3, m))
     nbr_ok, lines, every = np.empty(m, np.bool_), np.empty((4, size)), np.ones(size, np.bool_)
@@ -566,9 +600,9 @@ def central_core(position, velocity, pref, radius, vmax, index, segments, tau, t
             tau_obst,
             dt,
             margin,
-            0.0,
-            0.0,
-            0.0,
+            timeout,
+            noise,
+            committed,
             safety,
             nbr_p,
             nbr_v,
