@@ -31,7 +31,7 @@ from coordinator.scene import Scene, SceneError, load_scene
 from hardware.config import HardwareConfig, HardwareConfigError, load_hardware
 from hardware.poses import PoseSample
 from transport.bus import Bus
-from transport.codec import Command, Commands, Event, Pose, Poses, Tick, Truth
+from transport.codec import Command, Event, Pose, Poses, Tick, Truth
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, settings_from_args
 
 STARTUP_TIMEOUT = 5.0  # s: every robot reached and every robot's pose seen, or the run is refused
@@ -213,9 +213,7 @@ class HardwareNode:
         self.min_clearance = np.inf
         self.missed_ticks = 0
         self.tick = 0
-        self.cmd_inbox = bus.inbox(Command, frames=Commands)
-        bus.subscribe_into(self.keys.all_of("cmd"), self.cmd_inbox)
-        bus.subscribe_into(self.keys.all_of("cmds"), self.cmd_inbox)
+        self.cmd_inbox = bus.commands_inbox()
         self.control_inbox = bus.subscribe(self.keys.event, Event)
         self.alive = bus.watch_alive("agent")
         self.running = True

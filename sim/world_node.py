@@ -21,8 +21,8 @@ import numpy as np
 
 from coordinator.scene import Scene, SceneError, load_scene
 from transport.bus import Bus
-from transport.codec import Command, Commands, Event, Pose, Poses, State, Tick, Truth
 from transport.codec import Contact as ContactMsg
+from transport.codec import Event, Pose, Poses, State, Tick, Truth
 from transport.faults import parse_faults
 from transport.keys import cell_of
 from transport.session import TransportError, add_zenoh_args, settings_from_args
@@ -57,9 +57,7 @@ class WorldNode:
         self.tick = 0
         self.events = sorted((e for e in scene.events if e["kind"] == "teleport"), key=lambda e: e["t"])
         self.pose_frames = pose_frames
-        self.cmd_inbox = bus.inbox(Command, frames=Commands)  # one per robot, or agent hosts' frames
-        bus.subscribe_into(self.keys.all_of("cmd"), self.cmd_inbox)
-        bus.subscribe_into(self.keys.all_of("cmds"), self.cmd_inbox)
+        self.cmd_inbox = bus.commands_inbox()
         self.control_inbox = bus.subscribe(self.keys.event, Event)
         self.alive = bus.watch_alive("agent")
         self.running = True

@@ -21,7 +21,7 @@ from typing import Any, Generic, cast, overload
 import numpy as np
 import zenoh
 
-from .codec import DropCounter, Frame, Message, MessageT, decode
+from .codec import Command, Commands, DropCounter, Frame, Message, MessageT, decode
 from .faults import FaultPlan, FaultSpec
 from .keys import Keys
 from .session import ZenohSettings, open_session
@@ -230,6 +230,13 @@ class Bus:
         self._n_subs += 1
         seed = zlib.crc32(f"{self._seed}/{self._name}/{self._n_subs}".encode())
         return Inbox(expected, fault, seed, frames, only)
+
+    def commands_inbox(self) -> Inbox[Command]:
+        """Every robot's commands, sent one by one or as agent hosts' frames: what a body process reads."""
+        inbox = self.inbox(Command, frames=Commands)
+        self.subscribe_into(self.keys.all_of("cmd"), inbox)
+        self.subscribe_into(self.keys.all_of("cmds"), inbox)
+        return inbox
 
     @overload
     def subscribe(self, keyexpr: str, expected: type[MessageT]) -> Inbox[MessageT]: ...
