@@ -518,6 +518,8 @@ class Launcher:
             commands_applied=int(sum(stats.get("commands_applied", []))),
             commands_sent=int(rec.counts.get("cmd", 0)) + rec.framed_commands,
             late_commands=int(stats.get("late_commands", 0)),
+            expired_commands=int(stats.get("expired_commands", 0)),
+            stopped_ticks=int(stats.get("stopped_ticks", 0)),
             orca_fallbacks=int(sum(s.get("fallbacks", 0) for s in agent_stats)),
             dropped_messages=dropped,
             crashes=self.crashes,

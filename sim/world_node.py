@@ -3,8 +3,12 @@
 Real time: physics at 100 Hz on the wall clock; every control period (10 Hz) the tracker publishes
 each robot's pose (with seeded noise, paper 7.1: 2 mm / 3 deg) and commands are applied as they
 arrive, as on hardware. Lock-step: the world publishes tick k, waits until every live agent has
-answered with its command for tick k or a deadline passes (a missed tick: the robot keeps its
-last command), then advances one period. Lock-step runs are reproducible from the seed.
+answered with its command for tick k or a deadline passes (a missed tick), then advances one
+period. Lock-step runs are reproducible from the seed.
+
+A command is valid for its control period and a margin (RobotParams.command_margin): a body whose
+agent is late, blind or cut off stops rather than drive on an old command, since ORCA's guarantee
+holds only for commands computed from the current poses.
 """
 
 from __future__ import annotations
@@ -48,6 +52,10 @@ class WorldNode:
         n = scene.robots
         self.color = np.zeros((n, 3), np.uint8)
         self.last_cmd_tick = np.full(n, -1)
+        # world time until which each robot's command holds (-inf: none yet); then the body stops
+        self.valid_until = np.full(n, -np.inf)
+        self.expired_commands = 0  # commands that arrived too late to drive anything
+        self.stopped_ticks = 0  # robot-ticks in which a live robot was stopped for want of a valid command
         self.live = np.zeros(n, bool)
         self.agent_robot = np.array([i not in scene.scripted for i in range(n)])  # scripted: no agent
         self.color[~self.agent_robot] = 255
@@ -86,8 +94,22 @@ class WorldNode:
                 self.late_commands += 1
                 continue
             self.last_cmd_tick[i] = cmd.tick
-            self.world.set_command(i, cmd.a, cmd.b)
             self.color[i] = (cmd.r, cmd.g, cmd.bl)
+            valid_until = (cmd.tick + 1) * self.dt + self.params.command_margin
+            if valid_until <= self.world.time:
+                self.expired_commands += 1
+                continue
+            self.valid_until[i] = valid_until
+            self.world.set_command(i, cmd.a, cmd.b)
+
+    def _stop_expired(self, step: float) -> int:
+        """Stop every agent-driven body whose command runs out before the next ``step`` seconds of
+        physics begin to count (lock-step steps a whole period at once); how many are stopped now."""
+        expired = self.agent_robot & (self.valid_until <= self.world.time + step - self.world.substep + 1e-9)
+        for i in np.flatnonzero(expired & np.isfinite(self.valid_until)).tolist():
+            self.world.stop(i)
+            self.valid_until[i] = -np.inf  # stopped: nothing to expire until the next command
+        return int((expired & self.live).sum())
 
     def _check_control(self) -> None:
         if self.parent_pid is not None and os.getppid() != self.parent_pid:
@@ -210,6 +232,7 @@ class WorldNode:
                 if not waiting.any() or time.monotonic() >= deadline:
                     self.missed_ticks += int(waiting.sum())
                     break
+            self.stopped_ticks += self._stop_expired(self.dt)
             self._publish_contacts(self.world.step(self.dt))
             self.tick += 1
             self._check_control()
@@ -224,13 +247,16 @@ class WorldNode:
             self._update_liveness()
             self._publish_tick()
             contacts = []
+            stopped = 0
             for _ in range(per_tick):
                 next_time += sub
                 pause = next_time - time.monotonic()
                 if pause > 0:
                     time.sleep(pause)
                 self._apply_commands()
+                stopped = max(stopped, self._stop_expired(sub))
                 contacts += self.world.step(sub)
+            self.stopped_ticks += stopped
             self.missed_ticks += int((self.live & (self.last_cmd_tick < self.tick)).sum())
             self._publish_contacts(contacts)
             self.tick += 1
@@ -243,6 +269,8 @@ class WorldNode:
             "ticks": self.tick,
             "missed_ticks": self.missed_ticks,
             "late_commands": self.late_commands,
+            "expired_commands": self.expired_commands,
+            "stopped_ticks": self.stopped_ticks,
             "commands_applied": self.world.commands_applied.astype(int).tolist(),
             "min_clearance": _finite_or_none(self.world.min_clearance),
             "dropped": dict(self.cmd_inbox.drops + self.control_inbox.drops),

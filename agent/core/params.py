@@ -35,6 +35,7 @@ class RobotParams:
     neighbour_dist: float = 0.6  # robots farther than this are ignored by ORCA
     max_neighbours: int = 10
     dt: float = 0.1  # control period (10 Hz)
+    command_margin: float = 0.05  # a command of tick k drives the body until (k + 1) dt + this; then it stops
     goal_tolerance: float = 0.01  # a robot within this distance of its goal has arrived
     noise_bound: float = 0.01  # bound on the relative tracking error of two robots (3.5 sigma of 2 x 2 mm)
     stale_after: float = 0.5  # a neighbour not heard from this long is a non-cooperating obstacle
