@@ -34,6 +34,7 @@ from .hardware_node import ERROR as HARDWARE_ERROR
 from .output import write_run
 from .recorder import Recorder
 from .rundir import RunDir
+from .ticklog import TICKS_FILE
 
 AGENTS_TIMEOUT = 60.0  # s a run with remote agents waits for every robot's agent to come alive
 
@@ -306,7 +307,13 @@ class Launcher:
         bus = Bus(settings, self.opt.display, name="launcher")
         self.world_exit = None
         try:
-            recorder = Recorder(bus, self.scene.robots, self.params.goal_tolerance, str(self.run_dir / "log.mcap"))
+            recorder = Recorder(
+                bus,
+                self.scene.robots,
+                self.params.goal_tolerance,
+                str(self.run_dir / "log.mcap"),
+                str(self.run_dir / TICKS_FILE),
+            )
             recorder.ends = self._ends_on_convergence
             if self.opt.hardware is not None:  # refused at once (one line) if a robot or its pose is missing
                 self._start_hardware(recorder)
@@ -351,6 +358,7 @@ class Launcher:
                 recorder.poll()
                 time.sleep(0.05)
             recorder.close_log()
+            (self.run_dir / TICKS_FILE).unlink(missing_ok=True)  # trajectory.npz holds them, and more
         finally:
             bus.close()
         return self._write(recorder, end_reason, time.time() - wall0)
