@@ -37,6 +37,10 @@ from .rundir import RunDir
 from .ticklog import TICKS_FILE
 
 AGENTS_TIMEOUT = 60.0  # s a run with remote agents waits for every robot's agent to come alive
+RESTARTS = 5  # times the launcher restarts a central service that died (beyond: the run goes on without it)
+RESTARTED = (
+    "coordinator",
+)  # the services it restarts; the simulated world is also the tracker: its death ends the run
 
 
 @dataclass
@@ -68,6 +72,8 @@ class Child:
     proc: subprocess.Popen
     robots: list[int]
     log: Path
+    command: list[str] = field(default_factory=list)  # module and arguments, to start it again
+    client: ZenohSettings | None = None
 
 
 class Interrupted(Exception):
@@ -85,6 +91,7 @@ class Launcher:
         self.params = RobotParams.from_dict(scene.robot)
         self.children: list[Child] = []
         self.crashes: list[dict[str, Any]] = []
+        self.restarts: list[dict[str, Any]] = []  # central services that died and were started again
         self.stop_signal: int | None = None
         self.run_dir = RunDir(options.out)
         self.failures = sorted((e for e in scene.events if e["kind"] == "fail"), key=lambda e: e["t"])
@@ -103,7 +110,7 @@ class Launcher:
         log = self.run_dir / "logs" / f"{name}.log"
         log.parent.mkdir(exist_ok=True)
         zenoh_args = (client or self.client).to_args()
-        with open(log, "w") as fh:
+        with open(log, "a") as fh:  # a restarted service goes on in its log
             proc = subprocess.Popen(
                 [sys.executable, "-m", module, *args, "--exit-with-parent", *zenoh_args],
                 stdout=fh,
@@ -112,9 +119,25 @@ class Launcher:
                 start_new_session=True,
                 cwd=os.getcwd(),
             )
-        child = Child(name, proc, robots, log)
+        child = Child(name, proc, robots, log, [module, *args], client)
         self.children.append(child)
         return child
+
+    def _restart(self, child: Child, code: int, recorder: Recorder) -> None:
+        """A central service died mid-run: start it again (it learns where the show is from the bus)."""
+        done = [r for r in self.restarts if r["process"] == child.name]
+        if len(done) >= RESTARTS or self.stop_signal is not None:
+            return
+        module, *args = child.command
+        again = self._spawn(child.name, module, args, child.robots, child.client)
+        self.restarts.append(
+            {"process": child.name, "returncode": code, "pid": again.proc.pid, "sim_time_s": recorder.sim_time}
+        )
+        print(
+            f"pixelswarm: {child.name} (pid {child.proc.pid}) exited with code {code}; restarted (pid {again.proc.pid})",
+            file=sys.stderr,
+            flush=True,
+        )
 
     def _scene_args(self) -> list[str]:
         s = self.scene
@@ -242,6 +265,8 @@ class Launcher:
                 )
             elif child.name == "world":
                 self.world_exit = code
+            elif child.name in RESTARTED:
+                self._restart(child, code, recorder)
 
     def _stop_children(self) -> None:
         self.shutdown_wall = min(time.time(), getattr(self, "shutdown_wall", float("inf")))
@@ -315,6 +340,7 @@ class Launcher:
                 str(self.run_dir / TICKS_FILE),
             )
             recorder.ends = self._ends_on_convergence
+            bus.serve(bus.keys.run_goals, lambda: self._newest_goals(bus, recorder))
             if self.opt.hardware is not None:  # refused at once (one line) if a robot or its pose is missing
                 self._start_hardware(recorder)
             endpoint = ", ".join(settings.listen or settings.connect)
@@ -362,6 +388,11 @@ class Launcher:
         finally:
             bus.close()
         return self._write(recorder, end_reason, time.time() - wall0)
+
+    @staticmethod
+    def _newest_goals(bus: Bus, rec: Recorder) -> list[tuple[str, bytes]]:
+        newest = rec.newest_goals
+        return [] if newest is None else [(bus.keys.run_goals, newest.encode())]
 
     def _stats_missing(self, rec: Recorder) -> bool:
         """Remote agents report their statistics only once their `pixelswarm agents` has seen the
@@ -531,6 +562,7 @@ class Launcher:
             orca_fallbacks=int(sum(s.get("fallbacks", 0) for s in agent_stats)),
             dropped_messages=dropped,
             crashes=self.crashes,
+            restarts=self.restarts,
             liveliness_lost=[{"robot": e["id"], "wall_time": e["wall_time"]} for e in lost],
             faults=format_faults(self.opt.faults),
             stepping_wall_s=stepping_wall,

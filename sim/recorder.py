@@ -91,6 +91,7 @@ class Recorder:
         self.assign_instance = np.zeros(robots, np.int64)
         self.step = 0  # the scene step of the newest goal set
         self.goal_sets: dict[int, Goals] = {}  # epoch -> the coordinator's goal set
+        self.newest_goals: Goals | None = None  # the goal set of the highest epoch (read from zenoh's threads)
         self.bid_positions: dict[
             tuple[int, int], dict[int, tuple[float, float, float]]
         ] = {}  # (epoch, instance) -> robot -> x, y, penalty
@@ -142,6 +143,7 @@ class Recorder:
                     self.goal_sets[msg.epoch] = msg
                     if msg.epoch == max(self.goal_sets):
                         self.step = msg.step
+                        self.newest_goals = msg
             elif isinstance(msg, States):
                 for state in msg.messages():
                     self._on_state(state)

@@ -103,3 +103,74 @@ def test_sigkill_of_the_launcher_leaves_no_process_and_a_readable_partial_run(tm
     assert len(stamps) >= 10 and stamps == sorted(stamps)
     assert stamps[-1] <= ticks["t"][-1] + 1e-9
     assert json.dumps(log["/sim/truth"][0])  # decoded messages
+
+
+THREE_STEPS = """
+name = "faults"
+robots = 10
+seed = 5
+clock = "lockstep"
+[layout]
+kind = "grid"
+spacing = 0.2
+[[steps]]
+shape = "disk"
+hold = 10.0
+[[steps]]
+shape = "line"
+hold = 30.0
+[[steps]]
+shape = "disk"
+hold = 20.0
+[end]
+converge_hold = 2.0
+"""
+
+
+def process_of(proc: subprocess.Popen, module: str) -> psutil.Process | None:
+    for p in descendants(proc.pid):
+        try:
+            if module in p.cmdline():
+                return p
+        except psutil.Error:
+            pass
+    return None
+
+
+def finish(proc: subprocess.Popen, out: Path, timeout: float = 240) -> tuple[dict, dict]:
+    _, stderr = proc.communicate(timeout=timeout)
+    assert proc.returncode == 0, stderr[-3000:]
+    return json.loads((out / "metrics.json").read_text()), dict(np.load(out / "trajectory.npz"))
+
+
+def assert_show_completed(traj: dict, robots: np.ndarray | None = None) -> None:
+    """Every robot (of ``robots``) on a goal of the newest goal set, within TOLERANCE, at the end."""
+    robots = np.arange(traj["pose"].shape[1]) if robots is None else robots
+    err = np.hypot(*(traj["pose"][-1, robots, :2] - traj["goal"][-1, robots]).T)
+    assert (traj["assignment_epoch"][-1, robots] == traj["goal_set_epochs"][-1]).all()
+    assert np.all(err <= TOLERANCE), np.round(err * 1000).astype(int).tolist()
+
+
+@pytest.mark.slow
+def test_a_killed_coordinator_is_restarted_and_goes_on_with_the_show(tmp_path, spawned):
+    scene = tmp_path / "three.toml"
+    scene.write_text(THREE_STEPS)
+    out = tmp_path / "run"
+    proc = start(spawned, scene, out)
+    # into the second image: a coordinator takes seconds to start on a loaded machine, and a lock-step
+    # display does not wait for it (the robots hold the image they have meanwhile)
+    assert wait_for(lambda: ticks_so_far(out) >= 120, timeout=120)
+    coordinator = process_of(proc, "coordinator.service")
+    assert coordinator is not None
+    coordinator.send_signal(signal.SIGKILL)
+    m, traj = finish(proc, out)
+    assert m["contacts"] == 0
+    assert [r["process"] for r in m["restarts"]] == ["coordinator"]
+    # the new coordinator went on from the run's goal set: one epoch per image, not the show over
+    assert traj["goal_set_epochs"].tolist() == [1, 2, 3] and traj["goal_set_steps"].tolist() == [0, 1, 2]
+    published: dict[int, set] = {}
+    for g in read_mcap(out / "log.mcap", topics=["/goals"])["/goals"]:
+        published.setdefault(g["epoch"], set()).add((g["step"], g["stamp"], json.dumps(g["positions"])))
+    assert all(len(versions) == 1 for versions in published.values()), "a goal set was published twice, changed"
+    assert m["end_reason"] == "converged"
+    assert_show_completed(traj)
