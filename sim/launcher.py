@@ -559,6 +559,7 @@ class Launcher:
             late_commands=int(stats.get("late_commands", 0)),
             expired_commands=int(stats.get("expired_commands", 0)),
             stopped_ticks=int(stats.get("stopped_ticks", 0)),
+            withheld_ticks=int(stats.get("withheld_ticks", 0)),
             orca_fallbacks=int(sum(s.get("fallbacks", 0) for s in agent_stats)),
             dropped_messages=dropped,
             crashes=self.crashes,

@@ -174,3 +174,29 @@ def test_a_killed_coordinator_is_restarted_and_goes_on_with_the_show(tmp_path, s
     assert all(len(versions) == 1 for versions in published.values()), "a goal set was published twice, changed"
     assert m["end_reason"] == "converged"
     assert_show_completed(traj)
+
+
+OUTAGE_AT, OUTAGE = 3.0, 2.0  # s: the tracker sends no pose from 3 s (robots on their way) for 2 s
+
+
+@pytest.mark.slow
+def test_robots_stop_during_a_tracker_outage_and_resume(tmp_path, spawned):
+    events = f'[[events]]\nkind = "tracker-outage"\nt = {OUTAGE_AT}\nduration = {OUTAGE}'
+    scene = write_disk(tmp_path, hold=30.0, converge_hold=2.0, events=events)
+    out = tmp_path / "run"
+    m, traj = finish(start(spawned, scene, out), out)
+    assert m["contacts"] == 0
+    assert m["withheld_ticks"] == round(OUTAGE / 0.1)
+    t, pose, velocity = traj["t"], traj["pose"][:, :, :2], traj["velocity"]
+    speed = np.hypot(*velocity.transpose(2, 0, 1))
+    before = np.flatnonzero(t < OUTAGE_AT - 1e-9)[-1]
+    assert speed[before].max() > 0.01  # they were on their way
+    # blind, every robot stops once its last command runs out: one period and command_margin
+    stopped = np.flatnonzero((t >= OUTAGE_AT + 0.1 + 0.05 + 0.1 - 1e-9) & (t <= OUTAGE_AT + OUTAGE + 1e-9))
+    assert len(stopped) >= 15
+    assert speed[stopped].max() == 0.0, np.round(speed[stopped].max(axis=1), 3).tolist()
+    assert np.array_equal(pose[stopped[0]], pose[stopped[-1]])
+    # ... and resume once the poses are back
+    assert np.hypot(*(pose[-1] - pose[stopped[-1]]).T).max() > 0.01
+    assert m["end_reason"] == "converged"
+    assert_show_completed(traj)
