@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import signal
 import subprocess
+import time
 from pathlib import Path
 
 import numpy as np
@@ -199,4 +200,30 @@ def test_robots_stop_during_a_tracker_outage_and_resume(tmp_path, spawned):
     # ... and resume once the poses are back
     assert np.hypot(*(pose[-1] - pose[stopped[-1]]).T).max() > 0.01
     assert m["end_reason"] == "converged"
+    assert_show_completed(traj)
+
+
+@pytest.mark.slow
+def test_an_agent_killed_and_started_again_rejoins_the_auction_and_the_show(tmp_path, spawned):
+    # real time: a lock-step agent greets its first neighbours before it says it is alive (start-up only)
+    scene = write_disk(tmp_path, clock="realtime", hold=25.0)  # to the end: the nine form before it is back
+    out = tmp_path / "run"
+    proc = start(spawned, scene, out)
+    assert wait_for(lambda: ticks_so_far(out) >= 30, timeout=120)
+    victim = next(p for p in descendants(proc.pid) if "agent" in p.cmdline() and "agents-0004.json" in str(p.cmdline()))
+    command = victim.cmdline()
+    victim.send_signal(signal.SIGKILL)
+    victim.wait(timeout=10)
+    time.sleep(3.0)  # the others re-form for nine meanwhile
+    again = subprocess.Popen(command, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    spawned.append(again)  # the robot's computer started its agent again, by hand
+    try:
+        m, traj = finish(proc, out)
+    finally:
+        again.send_signal(signal.SIGTERM)
+        again.wait(timeout=20)
+    assert m["contacts"] == 0 and m["agents_crashed"] == 1 and m["crashes"][0]["robots"] == [4]
+    members = traj["goal_set_robots"]
+    assert members[:, 4].any() and not members[:, 4].all()  # dropped from a goal set ...
+    assert members[-1].all()  # ... and in the newest again: it rejoined the auction
     assert_show_completed(traj)
