@@ -227,3 +227,25 @@ def test_an_agent_killed_and_started_again_rejoins_the_auction_and_the_show(tmp_
     assert members[:, 4].any() and not members[:, 4].all()  # dropped from a goal set ...
     assert members[-1].all()  # ... and in the newest again: it rejoined the auction
     assert_show_completed(traj)
+
+
+KILL_AT = 8.0  # s: the disk of ten forms in about 5 s
+
+
+@pytest.mark.slow
+def test_a_tenth_of_the_agents_killed_at_once_and_the_rest_form_the_image_for_the_survivors(tmp_path, spawned):
+    scene = write_disk(
+        tmp_path, hold=30.0, converge_hold=6.0, events=f'[[events]]\nkind = "fail"\nt = {KILL_AT}\nrobot = 6'
+    )
+    out = tmp_path / "run"
+    m, traj = finish(start(spawned, scene, out), out)
+    assert m["contacts"] == 0 and len(m["agents_failed_by_scene"]) == 1
+    survivors = np.flatnonzero(np.arange(10) != 6)
+    assert traj["goal_set_robots"][-1].tolist() == [r != 6 for r in range(10)]  # paper 5.1.2: the set for nine
+    t = traj["t"]
+    err = np.hypot(*(traj["pose"][:, survivors, :2] - traj["goal"][:, survivors]).T).T
+    newest = (traj["assignment_epoch"][:, survivors] == traj["goal_set_epochs"][-1]).all(axis=1)
+    formed = np.flatnonzero(newest & (err <= TOLERANCE).all(axis=1) & (t >= KILL_AT))
+    assert len(formed) and t[formed[0]] - KILL_AT <= 10.0
+    assert m["end_reason"] == "converged"
+    assert_show_completed(traj, survivors)
