@@ -15,6 +15,7 @@ import pytest
 
 from sim.mcaplog import read_mcap
 from sim.ticklog import TICKS_FILE, read_ticks
+from transport.session import free_port
 
 from .conftest import REPO, descendants, pixelswarm_cmd, reap, wait_for
 
@@ -249,3 +250,48 @@ def test_a_tenth_of_the_agents_killed_at_once_and_the_rest_form_the_image_for_th
     assert len(formed) and t[formed[0]] - KILL_AT <= 10.0
     assert m["end_reason"] == "converged"
     assert_show_completed(traj, survivors)
+
+
+ROUTER_DOWN = 2.0  # s of wall time the standalone router is gone
+
+
+@pytest.mark.slow
+def test_a_router_killed_and_restarted_every_component_reconnects_and_the_show_completes(tmp_path, spawned):
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+
+    def router() -> subprocess.Popen:
+        proc = subprocess.Popen(pixelswarm_cmd("router", "-l", endpoint), cwd=REPO, stdout=subprocess.PIPE, text=True)
+        spawned.append(proc)
+        assert proc.stdout is not None and "listening" in proc.stdout.readline()
+        return proc
+
+    first = router()
+    # real time: the world goes on while the router is gone (a lock-step world would wait for it)
+    scene = write_disk(tmp_path, clock="realtime", hold=20.0)
+    out = tmp_path / "run"
+    proc = start(spawned, scene, out, "-e", endpoint)
+    assert wait_for(lambda: ticks_so_far(out) >= 20, timeout=120)  # on their way to the disk
+    first.send_signal(signal.SIGKILL)
+    first.wait(timeout=10)
+    time.sleep(ROUTER_DOWN)
+    second = router()
+    try:
+        m, traj = finish(proc, out)
+    finally:
+        second.send_signal(signal.SIGINT)
+        second.wait(timeout=20)
+    assert m["contacts"] == 0 and m["agents_crashed"] == 0
+    assert len(m["liveliness_lost"]) == 10  # every agent was cut off ...
+    assert traj["goal_set_epochs"].tolist() == [1]  # ... and came back to the same show
+    # The recorder is cut off too: the ticks on either side of the gap. Robots that drove on, blind,
+    # for the router's ROUTER_DOWN seconds would have moved on by far more than robots that stopped.
+    t, pose = traj["t"], traj["pose"][:, :, :2]
+    gap = int(np.argmax(np.diff(t)))
+    assert t[gap + 1] - t[gap] >= ROUTER_DOWN
+    speed = np.hypot(*traj["velocity"][gap].T)
+    to_goal = np.hypot(*(pose[gap] - traj["goal"][gap]).T)
+    moving = (speed > 0.03) & (to_goal > 0.06)  # driving on, they would have moved 6 cm or more
+    assert moving.sum() >= 2, (np.round(speed, 3).tolist(), np.round(to_goal, 3).tolist())
+    moved = np.hypot(*(pose[gap + 1] - pose[gap]).T)
+    assert moved[moving].max() <= 0.03, np.round(moved, 3).tolist()  # v_max x (dt + command_margin), and noise
+    assert_show_completed(traj)
