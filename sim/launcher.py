@@ -454,8 +454,16 @@ class Launcher:
                 self.world_stats = done
                 return end_sent or str(done.get("reason", "duration"))
             if self.world_exit is not None:
-                self.world_stats = {}
-                raise RuntimeError(f"the world process exited with code {self.world_exit}: see logs/world.log")
+                # the world is the bodies and the tracker: nothing can go on without it; what was
+                # recorded so far is written, marked incomplete
+                self.world_stats, self.world_died = {}, True
+                print(
+                    f"pixelswarm: the world process exited with code {self.world_exit} (see logs/world.log); "
+                    "the run ends, incomplete",
+                    file=sys.stderr,
+                    flush=True,
+                )
+                return f"world exited with code {self.world_exit}"
             if self.stop_signal is not None and not end_sent:
                 end_sent = "interrupted"
                 self.interrupted = True
@@ -517,6 +525,7 @@ class Launcher:
         interrupted = getattr(self, "interrupted", False)
         if interrupted:
             end_reason = "interrupted"
+        world_died = getattr(self, "world_died", False)
         arrays = rec.arrays()
         stats = getattr(self, "world_stats", {})
         agent_stats = [e for e in rec.events if e.get("kind") == "stats" and e.get("role") == "agent"]
@@ -546,7 +555,7 @@ class Launcher:
             agents_crashed=len(self.crashes),
             agents_failed_by_scene=self.failed,
             end_reason=end_reason,
-            complete=not interrupted,
+            complete=not interrupted and not world_died,
             engine="distributed",
             agents_per_process=self.opt.agents_per_process,
             # remote agents: the hosts that reported, one stats event each

@@ -295,3 +295,22 @@ def test_a_router_killed_and_restarted_every_component_reconnects_and_the_show_c
     moved = np.hypot(*(pose[gap + 1] - pose[gap]).T)
     assert moved[moving].max() <= 0.03, np.round(moved, 3).tolist()  # v_max x (dt + command_margin), and noise
     assert_show_completed(traj)
+
+
+@pytest.mark.slow
+def test_a_world_that_dies_ends_the_run_marked_incomplete(tmp_path, spawned):
+    scene = write_disk(tmp_path, hold=60.0)
+    out = tmp_path / "run"
+    proc = start(spawned, scene, out)
+    assert wait_for(lambda: ticks_so_far(out) >= 20, timeout=120)
+    everyone = [p.pid for p in descendants(proc.pid)]
+    world = process_of(proc, "sim.world_node")
+    assert world is not None
+    world.send_signal(signal.SIGKILL)
+    _, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 0, stderr
+    assert "the world process exited with code -9" in stderr
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["complete"] is False and m["end_reason"] == "world exited with code -9"
+    assert len(np.load(out / "trajectory.npz")["t"]) >= 20  # what was recorded up to then
+    assert wait_for(lambda: not alive(everyone), timeout=15)
