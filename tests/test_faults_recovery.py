@@ -97,6 +97,7 @@ def test_sigkill_of_the_launcher_leaves_no_process_and_a_readable_partial_run(tm
     # the trajectory holds every tick up to the kill, one after another
     ticks = read_ticks(partial / TICKS_FILE)
     assert len(ticks["t"]) == len(seen) >= 30
+    assert ticks["t"][0] == 0.0
     np.testing.assert_allclose(np.diff(ticks["t"]), 0.1, atol=1e-9)
     assert ticks["pose"].shape == (len(seen), 10, 3) and np.isfinite(ticks["pose"]).all()
     # the MCAP log, never closed, is read by mcap's reader up to its last flushed chunk (once a second)
