@@ -13,8 +13,8 @@ import numpy as np
 import psutil
 import pytest
 
-from sim.mcaplog import read_mcap
-from sim.ticklog import TICKS_FILE, read_ticks
+from sim.mcaplog import McapLog, read_mcap
+from sim.ticklog import TICKS_FILE, TickLog, read_ticks
 from transport.session import free_port
 
 from .conftest import REPO, descendants, pixelswarm_cmd, reap, wait_for
@@ -76,6 +76,38 @@ def alive(pids: list[int]) -> list[int]:
         except psutil.NoSuchProcess:
             pass
     return out
+
+
+def test_a_torn_tick_file_reads_up_to_its_last_whole_tick(tmp_path):
+    log = TickLog(tmp_path / TICKS_FILE, robots=3)
+    rng = np.random.default_rng(0)
+    for k in range(5):
+        pose = rng.normal(size=(3, 3))
+        log.append(k * 0.1, 100.0 + k, pose, pose[:, :2], np.full((3, 3), 7), np.full((3, 2), np.nan), np.arange(3))
+    log.close()
+    path = tmp_path / TICKS_FILE
+    path.write_bytes(path.read_bytes()[:-10])  # killed in the middle of the fifth record
+    ticks = read_ticks(path)
+    assert ticks["t"].tolist() == pytest.approx([0.0, 0.1, 0.2, 0.3])
+    assert ticks["pose"].shape == (4, 3, 3) and ticks["color"].dtype == np.uint8
+    assert np.isnan(ticks["goal"]).all() and ticks["assignment"][-1].tolist() == [0, 1, 2]
+    (tmp_path / "other").write_bytes(b"not a tick file")
+    with pytest.raises(ValueError, match="not a pixelswarm tick file"):
+        read_ticks(tmp_path / "other")
+
+
+def test_an_mcap_log_never_closed_reads_up_to_its_last_flush(tmp_path):
+    log = McapLog(tmp_path / "log.mcap")
+    channel = log.add_channel("/n", "N", {"type": "object"})
+    for k in range(10):
+        log.write(channel, k, {"k": k})
+    log.flush()
+    for k in range(10, 15):
+        log.write(channel, k, {"k": k})  # the chunk in progress when the writer dies
+    # no close: as a process killed outright leaves it
+    assert [m["k"] for m in read_mcap(tmp_path / "log.mcap")["/n"]] == list(range(10))
+    log.close()
+    assert [m["k"] for m in read_mcap(tmp_path / "log.mcap")["/n"]] == list(range(15))
 
 
 @pytest.mark.slow
