@@ -504,15 +504,20 @@ def _check_fit(scene: Scene, where: str) -> None:
             )
 
 
-EVENT_KINDS = ("teleport", "fail")
+EVENT_KINDS = ("teleport", "fail", "tracker-outage")
 
 
 def _check_event(event: dict[str, Any], scene: Scene, where: str) -> None:
     """teleport: the world moves a robot (picked up by hand, paper 7.4.3); fail: the launcher kills the
-    agent process of a robot (SIGKILL) at display time t, its body stays in the world, stopped."""
+    agent process of a robot (SIGKILL) at display time t, its body stays in the world, stopped;
+    tracker-outage: the tracker sends no pose from t for `duration` seconds (docs/faults.md)."""
     kind = event.get("kind")
     if kind not in EVENT_KINDS:
         raise SceneError(f"{where}: event kind must be one of {', '.join(EVENT_KINDS)}, not {kind!r}")
+    if kind == "tracker-outage":
+        if not (_positive(event.get("t")) and _positive(event.get("duration"))):
+            raise SceneError(f"{where}: tracker-outage event needs a time t > 0 and a duration > 0 (s)")
+        return
     robot, t = event.get("robot"), event.get("t")
     if not (isinstance(robot, int) and 0 <= robot < scene.robots):
         raise SceneError(f"{where}: {kind} event robot must be an index in 0..{scene.robots - 1}")

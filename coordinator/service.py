@@ -4,7 +4,9 @@ Image scenes: each scene step (an image and its hold time) is shown with the goa
 alive (paper 5.1.2: eq. 8's set for the current count); a new step, or an agent dying or joining,
 starts a new epoch, and the robots re-auction. Display time comes from the world's clock ticks.
 Late joiners ask for the current goal set with a query; the set is also re-published every second,
-so a lost message costs at most a second. Animation keyframes are steps too (one epoch per keyframe,
+so a lost message costs at most a second. A coordinator started again mid-run (the launcher restarts
+one that died) first asks the run for the newest goal set recorded and goes on from its epoch and
+step: the robots keep their goals, and the show is not started over. Animation keyframes are steps too (one epoch per keyframe,
 with its K_f dt for eq. 27); a dynamic image's motion (eq. 28) is published once with its goal set.
 """
 
@@ -100,6 +102,8 @@ def step_timing(scene: Scene, step: int) -> StepTiming:
     return out
 
 
+RESUME_WAIT_S = 2.0  # s a starting coordinator waits for the run's newest goal set (none: a new run)
+
 PREPARE_AHEAD = 5.0  # s of display before an image change that the coordinator prepares its warm start
 
 
@@ -146,6 +150,21 @@ class Coordinator:
         bus.serve(bus.keys.all_of("goals"), self._answer)
         self.running = True
         self.parent_pid: int | None = None
+
+    def resume(self, timeout: float = RESUME_WAIT_S) -> Goals | None:
+        """Go on from the newest goal set the run recorded, if there is one (a restart mid-run): its
+        epoch, step and robots become the current ones, so the next goal set is published only when
+        the step or the live robots change, with the next epoch. The goal set gone on from, if any."""
+        found = [g for _, g in self.bus.query(self.bus.keys.run_goals, Goals, timeout=timeout) if not g.per_robot]
+        if not self.images or not found:
+            return None
+        newest = max(found, key=lambda g: g.epoch)
+        robots = frozenset(int(r) for r in newest.robots)
+        self.current, self.epoch = newest, newest.epoch
+        self.shown = (newest.step, robots)
+        self.ever_live |= robots
+        self.live_changed = time.monotonic()  # the live robots are heard again: none counts as a change yet
+        return newest
 
     def _answer(self) -> list[tuple[str, bytes]]:
         current = self.current
@@ -267,6 +286,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     with bus:
         coordinator = Coordinator(bus, scene)
+        resumed = coordinator.resume()
+        if resumed is not None:
+            print(f"coordinator: going on from goal set {resumed.epoch} (step {resumed.step})", flush=True)
         if args.exit_with_parent:
             coordinator.parent_pid = os.getppid()
 

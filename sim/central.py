@@ -156,8 +156,10 @@ def simulate(
     motion: GoalMotion | None = None
     t_start = 0.0  # when the shown step started
     assigned_at: float | None = None  # when the shown goal set was last assigned
-    if any(e["kind"] == "fail" for e in scene.events):
-        raise ValueError("fail events (agent processes killed) need the distributed engine")
+    if any(e["kind"] in ("fail", "tracker-outage") for e in scene.events):
+        raise ValueError(
+            "fail and tracker-outage events (faults of processes and messages) need the distributed engine"
+        )
     events = sorted(scene.events, key=lambda e: e["t"])
     last_step = max(len(scene.steps) - 1, 0)
     shown = -1  # the image step whose goal set the auction works on

@@ -206,8 +206,10 @@ def cmd_run(args: argparse.Namespace) -> int:
 
         if args.remote_agents:
             raise UsageError("--remote-agents needs the distributed engine: the central engine has no agents")
-        if any(e["kind"] == "fail" for e in scene.events):
-            raise UsageError("fail events (agent processes killed) need the distributed engine")
+        if any(e["kind"] in ("fail", "tracker-outage") for e in scene.events):
+            raise UsageError(
+                "fail and tracker-outage events (faults of processes and messages) need the distributed engine"
+            )
 
         print(run_central(scene, out, video=args.video, progress=None if args.quiet else sys.stderr))
         return 0

@@ -34,8 +34,13 @@ from .hardware_node import ERROR as HARDWARE_ERROR
 from .output import write_run
 from .recorder import Recorder
 from .rundir import RunDir
+from .ticklog import TICKS_FILE
 
 AGENTS_TIMEOUT = 60.0  # s a run with remote agents waits for every robot's agent to come alive
+RESTARTS = 5  # times the launcher restarts a central service that died (beyond: the run goes on without it)
+RESTARTED = (
+    "coordinator",
+)  # the services it restarts; the simulated world is also the tracker: its death ends the run
 
 
 @dataclass
@@ -67,6 +72,8 @@ class Child:
     proc: subprocess.Popen
     robots: list[int]
     log: Path
+    command: list[str] = field(default_factory=list)  # module and arguments, to start it again
+    client: ZenohSettings | None = None
 
 
 class Interrupted(Exception):
@@ -84,6 +91,7 @@ class Launcher:
         self.params = RobotParams.from_dict(scene.robot)
         self.children: list[Child] = []
         self.crashes: list[dict[str, Any]] = []
+        self.restarts: list[dict[str, Any]] = []  # central services that died and were started again
         self.stop_signal: int | None = None
         self.run_dir = RunDir(options.out)
         self.failures = sorted((e for e in scene.events if e["kind"] == "fail"), key=lambda e: e["t"])
@@ -102,7 +110,7 @@ class Launcher:
         log = self.run_dir / "logs" / f"{name}.log"
         log.parent.mkdir(exist_ok=True)
         zenoh_args = (client or self.client).to_args()
-        with open(log, "w") as fh:
+        with open(log, "a") as fh:  # a restarted service goes on in its log
             proc = subprocess.Popen(
                 [sys.executable, "-m", module, *args, "--exit-with-parent", *zenoh_args],
                 stdout=fh,
@@ -111,9 +119,25 @@ class Launcher:
                 start_new_session=True,
                 cwd=os.getcwd(),
             )
-        child = Child(name, proc, robots, log)
+        child = Child(name, proc, robots, log, [module, *args], client)
         self.children.append(child)
         return child
+
+    def _restart(self, child: Child, code: int, recorder: Recorder) -> None:
+        """A central service died mid-run: start it again (it learns where the show is from the bus)."""
+        done = [r for r in self.restarts if r["process"] == child.name]
+        if len(done) >= RESTARTS or self.stop_signal is not None:
+            return
+        module, *args = child.command
+        again = self._spawn(child.name, module, args, child.robots, child.client)
+        self.restarts.append(
+            {"process": child.name, "returncode": code, "pid": again.proc.pid, "sim_time_s": recorder.sim_time}
+        )
+        print(
+            f"pixelswarm: {child.name} (pid {child.proc.pid}) exited with code {code}; restarted (pid {again.proc.pid})",
+            file=sys.stderr,
+            flush=True,
+        )
 
     def _scene_args(self) -> list[str]:
         s = self.scene
@@ -241,6 +265,8 @@ class Launcher:
                 )
             elif child.name == "world":
                 self.world_exit = code
+            elif child.name in RESTARTED:
+                self._restart(child, code, recorder)
 
     def _stop_children(self) -> None:
         self.shutdown_wall = min(time.time(), getattr(self, "shutdown_wall", float("inf")))
@@ -306,8 +332,15 @@ class Launcher:
         bus = Bus(settings, self.opt.display, name="launcher")
         self.world_exit = None
         try:
-            recorder = Recorder(bus, self.scene.robots, self.params.goal_tolerance, str(self.run_dir / "log.mcap"))
+            recorder = Recorder(
+                bus,
+                self.scene.robots,
+                self.params.goal_tolerance,
+                str(self.run_dir / "log.mcap"),
+                str(self.run_dir / TICKS_FILE),
+            )
             recorder.ends = self._ends_on_convergence
+            bus.serve(bus.keys.run_goals, lambda: self._newest_goals(bus, recorder))
             if self.opt.hardware is not None:  # refused at once (one line) if a robot or its pose is missing
                 self._start_hardware(recorder)
             endpoint = ", ".join(settings.listen or settings.connect)
@@ -351,6 +384,7 @@ class Launcher:
                 recorder.poll()
                 time.sleep(0.05)
             recorder.close_log()
+            (self.run_dir / TICKS_FILE).unlink(missing_ok=True)  # trajectory.npz holds them, and more
         finally:
             bus.close()
         return self._write(recorder, end_reason, time.time() - wall0)
@@ -360,6 +394,11 @@ class Launcher:
         """The world's last ticks are still on their way to the recorder (a run that ended on
         convergence records nothing after its end, so there is nothing to wait for)."""
         return rec.ended_at is None and rec.sim_time < last_t - 1e-6
+
+    @staticmethod
+    def _newest_goals(bus: Bus, rec: Recorder) -> list[tuple[str, bytes]]:
+        newest = rec.newest_goals
+        return [] if newest is None else [(bus.keys.run_goals, newest.encode())]
 
     def _stats_missing(self, rec: Recorder) -> bool:
         """Agents report their statistics as they stop: the run waits (bounded) for those of every
@@ -425,8 +464,16 @@ class Launcher:
                 self.world_stats = done
                 return end_sent or str(done.get("reason", "duration"))
             if self.world_exit is not None:
-                self.world_stats = {}
-                raise RuntimeError(f"the world process exited with code {self.world_exit}: see logs/world.log")
+                # the world is the bodies and the tracker: nothing can go on without it; what was
+                # recorded so far is written, marked incomplete
+                self.world_stats, self.world_died = {}, True
+                print(
+                    f"pixelswarm: the world process exited with code {self.world_exit} (see logs/world.log); "
+                    "the run ends, incomplete",
+                    file=sys.stderr,
+                    flush=True,
+                )
+                return f"world exited with code {self.world_exit}"
             if self.stop_signal is not None and not end_sent:
                 end_sent = "interrupted"
                 self.interrupted = True
@@ -488,6 +535,7 @@ class Launcher:
         interrupted = getattr(self, "interrupted", False)
         if interrupted:
             end_reason = "interrupted"
+        world_died = getattr(self, "world_died", False)
         arrays = rec.arrays()
         stats = getattr(self, "world_stats", {})
         agent_stats = [e for e in rec.events if e.get("kind") == "stats" and e.get("role") == "agent"]
@@ -517,7 +565,7 @@ class Launcher:
             agents_crashed=len(self.crashes),
             agents_failed_by_scene=self.failed,
             end_reason=end_reason,
-            complete=not interrupted,
+            complete=not interrupted and not world_died,
             engine="distributed",
             agents_per_process=self.opt.agents_per_process,
             # remote agents: the hosts that reported, one stats event each
@@ -530,9 +578,11 @@ class Launcher:
             late_commands=int(stats.get("late_commands", 0)),
             expired_commands=int(stats.get("expired_commands", 0)),
             stopped_ticks=int(stats.get("stopped_ticks", 0)),
+            withheld_ticks=int(stats.get("withheld_ticks", 0)),
             orca_fallbacks=int(sum(s.get("fallbacks", 0) for s in agent_stats)),
             dropped_messages=dropped,
             crashes=self.crashes,
+            restarts=self.restarts,
             liveliness_lost=[{"robot": e["id"], "wall_time": e["wall_time"]} for e in lost],
             faults=format_faults(self.opt.faults),
             stepping_wall_s=stepping_wall,

@@ -19,8 +19,9 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-from mcap.reader import make_reader
-from mcap.writer import CompressionType, Writer
+from mcap.exceptions import EndOfFile
+from mcap.reader import NonSeekingReader, make_reader
+from mcap.writer import MCAP0_MAGIC, CompressionType, Writer
 
 from sim.foxglove import SCENE_UPDATE_SCHEMA_NAME, scene_update, scene_update_schema
 from sim.rundir import dumps_json, json_safe
@@ -174,6 +175,13 @@ class McapLog:
             self._check_open()
             self._writer.add_metadata(name, flat)
 
+    def flush(self) -> None:
+        """Finish the chunk in progress and hand it to the OS: a process killed outright later
+        leaves a file whose chunks up to here mcap's reader reads (see :func:`read_mcap`)."""
+        with self._lock:
+            if not self._closed:
+                self._writer.flush()
+
     # -- lifecycle ---------------------------------------------------------------------------
     @property
     def closed(self) -> bool:
@@ -209,10 +217,13 @@ class McapLog:
 def read_mcap(path: str | os.PathLike, topics: Iterable[str] | None = None) -> dict[str, list[dict]]:
     """All messages by topic, decoded from JSON, in log-time order.
 
-    Channels without messages appear with an empty list.  ``topics`` restricts the result.
+    Channels without messages appear with an empty list.  ``topics`` restricts the result.  A file
+    that was never closed (its writer was killed) is read up to its last flushed chunk.
     """
     wanted = None if topics is None else set(topics)
     out: dict[str, list[dict]] = {}
+    if not is_closed_mcap(path):
+        return _read_unfinished(path, wanted)
     with open(path, "rb") as fh:
         reader = make_reader(fh)
         summary = reader.get_summary()
@@ -225,6 +236,29 @@ def read_mcap(path: str | os.PathLike, topics: Iterable[str] | None = None) -> d
                 raise ValueError(f"channel {channel.topic!r} has encoding {channel.message_encoding!r}")
             out.setdefault(channel.topic, []).append(json.loads(message.data))
     return out
+
+
+def is_closed_mcap(path: str | os.PathLike) -> bool:
+    """Whether the file ends with MCAP's closing magic (its writer finished it)."""
+    with open(path, "rb") as fh:
+        fh.seek(0, os.SEEK_END)
+        if fh.tell() < 2 * len(MCAP0_MAGIC):
+            return False
+        fh.seek(-len(MCAP0_MAGIC), os.SEEK_END)
+        return fh.read() == MCAP0_MAGIC
+
+
+def _read_unfinished(path: str | os.PathLike, wanted: set[str] | None) -> dict[str, list[dict]]:
+    """The messages of an unfinished file, read front to back until it ends mid-record."""
+    out: dict[str, list[tuple[int, dict]]] = {}
+    with open(path, "rb") as fh:
+        try:
+            for _schema, channel, message in NonSeekingReader(fh).iter_messages(log_time_order=False):
+                if wanted is None or channel.topic in wanted:
+                    out.setdefault(channel.topic, []).append((message.log_time, json.loads(message.data)))
+        except EndOfFile:
+            pass  # the chunk in progress when the writer died
+    return {topic: [m for _, m in sorted(rows, key=lambda r: r[0])] for topic, rows in out.items()}
 
 
 def mcap_channels(path: str | os.PathLike) -> dict[str, dict[str, Any]]:

@@ -23,8 +23,11 @@ from transport.codec import BY_NAME, Bid, Commands, Contact, DropCounter, Event,
 
 from .foxglove import SCENE_UPDATE_SCHEMA_NAME, scene_update, scene_update_schema
 from .mcaplog import McapLog
+from .ticklog import TickLog
 
 SCENE_TOPIC = "/display/scene"  # what Foxglove's 3D panel shows: robots in their LED colours, and goals
+
+FLUSH_EVERY = 1.0  # s of wall time between flushes of the MCAP log (a killed run keeps all but the last)
 
 _JSON_TYPES = {int: "integer", float: "number", str: "string", dict: "object"}
 
@@ -71,7 +74,11 @@ class Trajectory:
 
 
 class Recorder:
-    def __init__(self, bus: Bus, robots: int, tolerance: float, log_path: str | None = None) -> None:
+    def __init__(
+        self, bus: Bus, robots: int, tolerance: float, log_path: str | None = None, ticks_path: str | None = None
+    ) -> None:
+        """``log_path``: the MCAP log; ``ticks_path``: every tick as it is recorded (sim.ticklog).
+        Both are written as the run goes, so a run killed outright leaves them readable."""
         self.bus, self.keys, self.n = bus, bus.keys, robots
         self.tolerance = tolerance
         self.raw = bus.subscribe_raw(bus.keys.everything)
@@ -84,6 +91,7 @@ class Recorder:
         self.assign_instance = np.zeros(robots, np.int64)
         self.step = 0  # the scene step of the newest goal set
         self.goal_sets: dict[int, Goals] = {}  # epoch -> the coordinator's goal set
+        self.newest_goals: Goals | None = None  # the goal set of the highest epoch (read from zenoh's threads)
         self.bid_positions: dict[
             tuple[int, int], dict[int, tuple[float, float, float]]
         ] = {}  # (epoch, instance) -> robot -> x, y, penalty
@@ -101,6 +109,8 @@ class Recorder:
         self.time_to_converge: float | None = None
         self.last_min_clearance = np.inf
         self.log = McapLog(log_path) if log_path else None
+        self.ticks = TickLog(ticks_path, robots) if ticks_path else None
+        self._flushed = time.monotonic()
         self._channels: dict[str, int] = {}
         self.started_wall = time.time()
 
@@ -133,6 +143,7 @@ class Recorder:
                     self.goal_sets[msg.epoch] = msg
                     if msg.epoch == max(self.goal_sets):
                         self.step = msg.step
+                        self.newest_goals = msg
             elif isinstance(msg, States):
                 for state in msg.messages():
                     self._on_state(state)
@@ -181,9 +192,14 @@ class Recorder:
         tr.step.append(self.step)
         tr.goal_set_epoch.append(max(self.goal_sets) if self.goal_sets else 0)
         tr.applied = m.applied
+        if self.ticks is not None:
+            self.ticks.append(m.stamp, wall, m.pose, m.velocity, m.color, self.goal, self.goal_index)
         self.last_min_clearance = min(self.last_min_clearance, m.min_clearance)
         self._check_converged(m.stamp, m.pose)
         self._log_scene(wall, m)
+        if self.log is not None and time.monotonic() - self._flushed >= FLUSH_EVERY:
+            self.log.flush()
+            self._flushed = time.monotonic()
         if self.converged_since is not None and self.ends is not None and self.ends(self.converged_since, m.stamp):
             self.ended_at = len(tr.t)  # the run ends with this tick, whenever the world hears of it
 
@@ -242,6 +258,8 @@ class Recorder:
     def close_log(self) -> None:
         if self.log is not None:
             self.log.close()
+        if self.ticks is not None:
+            self.ticks.close()
 
     # --- results ------------------------------------------------------------------------------
     def arrays(self) -> dict[str, np.ndarray]:

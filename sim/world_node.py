@@ -64,6 +64,9 @@ class WorldNode:
         self.late_commands = 0
         self.tick = 0
         self.events = sorted((e for e in scene.events if e["kind"] == "teleport"), key=lambda e: e["t"])
+        # the scene's tracker outages: display time windows [t, t + duration) in which no pose is sent
+        self.outages = [(e["t"], e["t"] + e["duration"]) for e in scene.events if e["kind"] == "tracker-outage"]
+        self.withheld_ticks = 0  # ticks whose poses the tracker withheld (an outage)
         self.pose_frames = pose_frames
         self.cmd_inbox = bus.commands_inbox()
         self.control_inbox = bus.subscribe(self.keys.event, Event)
@@ -121,10 +124,20 @@ class WorldNode:
                 self.end_reason = str(ev.data.get("reason", "end"))
 
     # --- outputs ------------------------------------------------------------------------------
+    @property
+    def tracker_out(self) -> bool:
+        """Within a scene's tracker outage: the agents hear no pose, so none can answer this tick."""
+        t = self.tick * self.dt
+        return any(start - 1e-9 <= t < end - 1e-9 for start, end in self.outages)
+
     def _publish_tick(self) -> None:
         t = self.tick * self.dt
         self.bus.publish(self.keys.clock, Tick(self.tick, t, self.dt))
         self._publish_truth()
+        if self.tracker_out:
+            self.withheld_ticks += 1
+            self._drive_scripted()
+            return
         measured = self.tracker.measure(self.world.poses)
         # The tracker sees bodies, not agents: a robot whose agent died is still tracked, so the
         # coordinator learns where its body stays and keeps the goals clear of it (5.1.2).
@@ -229,7 +242,7 @@ class WorldNode:
                 self._apply_commands(got)
                 self._update_liveness()
                 waiting = self.live & (self.last_cmd_tick < self.tick)
-                if not waiting.any() or time.monotonic() >= deadline:
+                if not waiting.any() or time.monotonic() >= deadline or self.tracker_out:
                     self.missed_ticks += int(waiting.sum())
                     break
             self.stopped_ticks += self._stop_expired(self.dt)
@@ -271,6 +284,7 @@ class WorldNode:
             "late_commands": self.late_commands,
             "expired_commands": self.expired_commands,
             "stopped_ticks": self.stopped_ticks,
+            "withheld_ticks": self.withheld_ticks,
             "commands_applied": self.world.commands_applied.astype(int).tolist(),
             "min_clearance": _finite_or_none(self.world.min_clearance),
             "dropped": dict(self.cmd_inbox.drops + self.control_inbox.drops),

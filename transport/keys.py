@@ -11,6 +11,7 @@ px/<display>/auction/<epoch>/<id>    bids and prices of the distributed auction
 px/<display>/alive/<role>/<id>       liveliness tokens (role: agent, world, coordinator, run, ...)
 px/<display>/clock                   tick announcements
 px/<display>/config/<id>             run -> agents on other machines: robot <id>'s host configuration (a queryable)
+px/<display>/run/goals               run -> a restarted coordinator: the newest goal set recorded (a queryable)
 px/<display>/sim/truth               simulation only: true poses (for the recorder, never agents)
 px/<display>/sim/contact             simulation only: contact events
 px/<display>/event                   low-rate run events (end of run, reports)
@@ -88,6 +89,12 @@ class Keys:
     def config(self, robot: int | str) -> str:
         """A robot's host configuration, served by a run whose agents join from elsewhere ('*': every robot's)."""
         return f"{self.root}/config/{robot}"
+
+    @property
+    def run_goals(self) -> str:
+        """The newest goal set the run recorded, served by the launcher: a restarted coordinator
+        goes on from it (its epoch and step) instead of starting the show over."""
+        return f"{self.root}/run/goals"
 
     def alive(self, role: str, ident: int | str) -> str:
         return f"{self.root}/alive/{role}/{ident}"

@@ -190,6 +190,7 @@ def _service_grants(keys: Keys) -> dict[str, list[dict]]:
             "coordinator",
             put=[keys.all_of("goals")],
             serve=[keys.all_of("goals")],
+            query=[keys.run_goals],  # restarted mid-run: the newest goal set, from the launcher
             read=[keys.clock, keys.all_of("pose"), keys.poses],
             token=[keys.alive_all("coordinator")],
             watch=[alive],

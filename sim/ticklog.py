@@ -1,0 +1,88 @@
+"""The trajectory as it is recorded: one fixed-size record a tick, appended to a file as it arrives.
+
+The run directory's ``trajectory.npz`` is written when a run ends; a run whose launcher is killed
+outright (SIGKILL) never gets there, so the recorder also appends every tick here as it records it
+(an unbuffered write: what a killed process wrote is in the file). :func:`read_ticks` reads every
+whole record, and so the ticks up to the kill, of a partial run directory.
+
+The file is one JSON header line (the robot count and the record's fields) and then the records.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+TICKS_FILE = "ticks.bin"  # in the run directory, next to log.mcap
+FORMAT = "pixelswarm-ticks/1"
+
+
+def tick_dtype(robots: int) -> np.dtype:
+    """One tick of a display of ``robots`` robots: the same names as trajectory.npz's arrays."""
+    n = robots
+    return np.dtype(
+        [
+            ("t", "<f8"),
+            ("wall", "<f8"),
+            ("pose", "<f8", (n, 3)),
+            ("velocity", "<f8", (n, 2)),
+            ("color", "u1", (n, 3)),
+            ("goal", "<f8", (n, 2)),
+            ("assignment", "<i8", (n,)),
+        ]
+    )
+
+
+class TickLog:
+    """Appends one record a tick to ``path`` (created, with its header)."""
+
+    def __init__(self, path: str | os.PathLike, robots: int) -> None:
+        self.path, self.robots = Path(path), robots
+        self.dtype = tick_dtype(robots)
+        header = {"format": FORMAT, "robots": robots}
+        self._fd: int | None = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        os.write(self._fd, (json.dumps(header) + "\n").encode())
+
+    def append(
+        self,
+        t: float,
+        wall: float,
+        pose: np.ndarray,
+        velocity: np.ndarray,
+        color: np.ndarray,
+        goal: np.ndarray,
+        assignment: np.ndarray,
+    ) -> None:
+        if self._fd is None:
+            return
+        rec = np.zeros(1, self.dtype)
+        rec["t"], rec["wall"] = t, wall
+        rec["pose"][0], rec["velocity"][0], rec["color"][0] = pose, velocity, color
+        rec["goal"][0], rec["assignment"][0] = goal, assignment
+        os.write(self._fd, rec.tobytes())  # one write a tick: a kill leaves whole records and at most one torn
+
+    def close(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+
+def read_ticks(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Every whole tick of a tick file, as trajectory.npz's arrays (``t``, ``pose``, ...); a torn
+    last record (the writer was killed in the middle of it) is left out. ValueError if the file is
+    not a tick file."""
+    data = Path(path).read_bytes()
+    line, sep, body = data.partition(b"\n")
+    try:
+        header = json.loads(line) if sep else None
+    except ValueError:
+        header = None
+    if not isinstance(header, dict) or header.get("format") != FORMAT:
+        raise ValueError(f"{path}: not a pixelswarm tick file")
+    dtype = tick_dtype(int(header["robots"]))
+    whole = len(body) // dtype.itemsize
+    records = np.frombuffer(body[: whole * dtype.itemsize], dtype)
+    return {name: np.array(records[name]) for name in dtype.names or ()}
