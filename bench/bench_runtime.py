@@ -103,14 +103,15 @@ def agent_row(n: int, duration: float, clock: str = "realtime", faults: str = ""
     args = ["circle", "--robots", str(n), "--clock", clock, "--duration", str(duration), "--seed", "3"]
     m, samples = run_and_sample(args + (["--faults", faults] if faults else []))
     ticks = max(m["samples"] - 1, 1) * n  # robot-ticks the world stepped
-    per_process = {}
-    for s in samples:  # each process's samples: its median CPU, its last memory
-        per_process.setdefault(s["pid"], []).append(s)
+    per_process: dict[int, list[dict]] = {}
+    for s in samples:  # each process's samples (an exiting process reports no memory)
+        if s["rss"] > 0:
+            per_process.setdefault(s["pid"], []).append(s)
     cpu = [np.median([s["cpu"] for s in ss if s["cpu"] > 0] or [0]) for ss in per_process.values()]
     return {
         "cpu": float(np.median(cpu)),
-        "rss": float(np.median([ss[-1]["rss"] for ss in per_process.values()])) / 2**20,
-        "uss": float(np.median([ss[-1]["uss"] for ss in per_process.values()])) / 2**20,
+        "rss": float(np.median([np.median([s["rss"] for s in ss]) for ss in per_process.values()])) / 2**20,
+        "uss": float(np.median([np.median([s["uss"] for s in ss]) for ss in per_process.values()])) / 2**20,
         "rtf": m["stepping_realtime_factor"] or 0.0,
         "missed": m["missed_ticks"],
         "missed_share": m["missed_ticks"] / ticks,
