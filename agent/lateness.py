@@ -28,6 +28,7 @@ class Lateness:
         self._quickest: deque[float] = deque(maxlen=window)  # wall time minus stamp, per tick
         self.latest = 0.0  # lateness of the last tick acted on (s)
         self.worst = 0.0  # ... and the worst seen (s), for the host's statistics
+        self.total, self.count = 0.0, 0  # ... and their sum over the ticks acted on
 
     def arrived(self, stamp: float, wall: float) -> None:
         """A tick's first pose, stamped ``stamp`` (display time), taken at ``wall`` (monotonic)."""
@@ -39,7 +40,12 @@ class Lateness:
             return 0.0
         late = min(max(wall - stamp - min(self._quickest), 0.0), self.most)
         self.latest, self.worst = late, max(self.worst, late)
+        self.total, self.count = self.total + late, self.count + 1
         return late
+
+    @property
+    def mean(self) -> float:
+        return self.total / self.count if self.count else 0.0
 
 
 def strayed(late: float, v_max: float) -> float:

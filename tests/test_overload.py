@@ -21,6 +21,7 @@ def test_lateness_is_the_pose_age_beyond_the_quickest_seen_and_runs_out_with_the
     # later than one period and the command margin: the command never drives, its body stands
     assert late.at(0.4, 101.0) == pytest.approx(EPUCK.dt + EPUCK.command_margin)
     assert late.worst == pytest.approx(EPUCK.dt + EPUCK.command_margin)
+    assert late.mean == pytest.approx((0.0 + 0.08 + EPUCK.dt + EPUCK.command_margin) / 3)
     assert strayed(0.08, EPUCK.v_max) == pytest.approx(2 * EPUCK.v_max * 0.08)
 
 
@@ -62,9 +63,10 @@ def test_commands_late_past_their_period_stop_the_bodies_without_contact(tmp_pat
 
 
 @pytest.mark.slow
-def test_commands_late_by_chance_drive_some_ticks_and_stop_others_without_contact(tmp_path):
-    # 30-150 ms: some commands drive (late), some arrive after the next one, some run out
-    m = _run(tmp_path, "cmd:delay=0.03,jitter=0.12", "6", "jitter")
+def test_poses_and_commands_late_by_chance_drive_some_ticks_and_stop_others_without_contact(tmp_path):
+    # poses up to 80 ms late: agents act late and plan for it; commands up to 80 ms late: some drive
+    # (late), some arrive after the next one, some run out
+    m = _run(tmp_path, "pose:jitter=0.08;cmd:jitter=0.08", "6", "jitter")
     assert m["agent_processes"] == 20 and m["crashes"] == []
     assert m["contacts"] == 0 and m["max_overlap_m"] == 0.0
     assert m["expired_commands"] > 0 and m["commands_applied"] > 20 * 5  # the robots did drive
