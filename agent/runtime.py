@@ -597,7 +597,7 @@ class AgentHost:
         # neighbours' states with them (forget_outside): at 100 robots one robot then saw nobody.
         known = [m.position for m in self.memory.values() if m.position is not None]
         self.cells.update(np.array(known))
-        self.table.forget_outside(self.cells.cells, self.cell_size)
+        self.table.forget_outside(self.cells.cells, self.cell_size, keep=self.dead)
         self.table.forget_silent(stamp - p.forget_after, keep=self.dead)
         self._bid_from = None  # the robots' velocities changed: they move where they bid from
         self.ticks_done += 1
