@@ -347,7 +347,7 @@ class Launcher:
             settle, patience = time.monotonic() + 0.5, time.monotonic() + 10.0
             while (
                 time.monotonic() < settle
-                or (recorder.sim_time < last_t - 1e-6 or self._stats_missing(recorder))
+                or (self._ticks_in_flight(recorder, last_t) or self._stats_missing(recorder))
                 and time.monotonic() < patience
             ):
                 recorder.poll()
@@ -357,14 +357,24 @@ class Launcher:
             bus.close()
         return self._write(recorder, end_reason, time.time() - wall0)
 
+    @staticmethod
+    def _ticks_in_flight(rec: Recorder, last_t: float) -> bool:
+        """The world's last ticks are still on their way to the recorder (a run that ended on
+        convergence records nothing after its end, so there is nothing to wait for)."""
+        return rec.ended_at is None and rec.sim_time < last_t - 1e-6
+
     def _stats_missing(self, rec: Recorder) -> bool:
-        """Remote agents report their statistics only once their `pixelswarm agents` has seen the
-        world end and stopped them: the run waits for them (bounded, with the world's last ticks)."""
-        if not self.opt.remote_agents:
-            return False
-        came = {int(e["id"]) for e in rec.liveliness if e["role"] == "agent" and e["alive"]}
+        """Agents report their statistics as they stop: the run waits (bounded) for those of every
+        agent that stopped cleanly; remote agents report once their `pixelswarm agents` has seen the
+        world end and stopped them."""
+        if self.opt.remote_agents:
+            expected = {int(e["id"]) for e in rec.liveliness if e["role"] == "agent" and e["alive"]}
+        else:
+            expected = {
+                r for c in self.children if c.name.startswith("agent") and c.proc.returncode == 0 for r in c.robots
+            }
         reported = {r for e in rec.events if e.get("kind") == "stats" for r in e.get("robots", [])}
-        return not came <= reported
+        return not expected <= reported
 
     def _start_hardware(self, rec: Recorder) -> None:
         """The hardware node stands in for the world; it is started first, since the agents learn where

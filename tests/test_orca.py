@@ -209,9 +209,11 @@ def test_neighbour_states_are_extrapolated_by_age_and_stale_ones_become_obstacle
     nb = prepare_neighbours(
         pos, vel, radius, age, np.ones((1, 3), bool), max_speed=0.13, timeout=1.0, noise=0.002, committed=0.1
     )
-    assert np.allclose(nb.position[0, :, 0], [1.0, 2.02, 3.0])  # stale: last known position
-    # grown by noise + (uncommitted age) x 2 max_speed: the velocity may have reversed since
-    assert np.allclose(nb.radius[0], [0.052, 0.05 + 0.002 + 0.1 * 0.26, 0.05 + 0.002 + 0.9 * 0.26])
+    # fresh: extrapolated by the committed time only (0.1 of its 0.2 s); stale: last known position
+    assert np.allclose(nb.position[0, :, 0], [1.0, 2.01, 3.0])
+    # fresh: grown by noise + (uncommitted age) x max_speed, where any velocity of its own can have
+    # taken it since; stale (not extrapolated): x 2 max_speed, its velocity may have reversed
+    assert np.allclose(nb.radius[0], [0.052, 0.05 + 0.002 + 0.1 * 0.13, 0.05 + 0.002 + 0.9 * 0.26])
     assert np.array_equal(nb.responsibility[0], [0.5, 0.5, 1.0])
     bad = prepare_neighbours(
         np.full((1, 1, 2), np.nan),

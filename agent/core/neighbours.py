@@ -52,12 +52,15 @@ def prepare_neighbours(
 ) -> Neighbours:
     """Neighbour states as of now, from states stamped ``age`` seconds ago.
 
-    * Fresh (0 <= age <= timeout): position extrapolated by age x velocity; radius grown by
-      ``noise + max(age - committed, 0) x 2 max_speed``. A broadcast velocity is executed until the
-      neighbour's next tick (``committed``, one control period), so only the time beyond it is time
-      in which the neighbour may have changed its velocity, by up to twice its maximum speed (a
-      full reversal: robots in a jam do reverse); ``noise`` covers the tracking noise of the
-      stamped positions.
+    * Fresh (0 <= age <= timeout): where the neighbour can be now. A broadcast velocity is executed
+      until the neighbour's next tick (``committed``, one control period); after that it may drive
+      at any velocity up to its maximum speed (its command runs out and it stops, or its next one
+      turns it). So it is within ``max_speed x h`` of its position extrapolated by the committed
+      time, h = max(age - committed, 0) being the time it may have had another velocity: the
+      position is extrapolated by min(age, committed) x velocity and the radius grown by
+      ``noise + h x max_speed``, the smallest disc holding every place it can have reached (a
+      neighbour reported standing still grows by its own reach, not by twice it). ``noise`` covers
+      the tracking noise of the stamped positions.
       Responsibility 0.5 (it avoids us too), or 1.0 where ``cooperative`` is False.
     * Stale (age > timeout): last known position and velocity, not extrapolated (the message may be
       from a robot that stopped or died); radius grown by ``noise + (timeout - committed) x 2 max_speed``;
@@ -82,13 +85,13 @@ def prepare_neighbours(
     # A broadcast velocity is what the neighbour executes until its next tick (``committed``
     # seconds): only time beyond that is time in which it may have changed its mind.
     horizon = np.maximum(np.where(stale, timeout, elapsed) - committed, 0.0)
-    shift = np.where(stale, 0.0, elapsed)[..., None]
+    shift = np.where(stale, 0.0, elapsed - horizon)[..., None]
     safe_p = np.where(valid[..., None], position, 0.0)
     safe_v = np.where(valid[..., None], velocity, 0.0)
     new_position = safe_p + shift * safe_v
-    # Extrapolating with a velocity that may since have turned into its opposite: the position can
-    # be off by up to twice the maximum speed times the uncommitted time.
-    growth = np.where(valid, horizon, 0.0) * 2.0 * max_speed
+    # Fresh: anywhere within its reach of where its committed velocity took it. Stale: not
+    # extrapolated, so its velocity may have turned into its opposite: twice the reach.
+    growth = np.where(valid, horizon, 0.0) * np.where(stale, 2.0, 1.0) * max_speed
     new_radius = np.where(valid, radius, 0.0) + noise + growth
     coop = np.ones(valid.shape, dtype=bool) if cooperative is None else np.asarray(cooperative, bool)
     responsibility = np.where(coop & ~stale, COOPERATING, NON_COOPERATING)

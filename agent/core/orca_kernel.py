@@ -350,12 +350,12 @@ def _control_core_one(
         )
         stale = age > timeout
         horizon = max((timeout if stale else age) - committed, 0.0)
-        shift = 0.0 if stale else age
+        shift = 0.0 if stale else age - horizon
         if not ok:
             x, y, u, w, r, horizon = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
         nbr_p[k, 0], nbr_p[k, 1] = x + shift * u, y + shift * w
         nbr_v[k, 0], nbr_v[k, 1] = u, w
-        nbr_g[k] = horizon * 2.0 * vmax
+        nbr_g[k] = horizon * (2.0 if stale else 1.0) * vmax
         nbr_r[k] = r + noise + nbr_g[k]
         nbr_c[k] = COOPERATING if nbr_cooperative[i, k] and not stale else NON_COOPERATING
         nbr_ok[k] = ok
