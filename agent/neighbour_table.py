@@ -60,14 +60,18 @@ class NeighbourTable:
         if len(kept) > 2:
             del kept[0]
 
-    def forget_outside(self, cells: set[tuple[int, int]], cell_size: float) -> int:
-        """Drop robots whose newest state lies in a cell we no longer listen to. We cannot hear them
-        any more, so their state would only age, and an aged state's uncertainty grows without bound:
-        a phantom obstacle where the robot was long ago. Returns how many were dropped."""
+    def forget_outside(
+        self, cells: set[tuple[int, int]], cell_size: float, keep: set[int] | frozenset[int] = frozenset()
+    ) -> int:
+        """Drop robots whose newest state lies in a cell we no longer listen to, except ``keep``
+        (robots whose agent died: their bodies stand where they were last heard, and will never
+        speak again when we come back). We cannot hear them any more, so their state would only
+        age, and an aged state's uncertainty grows without bound: a phantom obstacle where the robot
+        was long ago. Returns how many were dropped."""
         if not self._states:
             return 0
         at = cells_of([(kept[-1].x, kept[-1].y) for kept in self._states.values()], cell_size).tolist()
-        gone = [r for r, (cx, cy) in zip(self._states, at) if (cx, cy) not in cells]
+        gone = [r for r, (cx, cy) in zip(self._states, at) if (cx, cy) not in cells and r not in keep]
         for r in gone:
             del self._states[r]
         return len(gone)

@@ -35,6 +35,7 @@ from .core.params import DIFFDRIVE, RobotParams
 from .core.policy import GoalTiming, Memory, act, intend
 from .core.step import static_segments
 from .goal_sets import motion_of, timing_of
+from .lateness import Lateness, strayed
 from .neighbour_table import NeighbourTable
 
 IDLE_COLOR = (40, 40, 40)
@@ -148,11 +149,15 @@ class CellSubscriptions:
     def __init__(self, bus: Bus, inbox: Any, cell_size: float, reach: int = 3) -> None:
         self.bus, self.inbox, self.cell_size, self.reach = bus, inbox, cell_size, reach
         self._subs: dict[tuple[int, int], Any] = {}
+        self._own: np.ndarray | None = None  # the robots' own cells at the last update
 
     def update(self, positions: np.ndarray) -> None:
         # cell_of for every robot at once, then the square of cells around each (a host of 250
         # robots spent 6 ms a tick here in Python loops)
         own = cells_of(positions, self.cell_size)
+        if self._own is not None and np.array_equal(own, self._own):
+            return  # most ticks: every robot is still in its cell
+        self._own = own
         span = np.arange(-self.reach, self.reach + 1)
         cx = np.unique(own[:, 0, None] * CELL_KEY + own[:, 1, None] + (span[:, None] * CELL_KEY + span).ravel())
         cy = (cx + CELL_KEY // 2) % CELL_KEY - CELL_KEY // 2  # one int per cell: cx * CELL_KEY + cy, taken apart
@@ -212,6 +217,8 @@ class AgentHost:
         self.running = True
         self._bid_from: dict[int, np.ndarray] | None = None  # _positions(), until positions or goals change
         self.parent_pid: int | None = None  # exit when this process (the launcher) is gone
+        self.lateness = Lateness(p.dt, p.command_margin)  # real time: how old a pose is when acted on
+        self._compute = 0.0  # wall seconds the last tick's step took (its command leaves that much later)
 
     # --- start ------------------------------------------------------------------------------
     def start(self, timeout: float = 60.0) -> bool:
@@ -431,6 +438,12 @@ class AgentHost:
                 continue
             tick_start = time.monotonic()
             self._take_pose(got[1])
+            # Behind (poses of later ticks queued): act on the newest only. Working through a backlog
+            # kept an overloaded agent a fixed number of ticks behind, every command late.
+            for _, pose in self.pose_inbox.drain():
+                self._take_pose(pose)
+            if self.pending and not self.config.lockstep:
+                self.lateness.arrived(max(q.stamp for q in self.pending.values()), tick_start)
             # Collect the other robots' poses of this tick (they are published together).
             deadline = tick_start + self.config.batch_wait
             while len(self.pending) < len(self.memory) and self.running:
@@ -490,9 +503,14 @@ class AgentHost:
             self._step_tick([p for p in poses if p.tick == tick])
 
     def _step_tick(self, poses: list[Pose]) -> None:
+        began = time.monotonic()
         p = self.params
         ids = [q.robot for q in poses]
         tick, stamp = poses[0].tick, poses[0].stamp
+        if not self.config.lockstep:  # late: the body may have strayed from the pose (agent.lateness)
+            late = self.lateness.at(stamp, began + self._compute)
+            if late > 0:
+                p = p.with_(radius=p.radius + strayed(late, p.v_max))
         position = np.array([(q.x, q.y) for q in poses], float)
         heading = np.array([q.theta for q in poses], float)
         if self.config.lockstep:
@@ -579,10 +597,11 @@ class AgentHost:
         # neighbours' states with them (forget_outside): at 100 robots one robot then saw nobody.
         known = [m.position for m in self.memory.values() if m.position is not None]
         self.cells.update(np.array(known))
-        self.table.forget_outside(self.cells.cells, self.cell_size)
+        self.table.forget_outside(self.cells.cells, self.cell_size, keep=self.dead)
         self.table.forget_silent(stamp - p.forget_after, keep=self.dead)
         self._bid_from = None  # the robots' velocities changed: they move where they bid from
         self.ticks_done += 1
+        self._compute = time.monotonic() - began
 
     def stats(self) -> dict[str, Any]:
         drops: dict[str, int] = {}
@@ -597,6 +616,8 @@ class AgentHost:
             "dropped": drops,
             "neighbours_known": len(self.table),
             "state_waits": self.state_waits,
+            "worst_lateness_s": round(self.lateness.worst, 4),
+            "mean_lateness_s": round(self.lateness.mean, 4),
             "silent": sorted(self.silent),
             "auction": self.auction.stats(),
         }

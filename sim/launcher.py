@@ -365,6 +365,8 @@ class Launcher:
                 str(self.opt.deadline),
             ]
             world_args += ["--pose-frames"] if self._frames else []
+            # faults act where a message is received: commands (cmd:...) at the world
+            world_args += ["--faults", format_faults(self.opt.faults)] if self.opt.faults else []
             if self.opt.hardware is None:
                 self._spawn("world", "sim.world_node", world_args, [], self._as("world"))
             if self.opt.remote_agents:

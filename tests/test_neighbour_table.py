@@ -94,6 +94,15 @@ def test_robots_whose_newest_state_left_the_cells_heard_are_forgotten():
     assert sorted(s.robot for s in table.latest_before(3)) == [0, 1, 4]
 
 
+def test_a_robot_whose_agent_died_is_not_forgotten_outside_the_cells_heard():
+    # it will never speak again: forgotten, its body would be invisible when we come back near it
+    table = NeighbourTable()
+    for robot, x in enumerate([0.1, 1.1, 2.5]):
+        table.update(_state(robot, x, 0.2))
+    assert table.forget_outside({(0, 0)}, cell_size=1.0, keep={2}) == 1  # robot 1 only
+    assert sorted(s.robot for s in table.latest_before(3)) == [0, 2]
+
+
 class _Cells:
     """A bus stand-in: which cells a host subscribes to."""
 

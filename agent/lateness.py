@@ -1,0 +1,53 @@
+"""How late an agent acts on its pose, and how far its robot may stray from its plan meanwhile.
+
+Real time only. A pose is stamped with the display time of its tick; the agent cannot read the
+tracker's clock, so it measures how long a pose takes from its stamp to being acted on against the
+quickest it has seen lately (the transport's own latency, which every pose pays): what is beyond
+that is lateness, from an overloaded machine (the process woke late, or waited behind others).
+
+An agent late by L plans for it as NH-ORCA plans for its tracking error: its command takes effect
+L after the pose was measured, while its body still executes the previous command (or stands,
+the command run out), so it may be up to 2 v_max L from where the plan starts (a full reversal).
+It grows its own radius by that, in its own constraints and in the state it broadcasts, so its
+neighbours leave it the room too. A command later than one period and the command margin never
+drives (the body stops), so lateness is counted up to that.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+WINDOW = 50  # ticks over which the quickest pose is remembered (5 s at 10 Hz): a loaded spell ages out
+
+
+class Lateness:
+    """The age of a tick's pose when the agent acts on it, beyond the quickest seen lately."""
+
+    def __init__(self, dt: float, command_margin: float, window: int = WINDOW) -> None:
+        self.most = dt + command_margin  # a later command never drives: its body stands
+        self._quickest: deque[float] = deque(maxlen=window)  # wall time minus stamp, per tick
+        self.latest = 0.0  # lateness of the last tick acted on (s)
+        self.worst = 0.0  # ... and the worst seen (s), for the host's statistics
+        self.total, self.count = 0.0, 0  # ... and their sum over the ticks acted on
+
+    def arrived(self, stamp: float, wall: float) -> None:
+        """A tick's first pose, stamped ``stamp`` (display time), taken at ``wall`` (monotonic)."""
+        self._quickest.append(wall - stamp)
+
+    def at(self, stamp: float, wall: float) -> float:
+        """How late acting at ``wall`` on a pose stamped ``stamp`` is, in seconds (0 on time)."""
+        if not self._quickest:
+            return 0.0
+        late = min(max(wall - stamp - min(self._quickest), 0.0), self.most)
+        self.latest, self.worst = late, max(self.worst, late)
+        self.total, self.count = self.total + late, self.count + 1
+        return late
+
+    @property
+    def mean(self) -> float:
+        return self.total / self.count if self.count else 0.0
+
+
+def strayed(late: float, v_max: float) -> float:
+    """How far a body may be from where its plan starts when a command late by ``late`` takes over."""
+    return 2.0 * v_max * late
