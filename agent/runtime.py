@@ -206,6 +206,8 @@ class AgentHost:
         self.state_inbox = bus.inbox(State, frames=States)  # fed by the spatial cells around the robots ...
         if config.frames:  # ... and by every host's frames
             bus.subscribe_into(self.keys.all_of("states"), self.state_inbox)
+        if config.lockstep:  # injected state delays count in ticks (reproducible); see Inbox.sim_time
+            self.state_inbox.sim_time = -math.inf
         self.cells = CellSubscriptions(bus, self.state_inbox, self.cell_size, reach=3 if config.lockstep else 2)
         for target in set(config.pursue.values()):  # a pursuer hears its target wherever it is
             bus.subscribe_into(self.keys.state_of(target), self.state_inbox)
@@ -496,6 +498,8 @@ class AgentHost:
         """Compute and publish one tick for every robot whose pose has arrived."""
         if not self.pending:
             return
+        if self.config.lockstep:
+            self.state_inbox.sim_time = max(p.stamp for p in self.pending.values())
         self._absorb()
         poses = [self.pending.pop(r) for r in sorted(self.pending)]
         # Robots of a host may hold poses of different ticks (real time): group by tick.

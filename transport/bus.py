@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import heapq
 import itertools
+import math
 import queue
 import random
 import threading
@@ -62,9 +63,16 @@ class Inbox(Generic[MessageT]):
         self.received = 0
         self.bytes = 0
         self._queue: queue.SimpleQueue[tuple[str, MessageT]] = queue.SimpleQueue()
-        self._delayed: list[tuple[float, int, str, MessageT]] = []
+        self._delayed: list[tuple[float, int, str, MessageT]] = []  # by wall-clock release time
+        self._held: list[tuple[float, int, str, MessageT]] = []  # by release on the owner's tick clock
+        # The owner's tick clock (seconds), when it steps in lock-step: an injected delay then counts
+        # from a message's stamp on that clock, and each message's draw is a function of the message,
+        # so a lock-step run with faults is reproducible (a wall-clock delay is a number of ticks that
+        # depends on how fast the machine steps).
+        self.sim_time: float | None = None
         self._order = itertools.count()
         self._lock = threading.Lock()
+        self._seed = seed
         self._rng = random.Random(seed)
         self.subscriber: Any = None
         self.bell: threading.Event | None = None  # rung on every arrival: one wait serves several inboxes
@@ -93,27 +101,38 @@ class Inbox(Generic[MessageT]):
             if self.bell is not None:
                 self.bell.set()
             return
+        stamp: float | None = getattr(msgs[0], "stamp", None) if msgs else None
+        on_ticks = self.sim_time is not None and stamp is not None and getattr(msgs[0], "tick", -1) >= 0
         with self._lock:
-            if self._rng.random() < self.fault.drop:
+            rng = random.Random(f"{self._seed}/{key}/{stamp!r}") if on_ticks else self._rng
+            if rng.random() < self.fault.drop:
                 self.drops["fault"] += 1
                 return
-            release = time.monotonic() + self.fault.delay + self._rng.random() * self.fault.jitter
+            delay = self.fault.delay + rng.random() * self.fault.jitter
+            if on_ticks and stamp is not None:
+                heap, release = self._held, stamp + delay
+            else:
+                heap, release = self._delayed, time.monotonic() + delay
             for m in msgs:
-                heapq.heappush(self._delayed, (release, next(self._order), key, m))
+                heapq.heappush(heap, (release, next(self._order), key, m))
 
     def _release_delayed(self) -> None:
-        if not self._delayed:
+        if not (self._delayed or self._held):
             return
         now = time.monotonic()
         with self._lock:
             while self._delayed and self._delayed[0][0] <= now:
                 _, _, key, msg = heapq.heappop(self._delayed)
                 self._queue.put((key, msg))
+            ticks = -math.inf if self.sim_time is None else self.sim_time + 1e-9
+            while self._held and self._held[0][0] <= ticks:
+                _, _, key, msg = heapq.heappop(self._held)
+                self._queue.put((key, msg))
 
     @property
     def has_delayed(self) -> bool:
         """Messages held back by an injected delay (their owner must poll: no bell rings for them)."""
-        return bool(self._delayed)
+        return bool(self._delayed or self._held)
 
     def drain(self) -> list[tuple[str, MessageT]]:
         """Every message that has arrived (and whose injected delay has passed), oldest first."""

@@ -1,7 +1,8 @@
 """Fault injection for studies and tests: per message kind, drop probability and added delay.
 
 Faults act where a message is received (as a lossy, slow link would), so each receiver loses and
-delays its own copies independently. A plan reads like ``state:drop=0.1,delay=0.05,jitter=0.01``;
+delays its own copies independently. An inbox of a lock-step owner counts delays on its tick clock
+(transport.bus.Inbox.sim_time). A plan reads like ``state:drop=0.1,delay=0.05,jitter=0.01``;
 several kinds are separated by ';'.
 """
 
