@@ -9,19 +9,28 @@ than ours (one of us missed something: answering lets the other catch up, so a l
 round trip, not a timeout), once the board has been quiet for QUIET seconds (while bids fly, digests
 would only be stale) and at most every DIGEST_EVERY seconds; and as a backstop every RESEND_BUSY
 seconds (more in large swarms) while an instance is open, RESEND_IDLE when agreed (late joiners).
+
+Lock-step (``lockstep``): the auction is tick-synchronous. A block of phases that starts at tick k
+bids from the positions of tick k in numbered rounds: in round r each host's robots bid against the
+board as merged after round r - 1 (Jacobi), and the host publishes its records tagged (instance,
+round); it goes on to round r + 1 once it holds every robot's round-r records. The rounds are the
+central engine's (Participant.settle_alone) bid for bid, so every host ends with its board, and the
+block is agreed at the same round everywhere, before any robot's command of tick k: everyone adopts
+it at tick k (settle_block).
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from itertools import count
 
 import numpy as np
 
 from transport.bus import Bus
 from transport.codec import Bid, Goals
 
-from .core.bidder import RECORD, Participant, frames_close
+from .core.bidder import RECORD, SETTLED, Participant, frames_close
 from .core.params import RobotParams
 
 DIGEST_EVERY = 0.01
@@ -30,8 +39,11 @@ RESEND_BUSY = 0.25  # a lost message stalls a phase until a resend: short while 
 RESEND_PER_ROBOT = 0.01  # ... but every resend reaches every host: the backstop grows with the swarm
 RESEND_IDLE = 1.0
 MAX_LEAD = 15.0  # s: the longest latency the robots' bid positions compensate (core.bidder.bid_position)
+ROUND_RESEND = 0.25  # s: lock-step, a host waiting this long for a round's records sends its own again
+ROUND_CAP = 30.0  # s: lock-step, the longest a host waits for one round; then its robots hold their positions
 
 OnAgreed = Callable[[int, int, dict[int, int], np.ndarray, np.ndarray], None]
+OnAbandoned = Callable[[list[int]], None]
 Where = Callable[[], dict[int, np.ndarray]]
 
 
@@ -42,12 +54,29 @@ class AuctionLink:
     """The auction of one host's robots: goal sets in, agreed goals out through ``on_agreed``."""
 
     def __init__(
-        self, bus: Bus, robots: list[int], params: RobotParams, on_agreed: OnAgreed, where: Where | None = None
+        self,
+        bus: Bus,
+        robots: list[int],
+        params: RobotParams,
+        on_agreed: OnAgreed,
+        where: Where | None = None,
+        lockstep: bool = False,
+        on_abandoned: OnAbandoned | None = None,
     ) -> None:
         """``where``: the own robots' bid positions now (the runtime's), asked again when an agreement
-        was handed to ``on_agreed`` just before a new block freezes its positions."""
+        was handed to ``on_agreed`` just before a new block freezes its positions. ``lockstep``: the
+        tick-synchronous rounds (settle_block); ``on_abandoned`` hears of own robots whose block could
+        not finish (they must hold their positions: another robot may hold their goals now)."""
         self.bus, self.robots, self.params, self.on_agreed = bus, sorted(robots), params, on_agreed
         self.where = where
+        self.lockstep, self.on_abandoned = lockstep, on_abandoned
+        self.block_stamp = -np.inf  # lock-step: display time of the last block's tick
+        self.round_records: dict[
+            tuple[int, int, int], dict[int, np.ndarray]
+        ] = {}  # (epoch, block, round) -> sender -> records
+        self.rounds = 0  # lock-step rounds taken part in
+        self.abandoned = 0  # lock-step blocks given up (a round never completed)
+        self.stopped = False  # the host is shutting down: stop waiting for rounds
         self.inbox = bus.subscribe(bus.keys.all_of("auction"), Bid)
         self.sender = self.robots[0]
         self.part: Participant | None = None
@@ -78,7 +107,8 @@ class AuctionLink:
 
     @property
     def busy(self) -> bool:
-        return self.part is not None and not self.part.is_agreed
+        """An instance is open between ticks (never in lock-step: a block settles within its tick)."""
+        return self.part is not None and not self.part.is_agreed and not self.lockstep
 
     @property
     def open_for(self) -> float:
@@ -122,15 +152,18 @@ class AuctionLink:
             self.params.assign_eps,
             self.params.assign_hysteresis,
         )
+        self.epoch_wall = time.monotonic()
+        self.reported = -1
+        self.others = set()
+        if self.lockstep:  # a cold start at the next tick, as the central engine starts a new image
+            self.block_stamp = -np.inf
+            return {}
         carried = {}
         if before is not None and self._warm_start(before, goals):
             carried = self.part.carry(before, goals.matched, current=current, prices=goals.prices)
         elif goals.follows and before is not None and before.epoch == goals.follows:
             close = before.agreed_instance >= 0 and frames_close(before.goals, goals.positions, goals.previous)
             carried = self.part.carry(before, goals.previous, claim=close, current=current)
-        self.epoch_wall = time.monotonic()
-        self.reported = -1
-        self.others = set()
         self._try_start(positions)
         return carried
 
@@ -180,6 +213,9 @@ class AuctionLink:
         """Each control iteration: start the next instance (warm, on this tick's positions) once the
         last is agreed (paper 5.1: re-assign every iteration)."""
         self.now = max(self.now, stamp)
+        if self.lockstep:
+            self.settle_block(stamp, positions)
+            return
         if not self._try_start(positions):
             return
         part, _ = self._under_way()
@@ -198,7 +234,7 @@ class AuctionLink:
         """Seconds until something is due without a message arriving (a resend, a throttled digest,
         an injected delay ending)."""
         part = self.part
-        if part is None or not part.started:
+        if part is None or not part.started or self.lockstep:
             return 1.0
         if self.inbox.has_delayed:
             return 0.005
@@ -215,6 +251,9 @@ class AuctionLink:
         """Take in what arrived, bid, check agreement, publish what others need."""
         part = self.part
         arrived = self.inbox.drain()
+        if self.lockstep:  # kept for the rounds of the next block (settle_block)
+            self._file(arrived)
+            return
         if not arrived and part is not None and part.started and self.next_due() > 0:
             return  # nothing new, nothing due
         theirs: set[int] = set()  # digests of this instance's messages, compared once below
@@ -239,6 +278,99 @@ class AuctionLink:
             self.board_changed = time.monotonic()
         if self.next_due() <= 0:
             self._publish()
+
+    # --- lock-step ----------------------------------------------------------------------------------
+    def settle_block(self, stamp: float, positions: dict[int, np.ndarray]) -> None:
+        """Lock-step, at each tick: every ``assign_period`` the next block of phases, frozen on this
+        tick's positions, bid through its rounds with every other host and agreed before this tick's
+        commands; its agreement goes to ``on_agreed`` at this tick. A host with no robot in the goal
+        set takes no part."""
+        part = self.part
+        if part is None or not part.own or not all(r in positions for r in part.own):
+            return
+        if part.started and stamp - self.block_stamp < self.params.assign_period - 1e-9:
+            return
+        self.block_stamp = stamp
+        part.begin_block(positions)
+        block, members = part.instance, set(part.robots.tolist())
+        for r in count(1):
+            before = part.board.digest()
+            part.bid()
+            mine = part.round_records()
+            heard = self._round(block, r, mine, members)
+            if heard is None:
+                self._abandon()
+                return
+            settled = self._all_settled(mine, heard)
+            for recs in heard.values():
+                part.absorb(part.instance, r, 0, recs)
+            self.rounds += 1
+            if part.close_round(part.board.digest() == before, settled):
+                self._report()
+                return
+
+    @staticmethod
+    def _all_settled(mine: np.ndarray, heard: dict[int, np.ndarray]) -> bool:
+        """Every robot's claim in this round says SETTLED."""
+        for recs in [mine, *heard.values()]:
+            claims = recs[(recs["flags"] & Bid.RELEASED) == 0]
+            if not bool(((claims["flags"] & SETTLED) != 0).all()):
+                return False
+        return True
+
+    def _round(self, block: int, r: int, mine: np.ndarray, members: set[int]) -> dict[int, np.ndarray] | None:
+        """Publish our records of round r and wait until every robot of the goal set has said its
+        word in round r; returns the other hosts' records by sender (None: ROUND_CAP ran out)."""
+        part, _ = self._under_way()
+        key = (part.epoch, block, r)
+        for old in [k for k in self.round_records if k[:2] != key[:2] or k[2] < r]:
+            del self.round_records[old]
+        start = time.monotonic()
+        sent = -np.inf
+        while not self.stopped:
+            now = time.monotonic()
+            if now - sent >= ROUND_RESEND:  # at once, then again while someone's records are missing
+                self._publish_round(part, r, mine)
+                sent = now
+            heard = self.round_records.get(key, {})
+            said = set(part.own)
+            for recs in heard.values():
+                said.update(recs["robot"].tolist())
+            if members <= said:
+                return heard
+            if now - start >= ROUND_CAP:
+                return None
+            got = self.inbox.get(timeout=max(0.0, min(sent + ROUND_RESEND, start + ROUND_CAP) - time.monotonic()))
+            self._file([got] if got is not None else [])
+            self._file(self.inbox.drain())
+        return None
+
+    def _file(self, arrived: list) -> None:
+        """Keep other hosts' lock-step records by (epoch, block, round)."""
+        part = self.part
+        for _, msg in arrived:
+            self.received += 1
+            if part is None or msg.epoch != part.epoch or msg.sender == self.sender:
+                continue
+            block = msg.instance // part.phases * part.phases
+            self.round_records.setdefault((msg.epoch, block, msg.serial), {})[msg.sender] = msg.records
+            self.others.add(msg.sender)
+            self.heard += 1
+
+    def _publish_round(self, part: Participant, r: int, mine: np.ndarray) -> None:
+        self.bus.publish(
+            self.bus.keys.auction(part.epoch, self.sender),
+            Bid(part.epoch, part.instance, self.sender, r, part.board.digest(), len(mine), mine),
+        )
+        self.last_sent = time.monotonic()
+        self.sent += 1
+
+    def _abandon(self) -> None:
+        """A round never completed: our robots cannot know whether others adopted the block, so they
+        hold their positions (drive to no goal) rather than drive to a goal another may hold."""
+        self.abandoned += 1
+        if self.on_abandoned is not None and self.part is not None:
+            self.on_abandoned(list(self.part.own))
 
     # --- internals --------------------------------------------------------------------------------
     def _under_way(self) -> tuple[Participant, Goals]:
@@ -297,5 +429,7 @@ class AuctionLink:
             "agreements": self.agreements,
             "deadlock_penalties": self.penalties,
             "latency_s": round(self.latency, 3),
+            "lockstep_rounds": self.rounds,
+            "abandoned_blocks": self.abandoned,
             "first_agreement_s": [round(x, 4) for x in self.first_agreement_s],
         }
