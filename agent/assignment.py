@@ -62,14 +62,17 @@ class AuctionLink:
         where: Where | None = None,
         lockstep: bool = False,
         on_abandoned: OnAbandoned | None = None,
+        dead: Callable[[], set[int]] | None = None,
     ) -> None:
         """``where``: the own robots' bid positions now (the runtime's), asked again when an agreement
         was handed to ``on_agreed`` just before a new block freezes its positions. ``lockstep``: the
         tick-synchronous rounds (settle_block); ``on_abandoned`` hears of own robots whose block could
-        not finish (they must hold their positions: another robot may hold their goals now)."""
+        not finish (they must hold their positions: another robot may hold their goals now); ``dead``:
+        the robots whose agent is known dead now (their records are not waited for)."""
         self.bus, self.robots, self.params, self.on_agreed = bus, sorted(robots), params, on_agreed
         self.where = where
         self.lockstep, self.on_abandoned = lockstep, on_abandoned
+        self.dead = dead if dead is not None else set
         self.block_stamp = -np.inf  # lock-step: display time of the last block's tick
         self.round_records: dict[
             tuple[int, int, int], dict[int, np.ndarray]
@@ -292,20 +295,19 @@ class AuctionLink:
             return
         self.block_stamp = stamp
         part.begin_block(positions)
-        block, members = part.instance, set(part.robots.tolist())
+        final = part.instance + part.phases - 1  # every round's records are tagged with the block's final phase
         for r in count(1):
             before = part.board.digest()
             part.bid()
             mine = part.round_records()
-            heard = self._round(block, r, mine, members)
+            heard = self._round(final, r, mine, set(part.robots.tolist()))
             if heard is None:
                 self._abandon()
                 return
-            settled = self._all_settled(mine, heard)
             for recs in heard.values():
                 part.absorb(part.instance, r, 0, recs)
             self.rounds += 1
-            if part.close_round(part.board.digest() == before, settled):
+            if part.close_round(part.board.digest() == before, self._all_settled(mine, heard)):
                 self._report()
                 return
 
@@ -318,22 +320,23 @@ class AuctionLink:
                 return False
         return True
 
-    def _round(self, block: int, r: int, mine: np.ndarray, members: set[int]) -> dict[int, np.ndarray] | None:
-        """Publish our records of round r and wait until every robot of the goal set has said its
-        word in round r; returns the other hosts' records by sender (None: ROUND_CAP ran out)."""
+    def _round(self, final: int, r: int, mine: np.ndarray, members: set[int]) -> dict[int, np.ndarray] | None:
+        """Publish our records of round r and wait until every live robot of the goal set has said
+        its word in round r (a robot whose agent died is not waited for: ``dead``); returns the
+        other hosts' records by sender (None: ROUND_CAP ran out)."""
         part, _ = self._under_way()
-        key = (part.epoch, block, r)
-        for old in [k for k in self.round_records if k[:2] != key[:2] or k[2] < r]:
+        key = (part.epoch, final, r)
+        for old in [k for k in self.round_records if k < key]:
             del self.round_records[old]
         start = time.monotonic()
         sent = -np.inf
         while not self.stopped:
             now = time.monotonic()
             if now - sent >= ROUND_RESEND:  # at once, then again while someone's records are missing
-                self._publish_round(part, r, mine)
+                self._publish_round(part, final, r, mine)
                 sent = now
             heard = self.round_records.get(key, {})
-            said = set(part.own)
+            said = set(part.own) | self.dead()
             for recs in heard.values():
                 said.update(recs["robot"].tolist())
             if members <= said:
@@ -346,21 +349,20 @@ class AuctionLink:
         return None
 
     def _file(self, arrived: list) -> None:
-        """Keep other hosts' lock-step records by (epoch, block, round)."""
-        part = self.part
+        """Keep other hosts' lock-step records by (epoch, block's final instance, round), those of a
+        goal set not heard of yet too (its message may come after a faster host's first round)."""
         for _, msg in arrived:
             self.received += 1
-            if part is None or msg.epoch != part.epoch or msg.sender == self.sender:
+            if msg.sender == self.sender or (self.part is not None and msg.epoch < self.part.epoch):
                 continue
-            block = msg.instance // part.phases * part.phases
-            self.round_records.setdefault((msg.epoch, block, msg.serial), {})[msg.sender] = msg.records
+            self.round_records.setdefault((msg.epoch, msg.instance, msg.serial), {})[msg.sender] = msg.records
             self.others.add(msg.sender)
             self.heard += 1
 
-    def _publish_round(self, part: Participant, r: int, mine: np.ndarray) -> None:
+    def _publish_round(self, part: Participant, final: int, r: int, mine: np.ndarray) -> None:
         self.bus.publish(
             self.bus.keys.auction(part.epoch, self.sender),
-            Bid(part.epoch, part.instance, self.sender, r, part.board.digest(), len(mine), mine),
+            Bid(part.epoch, final, self.sender, r, part.board.digest(), len(mine), mine),
         )
         self.last_sent = time.monotonic()
         self.sent += 1

@@ -219,6 +219,7 @@ class AgentHost:
             where=self._positions,
             lockstep=config.lockstep,
             on_abandoned=self._hold,
+            dead=self._dead_now,
         )
         self.alive = bus.watch_alive("agent")
         self.dead: set[int] = set()  # robots whose agent died: their bodies stand still (5.1.2)
@@ -424,6 +425,13 @@ class AgentHost:
             if got is not None:
                 self._on_state(got[1])
 
+    def _dead_now(self) -> set[int]:
+        """The robots whose agent is dead, as liveliness says now."""
+        for _, ident, alive, _ in self.alive.drain():
+            if ident.isdigit():
+                (self.dead.discard if alive else self.dead.add)(int(ident))
+        return self.dead
+
     def _await_goal_set(self, stamp: float) -> None:
         """Lock-step: wait for the goal set of the scene step due at this tick (the coordinator
         publishes it once it hears the tick), so that its auction starts at this very tick."""
@@ -540,10 +548,8 @@ class AgentHost:
         self._bid_from = None
         if self.config.lockstep:
             self._await_goal_set(stamp)
+        self._dead_now()
         self.auction.on_tick(stamp, self._positions())
-        for _, ident, alive, _ in self.alive.drain():
-            if ident.isdigit():
-                (self.dead.discard if alive else self.dead.add)(int(ident))
         stopped = {r: p.v_max * p.dt for r in self.dead}  # it may have moved one period after its last state
         neighbours = self.table.gather(ids, position, stamp, tick, p.neighbour_dist, p.max_neighbours, stopped)
         rows = np.searchsorted(self.own, ids)
