@@ -57,7 +57,7 @@ def picture(tmp_path) -> str:
     "scene, flags",
     [
         ("picture", ("--robots", "30", "--seed", "2")),  # an image: the auction settles a block every tick
-        ("story", ("--seed", "1", "--duration", "27")),  # an animation of 14 robots, into its second keyframe
+        ("story", ("--seed", "1", "--duration", "26")),  # an animation of 14 robots, into its second keyframe
     ],
 )
 def test_the_auction_is_the_same_in_every_engine(tmp_path, scene, flags):

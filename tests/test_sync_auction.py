@@ -131,8 +131,8 @@ def assert_one_to_one(traj: dict) -> None:
 
 @pytest.mark.slow
 def test_two_lockstep_runs_of_a_picture_are_identical_under_load(tmp_path):
-    image = picture(tmp_path)
-    flags = ("--robots", "30", "--clock", "lockstep", "--seed", "2")
+    image = picture(tmp_path)  # agent hosts of 5 robots (each robot its own process: test_one_controller.py)
+    flags = ("--robots", "30", "--clock", "lockstep", "--seed", "2", "-k", "5")
     quiet = run_scene(tmp_path, image, *flags, name="quiet")
     busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]  # both cores
     try:
