@@ -39,7 +39,7 @@ RESEND_BUSY = 0.25  # a lost message stalls a phase until a resend: short while 
 RESEND_PER_ROBOT = 0.01  # ... but every resend reaches every host: the backstop grows with the swarm
 RESEND_IDLE = 1.0
 MAX_LEAD = 15.0  # s: the longest latency the robots' bid positions compensate (core.bidder.bid_position)
-ROUND_RESEND = 0.25  # s: lock-step, a host waiting this long for a round's records sends its own again
+ROUND_RESEND = 0.1  # s: lock-step, a host waiting this long for a round's records sends its own again
 ROUND_CAP = 30.0  # s: lock-step, the longest a host waits for one round; then its robots hold their positions
 
 OnAgreed = Callable[[int, int, dict[int, int], np.ndarray, np.ndarray], None]
@@ -77,6 +77,8 @@ class AuctionLink:
         self.round_records: dict[
             tuple[int, int, int], dict[int, np.ndarray]
         ] = {}  # (epoch, block, round) -> sender -> records
+        self.said: dict[tuple[int, int, int], tuple[Bid, float]] = {}  # our rounds' messages, when last sent
+        self.waiting_for: tuple[int, int, int] | None = None  # the round we wait in
         self.rounds = 0  # lock-step rounds taken part in
         self.abandoned = 0  # lock-step blocks given up (a round never completed)
         self.stopped = False  # the host is shutting down: stop waiting for rounds
@@ -328,25 +330,30 @@ class AuctionLink:
         key = (part.epoch, final, r)
         for old in [k for k in self.round_records if k < key]:
             del self.round_records[old]
-        start = time.monotonic()
-        sent = -np.inf
-        while not self.stopped:
-            now = time.monotonic()
-            if now - sent >= ROUND_RESEND:  # at once, then again while someone's records are missing
-                self._publish_round(part, final, r, mine)
-                sent = now
-            heard = self.round_records.get(key, {})
-            said = set(part.own) | self.dead()
-            for recs in heard.values():
-                said.update(recs["robot"].tolist())
-            if members <= said:
-                return heard
-            if now - start >= ROUND_CAP:
-                return None
-            got = self.inbox.get(timeout=max(0.0, min(sent + ROUND_RESEND, start + ROUND_CAP) - time.monotonic()))
-            self._file([got] if got is not None else [])
-            self._file(self.inbox.drain())
-        return None
+        for old in [k for k in self.said if k[:2] != key[:2] and k < key]:
+            del self.said[old]  # an earlier block: every host finished it before this tick came
+        self.said[key] = (Bid(part.epoch, final, self.sender, r, part.board.digest(), len(mine), mine), -np.inf)
+        self.waiting_for, start = key, time.monotonic()
+        try:
+            while not self.stopped:
+                now = time.monotonic()
+                if now - self.said[key][1] >= ROUND_RESEND:  # at once, then again while records are missing
+                    self._send(key)
+                heard = self.round_records.get(key, {})
+                said = set(part.own) | self.dead()
+                for recs in heard.values():
+                    said.update(recs["robot"].tolist())
+                if members <= said:
+                    return heard
+                if now - start >= ROUND_CAP:
+                    return None
+                due = min(self.said[key][1] + ROUND_RESEND, start + ROUND_CAP)
+                got = self.inbox.get(timeout=max(0.0, due - time.monotonic()))
+                self._file([got] if got is not None else [])
+                self._file(self.inbox.drain())
+            return None
+        finally:
+            self.waiting_for = None
 
     def _file(self, arrived: list) -> None:
         """Keep other hosts' lock-step records by (epoch, block's final instance, round), those of a
@@ -355,15 +362,19 @@ class AuctionLink:
             self.received += 1
             if msg.sender == self.sender or (self.part is not None and msg.epoch < self.part.epoch):
                 continue
-            self.round_records.setdefault((msg.epoch, msg.instance, msg.serial), {})[msg.sender] = msg.records
+            key = (msg.epoch, msg.instance, msg.serial)
+            self.round_records.setdefault(key, {})[msg.sender] = msg.records
             self.others.add(msg.sender)
             self.heard += 1
+            # The sender still waits in a round we have left: it may have lost our records of it.
+            if key in self.said and key != self.waiting_for and time.monotonic() - self.said[key][1] >= ROUND_RESEND:
+                self._send(key)
 
-    def _publish_round(self, part: Participant, final: int, r: int, mine: np.ndarray) -> None:
-        self.bus.publish(
-            self.bus.keys.auction(part.epoch, self.sender),
-            Bid(part.epoch, final, self.sender, r, part.board.digest(), len(mine), mine),
-        )
+    def _send(self, key: tuple[int, int, int]) -> None:
+        """Publish (again) our message of this round."""
+        msg, _ = self.said[key]
+        self.bus.publish(self.bus.keys.auction(msg.epoch, self.sender), msg)
+        self.said[key] = (msg, time.monotonic())
         self.last_sent = time.monotonic()
         self.sent += 1
 

@@ -145,9 +145,7 @@ class Recorder:
                 self._on_bid(msg)
             elif isinstance(msg, Goals):
                 if not msg.per_robot and msg.epoch not in self.goal_sets:
-                    self.goal_sets[msg.epoch] = msg
-                    if msg.epoch == max(self.goal_sets):
-                        self.step = msg.step
+                    self._on_goals(msg)
             elif isinstance(msg, States):
                 for state in msg.messages():
                     self._on_state(state)
@@ -178,6 +176,19 @@ class Recorder:
         tr = self.traj
         for i in range(row, len(tr.t) if newest else row + 1):
             tr.goal[i][r], tr.assignment[i][r], tr.assignment_epoch[i][r], tr.assignment_instance[i][r] = said
+
+    def _on_goals(self, g: Goals) -> None:
+        """A new goal set: the newest from the tick the coordinator published it at (its stamp),
+        also in rows recorded before it arrived (the robots' states of those ticks may use it)."""
+        self.goal_sets[g.epoch] = g
+        if g.epoch != max(self.goal_sets):
+            return
+        self.step = g.step
+        tr = self.traj
+        for i in range(len(tr.t) - 1, -1, -1):
+            if tr.t[i] < g.stamp - 1e-9:
+                break
+            tr.step[i], tr.goal_set_epoch[i] = g.step, g.epoch
 
     def _on_bid(self, m: Bid) -> None:
         """Keep the positions each robot bid from in each instance (its frozen position), so the
