@@ -48,6 +48,7 @@ Where = Callable[[], dict[int, np.ndarray]]
 
 
 assert RECORD == Bid.RECORD, "the bidder's records are the wire layout of Bid"
+assert SETTLED == Bid.SETTLED, "the bidder's SETTLED flag is the wire's"
 
 
 class AuctionLink:
