@@ -80,6 +80,7 @@ class AuctionLink:
         ] = {}  # (epoch, block, round) -> sender -> records
         self.said: dict[tuple[int, int, int], tuple[Bid, float]] = {}  # our rounds' messages, when last sent
         self.waiting_for: tuple[int, int, int] | None = None  # the round we wait in
+        self.newest_round: dict[tuple[int, int, int], int] = {}  # (epoch, block, sender) -> its latest round heard
         self.rounds = 0  # lock-step rounds taken part in
         self.abandoned = 0  # lock-step blocks given up (a round never completed)
         self.stopped = False  # the host is shutting down: stop waiting for rounds
@@ -334,6 +335,9 @@ class AuctionLink:
         for old in [k for k in self.said if k[:2] != key[:2] and k < key]:
             del self.said[old]  # an earlier block: every host finished it before this tick came
         self.said[key] = (Bid(part.epoch, final, self.sender, r, part.board.digest(), len(mine), mine), -np.inf)
+        kept = {k[:2] for k in self.said}
+        for old in [b for b in self.newest_round if b[:2] not in kept and b[:2] < key[:2]]:
+            del self.newest_round[old]
         self.waiting_for, start = key, time.monotonic()
         try:
             while not self.stopped:
@@ -367,8 +371,12 @@ class AuctionLink:
             self.round_records.setdefault(key, {})[msg.sender] = msg.records
             self.others.add(msg.sender)
             self.heard += 1
-            # The sender still waits in a round we have left: it may have lost our records of it.
-            if key in self.said and key != self.waiting_for and time.monotonic() - self.said[key][1] >= ROUND_RESEND:
+            # The sender may still wait in a round we have left, for our records of it if it lost them;
+            # not when we heard it in a later round (its message is an answer itself: no ping-pong).
+            block = (msg.epoch, msg.instance, msg.sender)
+            self.newest_round[block] = newest = max(self.newest_round.get(block, 0), msg.serial)
+            answer = key in self.said and key != self.waiting_for and newest == msg.serial
+            if answer and time.monotonic() - self.said[key][1] >= ROUND_RESEND:
                 self._send(key)
 
     def _send(self, key: tuple[int, int, int]) -> None:
