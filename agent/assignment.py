@@ -39,7 +39,8 @@ RESEND_BUSY = 0.25  # a lost message stalls a phase until a resend: short while 
 RESEND_PER_ROBOT = 0.01  # ... but every resend reaches every host: the backstop grows with the swarm
 RESEND_IDLE = 1.0
 MAX_LEAD = 15.0  # s: the longest latency the robots' bid positions compensate (core.bidder.bid_position)
-ROUND_RESEND = 0.1  # s: lock-step, a host waiting this long for a round's records sends its own again
+ROUND_RESEND = 0.1  # s: lock-step, the least a host waits for a round's records before it sends its own
+# again; at least RESEND_PER_ROBOT per robot, as every resend reaches every host and slows every round
 ROUND_CAP = 30.0  # s: lock-step, the longest a host waits for one round; then its robots hold their positions
 
 OnAgreed = Callable[[int, int, dict[int, int], np.ndarray, np.ndarray], None]
@@ -339,10 +340,11 @@ class AuctionLink:
         for old in [b for b in self.newest_round if b[:2] not in kept and b[:2] < key[:2]]:
             del self.newest_round[old]
         self.waiting_for, start = key, time.monotonic()
+        resend = max(ROUND_RESEND, RESEND_PER_ROBOT * len(members))
         try:
             while not self.stopped:
                 now = time.monotonic()
-                if now - self.said[key][1] >= ROUND_RESEND:  # at once, then again while records are missing
+                if now - self.said[key][1] >= resend:  # at once, then again while records are missing
                     self._send(key)
                 heard = self.round_records.get(key, {})
                 said = set(part.own) | self.dead()
@@ -352,7 +354,7 @@ class AuctionLink:
                     return heard
                 if now - start >= ROUND_CAP:
                     return None
-                due = min(self.said[key][1] + ROUND_RESEND, start + ROUND_CAP)
+                due = min(self.said[key][1] + resend, start + ROUND_CAP)
                 got = self.inbox.get(timeout=max(0.0, due - time.monotonic()))
                 self._file([got] if got is not None else [])
                 self._file(self.inbox.drain())
