@@ -9,19 +9,28 @@ than ours (one of us missed something: answering lets the other catch up, so a l
 round trip, not a timeout), once the board has been quiet for QUIET seconds (while bids fly, digests
 would only be stale) and at most every DIGEST_EVERY seconds; and as a backstop every RESEND_BUSY
 seconds (more in large swarms) while an instance is open, RESEND_IDLE when agreed (late joiners).
+
+Lock-step (``lockstep``): the auction is tick-synchronous. A block of phases that starts at tick k
+bids from the positions of tick k in numbered rounds: in round r each host's robots bid against the
+board as merged after round r - 1 (Jacobi), and the host publishes its records tagged (instance,
+round); it goes on to round r + 1 once it holds every robot's round-r records. The rounds are the
+central engine's (Participant.settle_alone) bid for bid, so every host ends with its board, and the
+block is agreed at the same round everywhere, before any robot's command of tick k: everyone adopts
+it at tick k (settle_block).
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from itertools import count
 
 import numpy as np
 
 from transport.bus import Bus
 from transport.codec import Bid, Goals
 
-from .core.bidder import RECORD, Participant, frames_close
+from .core.bidder import RECORD, SETTLED, Participant, frames_close
 from .core.params import RobotParams
 
 DIGEST_EVERY = 0.01
@@ -30,24 +39,52 @@ RESEND_BUSY = 0.25  # a lost message stalls a phase until a resend: short while 
 RESEND_PER_ROBOT = 0.01  # ... but every resend reaches every host: the backstop grows with the swarm
 RESEND_IDLE = 1.0
 MAX_LEAD = 15.0  # s: the longest latency the robots' bid positions compensate (core.bidder.bid_position)
+ROUND_RESEND = 0.1  # s: lock-step, the least a host waits for a round's records before it sends its own
+# again; at least RESEND_PER_ROBOT per robot, as every resend reaches every host and slows every round
+ROUND_CAP = 30.0  # s: lock-step, the longest a host waits for one round; then its robots hold their positions
 
 OnAgreed = Callable[[int, int, dict[int, int], np.ndarray, np.ndarray], None]
+OnAbandoned = Callable[[list[int]], None]
 Where = Callable[[], dict[int, np.ndarray]]
 
 
 assert RECORD == Bid.RECORD, "the bidder's records are the wire layout of Bid"
+assert SETTLED == Bid.SETTLED, "the bidder's SETTLED flag is the wire's"
 
 
 class AuctionLink:
     """The auction of one host's robots: goal sets in, agreed goals out through ``on_agreed``."""
 
     def __init__(
-        self, bus: Bus, robots: list[int], params: RobotParams, on_agreed: OnAgreed, where: Where | None = None
+        self,
+        bus: Bus,
+        robots: list[int],
+        params: RobotParams,
+        on_agreed: OnAgreed,
+        where: Where | None = None,
+        lockstep: bool = False,
+        on_abandoned: OnAbandoned | None = None,
+        dead: Callable[[], set[int]] | None = None,
     ) -> None:
         """``where``: the own robots' bid positions now (the runtime's), asked again when an agreement
-        was handed to ``on_agreed`` just before a new block freezes its positions."""
+        was handed to ``on_agreed`` just before a new block freezes its positions. ``lockstep``: the
+        tick-synchronous rounds (settle_block); ``on_abandoned`` hears of own robots whose block could
+        not finish (they must hold their positions: another robot may hold their goals now); ``dead``:
+        the robots whose agent is known dead now (their records are not waited for)."""
         self.bus, self.robots, self.params, self.on_agreed = bus, sorted(robots), params, on_agreed
         self.where = where
+        self.lockstep, self.on_abandoned = lockstep, on_abandoned
+        self.dead = dead if dead is not None else set
+        self.block_stamp = -np.inf  # lock-step: display time of the last block's tick
+        self.round_records: dict[
+            tuple[int, int, int], dict[int, np.ndarray]
+        ] = {}  # (epoch, block, round) -> sender -> records
+        self.said: dict[tuple[int, int, int], tuple[Bid, float]] = {}  # our rounds' messages, when last sent
+        self.waiting_for: tuple[int, int, int] | None = None  # the round we wait in
+        self.newest_round: dict[tuple[int, int, int], int] = {}  # (epoch, block, sender) -> its latest round heard
+        self.rounds = 0  # lock-step rounds taken part in
+        self.abandoned = 0  # lock-step blocks given up (a round never completed)
+        self.stopped = False  # the host is shutting down: stop waiting for rounds
         self.inbox = bus.subscribe(bus.keys.all_of("auction"), Bid)
         self.sender = self.robots[0]
         self.part: Participant | None = None
@@ -78,7 +115,8 @@ class AuctionLink:
 
     @property
     def busy(self) -> bool:
-        return self.part is not None and not self.part.is_agreed
+        """An instance is open between ticks (never in lock-step: a block settles within its tick)."""
+        return self.part is not None and not self.part.is_agreed and not self.lockstep
 
     @property
     def open_for(self) -> float:
@@ -122,15 +160,18 @@ class AuctionLink:
             self.params.assign_eps,
             self.params.assign_hysteresis,
         )
+        self.epoch_wall = time.monotonic()
+        self.reported = -1
+        self.others = set()
+        if self.lockstep:  # a cold start at the next tick, as the central engine starts a new image
+            self.block_stamp = -np.inf
+            return {}
         carried = {}
         if before is not None and self._warm_start(before, goals):
             carried = self.part.carry(before, goals.matched, current=current, prices=goals.prices)
         elif goals.follows and before is not None and before.epoch == goals.follows:
             close = before.agreed_instance >= 0 and frames_close(before.goals, goals.positions, goals.previous)
             carried = self.part.carry(before, goals.previous, claim=close, current=current)
-        self.epoch_wall = time.monotonic()
-        self.reported = -1
-        self.others = set()
         self._try_start(positions)
         return carried
 
@@ -180,6 +221,9 @@ class AuctionLink:
         """Each control iteration: start the next instance (warm, on this tick's positions) once the
         last is agreed (paper 5.1: re-assign every iteration)."""
         self.now = max(self.now, stamp)
+        if self.lockstep:
+            self.settle_block(stamp, positions)
+            return
         if not self._try_start(positions):
             return
         part, _ = self._under_way()
@@ -198,7 +242,7 @@ class AuctionLink:
         """Seconds until something is due without a message arriving (a resend, a throttled digest,
         an injected delay ending)."""
         part = self.part
-        if part is None or not part.started:
+        if part is None or not part.started or self.lockstep:
             return 1.0
         if self.inbox.has_delayed:
             return 0.005
@@ -215,6 +259,9 @@ class AuctionLink:
         """Take in what arrived, bid, check agreement, publish what others need."""
         part = self.part
         arrived = self.inbox.drain()
+        if self.lockstep:  # kept for the rounds of the next block (settle_block)
+            self._file(arrived)
+            return
         if not arrived and part is not None and part.started and self.next_due() > 0:
             return  # nothing new, nothing due
         theirs: set[int] = set()  # digests of this instance's messages, compared once below
@@ -239,6 +286,115 @@ class AuctionLink:
             self.board_changed = time.monotonic()
         if self.next_due() <= 0:
             self._publish()
+
+    # --- lock-step ----------------------------------------------------------------------------------
+    def settle_block(self, stamp: float, positions: dict[int, np.ndarray]) -> None:
+        """Lock-step, at each tick: every ``assign_period`` the next block of phases, frozen on this
+        tick's positions, bid through its rounds with every other host and agreed before this tick's
+        commands; its agreement goes to ``on_agreed`` at this tick. A host with no robot in the goal
+        set takes no part."""
+        part = self.part
+        if part is None or not part.own or not all(r in positions for r in part.own):
+            return
+        if part.started and stamp - self.block_stamp < self.params.assign_period - 1e-9:
+            return
+        self.block_stamp = stamp
+        part.begin_block(positions)
+        final = part.instance + part.phases - 1  # every round's records are tagged with the block's final phase
+        for r in count(1):
+            before = part.board.digest()
+            part.bid()
+            mine = part.round_records()
+            heard = self._round(final, r, mine, set(part.robots.tolist()))
+            if heard is None:
+                self._abandon()
+                return
+            for recs in heard.values():
+                part.absorb(part.instance, r, 0, recs)
+            self.rounds += 1
+            if part.close_round(part.board.digest() == before, self._all_settled(mine, heard)):
+                self._report()
+                return
+
+    @staticmethod
+    def _all_settled(mine: np.ndarray, heard: dict[int, np.ndarray]) -> bool:
+        """Every robot's claim in this round says SETTLED."""
+        for recs in [mine, *heard.values()]:
+            claims = recs[(recs["flags"] & Bid.RELEASED) == 0]
+            if not bool(((claims["flags"] & SETTLED) != 0).all()):
+                return False
+        return True
+
+    def _round(self, final: int, r: int, mine: np.ndarray, members: set[int]) -> dict[int, np.ndarray] | None:
+        """Publish our records of round r and wait until every live robot of the goal set has said
+        its word in round r (a robot whose agent died is not waited for: ``dead``); returns the
+        other hosts' records by sender (None: ROUND_CAP ran out)."""
+        part, _ = self._under_way()
+        key = (part.epoch, final, r)
+        for old in [k for k in self.round_records if k < key]:
+            del self.round_records[old]
+        for old in [k for k in self.said if k[:2] != key[:2] and k < key]:
+            del self.said[old]  # an earlier block: every host finished it before this tick came
+        self.said[key] = (Bid(part.epoch, final, self.sender, r, part.board.digest(), len(mine), mine), -np.inf)
+        kept = {k[:2] for k in self.said}
+        for old in [b for b in self.newest_round if b[:2] not in kept and b[:2] < key[:2]]:
+            del self.newest_round[old]
+        self.waiting_for, start = key, time.monotonic()
+        resend = max(ROUND_RESEND, RESEND_PER_ROBOT * len(members))
+        try:
+            while not self.stopped:
+                now = time.monotonic()
+                if now - self.said[key][1] >= resend:  # at once, then again while records are missing
+                    self._send(key)
+                heard = self.round_records.get(key, {})
+                said = set(part.own) | self.dead()
+                for recs in heard.values():
+                    said.update(recs["robot"].tolist())
+                if members <= said:
+                    return heard
+                if now - start >= ROUND_CAP:
+                    return None
+                due = min(self.said[key][1] + resend, start + ROUND_CAP)
+                got = self.inbox.get(timeout=max(0.0, due - time.monotonic()))
+                self._file([got] if got is not None else [])
+                self._file(self.inbox.drain())
+            return None
+        finally:
+            self.waiting_for = None
+
+    def _file(self, arrived: list) -> None:
+        """Keep other hosts' lock-step records by (epoch, block's final instance, round), those of a
+        goal set not heard of yet too (its message may come after a faster host's first round)."""
+        for _, msg in arrived:
+            self.received += 1
+            if msg.sender == self.sender or (self.part is not None and msg.epoch < self.part.epoch):
+                continue
+            key = (msg.epoch, msg.instance, msg.serial)
+            self.round_records.setdefault(key, {})[msg.sender] = msg.records
+            self.others.add(msg.sender)
+            self.heard += 1
+            # The sender may still wait in a round we have left, for our records of it if it lost them;
+            # not when we heard it in a later round (its message is an answer itself: no ping-pong).
+            block = (msg.epoch, msg.instance, msg.sender)
+            self.newest_round[block] = newest = max(self.newest_round.get(block, 0), msg.serial)
+            answer = key in self.said and key != self.waiting_for and newest == msg.serial
+            if answer and time.monotonic() - self.said[key][1] >= ROUND_RESEND:
+                self._send(key)
+
+    def _send(self, key: tuple[int, int, int]) -> None:
+        """Publish (again) our message of this round."""
+        msg, _ = self.said[key]
+        self.bus.publish(self.bus.keys.auction(msg.epoch, self.sender), msg)
+        self.said[key] = (msg, time.monotonic())
+        self.last_sent = time.monotonic()
+        self.sent += 1
+
+    def _abandon(self) -> None:
+        """A round never completed: our robots cannot know whether others adopted the block, so they
+        hold their positions (drive to no goal) rather than drive to a goal another may hold."""
+        self.abandoned += 1
+        if self.on_abandoned is not None and self.part is not None:
+            self.on_abandoned(list(self.part.own))
 
     # --- internals --------------------------------------------------------------------------------
     def _under_way(self) -> tuple[Participant, Goals]:
@@ -297,5 +453,7 @@ class AuctionLink:
             "agreements": self.agreements,
             "deadlock_penalties": self.penalties,
             "latency_s": round(self.latency, 3),
+            "lockstep_rounds": self.rounds,
+            "abandoned_blocks": self.abandoned,
             "first_agreement_s": [round(x, 4) for x in self.first_agreement_s],
         }

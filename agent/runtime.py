@@ -77,6 +77,8 @@ class HostConfig:
     greet: list[int] = field(default_factory=list)  # lock-step: robots near ours at the start (see AgentHost.start)
     frames: bool = False  # poses from the tracker's frames; one frame a tick of the robots' states, heard from
     # every host, and one of their commands (codec.Poses, States, Commands)
+    steps: list[float] = field(default_factory=list)  # lock-step: display times the scene's goal sets are due
+    # (a tick waits for its step's goal set, so that every engine adopts it at the same tick)
 
     @classmethod
     def from_json(cls, text: str) -> HostConfig:
@@ -94,6 +96,7 @@ class HostConfig:
             pursue={int(k): int(v) for k, v in data.get("pursue", {}).items()},
             greet=[int(r) for r in data.get("greet", [])],
             frames=bool(data.get("frames", False)),
+            steps=[float(t) for t in data.get("steps", [])],
         )
 
     def to_json(self) -> str:
@@ -111,6 +114,7 @@ class HostConfig:
                 "pursue": self.pursue,
                 "greet": self.greet,
                 "frames": self.frames,
+                "steps": self.steps,
             }
         )
 
@@ -130,6 +134,7 @@ HELLO_TIMEOUT = 30.0  # s a host waits for its neighbours' hellos before it says
 LOCKSTEP_IDLE = 0.15  # s of wall time without a message that ends a tick's rounds (the auction is quiet)
 LOCKSTEP_CAP = 1.0  # s of wall time a tick's rounds may take at most: the next tick's pose waits meanwhile,
 # and the world counts a missed tick after 2 s
+GOAL_SET_WAIT = 10.0  # s a lock-step tick waits for the goal set its step is due with (HostConfig.steps)
 
 
 CELL_KEY = 1 << 32  # cells as one int64 each: cx * CELL_KEY + cy (|cy| < 2^31 cells)
@@ -213,7 +218,16 @@ class AgentHost:
             bus.subscribe_into(self.keys.state_of(target), self.state_inbox)
         self.goal_inbox = bus.subscribe(self.keys.all_of("goals"), Goals)
         self.goal_sets: dict[int, Goals] = {}  # the latest auctioned goal sets by epoch (timing, motion)
-        self.auction = AuctionLink(bus, config.robots, self.params, self._on_agreed, where=self._positions)
+        self.auction = AuctionLink(
+            bus,
+            config.robots,
+            self.params,
+            self._on_agreed,
+            where=self._positions,
+            lockstep=config.lockstep,
+            on_abandoned=self._hold,
+            dead=self._dead_now,
+        )
         self.alive = bus.watch_alive("agent")
         self.dead: set[int] = set()  # robots whose agent died: their bodies stand still (5.1.2)
         self.running = True
@@ -354,6 +368,14 @@ class AgentHost:
         for r, g in goals.items():
             self._drive_to(r, epoch, instance, g, positions, colors)
 
+    def _hold(self, robots: list[int]) -> None:
+        """These robots' auction block was abandoned: they hold their positions (no goal), as
+        another robot may have been agreed their goals."""
+        self._bid_from = None
+        for r in robots:
+            mem = self.memory[r]
+            mem.goal, mem.goal_index, mem.goal0 = np.full(2, np.nan), -1, np.full(2, np.nan)
+
     def _drive_to(
         self, robot: int, epoch: int, instance: int, goal: int, positions: np.ndarray, colors: np.ndarray
     ) -> None:
@@ -411,6 +433,28 @@ class AgentHost:
             got = self.state_inbox.get(timeout=remaining)
             if got is not None:
                 self._on_state(got[1])
+
+    def _dead_now(self) -> set[int]:
+        """The robots whose agent is dead, as liveliness says now."""
+        for _, ident, alive, _ in self.alive.drain():
+            if ident.isdigit():
+                (self.dead.discard if alive else self.dead.add)(int(ident))
+        return self.dead
+
+    def _await_goal_set(self, stamp: float) -> None:
+        """Lock-step: wait for the goal set of the scene step due at this tick (the coordinator
+        publishes it once it hears the tick), so that its auction starts at this very tick."""
+        due = int(np.searchsorted(self.config.steps, stamp + 1e-9, side="right")) - 1
+        if due < 0:
+            return
+        deadline = time.monotonic() + GOAL_SET_WAIT
+        while self.running and not any(g.step >= due for g in self.goal_sets.values()):
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return
+            got = self.goal_inbox.get(timeout=remaining)
+            if got is not None:
+                self._on_goals(got[1])
 
     # --- the loop -----------------------------------------------------------------------------
     def run(self) -> None:
@@ -524,10 +568,10 @@ class AgentHost:
             mem.position = xy.copy()
             mem.stamp = stamp
         self._bid_from = None
+        if self.config.lockstep:
+            self._await_goal_set(stamp)
+        self._dead_now()
         self.auction.on_tick(stamp, self._positions())
-        for _, ident, alive, _ in self.alive.drain():
-            if ident.isdigit():
-                (self.dead.discard if alive else self.dead.add)(int(ident))
         stopped = {r: p.v_max * p.dt for r in self.dead}  # it may have moved one period after its last state
         neighbours = self.table.gather(ids, position, stamp, tick, p.neighbour_dist, p.max_neighbours, stopped)
         rows = np.searchsorted(self.own, ids)
@@ -638,6 +682,7 @@ def color_of(rgb: np.ndarray) -> tuple[int, int, int]:
 def install_stop_handlers(host: AgentHost) -> None:
     def stop(signum: int, frame: object) -> None:
         host.running = False
+        host.auction.stopped = True
 
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)

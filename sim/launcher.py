@@ -163,6 +163,7 @@ class Launcher:
             state_wait=0.0 if "state" in self.opt.faults else 1.5,
             pursue={r: t for r, t in self.scene.pursuers.items() if r in robots},
             frames=self._frames,
+            steps=list(self.scene.step_starts) if lockstep else [],
         )
 
     def _start_agents(self) -> None:

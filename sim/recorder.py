@@ -19,7 +19,20 @@ import numpy as np
 import orjson
 
 from transport.bus import Bus
-from transport.codec import BY_NAME, Bid, Commands, Contact, DropCounter, Event, Goals, State, States, Truth, decode
+from transport.codec import (
+    BY_NAME,
+    Bid,
+    Commands,
+    Contact,
+    DropCounter,
+    Event,
+    Goals,
+    Pose,
+    State,
+    States,
+    Truth,
+    decode,
+)
 
 from .foxglove import SCENE_UPDATE_SCHEMA_NAME, scene_update, scene_update_schema
 from .mcaplog import McapLog
@@ -89,6 +102,8 @@ class Recorder:
         self.goal_index = np.full(robots, -1)
         self.assign_epoch = np.zeros(robots, np.int64)
         self.assign_instance = np.zeros(robots, np.int64)
+        self.state_tick = np.full(robots, np.iinfo(np.int64).min)  # the tick of each robot's newest state
+        self.row_of_tick: dict[int, int] = {}  # tick -> its row of the trajectory
         self.step = 0  # the scene step of the newest goal set
         self.goal_sets: dict[int, Goals] = {}  # epoch -> the coordinator's goal set
         self.newest_goals: Goals | None = None  # the goal set of the highest epoch (read from zenoh's threads)
@@ -140,10 +155,7 @@ class Recorder:
                 self._on_bid(msg)
             elif isinstance(msg, Goals):
                 if not msg.per_robot and msg.epoch not in self.goal_sets:
-                    self.goal_sets[msg.epoch] = msg
-                    if msg.epoch == max(self.goal_sets):
-                        self.step = msg.step
-                        self.newest_goals = msg
+                    self._on_goals(msg)
             elif isinstance(msg, States):
                 for state in msg.messages():
                     self._on_state(state)
@@ -155,16 +167,39 @@ class Recorder:
                 self.events.append(msg.data)
 
     def _on_state(self, s: State) -> None:
-        if s.robot >= self.n:
+        """A robot's goal and assignment of tick k go into row k, and on into the rows after it
+        until its next state: a row shows what every robot drove to at that tick, as the central
+        engine records it, however its truth and the states crossed the bus."""
+        r = s.robot
+        if r >= self.n or s.tick == Pose.BEFORE_START:  # a hello before the first tick: no goal yet
             return
-        self.radius[s.robot] = s.radius
-        if s.flags & State.HAS_GOAL:
-            self.goal[s.robot] = (s.goal_x, s.goal_y)
-        else:
-            self.goal[s.robot] = np.nan
-        self.goal_index[s.robot] = s.goal_index
-        self.assign_epoch[s.robot] = s.assign_epoch
-        self.assign_instance[s.robot] = s.assign_instance
+        goal = (s.goal_x, s.goal_y) if s.flags & State.HAS_GOAL else (np.nan, np.nan)
+        said = (goal, s.goal_index, s.assign_epoch, s.assign_instance)
+        newest = s.tick >= self.state_tick[r]
+        if newest:
+            self.radius[r] = s.radius
+            self.goal[r], self.goal_index[r], self.assign_epoch[r], self.assign_instance[r] = said
+            self.state_tick[r] = s.tick
+        row = self.row_of_tick.get(s.tick)
+        if row is None:
+            return
+        tr = self.traj
+        for i in range(row, len(tr.t) if newest else row + 1):
+            tr.goal[i][r], tr.assignment[i][r], tr.assignment_epoch[i][r], tr.assignment_instance[i][r] = said
+
+    def _on_goals(self, g: Goals) -> None:
+        """A new goal set: the newest from the tick the coordinator published it at (its stamp),
+        also in rows recorded before it arrived (the robots' states of those ticks may use it)."""
+        self.goal_sets[g.epoch] = g
+        if g.epoch != max(self.goal_sets):
+            return
+        self.step = g.step
+        self.newest_goals = g
+        tr = self.traj
+        for i in range(len(tr.t) - 1, -1, -1):
+            if tr.t[i] < g.stamp - 1e-9:
+                break
+            tr.step[i], tr.goal_set_epoch[i] = g.step, g.epoch
 
     def _on_bid(self, m: Bid) -> None:
         """Keep the positions each robot bid from in each instance (its frozen position), so the
@@ -180,6 +215,7 @@ class Recorder:
         tr = self.traj
         if tr.t and m.stamp <= tr.t[-1]:
             return
+        self.row_of_tick[m.tick] = len(tr.t)
         tr.t.append(m.stamp)
         tr.wall.append(wall)
         tr.pose.append(m.pose)

@@ -4,7 +4,9 @@ Real time: physics at 100 Hz on the wall clock; every control period (10 Hz) the
 each robot's pose (with seeded noise, paper 7.1: 2 mm / 3 deg) and commands are applied as they
 arrive, as on hardware. Lock-step: the world publishes tick k, waits until every live agent has
 answered with its command for tick k or a deadline passes (a missed tick), then advances one
-period. Lock-step runs are reproducible from the seed.
+period. Lock-step runs are reproducible from the seed. The deadline runs from the last auction
+message heard: agents that still trade a tick's auction rounds
+(agent.assignment.AuctionLink.settle_block) are at work, not late.
 
 A command is valid for its control period and a margin (RobotParams.command_margin): a body whose
 agent is late, blind or cut off stops rather than drive on an old command, since ORCA's guarantee
@@ -69,6 +71,7 @@ class WorldNode:
         self.withheld_ticks = 0  # ticks whose poses the tracker withheld (an outage)
         self.pose_frames = pose_frames
         self.cmd_inbox = bus.commands_inbox()
+        self.auction_traffic = bus.subscribe_raw(self.keys.all_of("auction"))  # lock-step: agents at work
         self.control_inbox = bus.subscribe(self.keys.event, Event)
         self.alive = bus.watch_alive("agent")
         self.running = True
@@ -240,6 +243,8 @@ class WorldNode:
             while True:
                 got = self.cmd_inbox.get(timeout=max(0.0, min(0.05, deadline - time.monotonic())))
                 self._apply_commands(got)
+                if self.auction_traffic.drain():
+                    deadline = time.monotonic() + self.deadline
                 self._update_liveness()
                 waiting = self.live & (self.last_cmd_tick < self.tick)
                 if not waiting.any() or time.monotonic() >= deadline or self.tracker_out:

@@ -38,3 +38,44 @@ def test_central_and_distributed_runs_of_one_seed_are_the_same_run(tmp_path, sce
         assert gap <= 1e-9, f"{name}: positions differ by {gap} m"
         np.testing.assert_allclose(traj["goal"][-1], central["goal"][-1], rtol=0, atol=1e-9)
         assert metrics["time_to_converge_s"] == pytest.approx(m_central["time_to_converge_s"], abs=1e-9)
+
+
+def picture(tmp_path) -> str:
+    """A picture of two shapes (a disk and a bar), drawn here."""
+    import cv2
+
+    image = np.full((120, 160, 3), 255, np.uint8)
+    cv2.circle(image, (55, 60), 35, (0, 0, 200), -1)
+    cv2.rectangle(image, (100, 25), (145, 95), (200, 0, 0), -1)
+    path = tmp_path / "picture.png"
+    cv2.imwrite(str(path), image)
+    return str(path)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "scene, flags",
+    [
+        ("picture", ("--robots", "30", "--seed", "2")),  # an image: the auction settles a block every tick
+        ("story", ("--seed", "1", "--duration", "26")),  # an animation of 14 robots, into its second keyframe
+    ],
+)
+def test_the_auction_is_the_same_in_every_engine(tmp_path, scene, flags):
+    """Tick-synchronous auction: every engine adopts the same agreement at the same tick, so the run
+    is the same, and every recorded tick is one-to-one."""
+    source = picture(tmp_path) if scene == "picture" else scene
+    runs = {
+        name: run_scene(tmp_path, source, "--clock", "lockstep", *flags, *engine, name=name.replace(" ", "-"))
+        for name, engine in ENGINES.items()
+    }
+    _, central = runs["central"]
+    assert (central["assignment"] >= 0).all()  # every robot holds a goal from the first tick on
+    assert len(np.unique(central["step"])) == (2 if scene == "story" else 1)
+    for name, (metrics, traj) in runs.items():
+        assert metrics["missed_ticks"] == 0, name
+        np.testing.assert_array_equal(traj["t"], central["t"])
+        gap = np.abs(traj["pose"][..., :2] - central["pose"][..., :2]).max()
+        assert gap <= 1e-9, f"{name}: positions differ by {gap} m"
+        np.testing.assert_array_equal(traj["assignment"], central["assignment"], err_msg=name)
+        for k, row in enumerate(traj["assignment"]):
+            assert len(np.unique(row[row >= 0])) == int((row >= 0).sum()), f"{name}: one goal, two robots, tick {k}"

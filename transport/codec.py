@@ -377,6 +377,7 @@ class Bid(Message):
 
     CONTENT: ClassVar[int] = 1  # the robot holds ``goal`` and no other goal is better by more than epsilon
     RELEASED: ClassVar[int] = 2  # the robot gave ``goal`` up at ``price`` (it bids elsewhere)
+    SETTLED: ClassVar[int] = 4  # lock-step rounds: content at the final phase's slack (agent.core.bidder)
 
     def _fixed_values(self) -> tuple:
         return (self.epoch, self.instance, self.sender, self.serial, self.digest, len(self.records))

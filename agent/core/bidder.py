@@ -46,6 +46,7 @@ from .auction import NO_OWNER, ROUNDING, epsilon_schedule, is_content
 
 CONTENT = 1  # record flag: the robot holds the goal and is content with it
 RELEASED = 2  # record flag: the robot gave the goal up at this price
+SETTLED = 4  # record flag (lock-step rounds): content at the final phase's slack, so in every phase left
 CANDIDATES = 16  # goals a robot ranks in settle_alone's rounds while no other can beat them (agent.core.jacobi)
 SMALL = 8  # messages with up to this many records are merged record by record (numpy costs more there)
 
@@ -656,6 +657,42 @@ class Participant:
         self._content_cache = ((board.version, self.instance, self.goal.tobytes()), np.ones(k, bool))
         self._adopt()
         return self.goal.copy()
+
+    # --- lock-step rounds ----------------------------------------------------------------------------
+    def begin_block(self, positions: Mapping[int, np.ndarray] | np.ndarray) -> None:
+        """Lock-step: begin the next block of phases on these positions, warm from the board, as
+        settle_alone does, but bid nothing yet: every host bids in round 1 against the same board."""
+        first = (self.instance // self.phases + 1) * self.phases if self.started else 0
+        self._freeze(first, positions)
+
+    def round_records(self) -> np.ndarray:
+        """Lock-step: one round's records, after the own robots' bids: records(), each claim flagged
+        SETTLED when its robot is content at the final phase's slack (the least: no later phase
+        would have it bid)."""
+        recs = self.records()
+        if len(self.own) and len(self.goals):
+            holds = self.board.holds(self.own_ids, self.goal)
+            g = np.maximum(self.goal, 0)
+            held = -self.cost[np.arange(len(self.own)), g] - self.board.price[g]
+            settled = holds & is_content(held, self._best_values(), self.schedule[-1] + self.hysteresis)
+            recs["flags"][: len(self.own)] |= np.where(settled, SETTLED, 0).astype(np.uint8)
+        return recs
+
+    def close_round(self, unchanged: bool, settled: bool) -> bool:
+        """Lock-step: every host's records of a round are merged. A round that changed nothing on the
+        board (nobody bid) ends its phase: the next phase begins or, in the final phase or when every
+        robot said it is ``settled`` (then the phases left would pass without a bid, as
+        settle_alone passes them), the block is agreed (True). Every host merged the same records
+        onto the same board, so all of them decide alike, at the same round."""
+        if not unchanged:
+            return False
+        if not (self.final_phase or settled):
+            self._freeze(self.instance + 1, {})
+            return False
+        self.instance = (self.instance // self.phases + 1) * self.phases - 1  # the block's final phase
+        self._content_cache = None
+        self._adopt()
+        return True
 
     def penalise(self, robot: int, goal: int, cost: float) -> None:
         """Deadlock (5.5.5): the robot's cost of this goal rises by C_d for good, from the next instance."""

@@ -1,0 +1,151 @@
+"""The tick-synchronous auction (issue 21): in lock-step a block of phases starts at tick k on tick k's
+positions, every host bids in numbered Jacobi rounds against the board as merged after the round
+before, and everyone adopts the agreement at tick k. The rounds are the central engine's
+(Participant.settle_alone) bid for bid, so the boards are equal to the bit; over the bus two hosts
+settle a block that way; and two lock-step runs of a 30-robot picture are the same run, one-to-one at
+every tick, while two busy processes load both cores."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from agent.assignment import AuctionLink
+from agent.core.bidder import Participant
+from agent.core.params import RobotParams
+from transport.bus import Bus
+from transport.codec import Goals
+from transport.session import client_of, loopback_router, open_session
+
+from .conftest import reap, run_scene
+
+EPS, HYSTERESIS = 1e-3, 5e-3  # epsilon_A and Delta C, m^2 (agent.core.params defaults)
+
+
+def hosts_settle(hosts: list[Participant], positions: np.ndarray) -> int:
+    """One block in lock-step rounds among these participants (each a host's robots), records passed
+    by hand as the bus passes them; returns the rounds it took."""
+    for h in hosts:
+        h.begin_block(positions)
+    for r in range(1, 100_000):
+        before = [h.board.digest() for h in hosts]
+        said = []
+        for h in hosts:
+            h.bid()
+            said.append(h.round_records())
+        settled = all(bool((recs["flags"][: len(h.own)] & 4).all()) for h, recs in zip(hosts, said))
+        for h in hosts:
+            for other, recs in zip(hosts, said):
+                if other is not h:
+                    h.absorb(h.instance, r, 0, recs)
+        agreed = [h.close_round(h.board.digest() == b, settled) for h, b in zip(hosts, before)]
+        assert len(set(agreed)) == 1, "hosts disagree on whether the round ended the block"
+        if agreed[0]:
+            return r
+    raise AssertionError("the block did not settle")
+
+
+@pytest.mark.parametrize("robots, split", [(16, 1), (30, 5), (23, 4)])
+def test_lockstep_rounds_give_the_central_board_to_the_bit(robots, split):
+    rng = np.random.default_rng(robots + split)
+    goals = rng.uniform(-2.0, 2.0, (robots, 2))
+    ids = list(range(robots))
+    central = Participant(1, goals, ids, ids, EPS, HYSTERESIS)
+    hosts = [Participant(1, goals, ids, ids[a : a + split], EPS, HYSTERESIS) for a in range(0, robots, split)]
+    position = rng.uniform(-3.0, 3.0, (robots, 2))
+    for block in range(5):  # a cold start, then warm blocks as the robots drive, with a deadlock penalty
+        if block == 3:
+            robot, goal = 4, int(central.goal[4])
+            central.penalise(robot, goal, 0.5)
+            next(h for h in hosts if robot in h.own).penalise(robot, goal, 0.5)
+        assigned = central.settle_alone(position)
+        rounds = hosts_settle(hosts, position)
+        assert rounds >= 1
+        for h in hosts:
+            np.testing.assert_array_equal(h.board.price, central.board.price)
+            np.testing.assert_array_equal(h.board.owner, central.board.owner)
+            np.testing.assert_array_equal(h.board.released, central.board.released)
+            assert h.agreed_instance == central.agreed_instance
+            assert h.agreed == {r: int(assigned[r]) for r in h.own}
+        assert len(np.unique(assigned)) == robots  # one-to-one
+        position = position + 0.3 * (goals[assigned] - position) + rng.normal(0.0, 0.01, position.shape)
+
+
+def test_two_hosts_settle_a_block_over_the_bus_at_the_same_round():
+    goals = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [3.0, 0.0]])
+    start = np.array([[2.9, 0.1], [2.1, -0.1], [0.2, 0.0], [1.1, 0.2]])
+    params = RobotParams(kinematics="holonomic")
+    message = Goals(1, 0, 0.0, 4, goals, np.full((4, 3), 200, np.uint8), 0, 60.0, np.arange(4))
+    central = Participant(1, message.positions, [0, 1, 2, 3], [0, 1, 2, 3], params.assign_eps, params.assign_hysteresis)
+    expected = central.settle_alone(start)
+    router = loopback_router()
+    session = open_session(router)
+    told: dict[int, dict[int, int]] = {}
+    try:
+        with Bus(client_of(router), "sync") as bus_a, Bus(client_of(router), "sync") as bus_b:
+            links = [
+                AuctionLink(bus, own, params, lambda e, i, g, p, c: told.update({min(g): g}), lockstep=True)
+                for bus, own in ((bus_a, [0, 1]), (bus_b, [2, 3]))
+            ]
+            time.sleep(0.5)  # both subscriptions declared before the first round
+            for link in links:
+                link.on_goals(message, {})
+            where = {r: start[r] for r in range(4)}
+            threads = [threading.Thread(target=link.on_tick, args=(0.0, where)) for link in links]
+            for t in threads:
+                t.start()
+            for t in threads:
+                t.join(timeout=20.0)
+            assert not any(t.is_alive() for t in threads)
+            assert [link.rounds for link in links][0] == links[1].rounds >= 1
+            for link in links:
+                assert link.part is not None and link.part.is_agreed and link.abandoned == 0
+                np.testing.assert_array_equal(link.part.board.price, central.board.price)
+    finally:
+        session.close()
+    assert told == {0: {0: int(expected[0]), 1: int(expected[1])}, 2: {2: int(expected[2]), 3: int(expected[3])}}
+
+
+def picture(tmp_path) -> str:
+    """A picture of two shapes (a disk and a bar), drawn here."""
+    import cv2
+
+    image = np.full((120, 160, 3), 255, np.uint8)
+    cv2.circle(image, (55, 60), 35, (0, 0, 200), -1)
+    cv2.rectangle(image, (100, 25), (145, 95), (200, 0, 0), -1)
+    path = tmp_path / "picture.png"
+    cv2.imwrite(str(path), image)
+    return str(path)
+
+
+def assert_one_to_one(traj: dict) -> None:
+    for k, row in enumerate(traj["assignment"]):
+        held = row[row >= 0]
+        assert len(np.unique(held)) == len(held), f"two robots drive to one goal at tick {k}: {row}"
+
+
+@pytest.mark.slow
+def test_two_lockstep_runs_of_a_picture_are_identical_under_load(tmp_path):
+    image = picture(tmp_path)  # agent hosts of 5 robots (each robot its own process: test_one_controller.py)
+    flags = ("--robots", "30", "--clock", "lockstep", "--seed", "2", "-k", "5")
+    quiet = run_scene(tmp_path, image, *flags, name="quiet")
+    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]  # both cores
+    try:
+        loaded = run_scene(tmp_path, image, *flags, name="loaded")
+    finally:
+        for p in busy:
+            p.kill()
+            p.wait(timeout=10)
+    assert not reap([p.pid for p in busy])
+    for metrics, traj in (quiet, loaded):
+        assert metrics["missed_ticks"] == 0 and metrics["converged"]
+        assert_one_to_one(traj)
+    (_, a), (_, b) = quiet, loaded
+    np.testing.assert_array_equal(a["t"], b["t"])
+    np.testing.assert_array_equal(a["pose"], b["pose"])
+    np.testing.assert_array_equal(a["assignment"], b["assignment"])
