@@ -22,6 +22,7 @@ import numpy as np
 
 from agent.core.params import RobotParams
 from agent.runtime import HostConfig
+from coordinator.resolved import save_resolved
 from coordinator.scene import Scene
 from transport.bus import Bus
 from transport.codec import Event
@@ -140,8 +141,8 @@ class Launcher:
         )
 
     def _scene_args(self) -> list[str]:
-        s = self.scene
-        return ["--scene", s.source, "--robots", str(s.robots), "--seed", str(s.seed), "--display", self.opt.display]
+        """The children read the scene and its goal sets from the run directory (saved once, here)."""
+        return ["--run-dir", str(self.run_dir.path), "--display", self.opt.display]
 
     @property
     def _agent_robots(self) -> list[int]:
@@ -331,6 +332,7 @@ class Launcher:
             self.client = client_of(settings)
         bus = Bus(settings, self.opt.display, name="launcher")
         self.world_exit = None
+        save_resolved(self.scene, self.run_dir.path, robot=self.params.to_dict())
         try:
             recorder = Recorder(
                 bus,
