@@ -188,7 +188,8 @@ def parse_scene(
     clock: str | None = None,
     duration: float | None = None,
 ) -> Scene:
-    """Read and validate a scene without making its goal sets (make_goal_sets does)."""
+    """Read and validate a scene without making its goal sets: an image scene's goal sets, and the
+    arena that holds them, come from make_goal_sets."""
     if Path(name_or_path).suffix.lower() in IMAGE_SUFFIXES:
         if not Path(name_or_path).is_file():
             raise SceneError(f"image {name_or_path} not found")
