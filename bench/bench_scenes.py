@@ -73,7 +73,7 @@ def _median(values: list[float]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.bench_scenes")
-    parser.add_argument("--scene", default="paper-sequence")
+    parser.add_argument("--scene", nargs="+", default=["paper-sequence"], help="scenes to time (start-up: the first)")
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--before", type=Path, help="a checkout of the code before the change, to time too")
     parser.add_argument("--no-startup", dest="startup", action="store_false", help="skip the start-up runs")
@@ -85,45 +85,52 @@ def main(argv: list[str] | None = None) -> int:
     from coordinator.resolved import save_resolved
     from coordinator.scene import load_scene
 
-    scene = load_scene(args.scene)
     rows: dict[str, list[dict]] = {}
     startup: dict[str, list[float | None]] = {}
     with tempfile.TemporaryDirectory() as tmp:
-        run_dir = Path(tmp) / "resolved"
-        run_dir.mkdir()
-        save_resolved(scene, run_dir)
-        parse = PARSE.format(scene=args.scene, robots=scene.robots, seed=scene.seed)
-        ways = {"each child runs the pipeline (this tree)": (REPO, parse)}
-        ways["each child reads the run directory (this tree)"] = (REPO, RESOLVED.format(run_dir=str(run_dir)))
-        if args.before is not None:
-            ways["each child runs the pipeline (--before tree)"] = (args.before, parse)
+        ways: dict[str, tuple[Path, str]] = {}
+        for name in args.scene:
+            scene = load_scene(name)
+            run_dir = Path(tmp) / f"resolved-{name}"
+            run_dir.mkdir()
+            save_resolved(scene, run_dir)
+            label = f"{name} ({scene.robots} robots, {len(scene.steps)} images)"
+            parse = PARSE.format(scene=name, robots=scene.robots, seed=scene.seed)
+            ways[f"{label}|each child runs the pipeline (this tree)"] = (REPO, parse)
+            ways[f"{label}|each child reads the run directory (this tree)"] = (
+                REPO,
+                RESOLVED.format(run_dir=str(run_dir)),
+            )
+            if args.before is not None:
+                ways[f"{label}|each child runs the pipeline (--before tree)"] = (args.before, parse)
         for _ in range(args.repeat):  # interleaved: the shared machine's load falls on every way alike
             for way, (tree, load) in ways.items():
                 for child, module in CHILDREN.items():
-                    rows.setdefault(f"{child}|{way}", []).append(child_load(tree, module, load))
+                    rows.setdefault(f"{way}|{child}", []).append(child_load(tree, module, load))
             if args.startup:
                 trees = {"this tree": REPO} | ({"--before tree": args.before} if args.before else {})
                 for name, tree in trees.items():
                     out = Path(tmp) / f"run-{name.strip('-').split()[0]}-{len(startup.get(name, []))}"
-                    startup.setdefault(name, []).append(first_tick(tree, args.scene, out))
+                    startup.setdefault(name, []).append(first_tick(tree, args.scene[0], out))
 
     lines = [
-        f"Scene {args.scene} ({scene.robots} robots, {len(scene.steps)} images); CPU and wall seconds of a fresh",
-        f"process from its start until it holds the scene (imports included), median of {args.repeat}, interleaved.",
+        "CPU and wall seconds of a fresh world / coordinator process from its start until it holds the",
+        f"scene (interpreter and imports included), median of {args.repeat}, interleaved.",
         "",
-        "| process | how it loads the scene | CPU s | wall s | OpenCV loaded | image pipeline loaded |",
-        "|---|---|---|---|---|---|",
+        "| scene | how it loads the scene | process | CPU s | wall s | OpenCV loaded | image pipeline loaded |",
+        "|---|---|---|---|---|---|---|",
     ]
     for key, samples in rows.items():
-        child, way = key.split("|")
+        label, way, child = key.split("|")
         lines.append(
-            f"| {child} | {way} | {_median([s['cpu'] for s in samples])} | {_median([s['wall'] for s in samples])} | "
+            f"| {label} | {way} | {child} | {_median([s['cpu'] for s in samples])} | "
+            f"{_median([s['wall'] for s in samples])} | "
             f"{'yes' if samples[0]['cv2'] else 'no'} | {'yes' if samples[0]['pipeline'] else 'no'} |"
         )
     if startup:
         lines += [
             "",
-            f"`pixelswarm run {args.scene} --clock lockstep --duration 1`: wall seconds to the first tick's",
+            f"`pixelswarm run {args.scene[0]} --clock lockstep --duration 1`: wall seconds to the first tick's",
             "progress line (each run; '-': the run never ticked).",
             "",
             "| code | seconds to the first tick |",
