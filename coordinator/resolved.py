@@ -87,7 +87,7 @@ def save_resolved(scene: Scene, folder: Path, robot: dict[str, Any] | None = Non
             for n in counts:
                 goals, colors = scene.image_goals.goal_set(k, n)
                 arrays[f"goals_{k}_{n}"], arrays[f"colors_{k}_{n}"] = np.asarray(goals), np.asarray(colors)
-        np.savez(folder / GOAL_SETS_FILE, **arrays)  # type: ignore[arg-type]  # numpy's stub takes no str keys
+        np.savez(folder / GOAL_SETS_FILE, **arrays)  # type: ignore[arg-type]  # numpy types **kwds as its allow_pickle
         image = {"arena": float(scene.image_goals.arena), "counts": counts, "file": GOAL_SETS_FILE}
     record = {
         "format": FORMAT,
@@ -148,13 +148,14 @@ def _scene_of(data: dict[str, Any]) -> Scene:
     goal_positions = np.array(
         [[np.nan if v is None else v for v in row] for row in data["goal_positions"]], float
     ).reshape(-1, 2)
+    xmin, ymin, xmax, ymax = (float(v) for v in data["arena"])
     return Scene(
         name=data["name"],
         robots=int(data["robots"]),
         robot=dict(data["robot"]),
         layout=dict(data["layout"]),
         goals=dict(data["goals"]),
-        arena=tuple(float(v) for v in data["arena"]),  # type: ignore[arg-type]  # four numbers, as written
+        arena=(xmin, ymin, xmax, ymax),
         obstacles=[[(float(x), float(y)) for x, y in o] for o in data["obstacles"]],
         events=list(data["events"]),
         clock=data["clock"],
@@ -211,17 +212,20 @@ def _step_of(data: dict[str, Any]) -> ImageStep:
         hold=float(data["hold"]),
         region_counts=None if counts is None else {int(k): int(v) for k, v in counts.items()},
         method=data["method"],
-        motion=None
-        if motion is None
-        else StepMotion(
-            tuple(motion["velocity"]),  # type: ignore[arg-type]  # a pair, as written
-            float(motion["angular_velocity"]),
-            tuple(motion["center"]),  # type: ignore[arg-type]
-            float(motion["expansion"]),
-            motion["expansion_kind"],
-        ),
+        motion=None if motion is None else _motion_of(motion),
         frame_period=float(data["frame_period"]),
         keyframe=data["keyframe"],
+    )
+
+
+def _motion_of(data: dict[str, Any]) -> StepMotion:
+    (vx, vy), (cx, cy) = data["velocity"], data["center"]
+    return StepMotion(
+        (float(vx), float(vy)),
+        float(data["angular_velocity"]),
+        (float(cx), float(cy)),
+        float(data["expansion"]),
+        data["expansion_kind"],
     )
 
 
