@@ -324,6 +324,7 @@ class Launcher:
 
     def _run(self) -> Path:
         wall0 = time.time()
+        save_resolved(self.scene, self.run_dir.path, robot=self.params.to_dict())  # the children read it
         if self.opt.connect:
             settings = ZenohSettings(mode="client", connect=list(self.opt.connect))
             self.client = settings
@@ -332,7 +333,6 @@ class Launcher:
             self.client = client_of(settings)
         bus = Bus(settings, self.opt.display, name="launcher")
         self.world_exit = None
-        save_resolved(self.scene, self.run_dir.path, robot=self.params.to_dict())
         try:
             recorder = Recorder(
                 bus,
