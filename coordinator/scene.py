@@ -1,7 +1,11 @@
 """Scenes: TOML files naming the robots, their layout and goals, the arena, obstacles, events and clock.
 
-A scene is data. ``load_scene`` validates everything a run needs before any process starts, and
-raises ``SceneError`` with one line saying what is wrong and how to fix it.
+A scene is data. Loading one has two parts: ``parse_scene`` reads and validates the file (its own
+checks, the robots, layout and events; no image work), and ``make_goal_sets`` runs the image pipeline
+for the scene's goal sets and the "auto" arena that holds them. ``load_scene`` does both, before any
+process starts, and raises ``SceneError`` with one line saying what is wrong and how to fix it. A run
+does this once: the launcher saves the result in the run directory (coordinator.resolved) and every
+process of the run reads it from there.
 
     name = "circle"
     robots = 20              # --robots overrides
@@ -31,16 +35,18 @@ import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from transport import epuck
 
 from .goals import IMAGE_SUFFIXES, GoalError
-from .keyframe_steps import FrameGoals, folder_table, parse_animation
 from .motion import check_window
 from .steps import ImageStep, StepGoals, parse_step
+
+if TYPE_CHECKING:
+    from .keyframe_steps import Animation, FrameGoals
 
 SCENE_DIR = Path(__file__).parent / "scenes"
 LAYOUTS = ("circle", "grid", "random", "rows", "blocks", "file", "list")
@@ -59,6 +65,26 @@ class Noise:
     tracking_xy: float = 0.002  # paper 7.1: localised with a precision of 2 mm ...
     tracking_theta_deg: float = 3.0  # ... and 3 degrees
     actuation: float = 0.02  # relative std of wheel-speed / velocity execution
+
+
+class GoalSource(Protocol):
+    """Every step's goal sets in one arena K_r: made by the image pipeline (StepGoals, FrameGoals) or
+    read from a run directory (coordinator.resolved.StoredGoals)."""
+
+    arena: float  # K_r, metres
+
+    def goal_set(self, step: int, n: int) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+@dataclass
+class GoalPlan:
+    """How an image scene's goal sets are made, as parsing found it (make_goal_sets follows it)."""
+
+    animation: Animation | None  # keyframes (coordinator.keyframe_steps), or None for [[steps]] / [goals]
+    labels: list[str] | None  # how errors name each step
+    counts_for: int  # the robot count the artist's region_counts were written for
+    arena: float | None  # K_r as the scene gives it ([goals] arena), None: the largest any step needs
+    arena_spec: Any = "auto"  # the scene's [arena]: "auto" or a table with size
 
 
 @dataclass
@@ -86,7 +112,8 @@ class Scene:
     goal_set: np.ndarray | None = None  # (N,2) goals the robots assign themselves to (image scenes): step 0's
     goal_colors: np.ndarray | None = None  # (N,3) uint8 LED colours of those goals
     steps: list[ImageStep] = field(default_factory=list)  # image scenes: the images in order, with hold times
-    image_goals: StepGoals | FrameGoals | None = field(default=None, repr=False)  # every step's goal sets, shared K_r
+    image_goals: GoalSource | None = field(default=None, repr=False)  # every step's goal sets, shared K_r
+    goal_plan: GoalPlan | None = field(default=None, repr=False)  # image scenes: how their goal sets are made
     poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # initial poses (N,3)
     goal_positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # per-robot goals (N,2), NaN: none
 
@@ -148,16 +175,29 @@ def load_scene(
     clock: str | None = None,
     duration: float | None = None,
 ) -> Scene:
-    """Read, complete and validate a scene; command-line overrides win over the file. An image file
-    is a scene too: its goals, a grid of robots."""
+    """Read, complete and validate a scene, with its goal sets; command-line overrides win over the
+    file. An image file is a scene too: its goals, a grid of robots."""
+    return make_goal_sets(parse_scene(name_or_path, robots=robots, seed=seed, clock=clock, duration=duration))
+
+
+def parse_scene(
+    name_or_path: str,
+    *,
+    robots: int | None = None,
+    seed: int | None = None,
+    clock: str | None = None,
+    duration: float | None = None,
+) -> Scene:
+    """Read and validate a scene without making its goal sets: an image scene's goal sets, and the
+    arena that holds them, come from make_goal_sets."""
     if Path(name_or_path).suffix.lower() in IMAGE_SUFFIXES:
         if not Path(name_or_path).is_file():
             raise SceneError(f"image {name_or_path} not found")
-        return scene_from_dict(
+        return parse_scene_dict(
             image_scene(name_or_path, robots or 14), source=name_or_path, seed=seed, clock=clock, duration=duration
         )
     if Path(name_or_path).is_dir():  # a folder of keyframes: an animation with the default timing
-        return scene_from_dict(
+        return parse_scene_dict(
             folder_scene(name_or_path, robots or 14), source=name_or_path, seed=seed, clock=clock, duration=duration
         )
     path = resolve_scene_path(name_or_path)
@@ -167,7 +207,7 @@ def load_scene(
         raise SceneError(f"{path}: not valid TOML: {err}") from None
     except OSError as err:
         raise SceneError(f"{path}: cannot read: {err.strerror}") from None
-    return scene_from_dict(data, source=str(path), robots=robots, seed=seed, clock=clock, duration=duration)
+    return parse_scene_dict(data, source=str(path), robots=robots, seed=seed, clock=clock, duration=duration)
 
 
 def scene_from_dict(
@@ -179,6 +219,22 @@ def scene_from_dict(
     clock: str | None = None,
     duration: float | None = None,
 ) -> Scene:
+    """A scene from its table (as the TOML file holds it), with its goal sets."""
+    scene = parse_scene_dict(data, source=source, robots=robots, seed=seed, clock=clock, duration=duration)
+    return make_goal_sets(scene)
+
+
+def parse_scene_dict(
+    data: dict[str, Any],
+    *,
+    source: str = "<dict>",
+    robots: int | None = None,
+    seed: int | None = None,
+    clock: str | None = None,
+    duration: float | None = None,
+) -> Scene:
+    """A scene from its table, validated, without its goal sets: no image is read or drawn but a
+    drawn animation's keyframes (make_goal_sets makes the goal sets and the arena that holds them)."""
     where = source
     known = {
         "name",
@@ -214,7 +270,7 @@ def scene_from_dict(
     radius = robot.get("radius", epuck.RADIUS)
     if not _positive(radius):
         raise SceneError(f"{where}: robot radius must be a positive number of metres, not {radius!r}")
-    animation = _wrap(lambda: parse_animation(data["animation"], source), where) if "animation" in data else None
+    animation = _parse_animation(data["animation"], source, where) if "animation" in data else None
     steps = list(animation.steps) if animation is not None else _steps(data, source, where)
     if animation is not None and ("steps" in data or "goals" in data):
         raise SceneError(f"{where}: give one of [animation], [[steps]] or [goals], not several")
@@ -261,27 +317,23 @@ def scene_from_dict(
         steps = [_wrap(lambda: parse_step(_image_step(scene.goals, scene.duration), "goals", source), where)]
     if steps:
         scene.steps = steps
-        labels = ["goals"] if "steps" not in data else None
         written_for = data.get("robots", n)  # region_counts were written for the file's count: --robots scales them
-        written_for = written_for if isinstance(written_for, int) and written_for >= 1 else n
-        if animation is not None:
-            scene.image_goals = _wrap(
-                lambda: FrameGoals(animation, n, scene.seed, float(radius), counts_for=written_for), where
-            )
-        else:
-            scene.image_goals = _wrap(
-                lambda: StepGoals(steps, n, scene.seed, float(radius), scene.goals.get("arena"), labels, written_for),
-                where,
-            )
+        k_r = scene.goals.get("arena")
+        scene.goal_plan = GoalPlan(
+            animation,
+            ["goals"] if "steps" not in data else None,
+            written_for if isinstance(written_for, int) and written_for >= 1 else n,
+            float(k_r) if k_r is not None else None,
+            data.get("arena", "auto"),
+        )
         for k, step in enumerate(steps):
             if step.motion is not None:
                 _wrap(lambda: check_window(step.motion, f"steps[{k}]", scene.step_window(k)), where)  # noqa: B023 (called at once)
-        scene.goal_set, scene.goal_colors = scene_goal_set(scene, 0, n)
         scene.goal_positions = np.full((n, 2), np.nan)
     else:
         scene.goal_positions = scene_goals(scene.goals, scene.poses, where)
-    scene.arena = _arena(data.get("arena", "auto"), scene, where)
-    _check_fit(scene, where)
+        scene.arena = _arena(data.get("arena", "auto"), scene, where)  # image scenes: make_goal_sets
+        _check_fit(scene, where)
     for event in scene.events:
         _check_event(event, scene, where)
     scene.scripted = {_robot_index(e, scene, where): _waypoints(e, where) for e in data.get("scripted", [])}
@@ -291,6 +343,45 @@ def scene_from_dict(
     for r in scene.scripted:
         scene.goal_positions[r] = np.nan  # a scripted robot follows its path, not a goal
     return scene
+
+
+def make_goal_sets(scene: Scene) -> Scene:
+    """An image scene's goal sets (the image pipeline: step 0's set for every robot, then the others
+    as asked) and the arena that holds them all, checked; other scenes are returned as they are."""
+    if scene.goal_plan is None or scene.image_goals is not None:
+        return scene
+    scene.image_goals = goal_pipeline(scene)
+    scene.goal_set, scene.goal_colors = scene_goal_set(scene, 0, scene.robots)
+    scene.arena = _arena(scene.goal_plan.arena_spec, scene, scene.source)
+    _check_fit(scene, scene.source)
+    return scene
+
+
+def goal_pipeline(scene: Scene, arena: float | None = None) -> StepGoals | FrameGoals:
+    """The image pipeline for a parsed image scene's goal sets, in arena K_r = ``arena`` (None: the
+    scene's own, or the largest any step needs)."""
+    plan = scene.goal_plan
+    if plan is None:
+        raise SceneError(f'{scene.name}: the scene shows no image (no [[steps]] or [goals] kind = "image")')
+    radius, where = scene.radius, scene.source
+    if plan.animation is not None:
+        from .keyframe_steps import FrameGoals
+
+        animation = plan.animation
+        return _wrap(
+            lambda: FrameGoals(animation, scene.robots, scene.seed, radius, arena, counts_for=plan.counts_for), where
+        )
+    k_r = arena if arena is not None else plan.arena
+    return _wrap(
+        lambda: StepGoals(scene.steps, scene.robots, scene.seed, radius, k_r, plan.labels, plan.counts_for), where
+    )
+
+
+def _parse_animation(table: Any, source: str, where: str) -> Animation:
+    from .keyframe_steps import parse_animation  # draws a drawn animation's keyframes (OpenCV)
+
+    animation: Animation = _wrap(lambda: parse_animation(table, source), where)
+    return animation
 
 
 # --- layouts -------------------------------------------------------------------------------------
@@ -427,6 +518,8 @@ def folder_scene(path: str, robots: int) -> dict[str, Any]:
     """The scene for `pixelswarm run folder/ --robots N`: a grid of e-pucks playing the folder's images
     as keyframes in file-name order, with coordinator.keyframe_steps' default timing (30 s to form the
     first keyframe, then one every 5 s, the last shown 5 s more)."""
+    from .keyframe_steps import folder_table
+
     return {
         "name": Path(path).resolve().name,
         "robots": robots,

@@ -27,6 +27,7 @@ from transport.codec import Goals, Pose, Tick
 from transport.session import TransportError, add_zenoh_args, settings_from_args
 
 from .keyframes import goal_matching
+from .resolved import load_resolved
 from .scene import Scene, SceneError, load_scene, scene_goal_set
 
 SETTLE_S = 0.5  # a change in the live robots must hold this long before a new goal set (debounce)
@@ -271,7 +272,9 @@ class Coordinator:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m coordinator.service")
-    parser.add_argument("--scene", required=True)
+    where = parser.add_mutually_exclusive_group(required=True)
+    where.add_argument("--run-dir", help="a run directory holding the resolved scene and its goal sets")
+    where.add_argument("--scene", help="a scene to load (its goal sets made here)")
     parser.add_argument("--robots", type=int)
     parser.add_argument("--seed", type=int)
     parser.add_argument("--display", default="default")
@@ -279,7 +282,10 @@ def main(argv: list[str] | None = None) -> int:
     add_zenoh_args(parser)
     args = parser.parse_args(argv)
     try:
-        scene = load_scene(args.scene, robots=args.robots, seed=args.seed)
+        if args.run_dir is not None:
+            scene = load_resolved(args.run_dir)
+        else:
+            scene = load_scene(args.scene, robots=args.robots, seed=args.seed)
         bus = Bus(settings_from_args(args), args.display, name="coordinator")
     except (SceneError, TransportError) as err:
         print(f"coordinator: error: {err}", file=sys.stderr)

@@ -11,7 +11,6 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 
-import cv2
 import numpy as np
 
 RGB = tuple[int, int, int]
@@ -183,6 +182,8 @@ def photo_like(size: int = 256, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     orange = np.array([235.0, 120.0, 30.0])
     img[body] = orange * shade[body, None]
     img[leaf & ~body] = np.array([50.0, 140.0, 45.0])
+    import cv2  # here only: the shapes' names are read by scene parsing, which needs no OpenCV
+
     img = cv2.GaussianBlur(img, (0, 0), 0.8)
     img = img + rng.normal(0.0, 9.0, img.shape)
     return np.clip(np.round(img), 0, 255).astype(np.uint8), body | leaf

@@ -20,13 +20,16 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .goals import GoalError, GoalSet, PreparedImage, goals_from_prepared, prepare_image
+from .goals import GoalError
 from .motion import StepMotion, parse_motion
 from .shapes import SHAPES, draw
+
+if TYPE_CHECKING:
+    from .goals import GoalSet, PreparedImage
 
 STEP_KEYS = ("name", "image", "shape", "hold", "region_counts", "method", "motion")
 METHODS = ("cvt", "kmeans")
@@ -162,6 +165,8 @@ class StepGoals:
         return shared
 
     def _generate(self, k: int, n: int, arena: float | None) -> GoalSet:
+        from .goals import goals_from_prepared, prepare_image  # the image pipeline: only where goals are made
+
         step = self.steps[k]
         try:
             if k not in self._prepared:  # background and regions once per image, for every count

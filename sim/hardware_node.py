@@ -27,6 +27,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from agent.core.params import DIFFDRIVE, RobotParams
+from coordinator.resolved import load_resolved
 from coordinator.scene import Scene, SceneError, load_scene
 from hardware.config import HardwareConfig, HardwareConfigError, load_hardware
 from hardware.poses import PoseSample
@@ -422,7 +423,9 @@ class HardwareNode:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m sim.hardware_node")
     parser.add_argument("--hardware", required=True, help="the hardware file (needs [backend] and [poses])")
-    parser.add_argument("--scene", required=True)
+    where = parser.add_mutually_exclusive_group(required=True)
+    where.add_argument("--run-dir", help="a run directory holding the resolved scene")
+    where.add_argument("--scene", help="a scene to load")
     parser.add_argument("--seed", type=int)
     parser.add_argument("--duration", type=float)
     parser.add_argument("--display", default="default")
@@ -435,11 +438,19 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def load_run(hardware: str, scene_name: str, seed: int | None, duration: float | None) -> tuple[HardwareConfig, Scene]:
-    """The hardware file and the scene it runs, checked: HardwareError, HardwareConfigError or SceneError."""
+def load_run(
+    hardware: str, scene_name: str, seed: int | None, duration: float | None, run_dir: str | None = None
+) -> tuple[HardwareConfig, Scene]:
+    """The hardware file and the scene it runs (from ``run_dir``, resolved, if given), checked:
+    HardwareError, HardwareConfigError or SceneError."""
     config = load_hardware(hardware)
     robots = check_runnable(config)
-    scene = load_scene(scene_name, robots=robots, seed=seed, clock="realtime", duration=duration)
+    if run_dir is not None:
+        scene = load_resolved(run_dir, clock="realtime", duration=duration)
+        if scene.robots != robots:
+            raise HardwareError(f"the run's scene has {scene.robots} robots, the hardware file {robots}")
+    else:
+        scene = load_scene(scene_name, robots=robots, seed=seed, clock="realtime", duration=duration)
     if RobotParams.from_dict(scene.robot).kinematics != DIFFDRIVE:
         raise HardwareError(f"scene {scene.name!r} is for holonomic robots; real robots need kinematics = 'diffdrive'")
     return config, scene
@@ -453,7 +464,7 @@ def _fail(message: str) -> int:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        config, scene = load_run(args.hardware, args.scene, args.seed, args.duration)
+        config, scene = load_run(args.hardware, args.scene, args.seed, args.duration, args.run_dir)
         settings = settings_from_args(args)
         bus = Bus(settings, args.display, seed=scene.seed, name="hardware")
     except (HardwareError, HardwareConfigError, SceneError, TransportError) as err:

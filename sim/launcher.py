@@ -22,6 +22,7 @@ import numpy as np
 
 from agent.core.params import RobotParams
 from agent.runtime import HostConfig
+from coordinator.resolved import save_resolved
 from coordinator.scene import Scene
 from transport.bus import Bus
 from transport.codec import Event
@@ -140,8 +141,8 @@ class Launcher:
         )
 
     def _scene_args(self) -> list[str]:
-        s = self.scene
-        return ["--scene", s.source, "--robots", str(s.robots), "--seed", str(s.seed), "--display", self.opt.display]
+        """The children read the scene and its goal sets from the run directory (saved once, here)."""
+        return ["--run-dir", str(self.run_dir.path), "--display", self.opt.display]
 
     @property
     def _agent_robots(self) -> list[int]:
@@ -324,6 +325,7 @@ class Launcher:
 
     def _run(self) -> Path:
         wall0 = time.time()
+        save_resolved(self.scene, self.run_dir.path, robot=self.params.to_dict())  # the children read it
         if self.opt.connect:
             settings = ZenohSettings(mode="client", connect=list(self.opt.connect))
             self.client = settings

@@ -9,6 +9,7 @@ from typing import Any, TypedDict
 import numpy as np
 
 from agent.core.params import RobotParams
+from coordinator.resolved import save_resolved
 from coordinator.scene import Scene
 
 from .metrics import clearance_over_time, summarise
@@ -99,17 +100,5 @@ def write_run(
                 )
             except RuntimeError as err:  # no encoder here: the run's data matter more than its video
                 print(f"pixelswarm: warning: no display.mp4: {err}", file=sys.stderr)
-    write_json(
-        run_dir / "scene.json",
-        {
-            "name": scene.name,
-            "source": scene.source,
-            "robots": n,
-            "seed": scene.seed,
-            "clock": scene.clock,
-            "arena": scene.arena,
-            "obstacles": scene.obstacles,
-            "robot": params.to_dict(),
-        },
-    )
+    save_resolved(scene, run_dir.path, robot=params.to_dict())  # scene.json, goal_sets.npz
     return run_dir.commit()

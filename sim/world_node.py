@@ -25,6 +25,7 @@ import time
 
 import numpy as np
 
+from coordinator.resolved import load_resolved
 from coordinator.scene import Scene, SceneError, load_scene
 from transport.bus import Bus
 from transport.codec import Contact as ContactMsg
@@ -306,7 +307,9 @@ def _finite_or_none(x: float) -> float | None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m sim.world_node")
-    parser.add_argument("--scene", required=True)
+    where = parser.add_mutually_exclusive_group(required=True)
+    where.add_argument("--run-dir", help="a run directory holding the resolved scene (no image pipeline)")
+    where.add_argument("--scene", help="a scene to load (with its goal sets: the image pipeline)")
     parser.add_argument("--robots", type=int)
     parser.add_argument("--seed", type=int)
     parser.add_argument("--clock", choices=["lockstep", "realtime"])
@@ -319,7 +322,10 @@ def main(argv: list[str] | None = None) -> int:
     add_zenoh_args(parser)
     args = parser.parse_args(argv)
     try:
-        scene = load_scene(args.scene, robots=args.robots, seed=args.seed, clock=args.clock, duration=args.duration)
+        if args.run_dir is not None:
+            scene = load_resolved(args.run_dir, clock=args.clock, duration=args.duration)
+        else:
+            scene = load_scene(args.scene, robots=args.robots, seed=args.seed, clock=args.clock, duration=args.duration)
         bus = Bus(
             settings_from_args(args), args.display, faults=parse_faults(args.faults), seed=scene.seed, name="world"
         )

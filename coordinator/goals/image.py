@@ -27,7 +27,6 @@ NAMED_COLORS = {
     "gray": (128, 128, 128),
     "grey": (128, 128, 128),
 }
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")  # the files load_image reads
 _MAGIC = (b"\x89PNG", b"\xff\xd8", b"BM", b"II*\x00", b"MM\x00*")
 BG_TOLERANCE = 12.0  # Delta E: colours closer than this to the background are background
 

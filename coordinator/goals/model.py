@@ -10,6 +10,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 FORMAT = "pixelswarm.goals/1"
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")  # the files load_image reads
 
 
 class GoalError(ValueError):

@@ -1,0 +1,235 @@
+"""A resolved scene: a scene with its goal sets made, saved in a run directory and read back.
+
+A run makes its goal sets once (the launcher, with the image pipeline) and saves them with the scene:
+
+    scene.json      the scene as run: robots, their start poses and goals, the arena (the "auto" one
+                    resolved), obstacles, events, steps and their timing, clock, noise, seed
+    goal_sets.npz   image scenes: every step's goal positions (n,2) and LED colours (n,3) for the run's
+                    robot counts, and the arena K_r they share
+
+The coordinator and the world read the scene from there (``load_resolved``): no TOML is parsed and no
+image is read, so the world never loads the image pipeline. Goal sets for a robot count the run did
+not save (robots lost, paper 5.1.2) are made when first asked for, in the same arena K_r, by the
+image pipeline from the scene's source: only the coordinator asks for those.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .goals import GoalError
+from .motion import StepMotion
+from .scene import GoalSource, Noise, Scene, SceneError, goal_pipeline, parse_scene
+from .steps import ImageStep
+
+SCENE_FILE = "scene.json"
+GOAL_SETS_FILE = "goal_sets.npz"
+FORMAT = "pixelswarm.scene/1"
+
+
+class StoredGoals:
+    """Goal sets read from a run directory (the GoalSource of a resolved scene). A count not stored is
+    made by ``make`` (the image pipeline in arena K_r) when first asked for."""
+
+    def __init__(
+        self,
+        arena: float,
+        sets: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]],
+        steps: int,
+        robots: int,
+        make: Callable[[], GoalSource],
+    ) -> None:
+        self.arena, self.steps, self.robots = arena, steps, robots
+        self._sets = {key: (_read_only(g, float), _read_only(c, np.uint8)) for key, (g, c) in sets.items()}
+        self._make = make
+        self._pipeline: GoalSource | None = None
+
+    @property
+    def counts(self) -> list[int]:
+        """The robot counts whose goal sets were stored."""
+        return sorted({n for _, n in self._sets})
+
+    def goal_set(self, step: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Goals (n,2) in metres (arena frame) and colours (n,3) uint8 of step ``step``."""
+        if not 0 <= step < self.steps:
+            raise GoalError(f"step {step} does not exist: the scene has steps 0..{self.steps - 1}")
+        if not 1 <= n <= self.robots:
+            raise GoalError(f"goal sets exist for 1..{self.robots} robots, not {n}")
+        if (step, n) not in self._sets:
+            if self._pipeline is None:
+                self._pipeline = self._make()
+            self._sets[(step, n)] = self._pipeline.goal_set(step, n)
+        return self._sets[(step, n)]
+
+
+def stored_counts(scene: Scene) -> list[int]:
+    """The robot counts a run saves goal sets for: every robot (the arena holds these) and the robot
+    pixels (the count the coordinator shows while none is lost)."""
+    return sorted({scene.robots, len(scene.pixel_robots)} - {0})
+
+
+def save_resolved(scene: Scene, folder: Path, robot: dict[str, Any] | None = None) -> None:
+    """Write scene.json and, for an image scene, goal_sets.npz into ``folder``. ``robot``: the robot
+    parameters to record (default: the scene's own [robot] table)."""
+    folder = Path(folder)
+    image = None
+    if scene.image_goals is not None:
+        counts = stored_counts(scene)
+        arrays: dict[str, np.ndarray] = {"arena": np.array(scene.image_goals.arena)}
+        for k in range(len(scene.steps)):
+            for n in counts:
+                goals, colors = scene.image_goals.goal_set(k, n)
+                arrays[f"goals_{k}_{n}"], arrays[f"colors_{k}_{n}"] = np.asarray(goals), np.asarray(colors)
+        np.savez(folder / GOAL_SETS_FILE, **arrays)  # type: ignore[arg-type]  # numpy types **kwds as its allow_pickle
+        image = {"arena": float(scene.image_goals.arena), "counts": counts, "file": GOAL_SETS_FILE}
+    record = {
+        "format": FORMAT,
+        "name": scene.name,
+        "source": scene.source,
+        "robots": scene.robots,
+        "seed": scene.seed,
+        "clock": scene.clock,
+        "engine": scene.engine,
+        "assignment": scene.assignment,
+        "agents_per_process": scene.agents_per_process,
+        "deadline": scene.deadline,
+        "duration": scene.duration,
+        "converge_hold": scene.converge_hold,
+        "arena": list(scene.arena),
+        "obstacles": [[list(v) for v in o] for o in scene.obstacles],
+        "robot": dict(scene.robot if robot is None else robot),
+        "layout": scene.layout,
+        "goals": scene.goals,
+        "events": scene.events,
+        "noise": dataclasses.asdict(scene.noise),
+        "scripted": {str(r): w.tolist() for r, w in scene.scripted.items()},
+        "pursuers": {str(r): t for r, t in scene.pursuers.items()},
+        "poses": scene.poses.tolist(),
+        "goal_positions": [[None if math.isnan(v) else float(v) for v in row] for row in scene.goal_positions],
+        "steps": [_step_record(s) for s in scene.steps],
+        "image_goals": image,
+    }
+    (folder / SCENE_FILE).write_text(json.dumps(record, indent=1, default=str) + "\n")
+
+
+def load_resolved(folder: Path | str, *, clock: str | None = None, duration: float | None = None) -> Scene:
+    """The scene a run directory holds, with its goal sets; ``clock`` and ``duration`` override it
+    (a hardware run keeps to the wall clock). SceneError (one line) if the folder holds none."""
+    path = Path(folder) / SCENE_FILE
+    try:
+        data = json.loads(path.read_text())
+    except OSError as err:
+        raise SceneError(f"{path}: cannot read: {err.strerror}") from None
+    except json.JSONDecodeError as err:
+        raise SceneError(f"{path}: not valid JSON: {err}") from None
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise SceneError(f"{path}: not a resolved scene ({FORMAT}): write it with `pixelswarm run`")
+    try:
+        scene = _scene_of(data)
+    except (KeyError, TypeError, ValueError) as err:
+        raise SceneError(f"{path}: incomplete resolved scene ({type(err).__name__}: {err})") from None
+    scene.clock = clock or scene.clock
+    scene.duration = float(duration) if duration is not None else scene.duration
+    image = data.get("image_goals")
+    if image is not None:
+        scene.image_goals = _stored_goals(Path(folder) / image["file"], scene, float(image["arena"]))
+        scene.goal_set, scene.goal_colors = scene.image_goals.goal_set(0, scene.robots)
+    return scene
+
+
+def _scene_of(data: dict[str, Any]) -> Scene:
+    goal_positions = np.array(
+        [[np.nan if v is None else v for v in row] for row in data["goal_positions"]], float
+    ).reshape(-1, 2)
+    xmin, ymin, xmax, ymax = (float(v) for v in data["arena"])
+    return Scene(
+        name=data["name"],
+        robots=int(data["robots"]),
+        robot=dict(data["robot"]),
+        layout=dict(data["layout"]),
+        goals=dict(data["goals"]),
+        arena=(xmin, ymin, xmax, ymax),
+        obstacles=[[(float(x), float(y)) for x, y in o] for o in data["obstacles"]],
+        events=list(data["events"]),
+        clock=data["clock"],
+        engine=data["engine"],
+        assignment=data["assignment"],
+        agents_per_process=int(data["agents_per_process"]),
+        deadline=float(data["deadline"]),
+        duration=float(data["duration"]),
+        seed=int(data["seed"]),
+        noise=Noise(**data["noise"]),
+        converge_hold=float(data["converge_hold"]),
+        source=data["source"],
+        scripted={int(r): np.array(w, float) for r, w in data["scripted"].items()},
+        pursuers={int(r): int(t) for r, t in data["pursuers"].items()},
+        steps=[_step_of(s) for s in data["steps"]],
+        poses=np.array(data["poses"], float).reshape(-1, 3),
+        goal_positions=goal_positions,
+    )
+
+
+def _stored_goals(path: Path, scene: Scene, arena: float) -> StoredGoals:
+    sets: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+    try:
+        with np.load(path) as npz:
+            for name in npz.files:
+                if name.startswith("goals_"):
+                    k, n = (int(v) for v in name.removeprefix("goals_").split("_"))
+                    sets[(k, n)] = (npz[name], npz[f"colors_{k}_{n}"])
+    except (OSError, ValueError, KeyError) as err:
+        raise SceneError(f"{path}: cannot read the run's goal sets: {err}") from None
+
+    def make() -> GoalSource:
+        """The image pipeline for the scene as the run parsed it, in the run's arena K_r."""
+        parsed = parse_scene(scene.source, robots=scene.robots, seed=scene.seed, duration=scene.duration)
+        return goal_pipeline(parsed, arena)
+
+    return StoredGoals(arena, sets, len(scene.steps), scene.robots, make)
+
+
+def _step_record(step: ImageStep) -> dict[str, Any]:
+    record = dataclasses.asdict(step)
+    record["image"] = None if step.image is None else str(step.image)
+    record["region_counts"] = None if step.region_counts is None else {str(k): v for k, v in step.region_counts.items()}
+    return record
+
+
+def _step_of(data: dict[str, Any]) -> ImageStep:
+    motion = data.get("motion")
+    counts = data.get("region_counts")
+    return ImageStep(
+        name=data["name"],
+        image=None if data["image"] is None else Path(data["image"]),
+        shape=data["shape"],
+        hold=float(data["hold"]),
+        region_counts=None if counts is None else {int(k): int(v) for k, v in counts.items()},
+        method=data["method"],
+        motion=None if motion is None else _motion_of(motion),
+        frame_period=float(data["frame_period"]),
+        keyframe=data["keyframe"],
+    )
+
+
+def _motion_of(data: dict[str, Any]) -> StepMotion:
+    (vx, vy), (cx, cy) = data["velocity"], data["center"]
+    return StepMotion(
+        (float(vx), float(vy)),
+        float(data["angular_velocity"]),
+        (float(cx), float(cy)),
+        float(data["expansion"]),
+        data["expansion_kind"],
+    )
+
+
+def _read_only(values: np.ndarray, dtype: Any) -> np.ndarray:
+    out = np.array(values, dtype)
+    out.setflags(write=False)  # shared by every caller, as the pipeline's own sets
+    return out
