@@ -36,12 +36,14 @@ lint: $(TSTAMP)
 	$(VENV)/bin/lint-imports
 	$(VENV)/bin/mypy
 
-test: lint
-	$(PY) -m pytest -q
+# The whole suite: the in-process tests on every core, then the end-to-end runs (marked slow) one at
+# a time, since each of them already keeps the cores busy with its own processes.
+test: test-fast
+	$(PY) -m pytest -q -m slow
 
 # Everyday work: the suite without the end-to-end runs marked slow.
 test-fast: lint
-	$(PY) -m pytest -q -m "not slow"
+	$(PY) -m pytest -q -m "not slow" -n auto
 
 bench: $(TSTAMP)
 	$(PY) -m bench.run_all
