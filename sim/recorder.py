@@ -171,7 +171,10 @@ class Recorder:
         until its next state: a row shows what every robot drove to at that tick, as the central
         engine records it, however its truth and the states crossed the bus."""
         r = s.robot
-        if r >= self.n or s.tick == Pose.BEFORE_START:  # a hello before the first tick: no goal yet
+        if r >= self.n:
+            return
+        if s.tick == Pose.BEFORE_START:  # a hello before the first tick: its size, no goal yet
+            self.radius[r] = s.radius if np.isnan(self.radius[r]) else self.radius[r]
             return
         goal = (s.goal_x, s.goal_y) if s.flags & State.HAS_GOAL else (np.nan, np.nan)
         said = (goal, s.goal_index, s.assign_epoch, s.assign_instance)
