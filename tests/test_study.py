@@ -170,9 +170,13 @@ def test_a_failed_run_is_recorded_and_the_study_goes_on(tmp_path):
     rows = read_csv(tmp_path / "out" / "runs.csv")
     assert [(r["id"], r["status"]) for r in rows] == [("base_seed-1", "failed"), ("base_seed-2", "failed")]
     for row in rows:
-        assert "fail events" in row["error"]
+        assert "fail and tracker-outage events" in row["error"]
         record = json.loads((tmp_path / "out" / "records" / f"{row['id']}.json").read_text())
-        assert record["status"] == "failed" and record["returncode"] == 2 and "fail events" in record["error"]
+        assert (
+            record["status"] == "failed"
+            and record["returncode"] == 2
+            and "need the distributed engine" in record["error"]
+        )
     assert "Failed runs" in (tmp_path / "out" / "report.html").read_text()
 
 
