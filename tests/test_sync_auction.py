@@ -23,6 +23,7 @@ from transport.codec import Goals
 from transport.session import client_of, loopback_router, open_session
 
 from .conftest import reap, run_scene
+from .test_one_controller import picture
 
 EPS, HYSTERESIS = 1e-3, 5e-3  # epsilon_A and Delta C, m^2 (agent.core.params defaults)
 
@@ -109,18 +110,6 @@ def test_two_hosts_settle_a_block_over_the_bus_at_the_same_round():
     finally:
         session.close()
     assert told == {0: {0: int(expected[0]), 1: int(expected[1])}, 2: {2: int(expected[2]), 3: int(expected[3])}}
-
-
-def picture(tmp_path) -> str:
-    """A picture of two shapes (a disk and a bar), drawn here."""
-    import cv2
-
-    image = np.full((120, 160, 3), 255, np.uint8)
-    cv2.circle(image, (55, 60), 35, (0, 0, 200), -1)
-    cv2.rectangle(image, (100, 25), (145, 95), (200, 0, 0), -1)
-    path = tmp_path / "picture.png"
-    cv2.imwrite(str(path), image)
-    return str(path)
 
 
 def assert_one_to_one(traj: dict) -> None:
