@@ -14,6 +14,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
@@ -424,13 +425,21 @@ class Launcher:
         args = self._scene_args() + ["--hardware", str(self.opt.hardware), "--duration", str(self.scene.duration)]
         args += ["--pose-frames"] if self._frames else []
         child = self._spawn("world", "sim.hardware_node", args, [], self._as("world"))
-        try:
-            self._wait_alive(rec, "world", 1, child)
-        except RuntimeError:
+
+        def refusal() -> str | None:
             lines = child.log.read_text().splitlines() if child.log.exists() else []
-            refusal = next((ln for ln in reversed(lines) if ln.startswith(HARDWARE_ERROR)), None)
-            if refusal is not None:
-                raise HardwareStartError(refusal.removeprefix(HARDWARE_ERROR)) from None
+            return next(
+                (ln.removeprefix(HARDWARE_ERROR) for ln in reversed(lines) if ln.startswith(HARDWARE_ERROR)), None
+            )
+
+        try:
+            # The node's refusal counts as soon as it is written: closing its links to the robots
+            # can take a while, and the run is refused whatever it does after.
+            self._wait_alive(rec, "world", 1, child, gave_up=refusal)
+        except RuntimeError:
+            said = refusal()
+            if said is not None:
+                raise HardwareStartError(said) from None
             raise
 
     def _embedded_router(self) -> ZenohSettings:
@@ -444,14 +453,23 @@ class Launcher:
         launcher's own session, the router's, is outside the rules: it records and ends the run."""
         return None if self.opt.secure is None else client_config(self.opt.secure, role, self.client.connect)
 
-    def _wait_alive(self, rec: Recorder, role: str, count: int, child: Child) -> None:
+    def _wait_alive(
+        self, rec: Recorder, role: str, count: int, child: Child, gave_up: Callable[[], str | None] | None = None
+    ) -> None:
+        """Until ``count`` processes of ``role`` are alive; RuntimeError if ``child`` exits first or
+        (``gave_up``, checked every 0.2 s) says why it will not come."""
         start = time.monotonic()
+        checked = start
         seen: set[str] = set()
         while len(seen) < count:
             rec.poll()
             seen |= {e["id"] for e in rec.liveliness if e["role"] == role and e["alive"]}
             if child.proc.poll() is not None:
                 raise RuntimeError(f"{child.name} exited with code {child.proc.returncode}: see {child.log}")
+            if gave_up is not None and time.monotonic() - checked >= 0.2:
+                checked = time.monotonic()
+                if gave_up() is not None:
+                    raise RuntimeError(f"{child.name} gave up: see {child.log}")
             if self.stop_signal is not None:
                 raise Interrupted()
             if time.monotonic() - start > self.opt.startup_timeout:
