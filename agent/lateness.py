@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from collections import deque
 
-WINDOW = 50  # ticks over which the quickest pose is remembered (5 s at 10 Hz): a loaded spell ages out
+WINDOW = 50  # ticks over which the quickest pose is remembered, so that a loaded spell ages out
 
 
 class Lateness:
