@@ -45,6 +45,19 @@ def run_scene(tmp_path: Path, scene: str, *extra: str, name: str = "run", timeou
     return json.loads((out / "metrics.json").read_text()), dict(np.load(out / "trajectory.npz"))
 
 
+def start_run(spawned: list, scene: Path | str, out: Path, *extra: str) -> subprocess.Popen:
+    """`pixelswarm run` of a scene in the background, without video; ``spawned`` reaps it."""
+    proc = subprocess.Popen(
+        pixelswarm_cmd("run", str(scene), "--out", str(out), "--no-video", "-q", *extra),
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    spawned.append(proc)
+    return proc
+
+
 def descendants(pid: int) -> list[psutil.Process]:
     try:
         return psutil.Process(pid).children(recursive=True)

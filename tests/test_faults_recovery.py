@@ -17,7 +17,7 @@ from sim.mcaplog import McapLog, read_mcap
 from sim.ticklog import TICKS_FILE, TickLog, read_ticks
 from transport.session import free_port
 
-from .conftest import REPO, descendants, pixelswarm_cmd, reap, wait_for
+from .conftest import REPO, descendants, pixelswarm_cmd, reap, start_run, wait_for
 
 DISK = """
 name = "faults"
@@ -45,18 +45,6 @@ def write_disk(tmp_path: Path, robots: int = 10, clock: str = "lockstep", hold: 
     )
     path.write_text(text)
     return path
-
-
-def start(spawned: list, scene: Path, out: Path, *extra: str) -> subprocess.Popen:
-    proc = subprocess.Popen(
-        pixelswarm_cmd("run", str(scene), "--out", str(out), "--no-video", "-q", *extra),
-        cwd=REPO,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    spawned.append(proc)
-    return proc
 
 
 def ticks_so_far(out: Path) -> int:
@@ -127,7 +115,7 @@ def test_an_mcap_log_never_closed_reads_up_to_its_last_flush(tmp_path):
 def test_sigkill_of_the_launcher_leaves_no_process_and_a_readable_partial_run(tmp_path, spawned):
     scene = write_disk(tmp_path, hold=120.0)
     out = tmp_path / "run"
-    proc = start(spawned, scene, out)
+    proc = start_run(spawned, scene, out)
     assert wait_for(lambda: ticks_so_far(out) >= 30, timeout=120), proc.stderr.read() if proc.poll() else ""
     everyone = [p.pid for p in descendants(proc.pid)]
     assert len(everyone) >= 12  # coordinator, world, 10 agents
@@ -204,7 +192,7 @@ def test_a_killed_coordinator_is_restarted_and_goes_on_with_the_show(tmp_path, s
     scene = tmp_path / "three.toml"
     scene.write_text(THREE_STEPS)
     out = tmp_path / "run"
-    proc = start(spawned, scene, out)
+    proc = start_run(spawned, scene, out)
     # into the second image: a coordinator takes seconds to start on a loaded machine, and a lock-step
     # display does not wait for it (the robots hold the image they have meanwhile)
     assert wait_for(lambda: ticks_so_far(out) >= 120, timeout=120)
@@ -232,7 +220,7 @@ def test_robots_stop_during_a_tracker_outage_and_resume(tmp_path, spawned):
     events = f'[[events]]\nkind = "tracker-outage"\nt = {OUTAGE_AT}\nduration = {OUTAGE}'
     scene = write_disk(tmp_path, hold=30.0, converge_hold=2.0, events=events)
     out = tmp_path / "run"
-    m, traj = finish(start(spawned, scene, out), out)
+    m, traj = finish(start_run(spawned, scene, out), out)
     assert m["contacts"] == 0
     assert m["withheld_ticks"] == round(OUTAGE / 0.1)
     t, pose, velocity = traj["t"], traj["pose"][:, :, :2], traj["velocity"]
@@ -255,7 +243,7 @@ def test_an_agent_killed_and_started_again_rejoins_the_auction_and_the_show(tmp_
     # real time: a lock-step agent greets its first neighbours before it says it is alive (start-up only)
     scene = write_disk(tmp_path, clock="realtime", hold=25.0)  # to the end: the nine form before it is back
     out = tmp_path / "run"
-    proc = start(spawned, scene, out)
+    proc = start_run(spawned, scene, out)
     assert wait_for(lambda: ticks_so_far(out) >= 30, timeout=120)
     victim = next(p for p in descendants(proc.pid) if "agent" in p.cmdline() and "agents-0004.json" in str(p.cmdline()))
     command = victim.cmdline()
@@ -285,7 +273,7 @@ def test_a_tenth_of_the_agents_killed_at_once_and_the_rest_form_the_image_for_th
         tmp_path, hold=30.0, converge_hold=6.0, events=f'[[events]]\nkind = "fail"\nt = {KILL_AT}\nrobot = 6'
     )
     out = tmp_path / "run"
-    m, traj = finish(start(spawned, scene, out), out)
+    m, traj = finish(start_run(spawned, scene, out), out)
     assert m["contacts"] == 0 and len(m["agents_failed_by_scene"]) == 1
     survivors = np.flatnonzero(np.arange(10) != 6)
     assert traj["goal_set_robots"][-1].tolist() == [r != 6 for r in range(10)]  # paper 5.1.2: the set for nine
@@ -315,7 +303,7 @@ def test_a_router_killed_and_restarted_every_component_reconnects_and_the_show_c
     # real time: the world goes on while the router is gone (a lock-step world would wait for it)
     scene = write_disk(tmp_path, clock="realtime", hold=20.0)
     out = tmp_path / "run"
-    proc = start(spawned, scene, out, "-e", endpoint)
+    proc = start_run(spawned, scene, out, "-e", endpoint)
     assert wait_for(lambda: driving(out) >= 3, timeout=120)  # on their way to the disk
     first.send_signal(signal.SIGKILL)
     first.wait(timeout=10)
@@ -347,7 +335,7 @@ def test_a_router_killed_and_restarted_every_component_reconnects_and_the_show_c
 def test_a_world_that_dies_ends_the_run_marked_incomplete(tmp_path, spawned):
     scene = write_disk(tmp_path, hold=60.0)
     out = tmp_path / "run"
-    proc = start(spawned, scene, out)
+    proc = start_run(spawned, scene, out)
     assert wait_for(lambda: ticks_so_far(out) >= 20, timeout=120)
     everyone = [p.pid for p in descendants(proc.pid)]
     world = process_of(proc, "sim.world_node")

@@ -16,7 +16,7 @@ from transport.bus import Bus
 from transport.codec import VERSION, Pose
 from transport.session import ZenohSettings, free_port
 
-from .conftest import REPO, agent_processes, descendants, pixelswarm_cmd, reap, run_pixelswarm, wait_for
+from .conftest import REPO, agent_processes, descendants, pixelswarm_cmd, reap, run_pixelswarm, start_run, wait_for
 
 SCENE = """
 name = "small"
@@ -44,16 +44,11 @@ def metrics(run: Path) -> dict:
     return json.loads((run / "metrics.json").read_text())
 
 
-def start_run(spawned: list, scene: Path, out: Path, *extra: str) -> tuple[subprocess.Popen, list[psutil.Process]]:
+def start_run_with_agents(
+    spawned: list, scene: Path, out: Path, *extra: str
+) -> tuple[subprocess.Popen, list[psutil.Process]]:
     """`pixelswarm run` in the background; returns it once its 8 agent processes are up."""
-    proc = subprocess.Popen(
-        pixelswarm_cmd("run", str(scene), "--out", str(out), "--no-video", "-q", *extra),
-        cwd=REPO,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    spawned.append(proc)
+    proc = start_run(spawned, scene, out, *extra)
     agents = wait_for(lambda: len(agent_processes(proc.pid)) == 8 and agent_processes(proc.pid), timeout=60)
     return proc, agents or []
 
@@ -84,7 +79,7 @@ def robots_of(agent: psutil.Process) -> list[int]:
 def test_each_robot_is_its_own_process_and_commands_cross_the_router(tmp_path, spawned):
     scene = write_scene(tmp_path, duration=8.0)
     out = tmp_path / "run"
-    proc, agents = start_run(spawned, scene, out)
+    proc, agents = start_run_with_agents(spawned, scene, out)
     assert len(agents) == 8
     robots = {p.pid: robots_of(p) for p in agents}
     assert sorted(r for rs in robots.values() for r in rs) == list(range(8))
@@ -134,7 +129,7 @@ def test_sigkill_of_an_agent(tmp_path, spawned):
     scene = write_scene(tmp_path, duration=10.0)
     out = tmp_path / "run"
     # Real time: in lock-step 8 robots can finish their 10 s of display before the kill lands
-    proc, agents = start_run(spawned, scene, out, "--clock", "realtime")
+    proc, agents = start_run_with_agents(spawned, scene, out, "--clock", "realtime")
     everyone = [p.pid for p in descendants(proc.pid)]
     victim = agents[3]
     robot = robots_of(victim)[0]
@@ -162,7 +157,7 @@ def test_sigkill_of_an_agent(tmp_path, spawned):
 def test_stopping_the_launcher_leaves_no_process(tmp_path, spawned, sig):
     scene = write_scene(tmp_path, duration=60.0)
     out = tmp_path / "run"
-    proc, agents = start_run(spawned, scene, out)
+    proc, agents = start_run_with_agents(spawned, scene, out)
     assert len(agents) == 8
     time.sleep(1.0)
     everyone = [p.pid for p in descendants(proc.pid)]
@@ -183,7 +178,7 @@ def test_malformed_messages_on_every_key_are_dropped(tmp_path, spawned):
     scene = write_scene(tmp_path, duration=6.0)
     out = tmp_path / "run"
     port = free_port()
-    proc, agents = start_run(spawned, scene, out, "-l", f"tcp/127.0.0.1:{port}")
+    proc, agents = start_run_with_agents(spawned, scene, out, "-l", f"tcp/127.0.0.1:{port}")
     assert len(agents) == 8
     rng = np.random.default_rng(0)
     good = Pose(0, 1, 0.1, 0.0, 0.0, 0.0).encode()
