@@ -68,6 +68,21 @@ def _as_list(value: Any) -> Any:
     raise TypeError(f"cannot log a {type(value).__name__} as JSON")
 
 
+def display_converged(
+    pose: np.ndarray, goal: np.ndarray, assign_epoch: np.ndarray, alive: np.ndarray, newest: Goals | None, tolerance: float
+) -> bool:
+    """Every live robot within ``tolerance`` of its goal. Image scenes: only goals agreed on the
+    newest goal set count (not the last image's), and a goal set that still holds a dead robot is
+    not yet the display for the robots left (paper 5.1.2)."""
+    err = np.hypot(*(pose[alive, :2] - goal[alive]).T)
+    if not (np.all(np.isfinite(err)) and np.all(err <= tolerance)):
+        return False
+    if newest is None:
+        return True
+    members = newest.robots[newest.robots < len(alive)]
+    return bool(np.all(assign_epoch[alive] == newest.epoch) and np.all(alive[members]))
+
+
 @dataclass
 class Trajectory:
     """Per-tick arrays, grown as truth messages arrive."""
@@ -244,13 +259,10 @@ class Recorder:
 
     def _check_converged(self, t: float, pose: np.ndarray) -> None:
         """Converged: every live robot has a goal and is within tolerance of it (true position)."""
-        live = self.agent_alive
-        if not live.any():
+        if not self.agent_alive.any():
             return
-        err = np.hypot(*(pose[live, :2] - self.goal[live]).T)
-        # Image scenes: only goals agreed on the newest goal set count (not the last image's).
-        current = not self.goal_sets or bool(np.all(self.assign_epoch[live] == max(self.goal_sets)))
-        if current and np.all(np.isfinite(err)) and np.all(err <= self.tolerance):
+        newest = self.goal_sets[max(self.goal_sets)] if self.goal_sets else None
+        if display_converged(pose, self.goal, self.assign_epoch, self.agent_alive, newest, self.tolerance):
             if self.converged_since is None:
                 self.converged_since = t
                 self.time_to_converge = t
