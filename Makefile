@@ -36,10 +36,11 @@ lint: $(TSTAMP)
 	$(VENV)/bin/lint-imports
 	$(VENV)/bin/mypy
 
-# The whole suite: the in-process tests on every core, then the end-to-end runs (marked slow) one at
-# a time, since each of them already keeps the cores busy with its own processes.
+# The whole suite: the in-process tests, then the end-to-end runs (marked slow) on every core, then
+# the runs on the wall clock one at a time (another run beside them would make their robots late).
 test: test-fast
-	$(PY) -m pytest -q -m slow
+	$(PY) -m pytest -q -m "slow and not wallclock" -n auto
+	$(PY) -m pytest -q -m "slow and wallclock"
 
 # Everyday work: the suite without the end-to-end runs marked slow.
 test-fast: lint

@@ -1,6 +1,7 @@
-"""`make run` as a newcomer types it: the paper's sequence (Fig. 12) by 14 e-puck processes deciding
-among themselves who goes where, and a complete run directory. Also the issue 5 end-to-end check of
-the paper sequence: every hold formed, zero contacts, agreed assignments valid and optimal."""
+"""`make run` as a newcomer types it: a paper image (Fig. 12's disk) by 14 e-puck processes deciding
+among themselves who goes where, and a complete run directory. `make run` shows the whole sequence
+by default; the sequence end to end (every hold formed, agreements valid and optimal) is checked in
+test_image_display_distributed.py, in agent hosts beside the central engine."""
 
 from __future__ import annotations
 
@@ -19,16 +20,39 @@ from .test_image_display_distributed import assert_agreements_valid, assert_ever
 pytestmark = pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
 
 
+PAPER_DISK = """
+name = "paper-disk"
+robots = 14
+seed = 1
+clock = "lockstep"
+[robot]
+kinematics = "diffdrive"
+[layout]
+kind = "grid"
+spacing = 0.2
+[[steps]]
+shape = "disk"
+hold = 30.0
+[end]
+converge_hold = 3.0
+"""
+
+
 @pytest.mark.slow
-@pytest.mark.timeout(900)  # six 30 s holds in lock-step, plus the video: minutes on 2 busy cores
+@pytest.mark.timeout(600)
 def test_make_run_writes_a_complete_run_directory(tmp_path):
-    out = tmp_path / "run"
+    scene, out = tmp_path / "paper-disk.toml", tmp_path / "run"
+    scene.write_text(PAPER_DISK)
     result = subprocess.run(
-        ["make", "-s", "run", f"RUN_ARGS=--out {out}"], cwd=REPO, capture_output=True, text=True, timeout=900
+        ["make", "-s", "run", f"SCENE={scene}", f"RUN_ARGS=--out {out}"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=600,
     )
     assert result.returncode == 0, result.stderr[-2000:]
     assert result.stdout.strip().splitlines()[-1] == str(out)
-    assert "[paper-sequence] 14 robots" in result.stderr  # progress output
+    assert "[paper-disk] 14 robots" in result.stderr  # progress output
 
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["robots"] == 14 and metrics["agent_processes"] == 14
@@ -73,11 +97,9 @@ def test_make_run_writes_a_complete_run_directory(tmp_path):
     for plot in ["clearance.png", "trajectories.png"]:
         assert (out / plot).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
-    # Issue 5, end to end: the six images formed in turn, each within 1 cm by the end of its hold
-    assert [s["index"] for s in metrics["steps"]] == list(range(6))
+    assert metrics["end_reason"] == "converged"
     assert_every_hold_formed(metrics)
-    gaps = assert_agreements_valid(dict(traj), min_complete=200)
-    assert np.mean(gaps <= 1e-9) >= 0.99  # at epsilon_A = 0.001 m^2 the agreed assignment is the optimum
+    assert_agreements_valid(dict(traj))
     # the LEDs show the goals' colours: at the end every robot lights its agreed goal's colour
     last = len(traj["t"]) - 1
     row = list(traj["goal_set_epochs"]).index(int(traj["assignment_epoch"][last, 0]))
