@@ -37,12 +37,12 @@ checked against the optimum plus the penalties in force.
 
 from __future__ import annotations
 
-import hashlib
 from collections.abc import Mapping
 
 import numpy as np
 
 from .auction import NO_OWNER, ROUNDING, epsilon_schedule, is_content
+from .neighbours import splitmix64
 
 CONTENT = 1  # record flag: the robot holds the goal and is content with it
 RELEASED = 2  # record flag: the robot gave the goal up at this price
@@ -203,11 +203,13 @@ class Board:
         return (goal >= 0) & (self.owner[safe] == robot) & ~self.released[safe]
 
     def digest(self) -> int:
+        """64 bits that tell boards apart: each word of (price, owner, released) hashed with its
+        place, XOR-folded (numpy only: hashlib would load OpenSSL into every agent process)."""
         if self._digest is None or self._digest[0] != self.version:
-            h = hashlib.blake2b(digest_size=8)
-            for a in (self.price, self.owner, self.released):
-                h.update(a.tobytes())
-            self._digest = (self.version, int.from_bytes(h.digest(), "little"))
+            words = np.concatenate([self.price.view(np.uint64), self.owner.view(np.uint64), self.released])
+            place = splitmix64(np.arange(len(words), dtype=np.uint64))
+            folded = np.bitwise_xor.reduce(splitmix64(words.astype(np.uint64) ^ place), initial=np.uint64(0))
+            self._digest = (self.version, int(folded))
         return self._digest[1]
 
 
