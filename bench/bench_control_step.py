@@ -66,16 +66,18 @@ def bench_args(kinematics: str, batch: int) -> tuple:
     )
 
 
-def per_robot_ms(step: ModuleType, args: tuple, repeat: int) -> float:
-    """Best of three: mean ms per robot of ``repeat`` calls of ``step.control_step``."""
-    batch = len(args[1])
-    step.control_step(*args)
-    best = np.inf
-    for _ in range(3):
-        t = time.perf_counter()
-        for _ in range(repeat):
-            step.control_step(*args)
-        best = min(best, (time.perf_counter() - t) / repeat / batch * 1000)
+def per_robot_ms(steps: list[tuple[ModuleType, tuple]], repeat: int, rounds: int = 5) -> list[float]:
+    """Best over ``rounds`` of the mean ms per robot of ``repeat`` calls of each ``step.control_step``
+    on its arguments; the steps take turns in every round (a loaded machine slows them alike)."""
+    best = [np.inf] * len(steps)
+    for step, args in steps:
+        step.control_step(*args)
+    for _ in range(rounds):
+        for k, (step, args) in enumerate(steps):
+            t = time.perf_counter()
+            for _ in range(repeat):
+                step.control_step(*args)
+            best[k] = min(best[k], (time.perf_counter() - t) / repeat / len(args[1]) * 1000)
     return best
 
 
@@ -245,14 +247,15 @@ def _timings(before: ModuleType | None) -> list[str]:
             "|---|---|---|---|---|",
         ]
     for kin in [HOLONOMIC, DIFFDRIVE]:
-        for batch, repeat in [(1, 200), (250, 5)]:
+        for batch, repeat in [(1, 100), (250, 2)]:
             args = bench_args(kin, batch)
-            ms = per_robot_ms(current_step, args, repeat)
             if before is None:
+                (ms,) = per_robot_ms([(current_step, args)], repeat)
                 rows.append(f"| {kin} | {batch} | {ms:.3f} |")
             else:
                 old_params = importlib.import_module(before.__name__.rsplit(".", 1)[0] + ".params")
-                old = per_robot_ms(before, (old_params.RobotParams(kinematics=kin), *args[1:]), repeat)
+                old_args = (old_params.RobotParams(kinematics=kin), *args[1:])
+                ms, old = per_robot_ms([(current_step, args), (before, old_args)], repeat)
                 rows.append(f"| {kin} | {batch} | {ms:.3f} | {old:.3f} | {old / ms:.1f}x |")
             print(rows[-1], flush=True)
     return rows

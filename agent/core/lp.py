@@ -18,9 +18,17 @@ Vectorised across robots with numpy, looping in Python over the line index only.
 Determinism: only elementwise + - * / sqrt and comparisons, and min/max/any along the line axis, never
 a reduction across robots, so a robot's result is bit-identical whether it is solved alone or in a
 batch (padded lines being invalid).
+
+A batch of one robot (an agent process) takes plain-Python twins of `optimise` and `optimise_few`
+(numpy's per-call overhead dominates on arrays of one): the same IEEE double operations in the same
+order on Python floats. Where the twins could disagree with numpy they hand over to it: inputs not
+finite or huge (no overflow, hence no NaN, can then occur), and a minimum or maximum between +0 and
+-0 (which one numpy keeps is its own choice).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -61,6 +69,139 @@ def _on_line(pix, piy, dix, diy, px, py, dx, dy, valid, radius, tx, ty, directio
     return pix + t_best * dix, piy + t_best * diy, ok
 
 
+class _Tie(Exception):
+    """A plain-Python twin met a case where it might not give numpy's bits: numpy decides."""
+
+
+# Inputs of a plain-Python twin are at most this large: every intermediate then stays finite.
+_PLAIN_LIMIT = 1e50
+
+
+def _plain(*values: list[float]) -> bool:
+    """All values finite and at most _PLAIN_LIMIT in magnitude."""
+    return all(not v or max(map(abs, v)) < _PLAIN_LIMIT for v in values)
+
+
+def _zeros_differ(a: float, b: float) -> bool:
+    """a and b are +0 and -0: equal, but which one numpy's min or max keeps is numpy's choice."""
+    return a == 0.0 and b == 0.0 and math.copysign(1.0, a) != math.copysign(1.0, b)
+
+
+def _on_line_one(pix, piy, dix, diy, px, py, dx, dy, valid, n, radius, tx, ty, directional):
+    """`_on_line` for one robot on Python floats, line i clipped by the disk and lines 0..n-1."""
+    dot = pix * dix + piy * diy
+    disc = dot * dot + radius * radius - (pix * pix + piy * piy)
+    ok = disc >= 0.0
+    sq = math.sqrt(disc) if disc > 0.0 else 0.0  # disc is never -0: a sum of squares minus one
+    t_left = -dot - sq
+    t_right = -dot + sq
+    if n:
+        right, left = math.inf, -math.inf
+        for j in range(n):
+            if not valid[j]:
+                continue
+            den = dix * dy[j] - diy * dx[j]
+            num = dx[j] * (piy - py[j]) - dy[j] * (pix - px[j])
+            if abs(den) <= EPSILON:
+                if num < 0.0:
+                    ok = False
+                continue
+            t = num / den
+            if den > 0.0:
+                if t < right:
+                    right = t
+                elif _zeros_differ(t, right):
+                    raise _Tie
+            elif t > left:
+                left = t
+            elif _zeros_differ(t, left):
+                raise _Tie
+        if right < t_right:
+            t_right = right
+        elif _zeros_differ(right, t_right):
+            raise _Tie
+        if left > t_left:
+            t_left = left
+        elif _zeros_differ(left, t_left):
+            raise _Tie
+        ok = ok and t_left <= t_right
+    if directional:
+        t_best = t_right if tx * dix + ty * diy > 0.0 else t_left
+    else:
+        t_best = dix * (tx - pix) + diy * (ty - piy)
+        if t_best <= t_left:
+            if _zeros_differ(t_best, t_left):
+                raise _Tie
+            t_best = t_left
+        if t_best >= t_right:
+            if _zeros_differ(t_best, t_right):
+                raise _Tie
+            t_best = t_right
+    return pix + t_best * dix, piy + t_best * diy, ok
+
+
+def _disk_optimum_one(tx: float, ty: float, radius: float, directional: bool) -> tuple[float, float]:
+    """`_disk_optimum` on Python floats."""
+    if directional:
+        return tx * radius, ty * radius
+    n2 = tx * tx + ty * ty
+    scale = radius / math.sqrt(n2) if n2 > radius * radius else 1.0
+    return tx * scale, ty * scale
+
+
+def _lines_one(point, direction, valid, radius, target):
+    """One robot's lines as Python lists (px, py, dx, dy, valid, radius, tx, ty), or None where the
+    plain-Python twins may not be used."""
+    if point.dtype != np.float64 or direction.dtype != np.float64:
+        return None
+    p = point.reshape(-1).tolist()
+    d = direction.reshape(-1).tolist()
+    r = float(radius.reshape(-1)[0])
+    tx, ty = (float(v) for v in target.reshape(-1))
+    if not _plain(p, d, [r, tx, ty]):
+        return None
+    return p[0::2], p[1::2], d[0::2], d[1::2], valid.reshape(-1).tolist(), r, tx, ty
+
+
+def _optimise_one(px, py, dx, dy, valid, radius, tx, ty, directional):
+    """`optimise` for one robot on Python floats: (x, y, feasible)."""
+    rx, ry = _disk_optimum_one(tx, ty, radius, directional)
+    for i in range(len(px)):
+        if valid[i] and dx[i] * (py[i] - ry) - dy[i] * (px[i] - rx) > 0.0:
+            x, y, ok = _on_line_one(px[i], py[i], dx[i], dy[i], px, py, dx, dy, valid, i, radius, tx, ty, directional)
+            if not ok:
+                return rx, ry, False  # a robot stops at its first unsatisfiable line
+            rx, ry = x, y
+    return rx, ry, True
+
+
+def _optimise_few_one(px, py, dx, dy, valid, radius, tx, ty, directional):
+    """`optimise_few` for one robot on Python floats: (x, y, feasible). Candidates in line order,
+    each clipped by every line (itself included); ties go to the first, as argmin's."""
+    cx, cy = _disk_optimum_one(tx, ty, radius, directional)
+    n = len(px)
+    violated, best_cost, best = False, math.inf, None
+    for c in range(n):
+        if not (valid[c] and dx[c] * (py[c] - cy) - dy[c] * (px[c] - cx) > 0.0):
+            continue
+        violated = True
+        x, y, ok = _on_line_one(px[c], py[c], dx[c], dy[c], px, py, dx, dy, valid, n, radius, tx, ty, directional)
+        if not ok:
+            continue
+        if directional:
+            cost = -(tx * x + ty * y)
+        else:
+            ex, ey = x - tx, y - ty
+            cost = ex * ex + ey * ey
+        if best is None or cost < best_cost:
+            best_cost, best = cost, (x, y)
+    if not violated:
+        return cx, cy, True
+    if best is None:
+        return cx, cy, False
+    return best[0], best[1], True
+
+
 def _disk_optimum(
     tx: np.ndarray, ty: np.ndarray, radius: np.ndarray, directional: bool
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -88,6 +229,14 @@ def optimise(
     go furthest along. Returns (velocity (B,2), feasible (B,)); where infeasible the velocity is
     the optimum over the lines before the first one that could not be met.
     """
+    if len(target) == 1:
+        one = _lines_one(point, direction, valid, np.asarray(radius), target)
+        if one is not None:
+            try:
+                x, y, ok = _optimise_one(*one, directional)
+                return np.array([[x, y]]), np.array([ok])
+            except _Tie:
+                pass
     # line-major copies (L, B): the loop over lines reads contiguous rows
     px, py = np.ascontiguousarray(point[..., 0].T), np.ascontiguousarray(point[..., 1].T)
     dx, dy = np.ascontiguousarray(direction[..., 0].T), np.ascontiguousarray(direction[..., 1].T)
@@ -139,6 +288,14 @@ def optimise_few(
     valid line at once (arrays (k, candidates, L)), is a candidate; the best one wins. Same optimum
     as `optimise` up to rounding; a call site must always use the same one (determinism).
     """
+    if len(target) == 1:
+        one = _lines_one(point, direction, valid, np.asarray(radius), target)
+        if one is not None:
+            try:
+                x, y, ok = _optimise_few_one(*one, directional)
+                return np.array([[x, y]]), np.array([ok])
+            except _Tie:
+                pass
     px, py = point[..., 0], point[..., 1]
     dx, dy = direction[..., 0], direction[..., 1]
     radius = np.asarray(radius, dtype=float)
