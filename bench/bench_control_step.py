@@ -67,17 +67,18 @@ def bench_args(kinematics: str, batch: int) -> tuple:
 
 
 def per_robot_ms(steps: list[tuple[ModuleType, tuple]], repeat: int, rounds: int = 5) -> list[float]:
-    """Best over ``rounds`` of the mean ms per robot of ``repeat`` calls of each ``step.control_step``
-    on its arguments; the steps take turns in every round (a loaded machine slows them alike)."""
+    """Best over ``rounds`` of the mean CPU ms per robot of ``repeat`` calls of each
+    ``step.control_step`` on its arguments; the steps take turns in every round. CPU time of this
+    process, not wall time: other load on the machine then hardly counts."""
     best = [np.inf] * len(steps)
     for step, args in steps:
         step.control_step(*args)
     for _ in range(rounds):
         for k, (step, args) in enumerate(steps):
-            t = time.perf_counter()
+            t = time.process_time()
             for _ in range(repeat):
                 step.control_step(*args)
-            best[k] = min(best[k], (time.perf_counter() - t) / repeat / len(args[1]) * 1000)
+            best[k] = min(best[k], (time.process_time() - t) / repeat / len(args[1]) * 1000)
     return best
 
 
@@ -243,7 +244,7 @@ def _timings(before: ModuleType | None) -> list[str]:
         rows = ["| kinematics | batch (robots per call) | ms per robot per step |", "|---|---|---|"]
     else:
         rows = [
-            "| kinematics | batch (robots per call) | ms per robot per step | before | speed-up |",
+            "| kinematics | batch (robots per call) | CPU ms per robot per step | before | speed-up |",
             "|---|---|---|---|---|",
         ]
     for kin in [HOLONOMIC, DIFFDRIVE]:

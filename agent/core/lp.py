@@ -87,44 +87,39 @@ def _zeros_differ(a: float, b: float) -> bool:
     return a == 0.0 and b == 0.0 and math.copysign(1.0, a) != math.copysign(1.0, b)
 
 
-def _on_line_one(pix, piy, dix, diy, px, py, dx, dy, valid, n, radius, tx, ty, directional):
-    """`_on_line` for one robot on Python floats, line i clipped by the disk and lines 0..n-1."""
+def _on_line_one(pix, piy, dix, diy, lines, radius, tx, ty, directional):
+    """`_on_line` for one robot on Python floats: line i clipped by the disk and ``lines`` (the valid
+    lines j, tuples (px, py, dx, dy)). Where it is not ok the point is not used and not computed."""
     dot = pix * dix + piy * diy
     disc = dot * dot + radius * radius - (pix * pix + piy * piy)
-    ok = disc >= 0.0
-    sq = math.sqrt(disc) if disc > 0.0 else 0.0  # disc is never -0: a sum of squares minus one
+    if disc < 0.0:
+        return 0.0, 0.0, False
+    sq = math.sqrt(disc)  # disc is +0 or more: a sum of squares minus one, never -0
     t_left = -dot - sq
     t_right = -dot + sq
-    if n:
-        right, left = math.inf, -math.inf
-        for j in range(n):
-            if not valid[j]:
-                continue
-            den = dix * dy[j] - diy * dx[j]
-            num = dx[j] * (piy - py[j]) - dy[j] * (pix - px[j])
-            if abs(den) <= EPSILON:
-                if num < 0.0:
-                    ok = False
-                continue
-            t = num / den
-            if den > 0.0:
-                if t < right:
-                    right = t
-                elif _zeros_differ(t, right):
-                    raise _Tie
-            elif t > left:
-                left = t
-            elif _zeros_differ(t, left):
+    # Folding the disk's ends in first gives the values of numpy's min/max over the lines then
+    # against the ends; only a +0/-0 tie could tell the two apart.
+    for px, py, dx, dy in lines:
+        den = dix * dy - diy * dx
+        num = dx * (piy - py) - dy * (pix - px)
+        if -EPSILON <= den <= EPSILON:  # |den| <= EPSILON
+            if num < 0.0:
+                return 0.0, 0.0, False
+            continue
+        t = num / den
+        if den > 0.0:
+            if t < t_right:
+                t_right = t
+                if t_right < t_left:
+                    return 0.0, 0.0, False
+            elif t == t_right and _zeros_differ(t, t_right):
                 raise _Tie
-        if right < t_right:
-            t_right = right
-        elif _zeros_differ(right, t_right):
+        elif t > t_left:
+            t_left = t
+            if t_right < t_left:
+                return 0.0, 0.0, False
+        elif t == t_left and _zeros_differ(t, t_left):
             raise _Tie
-        if left > t_left:
-            t_left = left
-        elif _zeros_differ(left, t_left):
-            raise _Tie
-        ok = ok and t_left <= t_right
     if directional:
         t_best = t_right if tx * dix + ty * diy > 0.0 else t_left
     else:
@@ -137,7 +132,7 @@ def _on_line_one(pix, piy, dix, diy, px, py, dx, dy, valid, n, radius, tx, ty, d
             if _zeros_differ(t_best, t_right):
                 raise _Tie
             t_best = t_right
-    return pix + t_best * dix, piy + t_best * diy, ok
+    return pix + t_best * dix, piy + t_best * diy, True
 
 
 def _disk_optimum_one(tx: float, ty: float, radius: float, directional: bool) -> tuple[float, float]:
@@ -150,8 +145,8 @@ def _disk_optimum_one(tx: float, ty: float, radius: float, directional: bool) ->
 
 
 def _lines_one(point, direction, valid, radius, target):
-    """One robot's lines as Python lists (px, py, dx, dy, valid, radius, tx, ty), or None where the
-    plain-Python twins may not be used."""
+    """One robot's valid lines as tuples (px, py, dx, dy), its radius and target (tx, ty) as Python
+    floats; None where the plain-Python twins may not be used."""
     if point.dtype != np.float64 or direction.dtype != np.float64:
         return None
     p = point.reshape(-1).tolist()
@@ -160,32 +155,32 @@ def _lines_one(point, direction, valid, radius, target):
     tx, ty = (float(v) for v in target.reshape(-1))
     if not _plain(p, d, [r, tx, ty]):
         return None
-    return p[0::2], p[1::2], d[0::2], d[1::2], valid.reshape(-1).tolist(), r, tx, ty
+    lines = [line for line, ok in zip(zip(p[0::2], p[1::2], d[0::2], d[1::2]), valid.reshape(-1).tolist()) if ok]
+    return lines, r, tx, ty
 
 
-def _optimise_one(px, py, dx, dy, valid, radius, tx, ty, directional):
+def _optimise_one(lines, radius, tx, ty, directional):
     """`optimise` for one robot on Python floats: (x, y, feasible)."""
     rx, ry = _disk_optimum_one(tx, ty, radius, directional)
-    for i in range(len(px)):
-        if valid[i] and dx[i] * (py[i] - ry) - dy[i] * (px[i] - rx) > 0.0:
-            x, y, ok = _on_line_one(px[i], py[i], dx[i], dy[i], px, py, dx, dy, valid, i, radius, tx, ty, directional)
+    for i, (px, py, dx, dy) in enumerate(lines):
+        if dx * (py - ry) - dy * (px - rx) > 0.0:
+            x, y, ok = _on_line_one(px, py, dx, dy, lines[:i], radius, tx, ty, directional)
             if not ok:
                 return rx, ry, False  # a robot stops at its first unsatisfiable line
             rx, ry = x, y
     return rx, ry, True
 
 
-def _optimise_few_one(px, py, dx, dy, valid, radius, tx, ty, directional):
+def _optimise_few_one(lines, radius, tx, ty, directional):
     """`optimise_few` for one robot on Python floats: (x, y, feasible). Candidates in line order,
     each clipped by every line (itself included); ties go to the first, as argmin's."""
     cx, cy = _disk_optimum_one(tx, ty, radius, directional)
-    n = len(px)
     violated, best_cost, best = False, math.inf, None
-    for c in range(n):
-        if not (valid[c] and dx[c] * (py[c] - cy) - dy[c] * (px[c] - cx) > 0.0):
+    for px, py, dx, dy in lines:
+        if not dx * (py - cy) - dy * (px - cx) > 0.0:
             continue
         violated = True
-        x, y, ok = _on_line_one(px[c], py[c], dx[c], dy[c], px, py, dx, dy, valid, n, radius, tx, ty, directional)
+        x, y, ok = _on_line_one(px, py, dx, dy, lines, radius, tx, ty, directional)
         if not ok:
             continue
         if directional:
