@@ -69,22 +69,40 @@ def _on_line(pix, piy, dix, diy, px, py, dx, dy, valid, radius, tx, ty, directio
     return pix + t_best * dix, piy + t_best * diy, ok
 
 
-class _Tie(Exception):
-    """A plain-Python twin met a case where it might not give numpy's bits: numpy decides."""
+class NumpyDecides(Exception):
+    """A plain-Python twin met a case where it might not give numpy's bits: run the numpy code."""
 
 
 # Inputs of a plain-Python twin are at most this large: every intermediate then stays finite.
 _PLAIN_LIMIT = 1e50
 
 
-def _plain(*values: list[float]) -> bool:
-    """All values finite and at most _PLAIN_LIMIT in magnitude."""
-    return all(not v or max(map(abs, v)) < _PLAIN_LIMIT for v in values)
+def plain(*values: list[float]) -> bool:
+    """All values finite and at most _PLAIN_LIMIT in magnitude (NaN fails the comparison)."""
+    return all(all(map(_PLAIN_LIMIT.__gt__, map(abs, v))) for v in values)
 
 
 def _zeros_differ(a: float, b: float) -> bool:
     """a and b are +0 and -0: equal, but which one numpy's min or max keeps is numpy's choice."""
     return a == 0.0 and b == 0.0 and math.copysign(1.0, a) != math.copysign(1.0, b)
+
+
+def np_maximum(a: float, b: float) -> float:
+    """np.maximum of two finite Python floats (NumpyDecides on a +0/-0 tie)."""
+    if a > b:
+        return a
+    if a < b or not _zeros_differ(a, b):
+        return b
+    raise NumpyDecides
+
+
+def np_minimum(a: float, b: float) -> float:
+    """np.minimum of two finite Python floats (NumpyDecides on a +0/-0 tie)."""
+    if a < b:
+        return a
+    if a > b or not _zeros_differ(a, b):
+        return b
+    raise NumpyDecides
 
 
 def _on_line_one(pix, piy, dix, diy, lines, radius, tx, ty, directional):
@@ -113,24 +131,24 @@ def _on_line_one(pix, piy, dix, diy, lines, radius, tx, ty, directional):
                 if t_right < t_left:
                     return 0.0, 0.0, False
             elif t == t_right and _zeros_differ(t, t_right):
-                raise _Tie
+                raise NumpyDecides
         elif t > t_left:
             t_left = t
             if t_right < t_left:
                 return 0.0, 0.0, False
         elif t == t_left and _zeros_differ(t, t_left):
-            raise _Tie
+            raise NumpyDecides
     if directional:
         t_best = t_right if tx * dix + ty * diy > 0.0 else t_left
     else:
         t_best = dix * (tx - pix) + diy * (ty - piy)
         if t_best <= t_left:
             if _zeros_differ(t_best, t_left):
-                raise _Tie
+                raise NumpyDecides
             t_best = t_left
         if t_best >= t_right:
             if _zeros_differ(t_best, t_right):
-                raise _Tie
+                raise NumpyDecides
             t_best = t_right
     return pix + t_best * dix, piy + t_best * diy, True
 
@@ -153,13 +171,13 @@ def _lines_one(point, direction, valid, radius, target):
     d = direction.reshape(-1).tolist()
     r = float(radius.reshape(-1)[0])
     tx, ty = (float(v) for v in target.reshape(-1))
-    if not _plain(p, d, [r, tx, ty]):
+    if not plain(p, d, [r, tx, ty]):
         return None
     lines = [line for line, ok in zip(zip(p[0::2], p[1::2], d[0::2], d[1::2]), valid.reshape(-1).tolist()) if ok]
     return lines, r, tx, ty
 
 
-def _optimise_one(lines, radius, tx, ty, directional):
+def optimise_one(lines, radius, tx, ty, directional):
     """`optimise` for one robot on Python floats: (x, y, feasible)."""
     rx, ry = _disk_optimum_one(tx, ty, radius, directional)
     for i, (px, py, dx, dy) in enumerate(lines):
@@ -171,7 +189,7 @@ def _optimise_one(lines, radius, tx, ty, directional):
     return rx, ry, True
 
 
-def _optimise_few_one(lines, radius, tx, ty, directional):
+def optimise_few_one(lines, radius, tx, ty, directional):
     """`optimise_few` for one robot on Python floats: (x, y, feasible). Candidates in line order,
     each clipped by every line (itself included); ties go to the first, as argmin's."""
     cx, cy = _disk_optimum_one(tx, ty, radius, directional)
@@ -228,9 +246,9 @@ def optimise(
         one = _lines_one(point, direction, valid, np.asarray(radius), target)
         if one is not None:
             try:
-                x, y, ok = _optimise_one(*one, directional)
+                x, y, ok = optimise_one(*one, directional)
                 return np.array([[x, y]]), np.array([ok])
-            except _Tie:
+            except NumpyDecides:
                 pass
     # line-major copies (L, B): the loop over lines reads contiguous rows
     px, py = np.ascontiguousarray(point[..., 0].T), np.ascontiguousarray(point[..., 1].T)
@@ -287,9 +305,9 @@ def optimise_few(
         one = _lines_one(point, direction, valid, np.asarray(radius), target)
         if one is not None:
             try:
-                x, y, ok = _optimise_few_one(*one, directional)
+                x, y, ok = optimise_few_one(*one, directional)
                 return np.array([[x, y]]), np.array([ok])
-            except _Tie:
+            except NumpyDecides:
                 pass
     px, py = point[..., 0], point[..., 1]
     dx, dy = direction[..., 0], direction[..., 1]
