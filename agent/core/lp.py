@@ -23,7 +23,7 @@ A batch of one robot (an agent process) takes plain-Python twins of `optimise` a
 (numpy's per-call overhead dominates on arrays of one): the same IEEE double operations in the same
 order on Python floats. Where the twins could disagree with numpy they hand over to it: inputs not
 finite or huge (no overflow, hence no NaN, can then occur), and a minimum or maximum between +0 and
--0 (which one numpy keeps is its own choice).
+-0 (which one numpy keeps is its own choice) where the sign could show in the result.
 """
 
 from __future__ import annotations
@@ -116,7 +116,8 @@ def _on_line_one(pix, piy, dix, diy, lines, radius, tx, ty, directional):
     t_left = -dot - sq
     t_right = -dot + sq
     # Folding the disk's ends in first gives the values of numpy's min/max over the lines then
-    # against the ends; only a +0/-0 tie could tell the two apart.
+    # against the ends. Only the sign of a zero can differ (numpy keeps +0 or -0 on a tie), and it
+    # only shows in the point if the line's point has a zero coordinate.
     for px, py, dx, dy in lines:
         den = dix * dy - diy * dx
         num = dx * (piy - py) - dy * (pix - px)
@@ -130,26 +131,20 @@ def _on_line_one(pix, piy, dix, diy, lines, radius, tx, ty, directional):
                 t_right = t
                 if t_right < t_left:
                     return 0.0, 0.0, False
-            elif t == t_right and _zeros_differ(t, t_right):
-                raise NumpyDecides
         elif t > t_left:
             t_left = t
             if t_right < t_left:
                 return 0.0, 0.0, False
-        elif t == t_left and _zeros_differ(t, t_left):
-            raise NumpyDecides
     if directional:
         t_best = t_right if tx * dix + ty * diy > 0.0 else t_left
     else:
         t_best = dix * (tx - pix) + diy * (ty - piy)
         if t_best <= t_left:
-            if _zeros_differ(t_best, t_left):
-                raise NumpyDecides
             t_best = t_left
         if t_best >= t_right:
-            if _zeros_differ(t_best, t_right):
-                raise NumpyDecides
             t_best = t_right
+    if t_best == 0.0 and (pix == 0.0 or piy == 0.0):
+        raise NumpyDecides
     return pix + t_best * dix, piy + t_best * diy, True
 
 

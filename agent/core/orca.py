@@ -437,8 +437,8 @@ def _obstacle_lines_one(px, py, r, vmax, segments, tau_obst):
         ex, ey = bx - ax, by - ay
         len2 = ex * ex + ey * ey
         t = ((px - ax) * ex + (py - ay) * ey) / (len2 if len2 > 0.0 else 1.0)
-        if t == 0.0:
-            raise NumpyDecides  # np.clip keeps +0 or -0
+        if t == 0.0 and (ax == 0.0 or ay == 0.0):
+            raise NumpyDecides  # np.clip keeps +0 or -0, which would show in ax + t ex
         t = 0.0 if t < 0.0 else 1.0 if t > 1.0 else t
         nx = px - (ax + t * ex)
         ny = py - (ay + t * ey)
