@@ -21,6 +21,7 @@ functions may take different code paths with the array's length).
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from typing import Any, NamedTuple
@@ -62,27 +63,49 @@ def min_error_speed(v_h: ArrayLike, theta: ArrayLike) -> np.ndarray:
     return np.asarray(v_h, dtype=float) * factor
 
 
-def max_trackable_speed(theta: ArrayLike, error: ArrayLike, params: RobotParams) -> np.ndarray:
-    """V_H^max(theta): the largest holonomic speed at angle theta to the heading trackable within
-    ``error`` (the boundary of S_AHV; cases A, B, C of the module docstring). numpy, broadcasting."""
+class _AngleTerms(NamedTuple):
+    """The parts of V_H^max(theta) that depend on the angle only (`max_trackable_speed`)."""
+
+    turning: np.ndarray  # |theta| > 1e-8
+    t_eff: np.ndarray
+    t_eff_s_half: np.ndarray  # t_eff sin(|theta|/2)
+    k: np.ndarray
+    v_s: np.ndarray
+    v_s_sinc: np.ndarray  # v_s sin(theta)/theta
+    v_s_omc2: np.ndarray  # (v_s (1 - cos theta)/theta)^2
+
+
+def _angle_terms(theta: ArrayLike, params: RobotParams) -> _AngleTerms:
     a = np.abs(np.asarray(theta, dtype=float))
-    error = np.asarray(error, dtype=float)
     w_cap = omega_cap(params)
     t_eff = np.where(a > params.t_orient * w_cap, a / w_cap, params.t_orient)
     v_s = np.maximum(params.v_max - (a / t_eff) * (0.5 * params.wheel_base), 0.0)
-    a_safe = np.where(a > 1e-8, a, 1.0)
+    turning = a > 1e-8
+    a_safe = np.where(turning, a, 1.0)
     s_half = np.sin(0.5 * a_safe)
+    k = np.where(turning, 0.5 * a_safe * np.cos(0.5 * a_safe) / s_half, 1.0)
+    sinc = np.where(turning, np.sin(a_safe) / a_safe, 1.0)
+    one_minus_cos = np.where(turning, (1.0 - np.cos(a_safe)) / a_safe, 0.0)
+    return _AngleTerms(turning, t_eff, t_eff * s_half, k, v_s, v_s * sinc, (v_s * one_minus_cos) ** 2)
+
+
+def _speed_bound(terms: _AngleTerms, error: np.ndarray, v_max: float) -> np.ndarray:
+    """V_H^max from the angle's terms and the tracking error (cases A, B, C)."""
     with np.errstate(divide="ignore"):
-        v_a = np.where(a > 1e-8, error / (t_eff * s_half), np.inf)
-    k = np.where(a > 1e-8, 0.5 * a_safe * np.cos(0.5 * a_safe) / s_half, 1.0)
-    case_b = v_a * k > v_s
-    sinc = np.where(a > 1e-8, np.sin(a_safe) / a_safe, 1.0)
-    one_minus_cos = np.where(a > 1e-8, (1.0 - np.cos(a_safe)) / a_safe, 0.0)
-    root = (error / t_eff) ** 2 - (v_s * one_minus_cos) ** 2
-    v_b = v_s * sinc + np.sqrt(np.maximum(root, 0.0))
-    return np.minimum(np.where(case_b, v_b, v_a), params.v_max)
+        v_a = np.where(terms.turning, error / terms.t_eff_s_half, np.inf)
+    case_b = v_a * terms.k > terms.v_s
+    root = (error / terms.t_eff) ** 2 - terms.v_s_omc2
+    v_b = terms.v_s_sinc + np.sqrt(np.maximum(root, 0.0))
+    return np.minimum(np.where(case_b, v_b, v_a), v_max)
 
 
+def max_trackable_speed(theta: ArrayLike, error: ArrayLike, params: RobotParams) -> np.ndarray:
+    """V_H^max(theta): the largest holonomic speed at angle theta to the heading trackable within
+    ``error`` (the boundary of S_AHV; cases A, B, C of the module docstring). numpy, broadcasting."""
+    return _speed_bound(_angle_terms(theta, params), np.asarray(error, dtype=float), params.v_max)
+
+
+@functools.lru_cache(maxsize=16)
 def vertex_angles(params: RobotParams, n: int = _N_VERTICES) -> np.ndarray:
     """Angles (to the heading) of the P_AHV vertices, increasing in (-pi, pi].
 
@@ -95,7 +118,19 @@ def vertex_angles(params: RobotParams, n: int = _N_VERTICES) -> np.ndarray:
     dent = params.t_orient * omega_cap(params)
     if dent < np.pi:
         angles = np.concatenate([angles, [-dent, dent]])
-    return np.unique(angles)
+    angles = np.unique(angles)
+    angles.setflags(write=False)  # shared by every call with these params
+    return angles
+
+
+@functools.lru_cache(maxsize=16)
+def _polygon_terms(params: RobotParams) -> tuple[_AngleTerms, np.ndarray, np.ndarray]:
+    """What P_AHV's vertices owe to their angles alone: computed once per params."""
+    angles = vertex_angles(params)
+    out = (_angle_terms(angles[None, :], params), np.cos(angles), np.sin(angles))
+    for a in (*out[0], *out[1:]):
+        a.setflags(write=False)
+    return out
 
 
 def tracking_error(
@@ -132,9 +167,9 @@ def ahv_polygon(heading: ArrayLike, error: ArrayLike, params: RobotParams) -> np
     """Vertices (B,K,2) of P_AHV in the world frame, counter-clockwise: V_H^max sampled at
     `vertex_angles` to the heading."""
     c, s = _heading_cos_sin(heading)
-    angles = vertex_angles(params)
-    radius = max_trackable_speed(angles[None, :], np.asarray(error, dtype=float)[:, None], params)
-    lx, ly = radius * np.cos(angles), radius * np.sin(angles)
+    terms, cos_a, sin_a = _polygon_terms(params)
+    radius = _speed_bound(terms, np.asarray(error, dtype=float)[:, None], params.v_max)
+    lx, ly = radius * cos_a, radius * sin_a
     return np.stack([c[:, None] * lx - s[:, None] * ly, s[:, None] * lx + c[:, None] * ly], axis=-1)
 
 
