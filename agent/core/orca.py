@@ -458,11 +458,9 @@ def _obstacle_lines_one(px, py, r, vmax, segments, tau_obst):
 def _orca_velocity_one(
     position, velocity, pref_velocity, radius, max_speed, nbr, segments, extra, growth, tau, tau_obst, dt, margin
 ):
-    """orca_velocity (with safety) of a batch of one robot; None where the Python floats might
-    not be numpy's (inputs not finite or huge)."""
-    px, py = position[0].tolist()
-    vx, vy = velocity[0].tolist()
-    tx, ty = pref_velocity[0].tolist()
+    """orca_velocity (with safety) of a batch of one robot from its arrays; None where the Python
+    floats might not be numpy's (inputs not finite or huge)."""
+    (px, py), (vx, vy), (tx, ty) = position[0].tolist(), velocity[0].tolist(), pref_velocity[0].tolist()
     r, vmax = float(radius[0]), float(max_speed[0])
     valid = nbr[4][0].tolist()
     grow = [0.0] * len(valid) if growth is None else growth[0].tolist()
@@ -473,16 +471,36 @@ def _orca_velocity_one(
         )
         if ok
     ]
-    seg = [] if segments is None else np.asarray(segments, dtype=float).reshape(-1, 2, 2).tolist()
+    seg = segments_one(segments)
     extra_lines = []
     if extra is not None:
         ep, ed = extra.point[0].tolist(), extra.direction[0].tolist()
         extra_lines = [(*p, *d) for p, d, ok in zip(ep, ed, extra.valid[0].tolist()) if ok]
-    scalars = [px, py, vx, vy, tx, ty, r, vmax, tau, tau_obst, dt, margin]
     flat = [x for q, w, nr, c, g in nbrs for x in (*q, *w, nr, c, g)]
-    if not plain(scalars, flat, [x for s in seg for p in s for x in p], [x for line in extra_lines for x in line]):
+    if not plain([px, py, vx, vy, tx, ty, r, vmax, tau, tau_obst, dt, margin], flat, seg_values(seg)):
         return None
+    if not plain([x for line in extra_lines for x in line]):
+        return None
+    x, y, fallback = orca_velocity_one(
+        px, py, vx, vy, tx, ty, r, vmax, nbrs, seg, extra_lines, growth is not None, tau, tau_obst, dt, margin
+    )
+    return np.array([[x, y]]), np.array([fallback])
 
+
+def segments_one(segments: np.ndarray | None) -> list:
+    """Obstacle edges as nested lists ((ax, ay), (bx, by)) for `orca_velocity_one`."""
+    return [] if segments is None else np.asarray(segments, dtype=float).reshape(-1, 2, 2).tolist()
+
+
+def seg_values(seg: list) -> list[float]:
+    return [x for s in seg for p in s for x in p]
+
+
+def orca_velocity_one(px, py, vx, vy, tx, ty, r, vmax, nbrs, seg, extra_lines, grown, tau, tau_obst, dt, margin):
+    """orca_velocity with safety lines for one robot on Python floats (finite, at most
+    lp._PLAIN_LIMIT): the same operations in the same order. ``nbrs``: the valid neighbours as
+    ((x, y), (vx, vy), radius, responsibility, growth); ``grown``: whether growths were given.
+    Returns (x, y, fallback); raises NumpyDecides where numpy's bits could differ."""
     hard = _obstacle_lines_one(px, py, r + margin, vmax, seg, tau_obst) if seg else []
     hard += extra_lines
     own = r * _BUFFER
@@ -493,7 +511,7 @@ def _orca_velocity_one(
         ey = qy - py
         dist = math.sqrt(ex * ex + ey * ey)
         nr = nr * _BUFFER
-        if growth is not None:
+        if grown:
             certain = nr - g * _BUFFER
             nr = np_minimum(nr, np_maximum(dist * (1.0 - 1e-9) - own, certain))
         keep = c >= 1.0
@@ -515,17 +533,16 @@ def _orca_velocity_one(
 
     lines = program(tau)
     x, y, feasible = optimise_one(lines, vmax, tx, ty, False)
+    if feasible:
+        return x, y, False
     horizon = tau
-    while not feasible and horizon > dt:
+    while horizon > dt:
         horizon = max(horizon / _SHRINK, dt)
         lines = program(horizon)
         x, y, ok = optimise_few_one(lines, vmax, tx, ty, False)
         if ok:
-            return np.array([[x, y]]), np.array([True])
-    if not feasible:
-        arr = np.array(lines, dtype=float).reshape(1, -1, 4)
-        v = least_violation(
-            arr[..., :2], arr[..., 2:], np.ones(arr.shape[:2], dtype=bool), max_speed, pref_velocity, len(hard)
-        )
-        return v, np.array([True])
-    return np.array([[x, y]]), np.array([False])
+            return x, y, True
+    arr = np.array(lines, dtype=float).reshape(1, -1, 4)
+    every = np.ones(arr.shape[:2], dtype=bool)
+    v = least_violation(arr[..., :2], arr[..., 2:], every, np.array([vmax]), np.array([[tx, ty]]), len(hard))
+    return float(v[0, 0]), float(v[0, 1]), True
