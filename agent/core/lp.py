@@ -29,6 +29,7 @@ finite or huge (no overflow, hence no NaN, can then occur), and a minimum or max
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -105,7 +106,20 @@ def np_minimum(a: float, b: float) -> float:
     raise NumpyDecides
 
 
-def _on_line_one(pix, piy, dix, diy, lines, radius, tx, ty, directional):
+Line = tuple[float, float, float, float]  # one robot's line on Python floats: (px, py, dx, dy)
+
+
+def _on_line_one(
+    pix: float,
+    piy: float,
+    dix: float,
+    diy: float,
+    lines: list[Line],
+    radius: float,
+    tx: float,
+    ty: float,
+    directional: bool,
+) -> tuple[float, float, bool]:
     """`_on_line` for one robot on Python floats: line i clipped by the disk and ``lines`` (the valid
     lines j, tuples (px, py, dx, dy)). Where it is not ok the point is not used and not computed."""
     dot = pix * dix + piy * diy
@@ -157,7 +171,18 @@ def _disk_optimum_one(tx: float, ty: float, radius: float, directional: bool) ->
     return tx * scale, ty * scale
 
 
-def _lines_one(point, direction, valid, radius, target):
+class _One(NamedTuple):
+    """One robot's program on Python floats: its valid lines, speed-disk radius and target."""
+
+    lines: list[Line]
+    radius: float
+    tx: float
+    ty: float
+
+
+def _lines_one(
+    point: np.ndarray, direction: np.ndarray, valid: np.ndarray, radius: np.ndarray, target: np.ndarray
+) -> _One | None:
     """One robot's valid lines as tuples (px, py, dx, dy), its radius and target (tx, ty) as Python
     floats; None where the plain-Python twins may not be used."""
     if point.dtype != np.float64 or direction.dtype != np.float64:
@@ -165,14 +190,16 @@ def _lines_one(point, direction, valid, radius, target):
     p = point.reshape(-1).tolist()
     d = direction.reshape(-1).tolist()
     r = float(radius.reshape(-1)[0])
-    tx, ty = (float(v) for v in target.reshape(-1))
+    tx, ty = target.reshape(-1).tolist()
     if not plain(p, d, [r, tx, ty]):
         return None
     lines = [line for line, ok in zip(zip(p[0::2], p[1::2], d[0::2], d[1::2]), valid.reshape(-1).tolist()) if ok]
-    return lines, r, tx, ty
+    return _One(lines, r, tx, ty)
 
 
-def optimise_one(lines, radius, tx, ty, directional):
+def optimise_one(
+    lines: list[Line], radius: float, tx: float, ty: float, directional: bool
+) -> tuple[float, float, bool]:
     """`optimise` for one robot on Python floats: (x, y, feasible)."""
     rx, ry = _disk_optimum_one(tx, ty, radius, directional)
     for i, (px, py, dx, dy) in enumerate(lines):
@@ -184,7 +211,9 @@ def optimise_one(lines, radius, tx, ty, directional):
     return rx, ry, True
 
 
-def optimise_few_one(lines, radius, tx, ty, directional):
+def optimise_few_one(
+    lines: list[Line], radius: float, tx: float, ty: float, directional: bool
+) -> tuple[float, float, bool]:
     """`optimise_few` for one robot on Python floats: (x, y, feasible). Candidates in line order,
     each clipped by every line (itself included); ties go to the first, as argmin's."""
     cx, cy = _disk_optimum_one(tx, ty, radius, directional)
@@ -238,10 +267,10 @@ def optimise(
     the optimum over the lines before the first one that could not be met.
     """
     if len(target) == 1:
-        one = _lines_one(point, direction, valid, np.asarray(radius), target)
-        if one is not None:
+        single = _lines_one(point, direction, valid, np.asarray(radius), target)
+        if single is not None:
             try:
-                x, y, ok = optimise_one(*one, directional)
+                x, y, ok = optimise_one(single.lines, single.radius, single.tx, single.ty, directional)
                 return np.array([[x, y]]), np.array([ok])
             except NumpyDecides:
                 pass
@@ -297,10 +326,10 @@ def optimise_few(
     as `optimise` up to rounding; a call site must always use the same one (determinism).
     """
     if len(target) == 1:
-        one = _lines_one(point, direction, valid, np.asarray(radius), target)
-        if one is not None:
+        single = _lines_one(point, direction, valid, np.asarray(radius), target)
+        if single is not None:
             try:
-                x, y, ok = optimise_few_one(*one, directional)
+                x, y, ok = optimise_few_one(single.lines, single.radius, single.tx, single.ty, directional)
                 return np.array([[x, y]]), np.array([ok])
             except NumpyDecides:
                 pass

@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from agent.core.lp import (
+    Line,
     NumpyDecides,
     least_violation,
     linear_program,
@@ -395,7 +396,21 @@ def orca_velocity(
 # code's order (they are all an LP of one robot looks at).
 
 
-def _orca_line(px, py, vx, vy, r, qx, qy, nvx, nvy, nr, c, inv_tau, inv_dt):
+def _orca_line(
+    px: float,
+    py: float,
+    vx: float,
+    vy: float,
+    r: float,
+    qx: float,
+    qy: float,
+    nvx: float,
+    nvy: float,
+    nr: float,
+    c: float,
+    inv_tau: float,
+    inv_dt: float,
+) -> Line:
     """`orca_lines` of one robot toward one neighbour (position q, velocity nv, radius nr)."""
     rpx = qx - px
     rpy = qy - py
@@ -429,7 +444,7 @@ def _orca_line(px, py, vx, vy, r, qx, qy, nvx, nvy, nr, c, inv_tau, inv_dt):
     return vx + c * ux, vy + c * uy, dx, dy
 
 
-def _obstacle_lines_one(px, py, r, vmax, segments, tau_obst):
+def _obstacle_lines_one(px: float, py: float, r: float, vmax: float, segments: list, tau_obst: float) -> list[Line]:
     """`obstacle_lines` of one robot: its valid lines, edge by edge."""
     r = r * _BUFFER
     out = []
@@ -496,7 +511,24 @@ def seg_values(seg: list) -> list[float]:
     return [x for s in seg for p in s for x in p]
 
 
-def orca_velocity_one(px, py, vx, vy, tx, ty, r, vmax, nbrs, seg, extra_lines, grown, tau, tau_obst, dt, margin):
+def orca_velocity_one(
+    px: float,
+    py: float,
+    vx: float,
+    vy: float,
+    tx: float,
+    ty: float,
+    r: float,
+    vmax: float,
+    nbrs: list[tuple],
+    seg: list,
+    extra_lines: list[Line],
+    grown: bool,
+    tau: float,
+    tau_obst: float,
+    dt: float,
+    margin: float,
+) -> tuple[float, float, bool]:
     """orca_velocity with safety lines for one robot on Python floats (finite, at most
     lp._PLAIN_LIMIT): the same operations in the same order. ``nbrs``: the valid neighbours as
     ((x, y), (vx, vy), radius, responsibility, growth); ``grown``: whether growths were given.
@@ -522,7 +554,7 @@ def orca_velocity_one(px, py, vx, vy, tx, ty, r, vmax, nbrs, seg, extra_lines, g
     hard = [line for line in hard if line[2] * line[1] - line[3] * line[0] > -vmax]  # drop_redundant
     r_grown = r + margin
 
-    def program(horizon):
+    def program(horizon: float) -> list[Line]:
         inv_h = 1.0 / horizon
         lines = list(hard)
         for (qx, qy), (wx, wy), nr, c, _ in nbrs:
