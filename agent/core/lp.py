@@ -18,9 +18,18 @@ Vectorised across robots with numpy, looping in Python over the line index only.
 Determinism: only elementwise + - * / sqrt and comparisons, and min/max/any along the line axis, never
 a reduction across robots, so a robot's result is bit-identical whether it is solved alone or in a
 batch (padded lines being invalid).
+
+A batch of one robot (an agent process) takes plain-Python twins of `optimise` and `optimise_few`
+(numpy's per-call overhead dominates on arrays of one): the same IEEE double operations in the same
+order on Python floats. Where the twins could disagree with numpy they hand over to it: inputs not
+finite or huge (no overflow, hence no NaN, can then occur), and a minimum or maximum between +0 and
+-0 (which one numpy keeps is its own choice) where the sign could show in the result.
 """
 
 from __future__ import annotations
+
+import math
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -61,6 +70,175 @@ def _on_line(pix, piy, dix, diy, px, py, dx, dy, valid, radius, tx, ty, directio
     return pix + t_best * dix, piy + t_best * diy, ok
 
 
+class NumpyDecides(Exception):
+    """A plain-Python twin met a case where it might not give numpy's bits: run the numpy code."""
+
+
+# Inputs of a plain-Python twin are at most this large: every intermediate then stays finite.
+_PLAIN_LIMIT = 1e50
+
+
+def plain(*values: list[float]) -> bool:
+    """All values finite and at most _PLAIN_LIMIT in magnitude (NaN fails the comparison)."""
+    return all(all(map(_PLAIN_LIMIT.__gt__, map(abs, v))) for v in values)
+
+
+def _zeros_differ(a: float, b: float) -> bool:
+    """a and b are +0 and -0: equal, but which one numpy's min or max keeps is numpy's choice."""
+    return a == 0.0 and b == 0.0 and math.copysign(1.0, a) != math.copysign(1.0, b)
+
+
+def np_maximum(a: float, b: float) -> float:
+    """np.maximum of two finite Python floats (NumpyDecides on a +0/-0 tie)."""
+    if a > b:
+        return a
+    if a < b or not _zeros_differ(a, b):
+        return b
+    raise NumpyDecides
+
+
+def np_minimum(a: float, b: float) -> float:
+    """np.minimum of two finite Python floats (NumpyDecides on a +0/-0 tie)."""
+    if a < b:
+        return a
+    if a > b or not _zeros_differ(a, b):
+        return b
+    raise NumpyDecides
+
+
+Line = tuple[float, float, float, float]  # one robot's line on Python floats: (px, py, dx, dy)
+
+
+def _on_line_one(
+    pix: float,
+    piy: float,
+    dix: float,
+    diy: float,
+    lines: list[Line],
+    radius: float,
+    tx: float,
+    ty: float,
+    directional: bool,
+) -> tuple[float, float, bool]:
+    """`_on_line` for one robot on Python floats: line i clipped by the disk and ``lines`` (the valid
+    lines j, tuples (px, py, dx, dy)). Where it is not ok the point is not used and not computed."""
+    dot = pix * dix + piy * diy
+    disc = dot * dot + radius * radius - (pix * pix + piy * piy)
+    if disc < 0.0:
+        return 0.0, 0.0, False
+    sq = math.sqrt(disc)  # disc is +0 or more: a sum of squares minus one, never -0
+    t_left = -dot - sq
+    t_right = -dot + sq
+    # Folding the disk's ends in first gives the values of numpy's min/max over the lines then
+    # against the ends. Only the sign of a zero can differ (numpy keeps +0 or -0 on a tie), and it
+    # only shows in the point if the line's point has a zero coordinate.
+    for px, py, dx, dy in lines:
+        den = dix * dy - diy * dx
+        num = dx * (piy - py) - dy * (pix - px)
+        if -EPSILON <= den <= EPSILON:  # |den| <= EPSILON
+            if num < 0.0:
+                return 0.0, 0.0, False
+            continue
+        t = num / den
+        if den > 0.0:
+            if t < t_right:
+                t_right = t
+                if t_right < t_left:
+                    return 0.0, 0.0, False
+        elif t > t_left:
+            t_left = t
+            if t_right < t_left:
+                return 0.0, 0.0, False
+    if directional:
+        t_best = t_right if tx * dix + ty * diy > 0.0 else t_left
+    else:
+        t_best = dix * (tx - pix) + diy * (ty - piy)
+        if t_best <= t_left:
+            t_best = t_left
+        if t_best >= t_right:
+            t_best = t_right
+    if t_best == 0.0 and (pix == 0.0 or piy == 0.0):
+        raise NumpyDecides
+    return pix + t_best * dix, piy + t_best * diy, True
+
+
+def _disk_optimum_one(tx: float, ty: float, radius: float, directional: bool) -> tuple[float, float]:
+    """`_disk_optimum` on Python floats."""
+    if directional:
+        return tx * radius, ty * radius
+    n2 = tx * tx + ty * ty
+    scale = radius / math.sqrt(n2) if n2 > radius * radius else 1.0
+    return tx * scale, ty * scale
+
+
+class _One(NamedTuple):
+    """One robot's program on Python floats: its valid lines, speed-disk radius and target."""
+
+    lines: list[Line]
+    radius: float
+    tx: float
+    ty: float
+
+
+def _lines_one(
+    point: np.ndarray, direction: np.ndarray, valid: np.ndarray, radius: np.ndarray, target: np.ndarray
+) -> _One | None:
+    """One robot's valid lines as tuples (px, py, dx, dy), its radius and target (tx, ty) as Python
+    floats; None where the plain-Python twins may not be used."""
+    if point.dtype != np.float64 or direction.dtype != np.float64:
+        return None
+    p = point.reshape(-1).tolist()
+    d = direction.reshape(-1).tolist()
+    r = float(radius.reshape(-1)[0])
+    tx, ty = target.reshape(-1).tolist()
+    if not plain(p, d, [r, tx, ty]):
+        return None
+    lines = [line for line, ok in zip(zip(p[0::2], p[1::2], d[0::2], d[1::2]), valid.reshape(-1).tolist()) if ok]
+    return _One(lines, r, tx, ty)
+
+
+def optimise_one(
+    lines: list[Line], radius: float, tx: float, ty: float, directional: bool
+) -> tuple[float, float, bool]:
+    """`optimise` for one robot on Python floats: (x, y, feasible)."""
+    rx, ry = _disk_optimum_one(tx, ty, radius, directional)
+    for i, (px, py, dx, dy) in enumerate(lines):
+        if dx * (py - ry) - dy * (px - rx) > 0.0:
+            x, y, ok = _on_line_one(px, py, dx, dy, lines[:i], radius, tx, ty, directional)
+            if not ok:
+                return rx, ry, False  # a robot stops at its first unsatisfiable line
+            rx, ry = x, y
+    return rx, ry, True
+
+
+def optimise_few_one(
+    lines: list[Line], radius: float, tx: float, ty: float, directional: bool
+) -> tuple[float, float, bool]:
+    """`optimise_few` for one robot on Python floats: (x, y, feasible). Candidates in line order,
+    each clipped by every line (itself included); ties go to the first, as argmin's."""
+    cx, cy = _disk_optimum_one(tx, ty, radius, directional)
+    violated, best_cost, best = False, math.inf, None
+    for px, py, dx, dy in lines:
+        if not dx * (py - cy) - dy * (px - cx) > 0.0:
+            continue
+        violated = True
+        x, y, ok = _on_line_one(px, py, dx, dy, lines, radius, tx, ty, directional)
+        if not ok:
+            continue
+        if directional:
+            cost = -(tx * x + ty * y)
+        else:
+            ex, ey = x - tx, y - ty
+            cost = ex * ex + ey * ey
+        if best is None or cost < best_cost:
+            best_cost, best = cost, (x, y)
+    if not violated:
+        return cx, cy, True
+    if best is None:
+        return cx, cy, False
+    return best[0], best[1], True
+
+
 def _disk_optimum(
     tx: np.ndarray, ty: np.ndarray, radius: np.ndarray, directional: bool
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -88,6 +266,14 @@ def optimise(
     go furthest along. Returns (velocity (B,2), feasible (B,)); where infeasible the velocity is
     the optimum over the lines before the first one that could not be met.
     """
+    if len(target) == 1:
+        single = _lines_one(point, direction, valid, np.asarray(radius), target)
+        if single is not None:
+            try:
+                x, y, ok = optimise_one(single.lines, single.radius, single.tx, single.ty, directional)
+                return np.array([[x, y]]), np.array([ok])
+            except NumpyDecides:
+                pass
     # line-major copies (L, B): the loop over lines reads contiguous rows
     px, py = np.ascontiguousarray(point[..., 0].T), np.ascontiguousarray(point[..., 1].T)
     dx, dy = np.ascontiguousarray(direction[..., 0].T), np.ascontiguousarray(direction[..., 1].T)
@@ -139,6 +325,14 @@ def optimise_few(
     valid line at once (arrays (k, candidates, L)), is a candidate; the best one wins. Same optimum
     as `optimise` up to rounding; a call site must always use the same one (determinism).
     """
+    if len(target) == 1:
+        single = _lines_one(point, direction, valid, np.asarray(radius), target)
+        if single is not None:
+            try:
+                x, y, ok = optimise_few_one(single.lines, single.radius, single.tx, single.ty, directional)
+                return np.array([[x, y]]), np.array([ok])
+            except NumpyDecides:
+                pass
     px, py = point[..., 0], point[..., 1]
     dx, dy = direction[..., 0], direction[..., 1]
     radius = np.asarray(radius, dtype=float)

@@ -24,6 +24,7 @@ __all__ = [
 
 COOPERATING = 0.5  # responsibility c toward a robot running the same ORCA (eq. 12)
 NON_COOPERATING = 1.0  # toward a dynamic obstacle, or a robot whose state is stale
+PERTURBATION = 1e-4  # largest component of the symmetry-breaking perturbation of a preferred velocity (m/s)
 
 
 class Neighbours(NamedTuple):
@@ -134,8 +135,29 @@ def splitmix64(x: _Words) -> _Words:
         return x ^ (x >> np.uint64(31))
 
 
+_WORD = 2**64 - 1  # uint64 arithmetic on Python ints: masked to 64 bits
+
+
+def _splitmix64_int(x: int) -> int:
+    """splitmix64 of one word on Python ints."""
+    x = (x + 0x9E3779B97F4A7C15) & _WORD
+    x = ((x ^ (x >> 30)) * 0xBF58476D1CE4E5B9) & _WORD
+    x = ((x ^ (x >> 27)) * 0x94D049BB133111EB) & _WORD
+    return x ^ (x >> 31)
+
+
+def perturbation_one(robot_id: int, seed: int, tick: int = 0, magnitude: float = PERTURBATION) -> tuple[float, float]:
+    """The vector `perturb_preferred_velocity` adds for one robot, on Python ints and floats (the
+    same bits; an agent process steps one robot, where numpy's per-call overhead dominates)."""
+    ids = robot_id & _WORD  # as numpy's astype(uint64)
+    key = _splitmix64_int((_splitmix64_int(ids ^ _splitmix64_int(seed % 2**64)) + tick % 2**64) & _WORD)
+    a = float(key >> 11) * 2.0**-53
+    b = float(_splitmix64_int(key) >> 11) * 2.0**-53
+    return (2.0 * a - 1.0) * magnitude, (2.0 * b - 1.0) * magnitude
+
+
 def perturb_preferred_velocity(
-    pref_velocity: ArrayLike, robot_id: ArrayLike, seed: int, tick: int = 0, magnitude: float = 1e-4
+    pref_velocity: ArrayLike, robot_id: ArrayLike, seed: int, tick: int = 0, magnitude: float = PERTURBATION
 ) -> np.ndarray:
     """Add a tiny pseudo-random vector (each component in [-magnitude, magnitude]) to each preferred
     velocity, a function of (robot id, seed, tick) only: symmetric configurations (head-on pairs,

@@ -21,6 +21,7 @@ functions may take different code paths with the array's length).
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from typing import Any, NamedTuple
@@ -28,7 +29,8 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike
 
-from agent.core.orca import Lines, orca_velocity
+from agent.core.lp import NumpyDecides, plain
+from agent.core.orca import Lines, orca_velocity, orca_velocity_one, seg_values, segments_one
 from agent.core.params import RobotParams
 
 __all__ = [
@@ -62,27 +64,49 @@ def min_error_speed(v_h: ArrayLike, theta: ArrayLike) -> np.ndarray:
     return np.asarray(v_h, dtype=float) * factor
 
 
-def max_trackable_speed(theta: ArrayLike, error: ArrayLike, params: RobotParams) -> np.ndarray:
-    """V_H^max(theta): the largest holonomic speed at angle theta to the heading trackable within
-    ``error`` (the boundary of S_AHV; cases A, B, C of the module docstring). numpy, broadcasting."""
+class _AngleTerms(NamedTuple):
+    """The parts of V_H^max(theta) that depend on the angle only (`max_trackable_speed`)."""
+
+    turning: np.ndarray  # |theta| > 1e-8
+    t_eff: np.ndarray
+    t_eff_s_half: np.ndarray  # t_eff sin(|theta|/2)
+    k: np.ndarray
+    v_s: np.ndarray
+    v_s_sinc: np.ndarray  # v_s sin(theta)/theta
+    v_s_omc2: np.ndarray  # (v_s (1 - cos theta)/theta)^2
+
+
+def _angle_terms(theta: ArrayLike, params: RobotParams) -> _AngleTerms:
     a = np.abs(np.asarray(theta, dtype=float))
-    error = np.asarray(error, dtype=float)
     w_cap = omega_cap(params)
     t_eff = np.where(a > params.t_orient * w_cap, a / w_cap, params.t_orient)
     v_s = np.maximum(params.v_max - (a / t_eff) * (0.5 * params.wheel_base), 0.0)
-    a_safe = np.where(a > 1e-8, a, 1.0)
+    turning = a > 1e-8
+    a_safe = np.where(turning, a, 1.0)
     s_half = np.sin(0.5 * a_safe)
+    k = np.where(turning, 0.5 * a_safe * np.cos(0.5 * a_safe) / s_half, 1.0)
+    sinc = np.where(turning, np.sin(a_safe) / a_safe, 1.0)
+    one_minus_cos = np.where(turning, (1.0 - np.cos(a_safe)) / a_safe, 0.0)
+    return _AngleTerms(turning, t_eff, t_eff * s_half, k, v_s, v_s * sinc, (v_s * one_minus_cos) ** 2)
+
+
+def _speed_bound(terms: _AngleTerms, error: np.ndarray, v_max: float) -> np.ndarray:
+    """V_H^max from the angle's terms and the tracking error (cases A, B, C)."""
     with np.errstate(divide="ignore"):
-        v_a = np.where(a > 1e-8, error / (t_eff * s_half), np.inf)
-    k = np.where(a > 1e-8, 0.5 * a_safe * np.cos(0.5 * a_safe) / s_half, 1.0)
-    case_b = v_a * k > v_s
-    sinc = np.where(a > 1e-8, np.sin(a_safe) / a_safe, 1.0)
-    one_minus_cos = np.where(a > 1e-8, (1.0 - np.cos(a_safe)) / a_safe, 0.0)
-    root = (error / t_eff) ** 2 - (v_s * one_minus_cos) ** 2
-    v_b = v_s * sinc + np.sqrt(np.maximum(root, 0.0))
-    return np.minimum(np.where(case_b, v_b, v_a), params.v_max)
+        v_a = np.where(terms.turning, error / terms.t_eff_s_half, np.inf)
+    case_b = v_a * terms.k > terms.v_s
+    root = (error / terms.t_eff) ** 2 - terms.v_s_omc2
+    v_b = terms.v_s_sinc + np.sqrt(np.maximum(root, 0.0))
+    return np.minimum(np.where(case_b, v_b, v_a), v_max)
 
 
+def max_trackable_speed(theta: ArrayLike, error: ArrayLike, params: RobotParams) -> np.ndarray:
+    """V_H^max(theta): the largest holonomic speed at angle theta to the heading trackable within
+    ``error`` (the boundary of S_AHV; cases A, B, C of the module docstring). numpy, broadcasting."""
+    return _speed_bound(_angle_terms(theta, params), np.asarray(error, dtype=float), params.v_max)
+
+
+@functools.lru_cache(maxsize=16)
 def vertex_angles(params: RobotParams, n: int = _N_VERTICES) -> np.ndarray:
     """Angles (to the heading) of the P_AHV vertices, increasing in (-pi, pi].
 
@@ -95,7 +119,19 @@ def vertex_angles(params: RobotParams, n: int = _N_VERTICES) -> np.ndarray:
     dent = params.t_orient * omega_cap(params)
     if dent < np.pi:
         angles = np.concatenate([angles, [-dent, dent]])
-    return np.unique(angles)
+    angles = np.unique(angles)
+    angles.setflags(write=False)  # shared by every call with these params
+    return angles
+
+
+@functools.lru_cache(maxsize=16)
+def _polygon_terms(params: RobotParams) -> tuple[_AngleTerms, np.ndarray, np.ndarray]:
+    """What P_AHV's vertices owe to their angles alone: computed once per params."""
+    angles = vertex_angles(params)
+    out = (_angle_terms(angles[None, :], params), np.cos(angles), np.sin(angles))
+    for a in (*out[0], *out[1:]):
+        a.setflags(write=False)
+    return out
 
 
 def tracking_error(
@@ -132,9 +168,9 @@ def ahv_polygon(heading: ArrayLike, error: ArrayLike, params: RobotParams) -> np
     """Vertices (B,K,2) of P_AHV in the world frame, counter-clockwise: V_H^max sampled at
     `vertex_angles` to the heading."""
     c, s = _heading_cos_sin(heading)
-    angles = vertex_angles(params)
-    radius = max_trackable_speed(angles[None, :], np.asarray(error, dtype=float)[:, None], params)
-    lx, ly = radius * np.cos(angles), radius * np.sin(angles)
+    terms, cos_a, sin_a = _polygon_terms(params)
+    radius = _speed_bound(terms, np.asarray(error, dtype=float)[:, None], params.v_max)
+    lx, ly = radius * cos_a, radius * sin_a
     return np.stack([c[:, None] * lx - s[:, None] * ly, s[:, None] * lx + c[:, None] * ly], axis=-1)
 
 
@@ -157,22 +193,23 @@ def controls(
     vel = np.asarray(velocity, dtype=float)
     c, s = _heading_cos_sin(heading)
     rev = np.zeros(len(c), dtype=bool) if reverse is None else np.asarray(reverse, dtype=bool)
-    w_cap = omega_cap(params)
-    half_base = 0.5 * params.wheel_base
     v_out = np.empty(len(c))
     w_out = np.empty(len(c))
     for i in range(len(c)):
-        hx, hy = (-c[i], -s[i]) if rev[i] else (c[i], s[i])
-        vx, vy = float(vel[i, 0]), float(vel[i, 1])
-        speed = math.sqrt(vx * vx + vy * vy)
-        theta = math.atan2(hx * vy - hy * vx, hx * vx + hy * vy) if speed > 0.0 else 0.0
-        omega = math.copysign(min(abs(theta) / params.t_orient, w_cap), theta)
-        half = 0.5 * abs(theta)
-        v_star = speed * (half / math.tan(half)) if half > 1e-8 else speed
-        v = max(0.0, min(v_star, params.v_max - abs(omega) * half_base))
-        v_out[i] = -v if rev[i] else v
-        w_out[i] = omega
+        v_out[i], w_out[i] = _control_one(float(vel[i, 0]), float(vel[i, 1]), c[i], s[i], bool(rev[i]), params)
     return v_out, w_out
+
+
+def _control_one(vx: float, vy: float, c: float, s: float, reverse: bool, params: RobotParams) -> tuple[float, float]:
+    """`controls` of one robot: (v, omega) from its velocity and the cosine and sine of its heading."""
+    hx, hy = (-c, -s) if reverse else (c, s)
+    speed = math.sqrt(vx * vx + vy * vy)
+    theta = math.atan2(hx * vy - hy * vx, hx * vx + hy * vy) if speed > 0.0 else 0.0
+    omega = math.copysign(min(abs(theta) / params.t_orient, omega_cap(params)), theta)
+    half = 0.5 * abs(theta)
+    v_star = speed * (half / math.tan(half)) if half > 1e-8 else speed
+    v = max(0.0, min(v_star, params.v_max - abs(omega) * (0.5 * params.wheel_base)))
+    return -v if reverse else v, omega
 
 
 def wheel_speeds(v: ArrayLike, omega: ArrayLike, params: RobotParams) -> tuple[np.ndarray, np.ndarray]:
@@ -226,6 +263,27 @@ def nh_orca_wheel_speeds(
     nbr_position = np.asarray(nbr_position, dtype=float)
     nbr_radius = np.asarray(nbr_radius, dtype=float)
     nbr_valid = np.asarray(nbr_valid, dtype=bool)
+    if b == 1 and safety:
+        try:
+            one = _nh_orca_one(
+                position,
+                heading,
+                velocity,
+                pref_velocity,
+                radius,
+                nbr_position,
+                nbr_velocity,
+                nbr_radius,
+                nbr_responsibility,
+                nbr_valid,
+                obstacle_segments,
+                params,
+                nbr_growth,
+            )
+            if one is not None:
+                return one
+        except NumpyDecides:
+            pass
     error, nbr_error = tracking_error(position, radius, nbr_position, nbr_radius, nbr_valid, params)
     polygon = ahv_lines(ahv_polygon(heading, error, params))
     args = [
@@ -276,3 +334,116 @@ def nh_orca_wheel_speeds(
     v, omega = controls(v_cf, heading, params, reverse)
     left, right = wheel_speeds(v, omega, params)
     return NHResult(left, right, v_cf, fallback, reverse, error)
+
+
+# A batch of one robot (an agent process): nh_orca_wheel_speeds on Python floats, the same
+# operations in the same order as the numpy code above (numpy's per-call overhead dominates on
+# arrays of one); ORCA itself is agent.core.orca's `orca_velocity_one`.
+
+
+@functools.lru_cache(maxsize=16)
+def _polygon_terms_one(params: RobotParams) -> list[tuple]:
+    """`_polygon_terms` vertex by vertex as Python values."""
+    terms, cos_a, sin_a = _polygon_terms(params)
+    return list(zip(*(np.asarray(x).reshape(-1).tolist() for x in (*terms, cos_a, sin_a))))
+
+
+def _ahv_lines_one(c: float, s: float, error: float, params: RobotParams) -> list[tuple]:
+    """`ahv_lines` of `ahv_polygon` for one robot: (px, py, dx, dy) edge by edge."""
+    v_max = params.v_max
+    vertices = []
+    for turning, t_eff, t_eff_s_half, k, v_s, v_s_sinc, v_s_omc2, cos_a, sin_a in _polygon_terms_one(params):
+        v_a = error / t_eff_s_half if turning else math.inf
+        if v_a * k > v_s:
+            q = error / t_eff
+            root = q * q - v_s_omc2  # numpy's ** 2 is a square; root is never -0
+            v = v_s_sinc + (math.sqrt(root) if root > 0.0 else 0.0)
+        else:
+            v = v_a
+        radius = v if v < v_max else v_max
+        lx, ly = radius * cos_a, radius * sin_a
+        vertices.append((c * lx - s * ly, s * lx + c * ly))
+    lines = []
+    for (x, y), (nx, ny) in zip(vertices, vertices[1:] + vertices[:1]):
+        ex, ey = nx - x, ny - y
+        n = math.sqrt(ex * ex + ey * ey)
+        if n == 0.0:
+            raise NumpyDecides  # numpy divides by zero, Python raises
+        lines.append((x, y, ex / n, ey / n))
+    return lines
+
+
+def _nh_orca_one(
+    position,
+    heading,
+    velocity,
+    pref_velocity,
+    radius,
+    nbr_position,
+    nbr_velocity,
+    nbr_radius,
+    nbr_responsibility,
+    nbr_valid,
+    obstacle_segments,
+    params: RobotParams,
+    nbr_growth,
+) -> NHResult | None:
+    """nh_orca_wheel_speeds (with safety) of a batch of one robot; None where the Python floats
+    might not be numpy's (inputs not finite or huge)."""
+    (px, py) = position[0].tolist()
+    (vx, vy) = np.asarray(velocity, dtype=float)[0].tolist()
+    (tx, ty) = np.asarray(pref_velocity, dtype=float)[0].tolist()
+    h = float(np.asarray(heading, dtype=float).reshape(-1)[0])
+    r = float(radius[0])
+    m = nbr_valid.shape[1]
+    grow = [0.0] * m if nbr_growth is None else np.asarray(nbr_growth, dtype=float)[0].tolist()
+    nbrs = [
+        (q, w, nr, c, g)
+        for q, w, nr, c, g, ok in zip(
+            nbr_position[0].tolist(),
+            np.asarray(nbr_velocity, dtype=float)[0].tolist(),
+            nbr_radius[0].tolist(),
+            np.broadcast_to(np.asarray(nbr_responsibility, dtype=float), (1, m))[0].tolist(),
+            grow,
+            nbr_valid[0].tolist(),
+        )
+        if ok
+    ]
+    seg = segments_one(obstacle_segments)
+    flat = [x for q, w, nr, c, g in nbrs for x in (*q, *w, nr, c, g)]
+    p = params
+    settings = [p.v_max, p.tau, p.tau_obst, p.dt, p.error_min, p.error_max, p.wheel_base, p.t_orient, p.omega_max]
+    if not plain([px, py, vx, vy, tx, ty, h, r], flat, seg_values(seg), settings):
+        return None
+    # tracking_error: half the gap to each neighbour, clipped; E the smallest
+    e_min, e_max = params.error_min, params.error_max
+    error, grown = e_max, []
+    for (qx, qy), w, nr, c, g in nbrs:
+        ex = qx - px
+        ey = qy - py
+        half = 0.5 * (math.sqrt(ex * ex + ey * ey) - (r + nr))
+        half = half if half > e_min else e_min
+        half = half if half < e_max else e_max
+        error = half if half < error else error
+        grown.append(((qx, qy), w, nr + half, c, g))
+    c, s = math.cos(h), math.sin(h)
+    polygon = _ahv_lines_one(c, s, error, params)
+    solve = (px, py, vx, vy, tx, ty, r + error, params.v_max, grown, seg)
+    rest = (nbr_growth is not None, params.tau, params.tau_obst, params.dt, 0.0)
+    x, y, fallback = orca_velocity_one(*solve, polygon, *rest)
+    reverse = False
+    if fallback:
+        mirrored = [(-a, -b, -d, -e) for a, b, d, e in polygon]
+        bx, by, back_fallback = orca_velocity_one(*solve, mirrored, *rest)
+        if not back_fallback:
+            x, y, reverse = bx, by, True
+    v, omega = _control_one(x, y, c, s, reverse, params)
+    half_base = 0.5 * params.wheel_base
+    return NHResult(
+        np.array([v - omega * half_base]),
+        np.array([v + omega * half_base]),
+        np.array([[x, y]]),
+        np.array([fallback]),
+        np.array([reverse]),
+        np.array([error]),
+    )

@@ -7,12 +7,25 @@ permissible side on the left.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from agent.core.lp import least_violation, linear_program, optimise, optimise_few
+from agent.core.lp import (
+    Line,
+    NumpyDecides,
+    least_violation,
+    linear_program,
+    np_maximum,
+    np_minimum,
+    optimise,
+    optimise_few,
+    optimise_few_one,
+    optimise_one,
+    plain,
+)
 
 __all__ = [
     "Lines",
@@ -314,6 +327,27 @@ def orca_velocity(
         np.asarray(nbr_responsibility, dtype=float),
         np.asarray(nbr_valid, dtype=bool),
     )
+    if b == 1 and safety:
+        try:
+            one = _orca_velocity_one(
+                position,
+                velocity,
+                pref_velocity,
+                radius,
+                max_speed,
+                nbr,
+                obstacle_segments,
+                extra_hard_lines,
+                None if nbr_growth is None else np.asarray(nbr_growth, dtype=float),
+                float(tau),
+                float(tau_obst),
+                float(dt),
+                float(margin),
+            )
+            if one is not None:
+                return one
+        except NumpyDecides:
+            pass
     hard = []
     if obstacle_segments is not None and len(obstacle_segments):
         # Static obstacles do not move and do not help: the margin (e.g. the tracking-noise bound)
@@ -354,3 +388,193 @@ def orca_velocity(
             lines.point, lines.direction, lines.valid, max_speed[rows], pref_velocity[rows], n_hard
         )
     return new_velocity, ~feasible
+
+
+# A batch of one robot (an agent process): orca_velocity with safety lines on Python floats, the
+# same operations in the same order as the numpy code above (numpy's per-call overhead dominates
+# on arrays of one). Lines are tuples (px, py, dx, dy); only valid ones are kept, in the numpy
+# code's order (they are all an LP of one robot looks at).
+
+
+def _orca_line(
+    px: float,
+    py: float,
+    vx: float,
+    vy: float,
+    r: float,
+    qx: float,
+    qy: float,
+    nvx: float,
+    nvy: float,
+    nr: float,
+    c: float,
+    inv_tau: float,
+    inv_dt: float,
+) -> Line:
+    """`orca_lines` of one robot toward one neighbour (position q, velocity nv, radius nr)."""
+    rpx = qx - px
+    rpy = qy - py
+    rvx = vx - nvx
+    rvy = vy - nvy
+    dist2 = rpx * rpx + rpy * rpy
+    big_r = r + nr
+    big_r2 = big_r * big_r
+    apart = dist2 > big_r2
+    inv_h = inv_tau if apart else inv_dt
+    wx = rvx - inv_h * rpx
+    wy = rvy - inv_h * rpy
+    w2 = wx * wx + wy * wy
+    dot1 = wx * rpx + wy * rpy
+    if not apart or (dot1 < 0.0 and dot1 * dot1 > big_r2 * w2):
+        wl = math.sqrt(w2)
+        ux_c, uy_c = (1.0, 0.0) if wl == 0.0 else (wx / wl, wy / wl)
+        dx, dy = uy_c, -ux_c
+        scale = big_r * inv_h - wl
+        ux, uy = scale * ux_c, scale * uy_c
+    else:
+        leg = math.sqrt(dist2 - big_r2)  # apart: positive
+        if not rpx * wy - rpy * wx > 0.0:
+            leg = -leg
+        inv_d2 = 1.0 / (dist2 if dist2 > 0.0 else 1.0)
+        dx = (rpx * leg - rpy * big_r) * inv_d2
+        dy = (rpy * leg + rpx * big_r) * inv_d2
+        dot2 = rvx * dx + rvy * dy
+        ux = dot2 * dx - rvx
+        uy = dot2 * dy - rvy
+    return vx + c * ux, vy + c * uy, dx, dy
+
+
+def _obstacle_lines_one(px: float, py: float, r: float, vmax: float, segments: list, tau_obst: float) -> list[Line]:
+    """`obstacle_lines` of one robot: its valid lines, edge by edge."""
+    r = r * _BUFFER
+    out = []
+    for (ax, ay), (bx, by) in segments:
+        ex, ey = bx - ax, by - ay
+        len2 = ex * ex + ey * ey
+        t = ((px - ax) * ex + (py - ay) * ey) / (len2 if len2 > 0.0 else 1.0)
+        if t == 0.0 and (ax == 0.0 or ay == 0.0):
+            raise NumpyDecides  # np.clip keeps +0 or -0, which would show in ax + t ex
+        t = 0.0 if t < 0.0 else 1.0 if t > 1.0 else t
+        nx = px - (ax + t * ex)
+        ny = py - (ay + t * ey)
+        d = math.sqrt(nx * nx + ny * ny)
+        if d == 0.0:
+            el = math.sqrt(len2 if len2 > 0.0 else 1.0)
+            nx, ny = ey / el, -ex / el
+        else:
+            nx, ny = nx / d, ny / d
+        gap = d - r
+        offset = (gap if gap > 0.0 else 0.0) / tau_obst  # d - r is never -0
+        if offset < vmax:
+            out.append((-nx * offset, -ny * offset, ny, -nx))
+    return out
+
+
+def _orca_velocity_one(
+    position, velocity, pref_velocity, radius, max_speed, nbr, segments, extra, growth, tau, tau_obst, dt, margin
+):
+    """orca_velocity (with safety) of a batch of one robot from its arrays; None where the Python
+    floats might not be numpy's (inputs not finite or huge)."""
+    (px, py), (vx, vy), (tx, ty) = position[0].tolist(), velocity[0].tolist(), pref_velocity[0].tolist()
+    r, vmax = float(radius[0]), float(max_speed[0])
+    valid = nbr[4][0].tolist()
+    grow = [0.0] * len(valid) if growth is None else growth[0].tolist()
+    nbrs = [
+        (q, w, nr, c, g)
+        for q, w, nr, c, g, ok in zip(
+            nbr[0][0].tolist(), nbr[1][0].tolist(), nbr[2][0].tolist(), nbr[3][0].tolist(), grow, valid
+        )
+        if ok
+    ]
+    seg = segments_one(segments)
+    extra_lines = []
+    if extra is not None:
+        ep, ed = extra.point[0].tolist(), extra.direction[0].tolist()
+        extra_lines = [(*p, *d) for p, d, ok in zip(ep, ed, extra.valid[0].tolist()) if ok]
+    flat = [x for q, w, nr, c, g in nbrs for x in (*q, *w, nr, c, g)]
+    if not plain([px, py, vx, vy, tx, ty, r, vmax, tau, tau_obst, dt, margin], flat, seg_values(seg)):
+        return None
+    if not plain([x for line in extra_lines for x in line]):
+        return None
+    x, y, fallback = orca_velocity_one(
+        px, py, vx, vy, tx, ty, r, vmax, nbrs, seg, extra_lines, growth is not None, tau, tau_obst, dt, margin
+    )
+    return np.array([[x, y]]), np.array([fallback])
+
+
+def segments_one(segments: np.ndarray | None) -> list:
+    """Obstacle edges as nested lists ((ax, ay), (bx, by)) for `orca_velocity_one`."""
+    return [] if segments is None else np.asarray(segments, dtype=float).reshape(-1, 2, 2).tolist()
+
+
+def seg_values(seg: list) -> list[float]:
+    return [x for s in seg for p in s for x in p]
+
+
+def orca_velocity_one(
+    px: float,
+    py: float,
+    vx: float,
+    vy: float,
+    tx: float,
+    ty: float,
+    r: float,
+    vmax: float,
+    nbrs: list[tuple],
+    seg: list,
+    extra_lines: list[Line],
+    grown: bool,
+    tau: float,
+    tau_obst: float,
+    dt: float,
+    margin: float,
+) -> tuple[float, float, bool]:
+    """orca_velocity with safety lines for one robot on Python floats (finite, at most
+    lp._PLAIN_LIMIT): the same operations in the same order. ``nbrs``: the valid neighbours as
+    ((x, y), (vx, vy), radius, responsibility, growth); ``grown``: whether growths were given.
+    Returns (x, y, fallback); raises NumpyDecides where numpy's bits could differ."""
+    hard = _obstacle_lines_one(px, py, r + margin, vmax, seg, tau_obst) if seg else []
+    hard += extra_lines
+    own = r * _BUFFER
+    inv_dt = 1.0 / dt
+    reach = 2.0 * dt * vmax
+    for (qx, qy), (wx, wy), nr, c, g in nbrs:
+        ex = qx - px
+        ey = qy - py
+        dist = math.sqrt(ex * ex + ey * ey)
+        nr = nr * _BUFFER
+        if grown:
+            certain = nr - g * _BUFFER
+            nr = np_minimum(nr, np_maximum(dist * (1.0 - 1e-9) - own, certain))
+        keep = c >= 1.0
+        if keep or dist - (own + nr) < reach:
+            if not keep:
+                wx = wy = 0.0
+            hard.append(_orca_line(px, py, 0.0, 0.0, own, qx, qy, wx, wy, nr, c, inv_dt, inv_dt))
+    hard = [line for line in hard if line[2] * line[1] - line[3] * line[0] > -vmax]  # drop_redundant
+    r_grown = r + margin
+
+    def program(horizon: float) -> list[Line]:
+        inv_h = 1.0 / horizon
+        lines = list(hard)
+        for (qx, qy), (wx, wy), nr, c, _ in nbrs:
+            line = _orca_line(px, py, vx, vy, r_grown, qx, qy, wx, wy, nr + margin, c, inv_h, inv_dt)
+            if line[2] * line[1] - line[3] * line[0] > -vmax:
+                lines.append(line)
+        return lines
+
+    lines = program(tau)
+    x, y, feasible = optimise_one(lines, vmax, tx, ty, False)
+    if feasible:
+        return x, y, False
+    horizon = tau
+    while horizon > dt:
+        horizon = max(horizon / _SHRINK, dt)
+        lines = program(horizon)
+        x, y, ok = optimise_few_one(lines, vmax, tx, ty, False)
+        if ok:
+            return x, y, True
+    arr = np.array(lines, dtype=float).reshape(1, -1, 4)
+    every = np.ones(arr.shape[:2], dtype=bool)
+    v = least_violation(arr[..., :2], arr[..., 2:], every, np.array([vmax]), np.array([[tx, ty]]), len(hard))
+    return float(v[0, 0]), float(v[0, 1]), True

@@ -8,12 +8,13 @@ K robots drives exactly as K separate processes would.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import partial
 
 import numpy as np
 
-from .neighbours import perturb_preferred_velocity, prepare_neighbours, splitmix64
+from .neighbours import perturb_preferred_velocity, perturbation_one, prepare_neighbours, splitmix64
 from .nhorca import nh_orca_wheel_speeds
 from .orca import arena_segments, orca_velocity, polygon_segments, preferred_velocity
 from .params import DIFFDRIVE, RobotParams
@@ -87,6 +88,45 @@ def keep_right_when_blocked(pref: np.ndarray, velocity: np.ndarray, v_pref: floa
     return np.where(blocked[:, None], turned, pref)
 
 
+def _preferred_one(params, robot_ids, position, velocity, goal, seed, tick, preferred) -> np.ndarray | None:
+    """control_step's preferred velocity for a batch of one robot on Python floats and ints: eq. 9,
+    a given row, keep right when blocked, the perturbation; the same operations in the same order
+    as the numpy code (numpy's per-call overhead dominates on arrays of one). None where the
+    arguments are not plain float and integer arrays."""
+    ids = np.asarray(robot_ids)
+    if ids.dtype.kind not in "iu" or ids.size != 1:
+        return None
+    position, velocity, goal = np.asarray(position), np.asarray(velocity), np.asarray(goal)
+    if any(a.dtype != np.float64 for a in (position, velocity, goal)):
+        return None
+    (px, py), (vx, vy), (gx, gy) = position[0].tolist(), velocity[0].tolist(), goal[0].tolist()
+    v_pref, k_a = float(params.v_pref), float(params.k_a)
+    # orca.preferred_velocity
+    ex, ey = gx - px, gy - py
+    dist = math.sqrt(ex * ex + ey * ey)  # nan stays nan
+    if math.isfinite(dist) and dist > 0.0:
+        gain = v_pref / dist if dist > k_a else v_pref / k_a
+        pref_x, pref_y = ex * gain, ey * gain
+    else:
+        pref_x, pref_y = 0.0, 0.0
+    if preferred is not None:
+        given = np.asarray(preferred)
+        if given.dtype != np.float64:
+            return None
+        gx, gy = given[0].tolist()
+        if math.isfinite(gx) and math.isfinite(gy):
+            pref_x, pref_y = gx, gy
+    # keep_right_when_blocked (numpy's hypot, not math's: they may round differently)
+    want = float(np.hypot(pref_x, pref_y))
+    if want > 0.5 * v_pref and float(np.hypot(vx, vy)) < 0.25 * want:
+        pref_x, pref_y = _COS * pref_x - _SIN * pref_y, _SIN * pref_x + _COS * pref_y
+    # neighbours.perturb_preferred_velocity where the preferred velocity is not zero
+    if pref_x != 0 or pref_y != 0:
+        dx, dy = perturbation_one(int(ids.reshape(-1)[0]), seed, tick)
+        pref_x, pref_y = pref_x + dx, pref_y + dy
+    return np.array([[pref_x, pref_y]])
+
+
 def control_step(
     params: RobotParams,
     robot_ids: np.ndarray,
@@ -111,15 +151,19 @@ def control_step(
     (agent.core.orca_kernel: the central engine's fast path; agent processes never load numba)."""
     if compiled and params.kinematics != DIFFDRIVE:
         return _compiled_step(params, robot_ids, position, velocity, goal, neighbours, segments, seed, tick, preferred)
-    pref = preferred_velocity(position, goal, params.v_pref, params.k_a)
-    if preferred is not None:
-        given = np.isfinite(preferred).all(axis=1)
-        pref = np.where(given[:, None], np.where(given[:, None], preferred, 0.0), pref)
-    pref = keep_right_when_blocked(pref, velocity, params.v_pref)
-    # A tiny deterministic perturbation breaks the symmetric head-on configurations that deadlock ORCA.
-    pref = np.where(
-        np.any(pref != 0, axis=1, keepdims=True), perturb_preferred_velocity(pref, robot_ids, seed, tick), pref
-    )
+    pref = None
+    if len(position) == 1:
+        pref = _preferred_one(params, robot_ids, position, velocity, goal, seed, tick, preferred)
+    if pref is None:
+        pref = preferred_velocity(position, goal, params.v_pref, params.k_a)
+        if preferred is not None:
+            given = np.isfinite(preferred).all(axis=1)
+            pref = np.where(given[:, None], np.where(given[:, None], preferred, 0.0), pref)
+        pref = keep_right_when_blocked(pref, velocity, params.v_pref)
+        # A tiny deterministic perturbation breaks the symmetric head-on configurations that deadlock ORCA.
+        pref = np.where(
+            np.any(pref != 0, axis=1, keepdims=True), perturb_preferred_velocity(pref, robot_ids, seed, tick), pref
+        )
     nb = prepare_neighbours(
         neighbours.position,
         neighbours.velocity,

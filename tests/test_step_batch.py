@@ -1,0 +1,104 @@
+"""control_step of one robot (an agent process) and of a batch (an agent host, the central engine)
+give the same bits: a batch of one runs plain-Python twins of the numpy code (agent.core.lp,
+orca, step), a larger batch the numpy code itself."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from agent.core.lp import optimise, optimise_few
+from agent.core.params import DIFFDRIVE, HOLONOMIC, RobotParams
+from agent.core.step import NeighbourStates, control_step, static_segments
+
+FIELDS = ("velocity", "command", "pref_velocity", "fallback")
+
+
+def crowd(rng: np.random.Generator, b: int, m: int) -> tuple:
+    """B robots with M neighbours each: some overlapping, stale, invalid (NaN), not cooperating; some
+    robots barely moving toward a far goal (blocked), some without a goal."""
+    position = rng.uniform(-0.8, 0.8, (b, 2))
+    ang = rng.uniform(0, 2 * np.pi, (b, m))
+    dist = rng.uniform(0.05, 0.5, (b, m))
+    nb = NeighbourStates(
+        position[:, None, :] + np.stack([dist * np.cos(ang), dist * np.sin(ang)], axis=-1),
+        rng.normal(0, 0.06, (b, m, 2)),
+        rng.uniform(0.03, 0.05, (b, m)),
+        rng.choice([-0.05, 0.05, 0.2, 0.8], (b, m)),
+        rng.random((b, m)) < 0.85,
+        rng.random((b, m)) < 0.9,
+    )
+    nb.position[~nb.valid & (rng.random((b, m)) < 0.5)] = np.nan
+    velocity = rng.normal(0, 0.05, (b, 2))
+    velocity[rng.random(b) < 0.3] *= 0.01
+    goal = rng.uniform(-1.5, 1.5, (b, 2))
+    goal[rng.random(b) < 0.1] = np.nan
+    return rng.integers(0, 1000, b), position, rng.uniform(-np.pi, np.pi, b), velocity, goal, nb
+
+
+@pytest.mark.parametrize("kinematics", [HOLONOMIC, DIFFDRIVE])
+@pytest.mark.parametrize("walls", [False, True])
+@pytest.mark.parametrize("given", [False, True])
+def test_a_batch_gives_each_robot_the_bits_it_gets_alone(kinematics, walls, given):
+    rng = np.random.default_rng([walls, given, kinematics == DIFFDRIVE])
+    b, m = 40, 8
+    ids, position, heading, velocity, goal, nb = crowd(rng, b, m)
+    segments = (
+        static_segments((-1.0, -1.0, 1.0, 1.0), [[(0.1, 0.1), (0.3, 0.1), (0.3, 0.3), (0.1, 0.3)]]) if walls else None
+    )
+    preferred = None
+    if given:
+        preferred = rng.uniform(-0.12, 0.12, (b, 2))
+        preferred[rng.random(b) < 0.5] = np.nan
+    params = RobotParams(kinematics=kinematics)
+    kw = dict(seed=5, tick=11)
+    full = control_step(params, ids, position, heading, velocity, goal, nb, segments, preferred=preferred, **kw)
+    assert full.fallback.any() and not full.fallback.all()  # both the program and its fallback ran
+    for i in range(b):
+        row = slice(i, i + 1)
+        one = control_step(
+            params,
+            ids[row],
+            position[row],
+            heading[row],
+            velocity[row],
+            goal[row],
+            nb.rows(row),
+            segments,
+            preferred=None if preferred is None else preferred[row],
+            **kw,
+        )
+        for f in FIELDS:
+            assert getattr(one, f)[0].tobytes() == getattr(full, f)[i].tobytes(), (i, f)
+
+
+def test_a_zero_step_from_a_zero_coordinate_is_left_to_numpy():
+    """The optimum lies on the line's point (0, 0.5): the 1-D step is zero and x = 0 + t * 1, whose
+    sign numpy decides; a batch of one gets numpy's bits, as in a batch of two."""
+    point = np.array([[[0.0, 0.5], [0.0, -3.0]]])
+    direction = np.array([[[1.0, 0.0], [1.0, 0.0]]])
+    valid = np.ones((1, 2), dtype=bool)
+    target = np.zeros((1, 2))
+    for solve in (optimise, optimise_few):
+        v1, ok1 = solve(point, direction, valid, np.ones(1), target)
+        v2, ok2 = solve(
+            np.repeat(point, 2, 0), np.repeat(direction, 2, 0), np.ones((2, 2), bool), np.ones(2), target.repeat(2, 0)
+        )
+        assert np.array_equal(v1[0], [0.0, 0.5]) and ok1[0] and ok2[0]
+        assert v1[0].tobytes() == v2[0].tobytes()
+
+
+def test_a_line_that_is_not_finite_is_left_to_numpy():
+    point = np.array([[[0.0, 0.5], [np.nan, 0.0]]])
+    direction = np.array([[[1.0, 0.0], [0.0, 1.0]]])
+    valid = np.ones((1, 2), dtype=bool)
+    for solve in (optimise, optimise_few):
+        v1, ok1 = solve(point, direction, valid, np.ones(1), np.array([[0.2, 0.0]]))
+        v2, ok2 = solve(
+            np.repeat(point, 2, 0),
+            np.repeat(direction, 2, 0),
+            np.ones((2, 2), bool),
+            np.ones(2),
+            np.array([[0.2, 0.0]] * 2),
+        )
+        assert v1[0].tobytes() == v2[0].tobytes() and ok1[0] == ok2[0]
