@@ -69,7 +69,12 @@ def _as_list(value: Any) -> Any:
 
 
 def display_converged(
-    pose: np.ndarray, goal: np.ndarray, assign_epoch: np.ndarray, alive: np.ndarray, newest: Goals | None, tolerance: float
+    pose: np.ndarray,
+    goal: np.ndarray,
+    assign_epoch: np.ndarray,
+    alive: np.ndarray,
+    newest: Goals | None,
+    tolerance: float,
 ) -> bool:
     """Every live robot within ``tolerance`` of its goal. Image scenes: only goals agreed on the
     newest goal set count (not the last image's), and a goal set that still holds a dead robot is
