@@ -109,12 +109,19 @@ class Inbox(Generic[MessageT]):
                 self.drops["fault"] += 1
                 return
             delay = self.fault.delay + rng.random() * self.fault.jitter
-            if on_ticks and stamp is not None:
-                heap, release = self._held, stamp + delay
+            if delay <= 0.0:
+                for m in msgs:
+                    self._queue.put((key, m))
+            elif on_ticks and stamp is not None:
+                for m in msgs:
+                    heapq.heappush(self._held, (stamp + delay, next(self._order), key, m))
             else:
-                heap, release = self._delayed, time.monotonic() + delay
-            for m in msgs:
-                heapq.heappush(heap, (release, next(self._order), key, m))
+                for m in msgs:
+                    heapq.heappush(self._delayed, (time.monotonic() + delay, next(self._order), key, m))
+        # Rung for held messages too: an owner asleep on the bell learns it has messages to release
+        # (a message held without a ring waited for the owner's next wake-up, a tick or more late).
+        if self.bell is not None:
+            self.bell.set()
 
     def _release_delayed(self) -> None:
         if not (self._delayed or self._held):
@@ -131,7 +138,7 @@ class Inbox(Generic[MessageT]):
 
     @property
     def has_delayed(self) -> bool:
-        """Messages held back by an injected delay (their owner must poll: no bell rings for them)."""
+        """Messages held back by an injected delay (their owner must poll until they are due)."""
         return bool(self._delayed or self._held)
 
     def drain(self) -> list[tuple[str, MessageT]]:
