@@ -37,10 +37,10 @@ lint: $(TSTAMP)
 	$(VENV)/bin/mypy
 
 # The whole suite: the in-process tests, then the end-to-end runs (marked slow) on every core, then
-# the runs on the wall clock one at a time (another run beside them would make their robots late).
+# those marked serial one at a time (on the wall clock, another run beside them makes robots late).
 test: test-fast
-	$(PY) -m pytest -q -m "slow and not wallclock" -n auto
-	$(PY) -m pytest -q -m "slow and wallclock"
+	$(PY) -m pytest -q -m "slow and not serial" -n auto
+	$(PY) -m pytest -q -m "slow and serial"
 
 # Everyday work: the suite without the end-to-end runs marked slow.
 test-fast: lint

@@ -239,7 +239,7 @@ def test_robots_stop_during_a_tracker_outage_and_resume(tmp_path, spawned):
 
 
 @pytest.mark.slow
-@pytest.mark.wallclock
+@pytest.mark.serial
 def test_an_agent_killed_and_started_again_rejoins_the_auction_and_the_show(tmp_path, spawned):
     # real time: a lock-step agent greets its first neighbours before it says it is alive (start-up only)
     scene = write_disk(tmp_path, clock="realtime", hold=25.0)  # to the end: the nine form before it is back
@@ -291,7 +291,7 @@ ROUTER_DOWN = 2.0  # s of wall time the standalone router is gone
 
 
 @pytest.mark.slow
-@pytest.mark.wallclock
+@pytest.mark.serial
 def test_a_router_killed_and_restarted_every_component_reconnects_and_the_show_completes(tmp_path, spawned):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
 

@@ -115,7 +115,7 @@ def in_process(main, args: list[str], capsys) -> subprocess.CompletedProcess:
 
 
 @pytest.mark.slow
-@pytest.mark.wallclock
+@pytest.mark.serial
 def test_a_circle_through_emulated_robots_converges_without_contacts(tmp_path, spawned):
     scene = scene_file(tmp_path)
     lab, endpoint, hw, log = start_lab(tmp_path, scene, spawned)
@@ -159,7 +159,7 @@ def agent_of(run: subprocess.Popen, robot: int) -> psutil.Process | None:
 
 
 @pytest.mark.slow
-@pytest.mark.wallclock
+@pytest.mark.serial
 def test_a_killed_agent_stops_its_robot_and_the_end_of_the_run_stops_all(tmp_path, spawned):
     scene_path = scene_file(tmp_path)
     router = loopback_router()
@@ -223,7 +223,7 @@ def all_moving(lab: Lab, commands: int = 10) -> bool:
 
 
 @pytest.mark.slow
-@pytest.mark.wallclock
+@pytest.mark.serial
 def test_robots_stop_while_the_pose_source_is_down_and_the_display_completes_when_it_returns(tmp_path, spawned):
     """The motion capture stops mid-run (its session closes) and restarts 1.5 s later; the router stays up."""
     scene_path = scene_file(tmp_path)
@@ -266,7 +266,7 @@ def test_robots_stop_while_the_pose_source_is_down_and_the_display_completes_whe
 
 
 @pytest.mark.slow
-@pytest.mark.wallclock
+@pytest.mark.serial
 @pytest.mark.parametrize("to", ["the run", "its process group"])
 def test_ctrl_c_stops_every_robot_and_leaves_no_process(tmp_path, spawned, to):
     """SIGINT to the run's process only, or to its whole process group (Ctrl-C in a terminal)."""
@@ -377,7 +377,7 @@ def test_a_bad_hardware_file_is_refused_by_the_real_command(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.wallclock
+@pytest.mark.serial
 def test_an_unreachable_robot_or_a_robot_without_poses_refuses_the_run(tmp_path):
     with socket.socket() as sock:  # a port nobody listens on
         sock.bind(("127.0.0.1", 0))

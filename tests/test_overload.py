@@ -54,7 +54,7 @@ def _run(tmp_path, faults: str, duration: str, name: str) -> dict:
 
 
 @pytest.mark.slow
-@pytest.mark.wallclock
+@pytest.mark.serial
 def test_commands_late_past_their_period_stop_the_bodies_without_contact(tmp_path):
     m = _run(tmp_path, "cmd:delay=0.15", "3", "late")
     assert m["agent_processes"] == 20 and m["crashes"] == []
@@ -64,7 +64,7 @@ def test_commands_late_past_their_period_stop_the_bodies_without_contact(tmp_pat
 
 
 @pytest.mark.slow
-@pytest.mark.wallclock
+@pytest.mark.serial
 def test_poses_and_commands_late_by_chance_drive_some_ticks_and_stop_others_without_contact(tmp_path):
     # poses up to 80 ms late: agents act late and plan for it; commands up to 80 ms late: some drive
     # (late), some arrive after the next one, some run out

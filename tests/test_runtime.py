@@ -125,7 +125,7 @@ def test_lockstep_is_reproducible_and_hosts_match_processes(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.wallclock
+@pytest.mark.serial
 def test_sigkill_of_an_agent(tmp_path, spawned):
     scene = write_scene(tmp_path, duration=10.0)
     out = tmp_path / "run"
