@@ -197,6 +197,19 @@ def _lines_one(
     return _One(lines, r, tx, ty)
 
 
+def _solve_one(solve, point, direction, valid, radius, target, directional):
+    """A batch of one robot by its plain-Python twin ``solve``, as the batch's arrays; None where the
+    numpy code must decide (see `_lines_one` and NumpyDecides)."""
+    single = _lines_one(point, direction, valid, np.asarray(radius), target)
+    if single is None:
+        return None
+    try:
+        x, y, ok = solve(single.lines, single.radius, single.tx, single.ty, directional)
+    except NumpyDecides:
+        return None
+    return np.array([[x, y]]), np.array([ok])
+
+
 def optimise_one(
     lines: list[Line], radius: float, tx: float, ty: float, directional: bool
 ) -> tuple[float, float, bool]:
@@ -267,13 +280,9 @@ def optimise(
     the optimum over the lines before the first one that could not be met.
     """
     if len(target) == 1:
-        single = _lines_one(point, direction, valid, np.asarray(radius), target)
-        if single is not None:
-            try:
-                x, y, ok = optimise_one(single.lines, single.radius, single.tx, single.ty, directional)
-                return np.array([[x, y]]), np.array([ok])
-            except NumpyDecides:
-                pass
+        solved = _solve_one(optimise_one, point, direction, valid, radius, target, directional)
+        if solved is not None:
+            return solved
     # line-major copies (L, B): the loop over lines reads contiguous rows
     px, py = np.ascontiguousarray(point[..., 0].T), np.ascontiguousarray(point[..., 1].T)
     dx, dy = np.ascontiguousarray(direction[..., 0].T), np.ascontiguousarray(direction[..., 1].T)
@@ -326,13 +335,9 @@ def optimise_few(
     as `optimise` up to rounding; a call site must always use the same one (determinism).
     """
     if len(target) == 1:
-        single = _lines_one(point, direction, valid, np.asarray(radius), target)
-        if single is not None:
-            try:
-                x, y, ok = optimise_few_one(single.lines, single.radius, single.tx, single.ty, directional)
-                return np.array([[x, y]]), np.array([ok])
-            except NumpyDecides:
-                pass
+        solved = _solve_one(optimise_few_one, point, direction, valid, radius, target, directional)
+        if solved is not None:
+            return solved
     px, py = point[..., 0], point[..., 1]
     dx, dy = direction[..., 0], direction[..., 1]
     radius = np.asarray(radius, dtype=float)
