@@ -21,16 +21,19 @@ it at tick k (settle_block).
 
 from __future__ import annotations
 
+import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from itertools import count
+from typing import Any
 
 import numpy as np
 
-from transport.bus import Bus
-from transport.codec import Bid, Goals
+from transport.bus import Bus, Inbox
+from transport.codec import Bid, Boards, Goals
 
 from .core.bidder import RECORD, SETTLED, Participant, frames_close
+from .core.local_auction import NO_OWNER, LocalAuction, Words
 from .core.params import RobotParams
 
 DIGEST_EVERY = 0.01
@@ -65,29 +68,41 @@ class AuctionLink:
         lockstep: bool = False,
         on_abandoned: OnAbandoned | None = None,
         dead: Callable[[], set[int]] | None = None,
+        reach: float = math.inf,
     ) -> None:
         """``where``: the own robots' bid positions now (the runtime's), asked again when an agreement
         was handed to ``on_agreed`` just before a new block freezes its positions. ``lockstep``: the
         tick-synchronous rounds (settle_block); ``on_abandoned`` hears of own robots whose block could
         not finish (they must hold their positions: another robot may hold their goals now); ``dead``:
-        the robots whose agent is known dead now (their records are not waited for)."""
+        the robots whose agent is known dead now (their records are not waited for); ``reach``: a
+        robot hears the auction only from robots this close (m): the range-limited auction
+        (core.local_auction), lock-step only."""
+        if math.isfinite(reach) and not lockstep:
+            raise ValueError("a communication range needs the lock-step clock")
+        self.reach = reach
         self.bus, self.robots, self.params, self.on_agreed = bus, sorted(robots), params, on_agreed
         self.where = where
         self.lockstep, self.on_abandoned = lockstep, on_abandoned
         self.dead = dead if dead is not None else set
         self.block_stamp = -np.inf  # lock-step: display time of the last block's tick
         self.round_records: dict[
-            tuple[int, int, int], dict[int, np.ndarray]
-        ] = {}  # (epoch, block, round) -> sender -> records
-        self.said: dict[tuple[int, int, int], tuple[Bid, float]] = {}  # our rounds' messages, when last sent
+            tuple[int, int, int], dict[int, Any]
+        ] = {}  # (epoch, block, round) -> sender -> its message (Bid or Boards)
+        self.said: dict[tuple[int, int, int], tuple[Bid | Boards, float]] = {}  # our rounds' messages, when last sent
         self.waiting_for: tuple[int, int, int] | None = None  # the round we wait in
         self.newest_round: dict[tuple[int, int, int], int] = {}  # (epoch, block, sender) -> its latest round heard
         self.rounds = 0  # lock-step rounds taken part in
         self.abandoned = 0  # lock-step blocks given up (a round never completed)
         self.stopped = False  # the host is shutting down: stop waiting for rounds
-        self.inbox = bus.subscribe(bus.keys.all_of("auction"), Bid)
+        ranged = math.isfinite(reach)
+        self.inbox: Inbox[Any] = (
+            bus.subscribe(bus.keys.all_of("boards"), Boards)
+            if ranged
+            else bus.subscribe(bus.keys.all_of("auction"), Bid)
+        )
         self.sender = self.robots[0]
         self.part: Participant | None = None
+        self.local: LocalAuction | None = None  # the range-limited auction, in place of part
         self.goal_set: Goals | None = None
         self.serial = 0
         self.last_sent = -np.inf
@@ -106,11 +121,13 @@ class AuctionLink:
 
     @property
     def active(self) -> bool:
-        return self.part is not None
+        return self.part is not None or self.local is not None
 
     @property
     def cold(self) -> bool:
         """The goal set's auction has not agreed yet (its robots have no goal of it, unless carried)."""
+        if self.local is not None:
+            return self.local.agreed_instance < 0
         return self.part is not None and self.part.agreed_instance < 0
 
     @property
@@ -131,10 +148,12 @@ class AuctionLink:
     @property
     def epoch(self) -> int:
         """The goal set of the current auction (0: none yet)."""
+        if self.local is not None:
+            return self.local.epoch
         return self.part.epoch if self.part is not None else 0
 
     def idle_robots(self) -> list[int]:
-        own = set(self.part.own) if self.part else set()
+        own = set(self.local.own) if self.local else set(self.part.own) if self.part else set()
         return [r for r in self.robots if r not in own]
 
     # --- inputs -----------------------------------------------------------------------------------
@@ -148,7 +167,21 @@ class AuctionLink:
         Otherwise a keyframe carries by the coordinator's goal correspondence, and the auction starts
         from the carried claims only when the last one had agreed (a board still in a price war is
         no assignment) and the frames are close (bidder.frames_close)."""
-        if self.part is not None and goals.epoch <= self.part.epoch:
+        if self.active and goals.epoch <= self.epoch:
+            return {}
+        if math.isfinite(self.reach):  # a cold start at the next tick, as the central engine starts a new image
+            self.goal_set = goals
+            self.local = LocalAuction(
+                goals.epoch,
+                goals.positions,
+                goals.robots.tolist(),
+                self.robots,
+                self.params.assign_eps,
+                self.params.assign_hysteresis,
+                self.reach,
+            )
+            self.epoch_wall, self.reported, self.others = time.monotonic(), -1, set()
+            self.block_stamp = -np.inf
             return {}
         before = self.part
         self.goal_set = goals
@@ -234,7 +267,10 @@ class AuctionLink:
             self._publish()
 
     def penalise(self, robot: int, epoch: int, goal: int) -> None:
-        if self.part is not None and epoch == self.part.epoch:
+        if self.local is not None and epoch == self.local.epoch:
+            self.local.penalise(robot, goal, self.params.deadlock_cost)
+            self.penalties += 1
+        elif self.part is not None and epoch == self.part.epoch:
             self.part.penalise(robot, goal, self.params.deadlock_cost)
             self.penalties += 1
 
@@ -293,6 +329,9 @@ class AuctionLink:
         tick's positions, bid through its rounds with every other host and agreed before this tick's
         commands; its agreement goes to ``on_agreed`` at this tick. A host with no robot in the goal
         set takes no part."""
+        if self.local is not None:
+            self._settle_local(stamp, positions)
+            return
         part = self.part
         if part is None or not part.own or not all(r in positions for r in part.own):
             return
@@ -305,51 +344,93 @@ class AuctionLink:
             before = part.board.digest()
             part.bid()
             mine = part.round_records()
-            heard = self._round(final, r, mine, set(part.robots.tolist()))
+            said = Bid(part.epoch, final, self.sender, r, part.board.digest(), len(mine), mine)
+            heard = self._round((part.epoch, final, r), said, set(part.robots.tolist()), lambda m: m.records["robot"])
             if heard is None:
                 self._abandon()
                 return
-            for recs in heard.values():
-                part.absorb(part.instance, r, 0, recs)
+            for msg in heard.values():
+                part.absorb(part.instance, r, 0, msg.records)
             self.rounds += 1
             if part.close_round(part.board.digest() == before, self._all_settled(mine, heard)):
                 self._report()
                 return
 
+    def _settle_local(self, stamp: float, positions: dict[int, np.ndarray]) -> None:
+        """The range-limited auction's block (core.local_auction): the same rounds as in the central
+        engine, each host saying its robots' words and hearing everyone's, every robot keeping only
+        what came from within reach. A robot that said it ended the block is not waited for again."""
+        local, gs = self.local, self.goal_set
+        if local is None or gs is None or not local.own or not all(r in positions for r in local.own):
+            return
+        if local.started and stamp - self.block_stamp < self.params.assign_period - 1e-9:
+            return
+        self.block_stamp = stamp
+        local.begin_block(positions)
+        waiting = set(local.robots.tolist())
+        while True:
+            words = local.say()
+            key = (local.epoch, local.instance, local.round)
+            said = _boards(local, words, self.sender)
+            if local.done:  # our robots' last words: said once (and again to whoever missed them)
+                self.said[key] = (said, -np.inf)
+                self._send(key)
+                break
+            heard = self._round(key, said, waiting, lambda m: m.words["robot"])
+            if heard is None:
+                self._abandon()
+                return
+            theirs = [_words(m, local) for m in heard.values()]
+            for w in theirs:
+                waiting -= set(w.robot[w.ended].tolist())
+            local.hear(Words.join([words, *theirs]))
+            self.rounds += 1
+        self.agreements += 1
+        if self.reported < 0:
+            self.first_agreement_s.append(time.monotonic() - self.epoch_wall)
+        self.reported = local.agreed_instance
+        self.on_agreed(local.epoch, local.agreed_instance, dict(local.agreed), gs.positions, gs.colors)
+
     @staticmethod
-    def _all_settled(mine: np.ndarray, heard: dict[int, np.ndarray]) -> bool:
+    def _all_settled(mine: np.ndarray, heard: dict[int, Any]) -> bool:
         """Every robot's claim in this round says SETTLED."""
-        for recs in [mine, *heard.values()]:
+        for recs in [mine, *(m.records for m in heard.values() if isinstance(m, Bid))]:
             claims = recs[(recs["flags"] & Bid.RELEASED) == 0]
             if not bool(((claims["flags"] & SETTLED) != 0).all()):
                 return False
         return True
 
-    def _round(self, final: int, r: int, mine: np.ndarray, members: set[int]) -> dict[int, np.ndarray] | None:
-        """Publish our records of round r and wait until every live robot of the goal set has said
-        its word in round r (a robot whose agent died is not waited for: ``dead``); returns the
-        other hosts' records by sender (None: ROUND_CAP ran out)."""
-        part, _ = self._under_way()
-        key = (part.epoch, final, r)
+    def _round(
+        self,
+        key: tuple[int, int, int],
+        msg: Bid | Boards,
+        members: set[int],
+        robots_of: Callable[[Any], Iterable[int]],
+    ) -> dict[int, Any] | None:
+        """Publish our message of round ``key`` (epoch, block's final instance, round) and wait until
+        every live robot in ``members`` has said its word in that round (a robot whose agent died is
+        not waited for: ``dead``); returns the other hosts' messages by sender (None: ROUND_CAP ran
+        out)."""
         for old in [k for k in self.round_records if k < key]:
             del self.round_records[old]
         for old in [k for k in self.said if k[:2] != key[:2] and k < key]:
             del self.said[old]  # an earlier block: every host finished it before this tick came
-        self.said[key] = (Bid(part.epoch, final, self.sender, r, part.board.digest(), len(mine), mine), -np.inf)
+        self.said[key] = (msg, -np.inf)
         kept = {k[:2] for k in self.said}
         for old in [b for b in self.newest_round if b[:2] not in kept and b[:2] < key[:2]]:
             del self.newest_round[old]
         self.waiting_for, start = key, time.monotonic()
         resend = max(ROUND_RESEND, RESEND_PER_ROBOT * len(members))
+        own = set(self.robots)
         try:
             while not self.stopped:
                 now = time.monotonic()
                 if now - self.said[key][1] >= resend:  # at once, then again while records are missing
                     self._send(key)
                 heard = self.round_records.get(key, {})
-                said = set(part.own) | self.dead()
-                for recs in heard.values():
-                    said.update(recs["robot"].tolist())
+                said = own | self.dead()
+                for m in heard.values():
+                    said.update(int(r) for r in robots_of(m))
                 if members <= said:
                     return heard
                 if now - start >= ROUND_CAP:
@@ -363,14 +444,14 @@ class AuctionLink:
             self.waiting_for = None
 
     def _file(self, arrived: list) -> None:
-        """Keep other hosts' lock-step records by (epoch, block's final instance, round), those of a
+        """Keep other hosts' lock-step messages by (epoch, block's final instance, round), those of a
         goal set not heard of yet too (its message may come after a faster host's first round)."""
         for _, msg in arrived:
             self.received += 1
-            if msg.sender == self.sender or (self.part is not None and msg.epoch < self.part.epoch):
+            if msg.sender == self.sender or (self.active and msg.epoch < self.epoch):
                 continue
             key = (msg.epoch, msg.instance, msg.serial)
-            self.round_records.setdefault(key, {})[msg.sender] = msg.records
+            self.round_records.setdefault(key, {})[msg.sender] = msg
             self.others.add(msg.sender)
             self.heard += 1
             # The sender may still wait in a round we have left, for our records of it if it lost them;
@@ -384,7 +465,8 @@ class AuctionLink:
     def _send(self, key: tuple[int, int, int]) -> None:
         """Publish (again) our message of this round."""
         msg, _ = self.said[key]
-        self.bus.publish(self.bus.keys.auction(msg.epoch, self.sender), msg)
+        keys = self.bus.keys
+        self.bus.publish((keys.boards if isinstance(msg, Boards) else keys.auction)(msg.epoch, self.sender), msg)
         self.said[key] = (msg, time.monotonic())
         self.last_sent = time.monotonic()
         self.sent += 1
@@ -393,8 +475,9 @@ class AuctionLink:
         """A round never completed: our robots cannot know whether others adopted the block, so they
         hold their positions (drive to no goal) rather than drive to a goal another may hold."""
         self.abandoned += 1
-        if self.on_abandoned is not None and self.part is not None:
-            self.on_abandoned(list(self.part.own))
+        own = self.local.own if self.local is not None else self.part.own if self.part is not None else []
+        if self.on_abandoned is not None and own:
+            self.on_abandoned(list(own))
 
     # --- internals --------------------------------------------------------------------------------
     def _under_way(self) -> tuple[Participant, Goals]:
@@ -457,3 +540,65 @@ class AuctionLink:
             "abandoned_blocks": self.abandoned,
             "first_agreement_s": [round(x, 4) for x in self.first_agreement_s],
         }
+
+
+def _boards(local: LocalAuction, words: Words, sender: int) -> Boards:
+    """Our robots' words of a round on the wire: a known set only when it grew, a board's owned
+    records only when it changed (what is left out, the hearers merged before)."""
+    flags = words.ended * Boards.ENDED + words.fresh * Boards.FRESH + words.grown * Boards.GROWN
+    rows, goals = np.nonzero((words.owner != NO_OWNER) & words.fresh[:, None])
+    out = np.zeros(len(words.robot), Boards.WORD)
+    out["robot"], out["x"], out["y"] = words.robot, words.xy[:, 0], words.xy[:, 1]
+    out["phase"], out["flags"], out["last"] = words.phase, flags, words.last
+    out["records"] = np.bincount(rows, minlength=len(words.robot))
+    records = np.zeros(len(rows), Boards.RECORD)
+    records["goal"], records["price"] = goals, words.price[rows, goals]
+    records["owner"], records["released"] = words.owner[rows, goals], words.released[rows, goals]
+    known = np.packbits(words.known[words.grown], axis=1).reshape(-1, (len(local.robots) + 7) // 8)
+    return Boards(
+        local.epoch,
+        local.instance,
+        sender,
+        local.round,
+        len(local.goals),
+        len(local.robots),
+        len(out),
+        out,
+        known,
+        records,
+    )
+
+
+def _words(msg: Boards, local: LocalAuction) -> Words:
+    """Another host's words as the auction reads them (left-out parts empty: they are not read)."""
+    w, k, g, n = msg.words, len(msg.words), len(local.goals), len(local.robots)
+    if msg.goals != g or msg.robots != n:
+        return _words(
+            Boards(msg.epoch, msg.instance, msg.sender, msg.serial, g, n, 0), local
+        )  # another goal set: ignored
+    flags = w["flags"].astype(np.int64)
+    fresh, grown = (flags & Boards.FRESH) != 0, (flags & Boards.GROWN) != 0
+    known = np.zeros((k, n), bool)
+    known[grown] = np.unpackbits(msg.known, axis=1, count=n).astype(bool)
+    price, owner, released = np.zeros((k, g)), np.full((k, g), NO_OWNER, np.int64), np.zeros((k, g), bool)
+    rows = np.repeat(np.arange(k), w["records"])
+    r = msg.records
+    price[rows, r["goal"]], owner[rows, r["goal"]], released[rows, r["goal"]] = (
+        r["price"],
+        r["owner"],
+        r["released"] != 0,
+    )
+    xy = np.stack([w["x"], w["y"]], axis=1).astype(float)
+    return Words(
+        w["robot"].astype(np.int64),
+        xy,
+        w["phase"].astype(np.int64),
+        (flags & Boards.ENDED) != 0,
+        w["last"].astype(np.int64),
+        fresh,
+        grown,
+        known,
+        price,
+        owner,
+        released,
+    )

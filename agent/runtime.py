@@ -78,6 +78,7 @@ class HostConfig:
     frames: bool = False  # poses from the tracker's frames; one frame a tick of the robots' states, heard from
     # every host, and one of their commands (codec.Poses, States, Commands)
     steps: list[float] = field(default_factory=list)  # lock-step: display times the scene's goal sets are due
+    reach: float = math.inf  # communication range (m): states and the auction heard only from robots this close
     # (a tick waits for its step's goal set, so that every engine adopts it at the same tick)
 
     @classmethod
@@ -97,6 +98,7 @@ class HostConfig:
             greet=[int(r) for r in data.get("greet", [])],
             frames=bool(data.get("frames", False)),
             steps=[float(t) for t in data.get("steps", [])],
+            reach=math.inf if data.get("reach") is None else float(data["reach"]),
         )
 
     def to_json(self) -> str:
@@ -115,6 +117,7 @@ class HostConfig:
                 "greet": self.greet,
                 "frames": self.frames,
                 "steps": self.steps,
+                "reach": self.reach if math.isfinite(self.reach) else None,
             }
         )
 
@@ -227,6 +230,7 @@ class AgentHost:
             lockstep=config.lockstep,
             on_abandoned=self._hold,
             dead=self._dead_now,
+            reach=config.reach,
         )
         self.alive = bus.watch_alive("agent")
         self.dead: set[int] = set()  # robots whose agent died: their bodies stand still (5.1.2)
@@ -573,7 +577,8 @@ class AgentHost:
         self._dead_now()
         self.auction.on_tick(stamp, self._positions())
         stopped = {r: p.v_max * p.dt for r in self.dead}  # it may have moved one period after its last state
-        neighbours = self.table.gather(ids, position, stamp, tick, p.neighbour_dist, p.max_neighbours, stopped)
+        heard_within = min(p.neighbour_dist, self.config.reach)  # a robot hears states only within its range
+        neighbours = self.table.gather(ids, position, stamp, tick, heard_within, p.max_neighbours, stopped)
         rows = np.searchsorted(self.own, ids)
         key = np.array([(m.assign_epoch, m.goal_index) for m in mems], np.int64).reshape(-1, 2)
         goal0 = np.array([m.goal0 if m.goal_index >= 0 else m.goal for m in mems], float).reshape(-1, 2)

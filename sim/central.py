@@ -30,6 +30,8 @@ from scipy.optimize import linear_sum_assignment
 
 from agent.core.bidder import Participant
 from agent.core.goal_motion import GoalMotion
+from agent.core.local_auction import LocalAuction, settle_in_process
+from agent.core.params import RobotParams
 from agent.core.policy import NO_GOAL, Decision, GoalTiming, Intent, Memory, act, intend
 from agent.core.step import NeighbourStates, static_segments
 from agent.goal_sets import timing_of
@@ -96,14 +98,29 @@ def optimal_assignment(
     return best
 
 
-def auction_assignment(auction: Participant, position: np.ndarray) -> np.ndarray:
+def auction_assignment(auction: Participant | LocalAuction, position: np.ndarray) -> np.ndarray:
     """Goal index per robot (-1: none): the auction's next block of phases (paper 5.1.1) settled on
     these positions (rows by robot id), warm from the last prices, as the agents settle theirs; a
     robot keeps its goal unless another is better by epsilon_A + Delta C. The participant holds
-    every robot, so every phase's snapshot is its own board."""
+    every robot, so every phase's snapshot is its own board. Over a limited range every robot keeps
+    its own board and the rounds are the agents' (agent.core.local_auction)."""
     assignment = np.full(len(position), -1)
-    assignment[auction.own_ids] = auction.settle_alone(position)
+    if isinstance(auction, LocalAuction):
+        settle_in_process(auction, position)
+        assignment[auction.own_ids] = [auction.agreed[r] for r in auction.own]
+    else:
+        assignment[auction.own_ids] = auction.settle_alone(position)
     return assignment
+
+
+def new_auction(
+    epoch: int, goal_set: np.ndarray, robots: list[int], params: RobotParams, reach: float
+) -> Participant | LocalAuction:
+    """The auction of a goal set with every robot in this process: over a limited range, each robot's
+    own board (agent.core.local_auction); else the one board every robot shares."""
+    if np.isfinite(reach):
+        return LocalAuction(epoch, goal_set, robots, robots, params.assign_eps, params.assign_hysteresis, reach)
+    return Participant(epoch, goal_set, robots, robots, params.assign_eps, params.assign_hysteresis)
 
 
 class Outcome(NamedTuple):
@@ -149,7 +166,7 @@ def simulate(
     movers = Movers(scene)  # scripted movers and pursuers: not robot pixels (sim.movers)
     ids = np.arange(n)
     goal_set, goal_colors = _scene_goals(scene)  # image scenes: the shown step's goal set, below
-    auction: Participant | None = None  # image scenes: the auction of the shown goal set
+    auction: Participant | LocalAuction | None = None  # image scenes: the auction of the shown goal set
     assignment = np.where(np.isfinite(goal_set).all(axis=1), ids, -1)  # goal index per robot (scene goals: its own)
     memory = Memory.new(n)
     timing: dict[int, GoalTiming] = {}
@@ -218,7 +235,7 @@ def simulate(
                     )
                 elif auction is None:  # a new image: a cold start (the old prices mean nothing)
                     pixels = movers.pixels.tolist()
-                    auction = Participant(k, goal_set, pixels, pixels, params.assign_eps, params.assign_hysteresis)
+                    auction = new_auction(k, goal_set, pixels, params, link.reach)
                     assignment = auction_assignment(auction, bid_from)
                 else:
                     pending = beside.submit(clock.timed_beside, auction_assignment, auction, bid_from)
@@ -326,11 +343,14 @@ def run_central(
     progress: TextIO | None = sys.stderr,
     clock: StepClock | None = None,
     overlap: bool = True,
+    reach: float = np.inf,
 ) -> Path:
-    """Run the scene with every robot in this process (``simulate``); returns the run directory."""
+    """Run the scene with every robot in this process (``simulate``); returns the run directory.
+    ``reach``: the robots' communication range (m)."""
     run_dir = RunDir(out)
     try:
-        outcome = simulate(scene, progress=progress, clock=clock, overlap=overlap)
+        link = InProcessLink(scene.robots, reach=reach)
+        outcome = simulate(scene, link=link, progress=progress, clock=clock, overlap=overlap)
         params, _ = world_of(scene)
         contacts = [
             {"kind": c.kind, "i": c.i, "j": c.j, "t_start": c.t_start, "t_end": c.t_end, "max_depth": c.max_depth}
@@ -345,6 +365,7 @@ def run_central(
             contacts=contacts,
             video=video,
             engine="central",
+            reach=reach,
             end_reason=outcome.end_reason,
             complete=True,
             orca_fallbacks=outcome.fallbacks,

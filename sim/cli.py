@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import signal
 import sys
 import time
@@ -73,6 +74,15 @@ def build_parser() -> argparse.ArgumentParser:
         default="",
         metavar="PLAN",
         help="fault injection, e.g. 'state:drop=0.1,delay=0.05,jitter=0.01' (';' between kinds)",
+    )
+    run.add_argument(
+        "--range",
+        dest="reach",
+        type=float,
+        default=None,
+        metavar="R",
+        help="communication range in metres: a robot hears the states and auction words only of robots "
+        "within R (lock-step only; default: everyone hears everyone)",
     )
     run.add_argument(
         "--deadline",
@@ -194,6 +204,13 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise UsageError(str(err)) from None
     if args.deadline is not None and not args.deadline > 0:
         raise UsageError(f"--deadline must be a positive number of seconds, not {args.deadline}")
+    reach = math.inf if args.reach is None else args.reach
+    if not reach > 0:
+        raise UsageError(f"--range must be a positive distance in metres, not {args.reach}")
+    if math.isfinite(reach) and scene.clock != "lockstep":
+        raise UsageError("--range needs the lock-step clock: its auction runs in rounds of ticks")
+    if math.isfinite(reach) and args.hardware is not None:
+        raise UsageError("--range simulates a radio's reach; real robots have their own")
     _check_remote_agents(args, scene)
     out = args.out or default_run_path(scene.name)
     if out.exists() or out.with_name(out.name + ".partial").exists():
@@ -211,7 +228,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                 "fail and tracker-outage events (faults of processes and messages) need the distributed engine"
             )
 
-        print(run_central(scene, out, video=args.video, progress=None if args.quiet else sys.stderr))
+        print(run_central(scene, out, video=args.video, progress=None if args.quiet else sys.stderr, reach=reach))
         return 0
     router = None
     if args.zenoh_config:
@@ -238,6 +255,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         hardware=args.hardware,
         remote_agents=args.remote_agents,
         agents_timeout=AGENTS_TIMEOUT if args.agents_timeout is None else args.agents_timeout,
+        reach=reach,
     )
     try:
         path = Launcher(scene, options).run()

@@ -62,6 +62,7 @@ class RunOptions:
     hardware: Path | None = None  # a hardware file: real robots (sim/hardware_node.py) in place of the world
     remote_agents: bool = False  # spawn no agents: serve their configs, `pixelswarm agents` starts them elsewhere
     agents_timeout: float = AGENTS_TIMEOUT
+    reach: float = math.inf  # communication range (m): robots hear states and the auction only this close
 
 
 class HardwareStartError(Exception):
@@ -166,6 +167,7 @@ class Launcher:
             pursue={r: t for r, t in self.scene.pursuers.items() if r in robots},
             frames=self._frames,
             steps=list(self.scene.step_starts) if lockstep else [],
+            reach=self.opt.reach,
         )
 
     def _start_agents(self) -> None:
@@ -590,6 +592,7 @@ class Launcher:
             end_reason=end_reason,
             complete=not interrupted and not world_died,
             engine="distributed",
+            reach=self.opt.reach,
             agents_per_process=self.opt.agents_per_process,
             # remote agents: the hosts that reported, one stats event each
             agent_processes=len(agent_stats)

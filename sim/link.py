@@ -5,7 +5,9 @@ tick k + 1, as over the bus in lock-step, so with no impairment a central run an
 one seed are the same run. Impairment is a property of the link: a seeded draw per (receiver, sender)
 and tick loses a state (``drop``) or makes it a tick late (``late``), as an agent under
 ``--faults state:drop=P,delay=S`` lives with; each receiver keeps the newest state it heard of each
-sender and steers by its age (agent.core.neighbours).
+sender and steers by its age (agent.core.neighbours). A communication range (``reach``) limits whom a
+robot hears: states only of robots whose last known position is within it (as the agents' own
+neighbour query), and the auction only from robots within it (agent.core.local_auction).
 """
 
 from __future__ import annotations
@@ -23,10 +25,14 @@ _UNHEARD = -np.inf
 class InProcessLink:
     """The states of one tick, heard by every robot at the next (optionally lost or late)."""
 
-    def __init__(self, robots: int, *, drop: float = 0.0, late: float = 0.0, seed: int = 0) -> None:
+    def __init__(
+        self, robots: int, *, drop: float = 0.0, late: float = 0.0, seed: int = 0, reach: float = np.inf
+    ) -> None:
         if not (0.0 <= drop and 0.0 <= late and drop + late <= 1.0):
             raise ValueError(f"drop and late must be probabilities with drop + late <= 1, not {drop}, {late}")
-        self.robots, self.drop, self.late = robots, drop, late
+        if not reach > 0:
+            raise ValueError(f"the communication range must be a positive distance, not {reach}")
+        self.robots, self.drop, self.late, self.reach = robots, drop, late, float(reach)
         self.impaired = drop > 0 or late > 0
         self.rng = np.random.default_rng(seed)
         self.last: Heard | None = None  # what everybody heard (no impairment)
@@ -61,6 +67,7 @@ class InProcessLink:
     ) -> NeighbourStates:
         """Each robot's nearest neighbours as it last heard them, by the agents' own rule
         (agent.neighbour_table.nearest_heard; compiled when every robot heard the same states)."""
+        neighbour_dist = min(neighbour_dist, self.reach)
         if not self.impaired:
             if self.last is None:
                 return NeighbourStates.empty(len(robot_ids))

@@ -112,6 +112,21 @@ def contact_events(pose: np.ndarray, radius: np.ndarray, tolerance: float = 0.0)
     return events
 
 
+def communication_parts(pose: np.ndarray, reach: float) -> np.ndarray:
+    """Per tick: the parts of the communication graph (robots within ``reach`` of each other hear
+    each other, positions as the wire carries them): 1 when every robot can reach every other."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    out = np.ones(len(pose), np.int64)
+    for k, xy in enumerate(np.asarray(pose, np.float32)[..., :2].astype(float)):
+        pairs = cKDTree(xy).query_pairs(reach, output_type="ndarray")
+        n = len(xy)
+        graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+        out[k] = connected_components(graph, directed=False)[0]
+    return out
+
+
 def path_lengths(pose: np.ndarray) -> np.ndarray:
     """(N,) length of each robot's xy path (steps touching a non-finite sample are skipped)."""
     pose = _check_pose(pose)

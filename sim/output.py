@@ -12,7 +12,7 @@ from agent.core.params import RobotParams
 from coordinator.resolved import save_resolved
 from coordinator.scene import Scene
 
-from .metrics import clearance_over_time, summarise
+from .metrics import clearance_over_time, communication_parts, summarise
 from .render import write_plots, write_video
 from .rundir import RunDir, write_json, write_npz
 
@@ -47,10 +47,15 @@ def write_run(
     wall_s: float,
     contacts: list[dict[str, Any]],
     video: bool,
+    reach: float = np.inf,
     **metrics_extra: Any,
 ) -> Path:
-    """Everything a run directory holds, from the true trajectory; returns the committed path."""
+    """Everything a run directory holds, from the true trajectory; returns the committed path.
+    ``reach``: the robots' communication range (m), whose splits of the swarm it reports."""
     n = scene.robots
+    if np.isfinite(reach):
+        parts = communication_parts(arrays["pose"], reach)
+        metrics_extra.update(range_m=reach, split_ticks=int((parts > 1).sum()), most_parts=int(parts.max(initial=1)))
     radius = np.full(n, params.radius)
     t = arrays["t"]
     clearance = clearance_over_time(arrays["pose"], radius) if len(t) else np.zeros(0)

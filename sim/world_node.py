@@ -72,7 +72,8 @@ class WorldNode:
         self.withheld_ticks = 0  # ticks whose poses the tracker withheld (an outage)
         self.pose_frames = pose_frames
         self.cmd_inbox = bus.commands_inbox()
-        self.auction_traffic = bus.subscribe_raw(self.keys.all_of("auction"))  # lock-step: agents at work
+        # lock-step: agents at work in the auction (either kind) are not late
+        self.auction_traffic = [bus.subscribe_raw(self.keys.all_of(kind)) for kind in ("auction", "boards")]
         self.control_inbox = bus.subscribe(self.keys.event, Event)
         self.alive = bus.watch_alive("agent")
         self.running = True
@@ -244,7 +245,7 @@ class WorldNode:
             while True:
                 got = self.cmd_inbox.get(timeout=max(0.0, min(0.05, deadline - time.monotonic())))
                 self._apply_commands(got)
-                if self.auction_traffic.drain():
+                if sum(len(inbox.drain()) for inbox in self.auction_traffic):
                     deadline = time.monotonic() + self.deadline
                 self._update_liveness()
                 waiting = self.live & (self.last_cmd_tick < self.tick)

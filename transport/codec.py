@@ -401,6 +401,90 @@ class Bid(Message):
 
 
 @dataclass
+class Boards(Message):
+    """Agent host -> all: its robots' words in one round of the goal auction over a limited
+    communication range (agent.core.local_auction). Per robot (``words``): where it is, its phase,
+    whether it ended the block, the newest round of change it knows of; the robots it has heard of
+    (``known``: a bit per robot of the goal set, only from words flagged GROWN) and its board's owned
+    records (``records``, the word's ``records`` of them, only from words flagged FRESH)."""
+
+    KIND: ClassVar[int] = 13
+    NAME: ClassVar[str] = "boards"
+    _fixed: ClassVar[struct.Struct] = struct.Struct("<IIIIIII")
+    WORD: ClassVar[np.dtype] = np.dtype(
+        [
+            ("robot", "<u2"),
+            ("x", "<f4"),
+            ("y", "<f4"),
+            ("phase", "u1"),
+            ("flags", "u1"),
+            ("last", "<u4"),
+            ("records", "<u4"),
+        ]
+    )
+    RECORD: ClassVar[np.dtype] = np.dtype([("goal", "<u4"), ("price", "<f8"), ("owner", "<u2"), ("released", "u1")])
+    ENDED: ClassVar[int] = 1  # the robot ended the block: its goal is agreed
+    FRESH: ClassVar[int] = 2  # its board changed since its last word: its records follow
+    GROWN: ClassVar[int] = 4  # the robots it has heard of grew since its last word: its bits follow
+    epoch: int
+    instance: int  # the block's final phase (agent.core.bidder numbers instances)
+    sender: int
+    serial: int  # the round
+    goals: int  # G
+    robots: int  # N: the bits of each known row
+    count: int
+    words: np.ndarray = field(default_factory=lambda: np.zeros(0, Boards.WORD))
+    known: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.uint8))  # packed bits, a row per GROWN word
+    records: np.ndarray = field(default_factory=lambda: np.zeros(0, Boards.RECORD))
+
+    def _fixed_values(self) -> tuple:
+        return (self.epoch, self.instance, self.sender, self.serial, self.goals, self.robots, len(self.words))
+
+    def _tail(self) -> bytes:
+        known = np.asarray(self.known, np.uint8).reshape(-1, (self.robots + 7) // 8)
+        return (
+            np.asarray(self.words, self.WORD).tobytes()
+            + known.tobytes()
+            + np.asarray(self.records, self.RECORD).tobytes()
+        )
+
+    @classmethod
+    def _from(cls, body: memoryview) -> Boards:
+        if len(body) < cls._fixed.size:
+            raise Malformed("truncated")
+        epoch, instance, sender, serial, goals, robots, count = cls._fixed.unpack(body[: cls._fixed.size])
+        at = cls._fixed.size + count * cls.WORD.itemsize
+        if len(body) < at:
+            raise Malformed("truncated")
+        words = np.frombuffer(body[cls._fixed.size : at], cls.WORD).copy()
+        row = (robots + 7) // 8
+        grown = int(np.count_nonzero(words["flags"] & cls.GROWN))
+        n_records = int(words["records"][(words["flags"] & cls.FRESH) != 0].sum())
+        if (
+            len(body) != at + grown * row + n_records * cls.RECORD.itemsize
+            or words["records"][(words["flags"] & cls.FRESH) == 0].any()
+        ):
+            raise Malformed("truncated")
+        known = np.frombuffer(body[at : at + grown * row], np.uint8).reshape(grown, row).copy()
+        records = np.frombuffer(body[at + grown * row :], cls.RECORD).copy()
+        if not (
+            np.all(np.isfinite(words["x"]))
+            and np.all(np.isfinite(words["y"]))
+            and np.all(np.isfinite(records["price"]))
+        ):
+            raise Malformed("non-finite")
+        if (records["goal"] >= goals).any():
+            raise Malformed("invalid")
+        return cls(epoch, instance, sender, serial, goals, robots, count, words, known, records)
+
+    def to_dict(self) -> dict[str, Any]:
+        out = {name: getattr(self, name) for name in self.field_names() if name not in ("words", "known", "records")}
+        out["words"] = {k: self.words[k] for k in _field_names(self.WORD)}
+        out["records"] = {k: self.records[k] for k in _field_names(self.RECORD)}
+        return out
+
+
+@dataclass
 class Frame(Message):
     """A tick's messages of many robots in one: the fixed part (tick, stamp, sender, count) and one
     record per robot, the fields of ``_message`` after its (robot, tick, stamp). Agent hosts of K
@@ -617,7 +701,7 @@ def _reject_constant(name: str) -> None:
 
 
 MESSAGE_TYPES: dict[int, type[Message]] = {
-    t.KIND: t for t in (Pose, State, Command, Tick, Goals, Truth, Contact, Event, Bid, Poses, Commands, States)
+    t.KIND: t for t in (Pose, State, Command, Tick, Goals, Truth, Contact, Event, Bid, Boards, Poses, Commands, States)
 }
 BY_NAME: dict[str, type[Message]] = {t.NAME: t for t in MESSAGE_TYPES.values()}
 

@@ -86,6 +86,13 @@ class Keys:
         """One robot's bids and prices, whatever the epoch."""
         return f"{self.root}/auction/*/{robot}"
 
+    def boards(self, epoch: int, robot: int) -> str:
+        """The range-limited auction's words of the host whose first robot this is."""
+        return f"{self.root}/boards/{epoch}/{robot}"
+
+    def boards_of(self, robot: int) -> str:
+        return f"{self.root}/boards/*/{robot}"
+
     def config(self, robot: int | str) -> str:
         """A robot's host configuration, served by a run whose agents join from elsewhere ('*': every robot's)."""
         return f"{self.root}/config/{robot}"

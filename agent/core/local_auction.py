@@ -1,0 +1,328 @@
+"""The goal auction over a limited communication range (paper 5.1.1 with the decentralised auction
+it points to: Bertsekas and Castanon 1991, Zavlanos, Spesivtsev and Pappas 2008): pure logic, no
+zenoh and no clock. A robot hears only the robots within ``reach`` of it, so no one sees every bid.
+
+- **A board per robot.** Each robot keeps its own prices and owners and, every round, merges the
+  boards of the robots it hears by max-consensus (per goal the greatest record: price, then the
+  lower robot id, then "released"), so prices and owners spread over the communication graph, a
+  hop a round. Records only ever merge by this maximum: no goal gets two owners on one board.
+- **Bids (Jacobi).** A robot that does not hold a goal on its own board, or is not content with
+  it (another is better by more than the phase's slack), bids on its best goal against its own
+  board: price + (best - second-best net value) + epsilon. Costs are private (eq. 7 plus its
+  deadlock penalties). Phases of decreasing epsilon (epsilon scaling) as in agent.core.bidder.
+- **Knowing the auction ended, locally.** Rounds are synchronous (lock-step). A round in which no
+  robot's board or phase changed is followed only by such rounds. Each robot learns how far the
+  graph reaches from it (its eccentricity e: the round after which the set of robots it has heard
+  of, passed on by everyone, stops growing) and the latest round any board changed that news of
+  has reached it (max-consensus again). When that round is older than e rounds, the round e
+  rounds ago was quiet everywhere in its part of the graph: the phase is over, and the robot goes
+  on to the next one (a robot that hears a later phase follows). The final phase's end is the
+  agreement: the robot says so once, everyone who hears it has ended too, and adopts its goal.
+- **One-to-one.** At a quiet round neighbours' boards are equal (each merged the other's), so
+  every robot of a connected part holds its goal on one common board: one owner per goal. A graph
+  split into parts agrees part by part; each part is one-to-one within itself. A part trades its
+  own goals: a goal whose holder was out of reach at the last block costs more than any other.
+
+The agreement costs at most N (epsilon_A + Delta C) over the optimum once the graph is connected
+(epsilon-complementary slackness against one price vector). One host runs any subset of the
+robots (``own``); the central engine runs them all (sim.central) through the same rounds, so it
+and the agents agree bit for bit.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import NamedTuple
+
+import numpy as np
+
+from .auction import NO_OWNER, ROUNDING, epsilon_schedule
+
+
+class Words(NamedTuple):
+    """What robots say in one round (rows by robot): who, where (float32, as the wire carries it),
+    its phase, whether it has ended the block, the latest round of change it knows of, the robots it
+    has heard of, and its board."""
+
+    robot: np.ndarray  # (K,) int64
+    xy: np.ndarray  # (K, 2) float64 of float32 values
+    phase: np.ndarray  # (K,) int64
+    ended: np.ndarray  # (K,) bool: the block is agreed (it says so once, then stops)
+    last: np.ndarray  # (K,) int64
+    fresh: np.ndarray  # (K,) bool: the board changed since the robot's last word (else it may be left out)
+    grown: np.ndarray  # (K,) bool: the known set grew since the robot's last word (else it may be left out)
+    known: np.ndarray  # (K, N) bool, columns by the goal set's robots in order
+    price: np.ndarray  # (K, G)
+    owner: np.ndarray  # (K, G) int64, NO_OWNER: none
+    released: np.ndarray  # (K, G) bool
+
+    def take(self, rows: np.ndarray) -> Words:
+        return Words(*(a[rows] for a in self))
+
+    @staticmethod
+    def join(parts: list[Words]) -> Words:
+        return Words(*(np.concatenate(cols) for cols in zip(*parts, strict=True)))
+
+
+def _greater(p: np.ndarray, o: np.ndarray, r: np.ndarray, bp: np.ndarray, bo: np.ndarray, br: np.ndarray) -> np.ndarray:
+    """Where record (p, o, r) beats the board's (bp, bo, br): the order of agent.core.bidder.Board."""
+    return (o != NO_OWNER) & ((bo == NO_OWNER) | (p > bp) | ((p == bp) & ((o < bo) | ((o == bo) & r & ~br))))
+
+
+def _gather(mask: np.ndarray, values: np.ndarray, fill: float | int | bool) -> np.ndarray:
+    """(A, D, ...): for each row of ``mask`` (A, M), the ``values`` (M, ...) of its True columns,
+    left-aligned and padded with ``fill`` to the greatest count (D >= 1)."""
+    count = mask.sum(axis=1)
+    out = np.full((len(mask), max(int(count.max(initial=0)), 1), *values.shape[1:]), fill, values.dtype)
+    rows, cols = np.nonzero(mask)
+    out[rows, np.arange(len(cols)) - np.repeat(np.cumsum(count) - count, count)] = values[cols]
+    return out
+
+
+class LocalAuction:
+    """The own robots of one host in the range-limited auction of one goal set (epoch)."""
+
+    def __init__(
+        self,
+        epoch: int,
+        goals: np.ndarray,
+        robots: list[int],
+        own: list[int],
+        eps: float,
+        hysteresis: float,
+        reach: float,
+    ) -> None:
+        self.epoch = epoch
+        self.goals = np.asarray(goals, float)
+        self.robots = np.array(sorted(int(r) for r in robots), np.int64)
+        members = set(self.robots.tolist())
+        self.own = sorted(int(r) for r in own if r in members)
+        self.own_ids = np.array(self.own, np.int64)
+        self.own_cols = np.searchsorted(self.robots, self.own_ids)
+        self.reach = float(reach)
+        self.schedule = epsilon_schedule(self.goals, eps, factor=10.0)
+        self.hysteresis = hysteresis
+        k, g, n = len(self.own), len(self.goals), len(self.robots)
+        if g < n:
+            raise ValueError(f"{n} robots cannot share {g} goals one to one")
+        self.price = np.zeros((k, g))
+        self.owner = np.full((k, g), NO_OWNER, np.int64)
+        self.released = np.zeros((k, g), bool)
+        self.goal = np.full(k, -1, np.int64)  # what each own robot claims on its board
+        self.cost = np.zeros((k, g))
+        self.penalty = np.zeros((k, g))  # C_d in force this block
+        self.pending = np.zeros((k, g))  # declared during this block: in force from the next
+        self.xy = np.zeros((k, 2))
+        self.phase = np.zeros(k, np.int64)
+        self.last = np.zeros(k, np.int64)
+        self.known = np.zeros((k, n), bool)
+        self.grew = np.zeros(k, np.int64)  # the last round the known set grew
+        self.board_changed = np.zeros(k, np.int64)  # the last round the board changed
+        self.ended = np.zeros(k, bool)
+        self.said_end = np.zeros(k, bool)
+        self.round = 0
+        self.block = -1
+        self.agreed_instance = -1
+        self.agreed: dict[int, int] = {}
+        self.bids = 0
+
+    # --- the interface the lock-step drivers share with agent.core.bidder.Participant ---------------
+    @property
+    def phases(self) -> int:
+        return len(self.schedule)
+
+    @property
+    def started(self) -> bool:
+        return self.block >= 0
+
+    @property
+    def instance(self) -> int:
+        """The block's final phase, as Participant numbers instances (blocks of ``phases``)."""
+        return max(self.block, 0) * self.phases + self.phases - 1
+
+    @property
+    def is_agreed(self) -> bool:
+        return self.started and self.agreed_instance == self.instance
+
+    @property
+    def done(self) -> bool:
+        """Every own robot has ended the block and said so."""
+        return bool(self.said_end.all())
+
+    def penalise(self, robot: int, goal: int, cost: float) -> None:
+        """A deadlock penalty C_d (paper 5.5.5) on a goal: in force from the next block."""
+        if robot in self.own and 0 <= goal < len(self.goals):
+            self.pending[self.own.index(robot), goal] += cost
+
+    def begin_block(self, positions: Mapping[int, np.ndarray] | np.ndarray) -> None:
+        """Freeze the own robots' positions (a mapping robot -> (x, y), or rows by robot id), bring
+        the declared penalties into force and start at the first phase, warm from the boards."""
+        if isinstance(positions, np.ndarray):
+            xy = np.asarray(positions, float)[self.own_ids].reshape(-1, 2)
+        else:
+            xy = np.array([positions[r] for r in self.own], float).reshape(-1, 2)
+        self.block += 1
+        self.penalty += self.pending
+        self.pending[:] = 0.0
+        d = self.goals[None, :, :] - xy[:, None, :]
+        self.cost = d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] + self.penalty
+        # A goal held by a robot outside the robot's part of the graph (as the last block found it)
+        # costs more than any other: a part trades its own goals, and takes another's only when it
+        # has too few (the holder, out of reach, could not learn that it lost it).
+        col = np.searchsorted(self.robots, np.maximum(self.owner, 0))
+        col = np.minimum(col, len(self.robots) - 1)
+        rows = np.arange(len(self.own))[:, None]
+        taken = (self.owner != NO_OWNER) & ~self.released & ~self.known[rows, col]
+        self.cost += taken * (2.0 * self.cost.max(axis=1, initial=0.0)[:, None] + 1.0)
+        # the graph is judged on positions as the wire carries them, the same in every engine
+        self.xy = xy.astype(np.float32).astype(float)
+        self.phase[:] = 0
+        self.last[:] = 0
+        self.known[:] = False
+        self.known[np.arange(len(self.own)), self.own_cols] = True
+        self.grew[:] = 0
+        self.board_changed[:] = 1  # a new block: everyone's board is news (the graph changed)
+        self.ended[:] = False
+        self.said_end[:] = False
+        self.round = 0
+
+    # --- a round -------------------------------------------------------------------------------------
+    def say(self) -> Words:
+        """Round r: every own robot still in the block bids if it must, then says its word (a robot
+        that ended the block says so once, and then nothing)."""
+        self.round += 1
+        r = self.round
+        active = np.flatnonzero(~self.ended)
+        if len(active):
+            bid = self._bid(active)
+            self.last[bid] = r
+            self.board_changed[bid] = r
+        speaking = np.flatnonzero(~self.said_end)
+        self.said_end[self.ended] = True
+        return Words(
+            self.own_ids[speaking],
+            self.xy[speaking],
+            self.phase[speaking].copy(),
+            self.ended[speaking].copy(),
+            self.last[speaking].copy(),
+            self.board_changed[speaking] >= r - 1,
+            (self.grew[speaking] >= r - 1) | (r == 1),
+            self.known[speaking].copy(),
+            self.price[speaking].copy(),
+            self.owner[speaking].copy(),
+            self.released[speaking].copy(),
+        )
+
+    def hear(self, words: Words) -> None:
+        """Round r: what the robots said this round (own robots' words too; the reach decides who
+        hears whom), merged into each own robot's board; then each checks whether its phase ended.
+        Only boards and known sets that changed since their robot's last word are merged: the
+        others were merged then (the graph holds still through a block)."""
+        r = self.round
+        active = np.flatnonzero(~self.ended)
+        if len(active) == 0:
+            return
+        d = self.xy[active, None, :] - words.xy[None, :, :]
+        hears = (d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] <= self.reach * self.reach) & (
+            words.robot[None, :] != self.own_ids[active, None]
+        )
+        self.ended[active] |= (hears & words.ended[None, :]).any(axis=1)  # the final phase proved over
+        later = _gather(hears, words.phase, -1).max(axis=1)
+        changed = later > self.phase[active]  # a later phase: its sender proved ours over
+        self.phase[active] = np.maximum(self.phase[active], later)
+        told = hears & words.grown[None, :]
+        if told.any():
+            known = self.known[active] | _gather(told, words.known, False).any(axis=1)
+            grown = (known != self.known[active]).any(axis=1)
+            self.known[active] = known
+            self.grew[active[grown]] = r
+        self.last[active] = np.maximum(self.last[active], _gather(hears, words.last, 0).max(axis=1))
+        told = hears & words.fresh[None, :]
+        if told.any():
+            changed |= self._merge(active, told, words, r)
+        self.last[active[changed]] = r
+        self._check_end(active, r)
+        if self.ended.all() and self.agreed_instance != self.instance:
+            self._agree()
+
+    def _merge(self, active: np.ndarray, told: np.ndarray, words: Words, r: int) -> np.ndarray:
+        """Max-consensus of the boards each active robot was told into its own; True where it changed.
+        Per goal the greatest record heard: price, then the lower robot id, then released."""
+        owner = _gather(told, words.owner, NO_OWNER)
+        p = np.where(owner == NO_OWNER, -np.inf, _gather(told, words.price, 0.0))
+        top = p.max(axis=1)
+        o = np.where(p == top[:, None, :], owner, np.iinfo(np.int64).max)
+        first = o.min(axis=1)
+        rel = (_gather(told, words.released, False) & (o == first[:, None, :])).any(axis=1)
+        first = np.where(np.isfinite(top), first, NO_OWNER)
+        bp, bo, br = self.price[active], self.owner[active], self.released[active]
+        win = _greater(top, first, rel, bp, bo, br)
+        merged = win.any(axis=1)
+        self.price[active] = np.where(win, top, bp)
+        self.owner[active] = np.where(win, first, bo)
+        self.released[active] = np.where(win, rel, br)
+        self.board_changed[active[merged]] = r
+        return np.asarray(merged, bool)
+
+    def _check_end(self, rows: np.ndarray, r: int) -> None:
+        """A robot's phase is over everywhere in its part once the newest change it knows of is
+        older than its eccentricity (its known set stopped growing: every robot of its part is
+        within ``grew`` hops). The final phase's end ends the block; another's starts the next
+        phase, a change from which that one's end is judged."""
+        rows = rows[~self.ended[rows] & (self.grew[rows] < r)]
+        over = rows[self.last[rows] < r - self.grew[rows]]
+        final = self.phase[over] == self.phases - 1
+        self.ended[over[final]] = True
+        going_on = over[~final]
+        self.phase[going_on] += 1
+        self.last[going_on] = r
+
+    def _agree(self) -> None:
+        self.agreed_instance = self.instance
+        self.agreed = dict(zip(self.own, self.goal.tolist(), strict=True))
+
+    def _bid(self, rows: np.ndarray) -> np.ndarray:
+        """Own robots (rows) that hold no goal on their board, or are not content with it at their
+        phase's slack, bid for their best goal; returns the rows that bid."""
+        slack = np.maximum(np.asarray(self.schedule)[self.phase[rows]], self.schedule[-1] + self.hysteresis)
+        value = -self.cost[rows] - self.price[rows]
+        best = np.argmax(value, axis=1)  # ties: the lowest goal index
+        k = np.arange(len(rows))
+        v_best = value[k, best]
+        robot = self.own_ids[rows]
+        held = self.goal[rows]
+        safe = np.maximum(held, 0)
+        holds = (held >= 0) & (self.owner[rows, safe] == robot) & ~self.released[rows, safe]
+        v_held = value[k, safe]
+        content = holds & (v_held >= v_best - slack - ROUNDING * np.abs(v_best))
+        bidders = np.flatnonzero(~content)
+        if len(bidders) == 0:
+            return rows[bidders]
+        b, kb = rows[bidders], bidders
+        gives_up = holds[kb]
+        self.released[b[gives_up], held[kb][gives_up]] = True  # it gives its goal up for a better one
+        eps = np.asarray(self.schedule)[self.phase[b]]
+        if len(self.goals) > 1:
+            second_value = value[kb].copy()
+            second_value[np.arange(len(kb)), best[kb]] = -np.inf
+            second = second_value.max(axis=1)
+        else:
+            second = v_best[kb] - eps
+        goal = best[kb]
+        self.price[b, goal] = self.price[b, goal] + (v_best[kb] - second) + eps
+        self.owner[b, goal] = robot[kb]
+        self.released[b, goal] = False
+        self.goal[b] = goal
+        self.bids += len(b)
+        return b
+
+
+def settle_in_process(auction: LocalAuction, positions: np.ndarray, max_rounds: int = 1_000_000) -> int:
+    """One block with every robot in this process (the central engine): the rounds the agents run
+    over the bus, word for word. Returns the rounds taken."""
+    auction.begin_block(positions)
+    while not auction.done:
+        auction.hear(auction.say())
+        if auction.round >= max_rounds:
+            raise RuntimeError("the range-limited auction did not end")
+    return auction.round
