@@ -21,7 +21,7 @@ zenoh and no clock. A robot hears only the robots within ``reach`` of it, so no 
 - **One-to-one.** At a quiet round neighbours' boards are equal (each merged the other's), so
   every robot of a connected part holds its goal on one common board: one owner per goal. A graph
   split into parts agrees part by part; each part is one-to-one within itself. A part trades its
-  own goals: a goal whose holder was out of reach at the last block costs more than any other.
+  own goals: a goal whose holder it has not heard of costs more than any other.
 
 The agreement costs at most N (epsilon_A + Delta C) over the optimum once the graph is connected
 (epsilon-complementary slackness against one price vector). One host runs any subset of the
@@ -113,6 +113,7 @@ class LocalAuction:
         self.penalty = np.zeros((k, g))  # C_d in force this block
         self.pending = np.zeros((k, g))  # declared during this block: in force from the next
         self.xy = np.zeros((k, 2))
+        self.taken_cost = np.zeros(k)
         self.phase = np.zeros(k, np.int64)
         self.last = np.zeros(k, np.int64)
         self.known = np.zeros((k, n), bool)
@@ -166,14 +167,8 @@ class LocalAuction:
         self.pending[:] = 0.0
         d = self.goals[None, :, :] - xy[:, None, :]
         self.cost = d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] + self.penalty
-        # A goal held by a robot outside the robot's part of the graph (as the last block found it)
-        # costs more than any other: a part trades its own goals, and takes another's only when it
-        # has too few (the holder, out of reach, could not learn that it lost it).
-        col = np.searchsorted(self.robots, np.maximum(self.owner, 0))
-        col = np.minimum(col, len(self.robots) - 1)
-        rows = np.arange(len(self.own))[:, None]
-        taken = (self.owner != NO_OWNER) & ~self.released & ~self.known[rows, col]
-        self.cost += taken * (2.0 * self.cost.max(axis=1, initial=0.0)[:, None] + 1.0)
+        # what taking a goal held out of reach costs on top (see _bid): more than any other goal
+        self.taken_cost = 2.0 * self.cost.max(axis=1, initial=0.0) + 1.0
         # the graph is judged on positions as the wire carries them, the same in every engine
         self.xy = xy.astype(np.float32).astype(float)
         self.phase[:] = 0
@@ -236,6 +231,7 @@ class LocalAuction:
             grown = (known != self.known[active]).any(axis=1)
             self.known[active] = known
             self.grew[active[grown]] = r
+            changed |= grown  # the goals it may take changed (_bid)
         self.last[active] = np.maximum(self.last[active], _gather(hears, words.last, 0).max(axis=1))
         told = hears & words.fresh[None, :]
         if told.any():
@@ -285,7 +281,14 @@ class LocalAuction:
         """Own robots (rows) that hold no goal on their board, or are not content with it at their
         phase's slack, bid for their best goal; returns the rows that bid."""
         slack = np.maximum(np.asarray(self.schedule)[self.phase[rows]], self.schedule[-1] + self.hysteresis)
-        value = -self.cost[rows] - self.price[rows]
+        # A goal whose holder is not among the robots heard of (out of reach) costs more than any
+        # other: a part trades its own goals and takes another's only when it has too few, so a
+        # graph that splits stays one-to-one (the holder could not learn that it lost its goal).
+        owner = self.owner[rows]
+        col = np.minimum(np.searchsorted(self.robots, np.maximum(owner, 0)), len(self.robots) - 1)
+        known = np.take_along_axis(self.known[rows], col, axis=1)
+        taken = (owner != NO_OWNER) & ~self.released[rows] & ~known
+        value = -self.cost[rows] - self.price[rows] - taken * self.taken_cost[rows, None]
         best = np.argmax(value, axis=1)  # ties: the lowest goal index
         k = np.arange(len(rows))
         v_best = value[k, best]
