@@ -31,7 +31,6 @@ from coordinator.scene import SceneError, load_scene
 ENGINES = ("distributed", "central")
 CLOCKS = ("lockstep", "realtime")
 FAULT_SETTINGS = ("loss", "delay", "jitter")  # the state messages' fault plan (transport/faults.py)
-NOT_YET = {"range": "the range-limited auction is not implemented yet"}
 STOP_GRACE_S = 30.0  # a child stopped by SIGTERM writes what it recorded; after this it is killed
 POLL_S = 0.2
 STDERR_TAIL_CHARS = 2000
@@ -57,6 +56,13 @@ def _number(key: str, value: Any, *, minimum: float = 0.0, maximum: float = math
         bound = "> 0" if positive else f"in [{minimum:g}, {maximum:g}]"
         raise StudyError(f"{key}: {value!r} must be {bound}")
     return float(value)
+
+
+def _reach(key: str, value: Any) -> float:
+    """A communication range: metres > 0, or inf (everyone hears everyone)."""
+    if isinstance(value, int | float) and not isinstance(value, bool) and value == math.inf:
+        return math.inf
+    return _number(key, value, positive=True)
 
 
 def _whole(key: str, value: Any) -> int:
@@ -85,14 +91,13 @@ SETTINGS = {
     "loss": lambda k, v: _number(k, v, maximum=1.0),
     "delay": lambda k, v: _number(k, v),
     "jitter": lambda k, v: _number(k, v),
+    "range": _reach,
 }
 
 
 def _check_setting(where: str, key: str, value: Any) -> Any:
     if key in ("seed", "seeds"):
         raise StudyError(f"{where}: seeds are not a setting; list them in seeds = [...]")
-    if key in NOT_YET:
-        raise StudyError(f"{where}: {key!r}: {NOT_YET[key]}")
     if key not in SETTINGS:
         raise StudyError(f"{where}: unknown setting {key!r} (known: {', '.join(SETTINGS)})")
     return SETTINGS[key](f"{where}.{key}", value)
@@ -240,6 +245,8 @@ def _check_conditions(spec: Spec) -> None:
                 )
             if settings.get("clock", scene.clock) == "realtime":
                 raise StudyError(f"condition {condition}: engine central steps without a real-time clock")
+        if math.isfinite(settings.get("range", math.inf)) and settings.get("clock", scene.clock) != "lockstep":
+            raise StudyError(f"condition {condition}: range = {settings['range']:g} needs clock = \"lockstep\"")
 
 
 def run_command(spec: Spec, run: Run, out: Path) -> list[str]:
@@ -252,6 +259,8 @@ def run_command(spec: Spec, run: Run, out: Path) -> list[str]:
     for key, flag in (("duration", "--duration"), ("deadline", "--deadline")):
         if key in s:
             cmd += [flag, repr(s[key])]
+    if math.isfinite(s.get("range", math.inf)):
+        cmd += ["--range", repr(s["range"])]
     if s.get("engine") != "central":
         if "agents_per_process" in s:
             cmd += ["--agents-per-process", str(s["agents_per_process"])]

@@ -149,7 +149,7 @@ def plot_axis(spec: Spec, axis: str, rows: list[dict[str, Any]], metrics: list[s
     from matplotlib.figure import Figure
 
     values = spec.axes[axis]
-    numeric = all(_is_number(v) for v in values)
+    numeric = all(_is_number(v) and math.isfinite(v) for v in values)  # inf (a range): evenly spaced
     position = {v: (v if numeric else i) for i, v in enumerate(values)}
     others = [a for a in spec.axes if a != axis]
     grid = [r for r in rows if r["status"] == "done" and not r["condition"].startswith("baseline")]

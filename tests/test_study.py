@@ -202,6 +202,22 @@ def test_loss_reaches_the_distributed_runs_beside_a_central_baseline(tmp_path):
     assert [s["condition"] for s in summary] == ["loss-0.5_delay-0.05", "baseline"]
 
 
+def test_a_range_axis_reaches_the_runs_and_inf_is_everyone_hearing_everyone(tmp_path):
+    """The central engine honours a range (its robots run the range-limited auction in process):
+    each run gets --range, inf gets none, and the report plots both."""
+    spec = tmp_path / "range.toml"
+    spec.write_text(
+        'seeds = [1]\n[base]\nscene = "swap"\nrobots = 4\nengine = "central"\nduration = 1.0\n[axes]\nrange = [0.2, inf]\n'
+    )
+    result = study(spec, tmp_path / "out", "--jobs", "2")
+    assert result.returncode == 0, result.stderr[-3000:]
+    rows = {r["id"]: r for r in read_csv(tmp_path / "out" / "runs.csv")}
+    assert set(rows) == {"range-0.2_seed-1", "range-inf_seed-1"}
+    assert rows["range-0.2_seed-1"]["range_m"] == "0.2" and rows["range-inf_seed-1"]["range_m"] == ""
+    assert all(r["status"] == "done" for r in rows.values())
+    assert (tmp_path / "out" / "report.html").stat().st_size > 0
+
+
 BAD_SPECS = {
     "unknown axis": ('seeds = [1]\n[base]\nscene = "swap"\n[axes]\nspeed = [1, 2]\n', "unknown setting 'speed'"),
     "bad value": ('seeds = [1]\n[base]\nscene = "swap"\n[axes]\nloss = [0.0, 1.5]\n', "axes.loss: 1.5"),
@@ -211,7 +227,11 @@ BAD_SPECS = {
         'seeds = [1]\n[base]\nscene = "swap"\n[axes]\nengine = ["central", "distributed"]\nloss = [0.0, 0.1]\n',
         "engine central has no messages to lose",
     ),
-    "range": ('seeds = [1]\n[base]\nscene = "swap"\n[axes]\nrange = [0.5, 1.0]\n', "not implemented yet"),
+    "bad range": ('seeds = [1]\n[base]\nscene = "swap"\n[axes]\nrange = [0.0, inf]\n', "axes.range: 0.0 must be > 0"),
+    "range in real time": (
+        'seeds = [1]\n[base]\nscene = "swap"\nclock = "realtime"\n[axes]\nrange = [0.5]\n',
+        'needs clock = "lockstep"',
+    ),
     "no seeds": ('[base]\nscene = "swap"\n', "seeds"),
     "not toml": ("seeds = [1\n", "not valid TOML"),
     "seed axis": ('seeds = [1]\n[base]\nscene = "swap"\n[axes]\nseed = [1, 2]\n', "seeds are not a setting"),
