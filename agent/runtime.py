@@ -216,6 +216,7 @@ class AgentHost:
             bus.subscribe_into(self.keys.all_of("states"), self.state_inbox)
         if config.lockstep:  # injected state delays count in ticks (reproducible); see Inbox.sim_time
             self.state_inbox.sim_time = -math.inf
+            self.state_inbox.seen = {}  # states waited for arrive, even those the fault plan drops or holds
         self.cells = CellSubscriptions(bus, self.state_inbox, self.cell_size, reach=3 if config.lockstep else 2)
         for target in set(config.pursue.values()):  # a pursuer hears its target wherever it is
             bus.subscribe_into(self.keys.state_of(target), self.state_inbox)
@@ -418,10 +419,11 @@ class AgentHost:
         """
         reach = self.params.state_reach
         deadline = time.monotonic() + self.config.state_wait
+        seen = self.state_inbox.seen or {}  # arrived, whatever an injected fault then did with it
         while True:
-            behind = [s for s in self.table.latest_before(tick) if s.tick < tick - 1]
+            behind = [s for s in self.table.latest_before(tick) if max(s.tick, seen.get(s.robot, -1)) < tick - 1]
             if tick > 0 and self.ticks_done < 2:  # the first tick after tick 0: robots that greeted us
-                behind += [h for r, h in self.greeted.items() if r not in self.table]  # ... state on its way
+                behind += [h for r, h in self.greeted.items() if r not in self.table and r not in seen]
             missing = [
                 s.robot
                 for s in behind
@@ -434,7 +436,8 @@ class AgentHost:
                 self.silent.update(missing)
                 return
             self.state_waits += 1
-            got = self.state_inbox.get(timeout=remaining)
+            # short: a state the fault plan dropped counts as arrived (seen) but rings nothing
+            got = self.state_inbox.get(timeout=min(remaining, 0.005))
             if got is not None:
                 self._on_state(got[1])
 

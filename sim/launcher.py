@@ -162,8 +162,6 @@ class Launcher:
             obstacles=self.scene.obstacles,
             lockstep=lockstep,
             greet=self._near_at_start(robots, self._agent_robots) if lockstep else [],
-            # with injected loss or delay on states, waiting would only slow the run
-            state_wait=0.0 if "state" in self.opt.faults else 1.5,
             pursue={r: t for r, t in self.scene.pursuers.items() if r in robots},
             frames=self._frames,
             steps=list(self.scene.step_starts) if lockstep else [],

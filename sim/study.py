@@ -246,7 +246,7 @@ def _check_conditions(spec: Spec) -> None:
             if settings.get("clock", scene.clock) == "realtime":
                 raise StudyError(f"condition {condition}: engine central steps without a real-time clock")
         if math.isfinite(settings.get("range", math.inf)) and settings.get("clock", scene.clock) != "lockstep":
-            raise StudyError(f"condition {condition}: range = {settings['range']:g} needs clock = \"lockstep\"")
+            raise StudyError(f'condition {condition}: range = {settings["range"]:g} needs clock = "lockstep"')
 
 
 def run_command(spec: Spec, run: Run, out: Path) -> list[str]:

@@ -76,6 +76,9 @@ class Inbox(Generic[MessageT]):
         self._rng = random.Random(seed)
         self.subscriber: Any = None
         self.bell: threading.Event | None = None  # rung on every arrival: one wait serves several inboxes
+        # robot -> the newest tick of its messages that reached this inbox, whatever the fault plan did
+        # with them (None: not kept). A lock-step owner waits on it, then the plan's deterministic fate.
+        self.seen: dict[int, int] | None = None
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         payload = sample.payload.to_bytes()
@@ -95,6 +98,16 @@ class Inbox(Generic[MessageT]):
             self.drops["kind"] += 1
             return
         key = str(sample.key_expr)
+        try:
+            self._deliver(key, msgs)
+        finally:  # after the messages are queued, held or dropped: whoever waits on seen finds them
+            if self.seen is not None:
+                for m in msgs:
+                    robot, tick = getattr(m, "robot", None), getattr(m, "tick", None)
+                    if robot is not None and tick is not None:
+                        self.seen[robot] = max(self.seen.get(robot, tick), tick)
+
+    def _deliver(self, key: str, msgs: list[MessageT]) -> None:
         if self.fault is _NO_FAULT or not self.fault.active:
             for m in msgs:
                 self._queue.put((key, m))
