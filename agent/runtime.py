@@ -430,6 +430,8 @@ class AgentHost:
                 if s.robot not in self.silent and np.min(np.hypot(position[:, 0] - s.x, position[:, 1] - s.y)) <= reach
             ]
             if not missing:
+                for _, state in self.state_inbox.drain():  # what arrived (seen) is taken in before the step
+                    self._on_state(state)
                 return
             remaining = deadline - time.monotonic()
             if remaining <= 0:

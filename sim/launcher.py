@@ -604,6 +604,7 @@ class Launcher:
             stopped_ticks=int(stats.get("stopped_ticks", 0)),
             withheld_ticks=int(stats.get("withheld_ticks", 0)),
             orca_fallbacks=int(sum(s.get("fallbacks", 0) for s in agent_stats)),
+            deadlock_penalties=int(sum((s.get("auction") or {}).get("deadlock_penalties", 0) for s in agent_stats)),
             dropped_messages=dropped,
             crashes=self.crashes,
             restarts=self.restarts,

@@ -337,6 +337,7 @@ class Recorder:
             "color": np.stack(tr.color).astype(np.uint8),
             "goal": np.stack(tr.goal),
             "assignment": np.stack(tr.assignment),
+            "step": np.array(tr.step),  # 0 throughout for a scene without images, as the central engine records
         }
         if self.goal_sets:
             out.update(self._auction_arrays())
@@ -368,7 +369,6 @@ class Recorder:
             colors[i, : len(gs.colors)] = gs.colors
             members[i, gs.robots[gs.robots < n]] = True
         return {
-            "step": np.array(tr.step),
             "goal_set_epoch": np.array(tr.goal_set_epoch),
             "assignment_epoch": epoch,
             "assignment_instance": instance,

@@ -20,6 +20,12 @@ import pytest
 from sim.cli import main
 from tests.conftest import REPO, descendants, wait_for
 
+# metrics of the processes and messages of a run, which the central engine has no counterpart for
+PROCESS_ONLY = {
+    *("engine", "wall_s", "realtime_factor", "end_reason"),
+    *("messages_per_robot_s", "bytes_per_robot_s", "messages_total", "bytes_total"),
+}
+
 GRID = """
 name = "grid"
 seeds = [1, 2]
@@ -296,3 +302,34 @@ def test_ctrl_c_stops_the_runs_it_started_and_keeps_the_finished_ones(tmp_path):
     interrupted = out / "runs" / "baseline_seed-1" / "metrics.json"
     assert not interrupted.exists() or json.loads(interrupted.read_text())["complete"] is False
     assert not (out / "report.html").exists()
+
+
+@pytest.mark.slow
+def test_without_impairment_a_distributed_run_has_every_metric_of_the_central_run(tmp_path):
+    """One controller in every engine (issue 21), seen through a study: with no impairment, the
+    distributed run of a seed reports what the central run of that seed reports, metric for metric;
+    only what the central engine has no counterpart for (processes, messages, wall time) differs."""
+    spec = tmp_path / "engines.toml"
+    spec.write_text(
+        'seeds = [2]\n[base]\nscene = "swap"\nrobots = 6\nclock = "lockstep"\n[axes]\n'
+        'engine = ["central", "distributed"]\n'
+    )
+    result = study(spec, tmp_path / "out", "--jobs", "2")
+    assert result.returncode == 0, result.stderr[-3000:]
+    runs = tmp_path / "out" / "runs"
+    central = json.loads((runs / "engine-central_seed-2" / "metrics.json").read_text())
+    distributed = json.loads((runs / "engine-distributed_seed-2" / "metrics.json").read_text())
+    assert central["converged"] and central["contacts"] == 0
+    for key in sorted(set(central) - PROCESS_ONLY):
+        assert _same(distributed.get(key), central[key]), (key, distributed.get(key), central[key])
+
+
+def _same(a: object, b: object) -> bool:
+    """Equal, numbers to 1e-9 (lists and tables element by element)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, list) and isinstance(b, list):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    if isinstance(a, float | int) and isinstance(b, float | int) and not isinstance(a, bool):
+        return math.isclose(a, b, rel_tol=0, abs_tol=1e-9)
+    return a == b

@@ -22,7 +22,7 @@ from typing import Any, Generic, cast, overload
 import numpy as np
 import zenoh
 
-from .codec import Command, Commands, DropCounter, Frame, Message, MessageT, decode
+from .codec import Command, Commands, DropCounter, Frame, Message, MessageT, Pose, decode
 from .faults import FaultPlan, FaultSpec
 from .keys import Keys
 from .session import ZenohSettings, open_session
@@ -104,7 +104,7 @@ class Inbox(Generic[MessageT]):
             if self.seen is not None:
                 for m in msgs:
                     robot, tick = getattr(m, "robot", None), getattr(m, "tick", None)
-                    if robot is not None and tick is not None:
+                    if robot is not None and tick is not None and tick != Pose.BEFORE_START:  # not a hello
                         self.seen[robot] = max(self.seen.get(robot, tick), tick)
 
     def _deliver(self, key: str, msgs: list[MessageT]) -> None:
