@@ -33,7 +33,7 @@ from transport.bus import Bus, Inbox
 from transport.codec import Bid, Boards, Goals
 
 from .core.bidder import RECORD, SETTLED, Participant, frames_close
-from .core.local_auction import NO_OWNER, LocalAuction, Words
+from .core.local_auction import NO_OWNER, LocalAuction, Words, new_auction
 from .core.params import RobotParams
 
 DIGEST_EVERY = 0.01
@@ -169,33 +169,12 @@ class AuctionLink:
         no assignment) and the frames are close (bidder.frames_close)."""
         if self.active and goals.epoch <= self.epoch:
             return {}
-        if math.isfinite(self.reach):  # a cold start at the next tick, as the central engine starts a new image
-            self.goal_set = goals
-            self.local = LocalAuction(
-                goals.epoch,
-                goals.positions,
-                goals.robots.tolist(),
-                self.robots,
-                self.params.assign_eps,
-                self.params.assign_hysteresis,
-                self.reach,
-            )
-            self.epoch_wall, self.reported, self.others = time.monotonic(), -1, set()
-            self.block_stamp = -np.inf
+        auction = new_auction(goals.epoch, goals.positions, goals.robots.tolist(), self.robots, self.params, self.reach)
+        self.goal_set, self.epoch_wall, self.reported, self.others = goals, time.monotonic(), -1, set()
+        if isinstance(auction, LocalAuction):  # lock-step only: a cold start at the next tick
+            self.local, self.block_stamp = auction, -np.inf
             return {}
-        before = self.part
-        self.goal_set = goals
-        self.part = Participant(
-            goals.epoch,
-            goals.positions,
-            goals.robots.tolist(),
-            self.robots,
-            self.params.assign_eps,
-            self.params.assign_hysteresis,
-        )
-        self.epoch_wall = time.monotonic()
-        self.reported = -1
-        self.others = set()
+        before, self.part = self.part, auction
         if self.lockstep:  # a cold start at the next tick, as the central engine starts a new image
             self.block_stamp = -np.inf
             return {}

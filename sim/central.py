@@ -30,8 +30,7 @@ from scipy.optimize import linear_sum_assignment
 
 from agent.core.bidder import Participant
 from agent.core.goal_motion import GoalMotion
-from agent.core.local_auction import LocalAuction, settle_in_process
-from agent.core.params import RobotParams
+from agent.core.local_auction import LocalAuction, new_auction, settle_in_process
 from agent.core.policy import NO_GOAL, Decision, GoalTiming, Intent, Memory, act, intend
 from agent.core.step import NeighbourStates, static_segments
 from agent.goal_sets import timing_of
@@ -111,16 +110,6 @@ def auction_assignment(auction: Participant | LocalAuction, position: np.ndarray
     else:
         assignment[auction.own_ids] = auction.settle_alone(position)
     return assignment
-
-
-def new_auction(
-    epoch: int, goal_set: np.ndarray, robots: list[int], params: RobotParams, reach: float
-) -> Participant | LocalAuction:
-    """The auction of a goal set with every robot in this process: over a limited range, each robot's
-    own board (agent.core.local_auction); else the one board every robot shares."""
-    if np.isfinite(reach):
-        return LocalAuction(epoch, goal_set, robots, robots, params.assign_eps, params.assign_hysteresis, reach)
-    return Participant(epoch, goal_set, robots, robots, params.assign_eps, params.assign_hysteresis)
 
 
 class Outcome(NamedTuple):
@@ -235,7 +224,7 @@ def simulate(
                     )
                 elif auction is None:  # a new image: a cold start (the old prices mean nothing)
                     pixels = movers.pixels.tolist()
-                    auction = new_auction(k, goal_set, pixels, params, link.reach)
+                    auction = new_auction(k, goal_set, pixels, pixels, params, link.reach)
                     assignment = auction_assignment(auction, bid_from)
                 else:
                     pending = beside.submit(clock.timed_beside, auction_assignment, auction, bid_from)

@@ -37,6 +37,8 @@ from typing import NamedTuple
 import numpy as np
 
 from .auction import NO_OWNER, ROUNDING, epsilon_schedule
+from .bidder import Participant
+from .params import RobotParams
 
 
 class Words(NamedTuple):
@@ -329,3 +331,13 @@ def settle_in_process(auction: LocalAuction, positions: np.ndarray, max_rounds: 
         if auction.round >= max_rounds:
             raise RuntimeError("the range-limited auction did not end")
     return auction.round
+
+
+def new_auction(
+    epoch: int, goals: np.ndarray, robots: list[int], own: list[int], params: RobotParams, reach: float
+) -> Participant | LocalAuction:
+    """The auction of a goal set for the ``own`` robots: over a limited range (``reach`` finite),
+    each robot's own board; else the one board every robot shares (agent.core.bidder)."""
+    if np.isfinite(reach):
+        return LocalAuction(epoch, goals, robots, own, params.assign_eps, params.assign_hysteresis, reach)
+    return Participant(epoch, goals, robots, own, params.assign_eps, params.assign_hysteresis)
