@@ -6,7 +6,7 @@ and with the current code, alternating, ``--pairs`` times each. Per run: each ag
 (psutil cpu_times, user + system) over the world's stepping, as % of a core (median and mean over
 the agents), and the missed ticks the world counted.
 
-    python -m bench.bench_agent_tick [--before 2856784] [--robots 10] [--duration 20] [--pairs 2]
+    python -m bench.bench_agent_tick [--before 2f61ee4] [--robots 10] [--duration 20] [--pairs 2]
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import psutil
 
 from .common import REPO, write_results
 
-BEFORE = "2856784"  # the code before issue 25's per-tick work outside the control step
+BEFORE = "2f61ee4"  # main before this branch: the code without its per-tick work outside the control step
 SAMPLE_EVERY = 0.25  # s between CPU samples of the agent processes
 EDGE = 1.0  # s left out of each end of the stepping window (the first ticks, the shutdown)
 
