@@ -148,7 +148,7 @@ def first_tick(log: Path) -> dict[str, float]:
             e = json.loads(message.data)
             if e["alive"] and e["role"] in seen and (e["role"] == "agent" or seen[e["role"]] != seen[e["role"]]):
                 seen[e["role"]] = wall  # the first coordinator and world, the last agent
-    raise RuntimeError(f"{log}: the world never ticked")
+    return seen | {"tick": float("nan")}  # the world never ticked
 
 
 def startup_run(tree: Path, robots: int) -> dict:
@@ -168,7 +168,8 @@ def startup_run(tree: Path, robots: int) -> dict:
         if proc.returncode != 0:
             raise RuntimeError(f"run from {tree} failed: {proc.stderr[-2000:]}")
         walls = first_tick(out / "log.mcap")
-    return {"load": load_before} | {k: wall - launched for k, wall in walls.items()}
+        end = json.loads((out / "metrics.json").read_text())["end_reason"]
+    return {"load": load_before, "end": end} | {k: wall - launched for k, wall in walls.items()}
 
 
 def clear_caches(tree: Path, suffixes: set[str]) -> None:
@@ -209,8 +210,8 @@ def startup(before: str, after: str, pairs: int, robots: int) -> list[str]:
     first: dict[str, float] = {}
     commits: dict[str, str] = {}
     rows = [
-        "| run | code | load avg | coordinator alive s | world alive s | last agent alive s | first tick s |",
-        "|---|---|---|---|---|---|---|",
+        "| run | code | load avg | coordinator alive s | world alive s | last agent alive s | first tick s | end |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     schedule = [("first in a fresh tree", set())] + [(str(k), set()) for k in range(1, pairs + 1)] + NO_CACHE
     with tempfile.TemporaryDirectory() as tmp:
@@ -226,16 +227,19 @@ def startup(before: str, after: str, pairs: int, robots: int) -> list[str]:
                         warm[what].append(r["tick"])
                     elif not cleared:
                         first[what] = r["tick"]
+                    shown = {
+                        k: "-" if r[k] != r[k] else f"{r[k]:.1f}" for k in ("coordinator", "world", "agent", "tick")
+                    }
                     rows.append(
-                        f"| {name} | {commits[what]} ({what}) | {r['load']} | {r['coordinator']:.1f} | "
-                        f"{r['world']:.1f} | {r['agent']:.1f} | {r['tick']:.1f} |"
+                        f"| {name} | {commits[what]} ({what}) | {r['load']} | {shown['coordinator']} | {shown['world']} | "
+                        f"{shown['agent']} | {shown['tick']} | {r['end']} |"
                     )
                     print(rows[-1], flush=True)
         finally:
             for tree in trees.values():
                 subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=REPO, capture_output=True)
             subprocess.run(["git", "worktree", "prune"], cwd=REPO, capture_output=True)
-    median = {what: float(np.median(ticks)) for what, ticks in warm.items()}
+    median = {what: float(np.nanmedian(ticks)) for what, ticks in warm.items()}  # nan: a run that never ticked
     return rows + [
         "",
         f"Median to the first tick over runs 1-{pairs}: {median['before']:.1f} s before ({commits['before']}), "
@@ -249,8 +253,8 @@ def startup(before: str, after: str, pairs: int, robots: int) -> list[str]:
         "(its first truth message: the world ticks once every agent is alive, and an agent comes alive once it "
         "heard the world). A fresh tree's first run also writes the project's bytecode (__pycache__/*.pyc) and "
         "the world's numba cache (*.nbi, *.nbc; agents load no numba); later runs read both. The last two runs "
-        "of each tree go without one of them. Load avg: the machine's 1-minute load before the run (a shared "
-        "machine).",
+        "of each tree go without one of them. '-': never reached (end: the run's end_reason). Load avg: the "
+        "machine's 1-minute load before the run (a shared machine; it still counts the previous run's processes).",
     ]
 
 
