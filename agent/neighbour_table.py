@@ -124,6 +124,8 @@ class NeighbourTable:
         states = self.latest_before(tick)
         if not states:
             return NeighbourStates.empty(len(robot_ids))
+        if len(robot_ids) == 1:  # a robot per process: numpy's per-call cost outweighed the work
+            return _nearest_one(robot_ids[0], positions, stamp, states, neighbour_dist, max_neighbours, stopped or {})
         fields = np.array(
             [(s.robot, s.x, s.y, s.vx, s.vy, s.radius, s.stamp, s.flags & State.DYNAMIC) for s in states], float
         )  # one pass over the states, one array
@@ -181,4 +183,49 @@ def nearest_heard(
     out.position[rows, rank], out.velocity[rows, rank] = pos[cols], vel[cols]
     out.radius[rows, rank], out.age[rows, rank], out.valid[rows, rank] = rad[cols], age[cols], True
     out.cooperative[rows, rank] = coop[cols]
+    return out
+
+
+def _nearest_one(
+    robot: int,
+    position: np.ndarray,
+    stamp: float,
+    states: list[State],
+    neighbour_dist: float,
+    max_neighbours: int,
+    stopped: dict[int, float],
+) -> NeighbourStates:
+    """`gather` for one robot in plain Python, value for value what ``nearest_heard`` gives: the same
+    float operations in the same order, the same ranking (distance, then robot id)."""
+    px, py = np.asarray(position, float).reshape(2).tolist()
+    reach2 = neighbour_dist**2
+    near = []
+    for s in states:
+        if s.robot == robot:
+            continue
+        dx, dy = s.x - px, s.y - py
+        d2 = dx * dx + dy * dy
+        if d2 <= reach2:
+            near.append((d2, s.robot, s))
+    near.sort(key=lambda c: (c[0], c[1]))
+    out = NeighbourStates.empty(1, max_neighbours)
+    chosen = near[:max_neighbours]
+    if not chosen:
+        return out
+    k = len(chosen)
+    position_, velocity, radius, age, cooperative = [], [], [], [], []
+    for _, r, s in chosen:
+        position_.append((s.x, s.y))
+        if r in stopped:  # its body stands where it was last heard (see gather)
+            velocity.append((0.0, 0.0))
+            radius.append(s.radius + stopped[r])
+            age.append(stamp - stamp)
+            cooperative.append(False)
+        else:
+            velocity.append((s.vx, s.vy))
+            radius.append(s.radius)
+            age.append(stamp - s.stamp)
+            cooperative.append(s.flags & State.DYNAMIC == 0)
+    out.position[0, :k], out.velocity[0, :k], out.radius[0, :k] = position_, velocity, radius
+    out.age[0, :k], out.valid[0, :k], out.cooperative[0, :k] = age, True, cooperative
     return out

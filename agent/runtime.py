@@ -567,7 +567,7 @@ class AgentHost:
         if not self.config.lockstep:  # late: the body may have strayed from the pose (agent.lateness)
             late = self.lateness.at(stamp, began + self._compute)
             if late > 0:
-                p = p.with_(radius=p.radius + strayed(late, p.v_max))
+                p = p.grown(strayed(late, p.v_max))
         position = np.array([(q.x, q.y) for q in poses], float)
         heading = np.array([q.theta for q in poses], float)
         if self.config.lockstep:

@@ -7,7 +7,13 @@ circle with every command delayed 0.15 s (``--faults cmd:delay=0.15``) at 20 pro
 (without --quick) the lock-step rows and 1000 robots in 4 hosts. The machine's load average is
 written beside each row: on a shared machine the figures are only as good as it was quiet.
 
+``--startup``: only the start-up of 50 agent processes, from launching `pixelswarm run` to the
+world's first tick, the code at ``--before REV`` beside the code at ``--after REV`` (each a fresh
+git worktree), alternating; the first run in each fresh tree (no bytecode, no numba cache yet) is
+reported apart. Written as the "Start-up" section of runtime.md, the rest kept.
+
     .venv/bin/python -m bench.bench_runtime [--quick] [--sizes 20,50,100] [--duration 20]
+    .venv/bin/python -m bench.bench_runtime --startup [--before 7ff7048^] [--after HEAD] [--pairs 3]
 """
 
 from __future__ import annotations
@@ -18,7 +24,9 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 import psutil
@@ -29,11 +37,14 @@ from transport.bus import Bus
 from transport.codec import Pose
 from transport.session import client_of, loopback_router
 
-from .common import REPO, run_and_sample, write_results
+from .common import REPO, RESULTS, machine, run_and_sample, write_results
 
 WARM_UP = 3.0  # s of ticks before the floor is measured (subscriptions travel, processes settle)
 DELAYED = "cmd:delay=0.15"  # every command a tick and a half late: bodies must stop, never touch
 DELAYED_AT = 20
+STARTUP_BEFORE = "7ff7048^"  # the code before issue 25's work
+STARTUP_HEADING = "## Start-up"
+TRUTH = "/sim/truth"  # the world's truth channel in a run's log.mcap
 
 
 def load() -> str:
@@ -123,12 +134,179 @@ def agent_row(n: int, duration: float, clock: str = "realtime", faults: str = ""
     }
 
 
+def first_tick(log: Path) -> dict[str, float]:
+    """Wall times in a run's log, as the launcher's recorder heard them: the coordinator alive, the
+    world alive, the last agent alive, and the world's first tick (its first truth message)."""
+    from mcap.reader import make_reader
+
+    seen = {"coordinator": float("nan"), "world": float("nan"), "agent": float("nan")}
+    with open(log, "rb") as fh:
+        for _, channel, message in make_reader(fh).iter_messages(topics=["/alive", TRUTH], log_time_order=True):
+            wall = message.log_time / 1e9
+            if channel.topic == TRUTH:
+                return seen | {"tick": wall}
+            e = json.loads(message.data)
+            if e["alive"] and e["role"] in seen and (e["role"] == "agent" or seen[e["role"]] != seen[e["role"]]):
+                seen[e["role"]] = wall  # the first coordinator and world, the last agent
+    return seen | {"tick": float("nan")}  # the world never ticked
+
+
+def startup_run(tree: Path, robots: int) -> dict:
+    """`sim.cli run circle` from ``tree``: wall seconds from its launch to the coordinator alive,
+    the world alive, the last agent alive and the world's first tick."""
+    args = ["circle", "--robots", str(robots), "--clock", "realtime", "--duration", "5", "--seed", "3"]
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "run"
+        load_before = load()
+        launched = time.time()
+        proc = subprocess.run(
+            [sys.executable, "-m", "sim.cli", "run", *args, "--no-video", "-q", "--out", str(out)],
+            cwd=tree,
+            capture_output=True,
+            text=True,
+        )
+        if proc.returncode != 0:
+            raise RuntimeError(f"run from {tree} failed: {proc.stderr[-2000:]}")
+        walls = first_tick(out / "log.mcap")
+        end = json.loads((out / "metrics.json").read_text())["end_reason"]
+    return {"load": load_before, "end": end} | {k: wall - launched for k, wall in walls.items()}
+
+
+def clear_caches(tree: Path, suffixes: set[str]) -> None:
+    """Delete the files of these suffixes in the tree's __pycache__ folders (.pyc: bytecode;
+    .nbi/.nbc: numba's on-disk cache)."""
+    for f in tree.rglob("__pycache__/*"):
+        if f.suffix in suffixes:
+            f.unlink()
+
+
+def worktree(rev: str, where: Path) -> str:
+    """A fresh detached git worktree of ``rev`` at ``where``; its short commit. Its code, not this
+    checkout's, is what runs from it (the children start from the launcher's folder)."""
+    subprocess.run(["git", "worktree", "add", "--detach", str(where), rev], cwd=REPO, check=True, capture_output=True)
+    found = subprocess.run(
+        [sys.executable, "-B", "-c", "import agent, sim; print(agent.__file__, sim.__file__)"],
+        cwd=where,
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout.split()
+    if not all(Path(f).is_relative_to(where) for f in found):
+        raise RuntimeError(f"code from {where} imports {found}, not its own")
+    return subprocess.run(
+        ["git", "rev-parse", "--short", "HEAD"], cwd=where, check=True, capture_output=True, text=True
+    ).stdout.strip()
+
+
+# After the alternating runs, one run of each tree without one of its on-disk caches.
+NO_CACHE = [("no numba cache (bytecode kept)", {".nbi", ".nbc"}), ("no bytecode (numba cache kept)", {".pyc"})]
+
+
+def startup(before: str, after: str, pairs: int, robots: int) -> list[str]:
+    """Start-up of ``robots`` agent processes, the code at ``before`` beside the code at ``after``:
+    the first run of each fresh worktree, ``pairs`` runs each alternating, then a run without each
+    of the on-disk caches."""
+    warm: dict[str, list[float]] = {"before": [], "after": []}
+    first: dict[str, float] = {}
+    commits: dict[str, str] = {}
+    rows = [
+        "| run | code | load avg | coordinator alive s | world alive s | last agent alive s | first tick s | end |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    schedule = [("first in a fresh tree", set())] + [(str(k), set()) for k in range(1, pairs + 1)] + NO_CACHE
+    with tempfile.TemporaryDirectory() as tmp:
+        trees = {"before": Path(tmp) / "before", "after": Path(tmp) / "after"}
+        try:
+            for what, rev in (("before", before), ("after", after)):
+                commits[what] = worktree(rev, trees[what])
+            for name, cleared in schedule:
+                for what, tree in trees.items():
+                    clear_caches(tree, cleared)
+                    r = startup_run(tree, robots)
+                    if name.isdigit():
+                        warm[what].append(r["tick"])
+                    elif not cleared:
+                        first[what] = r["tick"]
+                    shown = {
+                        k: "-" if r[k] != r[k] else f"{r[k]:.1f}" for k in ("coordinator", "world", "agent", "tick")
+                    }
+                    rows.append(
+                        f"| {name} | {commits[what]} ({what}) | {r['load']} | {shown['coordinator']} | {shown['world']} | "
+                        f"{shown['agent']} | {shown['tick']} | {r['end']} |"
+                    )
+                    print(rows[-1], flush=True)
+        finally:
+            for tree in trees.values():
+                subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=REPO, capture_output=True)
+            subprocess.run(["git", "worktree", "prune"], cwd=REPO, capture_output=True)
+    median = {what: float(np.nanmedian(ticks)) for what, ticks in warm.items()}  # nan: a run that never ticked
+    return rows + [
+        "",
+        f"Median to the first tick over runs 1-{pairs}: {median['before']:.1f} s before ({commits['before']}), "
+        f"{median['after']:.1f} s after ({commits['after']}); the first run in a fresh tree: "
+        f"{first['before']:.1f} s before, {first['after']:.1f} s after.",
+        "",
+        f"Scene: `pixelswarm run circle --robots {robots} --clock realtime --duration 5 --seed 3 --no-video -q`, "
+        "a robot per agent process, run from a fresh git worktree of each revision (the same Python), before and "
+        "after alternating. Seconds from launching the command to what the run's log (log.mcap, the launcher's "
+        "recorder) heard: the coordinator alive, the world alive, the last agent alive, the world's first tick "
+        "(its first truth message: the world ticks once every agent is alive, and an agent comes alive once it "
+        "heard the world). A fresh tree's first run also writes the project's bytecode (__pycache__/*.pyc) and "
+        "the world's numba cache (*.nbi, *.nbc; agents load no numba); later runs read both. The last two runs "
+        "of each tree go without one of them. '-': never reached (end: the run's end_reason). Load avg: the "
+        "machine's 1-minute load before the run (a shared machine; it still counts the previous run's processes).",
+    ]
+
+
+def split_startup(text: str) -> tuple[str, str]:
+    """runtime.md without its Start-up section, and that section ('' if none)."""
+    head, heading, tail = text.partition("\n" + STARTUP_HEADING)
+    if not heading:
+        return text, ""
+    cut = tail.find("\n## ")
+    section = heading.lstrip("\n") + (tail if cut < 0 else tail[: cut + 1])
+    return head + ("" if cut < 0 else tail[cut:]), section
+
+
+def append_section(path: Path, section: str) -> None:
+    path.write_text(path.read_text().rstrip("\n") + "\n\n" + section.rstrip("\n") + "\n")
+
+
+def write_startup(command: str, lines: list[str]) -> None:
+    """The Start-up section of runtime.md, in place of the old one; the rest of the file kept."""
+    path = RESULTS / "runtime.md"
+    others, _ = split_startup(path.read_text() if path.exists() else "")
+    path.write_text(others)
+    section = [
+        f"{STARTUP_HEADING}: from `pixelswarm run` to the first tick (issue 25)",
+        "",
+        f"Command: `{command}`",
+        f"Machine: {machine()}; measured {time.strftime('%Y-%m-%d', time.gmtime())}.",
+        "",
+        *lines,
+    ]
+    append_section(path, "\n".join(section))
+    print("\n".join(section))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--quick", action="store_true", help="N = 20 only, no lock-step or hosted rows")
     parser.add_argument("--sizes", default="", help="comma-separated N (default 20,50,100; --quick: 20)")
     parser.add_argument("--duration", type=float, default=20.0, help="s of display per run")
+    parser.add_argument("--startup", action="store_true", help="only the start-up to the first tick, before/after")
+    parser.add_argument("--before", default=STARTUP_BEFORE, help="--startup: the git revision before")
+    parser.add_argument("--after", default="HEAD", help="--startup: the git revision after")
+    parser.add_argument("--pairs", type=int, default=3, help="--startup: before/after runs, alternating")
+    parser.add_argument("--robots", type=int, default=50, help="--startup: agent processes")
     args = parser.parse_args()
+    command = " ".join(["python -m bench.bench_runtime", *sys.argv[1:]])
+    if args.startup:
+        if args.pairs < 1 or args.robots < 1:
+            print("bench_runtime: error: --pairs and --robots must be at least 1", file=sys.stderr)
+            sys.exit(2)
+        write_startup(command, startup(args.before, args.after, args.pairs, args.robots))
+        return
     try:
         sizes = [int(s) for s in args.sizes.split(",") if s] or ([20] if args.quick else [20, 50, 100])
         if min(sizes) < 1 or args.duration <= 0:
@@ -192,7 +370,8 @@ def main() -> None:
             f"| 1000 | 4 (K = 250) | lockstep | {m['stepping_realtime_factor']:.2f} | {cpu:.0f} | "
             f"{np.median([s['rss'] for s in samples]) / 2**20:.0f} |",
         ]
-    command = " ".join(["python -m bench.bench_runtime", *sys.argv[1:]])
+    path = RESULTS / "runtime.md"
+    _, kept = split_startup(path.read_text() if path.exists() else "")  # --startup's section outlives a rerun
     write_results(
         "runtime",
         "Runtime: agent processes over zenoh beside the bare-zenoh floor (issues 2, 25)",
@@ -212,6 +391,8 @@ def main() -> None:
             "USS: memory unique to one process. Load avg: the machine's 1-minute load before the row.",
         ],
     )
+    if kept:
+        append_section(path, kept)
 
 
 if __name__ == "__main__":

@@ -61,6 +61,33 @@ def test_a_large_batch_finds_the_same_neighbours_from_its_k_d_tree(monkeypatch):
         np.testing.assert_array_equal(a, b)
 
 
+def test_one_robot_gathers_bit_for_bit_what_it_gets_in_a_batch():
+    """A process of one robot gathers in plain Python (agent.neighbour_table._nearest_one): every
+    array must equal that robot's row of a batch's, ties, dead robots' bodies and dynamic
+    obstacles included, so a robot steers alike whatever host it runs in."""
+    rng = np.random.default_rng(5)
+    table = NeighbourTable()
+    points = np.round(rng.uniform(-1.0, 1.0, (60, 2)) * 10) / 10 + np.float32(1e-3)
+    ids = rng.permutation(200)[:60]
+    for robot, (x, y) in zip(ids, points):
+        s = _state(int(robot), float(np.float32(x)), float(np.float32(y)))
+        s.flags = State.DYNAMIC if robot % 7 == 0 else 0
+        s.stamp = 0.1 - 0.013 * (robot % 5)
+        table.update(s)
+    stopped = {int(r): 0.012 for r in ids[::9]}
+    own, here = [int(r) for r in ids[:20]], points[:20] + 0.01
+    for reach, m in [(0.7, 6), (0.25, 10), (0.01, 4)]:
+        batch = table.gather(own + [999], np.vstack([here, [[9.0, 9.0]]]), 0.2, 2, reach, m, stopped)
+        if reach == 0.7:  # many neighbours, dynamic ones among them
+            assert batch.valid.sum() > 50 and not batch.cooperative[batch.valid].all()
+        for b, (rid, p) in enumerate(zip(own, here)):
+            one = table.gather([rid], p[None, :], 0.2, 2, reach, m, stopped)
+            for name in ("position", "velocity", "radius", "age", "valid", "cooperative"):
+                got, expect = getattr(one, name), getattr(batch, name)[b : b + 1]
+                assert got.dtype == expect.dtype and got.shape == expect.shape
+                np.testing.assert_array_equal(got, expect)
+
+
 def test_bid_positions_of_a_batch_are_those_of_each_robot():
     rng = np.random.default_rng(5)
     position, goal, velocity = rng.uniform(-1, 1, (3, 40, 2))

@@ -106,7 +106,18 @@ def max_trackable_speed(theta: ArrayLike, error: ArrayLike, params: RobotParams)
     return _speed_bound(_angle_terms(theta, params), np.asarray(error, dtype=float), params.v_max)
 
 
+def _shape(params: RobotParams) -> RobotParams:
+    """Params that differ from ``params`` only where P_AHV does not look (the radius above all), as
+    the key of the caches below: a real-time agent grows its radius by its lateness every tick
+    (agent.lateness), and each grown radius missed them."""
+    return _shape_of(params.v_max, params.omega_max, params.wheel_base, params.t_orient)
+
+
 @functools.lru_cache(maxsize=16)
+def _shape_of(v_max: float, omega_max: float, wheel_base: float, t_orient: float) -> RobotParams:
+    return RobotParams(v_max=v_max, omega_max=omega_max, wheel_base=wheel_base, t_orient=t_orient)
+
+
 def vertex_angles(params: RobotParams, n: int = _N_VERTICES) -> np.ndarray:
     """Angles (to the heading) of the P_AHV vertices, increasing in (-pi, pi].
 
@@ -114,6 +125,11 @@ def vertex_angles(params: RobotParams, n: int = _N_VERTICES) -> np.ndarray:
     begins (|theta| = T omega_cap); that angle is a vertex, so every edge is a chord of a convex arc
     of the boundary and lies in S_AHV (the half-planes of the edges then cut a convex subset).
     """
+    return _vertex_angles(_shape(params), n)
+
+
+@functools.lru_cache(maxsize=16)
+def _vertex_angles(params: RobotParams, n: int) -> np.ndarray:
     u = np.linspace(-1.0, 1.0, n, endpoint=False)[1:]
     angles = np.concatenate([np.pi * np.sign(u) * np.abs(u) ** 1.5, [np.pi]])
     dent = params.t_orient * omega_cap(params)
@@ -124,9 +140,13 @@ def vertex_angles(params: RobotParams, n: int = _N_VERTICES) -> np.ndarray:
     return angles
 
 
-@functools.lru_cache(maxsize=16)
 def _polygon_terms(params: RobotParams) -> tuple[_AngleTerms, np.ndarray, np.ndarray]:
-    """What P_AHV's vertices owe to their angles alone: computed once per params."""
+    """What P_AHV's vertices owe to their angles alone: computed once per params' shape."""
+    return _polygon_terms_of(_shape(params))
+
+
+@functools.lru_cache(maxsize=16)
+def _polygon_terms_of(params: RobotParams) -> tuple[_AngleTerms, np.ndarray, np.ndarray]:
     angles = vertex_angles(params)
     out = (_angle_terms(angles[None, :], params), np.cos(angles), np.sin(angles))
     for a in (*out[0], *out[1:]):
@@ -341,9 +361,13 @@ def nh_orca_wheel_speeds(
 # arrays of one); ORCA itself is agent.core.orca's `orca_velocity_one`.
 
 
-@functools.lru_cache(maxsize=16)
 def _polygon_terms_one(params: RobotParams) -> list[tuple]:
     """`_polygon_terms` vertex by vertex as Python values."""
+    return _polygon_terms_one_of(_shape(params))
+
+
+@functools.lru_cache(maxsize=16)
+def _polygon_terms_one_of(params: RobotParams) -> list[tuple]:
     terms, cos_a, sin_a = _polygon_terms(params)
     return list(zip(*(np.asarray(x).reshape(-1).tolist() for x in (*terms, cos_a, sin_a))))
 

@@ -1,0 +1,149 @@
+"""An agent process's CPU per tick, the code of a git revision beside the current code (issue 25).
+
+The same small real-time scene (`pixelswarm run circle`, one robot per agent process) runs with the
+code at ``--before REV`` (a temporary ``git worktree`` of it, run with the same Python from there)
+and with the current code, alternating, ``--pairs`` times each. Per run: each agent process's CPU
+(psutil cpu_times, user + system) over the world's stepping, as % of a core (median and mean over
+the agents), and the missed ticks the world counted.
+
+    python -m bench.bench_agent_tick [--before 2f61ee4] [--robots 10] [--duration 20] [--pairs 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import psutil
+
+from .common import REPO, write_results
+
+BEFORE = "2f61ee4"  # main before this branch: the code without its per-tick work outside the control step
+SAMPLE_EVERY = 0.25  # s between CPU samples of the agent processes
+EDGE = 1.0  # s left out of each end of the stepping window (the first ticks, the shutdown)
+
+
+def run_scene(cwd: Path, robots: int, duration: float, seed: int) -> dict:
+    """One `sim.cli run circle` from ``cwd``: its metrics and the agents' CPU over the stepping."""
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "run"
+        args = ["circle", "--robots", str(robots), "--clock", "realtime", "--duration", str(duration)]
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "sim.cli", "run", *args, "--seed", str(seed), "--out", str(out), "--no-video", "-q"],
+            cwd=cwd,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env={k: v for k, v in os.environ.items() if k != "PIXELSWARM_PROFILE"},
+        )
+        series: dict[int, list[tuple[float, float]]] = {}  # agent pid -> (wall, CPU seconds)
+        watched: dict[int, psutil.Process] = {}
+        while proc.poll() is None:
+            try:
+                children = psutil.Process(proc.pid).children(recursive=True)
+            except psutil.Error:
+                break
+            for child in children:
+                try:
+                    if child.pid not in watched and "agent" in child.cmdline():
+                        watched[child.pid] = child
+                except psutil.Error:
+                    pass
+            now = time.monotonic()
+            for pid, p in list(watched.items()):
+                try:
+                    t = p.cpu_times()
+                    series.setdefault(pid, []).append((now, t.user + t.system))
+                except psutil.Error:
+                    watched.pop(pid)
+            time.sleep(SAMPLE_EVERY)
+        _, stderr = proc.communicate()
+        if proc.returncode != 0:
+            raise RuntimeError(f"run from {cwd} failed: {stderr[-2000:]}")
+        m = json.loads((out / "metrics.json").read_text())
+    # The stepping window: it ends when the first agent is stopped, and lasted stepping_wall_s.
+    series = {pid: s for pid, s in series.items() if len(s) >= 4}  # not a process seen only in passing
+    end = min(s[-1][0] for s in series.values()) - EDGE
+    begin = end - float(m["stepping_wall_s"]) + 2 * EDGE
+    cpu = []
+    for s in series.values():
+        t, c = np.array(s).T
+        i, j = np.searchsorted(t, begin), np.searchsorted(t, end, side="right") - 1
+        if j > i:
+            cpu.append(100 * (c[j] - c[i]) / (t[j] - t[i]))
+    ticks = max(int(m.get("samples", 1)) - 1, 1) * robots
+    if not cpu:  # no two samples inside the window (a loaded machine sampled too seldom)
+        cpu = [float("nan")]
+    return {
+        "cpu_median": float(np.median(cpu)),
+        "cpu_mean": float(np.mean(cpu)),
+        "missed": int(m["missed_ticks"]),
+        "missed_share": m["missed_ticks"] / ticks,
+        "load": os.getloadavg()[0],
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--before", default=BEFORE, help="git revision to compare against")
+    parser.add_argument("--robots", type=int, default=10)
+    parser.add_argument("--duration", type=float, default=20.0, help="s of display per run")
+    parser.add_argument("--pairs", type=int, default=2, help="before/after pairs, alternating")
+    parser.add_argument("--seed", type=int, default=3)
+    args = parser.parse_args()
+    if args.robots < 1 or args.duration <= 0 or args.pairs < 1:
+        print("bench_agent_tick: error: --robots, --duration and --pairs must be positive", file=sys.stderr)
+        sys.exit(2)
+    rev = subprocess.run(["git", "rev-parse", "--short", args.before], cwd=REPO, capture_output=True, text=True)
+    if rev.returncode != 0:
+        print(f"bench_agent_tick: error: no revision {args.before!r}", file=sys.stderr)
+        sys.exit(2)
+    before_rev = rev.stdout.strip()
+    rows = [
+        "| pair | code | load avg | agent CPU % of a core (median) | (mean) | missed ticks (share) |",
+        "|---|---|---|---|---|---|",
+    ]
+    figures: dict[str, list[float]] = {"before": [], "after": []}
+    with tempfile.TemporaryDirectory() as tmp:
+        old = Path(tmp) / "before"
+        subprocess.run(
+            ["git", "worktree", "add", "--detach", str(old), before_rev], cwd=REPO, check=True, capture_output=True
+        )
+        try:
+            for pair in range(1, args.pairs + 1):
+                for what, cwd in (("before", old), ("after", REPO)):
+                    r = run_scene(cwd, args.robots, args.duration, args.seed)
+                    figures[what].append(r["cpu_median"])
+                    label = f"{before_rev} (before)" if what == "before" else "current"
+                    rows.append(
+                        f"| {pair} | {label} | {r['load']:.1f} | {r['cpu_median']:.2f} | {r['cpu_mean']:.2f} | "
+                        f"{r['missed']} ({100 * r['missed_share']:.2f}%) |"
+                    )
+                    print(rows[-1], flush=True)
+        finally:
+            subprocess.run(["git", "worktree", "remove", "--force", str(old)], cwd=REPO, capture_output=True)
+            subprocess.run(["git", "worktree", "prune"], cwd=REPO, capture_output=True)
+    b, a = np.nanmedian(figures["before"]), np.nanmedian(figures["after"])  # nan: a run without a window
+    rows += [
+        "",
+        f"Median over the pairs: {b:.2f} % before, {a:.2f} % after ({a / b:.2f}x).",
+        "",
+        f"Scene: `pixelswarm run circle --robots {args.robots} --clock realtime --duration {args.duration:g} "
+        f"--seed {args.seed}`, one robot per agent process, before and after alternating. CPU: each agent "
+        "process's user + system CPU seconds (psutil cpu_times) over the world's stepping (less a second at each "
+        "end) per wall second. Missed ticks: a live agent's command for tick k had not reached the world when "
+        "tick k+1 began. Load avg: the machine's 1-minute load after the run (a shared machine).",
+    ]
+    command = " ".join(["python -m bench.bench_agent_tick", *sys.argv[1:]])
+    write_results("agent_tick", "An agent process's CPU per tick, before and after (issue 25)", command, rows)
+
+
+if __name__ == "__main__":
+    main()
