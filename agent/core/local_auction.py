@@ -58,9 +58,6 @@ class Words(NamedTuple):
     owner: np.ndarray  # (K, G) int64, NO_OWNER: none
     released: np.ndarray  # (K, G) bool
 
-    def take(self, rows: np.ndarray) -> Words:
-        return Words(*(a[rows] for a in self))
-
     @staticmethod
     def join(parts: list[Words]) -> Words:
         return Words(*(np.concatenate(cols) for cols in zip(*parts, strict=True)))
