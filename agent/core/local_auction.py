@@ -9,7 +9,8 @@ zenoh and no clock. A robot hears only the robots within ``reach`` of it, so no 
 - **Bids (Jacobi).** A robot that does not hold a goal on its own board, or is not content with
   it (another is better by more than the phase's slack), bids on its best goal against its own
   board: price + (best - second-best net value) + epsilon. Costs are private (eq. 7 plus its
-  deadlock penalties). Phases of decreasing epsilon (epsilon scaling) as in agent.core.bidder.
+  deadlock penalties). A goal set's first block scales epsilon down in phases (as agent.core.bidder
+  does); later blocks, warm from the boards, run the final phase only.
 - **Knowing the auction ended, locally.** Rounds are synchronous (lock-step). A round in which no
   robot's board or phase changed is followed only by such rounds. Each robot learns how far the
   graph reaches from it (its eccentricity e: the round after which the set of robots it has heard
@@ -170,7 +171,9 @@ class LocalAuction:
         self.taken_cost = 2.0 * self.cost.max(axis=1, initial=0.0) + 1.0
         # the graph is judged on positions as the wire carries them, the same in every engine
         self.xy = xy.astype(np.float32).astype(float)
-        self.phase[:] = 0
+        # A cold start scales epsilon down; a warm block starts at the final phase: each phase's end
+        # costs its eccentricity in rounds, and from one tick to the next few robots bid at all.
+        self.phase[:] = 0 if self.block == 0 else self.phases - 1
         self.last[:] = 0
         self.known[:] = False
         self.known[np.arange(len(self.own)), self.own_cols] = True
