@@ -127,6 +127,27 @@ def communication_parts(pose: np.ndarray, reach: float) -> np.ndarray:
     return out
 
 
+def assignment_over_optimum(pose: np.ndarray, goal: np.ndarray, assignment: np.ndarray, step: np.ndarray) -> list:
+    """Per image step: how much the assignment the robots drove by at the step's first tick costs
+    over the optimum for those positions (m^2, sum of squared distances, eq. 5-7; scipy's
+    linear_sum_assignment), or None where that tick is not one goal per robot."""
+    from scipy.optimize import linear_sum_assignment
+
+    out: list[float | None] = []
+    for k in np.unique(step):
+        first = int(np.flatnonzero(step == k)[0])
+        a, xy, g = assignment[first], pose[first, :, :2], goal[first]
+        if (a < 0).any() or len(np.unique(a)) != len(a) or not np.isfinite(g).all():
+            out.append(None)
+            continue
+        goals = np.empty_like(g)
+        goals[a] = g  # goal index -> where it is
+        cost = ((xy[:, None, :] - goals[None]) ** 2).sum(-1)
+        rows, cols = linear_sum_assignment(cost)
+        out.append(float(cost[np.arange(len(a)), a].sum() - cost[rows, cols].sum()))
+    return out
+
+
 def path_lengths(pose: np.ndarray) -> np.ndarray:
     """(N,) length of each robot's xy path (steps touching a non-finite sample are skipped)."""
     pose = _check_pose(pose)

@@ -12,7 +12,7 @@ from agent.core.params import RobotParams
 from coordinator.resolved import save_resolved
 from coordinator.scene import Scene
 
-from .metrics import clearance_over_time, communication_parts, summarise
+from .metrics import assignment_over_optimum, clearance_over_time, communication_parts, summarise
 from .render import write_plots, write_video
 from .rundir import RunDir, write_json, write_npz
 
@@ -76,6 +76,10 @@ def write_run(
         contact_events=contacts,
         **metrics_extra,
     )
+    if "assignment" in arrays and arrays.get("step") is not None and metrics.get("steps"):
+        over = assignment_over_optimum(arrays["pose"], arrays["goal"], arrays["assignment"], arrays["step"])
+        for entry, value in zip(metrics["steps"], over):
+            entry["assignment_over_optimum_m2"] = value
     write_json(run_dir / "metrics.json", metrics)
     # ignored: to mypy a key of arrays could be write_npz's own ``compress`` (none is)
     write_npz(run_dir / "trajectory.npz", radius=radius, **arrays)  # type: ignore[arg-type]

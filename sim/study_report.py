@@ -57,6 +57,11 @@ def flatten(metrics: dict[str, Any]) -> dict[str, Any]:
                     out[f"{key}.{sub}"] = int(v) if isinstance(v, bool) else v
         elif isinstance(value, list) and value and all(_is_number(v) for v in value):
             out[f"{key}.mean"] = float(np.mean(value))
+        elif isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
+            for k, entry in enumerate(value):  # a table per image step: steps.<k>.converged_at, ...
+                for sub, v in entry.items():
+                    if isinstance(v, bool | int | float | str) or v is None:
+                        out[f"{key}.{k}.{sub}"] = int(v) if isinstance(v, bool) else v
     return out
 
 
