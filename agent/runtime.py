@@ -205,7 +205,8 @@ class AgentHost:
         # One subscription per own robot: a host receives only its robots' poses (with frames, those
         # sent before its robots are live, and then its robots' rows of the tracker's frames).
         self.own = np.array(sorted(config.robots))
-        self.policy_memory = Memory.new(len(self.own))  # rows: the own robots in id order
+        # rows: the own robots in id order; until a neighbour is heard, its states may be as old as stale_after
+        self.policy_memory = Memory.new(len(self.own), latency=p.stale_after)
         self.pose_inbox = bus.inbox(Pose, frames=Poses, only=self.own)
         for r in config.robots:
             bus.subscribe_into(self.keys.pose(r), self.pose_inbox)
@@ -601,6 +602,7 @@ class AgentHost:
             seed=self.config.seed,
             tick=tick,
             watch_deadlocks=self.auction.active,
+            reach=self.config.reach,
         )
         self.policy_memory.put(rows, decision.memory)
         result = decision.step

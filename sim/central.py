@@ -157,7 +157,7 @@ def simulate(
     goal_set, goal_colors = _scene_goals(scene)  # image scenes: the shown step's goal set, below
     auction: Participant | LocalAuction | None = None  # image scenes: the auction of the shown goal set
     assignment = np.where(np.isfinite(goal_set).all(axis=1), ids, -1)  # goal index per robot (scene goals: its own)
-    memory = Memory.new(n)
+    memory = Memory.new(n, latency=params.stale_after)  # until a neighbour is heard (agent.core.policy.act)
     timing: dict[int, GoalTiming] = {}
     motion: GoalMotion | None = None
     t_start = 0.0  # when the shown step started
@@ -244,7 +244,13 @@ def simulate(
             intent = intend(params, measured[:, :2], t, goals.goal0, goals.key, timing, memory)
             clock.lap("preferred")
             decide_now = partial(
-                act, params, seed=scene.seed, tick=tick, watch_deadlocks=auction is not None, compiled=True
+                act,
+                params,
+                seed=scene.seed,
+                tick=tick,
+                watch_deadlocks=auction is not None,
+                compiled=True,
+                reach=link.reach,
             )
             decision = decide_now(ids, measured[:, :2], measured[:, 2], intent, memory, nbs, segments)
             clock.lap("control")

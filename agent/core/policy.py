@@ -24,6 +24,7 @@ import numpy as np
 from .animation import frame_hold, iterations_left
 from .deadlock import blocked, count_blocked
 from .goal_motion import GoalMotion, tracking_velocity
+from .orca import preferred_velocity
 from .params import RobotParams
 from .step import NeighbourStates, StepResult, control_step
 
@@ -48,19 +49,29 @@ class Memory:
     hold_left: np.ndarray  # (B,) iterations eq. 27's hold still lasts
     hold_for: np.ndarray  # (B,2) (epoch, goal index) the hold was started for
     blocked: np.ndarray  # (B,) consecutive blocked iterations (deadlock detection)
+    latency: np.ndarray  # (B,) s: how old the freshest neighbour state was when last heard (heard_speed_limit)
 
     @classmethod
-    def new(cls, batch: int) -> Memory:
+    def new(cls, batch: int, latency: float = 0.0) -> Memory:
         hold_for = np.zeros((batch, 2), np.int64)
         hold_for[:, 1] = NO_GOAL
-        return cls(np.zeros((batch, 2)), np.zeros(batch, np.int64), hold_for, np.zeros(batch, np.int64))
+        return cls(
+            np.zeros((batch, 2)),
+            np.zeros(batch, np.int64),
+            hold_for,
+            np.zeros(batch, np.int64),
+            np.full(batch, latency),
+        )
 
     def rows(self, index: np.ndarray) -> Memory:
-        return Memory(self.velocity[index], self.hold_left[index], self.hold_for[index], self.blocked[index])
+        return Memory(
+            self.velocity[index], self.hold_left[index], self.hold_for[index], self.blocked[index], self.latency[index]
+        )
 
     def put(self, index: np.ndarray, other: Memory) -> None:
         self.velocity[index], self.hold_left[index] = other.velocity, other.hold_left
         self.hold_for[index], self.blocked[index] = other.hold_for, other.blocked
+        self.latency[index] = other.latency
 
 
 @dataclass
@@ -161,9 +172,17 @@ def act(
     tick: int,
     watch_deadlocks: bool,
     compiled: bool = False,
+    reach: float = np.inf,
 ) -> Decision:
     """Stage two: collision-free velocity and command, and deadlock detection while an auction can
-    act on it (``watch_deadlocks``; otherwise the blocked counts wait as they are)."""
+    act on it (``watch_deadlocks``; otherwise the blocked counts wait as they are). ``reach``: the
+    robots hear states only from this close (m): they drive no faster than heard_speed_limit."""
+    preferred, latency = intent.preferred, memory.latency
+    if np.isfinite(reach):
+        ages = np.where(neighbours.valid, neighbours.age, np.inf)
+        freshest = ages.min(axis=1, initial=np.inf)
+        latency = np.where(np.isfinite(freshest), np.maximum(freshest, 0.0), memory.latency)
+        preferred = _within_speed(params, position, intent, heard_speed_limit(params, reach, latency))
     res = control_step(
         params,
         robot_ids,
@@ -175,7 +194,7 @@ def act(
         segments,
         seed=seed,
         tick=tick,
-        preferred=intent.preferred,
+        preferred=preferred,
         compiled=compiled,
     )
     counts, deadlocked = memory.blocked, np.zeros(len(position), bool)
@@ -183,5 +202,27 @@ def act(
         to_goal = np.where((intent.key[:, 1] >= 0)[:, None], intent.goal - position, np.nan)
         now = blocked(params, to_goal, res.pref_velocity, res.velocity)
         counts, deadlocked = count_blocked(counts, now, params.deadlock_iterations)
-    new_memory = Memory(res.velocity.copy(), intent.hold_left, intent.hold_for, counts)
+    new_memory = Memory(res.velocity.copy(), intent.hold_left, intent.hold_for, counts, latency)
     return Decision(intent, res, new_memory, deadlocked)
+
+
+def heard_speed_limit(params: RobotParams, reach: float, latency: np.ndarray) -> np.ndarray:
+    """The fastest a robot may drive when it hears others only within ``reach`` and ``latency``
+    seconds after they spoke: two such robots meeting head-on, each at this speed, still have the
+    gap between their bodies left after one hears of the other and a tick passes (overload degrades
+    to slow, never to contact). No gap at all (a range shorter than two bodies): standing still."""
+    gap = max(reach - 2.0 * params.radius - params.noise_bound, 0.0)
+    return gap / (2.0 * (np.asarray(latency, float) + 2.0 * params.dt))
+
+
+def _within_speed(params: RobotParams, position: np.ndarray, intent: Intent, limit: np.ndarray) -> np.ndarray:
+    """The intent's preferred velocities (eq. 9 where it gives none), scaled down to ``limit``; rows
+    already within it keep the intent's (NaN: eq. 9 in the control step, as without a limit)."""
+    given = np.isfinite(intent.preferred).all(axis=1)
+    pref = np.where(
+        given[:, None], intent.preferred, preferred_velocity(position, intent.goal, params.v_pref, params.k_a)
+    )
+    speed = np.hypot(pref[:, 0], pref[:, 1])
+    over = speed > limit
+    scaled = pref * np.where(over, limit / np.where(over, speed, 1.0), 1.0)[:, None]
+    return np.where(over[:, None], scaled, intent.preferred)
