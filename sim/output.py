@@ -76,7 +76,7 @@ def write_run(
         contact_events=contacts,
         **metrics_extra,
     )
-    if "assignment" in arrays and arrays.get("step") is not None and metrics.get("steps"):
+    if scene.steps and "assignment" in arrays and arrays.get("step") is not None and metrics.get("steps"):
         over = assignment_over_optimum(arrays["pose"], arrays["goal"], arrays["assignment"], arrays["step"])
         for entry, value in zip(metrics["steps"], over):
             entry["assignment_over_optimum_m2"] = value

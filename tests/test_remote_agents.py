@@ -109,6 +109,7 @@ def test_agents_through_a_second_router_form_the_picture(tmp_path, spawned):
 
 
 @pytest.mark.slow
+@pytest.mark.serial  # a 20 s wall-clock timeout: agents starting beside other runs may miss it
 def test_a_run_whose_agents_never_all_come_names_the_missing_robots(tmp_path, spawned):
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
