@@ -373,7 +373,7 @@ class AuctionLink:
     @staticmethod
     def _all_settled(mine: np.ndarray, heard: dict[int, Any]) -> bool:
         """Every robot's claim in this round says SETTLED."""
-        for recs in [mine, *(m.records for m in heard.values() if isinstance(m, Bid))]:
+        for recs in [mine, *(m.records for m in heard.values())]:
             claims = recs[(recs["flags"] & Bid.RELEASED) == 0]
             if not bool(((claims["flags"] & SETTLED) != 0).all()):
                 return False
@@ -550,18 +550,16 @@ def _boards(local: LocalAuction, words: Words, sender: int) -> Boards:
 
 def _words(msg: Boards, local: LocalAuction) -> Words:
     """Another host's words as the auction reads them (left-out parts empty: they are not read)."""
-    w, k, g, n = msg.words, len(msg.words), len(local.goals), len(local.robots)
-    if msg.goals != g or msg.robots != n:
-        return _words(
-            Boards(msg.epoch, msg.instance, msg.sender, msg.serial, g, n, 0), local
-        )  # another goal set: ignored
+    g, n = len(local.goals), len(local.robots)
+    same_set = msg.goals == g and msg.robots == n  # else a peer's words for another goal set: none read
+    w, r = (msg.words, msg.records) if same_set else (msg.words[:0], msg.records[:0])
+    k = len(w)
     flags = w["flags"].astype(np.int64)
     fresh, grown = (flags & Boards.FRESH) != 0, (flags & Boards.GROWN) != 0
     known = np.zeros((k, n), bool)
-    known[grown] = np.unpackbits(msg.known, axis=1, count=n).astype(bool)
+    known[grown] = np.unpackbits(msg.known[: int(grown.sum())], axis=1, count=n).astype(bool)
     price, owner, released = np.zeros((k, g)), np.full((k, g), NO_OWNER, np.int64), np.zeros((k, g), bool)
     rows = np.repeat(np.arange(k), w["records"])
-    r = msg.records
     price[rows, r["goal"]], owner[rows, r["goal"]], released[rows, r["goal"]] = (
         r["price"],
         r["owner"],

@@ -78,8 +78,8 @@ class HostConfig:
     frames: bool = False  # poses from the tracker's frames; one frame a tick of the robots' states, heard from
     # every host, and one of their commands (codec.Poses, States, Commands)
     steps: list[float] = field(default_factory=list)  # lock-step: display times the scene's goal sets are due
-    reach: float = math.inf  # communication range (m): states and the auction heard only from robots this close
     # (a tick waits for its step's goal set, so that every engine adopts it at the same tick)
+    reach: float = math.inf  # communication range (m): states and the auction heard only from robots this close
 
     @classmethod
     def from_json(cls, text: str) -> HostConfig:

@@ -125,12 +125,13 @@ class Inbox(Generic[MessageT]):
             if delay <= 0.0:
                 for m in msgs:
                     self._queue.put((key, m))
-            elif on_ticks and stamp is not None:
+            else:  # on the owner's tick clock in lock-step, else on the wall clock
+                if on_ticks and stamp is not None:
+                    heap, release = self._held, stamp + delay
+                else:
+                    heap, release = self._delayed, time.monotonic() + delay
                 for m in msgs:
-                    heapq.heappush(self._held, (stamp + delay, next(self._order), key, m))
-            else:
-                for m in msgs:
-                    heapq.heappush(self._delayed, (time.monotonic() + delay, next(self._order), key, m))
+                    heapq.heappush(heap, (release, next(self._order), key, m))
         # Rung for held messages too: an owner asleep on the bell learns it has messages to release
         # (a message held without a ring waited for the owner's next wake-up, a tick or more late).
         if self.bell is not None:
