@@ -35,8 +35,8 @@ def test_a_circle_of_twenty_forms_with_a_fifth_of_states_lost_and_the_rest_late(
         assert contacts_clear == 0 and contacts == 0, seed
         assert clear is not None and impaired is not None, seed  # every robot within 1 cm
         ratios.append(impaired / clear)
-    # impairment costs time: under twice the unimpaired time on average (seed 5 alone takes 2.5x)
-    assert np.mean(ratios) <= 2.0, ratios
+    # impairment costs time: at most twice the unimpaired time, in every run
+    assert max(ratios) <= 2.0, ratios
 
 
 @pytest.mark.slow

@@ -14,17 +14,12 @@ import pytest
 
 from sim.lossy import circle_crossing, run_lossy
 
-# With most states lost or late, robots in the crowd spend ticks in ORCA's fallback (the program
-# infeasible), which does not guarantee clearance, and which seeds pass is chance: seed 3 touches.
-# Kept here, strict, as the known gap to close (issue 23).
-SAFETY_GAP = pytest.mark.xfail(strict=True, reason="contact in ORCA's fallback with 80 % of states impaired")
-
 
 @pytest.mark.parametrize(
     "kinematics, robots, seed",
     [
         ("holonomic", 50, 0),
-        pytest.param("holonomic", 50, 3, marks=SAFETY_GAP),
+        ("holonomic", 50, 3),
         ("holonomic", 50, 4),
         ("holonomic", 50, 5),
         ("diffdrive", 30, 0),

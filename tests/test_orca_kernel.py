@@ -72,6 +72,7 @@ def numpy_core(c: dict, segments: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         dt=P.dt,
         margin=P.noise_bound,
         nbr_growth=nb.growth,
+        nbr_lead=nb.lead,
     )
 
 

@@ -36,6 +36,7 @@ class Neighbours(NamedTuple):
     responsibility: np.ndarray
     valid: np.ndarray
     growth: np.ndarray | None = None  # (B,M) the part of ``radius`` that is how far it may have strayed
+    lead: np.ndarray | None = None  # (B,M) s beyond ``position`` at ``velocity`` to where it most likely is
 
 
 def prepare_neighbours(
@@ -61,7 +62,8 @@ def prepare_neighbours(
       position is extrapolated by min(age, committed) x velocity and the radius grown by
       ``noise + h x max_speed``, the smallest disc holding every place it can have reached (a
       neighbour reported standing still grows by its own reach, not by twice it). ``noise`` covers
-      the tracking noise of the stamped positions.
+      the tracking noise of the stamped positions. Most likely it kept its velocity all along:
+      ``lead`` = h is how much further the ORCA lines take it (the safety lines take the disc).
       Responsibility 0.5 (it avoids us too), or 1.0 where ``cooperative`` is False.
     * Stale (age > timeout): last known position and velocity, not extrapolated (the message may be
       from a robot that stopped or died); radius grown by ``noise + (timeout - committed) x 2 max_speed``;
@@ -96,7 +98,8 @@ def prepare_neighbours(
     new_radius = np.where(valid, radius, 0.0) + noise + growth
     coop = np.ones(valid.shape, dtype=bool) if cooperative is None else np.asarray(cooperative, bool)
     responsibility = np.where(coop & ~stale, COOPERATING, NON_COOPERATING)
-    return Neighbours(new_position, safe_v, new_radius, responsibility, valid, growth)
+    lead = np.where(valid & ~stale, horizon, 0.0)
+    return Neighbours(new_position, safe_v, new_radius, responsibility, valid, growth, lead)
 
 
 def nearest_first(
@@ -113,6 +116,7 @@ def nearest_first(
     m = min(max_neighbours, dist2.shape[1])
     order = (np.arange(p.shape[0])[:, None], np.argsort(dist2, axis=1, kind="stable")[:, :m])
     growth = None if neighbours.growth is None else neighbours.growth[order]
+    lead = None if neighbours.lead is None else neighbours.lead[order]
     return Neighbours(
         neighbours.position[order],
         neighbours.velocity[order],
@@ -120,6 +124,7 @@ def nearest_first(
         neighbours.responsibility[order],
         keep[order],
         growth,
+        lead,
     )
 
 

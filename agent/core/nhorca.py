@@ -267,12 +267,14 @@ def nh_orca_wheel_speeds(
     params: RobotParams,
     safety: bool = True,
     nbr_growth: ArrayLike | None = None,
+    nbr_lead: ArrayLike | None = None,
 ) -> NHResult:
     """NH-ORCA step for a batch of differential-drive robots.
 
     ``velocity`` is each robot's previous v_cf and ``nbr_velocity`` the neighbours' broadcast v_cf.
     Radii are inflated by the tracking error E (own) and its bound (neighbours'); P_AHV is kept hard.
-    ``nbr_growth``: how far each neighbour may have strayed since its state (see `orca_velocity`).
+    ``nbr_growth``, ``nbr_lead``: how far each neighbour may have strayed since its state, and how
+    much further along its velocity it most likely is (see `orca_velocity`).
     Where the program is infeasible at the full horizon the mirrored polygon -P_AHV (driving
     backwards) is tried at the full horizon; if that is infeasible too, the forward result of
     `orca_velocity`'s fallback (shrunk horizon, else least violation) stands.
@@ -299,6 +301,7 @@ def nh_orca_wheel_speeds(
                 obstacle_segments,
                 params,
                 nbr_growth,
+                nbr_lead,
             )
             if one is not None:
                 return one
@@ -317,11 +320,12 @@ def nh_orca_wheel_speeds(
         nbr_responsibility,
         nbr_valid,
         nbr_growth,
+        nbr_lead,
     ]
 
     def solve(robots: Sequence[Any], hard: Lines) -> tuple[np.ndarray, np.ndarray]:
         """orca_velocity of these robots' ``args`` (all of them or some rows) with hard lines ``hard``."""
-        pos, vel, pref, rad, nbr_pos, nbr_vel, nbr_rad, nbr_resp, nbr_ok, nbr_grow = robots
+        pos, vel, pref, rad, nbr_pos, nbr_vel, nbr_rad, nbr_resp, nbr_ok, nbr_grow, nbr_ahead = robots
         return orca_velocity(
             pos,
             vel,
@@ -340,6 +344,7 @@ def nh_orca_wheel_speeds(
             safety=safety,
             extra_hard_lines=hard,
             nbr_growth=nbr_grow,
+            nbr_lead=nbr_ahead,
         )
 
     v_cf, fallback = solve(args, polygon)
@@ -411,6 +416,7 @@ def _nh_orca_one(
     obstacle_segments,
     params: RobotParams,
     nbr_growth,
+    nbr_lead,
 ) -> NHResult | None:
     """nh_orca_wheel_speeds (with safety) of a batch of one robot; None where the Python floats
     might not be numpy's (inputs not finite or huge)."""
@@ -421,20 +427,22 @@ def _nh_orca_one(
     r = float(radius[0])
     m = nbr_valid.shape[1]
     grow = [0.0] * m if nbr_growth is None else np.asarray(nbr_growth, dtype=float)[0].tolist()
+    leads = [0.0] * m if nbr_lead is None else np.asarray(nbr_lead, dtype=float)[0].tolist()
     nbrs = [
-        (q, w, nr, c, g)
-        for q, w, nr, c, g, ok in zip(
+        (q, w, nr, c, g, a)
+        for q, w, nr, c, g, a, ok in zip(
             nbr_position[0].tolist(),
             np.asarray(nbr_velocity, dtype=float)[0].tolist(),
             nbr_radius[0].tolist(),
             np.broadcast_to(np.asarray(nbr_responsibility, dtype=float), (1, m))[0].tolist(),
             grow,
+            leads,
             nbr_valid[0].tolist(),
         )
         if ok
     ]
     seg = segments_one(obstacle_segments)
-    flat = [x for q, w, nr, c, g in nbrs for x in (*q, *w, nr, c, g)]
+    flat = [x for q, w, nr, c, g, a in nbrs for x in (*q, *w, nr, c, g, a)]
     p = params
     settings = [p.v_max, p.tau, p.tau_obst, p.dt, p.error_min, p.error_max, p.wheel_base, p.t_orient, p.omega_max]
     if not plain([px, py, vx, vy, tx, ty, h, r], flat, seg_values(seg), settings):
@@ -442,14 +450,14 @@ def _nh_orca_one(
     # tracking_error: half the gap to each neighbour, clipped; E the smallest
     e_min, e_max = params.error_min, params.error_max
     error, grown = e_max, []
-    for (qx, qy), w, nr, c, g in nbrs:
+    for (qx, qy), w, nr, c, g, a in nbrs:
         ex = qx - px
         ey = qy - py
         half = 0.5 * (math.sqrt(ex * ex + ey * ey) - (r + nr))
         half = half if half > e_min else e_min
         half = half if half < e_max else e_max
         error = half if half < error else error
-        grown.append(((qx, qy), w, nr + half, c, g))
+        grown.append(((qx, qy), w, nr + half, c, g, a))
     c, s = math.cos(h), math.sin(h)
     polygon = _ahv_lines_one(c, s, error, params)
     solve = (px, py, vx, vy, tx, ty, r + error, params.v_max, grown, seg)

@@ -291,6 +291,7 @@ def orca_velocity(
     safety: bool = True,
     margin: float = 0.0,
     nbr_growth: ArrayLike | None = None,
+    nbr_lead: ArrayLike | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Collision-free velocity of eq. 14 for a batch of holonomic robots.
 
@@ -301,7 +302,10 @@ def orca_velocity(
     ``margin`` is added to every radius (own and neighbours') in the ORCA lines of the robots (not
     in the safety lines): crowds keep a little slack, the fallback may squeeze into it.
     ``nbr_growth`` (B,M): the part of each neighbour's radius that is how far it may have strayed
-    since its state (`prepare_neighbours`); the safety lines grow it only up to our surface.
+    since its state (`prepare_neighbours`); the safety lines grow it only up to our surface, the
+    robot lines not at all (with ``safety``: the safety lines alone keep us off its possible places).
+    ``nbr_lead`` (B,M): with ``safety``, the robot lines take each neighbour this many seconds further
+    along its velocity, where it most likely is (`prepare_neighbours`).
 
     With ``safety`` (the default):
 
@@ -339,6 +343,7 @@ def orca_velocity(
                 obstacle_segments,
                 extra_hard_lines,
                 None if nbr_growth is None else np.asarray(nbr_growth, dtype=float),
+                None if nbr_lead is None else np.asarray(nbr_lead, dtype=float),
                 float(tau),
                 float(tau_obst),
                 float(dt),
@@ -358,7 +363,15 @@ def orca_velocity(
     if safety:
         hard.append(safety_lines(position, radius, max_speed, *nbr, dt, nbr_growth))
     hard_lines = drop_redundant(concat_lines(*hard), max_speed) if hard else None
-    grown = (nbr[0], nbr[1], nbr[2] + margin, *nbr[3:])
+    # The robot lines take a neighbour heard late where it most likely is, its body not grown: the
+    # hard safety lines above keep us off every place it may have strayed to, and the long
+    # horizon's cone over those places would make crowds heard late jam where they pass on time.
+    likely, certain = nbr[0], nbr[2]
+    if safety and nbr_lead is not None:
+        likely = nbr[0] + np.asarray(nbr_lead, dtype=float)[..., None] * nbr[1]
+    if safety and nbr_growth is not None:
+        certain = nbr[2] - np.asarray(nbr_growth, dtype=float)
+    grown = (likely, nbr[1], certain + margin, *nbr[3:])
 
     def program(rows, horizon):
         robots = orca_lines(
@@ -471,7 +484,7 @@ def _obstacle_lines_one(px: float, py: float, r: float, vmax: float, segments: l
 
 
 def _orca_velocity_one(
-    position, velocity, pref_velocity, radius, max_speed, nbr, segments, extra, growth, tau, tau_obst, dt, margin
+    position, velocity, pref_velocity, radius, max_speed, nbr, segments, extra, growth, lead, tau, tau_obst, dt, margin
 ):
     """orca_velocity (with safety) of a batch of one robot from its arrays; None where the Python
     floats might not be numpy's (inputs not finite or huge)."""
@@ -479,10 +492,11 @@ def _orca_velocity_one(
     r, vmax = float(radius[0]), float(max_speed[0])
     valid = nbr[4][0].tolist()
     grow = [0.0] * len(valid) if growth is None else growth[0].tolist()
+    leads = [0.0] * len(valid) if lead is None else lead[0].tolist()
     nbrs = [
-        (q, w, nr, c, g)
-        for q, w, nr, c, g, ok in zip(
-            nbr[0][0].tolist(), nbr[1][0].tolist(), nbr[2][0].tolist(), nbr[3][0].tolist(), grow, valid
+        (q, w, nr, c, g, a)
+        for q, w, nr, c, g, a, ok in zip(
+            nbr[0][0].tolist(), nbr[1][0].tolist(), nbr[2][0].tolist(), nbr[3][0].tolist(), grow, leads, valid
         )
         if ok
     ]
@@ -491,7 +505,7 @@ def _orca_velocity_one(
     if extra is not None:
         ep, ed = extra.point[0].tolist(), extra.direction[0].tolist()
         extra_lines = [(*p, *d) for p, d, ok in zip(ep, ed, extra.valid[0].tolist()) if ok]
-    flat = [x for q, w, nr, c, g in nbrs for x in (*q, *w, nr, c, g)]
+    flat = [x for q, w, nr, c, g, a in nbrs for x in (*q, *w, nr, c, g, a)]
     if not plain([px, py, vx, vy, tx, ty, r, vmax, tau, tau_obst, dt, margin], flat, seg_values(seg)):
         return None
     if not plain([x for line in extra_lines for x in line]):
@@ -531,14 +545,14 @@ def orca_velocity_one(
 ) -> tuple[float, float, bool]:
     """orca_velocity with safety lines for one robot on Python floats (finite, at most
     lp._PLAIN_LIMIT): the same operations in the same order. ``nbrs``: the valid neighbours as
-    ((x, y), (vx, vy), radius, responsibility, growth); ``grown``: whether growths were given.
+    ((x, y), (vx, vy), radius, responsibility, growth, lead); ``grown``: whether growths were given.
     Returns (x, y, fallback); raises NumpyDecides where numpy's bits could differ."""
     hard = _obstacle_lines_one(px, py, r + margin, vmax, seg, tau_obst) if seg else []
     hard += extra_lines
     own = r * _BUFFER
     inv_dt = 1.0 / dt
     reach = 2.0 * dt * vmax
-    for (qx, qy), (wx, wy), nr, c, g in nbrs:
+    for (qx, qy), (wx, wy), nr, c, g, _ in nbrs:
         ex = qx - px
         ey = qy - py
         dist = math.sqrt(ex * ex + ey * ey)
@@ -557,8 +571,9 @@ def orca_velocity_one(
     def program(horizon: float) -> list[Line]:
         inv_h = 1.0 / horizon
         lines = list(hard)
-        for (qx, qy), (wx, wy), nr, c, _ in nbrs:
-            line = _orca_line(px, py, vx, vy, r_grown, qx, qy, wx, wy, nr + margin, c, inv_h, inv_dt)
+        for (qx, qy), (wx, wy), nr, c, g, a in nbrs:
+            qx, qy = qx + a * wx, qy + a * wy
+            line = _orca_line(px, py, vx, vy, r_grown, qx, qy, wx, wy, nr - g + margin, c, inv_h, inv_dt)
             if line[2] * line[1] - line[3] * line[0] > -vmax:
                 lines.append(line)
         return lines

@@ -252,6 +252,8 @@ def _robot_lines(
     nbr_p,
     nbr_v,
     nbr_r,
+    nbr_left,
+    nbr_lead,
     nbr_c,
     nbr_ok,
     m,
@@ -265,7 +267,8 @@ def _robot_lines(
     dy,
     start,
 ):
-    """The robot lines (horizon ``horizon``, margin on both radii) from index ``start``: the new count."""
+    """The robot lines (horizon ``horizon``, margin on both radii, neighbours without the growth
+    ``nbr_left`` to the safety lines: orca.orca_velocity) from index ``start``: the new count."""
     n = start
     for k in range(m):
         if not nbr_ok[k]:
@@ -276,11 +279,11 @@ def _robot_lines(
             velocity[i, 0],
             velocity[i, 1],
             radius + margin,
-            nbr_p[k, 0],
-            nbr_p[k, 1],
+            nbr_p[k, 0] + nbr_lead[k] * nbr_v[k, 0],
+            nbr_p[k, 1] + nbr_lead[k] * nbr_v[k, 1],
             nbr_v[k, 0],
             nbr_v[k, 1],
-            nbr_r[k] + margin,
+            nbr_r[k] - nbr_left[k] + margin,
             nbr_c[k],
             horizon,
             dt,
@@ -326,14 +329,14 @@ def _control_core_one(
     """One robot: its neighbours prepared (neighbours.prepare_neighbours), then eq. 14 with the safety
     lines, the shrinking horizon and the fallback (orca.orca_velocity); without ``safety``, RVO2's
     program (no safety lines, least violation at the full horizon). Returns (vx, vy, fallback).
-    Scratch, so that a robot allocates nothing: nbr_p, nbr_v (M,2), nbr_f (3,M), nbr_ok (M,),
+    Scratch, so that a robot allocates nothing: nbr_p, nbr_v (M,2), nbr_f (4,M), nbr_ok (M,),
     lines and bisectors (4, S + 2M), every (S + 2M,) all True, flags (2, S + 2M)."""
     m = nbr_valid.shape[1]
     n_seg = segments.shape[0]
     px_, py_ = position[i, 0], position[i, 1]
     # prepare_neighbours: where each neighbour is now, how big (and how much of it is growth), how
     # responsible
-    nbr_r, nbr_g, nbr_c = nbr_f[0], nbr_f[1], nbr_f[2]
+    nbr_r, nbr_g, nbr_c, nbr_left, nbr_lead = nbr_f[0], nbr_f[1], nbr_f[2], nbr_f[3], nbr_f[4]
     for k in range(m):
         x, y = nbr_position[i, k, 0], nbr_position[i, k, 1]
         u, w = nbr_velocity[i, k, 0], nbr_velocity[i, k, 1]
@@ -357,6 +360,8 @@ def _control_core_one(
         nbr_v[k, 0], nbr_v[k, 1] = u, w
         nbr_g[k] = horizon * (2.0 if stale else 1.0) * vmax
         nbr_r[k] = r + noise + nbr_g[k]
+        nbr_left[k] = nbr_g[k] if safety else 0.0  # growth the robot lines leave to the safety lines
+        nbr_lead[k] = horizon if safety and not stale else 0.0
         nbr_c[k] = COOPERATING if nbr_cooperative[i, k] and not stale else NON_COOPERATING
         nbr_ok[k] = ok
     px, py, dx, dy = lines[0], lines[1], lines[2], lines[3]
@@ -410,6 +415,8 @@ def _control_core_one(
         nbr_p,
         nbr_v,
         nbr_r,
+        nbr_left,
+        nbr_lead,
         nbr_c,
         nbr_ok,
         m,
@@ -438,6 +445,8 @@ def _control_core_one(
             nbr_p,
             nbr_v,
             nbr_r,
+            nbr_left,
+            nbr_lead,
             nbr_c,
             nbr_ok,
             m,
@@ -577,7 +586,7 @@ def _each_robot(
     """One robot after the other with one scratch (a robot allocates nothing); radius and vmax (B,)."""
     b, m = nbr_valid.shape
     size = segments.shape[0] + 2 * m
-    nbr_p, nbr_v, nbr_f = np.empty((m, 2)), np.empty((m, 2)), np.empty((3, m))
+    nbr_p, nbr_v, nbr_f = np.empty((m, 2)), np.empty((m, 2)), np.empty((5, m))
     nbr_ok, lines, every = np.empty(m, np.bool_), np.empty((4, size)), np.ones(size, np.bool_)
     bisectors, flags = np.empty((4, size)), np.empty((2, size), np.bool_)
     out, fallback = np.empty((b, 2)), np.empty(b, np.bool_)

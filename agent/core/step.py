@@ -191,6 +191,7 @@ def control_step(
             segments,
             params=params,
             nbr_growth=nb.growth,
+            nbr_lead=nb.lead,
         )
         command = np.stack([res.wheel_left, res.wheel_right], axis=1)
         return StepResult(res.velocity, command, pref, res.fallback)
@@ -211,6 +212,7 @@ def control_step(
         dt=params.dt,
         margin=params.noise_bound,
         nbr_growth=nb.growth,
+        nbr_lead=nb.lead,
     )
     return StepResult(v_cf, v_cf, pref, fallback)
 
