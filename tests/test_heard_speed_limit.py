@@ -60,8 +60,8 @@ def test_an_unlimited_range_changes_nothing_and_a_short_one_slows_a_robot_that_h
 
 def test_a_crossing_over_a_short_range_with_late_states_has_no_contact():
     """Twenty robots cross a circle hearing each other only within 0.13 m (a hair over two bodies and
-    the tracking noise), every state a tick late: slower, and no two bodies touch. At 0.12 m
-    without the limit the same runs touch (bench/results/speed_limit.md)."""
+    the tracking noise), every state a tick late: slower, and no two bodies touch. Without the
+    limit the same runs touch (bench/results/speed_limit.md)."""
     for seed in (4, 5):
         scene = load_scene("circle", robots=20, seed=seed, duration=60.0)
         out = simulate(scene, link=InProcessLink(20, late=1.0, reach=0.13), progress=None)
