@@ -128,11 +128,13 @@ def intend(
     of_set = np.where(key[:, 1] >= 0, key[:, 0], NO_GOAL)
     keyframe = np.zeros(b, bool)
     t_start, period = np.zeros(b), np.zeros(b)
-    for epoch in np.unique(of_set[of_set != NO_GOAL]).tolist():
-        gs = timing.get(epoch)
-        if gs is None:
+    # the goal sets whose goals move or are keyframes (a still image's robots need nothing here)
+    for epoch, gs in timing.items():
+        if epoch == NO_GOAL or not (gs.motion is not None or gs.frame_period > 0):
             continue
         rows = of_set == epoch
+        if not rows.any():
+            continue
         if gs.motion is not None:  # eq. 28: the goal moves, its velocity is fed forward
             t = stamp - gs.t_start
             goal[rows] = gs.motion.positions(goal0[rows], t)
