@@ -164,9 +164,10 @@ def gather(index: np.ndarray, position: np.ndarray, velocity: np.ndarray, cooper
 
 
 @njit(cache=True, nogil=True)
-def _nearest_of(qx, qy, qid, x, y, ids, reach: float, m: int) -> np.ndarray:
-    """(Q, m) indices into (x, y) of each query point's m nearest points within ``reach`` (d^2 <=
-    reach^2), not its own id, nearest first, equal distances by index; -1 past the last.
+def _nearest_heard(qx, qy, qid, x, y, ids, vel, rad, stamp, coop, now: float, reach: float, m: int) -> tuple:
+    """Each query point's m nearest heard states within ``reach`` (d^2 <= reach^2), not its own id,
+    nearest first, equal distances by index, as padded neighbour arrays (a padded slot: zeros,
+    radius 1, not valid): positions, velocities (Q, m, 2), radii, ages, valid, cooperative (Q, m).
 
     Cells are reach / COLUMN_PARTS wide. A column's cells are consecutive in the grid's order, so
     each column near the query is read as one run of points: the cells its part of the disc of
@@ -174,15 +175,17 @@ def _nearest_of(qx, qy, qid, x, y, ids, reach: float, m: int) -> np.ndarray:
     to the m-th distance). The m nearest by (distance, index) do not depend on the order in which
     points are met, so these are the neighbours of any exhaustive search."""
     q, n = qx.size, x.size
-    out = np.full((q, m), -1, np.int64)
+    position, velocity = np.zeros((q, m, 2)), np.zeros((q, m, 2))
+    radius, age = np.ones((q, m)), np.zeros((q, m))
+    valid, cooperative = np.zeros((q, m), np.bool_), np.ones((q, m), np.bool_)
     if q == 0 or n == 0 or m == 0:
-        return out
+        return position, velocity, radius, age, valid, cooperative
     _, _, nx, ny, start, order, x0, y0, cell = grid_cells(x, y, reach / COLUMN_PARTS)
     # how far rounding may move a point across a cell border: far below a cell, above any ulp
     slack = 1e-9 * (cell + max(np.abs(x).max(), np.abs(y).max(), np.abs(qx).max(), np.abs(qy).max()))
     reach2 = reach * reach
     spread = int(reach / cell) + 2  # columns either side of the query's that can hold a point within reach
-    best = np.empty(m)
+    best, chosen = np.empty(m), np.empty(m, np.int64)
     for i in range(q):
         px, py = qx[i], qy[i]
         column = int(np.floor((px - x0) / cell))
@@ -208,37 +211,24 @@ def _nearest_of(qx, qy, qid, x, y, ids, reach: float, m: int) -> np.ndarray:
                     continue
                 dx, dy = x[j] - px, y[j] - py
                 d2 = dx * dx + dy * dy
-                if not d2 <= reach2 or (k == m and (d2 > best[m - 1] or (d2 == best[m - 1] and j > out[i, m - 1]))):
+                if not d2 <= reach2 or (k == m and (d2 > best[m - 1] or (d2 == best[m - 1] and j > chosen[m - 1]))):
                     continue
                 p = min(k, m - 1)  # insert (d2, j) in order, dropping the last when full
-                while p > 0 and (best[p - 1] > d2 or (best[p - 1] == d2 and out[i, p - 1] > j)):
+                while p > 0 and (best[p - 1] > d2 or (best[p - 1] == d2 and chosen[p - 1] > j)):
                     best[p] = best[p - 1]
-                    out[i, p] = out[i, p - 1]
+                    chosen[p] = chosen[p - 1]
                     p -= 1
                 best[p] = d2
-                out[i, p] = j
+                chosen[p] = j
                 k = min(k + 1, m)
                 if k == m:
                     bound = best[m - 1]
-    return out
-
-
-@njit(cache=True, nogil=True)
-def _gather_heard(idx, pos, vel, rad, stamp, coop, now):
-    """The chosen states as padded neighbour arrays (a padded slot: zeros, radius 1, not valid)."""
-    q, m = idx.shape
-    position, velocity = np.zeros((q, m, 2)), np.zeros((q, m, 2))
-    radius, age = np.ones((q, m)), np.zeros((q, m))
-    valid, cooperative = np.zeros((q, m), np.bool_), np.ones((q, m), np.bool_)
-    for i in range(q):
-        for k in range(m):
-            j = idx[i, k]
-            if j < 0:
-                break
-            position[i, k, 0], position[i, k, 1] = pos[j, 0], pos[j, 1]
-            velocity[i, k, 0], velocity[i, k, 1] = vel[j, 0], vel[j, 1]
-            radius[i, k], age[i, k] = rad[j], now - stamp[j]
-            valid[i, k], cooperative[i, k] = True, coop[j]
+        for c in range(k):
+            j = chosen[c]
+            position[i, c, 0], position[i, c, 1] = x[j], y[j]
+            velocity[i, c, 0], velocity[i, c, 1] = vel[j, 0], vel[j, 1]
+            radius[i, c], age[i, c] = rad[j], now - stamp[j]
+            valid[i, c], cooperative[i, c] = True, coop[j]
     return position, velocity, radius, age, valid, cooperative
 
 
@@ -262,24 +252,20 @@ def nearest_heard_compiled(
     f64 = np.ascontiguousarray
     pos = f64(heard.position, dtype=float)
     p = f64(positions, dtype=float).reshape(-1, 2)
-    idx = _nearest_of(
-        p[:, 0].copy(),
-        p[:, 1].copy(),
-        f64(robot_ids, dtype=np.int64),
-        pos[:, 0].copy(),
-        pos[:, 1].copy(),
-        ids,
-        float(reach),
-        int(m),
-    )
     return NeighbourStates(
-        *_gather_heard(
-            idx,
-            pos,
+        *_nearest_heard(
+            p[:, 0].copy(),
+            p[:, 1].copy(),
+            f64(robot_ids, dtype=np.int64),
+            pos[:, 0].copy(),
+            pos[:, 1].copy(),
+            ids,
             f64(heard.velocity, dtype=float),
             f64(heard.radius, dtype=float),
             f64(heard.stamp, dtype=float),
             f64(heard.cooperative, dtype=np.bool_),
             float(stamp),
+            float(reach),
+            int(m),
         )
     )
