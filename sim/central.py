@@ -176,7 +176,14 @@ def simulate(
     clock = clock if clock is not None else StepClock()
     wall0 = last_say = time.time()
 
+    made: tuple[int, np.ndarray, _Goals] | None = None  # the last goals made: (image, assignment, goals)
+
     def goals_of(assignment: np.ndarray, measured: np.ndarray) -> _Goals:
+        nonlocal made
+        # most ticks the auction keeps every goal: the goals are the last ones (unless a pursuer's moved)
+        if made is not None and made[0] == shown and not movers.pursuers and np.array_equal(made[1], assignment):
+            last = made[2]
+            return last._replace(key=last.key.copy())  # the intent's key is written into (_step_again)
         if scene.steps:
             has_goal = assignment >= 0
             goal0 = np.where(has_goal[:, None], goal_set[assignment], np.nan)
@@ -186,7 +193,8 @@ def simulate(
             goal0, color, has_goal = goal_set, goal_colors, np.isfinite(goal_set).all(axis=1)
             key = np.stack([np.zeros(n, np.int64), np.full(n, NO_GOAL)], axis=1)
         goal0, color = movers.goals(goal0, color, measured)  # a pursuer heads for its target
-        return _Goals(goal0, key, color, has_goal)
+        made = (shown, assignment.copy(), _Goals(goal0, key, color, has_goal))
+        return made[2]._replace(key=key.copy())
 
     beside = ThreadPoolExecutor(1, thread_name_prefix="auction")  # the auction beside the control core
     try:
@@ -288,13 +296,12 @@ def simulate(
             rec["assignment"].append(assignment)
             rec["step"].append(k)
             clock.lap("record")
-            err = np.hypot(*(pose[:, :2] - goal).T)
             # Converging ends the run only once the last image is up: earlier images keep their hold.
             if (
                 k == last_step
                 and scene.ends_on_convergence
                 and has_goal.any()
-                and np.all(err[has_goal] <= params.goal_tolerance)
+                and np.all(_goal_error(pose, goal)[has_goal] <= params.goal_tolerance)
             ):
                 converged_since = t if converged_since is None else converged_since
                 if t - converged_since >= scene.converge_hold:
@@ -314,7 +321,7 @@ def simulate(
                 last_say = time.time()
                 print(
                     f"[{scene.name}] central t={t:6.1f} s  step {k}  at goal "
-                    f"{int(np.sum(err <= params.goal_tolerance))}/{int(has_goal.sum())}  "
+                    f"{int(np.sum(_goal_error(pose, goal) <= params.goal_tolerance))}/{int(has_goal.sum())}  "
                     f"contacts {len(world.contacts)}",
                     file=progress,
                     flush=True,
@@ -415,6 +422,11 @@ def _states(params, measured: np.ndarray, pose: np.ndarray, velocity: np.ndarray
         np.full(n, t),
         movers.cooperative,
     )
+
+
+def _goal_error(pose: np.ndarray, goal: np.ndarray) -> np.ndarray:
+    """(N,) each robot's distance from its goal (NaN: none)."""
+    return np.hypot(*(pose[:, :2] - goal).T)
 
 
 def _changed_rows(old: Intent, new: Intent) -> np.ndarray:

@@ -6,6 +6,9 @@ numba: every pair within that distance lies in the 3 x 3 cells around either one
   here share.
 - `gather`: the neighbours' positions, velocities and flags that `nearest_within` found, in one pass
   instead of numpy's takes and masks.
+- `nearest_heard_compiled`: each robot's nearest neighbours among the states it heard (the in-process
+  link's search, sim.link): each grid column near a robot is read as one run of points, over the
+  cells the disc of reach covers there.
 - `close_pairs`: the world's robot-robot detection (sim.world.World._detect): every pair whose
   centres are within ``reach`` in the first state is found on the grid, then checked in every
   state. It returns the smallest clearance over the pairs checked and the pairs that overlap, with
@@ -22,11 +25,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from agent.core.neighbour_grid import RINGS, grid_cells, nearest_within
+from agent.core.neighbour_grid import grid_cells, nearest_within
 from agent.core.step import NeighbourStates
 from agent.neighbour_table import Heard
 
 __all__ = ["close_pairs", "gather", "nearest_heard_compiled", "nearest_within"]
+
+COLUMN_PARTS = 2  # nearest_heard_compiled's cells are reach / COLUMN_PARTS wide
 
 
 @njit(cache=True, nogil=True)
@@ -159,72 +164,71 @@ def gather(index: np.ndarray, position: np.ndarray, velocity: np.ndarray, cooper
 
 
 @njit(cache=True, nogil=True)
-def _nearest_of(qx, qy, qid, x, y, ids, reach: float, m: int) -> np.ndarray:
-    """(Q, m) indices into (x, y) of each query point's m nearest points within ``reach`` (d^2 <=
-    reach^2), not its own id, nearest first, equal distances by index; -1 past the last. Cells are
-    reach / RINGS wide, searched in rings outward until no nearer point can remain (as
-    agent.core.neighbour_grid.nearest_within)."""
+def _nearest_heard(qx, qy, qid, x, y, ids, vel, rad, stamp, coop, now: float, reach: float, m: int) -> tuple:
+    """Each query point's m nearest heard states within ``reach`` (d^2 <= reach^2), not its own id,
+    nearest first, equal distances by index, as padded neighbour arrays (a padded slot: zeros,
+    radius 1, not valid): positions, velocities (Q, m, 2), radii, ages, valid, cooperative (Q, m).
+
+    Cells are reach / COLUMN_PARTS wide. A column's cells are consecutive in the grid's order, so
+    each column near the query is read as one run of points: the cells its part of the disc of
+    reach covers (the query's own column first, then outward; once m are found, the disc shrinks
+    to the m-th distance). The m nearest by (distance, index) do not depend on the order in which
+    points are met, so these are the neighbours of any exhaustive search."""
     q, n = qx.size, x.size
-    out = np.full((q, m), -1, np.int64)
-    if q == 0 or n == 0 or m == 0:
-        return out
-    _, _, nx, ny, start, order, x0, y0, cell = grid_cells(x, y, reach / RINGS)
-    rings = int(reach / cell) + 1  # a point r rings away is at least (r - 1) cells away
-    slack = 1e-9 * (cell + max(np.abs(x).max(), np.abs(y).max(), np.abs(qx).max(), np.abs(qy).max()))
-    reach2 = reach * reach
-    best = np.empty(m)
-    for i in range(q):
-        gx0 = int(np.floor((qx[i] - x0) / cell))
-        gy0 = int(np.floor((qy[i] - y0) / cell))
-        k = 0
-        for r in range(rings + 1):
-            near = (r - 1) * cell - slack  # no point of this ring is nearer
-            if k == m and near > 0.0 and near * near > best[m - 1]:
-                break
-            for gx in range(max(gx0 - r, 0), min(gx0 + r + 1, nx)):
-                edge = gx == gx0 - r or gx == gx0 + r
-                step = 1 if edge else 2 * r  # inside the ring's columns only its top and bottom cells
-                for gy in range(gy0 - r, gy0 + r + 1, max(step, 1)):
-                    if gy < 0 or gy >= ny:
-                        continue
-                    c = gx * ny + gy
-                    for a in range(start[c], start[c + 1]):
-                        j = order[a]
-                        if ids[j] == qid[i]:
-                            continue
-                        dx, dy = x[j] - qx[i], y[j] - qy[i]
-                        d2 = dx * dx + dy * dy
-                        if not d2 <= reach2 or (
-                            k == m and (d2 > best[m - 1] or (d2 == best[m - 1] and j > out[i, m - 1]))
-                        ):
-                            continue
-                        p = min(k, m - 1)
-                        while p > 0 and (best[p - 1] > d2 or (best[p - 1] == d2 and out[i, p - 1] > j)):
-                            best[p] = best[p - 1]
-                            out[i, p] = out[i, p - 1]
-                            p -= 1
-                        best[p] = d2
-                        out[i, p] = j
-                        k = min(k + 1, m)
-    return out
-
-
-@njit(cache=True, nogil=True)
-def _gather_heard(idx, pos, vel, rad, stamp, coop, now):
-    """The chosen states as padded neighbour arrays (a padded slot: zeros, radius 1, not valid)."""
-    q, m = idx.shape
     position, velocity = np.zeros((q, m, 2)), np.zeros((q, m, 2))
     radius, age = np.ones((q, m)), np.zeros((q, m))
     valid, cooperative = np.zeros((q, m), np.bool_), np.ones((q, m), np.bool_)
+    if q == 0 or n == 0 or m == 0:
+        return position, velocity, radius, age, valid, cooperative
+    _, _, nx, ny, start, order, x0, y0, cell = grid_cells(x, y, reach / COLUMN_PARTS)
+    # how far rounding may move a point across a cell border: far below a cell, above any ulp
+    slack = 1e-9 * (cell + max(np.abs(x).max(), np.abs(y).max(), np.abs(qx).max(), np.abs(qy).max()))
+    reach2 = reach * reach
+    spread = int(reach / cell) + 2  # columns either side of the query's that can hold a point within reach
+    best, chosen = np.empty(m), np.empty(m, np.int64)
     for i in range(q):
-        for k in range(m):
-            j = idx[i, k]
-            if j < 0:
-                break
-            position[i, k, 0], position[i, k, 1] = pos[j, 0], pos[j, 1]
-            velocity[i, k, 0], velocity[i, k, 1] = vel[j, 0], vel[j, 1]
-            radius[i, k], age[i, k] = rad[j], now - stamp[j]
-            valid[i, k], cooperative[i, k] = True, coop[j]
+        px, py = qx[i], qy[i]
+        column = int(np.floor((px - x0) / cell))
+        k = 0
+        bound = reach2  # no point farther than this (squared) is kept
+        for s in range(2 * spread + 1):
+            gx = column + (s + 1) // 2 if s % 2 else column - s // 2  # 0, +1, -1, +2, -2, ...
+            if gx < 0 or gx >= nx:
+                continue
+            left = x0 + gx * cell - slack
+            away = max(left - px, px - (left + cell + 2.0 * slack), 0.0)  # to the column, across
+            if away * away > bound:
+                continue
+            # along the column: as far as the disc reaches, widened past any rounding of the square root
+            half = np.sqrt(max(bound - away * away, 0.0) + 1e-12 * bound) + slack
+            low = max(int(np.floor((py - half - y0) / cell)), 0)
+            high = min(int(np.floor((py + half - y0) / cell)), ny - 1)
+            if low > high:
+                continue
+            for a in range(start[gx * ny + low], start[gx * ny + high + 1]):
+                j = order[a]
+                if ids[j] == qid[i]:
+                    continue
+                dx, dy = x[j] - px, y[j] - py
+                d2 = dx * dx + dy * dy
+                if not d2 <= reach2 or (k == m and (d2 > best[m - 1] or (d2 == best[m - 1] and j > chosen[m - 1]))):
+                    continue
+                p = min(k, m - 1)  # insert (d2, j) in order, dropping the last when full
+                while p > 0 and (best[p - 1] > d2 or (best[p - 1] == d2 and chosen[p - 1] > j)):
+                    best[p] = best[p - 1]
+                    chosen[p] = chosen[p - 1]
+                    p -= 1
+                best[p] = d2
+                chosen[p] = j
+                k = min(k + 1, m)
+                if k == m:
+                    bound = best[m - 1]
+        for c in range(k):
+            j = chosen[c]
+            position[i, c, 0], position[i, c, 1] = x[j], y[j]
+            velocity[i, c, 0], velocity[i, c, 1] = vel[j, 0], vel[j, 1]
+            radius[i, c], age[i, c] = rad[j], now - stamp[j]
+            valid[i, c], cooperative[i, c] = True, coop[j]
     return position, velocity, radius, age, valid, cooperative
 
 
@@ -248,24 +252,20 @@ def nearest_heard_compiled(
     f64 = np.ascontiguousarray
     pos = f64(heard.position, dtype=float)
     p = f64(positions, dtype=float).reshape(-1, 2)
-    idx = _nearest_of(
-        p[:, 0].copy(),
-        p[:, 1].copy(),
-        f64(robot_ids, dtype=np.int64),
-        pos[:, 0].copy(),
-        pos[:, 1].copy(),
-        ids,
-        float(reach),
-        int(m),
-    )
     return NeighbourStates(
-        *_gather_heard(
-            idx,
-            pos,
+        *_nearest_heard(
+            p[:, 0].copy(),
+            p[:, 1].copy(),
+            f64(robot_ids, dtype=np.int64),
+            pos[:, 0].copy(),
+            pos[:, 1].copy(),
+            ids,
             f64(heard.velocity, dtype=float),
             f64(heard.radius, dtype=float),
             f64(heard.stamp, dtype=float),
             f64(heard.cooperative, dtype=np.bool_),
             float(stamp),
+            float(reach),
+            int(m),
         )
     )
