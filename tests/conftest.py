@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import fcntl
+import hashlib
 import json
 import signal
 import subprocess
@@ -43,6 +45,77 @@ def run_scene(tmp_path: Path, scene: str, *extra: str, name: str = "run", timeou
     result = run_pixelswarm("run", scene, "--out", str(out), "--no-video", "-q", *extra, timeout=timeout)
     assert result.returncode == 0, result.stderr[-3000:]
     return json.loads((out / "metrics.json").read_text()), dict(np.load(out / "trajectory.npz"))
+
+
+class SharedRuns:
+    """End-to-end runs shared between tests that check different things about the same run.
+
+    ``run(scene, *extra)`` is `run_scene` of that scene and those flags, made once per pytest
+    session: the first test to ask runs it, under a file lock in the temporary directory every xdist
+    worker shares, and every later ask (in any worker) reads the same run directory. The key is the
+    command line, with a scene or image file's content in place of its path, so two tests that write
+    the same scene or draw the same picture into their own tmp_path share the run. A run that failed
+    fails every test that asks for it, with its stderr, without running again. Tests that share a
+    run carry the same ``xdist_group`` mark, so `--dist loadgroup` gives them one worker in turn
+    instead of one worker waiting on the other's lock.
+    """
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+        root.mkdir(parents=True, exist_ok=True)
+
+    def run(self, scene: str | Path, *extra: str, timeout: float = 600) -> tuple[dict, dict]:
+        return self._load(self.run_dir(scene, *extra, timeout=timeout))
+
+    def run_dir(self, scene: str | Path, *extra: str, timeout: float = 600) -> Path:
+        """The shared run's directory (metrics.json, trajectory.npz, log.mcap, ...)."""
+        source = Path(str(scene)) if not str(scene).lstrip().startswith(("robots", "name", "[", "seed")) else None
+        inline = source is None
+        is_file = not inline and source.is_file()  # type: ignore[union-attr]
+        digest = hashlib.sha256()
+        if inline:
+            digest.update(b"toml\0" + str(scene).encode())
+        elif is_file:
+            digest.update(b"file\0" + source.name.encode() + b"\0" + source.read_bytes())  # type: ignore[union-attr]
+        else:
+            digest.update(b"name\0" + str(scene).encode())  # a shipped scene or a folder, by name
+        for arg in extra:
+            digest.update(b"\0" + arg.encode())
+        where = self.root / digest.hexdigest()[:16]
+        out = where / "run"
+        with open(self.root / f"{where.name}.lock", "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            failed = where / "failed.txt"
+            if failed.exists():
+                raise AssertionError(f"the shared run failed for an earlier test:\n{failed.read_text()}")
+            if not (out / "metrics.json").exists():
+                where.mkdir(exist_ok=True)
+                if inline:
+                    path = where / "scene.toml"
+                    path.write_text(str(scene))
+                    arg = str(path)
+                elif is_file:
+                    path = where / source.name  # type: ignore[union-attr]
+                    path.write_bytes(source.read_bytes())  # type: ignore[union-attr]
+                    arg = str(path)
+                else:
+                    arg = str(scene)
+                result = run_pixelswarm("run", arg, "--out", str(out), "--no-video", "-q", *extra, timeout=timeout)
+                if result.returncode != 0:
+                    failed.write_text(f"exit {result.returncode}\n{result.stderr[-3000:]}")
+                assert result.returncode == 0, result.stderr[-3000:]
+        return out
+
+    @staticmethod
+    def _load(out: Path) -> tuple[dict, dict]:
+        return json.loads((out / "metrics.json").read_text()), dict(np.load(out / "trajectory.npz"))
+
+
+@pytest.fixture(scope="session")
+def shared_runs(tmp_path_factory, worker_id) -> SharedRuns:
+    """One `SharedRuns` for the session, in a folder every xdist worker of the session sees."""
+    base = tmp_path_factory.getbasetemp()
+    return SharedRuns((base.parent if worker_id != "master" else base) / "shared-runs")
 
 
 def start_run(spawned: list, scene: Path | str, out: Path, *extra: str) -> subprocess.Popen:
@@ -115,3 +188,28 @@ def spawned():
         if p.poll() is None:
             p.send_signal(signal.SIGKILL)
         p.wait(timeout=10)
+
+
+# The longest end-to-end tests (a minute or more each on 2 cores), started first: xdist hands tests to
+# its workers in collection order, and a long test picked up at the end of the pass leaves the other
+# worker idle meanwhile. (Tests sharing a run carry an xdist_group mark; `--dist loadgroup` starts those
+# groups first, the largest first, then the rest in this order.) Node ids, longest first.
+LONGEST_FIRST = (
+    "tests/test_range_auction.py::test_a_hundred_robot_picture_in_hosts_forms_with_a_quarter_of_its_diameter_in_reach",
+    "tests/test_image_display_distributed.py::test_hundred_holonomic_robots_in_agent_hosts",
+    "tests/test_make_run.py::test_make_run_writes_a_complete_run_directory",
+    "tests/test_image_display_distributed.py::test_the_paper_sequence_forms_every_image_in_agent_hosts_as_in_the_central_engine",
+    "tests/test_runtime.py::test_lockstep_is_reproducible_and_hosts_match_processes",
+    "tests/test_lockstep_faults.py::test_two_lockstep_runs_with_lost_and_delayed_states_are_the_same_run",
+    "tests/test_animation.py::test_pixelswarm_run_plays_a_folder",
+    "tests/test_perturbation.py::test_two_robots_teleported_out_of_a_disk_of_14_recover_within_10_s_without_contact",
+    "tests/test_image_display_distributed.py::test_auction_survives_loss_and_delay",
+    "tests/test_paper_figures.py::test_quick_reproduction_writes_sane_figures",
+    "tests/test_faults_recovery.py::test_a_killed_coordinator_is_restarted_and_goes_on_with_the_show",
+    "tests/test_dynamic_obstacles.py::test_fourteen_hold_a_disk_while_two_movers_cross_it_without_contact",
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {nodeid: k for k, nodeid in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.nodeid.split("[")[0], len(rank)))  # stable: the rest keep their order
