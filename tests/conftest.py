@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -48,67 +49,77 @@ def run_scene(tmp_path: Path, scene: str, *extra: str, name: str = "run", timeou
 
 
 class SharedRuns:
-    """End-to-end runs shared between tests that check different things about the same run.
+    """End-to-end runs (or any costly outputs) shared between tests that check different things about
+    the same run.
 
     ``run(scene, *extra)`` is `run_scene` of that scene and those flags, made once per pytest
     session: the first test to ask runs it, under a file lock in the temporary directory every xdist
-    worker shares, and every later ask (in any worker) reads the same run directory. The key is the
-    command line, with a scene or image file's content in place of its path, so two tests that write
-    the same scene or draw the same picture into their own tmp_path share the run. A run that failed
-    fails every test that asks for it, with its stderr, without running again. Tests that share a
-    run carry the same ``xdist_group`` mark, so `--dist loadgroup` gives them one worker in turn
-    instead of one worker waiting on the other's lock.
+    worker of the session shares, and every later ask (in any worker) reads the same run directory.
+    The key is the command line, with a scene or image file's content in place of its path, so two
+    tests that write the same scene or draw the same picture into their own tmp_path share the run.
+    ``once(key, make)`` does the same for whatever ``make(folder)`` writes (a study, say). Something
+    that failed fails every test that asks for it, with its error, without being made again.
+
+    Tests that share a run also carry one ``xdist_group`` mark, so that `--dist loadgroup` gives them
+    one worker in turn rather than one worker waiting on the other's lock. (With pytest 9.2 and
+    pytest-xdist 3.8, loadgroup does not group: pytest-dev/pytest-xdist#1386. The lock keeps each run
+    to once per session all the same.)
     """
 
     def __init__(self, root: Path) -> None:
         self.root = root
         root.mkdir(parents=True, exist_ok=True)
 
+    def once(self, key: str, make: Callable[[Path], object]) -> Path:
+        """The folder ``make`` filled, made by the first test of the session to ask for ``key``."""
+        where = self.root / key
+        with open(self.root / f"{key}.lock", "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            failed, done = self.root / f"{key}.failed", self.root / f"{key}.done"
+            if failed.exists():
+                raise AssertionError(f"{key}, shared, failed for an earlier test:\n{failed.read_text()}")
+            if not done.exists():
+                where.mkdir(exist_ok=True)
+                try:
+                    make(where)
+                except BaseException as error:  # a failed check, or the test's timeout
+                    failed.write_text(f"{type(error).__name__}: {error}"[-4000:])
+                    raise
+                done.touch()
+        return where
+
     def run(self, scene: str | Path, *extra: str, timeout: float = 600) -> tuple[dict, dict]:
-        return self._load(self.run_dir(scene, *extra, timeout=timeout))
+        out = self.run_dir(scene, *extra, timeout=timeout)
+        return json.loads((out / "metrics.json").read_text()), dict(np.load(out / "trajectory.npz"))
 
     def run_dir(self, scene: str | Path, *extra: str, timeout: float = 600) -> Path:
         """The shared run's directory (metrics.json, trajectory.npz, log.mcap, ...)."""
-        source = Path(str(scene)) if not str(scene).lstrip().startswith(("robots", "name", "[", "seed")) else None
-        inline = source is None
-        is_file = not inline and source.is_file()  # type: ignore[union-attr]
+        text = str(scene)
+        inline = text.lstrip().startswith(("robots", "name", "[", "seed"))
+        source = None if inline else Path(text)
         digest = hashlib.sha256()
-        if inline:
-            digest.update(b"toml\0" + str(scene).encode())
-        elif is_file:
-            digest.update(b"file\0" + source.name.encode() + b"\0" + source.read_bytes())  # type: ignore[union-attr]
+        if source is None:
+            digest.update(b"toml\0" + text.encode())
+        elif source.is_file():
+            digest.update(b"file\0" + source.name.encode() + b"\0" + source.read_bytes())
         else:
-            digest.update(b"name\0" + str(scene).encode())  # a shipped scene or a folder, by name
+            digest.update(b"name\0" + text.encode())  # a shipped scene or a folder, by name
         for arg in extra:
             digest.update(b"\0" + arg.encode())
-        where = self.root / digest.hexdigest()[:16]
-        out = where / "run"
-        with open(self.root / f"{where.name}.lock", "w") as lock:
-            fcntl.flock(lock, fcntl.LOCK_EX)
-            failed = where / "failed.txt"
-            if failed.exists():
-                raise AssertionError(f"the shared run failed for an earlier test:\n{failed.read_text()}")
-            if not (out / "metrics.json").exists():
-                where.mkdir(exist_ok=True)
-                if inline:
-                    path = where / "scene.toml"
-                    path.write_text(str(scene))
-                    arg = str(path)
-                elif is_file:
-                    path = where / source.name  # type: ignore[union-attr]
-                    path.write_bytes(source.read_bytes())  # type: ignore[union-attr]
-                    arg = str(path)
-                else:
-                    arg = str(scene)
-                result = run_pixelswarm("run", arg, "--out", str(out), "--no-video", "-q", *extra, timeout=timeout)
-                if result.returncode != 0:
-                    failed.write_text(f"exit {result.returncode}\n{result.stderr[-3000:]}")
-                assert result.returncode == 0, result.stderr[-3000:]
-        return out
 
-    @staticmethod
-    def _load(out: Path) -> tuple[dict, dict]:
-        return json.loads((out / "metrics.json").read_text()), dict(np.load(out / "trajectory.npz"))
+        def make(where: Path) -> None:
+            arg = text
+            if source is None:
+                arg = str(where / "scene.toml")
+                Path(arg).write_text(text)
+            elif source.is_file():
+                arg = str(where / source.name)
+                Path(arg).write_bytes(source.read_bytes())
+            out = where / "run"
+            result = run_pixelswarm("run", arg, "--out", str(out), "--no-video", "-q", *extra, timeout=timeout)
+            assert result.returncode == 0, result.stderr[-3000:]
+
+        return self.once(f"run-{digest.hexdigest()[:16]}", make) / "run"
 
 
 @pytest.fixture(scope="session")
@@ -212,4 +223,5 @@ LONGEST_FIRST = (
 
 def pytest_collection_modifyitems(config, items):
     rank = {nodeid: k for k, nodeid in enumerate(LONGEST_FIRST)}
-    items.sort(key=lambda item: rank.get(item.nodeid.split("[")[0], len(rank)))  # stable: the rest keep their order
+    # stable: the rest keep their order (a node id without parameters, or loadgroup's @group)
+    items.sort(key=lambda item: rank.get(item.nodeid.split("[")[0].split("@")[0], len(rank)))

@@ -49,16 +49,18 @@ def read_csv(path: Path) -> list[dict[str, str]]:
 
 
 @pytest.fixture(scope="module")
-def grid(tmp_path_factory) -> Path:
-    """The 2 x 2 x 2-seed study, run once for the tests that read its outputs (their xdist_group keeps
-    them on one worker under `--dist loadgroup`, so the study runs once, not once per worker)."""
-    root = tmp_path_factory.mktemp("study")
-    spec = root / "grid.toml"
-    spec.write_text(GRID)
-    result = study(spec, root / "out", "--jobs", "2")
-    assert result.returncode == 0, result.stderr[-3000:]
-    assert result.stdout.strip().splitlines()[-1] == str(root / "out" / "report.html")
-    return root
+def grid(shared_runs) -> Path:
+    """The 2 x 2 x 2-seed study, run once per session for the tests that read its outputs (a module
+    fixture alone is made once per xdist worker)."""
+
+    def make(root: Path) -> None:
+        spec = root / "grid.toml"
+        spec.write_text(GRID)
+        result = study(spec, root / "out", "--jobs", "2")
+        assert result.returncode == 0, result.stderr[-3000:]
+        assert result.stdout.strip().splitlines()[-1] == str(root / "out" / "report.html")
+
+    return shared_runs.once("study-grid", make)
 
 
 @pytest.mark.slow
