@@ -39,7 +39,7 @@ lint: $(TSTAMP)
 # The whole suite: the in-process tests, then the end-to-end runs (marked slow) on every core, then
 # those marked serial one at a time (on the wall clock, another run beside them makes robots late).
 test: test-fast
-	$(PY) -m pytest -q -m "slow and not serial" -n auto --durations=10
+	$(PY) -m pytest -q -m "slow and not serial" -n auto --dist loadgroup --durations=10
 	$(PY) -m pytest -q -m "slow and serial" --durations=5
 
 # Everyday work: the suite without the end-to-end runs marked slow.

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import fcntl
+import hashlib
 import json
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -43,6 +46,87 @@ def run_scene(tmp_path: Path, scene: str, *extra: str, name: str = "run", timeou
     result = run_pixelswarm("run", scene, "--out", str(out), "--no-video", "-q", *extra, timeout=timeout)
     assert result.returncode == 0, result.stderr[-3000:]
     return json.loads((out / "metrics.json").read_text()), dict(np.load(out / "trajectory.npz"))
+
+
+class SharedRuns:
+    """End-to-end runs (or any costly outputs) shared between tests that check different things about
+    the same run.
+
+    ``run(scene, *extra)`` is `run_scene` of that scene and those flags, made once per pytest
+    session: the first test to ask runs it, under a file lock in the temporary directory every xdist
+    worker of the session shares, and every later ask (in any worker) reads the same run directory.
+    The key is the command line, with a scene or image file's content in place of its path, so two
+    tests that write the same scene or draw the same picture into their own tmp_path share the run.
+    ``once(key, make)`` does the same for whatever ``make(folder)`` writes (a study, say). Something
+    that failed fails every test that asks for it, with its error, without being made again.
+
+    Tests that share a run also carry one ``xdist_group`` mark, so that `--dist loadgroup` gives them
+    one worker in turn rather than one worker waiting on the other's lock. (With pytest 9.2 and
+    pytest-xdist 3.8, loadgroup does not group: pytest-dev/pytest-xdist#1386. The lock keeps each run
+    to once per session all the same.)
+    """
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+        root.mkdir(parents=True, exist_ok=True)
+
+    def once(self, key: str, make: Callable[[Path], object]) -> Path:
+        """The folder ``make`` filled, made by the first test of the session to ask for ``key``."""
+        where = self.root / key
+        with open(self.root / f"{key}.lock", "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            failed, done = self.root / f"{key}.failed", self.root / f"{key}.done"
+            if failed.exists():
+                raise AssertionError(f"{key}, shared, failed for an earlier test:\n{failed.read_text()}")
+            if not done.exists():
+                where.mkdir(exist_ok=True)
+                try:
+                    make(where)
+                except BaseException as error:  # a failed check, or the test's timeout
+                    failed.write_text(f"{type(error).__name__}: {error}"[-4000:])
+                    raise
+                done.touch()
+        return where
+
+    def run(self, scene: str | Path, *extra: str, timeout: float = 600) -> tuple[dict, dict]:
+        out = self.run_dir(scene, *extra, timeout=timeout)
+        return json.loads((out / "metrics.json").read_text()), dict(np.load(out / "trajectory.npz"))
+
+    def run_dir(self, scene: str | Path, *extra: str, timeout: float = 600) -> Path:
+        """The shared run's directory (metrics.json, trajectory.npz, log.mcap, ...)."""
+        text = str(scene)
+        inline = text.lstrip().startswith(("robots", "name", "[", "seed"))
+        source = None if inline else Path(text)
+        digest = hashlib.sha256()
+        if source is None:
+            digest.update(b"toml\0" + text.encode())
+        elif source.is_file():
+            digest.update(b"file\0" + source.name.encode() + b"\0" + source.read_bytes())
+        else:
+            digest.update(b"name\0" + text.encode())  # a shipped scene or a folder, by name
+        for arg in extra:
+            digest.update(b"\0" + arg.encode())
+
+        def make(where: Path) -> None:
+            arg = text
+            if source is None:
+                arg = str(where / "scene.toml")
+                Path(arg).write_text(text)
+            elif source.is_file():
+                arg = str(where / source.name)
+                Path(arg).write_bytes(source.read_bytes())
+            out = where / "run"
+            result = run_pixelswarm("run", arg, "--out", str(out), "--no-video", "-q", *extra, timeout=timeout)
+            assert result.returncode == 0, result.stderr[-3000:]
+
+        return self.once(f"run-{digest.hexdigest()[:16]}", make) / "run"
+
+
+@pytest.fixture(scope="session")
+def shared_runs(tmp_path_factory, worker_id) -> SharedRuns:
+    """One `SharedRuns` for the session, in a folder every xdist worker of the session sees."""
+    base = tmp_path_factory.getbasetemp()
+    return SharedRuns((base.parent if worker_id != "master" else base) / "shared-runs")
 
 
 def start_run(spawned: list, scene: Path | str, out: Path, *extra: str) -> subprocess.Popen:
@@ -115,3 +199,29 @@ def spawned():
         if p.poll() is None:
             p.send_signal(signal.SIGKILL)
         p.wait(timeout=10)
+
+
+# The longest end-to-end tests (a minute or more each on 2 cores), started first: xdist hands tests to
+# its workers in collection order, and a long test picked up at the end of the pass leaves the other
+# worker idle meanwhile. (Tests sharing a run carry an xdist_group mark; `--dist loadgroup` starts those
+# groups first, the largest first, then the rest in this order.) Node ids, longest first.
+LONGEST_FIRST = (
+    "tests/test_range_auction.py::test_a_hundred_robot_picture_in_hosts_forms_with_a_quarter_of_its_diameter_in_reach",
+    "tests/test_image_display_distributed.py::test_hundred_holonomic_robots_in_agent_hosts",
+    "tests/test_make_run.py::test_make_run_writes_a_complete_run_directory",
+    "tests/test_image_display_distributed.py::test_the_paper_sequence_forms_every_image_in_agent_hosts_as_in_the_central_engine",
+    "tests/test_runtime.py::test_lockstep_is_reproducible_and_hosts_match_processes",
+    "tests/test_lockstep_faults.py::test_two_lockstep_runs_with_lost_and_delayed_states_are_the_same_run",
+    "tests/test_animation.py::test_pixelswarm_run_plays_a_folder",
+    "tests/test_perturbation.py::test_two_robots_teleported_out_of_a_disk_of_14_recover_within_10_s_without_contact",
+    "tests/test_image_display_distributed.py::test_auction_survives_loss_and_delay",
+    "tests/test_paper_figures.py::test_quick_reproduction_writes_sane_figures",
+    "tests/test_faults_recovery.py::test_a_killed_coordinator_is_restarted_and_goes_on_with_the_show",
+    "tests/test_dynamic_obstacles.py::test_fourteen_hold_a_disk_while_two_movers_cross_it_without_contact",
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {nodeid: k for k, nodeid in enumerate(LONGEST_FIRST)}
+    # stable: the rest keep their order (a node id without parameters, or loadgroup's @group)
+    items.sort(key=lambda item: rank.get(item.nodeid.split("[")[0].split("@")[0], len(rank)))

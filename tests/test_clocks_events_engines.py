@@ -50,7 +50,8 @@ def test_realtime_clock_follows_the_wall_clock(tmp_path):
 def test_a_robot_picked_up_by_hand_returns_to_its_goal(tmp_path):
     # moved at t = 16 s, after the swarm has arrived, to a free spot; the run ends 8 s after all hold
     extra = '[[events]]\nt = 16.0\nkind = "teleport"\nrobot = 2\npose = [0.0, 0.65, 0.0]\n[end]\nconverge_hold = 8.0'
-    m, traj = run(tmp_path, SMALL.format(duration=60.0, clock="lockstep", extra=extra))
+    # two agent hosts: a lock-step run is the same run with a process per robot (test_one_controller.py)
+    m, traj = run(tmp_path, SMALL.format(duration=60.0, clock="lockstep", extra=extra), "-k", "3")
     t, pose = traj["t"], traj["pose"]
     k = int(np.searchsorted(t, 16.0))
     assert np.allclose(pose[k, 2, :2], [0.0, 0.65])  # the event happened
@@ -64,8 +65,8 @@ def test_central_engine_matches_the_scene_and_is_safe(tmp_path):
     m, traj = run(tmp_path, toml, "--engine", "central")
     assert m["engine"] == "central" and m["contacts"] == 0 and m["converged"]
     assert traj["pose"].shape[1] == 6
-    # same scene, distributed: same start, same goals, both arrive
-    m2, traj2 = run(tmp_path, toml, name="distributed")
+    # same scene, distributed (in two agent hosts): same start, same goals, both arrive
+    m2, traj2 = run(tmp_path, toml, "-k", "3", name="distributed")
     assert m2["engine"] == "distributed" and m2["converged"]
     np.testing.assert_allclose(traj["pose"][0], traj2["pose"][0])
     np.testing.assert_allclose(traj["goal"][-1], traj2["goal"][-1], atol=1e-6)

@@ -220,7 +220,8 @@ def test_robots_stop_during_a_tracker_outage_and_resume(tmp_path, spawned):
     events = f'[[events]]\nkind = "tracker-outage"\nt = {OUTAGE_AT}\nduration = {OUTAGE}'
     scene = write_disk(tmp_path, hold=30.0, converge_hold=2.0, events=events)
     out = tmp_path / "run"
-    m, traj = finish(start_run(spawned, scene, out), out)
+    # two agent hosts: the outage is the world's (a lock-step run is the same run in every engine)
+    m, traj = finish(start_run(spawned, scene, out, "-k", "5"), out)
     assert m["contacts"] == 0
     assert m["withheld_ticks"] == round(OUTAGE / 0.1)
     t, pose, velocity = traj["t"], traj["pose"][:, :, :2], traj["velocity"]
@@ -337,7 +338,7 @@ def test_a_router_killed_and_restarted_every_component_reconnects_and_the_show_c
 def test_a_world_that_dies_ends_the_run_marked_incomplete(tmp_path, spawned):
     scene = write_disk(tmp_path, hold=60.0)
     out = tmp_path / "run"
-    proc = start_run(spawned, scene, out)
+    proc = start_run(spawned, scene, out, "-k", "5")  # two agent hosts: the world is what dies here
     assert wait_for(lambda: ticks_so_far(out) >= 20, timeout=120)
     everyone = [p.pid for p in descendants(proc.pid)]
     world = process_of(proc, "sim.world_node")

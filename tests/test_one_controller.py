@@ -18,15 +18,17 @@ ENGINES = {
 }
 
 
+def engine_run(shared_runs, scene: str, seed: int, engine: str) -> tuple[dict, dict]:
+    """A lock-step run of a shipped scene and seed in one engine, shared with the other tests that
+    read that run (test_collision_avoidance: fourteen e-pucks swap rows, a process per robot)."""
+    return shared_runs.run(scene, "--clock", "lockstep", "--seed", str(seed), *ENGINES[engine])
+
+
 @pytest.mark.slow
+@pytest.mark.xdist_group("swap-seed-1")
 @pytest.mark.parametrize("scene, seed", [("swap", 1), ("circle", 2)])
-def test_central_and_distributed_runs_of_one_seed_are_the_same_run(tmp_path, scene, seed):
-    runs = {
-        name: run_scene(
-            tmp_path, scene, "--clock", "lockstep", "--seed", str(seed), *flags, name=name.replace(" ", "-")
-        )
-        for name, flags in ENGINES.items()
-    }
+def test_central_and_distributed_runs_of_one_seed_are_the_same_run(shared_runs, scene, seed):
+    runs = {name: engine_run(shared_runs, scene, seed, name) for name in ENGINES}
     (m_central, central) = runs["central"]
     assert m_central["contacts"] == 0 and m_central["converged"]
     for name in ("a process per robot", "agent hosts"):
@@ -52,22 +54,34 @@ def picture(tmp_path) -> str:
     return str(path)
 
 
+PICTURE_FLAGS = ("--robots", "30", "--seed", "2")
+
+
+def picture_run(shared_runs, tmp_path, engine: str) -> tuple[dict, dict]:
+    """A lock-step run of the picture's 30 robots in one engine, shared with test_sync_auction (the
+    agent hosts' run is its quiet run)."""
+    return shared_runs.run(picture(tmp_path), "--clock", "lockstep", *PICTURE_FLAGS, *ENGINES[engine])
+
+
 @pytest.mark.slow
+@pytest.mark.xdist_group("picture-30")
 @pytest.mark.parametrize(
     "scene, flags",
     [
-        ("picture", ("--robots", "30", "--seed", "2")),  # an image: the auction settles a block every tick
+        ("picture", PICTURE_FLAGS),  # an image: the auction settles a block every tick
         ("story", ("--seed", "1", "--duration", "26")),  # an animation of 14 robots, into its second keyframe
     ],
 )
-def test_the_auction_is_the_same_in_every_engine(tmp_path, scene, flags):
+def test_the_auction_is_the_same_in_every_engine(tmp_path, shared_runs, scene, flags):
     """Tick-synchronous auction: every engine adopts the same agreement at the same tick, so the run
     is the same, and every recorded tick is one-to-one."""
-    source = picture(tmp_path) if scene == "picture" else scene
-    runs = {
-        name: run_scene(tmp_path, source, "--clock", "lockstep", *flags, *engine, name=name.replace(" ", "-"))
-        for name, engine in ENGINES.items()
-    }
+    if scene == "picture":
+        runs = {name: picture_run(shared_runs, tmp_path, name) for name in ENGINES}
+    else:
+        runs = {
+            name: run_scene(tmp_path, scene, "--clock", "lockstep", *flags, *engine, name=name.replace(" ", "-"))
+            for name, engine in ENGINES.items()
+        }
     _, central = runs["central"]
     assert (central["assignment"] >= 0).all()  # every robot holds a goal from the first tick on
     assert len(np.unique(central["step"])) == (2 if scene == "story" else 1)

@@ -49,18 +49,22 @@ def read_csv(path: Path) -> list[dict[str, str]]:
 
 
 @pytest.fixture(scope="module")
-def grid(tmp_path_factory) -> Path:
-    """The 2 x 2 x 2-seed study, run once for the tests that read its outputs."""
-    root = tmp_path_factory.mktemp("study")
-    spec = root / "grid.toml"
-    spec.write_text(GRID)
-    result = study(spec, root / "out", "--jobs", "2")
-    assert result.returncode == 0, result.stderr[-3000:]
-    assert result.stdout.strip().splitlines()[-1] == str(root / "out" / "report.html")
-    return root
+def grid(shared_runs) -> Path:
+    """The 2 x 2 x 2-seed study, run once per session for the tests that read its outputs (a module
+    fixture alone is made once per xdist worker)."""
+
+    def make(root: Path) -> None:
+        spec = root / "grid.toml"
+        spec.write_text(GRID)
+        result = study(spec, root / "out", "--jobs", "2")
+        assert result.returncode == 0, result.stderr[-3000:]
+        assert result.stdout.strip().splitlines()[-1] == str(root / "out" / "report.html")
+
+    return shared_runs.once("study-grid", make)
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("study-grid")
 def test_the_grid_runs_with_one_command_one_row_per_run(grid):
     rows = read_csv(grid / "out" / "runs.csv")
     expected = {(r, d, s) for r, d, s in itertools.product(["2", "4"], ["1.0", "1.5"], ["1", "2"])}
@@ -79,6 +83,7 @@ def test_the_grid_runs_with_one_command_one_row_per_run(grid):
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("study-grid")
 def test_summary_agrees_with_runs(grid):
     rows = read_csv(grid / "out" / "runs.csv")
     summary = read_csv(grid / "out" / "summary.csv")
@@ -120,6 +125,7 @@ class _Page(HTMLParser):
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("study-grid")
 def test_report_is_one_self_contained_page(grid):
     page = _Page()
     page.feed((grid / "out" / "report.html").read_text())
@@ -137,6 +143,7 @@ def test_report_is_one_self_contained_page(grid):
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("study-grid")
 def test_resume_runs_only_what_is_missing_or_incomplete(grid, tmp_path):
     out = tmp_path / "out"
     shutil.copytree(grid / "out", out)

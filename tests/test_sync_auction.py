@@ -23,7 +23,7 @@ from transport.codec import Goals
 from transport.session import client_of, loopback_router, open_session
 
 from .conftest import reap, run_scene
-from .test_one_controller import picture
+from .test_one_controller import ENGINES, PICTURE_FLAGS, picture, picture_run
 
 EPS, HYSTERESIS = 1e-3, 5e-3  # epsilon_A and Delta C, m^2 (agent.core.params defaults)
 
@@ -119,10 +119,12 @@ def assert_one_to_one(traj: dict) -> None:
 
 
 @pytest.mark.slow
-def test_two_lockstep_runs_of_a_picture_are_identical_under_load(tmp_path):
+@pytest.mark.xdist_group("picture-30")
+def test_two_lockstep_runs_of_a_picture_are_identical_under_load(tmp_path, shared_runs):
     image = picture(tmp_path)  # agent hosts of 5 robots (each robot its own process: test_one_controller.py)
-    flags = ("--robots", "30", "--clock", "lockstep", "--seed", "2", "-k", "5")
-    quiet = run_scene(tmp_path, image, *flags, name="quiet")
+    flags = ("--clock", "lockstep", *PICTURE_FLAGS, *ENGINES["agent hosts"])
+    # the quiet run is test_one_controller's run of the picture in agent hosts, made once for both
+    quiet = picture_run(shared_runs, tmp_path, "agent hosts")
     busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]  # both cores
     try:
         loaded = run_scene(tmp_path, image, *flags, name="loaded")
