@@ -20,6 +20,7 @@ import orjson
 
 from transport.bus import Bus
 from transport.codec import (
+    BEFORE_START,
     BY_NAME,
     Bid,
     Commands,
@@ -27,7 +28,6 @@ from transport.codec import (
     DropCounter,
     Event,
     Goals,
-    Pose,
     State,
     States,
     Truth,
@@ -131,7 +131,7 @@ class Recorder:
             tuple[int, int], dict[int, tuple[float, float, float]]
         ] = {}  # (epoch, instance) -> robot -> x, y, penalty
         self.counts: dict[str, int] = {}
-        self.framed_commands = 0  # commands inside agent hosts' frames (codec.Commands)
+        self.commands = 0  # commands sent, counted by record (a frame holds one robot's or a host's)
         self.bytes: dict[str, int] = {}
         self.drops = DropCounter()
         self.contacts: list[Contact] = []
@@ -167,8 +167,9 @@ class Recorder:
             record = msg.to_dict()
             record["key"] = key
             self._log(kind, wall, record)
-            if isinstance(msg, State):
-                self._on_state(msg)
+            if isinstance(msg, States):
+                for state in msg.messages():
+                    self._on_state(state)
             elif isinstance(msg, Truth):
                 self._on_truth(msg, wall)
             elif isinstance(msg, Bid):
@@ -176,11 +177,8 @@ class Recorder:
             elif isinstance(msg, Goals):
                 if not msg.per_robot and msg.epoch not in self.goal_sets:
                     self._on_goals(msg)
-            elif isinstance(msg, States):
-                for state in msg.messages():
-                    self._on_state(state)
             elif isinstance(msg, Commands):
-                self.framed_commands += len(msg.records)
+                self.commands += len(msg.records)
             elif isinstance(msg, Contact):
                 self.contacts.append(msg)
             elif isinstance(msg, Event):
@@ -193,7 +191,7 @@ class Recorder:
         r = s.robot
         if r >= self.n:
             return
-        if s.tick == Pose.BEFORE_START:  # a hello before the first tick: its size, no goal yet
+        if s.tick == BEFORE_START:  # a hello before the first tick: its size, no goal yet
             self.radius[r] = s.radius if np.isnan(self.radius[r]) else self.radius[r]
             return
         goal = (s.goal_x, s.goal_y) if s.flags & State.HAS_GOAL else (np.nan, np.nan)

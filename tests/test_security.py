@@ -150,7 +150,7 @@ def test_a_robot_cannot_publish_goals_or_command_another_robot(secured, certs):
 
         # Until both subscriptions are routed: robot 3's own command reaches the world and the recorder.
         assert _wait_until(probe)
-        forged = [KEYS.goals(9), KEYS.cmd(5), KEYS.cmds(5), KEYS.state((0, 0), 5), KEYS.poses, KEYS.clock]
+        forged = [KEYS.goals(9), KEYS.cmd(5), KEYS.states(5), KEYS.state((0, 0), 5), KEYS.poses, KEYS.clock]
         for key in forged:
             robot.put(key, b"forged")
         robot.declare_alive("agent", 5)

@@ -34,9 +34,9 @@ from transport.keys import Keys, cell_of
 from transport.session import TransportError, client_of, loopback_router, open_session
 
 SAMPLES = [
-    Pose(3, 7, 0.7, 1.5, -2.0, 0.25),
-    State(3, 7, 0.7, 1.0, 2.0, 0.1, -0.1, 0.045, 0.5, 0.5, 4, State.HAS_GOAL),
-    Command(3, 7, 0.7, Command.WHEELS, 0.1, -0.05, 255, 10, 0),
+    Poses.one(Pose(3, 7, 0.7, 1.5, -2.0, 0.25)),  # a robot alone: a frame of one
+    States.one(State(3, 7, 0.7, 1.0, 2.0, 0.1, -0.1, 0.045, 0.5, 0.5, 4, State.HAS_GOAL)),
+    Commands.one(Command(3, 7, 0.7, Command.WHEELS, 0.1, -0.05, 255, 10, 0)),
     Tick(7, 0.7, 0.1),
     Goals(2, 0, 0.0, 3, np.array([[0.0, 1.0], [2.0, 3.0], [-1.0, 0.5]]), np.array([[255, 0, 0]] * 3, np.uint8)),
     Goals(
@@ -80,14 +80,13 @@ SAMPLES = [
     States.of(
         7,
         0.7,
-        3,
         [
             State(3, 7, 0.7, 1.0, 2.0, 0.1, -0.1, 0.045, 0.5, 0.5, 4, State.HAS_GOAL, 2, 9),
             State(4, 7, 0.7, -1.0, 0.5, 0.0, 0.2, 0.045, 0.0, 0.0, -1, 0),
         ],
     ),
-    Poses(7, 0.7, 0, 2, np.array([(3, 1.5, -2.0, 0.25), (9, 0.5, 0.5, -3.0)], Poses.RECORD)),
-    Commands(7, 0.7, 3, 2, np.array([(3, 1, 0.1, -0.05, 255, 10, 0), (4, 1, 0.0, 0.02, 0, 0, 255)], Commands.RECORD)),
+    Poses(7, 0.7, np.array([(3, 1.5, -2.0, 0.25), (9, 0.5, 0.5, -3.0)], Poses.RECORD)),
+    Commands(7, 0.7, np.array([(3, 1, 0.1, -0.05, 255, 10, 0), (4, 1, 0.0, 0.02, 0, 0, 255)], Commands.RECORD)),
 ]
 
 
@@ -128,8 +127,8 @@ def test_malformed_is_dropped_and_counted(msg):
 
 def test_non_finite_is_rejected():
     drops = DropCounter()
-    assert decode(Pose(1, 1, 0.1, math.nan, 0.0, 0.0).encode(), drops=drops) is None
-    assert decode(State(1, 1, 0.1, 0, 0, math.inf, 0, 0.045, 0, 0, -1, 0).encode(), drops=drops) is None
+    assert decode(Poses.one(Pose(1, 1, 0.1, math.nan, 0.0, 0.0)).encode(), drops=drops) is None
+    assert decode(States.one(State(1, 1, 0.1, 0, 0, math.inf, 0, 0.045, 0, 0, -1, 0)).encode(), drops=drops) is None
     bad_goals = Goals(1, 0, 0.0, 1, np.array([[np.nan, 0.0]]), np.zeros((1, 3), np.uint8)).encode()
     assert decode(bad_goals, drops=drops) is None
     assert decode(b"\x08\x01" + b'{"a": NaN}', drops=drops) is None
@@ -142,24 +141,24 @@ def test_a_frame_with_one_bad_record_is_dropped_whole():
     drops = DropCounter()
     poses = SAMPLES[-2].records.copy()
     poses["theta"][1] = np.inf
-    assert decode(Poses(7, 0.7, 0, 2, poses).encode(), drops=drops) is None
+    assert decode(Poses(7, 0.7, poses).encode(), drops=drops) is None
     commands = SAMPLES[-1].records.copy()
     commands["b"][0] = np.nan
-    assert decode(Commands(7, 0.7, 3, 2, commands).encode(), drops=drops) is None
+    assert decode(Commands(7, 0.7, commands).encode(), drops=drops) is None
     commands = SAMPLES[-1].records.copy()
     commands["mode"][1] = 7
-    assert decode(Commands(7, 0.7, 3, 2, commands).encode(), drops=drops) is None
+    assert decode(Commands(7, 0.7, commands).encode(), drops=drops) is None
     states = SAMPLES[-3].records.copy()
     states["radius"][0] = 0.0
-    assert decode(States(7, 0.7, 3, 2, states).encode(), drops=drops) is None
+    assert decode(States(7, 0.7, states).encode(), drops=drops) is None
     assert drops == {"non-finite": 2, "invalid": 2}
     assert decode(SAMPLES[-2].encode()[:-4], drops=drops) is None and drops["truncated"] == 1
     frame = decode(SAMPLES[-2].encode())
     assert frame.messages()[1] == Pose(9, 7, 0.7, 0.5, 0.5, -3.0)
     assert decode(SAMPLES[-1].encode()).messages()[0] == Command(3, 7, 0.7, 1, *np.float32([0.1, -0.05]), 255, 10, 0)
-    # each record is exactly the State its robot would have sent alone
+    # each record is exactly the frame of one its robot would have sent alone
     one = State(3, 7, 0.7, 1.0, 2.0, 0.1, -0.1, 0.045, 0.5, 0.5, 4, State.HAS_GOAL, 2, 9)
-    assert decode(SAMPLES[-3].encode()).messages()[0] == decode(one.encode())
+    assert decode(SAMPLES[-3].encode()).messages()[0] == decode(States.one(one).encode()).messages()[0]
 
 
 def test_goals_of_an_older_coordinator_decode_as_a_still_image():
@@ -250,7 +249,7 @@ def test_the_auctions_warm_start_rides_in_a_third_trailer():
 
 def test_wrong_kind_on_a_key_is_dropped():
     drops = DropCounter()
-    assert decode(SAMPLES[2].encode(), Pose, drops) is None
+    assert decode(SAMPLES[2].encode(), Poses, drops) is None
     assert drops["kind"] == 1
 
 
@@ -301,9 +300,9 @@ def test_bus_publish_subscribe_and_drop_malformed(router):
     with Bus(client_of(router), "t") as a, Bus(client_of(router), "t") as b:
         inbox = b.subscribe(b.keys.all_of("pose"), Pose)
         time.sleep(0.3)
-        a.put(a.keys.pose(1), b"\x01\x01garbage")  # malformed: counted, not delivered
-        a.publish(a.keys.pose(1), Pose(1, 1, 0.1, 0.0, 0.0, 0.0))
-        a.publish(a.keys.pose(2), Command(2, 1, 0.1, 0, 0, 0, 0, 0, 0))  # wrong kind on a pose key
+        a.put(a.keys.pose(1), bytes([Poses.KIND, VERSION]) + b"garbage")  # malformed: counted, not delivered
+        a.publish(a.keys.pose(1), Poses.one(Pose(1, 1, 0.1, 0.0, 0.0, 0.0)))
+        a.publish(a.keys.pose(2), Commands.one(Command(2, 1, 0.1, 0, 0, 0, 0, 0, 0)))  # wrong kind on a pose key
         got = _collect(inbox, 1)
         time.sleep(0.2)
         assert [m.robot for _, m in got] == [1] and inbox.get(timeout=0.1) is None
@@ -317,7 +316,7 @@ def test_fault_injection_drop_and_delay(router):
         time.sleep(0.3)
         sent = time.monotonic()
         for i in range(200):
-            a.publish(a.keys.state((0, 0), i), State(i, 1, 0.1, 0, 0, 0, 0, 0.045, 0, 0, -1, 0))
+            a.publish(a.keys.state((0, 0), i), States.one(State(i, 1, 0.1, 0, 0, 0, 0, 0.045, 0, 0, -1, 0)))
         assert lossy.get(timeout=0.15) is None  # nothing before the added delay
         got = _collect(lossy, 200, timeout=2.0)
         assert time.monotonic() - sent >= 0.2
@@ -336,7 +335,7 @@ def test_a_faulty_inbox_rings_its_bell_for_what_it_keeps(router, fault):
         rung = 0
         for tick in range(20):
             inbox.bell.clear()
-            a.publish(a.keys.pose(1), Pose(1, tick, tick * 0.1, 0.0, 0.0, 0.0))
+            a.publish(a.keys.pose(1), Poses.one(Pose(1, tick, tick * 0.1, 0.0, 0.0, 0.0)))
             if inbox.bell.wait(timeout=2.0):
                 rung += 1
                 assert _collect(inbox, 1, timeout=2.0)  # kept: it is there once its delay is over

@@ -114,14 +114,19 @@ class Message:
         return out
 
 
-@dataclass
-class Pose(Message):
-    """Tracker -> agent: the tracked pose of one robot at a tick (paper: central tracking, 10 Hz)."""
+BEFORE_START = 0xFFFFFFFF  # tick of a frame sent before the robots' agents are live (poses, hellos)
 
-    KIND: ClassVar[int] = 1
+
+# One robot's record of a frame as a Python object: its robot, the frame's tick and stamp, then the
+# record's fields in the record's order. The wire knows only frames (a robot alone sends a frame of
+# one); these views are for readers that take robots one at a time.
+
+
+@dataclass
+class Pose:
+    """A record of a ``Poses`` frame: the tracked pose of one robot at a tick (paper: central tracking, 10 Hz)."""
+
     NAME: ClassVar[str] = "pose"
-    BEFORE_START: ClassVar[int] = 0xFFFFFFFF  # tick of poses sent to robots whose agent is not live yet
-    _fixed: ClassVar[struct.Struct] = struct.Struct("<IIdfff")
     robot: int
     tick: int
     stamp: float
@@ -131,8 +136,8 @@ class Pose(Message):
 
 
 @dataclass
-class State(Message):
-    """Agent broadcast: what neighbours need for ORCA and the auction.
+class State:
+    """A record of a ``States`` frame: what neighbours need for ORCA and the auction.
 
     ``velocity`` is the robot's current collision-free velocity (v_opt of eq. 11), ``radius`` the
     radius it asks others to avoid (r + tracking error for differential drive), ``goal_index`` the
@@ -141,10 +146,8 @@ class State(Message):
     goal in the previous keyframe carried over to while the new keyframe's auction runs.
     """
 
-    KIND: ClassVar[int] = 2
     NAME: ClassVar[str] = "state"
     CARRIED: ClassVar[int] = 0xFFFFFFFF  # assign_instance of a carried goal: not an agreed instance
-    _fixed: ClassVar[struct.Struct] = struct.Struct("<IIdfffffffiBII")
     robot: int
     tick: int
     stamp: float
@@ -164,19 +167,12 @@ class State(Message):
     AT_GOAL: ClassVar[int] = 2
     DYNAMIC: ClassVar[int] = 4
 
-    def validate(self) -> None:
-        super().validate()
-        if self.radius <= 0:
-            raise Malformed("invalid")
-
 
 @dataclass
-class Command(Message):
-    """Agent -> body: holonomic velocity (mode 0) or linear wheel speeds (mode 1), and LED colour."""
+class Command:
+    """A record of a ``Commands`` frame: holonomic velocity (mode 0) or linear wheel speeds (mode 1), and LED colour."""
 
-    KIND: ClassVar[int] = 3
     NAME: ClassVar[str] = "cmd"
-    _fixed: ClassVar[struct.Struct] = struct.Struct("<IIdBffBBB")
     robot: int
     tick: int
     stamp: float
@@ -189,11 +185,6 @@ class Command(Message):
 
     HOLONOMIC: ClassVar[int] = 0
     WHEELS: ClassVar[int] = 1
-
-    def validate(self) -> None:
-        super().validate()
-        if self.mode not in (0, 1):
-            raise Malformed("invalid")
 
 
 @dataclass
@@ -486,47 +477,59 @@ class Boards(Message):
 
 @dataclass
 class Frame(Message):
-    """A tick's messages of many robots in one: the fixed part (tick, stamp, sender, count) and one
-    record per robot, the fields of ``_message`` after its (robot, tick, stamp). Agent hosts of K
-    robots trade frames: per robot, every message costs each process it crosses as much as a whole
-    frame does."""
+    """A tick's records of one or many robots: the fixed part (tick, stamp), then one record per
+    robot to the end of the message. Every pose, state and command crosses the wire in a frame; a
+    robot alone sends a frame of one, exactly as long as its message alone would be. Agent hosts of
+    K robots send one frame of each a tick: per robot, a message costs each process it crosses as
+    much as a whole frame does. Who sent it, the key says."""
 
-    _fixed: ClassVar[struct.Struct] = struct.Struct("<IdII")
-    _message: ClassVar[type[Message]]
+    _fixed: ClassVar[struct.Struct] = struct.Struct("<Id")
+    VIEW: ClassVar[type]  # the record as a Python object (Pose, State, Command)
     RECORD: ClassVar[np.dtype]
     _floats: ClassVar[tuple[str, ...]]
     tick: int
     stamp: float
-    sender: int  # the host's first robot (0 for the tracker)
-    count: int
     records: np.ndarray
 
     @classmethod
-    def of(cls, tick: int, stamp: float, sender: int, messages: list) -> Frame:
-        """The frame of these robots' messages (their tick and stamp are the frame's)."""
-        records = np.array([(v := m._fixed_values())[:1] + v[3:] for m in messages], cls.RECORD).reshape(-1)
-        return cls(tick, stamp, sender, len(records), records)
+    def of(cls, tick: int, stamp: float, views: list) -> Frame:
+        """The frame of these robots' records (their tick and stamp are the frame's)."""
+        get = attrgetter(*_field_names(cls.RECORD))
+        return cls(tick, stamp, np.array([get(v) for v in views], cls.RECORD).reshape(-1))
+
+    @classmethod
+    def one(cls, view: Any) -> Frame:
+        """The frame of one robot alone."""
+        return cls.of(view.tick, view.stamp, [view])
+
+    @property
+    def count(self) -> int:
+        return len(self.records)
 
     def messages(self, rows: np.ndarray | None = None) -> list:
-        """One message per record (or per selected record), as each robot would have sent it alone."""
+        """One view per record (or per selected record): the robot, the frame's tick and stamp, the record."""
         records = self.records if rows is None else self.records[rows]
         tick, stamp = self.tick, self.stamp
-        message: Callable[..., Message] = self._message  # each kind's fields follow (robot, tick, stamp)
-        return [message(robot, tick, stamp, *rest) for robot, *rest in records.tolist()]
+        view: Callable[..., Any] = self.VIEW
+        return [view(robot, tick, stamp, *rest) for robot, *rest in records.tolist()]
 
     def _fixed_values(self) -> tuple:
-        return (self.tick, self.stamp, self.sender, len(self.records))
+        return (self.tick, self.stamp)
 
     def _tail(self) -> bytes:
         return np.asarray(self.records, self.RECORD).tobytes()
 
     @classmethod
     def _from(cls, body: memoryview) -> Frame:
-        (tick, stamp, sender, count), items = _fixed_and_items(body, cls._fixed, cls.RECORD)
+        size = cls._fixed.size
+        if len(body) < size or (len(body) - size) % cls.RECORD.itemsize:
+            raise Malformed("truncated")
+        tick, stamp = cls._fixed.unpack(body[:size])
+        items = np.frombuffer(body[size:], cls.RECORD)
         _finite(stamp)
         if not all(np.all(np.isfinite(items[k])) for k in cls._floats):
             raise Malformed("non-finite")
-        frame = cls(tick, stamp, sender, count, items.copy())
+        frame = cls(tick, stamp, items.copy())
         frame.check_records()
         return frame
 
@@ -542,13 +545,12 @@ class Frame(Message):
 
 @dataclass
 class Poses(Frame):
-    """Tracker -> agent hosts: the tracked poses of a tick (what a motion capture frame holds), sent
-    instead of one Pose per robot when every agent process hosts several robots; before a robot's
-    agent is live its poses stay Pose."""
+    """Tracker -> agents: tracked poses of a tick (what a motion capture frame holds): every robot's
+    in one frame for agent hosts, or a frame of one per robot for robots alone in their process."""
 
     KIND: ClassVar[int] = 10
-    NAME: ClassVar[str] = "poses"
-    _message: ClassVar[type[Message]] = Pose
+    VIEW: ClassVar[type] = Pose
+    NAME: ClassVar[str] = Pose.NAME
     RECORD: ClassVar[np.dtype] = np.dtype([("robot", "<u4"), ("x", "<f4"), ("y", "<f4"), ("theta", "<f4")])
     _floats: ClassVar[tuple[str, ...]] = ("x", "y", "theta")
 
@@ -558,28 +560,29 @@ class Commands(Frame):
     """Agent host -> bodies: the commands of its robots for one tick."""
 
     KIND: ClassVar[int] = 11
-    NAME: ClassVar[str] = "cmds"
-    _message: ClassVar[type[Message]] = Command
+    VIEW: ClassVar[type] = Command
+    NAME: ClassVar[str] = Command.NAME
     RECORD: ClassVar[np.dtype] = np.dtype(
         [("robot", "<u4"), ("mode", "u1"), ("a", "<f4"), ("b", "<f4"), ("r", "u1"), ("g", "u1"), ("bl", "u1")]
     )
     _floats: ClassVar[tuple[str, ...]] = ("a", "b")
 
     def check_records(self) -> None:
-        if np.any(self.records["mode"] > 1):
+        if np.any(self.records["mode"] > Command.WHEELS):
             raise Malformed("invalid")
 
 
 @dataclass
 class States(Frame):
     """Agent host -> agent hosts: the states of its robots at one tick (a host's hellos before its
-    first tick too, tick Pose.BEFORE_START). Every host hears every frame: a host of hundreds of
-    robots spread over the display listens to most cells anyway, and one frame costs each process
-    it crosses what one robot's state did."""
+    first tick too, tick BEFORE_START). A robot alone files its frame of one under its spatial
+    cell; a host's frame goes to every host: a host of hundreds of robots spread over the display
+    listens to most cells anyway, and one frame costs each process it crosses what one robot's
+    state did."""
 
     KIND: ClassVar[int] = 12
-    NAME: ClassVar[str] = "states"
-    _message: ClassVar[type[Message]] = State
+    VIEW: ClassVar[type] = State
+    NAME: ClassVar[str] = State.NAME
     RECORD: ClassVar[np.dtype] = np.dtype(
         [
             ("robot", "<u4"),
@@ -601,6 +604,9 @@ class States(Frame):
     def check_records(self) -> None:
         if np.any(self.records["radius"] <= 0):
             raise Malformed("invalid")
+
+
+FRAME_OF: dict[type, type[Frame]] = {f.VIEW: f for f in (Poses, Commands, States)}  # view -> its frame kind
 
 
 @dataclass
@@ -701,7 +707,7 @@ def _reject_constant(name: str) -> None:
 
 
 MESSAGE_TYPES: dict[int, type[Message]] = {
-    t.KIND: t for t in (Pose, State, Command, Tick, Goals, Truth, Contact, Event, Bid, Boards, Poses, Commands, States)
+    t.KIND: t for t in (Tick, Goals, Truth, Contact, Event, Bid, Boards, Poses, Commands, States)
 }
 BY_NAME: dict[str, type[Message]] = {t.NAME: t for t in MESSAGE_TYPES.values()}
 
