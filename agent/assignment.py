@@ -179,11 +179,12 @@ class AuctionLink:
             self.block_stamp = -np.inf
             return {}
         carried = {}
-        if before is not None and self._warm_start(before, goals):
-            carried = self.part.carry(before, goals.matched, current=current, prices=goals.prices)
-        elif goals.follows and before is not None and before.epoch == goals.follows:
-            close = before.agreed_instance >= 0 and frames_close(before.goals, goals.positions, goals.previous)
-            carried = self.part.carry(before, goals.previous, claim=close, current=current)
+        warm, keyframe = goals.warm_start, goals.correspondence
+        if before is not None and warm is not None and self._warm_start(before, goals):
+            carried = self.part.carry(before, warm.matched, current=current, prices=warm.prices)
+        elif keyframe is not None and before is not None and before.epoch == keyframe.follows:
+            close = before.agreed_instance >= 0 and frames_close(before.goals, goals.positions, keyframe.previous)
+            carried = self.part.carry(before, keyframe.previous, claim=close, current=current)
         self._try_start(positions)
         return carried
 
@@ -191,13 +192,14 @@ class AuctionLink:
     def _warm_start(before: Participant, goals: Goals) -> bool:
         """The next image of a sequence or keyframe of an animation, with the same robots, after an
         agreed last one: the auction starts warm from the two goal sets' matching and its prices, as
-        the coordinator sends them with the new set (Goals.matched_from, matched, prices), and each
+        the coordinator sends them with the new set (its WarmStart part), and each
         robot drives to the goal its last one is matched to: a warm start agrees in a fraction of a
         cold start's message rounds (bench/results/carry.md)."""
         return (
             before.agreed_instance >= 0
             and not goals.per_robot
-            and goals.matched_from == before.epoch
+            and goals.warm_start is not None
+            and goals.warm_start.matched_from == before.epoch
             and len(before.goals) == len(goals.positions)
             and np.array_equal(before.robots, np.sort(np.asarray(goals.robots, np.int64)))
         )

@@ -318,7 +318,8 @@ class AgentHost:
             self.goal_sets[goals.epoch] = goals
             for old in sorted(self.goal_sets)[:-GOAL_SETS_KEPT]:
                 del self.goal_sets[old]
-            follows = goals.follows or self.auction.epoch  # a keyframe names its predecessor; an image follows the last
+            # a keyframe names its predecessor; an image follows the last
+            follows = goals.correspondence.follows if goals.correspondence else self.auction.epoch
             driving = {
                 r: m.goal_index for r, m in self.memory.items() if m.goal_index >= 0 and m.assign_epoch == follows
             }  # agreed or itself carried
@@ -361,7 +362,7 @@ class AgentHost:
             if m.position is None:
                 continue
             if motion is not None and newest is not None:
-                out[r] = motion.to_initial_frame(m.position, m.stamp - newest.t_start)
+                out[r] = motion.to_initial_frame(m.position, m.stamp - newest.timing.t_start)
             elif newest is not None and m.assign_epoch == newest.epoch and m.goal_index >= 0:
                 on_way.append(m)  # on its way: where it will be
             else:
@@ -469,7 +470,7 @@ class AgentHost:
         if due < 0:
             return
         deadline = time.monotonic() + GOAL_SET_WAIT
-        while self.running and not any(g.step >= due for g in self.goal_sets.values()):
+        while self.running and not any(g.timing.step >= due for g in self.goal_sets.values()):
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 return

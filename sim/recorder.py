@@ -48,14 +48,16 @@ _JSON_TYPES = {int: "integer", float: "number", str: "string", dict: "object"}
 def json_schema_of(message_type: type) -> dict[str, Any]:
     """A JSON schema for a message dataclass (arrays become arrays of numbers)."""
     hints = typing.get_type_hints(message_type)
-    props = {}
+    props: dict[str, dict[str, Any]] = {}
     for f in dataclasses.fields(message_type):
         hint = hints.get(f.name)
         default = f.default_factory() if f.default_factory is not dataclasses.MISSING else None
         if hint in _JSON_TYPES:
             props[f.name] = {"type": _JSON_TYPES[hint]}
-        elif getattr(getattr(default, "dtype", None), "names", None):
-            props[f.name] = {"type": "object"}  # records of several fields: one array per field (Bid)
+        elif getattr(getattr(default, "dtype", None), "names", None) or f.name == "records":
+            props[f.name] = {"type": "object"}  # records of several fields: one array per field (Bid, frames)
+        elif any(dataclasses.is_dataclass(t) for t in (hint, *typing.get_args(hint))):
+            props[f.name] = {"type": ["object", "null"]}  # a goal set's part (absent: null)
         else:
             props[f.name] = {"type": "array"}
     return {"type": "object", "title": message_type.__name__, "properties": props}
@@ -214,13 +216,13 @@ class Recorder:
         self.goal_sets[g.epoch] = g
         if g.epoch != max(self.goal_sets):
             return
-        self.step = g.step
+        self.step = g.timing.step
         self.newest_goals = g
         tr = self.traj
         for i in range(len(tr.t) - 1, -1, -1):
-            if tr.t[i] < g.stamp - 1e-9:
+            if tr.t[i] < g.timing.stamp - 1e-9:
                 break
-            tr.step[i], tr.goal_set_epoch[i] = g.step, g.epoch
+            tr.step[i], tr.goal_set_epoch[i] = g.timing.step, g.epoch
 
     def _on_bid(self, m: Bid) -> None:
         """Keep the positions each robot bid from in each instance (its frozen position), so the
@@ -377,5 +379,5 @@ class Recorder:
             "goal_sets": goal_sets,
             "goal_set_colors": colors,
             "goal_set_robots": members,
-            "goal_set_steps": np.array([self.goal_sets[e].step for e in epochs]),
+            "goal_set_steps": np.array([self.goal_sets[e].timing.step for e in epochs]),
         }

@@ -236,14 +236,14 @@ def test_only_the_coordinator_answers_a_robots_question_for_the_goal_set(secured
 
     with bus("coordinator") as coordinator, bus("robot-5") as impostor, bus("robot-3") as robot:
         states = robot.subscribe_raw(KEYS.all_of("state"))
-        impostor.serve(KEYS.all_of("goals"), lambda: [(KEYS.goals(666), Goals(666, 0, 0.0, 0).encode())])
+        impostor.serve(KEYS.all_of("goals"), lambda: [(KEYS.goals(666), Goals(666, 0).encode())])
 
         def impostor_heard() -> bool:  # its state follows its queryable on one link: the router has seen both
             impostor.put(KEYS.state((0, 0), 5), b"own")
             return bool(states.drain())
 
         assert _wait_until(impostor_heard)
-        coordinator.serve(KEYS.all_of("goals"), lambda: [(KEYS.goals(4), Goals(4, 0, 0.0, 0).encode())])
+        coordinator.serve(KEYS.all_of("goals"), lambda: [(KEYS.goals(4), Goals(4, 0).encode())])
         answers: list = []
         assert _wait_until(lambda: answers.extend(robot.query(KEYS.all_of("goals"), Goals, timeout=0.5)) or answers)
         assert {msg.epoch for _, msg in answers} == {4}

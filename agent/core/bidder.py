@@ -93,7 +93,7 @@ def bid_position(position: np.ndarray, goal: np.ndarray, velocity: np.ndarray, l
 def frames_close(before: np.ndarray, goals: np.ndarray, previous: np.ndarray) -> bool:
     """Whether consecutive keyframes differ little enough for the auction to start from the carried
     assignment (Participant.carry) at prices zero, when the warm start from the goal sets' matching
-    (Goals.matched) does not apply (the last auction never agreed, or the robots changed): corresponding goals on average at most one and a half
+    (the WarmStart part of Goals) does not apply (the last auction never agreed, or the robots changed): corresponding goals on average at most one and a half
     typical goal spacings (the median distance from a goal to its nearest neighbour) apart: closer,
     the carried claims agree in fewer rounds than a cold start; further, in more
     (bench/results/carry.md)."""
@@ -362,7 +362,7 @@ class Participant:
         skip the coarse epsilon phases that build the prices, and the fine ones fight a price war that costs more than a cold
         start (bench/bench_carry.py; see frames_close). Carrying the prices too costs more in both
         cases: they are in equilibrium for the old costs only. ``prices`` (with ``claim``): prices in
-        equilibrium for the new goals (Goals.prices) to start from instead of zero. Call before the
+        equilibrium for the new goals (Goals.warm_start.prices) to start from instead of zero. Call before the
         first instance."""
         previous = np.asarray(previous, np.int64)
         if self.started or not before.started or len(previous) != len(self.goals):
