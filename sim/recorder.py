@@ -22,6 +22,7 @@ from transport.bus import Bus
 from transport.codec import (
     BEFORE_START,
     BY_NAME,
+    AuctionRecord,
     Bid,
     Commands,
     Contact,
@@ -229,7 +230,7 @@ class Recorder:
         agreed assignments can be checked against the optimum on the same positions."""
         seen = self.bid_positions.setdefault((m.epoch, m.instance), {})
         for rec in m.records:
-            if not rec["flags"] & 2 and int(rec["robot"]) < self.n:  # claims, not releases
+            if not rec["flags"] & AuctionRecord.RELEASED and int(rec["robot"]) < self.n:  # claims, not releases
                 seen[int(rec["robot"])] = (float(rec["x"]), float(rec["y"]), float(rec["penalty"]))
 
     def _on_truth(self, m: Truth, wall: float) -> None:

@@ -13,10 +13,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from agent.core.bidder import RECORD as bidder_record
 from transport.bus import Bus
 from transport.codec import (
     BY_NAME,
     VERSION,
+    AuctionRecord,
+    Bid,
+    Boards,
     Command,
     Commands,
     Contact,
@@ -266,6 +270,26 @@ def test_a_frame_of_one_is_a_frame_and_as_compact_as_one_robots_message_was():
     assert decode(data + bytes(5), drops=drops) is None  # not a whole number of records
     assert decode(data[:13], drops=drops) is None  # not even the fixed part
     assert drops == {"truncated": 2}
+
+
+def test_the_auction_record_is_one_layout_in_bids_boards_and_the_bidder():
+    """One robot's word on one goal at a price reads the same in a Bid, in a Boards word's board
+    and in the bidder's records: the same fields and the same flags."""
+    assert Boards.RECORD == AuctionRecord.DTYPE
+    assert Bid.RECORD.descr[: len(AuctionRecord.FIELDS)] == AuctionRecord.DTYPE.descr
+    assert bidder_record is Bid.RECORD
+    words = np.zeros(1, Boards.WORD)
+    words["robot"], words["flags"], words["records"] = 7, Boards.FRESH, 2
+    said = np.array([(7, 3, 0.5, 0), (9, 4, 0.25, AuctionRecord.RELEASED)], AuctionRecord.DTYPE)
+    boards = decode(Boards(2, 1, 7, 5, 6, 10, 1, words, np.zeros((0, 2), np.uint8), said).encode())
+    bid = np.zeros(2, Bid.RECORD)
+    for name, _ in AuctionRecord.FIELDS:
+        bid[name] = said[name]
+    bid = decode(Bid(2, 1, 7, 5, 99, 2, bid).encode())
+    for name, _ in AuctionRecord.FIELDS:
+        np.testing.assert_array_equal(boards.records[name], said[name])
+        np.testing.assert_array_equal(bid.records[name], said[name])
+    assert (bid.records["flags"] & AuctionRecord.RELEASED).tolist() == [0, AuctionRecord.RELEASED]
 
 
 def test_wrong_kind_on_a_key_is_dropped():

@@ -474,6 +474,19 @@ def _split_parts(body: memoryview) -> list[tuple[int, int, memoryview]]:
     return out
 
 
+class AuctionRecord:
+    """The auction record (paper 5.1.1): one robot's word on one goal at a price. A ``Bid`` carries
+    one per robot and per goal it released (with where the robot bid from), a ``Boards`` word the
+    owned goals of its board as them (``robot``: the owner), and the bidder (agent.core.bidder)
+    keeps and merges them: one layout and one set of flags for all."""
+
+    FIELDS: ClassVar[list[tuple[str, str]]] = [("robot", "<u2"), ("goal", "<i4"), ("price", "<f8"), ("flags", "u1")]
+    DTYPE: ClassVar[np.dtype] = np.dtype(FIELDS)
+    CONTENT: ClassVar[int] = 1  # the robot holds ``goal`` and no other goal is better by more than epsilon
+    RELEASED: ClassVar[int] = 2  # the robot gave ``goal`` up at ``price`` (it bids elsewhere)
+    SETTLED: ClassVar[int] = 4  # lock-step rounds: content at the final phase's slack (agent.core.bidder)
+
+
 @dataclass
 class Bid(Message):
     """Agent host -> all: its robots' word in the goal auction (paper 5.1.1), one record per robot
@@ -482,18 +495,9 @@ class Bid(Message):
     KIND: ClassVar[int] = 9
     NAME: ClassVar[str] = "auction"
     _fixed: ClassVar[struct.Struct] = struct.Struct("<IIIIQI")
-    # penalty: the robot's total deadlock penalty in force (m^2), so its agreed cost can be checked
-    RECORD: ClassVar[np.dtype] = np.dtype(
-        [
-            ("robot", "<u2"),
-            ("goal", "<i4"),
-            ("price", "<f8"),
-            ("flags", "u1"),
-            ("penalty", "<f4"),
-            ("x", "<f4"),
-            ("y", "<f4"),
-        ]
-    )
+    # the auction record, and the robot's total deadlock penalty in force (m^2), so its agreed cost
+    # can be checked, and the position it bid from
+    RECORD: ClassVar[np.dtype] = np.dtype(AuctionRecord.FIELDS + [("penalty", "<f4"), ("x", "<f4"), ("y", "<f4")])
     epoch: int
     instance: int
     sender: int
@@ -501,10 +505,6 @@ class Bid(Message):
     digest: int  # hash of the sender's board (prices, owners, releases) when it wrote the records
     count: int
     records: np.ndarray = field(default_factory=lambda: np.zeros(0, Bid.RECORD))
-
-    CONTENT: ClassVar[int] = 1  # the robot holds ``goal`` and no other goal is better by more than epsilon
-    RELEASED: ClassVar[int] = 2  # the robot gave ``goal`` up at ``price`` (it bids elsewhere)
-    SETTLED: ClassVar[int] = 4  # lock-step rounds: content at the final phase's slack (agent.core.bidder)
 
     def _fixed_values(self) -> tuple:
         return (self.epoch, self.instance, self.sender, self.serial, self.digest, len(self.records))
@@ -533,7 +533,8 @@ class Boards(Message):
     communication range (agent.core.local_auction). Per robot (``words``): where it is, its phase,
     whether it ended the block, the newest round of change it knows of; the robots it has heard of
     (``known``: a bit per robot of the goal set, only from words flagged GROWN) and its board's owned
-    records (``records``, the word's ``records`` of them, only from words flagged FRESH)."""
+    records (``records``: auction records, the owner as ``robot``, RELEASED for a goal released at
+    that price; the word's ``records`` of them, only from words flagged FRESH)."""
 
     KIND: ClassVar[int] = 13
     NAME: ClassVar[str] = "boards"
@@ -549,7 +550,7 @@ class Boards(Message):
             ("records", "<u4"),
         ]
     )
-    RECORD: ClassVar[np.dtype] = np.dtype([("goal", "<u4"), ("price", "<f8"), ("owner", "<u2"), ("released", "u1")])
+    RECORD: ClassVar[np.dtype] = AuctionRecord.DTYPE
     ENDED: ClassVar[int] = 1  # the robot ended the block: its goal is agreed
     FRESH: ClassVar[int] = 2  # its board changed since its last word: its records follow
     GROWN: ClassVar[int] = 4  # the robots it has heard of grew since its last word: its bits follow
@@ -600,7 +601,7 @@ class Boards(Message):
             and np.all(np.isfinite(records["price"]))
         ):
             raise Malformed("non-finite")
-        if (records["goal"] >= goals).any():
+        if (records["goal"] < 0).any() or (records["goal"] >= goals).any():
             raise Malformed("invalid")
         return cls(epoch, instance, sender, serial, goals, robots, count, words, known, records)
 

@@ -41,27 +41,18 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from transport.codec import AuctionRecord, Bid
+
 from .auction import NO_OWNER, ROUNDING, epsilon_schedule, is_content
 from .neighbours import splitmix64
 
-CONTENT = 1  # record flag: the robot holds the goal and is content with it
-RELEASED = 2  # record flag: the robot gave the goal up at this price
-SETTLED = 4  # record flag (lock-step rounds): content at the final phase's slack, so in every phase left
+# the auction record's flags (transport.codec.AuctionRecord); SETTLED: content at the final phase's slack,
+# so in every phase left
+CONTENT, RELEASED, SETTLED = AuctionRecord.CONTENT, AuctionRecord.RELEASED, AuctionRecord.SETTLED
 CANDIDATES = 16  # goals a robot ranks in settle_alone's rounds while no other can beat them (agent.core.jacobi)
 SMALL = 8  # messages with up to this many records are merged record by record (numpy costs more there)
 
-# One robot's word on one goal (goal -1: it holds none yet); the wire layout of transport.codec.Bid.
-RECORD = np.dtype(
-    [
-        ("robot", "<u2"),
-        ("goal", "<i4"),
-        ("price", "<f8"),
-        ("flags", "u1"),
-        ("penalty", "<f4"),
-        ("x", "<f4"),
-        ("y", "<f4"),
-    ]
-)
+RECORD = Bid.RECORD  # one robot's word on one goal (goal -1: it holds none yet), as a Bid carries it
 
 
 def bid_position(position: np.ndarray, goal: np.ndarray, velocity: np.ndarray, lead: float) -> np.ndarray:
