@@ -224,8 +224,9 @@ def test_a_goal_set_with_torn_missing_repeated_or_misplaced_parts_is_dropped():
     assert decode(_join([p for p in parts if p[0] != Timing.PART]), drops=drops) is None  # no timing
     assert decode(_join(parts[1:2] + parts[:1] + parts[2:]), drops=drops) is None  # the goal set not first
     assert decode(_join(parts + parts[-1:]), drops=drops) is None  # a part twice
+    assert decode(_join(parts + parts[:1]), drops=drops) is None  # the goal set twice
     assert decode(bytes([Goals.KIND, VERSION]), drops=drops) is None  # no part at all
-    assert drops["invalid"] == 4
+    assert drops["invalid"] == 5
 
 
 def test_goal_set_parts_refuse_bad_values():

@@ -420,11 +420,11 @@ class Goals(Message):
         msg = cls(epoch, per_robot, positions, items["rgb"].copy(), robots)
         seen = {cls.PART}
         for kind, version, part_body in parts[1:]:
+            if kind in seen:
+                raise Malformed("invalid")  # a part twice (the goal set too)
+            seen.add(kind)
             if kind not in cls._PARTS:
                 continue  # a kind of part added later to the protocol: what we know of the set still holds
-            if kind in seen:
-                raise Malformed("invalid")
-            seen.add(kind)
             part_type, name = cls._PARTS[kind]
             if version != part_type.VERSION:
                 raise Malformed("version")
