@@ -32,7 +32,7 @@ import numpy as np
 from transport.bus import Bus, Inbox
 from transport.codec import Bid, Boards, Goals
 
-from .core.bidder import RECORD, SETTLED, Participant, frames_close
+from .core.bidder import RELEASED, SETTLED, Participant, frames_close
 from .core.local_auction import NO_OWNER, LocalAuction, Words, new_auction
 from .core.params import RobotParams
 
@@ -49,10 +49,6 @@ ROUND_CAP = 30.0  # s: lock-step, the longest a host waits for one round; then i
 OnAgreed = Callable[[int, int, dict[int, int], np.ndarray, np.ndarray], None]
 OnAbandoned = Callable[[list[int]], None]
 Where = Callable[[], dict[int, np.ndarray]]
-
-
-assert RECORD == Bid.RECORD, "the bidder's records are the wire layout of Bid"
-assert SETTLED == Bid.SETTLED, "the bidder's SETTLED flag is the wire's"
 
 
 class AuctionLink:
@@ -179,11 +175,12 @@ class AuctionLink:
             self.block_stamp = -np.inf
             return {}
         carried = {}
-        if before is not None and self._warm_start(before, goals):
-            carried = self.part.carry(before, goals.matched, current=current, prices=goals.prices)
-        elif goals.follows and before is not None and before.epoch == goals.follows:
-            close = before.agreed_instance >= 0 and frames_close(before.goals, goals.positions, goals.previous)
-            carried = self.part.carry(before, goals.previous, claim=close, current=current)
+        warm, keyframe = goals.warm_start, goals.correspondence
+        if before is not None and warm is not None and self._warm_start(before, goals):
+            carried = self.part.carry(before, warm.matched, current=current, prices=warm.prices)
+        elif keyframe is not None and before is not None and before.epoch == keyframe.follows:
+            close = before.agreed_instance >= 0 and frames_close(before.goals, goals.positions, keyframe.previous)
+            carried = self.part.carry(before, keyframe.previous, claim=close, current=current)
         self._try_start(positions)
         return carried
 
@@ -191,13 +188,14 @@ class AuctionLink:
     def _warm_start(before: Participant, goals: Goals) -> bool:
         """The next image of a sequence or keyframe of an animation, with the same robots, after an
         agreed last one: the auction starts warm from the two goal sets' matching and its prices, as
-        the coordinator sends them with the new set (Goals.matched_from, matched, prices), and each
+        the coordinator sends them with the new set (its WarmStart part), and each
         robot drives to the goal its last one is matched to: a warm start agrees in a fraction of a
         cold start's message rounds (bench/results/carry.md)."""
         return (
             before.agreed_instance >= 0
             and not goals.per_robot
-            and goals.matched_from == before.epoch
+            and goals.warm_start is not None
+            and goals.warm_start.matched_from == before.epoch
             and len(before.goals) == len(goals.positions)
             and np.array_equal(before.robots, np.sort(np.asarray(goals.robots, np.int64)))
         )
@@ -374,7 +372,7 @@ class AuctionLink:
     def _all_settled(mine: np.ndarray, heard: dict[int, Any]) -> bool:
         """Every robot's claim in this round says SETTLED."""
         for recs in [mine, *(m.records for m in heard.values())]:
-            claims = recs[(recs["flags"] & Bid.RELEASED) == 0]
+            claims = recs[(recs["flags"] & RELEASED) == 0]
             if not bool(((claims["flags"] & SETTLED) != 0).all()):
                 return False
         return True
@@ -532,7 +530,7 @@ def _boards(local: LocalAuction, words: Words, sender: int) -> Boards:
     out["records"] = np.bincount(rows, minlength=len(words.robot))
     records = np.zeros(len(rows), Boards.RECORD)
     records["goal"], records["price"] = goals, words.price[rows, goals]
-    records["owner"], records["released"] = words.owner[rows, goals], words.released[rows, goals]
+    records["robot"], records["flags"] = words.owner[rows, goals], words.released[rows, goals] * RELEASED
     known = np.packbits(words.known[words.grown], axis=1).reshape(-1, (len(local.robots) + 7) // 8)
     return Boards(
         local.epoch,
@@ -562,8 +560,8 @@ def _words(msg: Boards, local: LocalAuction) -> Words:
     rows = np.repeat(np.arange(k), w["records"])
     price[rows, r["goal"]], owner[rows, r["goal"]], released[rows, r["goal"]] = (
         r["price"],
-        r["owner"],
-        r["released"] != 0,
+        r["robot"],
+        (r["flags"] & RELEASED) != 0,
     )
     xy = np.stack([w["x"], w["y"]], axis=1).astype(float)
     return Words(

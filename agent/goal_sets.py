@@ -10,13 +10,12 @@ from .core.policy import GoalTiming
 
 def motion_of(goals: Goals) -> GoalMotion | None:
     """The motion of a goal set (eq. 28) from its message; None for a still one."""
-    if not goals.moves:
+    m = goals.motion
+    if m is None or not m.moves:
         return None
-    return GoalMotion(
-        (goals.v_gx, goals.v_gy), goals.omega_g, (goals.p_ogx, goals.p_ogy), goals.k_eg, bool(goals.geometric)
-    )
+    return GoalMotion((m.v_gx, m.v_gy), m.omega_g, (m.p_ogx, m.p_ogy), m.k_eg, bool(m.geometric))
 
 
 def timing_of(goals: Goals) -> GoalTiming:
     """When a goal set's step began, its keyframe period and its motion."""
-    return GoalTiming(goals.t_start, goals.frame_period, motion_of(goals))
+    return GoalTiming(goals.timing.t_start, goals.timing.frame_period, motion_of(goals))

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from transport.bus import Bus
-from transport.codec import Command, Commands, Event, Goals, Pose, Poses, State, States
+from transport.codec import BEFORE_START, Command, Commands, Event, Goals, Pose, State, States
 from transport.keys import cell_of, cells_of
 
 from .assignment import AuctionLink
@@ -75,8 +75,9 @@ class HostConfig:
     # (a loaded machine delayed states past 0.5 s and broke reproducibility; the world waits 2 s)
     pursue: dict[int, int] = field(default_factory=dict)  # robot -> the robot whose broadcasts are its goal
     greet: list[int] = field(default_factory=list)  # lock-step: robots near ours at the start (see AgentHost.start)
-    frames: bool = False  # poses from the tracker's frames; one frame a tick of the robots' states, heard from
-    # every host, and one of their commands (codec.Poses, States, Commands)
+    frames: bool = False  # a host of several robots: poses from the tracker's frame of every robot; one frame a
+    # tick of the robots' states, heard by every host, and one of their commands. Else each robot alone: its
+    # own pose, its state under its spatial cell, its own commands (each a frame of one)
     steps: list[float] = field(default_factory=list)  # lock-step: display times the scene's goal sets are due
     # (a tick waits for its step's goal set, so that every engine adopts it at the same tick)
     reach: float = math.inf  # communication range (m): states and the auction heard only from robots this close
@@ -207,14 +208,14 @@ class AgentHost:
         self.own = np.array(sorted(config.robots))
         # rows: the own robots in id order; until a neighbour is heard, its states may be as old as stale_after
         self.policy_memory = Memory.new(len(self.own), latency=p.stale_after)
-        self.pose_inbox = bus.inbox(Pose, frames=Poses, only=self.own)
+        self.pose_inbox = bus.inbox(Pose, only=self.own)
         for r in config.robots:
             bus.subscribe_into(self.keys.pose(r), self.pose_inbox)
         if config.frames:
             bus.subscribe_into(self.keys.poses, self.pose_inbox)
-        self.state_inbox = bus.inbox(State, frames=States)  # fed by the spatial cells around the robots ...
+        self.state_inbox = bus.inbox(State)  # fed by the spatial cells around the robots ...
         if config.frames:  # ... and by every host's frames
-            bus.subscribe_into(self.keys.all_of("states"), self.state_inbox)
+            bus.subscribe_into(self.keys.states_all, self.state_inbox)
         if config.lockstep:  # injected state delays count in ticks (reproducible); see Inbox.sim_time
             self.state_inbox.sim_time = -math.inf
             self.state_inbox.seen = {}  # states waited for arrive, even those the fault plan drops or holds
@@ -268,7 +269,7 @@ class AgentHost:
         self.cells.update(np.array([(q.x, q.y) for q in where.values()]))
         if self.config.lockstep:
             self.hello_from = [
-                State(r, Pose.BEFORE_START, 0.0, q.x, q.y, 0.0, 0.0, self.params.radius, 0.0, 0.0, -1, 0, 0, 0)
+                State(r, BEFORE_START, 0.0, q.x, q.y, 0.0, 0.0, self.params.radius, 0.0, 0.0, -1, 0, 0, 0)
                 for r, q in sorted(where.items())
             ]
             self._await_hellos(min(HELLO_TIMEOUT, timeout))
@@ -288,17 +289,27 @@ class AgentHost:
     def _say_hello(self) -> None:
         if not self.hello_from or time.monotonic() - self.last_hello < HELLO_EVERY:
             return
-        if self.config.frames:
-            self._publish_states(Pose.BEFORE_START, 0.0, self.hello_from)
-        else:
-            for h in self.hello_from:
-                self.bus.publish(self.keys.state(cell_of(h.x, h.y, self.cell_size), h.robot), h)
+        self._publish_states(BEFORE_START, 0.0, self.hello_from)
         self.last_hello = time.monotonic()
 
     def _publish_states(self, tick: int, stamp: float, states: list[State]) -> None:
-        """One frame of the own robots' states (HostConfig.frames)."""
-        host = int(self.own[0])
-        self.bus.publish(self.keys.states(host), States.of(tick, stamp, host, states))
+        """A host's frame of its robots' states, heard by every host; a robot alone its frame of one
+        under its spatial cell (HostConfig.frames)."""
+        if self.config.frames:
+            host = int(self.own[0])
+            self.bus.publish(self.keys.states(host), States.of(tick, stamp, states))
+            return
+        for s in states:
+            self.bus.publish(self.keys.state(cell_of(s.x, s.y, self.cell_size), s.robot), States.one(s))
+
+    def _publish_commands(self, tick: int, stamp: float, commands: list[Command]) -> None:
+        """A host's frame of its robots' commands; a robot alone its frame of one (HostConfig.frames)."""
+        if self.config.frames:
+            host = int(self.own[0])
+            self.bus.publish(self.keys.cmd(host), Commands.of(tick, stamp, commands))
+            return
+        for c in commands:
+            self.bus.publish(self.keys.cmd(c.robot), Commands.one(c))
 
     # --- messages -----------------------------------------------------------------------------
     def _on_goals(self, goals: Goals) -> None:
@@ -307,7 +318,8 @@ class AgentHost:
             self.goal_sets[goals.epoch] = goals
             for old in sorted(self.goal_sets)[:-GOAL_SETS_KEPT]:
                 del self.goal_sets[old]
-            follows = goals.follows or self.auction.epoch  # a keyframe names its predecessor; an image follows the last
+            # a keyframe names its predecessor; an image follows the last
+            follows = goals.correspondence.follows if goals.correspondence else self.auction.epoch
             driving = {
                 r: m.goal_index for r, m in self.memory.items() if m.goal_index >= 0 and m.assign_epoch == follows
             }  # agreed or itself carried
@@ -350,7 +362,7 @@ class AgentHost:
             if m.position is None:
                 continue
             if motion is not None and newest is not None:
-                out[r] = motion.to_initial_frame(m.position, m.stamp - newest.t_start)
+                out[r] = motion.to_initial_frame(m.position, m.stamp - newest.timing.t_start)
             elif newest is not None and m.assign_epoch == newest.epoch and m.goal_index >= 0:
                 on_way.append(m)  # on its way: where it will be
             else:
@@ -400,7 +412,7 @@ class AgentHost:
         self.auction.poll(self._positions())
 
     def _on_state(self, msg: State) -> None:
-        if msg.tick == Pose.BEFORE_START:  # a hello (lock-step start-up), not a state to steer by
+        if msg.tick == BEFORE_START:  # a hello (lock-step start-up), not a state to steer by
             if self.ticks_done < 2:
                 self.greeted[msg.robot] = msg
             return
@@ -458,7 +470,7 @@ class AgentHost:
         if due < 0:
             return
         deadline = time.monotonic() + GOAL_SET_WAIT
-        while self.running and not any(g.step >= due for g in self.goal_sets.values()):
+        while self.running and not any(g.timing.step >= due for g in self.goal_sets.values()):
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 return
@@ -542,7 +554,7 @@ class AgentHost:
 
     def _take_pose(self, pose: Pose) -> None:
         mem = self.memory.get(pose.robot)
-        if mem is None or pose.tick <= mem.last_tick or pose.tick == Pose.BEFORE_START:
+        if mem is None or pose.tick <= mem.last_tick or pose.tick == BEFORE_START:
             return
         held = self.pending.get(pose.robot)
         if held is None or pose.tick > held.tick:
@@ -645,13 +657,8 @@ class AgentHost:
                 )
             )
         # States before commands: by the time the world moves on, neighbours have our states.
-        if self.config.frames:
-            self._publish_states(tick, stamp, states)
-            self.bus.publish(self.keys.cmds(int(self.own[0])), Commands.of(tick, stamp, int(self.own[0]), commands))
-        else:
-            for state, cmd in zip(states, commands):
-                self.bus.publish(self.keys.state(cell_of(state.x, state.y, self.cell_size), state.robot), state)
-                self.bus.publish(self.keys.cmd(cmd.robot), cmd)
+        self._publish_states(tick, stamp, states)
+        self._publish_commands(tick, stamp, commands)
         # The cells around EVERY own robot, not only those of this tick's batch: under load a tick's
         # poses can arrive split, and cells dropped for the robots not in the batch took their
         # neighbours' states with them (forget_outside): at 100 robots one robot then saw nobody.

@@ -18,7 +18,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from transport.bus import Bus
-from transport.codec import Event, Goals
+from transport.codec import Event, Goals, Timing
 from transport.session import client_of, loopback_router
 
 from .common import REPO, write_results
@@ -76,7 +76,7 @@ def run(n: int, per_process: int, steady: float, faults: str = "", seed: int = 1
             rows, cols = linear_sum_assignment(cost)
             scipy_s = time.perf_counter() - t
             bus.publish(
-                bus.keys.goals(1), Goals(1, 0, 0.0, n, goals, np.zeros((n, 3), np.uint8), 0, 10.0, np.arange(n))
+                bus.keys.goals(1), Goals(1, 0, goals, np.zeros((n, 3), np.uint8), np.arange(n), Timing(0.0, 0, 10.0))
             )
             reports = []
             end = time.monotonic() + 120 + steady

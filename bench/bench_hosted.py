@@ -74,7 +74,7 @@ def command_latency(run: Path) -> list[str]:
     clock: dict[int, tuple[int, float]] = {}
     sent: dict[str, dict[int, int]] = {}
     with open(run / "log.mcap", "rb") as f:
-        for _, channel, message in make_reader(f).iter_messages(topics=["/clock", "/cmds"]):
+        for _, channel, message in make_reader(f).iter_messages(topics=["/clock", "/cmd"]):
             d = orjson.loads(message.data)
             if channel.topic == "/clock":
                 clock.setdefault(d["tick"], (message.log_time, d["dt"]))

@@ -34,7 +34,6 @@ import psutil
 from coordinator.scene import load_scene
 from sim.tracker import world_of
 from transport.bus import Bus
-from transport.codec import Pose
 from transport.session import client_of, loopback_router
 
 from .common import REPO, RESULTS, machine, run_and_sample, write_results
@@ -87,8 +86,7 @@ def floor_row(n: int, duration: float, callbacks: str = "direct") -> dict:
                     for w in watched:
                         w.cpu_percent()  # the measured window starts
                     answered = 0
-                for i, (x, y, th) in enumerate(scene.poses):
-                    bus.publish(bus.keys.pose(i), Pose(i, tick, tick * params.dt, x, y, th))
+                bus.publish_poses(tick, tick * params.dt, np.arange(len(scene.poses)), scene.poses, frame=False)
                 next_tick += params.dt
                 time.sleep(max(0.0, next_tick - time.monotonic()))
                 answered += len(cmds.drain())

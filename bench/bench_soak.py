@@ -27,7 +27,7 @@ import numpy as np
 import psutil
 
 from transport.bus import Bus
-from transport.codec import Command, Commands, Contact, Tick
+from transport.codec import Command, Contact, Tick
 from transport.faults import format_faults, parse_faults
 from transport.session import TransportError, ZenohSettings, free_port
 
@@ -74,7 +74,6 @@ class Observer:
         keys = self.bus.keys
         self.clock = self.bus.subscribe(keys.clock, Tick)
         self.cmd = self.bus.subscribe(keys.all_of("cmd"), Command)
-        self.cmds = self.bus.subscribe(keys.all_of("cmds"), Commands)
         self.contact = self.bus.subscribe(keys.contact, Contact)
 
     def poll(self) -> None:
@@ -82,9 +81,6 @@ class Observer:
             self.ticks.setdefault(minute_of(tick.tick), set()).add(tick.tick)
         for _, cmd in self.cmd.drain():
             self.answered.setdefault(minute_of(cmd.tick), set()).add((cmd.robot, cmd.tick))
-        for _, frame in self.cmds.drain():
-            for rec in frame.records:
-                self.answered.setdefault(minute_of(frame.tick), set()).add((int(rec["robot"]), frame.tick))
         for _, c in self.contact.drain():
             self.contacts[int(c.t_start // 60.0)] = self.contacts.get(int(c.t_start // 60.0), 0) + 1
 

@@ -25,7 +25,7 @@ from collections.abc import Callable
 
 import zenoh
 
-from transport.codec import Command, State
+from transport.codec import Command, Commands, State, States
 from transport.keys import Keys, cell_of
 from transport.session import TransportError, add_zenoh_args, open_session, settings_from_args
 
@@ -77,8 +77,8 @@ def main(argv: list[str] | None = None) -> int:
         for dy in range(-REACH, REACH + 1):
             subs.append(session.declare_subscriber(keys.state_cell((cx + dx, cy + dy)), handler(on_state)))
     # what an agent standing there sends each tick, encoded once (the agent encodes its own each tick)
-    state = State(args.robot, 0, 0.0, args.x, args.y, 0.0, 0.0, 0.037, 0.0, 0.0, -1, 0, 0, 0).encode()
-    command = Command(args.robot, 0, 0.0, Command.HOLONOMIC, 0.0, 0.0, 40, 40, 40).encode()
+    state = States.one(State(args.robot, 0, 0.0, args.x, args.y, 0.0, 0.0, 0.037, 0.0, 0.0, -1, 0, 0, 0)).encode()
+    command = Commands.one(Command(args.robot, 0, 0.0, Command.HOLONOMIC, 0.0, 0.0, 40, 40, 40)).encode()
     state_key, cmd_key = keys.state((cx, cy), args.robot), keys.cmd(args.robot)
     print("ready", flush=True)  # subscribed: the benchmark's clock may start
     ticks = states = 0

@@ -131,8 +131,8 @@ def goal_correspondence(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def goal_matching(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A warm start for the auction of the next image of a sequence (paper 7.2) or keyframe of an
     animation (6.1): goal_correspondence (as if a robot stood on each goal of ``a``) and prices in
-    equilibrium for it, lowest zero. The coordinator sends both with the goal set (Goals.matched,
-    Goals.prices): robots stand within millimetres of their goals once an image has formed, so the
+    equilibrium for it, lowest zero. The coordinator sends both with the goal set (its warm start part,
+    Goals.warm_start): robots stand within millimetres of their goals once an image has formed, so the
     prices are nearly in equilibrium for the real positions, and the agents' auction starts from the
     carried claims and only corrects what the millimetres change. Computed once here, not by every
     agent host: hosts that all did it at once would be late with their commands while robots drive.

@@ -18,12 +18,12 @@ import os
 import signal
 import sys
 import time
-from typing import Any, Required, TypedDict
+from typing import Any
 
 import numpy as np
 
 from transport.bus import Bus
-from transport.codec import Goals, Pose, Tick
+from transport.codec import Correspondence, Goals, Motion, Pose, Tick, Timing, WarmStart
 from transport.session import TransportError, add_zenoh_args, settings_from_args
 
 from .keyframes import goal_matching
@@ -64,43 +64,25 @@ def scene_goal_message(scene: Scene, epoch: int = 1) -> Goals | None:
     # message carries finite numbers only.
     none = np.isnan(goals).any(axis=1)
     goals = np.where(none[:, None], scene.poses[:, :2], goals)
-    return Goals(epoch, 1, 0.0, len(goals), goals, palette(len(goals)))
+    return Goals(epoch, 1, goals, palette(len(goals)))
 
 
-class StepTiming(TypedDict, total=False):
-    """Keyword arguments of Goals for a step's timing and motion (a still image has no motion)."""
-
-    t_start: Required[float]
-    frame_period: Required[float]
-    v_gx: float
-    v_gy: float
-    omega_g: float
-    p_ogx: float
-    p_ogy: float
-    k_eg: float
-    geometric: int
-
-
-def step_timing(scene: Scene, step: int) -> StepTiming:
-    """The Goals fields of a step beyond its goals: when it began (t = 0 of eq. 28, and the start of
-    an animation keyframe), its K_f dt (eq. 27) and the motion of a dynamic image (eq. 28). The robots
-    compute their moving goals and synchronised velocities from these themselves."""
+def step_timing(scene: Scene, step: int, stamp: float = 0.0) -> Timing:
+    """A step's goal set's timing part, published at ``stamp``: the step, how long it is held, when
+    it began (t = 0 of eq. 28, and the start of an animation keyframe) and its K_f dt (eq. 27)."""
     s = scene.steps[step]
-    out: StepTiming = {"t_start": scene.step_starts[step], "frame_period": s.frame_period}
-    m = s.motion
-    if m is not None:
-        out.update(
-            {
-                "v_gx": m.velocity[0],
-                "v_gy": m.velocity[1],
-                "omega_g": m.angular_velocity,
-                "p_ogx": m.center[0],
-                "p_ogy": m.center[1],
-                "k_eg": m.expansion,
-                "geometric": int(m.geometric),
-            }
-        )
-    return out
+    return Timing(stamp, step, float(s.hold), scene.step_starts[step], s.frame_period)
+
+
+def step_motion(scene: Scene, step: int) -> Motion | None:
+    """A step's goal set's motion part: the motion of a dynamic image (eq. 28), None for a still one.
+    The robots compute their moving goals and synchronised velocities from it themselves."""
+    m = scene.steps[step].motion
+    if m is None:
+        return None
+    return Motion(
+        m.velocity[0], m.velocity[1], m.angular_velocity, m.center[0], m.center[1], m.expansion, int(m.geometric)
+    )
 
 
 RESUME_WAIT_S = 2.0  # s a starting coordinator waits for the run's newest goal set (none: a new run)
@@ -119,9 +101,9 @@ def follows_keyframe(before: Goals | None, goals: Goals) -> bool:
     return (
         before is not None
         and not before.per_robot
-        and before.frame_period > 0
-        and goals.frame_period > 0
-        and goals.step == before.step + 1
+        and before.timing.frame_period > 0
+        and goals.timing.frame_period > 0
+        and goals.timing.step == before.timing.step + 1
         and len(before.positions) == len(goals.positions)
         and np.array_equal(before.robots, goals.robots)
         and not before.moves
@@ -162,7 +144,7 @@ class Coordinator:
         newest = max(found, key=lambda g: g.epoch)
         robots = frozenset(int(r) for r in newest.robots)
         self.current, self.epoch = newest, newest.epoch
-        self.shown = (newest.step, robots)
+        self.shown = (newest.timing.step, robots)
         self.ever_live |= robots
         self.live_changed = time.monotonic()  # the live robots are heard again: none counts as a change yet
         return newest
@@ -217,20 +199,17 @@ class Coordinator:
         self.current = Goals(
             self.epoch,
             0,
-            self.t,
-            len(goals),
             np.asarray(goals),
             np.asarray(colors),
-            step,
-            float(self.scene.steps[step].hold),
             np.array(sorted(robots)),
-            **step_timing(self.scene, step),
+            step_timing(self.scene, step, self.t),
+            step_motion(self.scene, step),
         )
         if before is not None and not before.per_robot and len(before.positions) == len(goals):
-            self.current.matched_from = before.epoch
-            self.current.matched, self.current.prices = self._warm_start(before, goals)
+            matched, prices = self._warm_start(before, goals)
+            self.current.warm_start = WarmStart(before.epoch, matched, prices)
             if follows_keyframe(before, self.current):  # the same matching is a keyframe's correspondence (6.1)
-                self.current.follows, self.current.previous = before.epoch, self.current.matched
+                self.current.correspondence = Correspondence(before.epoch, matched)
         self.bus.publish(self.bus.keys.goals(self.epoch), self.current)
         return True
 
@@ -294,7 +273,7 @@ def main(argv: list[str] | None = None) -> int:
         coordinator = Coordinator(bus, scene)
         resumed = coordinator.resume()
         if resumed is not None:
-            print(f"coordinator: going on from goal set {resumed.epoch} (step {resumed.step})", flush=True)
+            print(f"coordinator: going on from goal set {resumed.epoch} (step {resumed.timing.step})", flush=True)
         if args.exit_with_parent:
             coordinator.parent_pid = os.getppid()
 

@@ -37,7 +37,7 @@ from agent.goal_sets import timing_of
 from agent.neighbour_table import Heard
 from coordinator.motion import StepMotion
 from coordinator.scene import Scene, scene_goal_set
-from coordinator.service import scene_goal_message, step_timing
+from coordinator.service import scene_goal_message, step_motion, step_timing
 from transport.codec import Goals, as_sent, decode
 
 from .link import InProcessLink
@@ -394,9 +394,7 @@ def _scene_goals(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
 def _step_goals(scene: Scene, k: int, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray, GoalTiming]:
     """Step k's goal set, colours and timing as the agents decode them from the coordinator's message."""
     goals, colors = scene_goal_set(scene, k, len(pixels))
-    message = Goals(1, 0, 0.0, len(goals), goals, colors, k, 0.0, pixels)
-    for name, value in step_timing(scene, k).items():
-        setattr(message, name, value)
+    message = Goals(1, 0, goals, colors, pixels, step_timing(scene, k), step_motion(scene, k))
     heard = _as_heard(message)
     return heard.positions, heard.colors, timing_of(heard)
 

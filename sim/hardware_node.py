@@ -1,8 +1,8 @@
 """The hardware process: real bodies in place of the simulated world (the twin of sim/world_node.py).
 
 On the wall clock, every control period, it reads each robot's newest pose from the pose source and
-publishes Tick, the poses (a Pose per robot, or Poses frames, exactly as the world node does, so agents
-cannot tell the difference) and Truth holding the tracked poses (what the recorder writes as the
+publishes Tick, the poses (a frame of one per robot, or one frame of all, exactly as the world node
+does, so agents cannot tell the difference) and Truth holding the tracked poses (what the recorder writes as the
 trajectory). Each robot's newest Command goes to the backend as soon as it arrives, wheel speeds clipped
 to v_max. Safety: a robot is sent a stop when its last command is older than the command timeout, when
 its agent's liveliness token disappears, or when its pose has been lost longer than the timeout (its pose
@@ -32,7 +32,7 @@ from coordinator.scene import Scene, SceneError, load_scene
 from hardware.config import HardwareConfig, HardwareConfigError, load_hardware
 from hardware.poses import PoseSample
 from transport.bus import Bus
-from transport.codec import Command, Event, Pose, Poses, Tick, Truth
+from transport.codec import BEFORE_START, Command, Event, Tick, Truth
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, settings_from_args
 
 STARTUP_TIMEOUT = 5.0  # s: every robot reached and every robot's pose seen, or the run is refused
@@ -297,22 +297,12 @@ class HardwareNode:
         # As the world node: the tracker sees bodies, not agents (a dead agent's body is still
         # published, so the coordinator keeps goals clear of it); a robot out of sight is not.
         shown = np.flatnonzero(self.ever_live & self.tracked)
-        if self.pose_frames:
-            frame = np.zeros(len(shown), Poses.RECORD)
-            frame["robot"] = shown
-            frame["x"], frame["y"], frame["theta"] = self.pose[shown].T
-            self.bus.publish(self.keys.poses, Poses(self.tick, t, 0, len(frame), frame))
-        else:
-            for i in shown:
-                x, y, th = self.pose[i]
-                self.bus.publish(self.keys.pose(int(i)), Pose(int(i), self.tick, t, x, y, th))
+        self.bus.publish_poses(self.tick, t, shown, self.pose[shown], self.pose_frames)
         self._publish_before_start()
 
     def _publish_before_start(self) -> None:
-        t = self.tick * self.dt
-        for i in np.flatnonzero(~self.live & self.tracked):
-            x, y, th = self.pose[i]
-            self.bus.publish(self.keys.pose(int(i)), Pose(int(i), Pose.BEFORE_START, t, x, y, th))
+        waiting = np.flatnonzero(~self.live & self.tracked)
+        self.bus.publish_poses(BEFORE_START, self.tick * self.dt, waiting, self.pose[waiting], frame=False)
 
     def _publish_truth(self) -> None:
         clearance = self._clearance()

@@ -231,8 +231,8 @@ class Launcher:
 
     @property
     def _frames(self) -> bool:
-        """Agent hosts of several robots trade one pose frame and one command frame a tick with the
-        world (codec.Poses, Commands); a robot alone in its process keeps its own keys, as on hardware."""
+        """Agent hosts of several robots trade one pose frame of every robot and one command frame a
+        tick with the world; a robot alone in its process keeps its own keys, as on hardware."""
         return self.opt.agents_per_process > 1
 
     def _near_at_start(self, robots: list[int], agents: list[int]) -> list[int]:
@@ -598,7 +598,7 @@ class Launcher:
             else sum(c.name.startswith("agent") for c in self.children),
             min_clearance_substep_m=stats.get("min_clearance"),
             commands_applied=int(sum(stats.get("commands_applied", []))),
-            commands_sent=int(rec.counts.get("cmd", 0)) + rec.framed_commands,
+            commands_sent=rec.commands,
             late_commands=int(stats.get("late_commands", 0)),
             expired_commands=int(stats.get("expired_commands", 0)),
             stopped_ticks=int(stats.get("stopped_ticks", 0)),

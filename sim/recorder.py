@@ -20,14 +20,15 @@ import orjson
 
 from transport.bus import Bus
 from transport.codec import (
+    BEFORE_START,
     BY_NAME,
+    AuctionRecord,
     Bid,
     Commands,
     Contact,
     DropCounter,
     Event,
     Goals,
-    Pose,
     State,
     States,
     Truth,
@@ -48,14 +49,16 @@ _JSON_TYPES = {int: "integer", float: "number", str: "string", dict: "object"}
 def json_schema_of(message_type: type) -> dict[str, Any]:
     """A JSON schema for a message dataclass (arrays become arrays of numbers)."""
     hints = typing.get_type_hints(message_type)
-    props = {}
+    props: dict[str, dict[str, Any]] = {}
     for f in dataclasses.fields(message_type):
         hint = hints.get(f.name)
         default = f.default_factory() if f.default_factory is not dataclasses.MISSING else None
         if hint in _JSON_TYPES:
             props[f.name] = {"type": _JSON_TYPES[hint]}
-        elif getattr(getattr(default, "dtype", None), "names", None):
-            props[f.name] = {"type": "object"}  # records of several fields: one array per field (Bid)
+        elif getattr(getattr(default, "dtype", None), "names", None) or f.name == "records":
+            props[f.name] = {"type": "object"}  # records of several fields: one array per field (Bid, frames)
+        elif any(dataclasses.is_dataclass(t) for t in (hint, *typing.get_args(hint))):
+            props[f.name] = {"type": ["object", "null"]}  # a goal set's part (absent: null)
         else:
             props[f.name] = {"type": "array"}
     return {"type": "object", "title": message_type.__name__, "properties": props}
@@ -131,7 +134,7 @@ class Recorder:
             tuple[int, int], dict[int, tuple[float, float, float]]
         ] = {}  # (epoch, instance) -> robot -> x, y, penalty
         self.counts: dict[str, int] = {}
-        self.framed_commands = 0  # commands inside agent hosts' frames (codec.Commands)
+        self.commands = 0  # commands sent, counted by record (a frame holds one robot's or a host's)
         self.bytes: dict[str, int] = {}
         self.drops = DropCounter()
         self.contacts: list[Contact] = []
@@ -167,8 +170,9 @@ class Recorder:
             record = msg.to_dict()
             record["key"] = key
             self._log(kind, wall, record)
-            if isinstance(msg, State):
-                self._on_state(msg)
+            if isinstance(msg, States):
+                for state in msg.messages():
+                    self._on_state(state)
             elif isinstance(msg, Truth):
                 self._on_truth(msg, wall)
             elif isinstance(msg, Bid):
@@ -176,11 +180,8 @@ class Recorder:
             elif isinstance(msg, Goals):
                 if not msg.per_robot and msg.epoch not in self.goal_sets:
                     self._on_goals(msg)
-            elif isinstance(msg, States):
-                for state in msg.messages():
-                    self._on_state(state)
             elif isinstance(msg, Commands):
-                self.framed_commands += len(msg.records)
+                self.commands += len(msg.records)
             elif isinstance(msg, Contact):
                 self.contacts.append(msg)
             elif isinstance(msg, Event):
@@ -193,7 +194,7 @@ class Recorder:
         r = s.robot
         if r >= self.n:
             return
-        if s.tick == Pose.BEFORE_START:  # a hello before the first tick: its size, no goal yet
+        if s.tick == BEFORE_START:  # a hello before the first tick: its size, no goal yet
             self.radius[r] = s.radius if np.isnan(self.radius[r]) else self.radius[r]
             return
         goal = (s.goal_x, s.goal_y) if s.flags & State.HAS_GOAL else (np.nan, np.nan)
@@ -216,20 +217,20 @@ class Recorder:
         self.goal_sets[g.epoch] = g
         if g.epoch != max(self.goal_sets):
             return
-        self.step = g.step
+        self.step = g.timing.step
         self.newest_goals = g
         tr = self.traj
         for i in range(len(tr.t) - 1, -1, -1):
-            if tr.t[i] < g.stamp - 1e-9:
+            if tr.t[i] < g.timing.stamp - 1e-9:
                 break
-            tr.step[i], tr.goal_set_epoch[i] = g.step, g.epoch
+            tr.step[i], tr.goal_set_epoch[i] = g.timing.step, g.epoch
 
     def _on_bid(self, m: Bid) -> None:
         """Keep the positions each robot bid from in each instance (its frozen position), so the
         agreed assignments can be checked against the optimum on the same positions."""
         seen = self.bid_positions.setdefault((m.epoch, m.instance), {})
         for rec in m.records:
-            if not rec["flags"] & 2 and int(rec["robot"]) < self.n:  # claims, not releases
+            if not rec["flags"] & AuctionRecord.RELEASED and int(rec["robot"]) < self.n:  # claims, not releases
                 seen[int(rec["robot"])] = (float(rec["x"]), float(rec["y"]), float(rec["penalty"]))
 
     def _on_truth(self, m: Truth, wall: float) -> None:
@@ -379,5 +380,5 @@ class Recorder:
             "goal_sets": goal_sets,
             "goal_set_colors": colors,
             "goal_set_robots": members,
-            "goal_set_steps": np.array([self.goal_sets[e].step for e in epochs]),
+            "goal_set_steps": np.array([self.goal_sets[e].timing.step for e in epochs]),
         }

@@ -28,8 +28,8 @@ import numpy as np
 from coordinator.resolved import load_resolved
 from coordinator.scene import Scene, SceneError, load_scene
 from transport.bus import Bus
+from transport.codec import BEFORE_START, Event, State, States, Tick, Truth
 from transport.codec import Contact as ContactMsg
-from transport.codec import Event, Pose, Poses, State, Tick, Truth
 from transport.faults import parse_faults
 from transport.keys import cell_of
 from transport.session import TransportError, add_zenoh_args, settings_from_args
@@ -44,8 +44,8 @@ class WorldNode:
     def __init__(
         self, bus: Bus, scene: Scene, *, deadline: float = 2.0, startup_timeout: float = 60.0, pose_frames: bool = False
     ) -> None:
-        """``pose_frames``: the tracker sends each tick's poses as one frame (codec.Poses), for agent
-        hosts of several robots, instead of one message per robot."""
+        """``pose_frames``: the tracker sends each tick's poses as one frame of every robot, for agent
+        hosts of several robots, instead of a frame of one per robot."""
         self.bus, self.scene, self.keys = bus, scene, bus.keys
         self.params, self.world = world_of(scene)
         self.dt = self.params.dt
@@ -147,14 +147,7 @@ class WorldNode:
         # The tracker sees bodies, not agents: a robot whose agent died is still tracked, so the
         # coordinator learns where its body stays and keeps the goals clear of it (5.1.2).
         tracked = np.flatnonzero(self.ever_live)
-        if self.pose_frames:
-            frame = np.zeros(len(tracked), Poses.RECORD)
-            frame["robot"] = tracked
-            frame["x"], frame["y"], frame["theta"] = measured[tracked].T
-            self.bus.publish(self.keys.poses, Poses(self.tick, t, 0, len(frame), frame))
-        for i in [] if self.pose_frames else tracked:
-            x, y, th = measured[i]
-            self.bus.publish(self.keys.pose(int(i)), Pose(int(i), self.tick, t, x, y, th))
+        self.bus.publish_poses(self.tick, t, tracked, measured[tracked], self.pose_frames)
         self._publish_before_start()
         self._drive_scripted()
 
@@ -169,16 +162,14 @@ class WorldNode:
             cell = cell_of(x, y, self.params.cell_size)
             self.bus.publish(
                 self.keys.state(cell, i),
-                State(i, self.tick, t, x, y, vx, vy, self.params.radius, 0.0, 0.0, -1, State.DYNAMIC),
+                States.one(State(i, self.tick, t, x, y, vx, vy, self.params.radius, 0.0, 0.0, -1, State.DYNAMIC)),
             )
 
     def _publish_before_start(self) -> None:
         """Robots whose agent is not live yet hear where they are (true pose, no tracker noise drawn,
         so start-up timing cannot change the noise sequence): they subscribe to their cells and join."""
-        t = self.tick * self.dt
-        for i in np.flatnonzero(~self.live & self.agent_robot):
-            x, y, th = self.world.poses[i]
-            self.bus.publish(self.keys.pose(int(i)), Pose(int(i), Pose.BEFORE_START, t, x, y, th))
+        waiting = np.flatnonzero(~self.live & self.agent_robot)
+        self.bus.publish_poses(BEFORE_START, self.tick * self.dt, waiting, self.world.poses[waiting], frame=False)
 
     def _publish_truth(self) -> None:
         t = self.tick * self.dt

@@ -19,7 +19,7 @@ from coordinator.drawings import keyframes
 from coordinator.keyframe_steps import DEFAULT_FIRST_HOLD, DEFAULT_FRAME_TIME
 from coordinator.keyframes import keyframe_goals
 from coordinator.scene import SceneError, load_scene, scene_from_dict, scene_goal_set
-from coordinator.service import step_timing
+from coordinator.service import step_motion, step_timing
 from sim.central import run_central
 from sim.metrics import keyframe_errors
 from transport.codec import Goals, decode
@@ -140,9 +140,15 @@ def test_a_drawn_animation_becomes_one_step_per_keyframe_with_its_timing():
     fewer = scene_goal_set(scene, 3, 4)[0]  # robots lost: the same arena K_r
     assert fewer.shape == (4, 2) and np.abs(fewer).max() <= scene.image_goals.arena / 2
     msg = decode(
-        Goals(5, 0, 16.1, 6, *scene_goal_set(scene, 2, 6), 2, 4.0, np.arange(6), **step_timing(scene, 2)).encode()
+        Goals(
+            5, 0, *scene_goal_set(scene, 2, 6), np.arange(6), step_timing(scene, 2, 16.1), step_motion(scene, 2)
+        ).encode()
     )
-    assert (msg.t_start, msg.frame_period, msg.moves) == (16.0, 4.0, False)  # the keyframe's start and K_f dt
+    assert (msg.timing.t_start, msg.timing.frame_period, msg.moves) == (
+        16.0,
+        4.0,
+        False,
+    )  # the keyframe's start and K_f dt
 
 
 def test_times_set_when_each_keyframe_begins():

@@ -15,7 +15,7 @@ import numpy as np
 from agent.assignment import AuctionLink
 from agent.core.params import RobotParams
 from transport.bus import Bus
-from transport.codec import Goals
+from transport.codec import Goals, Timing
 from transport.session import client_of, loopback_router, open_session
 
 GOALS = np.array([[0.0, 0.0], [4.0, 0.0]])
@@ -41,7 +41,7 @@ class Host:
 
 def test_the_next_block_freezes_where_the_agreement_sent_the_robots() -> None:
     params = RobotParams(kinematics="holonomic")
-    goals = Goals(1, 0, 0.0, 2, GOALS, np.full((2, 3), 200, np.uint8), 0, 60.0, np.arange(2))
+    goals = Goals(1, 0, GOALS, np.full((2, 3), 200, np.uint8), np.arange(2), Timing(0.0, 0, 60.0))
     router = loopback_router()
     session = open_session(router)
     try:

@@ -11,7 +11,7 @@ from agent.core.params import DIFFDRIVE
 from coordinator.scene import load_scene
 from sim.world_node import WorldNode
 from transport.bus import Bus
-from transport.codec import Command, Tick
+from transport.codec import Command, Commands, Tick
 from transport.session import client_of, loopback_router
 
 SPEED = 0.05  # m/s, both wheels (or straight ahead for a holonomic body)
@@ -37,7 +37,7 @@ def _agent(bus: Bus, ticks: int, wheels: bool, done: threading.Event) -> None:
                 continue
             mode = Command.WHEELS if wheels else Command.HOLONOMIC
             a, b = (SPEED, SPEED if wheels else 0.0) if robot == 0 else (0.0, 0.0)
-            bus.publish(bus.keys.cmd(robot), Command(robot, tick, tick * 0.1, mode, a, b, 0, 0, 0))
+            bus.publish(bus.keys.cmd(robot), Commands.one(Command(robot, tick, tick * 0.1, mode, a, b, 0, 0, 0)))
 
 
 def test_a_body_whose_agent_falls_silent_stops_after_its_last_command_runs_out():

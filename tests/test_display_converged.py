@@ -6,14 +6,14 @@ from __future__ import annotations
 import numpy as np
 
 from sim.recorder import display_converged
-from transport.codec import Goals
+from transport.codec import Goals, Timing
 
 TOL = 0.01
 
 
 def goal_set(epoch: int, robots: list[int]) -> Goals:
     n = len(robots)
-    return Goals(epoch, 0, 0.0, n, np.zeros((n, 2)), np.zeros((n, 3), np.uint8), 0, 10.0, np.array(robots))
+    return Goals(epoch, 0, np.zeros((n, 2)), np.zeros((n, 3), np.uint8), np.array(robots), Timing(0.0, 0, 10.0))
 
 
 def on_goals(n: int) -> tuple[np.ndarray, np.ndarray]:

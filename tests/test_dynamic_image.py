@@ -15,9 +15,9 @@ from agent.core.goal_motion import GoalMotion, tracking_velocity
 from agent.core.params import EPUCK
 from agent.goal_sets import motion_of
 from coordinator.scene import SceneError, load_scene, scene_from_dict, scene_goal_set
-from coordinator.service import step_timing
+from coordinator.service import step_motion, step_timing
 from sim.central import run_central
-from transport.codec import Goals, as_sent, decode
+from transport.codec import Goals, Timing, as_sent, decode
 
 from .conftest import run_pixelswarm
 
@@ -168,9 +168,9 @@ def test_motion_table_is_parsed_and_published_with_the_goal_set():
     )
     assert not scene.ends_on_convergence  # a moving image has no final position to hold
     goals, colors = scene_goal_set(scene, 0, 6)
-    msg = Goals(3, 0, 0.0, 6, goals, colors, 0, 40.0, np.arange(6), **step_timing(scene, 0))
+    msg = Goals(3, 0, goals, colors, np.arange(6), step_timing(scene, 0), step_motion(scene, 0))
     back = decode(msg.encode())
-    assert back.moves and back.frame_period == 0.0 and back.t_start == 0.0
+    assert back.moves and back.timing.frame_period == 0.0 and back.timing.t_start == 0.0
     motion = motion_of(back)
     assert motion.geometric and motion.omega_g == pytest.approx(0.05) and motion.p_og == pytest.approx((0.1, 0.0))
     np.testing.assert_allclose(
@@ -178,7 +178,7 @@ def test_motion_table_is_parsed_and_published_with_the_goal_set():
         GoalMotion((0.01, 0.0), 0.05, (0.1, 0.0), 0.02, True).positions(goals, 10.0),
         atol=1e-6,
     )  # float32 on the wire
-    still = decode(Goals(3, 0, 0.0, 6, goals, colors, 0, 40.0, np.arange(6)).encode())
+    still = decode(Goals(3, 0, goals, colors, np.arange(6), Timing(0.0, 0, 40.0)).encode())
     assert not still.moves and motion_of(still) is None
 
 

@@ -206,7 +206,9 @@ def test_a_killed_coordinator_is_restarted_and_goes_on_with_the_show(tmp_path, s
     assert traj["goal_set_epochs"].tolist() == [1, 2, 3] and traj["goal_set_steps"].tolist() == [0, 1, 2]
     published: dict[int, set] = {}
     for g in read_mcap(out / "log.mcap", topics=["/goals"])["/goals"]:
-        published.setdefault(g["epoch"], set()).add((g["step"], g["stamp"], json.dumps(g["positions"])))
+        published.setdefault(g["epoch"], set()).add(
+            (g["timing"]["step"], g["timing"]["stamp"], json.dumps(g["positions"]))
+        )
     assert all(len(versions) == 1 for versions in published.values()), "a goal set was published twice, changed"
     assert m["end_reason"] == "converged"
     assert_show_completed(traj)

@@ -35,7 +35,7 @@ from sim.emulators.lab import main as lab_main
 from sim.emulators.mocap import MocapEmulator
 from sim.hardware_node import STARTUP_TIMEOUT, HardwareNode, TwistDrive, WheelDrive
 from transport.bus import Bus
-from transport.codec import Command, Pose, Tick
+from transport.codec import BEFORE_START, Command, Commands, Pose, Tick
 from transport.session import client_of, free_port, loopback_router, open_session
 
 from .conftest import REPO, descendants, pixelswarm_cmd, reap, run_pixelswarm, wait_for
@@ -443,7 +443,9 @@ def test_the_hardware_node_stops_a_robot_whose_pose_is_lost_or_whose_commands_ce
                         got = ticks.get(timeout=0.2)
                         for robot in robots if got is not None else ():
                             tick = last_tick[0] = got[1].tick
-                            agents.publish(agents.keys.cmd(robot), Command(robot, tick, 0.0, 1, 0.05, 0.05, 0, 0, 0))
+                            agents.publish(
+                                agents.keys.cmd(robot), Commands.one(Command(robot, tick, 0.0, 1, 0.05, 0.05, 0, 0, 0))
+                            )
 
                 drive_for(1.5, (0, 1))
                 lost.set()
@@ -458,7 +460,7 @@ def test_the_hardware_node_stops_a_robot_whose_pose_is_lost_or_whose_commands_ce
                 unreached = drive.close()
                 poses.close()
         logs = [np.array(emulator.log(r), float) for r in range(2)]
-        shown_1 = [pose.tick for _, pose in seen_1.drain() if pose.tick != Pose.BEFORE_START]
+        shown_1 = [pose.tick for _, pose in seen_1.drain() if pose.tick != BEFORE_START]
     stats = node.stats(unreached)["hardware"]["robots"]
 
     # Robot 1: stopped once its pose was older than the timeout (plus a period, plus a mocap frame) ...

@@ -222,7 +222,8 @@ def test_the_coordinator_sends_the_next_image_with_its_matching_and_prices(monke
             coordinator._prepare_next()
         assert len(calls) == (t >= change - service.PREPARE_AHEAD)  # prepared ahead, then reused
     first, second = sent
-    assert first.matched_from == 0 and len(first.prices) == 0
-    assert second.matched_from == first.epoch and second.follows == 0  # an image, not a keyframe
-    assert sorted(second.matched.tolist()) == list(range(scene.robots))
-    assert_equilibrium(first.positions[second.matched], second.positions, second.prices)
+    assert first.warm_start is None
+    warm = second.warm_start
+    assert warm.matched_from == first.epoch and second.correspondence is None  # an image, not a keyframe
+    assert sorted(warm.matched.tolist()) == list(range(scene.robots))
+    assert_equilibrium(first.positions[warm.matched], second.positions, warm.prices)

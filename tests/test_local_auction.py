@@ -141,8 +141,9 @@ def test_a_malformed_boards_message_is_dropped():
     assert decode(payload[:-3], Boards) is None  # truncated
     msg = decode(payload, Boards)
     assert msg is not None and len(msg.records) > 0
-    msg.records["goal"][0] = 99  # a goal the set does not have
-    assert decode(msg.encode(), Boards) is None
+    for goal in (99, -1):  # a goal the set does not have
+        msg.records["goal"][0] = goal
+        assert decode(msg.encode(), Boards) is None
     msg.records["goal"][0] = 0
     msg.records["price"][0] = np.nan
     assert decode(msg.encode(), Boards) is None

@@ -15,7 +15,7 @@ import time
 from agent.core.params import RobotParams
 from agent.runtime import AgentHost, HostConfig
 from transport.bus import Bus
-from transport.codec import Pose
+from transport.codec import BEFORE_START, Pose, Poses
 from transport.session import client_of, loopback_router, open_session
 
 WHERE = {0: (0.0, 0.0), 1: (0.3, 0.0)}  # within state reach of each other
@@ -25,7 +25,7 @@ def tracker(bus: Bus, stop: threading.Event) -> None:
     """The world before the start: every robot hears where it stands until the test ends."""
     while not stop.is_set():
         for r, (x, y) in WHERE.items():
-            bus.publish(bus.keys.pose(r), Pose(r, Pose.BEFORE_START, 0.0, x, y, 0.0))
+            bus.publish(bus.keys.pose(r), Poses.one(Pose(r, BEFORE_START, 0.0, x, y, 0.0)))
         stop.wait(0.1)
 
 

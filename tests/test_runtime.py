@@ -13,7 +13,7 @@ import psutil
 import pytest
 
 from transport.bus import Bus
-from transport.codec import VERSION, Pose
+from transport.codec import VERSION, Pose, Poses
 from transport.session import ZenohSettings, free_port
 
 from .conftest import REPO, agent_processes, descendants, pixelswarm_cmd, reap, run_pixelswarm, start_run, wait_for
@@ -110,15 +110,13 @@ def test_lockstep_is_reproducible_and_hosts_match_processes(tmp_path):
     np.testing.assert_array_equal(runs[0]["pose"], runs[2]["pose"])
     hosted = metrics(tmp_path / "k4")
     assert hosted["agent_processes"] == 2
-    # the hosts traded frames, a pose frame from the world and a state and a command frame per host
-    # per tick, not a message per robot, and still every command the world applied crossed the router
+    # the hosts traded frames of many robots, a pose frame from the world and a state and a command
+    # frame per host per tick, not a frame of one per robot (10 per robot and second), and still every
+    # command the world applied crossed the router
     per_robot_s = hosted["messages_per_robot_s"]
-    assert per_robot_s["poses"] == pytest.approx(10 / 8, rel=0.15) and per_robot_s["cmds"] == pytest.approx(
-        2 * 10 / 8, rel=0.15
-    )
-    assert per_robot_s["states"] >= 2 * 10 / 8 * 0.85  # (and hellos before the first tick)
-    assert per_robot_s.get("cmd", 0) == 0 and per_robot_s.get("state", 0) == 0
-    assert per_robot_s.get("pose", 0) < 1  # poses only before the agents are live
+    assert per_robot_s["cmd"] == pytest.approx(2 * 10 / 8, rel=0.15)
+    assert 10 / 8 * 0.85 <= per_robot_s["pose"] < 10 / 8 * 1.15 + 1  # (and each robot's before it is live)
+    assert 2 * 10 / 8 * 0.85 <= per_robot_s["state"] < 10 / 2  # (and hellos before the first tick)
     assert 8 * 30 < hosted["commands_applied"] <= hosted["commands_sent"]
     moved = np.hypot(*(runs[0]["pose"][-1, :, :2] - runs[0]["pose"][0, :, :2]).T)
     assert moved.min() > 0.2  # the robots really drove
@@ -182,7 +180,7 @@ def test_malformed_messages_on_every_key_are_dropped(tmp_path, spawned):
     proc, agents = start_run_with_agents(spawned, scene, out, "-l", f"tcp/127.0.0.1:{port}")
     assert len(agents) == 8
     rng = np.random.default_rng(0)
-    good = Pose(0, 1, 0.1, 0.0, 0.0, 0.0).encode()
+    good = Poses.one(Pose(0, 1, 0.1, 0.0, 0.0, 0.0)).encode()
     bad = [
         rng.bytes(20),
         good[:-3],
@@ -194,12 +192,11 @@ def test_malformed_messages_on_every_key_are_dropped(tmp_path, spawned):
     keys = [
         "pose/0",
         "pose/5",
-        "poses",
+        "pose",
         "state/0/0/3",
         "state/-1/0/2",
         "cmd/1",
-        "cmds/1",
-        "states/1",
+        "state/1",
         "goals/1",
         "clock",
         "sim/truth",

@@ -150,7 +150,7 @@ def test_a_robot_cannot_publish_goals_or_command_another_robot(secured, certs):
 
         # Until both subscriptions are routed: robot 3's own command reaches the world and the recorder.
         assert _wait_until(probe)
-        forged = [KEYS.goals(9), KEYS.cmd(5), KEYS.cmds(5), KEYS.state((0, 0), 5), KEYS.poses, KEYS.clock]
+        forged = [KEYS.goals(9), KEYS.cmd(5), KEYS.states(5), KEYS.state((0, 0), 5), KEYS.poses, KEYS.clock]
         for key in forged:
             robot.put(key, b"forged")
         robot.declare_alive("agent", 5)
@@ -236,14 +236,14 @@ def test_only_the_coordinator_answers_a_robots_question_for_the_goal_set(secured
 
     with bus("coordinator") as coordinator, bus("robot-5") as impostor, bus("robot-3") as robot:
         states = robot.subscribe_raw(KEYS.all_of("state"))
-        impostor.serve(KEYS.all_of("goals"), lambda: [(KEYS.goals(666), Goals(666, 0, 0.0, 0).encode())])
+        impostor.serve(KEYS.all_of("goals"), lambda: [(KEYS.goals(666), Goals(666, 0).encode())])
 
         def impostor_heard() -> bool:  # its state follows its queryable on one link: the router has seen both
             impostor.put(KEYS.state((0, 0), 5), b"own")
             return bool(states.drain())
 
         assert _wait_until(impostor_heard)
-        coordinator.serve(KEYS.all_of("goals"), lambda: [(KEYS.goals(4), Goals(4, 0, 0.0, 0).encode())])
+        coordinator.serve(KEYS.all_of("goals"), lambda: [(KEYS.goals(4), Goals(4, 0).encode())])
         answers: list = []
         assert _wait_until(lambda: answers.extend(robot.query(KEYS.all_of("goals"), Goals, timeout=0.5)) or answers)
         assert {msg.epoch for _, msg in answers} == {4}

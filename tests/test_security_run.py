@@ -57,7 +57,7 @@ def _forge(folder: Path, endpoint: str, forged: np.ndarray, stop: threading.Even
         with bus:
             clock = bus.subscribe(KEYS.clock, Tick)
             goals = bus.subscribe(KEYS.all_of("goals"), Goals)
-            message = Goals(FORGED_EPOCH, 1, 0.0, ROBOTS, forged.astype(np.float32), np.zeros((ROBOTS, 3), np.uint8))
+            message = Goals(FORGED_EPOCH, 1, forged.astype(np.float32), np.zeros((ROBOTS, 3), np.uint8))
             while not stop.wait(0.1):
                 ticks = [msg.tick for _, msg in clock.drain()]
                 report["genuine_goal_sets"] += len(goals.drain())

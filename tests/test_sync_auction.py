@@ -19,7 +19,7 @@ from agent.assignment import AuctionLink
 from agent.core.bidder import Participant
 from agent.core.params import RobotParams
 from transport.bus import Bus
-from transport.codec import Goals
+from transport.codec import Goals, Timing
 from transport.session import client_of, loopback_router, open_session
 
 from .conftest import reap, run_scene
@@ -81,7 +81,7 @@ def test_two_hosts_settle_a_block_over_the_bus_at_the_same_round():
     goals = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [3.0, 0.0]])
     start = np.array([[2.9, 0.1], [2.1, -0.1], [0.2, 0.0], [1.1, 0.2]])
     params = RobotParams(kinematics="holonomic")
-    message = Goals(1, 0, 0.0, 4, goals, np.full((4, 3), 200, np.uint8), 0, 60.0, np.arange(4))
+    message = Goals(1, 0, goals, np.full((4, 3), 200, np.uint8), np.arange(4), Timing(0.0, 0, 60.0))
     central = Participant(1, message.positions, [0, 1, 2, 3], [0, 1, 2, 3], params.assign_eps, params.assign_hysteresis)
     expected = central.settle_alone(start)
     router = loopback_router()

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import struct
 import threading
 import time
 
@@ -11,22 +13,30 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from agent.core.bidder import RECORD as bidder_record
 from transport.bus import Bus
 from transport.codec import (
     BY_NAME,
     VERSION,
+    AuctionRecord,
+    Bid,
+    Boards,
     Command,
     Commands,
     Contact,
+    Correspondence,
     DropCounter,
     Event,
     Goals,
+    Motion,
     Pose,
     Poses,
     State,
     States,
     Tick,
+    Timing,
     Truth,
+    WarmStart,
     decode,
 )
 from transport.faults import FaultSpec, parse_faults
@@ -34,45 +44,29 @@ from transport.keys import Keys, cell_of
 from transport.session import TransportError, client_of, loopback_router, open_session
 
 SAMPLES = [
-    Pose(3, 7, 0.7, 1.5, -2.0, 0.25),
-    State(3, 7, 0.7, 1.0, 2.0, 0.1, -0.1, 0.045, 0.5, 0.5, 4, State.HAS_GOAL),
-    Command(3, 7, 0.7, Command.WHEELS, 0.1, -0.05, 255, 10, 0),
+    Poses.one(Pose(3, 7, 0.7, 1.5, -2.0, 0.25)),  # a robot alone: a frame of one
+    States.one(State(3, 7, 0.7, 1.0, 2.0, 0.1, -0.1, 0.045, 0.5, 0.5, 4, State.HAS_GOAL)),
+    Commands.one(Command(3, 7, 0.7, Command.WHEELS, 0.1, -0.05, 255, 10, 0)),
     Tick(7, 0.7, 0.1),
-    Goals(2, 0, 0.0, 3, np.array([[0.0, 1.0], [2.0, 3.0], [-1.0, 0.5]]), np.array([[255, 0, 0]] * 3, np.uint8)),
+    Goals(2, 0, np.array([[0.0, 1.0], [2.0, 3.0], [-1.0, 0.5]]), np.array([[255, 0, 0]] * 3, np.uint8)),
     Goals(
         3,
         0,
-        30.1,
-        2,
         np.array([[0.0, 1.0], [2.0, 3.0]]),
         np.array([[255, 0, 0]] * 2, np.uint8),
-        4,
-        6.0,
         np.array([0, 5]),
-        t_start=30.0,
-        frame_period=6.0,
-        v_gx=0.01,
-        v_gy=-0.02,
-        omega_g=0.05,
-        p_ogx=0.1,
-        p_ogy=-0.1,
-        k_eg=0.004,
-        geometric=1,
+        Timing(30.1, 4, 6.0, t_start=30.0, frame_period=6.0),
+        Motion(v_gx=0.01, v_gy=-0.02, omega_g=0.05, p_ogx=0.1, p_ogy=-0.1, k_eg=0.004, geometric=1),
     ),
     Goals(
         4,
         0,
-        36.1,
-        2,
         np.array([[0.5, 1.0], [2.0, 2.5]]),
         np.array([[0, 255, 0]] * 2, np.uint8),
-        5,
-        6.0,
         np.array([0, 5]),
-        t_start=36.0,
-        frame_period=6.0,
-        follows=3,
-        previous=np.array([1, 0]),
+        Timing(36.1, 5, 6.0, t_start=36.0, frame_period=6.0),
+        correspondence=Correspondence(3, np.array([1, 0])),
+        warm_start=WarmStart(3, np.array([1, 0]), np.array([0.0, 0.125])),
     ),
     Truth(7, 0.7, 0.01, 2, np.zeros((2, 3)), np.ones((2, 2)), np.zeros((2, 3), np.uint8), np.array([1, 2], np.uint32)),
     Contact(0, 1, 2, 0.5, 0.003),
@@ -80,14 +74,13 @@ SAMPLES = [
     States.of(
         7,
         0.7,
-        3,
         [
             State(3, 7, 0.7, 1.0, 2.0, 0.1, -0.1, 0.045, 0.5, 0.5, 4, State.HAS_GOAL, 2, 9),
             State(4, 7, 0.7, -1.0, 0.5, 0.0, 0.2, 0.045, 0.0, 0.0, -1, 0),
         ],
     ),
-    Poses(7, 0.7, 0, 2, np.array([(3, 1.5, -2.0, 0.25), (9, 0.5, 0.5, -3.0)], Poses.RECORD)),
-    Commands(7, 0.7, 3, 2, np.array([(3, 1, 0.1, -0.05, 255, 10, 0), (4, 1, 0.0, 0.02, 0, 0, 255)], Commands.RECORD)),
+    Poses(7, 0.7, np.array([(3, 1.5, -2.0, 0.25), (9, 0.5, 0.5, -3.0)], Poses.RECORD)),
+    Commands(7, 0.7, np.array([(3, 1, 0.1, -0.05, 255, 10, 0), (4, 1, 0.0, 0.02, 0, 0, 255)], Commands.RECORD)),
 ]
 
 
@@ -95,16 +88,21 @@ SAMPLES = [
 def test_round_trip(msg):
     back = decode(msg.encode())
     assert type(back) is type(msg)
-    a, b = msg.to_dict(), back.to_dict()
-    for key in a:
-        if isinstance(a[key], dict):  # an event's data, or a frame's records as columns
-            assert a[key].keys() == b[key].keys()
-            for column in a[key]:
-                np.testing.assert_array_equal(np.asarray(a[key][column]), np.asarray(b[key][column]))
-        elif isinstance(a[key], str):
-            assert a[key] == b[key]
-        else:
-            np.testing.assert_allclose(np.asarray(a[key], float), np.asarray(b[key], float), rtol=1e-6)
+    _same(msg.to_dict(), back.to_dict())
+
+
+def _same(a, b):
+    """Equal as logged: records (arrays) exactly, other numbers to float32's precision."""
+    if isinstance(a, dict):  # an event's data, a frame's records as columns, a goal set's part
+        assert a.keys() == b.keys()
+        for key in a:
+            _same(a[key], b[key])
+    elif isinstance(a, np.ndarray):
+        np.testing.assert_array_equal(a, b)
+    elif isinstance(a, str) or a is None:
+        assert a == b
+    else:
+        np.testing.assert_allclose(np.asarray(a, float), np.asarray(b, float), rtol=1e-6)
 
 
 def test_messages_are_compact():
@@ -128,11 +126,11 @@ def test_malformed_is_dropped_and_counted(msg):
 
 def test_non_finite_is_rejected():
     drops = DropCounter()
-    assert decode(Pose(1, 1, 0.1, math.nan, 0.0, 0.0).encode(), drops=drops) is None
-    assert decode(State(1, 1, 0.1, 0, 0, math.inf, 0, 0.045, 0, 0, -1, 0).encode(), drops=drops) is None
-    bad_goals = Goals(1, 0, 0.0, 1, np.array([[np.nan, 0.0]]), np.zeros((1, 3), np.uint8)).encode()
+    assert decode(Poses.one(Pose(1, 1, 0.1, math.nan, 0.0, 0.0)).encode(), drops=drops) is None
+    assert decode(States.one(State(1, 1, 0.1, 0, 0, math.inf, 0, 0.045, 0, 0, -1, 0)).encode(), drops=drops) is None
+    bad_goals = Goals(1, 0, np.array([[np.nan, 0.0]]), np.zeros((1, 3), np.uint8)).encode()
     assert decode(bad_goals, drops=drops) is None
-    assert decode(b"\x08\x01" + b'{"a": NaN}', drops=drops) is None
+    assert decode(bytes([Event.KIND, VERSION]) + b'{"a": NaN}', drops=drops) is None
     assert drops["non-finite"] == 4
 
 
@@ -142,115 +140,162 @@ def test_a_frame_with_one_bad_record_is_dropped_whole():
     drops = DropCounter()
     poses = SAMPLES[-2].records.copy()
     poses["theta"][1] = np.inf
-    assert decode(Poses(7, 0.7, 0, 2, poses).encode(), drops=drops) is None
+    assert decode(Poses(7, 0.7, poses).encode(), drops=drops) is None
     commands = SAMPLES[-1].records.copy()
     commands["b"][0] = np.nan
-    assert decode(Commands(7, 0.7, 3, 2, commands).encode(), drops=drops) is None
+    assert decode(Commands(7, 0.7, commands).encode(), drops=drops) is None
     commands = SAMPLES[-1].records.copy()
     commands["mode"][1] = 7
-    assert decode(Commands(7, 0.7, 3, 2, commands).encode(), drops=drops) is None
+    assert decode(Commands(7, 0.7, commands).encode(), drops=drops) is None
     states = SAMPLES[-3].records.copy()
     states["radius"][0] = 0.0
-    assert decode(States(7, 0.7, 3, 2, states).encode(), drops=drops) is None
+    assert decode(States(7, 0.7, states).encode(), drops=drops) is None
     assert drops == {"non-finite": 2, "invalid": 2}
     assert decode(SAMPLES[-2].encode()[:-4], drops=drops) is None and drops["truncated"] == 1
     frame = decode(SAMPLES[-2].encode())
     assert frame.messages()[1] == Pose(9, 7, 0.7, 0.5, 0.5, -3.0)
     assert decode(SAMPLES[-1].encode()).messages()[0] == Command(3, 7, 0.7, 1, *np.float32([0.1, -0.05]), 255, 10, 0)
-    # each record is exactly the State its robot would have sent alone
+    # each record is exactly the frame of one its robot would have sent alone
     one = State(3, 7, 0.7, 1.0, 2.0, 0.1, -0.1, 0.045, 0.5, 0.5, 4, State.HAS_GOAL, 2, 9)
-    assert decode(SAMPLES[-3].encode()).messages()[0] == decode(one.encode())
+    assert decode(SAMPLES[-3].encode()).messages()[0] == decode(States.one(one).encode()).messages()[0]
 
 
-def test_goals_of_an_older_coordinator_decode_as_a_still_image():
-    """The keyframe timing and the motion (eq. 27, 28) ride in a trailer: a message without it is read
-    as before (no motion, not a keyframe); a torn trailer is dropped; bad values are refused."""
-    full = SAMPLES[5]
-    data = full.encode()
-    old = data[: -Goals._trailer.size]
-    back = decode(old)
-    assert back is not None and back.epoch == 3 and back.step == 4 and back.robots.tolist() == [0, 5]
-    assert (back.t_start, back.frame_period, back.moves) == (0.0, 0.0, False)
+def _parts(data: bytes) -> list[tuple[int, int, bytes]]:
+    """A Goals message's parts as (part kind, part version, body), read by hand from the layout in
+    docs/protocol.md."""
+    out, at = [], 2
+    while at < len(data):
+        kind, version, length = struct.unpack_from("<BBI", data, at)
+        out.append((kind, version, data[at + 6 : at + 6 + length]))
+        at += 6 + length
+    return out
+
+
+def _join(parts: list[tuple[int, int, bytes]]) -> bytes:
+    return bytes([Goals.KIND, VERSION]) + b"".join(struct.pack("<BBI", k, v, len(b)) + b for k, v, b in parts)
+
+
+def test_a_goal_set_is_its_parts_each_with_its_own_header_and_absent_parts_are_absent():
+    """The goal set comes first, then timing, then only the parts that apply: a still image has no
+    motion part and decodes as still; a keyframe with a warm start carries both of those parts."""
+    still, moving, keyframe = SAMPLES[4:7]
+    assert [(k, v) for k, v, _ in _parts(still.encode())] == [(Goals.PART, 1), (Timing.PART, 1)]
+    assert [k for k, _, _ in _parts(moving.encode())] == [Goals.PART, Timing.PART, Motion.PART]
+    assert [k for k, _, _ in _parts(keyframe.encode())] == [
+        Goals.PART,
+        Timing.PART,
+        Correspondence.PART,
+        WarmStart.PART,
+    ]
+    back = decode(still.encode())
+    assert back.motion is None and not back.moves and back.correspondence is None and back.warm_start is None
+    back = decode(moving.encode())
+    assert back.moves and back.timing == Timing(30.1, 4, 6.0, 30.0, 6.0) and back.motion.geometric == 1
+    back = decode(keyframe.encode())
+    assert back.correspondence.follows == 3 and back.correspondence.previous.tolist() == [1, 0]
+    assert back.warm_start.matched_from == 3 and back.warm_start.matched.tolist() == [1, 0]
+    assert back.warm_start.prices.tolist() == [0.0, 0.125] and back.robots.tolist() == [0, 5]
+    # the goal set part by hand: epoch, per_robot, count, then the goals and the robots to its end
+    body = _parts(keyframe.encode())[0][2]
+    assert struct.unpack_from("<IBI", body) == (4, 0, 2) and len(body) == 9 + 2 * 11 + 2 * 2
+
+
+def test_a_part_of_an_unknown_version_drops_the_goal_set_and_an_unknown_part_is_skipped():
     drops = DropCounter()
-    assert decode(data[:-3], drops=drops) is None and drops["truncated"] == 1
-    for bad in (dict(frame_period=-1.0), dict(geometric=2), dict(geometric=1, k_eg=-1.0), dict(omega_g=math.inf)):
+    parts = _parts(SAMPLES[6].encode())
+    for i in range(len(parts)):  # each part has its own version: a newer one of any is refused
+        kind, version, body = parts[i]
+        newer = parts[:i] + [(kind, version + 1, body)] + parts[i + 1 :]
+        assert decode(_join(newer), drops=drops) is None
+    assert drops == {"version": len(parts)}
+    later = decode(_join(parts + [(200, 1, b"a part added later")]))  # skipped: the rest still holds
+    assert later is not None and later.warm_start.matched_from == 3
+
+
+def test_a_goal_set_with_torn_missing_repeated_or_misplaced_parts_is_dropped():
+    drops = DropCounter()
+    data = SAMPLES[6].encode()
+    parts = _parts(data)
+    assert decode(data[:-3], drops=drops) is None  # the last part shorter than its header says
+    assert decode(data + b"\x05", drops=drops) is None  # a torn part header
+    short = [(k, v, b[:-1]) if k == Correspondence.PART else (k, v, b) for k, v, b in parts]
+    assert decode(_join(short), drops=drops) is None  # a part that is not the length its goal count needs
+    assert drops == {"truncated": 3}
+    assert decode(_join([p for p in parts if p[0] != Timing.PART]), drops=drops) is None  # no timing
+    assert decode(_join(parts[1:2] + parts[:1] + parts[2:]), drops=drops) is None  # the goal set not first
+    assert decode(_join(parts + parts[-1:]), drops=drops) is None  # a part twice
+    assert decode(_join(parts + parts[:1]), drops=drops) is None  # the goal set twice
+    assert decode(bytes([Goals.KIND, VERSION]), drops=drops) is None  # no part at all
+    assert drops["invalid"] == 5
+
+
+def test_goal_set_parts_refuse_bad_values():
+    still, moving, keyframe = SAMPLES[4:7]
+    drops = DropCounter()
+    for bad in (Timing(1.0, frame_period=-1.0), Timing(math.nan)):
+        assert decode(dataclasses.replace(still, timing=bad).encode(), drops=drops) is None
+    for bad in (dict(geometric=2), dict(geometric=1, k_eg=-1.0), dict(omega_g=math.inf)):
         assert (
-            decode(
-                Goals(
-                    **{
-                        **full.to_dict(),
-                        **bad,
-                        "positions": full.positions,
-                        "colors": full.colors,
-                        "robots": full.robots,
-                    }
-                ).encode(),
-                drops=drops,
-            )
+            decode(dataclasses.replace(moving, motion=dataclasses.replace(moving.motion, **bad)).encode(), drops=drops)
             is None
         ), bad
-    assert drops["invalid"] == 3 and drops["non-finite"] == 1
+    for correspondence in (Correspondence(3, np.array([0, 2])), Correspondence(0, np.array([0, 1]))):
+        assert decode(dataclasses.replace(keyframe, correspondence=correspondence).encode(), drops=drops) is None
+    for warm in (
+        WarmStart(3, np.array([0, 2]), np.zeros(2)),
+        WarmStart(3, np.array([0, 1]), np.array([0.0, math.nan])),
+    ):
+        assert decode(dataclasses.replace(keyframe, warm_start=warm).encode(), drops=drops) is None
+    assert drops == {"invalid": 6, "non-finite": 3}
+    with pytest.raises(ValueError):  # an encoder never sends a part that does not fit its goal set
+        dataclasses.replace(keyframe, correspondence=Correspondence(3, np.array([0]))).encode()
 
 
-def test_keyframe_correspondence_rides_in_a_second_trailer():
-    """The goals' correspondence to the previous keyframe's (6.1) is optional: without it a keyframe
-    decodes as before; indices outside the goal set are refused."""
-    keyframe = SAMPLES[6]
-    back = decode(keyframe.encode())
-    assert back.follows == 3 and back.previous.tolist() == [1, 0] and back.frame_period == 6.0
-    plain = decode(
-        Goals(
-            **{
-                **keyframe.to_dict(),
-                "follows": 0,
-                "positions": keyframe.positions,
-                "colors": keyframe.colors,
-                "robots": keyframe.robots,
-            }
-        ).encode()
-    )
-    assert plain.follows == 0 and len(plain.previous) == 0 and plain.frame_period == 6.0
+def test_retired_single_robot_kinds_are_dropped_as_unknown():
+    """Kinds 1, 2 and 3 (one robot's pose, state, command of earlier versions) are gone: a robot
+    alone sends a frame of one."""
     drops = DropCounter()
-    bad = Goals(
-        **{
-            **keyframe.to_dict(),
-            "previous": np.array([0, 2]),
-            "positions": keyframe.positions,
-            "colors": keyframe.colors,
-            "robots": keyframe.robots,
-        }
-    )
-    assert decode(bad.encode(), drops=drops) is None and drops["invalid"] == 1
+    for kind in (1, 2, 3):
+        assert decode(bytes([kind, VERSION]) + bytes(28), drops=drops) is None
+    assert drops == {"kind": 3}
 
 
-def test_the_auctions_warm_start_rides_in_a_third_trailer():
-    """The matching to the last goal set and its prices (coordinator.keyframes.goal_matching) ride
-    after the keyframe correspondence, or alone for the next image of a sequence; a matched index
-    outside the set or a non-finite price drops the message."""
-    keyframe = SAMPLES[6]
-    fields = {
-        **keyframe.to_dict(),
-        "positions": keyframe.positions,
-        "colors": keyframe.colors,
-        "robots": keyframe.robots,
-    }
-    warm = {"matched_from": 3, "matched": np.array([1, 0]), "prices": np.array([0.0, 0.125])}
-    both = decode(Goals(**{**fields, **warm}).encode())
-    assert both.follows == 3 and both.previous.tolist() == [1, 0]
-    assert both.matched_from == 3 and both.matched.tolist() == [1, 0] and both.prices.tolist() == [0.0, 0.125]
-    image = decode(Goals(**{**fields, "follows": 0, "frame_period": 0.0, **warm}).encode())
-    assert image.follows == 0 and len(image.previous) == 0
-    assert image.matched_from == 3 and image.matched.tolist() == [1, 0] and image.prices.tolist() == [0.0, 0.125]
-    assert decode(keyframe.encode()).matched_from == 0  # without it: cold, as before
+def test_a_frame_of_one_is_a_frame_and_as_compact_as_one_robots_message_was():
+    pose = Pose(3, 7, 0.7, 1.5, -2.0, 0.25)
+    data = Poses.one(pose).encode()
+    assert data[:2] == bytes([Poses.KIND, VERSION]) and struct.unpack_from("<Id", data, 2) == (7, 0.7)
+    assert struct.unpack_from("<Ifff", data, 14) == (3, 1.5, -2.0, 0.25) and len(data) == 30
+    assert decode(data).messages() == [pose]
+    assert decode(Poses.of(7, 0.7, []).encode()).count == 0  # a tracker that sees nobody
     drops = DropCounter()
-    assert decode(Goals(**{**fields, **warm, "matched": np.array([0, 2])}).encode(), drops=drops) is None
-    assert decode(Goals(**{**fields, **warm, "prices": np.array([0.0, math.nan])}).encode(), drops=drops) is None
-    assert drops["invalid"] == 1 and drops["non-finite"] == 1
+    assert decode(data + bytes(5), drops=drops) is None  # not a whole number of records
+    assert decode(data[:13], drops=drops) is None  # not even the fixed part
+    assert drops == {"truncated": 2}
+
+
+def test_the_auction_record_is_one_layout_in_bids_boards_and_the_bidder():
+    """One robot's word on one goal at a price reads the same in a Bid, in a Boards word's board
+    and in the bidder's records: the same fields and the same flags."""
+    assert Boards.RECORD == AuctionRecord.DTYPE
+    assert Bid.RECORD.descr[: len(AuctionRecord.FIELDS)] == AuctionRecord.DTYPE.descr
+    assert bidder_record is Bid.RECORD
+    words = np.zeros(1, Boards.WORD)
+    words["robot"], words["flags"], words["records"] = 7, Boards.FRESH, 2
+    said = np.array([(7, 3, 0.5, 0), (9, 4, 0.25, AuctionRecord.RELEASED)], AuctionRecord.DTYPE)
+    boards = decode(Boards(2, 1, 7, 5, 6, 10, 1, words, np.zeros((0, 2), np.uint8), said).encode())
+    bid = np.zeros(2, Bid.RECORD)
+    for name, _ in AuctionRecord.FIELDS:
+        bid[name] = said[name]
+    bid = decode(Bid(2, 1, 7, 5, 99, 2, bid).encode())
+    for name, _ in AuctionRecord.FIELDS:
+        np.testing.assert_array_equal(boards.records[name], said[name])
+        np.testing.assert_array_equal(bid.records[name], said[name])
+    assert (bid.records["flags"] & AuctionRecord.RELEASED).tolist() == [0, AuctionRecord.RELEASED]
 
 
 def test_wrong_kind_on_a_key_is_dropped():
     drops = DropCounter()
-    assert decode(SAMPLES[2].encode(), Pose, drops) is None
+    assert decode(SAMPLES[2].encode(), Poses, drops) is None
     assert drops["kind"] == 1
 
 
@@ -301,9 +346,9 @@ def test_bus_publish_subscribe_and_drop_malformed(router):
     with Bus(client_of(router), "t") as a, Bus(client_of(router), "t") as b:
         inbox = b.subscribe(b.keys.all_of("pose"), Pose)
         time.sleep(0.3)
-        a.put(a.keys.pose(1), b"\x01\x01garbage")  # malformed: counted, not delivered
-        a.publish(a.keys.pose(1), Pose(1, 1, 0.1, 0.0, 0.0, 0.0))
-        a.publish(a.keys.pose(2), Command(2, 1, 0.1, 0, 0, 0, 0, 0, 0))  # wrong kind on a pose key
+        a.put(a.keys.pose(1), bytes([Poses.KIND, VERSION]) + b"garbage")  # malformed: counted, not delivered
+        a.publish(a.keys.pose(1), Poses.one(Pose(1, 1, 0.1, 0.0, 0.0, 0.0)))
+        a.publish(a.keys.pose(2), Commands.one(Command(2, 1, 0.1, 0, 0, 0, 0, 0, 0)))  # wrong kind on a pose key
         got = _collect(inbox, 1)
         time.sleep(0.2)
         assert [m.robot for _, m in got] == [1] and inbox.get(timeout=0.1) is None
@@ -317,7 +362,7 @@ def test_fault_injection_drop_and_delay(router):
         time.sleep(0.3)
         sent = time.monotonic()
         for i in range(200):
-            a.publish(a.keys.state((0, 0), i), State(i, 1, 0.1, 0, 0, 0, 0, 0.045, 0, 0, -1, 0))
+            a.publish(a.keys.state((0, 0), i), States.one(State(i, 1, 0.1, 0, 0, 0, 0, 0.045, 0, 0, -1, 0)))
         assert lossy.get(timeout=0.15) is None  # nothing before the added delay
         got = _collect(lossy, 200, timeout=2.0)
         assert time.monotonic() - sent >= 0.2
@@ -336,7 +381,7 @@ def test_a_faulty_inbox_rings_its_bell_for_what_it_keeps(router, fault):
         rung = 0
         for tick in range(20):
             inbox.bell.clear()
-            a.publish(a.keys.pose(1), Pose(1, tick, tick * 0.1, 0.0, 0.0, 0.0))
+            a.publish(a.keys.pose(1), Poses.one(Pose(1, tick, tick * 0.1, 0.0, 0.0, 0.0)))
             if inbox.bell.wait(timeout=2.0):
                 rung += 1
                 assert _collect(inbox, 1, timeout=2.0)  # kept: it is there once its delay is over

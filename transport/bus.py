@@ -17,17 +17,18 @@ import time
 import zlib
 from collections import Counter
 from collections.abc import Callable, Iterator
-from typing import Any, Generic, cast, overload
+from typing import Any, Generic, TypeVar, cast, overload
 
 import numpy as np
 import zenoh
 
-from .codec import Command, Commands, DropCounter, Frame, Message, MessageT, Pose, decode
+from .codec import BEFORE_START, FRAME_OF, Command, DropCounter, Frame, Message, MessageT, Poses, decode
 from .faults import FaultPlan, FaultSpec
 from .keys import Keys
 from .session import ZenohSettings, open_session
 
 _NO_FAULT = FaultSpec()
+T = TypeVar("T")  # what an inbox delivers: a message, or one robot's record of a frame (codec.Pose, ...)
 
 
 def _drain(q: queue.SimpleQueue, limit: int | None = None) -> list:
@@ -41,30 +42,23 @@ def _drain(q: queue.SimpleQueue, limit: int | None = None) -> list:
     return out
 
 
-class Inbox(Generic[MessageT]):
+class Inbox(Generic[T]):
     """Messages of one subscription, decoded, filtered by faults, waiting for the owner's loop."""
 
-    def __init__(
-        self,
-        expected: type[MessageT] | None,
-        fault: FaultSpec,
-        seed: int,
-        frames: type[Frame] | None = None,
-        only: np.ndarray | None = None,
-    ) -> None:
-        """``frames``: a frame kind that carries many ``expected`` messages (codec.Poses, States,
-        Commands); each arrives as its messages (only those of robots ``only``, if given), and a
-        fault drops or delays the frame whole."""
+    def __init__(self, expected: type[T] | None, fault: FaultSpec, seed: int, only: np.ndarray | None = None) -> None:
+        """``expected``: a message kind, or a record view (codec.Pose, State, Command) whose frames
+        arrive as their records (only those of robots ``only``, if given); a fault drops or delays
+        a frame whole."""
         self.expected = expected
-        self.frames = frames
+        self.frame: type[Frame] | None = FRAME_OF.get(cast(type, expected))
         self.only = only
         self.fault = fault
         self.drops = DropCounter()
         self.received = 0
         self.bytes = 0
-        self._queue: queue.SimpleQueue[tuple[str, MessageT]] = queue.SimpleQueue()
-        self._delayed: list[tuple[float, int, str, MessageT]] = []  # by wall-clock release time
-        self._held: list[tuple[float, int, str, MessageT]] = []  # by release on the owner's tick clock
+        self._queue: queue.SimpleQueue[tuple[str, T]] = queue.SimpleQueue()
+        self._delayed: list[tuple[float, int, str, T]] = []  # by wall-clock release time
+        self._held: list[tuple[float, int, str, T]] = []  # by release on the owner's tick clock
         # The owner's tick clock (seconds), when it steps in lock-step: an injected delay then counts
         # from a message's stamp on that clock, and each message's draw is a function of the message,
         # so a lock-step run with faults is reproducible (a wall-clock delay is a number of ticks that
@@ -76,7 +70,7 @@ class Inbox(Generic[MessageT]):
         self._rng = random.Random(seed)
         self.subscriber: Any = None
         self.bell: threading.Event | None = None  # rung on every arrival: one wait serves several inboxes
-        # robot -> the newest tick of its messages that reached this inbox, whatever the fault plan did
+        # robot -> the newest tick of its records that reached this inbox, whatever the fault plan did
         # with them (None: not kept). A lock-step owner waits on it, then the plan's deterministic fate.
         self.seen: dict[int, int] | None = None
 
@@ -84,30 +78,24 @@ class Inbox(Generic[MessageT]):
         payload = sample.payload.to_bytes()
         self.received += 1
         self.bytes += len(payload)
-        msg = decode(payload, self.expected if self.frames is None else None, self.drops)
+        msg = decode(payload, self.frame or cast("type[Message] | None", self.expected), self.drops)
         if msg is None:
             return
-        msgs: list[MessageT]
-        if self.frames is None:
-            msgs = [cast(MessageT, msg)]  # decoded as ``expected``
-        elif isinstance(msg, self.frames):
-            msgs = msg.messages(None if self.only is None else np.isin(msg.records["robot"], self.only))
-        elif self.expected is None or isinstance(msg, self.expected):
-            msgs = [cast(MessageT, msg)]
-        else:
-            self.drops["kind"] += 1
-            return
-        key = str(sample.key_expr)
+        frame = msg if isinstance(msg, Frame) and self.frame is not None else None
+        msgs: list[T] = (
+            [cast(T, msg)]
+            if frame is None
+            else frame.messages(None if self.only is None else np.isin(frame.records["robot"], self.only))
+        )
         try:
-            self._deliver(key, msgs)
-        finally:  # after the messages are queued, held or dropped: whoever waits on seen finds them
-            if self.seen is not None:
-                for m in msgs:
-                    robot, tick = getattr(m, "robot", None), getattr(m, "tick", None)
-                    if robot is not None and tick is not None and tick != Pose.BEFORE_START:  # not a hello
-                        self.seen[robot] = max(self.seen.get(robot, tick), tick)
+            self._deliver(str(sample.key_expr), msgs)
+        finally:  # after the records are queued, held or dropped: whoever waits on seen finds them
+            if self.seen is not None and frame is not None and frame.tick != BEFORE_START:  # not hellos
+                tick = frame.tick
+                for robot in frame.records["robot"].tolist():
+                    self.seen[robot] = max(self.seen.get(robot, tick), tick)
 
-    def _deliver(self, key: str, msgs: list[MessageT]) -> None:
+    def _deliver(self, key: str, msgs: list[T]) -> None:
         if self.fault is _NO_FAULT or not self.fault.active:
             for m in msgs:
                 self._queue.put((key, m))
@@ -155,12 +143,12 @@ class Inbox(Generic[MessageT]):
         """Messages held back by an injected delay (their owner must poll until they are due)."""
         return bool(self._delayed or self._held)
 
-    def drain(self) -> list[tuple[str, MessageT]]:
+    def drain(self) -> list[tuple[str, T]]:
         """Every message that has arrived (and whose injected delay has passed), oldest first."""
         self._release_delayed()
         return _drain(self._queue)
 
-    def get(self, timeout: float | None = None) -> tuple[str, MessageT] | None:
+    def get(self, timeout: float | None = None) -> tuple[str, T] | None:
         """Wait for one message (None on timeout)."""
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
@@ -181,7 +169,7 @@ class Inbox(Generic[MessageT]):
                 if deadline is not None and time.monotonic() >= deadline:
                     return None
 
-    def __iter__(self) -> Iterator[tuple[str, MessageT]]:
+    def __iter__(self) -> Iterator[tuple[str, T]]:
         return iter(self.drain())
 
 
@@ -244,6 +232,18 @@ class Bus:
         payload = msg.encode()
         self.put(key, payload, msg.NAME)
 
+    def publish_poses(self, tick: int, stamp: float, robots: np.ndarray, poses: np.ndarray, frame: bool) -> None:
+        """The tracker's poses (x, y, theta rows) of these robots at a tick: one frame of them all on
+        ``pose`` for agent hosts (``frame``), else each robot's frame of one on its own key."""
+        records = np.zeros(len(robots), Poses.RECORD)
+        records["robot"] = robots
+        records["x"], records["y"], records["theta"] = np.asarray(poses, float).reshape(-1, 3).T
+        if frame:
+            self.publish(self.keys.poses, Poses(tick, stamp, records))
+            return
+        for i in range(len(records)):
+            self.publish(self.keys.pose(int(records["robot"][i])), Poses(tick, stamp, records[i : i + 1]))
+
     def put(self, key: str, payload: bytes, kind: str = "raw") -> None:
         # BLOCK, not DROP: in lock-step runs a silently dropped message would break reproducibility.
         self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
@@ -252,40 +252,35 @@ class Bus:
 
     # --- subscribing ----------------------------------------------------------------------
     @overload
-    def inbox(
-        self, expected: type[MessageT], frames: type[Frame] | None = None, only: np.ndarray | None = None
-    ) -> Inbox[MessageT]: ...
+    def inbox(self, expected: type[T], only: np.ndarray | None = None) -> Inbox[T]: ...
 
     @overload
-    def inbox(
-        self, expected: None = None, frames: type[Frame] | None = None, only: np.ndarray | None = None
-    ) -> Inbox[Message]: ...
+    def inbox(self, expected: None = None, only: np.ndarray | None = None) -> Inbox[Message]: ...
 
-    def inbox(
-        self, expected: type[Message] | None = None, frames: type[Frame] | None = None, only: np.ndarray | None = None
-    ) -> Inbox[Any]:
-        """An empty inbox; feed it with ``subscribe_into``. Faults for the expected kind apply here
-        (to its ``frames`` too, each frame as one message: see Inbox)."""
-        fault = self.faults.get(expected.NAME, _NO_FAULT) if expected is not None else _NO_FAULT
+    def inbox(self, expected: type | None = None, only: np.ndarray | None = None) -> Inbox[Any]:
+        """An empty inbox; feed it with ``subscribe_into``. ``expected``: a message kind, or a record
+        view (codec.Pose, State, Command) to receive frames as their records (see Inbox). Faults
+        for the expected kind apply here."""
+        name = getattr(expected, "NAME", None)  # a message kind's or a view's (its frame's) name
+        fault = self.faults.get(name, _NO_FAULT) if name else _NO_FAULT
         self._n_subs += 1
         seed = zlib.crc32(f"{self._seed}/{self._name}/{self._n_subs}".encode())
-        return Inbox(expected, fault, seed, frames, only)
+        return Inbox(expected, fault, seed, only)
 
     def commands_inbox(self) -> Inbox[Command]:
-        """Every robot's commands, sent one by one or as agent hosts' frames: what a body process reads."""
-        inbox = self.inbox(Command, frames=Commands)
+        """Every robot's commands, one record at a time: what a body process reads."""
+        inbox = self.inbox(Command)
         self.subscribe_into(self.keys.all_of("cmd"), inbox)
-        self.subscribe_into(self.keys.all_of("cmds"), inbox)
         return inbox
 
     @overload
-    def subscribe(self, keyexpr: str, expected: type[MessageT]) -> Inbox[MessageT]: ...
+    def subscribe(self, keyexpr: str, expected: type[T]) -> Inbox[T]: ...
 
     @overload
     def subscribe(self, keyexpr: str, expected: None = None) -> Inbox[Message]: ...
 
-    def subscribe(self, keyexpr: str, expected: type[Message] | None = None) -> Inbox[Any]:
-        """An inbox of decoded messages from one key expression."""
+    def subscribe(self, keyexpr: str, expected: type | None = None) -> Inbox[Any]:
+        """An inbox of decoded messages (or frames' records) from one key expression."""
         inbox = self.inbox(expected)
         inbox.subscriber = self.subscribe_into(keyexpr, inbox)
         return inbox

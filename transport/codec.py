@@ -1,8 +1,10 @@
 """Versioned, compact binary codecs for every message kind, with validating decoders.
 
-Every message starts with a two-byte header (kind, version). ``decode`` never raises: a malformed,
-truncated, wrong-kind, wrong-version or non-finite message returns None and is counted in the
-``DropCounter`` passed in, so nothing a peer sends can break a control loop.
+Every message starts with a two-byte header (kind, version). Poses, states and commands always
+travel as frames (a robot alone sends a frame of one); a goal set is a sequence of parts, each with
+its own (part kind, part version, length) header. ``decode`` never raises: a malformed, truncated,
+wrong-kind, wrong-version or non-finite message returns None and is counted in the ``DropCounter``
+passed in, so nothing a peer sends can break a control loop. The layouts: docs/protocol.md.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from typing import Any, ClassVar, TypeVar, overload
 
 import numpy as np
 
-VERSION = 1
+VERSION = 2  # of the message header and every kind's layout; a goal set's parts have their own
 _HEADER = struct.Struct("<BB")
 
 
@@ -114,14 +116,19 @@ class Message:
         return out
 
 
-@dataclass
-class Pose(Message):
-    """Tracker -> agent: the tracked pose of one robot at a tick (paper: central tracking, 10 Hz)."""
+BEFORE_START = 0xFFFFFFFF  # tick of a frame sent before the robots' agents are live (poses, hellos)
 
-    KIND: ClassVar[int] = 1
+
+# One robot's record of a frame as a Python object: its robot, the frame's tick and stamp, then the
+# record's fields in the record's order. The wire knows only frames (a robot alone sends a frame of
+# one); these views are for readers that take robots one at a time.
+
+
+@dataclass
+class Pose:
+    """A record of a ``Poses`` frame: the tracked pose of one robot at a tick (paper: central tracking, 10 Hz)."""
+
     NAME: ClassVar[str] = "pose"
-    BEFORE_START: ClassVar[int] = 0xFFFFFFFF  # tick of poses sent to robots whose agent is not live yet
-    _fixed: ClassVar[struct.Struct] = struct.Struct("<IIdfff")
     robot: int
     tick: int
     stamp: float
@@ -131,8 +138,8 @@ class Pose(Message):
 
 
 @dataclass
-class State(Message):
-    """Agent broadcast: what neighbours need for ORCA and the auction.
+class State:
+    """A record of a ``States`` frame: what neighbours need for ORCA and the auction.
 
     ``velocity`` is the robot's current collision-free velocity (v_opt of eq. 11), ``radius`` the
     radius it asks others to avoid (r + tracking error for differential drive), ``goal_index`` the
@@ -141,10 +148,8 @@ class State(Message):
     goal in the previous keyframe carried over to while the new keyframe's auction runs.
     """
 
-    KIND: ClassVar[int] = 2
     NAME: ClassVar[str] = "state"
     CARRIED: ClassVar[int] = 0xFFFFFFFF  # assign_instance of a carried goal: not an agreed instance
-    _fixed: ClassVar[struct.Struct] = struct.Struct("<IIdfffffffiBII")
     robot: int
     tick: int
     stamp: float
@@ -164,19 +169,12 @@ class State(Message):
     AT_GOAL: ClassVar[int] = 2
     DYNAMIC: ClassVar[int] = 4
 
-    def validate(self) -> None:
-        super().validate()
-        if self.radius <= 0:
-            raise Malformed("invalid")
-
 
 @dataclass
-class Command(Message):
-    """Agent -> body: holonomic velocity (mode 0) or linear wheel speeds (mode 1), and LED colour."""
+class Command:
+    """A record of a ``Commands`` frame: holonomic velocity (mode 0) or linear wheel speeds (mode 1), and LED colour."""
 
-    KIND: ClassVar[int] = 3
     NAME: ClassVar[str] = "cmd"
-    _fixed: ClassVar[struct.Struct] = struct.Struct("<IIdBffBBB")
     robot: int
     tick: int
     stamp: float
@@ -189,11 +187,6 @@ class Command(Message):
 
     HOLONOMIC: ClassVar[int] = 0
     WHEELS: ClassVar[int] = 1
-
-    def validate(self) -> None:
-        super().validate()
-        if self.mode not in (0, 1):
-            raise Malformed("invalid")
 
 
 @dataclass
@@ -208,36 +201,48 @@ class Tick(Message):
     dt: float
 
 
+_PART = struct.Struct("<BBI")  # a goal set's part header: part kind, part version, body length
+_EPOCH = struct.Struct("<I")  # the goal set a part refers to
+
+
 @dataclass
-class Goals(Message):
-    """Coordinator -> all: a goal set with colours.
+class Timing:
+    """Part 2 of a goal set: when it was published (``stamp``), the scene step (image) it shows and
+    how long (``hold``, s), the display time the step began (t = 0 of eq. 28, the keyframe's start)
+    and the K_f dt of an animation keyframe (paper 6.2, eq. 27; 0: not a keyframe)."""
 
-    ``per_robot`` set means goals[i] is robot i's own goal (scenes with fixed goals, as in RVO2's
-    Circle); otherwise the robots in ``robots`` assign themselves to the goals by auction. ``step``
-    is the scene step (image) the set shows and ``hold`` how long it is shown (s).
-
-    Animations and dynamic images (a trailer after the robots; a message without it, as older
-    coordinators send, decodes as a still image): ``t_start`` is the display time the step began,
-    ``frame_period`` the K_f dt of an animation keyframe (paper 6.2, eq. 27; 0: not a keyframe), and
-    v_G, omega_G, p_OG, K_eG and ``geometric`` the goal set's motion (paper 7.4.1, eq. 28, with
-    t = display time - t_start; all zero: it stands still).
-    """
-
-    KIND: ClassVar[int] = 5
-    NAME: ClassVar[str] = "goals"
-    _fixed: ClassVar[struct.Struct] = struct.Struct("<IBdIHfI")
-    RECORD: ClassVar[np.dtype] = np.dtype([("x", "<f4"), ("y", "<f4"), ("rgb", "u1", (3,))])
-    epoch: int
-    per_robot: int
-    stamp: float
-    count: int
-    positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
-    colors: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.uint8))
+    PART: ClassVar[int] = 2
+    VERSION: ClassVar[int] = 1
+    _layout: ClassVar[struct.Struct] = struct.Struct("<dHfdf")
+    stamp: float = 0.0
     step: int = 0
     hold: float = 0.0
-    robots: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    t_start: float = 0.0  # display time the step began (t = 0 of eq. 28, the keyframe's start)
-    frame_period: float = 0.0  # K_f dt of an animation keyframe (s), 0: not a keyframe
+    t_start: float = 0.0
+    frame_period: float = 0.0
+
+    def pack(self, count: int) -> bytes:
+        return self._layout.pack(self.stamp, self.step, self.hold, self.t_start, self.frame_period)
+
+    @classmethod
+    def unpack(cls, body: memoryview, count: int) -> Timing:
+        if len(body) != cls._layout.size:
+            raise Malformed("truncated")
+        part = cls(*cls._layout.unpack(body))
+        _finite(part.stamp, part.hold, part.t_start, part.frame_period)
+        if part.frame_period < 0:
+            raise Malformed("invalid")
+        return part
+
+
+@dataclass
+class Motion:
+    """Part 3 of a goal set: its motion as a dynamic image (paper 7.4.1, eq. 28, with t = display
+    time - t_start): v_G, omega_G, p_OG, K_eG, and whether the scaling is geometric. Absent: the
+    goal set stands still."""
+
+    PART: ClassVar[int] = 3
+    VERSION: ClassVar[int] = 1
+    _layout: ClassVar[struct.Struct] = struct.Struct("<ffffffB")
     v_gx: float = 0.0  # v_G (m/s)
     v_gy: float = 0.0
     omega_g: float = 0.0  # omega_G (rad/s)
@@ -245,106 +250,241 @@ class Goals(Message):
     p_ogy: float = 0.0
     k_eg: float = 0.0  # K_eG (1/s)
     geometric: int = 0  # 1: s(t) = (1 + K_eG)^t, 0: s(t) = 1 + K_eG t
-    follows: int = 0  # the goal set (epoch) whose goals ``previous`` refers to; 0: none
-    previous: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # per goal: its
-    # corresponding goal in set ``follows`` (consecutive keyframes, coordinator.keyframes.goal_correspondence)
-    matched_from: int = 0  # the goal set (epoch) ``matched`` and ``prices`` start the auction from; 0: none
-    matched: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # per goal: the goal of
-    # set ``matched_from`` matched to it, and ``prices`` in equilibrium for that matching: the auction's
-    # warm start after an image or keyframe (coordinator.keyframes.goal_matching, computed once by the
-    # coordinator rather than by every agent host at once while its robots drive)
-    prices: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
-    _trailer: ClassVar[struct.Struct] = struct.Struct("<dfffffffB")
-    _epoch: ClassVar[struct.Struct] = struct.Struct("<I")  # opens each optional trailer: follows, then one <i4
-    # per goal (previous); matched_from, then one <i4 (matched) and one <f8 (prices) per goal
+    @property
+    def moves(self) -> bool:
+        """It translates, rotates or scales."""
+        return any((self.v_gx, self.v_gy, self.omega_g, self.k_eg))
+
+    def pack(self, count: int) -> bytes:
+        return self._layout.pack(self.v_gx, self.v_gy, self.omega_g, self.p_ogx, self.p_ogy, self.k_eg, self.geometric)
+
+    @classmethod
+    def unpack(cls, body: memoryview, count: int) -> Motion:
+        if len(body) != cls._layout.size:
+            raise Malformed("truncated")
+        part = cls(*cls._layout.unpack(body))
+        _finite(part.v_gx, part.v_gy, part.omega_g, part.p_ogx, part.p_ogy, part.k_eg)
+        if part.geometric not in (0, 1) or (part.geometric and part.k_eg <= -1):
+            raise Malformed("invalid")
+        return part
+
+
+@dataclass
+class Correspondence:
+    """Part 4 of a goal set: per goal, its corresponding goal (-1: none) in goal set ``follows``, the
+    previous keyframe of an animation (paper 6.1; coordinator.keyframes.goal_correspondence)."""
+
+    PART: ClassVar[int] = 4
+    VERSION: ClassVar[int] = 1
+    follows: int
+    previous: np.ndarray
+
+    def pack(self, count: int) -> bytes:
+        if len(self.previous) != count:
+            raise ValueError("previous needs one index per goal")
+        return _EPOCH.pack(self.follows) + np.asarray(self.previous, "<i4").tobytes()
+
+    @classmethod
+    def unpack(cls, body: memoryview, count: int) -> Correspondence:
+        if len(body) != _EPOCH.size + 4 * count:
+            raise Malformed("truncated")
+        (follows,) = _EPOCH.unpack(body[: _EPOCH.size])
+        previous = np.frombuffer(body[_EPOCH.size :], "<i4").astype(np.int64)
+        if follows == 0 or (previous < -1).any() or (previous >= count).any():
+            raise Malformed("invalid")
+        return cls(follows, previous)
+
+
+@dataclass
+class WarmStart:
+    """Part 5 of a goal set: where its auction starts, after an image or keyframe: per goal, the goal
+    of set ``matched_from`` matched to it and prices in equilibrium for that matching
+    (coordinator.keyframes.goal_matching, computed once by the coordinator rather than by every
+    agent host at once while its robots drive). Absent: a cold start."""
+
+    PART: ClassVar[int] = 5
+    VERSION: ClassVar[int] = 1
+    matched_from: int
+    matched: np.ndarray
+    prices: np.ndarray
+
+    def pack(self, count: int) -> bytes:
+        if len(self.matched) != count or len(self.prices) != count:
+            raise ValueError("matched and prices need one entry per goal")
+        matched, prices = np.asarray(self.matched, "<i4"), np.asarray(self.prices, "<f8")
+        return _EPOCH.pack(self.matched_from) + matched.tobytes() + prices.tobytes()
+
+    @classmethod
+    def unpack(cls, body: memoryview, count: int) -> WarmStart:
+        if len(body) != _EPOCH.size + 12 * count:
+            raise Malformed("truncated")
+        (matched_from,) = _EPOCH.unpack(body[: _EPOCH.size])
+        at = _EPOCH.size + 4 * count
+        matched = np.frombuffer(body[_EPOCH.size : at], "<i4").astype(np.int64)
+        prices = np.frombuffer(body[at:], "<f8").copy()
+        if not np.all(np.isfinite(prices)):
+            raise Malformed("non-finite")
+        if matched_from == 0 or (matched < 0).any() or (matched >= count).any():
+            raise Malformed("invalid")
+        return cls(matched_from, matched, prices)
+
+
+@dataclass
+class Goals(Message):
+    """Coordinator -> all: a goal set with colours, and its parts.
+
+    ``per_robot`` set means goals[i] is robot i's own goal (scenes with fixed goals, as in RVO2's
+    Circle); otherwise the robots in ``robots`` assign themselves to the goals by auction. The goal
+    set is part 1 of the message; ``timing`` (part 2) always follows it, the other parts only when
+    they apply: ``motion`` (a dynamic image), ``correspondence`` (a keyframe after a keyframe) and
+    ``warm_start`` (the auction's start after an image or keyframe). Each part has its own version.
+    """
+
+    KIND: ClassVar[int] = 5
+    NAME: ClassVar[str] = "goals"
+    PART: ClassVar[int] = 1  # the goal set itself
+    PART_VERSION: ClassVar[int] = 1
+    _fixed: ClassVar[struct.Struct] = struct.Struct("<")
+    _set: ClassVar[struct.Struct] = struct.Struct("<IBI")  # epoch, per_robot, count; goals, then robots to the end
+    RECORD: ClassVar[np.dtype] = np.dtype([("x", "<f4"), ("y", "<f4"), ("rgb", "u1", (3,))])
+    epoch: int
+    per_robot: int
+    positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    colors: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.uint8))
+    robots: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    timing: Timing = field(default_factory=Timing)
+    motion: Motion | None = None
+    correspondence: Correspondence | None = None
+    warm_start: WarmStart | None = None
+
+    # the parts after the goal set: part kind -> (its class, its field)
+    _PARTS: ClassVar[dict[int, tuple[Any, str]]] = {
+        t.PART: (t, name)
+        for t, name in (
+            (Timing, "timing"),
+            (Motion, "motion"),
+            (Correspondence, "correspondence"),
+            (WarmStart, "warm_start"),
+        )
+    }
+
+    @property
+    def count(self) -> int:
+        return len(self.positions)
 
     @property
     def moves(self) -> bool:
         """The goal set translates, rotates or scales (a dynamic image)."""
-        return any((self.v_gx, self.v_gy, self.omega_g, self.k_eg))
+        return self.motion is not None and self.motion.moves
 
     def _fixed_values(self) -> tuple:
-        return (self.epoch, self.per_robot, self.stamp, len(self.positions), self.step, self.hold, len(self.robots))
+        return ()
 
     def _tail(self) -> bytes:
-        items = np.empty(len(self.positions), self.RECORD)
+        count = len(self.positions)
+        items = np.empty(count, self.RECORD)
         items["x"], items["y"] = self.positions[:, 0], self.positions[:, 1]
         items["rgb"] = self.colors
-        trailer = self._trailer.pack(
-            self.t_start,
-            self.frame_period,
-            self.v_gx,
-            self.v_gy,
-            self.omega_g,
-            self.p_ogx,
-            self.p_ogy,
-            self.k_eg,
-            self.geometric,
+        goal_set = (
+            self._set.pack(self.epoch, self.per_robot, count)
+            + items.tobytes()
+            + np.asarray(self.robots, "<u2").tobytes()
         )
-        if self.follows:  # a second, optional trailer: the correspondence to the previous keyframe
-            if len(self.previous) != len(self.positions):
-                raise ValueError("previous needs one index per goal")
-            trailer += self._epoch.pack(self.follows) + np.asarray(self.previous, "<i4").tobytes()
-        if self.matched_from and len(self.positions):  # a third, optional trailer: the auction's warm start
-            if len(self.matched) != len(self.positions) or len(self.prices) != len(self.positions):
-                raise ValueError("matched and prices need one entry per goal")
-            trailer += (
-                self._epoch.pack(self.matched_from)
-                + np.asarray(self.matched, "<i4").tobytes()
-                + np.asarray(self.prices, "<f8").tobytes()
-            )
-        return items.tobytes() + np.asarray(self.robots, "<u2").tobytes() + trailer
+        out = [_part(self.PART, self.PART_VERSION, goal_set)]
+        for _, name in self._PARTS.values():
+            part = getattr(self, name)
+            if part is not None:
+                out.append(_part(part.PART, part.VERSION, part.pack(count)))
+        return b"".join(out)
 
     @classmethod
     def _from(cls, body: memoryview) -> Goals:
-        if len(body) < cls._fixed.size:
+        parts = _split_parts(body)
+        if not parts or parts[0][0] != cls.PART:
+            raise Malformed("invalid")  # the goal set comes first: the other parts count its goals
+        _, version, goal_set = parts[0]
+        if version != cls.PART_VERSION:
+            raise Malformed("version")
+        if len(goal_set) < cls._set.size:
             raise Malformed("truncated")
-        epoch, per_robot, stamp, count, step, hold, n_robots = cls._fixed.unpack(body[: cls._fixed.size])
-        end = cls._fixed.size + count * cls.RECORD.itemsize
-        rest = len(body) - (end + 2 * n_robots)
-        # the optional trailers tell themselves apart by length (4 + 4 count and 4 + 12 count bytes)
-        correspondence = cls._epoch.size + 4 * count
-        matching = cls._epoch.size + 12 * count if count else -1
-        trailers = {
-            0: (False, False),
-            cls._trailer.size: (False, False),
-            cls._trailer.size + correspondence: (True, False),
-            cls._trailer.size + matching: (False, True),
-            cls._trailer.size + correspondence + matching: (True, True),
-        }
-        if rest not in trailers:
+        epoch, per_robot, count = cls._set.unpack(goal_set[: cls._set.size])
+        end = cls._set.size + count * cls.RECORD.itemsize
+        if len(goal_set) < end or (len(goal_set) - end) % 2:
             raise Malformed("truncated")
-        has_previous, has_matching = trailers[rest]
-        items = np.frombuffer(body[cls._fixed.size : end], cls.RECORD)
+        items = np.frombuffer(goal_set[cls._set.size : end], cls.RECORD)
         positions = np.stack([items["x"], items["y"]], axis=1).astype(float)
-        _finite(stamp, hold)
         if not np.all(np.isfinite(positions)):
             raise Malformed("non-finite")
-        at = end + 2 * n_robots
-        robots = np.frombuffer(body[end:at], "<u2").astype(np.int64)
-        extra = cls._trailer.unpack(body[at : at + cls._trailer.size]) if rest else ()
-        _finite(*extra)
-        msg = cls(epoch, per_robot, stamp, count, positions, items["rgb"].copy(), step, hold, robots, *extra)
-        at += cls._trailer.size
-        if has_previous:
-            (msg.follows,) = cls._epoch.unpack(body[at : at + cls._epoch.size])
-            at += cls._epoch.size
-            msg.previous = np.frombuffer(body[at : at + 4 * count], "<i4").astype(np.int64)
-            at += 4 * count
-            if msg.follows == 0 or (msg.previous < -1).any() or (msg.previous >= count).any():
-                raise Malformed("invalid")
-        if has_matching:
-            (msg.matched_from,) = cls._epoch.unpack(body[at : at + cls._epoch.size])
-            at += cls._epoch.size
-            msg.matched = np.frombuffer(body[at : at + 4 * count], "<i4").astype(np.int64)
-            msg.prices = np.frombuffer(body[at + 4 * count :], "<f8").copy()
-            if msg.matched_from == 0 or (msg.matched < 0).any() or (msg.matched >= count).any():
-                raise Malformed("invalid")
-            _finite(*msg.prices)
-        if msg.frame_period < 0 or msg.geometric not in (0, 1) or (msg.geometric and msg.k_eg <= -1):
-            raise Malformed("invalid")
+        robots = np.frombuffer(goal_set[end:], "<u2").astype(np.int64)
+        msg = cls(epoch, per_robot, positions, items["rgb"].copy(), robots)
+        seen = {cls.PART}
+        for kind, version, part_body in parts[1:]:
+            if kind in seen:
+                raise Malformed("invalid")  # a part twice (the goal set too)
+            seen.add(kind)
+            if kind not in cls._PARTS:
+                continue  # a kind of part added later to the protocol: what we know of the set still holds
+            part_type, name = cls._PARTS[kind]
+            if version != part_type.VERSION:
+                raise Malformed("version")
+            setattr(msg, name, part_type.unpack(part_body, count))
+        if Timing.PART not in seen:
+            raise Malformed("invalid")  # every goal set says when it was published
         return msg
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-friendly view (for logs): each part as an object, absent ones None."""
+        out: dict[str, Any] = {
+            "epoch": self.epoch,
+            "per_robot": self.per_robot,
+            "positions": self.positions.tolist(),
+            "colors": np.asarray(self.colors).tolist(),
+            "robots": np.asarray(self.robots).tolist(),
+        }
+        for _, name in self._PARTS.values():
+            part = getattr(self, name)
+            out[name] = (
+                None
+                if part is None
+                else {
+                    f.name: (v.tolist() if isinstance(v := getattr(part, f.name), np.ndarray) else v)
+                    for f in fields(part)
+                }
+            )
+        return out
+
+
+def _part(kind: int, version: int, body: bytes) -> bytes:
+    return _PART.pack(kind, version, len(body)) + body
+
+
+def _split_parts(body: memoryview) -> list[tuple[int, int, memoryview]]:
+    """A message's parts as (part kind, part version, body); their lengths must fill it exactly."""
+    out, at = [], 0
+    while at < len(body):
+        if len(body) - at < _PART.size:
+            raise Malformed("truncated")
+        kind, version, length = _PART.unpack(body[at : at + _PART.size])
+        at += _PART.size
+        if len(body) - at < length:
+            raise Malformed("truncated")
+        out.append((kind, version, body[at : at + length]))
+        at += length
+    return out
+
+
+class AuctionRecord:
+    """The auction record (paper 5.1.1): one robot's word on one goal at a price. A ``Bid`` carries
+    one per robot and per goal it released (with where the robot bid from), a ``Boards`` word the
+    owned goals of its board as them (``robot``: the owner), and the bidder (agent.core.bidder)
+    keeps and merges them: one layout and one set of flags for all."""
+
+    FIELDS: ClassVar[list[tuple[str, str]]] = [("robot", "<u2"), ("goal", "<i4"), ("price", "<f8"), ("flags", "u1")]
+    DTYPE: ClassVar[np.dtype] = np.dtype(FIELDS)
+    CONTENT: ClassVar[int] = 1  # the robot holds ``goal`` and no other goal is better by more than epsilon
+    RELEASED: ClassVar[int] = 2  # the robot gave ``goal`` up at ``price`` (it bids elsewhere)
+    SETTLED: ClassVar[int] = 4  # lock-step rounds: content at the final phase's slack (agent.core.bidder)
 
 
 @dataclass
@@ -355,18 +495,9 @@ class Bid(Message):
     KIND: ClassVar[int] = 9
     NAME: ClassVar[str] = "auction"
     _fixed: ClassVar[struct.Struct] = struct.Struct("<IIIIQI")
-    # penalty: the robot's total deadlock penalty in force (m^2), so its agreed cost can be checked
-    RECORD: ClassVar[np.dtype] = np.dtype(
-        [
-            ("robot", "<u2"),
-            ("goal", "<i4"),
-            ("price", "<f8"),
-            ("flags", "u1"),
-            ("penalty", "<f4"),
-            ("x", "<f4"),
-            ("y", "<f4"),
-        ]
-    )
+    # the auction record, and the robot's total deadlock penalty in force (m^2), so its agreed cost
+    # can be checked, and the position it bid from
+    RECORD: ClassVar[np.dtype] = np.dtype(AuctionRecord.FIELDS + [("penalty", "<f4"), ("x", "<f4"), ("y", "<f4")])
     epoch: int
     instance: int
     sender: int
@@ -374,10 +505,6 @@ class Bid(Message):
     digest: int  # hash of the sender's board (prices, owners, releases) when it wrote the records
     count: int
     records: np.ndarray = field(default_factory=lambda: np.zeros(0, Bid.RECORD))
-
-    CONTENT: ClassVar[int] = 1  # the robot holds ``goal`` and no other goal is better by more than epsilon
-    RELEASED: ClassVar[int] = 2  # the robot gave ``goal`` up at ``price`` (it bids elsewhere)
-    SETTLED: ClassVar[int] = 4  # lock-step rounds: content at the final phase's slack (agent.core.bidder)
 
     def _fixed_values(self) -> tuple:
         return (self.epoch, self.instance, self.sender, self.serial, self.digest, len(self.records))
@@ -406,7 +533,8 @@ class Boards(Message):
     communication range (agent.core.local_auction). Per robot (``words``): where it is, its phase,
     whether it ended the block, the newest round of change it knows of; the robots it has heard of
     (``known``: a bit per robot of the goal set, only from words flagged GROWN) and its board's owned
-    records (``records``, the word's ``records`` of them, only from words flagged FRESH)."""
+    records (``records``: auction records, the owner as ``robot``, RELEASED for a goal released at
+    that price; the word's ``records`` of them, only from words flagged FRESH)."""
 
     KIND: ClassVar[int] = 13
     NAME: ClassVar[str] = "boards"
@@ -422,7 +550,7 @@ class Boards(Message):
             ("records", "<u4"),
         ]
     )
-    RECORD: ClassVar[np.dtype] = np.dtype([("goal", "<u4"), ("price", "<f8"), ("owner", "<u2"), ("released", "u1")])
+    RECORD: ClassVar[np.dtype] = AuctionRecord.DTYPE
     ENDED: ClassVar[int] = 1  # the robot ended the block: its goal is agreed
     FRESH: ClassVar[int] = 2  # its board changed since its last word: its records follow
     GROWN: ClassVar[int] = 4  # the robots it has heard of grew since its last word: its bits follow
@@ -473,7 +601,7 @@ class Boards(Message):
             and np.all(np.isfinite(records["price"]))
         ):
             raise Malformed("non-finite")
-        if (records["goal"] >= goals).any():
+        if (records["goal"] < 0).any() or (records["goal"] >= goals).any():
             raise Malformed("invalid")
         return cls(epoch, instance, sender, serial, goals, robots, count, words, known, records)
 
@@ -486,47 +614,59 @@ class Boards(Message):
 
 @dataclass
 class Frame(Message):
-    """A tick's messages of many robots in one: the fixed part (tick, stamp, sender, count) and one
-    record per robot, the fields of ``_message`` after its (robot, tick, stamp). Agent hosts of K
-    robots trade frames: per robot, every message costs each process it crosses as much as a whole
-    frame does."""
+    """A tick's records of one or many robots: the fixed part (tick, stamp), then one record per
+    robot to the end of the message. Every pose, state and command crosses the wire in a frame; a
+    robot alone sends a frame of one, exactly as long as its message alone would be. Agent hosts of
+    K robots send one frame of each a tick: per robot, a message costs each process it crosses as
+    much as a whole frame does. Who sent it, the key says."""
 
-    _fixed: ClassVar[struct.Struct] = struct.Struct("<IdII")
-    _message: ClassVar[type[Message]]
+    _fixed: ClassVar[struct.Struct] = struct.Struct("<Id")
+    VIEW: ClassVar[type]  # the record as a Python object (Pose, State, Command)
     RECORD: ClassVar[np.dtype]
     _floats: ClassVar[tuple[str, ...]]
     tick: int
     stamp: float
-    sender: int  # the host's first robot (0 for the tracker)
-    count: int
     records: np.ndarray
 
     @classmethod
-    def of(cls, tick: int, stamp: float, sender: int, messages: list) -> Frame:
-        """The frame of these robots' messages (their tick and stamp are the frame's)."""
-        records = np.array([(v := m._fixed_values())[:1] + v[3:] for m in messages], cls.RECORD).reshape(-1)
-        return cls(tick, stamp, sender, len(records), records)
+    def of(cls, tick: int, stamp: float, views: list) -> Frame:
+        """The frame of these robots' records (their tick and stamp are the frame's)."""
+        get = attrgetter(*_field_names(cls.RECORD))
+        return cls(tick, stamp, np.array([get(v) for v in views], cls.RECORD).reshape(-1))
+
+    @classmethod
+    def one(cls, view: Any) -> Frame:
+        """The frame of one robot alone."""
+        return cls.of(view.tick, view.stamp, [view])
+
+    @property
+    def count(self) -> int:
+        return len(self.records)
 
     def messages(self, rows: np.ndarray | None = None) -> list:
-        """One message per record (or per selected record), as each robot would have sent it alone."""
+        """One view per record (or per selected record): the robot, the frame's tick and stamp, the record."""
         records = self.records if rows is None else self.records[rows]
         tick, stamp = self.tick, self.stamp
-        message: Callable[..., Message] = self._message  # each kind's fields follow (robot, tick, stamp)
-        return [message(robot, tick, stamp, *rest) for robot, *rest in records.tolist()]
+        view: Callable[..., Any] = self.VIEW
+        return [view(robot, tick, stamp, *rest) for robot, *rest in records.tolist()]
 
     def _fixed_values(self) -> tuple:
-        return (self.tick, self.stamp, self.sender, len(self.records))
+        return (self.tick, self.stamp)
 
     def _tail(self) -> bytes:
         return np.asarray(self.records, self.RECORD).tobytes()
 
     @classmethod
     def _from(cls, body: memoryview) -> Frame:
-        (tick, stamp, sender, count), items = _fixed_and_items(body, cls._fixed, cls.RECORD)
+        size = cls._fixed.size
+        if len(body) < size or (len(body) - size) % cls.RECORD.itemsize:
+            raise Malformed("truncated")
+        tick, stamp = cls._fixed.unpack(body[:size])
+        items = np.frombuffer(body[size:], cls.RECORD)
         _finite(stamp)
         if not all(np.all(np.isfinite(items[k])) for k in cls._floats):
             raise Malformed("non-finite")
-        frame = cls(tick, stamp, sender, count, items.copy())
+        frame = cls(tick, stamp, items.copy())
         frame.check_records()
         return frame
 
@@ -542,13 +682,12 @@ class Frame(Message):
 
 @dataclass
 class Poses(Frame):
-    """Tracker -> agent hosts: the tracked poses of a tick (what a motion capture frame holds), sent
-    instead of one Pose per robot when every agent process hosts several robots; before a robot's
-    agent is live its poses stay Pose."""
+    """Tracker -> agents: tracked poses of a tick (what a motion capture frame holds): every robot's
+    in one frame for agent hosts, or a frame of one per robot for robots alone in their process."""
 
     KIND: ClassVar[int] = 10
-    NAME: ClassVar[str] = "poses"
-    _message: ClassVar[type[Message]] = Pose
+    VIEW: ClassVar[type] = Pose
+    NAME: ClassVar[str] = Pose.NAME
     RECORD: ClassVar[np.dtype] = np.dtype([("robot", "<u4"), ("x", "<f4"), ("y", "<f4"), ("theta", "<f4")])
     _floats: ClassVar[tuple[str, ...]] = ("x", "y", "theta")
 
@@ -558,28 +697,29 @@ class Commands(Frame):
     """Agent host -> bodies: the commands of its robots for one tick."""
 
     KIND: ClassVar[int] = 11
-    NAME: ClassVar[str] = "cmds"
-    _message: ClassVar[type[Message]] = Command
+    VIEW: ClassVar[type] = Command
+    NAME: ClassVar[str] = Command.NAME
     RECORD: ClassVar[np.dtype] = np.dtype(
         [("robot", "<u4"), ("mode", "u1"), ("a", "<f4"), ("b", "<f4"), ("r", "u1"), ("g", "u1"), ("bl", "u1")]
     )
     _floats: ClassVar[tuple[str, ...]] = ("a", "b")
 
     def check_records(self) -> None:
-        if np.any(self.records["mode"] > 1):
+        if np.any(self.records["mode"] > Command.WHEELS):
             raise Malformed("invalid")
 
 
 @dataclass
 class States(Frame):
     """Agent host -> agent hosts: the states of its robots at one tick (a host's hellos before its
-    first tick too, tick Pose.BEFORE_START). Every host hears every frame: a host of hundreds of
-    robots spread over the display listens to most cells anyway, and one frame costs each process
-    it crosses what one robot's state did."""
+    first tick too, tick BEFORE_START). A robot alone files its frame of one under its spatial
+    cell; a host's frame goes to every host: a host of hundreds of robots spread over the display
+    listens to most cells anyway, and one frame costs each process it crosses what one robot's
+    state did."""
 
     KIND: ClassVar[int] = 12
-    NAME: ClassVar[str] = "states"
-    _message: ClassVar[type[Message]] = State
+    VIEW: ClassVar[type] = State
+    NAME: ClassVar[str] = State.NAME
     RECORD: ClassVar[np.dtype] = np.dtype(
         [
             ("robot", "<u4"),
@@ -601,6 +741,9 @@ class States(Frame):
     def check_records(self) -> None:
         if np.any(self.records["radius"] <= 0):
             raise Malformed("invalid")
+
+
+FRAME_OF: dict[type, type[Frame]] = {f.VIEW: f for f in (Poses, Commands, States)}  # view -> its frame kind
 
 
 @dataclass
@@ -701,7 +844,7 @@ def _reject_constant(name: str) -> None:
 
 
 MESSAGE_TYPES: dict[int, type[Message]] = {
-    t.KIND: t for t in (Pose, State, Command, Tick, Goals, Truth, Contact, Event, Bid, Boards, Poses, Commands, States)
+    t.KIND: t for t in (Tick, Goals, Truth, Contact, Event, Bid, Boards, Poses, Commands, States)
 }
 BY_NAME: dict[str, type[Message]] = {t.NAME: t for t in MESSAGE_TYPES.values()}
 

@@ -1,11 +1,10 @@
 """The key-expression schema: every key the system uses is built here and nowhere else.
 
-px/<display>/pose/<id>               tracker -> agent i: its tracked pose and the tick
-px/<display>/poses                   tracker -> agent hosts: every robot's pose of a tick, one frame
-px/<display>/state/<cx>/<cy>/<id>    agent broadcast, filed under its spatial cell
-px/<display>/states/<id>             agent host broadcast: its robots' states of a tick (<id>: its first)
-px/<display>/cmd/<id>                agent -> body: wheel speeds or velocity, LED colour
-px/<display>/cmds/<id>               agent host -> bodies: its robots' commands of a tick (<id>: its first)
+px/<display>/pose/<id>               tracker -> agent i: its tracked pose of a tick, a frame of one
+px/<display>/pose                    tracker -> agent hosts: every robot's pose of a tick, one frame
+px/<display>/state/<cx>/<cy>/<id>    a robot alone: its state, a frame of one filed under its spatial cell
+px/<display>/state/<id>              agent host broadcast: its robots' states of a tick, one frame (<id>: its first)
+px/<display>/cmd/<id>                agent -> bodies: commands of a tick, one frame (<id>: the sender's first robot)
 px/<display>/goals/<epoch>           coordinator -> all: the goal set and colours
 px/<display>/auction/<epoch>/<id>    bids and prices of the distributed auction
 px/<display>/alive/<role>/<id>       liveliness tokens (role: agent, world, coordinator, run, ...)
@@ -48,20 +47,29 @@ class Keys:
         self.display = display
         self.root = f"{PREFIX}/{display}"
 
-    # tracker -> agent
+    # tracker -> agent: every key of kind 'pose' carries a Poses frame
     def pose(self, robot: int) -> str:
+        """One robot's frame of one (a robot alone in its process hears only its own)."""
         return f"{self.root}/pose/{robot}"
 
     @property
     def poses(self) -> str:
-        return f"{self.root}/poses"
+        """The frame of every tracked robot (agent hosts of several robots)."""
+        return f"{self.root}/pose"
 
-    # agent broadcasts
+    # agent broadcasts: every key of kind 'state' carries a States frame
     def state(self, cell: tuple[int, int], robot: int) -> str:
+        """A robot alone: its frame of one, under its spatial cell (neighbours subscribe to cells)."""
         return f"{self.root}/state/{cell[0]}/{cell[1]}/{robot}"
 
     def states(self, host: int) -> str:
-        return f"{self.root}/states/{host}"
+        """A host's frame of its robots' states (<host>: its first robot), heard by every host."""
+        return f"{self.root}/state/{host}"
+
+    @property
+    def states_all(self) -> str:
+        """Every host's frames (not the cells: one chunk after 'state')."""
+        return f"{self.root}/state/*"
 
     def state_of(self, robot: int) -> str:
         """One robot's broadcasts, whatever cell it is in."""
@@ -71,10 +79,8 @@ class Keys:
         return f"{self.root}/state/{cell[0]}/{cell[1]}/*"
 
     def cmd(self, robot: int) -> str:
+        """A Commands frame from the sender whose first robot this is (a robot alone: its own)."""
         return f"{self.root}/cmd/{robot}"
-
-    def cmds(self, host: int) -> str:
-        return f"{self.root}/cmds/{host}"
 
     def goals(self, epoch: int) -> str:
         return f"{self.root}/goals/{epoch}"

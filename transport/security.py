@@ -207,7 +207,7 @@ def _service_grants(keys: Keys) -> dict[str, list[dict]]:
         "world": _grants(
             "world",
             put=[keys.clock, keys.all_of("pose"), keys.poses, keys.all_of("state"), keys.all_of("sim"), keys.event],
-            read=[keys.all_of("cmd"), keys.all_of("cmds"), keys.event],
+            read=[keys.all_of("cmd"), keys.event],
             token=[keys.alive_all("world")],
             watch=[alive],
         ),
@@ -224,7 +224,6 @@ def _robot_grants(keys: Keys, robot: int) -> list[dict]:
             keys.state_of(robot),
             keys.states(robot),
             keys.cmd(robot),
-            keys.cmds(robot),
             keys.auction_of(robot),
             keys.boards_of(robot),
             keys.event,
@@ -241,7 +240,6 @@ def _every_robot_grants(keys: Keys) -> list[dict]:
         read=[
             keys.poses,
             keys.all_of("state"),
-            keys.all_of("states"),
             keys.all_of("goals"),
             keys.all_of("auction"),
             keys.all_of("boards"),

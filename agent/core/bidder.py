@@ -41,27 +41,18 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from transport.codec import AuctionRecord, Bid
+
 from .auction import NO_OWNER, ROUNDING, epsilon_schedule, is_content
 from .neighbours import splitmix64
 
-CONTENT = 1  # record flag: the robot holds the goal and is content with it
-RELEASED = 2  # record flag: the robot gave the goal up at this price
-SETTLED = 4  # record flag (lock-step rounds): content at the final phase's slack, so in every phase left
+# the auction record's flags (transport.codec.AuctionRecord); SETTLED: content at the final phase's slack,
+# so in every phase left
+CONTENT, RELEASED, SETTLED = AuctionRecord.CONTENT, AuctionRecord.RELEASED, AuctionRecord.SETTLED
 CANDIDATES = 16  # goals a robot ranks in settle_alone's rounds while no other can beat them (agent.core.jacobi)
 SMALL = 8  # messages with up to this many records are merged record by record (numpy costs more there)
 
-# One robot's word on one goal (goal -1: it holds none yet); the wire layout of transport.codec.Bid.
-RECORD = np.dtype(
-    [
-        ("robot", "<u2"),
-        ("goal", "<i4"),
-        ("price", "<f8"),
-        ("flags", "u1"),
-        ("penalty", "<f4"),
-        ("x", "<f4"),
-        ("y", "<f4"),
-    ]
-)
+RECORD = Bid.RECORD  # one robot's word on one goal (goal -1: it holds none yet), as a Bid carries it
 
 
 def bid_position(position: np.ndarray, goal: np.ndarray, velocity: np.ndarray, lead: float) -> np.ndarray:
@@ -93,7 +84,7 @@ def bid_position(position: np.ndarray, goal: np.ndarray, velocity: np.ndarray, l
 def frames_close(before: np.ndarray, goals: np.ndarray, previous: np.ndarray) -> bool:
     """Whether consecutive keyframes differ little enough for the auction to start from the carried
     assignment (Participant.carry) at prices zero, when the warm start from the goal sets' matching
-    (Goals.matched) does not apply (the last auction never agreed, or the robots changed): corresponding goals on average at most one and a half
+    (the WarmStart part of Goals) does not apply (the last auction never agreed, or the robots changed): corresponding goals on average at most one and a half
     typical goal spacings (the median distance from a goal to its nearest neighbour) apart: closer,
     the carried claims agree in fewer rounds than a cold start; further, in more
     (bench/results/carry.md)."""
@@ -362,7 +353,7 @@ class Participant:
         skip the coarse epsilon phases that build the prices, and the fine ones fight a price war that costs more than a cold
         start (bench/bench_carry.py; see frames_close). Carrying the prices too costs more in both
         cases: they are in equilibrium for the old costs only. ``prices`` (with ``claim``): prices in
-        equilibrium for the new goals (Goals.prices) to start from instead of zero. Call before the
+        equilibrium for the new goals (Goals.warm_start.prices) to start from instead of zero. Call before the
         first instance."""
         previous = np.asarray(previous, np.int64)
         if self.started or not before.started or len(previous) != len(self.goals):
