@@ -18,7 +18,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from functools import partial
 
 import numpy as np
 
@@ -30,7 +29,6 @@ from .params import RobotParams
 from .step import NeighbourStates, StepResult, control_step
 
 NO_GOAL = -1  # goal index of a robot that holds no goal of a goal set
-_f64 = partial(np.ascontiguousarray, dtype=float)
 
 
 @dataclass(frozen=True)
@@ -181,7 +179,7 @@ def act(
     """Stage two: collision-free velocity and command, and deadlock detection while an auction can
     act on it (``watch_deadlocks``; otherwise the blocked counts wait as they are). ``reach``: the
     robots hear states only from this close (m): they drive no faster than heard_speed_limit.
-    ``compiled``: the control core and the blocked test compiled (the same bits; central engines)."""
+    ``compiled``: the control core compiled (the same bits; central engines)."""
     preferred, latency = intent.preferred, memory.latency
     if np.isfinite(reach):
         ages = np.where(neighbours.valid, neighbours.age, np.inf)
@@ -204,30 +202,11 @@ def act(
     )
     counts, deadlocked = memory.blocked, np.zeros(len(position), bool)
     if watch_deadlocks and params.deadlock_cost > 0:
-        now = _blocked(params, position, intent, res, compiled)
+        to_goal = np.where((intent.key[:, 1] >= 0)[:, None], intent.goal - position, np.nan)
+        now = blocked(params, to_goal, res.pref_velocity, res.velocity)
         counts, deadlocked = count_blocked(counts, now, params.deadlock_iterations)
     new_memory = Memory(res.velocity.copy(), intent.hold_left, intent.hold_for, counts, latency)
     return Decision(intent, res, new_memory, deadlocked)
-
-
-def _blocked(params: RobotParams, position: np.ndarray, intent: Intent, res: StepResult, compiled: bool) -> np.ndarray:
-    """deadlock.blocked for the robots holding a goal (``compiled``: its compiled twin, the same bits)."""
-    has_goal = intent.key[:, 1] >= 0
-    if compiled:
-        from .deadlock_kernel import blocked_core
-
-        return blocked_core(
-            _f64(position),
-            _f64(intent.goal),
-            has_goal,
-            _f64(res.pref_velocity),
-            _f64(res.velocity),
-            float(params.goal_tolerance),
-            float(params.deadlock_near),
-            float(params.deadlock_speed),
-        )
-    to_goal = np.where(has_goal[:, None], intent.goal - position, np.nan)
-    return blocked(params, to_goal, res.pref_velocity, res.velocity)
 
 
 def heard_speed_limit(params: RobotParams, reach: float, latency: np.ndarray) -> np.ndarray:
