@@ -438,3 +438,32 @@ def test_hull_of_a_degenerate_goal_set_bounds_it() -> None:
     hx, hy = _hull_vertices(goals)
     for d in np.random.default_rng(0).normal(size=(20, 2)):
         assert max(hx * d[0] + hy * d[1]) >= max(goals @ d) - 1e-12
+
+
+def test_moved_bound_bounds_every_goal_off_the_list_and_is_tight_near_the_goals() -> None:
+    """agent.core.jacobi.moved_bound: after a robot moved and prices and penalties rose, no goal off
+    its candidate list is worth more than the bound carried from where the list was made; in a wide
+    goal set the goals near the robot, not the set's extent, set it."""
+    from agent.core.bidder import _hull_vertices
+    from agent.core.jacobi import moved_bound
+
+    rng = np.random.default_rng(5)
+    tighter = 0
+    for trial in range(300):
+        goals = rng.uniform(-20.0, 20.0, (200, 2))
+        hx, hy = _hull_vertices(goals)
+        price = rng.uniform(-2.0, 3.0, 200) * (trial % 3 != 0)  # zero, and warm starts' prices of either sign
+        p0 = rng.uniform(-22.0, 22.0, 2)
+        values = -((goals - p0) ** 2).sum(axis=1) - price
+        off = np.argsort(-values, kind="stable")[8:]  # the 8 best are the list
+        made = values[off].max()
+        d = rng.normal(0.0, [0.02, 0.5, 5.0][trial % 3], 2)
+        p1 = p0 + d
+        later = price + rng.uniform(0.0, 1.0, 200) * (rng.random(200) < 0.3)  # prices only rise
+        penalty = np.where(rng.random(200) < 0.1, 0.1, 0.0)
+        now = -((goals - p1) ** 2).sum(axis=1) - penalty - later
+        bound = moved_bound(made, p0[0], p0[1], d[0], d[1], hx, hy, price.min())
+        assert now[off].max() <= bound
+        hull_only = made + 2.0 * (max(hx * d[0] + hy * d[1]) - p0 @ d) - d @ d
+        tighter += bound < hull_only - 1e-6
+    assert tighter > 150, tighter

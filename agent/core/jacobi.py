@@ -25,8 +25,9 @@ What makes a round cheap is knowing a robot's best goals without scanning every 
   included) and a ranking costs K goals, not all of them.
 - **Carried across blocks.** A robot that moved by d since its list was made: the value of goal j
   changed by 2 (g_j - p).d - |d|^2, so the bound moved by at most 2 (h(d) - p.d) - |d|^2 with h the
-  goal set's support function (over its convex hull). While robots hold their goals the lists
-  survive from control step to control step, and a block need not start by scanning every cost.
+  goal set's support function (over its convex hull), and by less where the goals off the list are
+  near the robot (`moved_bound`). While robots hold their goals the lists survive from control step
+  to control step, and a block need not start by scanning every cost.
 - **No cost matrix.** Costs are computed where needed, |g_j - p_i|^2 plus the penalties in force, in
   the same float operations as the agent hosts' (agent.core.bidder._squared_distances).
 - **Phases with nothing to do** are passed over: a robot content at the smallest slack left is
@@ -294,25 +295,43 @@ def _content(
     return held >= value[i] - slack - rounding * abs(value[i])
 
 
+@njit(cache=True, inline="always")
+def moved_bound(made, x0, y0, dx, dy, hull_x, hull_y, lowest):
+    """An upper bound, now, of the value of every goal off a robot's list, made where it stood at
+    (x0, y0) with the bound ``made``, after it moved by D = (dx, dy); ``lowest``: the lowest price.
+    Prices and penalties only rose since, and two bounds hold; the lesser is returned:
+    - a goal's value changed by 2 (g - p).D - |D|^2 <= 2 (h(D) - p.D) - |D|^2, h the support function
+      of the goal set over its hull's vertices (hull_x, hull_y);
+    - no goal is worth more than -(its distance)^2 - lowest (penalties are costs, never negative), so
+      with u = value + lowest, a goal that had u <= U there has u <= -(sqrt(-U) - |D|)^2 now (0 if
+      |D| >= sqrt(-U)): only the goals near the robot count, not the goal set's extent.
+    +inf for a robot with no list (made = +inf)."""
+    h = -np.inf
+    for a in range(len(hull_x)):
+        h = max(h, hull_x[a] * dx + hull_y[a] * dy)
+    grow = 2.0 * (h - (x0 * dx + y0 * dy)) - (dx * dx + dy * dy)
+    moved = made + grow
+    if made < np.inf:
+        u = made + lowest
+        near = max(np.sqrt(-u) - np.sqrt(dx * dx + dy * dy), 0.0) if u < 0.0 else 0.0
+        moved = min(moved, -near * near - lowest)
+    return moved + 1e-9 * (abs(moved) + abs(made) + abs(grow) + abs(lowest) + 1.0)  # room for rounding
+
+
 # nogil: it runs beside the control core (sim.central)
 @njit(cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]  # numba's stubs lack its _nrt option
 def first_ranking(px, py, gx, gy, price, penalty, has_penalty, best, value, second, lists, work, hull_x, hull_y) -> int:
     """Every robot's best goal, value and second-best bound at a block's start, from its candidates
-    where they still prove it, else over every goal. Since its list was made the robot moved by D:
-    every other goal's value rose by at most 2 (h(D) - p.D) - |D|^2 (p where it was made, h the
-    support function of the goal set, over its hull's vertices (hull_x, hull_y)), and prices and
-    penalties only rose. Returns how many robots had no list to start from."""
+    where they still prove it (moved_bound), else over every goal. Returns how many robots had no
+    list to start from."""
+    lowest = np.inf
+    for j in range(len(price)):
+        lowest = min(lowest, price[j])
     none = 0
     for i in range(len(px)):
         x0, y0 = lists.made_x[i], lists.made_y[i]
-        dx, dy = px[i] - x0, py[i] - y0
-        h = -np.inf
-        for a in range(len(hull_x)):
-            h = max(h, hull_x[a] * dx + hull_y[a] * dy)
-        grow = 2.0 * (h - (x0 * dx + y0 * dy)) - (dx * dx + dy * dy)
-        moved = lists.made_bound[i] + grow  # no list: +inf, and _rank ranks over every goal
-        lists.bound[i] = moved + 1e-9 * (abs(moved) + abs(grow) + 1.0)  # room for rounding
-        none += lists.made_bound[i] == np.inf
+        lists.bound[i] = moved_bound(lists.made_bound[i], x0, y0, px[i] - x0, py[i] - y0, hull_x, hull_y, lowest)
+        none += lists.made_bound[i] == np.inf  # no list: _rank ranks over every goal
         j1, v1, j2, v2, _ = _rank(i, px, py, gx, gy, price, penalty, has_penalty, lists, work)
         best[i], value[i] = j1, v1
         second[i] = v2 if j2 >= 0 else -np.inf
