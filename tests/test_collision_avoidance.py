@@ -56,9 +56,12 @@ def test_fourteen_epucks(tmp_path, shared_runs, layout, goals):
         # the shipped swap scene is these 14 e-pucks in facing rows (scene(14, "diffdrive", ROWS, "swap",
         # 90) but for the seed): seed 1's run, a process per robot, is test_one_controller's, made once
         m, traj = engine_run(shared_runs, "swap", 1, "a process per robot")
+        assert m["agent_processes"] == 14
     else:
-        m, traj = run_scene(tmp_path, scene(14, "diffdrive", layout, goals, 90))
-    assert m["agent_processes"] == 14
+        # two agent hosts of seven: a lock-step run is the same run with a process per robot
+        # (test_one_controller.py), at a fraction of the CPU
+        m, traj = run_scene(tmp_path, scene(14, "diffdrive", layout, goals, 90), "-k", "7")
+        assert m["agent_processes"] == 2
     assert_safe_and_arrived(m, traj)
 
 
