@@ -36,14 +36,10 @@ lint: $(TSTAMP)
 	$(VENV)/bin/lint-imports
 	$(VENV)/bin/mypy
 
-# The lock-step pass runs one test more than there are cores: a lock-step run waits on messages part
-# of the time, and a busy machine makes it slower, not different (docs/testing.md).
-LOCKSTEP_WORKERS ?= $(shell $(PYTHON) -c "import os; print((os.cpu_count() or 1) + 1)")
-
 # The whole suite: the in-process tests, then the end-to-end runs (marked slow) on every core, then
 # those marked serial one at a time (on the wall clock, another run beside them makes robots late).
 test: test-fast
-	$(PY) -m pytest -q -m "slow and not serial" -n $(LOCKSTEP_WORKERS) --dist loadgroup --durations=10
+	$(PY) -m pytest -q -m "slow and not serial" -n auto --dist loadgroup --durations=10
 	$(PY) -m pytest -q -m "slow and serial" --durations=5
 
 # Everyday work: the suite without the end-to-end runs marked slow.
