@@ -201,23 +201,27 @@ def spawned():
         p.wait(timeout=10)
 
 
-# The longest end-to-end tests (a minute or more each on 2 cores), started first: xdist hands tests to
-# its workers in collection order, and a long test picked up at the end of the pass leaves the other
-# worker idle meanwhile. (Tests sharing a run carry an xdist_group mark; `--dist loadgroup` starts those
-# groups first, the largest first, then the rest in this order.) Node ids, longest first.
+# The longest tests of the parallel passes (half a minute or more each on 2 cores, by wall time, waits
+# included), started first: xdist hands tests to its workers in collection order, and a long test
+# picked up at the end of the pass leaves the other workers idle meanwhile. (Tests sharing a run carry
+# an xdist_group mark; `--dist loadgroup` starts those groups first, the largest first, then the rest
+# in this order.) Node ids without parameters, longest first.
 LONGEST_FIRST = (
-    "tests/test_range_auction.py::test_a_hundred_robot_picture_in_hosts_forms_with_a_quarter_of_its_diameter_in_reach",
-    "tests/test_image_display_distributed.py::test_hundred_holonomic_robots_in_agent_hosts",
-    "tests/test_make_run.py::test_make_run_writes_a_complete_run_directory",
-    "tests/test_image_display_distributed.py::test_the_paper_sequence_forms_every_image_in_agent_hosts_as_in_the_central_engine",
-    "tests/test_runtime.py::test_lockstep_is_reproducible_and_hosts_match_processes",
     "tests/test_lockstep_faults.py::test_two_lockstep_runs_with_lost_and_delayed_states_are_the_same_run",
-    "tests/test_animation.py::test_pixelswarm_run_plays_a_folder",
-    "tests/test_perturbation.py::test_two_robots_teleported_out_of_a_disk_of_14_recover_within_10_s_without_contact",
+    "tests/test_one_controller.py::test_the_auction_is_the_same_in_every_engine",
+    "tests/test_image_display_distributed.py::test_the_paper_sequence_forms_every_image_in_agent_hosts_as_in_the_central_engine",
+    "tests/test_make_run.py::test_make_run_writes_a_complete_run_directory",
+    "tests/test_collision_avoidance.py::test_loss_and_delay_on_states_cause_no_contact",
+    "tests/test_range_auction.py::test_a_hundred_robot_picture_in_hosts_forms_with_a_quarter_of_its_diameter_in_reach",
+    "tests/test_one_controller.py::test_central_and_distributed_runs_of_one_seed_are_the_same_run",
     "tests/test_image_display_distributed.py::test_auction_survives_loss_and_delay",
+    "tests/test_bidder.py::test_lossy_network_agrees_on_one_owner_per_goal",
+    "tests/test_study.py::test_the_grid_runs_with_one_command_one_row_per_run",
     "tests/test_paper_figures.py::test_quick_reproduction_writes_sane_figures",
-    "tests/test_faults_recovery.py::test_a_killed_coordinator_is_restarted_and_goes_on_with_the_show",
-    "tests/test_dynamic_obstacles.py::test_fourteen_hold_a_disk_while_two_movers_cross_it_without_contact",
+    "tests/test_runtime.py::test_lockstep_is_reproducible_and_hosts_match_processes",
+    "tests/test_image_display_distributed.py::test_hundred_holonomic_robots_in_agent_hosts",
+    "tests/test_faults_recovery.py::test_a_tenth_of_the_agents_killed_at_once_and_the_rest_form_the_image_for_the_survivors",
+    "tests/test_animation.py::test_fourteen_agents_play_four_keyframes_of_the_story_over_zenoh",
 )
 
 

@@ -192,7 +192,7 @@ def test_a_killed_coordinator_is_restarted_and_goes_on_with_the_show(tmp_path, s
     scene = tmp_path / "three.toml"
     scene.write_text(THREE_STEPS)
     out = tmp_path / "run"
-    proc = start_run(spawned, scene, out)
+    proc = start_run(spawned, scene, out, "-k", "5")  # two agent hosts: the coordinator is what dies here
     # into the second image: a coordinator takes seconds to start on a loaded machine, and a lock-step
     # display does not wait for it (the robots hold the image they have meanwhile)
     assert wait_for(lambda: ticks_so_far(out) >= 120, timeout=120)

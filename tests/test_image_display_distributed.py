@@ -109,8 +109,8 @@ def test_auction_survives_loss_and_delay(tmp_path):
 KILL_AT = 20.0  # s: the disk of 14 forms in about 10 s
 
 
-# Serial: beside other end-to-end runs in the parallel pass this run stalls past its timeout, and
-# alone it does not; why is still open (docs/testing.md).
+# Serial: beside other runs the hosts can take up the twelve's goal set at different ticks, and a
+# lock-step run then stalls (a bug of the agents' auction, docs/testing.md); alone it seldom does.
 @pytest.mark.slow
 @pytest.mark.serial
 def test_two_of_fourteen_agents_die_and_twelve_reform_the_image(tmp_path):
@@ -151,7 +151,7 @@ kind = "grid"
 spacing = 0.3
 [[steps]]
 shape = "disk"
-hold = 12.0  # formed 6.6 s in (converged_at); 20 s before, and each simulated second costs ~9 CPU s
+hold = 12.0  # long enough to form with margin (converged_at, docs/testing.md), no longer: 100 robots are costly
 [[steps]]
 shape = "disk_and_line"
 hold = 45.0
@@ -161,7 +161,9 @@ hold = 45.0
 @pytest.mark.slow
 @pytest.mark.timeout(900)
 def test_hundred_holonomic_robots_in_agent_hosts(tmp_path):
-    m, traj = run(tmp_path, HUNDRED, "--agents-per-process", "10", timeout=900)
+    # two hosts of fifty: a lock-step run is the same run however the robots are hosted
+    # (test_one_controller.py), and every host decodes every other host's frames, so fewer cost less
+    m, traj = run(tmp_path, HUNDRED, "--agents-per-process", "50", timeout=900)
     assert_every_hold_formed(m, traj=traj)
     # with hysteresis Delta C the bound is N (epsilon_A + Delta C) (plus deadlock penalties in force)
     assert_agreements_valid(traj, bound_per_robot=EPS_A + 5e-3)

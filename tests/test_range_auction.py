@@ -37,7 +37,9 @@ def test_a_hundred_robot_picture_in_hosts_forms_with_a_quarter_of_its_diameter_i
     source = picture(tmp_path)
     reach = _diameter(source, 100, 1) / 4
     flags = ("--robots", "100", "--seed", "1", "--clock", "lockstep", "--range", f"{reach:.6f}")
-    metrics, traj = run_scene(tmp_path, source, *flags, "-k", "25", name="hosts")
+    # two hosts of fifty: a lock-step run is the same run however its robots are hosted, and every
+    # host decodes every other host's words, so fewer hosts cost less
+    metrics, traj = run_scene(tmp_path, source, *flags, "-k", "50", name="hosts")
     assert metrics["contacts"] == 0 and metrics["missed_ticks"] == 0
     assert metrics["converged"]
     error = np.hypot(*(traj["pose"][-1, :, :2] - traj["goal"][-1]).T)

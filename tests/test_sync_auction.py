@@ -121,7 +121,7 @@ def assert_one_to_one(traj: dict) -> None:
 @pytest.mark.slow
 @pytest.mark.xdist_group("picture-30")
 def test_two_lockstep_runs_of_a_picture_are_identical_under_load(tmp_path, shared_runs):
-    image = picture(tmp_path)  # agent hosts of 5 robots (each robot its own process: test_one_controller.py)
+    image = picture(tmp_path)  # agent hosts of 10 robots (each robot its own process: test_one_controller.py)
     flags = ("--clock", "lockstep", *PICTURE_FLAGS, *ENGINES["agent hosts"])
     # the quiet run is test_one_controller's run of the picture in agent hosts, made once for both
     quiet = picture_run(shared_runs, tmp_path, "agent hosts")
