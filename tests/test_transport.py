@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 from agent.core.bidder import RECORD as bidder_record
 from transport.bus import Bus
 from transport.codec import (
+    BEFORE_START,
     BY_NAME,
     VERSION,
     AuctionRecord,
@@ -403,3 +404,20 @@ def test_liveliness_reports_death(router):
 def test_occupied_port_is_a_clear_error(router):
     with pytest.raises(TransportError, match="in use"):
         open_session(router)
+
+
+def test_resent_hellos_get_through_a_lossy_lock_step_inbox(router):
+    """Hellos (tick BEFORE_START) come before the lock-step tick clock runs: a delay holds them on the
+    wall clock and each resend takes its own draw, so with 50 % loss one of a few resends gets
+    through (on the tick clock every resend was dropped alike, or held for a tick that waited for
+    it: the run started only at the hello timeout)."""
+    faults = {"state": FaultSpec(drop=0.5, delay=0.05)}
+    with Bus(client_of(router), "t") as a, Bus(client_of(router), "t", faults=faults, seed=1) as b:
+        inbox = b.subscribe(b.keys.all_of("state"), State)
+        inbox.sim_time = 0.0  # a lock-step owner before its first tick
+        time.sleep(0.3)
+        for _ in range(12):  # an agent resends its hello until it hears the others
+            a.publish(a.keys.state((0, 0), 4), States.one(State(4, BEFORE_START, 0.0, 0, 0, 0, 0, 0.045, 0, 0, -1, 0)))
+        got = _collect(inbox, 1, timeout=2.0)
+        assert got and got[0][1].tick == BEFORE_START
+        assert 0 < inbox.drops["fault"] < 12

@@ -103,7 +103,11 @@ class Inbox(Generic[T]):
                 self.bell.set()
             return
         stamp: float | None = getattr(msgs[0], "stamp", None) if msgs else None
-        on_ticks = self.sim_time is not None and stamp is not None and getattr(msgs[0], "tick", -1) >= 0
+        # A hello (tick BEFORE_START) is not on the tick clock, which does not run before the first
+        # tick: held on it, it would wait for a tick that waits for it; drawn as a function of the
+        # message, every resend of it would meet the same fate.
+        tick = getattr(msgs[0], "tick", -1) if msgs else -1
+        on_ticks = self.sim_time is not None and stamp is not None and 0 <= tick != BEFORE_START
         with self._lock:
             rng = random.Random(f"{self._seed}/{key}/{stamp!r}") if on_ticks else self._rng
             if rng.random() < self.fault.drop:
