@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from transport.bus import Bus
-from transport.codec import BEFORE_START, Command, Commands, Event, Goals, Pose, State, States
+from transport.codec import BEFORE_START, Command, Commands, Event, Goals, Pose, State, States, Tick
 from transport.keys import cell_of, cells_of
 
 from .assignment import AuctionLink
@@ -138,7 +138,7 @@ HELLO_TIMEOUT = 30.0  # s a host waits for its neighbours' hellos before it says
 LOCKSTEP_IDLE = 0.15  # s of wall time without a message that ends a tick's rounds (the auction is quiet)
 LOCKSTEP_CAP = 1.0  # s of wall time a tick's rounds may take at most: the next tick's pose waits meanwhile,
 # and the world counts a missed tick after 2 s
-GOAL_SET_WAIT = 10.0  # s a lock-step tick waits for the goal set its step is due with (HostConfig.steps)
+GOAL_SET_WAIT = 10.0  # s a lock-step tick waits for its clock message and the goal sets it names
 
 
 CELL_KEY = 1 << 32  # cells as one int64 each: cx * CELL_KEY + cy (|cy| < 2^31 cells)
@@ -224,6 +224,10 @@ class AgentHost:
             bus.subscribe_into(self.keys.state_of(target), self.state_inbox)
         self.goal_inbox = bus.subscribe(self.keys.all_of("goals"), Goals)
         self.goal_sets: dict[int, Goals] = {}  # the latest auctioned goal sets by epoch (timing, motion)
+        self.held: dict[int, Goals] = {}  # lock-step: goal sets heard that no tick has named yet
+        self.named: dict[int, int] = {}  # lock-step: tick -> the newest goal set the world named in it
+        self.newest_heard = 0  # epoch of the newest goal set heard (per-robot goals too)
+        self.clock_inbox = bus.subscribe(self.keys.clock, Tick) if config.lockstep else None
         self.auction = AuctionLink(
             bus,
             config.robots,
@@ -257,7 +261,7 @@ class AgentHost:
         (``config.greet``, from the launcher): a hello heard proves the sender's session knows our
         subscription, so its tick-0 state reaches us too."""
         for _, goals in self.bus.query(self.keys.all_of("goals"), Goals, timeout=2.0):
-            self._on_goals(goals)
+            self._hear_goals(goals)
         where: dict[int, Pose] = {}
         end = time.monotonic() + timeout
         while len(where) < len(self.memory) and self.running and time.monotonic() < end:
@@ -312,6 +316,15 @@ class AgentHost:
             self.bus.publish(self.keys.cmd(c.robot), Commands.one(c))
 
     # --- messages -----------------------------------------------------------------------------
+    def _hear_goals(self, goals: Goals) -> None:
+        """A goal set heard. Lock-step holds a new one until the tick that takes it up
+        (_take_up_goal_sets), so that every host takes it up at the same tick."""
+        self.newest_heard = max(self.newest_heard, goals.epoch)
+        if self.config.lockstep and not goals.per_robot and goals.epoch > max(self.goal_sets, default=0):
+            self.held[goals.epoch] = goals
+            return
+        self._on_goals(goals)
+
     def _on_goals(self, goals: Goals) -> None:
         if not goals.per_robot:
             self._bid_from = None
@@ -406,7 +419,7 @@ class AgentHost:
 
     def _absorb(self) -> None:
         for _, goals in self.goal_inbox.drain():
-            self._on_goals(goals)
+            self._hear_goals(goals)
         for _, state in self.state_inbox.drain():
             self._on_state(state)
         self.auction.poll(self._positions())
@@ -463,20 +476,37 @@ class AgentHost:
                 (self.dead.discard if alive else self.dead.add)(int(ident))
         return self.dead
 
-    def _await_goal_set(self, stamp: float) -> None:
-        """Lock-step: wait for the goal set of the scene step due at this tick (the coordinator
-        publishes it once it hears the tick), so that its auction starts at this very tick."""
+    def _take_up_goal_sets(self, tick: int, stamp: float) -> None:
+        """Lock-step: take up the goal sets due at this tick, so that every host takes each up at the
+        same tick: those up to the newest the world had heard when it published the tick (its clock
+        message names it), and the goal set of the scene step due now, which the coordinator
+        publishes only once it hears the tick. Newer goal sets wait for a tick that names them."""
+        assert self.clock_inbox is not None
         due = int(np.searchsorted(self.config.steps, stamp + 1e-9, side="right")) - 1
-        if due < 0:
-            return
         deadline = time.monotonic() + GOAL_SET_WAIT
-        while self.running and not any(g.timing.step >= due for g in self.goal_sets.values()):
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                return
-            got = self.goal_inbox.get(timeout=remaining)
+        while self.running and time.monotonic() < deadline:
+            for _, clock in self.clock_inbox.drain():
+                self.named[clock.tick] = clock.goal_epoch
+            has_step = due < 0 or any(g.timing.step >= due for g in (*self.goal_sets.values(), *self.held.values()))
+            if tick in self.named and has_step and self.newest_heard >= self.named[tick]:
+                break
+            wait = min(deadline - time.monotonic(), 0.05)
+            if tick not in self.named:
+                got_tick = self.clock_inbox.get(timeout=max(wait, 0.0))
+                if got_tick is not None:
+                    self.named[got_tick[1].tick] = got_tick[1].goal_epoch
+                continue
+            got = self.goal_inbox.get(timeout=max(wait, 0.0))
             if got is not None:
-                self._on_goals(got[1])
+                self._hear_goals(got[1])
+        # no clock message in time (a world that names no goal set): take up all that was heard
+        upto = self.named.get(tick, max(self.held, default=0))
+        if due >= 0:
+            of_step = [e for e, g in {**self.goal_sets, **self.held}.items() if g.timing.step >= due]
+            upto = max(upto, min(of_step, default=0))
+        self.named = {t: e for t, e in self.named.items() if t > tick}
+        for epoch in sorted(e for e in self.held if e <= upto):
+            self._on_goals(self.held.pop(epoch))
 
     # --- the loop -----------------------------------------------------------------------------
     def run(self) -> None:
@@ -490,7 +520,7 @@ class AgentHost:
             got = self.pose_inbox.get(timeout=0)
             if self.auction.active or self.goal_inbox.has_delayed:
                 for _, msg in self.goal_inbox.drain():
-                    self._on_goals(msg)
+                    self._hear_goals(msg)
                 self.auction.poll(self._positions())
             if got is None:
                 if not self.ticks_done:
@@ -591,7 +621,7 @@ class AgentHost:
             mem.stamp = stamp
         self._bid_from = None
         if self.config.lockstep:
-            self._await_goal_set(stamp)
+            self._take_up_goal_sets(tick, stamp)
         self._dead_now()
         self.auction.on_tick(stamp, self._positions())
         stopped = {r: p.v_max * p.dt for r in self.dead}  # it may have moved one period after its last state

@@ -28,7 +28,7 @@ import numpy as np
 from coordinator.resolved import load_resolved
 from coordinator.scene import Scene, SceneError, load_scene
 from transport.bus import Bus
-from transport.codec import BEFORE_START, Event, State, States, Tick, Truth
+from transport.codec import BEFORE_START, Event, Goals, State, States, Tick, Truth
 from transport.codec import Contact as ContactMsg
 from transport.faults import parse_faults
 from transport.keys import cell_of
@@ -75,6 +75,9 @@ class WorldNode:
         # lock-step: agents at work in the auction (either kind) are not late
         self.auction_traffic = [bus.subscribe_raw(self.keys.all_of(kind)) for kind in ("auction", "boards")]
         self.control_inbox = bus.subscribe(self.keys.event, Event)
+        # the newest goal set heard, named in each tick (lock-step agents take goal sets up by it)
+        self.goal_inbox = bus.subscribe(self.keys.all_of("goals"), Goals)
+        self.goal_epoch = 0
         self.alive = bus.watch_alive("agent")
         self.running = True
         self.end_reason = ""
@@ -137,7 +140,8 @@ class WorldNode:
 
     def _publish_tick(self) -> None:
         t = self.tick * self.dt
-        self.bus.publish(self.keys.clock, Tick(self.tick, t, self.dt))
+        self.goal_epoch = max([self.goal_epoch] + [g.epoch for _, g in self.goal_inbox.drain()])
+        self.bus.publish(self.keys.clock, Tick(self.tick, t, self.dt, self.goal_epoch))
         self._publish_truth()
         if self.tracker_out:
             self.withheld_ticks += 1

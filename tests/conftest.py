@@ -211,6 +211,7 @@ LONGEST_FIRST = (
     "tests/test_one_controller.py::test_the_auction_is_the_same_in_every_engine",
     "tests/test_image_display_distributed.py::test_the_paper_sequence_forms_every_image_in_agent_hosts_as_in_the_central_engine",
     "tests/test_make_run.py::test_make_run_writes_a_complete_run_directory",
+    "tests/test_image_display_distributed.py::test_two_of_fourteen_agents_die_and_twelve_reform_the_image",
     "tests/test_collision_avoidance.py::test_loss_and_delay_on_states_cause_no_contact",
     "tests/test_range_auction.py::test_a_hundred_robot_picture_in_hosts_forms_with_a_quarter_of_its_diameter_in_reach",
     "tests/test_one_controller.py::test_central_and_distributed_runs_of_one_seed_are_the_same_run",

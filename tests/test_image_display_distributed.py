@@ -109,10 +109,7 @@ def test_auction_survives_loss_and_delay(tmp_path):
 KILL_AT = 20.0  # s: the disk of 14 forms in about 10 s
 
 
-# Serial: beside other runs the hosts can take up the twelve's goal set at different ticks, and a
-# lock-step run then stalls (a bug of the agents' auction, docs/testing.md); alone it seldom does.
 @pytest.mark.slow
-@pytest.mark.serial
 def test_two_of_fourteen_agents_die_and_twelve_reform_the_image(tmp_path):
     events = "\n".join(f'[[events]]\nkind = "fail"\nt = {KILL_AT}\nrobot = {r}' for r in (3, 9))
     m, traj = run(tmp_path, DISK.format(hold=KILL_AT + 15.0, converge_hold=100.0, events=events))

@@ -20,7 +20,7 @@ from typing import Any, ClassVar, TypeVar, overload
 
 import numpy as np
 
-VERSION = 2  # of the message header and every kind's layout; a goal set's parts have their own
+VERSION = 3  # of the message header and every kind's layout; a goal set's parts have their own
 _HEADER = struct.Struct("<BB")
 
 
@@ -191,14 +191,18 @@ class Command:
 
 @dataclass
 class Tick(Message):
-    """Clock: tick k starts at ``stamp`` seconds of display time; ``dt`` is the control period."""
+    """Clock: tick k starts at ``stamp`` seconds of display time; ``dt`` is the control period.
+    ``goal_epoch`` is the newest goal set the world had heard when it published the tick: in
+    lock-step every agent takes up the goal sets up to it at this tick, so that a goal set no scene
+    step announced (an agent died or joined) takes effect at one tick for everyone."""
 
     KIND: ClassVar[int] = 4
     NAME: ClassVar[str] = "clock"
-    _fixed: ClassVar[struct.Struct] = struct.Struct("<Idf")
+    _fixed: ClassVar[struct.Struct] = struct.Struct("<IdfI")
     tick: int
     stamp: float
     dt: float
+    goal_epoch: int = 0
 
 
 _PART = struct.Struct("<BBI")  # a goal set's part header: part kind, part version, body length

@@ -207,7 +207,7 @@ def _service_grants(keys: Keys) -> dict[str, list[dict]]:
         "world": _grants(
             "world",
             put=[keys.clock, keys.all_of("pose"), keys.poses, keys.all_of("state"), keys.all_of("sim"), keys.event],
-            read=[keys.all_of("cmd"), keys.event],
+            read=[keys.all_of("cmd"), keys.event, keys.all_of("goals")],  # goals: each tick names the newest
             token=[keys.alive_all("world")],
             watch=[alive],
         ),
