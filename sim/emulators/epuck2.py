@@ -174,13 +174,14 @@ class Epuck2Emulator:
         except OSError:
             self._close_sockets()
             raise
+        self._addresses = [f"{HOST}:{listener.getsockname()[1]}" for listener in self._listeners]  # also once closed
         self._closing = False
         self._thread = threading.Thread(target=self._serve, name="epuck2-emulator", daemon=True)
 
     # --- for tests and the CLI ---
     @property
     def addresses(self) -> list[str]:
-        return [f"{HOST}:{listener.getsockname()[1]}" for listener in self._listeners]
+        return list(self._addresses)
 
     def pose(self, robot_id: int) -> Pose:
         """The robot's true pose now."""
@@ -222,6 +223,10 @@ class Epuck2Emulator:
         return self
 
     def close(self) -> None:
+        """Stop serving, once every command already received is applied (a client's last stop
+        may still be in the socket when it asks us to close)."""
+        if self._closing:
+            return
         self._closing = True
         self._wake_w.send(b"\0")
         if self._thread.is_alive():
@@ -248,14 +253,19 @@ class Epuck2Emulator:
 
     def _serve(self) -> None:
         while not self._closing:
-            for key, _ in self._selector.select():
-                kind, rid = key.data
-                if kind == "wake":
-                    self._drain_wake()
-                elif kind == "listen":
-                    self._accept(rid)
-                elif kind == "client":
-                    self._receive(rid)
+            self._serve_ready(self._selector.select())
+        while ready := [e for e in self._selector.select(timeout=0) if e[0].data[0] == "client"]:
+            self._serve_ready(ready)  # closing: what the clients sent before is still applied
+
+    def _serve_ready(self, events: list) -> None:
+        for key, _ in events:
+            kind, rid = key.data
+            if kind == "wake":
+                self._drain_wake()
+            elif kind == "listen":
+                self._accept(rid)
+            elif kind == "client" and rid in self._clients:
+                self._receive(rid)
 
     def _drain_wake(self) -> None:
         try:
@@ -388,6 +398,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{args.robots} emulated e-puck2 robots at {' '.join(emulator.addresses)}", flush=True)
             while not stop.wait(0.2):
                 pass
+            emulator.close()
             for rid in range(args.robots):
                 x, y, theta = emulator.pose(rid)
                 print(f"robot {rid}: x={x:.4f} m y={y:.4f} m theta={theta:.4f} rad", flush=True)
