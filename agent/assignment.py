@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from itertools import count
 from typing import Any
 
@@ -382,7 +382,7 @@ class AuctionLink:
         key: tuple[int, int, int],
         msg: Bid | Boards,
         members: set[int],
-        robots_of: Callable[[Any], Iterable[int]],
+        robots_of: Callable[[Any], np.ndarray],
     ) -> dict[int, Any] | None:
         """Publish our message of round ``key`` (epoch, block's final instance, round) and wait until
         every live robot in ``members`` has said its word in that round (a robot whose agent died is
@@ -398,17 +398,18 @@ class AuctionLink:
             del self.newest_round[old]
         self.waiting_for, start = key, time.monotonic()
         resend = max(ROUND_RESEND, RESEND_PER_ROBOT * len(members))
-        own = set(self.robots)
+        said: set[int] = set(self.robots)  # robots heard in this round
+        counted: set[int] = set()  # the senders whose robots are in ``said``
         try:
             while not self.stopped:
                 now = time.monotonic()
                 if now - self.said[key][1] >= resend:  # at once, then again while records are missing
                     self._send(key)
                 heard = self.round_records.get(key, {})
-                said = own | self.dead()
-                for m in heard.values():
-                    said.update(int(r) for r in robots_of(m))
-                if members <= said:
+                for sender in heard.keys() - counted:  # a resent message names the same robots
+                    said.update(robots_of(heard[sender]).tolist())
+                    counted.add(sender)
+                if members <= said | self.dead():
                     return heard
                 if now - start >= ROUND_CAP:
                     return None
