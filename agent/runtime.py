@@ -542,8 +542,11 @@ class AgentHost:
                 self._take_pose(pose)
             if self.pending and not self.config.lockstep:
                 self.lateness.arrived(max(q.stamp for q in self.pending.values()), tick_start)
-            # Collect the other robots' poses of this tick (they are published together).
-            deadline = tick_start + self.config.batch_wait
+            # Collect the other robots' poses of this tick (they are published together). The inbox
+            # hands a frame's records over one by one, so a loaded machine can split a tick's frame:
+            # lock-step waits for all of them, as a block frozen on some robots' old poses would
+            # make a different run.
+            deadline = tick_start + (self.config.state_wait if self.config.lockstep else self.config.batch_wait)
             while len(self.pending) < len(self.memory) and self.running:
                 got = self.pose_inbox.get(timeout=max(0.0, deadline - time.monotonic()))
                 if got is None:
