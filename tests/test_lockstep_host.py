@@ -1,0 +1,139 @@
+"""A lock-step agent host (agent.runtime.AgentHost) against a hand-driven world, over a real zenoh
+router on loopback: the test publishes each tick's clock message, poses and goal sets, and waits for
+the robots' commands.
+
+- A goal set that no scene step announced (an agent died) waits, heard, until the world's clock
+  names it, so every host takes it up at the same tick. Before, each host took it up on arrival;
+  hosts that heard it at different ticks waited for each other's auction rounds at every tick, and
+  the run hung.
+- A tick's poses frame is stepped whole. The inbox hands a frame's records over one by one, and on a
+  loaded machine the thread handing them over can stall between two records. A real-time host then
+  steps the robots it has; a lock-step host that did so froze its auction block on the other
+  robots' poses of the tick before, and the run was no longer the run of its seed.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import numpy as np
+
+from agent.core.params import RobotParams
+from agent.runtime import AgentHost, HostConfig
+from transport.bus import Bus, Inbox
+from transport.codec import BEFORE_START, Command, Goals, Pose, Poses, Tick, Timing
+from transport.session import client_of, loopback_router, open_session
+
+DT = 0.1
+PARAMS = RobotParams(kinematics="holonomic")
+
+
+@contextmanager
+def world_and_agent_buses() -> Iterator[tuple[Bus, Bus]]:
+    router = loopback_router()
+    session = open_session(router)
+    try:
+        with Bus(client_of(router), "host") as world, Bus(client_of(router), "host") as agent_bus:
+            yield world, agent_bus
+    finally:
+        session.close()
+
+
+def run_host(world: Bus, host: AgentHost, where: np.ndarray) -> threading.Thread:
+    """Start ``host`` on a thread (start, then its loop) and return once its robots, standing at
+    ``where`` (a row per robot), are alive."""
+    started = threading.Event()
+
+    def run() -> None:
+        if host.start(timeout=20.0):
+            started.set()
+            host.run()
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    end = time.monotonic() + 20.0
+    while not started.is_set() and time.monotonic() < end:
+        world.publish_poses(BEFORE_START, 0.0, np.array(host.config.robots), where, frame=False)
+        time.sleep(0.1)
+    assert started.is_set(), "the host did not start"
+    return thread
+
+
+def stop_host(host: AgentHost, thread: threading.Thread) -> None:
+    host.running = False
+    thread.join(timeout=5.0)
+    assert not thread.is_alive()
+
+
+def await_commands(commands: Inbox[Command], tick: int, robots: set[int]) -> None:
+    heard: set[int] = set()
+    deadline = time.monotonic() + 20.0
+    while heard != robots and time.monotonic() < deadline:
+        got = commands.get(timeout=0.1)
+        if got is not None and got[1].tick == tick:
+            heard.add(got[1].robot)
+    assert heard == robots, f"tick {tick}: commands of {sorted(heard)}"
+
+
+def goal_set(epoch: int, x: float) -> Goals:
+    """A one-robot goal set of scene step 0 (robot 0, one goal at (x, 0))."""
+    return Goals(epoch, 0, np.array([[x, 0.0]]), np.array([[255, 0, 0]], np.uint8), np.array([0]), Timing(0.0, 0, 60.0))
+
+
+def test_a_goal_set_heard_before_its_tick_waits_for_the_tick_that_names_it() -> None:
+    with world_and_agent_buses() as (world, agent_bus):
+        commands = world.commands_inbox()
+        host = AgentHost(agent_bus, HostConfig(robots=[0], params=PARAMS, lockstep=True, steps=[0.0]))
+        thread = run_host(world, host, np.zeros((1, 3)))
+
+        def tick(k: int, named: int) -> None:
+            world.publish(world.keys.clock, Tick(k, k * DT, DT, named))
+            world.publish(world.keys.pose(0), Poses.one(Pose(0, k, k * DT, 0.0, 0.0, 0.0)))
+            await_commands(commands, k, {0})
+
+        world.publish(world.keys.goals(1), goal_set(1, 0.5))  # scene step 0's goal set
+        tick(0, 0)  # named by no tick yet: taken up as the step due at tick 0
+        assert set(host.goal_sets) == {1}
+
+        world.publish(world.keys.goals(2), goal_set(2, 0.6))  # an agent died: no step announced it
+        time.sleep(0.5)
+        tick(1, 1)
+        assert host.newest_heard == 2, "goal set 2 was not heard before tick 1"
+        assert 2 not in host.goal_sets, "goal set 2 was taken up at a tick that did not name it"
+
+        tick(2, 2)
+        assert 2 in host.goal_sets and not host.held
+        stop_host(host, thread)
+
+
+def test_a_tick_whose_poses_frame_comes_in_pieces_is_stepped_whole() -> None:
+    where = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])  # two robots of one host, apart
+    with world_and_agent_buses() as (world, agent_bus):
+        commands = world.commands_inbox()
+        host = AgentHost(agent_bus, HostConfig(robots=[0, 1], params=PARAMS, lockstep=True, frames=True))
+        deliver = host.pose_inbox._deliver
+
+        def in_pieces(key: str, msgs: list) -> None:  # 0.2 s between records: 4 times the real-time batch wait
+            for m in msgs:
+                deliver(key, [m])
+                time.sleep(0.2)
+
+        host.pose_inbox._deliver = in_pieces  # type: ignore[method-assign]
+        batches: list[list[int]] = []
+        step_tick = host._step_tick
+
+        def counted(poses: list[Pose]) -> None:
+            batches.append([q.robot for q in poses])
+            step_tick(poses)
+
+        host._step_tick = counted  # type: ignore[method-assign]
+        thread = run_host(world, host, where)
+        for k in range(3):
+            world.publish(world.keys.clock, Tick(k, k * DT, DT, 0))
+            world.publish(world.keys.poses, Poses.of(k, k * DT, [Pose(r, k, k * DT, *where[r]) for r in (0, 1)]))
+            await_commands(commands, k, {0, 1})
+        stop_host(host, thread)
+        assert batches == [[0, 1]] * 3, f"the ticks were stepped in batches {batches}"
