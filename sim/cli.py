@@ -61,6 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
         "information (reference, and fast for large swarms)",
     )
     run.add_argument("--no-video", dest="video", action="store_false", help="skip display.mp4")
+    run.add_argument("--no-plots", dest="plots", action="store_false", help="skip clearance.png and trajectories.png")
     run.add_argument(
         "--agents-per-process",
         "-k",
@@ -228,7 +229,8 @@ def cmd_run(args: argparse.Namespace) -> int:
                 "fail and tracker-outage events (faults of processes and messages) need the distributed engine"
             )
 
-        print(run_central(scene, out, video=args.video, progress=None if args.quiet else sys.stderr, reach=reach))
+        progress = None if args.quiet else sys.stderr
+        print(run_central(scene, out, video=args.video, plots=args.plots, progress=progress, reach=reach))
         return 0
     router = None
     if args.zenoh_config:
@@ -243,6 +245,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     options = RunOptions(
         out=out,
         video=args.video,
+        plots=args.plots,
         agents_per_process=k,
         display=args.display,
         router=router,

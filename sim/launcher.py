@@ -49,6 +49,7 @@ RESTARTED = (
 class RunOptions:
     out: Path
     video: bool = True
+    plots: bool = True  # clearance.png and trajectories.png
     agents_per_process: int = 1
     display: str = "default"
     router: ZenohSettings | None = None  # None: embed one on a free loopback port
@@ -582,6 +583,7 @@ class Launcher:
             wall_s=wall_s,
             contacts=stats.get("contacts", []),
             video=self.opt.video and not interrupted,
+            plots=self.opt.plots,
             message_counts=rec.counts,
             message_bytes=rec.bytes,
             missed_ticks=int(stats.get("missed_ticks", 0)),

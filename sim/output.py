@@ -13,7 +13,6 @@ from coordinator.resolved import save_resolved
 from coordinator.scene import Scene
 
 from .metrics import assignment_over_optimum, clearance_over_time, communication_parts, summarise
-from .render import write_plots, write_video
 from .rundir import RunDir, write_json, write_npz
 
 
@@ -47,6 +46,7 @@ def write_run(
     wall_s: float,
     contacts: list[dict[str, Any]],
     video: bool,
+    plots: bool = True,
     reach: float = np.inf,
     **metrics_extra: Any,
 ) -> Path:
@@ -83,7 +83,10 @@ def write_run(
     write_json(run_dir / "metrics.json", metrics)
     # ignored: to mypy a key of arrays could be write_npz's own ``compress`` (none is)
     write_npz(run_dir / "trajectory.npz", radius=radius, **arrays)  # type: ignore[arg-type]
-    if len(t):
+    if len(t) and (plots or video):
+        # imported here: the renderers load matplotlib, OpenCV and PyAV, about 1.4 CPU s a run
+        from .render import write_plots, write_video
+    if len(t) and plots:
         write_plots(
             run_dir.path,
             t,
@@ -95,19 +98,19 @@ def write_run(
             arrays["goal"],
             color=arrays["color"],
         )
-        if video:
-            try:
-                write_video(
-                    run_dir / "display.mp4",
-                    t,
-                    arrays["pose"],
-                    radius,
-                    arrays["color"],
-                    scene.arena,
-                    scene.obstacles,
-                    arrays["goal"],
-                )
-            except RuntimeError as err:  # no encoder here: the run's data matter more than its video
-                print(f"pixelswarm: warning: no display.mp4: {err}", file=sys.stderr)
+    if len(t) and video:
+        try:
+            write_video(
+                run_dir / "display.mp4",
+                t,
+                arrays["pose"],
+                radius,
+                arrays["color"],
+                scene.arena,
+                scene.obstacles,
+                arrays["goal"],
+            )
+        except RuntimeError as err:  # no encoder here: the run's data matter more than its video
+            print(f"pixelswarm: warning: no display.mp4: {err}", file=sys.stderr)
     save_resolved(scene, run_dir.path, robot=params.to_dict())  # scene.json, goal_sets.npz
     return run_dir.commit()

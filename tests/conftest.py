@@ -36,14 +36,14 @@ def run_pixelswarm(*args: str, timeout: float = 240) -> subprocess.CompletedProc
 
 
 def run_scene(tmp_path: Path, scene: str, *extra: str, name: str = "run", timeout: float = 600) -> tuple[dict, dict]:
-    """`pixelswarm run` of a shipped scene, a scene file or inline scene TOML, without video; returns
+    """`pixelswarm run` of a shipped scene, a scene file or inline scene TOML, without video or plots; returns
     metrics.json and trajectory.npz."""
     if scene.lstrip().startswith(("robots", "name", "[", "seed")):
         path = tmp_path / f"{name}.toml"
         path.write_text(scene)
         scene = str(path)
     out = tmp_path / name
-    result = run_pixelswarm("run", scene, "--out", str(out), "--no-video", "-q", *extra, timeout=timeout)
+    result = run_pixelswarm("run", scene, "--out", str(out), "--no-video", "--no-plots", "-q", *extra, timeout=timeout)
     assert result.returncode == 0, result.stderr[-3000:]
     return json.loads((out / "metrics.json").read_text()), dict(np.load(out / "trajectory.npz"))
 
@@ -116,7 +116,9 @@ class SharedRuns:
                 arg = str(where / source.name)
                 Path(arg).write_bytes(source.read_bytes())
             out = where / "run"
-            result = run_pixelswarm("run", arg, "--out", str(out), "--no-video", "-q", *extra, timeout=timeout)
+            result = run_pixelswarm(
+                "run", arg, "--out", str(out), "--no-video", "--no-plots", "-q", *extra, timeout=timeout
+            )
             assert result.returncode == 0, result.stderr[-3000:]
 
         return self.once(f"run-{digest.hexdigest()[:16]}", make) / "run"
@@ -130,9 +132,9 @@ def shared_runs(tmp_path_factory, worker_id) -> SharedRuns:
 
 
 def start_run(spawned: list, scene: Path | str, out: Path, *extra: str) -> subprocess.Popen:
-    """`pixelswarm run` of a scene in the background, without video; ``spawned`` reaps it."""
+    """`pixelswarm run` of a scene in the background, without video or plots; ``spawned`` reaps it."""
     proc = subprocess.Popen(
-        pixelswarm_cmd("run", str(scene), "--out", str(out), "--no-video", "-q", *extra),
+        pixelswarm_cmd("run", str(scene), "--out", str(out), "--no-video", "--no-plots", "-q", *extra),
         cwd=REPO,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,

@@ -188,6 +188,7 @@ def test_pixelswarm_run_plays_a_folder(tmp_path):
         "--out",
         str(out),
         "--no-video",
+        "--no-plots",
         "-q",
         timeout=120,
     )
@@ -317,7 +318,9 @@ def test_fourteen_agents_play_four_keyframes_of_the_story_over_zenoh(tmp_path):
     out = tmp_path / "run"
     # two agent hosts of seven: a lock-step animation is the same run with a process per robot
     # (test_one_controller.py checks it on the shipped story), at a fraction of the CPU
-    result = run_pixelswarm("run", str(scene_file), "--out", str(out), "--no-video", "-q", "-k", "7", timeout=240)
+    result = run_pixelswarm(
+        "run", str(scene_file), "--out", str(out), "--no-video", "--no-plots", "-q", "-k", "7", timeout=240
+    )
     assert result.returncode == 0, result.stderr[-3000:]
     m, traj = json.loads((out / "metrics.json").read_text()), dict(np.load(out / "trajectory.npz"))
     assert m["contacts"] == 0 and m["engine"] == "distributed"

@@ -31,7 +31,7 @@ def run(tmp_path, toml, *args, name="run"):
     path = tmp_path / f"{name}.toml"
     path.write_text(toml)
     out = tmp_path / name
-    result = run_pixelswarm("run", str(path), "--out", str(out), "--no-video", "-q", *args, timeout=300)
+    result = run_pixelswarm("run", str(path), "--out", str(out), "--no-video", "--no-plots", "-q", *args, timeout=300)
     assert result.returncode == 0, result.stderr[-2000:]
     return json.loads((out / "metrics.json").read_text()), np.load(out / "trajectory.npz")
 

@@ -17,7 +17,7 @@ def run_scene(tmp_path: Path, toml: str, *extra: str, name: str = "run") -> tupl
     scene = tmp_path / f"{name}.toml"
     scene.write_text(toml)
     out = tmp_path / name
-    result = run_pixelswarm("run", str(scene), "--out", str(out), "--no-video", "-q", *extra, timeout=600)
+    result = run_pixelswarm("run", str(scene), "--out", str(out), "--no-video", "--no-plots", "-q", *extra, timeout=600)
     assert result.returncode == 0, result.stderr[-3000:]
     return json.loads((out / "metrics.json").read_text()), dict(np.load(out / "trajectory.npz"))
 

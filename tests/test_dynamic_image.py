@@ -257,7 +257,18 @@ def test_fourteen_epucks_follow_the_rotating_growing_triangle_over_zenoh(tmp_pat
     # two agent hosts of seven: a lock-step run is the same run with a process per robot
     # (test_one_controller.py), at a fraction of the CPU
     result = run_pixelswarm(
-        "run", "rotating-triangle", "--duration", "40", "-k", "7", "--out", str(out), "--no-video", "-q", timeout=240
+        "run",
+        "rotating-triangle",
+        "--duration",
+        "40",
+        "-k",
+        "7",
+        "--out",
+        str(out),
+        "--no-video",
+        "--no-plots",
+        "-q",
+        timeout=240,
     )
     assert result.returncode == 0, result.stderr[-3000:]
     m, traj = json.loads((out / "metrics.json").read_text()), dict(np.load(out / "trajectory.npz"))

@@ -121,7 +121,18 @@ def test_a_circle_through_emulated_robots_converges_without_contacts(tmp_path, s
     lab, endpoint, hw, log = start_lab(tmp_path, scene, spawned)
     out = tmp_path / "run"
     run = run_pixelswarm(
-        "run", str(scene), "--hardware", str(hw), "-e", endpoint, "--out", str(out), "--no-video", "-q", timeout=120
+        "run",
+        str(scene),
+        "--hardware",
+        str(hw),
+        "-e",
+        endpoint,
+        "--out",
+        str(out),
+        "--no-video",
+        "--no-plots",
+        "-q",
+        timeout=120,
     )
     report, printed = stop_lab(lab, log)
     assert run.returncode == 0, run.stderr[-3000:]
@@ -168,7 +179,10 @@ def test_a_killed_agent_stops_its_robot_and_the_end_of_the_run_stops_all(tmp_pat
         hw.write_text(lab.hardware_toml())
         cmd = pixelswarm_cmd("run", str(scene_path), "--hardware", str(hw), "-e", router.listen[0])
         run = subprocess.Popen(
-            [*cmd, "--out", str(tmp_path / "run"), "--no-video", "-q"], cwd=REPO, stderr=subprocess.PIPE, text=True
+            [*cmd, "--out", str(tmp_path / "run"), "--no-video", "--no-plots", "-q"],
+            cwd=REPO,
+            stderr=subprocess.PIPE,
+            text=True,
         )
         spawned.append(run)
         victim = 0
@@ -208,7 +222,7 @@ def start_run(
     ``own_group``: in a process group of its own, as a shell starts a command."""
     cmd = pixelswarm_cmd("run", str(scene), "--hardware", str(hw), "-e", endpoint)
     run = subprocess.Popen(
-        [*cmd, "--out", str(tmp_path / "run"), "--no-video", "-q"],
+        [*cmd, "--out", str(tmp_path / "run"), "--no-video", "--no-plots", "-q"],
         cwd=REPO,
         stderr=subprocess.PIPE,
         text=True,
@@ -514,6 +528,7 @@ def test_a_hardware_file_can_name_the_simulator(tmp_path):
         "--duration",
         "1",
         "--no-video",
+        "--no-plots",
         "-q",
         "--out",
         str(out),

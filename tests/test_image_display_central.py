@@ -22,7 +22,18 @@ def test_disk_and_line_shown_by_14_robots(tmp_path):
     cv2.imwrite(str(image), shapes.draw("disk_and_line", 256)[:, :, ::-1])
     out = tmp_path / "run"
     result = run_pixelswarm(
-        "run", str(image), "--robots", "14", "--engine", "central", "--out", str(out), "--no-video", "-q", timeout=300
+        "run",
+        str(image),
+        "--robots",
+        "14",
+        "--engine",
+        "central",
+        "--out",
+        str(out),
+        "--no-video",
+        "--no-plots",
+        "-q",
+        timeout=300,
     )
     assert result.returncode == 0, result.stderr
     m = json.loads((out / "metrics.json").read_text())
@@ -50,7 +61,9 @@ def test_any_image_displays_with_the_distributed_engine_by_default(tmp_path):
     image = tmp_path / "two.png"
     cv2.imwrite(str(image), shapes.draw("two_squares", 128)[:, :, ::-1])
     out = tmp_path / "run"
-    result = run_pixelswarm("run", str(image), "--robots", "6", "--out", str(out), "--no-video", "-q", timeout=300)
+    result = run_pixelswarm(
+        "run", str(image), "--robots", "6", "--out", str(out), "--no-video", "--no-plots", "-q", timeout=300
+    )
     assert result.returncode == 0, result.stderr[-2000:]
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["engine"] == "distributed" and metrics["contacts"] == 0

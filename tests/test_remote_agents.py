@@ -37,7 +37,7 @@ def start_run(spawned: list, tmp_path: Path, port: int, *extra: str, clock: str 
         spawned,
         tmp_path / "run.err",
         *("run", "circle", "--robots", "6", "--listen", f"tcp/127.0.0.1:{port}", "--remote-agents"),
-        *("--clock", clock, "--no-video", "--out", str(tmp_path / "run"), *extra),
+        *("--clock", clock, "--no-video", "--no-plots", "--out", str(tmp_path / "run"), *extra),
     )
 
 

@@ -24,6 +24,8 @@ from sim.mcaplog import (
 from sim.render import _View, frame_indices, render_frame, write_plots, write_video
 from sim.rundir import RunDir, default_run_path, dumps_json, json_safe, write_json, write_npz
 
+from .conftest import run_pixelswarm
+
 POSE_SCHEMA = {
     "type": "object",
     "properties": {
@@ -466,3 +468,14 @@ def test_json_safe():
     assert "NaN" not in dumps_json({"x": float("nan")})
     with pytest.raises(TypeError):
         json_safe(object())
+
+
+@pytest.mark.parametrize("flags, drawn", [((), {"clearance.png", "trajectories.png"}), (("--no-plots",), set())])
+def test_no_plots_leaves_the_plots_out_and_everything_else_in(tmp_path, flags, drawn):
+    out = tmp_path / "run"
+    args = ("run", "circle", "--robots", "2", "--duration", "0.5", "--engine", "central", "--no-video", "-q")
+    result = run_pixelswarm(*args, *flags, "--out", str(out), timeout=120)
+    assert result.returncode == 0, result.stderr
+    names = {p.name for p in out.iterdir()}
+    assert {"metrics.json", "trajectory.npz", "scene.json"} <= names
+    assert {n for n in names if n.endswith(".png")} == drawn

@@ -102,7 +102,7 @@ def test_lockstep_is_reproducible_and_hosts_match_processes(tmp_path):
     runs = []
     for name, extra in [("a", []), ("b", []), ("k4", ["--agents-per-process", "4"])]:
         out = tmp_path / name
-        result = run_pixelswarm("run", str(scene), "--out", str(out), "--no-video", "-q", *extra)
+        result = run_pixelswarm("run", str(scene), "--out", str(out), "--no-video", "--no-plots", "-q", *extra)
         assert result.returncode == 0, result.stderr
         runs.append(np.load(out / "trajectory.npz"))
     assert len(runs[0]["t"]) == 41
@@ -239,6 +239,7 @@ def test_swarm_spans_two_routers(tmp_path, spawned):
         "--out",
         str(out),
         "--no-video",
+        "--no-plots",
         "-q",
         "-l",
         f"tcp/127.0.0.1:{port_b}",
@@ -313,7 +314,7 @@ def test_agent_hosts_write_their_profiles_when_asked(tmp_path):
     scene = write_scene(tmp_path, duration=2.0)
     out, profiles = tmp_path / "run", tmp_path / "profiles"
     result = subprocess.run(
-        pixelswarm_cmd("run", str(scene), "--out", str(out), "--no-video", "-q", "-k", "4"),
+        pixelswarm_cmd("run", str(scene), "--out", str(out), "--no-video", "--no-plots", "-q", "-k", "4"),
         cwd=REPO,
         capture_output=True,
         text=True,

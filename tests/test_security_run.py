@@ -84,7 +84,7 @@ def test_a_secured_run_converges_and_a_robots_forged_goal_set_changes_no_goal(tm
     stop = threading.Event()
     forger = threading.Thread(target=_forge, args=(folder, endpoint, _rotated(starts, np.pi / 2), stop, report))
     args = ["run", "circle", "--robots", str(ROBOTS), "--secure", str(folder), "--clock", "lockstep"]
-    args += ["--no-video", "--duration", "30", "--listen", endpoint, "--out", str(out), "-q"]
+    args += ["--no-video", "--no-plots", "--duration", "30", "--listen", endpoint, "--out", str(out), "-q"]
     run = subprocess.Popen(pixelswarm_cmd(*args), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     spawned.append(run)
     forger.start()
@@ -139,7 +139,19 @@ def test_bad_input_to_a_secured_run_is_one_line_and_exit_2(extra, message, two_r
     (tmp_path / "empty").mkdir()
     fill = {"tmp": str(tmp_path), "certs": str(two_robots), "port": str(free_port())}
     out = tmp_path / "run"
-    code = main(["run", "swap", "--robots", "3", "--no-video", "--out", str(out), *[a.format(**fill) for a in extra]])
+    code = main(
+        [
+            "run",
+            "swap",
+            "--robots",
+            "3",
+            "--no-video",
+            "--no-plots",
+            "--out",
+            str(out),
+            *[a.format(**fill) for a in extra],
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 2 and message in err, err
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
