@@ -3,7 +3,7 @@
 A study spec names a scene and its settings (`[base]`), the settings to vary (`[axes]`, every
 combination) and the seeds; an optional `[baseline]` is one more condition (e.g. the central engine
 at zero loss) run for every seed and drawn beside the grid. The spec is checked in full before any
-run starts. Each run is a `pixelswarm run ... --no-video -q --out DIR/runs/<id>` subprocess; a run
+run starts. Each run is a `pixelswarm run ... --no-video --no-plots -q --out DIR/runs/<id>` subprocess; a run
 directory appears under its final name only when written (sim/rundir.py), so a study resumes by
 skipping the runs whose directory says `"complete": true`. The report is sim/study_report.py.
 """
@@ -267,7 +267,7 @@ def run_command(spec: Spec, run: Run, out: Path) -> list[str]:
         if any(s.get(k, 0.0) for k in FAULT_SETTINGS):
             drop, delay, jitter = (s.get(k, 0.0) for k in FAULT_SETTINGS)
             cmd += ["--faults", f"state:drop={drop!r},delay={delay!r},jitter={jitter!r}"]
-    return cmd + ["--no-video", "-q", "--out", str(out)]
+    return cmd + ["--no-video", "--no-plots", "-q", "--out", str(out)]
 
 
 # --------------------------------------------------------------------------------------------
