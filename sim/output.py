@@ -46,7 +46,7 @@ def write_run(
     wall_s: float,
     contacts: list[dict[str, Any]],
     video: bool,
-    plots: bool = True,
+    plots: bool,
     reach: float = np.inf,
     **metrics_extra: Any,
 ) -> Path:
