@@ -127,6 +127,7 @@ class Coordinator:
         self.body_inboxes: dict[int, Any] = {}
         self.body_wait_since: float | None = None
         self._matching: tuple[tuple[int, bytes], tuple[np.ndarray, np.ndarray]] | None = None  # goal_matching's last
+        self.ready_for_a_loss = False  # _prepare_for_a_loss has run
         if self.images:
             self.clock = bus.subscribe(bus.keys.clock, Tick)
             self.alive = bus.watch_alive("agent")
@@ -233,6 +234,17 @@ class Coordinator:
         if len(goals) == len(self.current.positions) and not self.bodies:
             self._warm_start(self.current, goals)
 
+    def _prepare_for_a_loss(self) -> None:
+        """Once, after the first goal set: the current image's set for one robot fewer. The first
+        goal set made here loads OpenCV and SciPy and prepares the image (0.4 s of CPU, seconds on a
+        loaded machine), which would otherwise hold up the survivors' set when a robot dies."""
+        if self.ready_for_a_loss or self.shown is None:
+            return
+        self.ready_for_a_loss = True
+        step, robots = self.shown
+        if len(robots) > 1:
+            scene_goal_set(self.scene, step, len(robots) - 1)
+
     def run(self, period: float = 1.0) -> None:
         self.bus.declare_alive("coordinator", 0)
         next_publish = 0.0
@@ -241,6 +253,7 @@ class Coordinator:
                 next_publish = time.monotonic() + period
             elif self.images:
                 self._prepare_next()
+                self._prepare_for_a_loss()
             if self.current is not None and time.monotonic() >= next_publish:
                 self.bus.publish(self.bus.keys.goals(self.current.epoch), self.current)
                 next_publish = time.monotonic() + period

@@ -353,3 +353,37 @@ def test_a_world_that_dies_ends_the_run_marked_incomplete(tmp_path, spawned):
     assert m["complete"] is False and m["end_reason"] == "world exited with code -9"
     assert len(np.load(out / "trajectory.npz")["t"]) >= 20  # what was recorded up to then
     assert wait_for(lambda: not alive(everyone), timeout=15)
+
+
+def test_the_coordinator_has_the_set_for_one_robot_fewer_ready_before_any_dies(monkeypatch):
+    """The survivors' goal set is made while the image is held, not when a robot dies: making the
+    first set in the coordinator loads the image pipeline, seconds on a loaded machine, in which a
+    lock-step world ran on for seconds of display without a goal set for the survivors."""
+    from coordinator import service
+    from coordinator.scene import scene_from_dict
+    from coordinator.steps import StepGoals
+    from transport.codec import Tick
+
+    from .test_scripted_movers import Bus
+
+    made = []
+    generate = StepGoals._generate
+    monkeypatch.setattr(StepGoals, "_generate", lambda self, k, n, arena: made.append(n) or generate(self, k, n, arena))
+    monkeypatch.setattr(service, "SETTLE_S", 0.0)
+    scene = scene_from_dict(
+        {"robots": 6, "seed": 5, "layout": {"kind": "grid", "spacing": 0.2}, "steps": [{"shape": "disk", "hold": 30}]}
+    )
+    bus = Bus()
+    coordinator = service.Coordinator(bus, scene)
+    bus.alive.items = [(f"agent/{r}", str(r), True, 0.0) for r in range(6)]
+    bus.clock.items = [("clock", Tick(0, 0.0, 0.1))]
+    assert coordinator._follow_show() and len(bus.published[-1].robots) == 6
+    coordinator._prepare_for_a_loss()
+    assert made[-1:] == [5]
+    before = len(made)
+    bus.alive.items = [("agent/2", "2", False, 0.0)]
+    coordinator.bodies[2] = np.array([0.0, 0.0])  # its body's tracked position has come
+    bus.clock.items = [("clock", Tick(10, 1.0, 0.1))]
+    assert coordinator._follow_show()
+    assert bus.published[-1].robots.tolist() == [0, 1, 3, 4, 5]
+    assert len(made) == before, "the survivors' goal set was made when the robot died"
