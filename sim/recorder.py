@@ -228,10 +228,12 @@ class Recorder:
     def _on_bid(self, m: Bid) -> None:
         """Keep the positions each robot bid from in each instance (its frozen position), so the
         agreed assignments can be checked against the optimum on the same positions."""
-        seen = self.bid_positions.setdefault((m.epoch, m.instance), {})
-        for rec in m.records:
-            if not rec["flags"] & AuctionRecord.RELEASED and int(rec["robot"]) < self.n:  # claims, not releases
-                seen[int(rec["robot"])] = (float(rec["x"]), float(rec["y"]), float(rec["penalty"]))
+        recs = m.records
+        claims = recs[((recs["flags"] & AuctionRecord.RELEASED) == 0) & (recs["robot"] < self.n)]  # not releases
+        # as lists zipped in C, not a loop over records: every lock-step round of a host repeats its
+        # robots' claims, thousands of records a tick at 1000 robots
+        where = zip(claims["x"].tolist(), claims["y"].tolist(), claims["penalty"].tolist())
+        self.bid_positions.setdefault((m.epoch, m.instance), {}).update(zip(claims["robot"].tolist(), where))
 
     def _on_truth(self, m: Truth, wall: float) -> None:
         if m.count != self.n or self.ended_at is not None:

@@ -1,0 +1,61 @@
+"""The recorder keeps where each robot bid from in each auction instance (what the assignment's
+optimality is checked against): claims only, from the wire's float32, robots of the run only."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim.recorder import Recorder
+from transport.codec import AuctionRecord, Bid
+from transport.keys import Keys
+
+
+class RawInbox:
+    def __init__(self) -> None:
+        self.items: list = []
+
+    def drain(self) -> list:
+        out, self.items = self.items, []
+        return out
+
+
+class Bus:
+    """What the recorder uses of transport.bus.Bus, without zenoh."""
+
+    def __init__(self) -> None:
+        self.keys = Keys()
+        self.raw, self.alive = RawInbox(), RawInbox()
+
+    def subscribe_raw(self, key: str) -> RawInbox:
+        return self.raw
+
+    def watch_alive(self, role=None) -> RawInbox:
+        return self.alive
+
+
+def bid(sender: int, instance: int, rows: list[tuple]) -> Bid:
+    recs = np.array(rows, Bid.RECORD)
+    return Bid(1, instance, sender, 1, 0, len(recs), recs)
+
+
+def f(v: float) -> float:
+    return float(np.float32(v))  # as the wire carries it
+
+
+def test_the_recorder_keeps_each_claims_bid_position_per_instance():
+    bus = Bus()
+    rec = Recorder(bus, robots=4, tolerance=0.01)
+    released = AuctionRecord.RELEASED
+    said = [
+        bid(
+            0, 5, [(0, 2, 1.5, 0, 0.0, 0.1, 0.2), (1, 0, 0.5, 0, 0.25, -0.3, 0.7), (1, 3, 0.4, released, 0.0, 9.0, 9.0)]
+        ),
+        bid(2, 5, [(2, 1, 0.2, 0, 0.0, 1.1, -1.2), (7, 0, 0.1, 0, 0.0, 5.0, 5.0)]),  # robot 7: not of this run
+        bid(0, 6, [(0, 2, 1.6, 0, 0.0, 0.15, 0.2)]),
+    ]
+    bus.raw.items = [(bus.keys.auction(1, m.sender), m.encode(), 0.0) for m in said]
+    rec.poll()
+    assert rec.bid_positions == {
+        (1, 5): {0: (f(0.1), f(0.2), 0.0), 1: (f(-0.3), f(0.7), 0.25), 2: (f(1.1), f(-1.2), 0.0)},
+        (1, 6): {0: (f(0.15), f(0.2), 0.0)},
+    }
