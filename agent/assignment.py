@@ -85,6 +85,7 @@ class AuctionLink:
             tuple[int, int, int], dict[int, Any]
         ] = {}  # (epoch, block, round) -> sender -> its message (Bid or Boards)
         self.said: dict[tuple[int, int, int], tuple[Bid | Boards, float]] = {}  # our rounds' messages, when last sent
+        self.said_block: tuple[int, int] | None = None  # (epoch, block) of the newest round in ``said``
         self.waiting_for: tuple[int, int, int] | None = None  # the round we wait in
         self.newest_round: dict[tuple[int, int, int], int] = {}  # (epoch, block, sender) -> its latest round heard
         self.rounds = 0  # lock-step rounds taken part in
@@ -390,12 +391,14 @@ class AuctionLink:
         out)."""
         for old in [k for k in self.round_records if k < key]:
             del self.round_records[old]
-        for old in [k for k in self.said if k[:2] != key[:2] and k < key]:
-            del self.said[old]  # an earlier block: every host finished it before this tick came
+        if key[:2] != self.said_block:  # a block's first round: forget the blocks before it (once, not
+            # every round: a block may take thousands of rounds)
+            self.said_block = key[:2]
+            for old in [k for k in self.said if k[:2] != key[:2] and k < key]:
+                del self.said[old]  # an earlier block: every host finished it before this tick came
+            for old in [b for b in self.newest_round if b[:2] < key[:2]]:
+                del self.newest_round[old]
         self.said[key] = (msg, -np.inf)
-        kept = {k[:2] for k in self.said}
-        for old in [b for b in self.newest_round if b[:2] not in kept and b[:2] < key[:2]]:
-            del self.newest_round[old]
         self.waiting_for, start = key, time.monotonic()
         resend = max(ROUND_RESEND, RESEND_PER_ROBOT * len(members))
         said: set[int] = set(self.robots)  # robots heard in this round
