@@ -7,30 +7,20 @@ import numpy as np
 
 from sim.recorder import Recorder
 from transport.codec import AuctionRecord, Bid
-from transport.keys import Keys
+
+from .test_scripted_movers import Bus as MoverBus
+from .test_scripted_movers import Inbox
 
 
-class RawInbox:
-    def __init__(self) -> None:
-        self.items: list = []
-
-    def drain(self) -> list:
-        out, self.items = self.items, []
-        return out
-
-
-class Bus:
-    """What the recorder uses of transport.bus.Bus, without zenoh."""
+class Bus(MoverBus):
+    """The coordinator tests' bus without zenoh, with the recorder's raw inbox."""
 
     def __init__(self) -> None:
-        self.keys = Keys()
-        self.raw, self.alive = RawInbox(), RawInbox()
+        super().__init__()
+        self.raw = Inbox()
 
-    def subscribe_raw(self, key: str) -> RawInbox:
+    def subscribe_raw(self, key: str) -> Inbox:
         return self.raw
-
-    def watch_alive(self, role=None) -> RawInbox:
-        return self.alive
 
 
 def bid(sender: int, instance: int, rows: list[tuple]) -> Bid:
