@@ -13,7 +13,8 @@ seconds (more in large swarms) while an instance is open, RESEND_IDLE when agree
 Lock-step (``lockstep``): the auction is tick-synchronous. A block of phases that starts at tick k
 bids from the positions of tick k in numbered rounds: in round r each host's robots bid against the
 board as merged after round r - 1 (Jacobi), and the host publishes its records tagged (instance,
-round); it goes on to round r + 1 once it holds every robot's round-r records. The rounds are the
+round), after the first round only the claims that changed and its releases; it goes on to round
+r + 1 once every robot's host has spoken in round r. The rounds are the
 central engine's (Participant.settle_alone) bid for bid, so every host ends with its board, and the
 block is agreed at the same round everywhere, before any robot's command of tick k: everyone adopts
 it at tick k (settle_block).
@@ -49,6 +50,11 @@ ROUND_CAP = 30.0  # s: lock-step, the longest a host waits for one round; then i
 OnAgreed = Callable[[int, int, dict[int, int], np.ndarray, np.ndarray], None]
 OnAbandoned = Callable[[list[int]], None]
 Where = Callable[[], dict[int, np.ndarray]]
+
+
+def _claims(records: np.ndarray) -> np.ndarray:
+    """The claims among a message's records (the rest are releases)."""
+    return records[(records["flags"] & RELEASED) == 0]
 
 
 class AuctionLink:
@@ -318,19 +324,35 @@ class AuctionLink:
         self.block_stamp = stamp
         part.begin_block(positions)
         final = part.instance + part.phases - 1  # every round's records are tagged with the block's final phase
+        claims = len(part.own)  # round_records: a claim per own robot, in order, then the releases
+        robots_of: dict[int, np.ndarray] = {}  # sender -> its robots, from its full first round
+        flags = np.zeros(int(part.robots.max(initial=0)) + 1, np.uint8)  # each robot's newest claim flags
+        last: np.ndarray | None = None
         for r in count(1):
             before = part.board.digest()
             part.bid()
             mine = part.round_records()
-            said = Bid(part.epoch, final, self.sender, r, part.board.digest(), len(mine), mine)
-            heard = self._round((part.epoch, final, r), said, set(part.robots.tolist()), lambda m: m.records["robot"])
+            # After the first round, only the claims that changed and the releases: everyone merged the
+            # rest already, and merging a record twice changes no board (max-consensus).
+            news = mine if last is None else np.concatenate([mine[:claims][mine[:claims] != last], mine[claims:]])
+            last = mine[:claims]
+            said = Bid(part.epoch, final, self.sender, r, part.board.digest(), len(news), news)
+            heard = self._round(
+                (part.epoch, final, r),
+                said,
+                set(part.robots.tolist()),
+                lambda m: robots_of.setdefault(m.sender, _claims(m.records)["robot"]),
+            )
             if heard is None:
                 self._abandon()
                 return
             for msg in heard.values():
                 part.absorb(part.instance, r, 0, msg.records)
+                theirs = _claims(msg.records)
+                flags[theirs["robot"]] = theirs["flags"]
             self.rounds += 1
-            if part.close_round(part.board.digest() == before, self._all_settled(mine, heard)):
+            others = [robots_of[sender] for sender in heard]
+            if part.close_round(part.board.digest() == before, self._all_settled(last, flags, others)):
                 self._report()
                 return
 
@@ -370,13 +392,12 @@ class AuctionLink:
         self.on_agreed(local.epoch, local.agreed_instance, dict(local.agreed), gs.positions, gs.colors)
 
     @staticmethod
-    def _all_settled(mine: np.ndarray, heard: dict[int, Any]) -> bool:
-        """Every robot's claim in this round says SETTLED."""
-        for recs in [mine, *(m.records for m in heard.values())]:
-            claims = recs[(recs["flags"] & RELEASED) == 0]
-            if not bool(((claims["flags"] & SETTLED) != 0).all()):
-                return False
-        return True
+    def _all_settled(mine: np.ndarray, flags: np.ndarray, others: list[np.ndarray]) -> bool:
+        """Every robot's claim says SETTLED in this round: our claims ``mine``, the other hosts'
+        robots ``others`` by their newest claim ``flags`` (by robot id)."""
+        if not bool(((mine["flags"] & SETTLED) != 0).all()):
+            return False
+        return all(bool(((flags[robots] & SETTLED) != 0).all()) for robots in others)
 
     def _round(
         self,

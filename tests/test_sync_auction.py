@@ -140,3 +140,59 @@ def test_two_lockstep_runs_of_a_picture_are_identical_under_load(tmp_path, share
     np.testing.assert_array_equal(a["t"], b["t"])
     np.testing.assert_array_equal(a["pose"], b["pose"])
     np.testing.assert_array_equal(a["assignment"], b["assignment"])
+
+
+def test_after_a_blocks_first_round_hosts_send_only_the_claims_that_changed():
+    """Three hosts of ten robots settle a cold block over the bus, to the central engine's board:
+    each host's first round claims for every one of its robots, later rounds only for the robots
+    whose claim changed (nobody needs the rest again), so the rounds after the first carry fewer
+    claims than a claim per robot and round."""
+    from transport.codec import Bid, decode
+
+    rng = np.random.default_rng(7)
+    goals, start = rng.uniform(-1.0, 1.0, (30, 2)), rng.uniform(-1.5, 1.5, (30, 2))
+    params = RobotParams(kinematics="holonomic")
+    message = Goals(1, 0, goals, np.full((30, 3), 200, np.uint8), np.arange(30), Timing(0.0, 0, 60.0))
+    central = Participant(
+        1, message.positions, list(range(30)), list(range(30)), params.assign_eps, params.assign_hysteresis
+    )
+    central.settle_alone(start)
+    router = loopback_router()
+    session = open_session(router)
+    sent: list[Bid] = []
+    try:
+        with Bus(client_of(router), "sync") as listener:
+            listener.session.declare_subscriber(
+                listener.keys.all_of("auction"), lambda s: sent.append(decode(s.payload.to_bytes(), Bid))
+            )
+            buses = [Bus(client_of(router), "sync") for _ in range(3)]
+            try:
+                links = [
+                    AuctionLink(bus, list(range(10 * h, 10 * h + 10)), params, lambda *a: None, lockstep=True)
+                    for h, bus in enumerate(buses)
+                ]
+                time.sleep(0.5)  # every subscription declared before the first round
+                for link in links:
+                    link.on_goals(message, {})
+                where = {r: start[r] for r in range(30)}
+                threads = [threading.Thread(target=link.on_tick, args=(0.0, where)) for link in links]
+                for t in threads:
+                    t.start()
+                for t in threads:
+                    t.join(timeout=30.0)
+                assert not any(t.is_alive() for t in threads)
+                time.sleep(0.2)  # the listener hears the last round
+                rounds = links[0].rounds
+                assert rounds > 1 and all(link.rounds == rounds and link.part.is_agreed for link in links)
+                for link in links:
+                    np.testing.assert_array_equal(link.part.board.price, central.board.price)
+                    np.testing.assert_array_equal(link.part.board.owner, central.board.owner)
+            finally:
+                for bus in buses:
+                    bus.close()
+    finally:
+        session.close()
+    claims = {(m.sender, m.serial): int(((m.records["flags"] & 2) == 0).sum()) for m in sent}
+    assert all(claims[(10 * h, 1)] == 10 for h in range(3))
+    later = sum(n for (_, r), n in claims.items() if r > 1)
+    assert later < 30 * (rounds - 1), (later, rounds)
