@@ -77,6 +77,21 @@ def test_lockstep_rounds_give_the_central_board_to_the_bit(robots, split):
         position = position + 0.3 * (goals[assigned] - position) + rng.normal(0.0, 0.01, position.shape)
 
 
+def settle_first_block(links: list[AuctionLink], message: Goals, start: np.ndarray) -> None:
+    """Every host takes the goal set up and settles its first block over the bus at tick 0, each in
+    its own thread, as agent hosts do in their processes."""
+    time.sleep(0.5)  # every subscription declared before the first round
+    for link in links:
+        link.on_goals(message, {})
+    where = {r: start[r] for r in range(len(start))}
+    threads = [threading.Thread(target=link.on_tick, args=(0.0, where)) for link in links]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=30.0)
+    assert not any(t.is_alive() for t in threads)
+
+
 def test_two_hosts_settle_a_block_over_the_bus_at_the_same_round():
     goals = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [3.0, 0.0]])
     start = np.array([[2.9, 0.1], [2.1, -0.1], [0.2, 0.0], [1.1, 0.2]])
@@ -93,16 +108,7 @@ def test_two_hosts_settle_a_block_over_the_bus_at_the_same_round():
                 AuctionLink(bus, own, params, lambda e, i, g, p, c: told.update({min(g): g}), lockstep=True)
                 for bus, own in ((bus_a, [0, 1]), (bus_b, [2, 3]))
             ]
-            time.sleep(0.5)  # both subscriptions declared before the first round
-            for link in links:
-                link.on_goals(message, {})
-            where = {r: start[r] for r in range(4)}
-            threads = [threading.Thread(target=link.on_tick, args=(0.0, where)) for link in links]
-            for t in threads:
-                t.start()
-            for t in threads:
-                t.join(timeout=20.0)
-            assert not any(t.is_alive() for t in threads)
+            settle_first_block(links, message, start)
             assert [link.rounds for link in links][0] == links[1].rounds >= 1
             for link in links:
                 assert link.part is not None and link.part.is_agreed and link.abandoned == 0
@@ -171,16 +177,7 @@ def test_after_a_blocks_first_round_hosts_send_only_the_claims_that_changed():
                     AuctionLink(bus, list(range(10 * h, 10 * h + 10)), params, lambda *a: None, lockstep=True)
                     for h, bus in enumerate(buses)
                 ]
-                time.sleep(0.5)  # every subscription declared before the first round
-                for link in links:
-                    link.on_goals(message, {})
-                where = {r: start[r] for r in range(30)}
-                threads = [threading.Thread(target=link.on_tick, args=(0.0, where)) for link in links]
-                for t in threads:
-                    t.start()
-                for t in threads:
-                    t.join(timeout=30.0)
-                assert not any(t.is_alive() for t in threads)
+                settle_first_block(links, message, start)
                 time.sleep(0.2)  # the listener hears the last round
                 rounds = links[0].rounds
                 assert rounds > 1 and all(link.rounds == rounds and link.part.is_agreed for link in links)
