@@ -236,8 +236,8 @@ class Coordinator:
 
     def _prepare_for_a_loss(self) -> None:
         """Once, after the first goal set: the current image's set for one robot fewer. The first
-        goal set made here loads OpenCV and SciPy and prepares the image (0.4 s of CPU, seconds on a
-        loaded machine), which would otherwise hold up the survivors' set when a robot dies."""
+        set made here loads the image pipeline (OpenCV, SciPy) and prepares the image, slow on a
+        loaded machine: made only when a robot dies, it would hold up the survivors' set."""
         if self.ready_for_a_loss or self.shown is None:
             return
         self.ready_for_a_loss = True
