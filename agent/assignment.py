@@ -326,6 +326,12 @@ class AuctionLink:
         final = part.instance + part.phases - 1  # every round's records are tagged with the block's final phase
         claims = len(part.own)  # round_records: a claim per own robot, in order, then the releases
         robots_of: dict[int, np.ndarray] = {}  # sender -> its robots, from its full first round
+
+        def robots(m: Bid) -> np.ndarray:
+            if m.sender not in robots_of:
+                robots_of[m.sender] = _claims(m.records)["robot"]
+            return robots_of[m.sender]
+
         flags = np.zeros(int(part.robots.max(initial=0)) + 1, np.uint8)  # each robot's newest claim flags
         last: np.ndarray | None = None
         for r in count(1):
@@ -337,12 +343,7 @@ class AuctionLink:
             news = mine if last is None else np.concatenate([mine[:claims][mine[:claims] != last], mine[claims:]])
             last = mine[:claims]
             said = Bid(part.epoch, final, self.sender, r, part.board.digest(), len(news), news)
-            heard = self._round(
-                (part.epoch, final, r),
-                said,
-                set(part.robots.tolist()),
-                lambda m: robots_of.setdefault(m.sender, _claims(m.records)["robot"]),
-            )
+            heard = self._round((part.epoch, final, r), said, set(part.robots.tolist()), robots)
             if heard is None:
                 self._abandon()
                 return

@@ -83,10 +83,10 @@ def write_run(
     write_json(run_dir / "metrics.json", metrics)
     # ignored: to mypy a key of arrays could be write_npz's own ``compress`` (none is)
     write_npz(run_dir / "trajectory.npz", radius=radius, **arrays)  # type: ignore[arg-type]
-    if len(t) and (plots or video):
-        # imported here: the renderers load matplotlib, OpenCV and PyAV, about 1.4 CPU s a run
-        from .render import write_plots, write_video
+    # the renderers are imported only where used: they load matplotlib, OpenCV and PyAV
     if len(t) and plots:
+        from .render import write_plots
+
         write_plots(
             run_dir.path,
             t,
@@ -99,6 +99,8 @@ def write_run(
             color=arrays["color"],
         )
     if len(t) and video:
+        from .render import write_video
+
         try:
             write_video(
                 run_dir / "display.mp4",
