@@ -213,7 +213,7 @@ class AgentHost:
             bus.subscribe_into(self.keys.pose(r), self.pose_inbox)
         if config.frames:
             bus.subscribe_into(self.keys.poses, self.pose_inbox)
-        self.state_inbox = bus.inbox(State)  # fed by the spatial cells around the robots ...
+        self.state_inbox = bus.inbox(State, pulled=True)  # fed by the spatial cells around the robots ...
         if config.frames:  # ... and by every host's frames
             bus.subscribe_into(self.keys.states_all, self.state_inbox)
         if config.lockstep:  # injected state delays count in ticks (reproducible); see Inbox.sim_time

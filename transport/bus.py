@@ -22,12 +22,16 @@ from typing import Any, Generic, TypeVar, cast, overload
 import numpy as np
 import zenoh
 
-from .codec import BEFORE_START, FRAME_OF, Command, DropCounter, Frame, Message, MessageT, Poses, decode
+from .codec import BEFORE_START, FRAME_OF, Command, DropCounter, Frame, Message, MessageT, Poses, decode, decode_views
 from .faults import FaultPlan, FaultSpec
 from .keys import Keys
 from .session import ZenohSettings, open_session
 
 _NO_FAULT = FaultSpec()
+# A pulled inbox: samples one subscription holds before zenoh's receiving thread waits for the owner
+# (a tick's states are tens), and how often a wait for one looks again.
+PULL_CAPACITY = 100_000
+PULL_EVERY = 0.002
 T = TypeVar("T")  # what an inbox delivers: a message, or one robot's record of a frame (codec.Pose, ...)
 
 
@@ -45,13 +49,21 @@ def _drain(q: queue.SimpleQueue, limit: int | None = None) -> list:
 class Inbox(Generic[T]):
     """Messages of one subscription, decoded, filtered by faults, waiting for the owner's loop."""
 
-    def __init__(self, expected: type[T] | None, fault: FaultSpec, seed: int, only: np.ndarray | None = None) -> None:
+    def __init__(
+        self,
+        expected: type[T] | None,
+        fault: FaultSpec,
+        seed: int,
+        only: np.ndarray | None = None,
+        pulled: bool = False,
+    ) -> None:
         """``expected``: a message kind, or a record view (codec.Pose, State, Command) whose frames
         arrive as their records (only those of robots ``only``, if given); a fault drops or delays
-        a frame whole."""
+        a frame whole. ``pulled``: samples wait in zenoh's channels until the owner reads the inbox,
+        and are decoded on the owner's thread (see Bus.inbox)."""
         self.expected = expected
         self.frame: type[Frame] | None = FRAME_OF.get(cast(type, expected))
-        self.only = only
+        self.only = None if only is None else set(np.asarray(only).tolist())
         self.fault = fault
         self.drops = DropCounter()
         self.received = 0
@@ -73,27 +85,36 @@ class Inbox(Generic[T]):
         # robot -> the newest tick of its records that reached this inbox, whatever the fault plan did
         # with them (None: not kept). A lock-step owner waits on it, then the plan's deterministic fate.
         self.seen: dict[int, int] | None = None
+        self.pulled = pulled
+        self.channels: list[Any] = []  # pulled: the subscribers whose channels feed this inbox
+
+    def _pull(self) -> None:
+        """Pulled: take in every sample waiting in the channels, on the caller's thread."""
+        for sub in self.channels:
+            while (sample := sub.try_recv()) is not None:
+                self._on_sample(sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         payload = sample.payload.to_bytes()
         self.received += 1
         self.bytes += len(payload)
-        msg = decode(payload, self.frame or cast("type[Message] | None", self.expected), self.drops)
-        if msg is None:
+        if self.frame is None:
+            msg = decode(payload, cast("type[Message] | None", self.expected), self.drops)
+            if msg is not None:
+                self._deliver(str(sample.key_expr), [cast(T, msg)])
             return
-        frame = msg if isinstance(msg, Frame) and self.frame is not None else None
-        msgs: list[T] = (
-            [cast(T, msg)]
-            if frame is None
-            else frame.messages(None if self.only is None else np.isin(frame.records["robot"], self.only))
-        )
+        got = decode_views(payload, self.frame, self.drops)
+        if got is None:
+            return
+        tick, views = got
+        if self.only is not None:
+            views = [v for v in views if v.robot in self.only]
         try:
-            self._deliver(str(sample.key_expr), msgs)
+            self._deliver(str(sample.key_expr), views)
         finally:  # after the records are queued, held or dropped: whoever waits on seen finds them
-            if self.seen is not None and frame is not None and frame.tick != BEFORE_START:  # not hellos
-                tick = frame.tick
-                for robot in frame.records["robot"].tolist():
-                    self.seen[robot] = max(self.seen.get(robot, tick), tick)
+            if self.seen is not None and tick != BEFORE_START:  # not hellos
+                for v in views:
+                    self.seen[v.robot] = max(self.seen.get(v.robot, tick), tick)
 
     def _deliver(self, key: str, msgs: list[T]) -> None:
         if self.fault is _NO_FAULT or not self.fault.active:
@@ -149,6 +170,7 @@ class Inbox(Generic[T]):
 
     def drain(self) -> list[tuple[str, T]]:
         """Every message that has arrived (and whose injected delay has passed), oldest first."""
+        self._pull()
         self._release_delayed()
         return _drain(self._queue)
 
@@ -156,12 +178,13 @@ class Inbox(Generic[T]):
         """Wait for one message (None on timeout)."""
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
+            self._pull()
             self._release_delayed()
             try:
                 return self._queue.get_nowait()
             except queue.Empty:
                 pass
-            wait = 0.005 if self._delayed else None
+            wait = PULL_EVERY if self.pulled else 0.005 if self._delayed else None
             if deadline is not None:
                 remaining = deadline - time.monotonic()
                 if remaining <= 0:
@@ -229,6 +252,7 @@ class Bus:
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._tokens: list[Any] = []
         self._subscriptions: list[Any] = []
+        self._pulled: list[Inbox[Any]] = []
         self.session = open_session(settings)
 
     # --- publishing -----------------------------------------------------------------------
@@ -256,20 +280,32 @@ class Bus:
 
     # --- subscribing ----------------------------------------------------------------------
     @overload
-    def inbox(self, expected: type[T], only: np.ndarray | None = None) -> Inbox[T]: ...
+    def inbox(self, expected: type[T], only: np.ndarray | None = None, *, pulled: bool = False) -> Inbox[T]: ...
 
     @overload
-    def inbox(self, expected: None = None, only: np.ndarray | None = None) -> Inbox[Message]: ...
+    def inbox(
+        self, expected: None = None, only: np.ndarray | None = None, *, pulled: bool = False
+    ) -> Inbox[Message]: ...
 
-    def inbox(self, expected: type | None = None, only: np.ndarray | None = None) -> Inbox[Any]:
+    def inbox(
+        self, expected: type | None = None, only: np.ndarray | None = None, *, pulled: bool = False
+    ) -> Inbox[Any]:
         """An empty inbox; feed it with ``subscribe_into``. ``expected``: a message kind, or a record
         view (codec.Pose, State, Command) to receive frames as their records (see Inbox). Faults
-        for the expected kind apply here."""
+        for the expected kind apply here.
+
+        ``pulled``: for an inbox its owner reads once a tick (an agent's neighbour states). Its
+        subscriptions queue samples in zenoh's channels and the owner decodes them when it reads,
+        instead of a Python thread per subscription waking for every sample and contending for the
+        GIL with the owner's tick. Nothing rings a bell on arrival: the owner polls."""
         name = getattr(expected, "NAME", None)  # a message kind's or a view's (its frame's) name
         fault = self.faults.get(name, _NO_FAULT) if name else _NO_FAULT
         self._n_subs += 1
         seed = zlib.crc32(f"{self._seed}/{self._name}/{self._n_subs}".encode())
-        return Inbox(expected, fault, seed, only)
+        inbox: Inbox[Any] = Inbox(expected, fault, seed, only, pulled)
+        if pulled:
+            self._pulled.append(inbox)
+        return inbox
 
     def commands_inbox(self) -> Inbox[Command]:
         """Every robot's commands, one record at a time: what a body process reads."""
@@ -291,11 +327,20 @@ class Bus:
 
     def subscribe_into(self, keyexpr: str, inbox: Inbox[Any]) -> Any:
         """Add another key expression feeding an existing inbox; returns the subscriber to undeclare."""
-        sub = self.session.declare_subscriber(keyexpr, inbox._on_sample)
+        sub: Any
+        if inbox.pulled:
+            sub = self.session.declare_subscriber(keyexpr, zenoh.handlers.FifoChannel(PULL_CAPACITY))
+            inbox.channels.append(sub)
+        else:
+            sub = self.session.declare_subscriber(keyexpr, inbox._on_sample)
         self._subscriptions.append(sub)
         return sub
 
     def unsubscribe(self, subscriber: Any) -> None:
+        for inbox in self._pulled:
+            if subscriber in inbox.channels:
+                inbox._pull()  # what it already holds was received: keep it
+                inbox.channels.remove(subscriber)
         subscriber.undeclare()
         if subscriber in self._subscriptions:
             self._subscriptions.remove(subscriber)
