@@ -36,14 +36,13 @@ from sim.tracker import world_of
 from transport.bus import Bus
 from transport.session import client_of, loopback_router
 
-from .common import REPO, RESULTS, machine, run_and_sample, write_results
+from .common import REPO, RESULTS, first_tick, machine, run_and_sample, stepping_cpu, write_results
 
 WARM_UP = 3.0  # s of ticks before the floor is measured (subscriptions travel, processes settle)
 DELAYED = "cmd:delay=0.15"  # every command a tick and a half late: bodies must stop, never touch
 DELAYED_AT = 20
 STARTUP_BEFORE = "7ff7048^"  # the code before issue 25's work
 STARTUP_HEADING = "## Start-up"
-TRUTH = "/sim/truth"  # the world's truth channel in a run's log.mcap
 
 
 def load() -> str:
@@ -116,9 +115,12 @@ def agent_row(n: int, duration: float, clock: str = "realtime", faults: str = ""
     for s in samples:  # each process's samples (an exiting process reports no memory)
         if s["rss"] > 0:
             per_process.setdefault(s["pid"], []).append(s)
-    cpu = [np.median([s["cpu"] for s in ss if s["cpu"] > 0] or [0]) for ss in per_process.values()]
+    # The stepping alone, its first second left out (the first goal set's auction): the CPU an
+    # agent costs at 10 Hz, as the floor's is measured after its warm-up.
+    start = m["first_tick_wall"] + WARM_UP
+    cpu = stepping_cpu(samples, start, start + m["stepping_wall_s"] - WARM_UP)
     return {
-        "cpu": float(np.median(cpu)),
+        "cpu": float(np.median(cpu)) if cpu else float("nan"),
         "rss": float(np.median([np.median([s["rss"] for s in ss]) for ss in per_process.values()])) / 2**20,
         "uss": float(np.median([np.median([s["uss"] for s in ss]) for ss in per_process.values()])) / 2**20,
         "rtf": m["stepping_realtime_factor"] or 0.0,
@@ -130,23 +132,6 @@ def agent_row(n: int, duration: float, clock: str = "realtime", faults: str = ""
         "start_and_stop": m["wall_s"] - m["stepping_wall_s"],
         "converged": m["converged"],
     }
-
-
-def first_tick(log: Path) -> dict[str, float]:
-    """Wall times in a run's log, as the launcher's recorder heard them: the coordinator alive, the
-    world alive, the last agent alive, and the world's first tick (its first truth message)."""
-    from mcap.reader import make_reader
-
-    seen = {"coordinator": float("nan"), "world": float("nan"), "agent": float("nan")}
-    with open(log, "rb") as fh:
-        for _, channel, message in make_reader(fh).iter_messages(topics=["/alive", TRUTH], log_time_order=True):
-            wall = message.log_time / 1e9
-            if channel.topic == TRUTH:
-                return seen | {"tick": wall}
-            e = json.loads(message.data)
-            if e["alive"] and e["role"] in seen and (e["role"] == "agent" or seen[e["role"]] != seen[e["role"]]):
-                seen[e["role"]] = wall  # the first coordinator and world, the last agent
-    return seen | {"tick": float("nan")}  # the world never ticked
 
 
 def startup_run(tree: Path, robots: int) -> dict:
@@ -381,7 +366,9 @@ def main() -> None:
             "Floor: bench.floor_node, a bare zenoh session per robot that per tick hears its pose and the states "
             "of its 5 x 5 cells and puts a state and a command, clocked at 10 Hz by this benchmark (robots standing "
             "at the circle's start), its callbacks on a Python thread per subscription (zenoh-python's default, as "
-            "transport.bus does) or on zenoh's receiving thread. Agent: `pixelswarm run circle --seed 3` in real time. x floor: the agent's CPU "
+            "transport.bus does) or on zenoh's receiving thread; CPU over the ticks after the first 3 s. Agent: "
+            "`pixelswarm run circle --seed 3` in real time, neighbour states read once a tick (a pulled inbox); CPU "
+            "over the world's stepping after its first 3 s, from each process's CPU seconds. x floor: the agent's CPU "
             "over the floor's (one thread) of the same N, in this run. RTF: simulated seconds per wall second while the world "
             "was stepping. Missed ticks: a live agent's command for tick k had not reached the world when tick k+1 "
             "began (a body without a valid command stops: agent.lateness, docs/overload.md). Start + stop: "

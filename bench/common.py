@@ -20,8 +20,15 @@ def machine() -> str:
     return f"{platform.machine()}, {psutil.cpu_count()} cores, Python {platform.python_version()}"
 
 
+TRUTH = "/sim/truth"  # the world's truth channel in a run's log.mcap
+
+
 def run_and_sample(args: list[str], period: float = 0.5) -> tuple[dict, list[dict]]:
-    """Run `pixelswarm run ...` and sample every agent process's CPU and memory while it runs."""
+    """Run `pixelswarm run ...` and sample every agent process's CPU and memory while it runs.
+
+    Each sample: pid, wall time, CPU % since the last sample, cumulative CPU seconds, memory. The
+    metrics gain ``first_tick_wall``, the wall time of the world's first tick, so that a sampled
+    window can be the stepping alone (``stepping_cpu``)."""
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "run"
         proc = subprocess.Popen(
@@ -44,11 +51,14 @@ def run_and_sample(args: list[str], period: float = 0.5) -> tuple[dict, list[dic
             time.sleep(period)
             for pid, p in list(tracked.items()):
                 try:
-                    mem = p.memory_full_info()
+                    with p.oneshot():
+                        mem, cpu, times = p.memory_full_info(), p.cpu_percent(), p.cpu_times()
                     samples.append(
                         {
                             "pid": pid,
-                            "cpu": p.cpu_percent(),
+                            "wall": time.time(),
+                            "cpu": cpu,
+                            "cpu_s": times.user + times.system,
                             "rss": mem.rss,
                             "uss": mem.uss,
                             "pss": getattr(mem, "pss", mem.uss),
@@ -59,7 +69,41 @@ def run_and_sample(args: list[str], period: float = 0.5) -> tuple[dict, list[dic
         stdout, stderr = proc.communicate()
         if proc.returncode != 0:
             raise RuntimeError(f"run failed: {stderr[-2000:]}")
-        return json.loads((out / "metrics.json").read_text()), samples
+        metrics = json.loads((out / "metrics.json").read_text())
+        metrics["first_tick_wall"] = first_tick(out / "log.mcap")["tick"]
+        return metrics, samples
+
+
+def stepping_cpu(samples: list[dict], start: float, end: float) -> list[float]:
+    """Each process's CPU (% of a core) between wall times ``start`` and ``end``, from its cumulative
+    CPU seconds at the first and last of its samples in that window (a 0.5 s sample's own CPU %
+    counts whole 10 ms clock ticks: 2 % steps)."""
+    per_process: dict[int, list[dict]] = {}
+    for s in samples:
+        if start <= s["wall"] <= end:
+            per_process.setdefault(s["pid"], []).append(s)
+    return [
+        100 * (ss[-1]["cpu_s"] - ss[0]["cpu_s"]) / (ss[-1]["wall"] - ss[0]["wall"])
+        for ss in per_process.values()
+        if len(ss) >= 2 and ss[-1]["wall"] > ss[0]["wall"]
+    ]
+
+
+def first_tick(log: Path) -> dict[str, float]:
+    """Wall times in a run's log, as the launcher's recorder heard them: the coordinator alive, the
+    world alive, the last agent alive, and the world's first tick (its first truth message)."""
+    from mcap.reader import make_reader
+
+    seen = {"coordinator": float("nan"), "world": float("nan"), "agent": float("nan")}
+    with open(log, "rb") as fh:
+        for _, channel, message in make_reader(fh).iter_messages(topics=["/alive", TRUTH], log_time_order=True):
+            wall = message.log_time / 1e9
+            if channel.topic == TRUTH:
+                return seen | {"tick": wall}
+            e = json.loads(message.data)
+            if e["alive"] and e["role"] in seen and (e["role"] == "agent" or seen[e["role"]] != seen[e["role"]]):
+                seen[e["role"]] = wall  # the first coordinator and world, the last agent
+    return seen | {"tick": float("nan")}  # the world never ticked
 
 
 def write_results(name: str, title: str, command: str, lines: list[str]) -> Path:
