@@ -304,7 +304,7 @@ class AgentHost:
             self.bus.publish(self.keys.states(host), States.of(tick, stamp, states))
             return
         for s in states:
-            self.bus.publish(self.keys.state(cell_of(s.x, s.y, self.cell_size), s.robot), States.one(s))
+            self.bus.put(self.keys.state(cell_of(s.x, s.y, self.cell_size), s.robot), States.encode_one(s), States.NAME)
 
     def _publish_commands(self, tick: int, stamp: float, commands: list[Command]) -> None:
         """A host's frame of its robots' commands; a robot alone its frame of one (HostConfig.frames)."""
@@ -313,7 +313,7 @@ class AgentHost:
             self.bus.publish(self.keys.cmd(host), Commands.of(tick, stamp, commands))
             return
         for c in commands:
-            self.bus.publish(self.keys.cmd(c.robot), Commands.one(c))
+            self.bus.put(self.keys.cmd(c.robot), Commands.encode_one(c), Commands.NAME)
 
     # --- messages -----------------------------------------------------------------------------
     def _hear_goals(self, goals: Goals) -> None:

@@ -184,6 +184,20 @@ def test_an_inbox_reads_a_frame_as_views_exactly_as_the_frame_decodes(data):
         assert views == (7, frame.messages())
 
 
+@settings(max_examples=200, deadline=None)
+@given(st.data())
+def test_a_robot_alone_encodes_its_frame_of_one_byte_for_byte_as_the_frame_does(data):
+    """An agent packs its state and command with struct (Frame.encode_one), the world and hosts
+    build numpy frames: the same bytes on the wire, whatever the record holds."""
+    frame_kind = data.draw(st.sampled_from([Poses, States, Commands]))
+    raw = data.draw(st.binary(min_size=frame_kind.RECORD.itemsize, max_size=frame_kind.RECORD.itemsize))
+    record = np.frombuffer(raw, frame_kind.RECORD)
+    tick = data.draw(st.integers(0, 2**32 - 1))
+    stamp = data.draw(st.floats(allow_nan=False))
+    view = frame_kind(tick, stamp, record).messages()[0]
+    assert frame_kind.encode_one(view) == frame_kind.one(view).encode()
+
+
 def test_an_inbox_drops_what_a_frame_drops():
     drops = DropCounter()
     bad = SAMPLES[-3].records.copy()
