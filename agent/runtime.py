@@ -716,6 +716,7 @@ class AgentHost:
             "dropped": drops,
             "neighbours_known": len(self.table),
             "state_waits": self.state_waits,
+            "states_heard": self.state_inbox.received,  # messages (frames): its robots' neighbours' load
             "worst_lateness_s": round(self.lateness.worst, 4),
             "mean_lateness_s": round(self.lateness.mean, 4),
             "silent": sorted(self.silent),

@@ -1,8 +1,9 @@
 """Runtime benchmark (issues 2 and 25): agent processes at 10 Hz beside their floor, in one run.
 
-For each N: N bare zenoh processes doing a robot's messages per tick and nothing else
-(bench.floor_node: the floor), then N agent processes of `pixelswarm run circle` in real time; per
-process CPU, RSS and USS, the real-time factor, missed ticks, contacts and start-up; then the
+For each N: N agent processes of `pixelswarm run circle` in real time, then N bare zenoh processes
+doing a robot's messages per tick and nothing else (bench.floor_node: the floor), standing so that
+each hears nearly as many states per tick as an agent did; per process CPU, RSS and USS, the states
+heard per tick, the real-time factor, missed ticks, contacts and start-up; then the
 circle with every command delayed 0.15 s (``--faults cmd:delay=0.15``) at 20 processes, and
 (without --quick) the lock-step rows and 1000 robots in 4 hosts. The machine's load average is
 written beside each row: on a shared machine the figures are only as good as it was quiet.
@@ -34,9 +35,11 @@ import psutil
 from coordinator.scene import load_scene
 from sim.tracker import world_of
 from transport.bus import Bus
+from transport.keys import cells_of
 from transport.session import client_of, loopback_router
 
 from .common import REPO, RESULTS, first_tick, machine, run_and_sample, stepping_cpu, write_results
+from .floor_node import REACH
 
 WARM_UP = 3.0  # s of ticks before the floor is measured (subscriptions travel, processes settle)
 DELAYED = "cmd:delay=0.15"  # every command a tick and a half late: bodies must stop, never touch
@@ -49,18 +52,47 @@ def load() -> str:
     return f"{os.getloadavg()[0]:.1f}"
 
 
-def floor_row(n: int, duration: float, callbacks: str = "direct") -> dict:
+def heard_per_tick(xy: np.ndarray, cell_size: float, reach: int = REACH) -> float:
+    """States a floor process at these positions hears per tick (the median, as reported): those put in the
+    (2 reach + 1)^2 cells around its own, its own included, as bench.floor_node (and an agent)
+    subscribes."""
+    cells = cells_of(xy, cell_size)
+    near = (np.abs(cells[:, None, :] - cells[None, :, :]) <= reach).all(axis=2)
+    return float(np.median(near.sum(axis=1)))
+
+
+def drawn_together(xy: np.ndarray, cell_size: float, heard: float) -> np.ndarray:
+    """The positions drawn towards their centre until a floor process hears nearly ``heard`` states
+    per tick, never more (a floor that hears more costs more, and flatters the agent): the agents'
+    robots cross the circle's crowded middle and hear more than robots standing at its start, and
+    the floor must take in as many as an agent does."""
+    centre = xy.mean(axis=0)
+    if not np.isfinite(heard) or heard_per_tick(xy, cell_size) >= heard:
+        return xy
+    low, high = 0.0, 1.0  # scale: at ``low`` everyone hears everyone
+    for _ in range(30):
+        mid = (low + high) / 2
+        if heard_per_tick(centre + (xy - centre) * mid, cell_size) >= heard:
+            low = mid
+        else:
+            high = mid
+    return centre + (xy - centre) * high
+
+
+def floor_row(n: int, duration: float, callbacks: str = "direct", heard: float = float("nan")) -> dict:
     """N floor processes, clocked at 10 Hz from here as the world clocks agents: the cost of a
-    robot's messages alone. Returns CPU (% of a core, each process's mean over the run), RSS and
-    USS (MB), and the share of ticks answered."""
+    robot's messages alone. ``heard``: the states per tick an agent heard; the floor processes
+    stand closer together until they hear as many (drawn_together). Returns CPU (% of a core,
+    each process's mean over the run), RSS and USS (MB), and the share of ticks answered."""
     scene = load_scene("circle", robots=n, seed=3, clock="realtime")
     params, _ = world_of(scene)
+    at = drawn_together(np.asarray(scene.poses)[:, :2], params.cell_size, heard)
     router = loopback_router()
     procs: list[subprocess.Popen] = []
     with Bus(router, name="floor-clock") as bus:
         cmds = bus.commands_inbox()
         try:
-            for i, (x, y, _) in enumerate(scene.poses):
+            for i, (x, y) in enumerate(at):
                 procs.append(
                     subprocess.Popen(
                         [sys.executable, "-m", "bench.floor_node", "--robot", str(i), f"--x={x}", f"--y={y}"]
@@ -85,7 +117,8 @@ def floor_row(n: int, duration: float, callbacks: str = "direct") -> dict:
                     for w in watched:
                         w.cpu_percent()  # the measured window starts
                     answered = 0
-                bus.publish_poses(tick, tick * params.dt, np.arange(len(scene.poses)), scene.poses, frame=False)
+                poses = np.column_stack([at, np.zeros(n)])
+                bus.publish_poses(tick, tick * params.dt, np.arange(n), poses, frame=False)
                 next_tick += params.dt
                 time.sleep(max(0.0, next_tick - time.monotonic()))
                 answered += len(cmds.drain())
@@ -131,6 +164,14 @@ def agent_row(n: int, duration: float, clock: str = "realtime", faults: str = ""
         "stopped": m["stopped_ticks"],
         "start_and_stop": m["wall_s"] - m["stepping_wall_s"],
         "converged": m["converged"],
+        # messages of neighbours' states an agent took in per tick (nan: code that does not report it)
+        "states_per_tick": float(
+            np.median(
+                [s["states_heard"] / s["ticks"] for s in m["agent_stats"] if s.get("ticks") and "states_heard" in s]
+            )
+            if any("states_heard" in s for s in m["agent_stats"])
+            else float("nan")
+        ),
     }
 
 
@@ -299,28 +340,29 @@ def main() -> None:
         sys.exit(2)
     rows = [
         "| N | process | load avg | RTF | missed ticks (share) | contacts (max overlap m) | CPU per process "
-        "(% of a core, median) | x floor | RSS MB (median) | USS MB (median) | start + stop s |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "(% of a core, median) | x floor | states heard per tick | RSS MB (median) | USS MB (median) | start + stop s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for n in sizes:
+        before = load()
+        a = agent_row(n, args.duration)
+        agent = (
+            f"| {n} | agent | {before} | {a['rtf']:.2f} | {a['missed']} ({100 * a['missed_share']:.2f}%) | "
+            f"{a['contacts']} ({a['overlap']:.3f}) | {a['cpu']:.2f} | {{x_floor}} | "
+            f"{a['states_per_tick']:.1f} | {a['rss']:.1f} | {a['uss']:.1f} | {a['start_and_stop']:.1f} |"
+        )
         for callbacks, what in [
             ("thread", "floor: bare zenoh, a thread per subscription"),
             ("direct", "floor: one thread"),
         ]:
             before = load()
-            f = floor_row(n, args.duration, callbacks)
+            f = floor_row(n, args.duration, callbacks, a["states_per_tick"])
             rows.append(
                 f"| {n} | {what} | {before} | {f['rtf']:.2f} | {100 * (1 - f['answered']):.2f}% unanswered | "
-                f"- | {f['cpu']:.2f} | 1 | {f['rss']:.1f} | {f['uss']:.1f} | - |"
+                f"- | {f['cpu']:.2f} | 1 | {f['states_per_tick']:.1f} | {f['rss']:.1f} | {f['uss']:.1f} | - |"
             )
-            print(rows[-1], f"(states heard per tick: {f['states_per_tick']:.1f})", flush=True)
-        before = load()
-        a = agent_row(n, args.duration)
-        rows.append(
-            f"| {n} | agent | {before} | {a['rtf']:.2f} | {a['missed']} ({100 * a['missed_share']:.2f}%) | "
-            f"{a['contacts']} ({a['overlap']:.3f}) | {a['cpu']:.2f} | {a['cpu'] / max(f['cpu'], 1e-9):.1f} | "
-            f"{a['rss']:.1f} | {a['uss']:.1f} | {a['start_and_stop']:.1f} |"
-        )
+            print(rows[-1], flush=True)
+        rows.append(agent.replace("{x_floor}", f"{a['cpu'] / max(f['cpu'], 1e-9):.1f}"))
         print(rows[-1], flush=True)
     n = DELAYED_AT if not args.sizes else min(sizes)
     before = load()
@@ -328,7 +370,7 @@ def main() -> None:
     rows.append(
         f"| {n} | agent, `--faults {DELAYED}` | {before} | {d['rtf']:.2f} | {d['missed']} "
         f"({100 * d['missed_share']:.2f}%) | {d['contacts']} ({d['overlap']:.3f}) | {d['cpu']:.1f} | - | "
-        f"{d['rss']:.1f} | {d['uss']:.1f} | {d['start_and_stop']:.1f} |"
+        f"{d['states_per_tick']:.1f} | {d['rss']:.1f} | {d['uss']:.1f} | {d['start_and_stop']:.1f} |"
     )
     print(rows[-1], flush=True)
     extra: list[str] = []
@@ -339,7 +381,7 @@ def main() -> None:
             extra.append(
                 f"| {n} | agent, lock-step | {before} | {a['rtf']:.2f} | {a['missed']} "
                 f"({100 * a['missed_share']:.2f}%) | {a['contacts']} ({a['overlap']:.3f}) | {a['cpu']:.1f} | - | "
-                f"{a['rss']:.1f} | {a['uss']:.1f} | {a['start_and_stop']:.1f} |"
+                f"{a['states_per_tick']:.1f} | {a['rss']:.1f} | {a['uss']:.1f} | {a['start_and_stop']:.1f} |"
             )
             print(extra[-1], flush=True)
         m, samples = run_and_sample(
@@ -364,16 +406,20 @@ def main() -> None:
         + [
             "",
             "Floor: bench.floor_node, a bare zenoh session per robot that per tick hears its pose and the states "
-            "of its 5 x 5 cells and puts a state and a command, clocked at 10 Hz by this benchmark (robots standing "
-            "at the circle's start), its callbacks on a Python thread per subscription (zenoh-python's default, as "
-            "transport.bus does) or on zenoh's receiving thread; CPU over the ticks after the first 3 s. Agent: "
-            "`pixelswarm run circle --seed 3` in real time, neighbour states read once a tick (a pulled inbox); CPU "
+            "of its 5 x 5 cells and puts a state and a command, clocked at 10 Hz by this benchmark, run after the "
+            "agents of the same N: its robots stand on the circle drawn towards its centre until each hears nearly "
+            "as many states per tick as an agent did, never more (an agent's robots cross the crowded middle); its "
+            "callbacks on a Python thread per subscription (zenoh-python's default) "
+            "or on zenoh's receiving thread; CPU over the ticks after the first 3 s. Agent: "
+            "`pixelswarm run circle --seed 3` in real time; CPU "
             "over the world's stepping after its first 3 s, from each process's CPU seconds. x floor: the agent's CPU "
             "over the floor's (one thread) of the same N, in this run. RTF: simulated seconds per wall second while the world "
             "was stepping. Missed ticks: a live agent's command for tick k had not reached the world when tick k+1 "
             "began (a body without a valid command stops: agent.lateness, docs/overload.md). Start + stop: "
             "the run's wall time less its stepping time (start-up to the first tick, and the shutdown). "
-            "USS: memory unique to one process. Load avg: the machine's 1-minute load before the row.",
+            "USS: memory unique to one process. States heard per tick: messages of neighbours' states a process "
+            "took in per tick, its own included (median over processes). Load avg: the machine's 1-minute load before "
+            "the row.",
         ],
     )
     if kept:

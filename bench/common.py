@@ -71,7 +71,16 @@ def run_and_sample(args: list[str], period: float = 0.5) -> tuple[dict, list[dic
             raise RuntimeError(f"run failed: {stderr[-2000:]}")
         metrics = json.loads((out / "metrics.json").read_text())
         metrics["first_tick_wall"] = first_tick(out / "log.mcap")["tick"]
+        metrics["agent_stats"] = agent_stats(out / "log.mcap")
         return metrics, samples
+
+
+def agent_stats(log: Path) -> list[dict]:
+    """Each agent process's report at its end (its ``stats`` event in the run's log)."""
+    from sim.mcaplog import read_mcap
+
+    events = read_mcap(log, ["/event"]).get("/event", [])
+    return [e for e in events if e.get("kind") == "stats" and e.get("role") == "agent"]
 
 
 def stepping_cpu(samples: list[dict], start: float, end: float) -> list[float]:

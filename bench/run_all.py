@@ -42,6 +42,7 @@ ORDER = [
     "one-controller",
     "runtime",
     "agent_tick",
+    "state_intake",
     "auction",
     "sequence",
     "large",
