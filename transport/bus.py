@@ -1,8 +1,9 @@
 """The bus: a zenoh session with typed publishing, queued subscriptions, liveliness and faults.
 
 Zenoh calls subscriber callbacks on its own threads; here a callback only decodes and queues (never
-blocks, never calls zenoh), and the owner's loop drains the queue. Decoding failures are counted per
-inbox and never raise.
+blocks, never calls zenoh), and the owner's loop drains the queue. A pulled inbox has no callback:
+its samples wait in zenoh's channels and are decoded when the owner reads it. Decoding failures are
+counted per inbox and never raise.
 """
 
 from __future__ import annotations

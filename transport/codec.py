@@ -56,7 +56,6 @@ def _fixed_and_items(body: memoryview, fixed: struct.Struct, item: np.dtype) -> 
 
 
 _ALONE_RECORD_AT = 4  # in a frame of one read whole: kind, version, tick, stamp, then the record
-STRUCT_RECORDS = 4  # frames of at most this many records are read into views with struct, larger with numpy
 _STRUCT_CODE = {"<u4": "I", "<i4": "i", "<f4": "f", "|u1": "B"}  # a record field's numpy type as struct reads it
 
 
@@ -698,7 +697,7 @@ class Frame(Message):
     _rules: ClassVar[tuple[tuple[str, Callable[[Any], Any]], ...]] = ()
     # Derived from RECORD once per kind (__init_subclass__):
     _float_block: ClassVar[tuple[int, int]]  # (byte offset in a record, count) of the float fields
-    _row: ClassVar[struct.Struct]  # one record as struct reads it, for views
+    _row: ClassVar[struct.Struct]  # one record as struct reads it
     _row_floats: ClassVar[tuple[int, ...]]  # positions of the float fields in a row
     _row_rules: ClassVar[tuple[tuple[int, Callable[[Any], Any]], ...]]
     _alone: ClassVar[struct.Struct]  # a whole message of one record: header, tick, stamp, the record
@@ -727,8 +726,9 @@ class Frame(Message):
     @classmethod
     def views_alone(cls, data: bytes) -> tuple[int, list] | None:
         """(tick, [view]) of a well-formed message of one record, read in one struct call: what a
-        robot alone sends each tick, and an agent hears a dozen of. None for anything else (a
-        longer frame, or anything wrong), for decode_views to read and count."""
+        robot alone sends each tick, and an agent hears tens of (through numpy, a frame of one and
+        its view cost five times as much). None for anything else (a longer frame, or anything
+        wrong), for decode to read and count. The same checks as ``_from``."""
         if len(data) != cls._alone.size:
             return None
         v = cls._alone.unpack(data)
@@ -739,27 +739,6 @@ class Frame(Message):
         if not all(test(v[_ALONE_RECORD_AT + i]) for i, test in cls._row_rules):
             return None
         return v[2], [cls.VIEW(*v[_ALONE_RECORD_AT : _ALONE_RECORD_AT + 1], v[2], v[3], *v[_ALONE_RECORD_AT + 1 :])]
-
-    @classmethod
-    def views_from(cls, body: memoryview) -> tuple[int, list]:
-        """(tick, one view per record) of a frame's body, checked as ``_from`` checks it. For inboxes
-        of views: read with struct, a frame of one costs a tenth of a numpy frame and its views;
-        from a few records on, numpy's checks over all records at once cost less."""
-        size = cls._fixed.size
-        if len(body) < size or (len(body) - size) % cls._row.size:
-            raise Malformed("truncated")
-        if len(body) - size > STRUCT_RECORDS * cls._row.size:
-            frame = cls._from(body)
-            return frame.tick, frame.messages()
-        tick, stamp = cls._fixed.unpack(body[:size])
-        _finite(stamp)
-        rows = list(cls._row.iter_unpack(body[size:]))
-        for row in rows:  # every number finite first, then the rules, as _from checks
-            _finite(*(row[i] for i in cls._row_floats))
-        if not all(test(row[i]) for row in rows for i, test in cls._row_rules):
-            raise Malformed("invalid")
-        view: Callable[..., Any] = cls.VIEW
-        return tick, [view(row[0], tick, stamp, *row[1:]) for row in rows]
 
     def to_dict(self) -> dict[str, Any]:
         """Records as columns, one array per field (as Bid)."""
@@ -957,22 +936,6 @@ def decode(
     data: bytes | memoryview, expected: type[Message] | None = None, drops: DropCounter | None = None
 ) -> Message | None:
     """Decode one message; None (and a counted drop) for anything malformed. Never raises."""
-    return _read(data, expected, drops, lambda kind, body: kind._from(body))
-
-
-def decode_views(
-    data: bytes | memoryview, frame: type[Frame], drops: DropCounter | None = None
-) -> tuple[int, list] | None:
-    """A frame of this kind as (tick, one view per record), what an inbox of views hands over
-    (Frame.views_alone, Frame.views_from); None (and a counted drop) for anything malformed. Never
-    raises."""
-    if isinstance(data, bytes) and (alone := frame.views_alone(data)) is not None:
-        return alone
-    return _read(data, frame, drops, lambda kind, body: kind.views_from(body))
-
-
-def _read(data: bytes | memoryview, expected: type | None, drops: DropCounter | None, read: Callable) -> Any:
-    """The header checked, ``read(kind, body)``; malformed input counted in ``drops``, never raised."""
     try:
         view = memoryview(data)
         if len(view) < _HEADER.size:
@@ -983,7 +946,7 @@ def _read(data: bytes | memoryview, expected: type | None, drops: DropCounter | 
         message_type = MESSAGE_TYPES.get(kind)
         if message_type is None or (expected is not None and message_type is not expected):
             raise Malformed("kind")
-        return read(message_type, view[_HEADER.size :])
+        return message_type._from(view[_HEADER.size :])
     except Malformed as err:
         reason = str(err)
     except (struct.error, ValueError, TypeError, OverflowError):
@@ -991,3 +954,15 @@ def _read(data: bytes | memoryview, expected: type | None, drops: DropCounter | 
     if drops is not None:
         drops[reason] += 1
     return None
+
+
+def decode_views(
+    data: bytes | memoryview, frame: type[Frame], drops: DropCounter | None = None
+) -> tuple[int, list] | None:
+    """A frame of this kind as (tick, one view per record), what an inbox of views hands over: a
+    frame of one in one struct call (Frame.views_alone), anything else through the frame; None
+    (and a counted drop) for anything malformed. Never raises."""
+    if isinstance(data, bytes) and (alone := frame.views_alone(data)) is not None:
+        return alone
+    got = decode(data, frame, drops)
+    return None if got is None else (got.tick, got.messages())
