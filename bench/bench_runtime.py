@@ -140,6 +140,15 @@ def floor_row(n: int, duration: float, callbacks: str = "direct", heard: float =
     }
 
 
+def agent_line(n: int, what: str, load_before: str, a: dict, x_floor: str = "-") -> str:
+    """A table row of agent_row's figures."""
+    return (
+        f"| {n} | {what} | {load_before} | {a['rtf']:.2f} | {a['missed']} ({100 * a['missed_share']:.2f}%) | "
+        f"{a['contacts']} ({a['overlap']:.3f}) | {a['cpu']:.2f} | {x_floor} | {a['states_per_tick']:.1f} | "
+        f"{a['rss']:.1f} | {a['uss']:.1f} | {a['start_and_stop']:.1f} |"
+    )
+
+
 def agent_row(n: int, duration: float, clock: str = "realtime", faults: str = "") -> dict:
     args = ["circle", "--robots", str(n), "--clock", clock, "--duration", str(duration), "--seed", "3"]
     m, samples = run_and_sample(args + (["--faults", faults] if faults else []))
@@ -344,13 +353,8 @@ def main() -> None:
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for n in sizes:
-        before = load()
+        agent_load = load()
         a = agent_row(n, args.duration)
-        agent = (
-            f"| {n} | agent | {before} | {a['rtf']:.2f} | {a['missed']} ({100 * a['missed_share']:.2f}%) | "
-            f"{a['contacts']} ({a['overlap']:.3f}) | {a['cpu']:.2f} | {{x_floor}} | "
-            f"{a['states_per_tick']:.1f} | {a['rss']:.1f} | {a['uss']:.1f} | {a['start_and_stop']:.1f} |"
-        )
         for callbacks, what in [
             ("thread", "floor: bare zenoh, a thread per subscription"),
             ("direct", "floor: one thread"),
@@ -362,27 +366,19 @@ def main() -> None:
                 f"- | {f['cpu']:.2f} | 1 | {f['states_per_tick']:.1f} | {f['rss']:.1f} | {f['uss']:.1f} | - |"
             )
             print(rows[-1], flush=True)
-        rows.append(agent.replace("{x_floor}", f"{a['cpu'] / max(f['cpu'], 1e-9):.1f}"))
+        rows.append(agent_line(n, "agent", agent_load, a, f"{a['cpu'] / max(f['cpu'], 1e-9):.1f}"))
         print(rows[-1], flush=True)
     n = DELAYED_AT if not args.sizes else min(sizes)
     before = load()
     d = agent_row(n, args.duration, faults=DELAYED)
-    rows.append(
-        f"| {n} | agent, `--faults {DELAYED}` | {before} | {d['rtf']:.2f} | {d['missed']} "
-        f"({100 * d['missed_share']:.2f}%) | {d['contacts']} ({d['overlap']:.3f}) | {d['cpu']:.1f} | - | "
-        f"{d['states_per_tick']:.1f} | {d['rss']:.1f} | {d['uss']:.1f} | {d['start_and_stop']:.1f} |"
-    )
+    rows.append(agent_line(n, f"agent, `--faults {DELAYED}`", before, d))
     print(rows[-1], flush=True)
     extra: list[str] = []
     if not args.quick and not args.sizes:
         for n in sizes:
             before = load()
             a = agent_row(n, args.duration, clock="lockstep")
-            extra.append(
-                f"| {n} | agent, lock-step | {before} | {a['rtf']:.2f} | {a['missed']} "
-                f"({100 * a['missed_share']:.2f}%) | {a['contacts']} ({a['overlap']:.3f}) | {a['cpu']:.1f} | - | "
-                f"{a['states_per_tick']:.1f} | {a['rss']:.1f} | {a['uss']:.1f} | {a['start_and_stop']:.1f} |"
-            )
+            extra.append(agent_line(n, "agent, lock-step", before, a))
             print(extra[-1], flush=True)
         m, samples = run_and_sample(
             ["circle", "--robots", "1000", "--clock", "lockstep", "--duration", "10", "--agents-per-process", "250"]

@@ -639,8 +639,7 @@ class Frame(Message):
     @classmethod
     def of(cls, tick: int, stamp: float, views: list) -> Frame:
         """The frame of these robots' records (their tick and stamp are the frame's)."""
-        get = attrgetter(*_field_names(cls.RECORD))
-        return cls(tick, stamp, np.array([get(v) for v in views], cls.RECORD).reshape(-1))
+        return cls(tick, stamp, np.array([cls._record_of(v) for v in views], cls.RECORD).reshape(-1))
 
     @classmethod
     def one(cls, view: Any) -> Frame:
@@ -657,12 +656,11 @@ class Frame(Message):
     def count(self) -> int:
         return len(self.records)
 
-    def messages(self, rows: np.ndarray | None = None) -> list:
-        """One view per record (or per selected record): the robot, the frame's tick and stamp, the record."""
-        records = self.records if rows is None else self.records[rows]
+    def messages(self) -> list:
+        """One view per record: the robot, the frame's tick and stamp, the record."""
         tick, stamp = self.tick, self.stamp
         view: Callable[..., Any] = self.VIEW
-        return [view(robot, tick, stamp, *rest) for robot, *rest in records.tolist()]
+        return [view(robot, tick, stamp, *rest) for robot, *rest in self.records.tolist()]
 
     def _fixed_values(self) -> tuple:
         return (self.tick, self.stamp)
@@ -697,11 +695,9 @@ class Frame(Message):
     _rules: ClassVar[tuple[tuple[str, Callable[[Any], Any]], ...]] = ()
     # Derived from RECORD once per kind (__init_subclass__):
     _float_block: ClassVar[tuple[int, int]]  # (byte offset in a record, count) of the float fields
-    _row: ClassVar[struct.Struct]  # one record as struct reads it
-    _row_floats: ClassVar[tuple[int, ...]]  # positions of the float fields in a row
-    _row_rules: ClassVar[tuple[tuple[int, Callable[[Any], Any]], ...]]
     _alone: ClassVar[struct.Struct]  # a whole message of one record: header, tick, stamp, the record
     _alone_floats: ClassVar[slice]  # the record's float fields in what _alone reads
+    _alone_rules: ClassVar[tuple[tuple[int, Callable[[Any], Any]], ...]]  # _rules by position in it
     _record_of: ClassVar[Callable[[Any], tuple]]  # a view's record fields, in the record's order
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
@@ -714,14 +710,13 @@ class Frame(Message):
         ):
             raise TypeError(f"{cls.__name__}: the float fields of a record must be adjacent float32")
         cls._float_block = (offsets[0], len(offsets))
-        cls._row = struct.Struct("<" + "".join(_STRUCT_CODE[fields[k][0].str] for k in names))
-        assert cls._row.size == cls.RECORD.itemsize, f"{cls.__name__}: a record must be packed"
-        cls._row_floats = tuple(names.index(k) for k in cls._floats)
-        cls._row_rules = tuple((names.index(k), test) for k, test in cls._rules)
-        cls._alone = struct.Struct(_HEADER.format + cls._fixed.format[1:] + cls._row.format[1:])
+        row = "".join(_STRUCT_CODE[fields[k][0].str] for k in names)
+        assert struct.calcsize("<" + row) == cls.RECORD.itemsize, f"{cls.__name__}: a record must be packed"
+        cls._alone = struct.Struct(_HEADER.format + cls._fixed.format[1:] + row)
+        first = _ALONE_RECORD_AT + names.index(cls._floats[0])
+        cls._alone_floats = slice(first, first + len(cls._floats))
+        cls._alone_rules = tuple((_ALONE_RECORD_AT + names.index(k), test) for k, test in cls._rules)
         cls._record_of = staticmethod(attrgetter(*names))
-        first = _ALONE_RECORD_AT + cls._row_floats[0]
-        cls._alone_floats = slice(first, first + len(cls._row_floats))
 
     @classmethod
     def views_alone(cls, data: bytes) -> tuple[int, list] | None:
@@ -736,7 +731,7 @@ class Frame(Message):
             return None
         if not all(map(math.isfinite, v[cls._alone_floats])):
             return None
-        if not all(test(v[_ALONE_RECORD_AT + i]) for i, test in cls._row_rules):
+        if not all(test(v[i]) for i, test in cls._alone_rules):
             return None
         return v[2], [cls.VIEW(*v[_ALONE_RECORD_AT : _ALONE_RECORD_AT + 1], v[2], v[3], *v[_ALONE_RECORD_AT + 1 :])]
 
