@@ -418,6 +418,9 @@ def test_the_shipped_lab_file_names_the_paper_sequence_robots_on_the_labs_ports(
     assert config.poses.topic == Ros2PosesConfig.topic  # where the lab's motion capture publishes
 
 
+# Its bounds are wall-clock (a timeout plus a period): alone on the machine, as a robot's node runs.
+@pytest.mark.slow
+@pytest.mark.serial
 def test_the_hardware_node_stops_a_robot_whose_pose_is_lost_or_whose_commands_cease(tmp_path):
     """The node between real parts: emulated robots over TCP, motion capture over rmw_zenoh, and this test
     in the agents' place (liveliness tokens, a command per tick)."""
