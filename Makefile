@@ -19,6 +19,10 @@ $(STAMP): pyproject.toml | $(PY)
 	$(PY) -m pip install -q -e .
 	touch $@
 
+# The sources' bytecode, brought up to date before a run: a robot's process then neither compiles
+# them at start nor keeps the compiler's memory, also where PYTHONDONTWRITEBYTECODE stops Python saving it.
+BYTECODE := $(PY) -m compileall -q agent coordinator transport sim hardware
+
 # pyrvo (RVO2's bindings) is the reference of the ORCA cross-checks and benchmarks; its metadata
 # pins an old numpy, so it goes in without its dependencies (they are ours already).
 $(TSTAMP): pyproject.toml $(STAMP)
@@ -27,6 +31,7 @@ $(TSTAMP): pyproject.toml $(STAMP)
 	touch $@
 
 run: $(STAMP)
+	@$(BYTECODE)
 	$(VENV)/bin/pixelswarm run $(SCENE) $(if $(ROBOTS),--robots $(ROBOTS)) $(RUN_ARGS)
 
 # Lint and format (ruff), the packages' import contracts and types (mypy): part of every test run.
@@ -44,9 +49,11 @@ test: test-fast
 
 # Everyday work: the suite without the end-to-end runs marked slow.
 test-fast: lint
+	@$(BYTECODE)
 	$(PY) -m pytest -q -m "not slow" -n auto
 
 bench: $(TSTAMP)
+	@$(BYTECODE)
 	$(PY) -m bench.run_all
 
 clean:

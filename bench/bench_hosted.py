@@ -35,6 +35,8 @@ def reassignments(traj: dict) -> list[str]:
     of the new goal set (display s after the change), how many instances were agreed, and how many
     of those sent more than RESHUFFLE robots to other goals than the agreed instance before (each
     robot's goal in an instance as recorded while it drove to it)."""
+    if "goal_set_epochs" not in traj:
+        return []  # a scene without images (circle, swap): goals are the scene's, nothing is auctioned
     t, goal = traj["t"], traj["assignment"]
     epoch, instance = traj["assignment_epoch"], traj["assignment_instance"].astype(np.int64)
     rows = [
