@@ -5,15 +5,16 @@ doing a robot's messages per tick and nothing else (bench.floor_node: the floor)
 each hears nearly as many states per tick as an agent did; per process CPU, RSS and USS, the states
 heard per tick, the real-time factor, missed ticks, contacts and start-up; then the
 circle with every command delayed 0.15 s (``--faults cmd:delay=0.15``) at 20 processes, and
-(without --quick) the lock-step rows and 1000 robots in 4 hosts. The machine's load average is
-written beside each row: on a shared machine the figures are only as good as it was quiet.
+(without --quick) the lock-step rows and 1000 robots in 4 hosts. Each row waits for a quiet machine
+and writes how busy it was beside it: on a shared machine the figures are only as good as it was
+quiet. ``--repeat K`` runs the agents K times at each N (missed ticks vary from run to run).
 
 ``--startup``: only the start-up of 50 agent processes, from launching `pixelswarm run` to the
 world's first tick, the code at ``--before REV`` beside the code at ``--after REV`` (each a fresh
 git worktree), alternating; the first run in each fresh tree (no bytecode, no numba cache yet) is
 reported apart. Written as the "Start-up" section of runtime.md, the rest kept.
 
-    .venv/bin/python -m bench.bench_runtime [--quick] [--sizes 20,50,100] [--duration 20]
+    .venv/bin/python -m bench.bench_runtime [--quick] [--sizes 20,50,100] [--duration 20] [--repeat 1]
     .venv/bin/python -m bench.bench_runtime --startup [--before 7ff7048^] [--after HEAD] [--pairs 3]
 """
 
@@ -48,8 +49,23 @@ STARTUP_BEFORE = "7ff7048^"  # the code before issue 25's work
 STARTUP_HEADING = "## Start-up"
 
 
+QUIET = 10.0  # % of the machine's CPU busy, over a second, below which a row may start
+QUIET_WAIT = 60.0  # s a row waits for that at most
+
+
 def load() -> str:
     return f"{os.getloadavg()[0]:.1f}"
+
+
+def settle() -> str:
+    """Wait (at most QUIET_WAIT s) until less than QUIET % of the machine's CPU was busy over a
+    second, so that a row does not pay for the one before it (its processes exiting): the load
+    average lags a minute behind. Returns that second's busy share and the load average."""
+    deadline = time.monotonic() + QUIET_WAIT
+    while True:
+        busy = psutil.cpu_percent(interval=1.0)
+        if busy < QUIET or time.monotonic() >= deadline:
+            return f"{busy:.0f} ({load()})"
 
 
 def heard_per_tick(xy: np.ndarray, cell_size: float, reach: int = REACH) -> float:
@@ -151,11 +167,11 @@ def agent_line(n: int, what: str, load_before: str, a: dict, x_floor: str = "-")
 
 def agent_row(n: int, duration: float, clock: str = "realtime", faults: str = "") -> dict:
     args = ["circle", "--robots", str(n), "--clock", clock, "--duration", str(duration), "--seed", "3"]
-    m, samples = run_and_sample(args + (["--faults", faults] if faults else []))
+    m, samples = run_and_sample(args + (["--faults", faults] if faults else []), agents=n)
     ticks = max(m["samples"] - 1, 1) * n  # robot-ticks the world stepped
     per_process: dict[int, list[dict]] = {}
-    for s in samples:  # each process's samples (an exiting process reports no memory)
-        if s["rss"] > 0:
+    for s in samples:  # each process's memory readings (an exiting process reports none)
+        if s["rss"]:
             per_process.setdefault(s["pid"], []).append(s)
     # The stepping alone, its first second left out (the first goal set's auction): the CPU an
     # agent costs at 10 Hz, as the floor's is measured after its warm-up.
@@ -327,6 +343,7 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="N = 20 only, no lock-step or hosted rows")
     parser.add_argument("--sizes", default="", help="comma-separated N (default 20,50,100; --quick: 20)")
     parser.add_argument("--duration", type=float, default=20.0, help="s of display per run")
+    parser.add_argument("--repeat", type=int, default=1, help="agent runs at each N (missed ticks vary run to run)")
     parser.add_argument("--startup", action="store_true", help="only the start-up to the first tick, before/after")
     parser.add_argument("--before", default=STARTUP_BEFORE, help="--startup: the git revision before")
     parser.add_argument("--after", default="HEAD", help="--startup: the git revision after")
@@ -342,46 +359,55 @@ def main() -> None:
         return
     try:
         sizes = [int(s) for s in args.sizes.split(",") if s] or ([20] if args.quick else [20, 50, 100])
-        if min(sizes) < 1 or args.duration <= 0:
+        if min(sizes) < 1 or args.duration <= 0 or args.repeat < 1:
             raise ValueError
     except ValueError:
-        print("bench_runtime: error: --sizes takes whole numbers >= 1, --duration a positive number", file=sys.stderr)
+        print(
+            "bench_runtime: error: --sizes takes whole numbers >= 1, --duration a positive number, --repeat >= 1",
+            file=sys.stderr,
+        )
         sys.exit(2)
     rows = [
-        "| N | process | load avg | RTF | missed ticks (share) | contacts (max overlap m) | CPU per process "
+        "| N | process | busy before % (load avg) | RTF | missed ticks (share) | contacts (max overlap m) | CPU per process "
         "(% of a core, median) | x floor | states heard per tick | RSS MB (median) | USS MB (median) | start + stop s |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for n in sizes:
-        agent_load = load()
-        a = agent_row(n, args.duration)
+        runs = []
+        for _ in range(args.repeat):
+            before = settle()
+            runs.append((before, agent_row(n, args.duration)))
+        heard = float(np.median([a["states_per_tick"] for _, a in runs]))
         for callbacks, what in [
             ("thread", "floor: bare zenoh, a thread per subscription"),
             ("direct", "floor: one thread"),
         ]:
-            before = load()
-            f = floor_row(n, args.duration, callbacks, a["states_per_tick"])
+            before = settle()
+            f = floor_row(n, args.duration, callbacks, heard)
             rows.append(
                 f"| {n} | {what} | {before} | {f['rtf']:.2f} | {100 * (1 - f['answered']):.2f}% unanswered | "
                 f"- | {f['cpu']:.2f} | 1 | {f['states_per_tick']:.1f} | {f['rss']:.1f} | {f['uss']:.1f} | - |"
             )
             print(rows[-1], flush=True)
-        rows.append(agent_line(n, "agent", agent_load, a, f"{a['cpu'] / max(f['cpu'], 1e-9):.1f}"))
-        print(rows[-1], flush=True)
+        for i, (before, a) in enumerate(runs):
+            what = "agent" if args.repeat == 1 else f"agent, run {i + 1}"
+            rows.append(agent_line(n, what, before, a, f"{a['cpu'] / max(f['cpu'], 1e-9):.1f}"))
+            print(rows[-1], flush=True)
     n = DELAYED_AT if not args.sizes else min(sizes)
-    before = load()
+    before = settle()
     d = agent_row(n, args.duration, faults=DELAYED)
     rows.append(agent_line(n, f"agent, `--faults {DELAYED}`", before, d))
     print(rows[-1], flush=True)
     extra: list[str] = []
     if not args.quick and not args.sizes:
         for n in sizes:
-            before = load()
+            before = settle()
             a = agent_row(n, args.duration, clock="lockstep")
             extra.append(agent_line(n, "agent, lock-step", before, a))
             print(extra[-1], flush=True)
         m, samples = run_and_sample(
-            ["circle", "--robots", "1000", "--clock", "lockstep", "--duration", "10", "--agents-per-process", "250"]
+            ["circle", "--robots", "1000", "--clock", "lockstep", "--duration", "10", "--agents-per-process", "250"],
+            agents=4,
         )
         cpu = np.median([s["cpu"] for s in samples if s["cpu"] > 0] or [0])
         extra += [
@@ -389,7 +415,7 @@ def main() -> None:
             "| N | hosts (K per process) | clock | RTF | CPU per host (%) | RSS per host MB |",
             "|---|---|---|---|---|---|",
             f"| 1000 | 4 (K = 250) | lockstep | {m['stepping_realtime_factor']:.2f} | {cpu:.0f} | "
-            f"{np.median([s['rss'] for s in samples]) / 2**20:.0f} |",
+            f"{np.median([s['rss'] for s in samples if s['rss']]) / 2**20:.0f} |",
         ]
     path = RESULTS / "runtime.md"
     _, kept = split_startup(path.read_text() if path.exists() else "")  # --startup's section outlives a rerun
@@ -414,8 +440,10 @@ def main() -> None:
             "began (a body without a valid command stops: agent.lateness, docs/overload.md). Start + stop: "
             "the run's wall time less its stepping time (start-up to the first tick, and the shutdown). "
             "USS: memory unique to one process. States heard per tick: messages of neighbours' states a process "
-            "took in per tick, its own included (median over processes). Load avg: the machine's 1-minute load before "
-            "the row.",
+            "took in per tick, its own included (median over processes). Busy before: the share of the machine's CPU "
+            "busy over the second before the row, which waits (up to a minute) for it to fall below 10 %; the load "
+            "average beside it lags a minute behind. CPU times: every process's every 0.5 s; memory: 4 processes' "
+            "a round in turn, so that the sampling does not load the machine it measures.",
         ],
     )
     if kept:

@@ -26,8 +26,8 @@ def main() -> int:
         return 2
     load = os.getloadavg()[0]
     run = ["circle", "--robots", str(args.robots), "--clock", "realtime", "--duration", str(args.duration)]
-    m, samples = run_and_sample(run + ["--seed", "3"])
-    alive = [s for s in samples if s["rss"] > 0]  # an exiting process reports no memory
+    m, samples = run_and_sample(run + ["--seed", "3"], agents=args.robots)
+    alive = [s for s in samples if s["rss"]]  # memory readings (an exiting process reports none)
     ticks = round(args.duration / 0.1) * args.robots
     row = {
         "repo": str(REPO),
@@ -38,7 +38,7 @@ def main() -> int:
         "missed_share": round(m["missed_ticks"] / ticks, 3),
         "contacts": m["contacts"],
         "min_clearance_m": m["min_clearance_m"],
-        "cpu": float(np.median([s["cpu"] for s in alive if s["cpu"] > 0] or [0])),
+        "cpu": float(np.median([s["cpu"] for s in samples if s["cpu"] > 0] or [0])),
         "rss_mb": round(float(np.median([s["rss"] for s in alive])) / 2**20, 1),
         "uss_mb": round(float(np.median([s["uss"] for s in alive])) / 2**20, 1),
         "start_and_stop_s": round(m["wall_s"] - m["stepping_wall_s"], 1),
