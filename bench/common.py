@@ -46,7 +46,6 @@ def run_and_sample(args: list[str], period: float = 0.5, agents: int | None = No
         )
         samples: list[dict] = []
         tracked: dict[int, psutil.Process] = {}
-        seen: set[int] = set()  # children looked at, agents or not
         turn = 0  # the next process whose memory is read
         while proc.poll() is None:
             if agents is None or len(tracked) < agents:
@@ -54,14 +53,11 @@ def run_and_sample(args: list[str], period: float = 0.5, agents: int | None = No
                     children = psutil.Process(proc.pid).children(recursive=True)
                 except psutil.Error:
                     children = []
-                for child in children:
-                    if child.pid in seen:
-                        continue
+                for child in children:  # a child not yet an agent may be one between fork and exec
                     try:
-                        if "agent" in child.cmdline():
+                        if child.pid not in tracked and "agent" in child.cmdline():
                             child.cpu_percent()  # start the CPU counter
                             tracked[child.pid] = child
-                        seen.add(child.pid)
                     except psutil.Error:
                         pass
             time.sleep(period)
