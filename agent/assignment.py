@@ -25,7 +25,6 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from itertools import count
 from typing import Any
 
 import numpy as np
@@ -33,9 +32,10 @@ import numpy as np
 from transport.bus import Bus, Inbox
 from transport.codec import Bid, Boards, Goals
 
-from .core.bidder import RELEASED, SETTLED, Participant, frames_close
+from .core.bidder import RELEASED, Participant, frames_close
 from .core.local_auction import NO_OWNER, LocalAuction, Words, new_auction
 from .core.params import RobotParams
+from .core.rounds import BlockRounds, rounds_in_tick
 
 DIGEST_EVERY = 0.01
 QUIET = 0.02  # digest-only news waits until the board has not changed for this long (no storms)
@@ -50,11 +50,6 @@ ROUND_CAP = 30.0  # s: lock-step, the longest a host waits for one round; then i
 OnAgreed = Callable[[int, int, dict[int, int], np.ndarray, np.ndarray], None]
 OnAbandoned = Callable[[list[int]], None]
 Where = Callable[[], dict[int, np.ndarray]]
-
-
-def _claims(records: np.ndarray) -> np.ndarray:
-    """The claims among a message's records (the rest are releases)."""
-    return records[(records["flags"] & RELEASED) == 0]
 
 
 class AuctionLink:
@@ -87,6 +82,7 @@ class AuctionLink:
         self.lockstep, self.on_abandoned = lockstep, on_abandoned
         self.dead = dead if dead is not None else set
         self.block_stamp = -np.inf  # lock-step: display time of the last block's tick
+        self.block: BlockRounds | None = None  # lock-step: the block under way (it may span ticks)
         self.round_records: dict[
             tuple[int, int, int], dict[int, Any]
         ] = {}  # (epoch, block, round) -> sender -> its message (Bid or Boards)
@@ -174,6 +170,7 @@ class AuctionLink:
             return {}
         auction = new_auction(goals.epoch, goals.positions, goals.robots.tolist(), self.robots, self.params, self.reach)
         self.goal_set, self.epoch_wall, self.reported, self.others = goals, time.monotonic(), -1, set()
+        self.block = None  # a block of the last goal set is given up
         if isinstance(auction, LocalAuction):  # lock-step only: a cold start at the next tick
             self.local, self.block_stamp = auction, -np.inf
             return {}
@@ -317,43 +314,27 @@ class AuctionLink:
             self._settle_local(stamp, positions)
             return
         part = self.part
-        if part is None or not part.own or not all(r in positions for r in part.own):
+        if part is None or not part.own:
             return
-        if part.started and stamp - self.block_stamp < self.params.assign_period - 1e-9:
-            return
-        self.block_stamp = stamp
-        part.begin_block(positions)
-        final = part.instance + part.phases - 1  # every round's records are tagged with the block's final phase
-        claims = len(part.own)  # round_records: a claim per own robot, in order, then the releases
-        robots_of: dict[int, np.ndarray] = {}  # sender -> its robots, from its full first round
-
-        def robots(m: Bid) -> np.ndarray:
-            if m.sender not in robots_of:
-                robots_of[m.sender] = _claims(m.records)["robot"]
-            return robots_of[m.sender]
-
-        flags = np.zeros(int(part.robots.max(initial=0)) + 1, np.uint8)  # each robot's newest claim flags
-        last: np.ndarray | None = None
-        for r in count(1):
-            before = part.board.digest()
-            part.bid()
-            mine = part.round_records()
-            # After the first round, only the claims that changed and the releases: everyone merged the
-            # rest already, and merging a record twice changes no board (max-consensus).
-            news = mine if last is None else np.concatenate([mine[:claims][mine[:claims] != last], mine[claims:]])
-            last = mine[:claims]
-            said = Bid(part.epoch, final, self.sender, r, part.board.digest(), len(news), news)
-            heard = self._round((part.epoch, final, r), said, set(part.robots.tolist()), robots)
+        if self.block is None:
+            if not all(r in positions for r in part.own):
+                return
+            if part.started and stamp - self.block_stamp < self.params.assign_period - 1e-9:
+                return
+            self.block_stamp = stamp
+            self.block = BlockRounds(part, positions)
+        block, members = self.block, set(part.robots.tolist())
+        for _ in range(rounds_in_tick(self.params)):
+            news = block.say()
+            key = (part.epoch, block.final, block.round)
+            said = Bid(part.epoch, block.final, self.sender, block.round, part.board.digest(), len(news), news)
+            heard = self._round(key, said, members, lambda m: block.robots_of(m.sender, m.records))
             if heard is None:
                 self._abandon()
                 return
-            for msg in heard.values():
-                part.absorb(part.instance, r, 0, msg.records)
-                theirs = _claims(msg.records)
-                flags[theirs["robot"]] = theirs["flags"]
             self.rounds += 1
-            others = [robots_of[sender] for sender in heard]
-            if part.close_round(part.board.digest() == before, self._all_settled(last, flags, others)):
+            if block.hear({sender: msg.records for sender, msg in heard.items()}):
+                self.block = None
                 self._report()
                 return
 
@@ -391,14 +372,6 @@ class AuctionLink:
             self.first_agreement_s.append(time.monotonic() - self.epoch_wall)
         self.reported = local.agreed_instance
         self.on_agreed(local.epoch, local.agreed_instance, dict(local.agreed), gs.positions, gs.colors)
-
-    @staticmethod
-    def _all_settled(mine: np.ndarray, flags: np.ndarray, others: list[np.ndarray]) -> bool:
-        """Every robot's claim says SETTLED in this round: our claims ``mine``, the other hosts'
-        robots ``others`` by their newest claim ``flags`` (by robot id)."""
-        if not bool(((mine["flags"] & SETTLED) != 0).all()):
-            return False
-        return all(bool(((flags[robots] & SETTLED) != 0).all()) for robots in others)
 
     def _round(
         self,
@@ -478,6 +451,7 @@ class AuctionLink:
         """A round never completed: our robots cannot know whether others adopted the block, so they
         hold their positions (drive to no goal) rather than drive to a goal another may hold."""
         self.abandoned += 1
+        self.block = None
         own = self.local.own if self.local is not None else self.part.own if self.part is not None else []
         if self.on_abandoned is not None and own:
             self.on_abandoned(list(own))

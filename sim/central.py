@@ -32,6 +32,7 @@ from agent.core.bidder import Participant
 from agent.core.goal_motion import GoalMotion
 from agent.core.local_auction import LocalAuction, new_auction, settle_in_process
 from agent.core.policy import NO_GOAL, Decision, GoalTiming, Intent, Memory, act, intend
+from agent.core.rounds import BlockRounds, play
 from agent.core.step import NeighbourStates, static_segments
 from agent.goal_sets import timing_of
 from agent.neighbour_table import Heard
@@ -157,6 +158,11 @@ def simulate(
     goal_set, goal_colors = _scene_goals(scene)  # image scenes: the shown step's goal set, below
     auction: Participant | LocalAuction | None = None  # image scenes: the auction of the shown goal set
     assignment = np.where(np.isfinite(goal_set).all(axis=1), ids, -1)  # goal index per robot (scene goals: its own)
+    # the goal set the assignment indexes: the shown one, or the last one until the shown one's first
+    # agreement when the auction's rounds per tick are bounded (the agents drive on as well)
+    assigned_image, assigned_set, assigned_colors = -1, goal_set, goal_colors
+    block: BlockRounds | None = None  # lock-step rounds per tick bounded: the block under way
+    budget = params.rounds_per_tick if scene.assignment != "optimal" and not np.isfinite(link.reach) else 0
     memory = Memory.new(n, latency=params.stale_after)  # until a neighbour is heard (agent.core.policy.act)
     timing: dict[int, GoalTiming] = {}
     motion: GoalMotion | None = None
@@ -181,19 +187,25 @@ def simulate(
     def goals_of(assignment: np.ndarray, measured: np.ndarray) -> _Goals:
         nonlocal made
         # most ticks the auction keeps every goal: the goals are the last ones (unless a pursuer's moved)
-        if made is not None and made[0] == shown and not movers.pursuers and np.array_equal(made[1], assignment):
+        if (
+            made is not None
+            and made[0] == assigned_image
+            and not movers.pursuers
+            and np.array_equal(made[1], assignment)
+        ):
             last = made[2]
             return last._replace(key=last.key.copy())  # the intent's key is written into (_step_again)
         if scene.steps:
             has_goal = assignment >= 0
-            goal0 = np.where(has_goal[:, None], goal_set[assignment], np.nan)
-            color = np.where(has_goal[:, None], goal_colors[assignment], 40).astype(np.uint8)
-            key = np.stack([np.full(n, shown + 1), np.where(has_goal, assignment, NO_GOAL)], axis=1)
+            goal0 = np.where(has_goal[:, None], assigned_set[assignment], np.nan)
+            color = np.where(has_goal[:, None], assigned_colors[assignment], 40).astype(np.uint8)
+            epoch = np.where(has_goal, assigned_image + 1, shown + 1)
+            key = np.stack([epoch, np.where(has_goal, assignment, NO_GOAL)], axis=1)
         else:  # the scene's own goals, one per robot, as the agents hold them: no goal set, no auction
             goal0, color, has_goal = goal_set, goal_colors, np.isfinite(goal_set).all(axis=1)
             key = np.stack([np.zeros(n, np.int64), np.full(n, NO_GOAL)], axis=1)
         goal0, color = movers.goals(goal0, color, measured)  # a pursuer heads for its target
-        made = (shown, assignment.copy(), _Goals(goal0, key, color, has_goal))
+        made = (assigned_image, assignment.copy(), _Goals(goal0, key, color, has_goal))
         return made[2]._replace(key=key.copy())
 
     beside = ThreadPoolExecutor(1, thread_name_prefix="auction")  # the auction beside the control core
@@ -206,21 +218,38 @@ def simulate(
                 world.teleport(ev["robot"], tuple(ev["pose"]))
             k = scene.step_at(t)
             if k != shown:  # a new image: its goal set, and a fresh auction (the old prices mean nothing)
-                shown, auction, assigned_at = k, None, None
+                shown, auction, assigned_at, block = k, None, None, None
                 converged_since = None
                 if scene.steps:
                     goal_set, goal_colors, shown_timing = _step_goals(scene, k, movers.pixels)
-                    motion, t_start, timing = shown_timing.motion, shown_timing.t_start, {k + 1: shown_timing}
+                    motion, t_start = shown_timing.motion, shown_timing.t_start
+                    timing = {e: v for e, v in timing.items() if e == assigned_image + 1} | {k + 1: shown_timing}
             clock.lap("other")
             measured = as_sent(tracker.measure(world.poses))  # the poses as the tracker's messages carry them
+            # a moving goal set is auctioned with the positions mapped back to t = 0 (GoalMotion.to_initial_frame)
+            bid_from = measured[:, :2] if motion is None else motion.to_initial_frame(measured[:, :2], t - t_start)
             clock.lap("tracker")
             pending = None  # this tick's auction, running beside the control core
-            if scene.steps and (assigned_at is None or t - assigned_at >= params.assign_period - 1e-9):
+            # the last tick is a pose with no command to follow (the world asks the agents for none)
+            due = tick < steps and (assigned_at is None or t - assigned_at >= params.assign_period - 1e-9)
+            if scene.steps and budget and tick < steps and (due or block is not None):
+                # The agents' lock-step rounds, at most `budget` a tick: a block may span ticks, and
+                # its agreement takes effect at the tick of its last round (agent.core.rounds).
+                if auction is None:
+                    pixels = movers.pixels.tolist()
+                    auction = new_auction(k, goal_set, pixels, pixels, params, link.reach)
+                if block is None and isinstance(auction, Participant):
+                    block, assigned_at = BlockRounds(auction, bid_from), t
+                if block is not None and play(block, budget):
+                    block = None
+                    agreed = auction.agreed
+                    assignment = np.full(n, -1)
+                    assignment[auction.own_ids] = [agreed.get(r, -1) for r in auction.own]
+                    assigned_image, assigned_set, assigned_colors = shown, goal_set, goal_colors
+            elif scene.steps and due:
                 # Paper 5.1: re-assign every iteration (every assign_period, as the agents do),
                 # warm-started from the previous prices, with the hysteresis Delta C against flip-flops
-                # from tracking noise. A moving goal set is auctioned with the positions mapped back
-                # to t = 0 (GoalMotion.to_initial_frame).
-                bid_from = measured[:, :2] if motion is None else motion.to_initial_frame(measured[:, :2], t - t_start)
+                # from tracking noise.
                 if scene.assignment == "optimal":
                     assignment = movers.pixel_assignment(
                         optimal_assignment(
@@ -237,6 +266,7 @@ def simulate(
                 else:
                     pending = beside.submit(clock.timed_beside, auction_assignment, auction, bid_from)
                 assigned_at = t
+                assigned_image, assigned_set, assigned_colors = shown, goal_set, goal_colors
             clock.lap("assignment")
             world.check()  # the contacts of the last step
             clock.lap("world")
@@ -284,8 +314,10 @@ def simulate(
                     clock.lap("world")
             if auction is not None:
                 for robot in np.flatnonzero(decision.deadlocked).tolist():
-                    auction.penalise(robot, int(decision.intent.key[robot, 1]), params.deadlock_cost)
-                    penalties += 1
+                    epoch, goal = decision.intent.key[robot].tolist()
+                    if epoch == shown + 1:  # a goal of an earlier set is no goal of this auction
+                        auction.penalise(robot, goal, params.deadlock_cost)
+                        penalties += 1
             goal, has_goal = decision.intent.goal, goals.has_goal
             memory = decision.memory
             rec["t"].append(t)

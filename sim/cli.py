@@ -9,9 +9,10 @@ import sys
 import time
 import tomllib
 import typing
+from dataclasses import replace
 from pathlib import Path
 
-from agent.core.params import EPUCK
+from agent.core.params import EPUCK, RobotParams
 from coordinator.goals_cli import add_goals_parser
 from coordinator.scene import CLOCKS, ENGINES, Scene, SceneError, load_scene, resolve_scene_path, shipped_scenes
 from transport.faults import parse_faults
@@ -84,6 +85,14 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="R",
         help="communication range in metres: a robot hears the states and auction words only of robots "
         "within R (lock-step only; default: everyone hears everyone)",
+    )
+    run.add_argument(
+        "--rounds-per-tick",
+        type=int,
+        default=None,
+        metavar="N",
+        help="lock-step: at most N auction message rounds a tick, a block of phases spanning ticks "
+        "(default: the scene's [robot] rounds_per_tick, 0: every block agreed within its tick)",
     )
     run.add_argument(
         "--deadline",
@@ -212,6 +221,18 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise UsageError("--range needs the lock-step clock: its auction runs in rounds of ticks")
     if math.isfinite(reach) and args.hardware is not None:
         raise UsageError("--range simulates a radio's reach; real robots have their own")
+    if args.rounds_per_tick is not None:
+        if args.rounds_per_tick < 0:
+            raise UsageError(f"--rounds-per-tick must be a whole number >= 0, not {args.rounds_per_tick}")
+        if scene.clock != "lockstep":
+            raise UsageError("--rounds-per-tick needs the lock-step clock: real time has no rounds of ticks")
+        if math.isfinite(reach):
+            raise UsageError("--rounds-per-tick is not supported with --range: its auction ends blocks by hops")
+        scene = replace(scene, robot={**scene.robot, "rounds_per_tick": args.rounds_per_tick})
+    try:
+        RobotParams.from_dict(scene.robot)
+    except ValueError as err:
+        raise UsageError(f"{args.scene}: {err}") from None
     _check_remote_agents(args, scene)
     out = args.out or default_run_path(scene.name)
     if out.exists() or out.with_name(out.name + ".partial").exists():

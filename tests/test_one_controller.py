@@ -95,3 +95,38 @@ def test_the_auction_is_the_same_in_every_engine(tmp_path, shared_runs, scene, f
         np.testing.assert_array_equal(traj["assignment"], central["assignment"], err_msg=name)
         for k, row in enumerate(traj["assignment"]):
             assert len(np.unique(row[row >= 0])) == int((row >= 0).sum()), f"{name}: one goal, two robots, tick {k}"
+
+
+@pytest.mark.slow
+@pytest.mark.xdist_group("picture-30")
+@pytest.mark.parametrize(
+    "scene, flags",
+    [
+        ("picture", PICTURE_FLAGS),  # a cold start of many rounds, then warm blocks
+        ("story", ("--seed", "1", "--duration", "26")),  # into the second keyframe: its cold block spans ticks
+    ],
+)
+def test_with_rounds_per_tick_bounded_blocks_span_ticks_and_every_engine_runs_the_same(tmp_path, scene, flags):
+    """`--rounds-per-tick 2`: a block of phases goes on over the ticks after its own, the robots
+    drive to the last agreement meanwhile, and every engine adopts each agreement at the same tick."""
+    source = picture(tmp_path) if scene == "picture" else scene
+    budget = ("--clock", "lockstep", "--rounds-per-tick", "2", *flags)
+    runs = {
+        name: run_scene(tmp_path, source, *budget, *engine, name=name.replace(" ", "-"))
+        for name, engine in ENGINES.items()
+        if scene == "picture" or name != "a process per robot"
+    }
+    _, central = runs["central"]
+    unassigned = (central["assignment"] < 0).any(axis=1)
+    assert unassigned[:3].all()  # the first block spans ticks: no goal yet
+    steps = np.flatnonzero(np.diff(central["step"])) + 1  # where the second keyframe came up
+    for k in steps:  # ... and the next one's cold block: the robots drive on to the last keyframe's goals
+        assert not unassigned[k] and (central["assignment"][k] == central["assignment"][k - 1]).all()
+    for name, (metrics, traj) in runs.items():
+        assert metrics["missed_ticks"] == 0 and metrics["contacts"] == 0, name
+        np.testing.assert_array_equal(traj["t"], central["t"])
+        gap = np.abs(traj["pose"][..., :2] - central["pose"][..., :2]).max()
+        assert gap <= 1e-9, f"{name}: positions differ by {gap} m"
+        np.testing.assert_array_equal(traj["assignment"], central["assignment"], err_msg=name)
+        for k, row in enumerate(traj["assignment"]):
+            assert len(np.unique(row[row >= 0])) == int((row >= 0).sum()), f"{name}: one goal, two robots, tick {k}"

@@ -18,11 +18,12 @@ import pytest
 from agent.assignment import AuctionLink
 from agent.core.bidder import Participant
 from agent.core.params import RobotParams
+from agent.core.rounds import BlockRounds, play
 from transport.bus import Bus
 from transport.codec import Goals, Timing
 from transport.session import client_of, loopback_router, open_session
 
-from .conftest import reap, run_scene
+from .conftest import reap, run_pixelswarm, run_scene
 from .test_one_controller import ENGINES, PICTURE_FLAGS, picture, picture_run
 
 EPS, HYSTERESIS = 1e-3, 5e-3  # epsilon_A and Delta C, m^2 (agent.core.params defaults)
@@ -31,20 +32,10 @@ EPS, HYSTERESIS = 1e-3, 5e-3  # epsilon_A and Delta C, m^2 (agent.core.params de
 def hosts_settle(hosts: list[Participant], positions: np.ndarray) -> int:
     """One block in lock-step rounds among these participants (each a host's robots), records passed
     by hand as the bus passes them; returns the rounds it took."""
-    for h in hosts:
-        h.begin_block(positions)
+    blocks = [BlockRounds(h, positions) for h in hosts]
     for r in range(1, 100_000):
-        before = [h.board.digest() for h in hosts]
-        said = []
-        for h in hosts:
-            h.bid()
-            said.append(h.round_records())
-        settled = all(bool((recs["flags"][: len(h.own)] & 4).all()) for h, recs in zip(hosts, said))
-        for h in hosts:
-            for other, recs in zip(hosts, said):
-                if other is not h:
-                    h.absorb(h.instance, r, 0, recs)
-        agreed = [h.close_round(h.board.digest() == b, settled) for h, b in zip(hosts, before)]
+        said = {i: block.say() for i, block in enumerate(blocks)}
+        agreed = [block.hear({j: recs for j, recs in said.items() if j != i}) for i, block in enumerate(blocks)]
         assert len(set(agreed)) == 1, "hosts disagree on whether the round ended the block"
         if agreed[0]:
             return r
@@ -116,6 +107,50 @@ def test_two_hosts_settle_a_block_over_the_bus_at_the_same_round():
     finally:
         session.close()
     assert told == {0: {0: int(expected[0]), 1: int(expected[1])}, 2: {2: int(expected[2]), 3: int(expected[3])}}
+
+
+def test_a_block_with_one_round_a_tick_spans_ticks_and_is_agreed_at_one_tick_by_every_host():
+    """rounds_per_tick = 1: the block of tick 0 goes on at the next ticks, the robots keep what they
+    had meanwhile, and every host adopts the agreement at the same tick, the one at which the central
+    engine's single host (agent.core.rounds.play, a round a tick) adopts it, with its board."""
+    goals = np.array([[0.0, 0.0], [0.3, 0.0], [0.6, 0.0], [0.9, 0.0], [1.2, 0.0], [1.5, 0.0]])
+    start = np.array([[0.1, 0.5], [0.2, 0.5], [0.3, 0.5], [0.4, 0.5], [0.5, 0.5], [0.6, 0.5]])
+    params = RobotParams(kinematics="holonomic", rounds_per_tick=1)
+    message = Goals(1, 0, goals, np.full((6, 3), 200, np.uint8), np.arange(6), Timing(0.0, 0, 60.0))
+    ids = list(range(6))
+    central = Participant(1, message.positions, ids, ids, params.assign_eps, params.assign_hysteresis)
+    block = BlockRounds(central, start)
+    central_tick = next(tick for tick in range(1000) if play(block, params.rounds_per_tick))
+    assert central_tick >= 3  # the block spans ticks
+    router = loopback_router()
+    session = open_session(router)
+    told: dict[int, int] = {}  # host's first robot -> tick its agreement came
+    tick = 0
+    try:
+        with Bus(client_of(router), "sync") as bus_a, Bus(client_of(router), "sync") as bus_b:
+            links = [
+                AuctionLink(bus, own, params, lambda e, i, g, p, c: told.setdefault(min(g), tick), lockstep=True)
+                for bus, own in ((bus_a, [0, 1, 2]), (bus_b, [3, 4, 5]))
+            ]
+            time.sleep(0.5)  # every subscription declared before the first round
+            for link in links:
+                link.on_goals(message, {})
+            where = {r: start[r] for r in ids}
+            for tick in range(central_tick + 1):
+                threads = [threading.Thread(target=link.on_tick, args=(tick * params.dt, where)) for link in links]
+                for t in threads:
+                    t.start()
+                for t in threads:
+                    t.join(timeout=30.0)
+                assert not any(t.is_alive() for t in threads)
+            for link in links:
+                assert link.rounds == central_tick + 1 and link.abandoned == 0
+                assert link.part is not None and link.part.agreed_instance == central.agreed_instance
+                np.testing.assert_array_equal(link.part.board.price, central.board.price)
+                assert link.part.agreed == {r: central.agreed[r] for r in link.part.own}
+    finally:
+        session.close()
+    assert told == {0: central_tick, 3: central_tick}
 
 
 def assert_one_to_one(traj: dict) -> None:
@@ -193,3 +228,27 @@ def test_after_a_blocks_first_round_hosts_send_only_the_claims_that_changed():
     assert all(claims[(10 * h, 1)] == 10 for h in range(3))
     later = sum(n for (_, r), n in claims.items() if r > 1)
     assert later < 30 * (rounds - 1), (later, rounds)
+
+
+@pytest.mark.parametrize(
+    "flags, message",
+    [
+        (("--rounds-per-tick", "-1"), "--rounds-per-tick must be a whole number >= 0"),
+        (("--rounds-per-tick", "2", "--clock", "realtime"), "--rounds-per-tick needs the lock-step clock"),
+        (("--rounds-per-tick", "2", "--range", "0.5"), "--rounds-per-tick is not supported with --range"),
+    ],
+)
+def test_a_bad_rounds_per_tick_is_one_line_and_exit_2(tmp_path, flags, message):
+    result = run_pixelswarm("run", "swap", "--out", str(tmp_path / "r"), *flags, timeout=60)
+    assert result.returncode == 2
+    assert message in result.stderr and "Traceback" not in result.stderr
+    assert not (tmp_path / "r").exists()
+
+
+def test_a_scene_whose_rounds_per_tick_is_not_whole_is_one_line_and_exit_2(tmp_path):
+    scene = tmp_path / "s.toml"
+    scene.write_text('robots = 3\nclock = "lockstep"\n[robot]\nrounds_per_tick = 1.5\n')
+    result = run_pixelswarm("run", str(scene), "--out", str(tmp_path / "r"), timeout=60)
+    assert result.returncode == 2
+    assert "rounds_per_tick must be a whole number" in result.stderr and "Traceback" not in result.stderr
+    assert not (tmp_path / "r").exists()

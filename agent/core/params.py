@@ -13,7 +13,7 @@ from transport import epuck
 HOLONOMIC = "holonomic"
 DIFFDRIVE = "diffdrive"
 KINEMATICS = (HOLONOMIC, DIFFDRIVE)
-_MAY_BE_ZERO = {"assign_hysteresis", "deadlock_cost"}  # 0 turns the feature off
+_MAY_BE_ZERO = {"assign_hysteresis", "deadlock_cost", "rounds_per_tick"}  # 0 turns the feature (or bound) off
 
 
 @dataclass(frozen=True)
@@ -44,6 +44,7 @@ class RobotParams:
     assign_eps: float = 1e-3  # epsilon_A: the agreed assignment costs at most N epsilon_A over the optimum
     assign_hysteresis: float = 5e-3  # Delta C: keep the goal unless another is better by this much
     assign_period: float = 0.1  # s between auction instances (paper 5.1: every control iteration)
+    rounds_per_tick: int = 0  # lock-step: most message rounds a tick gives the auction (0: until agreed)
     deadlock_cost: float = 0.1  # C_d, added for good to the cost of the goal a robot is stuck before
     deadlock_iterations: int = 50  # N_d, iterations blocked before a deadlock is declared (5 s: outlasts a crowd)
     deadlock_speed: float = 0.03  # |v_pref - v_cf| above this, and headway below it, count as blocked (m/s)
@@ -60,6 +61,8 @@ class RobotParams:
                 continue
             if not (isinstance(value, (int, float)) and value == value and value > 0):
                 raise ValueError(f"robot parameter {f.name} must be a positive number, not {value!r}")
+        if not isinstance(self.rounds_per_tick, int) or isinstance(self.rounds_per_tick, bool):
+            raise ValueError(f"robot parameter rounds_per_tick must be a whole number, not {self.rounds_per_tick!r}")
         if self.forget_after <= self.stale_after:
             raise ValueError(f"forget_after ({self.forget_after}) must be longer than stale_after ({self.stale_after})")
         if self.k_a < self.v_pref * self.dt:
