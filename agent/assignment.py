@@ -83,6 +83,7 @@ class AuctionLink:
         self.dead = dead if dead is not None else set
         self.block_stamp = -np.inf  # lock-step: display time of the last block's tick
         self.block: BlockRounds | None = None  # lock-step: the block under way (it may span ticks)
+        self.warm = False  # lock-step: the goal set's auction began from the coordinator's warm start
         self.round_records: dict[
             tuple[int, int, int], dict[int, Any]
         ] = {}  # (epoch, block, round) -> sender -> its message (Bid or Boards)
@@ -175,11 +176,15 @@ class AuctionLink:
             self.local, self.block_stamp = auction, -np.inf
             return {}
         before, self.part = self.part, auction
-        if self.lockstep:  # a cold start at the next tick, as the central engine starts a new image
+        warm, keyframe = goals.warm_start, goals.correspondence
+        if self.lockstep:  # the block begins at the next tick, as the central engine starts a new image
             self.block_stamp = -np.inf
+            # with rounds per tick bounded (large swarms), from the warm start: a cold one would span many
+            self.warm = bool(self.params.rounds_per_tick) and before is not None and self._warm_start(before, goals)
+            if self.warm and before is not None and warm is not None:
+                return self.part.carry(before, warm.matched, current=current, prices=warm.prices)
             return {}
         carried = {}
-        warm, keyframe = goals.warm_start, goals.correspondence
         if before is not None and warm is not None and self._warm_start(before, goals):
             carried = self.part.carry(before, warm.matched, current=current, prices=warm.prices)
         elif keyframe is not None and before is not None and before.epoch == keyframe.follows:
@@ -324,7 +329,7 @@ class AuctionLink:
             self.block_stamp = stamp
             self.block = BlockRounds(part, positions)
         block, members = self.block, set(part.robots.tolist())
-        for _ in range(rounds_in_tick(self.params)):
+        for _ in range(rounds_in_tick(self.params, cold=part.agreed_instance < 0 and not self.warm)):
             news = block.say()
             key = (part.epoch, block.final, block.round)
             said = Bid(part.epoch, block.final, self.sender, block.round, part.board.digest(), len(news), news)

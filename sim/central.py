@@ -36,6 +36,7 @@ from agent.core.rounds import BlockRounds, play
 from agent.core.step import NeighbourStates, static_segments
 from agent.goal_sets import timing_of
 from agent.neighbour_table import Heard
+from coordinator.keyframes import goal_matching
 from coordinator.motion import StepMotion
 from coordinator.scene import Scene, scene_goal_set
 from coordinator.service import scene_goal_message, step_motion, step_timing
@@ -111,6 +112,21 @@ def auction_assignment(auction: Participant | LocalAuction, position: np.ndarray
     else:
         assignment[auction.own_ids] = auction.settle_alone(position)
     return assignment
+
+
+def warm_start(
+    auction: Participant, before: Participant, previous: np.ndarray, goals: np.ndarray, assignment: np.ndarray
+) -> np.ndarray:
+    """The next image's auction begun from the coordinator's warm start (the goal sets' matching and
+    its prices, coordinator.keyframes.goal_matching), as the agents begin it with rounds per tick
+    bounded: each robot drives at once to the goal its last one is matched to (agent.assignment).
+    ``previous``: the last image's goals, which ``assignment`` indexes. Returns the carried assignment."""
+    matched, prices = goal_matching(previous, goals)
+    current = {r: int(g) for r, g in enumerate(assignment.tolist()) if g >= 0}
+    carried = auction.carry(before, matched, current=current, prices=prices)
+    out = np.full(len(assignment), -1)
+    out[list(carried)] = list(carried.values())
+    return out
 
 
 class Outcome(NamedTuple):
@@ -218,12 +234,19 @@ def simulate(
                 world.teleport(ev["robot"], tuple(ev["pose"]))
             k = scene.step_at(t)
             if k != shown:  # a new image: its goal set, and a fresh auction (the old prices mean nothing)
+                last_auction = auction if isinstance(auction, Participant) and auction.agreed_instance >= 0 else None
                 shown, auction, assigned_at, block = k, None, None, None
                 converged_since = None
                 if scene.steps:
+                    previous = goal_set
                     goal_set, goal_colors, shown_timing = _step_goals(scene, k, movers.pixels)
                     motion, t_start = shown_timing.motion, shown_timing.t_start
                     timing = {e: v for e, v in timing.items() if e == assigned_image + 1} | {k + 1: shown_timing}
+                    if budget and last_auction is not None:  # as the agents with bounded rounds: the warm start
+                        pixels = movers.pixels.tolist()
+                        auction = Participant(k, goal_set, pixels, pixels, params.assign_eps, params.assign_hysteresis)
+                        assignment = warm_start(auction, last_auction, previous, goal_set, assignment)
+                        assigned_image, assigned_set, assigned_colors = shown, goal_set, goal_colors
             clock.lap("other")
             measured = as_sent(tracker.measure(world.poses))  # the poses as the tracker's messages carry them
             # a moving goal set is auctioned with the positions mapped back to t = 0 (GoalMotion.to_initial_frame)
@@ -235,17 +258,21 @@ def simulate(
             if scene.steps and budget and tick < steps and (due or block is not None):
                 # The agents' lock-step rounds, at most `budget` a tick: a block may span ticks, and
                 # its agreement takes effect at the tick of its last round (agent.core.rounds).
+                # A cold start runs to its agreement (compiled, the same rounds): no goal to drive to meanwhile.
                 if auction is None:
                     pixels = movers.pixels.tolist()
                     auction = new_auction(k, goal_set, pixels, pixels, params, link.reach)
-                if block is None and isinstance(auction, Participant):
-                    block, assigned_at = BlockRounds(auction, bid_from), t
-                if block is not None and play(block, budget):
-                    block = None
-                    agreed = auction.agreed
-                    assignment = np.full(n, -1)
-                    assignment[auction.own_ids] = [agreed.get(r, -1) for r in auction.own]
+                    assignment, assigned_at = auction_assignment(auction, bid_from), t
                     assigned_image, assigned_set, assigned_colors = shown, goal_set, goal_colors
+                elif isinstance(auction, Participant):
+                    if block is None:
+                        block, assigned_at = BlockRounds(auction, bid_from), t
+                    if play(block, budget):
+                        block = None
+                        agreed = auction.agreed
+                        assignment = np.full(n, -1)
+                        assignment[auction.own_ids] = [agreed.get(r, -1) for r in auction.own]
+                        assigned_image, assigned_set, assigned_colors = shown, goal_set, goal_colors
             elif scene.steps and due:
                 # Paper 5.1: re-assign every iteration (every assign_period, as the agents do),
                 # warm-started from the previous prices, with the hysteresis Delta C against flip-flops

@@ -18,10 +18,11 @@ from .bidder import RELEASED, SETTLED, Participant
 from .params import RobotParams
 
 
-def rounds_in_tick(params: RobotParams) -> int:
-    """The most rounds a tick gives a block: ``rounds_per_tick``, or 0 for every round the block
-    needs (it is agreed within its tick: paper 5.1, an assignment every iteration)."""
-    return params.rounds_per_tick or sys.maxsize
+def rounds_in_tick(params: RobotParams, cold: bool) -> int:
+    """The most rounds a tick gives a block: ``rounds_per_tick``; every round it needs (agreed within
+    its tick: paper 5.1, an assignment every iteration) when that is 0 or the block is a ``cold``
+    start, whose robots have no goal to drive to meanwhile."""
+    return params.rounds_per_tick if params.rounds_per_tick and not cold else sys.maxsize
 
 
 def claims(records: np.ndarray) -> np.ndarray:
