@@ -100,10 +100,17 @@ def command_latency(run: Path) -> list[str]:
     return rows + [""]
 
 
-def summary(m: dict, wall: float, k: int) -> list[str]:
+def rounds_per_tick(run: Path) -> int:
+    """The run's bound on the lock-step auction's rounds a tick (0: none), from its scene.json."""
+    scene = orjson.loads((run / "scene.json").read_bytes())
+    return int(scene.get("robot", {}).get("rounds_per_tick", 0))
+
+
+def summary(m: dict, wall: float, k: int, rounds: int = 0) -> list[str]:
+    bound = f", {rounds} auction rounds a tick" if rounds else ""
     rows = [
         f"**{m['duration_s']:.0f} s of display** ({m['robots']} robots in {m['agent_processes']} agent hosts of "
-        f"{k}, {m.get('clock', 'lockstep')} clock): wall {wall:.0f} s, realtime factor {m['duration_s'] / wall:.3f} (while stepping "
+        f"{k}, {m.get('clock', 'lockstep')} clock{bound}): wall {wall:.0f} s, realtime factor {m['duration_s'] / wall:.3f} (while stepping "
         f"{m['stepping_realtime_factor']:.3f}: {100 / m['stepping_realtime_factor']:.0f} ms of wall time per "
         f"0.1 s control step); contacts {m['contacts']}; min clearance "
         f"{m['min_clearance_m'] * 1e3:.1f} mm; missed ticks {m['missed_ticks']}; ORCA fallbacks "
@@ -136,10 +143,12 @@ def main() -> int:
                 return 2
             m, traj, wall = loaded
             k = m.get("agents_per_process") or args.k
-            lines += summary(m, wall, k) + reassignments(traj) + [""] + command_latency(run)
+            rounds = rounds_per_tick(run)
+            lines += summary(m, wall, k, rounds) + reassignments(traj) + [""] + command_latency(run)
             commands.append(
                 f"pixelswarm run {SCENE} --engine distributed -k {k} --clock {m['clock']} "
-                f"--duration {m['duration_s']:g} --no-video --out RUN"
+                + (f"--rounds-per-tick {rounds} " if rounds else "")
+                + f"--duration {m['duration_s']:g} --no-video --out RUN"
             )
         commands.append(".venv/bin/python -m bench.bench_hosted --from RUN ...")
     else:
