@@ -110,33 +110,37 @@ def test_two_hosts_settle_a_block_over_the_bus_at_the_same_round():
 
 
 def test_a_block_with_one_round_a_tick_spans_ticks_and_is_agreed_at_one_tick_by_every_host():
-    """rounds_per_tick = 1: the block of tick 0 goes on at the next ticks, the robots keep what they
-    had meanwhile, and every host adopts the agreement at the same tick, the one at which the central
-    engine's single host (agent.core.rounds.play, a round a tick) adopts it, with its board."""
+    """rounds_per_tick = 1: the cold start agrees within tick 0 (its robots have nothing to drive to);
+    once the robots have moved, the next block goes on over the ticks after its own, and every host
+    adopts its agreement at the same tick, the one at which the central engine's single host
+    (agent.core.rounds.play, a round a tick) adopts it, with its board."""
     goals = np.array([[0.0, 0.0], [0.3, 0.0], [0.6, 0.0], [0.9, 0.0], [1.2, 0.0], [1.5, 0.0]])
     start = np.array([[0.1, 0.5], [0.2, 0.5], [0.3, 0.5], [0.4, 0.5], [0.5, 0.5], [0.6, 0.5]])
+    moved = start[::-1] + [1.0, 0.0]  # the robots' order reversed: the agreement must change
     params = RobotParams(kinematics="holonomic", rounds_per_tick=1)
     message = Goals(1, 0, goals, np.full((6, 3), 200, np.uint8), np.arange(6), Timing(0.0, 0, 60.0))
     ids = list(range(6))
     central = Participant(1, message.positions, ids, ids, params.assign_eps, params.assign_hysteresis)
-    block = BlockRounds(central, start)
-    central_tick = next(tick for tick in range(1000) if play(block, params.rounds_per_tick))
-    assert central_tick >= 3  # the block spans ticks
+    cold = dict(zip(ids, central.settle_alone(start).tolist()))  # the cold start: as the link's, within tick 0
+    block = BlockRounds(central, moved)  # from tick 1 on
+    warm_tick = next(tick for tick in range(1, 1000) if play(block, params.rounds_per_tick))
+    assert warm_tick >= 3  # the block spans ticks
+    assert central.agreed != cold
     router = loopback_router()
     session = open_session(router)
-    told: dict[int, int] = {}  # host's first robot -> tick its agreement came
+    told: dict[int, list[tuple[int, dict[int, int]]]] = {0: [], 3: []}  # host's first robot -> (tick, goals)
     tick = 0
     try:
         with Bus(client_of(router), "sync") as bus_a, Bus(client_of(router), "sync") as bus_b:
             links = [
-                AuctionLink(bus, own, params, lambda e, i, g, p, c: told.setdefault(min(g), tick), lockstep=True)
+                AuctionLink(bus, own, params, lambda e, i, g, p, c: told[min(g)].append((tick, g)), lockstep=True)
                 for bus, own in ((bus_a, [0, 1, 2]), (bus_b, [3, 4, 5]))
             ]
             time.sleep(0.5)  # every subscription declared before the first round
             for link in links:
                 link.on_goals(message, {})
-            where = {r: start[r] for r in ids}
-            for tick in range(central_tick + 1):
+            for tick in range(warm_tick + 1):
+                where = {r: (start if tick == 0 else moved)[r] for r in ids}
                 threads = [threading.Thread(target=link.on_tick, args=(tick * params.dt, where)) for link in links]
                 for t in threads:
                     t.start()
@@ -144,13 +148,16 @@ def test_a_block_with_one_round_a_tick_spans_ticks_and_is_agreed_at_one_tick_by_
                     t.join(timeout=30.0)
                 assert not any(t.is_alive() for t in threads)
             for link in links:
-                assert link.rounds == central_tick + 1 and link.abandoned == 0
+                assert link.abandoned == 0
                 assert link.part is not None and link.part.agreed_instance == central.agreed_instance
                 np.testing.assert_array_equal(link.part.board.price, central.board.price)
-                assert link.part.agreed == {r: central.agreed[r] for r in link.part.own}
     finally:
         session.close()
-    assert told == {0: central_tick, 3: central_tick}
+    for first, own in ((0, [0, 1, 2]), (3, [3, 4, 5])):
+        assert told[first] == [
+            (0, {r: cold[r] for r in own}),
+            (warm_tick, {r: central.agreed[r] for r in own}),
+        ]
 
 
 def assert_one_to_one(traj: dict) -> None:
