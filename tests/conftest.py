@@ -232,3 +232,11 @@ def pytest_collection_modifyitems(config, items):
     rank = {nodeid: k for k, nodeid in enumerate(LONGEST_FIRST)}
     # stable: the rest keep their order (a node id without parameters, or loadgroup's @group)
     items.sort(key=lambda item: rank.get(item.nodeid.split("[")[0].split("@")[0], len(rank)))
+
+
+def assert_usage_error(tmp_path: Path, message: str, *args: str) -> None:
+    """`pixelswarm run ARGS --out DIR` refuses in one line, exit 2, no traceback, and writes nothing."""
+    result = run_pixelswarm("run", *args, "--out", str(tmp_path / "r"), timeout=60)
+    assert result.returncode == 2
+    assert message in result.stderr and "Traceback" not in result.stderr
+    assert not (tmp_path / "r").exists()

@@ -65,6 +65,19 @@ def picture_run(shared_runs, tmp_path, engine: str) -> tuple[dict, dict]:
     return shared_runs.run(picture(tmp_path), "--clock", "lockstep", *PICTURE_FLAGS, *ENGINES[engine])
 
 
+def assert_the_same_run(runs: dict[str, tuple[dict, dict]], central: dict) -> None:
+    """Every engine's run is the central one: every tick answered, the same ticks, positions and
+    assignment, and one-to-one at every tick."""
+    for name, (metrics, traj) in runs.items():
+        assert metrics["missed_ticks"] == 0, name
+        np.testing.assert_array_equal(traj["t"], central["t"])
+        gap = np.abs(traj["pose"][..., :2] - central["pose"][..., :2]).max()
+        assert gap <= 1e-9, f"{name}: positions differ by {gap} m"
+        np.testing.assert_array_equal(traj["assignment"], central["assignment"], err_msg=name)
+        for k, row in enumerate(traj["assignment"]):
+            assert len(np.unique(row[row >= 0])) == int((row >= 0).sum()), f"{name}: one goal, two robots, tick {k}"
+
+
 @pytest.mark.slow
 @pytest.mark.xdist_group("picture-30")
 @pytest.mark.parametrize(
@@ -87,14 +100,7 @@ def test_the_auction_is_the_same_in_every_engine(tmp_path, shared_runs, scene, f
     _, central = runs["central"]
     assert (central["assignment"] >= 0).all()  # every robot holds a goal from the first tick on
     assert len(np.unique(central["step"])) == (2 if scene == "story" else 1)
-    for name, (metrics, traj) in runs.items():
-        assert metrics["missed_ticks"] == 0, name
-        np.testing.assert_array_equal(traj["t"], central["t"])
-        gap = np.abs(traj["pose"][..., :2] - central["pose"][..., :2]).max()
-        assert gap <= 1e-9, f"{name}: positions differ by {gap} m"
-        np.testing.assert_array_equal(traj["assignment"], central["assignment"], err_msg=name)
-        for k, row in enumerate(traj["assignment"]):
-            assert len(np.unique(row[row >= 0])) == int((row >= 0).sum()), f"{name}: one goal, two robots, tick {k}"
+    assert_the_same_run(runs, central)
 
 
 @pytest.mark.slow
@@ -125,11 +131,5 @@ def test_with_rounds_per_tick_bounded_blocks_span_ticks_and_every_engine_runs_th
     assert (central["assignment"] >= 0).all()  # the cold start agreed at the first tick
     for k in np.flatnonzero(np.diff(central["step"])) + 1:  # the next keyframe: the matched goals at once
         assert (central["assignment"][k] != central["assignment"][k - 1]).any()
-    for name, (metrics, traj) in runs.items():
-        assert metrics["missed_ticks"] == 0 and metrics["contacts"] == 0, name
-        np.testing.assert_array_equal(traj["t"], central["t"])
-        gap = np.abs(traj["pose"][..., :2] - central["pose"][..., :2]).max()
-        assert gap <= 1e-9, f"{name}: positions differ by {gap} m"
-        np.testing.assert_array_equal(traj["assignment"], central["assignment"], err_msg=name)
-        for k, row in enumerate(traj["assignment"]):
-            assert len(np.unique(row[row >= 0])) == int((row >= 0).sum()), f"{name}: one goal, two robots, tick {k}"
+    assert all(metrics["contacts"] == 0 for metrics, _ in runs.values())
+    assert_the_same_run(runs, central)
