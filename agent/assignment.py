@@ -132,18 +132,8 @@ class AuctionLink:
 
     @property
     def busy(self) -> bool:
-        """An instance is open between ticks (never in lock-step: a block settles within its tick)."""
+        """An instance is open between ticks (real time: lock-step plays its rounds within the tick)."""
         return self.part is not None and not self.part.is_agreed and not self.lockstep
-
-    @property
-    def open_for(self) -> float:
-        """Display seconds since this host froze the positions of the current block of phases (its
-        auction latency so far; 0 before the first block)."""
-        part = self.part
-        if part is None or not part.started:
-            return 0.0
-        frozen = self.frozen_at.get(part.instance // part.phases)
-        return 0.0 if frozen is None else max(0.0, self.now - frozen)
 
     @property
     def epoch(self) -> int:

@@ -126,18 +126,8 @@ class HostConfig:
 AUCTION_SHARE = 0.2  # of a control period, counted from a tick's first pose, spent on auction rounds after the
 # tick's step while an instance is open (counted from the pose so that rounds never push a host behind)
 AUCTION_SHARE_COLD = 0.8  # ... until the newest goal set's first agreement: robots wait for it
-# Lock-step counts message rounds (one message from each other host), not wall time, so that what a
-# period buys does not depend on how loaded the machine is; 10 is what AUCTION_SHARE_COLD buys unloaded.
-LOCKSTEP_ROUNDS = 10
-LOCKSTEP_ROUNDS_WARM = 3  # ... and for the re-assignment instances after it (paper 5.1), so that a warm
-# block agrees before its assignment is stale
-WARM_ROUNDS_AFTER = 0.3  # s of display a warm block has been open before it gets them: small swarms agree on
-# most blocks between ticks anyway, and would pay the rounds' idle waits every tick
 HELLO_EVERY = 0.1  # s between a lock-step host's hellos before the first tick
 HELLO_TIMEOUT = 30.0  # s a host waits for its neighbours' hellos before it says it is alive anyway
-LOCKSTEP_IDLE = 0.15  # s of wall time without a message that ends a tick's rounds (the auction is quiet)
-LOCKSTEP_CAP = 1.0  # s of wall time a tick's rounds may take at most: the next tick's pose waits meanwhile,
-# and the world counts a missed tick after 2 s
 GOAL_SET_WAIT = 10.0  # s a lock-step tick waits for its clock message and the goal sets it names
 
 
@@ -556,34 +546,20 @@ class AgentHost:
             self._auction_rounds(bell, tick_start)
 
     def _auction_rounds(self, bell: threading.Event, tick_start: float) -> None:
-        """After a tick, while an auction instance is open, keep trading messages: in real time until
-        a share of the control period from the tick's first pose (``tick_start``) is over, so the
-        rounds never make the next command late; in lock-step for LOCKSTEP_ROUNDS (cold) or
-        LOCKSTEP_ROUNDS_WARM rounds, ended early by a quiet auction. Without it a lock-step run gets
-        one auction round per tick (the next pose is already waiting), and a cold start of 100
-        robots took 300 ticks."""
+        """Real time, after a tick, while an auction instance is open: keep trading messages until a
+        share of the control period from the tick's first pose (``tick_start``) is over, so the
+        rounds never make the next command late. (Lock-step's rounds are played within the tick,
+        agent.assignment.AuctionLink.settle_block.)"""
         link = self.auction
-        start = last_news = time.monotonic()
-        lockstep = self.config.lockstep
-        if lockstep:
-            if link.cold:
-                rounds = LOCKSTEP_ROUNDS
-            else:
-                rounds = LOCKSTEP_ROUNDS_WARM if link.open_for >= WARM_ROUNDS_AFTER - 1e-9 else 0
-            enough, end = float(link.heard + rounds * max(1, len(link.others))), start + LOCKSTEP_CAP
-        else:
-            share = AUCTION_SHARE_COLD if link.cold else AUCTION_SHARE
-            enough, end = math.inf, tick_start + share * self.params.dt
-        while link.busy and self.running and link.heard < enough:
+        share = AUCTION_SHARE_COLD if link.cold else AUCTION_SHARE
+        end = tick_start + share * self.params.dt
+        while link.busy and self.running:
             bell.clear()
-            heard = link.heard
             link.poll(self._positions())
             now = time.monotonic()
-            if link.heard > heard:
-                last_news = now
-            if now >= end or (lockstep and now - last_news >= LOCKSTEP_IDLE):
+            if now >= end:
                 return
-            bell.wait(min(end - now, LOCKSTEP_IDLE, link.next_due()))
+            bell.wait(min(end - now, link.next_due()))
 
     def _take_pose(self, pose: Pose) -> None:
         mem = self.memory.get(pose.robot)
