@@ -45,31 +45,9 @@ from transport.codec import Goals, as_sent, decode
 from .link import InProcessLink
 from .movers import Movers
 from .output import write_run
-from .proximity import gather, nearest_within
 from .rundir import RunDir
 from .stepclock import StepClock
 from .tracker import tracker_of, world_of
-
-
-def nearest_neighbours(
-    position: np.ndarray,
-    velocity: np.ndarray,
-    radius: float,
-    reach: float,
-    max_neighbours: int,
-    cooperative: np.ndarray | None = None,
-) -> NeighbourStates:
-    """Every robot's nearest neighbours within reach, from one snapshot (perfect information)."""
-    n = len(position)
-    m = min(max_neighbours, n - 1)
-    if m <= 0:
-        return NeighbourStates.empty(n, 0)
-    position = np.ascontiguousarray(position, dtype=float)
-    idx = nearest_within(position, float(reach), m)
-    # a scripted mover avoids nobody: its neighbours take full responsibility
-    coop = np.ones(n, bool) if cooperative is None else np.ascontiguousarray(cooperative, dtype=bool)
-    pos, vel, valid, coop = gather(idx, position, np.ascontiguousarray(velocity, dtype=float), coop)
-    return NeighbourStates(pos, vel, np.full((n, m), float(radius)), np.zeros((n, m)), valid, coop)
 
 
 def goal_motion(motion: StepMotion | None) -> GoalMotion | None:

@@ -1,11 +1,8 @@
 """Who is near whom, on a uniform grid of cells as wide as the distance asked about, compiled with
 numba: every pair within that distance lies in the 3 x 3 cells around either one's cell.
 
-- `nearest_within`: each robot's nearest neighbours within reach (the central engine's neighbour
-  search, sim.central), from agent.core.neighbour_grid, whose grid (`grid_cells`) the searches
-  here share.
-- `gather`: the neighbours' positions, velocities and flags that `nearest_within` found, in one pass
-  instead of numpy's takes and masks.
+The grid is agent.core.neighbour_grid's (`grid_cells`), which the searches here share.
+
 - `nearest_heard_compiled`: each robot's nearest neighbours among the states it heard (the in-process
   link's search, sim.link): each grid column near a robot is read as one run of points, over the
   cells the disc of reach covers there.
@@ -25,11 +22,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from agent.core.neighbour_grid import grid_cells, nearest_within
+from agent.core.neighbour_grid import grid_cells
 from agent.core.step import NeighbourStates
 from agent.neighbour_table import Heard
 
-__all__ = ["close_pairs", "gather", "nearest_heard_compiled", "nearest_within"]
+__all__ = ["close_pairs", "nearest_heard_compiled"]
 
 COLUMN_PARTS = 2  # nearest_heard_compiled's cells are reach / COLUMN_PARTS wide
 
@@ -142,25 +139,6 @@ def close_pairs(
     if not done:
         return None
     return float(best), int(i), int(j), hits, depth.T
-
-
-@njit(cache=True, nogil=True)
-def gather(index: np.ndarray, position: np.ndarray, velocity: np.ndarray, cooperative: np.ndarray) -> tuple:
-    """For neighbour indices (N, m) (-1: none): their positions and velocities (N, m, 2), whether
-    each is one (N, m) and whether it cooperates (N, m); a padded slot holds robot 0's state (as
-    numpy's take of index 0 would), and is not valid."""
-    n, m = index.shape
-    pos, vel = np.empty((n, m, 2)), np.empty((n, m, 2))
-    valid, coop = np.empty((n, m), np.bool_), np.empty((n, m), np.bool_)
-    for i in range(n):
-        for s in range(m):
-            j = index[i, s]
-            valid[i, s] = j >= 0
-            j = max(j, 0)
-            pos[i, s, 0], pos[i, s, 1] = position[j, 0], position[j, 1]
-            vel[i, s, 0], vel[i, s, 1] = velocity[j, 0], velocity[j, 1]
-            coop[i, s] = cooperative[j]
-    return pos, vel, valid, coop
 
 
 @njit(cache=True, nogil=True)

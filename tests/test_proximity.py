@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from agent.core.neighbour_grid import nearest_within
 from agent.neighbour_table import Heard, nearest_heard
-from sim.proximity import nearest_heard_compiled, nearest_within
+from sim.proximity import nearest_heard_compiled
 
 
 def kd_tree_neighbours(position: np.ndarray, reach: float, m: int) -> np.ndarray:
@@ -38,23 +39,6 @@ def test_a_robot_far_away():
     got = nearest_within(position, 1.0, 2)
     assert got[0].tolist() == [3, 1]
     assert got[2].tolist() == [-1, -1]  # alone, 10^7 m away (the grid widens its cells)
-
-
-def test_gather_takes_what_numpy_takes():
-    """The neighbours' states in one pass, as numpy's take of each index (-1: robot 0's, not valid)."""
-    from sim.proximity import gather
-
-    rng = np.random.default_rng(4)
-    position, velocity = rng.uniform(0.0, 5.0, (200, 2)), rng.normal(0.0, 0.3, (200, 2))
-    cooperative = rng.random(200) < 0.8
-    index = nearest_within(position, 0.6, 8)
-    assert (index < 0).any() and (index >= 0).any()
-    pos, vel, valid, coop = gather(index, position, velocity, cooperative)
-    safe = np.where(index >= 0, index, 0)
-    np.testing.assert_array_equal(pos, np.take(position, safe, axis=0))
-    np.testing.assert_array_equal(vel, np.take(velocity, safe, axis=0))
-    np.testing.assert_array_equal(valid, index >= 0)
-    np.testing.assert_array_equal(coop, cooperative[safe])
 
 
 @pytest.mark.parametrize("seed", range(20))

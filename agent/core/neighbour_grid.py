@@ -5,8 +5,7 @@ numba: every pair within that distance lies in the 3 x 3 cells around either one
   searches here and in sim.proximity.
 - `nearest_within`: each robot's nearest neighbours within reach, as RVO2's k-d tree finds them: the
   same neighbours as scipy's kd-tree, ties in distance by index (tests/test_proximity.py), without
-  the tree's build and the bookkeeping around it. The central engines use it (agent.core.rvo,
-  sim.central).
+  the tree's build and the bookkeeping around it. The RVO2-shaped engine uses it (agent.core.rvo).
 
 Agent processes do not import this module (numba is slow to start); the central engines import it
 where they step. sim.proximity compiles `grid_cells` into its own functions: numba's cache keys on
