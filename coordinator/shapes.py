@@ -143,30 +143,6 @@ def draw(
     return out
 
 
-def disk(size: int = 256, **kw: object) -> np.ndarray:
-    return draw("disk", size, **kw)  # type: ignore[arg-type]
-
-
-def disk_and_line(size: int = 256, **kw: object) -> np.ndarray:
-    return draw("disk_and_line", size, **kw)  # type: ignore[arg-type]
-
-
-def line(size: int = 256, **kw: object) -> np.ndarray:
-    return draw("line", size, **kw)  # type: ignore[arg-type]
-
-
-def l_shape(size: int = 256, **kw: object) -> np.ndarray:
-    return draw("L", size, **kw)  # type: ignore[arg-type]
-
-
-def t_shape(size: int = 256, **kw: object) -> np.ndarray:
-    return draw("T", size, **kw)  # type: ignore[arg-type]
-
-
-def ring(size: int = 256, **kw: object) -> np.ndarray:
-    return draw("ring", size, **kw)  # type: ignore[arg-type]
-
-
 def photo_like(size: int = 256, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """A photo-like scene: a shaded orange subject with a green leaf on an uneven, noisy, vignetted
     grey-beige background, slightly blurred. Returns (RGB, ground-truth subject mask)."""
