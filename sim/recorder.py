@@ -278,9 +278,6 @@ class Recorder:
             self.converged_since = None
             self.time_to_converge = None
 
-    def held_converged(self, t_now: float, hold: float) -> bool:
-        return self.converged_since is not None and t_now - self.converged_since >= hold
-
     @property
     def sim_time(self) -> float:
         return self.traj.t[-1] if self.traj.t else 0.0

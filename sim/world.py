@@ -233,10 +233,6 @@ class World:
     # ---------------------------------------------------------------- state
 
     @property
-    def n_robots(self) -> int:
-        return self._n
-
-    @property
     def bodies(self) -> tuple[Body, ...]:
         return self._bodies
 

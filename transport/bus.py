@@ -352,19 +352,6 @@ class Bus:
         self._subscriptions.append(inbox.subscriber)
         return inbox
 
-    def on_message(self, keyexpr: str, expected: type[MessageT], callback: Callable[[str, MessageT], None]) -> Any:
-        """Only for services whose callback is cheap and never blocks (e.g. answering state queries)."""
-        drops = DropCounter()
-
-        def handler(sample: zenoh.Sample) -> None:
-            msg = decode(sample.payload.to_bytes(), expected, drops)
-            if msg is not None:
-                callback(str(sample.key_expr), msg)
-
-        sub = self.session.declare_subscriber(keyexpr, handler)
-        self._subscriptions.append(sub)
-        return sub
-
     # --- liveliness -----------------------------------------------------------------------
     def declare_alive(self, role: str, ident: int | str) -> Any:
         token = self.session.liveliness().declare_token(self.keys.alive(role, ident))
