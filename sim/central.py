@@ -233,24 +233,24 @@ def simulate(
             pending = None  # this tick's auction, running beside the control core
             # the last tick is a pose with no command to follow (the world asks the agents for none)
             due = tick < steps and (assigned_at is None or t - assigned_at >= params.assign_period - 1e-9)
-            if scene.steps and budget and tick < steps and (due or block is not None):
+            if (
+                scene.steps
+                and budget
+                and tick < steps
+                and isinstance(auction, Participant)
+                and (due or block is not None)
+            ):
                 # The agents' lock-step rounds, at most `budget` a tick: a block may span ticks, and
-                # its agreement takes effect at the tick of its last round (agent.core.rounds).
-                # A cold start runs to its agreement (compiled, the same rounds): no goal to drive to meanwhile.
-                if auction is None:
-                    pixels = movers.pixels.tolist()
-                    auction = new_auction(k, goal_set, pixels, pixels, params, link.reach)
-                    assignment, assigned_at = auction_assignment(auction, bid_from), t
+                # its agreement takes effect at the tick of its last round (agent.core.rounds). A cold
+                # start (no auction yet) runs to its agreement below: no goal to drive to meanwhile.
+                if block is None:
+                    block, assigned_at = BlockRounds(auction, bid_from), t
+                if play(block, budget):
+                    block = None
+                    agreed = auction.agreed
+                    assignment = np.full(n, -1)
+                    assignment[auction.own_ids] = [agreed.get(r, -1) for r in auction.own]
                     assigned_image, assigned_set, assigned_colors = shown, goal_set, goal_colors
-                elif isinstance(auction, Participant):
-                    if block is None:
-                        block, assigned_at = BlockRounds(auction, bid_from), t
-                    if play(block, budget):
-                        block = None
-                        agreed = auction.agreed
-                        assignment = np.full(n, -1)
-                        assignment[auction.own_ids] = [agreed.get(r, -1) for r in auction.own]
-                        assigned_image, assigned_set, assigned_colors = shown, goal_set, goal_colors
             elif scene.steps and due:
                 # Paper 5.1: re-assign every iteration (every assign_period, as the agents do),
                 # warm-started from the previous prices, with the hysteresis Delta C against flip-flops

@@ -38,7 +38,6 @@ class BlockRounds:
         self.part = part
         self.final = part.instance + part.phases - 1  # the block's final phase: it names the block on the wire
         self.round = 0
-        self.agreed = False
         self._claims = len(part.own)  # round_records: a claim per own robot, in order, then the releases
         self._last: np.ndarray | None = None  # our claims as last said
         self._before = 0  # the board's digest before this round's bids
@@ -75,8 +74,7 @@ class BlockRounds:
             theirs = claims(records)
             self._flags[theirs["robot"]] = theirs["flags"]
         settled = self._all_settled([self._robots_of[s] for s in heard])
-        self.agreed = part.close_round(part.board.digest() == self._before, settled)
-        return self.agreed
+        return part.close_round(part.board.digest() == self._before, settled)
 
     def _all_settled(self, others: list[np.ndarray]) -> bool:
         """Every robot's claim says SETTLED in this round: ours as just said, the other hosts' robots
