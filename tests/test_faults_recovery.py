@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import psutil
 import pytest
+from mcap.exceptions import McapError
 
 from sim.mcaplog import McapLog, read_mcap
 from sim.ticklog import TICKS_FILE, TickLog, read_ticks
@@ -52,6 +53,14 @@ def ticks_so_far(out: Path) -> int:
     try:
         return len(read_ticks(path)["t"])
     except (OSError, ValueError):
+        return 0
+
+
+def flushed_stamps(out: Path) -> int:
+    """How many /sim/truth messages of the log written so far mcap's reader sees (flushed once a second)."""
+    try:
+        return len(read_mcap(Path(str(out) + ".partial") / "log.mcap", topics=["/sim/truth"]).get("/sim/truth", []))
+    except (OSError, ValueError, McapError):  # not created yet, or its first bytes only
         return 0
 
 
@@ -116,7 +125,12 @@ def test_sigkill_of_the_launcher_leaves_no_process_and_a_readable_partial_run(tm
     scene = write_disk(tmp_path, hold=120.0)
     out = tmp_path / "run"
     proc = start_run(spawned, scene, out)
-    assert wait_for(lambda: ticks_so_far(out) >= 30, timeout=120), proc.stderr.read() if proc.poll() else ""
+
+    # lock-step may run 30 ticks within a second of wall time: wait for a flush that holds ten of them too
+    def started() -> bool:
+        return ticks_so_far(out) >= 30 and flushed_stamps(out) >= 10
+
+    assert wait_for(started, timeout=120), proc.stderr.read() if proc.poll() else ""
     everyone = [p.pid for p in descendants(proc.pid)]
     assert len(everyone) >= 12  # coordinator, world, 10 agents
     partial = Path(str(out) + ".partial")
