@@ -36,12 +36,13 @@ import psutil
 from coordinator.scene import load_scene
 from sim.tracker import world_of
 from transport.bus import Bus
-from transport.keys import cells_of
+from transport.codec import Command, Commands, State, States
+from transport.keys import Keys, cell_of, cells_of
 from transport.session import client_of, loopback_router
 
 from .common import REPO, RESULTS, first_tick, machine, run_and_sample, stepping_cpu, write_results
-from .floor_node import REACH
 
+REACH = 2  # cells on each side of a robot's own it hears: the agent's 5 x 5 in real time
 WARM_UP = 3.0  # s of ticks before the floor is measured (subscriptions travel, processes settle)
 DELAYED = "cmd:delay=0.15"  # every command a tick and a half late: bodies must stop, never touch
 DELAYED_AT = 20
@@ -95,15 +96,32 @@ def drawn_together(xy: np.ndarray, cell_size: float, heard: float) -> np.ndarray
     return centre + (xy - centre) * high
 
 
-def floor_row(n: int, duration: float, callbacks: str = "direct", heard: float = float("nan")) -> dict:
+def floor_args(robot: int, x: float, y: float, cell_size: float, keys: Keys) -> list[str]:
+    """bench.floor_node's arguments for a robot standing at (x, y): the keys an agent there hears and
+    puts to, and the state and command it puts, encoded here so that the floor imports no numpy."""
+    cx, cy = cell_of(x, y, cell_size)
+    state = States.one(State(robot, 0, 0.0, x, y, 0.0, 0.0, 0.037, 0.0, 0.0, -1, 0, 0, 0)).encode()
+    command = Commands.one(Command(robot, 0, 0.0, Command.HOLONOMIC, 0.0, 0.0, 40, 40, 40)).encode()
+    hear = [keys.state_cell((cx + dx, cy + dy)) for dx in range(-REACH, REACH + 1) for dy in range(-REACH, REACH + 1)]
+    return [
+        *("--pose-key", keys.pose(robot), "--state-key", keys.state((cx, cy), robot), "--cmd-key", keys.cmd(robot)),
+        *(arg for key in hear for arg in ("--hear", key)),
+        *("--state", state.hex(), "--command", command.hex()),
+    ]
+
+
+def floor_row(
+    n: int, duration: float, callbacks: str = "direct", heard: float = float("nan"), with_numpy: bool = False
+) -> dict:
     """N floor processes, clocked at 10 Hz from here as the world clocks agents: the cost of a
     robot's messages alone. ``heard``: the states per tick an agent heard; the floor processes
-    stand closer together until they hear as many (drawn_together). Returns CPU (% of a core,
+    stand closer together until they hear as many (drawn_together). ``with_numpy``: each imports
+    numpy too, which it does not use. Returns CPU (% of a core,
     each process's mean over the run), RSS and USS (MB), and the share of ticks answered."""
     scene = load_scene("circle", robots=n, seed=3, clock="realtime")
     params, _ = world_of(scene)
     at = drawn_together(np.asarray(scene.poses)[:, :2], params.cell_size, heard)
-    router = loopback_router()
+    router, keys = loopback_router(), Keys()
     procs: list[subprocess.Popen] = []
     with Bus(router, name="floor-clock") as bus:
         cmds = bus.commands_inbox()
@@ -111,9 +129,9 @@ def floor_row(n: int, duration: float, callbacks: str = "direct", heard: float =
             for i, (x, y) in enumerate(at):
                 procs.append(
                     subprocess.Popen(
-                        [sys.executable, "-m", "bench.floor_node", "--robot", str(i), f"--x={x}", f"--y={y}"]
-                        + ["--cell-size", str(params.cell_size), "--duration", str(duration + WARM_UP + 30)]
-                        + ["--callbacks", callbacks]
+                        [sys.executable, "-m", "bench.floor_node", *floor_args(i, x, y, params.cell_size, keys)]
+                        + ["--duration", str(duration + WARM_UP + 30), "--callbacks", callbacks]
+                        + (["--numpy"] if with_numpy else [])
                         + client_of(router).to_args(),
                         cwd=REPO,
                         stdout=subprocess.PIPE,
@@ -378,12 +396,13 @@ def main() -> None:
             before = settle()
             runs.append((before, agent_row(n, args.duration)))
         heard = float(np.median([a["states_per_tick"] for _, a in runs]))
-        for callbacks, what in [
-            ("thread", "floor: bare zenoh, a thread per subscription"),
-            ("direct", "floor: one thread"),
+        for callbacks, with_numpy, what in [
+            ("direct", True, "floor with numpy imported (unused)"),
+            ("thread", False, "floor: bare zenoh, a thread per subscription"),
+            ("direct", False, "floor: one thread"),
         ]:
             before = settle()
-            f = floor_row(n, args.duration, callbacks, heard)
+            f = floor_row(n, args.duration, callbacks, heard, with_numpy)
             rows.append(
                 f"| {n} | {what} | {before} | {f['rtf']:.2f} | {100 * (1 - f['answered']):.2f}% unanswered | "
                 f"- | {f['cpu']:.2f} | 1 | {f['states_per_tick']:.1f} | {f['rss']:.1f} | {f['uss']:.1f} | - |"
@@ -432,7 +451,8 @@ def main() -> None:
             "agents of the same N: its robots stand on the circle drawn towards its centre until each hears nearly "
             "as many states per tick as an agent did, never more (an agent's robots cross the crowded middle); its "
             "callbacks on a Python thread per subscription (zenoh-python's default) "
-            "or on zenoh's receiving thread; CPU over the ticks after the first 3 s. Agent: "
+            "or on zenoh's receiving thread; it imports no numpy, and the row with numpy imported shows what numpy "
+            "alone adds to a process's memory; CPU over the ticks after the first 3 s. Agent: "
             "`pixelswarm run circle --seed 3` in real time; CPU "
             "over the world's stepping after its first 3 s, from each process's CPU seconds. x floor: the agent's CPU "
             "over the floor's (one thread) of the same N, in this run. RTF: simulated seconds per wall second while the world "

@@ -2,10 +2,13 @@
 
 Per tick it receives its robot's pose and its neighbours' states from the spatial cells around it
 (the agent's subscriptions in real time: 5 x 5 cells of RobotParams.cell_size), then puts one state
-to its cell and one command, as an agent does. No decoding, no control step: what is left is the
-cost of the session, the callbacks and the puts, against which bench.bench_runtime sets the agent.
+to its cell and one command, as an agent does. No decoding, no control step, no numpy: the keys and
+the encoded state and command come from its parent (bench.bench_runtime), so what is left is the
+cost of the session, the callbacks and the puts, against which the benchmark sets the agent.
+``--numpy`` imports numpy too (and uses none of it): what numpy alone adds to a process's memory.
 
-    python -m bench.floor_node --robot 3 --x 0.5 --y 0.1 --cell-size 0.21 -m client -e tcp/127.0.0.1:7447
+    python -m bench.floor_node --pose-key K --state-key K --cmd-key K --hear K [--hear K ...]
+        --state HEX --command HEX -m client -e tcp/127.0.0.1:7447
 
 It says `ready` once subscribed, exits when its parent does, on SIGTERM, or after --duration
 seconds, and then prints one line of JSON with what it received and sent.
@@ -25,20 +28,18 @@ from collections.abc import Callable
 
 import zenoh
 
-from transport.codec import Command, Commands, State, States
-from transport.keys import Keys, cell_of
 from transport.session import TransportError, add_zenoh_args, open_session, settings_from_args
-
-REACH = 2  # cells on each side of the robot's own: the agent's 5 x 5 in real time
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.floor_node", description=__doc__.splitlines()[0])
-    parser.add_argument("--robot", type=int, required=True)
-    parser.add_argument("--x", type=float, required=True, help="position (m): which cells it hears and puts to")
-    parser.add_argument("--y", type=float, required=True)
-    parser.add_argument("--cell-size", type=float, required=True, help="m (RobotParams.cell_size)")
-    parser.add_argument("--display", default="default")
+    parser.add_argument("--pose-key", required=True, help="its robot's pose: a tick begins when it comes")
+    parser.add_argument("--hear", action="append", required=True, help="a cell's states it takes in (repeated)")
+    parser.add_argument("--state-key", required=True, help="where it puts its state each tick")
+    parser.add_argument("--cmd-key", required=True, help="where it puts its command each tick")
+    parser.add_argument("--state", type=bytes.fromhex, required=True, help="the encoded state it puts, in hex")
+    parser.add_argument("--command", type=bytes.fromhex, required=True, help="the encoded command it puts, in hex")
+    parser.add_argument("--numpy", action="store_true", help="import numpy (unused): its share of the memory")
     parser.add_argument("--duration", type=float, default=600.0, help="s at most")
     parser.add_argument(
         "--callbacks",
@@ -49,8 +50,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     add_zenoh_args(parser)
     args = parser.parse_args(argv)
+    if args.numpy:
+        import numpy  # noqa: F401
     try:
-        keys = Keys(args.display)
         session = open_session(settings_from_args(args))
     except (TransportError, ValueError) as err:
         print(f"floor_node: error: {err}", file=sys.stderr)
@@ -71,15 +73,8 @@ def main(argv: list[str] | None = None) -> int:
     def handler(callback: Callable[[zenoh.Sample], None]) -> zenoh.handlers.Callback:
         return zenoh.handlers.Callback(callback, indirect=args.callbacks == "thread")
 
-    cx, cy = cell_of(args.x, args.y, args.cell_size)
-    subs = [session.declare_subscriber(keys.pose(args.robot), handler(on_pose))]
-    for dx in range(-REACH, REACH + 1):
-        for dy in range(-REACH, REACH + 1):
-            subs.append(session.declare_subscriber(keys.state_cell((cx + dx, cy + dy)), handler(on_state)))
-    # what an agent standing there sends each tick, encoded once (the agent encodes its own each tick)
-    state = States.one(State(args.robot, 0, 0.0, args.x, args.y, 0.0, 0.0, 0.037, 0.0, 0.0, -1, 0, 0, 0)).encode()
-    command = Commands.one(Command(args.robot, 0, 0.0, Command.HOLONOMIC, 0.0, 0.0, 40, 40, 40)).encode()
-    state_key, cmd_key = keys.state((cx, cy), args.robot), keys.cmd(args.robot)
+    subs = [session.declare_subscriber(args.pose_key, handler(on_pose))]
+    subs += [session.declare_subscriber(key, handler(on_state)) for key in args.hear]
     print("ready", flush=True)  # subscribed: the benchmark's clock may start
     ticks = states = 0
     end = time.monotonic() + args.duration
@@ -95,14 +90,14 @@ def main(argv: list[str] | None = None) -> int:
             posed |= is_pose
             states += not is_pose
         if posed:
-            session.put(state_key, state, congestion_control=zenoh.CongestionControl.BLOCK)
-            session.put(cmd_key, command, congestion_control=zenoh.CongestionControl.BLOCK)
+            session.put(args.state_key, args.state, congestion_control=zenoh.CongestionControl.BLOCK)
+            session.put(args.cmd_key, args.command, congestion_control=zenoh.CongestionControl.BLOCK)
             ticks += 1
     threads = threading.active_count()
     for sub in subs:
         sub.undeclare()
     session.close()
-    print(json.dumps({"robot": args.robot, "ticks": ticks, "states_received": states, "threads": threads}), flush=True)
+    print(json.dumps({"ticks": ticks, "states_received": states, "threads": threads}), flush=True)
     return 0
 
 
