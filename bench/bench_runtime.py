@@ -122,8 +122,8 @@ def floor_row(
     """N floor processes, clocked at 10 Hz from here as the world clocks agents: the cost of a
     robot's messages alone. ``heard``: the states per tick an agent heard; the floor processes
     stand closer together until they hear as many (drawn_together). ``with_numpy``: each imports
-    numpy too, which it does not use. Returns CPU (% of a core,
-    each process's mean over the run), RSS and USS (MB), and the share of ticks answered."""
+    numpy too, which it does not use. Returns CPU (% of a core, each process's mean over the
+    measured window), RSS and USS (MB), and the share of ticks answered."""
     scene = load_scene("circle", robots=n, seed=3, clock="realtime")
     params, _ = world_of(scene)
     at = drawn_together(np.asarray(scene.poses)[:, :2], params.cell_size, heard)
