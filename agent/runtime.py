@@ -14,10 +14,12 @@ as a feed-forward term.
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import math
 import os
 import signal
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -121,6 +123,18 @@ class HostConfig:
                 "reach": self.reach if math.isfinite(self.reach) else None,
             }
         )
+
+
+def interpreter(robots: int) -> list[str]:
+    """The Python and its flags that run an agent process of ``robots`` robots (then `-m agent`).
+
+    A robot's own process runs with -OO: docstrings, numpy's above all, are 2.6 MB of its memory
+    that it never reads. Only where their optimised bytecode is compiled (make does it), as
+    compiling them at every start would cost more than it saves; not for hosts of many robots,
+    which load numba (not compiled so) and would save little."""
+    samples = (json.__file__, np.__file__, __file__)  # the standard library, numpy, ours
+    compiled = all(os.path.exists(importlib.util.cache_from_source(f, optimization=2)) for f in samples)
+    return [sys.executable, *(["-OO"] if compiled and robots == 1 else [])]
 
 
 AUCTION_SHARE = 0.2  # of a control period, counted from a tick's first pose, spent on auction rounds after the

@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 import psutil
 
+from agent.runtime import interpreter
 from coordinator.scene import load_scene
 from sim.tracker import world_of
 from transport.bus import Bus
@@ -135,7 +136,7 @@ def floor_row(
             for i, (x, y) in enumerate(at):
                 procs.append(
                     subprocess.Popen(
-                        [sys.executable, "-m", "bench.floor_node", *floor_args(i, x, y, params.cell_size, keys)]
+                        [*interpreter(1), "-m", "bench.floor_node", *floor_args(i, x, y, params.cell_size, keys)]
                         + ["--duration", str(duration + WARM_UP + 30), "--callbacks", callbacks]
                         + (["--numpy"] if with_numpy else [])
                         + client_of(router).to_args(),

@@ -30,9 +30,11 @@ import zenoh
 
 from transport.session import TransportError, add_zenoh_args, open_session, settings_from_args
 
+DESCRIPTION = "The floor of an agent process: a bare zenoh session doing a robot's messages and nothing else."
+
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m bench.floor_node", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m bench.floor_node", description=DESCRIPTION)
     parser.add_argument("--pose-key", required=True, help="its robot's pose: a tick begins when it comes")
     parser.add_argument("--hear", action="append", required=True, help="a cell's states it takes in (repeated)")
     parser.add_argument("--state-key", required=True, help="where it puts its state each tick")

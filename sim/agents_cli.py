@@ -27,7 +27,7 @@ import time
 from collections.abc import Iterator
 from typing import Any
 
-from agent.runtime import HostConfig
+from agent.runtime import HostConfig, interpreter
 from transport.bus import Bus, LivelinessWatch
 from transport.keys import Keys
 from transport.session import TransportError, ZenohSettings
@@ -228,7 +228,7 @@ class Supervisor:
         self.failed = False
 
     def start(self, config: HostConfig, faults: str) -> None:
-        cmd = [sys.executable, "-m", "agent", "--config", "-", "--exit-with-parent"]
+        cmd = [*interpreter(len(config.robots)), "-m", "agent", "--config", "-", "--exit-with-parent"]
         cmd += ["--faults", faults] if faults else []
         # Its own session: a terminal's Ctrl-C reaches this command only, which passes it on.
         proc = subprocess.Popen(

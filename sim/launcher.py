@@ -22,7 +22,7 @@ from typing import Any, TextIO
 import numpy as np
 
 from agent.core.params import RobotParams
-from agent.runtime import HostConfig
+from agent.runtime import HostConfig, interpreter
 from coordinator.resolved import save_resolved
 from coordinator.scene import Scene
 from transport.bus import Bus
@@ -115,8 +115,9 @@ class Launcher:
         log.parent.mkdir(exist_ok=True)
         zenoh_args = (client or self.client).to_args()
         with open(log, "a") as fh:  # a restarted service goes on in its log
+            python = interpreter(len(robots)) if module == "agent" else [sys.executable]
             proc = subprocess.Popen(
-                [sys.executable, "-m", module, *args, "--exit-with-parent", *zenoh_args],
+                [*python, "-m", module, *args, "--exit-with-parent", *zenoh_args],
                 stdout=fh,
                 stderr=subprocess.STDOUT,
                 stdin=subprocess.DEVNULL,

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -12,6 +13,8 @@ import numpy as np
 import psutil
 import pytest
 
+import agent.runtime
+from agent.runtime import interpreter
 from transport.bus import Bus
 from transport.codec import VERSION, Pose, Poses
 from transport.session import ZenohSettings, free_port
@@ -327,3 +330,30 @@ def test_agent_hosts_write_their_profiles_when_asked(tmp_path):
     for path in profiles.iterdir():
         calls = {f[2]: s[1] for f, s in pstats.Stats(str(path)).stats.items()}  # function name -> calls
         assert ticks - 2 <= calls["_step_tick"] <= ticks + 1, (ticks, calls["_step_tick"])
+
+
+def test_a_robot_alone_in_its_process_runs_without_docstrings_where_their_optimised_bytecode_is_compiled(
+    tmp_path, monkeypatch
+):
+    """-OO spares a robot's process the docstrings it never reads, but only where compiled bytecode
+    for it exists: else every start would compile numpy from source. Hosts of many robots run plain."""
+    compiled = tmp_path / "module.opt-2.pyc"
+    compiled.write_bytes(b"")
+    asked: list[int | str | None] = []
+
+    def cache_from_source(path: str, optimization: int | str | None = None) -> str:
+        asked.append(optimization)
+        return str(compiled)
+
+    monkeypatch.setattr(agent.runtime.importlib.util, "cache_from_source", cache_from_source)
+    assert interpreter(1) == [sys.executable, "-OO"]
+    assert set(asked) == {2}
+    assert interpreter(2) == [sys.executable]
+    compiled.unlink()
+    assert interpreter(1) == [sys.executable]
+    monkeypatch.undo()
+    # however the bytecode stands, the process so started runs an agent's imports
+    code = "import sys, agent.__main__, numpy; print(sys.flags.optimize)"
+    out = subprocess.run([*interpreter(1), "-c", code], capture_output=True, text=True, cwd=REPO, timeout=60)
+    assert out.returncode == 0, out.stderr[-500:]
+    assert int(out.stdout) == (2 if "-OO" in interpreter(1) else 0)
