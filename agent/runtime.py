@@ -424,7 +424,7 @@ class AgentHost:
     def _absorb(self) -> None:
         for _, goals in self.goal_inbox.drain():
             self._hear_goals(goals)
-        for _, state in self.state_inbox.drain():
+        for state in self.state_inbox.take():
             self._on_state(state)
         self.auction.poll(self._positions())
 

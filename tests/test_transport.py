@@ -431,6 +431,41 @@ def test_a_pulled_inbox_needs_no_thread_and_keeps_what_came_before_an_unsubscrib
         assert inbox.drain() == []  # nothing from the cell it left
 
 
+def test_taking_from_a_pulled_inbox_gives_what_draining_gives_records_queued_first(router):
+    """take() is drain() without the keys: records a wait already queued come first, then those
+    still in zenoh's channels in the order each cell's robots spoke, malformed ones counted."""
+    with Bus(client_of(router), "t") as a, Bus(client_of(router), "t") as b:
+        inbox = b.inbox(State, pulled=True)
+        for cx in range(3):
+            b.subscribe_into(b.keys.state_cell((cx, 0)), inbox)
+        time.sleep(0.3)
+
+        def say(robot: int, tick: int) -> None:
+            state = State(robot, tick, 0.1 * tick, 0, 0, 0, 0, 0.045, 0, 0, -1, 0)
+            a.publish(a.keys.state((robot % 3, 0), robot), States.one(state))
+
+        say(0, 1)
+        say(1, 1)
+        time.sleep(0.3)
+        got = inbox.get(timeout=1.0)  # a wait pulls every channel into the queue and hands one over
+        assert got is not None
+        say(2, 1)  # into its channel, behind the one still queued
+        time.sleep(0.3)
+        queued, rest = [(s.robot, s.tick) for s in inbox.take()]
+        assert sorted([(got[1].robot, 1), queued]) == [(0, 1), (1, 1)] and rest == (2, 1)
+        for tick in (2, 3):
+            for robot in range(6):
+                say(robot, tick)
+        a.put(a.keys.state((0, 0), 9), bytes([States.KIND, VERSION]) + b"garbage")
+        time.sleep(0.3)
+        b.subscribe_into(b.keys.state_cell((9, 0)), inbox)  # an empty channel changes nothing
+        taken = inbox.take()
+        assert sorted((s.robot, s.tick) for s in taken) == [(r, t) for r in range(6) for t in (2, 3)]
+        for robot in range(6):  # each robot's states in the order it sent them
+            assert [s.tick for s in taken if s.robot == robot] == [2, 3]
+        assert inbox.drops["truncated"] == 1 and inbox.take() == [] and inbox.drain() == []
+
+
 def test_fault_injection_drop_and_delay(router):
     faults = {"state": FaultSpec(drop=0.3, delay=0.2)}
     with Bus(client_of(router), "t") as a, Bus(client_of(router), "t", faults=faults, seed=3) as b:

@@ -95,6 +95,13 @@ class Inbox(Generic[T]):
             while (sample := sub.try_recv()) is not None:
                 self._on_sample(sample)
 
+    def _records(self, payload: bytes) -> tuple[int, list] | None:
+        """A frame's (tick, records), only those of robots ``only`` if given; None if malformed."""
+        got = decode_views(payload, cast("type[Frame]", self.frame), self.drops)
+        if got is None or self.only is None:
+            return got
+        return got[0], [v for v in got[1] if v.robot in self.only]
+
     def _on_sample(self, sample: zenoh.Sample) -> None:
         payload = sample.payload.to_bytes()
         self.received += 1
@@ -104,12 +111,10 @@ class Inbox(Generic[T]):
             if msg is not None:
                 self._deliver(str(sample.key_expr), [cast(T, msg)])
             return
-        got = decode_views(payload, self.frame, self.drops)
+        got = self._records(payload)
         if got is None:
             return
         tick, views = got
-        if self.only is not None:
-            views = [v for v in views if v.robot in self.only]
         try:
             self._deliver(str(sample.key_expr), views)
         finally:  # after the records are queued, held or dropped: whoever waits on seen finds them
@@ -174,6 +179,24 @@ class Inbox(Generic[T]):
         self._pull()
         self._release_delayed()
         return _drain(self._queue)
+
+    def take(self) -> list[T]:
+        """drain() without the keys. A pulled inbox of frames without injected faults or a ``seen``
+        record hands the records straight from zenoh's channels: no queue and no key strings, which
+        were a third of taking in a tick's tens of states."""
+        direct = self.pulled and self.frame is not None and self.seen is None and not self.fault.active
+        if not direct or not self._queue.empty() or self.has_delayed:
+            return [m for _, m in self.drain()]
+        out: list[T] = []
+        for sub in self.channels:
+            while (sample := sub.try_recv()) is not None:
+                payload = sample.payload.to_bytes()
+                self.received += 1
+                self.bytes += len(payload)
+                got = self._records(payload)
+                if got is not None:
+                    out += got[1]
+        return out
 
     def get(self, timeout: float | None = None) -> tuple[str, T] | None:
         """Wait for one message (None on timeout)."""
