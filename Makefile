@@ -21,7 +21,7 @@ $(STAMP): pyproject.toml | $(PY)
 
 # The sources' bytecode, brought up to date before a run: a robot's process then neither compiles
 # them at start nor keeps the compiler's memory, also where PYTHONDONTWRITEBYTECODE stops Python saving it.
-# Optimised (-OO) too, for ours, numpy and zenoh: what a robot's own process runs (agent.runtime.process_command).
+# Optimised (-OO) too, for ours, numpy and zenoh: what a robot's own process runs (agent.runtime.interpreter).
 BYTECODE := $(PY) -m compileall -q -o 0 -o 2 agent coordinator transport sim hardware && \
 	$(PY) -c "import compileall, os, re, numpy, zenoh; [compileall.compile_dir(os.path.dirname(m.__file__), \
 	quiet=1, optimize=2, rx=re.compile('/tests/')) for m in (numpy, zenoh)]"

@@ -47,8 +47,8 @@ def main(argv: list[str] | None = None) -> int:
         "--callbacks",
         choices=["direct", "thread"],
         default="direct",
-        help="direct: callbacks on zenoh's receiving thread (as transport.bus); thread: zenoh-python's "
-        "default, a Python thread per subscription",
+        help="direct: callbacks on zenoh's receiving thread; thread: zenoh-python's default, a Python thread "
+        "per subscription (as transport.bus's callback inboxes: poses, goal sets, the auction)",
     )
     add_zenoh_args(parser)
     args = parser.parse_args(argv)
