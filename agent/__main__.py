@@ -64,6 +64,7 @@ def main(argv: list[str] | None = None) -> int:
         else:
             host.run()
         host.report()
+        bus.linger()
     return 0
 
 

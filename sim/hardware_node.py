@@ -498,7 +498,7 @@ def main(argv: list[str] | None = None) -> int:
         stats = node.stats(unreached)
         bus.publish(bus.keys.event, Event(stats))
         print("WORLD-DONE " + json.dumps(stats), flush=True)  # as the world node: the launcher's fallback
-        time.sleep(0.2)  # let the report leave before the session closes
+        bus.linger()
     return 0
 
 

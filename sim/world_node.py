@@ -345,7 +345,7 @@ def main(argv: list[str] | None = None) -> int:
         # The same report on stdout (the launcher's log file): a loaded router may not deliver the
         # message before this session closes.
         print("WORLD-DONE " + json.dumps(stats), flush=True)
-        time.sleep(0.2)  # let the report leave before the session closes
+        bus.linger()
     return 0
 
 

@@ -13,8 +13,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import transport.bus as bus_module
 from agent.core.bidder import RECORD as bidder_record
-from transport.bus import Bus
+from transport.bus import CLOSE_LINGER, Bus
 from transport.codec import (
     BEFORE_START,
     BY_NAME,
@@ -464,6 +465,19 @@ def test_taking_from_a_pulled_inbox_gives_what_draining_gives_records_queued_fir
         for robot in range(6):  # each robot's states in the order it sent them
             assert [s.tick for s in taken if s.robot == robot] == [2, 3]
         assert inbox.drops["truncated"] == 1 and inbox.take() == [] and inbox.drain() == []
+
+
+def test_a_process_lingers_before_it_closes_only_for_what_it_just_put(router, monkeypatch):
+    """zenoh has no flush: a process's last report leaves on zenoh's thread, so a bus about to
+    close waits CLOSE_LINGER after its last put, and not at all when it put nothing."""
+    slept: list[float] = []
+    monkeypatch.setattr(bus_module.time, "sleep", slept.append)
+    with Bus(client_of(router), "t") as bus:
+        bus.linger()
+        bus.publish(bus.keys.event, Event({"kind": "stats"}))
+        bus.linger()
+    assert slept[0] == 0.0
+    assert 0.0 < slept[1] <= CLOSE_LINGER
 
 
 def test_fault_injection_drop_and_delay(router):
