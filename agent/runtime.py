@@ -128,8 +128,8 @@ class HostConfig:
 def interpreter(robots: int) -> list[str]:
     """The Python and its flags that run an agent process of ``robots`` robots (then `-m agent`).
 
-    A robot's own process runs with -OO: docstrings, numpy's above all, are 2.6 MB of its memory
-    that it never reads. Only where their optimised bytecode is compiled (make does it), as
+    A robot's own process runs with -OO: docstrings, numpy's above all, are megabytes of its
+    memory that it never reads. Only where their optimised bytecode is compiled (make does it), as
     compiling them at every start would cost more than it saves; not for hosts of many robots,
     which load numba (not compiled so) and would save little."""
     samples = (json.__file__, np.__file__, __file__)  # the standard library, numpy, ours

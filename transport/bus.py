@@ -34,8 +34,8 @@ _NO_FAULT = FaultSpec()
 PULL_CAPACITY = 100_000
 PULL_EVERY = 0.002
 # s a process waits after its last put before it closes its session (Bus.linger): zenoh sends from
-# its own thread and has no flush, and on a loaded machine a session closed at once dropped the last
-# report of one agent in ten.
+# its own thread and has no flush, and on a loaded machine a session closed at once can drop what it
+# still holds, such as a process's last report.
 CLOSE_LINGER = 0.2
 T = TypeVar("T")  # what an inbox delivers: a message, or one robot's record of a frame (codec.Pose, ...)
 
@@ -186,8 +186,8 @@ class Inbox(Generic[T]):
 
     def take(self) -> list[T]:
         """drain() without the keys. A pulled inbox of frames without injected faults or a ``seen``
-        record hands the records straight from zenoh's channels: no queue and no key strings, which
-        were a third of taking in a tick's tens of states."""
+        record hands the records straight from zenoh's channels, on the owner's hot path once a
+        tick: no queue, and no key strings that the owner would not read."""
         direct = self.pulled and self.frame is not None and self.seen is None and not self.fault.active
         if not direct or not self._queue.empty() or self.has_delayed:
             return [m for _, m in self.drain()]
@@ -278,7 +278,6 @@ class Bus:
         self._last_put = -math.inf  # time.monotonic() of the last put (Bus.linger)
         self.sent: Counter[str] = Counter()
         self.sent_bytes: Counter[str] = Counter()
-        self._publishers: dict[str, zenoh.Publisher] = {}
         self._tokens: list[Any] = []
         self._subscriptions: list[Any] = []
         self._pulled: list[Inbox[Any]] = []
