@@ -99,6 +99,13 @@ class Inbox(Generic[T]):
             while (sample := sub.try_recv()) is not None:
                 self._on_sample(sample)
 
+    def _payload(self, sample: zenoh.Sample) -> bytes:
+        """A sample's bytes, counted as received."""
+        payload = sample.payload.to_bytes()
+        self.received += 1
+        self.bytes += len(payload)
+        return payload
+
     def _records(self, payload: bytes) -> tuple[int, list] | None:
         """A frame's (tick, records), only those of robots ``only`` if given; None if malformed."""
         got = decode_views(payload, cast("type[Frame]", self.frame), self.drops)
@@ -107,9 +114,7 @@ class Inbox(Generic[T]):
         return got[0], [v for v in got[1] if v.robot in self.only]
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        payload = sample.payload.to_bytes()
-        self.received += 1
-        self.bytes += len(payload)
+        payload = self._payload(sample)
         if self.frame is None:
             msg = decode(payload, cast("type[Message] | None", self.expected), self.drops)
             if msg is not None:
@@ -194,10 +199,7 @@ class Inbox(Generic[T]):
         out: list[T] = []
         for sub in self.channels:
             while (sample := sub.try_recv()) is not None:
-                payload = sample.payload.to_bytes()
-                self.received += 1
-                self.bytes += len(payload)
-                got = self._records(payload)
+                got = self._records(self._payload(sample))
                 if got is not None:
                     out += got[1]
         return out
