@@ -11,7 +11,6 @@ under cProfile and its statistics go to DIR/agent<first robot>.prof when it stop
 from __future__ import annotations
 
 import argparse
-import cProfile
 import os
 import sys
 from collections.abc import Callable
@@ -71,6 +70,8 @@ def main(argv: list[str] | None = None) -> int:
 def run_profiled(run: Callable[[], None], path: Path) -> None:
     """Run under cProfile (this thread only: zenoh's callbacks are not counted) and write the
     statistics to ``path`` even if ``run`` raises."""
+    import cProfile  # here: only a profiled run pays for it
+
     profile = cProfile.Profile()
     profile.enable()
     try:

@@ -357,3 +357,16 @@ def test_a_robot_alone_in_its_process_runs_without_docstrings_where_their_optimi
     out = subprocess.run([*interpreter(1), "-c", code], capture_output=True, text=True, cwd=REPO, timeout=60)
     assert out.returncode == 0, out.stderr[-500:]
     assert int(out.stdout) == (2 if "-OO" in interpreter(1) else 0)
+
+
+def test_a_robot_process_loads_no_module_that_only_faults_profiling_or_a_router_use():
+    """Each module is memory in every one of N robot processes: random and zlib serve injected
+    faults, cProfile a profiled run, socket finding a router's port: a robot without them never
+    loads them."""
+    code = (
+        "import sys, agent.__main__, numpy, zenoh\n"
+        "print(sorted(m for m in ('random', 'zlib', 'cProfile', 'socket') if m in sys.modules))"
+    )
+    out = subprocess.run([*interpreter(1), "-c", code], capture_output=True, text=True, cwd=REPO, timeout=60)
+    assert out.returncode == 0, out.stderr[-500:]
+    assert out.stdout.strip() == "[]"

@@ -12,10 +12,8 @@ import heapq
 import itertools
 import math
 import queue
-import random
 import threading
 import time
-import zlib
 from collections import Counter
 from collections.abc import Callable, Iterator
 from typing import Any, Generic, TypeVar, cast, overload
@@ -58,7 +56,7 @@ class Inbox(Generic[T]):
         self,
         expected: type[T] | None,
         fault: FaultSpec,
-        seed: int,
+        seed: str,
         only: np.ndarray | None = None,
         pulled: bool = False,
     ) -> None:
@@ -83,8 +81,8 @@ class Inbox(Generic[T]):
         self.sim_time: float | None = None
         self._order = itertools.count()
         self._lock = threading.Lock()
-        self._seed = seed
-        self._rng = random.Random(seed)
+        self._seed_text = seed
+        self._rng: Any = None  # drawn from only with an active fault: see _draws
         self.subscriber: Any = None
         self.bell: threading.Event | None = None  # rung on every arrival: one wait serves several inboxes
         # robot -> the newest tick of its records that reached this inbox, whatever the fault plan did
@@ -131,6 +129,20 @@ class Inbox(Generic[T]):
                 for v in views:
                     self.seen[v.robot] = max(self.seen.get(v.robot, tick), tick)
 
+    def _draws(self, key: str | None = None, stamp: float | None = None) -> Any:
+        """The random draws of this inbox's fault: one stream, or, given a message's key and stamp,
+        a stream of that message alone (reproducible in lock-step). random and zlib are imported
+        here because a robot's process without faults never needs them (its memory)."""
+        import random
+        import zlib
+
+        seed = zlib.crc32(self._seed_text.encode())
+        if key is not None:
+            return random.Random(f"{seed}/{key}/{stamp!r}")
+        if self._rng is None:
+            self._rng = random.Random(seed)
+        return self._rng
+
     def _deliver(self, key: str, msgs: list[T]) -> None:
         if self.fault is _NO_FAULT or not self.fault.active:
             for m in msgs:
@@ -145,7 +157,7 @@ class Inbox(Generic[T]):
         tick = getattr(msgs[0], "tick", -1) if msgs else -1
         on_ticks = self.sim_time is not None and stamp is not None and 0 <= tick != BEFORE_START
         with self._lock:
-            rng = random.Random(f"{self._seed}/{key}/{stamp!r}") if on_ticks else self._rng
+            rng = self._draws(key, stamp) if on_ticks else self._draws()
             if rng.random() < self.fault.drop:
                 self.drops["fault"] += 1
                 return
@@ -332,7 +344,7 @@ class Bus:
         name = getattr(expected, "NAME", None)  # a message kind's or a view's (its frame's) name
         fault = self.faults.get(name, _NO_FAULT) if name else _NO_FAULT
         self._n_subs += 1
-        seed = zlib.crc32(f"{self._seed}/{self._name}/{self._n_subs}".encode())
+        seed = f"{self._seed}/{self._name}/{self._n_subs}"
         inbox: Inbox[Any] = Inbox(expected, fault, seed, only, pulled)
         if pulled:
             self._pulled.append(inbox)

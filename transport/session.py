@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import socket
 from dataclasses import dataclass, field
 
 import zenoh
@@ -64,6 +63,8 @@ class ZenohSettings:
 
 def free_port(host: str = "127.0.0.1") -> int:
     """A TCP port that is free on loopback right now."""
+    import socket  # here: a robot's process never needs it
+
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
         sock.bind((host, 0))
         return sock.getsockname()[1]
