@@ -172,7 +172,8 @@ class CellSubscriptions:
             return  # most ticks: every robot is still in its cell
         self._own = own
         span = np.arange(-self.reach, self.reach + 1)
-        cx = np.unique(own[:, 0, None] * CELL_KEY + own[:, 1, None] + (span[:, None] * CELL_KEY + span).ravel())
+        cx = np.sort(own[:, 0, None] * CELL_KEY + own[:, 1, None] + (span[:, None] * CELL_KEY + span).ravel(), None)
+        cx = cx[np.concatenate(([True], cx[1:] != cx[:-1]))]  # distinct; np.unique would load numpy.ma
         cy = (cx + CELL_KEY // 2) % CELL_KEY - CELL_KEY // 2  # one int per cell: cx * CELL_KEY + cy, taken apart
         wanted = set(zip(((cx - cy) // CELL_KEY).tolist(), cy.tolist()))
         for cell in set(self._subs) - wanted:

@@ -361,12 +361,22 @@ def test_a_robot_alone_in_its_process_runs_without_docstrings_where_their_optimi
 
 def test_a_robot_process_loads_no_module_that_only_faults_profiling_or_a_router_use():
     """Each module is memory in every one of N robot processes: random and zlib serve injected
-    faults, cProfile a profiled run, socket finding a router's port: a robot without them never
-    loads them."""
+    faults, cProfile a profiled run, socket finding a router's port, and numpy.ma nothing of a
+    robot's (np.unique loads it). A robot without them never loads them, however its cells move."""
     code = (
-        "import sys, agent.__main__, numpy, zenoh\n"
-        "print(sorted(m for m in ('random', 'zlib', 'cProfile', 'socket') if m in sys.modules))"
+        "import sys, numpy as np, zenoh, agent.__main__\n"
+        "from agent.runtime import CellSubscriptions\n"
+        "class Bus:\n"
+        "    from transport.keys import Keys\n"
+        "    keys = Keys()\n"
+        "    def subscribe_into(self, key, inbox): return key\n"
+        "    def unsubscribe(self, sub): pass\n"
+        "cells = CellSubscriptions(Bus(), None, 0.5)\n"
+        "cells.update(np.array([[0.1, 0.2], [0.3, 0.2]]))\n"
+        "cells.update(np.array([[2.1, 0.2], [0.3, 0.2]]))\n"
+        "print(len(cells.cells), sorted(m for m in ('random', 'zlib', 'cProfile', 'socket', 'numpy.ma') if m in sys.modules))"
     )
     out = subprocess.run([*interpreter(1), "-c", code], capture_output=True, text=True, cwd=REPO, timeout=60)
     assert out.returncode == 0, out.stderr[-500:]
-    assert out.stdout.strip() == "[]"
+    # 7 x 7 cells around each robot, in cells 4 apart: 7 columns of 7 and 4 more
+    assert out.stdout.strip() == f"{7 * 7 + 4 * 7} []"

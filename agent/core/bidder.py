@@ -790,7 +790,7 @@ class Participant:
         if not (self.board.holds(robot, goal).all() and (self.board.price[goal] == price).all()):
             return False
         taken = np.concatenate([self.goal, goal])
-        return len(np.unique(taken)) == len(taken)
+        return len(set(taken.tolist())) == len(taken)
 
     def view_complete(self) -> bool:
         """Nobody is bidding as far as we know: the moment to tell others our board's digest (earlier,

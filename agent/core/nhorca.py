@@ -135,7 +135,7 @@ def _vertex_angles(params: RobotParams, n: int) -> np.ndarray:
     dent = params.t_orient * omega_cap(params)
     if dent < np.pi:
         angles = np.concatenate([angles, [-dent, dent]])
-    angles = np.unique(angles)
+    angles = np.array(sorted(set(angles.tolist())))  # distinct (np.unique would load numpy.ma)
     angles.setflags(write=False)  # shared by every call with these params
     return angles
 
