@@ -10,7 +10,7 @@ under cProfile and its statistics go to DIR/agent<first robot>.prof when it stop
 
 from __future__ import annotations
 
-import argparse
+import getopt
 import os
 import sys
 from collections.abc import Callable
@@ -18,33 +18,59 @@ from pathlib import Path
 
 from transport.bus import Bus
 from transport.faults import parse_faults
-from transport.session import TransportError, add_zenoh_args, settings_from_args
+from transport.session import ZENOH_LONG, ZENOH_SHORT, ZENOH_USAGE, TransportError, settings_from_options
 
 from .runtime import AgentHost, HostConfig, install_stop_handlers
 
+USAGE = (
+    """usage: python -m agent --config FILE [--faults PLAN] [--exit-with-parent] [zenoh flags]
+
+Run robot agents: the robots its host config names, one by default.
+
+options:
+  -h, --help            show this help message and exit
+  --config FILE         host config JSON file (robots, parameters, map); - reads it from stdin
+  --faults PLAN         fault injection, e.g. 'state:drop=0.1,delay=0.05'
+  --exit-with-parent    stop when the parent process exits
+
+"""
+    + ZENOH_USAGE
+)
+# getopt, not argparse: argparse and the modules it loads would stay in every robot's process.
+OPTIONS = ["help", "config=", "faults=", "exit-with-parent", *ZENOH_LONG]
+
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m agent", description="Run robot agents (one per robot id).")
-    parser.add_argument(
-        "--config", required=True, help="host config JSON file (robots, parameters, map); - reads it from stdin"
-    )
-    parser.add_argument("--exit-with-parent", action="store_true", help="stop when the parent process exits")
-    parser.add_argument("--faults", default="", help="fault injection, e.g. 'state:drop=0.1,delay=0.05'")
-    add_zenoh_args(parser)
-    args = parser.parse_args(argv)
     try:
-        if args.config == "-":
+        options, extra = getopt.getopt(sys.argv[1:] if argv is None else argv, "h" + ZENOH_SHORT, OPTIONS)
+        if extra:
+            raise getopt.GetoptError(f"unrecognized arguments: {' '.join(extra)}")
+        flags = dict(options)  # a repeated flag: its last value
+        if "-h" in flags or "--help" in flags:
+            print(USAGE)
+            return 0
+        if "--config" not in flags:
+            raise getopt.GetoptError("the following arguments are required: --config")
+    except getopt.GetoptError as err:
+        print(f"{USAGE.splitlines()[0]}\npython -m agent: error: {err}", file=sys.stderr)
+        return 2
+    try:
+        if flags["--config"] == "-":
             config = HostConfig.from_json(sys.stdin.read())
         else:
-            with open(args.config) as f:
+            with open(flags["--config"]) as f:
                 config = HostConfig.from_json(f.read())
-        faults = parse_faults(args.faults)
+        faults = parse_faults(flags.get("--faults", ""))
     except (OSError, ValueError, KeyError) as err:
         print(f"agent: error: bad config: {err}", file=sys.stderr)
         return 2
     try:
         bus = Bus(
-            settings_from_args(args), config.display, faults=faults, seed=config.seed, name=f"agent{config.robots[0]}"
+            settings_from_options(options),
+            config.display,
+            faults=faults,
+            seed=config.seed,
+            name=f"agent{config.robots[0]}",
         )
     except TransportError as err:
         print(f"agent: error: {err}", file=sys.stderr)
@@ -52,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
     with bus:
         host = AgentHost(bus, config)
         install_stop_handlers(host)
-        if args.exit_with_parent:
+        if "--exit-with-parent" in flags:
             host.parent_pid = os.getppid()
         if not host.start():
             print("agent: error: no pose arrived for my robots; is the tracker running?", file=sys.stderr)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import argparse
+import getopt
 import json
 import signal
 import subprocess
@@ -17,7 +19,16 @@ import agent.runtime
 from agent.runtime import interpreter
 from transport.bus import Bus
 from transport.codec import VERSION, Pose, Poses
-from transport.session import ZenohSettings, free_port
+from transport.session import (
+    ZENOH_LONG,
+    ZENOH_SHORT,
+    ZENOH_USAGE,
+    ZenohSettings,
+    add_zenoh_args,
+    free_port,
+    settings_from_args,
+    settings_from_options,
+)
 
 from .conftest import REPO, agent_processes, descendants, pixelswarm_cmd, reap, run_pixelswarm, start_run, wait_for
 
@@ -380,3 +391,49 @@ def test_a_robot_process_loads_no_module_that_only_faults_profiling_or_a_router_
     assert out.returncode == 0, out.stderr[-500:]
     # 7 x 7 cells around each robot, in cells 4 apart: 7 columns of 7 and 4 more
     assert out.stdout.strip() == f"{7 * 7 + 4 * 7} []"
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        [],
+        ["-m", "peer", "-e", "tcp/127.0.0.1:7447", "--connect", "tcp/127.0.0.1:7448", "-l", "tcp/127.0.0.1:7449"],
+        ["--mode=router", "--listen=tcp/127.0.0.1:7447", "--multicast-scouting", "--zenoh-config", "robot.json5"],
+        ["--multicast-scouting", "--no-multicast-scouting", "-mclient"],
+    ],
+)
+def test_a_robot_process_reads_the_zenoh_flags_as_every_other_command_does(argv):
+    """The agent parses its flags with getopt (no argparse in a robot's memory); the zenoh flags
+    mean what add_zenoh_args makes them mean in every other command, and its help lists them."""
+    parser = argparse.ArgumentParser()
+    add_zenoh_args(parser)
+    by_argparse = settings_from_args(parser.parse_args(argv))
+    by_getopt = settings_from_options(getopt.getopt(argv, ZENOH_SHORT, ZENOH_LONG)[0])
+    assert by_getopt == by_argparse
+    for action in parser._actions:
+        assert all(flag in ZENOH_USAGE for flag in action.option_strings if flag not in ("-h", "--help"))
+
+
+def test_the_agent_command_line_says_what_is_wrong_in_one_line_and_exits_2(tmp_path):
+    """Bad flags, a missing config and a bad zenoh mode: exit 2, the error in one line after the
+    usage line, no traceback; --help shows every flag and exits 0."""
+    config = tmp_path / "host.json"
+    config.write_text(json.dumps({"robots": [0], "params": {}}))
+    cases = [
+        ([], "required: --config"),
+        (["--config", str(config), "--bogus"], "--bogus not recognized"),
+        (["--config", str(config), "stray"], "unrecognized arguments: stray"),
+        (["--config", str(tmp_path / "missing.json")], "bad config"),
+        (["--config", str(config), "-m", "satellite"], "zenoh mode must be one of"),
+    ]
+    for argv, message in cases:
+        out = subprocess.run(
+            [*interpreter(1), "-m", "agent", *argv], capture_output=True, text=True, cwd=REPO, timeout=60
+        )
+        assert out.returncode == 2, (argv, out.stderr)
+        errors = [line for line in out.stderr.splitlines() if not line.startswith("usage:")]
+        assert len(errors) == 1 and message in errors[0], (argv, out.stderr)
+        assert "Traceback" not in out.stderr
+    shown = subprocess.run([*interpreter(1), "-m", "agent", "--help"], capture_output=True, text=True, cwd=REPO)
+    assert shown.returncode == 0
+    assert all(flag in shown.stdout for flag in ("--config", "--faults", "--exit-with-parent", "--connect"))

@@ -6,11 +6,14 @@ nothing leaves the machine unless the user points it elsewhere with -e/-l.
 
 from __future__ import annotations
 
-import argparse
 import json
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import zenoh
+
+if TYPE_CHECKING:
+    import argparse
 
 MODES = ("router", "peer", "client")
 
@@ -135,6 +138,42 @@ def add_zenoh_args(parser: argparse.ArgumentParser, default_mode: str = "client"
         metavar="FILE",
         help="zenoh JSON5 configuration to start from, e.g. a role's file from `pixelswarm certs` (the flags override it)",
     )
+
+
+# The flags of add_zenoh_args as getopt spells them, and their help: for a robot's process, which
+# parses its command line with getopt because argparse and what it loads would stay in its memory.
+ZENOH_SHORT = "m:e:l:"
+ZENOH_LONG = ["mode=", "connect=", "listen=", "multicast-scouting", "no-multicast-scouting", "zenoh-config="]
+ZENOH_USAGE = """zenoh:
+  -m, --mode {router,peer,client}
+                        session mode (default client)
+  -e, --connect ENDPOINT
+                        endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)
+  -l, --listen ENDPOINT
+                        endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)
+  --no-multicast-scouting
+                        disable multicast scouting (the default)
+  --multicast-scouting  enable multicast scouting (finds peers on the LAN)
+  --zenoh-config FILE   zenoh JSON5 configuration to start from, e.g. a role's file from `pixelswarm
+                        certs` (the flags override it)"""
+
+
+def settings_from_options(options: list[tuple[str, str]], default_mode: str = "client") -> ZenohSettings:
+    """The settings of the zenoh flags among getopt's (flag, value) pairs, as settings_from_args
+    reads them from add_zenoh_args; other flags are left to the caller."""
+    settings = ZenohSettings(mode=default_mode)
+    for flag, value in options:
+        if flag in ("-m", "--mode"):
+            settings.mode = value
+        elif flag in ("-e", "--connect"):
+            settings.connect.append(value)
+        elif flag in ("-l", "--listen"):
+            settings.listen.append(value)
+        elif flag in ("--multicast-scouting", "--no-multicast-scouting"):
+            settings.multicast_scouting = flag == "--multicast-scouting"
+        elif flag == "--zenoh-config":
+            settings.config_file = value
+    return settings
 
 
 def settings_from_args(args: argparse.Namespace) -> ZenohSettings:
