@@ -370,7 +370,7 @@ def test_a_robot_alone_in_its_process_runs_without_docstrings_where_their_optimi
     assert int(out.stdout) == (2 if "-OO" in interpreter(1) else 0)
 
 
-def test_a_robot_process_loads_no_module_that_only_faults_profiling_or_a_router_use():
+def test_a_robot_process_loads_no_module_a_robot_never_uses():
     """Each module is memory in every one of N robot processes: random and zlib serve injected
     faults, cProfile a profiled run, socket finding a router's port, and numpy.ma nothing of a
     robot's (np.unique loads it). A robot without them never loads them, however its cells move."""
