@@ -18,12 +18,11 @@ from pathlib import Path
 
 from transport.bus import Bus
 from transport.faults import parse_faults
-from transport.session import ZENOH_LONG, ZENOH_SHORT, ZENOH_USAGE, TransportError, settings_from_options
+from transport.session import ZENOH_LONG, ZENOH_SHORT, TransportError, settings_from_options, zenoh_usage
 
 from .runtime import AgentHost, HostConfig, install_stop_handlers
 
-USAGE = (
-    """usage: python -m agent --config FILE [--faults PLAN] [--exit-with-parent] [zenoh flags]
+USAGE = """usage: python -m agent --config FILE [--faults PLAN] [--exit-with-parent] [zenoh flags]
 
 Run robot agents: the robots its host config names, one by default.
 
@@ -33,9 +32,7 @@ options:
   --faults PLAN         fault injection, e.g. 'state:drop=0.1,delay=0.05'
   --exit-with-parent    stop when the parent process exits
 
-"""
-    + ZENOH_USAGE
-)
+""" + zenoh_usage()
 # getopt, not argparse: argparse and the modules it loads would stay in every robot's process.
 OPTIONS = ["help", "config=", "faults=", "exit-with-parent", *ZENOH_LONG]
 

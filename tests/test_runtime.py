@@ -22,12 +22,12 @@ from transport.codec import VERSION, Pose, Poses
 from transport.session import (
     ZENOH_LONG,
     ZENOH_SHORT,
-    ZENOH_USAGE,
     ZenohSettings,
     add_zenoh_args,
     free_port,
     settings_from_args,
     settings_from_options,
+    zenoh_usage,
 )
 
 from .conftest import REPO, agent_processes, descendants, pixelswarm_cmd, reap, run_pixelswarm, start_run, wait_for
@@ -411,7 +411,7 @@ def test_a_robot_process_reads_the_zenoh_flags_as_every_other_command_does(argv)
     by_getopt = settings_from_options(getopt.getopt(argv, ZENOH_SHORT, ZENOH_LONG)[0])
     assert by_getopt == by_argparse
     for action in parser._actions:
-        assert all(flag in ZENOH_USAGE for flag in action.option_strings if flag not in ("-h", "--help"))
+        assert all(flag in zenoh_usage() for flag in action.option_strings if flag not in ("-h", "--help"))
 
 
 def test_the_agent_command_line_says_what_is_wrong_in_one_line_and_exits_2(tmp_path):

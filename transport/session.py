@@ -7,6 +7,7 @@ nothing leaves the machine unless the user points it elsewhere with -e/-l.
 from __future__ import annotations
 
 import json
+import textwrap
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -98,64 +99,58 @@ def open_session(settings: ZenohSettings) -> zenoh.Session:
         raise TransportError(f"cannot open zenoh {settings.mode} session on {where}: {first}; {hint}") from None
 
 
+# The zenoh flags' help, written once: add_zenoh_args gives it to argparse, and zenoh_usage lists it
+# for a robot's process, which parses its command line with getopt (ZENOH_SHORT, ZENOH_LONG) because
+# argparse and what it loads would stay in its memory.
+ZENOH_HELP = {
+    "--mode": "session mode (default {default_mode})",
+    "--connect": "endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)",
+    "--listen": "endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)",
+    "--no-multicast-scouting": "disable multicast scouting (the default)",
+    "--multicast-scouting": "enable multicast scouting (finds peers on the LAN)",
+    "--zenoh-config": "zenoh JSON5 configuration to start from, e.g. a role's file from `pixelswarm certs` "
+    "(the flags override it)",
+}
+ZENOH_SHORT = "m:e:l:"
+ZENOH_LONG = ["mode=", "connect=", "listen=", "multicast-scouting", "no-multicast-scouting", "zenoh-config="]
+_ZENOH_SHOWN = {  # how the help shows each flag and its argument
+    "--mode": "-m, --mode {" + ",".join(MODES) + "}",
+    "--connect": "-e, --connect ENDPOINT",
+    "--listen": "-l, --listen ENDPOINT",
+    "--no-multicast-scouting": "--no-multicast-scouting",
+    "--multicast-scouting": "--multicast-scouting",
+    "--zenoh-config": "--zenoh-config FILE",
+}
+
+
 def add_zenoh_args(parser: argparse.ArgumentParser, default_mode: str = "client") -> None:
     """Zenoh-style flags: -m/--mode, -e/--connect, -l/--listen, --no-multicast-scouting."""
     group = parser.add_argument_group("zenoh")
     group.add_argument(
-        "-m", "--mode", choices=MODES, default=default_mode, help=f"session mode (default {default_mode})"
+        "-m", "--mode", choices=MODES, default=default_mode, help=ZENOH_HELP["--mode"].format(default_mode=default_mode)
     )
-    group.add_argument(
-        "-e",
-        "--connect",
-        action="append",
-        default=[],
-        metavar="ENDPOINT",
-        help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)",
-    )
-    group.add_argument(
-        "-l",
-        "--listen",
-        action="append",
-        default=[],
-        metavar="ENDPOINT",
-        help="endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)",
-    )
+    group.add_argument("-e", "--connect", action="append", default=[], metavar="ENDPOINT", help=ZENOH_HELP["--connect"])
+    group.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT", help=ZENOH_HELP["--listen"])
     group.add_argument(
         "--no-multicast-scouting",
         dest="multicast_scouting",
         action="store_false",
         default=False,
-        help="disable multicast scouting (the default)",
+        help=ZENOH_HELP["--no-multicast-scouting"],
     )
     group.add_argument(
-        "--multicast-scouting",
-        dest="multicast_scouting",
-        action="store_true",
-        help="enable multicast scouting (finds peers on the LAN)",
+        "--multicast-scouting", dest="multicast_scouting", action="store_true", help=ZENOH_HELP["--multicast-scouting"]
     )
-    group.add_argument(
-        "--zenoh-config",
-        metavar="FILE",
-        help="zenoh JSON5 configuration to start from, e.g. a role's file from `pixelswarm certs` (the flags override it)",
-    )
+    group.add_argument("--zenoh-config", metavar="FILE", help=ZENOH_HELP["--zenoh-config"])
 
 
-# The flags of add_zenoh_args as getopt spells them, and their help: for a robot's process, which
-# parses its command line with getopt because argparse and what it loads would stay in its memory.
-ZENOH_SHORT = "m:e:l:"
-ZENOH_LONG = ["mode=", "connect=", "listen=", "multicast-scouting", "no-multicast-scouting", "zenoh-config="]
-ZENOH_USAGE = """zenoh:
-  -m, --mode {router,peer,client}
-                        session mode (default client)
-  -e, --connect ENDPOINT
-                        endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)
-  -l, --listen ENDPOINT
-                        endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)
-  --no-multicast-scouting
-                        disable multicast scouting (the default)
-  --multicast-scouting  enable multicast scouting (finds peers on the LAN)
-  --zenoh-config FILE   zenoh JSON5 configuration to start from, e.g. a role's file from `pixelswarm
-                        certs` (the flags override it)"""
+def zenoh_usage(default_mode: str = "client") -> str:
+    """The zenoh flags' part of a help text, laid out as argparse lays out add_zenoh_args's."""
+    lines = ["zenoh:"]
+    for flag, shown in _ZENOH_SHOWN.items():
+        text = textwrap.fill(ZENOH_HELP[flag].format(default_mode=default_mode), 76, subsequent_indent=" " * 24)
+        lines.append(f"  {shown:<22}{text}" if len(shown) < 21 else f"  {shown}\n{'':24}{text}")
+    return "\n".join(lines)
 
 
 def settings_from_options(options: list[tuple[str, str]], default_mode: str = "client") -> ZenohSettings:
