@@ -82,7 +82,10 @@ class Inbox(Generic[T]):
         self._order = itertools.count()
         self._lock = threading.Lock()
         self._seed_text = seed
-        self._rng: Any = None  # drawn from only with an active fault: see _draws
+        # The seed's crc32 and the fault's random stream, made when first drawn from (_draws): only
+        # an inbox with an active fault draws.
+        self._seed: int | None = None
+        self._rng: Any = None
         self.subscriber: Any = None
         self.bell: threading.Event | None = None  # rung on every arrival: one wait serves several inboxes
         # robot -> the newest tick of its records that reached this inbox, whatever the fault plan did
@@ -134,14 +137,13 @@ class Inbox(Generic[T]):
         a stream of that message alone (reproducible in lock-step). random and zlib are imported
         here because a robot's process without faults never needs them (its memory)."""
         import random
-        import zlib
 
-        seed = zlib.crc32(self._seed_text.encode())
-        if key is not None:
-            return random.Random(f"{seed}/{key}/{stamp!r}")
-        if self._rng is None:
-            self._rng = random.Random(seed)
-        return self._rng
+        if self._seed is None:
+            import zlib
+
+            self._seed = zlib.crc32(self._seed_text.encode())
+            self._rng = random.Random(self._seed)
+        return self._rng if key is None else random.Random(f"{self._seed}/{key}/{stamp!r}")
 
     def _deliver(self, key: str, msgs: list[T]) -> None:
         if self.fault is _NO_FAULT or not self.fault.active:
