@@ -145,9 +145,6 @@ HELLO_TIMEOUT = 30.0  # s a host waits for its neighbours' hellos before it says
 GOAL_SET_WAIT = 10.0  # s a lock-step tick waits for its clock message and the goal sets it names
 
 
-CELL_KEY = 1 << 32  # cells as one int64 each: cx * CELL_KEY + cy (|cy| < 2^31 cells)
-
-
 class CellSubscriptions:
     """Subscriptions to the spatial cells around each robot, shared by the robots of a host.
 
@@ -162,20 +159,18 @@ class CellSubscriptions:
     def __init__(self, bus: Bus, inbox: Any, cell_size: float, reach: int = 3) -> None:
         self.bus, self.inbox, self.cell_size, self.reach = bus, inbox, cell_size, reach
         self._subs: dict[tuple[int, int], Any] = {}
-        self._own: np.ndarray | None = None  # the robots' own cells at the last update
+        self._own: list[list[int]] | None = None  # the robots' own cells at the last update
 
     def update(self, positions: np.ndarray) -> None:
-        # cell_of for every robot at once, then the square of cells around each (a host of 250
-        # robots spent 6 ms a tick here in Python loops)
-        own = cells_of(positions, self.cell_size)
-        if self._own is not None and np.array_equal(own, self._own):
+        # cell_of for every robot at once (a host of 250 robots spent 6 ms a tick in Python loops)
+        own = cells_of(positions, self.cell_size).tolist()
+        if own == self._own:
             return  # most ticks: every robot is still in its cell
         self._own = own
-        span = np.arange(-self.reach, self.reach + 1)
-        cx = np.sort(own[:, 0, None] * CELL_KEY + own[:, 1, None] + (span[:, None] * CELL_KEY + span).ravel(), None)
-        cx = cx[np.concatenate(([True], cx[1:] != cx[:-1]))]  # distinct; np.unique would load numpy.ma
-        cy = (cx + CELL_KEY // 2) % CELL_KEY - CELL_KEY // 2  # one int per cell: cx * CELL_KEY + cy, taken apart
-        wanted = set(zip(((cx - cy) // CELL_KEY).tolist(), cy.tolist()))
+        # the square of cells around each, as a set: np.unique or np.sort would page numpy's sorting
+        # code into every robot's process (a quarter megabyte) for a few dozen cells
+        span = range(-self.reach, self.reach + 1)
+        wanted = {(cx + dx, cy + dy) for cx, cy in own for dx in span for dy in span}
         for cell in set(self._subs) - wanted:
             self.bus.unsubscribe(self._subs.pop(cell))
         for cell in sorted(wanted - set(self._subs)):
@@ -211,6 +206,7 @@ class AgentHost:
         # One subscription per own robot: a host receives only its robots' poses (with frames, those
         # sent before its robots are live, and then its robots' rows of the tracker's frames).
         self.own = np.array(sorted(config.robots))
+        self.row_of = {r: b for b, r in enumerate(self.own.tolist())}  # robot -> its row in the batches
         # rows: the own robots in id order; until a neighbour is heard, its states may be as old as stale_after
         self.policy_memory = Memory.new(len(self.own), latency=p.stale_after)
         self.pose_inbox = bus.inbox(Pose, only=self.own)
@@ -389,7 +385,7 @@ class AgentHost:
             lead = bid_position(
                 np.array([m.position for m in on_way]),
                 np.array([m.goal for m in on_way]),
-                self.policy_memory.velocity[np.searchsorted(self.own, [m.robot for m in on_way])],
+                self.policy_memory.velocity[[self.row_of[m.robot] for m in on_way]],
                 self.auction.latency,
             )
             out.update(zip([m.robot for m in on_way], lead))
@@ -621,7 +617,7 @@ class AgentHost:
         stopped = {r: p.v_max * p.dt for r in self.dead}  # it may have moved one period after its last state
         heard_within = min(p.neighbour_dist, self.config.reach)  # a robot hears states only within its range
         neighbours = self.table.gather(ids, position, stamp, tick, heard_within, p.max_neighbours, stopped)
-        rows = np.searchsorted(self.own, ids)
+        rows = np.array([self.row_of[r] for r in ids])
         key = np.array([(m.assign_epoch, m.goal_index) for m in mems], np.int64).reshape(-1, 2)
         goal0 = np.array([m.goal0 if m.goal_index >= 0 else m.goal for m in mems], float).reshape(-1, 2)
         memory = self.policy_memory.rows(rows)
@@ -642,9 +638,10 @@ class AgentHost:
         )
         self.policy_memory.put(rows, decision.memory)
         result = decision.step
-        self.fallbacks += int(result.fallback.sum())
+        self.fallbacks += int(np.count_nonzero(result.fallback))
         goal = decision.intent.goal
-        moved = ~((goal == goal0) | (np.isnan(goal) & np.isnan(goal0))).all(axis=1)
+        same = (goal == goal0) | (np.isnan(goal) & np.isnan(goal0))
+        moved = ~(same[:, 0] & same[:, 1])
         for b in np.flatnonzero(moved).tolist():  # a moving goal set's goal moved (eq. 28)
             mems[b].goal = goal[b].copy()
         for b in np.flatnonzero(decision.deadlocked).tolist():  # paper 5.5.5: C_d on this goal for good

@@ -393,6 +393,24 @@ def test_a_robot_process_loads_no_module_a_robot_never_uses():
     assert out.stdout.strip() == f"{7 * 7 + 4 * 7} []"
 
 
+@pytest.mark.parametrize("kinematics", ["holonomic", "diffdrive"])
+def test_only_a_differential_drive_robot_loads_nh_orca(kinematics):
+    """NH-ORCA is memory in every robot process; a holonomic robot's step never loads it, and a
+    differential-drive robot's step loads it and drives toward its goal."""
+    code = (
+        "import sys, numpy as np\n"
+        "from agent.core.params import RobotParams\n"
+        "from agent.core.step import NeighbourStates, control_step\n"
+        f"p = RobotParams(kinematics={kinematics!r})\n"
+        "r = control_step(p, np.arange(1), np.zeros((1, 2)), np.zeros(1), np.zeros((1, 2)), np.ones((1, 2)),\n"
+        "                 NeighbourStates.empty(1))\n"
+        "print(bool(r.command.any()), 'agent.core.nhorca' in sys.modules)"
+    )
+    out = subprocess.run([*interpreter(1), "-c", code], capture_output=True, text=True, cwd=REPO, timeout=60)
+    assert out.returncode == 0, out.stderr[-500:]
+    assert out.stdout.split() == ["True", str(kinematics == "diffdrive")]
+
+
 @pytest.mark.parametrize(
     "argv",
     [

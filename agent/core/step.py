@@ -15,7 +15,6 @@ from functools import partial
 import numpy as np
 
 from .neighbours import perturb_preferred_velocity, perturbation_one, prepare_neighbours, splitmix64
-from .nhorca import nh_orca_wheel_speeds
 from .orca import arena_segments, orca_velocity, polygon_segments, preferred_velocity
 from .params import DIFFDRIVE, RobotParams
 
@@ -177,6 +176,8 @@ def control_step(
         committed=params.dt,
     )
     if params.kinematics == DIFFDRIVE:
+        from .nhorca import nh_orca_wheel_speeds  # a holonomic robot's process never loads NH-ORCA
+
         res = nh_orca_wheel_speeds(
             position,
             heading,
