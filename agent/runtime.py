@@ -129,12 +129,13 @@ def interpreter(robots: int) -> list[str]:
     """The Python and its flags that run an agent process of ``robots`` robots (then `-m agent`).
 
     A robot's own process runs with -OO: docstrings, numpy's above all, are megabytes of its
-    memory that it never reads. Only where their optimised bytecode is compiled (make does it), as
-    compiling them at every start would cost more than it saves; not for hosts of many robots,
-    which load numba (not compiled so) and would save little."""
+    memory that it never reads; and with -X no_debug_ranges, as its code's column positions are
+    too (its tracebacks still name each file and line). Only where their optimised bytecode is
+    compiled (make does it), as compiling them at every start would cost more than it saves; not
+    for hosts of many robots, which load numba (not compiled so) and would save little."""
     samples = (json.__file__, np.__file__, __file__)  # the standard library, numpy, ours
     compiled = all(os.path.exists(importlib.util.cache_from_source(f, optimization=2)) for f in samples)
-    return [sys.executable, *(["-OO"] if compiled and robots == 1 else [])]
+    return [sys.executable, *(["-OO", "-X", "no_debug_ranges"] if compiled and robots == 1 else [])]
 
 
 AUCTION_SHARE = 0.2  # of a control period, counted from a tick's first pose, spent on auction rounds after the

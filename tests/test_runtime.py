@@ -357,17 +357,21 @@ def test_a_robot_alone_in_its_process_runs_without_docstrings_where_their_optimi
         return str(compiled)
 
     monkeypatch.setattr(agent.runtime.importlib.util, "cache_from_source", cache_from_source)
-    assert interpreter(1) == [sys.executable, "-OO"]
+    assert interpreter(1) == [sys.executable, "-OO", "-X", "no_debug_ranges"]
     assert set(asked) == {2}
     assert interpreter(2) == [sys.executable]
     compiled.unlink()
     assert interpreter(1) == [sys.executable]
     monkeypatch.undo()
     # however the bytecode stands, the process so started runs an agent's imports
-    code = "import sys, agent.__main__, numpy; print(sys.flags.optimize)"
+    code = (
+        "import sys, agent.__main__, numpy\n"
+        "print(sys.flags.optimize, next(agent.__main__.main.__code__.co_positions())[2] is None)"  # no column
+    )
     out = subprocess.run([*interpreter(1), "-c", code], capture_output=True, text=True, cwd=REPO, timeout=60)
     assert out.returncode == 0, out.stderr[-500:]
-    assert int(out.stdout) == (2 if "-OO" in interpreter(1) else 0)
+    robot = "-OO" in interpreter(1)
+    assert out.stdout.split() == ["2" if robot else "0", str(robot)]
 
 
 def test_a_robot_process_loads_no_module_a_robot_never_uses():
