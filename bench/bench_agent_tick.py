@@ -1,12 +1,14 @@
 """An agent process's CPU per tick, the code of a git revision beside the current code (issue 25).
 
-The same small real-time scene (`pixelswarm run circle`, one robot per agent process) runs with the
+The same small real-time scene (`pixelswarm run circle`, one robot per agent process, or hosts of
+``--agents-per-process`` robots) runs with the
 code at ``--before REV`` (a temporary ``git worktree`` of it, run with the same Python from there)
 and with the current code, alternating, ``--pairs`` times each. Per run: each agent process's CPU
 (psutil cpu_times, user + system) over the world's stepping, as % of a core (median and mean over
 the agents), and the missed ticks the world counted.
 
     python -m bench.bench_agent_tick [--before 2f61ee4] [--robots 10] [--duration 20] [--pairs 2]
+    python -m bench.bench_agent_tick --robots 250 --agents-per-process 125   # hosts of 125 robots
 """
 
 from __future__ import annotations
@@ -30,11 +32,12 @@ SAMPLE_EVERY = 0.25  # s between CPU samples of the agent processes
 EDGE = 1.0  # s left out of each end of the stepping window (the first ticks, the shutdown)
 
 
-def run_scene(cwd: Path, robots: int, duration: float, seed: int) -> dict:
+def run_scene(cwd: Path, robots: int, duration: float, seed: int, per_process: int = 1) -> dict:
     """One `sim.cli run circle` from ``cwd``: its metrics and the agents' CPU over the stepping."""
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "run"
         args = ["circle", "--robots", str(robots), "--clock", "realtime", "--duration", str(duration)]
+        args += ["--agents-per-process", str(per_process)]
         proc = subprocess.Popen(
             [sys.executable, "-m", "sim.cli", "run", *args, "--seed", str(seed), "--out", str(out), "--no-video", "-q"],
             cwd=cwd,
@@ -97,9 +100,13 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=20.0, help="s of display per run")
     parser.add_argument("--pairs", type=int, default=2, help="before/after pairs, alternating")
     parser.add_argument("--seed", type=int, default=3)
+    parser.add_argument("--agents-per-process", "-k", type=int, default=1, help="robots per agent process")
     args = parser.parse_args()
-    if args.robots < 1 or args.duration <= 0 or args.pairs < 1:
-        print("bench_agent_tick: error: --robots, --duration and --pairs must be positive", file=sys.stderr)
+    if min(args.robots, args.pairs, args.agents_per_process) < 1 or args.duration <= 0:
+        print(
+            "bench_agent_tick: error: --robots, --duration, --pairs and --agents-per-process must be positive",
+            file=sys.stderr,
+        )
         sys.exit(2)
     rev = subprocess.run(["git", "rev-parse", "--short", args.before], cwd=REPO, capture_output=True, text=True)
     if rev.returncode != 0:
@@ -119,7 +126,7 @@ def main() -> None:
         try:
             for pair in range(1, args.pairs + 1):
                 for what, cwd in (("before", old), ("after", REPO)):
-                    r = run_scene(cwd, args.robots, args.duration, args.seed)
+                    r = run_scene(cwd, args.robots, args.duration, args.seed, args.agents_per_process)
                     figures[what].append(r["cpu_median"])
                     label = f"{before_rev} (before)" if what == "before" else "current"
                     rows.append(
@@ -136,7 +143,8 @@ def main() -> None:
         f"Median over the pairs: {b:.2f} % before, {a:.2f} % after ({a / b:.2f}x).",
         "",
         f"Scene: `pixelswarm run circle --robots {args.robots} --clock realtime --duration {args.duration:g} "
-        f"--seed {args.seed}`, one robot per agent process, before and after alternating. CPU: each agent "
+        f"--seed {args.seed} --agents-per-process {args.agents_per_process}`, before and after alternating. "
+        "CPU: each agent "
         "process's user + system CPU seconds (psutil cpu_times) over the world's stepping (less a second at each "
         "end) per wall second. Missed ticks: a live agent's command for tick k had not reached the world when "
         "tick k+1 began. Load avg: the machine's 1-minute load after the run (a shared machine).",
