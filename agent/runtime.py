@@ -169,7 +169,7 @@ class CellSubscriptions:
             return  # most ticks: every robot is still in its cell
         self._own = own
         # the square of cells around each, as a set: np.unique or np.sort would page numpy's sorting
-        # code into every robot's process (a quarter megabyte) for a few dozen cells
+        # code into every robot's process for a few dozen cells
         span = range(-self.reach, self.reach + 1)
         wanted = {(cx + dx, cy + dy) for cx, cy in own for dx in span for dy in span}
         for cell in set(self._subs) - wanted:
