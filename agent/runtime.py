@@ -163,7 +163,7 @@ class CellSubscriptions:
         self._own: list[list[int]] | None = None  # the robots' own cells at the last update
 
     def update(self, positions: np.ndarray) -> None:
-        # cell_of for every robot at once (a host of 250 robots spent 6 ms a tick in Python loops)
+        # cell_of for every robot at once: a host places hundreds a tick
         own = cells_of(positions, self.cell_size).tolist()
         if own == self._own:
             return  # most ticks: every robot is still in its cell
