@@ -1,9 +1,10 @@
 """An agent process's CPU per tick, the code of a git revision beside the current code (issue 25).
 
 The same small real-time scene (`pixelswarm run circle`, one robot per agent process, or hosts of
-``--agents-per-process`` robots) runs with the
-code at ``--before REV`` (a temporary ``git worktree`` of it, run with the same Python from there)
-and with the current code, alternating, ``--pairs`` times each. Per run: each agent process's CPU
+``--agents-per-process`` robots) runs with the code at ``--before REV`` (a temporary ``git
+worktree`` of it, run with the same Python from there) and with the current code, alternating,
+``--pairs`` times each. Both trees' bytecode is compiled first, as `make run` does, so that a robot's
+process runs with the same interpreter flags in each (agent.runtime.interpreter). Per run: each agent process's CPU
 (psutil cpu_times, user + system) over the world's stepping, as % of a core (median and mean over
 the agents), and the missed ticks the world counted.
 
@@ -25,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import psutil
 
+from .bench_runtime import worktree
 from .common import REPO, write_results
 
 BEFORE = "2f61ee4"  # main before this branch: the code without its per-tick work outside the control step
@@ -120,9 +122,10 @@ def main() -> None:
     figures: dict[str, list[float]] = {"before": [], "after": []}
     with tempfile.TemporaryDirectory() as tmp:
         old = Path(tmp) / "before"
-        subprocess.run(
-            ["git", "worktree", "add", "--detach", str(old), before_rev], cwd=REPO, check=True, capture_output=True
-        )
+        worktree(before_rev, old)
+        for tree in (old, REPO):  # what a robot's process imports, optimised too (-OO)
+            compile_robot = [sys.executable, "-m", "compileall", "-q", "-o", "0", "-o", "2", "agent", "transport"]
+            subprocess.run(compile_robot, cwd=tree, check=True, capture_output=True)
         try:
             for pair in range(1, args.pairs + 1):
                 for what, cwd in (("before", old), ("after", REPO)):
@@ -144,8 +147,7 @@ def main() -> None:
         "",
         f"Scene: `pixelswarm run circle --robots {args.robots} --clock realtime --duration {args.duration:g} "
         f"--seed {args.seed} --agents-per-process {args.agents_per_process}`, before and after alternating. "
-        "CPU: each agent "
-        "process's user + system CPU seconds (psutil cpu_times) over the world's stepping (less a second at each "
+        "CPU: each agent process's user + system CPU seconds (psutil cpu_times) over the world's stepping (less a second at each "
         "end) per wall second. Missed ticks: a live agent's command for tick k had not reached the world when "
         "tick k+1 began. Load avg: the machine's 1-minute load after the run (a shared machine).",
     ]
