@@ -18,7 +18,14 @@ from pathlib import Path
 
 from transport.bus import Bus
 from transport.faults import parse_faults
-from transport.session import ZENOH_LONG, ZENOH_SHORT, TransportError, settings_from_options, zenoh_usage
+from transport.session import (
+    ZENOH_LONG,
+    ZENOH_SHORT,
+    TransportError,
+    one_malloc_arena,
+    settings_from_options,
+    zenoh_usage,
+)
 
 from .runtime import AgentHost, HostConfig, install_stop_handlers
 
@@ -61,6 +68,8 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, ValueError, KeyError) as err:
         print(f"agent: error: bad config: {err}", file=sys.stderr)
         return 2
+    if len(config.robots) == 1:
+        one_malloc_arena()  # before zenoh's threads start
     try:
         bus = Bus(
             settings_from_options(options),

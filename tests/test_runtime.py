@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import getopt
 import json
+import platform
 import signal
 import subprocess
 import sys
@@ -372,6 +373,62 @@ def test_a_robot_alone_in_its_process_runs_without_docstrings_where_their_optimi
     assert out.returncode == 0, out.stderr[-500:]
     robot = "-OO" in interpreter(1)
     assert out.stdout.split() == ["2" if robot else "0", str(robot)]
+
+
+ARENAS = """
+import ctypes, sys, threading
+from transport.session import ZenohSettings, one_malloc_arena, open_session
+if sys.argv[1] == "one" and not one_malloc_arena():  # not an assert: -OO would strip it
+    sys.exit("mallopt failed")
+session = open_session(ZenohSettings(mode="peer"))  # listens nowhere: its messages stay in the process
+heard = []
+sub = session.declare_subscriber("px/test/**", lambda sample: heard.append(sample.payload.to_bytes()))
+def work():  # a thread that allocates, as zenoh's and the subscriptions' threads do
+    kept = [bytes(2000) for _ in range(200)]
+    for i in range(20):
+        session.put(f"px/test/{i}", bytes(1000))
+threads = [threading.Thread(target=work) for _ in range(4)]
+for t in threads:
+    t.start()
+for t in threads:
+    t.join()
+libc = ctypes.CDLL(None)
+libc.fdopen.restype = ctypes.c_void_p
+out = ctypes.c_void_p(libc.fdopen(sys.stdout.fileno(), b"w"))
+sys.stdout.flush()
+libc.malloc_info(0, out)  # an XML element per arena
+libc.fflush(out)
+sub.undeclare()
+session.close()
+"""
+
+
+@pytest.mark.skipif(platform.libc_ver()[0] != "glibc", reason="malloc arenas are glibc's")
+def test_a_robot_process_allocates_from_one_malloc_arena():
+    """glibc gives each thread that allocates an arena of its own, whose part-used pages count in a
+    robot's RSS; with one_malloc_arena, zenoh's threads and the process's own share one."""
+    heaps = {}
+    for arenas in ("one", "default"):
+        out = subprocess.run(
+            [*interpreter(1), "-c", ARENAS, arenas], capture_output=True, text=True, cwd=REPO, timeout=60
+        )
+        assert out.returncode == 0, out.stderr[-500:]
+        heaps[arenas] = out.stdout.count("<heap nr=")
+    assert heaps["one"] == 1 and heaps["default"] > 1, heaps
+
+
+@pytest.mark.parametrize("robots", [[0], [0, 1]])
+def test_the_agent_shares_one_malloc_arena_when_it_runs_one_robot(tmp_path, monkeypatch, robots):
+    """A robot's own process asks for one arena before its session opens; a host of several robots,
+    whose threads allocate more, keeps glibc's default. (The bad zenoh mode stops it right after.)"""
+    import agent.__main__
+
+    asked: list[bool] = []
+    monkeypatch.setattr(agent.__main__, "one_malloc_arena", lambda: asked.append(True))
+    config = tmp_path / "host.json"
+    config.write_text(json.dumps({"robots": robots, "params": {}}))
+    assert agent.__main__.main(["--config", str(config), "-m", "satellite"]) == 2
+    assert asked == ([True] if len(robots) == 1 else [])
 
 
 def test_a_robot_process_loads_no_module_a_robot_never_uses():

@@ -99,6 +99,23 @@ def open_session(settings: ZenohSettings) -> zenoh.Session:
         raise TransportError(f"cannot open zenoh {settings.mode} session on {where}: {first}; {hint}") from None
 
 
+def one_malloc_arena() -> bool:
+    """Have every thread of this process allocate from one malloc arena, before its session opens.
+
+    glibc gives each thread that allocates an arena of its own, and zenoh runs several threads: each
+    arena's part-used pages count in the process's RSS. A robot's process allocates little, so its
+    threads share one (as MALLOC_ARENA_MAX=1 would). Not for a host of many robots, whose threads
+    allocate more and would wait on the one arena's lock. False where the C library has no mallopt
+    (not glibc): nothing changes there."""
+    import ctypes  # here, not above: numpy loads it anyway, a process without numpy only if it asks
+
+    m_arena_max = -8  # glibc's malloc.h
+    try:
+        return bool(ctypes.CDLL(None).mallopt(m_arena_max, 1))
+    except (AttributeError, OSError, TypeError):
+        return False
+
+
 # The zenoh flags' help, written once: add_zenoh_args gives it to argparse, and zenoh_usage lists it
 # for a robot's process, which parses its command line with getopt (ZENOH_SHORT, ZENOH_LONG) because
 # argparse and what it loads would stay in its memory.
