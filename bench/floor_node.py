@@ -28,7 +28,7 @@ from collections.abc import Callable
 
 import zenoh
 
-from transport.session import TransportError, add_zenoh_args, one_malloc_arena, open_session, settings_from_args
+from transport.session import TransportError, add_zenoh_args, open_session, settings_from_args
 
 DESCRIPTION = "The floor of an agent process: a bare zenoh session doing a robot's messages and nothing else."
 
@@ -54,7 +54,6 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.numpy:
         import numpy  # noqa: F401
-    one_malloc_arena()  # as a robot's agent process
     try:
         session = open_session(settings_from_args(args))
     except (TransportError, ValueError) as err:
