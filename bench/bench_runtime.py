@@ -180,6 +180,14 @@ def floor_row(
     }
 
 
+def floor_line(n: int, what: str, load_before: str, f: dict) -> str:
+    """A table row of floor_row's figures."""
+    return (
+        f"| {n} | {what} | {load_before} | {f['rtf']:.2f} | {100 * (1 - f['answered']):.2f}% unanswered | "
+        f"- | {f['cpu']:.2f} | 1 | {f['states_per_tick']:.1f} | {f['rss']:.1f} | {f['uss']:.1f} | - |"
+    )
+
+
 def agent_line(n: int, what: str, load_before: str, a: dict, x_floor: str = "-") -> str:
     """A table row of agent_row's figures."""
     return (
@@ -397,27 +405,27 @@ def main() -> None:
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for n in sizes:
+        # Each agent run is followed by its own floor (one thread), which hears as many states per tick:
+        # the floor moves with the machine as much as the agents do, so each run's x floor is a pair's.
         runs = []
         for _ in range(args.repeat):
             before = settle()
-            runs.append((before, agent_row(n, args.duration)))
-        heard = float(np.median([a["states_per_tick"] for _, a in runs]))
+            a = agent_row(n, args.duration)
+            before_floor = settle()
+            runs.append((before, a, before_floor, floor_row(n, args.duration, "direct", a["states_per_tick"])))
+        heard = float(np.median([a["states_per_tick"] for _, a, _, _ in runs]))
         for callbacks, with_numpy, what in [
             ("direct", True, "floor with numpy imported (unused)"),
             ("thread", False, "floor: bare zenoh, a thread per subscription"),
-            ("direct", False, "floor: one thread"),
         ]:
             before = settle()
-            f = floor_row(n, args.duration, callbacks, heard, with_numpy)
-            rows.append(
-                f"| {n} | {what} | {before} | {f['rtf']:.2f} | {100 * (1 - f['answered']):.2f}% unanswered | "
-                f"- | {f['cpu']:.2f} | 1 | {f['states_per_tick']:.1f} | {f['rss']:.1f} | {f['uss']:.1f} | - |"
-            )
+            rows.append(floor_line(n, what, before, floor_row(n, args.duration, callbacks, heard, with_numpy)))
             print(rows[-1], flush=True)
-        for i, (before, a) in enumerate(runs):
-            what = "agent" if args.repeat == 1 else f"agent, run {i + 1}"
-            rows.append(agent_line(n, what, before, a, f"{a['cpu'] / max(f['cpu'], 1e-9):.1f}"))
-            print(rows[-1], flush=True)
+        for i, (before, a, before_floor, f) in enumerate(runs):
+            run = "" if args.repeat == 1 else f", run {i + 1}"
+            rows.append(floor_line(n, f"floor: one thread{run}", before_floor, f))
+            rows.append(agent_line(n, f"agent{run}", before, a, f"{a['cpu'] / max(f['cpu'], 1e-9):.1f}"))
+            print(*rows[-2:], sep="\n", flush=True)
     n = DELAYED_AT if not args.sizes else min(sizes)
     before = settle()
     d = agent_row(n, args.duration, faults=DELAYED)
@@ -461,7 +469,8 @@ def main() -> None:
             "alone adds to a process's memory; CPU over the ticks after the first 3 s. Agent: "
             "`pixelswarm run circle --seed 3` in real time; CPU "
             "over the world's stepping after its first 3 s, from each process's CPU seconds. x floor: the agent's CPU "
-            "over the floor's (one thread) of the same N, in this run. RTF: simulated seconds per wall second while the world "
+            "over that of the floor (one thread) run right after it, hearing as many states per tick. RTF: "
+            "simulated seconds per wall second while the world "
             "was stepping. Missed ticks: a live agent's command for tick k had not reached the world when tick k+1 "
             "began (a body without a valid command stops: agent.lateness, docs/overload.md). Start + stop: "
             "the run's wall time less its stepping time (start-up to the first tick, and the shutdown). "
