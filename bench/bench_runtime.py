@@ -7,7 +7,8 @@ heard per tick, the real-time factor, missed ticks, contacts and start-up; then 
 circle with every command delayed 0.15 s (``--faults cmd:delay=0.15``) at 20 processes, and
 (without --quick) the lock-step rows and 1000 robots in 4 hosts. Each row waits for a quiet machine
 and writes how busy it was beside it: on a shared machine the figures are only as good as it was
-quiet. ``--repeat K`` runs the agents K times at each N (missed ticks vary from run to run).
+quiet. ``--repeat K`` runs the agents K times at each N (missed ticks vary from run to run), each
+run followed by a floor of its own (one thread), against which its CPU is set.
 
 ``--startup``: only the start-up of 50 agent processes, from launching `pixelswarm run` to the
 world's first tick, the code at ``--before REV`` beside the code at ``--after REV`` (each a fresh
