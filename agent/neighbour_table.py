@@ -10,6 +10,7 @@ import numpy as np
 
 from transport.codec import State
 from transport.keys import cells_of
+from transport.plausible import AHEAD, FUTURE, INCONSISTENT, stamp_agrees
 
 from .core.step import NeighbourStates
 
@@ -41,24 +42,43 @@ def _pairs_in_reach(
 
 class NeighbourTable:
     """Latest broadcast states per robot id, keeping the two newest so a lock-step tick can use
-    exactly the states of the previous tick (the same information whatever the arrival order)."""
+    exactly the states of the previous tick (the same information whatever the arrival order).
 
-    def __init__(self) -> None:
+    A state may not claim a tick beyond the table's clock (``advance``: the tick its robots step)
+    by more than transport.plausible.AHEAD, nor a stamp other than its tick's start: kept as the
+    newest, a state from the future would push the honest ones out."""
+
+    def __init__(self, dt: float) -> None:
+        self.dt = dt
+        self.now: int | None = None  # the tick the table's robots step (None: not known yet)
         self._states: dict[int, list[State]] = {}
 
-    def update(self, state: State) -> None:
-        """Keep the two newest states by tick, oldest first (a host takes a thousand a tick)."""
+    def advance(self, tick: int) -> None:
+        """The table's robots step ``tick`` now. A clock that went back (the tracker restarted,
+        counting from 0 again) makes every state held newer than anything to come: forget them."""
+        if self.now is not None and tick < self.now:
+            self._states.clear()
+        self.now = tick
+
+    def update(self, state: State) -> str | None:
+        """Keep the two newest states by tick, oldest first (a host takes a thousand a tick); None,
+        or why the state was refused."""
+        if self.now is not None and state.tick > self.now + AHEAD:
+            return FUTURE
+        if not stamp_agrees(state.tick, state.stamp, self.dt):
+            return INCONSISTENT
         kept = self._states.get(state.robot)
         if kept is None:
             self._states[state.robot] = [state]
-            return
+            return None
         if kept[-1].tick == state.tick or kept[0].tick == state.tick:
-            return  # duplicate (of one of the at most two kept)
+            return None  # duplicate (of one of the at most two kept)
         kept.append(state)
         if state.tick < kept[-2].tick:  # out of order (rare): sort only then
             kept.sort(key=_tick)
         if len(kept) > 2:
             del kept[0]
+        return None
 
     def forget_outside(
         self, cells: set[tuple[int, int]], cell_size: float, keep: set[int] | frozenset[int] = frozenset()

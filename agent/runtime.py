@@ -30,6 +30,7 @@ import numpy as np
 from transport.bus import Bus
 from transport.codec import BEFORE_START, Command, Commands, Event, Goals, Pose, State, States, Tick
 from transport.keys import cell_of, cells_of
+from transport.plausible import INCONSISTENT, TickLine, stamp_agrees
 
 from .assignment import AuctionLink
 from .core.bidder import bid_position
@@ -39,6 +40,7 @@ from .core.step import static_segments
 from .goal_sets import motion_of, timing_of
 from .lateness import Lateness, strayed
 from .neighbour_table import NeighbourTable
+from .pose_trust import PoseTrust
 
 IDLE_COLOR = (40, 40, 40)
 CARRIED = State.CARRIED  # assign_instance of a goal carried over from the previous keyframe
@@ -192,8 +194,14 @@ class AgentHost:
         self.bus, self.config, self.params = bus, config, config.params
         self.keys = bus.keys
         self.memory = {r: RobotMemory(r) for r in config.robots}
-        self.table = NeighbourTable()
+        self.table = NeighbourTable(config.params.dt)
         self.pending: dict[int, Pose] = {}
+        # What a pose may claim: its tick against the clock (lock-step) or the wall clock (real time),
+        # and its place against where the robot could have driven (agent.pose_trust).
+        period = None if config.lockstep else config.params.dt
+        self.pose_lines = {r: TickLine(period) for r in config.robots}
+        self.clock_line = TickLine()
+        self.trust = PoseTrust(config.params.v_max, config.params.dt, 2 * config.params.noise_bound)
         self.silent: set[int] = set()  # nearby robots that did not answer in time (lock-step)
         self.greeted: dict[int, State] = {}  # lock-step: hellos heard before the first tick, by robot
         self.hello_from: list[State] = []  # our own hellos, sent until the first tick
@@ -272,6 +280,7 @@ class AgentHost:
                 where[got[1].robot] = got[1]
         if len(where) < len(self.memory):
             return False
+        self.table.advance(round(max(q.stamp for q in where.values()) / self.params.dt))
         self.cells.update(np.array([(q.x, q.y) for q in where.values()]))
         if self.config.lockstep:
             self.hello_from = [
@@ -431,7 +440,10 @@ class AgentHost:
             if self.ticks_done < 2:
                 self.greeted[msg.robot] = msg
             return
-        self.table.update(msg)
+        why = self.table.update(msg)
+        if why is not None:
+            self.state_inbox.drops[why] += 1
+            return
         self.silent.discard(msg.robot)
         for robot, target in self.config.pursue.items():
             if msg.robot == target and robot in self.memory:
@@ -449,7 +461,12 @@ class AgentHost:
         deadline = time.monotonic() + self.config.state_wait
         seen = self.state_inbox.seen or {}  # arrived, whatever an injected fault then did with it
         while True:
-            behind = [s for s in self.table.latest_before(tick) if max(s.tick, seen.get(s.robot, -1)) < tick - 1]
+            # an arrival claimed from beyond this tick proves nothing (a damaged or forged frame)
+            behind = [
+                s
+                for s in self.table.latest_before(tick)
+                if max(s.tick, _at_most(seen.get(s.robot, -1), tick)) < tick - 1
+            ]
             if tick > 0 and self.ticks_done < 2:  # the first tick after tick 0: robots that greeted us
                 behind += [h for r, h in self.greeted.items() if r not in self.table and r not in seen]
             missing = [
@@ -487,8 +504,7 @@ class AgentHost:
         due = int(np.searchsorted(self.config.steps, stamp + 1e-9, side="right")) - 1
         deadline = time.monotonic() + GOAL_SET_WAIT
         while self.running and time.monotonic() < deadline:
-            for _, clock in self.clock_inbox.drain():
-                self.named[clock.tick] = clock.goal_epoch
+            self._hear_clock()
             has_step = due < 0 or any(g.timing.step >= due for g in (*self.goal_sets.values(), *self.held.values()))
             if tick in self.named and has_step and self.newest_heard >= self.named[tick]:
                 break
@@ -496,7 +512,7 @@ class AgentHost:
             if tick not in self.named:
                 got_tick = self.clock_inbox.get(timeout=max(wait, 0.0))
                 if got_tick is not None:
-                    self.named[got_tick[1].tick] = got_tick[1].goal_epoch
+                    self._on_clock(got_tick[1])
                 continue
             got = self.goal_inbox.get(timeout=max(wait, 0.0))
             if got is not None:
@@ -509,6 +525,22 @@ class AgentHost:
         self.named = {t: e for t, e in self.named.items() if t > tick}
         for epoch in sorted(e for e in self.held if e <= upto):
             self._on_goals(self.held.pop(epoch))
+
+    def _hear_clock(self) -> None:
+        assert self.clock_inbox is not None
+        for _, clock in self.clock_inbox.drain():
+            self._on_clock(clock)
+
+    def _on_clock(self, clock: Tick) -> None:
+        """Lock-step: a clock message names the goal set of its tick; its tick bounds the poses'.
+        The world publishes every tick, so a clock may not skip ahead of the last."""
+        why = INCONSISTENT if not stamp_agrees(clock.tick, clock.stamp, self.params.dt) else None
+        why = why or self.clock_line.admit(clock.tick, time.monotonic(), self.clock_line.newest)
+        if why is not None:
+            assert self.clock_inbox is not None
+            self.clock_inbox.drops[why] += 1
+            return
+        self.named[clock.tick] = clock.goal_epoch
 
     # --- the loop -----------------------------------------------------------------------------
     def run(self) -> None:
@@ -574,8 +606,17 @@ class AgentHost:
             bell.wait(min(end - now, link.next_due()))
 
     def _take_pose(self, pose: Pose) -> None:
-        mem = self.memory.get(pose.robot)
-        if mem is None or pose.tick <= mem.last_tick or pose.tick == BEFORE_START:
+        if pose.robot not in self.memory or pose.tick == BEFORE_START:
+            return
+        why = None if stamp_agrees(pose.tick, pose.stamp, self.params.dt) else INCONSISTENT
+        if why is None:
+            now = None
+            if self.clock_inbox is not None:  # lock-step: the world's clock says which tick it is
+                self._hear_clock()
+                now = self.clock_line.newest
+            why = self.pose_lines[pose.robot].admit(pose.tick, time.monotonic(), now)
+        if why is not None:
+            self.pose_inbox.drops[why] += 1
             return
         held = self.pending.get(pose.robot)
         if held is None or pose.tick > held.tick:
@@ -587,6 +628,7 @@ class AgentHost:
             return
         if self.config.lockstep:
             self.state_inbox.sim_time = max(p.stamp for p in self.pending.values())
+        self.table.advance(max(p.tick for p in self.pending.values()))
         self._absorb()
         poses = [self.pending.pop(r) for r in sorted(self.pending)]
         # Robots of a host may hold poses of different ticks (real time): group by tick.
@@ -602,8 +644,12 @@ class AgentHost:
             late = self.lateness.at(stamp, began + self._compute)
             if late > 0:
                 p = p.grown(strayed(late, p.v_max))
-        position = np.array([(q.x, q.y) for q in poses], float)
-        heading = np.array([q.theta for q in poses], float)
+        # a pose further than the robot could have driven is held: the robot brakes where it last was
+        judged = [self.trust.judge(q.robot, q.tick, q.x, q.y, q.theta) for q in poses]
+        braking = [b for b, j in enumerate(judged) if j is None]
+        pose_of = [j if j is not None else self.trust.last(q.robot) for q, j in zip(poses, judged)]
+        position = np.array([(x, y) for x, y, _ in pose_of], float)
+        heading = np.array([th for _, _, th in pose_of], float)
         if self.config.lockstep:
             self._await_states(tick, position)
         mems = [self.memory[r] for r in ids]
@@ -637,6 +683,7 @@ class AgentHost:
             watch_deadlocks=self.auction.active,
             reach=self.config.reach,
         )
+        decision.memory.velocity[braking] = 0.0  # v_opt of a braking robot: it stands
         self.policy_memory.put(rows, decision.memory)
         result = decision.step
         self.fallbacks += int(np.count_nonzero(result.fallback))
@@ -648,6 +695,8 @@ class AgentHost:
         for b in np.flatnonzero(decision.deadlocked).tolist():  # paper 5.5.5: C_d on this goal for good
             self.auction.penalise(mems[b].robot, mems[b].assign_epoch, mems[b].goal_index)
         mode = Command.WHEELS if p.kinematics == DIFFDRIVE else Command.HOLONOMIC
+        velocity, command = result.velocity.copy(), result.command.copy()
+        velocity[braking], command[braking] = 0.0, 0.0
         states, commands = [], []
         for b, (pose, mem) in enumerate(zip(poses, mems)):
             mem.last_tick = tick
@@ -660,10 +709,10 @@ class AgentHost:
                     pose.robot,
                     tick,
                     stamp,
-                    pose.x,
-                    pose.y,
-                    float(result.velocity[b, 0]),
-                    float(result.velocity[b, 1]),
+                    float(position[b, 0]),
+                    float(position[b, 1]),
+                    float(velocity[b, 0]),
+                    float(velocity[b, 1]),
                     p.radius,
                     float(gx),
                     float(gy),
@@ -674,9 +723,7 @@ class AgentHost:
                 )
             )
             commands.append(
-                Command(
-                    pose.robot, tick, stamp, mode, float(result.command[b, 0]), float(result.command[b, 1]), *mem.color
-                )
+                Command(pose.robot, tick, stamp, mode, float(command[b, 0]), float(command[b, 1]), *mem.color)
             )
         # States before commands: by the time the world moves on, neighbours have our states.
         self._publish_states(tick, stamp, states)
@@ -694,7 +741,8 @@ class AgentHost:
 
     def stats(self) -> dict[str, Any]:
         drops: dict[str, int] = {}
-        for inbox in (self.pose_inbox, self.state_inbox, self.goal_inbox, self.auction.inbox):
+        inboxes: list[Any] = [self.pose_inbox, self.state_inbox, self.goal_inbox, self.auction.inbox, self.clock_inbox]
+        for inbox in filter(None, inboxes):
             for reason, n in inbox.drops.items():
                 drops[reason] = drops.get(reason, 0) + n
         return {
@@ -702,6 +750,7 @@ class AgentHost:
             "robots": self.config.robots,
             "ticks": self.ticks_done,
             "fallbacks": self.fallbacks,
+            "poses_held": self.trust.held,
             "dropped": drops,
             "neighbours_known": len(self.table),
             "state_waits": self.state_waits,
@@ -714,6 +763,11 @@ class AgentHost:
 
     def report(self) -> None:
         self.bus.publish(self.keys.event, Event({"kind": "stats", **self.stats()}))
+
+
+def _at_most(tick: int, bound: int) -> int:
+    """A tick claimed beyond ``bound`` counts as none (-1)."""
+    return tick if tick <= bound else -1
 
 
 def color_of(rgb: np.ndarray) -> tuple[int, int, int]:

@@ -19,7 +19,7 @@ def test_each_robot_gets_its_nearest_neighbours_in_reach_ties_broken_by_id():
     max_neighbours, nearest first, equal distances in id order (every process must break ties alike,
     or a lock-step run would depend on how robots are spread over hosts)."""
     rng = np.random.default_rng(3)
-    table = NeighbourTable()
+    table = NeighbourTable(0.1)
     points = np.round(rng.uniform(-1.5, 1.5, (120, 2)) * 10) / 10  # a grid: many equal distances
     ids = rng.permutation(400)[:120]
     for robot, (x, y) in zip(ids, points):
@@ -43,7 +43,7 @@ def test_a_large_batch_finds_the_same_neighbours_from_its_k_d_tree(monkeypatch):
     DENSE_UP_TO); the pairs, their order and every gathered array must be those of the dense
     search, ties (a grid of positions) and pairs at exactly the neighbour distance included."""
     rng = np.random.default_rng(11)
-    table = NeighbourTable()
+    table = NeighbourTable(0.1)
     points = np.round(rng.uniform(-2.0, 2.0, (400, 2)) * 10) / 10
     ids = rng.permutation(1000)[:400]
     for robot, (x, y) in zip(ids, points):
@@ -66,7 +66,7 @@ def test_one_robot_gathers_bit_for_bit_what_it_gets_in_a_batch():
     array must equal that robot's row of a batch's, ties, dead robots' bodies and dynamic
     obstacles included, so a robot steers alike whatever host it runs in."""
     rng = np.random.default_rng(5)
-    table = NeighbourTable()
+    table = NeighbourTable(0.1)
     points = np.round(rng.uniform(-1.0, 1.0, (60, 2)) * 10) / 10 + np.float32(1e-3)
     ids = rng.permutation(200)[:60]
     for robot, (x, y) in zip(ids, points):
@@ -101,7 +101,7 @@ def test_the_table_keeps_each_robots_two_newest_states_whatever_the_arrival_orde
     """States arrive late, twice and out of order (zenoh orders nothing across publishers); a lock-step
     tick steers by each robot's newest state before it, so the table must hold the two newest."""
     rng = np.random.default_rng(9)
-    table = NeighbourTable()
+    table = NeighbourTable(0.1)
     sent = {r: rng.permutation(np.repeat(np.arange(8), 2)).tolist() for r in range(5)}  # every tick twice
     for _ in range(16):
         for robot, ticks in sent.items():
@@ -113,7 +113,7 @@ def test_the_table_keeps_each_robots_two_newest_states_whatever_the_arrival_orde
 
 
 def test_robots_whose_newest_state_left_the_cells_heard_are_forgotten():
-    table = NeighbourTable()
+    table = NeighbourTable(0.1)
     for robot, x in enumerate([0.1, 0.9, 1.1, -0.1, 2.5]):
         table.update(_state(robot, x, 0.2))
     table.update(_state(4, 0.5, 0.2, tick=2))  # robot 4 came into cell (0, 0)
@@ -123,7 +123,7 @@ def test_robots_whose_newest_state_left_the_cells_heard_are_forgotten():
 
 def test_a_robot_whose_agent_died_is_not_forgotten_outside_the_cells_heard():
     # it will never speak again: forgotten, its body would be invisible when we come back near it
-    table = NeighbourTable()
+    table = NeighbourTable(0.1)
     for robot, x in enumerate([0.1, 1.1, 2.5]):
         table.update(_state(robot, x, 0.2))
     assert table.forget_outside({(0, 0)}, cell_size=1.0, keep={2}) == 1  # robot 1 only
