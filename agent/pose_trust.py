@@ -52,6 +52,7 @@ class PoseTrust:
             del self.candidate[robot]
             return (x, y, theta)
         self.candidate[robot] = _Place(tick, x, y, theta, agreeing)
+        last.tick = max(last.tick, tick - 1)  # braking, it stands: its reach does not grow while held
         self.held += 1
         return None
 

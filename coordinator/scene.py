@@ -278,6 +278,9 @@ def parse_scene_dict(
         duration = data.get("duration", sum(s.hold for s in steps) if steps else Scene.duration)
     if not _positive(duration):
         raise SceneError(f"{where}: duration must be a positive number of seconds")
+    seed = seed if seed is not None else data.get("seed", Scene.seed)
+    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
+        raise SceneError(f"{where}: seed must be a whole number >= 0, not {seed!r}")
     scene = Scene(
         name=str(data.get("name", Path(source).stem)),
         robots=n,
@@ -293,7 +296,7 @@ def parse_scene_dict(
         agents_per_process=data.get("agents_per_process", Scene.agents_per_process),
         deadline=data.get("deadline", Scene.deadline),
         duration=float(duration),
-        seed=int(seed if seed is not None else data.get("seed", Scene.seed)),
+        seed=int(seed),
         noise=_noise(data.get("noise", {}), where),
         converge_hold=float(data.get("end", {}).get("converge_hold", Scene.converge_hold)),
         source=source,
@@ -597,13 +600,14 @@ def _check_fit(scene: Scene, where: str) -> None:
             )
 
 
-EVENT_KINDS = ("teleport", "fail", "tracker-outage")
+EVENT_KINDS = ("teleport", "fail", "tracker-outage", "tracker-glitch")
 
 
 def _check_event(event: dict[str, Any], scene: Scene, where: str) -> None:
     """teleport: the world moves a robot (picked up by hand, paper 7.4.3); fail: the launcher kills the
     agent process of a robot (SIGKILL) at display time t, its body stays in the world, stopped;
-    tracker-outage: the tracker sends no pose from t for `duration` seconds (docs/faults.md)."""
+    tracker-outage: the tracker sends no pose from t for `duration` seconds; tracker-glitch: at t the
+    tracker reports the robot `offset` = [dx, dy] off for one tick (a swapped marker; docs/faults.md)."""
     kind = event.get("kind")
     if kind not in EVENT_KINDS:
         raise SceneError(f"{where}: event kind must be one of {', '.join(EVENT_KINDS)}, not {kind!r}")
@@ -619,6 +623,11 @@ def _check_event(event: dict[str, Any], scene: Scene, where: str) -> None:
     pose = event.get("pose")
     if kind == "teleport" and not (isinstance(pose, list) and len(pose) == 3):
         raise SceneError(f"{where}: teleport event needs t > 0 and pose = [x, y, theta]")
+    offset = event.get("offset")
+    if kind == "tracker-glitch" and not (
+        isinstance(offset, list) and len(offset) == 2 and all(isinstance(v, int | float) for v in offset)
+    ):
+        raise SceneError(f"{where}: tracker-glitch event needs t > 0 and offset = [dx, dy] (m)")
 
 
 def _robot_index(entry: Any, scene: Scene, where: str, key: str = "robot") -> int:

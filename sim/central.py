@@ -162,9 +162,9 @@ def simulate(
     motion: GoalMotion | None = None
     t_start = 0.0  # when the shown step started
     assigned_at: float | None = None  # when the shown goal set was last assigned
-    if any(e["kind"] in ("fail", "tracker-outage") for e in scene.events):
+    if any(e["kind"] in ("fail", "tracker-outage", "tracker-glitch") for e in scene.events):
         raise ValueError(
-            "fail and tracker-outage events (faults of processes and messages) need the distributed engine"
+            "fail and tracker events (faults of processes and messages) need the distributed engine"
         )
     events = sorted(scene.events, key=lambda e: e["t"])
     last_step = max(len(scene.steps) - 1, 0)

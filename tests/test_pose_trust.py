@@ -1,0 +1,137 @@
+"""What a message may claim (transport.plausible) and which poses a robot drives on (agent.pose_trust)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from agent.neighbour_table import NeighbourTable
+from agent.pose_trust import CONFIRM, PoseTrust
+from transport.codec import State
+from transport.plausible import AHEAD, FUTURE, INCONSISTENT, RESYNC, STALE, TickLine, stamp_agrees
+
+from .conftest import run_scene
+
+DT = 0.1
+
+
+def test_a_stamp_must_be_its_ticks_start():
+    assert stamp_agrees(1234, 123.4, DT)
+    assert not stamp_agrees(1234 + 1000, 123.4, DT)  # the tick moved, the stamp intact
+    assert not stamp_agrees(0, 1e-3, DT)
+
+
+def test_one_tick_from_the_future_never_shuts_out_the_honest_ones():
+    line = TickLine()
+    assert line.admit(10, wall=0.0, now=10) is None
+    assert line.admit(5000, wall=0.01, now=10) == FUTURE  # ahead of the receiver's clock
+    assert line.admit(10 + AHEAD + 1, wall=0.02, now=10) == FUTURE
+    assert line.admit(11, wall=0.1, now=11) is None  # the honest line goes on
+    assert line.admit(11, wall=0.11, now=11) == STALE  # a duplicate
+    assert line.admit(9, wall=0.12, now=11) == STALE  # older than what it holds
+
+
+def test_real_time_a_tick_may_not_run_ahead_of_the_wall_clock():
+    line = TickLine(period=DT)
+    assert line.admit(100, wall=50.0) is None
+    assert line.admit(100 + AHEAD + 3, wall=50.1) == FUTURE  # one period later: tick 101 at most, and AHEAD
+    assert line.admit(101, wall=50.1) is None
+    assert line.admit(120, wall=52.0) is None  # 2 s later (an outage): 20 ticks on is where the world is
+
+
+def test_a_sender_that_restarts_is_heard_again_once_its_old_line_is_silent():
+    line = TickLine(period=DT)
+    for k in range(50):
+        assert line.admit(500 + k, wall=k * DT) is None
+    last = 49 * DT
+    assert line.admit(0, wall=last + 0.1) == STALE  # a replayed old frame while the line speaks
+    assert line.admit(0, wall=last + RESYNC) is None  # the tracker restarted: counting from 0 again
+    assert line.admit(1, wall=last + RESYNC + DT) is None
+
+
+def test_a_neighbour_state_from_the_future_is_refused_and_never_pushes_out_the_honest_ones():
+    table = NeighbourTable(DT)
+    table.advance(20)
+
+    def state(tick: int, stamp: float | None = None) -> State:
+        return State(7, tick, tick * DT if stamp is None else stamp, 0.3, 0.0, 0.0, 0.0, 0.05, 0.0, 0.0, -1, 0)
+
+    assert table.update(state(19)) is None
+    for forged in (20 + AHEAD + 1, 9999, 123456):  # two of them kept as the newest used to evict the honest
+        assert table.update(state(forged)) == FUTURE
+    assert table.update(state(1000, stamp=19 * DT)) == FUTURE
+    assert table.update(state(20, stamp=55.0)) == INCONSISTENT
+    assert table.update(state(20)) is None
+    assert [s.tick for s in table.latest_before(21)] == [20]
+    table.advance(3)  # the clock went back: the tracker restarted
+    assert len(table) == 0 and table.update(state(2)) is None
+
+
+def test_a_pose_jumping_half_a_metre_for_one_tick_is_held_and_the_robot_resumes():
+    trust = PoseTrust(v_max=0.13, dt=DT, slack=0.02)
+    assert trust.judge(3, 10, 0.0, 0.0, 0.0) == (0.0, 0.0, 0.0)
+    assert trust.judge(3, 11, 0.01, 0.0, 0.0) is not None  # 1 cm in a period: driven
+    assert trust.judge(3, 12, 0.51, 0.0, 0.0) is None  # a swapped marker: brake
+    assert trust.last(3) == (0.01, 0.0, 0.0)
+    assert trust.judge(3, 13, 0.012, 0.0, 0.0) is not None  # the marker is back
+    assert trust.held == 1
+
+
+def test_a_robot_really_moved_is_taken_at_its_new_place_once_its_poses_agree():
+    trust = PoseTrust(v_max=0.13, dt=DT, slack=0.02)
+    trust.judge(0, 0, 0.0, 0.0, 0.0)
+    place = [trust.judge(0, k, 0.6, 0.2, 1.0) for k in range(1, 1 + CONFIRM)]
+    assert place[:-1] == [None] * (CONFIRM - 1) and place[-1] == (0.6, 0.2, 1.0)
+    assert trust.judge(0, CONFIRM + 1, 0.61, 0.2, 1.0) is not None
+
+
+def test_glitches_that_do_not_agree_with_each_other_are_never_believed():
+    trust = PoseTrust(v_max=0.13, dt=DT, slack=0.02)
+    trust.judge(0, 0, 0.0, 0.0, 0.0)
+    for k in range(1, 40):
+        angle = 2.4 * k  # never two places in a row within reach of each other
+        assert trust.judge(0, k, 0.5 * math.cos(angle), 0.5 * math.sin(angle), 0.0) is None
+    assert trust.last(0) == (0.0, 0.0, 0.0)
+
+
+# Four robots abreast cross the display; the tracker reports robot 1 where robot 3 is for one tick.
+GLITCH_SCENE = """
+name = "glitch"
+robots = 4
+seed = 2
+clock = "lockstep"
+duration = 12.0
+[robot]
+kinematics = "{kinematics}"
+[layout]
+kind = "list"
+poses = [[-0.375, -0.6, 1.5708], [-0.125, -0.6, 1.5708], [0.125, -0.6, 1.5708], [0.375, -0.6, 1.5708]]
+[goals]
+kind = "list"
+positions = [[-0.375, 0.6], [-0.125, 0.6], [0.125, 0.6], [0.375, 0.6]]
+{events}
+"""
+GLITCH_AT, GLITCH_ROBOT = 3.0, 1
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kinematics", ["holonomic", "diffdrive"])
+def test_a_swapped_marker_on_the_simulated_tracker_brakes_the_robot_without_contact_or_detour(tmp_path, kinematics):
+    """The world's tracker reports one robot 0.5 m off for one tick, on top of another robot: the
+    robot brakes for that tick, resumes, and its path is the path of the same run without the glitch."""
+    events = f'[[events]]\nkind = "tracker-glitch"\nt = {GLITCH_AT}\nrobot = {GLITCH_ROBOT}\noffset = [0.5, 0.0]'
+    m0, clean = run_scene(tmp_path, GLITCH_SCENE.format(kinematics=kinematics, events=""), name="clean")
+    m1, glitched = run_scene(tmp_path, GLITCH_SCENE.format(kinematics=kinematics, events=events), name="glitched")
+    assert m0["contacts"] == 0 and m1["contacts"] == 0
+    assert m0["converged"] and m1["converged"]
+    t, speed = glitched["t"], np.hypot(*glitched["velocity"][:, GLITCH_ROBOT].T)
+    at = int(np.argmin(np.abs(t - GLITCH_AT)))
+    assert speed[at - 1] > 0.02  # it was on its way ...
+    assert speed[at] == 0.0 or speed[at + 1] == 0.0  # ... braked for the glitch ...
+    assert speed[at + 3] > 0.02  # ... and drove on
+    path = glitched["pose"][:, GLITCH_ROBOT, :2]
+    reference = clean["pose"][:, GLITCH_ROBOT, :2]
+    off_path = np.min(np.hypot(*(path[:, None, :] - reference[None, :, :]).transpose(2, 0, 1)), axis=1)
+    assert off_path.max() < 0.02, f"a detour of {off_path.max():.3f} m"
