@@ -41,6 +41,13 @@ def test_real_time_a_tick_may_not_run_ahead_of_the_wall_clock():
     assert line.admit(120, wall=52.0) is None  # 2 s later (an outage): 20 ticks on is where the world is
 
 
+def test_real_time_a_first_tick_that_came_late_does_not_hold_back_the_ticks_queued_behind_it():
+    line = TickLine(period=DT)
+    assert line.admit(100, wall=5.0) is None  # taken half a second late, with five more queued behind it
+    assert [line.admit(100 + k, wall=5.0 + 0.001 * k) for k in range(1, 6)] == [None] * 5
+    assert line.admit(106, wall=5.1) is None
+
+
 def test_a_sender_that_restarts_is_heard_again_once_its_old_line_is_silent():
     line = TickLine(period=DT)
     for k in range(50):

@@ -45,13 +45,15 @@ class TickLine:
 
     def admit(self, tick: int, wall: float, now: float | None = None) -> str | None:
         fresh = self.newest is None or wall - self.heard_at >= RESYNC
-        if now is None and self.period is not None and not fresh:
+        walled = now is None and self.period is not None and not fresh
+        if walled:
             now = self._began[0] + (wall - self._began[1]) / self.period
         if now is not None and tick > now + AHEAD:
             return FUTURE
         if not fresh and self.newest is not None and tick <= self.newest:
             return STALE
-        if fresh:
+        if fresh or (walled and now is not None and tick > now):
+            # a new line, or ticks that came sooner than the first did (it was late): count from here
             self._began = (tick, wall)
         self.newest, self.heard_at = tick, wall
         return None
