@@ -833,6 +833,8 @@ class Truth(Message):
     def _from(cls, body: memoryview) -> Truth:
         (tick, stamp, min_clearance, count), items = _fixed_and_items(body, cls._fixed, cls.RECORD)
         _finite(stamp)
+        if math.isnan(min_clearance) or min_clearance == -math.inf:  # +inf with one robot; never NaN or -inf
+            raise Malformed("non-finite")
         if not (np.all(np.isfinite(items["pose"])) and np.all(np.isfinite(items["vel"]))):
             raise Malformed("non-finite")
         return cls(
