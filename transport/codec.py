@@ -884,7 +884,7 @@ class Event(Message):
     @classmethod
     def _from(cls, body: memoryview) -> Event:
         try:
-            data = json.loads(bytes(body), parse_constant=_reject_constant)
+            data = json.loads(bytes(body), parse_constant=_reject_constant, parse_float=_finite_float)
         except Malformed:
             raise
         except (ValueError, UnicodeDecodeError) as err:
@@ -899,6 +899,14 @@ class Event(Message):
 
 def _reject_constant(name: str) -> None:
     raise Malformed("non-finite")
+
+
+def _finite_float(text: str) -> float:
+    """A JSON number as a float; one too large for a float (1e999) is an infinity, dropped as NaN is."""
+    value = float(text)
+    if not math.isfinite(value):
+        raise Malformed("non-finite")
+    return value
 
 
 MESSAGE_TYPES: dict[int, type[Message]] = {
