@@ -421,9 +421,10 @@ class Goals(Message):
         if len(goal_set) < end or (len(goal_set) - end) % 2:
             raise Malformed("truncated")
         items = np.frombuffer(goal_set[cls._set.size : end], cls.RECORD)
-        positions = np.stack([items["x"], items["y"]], axis=1).astype(float)
-        if not np.all(np.isfinite(positions)):
+        # finite before the cast to float64: a signalling NaN warns in the cast
+        if not (np.isfinite(items["x"]).all() and np.isfinite(items["y"]).all()):
             raise Malformed("non-finite")
+        positions = np.stack([items["x"], items["y"]], axis=1).astype(float)
         robots = np.frombuffer(goal_set[end:], "<u2").astype(np.int64)
         msg = cls(epoch, per_robot, positions, items["rgb"].copy(), robots)
         seen = {cls.PART}
