@@ -578,7 +578,9 @@ class Boards(Message):
         return (self.epoch, self.instance, self.sender, self.serial, self.goals, self.robots, len(self.words))
 
     def _tail(self) -> bytes:
-        known = np.asarray(self.known, np.uint8).reshape(-1, (self.robots + 7) // 8)
+        row = (self.robots + 7) // 8
+        known = np.asarray(self.known, np.uint8)
+        known = known.reshape(-1, row) if row else known.reshape(0, 0)  # numpy infers no rows of width 0
         return (
             np.asarray(self.words, self.WORD).tobytes()
             + known.tobytes()
