@@ -107,10 +107,18 @@ class Inbox(Generic[T]):
         self.bytes += len(payload)
         return payload
 
-    def _records(self, payload: bytes) -> tuple[int, list] | None:
-        """A frame's (tick, records), only those of robots ``only`` if given; None if malformed."""
+    def _records(self, payload: bytes, key: str) -> tuple[int, list] | None:
+        """A frame's (tick, records), only those of robots ``only`` if given; None if malformed, or
+        if the key names one robot and the frame holds anything but that robot's record (a damaged
+        robot id would make one robot's pose or state another's)."""
         got = decode_views(payload, cast("type[Frame]", self.frame), self.drops)
-        if got is None or self.only is None:
+        if got is None:
+            return None
+        alone = Keys.robot_alone(key)
+        if alone is not None and (len(got[1]) != 1 or got[1][0].robot != alone):
+            self.drops["misaddressed"] += 1
+            return None
+        if self.only is None:
             return got
         return got[0], [v for v in got[1] if v.robot in self.only]
 
@@ -121,12 +129,13 @@ class Inbox(Generic[T]):
             if msg is not None:
                 self._deliver(str(sample.key_expr), [cast(T, msg)])
             return
-        got = self._records(payload)
+        key = str(sample.key_expr)
+        got = self._records(payload, key)
         if got is None:
             return
         tick, views = got
         try:
-            self._deliver(str(sample.key_expr), views)
+            self._deliver(key, views)
         finally:  # after the records are queued, held or dropped: whoever waits on seen finds them
             if self.seen is not None and tick != BEFORE_START:  # not hellos
                 for v in views:
@@ -213,7 +222,7 @@ class Inbox(Generic[T]):
         out: list[T] = []
         for sub in self.channels:
             while (sample := sub.try_recv()) is not None:
-                got = self._records(self._payload(sample))
+                got = self._records(self._payload(sample), str(sample.key_expr))
                 if got is not None:
                     out += got[1]
         return out

@@ -150,6 +150,15 @@ class Keys:
         return parts[0]
 
     @staticmethod
+    def robot_alone(key: str) -> int | None:
+        """The robot a key names as the one robot its frames hold (``pose/<id>``,
+        ``state/<cx>/<cy>/<id>``), None for keys of several robots' frames or of other kinds."""
+        parts = key.rsplit("/", 4)
+        if (len(parts) >= 3 and parts[-2] == "pose") or (len(parts) == 5 and parts[-4] == "state"):
+            return Keys.last_id(key)
+        return None
+
+    @staticmethod
     def last_id(key: str) -> int | None:
         """The trailing robot id of a key, None if it is not a number."""
         tail = key.rsplit("/", 1)[-1]

@@ -46,7 +46,7 @@ class TickLine:
     def admit(self, tick: int, wall: float, now: float | None = None) -> str | None:
         fresh = self.newest is None or wall - self.heard_at >= RESYNC
         walled = now is None and self.period is not None and not fresh
-        if walled:
+        if walled and self.period is not None:
             now = self._began[0] + (wall - self._began[1]) / self.period
         if now is not None and tick > now + AHEAD:
             return FUTURE
