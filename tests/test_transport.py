@@ -545,3 +545,22 @@ def test_resent_hellos_get_through_a_lossy_lock_step_inbox(router):
         got = _collect(inbox, 1, timeout=2.0)
         assert got and got[0][1].tick == BEFORE_START
         assert 0 < inbox.drops["fault"] < 12
+
+
+def test_a_frame_on_a_key_naming_one_robot_holds_that_robots_record_alone(router):
+    """A damaged robot id would make one robot's pose or state another's: refused as misaddressed,
+    by the callback inbox and the pulled one alike."""
+    with Bus(client_of(router), "t") as a, Bus(client_of(router), "t") as b:
+        poses = b.inbox(Pose)
+        b.subscribe_into(b.keys.pose(3), poses)
+        states = b.inbox(State, pulled=True)
+        b.subscribe_into(b.keys.state_cell((0, 0)), states)
+        time.sleep(0.3)
+        a.publish(a.keys.pose(3), Poses.one(Pose(5, 1, 0.1, 0.2, 0.0, 0.0)))  # robot 5's pose under robot 3's key
+        a.publish_poses(1, 0.1, np.array([3, 5]), np.zeros((2, 3)), frame=False)  # each under its own key
+        a.publish(a.keys.state((0, 0), 4), States.one(State(6, 1, 0.1, 0, 0, 0, 0, 0.045, 0, 0, -1, 0)))
+        a.publish(a.keys.state((0, 0), 4), States.one(State(4, 1, 0.1, 0, 0, 0, 0, 0.045, 0, 0, -1, 0)))
+        time.sleep(0.3)
+        assert [(p.robot, p.x) for _, p in poses.drain()] == [(3, 0.0)]
+        assert [s.robot for s in states.take()] == [4]
+        assert poses.drops["misaddressed"] == 1 and states.drops["misaddressed"] == 1
