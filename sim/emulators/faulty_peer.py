@@ -1,0 +1,529 @@
+"""A faulty peer on an open bus (issue 40): it hears a display's messages and re-publishes damaged
+copies of them, about ``rate`` a second, on the keys it heard them on.
+
+    python -m sim.emulators.faulty_peer -e tcp/127.0.0.1:PORT [--display NAME] --mode MODE
+        [--rate 350] [--duration S] [--start-after S] [--seed N]
+
+It opens a zenoh client session of its own (multicast scouting off), subscribes to what its mode
+damages under ``px/<display>/`` (leaving out its own copies, which it hears back), waits for the
+run's first clock tick, then ``--start-after`` seconds more, and damages for ``--duration`` seconds
+(default: until SIGTERM or SIGINT). It ends with one line on stdout: the copies it sent, per key kind and per damage.
+
+Modes (each mutates only what it says; the layouts are transport/codec.py's, docs/protocol.md):
+
+- ``future-pose``, ``future-state``, ``future-cmd``: pose, state or command frames whose tick (the
+  u32 after the two-byte header) is moved into the future by 1..10000 ticks, the rest intact
+  (frames of tick BEFORE_START are left alone).
+- ``malformed-pose``: pose frames truncated, extended, with a header byte (kind, version), the count
+  (for a frame: its length no longer a whole number of records) or random bytes overwritten
+  (``--damage`` picks some of these: truncated, extended, header, count, random). Most copies fail
+  to decode; some do not: a frame cut to its fixed part (no record), extended by whole records,
+  or with random bytes in its values (a forged record).
+- ``malformed-all``: every key kind of the bus (pose, state, cmd, goals, auction, boards, clock,
+  event; with ``--include-sim`` also sim/truth and sim/contact) damaged the same ways; a goal set's,
+  bid's, board word's or truth's count field is overwritten where it has one.
+- ``stale-cmd``: commands re-sent unchanged 2 s or more after the peer first heard them.
+- ``misc``: clock ticks, goal sets, bids and boards, malformed (as above) or future-stamped (a
+  clock's tick, stamp or goal epoch; a goal set's epoch or timing stamp; a bid's or board's epoch or
+  serial (round), moved forward).
+- ``restart``: pose, state and command frames as a restarted sender would send them: the tick
+  replaced by one counting from 0 again (10 a second of wall time since the peer's last
+  "restart", one every 10 s), only when that is behind the tick it replaces.
+- ``all``: each copy from one of future-pose, future-state, future-cmd, malformed-all, stale-cmd,
+  misc and restart, drawn at random among those that have something to send.
+
+Importable: ``FaultyPeer(settings, display, mode, ...)``; ``run(stop)`` blocks (tests run it in a
+thread, or the module as a subprocess), ``summary()`` is the last line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import random
+import signal
+import struct
+import sys
+import threading
+import time
+from collections import Counter, deque
+from collections.abc import Callable
+from types import FrameType
+
+from transport.bus import Bus, RawInbox
+from transport.codec import BEFORE_START
+from transport.keys import Keys
+from transport.session import ZENOH_HELP, TransportError, ZenohSettings
+
+FRAME_KINDS = ("pose", "state", "cmd")
+MISC_KINDS = ("clock", "goals", "auction", "boards")
+BUS_KINDS = ("pose", "state", "cmd", "goals", "auction", "boards", "clock", "event")
+SIM_KINDS = ("sim/truth", "sim/contact")
+# the sub-modes ``all`` draws from (malformed-all covers malformed-pose)
+ALL_OF = ("future-pose", "future-state", "future-cmd", "malformed-all", "stale-cmd", "misc", "restart")
+MODES = ("future-pose", "future-state", "future-cmd", "malformed-pose", "malformed-all", "stale-cmd", "misc", "restart")
+MODES_AND_ALL = (*MODES, "all")
+
+STALE_AFTER = 2.0  # s: a command is re-sent unchanged only this long after it was first heard
+FUTURE_MAX = 10_000  # ticks: how far a future tick (epoch, serial) goes at most
+RESTART_EVERY = 10.0  # s of wall time between the imitated sender's restarts
+RESTART_RATE = 10.0  # ticks a second the restarted sender counts
+BUFFER = 256  # recent messages kept per key kind
+
+_U32 = struct.Struct("<I")
+_F32 = struct.Struct("<f")
+_F64 = struct.Struct("<d")
+_TICK_AT = 2  # frames and clock ticks: the u32 tick right after the header
+_FRAME_FIXED = 14  # header, tick, stamp
+_RECORD_SIZE = {"pose": 16, "cmd": 16, "state": 45}
+# where a kind's count fields lie (byte offsets of u32s in the message)
+_COUNT_AT = {"auction": (26,), "boards": (18, 22, 26), "sim/truth": (18,)}
+_GOALS_SET_AT = 8  # goal set part body: epoch u32, per_robot u8, count u32
+_PART_HEADER = struct.Struct("<BBI")
+
+
+def kinds_of(mode: str, include_sim: bool = False) -> tuple[str, ...]:
+    """The key kinds a mode damages."""
+    kinds: tuple[str, ...]
+    if mode == "all":
+        kinds = BUS_KINDS
+    elif mode in ("future-pose", "malformed-pose"):
+        kinds = ("pose",)
+    elif mode == "future-state":
+        kinds = ("state",)
+    elif mode in ("future-cmd", "stale-cmd"):
+        kinds = ("cmd",)
+    elif mode == "malformed-all":
+        kinds = BUS_KINDS
+    elif mode == "misc":
+        kinds = MISC_KINDS
+    elif mode == "restart":
+        kinds = FRAME_KINDS
+    else:
+        raise ValueError(f"unknown mode {mode!r}: one of {', '.join(MODES_AND_ALL)}")
+    return kinds + SIM_KINDS if include_sim and mode in ("malformed-all", "all") else kinds
+
+
+# --- damage: each takes a message and returns its damaged copy, or None where it does not apply ---
+
+
+def _get_u32(data: bytes, at: int) -> int:
+    return _U32.unpack_from(data, at)[0]
+
+
+def _put(data: bytes, at: int, packed: bytes) -> bytes:
+    return data[:at] + packed + data[at + len(packed) :]
+
+
+def _forward_u32(data: bytes, at: int, rng: random.Random, skip_before_start: bool = False) -> bytes | None:
+    """The u32 at ``at`` moved forward by 1..FUTURE_MAX (not past 0xFFFFFFFE)."""
+    if len(data) < at + 4:
+        return None
+    value = _get_u32(data, at)
+    if value >= BEFORE_START - 1 or (skip_before_start and value == BEFORE_START):
+        return None
+    return _put(data, at, _U32.pack(min(value + rng.randint(1, FUTURE_MAX), BEFORE_START - 1)))
+
+
+def future_tick(data: bytes, rng: random.Random) -> bytes | None:
+    """A frame (or clock tick) with its tick moved into the future, the rest intact."""
+    if len(data) < _FRAME_FIXED:
+        return None
+    return _forward_u32(data, _TICK_AT, rng, skip_before_start=True)
+
+
+def truncate(data: bytes, rng: random.Random, kind: str = "") -> bytes | None:
+    return data[: rng.randrange(len(data))] if data else None
+
+
+def extend(data: bytes, rng: random.Random, kind: str = "") -> bytes | None:
+    return data + rng.randbytes(rng.randint(1, 32))
+
+
+def overwrite_header(data: bytes, rng: random.Random, kind: str = "") -> bytes | None:
+    """The kind byte, the version byte or both overwritten with other values."""
+    if len(data) < 2:
+        return None
+    out = bytearray(data)
+    for at in rng.choice(((0,), (1,), (0, 1))):
+        out[at] = (out[at] + rng.randint(1, 255)) % 256
+    return bytes(out)
+
+
+def overwrite_count(data: bytes, rng: random.Random, kind: str = "") -> bytes | None:
+    """A count field overwritten; a frame (whose count is its length) a part of a record short or
+    long; a kind without one, random bytes (overwrite_random)."""
+    places: tuple[int, ...] = _COUNT_AT.get(kind, ())
+    if kind == "goals" and len(data) >= _GOALS_SET_AT + 9:
+        places = (4, _GOALS_SET_AT + 5)  # the goal set part's length, its count of goals
+    if kind in _RECORD_SIZE:
+        size = _RECORD_SIZE[kind]
+        if len(data) < _FRAME_FIXED:
+            return None
+        cut = rng.randint(1, size - 1)
+        if rng.random() < 0.5 and len(data) - _FRAME_FIXED >= cut:
+            return data[: len(data) - cut]
+        return data + rng.randbytes(cut)
+    places = tuple(at for at in places if at + 4 <= len(data))
+    if not places:
+        return overwrite_random(data, rng, kind)
+    at = rng.choice(places)
+    old = _get_u32(data, at)
+    new = rng.choice((0, 0xFFFFFFFF, rng.getrandbits(32), (old + rng.randint(1, 3)) % 2**32, max(old - 1, 0)))
+    if new == old:
+        new = (old + 1) % 2**32
+    return _put(data, at, _U32.pack(new))
+
+
+def overwrite_random(data: bytes, rng: random.Random, kind: str = "") -> bytes | None:
+    """1 to 4 bytes anywhere overwritten with other values."""
+    if not data:
+        return None
+    out = bytearray(data)
+    for _ in range(rng.randint(1, 4)):
+        at = rng.randrange(len(out))
+        out[at] = (out[at] + rng.randint(1, 255)) % 256
+    return bytes(out)
+
+
+MALFORM: dict[str, Callable[..., bytes | None]] = {
+    "truncated": truncate,
+    "extended": extend,
+    "header": overwrite_header,
+    "count": overwrite_count,
+    "random": overwrite_random,
+}
+
+
+def _goals_timing_stamp_at(data: bytes) -> int | None:
+    """Where a goal set's timing part (part 2) keeps its stamp (f64), None if it has none."""
+    at = 2
+    while at + _PART_HEADER.size <= len(data):
+        kind, _, length = _PART_HEADER.unpack_from(data, at)
+        at += _PART_HEADER.size
+        if kind == 2 and length >= 8 and at + 8 <= len(data):
+            return at
+        at += length
+    return None
+
+
+def future_stamp(data: bytes, rng: random.Random, kind: str) -> tuple[str, bytes | None]:
+    """A clock tick, goal set, bid or board with one of its time-like fields moved forward: the
+    field's name and the copy."""
+    if kind == "clock":
+        field = rng.choice(("tick", "stamp", "goal_epoch"))
+        if len(data) < 22:
+            return field, None
+        if field == "tick":
+            return field, _forward_u32(data, 2, rng)
+        if field == "stamp":
+            dt = _F32.unpack_from(data, 14)[0] or 0.1
+            stamp = _F64.unpack_from(data, 6)[0]
+            return field, _put(data, 6, _F64.pack(stamp + rng.randint(1, FUTURE_MAX) * dt))
+        return field, _forward_u32(data, 18, rng)
+    if kind == "goals":
+        if rng.random() < 0.5:
+            return "epoch", _forward_u32(data, _GOALS_SET_AT, rng) if len(data) >= _GOALS_SET_AT + 9 else None
+        at = _goals_timing_stamp_at(data)
+        if at is None:
+            return "stamp", None
+        stamp = _F64.unpack_from(data, at)[0]
+        return "stamp", _put(data, at, _F64.pack(stamp + rng.uniform(1.0, 1000.0)))
+    if kind in ("auction", "boards"):
+        field, at = rng.choice((("epoch", 2), ("serial", 14)))
+        return field, _forward_u32(data, at, rng)
+    return "", None
+
+
+class FaultyPeer:
+    """Hears a display's messages and re-publishes damaged copies of them (see the module's text)."""
+
+    def __init__(
+        self,
+        settings: ZenohSettings,
+        display: str = "default",
+        mode: str = "all",
+        rate: float = 350.0,
+        duration: float | None = None,
+        start_after: float = 0.0,
+        seed: int = 0,
+        include_sim: bool = False,
+        connect_wait: float = 60.0,
+        damages: tuple[str, ...] = tuple(MALFORM),
+    ) -> None:
+        self.kinds = kinds_of(mode, include_sim)
+        unknown = set(damages) - set(MALFORM)
+        if unknown or not damages:
+            raise ValueError(f"damages must be some of {', '.join(MALFORM)}, not {sorted(unknown) or 'none'}")
+        self.damages = tuple(damages)
+        if rate <= 0:
+            raise ValueError("rate must be positive")
+        self.settings = ZenohSettings(
+            mode="client" if settings.mode == "router" else settings.mode,
+            connect=list(settings.connect),
+            listen=list(settings.listen),
+            multicast_scouting=settings.multicast_scouting,
+            config_file=settings.config_file,
+        )
+        self.keys = Keys(display)
+        self.mode, self.rate, self.duration, self.start_after = mode, rate, duration, start_after
+        self.rng = random.Random(seed)
+        self.connect_wait = connect_wait
+        self.heard: dict[str, deque[tuple[str, bytes]]] = {k: deque(maxlen=BUFFER) for k in self.kinds}
+        self.heard_count: Counter[str] = Counter()
+        self.cmd_fresh: deque[tuple[float, str, bytes]] = deque(maxlen=100_000)  # stale-cmd: heard < 2 s ago (wall)
+        self.cmd_old: deque[tuple[str, bytes]] = deque(maxlen=2000)  # heard 2 s ago or more
+        self.first_tick_wall: float | None = None
+        self.started: float | None = None  # wall (monotonic) time damage began
+        self.ended: float | None = None
+        self.sent: Counter[str] = Counter()  # per key kind
+        self.damage: Counter[str] = Counter()  # per sub-mode/damage
+        self.skipped = 0  # slots with nothing to damage
+        self.restart_at = 0.0
+        self._own: set[bytes] = set()  # copies sent lately (the subscriptions hear them back)
+        self._own_order: deque[bytes] = deque(maxlen=8192)
+
+    # --- hearing ----------------------------------------------------------------------------
+    def hear(self, inboxes: list[RawInbox]) -> None:
+        """Keep what the subscriptions brought (not the peer's own copies, which it hears too)."""
+        for inbox in inboxes:
+            for key, data, wall in inbox.drain():
+                if data in self._own:
+                    continue
+                kind = self.keys.kind_of(key)
+                if kind == "clock" and self.first_tick_wall is None:
+                    self.first_tick_wall = time.monotonic()
+                buffer = self.heard.get(kind)
+                if buffer is None:
+                    continue
+                self.heard_count[kind] += 1
+                buffer.append((key, data))
+                if kind == "cmd" and self.mode in ("stale-cmd", "all"):
+                    self.cmd_fresh.append((wall, key, data))
+
+    def _age_commands(self) -> None:
+        now = time.time()  # the subscriptions' clock
+        while self.cmd_fresh and now - self.cmd_fresh[0][0] >= STALE_AFTER:
+            _, key, data = self.cmd_fresh.popleft()
+            self.cmd_old.append((key, data))
+
+    def _sent_copy(self, payload: bytes) -> None:
+        """Remember a copy sent, so that hearing it back is not hearing the display."""
+        if len(self._own_order) == self._own_order.maxlen:
+            self._own.discard(self._own_order[0])
+        self._own_order.append(payload)
+        self._own.add(payload)
+
+    @staticmethod
+    def _pick(buffer: deque, rng: random.Random) -> tuple | None:
+        try:
+            return buffer[rng.randrange(len(buffer))] if buffer else None
+        except IndexError:  # an empty buffer
+            return None
+
+    # --- one damaged copy -------------------------------------------------------------------
+    def _available(self, sub: str) -> bool:
+        if sub == "stale-cmd":
+            return bool(self.cmd_old)
+        return any(self.heard.get(k) for k in (self.kinds if sub == "malformed-all" else kinds_of(sub)))
+
+    def make_copy(self, now: float) -> tuple[str, bytes, str, str] | None:
+        """(key, payload, key kind, damage) of one damaged copy, None if there is nothing to damage."""
+        sub = self.mode
+        if sub == "all":
+            choices = [s for s in ALL_OF if self._available(s)]
+            if not choices:
+                return None
+            sub = self.rng.choice(choices)
+        for _ in range(8):  # a drawn message the damage does not apply to: draw another
+            got = self._copy_of(sub, now)
+            if got is not None:
+                return got
+        return None
+
+    def _copy_of(self, sub: str, now: float) -> tuple[str, bytes, str, str] | None:
+        rng = self.rng
+        if sub == "stale-cmd":
+            picked = self._pick(self.cmd_old, rng)
+            return None if picked is None else (picked[0], picked[1], "cmd", "stale-cmd")
+        candidates = self.kinds if sub == "malformed-all" else kinds_of(sub)
+        kinds = [k for k in candidates if self.heard.get(k)]
+        if not kinds:
+            return None
+        kind = rng.choice(kinds)
+        picked = self._pick(self.heard[kind], rng)
+        if picked is None:
+            return None
+        key, data = picked
+        if sub.startswith("future-"):
+            out, what = future_tick(data, rng), sub
+        elif sub in ("malformed-pose", "malformed-all"):
+            name = rng.choice(self.damages)
+            out, what = MALFORM[name](data, rng, kind), f"malformed:{name}"
+        elif sub == "misc":
+            if rng.random() < 0.5:
+                name = rng.choice(self.damages)
+                out, what = MALFORM[name](data, rng, kind), f"malformed:{name}"
+            else:
+                field, out = future_stamp(data, rng, kind)
+                what = f"future:{field}"
+        elif sub == "restart":
+            out, what = self._restarted(key, data, now), "restart"
+        else:
+            raise ValueError(sub)
+        if out is None or out == data:
+            return None
+        return key, out, kind, what
+
+    def _restarted(self, key: str, data: bytes, now: float) -> bytes | None:
+        """The frame with its tick replaced by a restarted sender's (counting from 0 since its restart)."""
+        if len(data) < _FRAME_FIXED:
+            return None
+        if now - self.restart_at >= RESTART_EVERY:
+            self.restart_at = now
+        tick = int((now - self.restart_at) * RESTART_RATE)
+        real = _get_u32(data, _TICK_AT)
+        if real == BEFORE_START or tick >= real:
+            return None
+        return _put(data, _TICK_AT, _U32.pack(tick))
+
+    # --- running ----------------------------------------------------------------------------
+    def _open(self, stop: threading.Event) -> Bus:
+        end = time.monotonic() + self.connect_wait
+        while True:
+            try:
+                return Bus(self.settings, self.keys.display, name="faulty-peer")
+            except TransportError:
+                if time.monotonic() >= end or stop.is_set():
+                    raise
+                stop.wait(0.5)
+
+    def run(self, stop: threading.Event | None = None) -> Counter[str]:
+        """Hear, wait for the first tick (and start_after), damage until duration or ``stop``."""
+        stop = stop or threading.Event()
+        bus = self._open(stop)
+        try:
+            inboxes = [
+                bus.subscribe_raw(self.keys.clock if kind == "clock" else self.keys.all_of(kind))
+                for kind in sorted(set(self.kinds) | {"clock"})
+            ]
+            while not stop.is_set() and (
+                self.first_tick_wall is None or time.monotonic() < self.first_tick_wall + self.start_after
+            ):
+                self.hear(inboxes)
+                stop.wait(0.02)
+            self.started = time.monotonic()
+            self.restart_at = self.started
+            slots = 0
+            while not stop.is_set():
+                now = time.monotonic()
+                if self.duration is not None and now >= self.started + self.duration:
+                    break
+                self.hear(inboxes)
+                self._age_commands()
+                due = int((now - self.started) * self.rate)
+                slots = max(slots, due - int(self.rate))  # at most 1 s behind: no bursts after a stall
+                while slots < due:
+                    slots += 1
+                    copy = self.make_copy(now)
+                    if copy is None:
+                        self.skipped += 1
+                        continue
+                    key, payload, kind, what = copy
+                    self._sent_copy(payload)
+                    bus.put(key, payload, kind)
+                    self.sent[kind] += 1
+                    self.damage[what] += 1
+                stop.wait(0.01)
+            self.ended = time.monotonic()
+        finally:
+            bus.linger()
+            bus.close()
+        return self.sent
+
+    def summary(self) -> str:
+        seconds = (self.ended or time.monotonic()) - self.started if self.started is not None else 0.0
+        total = sum(self.sent.values())
+        per_kind = " ".join(f"{k}={v}" for k, v in sorted(self.sent.items())) or "-"
+        per_damage = " ".join(f"{k}={v}" for k, v in sorted(self.damage.items())) or "-"
+        return (
+            f"faulty-peer: mode {self.mode}, sent {total} in {seconds:.1f} s "
+            f"({total / seconds if seconds > 0 else 0:.0f}/s); by kind: {per_kind}; by damage: {per_damage}; "
+            f"heard {sum(self.heard_count.values())}; nothing to damage {self.skipped}"
+        )
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m sim.emulators.faulty_peer", description="A faulty peer: re-publishes damaged copies."
+    )
+    parser.add_argument("--display", default="default", help="display name (key prefix)")
+    parser.add_argument("--mode", choices=MODES_AND_ALL, required=True, help="what to damage and how")
+    parser.add_argument("--rate", type=float, default=350.0, help="damaged copies a second (default 350)")
+    parser.add_argument("--duration", type=float, default=None, help="seconds of damage (default: until stopped)")
+    parser.add_argument(
+        "--start-after", type=float, default=0.0, help="seconds after the run's first clock tick before damage begins"
+    )
+    parser.add_argument("--seed", type=int, default=0, help="random seed")
+    parser.add_argument(
+        "--include-sim", action="store_true", help="malformed-all, all: damage sim/truth and sim/contact too"
+    )
+    parser.add_argument(
+        "--damage",
+        default=",".join(MALFORM),
+        help=f"the malformed modes' damages, comma-separated (default {','.join(MALFORM)})",
+    )
+    parser.add_argument(
+        "--connect-wait", type=float, default=60.0, help="seconds to keep trying to reach the router (default 60)"
+    )
+    # zenoh: a client of the run's router (-m is not offered: --mode is the peer's)
+    parser.add_argument(
+        "-e", "--connect", action="append", default=[], metavar="ENDPOINT", help=ZENOH_HELP["--connect"]
+    )
+    parser.add_argument("--zenoh-config", metavar="FILE", help=ZENOH_HELP["--zenoh-config"])
+    parser.add_argument(
+        "--multicast-scouting", action="store_true", default=False, help=ZENOH_HELP["--multicast-scouting"]
+    )
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    settings = ZenohSettings(
+        mode="client",
+        connect=list(args.connect),
+        multicast_scouting=args.multicast_scouting,
+        config_file=args.zenoh_config,
+    )
+    if not settings.connect:
+        print("faulty-peer: give the router with -e tcp/HOST:PORT", file=sys.stderr)
+        return 2
+    peer = FaultyPeer(
+        settings,
+        display=args.display,
+        mode=args.mode,
+        rate=args.rate,
+        duration=args.duration,
+        start_after=args.start_after,
+        seed=args.seed,
+        include_sim=args.include_sim,
+        connect_wait=args.connect_wait,
+        damages=tuple(d for d in args.damage.split(",") if d),
+    )
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    try:
+        peer.run(stop)
+    except TransportError as err:
+        print(f"faulty-peer: {err}", file=sys.stderr)
+        return 1
+    print(peer.summary(), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
