@@ -30,7 +30,7 @@ import numpy as np
 from transport.bus import Bus
 from transport.codec import BEFORE_START, Command, Commands, Event, Goals, Pose, State, States, Tick
 from transport.keys import cell_of, cells_of
-from transport.plausible import INCONSISTENT, TickLine, stamp_agrees
+from transport.plausible import FUTURE, INCONSISTENT, TickLine, goal_set_believable, stamp_agrees
 
 from .assignment import AuctionLink
 from .core.bidder import bid_position
@@ -329,12 +329,23 @@ class AgentHost:
     # --- messages -----------------------------------------------------------------------------
     def _hear_goals(self, goals: Goals) -> None:
         """A goal set heard. Lock-step holds a new one until the tick that takes it up
-        (_take_up_goal_sets), so that every host takes it up at the same tick."""
+        (_take_up_goal_sets), so that every host takes it up at the same tick. One whose epoch or
+        stamp lies beyond what the robots know is refused: taken as the newest, it shut out the
+        coordinator's real ones and froze the show on its image."""
+        if not goal_set_believable(goals.epoch, goals.timing.stamp, self.newest_heard, self._display_time()):
+            self.goal_inbox.drops[FUTURE] += 1
+            return
         self.newest_heard = max(self.newest_heard, goals.epoch)
         if self.config.lockstep and not goals.per_robot and goals.epoch > max(self.goal_sets, default=0):
             self.held[goals.epoch] = goals
             return
         self._on_goals(goals)
+
+    def _display_time(self) -> float | None:
+        """The newest display time the robots know: the lock-step clock, else their newest pose."""
+        if self.clock_line.newest is not None:
+            return self.clock_line.newest * self.params.dt
+        return max((m.stamp for m in self.memory.values() if m.position is not None), default=None)
 
     def _on_goals(self, goals: Goals) -> None:
         if not goals.per_robot:

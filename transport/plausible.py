@@ -21,6 +21,13 @@ STAMP_SLACK = 1e-6  # s: tick x dt against the stamp, for the rounding of two fl
 FUTURE, STALE, INCONSISTENT = "future", "stale", "inconsistent"
 
 
+def goal_set_believable(epoch: int, stamp: float, newest: int, now: float | None) -> bool:
+    """A goal set's epoch may skip at most ``AHEAD`` of the newest heard (the coordinator counts
+    them one by one), and its publication stamp may not lie ``RESYNC`` beyond the display time
+    ``now`` the receiver knows (None: it knows none yet)."""
+    return (newest == 0 or epoch <= newest + AHEAD) and (now is None or stamp <= now + RESYNC)
+
+
 def stamp_agrees(tick: int, stamp: float, dt: float) -> bool:
     """The stamp is the start of the tick."""
     return abs(stamp - tick * dt) <= STAMP_SLACK * max(1.0, abs(stamp))
