@@ -33,7 +33,7 @@ import cv2
 import numpy as np
 
 from .config import HardwareConfigError
-from .poses import PoseSample
+from .poses import PoseSample, StampGate
 
 # A detection whose side on the floor is off by more than this fraction is not a robot's marker
 # (a false detection, or a marker far from the calibrated plane): dropped rather than believed.
@@ -292,6 +292,8 @@ class CameraPoseSource:
 
     A file's frames are timed by its frame rate from 0 and, with `realtime`, played at that rate like
     a camera; a device's or stream's frames are timed by the wall clock (`time.time()`) when read.
+    A pose is taken as `gate` says, its stamp judged against that frame clock: a wall clock set back
+    makes the poses after it look old until the gate takes them as a restart.
     """
 
     def __init__(
@@ -309,6 +311,8 @@ class CameraPoseSource:
         self._lock = threading.Lock()
         self._frame: TrackedFrame | None = None
         self._latest: dict[int, tuple[MarkerPose, float]] = {}  # robot -> newest pose, when it was tracked
+        self.gate = StampGate()
+        self._frames = 0
         self._stop = threading.Event()
         self.finished = threading.Event()  # set when the source ends or fails
         self.error: str | None = None
@@ -330,6 +334,16 @@ class CameraPoseSource:
             latest = dict(self._latest)
         now = time.monotonic()
         return {r: PoseSample(p.x, p.y, p.theta, p.t, now - at) for r, (p, at) in sorted(latest.items())}
+
+    def stats(self) -> dict[str, int]:
+        """Frames tracked, poses dropped for their stamps, restarts taken (summed over robots)."""
+        with self._lock:
+            return dict(frames=self._frames, **self.gate.stats(), robots=len(self._latest))
+
+    def robot_stats(self, robot: int) -> dict[str, int]:
+        """One robot's poses dropped for their stamps, and restarts taken."""
+        with self._lock:
+            return self.gate.robot_stats(robot)
 
     def frame(self) -> TrackedFrame | None:
         """The latest frame's result (robots seen in it and robots lost), or None before the first."""
@@ -365,9 +379,13 @@ class CameraPoseSource:
                 t = index / fps if from_file else self.clock()
                 frame = self.tracker.update(image, t, index)
                 tracked = time.monotonic()
+                now = t if from_file else self.clock()  # the frame clock now (a file: its frames' times)
                 with self._lock:
                     self._frame = frame
-                    self._latest.update((r, (pose, tracked)) for r, pose in frame.poses.items())
+                    self._frames += 1
+                    for r, pose in frame.poses.items():
+                        if self.gate.admit(r, pose.t, now, tracked):
+                            self._latest[r] = (pose, tracked)
                 index += 1
                 if from_file and self.realtime:
                     self._stop.wait(max(0.0, started + index / fps - time.monotonic()))

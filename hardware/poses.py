@@ -1,6 +1,18 @@
-"""What every pose source hands out: each robot's newest pose, when it was measured and how old it is."""
+"""What every pose source hands out: each robot's newest pose, when it was measured and how old it is;
+and which poses it takes, by their stamps (StampGate)."""
 
+from collections import Counter
 from typing import NamedTuple
+
+# s a pose's stamp may lie ahead of the clock it is judged by (this machine's, or the camera's frame
+# clock): clocks of one lab kept by NTP differ by milliseconds; a stamp further ahead is a bad clock or
+# a forged message, and taken it would make every true pose after it look old.
+FUTURE_MARGIN = 1.0
+# s with no pose taken for a robot after which a pose not newer than the last taken is taken anyway:
+# its source restarted (stamps from a new start, a clock set back). A replay beside a live source is
+# never taken, since the live source's poses keep being taken.
+RESTART_AFTER = 0.5
+STAMP_DROPS = ("stale", "future")  # the reasons a pose is dropped for its stamp
 
 
 class PoseSample(NamedTuple):
@@ -9,3 +21,38 @@ class PoseSample(NamedTuple):
     theta: float  # rad
     stamp: float  # s, when it was measured, on the source's clock (a message header, a camera frame)
     age: float  # s since it reached this process (this machine's clock; the stamp's clock may differ)
+
+
+class StampGate:
+    """Per robot, which poses a source takes: one stamped later than the newest taken, and not ahead
+    of the clock by more than ``future_margin``; after ``restart_after`` s with none taken, any
+    pose not from the future (a restarted source). Not thread-safe: its source holds its lock."""
+
+    def __init__(self, future_margin: float = FUTURE_MARGIN, restart_after: float = RESTART_AFTER) -> None:
+        self.future_margin = future_margin
+        self.restart_after = restart_after
+        self._newest: dict[int, tuple[float, float]] = {}  # robot -> stamp taken, when it arrived
+        self._counts = {reason: Counter[int]() for reason in (*STAMP_DROPS, "restarts")}
+
+    def admit(self, robot: int, stamp: float, now: float, arrival: float) -> bool:
+        """Whether to take a pose of ``robot`` stamped ``stamp``, judged against ``now`` on the stamp's
+        clock; ``arrival`` is when it arrived (s on any monotonic clock, the same for every call)."""
+        if stamp > now + self.future_margin:
+            self._counts["future"][robot] += 1
+            return False
+        newest = self._newest.get(robot)
+        if newest is not None and stamp <= newest[0]:
+            if arrival - newest[1] < self.restart_after:
+                self._counts["stale"][robot] += 1
+                return False
+            self._counts["restarts"][robot] += 1
+        self._newest[robot] = (stamp, arrival)
+        return True
+
+    def robot_stats(self, robot: int) -> dict[str, int]:
+        """Poses of one robot dropped as stale or future, and restarts taken."""
+        return {reason: counts[robot] for reason, counts in self._counts.items()}
+
+    def stats(self) -> dict[str, int]:
+        """The same, summed over every robot."""
+        return {reason: counts.total() for reason, counts in self._counts.items()}

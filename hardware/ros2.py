@@ -47,7 +47,7 @@ from transport.rmw_zenoh import (
 from transport.session import ZenohSettings, open_session
 
 from .config import HardwareConfigError
-from .poses import PoseSample
+from .poses import PoseSample, StampGate
 
 TWIST = "geometry_msgs/msg/Twist"
 COLOR_RGBA = "std_msgs/msg/ColorRGBA"
@@ -369,6 +369,7 @@ class Ros2PoseSource:
         self.messages = Ros2Messages()  # PoseStamped's layout is the same in every supported distro
         self._latest: dict[int, tuple[float, float, float, float, float]] = {}  # robot -> pose, stamp, arrival
         self._counts = {"received": 0, "undecodable": 0, "foreign": 0, "without_attachment": 0}
+        self.gate = StampGate()  # stamps judged against this machine's clock (time.time())
         self._session: Any = None
         self.node: RosNode | None = None  # the ROS 2 node this source appears as, once started
         self._sub: RosSubscriber | None = None
@@ -383,9 +384,10 @@ class Ros2PoseSource:
         )
 
     def latest(self) -> dict[int, PoseSample]:
-        """Every robot heard from so far, by id, with its newest pose."""
+        """Every robot heard from so far, by id, with its newest pose (as `gate` takes them by stamp)."""
         if self._sub is None:
             raise RuntimeError("start() the pose source before reading it")
+        wall, mono = time.time(), time.monotonic()
         for sample in self._sub.drain():
             self._counts["received"] += 1
             self._counts["without_attachment"] += sample.attachment is None
@@ -398,7 +400,9 @@ class Ros2PoseSource:
             except ValueError:
                 self._counts["undecodable"] += 1
                 continue
-            self._latest[robot] = (x, y, theta, stamp, sample.arrival)
+            # judged by this machine's wall clock as it was when the sample arrived
+            if self.gate.admit(robot, stamp, wall - (mono - sample.arrival), sample.arrival):
+                self._latest[robot] = (x, y, theta, stamp, sample.arrival)
         now = time.monotonic()
         return {r: PoseSample(x, y, th, st, now - at) for r, (x, y, th, st, at) in sorted(self._latest.items())}
 
@@ -413,7 +417,11 @@ class Ros2PoseSource:
             yield self.latest()
 
     def stats(self) -> dict[str, int]:
-        return dict(self._counts, robots=len(self._latest))
+        return dict(self._counts, **self.gate.stats(), robots=len(self._latest))
+
+    def robot_stats(self, robot: int) -> dict[str, int]:
+        """One robot's poses dropped for their stamps, and its source's restarts."""
+        return self.gate.robot_stats(robot)
 
     def close(self) -> None:
         if self._session is None:
