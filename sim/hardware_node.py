@@ -7,7 +7,9 @@ trajectory). Each robot's newest Command goes to the backend as soon as it arriv
 to v_max. Safety: a robot is sent a stop when its last command is older than the command timeout, when
 its agent's liveliness token disappears, or when its pose has been lost longer than the timeout (its pose
 is then not published, so its agent waits). Every robot is stopped when the run ends, on SIGTERM or
-SIGINT, on an error, and when the launcher is gone.
+SIGINT, on an error, and when the launcher is gone. What it cannot trust it drops and counts: a command
+for a tick not yet published or whose stamp is not its tick's, and (the pose source's gate,
+hardware/poses.py) a pose stamped older than one taken or in the future.
 
     python -m sim.hardware_node --hardware hw.toml --scene paper-sequence -e tcp/127.0.0.1:7447
 """
@@ -30,9 +32,10 @@ from agent.core.params import DIFFDRIVE, RobotParams
 from coordinator.resolved import load_resolved
 from coordinator.scene import Scene, SceneError, load_scene
 from hardware.config import HardwareConfig, HardwareConfigError, load_hardware
-from hardware.poses import PoseSample
+from hardware.poses import STAMP_DROPS, PoseSample
 from transport.bus import Bus
 from transport.codec import BEFORE_START, Command, Event, Tick, Truth
+from transport.plausible import FUTURE, INCONSISTENT, stamp_agrees
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, settings_from_args
 
 STARTUP_TIMEOUT = 5.0  # s: every robot reached and every robot's pose seen, or the run is refused
@@ -42,6 +45,8 @@ POLL = 0.02  # s: how often, within a period, commands, liveliness and safety ar
 ERROR = "hardware: error: "  # the one line the launcher shows when the node refuses to start
 RUNNABLE_BACKENDS = ("epuck2", "ros2")
 STOP_REASONS = ("command_timeout", "agent_lost", "pose_lost")
+COMMAND_DROPS = (FUTURE, INCONSISTENT)  # commands no honest agent sends: for a tick not yet published
+# (it answers the poses of a tick), or stamped other than at its tick's start
 
 
 class HardwareError(Exception):
@@ -165,6 +170,8 @@ def open_drive(config: HardwareConfig, settings: ZenohSettings, params: RobotPar
 class PoseSource(Protocol):
     def start(self) -> Any: ...
     def latest(self) -> dict[int, PoseSample]: ...
+    def stats(self) -> dict[str, int]: ...
+    def robot_stats(self, robot: int) -> dict[str, int]: ...
     def close(self) -> None: ...
 
 
@@ -210,6 +217,7 @@ class HardwareNode:
         self.ever_live = np.zeros(n, bool)
         self.sent = np.zeros(n, int)  # commands handed to the backend, stops included
         self.late = np.zeros(n, int)
+        self.dropped = {reason: np.zeros(n, int) for reason in COMMAND_DROPS}
         self.stops = {reason: np.zeros(n, int) for reason in STOP_REASONS}
         self.min_clearance = np.inf
         self.missed_ticks = 0
@@ -243,6 +251,14 @@ class HardwareNode:
         for _, cmd in ([first] if first is not None else []) + self.cmd_inbox.drain():
             i = cmd.robot
             if i >= self.n or not self.live[i]:
+                continue
+            # taken, a command of a later tick would be the newest and shut out every honest one after it
+            why = (
+                FUTURE if cmd.tick > self.tick else None if stamp_agrees(cmd.tick, cmd.stamp, self.dt) else INCONSISTENT
+            )
+            if why is not None:
+                self.dropped[why][i] += 1
+                self.cmd_inbox.drops[why] += 1  # with the decoder's drops: the run's dropped_messages
                 continue
             if cmd.tick <= self.last_cmd_tick[i]:
                 self.late[i] += 1  # older than one already applied
@@ -336,7 +352,9 @@ class HardwareNode:
                 where = ", ".join(f"{r} ({self.drive.where(r)})" for r in unreached)
                 problems = [f"robots not reachable: {where}"] if unreached else []
                 if lost:
-                    problems.append(f"no pose for robots {', '.join(map(str, lost))} ({self.poses_name})")
+                    future = self.poses.stats().get("future", 0)
+                    ahead = f"; {future} poses dropped as stamped in the future: is its clock ahead?" if future else ""
+                    problems.append(f"no pose for robots {', '.join(map(str, lost))} ({self.poses_name}{ahead})")
                 return f"within {startup_timeout:g} s, " + "; ".join(problems)
             time.sleep(POLL)
         return "stopped during start-up"
@@ -384,12 +402,16 @@ class HardwareNode:
         robots = []
         for i in range(self.n):
             stops = {reason: int(self.stops[reason][i]) for reason in STOP_REASONS}
+            poses = self.poses.robot_stats(i)
             robots.append(
                 {
                     "robot": i,
                     "address": self.drive.where(i),
                     "commands_sent": int(self.sent[i]),
                     "late_commands": int(self.late[i]),
+                    "dropped_commands": {reason: int(self.dropped[reason][i]) for reason in COMMAND_DROPS},
+                    "dropped_poses": {reason: poses[reason] for reason in STAMP_DROPS},
+                    "pose_restarts": poses["restarts"],
                     "watchdog_stops": sum(stops.values()),
                     "stops": stops,
                     **self.drive.robot_stats(i),
@@ -405,7 +427,12 @@ class HardwareNode:
             "min_clearance": self.min_clearance if math.isfinite(self.min_clearance) else None,
             "dropped": dict(self.cmd_inbox.drops + self.control_inbox.drops),
             "contacts": [],  # measured by the bodies themselves (sim/emulators/lab.py), not from the tracker
-            "hardware": {"timeout_s": self.timeout, "robots": robots, "not_stopped_at_end": unreached},
+            "hardware": {
+                "timeout_s": self.timeout,
+                "robots": robots,
+                "poses": self.poses.stats(),
+                "not_stopped_at_end": unreached,
+            },
         }
 
 

@@ -460,8 +460,10 @@ def test_the_hardware_node_stops_a_robot_whose_pose_is_lost_or_whose_commands_ce
                         got = ticks.get(timeout=0.2)
                         for robot in robots if got is not None else ():
                             tick = last_tick[0] = got[1].tick
+                            stamp = got[1].stamp  # an agent answers a tick with its stamp
                             agents.publish(
-                                agents.keys.cmd(robot), Commands.one(Command(robot, tick, 0.0, 1, 0.05, 0.05, 0, 0, 0))
+                                agents.keys.cmd(robot),
+                                Commands.one(Command(robot, tick, stamp, 1, 0.05, 0.05, 0, 0, 0)),
                             )
 
                 drive_for(1.5, (0, 1))
