@@ -9,7 +9,8 @@ blurred and given Gaussian pixel noise from a seeded generator.
     python -m sim.emulators.camera OUT_DIR --robots 14 --frames 60
 
 writes OUT_DIR/video.avi (lossless FFV1), OUT_DIR/truth.csv (t,id,x,y,theta,frame) and
-OUT_DIR/hardware.toml (its `[poses]` table) for `pixelswarm track`.
+OUT_DIR/hardware.toml (its `[poses]` table) for `pixelswarm track`. Live, `CameraStream` serves the
+frames of moving robots as a network camera does (MJPEG over HTTP), for a run's pose source.
 """
 
 from __future__ import annotations
@@ -19,14 +20,21 @@ import functools
 import math
 import os
 import shutil
+import socket
 import sys
 import tempfile
+import threading
+import time
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
+
+if TYPE_CHECKING:
+    from .mocap import PoseFunction
 
 Pose = tuple[float, float, float]  # x, y (metres), theta (radians)
 
@@ -50,6 +58,7 @@ class OverheadCamera:
     width: int = 1280
     height: int = 960
     floor: tuple[float, float] = (2.0, 1.5)
+    origin: tuple[float, float] = (0.0, 0.0)  # where the floor's near left corner is, in floor metres
     margin: float = 40.0  # pixels between the floor's near corners and the image edge
     keystone: float = 0.1  # the far edge is drawn this fraction narrower: the camera is tilted
     dictionary: str = "DICT_4X4_50"
@@ -62,10 +71,9 @@ class OverheadCamera:
 
     def floor_to_image(self) -> np.ndarray:
         """The 3x3 homography from floor metres to image pixels (pixel centres at whole numbers)."""
-        fw, fh = self.floor
         m, w, h = self.margin, self.width - 1.0, self.height - 1.0
         inset = self.keystone * (w - 2 * m) / 2
-        floor = np.array([[0, 0], [fw, 0], [fw, fh], [0, fh]], np.float32)
+        floor = self._outline().astype(np.float32)
         image = np.array([[m, h - m], [w - m, h - m], [w - m - inset, m], [m + inset, m]], np.float32)
         return cv2.getPerspectiveTransform(floor, image).astype(float)
 
@@ -98,12 +106,15 @@ class OverheadCamera:
         key = (self.width, self.height, self.floor, self.margin, self.keystone, self.floor_grey)
         if key not in _BACKGROUNDS:
             frame = np.full((self.height, self.width), self.floor_grey / 2, np.float32)
-            fw, fh = self.floor
-            outline = np.array([[[0, 0], [fw, 0], [fw, fh], [0, fh]]], np.float64)
-            corners = cv2.perspectiveTransform(outline, self.floor_to_image())
+            corners = cv2.perspectiveTransform(self._outline()[None], self.floor_to_image())
             cv2.fillConvexPoly(frame, np.rint(corners[0]).astype(np.int32), float(self.floor_grey), cv2.LINE_AA)
             _BACKGROUNDS[key] = frame
         return _BACKGROUNDS[key]
+
+    def _outline(self) -> np.ndarray:
+        """The floor's corners in floor metres, near left first, counter-clockwise."""
+        (fw, fh), (x0, y0) = self.floor, self.origin
+        return np.array([[x0, y0], [x0 + fw, y0], [x0 + fw, y0 + fh], [x0, y0 + fh]], np.float64)
 
     def _draw_marker(self, frame: np.ndarray, floor_to_image: np.ndarray, image: np.ndarray, pose: Pose) -> None:
         n = image.shape[0]
@@ -213,11 +224,192 @@ def write_truth(path: Path, poses: Iterable[dict[int, Pose]], fps: float) -> Non
                 out.writerow([f"{k / fps:.4f}", i, f"{x:.6f}", f"{y:.6f}", f"{theta:.6f}", k])
 
 
-def poses_toml(camera: OverheadCamera) -> str:
-    """The hardware file's `[poses]` table as TOML text."""
+def poses_toml(camera: OverheadCamera, source: str | None = None) -> str:
+    """The hardware file's `[poses]` table as TOML text (reading ``source``, if given)."""
     lines = ["[poses]", 'kind = "camera"', f'dictionary = "{camera.dictionary}"', f"marker_size = {camera.marker_size}"]
+    lines += [] if source is None else [f'source = "{source}"']
     lines += ["", "[poses.reference]"] + [f'"{m}" = [{x}, {y}]' for m, (x, y) in camera.reference.items()]
     return "\n".join(lines) + "\n"
+
+
+_BOUNDARY = b"frame"
+_SEND_BUFFER = 65536  # bytes the kernel holds for a reader: less than a frame, so frames do not queue
+
+
+class _Reader:
+    """One client of the stream: it is sent the newest frame whenever it has taken the last, so a
+    slow reader skips frames rather than falling behind (as a network camera's server does)."""
+
+    def __init__(self, conn: socket.socket, halt: threading.Event) -> None:
+        self.conn, self.halt = conn, halt
+        self.gone = False
+        self._part: bytes | None = None
+        self._ready = threading.Condition()
+        self.thread = threading.Thread(target=self._send, name="camera-reader", daemon=True)
+        self.thread.start()
+
+    def offer(self, part: bytes) -> None:
+        with self._ready:
+            self._part = part
+            self._ready.notify()
+
+    def _send(self) -> None:
+        try:
+            while not self.halt.is_set():
+                with self._ready:
+                    self._ready.wait_for(lambda: self._part is not None or self.halt.is_set(), timeout=0.2)
+                    part, self._part = self._part, None
+                if part is not None:
+                    self.conn.sendall(part)
+        except OSError:  # the reader went away, or stopped reading
+            pass
+        finally:
+            self.gone = True
+            self.conn.close()
+
+
+class CameraStream:
+    """The overhead camera as a network camera: frames of ``poses(t)`` (row i: robot i, t in s since
+    start) rendered at ``rate`` Hz and served as MJPEG over HTTP on 127.0.0.1 (as many IP cameras serve
+    them) to every client, for a CameraPoseSource reading `url`. `swap` and `shift` spoil one frame,
+    as a misread marker would."""
+
+    def __init__(
+        self,
+        poses: PoseFunction,
+        camera: OverheadCamera | None = None,
+        *,
+        rate: float = 10.0,
+        seed: int = 0,
+        quality: int = 95,
+    ) -> None:
+        self.poses = poses
+        self.camera = camera or OverheadCamera()
+        self.rate = rate
+        self.quality = quality
+        self.frames = 0  # rendered
+        self.glitched: list[float] = []  # time.monotonic() at which each spoiled frame was rendered
+        self.error: Exception | None = None  # what stopped the rendering thread, if anything did
+        self._rng = np.random.default_rng(seed)
+        self._glitches: list[tuple[float, str, tuple]] = []  # (not before, "swap" or "shift", arguments)
+        self._clients: list[_Reader] = []
+        self._lock = threading.Lock()
+        self._halt = threading.Event()
+        self._server = socket.create_server(("127.0.0.1", 0))
+        self._server.settimeout(0.2)
+        self.url = f"http://127.0.0.1:{self._server.getsockname()[1]}/video.mjpg"
+        self._threads = [
+            threading.Thread(target=self._accept, name="camera-accept", daemon=True),
+            threading.Thread(target=self._render, name="camera-render", daemon=True),
+        ]
+
+    def start(self) -> CameraStream:
+        self._started = time.monotonic()
+        for thread in self._threads:
+            thread.start()
+        return self
+
+    def close(self) -> None:
+        self._halt.set()
+        for thread in self._threads:
+            if thread.is_alive():
+                thread.join()
+        self._server.close()
+        with self._lock:
+            clients, self._clients = self._clients, []
+        for client in clients:
+            client.thread.join()
+
+    def __enter__(self) -> CameraStream:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def poses_toml(self) -> str:
+        """The hardware file's `[poses]` table that tracks this stream."""
+        return poses_toml(self.camera, self.url)
+
+    def swap(self, a: int, b: int, at: float | None = None) -> None:
+        """Draw robot a's marker at b's pose and b's at a's in one frame, the first rendered at or
+        after ``at`` (time.monotonic(); None: the next)."""
+        with self._lock:
+            self._glitches.append((at or 0.0, "swap", (a, b)))
+
+    def shift(self, robot: int, dx: float, dy: float, at: float | None = None) -> None:
+        """Draw a robot's marker (dx, dy) metres off its pose in one frame, as `swap` says which."""
+        with self._lock:
+            self._glitches.append((at or 0.0, "shift", (robot, dx, dy)))
+
+    def _spoil(self, robots: dict[int, Pose], now: float) -> dict[int, Pose]:
+        with self._lock:
+            due = [g for g in self._glitches if g[0] <= now]
+            self._glitches = [g for g in self._glitches if g[0] > now]
+        spoiled = dict(robots)
+        for _, kind, args in due:
+            if kind == "swap":
+                a, b = args
+                spoiled[a], spoiled[b] = robots[b], robots[a]
+            else:
+                robot, dx, dy = args
+                x, y, theta = robots[robot]
+                spoiled[robot] = (x + dx, y + dy, theta)
+        if due:
+            self.glitched.append(now)
+        return spoiled
+
+    def _render(self) -> None:
+        period = 1.0 / self.rate
+        deadline = self._started
+        try:
+            while not self._halt.wait(max(0.0, deadline - time.monotonic())):
+                now = time.monotonic()
+                rows = np.asarray(self.poses(now - self._started), float).reshape(-1, 3)
+                robots = self._spoil({i: (float(x), float(y), float(t)) for i, (x, y, t) in enumerate(rows)}, now)
+                ok, jpeg = cv2.imencode(
+                    ".jpg", self.camera.render(robots, self._rng), [cv2.IMWRITE_JPEG_QUALITY, self.quality]
+                )
+                if not ok:
+                    raise RuntimeError("JPEG encoding failed")
+                data = jpeg.tobytes()
+                part = b"--%s\r\nContent-Type: image/jpeg\r\nContent-Length: %d\r\n\r\n%s\r\n" % (
+                    _BOUNDARY,
+                    len(data),
+                    data,
+                )
+                with self._lock:
+                    self._clients = [client for client in self._clients if not client.gone]
+                    for client in self._clients:
+                        client.offer(part)
+                self.frames += 1
+                deadline = max(deadline + period, time.monotonic() - period)
+        except Exception as err:  # a bad pose function: keep the reason for the owner
+            self.error = err
+
+    def _accept(self) -> None:
+        header = b"HTTP/1.0 200 OK\r\nContent-Type: multipart/x-mixed-replace; boundary=%s\r\n\r\n" % _BOUNDARY
+        while not self._halt.is_set():
+            try:
+                conn, _ = self._server.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            try:
+                conn.settimeout(10.0)  # a reader that stops reading is dropped, not waited for
+                conn.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, _SEND_BUFFER)
+                request = b""
+                while b"\r\n\r\n" not in request and len(request) < 65536:
+                    chunk = conn.recv(4096)
+                    if not chunk:
+                        raise ConnectionError("closed before its request")
+                    request += chunk
+                conn.sendall(header)
+            except OSError:
+                conn.close()
+                continue
+            with self._lock:
+                self._clients.append(_Reader(conn, self._halt))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -35,7 +35,8 @@ PoseFunction = Callable[[float], np.ndarray]  # s since start -> (N, 3) rows of 
 
 
 class MocapEmulator:
-    """Publishes ``poses(t)`` (row i: robot i) as PoseStamped on ``topic`` (with {id}) at ``rate`` Hz."""
+    """Publishes ``poses(t)`` (row i: robot i) as PoseStamped on ``topic`` (with {id}) at ``rate`` Hz,
+    stamped by ``clock`` (the motion-capture machine's wall clock; a test may set it back or ahead)."""
 
     NODE_NAME = "mocap_emulator"
 
@@ -47,11 +48,13 @@ class MocapEmulator:
         domain: int = 0,
         rate: float = 100.0,
         frame_id: str = "world",
+        clock: Callable[[], float] = time.time,
     ) -> None:
         self.config = Ros2PosesConfig(topic=topic, domain=domain, rate=rate)  # the same checks as a reader's
         self.poses = poses
         self.session_config = session_config
         self.frame_id = frame_id
+        self.clock = clock
         self.messages = Ros2Messages()
         self.published = 0
         self.error: Exception | None = None  # what stopped the publishing thread, if anything did
@@ -73,7 +76,7 @@ class MocapEmulator:
     def publish_once(self, t: float) -> int:
         """Publish the poses of time ``t``; returns how many robots."""
         rows = np.asarray(self.poses(t), float).reshape(-1, 3)
-        stamp = time.time()
+        stamp = self.clock()
         pose_hash = self.messages.type_hash(POSE_STAMPED)
         while len(self._publishers) < len(rows):
             topic = self.config.topic_of(len(self._publishers))
