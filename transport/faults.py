@@ -3,12 +3,18 @@
 Faults act where a message is received (as a lossy, slow link would), so each receiver loses and
 delays its own copies independently. An inbox of a lock-step owner counts delays on its tick clock
 (transport.bus.Inbox.sim_time). A plan reads like ``state:drop=0.1,delay=0.05,jitter=0.01``;
-several kinds are separated by ';'.
+several kinds are separated by ';'. KIND is a message kind that some process receives through a
+faulted inbox (``fault_kinds()``); anything else is refused, as a plan that would inject nothing.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+from .codec import BY_NAME
+
+# message kinds only the launcher's recorder receives, and its session takes no fault plan
+RECORDED_ONLY = ("sim/truth", "sim/contact")
 
 
 @dataclass(frozen=True)
@@ -31,13 +37,27 @@ class FaultSpec:
 FaultPlan = dict[str, FaultSpec]  # message kind name ('state', 'cmd', ...) -> spec
 
 
+def fault_kinds() -> list[str]:
+    """The message kinds a plan can act on: the codec's names (transport.codec.BY_NAME; Bus.inbox
+    looks a fault up by its kind's name) of what the agents and the world receive."""
+    return sorted(name for name in BY_NAME if name not in RECORDED_ONLY)
+
+
 def parse_faults(text: str) -> FaultPlan:
-    """Parse 'KIND:drop=P,delay=S,jitter=S[;KIND:...]' into a plan; ValueError with a clear message."""
+    """Parse 'KIND:drop=P,delay=S,jitter=S[;KIND:...]' into a plan; ValueError with a clear message
+    (an unknown KIND too, with the kinds there are)."""
     plan: FaultPlan = {}
     for part in filter(None, (p.strip() for p in text.split(";"))):
         kind, sep, body = part.partition(":")
         if not sep or not kind.strip():
             raise ValueError(f"fault {part!r}: expected KIND:drop=P,delay=S,jitter=S")
+        kinds = fault_kinds()
+        if kind.strip() not in kinds:
+            import difflib  # here: a robot's process loads it only to refuse a plan
+
+            close = difflib.get_close_matches(kind.strip(), kinds, n=1)
+            maybe = f"did you mean {close[0]!r}? " if close else ""
+            raise ValueError(f"fault {part!r}: no message kind {kind.strip()!r} ({maybe}kinds: {', '.join(kinds)})")
         values: dict[str, float] = {}
         for item in filter(None, (i.strip() for i in body.split(","))):
             name, eq, value = item.partition("=")
