@@ -7,6 +7,7 @@ nothing leaves the machine unless the user points it elsewhere with -e/-l.
 from __future__ import annotations
 
 import json
+import re
 import textwrap
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -89,14 +90,46 @@ def open_session(settings: ZenohSettings) -> zenoh.Session:
     try:
         return zenoh.open(settings.to_config())
     except Exception as err:  # zenoh raises ZError with multi-line text
-        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
         where = ", ".join(settings.listen or settings.connect) or "(no endpoint)"
-        hint = (
-            "is the port already in use? choose another with -l tcp/127.0.0.1:PORT"
-            if settings.mode == "router"
-            else "is a router running there? start one with `pixelswarm router`"
-        )
-        raise TransportError(f"cannot open zenoh {settings.mode} session on {where}: {first}; {hint}") from None
+        reason, hint = zenoh_reason(str(err) or type(err).__name__, settings.mode)
+        raise TransportError(f"cannot open zenoh {settings.mode} session on {where}: {reason}; {hint}") from None
+
+
+# zenoh's errors end each cause with the Rust source it came from: "... at /root/.cargo/git/.../tcp.rs:61."
+_SOURCE = re.compile(r"\s+at\s+\S+\.rs:\d+\.?")
+_ENDPOINT_FORM = "an endpoint reads PROTOCOL/HOST:PORT, e.g. tcp/127.0.0.1:7447"
+_HINTS = (  # (what zenoh's text says, lower case; the hint for the user)
+    ("address already in use", "another process holds that port: choose another with -l tcp/127.0.0.1:PORT"),
+    ("cannot assign requested address", "no network interface of this machine has that address"),
+    ("permission denied", "ports below 1024 need privileges: choose a port above"),
+    ("invalid", _ENDPOINT_FORM),
+    ("must be of the form", _ENDPOINT_FORM),
+    ("not supported", "use a protocol zenoh speaks, e.g. tcp/127.0.0.1:7447"),
+    ("unable to connect", "is a router running there? start one with `pixelswarm router`"),
+)
+
+
+def zenoh_reason(text: str, mode: str) -> tuple[str, str]:
+    """zenoh's error text as (the reason in a few words, a hint for the user): without the Rust
+    source paths it carries, the innermost operating-system error if there is one."""
+    text = " ".join(_SOURCE.sub("", text).split())
+    lower = text.lower()
+    os_error = re.search(r"([^\[\]:]+?) \(os error \d+\)", text)
+    if os_error:
+        reason = os_error.group(1).strip()
+    elif "must be of the form" in lower:  # the endpoint did not parse: zenoh's text repeats the form
+        reason = "not an endpoint"
+    elif "unable to connect" in lower:
+        reason = "nothing answered" + (" in time" if "timeout" in lower else "")
+    else:
+        reason = text.strip(" .")
+    default = (
+        "is the port already in use? choose another with -l tcp/127.0.0.1:PORT"
+        if mode == "router"
+        else "is a router running there? start one with `pixelswarm router`"
+    )
+    hint = next((h for pattern, h in _HINTS if pattern in lower), default)
+    return reason[:1].lower() + reason[1:], hint
 
 
 def one_malloc_arena() -> bool:
