@@ -11,6 +11,7 @@ under cProfile and its statistics go to DIR/agent<first robot>.prof when it stop
 from __future__ import annotations
 
 import getopt
+import math
 import os
 import sys
 from collections.abc import Callable
@@ -29,7 +30,8 @@ from transport.session import (
 
 from .runtime import AgentHost, HostConfig, install_stop_handlers
 
-USAGE = """usage: python -m agent --config FILE [--faults PLAN] [--exit-with-parent] [zenoh flags]
+START_TIMEOUT = 60.0  # s to wait for the robots' poses by default (`pixelswarm run` says how long)
+USAGE = f"""usage: python -m agent --config FILE [--faults PLAN] [--start-timeout S] [--exit-with-parent] [zenoh flags]
 
 Run robot agents: the robots its host config names, one by default.
 
@@ -37,11 +39,13 @@ options:
   -h, --help            show this help message and exit
   --config FILE         host config JSON file (robots, parameters, map); - reads it from stdin
   --faults PLAN         fault injection, e.g. 'state:drop=0.1,delay=0.05'
+  --start-timeout SECONDS
+                        how long to wait for the robots' poses (default {START_TIMEOUT:g} s)
   --exit-with-parent    stop when the parent process exits
 
 """ + zenoh_usage()
 # getopt, not argparse: argparse and the modules it loads would stay in every robot's process.
-OPTIONS = ["help", "config=", "faults=", "exit-with-parent", *ZENOH_LONG]
+OPTIONS = ["help", "config=", "faults=", "start-timeout=", "exit-with-parent", *ZENOH_LONG]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -55,6 +59,7 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if "--config" not in flags:
             raise getopt.GetoptError("the following arguments are required: --config")
+        start_timeout = _seconds(flags.get("--start-timeout"), START_TIMEOUT)
     except getopt.GetoptError as err:
         print(f"{USAGE.splitlines()[0]}\npython -m agent: error: {err}", file=sys.stderr)
         return 2
@@ -64,9 +69,13 @@ def main(argv: list[str] | None = None) -> int:
         else:
             with open(flags["--config"]) as f:
                 config = HostConfig.from_json(f.read())
-        faults = parse_faults(flags.get("--faults", ""))
     except (OSError, ValueError, KeyError) as err:
         print(f"agent: error: bad config: {err}", file=sys.stderr)
+        return 2
+    try:
+        faults = parse_faults(flags.get("--faults", ""))
+    except ValueError as err:
+        print(f"agent: error: --faults: {err}", file=sys.stderr)
         return 2
     if len(config.robots) == 1:
         one_malloc_arena()  # before zenoh's threads start
@@ -86,8 +95,12 @@ def main(argv: list[str] | None = None) -> int:
         install_stop_handlers(host)
         if "--exit-with-parent" in flags:
             host.parent_pid = os.getppid()
-        if not host.start():
-            print("agent: error: no pose arrived for my robots; is the tracker running?", file=sys.stderr)
+        if not host.start(timeout=start_timeout):
+            if host.running:  # not stopped meanwhile: the poses never came
+                print(
+                    f"agent: error: no pose arrived for my robots within {start_timeout:g} s; is the tracker running?",
+                    file=sys.stderr,
+                )
             return 1
         profile_to = os.environ.get("PIXELSWARM_PROFILE")
         if profile_to:
@@ -97,6 +110,19 @@ def main(argv: list[str] | None = None) -> int:
         host.report()
         bus.linger()
     return 0
+
+
+def _seconds(text: str | None, default: float) -> float:
+    """A flag's positive, finite number of seconds (its default when absent)."""
+    if text is None:
+        return default
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise getopt.GetoptError(f"--start-timeout must be a positive number of seconds, not {text!r}")
+    return value
 
 
 def run_profiled(run: Callable[[], None], path: Path) -> None:

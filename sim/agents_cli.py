@@ -32,7 +32,7 @@ from transport.bus import Bus, LivelinessWatch
 from transport.keys import Keys
 from transport.session import TransportError, ZenohSettings
 
-from .cli_args import positive_int
+from .cli_args import format_ids, positive_int
 
 PROG = "pixelswarm agents"
 RUN_TIMEOUT = 60.0  # s to wait for a run to be there
@@ -57,17 +57,6 @@ def parse_ids(text: str) -> list[int]:
             raise ValueError(f"--robots {text!r}: the range {part.strip()} runs backwards")
         ids.update(range(first, last + 1))
     return sorted(ids)
-
-
-def format_ids(ids: list[int]) -> str:
-    """The reverse of parse_ids, for messages: [0, 1, 2, 3, 7] -> '0-3, 7'."""
-    runs: list[list[int]] = []
-    for i in sorted(ids):
-        if runs and i == runs[-1][1] + 1:
-            runs[-1][1] = i
-        else:
-            runs.append([i, i])
-    return ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in runs)
 
 
 # --- what the run serves ---------------------------------------------------------------------------

@@ -21,10 +21,12 @@ from transport.session import TransportError, ZenohSettings, add_zenoh_args, ope
 
 from .agents_cli import add_agents_parser
 from .certs_cli import add_certs_parser
-from .cli_args import positive_int
+from .cli_args import STARTUP_TIMEOUT, positive_int
 from .rundir import default_run_path
 from .study import add_study_parser
 from .track import add_track_parser
+
+STARTUP_FAILED = 3  # exit code of a run whose agents did not all come alive (docs/cli.md)
 
 
 class UsageError(Exception):
@@ -50,7 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
         "to play as an animation (file-name order)",
     )
     run.add_argument("--robots", "-n", type=positive_int, help="number of robots (overrides the scene)")
-    run.add_argument("--seed", type=int, help="random seed (overrides the scene)")
+    run.add_argument("--seed", type=int, help="random seed, a whole number >= 0 (overrides the scene)")
     run.add_argument("--clock", choices=CLOCKS, help="clock (overrides the scene)")
     run.add_argument("--duration", type=float, help="seconds of display time at most (overrides the scene)")
     run.add_argument("--out", type=Path, help="run directory (default runs/<UTC time>-<scene>)")
@@ -119,6 +121,14 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         metavar="SECONDS",
         help="--remote-agents: how long to wait for every robot's agent (default 60 s)",
+    )
+    run.add_argument(
+        "--startup-timeout",
+        type=float,
+        metavar="SECONDS",
+        help="how long the coordinator, then the agents, have to come alive (default "
+        f"{STARTUP_TIMEOUT:g} s); past it the run ends naming the robots still missing (exit code "
+        f"{STARTUP_FAILED})",
     )
     run.add_argument(
         "--secure",
@@ -202,6 +212,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         RunOptions,
     )
 
+    _check_numbers(args)  # before the scene: a bad flag is the flag's fault, not the scene file's
     try:
         if args.hardware is not None and _names_the_simulator(args.hardware):
             args.hardware = None  # the simulated world, as without a hardware file
@@ -209,11 +220,12 @@ def cmd_run(args: argparse.Namespace) -> int:
             scene = _hardware_scene(args)
         else:
             scene = load_scene(args.scene, robots=args.robots, seed=args.seed, clock=args.clock, duration=args.duration)
-        faults = parse_faults(args.faults)
     except (SceneError, ValueError) as err:
         raise UsageError(str(err)) from None
-    if args.deadline is not None and not args.deadline > 0:
-        raise UsageError(f"--deadline must be a positive number of seconds, not {args.deadline}")
+    try:
+        faults = parse_faults(args.faults)
+    except ValueError as err:
+        raise UsageError(f"--faults: {err}") from None
     reach = math.inf if args.reach is None else args.reach
     if not reach > 0:
         raise UsageError(f"--range must be a positive distance in metres, not {args.reach}")
@@ -237,6 +249,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     out = args.out or default_run_path(scene.name)
     if out.exists() or out.with_name(out.name + ".partial").exists():
         raise UsageError(f"run directory {out} already exists; choose another --out")
+    _check_out(out)
     if args.hardware is None and (args.engine or scene.engine) == "central":
         from .central import run_central
 
@@ -245,6 +258,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
         if args.remote_agents:
             raise UsageError("--remote-agents needs the distributed engine: the central engine has no agents")
+        if faults:
+            raise UsageError("--faults acts on messages; the central engine sends none (use --engine distributed)")
         if any(e["kind"] in ("fail", "tracker-outage") for e in scene.events):
             raise UsageError(
                 "fail and tracker-outage events (faults of processes and messages) need the distributed engine"
@@ -279,10 +294,12 @@ def cmd_run(args: argparse.Namespace) -> int:
         hardware=args.hardware,
         remote_agents=args.remote_agents,
         agents_timeout=AGENTS_TIMEOUT if args.agents_timeout is None else args.agents_timeout,
+        startup_timeout=STARTUP_TIMEOUT if args.startup_timeout is None else args.startup_timeout,
         reach=reach,
     )
+    launcher = Launcher(scene, options)
     try:
-        path = Launcher(scene, options).run()
+        path = launcher.run()
     except (TransportError, HardwareStartError, AgentsMissing) as err:
         raise UsageError(str(err)) from None
     except Interrupted:
@@ -292,15 +309,47 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"pixelswarm run: error: {err}", file=sys.stderr)
         return 1
     print(path)
+    if launcher.startup_failure is not None:  # written, marked incomplete, for its logs
+        print(f"pixelswarm run: error: start-up failed: {launcher.startup_failure}", file=sys.stderr)
+        return STARTUP_FAILED
+    if launcher.stop_signal is not None:  # the user said stop: `pixelswarm run ... && next` goes no further
+        name = signal.Signals(launcher.stop_signal).name
+        if launcher.interrupted:
+            print(
+                f"pixelswarm run: stopped by {name}; what was recorded is in {path}, marked incomplete", file=sys.stderr
+            )
+        else:
+            print(f"pixelswarm run: {name} came as the run ended; {path} is complete", file=sys.stderr)
+        return 128 + launcher.stop_signal
     return 0
+
+
+def _check_numbers(args: argparse.Namespace) -> None:
+    """UsageError naming the flag of a number out of its range."""
+    if args.seed is not None and args.seed < 0:
+        raise UsageError(f"--seed must be a whole number >= 0, not {args.seed}")
+    for flag in ("--duration", "--deadline", "--agents-timeout", "--startup-timeout"):
+        value = getattr(args, flag[2:].replace("-", "_"))
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise UsageError(f"{flag} must be a positive number of seconds, not {value:g}")
+
+
+def _check_out(out: Path) -> None:
+    """UsageError unless a run directory can be made at ``out`` (its parents are made as the run's
+    would be; the trial directory is removed)."""
+    trial = out.with_name(out.name + ".partial")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        trial.mkdir()
+    except OSError as err:
+        raise UsageError(f"--out {out}: cannot make a run directory there ({err.strerror or err})") from None
+    trial.rmdir()
 
 
 def _check_remote_agents(args: argparse.Namespace, scene: Scene) -> None:
     """UsageError for what a run whose agents join from elsewhere cannot do."""
     if args.agents_timeout is not None and not args.remote_agents:
         raise UsageError("--agents-timeout goes with --remote-agents")
-    if args.agents_timeout is not None and not args.agents_timeout > 0:
-        raise UsageError(f"--agents-timeout must be a positive number of seconds, not {args.agents_timeout}")
     if args.remote_agents and (args.secure is not None or args.agents_connect):
         raise UsageError("--remote-agents: the agents join by themselves; drop --secure and --agents-connect")
     if args.remote_agents and any(e["kind"] == "fail" for e in scene.events):

@@ -1,8 +1,14 @@
-"""Argument types shared by the command line's subcommands."""
+"""Argument types shared by the command line's subcommands, and robot ids as messages write them."""
 
 from __future__ import annotations
 
 import argparse
+import math
+
+# s each start-up stage of a run (the coordinator, then every agent) has to come alive by default
+# (sim.launcher): on a loaded machine, tens of processes importing numpy and opening sessions at
+# once take minutes, not seconds
+STARTUP_TIMEOUT = 300.0
 
 
 def positive_int(text: str) -> int:
@@ -13,3 +19,25 @@ def positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be at least 1, not {value}")
     return value
+
+
+def positive_seconds(text: str) -> float:
+    """A finite number of seconds above 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, not {text}")
+    return value
+
+
+def format_ids(ids: list[int]) -> str:
+    """The reverse of sim.agents_cli.parse_ids, for messages: [0, 1, 2, 3, 7] -> '0-3, 7'."""
+    runs: list[list[int]] = []
+    for i in sorted(ids):
+        if runs and i == runs[-1][1] + 1:
+            runs[-1][1] = i
+        else:
+            runs.append([i, i])
+    return ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in runs)

@@ -31,7 +31,8 @@ from transport.faults import FaultPlan, format_faults
 from transport.security import client_config, robot_role, router_config
 from transport.session import ZenohSettings, client_of, free_port, loopback_router
 
-from .agents_cli import encode_remote_config, format_ids
+from .agents_cli import encode_remote_config
+from .cli_args import STARTUP_TIMEOUT, format_ids
 from .hardware_node import ERROR as HARDWARE_ERROR
 from .output import write_run
 from .recorder import Recorder
@@ -58,7 +59,7 @@ class RunOptions:
     agent_routers: list[str] = field(default_factory=list)  # spread agents over these routers (round robin)
     deadline: float = 2.0
     progress: TextIO | None = sys.stderr
-    startup_timeout: float = 90.0
+    startup_timeout: float = STARTUP_TIMEOUT
     secure: Path | None = None  # a folder from `pixelswarm certs`: each process joins as its role (docs/security.md)
     hardware: Path | None = None  # a hardware file: real robots (sim/hardware_node.py) in place of the world
     remote_agents: bool = False  # spawn no agents: serve their configs, `pixelswarm agents` starts them elsewhere
@@ -88,6 +89,16 @@ class AgentsMissing(Exception):
     """Remote agents that did not come within the timeout: one line naming their robots."""
 
 
+class StartupFailed(Exception):
+    """Agents of the run's own that did not come alive (their process exited, the start-up timeout
+    passed, the world ended): one line naming their robots."""
+
+
+def _robots(ids: list[int]) -> str:
+    """'robot 3' or 'robots 0-2, 5', for messages."""
+    return f"robot{'s' if len(ids) > 1 else ''} {format_ids(ids)}"
+
+
 class Launcher:
     def __init__(self, scene: Scene, options: RunOptions) -> None:
         self.world_exit: int | None = None  # the world process's exit code, once it exited
@@ -97,6 +108,8 @@ class Launcher:
         self.crashes: list[dict[str, Any]] = []
         self.restarts: list[dict[str, Any]] = []  # central services that died and were started again
         self.stop_signal: int | None = None
+        self.startup_failure: str | None = None  # why the run ended before it started (StartupFailed)
+        self.interrupted = False  # a stop signal ended the run (written marked incomplete)
         self.run_dir = RunDir(options.out)
         self.failures = sorted((e for e in scene.events if e["kind"] == "fail"), key=lambda e: e["t"])
         self.failed: list[dict[str, Any]] = []
@@ -175,7 +188,9 @@ class Launcher:
         ids = self._agent_robots
         cfg_dir = self.run_dir / "config"
         cfg_dir.mkdir(exist_ok=True)
-        faults = ["--faults", format_faults(self.opt.faults)] if self.opt.faults else []
+        # an agent gives up on its poses no sooner than the launcher gives up on it (_await_agents)
+        extra = ["--start-timeout", str(self.opt.startup_timeout)]
+        extra += ["--faults", format_faults(self.opt.faults)] if self.opt.faults else []
         for h in range(math.ceil(len(ids) / k)):
             robots = ids[h * k : (h + 1) * k]
             config = self._host_config(robots)
@@ -187,7 +202,7 @@ class Launcher:
                 if routers
                 else self._as(robot_role(robots[0]))
             )
-            self._spawn(f"agent-{h:04d}", "agent", ["--config", str(path), *faults], robots, client)
+            self._spawn(f"agent-{h:04d}", "agent", ["--config", str(path), *extra], robots, client)
 
     # --- remote agents (`pixelswarm agents` on other machines) -----------------------------------
     def _serve_configs(self, bus: Bus) -> None:
@@ -261,13 +276,15 @@ class Launcher:
                         "noticed_wall_time": time.time(),
                     }
                 )
-                # Always reported, --quiet or not: a crash is not progress.
-                print(
-                    f"pixelswarm: agent process {child.name} (pid {child.proc.pid}, robots {child.robots}) "
-                    f"exited with code {code}; its robots stay in the world, stopped",
-                    file=sys.stderr,
-                    flush=True,
-                )
+                # Always reported, --quiet or not: a crash is not progress (at start-up, the one line
+                # that the start-up failed names its robots).
+                if self.startup_failure is None:
+                    print(
+                        f"pixelswarm: agent process {child.name} (pid {child.proc.pid}, robots {child.robots}) "
+                        f"exited with code {code}; its robots stay in the world, stopped",
+                        file=sys.stderr,
+                        flush=True,
+                    )
             elif child.name == "world":
                 self.world_exit = code
             elif child.name in RESTARTED:
@@ -369,6 +386,9 @@ class Launcher:
                 str(self.scene.duration),
                 "--deadline",
                 str(self.opt.deadline),
+                # the world waits for the agents no shorter than the launcher does (_await_agents)
+                "--startup-timeout",
+                str(self.opt.agents_timeout if self.opt.remote_agents else self.opt.startup_timeout),
             ]
             world_args += ["--pose-frames"] if self._frames else []
             # faults act where a message is received: commands (cmd:...) at the world
@@ -377,7 +397,13 @@ class Launcher:
                 self._spawn("world", "sim.world_node", world_args, [], self._as("world"))
             if self.opt.remote_agents:
                 self._await_remote(recorder, "alive", waiting_since)
-            end_reason = self._loop(bus, recorder)
+            try:
+                self._await_agents(recorder)
+            except StartupFailed as failure:
+                self.startup_failure = str(failure)
+                end_reason = "start-up failed"
+            else:
+                end_reason = self._loop(bus, recorder)
             self._check_children(recorder)  # an agent that died as the world finished is still a crash
             self._stop_children()
             # Final statistics from agents, and on a loaded machine the last ticks still in flight:
@@ -396,6 +422,46 @@ class Launcher:
         finally:
             bus.close()
         return self._write(recorder, end_reason, time.time() - wall0)
+
+    def _await_agents(self, rec: Recorder) -> None:
+        """Until every agent robot's agent has come alive (the world starts then), saying once a second
+        how many are awaited. StartupFailed naming the robots whose agent process exited, or that
+        were not alive within the start-up timeout or when the world ended. A stop signal ends the
+        wait: the run loop ends the run."""
+        ids = self._agent_robots
+        started = time.monotonic()
+        alive: set[int] = set()
+        seen = 0  # liveliness events taken in
+        while True:
+            rec.poll()
+            for event in rec.liveliness[seen:]:
+                if event["role"] == "agent" and event["alive"] and str(event["id"]).isdigit():
+                    alive.add(int(event["id"]))
+            seen = len(rec.liveliness)
+            missing = [i for i in ids if i not in alive]
+            if not missing or self.stop_signal is not None:
+                return
+            logs = self.opt.out / "logs"
+            exited = [c for c in self.children if c.name.startswith("agent") and c.proc.poll() is not None]
+            gone = sorted({r for c in exited for r in c.robots} & set(missing))
+            if gone:
+                codes = sorted({c.proc.returncode for c in exited if set(c.robots) & set(gone)})
+                raise StartupFailed(
+                    f"{_robots(missing)}: no agent came alive (the agent process of {_robots(gone)} exited "
+                    f"with code {', '.join(map(str, codes))}); see {logs}"
+                )
+            world_gone = any(c.name == "world" and c.proc.poll() is not None for c in self.children)
+            if world_gone or self._world_done(rec) is not None:
+                raise StartupFailed(
+                    f"{_robots(missing)}: no agent came alive before the world process ended; see {logs}"
+                )
+            if time.monotonic() - started > self.opt.startup_timeout:
+                raise StartupFailed(
+                    f"{_robots(missing)}: no agent came alive within {self.opt.startup_timeout:g} s "
+                    f"(--startup-timeout); see {logs}"
+                )
+            self._say(f"[{self.scene.name}] waiting for {len(missing)}/{len(ids)} agents to come alive")
+            time.sleep(0.05)
 
     @staticmethod
     def _ticks_in_flight(rec: Recorder, last_t: float) -> bool:
@@ -475,7 +541,8 @@ class Launcher:
             if self.stop_signal is not None:
                 raise Interrupted()
             if time.monotonic() - start > self.opt.startup_timeout:
-                raise RuntimeError(f"{role} did not come alive within {self.opt.startup_timeout:.0f} s")
+                raise RuntimeError(f"{role} did not come alive within {self.opt.startup_timeout:g} s")
+            self._say(f"[{self.scene.name}] waiting for the {role} to come alive")
             time.sleep(0.02)
 
     def _loop(self, bus: Bus, rec: Recorder) -> str:
@@ -557,10 +624,11 @@ class Launcher:
 
     # --- outputs ------------------------------------------------------------------------------
     def _write(self, rec: Recorder, end_reason: str, wall_s: float) -> Path:
-        interrupted = getattr(self, "interrupted", False)
+        interrupted = self.interrupted
         if interrupted:
             end_reason = "interrupted"
         world_died = getattr(self, "world_died", False)
+        started = self.startup_failure is None
         arrays = rec.arrays()
         stats = getattr(self, "world_stats", {})
         agent_stats = [e for e in rec.events if e.get("kind") == "stats" and e.get("role") == "agent"]
@@ -583,15 +651,16 @@ class Launcher:
             arrays,
             wall_s=wall_s,
             contacts=stats.get("contacts", []),
-            video=self.opt.video and not interrupted,
-            plots=self.opt.plots,
+            video=self.opt.video and not interrupted and started,
+            plots=self.opt.plots and started,
             message_counts=rec.counts,
             message_bytes=rec.bytes,
             missed_ticks=int(stats.get("missed_ticks", 0)),
             agents_crashed=len(self.crashes),
             agents_failed_by_scene=self.failed,
             end_reason=end_reason,
-            complete=not interrupted and not world_died,
+            **({} if started else {"startup_failure": self.startup_failure}),
+            complete=not interrupted and not world_died and started,
             engine="distributed",
             reach=self.opt.reach,
             agents_per_process=self.opt.agents_per_process,
@@ -607,6 +676,7 @@ class Launcher:
             stopped_ticks=int(stats.get("stopped_ticks", 0)),
             withheld_ticks=int(stats.get("withheld_ticks", 0)),
             orca_fallbacks=int(sum(s.get("fallbacks", 0) for s in agent_stats)),
+            poses_held=int(sum(s.get("poses_held", 0) for s in agent_stats)),
             deadlock_penalties=int(sum((s.get("auction") or {}).get("deadlock_penalties", 0) for s in agent_stats)),
             dropped_messages=dropped,
             crashes=self.crashes,

@@ -1,4 +1,8 @@
-"""Writing a finished run: metrics, trajectory, plots, video and the scene, then the atomic commit."""
+"""Writing a finished run: metrics, trajectory, plots, video and the scene, then the atomic commit.
+
+A run that did not run its course (``complete=False`` in metrics: interrupted, its world died, its
+start-up failed) also gets a file INCOMPLETE holding its end reason, so that neither a person
+listing the directory nor a script testing for the file takes it for a finished run."""
 
 from __future__ import annotations
 
@@ -14,6 +18,8 @@ from coordinator.scene import Scene
 
 from .metrics import assignment_over_optimum, clearance_over_time, communication_parts, summarise
 from .rundir import RunDir, write_json, write_npz
+
+INCOMPLETE = "INCOMPLETE"  # the marker file of a run directory whose run did not run its course
 
 
 class NewestGoalSet(TypedDict, total=False):
@@ -51,7 +57,8 @@ def write_run(
     **metrics_extra: Any,
 ) -> Path:
     """Everything a run directory holds, from the true trajectory; returns the committed path.
-    ``reach``: the robots' communication range (m), whose splits of the swarm it reports."""
+    ``reach``: the robots' communication range (m), whose splits of the swarm it reports.
+    ``complete=False`` among the metrics writes the INCOMPLETE marker."""
     n = scene.robots
     if np.isfinite(reach):
         parts = communication_parts(arrays["pose"], reach)
@@ -81,6 +88,9 @@ def write_run(
         for entry, value in zip(metrics["steps"], over):
             entry["assignment_over_optimum_m2"] = value
     write_json(run_dir / "metrics.json", metrics)
+    if metrics_extra.get("complete") is False:
+        why = [metrics_extra.get("end_reason") or "incomplete", metrics_extra.get("startup_failure")]
+        (run_dir / INCOMPLETE).write_text("".join(f"{line}\n" for line in why if line))
     # ignored: to mypy a key of arrays could be write_npz's own ``compress`` (none is)
     write_npz(run_dir / "trajectory.npz", radius=radius, **arrays)  # type: ignore[arg-type]
     # the renderers are imported only where used: they load matplotlib, OpenCV and PyAV

@@ -34,15 +34,23 @@ from transport.faults import parse_faults
 from transport.keys import cell_of
 from transport.session import TransportError, add_zenoh_args, settings_from_args
 
+from .cli_args import format_ids, positive_seconds
 from .movers import scripted_velocity
 from .tracker import tracker_of, world_of
 
 CONTACT_KINDS = {"robot": 0, "obstacle": 1, "wall": 2}
+STARTUP_TIMEOUT = 60.0  # s the world waits for every agent by default (`pixelswarm run` says how long)
 
 
 class WorldNode:
     def __init__(
-        self, bus: Bus, scene: Scene, *, deadline: float = 2.0, startup_timeout: float = 60.0, pose_frames: bool = False
+        self,
+        bus: Bus,
+        scene: Scene,
+        *,
+        deadline: float = 2.0,
+        startup_timeout: float = STARTUP_TIMEOUT,
+        pose_frames: bool = False,
     ) -> None:
         """``pose_frames``: the tracker sends each tick's poses as one frame of every robot, for agent
         hosts of several robots, instead of a frame of one per robot."""
@@ -203,7 +211,9 @@ class WorldNode:
 
     # --- loops --------------------------------------------------------------------------------
     def wait_for_agents(self) -> bool:
-        """Start when every robot's agent is alive (progress events for the launcher)."""
+        """Start when every robot's agent is alive, telling the robots still waiting where they are.
+        False if the start-up timeout passes first (or the run is ended): a swarm that lacks robots
+        is not shown in silence, as if it were the scene (``run`` names them)."""
         start = time.monotonic()
         last_sent = 0.0
         while self.running and time.monotonic() - start < self.startup_timeout:
@@ -215,12 +225,15 @@ class WorldNode:
                 self._publish_before_start()
                 last_sent = time.monotonic()
             time.sleep(0.02)
-        return bool(self.live.any())
+        return False
 
     def run(self, clock: str) -> None:
         self.bus.declare_alive("world", 0)
         if not self.wait_for_agents():
-            self.end_reason = "no agent came alive"
+            missing = np.flatnonzero(self.agent_robot & ~self.live).tolist()
+            self.end_reason = self.end_reason or (
+                f"no agent came alive for robots {format_ids(missing)} within {self.startup_timeout:g} s"
+            )
             return
         if clock == "lockstep":  # every agent heard its neighbours' hellos before it came alive
             self._run_lockstep()
@@ -314,6 +327,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--deadline", type=float, default=2.0, help="lock-step: seconds to wait for commands")
     parser.add_argument("--faults", default="")
     parser.add_argument("--pose-frames", action="store_true", help="send each tick's poses as one frame (agent hosts)")
+    parser.add_argument(
+        "--startup-timeout",
+        type=positive_seconds,
+        default=STARTUP_TIMEOUT,
+        metavar="SECONDS",
+        help=f"how long to wait for every robot's agent to come alive (default {STARTUP_TIMEOUT:g} s)",
+    )
     parser.add_argument("--exit-with-parent", action="store_true")
     add_zenoh_args(parser)
     args = parser.parse_args(argv)
@@ -329,7 +349,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"world: error: {err}", file=sys.stderr)
         return 2
     with bus:
-        node = WorldNode(bus, scene, deadline=args.deadline, pose_frames=args.pose_frames)
+        node = WorldNode(
+            bus, scene, deadline=args.deadline, startup_timeout=args.startup_timeout, pose_frames=args.pose_frames
+        )
         if args.exit_with_parent:
             node.parent_pid = os.getppid()
 
