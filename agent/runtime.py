@@ -237,6 +237,9 @@ class AgentHost:
         self.held: dict[int, Goals] = {}  # lock-step: goal sets heard that no tick has named yet
         self.named: dict[int, int] = {}  # lock-step: tick -> the newest goal set the world named in it
         self.newest_heard = 0  # epoch of the newest goal set heard (per-robot goals too)
+        # each epoch's goal set as first heard: the coordinator publishes a change under a new epoch,
+        # so a different one under a known epoch is a damaged copy
+        self.epoch_bytes: dict[int, bytes] = {}
         self.clock_inbox = bus.subscribe(self.keys.clock, Tick) if config.lockstep else None
         self.auction = AuctionLink(
             bus,
@@ -335,11 +338,29 @@ class AgentHost:
         if not goal_set_believable(goals.epoch, goals.timing.stamp, self.newest_heard, self._display_time()):
             self.goal_inbox.drops[FUTURE] += 1
             return
+        why = self._goal_set_refused(goals)
+        if why is not None:
+            self.goal_inbox.drops[why] += 1
+            return
         self.newest_heard = max(self.newest_heard, goals.epoch)
         if self.config.lockstep and not goals.per_robot and goals.epoch > max(self.goal_sets, default=0):
             self.held[goals.epoch] = goals
             return
         self._on_goals(goals)
+
+    def _goal_set_refused(self, goals: Goals) -> str | None:
+        """Why a well-formed goal set cannot be the coordinator's: goals outside the arena, or
+        other goals under an epoch already heard. None if it can."""
+        arena = self.config.arena
+        if arena is not None and len(goals.positions):
+            x, y = goals.positions[:, 0], goals.positions[:, 1]
+            if x.min() < arena[0] or y.min() < arena[1] or x.max() > arena[2] or y.max() > arena[3]:
+                return "invalid"
+        sent = goals.encode()
+        first = self.epoch_bytes.setdefault(goals.epoch, sent)
+        for old in sorted(self.epoch_bytes)[:-GOAL_SETS_KEPT]:
+            del self.epoch_bytes[old]
+        return "conflict" if first != sent else None
 
     def _display_time(self) -> float | None:
         """The newest display time the robots know: the lock-step clock, else their newest pose."""
