@@ -260,10 +260,8 @@ def cmd_run(args: argparse.Namespace) -> int:
             raise UsageError("--remote-agents needs the distributed engine: the central engine has no agents")
         if faults:
             raise UsageError("--faults acts on messages; the central engine sends none (use --engine distributed)")
-        if any(e["kind"] in ("fail", "tracker-outage") for e in scene.events):
-            raise UsageError(
-                "fail and tracker-outage events (faults of processes and messages) need the distributed engine"
-            )
+        if any(e["kind"] in ("fail", "tracker-outage", "tracker-glitch") for e in scene.events):
+            raise UsageError("fail and tracker events (faults of processes and messages) need the distributed engine")
 
         progress = None if args.quiet else sys.stderr
         print(run_central(scene, out, video=args.video, plots=args.plots, progress=progress, reach=reach))

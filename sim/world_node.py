@@ -32,6 +32,7 @@ from transport.codec import BEFORE_START, Event, Goals, State, States, Tick, Tru
 from transport.codec import Contact as ContactMsg
 from transport.faults import parse_faults
 from transport.keys import cell_of
+from transport.plausible import FUTURE, INCONSISTENT, goal_set_believable, stamp_agrees
 from transport.session import TransportError, add_zenoh_args, settings_from_args
 
 from .cli_args import format_ids, positive_seconds
@@ -78,6 +79,8 @@ class WorldNode:
         # the scene's tracker outages: display time windows [t, t + duration) in which no pose is sent
         self.outages = [(e["t"], e["t"] + e["duration"]) for e in scene.events if e["kind"] == "tracker-outage"]
         self.withheld_ticks = 0  # ticks whose poses the tracker withheld (an outage)
+        # the scene's tracker glitches: display time -> [(robot, offset)] reported off for that tick
+        self.glitches = [(e["t"], e["robot"], e["offset"]) for e in scene.events if e["kind"] == "tracker-glitch"]
         self.pose_frames = pose_frames
         self.cmd_inbox = bus.commands_inbox()
         # lock-step: agents at work in the auction (either kind) are not late
@@ -108,6 +111,14 @@ class WorldNode:
         for _, cmd in arrived:
             i = cmd.robot
             if i >= self.scene.robots or not self.live[i]:
+                continue
+            # An honest agent answers a tick the world has published: a command of a later tick,
+            # taken as the newest, would drive the body on and shut out every honest one after it.
+            why = (
+                FUTURE if cmd.tick > self.tick else None if stamp_agrees(cmd.tick, cmd.stamp, self.dt) else INCONSISTENT
+            )
+            if why is not None:
+                self.cmd_inbox.drops[why] += 1
                 continue
             if cmd.tick <= self.last_cmd_tick[i]:
                 self.late_commands += 1
@@ -148,7 +159,11 @@ class WorldNode:
 
     def _publish_tick(self) -> None:
         t = self.tick * self.dt
-        self.goal_epoch = max([self.goal_epoch] + [g.epoch for _, g in self.goal_inbox.drain()])
+        for _, goals in self.goal_inbox.drain():  # as the agents do, refusing epochs and stamps from the future
+            if goal_set_believable(goals.epoch, goals.timing.stamp, self.goal_epoch, t):
+                self.goal_epoch = max(self.goal_epoch, goals.epoch)
+            else:
+                self.goal_inbox.drops[FUTURE] += 1
         self.bus.publish(self.keys.clock, Tick(self.tick, t, self.dt, self.goal_epoch))
         self._publish_truth()
         if self.tracker_out:
@@ -156,6 +171,9 @@ class WorldNode:
             self._drive_scripted()
             return
         measured = self.tracker.measure(self.world.poses)
+        for when, robot, (dx, dy) in self.glitches:
+            if abs(when - t) < self.dt / 2:  # a swapped marker: this tick's pose is elsewhere
+                measured[robot, :2] += (dx, dy)
         # The tracker sees bodies, not agents: a robot whose agent died is still tracked, so the
         # coordinator learns where its body stays and keeps the goals clear of it (5.1.2).
         tracked = np.flatnonzero(self.ever_live)
@@ -302,7 +320,7 @@ class WorldNode:
             "withheld_ticks": self.withheld_ticks,
             "commands_applied": self.world.commands_applied.astype(int).tolist(),
             "min_clearance": _finite_or_none(self.world.min_clearance),
-            "dropped": dict(self.cmd_inbox.drops + self.control_inbox.drops),
+            "dropped": dict(self.cmd_inbox.drops + self.control_inbox.drops + self.goal_inbox.drops),
             "contacts": [
                 {"kind": c.kind, "i": c.i, "j": c.j, "t_start": c.t_start, "t_end": c.t_end, "max_depth": c.max_depth}
                 for c in self.world.contacts
