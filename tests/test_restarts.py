@@ -1,0 +1,196 @@
+"""A restarted agent is heard again at once (issue 40).
+
+An agent process killed outright (SIGKILL) and started again with the same command line, as a
+robot's computer would start it again, is a sender that went back: its ticks begin anew where the
+others' lines still hold its old ones (transport.plausible). The world must apply its robot's
+commands again within a second of the new process saying it is alive, the new process must say so
+within its start-up, and the show must complete without a contact: once in lock-step (the default
+clock), once in real time.
+
+"Heard again" is measured in the run's own log (log.mcap), on one clock: every message there is
+stamped with the wall time the recorder received it. From the liveliness event that says the robot's
+agent is alive again, to the first tick of the world (/sim/truth) whose count of commands applied
+to that robot has grown. The world publishes a tick's truth before it applies that tick's commands,
+so this counts up to one tick more than the command took: the measure errs long, never short. The
+new process's start-up is from just before the test starts it (test's clock, the same wall clock)
+to that liveliness event.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import psutil
+import pytest
+from mcap.reader import make_reader
+
+from sim.ticklog import TICKS_FILE, read_ticks
+
+from .conftest import REPO, descendants, start_run, wait_for
+
+DISK = """
+name = "restarts"
+robots = {robots}
+seed = 5
+clock = "{clock}"
+[layout]
+kind = "grid"
+spacing = 0.2
+[[steps]]
+shape = "disk"
+hold = {hold}
+[end]
+converge_hold = {converge_hold}
+"""
+
+ROBOTS = 10
+VICTIM = 4
+TOLERANCE = 0.01  # m: the show completes when every robot is this close to its goal at the end
+HEARD_WITHIN = 1.0  # s (issue 40)
+STARTED_WITHIN = 10.0  # s from starting the process to its liveliness: imports and a zenoh session (4.7 s seen
+# on 2 cores at a load of 12), not the 30 s of a wait that the restarted agent cannot end
+
+
+def write_disk(tmp_path: Path, clock: str, hold: float, converge_hold: float) -> Path:
+    path = tmp_path / "restarts.toml"
+    path.write_text(DISK.format(robots=ROBOTS, clock=clock, hold=hold, converge_hold=converge_hold))
+    return path
+
+
+def ticks_so_far(out: Path) -> int:
+    try:
+        return len(read_ticks(Path(str(out) + ".partial") / TICKS_FILE)["t"])
+    except (OSError, ValueError):
+        return 0
+
+
+def agent_of(proc: subprocess.Popen, robot: int) -> psutil.Process:
+    """The agent process of ``robot`` (one robot a process: its config file names it)."""
+    for p in descendants(proc.pid):
+        try:
+            cmd = p.cmdline()
+        except psutil.Error:
+            continue
+        if "agent" in cmd and any(arg.endswith(f"agents-{robot:04d}.json") for arg in cmd):
+            return p
+    raise AssertionError(f"no agent process of robot {robot}")
+
+
+def logged(path: Path, topics: set[str]) -> list[tuple[float, str, dict]]:
+    """(wall time the recorder received it, topic, message) of every message of these topics."""
+    out = []
+    with open(path, "rb") as fh:
+        for _, channel, message in make_reader(fh).iter_messages(topics=sorted(topics), log_time_order=True):
+            out.append((message.log_time / 1e9, channel.topic, json.loads(message.data)))
+    return out
+
+
+def heard_again(run: Path, robot: int, killed_at: float) -> dict[str, float]:
+    """Wall times (the recorder's) of the robot's agent coming alive again after ``killed_at``, of its
+    first command heard after that, and of the first tick whose truth shows a command of that robot
+    applied after that (and that tick)."""
+    events = logged(run / "log.mcap", {"/alive", "/sim/truth"})
+    alive = [
+        t
+        for t, topic, m in events
+        if topic == "/alive" and m["role"] == "agent" and m["id"] == str(robot) and m["alive"] and t > killed_at
+    ]
+    assert alive, "the restarted agent never said it was alive"
+    applied = [(t, m["tick"], m["applied"][robot]) for t, topic, m in events if topic == "/sim/truth"]
+    before = [n for t, _, n in applied if t <= alive[0]]
+    count = before[-1] if before else 0
+    after = [(t, tick) for t, tick, n in applied if t > alive[0] and n > count]
+    assert after, "no command of the restarted robot was ever applied"
+    commands = logged(run / "log.mcap", {"/cmd"})
+    sent = [t for t, _, m in commands if t > alive[0] and robot in m["records"]["robot"]]
+    return {"alive": alive[0], "sent": sent[0] if sent else np.nan, "applied": after[0][0], "tick": after[0][1]}
+
+
+def restart_run(
+    tmp_path: Path, spawned: list, clock: str, hold: float, converge_hold: float, kill_after: int, down: float
+):
+    """A run whose robot VICTIM's agent is killed after ``kill_after`` ticks and started again ``down``
+    seconds later. ``converge_hold``: display seconds the display stays converged before the run ends;
+    long enough that the nine, re-formed meanwhile, do not end the run before the restarted agent
+    is back."""
+    scene = write_disk(tmp_path, clock, hold, converge_hold)
+    out = tmp_path / "run"
+    proc = start_run(spawned, scene, out)
+    assert wait_for(lambda: ticks_so_far(out) >= kill_after, timeout=120), proc.stderr.read() if proc.poll() else ""
+    victim = agent_of(proc, VICTIM)
+    command = victim.cmdline()
+    killed_at = time.time()
+    victim.send_signal(signal.SIGKILL)
+    victim.wait(timeout=10)
+    time.sleep(down)
+    started_at = time.time()
+    again = subprocess.Popen(command, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    spawned.append(again)  # the robot's computer started its agent again, by hand
+    try:
+        _, stderr = proc.communicate(timeout=240)
+    finally:
+        again.send_signal(signal.SIGTERM)
+        again.wait(timeout=20)
+    assert proc.returncode == 0, stderr[-3000:]
+    m = json.loads((out / "metrics.json").read_text())
+    traj = dict(np.load(out / "trajectory.npz"))
+    times = heard_again(out, VICTIM, killed_at)
+    times.update(killed=killed_at, started=started_at)
+    return m, traj, times
+
+
+def assert_show_completed(traj: dict) -> None:
+    err = np.hypot(*(traj["pose"][-1, :, :2] - traj["goal"][-1]).T)
+    assert (traj["assignment_epoch"][-1] == traj["goal_set_epochs"][-1]).all()
+    assert np.all(err <= TOLERANCE), np.round(err * 1000).astype(int).tolist()
+
+
+def report(clock: str, times: dict[str, float]) -> str:
+    alive = times["alive"]
+    return (
+        f"{clock}: alive {alive - times['started']:.2f} s after the new process started; its first command "
+        f"heard {times['sent'] - alive:.3f} s and applied {times['applied'] - alive:.3f} s after that (tick "
+        f"{times['tick']})"
+    )
+
+
+def assert_heard_again(clock: str, times: dict[str, float]) -> None:
+    print(report(clock, times))
+    assert times["alive"] - times["started"] <= STARTED_WITHIN, report(clock, times)
+    assert times["applied"] - times["alive"] <= HEARD_WITHIN, report(clock, times)
+
+
+@pytest.mark.slow
+@pytest.mark.serial  # a bound in wall time
+@pytest.mark.xfail(
+    raises=AssertionError,
+    strict=True,
+    reason="product bugs (issue 40): a restarted lock-step agent says it is alive only after HELLO_TIMEOUT "
+    "(30 s) of waiting for hellos nobody sends any more (AgentHost.start/_await_hellos); its first tick then "
+    "waits state_wait (1.5 s) for its own state (AgentHost._await_states: its own hello counts as a neighbour "
+    "that greeted it); the tick whose pose start() took is never answered, and a command that comes before its "
+    "robot's liveliness is dropped (WorldNode._apply_commands), so the world waits its 2 s deadline",
+)
+def test_a_lockstep_agent_killed_and_started_again_is_heard_within_a_second(tmp_path, spawned):
+    m, traj, times = restart_run(tmp_path, spawned, "lockstep", hold=40.0, converge_hold=8.0, kill_after=30, down=0.5)
+    assert_heard_again("lockstep", times)
+    assert m["contacts"] == 0 and m["agents_crashed"] == 1 and m["crashes"][0]["robots"] == [VICTIM]
+    assert traj["goal_set_robots"][-1].all()  # back in the newest goal set
+    assert m["end_reason"] == "converged"
+    assert_show_completed(traj)
+
+
+@pytest.mark.slow
+@pytest.mark.serial
+def test_a_realtime_agent_killed_and_started_again_is_heard_within_a_second(tmp_path, spawned):
+    m, traj, times = restart_run(tmp_path, spawned, "realtime", hold=25.0, converge_hold=6.0, kill_after=30, down=2.0)
+    assert_heard_again("realtime", times)
+    assert m["contacts"] == 0 and m["agents_crashed"] == 1 and m["crashes"][0]["robots"] == [VICTIM]
+    assert traj["goal_set_robots"][-1].all()
+    assert m["end_reason"] == "converged"
+    assert_show_completed(traj)
