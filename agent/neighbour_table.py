@@ -58,6 +58,11 @@ class NeighbourTable:
         counting from 0 again) makes every state held newer than anything to come: forget them."""
         if self.now is not None and tick < self.now:
             self._states.clear()
+        elif self.now is None:  # states heard before the first tick were taken unchecked
+            for robot, kept in list(self._states.items()):
+                kept[:] = [s for s in kept if s.tick <= tick + AHEAD]
+                if not kept:
+                    del self._states[robot]
         self.now = tick
 
     def update(self, state: State) -> str | None:

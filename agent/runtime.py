@@ -30,7 +30,7 @@ import numpy as np
 from transport.bus import Bus
 from transport.codec import BEFORE_START, Command, Commands, Event, Goals, Pose, State, States, Tick
 from transport.keys import cell_of, cells_of
-from transport.plausible import FUTURE, INCONSISTENT, TickLine, goal_set_believable, stamp_agrees
+from transport.plausible import INCONSISTENT, GoalSets, TickLine, stamp_agrees
 
 from .assignment import AuctionLink
 from .core.bidder import bid_position
@@ -237,9 +237,7 @@ class AgentHost:
         self.held: dict[int, Goals] = {}  # lock-step: goal sets heard that no tick has named yet
         self.named: dict[int, int] = {}  # lock-step: tick -> the newest goal set the world named in it
         self.newest_heard = 0  # epoch of the newest goal set heard (per-robot goals too)
-        # each epoch's goal set as first heard: the coordinator publishes a change under a new epoch,
-        # so a different one under a known epoch is a damaged copy
-        self.epoch_bytes: dict[int, bytes] = {}
+        self.believed = GoalSets(config.arena)  # which goal sets can be the coordinator's
         self.clock_inbox = bus.subscribe(self.keys.clock, Tick) if config.lockstep else None
         self.auction = AuctionLink(
             bus,
@@ -249,11 +247,17 @@ class AgentHost:
             where=self._positions,
             lockstep=config.lockstep,
             on_abandoned=self._hold,
-            dead=self._dead_now,
+            dead=self._not_bidding,
             reach=config.reach,
         )
         self.alive = bus.watch_alive("agent")
         self.dead: set[int] = set()  # robots whose agent died: their bodies stand still (5.1.2)
+        # Lock-step: robots whose agent died during the goal set in force. One started again cannot
+        # join that goal set's auction under way, so it is not waited for until the next goal set,
+        # which the coordinator publishes for it; nor does an agent started during a show bid in a
+        # goal set heard at its start (bid_from).
+        self.gone: set[int] = set()
+        self.bid_from = 0
         self.running = True
         self._bid_from: dict[int, np.ndarray] | None = None  # _positions(), until positions or goals change
         self.parent_pid: int | None = None  # exit when this process (the launcher) is gone
@@ -272,25 +276,35 @@ class AgentHost:
         on its cells until its first tick, and says it is alive (the world starts once everybody
         is) only when it has heard the hello of every robot near its own at the start
         (``config.greet``, from the launcher): a hello heard proves the sender's session knows our
-        subscription, so its tick-0 state reaches us too."""
+        subscription, so its tick-0 state reaches us too. An agent started again while the others
+        step (the world's clock past 0) greets nobody: its neighbours' states of every tick reach it
+        anyway, and the poses of a tick already published wait for its first step."""
         for _, goals in self.bus.query(self.keys.all_of("goals"), Goals, timeout=2.0):
             self._hear_goals(goals)
         where: dict[int, Pose] = {}
+        ticking: list[Pose] = []  # poses of ticks under way (a robot whose body is tracked already)
         end = time.monotonic() + timeout
         while len(where) < len(self.memory) and self.running and time.monotonic() < end:
             got = self.pose_inbox.get(timeout=0.2)
             if got is not None:
                 where[got[1].robot] = got[1]
+                if got[1].tick != BEFORE_START:
+                    ticking.append(got[1])
         if len(where) < len(self.memory):
             return False
-        self.table.advance(round(max(q.stamp for q in where.values()) / self.params.dt))
         self.cells.update(np.array([(q.x, q.y) for q in where.values()]))
+        under_way = max(q.stamp for q in where.values()) > 0.0
         if self.config.lockstep:
             self.hello_from = [
                 State(r, BEFORE_START, 0.0, q.x, q.y, 0.0, 0.0, self.params.radius, 0.0, 0.0, -1, 0, 0, 0)
                 for r, q in sorted(where.items())
             ]
-            self._await_hellos(min(HELLO_TIMEOUT, timeout))
+            if not under_way:
+                self._await_hellos(min(HELLO_TIMEOUT, timeout))
+            else:
+                self.bid_from = self.newest_heard + 1
+        for q in ticking:
+            self._take_pose(q)
         for r in self.config.robots:
             self.bus.declare_alive("agent", r)
         return True
@@ -335,10 +349,7 @@ class AgentHost:
         (_take_up_goal_sets), so that every host takes it up at the same tick. One whose epoch or
         stamp lies beyond what the robots know is refused: taken as the newest, it shut out the
         coordinator's real ones and froze the show on its image."""
-        if not goal_set_believable(goals.epoch, goals.timing.stamp, self.newest_heard, self._display_time()):
-            self.goal_inbox.drops[FUTURE] += 1
-            return
-        why = self._goal_set_refused(goals)
+        why = self.believed.admit(goals, self._display_time())
         if why is not None:
             self.goal_inbox.drops[why] += 1
             return
@@ -347,20 +358,6 @@ class AgentHost:
             self.held[goals.epoch] = goals
             return
         self._on_goals(goals)
-
-    def _goal_set_refused(self, goals: Goals) -> str | None:
-        """Why a well-formed goal set cannot be the coordinator's: goals outside the arena, or
-        other goals under an epoch already heard. None if it can."""
-        arena = self.config.arena
-        if arena is not None and len(goals.positions):
-            x, y = goals.positions[:, 0], goals.positions[:, 1]
-            if x.min() < arena[0] or y.min() < arena[1] or x.max() > arena[2] or y.max() > arena[3]:
-                return "invalid"
-        sent = goals.encode()
-        first = self.epoch_bytes.setdefault(goals.epoch, sent)
-        for old in sorted(self.epoch_bytes)[:-GOAL_SETS_KEPT]:
-            del self.epoch_bytes[old]
-        return "conflict" if first != sent else None
 
     def _display_time(self) -> float | None:
         """The newest display time the robots know: the lock-step clock, else their newest pose."""
@@ -372,6 +369,9 @@ class AgentHost:
         if not goals.per_robot:
             self._bid_from = None
             self.goal_sets[goals.epoch] = goals
+            if goals.epoch < self.bid_from:
+                return  # its auction began before this agent joined: the robots wait for the next
+            self.gone = set(self.dead)
             for old in sorted(self.goal_sets)[:-GOAL_SETS_KEPT]:
                 del self.goal_sets[old]
             # a keyframe names its predecessor; an image follows the last
@@ -500,7 +500,9 @@ class AgentHost:
                 if max(s.tick, _at_most(seen.get(s.robot, -1), tick)) < tick - 1
             ]
             if tick > 0 and self.ticks_done < 2:  # the first tick after tick 0: robots that greeted us
-                behind += [h for r, h in self.greeted.items() if r not in self.table and r not in seen]
+                behind += [
+                    h for r, h in self.greeted.items() if r not in self.table and r not in seen and r not in self.memory
+                ]
             missing = [
                 s.robot
                 for s in behind
@@ -525,7 +527,13 @@ class AgentHost:
         for _, ident, alive, _ in self.alive.drain():
             if ident.isdigit():
                 (self.dead.discard if alive else self.dead.add)(int(ident))
+                if not alive and self.config.lockstep:
+                    self.gone.add(int(ident))
         return self.dead
+
+    def _not_bidding(self) -> set[int]:
+        """The robots the auction does not wait for: dead, or gone during the goal set in force."""
+        return self._dead_now() | self.gone
 
     def _take_up_goal_sets(self, tick: int, stamp: float) -> None:
         """Lock-step: take up the goal sets due at this tick, so that every host takes each up at the

@@ -32,7 +32,7 @@ from transport.codec import BEFORE_START, Event, Goals, State, States, Tick, Tru
 from transport.codec import Contact as ContactMsg
 from transport.faults import parse_faults
 from transport.keys import cell_of
-from transport.plausible import FUTURE, INCONSISTENT, goal_set_believable, stamp_agrees
+from transport.plausible import FUTURE, INCONSISTENT, GoalSets, stamp_agrees
 from transport.session import TransportError, add_zenoh_args, settings_from_args
 
 from .cli_args import format_ids, positive_seconds
@@ -89,6 +89,7 @@ class WorldNode:
         # the newest goal set heard, named in each tick (lock-step agents take goal sets up by it)
         self.goal_inbox = bus.subscribe(self.keys.all_of("goals"), Goals)
         self.goal_epoch = 0
+        self.believed = GoalSets(scene.arena)  # which goal sets can be the coordinator's (as the agents judge)
         self.alive = bus.watch_alive("agent")
         self.running = True
         self.end_reason = ""
@@ -108,6 +109,8 @@ class WorldNode:
 
     def _apply_commands(self, first: tuple | None = None) -> None:
         arrived = ([first] if first is not None else []) + self.cmd_inbox.drain()
+        if any(not self.live[cmd.robot] for _, cmd in arrived if cmd.robot < self.scene.robots):
+            self._update_liveness()  # an agent's first command may overtake the news that it is alive
         for _, cmd in arrived:
             i = cmd.robot
             if i >= self.scene.robots or not self.live[i]:
@@ -160,10 +163,11 @@ class WorldNode:
     def _publish_tick(self) -> None:
         t = self.tick * self.dt
         for _, goals in self.goal_inbox.drain():  # as the agents do, refusing epochs and stamps from the future
-            if goal_set_believable(goals.epoch, goals.timing.stamp, self.goal_epoch, t):
+            why = self.believed.admit(goals, t)
+            if why is None:
                 self.goal_epoch = max(self.goal_epoch, goals.epoch)
             else:
-                self.goal_inbox.drops[FUTURE] += 1
+                self.goal_inbox.drops[why] += 1
         self.bus.publish(self.keys.clock, Tick(self.tick, t, self.dt, self.goal_epoch))
         self._publish_truth()
         if self.tracker_out:

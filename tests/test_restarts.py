@@ -167,15 +167,6 @@ def assert_heard_again(clock: str, times: dict[str, float]) -> None:
 
 @pytest.mark.slow
 @pytest.mark.serial  # a bound in wall time
-@pytest.mark.xfail(
-    raises=AssertionError,
-    strict=True,
-    reason="product bugs (issue 40): a restarted lock-step agent says it is alive only after HELLO_TIMEOUT "
-    "(30 s) of waiting for hellos nobody sends any more (AgentHost.start/_await_hellos); its first tick then "
-    "waits state_wait (1.5 s) for its own state (AgentHost._await_states: its own hello counts as a neighbour "
-    "that greeted it); the tick whose pose start() took is never answered, and a command that comes before its "
-    "robot's liveliness is dropped (WorldNode._apply_commands), so the world waits its 2 s deadline",
-)
 def test_a_lockstep_agent_killed_and_started_again_is_heard_within_a_second(tmp_path, spawned):
     m, traj, times = restart_run(tmp_path, spawned, "lockstep", hold=40.0, converge_hold=8.0, kill_after=30, down=0.5)
     assert_heard_again("lockstep", times)

@@ -12,7 +12,10 @@ Each refusal names its reason, counted by the receiver with the decoder's drops.
 
 from __future__ import annotations
 
+import dataclasses
 import math
+
+from .codec import Goals
 
 AHEAD = 2  # ticks a frame may lie ahead of the receiver's clock: keys travel apart, one period of jitter and a spare
 RESYNC = 1.0  # s an accepted line stays silent, while older ticks keep coming, before the sender counts as restarted
@@ -21,11 +24,45 @@ STAMP_SLACK = 1e-6  # s: tick x dt against the stamp, for the rounding of two fl
 FUTURE, STALE, INCONSISTENT = "future", "stale", "inconsistent"
 
 
-def goal_set_believable(epoch: int, stamp: float, newest: int, now: float | None) -> bool:
-    """A goal set's epoch may skip at most ``AHEAD`` of the newest heard (the coordinator counts
-    them one by one), and its publication stamp may not lie ``RESYNC`` beyond the display time
-    ``now`` the receiver knows (None: it knows none yet)."""
-    return (newest == 0 or epoch <= newest + AHEAD) and (now is None or stamp <= now + RESYNC)
+class GoalSets:
+    """Which goal sets a receiver believes are the coordinator's. The coordinator counts epochs
+    one by one and publishes a new epoch only for a change (a step, the robots alive), so:
+    an epoch may skip at most ``AHEAD`` of the newest heard; a goal set is not stamped ``RESYNC``
+    beyond the display time the receiver knows; its goals lie in the arena; an epoch heard again
+    holds the same goal set (the coordinator repeats its newest for late joiners); and a new epoch
+    holds a goal set of its own, not one already heard under another epoch."""
+
+    KEPT = 8  # epochs remembered
+
+    def __init__(self, arena: tuple[float, float, float, float] | None = None) -> None:
+        self.arena = arena
+        self.newest = 0
+        self._sent: dict[int, bytes] = {}  # epoch -> its goal set as first heard
+        self._content: dict[bytes, int] = {}  # a goal set without its epoch -> its epoch
+
+    def admit(self, goals: Goals, now: float | None) -> str | None:
+        """None to take the goal set, or why not. ``now``: the display time the receiver knows."""
+        if (self.newest and goals.epoch > self.newest + AHEAD) or (
+            now is not None and goals.timing.stamp > now + RESYNC
+        ):
+            return FUTURE
+        if self.arena is not None and len(goals.positions):
+            low, high = goals.positions.min(axis=0), goals.positions.max(axis=0)
+            if low[0] < self.arena[0] or low[1] < self.arena[1] or high[0] > self.arena[2] or high[1] > self.arena[3]:
+                return "invalid"
+        sent = goals.encode()
+        first = self._sent.get(goals.epoch)
+        if first is not None:
+            return None if first == sent else "conflict"
+        content = dataclasses.replace(goals, epoch=0).encode()
+        if content in self._content:
+            return "replayed"
+        self._sent[goals.epoch], self._content[content] = sent, goals.epoch
+        self.newest = max(self.newest, goals.epoch)
+        for old in sorted(self._sent)[: -self.KEPT]:
+            del self._sent[old]
+        self._content = {c: e for c, e in self._content.items() if e in self._sent}
+        return None
 
 
 def stamp_agrees(tick: int, stamp: float, dt: float) -> bool:
