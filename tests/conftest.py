@@ -240,3 +240,30 @@ def assert_usage_error(tmp_path: Path, message: str, *args: str) -> None:
     assert result.returncode == 2
     assert message in result.stderr and "Traceback" not in result.stderr
     assert not (tmp_path / "r").exists()
+
+
+# A small show for the fault and restart tests: robots on a grid form a disk.
+DISK = """
+name = "faults"
+robots = {robots}
+seed = 5
+clock = "{clock}"
+[layout]
+kind = "grid"
+spacing = 0.2
+[[steps]]
+shape = "disk"
+hold = {hold}
+[end]
+converge_hold = {converge_hold}
+{events}
+"""
+
+
+def write_disk(tmp_path: Path, robots: int = 10, clock: str = "lockstep", hold: float = 30.0, **kw: object) -> Path:
+    path = tmp_path / "faults.toml"
+    text = DISK.format(
+        robots=robots, clock=clock, hold=hold, converge_hold=kw.get("converge_hold", 100.0), events=kw.get("events", "")
+    )
+    path.write_text(text)
+    return path

@@ -18,34 +18,9 @@ from sim.mcaplog import McapLog, read_mcap
 from sim.ticklog import TICKS_FILE, TickLog, read_ticks
 from transport.session import free_port
 
-from .conftest import REPO, descendants, pixelswarm_cmd, reap, start_run, wait_for
-
-DISK = """
-name = "faults"
-robots = {robots}
-seed = 5
-clock = "{clock}"
-[layout]
-kind = "grid"
-spacing = 0.2
-[[steps]]
-shape = "disk"
-hold = {hold}
-[end]
-converge_hold = {converge_hold}
-{events}
-"""
+from .conftest import REPO, descendants, pixelswarm_cmd, reap, start_run, wait_for, write_disk
 
 TOLERANCE = 0.01  # m: the show completes when every robot is this close to its goal at the end
-
-
-def write_disk(tmp_path: Path, robots: int = 10, clock: str = "lockstep", hold: float = 30.0, **kw: object) -> Path:
-    path = tmp_path / "faults.toml"
-    text = DISK.format(
-        robots=robots, clock=clock, hold=hold, converge_hold=kw.get("converge_hold", 100.0), events=kw.get("events", "")
-    )
-    path.write_text(text)
-    return path
 
 
 def ticks_so_far(out: Path) -> int:

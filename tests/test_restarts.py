@@ -31,22 +31,7 @@ from mcap.reader import make_reader
 
 from sim.ticklog import TICKS_FILE, read_ticks
 
-from .conftest import REPO, descendants, start_run, wait_for
-
-DISK = """
-name = "restarts"
-robots = {robots}
-seed = 5
-clock = "{clock}"
-[layout]
-kind = "grid"
-spacing = 0.2
-[[steps]]
-shape = "disk"
-hold = {hold}
-[end]
-converge_hold = {converge_hold}
-"""
+from .conftest import REPO, descendants, start_run, wait_for, write_disk
 
 ROBOTS = 10
 VICTIM = 4
@@ -54,12 +39,6 @@ TOLERANCE = 0.01  # m: the show completes when every robot is this close to its 
 HEARD_WITHIN = 1.0  # s (issue 40)
 STARTED_WITHIN = 10.0  # s from starting the process to its liveliness: imports and a zenoh session (4.7 s seen
 # on 2 cores at a load of 12), not the 30 s of a wait that the restarted agent cannot end
-
-
-def write_disk(tmp_path: Path, clock: str, hold: float, converge_hold: float) -> Path:
-    path = tmp_path / "restarts.toml"
-    path.write_text(DISK.format(robots=ROBOTS, clock=clock, hold=hold, converge_hold=converge_hold))
-    return path
 
 
 def ticks_so_far(out: Path) -> int:
@@ -118,7 +97,7 @@ def restart_run(
     seconds later. ``converge_hold``: display seconds the display stays converged before the run ends;
     long enough that the nine, re-formed meanwhile, do not end the run before the restarted agent
     is back."""
-    scene = write_disk(tmp_path, clock, hold, converge_hold)
+    scene = write_disk(tmp_path, ROBOTS, clock, hold, converge_hold=converge_hold)
     out = tmp_path / "run"
     proc = start_run(spawned, scene, out)
     assert wait_for(lambda: ticks_so_far(out) >= kill_after, timeout=120), proc.stderr.read() if proc.poll() else ""
