@@ -30,7 +30,7 @@ import numpy as np
 from transport.bus import Bus
 from transport.codec import BEFORE_START, Command, Commands, Event, Goals, Pose, State, States, Tick
 from transport.keys import cell_of, cells_of
-from transport.plausible import INCONSISTENT, GoalSets, TickLine, stamp_agrees
+from transport.plausible import INCONSISTENT, Clock, GoalSets, TickLine, stamp_agrees
 
 from .assignment import AuctionLink
 from .core.bidder import bid_position
@@ -200,7 +200,7 @@ class AgentHost:
         # and its place against where the robot could have driven (agent.pose_trust).
         period = None if config.lockstep else config.params.dt
         self.pose_lines = {r: TickLine(period) for r in config.robots}
-        self.clock_line = TickLine()
+        self.clock = Clock()  # lock-step: the world's clock as heard
         self.trust = PoseTrust(config.params.v_max, config.params.dt, 2 * config.params.noise_bound)
         self.silent: set[int] = set()  # nearby robots that did not answer in time (lock-step)
         self.greeted: dict[int, State] = {}  # lock-step: hellos heard before the first tick, by robot
@@ -361,8 +361,8 @@ class AgentHost:
 
     def _display_time(self) -> float | None:
         """The newest display time the robots know: the lock-step clock, else their newest pose."""
-        if self.clock_line.newest is not None:
-            return self.clock_line.newest * self.params.dt
+        if self.clock.newest is not None:
+            return self.clock.newest * self.params.dt
         return max((m.stamp for m in self.memory.values() if m.position is not None), default=None)
 
     def _on_goals(self, goals: Goals) -> None:
@@ -574,8 +574,7 @@ class AgentHost:
     def _on_clock(self, clock: Tick) -> None:
         """Lock-step: a clock message names the goal set of its tick; its tick bounds the poses'.
         The world publishes every tick, so a clock may not skip ahead of the last."""
-        why = INCONSISTENT if not stamp_agrees(clock.tick, clock.stamp, self.params.dt) else None
-        why = why or self.clock_line.admit(clock.tick, time.monotonic(), self.clock_line.newest)
+        why = self.clock.admit(clock, time.monotonic())
         if why is not None:
             assert self.clock_inbox is not None
             self.clock_inbox.drops[why] += 1
@@ -653,7 +652,7 @@ class AgentHost:
             now = None
             if self.clock_inbox is not None:  # lock-step: the world's clock says which tick it is
                 self._hear_clock()
-                now = self.clock_line.newest
+                now = self.clock.newest
             why = self.pose_lines[pose.robot].admit(pose.tick, time.monotonic(), now)
         if why is not None:
             self.pose_inbox.drops[why] += 1

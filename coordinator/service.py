@@ -24,6 +24,7 @@ import numpy as np
 
 from transport.bus import Bus
 from transport.codec import Correspondence, Goals, Motion, Pose, Tick, Timing, WarmStart
+from transport.plausible import Clock
 from transport.session import TransportError, add_zenoh_args, settings_from_args
 
 from .keyframes import goal_matching
@@ -128,6 +129,7 @@ class Coordinator:
         self.body_wait_since: float | None = None
         self._matching: tuple[tuple[int, bytes], tuple[np.ndarray, np.ndarray]] | None = None  # goal_matching's last
         self.ready_for_a_loss = False  # _prepare_for_a_loss has run
+        self.clock_heard = Clock()
         if self.images:
             self.clock = bus.subscribe(bus.keys.clock, Tick)
             self.alive = bus.watch_alive("agent")
@@ -159,6 +161,10 @@ class Coordinator:
     def _follow_show(self) -> bool:
         """Image scenes: a new goal set when the step or the live robots change; True if published."""
         for _, tick in self.clock.drain():
+            why = self.clock_heard.admit(tick, time.monotonic())  # one forged stamp jumped the show to its end
+            if why is not None:
+                self.clock.drops[why] += 1
+                continue
             self.t = tick.stamp if self.t is None else max(self.t, tick.stamp)
         for _, ident, alive, _ in self.alive.drain():
             if ident.isdigit() and int(ident) < self.scene.robots:

@@ -15,13 +15,30 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from .codec import Goals
+from .codec import Goals, Tick
 
 AHEAD = 2  # ticks a frame may lie ahead of the receiver's clock: keys travel apart, one period of jitter and a spare
 RESYNC = 1.0  # s an accepted line stays silent, while older ticks keep coming, before the sender counts as restarted
 STAMP_SLACK = 1e-6  # s: tick x dt against the stamp, for the rounding of two float products
 
 FUTURE, STALE, INCONSISTENT = "future", "stale", "inconsistent"
+
+
+class Clock:
+    """The world's clock as a receiver believes it: a tick's stamp is its start, and the world
+    publishes every tick, so a clock may not skip more than ``AHEAD`` past the newest."""
+
+    def __init__(self) -> None:
+        self.line = TickLine()
+
+    @property
+    def newest(self) -> int | None:
+        return self.line.newest
+
+    def admit(self, clock: Tick, wall: float) -> str | None:
+        if not stamp_agrees(clock.tick, clock.stamp, clock.dt):
+            return INCONSISTENT
+        return self.line.admit(clock.tick, wall, self.line.newest)
 
 
 class GoalSets:
