@@ -48,14 +48,36 @@ def test_real_time_a_first_tick_that_came_late_does_not_hold_back_the_ticks_queu
     assert line.admit(106, wall=5.1) is None
 
 
-def test_a_sender_that_restarts_is_heard_again_once_its_old_line_is_silent():
+def test_a_sender_that_restarts_is_heard_again_once_its_new_line_has_gone_on():
     line = TickLine(period=DT)
     for k in range(50):
         assert line.admit(500 + k, wall=k * DT) is None
     last = 49 * DT
     assert line.admit(0, wall=last + 0.1) == STALE  # a replayed old frame while the line speaks
-    assert line.admit(0, wall=last + RESYNC) is None  # the tracker restarted: counting from 0 again
-    assert line.admit(1, wall=last + RESYNC + DT) is None
+    # the tracker restarted, counting from 0 again: heard once its new line has gone on for RESYNC
+    restarted = [line.admit(k, wall=last + 0.1 + k * DT) for k in range(round(RESYNC / DT) + 1)]
+    assert restarted[:-1] == [STALE] * (len(restarted) - 1) and restarted[-1] is None
+    assert line.admit(len(restarted), wall=last + 0.2 + RESYNC) is None
+
+
+def test_old_frames_copied_in_no_order_during_a_pause_never_take_the_line_back():
+    """Lock-step: the world waits seconds for a late agent and the line is silent; copies of old
+    frames (a faulty peer) arrive meanwhile. Taken as a restart, they made every honest tick after
+    the pause look like the future, and the show stopped."""
+    line = TickLine()
+    for k in range(300):
+        assert line.admit(k, wall=k * 0.01, now=k) is None
+    rng = np.random.default_rng(1)
+    for j in range(300):  # 3 s of pause, old copies at 100 a second
+        assert line.admit(int(rng.integers(0, 300)), wall=3.0 + j * 0.01, now=299) == STALE
+    assert line.admit(300, wall=6.1, now=300) is None
+
+
+def test_a_clock_that_jumped_ahead_is_followed_once_it_goes_on():
+    line = TickLine()  # as transport.plausible.Clock bounds it: a tick may not skip ahead of the newest
+    assert line.admit(10, wall=0.0, now=None) is None
+    jumped = [line.admit(1000 + k, wall=0.1 + k * DT, now=line.newest) for k in range(round(RESYNC / DT) + 1)]
+    assert jumped[0] == FUTURE and jumped[-1] is None
 
 
 def test_a_neighbour_state_from_the_future_is_refused_and_never_pushes_out_the_honest_ones():

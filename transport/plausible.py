@@ -6,7 +6,7 @@ frame whose two disagree was damaged. A tick may not lie ahead of the receiver's
 than ``AHEAD`` ticks, and may not be older than the newest the receiver holds from that sender: the
 newest tick wins, so one frame from the future would otherwise make every honest frame after it
 look old. A sender that really went back (a tracker or a clock restarted, counting from 0 again)
-is heard again once its old line has been silent for ``RESYNC`` seconds while the new one speaks.
+is heard again once its new line has gone on for ``RESYNC`` seconds (TickLine).
 Each refusal names its reason, counted by the receiver with the decoder's drops.
 """
 
@@ -18,7 +18,7 @@ import math
 from .codec import Goals, Tick
 
 AHEAD = 2  # ticks a frame may lie ahead of the receiver's clock: keys travel apart, one period of jitter and a spare
-RESYNC = 1.0  # s an accepted line stays silent, while older ticks keep coming, before the sender counts as restarted
+RESYNC = 1.0  # s a new line of ticks goes on (and the old one is silent, or behind it) before it is believed
 STAMP_SLACK = 1e-6  # s: tick x dt against the stamp, for the rounding of two float products
 
 FUTURE, STALE, INCONSISTENT = "future", "stale", "inconsistent"
@@ -93,9 +93,12 @@ class TickLine:
     ``admit`` takes a tick and the receiver's clock (``now``: the tick it believes current, None
     where it has no clock of its own) and returns None to take the message, or why not. With
     ``period`` set and no ``now`` given, the receiver's clock is the wall clock since the line
-    began, ``period`` seconds a tick: a real-time sender cannot run ahead of it. A line silent for
-    ``RESYNC`` begins anew with the next tick, whatever it is: a sender restarted, a clock that
-    jumped, or a first tick that was itself wrong.
+    began, ``period`` seconds a tick: a real-time sender cannot run ahead of it.
+
+    A refused tick may begin a new line (a sender restarted, counting from 0 again; a clock that
+    jumped; a first tick that was itself wrong): the new line is taken once it has gone on, tick
+    after tick, for ``RESYNC`` seconds, and either runs ahead of the old line or the old line has
+    been silent as long. Copies of old frames or forged ones in no order never make such a line.
     """
 
     def __init__(self, period: float | None = None) -> None:
@@ -103,21 +106,31 @@ class TickLine:
         self.newest: int | None = None
         self.heard_at = -math.inf  # wall time (monotonic) of the newest accepted tick
         self._began: tuple[int, float] = (0, -math.inf)  # (tick, wall time) the wall-clock bound counts from
+        self._new_line: tuple[float, int] | None = None  # (wall time it began, its newest tick)
 
     def admit(self, tick: int, wall: float, now: float | None = None) -> str | None:
-        fresh = self.newest is None or wall - self.heard_at >= RESYNC
-        walled = now is None and self.period is not None and not fresh
+        walled = now is None and self.period is not None and self.newest is not None
         if walled and self.period is not None:
             now = self._began[0] + (wall - self._began[1]) / self.period
-        if now is not None and tick > now + AHEAD:
-            return FUTURE
-        if not fresh and self.newest is not None and tick <= self.newest:
-            return STALE
-        if fresh or (walled and now is not None and tick > now):
-            # a new line, or ticks that came sooner than the first did (it was late): count from here
-            self._began = (tick, wall)
-        self.newest, self.heard_at = tick, wall
-        return None
+        in_line = self.newest is None or tick > self.newest
+        if in_line and (now is None or tick <= now + AHEAD):
+            if self.newest is None or (walled and now is not None and tick > now):
+                self._began = (tick, wall)  # the first tick, or ticks sooner than the first (it was late)
+            self._new_line = None
+            self.newest, self.heard_at = tick, wall
+            return None
+        line = self._new_line
+        if line is not None and line[1] < tick <= line[1] + AHEAD:
+            line = (line[0], tick)
+        else:
+            line = (wall, tick)
+        self._new_line = line
+        ahead = self.newest is not None and tick > self.newest
+        if wall - line[0] >= RESYNC and (ahead or wall - self.heard_at >= RESYNC):
+            self._began, self._new_line = (tick, wall), None
+            self.newest, self.heard_at = tick, wall
+            return None
+        return FUTURE if ahead or self.newest is None else STALE
 
     def forget(self) -> None:
         """The sender is gone (its liveliness token was withdrawn): its next tick begins a new line."""
