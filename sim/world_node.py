@@ -40,6 +40,9 @@ from .movers import scripted_velocity
 from .tracker import tracker_of, world_of
 
 CONTACT_KINDS = {"robot": 0, "obstacle": 1, "wall": 2}
+# s a lock-step tick waits at most while auction messages keep coming: twice the longest an agent waits
+# for a round (agent.assignment.ROUND_CAP); a peer that repeats auction messages must not hold the world for ever
+AUCTION_PATIENCE = 60.0
 STARTUP_TIMEOUT = 60.0  # s the world waits for every agent by default (`pixelswarm run` says how long)
 
 
@@ -272,12 +275,14 @@ class WorldNode:
             self._update_liveness()
             self._publish_tick()
             deadline = time.monotonic() + self.deadline
-            while True:
+            patience = time.monotonic() + AUCTION_PATIENCE
+            while self.running:
                 got = self.cmd_inbox.get(timeout=max(0.0, min(0.05, deadline - time.monotonic())))
                 self._apply_commands(got)
                 if sum(len(inbox.drain()) for inbox in self.auction_traffic):
-                    deadline = time.monotonic() + self.deadline
+                    deadline = min(time.monotonic() + self.deadline, patience)
                 self._update_liveness()
+                self._check_control()
                 waiting = self.live & (self.last_cmd_tick < self.tick)
                 if not waiting.any() or time.monotonic() >= deadline or self.tracker_out:
                     self.missed_ticks += int(waiting.sum())
