@@ -34,6 +34,7 @@ from transport.codec import (
     Truth,
     decode,
 )
+from transport.plausible import AHEAD, STAMP_SLACK, GoalSets
 
 from .foxglove import SCENE_UPDATE_SCHEMA_NAME, scene_update, scene_update_schema
 from .mcaplog import McapLog
@@ -126,6 +127,10 @@ class Recorder:
         self.assign_epoch = np.zeros(robots, np.int64)
         self.assign_instance = np.zeros(robots, np.int64)
         self.state_tick = np.full(robots, np.iinfo(np.int64).min)  # the tick of each robot's newest state
+        self.latest_tick = -1  # the world's newest tick (its truth)
+        # The record is what the swarm believed: goal sets and states judged as the robots judge them
+        # (transport.plausible), so a faulty peer's copies do not end up in the measurement.
+        self.believed = GoalSets()
         self.row_of_tick: dict[int, int] = {}  # tick -> its row of the trajectory
         self.step = 0  # the scene step of the newest goal set
         self.goal_sets: dict[int, Goals] = {}  # epoch -> the coordinator's goal set
@@ -178,7 +183,8 @@ class Recorder:
             elif isinstance(msg, Bid):
                 self._on_bid(msg)
             elif isinstance(msg, Goals):
-                if not msg.per_robot and msg.epoch not in self.goal_sets:
+                now = self.traj.t[-1] if self.traj.t else None
+                if self.believed.admit(msg, now) is None and not msg.per_robot and msg.epoch not in self.goal_sets:
                     self._on_goals(msg)
             elif isinstance(msg, Commands):
                 self.commands += len(msg.records)
@@ -197,14 +203,18 @@ class Recorder:
         if s.tick == BEFORE_START:  # a hello before the first tick: its size, no goal yet
             self.radius[r] = s.radius if np.isnan(self.radius[r]) else self.radius[r]
             return
+        row = self.row_of_tick.get(s.tick)
+        if s.tick > self.latest_tick + AHEAD or s.tick == self.state_tick[r]:
+            return  # from the future, or a copy (the first heard is the robot's)
+        if row is not None and abs(s.stamp - self.traj.t[row]) > STAMP_SLACK * max(1.0, abs(s.stamp)):
+            return  # its stamp is not its tick's
         goal = (s.goal_x, s.goal_y) if s.flags & State.HAS_GOAL else (np.nan, np.nan)
         said = (goal, s.goal_index, s.assign_epoch, s.assign_instance)
-        newest = s.tick >= self.state_tick[r]
+        newest = s.tick > self.state_tick[r]
         if newest:
             self.radius[r] = s.radius
             self.goal[r], self.goal_index[r], self.assign_epoch[r], self.assign_instance[r] = said
             self.state_tick[r] = s.tick
-        row = self.row_of_tick.get(s.tick)
         if row is None:
             return
         tr = self.traj
@@ -242,6 +252,7 @@ class Recorder:
         if tr.t and m.stamp <= tr.t[-1]:
             return
         self.row_of_tick[m.tick] = len(tr.t)
+        self.latest_tick = max(self.latest_tick, m.tick)
         tr.t.append(m.stamp)
         tr.wall.append(wall)
         tr.pose.append(m.pose)
