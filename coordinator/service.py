@@ -18,6 +18,7 @@ import os
 import signal
 import sys
 import time
+from collections import Counter
 from typing import Any
 
 import numpy as np
@@ -130,6 +131,7 @@ class Coordinator:
         self._matching: tuple[tuple[int, bytes], tuple[np.ndarray, np.ndarray]] | None = None  # goal_matching's last
         self.ready_for_a_loss = False  # _prepare_for_a_loss has run
         self.clock_heard = Clock()
+        self.clock_refused: Counter[str] = Counter()  # clock messages not believed, by reason
         if self.images:
             self.clock = bus.subscribe(bus.keys.clock, Tick)
             self.alive = bus.watch_alive("agent")
@@ -163,7 +165,7 @@ class Coordinator:
         for _, tick in self.clock.drain():
             why = self.clock_heard.admit(tick, time.monotonic())  # one forged stamp jumped the show to its end
             if why is not None:
-                self.clock.drops[why] += 1
+                self.clock_refused[why] += 1
                 continue
             self.t = tick.stamp if self.t is None else max(self.t, tick.stamp)
         for _, ident, alive, _ in self.alive.drain():

@@ -214,8 +214,10 @@ def test_the_coordinator_sends_the_next_image_with_its_matching_and_prices(monke
     bus.alive.items = [(f"agent/{r}", str(r), True, 0.0) for r in range(scene.robots)]
     sent = []
     change = scene.step_starts[1]
+    heard = -1  # the world publishes every tick: the coordinator hears each up to t
     for t in (0.0, change - service.PREPARE_AHEAD - 1.0, change - 1.0, change + 0.1):
-        bus.clock.items = [("clock", Tick(round(t / 0.1), t, 0.1))]
+        bus.clock.items = [("clock", Tick(k, k * 0.1, 0.1)) for k in range(heard + 1, round(t / 0.1) + 1)]
+        heard = round(t / 0.1)
         if coordinator._follow_show():
             sent.append(decode(bus.published[-1].encode(), Goals))
         else:
