@@ -163,7 +163,9 @@ def simulate(
     t_start = 0.0  # when the shown step started
     assigned_at: float | None = None  # when the shown goal set was last assigned
     if any(e["kind"] in ("fail", "tracker-outage", "tracker-glitch") for e in scene.events):
-        raise ValueError("fail and tracker events (faults of processes and messages) need the distributed engine")
+        raise ValueError(
+            "fail and tracker-outage events, and tracker-glitch ones (faults of processes and messages), need the distributed engine"
+        )
     events = sorted(scene.events, key=lambda e: e["t"])
     last_step = max(len(scene.steps) - 1, 0)
     shown = -1  # the image step whose goal set the auction works on

@@ -261,7 +261,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         if faults:
             raise UsageError("--faults acts on messages; the central engine sends none (use --engine distributed)")
         if any(e["kind"] in ("fail", "tracker-outage", "tracker-glitch") for e in scene.events):
-            raise UsageError("fail and tracker events (faults of processes and messages) need the distributed engine")
+            raise UsageError(
+                "fail and tracker-outage events, and tracker-glitch ones (faults of processes and messages), need the distributed engine"
+            )
 
         progress = None if args.quiet else sys.stderr
         print(run_central(scene, out, video=args.video, plots=args.plots, progress=progress, reach=reach))
