@@ -34,7 +34,7 @@ from transport.codec import (
     Truth,
     decode,
 )
-from transport.plausible import AHEAD, STAMP_SLACK, GoalSets
+from transport.plausible import AHEAD, GoalSets, stamp_agrees
 
 from .foxglove import SCENE_UPDATE_SCHEMA_NAME, scene_update, scene_update_schema
 from .mcaplog import McapLog
@@ -110,6 +110,9 @@ class Trajectory:
     wall: list[float] = field(default_factory=list)  # wall time each tick arrived (real-time factor)
 
 
+RECORD_AHEAD = 25 * AHEAD  # ticks a state may come before the world's truth of its tick reaches the recorder
+
+
 class Recorder:
     def __init__(
         self, bus: Bus, robots: int, tolerance: float, log_path: str | None = None, ticks_path: str | None = None
@@ -128,6 +131,7 @@ class Recorder:
         self.assign_instance = np.zeros(robots, np.int64)
         self.state_tick = np.full(robots, np.iinfo(np.int64).min)  # the tick of each robot's newest state
         self.latest_tick = -1  # the world's newest tick (its truth)
+        self.dt = 0.0  # the control period, once the world's truth has told it
         # The record is what the swarm believed: goal sets and states judged as the robots judge them
         # (transport.plausible), so a faulty peer's copies do not end up in the measurement.
         self.believed = GoalSets()
@@ -204,9 +208,9 @@ class Recorder:
             self.radius[r] = s.radius if np.isnan(self.radius[r]) else self.radius[r]
             return
         row = self.row_of_tick.get(s.tick)
-        if s.tick > self.latest_tick + AHEAD or s.tick == self.state_tick[r]:
+        if s.tick > self.latest_tick + RECORD_AHEAD or s.tick == self.state_tick[r]:
             return  # from the future, or a copy (the first heard is the robot's)
-        if row is not None and abs(s.stamp - self.traj.t[row]) > STAMP_SLACK * max(1.0, abs(s.stamp)):
+        if self.dt and not stamp_agrees(s.tick, s.stamp, self.dt):
             return  # its stamp is not its tick's
         goal = (s.goal_x, s.goal_y) if s.flags & State.HAS_GOAL else (np.nan, np.nan)
         said = (goal, s.goal_index, s.assign_epoch, s.assign_instance)
@@ -253,6 +257,8 @@ class Recorder:
             return
         self.row_of_tick[m.tick] = len(tr.t)
         self.latest_tick = max(self.latest_tick, m.tick)
+        if m.tick > 0:
+            self.dt = m.stamp / m.tick  # the control period, as the world's clock counts it
         tr.t.append(m.stamp)
         tr.wall.append(wall)
         tr.pose.append(m.pose)
