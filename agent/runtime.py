@@ -257,6 +257,7 @@ class AgentHost:
         # which the coordinator publishes for it; nor does an agent started during a show bid in a
         # goal set heard at its start (bid_from).
         self.gone: set[int] = set()
+        self.gone_since = 0  # the goal set ``gone`` is of
         self.bid_from = 0
         self.running = True
         self._bid_from: dict[int, np.ndarray] | None = None  # _positions(), until positions or goals change
@@ -371,7 +372,8 @@ class AgentHost:
             self.goal_sets[goals.epoch] = goals
             if goals.epoch < self.bid_from:
                 return  # its auction began before this agent joined: the robots wait for the next
-            self.gone = set(self.dead)
+            if goals.epoch != self.gone_since:  # a new goal set (the coordinator repeats the newest)
+                self.gone, self.gone_since = set(self.dead), goals.epoch
             for old in sorted(self.goal_sets)[:-GOAL_SETS_KEPT]:
                 del self.goal_sets[old]
             # a keyframe names its predecessor; an image follows the last
