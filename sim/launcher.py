@@ -542,7 +542,6 @@ class Launcher:
                 raise Interrupted()
             if time.monotonic() - start > self.opt.startup_timeout:
                 raise RuntimeError(f"{role} did not come alive within {self.opt.startup_timeout:g} s")
-            self._say(f"[{self.scene.name}] waiting for the {role} to come alive")
             time.sleep(0.02)
 
     def _loop(self, bus: Bus, rec: Recorder) -> str:

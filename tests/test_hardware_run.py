@@ -202,7 +202,7 @@ def test_a_killed_agent_stops_its_robot_and_the_end_of_the_run_stops_all(tmp_pat
             run.send_signal(signal.SIGTERM)  # interrupted: every robot is stopped too
         _, err = run.communicate(timeout=60)
         logs = [np.array(lab.emulator.log(r), float) for r in range(4)]
-    assert run.returncode in (0, 130), err
+    assert run.returncode in (0, 128 + signal.SIGTERM), err  # converged, or ended by the signal (docs/cli.md)
 
     log = logs[victim]
     by_then = log[log[:, 0] <= killed_at + TIMEOUT]
