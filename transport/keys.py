@@ -18,6 +18,7 @@ px/<display>/event                   low-rate run events (end of run, reports)
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 
@@ -150,6 +151,7 @@ class Keys:
         return parts[0]
 
     @staticmethod
+    @functools.lru_cache(maxsize=4096)  # a receiver hears the same few keys every tick
     def robot_alone(key: str) -> int | None:
         """The robot a key names as the one robot its frames hold (``pose/<id>``,
         ``state/<cx>/<cy>/<id>``), None for keys of several robots' frames or of other kinds."""
