@@ -270,8 +270,9 @@ class FaultyPeer:
         self.connect_wait = connect_wait
         self.heard: dict[str, deque[tuple[str, bytes]]] = {k: deque(maxlen=BUFFER) for k in self.kinds}
         self.heard_count: Counter[str] = Counter()
-        self.cmd_fresh: deque[tuple[float, str, bytes]] = deque(maxlen=100_000)  # stale-cmd: heard < 2 s ago (wall)
-        self.cmd_old: deque[tuple[str, bytes]] = deque(maxlen=2000)  # heard 2 s ago or more
+        # stale-cmd: commands heard less than STALE_AFTER ago, and those old enough to re-send
+        self.cmd_fresh: deque[tuple[float, str, bytes]] = deque(maxlen=100_000)
+        self.cmd_old: deque[tuple[str, bytes]] = deque(maxlen=2000)
         self.first_tick_wall: float | None = None
         self.started: float | None = None  # wall (monotonic) time damage began
         self.ended: float | None = None
@@ -421,7 +422,7 @@ class FaultyPeer:
                 self.hear(inboxes)
                 self._age_commands()
                 due = int((now - self.started) * self.rate)
-                slots = max(slots, due - int(self.rate))  # at most 1 s behind: no bursts after a stall
+                slots = max(slots, due - int(self.rate))  # at most a second's worth behind: no burst after a stall
                 while slots < due:
                     slots += 1
                     copy = self.make_copy(now)
