@@ -131,7 +131,3 @@ class TickLine:
             self.newest, self.heard_at = tick, wall
             return None
         return FUTURE if ahead or self.newest is None else STALE
-
-    def forget(self) -> None:
-        """The sender is gone (its liveliness token was withdrawn): its next tick begins a new line."""
-        self.newest, self.heard_at = None, -math.inf
