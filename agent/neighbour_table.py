@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass
 from operator import attrgetter
 
@@ -12,32 +11,10 @@ from transport.codec import State
 from transport.keys import cells_of
 from transport.plausible import AHEAD, FUTURE, INCONSISTENT, stamp_agrees
 
+from .core.grid import nearest
 from .core.step import NeighbourStates
 
 _tick = attrgetter("tick")
-DENSE_UP_TO = 20_000  # (batch robot, state) pairs measured all at once; more: candidates from a k-d tree
-
-
-def _pairs_in_reach(
-    p: np.ndarray, robot_ids: np.ndarray, pos: np.ndarray, ids: np.ndarray, reach: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(row in the batch, column in the states, squared distance) of every pair within ``reach``,
-    but a robot and its own state. The candidates: every pair for a small batch (a robot per
-    process); for a host of hundreds of robots, those a k-d tree over the states finds in a ball a
-    hair wider than ``reach`` (the tree's rounding loses no pair): 1.7 ms a tick instead of 4 for
-    250 robots among 1000. Only then is scipy.spatial loaded (0.7 s and 28 MB that a single
-    robot's process does without). Then one exact test for both, so both give the same pairs."""
-    if len(p) * len(pos) <= DENSE_UP_TO:
-        rows, cols = np.repeat(np.arange(len(p)), len(pos)), np.tile(np.arange(len(pos)), len(p))
-    else:
-        from scipy.spatial import cKDTree
-
-        ball = cKDTree(pos).query_ball_point(p, reach * (1.0 + 1e-9) + 1e-12, return_sorted=False)
-        rows = np.repeat(np.arange(len(p)), [len(c) for c in ball])
-        cols = np.fromiter(itertools.chain.from_iterable(ball), np.int64, len(rows))
-    d2 = (pos[cols, 0] - p[rows, 0]) ** 2 + (pos[cols, 1] - p[rows, 1]) ** 2
-    keep = (ids[cols] != robot_ids[rows]) & (d2 <= reach**2)
-    return rows[keep], cols[keep], d2[keep]
 
 
 class NeighbourTable:
@@ -149,8 +126,6 @@ class NeighbourTable:
         states = self.latest_before(tick)
         if not states:
             return NeighbourStates.empty(len(robot_ids))
-        if len(robot_ids) == 1:  # a robot per process: numpy's per-call cost outweighed the work
-            return _nearest_one(robot_ids[0], positions, stamp, states, neighbour_dist, max_neighbours, stopped or {})
         fields = np.array(
             [(s.robot, s.x, s.y, s.vx, s.vy, s.radius, s.stamp, s.flags & State.DYNAMIC) for s in states], float
         )  # one pass over the states, one array
@@ -187,70 +162,26 @@ def nearest_heard(
 ) -> NeighbourStates:
     """Padded neighbour arrays for a batch at display time ``stamp``: each robot's nearest
     ``max_neighbours`` heard states within ``neighbour_dist`` of it (never its own), nearest first,
-    ties by robot id, so every process and engine picks the same neighbours from the same states."""
+    ties by robot id (agent.core.grid.nearest), so every process and engine picks the same neighbours
+    from the same states, for one robot, a host's K or all of them."""
     batch = len(robot_ids)
     if len(heard.ids) == 0:
         return NeighbourStates.empty(batch)
-    order = np.argsort(heard.ids, kind="stable")
-    ids, pos, vel = heard.ids[order], heard.position[order], heard.velocity[order]
-    rad, age, coop = heard.radius[order], stamp - heard.stamp[order], heard.cooperative[order]
-    m = max_neighbours
-    out = NeighbourStates.empty(batch, m)
-    # The whole batch at once: the pairs in reach (not itself), ranked per robot by distance, then
-    # by id (their column order).
-    p = np.asarray(positions, float).reshape(batch, 2)
-    rows, cols, d2 = _pairs_in_reach(p, np.asarray(robot_ids), pos, ids, neighbour_dist)
-    order = np.lexsort((cols, d2, rows))
-    rows, cols = rows[order], cols[order]
-    rank = np.arange(len(rows)) - np.searchsorted(rows, rows)  # place among the robot's candidates
-    near = rank < m
-    rows, cols, rank = rows[near], cols[near], rank[near]
-    out.position[rows, rank], out.velocity[rows, rank] = pos[cols], vel[cols]
-    out.radius[rows, rank], out.age[rows, rank], out.valid[rows, rank] = rad[cols], age[cols], True
-    out.cooperative[rows, rank] = coop[cols]
-    return out
-
-
-def _nearest_one(
-    robot: int,
-    position: np.ndarray,
-    stamp: float,
-    states: list[State],
-    neighbour_dist: float,
-    max_neighbours: int,
-    stopped: dict[int, float],
-) -> NeighbourStates:
-    """`gather` for one robot in plain Python, value for value what ``nearest_heard`` gives: the same
-    float operations in the same order, the same ranking (distance, then robot id)."""
-    px, py = np.asarray(position, float).reshape(2).tolist()
-    reach2 = neighbour_dist**2
-    near = []
-    for s in states:
-        if s.robot == robot:
-            continue
-        dx, dy = s.x - px, s.y - py
-        d2 = dx * dx + dy * dy
-        if d2 <= reach2:
-            near.append((d2, s.robot, s))
-    near.sort(key=lambda c: (c[0], c[1]))
-    out = NeighbourStates.empty(1, max_neighbours)
-    chosen = near[:max_neighbours]
-    if not chosen:
-        return out
-    k = len(chosen)
-    position_, velocity, radius, age, cooperative = [], [], [], [], []
-    for _, r, s in chosen:
-        position_.append((s.x, s.y))
-        if r in stopped:  # its body stands where it was last heard (see gather)
-            velocity.append((0.0, 0.0))
-            radius.append(s.radius + stopped[r])
-            age.append(stamp - stamp)
-            cooperative.append(False)
-        else:
-            velocity.append((s.vx, s.vy))
-            radius.append(s.radius)
-            age.append(stamp - s.stamp)
-            cooperative.append(s.flags & State.DYNAMIC == 0)
-    out.position[0, :k], out.velocity[0, :k], out.radius[0, :k] = position_, velocity, radius
-    out.age[0, :k], out.valid[0, :k], out.cooperative[0, :k] = age, True, cooperative
-    return out
+    f64 = np.ascontiguousarray
+    idx = nearest(
+        f64(positions, dtype=float).reshape(batch, 2),
+        f64(robot_ids, dtype=np.int64).reshape(batch),
+        f64(heard.position, dtype=float),
+        f64(heard.ids, dtype=np.int64),
+        float(neighbour_dist),
+        int(max_neighbours),
+    )
+    valid = idx >= 0  # idx -1 (no neighbour) reads the last state: masked out below
+    return NeighbourStates(
+        np.where(valid[..., None], np.asarray(heard.position, float)[idx], 0.0),
+        np.where(valid[..., None], np.asarray(heard.velocity, float)[idx], 0.0),
+        np.where(valid, np.asarray(heard.radius, float)[idx], 1.0),
+        np.where(valid, stamp - np.asarray(heard.stamp, float)[idx], 0.0),
+        valid,
+        np.where(valid, np.asarray(heard.cooperative, bool)[idx], True),
+    )

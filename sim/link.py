@@ -17,8 +17,6 @@ import numpy as np
 from agent.core.step import NeighbourStates
 from agent.neighbour_table import Heard, nearest_heard
 
-from .proximity import nearest_heard_compiled
-
 _UNHEARD = -np.inf
 
 
@@ -66,12 +64,12 @@ class InProcessLink:
         self, robot_ids: np.ndarray, position: np.ndarray, stamp: float, neighbour_dist: float, max_neighbours: int
     ) -> NeighbourStates:
         """Each robot's nearest neighbours as it last heard them, by the agents' own rule
-        (agent.neighbour_table.nearest_heard; compiled when every robot heard the same states)."""
+        (agent.neighbour_table.nearest_heard), all at once when every robot heard the same states."""
         neighbour_dist = min(neighbour_dist, self.reach)
         if not self.impaired:
             if self.last is None:
                 return NeighbourStates.empty(len(robot_ids))
-            return nearest_heard_compiled(robot_ids, position, stamp, self.last, neighbour_dist, max_neighbours)
+            return nearest_heard(robot_ids, position, stamp, self.last, neighbour_dist, max_neighbours)
         out = NeighbourStates.empty(len(robot_ids), max_neighbours)
         if self.delayed is None:
             return out

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from agent import neighbour_table
 from agent.core.bidder import bid_position
 from agent.neighbour_table import NeighbourTable
 from transport.codec import State
@@ -38,10 +37,11 @@ def test_each_robot_gets_its_nearest_neighbours_in_reach_ties_broken_by_id():
         assert np.allclose(got.velocity[b, :k, 0], [0.01 * r for r in expect])  # the states of those robots
 
 
-def test_a_large_batch_finds_the_same_neighbours_from_its_k_d_tree(monkeypatch):
-    """A host of hundreds of robots takes its candidate pairs from a k-d tree (agent.neighbour_table
-    DENSE_UP_TO); the pairs, their order and every gathered array must be those of the dense
-    search, ties (a grid of positions) and pairs at exactly the neighbour distance included."""
+def test_a_large_batch_finds_the_neighbours_each_robot_finds_alone():
+    """A host of hundreds of robots gathers for all of them at once (one grid over the states, where
+    it once took its candidates from a k-d tree); the pairs, their order and every gathered array
+    must be those each robot gets alone, ties (a grid of positions) and pairs at exactly the
+    neighbour distance included."""
     rng = np.random.default_rng(11)
     table = NeighbourTable(0.1)
     points = np.round(rng.uniform(-2.0, 2.0, (400, 2)) * 10) / 10
@@ -49,20 +49,19 @@ def test_a_large_batch_finds_the_same_neighbours_from_its_k_d_tree(monkeypatch):
     for robot, (x, y) in zip(ids, points):
         table.update(_state(int(robot), float(x), float(y)))
     own, here = [int(r) for r in ids[:90]], points[:90]
-
-    def gathered(dense_up_to: int) -> list[np.ndarray]:
-        monkeypatch.setattr(neighbour_table, "DENSE_UP_TO", dense_up_to)
-        got = table.gather(own, here, stamp=0.2, tick=2, neighbour_dist=0.5, max_neighbours=8)
-        return [got.position, got.velocity, got.radius, got.age, got.valid, got.cooperative]
-
-    dense, tree = gathered(10**9), gathered(0)
-    assert dense[4].sum() > 500  # many neighbours, many of them at equal distances
-    for a, b in zip(dense, tree):
-        np.testing.assert_array_equal(a, b)
+    names = ("position", "velocity", "radius", "age", "valid", "cooperative")
+    got = table.gather(own, here, stamp=0.2, tick=2, neighbour_dist=0.5, max_neighbours=8)
+    assert got.valid.sum() > 500  # many neighbours, many of them at equal distances
+    d2 = ((points[:, None, :] - here[None]) ** 2).sum(axis=2)
+    assert (np.abs(d2 - 0.25) < 1e-12).any()  # some exactly at the neighbour distance
+    for b, (rid, p) in enumerate(zip(own, here)):
+        alone = table.gather([rid], p[None, :], stamp=0.2, tick=2, neighbour_dist=0.5, max_neighbours=8)
+        for name in names:
+            np.testing.assert_array_equal(getattr(alone, name), getattr(got, name)[b : b + 1], err_msg=name)
 
 
 def test_one_robot_gathers_bit_for_bit_what_it_gets_in_a_batch():
-    """A process of one robot gathers in plain Python (agent.neighbour_table._nearest_one): every
+    """A process of one robot gathers with a batch of one (agent.core.grid.nearest): every
     array must equal that robot's row of a batch's, ties, dead robots' bodies and dynamic
     obstacles included, so a robot steers alike whatever host it runs in."""
     rng = np.random.default_rng(5)

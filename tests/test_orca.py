@@ -266,15 +266,3 @@ def test_orca_velocity_is_bit_identical_alone_or_in_a_batch():
         one = [a[i : i + 1] for a in args[:5]] + [a[i : i + 1, :k] for a in args[5:]]
         vi, fbi = orca_velocity(*one, walls, **opts)
         assert vi[0].tobytes() == v[i].tobytes() and fbi[0] == fb[i]
-
-
-def test_nearest_first_keeps_the_closest_valid_neighbours_in_order():
-    from agent.core.neighbours import Neighbours, nearest_first
-
-    pos = np.array([[0.0, 0.0]])
-    npos = np.array([[[3.0, 0.0], [1.0, 0.0], [0.5, 0.0], [2.0, 0.0], [9.0, 0.0]]])
-    valid = np.array([[True, True, False, True, True]])
-    nb = Neighbours(npos, np.zeros_like(npos), np.arange(5.0)[None], np.full((1, 5), 0.5), valid)
-    out = nearest_first(pos, nb, max_neighbours=3, neighbour_dist=5.0)
-    assert np.array_equal(out.position[0, :, 0], [1.0, 2.0, 3.0])
-    assert np.array_equal(out.radius[0], [1.0, 3.0, 0.0]) and out.valid.all()

@@ -1,5 +1,6 @@
-"""The central engine's neighbour search (sim.proximity.nearest_within) against scipy's kd-tree: the same neighbours,
-nearest first, strictly within reach, self excluded."""
+"""The one neighbour search of every engine (agent.core.grid, compiled) against scipy's kd-tree: the
+same neighbours, nearest first, within reach, self excluded, equal distances by key then index; and
+the world's contact search (sim.proximity.close_pairs) against the kd-tree's pairs."""
 
 from __future__ import annotations
 
@@ -7,15 +8,40 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from agent.core.neighbour_grid import nearest_within
+from agent.core.grid import nearest
 from agent.neighbour_table import Heard, nearest_heard
-from sim.proximity import nearest_heard_compiled
+from sim.proximity import close_pairs
+
+
+def nearest_within(position: np.ndarray, reach: float, m: int) -> np.ndarray:
+    """The central engine's (agent.core.rvo) use: every robot among all, strictly within reach."""
+    index = np.arange(len(position), dtype=np.int64)
+    p = np.ascontiguousarray(position, dtype=float)
+    return nearest(p, index, p, index, reach, m, False)
 
 
 def kd_tree_neighbours(position: np.ndarray, reach: float, m: int) -> np.ndarray:
     dist, idx = cKDTree(position).query(position, k=m + 1, distance_upper_bound=reach)
     idx = np.where(np.isfinite(dist), idx, -1)[:, 1:]  # the first is the robot itself
     return idx
+
+
+def kd_tree_ranked(query, query_key, points, key, reach, m, inclusive) -> np.ndarray:
+    """The documented rule from the kd-tree's candidates (a ball a hair wider than reach): d2 =
+    (x - qx)^2 + (y - qy)^2, within reach, not the query's own key, ranked by (d2, key, index)."""
+    out = np.full((len(query), m), -1, np.int64)
+    if len(points) == 0 or len(query) == 0:
+        return out
+    ball = cKDTree(points).query_ball_point(query, reach * (1.0 + 1e-9) + 1e-12)
+    for i, cand in enumerate(ball):
+        j = np.asarray(cand, dtype=np.int64)
+        dx, dy = points[j, 0] - query[i, 0], points[j, 1] - query[i, 1]
+        d2 = dx * dx + dy * dy
+        keep = (d2 <= reach * reach if inclusive else d2 < reach * reach) & (key[j] != query_key[i])
+        j, d2 = j[keep], d2[keep]
+        ranked = j[np.lexsort((j, key[j], d2))][:m]
+        out[i, : len(ranked)] = ranked
+    return out
 
 
 @pytest.mark.parametrize(
@@ -41,11 +67,69 @@ def test_a_robot_far_away():
     assert got[2].tolist() == [-1, -1]  # alone, 10^7 m away (the grid widens its cells)
 
 
+@pytest.mark.parametrize("seed", range(40))
+def test_the_documented_ranking_on_a_kd_tree_s_candidates(seed):
+    """Random seeded sets, half of them on a lattice (ties everywhere, points exactly at reach),
+    queries inside and far outside the points, keys in any order, m beyond the count, both rules."""
+    rng = np.random.default_rng(seed)
+    n, q = int(rng.integers(0, 300)), int(rng.integers(0, 60))
+    lattice = seed % 2 == 0
+    points = rng.integers(-8, 8, (n, 2)) * 0.125 if lattice else rng.uniform(-1, 1, (n, 2))
+    query = rng.integers(-10, 10, (q, 2)) * 0.125 if lattice else rng.uniform(-1.5, 1.5, (q, 2))
+    if q:
+        query[0] = (40.0, -3.0)  # far outside the grid
+    key = rng.permutation(1000)[:n].astype(np.int64)
+    query_key = np.concatenate([key[: q // 2], rng.integers(1000, 2000, q)])[:q].astype(np.int64)
+    m = int(rng.integers(0, 12)) if seed % 5 else n + 3  # more than there are
+    reach = float(rng.choice([0.125, 0.25, 0.5, 2.0, 100.0]))
+    for inclusive in (True, False):
+        got = nearest(query, query_key, points, key, reach, m, inclusive)
+        want = kd_tree_ranked(query, query_key, points, key, reach, m, inclusive)
+        np.testing.assert_array_equal(got, want, err_msg=f"inclusive={inclusive}")
+    if lattice and q and n and m:
+        assert (nearest(query, query_key, points, key, reach, m) >= 0).sum() > 0
+
+
+def test_empty_sets_and_no_room():
+    none, some = np.zeros((0, 2)), np.array([[0.0, 0.0], [0.1, 0.0]])
+    keys = np.array([1, 2], dtype=np.int64)
+    empty = np.zeros(0, dtype=np.int64)
+    assert nearest(some, keys, none, empty, 1.0, 3).tolist() == [[-1, -1, -1]] * 2  # an empty grid
+    assert nearest(none, empty, some, keys, 1.0, 3).shape == (0, 3)
+    assert nearest(some, keys, some, keys, 1.0, 0).shape == (2, 0)
+    assert nearest(some, keys, some, keys, 1.0, 5).tolist() == [[1, -1, -1, -1, -1], [0, -1, -1, -1, -1]]
+    assert nearest(some, np.array([7, 8]), some, keys, np.inf, 2).tolist() == [[0, 1], [1, 0]]  # no own key
+
+
+def test_a_batch_of_one_is_its_row_of_every_batch():
+    """An agent asks for its one robot, a host for K, the central engine for all: the same row."""
+    rng = np.random.default_rng(4)
+    points = rng.integers(-10, 10, (500, 2)) * 0.05
+    key = rng.permutation(500).astype(np.int64)
+    everyone = nearest(points, key, points, key, 0.3, 10)
+    for size in (1, 7, 120):
+        for lo in range(0, 500, 97):
+            rows = slice(lo, min(lo + size, 500))
+            np.testing.assert_array_equal(nearest(points[rows], key[rows], points, key, 0.3, 10), everyone[rows])
+
+
+def test_the_closest_valid_neighbours_in_order():
+    """(Was agent.core.neighbours.nearest_first's test.) Of the valid states, those within reach,
+    nearest first, at most M."""
+    npos = np.array([[3.0, 0.0], [1.0, 0.0], [0.5, 0.0], [2.0, 0.0], [9.0, 0.0]])
+    valid = np.array([True, True, False, True, True])
+    radius = np.arange(5.0)
+    heard = Heard(np.arange(5)[valid], npos[valid], np.zeros((4, 2)), radius[valid], np.zeros(4), np.ones(4, bool))
+    out = nearest_heard([99], np.zeros((1, 2)), 0.0, heard, 5.0, 3)
+    assert np.array_equal(out.position[0, :, 0], [1.0, 2.0, 3.0])
+    assert np.array_equal(out.radius[0], [1.0, 3.0, 0.0]) and out.valid.all()
+
+
 @pytest.mark.parametrize("seed", range(20))
-def test_the_compiled_neighbour_choice_is_the_agents_own(seed):
-    """The central engine picks neighbours on a compiled grid (sim.proximity.nearest_heard_compiled);
-    the agents pick them with agent.neighbour_table.nearest_heard. Same states in, the same
-    neighbours out, in the same order, ties in distance included (points on a lattice)."""
+def test_the_agents_neighbour_choice_is_the_documented_rule(seed):
+    """The agents and every engine pick neighbours with agent.neighbour_table.nearest_heard (the
+    compiled grid): each robot's states are those of the kd-tree's ranking, ties in distance by
+    robot id (points on a lattice), whatever order the states come in."""
     rng = np.random.default_rng(seed)
     n, q = int(rng.integers(1, 60)), int(rng.integers(1, 40))
     lattice = seed % 2 == 0
@@ -57,11 +141,60 @@ def test_the_compiled_neighbour_choice_is_the_agents_own(seed):
     own = np.concatenate([ids[: q // 2], rng.integers(200, 300, q)])[:q]  # some of the queries are heard robots
     where = rng.integers(-5, 5, (len(own), 2)) * 0.1 if lattice else rng.uniform(-1.2, 1.2, (len(own), 2))
     m, reach = int(rng.integers(1, 12)), float(rng.choice([0.1, 0.3, 0.6, 2.0]))
-    numpy_pick = nearest_heard(own, where, 1.5, heard, reach, m)
-    compiled = nearest_heard_compiled(own, where, 1.5, heard, reach, m)
-    k = numpy_pick.position.shape[1]  # numpy pads only to the states there are
-    assert not compiled.valid[:, k:].any()
-    np.testing.assert_array_equal(compiled.valid[:, :k], numpy_pick.valid)
-    ok = numpy_pick.valid
-    for name in ("position", "velocity", "radius", "age", "cooperative"):
-        np.testing.assert_array_equal(getattr(compiled, name)[:, :k][ok], getattr(numpy_pick, name)[ok], err_msg=name)
+    got = nearest_heard(own, where, 1.5, heard, reach, m)
+    idx = kd_tree_ranked(where, own, pos, ids, reach, m, True)
+    ok = idx >= 0
+    np.testing.assert_array_equal(got.valid, ok)
+    np.testing.assert_array_equal(got.position[ok], pos[idx[ok]])
+    np.testing.assert_array_equal(got.velocity[ok], heard.velocity[idx[ok]])
+    np.testing.assert_array_equal(got.radius[ok], heard.radius[idx[ok]])
+    np.testing.assert_array_equal(got.age[ok], 1.5 - heard.stamp[idx[ok]])
+    np.testing.assert_array_equal(got.cooperative[ok], heard.cooperative[idx[ok]])
+    assert (got.radius[~ok] == 1.0).all() and (got.position[~ok] == 0.0).all() and got.cooperative[~ok].all()
+    shuffled = rng.permutation(n)  # the states in another order: the same choice
+    again = nearest_heard(
+        own,
+        where,
+        1.5,
+        Heard(*(a[shuffled] for a in (ids, pos, heard.velocity, heard.radius, heard.stamp, heard.cooperative))),
+        reach,
+        m,
+    )
+    for name in ("position", "velocity", "radius", "age", "valid", "cooperative"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(got, name), err_msg=name)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_close_pairs_finds_the_kd_tree_s_pairs(seed):
+    """sim.proximity.close_pairs against the pairs a kd-tree finds in reach: the same overlapping
+    pairs with the same depths, the same smallest clearance, and a budget that stops it."""
+    rng = np.random.default_rng(seed)
+    n, rows = int(rng.integers(2, 400)), int(rng.integers(1, 4))
+    start = rng.uniform(0.0, float(rng.choice([1.0, 5.0])), (n, 2))
+    if seed % 3 == 0:
+        start = np.round(start * 10) / 10  # many at equal distances, some on top of each other
+    traj = start[None] + np.cumsum(rng.normal(0.0, 0.005, (rows, n, 2)), axis=0) * (np.arange(rows) > 0)[:, None, None]
+    radius = rng.uniform(0.01, 0.05, n)
+    motion = float(np.abs(traj - traj[0]).max()) * 1.5 + 1e-12
+    reach, first_row = 0.12, int(rng.integers(0, rows))
+    got = close_pairs(traj, radius, reach, motion, first_row)
+    assert got is not None
+    pairs = cKDTree(traj[0]).query_pairs(reach * (1 - 1e-9), output_type="ndarray")
+    pairs.sort(axis=1)
+    i, j = pairs[:, 0], pairs[:, 1]
+    s = radius[i] + radius[j]
+    d = np.sqrt(((traj[:, i] - traj[:, j]) ** 2).sum(axis=2))  # (rows, pairs)
+    overlap = (d[first_row:] < s).any(axis=0)
+    want = {(int(a), int(b)): s[k] - d[first_row:, k] for k, (a, b) in enumerate(pairs) if overlap[k]}
+    found = {(int(a), int(b)): depth for (a, b), depth in zip(got[3], got[4].T)}
+    assert set(want) <= set(found) and all(a < b for a, b in found)
+    for pair, depth in want.items():
+        np.testing.assert_allclose(found[pair], depth, rtol=0, atol=1e-15)
+    if len(pairs):
+        assert got[0] <= (d.min(axis=0) - s).min() + 1e-15
+        a, b = got[1], got[2]
+        assert got[0] == pytest.approx(
+            np.sqrt(((traj[:, a] - traj[:, b]) ** 2).sum(axis=1)).min() - radius[a] - radius[b]
+        )
+    if n > 30:
+        assert close_pairs(traj, radius, reach, motion, first_row, budget=1) is None

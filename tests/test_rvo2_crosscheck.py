@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from agent.core.orca import orca_lines, orca_velocity, preferred_velocity
 from agent.core.rvo import CentralOrca
@@ -175,15 +176,25 @@ def test_central_orca_compiled_is_the_numpy_path_bit_for_bit(scene, safety):
         assert reference.fallback_count > 0
 
 
-def test_the_neighbours_of_both_paths_are_rvo2s():
+def test_the_neighbours_are_rvo2s():
     """Up to max_neighbors agents closer than neighbor_dist, nearest first, equal distances by index:
-    on a lattice (ties everywhere, distances exactly at reach) both paths pick the same."""
+    on a lattice (ties everywhere, distances exactly at reach) the engine (both paths: one compiled
+    grid, agent.core.grid) picks what a kd-tree ranked by (distance, index) picks."""
     sims = [CentralOrca(0.25, 2.0, 5, 5.0, 5.0, 0.2, 1.0, compiled=c) for c in (True, False)]
     for sim in sims:
         for x in range(8):
             for y in range(6):
                 sim.add_agent((float(x), float(y)))
-    (grid_idx, grid_valid), (tree_idx, tree_valid) = (sim.neighbours() for sim in sims)
+    (grid_idx, grid_valid), (other_idx, other_valid) = (sim.neighbours() for sim in sims)
+    np.testing.assert_array_equal(grid_valid, other_valid)
+    np.testing.assert_array_equal(grid_idx[grid_valid], other_idx[other_valid])
+    p = sims[0].position
+    tree_idx = np.zeros_like(grid_idx)
+    tree_valid = np.zeros_like(grid_valid)
+    for i, ball in enumerate(cKDTree(p).query_ball_point(p, 2.0 * (1 + 1e-9))):
+        j = np.array([k for k in ball if k != i and ((p[k] - p[i]) ** 2).sum() < 4.0], dtype=np.int64)
+        j = j[np.lexsort((j, ((p[j] - p[i]) ** 2).sum(axis=1)))][:5]
+        tree_idx[i, : len(j)], tree_valid[i, : len(j)] = j, True
     np.testing.assert_array_equal(grid_valid, tree_valid)
     np.testing.assert_array_equal(grid_idx[grid_valid], tree_idx[tree_valid])
     # agent 9 at (1, 3): four at distance 1 (indices 3, 8, 10, 15), then sqrt(2) (2, 4, 14, 16); 2 is out

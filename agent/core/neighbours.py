@@ -18,7 +18,6 @@ __all__ = [
     "COOPERATING",
     "NON_COOPERATING",
     "prepare_neighbours",
-    "nearest_first",
     "perturb_preferred_velocity",
 ]
 
@@ -100,32 +99,6 @@ def prepare_neighbours(
     responsibility = np.where(coop & ~stale, COOPERATING, NON_COOPERATING)
     lead = np.where(valid & ~stale, horizon, 0.0)
     return Neighbours(new_position, safe_v, new_radius, responsibility, valid, growth, lead)
-
-
-def nearest_first(
-    position: ArrayLike, neighbours: Neighbours, max_neighbours: int, neighbour_dist: float = np.inf
-) -> Neighbours:
-    """Each robot's valid neighbours within ``neighbour_dist`` (centre to centre), nearest first, at
-    most ``max_neighbours`` (ORCA's fallback takes them in this order, as RVO2 does)."""
-    p = np.asarray(position, dtype=float)
-    ex = neighbours.position[..., 0] - p[:, None, 0]
-    ey = neighbours.position[..., 1] - p[:, None, 1]
-    dist2 = np.where(neighbours.valid, ex * ex + ey * ey, np.inf)
-    keep = dist2 < neighbour_dist * neighbour_dist
-    dist2 = np.where(keep, dist2, np.inf)
-    m = min(max_neighbours, dist2.shape[1])
-    order = (np.arange(p.shape[0])[:, None], np.argsort(dist2, axis=1, kind="stable")[:, :m])
-    growth = None if neighbours.growth is None else neighbours.growth[order]
-    lead = None if neighbours.lead is None else neighbours.lead[order]
-    return Neighbours(
-        neighbours.position[order],
-        neighbours.velocity[order],
-        neighbours.radius[order],
-        neighbours.responsibility[order],
-        keep[order],
-        growth,
-        lead,
-    )
 
 
 _Words = TypeVar("_Words", np.ndarray, np.uint64)

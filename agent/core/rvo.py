@@ -3,17 +3,17 @@
 The reference against which decentralisation is studied and the fast path for large swarms: one
 snapshot, every robot's new velocity from the same batch call of the core, then all move.
 
-Two paths to the same velocities, bit for bit (tests/test_rvo2_crosscheck.py): compiled (the
-default: neighbours from agent.core.neighbour_grid, velocities from agent.core.orca_kernel, both
-numba, imported on first use so that importing this module does not load numba), and numpy
-(``compiled=False``: a scipy k-d tree and agent.core.orca.orca_velocity), the reference.
+Neighbours come from agent.core.grid (compiled). Two paths to the same velocities, bit for bit
+(tests/test_rvo2_crosscheck.py): compiled (the default: agent.core.orca_kernel, numba, imported on
+first use so that importing this module does not load numba), and numpy (``compiled=False``:
+agent.core.orca.orca_velocity), the reference.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from agent.core.grid import nearest
 from agent.core.neighbours import perturb_preferred_velocity
 from agent.core.orca import orca_velocity, polygon_segments
 
@@ -100,35 +100,14 @@ class CentralOrca:
     def neighbours(self) -> tuple[np.ndarray, np.ndarray]:
         """Up to max_neighbors agents closer than neighbor_dist, nearest first (ties by index):
         (index (N,M), valid (N,M)); invalid slots hold 0."""
-        if self.compiled:
-            idx = self._neighbours_grid()
-            return np.where(idx >= 0, idx, 0), idx >= 0
-        return self._neighbours_kd_tree()
+        idx = self._neighbours_grid()
+        return np.where(idx >= 0, idx, 0), idx >= 0
 
     def _neighbours_grid(self) -> np.ndarray:
-        from agent.core.neighbour_grid import nearest_within
-
-        return nearest_within(self.position, self.neighbor_dist, self.max_neighbors)
-
-    def _neighbours_kd_tree(self) -> tuple[np.ndarray, np.ndarray]:
-        # the pairs a little beyond reach from the tree, then the distance as the grid computes it
-        # (sqrt(dx^2 + dy^2)), strictly within reach, sorted by (distance, index)
-        n, m, p = self.num_agents, self.max_neighbors, self.position
-        pairs = cKDTree(p).query_pairs(self.neighbor_dist * (1.0 + 1e-9), output_type="ndarray")
-        i = np.concatenate([pairs[:, 0], pairs[:, 1]])
-        j = np.concatenate([pairs[:, 1], pairs[:, 0]])
-        dx, dy = p[j, 0] - p[i, 0], p[j, 1] - p[i, 1]
-        d = np.sqrt(dx * dx + dy * dy)
-        near = d < self.neighbor_dist
-        i, j, d = i[near], j[near], d[near]
-        order = np.lexsort((j, d, i))
-        i, j = i[order], j[order]
-        rank = np.arange(len(i)) - np.searchsorted(i, i)  # place among the robot's own neighbours
-        keep = rank < m
-        idx = np.zeros((n, m), dtype=np.int64)
-        valid = np.zeros((n, m), dtype=bool)
-        idx[i[keep], rank[keep]], valid[i[keep], rank[keep]] = j[keep], True
-        return idx, valid
+        """(N, M) indices, -1 past the last: RVO2's rule (d^2 < neighbor_dist^2), ties by index."""
+        index = np.arange(self.num_agents, dtype=np.int64)
+        p = np.ascontiguousarray(self.position, dtype=float)
+        return nearest(p, index, p, index, self.neighbor_dist, self.max_neighbors, False)
 
     def preferred(self) -> np.ndarray:
         """The preferred velocities of this step, perturbed if asked for."""
@@ -157,7 +136,7 @@ class CentralOrca:
                 self.safety_margin,
                 self.safety,
             )
-        idx, valid = self._neighbours_kd_tree()
+        idx, valid = self.neighbours()
         return orca_velocity(
             self.position,
             self.velocity,

@@ -1,0 +1,23 @@
+"""Typed signatures of the compiled agent/core/grid.pyx (see its docstring)."""
+
+import numpy as np
+import numpy.typing as npt
+
+def nearest(
+    query: npt.NDArray[np.float64],
+    query_key: npt.NDArray[np.int64],
+    points: npt.NDArray[np.float64],
+    key: npt.NDArray[np.int64],
+    reach: float,
+    m: int,
+    inclusive: bool = True,
+) -> npt.NDArray[np.int64]: ...
+def close_pairs(
+    traj: npt.NDArray[np.float64],
+    radius: npt.NDArray[np.float64],
+    reach: float,
+    motion: float,
+    bound: float,
+    first_row: int,
+    budget: int,
+) -> tuple[bool, float, int, int, npt.NDArray[np.int64], npt.NDArray[np.float64]]: ...

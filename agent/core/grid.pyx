@@ -1,0 +1,326 @@
+"""Who is near whom, on a uniform grid of cells: the one neighbour search of every engine, compiled.
+
+- `nearest`: each query point's up to ``m`` nearest points within ``reach``. An agent calls it for its
+  one robot, a host for its K robots, the central engines for all of them (agent.neighbour_table,
+  agent.core.rvo, sim.link), so a robot's neighbours depend only on its own position and the points,
+  never on the batch it is computed in.
+- `close_pairs`: every pair of discs within reach of each other over a few states, with the closest
+  pair and the overlaps: the simulated world's contact detection (sim.proximity, sim.world).
+
+The ranking, the same everywhere: a point j is nearer to a query q than a point l when
+(d2(q, j), key[j], j) < (d2(q, l), key[l], l) lexicographically, with d2 = dx * dx + dy * dy,
+dx = x[j] - qx, dy = y[j] - qy, computed in that order in float64 (setup.py compiles without
+fast-math or fused multiply-adds, so d2 is the same number on every machine and in every batch).
+Equal distances go to the lower key (a robot id), then to the lower index; nothing depends on the
+order in which the grid meets the points.
+
+Positions must be finite.
+"""
+
+# cython: language_level=3
+
+from libc.math cimport fabs, floor, sqrt
+from libc.stdint cimport int64_t
+from libc.stdlib cimport free, malloc
+
+import numpy as np
+
+cdef enum:
+    CELLS_PER_POINT = 16  # a grid has at most this many cells per point (coarser cells past it), or 1024
+    PARTS = 2  # nearest's cells are reach / PARTS wide
+
+
+cdef struct Grid:
+    Py_ssize_t n  # points
+    Py_ssize_t nx, ny  # columns, rows: cell c = gx * ny + gy
+    double x0, y0, cell  # origin and cell size
+    Py_ssize_t *cx  # (n,) each point's column
+    Py_ssize_t *cy  # (n,) and row
+    Py_ssize_t *start  # (nx * ny + 1,) the points of cell c are order[start[c]:start[c + 1]]
+    Py_ssize_t *order  # (n,) the points, sorted by cell (by index within a cell)
+    double *sx  # (n,) x of order's points
+    double *sy  # (n,) y of order's points
+
+
+cdef void grid_free(Grid *g) noexcept:
+    free(g.cx)
+    free(g.cy)
+    free(g.start)
+    free(g.order)
+    free(g.sx)
+    free(g.sy)
+    g.cx = g.cy = g.start = g.order = NULL
+    g.sx = g.sy = NULL
+
+
+cdef int grid_build(Grid *g, const double[:, ::1] points, double width) except -1:
+    """The cells of the points, at least ``width`` wide (wider where there would be too many, so a
+    far outlier cannot ask for billions of cells). At least one point."""
+    cdef Py_ssize_t n = points.shape[0], i, c, cells
+    cdef double x0 = points[0, 0], x1 = points[0, 0], y0 = points[0, 1], y1 = points[0, 1]
+    for i in range(1, n):
+        x0 = min(x0, points[i, 0])
+        x1 = max(x1, points[i, 0])
+        y0 = min(y0, points[i, 1])
+        y1 = max(y1, points[i, 1])
+    # a little wider, so two points within a width are never two cells apart by rounding
+    cdef double cell = width * (1.0 + 1e-6) + 1e-12
+    cdef double cap = max(CELLS_PER_POINT * n, 1024)
+    if not cell < 1e300:  # an infinite reach: one cell
+        cell = max(x1 - x0, y1 - y0) + 1.0
+    while ((x1 - x0) / cell + 1.0) * ((y1 - y0) / cell + 1.0) > cap:
+        cell *= 2.0
+    g.n, g.x0, g.y0, g.cell = n, x0, y0, cell
+    g.nx = <Py_ssize_t>((x1 - x0) / cell) + 1
+    g.ny = <Py_ssize_t>((y1 - y0) / cell) + 1
+    cells = g.nx * g.ny
+    g.cx = <Py_ssize_t *>malloc(n * sizeof(Py_ssize_t))
+    g.cy = <Py_ssize_t *>malloc(n * sizeof(Py_ssize_t))
+    g.start = <Py_ssize_t *>malloc((cells + 1) * sizeof(Py_ssize_t))
+    g.order = <Py_ssize_t *>malloc(n * sizeof(Py_ssize_t))
+    g.sx = <double *>malloc(n * sizeof(double))
+    g.sy = <double *>malloc(n * sizeof(double))
+    if not (g.cx and g.cy and g.start and g.order and g.sx and g.sy):
+        grid_free(g)
+        raise MemoryError()
+    for c in range(cells + 1):
+        g.start[c] = 0
+    for i in range(n):
+        g.cx[i] = min(<Py_ssize_t>((points[i, 0] - x0) / cell), g.nx - 1)
+        g.cy[i] = min(<Py_ssize_t>((points[i, 1] - y0) / cell), g.ny - 1)
+        g.start[g.cx[i] * g.ny + g.cy[i] + 1] += 1
+    for c in range(cells):
+        g.start[c + 1] += g.start[c]
+    # counting sort, stable: order[start[c] + k] is the k-th lowest index in cell c (cx as scratch)
+    for i in range(n):
+        c = g.cx[i] * g.ny + g.cy[i]
+        g.order[g.start[c]] = i
+        g.start[c] += 1
+    for c in range(cells, 0, -1):
+        g.start[c] = g.start[c - 1]
+    g.start[0] = 0
+    for c in range(n):
+        i = g.order[c]
+        g.sx[c] = points[i, 0]
+        g.sy[c] = points[i, 1]
+    return 0
+
+
+cdef inline Py_ssize_t cell_index(double v, Py_ssize_t low, Py_ssize_t high) noexcept:
+    """floor(v) clamped to [low, high], clamped as a double first (v may be far beyond any int)."""
+    v = floor(v)
+    if not v >= low:  # NaN too
+        return low
+    if v > high:
+        return high
+    return <Py_ssize_t>v
+
+
+cdef inline bint before(double d2, int64_t k, Py_ssize_t j, double d2b, int64_t kb, Py_ssize_t jb) noexcept:
+    """(d2, k, j) < (d2b, kb, jb): the ranking of the module's docstring."""
+    if d2 != d2b:
+        return d2 < d2b
+    if k != kb:
+        return k < kb
+    return j < jb
+
+
+def nearest(
+    const double[:, ::1] query,
+    const int64_t[::1] query_key,
+    const double[:, ::1] points,
+    const int64_t[::1] key,
+    double reach,
+    Py_ssize_t m,
+    bint inclusive=True,
+):
+    """(Q, m) int64: for each query point (Q, 2), the indices of its up to ``m`` nearest points
+    (N, 2) within ``reach`` (d2 <= reach^2 if ``inclusive``, else d2 < reach^2, as RVO2 and scipy's
+    kd-tree), nearest first by (d2, key, index), -1 past the last. A point whose key is the query's
+    own (query_key) is never its neighbour: a robot is not its own neighbour.
+
+    Cells are reach / PARTS wide. A column's cells are consecutive in the grid's order, so each
+    column near a query is read as one run of points: the cells its part of the disc of reach
+    covers, the query's own column first, then outward; once m are found, the disc shrinks to the
+    m-th distance. The ranking is a total order, so the points met and their order do not matter.
+    """
+    cdef Py_ssize_t q = query.shape[0], n = points.shape[0]
+    if query_key.shape[0] != q or key.shape[0] != n or (q and query.shape[1] != 2) or (n and points.shape[1] != 2):
+        raise ValueError("nearest: query (Q, 2) with query_key (Q,), points (N, 2) with key (N,)")
+    if m < 0:
+        raise ValueError(f"nearest: m must not be negative, not {m}")
+    out_array = np.full((q, m), -1, dtype=np.int64)
+    cdef int64_t[:, ::1] out = out_array
+    if q == 0 or n == 0 or m == 0 or not reach > 0.0:
+        return out_array
+    cdef Grid g
+    g.cx = g.cy = g.start = g.order = NULL
+    g.sx = g.sy = NULL
+    cdef double *best = <double *>malloc(m * sizeof(double))
+    cdef int64_t *best_key = <int64_t *>malloc(m * sizeof(int64_t))
+    cdef Py_ssize_t i, j, a, s, p, k, gx, column, low, high, spread
+    cdef double px, py, dx, dy, d2, bound, left, away, half, slack, far = 0.0
+    cdef double reach2 = reach * reach
+    cdef int64_t own, kj
+    try:
+        if best == NULL or best_key == NULL:
+            raise MemoryError()
+        grid_build(&g, points, reach / PARTS)
+        for i in range(n):
+            far = max(far, fabs(points[i, 0]), fabs(points[i, 1]))
+        for i in range(q):
+            far = max(far, fabs(query[i, 0]), fabs(query[i, 1]))
+        # how far rounding may move a point across a cell border: far below a cell, above any ulp
+        slack = 1e-9 * (g.cell + far)
+        # columns either side of the query's that can hold a point within reach
+        spread = cell_index(reach / g.cell + 2.0, 0, g.nx + 1)
+        for i in range(q):
+            px, py, own = query[i, 0], query[i, 1], query_key[i]
+            column = cell_index((px - g.x0) / g.cell, -1, g.nx)
+            k = 0
+            bound = reach2  # no point farther than this (squared) can be kept
+            for s in range(2 * spread + 1):
+                gx = column + (s + 1) // 2 if s % 2 else column - s // 2  # 0, +1, -1, +2, -2, ...
+                if gx < 0 or gx >= g.nx:
+                    continue
+                left = g.x0 + gx * g.cell - slack
+                away = max(max(left - px, px - (left + g.cell + 2.0 * slack)), 0.0)  # to the column, across
+                if away * away > bound:
+                    continue
+                # along the column: as far as the disc reaches, widened past any rounding of the root
+                half = sqrt(max(bound - away * away, 0.0) + 1e-12 * bound) + slack
+                low = cell_index((py - half - g.y0) / g.cell, -1, g.ny)
+                high = cell_index((py + half - g.y0) / g.cell, -1, g.ny)
+                if high < 0 or low >= g.ny:
+                    continue
+                low, high = max(low, 0), min(high, g.ny - 1)
+                for a in range(g.start[gx * g.ny + low], g.start[gx * g.ny + high + 1]):
+                    j = g.order[a]
+                    kj = key[j]
+                    if kj == own:
+                        continue
+                    dx = g.sx[a] - px
+                    dy = g.sy[a] - py
+                    d2 = dx * dx + dy * dy
+                    if not (d2 <= reach2 if inclusive else d2 < reach2):
+                        continue
+                    if k == m and not before(d2, kj, j, best[m - 1], best_key[m - 1], out[i, m - 1]):
+                        continue
+                    p = min(k, m - 1)  # insert (d2, key, j) in order, dropping the last when full
+                    while p > 0 and before(d2, kj, j, best[p - 1], best_key[p - 1], out[i, p - 1]):
+                        best[p] = best[p - 1]
+                        best_key[p] = best_key[p - 1]
+                        out[i, p] = out[i, p - 1]
+                        p -= 1
+                    best[p] = d2
+                    best_key[p] = kj
+                    out[i, p] = j
+                    if k < m:
+                        k += 1
+                    if k == m:
+                        bound = best[m - 1]
+    finally:
+        grid_free(&g)
+        free(best)
+        free(best_key)
+    return out_array
+
+
+def close_pairs(
+    const double[:, :, ::1] traj,
+    const double[::1] radius,
+    double reach,
+    double motion,
+    double bound,
+    Py_ssize_t first_row,
+    int64_t budget,
+):
+    """The discs of radius (N,) over the states traj (rows, N, 2): every pair whose centres are
+    within ``reach`` in traj[0] (and maybe some farther ones) is checked in every row.
+
+    Returns (done, clearance, i, j, pairs, depth): the smallest clearance sqrt(min over rows of
+    d^2) - r_i - r_j over those pairs (+inf if none) and a pair that has it (-1, -1 if none); the
+    pairs (H, 2), i < j, that overlap (d < r_i + r_j) in a row from ``first_row`` on, with their
+    depths r_i + r_j - d (H, rows - first_row). ``motion`` bounds how far any disc is from its place
+    in traj[0]; the rows of a pair are skipped when it can neither overlap nor come closer than
+    ``bound`` (nor than the smallest clearance found so far). done is False, and the rest empty,
+    when more than ``budget`` pairs would be looked at.
+
+    The pairs are met robot by robot (i ascending), then by the 3 x 3 cells (reach wide) around i's.
+    Only +, -, * and sqrt touch the coordinates: d2 = (xa - xb)^2 + (ya - yb)^2, a < b, then sqrt.
+    """
+    cdef Py_ssize_t rows = traj.shape[0], n = traj.shape[1] if traj.shape[0] else 0
+    if radius.shape[0] != n or (rows and traj.shape[2] != 2) or not 0 <= first_row <= rows:
+        raise ValueError("close_pairs: traj (rows, N, 2), radius (N,), 0 <= first_row <= rows")
+    cdef Py_ssize_t width = rows - first_row, cap = 64, hits = 0
+    pairs_array = np.empty((cap, 2), dtype=np.int64)
+    depth_array = np.empty((cap, width))
+    cdef int64_t[:, ::1] pairs = pairs_array
+    cdef double[:, ::1] depth = depth_array
+    cdef double best = np.inf
+    cdef Py_ssize_t best_i = -1, best_j = -1
+    if rows == 0 or n == 0:
+        return True, best, best_i, best_j, pairs_array[:0], depth_array[:0]
+    cdef Grid g
+    g.cx = g.cy = g.start = g.order = NULL
+    g.sx = g.sy = NULL
+    cdef double *d2 = <double *>malloc(rows * sizeof(double))
+    cdef Py_ssize_t i, j, a, ax, ay, c, row
+    cdef int64_t scanned = 0
+    cdef double dx, dy, s, s2, low, gap, clear
+    cdef double reach2 = reach * reach
+    cdef double slack = 2.0 * motion + 1e-9  # no row brings a pair closer than its row-0 distance less this
+    cdef bint hit
+    try:
+        if d2 == NULL:
+            raise MemoryError()
+        grid_build(&g, traj[0], reach)
+        for i in range(n):
+            for ax in range(max(g.cx[i] - 1, 0), min(g.cx[i] + 2, g.nx)):
+                for ay in range(max(g.cy[i] - 1, 0), min(g.cy[i] + 2, g.ny)):
+                    c = ax * g.ny + ay
+                    for a in range(g.start[c], g.start[c + 1]):
+                        j = g.order[a]
+                        if j <= i:
+                            continue
+                        scanned += 1
+                        if scanned > budget:
+                            return False, best, best_i, best_j, pairs_array[:0], depth_array[:0]
+                        dx = traj[0, i, 0] - traj[0, j, 0]
+                        dy = traj[0, i, 1] - traj[0, j, 1]
+                        d2[0] = dx * dx + dy * dy
+                        if d2[0] > reach2:
+                            continue
+                        s = radius[i] + radius[j]
+                        # the rows can neither overlap nor beat the smallest clearance known: skip them
+                        gap = sqrt(d2[0]) - s - slack
+                        if gap > 0.0 and gap > min(best, bound):
+                            continue
+                        s2 = s * s
+                        low = d2[0]
+                        hit = first_row == 0 and d2[0] < s2
+                        for row in range(1, rows):
+                            dx = traj[row, i, 0] - traj[row, j, 0]
+                            dy = traj[row, i, 1] - traj[row, j, 1]
+                            d2[row] = dx * dx + dy * dy
+                            low = min(low, d2[row])
+                            hit = hit or (row >= first_row and d2[row] < s2)
+                        clear = sqrt(low) - s
+                        if clear < best:
+                            best, best_i, best_j = clear, i, j
+                        if hit:
+                            if hits == cap:  # grow the outputs
+                                cap *= 2
+                                pairs_array = np.concatenate([pairs_array, np.empty_like(pairs_array)])
+                                depth_array = np.concatenate([depth_array, np.empty_like(depth_array)])
+                                pairs = pairs_array
+                                depth = depth_array
+                            pairs[hits, 0] = i
+                            pairs[hits, 1] = j
+                            for row in range(first_row, rows):
+                                depth[hits, row - first_row] = s - sqrt(d2[row])
+                            hits += 1
+    finally:
+        grid_free(&g)
+        free(d2)
+    return True, best, best_i, best_j, pairs_array[:hits], depth_array[:hits]
