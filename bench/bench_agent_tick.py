@@ -26,10 +26,13 @@ from pathlib import Path
 import numpy as np
 import psutil
 
+from agent.core.params import RobotParams
+
 from .bench_runtime import worktree
 from .common import REPO, write_results
 
 BEFORE = "2f61ee4"  # main before this branch: the code without its per-tick work outside the control step
+GOALS_EVERY = 1.0  # s between the coordinator's repeats of its goal set, each checked again
 SAMPLE_EVERY = 0.25  # s between CPU samples of the agent processes
 EDGE = 1.0  # s left out of each end of the stepping window (the first ticks, the shutdown)
 
@@ -95,6 +98,50 @@ def run_scene(cwd: Path, robots: int, duration: float, seed: int, per_process: i
     }
 
 
+def checks_per_tick(robots: int, dt: float, reps: int = 2000) -> float:
+    """Microseconds of a robot's checks of what it hears in one tick (transport.plausible and
+    agent.pose_trust), at most: the states of all the other robots (each key's one-robot rule,
+    the tick's future bound, the stamp), its pose (its line, stamp and trust), and the goal set
+    of ``robots`` goals the coordinator repeats every GOALS_EVERY s. Timed in this process, as
+    the agent calls them."""
+    import timeit
+
+    from agent.pose_trust import PoseTrust
+    from transport.codec import Goals, State
+    from transport.keys import Keys
+    from transport.plausible import AHEAD, GoalSets, TickLine, stamp_agrees
+
+    keys = Keys()
+    heard = [
+        (keys.state((i, 0), i), State(i, 100, 100 * dt, 0.1 * i, 0, 0, 0, 0.045, 0, 0, i, 0)) for i in range(robots - 1)
+    ]
+    now = 100
+
+    def states() -> None:
+        for key, s in heard:
+            if Keys.robot_alone(key) != s.robot or s.tick > now + AHEAD or not stamp_agrees(s.tick, s.stamp, dt):
+                raise AssertionError("an honest state refused")
+
+    line, trust, tick = TickLine(dt), PoseTrust(0.3, dt, 0.02), [0]
+
+    def pose() -> None:
+        tick[0] += 1
+        k = tick[0]
+        if line.admit(k, k * dt) or not stamp_agrees(k, k * dt, dt) or trust.judge(0, k, 1e-3 * k, 0.0, 0.0) is None:
+            raise AssertionError("an honest pose refused")
+
+    rng = np.random.default_rng(0)
+    goals = Goals(1, 0, rng.uniform(0, 1, (robots, 2)), np.zeros((robots, 3), np.uint8), np.arange(robots))
+    believed = GoalSets((0, 0, 1, 1))
+    believed.admit(goals, None)
+    seconds = [
+        timeit.timeit(states, number=reps) / reps,
+        timeit.timeit(pose, number=reps) / reps,
+        timeit.timeit(lambda: believed.admit(goals, None), number=reps) / reps * dt / GOALS_EVERY,
+    ]
+    return 1e6 * sum(seconds)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--before", default=BEFORE, help="git revision to compare against")
@@ -141,9 +188,15 @@ def main() -> None:
             subprocess.run(["git", "worktree", "remove", "--force", str(old)], cwd=REPO, capture_output=True)
             subprocess.run(["git", "worktree", "prune"], cwd=REPO, capture_output=True)
     b, a = np.nanmedian(figures["before"]), np.nanmedian(figures["after"])  # nan: a run without a window
+    dt = RobotParams().dt
+    checks = checks_per_tick(args.robots * 1, dt)
+    tick_us = a / 100 * dt * 1e6  # an agent's CPU per tick, after
     rows += [
         "",
         f"Median over the pairs: {b:.2f} % before, {a:.2f} % after ({a / b:.2f}x).",
+        "",
+        f"The checks alone (checks_per_tick: every other robot's state, the pose, the goal set's repeats): "
+        f"{checks:.1f} us a tick, {100 * checks / tick_us:.2f} % of the agent's {tick_us:.0f} us of CPU a tick.",
         "",
         f"Scene: `pixelswarm run circle --robots {args.robots} --clock realtime --duration {args.duration:g} "
         f"--seed {args.seed} --agents-per-process {args.agents_per_process}`, before and after alternating. "
