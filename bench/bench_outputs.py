@@ -9,7 +9,7 @@ written as MPEG-4 part 2 with OpenCV (what display.mp4 was) and as H.264 with Py
 presets (the first is what display.mp4 is now): seconds to write, file size.
 
 Foxglove: building one ``foxglove.SceneUpdate`` (sim.foxglove.scene_update) and encoding it with
-orjson, as the recorder does at every recorded tick (10 a second), at 14, 100 and 1000 robots.
+protobuf (Foxglove's SDK), as the recorder does at every recorded tick (10 a second), at 14, 100 and 1000 robots.
 """
 
 from __future__ import annotations
@@ -23,7 +23,6 @@ from pathlib import Path
 
 import av
 import numpy as np
-import orjson
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -78,7 +77,7 @@ def scene_rows() -> list[tuple[int, float, int]]:
         times = []
         for _ in range(20):
             start = time.perf_counter()
-            data = orjson.dumps(scene_update(1_000_000_000, pose[0], radius, color, goal=goal[0]))
+            data = scene_update(1_000_000_000, pose[0], radius, color, goal=goal[0]).encode()
             times.append(time.perf_counter() - start)
         rows.append((n, float(np.median(times)) * 1e3, len(data)))
     return rows
@@ -104,7 +103,7 @@ def main() -> None:
         "|---|---|---|",
         *(f"| {name} | {s:.2f} | {mb:.2f} |" for name, s, mb in video),
         "",
-        "foxglove.SceneUpdate per recorded tick (build + orjson), as the recorder writes it:",
+        "foxglove.SceneUpdate per recorded tick (build + protobuf encode), as the recorder writes it:",
         "",
         "| robots | ms per message | bytes per message |",
         "|---|---|---|",

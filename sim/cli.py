@@ -21,7 +21,7 @@ from transport.session import TransportError, ZenohSettings, add_zenoh_args, ope
 
 from .agents_cli import add_agents_parser
 from .certs_cli import add_certs_parser
-from .cli_args import STARTUP_TIMEOUT, positive_int
+from .cli_args import FOXGLOVE_PORT, STARTUP_TIMEOUT, port_number, positive_int
 from .rundir import default_run_path
 from .study import add_study_parser
 from .track import add_track_parser
@@ -144,6 +144,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="drive real robots (or emulated ones) named in a hardware file with [backend] and [poses], "
         "on the wall clock; the robot count and start poses come from it (docs/hardware.md)",
     )
+    run.add_argument(
+        "--foxglove",
+        type=port_number,
+        nargs="?",
+        const=FOXGLOVE_PORT,
+        metavar="PORT",
+        help=f"also stream log.mcap's channels live over Foxglove's WebSocket protocol on 127.0.0.1:PORT "
+        f"(default {FOXGLOVE_PORT}; 0: a free port), for the Foxglove app; distributed engine",
+    )
     run.add_argument("--quiet", "-q", action="store_true", help="no progress output")
     add_zenoh_args(run, default_mode="router")
     run.set_defaults(func=cmd_run)
@@ -258,6 +267,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
         if args.remote_agents:
             raise UsageError("--remote-agents needs the distributed engine: the central engine has no agents")
+        if args.foxglove is not None:
+            raise UsageError("--foxglove streams the bus's messages; the central engine has none (use --view)")
         if faults:
             raise UsageError("--faults acts on messages; the central engine sends none (use --engine distributed)")
         if any(e["kind"] in ("fail", "tracker-outage", "tracker-glitch") for e in scene.events):
@@ -296,6 +307,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         agents_timeout=AGENTS_TIMEOUT if args.agents_timeout is None else args.agents_timeout,
         startup_timeout=STARTUP_TIMEOUT if args.startup_timeout is None else args.startup_timeout,
         reach=reach,
+        foxglove=args.foxglove,
     )
     launcher = Launcher(scene, options)
     try:

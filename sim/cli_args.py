@@ -21,6 +21,20 @@ def positive_int(text: str) -> int:
     return value
 
 
+FOXGLOVE_PORT = 8765  # Foxglove's own default for a WebSocket connection
+
+
+def port_number(text: str) -> int:
+    """A TCP port, 0 (a free one) to 65535."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a port number") from None
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"a port is 0 to 65535, not {value}")
+    return value
+
+
 def positive_seconds(text: str) -> float:
     """A finite number of seconds above 0."""
     try:

@@ -65,6 +65,7 @@ class RunOptions:
     remote_agents: bool = False  # spawn no agents: serve their configs, `pixelswarm agents` starts them elsewhere
     agents_timeout: float = AGENTS_TIMEOUT
     reach: float = math.inf  # communication range (m): robots hear states and the auction only this close
+    foxglove: int | None = None  # serve the log live over Foxglove's WebSocket protocol on 127.0.0.1:PORT (0: free)
 
 
 class HardwareStartError(Exception):
@@ -363,6 +364,9 @@ class Launcher:
                 str(self.run_dir / TICKS_FILE),
             )
             recorder.ends = self._ends_on_convergence
+            if self.opt.foxglove is not None and recorder.log is not None:
+                port = recorder.log.serve(self.opt.foxglove)  # said even with -q: it is asked for, not progress
+                print(f"[{self.scene.name}] Foxglove live: ws://127.0.0.1:{port}", file=sys.stderr, flush=True)
             bus.serve(bus.keys.run_goals, lambda: self._newest_goals(bus, recorder))
             if self.opt.hardware is not None:  # refused at once (one line) if a robot or its pose is missing
                 self._start_hardware(recorder)

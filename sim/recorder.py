@@ -2,7 +2,7 @@
 
 It measures the run from the world's TRUE poses (``sim/truth``), never from what agents believed;
 it logs every message kind on its own MCAP channel, and at every recorded tick the display as a
-``foxglove.SceneUpdate`` on :data:`SCENE_TOPIC`; it counts messages and bytes per kind, and it
+``foxglove.SceneUpdate`` (Foxglove's SDK, protobuf) on :data:`SCENE_TOPIC`; it counts messages and bytes per kind, and it
 decides when the display has converged.
 """
 
@@ -36,7 +36,7 @@ from transport.codec import (
 )
 from transport.plausible import AHEAD, GoalSets, stamp_agrees
 
-from .foxglove import SCENE_UPDATE_SCHEMA_NAME, scene_update, scene_update_schema
+from .foxglove import SceneUpdate, scene_update
 from .mcaplog import McapLog
 from .ticklog import TickLog
 
@@ -321,12 +321,10 @@ class Recorder:
             return
         cid = self._channels.get(SCENE_TOPIC)
         if cid is None:
-            cid = self._channels[SCENE_TOPIC] = self.log.add_channel(
-                SCENE_TOPIC, SCENE_UPDATE_SCHEMA_NAME, scene_update_schema()
-            )
+            cid = self._channels[SCENE_TOPIC] = self.log.add_foxglove_channel(SCENE_TOPIC, SceneUpdate)
         t_ns = int(wall * 1e9)
         update = scene_update(t_ns, m.pose, self.radius, m.color, goal=self.goal)
-        self.log.write_bytes(cid, t_ns, orjson.dumps(update))
+        self.log.write_bytes(cid, t_ns, update.encode())
 
     def close_log(self) -> None:
         if self.log is not None:

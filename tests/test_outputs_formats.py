@@ -1,20 +1,27 @@
 """Run outputs people open without a converter: display.mp4 is H.264 (browsers play it) and log.mcap
-has the display as a foxglove.SceneUpdate (Foxglove's 3D panel shows it unconfigured)."""
+has the display as a foxglove.SceneUpdate in protobuf (Foxglove's 3D panel shows it unconfigured),
+written by Foxglove's SDK and read back here with Foxglove's own compiled schemas."""
 
 from __future__ import annotations
 
 import json
+import re
 import struct
+import time
 from pathlib import Path
 
 import av
 import numpy as np
 import pytest
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate as FoxgloveSceneUpdate
+from google.protobuf.descriptor_pb2 import FileDescriptorSet
+from mcap.reader import make_reader
+from websockets.sync.client import connect
 
 from agent.core.params import RobotParams
 from coordinator.scene import load_scene
 from sim import render
-from sim.foxglove import DISPLAY_FRAME, SCENE_UPDATE_SCHEMA_NAME, scene_update, scene_update_schema
+from sim.foxglove import DISPLAY_FRAME, SCENE_UPDATE_SCHEMA_NAME, SceneUpdate, scene_update
 from sim.mcaplog import McapLog, mcap_channels, read_mcap
 from sim.output import write_run
 from sim.recorder import SCENE_TOPIC
@@ -24,6 +31,7 @@ from sim.rundir import RunDir
 from .conftest import run_pixelswarm
 
 ARENA = (0.0, 0.0, 4.0, 3.0)
+FOXGLOVE_WS = "foxglove.sdk.v1"  # the subprotocol Foxglove's SDK serves its WebSocket protocol under
 RED, GREEN, OFF = (255, 0, 0), (0, 255, 0), (0, 0, 0)
 
 
@@ -121,7 +129,8 @@ def test_a_run_without_an_encoder_keeps_everything_else(tmp_path, monkeypatch, c
 # foxglove.SceneUpdate
 # ------------------------------------------------------------------------------------------------
 
-# The fields Foxglove publishes for each schema (docs.foxglove.dev, Message schemas).
+# The fields Foxglove publishes for each schema (docs.foxglove.dev, Message schemas); in protobuf a
+# time or duration is google.protobuf's Timestamp or Duration.
 FOXGLOVE_FIELDS = {
     "foxglove.SceneUpdate": {"deletions", "entities"},
     "foxglove.SceneEntityDeletion": {"timestamp", "type", "id"},
@@ -155,85 +164,69 @@ FOXGLOVE_FIELDS = {
     "foxglove.Point3": {"x", "y", "z"},
     "foxglove.Quaternion": {"x", "y", "z", "w"},
     "foxglove.Color": {"r", "g", "b", "a"},
-    "time": {"sec", "nsec"},
-    "duration": {"sec", "nsec"},
+    "google.protobuf.Timestamp": {"seconds", "nanos"},
+    "google.protobuf.Duration": {"seconds", "nanos"},
 }
 
 
-def _titled(schema: dict, found: dict[str, set[str]]) -> dict[str, set[str]]:
-    """Every titled object in a schema -> its property names."""
-    if "properties" in schema:
-        found.setdefault(schema["title"], set(schema["properties"]))
-        assert found[schema["title"]] == set(schema["properties"]), schema["title"]
-        for sub in schema["properties"].values():
-            _titled(sub, found)
-    if "items" in schema:
-        _titled(schema["items"], found)
-    return found
+def _messages_of(descriptors: FileDescriptorSet) -> dict[str, set[str]]:
+    """Every message type of a protobuf schema (as an MCAP file stores it) -> its field names."""
+    return {
+        f"{file.package}.{message.name}": {field.name for field in message.field}
+        for file in descriptors.file
+        for message in file.message_type
+    }
 
 
-_JSON_TYPES = {"object": dict, "array": list, "string": str, "boolean": bool}
+def _scene_channel(path: Path) -> dict:
+    """The display's channel: Foxglove's SceneUpdate, protobuf, with the schema Foxglove publishes."""
+    channel = mcap_channels(path)[SCENE_TOPIC]
+    assert channel["schema_name"] == SCENE_UPDATE_SCHEMA_NAME
+    assert (channel["schema_encoding"], channel["message_encoding"]) == ("protobuf", "protobuf")
+    assert _messages_of(channel["schema"]) == FOXGLOVE_FIELDS
+    return channel
 
 
-def _validate(value, schema: dict, where: str = "$") -> None:
-    """The part of JSON Schema Foxglove's schemas use: type, properties, items, oneOf const, bounds.
-    Stricter than JSON Schema in one way: an object may hold only the properties its schema names."""
-    if "oneOf" in schema:
-        assert value in [choice["const"] for choice in schema["oneOf"]], where
-        return
-    kind = schema["type"]
-    if kind in ("number", "integer"):
-        assert isinstance(value, int if kind == "integer" else (int, float)) and not isinstance(value, bool), where
-        assert schema.get("minimum", value) <= value <= schema.get("maximum", value), where
-        return
-    assert isinstance(value, _JSON_TYPES[kind]), where
-    if kind == "object":
-        assert set(value) <= set(schema["properties"]), where
-        for name, item in value.items():
-            _validate(item, schema["properties"][name], f"{where}.{name}")
-    elif kind == "array":
-        for k, item in enumerate(value):
-            _validate(item, schema["items"], f"{where}[{k}]")
+def _decoded_by_foxglove(path: Path, topic: str) -> list[FoxgloveSceneUpdate]:
+    """The topic's messages as Foxglove's own compiled schemas decode them (foxglove-schemas-protobuf),
+    read with mcap's reader: a decoder that shares nothing with the writer."""
+    with open(path, "rb") as fh:
+        return [FoxgloveSceneUpdate.FromString(m.data) for _s, _c, m in make_reader(fh).iter_messages(topics=[topic])]
 
 
-def test_scene_update_schema_has_foxgloves_fields():
-    schema = scene_update_schema()
-    assert schema["title"] == SCENE_UPDATE_SCHEMA_NAME
-    assert _titled(schema, {}) == FOXGLOVE_FIELDS
-    entity = schema["properties"]["entities"]["items"]["properties"]
-    assert entity["timestamp"]["properties"]["nsec"] == {"type": "integer", "minimum": 0, "maximum": 999_999_999}
-    assert [c["const"] for c in schema["properties"]["deletions"]["items"]["properties"]["type"]["oneOf"]] == [0, 1]
-    for wrong in ({"entities": [{"frame_id": 3}]}, {"entities": [{"colour": {}}]}, {"deletions": [{"type": 2}]}):
-        with pytest.raises(AssertionError):
-            _validate(wrong, schema)  # the checker below can fail
-
-
-def test_scene_update_messages_validate_and_read_back(tmp_path):
+def test_scene_update_messages_read_back_with_foxgloves_schemas(tmp_path):
     path = tmp_path / "log.mcap"
     pose = np.array([[0.0, 0.0, 0.0], [1.0, 2.0, np.pi / 2], [np.nan, np.nan, np.nan], [3.0, 1.0, 0.0]])
     color = np.array([RED, GREEN, OFF, (10, 20, 30)], np.uint8)
     goal = np.array([[0.5, 0.5], [np.nan, np.nan], [1.0, 1.0], [3.0, 2.0]])
     radius = np.array([0.045, 0.1, 0.045, np.nan])  # robot 3 has not announced its radius yet
     with McapLog(path) as log:
-        cid = log.add_channel(SCENE_TOPIC, SCENE_UPDATE_SCHEMA_NAME, scene_update_schema())
+        cid = log.add_foxglove_channel(SCENE_TOPIC, SceneUpdate)
+        assert log.add_foxglove_channel(SCENE_TOPIC, SceneUpdate) == cid
+        with pytest.raises(ValueError, match="different schema"):
+            log.add_channel(SCENE_TOPIC, SCENE_UPDATE_SCHEMA_NAME, {"type": "object"})
         log.write(cid, 2_250_000_000, scene_update(2_250_000_000, pose, radius, color, goal=goal))
-    channel = mcap_channels(path)[SCENE_TOPIC]
-    assert channel["schema_name"] == "foxglove.SceneUpdate"
-    assert (channel["schema_encoding"], channel["message_encoding"]) == ("jsonschema", "json")
-    (msg,) = read_mcap(path)[SCENE_TOPIC]
-    _validate(msg, channel["schema"])
-    assert [e["id"] for e in msg["entities"]] == ["robot/0", "robot/1"]
-    assert [(d["id"], d["type"]) for d in msg["deletions"]] == [("robot/2", 0), ("robot/3", 0)]
-    first, second = msg["entities"]
-    assert first["timestamp"] == {"sec": 2, "nsec": 250_000_000} and first["frame_id"] == DISPLAY_FRAME
-    (disc,) = second["cylinders"]
-    assert disc["size"] == {"x": pytest.approx(0.2), "y": pytest.approx(0.2), "z": pytest.approx(0.01)}
-    assert disc["color"] == {"r": 0.0, "g": 1.0, "b": 0.0, "a": 1.0}
-    assert disc["pose"]["orientation"]["z"] == pytest.approx(np.sin(np.pi / 4), abs=1e-4)
-    assert second["spheres"] == []  # no goal
-    (target,) = first["spheres"]
-    assert target["pose"]["position"]["x"] == 0.5 and target["pose"]["position"]["y"] == 0.5
-    assert target["color"]["r"] == 1.0 and target["color"]["a"] < 1.0
+    _scene_channel(path)
+
+    (theirs,) = _decoded_by_foxglove(path, SCENE_TOPIC)
+    assert [e.id for e in theirs.entities] == ["robot/0", "robot/1"]
+    assert [(d.id, d.type) for d in theirs.deletions] == [("robot/2", 0), ("robot/3", 0)]  # MATCHING_ID
+    first, second = theirs.entities
+    assert (first.timestamp.seconds, first.timestamp.nanos) == (2, 250_000_000) and first.frame_id == DISPLAY_FRAME
+    (disc,) = second.cylinders
+    assert (disc.size.x, disc.size.y, disc.size.z) == pytest.approx((0.2, 0.2, 0.01))
+    assert (disc.color.r, disc.color.g, disc.color.b, disc.color.a) == (0.0, 1.0, 0.0, 1.0)
+    assert disc.pose.orientation.z == pytest.approx(np.sin(np.pi / 4), abs=1e-4)
+    assert len(second.spheres) == 0 and len(second.metadata) == 0  # no goal
+    (target,) = first.spheres
+    assert (target.pose.position.x, target.pose.position.y) == (0.5, 0.5)
+    assert target.color.r == 1.0 and target.color.a < 1.0
+    assert [(kv.key, kv.value) for kv in first.metadata] == [("goal", "0.500, 0.500")]  # shown on hover
+
+    (ours,) = read_mcap(path)[SCENE_TOPIC]  # the same, as dicts with Foxglove's field names
+    assert ours["entities"][0]["timestamp"] == {"sec": 2, "nsec": 250_000_000}
+    assert ours["entities"][1]["cylinders"][0]["color"] == {"r": 0.0, "g": 1.0, "b": 0.0, "a": 1.0}
+    assert [d["id"] for d in ours["deletions"]] == ["robot/2", "robot/3"]
 
 
 @pytest.mark.slow
@@ -242,19 +235,19 @@ def test_a_run_shows_in_foxglove_and_in_a_browser(tmp_path):
     """The real command: four robots swap places for 3 s (one agent process); then log.mcap has the
     display at every recorded tick in the robots' LED colours, and display.mp4 is H.264."""
     out = tmp_path / "run"
-    result = run_pixelswarm("run", "swap", "--robots", "4", "--duration", "3", "-k", "4", "--out", str(out), "-q")
+    args = ("--robots", "4", "--duration", "3", "-k", "4", "--out", str(out), "-q", "--foxglove", "0")
+    result = run_pixelswarm("run", "swap", *args)
     assert result.returncode == 0, result.stderr[-3000:]
+    assert re.search(r"Foxglove live: ws://127\.0\.0\.1:\d+", result.stderr)  # said even with -q
     traj = np.load(out / "trajectory.npz")
     T = len(traj["t"])
     assert T >= 20
 
-    channel = mcap_channels(out / "log.mcap")[SCENE_TOPIC]
-    assert (channel["schema_name"], channel["schema_encoding"]) == ("foxglove.SceneUpdate", "jsonschema")
-    assert json.dumps(channel["schema"], sort_keys=True) == json.dumps(scene_update_schema(), sort_keys=True)
+    _scene_channel(out / "log.mcap")
+    assert len(_decoded_by_foxglove(out / "log.mcap", SCENE_TOPIC)) == T  # Foxglove's schemas decode each
     updates = read_mcap(out / "log.mcap", [SCENE_TOPIC])[SCENE_TOPIC]
     assert len(updates) == T  # one per recorded tick, in order
     for k, update in enumerate(updates):
-        _validate(update, channel["schema"])
         assert [e["id"] for e in update["entities"]] == [f"robot/{i}" for i in range(4)]
         discs = [e["cylinders"][0] for e in update["entities"]]
         rgb = np.array([[d["color"][c] for c in "rgb"] for d in discs])
@@ -266,3 +259,30 @@ def test_a_run_shows_in_foxglove_and_in_a_browser(tmp_path):
     codec, frames = _decode(out / "display.mp4")
     assert codec.name == "h264" and codec.pix_fmt == "yuv420p"
     assert len(frames) == len(frame_indices(traj["t"], fps=10))
+
+
+def test_the_log_streams_live_to_a_foxglove_websocket_client(tmp_path):
+    """`pixelswarm run --foxglove`: the log's channels, served by Foxglove's SDK on 127.0.0.1, reach a
+    client of Foxglove's WebSocket protocol (websockets, another implementation) as they are written."""
+    pose = np.array([[1.0, 2.0, 0.0], [2.0, 1.0, np.pi]])
+    with McapLog(tmp_path / "log.mcap") as log:
+        cid = log.add_foxglove_channel(SCENE_TOPIC, SceneUpdate)
+        port = log.serve(0)
+        with connect(f"ws://127.0.0.1:{port}", subprotocols=[FOXGLOVE_WS], open_timeout=10) as ws:
+            advertised = {}
+            while SCENE_TOPIC not in advertised:
+                frame = json.loads(ws.recv(timeout=10))
+                if frame["op"] == "advertise":
+                    advertised.update({c["topic"]: c for c in frame["channels"]})
+            channel = advertised[SCENE_TOPIC]
+            assert (channel["schemaName"], channel["encoding"]) == (SCENE_UPDATE_SCHEMA_NAME, "protobuf")
+            ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 7, "channelId": channel["id"]}]}))
+            time.sleep(0.2)  # the server takes the subscription on its own thread
+            log.write(cid, 3_000_000_000, scene_update(3_000_000_000, pose, 0.05, [RED, GREEN]))
+            while isinstance(frame := ws.recv(timeout=10), str):
+                pass  # status and other text frames
+        opcode, subscription, log_time = struct.unpack_from("<BIQ", frame)
+        assert (opcode, subscription, log_time) == (1, 7, 3_000_000_000)  # a message data frame
+        update = FoxgloveSceneUpdate.FromString(frame[13:])
+        assert [e.id for e in update.entities] == ["robot/0", "robot/1"]
+        assert update.entities[1].cylinders[0].pose.position.x == 2.0
