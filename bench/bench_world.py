@@ -13,13 +13,28 @@ Scenarios (e-puck bodies, radius 0.045 m, actuation noise 0.02, seed 0):
 
 Reference, side by side: the naive detection a world could do instead, scipy's pdist over all
 pairs at each of the 10 substeps (detection only: no integration, no event bookkeeping).
+
+The neighbour searches alone (agent.core.grid), beside the code of another revision in one run:
+
+    .venv/bin/python bench/bench_world.py --neighbours [--before REV]
+
+times, on the same points (a formed display: a lattice 0.12 m apart, jittered by up to 2 cm) at
+1000 and 10,000 robots, the central engine's neighbour search (sim.link's, 1.2 m and 16 as
+paper-sequence-1000), the RVO2-shaped engine's (agent.core.rvo.CentralOrca.neighbours), the
+world's contact search (sim.proximity.close_pairs over a step of 10 substeps) and one robot's
+gather in its own process (NeighbourTable.gather among 14 and 200 states). With ``--before``, a
+git worktree of REV (bench.bench_runtime.worktree) runs the same code first; rows alternate.
 """
 
 from __future__ import annotations
 
+import argparse
+import json
 import os
 import platform
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -119,5 +134,117 @@ def main() -> None:
     print(f"\n{env}\nwritten to {out}")
 
 
+# Runs in the tree being measured (its own agent and sim): only what both sides of a comparison have.
+NEIGHBOUR_TIMINGS = r"""
+import json, sys, time
+import numpy as np
+from agent.core.rvo import CentralOrca
+from agent.neighbour_table import Heard, NeighbourTable
+from sim.proximity import close_pairs
+from transport.codec import State
+try:  # before agent.core.grid the central engine had its own compiled copy
+    from sim.proximity import nearest_heard_compiled as central_search
+except ImportError:
+    from agent.neighbour_table import nearest_heard as central_search
+
+REPEATS = int(sys.argv[1])
+
+def points(n):
+    rng = np.random.default_rng(n)
+    side = int(np.ceil(np.sqrt(n)))
+    g = np.stack(np.meshgrid(np.arange(side), np.arange(side)), -1).reshape(-1, 2)[:n] * 0.12
+    return g + rng.uniform(-0.02, 0.02, (n, 2)), rng
+
+def timed(f):
+    f()  # warm-up (a JIT compiles here)
+    samples = []
+    for _ in range(REPEATS):
+        t = time.perf_counter()
+        f()
+        samples.append(time.perf_counter() - t)
+    return float(np.median(samples) * 1e3)
+
+out = {}
+for n in (1000, 10000):
+    p, rng = points(n)
+    ids = np.arange(n)
+    heard = Heard(ids, p, rng.normal(0, 0.1, (n, 2)), np.full(n, 0.045), np.zeros(n), np.ones(n, bool))
+    out[f"central engine: each robot's 16 nearest heard within 1.2 m, {n} robots"] = timed(
+        lambda: central_search(ids, p, 0.1, heard, 1.2, 16))
+    sim = CentralOrca(0.1, 1.2, 16, 2.0, 2.0, 0.045, 0.13)
+    sim.position, sim.radius = p.copy(), np.full(n, 0.045)  # add_agent, n at once
+    out[f"RVO2-shaped engine: CentralOrca.neighbours, {n} robots"] = timed(sim.neighbours)
+    motion = 0.013  # 0.13 m/s for 0.1 s
+    traj = p[None] + np.cumsum(rng.uniform(-motion / 10, motion / 10, (11, n, 2)), axis=0)
+    radius = np.full(n, 0.045)
+    out[f"world: close_pairs over a step of 10 substeps, {n} robots"] = timed(
+        lambda: close_pairs(traj, radius, 0.09 + 2 * motion + 0.0225, motion, 1))
+for s in (14, 200):
+    p, rng = points(s + 1)
+    table = NeighbourTable(0.1)
+    for r in range(1, s + 1):
+        table.update(State(r, 1, 0.1, float(p[r, 0]), float(p[r, 1]), 0.0, 0.0, 0.045, 0.0, 0.0, -1, 0, 0, 0))
+    out[f"agent: one robot's gather among {s} states"] = timed(
+        lambda: table.gather([0], p[:1], 0.2, 2, 1.2, 16))
+print(json.dumps(out))
+"""
+
+
+def neighbour_timings(tree: Path, repeats: int) -> dict[str, float]:
+    """The neighbour searches' median ms, measured by the code in ``tree`` (a fresh process)."""
+    done = subprocess.run(
+        [sys.executable, "-B", "-c", NEIGHBOUR_TIMINGS, str(repeats)],
+        cwd=tree,
+        check=True,
+        capture_output=True,
+        text=True,
+    )
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def neighbours_main(before: str | None, repeats: int, rounds: int) -> None:
+    """The neighbour searches of this tree, beside those of ``before`` (rounds alternate)."""
+    here = Path(__file__).resolve().parents[1]
+    with tempfile.TemporaryDirectory() as tmp:
+        trees = {"this tree": here}
+        if before:
+            from bench.bench_runtime import worktree
+
+            commit = worktree(before, Path(tmp) / "before")
+            trees = {f"before ({commit})": Path(tmp) / "before", "this tree": here}
+        try:
+            runs: dict[str, list[dict[str, float]]] = {name: [] for name in trees}
+            for _ in range(rounds):
+                for name, tree in trees.items():
+                    runs[name].append(neighbour_timings(tree, repeats))
+        finally:
+            if before:
+                subprocess.run(["git", "worktree", "remove", "--force", str(Path(tmp) / "before")], cwd=here)
+    names = list(trees)
+    best = {name: {k: min(r[k] for r in runs[name]) for k in runs[name][0]} for name in names}
+    lines = [
+        "| search | " + " | ".join(f"{name} ms" for name in names) + (" | before / this |" if before else " |"),
+        "|---|" + "---|" * (len(names) + bool(before)),
+    ]
+    for key in best[names[-1]]:
+        cells = [f"{best[name][key]:.3f}" for name in names]
+        ratio = f" | {best[names[0]][key] / best[names[-1]][key]:.2f}x" if before else ""
+        lines.append(f"| {key} | " + " | ".join(cells) + ratio + " |")
+    print("\n".join(lines))
+    print(
+        f"\nmedian of {repeats} calls, best of {rounds} alternating rounds; Python {platform.python_version()}, "
+        f"{platform.machine()}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}"
+    )
+
+
 if __name__ == "__main__":
-    main()
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--neighbours", action="store_true", help="time the neighbour searches only")
+    parser.add_argument("--before", help="a git revision to time beside this tree (with --neighbours)")
+    parser.add_argument("--repeats", type=int, default=50, help="calls per figure (with --neighbours)")
+    parser.add_argument("--rounds", type=int, default=3, help="alternating rounds (with --neighbours)")
+    args = parser.parse_args()
+    if args.neighbours:
+        neighbours_main(args.before, args.repeats, args.rounds)
+    else:
+        main()

@@ -27,7 +27,7 @@ import numpy as np
 
 cdef enum:
     CELLS_PER_POINT = 16  # a grid has at most this many cells per point (coarser cells past it), or 1024
-    PARTS = 2  # nearest's cells are reach / PARTS wide
+    RINGS = 4  # nearest's cells are reach / RINGS wide
 
 
 cdef struct Grid:
@@ -139,10 +139,11 @@ def nearest(
     kd-tree), nearest first by (d2, key, index), -1 past the last. A point whose key is the query's
     own (query_key) is never its neighbour: a robot is not its own neighbour.
 
-    Cells are reach / PARTS wide. A column's cells are consecutive in the grid's order, so each
-    column near a query is read as one run of points: the cells its part of the disc of reach
-    covers, the query's own column first, then outward; once m are found, the disc shrinks to the
-    m-th distance. The ranking is a total order, so the points met and their order do not matter.
+    Cells are reach / RINGS wide. Each query looks at the rings of cells around its own, nearest
+    ring first, skipping the cells farther than the m-th neighbour found so far, and stops when it
+    has m neighbours all nearer than the next ring can be (in a crowd the m nearest are much nearer
+    than reach, as RVO2's k-d tree shrinks its range). The ranking is a total order, so the points
+    met and their order do not matter.
     """
     cdef Py_ssize_t q = query.shape[0], n = points.shape[0]
     if query_key.shape[0] != q or key.shape[0] != n or (q and query.shape[1] != 2) or (n and points.shape[1] != 2):
@@ -158,67 +159,72 @@ def nearest(
     g.sx = g.sy = NULL
     cdef double *best = <double *>malloc(m * sizeof(double))
     cdef int64_t *best_key = <int64_t *>malloc(m * sizeof(int64_t))
-    cdef Py_ssize_t i, j, a, s, p, k, gx, column, low, high, spread
-    cdef double px, py, dx, dy, d2, bound, left, away, half, slack, far = 0.0
+    cdef Py_ssize_t i, j, a, c, p, k, r, gx, gy, qx, qy, step, rings
+    cdef double px, py, dx, dy, d2, bound, left, low_y, ax, ay, edge, slack, far = 0.0
     cdef double reach2 = reach * reach
     cdef int64_t own, kj
     try:
         if best == NULL or best_key == NULL:
             raise MemoryError()
-        grid_build(&g, points, reach / PARTS)
+        grid_build(&g, points, reach / RINGS)
         for i in range(n):
             far = max(far, fabs(points[i, 0]), fabs(points[i, 1]))
         for i in range(q):
             far = max(far, fabs(query[i, 0]), fabs(query[i, 1]))
         # how far rounding may move a point across a cell border: far below a cell, above any ulp
         slack = 1e-9 * (g.cell + far)
-        # columns either side of the query's that can hold a point within reach
-        spread = cell_index(reach / g.cell + 2.0, 0, g.nx + 1)
+        rings = cell_index(reach / g.cell + 1.0, 0, max(g.nx, g.ny) + 1)  # a point r rings away is >= r - 1 cells away
         for i in range(q):
             px, py, own = query[i, 0], query[i, 1], query_key[i]
-            column = cell_index((px - g.x0) / g.cell, -1, g.nx)
+            qx = cell_index((px - g.x0) / g.cell, -1, g.nx)  # outside the grid: the ring just outside
+            qy = cell_index((py - g.y0) / g.cell, -1, g.ny)
             k = 0
             bound = reach2  # no point farther than this (squared) can be kept
-            for s in range(2 * spread + 1):
-                gx = column + (s + 1) // 2 if s % 2 else column - s // 2  # 0, +1, -1, +2, -2, ...
-                if gx < 0 or gx >= g.nx:
-                    continue
-                left = g.x0 + gx * g.cell - slack
-                away = max(max(left - px, px - (left + g.cell + 2.0 * slack)), 0.0)  # to the column, across
-                if away * away > bound:
-                    continue
-                # along the column: as far as the disc reaches, widened past any rounding of the root
-                half = sqrt(max(bound - away * away, 0.0) + 1e-12 * bound) + slack
-                low = cell_index((py - half - g.y0) / g.cell, -1, g.ny)
-                high = cell_index((py + half - g.y0) / g.cell, -1, g.ny)
-                if high < 0 or low >= g.ny:
-                    continue
-                low, high = max(low, 0), min(high, g.ny - 1)
-                for a in range(g.start[gx * g.ny + low], g.start[gx * g.ny + high + 1]):
-                    j = g.order[a]
-                    kj = key[j]
-                    if kj == own:
-                        continue
-                    dx = g.sx[a] - px
-                    dy = g.sy[a] - py
-                    d2 = dx * dx + dy * dy
-                    if not (d2 <= reach2 if inclusive else d2 < reach2):
-                        continue
-                    if k == m and not before(d2, kj, j, best[m - 1], best_key[m - 1], out[i, m - 1]):
-                        continue
-                    p = min(k, m - 1)  # insert (d2, key, j) in order, dropping the last when full
-                    while p > 0 and before(d2, kj, j, best[p - 1], best_key[p - 1], out[i, p - 1]):
-                        best[p] = best[p - 1]
-                        best_key[p] = best_key[p - 1]
-                        out[i, p] = out[i, p - 1]
-                        p -= 1
-                    best[p] = d2
-                    best_key[p] = kj
-                    out[i, p] = j
-                    if k < m:
-                        k += 1
-                    if k == m:
-                        bound = best[m - 1]
+            for r in range(rings + 1):
+                edge = (r - 1) * g.cell - 2.0 * slack
+                if k == m and edge > 0.0 and edge * edge > bound:
+                    break  # m found, all nearer than any point of this ring or beyond
+                for gx in range(max(qx - r, 0), min(qx + r + 1, g.nx)):
+                    # the ring's cells in this column: all of an edge column, else its top and bottom
+                    step = 1 if gx == qx - r or gx == qx + r else 2 * r
+                    gy = qy - r - step
+                    while gy + step <= qy + r:  # (a while loop: a range with a variable step is Python's)
+                        gy += step
+                        if gy < 0 or gy >= g.ny:
+                            continue
+                        # the cell's nearest point to the query, widened past any rounding
+                        left = g.x0 + gx * g.cell - slack
+                        low_y = g.y0 + gy * g.cell - slack
+                        ax = max(max(left - px, px - (left + g.cell + 2.0 * slack)), 0.0)
+                        ay = max(max(low_y - py, py - (low_y + g.cell + 2.0 * slack)), 0.0)
+                        if ax * ax + ay * ay > bound:
+                            continue
+                        c = gx * g.ny + gy
+                        for a in range(g.start[c], g.start[c + 1]):
+                            j = g.order[a]
+                            kj = key[j]
+                            if kj == own:
+                                continue
+                            dx = g.sx[a] - px
+                            dy = g.sy[a] - py
+                            d2 = dx * dx + dy * dy
+                            if not (d2 <= reach2 if inclusive else d2 < reach2):
+                                continue
+                            if k == m and not before(d2, kj, j, best[m - 1], best_key[m - 1], out[i, m - 1]):
+                                continue
+                            p = min(k, m - 1)  # insert (d2, key, j) in order, dropping the last when full
+                            while p > 0 and before(d2, kj, j, best[p - 1], best_key[p - 1], out[i, p - 1]):
+                                best[p] = best[p - 1]
+                                best_key[p] = best_key[p - 1]
+                                out[i, p] = out[i, p - 1]
+                                p -= 1
+                            best[p] = d2
+                            best_key[p] = kj
+                            out[i, p] = j
+                            if k < m:
+                                k += 1
+                            if k == m:
+                                bound = best[m - 1]
     finally:
         grid_free(&g)
         free(best)
