@@ -10,11 +10,10 @@ are agreed by max-consensus, as in Zavlanos et al. 2008:
 - **Bids.** A robot that holds no goal, or whose goal was taken by a greater record, bids on its best
   goal: the price rises by the difference between the best and second-best net value plus epsilon.
   Costs are private: squared distance (eq. 7) plus the robot's own deadlock penalties (5.5.5).
-  Own robots bid together (Jacobi rounds, vectorised), so a host of hundreds of robots stays fast:
-  each robot's best and second-best values are kept between rounds (prices only rise), and only
-  the rows that may have changed are ranked anew over every goal. A host that owns every robot (the
-  central engine, sim.central) settles each block of phases in-process (``settle_alone``), compiled
-  (agent.core.jacobi), to the same board.
+  Own robots bid together (Jacobi rounds). The rounds are compiled, written once
+  (agent.core.bidding): an agent host bids a round at a time between messages (``bid``), and a host
+  that owns every robot (the central engine, sim.central) settles each block of phases in-process
+  (``settle_alone``) through the same rounds, to the same board.
 - **Instances.** An auction instance runs on positions frozen when it starts, so costs stay fixed
   while prices settle; a deadlock penalty declared meanwhile counts from the next instance (a cost
   that changed after a robot said it was content would break the quiescence argument below). Instance k is *agreed* when every robot of the goal set has published, for k,
@@ -43,16 +42,30 @@ import numpy as np
 
 from transport.codec import AuctionRecord, Bid
 
-from .auction import NO_OWNER, ROUNDING, epsilon_schedule, is_content
-from .neighbours import splitmix64
+from .bidding import NO_OWNER, ROUNDING, Bidders, board_digest, merge_one, merge_records
+
+__all__ = ["NO_OWNER", "ROUNDING", "Board", "Participant", "bid_position", "epsilon_schedule", "frames_close"]
 
 # the auction record's flags (transport.codec.AuctionRecord); SETTLED: content at the final phase's slack,
 # so in every phase left
 CONTENT, RELEASED, SETTLED = AuctionRecord.CONTENT, AuctionRecord.RELEASED, AuctionRecord.SETTLED
-CANDIDATES = 16  # goals a robot ranks in settle_alone's rounds while no other can beat them (agent.core.jacobi)
+CANDIDATES = 16  # goals a robot ranks while no other can beat them (agent.core.bidding)
 SMALL = 8  # messages with up to this many records are merged record by record (numpy costs more there)
 
 RECORD = Bid.RECORD  # one robot's word on one goal (goal -1: it holds none yet), as a Bid carries it
+
+
+def epsilon_schedule(goals: np.ndarray, eps_final: float, factor: float = 10.0) -> list[float]:
+    """Decreasing epsilons (Bertsekas' epsilon scaling): from a tenth of the squared extent of the goal
+    set down to eps_final, by ``factor`` (few phases: each costs a global snapshot)."""
+    extent = float(np.max(np.ptp(goals, axis=0))) if len(goals) > 1 else 0.0
+    eps = max(eps_final, extent * extent / 10.0)
+    out = []
+    while eps > eps_final * 1.0001:
+        out.append(eps)
+        eps /= factor
+    out.append(eps_final)
+    return out
 
 
 def bid_position(position: np.ndarray, goal: np.ndarray, velocity: np.ndarray, lead: float) -> np.ndarray:
@@ -100,19 +113,22 @@ def frames_close(before: np.ndarray, goals: np.ndarray, previous: np.ndarray) ->
     return disparity <= 1.5 * spacing
 
 
-def _hull_vertices(goals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(x, y) of points whose support function bounds the goal set's (agent.core.jacobi carries
-    candidate lists by it): its convex hull's vertices, or its bounding box's corners when the
-    hull is degenerate (goals on a line, fewer than three)."""
-    from scipy.spatial import ConvexHull, QhullError
-
+def _hull_vertices(goals: np.ndarray, exact: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """(x, y) of points whose support function bounds the goal set's (agent.core.bidding carries
+    candidate lists by it): its convex hull's vertices, or its bounding box's corners when the hull
+    is degenerate (goals on a line, fewer than three) or not ``exact`` (an agent process need not
+    load scipy.spatial)."""
     if len(goals) == 0:
         return np.zeros(0), np.zeros(0)
-    try:
-        corners = goals[ConvexHull(goals).vertices]
-    except (QhullError, ValueError):
-        lo, hi = goals.min(axis=0), goals.max(axis=0)
-        corners = np.array([[lo[0], lo[1]], [lo[0], hi[1]], [hi[0], lo[1]], [hi[0], hi[1]]])
+    lo, hi = goals.min(axis=0), goals.max(axis=0)
+    corners = np.array([[lo[0], lo[1]], [lo[0], hi[1]], [hi[0], lo[1]], [hi[0], hi[1]]])
+    if exact:
+        from scipy.spatial import ConvexHull, QhullError
+
+        try:
+            corners = goals[ConvexHull(goals).vertices]
+        except (QhullError, ValueError):
+            pass
     return np.ascontiguousarray(corners[:, 0], float), np.ascontiguousarray(corners[:, 1], float)
 
 
@@ -122,28 +138,6 @@ def records(rows: list[tuple]) -> np.ndarray:
     return np.array(full, RECORD)
 
 
-ROW_BLOCK = 64  # rows of a (K, G) array worked on at a time: a block stays in cache through its passes
-
-
-def _squared_distances(position: np.ndarray, goals: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """(K, G) |g_j - p_i|^2 (eq. 7), into ``out`` when it has that shape, in blocks of rows (large
-    whole arrays do not fit the cache)."""
-    k, g = len(position), len(goals)
-    if out is None or out.shape != (k, g):
-        out = np.empty((k, g))
-    gx, gy = np.ascontiguousarray(goals[:, 0]), np.ascontiguousarray(goals[:, 1])
-    dy = np.empty((min(ROW_BLOCK, k), g))
-    for a in range(0, k, ROW_BLOCK):
-        cost, p = out[a : a + ROW_BLOCK], position[a : a + ROW_BLOCK]
-        d = dy[: len(cost)]
-        np.subtract(gx, p[:, 0, None], out=cost)
-        cost *= cost
-        np.subtract(gy, p[:, 1, None], out=d)
-        d *= d
-        cost += d
-    return out
-
-
 class Board:
     """Per goal: the greatest (price, lower robot id, released) record seen."""
 
@@ -151,41 +145,29 @@ class Board:
         self.price = np.zeros(goals)
         self.owner = np.full(goals, NO_OWNER, dtype=np.int64)
         self.released = np.zeros(goals, bool)
+        self._released = self.released.view(np.uint8)  # as the compiled rounds read it
         self.version = 0  # counts changes: cached digests and views key on it
         self._digest: tuple[int, int] | None = None
 
     def merge(self, goal: np.ndarray, price: np.ndarray, robot: np.ndarray, released: np.ndarray) -> bool:
         """Max-consensus of a batch of records into the board; True when any was new information."""
-        goal = np.asarray(goal, np.int64)
-        ok = (goal >= 0) & (goal < len(self.price))
-        if not ok.any():
-            return False
-        goal, price = goal[ok], np.asarray(price, float)[ok]
-        robot, released = np.asarray(robot, np.int64)[ok], np.asarray(released, bool)[ok]
-        # the greatest record per goal in the batch: sorted by (goal, price, -robot, released), last wins
-        order = np.lexsort((released, -robot, price, goal))
-        g = goal[order]
-        last = order[np.append(g[1:] != g[:-1], True)]
-        g, p, r, rel = goal[last], price[last], robot[last], released[last]
-        bp, bo, br = self.price[g], self.owner[g], self.released[g]
-        greater = (bo == NO_OWNER) | (p > bp) | ((p == bp) & ((r < bo) | ((r == bo) & rel & ~br)))
-        if not greater.any():
-            return False
-        g = g[greater]
-        self.price[g], self.owner[g], self.released[g] = p[greater], r[greater], rel[greater]
-        self.version += 1
-        return True
+        changed = merge_records(
+            self.price,
+            self.owner,
+            self._released,
+            np.ascontiguousarray(goal, np.int64),
+            np.ascontiguousarray(price, float),
+            np.ascontiguousarray(robot, np.int64),
+            np.ascontiguousarray(released, np.uint8),
+        )
+        self.version += changed
+        return changed
 
     def merge_one(self, goal: int, price: float, robot: int, released: bool) -> bool:
         """The same for one record (a robot per host: most messages carry one or two records)."""
-        if not 0 <= goal < len(self.price):
-            return False
-        owner = int(self.owner[goal])
-        if owner != NO_OWNER and (price, -robot, released) <= (self.price[goal], -owner, bool(self.released[goal])):
-            return False
-        self.price[goal], self.owner[goal], self.released[goal] = price, robot, released
-        self.version += 1
-        return True
+        changed = merge_one(self.price, self.owner, self._released, goal, price, robot, released)
+        self.version += changed
+        return changed
 
     def holds(self, robot: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """Per (robot, goal) pair: the robot owns the goal on this board and has not released it."""
@@ -194,13 +176,9 @@ class Board:
         return (goal >= 0) & (self.owner[safe] == robot) & ~self.released[safe]
 
     def digest(self) -> int:
-        """64 bits that tell boards apart: each word of (price, owner, released) hashed with its
-        place, XOR-folded (numpy only: hashlib would load OpenSSL into every agent process)."""
+        """64 bits that tell boards apart (agent.core.bidding.board_digest), cached per version."""
         if self._digest is None or self._digest[0] != self.version:
-            words = np.concatenate([self.price.view(np.uint64), self.owner.view(np.uint64), self.released])
-            place = splitmix64(np.arange(len(words), dtype=np.uint64))
-            folded = np.bitwise_xor.reduce(splitmix64(words.astype(np.uint64) ^ place), initial=np.uint64(0))
-            self._digest = (self.version, int(folded))
+            self._digest = (self.version, board_digest(self.price, self.owner, self._released))
         return self._digest[1]
 
 
@@ -227,8 +205,7 @@ class Participant:
         self.board = Board(len(self.goals))
         self.instance = -1  # not started: waits for the robots' positions
         k, g = len(self.own), len(self.goals)
-        self.position = np.zeros((k, 2))  # frozen per instance
-        self.cost = np.zeros((k, g))  # c_ij at the frozen positions, eq. 7, plus the penalties in force
+        self.position = np.zeros((k, 2))  # frozen per block of instances
         self.penalty = np.zeros((k, g))  # C_d per robot and goal in force this instance (deadlocks)
         self.pending = np.zeros((k, g))  # penalties declared during this instance: in force from the next
         self.goal = np.full(k, -1, np.int64)  # what each own robot claims
@@ -248,12 +225,10 @@ class Participant:
         self.published_digest: int | None = None  # the board digest of the last publication
         self.bids = 0
         self.rounds = 0  # Jacobi rounds in which some own robot bid
-        self._content_cache: tuple[tuple, np.ndarray] | None = None
-        # per own robot: its best goal, that goal's value and its second-best value (see _best_values)
-        self._best: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-        self._lists: tuple | None = None  # settle_alone's candidate goals, scratch (agent.core.jacobi), hull, ...
-        self.without_list = 0  # robots that had no candidate list at the start of settle_alone's last block
-        self._price_seen = np.zeros(len(self.goals))
+        # the compiled rounds (agent.core.bidding) over the board, the claims and the penalties
+        self._bidders = self._new_bidders(CANDIDATES, exact_hull=False)
+        self._exact_hull = False
+        self.without_list = 0  # robots that had no candidate list at the start of the last block
         self._has_penalty = False  # any penalty in force: costs are more than squared distances
         self._pending_any = False  # penalise() was called since the last begin()
         self._view_cache: dict[bool, tuple[tuple, bool]] = {}
@@ -301,8 +276,16 @@ class Participant:
         self._freeze(instance, positions)
         self.bid()
 
-    def _freeze(self, instance: int, positions: Mapping[int, np.ndarray] | np.ndarray, costs: bool = True) -> None:
-        """begin() up to its first round; without ``costs`` the caller computes them (settle_alone)."""
+    def _new_bidders(self, candidates: int, exact_hull: bool) -> Bidders:
+        """The own robots' compiled rounds, ``candidates`` goals ranked per robot while no other can
+        beat them; lists carried across blocks by the goal set's hull (``exact_hull``: its convex
+        hull, for a host that settles alone; else its bounding box, without loading scipy)."""
+        hull = _hull_vertices(self.goals, exact=exact_hull)
+        return Bidders(self.board, self.goals, self.own_ids, self.goal, self.penalty, hull, candidates)
+
+    def _freeze(self, instance: int, positions: Mapping[int, np.ndarray] | np.ndarray) -> None:
+        """begin() up to its first round: at a new block the positions, and any penalty declared
+        meanwhile, come into force, and every robot's ranking is made anew."""
         if self.started and not self.is_agreed and instance > self.instance:
             self.adopt_if_settled()  # someone reached a later instance: ours was agreed
         new_block = not self.started or instance // self.phases != self.instance // self.phases
@@ -317,18 +300,14 @@ class Participant:
             self.pending[:] = 0.0
             self._pending_any = False
             self._has_penalty = True
-        # The costs change only with the positions (a new block) or a penalty: the other phases of a
-        # block keep them, and the best values too (prices only rise, _best_values follows them).
-        if (new_block or penalised) and costs:
-            self.cost = _squared_distances(
-                self.position, self.goals, out=self.cost
-            )  # the last block's costs are done with
-            if self._has_penalty:
-                self.cost += self.penalty
-            self._best = None  # costs changed: every best value is recomputed
+        # Costs change only with the positions (a new block) or a penalty: the other phases of a
+        # block keep them, and the rankings too (prices only rise, the compiled rounds follow them).
+        if new_block or penalised:
+            self._bidders.freeze(self.position)
+            self._bidders.has_penalty = self._has_penalty
+            self.without_list = self._bidders.first_ranking()
         self.instance = instance
         self.claims_changed = True  # the new instance's records are news
-        self._content_cache = None
 
     def carry(
         self,
@@ -391,162 +370,27 @@ class Participant:
             self._adopt()
 
     # --- bidding ----------------------------------------------------------------------------------
-    def _values(self, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
-        """Net values -c_ij - b_j of own robots (their private costs include deadlock penalties)."""
-        values = -self.cost[rows]
-        values -= self.board.price[None, :]  # in place: one (rows, G) array, not three
-        return values
-
-    def _best_values(self) -> np.ndarray:
-        """(K,) each own robot's best net value max_j (-c_ij - b_j), kept up to date cheaply. Prices
-        only rise, so values only fall: a robot's best goal can change only when its price rose, and
-        it stays the best (the same argmax) while its value now still beats the robot's second-best
-        value as last ranked, which bounds the second best now from above. Only the other rows are
-        ranked anew over every goal."""
-        price = self.board.price
-        if self._best is None:
-            k = len(self.own)
-            self._best = (np.zeros(k, np.int64), np.zeros(k), np.full(k, np.inf))
-            self._rank(np.arange(k))
-        else:
-            rose = price != self._price_seen
-            best, value, second = self._best
-            stale = np.flatnonzero(rose[best]) if rose.any() else ()
-            if len(stale):
-                g = best[stale]
-                now = -self.cost[stale, g] - price[g]
-                value[stale] = now
-                lost = stale[~(now > second[stale])]  # another goal may be as good now
-                if len(lost):
-                    self._rank(lost)
-        self._price_seen = price.copy()
-        return self._best[1]
-
-    def _rank(self, rows: np.ndarray, third: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """Rank these own robots' net values over every goal: their best goal and value, and their
-        second-best value, into the cache. Returns the runner-up goal and, with ``third``, the
-        third-best value (-inf where there is none). In blocks of rows that stay in cache."""
-        if len(rows) == 1 and not third:
-            return self._rank_one(int(rows[0]))
-        if len(rows) <= ROW_BLOCK:
-            return self._rank_block(rows, third)
-        runner_up, third_value = np.zeros(len(rows), np.int64), np.full(len(rows), -np.inf)
-        for a in range(0, len(rows), ROW_BLOCK):
-            block = slice(a, a + ROW_BLOCK)
-            runner_up[block], third_value[block] = self._rank_block(rows[block], third)
-        return runner_up, third_value
-
-    def _ranking(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The cache _rank fills (made by _best_values or settle_alone before any ranking)."""
-        if self._best is None:
-            raise RuntimeError("no ranking cache yet")
-        return self._best
-
-    def _rank_one(self, i: int) -> tuple[np.ndarray, np.ndarray]:
-        """_rank_block for one row without the third-best value, in scalars (the common case)."""
-        best, value, second = self._ranking()
-        values = -self.cost[i]
-        values -= self.board.price
-        first = int(values.argmax())  # ties: lowest goal index, the same everywhere
-        best[i], value[i] = first, values[first]
-        runner_up = first
-        if len(values) > 1:
-            values[first] = -np.inf
-            runner_up = int(values.argmax())
-            second[i] = values[runner_up]
-        else:
-            second[i] = -np.inf
-        return np.array([runner_up]), np.array([-np.inf])
-
-    def _rank_block(self, rows: np.ndarray, third: bool) -> tuple[np.ndarray, np.ndarray]:
-        best, value, second = self._ranking()
-        values = self._values(rows)
-        at = np.arange(len(rows))
-        first = np.argmax(values, axis=1)  # ties: lowest goal index, the same everywhere
-        best[rows], value[rows] = first, values[at, first]
-        runner_up, third_value = first, np.full(len(rows), -np.inf)
-        if values.shape[1] > 1:
-            values[at, first] = -np.inf
-            runner_up = np.argmax(values, axis=1)
-            second[rows] = values[at, runner_up]
-            if third and values.shape[1] > 2:
-                values[at, runner_up] = -np.inf
-                third_value = values.max(axis=1)
-        else:
-            second[rows] = -np.inf
-        return runner_up, third_value
-
-    def _after_bids(self, bidders: np.ndarray, bid_on: np.ndarray, runner_up: np.ndarray, third: np.ndarray) -> None:
-        """The bidders' best goals once their bids are merged, from the ranking they bid on: the goal
-        bid on rose in price, so the runner-up is the best now if it beats that goal's value now and
-        the third-best value (an upper bound) outright; otherwise the row is ranked anew when next
-        needed (second = inf, and the goal bid on counts as risen since _price_seen)."""
-        best, value, second = self._ranking()
-        price = self.board.price
-        v_bid = -self.cost[bidders, bid_on] - price[bid_on]
-        v_run = -self.cost[bidders, runner_up] - price[runner_up]
-        bound = np.maximum(v_bid, third)
-        moved = (v_run > bound) & (runner_up != bid_on)
-        best[bidders] = np.where(moved, runner_up, bid_on)
-        value[bidders] = np.where(moved, v_run, v_bid)
-        second[bidders] = np.where(moved, bound, np.inf)
+    def ranking(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each own robot's best goal and net value max_j (-c_ij - b_j) on the board as it is."""
+        return self._bidders.ranking()
 
     def _content_all(self) -> np.ndarray:
         """(K,) bool: each own robot holds its goal and no goal is better by more than the slack."""
-        key = (self.board.version, self.instance, self.goal.tobytes())
-        if self._content_cache is not None and self._content_cache[0] == key:
-            return self._content_cache[1]
-        if not self.own or not len(self.goals):
-            content = np.zeros(len(self.own), bool)
-        else:
-            holds = self.board.holds(self.own_ids, self.goal)
-            g = np.maximum(self.goal, 0)
-            held = -self.cost[np.arange(len(self.own)), g] - self.board.price[g]
-            content = holds & is_content(held, self._best_values(), self.slack)
-        self._content_cache = (key, content)
-        return content
+        return self._bidders.contentment(self.slack)
 
     def bid(self) -> bool:
         """One Jacobi round: every own robot that is not content bids on its best goal at once; per goal
         the greatest bid wins, by the same max-consensus as messages. True if any robot bid."""
         if not self.started:
             return False
-        bidders = np.flatnonzero(~self._content_all())
-        if len(bidders) == 0:
+        bidders = self._bidders.bid(self.eps, self.slack)
+        if not bidders:
             return False
-        self._bid_rows(bidders)
-        return True
-
-    def _bid_rows(self, bidders: np.ndarray) -> np.ndarray:
-        """These own robots (rows, none of them content) bid on their best goals at once; returns the
-        robots that lost to these bids a goal they owned."""
-        runner_up, third = self._rank(bidders, third=True)  # the same best as _content_all's
-        best, value, second = self._ranking()
-        best, v_best = best[bidders], value[bidders]
-        if len(self.goals) > 1:
-            second = second[bidders]
-        else:
-            second = v_best - self.eps
-        price = self.board.price[best] + (v_best - second) + self.eps
-        robot = self.own_ids[bidders]
-        held = self.goal[bidders]
-        gives_up = self.board.holds(robot, held)  # it gives its goal up for a better one
-        g_rel = held[gives_up]
-        owner = self.board.owner[best]  # a copy: who owned the goals bid on
-        # releases and bids merge in one batch: max-consensus does not care about order
-        # (np.concatenate: np.r_ costs several times more on these short arrays, every round)
-        self.board.merge(
-            np.concatenate([g_rel, best]),
-            np.concatenate([self.board.price[g_rel], price]),
-            np.concatenate([robot[gives_up], robot]),
-            np.concatenate([np.ones(len(g_rel), bool), np.zeros(len(best), bool)]),
-        )
-        self._after_bids(bidders, best, runner_up, third)
-        self.goal[bidders] = best
-        self.bids += len(bidders)
+        self.board.version += 1
+        self.bids += bidders
         self.rounds += 1
         self.claims_changed = True
-        return owner[(owner != self.board.owner[best]) & (owner != NO_OWNER)]
+        return True
 
     def bid_until_quiet(self, max_rounds: int = 100_000) -> int:
         """Rounds until no own robot wants to bid (own robots outbid each other without messages)."""
@@ -564,90 +408,27 @@ class Participant:
         this host's own board, and a phase is over when every robot is content. Returns each own
         robot's agreed goal, in the order of ``own``.
 
-        The block runs compiled (agent.core.jacobi): the same costs, rounds, bids and board as
-        begin(), bid() and check_agreement() give, far faster (while they cross the arena a warm
-        block runs chains of thousands of rounds of one or two bidders).
-        Each robot ranks only its ``candidates`` best goals while no other goal can beat them
-        (prices only rise), and the lists carry over to the next block where the robot's motion
-        cannot have changed that: the same ranking, a fraction of the scan.
-        The compiled rounds compute costs where needed and leave ``cost`` as it was: a participant
-        that settles alone is settled alone, not also with bid().
-        Imported here, not at the top: agent hosts never settle alone and need not load numba."""
-        from .jacobi import first_ranking, new_lists, settle_block
-
+        The same rounds, bids and board as begin(), bid() and check_agreement() give, without a
+        return to Python between rounds (while they cross the arena a warm block runs chains of
+        thousands of rounds of one or two bidders). Each robot ranks only its ``candidates`` best
+        goals while no other goal can beat them, and the lists carry over to the next block where
+        the robot's motion cannot have changed that."""
         if len(self.own) != len(self.robots):
             raise ValueError("settle_alone needs a host that owns every robot of the goal set")
         if candidates < 3:
             raise ValueError("settle_alone ranks at least 3 candidate goals per robot")
+        if not self._exact_hull or self._bidders.candidates != candidates:
+            self._bidders, self._exact_hull = self._new_bidders(candidates, exact_hull=True), True
         first = (self.instance // self.phases + 1) * self.phases if self.started else 0
-        self._freeze(first, positions, costs=False)  # costs are computed where needed
-        k, board = len(self.own), self.board
-        if self._best is None:
-            self._best = (np.zeros(k, np.int64), np.zeros(k), np.full(k, np.inf))
-        best, value, second = self._best
-        if self._lists is None or self._lists[0].cand.shape[1] != candidates:
-            row_of_id = np.full(int(self.own_ids.max(initial=0)) + 1, -1, np.int64)
-            row_of_id[self.own_ids] = np.arange(k)
-            eps = np.array(self.schedule)
-            slack = np.maximum(eps, eps[-1] + self.hysteresis)  # as self.slack, phase by phase
-            gx, gy = np.ascontiguousarray(self.goals[:, 0]), np.ascontiguousarray(self.goals[:, 1])
-            self._lists = (
-                *new_lists(k, len(self.goals), candidates),
-                _hull_vertices(self.goals),
-                (gx, gy),
-                row_of_id,
-                eps,
-                slack,
-            )
-        lists, work, scratch, (hull_x, hull_y), (gx, gy), row_of_id, eps, slack = self._lists
-        px, py = np.ascontiguousarray(self.position[:, 0]), np.ascontiguousarray(self.position[:, 1])
-        self.without_list = first_ranking(
-            px,
-            py,
-            gx,
-            gy,
-            board.price,
-            self.penalty,
-            self._has_penalty,
-            best,
-            value,
-            second,
-            lists,
-            work,
-            hull_x,
-            hull_y,
-        )
-        rounds, bids, settled = settle_block(
-            px,
-            py,
-            gx,
-            gy,
-            board.price,
-            self.penalty,
-            self._has_penalty,
-            board.owner,
-            board.released,
-            self.goal,
-            self.own_ids,
-            row_of_id,
-            best,
-            value,
-            second,
-            lists,
-            work,
-            scratch,
-            eps,
-            slack,
-            ROUNDING,
-            max_rounds,
-        )
+        self._freeze(first, positions)
+        eps = np.array(self.schedule)
+        slack = np.maximum(eps, eps[-1] + self.hysteresis)  # as self.slack, phase by phase
+        rounds, bids, settled = self._bidders.settle_block(eps, slack, max_rounds)
         self.instance = first + min(settled, self.phases - 1)
-        board.version += 1
+        self.board.version += 1
         self.bids, self.rounds, self.claims_changed = self.bids + bids, self.rounds + rounds, True
-        self._price_seen = board.price.copy()  # every cached best value is exact now
         if settled < self.phases:
             raise RuntimeError(f"auction instance {self.instance} did not settle")
-        self._content_cache = ((board.version, self.instance, self.goal.tobytes()), np.ones(k, bool))
         self._adopt()
         return self.goal.copy()
 
@@ -663,12 +444,8 @@ class Participant:
         SETTLED when its robot is content at the final phase's slack (the least: no later phase
         would have it bid)."""
         recs = self.records()
-        if len(self.own) and len(self.goals):
-            holds = self.board.holds(self.own_ids, self.goal)
-            g = np.maximum(self.goal, 0)
-            held = -self.cost[np.arange(len(self.own)), g] - self.board.price[g]
-            settled = holds & is_content(held, self._best_values(), self.schedule[-1] + self.hysteresis)
-            recs["flags"][: len(self.own)] |= np.where(settled, SETTLED, 0).astype(np.uint8)
+        settled = self._bidders.contentment(self.schedule[-1] + self.hysteresis)
+        recs["flags"][: len(self.own)] |= np.where(settled, SETTLED, 0).astype(np.uint8)
         return recs
 
     def close_round(self, unchanged: bool, settled: bool) -> bool:
@@ -683,7 +460,6 @@ class Participant:
             self._freeze(self.instance + 1, {})
             return False
         self.instance = (self.instance // self.phases + 1) * self.phases - 1  # the block's final phase
-        self._content_cache = None
         self._adopt()
         return True
 

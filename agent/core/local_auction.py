@@ -37,8 +37,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .auction import NO_OWNER, ROUNDING, epsilon_schedule
-from .bidder import Participant
+from .bidder import NO_OWNER, Participant, epsilon_schedule
+from .bidding import bid_on_own_boards, merge_boards
 from .params import RobotParams
 
 
@@ -62,11 +62,6 @@ class Words(NamedTuple):
     @staticmethod
     def join(parts: list[Words]) -> Words:
         return Words(*(np.concatenate(cols) for cols in zip(*parts, strict=True)))
-
-
-def _greater(p: np.ndarray, o: np.ndarray, r: np.ndarray, bp: np.ndarray, bo: np.ndarray, br: np.ndarray) -> np.ndarray:
-    """Where record (p, o, r) beats the board's (bp, bo, br): the order of agent.core.bidder.Board."""
-    return (o != NO_OWNER) & ((bo == NO_OWNER) | (p > bp) | ((p == bp) & ((o < bo) | ((o == bo) & r & ~br))))
 
 
 def _gather(mask: np.ndarray, values: np.ndarray, fill: float | int | bool) -> np.ndarray:
@@ -244,23 +239,11 @@ class LocalAuction:
             self._agree()
 
     def _merge(self, active: np.ndarray, told: np.ndarray, words: Words, r: int) -> np.ndarray:
-        """Max-consensus of the boards each active robot was told into its own; True where it changed.
-        Per goal the greatest record heard: price, then the lower robot id, then released."""
-        owner = _gather(told, words.owner, NO_OWNER)
-        p = np.where(owner == NO_OWNER, -np.inf, _gather(told, words.price, 0.0))
-        top = p.max(axis=1)
-        o = np.where(p == top[:, None, :], owner, np.iinfo(np.int64).max)
-        first = o.min(axis=1)
-        rel = (_gather(told, words.released, False) & (o == first[:, None, :])).any(axis=1)
-        first = np.where(np.isfinite(top), first, NO_OWNER)
-        bp, bo, br = self.price[active], self.owner[active], self.released[active]
-        win = _greater(top, first, rel, bp, bo, br)
-        merged = win.any(axis=1)
-        self.price[active] = np.where(win, top, bp)
-        self.owner[active] = np.where(win, first, bo)
-        self.released[active] = np.where(win, rel, br)
+        """Max-consensus of the boards each active robot was told into its own (compiled:
+        agent.core.bidding.merge_boards); True where it changed."""
+        merged = merge_boards(self, active, np.ascontiguousarray(told).view(np.uint8), words)
         self.board_changed[active[merged]] = r
-        return np.asarray(merged, bool)
+        return merged
 
     def _check_end(self, rows: np.ndarray, r: int) -> None:
         """A robot's phase is over everywhere in its part once the newest change it knows of is
@@ -281,8 +264,10 @@ class LocalAuction:
 
     def _bid(self, rows: np.ndarray) -> np.ndarray:
         """Own robots (rows) that hold no goal on their board, or are not content with it at their
-        phase's slack, bid for their best goal; returns the rows that bid."""
-        slack = np.maximum(np.asarray(self.schedule)[self.phase[rows]], self.schedule[-1] + self.hysteresis)
+        phase's slack, bid for their best goal (compiled: agent.core.bidding.bid_on_own_boards);
+        returns the rows that bid."""
+        eps = np.asarray(self.schedule)[self.phase[rows]]
+        slack = np.maximum(eps, self.schedule[-1] + self.hysteresis)
         # A goal whose holder is not among the robots heard of (out of reach) costs more than any
         # other: a part trades its own goals and takes another's only when it has too few, so a
         # graph that splits stays one-to-one (the holder could not learn that it lost its goal).
@@ -290,36 +275,9 @@ class LocalAuction:
         col = np.minimum(np.searchsorted(self.robots, np.maximum(owner, 0)), len(self.robots) - 1)
         known = np.take_along_axis(self.known[rows], col, axis=1)
         taken = (owner != NO_OWNER) & ~self.released[rows] & ~known
-        value = -self.cost[rows] - self.price[rows] - taken * self.taken_cost[rows, None]
-        best = np.argmax(value, axis=1)  # ties: the lowest goal index
-        k = np.arange(len(rows))
-        v_best = value[k, best]
-        robot = self.own_ids[rows]
-        held = self.goal[rows]
-        safe = np.maximum(held, 0)
-        holds = (held >= 0) & (self.owner[rows, safe] == robot) & ~self.released[rows, safe]
-        v_held = value[k, safe]
-        content = holds & (v_held >= v_best - slack - ROUNDING * np.abs(v_best))
-        bidders = np.flatnonzero(~content)
-        if len(bidders) == 0:
-            return rows[bidders]
-        b, kb = rows[bidders], bidders
-        gives_up = holds[kb]
-        self.released[b[gives_up], held[kb][gives_up]] = True  # it gives its goal up for a better one
-        eps = np.asarray(self.schedule)[self.phase[b]]
-        if len(self.goals) > 1:
-            second_value = value[kb].copy()
-            second_value[np.arange(len(kb)), best[kb]] = -np.inf
-            second = second_value.max(axis=1)
-        else:
-            second = v_best[kb] - eps
-        goal = best[kb]
-        self.price[b, goal] = self.price[b, goal] + (v_best[kb] - second) + eps
-        self.owner[b, goal] = robot[kb]
-        self.released[b, goal] = False
-        self.goal[b] = goal
-        self.bids += len(b)
-        return b
+        bid = bid_on_own_boards(self, np.ascontiguousarray(rows, np.int64), slack, eps, taken.view(np.uint8))
+        self.bids += len(bid)
+        return bid
 
 
 def settle_in_process(auction: LocalAuction, positions: np.ndarray, max_rounds: int = 1_000_000) -> int:

@@ -1,0 +1,624 @@
+"""The goal auction's bidding and assignment rounds (paper 5.1.1), written once and compiled
+(setup.py): an agent host runs them for its own robots between messages (agent.core.bidder.Participant,
+one Jacobi round at a time), the central engine for every robot, a block of epsilon-scaling phases at
+a time (`Bidders.settle_block`), and the range-limited auction on each robot's own board
+(`bid_on_own_boards`, agent.core.local_auction). A robot's bid depends only on its costs and the
+board it bids against, so every engine reaches the same board, bit for bit.
+
+The paper's terms (Bertsekas' forward auction with epsilon scaling):
+
+- **Net value** of goal j to robot i: -c_ij - b_j, the cost c_ij = |g_j - p_i|^2 (eq. 7, computed as
+  dx * dx + dy * dy in float64) plus the robot's own deadlock penalties C_d (5.5.5), b_j the price.
+- **Board.** Per goal the greatest record: (price, then the lower robot id, then "released" after
+  "claimed"). Records merge by this maximum (max-consensus, `greater`), in any order.
+- **Content.** A robot holds its goal on the board and no goal is better by more than the slack (the
+  phase's epsilon, never less than epsilon_A + Delta C): epsilon-complementary slackness, up to
+  ``ROUNDING`` of the bid that set the price.
+- **Bid.** A robot that is not content bids on its best goal: the price rises by the best minus the
+  second-best net value plus epsilon (one goal: by epsilon twice), and it releases the goal it held.
+- **Jacobi round.** Every robot not content bids at once against the board as the round found it.
+
+What keeps a round cheap (while 1000 robots cross the arena a warm block runs chains of 10,000 and
+more rounds of one or two bidders):
+
+- **Cached best goal.** Each robot keeps its best goal, its net value (exact while that goal's price
+  is ``seen``) and an upper bound of its second-best value; prices only rise, so it is ranked again
+  only when its best goal's price rose past that bound.
+- **Candidate goals.** A ranking over every goal also keeps the robot's K best goals and ``bound``,
+  an upper bound of every other goal's value. Prices only rise, so the bound holds while prices
+  change; if the three best candidates beat it, they are the three best goals (ties included) and a
+  ranking costs K goals, not all of them.
+- **Carried across blocks** (`moved_bound`). A robot that moved by D since its list was made: goal
+  j's value changed by 2 (g_j - p).D - |D|^2, at most 2 (h(D) - p.D) - |D|^2 with h the support
+  function of the goal set (over the ``hull`` points), and by less where the goals off the list are
+  near the robot. Without hull points the lists start anew each block.
+- **After a round** only the bidders and the robots they outbid are looked at again: a content
+  robot holds its goal, so only a bid on that goal changes its contentment. Phases with nothing to do
+  are passed over: a robot content at the least slack left is content at every larger one.
+"""
+
+# cython: language_level=3
+
+from libc.math cimport INFINITY, NAN, fabs, sqrt
+from libc.stdint cimport int64_t, uint8_t, uint64_t
+
+import numpy as np
+
+NO_OWNER = -1  # a goal nobody claimed
+# Relative slack for the rounding of a bid. A bid leaves its robot's value of the goal exactly epsilon
+# below its next-best value in real numbers; in floats, price + (v1 - v2) + eps then -cost - price can
+# land an ulp short, the robot is not content with the goal it just won, gives it up and bids again.
+# Each such bid releases a goal, and at large warm prices the releases feed a price war that never ends.
+ROUNDING = 1e-12
+
+cdef int64_t NOBODY = -1
+cdef double ROUND = 1e-12
+
+
+cdef inline bint greater(double price, int64_t robot, bint released, double b_price, int64_t b_owner,
+                         bint b_released) noexcept nogil:
+    """Is the record (price, robot, released) greater than the board's for its goal?"""
+    if b_owner == NOBODY:
+        return True
+    if price != b_price:
+        return price > b_price
+    if robot != b_owner:
+        return robot < b_owner
+    return released and not b_released
+
+
+cdef inline bint is_content(double held, double best, double slack) noexcept nogil:
+    """The held goal's net value is within ``slack`` of the best, up to the rounding of a bid."""
+    return held >= best - slack - ROUND * fabs(best)
+
+
+cdef inline double bid_price(double price, double best, double second, double eps) noexcept nogil:
+    """The price a bid offers for the best goal (second: the second-best value, or best - eps)."""
+    return price + (best - second) + eps
+
+
+cdef inline bint before(double v, int64_t j, double w, int64_t m) noexcept nogil:
+    """Does goal j of value v rank before goal m of value w (value, then the lower index)?"""
+    return v > w or (v == w and j < m)
+
+
+ctypedef struct Ranking:
+    int64_t first  # the best goal (-1: none)
+    int64_t runner_up  # the second best (-1: none)
+    double best, second, third  # their values and the third-best (-inf: none)
+
+
+cdef Ranking top_three(const double[::1] values) noexcept nogil:
+    """The best, second and third of ``values`` over every goal, ties to the lower goal index."""
+    cdef Ranking r
+    cdef Py_ssize_t j
+    cdef double v
+    r.first, r.runner_up = -1, -1
+    r.best, r.second, r.third = -INFINITY, -INFINITY, -INFINITY
+    for j in range(values.shape[0]):
+        v = values[j]
+        if v > r.third:  # most goals fail this one test
+            if v > r.best:
+                r.runner_up, r.second, r.third = r.first, r.best, r.second
+                r.first, r.best = j, v
+            elif v > r.second:
+                r.runner_up, r.third = j, r.second
+                r.second = v
+            else:
+                r.third = v
+    return r
+
+
+def merge_records(double[::1] price, int64_t[::1] owner, uint8_t[::1] released, const int64_t[::1] goal,
+                  const double[::1] rec_price, const int64_t[::1] robot, const uint8_t[::1] rec_released) -> bool:
+    """Max-consensus of records (goal, price, robot, released) into a board (price, owner, released);
+    True when any was new information. Records of goals off the board are ignored."""
+    cdef Py_ssize_t a
+    cdef int64_t j
+    cdef bint changed = False
+    for a in range(goal.shape[0]):
+        j = goal[a]
+        if 0 <= j < price.shape[0] and greater(rec_price[a], robot[a], rec_released[a], price[j], owner[j], released[j]):
+            price[j], owner[j], released[j] = rec_price[a], robot[a], rec_released[a]
+            changed = True
+    return changed
+
+
+def merge_one(double[::1] price, int64_t[::1] owner, uint8_t[::1] released, int64_t goal, double rec_price,
+              int64_t robot, bint rec_released) -> bool:
+    """merge_records for one record (most messages of a robot per host carry one or two)."""
+    if 0 <= goal < price.shape[0] and greater(rec_price, robot, rec_released, price[goal], owner[goal], released[goal]):
+        price[goal], owner[goal], released[goal] = rec_price, robot, rec_released
+        return True
+    return False
+
+
+cpdef double moved_bound(double made, double x0, double y0, double dx, double dy, const double[::1] hull_x,
+                         const double[::1] hull_y, double lowest) noexcept nogil:
+    """An upper bound, now, of the value of every goal off a robot's list, made where it stood at
+    (x0, y0) with the bound ``made``, after it moved by D = (dx, dy); ``lowest``: the lowest price.
+    Prices and penalties only rose since, and two bounds hold; the lesser is returned:
+    - a goal's value changed by 2 (g - p).D - |D|^2 <= 2 (h(D) - p.D) - |D|^2, h the support function
+      of the goal set over its hull's vertices (hull_x, hull_y);
+    - no goal is worth more than -(its distance)^2 - lowest (penalties are costs, never negative), so
+      with u = value + lowest, a goal that had u <= U there has u <= -(sqrt(-U) - |D|)^2 now (0 if
+      |D| >= sqrt(-U)): only the goals near the robot count, not the goal set's extent.
+    +inf for a robot with no list (made = +inf) or no hull points."""
+    cdef double h = -INFINITY, grow, moved, u, near
+    cdef Py_ssize_t a
+    if hull_x.shape[0] == 0:
+        return INFINITY
+    for a in range(hull_x.shape[0]):
+        h = max(h, hull_x[a] * dx + hull_y[a] * dy)
+    grow = 2.0 * (h - (x0 * dx + y0 * dy)) - (dx * dx + dy * dy)
+    moved = made + grow
+    if made < INFINITY:
+        u = made + lowest
+        near = max(sqrt(-u) - sqrt(dx * dx + dy * dy), 0.0) if u < 0.0 else 0.0
+        moved = min(moved, -near * near - lowest)
+    return moved + 1e-9 * (fabs(moved) + fabs(made) + fabs(grow) + fabs(lowest) + 1.0)  # room for rounding
+
+
+cdef class Bidders:
+    """The own robots of a host (rows) bidding on one goal set's board, with what makes their
+    rankings cheap: each robot's cached best goal and candidate goals, and the scratch of a round
+    (made once: nothing in the rounds allocates)."""
+
+    cdef readonly Py_ssize_t k, g
+    cdef double[::1] px, py, gx, gy, hull_x, hull_y
+    cdef double[::1] price  # the board's (shared with agent.core.bidder.Board)
+    cdef int64_t[::1] owner
+    cdef uint8_t[::1] released
+    cdef int64_t[::1] goal  # each robot's claim (shared with the Participant)
+    cdef int64_t[::1] robot  # each row's robot id
+    cdef int64_t[::1] row_of_id
+    cdef double[:, ::1] penalty  # C_d in force per robot and goal (shared with the Participant)
+    cdef public bint has_penalty
+    # the cached ranking: best goal, its value (exact while its price is ``seen``), second-best bound
+    cdef int64_t[::1] best
+    cdef double[::1] value, second, seen
+    # candidate lists: K goals per robot (-1: none), a bound of every other goal's value (+inf: no
+    # list), the value window list-making aims for, where the list was made and its bound there
+    cdef int64_t[:, ::1] cand
+    cdef double[::1] bound, width, made_x, made_y, made_bound
+    # scratch of a ranking over every goal: values (G,), the window (4K) and its K + 1 best
+    cdef double[::1] values, window_value, top_value
+    cdef int64_t[::1] window_goal, top_goal
+    # scratch of a block: who may bid, who waits, the queue, who was looked at, and per bid its goal,
+    # price, the goal's owner before, the bidder's runner-up and third value, what it releases
+    cdef int64_t[::1] may_bid, waiting, queue, look, bidders, bid_goal, owner_before, runner_up, held
+    cdef double[::1] offer, third, held_price
+    cdef uint8_t[::1] touched, unhappy
+
+    def __init__(self, board, goals, robot, goal, penalty, hull, int candidates):
+        """``board``: an object with the arrays price, owner and released (bool) of the goal set;
+        ``goals`` (G, 2); ``robot``: each row's robot id; ``goal``: each row's claim, and ``penalty``
+        (K, G), both shared and changed in place; ``hull``: (x, y) of points whose support function
+        bounds the goal set's (empty: lists are not carried across blocks)."""
+        goals = np.asarray(goals, float).reshape(-1, 2)
+        self.k, self.g = len(robot), len(goals)
+        k, g = self.k, self.g
+        self.gx, self.gy = np.ascontiguousarray(goals[:, 0]), np.ascontiguousarray(goals[:, 1])
+        self.hull_x = np.ascontiguousarray(hull[0], float)
+        self.hull_y = np.ascontiguousarray(hull[1], float)
+        self.price, self.owner, self.released = board.price, board.owner, board.released.view(np.uint8)
+        self.robot = np.ascontiguousarray(robot, np.int64)
+        row_of_id = np.full(int(np.max(robot, initial=0)) + 1, -1, np.int64)
+        row_of_id[np.asarray(robot, np.int64)] = np.arange(k)
+        self.row_of_id = row_of_id
+        self.goal, self.penalty = goal, penalty
+        self.has_penalty = False
+        self.px, self.py = np.zeros(k), np.zeros(k)
+        self.best, self.value = np.zeros(k, np.int64), np.zeros(k)
+        self.second, self.seen = np.full(k, INFINITY), np.full(k, NAN)
+        self.cand = np.full((k, candidates), -1, np.int64)
+        self.bound, self.width = np.full(k, INFINITY), np.ones(k)
+        self.made_x, self.made_y, self.made_bound = np.zeros(k), np.zeros(k), np.full(k, INFINITY)
+        self.values, self.window_value, self.top_value = np.empty(g), np.empty(4 * candidates), np.empty(candidates + 1)
+        self.window_goal, self.top_goal = np.empty(4 * candidates, np.int64), np.empty(candidates + 1, np.int64)
+        self.may_bid, self.waiting, self.queue = np.zeros(k, np.int64), np.zeros(k, np.int64), np.zeros(k, np.int64)
+        self.look, self.bidders, self.bid_goal = np.zeros(2 * k, np.int64), np.zeros(k, np.int64), np.zeros(k, np.int64)
+        self.owner_before, self.runner_up, self.held = np.zeros(k, np.int64), np.zeros(k, np.int64), np.zeros(k, np.int64)
+        self.offer, self.third, self.held_price = np.zeros(k), np.zeros(k), np.zeros(k)
+        self.touched, self.unhappy = np.zeros(k, np.uint8), np.zeros(k, np.uint8)
+
+    @property
+    def candidates(self) -> int:
+        return self.cand.shape[1]
+
+    def freeze(self, position) -> None:
+        """The robots' positions (K, 2) for the block."""
+        position = np.asarray(position, float).reshape(-1, 2)
+        self.px, self.py = np.ascontiguousarray(position[:, 0]), np.ascontiguousarray(position[:, 1])
+
+    # --- ranking ------------------------------------------------------------------------------------
+    cdef inline double net_value(self, Py_ssize_t i, int64_t j) noexcept nogil:
+        """-c_ij - b_j: eq. 7 plus robot i's penalties, less the price."""
+        cdef double dx = self.gx[j] - self.px[i], dy = self.gy[j] - self.py[i]
+        cdef double c = dx * dx + dy * dy
+        if self.has_penalty:
+            c = c + self.penalty[i, j]
+        return -c - self.price[j]
+
+    cdef Ranking rank_all(self, Py_ssize_t i) noexcept nogil:
+        """Robot i's best, runner-up and third-best goals over every goal (ties: the lower goal
+        index). Renews its candidates: the best K of the goals worth at least T = third best - width
+        (T is then the bound of the others); none when more than 4K fall in the window."""
+        cdef Py_ssize_t j, n = 0, s, a, kk = self.cand.shape[1], g = self.g
+        cdef double x = self.px[i], y = self.py[i], dx, dy, t, v
+        for j in range(g):  # the costs, in loops that vectorise
+            dx, dy = self.gx[j] - x, self.gy[j] - y
+            self.values[j] = dx * dx + dy * dy
+        if self.has_penalty:
+            for j in range(g):
+                self.values[j] += self.penalty[i, j]
+        for j in range(g):
+            self.values[j] = -self.values[j] - self.price[j]
+        cdef Ranking r = top_three(self.values)
+        t = r.third - self.width[i]
+        for j in range(g):  # the window, in ascending goal index
+            if self.values[j] >= t:
+                if n < self.window_goal.shape[0]:
+                    self.window_value[n], self.window_goal[n] = self.values[j], j
+                n += 1
+        if n > self.window_goal.shape[0] or not t > -INFINITY:  # no list this time: a narrower window next
+            self.width[i] *= 0.25
+            for s in range(kk):
+                self.cand[i, s] = -1
+            self.bound[i] = INFINITY
+            self.made_bound[i] = INFINITY
+            return r
+        if n < kk:
+            self.width[i] *= 2.0
+        elif n > 2 * kk:
+            self.width[i] *= 0.5
+        for s in range(kk + 1):
+            self.top_value[s], self.top_goal[s] = -INFINITY, -1
+        for a in range(n):  # ascending goal index: a strict > keeps the lower index first among equals
+            v = self.window_value[a]
+            if v > self.top_value[kk]:
+                s = kk
+                while s > 0 and v > self.top_value[s - 1]:
+                    self.top_value[s], self.top_goal[s] = self.top_value[s - 1], self.top_goal[s - 1]
+                    s -= 1
+                self.top_value[s], self.top_goal[s] = v, self.window_goal[a]
+        for s in range(kk):
+            self.cand[i, s] = self.top_goal[s]
+        self.bound[i] = self.made_bound[i] = max(t, self.top_value[kk])
+        self.made_x[i], self.made_y[i] = x, y
+        return r
+
+    cdef Ranking rank(self, Py_ssize_t i) noexcept nogil:
+        """rank_all, from robot i's candidates when they provably hold its three best goals."""
+        cdef Ranking r
+        cdef Py_ssize_t s
+        cdef int64_t j, j3 = -1
+        cdef double v
+        r.first, r.runner_up = -1, -1
+        r.best, r.second, r.third = -INFINITY, -INFINITY, -INFINITY
+        for s in range(self.cand.shape[1]):
+            j = self.cand[i, s]
+            if j < 0:
+                continue
+            v = self.net_value(i, j)
+            if before(v, j, r.third, j3):
+                if before(v, j, r.best, r.first):
+                    j3, r.third, r.runner_up, r.second, r.first, r.best = r.runner_up, r.second, r.first, r.best, j, v
+                elif before(v, j, r.second, r.runner_up):
+                    j3, r.third, r.runner_up, r.second = r.runner_up, r.second, j, v
+                else:
+                    j3, r.third = j, v
+        if r.third > self.bound[i]:  # ties at the bound: ranked over every goal
+            return r
+        return self.rank_all(i)
+
+    cdef inline void remember(self, Py_ssize_t i, Ranking r) noexcept nogil:
+        """Robot i's ranking into the cache, exact for the prices as they are."""
+        self.best[i], self.value[i] = r.first, r.best
+        self.second[i] = r.second if r.runner_up >= 0 else -INFINITY
+        self.seen[i] = self.price[r.first]
+
+    cdef inline void refresh(self, Py_ssize_t i) noexcept nogil:
+        """Make robot i's best goal and value exact: ranked anew only if the price of its best goal
+        rose past its second-best value (an upper bound)."""
+        cdef int64_t b = self.best[i]
+        cdef double now
+        if not self.price[b] == self.seen[i]:  # NaN: rank anew
+            now = self.net_value(i, b)
+            self.value[i] = now
+            if now > self.second[i]:
+                self.seen[i] = self.price[b]
+            else:
+                self.remember(i, self.rank(i))
+
+    cdef bint content(self, Py_ssize_t i, double slack) noexcept nogil:
+        """Does robot i hold its goal within ``slack`` of its best? One that holds none bids next,
+        which ranks it anyway: its best value is left stale rather than ranked twice."""
+        cdef int64_t g = self.goal[i]
+        if g < 0 or self.owner[g] != self.robot[i] or self.released[g]:
+            return False
+        self.refresh(i)
+        return is_content(self.net_value(i, g), self.value[i], slack)
+
+    def first_ranking(self) -> int:
+        """Every robot's best goal, value and second-best bound at a block's start (or once
+        penalties rose), from its candidates where they still prove it, else over every goal.
+        Returns how many robots had no list to start from."""
+        cdef double lowest = INFINITY, x0, y0
+        cdef Py_ssize_t i, j, none = 0
+        if self.g == 0:
+            return self.k
+        with nogil:
+            for j in range(self.g):
+                lowest = min(lowest, self.price[j])
+            for i in range(self.k):
+                x0, y0 = self.made_x[i], self.made_y[i]
+                self.bound[i] = moved_bound(self.made_bound[i], x0, y0, self.px[i] - x0, self.py[i] - y0,
+                                            self.hull_x, self.hull_y, lowest)
+                if self.bound[i] == INFINITY:
+                    self.made_bound[i] = INFINITY  # no list: rank_all ranks over every goal
+                none += self.made_bound[i] == INFINITY
+                self.remember(i, self.rank(i))
+        return none
+
+    def ranking(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each robot's best goal and net value, exact for the board as it is (copies)."""
+        cdef Py_ssize_t i
+        if self.g:
+            for i in range(self.k):
+                self.refresh(i)
+        return np.asarray(self.best).copy(), np.asarray(self.value).copy()
+
+    def contentment(self, double slack) -> np.ndarray:
+        """(K,) bool: each robot holds its goal and no goal is better by more than ``slack``."""
+        out = np.zeros(self.k, bool)
+        cdef uint8_t[::1] o = out.view(np.uint8)
+        cdef Py_ssize_t i
+        if self.g:
+            for i in range(self.k):
+                o[i] = self.content(i, slack)
+        return out
+
+    # --- rounds -------------------------------------------------------------------------------------
+    cdef Py_ssize_t jacobi_round(self, Py_ssize_t n, double eps) noexcept nogil:
+        """The first ``n`` rows of ``bidders`` (ascending, none content) bid at once on their best
+        goals against the board as the round found it, releasing what they held; per goal the
+        greatest record wins. The bidders' cached rankings follow from the ranking they bid on.
+        Fills ``look`` with the bidders and the robots they outbid; returns how many."""
+        cdef Py_ssize_t a, m = 0
+        cdef int64_t i, h, j, o, r2
+        cdef Ranking r
+        cdef double v_bid, v_run, others
+        for a in range(n):  # every bid against the board as the round found it
+            i = self.bidders[a]
+            r = self.rank(i)
+            if r.runner_up < 0:  # one goal: the bid rises by epsilon twice
+                r.second = r.best - eps
+            self.bid_goal[a], self.owner_before[a] = r.first, self.owner[r.first]
+            self.offer[a] = bid_price(self.price[r.first], r.best, r.second, eps)
+            self.runner_up[a], self.third[a] = r.runner_up, r.third
+            h = self.goal[i]  # the goal it gives up, at the price the round found
+            if h >= 0 and self.owner[h] == self.robot[i] and not self.released[h]:
+                self.held[a], self.held_price[a] = h, self.price[h]
+            else:
+                self.held[a] = -1
+        for a in range(n):  # max-consensus: the order of the merges does not matter
+            i = self.bidders[a]
+            h = self.held[a]
+            if h >= 0 and greater(self.held_price[a], self.robot[i], True, self.price[h], self.owner[h], self.released[h]):
+                self.price[h], self.owner[h], self.released[h] = self.held_price[a], self.robot[i], True
+            j = self.bid_goal[a]
+            if greater(self.offer[a], self.robot[i], False, self.price[j], self.owner[j], self.released[j]):
+                self.price[j], self.owner[j], self.released[j] = self.offer[a], self.robot[i], False
+        for a in range(n):
+            i = self.bidders[a]
+            # the goal bid on rose in price: the runner-up is the best now if it beats that goal's
+            # value now and the third-best value (an upper bound) outright, else ranked anew
+            j, r2 = self.bid_goal[a], self.runner_up[a]
+            v_bid = self.net_value(i, j)
+            v_run = self.net_value(i, r2) if r2 >= 0 else -INFINITY
+            others = max(v_bid, self.third[a])  # bounds every goal but the runner-up
+            if v_run > others and r2 != j:
+                self.best[i], self.value[i], self.second[i] = r2, v_run, others
+                self.seen[i] = self.price[r2]
+            else:
+                self.best[i], self.value[i], self.second[i] = j, v_bid, INFINITY
+                self.seen[i] = NAN
+            self.goal[i] = j
+            self.look[m] = i
+            m += 1
+            o = self.owner_before[a]
+            if o != NOBODY and self.owner[j] != o:
+                self.look[m] = self.row_of_id[o]
+                m += 1
+        return m
+
+    def bid(self, double eps, double slack) -> int:
+        """One Jacobi round: every robot not content at ``slack`` bids. Returns how many bid."""
+        cdef Py_ssize_t i, n = 0
+        if self.g == 0:
+            return 0
+        with nogil:
+            for i in range(self.k):
+                if not self.content(i, slack):
+                    self.bidders[n] = i
+                    n += 1
+            if n:
+                self.jacobi_round(n, eps)
+        return n
+
+    cdef (int64_t, int64_t, Py_ssize_t) rounds(self, Py_ssize_t n, double eps, double slack,
+                                              int64_t max_rounds) noexcept nogil:
+        """Bid the first ``n`` robots of ``waiting`` and those they outbid until every robot is
+        content at ``slack``; marks ``touched`` every robot looked at. Returns (rounds, bids,
+        robots still waiting)."""
+        cdef Py_ssize_t a, s, m
+        cdef int64_t q, rounds = 0, bids = 0, r
+        for a in range(n):
+            self.queue[a] = self.waiting[a]
+        while n > 0 and rounds < max_rounds:
+            for a in range(n):  # ascending rows; mostly one or two bidders: an insertion sort
+                q, s = self.queue[a], a
+                while s > 0 and self.bidders[s - 1] > q:
+                    self.bidders[s] = self.bidders[s - 1]
+                    s -= 1
+                self.bidders[s] = q
+            m = self.jacobi_round(n, eps)
+            bids += n
+            rounds += 1
+            for a in range(m):
+                r = self.look[a]
+                self.touched[r] = True
+                self.unhappy[r] = not self.content(r, slack)
+            n = 0  # the next bidders: every robot not content was looked at (it bid or was outbid)
+            for a in range(m):
+                r = self.look[a]
+                if self.unhappy[r]:
+                    self.queue[n] = r
+                    n += 1
+                    self.unhappy[r] = False  # queued once
+        return rounds, bids, n
+
+    def settle_block(self, const double[::1] eps, const double[::1] slack, int64_t max_rounds) -> tuple[int, int, int]:
+        """A block of epsilon-scaling phases (``eps``, ``slack``) on frozen positions, warm from the
+        board, after first_ranking: per phase the Jacobi rounds until every robot is content (no
+        message: every robot is this host's). Leaves every cached best value exact. Returns (rounds,
+        bids, phases settled): fewer than len(eps) when a phase ran out of rounds."""
+        cdef Py_ssize_t i, a, phase, later, n, n_may = 0, k = self.k
+        cdef bint scan = True
+        cdef int64_t rounds = 0, bids = 0, r, b, left
+        cdef double least
+        cdef Py_ssize_t settled = eps.shape[0]
+        with nogil:
+            for i in range(k):
+                self.seen[i] = self.price[self.best[i]]
+                self.touched[i] = False  # robots whose contentment may have changed since the last scan
+            for phase in range(eps.shape[0]):
+                if scan:  # after bids (or at first): who is not content at the least slack left
+                    least = slack[phase]
+                    for later in range(phase + 1, slack.shape[0]):
+                        least = min(least, slack[later])
+                    for a in range(n_may):
+                        self.touched[self.may_bid[a]] = True
+                    n_may = 0
+                    for i in range(k):  # in ascending rows, as a scan of every robot
+                        if phase == 0 or self.touched[i]:
+                            self.touched[i] = False
+                            if not self.content(i, least):
+                                self.may_bid[n_may] = i
+                                n_may += 1
+                n = 0
+                for a in range(n_may):  # who is not content at this phase's slack
+                    i = self.may_bid[a]
+                    if not self.content(i, slack[phase]):
+                        self.waiting[n] = i
+                        n += 1
+                r, b, left = self.rounds(n, eps[phase], slack[phase], max_rounds)
+                rounds, bids, scan = rounds + r, bids + b, r > 0
+                if left:
+                    settled = phase
+                    break
+            if settled == eps.shape[0]:
+                for i in range(k):  # every best value exact for the prices as they are now
+                    self.refresh(i)
+        return rounds, bids, settled
+
+
+def bid_on_own_boards(boards, const int64_t[::1] rows, const double[::1] slack, const double[::1] eps,
+                      const uint8_t[:, ::1] taken) -> np.ndarray:
+    """The range-limited auction's round of bids (agent.core.local_auction): each robot of ``rows``
+    bids against its own board. ``boards``: an object with, per robot row, ``cost`` (K, G: eq. 7 plus
+    its penalties), ``taken_cost`` (K,), the board ``price``, ``owner``, ``released`` (K, G), its claim
+    ``goal`` and id ``own_ids``. ``taken`` (len(rows), G): goals held by a robot it has not heard of,
+    which cost ``taken_cost`` more. Robots not content at their row's ``slack`` bid at their row's
+    ``eps``; returns the rows that bid."""
+    cdef double[:, ::1] cost = boards.cost, price = boards.price
+    cdef double[::1] taken_cost = boards.taken_cost
+    cdef int64_t[:, ::1] owner = boards.owner
+    cdef uint8_t[:, ::1] released = boards.released.view(np.uint8)
+    cdef int64_t[::1] goal = boards.goal
+    cdef const int64_t[::1] robot = boards.own_ids
+    cdef Py_ssize_t g_count = cost.shape[1]
+    values_array = np.empty(g_count)
+    cdef double[::1] values = values_array
+    out = np.empty(rows.shape[0], np.int64)
+    cdef int64_t[::1] bid = out
+    cdef Py_ssize_t a, j, n = 0
+    cdef int64_t i, h
+    cdef Ranking r
+    cdef bint holds
+    for a in range(rows.shape[0]):
+        i = rows[a]
+        for j in range(g_count):
+            values[j] = -cost[i, j] - price[i, j] - taken[a, j] * taken_cost[i]
+        r = top_three(values)
+        h = goal[i]
+        holds = h >= 0 and owner[i, h] == robot[i] and not released[i, h]
+        if holds and is_content(values[h], r.best, slack[a]):
+            continue
+        if holds:
+            released[i, h] = True  # it gives its goal up for a better one
+        if g_count < 2:
+            r.second = r.best - eps[a]
+        price[i, r.first] = bid_price(price[i, r.first], r.best, r.second, eps[a])
+        owner[i, r.first] = robot[i]
+        released[i, r.first] = False
+        goal[i] = r.first
+        bid[n] = i
+        n += 1
+    return out[:n]
+
+
+def merge_boards(boards, const int64_t[::1] rows, const uint8_t[:, ::1] told, words) -> np.ndarray:
+    """The range-limited auction's max-consensus: into each robot of ``rows``, the boards (``words``:
+    price, owner, released, (M, G)) of the robots it was ``told`` (len(rows), M). Returns where each
+    row's board changed."""
+    out = np.zeros(rows.shape[0], bool)
+    cdef uint8_t[::1] changed = out.view(np.uint8)
+    cdef double[:, ::1] price = boards.price
+    cdef int64_t[:, ::1] owner = boards.owner
+    cdef uint8_t[:, ::1] released = boards.released.view(np.uint8)
+    cdef const double[:, ::1] w_price = np.ascontiguousarray(words.price, float)
+    cdef const int64_t[:, ::1] w_owner = np.ascontiguousarray(words.owner, np.int64)
+    cdef const uint8_t[:, ::1] w_released = np.ascontiguousarray(words.released, bool).view(np.uint8)
+    cdef Py_ssize_t a, b, j
+    cdef int64_t i
+    for a in range(rows.shape[0]):
+        i = rows[a]
+        for b in range(told.shape[1]):
+            if not told[a, b]:
+                continue
+            for j in range(price.shape[1]):
+                if w_owner[b, j] != NOBODY and greater(w_price[b, j], w_owner[b, j], w_released[b, j], price[i, j],
+                                                       owner[i, j], released[i, j]):
+                    price[i, j], owner[i, j], released[i, j] = w_price[b, j], w_owner[b, j], w_released[b, j]
+                    changed[a] = 1
+    return out
+
+
+cdef inline uint64_t splitmix64(uint64_t x) noexcept nogil:
+    """Steele et al.'s SplitMix64 finaliser: an integer hash."""
+    x = x + <uint64_t>0x9E3779B97F4A7C15
+    x = (x ^ (x >> 30)) * <uint64_t>0xBF58476D1CE4E5B9
+    x = (x ^ (x >> 27)) * <uint64_t>0x94D049BB133111EB
+    return x ^ (x >> 31)
+
+
+def board_digest(const double[::1] price, const int64_t[::1] owner, const uint8_t[::1] released) -> int:
+    """64 bits that tell boards apart: each word of (price, owner, released) hashed with its place,
+    XOR-folded (hashlib would load OpenSSL into every agent process)."""
+    cdef uint64_t folded = 0, place = 0
+    cdef Py_ssize_t j, g = price.shape[0]
+    cdef double p
+    with nogil:
+        for j in range(g):
+            p = price[j]
+            folded ^= splitmix64((<uint64_t*>&p)[0] ^ splitmix64(place))
+            place += 1
+        for j in range(g):
+            folded ^= splitmix64(<uint64_t>owner[j] ^ splitmix64(place))
+            place += 1
+        for j in range(g):
+            folded ^= splitmix64(<uint64_t>released[j] ^ splitmix64(place))
+            place += 1
+    return folded
