@@ -23,7 +23,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 from pathlib import Path
-from typing import NamedTuple, TextIO
+from typing import Any, NamedTuple, TextIO
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -135,6 +135,7 @@ def simulate(
     progress: TextIO | None = sys.stderr,
     clock: StepClock | None = None,
     overlap: bool = True,
+    view: Any = None,
 ) -> Outcome:
     """Step every robot of the scene in this process, each deciding by the robot policy from what the
     link let it hear (agent.core.policy), until the scene's duration or convergence. ``clock`` (if
@@ -332,6 +333,8 @@ def simulate(
             rec["goal"].append(goal)
             rec["assignment"].append(assignment)
             rec["step"].append(k)
+            if view is not None:  # sim.view.SwarmView: the live view, one batch a tick
+                view.tick(tick, t, pose, goals.color, goal)
             clock.lap("record")
             # Converging ends the run only once the last image is up: earlier images keep their hold.
             if (
@@ -384,13 +387,14 @@ def run_central(
     clock: StepClock | None = None,
     overlap: bool = True,
     reach: float = np.inf,
+    view: Any = None,
 ) -> Path:
     """Run the scene with every robot in this process (``simulate``); returns the run directory.
     ``reach``: the robots' communication range (m)."""
     run_dir = RunDir(out)
     try:
         link = InProcessLink(scene.robots, reach=reach)
-        outcome = simulate(scene, link=link, progress=progress, clock=clock, overlap=overlap)
+        outcome = simulate(scene, link=link, progress=progress, clock=clock, overlap=overlap, view=view)
         params, _ = world_of(scene)
         contacts = [
             {"kind": c.kind, "i": c.i, "j": c.j, "t_start": c.t_start, "t_end": c.t_end, "max_depth": c.max_depth}

@@ -11,6 +11,7 @@ import tomllib
 import typing
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 from agent.core.params import EPUCK, RobotParams
 from coordinator.goals_cli import add_goals_parser
@@ -153,6 +154,15 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"also stream log.mcap's channels live over Foxglove's WebSocket protocol on 127.0.0.1:PORT "
         f"(default {FOXGLOVE_PORT}; 0: a free port), for the Foxglove app; distributed engine",
     )
+    run.add_argument(
+        "--view",
+        nargs="?",
+        const="native",
+        metavar="native|web|FILE.rrd",
+        help="watch the swarm live in Rerun's viewer (pip install 'pixelswarm[view]'): native (the default) "
+        "opens its window, web serves its web viewer on 127.0.0.1 and prints the address (kept up after the "
+        "run until Ctrl-C), FILE.rrd writes the recording to a file",
+    )
     run.add_argument("--quiet", "-q", action="store_true", help="no progress output")
     add_zenoh_args(run, default_mode="router")
     run.set_defaults(func=cmd_run)
@@ -167,6 +177,21 @@ def build_parser() -> argparse.ArgumentParser:
         "-e", "--connect", metavar="ENDPOINT", help="the router robots are reached through (ROS 2: rmw_zenohd)"
     )
     stop.set_defaults(func=cmd_stop)
+
+    view = sub.add_parser(
+        "view", help="replay a finished run in Rerun's viewer (its trajectory.npz; pip install 'pixelswarm[view]')"
+    )
+    view.add_argument("run_dir", type=Path, metavar="RUN_DIR", help="a run directory (with trajectory.npz)")
+    view.add_argument(
+        "--web", action="store_true", help="serve Rerun's web viewer on 127.0.0.1 and print its address (until Ctrl-C)"
+    )
+    view.add_argument(
+        "--save",
+        type=Path,
+        metavar="FILE.rrd",
+        help="only write the recording to FILE.rrd (default: RUN_DIR/view.rrd, written once and then reused)",
+    )
+    view.set_defaults(func=cmd_view)
 
     scenes = sub.add_parser("scenes", help="list the shipped scenes")
     scenes.set_defaults(func=cmd_scenes)
@@ -214,9 +239,6 @@ def _hardware_scene(args: argparse.Namespace) -> Scene:
 def cmd_run(args: argparse.Namespace) -> int:
     from .launcher import (  # heavy imports only when running
         AGENTS_TIMEOUT,
-        AgentsMissing,
-        HardwareStartError,
-        Interrupted,
         Launcher,
         RunOptions,
     )
@@ -277,7 +299,16 @@ def cmd_run(args: argparse.Namespace) -> int:
             )
 
         progress = None if args.quiet else sys.stderr
-        print(run_central(scene, out, video=args.video, plots=args.plots, progress=progress, reach=reach))
+        view = _open_view(args.view, scene)
+        try:
+            path = run_central(
+                scene, out, video=args.video, plots=args.plots, progress=progress, reach=reach, view=view
+            )
+            print(path, flush=True)
+            _keep_viewing(view)
+        finally:
+            if view is not None:
+                view.close()
         return 0
     router = None
     if args.zenoh_config:
@@ -309,7 +340,55 @@ def cmd_run(args: argparse.Namespace) -> int:
         reach=reach,
         foxglove=args.foxglove,
     )
-    launcher = Launcher(scene, options)
+    options.view = _open_view(args.view, scene)
+    try:
+        return _run_distributed(Launcher(scene, options))
+    finally:
+        if options.view is not None:
+            options.view.close()
+
+
+def _open_view(mode: str | None, scene: Scene) -> Any:
+    """The live view ``--view`` asks for (sim.view.SwarmView), or None; one line if it cannot start."""
+    if mode is None:
+        return None
+    from .view import SwarmView, ViewUnavailable
+
+    if mode not in ("native", "web") and not mode.endswith(".rrd"):
+        raise UsageError(f"--view takes native, web or a FILE.rrd to write, not {mode!r}")
+    if mode.endswith(".rrd") and not Path(mode).parent.is_dir():
+        raise UsageError(f"--view: no directory {Path(mode).parent} to write {Path(mode).name} in")
+    params = RobotParams.from_dict(scene.robot)
+    try:
+        view = SwarmView(
+            scene.name,
+            scene.arena,
+            scene.obstacles,
+            params.radius,
+            robots=scene.robots,
+            sink=mode,
+            tolerance=params.goal_tolerance,
+        )
+    except ViewUnavailable as err:
+        raise UsageError(f"--view: {err}") from None
+    if view.url is not None:
+        print(f"[{scene.name}] view: {view.url}", file=sys.stderr, flush=True)
+    return view
+
+
+def _keep_viewing(view: Any) -> None:
+    """After the run: a web view stays up until Ctrl-C (its page holds the whole run)."""
+    if view is None:
+        return
+    view.flush()
+    if view.url is not None:
+        print(f"view: {view.url} (Ctrl-C to stop)", file=sys.stderr, flush=True)
+        view.serve_until_interrupted()
+
+
+def _run_distributed(launcher: Any) -> int:
+    from .launcher import AgentsMissing, HardwareStartError, Interrupted
+
     try:
         path = launcher.run()
     except (TransportError, HardwareStartError, AgentsMissing) as err:
@@ -320,7 +399,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     except RuntimeError as err:  # a run that failed (a process died at start-up, ...): one line
         print(f"pixelswarm run: error: {err}", file=sys.stderr)
         return 1
-    print(path)
+    print(path, flush=True)
     if launcher.startup_failure is not None:  # written, marked incomplete, for its logs
         print(f"pixelswarm run: error: start-up failed: {launcher.startup_failure}", file=sys.stderr)
         return STARTUP_FAILED
@@ -333,6 +412,29 @@ def cmd_run(args: argparse.Namespace) -> int:
         else:
             print(f"pixelswarm run: {name} came as the run ended; {path} is complete", file=sys.stderr)
         return 128 + launcher.stop_signal
+    _keep_viewing(launcher.opt.view)
+    return 0
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    from .view import VIEW_FILE, ViewUnavailable, replay, view_recording
+
+    run_dir = args.run_dir
+    if not (run_dir / "trajectory.npz").is_file() or not (run_dir / "scene.json").is_file():
+        raise UsageError(f"{run_dir} is not a run directory (no trajectory.npz and scene.json)")
+    try:
+        if args.save is not None:
+            replay(run_dir, args.save).close()
+            print(args.save)
+            return 0
+        rrd = run_dir / VIEW_FILE
+        if not rrd.is_file():
+            replay(run_dir, rrd).close()
+        view_recording(rrd, web=args.web)
+    except ViewUnavailable as err:
+        raise UsageError(str(err)) from None
+    except KeyboardInterrupt:
+        return 130
     return 0
 
 

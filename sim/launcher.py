@@ -66,6 +66,7 @@ class RunOptions:
     agents_timeout: float = AGENTS_TIMEOUT
     reach: float = math.inf  # communication range (m): robots hear states and the auction only this close
     foxglove: int | None = None  # serve the log live over Foxglove's WebSocket protocol on 127.0.0.1:PORT (0: free)
+    view: Any = None  # sim.view.SwarmView: the recorder logs the world's truth to it at every tick (agents never do)
 
 
 class HardwareStartError(Exception):
@@ -364,6 +365,7 @@ class Launcher:
                 str(self.run_dir / TICKS_FILE),
             )
             recorder.ends = self._ends_on_convergence
+            recorder.view = self.opt.view
             if self.opt.foxglove is not None and recorder.log is not None:
                 port = recorder.log.serve(self.opt.foxglove)  # said even with -q: it is asked for, not progress
                 print(f"[{self.scene.name}] Foxglove live: ws://127.0.0.1:{port}", file=sys.stderr, flush=True)

@@ -160,6 +160,7 @@ class Recorder:
         self._flushed = time.monotonic()
         self._channels: dict[str, int] = {}
         self.started_wall = time.time()
+        self.view: Any = None  # sim.view.SwarmView (pixelswarm run --view): the truth of every tick, one batch
 
     # --- intake -------------------------------------------------------------------------------
     def poll(self) -> None:
@@ -276,6 +277,8 @@ class Recorder:
         self.last_min_clearance = min(self.last_min_clearance, m.min_clearance)
         self._check_converged(m.stamp, m.pose)
         self._log_scene(wall, m)
+        if self.view is not None:
+            self.view.tick(m.tick, m.stamp, m.pose, m.color, self.goal, radius=self.radius)
         if self.log is not None and time.monotonic() - self._flushed >= FLUSH_EVERY:
             self.log.flush()
             self._flushed = time.monotonic()

@@ -1,0 +1,156 @@
+"""The live view in Rerun (sim.view, pixelswarm run --view, pixelswarm view): no window is opened here.
+The logging path writes an .rrd file, read back with Rerun's own chunk reader; the web viewer is a real
+Rerun server process on 127.0.0.1, asked for its page and stopped."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import psutil
+import pytest
+
+pytest.importorskip("rerun")
+
+from rerun.chunk import RrdReader  # noqa: E402
+
+from sim.view import SwarmView, replay, url_serves  # noqa: E402
+
+from .conftest import run_pixelswarm  # noqa: E402
+
+ARENA = (-2.0, -1.5, 2.0, 1.5)
+
+
+def recorded_swarm(path: Path) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """tick -> (positions (N,2), colours (N,3)) of ``swarm/robots``, as Rerun reads its own file."""
+    out: dict[int, list] = {}
+    for chunk in RrdReader(str(path)).store().stream().to_chunks():
+        if chunk.entity_path != "/swarm/robots":
+            continue
+        batch = chunk.to_record_batch()
+        names = batch.schema.names
+        if "Points2D:positions" not in names:
+            continue
+        ticks = batch.column(names.index("tick")).to_pylist()
+        positions = batch.column(names.index("Points2D:positions")).to_pylist()
+        colors = batch.column(names.index("Points2D:colors")).to_pylist()
+        for k, xy, rgba in zip(ticks, positions, colors):
+            packed = np.array(rgba, dtype=np.uint32)  # 0xRRGGBBAA
+            rgb = np.column_stack([(packed >> 24) & 255, (packed >> 16) & 255, (packed >> 8) & 255]).astype(np.uint8)
+            out[k] = [np.array(xy, dtype=float), rgb]
+    return {k: (xy, rgb) for k, (xy, rgb) in sorted(out.items())}
+
+
+def _swarm(T: int, N: int, seed: int) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    start = rng.uniform(-1.5, 1.5, (N, 2))
+    step = rng.normal(0, 0.01, (T, N, 2)).cumsum(axis=0)
+    pose = np.concatenate([start + step, rng.uniform(-np.pi, np.pi, (T, N, 1))], axis=2)
+    color = rng.integers(0, 256, (T, N, 3)).astype(np.uint8)
+    goal = np.broadcast_to(rng.uniform(-1.5, 1.5, (N, 2)), (T, N, 2)).copy()
+    goal[:5, 0] = np.nan  # no goal set yet
+    return {"t": np.arange(T) * 0.1, "pose": pose, "color": color, "goal": goal, "radius": np.full(N, 0.035)}
+
+
+def test_a_swarm_logged_to_a_file_reads_back_tick_by_tick(tmp_path):
+    """One batch a tick: every robot's position and colour at every tick, as Rerun reads them back."""
+    s = _swarm(T=30, N=50, seed=3)
+    path = tmp_path / "view.rrd"
+    view = SwarmView("test", ARENA, [[(0.0, 0.0), (0.3, 0.0), (0.3, 0.3)]], s["radius"], robots=50, sink=path)
+    for k in range(30):
+        view.tick(k, s["t"][k], s["pose"][k], s["color"][k], s["goal"][k], missed=np.full(50, k))
+    view.close()
+    recorded = recorded_swarm(path)
+    assert list(recorded) == list(range(30))
+    for k, (xy, rgb) in recorded.items():
+        np.testing.assert_allclose(xy, s["pose"][k, :, :2], rtol=1e-6, atol=1e-6)  # Rerun keeps float32
+        np.testing.assert_array_equal(rgb, s["color"][k])
+    entities = RrdReader(str(path)).store().summary()
+    for entity in ("/arena", "/obstacles", "/swarm/heading", "/swarm/goals", "/swarm/trails", "/metrics/clearance"):
+        assert entity in entities
+
+
+def test_the_web_view_is_served_on_loopback_and_stops_with_the_view(tmp_path):
+    view = SwarmView("test", ARENA, [], 0.035, robots=3, sink="web")
+    try:
+        assert view.url is not None and view.url.startswith("http://127.0.0.1:")
+        assert url_serves(view.url)
+        server = psutil.Process(view.process.pid)
+        listening = [c.laddr.ip for c in server.net_connections(kind="inet") if c.status == psutil.CONN_LISTEN]
+        assert listening and set(listening) == {"127.0.0.1"}  # nothing on another interface
+        view.tick(0, 0.0, np.zeros((3, 3)), np.zeros((3, 3), np.uint8), np.full((3, 2), np.nan))
+    finally:
+        view.close()
+    assert not psutil.pid_exists(server.pid) or server.status() == psutil.STATUS_ZOMBIE
+
+
+def test_a_bad_view_is_one_line_and_exit_2(tmp_path):
+    result = run_pixelswarm("run", "circle", "--view", "banana", "--out", str(tmp_path / "run"), timeout=60)
+    assert result.returncode == 2 and result.stderr.strip().count("\n") == 0, result.stderr
+    assert "--view takes native, web or a FILE.rrd" in result.stderr
+    assert not (tmp_path / "run").exists()
+    result = run_pixelswarm("view", str(tmp_path / "nowhere"), timeout=60)
+    assert result.returncode == 2 and "is not a run directory" in result.stderr and "Traceback" not in result.stderr
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_a_100_robot_run_viewed_live_is_its_trajectory(tmp_path):
+    """`pixelswarm run --view FILE.rrd` on 100 robots: Rerun's own reader finds every robot's position and
+    colour equal to trajectory.npz at every tick; `pixelswarm view RUN_DIR --save` replays it the same."""
+    out, rrd = tmp_path / "run", tmp_path / "live.rrd"
+    args = ("--engine", "central", "--duration", "6", "--no-video", "--no-plots", "-q", "--seed", "2")
+    result = run_pixelswarm("run", "paper-sequence-100", *args, "--out", str(out), "--view", str(rrd))
+    assert result.returncode == 0, result.stderr[-3000:]
+    traj = np.load(out / "trajectory.npz")
+    T, N = traj["pose"].shape[:2]
+    assert N == 100
+    for path in (rrd, _replayed(out, tmp_path)):
+        recorded = recorded_swarm(path)
+        assert len(recorded) == T
+        for k, (xy, rgb) in zip(range(T), recorded.values()):
+            np.testing.assert_allclose(xy, traj["pose"][k, :, :2], rtol=1e-6, atol=1e-6)
+            np.testing.assert_array_equal(rgb, traj["color"][k])
+
+
+def _replayed(out: Path, tmp_path: Path) -> Path:
+    saved = tmp_path / "replay.rrd"
+    result = run_pixelswarm("view", str(out), "--save", str(saved), timeout=120)
+    assert result.returncode == 0 and result.stdout.strip() == str(saved), result.stderr[-2000:]
+    return saved
+
+
+def test_replay_builds_the_recording_from_a_run_directory(tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    s = _swarm(T=12, N=20, seed=8)
+    np.savez(run / "trajectory.npz", **s)
+    (run / "scene.json").write_text(json.dumps({"name": "demo", "arena": list(ARENA), "obstacles": []}))
+    replay(run, tmp_path / "r.rrd").close()
+    recorded = recorded_swarm(tmp_path / "r.rrd")
+    assert len(recorded) == 12
+    np.testing.assert_allclose(recorded[11][0], s["pose"][11, :, :2], rtol=1e-6, atol=1e-6)
+
+
+def test_the_view_subcommand_is_in_the_help():
+    shown = subprocess.run([sys.executable, "-m", "sim.cli", "view", "--help"], capture_output=True, text=True)
+    assert shown.returncode == 0 and "--web" in shown.stdout and "--save" in shown.stdout
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(200)
+def test_a_distributed_run_is_viewed_from_the_recorder(tmp_path):
+    """The distributed engine: the recorder (a bus subscriber, not the agents) logs the world's truth."""
+    out, rrd = tmp_path / "run", tmp_path / "live.rrd"
+    args = ("--robots", "4", "--duration", "3", "-k", "4", "--no-video", "--no-plots", "-q")
+    result = run_pixelswarm("run", "swap", *args, "--out", str(out), "--view", str(rrd))
+    assert result.returncode == 0, result.stderr[-3000:]
+    traj = np.load(out / "trajectory.npz")
+    recorded = recorded_swarm(rrd)
+    assert len(recorded) == len(traj["t"])
+    for k, (xy, rgb) in zip(range(len(traj["t"])), recorded.values()):
+        np.testing.assert_allclose(xy, traj["pose"][k, :, :2], rtol=1e-6, atol=1e-6)
+        np.testing.assert_array_equal(rgb, traj["color"][k])
