@@ -14,7 +14,7 @@ that both see the same machine load:
 Reported: steps to completion, steps with overlapping agents (centres closer than 2 radius),
 the minimum pairwise distance, the minimum clearance to obstacles, robot-steps in the fallback
 (ours), and the time of ``do_step`` (preferred-velocity setting excluded for both). Ours steps with
-its compiled kernels (numba), loaded once before the first timed step.
+the robots' compiled core (agent.core.control), built at install as RVO2 is.
 
     .venv/bin/python -m bench.bench_orca            # writes bench/results/orca.md
     .venv/bin/python -m bench.bench_orca --quick    # a short smoke run, prints only
@@ -33,8 +33,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from agent.core.orca import polygon_segments, preferred_velocity
+from agent.core.control import preferred_velocity
 from agent.core.rvo import CentralOrca
+from agent.core.step import polygon_segments
 
 # added to every radius inside our ORCA lines (not to the body); ~7% of Circle's radius 1.5
 MARGIN = 0.1
@@ -111,18 +112,6 @@ class RVO2Engine:
 
     def step(self) -> None:
         self.sim.do_step()
-
-
-def load_kernels() -> float:
-    """Step a two-agent engine once: numba loads our compiled kernels from its cache (or compiles them)
-    at the first call in a process, a one-off cost that is not a step. Returns its seconds."""
-    t0 = time.perf_counter()
-    sim = CentralOrca(*blocks().params, safety_margin=MARGIN, perturbation=PERTURBATION)
-    sim.add_agent((0.0, 0.0))
-    sim.add_agent((1.0, 0.0))
-    sim.add_obstacle(blocks().obstacles[0])
-    sim.do_step()
-    return time.perf_counter() - t0
 
 
 class CentralEngine:
@@ -237,7 +226,6 @@ def main(argv: list[str] | None = None) -> int:
     except ImportError:
         print("pyrvo is not installed: `pip install --no-deps pyrvo`", file=sys.stderr)
         return 2
-    load = load_kernels()
     out = []
     scenarios = [(circle(64), 4000), (blocks(), 400)] if args.quick else [(circle(250), 8000), (blocks(), 15000)]
     for scn, max_steps in scenarios:
@@ -249,7 +237,7 @@ def main(argv: list[str] | None = None) -> int:
         records = run(scn, [RVO2Engine(scn), CentralEngine(scn)], args.big_steps)
         out.append(table(scn, records) + ratio_line(records))
         print(out[-1], flush=True)
-        write(out, load)
+        write(out)
     return 0
 
 
@@ -259,8 +247,7 @@ def ratio_line(records: list[Record]) -> str:
     return f"\nours / RVO2: {ours.steps / ref.steps:.2f}x the steps, {per_step:.1f}x the time per step.\n"
 
 
-def write(sections: list[str], load_seconds: float) -> None:
-    import numba
+def write(sections: list[str]) -> None:
     import numpy
     import scipy
 
@@ -269,12 +256,10 @@ def write(sections: list[str], load_seconds: float) -> None:
         "## ORCA: central engine against RVO2\n\n"
         "Reproduce: `.venv/bin/python -m bench.bench_orca` (from the repository root).\n\n"
         f"Machine: {platform.machine()}, {os.cpu_count()} cores (shared with other work), "
-        f"Python {platform.python_version()}, numpy {numpy.__version__}, scipy {scipy.__version__}, "
-        f"numba {numba.__version__}; date {time.strftime('%Y-%m-%d')}. Both engines stepped alternately "
-        "in one process; times are wall-clock of `do_step` and noisy on a shared machine. Our compiled "
-        f"kernels loaded in {load_seconds:.1f} s before the first step (numba's cache; compiling them "
-        "afresh takes longer), not counted.\n\n"
-        f"Ours: `CentralOrca(..., safety_margin={MARGIN})`, compiled: safety lines (no overlap within dt) "
+        f"Python {platform.python_version()}, numpy {numpy.__version__}, scipy {scipy.__version__}; "
+        f"date {time.strftime('%Y-%m-%d')}. Both engines stepped alternately "
+        "in one process; times are wall-clock of `do_step` and noisy on a shared machine.\n\n"
+        f"Ours: `CentralOrca(..., safety_margin={MARGIN})`: safety lines (no overlap within dt) "
         "hard, horizon shrunk by 4 until feasible down to dt, then least violation; "
         f"ORCA radii +{MARGIN}; preferred velocities perturbed by up to {PERTURBATION} "
         "(seeded, per robot and step). RVO2: pyrvo 0.4.3 (RVO2 v2.0.3, float32).\n\n"
@@ -293,9 +278,8 @@ def write(sections: list[str], load_seconds: float) -> None:
         "the blocks; the margin applies to static obstacles too (their clearance). Completion is "
         "reported, not tuned for.\n"
         "* Time: ours steps robot after robot in compiled code, as RVO2 does: neighbours from a grid "
-        "searched ring by ring (agent.core.neighbour_grid), velocities from agent.core.orca_kernel "
-        "(`central_core`), the same velocities to the bit as the numpy path "
-        "(`CentralOrca(compiled=False)`, tests/test_rvo2_crosscheck.py). A robot in the fallback "
+        "(agent.core.grid), velocities from the robots' own control core (agent.core.control, "
+        "`step_known`). A robot in the fallback "
         "costs more than in RVO2: it solves again at each shorter horizon, and the safety lines "
         "are more lines.\n"
     )

@@ -11,7 +11,7 @@ Image scenes play their steps: at time t the robots are auctioned (paper 5.1) on
 the step whose hold contains t. The auction is the agents' own (agent.core.bidder) with one
 participant holding every robot: each `assign_period` the next block of epsilon-scaling phases starts
 from the measured positions, warm from the last prices, and settles without messages (compiled,
-agent.core.jacobi) on a second thread while this one decides every robot's tick on the goal it holds;
+agent.core.bidding) on a second thread while this one decides every robot's tick on the goal it holds;
 only the robots whose goal the auction changed decide again, so the run is the one that waiting for
 the auction would give, to the bit.
 """
@@ -293,7 +293,6 @@ def simulate(
                 seed=scene.seed,
                 tick=tick,
                 watch_deadlocks=auction is not None,
-                compiled=True,
                 reach=link.reach,
             )
             decision = decide_now(ids, measured[:, :2], measured[:, 2], intent, memory, nbs, segments)

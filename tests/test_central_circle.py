@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from agent.core.orca import preferred_velocity
+from agent.core.control import preferred_velocity
 from agent.core.rvo import CentralOrca
 
 # RVO2 (pyrvo 0.4.3) on the same 64-agent Circle: steps to completion (`bench_orca.py --quick`)

@@ -1,4 +1,5 @@
-"""The 2-D linear program of ORCA (agent.core.lp): hand-worked cases, optimality, determinism."""
+"""The 2-D linear program of ORCA (agent.core.control.linear_program): hand-worked cases, and
+optimality against scipy's SLSQP."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import minimize
 
-from agent.core.lp import least_violation, linear_program
+from agent.core.control import linear_program
 
 # Lines as (point, direction); the permissible side is on the left of the direction.
 Y_GE_1 = ((0.0, 1.0), (1.0, 0.0))  # y >= 1
@@ -20,11 +21,9 @@ Y_GE_3 = ((0.0, 3.0), (1.0, 0.0))  # y >= 3
 
 
 def solve(lines, pref, radius=5.0, n_hard=0):
-    point = np.array([[p for p, _ in lines]], dtype=float).reshape(1, len(lines), 2)
-    direction = np.array([[d for _, d in lines]], dtype=float).reshape(1, len(lines), 2)
-    valid = np.ones((1, len(lines)), dtype=bool)
-    v, fb = linear_program(point, direction, valid, radius, np.array([pref], dtype=float), n_hard)
-    return v[0], bool(fb[0])
+    table = np.array([[*p, *d] for p, d in lines], dtype=float).reshape(-1, 4)
+    v, fb = linear_program(table, radius, np.array(pref, dtype=float), n_hard)
+    return v, bool(fb)
 
 
 def test_unconstrained_optimum_is_the_preferred_velocity_clipped_to_the_speed_disk():
@@ -76,19 +75,6 @@ def test_hard_lines_stay_satisfied_in_the_fallback():
     assert fb and np.hypot(*v) <= 2.0 + 1e-12
 
 
-def test_an_invalid_line_in_the_hard_block_constrains_nothing():
-    # Padding and dropped lines of a batch keep their geometry; in the fallback they must not count,
-    # or a robot's velocity would depend on the robots it is solved with.
-    lines = [X_GE_1, Y_GE_2, Y_LE_1]
-    point = np.array([[p for p, _ in lines]], dtype=float)
-    direction = np.array([[d for _, d in lines]], dtype=float)
-    valid = np.array([[False, True, True]])
-    with_padding = least_violation(point, direction, valid, 5.0, np.array([[-3.0, 0.0]]), 1)
-    without = least_violation(point[:, 1:], direction[:, 1:], valid[:, 1:], 5.0, np.array([[-3.0, 0.0]]), 0)
-    assert with_padding.tobytes() == without.tobytes()
-    assert with_padding[0, 0] < 1.0  # x >= 1 was not applied
-
-
 def random_problem(rng, b, n_lines, spread=2.0):
     angle = rng.uniform(0, 2 * np.pi, (b, n_lines))
     direction = np.stack([np.cos(angle), np.sin(angle)], -1)
@@ -108,8 +94,9 @@ def violation(point, direction, v):
 def test_feasible_result_is_the_closest_point_of_the_feasible_set(seed, n_lines):
     rng = np.random.default_rng(seed)
     point, direction, valid, radius, pref = random_problem(rng, 1, n_lines, spread=1.0)
-    v, fb = linear_program(point, direction, valid, radius, pref)
     p, d = point[0][valid[0]], direction[0][valid[0]]
+    v, fb = linear_program(np.concatenate([p, d], axis=1), radius[0], pref[0])
+    v, fb = v[None], np.array([fb])
     cons = [{"type": "ineq", "fun": lambda x: radius[0] ** 2 - x @ x}]
     cons += [
         {"type": "ineq", "fun": lambda x, k=k: -violation(p[k : k + 1], d[k : k + 1], x)[0]} for k in range(len(p))
@@ -138,8 +125,8 @@ def test_fallback_minimises_the_largest_violation_of_soft_lines(seed, n_lines, n
     point, direction, valid, radius, pref = random_problem(rng, 1, n_lines, spread=3.0)
     valid[:] = True
     n_hard = min(n_hard, n_lines - 1)
-    v = least_violation(point, direction, valid, radius, pref, n_hard)[0]
     p, d = point[0], direction[0]
+    v, _ = linear_program(np.concatenate([p, d], axis=1), radius[0], pref[0], n_hard)
     hard = violation(p[:n_hard], d[:n_hard], v)
     # reference: min delta s.t. soft violations <= delta, hard <= 0, |v| <= R
     cons = [{"type": "ineq", "fun": lambda x: radius[0] ** 2 - x[:2] @ x[:2]}]
@@ -164,34 +151,3 @@ def test_fallback_minimises_the_largest_violation_of_soft_lines(seed, n_lines, n
     assert np.hypot(*v) <= radius[0] + 1e-9
     ours = max(0.0, np.max(violation(p[n_hard:], d[n_hard:], v)))
     assert ours <= best + 1e-6
-
-
-def violation_batch(point, direction):
-    """Violation of each line by the zero velocity."""
-    return direction[..., 0] * point[..., 1] - direction[..., 1] * point[..., 0]
-
-
-def test_a_robot_gets_bit_identical_results_alone_or_in_a_batch():
-    """The agent host runs K robots per process: results must not depend on K or on neighbours."""
-    rng = np.random.default_rng(7)
-    b, n = 300, 12
-    point, direction, valid, radius, pref = random_problem(rng, b, n, spread=2.5)
-    # most lines admit the origin (as ORCA lines of non-overlapping robots do), some do not
-    wrong = violation_batch(point, direction) > 0
-    flip = wrong & (rng.random((b, n)) < 0.93)
-    direction[flip] *= -1
-    n_hard = rng.integers(0, 4, b)
-    v, fb = linear_program(point, direction, valid, radius, pref, n_hard)
-    assert 20 < fb.sum() < b - 20  # both paths exercised
-    for i in range(b):
-        k = n if i % 2 else int(np.nonzero(valid[i])[0].max(initial=0)) + 1  # with or without padding
-        vi, fbi = linear_program(
-            point[i : i + 1, :k],
-            direction[i : i + 1, :k],
-            valid[i : i + 1, :k],
-            radius[i : i + 1],
-            pref[i : i + 1],
-            n_hard[i : i + 1],
-        )
-        assert fbi[0] == fb[i]
-        assert vi[0].tobytes() == v[i].tobytes(), i

@@ -1,4 +1,4 @@
-"""NH-ORCA for differential-drive robots (agent.core.nhorca): closed forms against a numerical
+"""NH-ORCA for differential-drive robots (agent.core.control): closed forms against a numerical
 simulation of the tracking error, P_AHV, the controls, and a small closed-loop run."""
 
 from __future__ import annotations
@@ -8,19 +8,22 @@ import math
 import numpy as np
 import pytest
 
-from agent.core.neighbours import perturb_preferred_velocity
-from agent.core.nhorca import (
-    ahv_lines,
-    ahv_polygon,
-    controls,
-    max_trackable_speed,
-    min_error_speed,
-    nh_orca_wheel_speeds,
-    omega_cap,
-    tracking_error,
-    wheel_speeds,
-)
+from agent.core import control
+from agent.core.control import Batch, Settings, ahv_polygon, controls, min_error_speed, perturbation, tracking_error
 from agent.core.params import EPUCK
+from agent.core.step import NeighbourStates
+
+DIFFDRIVE = EPUCK.with_(kinematics="diffdrive")
+CORE = Settings(DIFFDRIVE, noise=0.0)  # neighbours as they are: no tracking noise to grow them by
+
+
+def max_trackable_speed(theta, error):
+    return float(control.max_trackable_speed(CORE, theta, error))
+
+
+def nh_orca(position, heading, velocity, pref, heard):
+    """One NH-ORCA step: (v_cf, wheel speeds (left, right), fallback, reverse, tracking error)."""
+    return control.step(CORE, Batch(position, velocity, pref, heading, EPUCK.radius), heard)
 
 
 def simulate_error(theta, v_h, v, omega, duration, steps=4000):
@@ -40,7 +43,7 @@ def simulate_error(theta, v_h, v, omega, duration, steps=4000):
 
 
 def epuck_controls(theta, v_h):
-    w = math.copysign(min(abs(theta) / EPUCK.t_orient, omega_cap(EPUCK)), theta)
+    w = math.copysign(min(abs(theta) / EPUCK.t_orient, CORE.omega_cap), theta)
     v = max(0.0, min(float(min_error_speed(v_h, theta)), EPUCK.v_max - abs(w) * EPUCK.wheel_base / 2))
     return v, w, (abs(theta) / abs(w) if w else EPUCK.t_orient)
 
@@ -49,7 +52,7 @@ def epuck_controls(theta, v_h):
 @pytest.mark.parametrize("theta", [0.05, 0.3, 0.8, 1.2, 1.5, 1.8, 2.5, 3.1, -0.8, -2.5])
 @pytest.mark.parametrize("error", [0.01, 0.003])
 def test_closed_form_max_speed_matches_simulated_tracking_error(theta, error):
-    v_max_h = float(max_trackable_speed(theta, error, EPUCK))
+    v_max_h = max_trackable_speed(theta, error)
     v, w, duration = epuck_controls(theta, v_max_h)
     err = simulate_error(theta, v_max_h, v, w, duration)
     assert err <= error * (1 + 1e-3)
@@ -71,15 +74,14 @@ def test_ahv_polygon_lies_in_s_ahv_and_contains_the_origin():
     rng = np.random.default_rng(5)
     for error in (EPUCK.error_min, 0.004, EPUCK.error_max):
         heading = rng.uniform(-np.pi, np.pi)
-        vert = ahv_polygon(np.array([heading]), np.array([error]), EPUCK)[0]
-        lines = ahv_lines(vert[None])
-        p, d = lines.point[0], lines.direction[0]
+        lines = ahv_polygon(CORE, heading, error)
+        vert, p, d = lines[:, :2], lines[:, :2], lines[:, 2:]
         assert np.all(d[:, 0] * (0 - p[:, 1]) - d[:, 1] * (0 - p[:, 0]) > 0)  # origin strictly inside
         for k in range(len(vert)):
             for s in np.linspace(0, 1, 51):
                 q = vert[k] + s * (vert[(k + 1) % len(vert)] - vert[k])
                 rel = math.atan2(q[1], q[0]) - heading
-                bound = float(max_trackable_speed(math.atan2(math.sin(rel), math.cos(rel)), error, EPUCK))
+                bound = max_trackable_speed(math.atan2(math.sin(rel), math.cos(rel)), error)
                 assert np.hypot(*q) <= bound * (1 + 1e-9)
 
 
@@ -88,8 +90,8 @@ def test_controls_respect_wheel_speed_and_turn_rate_limits():
     vel = rng.uniform(-1, 1, (500, 2)) * rng.choice([0.01, 0.13, 1.0], (500, 1))
     heading = rng.uniform(-np.pi, np.pi, 500)
     reverse = rng.random(500) < 0.3
-    v, w = controls(vel, heading, EPUCK, reverse)
-    left, right = wheel_speeds(v, w, EPUCK)
+    v, w = np.array([controls(CORE, vel[i], heading[i], reverse[i]) for i in range(500)]).T
+    left, right = v - w * EPUCK.wheel_base / 2, v + w * EPUCK.wheel_base / 2
     assert np.all(np.abs(left) <= EPUCK.v_max * (1 + 1e-12))
     assert np.all(np.abs(right) <= EPUCK.v_max * (1 + 1e-12))
     assert np.all(np.abs(w) <= EPUCK.omega_max)
@@ -107,7 +109,9 @@ def test_tracking_errors_leave_the_inflated_disks_apart():
     pos, r = pos[keep], r[keep]
     n = len(pos)
     others = np.array([[j for j in range(n) if j != i] for i in range(n)])
-    err, nbr_err = tracking_error(pos, r, pos[others], r[others], np.ones(others.shape, bool), EPUCK)
+    found = [tracking_error(CORE, (*pos[i], r[i]), np.column_stack([pos[others[i]], r[others[i]]])) for i in range(n)]
+    err = np.array([e for e, _ in found])
+    nbr_err = np.array([b for _, b in found])
     assert np.all((err >= EPUCK.error_min) & (err <= EPUCK.error_max))
     for i in range(n):
         for k, j in enumerate(others[i]):
@@ -115,11 +119,25 @@ def test_tracking_errors_leave_the_inflated_disks_apart():
             assert err[j] <= nbr_err[i, k]
 
 
+def all_others(pos, vel, cooperative=True):
+    """What each robot hears of every other: their states as they are now."""
+    n = len(pos)
+    others = np.array([[j for j in range(n) if j != i] for i in range(n)]).reshape(n, n - 1)
+    shape = others.shape
+    return NeighbourStates(
+        pos[others],
+        vel[others],
+        np.full(shape, EPUCK.radius),
+        np.zeros(shape),
+        np.ones(shape, bool),
+        np.full(shape, cooperative),
+    )
+
+
 def run_diffdrive(pos, heading, goal, steps, params=EPUCK):
     """A small closed loop: NH-ORCA on every robot, unicycle kinematics with the wheel speeds."""
     n = len(pos)
     vel = np.zeros((n, 2))
-    others = np.array([[j for j in range(n) if j != i] for i in range(n)])
     min_dist = np.inf
     for tick in range(steps):
         pref = np.where(
@@ -128,24 +146,13 @@ def run_diffdrive(pos, heading, goal, steps, params=EPUCK):
             * np.minimum(1.0, params.k_a / np.maximum(np.linalg.norm(goal - pos, axis=1, keepdims=True), 1e-12)),
             0.0,
         )
-        pref = perturb_preferred_velocity(pref / params.k_a * params.v_pref, np.arange(n), seed=3, tick=tick)
-        res = nh_orca_wheel_speeds(
-            pos,
-            heading,
-            vel,
-            pref,
-            params.radius,
-            pos[others],
-            vel[others],
-            np.full(others.shape, params.radius),
-            np.full(others.shape, 0.5),
-            np.ones(others.shape, bool),
-            params=params,
-        )
-        assert np.all(np.abs(res.wheel_left) <= params.v_max + 1e-12)
-        assert np.all(np.abs(res.wheel_right) <= params.v_max + 1e-12)
-        v = 0.5 * (res.wheel_left + res.wheel_right)
-        w = (res.wheel_right - res.wheel_left) / params.wheel_base
+        pref = pref / params.k_a * params.v_pref + perturbation(np.arange(n), seed=3, tick=tick)
+        velocity, wheels, *_ = nh_orca(pos, heading, vel, pref, all_others(pos, vel))
+        left, right = wheels[:, 0], wheels[:, 1]
+        assert np.all(np.abs(left) <= params.v_max + 1e-12)
+        assert np.all(np.abs(right) <= params.v_max + 1e-12)
+        v = 0.5 * (left + right)
+        w = (right - left) / params.wheel_base
         sub = 20  # integrate the arc finely over the control period
         for _ in range(sub):
             h = params.dt / sub
@@ -153,7 +160,7 @@ def run_diffdrive(pos, heading, goal, steps, params=EPUCK):
             heading = heading + w * h
             d = np.linalg.norm(pos[:, None] - pos[None], axis=-1) + np.eye(n) * 1e9
             min_dist = min(min_dist, d.min())
-        vel = res.velocity
+        vel = velocity
     return pos, min_dist
 
 
@@ -171,23 +178,16 @@ def test_differential_drive_robots_swap_places_without_contact():
 
 def test_mirrored_polygon_drives_backwards_when_forward_is_infeasible():
     # a dynamic obstacle (c = 1) right ahead closing at 0.1 m/s: backing off faster than P_AHV allows
-    pos = np.array([[0.0, 0.0]])
-    res = nh_orca_wheel_speeds(
-        pos,
-        np.array([0.0]),
-        np.zeros((1, 2)),
-        np.array([[0.12, 0.0]]),
-        EPUCK.radius,
-        np.array([[[0.1 + 0.002, 0.0]]]),
-        np.array([[[-0.1, 0.0]]]),
-        np.array([[EPUCK.radius]]),
-        np.array([[1.0]]),
-        np.array([[True]]),
-        params=EPUCK,
+    obstacle = NeighbourStates(
+        np.array([[[0.1 + 0.002, 0.0]]]), np.array([[[-0.1, 0.0]]]), np.array([[EPUCK.radius]]),
+        np.zeros((1, 1)), np.ones((1, 1), bool), np.zeros((1, 1), bool),
+    )  # fmt: skip
+    velocity, wheels, fallback, reverse, error = nh_orca(
+        np.zeros((1, 2)), [0.0], np.zeros((1, 2)), [[0.12, 0.0]], obstacle
     )
-    assert res.fallback[0] and res.reverse[0]
-    assert res.velocity[0, 0] < -float(max_trackable_speed(np.pi, res.error[0], EPUCK))
-    assert res.wheel_left[0] < 0 and res.wheel_right[0] < 0
+    assert fallback[0] and reverse[0]
+    assert velocity[0, 0] < -max_trackable_speed(np.pi, error[0])
+    assert wheels[0, 0] < 0 and wheels[0, 1] < 0
 
 
 @pytest.mark.slow
@@ -195,22 +195,18 @@ def test_a_differential_drive_robot_gets_bit_identical_results_alone_or_in_a_bat
     rng = np.random.default_rng(9)
     b, m = 64, 6
     pos = rng.uniform(0, 0.8, (b, 2))
-    nbr = pos[:, None] + rng.uniform(-0.2, 0.2, (b, m, 2))
-    args = (
-        pos,
-        rng.uniform(-np.pi, np.pi, b),
-        rng.uniform(-0.1, 0.1, (b, 2)),
-        rng.uniform(-0.12, 0.12, (b, 2)),
-        np.full(b, EPUCK.radius),
-        nbr,
+    heard = NeighbourStates(
+        pos[:, None] + rng.uniform(-0.2, 0.2, (b, m, 2)),
         rng.uniform(-0.1, 0.1, (b, m, 2)),
         np.full((b, m), EPUCK.radius),
-        rng.choice([0.5, 1.0], (b, m)),
+        np.zeros((b, m)),
         rng.random((b, m)) < 0.8,
+        rng.random((b, m)) < 0.5,
     )
-    full = nh_orca_wheel_speeds(*args, params=EPUCK)
-    assert full.fallback.any() and not full.fallback.all()
+    own = (pos, rng.uniform(-np.pi, np.pi, b), rng.uniform(-0.1, 0.1, (b, 2)), rng.uniform(-0.12, 0.12, (b, 2)))
+    full = nh_orca(*own, heard)
+    assert full[2].any() and not full[2].all()
     for i in range(b):
-        one = nh_orca_wheel_speeds(*(a[i : i + 1] for a in args), params=EPUCK)
+        one = nh_orca(*(a[i : i + 1] for a in own), NeighbourStates(*(x[i : i + 1] for x in vars(heard).values())))
         for a, c in zip(full, one):
             assert np.asarray(a)[i].tobytes() == np.asarray(c)[0].tobytes()

@@ -1,5 +1,5 @@
-"""Holonomic ORCA (agent.core.orca) against the geometric definitions of eq. 9-12, obstacles, and the
-neighbour preparation for real communication (agent.core.neighbours)."""
+"""Holonomic ORCA (agent.core.control) against the geometric definitions of eq. 9-12, obstacles, and
+the neighbour preparation for real communication."""
 
 from __future__ import annotations
 
@@ -7,15 +7,10 @@ import numpy as np
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from agent.core.neighbours import perturb_preferred_velocity, prepare_neighbours
-from agent.core.orca import (
-    arena_segments,
-    obstacle_lines,
-    orca_lines,
-    orca_velocity,
-    polygon_segments,
-    preferred_velocity,
-)
+from agent.core import control
+from agent.core.control import Batch, Settings, obstacle_line, orca_line, perturbation, preferred_velocity
+from agent.core.params import EPUCK
+from agent.core.step import NeighbourStates, arena_segments, polygon_segments
 
 coord = st.floats(-5.0, 5.0, allow_nan=False)
 speed = st.floats(-2.0, 2.0, allow_nan=False)
@@ -46,19 +41,8 @@ def vo_boundary(p, big_r, tau, n=20000):
 
 
 def one_line(p_i, v_i, r_i, p_j, v_j, r_j, c, tau, dt=0.1):
-    lines = orca_lines(
-        np.array([p_i]),
-        np.array([v_i]),
-        np.array([r_i]),
-        np.array([[p_j]]),
-        np.array([[v_j]]),
-        np.array([[r_j]]),
-        np.array([[c]]),
-        np.array([[True]]),
-        tau,
-        dt,
-    )
-    return lines.point[0, 0], lines.direction[0, 0]
+    line = orca_line((*p_i, *v_i, r_i), (*p_j, *v_j, r_j, c), tau, dt)
+    return np.array(line[:2]), np.array(line[2:])
 
 
 @settings(max_examples=60, deadline=None, derandomize=True, database=None)
@@ -145,11 +129,11 @@ def test_velocities_in_obstacle_half_planes_keep_the_radius_from_the_edges():
     segments = np.concatenate([square, arena_segments(-5, -5, 5, 5)])
     pos = rng.uniform(-4.5, 4.5, (400, 2))
     radius, tau_obst = 0.3, 2.0
-    lines = obstacle_lines(pos, np.full(400, radius), 1e9, segments, tau_obst)
     t = np.linspace(0.0, tau_obst, 41)
     for b in range(400):
+        lines = np.array([obstacle_line(pos[b], radius, seg, tau_obst) for seg in segments])
         for v in rng.uniform(-3, 3, (20, 2)):
-            p, d = lines.point[b], lines.direction[b]
+            p, d = lines[:, :2], lines[:, 2:]
             if np.all(d[:, 0] * (v[1] - p[:, 1]) - d[:, 1] * (v[0] - p[:, 0]) >= 0):
                 path = pos[b] + t[:, None] * v
                 for a, e in segments:
@@ -159,9 +143,11 @@ def test_velocities_in_obstacle_half_planes_keep_the_radius_from_the_edges():
                     assert np.all(gap >= min(radius, start) - 1e-9)
 
 
-def test_obstacle_lines_beyond_reach_are_dropped():
-    lines = obstacle_lines(np.array([[0.0, 0.0]]), np.array([0.1]), 0.1, arena_segments(-10, -10, 10, 10), 2.0)
-    assert not lines.valid.any()  # walls 9.9 m away, reach 0.2 m
+def test_obstacle_lines_beyond_reach_constrain_no_reachable_velocity():
+    # walls 9.9 m away, reach 0.2 m in tau_obst: every velocity of the speed disk (0.1 m/s) is allowed
+    for seg in arena_segments(-10, -10, 10, 10):
+        px, py, dx, dy = obstacle_line((0.0, 0.0), 0.1, seg, 2.0)
+        assert dx * py - dy * px < -0.1  # the disk's worst point, det(d, -0.1 n - p), is permitted
 
 
 def test_preferred_velocity_follows_eq_9():
@@ -178,24 +164,10 @@ def test_two_robots_head_on_pass_without_overlap():
     vel = np.zeros((2, 2))
     goal = -pos
     r, dt = 0.1, 0.1
+    core = Settings(EPUCK, margin=0.0, timeout=0.0, noise=0.0, horizons=(2.0, 2.0, dt))
     for _ in range(200):
-        pref = perturb_preferred_velocity(preferred_velocity(pos, goal, 0.5, 0.1), [0, 1], seed=1)
-        other = pos[::-1][:, None]
-        vel, fb = orca_velocity(
-            pos,
-            vel,
-            pref,
-            r,
-            0.5,
-            other,
-            vel[::-1][:, None],
-            np.full((2, 1), r),
-            np.full((2, 1), 0.5),
-            np.ones((2, 1), bool),
-            tau=2.0,
-            tau_obst=2.0,
-            dt=dt,
-        )
+        pref = preferred_velocity(pos, goal, 0.5, 0.1) + perturbation([0, 1], seed=1)
+        vel, fb = control.step_known(core, Batch(pos, vel, pref, None, r, 0.5), np.array([[1], [0]]))
         pos = pos + dt * vel
         assert np.linalg.norm(pos[0] - pos[1]) >= 2 * r
     assert np.allclose(pos, goal, atol=0.02)
@@ -206,63 +178,60 @@ def test_neighbour_states_are_extrapolated_by_age_and_stale_ones_become_obstacle
     vel = np.array([[[0.1, 0.0], [0.1, 0.0], [0.1, 0.0]]])
     radius = np.full((1, 3), 0.05)
     age = np.array([[0.0, 0.2, 5.0]])
-    nb = prepare_neighbours(
-        pos, vel, radius, age, np.ones((1, 3), bool), max_speed=0.13, timeout=1.0, noise=0.002, committed=0.1
-    )
+    core = Settings(EPUCK.with_(v_max=0.13), timeout=1.0, noise=0.002, committed=0.1)
+    heard = NeighbourStates(pos, vel, radius, age, np.ones((1, 3), bool), np.ones((1, 3), bool))
+    position, _, grown, _, responsibility, _, _ = control.prepare_neighbours(core, heard)
     # fresh: extrapolated by the committed time only (0.1 of its 0.2 s); stale: last known position
-    assert np.allclose(nb.position[0, :, 0], [1.0, 2.01, 3.0])
+    assert np.allclose(position[0, :, 0], [1.0, 2.01, 3.0])
     # fresh: grown by noise + (uncommitted age) x max_speed, where any velocity of its own can have
     # taken it since; stale (not extrapolated): x 2 max_speed, its velocity may have reversed
-    assert np.allclose(nb.radius[0], [0.052, 0.05 + 0.002 + 0.1 * 0.13, 0.05 + 0.002 + 0.9 * 0.26])
-    assert np.array_equal(nb.responsibility[0], [0.5, 0.5, 1.0])
-    bad = prepare_neighbours(
-        np.full((1, 1, 2), np.nan),
-        vel[:, :1],
-        radius[:, :1],
-        age[:, :1],
-        np.ones((1, 1), bool),
-        max_speed=0.13,
-        timeout=1.0,
+    assert np.allclose(grown[0], [0.052, 0.05 + 0.002 + 0.1 * 0.13, 0.05 + 0.002 + 0.9 * 0.26])
+    assert np.array_equal(responsibility[0], [0.5, 0.5, 1.0])
+    nan = NeighbourStates(
+        np.full((1, 1, 2), np.nan), vel[:, :1], radius[:, :1], age[:, :1], np.ones((1, 1), bool), np.ones((1, 1), bool)
     )
-    assert not bad.valid.any() and np.isfinite(bad.position).all()
+    position, *_, valid = control.prepare_neighbours(core, nan)
+    assert not valid.any() and np.isfinite(position).all()
 
 
 def test_symmetry_breaking_is_tiny_distinct_and_reproducible():
-    pref = np.zeros((100, 2))
-    a = perturb_preferred_velocity(pref, np.arange(100), seed=42, tick=7)
-    b = perturb_preferred_velocity(pref[:1], [0], seed=42, tick=7)
+    a = perturbation(np.arange(100), seed=42, tick=7)
+    b = perturbation([0], seed=42, tick=7)
     assert np.abs(a).max() <= 1e-4 and len(np.unique(a[:, 0])) == 100
     assert a[0].tobytes() == b[0].tobytes()
-    assert not np.array_equal(a, perturb_preferred_velocity(pref, np.arange(100), seed=43, tick=7))
+    assert not np.array_equal(a, perturbation(np.arange(100), seed=43, tick=7))
 
 
-def test_orca_velocity_is_bit_identical_alone_or_in_a_batch():
-    """An agent host runs K robots per process: each robot's velocity must not depend on K."""
+def test_a_robot_steps_bit_identically_alone_or_in_a_batch():
+    """An agent host runs K robots per process: each robot's velocity must not depend on K, nor on
+    how many neighbour slots the batch pads to."""
     rng = np.random.default_rng(11)
     b, m = 120, 8
     pos = rng.uniform(-2, 2, (b, 2))
-    nbr = pos[:, None] + rng.uniform(-0.6, 0.6, (b, m, 2))
-    valid = rng.random((b, m)) < 0.8
-    args = (
-        pos,
-        rng.uniform(-0.5, 0.5, (b, 2)),
-        rng.uniform(-1, 1, (b, 2)),
-        np.full(b, 0.1),
-        np.full(b, 0.6),
-        nbr,
+    heard = NeighbourStates(
+        pos[:, None] + rng.uniform(-0.8, 0.8, (b, m, 2)),
         rng.uniform(-0.5, 0.5, (b, m, 2)),
         np.full((b, m), 0.1),
-        rng.choice([0.5, 1.0], (b, m)),
-        valid,
+        rng.uniform(0.0, 0.3, (b, m)),
+        rng.random((b, m)) < 0.8,
+        rng.random((b, m)) < 0.8,
     )
+    vel, pref = rng.uniform(-0.5, 0.5, (b, 2)), rng.uniform(-1, 1, (b, 2))
     walls = np.concatenate(
         [arena_segments(-2.2, -2.2, 2.2, 2.2), polygon_segments([(0, 0), (0.5, 0), (0.5, 0.5), (0, 0.5)])]
     )
-    opts = dict(tau=2.0, tau_obst=1.0, dt=0.1, margin=0.01)
-    v, fb = orca_velocity(*args, walls, **opts)
+    core = Settings(EPUCK.with_(v_max=0.6, tau_obst=1.0))
+    v, _, fb, _, _ = control.step(core, Batch(pos, vel, pref, None, 0.1), heard, walls)
     assert 10 < fb.sum() < b - 10
     for i in range(b):
-        k = m if i % 2 else int(np.nonzero(valid[i])[0].max(initial=0)) + 1  # less padding
-        one = [a[i : i + 1] for a in args[:5]] + [a[i : i + 1, :k] for a in args[5:]]
-        vi, fbi = orca_velocity(*one, walls, **opts)
+        k = m if i % 2 else int(np.nonzero(heard.valid[i])[0].max(initial=0)) + 1  # less padding
+        one = NeighbourStates(
+            *(
+                getattr(heard, f)[i : i + 1, :k]
+                for f in ("position", "velocity", "radius", "age", "valid", "cooperative")
+            )
+        )
+        vi, _, fbi, _, _ = control.step(
+            core, Batch(pos[i : i + 1], vel[i : i + 1], pref[i : i + 1], None, 0.1), one, walls
+        )
         assert vi[0].tobytes() == v[i].tobytes() and fbi[0] == fb[i]

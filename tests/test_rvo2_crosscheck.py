@@ -7,9 +7,9 @@ infeasible both run the least-violation fallback; its optimum need not be unique
 it from the optimum over the hard lines where RVO2 starts from its partial result, so there agreement
 is checked in the aggregate.
 
-CentralOrca steps with compiled kernels by default: on bench/bench_orca.py's scenes they give the
-numpy path's velocities to the bit, and the engine keeps the benchmark's results (no overlap, clear of
-the obstacles, done). These need no pyrvo.
+CentralOrca (the control core of every robot, with perfect information) keeps the benchmark's
+results on bench/bench_orca.py's scenes (no overlap, clear of the obstacles, done), and picks its
+neighbours as a k-d tree ranked as RVO2 ranks them. These need no pyrvo.
 """
 
 from __future__ import annotations
@@ -18,9 +18,10 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from agent.core.orca import orca_lines, orca_velocity, preferred_velocity
+from agent.core import control
+from agent.core.params import EPUCK
 from agent.core.rvo import CentralOrca
-from bench.bench_orca import MARGIN, PERTURBATION, CentralEngine, Scenario, blocks, circle, run
+from bench.bench_orca import MARGIN, CentralEngine, blocks, run
 
 
 @pytest.fixture
@@ -75,28 +76,26 @@ def rvo2_step(pyrvo, cfg):
     return v, point, direction, bool(np.all(viol <= 1e-5))
 
 
-def batch(cfgs):
-    """Our inputs for all configurations at once, neighbours nearest first, padded."""
-    b = len(cfgs)
-    out = dict(
-        pos=np.zeros((b, 2)),
-        vel=np.zeros((b, 2)),
-        pref=np.zeros((b, 2)),
-        r=np.zeros(b),
-        vmax=np.zeros(b),
-        npos=np.zeros((b, MAX_NBRS, 2)),
-        nvel=np.zeros((b, MAX_NBRS, 2)),
-        nr=np.zeros((b, MAX_NBRS)),
-        valid=np.zeros((b, MAX_NBRS), bool),
+def ours(cfg):
+    """Our new velocity of agent 0 (RVO2's program: no safety lines, least violation at the full
+    horizon), whether it was a fallback, and our ORCA lines, neighbours nearest first (as RVO2's)."""
+    m = cfg["m"]
+    order = np.argsort(((cfg["pos"][1:] - cfg["pos"][0]) ** 2).sum(1), kind="stable") + 1
+    core = control.Settings(
+        EPUCK, safety=False, margin=0.0, timeout=0.0, noise=0.0, horizons=(cfg["tau"], cfg["tau"], cfg["dt"])
     )
-    for i, c in enumerate(cfgs):
-        order = np.argsort(((c["pos"][1:] - c["pos"][0]) ** 2).sum(1), kind="stable") + 1
-        m = c["m"]
-        out["pos"][i], out["vel"][i], out["pref"][i] = c["pos"][0], c["vel"][0], c["pref"]
-        out["r"][i], out["vmax"][i] = c["radius"][0], c["vmax"]
-        out["npos"][i, :m], out["nvel"][i, :m] = c["pos"][order], c["vel"][order]
-        out["nr"][i, :m], out["valid"][i, :m] = c["radius"][order], True
-    return out
+    pref = np.zeros((m + 1, 2))
+    pref[0] = cfg["pref"]
+    index = np.full((m + 1, m), -1)
+    index[0] = order
+    robots = control.Batch(cfg["pos"], cfg["vel"], pref, None, cfg["radius"], cfg["vmax"])
+    v, fallback = control.step_known(core, robots, index)
+    me = (*cfg["pos"][0], *cfg["vel"][0], cfg["radius"][0])
+    lines = [
+        control.orca_line(me, (*cfg["pos"][k], *cfg["vel"][k], cfg["radius"][k], 0.5), cfg["tau"], cfg["dt"])
+        for k in order
+    ]
+    return v[0], bool(fallback[0]), np.array(lines).reshape(m, 4)
 
 
 def test_new_velocity_matches_rvo2_where_its_program_is_feasible(pyrvo):
@@ -107,38 +106,14 @@ def test_new_velocity_matches_rvo2_where_its_program_is_feasible(pyrvo):
         v, point, direction, ok = rvo2_step(pyrvo, cfg)
         (feasible if ok else infeasible).append((cfg, v, point, direction))
     for group, label in ((feasible, "feasible"), (infeasible, "infeasible")):
-        ours = np.zeros((len(group), 2))
-        fallback = np.zeros(len(group), bool)
-        keys = [(g[0]["tau"], g[0]["dt"]) for g in group]
-        for tau, dt in set(keys):  # one batch per horizon and time step
-            idx = [i for i, k in enumerate(keys) if k == (tau, dt)]
-            x = batch([group[i][0] for i in idx])
-            half = np.full(x["valid"].shape, 0.5)
-            ours[idx], fallback[idx] = orca_velocity(
-                x["pos"],
-                x["vel"],
-                x["pref"],
-                x["r"],
-                x["vmax"],
-                x["npos"],
-                x["nvel"],
-                x["nr"],
-                half,
-                x["valid"],
-                tau=tau,
-                tau_obst=tau,
-                dt=dt,
-                safety=False,
-            )
-            if label == "feasible":
-                # the ORCA lines themselves agree, in RVO2's order (nearest first)
-                lines = orca_lines(x["pos"], x["vel"], x["r"], x["npos"], x["nvel"], x["nr"], half, x["valid"], tau, dt)
-                for row, i in enumerate(idx):
-                    m = group[i][0]["m"]
-                    assert np.allclose(lines.point[row, :m], group[i][2], atol=1e-4)
-                    assert np.allclose(lines.direction[row, :m], group[i][3], atol=1e-4)
-        diff = np.abs(ours - np.array([g[1] for g in group])).max(axis=1)
+        got = [ours(g[0]) for g in group]
+        fallback = np.array([f for _, f, _ in got])
+        diff = np.array([np.abs(v - g[1]).max() for (v, _, _), g in zip(got, group)])
         if label == "feasible":
+            # the ORCA lines themselves agree, in RVO2's order (nearest first)
+            for (_, _, lines), g in zip(got, group):
+                assert np.allclose(lines[:, :2], g[2], atol=1e-4)
+                assert np.allclose(lines[:, 2:], g[3], atol=1e-4)
             assert not fallback.any()
             assert diff.max() < 1e-4, f"largest difference {diff.max():.2e}"
         else:
@@ -147,48 +122,16 @@ def test_new_velocity_matches_rvo2_where_its_program_is_feasible(pyrvo):
             assert np.mean(diff < 1e-4) >= 0.98
 
 
-def central(scn: Scenario, compiled: bool, safety: bool) -> CentralOrca:
-    sim = CentralOrca(*scn.params, safety_margin=MARGIN, perturbation=PERTURBATION, safety=safety, compiled=compiled)
-    for p in scn.positions:
-        sim.add_agent(p)
-    for obstacle in scn.obstacles:
-        sim.add_obstacle(obstacle)
-    return sim
-
-
-@pytest.mark.parametrize("scene", ["Circle 50", "Blocks"])
-@pytest.mark.parametrize("safety", [True, False])
-def test_central_orca_compiled_is_the_numpy_path_bit_for_bit(scene, safety):
-    """300 steps of each scene, both paths from the same preferred velocities: the same velocities and
-    fallback flags at every step (Circle 50 packs into a ring at contact in them, Blocks brings
-    robots to the obstacles and into the fallback); ``safety=False`` is RVO2's program."""
-    scn = circle(50) if scene == "Circle 50" else blocks()
-    compiled, reference = central(scn, True, safety), central(scn, False, safety)
-    for step in range(300):
-        pref = preferred_velocity(reference.position, scn.goals, 1.0, 1.0)
-        for sim in (compiled, reference):
-            sim.set_pref_velocities(pref)
-            sim.do_step()
-        np.testing.assert_array_equal(compiled.velocity, reference.velocity, err_msg=f"step {step}")
-        np.testing.assert_array_equal(compiled.last_fallback, reference.last_fallback, err_msg=f"step {step}")
-    np.testing.assert_array_equal(compiled.position, reference.position)
-    if scene == "Blocks":
-        assert reference.fallback_count > 0
-
-
 def test_the_neighbours_are_rvo2s():
     """Up to max_neighbors agents closer than neighbor_dist, nearest first, equal distances by index:
-    on a lattice (ties everywhere, distances exactly at reach) the engine (both paths: one compiled
-    grid, agent.core.grid) picks what a kd-tree ranked by (distance, index) picks."""
-    sims = [CentralOrca(0.25, 2.0, 5, 5.0, 5.0, 0.2, 1.0, compiled=c) for c in (True, False)]
-    for sim in sims:
-        for x in range(8):
-            for y in range(6):
-                sim.add_agent((float(x), float(y)))
-    (grid_idx, grid_valid), (other_idx, other_valid) = (sim.neighbours() for sim in sims)
-    np.testing.assert_array_equal(grid_valid, other_valid)
-    np.testing.assert_array_equal(grid_idx[grid_valid], other_idx[other_valid])
-    p = sims[0].position
+    on a lattice (ties everywhere, distances exactly at reach) the engine (agent.core.grid) picks
+    what a kd-tree ranked by (distance, index) picks."""
+    sim = CentralOrca(0.25, 2.0, 5, 5.0, 5.0, 0.2, 1.0)
+    for x in range(8):
+        for y in range(6):
+            sim.add_agent((float(x), float(y)))
+    grid_idx, grid_valid = sim.neighbours()
+    p = sim.position
     tree_idx = np.zeros_like(grid_idx)
     tree_valid = np.zeros_like(grid_valid)
     for i, ball in enumerate(cKDTree(p).query_ball_point(p, 2.0 * (1 + 1e-9))):

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .orca import preferred_velocity
+from .control import preferred_velocity
 
 
 @dataclass(frozen=True)

@@ -22,9 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .animation import frame_hold, iterations_left
+from .control import preferred_velocity
 from .deadlock import blocked, count_blocked
 from .goal_motion import GoalMotion, tracking_velocity
-from .orca import preferred_velocity
 from .params import RobotParams
 from .step import NeighbourStates, StepResult, control_step
 
@@ -173,13 +173,11 @@ def act(
     seed: int,
     tick: int,
     watch_deadlocks: bool,
-    compiled: bool = False,
     reach: float = np.inf,
 ) -> Decision:
     """Stage two: collision-free velocity and command, and deadlock detection while an auction can
     act on it (``watch_deadlocks``; otherwise the blocked counts wait as they are). ``reach``: the
-    robots hear states only from this close (m): they drive no faster than heard_speed_limit.
-    ``compiled``: the control core compiled (the same bits; central engines)."""
+    robots hear states only from this close (m): they drive no faster than heard_speed_limit."""
     preferred, latency = intent.preferred, memory.latency
     if np.isfinite(reach):
         ages = np.where(neighbours.valid, neighbours.age, np.inf)
@@ -198,7 +196,6 @@ def act(
         seed=seed,
         tick=tick,
         preferred=preferred,
-        compiled=compiled,
     )
     counts, deadlocked = memory.blocked, np.zeros(len(position), bool)
     if watch_deadlocks and params.deadlock_cost > 0:

@@ -3,19 +3,18 @@
 The reference against which decentralisation is studied and the fast path for large swarms: one
 snapshot, every robot's new velocity from the same batch call of the core, then all move.
 
-Neighbours come from agent.core.grid (compiled). Two paths to the same velocities, bit for bit
-(tests/test_rvo2_crosscheck.py): compiled (the default: agent.core.orca_kernel, numba, imported on
-first use so that importing this module does not load numba), and numpy (``compiled=False``:
-agent.core.orca.orca_velocity), the reference.
+Neighbours come from agent.core.grid and velocities from agent.core.control, both compiled: the
+same code as every robot's, with perfect information.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from agent.core.control import Batch, Obstacles, Settings, perturbation, step_known
 from agent.core.grid import nearest
-from agent.core.neighbours import perturb_preferred_velocity
-from agent.core.orca import orca_velocity, polygon_segments
+from agent.core.params import EPUCK
+from agent.core.step import polygon_segments
 
 __all__ = ["CentralOrca"]
 
@@ -24,11 +23,10 @@ class CentralOrca:
     """RVO2-like simulator: ``add_agent``, ``add_obstacle``, ``set_pref_velocity``, ``do_step``.
 
     Agent defaults mirror RVO2's ``setAgentDefaults`` (neighbour distance, max neighbours, horizons,
-    radius, max speed). The options go to `orca_velocity`: ``safety_margin`` is added to every radius
-    in the robots' ORCA lines (not to the bodies, nor to the safety lines), ``safety=False`` gives
-    RVO2's semantics; ``perturbation`` > 0 adds the seeded symmetry breaking of
-    `perturb_preferred_velocity` (robot id = agent index, tick = step). ``compiled=False`` steps
-    with numpy (the same results, slower).
+    radius, max speed). The options go to the control core (agent.core.control): ``safety_margin`` is
+    added to every radius in the robots' ORCA lines (not to the bodies, nor to the safety lines),
+    ``safety=False`` gives RVO2's semantics; ``perturbation`` > 0 adds the seeded symmetry breaking
+    of `perturbation` (robot id = agent index, tick = step).
 
     Neighbours, as RVO2's: up to max_neighbors agents closer than neighbor_dist (centre to centre),
     nearest first, equal distances by index.
@@ -48,7 +46,6 @@ class CentralOrca:
         safety: bool = True,
         perturbation: float = 0.0,
         seed: int = 0,
-        compiled: bool = True,
     ) -> None:
         self.time_step = float(time_step)
         self.neighbor_dist = float(neighbor_dist)
@@ -61,7 +58,7 @@ class CentralOrca:
         self.safety = bool(safety)
         self.perturbation = float(perturbation)
         self.seed = int(seed)
-        self.compiled = bool(compiled)
+        self._settings: tuple | None = None  # (what it was made of, the core's Settings)
         self.position = np.zeros((0, 2))
         self.velocity = np.zeros((0, 2))
         self.pref_velocity = np.zeros((0, 2))
@@ -113,48 +110,18 @@ class CentralOrca:
         """The preferred velocities of this step, perturbed if asked for."""
         if not self.perturbation:
             return self.pref_velocity
-        return perturb_preferred_velocity(
-            self.pref_velocity, np.arange(self.num_agents), self.seed, self.steps, self.perturbation
-        )
+        return self.pref_velocity + perturbation(np.arange(self.num_agents), self.seed, self.steps, self.perturbation)
 
     def compute_new_velocities(self) -> tuple[np.ndarray, np.ndarray]:
         """The new velocities (N,2) and fallback flags (N,): infeasible at the full horizon."""
-        if self.compiled:
-            from agent.core.orca_kernel import central_core
-
-            return central_core(
-                self.position,
-                self.velocity,
-                np.ascontiguousarray(self.preferred(), dtype=float),
-                self.radius,
-                self.max_speed,
-                self._neighbours_grid(),
-                self.segments,
-                self.time_horizon,
-                self.time_horizon_obst,
-                self.time_step,
-                self.safety_margin,
-                self.safety,
+        horizons = (self.time_horizon, self.time_horizon_obst, self.time_step)
+        if self._settings is None or self._settings[0] != (horizons, self.safety, self.safety_margin):
+            core = Settings(
+                EPUCK, safety=self.safety, margin=self.safety_margin, timeout=0.0, noise=0.0, horizons=horizons
             )
-        idx, valid = self.neighbours()
-        return orca_velocity(
-            self.position,
-            self.velocity,
-            self.preferred(),
-            self.radius,
-            self.max_speed,
-            self.position[idx],
-            self.velocity[idx],
-            self.radius[idx],
-            np.full(idx.shape, 0.5),
-            valid,
-            self.segments,
-            tau=self.time_horizon,
-            tau_obst=self.time_horizon_obst,
-            dt=self.time_step,
-            safety=self.safety,
-            margin=self.safety_margin,
-        )
+            self._settings = ((horizons, self.safety, self.safety_margin), core)
+        robots = Batch(self.position, self.velocity, self.preferred(), None, self.radius, self.max_speed)
+        return step_known(self._settings[1], robots, self._neighbours_grid(), Obstacles(self.segments))
 
     def do_step(self) -> None:
         new_velocity, fallback = self.compute_new_velocities()

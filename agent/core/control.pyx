@@ -1,0 +1,1032 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
+"""A robot's control step (paper 5.2-5.4), written once and compiled: the same code steps one robot
+in its own process, K robots in an agent host and every robot in the central engine.
+
+Per robot, in this order:
+  preferred velocity   eq. 9 toward the goal (or a given one), 45 degrees right when blocked, and a
+                       tiny seeded perturbation that breaks symmetric deadlocks;
+  neighbours           where each heard neighbour can be now (extrapolated by its committed
+                       velocity, grown by how far it may have strayed, stale ones as obstacles);
+  ORCA lines           eq. 10-12 per neighbour; obstacle edges and the safety lines (no overlap
+                       within dt) are hard;
+  linear program       eq. 13-14 incrementally (RVO2's linearProgram2); where infeasible the robot
+                       horizon shrinks (paper 5.3) and finally the largest violation of the robot lines
+                       is minimised (linearProgram3);
+  NH-ORCA              differential drive: radii grown by the tracking error E, the polygon P_AHV of
+                       trackable velocities hard, the mirrored polygon (driving backwards) where the
+                       forward program is infeasible, then (v, omega) and the wheel speeds.
+
+A robot's result depends on its own row alone (no reduction across robots), so a robot steps the
+same, bit for bit, alone or in any batch. Lines are a point and a unit direction, the permissible
+side on the left: det(d, v - p) >= 0.
+"""
+
+from libc.math cimport INFINITY, atan2, copysign, cos, fabs, isfinite, sin, sqrt, tan
+from libc.stdint cimport int64_t, uint64_t
+from libc.stdlib cimport free, malloc
+
+import math
+
+import numpy as np
+
+COOPERATING = 0.5  # responsibility c toward a robot running the same ORCA (eq. 12)
+NON_COOPERATING = 1.0  # toward a dynamic obstacle, or a robot whose state is stale
+PERTURBATION = 1e-4  # largest component of the symmetry-breaking perturbation (m/s)
+EPSILON = 1e-5  # two unit directions are parallel below this |det| (as RVO2)
+N_VERTICES = 24  # P_AHV's vertices, denser ahead where its boundary turns fastest
+
+# radii 1 ppm larger in the safety and obstacle lines: gaps may close completely, rounding must not
+# turn that into an overlap
+cdef double BUFFER = 1.0 + 1e-6
+cdef double SHRINK = 4.0  # where infeasible the robot horizon is divided by this, down to dt
+cdef double COS_RIGHT = cos(-math.pi / 4)
+cdef double SIN_RIGHT = sin(-math.pi / 4)
+cdef double C_EPSILON = EPSILON
+cdef double C_PERTURBATION = PERTURBATION
+cdef double C_COOPERATING = COOPERATING
+cdef double C_NON_COOPERATING = NON_COOPERATING
+DEF MAX_VERTICES = 32
+
+
+cdef struct Lines:
+    # half-planes, structure of arrays; ``use`` flags which lines a 1-D problem is clipped by
+    double *px
+    double *py
+    double *dx
+    double *dy
+    unsigned char *use
+
+
+cdef struct Target:
+    # what a linear program optimises: the point closest to (tx, ty), or with ``directional`` the
+    # point furthest along the unit direction (tx, ty); within the speed disk of ``radius``
+    double tx, ty, radius
+    bint directional
+
+
+cdef struct Other:
+    # a neighbour as the ORCA line sees it: position, velocity, radius, responsibility
+    double x, y, vx, vy, radius, c
+
+
+cdef struct Robot:
+    double x, y  # position
+    double vx, vy  # optimisation velocity (its last collision-free one)
+    double tx, ty  # preferred velocity
+    double radius
+    double vmax
+
+
+cdef struct Angle:
+    # the parts of V_H^max(theta) that depend on the angle only (NH-ORCA's closed forms)
+    bint turning
+    double t_eff, t_eff_s_half, k, v_s, v_s_sinc, v_s_omc2
+
+
+cdef struct Config:
+    double v_pref, k_a, v_max, tau, tau_obst, dt, margin, timeout, noise, committed
+    bint safety, diffdrive
+    double wheel_base, omega_cap, t_orient, error_min, error_max
+    int n_vertices
+    double cos_a[MAX_VERTICES]
+    double sin_a[MAX_VERTICES]
+    Angle terms[MAX_VERTICES]
+
+
+cdef class Settings:
+    """What every robot of a batch shares: the horizons, how neighbours heard late are grown, and
+    (differential drive) the shape of P_AHV. ``margin`` is added to every radius in the robot
+    lines; ``safety=False`` gives RVO2's program (no safety lines, least violation at the full
+    horizon)."""
+
+    cdef Config c
+
+    def __init__(self, params, *, safety=True, margin=None, timeout=None, noise=None, committed=None, horizons=None):
+        """From a RobotParams. Defaults as an agent steers: the holonomic robot lines keep the
+        tracking noise bound as margin (NH-ORCA's radii grow by the tracking error instead),
+        neighbours are stale after params.stale_after, grown by the noise bound, and a broadcast
+        velocity is committed for one period. ``horizons``: (tau, tau_obst, dt) other than the
+        params' (RVO2's simulator, agent.core.rvo)."""
+        cdef Config c
+        c.diffdrive = params.kinematics == "diffdrive"
+        c.v_pref, c.k_a, c.v_max = params.v_pref, params.k_a, params.v_max
+        c.tau, c.tau_obst, c.dt = (params.tau, params.tau_obst, params.dt) if horizons is None else horizons
+        c.margin = (0.0 if c.diffdrive else params.noise_bound) if margin is None else margin
+        c.timeout = params.stale_after if timeout is None else timeout
+        c.noise = params.noise_bound if noise is None else noise
+        c.committed = c.dt if committed is None else committed
+        c.safety = safety
+        c.wheel_base, c.t_orient = params.wheel_base, params.t_orient
+        c.omega_cap = min(params.omega_max, 2.0 * params.v_max / params.wheel_base)
+        c.error_min, c.error_max = params.error_min, params.error_max
+        angles = vertex_angles(c.t_orient * c.omega_cap)
+        c.n_vertices = len(angles)
+        for k, a in enumerate(angles):
+            c.cos_a[k], c.sin_a[k] = cos(a), sin(a)
+            c.terms[k] = _angle(&c, a)
+        self.c = c
+
+    @property
+    def diffdrive(self):
+        return self.c.diffdrive
+
+    @property
+    def v_max(self):
+        return self.c.v_max
+
+    @property
+    def omega_cap(self):
+        """The largest usable angular speed: omega_max, and no more than keeps a wheel within v_max."""
+        return self.c.omega_cap
+
+
+
+def vertex_angles(double dent, int n=N_VERTICES):
+    """Angles (to the heading) of P_AHV's vertices, increasing in (-pi, pi], denser ahead.
+
+    S_AHV is convex except for a dent where case C begins (|theta| = T omega_cap, ``dent``); that
+    angle is a vertex, so every edge is a chord of a convex arc of the boundary and lies in S_AHV."""
+    u = [-1.0 + 2.0 * k / n for k in range(1, n)]
+    angles = {math.pi * math.copysign(abs(x) ** 1.5, x) for x in u} | {math.pi}
+    if dent < math.pi:
+        angles |= {-dent, dent}
+    return sorted(angles)
+
+
+# ---------------------------------------------------------------- preferred velocity (eq. 9)
+
+
+cdef inline uint64_t _splitmix64(uint64_t x) noexcept nogil:
+    # integer hash (Steele et al.'s SplitMix64 finaliser), wrapping uint64 arithmetic
+    x = x + <uint64_t>0x9E3779B97F4A7C15
+    x = (x ^ (x >> 30)) * <uint64_t>0xBF58476D1CE4E5B9
+    x = (x ^ (x >> 27)) * <uint64_t>0x94D049BB133111EB
+    return x ^ (x >> 31)
+
+
+cdef inline void _perturbation(uint64_t robot, uint64_t seed, uint64_t tick, double magnitude, double *out) noexcept nogil:
+    cdef uint64_t key = _splitmix64(_splitmix64(robot ^ _splitmix64(seed)) + tick)
+    cdef double a = <double>(key >> 11) * 2.0**-53  # [0, 1)
+    cdef double b = <double>(_splitmix64(key) >> 11) * 2.0**-53
+    out[0] = (2.0 * a - 1.0) * magnitude
+    out[1] = (2.0 * b - 1.0) * magnitude
+
+
+cdef inline void _eq9(double ex, double ey, double v_pref, double k_a, double *out) noexcept nogil:
+    # speed V_p toward the goal, falling linearly within K_a of it (V_p / K_a exactly there); zero
+    # without a goal (NaN) or on it
+    cdef double dist = sqrt(ex * ex + ey * ey)
+    cdef double gain
+    if isfinite(dist) and dist > 0.0:
+        gain = v_pref / dist if dist > k_a else v_pref / k_a
+        out[0], out[1] = ex * gain, ey * gain
+    else:
+        out[0], out[1] = 0.0, 0.0
+
+
+def preferred_velocity(position, goal, double v_pref, double k_a):
+    """Paper eq. 9 for points (..., 2) toward goals (..., 2): speed V_p toward the goal, falling
+    linearly within K_a of it; zero without a goal (NaN)."""
+    p = np.ascontiguousarray(position, dtype=float)
+    g = np.ascontiguousarray(np.broadcast_to(np.asarray(goal, dtype=float), p.shape))
+    cdef const double[:, ::1] pv = p.reshape(-1, 2)
+    cdef const double[:, ::1] gv = g.reshape(-1, 2)
+    out = np.empty((pv.shape[0], 2))
+    cdef double[:, ::1] ov = out
+    cdef Py_ssize_t i
+    for i in range(pv.shape[0]):
+        _eq9(gv[i, 0] - pv[i, 0], gv[i, 1] - pv[i, 1], v_pref, k_a, &ov[i, 0])
+    return out.reshape(p.shape)
+
+
+def splitmix64(words):
+    """SplitMix64's finaliser of each uint64 word (an integer hash; wrapping arithmetic)."""
+    w = np.ascontiguousarray(np.asarray(words, dtype=np.uint64).reshape(-1))
+    out = np.empty_like(w)
+    cdef const uint64_t[::1] wv = w
+    cdef uint64_t[::1] ov = out
+    cdef Py_ssize_t i
+    for i in range(wv.shape[0]):
+        ov[i] = _splitmix64(wv[i])
+    return out.reshape(np.shape(words))
+
+
+def perturbation(robot_ids, seed, tick=0, double magnitude=PERTURBATION):
+    """The tiny vectors (B,2) added to non-zero preferred velocities: each component in
+    [-magnitude, magnitude], a function of (robot id, seed, tick) only, so that symmetric
+    configurations (head-on pairs, rings) stop being symmetric and every process agrees."""
+    ids = np.ascontiguousarray(np.asarray(robot_ids).reshape(-1).astype(np.uint64))
+    cdef const uint64_t[::1] iv = ids
+    cdef uint64_t s = seed % 2**64, t = tick % 2**64
+    out = np.empty((len(ids), 2))
+    cdef double[:, ::1] ov = out
+    cdef Py_ssize_t i
+    for i in range(iv.shape[0]):
+        _perturbation(iv[i], s, t, magnitude, &ov[i, 0])
+    return out
+
+
+def preferred_velocities(Settings settings, robot_ids, position, velocity, goal, given, seed, tick):
+    """A batch's preferred velocities (B,2): eq. 9 toward ``goal``, or the finite rows of ``given``
+    (an animation's eq. 27, a moving goal's feed-forward); turned 45 degrees right where the robot
+    wants to move but barely does (every robot applying the rule turns a standoff into a
+    roundabout); then the perturbation where not zero."""
+    cdef const double[:, ::1] p = np.ascontiguousarray(position, dtype=float)
+    cdef const double[:, ::1] v = np.ascontiguousarray(velocity, dtype=float)
+    cdef const double[:, ::1] g = np.ascontiguousarray(goal, dtype=float)
+    b = p.shape[0]
+    cdef const double[:, ::1] w = np.full((b, 2), np.nan) if given is None else np.ascontiguousarray(given, dtype=float)
+    cdef const uint64_t[::1] ids = np.ascontiguousarray(np.asarray(robot_ids).reshape(-1).astype(np.uint64))
+    cdef uint64_t seed_word = seed % 2**64, tick_word = tick % 2**64
+    out = np.empty((b, 2))
+    cdef double[:, ::1] o = out
+    cdef double want, x, y
+    cdef double d[2]
+    cdef Py_ssize_t i
+    cdef Config *s = &settings.c
+    for i in range(b):
+        _eq9(g[i, 0] - p[i, 0], g[i, 1] - p[i, 1], s.v_pref, s.k_a, &o[i, 0])
+        if isfinite(w[i, 0]) and isfinite(w[i, 1]):
+            o[i, 0], o[i, 1] = w[i, 0], w[i, 1]
+        x, y = o[i, 0], o[i, 1]
+        want = sqrt(x * x + y * y)
+        if want > 0.5 * s.v_pref and sqrt(v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1]) < 0.25 * want:
+            x, y = COS_RIGHT * x - SIN_RIGHT * y, SIN_RIGHT * x + COS_RIGHT * y
+        if x != 0.0 or y != 0.0:
+            _perturbation(ids[i], seed_word, tick_word, C_PERTURBATION, d)
+            x, y = x + d[0], y + d[1]
+        o[i, 0], o[i, 1] = x, y
+    return out
+
+
+# ---------------------------------------------------------------- the 2-D linear program (eq. 13-14)
+
+
+cdef inline bint _violates(Lines *L, int i, double x, double y, double by) noexcept nogil:
+    # does (x, y) lie more than ``by`` on the forbidden side of line i?
+    return L.dx[i] * (L.py[i] - y) - L.dy[i] * (L.px[i] - x) > by
+
+
+cdef bint _on_line(Lines *L, int i, int n, bint all_lines, Target *g, double *out) noexcept nogil:
+    """The optimum on line i within the disk and the lines j < n (those with ``use`` unless
+    ``all_lines``). False if line i holds no such point."""
+    cdef double pix = L.px[i], piy = L.py[i], dix = L.dx[i], diy = L.dy[i]
+    cdef double dot = pix * dix + piy * diy
+    cdef double disc = dot * dot + g.radius * g.radius - (pix * pix + piy * piy)
+    cdef bint ok = disc >= 0.0
+    cdef double sq = sqrt(disc if disc > 0.0 else 0.0)
+    cdef double t_left = -dot - sq, t_right = -dot + sq, den, num, t, t_best
+    cdef int j
+    for j in range(n):
+        if not all_lines and not L.use[j]:
+            continue
+        den = dix * L.dy[j] - diy * L.dx[j]
+        num = L.dx[j] * (piy - L.py[j]) - L.dy[j] * (pix - L.px[j])
+        if fabs(den) <= C_EPSILON:  # parallel: line j empties line i if i lies on its forbidden side
+            if num < 0.0:
+                ok = False
+            continue
+        t = num / den
+        if den > 0.0:
+            t_right = t if t < t_right else t_right
+        else:
+            t_left = t if t > t_left else t_left
+    ok = ok and t_left <= t_right
+    if g.directional:
+        t_best = t_right if g.tx * dix + g.ty * diy > 0.0 else t_left
+    else:
+        t_best = dix * (g.tx - pix) + diy * (g.ty - piy)
+        t_best = t_left if t_best < t_left else t_best
+        t_best = t_right if t_best > t_right else t_best
+    out[0], out[1] = pix + t_best * dix, piy + t_best * diy
+    return ok
+
+
+cdef inline void _disk_optimum(Target *g, double *out) noexcept nogil:
+    # the optimum over the speed disk alone: the target clipped to it, or its furthest point along it
+    cdef double n2 = g.tx * g.tx + g.ty * g.ty, scale
+    if g.directional:
+        out[0], out[1] = g.tx * g.radius, g.ty * g.radius
+    elif n2 > g.radius * g.radius:
+        scale = g.radius / sqrt(n2)
+        out[0], out[1] = g.tx * scale, g.ty * scale
+    else:
+        out[0], out[1] = g.tx, g.ty
+
+
+cdef bint _optimise(Lines *L, int n, Target *g, double *out) noexcept nogil:
+    """RVO2's linearProgram2 over lines 0..n-1, incrementally: where the optimum so far violates a
+    line, the new one lies on it. False at the first line that cannot be met (``out`` then holds
+    the optimum over the lines before it)."""
+    cdef double at[2]
+    cdef int i
+    _disk_optimum(g, out)
+    for i in range(n):
+        if _violates(L, i, out[0], out[1], 0.0):
+            if not _on_line(L, i, i, True, g, at):
+                return False
+            out[0], out[1] = at[0], at[1]
+    return True
+
+
+cdef bint _optimise_few(Lines *L, int n, Target *g, double *out) noexcept nogil:
+    """The optimum over the lines 0..n-1 with ``use`` and the disk, where it is known to lie on one
+    of the lines the disk's optimum violates: the best of their 1-D optima (ties to the first)."""
+    cdef double at[2]
+    cdef double best_cost = INFINITY, cost, ex, ey, cx, cy
+    cdef bint violated = False, good = False
+    cdef int c
+    _disk_optimum(g, out)
+    cx, cy = out[0], out[1]
+    for c in range(n):
+        if not L.use[c] or not _violates(L, c, cx, cy, 0.0):
+            continue
+        violated = True
+        if not _on_line(L, c, n, False, g, at):
+            continue
+        if g.directional:
+            cost = -(g.tx * at[0] + g.ty * at[1])
+        else:
+            ex, ey = at[0] - g.tx, at[1] - g.ty
+            cost = ex * ex + ey * ey
+        if cost < best_cost:
+            out[0], out[1], best_cost, good = at[0], at[1], cost, True
+    if not violated:
+        return True
+    if not good:
+        out[0], out[1] = cx, cy
+    return good
+
+
+cdef void _least_violation(Lines *L, Lines *Q, int n, int n_hard, Target *g, double *out) noexcept nogil:
+    """RVO2's linearProgram3: keep the first n_hard lines (all soft if they leave nothing of the
+    disk), minimise the largest violation of the others. Each violated soft line gives a 2-D
+    program over the hard lines and the bisectors with the earlier soft lines, maximising the
+    distance into it. ``Q``: scratch for those lines; L.use marks the hard lines."""
+    cdef int i, j
+    cdef double distance = 0.0, pix, piy, dix, diy, den, t, ex, ey, norm
+    cdef double at[2]
+    cdef bint par
+    cdef Target into
+    for i in range(n):
+        L.use[i] = i < n_hard
+    if not _optimise_few(L, n, g, out):
+        for i in range(n):
+            L.use[i] = False
+    for i in range(n):
+        if L.use[i] or not _violates(L, i, out[0], out[1], distance):
+            continue
+        pix, piy, dix, diy = L.px[i], L.py[i], L.dx[i], L.dy[i]
+        for j in range(i):  # the hard lines, and the bisectors with the earlier soft lines
+            if L.use[j]:
+                Q.px[j], Q.py[j], Q.dx[j], Q.dy[j], Q.use[j] = L.px[j], L.py[j], L.dx[j], L.dy[j], True
+                continue
+            den = dix * L.dy[j] - diy * L.dx[j]
+            par = fabs(den) <= C_EPSILON
+            Q.use[j] = not (par and dix * L.dx[j] + diy * L.dy[j] > 0.0)  # same direction: i dominates
+            if par:
+                Q.px[j], Q.py[j] = 0.5 * (pix + L.px[j]), 0.5 * (piy + L.py[j])
+            else:
+                t = (L.dx[j] * (piy - L.py[j]) - L.dy[j] * (pix - L.px[j])) / den
+                Q.px[j], Q.py[j] = pix + t * dix, piy + t * diy
+            ex, ey = L.dx[j] - dix, L.dy[j] - diy
+            norm = sqrt(ex * ex + ey * ey)
+            norm = norm if norm > 0.0 else 1.0
+            Q.dx[j], Q.dy[j] = ex / norm, ey / norm
+        into = Target(-diy, dix, g.radius, True)  # line i's left normal: into its half-plane
+        if _optimise_few(Q, i, &into, at):
+            out[0], out[1] = at[0], at[1]
+        distance = dix * (piy - out[1]) - diy * (pix - out[0])
+
+
+# ---------------------------------------------------------------- ORCA lines (eq. 10-12)
+
+
+cdef inline void _orca_line(Robot *me, Other *o, double tau, double dt, double *line) noexcept nogil:
+    """The ORCA half-plane toward one neighbour: u is the smallest change of the relative velocity
+    that leaves the velocity obstacle of horizon tau (truncated cone, eq. 10), the line passes
+    through v_opt + c u, normal to the obstacle's boundary. An overlapping pair takes the cut-off
+    circle of horizon dt: it separates within one control period."""
+    cdef double rpx = o.x - me.x, rpy = o.y - me.y, rvx = me.vx - o.vx, rvy = me.vy - o.vy
+    cdef double dist2 = rpx * rpx + rpy * rpy
+    cdef double big_r = me.radius + o.radius
+    cdef double big_r2 = big_r * big_r
+    cdef bint apart = dist2 > big_r2
+    cdef double inv_h = 1.0 / tau if apart else 1.0 / dt
+    cdef double wx = rvx - inv_h * rpx, wy = rvy - inv_h * rpy
+    cdef double w2 = wx * wx + wy * wy, dot1 = wx * rpx + wy * rpy
+    cdef double wl, ux, uy, scale, leg, inv_d2, ldx, ldy, dot2
+    if not apart or (dot1 < 0.0 and dot1 * dot1 > big_r2 * w2):  # the cut-off circle
+        wl = sqrt(w2)
+        if wl == 0.0:
+            ux, uy = 1.0, 0.0
+        else:
+            ux, uy = wx / wl, wy / wl
+        scale = big_r * inv_h - wl
+        line[0], line[1], line[2], line[3] = me.vx + o.c * (scale * ux), me.vy + o.c * (scale * uy), uy, -ux
+        return
+    leg = sqrt(dist2 - big_r2 if dist2 > big_r2 else 0.0)  # a leg of the cone
+    if not rpx * wy - rpy * wx > 0.0:
+        leg = -leg
+    inv_d2 = 1.0 / (dist2 if dist2 > 0.0 else 1.0)
+    ldx = (rpx * leg - rpy * big_r) * inv_d2
+    ldy = (rpy * leg + rpx * big_r) * inv_d2
+    dot2 = rvx * ldx + rvy * ldy
+    line[0], line[1] = me.vx + o.c * (dot2 * ldx - rvx), me.vy + o.c * (dot2 * ldy - rvy)
+    line[2], line[3] = ldx, ldy
+
+
+cdef inline double _obstacle_line(Robot *me, double radius, const double *seg, double tau_obst,
+                                  double *line) noexcept nogil:
+    """Keep ``radius`` from the edge for tau_obst: with q the edge's point closest to the robot, n
+    the unit vector from q to it and d their distance, v.n >= -(d - r)/tau_obst (an overlapping
+    robot may only move away). Returns that bound's size, (d - r)/tau_obst (0 if overlapping)."""
+    cdef double ax = seg[0], ay = seg[1], ex = seg[2] - seg[0], ey = seg[3] - seg[1]
+    cdef double len2 = ex * ex + ey * ey
+    cdef double t = ((me.x - ax) * ex + (me.y - ay) * ey) / (len2 if len2 > 0.0 else 1.0)
+    t = 0.0 if t < 0.0 else (1.0 if t > 1.0 else t)
+    cdef double nx = me.x - (ax + t * ex), ny = me.y - (ay + t * ey)
+    cdef double d = sqrt(nx * nx + ny * ny), el, offset
+    if d == 0.0:  # centre on the edge: the free side is on its right
+        el = sqrt(len2 if len2 > 0.0 else 1.0)
+        nx, ny = ey / el, -ex / el
+    else:
+        nx, ny = nx / d, ny / d
+    offset = d - radius
+    offset = (offset if offset > 0.0 else 0.0) / tau_obst
+    line[0], line[1], line[2], line[3] = -nx * offset, -ny * offset, ny, -nx
+    return offset
+
+
+cdef inline bint _needed(double *line, double vmax) noexcept nogil:
+    # a line the whole speed disk satisfies changes nothing: min over the disk of det(d, v - p) is
+    # -vmax - det(d, p)
+    return line[2] * line[1] - line[3] * line[0] > -vmax
+
+
+cdef inline int _push(Lines *L, int n, double *line, double vmax) noexcept nogil:
+    if _needed(line, vmax):
+        L.px[n], L.py[n], L.dx[n], L.dy[n] = line[0], line[1], line[2], line[3]
+        return n + 1
+    return n
+
+
+# ---------------------------------------------------------------- one robot
+
+
+cdef struct Scratch:
+    # one robot's neighbours as prepared, and its lines: reused robot after robot
+    int m
+    double *nx
+    double *ny
+    double *nvx
+    double *nvy
+    double *nr  # radius as grown (body, noise, growth; NH-ORCA: and the neighbour's error)
+    double *ng  # growth: how far it may have strayed since its state
+    double *nc  # responsibility
+    double *nlead  # s further along its velocity to where it most likely is
+    unsigned char *nok
+    Lines L
+    Lines Q
+
+
+cdef struct Neighbourhood:
+    # what a batch heard, (B,M) row-major: states as broadcast, with their ages
+    Py_ssize_t m
+    const double *position
+    const double *velocity
+    const double *radius
+    const double *age
+    const unsigned char *valid
+    const unsigned char *cooperative
+
+
+cdef struct Edges:
+    # obstacle edges shared by the batch: n x (ax, ay, bx, by)
+    int n
+    const double *xy
+
+
+cdef class Work:
+    """Owns a Scratch for M neighbours and up to ``size`` lines."""
+
+    cdef Scratch s
+    cdef double *block
+    cdef unsigned char *flags
+
+    def __cinit__(self, int m, int size):
+        self.block = <double *>malloc(sizeof(double) * (8 * m + 8 * size + 1))
+        self.flags = <unsigned char *>malloc(m + 2 * size + 1)
+        if self.block == NULL or self.flags == NULL:
+            raise MemoryError()
+        cdef double *b = self.block
+        self.s.m = m
+        self.s.nx, self.s.ny, self.s.nvx, self.s.nvy = b, b + m, b + 2 * m, b + 3 * m
+        self.s.nr, self.s.ng, self.s.nc, self.s.nlead = b + 4 * m, b + 5 * m, b + 6 * m, b + 7 * m
+        self.s.nok = self.flags
+        b = b + 8 * m
+        self.s.L = Lines(b, b + size, b + 2 * size, b + 3 * size, self.flags + m)
+        b = b + 4 * size
+        self.s.Q = Lines(b, b + size, b + 2 * size, b + 3 * size, self.flags + m + size)
+
+    def __dealloc__(self):
+        free(self.block)
+        free(self.flags)
+
+
+cdef const double *_data(const double[::1] flat):
+    return &flat[0] if flat.shape[0] else NULL
+
+
+cdef const unsigned char *_flags(const unsigned char[::1] flat):
+    return &flat[0] if flat.shape[0] else NULL
+
+
+cdef class Heard:
+    """What a batch heard: neighbours' states (B,M) as broadcast, with their ages."""
+
+    cdef Neighbourhood n
+    cdef object arrays  # kept alive: n points into them
+
+    def __init__(self, states):
+        """From agent.core.step.NeighbourStates (or anything with its six arrays)."""
+        valid = np.ascontiguousarray(states.valid, dtype=bool)
+        b, m = valid.shape
+        floats = [np.ascontiguousarray(x, dtype=float).reshape(-1) for x in (states.position, states.velocity, states.radius, states.age)]
+        flags = [valid.reshape(-1).view(np.uint8), np.ascontiguousarray(np.broadcast_to(states.cooperative, (b, m)), dtype=bool).reshape(-1).view(np.uint8)]
+        if any(len(x) != k * b * m for x, k in zip(floats, (2, 2, 1, 1))):
+            raise ValueError("neighbour states must be (B,M,2), (B,M,2), (B,M) and (B,M) arrays")
+        self.arrays = (floats, flags)
+        self.n = Neighbourhood(m, _data(floats[0]), _data(floats[1]), _data(floats[2]), _data(floats[3]), _flags(flags[0]), _flags(flags[1]))
+
+    @property
+    def batch(self):
+        return len(self.arrays[1][0]) // self.n.m if self.n.m else -1
+
+
+cdef class Obstacles:
+    """Obstacle edges (S,2,2) as the core reads them."""
+
+    cdef Edges e
+    cdef object xy
+
+    def __init__(self, segments=None):
+        self.xy = np.zeros(0) if segments is None else np.ascontiguousarray(segments, dtype=float).reshape(-1)
+        if len(self.xy) % 4:
+            raise ValueError("obstacle segments must be an (S,2,2) array")
+        self.e = Edges(len(self.xy) // 4, _data(self.xy))
+
+
+cdef void _prepare(Config *s, Neighbourhood *h, Py_ssize_t i, Scratch *w, double vmax) noexcept nogil:
+    """Neighbour states as of now from states stamped ``age`` ago. Fresh: a broadcast velocity is
+    executed for ``committed`` s; after that the neighbour may have turned to anything up to vmax, so
+    its position is extrapolated by min(age, committed) and its radius grown by noise + h vmax, h the
+    rest of the age; most likely it kept going (``lead`` = h, for the robot lines). Stale (older
+    than ``timeout``): not extrapolated, grown by twice the reach, responsibility 1: we avoid it
+    alone. Invalid where flagged or not finite (a negative age, from clock skew, is 0)."""
+    cdef Py_ssize_t k, j
+    cdef double x, y, u, v, r, age, horizon, shift
+    cdef bint ok, stale
+    for k in range(w.m):
+        j = i * h.m + k
+        x, y = h.position[2 * j], h.position[2 * j + 1]
+        u, v = h.velocity[2 * j], h.velocity[2 * j + 1]
+        r, age = h.radius[j], h.age[j]
+        age = age if age > 0.0 else 0.0
+        ok = h.valid[j] and isfinite(x) and isfinite(y) and isfinite(u) and isfinite(v) and isfinite(r) and isfinite(age)
+        stale = age > s.timeout
+        horizon = (s.timeout if stale else age) - s.committed
+        horizon = horizon if horizon > 0.0 else 0.0
+        shift = 0.0 if stale else age - horizon
+        if not ok:
+            x, y, u, v, r, horizon = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        w.nx[k], w.ny[k] = x + shift * u, y + shift * v
+        w.nvx[k], w.nvy[k] = u, v
+        w.ng[k] = horizon * (2.0 if stale else 1.0) * vmax
+        w.nr[k] = r + s.noise + w.ng[k]
+        w.nlead[k] = horizon if not stale else 0.0
+        w.nc[k] = C_COOPERATING if h.cooperative[j] and not stale else C_NON_COOPERATING
+        w.nok[k] = ok
+
+
+cdef int _hard_lines(Config *s, Scratch *w, Robot *me, Edges *edges, Lines *extra, int n_extra) noexcept nogil:
+    """The lines kept in every fallback: obstacle edges (own radius and margin), ``extra`` (P_AHV),
+    then the safety lines: horizon dt around zero velocities with the true radii, a neighbour grown
+    only up to our surface (grown over us, several such lines would have no common solution).
+    Returns how many."""
+    cdef Lines *L = &w.L
+    cdef double line[4]
+    cdef double own = me.radius * BUFFER, r_obst = (me.radius + s.margin) * BUFFER
+    cdef double ex, ey, dist, limit, gap
+    cdef int n = 0, k
+    cdef Robot still = me[0]
+    cdef Other o
+    for k in range(edges.n):
+        if _obstacle_line(me, r_obst, edges.xy + 4 * k, s.tau_obst, line) < me.vmax:
+            n = _push(L, n, line, me.vmax)
+    for k in range(n_extra):
+        line[0], line[1], line[2], line[3] = extra.px[k], extra.py[k], extra.dx[k], extra.dy[k]
+        n = _push(L, n, line, me.vmax)
+    if not s.safety:
+        return n
+    still.vx, still.vy, still.radius = 0.0, 0.0, own
+    for k in range(w.m):
+        if not w.nok[k]:
+            continue
+        ex, ey = w.nx[k] - me.x, w.ny[k] - me.y
+        dist = sqrt(ex * ex + ey * ey)
+        o = Other(w.nx[k], w.ny[k], w.nvx[k], w.nvy[k], w.nr[k] * BUFFER, w.nc[k])
+        limit = dist * (1.0 - 1e-9) - own
+        o.radius = min(o.radius, max(limit, o.radius - w.ng[k] * BUFFER))
+        gap = dist - (own + o.radius)
+        if o.c < 1.0:  # a cooperating robot: only one that could touch us within dt, at rest
+            if not gap < 2.0 * s.dt * me.vmax:
+                continue
+            o.vx, o.vy = 0.0, 0.0
+        _orca_line(&still, &o, s.dt, s.dt, line)
+        n = _push(L, n, line, me.vmax)
+    return n
+
+
+cdef int _robot_lines(Config *s, Scratch *w, Robot *me, double horizon, int start) noexcept nogil:
+    """The ORCA lines toward the neighbours at ``horizon``, after the hard ones: a neighbour heard
+    late where it most likely is, its body not grown (the safety lines keep us off where it may
+    have strayed); ``margin`` on both radii. Returns the new count."""
+    cdef Robot grown = me[0]
+    cdef double line[4]
+    cdef double lead, left
+    cdef int n = start, k
+    cdef Other o
+    grown.radius = me.radius + s.margin
+    for k in range(w.m):
+        if not w.nok[k]:
+            continue
+        lead = w.nlead[k] if s.safety else 0.0
+        left = w.ng[k] if s.safety else 0.0
+        o = Other(w.nx[k] + lead * w.nvx[k], w.ny[k] + lead * w.nvy[k], w.nvx[k], w.nvy[k],
+                  w.nr[k] - left + s.margin, w.nc[k])
+        _orca_line(&grown, &o, horizon, s.dt, line)
+        n = _push(&w.L, n, line, me.vmax)
+    return n
+
+
+cdef bint _orca(Config *s, Scratch *w, Robot *me, Edges *edges, Lines *extra, int n_extra, bint full_only,
+                double *out) noexcept nogil:
+    """Eq. 14 for one robot: the velocity closest to its preferred one in every half-plane. Where
+    infeasible (returns True: a fallback) the horizon shrinks by SHRINK down to dt (paper 5.3),
+    then the largest violation of the robot lines is minimised keeping the hard ones; without
+    safety, RVO2's: least violation at the full horizon. ``full_only``: stop after the full
+    horizon (``out`` is then meaningful only where it returns False)."""
+    cdef Target g = Target(me.tx, me.ty, me.vmax, False)
+    cdef int n_hard = _hard_lines(s, w, me, edges, extra, n_extra)
+    cdef int n = _robot_lines(s, w, me, s.tau, n_hard)
+    cdef double horizon = s.tau
+    cdef int k
+    if _optimise(&w.L, n, &g, out):
+        return False
+    if full_only:
+        return True
+    while s.safety and horizon > s.dt:
+        horizon = max(horizon / SHRINK, s.dt)
+        n = _robot_lines(s, w, me, horizon, n_hard)
+        for k in range(n):
+            w.L.use[k] = True
+        if _optimise_few(&w.L, n, &g, out):
+            return True
+    _least_violation(&w.L, &w.Q, n, n_hard, &g, out)
+    return True
+
+
+# ---------------------------------------------------------------- NH-ORCA (paper 5.4)
+
+
+cdef Angle _angle(Config *s, double theta) noexcept nogil:
+    cdef Angle t
+    cdef double a = fabs(theta), a_safe, s_half, omc
+    t.t_eff = a / s.omega_cap if a > s.t_orient * s.omega_cap else s.t_orient
+    t.v_s = max(s.v_max - (a / t.t_eff) * (0.5 * s.wheel_base), 0.0)
+    t.turning = a > 1e-8
+    a_safe = a if t.turning else 1.0
+    s_half = sin(0.5 * a_safe)
+    t.k = 0.5 * a_safe * cos(0.5 * a_safe) / s_half if t.turning else 1.0
+    t.t_eff_s_half = t.t_eff * s_half
+    t.v_s_sinc = t.v_s * (sin(a_safe) / a_safe if t.turning else 1.0)
+    omc = t.v_s * ((1.0 - cos(a_safe)) / a_safe if t.turning else 0.0)
+    t.v_s_omc2 = omc * omc
+    return t
+
+
+cdef double _speed_bound(Angle *t, double error, double v_max) noexcept nogil:
+    """V_H^max: the largest holonomic speed at this angle trackable within ``error``. Case A (the
+    error-minimising speed reachable): E / (T |sin(th/2)|); case B (the speed saturated at v_s): the
+    larger root of E(v_s)^2 = E^2; case C (|th|/T beyond omega_cap): T = |th|/omega_cap. Then v_max."""
+    cdef double v_a = error / t.t_eff_s_half if t.turning else INFINITY
+    cdef double q, root, v
+    if v_a * t.k > t.v_s:
+        q = error / t.t_eff
+        root = q * q - t.v_s_omc2
+        v = t.v_s_sinc + sqrt(root if root > 0.0 else 0.0)
+    else:
+        v = v_a
+    return v if v < v_max else v_max
+
+
+cdef int _polygon(Config *s, double c, double si, double error, double mirror, Lines *P) noexcept nogil:
+    """P_AHV's edges as lines (``mirror`` -1: the mirrored polygon, driving backwards): V_H^max at
+    each vertex angle to the heading (cos c, sin si), counter-clockwise. Returns how many."""
+    cdef double vx[MAX_VERTICES]
+    cdef double vy[MAX_VERTICES]
+    cdef double r, lx, ly, ex, ey, norm
+    cdef int k, nxt, n = 0
+    for k in range(s.n_vertices):
+        r = _speed_bound(&s.terms[k], error, s.v_max)
+        lx, ly = r * s.cos_a[k], r * s.sin_a[k]
+        vx[k], vy[k] = mirror * (c * lx - si * ly), mirror * (si * lx + c * ly)
+    for k in range(s.n_vertices):
+        nxt = (k + 1) % s.n_vertices
+        ex, ey = vx[nxt] - vx[k], vy[nxt] - vy[k]
+        norm = sqrt(ex * ex + ey * ey)
+        if norm > 0.0:
+            P.px[n], P.py[n], P.dx[n], P.dy[n] = vx[k], vy[k], ex / norm, ey / norm
+            n += 1
+    return n
+
+
+cdef double _tracking_error(Config *s, Scratch *w, Robot *me) noexcept nogil:
+    """E: half the free gap to the nearest neighbour, within [error_min, error_max]; each neighbour's
+    radius grows by its own bound from our side (both robots of a pair follow the rule, so the
+    inflated disks stay apart whenever the gap is at least 2 error_min)."""
+    cdef double error = s.error_max, ex, ey, half
+    cdef int k
+    for k in range(w.m):
+        ex, ey = w.nx[k] - me.x, w.ny[k] - me.y
+        half = 0.5 * (sqrt(ex * ex + ey * ey) - (me.radius + w.nr[k]))
+        half = s.error_min if half < s.error_min else (s.error_max if half > s.error_max else half)
+        if w.nok[k] and half < error:
+            error = half
+        w.nr[k] += half
+    return error
+
+
+cdef inline double _min_error_speed(double v_h, double theta) noexcept nogil:
+    # v*_E = v_H (th/2) cot(th/2), the linear speed that minimises the tracking error (-> v_H at 0)
+    cdef double half = 0.5 * fabs(theta)
+    return v_h * (half / tan(half)) if half > 1e-8 else v_h
+
+
+cdef void _controls(Config *s, double vx, double vy, double c, double si, bint reverse, double *out) noexcept nogil:
+    """(v, omega) tracking the holonomic velocity: omega = sign(th) min(|th|/T, omega_cap), v the
+    error-minimising speed v*_E = v_H (th/2) cot(th/2) within v_max - |omega| l_w/2; th the angle
+    from the heading (from the reversed heading, and v negated, where ``reverse``)."""
+    cdef double hx = -c if reverse else c, hy = -si if reverse else si
+    cdef double speed = sqrt(vx * vx + vy * vy)
+    cdef double theta = atan2(hx * vy - hy * vx, hx * vx + hy * vy) if speed > 0.0 else 0.0
+    cdef double omega = copysign(min(fabs(theta) / s.t_orient, s.omega_cap), theta)
+    cdef double v = max(0.0, min(_min_error_speed(speed, theta), s.v_max - fabs(omega) * (0.5 * s.wheel_base)))
+    out[0], out[1] = (-v if reverse else v), omega
+
+
+cdef struct Result:
+    double vx, vy  # v_cf, the collision-free holonomic velocity (broadcast, next tick's v_opt)
+    double c0, c1  # the command: v_cf, or the wheel speeds (left, right)
+    double error  # NH-ORCA's tracking error E
+    bint fallback  # infeasible at the full horizon
+    bint reverse  # NH-ORCA: the mirrored polygon, driving backwards
+
+
+cdef Result _nh_orca(Config *s, Scratch *w, Robot *me, double heading, Edges *edges) noexcept nogil:
+    """NH-ORCA: radii grown by the tracking error, P_AHV hard; where infeasible at the full horizon
+    the mirrored polygon (driving backwards) at the full horizon, else the forward fallback."""
+    cdef Result r
+    cdef Lines P = Lines(w.Q.px, w.Q.py, w.Q.dx, w.Q.dy, w.Q.use)  # the polygon, copied into L first
+    cdef double c = cos(heading), si = sin(heading)
+    cdef double forward[2]
+    cdef double back[2]
+    cdef double u[2]
+    cdef int n
+    r.error = _tracking_error(s, w, me)
+    r.reverse = False
+    me.radius += r.error
+    n = _polygon(s, c, si, r.error, 1.0, &P)
+    r.fallback = _orca(s, w, me, edges, &P, n, False, forward)
+    if r.fallback:
+        n = _polygon(s, c, si, r.error, -1.0, &P)
+        if not _orca(s, w, me, edges, &P, n, True, back):
+            forward[0], forward[1], r.reverse = back[0], back[1], True
+    r.vx, r.vy = forward[0], forward[1]
+    _controls(s, r.vx, r.vy, c, si, r.reverse, u)
+    r.c0, r.c1 = u[0] - u[1] * (0.5 * s.wheel_base), u[0] + u[1] * (0.5 * s.wheel_base)
+    return r
+
+
+# ---------------------------------------------------------------- batches
+
+
+cdef struct Rows:
+    # a batch's own rows: position, optimisation velocity, preferred velocity (B,2); per robot its
+    # heading, radius and maximum speed (B,)
+    Py_ssize_t b
+    const double *position
+    const double *velocity
+    const double *pref
+    const double *heading
+    const double *radius
+    const double *vmax
+
+
+cdef class Batch:
+    """A batch's own rows: position, optimisation velocity, preferred velocity (B,2), and per
+    robot its heading, radius and maximum speed (B,; a scalar for all; None: the settings' v_max)."""
+
+    cdef Rows r
+    cdef object arrays  # kept alive: r points into them
+
+    def __init__(self, position, velocity, pref, heading=None, radius=None, vmax=None):
+        p = np.ascontiguousarray(position, dtype=float).reshape(-1)
+        b = len(p) // 2
+        per_robot = [_per_robot(0.0 if x is None else x, b) for x in (heading, radius)] + [_per_robot(np.nan if vmax is None else vmax, b)]
+        rows = [p, np.ascontiguousarray(velocity, dtype=float).reshape(-1), np.ascontiguousarray(pref, dtype=float).reshape(-1)]
+        if len(rows[1]) != 2 * b or len(rows[2]) != 2 * b:
+            raise ValueError("position, velocity and preferred velocity must be (B,2) arrays of one B")
+        self.arrays = rows + per_robot
+        self.r = Rows(b, _data(rows[0]), _data(rows[1]), _data(rows[2]), _data(per_robot[0]), _data(per_robot[1]), _data(per_robot[2]))
+
+
+cdef _per_robot(value, Py_ssize_t b):
+    return np.ascontiguousarray(np.broadcast_to(np.asarray(value, dtype=float).reshape(-1), (b,)))
+
+
+cdef inline Robot _robot(Rows *rows, Py_ssize_t i, Config *s) noexcept nogil:
+    cdef double vmax = rows.vmax[i] if isfinite(rows.vmax[i]) else s.v_max
+    return Robot(rows.position[2 * i], rows.position[2 * i + 1], rows.velocity[2 * i], rows.velocity[2 * i + 1],
+                 rows.pref[2 * i], rows.pref[2 * i + 1], rows.radius[i], vmax)
+
+
+def step(Settings settings, Batch robots, heard, segments=None):
+    """One control step of a batch: each robot's collision-free velocity from what it heard
+    (agent.core.step.NeighbourStates (B,M), or a Heard of it) and the obstacle edges (S,2,2, or
+    Obstacles), shared by the batch. Returns (v_cf (B,2), command (B,2): v_cf, or a
+    differential-drive robot's wheel speeds (left, right), fallback (B,), reverse (B,), tracking
+    error (B,)). Without the GIL: the central engine's auction runs on another thread meanwhile."""
+    cdef Heard nb = heard if isinstance(heard, Heard) else Heard(heard)
+    cdef Obstacles obstacles = segments if isinstance(segments, Obstacles) else Obstacles(segments)
+    cdef Py_ssize_t b = robots.r.b, i
+    if nb.batch not in (b, -1):
+        raise ValueError(f"{nb.batch} rows of neighbour states for {b} robots")
+    cdef Work work = Work(nb.n.m, obstacles.e.n + MAX_VERTICES + 2 * nb.n.m)
+    out = np.zeros((b, 7))
+    cdef double[:, ::1] o = out
+    cdef Config *s = &settings.c
+    cdef Scratch *w = &work.s
+    cdef Robot me
+    cdef Result r
+    with nogil:
+        for i in range(b):
+            me = _robot(&robots.r, i, s)
+            _prepare(s, &nb.n, i, w, me.vmax)
+            if s.diffdrive:
+                r = _nh_orca(s, w, &me, robots.r.heading[i], &obstacles.e)
+            else:
+                r.fallback = _orca(s, w, &me, &obstacles.e, NULL, 0, False, &r.vx)
+                r.c0, r.c1, r.error, r.reverse = r.vx, r.vy, 0.0, False
+            o[i, 0], o[i, 1], o[i, 2], o[i, 3] = r.vx, r.vy, r.c0, r.c1
+            o[i, 4], o[i, 5], o[i, 6] = r.fallback, r.reverse, r.error
+    return out[:, 0:2].copy(), out[:, 2:4].copy(), out[:, 4] != 0, out[:, 5] != 0, out[:, 6].copy()
+
+
+def step_known(Settings settings, Batch robots, index, segments=None):
+    """RVO2's step (agent.core.rvo): robots that know each other perfectly. Each robot's neighbours
+    are the rows ``index`` (B,M) of the batch itself (-1: none), as they are now, cooperating, of
+    their own radius. Returns (v_cf (B,2), fallback (B,))."""
+    cdef const int64_t[:, ::1] idx = np.ascontiguousarray(index, dtype=np.int64).reshape(robots.r.b, -1)
+    cdef Obstacles obstacles = segments if isinstance(segments, Obstacles) else Obstacles(segments)
+    cdef Py_ssize_t b = robots.r.b, i, j
+    cdef int m = idx.shape[1], k
+    cdef Work work = Work(m, obstacles.e.n + 2 * m)
+    out, fallback = np.empty((b, 2)), np.zeros(b, bool)
+    cdef double[:, ::1] o = out
+    cdef unsigned char[::1] fb = fallback.view(np.uint8)
+    cdef Config *s = &settings.c
+    cdef Scratch *w = &work.s
+    cdef Rows *rows = &robots.r
+    cdef Robot me
+    with nogil:
+        for i in range(b):
+            me = _robot(rows, i, s)
+            for k in range(m):
+                j = idx[i, k]
+                w.nok[k] = j >= 0
+                j = j if j >= 0 else 0
+                w.nx[k], w.ny[k] = rows.position[2 * j], rows.position[2 * j + 1]
+                w.nvx[k], w.nvy[k] = rows.velocity[2 * j], rows.velocity[2 * j + 1]
+                w.nr[k], w.ng[k], w.nc[k], w.nlead[k] = rows.radius[j], 0.0, C_COOPERATING, 0.0
+            fb[i] = _orca(s, w, &me, &obstacles.e, NULL, 0, False, &o[i, 0])
+    return out, fallback
+
+
+# ---------------------------------------------------------------- the parts, for tests and figures
+
+
+def prepare_neighbours(Settings settings, heard, vmax=None):
+    """What ``step`` assumes about the neighbours it heard (B,M): (position (B,M,2), velocity
+    (B,M,2), radius (B,M) grown, growth (B,M), responsibility (B,M), lead (B,M), valid (B,M))."""
+    cdef Heard nb = heard if isinstance(heard, Heard) else Heard(heard)
+    cdef Py_ssize_t b = max(nb.batch, 0), i
+    cdef int m = nb.n.m, k
+    cdef Work work = Work(m, 1)
+    cdef Scratch *w = &work.s
+    out = np.empty((b, m, 9))
+    cdef double[:, :, ::1] o = out
+    for i in range(b):
+        _prepare(&settings.c, &nb.n, i, w, settings.c.v_max if vmax is None else vmax)
+        for k in range(m):
+            o[i, k, 0], o[i, k, 1], o[i, k, 2], o[i, k, 3] = w.nx[k], w.ny[k], w.nvx[k], w.nvy[k]
+            o[i, k, 4], o[i, k, 5], o[i, k, 6], o[i, k, 7], o[i, k, 8] = w.nr[k], w.ng[k], w.nc[k], w.nlead[k], w.nok[k]
+    return out[..., 0:2], out[..., 2:4], out[..., 4], out[..., 5], out[..., 6], out[..., 7], out[..., 8] != 0
+
+
+def orca_line(robot, neighbour, double tau, double dt):
+    """The ORCA line of a robot (x, y, vx, vy, radius) toward a neighbour (x, y, vx, vy, radius,
+    responsibility): (point x, point y, direction x, direction y)."""
+    cdef Robot me = Robot(robot[0], robot[1], robot[2], robot[3], 0.0, 0.0, robot[4], INFINITY)
+    cdef Other o = Other(neighbour[0], neighbour[1], neighbour[2], neighbour[3], neighbour[4], neighbour[5])
+    cdef double line[4]
+    _orca_line(&me, &o, tau, dt, line)
+    return (line[0], line[1], line[2], line[3])
+
+
+def obstacle_line(position, double radius, segment, double tau_obst):
+    """The half-plane keeping a robot ``radius`` from an obstacle edge ((ax, ay), (bx, by)) for
+    tau_obst: (point x, point y, direction x, direction y)."""
+    cdef Robot me = Robot(position[0], position[1], 0.0, 0.0, 0.0, 0.0, radius, INFINITY)
+    cdef const double[::1] seg = np.ascontiguousarray(segment, dtype=float).reshape(4)
+    cdef double line[4]
+    _obstacle_line(&me, radius, &seg[0], tau_obst, line)
+    return (line[0], line[1], line[2], line[3])
+
+
+def linear_program(lines, double vmax, target, int n_hard=0):
+    """Eq. 14 over lines (L,4) (point, unit direction; permissible on the left) and the speed disk:
+    (velocity (2,), fallback). Where infeasible, RVO2's fallback: the first ``n_hard`` lines stay
+    hard (all soft if they leave nothing of the disk), the largest violation of the others is
+    minimised."""
+    cdef const double[:, ::1] ln = np.ascontiguousarray(lines, dtype=float).reshape(-1, 4)
+    cdef int n = ln.shape[0], k
+    cdef Work work = Work(0, n + 1)
+    cdef Scratch *w = &work.s
+    for k in range(n):
+        w.L.px[k], w.L.py[k], w.L.dx[k], w.L.dy[k] = ln[k, 0], ln[k, 1], ln[k, 2], ln[k, 3]
+    cdef Target g = Target(target[0], target[1], vmax, False)
+    cdef double out[2]
+    if _optimise(&w.L, n, &g, out):
+        return np.array([out[0], out[1]]), False
+    _least_violation(&w.L, &w.Q, n, min(n_hard, n), &g, out)
+    return np.array([out[0], out[1]]), True
+
+
+def max_trackable_speed(Settings settings, theta, error):
+    """V_H^max(theta): the largest holonomic speed at angle theta to the heading that a
+    differential-drive robot tracks within ``error`` (the boundary of S_AHV), elementwise."""
+    th, er = np.broadcast_arrays(np.asarray(theta, dtype=float), np.asarray(error, dtype=float))
+    out = np.empty(th.shape)
+    cdef Angle a
+    for k, (x, e) in enumerate(zip(th.reshape(-1), er.reshape(-1))):
+        a = _angle(&settings.c, x)
+        out.reshape(-1)[k] = _speed_bound(&a, e, settings.c.v_max)
+    return out
+
+
+def min_error_speed(double v_h, double theta):
+    """v*_E = v_H (th/2) cot(th/2): the linear speed that minimises the tracking error of v_H at
+    angle theta to the heading (-> v_H as theta -> 0)."""
+    return _min_error_speed(v_h, theta)
+
+
+def tracking_error(Settings settings, robot, neighbours):
+    """NH-ORCA's tracking error E of a robot (x, y, radius) among neighbours (M,3) (x, y, radius),
+    and the bound of each neighbour's E from its side (M,)."""
+    table = np.ascontiguousarray(neighbours, dtype=float).reshape(-1, 3)
+    cdef int m = table.shape[0], k
+    cdef Work work = Work(m, 1)
+    cdef Scratch *w = &work.s
+    cdef Robot me = Robot(robot[0], robot[1], 0.0, 0.0, 0.0, 0.0, robot[2], settings.c.v_max)
+    for k in range(m):
+        w.nx[k], w.ny[k], w.nr[k], w.nok[k] = table[k, 0], table[k, 1], table[k, 2], True
+    error = _tracking_error(&settings.c, w, &me)
+    return error, np.array([w.nr[k] - table[k, 2] for k in range(m)])
+
+
+def ahv_polygon(Settings settings, double heading, double error, bint mirrored=False):
+    """P_AHV's edges as lines (K,4) in the world frame, counter-clockwise: V_H^max sampled at
+    vertex_angles to the heading."""
+    cdef Work work = Work(0, MAX_VERTICES)
+    cdef Lines *P = &work.s.L
+    cdef int n = _polygon(&settings.c, cos(heading), sin(heading), error, -1.0 if mirrored else 1.0, P), k
+    return np.array([[P.px[k], P.py[k], P.dx[k], P.dy[k]] for k in range(n)])
+
+
+def controls(Settings settings, velocity, double heading, bint reverse=False):
+    """(v, omega) of a differential-drive robot tracking the holonomic ``velocity`` (2,)."""
+    cdef double out[2]
+    _controls(&settings.c, velocity[0], velocity[1], cos(heading), sin(heading), reverse, out)
+    return out[0], out[1]
