@@ -134,7 +134,7 @@ def interpreter(robots: int) -> list[str]:
     memory that it never reads; and with -X no_debug_ranges, as its code's column positions are
     too (its tracebacks still name each file and line). Only where their optimised bytecode is
     compiled (make does it), as compiling them at every start would cost more than it saves; not
-    for hosts of many robots, which load numba (not compiled so) and would save little."""
+    for hosts of many robots, whose memory is mostly their robots' and would save little."""
     samples = (json.__file__, np.__file__, __file__)  # the standard library, numpy, ours
     compiled = all(os.path.exists(importlib.util.cache_from_source(f, optimization=2)) for f in samples)
     return [sys.executable, *(["-OO", "-X", "no_debug_ranges"] if compiled and robots == 1 else [])]

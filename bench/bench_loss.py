@@ -23,7 +23,7 @@ EXPLAIN = (
     "Antipodal circle (spacing 0.2 m, 25 s: past the crowd at the centre), tracking noise on. Each robot "
     "hears each neighbour's state of the tick before unless a seeded draw loses it or makes it one tick "
     "late (per sender and receiver; a robot uses the newest state it has, extrapolated and grown by its "
-    "age, agent.core.neighbours). Contacts and clearance from the world's true poses at its sub-steps. "
+    "age, agent.core.control). Contacts and clearance from the world's true poses at its sub-steps. "
     "Fallbacks: robot-ticks whose ORCA program was infeasible at the full horizon. Before the safety "
     "lines capped the growth from age at the robot's own surface (commit c139ca2), the same holonomic "
     "case touched in 5 of 8 seeds at 30% lost and 50% late."

@@ -12,7 +12,7 @@ run followed by a floor of its own (one thread), against which its CPU is set.
 
 ``--startup``: only the start-up of 50 agent processes, from launching `pixelswarm run` to the
 world's first tick, the code at ``--before REV`` beside the code at ``--after REV`` (each a fresh
-git worktree), alternating; the first run in each fresh tree (no bytecode, no numba cache yet) is
+git worktree), alternating; the first run in each fresh tree (no bytecode, no JIT cache yet) is
 reported apart. Written as the "Start-up" section of runtime.md, the rest kept.
 
     .venv/bin/python -m bench.bench_runtime [--quick] [--sizes 20,50,100] [--duration 20] [--repeat 1]
@@ -256,16 +256,20 @@ def startup_run(tree: Path, robots: int) -> dict:
 
 def clear_caches(tree: Path, suffixes: set[str]) -> None:
     """Delete the files of these suffixes in the tree's __pycache__ folders (.pyc: bytecode;
-    .nbi/.nbc: numba's on-disk cache)."""
+    .nbi/.nbc: the on-disk cache of numba, which revisions before the compiled core used)."""
     for f in tree.rglob("__pycache__/*"):
         if f.suffix in suffixes:
             f.unlink()
 
 
 def worktree(rev: str, where: Path) -> str:
-    """A fresh detached git worktree of ``rev`` at ``where``; its short commit. Its code, not this
-    checkout's, is what runs from it (the children start from the launcher's folder)."""
+    """A fresh detached git worktree of ``rev`` at ``where``, its compiled core built (where it has
+    one: setup.py); its short commit. Its code, not this checkout's, is what runs from it (the
+    children start from the launcher's folder)."""
     subprocess.run(["git", "worktree", "add", "--detach", str(where), rev], cwd=REPO, check=True, capture_output=True)
+    if (where / "setup.py").exists():
+        build = [sys.executable, "setup.py", "build_ext", "--inplace", "-q"]
+        subprocess.run(build, cwd=where, check=True, capture_output=True)
     found = subprocess.run(
         [sys.executable, "-B", "-c", "import agent, sim; print(agent.__file__, sim.__file__)"],
         cwd=where,
@@ -281,7 +285,7 @@ def worktree(rev: str, where: Path) -> str:
 
 
 # After the alternating runs, one run of each tree without one of its on-disk caches.
-NO_CACHE = [("no numba cache (bytecode kept)", {".nbi", ".nbc"}), ("no bytecode (numba cache kept)", {".pyc"})]
+NO_CACHE = [("no JIT cache (bytecode kept)", {".nbi", ".nbc"}), ("no bytecode (JIT cache kept)", {".pyc"})]
 
 
 def startup(before: str, after: str, pairs: int, robots: int) -> list[str]:
@@ -333,8 +337,8 @@ def startup(before: str, after: str, pairs: int, robots: int) -> list[str]:
         "after alternating. Seconds from launching the command to what the run's log (log.mcap, the launcher's "
         "recorder) heard: the coordinator alive, the world alive, the last agent alive, the world's first tick "
         "(its first truth message: the world ticks once every agent is alive, and an agent comes alive once it "
-        "heard the world). A fresh tree's first run also writes the project's bytecode (__pycache__/*.pyc) and "
-        "the world's numba cache (*.nbi, *.nbc; agents load no numba); later runs read both. The last two runs "
+        "heard the world). A fresh tree's first run also writes the project's bytecode (__pycache__/*.pyc) and, "
+        "in revisions before the compiled core, the world's numba cache (*.nbi, *.nbc); later runs read both. The last two runs "
         "of each tree go without one of them. '-': never reached (end: the run's end_reason). Load avg: the "
         "machine's 1-minute load before the run (a shared machine; it still counts the previous run's processes).",
     ]

@@ -5,7 +5,7 @@ tick k + 1, as over the bus in lock-step, so with no impairment a central run an
 one seed are the same run. Impairment is a property of the link: a seeded draw per (receiver, sender)
 and tick loses a state (``drop``) or makes it a tick late (``late``), as an agent under
 ``--faults state:drop=P,delay=S`` lives with; each receiver keeps the newest state it heard of each
-sender and steers by its age (agent.core.neighbours). A communication range (``reach``) limits whom a
+sender and steers by its age (agent.core.control). A communication range (``reach``) limits whom a
 robot hears: states only of robots whose last known position is within it (as the agents' own
 neighbour query), and the auction only from robots within it (agent.core.local_auction).
 """

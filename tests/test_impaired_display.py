@@ -2,7 +2,7 @@
 
 The in-process link plays the bus's impairment deterministically: 20 % of states lost, the rest a
 tick late (a 100 ms delay at 10 Hz). A neighbour's uncertainty grows only as far as it can have
-driven since its committed period (agent.core.neighbours), so impairment costs time, not the picture.
+driven since its committed period (agent.core.control), so impairment costs time, not the picture.
 """
 
 from __future__ import annotations
