@@ -41,6 +41,7 @@ more rounds of one or two bidders):
 
 from libc.math cimport INFINITY, NAN, fabs, sqrt
 from libc.stdint cimport int64_t, uint8_t, uint64_t
+from libc.string cimport memcpy
 
 import numpy as np
 
@@ -607,13 +608,14 @@ cdef inline uint64_t splitmix64(uint64_t x) noexcept nogil:
 def board_digest(const double[::1] price, const int64_t[::1] owner, const uint8_t[::1] released) -> int:
     """64 bits that tell boards apart: each word of (price, owner, released) hashed with its place,
     XOR-folded (hashlib would load OpenSSL into every agent process)."""
-    cdef uint64_t folded = 0, place = 0
+    cdef uint64_t folded = 0, place = 0, bits
     cdef Py_ssize_t j, g = price.shape[0]
     cdef double p
     with nogil:
         for j in range(g):
             p = price[j]
-            folded ^= splitmix64((<uint64_t*>&p)[0] ^ splitmix64(place))
+            memcpy(&bits, &p, sizeof(bits))  # the float's bits (a cast would break strict aliasing)
+            folded ^= splitmix64(bits ^ splitmix64(place))
             place += 1
         for j in range(g):
             folded ^= splitmix64(<uint64_t>owner[j] ^ splitmix64(place))
