@@ -28,7 +28,7 @@ import psutil
 
 from agent.core.params import RobotParams
 
-from .bench_runtime import worktree
+from .bench_runtime import worktree_at
 from .common import REPO, write_results
 
 BEFORE = "2f61ee4"  # main before this branch: the code without its per-tick work outside the control step
@@ -167,26 +167,20 @@ def main() -> None:
         "|---|---|---|---|---|---|",
     ]
     figures: dict[str, list[float]] = {"before": [], "after": []}
-    with tempfile.TemporaryDirectory() as tmp:
-        old = Path(tmp) / "before"
-        worktree(before_rev, old)
+    with worktree_at(before_rev) as (old, _):
         for tree in (old, REPO):  # what a robot's process imports, optimised too (-OO)
             compile_robot = [sys.executable, "-m", "compileall", "-q", "-o", "0", "-o", "2", "agent", "transport"]
             subprocess.run(compile_robot, cwd=tree, check=True, capture_output=True)
-        try:
-            for pair in range(1, args.pairs + 1):
-                for what, cwd in (("before", old), ("after", REPO)):
-                    r = run_scene(cwd, args.robots, args.duration, args.seed, args.agents_per_process)
-                    figures[what].append(r["cpu_median"])
-                    label = f"{before_rev} (before)" if what == "before" else "current"
-                    rows.append(
-                        f"| {pair} | {label} | {r['load']:.1f} | {r['cpu_median']:.2f} | {r['cpu_mean']:.2f} | "
-                        f"{r['missed']} ({100 * r['missed_share']:.2f}%) |"
-                    )
-                    print(rows[-1], flush=True)
-        finally:
-            subprocess.run(["git", "worktree", "remove", "--force", str(old)], cwd=REPO, capture_output=True)
-            subprocess.run(["git", "worktree", "prune"], cwd=REPO, capture_output=True)
+        for pair in range(1, args.pairs + 1):
+            for what, cwd in (("before", old), ("after", REPO)):
+                r = run_scene(cwd, args.robots, args.duration, args.seed, args.agents_per_process)
+                figures[what].append(r["cpu_median"])
+                label = f"{before_rev} (before)" if what == "before" else "current"
+                rows.append(
+                    f"| {pair} | {label} | {r['load']:.1f} | {r['cpu_median']:.2f} | {r['cpu_mean']:.2f} | "
+                    f"{r['missed']} ({100 * r['missed_share']:.2f}%) |"
+                )
+                print(rows[-1], flush=True)
     b, a = np.nanmedian(figures["before"]), np.nanmedian(figures["after"])  # nan: a run without a window
     dt = RobotParams().dt
     checks = checks_per_tick(args.robots * 1, dt)

@@ -10,6 +10,7 @@ side by side in one run:
     .venv/bin/python -m bench.bench_large                    # the whole sequence, both (about 20 min)
     .venv/bin/python -m bench.bench_large --images 2         # only the first two images (a shorter run)
     .venv/bin/python -m bench.bench_large --robots 200 --assignment auction --results large-trial
+    .venv/bin/python -m bench.bench_large --before cf836e5 --pairs 2   # the CLI's run beside revision REV's
 
 It runs what `pixelswarm run paper-sequence-1000 --no-video` runs (`sim.central.run_central`) in this
 process, with a `sim.stepclock.StepClock` that times each part of every control step on the engine's
@@ -288,6 +289,38 @@ def bounds(runs: list[Run], dt: float, robots: int) -> list[str]:
     return lines
 
 
+def side_by_side(before: str, pairs: int, scene: str, seed: int = 3) -> list[str]:
+    """`pixelswarm run SCENE --engine central` from a git worktree of ``before`` and from this
+    checkout, alternating: each run's realtime factor, wall time and contacts (metrics.json)."""
+    import subprocess
+
+    from .bench_runtime import worktree_at
+    from .common import REPO
+
+    rows = ["| pair | code | realtime factor | wall s | contacts | load avg |", "|---|---|---|---|---|---|"]
+    factors: dict[str, list[float]] = {"before": [], "after": []}
+    with worktree_at(before) as (old, commit), tempfile.TemporaryDirectory() as tmp:
+        for pair in range(1, pairs + 1):
+            for what, tree in (("before", old), ("after", REPO)):
+                out = Path(tmp) / f"{what}{pair}"
+                cmd = [sys.executable, "-m", "sim.cli", "run", scene, "--engine", "central", "--seed", str(seed)]
+                subprocess.run([*cmd, "--no-video", "-q", "--out", str(out)], cwd=tree, check=True, capture_output=True)
+                m = json.loads((out / "metrics.json").read_text())
+                factors[what].append(m["realtime_factor"])
+                label = f"{commit} (before)" if what == "before" else "current"
+                rows.append(
+                    f"| {pair} | {label} | {m['realtime_factor']:.1f}x | {m['wall_s']:.1f} | {m['contacts']} | "
+                    f"{os.getloadavg()[0]:.1f} |"
+                )
+                print(rows[-1], flush=True)
+    b, a = float(np.median(factors["before"])), float(np.median(factors["after"]))
+    return rows + [
+        "",
+        f"Median realtime factor: {b:.1f}x before ({commit}), {a:.1f}x now ({a / b:.2f}x). Scene: "
+        f"`pixelswarm run {scene} --engine central --seed {seed} --no-video`, start-up included.",
+    ]
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--scene", default=SCENE)
@@ -298,7 +331,14 @@ def main() -> int:
     )
     parser.add_argument("--results", default="large", help="bench/results/<name>.md (default large)")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
+    parser.add_argument("--before", help="git revision: its CLI run beside this checkout's, alternating")
+    parser.add_argument("--pairs", type=int, default=2, help="--before: runs of each, alternating")
     args = parser.parse_args()
+    if args.before:
+        lines = side_by_side(args.before, args.pairs, args.scene)
+        command = f".venv/bin/python -m bench.bench_large --before {args.before} --pairs {args.pairs}"
+        write_results("large_before", f"Central engine, {args.scene}: before and after", command, lines)
+        return 0
 
     command = (
         ".venv/bin/python -m bench.bench_large"

@@ -22,6 +22,7 @@ reported apart. Written as the "Start-up" section of runtime.md, the rest kept.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import signal
@@ -29,6 +30,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -282,6 +284,18 @@ def worktree(rev: str, where: Path) -> str:
     return subprocess.run(
         ["git", "rev-parse", "--short", "HEAD"], cwd=where, check=True, capture_output=True, text=True
     ).stdout.strip()
+
+
+@contextlib.contextmanager
+def worktree_at(rev: str) -> Iterator[tuple[Path, str]]:
+    """`worktree` of ``rev`` in a temporary folder, removed afterwards: (its folder, its short commit)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        where = Path(tmp) / "tree"
+        try:
+            yield where, worktree(rev, where)
+        finally:
+            subprocess.run(["git", "worktree", "remove", "--force", str(where)], cwd=REPO, capture_output=True)
+            subprocess.run(["git", "worktree", "prune"], cwd=REPO, capture_output=True)
 
 
 # After the alternating runs, one run of each tree without one of its on-disk caches.
