@@ -18,7 +18,8 @@ The neighbour searches alone (agent.core.grid), beside the code of another revis
 
     .venv/bin/python bench/bench_world.py --neighbours [--before REV]
 
-times, on the same points (a formed display: a lattice 0.12 m apart, jittered by up to 2 cm) at
+times, on the same points (a formed display: a lattice 0.12 m apart, jittered by up to 2 cm; and
+one 0.6 m apart, fewer than 16 within reach) at
 1000 and 10,000 robots, the central engine's neighbour search (sim.link's, 1.2 m and 16 as
 paper-sequence-1000), the RVO2-shaped engine's (agent.core.rvo.CentralOrca.neighbours), the
 world's contact search (sim.proximity.close_pairs over a step of 10 substeps) and one robot's
@@ -149,19 +150,19 @@ except ImportError:
 
 REPEATS = int(sys.argv[1])
 
-def points(n):
+def points(n, spacing=0.12):
     rng = np.random.default_rng(n)
     side = int(np.ceil(np.sqrt(n)))
-    g = np.stack(np.meshgrid(np.arange(side), np.arange(side)), -1).reshape(-1, 2)[:n] * 0.12
+    g = np.stack(np.meshgrid(np.arange(side), np.arange(side)), -1).reshape(-1, 2)[:n] * spacing
     return g + rng.uniform(-0.02, 0.02, (n, 2)), rng
 
 def timed(f):
     f()  # warm-up (a JIT compiles here)
     samples = []
-    for _ in range(REPEATS):
-        t = time.perf_counter()
+    for _ in range(REPEATS):  # CPU time: what a busy machine's other work inflates least
+        t = time.process_time()
         f()
-        samples.append(time.perf_counter() - t)
+        samples.append(time.process_time() - t)
     return float(np.median(samples) * 1e3)
 
 out = {}
@@ -179,6 +180,10 @@ for n in (1000, 10000):
     radius = np.full(n, 0.045)
     out[f"world: close_pairs over a step of 10 substeps, {n} robots"] = timed(
         lambda: close_pairs(traj, radius, 0.09 + 2 * motion + 0.0225, motion, 1))
+    p, rng = points(n, 0.6)  # sparse: about 12 within reach, fewer than 16
+    heard = Heard(ids, p, rng.normal(0, 0.1, (n, 2)), np.full(n, 0.045), np.zeros(n), np.ones(n, bool))
+    out[f"central engine, sparse (0.6 m apart): 16 nearest heard within 1.2 m, {n} robots"] = timed(
+        lambda: central_search(ids, p, 0.1, heard, 1.2, 16))
 for s in (14, 200):
     p, rng = points(s + 1)
     table = NeighbourTable(0.1)
@@ -232,7 +237,7 @@ def neighbours_main(before: str | None, repeats: int, rounds: int) -> None:
         lines.append(f"| {key} | " + " | ".join(cells) + ratio + " |")
     print("\n".join(lines))
     print(
-        f"\nmedian of {repeats} calls, best of {rounds} alternating rounds; Python {platform.python_version()}, "
+        f"\nmedian CPU time of {repeats} calls, best of {rounds} alternating rounds; Python {platform.python_version()}, "
         f"{platform.machine()}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}"
     )
 

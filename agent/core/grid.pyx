@@ -27,7 +27,7 @@ import numpy as np
 
 cdef enum:
     CELLS_PER_POINT = 16  # a grid has at most this many cells per point (coarser cells past it), or 1024
-    RINGS = 4  # nearest's cells are reach / RINGS wide
+    PARTS = 3  # nearest's cells are reach / PARTS wide (3: crowded and sparse displays alike)
 
 
 cdef struct Grid:
@@ -125,6 +125,53 @@ cdef inline bint before(double d2, int64_t k, Py_ssize_t j, double d2b, int64_t 
     return j < jb
 
 
+cdef struct Query:
+    double px, py  # the query point
+    int64_t own  # its key: not its own neighbour
+    double reach2  # reach squared
+    bint inclusive  # d2 <= reach2, else d2 < reach2
+    Py_ssize_t k, m  # neighbours kept so far, at most m
+    double bound  # no point farther (d2) can be kept: reach2, then the m-th's d2
+    double *best  # (m,) their d2, nearest first
+    int64_t *best_key  # (m,) their keys
+    int64_t *chosen  # (m,) their indices (the query's row of the output)
+
+
+cdef void scan(Grid *g, Query *q, const int64_t[::1] key, Py_ssize_t first, Py_ssize_t last) noexcept:
+    """The points of cells first..last - 1 (consecutive in the grid's order) into q's neighbours,
+    sorted by (d2, key, index), kept to m."""
+    cdef Py_ssize_t a, j, p, m = q.m
+    cdef int64_t kj
+    cdef double dx, dy, d2
+    if first >= last:
+        return
+    for a in range(g.start[first], g.start[last]):
+        j = g.order[a]
+        kj = key[j]
+        if kj == q.own:
+            continue
+        dx = g.sx[a] - q.px
+        dy = g.sy[a] - q.py
+        d2 = dx * dx + dy * dy
+        if not (d2 <= q.reach2 if q.inclusive else d2 < q.reach2):
+            continue
+        if q.k == m and not before(d2, kj, j, q.best[m - 1], q.best_key[m - 1], q.chosen[m - 1]):
+            continue
+        p = min(q.k, m - 1)  # insert (d2, key, j) in order, dropping the last when full
+        while p > 0 and before(d2, kj, j, q.best[p - 1], q.best_key[p - 1], q.chosen[p - 1]):
+            q.best[p] = q.best[p - 1]
+            q.best_key[p] = q.best_key[p - 1]
+            q.chosen[p] = q.chosen[p - 1]
+            p -= 1
+        q.best[p] = d2
+        q.best_key[p] = kj
+        q.chosen[p] = j
+        if q.k < m:
+            q.k += 1
+        if q.k == m:
+            q.bound = q.best[m - 1]
+
+
 def nearest(
     const double[:, ::1] query,
     const int64_t[::1] query_key,
@@ -139,11 +186,13 @@ def nearest(
     kd-tree), nearest first by (d2, key, index), -1 past the last. A point whose key is the query's
     own (query_key) is never its neighbour: a robot is not its own neighbour.
 
-    Cells are reach / RINGS wide. Each query looks at the rings of cells around its own, nearest
-    ring first, skipping the cells farther than the m-th neighbour found so far, and stops when it
-    has m neighbours all nearer than the next ring can be (in a crowd the m nearest are much nearer
-    than reach, as RVO2's k-d tree shrinks its range). The ranking is a total order, so the points
-    met and their order do not matter.
+    Cells are reach / PARTS wide. Each query looks first at the 3 x 3 cells around its own (in a
+    crowd the m nearest are there, much nearer than reach, and the disc searched shrinks to the
+    m-th distance at once, as RVO2's k-d tree shrinks its range), then at each column near it,
+    outward: a column's cells are consecutive in the grid's order, so it is read as one run of
+    points over the cells the disc covers there (where fewer than m are in reach, the whole disc
+    is read in a few runs). The ranking is a total order, so the points met and their order do not
+    matter.
     """
     cdef Py_ssize_t q = query.shape[0], n = points.shape[0]
     if query_key.shape[0] != q or key.shape[0] != n or (q and query.shape[1] != 2) or (n and points.shape[1] != 2):
@@ -159,72 +208,53 @@ def nearest(
     g.sx = g.sy = NULL
     cdef double *best = <double *>malloc(m * sizeof(double))
     cdef int64_t *best_key = <int64_t *>malloc(m * sizeof(int64_t))
-    cdef Py_ssize_t i, j, a, c, p, k, r, gx, gy, qx, qy, step, rings
-    cdef double px, py, dx, dy, d2, bound, left, low_y, ax, ay, edge, slack, far = 0.0
+    cdef Py_ssize_t i, c, s, gx, qx, qy, low, high, spread
+    cdef double px, py, left, away, half, slack, far = 0.0
+    cdef Query nb
     cdef double reach2 = reach * reach
-    cdef int64_t own, kj
     try:
         if best == NULL or best_key == NULL:
             raise MemoryError()
-        grid_build(&g, points, reach / RINGS)
+        nb.reach2, nb.inclusive, nb.m, nb.best, nb.best_key = reach2, inclusive, m, best, best_key
+        grid_build(&g, points, reach / PARTS)
         for i in range(n):
             far = max(far, fabs(points[i, 0]), fabs(points[i, 1]))
         for i in range(q):
             far = max(far, fabs(query[i, 0]), fabs(query[i, 1]))
         # how far rounding may move a point across a cell border: far below a cell, above any ulp
         slack = 1e-9 * (g.cell + far)
-        rings = cell_index(reach / g.cell + 1.0, 0, max(g.nx, g.ny) + 1)  # a point r rings away is >= r - 1 cells away
+        # columns either side of the query's that can hold a point within reach
+        spread = cell_index(reach / g.cell + 2.0, 0, g.nx + 1)
         for i in range(q):
-            px, py, own = query[i, 0], query[i, 1], query_key[i]
-            qx = cell_index((px - g.x0) / g.cell, -1, g.nx)  # outside the grid: the ring just outside
+            px, py = query[i, 0], query[i, 1]
+            qx = cell_index((px - g.x0) / g.cell, -1, g.nx)  # outside the grid: the cell just outside
             qy = cell_index((py - g.y0) / g.cell, -1, g.ny)
-            k = 0
-            bound = reach2  # no point farther than this (squared) can be kept
-            for r in range(rings + 1):
-                edge = (r - 1) * g.cell - 2.0 * slack
-                if k == m and edge > 0.0 and edge * edge > bound:
-                    break  # m found, all nearer than any point of this ring or beyond
-                for gx in range(max(qx - r, 0), min(qx + r + 1, g.nx)):
-                    # the ring's cells in this column: all of an edge column, else its top and bottom
-                    step = 1 if gx == qx - r or gx == qx + r else 2 * r
-                    gy = qy - r - step
-                    while gy + step <= qy + r:  # (a while loop: a range with a variable step is Python's)
-                        gy += step
-                        if gy < 0 or gy >= g.ny:
-                            continue
-                        # the cell's nearest point to the query, widened past any rounding
-                        left = g.x0 + gx * g.cell - slack
-                        low_y = g.y0 + gy * g.cell - slack
-                        ax = max(max(left - px, px - (left + g.cell + 2.0 * slack)), 0.0)
-                        ay = max(max(low_y - py, py - (low_y + g.cell + 2.0 * slack)), 0.0)
-                        if ax * ax + ay * ay > bound:
-                            continue
-                        c = gx * g.ny + gy
-                        for a in range(g.start[c], g.start[c + 1]):
-                            j = g.order[a]
-                            kj = key[j]
-                            if kj == own:
-                                continue
-                            dx = g.sx[a] - px
-                            dy = g.sy[a] - py
-                            d2 = dx * dx + dy * dy
-                            if not (d2 <= reach2 if inclusive else d2 < reach2):
-                                continue
-                            if k == m and not before(d2, kj, j, best[m - 1], best_key[m - 1], out[i, m - 1]):
-                                continue
-                            p = min(k, m - 1)  # insert (d2, key, j) in order, dropping the last when full
-                            while p > 0 and before(d2, kj, j, best[p - 1], best_key[p - 1], out[i, p - 1]):
-                                best[p] = best[p - 1]
-                                best_key[p] = best_key[p - 1]
-                                out[i, p] = out[i, p - 1]
-                                p -= 1
-                            best[p] = d2
-                            best_key[p] = kj
-                            out[i, p] = j
-                            if k < m:
-                                k += 1
-                            if k == m:
-                                bound = best[m - 1]
+            nb.px, nb.py, nb.own, nb.k, nb.bound, nb.chosen = px, py, query_key[i], 0, reach2, &out[i, 0]
+            # first the 3 x 3 cells around the query's (in a crowd they hold the m nearest, and the
+            # disc shrinks at once), then each column near the query, outward, as one run of points
+            # over the cells the disc covers there, less those 3 x 3
+            for gx in range(max(qx - 1, 0), min(qx + 2, g.nx)):
+                if qy + 1 >= 0 and qy - 1 < g.ny:
+                    c = gx * g.ny
+                    scan(&g, &nb, key, c + max(qy - 1, 0), c + min(qy + 1, g.ny - 1) + 1)
+            for s in range(2 * spread + 1):
+                gx = qx + (s + 1) // 2 if s % 2 else qx - s // 2  # 0, +1, -1, +2, -2, ...
+                if gx < 0 or gx >= g.nx:
+                    continue
+                left = g.x0 + gx * g.cell - slack
+                away = max(max(left - px, px - (left + g.cell + 2.0 * slack)), 0.0)  # to the column, across
+                if away * away > nb.bound:
+                    continue
+                # along the column: as far as the disc reaches, widened past any rounding of the root
+                half = sqrt(max(nb.bound - away * away, 0.0) + 1e-12 * nb.bound) + slack
+                low = cell_index((py - half - g.y0) / g.cell, -1, g.ny)
+                high = cell_index((py + half - g.y0) / g.cell, -1, g.ny)
+                low, high = max(low, 0), min(high, g.ny - 1)
+                c = gx * g.ny
+                if qx - 1 <= gx <= qx + 1:  # the 3 x 3 are done: the runs below and above them
+                    scan(&g, &nb, key, c + low, c + min(high, qy - 2) + 1)
+                    low = max(low, qy + 2)
+                scan(&g, &nb, key, c + low, c + high + 1)
     finally:
         grid_free(&g)
         free(best)
