@@ -4,15 +4,26 @@ same instance. Every host is a real OS process running the agents' AuctionLink o
 an embedded loopback router; no control loop runs (the full-system figures are in the runs).
 
     .venv/bin/python -m bench.bench_auction [--quick]
+
+With ``--before REV`` the code at REV runs beside the code at ``--after`` (default HEAD), each from a
+fresh git worktree with its compiled core built in place, case by case alternating: the hosts'
+cases, then the central engine's settling of every robot in one process (``Participant.settle_alone``:
+a cold block, then warm blocks while the robots drive to their goals), timed in a fresh process of
+each tree (its first block includes any JIT compilation):
+
+    .venv/bin/python -m bench.bench_auction --before cf836e5 [--cases 14x1,100x1,1000x250] [--central 1000]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import signal
 import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -38,7 +49,8 @@ def instance(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     return grid, goals
 
 
-def run(n: int, per_process: int, steady: float, faults: str = "", seed: int = 1) -> dict:
+def run(n: int, per_process: int, steady: float, faults: str = "", seed: int = 1, tree: Path = REPO) -> dict:
+    """One case: N robots, ``per_process`` per host process, the hosts running the code in ``tree``."""
     positions, goals = instance(n, seed)
     router = loopback_router()
     with Bus(router, "bench", name="bench") as bus:
@@ -62,7 +74,7 @@ def run(n: int, per_process: int, steady: float, faults: str = "", seed: int = 1
             if faults:
                 cmd += ["--faults", faults]
             procs.append(
-                subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, text=True)
+                subprocess.Popen(cmd, cwd=tree, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, text=True)
             )
         try:
             seen: set[str] = set()
@@ -112,17 +124,129 @@ def run(n: int, per_process: int, steady: float, faults: str = "", seed: int = 1
     }
 
 
+# Run with ``python -c`` in a tree (its own code: the old revision has no function of this file):
+# the central engine's auction alone, N robots from a grid to a disk, each warm block after the
+# robots drove a tenth of the way to their goals. Prints JSON.
+CENTRAL = """
+import json, sys, time
+import numpy as np
+from agent.core.bidder import Participant
+n, blocks, seed = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3])
+rng = np.random.default_rng(seed)
+side = int(np.ceil(np.sqrt(n)))
+pos = np.array([(i % side, i // side) for i in range(n)], float) * 0.2
+r, a = 0.2 * side / np.sqrt(np.pi) * np.sqrt(rng.uniform(0, 1, n)), rng.uniform(0, 2 * np.pi, n)
+goals = np.column_stack([r * np.cos(a), r * np.sin(a)]) + pos.mean(axis=0)
+part = Participant(1, goals, range(n), range(n), 1e-3, 5e-3)
+times = []
+for block in range(blocks):
+    t = time.perf_counter()
+    goal = part.settle_alone(pos)
+    times.append(time.perf_counter() - t)
+    pos = pos + 0.1 * (goals[goal] - pos) + rng.normal(0, 0.002, pos.shape)
+digest = part.board.digest()
+print(json.dumps({"times": times, "bids": part.bids, "rounds": part.rounds, "digest": digest}))
+"""
+
+
+def central(tree: Path, n: int, blocks: int, seed: int = 1) -> dict:
+    """The central engine's settling in a fresh process of ``tree``'s code."""
+    out = subprocess.run(
+        [sys.executable, "-c", CENTRAL, str(n), str(blocks), str(seed)],
+        cwd=tree,
+        check=True,
+        capture_output=True,
+        text=True,
+    )
+    return json.loads(out.stdout.splitlines()[-1])
+
+
+def built_worktree(rev: str, where: Path) -> str:
+    """A fresh worktree of ``rev`` (bench.bench_runtime.worktree) with its compiled core built in place."""
+    from .bench_runtime import worktree
+
+    commit = worktree(rev, where)
+    if any((where / "agent" / "core").glob("*.pyx")):
+        subprocess.run(
+            [sys.executable, "setup.py", "build_ext", "--inplace", "-q"], cwd=where, check=True, capture_output=True
+        )
+    return commit
+
+
+def side_by_side(args: argparse.Namespace, cases: list[tuple[int, int]]) -> None:
+    """The code at --before beside the code at --after, alternating case by case, in one run."""
+    tmp = Path(tempfile.mkdtemp(prefix="bench-auction-"))
+    trees = {"before": tmp / "before", "after": tmp / "after"}
+    try:
+        commits = {
+            what: built_worktree(rev, trees[what]) for what, rev in (("before", args.before), ("after", args.after))
+        }
+        rows = [
+            "| N robots | robots per process (processes) | code | time to agreement s (slowest host) | "
+            "agreed cost / optimum | one-to-one | bids per robot |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for n, k in cases:
+            for _ in range(args.pairs):
+                for what in ("before", "after"):
+                    r = run(n, k, args.steady, tree=trees[what])
+                    rows.append(
+                        f"| {n} | {k} ({r['hosts']}) | {what} {commits[what]} | {r['agreement_s']:.3f} | "
+                        f"{r['cost_ratio']:.5f} | {r['one_to_one']} | {r['bids_per_robot']:.1f} |"
+                    )
+                    print(rows[-1], flush=True)
+        rows += [
+            "",
+            f"Central engine (one process settles every robot, `Participant.settle_alone`): {args.blocks} blocks, a cold "
+            "start then warm blocks while the robots drive a tenth of the way to their goals per block; a fresh "
+            "process per run (its first block includes any JIT compilation).",
+            "",
+            "| N robots | code | first block s | warm block median ms | warm block max ms | bids | rounds | same board |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
+        for n in args.central:
+            for _ in range(args.pairs):
+                got = {what: central(trees[what], n, args.blocks) for what in ("before", "after")}
+                same = got["before"]["digest"] == got["after"]["digest"]
+                for what, r in got.items():
+                    warm = np.array(r["times"][1:]) * 1e3
+                    rows.append(
+                        f"| {n} | {what} {commits[what]} | {r['times'][0]:.3f} | {np.median(warm):.2f} | "
+                        f"{warm.max():.2f} | {r['bids']} | {r['rounds']} | {same} |"
+                    )
+                    print(rows[-1], flush=True)
+    finally:
+        for tree in trees.values():
+            subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=REPO, capture_output=True)
+        subprocess.run(["git", "worktree", "prune"], cwd=REPO, capture_output=True)
+    write_results(
+        "auction_before_after",
+        f"Auction: the code at {args.before} beside {args.after}",
+        f".venv/bin/python -m bench.bench_auction --before {args.before} --after {args.after}",
+        rows,
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--quick", action="store_true", help="N = 14 only")
     parser.add_argument("--steady", type=float, default=5.0)
     parser.add_argument("--cases", default="", help="e.g. 100x1,1000x250 (robots x robots per process)")
+    parser.add_argument("--before", default="", help="a git revision to run beside --after (side by side)")
+    parser.add_argument("--after", default="HEAD")
+    parser.add_argument("--pairs", type=int, default=1, help="side by side: runs of each tree per case")
+    parser.add_argument("--central", default="1000", help="side by side: robots of the central engine's cases")
+    parser.add_argument("--blocks", type=int, default=30, help="side by side: blocks per central case")
     args = parser.parse_args()
+    args.central = [int(v) for v in args.central.split(",") if v]
     # SIGTERM unwinds like Ctrl-C, so the finally blocks stop every node process this bench started
     signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
     cases = [(14, 1)] if args.quick else [(14, 1), (50, 1), (100, 1), (1000, 250)]
     if args.cases:
-        cases = [tuple(int(v) for v in c.split("x")) for c in args.cases.split(",")]
+        cases = [(int(c.split("x")[0]), int(c.split("x")[1])) for c in args.cases.split(",")]
+    if args.before:
+        side_by_side(args, cases)
+        return
     rows = [
         "| N robots | robots per process (processes) | time to agreement s (slowest host) | scipy solve s | "
         "agreed cost / optimum | one-to-one | bids per robot | cold-start msgs / robot (KB) | "
