@@ -222,7 +222,7 @@ def side_by_side(args: argparse.Namespace, cases: list[tuple[int, int]]) -> None
     write_results(
         "auction_before_after",
         f"Auction: the code at {args.before} beside {args.after}",
-        f".venv/bin/python -m bench.bench_auction --before {args.before} --after {args.after}",
+        ".venv/bin/python -m bench.bench_auction " + " ".join(sys.argv[1:]),
         rows,
     )
 
