@@ -19,7 +19,6 @@ import math
 import os
 import shutil
 import signal
-import subprocess
 import sys
 import time
 import tomllib
@@ -251,8 +250,13 @@ def _check_conditions(spec: Spec) -> None:
 
 def run_command(spec: Spec, run: Run, out: Path) -> list[str]:
     """The `pixelswarm run` command line of one run."""
+    return [sys.executable, "-m", "sim.cli", "run", *run_args(spec, run), "--out", str(out)]
+
+
+def run_args(spec: Spec, run: Run) -> list[str]:
+    """The arguments of `pixelswarm run` for one run, but its --out (the worker's to choose)."""
     s = run.settings
-    cmd = [sys.executable, "-m", "sim.cli", "run", spec.scene, "--seed", str(run.seed)]
+    cmd = [spec.scene, "--seed", str(run.seed)]
     for key, flag in (("engine", "--engine"), ("robots", "--robots"), ("clock", "--clock")):
         if key in s:
             cmd += [flag, str(s[key])]
@@ -267,7 +271,7 @@ def run_command(spec: Spec, run: Run, out: Path) -> list[str]:
         if any(s.get(k, 0.0) for k in FAULT_SETTINGS):
             drop, delay, jitter = (s.get(k, 0.0) for k in FAULT_SETTINGS)
             cmd += ["--faults", f"state:drop={drop!r},delay={delay!r},jitter={jitter!r}"]
-    return cmd + ["--no-video", "--no-plots", "-q", "--out", str(out)]
+    return cmd + ["--no-video", "--no-plots", "-q"]
 
 
 # --------------------------------------------------------------------------------------------
@@ -353,15 +357,6 @@ def _check_same_study(spec: Spec, root: Path) -> None:
 # --------------------------------------------------------------------------------------------
 
 
-@dataclasses.dataclass
-class _Child:
-    run: Run
-    process: subprocess.Popen
-    log: TextIO
-    started: float
-    command: list[str]
-
-
 class Progress:
     """One line per event: a bar, runs done / failed / total, and the time left at the pace so far."""
 
@@ -398,94 +393,96 @@ def _duration(seconds: float) -> str:
     return f"{h}h{m:02d}m" if h else f"{m}m{s:02d}s" if m else f"{s}s"
 
 
-def _child_env() -> dict[str, str]:
-    # the children run this checkout's code, whatever the working directory
-    root = str(Path(__file__).resolve().parents[1])
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [root, env.get("PYTHONPATH")]))
-    return env
+def execute(spec: Spec, study: StudyDir, jobs: int, stream: TextIO | None, scheduler: str | None = None) -> Progress:
+    """Run every run not finished yet on a Dask cluster: the scheduler's at ``scheduler``, or a local
+    one of ``jobs`` threads (sim.study_cluster); record each one's outcome as it comes back."""
+    from distributed import Event, as_completed
 
+    from .study_cluster import connect, run_task, unpack
 
-def execute(spec: Spec, study: StudyDir, jobs: int, stream: TextIO | None) -> Progress:
-    """Run every run not finished yet, `jobs` at a time; record each one's outcome."""
     runs = spec.runs()
     todo = [r for r in runs if study.metrics(r) is None]
-    progress = Progress(len(runs), jobs, stream)
-    progress.done = len(runs) - len(todo)
-    if stream is not None:
-        print(
-            f"study {spec.name}: {len(runs)} runs, {progress.done} already done, {len(todo)} to run, "
-            f"{jobs} at a time, in {study.root}",
-            file=stream,
-            flush=True,
-        )
-    study.logs.mkdir(parents=True, exist_ok=True)
-    study.runs.mkdir(parents=True, exist_ok=True)
-    env = _child_env()
-    running: list[_Child] = []
+    client, cluster = connect(scheduler, jobs)
     try:
-        while todo or running:
-            while todo and len(running) < jobs:
-                run = todo.pop(0)
-                study.clear(run)
-                command = run_command(spec, run, study.run_dir(run))
-                log = open(study.logs / f"{run.id}.log", "w")  # noqa: SIM115 - closed when the child ends
-                # a session of its own: the terminal's Ctrl-C reaches the study, which stops its children
-                process = subprocess.Popen(
-                    command, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True
-                )
-                running.append(_Child(run, process, log, time.monotonic(), command))
-            time.sleep(POLL_S)
-            for child in [c for c in running if c.process.poll() is not None]:
-                running.remove(child)
-                _finish(child, study, progress)
-                progress.line(len(running), f"{child.run.id}: {'done' if study.metrics(child.run) else 'FAILED'}")
-    except KeyboardInterrupt:
-        _stop(running)
-        raise Interrupted from None
-    return progress
+        slots = sum(client.nthreads().values()) or jobs if scheduler else jobs
+        progress = Progress(len(runs), max(1, slots), stream)
+        progress.done = len(runs) - len(todo)
+        if stream is not None:
+            where = f"on the cluster at {scheduler} ({slots} worker threads)" if scheduler else f"{jobs} at a time"
+            print(
+                f"study {spec.name}: {len(runs)} runs, {progress.done} already done, {len(todo)} to run, "
+                f"{where}, in {study.root}",
+                file=stream,
+                flush=True,
+            )
+        study.logs.mkdir(parents=True, exist_ok=True)
+        study.runs.mkdir(parents=True, exist_ok=True)
+        stop = Event(f"pixelswarm-study-stop-{os.getpid()}-{time.time_ns()}", client=client)
+        shared = scheduler is None  # a local worker writes into the study directory itself
+        futures = {}
+        for run in todo:
+            study.clear(run)
+            out = str(study.run_dir(run)) if shared else None
+            future = client.submit(
+                run_task, run.id, run_args(spec, run), out, stop.name, STOP_GRACE_S, key=f"run-{run.id}", pure=False
+            )
+            futures[future] = run
+        pending = set(futures)
+        try:
+            for future in as_completed(list(futures)):
+                pending.discard(future)
+                run = futures[future]
+                _finish(run, future, study, progress, unpack)
+                running = min(len(pending), progress.jobs)
+                progress.line(running, f"{run.id}: {'done' if study.metrics(run) else 'FAILED'}")
+        except KeyboardInterrupt:
+            stop.set()  # every task stops its run (SIGTERM, then SIGKILL after the grace)
+            _wait_stopped(list(pending))
+            raise Interrupted from None
+        return progress
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
 
 
-def _finish(child: _Child, study: StudyDir, progress: Progress) -> None:
-    child.log.close()
-    wall = time.monotonic() - child.started
+def _wait_stopped(pending: list[Any]) -> None:
+    """The tasks still out, given the grace to stop their runs (a second Ctrl-C stops waiting)."""
+    from distributed import wait
+
+    try:
+        wait(pending, timeout=STOP_GRACE_S + 15)
+    except (TimeoutError, KeyboardInterrupt):
+        pass
+    except Exception:  # a task that failed while stopping: nothing more to wait for
+        pass
+
+
+def _finish(run: Run, future: Any, study: StudyDir, progress: Progress, unpack: Any) -> None:
+    try:
+        result = future.result()
+    except Exception as err:  # the task itself failed (not the run): e.g. a worker died too often
+        result = {"returncode": None, "process_wall_s": 0.0, "command": [], "log": f"task failed: {err!r}"}
+    if result.get("archive"):
+        unpack(result["archive"], study.runs)
+    write_text(study.logs / f"{run.id}.log", result.get("log", ""))
+    wall = float(result.get("process_wall_s", 0.0))
     record = {
-        "id": child.run.id,
+        "id": run.id,
         "process_wall_s": wall,
-        "returncode": child.process.returncode,
-        "command": child.command,
+        "returncode": result.get("returncode"),
+        "command": result.get("command", []),
+        "worker": result.get("worker", ""),
     }
-    if study.metrics(child.run) is not None:
+    if study.metrics(run) is not None:
         progress.done += 1
         progress.walls.append(wall)
         record.update(status="done", error="")
     else:
         progress.failed += 1
-        tail = (study.logs / f"{child.run.id}.log").read_text(errors="replace")[-STDERR_TAIL_CHARS:]
-        record.update(status="failed", error=tail.strip() or f"exit code {child.process.returncode}, no output")
-    study.write_record(child.run, record)
-
-
-def _stop(running: list[_Child]) -> None:
-    """SIGTERM each child we started (each stops its own processes), then SIGKILL what is left after
-    the grace time, or at once on a second Ctrl-C."""
-    for child in running:
-        if child.process.poll() is None:
-            child.process.send_signal(signal.SIGTERM)
-    end = time.monotonic() + STOP_GRACE_S
-    try:
-        for child in running:
-            child.process.wait(timeout=max(0.0, end - time.monotonic()))
-    except (subprocess.TimeoutExpired, KeyboardInterrupt):
-        pass
-    for child in running:
-        if child.process.poll() is None:
-            try:
-                os.killpg(child.process.pid, signal.SIGKILL)  # the session it leads, made by us
-            except ProcessLookupError:
-                pass
-            child.process.wait()
-        child.log.close()
+        tail = result.get("log", "")[-STDERR_TAIL_CHARS:]
+        record.update(status="failed", error=tail.strip() or f"exit code {result.get('returncode')}, no output")
+    study.write_record(run, record)
 
 
 # --------------------------------------------------------------------------------------------
@@ -510,6 +507,12 @@ def add_study_parser(subparsers: Any) -> None:
     p.add_argument(
         "--jobs", "-j", type=int, default=None, help=f"runs at once (default: half the cores, here {default_jobs()})"
     )
+    p.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:PORT",
+        help="send the runs to the workers of this Dask scheduler (docs/study.md); default: a local cluster "
+        "of --jobs threads on 127.0.0.1",
+    )
     p.set_defaults(func=cmd_study)
 
 
@@ -517,7 +520,19 @@ def cmd_study(args: argparse.Namespace) -> int:
     try:
         if args.jobs is not None and args.jobs < 1:
             raise StudyError(f"--jobs must be at least 1, not {args.jobs}")
+        if args.scheduler is not None:
+            from .study_cluster import ClusterError, check_address, connect
+
+            try:
+                check_address(args.scheduler)
+            except ClusterError as err:
+                raise StudyError(str(err)) from None
         spec = load_spec(args.spec)
+        if args.scheduler is not None:  # reached before anything is written or started
+            try:
+                connect(args.scheduler, 1)[0].close()
+            except ClusterError as err:
+                raise StudyError(str(err)) from None
         root = args.out or Path("runs") / f"study-{spec.name}"
         if root.exists() and not root.is_dir():
             raise StudyError(f"--out {root} is a file, not a directory")
@@ -533,6 +548,7 @@ def cmd_study(args: argparse.Namespace) -> int:
 
 
 def _study(spec: Spec, study: StudyDir, jobs: int, args: argparse.Namespace) -> int:
+    from .study_cluster import ClusterError
     from .study_report import write_report  # matplotlib only once runs are done
 
     write_text(study.root / "spec.toml", spec.text)
@@ -540,7 +556,10 @@ def _study(spec: Spec, study: StudyDir, jobs: int, args: argparse.Namespace) -> 
     write_text(study.root / "study.json", json.dumps(held, indent=2) + "\n")
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
     try:
-        progress = execute(spec, study, jobs, sys.stderr)
+        progress = execute(spec, study, jobs, sys.stderr, args.scheduler)
+    except ClusterError as err:
+        print(f"pixelswarm study: error: {err}", file=sys.stderr)
+        return 2
     except Interrupted:
         done = sum(study.metrics(r) is not None for r in spec.runs())
         print(

@@ -1,0 +1,164 @@
+"""Studies on a Dask cluster (sim.study_cluster): a real `dask scheduler` and two `dask worker` processes
+on 127.0.0.1, free ports, each worker with a directory of the test's; stopped by their ids at the end."""
+
+from __future__ import annotations
+
+import csv
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import psutil
+import pytest
+
+from sim.cli import main
+from tests.conftest import REPO, wait_for
+from tests.test_study import GRID, grid, read_csv, study  # noqa: F401 - grid: the local study, run once
+from transport.session import free_port
+
+pytest.importorskip("distributed")
+
+DASK = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
+WORKER = [sys.executable, "-m", "distributed.cli.dask_worker"]
+# what a run's wall clock decides, not its seed: left out where two studies are compared
+TIMED = {"process_wall_s", "wall_s", "realtime_factor"}
+
+
+class Cluster:
+    def __init__(self, root: Path, workers: int = 2):
+        self.port = free_port()
+        self.address = f"tcp://127.0.0.1:{self.port}"
+        self.logs = root / "dask-logs"
+        self.logs.mkdir(parents=True)
+        self.scheduler = self._start(
+            "scheduler", [*DASK, "--host", "127.0.0.1", "--port", str(self.port), "--no-dashboard"]
+        )
+        assert wait_for(lambda: _listening(self.port), timeout=60), (self.logs / "scheduler.log").read_text()
+        self.workers = [self.add_worker(root, f"w{k}") for k in range(workers)]
+
+    def _start(self, name: str, command: list[str]) -> subprocess.Popen:
+        log = open(self.logs / f"{name}.log", "w")  # noqa: SIM115 - closed with the process
+        return subprocess.Popen(command, cwd=REPO, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+
+    def add_worker(self, root: Path, name: str) -> subprocess.Popen:
+        command = [*WORKER, self.address, "--host", "127.0.0.1", "--nthreads", "1", "--no-nanny"]
+        command += ["--no-dashboard", "--name", name, "--local-directory", str(root / name)]
+        return self._start(name, command)
+
+    def wait_workers(self, n: int) -> None:
+        from distributed import Client
+
+        with Client(self.address, timeout=30) as client:
+            client.wait_for_workers(n, timeout=120)
+
+    def close(self) -> None:
+        for process in [*self.workers, self.scheduler]:
+            if process.poll() is None:
+                process.send_signal(signal.SIGTERM)
+        for process in [*self.workers, self.scheduler]:
+            try:
+                process.wait(30)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+
+
+def _listening(port: int) -> bool:
+    import socket
+
+    with socket.socket() as s:
+        return s.connect_ex(("127.0.0.1", port)) == 0
+
+
+@pytest.fixture
+def cluster(tmp_path):
+    c = Cluster(tmp_path)
+    try:
+        c.wait_workers(2)
+        yield c
+    finally:
+        c.close()
+
+
+def _comparable(path: Path) -> list[dict[str, str]]:
+    return [{k: v for k, v in row.items() if k not in TIMED} for row in read_csv(path)]
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+@pytest.mark.xdist_group("study-grid")
+def test_a_study_through_a_dask_cluster_is_the_local_study(grid, cluster, tmp_path):  # noqa: F811
+    out = tmp_path / "out"
+    result = study(grid / "grid.toml", out, "--scheduler", cluster.address, timeout=540)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert f"on the cluster at {cluster.address} (2 worker threads)" in result.stderr
+    assert _comparable(out / "runs.csv") == _comparable(grid / "out" / "runs.csv")  # reproducible runs
+    workers = {json.loads(p.read_text())["worker"] for p in (out / "records").glob("*.json")}
+    assert len(workers) == 2  # both workers ran some
+    assert (out / "report.html").is_file()
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_a_worker_killed_mid_study_leaves_every_run_done_once(cluster, tmp_path):
+    spec = tmp_path / "spec.toml"
+    spec.write_text(GRID.replace("robots = [2, 4]", "robots = [4]"))
+    out = tmp_path / "out"
+    command = [sys.executable, "-m", "sim.cli", "study", str(spec), "--out", str(out), "--scheduler", cluster.address]
+    runner = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    victim = psutil.Process(cluster.workers[0].pid)
+    try:
+        assert wait_for(lambda: _runs_under(victim), timeout=180)  # a run under way on the first worker
+        killed_runs = _runs_under(victim)
+        victim.send_signal(signal.SIGKILL)
+        stdout, stderr = runner.communicate(timeout=480)
+    finally:
+        if runner.poll() is None:
+            runner.kill()
+            runner.wait()
+    assert runner.returncode == 0, stderr[-3000:]
+    rows = read_csv(out / "runs.csv")
+    assert sorted(r["id"] for r in rows) == sorted({r["id"] for r in rows}) and len(rows) == 4
+    assert [r["status"] for r in rows] == ["done"] * 4
+    assert stderr.count(": done") == 4  # each run reported once
+    records = [json.loads(p.read_text()) for p in (out / "records").glob("*.json")]
+    assert len(records) == 4 and all(r["status"] == "done" for r in records)
+    deadline = time.monotonic() + 60  # the killed worker's run was told (its parent died) and stopped
+    while any(p.is_running() and p.status() != psutil.STATUS_ZOMBIE for p in killed_runs):
+        assert time.monotonic() < deadline, "a run of the killed worker outlived it"
+        time.sleep(0.5)
+    with open(out / "runs.csv", newline="") as f:
+        assert len(list(csv.reader(f))) == 5
+
+
+def _runs_under(worker: psutil.Process) -> list[psutil.Process]:
+    try:
+        return [p for p in worker.children(recursive=True) if "sim.cli" in " ".join(p.cmdline())]
+    except psutil.Error:
+        return []
+
+
+def test_a_bad_scheduler_address_is_one_line_exit_2_and_starts_nothing(tmp_path, capsys):
+    spec = tmp_path / "spec.toml"
+    spec.write_text(GRID)
+    assert main(["study", str(spec), "--out", str(tmp_path / "out"), "--scheduler", "banana"]) == 2
+    err = capsys.readouterr().err
+    assert err.strip().count("\n") == 0 and "--scheduler must be tcp://HOST:PORT, not 'banana'" in err
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.slow
+def test_a_scheduler_that_does_not_answer_is_one_line_exit_2_and_starts_nothing(tmp_path):
+    spec = tmp_path / "spec.toml"
+    spec.write_text(GRID)
+    _refused(spec, tmp_path / "out", f"tcp://127.0.0.1:{free_port()}", "cannot reach the Dask scheduler")
+
+
+def _refused(spec: Path, out: Path, address: str, says: str) -> None:
+    result = study(spec, out, "--scheduler", address, timeout=60)
+    assert result.returncode == 2 and says in result.stderr, result.stderr
+    assert result.stderr.strip().count("\n") == 0 and "Traceback" not in result.stderr
+    assert not out.exists()
