@@ -11,7 +11,7 @@ from transport.codec import State
 from transport.keys import cells_of
 from transport.plausible import AHEAD, FUTURE, INCONSISTENT, stamp_agrees
 
-from .core.grid import nearest
+from .core.grid import nearest, neighbour_rows
 from .core.step import NeighbourStates
 
 _tick = attrgetter("tick")
@@ -176,12 +176,7 @@ def nearest_heard(
         float(neighbour_dist),
         int(max_neighbours),
     )
-    valid = idx >= 0  # idx -1 (no neighbour) reads the last state: masked out below
-    return NeighbourStates(
-        np.where(valid[..., None], np.asarray(heard.position, float)[idx], 0.0),
-        np.where(valid[..., None], np.asarray(heard.velocity, float)[idx], 0.0),
-        np.where(valid, np.asarray(heard.radius, float)[idx], 1.0),
-        np.where(valid, stamp - np.asarray(heard.stamp, float)[idx], 0.0),
-        valid,
-        np.where(valid, np.asarray(heard.cooperative, bool)[idx], True),
-    )
+    table = np.empty((len(heard.ids), 7))  # per state: x, y, vx, vy, radius, age, cooperative
+    table[:, 0:2], table[:, 2:4], table[:, 4] = heard.position, heard.velocity, heard.radius
+    table[:, 5], table[:, 6] = stamp - np.asarray(heard.stamp, float), heard.cooperative
+    return NeighbourStates(*neighbour_rows(idx, table))

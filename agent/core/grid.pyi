@@ -21,3 +21,13 @@ def close_pairs(
     first_row: int,
     budget: int,
 ) -> tuple[bool, float, int, int, npt.NDArray[np.int64], npt.NDArray[np.float64]]: ...
+def neighbour_rows(
+    idx: npt.NDArray[np.int64], table: npt.NDArray[np.float64]
+) -> tuple[
+    npt.NDArray[np.float64],
+    npt.NDArray[np.float64],
+    npt.NDArray[np.float64],
+    npt.NDArray[np.float64],
+    npt.NDArray[np.bool_],
+    npt.NDArray[np.bool_],
+]: ...

@@ -360,3 +360,38 @@ def close_pairs(
         grid_free(&g)
         free(d2)
     return True, best, best_i, best_j, pairs_array[:hits], depth_array[:hits]
+
+
+def neighbour_rows(const int64_t[:, ::1] idx, const double[:, ::1] table):
+    """The chosen points' states as padded neighbour arrays: table (N, 7) holds per point x, y, vx,
+    vy, radius, age and cooperative (0 or 1); idx (Q, m) is `nearest`'s. Returns position and
+    velocity (Q, m, 2), radius, age, valid and cooperative (Q, m); a slot past the last neighbour
+    holds zeros, radius 1, not valid, cooperative."""
+    cdef Py_ssize_t q = idx.shape[0], m = idx.shape[1], i, k, j
+    if table.shape[1] != 7:
+        raise ValueError("neighbour_rows: table (N, 7): x, y, vx, vy, radius, age, cooperative")
+    position_array, velocity_array = np.zeros((q, m, 2)), np.zeros((q, m, 2))
+    radius_array, age_array = np.ones((q, m)), np.zeros((q, m))
+    valid_array, cooperative_array = np.zeros((q, m), dtype=bool), np.ones((q, m), dtype=bool)
+    cdef double[:, :, ::1] position = position_array
+    cdef double[:, :, ::1] velocity = velocity_array
+    cdef double[:, ::1] radius = radius_array
+    cdef double[:, ::1] age = age_array
+    cdef unsigned char[:, ::1] valid = valid_array.view(np.uint8)
+    cdef unsigned char[:, ::1] cooperative = cooperative_array.view(np.uint8)
+    for i in range(q):
+        for k in range(m):
+            j = idx[i, k]
+            if j < 0:
+                break
+            if j >= table.shape[0]:
+                raise IndexError(f"neighbour_rows: index {j} past the table's {table.shape[0]} rows")
+            position[i, k, 0] = table[j, 0]
+            position[i, k, 1] = table[j, 1]
+            velocity[i, k, 0] = table[j, 2]
+            velocity[i, k, 1] = table[j, 3]
+            radius[i, k] = table[j, 4]
+            age[i, k] = table[j, 5]
+            valid[i, k] = 1
+            cooperative[i, k] = table[j, 6] != 0.0
+    return position_array, velocity_array, radius_array, age_array, valid_array, cooperative_array
