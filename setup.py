@@ -9,7 +9,7 @@ from glob import glob
 from Cython.Build import cythonize
 from setuptools import Extension, setup
 
-FLAGS = ["-O2", "-ffp-contract=off", "-fno-fast-math"]
+FLAGS = ["-O3", "-ffp-contract=off", "-fno-fast-math"]
 DIRECTIVES = {"language_level": 3, "boundscheck": False, "wraparound": False, "cdivision": True, "initializedcheck": False}
 
 modules = [

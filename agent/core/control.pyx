@@ -314,16 +314,17 @@ cdef inline void _disk_optimum(Target *g, double *out) noexcept nogil:
         out[0], out[1] = g.tx, g.ty
 
 
-cdef bint _optimise(Lines *L, int n, Target *g, double *out) noexcept nogil:
-    """RVO2's linearProgram2 over lines 0..n-1, incrementally: where the optimum so far violates a
-    line, the new one lies on it. False at the first line that cannot be met (``out`` then holds
-    the optimum over the lines before it)."""
+cdef bint _optimise(Lines *L, int n, bint all_lines, Target *g, double *out) noexcept nogil:
+    """RVO2's linearProgram2 over lines 0..n-1 (those with ``use`` unless ``all_lines``),
+    incrementally: where the optimum so far violates a line, the new one lies on it, clipped by the
+    lines before. False at the first line that cannot be met (``out`` then holds the optimum over
+    the lines before it)."""
     cdef double at[2]
     cdef int i
     _disk_optimum(g, out)
     for i in range(n):
-        if _violates(L, i, out[0], out[1], 0.0):
-            if not _on_line(L, i, i, True, g, at):
+        if (all_lines or L.use[i]) and _violates(L, i, out[0], out[1], 0.0):
+            if not _on_line(L, i, i, all_lines, g, at):
                 return False
             out[0], out[1] = at[0], at[1]
     return True
@@ -331,7 +332,9 @@ cdef bint _optimise(Lines *L, int n, Target *g, double *out) noexcept nogil:
 
 cdef bint _optimise_few(Lines *L, int n, Target *g, double *out) noexcept nogil:
     """The optimum over the lines 0..n-1 with ``use`` and the disk, where it is known to lie on one
-    of the lines the disk's optimum violates: the best of their 1-D optima (ties to the first)."""
+    of the lines the disk's optimum violates: the best of their 1-D optima (ties to the first).
+    The shrinking horizon's programs take this one: on bench_orca's Blocks its optimum moves crowds
+    on sooner than the incremental program's, whose rounding differs."""
     cdef double at[2]
     cdef double best_cost = INFINITY, cost, ex, ey, cx, cy
     cdef bint violated = False, good = False
@@ -370,7 +373,8 @@ cdef void _least_violation(Lines *L, Lines *Q, int n, int n_hard, Target *g, dou
     cdef Target into
     for i in range(n):
         L.use[i] = i < n_hard
-    if not _optimise_few(L, n, g, out):
+    if not _optimise(L, n, False, g, out):  # the hard lines leave nothing: all soft, from the disk's optimum
+        _disk_optimum(g, out)
         for i in range(n):
             L.use[i] = False
     for i in range(n):
@@ -394,7 +398,7 @@ cdef void _least_violation(Lines *L, Lines *Q, int n, int n_hard, Target *g, dou
             norm = norm if norm > 0.0 else 1.0
             Q.dx[j], Q.dy[j] = ex / norm, ey / norm
         into = Target(-diy, dix, g.radius, True)  # line i's left normal: into its half-plane
-        if _optimise_few(Q, i, &into, at):
+        if _optimise(Q, i, False, &into, at):
             out[0], out[1] = at[0], at[1]
         distance = dix * (piy - out[1]) - diy * (pix - out[0])
 
@@ -682,7 +686,7 @@ cdef bint _orca(Config *s, Scratch *w, Robot *me, Edges *edges, Lines *extra, in
     cdef int n = _robot_lines(s, w, me, s.tau, n_hard)
     cdef double horizon = s.tau
     cdef int k
-    if _optimise(&w.L, n, &g, out):
+    if _optimise(&w.L, n, True, &g, out):
         return False
     if full_only:
         return True
@@ -978,7 +982,7 @@ def linear_program(lines, double vmax, target, int n_hard=0):
         w.L.px[k], w.L.py[k], w.L.dx[k], w.L.dy[k] = ln[k, 0], ln[k, 1], ln[k, 2], ln[k, 3]
     cdef Target g = Target(target[0], target[1], vmax, False)
     cdef double out[2]
-    if _optimise(&w.L, n, &g, out):
+    if _optimise(&w.L, n, True, &g, out):
         return np.array([out[0], out[1]]), False
     _least_violation(&w.L, &w.Q, n, min(n_hard, n), &g, out)
     return np.array([out[0], out[1]]), True
