@@ -541,11 +541,25 @@ def _boards(local: LocalAuction, words: Words, sender: int) -> Boards:
     )
 
 
+def _fits(msg: Boards, local: LocalAuction) -> bool:
+    """Words of robots of this goal set, records of its goals, as many as the words say and known
+    sets for those that grew: a damaged or forged message is no robot's word (and must not index
+    the auction's arrays)."""
+    w, r = msg.words, msg.records
+    grown = int(((w["flags"].astype(np.int64) & Boards.GROWN) != 0).sum())
+    return (
+        bool(np.isin(w["robot"], local.robots).all() and np.isin(r["robot"], local.robots).all())
+        and bool((r["goal"] >= 0).all() and (r["goal"] < len(local.goals)).all())
+        and int(w["records"].sum()) == len(r)
+        and len(msg.known) >= grown
+    )
+
+
 def _words(msg: Boards, local: LocalAuction) -> Words:
     """Another host's words as the auction reads them (left-out parts empty: they are not read)."""
     g, n = len(local.goals), len(local.robots)
     same_set = msg.goals == g and msg.robots == n  # else a peer's words for another goal set: none read
-    w, r = (msg.words, msg.records) if same_set else (msg.words[:0], msg.records[:0])
+    w, r = (msg.words, msg.records) if same_set and _fits(msg, local) else (msg.words[:0], msg.records[:0])
     k = len(w)
     flags = w["flags"].astype(np.int64)
     fresh, grown = (flags & Boards.FRESH) != 0, (flags & Boards.GROWN) != 0

@@ -484,3 +484,51 @@ def test_moved_bound_bounds_every_goal_off_the_list_and_is_tight_near_the_goals(
         hull_only = made + 2.0 * (max(hx * d[0] + hy * d[1]) - p0 @ d) - d @ d
         tighter += bound < hull_only - 1e-6
     assert tighter > 150, tighter
+
+
+def test_records_of_robots_outside_the_goal_set_are_no_ones_word():
+    """A damaged or forged record (a robot id no robot of the goal set has, a goal off the board)
+    changes neither a lock-step block nor its agreement, and crashes nothing."""
+    from agent.core.rounds import BlockRounds
+
+    goals = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
+    pos = {0: np.array([0.1, 0.0]), 1: np.array([0.9, 0.1]), 2: np.array([0.0, 0.9]), 3: np.array([1.0, 0.8])}
+
+    def agree(forge: bool) -> tuple[bytes, int]:
+        hosts = [Participant(1, goals, [0, 1, 2, 3], own, 1e-3) for own in ([0, 1], [2, 3])]
+        blocks = [BlockRounds(p, {r: pos[r] for r in p.own}) for p in hosts]
+        for _ in range(200):
+            said = [b.say() for b in blocks]
+            if forge:  # what a faulty peer adds under host 1's name
+                bad = said[1].copy()
+                bad["robot"], bad["goal"], bad["price"] = 186, 9999, 1e9
+                said[1] = np.concatenate([said[1], bad])
+            done = [b.hear({1 - i: said[1 - i]}) for i, b in enumerate(blocks)]
+            if all(done):
+                return hosts[0].board.owner.tobytes(), blocks[0].round
+        raise AssertionError("no agreement")
+
+    assert agree(forge=True) == agree(forge=False)
+
+
+def test_boards_of_robots_or_goals_outside_the_goal_set_are_not_read():
+    """The range-limited auction's words: a message naming a robot or a goal the goal set does not
+    have is no robot's word, not an index into the auction's arrays."""
+    from agent.assignment import _boards, _words
+    from agent.core.local_auction import LocalAuction
+
+    goals = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+
+    def first_word():
+        local = LocalAuction(1, goals, [0, 1, 2], [0, 1, 2], 1e-3, 0.0, 2.0)
+        local.begin_block({0: np.array([0.0, 0.1]), 1: np.array([1.0, 0.1]), 2: np.array([0.1, 1.0])})
+        return local, _boards(local, local.say(), sender=7)
+
+    local, msg = first_word()
+    assert len(_words(msg, local).robot) == 3  # a real message is read
+    for part, field, value in (("words", "robot", 186), ("records", "robot", 186), ("records", "goal", 9999)):
+        local, bad = first_word()
+        target = getattr(bad, part)
+        assert len(target)
+        target[field] = value
+        assert len(_words(bad, local).robot) == 0

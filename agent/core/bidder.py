@@ -498,10 +498,16 @@ class Participant:
         releases["price"], releases["flags"] = self.board.price[rel], RELEASED
         return np.concatenate([claims, releases])
 
+    def members_only(self, recs: np.ndarray) -> np.ndarray:
+        """Another host's records of robots of this goal set only: a damaged or forged robot id is
+        no robot's word (and must not index a robot's row)."""
+        recs = np.asarray(recs, RECORD)
+        return recs[np.isin(recs["robot"], self.robots)]
+
     def absorb(self, instance: int, serial: int, digest: int, recs: np.ndarray) -> bool:
         """Merge another host's records; True when the board changed. Records of the current instance
         are remembered per robot (the newest by serial) for the agreement check."""
-        recs = np.asarray(recs, RECORD)
+        recs = self.members_only(recs)
         if len(recs) <= SMALL:
             return self._absorb_each(instance, serial, digest, recs.tolist())
         robot = recs["robot"].astype(np.int64)

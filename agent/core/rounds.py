@@ -69,6 +69,7 @@ class BlockRounds:
         True: the block is agreed, at this round for every host."""
         part = self.part
         for sender, records in heard.items():
+            records = part.members_only(records)
             self.robots_of(sender, records)
             part.absorb(part.instance, self.round, 0, records)
             theirs = claims(records)
