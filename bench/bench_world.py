@@ -21,7 +21,7 @@ The neighbour searches alone (agent.core.grid), beside the code of another revis
 times, on the same points (a formed display: a lattice 0.12 m apart, jittered by up to 2 cm; and
 one 0.6 m apart, fewer than 16 within reach) at
 1000 and 10,000 robots, the central engine's neighbour search (sim.link's, 1.2 m and 16 as
-paper-sequence-1000), the RVO2-shaped engine's (agent.core.rvo.CentralOrca.neighbours), the
+paper-sequence-1000), the RVO2-shaped engine's (sim.rvo.CentralOrca.neighbours), the
 world's contact search (sim.proximity.close_pairs over a step of 10 substeps) and one robot's
 gather in its own process (NeighbourTable.gather among 14 and 200 states). With ``--before``, a
 git worktree of REV (bench.bench_runtime.worktree) runs the same code first; rows alternate.
@@ -139,7 +139,7 @@ def main() -> None:
 NEIGHBOUR_TIMINGS = r"""
 import json, sys, time
 import numpy as np
-from agent.core.rvo import CentralOrca
+from sim.rvo import CentralOrca
 from agent.neighbour_table import Heard, NeighbourTable
 from sim.proximity import close_pairs
 from transport.codec import State

@@ -14,7 +14,7 @@ from sim.proximity import close_pairs
 
 
 def nearest_within(position: np.ndarray, reach: float, m: int) -> np.ndarray:
-    """The central engine's (agent.core.rvo) use: every robot among all, strictly within reach."""
+    """The central engine's (sim.rvo) use: every robot among all, strictly within reach."""
     index = np.arange(len(position), dtype=np.int64)
     p = np.ascontiguousarray(position, dtype=float)
     return nearest(p, index, p, index, reach, m, False)

@@ -1,7 +1,6 @@
-"""A central, synchronous ORCA stepper over all robots with perfect information (like RVO2's doStep).
-
-The reference against which decentralisation is studied and the fast path for large swarms: one
-snapshot, every robot's new velocity from the same batch call of the core, then all move.
+"""A central, synchronous ORCA stepper over all robots with perfect information, with RVO2's API shape
+(like its doStep: one snapshot, every robot's new velocity, then all move): the engine
+bench/bench_orca.py runs beside RVO2 itself.
 
 Neighbours come from agent.core.grid and velocities from agent.core.control, both compiled: the
 same code as every robot's, with perfect information.
