@@ -277,8 +277,9 @@ class Recorder:
         self.last_min_clearance = min(self.last_min_clearance, m.min_clearance)
         self._check_converged(m.stamp, m.pose)
         self._log_scene(wall, m)
-        if self.view is not None:
-            self.view.tick(m.tick, m.stamp, m.pose, m.color, self.goal, radius=self.radius)
+        if self.view is not None:  # missed: the ticks so far the world applied no command of the robot's
+            missed = np.maximum(0, m.tick - m.applied.astype(np.int64)) if len(m.applied) == self.n else None
+            self.view.tick(m.tick, m.stamp, m.pose, m.color, self.goal, radius=self.radius, missed=missed)
         if self.log is not None and time.monotonic() - self._flushed >= FLUSH_EVERY:
             self.log.flush()
             self._flushed = time.monotonic()

@@ -8,7 +8,7 @@ swarm (one entity holds every robot, so 1000 robots stay fluid):
   whether it is at its goal and its missed ticks;
 - ``swarm/heading``: each robot's heading, an arrow of its radius;
 - ``swarm/goals``: the goals, faint, in their robots' colours (the picture beneath the swarm);
-- ``swarm/trails``: each robot's last :data:`TRAIL` positions;
+- ``swarm/trails``: each robot's positions over the last 2 s, as faint dots;
 - ``metrics/clearance`` and ``metrics/at_goal``: time series.
 
 The timelines are ``tick`` (the control step) and ``time`` (display time, s).
@@ -22,7 +22,9 @@ run's ``trajectory.npz``).  Every server listens on 127.0.0.1 only.
 from __future__ import annotations
 
 import os
+import queue
 import subprocess
+import threading
 import time
 import urllib.parse
 import urllib.request
@@ -35,7 +37,11 @@ import numpy as np
 __all__ = ["SwarmView", "ViewUnavailable", "replay", "VIEW_FILE", "TRAIL"]
 
 VIEW_FILE = "view.rrd"  # beside trajectory.npz
-TRAIL = 20  # positions kept per robot's trail (2 s at 10 Hz)
+TRAIL = 10  # positions kept per robot's trail: every TRAIL_EVERY-th tick's, 2 s at 10 Hz
+TRAIL_EVERY = 2
+TRAIL_DOT = 0.004  # m, radius of a trail's dots
+TRAIL_ALPHA = 90
+QUEUE_TICKS = 50  # ticks handed over and not yet logged, at most (then the run waits for the view)
 GOAL_ALPHA = 70  # the goals are faint: the picture beneath the robots
 LOOPBACK = "127.0.0.1"
 START_TIMEOUT = 30.0  # s for Rerun's server to listen
@@ -108,6 +114,11 @@ class SwarmView:
         self.url: str | None = None
         self.process: subprocess.Popen | None = None
         self._trail: deque[np.ndarray] = deque(maxlen=TRAIL)
+        # ticks are logged on a thread of the view's own: the run hands over copies and goes on (a full
+        # queue makes it wait: no tick is dropped)
+        self._queue: queue.Queue[tuple[Any, ...] | None] = queue.Queue(maxsize=QUEUE_TICKS)
+        self._logger = threading.Thread(target=self._drain, name="rerun-view", daemon=True)
+        self._logger.start()
         self.rec = rr.RecordingStream("pixelswarm", recording_id=f"{name}-{os.getpid()}-{time.time_ns()}")
         if sink in ("native", "web"):
             self._serve(web=sink == "web")
@@ -158,19 +169,48 @@ class SwarmView:
         missed: np.ndarray | None = None,
     ) -> None:
         """The swarm at one tick: ``pose`` (N,3), ``color`` (N,3) uint8, ``goal`` (N,2) NaN = none,
-        ``missed`` (N,) ticks each robot has missed so far (distributed engine)."""
+        ``missed`` (N,) ticks each robot has missed so far (distributed engine). Copied and logged
+        on the view's thread."""
+        copy = (
+            int(tick),
+            float(t),
+            np.array(pose, dtype=float),
+            np.array(color, dtype=np.uint8).reshape(-1, 3),
+            np.array(goal, dtype=float).reshape(-1, 2),
+            None if radius is None else np.array(radius, dtype=float),
+            None if missed is None else np.array(missed, dtype=np.int64),
+        )
+        self._queue.put(copy)
+
+    def _drain(self) -> None:
+        while True:
+            item = self._queue.get()
+            try:
+                if item is None:
+                    return
+                self._log(*item)
+            finally:
+                self._queue.task_done()
+
+    def _log(
+        self,
+        tick: int,
+        t: float,
+        pose: np.ndarray,
+        rgb: np.ndarray,
+        goal: np.ndarray,
+        radius: np.ndarray | None,
+        missed: np.ndarray | None,
+    ) -> None:
         rr, rec = self._rr, self.rec
         if radius is not None:
             self.radius = np.where(np.isfinite(radius), radius, self.radius)
-        pose = np.asarray(pose, dtype=float)
         xy = pose[:, :2]
-        rgb = np.asarray(color, dtype=np.uint8).reshape(-1, 3)
-        goal = np.asarray(goal, dtype=float).reshape(-1, 2)
         has_goal = np.isfinite(goal).all(axis=1)
         error = np.hypot(*(xy - goal).T)
         at_goal = has_goal & (error <= self.tolerance)
-        rec.set_time("tick", sequence=int(tick))
-        rec.set_time("time", duration=float(t))
+        rec.set_time("tick", sequence=tick)
+        rec.set_time("time", duration=t)
         r = np.where(np.isfinite(self.radius), self.radius, 0.0)
         rec.log("swarm/robots", rr.Points2D(xy, colors=rgb, radii=r))
         rec.log(
@@ -180,7 +220,7 @@ class SwarmView:
                 goal_y=np.where(has_goal, goal[:, 1], np.nan),
                 at_goal=at_goal,
                 heading_rad=pose[:, 2],
-                missed_ticks=np.zeros(len(xy), np.int64) if missed is None else np.asarray(missed, np.int64),
+                missed_ticks=np.zeros(len(xy), np.int64) if missed is None else missed,
             ),
         )
         theta = np.where(np.isfinite(pose[:, 2]), pose[:, 2], 0.0)
@@ -190,18 +230,25 @@ class SwarmView:
         )
         faint = np.column_stack([rgb[has_goal], np.full(int(has_goal.sum()), GOAL_ALPHA, np.uint8)])
         rec.log("swarm/goals", rr.Points2D(goal[has_goal], colors=faint, radii=r[has_goal] * 0.6))
-        self._trail.append(xy.copy())
-        trails = np.stack(self._trail, axis=1)  # (N, T, 2)
-        rec.log("swarm/trails", rr.LineStrips2D(trails, colors=rgb, radii=0.004))
+        # the trails as dots, one flat batch (a strip per robot costs ten times as much to log)
+        if tick % TRAIL_EVERY == 0 or not self._trail:
+            self._trail.append(xy.copy())
+        dots = np.concatenate(self._trail)
+        trail_rgb = np.tile(np.column_stack([rgb, np.full(len(rgb), TRAIL_ALPHA, np.uint8)]), (len(self._trail), 1))
+        rec.log("swarm/trails", rr.Points2D(dots, colors=trail_rgb, radii=TRAIL_DOT))
         rec.log("metrics/clearance", rr.Scalars(_min_clearance(xy, r)))
         rec.log("metrics/at_goal", rr.Scalars(float(at_goal.sum())))
 
     def flush(self) -> None:
-        """Hand every logged tick to its sink."""
+        """Hand every tick given so far to its sink."""
+        self._queue.join()
         self.rec.flush()
 
     def close(self) -> None:
-        """Hand every logged tick to its sink (a file is complete after this); stop the web server."""
+        """Hand every tick to its sink (a file is complete after this); stop the web server."""
+        if self._logger.is_alive():
+            self._queue.put(None)
+            self._logger.join()
         self.rec.flush()
         self.rec.disconnect()
         if self.process is not None:
