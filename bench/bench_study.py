@@ -31,15 +31,26 @@ def run_study(spec: Path, jobs: int, cluster: bool = False) -> tuple[float, list
         try:
             result = subprocess.run(command, cwd=REPO, capture_output=True, text=True)
         finally:
-            for process in processes:
-                process.terminate()
-            for process in processes:
-                process.wait(30)
+            _stop(processes)
         wall = time.perf_counter() - start
         if result.returncode != 0:
             raise SystemExit(f"study failed (exit {result.returncode}): {result.stderr[-2000:]}")
         with open(out / "runs.csv", newline="") as f:
             return wall, list(csv.DictReader(f))
+
+
+def _stop(processes: list[subprocess.Popen]) -> None:
+    """The workers (all but the first), then the scheduler: a worker whose scheduler is gone keeps
+    trying to reach it instead of closing."""
+    for group in (processes[1:], processes[:1]):
+        for process in group:
+            process.terminate()
+        for process in group:
+            try:
+                process.wait(30)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
 
 
 def _loopback_cluster(root: Path, workers: int, command: list[str]) -> list[subprocess.Popen]:
