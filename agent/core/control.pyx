@@ -25,6 +25,8 @@ from libc.math cimport INFINITY, atan2, copysign, cos, fabs, isfinite, sin, sqrt
 from libc.stdint cimport int64_t, uint64_t
 from libc.stdlib cimport free, malloc
 
+from agent.core.splitmix cimport splitmix64
+
 import math
 
 import numpy as np
@@ -156,18 +158,10 @@ def vertex_angles(double dent, int n=N_VERTICES):
 # ---------------------------------------------------------------- preferred velocity (eq. 9)
 
 
-cdef inline uint64_t _splitmix64(uint64_t x) noexcept nogil:
-    # integer hash (Steele et al.'s SplitMix64 finaliser), wrapping uint64 arithmetic
-    x = x + <uint64_t>0x9E3779B97F4A7C15
-    x = (x ^ (x >> 30)) * <uint64_t>0xBF58476D1CE4E5B9
-    x = (x ^ (x >> 27)) * <uint64_t>0x94D049BB133111EB
-    return x ^ (x >> 31)
-
-
 cdef inline void _perturbation(uint64_t robot, uint64_t seed, uint64_t tick, double magnitude, double *out) noexcept nogil:
-    cdef uint64_t key = _splitmix64(_splitmix64(robot ^ _splitmix64(seed)) + tick)
+    cdef uint64_t key = splitmix64(splitmix64(robot ^ splitmix64(seed)) + tick)
     cdef double a = <double>(key >> 11) * 2.0**-53  # [0, 1)
-    cdef double b = <double>(_splitmix64(key) >> 11) * 2.0**-53
+    cdef double b = <double>(splitmix64(key) >> 11) * 2.0**-53
     out[0] = (2.0 * a - 1.0) * magnitude
     out[1] = (2.0 * b - 1.0) * magnitude
 
@@ -197,18 +191,6 @@ def preferred_velocity(position, goal, double v_pref, double k_a):
     for i in range(pv.shape[0]):
         _eq9(gv[i, 0] - pv[i, 0], gv[i, 1] - pv[i, 1], v_pref, k_a, &ov[i, 0])
     return out.reshape(p.shape)
-
-
-def splitmix64(words):
-    """SplitMix64's finaliser of each uint64 word (an integer hash; wrapping arithmetic)."""
-    w = np.ascontiguousarray(np.asarray(words, dtype=np.uint64).reshape(-1))
-    out = np.empty_like(w)
-    cdef const uint64_t[::1] wv = w
-    cdef uint64_t[::1] ov = out
-    cdef Py_ssize_t i
-    for i in range(wv.shape[0]):
-        ov[i] = _splitmix64(wv[i])
-    return out.reshape(np.shape(words))
 
 
 def perturbation(robot_ids, seed, tick=0, double magnitude=PERTURBATION):
