@@ -137,7 +137,7 @@ def assignment_over_optimum(pose: np.ndarray, goal: np.ndarray, assignment: np.n
     for k in np.unique(step):
         first = int(np.flatnonzero(step == k)[0])
         a, xy, g = assignment[first], pose[first, :, :2], goal[first]
-        if (a < 0).any() or len(np.unique(a)) != len(a) or not np.isfinite(g).all():
+        if (a < 0).any() or (a >= len(g)).any() or len(np.unique(a)) != len(a) or not np.isfinite(g).all():
             out.append(None)
             continue
         goals = np.empty_like(g)

@@ -213,6 +213,9 @@ class Recorder:
             return  # from the future, or a copy (the first heard is the robot's)
         if self.dt and not stamp_agrees(s.tick, s.stamp, self.dt):
             return  # its stamp is not its tick's
+        named = self.goal_sets.get(s.assign_epoch)
+        if named is not None and s.goal_index >= len(named.positions):
+            return  # a goal its goal set does not have (a damaged field)
         goal = (s.goal_x, s.goal_y) if s.flags & State.HAS_GOAL else (np.nan, np.nan)
         said = (goal, s.goal_index, s.assign_epoch, s.assign_instance)
         newest = s.tick > self.state_tick[r]

@@ -27,6 +27,13 @@ def test_a_tick_with_two_robots_on_one_goal_has_no_figure():
     assert assignment_over_optimum(pose, np.zeros((1, 2, 2)), assignment, np.array([0])) == [None]
 
 
+def test_a_goal_index_the_goal_set_does_not_have_gives_no_figure():
+    """A damaged state's goal index (a faulty peer on the bus) is no assignment, not a crash."""
+    pose = np.zeros((1, 2, 3))
+    assignment = np.array([[0, 12807]])
+    assert assignment_over_optimum(pose, np.zeros((1, 2, 2)), assignment, np.array([0])) == [None]
+
+
 def test_runs_csv_gets_a_column_per_image_and_figure():
     row = flatten({"steps": [{"converged_at": 8.5, "assignment_over_optimum_m2": 0.0}, {"converged_at": None}]})
     assert row == {"steps.0.converged_at": 8.5, "steps.0.assignment_over_optimum_m2": 0.0, "steps.1.converged_at": None}
