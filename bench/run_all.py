@@ -1,7 +1,8 @@
-"""Run every benchmark and assemble BENCHMARKS.md from their results (bench/results/*.md).
+"""Run every benchmark; each writes its results, with its command and date, to bench/results/<name>.md.
+
+BENCHMARKS.md holds today's figures, chosen from those by hand: it is not rebuilt from them.
 
 make bench                      # everything (tens of minutes on 2 cores)
-.venv/bin/python -m bench.run_all --assemble   # only rebuild BENCHMARKS.md from stored results
 """
 
 from __future__ import annotations
@@ -9,7 +10,6 @@ from __future__ import annotations
 import argparse
 import subprocess
 import sys
-from pathlib import Path
 
 from .common import REPO, RESULTS
 
@@ -39,67 +39,17 @@ BENCHES = [
     "bench.bench_security",
     "bench.bench_study",
 ]
-ORDER = [
-    "one-controller",
-    "runtime",
-    "agent_tick",
-    "state_intake",
-    "state_take",
-    "auction",
-    "sequence",
-    "large",
-    "large-trial",
-    "hosted",
-    "world",
-    "orca",
-    "loss",
-    "impaired",
-    "speed_limit",
-    "goals",
-    "keyframes",
-    "animation",
-    "carry",
-    "ros2",
-    "epuck2",
-    "hardware",
-    "tracker",
-    "outputs",
-    "security",
-    "study",
-    "paper_figures",
-]
-
-
-def assemble() -> Path:
-    parts = [
-        "# Benchmarks",
-        "",
-        "Every figure below was measured by the command shown with it, on the machine named (2 cores, "
-        "shared with other work at the time, so expect +-30 % between runs). Each benchmark compares "
-        "side by side in one run against its reference where there is one (RVO2 through pyrvo, "
-        "scikit-learn's KMeans, scipy's linear_sum_assignment). `make bench` reruns them all.",
-        "",
-    ]
-    files = sorted(RESULTS.glob("*.md"), key=lambda p: (ORDER.index(p.stem) if p.stem in ORDER else 99, p.stem))
-    for f in files:
-        parts += [f.read_text().strip(), ""]
-    out = REPO / "BENCHMARKS.md"
-    out.write_text("\n".join(parts))
-    return out
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser()
-    parser.add_argument("--assemble", action="store_true", help="only rebuild BENCHMARKS.md")
-    args = parser.parse_args()
-    if not args.assemble:
-        for module in BENCHES:
-            print(f"== {module}", flush=True)
-            code = subprocess.call([sys.executable, "-m", module], cwd=REPO)
-            if code != 0:
-                print(f"{module} failed with code {code}", file=sys.stderr)
-                return code
-    print(assemble())
+    argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args()
+    for module in BENCHES:
+        print(f"== {module}", flush=True)
+        code = subprocess.call([sys.executable, "-m", module], cwd=REPO)
+        if code != 0:
+            print(f"{module} failed with code {code}", file=sys.stderr)
+            return code
+    print(f"results in {RESULTS}")
     return 0
 
 
