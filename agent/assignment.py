@@ -23,6 +23,7 @@ it at tick k (settle_block).
 from __future__ import annotations
 
 import math
+import sys
 import time
 from collections.abc import Callable
 from typing import Any
@@ -32,17 +33,17 @@ import numpy as np
 from transport.bus import Bus, Inbox
 from transport.codec import Bid, Boards, Goals
 
-from .core.bidder import RELEASED, Participant, frames_close
+from .core.bidder import RELEASED, Participant
 from .core.local_auction import NO_OWNER, LocalAuction, Words, new_auction
 from .core.params import RobotParams
-from .core.rounds import BlockRounds, rounds_in_tick
+from .core.rounds import BlockRounds
 
 DIGEST_EVERY = 0.01
 QUIET = 0.02  # digest-only news waits until the board has not changed for this long (no storms)
 RESEND_BUSY = 0.25  # a lost message stalls a phase until a resend: short while an instance is open
 RESEND_PER_ROBOT = 0.01  # ... but every resend reaches every host: the backstop grows with the swarm
 RESEND_IDLE = 1.0
-MAX_LEAD = 15.0  # s: the longest latency the robots' bid positions compensate (core.bidder.bid_position)
+MAX_LEAD = 15.0  # s: the longest latency the robots' bid positions compensate (agent.runtime.bid_position)
 ROUND_RESEND = 0.1  # s: lock-step, the least a host waits for a round's records before it sends its own
 # again; at least RESEND_PER_ROBOT per robot, as every resend reaches every host and slows every round
 ROUND_CAP = 30.0  # s: lock-step, the longest a host waits for one round; then its robots hold their positions
@@ -156,7 +157,7 @@ class AuctionLink:
         by the goal sets' matching and the auction starts from it, prices included (_warm_start).
         Otherwise a keyframe carries by the coordinator's goal correspondence, and the auction starts
         from the carried claims only when the last one had agreed (a board still in a price war is
-        no assignment) and the frames are close (bidder.frames_close)."""
+        no assignment) and the frames are close (frames_close)."""
         if self.active and goals.epoch <= self.epoch:
             return {}
         auction = new_auction(goals.epoch, goals.positions, goals.robots.tolist(), self.robots, self.params, self.reach)
@@ -512,6 +513,32 @@ class AuctionLink:
             "abandoned_blocks": self.abandoned,
             "first_agreement_s": [round(x, 4) for x in self.first_agreement_s],
         }
+
+
+def rounds_in_tick(params: RobotParams, cold: bool) -> int:
+    """The most rounds a tick gives a block: ``rounds_per_tick``; every round it needs (agreed within
+    its tick: paper 5.1, an assignment every iteration) when that is 0 or the block is a ``cold``
+    start, whose robots have no goal to drive to meanwhile."""
+    return params.rounds_per_tick if params.rounds_per_tick and not cold else sys.maxsize
+
+
+def frames_close(before: np.ndarray, goals: np.ndarray, previous: np.ndarray) -> bool:
+    """Whether consecutive keyframes differ little enough for the auction to start from the carried
+    assignment (Participant.carry) at prices zero, when the warm start from the goal sets' matching
+    (the WarmStart part of Goals) does not apply (the last auction never agreed, or the robots changed): corresponding goals on average at most one and a half
+    typical goal spacings (the median distance from a goal to its nearest neighbour) apart: closer,
+    the carried claims agree in fewer rounds than a cold start; further, in more
+    (bench/results/carry.md)."""
+    goals = np.asarray(goals, float)
+    ok = previous >= 0
+    if len(goals) < 2 or not ok.any():
+        return False
+    # Imported here: scipy.spatial slows every agent process's start-up, and only keyframes need it.
+    from scipy.spatial import cKDTree
+
+    disparity = float(np.hypot(*(goals[ok] - np.asarray(before, float)[previous[ok]]).T).mean())
+    spacing = float(np.median(cKDTree(goals).query(goals, k=2)[0][:, 1]))
+    return disparity <= 1.5 * spacing
 
 
 def _boards(local: LocalAuction, words: Words, sender: int) -> Boards:

@@ -33,7 +33,6 @@ from transport.keys import cell_of, cells_of
 from transport.plausible import INCONSISTENT, Clock, GoalSets, TickLine, stamp_agrees
 
 from .assignment import AuctionLink
-from .core.bidder import bid_position
 from .core.params import DIFFDRIVE, RobotParams
 from .core.policy import GoalTiming, Memory, act, intend
 from .core.step import static_segments
@@ -408,7 +407,7 @@ class AgentHost:
         ran on the goals where they are at the instance's start (agent.core.goal_motion), while the
         auction code and its messages stay those of a still image. Epsilon_A and Delta C then count
         in G^0's frame: s(t)^2 times them in the display's. A robot on its way to a goal of the
-        newest set bids from where it will be when the instance is adopted (core.bidder.bid_position,
+        newest set bids from where it will be when the instance is adopted (bid_position,
         lead: this host's last measured latency of the auction). Kept until the positions, velocities,
         goals or goal sets change: the auction polls it many times a tick."""
         if self._bid_from is not None:
@@ -804,6 +803,32 @@ class AgentHost:
 
     def report(self) -> None:
         self.bus.publish(self.keys.event, Event({"kind": "stats", **self.stats()}))
+
+
+def bid_position(position: np.ndarray, goal: np.ndarray, velocity: np.ndarray, lead: float) -> np.ndarray:
+    """Where a robot driving to its goal will be ``lead`` seconds on (the host's last delay from
+    freezing positions to adopting their agreement): along the straight line to the goal, as far as
+    its speed carries it, never past the goal (a blocked robot stays put). Bidding from there
+    compensates the auction's latency: an assignment computed from where the robots were when its
+    instance began, but adopted seconds later once they have moved on, sends them back, and robots
+    then swap goals back and forth for good. For squared distances, robots that have all covered the same fraction of their straight
+    way to optimally assigned goals keep that assignment optimal, so leading agrees with the
+    assignment being carried out.
+
+    The speed counts, not its component toward the goal: the next block of instances freezes its
+    positions right after an agreement, when a robot that got another goal still moves as it did
+    for its last one. Counting only the way toward the goal would bid such robots from where they
+    were (or from their old goals), and the next agreement would send them back.
+
+    A batch: rows of positions, goals and velocities (one call for a host's robots)."""
+    position = np.asarray(position, float)
+    to_goal = np.asarray(goal, float) - position
+    if lead <= 0:
+        return position.copy()
+    d = np.hypot(to_goal[..., 0], to_goal[..., 1])
+    speed = np.hypot(*np.moveaxis(np.asarray(velocity, float), -1, 0))
+    reach = np.minimum(1.0, speed * lead / np.maximum(d, 1e-9))
+    return position + to_goal * np.where(d <= 1e-9, 0.0, reach)[..., None]
 
 
 def _at_most(tick: int, bound: int) -> int:

@@ -20,7 +20,8 @@ import time
 import numpy as np
 from scipy.spatial import cKDTree
 
-from agent.core.bidder import Participant, frames_close
+from agent.assignment import frames_close
+from agent.core.bidder import Participant
 from coordinator.keyframes import goal_correspondence, goal_matching
 
 from .common import write_results
@@ -45,7 +46,7 @@ MATCHING = (
     "`frames_close` now only decides for a frame whose robots changed (a robot died)."
 )
 RULE = (
-    "The rule (`agent.core.bidder.frames_close`): start from the carried claims when corresponding goals are on "
+    "The rule (`agent.assignment.frames_close`): start from the carried claims when corresponding goals are on "
     "average at most 1.5 goal spacings apart (the third column). Beyond that the claims skip the coarse "
     "epsilon phases that build the prices, and the fine phases fight a price war that costs more than a "
     "cold start."

@@ -30,9 +30,9 @@ from scipy.optimize import linear_sum_assignment
 
 from agent.core.bidder import Participant
 from agent.core.goal_motion import GoalMotion
-from agent.core.local_auction import LocalAuction, new_auction, settle_in_process
+from agent.core.local_auction import LocalAuction, new_auction
 from agent.core.policy import NO_GOAL, Decision, GoalTiming, Intent, Memory, act, intend
-from agent.core.rounds import BlockRounds, play
+from agent.core.rounds import BlockRounds
 from agent.core.step import NeighbourStates, static_segments
 from agent.goal_sets import timing_of
 from agent.neighbour_table import Heard
@@ -75,6 +75,27 @@ def optimal_assignment(
         if keep - cost[rows, cols].sum() < hysteresis:
             return previous
     return best
+
+
+def settle_in_process(auction: LocalAuction, positions: np.ndarray, max_rounds: int = 1_000_000) -> int:
+    """One block with every robot in this process (the central engine): the rounds the agents run
+    over the bus, word for word. Returns the rounds taken."""
+    auction.begin_block(positions)
+    while not auction.done:
+        auction.hear(auction.say())
+        if auction.round >= max_rounds:
+            raise RuntimeError("the range-limited auction did not end")
+    return auction.round
+
+
+def play(block: BlockRounds, rounds: int) -> bool:
+    """Up to ``rounds`` rounds of a block whose every robot this process holds (no messages);
+    True once it is agreed."""
+    for _ in range(rounds):
+        block.say()
+        if block.hear({}):
+            return True
+    return False
 
 
 def auction_assignment(auction: Participant | LocalAuction, position: np.ndarray) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""The auction's latency compensation (agent.core.bidder.bid_position): a robot on its way bids from
+"""The auction's latency compensation (agent.runtime.bid_position): a robot on its way bids from
 where it will be when the instance's agreement is adopted."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.optimize import linear_sum_assignment
 
-from agent.core.bidder import bid_position
+from agent.runtime import bid_position
 
 
 def test_a_robot_bids_from_ahead_on_its_way_to_the_goal():

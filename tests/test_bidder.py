@@ -13,7 +13,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linear_sum_assignment
 
-from agent.core.bidder import CONTENT, RECORD, Participant, records
+from agent.core.bidder import CONTENT, RECORD, Participant
+
+
+def records(rows: list[tuple]) -> np.ndarray:
+    """Records from (robot, goal, price, flags[, penalty, x, y]) tuples."""
+    full = [tuple(r) + (0.0, 0.0, 0.0)[len(r) - 4 :] for r in rows]
+    return np.array(full, RECORD)
 
 
 def optimum(positions: np.ndarray, goals: np.ndarray) -> float:

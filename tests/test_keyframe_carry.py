@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from agent.core.bidder import Participant, frames_close
+from agent.assignment import frames_close
+from agent.core.bidder import Participant
 from bench.bench_carry import agree
 from coordinator.keyframes import goal_correspondence, goal_disparity, goal_matching
 

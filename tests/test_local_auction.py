@@ -11,7 +11,8 @@ from scipy.optimize import linear_sum_assignment
 from scipy.sparse.csgraph import connected_components
 
 from agent.assignment import _boards, _words
-from agent.core.local_auction import LocalAuction, Words, settle_in_process
+from agent.core.local_auction import LocalAuction, Words
+from sim.central import settle_in_process
 from transport.codec import Boards, decode
 
 EPS = 1e-3

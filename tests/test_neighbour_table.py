@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from agent.core.bidder import bid_position
 from agent.neighbour_table import NeighbourTable
+from agent.runtime import bid_position
 from transport.codec import State
 
 

@@ -1,37 +1,30 @@
 """The distributed goal auction (paper 5.1.1) as seen by the robots of one agent host: pure logic,
 no zenoh and no clock (the runtime passes messages in and takes records out).
 
-The protocol is an asynchronous forward auction (Bertsekas and Castanon 1991) whose prices and owners
-are agreed by max-consensus, as in Zavlanos et al. 2008:
+An asynchronous forward auction (Bertsekas and Castanon 1991) whose prices and owners are agreed by
+max-consensus (Zavlanos et al. 2008). The board, net values, bids and Jacobi rounds are defined, and
+compiled, in agent.core.bidding: an agent host bids a round at a time between messages (``bid``); a
+host that owns every robot (the central engine) settles a block of phases in-process
+(``settle_alone``) through the same rounds, to the same board. Records only ever merge by their
+maximum, so lost, duplicated or reordered messages can delay agreement but never give a goal two owners.
 
-- **Board.** Per goal, the greatest record anyone has seen, ordered by price, then the lower robot id,
-  then "released" after "claimed". Records only ever merge by this maximum, so duplicated, reordered
-  or lost messages can delay agreement but never give a goal two owners; no two records tie.
-- **Bids.** A robot that holds no goal, or whose goal was taken by a greater record, bids on its best
-  goal: the price rises by the difference between the best and second-best net value plus epsilon.
-  Costs are private: squared distance (eq. 7) plus the robot's own deadlock penalties (5.5.5).
-  Own robots bid together (Jacobi rounds). The rounds are compiled, written once
-  (agent.core.bidding): an agent host bids a round at a time between messages (``bid``), and a host
-  that owns every robot (the central engine, sim.central) settles each block of phases in-process
-  (``settle_alone``) through the same rounds, to the same board.
-- **Instances.** An auction instance runs on positions frozen when it starts, so costs stay fixed
-  while prices settle; a deadlock penalty declared meanwhile counts from the next instance (a cost
-  that changed after a robot said it was content would break the quiescence argument below). Instance k is *agreed* when every robot of the goal set has published, for k,
-  a content record (it holds its goal and no other is better by more than epsilon) on distinct goals,
-  all written against the same board (equal digests). Such a snapshot is quiescent: every bid anyone
-  made is on that board, so nobody can bid again in instance k. Every agent checks this for itself,
-  and a record of instance k+1 from anyone proves k was agreed.
-- **Warm start and epsilon scaling.** Instances follow one another, each starting from the prices
-  and owners of the last (paper 5.1 re-assigns each iteration); a robot keeps its goal unless
-  another is better by more than epsilon plus the hysteresis Delta C. Instances come in blocks, one
-  per set of frozen positions, of decreasing epsilon (Bertsekas' epsilon scaling); only the block's
-  final phase is agreed by a snapshot. Scaling pays off on warm starts too: once robots have moved,
-  the last prices are far from equilibrium, and at epsilon_A alone they settle in a price war.
+- **Instances.** An instance runs on positions frozen when it starts, so costs stay fixed while
+  prices settle; a deadlock penalty (5.5.5) declared meanwhile counts from the next instance (a cost
+  that changed after a robot said it was content would break quiescence). Instance k is *agreed*
+  when every robot of the goal set has published, for k, a content record on distinct goals, all
+  written against the same board (equal digests). Such a snapshot is quiescent: every bid anyone
+  made is on that board, so nobody can bid again in k. Every agent checks this for itself, and a
+  record of instance k+1 from anyone proves k was agreed.
+- **Warm start and epsilon scaling.** Each instance starts from the last one's prices and owners
+  (paper 5.1 re-assigns each iteration); a robot keeps its goal unless another is better by more
+  than epsilon plus the hysteresis Delta C. Instances come in blocks, one per set of frozen
+  positions, of decreasing epsilon; only the block's final phase is agreed by a snapshot. Scaling
+  pays off on warm starts too: once robots have moved, the last prices are far from equilibrium, and
+  at epsilon_A alone they settle in a price war.
 
 The agreed assignment costs at most N (epsilon + Delta C) more than the optimum for the frozen
-positions and the robots' private costs (epsilon-complementary slackness against one common price
-vector); each robot's record carries its total deadlock penalty, so the squared-distance cost can be
-checked against the optimum plus the penalties in force.
+positions and private costs (epsilon-complementary slackness against one price vector); each
+record carries its robot's total penalty, so the cost can be checked against the optimum plus them.
 """
 
 from __future__ import annotations
@@ -42,9 +35,7 @@ import numpy as np
 
 from transport.codec import AuctionRecord, Bid
 
-from .bidding import NO_OWNER, ROUNDING, Bidders, board_digest, merge_one, merge_records
-
-__all__ = ["NO_OWNER", "ROUNDING", "Board", "Participant", "bid_position", "epsilon_schedule", "frames_close"]
+from .bidding import NO_OWNER, Bidders, board_digest, merge_one, merge_records
 
 # the auction record's flags (transport.codec.AuctionRecord); SETTLED: content at the final phase's slack,
 # so in every phase left
@@ -55,62 +46,17 @@ SMALL = 8  # messages with up to this many records are merged record by record (
 RECORD = Bid.RECORD  # one robot's word on one goal (goal -1: it holds none yet), as a Bid carries it
 
 
-def epsilon_schedule(goals: np.ndarray, eps_final: float, factor: float = 10.0) -> list[float]:
+def epsilon_schedule(goals: np.ndarray, eps_final: float) -> list[float]:
     """Decreasing epsilons (Bertsekas' epsilon scaling): from a tenth of the squared extent of the goal
-    set down to eps_final, by ``factor`` (few phases: each costs a global snapshot)."""
+    set down to eps_final, by a factor of 10 (few phases: each costs a global snapshot)."""
     extent = float(np.max(np.ptp(goals, axis=0))) if len(goals) > 1 else 0.0
     eps = max(eps_final, extent * extent / 10.0)
     out = []
     while eps > eps_final * 1.0001:
         out.append(eps)
-        eps /= factor
+        eps /= 10.0
     out.append(eps_final)
     return out
-
-
-def bid_position(position: np.ndarray, goal: np.ndarray, velocity: np.ndarray, lead: float) -> np.ndarray:
-    """Where a robot driving to its goal will be ``lead`` seconds on (the host's last delay from
-    freezing positions to adopting their agreement): along the straight line to the goal, as far as
-    its speed carries it, never past the goal (a blocked robot stays put). Bidding from there
-    compensates the auction's latency: an assignment computed from where the robots were when its
-    instance began, but adopted seconds later once they have moved on, sends them back, and robots
-    then swap goals back and forth for good. For squared distances, robots that have all covered the same fraction of their straight
-    way to optimally assigned goals keep that assignment optimal, so leading agrees with the
-    assignment being carried out.
-
-    The speed counts, not its component toward the goal: the next block of instances freezes its
-    positions right after an agreement, when a robot that got another goal still moves as it did
-    for its last one. Counting only the way toward the goal would bid such robots from where they
-    were (or from their old goals), and the next agreement would send them back.
-
-    A batch: rows of positions, goals and velocities (one call for a host's robots)."""
-    position = np.asarray(position, float)
-    to_goal = np.asarray(goal, float) - position
-    if lead <= 0:
-        return position.copy()
-    d = np.hypot(to_goal[..., 0], to_goal[..., 1])
-    speed = np.hypot(*np.moveaxis(np.asarray(velocity, float), -1, 0))
-    reach = np.minimum(1.0, speed * lead / np.maximum(d, 1e-9))
-    return position + to_goal * np.where(d <= 1e-9, 0.0, reach)[..., None]
-
-
-def frames_close(before: np.ndarray, goals: np.ndarray, previous: np.ndarray) -> bool:
-    """Whether consecutive keyframes differ little enough for the auction to start from the carried
-    assignment (Participant.carry) at prices zero, when the warm start from the goal sets' matching
-    (the WarmStart part of Goals) does not apply (the last auction never agreed, or the robots changed): corresponding goals on average at most one and a half
-    typical goal spacings (the median distance from a goal to its nearest neighbour) apart: closer,
-    the carried claims agree in fewer rounds than a cold start; further, in more
-    (bench/results/carry.md)."""
-    goals = np.asarray(goals, float)
-    ok = previous >= 0
-    if len(goals) < 2 or not ok.any():
-        return False
-    # Imported here: scipy.spatial slows every agent process's start-up, and only keyframes need it.
-    from scipy.spatial import cKDTree
-
-    disparity = float(np.hypot(*(goals[ok] - np.asarray(before, float)[previous[ok]]).T).mean())
-    spacing = float(np.median(cKDTree(goals).query(goals, k=2)[0][:, 1]))
-    return disparity <= 1.5 * spacing
 
 
 def _hull_vertices(goals: np.ndarray, exact: bool = True) -> tuple[np.ndarray, np.ndarray]:
@@ -132,10 +78,11 @@ def _hull_vertices(goals: np.ndarray, exact: bool = True) -> tuple[np.ndarray, n
     return np.ascontiguousarray(corners[:, 0], float), np.ascontiguousarray(corners[:, 1], float)
 
 
-def records(rows: list[tuple]) -> np.ndarray:
-    """Records from (robot, goal, price, flags[, penalty, x, y]) tuples (tests, tools)."""
-    full = [tuple(r) + (0.0, 0.0, 0.0)[len(r) - 4 :] for r in rows]
-    return np.array(full, RECORD)
+def frozen_positions(positions: Mapping[int, np.ndarray] | np.ndarray, own: list[int]) -> np.ndarray:
+    """The ``own`` robots' positions (K, 2) from a mapping robot -> (x, y) or rows by robot id."""
+    if isinstance(positions, np.ndarray):
+        return np.asarray(positions, float)[np.array(own, np.int64)].reshape(-1, 2)
+    return np.array([positions[r] for r in own], float).reshape(-1, 2)
 
 
 class Board:
@@ -151,15 +98,9 @@ class Board:
 
     def merge(self, goal: np.ndarray, price: np.ndarray, robot: np.ndarray, released: np.ndarray) -> bool:
         """Max-consensus of a batch of records into the board; True when any was new information."""
-        changed = merge_records(
-            self.price,
-            self.owner,
-            self._released,
-            np.ascontiguousarray(goal, np.int64),
-            np.ascontiguousarray(price, float),
-            np.ascontiguousarray(robot, np.int64),
-            np.ascontiguousarray(released, np.uint8),
-        )
+        goal, robot = np.ascontiguousarray(goal, np.int64), np.ascontiguousarray(robot, np.int64)
+        price, released = np.ascontiguousarray(price, float), np.ascontiguousarray(released, np.uint8)
+        changed = merge_records(self.price, self.owner, self._released, goal, price, robot, released)
         self.version += changed
         return changed
 
@@ -200,7 +141,7 @@ class Participant:
         self.is_own[self.own_rows] = True
         self.is_own_id = np.zeros(int(self.robots.max(initial=0)) + 2, bool)  # by robot id + 1 (owner -1: none)
         self.is_own_id[self.own_ids + 1] = True
-        self.schedule = epsilon_schedule(self.goals, eps, factor=10.0)  # fewer phases: each costs a global snapshot
+        self.schedule = epsilon_schedule(self.goals, eps)
         self.hysteresis = hysteresis
         self.board = Board(len(self.goals))
         self.instance = -1  # not started: waits for the robots' positions
@@ -269,31 +210,23 @@ class Participant:
         return len(self.schedule)
 
     def begin(self, instance: int, positions: Mapping[int, np.ndarray] | np.ndarray) -> None:
-        """Start an instance, warm from the current board. The first instance of a block of phases
-        freezes the positions given (a mapping robot -> (x, y), or an array whose row r is robot r's
-        position); the block's other phases share them. Penalties declared during the last instance
-        come into force now."""
+        """Start an instance, warm from the current board, and bid its first round (see _freeze)."""
         self._freeze(instance, positions)
         self.bid()
 
     def _new_bidders(self, candidates: int, exact_hull: bool) -> Bidders:
-        """The own robots' compiled rounds, ``candidates`` goals ranked per robot while no other can
-        beat them; lists carried across blocks by the goal set's hull (``exact_hull``: its convex
-        hull, for a host that settles alone; else its bounding box, without loading scipy)."""
+        """The own robots' compiled rounds; ``exact_hull`` for a host that settles alone."""
         hull = _hull_vertices(self.goals, exact=exact_hull)
         return Bidders(self.board, self.goals, self.own_ids, self.goal, self.penalty, hull, candidates)
 
     def _freeze(self, instance: int, positions: Mapping[int, np.ndarray] | np.ndarray) -> None:
-        """begin() up to its first round: at a new block the positions, and any penalty declared
-        meanwhile, come into force, and every robot's ranking is made anew."""
+        """begin() up to its first round: the first instance of a block freezes the positions (the
+        block's other phases share them); penalties declared meanwhile come into force."""
         if self.started and not self.is_agreed and instance > self.instance:
             self.adopt_if_settled()  # someone reached a later instance: ours was agreed
         new_block = not self.started or instance // self.phases != self.instance // self.phases
         if new_block and self.own:
-            if isinstance(positions, np.ndarray):
-                self.position = np.asarray(positions, float)[self.own_ids].reshape(-1, 2)
-            else:
-                self.position = np.array([positions[r] for r in self.own], float).reshape(-1, 2)
+            self.position = frozen_positions(positions, self.own)
         penalised = self._pending_any and bool(self.pending.any())  # a flag first: any() reads K x G
         if penalised:
             self.penalty += self.pending
@@ -317,23 +250,18 @@ class Participant:
         current: Mapping[int, int] | None = None,
         prices: np.ndarray | None = None,
     ) -> dict[int, int]:
-        """The assignment of the previous keyframe carried over by the goals' correspondence (paper
-        6.1; ``previous[j]``: the goal of ``before`` that goal j continues, -1 none): a robot driving to
-        goal i there gets i's successor. ``current``: each own robot's goal in ``before`` (the one it
-        drives to: agreed, or itself carried when that auction never agreed); by default its goal in
-        ``before``'s last agreed instance, or its claim on the board when none was agreed. Returns
-        the own robots' carried goals (robot -> goal), which they drive to until this auction agrees.
+        """The previous keyframe's assignment carried over by the goals' correspondence (paper 6.1;
+        ``previous[j]``: the goal of ``before`` that goal j continues, -1 none): a robot driving to goal
+        i there gets i's successor, and drives to it until this auction agrees. ``current``: each own
+        robot's goal in ``before`` (default: its agreed goal, else its claim). Returns robot -> goal.
 
-        With ``claim`` the auction also starts from it: each robot claims its carried goal at price
-        zero where ``before``'s last agreed board says it owns the goal it continues. Every host
-        adopted that board alike; the live one may be in the middle of the next instance (paper 5.1
-        re-assigns every iteration), and claims from it agree later. When the frames differ little most robots are then content at once, and agreement
-        takes a few message rounds instead of a cold start's many; when they differ much, the claims
-        skip the coarse epsilon phases that build the prices, and the fine ones fight a price war that costs more than a cold
-        start (bench/bench_carry.py; see frames_close). Carrying the prices too costs more in both
-        cases: they are in equilibrium for the old costs only. ``prices`` (with ``claim``): prices in
-        equilibrium for the new goals (Goals.warm_start.prices) to start from instead of zero. Call before the
-        first instance."""
+        With ``claim`` the auction also starts from it: each robot claims its carried goal where
+        ``before``'s last agreed board (the same on every host; the live one may be mid-instance)
+        says it owns the goal it continues, at price zero or at ``prices`` (in equilibrium for the
+        new goals: Goals.warm_start.prices). Close frames then agree in a few rounds; distant ones
+        skip the coarse phases that build prices and fight a price war (bench/bench_carry.py; see
+        agent.assignment.frames_close). The old prices are not carried: they fit the old costs only.
+        Call before the first instance."""
         previous = np.asarray(previous, np.int64)
         if self.started or not before.started or len(previous) != len(self.goals):
             return {}
@@ -402,29 +330,24 @@ class Participant:
     def settle_alone(
         self, positions: Mapping[int, np.ndarray] | np.ndarray, max_rounds: int = 100_000, candidates: int = CANDIDATES
     ) -> np.ndarray:
-        """For a host that owns every robot of the goal set (the central engine): begin the next
-        block of phases on these positions, warm from the board, and bid it through its phases to
-        an agreed final phase. Nobody else bids, so no message is needed: every phase's snapshot is
-        this host's own board, and a phase is over when every robot is content. Returns each own
-        robot's agreed goal, in the order of ``own``.
-
-        The same rounds, bids and board as begin(), bid() and check_agreement() give, without a
-        return to Python between rounds (while they cross the arena a warm block runs chains of
-        thousands of rounds of one or two bidders). Each robot ranks only its ``candidates`` best
-        goals while no other goal can beat them, and the lists carry over to the next block where
-        the robot's motion cannot have changed that."""
+        """For a host that owns every robot of the goal set (the central engine): the next block of
+        phases on these positions, warm from the board, bid to an agreed final phase. Nobody else
+        bids, so every phase's snapshot is this host's own board, and a phase is over when every
+        robot is content. The same rounds, bids and board as begin(), bid() and check_agreement(),
+        without a return to Python between rounds (agent.core.bidding.Bidders.settle_block), each
+        robot ranking its ``candidates`` best goals while they provably hold its best. Returns each
+        own robot's agreed goal, in the order of ``own``."""
         if len(self.own) != len(self.robots):
             raise ValueError("settle_alone needs a host that owns every robot of the goal set")
         if candidates < 3:
             raise ValueError("settle_alone ranks at least 3 candidate goals per robot")
         if not self._exact_hull or self._bidders.candidates != candidates:
             self._bidders, self._exact_hull = self._new_bidders(candidates, exact_hull=True), True
-        first = (self.instance // self.phases + 1) * self.phases if self.started else 0
-        self._freeze(first, positions)
+        self.begin_block(positions)
         eps = np.array(self.schedule)
         slack = np.maximum(eps, eps[-1] + self.hysteresis)  # as self.slack, phase by phase
         rounds, bids, settled = self._bidders.settle_block(eps, slack, max_rounds)
-        self.instance = first + min(settled, self.phases - 1)
+        self.instance += min(settled, self.phases - 1)
         self.board.version += 1
         self.bids, self.rounds, self.claims_changed = self.bids + bids, self.rounds + rounds, True
         if settled < self.phases:
@@ -434,26 +357,24 @@ class Participant:
 
     # --- lock-step rounds ----------------------------------------------------------------------------
     def begin_block(self, positions: Mapping[int, np.ndarray] | np.ndarray) -> None:
-        """Lock-step: begin the next block of phases on these positions, warm from the board, as
-        settle_alone does, but bid nothing yet: every host bids in round 1 against the same board."""
+        """Begin the next block of phases on these positions, warm from the board, bidding nothing
+        yet (lock-step: every host bids in round 1 against the same board)."""
         first = (self.instance // self.phases + 1) * self.phases if self.started else 0
         self._freeze(first, positions)
 
     def round_records(self) -> np.ndarray:
-        """Lock-step: one round's records, after the own robots' bids: records(), each claim flagged
-        SETTLED when its robot is content at the final phase's slack (the least: no later phase
-        would have it bid)."""
+        """Lock-step: records(), each claim flagged SETTLED when its robot is content at the final
+        phase's slack (the least: no later phase would have it bid)."""
         recs = self.records()
         settled = self._bidders.contentment(self.schedule[-1] + self.hysteresis)
         recs["flags"][: len(self.own)] |= np.where(settled, SETTLED, 0).astype(np.uint8)
         return recs
 
     def close_round(self, unchanged: bool, settled: bool) -> bool:
-        """Lock-step: every host's records of a round are merged. A round that changed nothing on the
-        board (nobody bid) ends its phase: the next phase begins or, in the final phase or when every
-        robot said it is ``settled`` (then the phases left would pass without a bid, as
-        settle_alone passes them), the block is agreed (True). Every host merged the same records
-        onto the same board, so all of them decide alike, at the same round."""
+        """Lock-step: every host merged the same records of a round onto the same board, so all
+        decide alike. A round that changed nothing ends its phase: the next begins, or the block is
+        agreed (True) in the final phase or when every robot said it is ``settled`` (the phases left
+        would pass without a bid, as settle_alone passes them)."""
         if not unchanged:
             return False
         if not (self.final_phase or settled):
@@ -513,13 +434,11 @@ class Participant:
         robot = recs["robot"].astype(np.int64)
         released = (recs["flags"] & RELEASED) != 0
         changed = self.board.merge(recs["goal"], recs["price"], robot, released)
-        if instance != self.instance or len(self.robots) == 0:
+        if instance != self.instance:
             return changed
-        row = np.searchsorted(self.robots, robot)
-        known = (row < len(self.robots)) & (self.robots[np.minimum(row, len(self.robots) - 1)] == robot)
-        row = np.minimum(row, len(self.robots) - 1)
+        row = np.searchsorted(self.robots, robot)  # members_only: every robot has its row
         newer = (self.heard_instance[row] < instance) | (serial > self.heard_serial[row])
-        take = known & ~released & ~self.is_own[row] & newer
+        take = ~released & ~self.is_own[row] & newer
         if take.any():
             r, rec = row[take], recs[take]
             self.heard_instance[r], self.heard_serial[r] = instance, serial
@@ -535,8 +454,8 @@ class Participant:
         for robot, goal, price, flags, _, _, _ in recs:
             released = bool(flags & RELEASED)
             changed |= self.board.merge_one(goal, price, robot, released)
-            row = self.row_of.get(robot)
-            if instance != self.instance or released or row is None or self.is_own[row]:
+            row = self.row_of[robot]
+            if instance != self.instance or released or self.is_own[row]:
                 continue
             if self.heard_instance[row] < instance or serial > self.heard_serial[row]:
                 self.heard_instance[row], self.heard_serial[row] = instance, serial
@@ -556,10 +475,7 @@ class Participant:
         cached = self._view_cache.get(same_board)
         if cached is not None and cached[0] == key:
             return cached[1]
-        self._view_cache[same_board] = (key, settled := self._compute_settled(same_board))
-        return settled
-
-    def _compute_settled(self, same_board: bool) -> bool:
+        self._view_cache[same_board] = (key, False)
         if not self._content_all().all():
             return False
         others = ~self.is_own
@@ -572,11 +488,11 @@ class Participant:
         if not (self.board.holds(robot, goal).all() and (self.board.price[goal] == price).all()):
             return False
         taken = np.concatenate([self.goal, goal])
-        return len(set(taken.tolist())) == len(taken)
+        self._view_cache[same_board] = (key, len(set(taken.tolist())) == len(taken))
+        return self._view_cache[same_board][1]
 
     def view_complete(self) -> bool:
-        """Nobody is bidding as far as we know: the moment to tell others our board's digest (earlier,
-        while bids fly, digests would be stale at once)."""
+        """Nobody is bidding as far as we know: the moment to tell others our digest (not stale at once)."""
         return self._settled_view(same_board=False)
 
     def check_agreement(self) -> bool:

@@ -2,15 +2,12 @@
 it points to: Bertsekas and Castanon 1991, Zavlanos, Spesivtsev and Pappas 2008): pure logic, no
 zenoh and no clock. A robot hears only the robots within ``reach`` of it, so no one sees every bid.
 
-- **A board per robot.** Each robot keeps its own prices and owners and, every round, merges the
-  boards of the robots it hears by max-consensus (per goal the greatest record: price, then the
-  lower robot id, then "released"), so prices and owners spread over the communication graph, a
-  hop a round. Records only ever merge by this maximum: no goal gets two owners on one board.
-- **Bids (Jacobi).** A robot that does not hold a goal on its own board, or is not content with
-  it (another is better by more than the phase's slack), bids on its best goal against its own
-  board: price + (best - second-best net value) + epsilon. Costs are private (eq. 7 plus its
-  deadlock penalties). A goal set's first block scales epsilon down in phases (as agent.core.bidder
-  does); later blocks, warm from the boards, run the final phase only.
+- **A board per robot.** Every round each robot merges the boards of the robots it hears into its
+  own by max-consensus (agent.core.bidding), so prices and owners spread a hop a round; no goal
+  gets two owners on one board.
+- **Bids (Jacobi).** A robot that holds no goal on its own board, or is not content with it, bids
+  on its best goal against that board, as agent.core.bidder's robots do. A goal set's first block
+  scales epsilon down in phases; later blocks, warm from the boards, run the final phase only.
 - **Knowing the auction ended, locally.** Rounds are synchronous (lock-step). A round in which no
   robot's board or phase changed is followed only by such rounds. Each robot learns how far the
   graph reaches from it (its eccentricity e: the round after which the set of robots it has heard
@@ -20,14 +17,13 @@ zenoh and no clock. A robot hears only the robots within ``reach`` of it, so no 
   on to the next one (a robot that hears a later phase follows). The final phase's end is the
   agreement: the robot says so once, everyone who hears it has ended too, and adopts its goal.
 - **One-to-one.** At a quiet round neighbours' boards are equal (each merged the other's), so
-  every robot of a connected part holds its goal on one common board: one owner per goal. A graph
-  split into parts agrees part by part; each part is one-to-one within itself. A part trades its
-  own goals: a goal whose holder it has not heard of costs more than any other.
+  every robot of a connected part holds its goal on one common board. A graph split into parts
+  agrees part by part, each one-to-one: a part trades its own goals, as a goal whose holder it has
+  not heard of costs more than any other.
 
-The agreement costs at most N (epsilon_A + Delta C) over the optimum once the graph is connected
-(epsilon-complementary slackness against one price vector). One host runs any subset of the
-robots (``own``); the central engine runs them all (sim.central) through the same rounds, so it
-and the agents agree bit for bit.
+The agreement costs at most N (epsilon_A + Delta C) over the optimum once the graph is connected.
+One host runs any subset of the robots (``own``); the central engine runs them all through the same
+rounds (sim.central.settle_in_process), so it and the agents agree bit for bit.
 """
 
 from __future__ import annotations
@@ -37,24 +33,22 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .bidder import NO_OWNER, Participant, epsilon_schedule
+from .bidder import NO_OWNER, Participant, epsilon_schedule, frozen_positions
 from .bidding import bid_on_own_boards, merge_boards
 from .params import RobotParams
 
 
 class Words(NamedTuple):
-    """What robots say in one round (rows by robot): who, where (float32, as the wire carries it),
-    its phase, whether it has ended the block, the latest round of change it knows of, the robots it
-    has heard of, and its board."""
+    """What robots say in one round (rows by robot)."""
 
     robot: np.ndarray  # (K,) int64
-    xy: np.ndarray  # (K, 2) float64 of float32 values
+    xy: np.ndarray  # (K, 2) float64 of float32 values, as the wire carries them
     phase: np.ndarray  # (K,) int64
     ended: np.ndarray  # (K,) bool: the block is agreed (it says so once, then stops)
-    last: np.ndarray  # (K,) int64
+    last: np.ndarray  # (K,) int64: the latest round of change it knows of
     fresh: np.ndarray  # (K,) bool: the board changed since the robot's last word (else it may be left out)
     grown: np.ndarray  # (K,) bool: the known set grew since the robot's last word (else it may be left out)
-    known: np.ndarray  # (K, N) bool, columns by the goal set's robots in order
+    known: np.ndarray  # (K, N) bool: the robots it has heard of, columns by the goal set's robots in order
     price: np.ndarray  # (K, G)
     owner: np.ndarray  # (K, G) int64, NO_OWNER: none
     released: np.ndarray  # (K, G) bool
@@ -95,7 +89,7 @@ class LocalAuction:
         self.own_ids = np.array(self.own, np.int64)
         self.own_cols = np.searchsorted(self.robots, self.own_ids)
         self.reach = float(reach)
-        self.schedule = epsilon_schedule(self.goals, eps, factor=10.0)
+        self.schedule = epsilon_schedule(self.goals, eps)
         self.hysteresis = hysteresis
         k, g, n = len(self.own), len(self.goals), len(self.robots)
         if g < n:
@@ -137,10 +131,6 @@ class LocalAuction:
         return max(self.block, 0) * self.phases + self.phases - 1
 
     @property
-    def is_agreed(self) -> bool:
-        return self.started and self.agreed_instance == self.instance
-
-    @property
     def done(self) -> bool:
         """Every own robot has ended the block and said so."""
         return bool(self.said_end.all())
@@ -153,10 +143,7 @@ class LocalAuction:
     def begin_block(self, positions: Mapping[int, np.ndarray] | np.ndarray) -> None:
         """Freeze the own robots' positions (a mapping robot -> (x, y), or rows by robot id), bring
         the declared penalties into force and start at the first phase, warm from the boards."""
-        if isinstance(positions, np.ndarray):
-            xy = np.asarray(positions, float)[self.own_ids].reshape(-1, 2)
-        else:
-            xy = np.array([positions[r] for r in self.own], float).reshape(-1, 2)
+        xy = frozen_positions(positions, self.own)
         self.block += 1
         self.penalty += self.pending
         self.pending[:] = 0.0
@@ -231,19 +218,15 @@ class LocalAuction:
             changed |= grown  # the goals it may take changed (_bid)
         self.last[active] = np.maximum(self.last[active], _gather(hears, words.last, 0).max(axis=1))
         told = hears & words.fresh[None, :]
-        if told.any():
-            changed |= self._merge(active, told, words, r)
+        if told.any():  # max-consensus of the boards each was told into its own
+            merged = merge_boards(self, active, np.ascontiguousarray(told).view(np.uint8), words)
+            self.board_changed[active[merged]] = r
+            changed |= merged
         self.last[active[changed]] = r
         self._check_end(active, r)
         if self.ended.all() and self.agreed_instance != self.instance:
-            self._agree()
-
-    def _merge(self, active: np.ndarray, told: np.ndarray, words: Words, r: int) -> np.ndarray:
-        """Max-consensus of the boards each active robot was told into its own (compiled:
-        agent.core.bidding.merge_boards); True where it changed."""
-        merged = merge_boards(self, active, np.ascontiguousarray(told).view(np.uint8), words)
-        self.board_changed[active[merged]] = r
-        return merged
+            self.agreed_instance = self.instance
+            self.agreed = dict(zip(self.own, self.goal.tolist(), strict=True))
 
     def _check_end(self, rows: np.ndarray, r: int) -> None:
         """A robot's phase is over everywhere in its part once the newest change it knows of is
@@ -258,13 +241,8 @@ class LocalAuction:
         self.phase[going_on] += 1
         self.last[going_on] = r
 
-    def _agree(self) -> None:
-        self.agreed_instance = self.instance
-        self.agreed = dict(zip(self.own, self.goal.tolist(), strict=True))
-
     def _bid(self, rows: np.ndarray) -> np.ndarray:
-        """Own robots (rows) that hold no goal on their board, or are not content with it at their
-        phase's slack, bid for their best goal (compiled: agent.core.bidding.bid_on_own_boards);
+        """Own robots (rows) not content at their phase's slack bid (bidding.bid_on_own_boards);
         returns the rows that bid."""
         eps = np.asarray(self.schedule)[self.phase[rows]]
         slack = np.maximum(eps, self.schedule[-1] + self.hysteresis)
@@ -278,17 +256,6 @@ class LocalAuction:
         bid = bid_on_own_boards(self, np.ascontiguousarray(rows, np.int64), slack, eps, taken.view(np.uint8))
         self.bids += len(bid)
         return bid
-
-
-def settle_in_process(auction: LocalAuction, positions: np.ndarray, max_rounds: int = 1_000_000) -> int:
-    """One block with every robot in this process (the central engine): the rounds the agents run
-    over the bus, word for word. Returns the rounds taken."""
-    auction.begin_block(positions)
-    while not auction.done:
-        auction.hear(auction.say())
-        if auction.round >= max_rounds:
-            raise RuntimeError("the range-limited auction did not end")
-    return auction.round
 
 
 def new_auction(

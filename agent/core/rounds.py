@@ -9,20 +9,11 @@ gets (``RobotParams.rounds_per_tick``), and the block is agreed at the same roun
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Mapping
 
 import numpy as np
 
 from .bidder import RELEASED, SETTLED, Participant
-from .params import RobotParams
-
-
-def rounds_in_tick(params: RobotParams, cold: bool) -> int:
-    """The most rounds a tick gives a block: ``rounds_per_tick``; every round it needs (agreed within
-    its tick: paper 5.1, an assignment every iteration) when that is 0 or the block is a ``cold``
-    start, whose robots have no goal to drive to meanwhile."""
-    return params.rounds_per_tick if params.rounds_per_tick and not cold else sys.maxsize
 
 
 def claims(records: np.ndarray) -> np.ndarray:
@@ -74,23 +65,9 @@ class BlockRounds:
             part.absorb(part.instance, self.round, 0, records)
             theirs = claims(records)
             self._flags[theirs["robot"]] = theirs["flags"]
-        settled = self._all_settled([self._robots_of[s] for s in heard])
-        return part.close_round(part.board.digest() == self._before, settled)
-
-    def _all_settled(self, others: list[np.ndarray]) -> bool:
-        """Every robot's claim says SETTLED in this round: ours as just said, the other hosts' robots
-        by their newest claim."""
+        # settled: every robot's claim says so this round, ours as just said, the others by their newest
         assert self._last is not None
-        if not bool(((self._last["flags"] & SETTLED) != 0).all()):
-            return False
-        return all(bool(((self._flags[robots] & SETTLED) != 0).all()) for robots in others)
-
-
-def play(block: BlockRounds, rounds: int) -> bool:
-    """Up to ``rounds`` rounds of a block whose every robot this process holds (no messages);
-    True once it is agreed."""
-    for _ in range(rounds):
-        block.say()
-        if block.hear({}):
-            return True
-    return False
+        settled = bool(((self._last["flags"] & SETTLED) != 0).all()) and all(
+            bool(((self._flags[self._robots_of[s]] & SETTLED) != 0).all()) for s in heard
+        )
+        return part.close_round(part.board.digest() == self._before, settled)
