@@ -5,7 +5,6 @@ from typing import Any
 import numpy as np
 
 NO_OWNER: int
-ROUNDING: float
 
 def merge_records(
     price: np.ndarray,
@@ -35,8 +34,6 @@ def bid_on_own_boards(
 def merge_boards(boards: Any, rows: np.ndarray, told: np.ndarray, words: Any) -> np.ndarray: ...
 
 class Bidders:
-    k: int
-    g: int
     has_penalty: bool
     def __init__(
         self,

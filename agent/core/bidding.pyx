@@ -1,16 +1,16 @@
 """The goal auction's bidding and assignment rounds (paper 5.1.1), written once and compiled
-(setup.py): an agent host runs them for its own robots between messages (agent.core.bidder.Participant,
-one Jacobi round at a time), the central engine for every robot, a block of epsilon-scaling phases at
-a time (`Bidders.settle_block`), and the range-limited auction on each robot's own board
-(`bid_on_own_boards`, agent.core.local_auction). A robot's bid depends only on its costs and the
-board it bids against, so every engine reaches the same board, bit for bit.
+(setup.py): an agent host runs them for its own robots between messages (agent.core.bidder, one
+Jacobi round at a time), the central engine for every robot, a block of epsilon-scaling phases at a
+time (`Bidders.settle_block`), and the range-limited auction on each robot's own board
+(agent.core.local_auction). A robot's bid depends only on its costs and the board it bids against,
+so every engine reaches the same board, bit for bit.
 
 The paper's terms (Bertsekas' forward auction with epsilon scaling):
 
 - **Net value** of goal j to robot i: -c_ij - b_j, the cost c_ij = |g_j - p_i|^2 (eq. 7, computed as
   dx * dx + dy * dy in float64) plus the robot's own deadlock penalties C_d (5.5.5), b_j the price.
 - **Board.** Per goal the greatest record: (price, then the lower robot id, then "released" after
-  "claimed"). Records merge by this maximum (max-consensus, `greater`), in any order.
+  "claimed"). Records merge by this maximum (max-consensus, `greater`), in any order; no two tie.
 - **Content.** A robot holds its goal on the board and no goal is better by more than the slack (the
   phase's epsilon, never less than epsilon_A + Delta C): epsilon-complementary slackness, up to
   ``ROUNDING`` of the bid that set the price.
@@ -25,13 +25,10 @@ more rounds of one or two bidders):
   is ``seen``) and an upper bound of its second-best value; prices only rise, so it is ranked again
   only when its best goal's price rose past that bound.
 - **Candidate goals.** A ranking over every goal also keeps the robot's K best goals and ``bound``,
-  an upper bound of every other goal's value. Prices only rise, so the bound holds while prices
-  change; if the three best candidates beat it, they are the three best goals (ties included) and a
-  ranking costs K goals, not all of them.
-- **Carried across blocks** (`moved_bound`). A robot that moved by D since its list was made: goal
-  j's value changed by 2 (g_j - p).D - |D|^2, at most 2 (h(D) - p.D) - |D|^2 with h the support
-  function of the goal set (over the ``hull`` points), and by less where the goals off the list are
-  near the robot. Without hull points the lists start anew each block.
+  an upper bound of every other goal's value. While the three best candidates beat it, they are the
+  three best goals (ties included) and a ranking costs K goals, not all of them.
+- **Carried across blocks** (`moved_bound`), by the support function of the goal set's ``hull``
+  points; without them the lists start anew each block.
 - **After a round** only the bidders and the robots they outbid are looked at again: a content
   robot holds its goal, so only a bid on that goal changes its contentment. Phases with nothing to do
   are passed over: a robot content at the least slack left is content at every larger one.
@@ -46,14 +43,12 @@ from libc.string cimport memcpy
 import numpy as np
 
 NO_OWNER = -1  # a goal nobody claimed
+cdef int64_t NOBODY = -1
 # Relative slack for the rounding of a bid. A bid leaves its robot's value of the goal exactly epsilon
 # below its next-best value in real numbers; in floats, price + (v1 - v2) + eps then -cost - price can
 # land an ulp short, the robot is not content with the goal it just won, gives it up and bids again.
 # Each such bid releases a goal, and at large warm prices the releases feed a price war that never ends.
-ROUNDING = 1e-12
-
-cdef int64_t NOBODY = -1
-cdef double ROUND = 1e-12
+cdef double ROUNDING = 1e-12
 
 
 cdef inline bint greater(double price, int64_t robot, bint released, double b_price, int64_t b_owner,
@@ -70,7 +65,7 @@ cdef inline bint greater(double price, int64_t robot, bint released, double b_pr
 
 cdef inline bint is_content(double held, double best, double slack) noexcept nogil:
     """The held goal's net value is within ``slack`` of the best, up to the rounding of a bid."""
-    return held >= best - slack - ROUND * fabs(best)
+    return held >= best - slack - ROUNDING * fabs(best)
 
 
 cdef inline double bid_price(double price, double best, double second, double eps) noexcept nogil:
@@ -84,29 +79,35 @@ cdef inline bint before(double v, int64_t j, double w, int64_t m) noexcept nogil
 
 
 ctypedef struct Ranking:
-    int64_t first  # the best goal (-1: none)
-    int64_t runner_up  # the second best (-1: none)
-    double best, second, third  # their values and the third-best (-inf: none)
+    int64_t first, runner_up, third_goal  # the best, second and third goals (-1: none)
+    double best, second, third  # their values (-inf: none)
+
+
+cdef inline Ranking unranked() noexcept nogil:
+    cdef Ranking r
+    r.first, r.runner_up, r.third_goal = -1, -1, -1
+    r.best, r.second, r.third = -INFINITY, -INFINITY, -INFINITY
+    return r
+
+
+cdef inline void rank_in(Ranking* r, int64_t j, double v) noexcept nogil:
+    """Goal j of value v into the ranking, if among its three best (by value, then the lower index)."""
+    if not before(v, j, r.third, r.third_goal):  # most goals fail this test
+        return
+    if before(v, j, r.best, r.first):
+        r.third_goal, r.third, r.runner_up, r.second, r.first, r.best = r.runner_up, r.second, r.first, r.best, j, v
+    elif before(v, j, r.second, r.runner_up):
+        r.third_goal, r.third, r.runner_up, r.second = r.runner_up, r.second, j, v
+    else:
+        r.third_goal, r.third = j, v
 
 
 cdef Ranking top_three(const double[::1] values) noexcept nogil:
-    """The best, second and third of ``values`` over every goal, ties to the lower goal index."""
-    cdef Ranking r
+    """The best, second and third of ``values`` over every goal."""
+    cdef Ranking r = unranked()
     cdef Py_ssize_t j
-    cdef double v
-    r.first, r.runner_up = -1, -1
-    r.best, r.second, r.third = -INFINITY, -INFINITY, -INFINITY
     for j in range(values.shape[0]):
-        v = values[j]
-        if v > r.third:  # most goals fail this one test
-            if v > r.best:
-                r.runner_up, r.second, r.third = r.first, r.best, r.second
-                r.first, r.best = j, v
-            elif v > r.second:
-                r.runner_up, r.third = j, r.second
-                r.second = v
-            else:
-                r.third = v
+        rank_in(&r, j, values[j])
     return r
 
 
@@ -161,11 +162,10 @@ cpdef double moved_bound(double made, double x0, double y0, double dx, double dy
 
 
 cdef class Bidders:
-    """The own robots of a host (rows) bidding on one goal set's board, with what makes their
-    rankings cheap: each robot's cached best goal and candidate goals, and the scratch of a round
-    (made once: nothing in the rounds allocates)."""
+    """The own robots of a host (rows) bidding on one goal set's board, with their cached rankings
+    and candidates, and the scratch of a round (made once: nothing in the rounds allocates)."""
 
-    cdef readonly Py_ssize_t k, g
+    cdef Py_ssize_t k, g
     cdef double[::1] px, py, gx, gy, hull_x, hull_y
     cdef double[::1] price  # the board's (shared with agent.core.bidder.Board)
     cdef int64_t[::1] owner
@@ -192,10 +192,8 @@ cdef class Bidders:
     cdef uint8_t[::1] touched, unhappy
 
     def __init__(self, board, goals, robot, goal, penalty, hull, int candidates):
-        """``board``: an object with the arrays price, owner and released (bool) of the goal set;
-        ``goals`` (G, 2); ``robot``: each row's robot id; ``goal``: each row's claim, and ``penalty``
-        (K, G), both shared and changed in place; ``hull``: (x, y) of points whose support function
-        bounds the goal set's (empty: lists are not carried across blocks)."""
+        """``board``: price, owner and released (bool) of the goal set; ``goals`` (G, 2); ``robot``:
+        each row's id; ``goal`` (claims) and ``penalty`` (K, G) are shared, changed in place."""
         goals = np.asarray(goals, float).reshape(-1, 2)
         self.k, self.g = len(robot), len(goals)
         k, g = self.k, self.g
@@ -242,9 +240,8 @@ cdef class Bidders:
         return -c - self.price[j]
 
     cdef Ranking rank_all(self, Py_ssize_t i) noexcept nogil:
-        """Robot i's best, runner-up and third-best goals over every goal (ties: the lower goal
-        index). Renews its candidates: the best K of the goals worth at least T = third best - width
-        (T is then the bound of the others); none when more than 4K fall in the window."""
+        """Robot i's three best goals over every goal. Renews its candidates: the best K of the goals
+        worth at least T = third best - width (T bounds the others); none when more than 4K are."""
         cdef Py_ssize_t j, n = 0, s, a, kk = self.cand.shape[1], g = self.g
         cdef double x = self.px[i], y = self.py[i], dx, dy, t, v
         for j in range(g):  # the costs, in loops that vectorise
@@ -291,24 +288,11 @@ cdef class Bidders:
 
     cdef Ranking rank(self, Py_ssize_t i) noexcept nogil:
         """rank_all, from robot i's candidates when they provably hold its three best goals."""
-        cdef Ranking r
+        cdef Ranking r = unranked()
         cdef Py_ssize_t s
-        cdef int64_t j, j3 = -1
-        cdef double v
-        r.first, r.runner_up = -1, -1
-        r.best, r.second, r.third = -INFINITY, -INFINITY, -INFINITY
         for s in range(self.cand.shape[1]):
-            j = self.cand[i, s]
-            if j < 0:
-                continue
-            v = self.net_value(i, j)
-            if before(v, j, r.third, j3):
-                if before(v, j, r.best, r.first):
-                    j3, r.third, r.runner_up, r.second, r.first, r.best = r.runner_up, r.second, r.first, r.best, j, v
-                elif before(v, j, r.second, r.runner_up):
-                    j3, r.third, r.runner_up, r.second = r.runner_up, r.second, j, v
-                else:
-                    j3, r.third = j, v
+            if self.cand[i, s] >= 0:
+                rank_in(&r, self.cand[i, s], self.net_value(i, self.cand[i, s]))
         if r.third > self.bound[i]:  # ties at the bound: ranked over every goal
             return r
         return self.rank_all(i)
@@ -320,8 +304,7 @@ cdef class Bidders:
         self.seen[i] = self.price[r.first]
 
     cdef inline void refresh(self, Py_ssize_t i) noexcept nogil:
-        """Make robot i's best goal and value exact: ranked anew only if the price of its best goal
-        rose past its second-best value (an upper bound)."""
+        """Make robot i's best goal and value exact (ranked anew only if it fell to its second-best bound)."""
         cdef int64_t b = self.best[i]
         cdef double now
         if not self.price[b] == self.seen[i]:  # NaN: rank anew
@@ -342,9 +325,8 @@ cdef class Bidders:
         return is_content(self.net_value(i, g), self.value[i], slack)
 
     def first_ranking(self) -> int:
-        """Every robot's best goal, value and second-best bound at a block's start (or once
-        penalties rose), from its candidates where they still prove it, else over every goal.
-        Returns how many robots had no list to start from."""
+        """Every robot's ranking at a block's start (or once penalties rose), from its candidates where
+        moved_bound still proves them. Returns how many robots had no list to start from."""
         cdef double lowest = INFINITY, x0, y0
         cdef Py_ssize_t i, j, none = 0
         if self.g == 0:
@@ -382,10 +364,9 @@ cdef class Bidders:
 
     # --- rounds -------------------------------------------------------------------------------------
     cdef Py_ssize_t jacobi_round(self, Py_ssize_t n, double eps) noexcept nogil:
-        """The first ``n`` rows of ``bidders`` (ascending, none content) bid at once on their best
-        goals against the board as the round found it, releasing what they held; per goal the
-        greatest record wins. The bidders' cached rankings follow from the ranking they bid on.
-        Fills ``look`` with the bidders and the robots they outbid; returns how many."""
+        """The first ``n`` rows of ``bidders`` (ascending, none content) bid at once; their cached
+        rankings follow from the ranking they bid on. Fills ``look`` with the bidders and the robots
+        they outbid; returns how many."""
         cdef Py_ssize_t a, m = 0
         cdef int64_t i, h, j, o, r2
         cdef Ranking r
@@ -481,10 +462,9 @@ cdef class Bidders:
         return rounds, bids, n
 
     def settle_block(self, const double[::1] eps, const double[::1] slack, int64_t max_rounds) -> tuple[int, int, int]:
-        """A block of epsilon-scaling phases (``eps``, ``slack``) on frozen positions, warm from the
-        board, after first_ranking: per phase the Jacobi rounds until every robot is content (no
-        message: every robot is this host's). Leaves every cached best value exact. Returns (rounds,
-        bids, phases settled): fewer than len(eps) when a phase ran out of rounds."""
+        """A block of epsilon-scaling phases (``eps``, ``slack``), after first_ranking: per phase the
+        Jacobi rounds until every robot is content. Leaves every cached best value exact. Returns
+        (rounds, bids, phases settled): fewer than len(eps) when a phase ran out of rounds."""
         cdef Py_ssize_t i, a, phase, later, n, n_may = 0, k = self.k
         cdef bint scan = True
         cdef int64_t rounds = 0, bids = 0, r, b, left
@@ -527,12 +507,9 @@ cdef class Bidders:
 
 def bid_on_own_boards(boards, const int64_t[::1] rows, const double[::1] slack, const double[::1] eps,
                       const uint8_t[:, ::1] taken) -> np.ndarray:
-    """The range-limited auction's round of bids (agent.core.local_auction): each robot of ``rows``
-    bids against its own board. ``boards``: an object with, per robot row, ``cost`` (K, G: eq. 7 plus
-    its penalties), ``taken_cost`` (K,), the board ``price``, ``owner``, ``released`` (K, G), its claim
-    ``goal`` and id ``own_ids``. ``taken`` (len(rows), G): goals held by a robot it has not heard of,
-    which cost ``taken_cost`` more. Robots not content at their row's ``slack`` bid at their row's
-    ``eps``; returns the rows that bid."""
+    """The range-limited auction's bids (agent.core.local_auction.LocalAuction: ``boards``): each
+    robot of ``rows`` not content at its ``slack`` bids at its ``eps`` against its own board, goals
+    ``taken`` by a robot it has not heard of costing ``taken_cost`` more. Returns the rows that bid."""
     cdef double[:, ::1] cost = boards.cost, price = boards.price
     cdef double[::1] taken_cost = boards.taken_cost
     cdef int64_t[:, ::1] owner = boards.owner
@@ -608,19 +585,14 @@ cdef inline uint64_t splitmix64(uint64_t x) noexcept nogil:
 def board_digest(const double[::1] price, const int64_t[::1] owner, const uint8_t[::1] released) -> int:
     """64 bits that tell boards apart: each word of (price, owner, released) hashed with its place,
     XOR-folded (hashlib would load OpenSSL into every agent process)."""
-    cdef uint64_t folded = 0, place = 0, bits
+    cdef uint64_t folded = 0, bits
     cdef Py_ssize_t j, g = price.shape[0]
     cdef double p
     with nogil:
-        for j in range(g):
+        for j in range(g):  # places: the prices 0..G-1, then the owners, then the released flags
             p = price[j]
             memcpy(&bits, &p, sizeof(bits))  # the float's bits (a cast would break strict aliasing)
-            folded ^= splitmix64(bits ^ splitmix64(place))
-            place += 1
-        for j in range(g):
-            folded ^= splitmix64(<uint64_t>owner[j] ^ splitmix64(place))
-            place += 1
-        for j in range(g):
-            folded ^= splitmix64(<uint64_t>released[j] ^ splitmix64(place))
-            place += 1
+            folded ^= splitmix64(bits ^ splitmix64(j))
+            folded ^= splitmix64(<uint64_t>owner[j] ^ splitmix64(g + j))
+            folded ^= splitmix64(<uint64_t>released[j] ^ splitmix64(2 * g + j))
     return folded
