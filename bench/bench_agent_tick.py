@@ -52,6 +52,7 @@ def run_scene(cwd: Path, robots: int, duration: float, seed: int, per_process: i
             env={k: v for k, v in os.environ.items() if k != "PIXELSWARM_PROFILE"},
         )
         series: dict[int, list[tuple[float, float]]] = {}  # agent pid -> (wall, CPU seconds)
+        rss: dict[int, int] = {}  # agent pid -> its resident memory at its newest sample (bytes)
         watched: dict[int, psutil.Process] = {}
         while proc.poll() is None:
             try:
@@ -69,6 +70,7 @@ def run_scene(cwd: Path, robots: int, duration: float, seed: int, per_process: i
                 try:
                     t = p.cpu_times()
                     series.setdefault(pid, []).append((now, t.user + t.system))
+                    rss[pid] = p.memory_info().rss
                 except psutil.Error:
                     watched.pop(pid)
             time.sleep(SAMPLE_EVERY)
@@ -91,6 +93,7 @@ def run_scene(cwd: Path, robots: int, duration: float, seed: int, per_process: i
         cpu = [float("nan")]
     return {
         "cpu_median": float(np.median(cpu)),
+        "rss_mb": float(np.median([rss[pid] for pid in series if pid in rss])) / 2**20,
         "cpu_mean": float(np.mean(cpu)),
         "missed": int(m["missed_ticks"]),
         "missed_share": m["missed_ticks"] / ticks,
@@ -163,8 +166,8 @@ def main() -> None:
         sys.exit(2)
     before_rev = rev.stdout.strip()
     rows = [
-        "| pair | code | load avg | agent CPU % of a core (median) | (mean) | missed ticks (share) |",
-        "|---|---|---|---|---|---|",
+        "| pair | code | load avg | agent CPU % of a core (median) | (mean) | agent RSS MB (median) | missed ticks (share) |",
+        "|---|---|---|---|---|---|---|",
     ]
     figures: dict[str, list[float]] = {"before": [], "after": []}
     with worktree_at(before_rev) as (old, _):
@@ -178,7 +181,7 @@ def main() -> None:
                 label = f"{before_rev} (before)" if what == "before" else "current"
                 rows.append(
                     f"| {pair} | {label} | {r['load']:.1f} | {r['cpu_median']:.2f} | {r['cpu_mean']:.2f} | "
-                    f"{r['missed']} ({100 * r['missed_share']:.2f}%) |"
+                    f"{r['rss_mb']:.1f} | {r['missed']} ({100 * r['missed_share']:.2f}%) |"
                 )
                 print(rows[-1], flush=True)
     b, a = np.nanmedian(figures["before"]), np.nanmedian(figures["after"])  # nan: a run without a window
@@ -195,7 +198,7 @@ def main() -> None:
         f"Scene: `pixelswarm run circle --robots {args.robots} --clock realtime --duration {args.duration:g} "
         f"--seed {args.seed} --agents-per-process {args.agents_per_process}`, before and after alternating. "
         "CPU: each agent process's user + system CPU seconds (psutil cpu_times) over the world's stepping (less a second at each "
-        "end) per wall second. Missed ticks: a live agent's command for tick k had not reached the world when "
+        "end) per wall second; RSS: each agent process's resident memory at its last sample. Missed ticks: a live agent's command for tick k had not reached the world when "
         "tick k+1 began. Load avg: the machine's 1-minute load after the run (a shared machine).",
     ]
     command = " ".join(["python -m bench.bench_agent_tick", *sys.argv[1:]])
