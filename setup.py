@@ -10,9 +10,16 @@ from Cython.Build import cythonize
 from setuptools import Extension, setup
 
 FLAGS = ["-O3", "-ffp-contract=off", "-fno-fast-math"]
-DIRECTIVES = {"language_level": 3, "boundscheck": False, "wraparound": False, "cdivision": True, "initializedcheck": False}
+DIRECTIVES = {
+    "language_level": 3,
+    "boundscheck": False,
+    "wraparound": False,
+    "cdivision": True,
+    "initializedcheck": False,
+}
 
 modules = [
-    Extension(path[:-4].replace("/", "."), [path], extra_compile_args=FLAGS) for path in sorted(glob("agent/core/*.pyx"))
+    Extension(path[:-4].replace("/", "."), [path], extra_compile_args=FLAGS)
+    for path in sorted(glob("agent/core/*.pyx"))
 ]
 setup(ext_modules=cythonize(modules, compiler_directives=DIRECTIVES))
