@@ -51,8 +51,7 @@ def run_scene(cwd: Path, robots: int, duration: float, seed: int, per_process: i
             text=True,
             env={k: v for k, v in os.environ.items() if k != "PIXELSWARM_PROFILE"},
         )
-        series: dict[int, list[tuple[float, float]]] = {}  # agent pid -> (wall, CPU seconds)
-        rss: dict[int, int] = {}  # agent pid -> its resident memory at its newest sample (bytes)
+        series: dict[int, list[tuple[float, float, float]]] = {}  # agent pid -> (wall, CPU seconds, RSS bytes)
         watched: dict[int, psutil.Process] = {}
         while proc.poll() is None:
             try:
@@ -68,9 +67,8 @@ def run_scene(cwd: Path, robots: int, duration: float, seed: int, per_process: i
             now = time.monotonic()
             for pid, p in list(watched.items()):
                 try:
-                    t = p.cpu_times()
-                    series.setdefault(pid, []).append((now, t.user + t.system))
-                    rss[pid] = p.memory_info().rss
+                    t, m = p.cpu_times(), p.memory_info()
+                    series.setdefault(pid, []).append((now, t.user + t.system, m.rss))
                 except psutil.Error:
                     watched.pop(pid)
             time.sleep(SAMPLE_EVERY)
@@ -82,18 +80,19 @@ def run_scene(cwd: Path, robots: int, duration: float, seed: int, per_process: i
     series = {pid: s for pid, s in series.items() if len(s) >= 4}  # not a process seen only in passing
     end = min(s[-1][0] for s in series.values()) - EDGE
     begin = end - float(m["stepping_wall_s"]) + 2 * EDGE
-    cpu = []
+    cpu, rss = [], []
     for s in series.values():
-        t, c = np.array(s).T
+        t, c, r = np.array(s).T
         i, j = np.searchsorted(t, begin), np.searchsorted(t, end, side="right") - 1
         if j > i:
             cpu.append(100 * (c[j] - c[i]) / (t[j] - t[i]))
+            rss.append(r[j])  # at the end of the stepping: a robot's process has its memory by then
     ticks = max(int(m.get("samples", 1)) - 1, 1) * robots
     if not cpu:  # no two samples inside the window (a loaded machine sampled too seldom)
         cpu = [float("nan")]
     return {
         "cpu_median": float(np.median(cpu)),
-        "rss_mb": float(np.median([rss[pid] for pid in series if pid in rss])) / 2**20,
+        "rss_mb": float(np.median(rss)) / 2**20 if rss else float("nan"),
         "cpu_mean": float(np.mean(cpu)),
         "missed": int(m["missed_ticks"]),
         "missed_share": m["missed_ticks"] / ticks,
@@ -198,7 +197,7 @@ def main() -> None:
         f"Scene: `pixelswarm run circle --robots {args.robots} --clock realtime --duration {args.duration:g} "
         f"--seed {args.seed} --agents-per-process {args.agents_per_process}`, before and after alternating. "
         "CPU: each agent process's user + system CPU seconds (psutil cpu_times) over the world's stepping (less a second at each "
-        "end) per wall second; RSS: each agent process's resident memory at its last sample. Missed ticks: a live agent's command for tick k had not reached the world when "
+        "end) per wall second; RSS: each agent process's resident memory at the end of the stepping. Missed ticks: a live agent's command for tick k had not reached the world when "
         "tick k+1 began. Load avg: the machine's 1-minute load after the run (a shared machine).",
     ]
     command = " ".join(["python -m bench.bench_agent_tick", *sys.argv[1:]])
