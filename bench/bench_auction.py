@@ -17,11 +17,11 @@ each tree (its first block includes any JIT compilation):
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import signal
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -32,6 +32,7 @@ from transport.bus import Bus
 from transport.codec import Event, Goals, Timing
 from transport.session import client_of, loopback_router
 
+from .bench_runtime import worktree_at
 from .common import REPO, write_results
 
 
@@ -161,26 +162,15 @@ def central(tree: Path, n: int, blocks: int, seed: int = 1) -> dict:
     return json.loads(out.stdout.splitlines()[-1])
 
 
-def built_worktree(rev: str, where: Path) -> str:
-    """A fresh worktree of ``rev`` (bench.bench_runtime.worktree) with its compiled core built in place."""
-    from .bench_runtime import worktree
-
-    commit = worktree(rev, where)
-    if any((where / "agent" / "core").glob("*.pyx")):
-        subprocess.run(
-            [sys.executable, "setup.py", "build_ext", "--inplace", "-q"], cwd=where, check=True, capture_output=True
-        )
-    return commit
-
-
 def side_by_side(args: argparse.Namespace, cases: list[tuple[int, int]]) -> None:
     """The code at --before beside the code at --after, alternating case by case, in one run."""
-    tmp = Path(tempfile.mkdtemp(prefix="bench-auction-"))
-    trees = {"before": tmp / "before", "after": tmp / "after"}
-    try:
-        commits = {
-            what: built_worktree(rev, trees[what]) for what, rev in (("before", args.before), ("after", args.after))
+    with contextlib.ExitStack() as stack:
+        made = {
+            what: stack.enter_context(worktree_at(rev))
+            for what, rev in (("before", args.before), ("after", args.after))
         }
+        trees = {what: tree for what, (tree, _) in made.items()}
+        commits = {what: commit for what, (_, commit) in made.items()}
         rows = [
             "| N robots | robots per process (processes) | code | time to agreement s (slowest host) | "
             "agreed cost / optimum | one-to-one | bids per robot |",
@@ -215,10 +205,6 @@ def side_by_side(args: argparse.Namespace, cases: list[tuple[int, int]]) -> None
                         f"{warm.max():.2f} | {r['bids']} | {r['rounds']} | {same} |"
                     )
                     print(rows[-1], flush=True)
-    finally:
-        for tree in trees.values():
-            subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=REPO, capture_output=True)
-        subprocess.run(["git", "worktree", "prune"], cwd=REPO, capture_output=True)
     write_results(
         "auction_before_after",
         f"Auction: the code at {args.before} beside {args.after}",

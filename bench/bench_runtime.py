@@ -314,31 +314,24 @@ def startup(before: str, after: str, pairs: int, robots: int) -> list[str]:
         "|---|---|---|---|---|---|---|---|",
     ]
     schedule = [("first in a fresh tree", set())] + [(str(k), set()) for k in range(1, pairs + 1)] + NO_CACHE
-    with tempfile.TemporaryDirectory() as tmp:
-        trees = {"before": Path(tmp) / "before", "after": Path(tmp) / "after"}
-        try:
-            for what, rev in (("before", before), ("after", after)):
-                commits[what] = worktree(rev, trees[what])
-            for name, cleared in schedule:
-                for what, tree in trees.items():
-                    clear_caches(tree, cleared)
-                    r = startup_run(tree, robots)
-                    if name.isdigit():
-                        warm[what].append(r["tick"])
-                    elif not cleared:
-                        first[what] = r["tick"]
-                    shown = {
-                        k: "-" if r[k] != r[k] else f"{r[k]:.1f}" for k in ("coordinator", "world", "agent", "tick")
-                    }
-                    rows.append(
-                        f"| {name} | {commits[what]} ({what}) | {r['load']} | {shown['coordinator']} | {shown['world']} | "
-                        f"{shown['agent']} | {shown['tick']} | {r['end']} |"
-                    )
-                    print(rows[-1], flush=True)
-        finally:
-            for tree in trees.values():
-                subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=REPO, capture_output=True)
-            subprocess.run(["git", "worktree", "prune"], cwd=REPO, capture_output=True)
+    with contextlib.ExitStack() as stack:
+        trees: dict[str, Path] = {}
+        for what, rev in (("before", before), ("after", after)):
+            trees[what], commits[what] = stack.enter_context(worktree_at(rev))
+        for name, cleared in schedule:
+            for what, tree in trees.items():
+                clear_caches(tree, cleared)
+                r = startup_run(tree, robots)
+                if name.isdigit():
+                    warm[what].append(r["tick"])
+                elif not cleared:
+                    first[what] = r["tick"]
+                shown = {k: "-" if r[k] != r[k] else f"{r[k]:.1f}" for k in ("coordinator", "world", "agent", "tick")}
+                rows.append(
+                    f"| {name} | {commits[what]} ({what}) | {r['load']} | {shown['coordinator']} | {shown['world']} | "
+                    f"{shown['agent']} | {shown['tick']} | {r['end']} |"
+                )
+                print(rows[-1], flush=True)
     median = {what: float(np.nanmedian(ticks)) for what, ticks in warm.items()}  # nan: a run that never ticked
     return rows + [
         "",
