@@ -58,6 +58,7 @@ class CentralOrca:
         self.perturbation = float(perturbation)
         self.seed = int(seed)
         self._settings: tuple | None = None  # (what it was made of, the core's Settings)
+        self._obstacles: Obstacles | None = None  # the segments as the core reads them
         self.position = np.zeros((0, 2))
         self.velocity = np.zeros((0, 2))
         self.pref_velocity = np.zeros((0, 2))
@@ -86,6 +87,7 @@ class CentralOrca:
     def add_obstacle(self, vertices) -> None:
         """A polygon, counter-clockwise (clockwise for an enclosing wall), as in RVO2."""
         self.segments = np.concatenate([self.segments, polygon_segments(vertices)])
+        self._obstacles = None
 
     def set_pref_velocity(self, agent: int, velocity) -> None:
         self.pref_velocity[agent] = velocity
@@ -119,8 +121,10 @@ class CentralOrca:
                 EPUCK, safety=self.safety, margin=self.safety_margin, timeout=0.0, noise=0.0, horizons=horizons
             )
             self._settings = ((horizons, self.safety, self.safety_margin), core)
+        if self._obstacles is None:
+            self._obstacles = Obstacles(self.segments)
         robots = Batch(self.position, self.velocity, self.preferred(), None, self.radius, self.max_speed)
-        return step_known(self._settings[1], robots, self._neighbours_grid(), Obstacles(self.segments))
+        return step_known(self._settings[1], robots, self._neighbours_grid(), self._obstacles)
 
     def do_step(self) -> None:
         new_velocity, fallback = self.compute_new_velocities()

@@ -839,7 +839,10 @@ cdef class Batch:
 
 
 cdef _per_robot(value, Py_ssize_t b):
-    return np.ascontiguousarray(np.broadcast_to(np.asarray(value, dtype=float).reshape(-1), (b,)))
+    a = np.asarray(value, dtype=float)
+    if a.ndim == 1 and a.shape[0] == b and a.flags.c_contiguous:
+        return a  # already one per robot (a central engine's radii): no copy
+    return np.full(b, float(a)) if a.ndim == 0 else np.ascontiguousarray(np.broadcast_to(a.reshape(-1), (b,)))
 
 
 cdef inline Robot _robot(Rows *rows, Py_ssize_t i, Config *s) noexcept nogil:
