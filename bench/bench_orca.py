@@ -244,7 +244,7 @@ def main(argv: list[str] | None = None) -> int:
 def ratio_line(records: list[Record]) -> str:
     ref, ours = records
     per_step = (ours.seconds / max(ours.steps, 1)) / (ref.seconds / max(ref.steps, 1))
-    return f"\nours / RVO2: {ours.steps / ref.steps:.2f}x the steps, {per_step:.1f}x the time per step.\n"
+    return f"\nours / RVO2: {ours.steps / ref.steps:.2f}x the steps, {per_step:.2f}x the time per step.\n"
 
 
 def write(sections: list[str]) -> None:
