@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -25,7 +23,8 @@ from pathlib import Path
 from typing import Any
 
 from sim.emulators.faulty_peer import MODES_AND_ALL
-from transport.session import free_port
+from sim.processes import stop_processes
+from transport.session import free_port, listening
 
 from .common import REPO, machine
 
@@ -34,12 +33,6 @@ DEFAULT_MODES = ["none", *MODES_AND_ALL]
 
 def _say(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
-
-
-def _listening(port: int) -> bool:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.settimeout(0.2)
-        return sock.connect_ex(("127.0.0.1", port)) == 0
 
 
 def run_command(args: argparse.Namespace, port: int, out: Path) -> list[str]:
@@ -83,17 +76,6 @@ def peer_command(args: argparse.Namespace, mode: str, port: int) -> list[str]:
     ]
 
 
-def _stop(proc: subprocess.Popen, timeout: float = 10.0) -> None:
-    """SIGTERM (SIGKILL after ``timeout``) a process this bench started, by its own handle."""
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-
-
 def run_one(args: argparse.Namespace, mode: str, where: Path) -> dict[str, Any]:
     """One run, with the peer in this mode ('none': no peer): its metrics, the peer's summary line,
     the wall time."""
@@ -107,7 +89,7 @@ def run_one(args: argparse.Namespace, mode: str, where: Path) -> dict[str, Any]:
     summary = ""
     try:
         if mode != "none":
-            while run.poll() is None and not _listening(port) and time.monotonic() - start < 60:
+            while run.poll() is None and not listening(port) and time.monotonic() - start < 60:
                 time.sleep(0.1)
             peer = subprocess.Popen(
                 peer_command(args, mode, port), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
@@ -115,15 +97,15 @@ def run_one(args: argparse.Namespace, mode: str, where: Path) -> dict[str, Any]:
         try:
             _, run_err = run.communicate(timeout=args.timeout)
         except subprocess.TimeoutExpired:
-            _stop(run, 30)
+            stop_processes([run], 30)
             _, run_err = run.communicate()
             run_err += f"\n(bench: the run took over {args.timeout} s and was stopped)"
     finally:
         if peer is not None:
-            _stop(peer)
+            stop_processes([peer], 10.0)
             peer_out, peer_err = peer.communicate()
             summary = (peer_out.strip().splitlines() or [peer_err.strip()[-300:]])[-1]
-        _stop(run, 30)
+        stop_processes([run], 30)
     wall = time.monotonic() - start
     metrics_path = out / "metrics.json"
     if not metrics_path.exists():

@@ -19,6 +19,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from sim.processes import stop_processes
+
 from .common import REPO, write_results
 
 
@@ -42,15 +44,8 @@ def run_study(spec: Path, jobs: int, cluster: bool = False) -> tuple[float, list
 def _stop(processes: list[subprocess.Popen]) -> None:
     """The workers (all but the first), then the scheduler: a worker whose scheduler is gone keeps
     trying to reach it instead of closing."""
-    for group in (processes[1:], processes[:1]):
-        for process in group:
-            process.terminate()
-        for process in group:
-            try:
-                process.wait(30)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait()
+    stop_processes(processes[1:], 30)
+    stop_processes(processes[:1], 30)
 
 
 def _loopback_cluster(root: Path, workers: int, command: list[str]) -> list[subprocess.Popen]:

@@ -35,6 +35,7 @@ from .agents_cli import encode_remote_config
 from .cli_args import STARTUP_TIMEOUT, format_ids
 from .hardware_node import ERROR as HARDWARE_ERROR
 from .output import write_run
+from .processes import stop_processes
 from .recorder import Recorder
 from .rundir import RunDir
 from .ticklog import TICKS_FILE
@@ -294,16 +295,7 @@ class Launcher:
 
     def _stop_children(self) -> None:
         self.shutdown_wall = min(time.time(), getattr(self, "shutdown_wall", float("inf")))
-        for child in self.children:
-            if child.proc.poll() is None:
-                child.proc.send_signal(signal.SIGTERM)
-        deadline = time.monotonic() + 5.0
-        for child in self.children:
-            try:
-                child.proc.wait(timeout=max(0.1, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                child.proc.kill()
-                child.proc.wait(timeout=5)
+        stop_processes([child.proc for child in self.children], 5.0)
 
     # --- progress -----------------------------------------------------------------------------
     def _say(self, text: str, force: bool = False) -> None:

@@ -34,10 +34,14 @@ from typing import Any
 
 import numpy as np
 
+from transport.session import free_port, listening
+
+from .processes import stop_processes
+
 __all__ = ["SwarmView", "ViewUnavailable", "replay", "VIEW_FILE", "TRAIL"]
 
 VIEW_FILE = "view.rrd"  # beside trajectory.npz
-TRAIL = 10  # positions kept per robot's trail: every TRAIL_EVERY-th tick's, 2 s at 10 Hz
+TRAIL = 10  # positions kept per robot's trail: every TRAIL_EVERY-th tick's
 TRAIL_EVERY = 2
 TRAIL_DOT = 0.004  # m, radius of a trail's dots
 TRAIL_ALPHA = 90
@@ -72,22 +76,13 @@ def _viewer() -> list[str]:
     return [str(binary)]
 
 
-def _free_port() -> int:
-    from transport.session import free_port
-
-    return free_port(LOOPBACK)
-
-
 def _wait_listening(port: int, proc: subprocess.Popen, timeout: float = START_TIMEOUT) -> None:
-    import socket
-
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         if proc.poll() is not None:
             raise ViewUnavailable(f"Rerun's viewer exited at start (code {proc.returncode})")
-        with socket.socket() as s:
-            if s.connect_ex((LOOPBACK, port)) == 0:
-                return
+        if listening(port, LOOPBACK):
+            return
         time.sleep(0.1)
     raise ViewUnavailable(f"Rerun's viewer did not listen on {LOOPBACK}:{port} within {timeout:g} s")
 
@@ -129,10 +124,10 @@ class SwarmView:
     # -- where it goes -----------------------------------------------------------------------
     def _serve(self, web: bool) -> None:
         """Rerun's viewer (its own process) listening on 127.0.0.1; this recording streams to it."""
-        grpc = _free_port()
+        grpc = free_port(LOOPBACK)
         command = [*_viewer(), "--bind", LOOPBACK, "--port", str(grpc), "--expect-data-soon"]
         if web:
-            page = _free_port()
+            page = free_port(LOOPBACK)
             command += ["--serve-web", "--web-viewer-port", str(page)]
         # the native window is the user's: it outlives the run (its own session); the web server is ours
         self.process = subprocess.Popen(
@@ -252,12 +247,7 @@ class SwarmView:
         self.rec.flush()
         self.rec.disconnect()
         if self.process is not None:
-            self.process.terminate()
-            try:
-                self.process.wait(10)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait()
+            stop_processes([self.process], 10)
             self.process = None
 
     def serve_until_interrupted(self) -> None:
@@ -322,10 +312,10 @@ def view_recording(rrd: Path, *, web: bool = False) -> None:
     its web viewer on 127.0.0.1, the address printed, until Ctrl-C."""
     _rerun()
     if not web:
-        command = [*_viewer(), "--bind", LOOPBACK, "--port", str(_free_port()), str(rrd)]
+        command = [*_viewer(), "--bind", LOOPBACK, "--port", str(free_port(LOOPBACK)), str(rrd)]
         subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
         return
-    grpc, page = _free_port(), _free_port()
+    grpc, page = free_port(LOOPBACK), free_port(LOOPBACK)
     command = [*_viewer(), "--bind", LOOPBACK, "--port", str(grpc), "--serve-web"]
     command += ["--web-viewer-port", str(page), str(rrd)]
     process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -336,13 +326,7 @@ def view_recording(rrd: Path, *, web: bool = False) -> None:
         print(f"view: http://{LOOPBACK}:{page}/?url={urllib.parse.quote(proxy, safe='')} (Ctrl-C to stop)", flush=True)
         process.wait()
     finally:
-        if process.poll() is None:
-            process.terminate()
-            try:
-                process.wait(10)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait()
+        stop_processes([process], 10)
 
 
 def url_serves(url: str) -> bool:

@@ -15,14 +15,13 @@ from __future__ import annotations
 
 import json
 import signal
-import socket
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
-from transport.session import free_port
+from transport.session import free_port, listening
 
 from .conftest import REPO, descendants, pixelswarm_cmd, wait_for
 
@@ -32,12 +31,6 @@ CODEC_REASONS = {"truncated", "version", "kind", "non-finite", "invalid"}
 CIRCLE = ("circle", "--robots", "20", "--clock", "lockstep", "--seed", "3", "--duration", "30")
 # the first two images of the paper sequence (30 s each) and 2 s of the third
 PAPER_HOSTS = ("paper-sequence", "--clock", "lockstep", "--seed", "3", "-k", "7", "--duration", "62")
-
-
-def _listening(port: int) -> bool:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.settimeout(0.2)
-        return sock.connect_ex(("127.0.0.1", port)) == 0
 
 
 def _stop(proc: subprocess.Popen, timeout: float = 15) -> None:
@@ -75,7 +68,7 @@ def run_with_peer(where: Path, run_args: tuple[str, ...], mode: str = "all") -> 
     )
     peer = None
     try:
-        assert wait_for(lambda: run.poll() is not None or _listening(port), 60), "the run's router never listened"
+        assert wait_for(lambda: run.poll() is not None or listening(port), 60), "the run's router never listened"
         peer = subprocess.Popen(
             [sys.executable, "-m", "sim.emulators.faulty_peer", "-e", f"tcp/127.0.0.1:{port}", "--mode", mode]
             + ["--rate", "350", "--start-after", "0.5", "--seed", "1"],

@@ -15,9 +15,10 @@ import psutil
 import pytest
 
 from sim.cli import main
+from sim.processes import stop_processes
 from tests.conftest import REPO, wait_for
 from tests.test_study import GRID, grid, read_csv, study  # noqa: F401 - grid: the local study, run once
-from transport.session import free_port
+from transport.session import free_port, listening
 
 pytest.importorskip("distributed")
 
@@ -36,7 +37,7 @@ class Cluster:
         self.scheduler = self._start(
             "scheduler", [*DASK, "--host", "127.0.0.1", "--port", str(self.port), "--no-dashboard"]
         )
-        assert wait_for(lambda: _listening(self.port), timeout=60), (self.logs / "scheduler.log").read_text()
+        assert wait_for(lambda: listening(self.port), timeout=60), (self.logs / "scheduler.log").read_text()
         self.workers = [self.add_worker(root, f"w{k}") for k in range(workers)]
 
     def _start(self, name: str, command: list[str]) -> subprocess.Popen:
@@ -56,23 +57,8 @@ class Cluster:
 
     def close(self) -> None:
         """The workers, then the scheduler (a worker whose scheduler has gone keeps trying to reach it)."""
-        for group in (self.workers, [self.scheduler]):
-            for process in group:
-                if process.poll() is None:
-                    process.send_signal(signal.SIGTERM)
-            for process in group:
-                try:
-                    process.wait(30)
-                except subprocess.TimeoutExpired:
-                    process.kill()
-                    process.wait()
-
-
-def _listening(port: int) -> bool:
-    import socket
-
-    with socket.socket() as s:
-        return s.connect_ex(("127.0.0.1", port)) == 0
+        stop_processes(self.workers, 30)
+        stop_processes([self.scheduler], 30)
 
 
 @pytest.fixture

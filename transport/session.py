@@ -75,6 +75,15 @@ def free_port(host: str = "127.0.0.1") -> int:
         return sock.getsockname()[1]
 
 
+def listening(port: int, host: str = "127.0.0.1") -> bool:
+    """Whether something accepts TCP connections on this port right now."""
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.settimeout(0.2)
+        return sock.connect_ex((host, port)) == 0
+
+
 def loopback_router(port: int | None = None) -> ZenohSettings:
     """An embedded router listening on 127.0.0.1 (a free port unless one is given)."""
     return ZenohSettings(mode="router", listen=[f"tcp/127.0.0.1:{port or free_port()}"])
