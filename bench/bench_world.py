@@ -30,12 +30,12 @@ git worktree of REV (bench.bench_runtime.worktree) runs the same code first; row
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -139,7 +139,10 @@ def main() -> None:
 NEIGHBOUR_TIMINGS = r"""
 import json, sys, time
 import numpy as np
-from sim.rvo import CentralOrca
+try:  # CentralOrca was agent.core.rvo before it moved to sim
+    from sim.rvo import CentralOrca
+except ImportError:
+    from agent.core.rvo import CentralOrca
 from agent.neighbour_table import Heard, NeighbourTable
 from sim.proximity import close_pairs
 from transport.codec import State
@@ -210,21 +213,17 @@ def neighbour_timings(tree: Path, repeats: int) -> dict[str, float]:
 def neighbours_main(before: str | None, repeats: int, rounds: int) -> None:
     """The neighbour searches of this tree, beside those of ``before`` (rounds alternate)."""
     here = Path(__file__).resolve().parents[1]
-    with tempfile.TemporaryDirectory() as tmp:
+    with contextlib.ExitStack() as stack:
         trees = {"this tree": here}
         if before:
-            from bench.bench_runtime import worktree
+            from bench.bench_runtime import worktree_at
 
-            commit = worktree(before, Path(tmp) / "before")
-            trees = {f"before ({commit})": Path(tmp) / "before", "this tree": here}
-        try:
-            runs: dict[str, list[dict[str, float]]] = {name: [] for name in trees}
-            for _ in range(rounds):
-                for name, tree in trees.items():
-                    runs[name].append(neighbour_timings(tree, repeats))
-        finally:
-            if before:
-                subprocess.run(["git", "worktree", "remove", "--force", str(Path(tmp) / "before")], cwd=here)
+            old, commit = stack.enter_context(worktree_at(before))
+            trees = {f"before ({commit})": old, "this tree": here}
+        runs: dict[str, list[dict[str, float]]] = {name: [] for name in trees}
+        for _ in range(rounds):
+            for name, tree in trees.items():
+                runs[name].append(neighbour_timings(tree, repeats))
     names = list(trees)
     best = {name: {k: min(r[k] for r in runs[name]) for k in runs[name][0]} for name in names}
     lines = [
