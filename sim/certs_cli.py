@@ -24,7 +24,7 @@ def add_certs_parser(subparsers: Any) -> None:
         "certs",
         help="make certificates, client configurations and access rules for a secured bus",
         description="Make a certificate authority, a certificate and a Zenoh configuration for each role "
-        "(coordinator, tracker, world, recorder, router, robot-<id>), and the router's access rules.",
+        "(coordinator, tracker, world, recorder, observer, router, robot-<id>), and the router's access rules.",
     )
     p.add_argument("dir", help="folder to create (must not exist or be empty)")
     p.add_argument("-n", "--robots", type=positive_int, required=True, help="number of robots (ids 0..N-1)")

@@ -22,7 +22,7 @@ from transport.session import TransportError, ZenohSettings, add_zenoh_args, ope
 
 from .agents_cli import add_agents_parser
 from .certs_cli import add_certs_parser
-from .cli_args import FOXGLOVE_PORT, STARTUP_TIMEOUT, port_number, positive_int
+from .cli_args import FOXGLOVE_PORT, STARTUP_TIMEOUT, add_watch_args, port_number, positive_int
 from .rundir import default_run_path
 from .study import add_study_parser
 from .track import add_track_parser
@@ -179,9 +179,12 @@ def build_parser() -> argparse.ArgumentParser:
     stop.set_defaults(func=cmd_stop)
 
     view = sub.add_parser(
-        "view", help="replay a finished run in Rerun's viewer (its trajectory.npz; pip install 'pixelswarm[view]')"
+        "view",
+        help="replay a finished run in Rerun's viewer (its trajectory.npz), or watch a running one with --connect "
+        "(pip install 'pixelswarm[view]')",
     )
-    view.add_argument("run_dir", type=Path, metavar="RUN_DIR", help="a run directory (with trajectory.npz)")
+    view.add_argument("run_dir", type=Path, nargs="?", metavar="RUN_DIR", help="a run directory (with trajectory.npz)")
+    add_watch_args(view)
     view.add_argument(
         "--web", action="store_true", help="serve Rerun's web viewer on 127.0.0.1 and print its address (until Ctrl-C)"
     )
@@ -419,6 +422,10 @@ def _run_distributed(launcher: Any) -> int:
 def cmd_view(args: argparse.Namespace) -> int:
     from .view import VIEW_FILE, ViewUnavailable, replay, view_recording
 
+    if args.connect is not None or args.run_dir is None:
+        return _watch(args)
+    if args.secure is not None or args.display is not None:
+        raise UsageError("--secure and --display go with --connect ENDPOINT (watching a running swarm)")
     run_dir = args.run_dir
     if not (run_dir / "trajectory.npz").is_file() or not (run_dir / "scene.json").is_file():
         raise UsageError(f"{run_dir} is not a run directory (no trajectory.npz and scene.json)")
@@ -436,6 +443,31 @@ def cmd_view(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         return 130
     return 0
+
+
+def _watch(args: argparse.Namespace) -> int:
+    """`pixelswarm view --connect ENDPOINT`: a running swarm, from its bus (sim.watch)."""
+    from .view import ViewUnavailable
+    from .watch import WatchError, observer_settings, print_line, watch
+
+    if args.connect is None:
+        raise UsageError("give a RUN_DIR to replay, or --connect ENDPOINT to watch a running swarm")
+    if args.run_dir is not None:
+        raise UsageError(f"either a RUN_DIR to replay or --connect ENDPOINT, not both ({args.run_dir})")
+    if args.save is not None and args.web:
+        raise UsageError("--web serves the view, --save writes it to a file: choose one")
+    if args.save is not None and not args.save.parent.is_dir():
+        raise UsageError(f"--save: no directory {args.save.parent} to write {args.save.name} in")
+    display = args.display or "default"
+    try:
+        settings = observer_settings(args.connect, args.secure, display)
+        sink = args.save if args.save is not None else "web" if args.web else "native"
+        code = watch(settings, display, sink, timeout=args.timeout, say=print_line("pixelswarm view", args.quiet))
+    except (WatchError, ViewUnavailable) as err:
+        raise UsageError(str(err)) from None
+    if code == 0 and args.save is not None:
+        print(args.save, flush=True)
+    return code
 
 
 def _check_numbers(args: argparse.Namespace) -> None:

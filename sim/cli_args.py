@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
 
 # s each start-up stage of a run (the coordinator, then every agent) has to come alive by default
 # (sim.launcher): on a loaded machine, tens of processes importing numpy and opening sessions at
@@ -55,3 +56,32 @@ def format_ids(ids: list[int]) -> str:
         else:
             runs.append([i, i])
     return ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in runs)
+
+
+WATCH_TIMEOUT = 60.0  # s `pixelswarm view --connect` waits for a running swarm's first tick
+
+
+def add_watch_args(view: argparse.ArgumentParser) -> None:
+    """`pixelswarm view`'s flags for watching a running swarm from its bus (sim.watch)."""
+    view.add_argument(
+        "--connect",
+        "-e",
+        metavar="ENDPOINT",
+        help="watch a running swarm instead: a read-only subscriber of the run's router (or one joined to it), "
+        "e.g. tcp/127.0.0.1:7447",
+    )
+    view.add_argument("--display", help="with --connect: the run's display name (default: default)")
+    view.add_argument(
+        "--secure",
+        type=Path,
+        metavar="DIR",
+        help="with --connect: join a secured bus as the observer role of a folder made by `pixelswarm certs`",
+    )
+    view.add_argument(
+        "--timeout",
+        type=positive_seconds,
+        default=WATCH_TIMEOUT,
+        metavar="SECONDS",
+        help=f"with --connect: how long to wait for the run's first tick (default {WATCH_TIMEOUT:g} s)",
+    )
+    view.add_argument("--quiet", "-q", action="store_true", help="with --connect: no progress lines")

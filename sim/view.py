@@ -93,7 +93,7 @@ class SwarmView:
     def __init__(
         self,
         name: str,
-        arena: tuple[float, float, float, float],
+        arena: tuple[float, float, float, float] | None,
         obstacles: list[list[tuple[float, float]]],
         radius: np.ndarray | float,
         *,
@@ -142,11 +142,15 @@ class SwarmView:
         else:
             self.process = None  # not ours to stop
 
-    def _static(self, arena: tuple[float, float, float, float], obstacles: list[list[tuple[float, float]]]) -> None:
+    def _static(
+        self, arena: tuple[float, float, float, float] | None, obstacles: list[list[tuple[float, float]]]
+    ) -> None:
+        """The arena's outline (None: not known, as to a viewer on the bus) and the obstacles."""
         rr = self._rr
-        x0, y0, x1, y1 = arena
-        box = [[x0, y0], [x1, y0], [x1, y1], [x0, y1], [x0, y0]]
-        self.rec.log("arena", rr.LineStrips2D([box], colors=[(200, 200, 200)]), static=True)
+        if arena is not None:
+            x0, y0, x1, y1 = arena
+            box = [[x0, y0], [x1, y0], [x1, y1], [x0, y1], [x0, y0]]
+            self.rec.log("arena", rr.LineStrips2D([box], colors=[(200, 200, 200)]), static=True)
         if obstacles:
             loops = [[*map(list, o), list(o[0])] for o in obstacles]
             self.rec.log("obstacles", rr.LineStrips2D(loops, colors=[(120, 120, 120)]), static=True)

@@ -11,10 +11,10 @@
     usrpwd/router.json5           the router: user/password and access control keyed on user names
     roles.json                    how many robots and which display the access rules were written for
 
-Roles: coordinator, tracker, world, recorder, router and robot-<id>. The access rules follow the key
-schema (transport/keys.py) and deny by default: only the coordinator publishes goal sets, only the tracker
+Roles: coordinator, tracker, world, recorder, observer, router and robot-<id>. The access rules follow the
+key schema (transport/keys.py) and deny by default: only the coordinator publishes goal sets, only the tracker
 and the world publish poses, robot i publishes only its own state, command and auction keys, the recorder
-only reads. The rules are enforced by the router, so every session must go through it (clients only).
+only reads, and the observer (a viewer from another process) only reads what the display shows. The rules are enforced by the router, so every session must go through it (clients only).
 
 Endpoints: the files hold the router endpoint given to `make_certificates(connect=...)`, or none; then
 `client_config(dir, role, connect)` / `router_config(dir, listen)` give it when a session opens. Both
@@ -43,7 +43,8 @@ from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 from .keys import Keys
 from .session import ZenohSettings
 
-SERVICES = ("coordinator", "tracker", "world", "recorder")
+SERVICES = ("coordinator", "tracker", "world", "recorder", "observer")
+OBSERVER = "observer"  # a viewer watching a run (`pixelswarm view --connect`): reads the display, never publishes
 ROUTER = "router"
 AUTH_MODES = ("tls", "usrpwd")
 VALID_DAYS = 365  # certificates are renewed by making a new folder, once a deployment season
@@ -212,6 +213,13 @@ def _service_grants(keys: Keys) -> dict[str, list[dict]]:
             watch=[alive],
         ),
         "recorder": _grants("recorder", read=[keys.everything], watch=[alive]),
+        # A viewer: the truth of each tick, the robots' states (goals, sizes), goal sets, the clock and
+        # events; no put, token, query or queryable, so joining costs the run's processes nothing.
+        OBSERVER: _grants(
+            OBSERVER,
+            read=[keys.all_of("sim"), keys.all_of("state"), keys.all_of("goals"), keys.clock, keys.event],
+            watch=[alive],
+        ),
     }
 
 
@@ -386,6 +394,29 @@ def check_folder(
         for name in _files(role, auth):
             if not os.access(directory / name, os.R_OK):
                 raise SecurityError(f"cannot read {directory / name} (the {role}'s)")
+    return directory
+
+
+def check_role(directory: str | Path, role: str, *, display: str = "default", auth: str = "tls") -> Path:
+    """The folder, resolved, if a session of ``role`` on ``display`` can open from it (its files are
+    there and readable: a viewer's machine needs only ``ca.pem`` and the observer's files), else
+    SecurityError in one line; a folder made before the role existed says so."""
+    if auth not in AUTH_MODES:
+        raise SecurityError(f"auth must be one of {', '.join(AUTH_MODES)}, not {auth!r}")
+    directory = Path(directory).resolve()
+    if not directory.is_dir():
+        raise SecurityError(f"{directory} is not a folder; make one with `pixelswarm certs DIR --robots N`")
+    made_for = _manifest(directory).get("display", "default")
+    if made_for != display:
+        raise SecurityError(f"{directory} holds access rules for display {made_for!r}, not {display!r}")
+    for name in _files(role, auth):
+        if not os.access(directory / name, os.R_OK):
+            if not (directory / name).exists() and role in SERVICES:
+                raise SecurityError(
+                    f"{directory} has no {role} role ({name} missing): it was made before the role existed; "
+                    "make the folder again with `pixelswarm certs`"
+                )
+            raise SecurityError(f"cannot read {directory / name} (the {role}'s)")
     return directory
 
 
