@@ -47,6 +47,13 @@ RESTARTED = (
 )  # the services it restarts; the simulated world is also the tracker: its death ends the run
 
 
+def progress_line(scene: str, t: float, at_goal: int, with_goal: int, min_clearance: float, contacts: int) -> str:
+    """The once-a-second progress line. Before any robot has a goal it says so, not ``at goal 0/0``
+    (a newcomer read that as a swarm that found no goals)."""
+    goals = f"at goal {at_goal}/{with_goal}" if with_goal else "waiting for the goal set"
+    return f"[{scene}] t={t:6.1f} s  {goals}  min clearance {min_clearance:+.3f} m  contacts {contacts}"
+
+
 @dataclass
 class RunOptions:
     out: Path
@@ -315,8 +322,7 @@ class Launcher:
         at_goal = int(np.sum(err <= self.params.goal_tolerance))
         with_goal = int(np.sum(np.isfinite(err)))
         self._say(
-            f"[{self.scene.name}] t={rec.sim_time:6.1f} s  at goal {at_goal}/{with_goal}  "
-            f"min clearance {rec.last_min_clearance:+.3f} m  contacts {len(rec.contacts)}"
+            progress_line(self.scene.name, rec.sim_time, at_goal, with_goal, rec.last_min_clearance, len(rec.contacts))
         )
 
     # --- the run ------------------------------------------------------------------------------

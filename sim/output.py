@@ -109,18 +109,22 @@ def write_run(
             color=arrays["color"],
         )
     if len(t) and video:
-        from .render import write_video
+        from .render import held_frames, write_video
 
+        formed = metrics.get("time_to_converge_s")
+        idx = held_frames(t, None if formed is None else float(t[0]) + formed)
         try:
             write_video(
                 run_dir / "display.mp4",
-                t,
-                arrays["pose"],
+                t[idx],
+                arrays["pose"][idx],
                 radius,
-                arrays["color"],
+                arrays["color"][idx],
                 scene.arena,
                 scene.obstacles,
-                arrays["goal"],
+                arrays["goal"][idx],
+                speed=None,  # the frames are chosen: real time, and the final picture held
+                max_frames=0,
             )
         except RuntimeError as err:  # no encoder here: the run's data matter more than its video
             print(f"pixelswarm: warning: no display.mp4: {err}", file=sys.stderr)

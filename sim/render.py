@@ -202,6 +202,23 @@ def frame_indices(t: np.ndarray, fps: float, speed: float | None = 1.0, max_fram
     return idx
 
 
+HOLD_S = 3.0  # s of video that show the final picture at least: a run ends ~1 s after it forms (converge_hold)
+
+
+def held_frames(t: np.ndarray, formed_at: float | None, fps: float = 10, hold_s: float = HOLD_S) -> np.ndarray:
+    """:func:`frame_indices` at real time, then the last sample repeated until the frames from
+    ``formed_at`` (the time the final picture formed; None: the last sample) on last ``hold_s``
+    seconds of video, so whatever ended the run, an audience sees its end picture."""
+    idx = frame_indices(t, fps)
+    if not len(idx):
+        return idx
+    t = np.asarray(t, dtype=float)
+    since = float(t[-1]) if formed_at is None else float(formed_at)
+    shown = int(np.count_nonzero(t[idx] >= since - 1e-9))
+    missing = max(0, int(np.ceil(hold_s * fps - 1e-9)) - shown)
+    return np.concatenate([idx, np.full(missing, idx[-1], dtype=idx.dtype)])
+
+
 def write_video(
     path: str | os.PathLike,
     t: np.ndarray,

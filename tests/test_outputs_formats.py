@@ -25,7 +25,7 @@ from sim.foxglove import DISPLAY_FRAME, SCENE_UPDATE_SCHEMA_NAME, SceneUpdate, s
 from sim.mcaplog import McapLog, mcap_channels, read_mcap
 from sim.output import write_run
 from sim.recorder import SCENE_TOPIC
-from sim.render import _View, frame_indices, write_video
+from sim.render import _View, frame_indices, held_frames, write_video
 from sim.rundir import RunDir
 
 from .conftest import run_pixelswarm
@@ -258,7 +258,8 @@ def test_a_run_shows_in_foxglove_and_in_a_browser(tmp_path):
 
     codec, frames = _decode(out / "display.mp4")
     assert codec.name == "h264" and codec.pix_fmt == "yuv420p"
-    assert len(frames) == len(frame_indices(traj["t"], fps=10))
+    formed = json.loads((out / "metrics.json").read_text())["time_to_converge_s"]
+    assert len(frames) == len(held_frames(traj["t"], None if formed is None else traj["t"][0] + formed))
 
 
 def test_the_log_streams_live_to_a_foxglove_websocket_client(tmp_path):
