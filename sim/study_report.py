@@ -16,6 +16,7 @@ import io
 import math
 import os
 import platform
+import re
 import subprocess
 from pathlib import Path
 from typing import Any
@@ -256,10 +257,31 @@ def _git_commit() -> str:
     return result.stdout.strip() if result.returncode == 0 else ""
 
 
-def _table(head: list[str], rows: list[list[Any]]) -> str:
-    cells = "".join(f"<th>{html.escape(str(h))}</th>" for h in head)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in row) + "</tr>" for row in rows)
-    return f"<table><tr>{cells}</tr>{body}</table>"
+def _table(head: list[str], rows: list[list[Any]], css_class: str = "") -> str:
+    cells = "".join(f"<th>{_breakable(h)}</th>" for h in head)
+    body = "".join("<tr>" + "".join(f"<td>{_breakable(c)}</td>" for c in row) + "</tr>" for row in rows)
+    return f"<table{f' class={css_class!r}' if css_class else ''}><tr>{cells}</tr>{body}</table>"
+
+
+def _breakable(text: Any) -> str:
+    """Escaped, with a line-break opportunity after each ``_`` and ``.`` of a word: a browser does
+    not break ``time_to_converge_s`` on its own, and such headers made the table wider than a window."""
+    return "<wbr>".join(html.escape(part) for part in _BREAK_AFTER.split(str(text)))
+
+
+_BREAK_AFTER = re.compile(r"(?<=[_.])(?=[A-Za-z])")  # after _ or . before a letter (not in 0.25)
+
+
+def constant_metrics(rows: list[dict[str, Any]], metrics: list[str]) -> dict[str, Any]:
+    """The metrics that have one value in every finished run (e.g. contacts 0 throughout), by name:
+    a plot of them shows nothing, so the report says them in one line instead."""
+    done = [r for r in rows if r["status"] == "done"]
+    out = {}
+    for m in metrics:
+        values = {r.get(m) for r in done}
+        if len(values) == 1 and _is_number(value := next(iter(values))):
+            out[m] = value
+    return out
 
 
 def render_html(
@@ -269,16 +291,19 @@ def render_html(
     summary: list[dict[str, Any]],
     plots: dict[str, bytes],
     metrics: list[str],
+    constant: dict[str, Any],
 ) -> str:
+    """``metrics``: the key metrics plotted and in the summary table; ``constant``: those with one
+    value in every finished run, said in one line."""
     done = sum(r["status"] == "done" for r in rows)
     failed = [r for r in rows if r["status"] == "failed"]
-    settings = spec.columns()
     parts = [
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
         f"<title>pixelswarm study {html.escape(spec.name)}</title>",
         "<style>body{font-family:sans-serif;max-width:72em;margin:1em auto;padding:0 1em}"
         "table{border-collapse:collapse;font-size:0.85em}td,th{border:1px solid #ccc;padding:2px 6px}"
+        ".summary td{white-space:nowrap}"
         "pre{background:#f4f4f4;padding:0.5em;overflow-x:auto}img{max-width:100%}</style></head><body>",
         f"<h1>pixelswarm study: {html.escape(spec.name)}</h1>",
         f"<p>{done} of {len(rows)} runs done, {len(failed)} failed; scene {html.escape(spec.scene)}, "
@@ -294,38 +319,61 @@ def render_html(
         "<p>Each point: the mean over the seeds, bars one standard deviation, dots the seeds; "
         "a dashed line and grey band: the baseline's mean and standard deviation.</p>",
     ]
+    if constant:
+        same = ", ".join(f"{html.escape(m)} {_short(v)}" for m, v in constant.items())
+        parts.append(f"<p>The same in every finished run (not plotted): {same}.</p>")
     for axis, png in plots.items():
         data = base64.b64encode(png).decode("ascii")
         parts.append(f"<h3>against {html.escape(axis)}</h3>")
         parts.append(f'<img alt="key metrics against {html.escape(axis)}" src="data:image/png;base64,{data}">')
     if not plots:
-        parts.append("<p>No plot: no axis with two or more values, or no finished run.</p>")
-    head = ["condition", *settings, "runs", "failed", *metrics]
-    body = []
-    for s in summary:
-        figures = [_mean_std(s.get(f"{m}.mean"), s.get(f"{m}.std")) for m in metrics]
-        body.append([s["condition"], *(_short(s[k]) if s[k] is not None else "" for k in settings), s["runs"]])
-        body[-1] += [s["failed"], *figures]
-    parts += ["<h2>Summary (mean &plusmn; std over seeds)</h2>", _table(head, body)]
+        parts.append("<p>No plot: no axis with two or more values, no finished run, or no key metric that varies.</p>")
+    parts += ["<h2>Summary (mean &plusmn; std over seeds)</h2>", summary_table(spec, summary, metrics)]
     if failed:
         parts += ["<h2>Failed runs</h2>", _table(["run", "error"], [[r["id"], r["error"]] for r in failed])]
     parts.append("</body></html>")
     return "\n".join(parts) + "\n"
 
 
+def summary_table(spec: Spec, summary: list[dict[str, Any]], metrics: list[str]) -> str:
+    """A row per condition: its settings (the columns name it; its id, in summary.csv, made the
+    table wider than a window), then each metric's mean and std. A study with a baseline gets a
+    first column saying which rows are the baseline's; a column of failed runs only if some failed."""
+    settings = spec.columns()
+    marked = spec.baseline is not None
+    failed = any(s["failed"] for s in summary)  # else no column: the page says none failed
+    head = [*(["baseline"] if marked else []), *settings, "runs", *(["failed"] if failed else []), *metrics]
+    body = []
+    for s in summary:
+        mark = ["yes" if s["condition"].startswith("baseline") else ""] if marked else []
+        row = [*mark, *(_short(s[k]) if s[k] is not None else "" for k in settings), s["runs"]]
+        row += [s["failed"]] if failed else []
+        body.append(row + [_mean_std(s.get(f"{m}.mean"), s.get(f"{m}.std")) for m in metrics])
+    return _table(head, body, "summary")
+
+
 def _mean_std(mean: Any, std: Any) -> str:
     if mean is None or not math.isfinite(mean):
         return ""
     if std is None or not math.isfinite(std):
-        return f"{mean:.4g}"
-    return f"{mean:.4g} ± {std:.2g}"
+        return _figure(mean, 3)
+    return f"{_figure(mean, 3)} ± {_figure(std, 2)}"
+
+
+def _figure(value: float, digits: int) -> str:
+    """``digits`` significant figures without an exponent (1.5e+02 reads worse than 150)."""
+    if value == 0 or not 1e-4 <= abs(value) < 1e7:
+        return format(value, f".{digits}g")
+    return str(np.format_float_positional(value, precision=digits, unique=False, fractional=False, trim="-"))
 
 
 def write_report(spec: Spec, study: StudyDir, command: str) -> Path:
     """Write runs.csv, summary.csv, plot_<axis>.png and report.html into the study directory."""
     columns, rows = collect(spec, study)
     summary_head, summary = summarise(spec, columns, rows)
-    metrics = [m for m in KEY_METRICS if any(_is_number(r.get(m)) for r in rows)]
+    measured = [m for m in KEY_METRICS if any(_is_number(r.get(m)) for r in rows)]
+    constant = constant_metrics(rows, measured)
+    metrics = [m for m in measured if m not in constant]
     plots = {}
     if metrics:
         for axis, values in spec.axes.items():
@@ -336,5 +384,5 @@ def write_report(spec: Spec, study: StudyDir, command: str) -> Path:
     for axis, png in plots.items():
         write_text(study.root / f"plot_{axis}.png", png)
     report = study.root / "report.html"
-    write_text(report, render_html(spec, command, rows, summary, plots, metrics))
+    write_text(report, render_html(spec, command, rows, summary, plots, metrics, constant))
     return report
