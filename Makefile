@@ -15,7 +15,7 @@ $(PY):
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 
-$(STAMP): pyproject.toml setup.py $(wildcard agent/core/*.pyx) | $(PY)
+$(STAMP): pyproject.toml setup.py $(wildcard agent/core/*.pyx sim/*.pyx) | $(PY)
 	$(PY) -m pip install -q -e .
 	touch $@
 

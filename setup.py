@@ -1,4 +1,5 @@
-"""The compiled robot core (agent/core/*.pyx), built by `pip install -e .` and so by `make run`.
+"""The compiled robot core (agent/core/*.pyx) and the simulated bodies' motion (sim/kinematics.pyx),
+built by `pip install -e .` and so by `make run`.
 
 Floating point stays as the source writes it: no fast-math, and no fused multiply-add contraction,
 which would round a robot's arithmetic differently on different machines.
@@ -20,6 +21,6 @@ DIRECTIVES = {
 
 modules = [
     Extension(path[:-4].replace("/", "."), [path], extra_compile_args=FLAGS)
-    for path in sorted(glob("agent/core/*.pyx"))
+    for path in sorted(glob("agent/core/*.pyx") + glob("sim/*.pyx"))
 ]
 setup(ext_modules=cythonize(modules, compiler_directives=DIRECTIVES))

@@ -1,4 +1,4 @@
-"""Small, pure geometry helpers for the simulated world: arena rectangle, polygon obstacles, arcs.
+"""Small, pure geometry helpers for the simulated world: arena rectangle, polygon obstacles, angles.
 
 All functions work on numpy arrays with a trailing coordinate axis; SI units (metres, radians).
 """
@@ -13,7 +13,6 @@ import shapely
 from shapely.geometry import Polygon
 
 __all__ = [
-    "arc_displacement",
     "make_arena",
     "make_polygon",
     "polygon_signed_distance",
@@ -25,28 +24,6 @@ __all__ = [
 def wrap_angle(theta: np.ndarray | float) -> np.ndarray:
     """Wrap angles to [-pi, pi)."""
     return (np.asarray(theta, dtype=float) + math.pi) % (2.0 * math.pi) - math.pi
-
-
-def arc_displacement(
-    speed: np.ndarray, heading: np.ndarray, omega: np.ndarray, t: np.ndarray | float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Exact displacement of a unicycle moving at constant (speed, omega) for time t from heading.
-
-    The chord of the circular arc has length ``speed * t * sinc(omega t / 2)`` and points along
-    ``heading + omega t / 2``; this form is exact for every omega, including 0 (a straight line),
-    with no division by a small omega. Arguments broadcast against each other; t >= 0.
-    """
-    if np.count_nonzero(omega) == 0:
-        # no robot turns (holonomic ones): sinc(0) is exactly 1 and heading + omega t / 2 is heading
-        # + omega to the bit (both a zero of omega's sign when t >= 0), so one cos and sin per robot
-        # give the same numbers as one per (t, robot)
-        ang = heading + omega
-        chord = speed * t
-        return chord * np.cos(ang), chord * np.sin(ang)
-    half = omega * t * 0.5
-    chord = speed * t * np.sinc(half / math.pi)  # numpy's sinc is sin(pi x) / (pi x)
-    ang = heading + half
-    return chord * np.cos(ang), chord * np.sin(ang)
 
 
 def make_arena(arena: Sequence[float] | None) -> tuple[float, float, float, float] | None:

@@ -67,13 +67,13 @@ from shapely.geometry import Polygon
 
 from agent.core.params import DIFFDRIVE, EPUCK, HOLONOMIC, KINEMATICS
 from sim.geometry import (
-    arc_displacement,
     make_arena,
     make_polygon,
     polygon_signed_distance,
     rect_signed_distance,
     wrap_angle,
 )
+from sim.kinematics import Bodies, actuate, drive, limit
 from sim.proximity import close_pairs
 
 __all__ = ["Body", "Contact", "World"]
@@ -189,12 +189,14 @@ class World:
         self._bodies = tuple(bodies)
         self._n = n = len(bodies)
         self._is_diff = np.array([b.kinematics == DIFFDRIVE for b in bodies])
-        self._any_diff = bool(self._is_diff.any())
         self._radius = np.array([b.radius for b in bodies], dtype=float)
         self._v_max = np.array([b.v_max for b in bodies], dtype=float)
         self._wheel_base = np.array([b.wheel_base for b in bodies], dtype=float)
         self._omega_max = np.array([b.omega_max for b in bodies], dtype=float)
         self._r_max = float(self._radius.max())
+        self._bodies_c = Bodies(
+            self._v_max, self._is_diff, self._wheel_base, self._omega_max, self._noise_rel, self._noise_abs
+        )
 
         self._rng = np.random.default_rng(int(seed))
         self._pos = p[:, :2].copy()
@@ -332,19 +334,11 @@ class World:
 
     def set_commands(self, commands: np.ndarray) -> None:
         """Every robot's command at once, (N, 2) with rows as ``set_command`` takes them, clipped the
-        same way (the norm by numpy's hypot, which may differ from math.hypot in the last bit). One
+        same way (sim.kinematics.limit, whose norm may differ from math.hypot in the last bit). One
         call instead of N: the central engine commands every robot each tick."""
-        c = np.array(commands, dtype=float)
-        if c.shape != (self._n, 2):
-            raise ValueError(f"commands must have shape ({self._n}, 2), not {c.shape}")
-        bad = np.flatnonzero(~np.isfinite(c).all(axis=1))
-        if bad.size:
-            raise ValueError(f"command for robot {bad[0]} must be finite, not {tuple(c[bad[0]])}")
-        d, vmax = self._is_diff, self._v_max
-        c[d] = np.clip(c[d], -vmax[d, None], vmax[d, None])
-        norm = np.hypot(c[:, 0], c[:, 1])
-        over = ~d & (norm > vmax)
-        c[over] = c[over] * vmax[over, None] / norm[over, None]  # (a v_max) / |c|, as set_command
+        c, bad = limit(self._bodies_c, commands)
+        if bad >= 0:
+            raise ValueError(f"command for robot {bad} must be finite, not {tuple(c[bad])}")
         self._cmd[:] = c
         self._n_cmd += 1
 
@@ -416,41 +410,6 @@ class World:
 
     # ---------------------------------------------------------------- dynamics
 
-    def _actuate(self, noise: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Realised (speed, heading of motion, turn rate) per robot, noise included."""
-        cmd = self._cmd
-        moving = (cmd[:, 0] != 0.0) | (cmd[:, 1] != 0.0)
-        omega = np.zeros(self._n)
-        d = self._is_diff
-        if not self._any_diff:  # an all-holonomic swarm: whole arrays, no masked copies
-            speed, heading = self._holonomic(cmd, noise, moving, self._v_max)
-            return speed, heading, omega
-        speed = np.empty(self._n)
-        heading = np.empty(self._n)
-        h = ~d
-        if h.any():
-            speed[h], heading[h] = self._holonomic(cmd[h], noise[h], moving[h], self._v_max[h])
-        if d.any():
-            vmax = self._v_max[d][:, None]
-            w = cmd[d] * (1.0 + self._noise_rel * noise[d, :2])
-            w += self._noise_abs * moving[d, None] * noise[d, 2:]
-            w = np.clip(w, -vmax, vmax)
-            speed[d] = 0.5 * (w[:, 0] + w[:, 1])
-            om = (w[:, 1] - w[:, 0]) / self._wheel_base[d]
-            omega[d] = np.clip(om, -self._omega_max[d], self._omega_max[d])
-            heading[d] = theta[d]
-        return speed, heading, omega
-
-    def _holonomic(
-        self, c: np.ndarray, noise: np.ndarray, moving: np.ndarray, vmax: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """(speed, heading of motion) of holonomic robots from their commands c (M, 2) and noise (M, 4)."""
-        v = c + self._noise_rel * np.hypot(c[:, 0], c[:, 1])[:, None] * noise[:, :2]
-        v += self._noise_abs * moving[:, None] * noise[:, 2:]
-        norm = np.hypot(v[:, 0], v[:, 1])
-        scale = np.where(norm > vmax, vmax / np.where(norm > 0.0, norm, 1.0), 1.0)
-        return norm * scale, np.arctan2(v[:, 1], v[:, 0])
-
     def step(self, dt: float, *, check: bool = True) -> list[Contact]:
         """Advance by dt seconds in substeps; return the contact events that started during this step.
         ``check=False`` leaves the contacts of this step to be detected by `check()` (or by anything
@@ -479,25 +438,23 @@ class World:
         pos, theta = self._pos.copy(), self._theta.copy()
         traj = np.empty((k + 1, self._n, 2))
         traj[0] = pos
+        ends = np.empty((1, self._n, 2))
         motion = 0.0  # bound on any robot's distance from its start (sum of the longest arcs)
         row = 1
         for seg, (sa, sb) in enumerate(zip(bounds[:-1], bounds[1:])):
             if seg:
                 self._draw_noise(index + seg)  # the period after the last segment's
-            speed, heading, omega = self._actuate(self._noise, theta)
+            moving = actuate(self._bodies_c, self._cmd, self._noise, theta)
             end = k + 1 if seg == len(bounds) - 2 else int(np.searchsorted(tk, sb + eps, side="right"))
             length = sb - sa
-            # one call for the substeps in the segment and its end (the last t)
-            t = np.append(tk[row:end] - sa, length)[:, None]
-            dx, dy = arc_displacement(speed, heading, omega, t)
-            if end > row:
-                np.add(pos[:, 0], dx[:-1], out=traj[row:end, :, 0])
-                np.add(pos[:, 1], dy[:-1], out=traj[row:end, :, 1])
-                row = end
-            pos = pos + np.column_stack((dx[-1], dy[-1]))
+            drive(moving, 0.0, tk[row:end] - sa, pos, traj[row:end])  # the substeps in the segment
+            row = end
+            drive(moving, 0.0, np.array([length]), pos, ends)  # and its end
+            pos = ends[0].copy()
+            speed, omega = np.abs(moving[:, 0]), moving[:, 3]
             theta = theta + omega * length
-            self._path += np.abs(speed) * length
-            motion += float(np.max(np.abs(speed))) * length
+            self._path += speed * length
+            motion += float(speed.max()) * length
 
         self._advance_time(dt)
         times = t0 + tk
@@ -507,8 +464,8 @@ class World:
         # velocity: the chord of the last substep, computed directly (no cancellation) if it lies in
         # the last segment
         if dt - h >= bounds[-2] - eps:
-            vx, vy = arc_displacement(speed, heading + omega * (dt - h - bounds[-2]), omega, h)
-            self._vel = np.column_stack((vx, vy)) / h
+            drive(moving, dt - h - bounds[-2], np.array([h]), np.zeros((self._n, 2)), ends)
+            self._vel = ends[0] / h
         else:
             self._vel = (traj[k] - traj[k - 1]) / h
         self._pos = traj[k].copy()

@@ -463,6 +463,7 @@ cdef inline int _push(Lines *L, int n, double *line, double vmax) noexcept nogil
 cdef struct Scratch:
     # one robot's neighbours as prepared, and its lines: reused robot after robot
     int m
+    int used  # slots up to the last valid one (the rest are padding, skipped)
     double *nx
     double *ny
     double *nvx
@@ -506,7 +507,7 @@ cdef class Work:
         if self.block == NULL or self.flags == NULL:
             raise MemoryError()
         cdef double *b = self.block
-        self.s.m = m
+        self.s.m = self.s.used = m
         self.s.nx, self.s.ny, self.s.nvx, self.s.nvy = b, b + m, b + 2 * m, b + 3 * m
         self.s.nr, self.s.ng, self.s.nc, self.s.nlead = b + 4 * m, b + 5 * m, b + 6 * m, b + 7 * m
         self.s.nok = self.flags
@@ -573,7 +574,10 @@ cdef void _prepare(Config *s, Neighbourhood *h, Py_ssize_t i, Scratch *w, double
     cdef Py_ssize_t k, j
     cdef double x, y, u, v, r, age, horizon, shift
     cdef bint ok, stale
-    for k in range(w.m):
+    w.used = w.m
+    while w.used > 0 and not h.valid[i * h.m + w.used - 1]:
+        w.used -= 1
+    for k in range(w.used):
         j = i * h.m + k
         x, y = h.position[2 * j], h.position[2 * j + 1]
         u, v = h.velocity[2 * j], h.velocity[2 * j + 1]
@@ -616,7 +620,7 @@ cdef int _hard_lines(Config *s, Scratch *w, Robot *me, Edges *edges, Lines *extr
     if not s.safety:
         return n
     still.vx, still.vy, still.radius = 0.0, 0.0, own
-    for k in range(w.m):
+    for k in range(w.used):
         if not w.nok[k]:
             continue
         ex, ey = w.nx[k] - me.x, w.ny[k] - me.y
@@ -644,7 +648,7 @@ cdef int _robot_lines(Config *s, Scratch *w, Robot *me, double horizon, int star
     cdef int n = start, k
     cdef Other o
     grown.radius = me.radius + s.margin
-    for k in range(w.m):
+    for k in range(w.used):
         if not w.nok[k]:
             continue
         lead = w.nlead[k] if s.safety else 0.0
@@ -744,7 +748,7 @@ cdef double _tracking_error(Config *s, Scratch *w, Robot *me) noexcept nogil:
     inflated disks stay apart whenever the gap is at least 2 error_min)."""
     cdef double error = s.error_max, ex, ey, half
     cdef int k
-    for k in range(w.m):
+    for k in range(w.used):
         ex, ey = w.nx[k] - me.x, w.ny[k] - me.y
         half = 0.5 * (sqrt(ex * ex + ey * ey) - (me.radius + w.nr[k]))
         half = s.error_min if half < s.error_min else (s.error_max if half > s.error_max else half)
@@ -902,7 +906,10 @@ def step_known(Settings settings, Batch robots, index, segments=None):
     with nogil:
         for i in range(b):
             me = _robot(rows, i, s)
-            for k in range(m):
+            w.used = m
+            while w.used > 0 and idx[i, w.used - 1] < 0:
+                w.used -= 1
+            for k in range(w.used):
                 j = idx[i, k]
                 w.nok[k] = j >= 0
                 j = j if j >= 0 else 0
@@ -928,6 +935,9 @@ def prepare_neighbours(Settings settings, heard, vmax=None):
     cdef double[:, :, ::1] o = out
     for i in range(b):
         _prepare(&settings.c, &nb.n, i, w, settings.c.v_max if vmax is None else vmax)
+        for k in range(w.used, m):  # padding: as an invalid slot
+            w.nx[k] = w.ny[k] = w.nvx[k] = w.nvy[k] = w.ng[k] = w.nlead[k] = 0.0
+            w.nr[k], w.nc[k], w.nok[k] = settings.c.noise, C_COOPERATING, False
         for k in range(m):
             o[i, k, 0], o[i, k, 1], o[i, k, 2], o[i, k, 3] = w.nx[k], w.ny[k], w.nvx[k], w.nvy[k]
             o[i, k, 4], o[i, k, 5], o[i, k, 6], o[i, k, 7], o[i, k, 8] = w.nr[k], w.ng[k], w.nc[k], w.nlead[k], w.nok[k]

@@ -34,6 +34,7 @@ cdef struct Grid:
     Py_ssize_t n  # points
     Py_ssize_t nx, ny  # columns, rows: cell c = gx * ny + gy
     double x0, y0, cell  # origin and cell size
+    double per  # 1 / cell: cells per metre
     Py_ssize_t *cx  # (n,) each point's column
     Py_ssize_t *cy  # (n,) and row
     Py_ssize_t *start  # (nx * ny + 1,) the points of cell c are order[start[c]:start[c + 1]]
@@ -70,7 +71,7 @@ cdef int grid_build(Grid *g, const double[:, ::1] points, double width) except -
         cell = max(x1 - x0, y1 - y0) + 1.0
     while ((x1 - x0) / cell + 1.0) * ((y1 - y0) / cell + 1.0) > cap:
         cell *= 2.0
-    g.n, g.x0, g.y0, g.cell = n, x0, y0, cell
+    g.n, g.x0, g.y0, g.cell, g.per = n, x0, y0, cell, 1.0 / cell
     g.nx = <Py_ssize_t>((x1 - x0) / cell) + 1
     g.ny = <Py_ssize_t>((y1 - y0) / cell) + 1
     cells = g.nx * g.ny
@@ -153,6 +154,8 @@ cdef void scan(Grid *g, Query *q, const int64_t[::1] key, Py_ssize_t first, Py_s
         dx = g.sx[a] - q.px
         dy = g.sy[a] - q.py
         d2 = dx * dx + dy * dy
+        if d2 > q.bound:  # most points: farther than the m-th kept (or than reach, until m are)
+            continue
         if not (d2 <= q.reach2 if q.inclusive else d2 < q.reach2):
             continue
         if q.k == m and not before(d2, kj, j, q.best[m - 1], q.best_key[m - 1], q.chosen[m - 1]):
@@ -227,8 +230,8 @@ def nearest(
         spread = cell_index(reach / g.cell + 2.0, 0, g.nx + 1)
         for i in range(q):
             px, py = query[i, 0], query[i, 1]
-            qx = cell_index((px - g.x0) / g.cell, -1, g.nx)  # outside the grid: the cell just outside
-            qy = cell_index((py - g.y0) / g.cell, -1, g.ny)
+            qx = cell_index((px - g.x0) * g.per, -1, g.nx)  # outside the grid: the cell just outside
+            qy = cell_index((py - g.y0) * g.per, -1, g.ny)
             nb.px, nb.py, nb.own, nb.k, nb.bound, nb.chosen = px, py, query_key[i], 0, reach2, &out[i, 0]
             # first the 3 x 3 cells around the query's (in a crowd they hold the m nearest, and the
             # disc shrinks at once), then each column near the query, outward, as one run of points
@@ -247,8 +250,8 @@ def nearest(
                     continue
                 # along the column: as far as the disc reaches, widened past any rounding of the root
                 half = sqrt(max(nb.bound - away * away, 0.0) + 1e-12 * nb.bound) + slack
-                low = cell_index((py - half - g.y0) / g.cell, -1, g.ny)
-                high = cell_index((py + half - g.y0) / g.cell, -1, g.ny)
+                low = cell_index((py - half - g.y0) * g.per, -1, g.ny)
+                high = cell_index((py + half - g.y0) * g.per, -1, g.ny)
                 low, high = max(low, 0), min(high, g.ny - 1)
                 c = gx * g.ny
                 if qx - 1 <= gx <= qx + 1:  # the 3 x 3 are done: the runs below and above them
