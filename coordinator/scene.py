@@ -135,8 +135,14 @@ class Scene:
 
     def step_at(self, t: float) -> int:
         """The step shown at time t (the last one stays after its hold ends); 0 without steps."""
-        starts = self.step_starts
-        return max(0, int(np.searchsorted(starts, t + 1e-9, side="right")) - 1) if starts else 0
+        # the starts as step_starts sums them, counted up to t (every tick asks: no arrays made)
+        k, start = 0, 0.0
+        for n, step in enumerate(self.steps[:-1], 1):
+            start += step.hold
+            if not start <= t + 1e-9:
+                break
+            k = n
+        return k
 
     @property
     def ends_on_convergence(self) -> bool:
