@@ -26,9 +26,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-from mcap.reader import make_reader
 
 from coordinator.scene import load_scene
+from sim.mcaplog import logged
 from transport.session import free_port
 
 from .common import REPO, write_results
@@ -80,10 +80,8 @@ def run_scene(tmp: Path, hw: Path, endpoint: str) -> tuple[Path, list[float], fl
 def truth_walls(run: Path) -> dict[float, float]:
     """Each tick's time in the run (s) -> the wall time its Truth reached the recorder (s)."""
     walls: dict[float, float] = {}
-    with open(run / "log.mcap", "rb") as f:
-        for _, channel, message in make_reader(f).iter_messages():
-            if channel.topic.endswith("truth"):
-                walls.setdefault(float(json.loads(message.data)["stamp"]), message.log_time * 1e-9)
+    for log_time, _, truth in logged(run / "log.mcap", {"/sim/truth"}):
+        walls.setdefault(float(truth["stamp"]), log_time * 1e-9)
     return walls
 
 

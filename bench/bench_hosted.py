@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 import orjson
-from mcap.reader import make_reader
 
+from sim.mcaplog import logged
 from transport.codec import State
 
 from .common import load_run, run_cli_scene, steps_table, write_results
@@ -75,13 +75,11 @@ def command_latency(run: Path) -> list[str]:
     robots drive on with their last one."""
     clock: dict[int, tuple[int, float]] = {}
     sent: dict[str, dict[int, int]] = {}
-    with open(run / "log.mcap", "rb") as f:
-        for _, channel, message in make_reader(f).iter_messages(topics=["/clock", "/cmd"]):
-            d = orjson.loads(message.data)
-            if channel.topic == "/clock":
-                clock.setdefault(d["tick"], (message.log_time, d["dt"]))
-            else:
-                sent.setdefault(d["key"].rsplit("/", 1)[-1], {}).setdefault(d["tick"], message.log_time)
+    for log_time, topic, d in logged(run / "log.mcap", {"/clock", "/cmd"}):
+        if topic == "/clock":
+            clock.setdefault(d["tick"], (log_time, d["dt"]))
+        else:
+            sent.setdefault(d["key"].rsplit("/", 1)[-1], {}).setdefault(d["tick"], log_time)
     if not sent:
         return []
     rows = [

@@ -3,6 +3,7 @@
 Run from the repository root:
 
     .venv/bin/python bench/bench_outputs.py          # prints a table and writes bench/results/outputs.md
+    .venv/bin/python bench/bench_outputs.py --mcap [--tree DIR]   # log.mcap of a 100-robot run: bench/results/mcap.md
 
 Video: the same frames (100 robots crossing a 4 x 3 m arena, 720 px, 300 frames = 30 s at 10 fps)
 written as MPEG-4 part 2 with OpenCV (what display.mp4 was) and as H.264 with PyAV at two x264
@@ -10,12 +11,19 @@ presets (the first is what display.mp4 is now): seconds to write, file size.
 
 Foxglove: building one ``foxglove.SceneUpdate`` (sim.foxglove.scene_update) and encoding it with
 protobuf (Foxglove's SDK), as the recorder does at every recorded tick (10 a second), at 14, 100 and 1000 robots.
+
+``--mcap``: the size of log.mcap for one 100-robot lock-step run (:data:`MCAP_RUN`, the same run bit
+for bit each time), per channel: messages, their bytes, and those bytes compressed alone with zstd
+(the file compresses the channels together, in chunks). ``--tree DIR`` runs the code of another
+checkout (e.g. a ``git worktree`` of an earlier commit, its compiled core built) for a before figure.
 """
 
 from __future__ import annotations
 
+import argparse
 import os
 import platform
+import subprocess
 import sys
 import tempfile
 import time
@@ -26,6 +34,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench.common import REPO, write_results  # noqa: E402
 from sim import render  # noqa: E402
 from sim.foxglove import scene_update  # noqa: E402
 
@@ -83,7 +92,54 @@ def scene_rows() -> list[tuple[int, float, int]]:
     return rows
 
 
+MCAP_RUN = ["paper-sequence-100", "-k", "50", "--duration", "30", "--no-video", "--no-plots", "-q"]
+
+
+def mcap_rows(tree: Path) -> list[str]:
+    """log.mcap of :data:`MCAP_RUN` run from ``tree``: its bytes, and per channel what it holds."""
+    import zstandard
+    from mcap.reader import make_reader
+
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "run"
+        command = [sys.executable, "-m", "sim.cli", "run", *MCAP_RUN, "--out", str(out)]
+        subprocess.run(command, cwd=tree, check=True, capture_output=True)
+        size = (out / "log.mcap").stat().st_size
+        data: dict[str, list[bytes]] = {}
+        with open(out / "log.mcap", "rb") as fh:
+            reader = make_reader(fh)
+            schemas: dict[str, str] = {}
+            for schema, channel, message in reader.iter_messages():
+                data.setdefault(channel.topic, []).append(message.data)
+                schemas[channel.topic] = f"{schema.name} ({schema.encoding})" if schema else ""
+    rows = [
+        f"log.mcap: **{size:,} bytes** (`{' '.join(MCAP_RUN)}`)",
+        "",
+        "| channel | schema | messages | message bytes | zstd alone |",
+        "|---|---|---|---|---|",
+    ]
+    compress = zstandard.ZstdCompressor(level=3).compress
+    for topic, messages in sorted(data.items(), key=lambda kv: -sum(map(len, kv[1]))):
+        raw = b"".join(messages)
+        rows.append(f"| {topic} | {schemas[topic]} | {len(messages)} | {len(raw):,} | {len(compress(raw)):,} |")
+    return rows
+
+
 def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--mcap", action="store_true", help="only log.mcap's size for one 100-robot run")
+    parser.add_argument("--tree", type=Path, default=REPO, help="--mcap: the checkout whose code runs")
+    args = parser.parse_args()
+    if args.mcap:
+        describe = ["git", "describe", "--always", "--dirty"]
+        commit = subprocess.run(describe, cwd=args.tree, capture_output=True, text=True)
+        write_results(
+            "mcap",
+            f"log.mcap of a 100-robot run, code at {commit.stdout.strip()}",
+            ".venv/bin/python bench/bench_outputs.py --mcap" + ("" if args.tree == REPO else f" --tree {args.tree}"),
+            mcap_rows(args.tree.resolve()),
+        )
+        return
     with tempfile.TemporaryDirectory() as tmp:
         video = video_rows(Path(tmp))
     scene = scene_rows()

@@ -45,8 +45,13 @@ GOAL_ALPHA = 0.5  # a goal is where the robot's colour will be, not a robot
 NO_LED = (160, 160, 160)  # RGB of a robot whose LED colour is not known
 HEADING_COLOR = (0.1, 0.1, 0.1)
 FLAT = (0.0, 0.0, 0.0, 1.0)  # the identity rotation
-DECIMALS = 4  # lengths to 0.1 mm and colours to 1e-4: far below what a viewer sees, and a robot at rest
-# repeats the same bytes tick after tick, which the log's compression then stores once
+QUANTUM = 2.0**-14  # lengths to 1/16384 m (0.06 mm), colours and rotations to 1/16384: far below what a
+# viewer sees. A power of two, so each double's low mantissa bytes are zeros (decimal rounding left them
+# noise), and a robot at rest repeats the same bytes tick after tick: the log's compression stores both once
+
+
+def _quantised(a: Any) -> list:
+    return (np.round(np.asarray(a, dtype=float) / QUANTUM) * QUANTUM).tolist()
 
 
 def _timestamp(t_ns: int) -> Timestamp:
@@ -81,14 +86,14 @@ def scene_update(
     n = len(pose)
     radius = np.broadcast_to(np.asarray(radius, dtype=float), (n,))
     rgb = np.broadcast_to(NO_LED, (n, 3)) if color is None else np.asarray(color).reshape(n, 3)
-    rgb_unit = (np.asarray(rgb, dtype=float) / 255.0).round(DECIMALS).tolist()
+    rgb_unit = _quantised(np.asarray(rgb, dtype=float) / 255.0)
     goal_xy = np.full((n, 2), np.nan) if goal is None else np.asarray(goal, dtype=float).reshape(n, 2)
     ids = [str(i) for i in (range(n) if ids is None else ids)]
     theta = np.where(np.isfinite(pose[:, 2]), pose[:, 2], 0.0)
-    qz, qw = np.sin(theta / 2).round(DECIMALS).tolist(), np.cos(theta / 2).round(DECIMALS).tolist()
+    qz, qw = _quantised(np.sin(theta / 2)), _quantised(np.cos(theta / 2))
     drawn = (np.isfinite(pose[:, :2]).all(axis=1) & np.isfinite(radius) & (radius > 0)).tolist()
     has_goal = np.isfinite(goal_xy).all(axis=1).tolist()
-    xy, r, gxy = (np.round(a, DECIMALS).tolist() for a in (pose[:, :2], radius, goal_xy))
+    xy, r, gxy = (_quantised(a) for a in (pose[:, :2], radius, goal_xy))
     stamp = _timestamp(t_ns)
     forever = Duration(sec=0, nsec=0)
     dark = Color(r=HEADING_COLOR[0], g=HEADING_COLOR[1], b=HEADING_COLOR[2], a=1.0)

@@ -21,7 +21,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from agent.core.params import RobotParams
+from agent.core.params import HOLONOMIC, RobotParams
 from agent.runtime import HostConfig, interpreter
 from coordinator.resolved import save_resolved
 from coordinator.scene import Scene
@@ -363,6 +363,7 @@ class Launcher:
                 str(self.run_dir / TICKS_FILE),
             )
             recorder.ends = self._ends_on_convergence
+            recorder.heading = self.params.kinematics != HOLONOMIC
             recorder.view = self.opt.view
             if self.opt.foxglove is not None and recorder.log is not None:
                 port = recorder.log.serve(self.opt.foxglove)  # said even with -q: it is asked for, not progress

@@ -1,12 +1,14 @@
 """The run's MCAP log, written through Foxglove's SDK (``foxglove-sdk``).
 
-Two kinds of channel:
+Three kinds of channel:
 
 - pixelswarm's own message kinds: message encoding ``json``, schema encoding ``jsonschema`` (a
   documented custom schema, ``pixelswarm.<Kind>``).  Payloads are Python dicts that may contain
   numpy scalars/arrays and NaN/inf; they are converted to JSON-safe values (NaN/inf -> ``null``).
 - Foxglove's well-known schemas (:mod:`foxglove.messages`, e.g. ``foxglove.SceneUpdate``):
   message and schema encoding ``protobuf``, the schema the SDK carries (:meth:`McapLog.add_foxglove_channel`).
+- pixelswarm's per-tick kinds (``pixelswarm.States``, ...): protobuf too, with the schema
+  sim.logschema builds (:meth:`McapLog.add_protobuf_channel`).
 
 All channels of one log belong to one SDK context, so :meth:`McapLog.serve` also streams every
 one of them live over Foxglove's WebSocket protocol (127.0.0.1) while the file is written.
@@ -37,7 +39,7 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from sim.rundir import dumps_json, json_safe
 
-__all__ = ["McapLog", "read_mcap", "mcap_channels", "proto_to_dict"]
+__all__ = ["McapLog", "logged", "read_mcap", "mcap_channels", "proto_to_dict"]
 
 MESSAGE_ENCODING = "json"
 SCHEMA_ENCODING = "jsonschema"
@@ -119,6 +121,16 @@ class McapLog:
         self._proto.add(cid)
         return cid
 
+    def add_protobuf_channel(
+        self, topic: str, schema_name: str, descriptor_set: bytes, *, metadata: dict[str, str] | None = None
+    ) -> int:
+        """Register (or look up) a protobuf channel of a schema of our own (``schema_name``, the
+        message's full name; ``descriptor_set``, its serialized ``FileDescriptorSet``: sim.logschema)."""
+        schema = foxglove.Schema(name=schema_name, encoding=PROTOBUF, data=descriptor_set)
+        cid = self._add(topic, (schema_name, PROTOBUF), PROTOBUF, schema, metadata)
+        self._proto.add(cid)
+        return cid
+
     def _add(self, topic: str, key: Any, encoding: str, schema: Any, metadata: dict[str, str] | None) -> int:
         with self._lock:
             self._check_open()
@@ -148,7 +160,10 @@ class McapLog:
     def write(self, channel_id: int, log_time_ns: int, payload: Any) -> None:
         """Write one message: a dict on a JSON channel (numpy -> lists, NaN -> null), a
         :mod:`foxglove.messages` object on a Foxglove channel."""
-        data = payload.encode() if channel_id in self._proto else dumps_json(payload).encode("utf-8")
+        if channel_id not in self._proto:
+            data = dumps_json(payload).encode("utf-8")
+        else:  # a google.protobuf message (sim.logschema's), or a foxglove.messages one
+            data = payload.SerializeToString() if isinstance(payload, Message) else payload.encode()
         self.write_bytes(channel_id, log_time_ns, data)
 
     def write_bytes(self, channel_id: int, log_time_ns: int, data: bytes) -> None:
@@ -279,6 +294,15 @@ class _Decoders:
                 raise ValueError(f"channel {channel.topic!r}: no protobuf decoder for schema {schema.name!r}")
             self._by_schema[schema.id] = decoder
         return proto_to_dict(decoder(data))
+
+
+def logged(path: str | os.PathLike, topics: Iterable[str]) -> list[tuple[int, str, Any]]:
+    """(log time in ns, topic, message decoded as :func:`read_mcap` decodes it) of every message
+    of these topics of a closed file, in log-time order across them."""
+    decoders = _Decoders()
+    with open(path, "rb") as fh:
+        messages = make_reader(fh).iter_messages(topics=sorted(topics), log_time_order=True)
+        return [(m.log_time, c.topic, decoders.decode(s, c, m.data)) for s, c, m in messages]
 
 
 def read_mcap(path: str | os.PathLike, topics: Iterable[str] | None = None) -> dict[str, list[dict]]:

@@ -1,7 +1,8 @@
 """The recorder: subscribes to everything on the bus and keeps what the run directory needs.
 
 It measures the run from the world's TRUE poses (``sim/truth``), never from what agents believed;
-it logs every message kind on its own MCAP channel, and at every recorded tick the display as a
+it logs every message kind on its own MCAP channel (the per-tick kinds as protobuf, sim.logschema;
+the others as JSON), and at every recorded tick the display as a
 ``foxglove.SceneUpdate`` (Foxglove's SDK, protobuf) on :data:`SCENE_TOPIC`; it counts messages and bytes per kind, and it
 decides when the display has converged.
 """
@@ -37,6 +38,7 @@ from transport.codec import (
 from transport.plausible import AHEAD, GoalSets, stamp_agrees
 
 from .foxglove import SceneUpdate, scene_update
+from .logschema import LoggedKind, kind_of
 from .mcaplog import McapLog
 from .ticklog import TickLog
 
@@ -160,6 +162,7 @@ class Recorder:
         self._flushed = time.monotonic()
         self._channels: dict[str, int] = {}
         self.started_wall = time.time()
+        self.heading = True  # a heading arrow per robot in the scene: not for holonomic robots, which never turn
         self.view: Any = None  # sim.view.SwarmView (pixelswarm run --view): the truth of every tick, one batch
 
     # --- intake -------------------------------------------------------------------------------
@@ -177,9 +180,12 @@ class Recorder:
             msg = decode(payload, expected, self.drops) if expected else None
             if msg is None:
                 continue
-            record = msg.to_dict()
-            record["key"] = key
-            self._log(kind, wall, record)
+            if (as_proto := kind_of(msg)) is not None:
+                self._log_proto(kind, wall, as_proto, msg, key)
+            else:
+                record = msg.to_dict()
+                record["key"] = key
+                self._log(kind, wall, record)
             if isinstance(msg, States):
                 for state in msg.messages():
                     self._on_state(state)
@@ -321,6 +327,18 @@ class Recorder:
             cid, int(wall * 1e9), orjson.dumps(payload, default=_as_list, option=orjson.OPT_SERIALIZE_NUMPY)
         )
 
+    def _log_proto(self, kind: str, wall: float, as_proto: LoggedKind, msg: Any, key: str) -> None:
+        """A per-tick kind in its protobuf form (sim.logschema): its tables' numbers as the wire
+        has them, a fraction of their JSON's bytes."""
+        if self.log is None:
+            return
+        cid = self._channels.get(kind)
+        if cid is None:
+            cid = self._channels[kind] = self.log.add_protobuf_channel(
+                "/" + kind, as_proto.name, as_proto.descriptor_set
+            )
+        self.log.write_bytes(cid, int(wall * 1e9), as_proto.encode(msg, key))
+
     def _log_scene(self, wall: float, m: Truth) -> None:
         """The display at this tick for Foxglove's 3D panel (stamped, like every channel, with the
         wall time it arrived, so the panels of one file play in step)."""
@@ -330,7 +348,7 @@ class Recorder:
         if cid is None:
             cid = self._channels[SCENE_TOPIC] = self.log.add_foxglove_channel(SCENE_TOPIC, SceneUpdate)
         t_ns = int(wall * 1e9)
-        update = scene_update(t_ns, m.pose, self.radius, m.color, goal=self.goal)
+        update = scene_update(t_ns, m.pose, self.radius, m.color, goal=self.goal, heading=self.heading)
         self.log.write_bytes(cid, t_ns, update.encode())
 
     def close_log(self) -> None:

@@ -21,7 +21,7 @@ from websockets.sync.client import connect
 from agent.core.params import RobotParams
 from coordinator.scene import load_scene
 from sim import render
-from sim.foxglove import DISPLAY_FRAME, SCENE_UPDATE_SCHEMA_NAME, SceneUpdate, scene_update
+from sim.foxglove import DISPLAY_FRAME, QUANTUM, SCENE_UPDATE_SCHEMA_NAME, SceneUpdate, scene_update
 from sim.mcaplog import McapLog, mcap_channels, read_mcap
 from sim.output import write_run
 from sim.recorder import SCENE_TOPIC
@@ -214,7 +214,7 @@ def test_scene_update_messages_read_back_with_foxgloves_schemas(tmp_path):
     first, second = theirs.entities
     assert (first.timestamp.seconds, first.timestamp.nanos) == (2, 250_000_000) and first.frame_id == DISPLAY_FRAME
     (disc,) = second.cylinders
-    assert (disc.size.x, disc.size.y, disc.size.z) == pytest.approx((0.2, 0.2, 0.01))
+    assert (disc.size.x, disc.size.y, disc.size.z) == pytest.approx((0.2, 0.2, 0.01), abs=QUANTUM)  # 0.1: no power of 2
     assert (disc.color.r, disc.color.g, disc.color.b, disc.color.a) == (0.0, 1.0, 0.0, 1.0)
     assert disc.pose.orientation.z == pytest.approx(np.sin(np.pi / 4), abs=1e-4)
     assert len(second.spheres) == 0 and len(second.metadata) == 0  # no goal
@@ -245,16 +245,24 @@ def test_a_run_shows_in_foxglove_and_in_a_browser(tmp_path):
 
     _scene_channel(out / "log.mcap")
     assert len(_decoded_by_foxglove(out / "log.mcap", SCENE_TOPIC)) == T  # Foxglove's schemas decode each
+    channels = mcap_channels(out / "log.mcap")
+    kinds = {"/pose": "Poses", "/state": "States", "/cmd": "Commands", "/sim/truth": "Truth"}  # no auction in swap
+    assert {t: channels[t]["schema_name"] for t in kinds} == {t: f"pixelswarm.{k}" for t, k in kinds.items()}
+    assert all(channels[t]["message_encoding"] == "protobuf" for t in kinds)  # the per-tick kinds: protobuf
+    assert all(c["schema_name"].startswith(("foxglove.", "pixelswarm.")) for c in channels.values())
+    truth = [m["records"] for m in read_mcap(out / "log.mcap", ["/sim/truth"])["/sim/truth"]][:T]
+    logged_xy = np.array([np.column_stack([r["x"], r["y"]]) for r in truth])
+    np.testing.assert_array_equal(logged_xy, traj["pose"][: len(truth), :, :2].astype(np.float32))
     updates = read_mcap(out / "log.mcap", [SCENE_TOPIC])[SCENE_TOPIC]
     assert len(updates) == T  # one per recorded tick, in order
     for k, update in enumerate(updates):
         assert [e["id"] for e in update["entities"]] == [f"robot/{i}" for i in range(4)]
         discs = [e["cylinders"][0] for e in update["entities"]]
         rgb = np.array([[d["color"][c] for c in "rgb"] for d in discs])
-        np.testing.assert_allclose(rgb * 255, traj["color"][k], atol=0.02)  # to 1e-4 of full scale
+        np.testing.assert_allclose(rgb * 255, traj["color"][k], atol=255 * QUANTUM / 2)  # to 1/16384 of full scale
         centres = np.array([[d["pose"]["position"]["x"], d["pose"]["position"]["y"]] for d in discs])
-        np.testing.assert_allclose(centres, traj["pose"][k, :, :2], atol=0.5e-4)  # to 0.1 mm
-        np.testing.assert_allclose([d["size"]["x"] for d in discs], 2 * traj["radius"], atol=1e-4)
+        np.testing.assert_allclose(centres, traj["pose"][k, :, :2], atol=QUANTUM / 2)  # to 0.06 mm
+        np.testing.assert_allclose([d["size"]["x"] for d in discs], 2 * traj["radius"], atol=QUANTUM)
 
     codec, frames = _decode(out / "display.mp4")
     assert codec.name == "h264" and codec.pix_fmt == "yuv420p"

@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 import psutil
 import pytest
-from mcap.reader import make_reader
 
+from sim.mcaplog import logged as mcap_logged
 from sim.ticklog import TICKS_FILE, read_ticks
 
 from .conftest import REPO, descendants, start_run, wait_for, write_disk
@@ -62,11 +62,7 @@ def agent_of(proc: subprocess.Popen, robot: int) -> psutil.Process:
 
 def logged(path: Path, topics: set[str]) -> list[tuple[float, str, dict]]:
     """(wall time the recorder received it, topic, message) of every message of these topics."""
-    out = []
-    with open(path, "rb") as fh:
-        for _, channel, message in make_reader(fh).iter_messages(topics=sorted(topics), log_time_order=True):
-            out.append((message.log_time / 1e9, channel.topic, json.loads(message.data)))
-    return out
+    return [(log_time / 1e9, topic, message) for log_time, topic, message in mcap_logged(path, topics)]
 
 
 def heard_again(run: Path, robot: int, killed_at: float) -> dict[str, float]:
@@ -80,7 +76,7 @@ def heard_again(run: Path, robot: int, killed_at: float) -> dict[str, float]:
         if topic == "/alive" and m["role"] == "agent" and m["id"] == str(robot) and m["alive"] and t > killed_at
     ]
     assert alive, "the restarted agent never said it was alive"
-    applied = [(t, m["tick"], m["applied"][robot]) for t, topic, m in events if topic == "/sim/truth"]
+    applied = [(t, m["tick"], m["records"]["applied"][robot]) for t, topic, m in events if topic == "/sim/truth"]
     before = [n for t, _, n in applied if t <= alive[0]]
     count = before[-1] if before else 0
     after = [(t, tick) for t, tick, n in applied if t > alive[0] and n > count]

@@ -13,7 +13,7 @@ import pytest
 from mcap.reader import make_reader
 
 from sim import metrics
-from sim.foxglove import SceneUpdate, scene_update
+from sim.foxglove import QUANTUM, SceneUpdate, scene_update
 from sim.mcaplog import McapLog, mcap_channels, read_mcap
 from sim.render import _View, frame_indices, render_frame, write_plots, write_video
 from sim.rundir import RunDir, default_run_path, dumps_json, json_safe, write_json, write_npz
@@ -119,7 +119,7 @@ def test_mcap_scene_update(tmp_path):
     assert [e["id"] for e in ents] == ["robot/0", "robot/1"]  # NaN pose skipped
     assert ents[0]["timestamp"] == {"sec": 1, "nsec": 500_000_000}
     cyl = ents[1]["cylinders"][0]
-    assert cyl["size"]["x"] == pytest.approx(0.4)
+    assert cyl["size"]["x"] == pytest.approx(0.4, abs=QUANTUM)  # lengths to 1/16384 m
     assert cyl["color"] == {"r": 0.0, "g": 1.0, "b": 0.0, "a": 1.0}
     assert cyl["pose"]["orientation"]["z"] == pytest.approx(math.sin(math.pi / 4), abs=1e-4)
 
