@@ -11,25 +11,32 @@ RUN_ARGS ?=
 
 .PHONY: run test test-fast lint bench clean
 
+# A fresh clone's first `make run` or `make test` spends a minute or two in pip, which -q keeps
+# quiet: a line before each long step says what is happening.
 $(PY):
+	@echo "make: creating $(VENV) with $(PYTHON) and upgrading its pip"
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 
 $(STAMP): pyproject.toml setup.py $(wildcard agent/core/*.pyx sim/*.pyx) | $(PY)
+	@echo "make: installing pixelswarm and its dependencies into $(VENV) and compiling its core with Cython (a minute or two the first time)"
 	$(PY) -m pip install -q -e .
 	touch $@
 
 # The sources' bytecode, brought up to date before a run: a robot's process then neither compiles
 # them at start nor keeps the compiler's memory, also where PYTHONDONTWRITEBYTECODE stops Python saving it.
 # Optimised (-OO) too, for ours, numpy and zenoh: what a robot's own process runs (agent.runtime.interpreter).
-BYTECODE := $(PY) -m compileall -q -o 0 -o 2 agent coordinator transport sim hardware && \
+BYTECODE := echo "make: bringing the bytecode of our sources, numpy and zenoh up to date (longer the first time)" && \
+	$(PY) -m compileall -q -o 0 -o 2 agent coordinator transport sim hardware && \
 	$(PY) -c "import compileall, os, re, numpy, zenoh; [compileall.compile_dir(os.path.dirname(m.__file__), \
 	quiet=1, optimize=2, rx=re.compile('/tests/')) for m in (numpy, zenoh)]"
 
 # pyrvo (RVO2's bindings) is the reference of the ORCA cross-checks and benchmarks; its metadata
 # pins an old numpy, so it goes in without its dependencies (they are ours already).
 $(TSTAMP): pyproject.toml $(STAMP)
+	@echo "make: installing the test tools (pytest, ruff, mypy, import-linter, rerun-sdk, ...) into $(VENV)"
 	$(PY) -m pip install -q -e '.[test]'
+	@echo "make: installing pyrvo, RVO2's bindings, the reference of the ORCA cross-checks"
 	$(PY) -m pip install -q --no-deps 'pyrvo>=0.4'
 	touch $@
 
