@@ -89,18 +89,25 @@ def test_a_study_through_a_dask_cluster_is_the_local_study(grid, cluster, tmp_pa
     assert (out / "report.html").is_file()
 
 
+# 4 distributed lock-step runs (a run is a launcher, a world, a coordinator and agent hosts): the
+# killed worker's run must take all of its processes with it
+KILLED_SPEC = GRID.replace('engine = "central"', 'engine = "distributed"\nclock = "lockstep"\nagents_per_process = 2')
+KILLED_SPEC = KILLED_SPEC.replace("robots = [2, 4]", "robots = [4]")
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_a_worker_killed_mid_study_leaves_every_run_done_once(cluster, tmp_path):
     spec = tmp_path / "spec.toml"
-    spec.write_text(GRID.replace("robots = [2, 4]", "robots = [4]"))
+    spec.write_text(KILLED_SPEC)
     out = tmp_path / "out"
     command = [sys.executable, "-m", "sim.cli", "study", str(spec), "--out", str(out), "--scheduler", cluster.address]
     runner = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     victim = psutil.Process(cluster.workers[0].pid)
     try:
-        assert wait_for(lambda: _runs_under(victim), timeout=180)  # a run under way on the first worker
-        killed_runs = _runs_under(victim)
+        # a run under way on the first worker, with its processes beyond the launcher started
+        assert wait_for(lambda: _runs_under(victim) and len(_tree(victim)) >= 3, timeout=180)
+        killed_runs = _tree(victim)
         victim.send_signal(signal.SIGKILL)
         stdout, stderr = runner.communicate(timeout=480)
     finally:
@@ -115,11 +122,26 @@ def test_a_worker_killed_mid_study_leaves_every_run_done_once(cluster, tmp_path)
     records = [json.loads(p.read_text()) for p in (out / "records").glob("*.json")]
     assert len(records) == 4 and all(r["status"] == "done" for r in records)
     deadline = time.monotonic() + 60  # the killed worker's run was told (its parent died) and stopped
-    while any(p.is_running() and p.status() != psutil.STATUS_ZOMBIE for p in killed_runs):
-        assert time.monotonic() < deadline, "a run of the killed worker outlived it"
+    while any(map(_alive, killed_runs)):  # the run and every process of it
+        assert time.monotonic() < deadline, f"a process of the killed worker's run outlived it: {killed_runs}"
         time.sleep(0.5)
     with open(out / "runs.csv", newline="") as f:
         assert len(list(csv.reader(f))) == 5
+
+
+def _alive(process: psutil.Process) -> bool:
+    try:
+        return process.is_running() and process.status() != psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return False
+
+
+def _tree(worker: psutil.Process) -> list[psutil.Process]:
+    """Every process under the worker: its runs and all their processes."""
+    try:
+        return worker.children(recursive=True)
+    except psutil.Error:
+        return []
 
 
 def _runs_under(worker: psutil.Process) -> list[psutil.Process]:
@@ -132,10 +154,12 @@ def _runs_under(worker: psutil.Process) -> list[psutil.Process]:
 def test_a_bad_scheduler_address_is_one_line_exit_2_and_starts_nothing(tmp_path, capsys):
     spec = tmp_path / "spec.toml"
     spec.write_text(GRID)
+    before = {p.pid for p in psutil.Process().children(recursive=True)}
     assert main(["study", str(spec), "--out", str(tmp_path / "out"), "--scheduler", "banana"]) == 2
     err = capsys.readouterr().err
     assert err.strip().count("\n") == 0 and "--scheduler must be tcp://HOST:PORT, not 'banana'" in err
     assert not (tmp_path / "out").exists()
+    assert {p.pid for p in psutil.Process().children(recursive=True)} <= before  # no run, no local cluster
 
 
 @pytest.mark.slow
