@@ -357,7 +357,7 @@ def test_central_and_host_rounds_settle_to_the_same_board_bit_for_bit(
         xy = np.array([at[r] for r in ids])
         cost = ((xy[:, None, :] - goals[None, :, :]) ** 2).sum(-1)
         rows, cols = linear_sum_assignment(cost)
-        penalties = float(alone.penalty.sum())
+        penalties = sum(alone.penalty.values())
         # (with spare goals a warm start's prices on goals nobody holds void the bound: square only)
         assert (
             g_extra or cost[np.arange(n), goal].sum() <= cost[rows, cols].sum() + n * (1e-3 + 5e-3) + penalties + 1e-9
@@ -386,7 +386,10 @@ def test_cached_best_goals_are_a_full_ranking_after_every_round(n: int, g_extra:
 
     def check() -> None:
         best, value = p.ranking()
-        values = -(((pos[:, None, :] - goals[None, :, :]) ** 2).sum(-1) + p.penalty) - p.board.price
+        penalty = np.zeros((n, len(goals)))
+        for (row, goal), cost in p.penalty.items():
+            penalty[row, goal] = cost
+        values = -(((pos[:, None, :] - goals[None, :, :]) ** 2).sum(-1) + penalty) - p.board.price
         np.testing.assert_array_equal(best, values.argmax(axis=1))
         np.testing.assert_allclose(value, values.max(axis=1), rtol=0, atol=1e-12)
 

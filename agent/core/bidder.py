@@ -147,8 +147,10 @@ class Participant:
         self.instance = -1  # not started: waits for the robots' positions
         k, g = len(self.own), len(self.goals)
         self.position = np.zeros((k, 2))  # frozen per block of instances
-        self.penalty = np.zeros((k, g))  # C_d per robot and goal in force this instance (deadlocks)
-        self.pending = np.zeros((k, g))  # penalties declared during this instance: in force from the next
+        # C_d per (own row, goal) in force this instance (deadlocks: few, so no K x G array), and those
+        # declared during it, in force from the next
+        self.penalty: dict[tuple[int, int], float] = {}
+        self.pending: dict[tuple[int, int], float] = {}
         self.goal = np.full(k, -1, np.int64)  # what each own robot claims
         # the newest record of every other robot in the current instance, and the board it was written on
         r = len(self.robots)
@@ -170,8 +172,6 @@ class Participant:
         self._bidders = self._new_bidders(CANDIDATES, exact_hull=False)
         self._exact_hull = False
         self.without_list = 0  # robots that had no candidate list at the start of the last block
-        self._has_penalty = False  # any penalty in force: costs are more than squared distances
-        self._pending_any = False  # penalise() was called since the last begin()
         self._view_cache: dict[bool, tuple[tuple, bool]] = {}
 
     # --- the epsilon of an instance ----------------------------------------------------------------
@@ -217,7 +217,16 @@ class Participant:
     def _new_bidders(self, candidates: int, exact_hull: bool) -> Bidders:
         """The own robots' compiled rounds; ``exact_hull`` for a host that settles alone."""
         hull = _hull_vertices(self.goals, exact=exact_hull)
-        return Bidders(self.board, self.goals, self.own_ids, self.goal, self.penalty, hull, candidates)
+        bidders = Bidders(self.board, self.goals, self.own_ids, self.goal, hull, candidates)
+        bidders.set_penalties(*self._penalties())
+        return bidders
+
+    def _penalties(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The penalties in force as (rows, goals, costs), sorted by row, then goal."""
+        keys = sorted(self.penalty)
+        rows = np.array([r for r, _ in keys], np.int64)
+        goals = np.array([g for _, g in keys], np.int64)
+        return rows, goals, np.array([self.penalty[key] for key in keys], float)
 
     def _freeze(self, instance: int, positions: Mapping[int, np.ndarray] | np.ndarray) -> None:
         """begin() up to its first round: the first instance of a block freezes the positions (the
@@ -227,17 +236,16 @@ class Participant:
         new_block = not self.started or instance // self.phases != self.instance // self.phases
         if new_block and self.own:
             self.position = frozen_positions(positions, self.own)
-        penalised = self._pending_any and bool(self.pending.any())  # a flag first: any() reads K x G
+        penalised = any(cost != 0.0 for cost in self.pending.values())
         if penalised:
-            self.penalty += self.pending
-            self.pending[:] = 0.0
-            self._pending_any = False
-            self._has_penalty = True
+            for key, cost in self.pending.items():
+                self.penalty[key] = self.penalty.get(key, 0.0) + cost
+            self._bidders.set_penalties(*self._penalties())
+        self.pending = {}
         # Costs change only with the positions (a new block) or a penalty: the other phases of a
         # block keep them, and the rankings too (prices only rise, the compiled rounds follow them).
         if new_block or penalised:
             self._bidders.freeze(self.position)
-            self._bidders.has_penalty = self._has_penalty
             self.without_list = self._bidders.first_ranking()
         self.instance = instance
         self.claims_changed = True  # the new instance's records are news
@@ -387,8 +395,8 @@ class Participant:
     def penalise(self, robot: int, goal: int, cost: float) -> None:
         """Deadlock (5.5.5): the robot's cost of this goal rises by C_d for good, from the next instance."""
         if robot in self.own and 0 <= goal < len(self.goals):
-            self.pending[self.own.index(robot), goal] += cost
-            self._pending_any = True
+            key = (self.own.index(robot), goal)
+            self.pending[key] = self.pending.get(key, 0.0) + cost
 
     # --- messages ---------------------------------------------------------------------------------
     @property
@@ -411,7 +419,8 @@ class Participant:
         claims["goal"] = np.where(holds, self.goal, -1)
         claims["price"] = np.where(holds, self.board.price[np.maximum(self.goal, 0)], 0.0)
         claims["flags"] = np.where(self._content_all(), CONTENT, 0)
-        claims["penalty"] = self.penalty.sum(axis=1)
+        rows, _, costs = self._penalties()
+        claims["penalty"] = np.bincount(rows, costs, minlength=len(self.own))
         claims["x"], claims["y"] = self.position[:, 0], self.position[:, 1]
         rel = np.flatnonzero(self.board.released & self.is_own_id[self.board.owner + 1])
         releases = np.zeros(len(rel), RECORD)

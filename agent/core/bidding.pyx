@@ -173,8 +173,10 @@ cdef class Bidders:
     cdef int64_t[::1] goal  # each robot's claim (shared with the Participant)
     cdef int64_t[::1] robot  # each row's robot id
     cdef int64_t[::1] row_of_id
-    cdef double[:, ::1] penalty  # C_d in force per robot and goal (shared with the Participant)
-    cdef public bint has_penalty
+    # C_d in force (deadlocks, rare): robot i's are on goals penalty_goal[penalty_start[i]:penalty_start[i + 1]]
+    cdef int64_t[::1] penalty_start, penalty_goal
+    cdef double[::1] penalty_cost
+    cdef readonly bint has_penalty
     # the cached ranking: best goal, its value (exact while its price is ``seen``), second-best bound
     cdef int64_t[::1] best
     cdef double[::1] value, second, seen
@@ -191,9 +193,9 @@ cdef class Bidders:
     cdef double[::1] offer, third, held_price
     cdef uint8_t[::1] touched, unhappy
 
-    def __init__(self, board, goals, robot, goal, penalty, hull, int candidates):
+    def __init__(self, board, goals, robot, goal, hull, int candidates):
         """``board``: price, owner and released (bool) of the goal set; ``goals`` (G, 2); ``robot``:
-        each row's id; ``goal`` (claims) and ``penalty`` (K, G) are shared, changed in place."""
+        each row's id; ``goal`` (claims) is shared, changed in place."""
         goals = np.asarray(goals, float).reshape(-1, 2)
         self.k, self.g = len(robot), len(goals)
         k, g = self.k, self.g
@@ -205,8 +207,8 @@ cdef class Bidders:
         row_of_id = np.full(int(np.max(robot, initial=0)) + 1, -1, np.int64)
         row_of_id[np.asarray(robot, np.int64)] = np.arange(k)
         self.row_of_id = row_of_id
-        self.goal, self.penalty = goal, penalty
-        self.has_penalty = False
+        self.goal = goal
+        self.set_penalties(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
         self.px, self.py = np.zeros(k), np.zeros(k)
         self.best, self.value = np.zeros(k, np.int64), np.zeros(k)
         self.second, self.seen = np.full(k, INFINITY), np.full(k, NAN)
@@ -225,6 +227,22 @@ cdef class Bidders:
     def candidates(self) -> int:
         return self.cand.shape[1]
 
+    def set_penalties(self, rows, goals, costs) -> None:
+        """The penalties in force: robot rows[a] pays costs[a] more for goals[a], one entry per
+        (row, goal), sorted by row."""
+        rows = np.ascontiguousarray(rows, np.int64)
+        self.penalty_start = np.searchsorted(rows, np.arange(self.k + 1)).astype(np.int64)
+        self.penalty_goal = np.ascontiguousarray(goals, np.int64)
+        self.penalty_cost = np.ascontiguousarray(costs, float)
+        self.has_penalty = len(rows) > 0
+
+    cdef inline double penalty(self, Py_ssize_t i, int64_t j) noexcept nogil:
+        cdef Py_ssize_t a
+        for a in range(self.penalty_start[i], self.penalty_start[i + 1]):
+            if self.penalty_goal[a] == j:
+                return self.penalty_cost[a]
+        return 0.0
+
     def freeze(self, position) -> None:
         """The robots' positions (K, 2) for the block."""
         position = np.asarray(position, float).reshape(-1, 2)
@@ -236,7 +254,7 @@ cdef class Bidders:
         cdef double dx = self.gx[j] - self.px[i], dy = self.gy[j] - self.py[i]
         cdef double c = dx * dx + dy * dy
         if self.has_penalty:
-            c = c + self.penalty[i, j]
+            c = c + self.penalty(i, j)
         return -c - self.price[j]
 
     cdef Ranking rank_all(self, Py_ssize_t i) noexcept nogil:
@@ -247,9 +265,8 @@ cdef class Bidders:
         for j in range(g):  # the costs, in loops that vectorise
             dx, dy = self.gx[j] - x, self.gy[j] - y
             self.values[j] = dx * dx + dy * dy
-        if self.has_penalty:
-            for j in range(g):
-                self.values[j] += self.penalty[i, j]
+        for a in range(self.penalty_start[i], self.penalty_start[i + 1]):
+            self.values[self.penalty_goal[a]] += self.penalty_cost[a]
         for j in range(g):
             self.values[j] = -self.values[j] - self.price[j]
         cdef Ranking r = top_three(self.values)
