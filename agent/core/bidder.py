@@ -145,7 +145,7 @@ class Participant:
         self.hysteresis = hysteresis
         self.board = Board(len(self.goals))
         self.instance = -1  # not started: waits for the robots' positions
-        k, g = len(self.own), len(self.goals)
+        k = len(self.own)
         self.position = np.zeros((k, 2))  # frozen per block of instances
         # C_d per (own row, goal) in force this instance (deadlocks: few, so no K x G array), and those
         # declared during it, in force from the next
