@@ -1,4 +1,52 @@
-"""The paper's sequence (14 robots) through emulated e-puck2 robots and emulated motion capture.
+"""Real robots' parts against their emulators: the paper's sequence on emulated e-puck2 robots (the
+default), the e-puck2 Wi-Fi backend, the overhead-camera tracker and ROS 2 over rmw_zenoh. One module,
+a benchmark per name; each writes bench/results/<name>.md:
+
+    .venv/bin/python -m bench.bench_hardware                  # the paper's sequence, 14 emulated e-puck2
+    .venv/bin/python -m bench.bench_hardware epuck2           # the backend's latency and watchdog, 1-50 robots
+    .venv/bin/python -m bench.bench_hardware tracker [--frames 100] [--quick]
+    .venv/bin/python -m bench.bench_hardware ros2 [--quick]
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import signal
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from coordinator.scene import load_scene
+from hardware.camera import CORNER_REFINEMENT, ArucoTracker, CameraConfig
+from hardware.config import load_hardware
+from hardware.epuck2 import (
+    FIRMWARE_MAX_WHEEL_SPEED,
+    Epuck2Backend,
+    encode_command,
+    make_command,
+    metres_per_second,
+)
+from hardware.ros2 import Ros2Backend, Ros2BackendConfig, Ros2PosesConfig, Ros2PoseSource
+from sim.emulators.camera import OverheadCamera, render_frames, wandering_robots
+from sim.emulators.mocap import MocapEmulator
+from sim.mcaplog import logged
+from transport.session import client_of, free_port, loopback_router, open_session
+
+from .common import REPO, parser_for, run_subcommand, write_results
+
+# --- the paper's sequence on emulated e-puck2 robots ------------------------------------------
+SEQUENCE_DOC = """The paper's sequence (14 robots) through emulated e-puck2 robots and emulated motion capture.
 
 Run from the repository root (a few minutes: the sequence holds each of its six images 30 s):
 
@@ -13,25 +61,6 @@ from the run's tick (the recorder's log.mcap stamps each tick's Truth with the w
 the lab's clock, both read on this machine.
 """
 
-from __future__ import annotations
-
-import json
-import os
-import signal
-import statistics
-import subprocess
-import sys
-import tempfile
-import time
-from pathlib import Path
-
-import numpy as np
-
-from coordinator.scene import load_scene
-from sim.mcaplog import logged
-from transport.session import free_port
-
-from .common import REPO, write_results
 
 SCENE = "paper-sequence"
 TOLERANCE = 0.01  # m: an image is formed when every robot is this close to its goal (true pose)
@@ -179,7 +208,8 @@ def report(
     return lines
 
 
-def main() -> int:
+def sequence_main(argv: list[str] | None = None) -> int:
+    parser_for("bench.bench_hardware [sequence]", SEQUENCE_DOC).parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
         endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -201,5 +231,384 @@ def main() -> int:
     return 0
 
 
+# --- the e-puck2 Wi-Fi backend (epuck2) -------------------------------------------------------
+EPUCK2_DOC = """e-puck2 Wi-Fi backend against emulated robots: command latency at 10 Hz and the watchdog's stop.
+
+Run from the repository root:
+
+    .venv/bin/python -m bench.bench_hardware epuck2     # prints a table and writes bench/results/epuck2.md
+
+For N emulated robots (`python -m sim.emulators.epuck2` in its own process, on 127.0.0.1), 30 control periods of 0.1 s,
+each period's command distinct so the emulator's receive log tells which call it answers. Latency: from
+the control loop's call to the emulator receiving the packet. Reference, side by side: a plain client of
+the kind the vendor's examples show (one loop sending to each robot in turn and waiting for its answer),
+which has no watchdog: when its commands cease the robots keep their last speed.
+"""
+
+
+EPUCK2_PERIOD = 0.1
+EPUCK2_PERIODS = 30
+COMMAND_TIMEOUT = 0.3
+EPUCK2_SIZES = (1, 10, 50)
+EPUCK2_COLOUR = (255, 128, 0)
+
+
+def period_speed(k: int) -> tuple[float, int]:
+    """The wheel speed of period k (m/s) and the steps/s it becomes: distinct per period."""
+    steps = 100 + k
+    return metres_per_second(steps), steps
+
+
+class EmulatorProcess:
+    """`python -m sim.emulators.epuck2` in its own process (as robots are elsewhere); its log is read on exit."""
+
+    def __init__(self, n: int, tmp: Path) -> None:
+        self.hardware, self.log_path = tmp / "hw.toml", tmp / "log.json"
+        self.hardware.unlink(missing_ok=True)
+        args = ["--robots", str(n), "--write-hardware", str(self.hardware), "--log", str(self.log_path)]
+        self.proc = subprocess.Popen([sys.executable, "-m", "sim.emulators.epuck2", *args], stdout=subprocess.DEVNULL)
+        deadline = time.monotonic() + 120
+        while not self.hardware.exists():
+            if time.monotonic() > deadline or self.proc.poll() is not None:
+                self.proc.kill()
+                raise RuntimeError("the emulator did not start")
+            time.sleep(0.05)
+
+    def finish(self) -> list[list[tuple[float, int, int]]]:
+        self.proc.send_signal(signal.SIGTERM)
+        self.proc.wait(timeout=60)
+        return [[tuple(e) for e in robot["log"]] for robot in json.loads(self.log_path.read_text())["robots"]]
+
+
+def latencies(logs: list[list[tuple[float, int, int]]], calls: list[float]) -> tuple[list[float], int]:
+    found = []
+    for log in logs:
+        for t, left, _ in log:
+            k = left - 100
+            if 0 <= k < len(calls):
+                found.append(t - calls[k])
+    return found, len(logs) * len(calls)
+
+
+def stopped(logs: list[list[tuple[float, int, int]]]) -> list[float]:
+    """For each robot whose last command was a stop: its receive time."""
+    return [log[-1][0] for log in logs if log and tuple(log[-1][1:]) == (0, 0)]
+
+
+def run_backend(n: int, tmp: Path) -> dict:
+    emu = EmulatorProcess(n, tmp)
+    config = load_hardware(emu.hardware).backend
+    config = replace(config, command_timeout=COMMAND_TIMEOUT)
+    backend = Epuck2Backend(config)
+    backend.start()
+    time.sleep(0.5)  # connections made
+    ids = list(range(n))
+    calls, blocked = [], []
+    cpu0, wall0 = time.process_time(), time.monotonic()
+    for k in range(EPUCK2_PERIODS):
+        speed, _ = period_speed(k)
+        calls.append(time.monotonic())
+        backend.set_commands(ids, [speed] * n, [-speed] * n, [EPUCK2_COLOUR] * n)
+        blocked.append(time.monotonic() - calls[-1])
+        time.sleep(max(0.0, calls[-1] + EPUCK2_PERIOD - time.monotonic()))
+    cpu = (time.process_time() - cpu0) / (time.monotonic() - wall0)
+    time.sleep(COMMAND_TIMEOUT + 2 * EPUCK2_PERIOD)  # commands cease: the watchdog stops the robots
+    stats = backend.stats()
+    logs = emu.finish()  # before close(): the stops seen are the watchdog's
+    backend.close()
+    stops = [t - calls[-1] for t in stopped(logs)]
+    lat, expected = latencies(logs, calls)
+    return {
+        "lat": lat,
+        "expected": expected,
+        "late": sum(s.late_commands for s in stats.values()),
+        "blocked": max(blocked),
+        "cpu": cpu,
+        "stopped": len(stops),
+        "stop_after": max(stops) if stops else float("nan"),
+    }
+
+
+def run_sequential(n: int, tmp: Path) -> dict:
+    emu = EmulatorProcess(n, tmp)
+    socks = [
+        socket.create_connection(endpoint, timeout=1.0) for endpoint in load_hardware(emu.hardware).backend.endpoints
+    ]
+    try:
+        calls, blocked = [], []
+        cpu0, wall0 = time.process_time(), time.monotonic()
+        for k in range(EPUCK2_PERIODS):
+            speed, _ = period_speed(k)
+            calls.append(time.monotonic())
+            for sock in socks:
+                sock.sendall(encode_command(make_command(speed, -speed, EPUCK2_COLOUR, FIRMWARE_MAX_WHEEL_SPEED)))
+                sock.recv(1)  # the robot's empty answer
+            blocked.append(time.monotonic() - calls[-1])
+            time.sleep(max(0.0, calls[-1] + EPUCK2_PERIOD - time.monotonic()))
+        cpu = (time.process_time() - cpu0) / (time.monotonic() - wall0)
+        time.sleep(COMMAND_TIMEOUT + 2 * EPUCK2_PERIOD)
+        logs = emu.finish()
+    finally:
+        for sock in socks:
+            sock.close()
+    lat, expected = latencies(logs, calls)
+    return {
+        "lat": lat,
+        "expected": expected,
+        "late": 0,
+        "blocked": max(blocked),
+        "cpu": cpu,
+        "stopped": len(stopped(logs)),
+        "stop_after": float("nan"),
+    }
+
+
+def epuck2_row(name: str, n: int, r: dict) -> str:
+    lat = sorted(r["lat"])
+    p95 = lat[min(len(lat) - 1, int(0.95 * len(lat)))]
+    return (
+        f"| {name} | {n} | {len(lat)}/{r['expected']} | {1e3 * statistics.median(lat):.2f} | {1e3 * p95:.2f} | "
+        f"{1e3 * lat[-1]:.2f} | {1e3 * r['blocked']:.2f} | {r['late']} | {100 * r['cpu']:.0f} | {r['stopped']}/{n} | {r['stop_after']:.3f} |"
+    )
+
+
+def epuck2_main(argv: list[str] | None = None) -> int:
+    parser_for("bench.bench_hardware epuck2", EPUCK2_DOC).parse_args(argv)
+    # the watchdog's stops are expected here, and close() finds the emulator gone once its log is read
+    logging.getLogger("hardware.epuck2").setLevel(logging.CRITICAL)
+    lines = [
+        "| client | N robots | commands received | latency p50 ms | p95 ms | max ms | control loop blocked, max ms | late | CPU % of a core | "
+        "stopped after commands ceased | last stop after last call s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    with tempfile.TemporaryDirectory() as tmp:
+        for n in EPUCK2_SIZES:
+            lines.append(epuck2_row("backend (one asyncio task per robot, watchdog)", n, run_backend(n, Path(tmp))))
+            lines.append(epuck2_row("sequential send + wait answer", n, run_sequential(n, Path(tmp))))
+            print(lines[-2], lines[-1], sep="\n", flush=True)
+    notes = [
+        f"Load average {os.getloadavg()[0]:.1f} at the end. Emulator in its own process; CPU is the client's process "
+        f"only. {EPUCK2_PERIODS} periods of {EPUCK2_PERIOD} s, command_timeout {COMMAND_TIMEOUT} s.",
+        "",
+    ]
+    write_results(
+        "epuck2",
+        "e-puck2 Wi-Fi backend against emulated robots",
+        ".venv/bin/python -m bench.bench_hardware epuck2",
+        notes + lines,
+    )
+    return 0
+
+
+# --- the overhead-camera tracker (tracker) ----------------------------------------------------
+TRACKER_DOC = """The overhead-camera tracker on one core: frames per second and accuracy on rendered footage.
+
+Rendered 1280x960 frames (sim.emulators.camera: a tilted camera over 2 x 1.5 m of floor, 5 cm
+DICT_4X4_50 markers, 14 robots wandering, four reference markers, Gaussian blur and pixel noise) are
+tracked by hardware.camera.ArucoTracker with each of OpenCV's corner refinements, and by the ArUco
+detection alone (no refinement, no poses) as the reference. All variants see each frame in turn, so
+they share the machine's load; cv2.setNumThreads(1) holds each to one core, and speed is read from the
+thread's CPU time (a shared machine's wall clock includes waiting for a core). Two conditions: the
+emulator's defaults and a harsher camera (more blur, more noise).
+
+    .venv/bin/python -m bench.bench_hardware tracker            # writes bench/results/tracker.md
+    .venv/bin/python -m bench.bench_hardware tracker --quick    # a short run, prints only
+"""
+
+
+TRACKER_ROBOTS, TRACKER_FPS, TRACKER_SEED = 14, 10.0, 3
+REFINEMENTS = {
+    "none": cv2.aruco.CORNER_REFINE_NONE,
+    "subpix": cv2.aruco.CORNER_REFINE_SUBPIX,
+    "contour": cv2.aruco.CORNER_REFINE_CONTOUR,
+}
+CONDITIONS = {
+    "defaults (blur 1.0 px, noise 4 grey levels)": OverheadCamera(),
+    "harsh (blur 1.5 px, noise 8 grey levels)": OverheadCamera(blur_sigma=1.5, noise_sigma=8.0),
+}
+
+
+@dataclass
+class Tally:
+    seconds: list[float] = field(default_factory=list)  # wall clock
+    cpu: list[float] = field(default_factory=list)  # this thread's CPU time: less swayed by other work
+    found: int = 0
+    drawn: int = 0
+    position: list[float] = field(default_factory=list)
+    heading: list[float] = field(default_factory=list)
+
+
+def tracker_measure(camera: OverheadCamera, frames: int) -> dict[str, Tally]:
+    config = CameraConfig.from_table(camera.poses_table(), "bench [poses]")
+    truth = wandering_robots(TRACKER_ROBOTS, frames, TRACKER_FPS, TRACKER_SEED)
+    images = list(render_frames(camera, truth, TRACKER_SEED))
+    detection_only = ArucoTracker(config, cv2.aruco.CORNER_REFINE_NONE)
+    trackers = {name: ArucoTracker(config, method) for name, method in REFINEMENTS.items()}
+    tallies = {name: Tally() for name in ["detection alone", *trackers]}
+    for k, (robots, image) in enumerate(zip(truth, images)):
+        start, start_cpu = time.perf_counter(), time.thread_time()
+        detection_only.detect(image)
+        tallies["detection alone"].seconds.append(time.perf_counter() - start)
+        tallies["detection alone"].cpu.append(time.thread_time() - start_cpu)
+        for name, tracker in trackers.items():
+            start, start_cpu = time.perf_counter(), time.thread_time()
+            result = tracker.update(image, k / TRACKER_FPS, k)
+            tally = tallies[name]
+            tally.seconds.append(time.perf_counter() - start)
+            tally.cpu.append(time.thread_time() - start_cpu)
+            tally.drawn += len(robots)
+            tally.found += len(result.poses)
+            for i, pose in result.poses.items():
+                x, y, theta = robots[i]
+                tally.position.append(math.hypot(pose.x - x, pose.y - y))
+                tally.heading.append(abs(math.remainder(pose.theta - theta, 2 * math.pi)))
+    return tallies
+
+
+def tracker_table(tallies: dict[str, Tally]) -> list[str]:
+    lines = [
+        "| variant | frames/s of CPU (median) | CPU ms per frame (median, p95) | wall ms per frame (median) | found "
+        "| position mm (mean, p95, max) | heading deg (mean, p95, max) |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name, t in tallies.items():
+        cpu, wall = np.array(t.cpu) * 1e3, np.array(t.seconds) * 1e3
+        label = f"{name} (chosen)" if REFINEMENTS.get(name) == CORNER_REFINEMENT else name
+        speed = f"| {label} | {1e3 / np.median(cpu):.1f} | {np.median(cpu):.1f}, {np.percentile(cpu, 95):.1f} | {np.median(wall):.1f} "
+        if not t.drawn:
+            lines.append(speed + "| - | - | - |")
+            continue
+        mm, deg = np.array(t.position) * 1e3, np.degrees(t.heading)
+        lines.append(
+            speed + f"| {100 * t.found / t.drawn:.2f} % | {mm.mean():.2f}, {np.percentile(mm, 95):.2f}, {mm.max():.2f} "
+            f"| {deg.mean():.2f}, {np.percentile(deg, 95):.2f}, {deg.max():.2f} |"
+        )
+    return lines
+
+
+def tracker_main(argv: list[str] | None = None) -> None:
+    parser = parser_for("bench.bench_hardware tracker", TRACKER_DOC)
+    parser.add_argument("--frames", type=int, default=100, help="frames per condition (default 100)")
+    parser.add_argument("--quick", action="store_true", help="20 frames, print only")
+    args = parser.parse_args(argv)
+    cv2.setNumThreads(1)
+    frames = 20 if args.quick else args.frames
+    lines = [
+        f"{TRACKER_ROBOTS} robots, {frames} frames of 1280x960 per condition (seed {TRACKER_SEED}), OpenCV {cv2.__version__}, "
+        "cv2.setNumThreads(1). Speed from the tracking thread's CPU time per frame (the machine is shared: "
+        "wall-clock times include waiting for a core). Found: robot-frames with a pose, of those drawn. "
+        "Errors against the rendered truth.",
+    ]
+    for condition, camera in CONDITIONS.items():
+        lines += ["", f"### {condition}", "", *tracker_table(tracker_measure(camera, frames))]
+    lines += ["", f"Load average at the end (1, 5, 15 min): {', '.join(f'{x:.1f}' for x in os.getloadavg())}."]
+    if args.quick:
+        print("\n".join(lines))
+        return
+    write_results(
+        "tracker",
+        "Overhead-camera tracker: frames per second on one core, and accuracy",
+        f".venv/bin/python -m bench.bench_hardware tracker --frames {frames}",
+        lines,
+    )
+
+
+# --- ROS 2 over rmw_zenoh (ros2) --------------------------------------------------------------
+ROS2_DOC = """What one control tick costs on the ROS 2 path, against the 0.1 s tick of the paper's 10 Hz loop.
+
+Side by side in one run, through an embedded Zenoh router on loopback:
+
+* `Ros2Backend.set_commands` for N robots with a Twist only, and with a Twist and a ColorRGBA
+  (rosbags encodes each message; each is one Zenoh put with rmw_zenoh's attachment);
+* `Ros2PoseSource.latest` after one PoseStamped per robot has arrived (rosbags decodes each).
+
+The variants alternate round by round so that both see the same machine load; the median of the
+rounds is reported.
+
+    .venv/bin/python -m bench.bench_hardware ros2            # writes bench/results/ros2.md
+    .venv/bin/python -m bench.bench_hardware ros2 --quick    # a short smoke run, prints only
+"""
+
+
+ROS2_TICK = 0.1  # s: the paper's 10 Hz control loop
+ROS2_ARRIVAL = 0.5  # s allowed for N poses to cross the loopback router before they are read
+
+
+def time_commands(backend: Ros2Backend, n: int, with_colors: bool) -> float:
+    ids = np.arange(n)
+    v, w = np.full(n, 0.05), np.full(n, 0.2)
+    colors = np.tile([255.0, 128.0, 0.0], (n, 1)) if with_colors else None
+    start = time.perf_counter()
+    backend.set_commands(ids, v, w, colors)
+    return time.perf_counter() - start
+
+
+def time_poses(source: Ros2PoseSource, mocap: MocapEmulator, n: int) -> float:
+    """Time of the one latest() that reads the n poses just published (given time to arrive first)."""
+    before = source.stats()["received"]
+    mocap.publish_once(0.0)
+    time.sleep(ROS2_ARRIVAL)
+    start = time.perf_counter()
+    source.latest()
+    elapsed = time.perf_counter() - start
+    if source.stats()["received"] != before + n:
+        raise RuntimeError(f"{source.stats()['received'] - before} of {n} poses arrived within {ROS2_ARRIVAL} s")
+    return elapsed
+
+
+def ros2_main(argv: list[str] | None = None) -> None:
+    parser = parser_for("bench.bench_hardware ros2", ROS2_DOC)
+    parser.add_argument("--quick", action="store_true", help="few rounds, small N, print only")
+    args = parser.parse_args(argv)
+    sizes, rounds = ((10, 100), 5) if args.quick else ((10, 100, 1000), 30)
+    load = os.getloadavg()[0]  # the machine is shared: say how busy it was
+    router = loopback_router()
+    rows = []
+    with open_session(router):
+        for n in sizes:
+            config = Ros2BackendConfig(namespaces=[f"robot{i}" for i in range(n)], watchdog=60.0)
+            rows_of_n: dict[str, list[float]] = {"twist": [], "twist+color": [], "poses": []}
+            with (
+                Ros2Backend(config, client_of(router)) as backend,
+                Ros2PoseSource(Ros2PosesConfig(), client_of(router)) as source,
+                MocapEmulator(
+                    lambda t, n=n: np.zeros((n, 3)), client_of(router), rate=1e-3
+                ) as mocap,  # once at start, then by hand
+            ):
+                deadline = time.monotonic() + 30.0  # the emulator's first publication, at start, all read
+                while len(source.latest()) < n or mocap.published < n:
+                    if time.monotonic() > deadline:
+                        raise RuntimeError("the emulator's first poses did not all arrive")
+                    time.sleep(0.05)
+                time.sleep(ROS2_ARRIVAL)
+                source.latest()
+                for _ in range(rounds):
+                    rows_of_n["twist"].append(time_commands(backend, n, with_colors=False))
+                    rows_of_n["twist+color"].append(time_commands(backend, n, with_colors=True))
+                    rows_of_n["poses"].append(time_poses(source, mocap, n))
+            medians = {k: statistics.median(v) for k, v in rows_of_n.items()}
+            rows.append(
+                f"| {n} | {medians['twist'] * 1e3:.2f} | {medians['twist+color'] * 1e3:.2f} | "
+                f"{medians['poses'] * 1e3:.2f} | {(medians['twist+color'] + medians['poses']) / ROS2_TICK * 100:.1f}% |"
+            )
+    lines = [
+        f"Median of {rounds} alternating rounds; times in ms per tick for all N robots. "
+        f"Load average when the run began: {load:.1f}.",
+        "",
+        "| N robots | set_commands, Twist | set_commands, Twist + ColorRGBA | latest() of N poses | both, share of a 0.1 s tick |",
+        "|---|---|---|---|---|",
+        *rows,
+    ]
+    if args.quick:
+        print("\n".join(lines))
+    else:
+        write_results(
+            "ros2", "ROS 2 over rmw_zenoh: the cost of a control tick", "python -m bench.bench_hardware ros2", lines
+        )
+
+
+COMMANDS = {"sequence": sequence_main, "epuck2": epuck2_main, "tracker": tracker_main, "ros2": ros2_main}
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_subcommand("bench.bench_hardware", COMMANDS, "sequence"))

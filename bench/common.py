@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import platform
 import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import psutil
@@ -196,3 +198,30 @@ def steps_table(m: dict) -> list[str]:
         converged = "not by its end" if s["converged_at"] is None else f"{s['converged_at']:.1f}"
         rows.append(f"| {s['index']} | {s['t_start']:.1f} | {converged} | {1e3 * s['max_goal_error_at_end']:.1f} |")
     return rows
+
+
+def run_subcommand(
+    prog: str, commands: Mapping[str, Callable[[list[str]], object]], default: str | None, argv: list[str] | None = None
+) -> int:
+    """A module of several benchmarks: its first word names one (``commands``: name -> main(argv)),
+    which parses the rest with its own flags; without a name, ``default`` runs (None: the list is
+    printed). ``-h`` lists the names before the default's own help."""
+    args = sys.argv[1:] if argv is None else list(argv)
+    names = ", ".join(commands)
+    if args and args[0] in commands:
+        got = commands[args[0]](args[1:])
+        return got if isinstance(got, int) else 0
+    if args[:1] in (["-h"], ["--help"]) or default is None:
+        print(f"usage: python -m {prog} {{{names}}} [flags] (python -m {prog} NAME --help)")
+        if default is None:
+            return 0 if args[:1] in (["-h"], ["--help"]) else 2
+        print(f"without a name: {default}\n")
+    got = commands[default](args)
+    return got if isinstance(got, int) else 0
+
+
+def parser_for(prog: str, doc: str) -> argparse.ArgumentParser:
+    """The flags of one benchmark of a module, its help the benchmark's own description."""
+    return argparse.ArgumentParser(
+        prog=f"python -m {prog}", description=doc, formatter_class=argparse.RawDescriptionHelpFormatter
+    )

@@ -1,4 +1,53 @@
-"""Reproduce the paper's Figs. 13, 14 and 15 (section 7.2) with the central engine.
+"""The paper reproduced: Figs. 13-15 with the central engine (the default), Fig. 4's cost per Lloyd
+iteration, and its animations measured (6.1-6.2): each keyframe's goals started from the previous
+frame's, and the auction of a keyframe started from the carried assignment. One module, a benchmark per
+name; each writes its figures to docs/ or its table to bench/results/<name>.md:
+
+    .venv/bin/python -m bench.paper_figures [--quick]      # Figs. 13-15: docs/fig1[345]_*.png, paper_figures.md
+    .venv/bin/python -m bench.paper_figures fig4           # docs/fig4_cvt_cost.png
+    .venv/bin/python -m bench.paper_figures keyframes [--repeat 3] [--seed 0]
+    .venv/bin/python -m bench.paper_figures carry [--robots 100] [--hosts 10] [--no-paper]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import shlex
+import statistics
+import sys
+import tempfile
+import time
+import tomllib
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import scipy
+from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
+
+import sim.central as central
+from agent.assignment import frames_close
+from agent.core.bidder import Participant
+from agent.core.params import RobotParams
+from coordinator import shapes
+from coordinator.drawings import keyframes
+from coordinator.goals import goals_from_prepared, prepare_image
+from coordinator.goals.cvt import RELAX
+from coordinator.goals.resize import from_arena
+from coordinator.keyframes import KeyframeGoals, goal_correspondence, goal_matching, keyframe_goals
+from coordinator.scene import Scene, resolve_scene_path, scene_from_dict, scene_goal_set
+
+from .common import REPO, RESULTS, machine, parser_for, run_subcommand, write_results
+
+# --- Figs. 13-15 (the default) ----------------------------------------------------------------
+FIGURES_DOC = """Reproduce the paper's Figs. 13, 14 and 15 (section 7.2) with the central engine.
 
 Fig. 13: path length per robot and in total over R runs of the Fig. 12 sequence (paper-sequence,
 14 e-pucks, seeds 1..R: the goal sets are regenerated per run, the start grid is the same), at
@@ -16,31 +65,6 @@ warm-started, with the hysteresis Delta C of the scene's robot parameters.
     .venv/bin/python -m bench.paper_figures --quick      # 2 runs x 2 epsilons, 3 short steps
 """
 
-from __future__ import annotations
-
-import argparse
-import json
-import math
-import os
-import shlex
-import sys
-import tempfile
-import time
-import tomllib
-from collections.abc import Iterator
-from contextlib import contextmanager
-from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any
-
-import numpy as np
-from scipy.optimize import linear_sum_assignment
-
-import sim.central as central
-from agent.core.params import RobotParams
-from coordinator.scene import Scene, resolve_scene_path, scene_from_dict, scene_goal_set
-
-from .common import REPO, RESULTS, machine
 
 SCENE = "paper-sequence"
 EPSILONS = (1.0, 0.1, 0.01, 0.001)  # m^2, paper 7.2.2
@@ -537,7 +561,7 @@ def results_lines(s: Summary, hysteresis: float) -> list[str]:
     return out
 
 
-def write_results(path: Path, command: str, lines: list[str]) -> None:
+def write_figure_results(path: Path, command: str, lines: list[str]) -> None:
     text = [
         "## Paper Figs. 13-15: path length, epsilon_A and trajectories (central engine)",
         "",
@@ -553,7 +577,7 @@ def write_results(path: Path, command: str, lines: list[str]) -> None:
 
 # --- main ----------------------------------------------------------------------------------------
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = parser_for("bench.paper_figures [figures]", FIGURES_DOC)
     p.add_argument("--runs", type=int, default=None, help="runs per epsilon_A, seeds 1..R (default 25, quick 2)")
     p.add_argument("--out", type=Path, default=REPO / "docs", help="where the PNGs go")
     p.add_argument(
@@ -612,10 +636,385 @@ def main(argv: list[str] | None = None) -> Summary:
         plot(summary, args.out / name)
         print(f"wrote {args.out / name}", flush=True)
     hysteresis = RobotParams.from_dict(data.get("robot", {})).assign_hysteresis
-    write_results(args.results, command, results_lines(summary, hysteresis))
+    write_figure_results(args.results, command, results_lines(summary, hysteresis))
     print(f"wrote {args.results} ({summary.wall_s / 60:.1f} min)", flush=True)
     return summary
 
 
+# --- Fig. 4 (fig4) ----------------------------------------------------------------------------
+FIG4_DOC = """Reproduce the paper's Fig. 4: normalised cost of eq. 1 per Lloyd iteration for 14 goals on six
+images (disk; disk and line with 10+4 and 6+8 robots; line; L; T), 25 seeded runs each.
+
+The cost of each run is divided by the highest initial cost among the 25 runs of its image (as in the
+paper). Top: the inputs; middle: the lowest-cost goal set of each image; bottom: the cost curves of
+plain Lloyd (as in the paper, relax=1) and of pixelswarm's default (over-relaxed Lloyd, never rising).
+
+    .venv/bin/python -m bench.paper_figures fig4          # writes docs/fig4_cvt_cost.png and prints a summary
+"""
+
+
+FIG4_OUT = Path(__file__).resolve().parent.parent / "docs" / "fig4_cvt_cost.png"
+FIG4_CASES = [
+    ("disk", None, "disk"),
+    ("disk_and_line", {0: 10, 1: 4}, "disk and line 10+4"),
+    ("disk_and_line", {0: 6, 1: 8}, "disk and line 6+8"),
+    ("line", None, "line"),
+    ("L", None, "L"),
+    ("T", None, "T"),
+]
+FIG4_COLOURS = ["tab:red", "tab:orange", "tab:purple", "tab:blue", "tab:green", "tab:brown"]
+
+
+def fig4_runs(size: int, n: int, seeds: int, relax: float) -> list[dict]:
+    """Per case: image, prepared image, normalised cost histories and the best goal set."""
+    out = []
+    for name, counts, title in FIG4_CASES:
+        img = shapes.draw(name, size)
+        prep = prepare_image(img)
+        sets = [goals_from_prepared(prep, n, seed=s, region_counts=counts, relax=relax) for s in range(seeds)]
+        top = max(gs.cost_history[0] for gs in sets)
+        hists = [np.asarray(gs.cost_history) / top for gs in sets]
+        best = min(sets, key=lambda gs: gs.cost_history[-1])
+        out.append({"title": title, "img": img, "prep": prep, "hists": hists, "best": best})
+    return out
+
+
+def fig4_summary(label: str, cases: list[dict]) -> list[str]:
+    lines = []
+    for c in cases:
+        rises = sum(int(np.any(np.diff(h) > 1e-12 * h[:-1])) for h in c["hists"])
+        at30 = max(h[min(30, len(h) - 1)] / h[-1] - 1 for h in c["hists"])
+        iters = [len(h) - 1 for h in c["hists"]]
+        lines.append(
+            f"{label:>9} | {c['title']:<20} | runs with a rise: {rises} | worst gap to final at "
+            f"iteration 30: {100 * at30:.2f} % | iterations {min(iters)}-{max(iters)}"
+        )
+    return lines
+
+
+def plot_fig4(plain: list[dict], default: list[dict], path: Path, relax: float) -> None:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(13, 8.5))
+    FigureCanvasAgg(fig)
+    gs = fig.add_gridspec(3, 6, height_ratios=[1, 1, 1.6])
+    for i, c in enumerate(default):
+        ax = fig.add_subplot(gs[0, i])
+        ax.imshow(c["img"], interpolation="nearest")
+        ax.set_title(c["title"], fontsize=9)
+        ax.axis("off")
+        ax = fig.add_subplot(gs[1, i])
+        best = c["best"]
+        px = from_arena(best.goals, c["prep"].shape, best.arena)
+        ax.imshow(0.35 * c["img"] / 255.0 + 0.65, interpolation="nearest")
+        ax.scatter(px[:, 0] - 0.5, px[:, 1] - 0.5, s=22, c=best.colors / 255.0, edgecolors="black", linewidths=0.5)
+        ax.axis("off")
+    for j, (cases, title) in enumerate(
+        ((plain, "plain Lloyd (paper)"), (default, f"pixelswarm default (over-relaxed, relax={relax:g})"))
+    ):
+        ax = fig.add_subplot(gs[2, 3 * j : 3 * j + 3])
+        for c, col in zip(cases, FIG4_COLOURS):
+            for k, h in enumerate(c["hists"]):
+                ax.plot(np.arange(len(h)), h, color=col, lw=0.7, alpha=0.6, label=c["title"] if k == 0 else None)
+        ax.set_xlim(0, 60)
+        ax.set_xlabel("iteration")
+        ax.set_ylabel("normalised cost (eq. 1)")
+        ax.set_title(title, fontsize=10)
+        ax.grid(alpha=0.3)
+        if j == 0:
+            ax.legend(fontsize=7)
+    fig.suptitle("Fig. 4 reproduced: 14 goals, 25 seeded runs per image", fontsize=11)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+
+
+def fig4_main(argv: list[str] | None = None) -> int:
+    ap = parser_for("bench.paper_figures fig4", FIG4_DOC)
+    ap.add_argument("--size", type=int, default=256, help="image side in pixels")
+    ap.add_argument("--n", type=int, default=14)
+    ap.add_argument("--seeds", type=int, default=25)
+    ap.add_argument("--out", type=Path, default=FIG4_OUT)
+    args = ap.parse_args(argv)
+    plain = fig4_runs(args.size, args.n, args.seeds, 1.0)
+    default = fig4_runs(args.size, args.n, args.seeds, RELAX)
+    print("\n".join(fig4_summary("plain", plain) + fig4_summary("default", default)))
+    plot_fig4(plain, default, args.out, RELAX)
+    print(f"wrote {args.out}")
+    return 0
+
+
+# --- keyframe goals from the previous frame (keyframes) ---------------------------------------
+KEYFRAMES_DOC = """Benchmark of animation goal generation (paper 6.1): initialising each keyframe's CVT from the
+previous frame's goals, moved by the regions' T_i^f and M_i^f, against fresh random samples.
+
+Cases: the leaf (11 keyframes) with N = 100 (256 px) and N = 1000 (512 px, so that a robot still has
+tens of pixels), and the 14-robot story (256 px). For each, side by side in one run:
+
+- disparity: goal_disparity between consecutive goal sets (mean distance of the squared-distance
+  optimal assignment, eq. 7), in pixels of the keyframes (the runs' arenas may differ slightly);
+- time: wall clock of keyframe_goals (all frames: segmentation, motion estimates, Lloyd), median of
+  --repeat runs; Lloyd iterations summed over the frames; the final cost of eq. 1 summed over frames.
+
+Both robot-count rules are measured: N_i proportional to the area in every frame (paper 4.2, the
+default) and keep_counts (each region keeps the N_i of its region in the previous frame).
+
+    .venv/bin/python -m bench.paper_figures keyframes     # prints the tables, writes bench/results/keyframes.md
+"""
+
+
+KEYFRAME_CASES = (("leaf", 100, 256), ("leaf", 1000, 512), ("story", 14, 256))
+
+
+def keyframe_run(
+    frames: list[np.ndarray], n: int, init: bool, keep: bool, seed: int, repeat: int
+) -> tuple[float, KeyframeGoals]:
+    times, out = [], None
+    for _ in range(repeat):
+        t = time.perf_counter()
+        out = keyframe_goals(frames, n, init_from_previous=init, keep_counts=keep, seed=seed)
+        times.append(time.perf_counter() - t)
+    assert out is not None
+    return statistics.median(times), out
+
+
+def keyframe_summary(kg: KeyframeGoals) -> dict:
+    return {
+        "disp": kg.disparities() / kg.metres_per_pixel,
+        "iters": sum(r.iterations for r in kg.reports),
+        "cost": sum(s.cost_history[-1] for s in kg.sets),
+    }
+
+
+def case_lines(name: str, n: int, size: int, seed: int, repeat: int) -> list[str]:
+    frames = keyframes(name, size)
+    lines = [
+        f"### {name}, N = {n}, {len(frames)} keyframes of {size} x {size} px",
+        "",
+        "| robot counts | start | mean disparity (px) | time (s) | Lloyd iterations | eq. 1 cost (sum) "
+        "| frames (f first, p from G_{f-1}, r partly, x fresh) |",
+        "|---|---|---:|---:|---:|---:|---|",
+    ]
+    per_frame = []
+    for keep in (False, True):
+        rows = {}
+        for init in (True, False):
+            t, kg = keyframe_run(frames, n, init, keep, seed, repeat)
+            s = keyframe_summary(kg)
+            rows[init] = s
+            modes = "".join({"first": "f", "previous": "p", "partial": "r", "fresh": "x"}[r.mode] for r in kg.reports)
+            lines.append(
+                f"| {'kept' if keep else 'by area'} | {'previous frame' if init else 'fresh'} | "
+                f"{s['disp'].mean():.2f} | {t:.2f} | {s['iters']} | {s['cost']:.4e} | {modes} |"
+            )
+        per_frame.append((keep, rows))
+    lines += ["", "Disparity per frame pair (px), init from previous / fresh:", ""]
+    for keep, rows in per_frame:
+        pairs = " ".join(f"{a:.1f}/{b:.1f}" for a, b in zip(rows[True]["disp"], rows[False]["disp"]))
+        better = int(np.sum(rows[True]["disp"] <= rows[False]["disp"]))
+        lines.append(
+            f"- {'kept' if keep else 'by area'}: {pairs} (lower or equal with init in "
+            f"{better} of {len(rows[True]['disp'])})"
+        )
+    return lines + [""]
+
+
+def keyframes_main(argv: list[str] | None = None) -> int:
+    ap = parser_for("bench.paper_figures keyframes", KEYFRAMES_DOC)
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    lines = [
+        f"Seed {args.seed}, median wall time of {args.repeat} runs; load average {load:.2f} at start; "
+        f"numpy {np.__version__}, scipy {scipy.__version__}.",
+        "",
+    ]
+    for name, n, size in KEYFRAME_CASES:
+        lines += case_lines(name, n, size, args.seed, args.repeat)
+    lines += [
+        "Disparity: mean distance between the goals of consecutive keyframes under the assignment of least "
+        "total squared distance (scipy's linear_sum_assignment), i.e. how far robots standing on G_{f-1} "
+        "move to G_f, in keyframe pixels. Time: the whole keyframe_goals call (segmentation, region "
+        "correspondence and motion estimates when initialising, Lloyd, colours), all frames. Cost: eq. 1 "
+        "(divided by K_m, normalised square) of each final goal set, summed over the frames (lower is a "
+        "more uniform covering). With N_i by area, robots also move between regions whose areas change "
+        "(the branch gives robots to the growing leaf), which no per-region initialisation can anticipate.",
+    ]
+    cmd = f".venv/bin/python -m bench.paper_figures keyframes --repeat {args.repeat} --seed {args.seed}"
+    write_results("keyframes", "Keyframe animation goals: initialised from the previous frame vs fresh", cmd, lines)
+    return 0
+
+
+# --- the carried assignment between keyframes (carry) -----------------------------------------
+CARRY_DOC = """Consecutive keyframes: bids to agree on frame f's goal set when the auction starts cold, from the
+previous frame's assignment carried over by the goals' correspondence (agent.core.bidder.carry,
+prices zero), from that assignment with the previous prices carried too, or from the goal sets'
+own matching and its prices (coordinator.keyframes.goal_matching, sent with the goal set: what the agents do after an agreed
+frame).
+
+Robots stand on frame f-1's goals (2 mm noise); frame f is frame f-1 turned and moved, its goals
+listed in another order. Hosts exchange their records in lossless rounds (no zenoh: this measures
+the protocol, not the transport). `frames_close` is the agents' rule for starting the auction from
+the carried claims when the matching cannot be used (the robots changed).
+
+    .venv/bin/python -m bench.paper_figures carry [--robots 100] [--hosts 10]
+"""
+
+
+CARRY_EPS, CARRY_HYSTERESIS = 1e-3, 5e-3  # the defaults of agent.core.params
+CARRY_EXPLAIN = (
+    "Robots stand on frame f-1's goals; frame f is that frame moved and turned, its goals listed in another "
+    "order. Bids and message rounds until every host adopts an agreed final-phase instance of frame f's "
+    "auction, starting cold, from the goal sets' matching with its prices (what the agents do), from the carried assignment (each robot claims the goal its last one "
+    "corresponds to, prices zero; what the agents do when `frames_close`), or from that assignment with "
+    "the previous prices carried too. In every case the robots drive to their carried goals at once; this "
+    "measures only how soon the auction confirms or corrects them. Wall times are of this in-process "
+    "exchange (no zenoh) and grow with other work on the machine; bids and rounds do not."
+)
+CARRY_MATCHING = (
+    "What the agents do (`agent.assignment.AuctionLink._warm_start`): after an agreed frame the "
+    "coordinator sends with frame f's goal set the matching of frame f-1's goals to frame f's, with prices "
+    "in equilibrium for it (`coordinator.keyframes.goal_matching`: scipy's `linear_sum_assignment` as if a "
+    "robot stood on each old goal, its dual prices by shortest paths; its wall time is included here), each "
+    "robot claims the goal its last one is matched to, and the auction starts from those claims and prices. "
+    "The prices are nearly in equilibrium for the real positions, whatever the frames' disparity. "
+    "`frames_close` now only decides for a frame whose robots changed (a robot died)."
+)
+CARRY_RULE = (
+    "The rule (`agent.assignment.frames_close`): start from the carried claims when corresponding goals are on "
+    "average at most 1.5 goal spacings apart (the third column). Beyond that the claims skip the coarse "
+    "epsilon phases that build the prices, and the fine phases fight a price war that costs more than a "
+    "cold start."
+)
+
+
+def agree(parts: list[Participant], positions: np.ndarray, max_rounds: int = 100_000) -> int:
+    """Message rounds until every host has adopted a final-phase instance; returns the rounds."""
+    for p in parts:
+        if not p.started:
+            p.begin(0, {r: positions[r] for r in p.own})
+    for rounds in range(1, max_rounds):
+        for p in parts:
+            p.bid_until_quiet()
+            before = p.instance
+            p.check_agreement()
+            if p.instance != before:
+                p.bid_until_quiet()
+        if all(p.is_agreed and p.final_phase for p in parts):
+            return rounds
+        sent = [(p.instance, p.outgoing()) for p in parts]
+        for i, (instance, (digest, recs)) in enumerate(sent):
+            for j, q in enumerate(parts):
+                if j != i:
+                    if instance > q.instance:
+                        q.begin(instance, {r: positions[r] for r in q.own})
+                    q.absorb(instance, rounds, digest, recs)
+    raise RuntimeError("no agreement")
+
+
+def start_from_matching(parts: list[Participant], first: list[Participant], g1: np.ndarray, g2: np.ndarray) -> None:
+    """What the agents do after an agreed frame (agent.assignment.AuctionLink._warm_start): claims and
+    prices from the goal sets' matching."""
+    matched, prices = goal_matching(g1, g2)
+    for new, old in zip(parts, first):
+        new.carry(old, matched, prices=prices)
+
+
+def paper_transition(n: int = 1000, k: int = 4, steps: tuple[int, int] = (0, 1)) -> list[str]:
+    """The paper's sequence at 1000 robots (scene paper-sequence-1000), its first transition (disk to
+    disk and line): robots 2 mm off the disk's goals, in 4 hosts of 250, the auction cold and from
+    the goal sets' matching."""
+    from coordinator.scene import load_scene
+
+    goals = load_scene("paper-sequence-1000").image_goals
+    g1, g2 = (np.asarray(goals.goal_set(s, n)[0]) for s in steps)
+    pos = g1 + np.random.default_rng(0).normal(0.0, 0.002, g1.shape)
+    robots = list(range(n))
+    hosts = [robots[h * n // k : (h + 1) * n // k] for h in range(k)]
+    first = [Participant(1, g1, robots, h, CARRY_EPS, CARRY_HYSTERESIS) for h in hosts]
+    agree(first, pos)
+    out = [
+        f"The paper's sequence with {n} robots in {k} hosts (scene `paper-sequence-1000`), image {steps[0]} to "
+        f"image {steps[1]}, robots 2 mm off image {steps[0]}'s goals:",
+        "",
+        "| start | bids | message rounds | wall s |",
+        "|---|---|---|---|",
+    ]
+    for start in ("cold", "goal matching, its prices"):
+        parts = [Participant(2, g2, robots, h, CARRY_EPS, CARRY_HYSTERESIS) for h in hosts]
+        t0 = time.perf_counter()
+        if start != "cold":
+            start_from_matching(parts, first, g1, g2)
+        rounds = agree(parts, pos)
+        out.append(f"| {start} | {sum(p.bids for p in parts)} | {rounds} | {time.perf_counter() - t0:.2f} |")
+        print(out[-1], flush=True)
+    return out
+
+
+def carry_main(argv: list[str] | None = None) -> int:
+    ap = parser_for("bench.paper_figures carry", CARRY_DOC)
+    ap.add_argument("--robots", type=int, default=100)
+    ap.add_argument("--hosts", type=int, default=10)
+    ap.add_argument("--seed", type=int, default=5)
+    ap.add_argument("--no-paper", action="store_true", help="skip the 1000-robot paper transition (about 2 min)")
+    a = ap.parse_args(argv)
+    n, k = a.robots, a.hosts
+    robots = list(range(n))
+    hosts = [robots[h::k] for h in range(k)]
+    lines = [
+        CARRY_EXPLAIN,
+        "",
+        f"{n} robots in {k} hosts, epsilon_A {CARRY_EPS}, Delta C {CARRY_HYSTERESIS}, seed {a.seed}.",
+        "",
+        "| frame f moved by | turned by | disparity / spacing | frames_close | start | bids | message rounds | wall s |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for shift, turn in ((0.03, 0.02), (0.1, 0.09), (0.3, 0.2), (1.0, 0.5)):
+        rng = np.random.default_rng(a.seed)
+        g1 = rng.uniform(-1.5, 1.5, (n, 2))
+        c, s = np.cos(turn), np.sin(turn)
+        g2 = (g1 @ np.array([[c, -s], [s, c]]).T + [shift, 0.0])[rng.permutation(n)]
+        pos = g1 + rng.normal(0.0, 0.002, g1.shape)
+        first = [Participant(1, g1, robots, h, CARRY_EPS, CARRY_HYSTERESIS) for h in hosts]
+        agree(first, pos)
+        previous = goal_correspondence(g1, g2)
+        close = "yes" if frames_close(g1, g2, previous) else "no"
+        disparity = np.hypot(*(g2 - g1[previous]).T).mean()
+        ratio = disparity / np.median(cKDTree(g2).query(g2, k=2)[0][:, 1])  # as frames_close measures it
+        for start in ("cold", "carried, prices zero", "carried, prices carried", "goal matching, its prices"):
+            parts = [Participant(2, g2, robots, h, CARRY_EPS, CARRY_HYSTERESIS) for h in hosts]
+            t0 = time.perf_counter()
+            if start.startswith("goal matching"):
+                start_from_matching(parts, first, g1, g2)
+            elif start != "cold":
+                for new, old in zip(parts, first):
+                    new.carry(old, previous)
+                    if start.endswith("carried"):
+                        j = np.flatnonzero(previous >= 0)
+                        new.board.price[j] = old.board.price[previous[j]]
+                        new.board.version += 1
+            rounds = agree(parts, pos)
+            lines.append(
+                f"| {shift} m | {np.degrees(turn):.1f} deg | {ratio:.2f} | {close} | {start} | "
+                f"{sum(p.bids for p in parts)} | {rounds} | {time.perf_counter() - t0:.2f} |"
+            )
+            print(lines[-1], flush=True)
+    lines += ["", CARRY_MATCHING, "", CARRY_RULE, ""]
+    if not a.no_paper:
+        lines += paper_transition()
+    write_results(
+        "carry",
+        "Consecutive keyframes: the carried assignment (issue 6)",
+        ".venv/bin/python -m bench.paper_figures carry",
+        lines,
+    )
+    return 0
+
+
+COMMANDS = {"figures": main, "fig4": fig4_main, "keyframes": keyframes_main, "carry": carry_main}
+
+
 if __name__ == "__main__":
-    main()
+    sys.exit(run_subcommand("bench.paper_figures", COMMANDS, "figures"))

@@ -42,7 +42,7 @@ SIDE_TOLERANCE = 0.25
 CAMERA_MOVED_PX = 3.0
 # Fits lines to the marker's edges: on blurred, noisy frames it measured markedly more precise than
 # CORNER_REFINE_SUBPIX (whose saddle-point model does not fit a square's outer corners) at no cost in
-# speed (bench/bench_tracker.py).
+# speed (`python -m bench.bench_hardware tracker`).
 CORNER_REFINEMENT = cv2.aruco.CORNER_REFINE_CONTOUR
 # Fewer floor points than this do not determine a homography.
 MIN_REFERENCES = 4

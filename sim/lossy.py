@@ -4,7 +4,7 @@ The central engine's loop and robot policy (sim.central.simulate) with an impair
 (sim.link): each robot hears each neighbour's state of the tick before only if a seeded draw neither
 loses it (``drop``) nor makes it a tick late (``late``). That is what an agent under
 ``--faults state:drop=P,delay=S`` lives with, made deterministic and fast: seconds per run instead of
-minutes, so sweeps over loss rates and seeds are cheap (bench/bench_loss.py).
+minutes, so sweeps over loss rates and seeds are cheap (`python -m bench.bench_faults loss`).
 """
 
 from __future__ import annotations

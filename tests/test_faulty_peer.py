@@ -8,7 +8,7 @@ header, count or random bytes overwritten), future ticks (epochs, serials, stamp
 re-sent unchanged 2 s or more later, and frames whose tick counts from 0 again as a restarted
 sender's would. Two runs, each shared by the tests that read it: the 20-robot circle of the issue
 (one robot per process) and the 14 e-puck paper sequence with agent hosts (-k 7) over its first two
-images. bench/bench_faulty_peer.py runs the issue's table, one mode per row.
+images. `python -m bench.bench_faults faulty-peer` runs the issue's table, one mode per row.
 """
 
 from __future__ import annotations

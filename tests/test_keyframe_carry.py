@@ -8,7 +8,7 @@ import pytest
 
 from agent.assignment import frames_close
 from agent.core.bidder import Participant
-from bench.bench_carry import agree
+from bench.paper_figures import agree
 from coordinator.keyframes import goal_correspondence, goal_disparity, goal_matching
 
 from .test_bidder import optimum
@@ -17,7 +17,7 @@ EPS = 1e-3
 
 
 def exchange(parts: list[Participant], positions: np.ndarray) -> dict[int, int]:
-    """Lossless message rounds between hosts (bench.bench_carry.agree) until each has adopted an
+    """Lossless message rounds between hosts (bench.paper_figures.agree) until each has adopted an
     agreed final-phase instance; the agreed assignment."""
     agree(parts, positions)
     out: dict[int, int] = {}

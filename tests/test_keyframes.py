@@ -146,7 +146,7 @@ def test_initialising_from_the_previous_frame_lowers_the_disparity(leaf_runs):
         init, fresh = runs[(True, keep)], runs[(False, keep)]
         assert px(init).mean() < px(fresh).mean()
         assert np.mean(px(init) <= px(fresh)) >= 0.7  # in most frames, not only on average
-        # and fewer Lloyd iterations (the computation time, measured in bench/bench_keyframes.py)
+        # and fewer Lloyd iterations (the computation time, measured by `python -m bench.paper_figures keyframes`)
         assert sum(r.iterations for r in init.reports) < sum(r.iterations for r in fresh.reports)
     # with the robots kept in their regions, the moved goals nearly are the next goal set
     assert px(runs[(True, True)]).mean() < 0.8 * px(runs[(False, True)]).mean()
