@@ -107,7 +107,7 @@ cdef int grid_build(Grid *g, const double[:, ::1] points, double width) except -
     return 0
 
 
-cdef inline Py_ssize_t cell_index(double v, Py_ssize_t low, Py_ssize_t high) noexcept:
+cdef inline Py_ssize_t cell_index(double v, Py_ssize_t low, Py_ssize_t high) noexcept nogil:
     """floor(v) clamped to [low, high], clamped as a double first (v may be far beyond any int)."""
     v = floor(v)
     if not v >= low:  # NaN too
@@ -117,7 +117,7 @@ cdef inline Py_ssize_t cell_index(double v, Py_ssize_t low, Py_ssize_t high) noe
     return <Py_ssize_t>v
 
 
-cdef inline bint before(double d2, int64_t k, Py_ssize_t j, double d2b, int64_t kb, Py_ssize_t jb) noexcept:
+cdef inline bint before(double d2, int64_t k, Py_ssize_t j, double d2b, int64_t kb, Py_ssize_t jb) noexcept nogil:
     """(d2, k, j) < (d2b, kb, jb): the ranking of the module's docstring."""
     if d2 != d2b:
         return d2 < d2b
@@ -138,7 +138,7 @@ cdef struct Query:
     int64_t *chosen  # (m,) their indices (the query's row of the output)
 
 
-cdef void scan(Grid *g, Query *q, const int64_t[::1] key, Py_ssize_t first, Py_ssize_t last) noexcept:
+cdef void scan(Grid *g, Query *q, const int64_t[::1] key, Py_ssize_t first, Py_ssize_t last) noexcept nogil:
     """The points of cells first..last - 1 (consecutive in the grid's order) into q's neighbours,
     sorted by (d2, key, index), kept to m."""
     cdef Py_ssize_t a, j, p, m = q.m
@@ -211,8 +211,8 @@ def nearest(
     g.sx = g.sy = NULL
     cdef double *best = <double *>malloc(m * sizeof(double))
     cdef int64_t *best_key = <int64_t *>malloc(m * sizeof(int64_t))
-    cdef Py_ssize_t i, c, s, gx, qx, qy, low, high, spread
-    cdef double px, py, left, away, half, slack, far = 0.0
+    cdef Py_ssize_t i, spread
+    cdef double slack, far = 0.0
     cdef Query nb
     cdef double reach2 = reach * reach
     try:
@@ -228,41 +228,50 @@ def nearest(
         slack = 1e-9 * (g.cell + far)
         # columns either side of the query's that can hold a point within reach
         spread = cell_index(reach / g.cell + 2.0, 0, g.nx + 1)
-        for i in range(q):
-            px, py = query[i, 0], query[i, 1]
-            qx = cell_index((px - g.x0) * g.per, -1, g.nx)  # outside the grid: the cell just outside
-            qy = cell_index((py - g.y0) * g.per, -1, g.ny)
-            nb.px, nb.py, nb.own, nb.k, nb.bound, nb.chosen = px, py, query_key[i], 0, reach2, &out[i, 0]
-            # first the 3 x 3 cells around the query's (in a crowd they hold the m nearest, and the
-            # disc shrinks at once), then each column near the query, outward, as one run of points
-            # over the cells the disc covers there, less those 3 x 3
-            for gx in range(max(qx - 1, 0), min(qx + 2, g.nx)):
-                if qy + 1 >= 0 and qy - 1 < g.ny:
-                    c = gx * g.ny
-                    scan(&g, &nb, key, c + max(qy - 1, 0), c + min(qy + 1, g.ny - 1) + 1)
-            for s in range(2 * spread + 1):
-                gx = qx + (s + 1) // 2 if s % 2 else qx - s // 2  # 0, +1, -1, +2, -2, ...
-                if gx < 0 or gx >= g.nx:
-                    continue
-                left = g.x0 + gx * g.cell - slack
-                away = max(max(left - px, px - (left + g.cell + 2.0 * slack)), 0.0)  # to the column, across
-                if away * away > nb.bound:
-                    continue
-                # along the column: as far as the disc reaches, widened past any rounding of the root
-                half = sqrt(max(nb.bound - away * away, 0.0) + 1e-12 * nb.bound) + slack
-                low = cell_index((py - half - g.y0) * g.per, -1, g.ny)
-                high = cell_index((py + half - g.y0) * g.per, -1, g.ny)
-                low, high = max(low, 0), min(high, g.ny - 1)
-                c = gx * g.ny
-                if qx - 1 <= gx <= qx + 1:  # the 3 x 3 are done: the runs below and above them
-                    scan(&g, &nb, key, c + low, c + min(high, qy - 2) + 1)
-                    low = max(low, qy + 2)
-                scan(&g, &nb, key, c + low, c + high + 1)
+        with nogil:  # the central engine's auction runs on another thread meanwhile
+            _queries(&g, &nb, query, query_key, key, out, slack, spread)
     finally:
         grid_free(&g)
         free(best)
         free(best_key)
     return out_array
+
+
+cdef void _queries(Grid *g, Query *nb, const double[:, ::1] query, const int64_t[::1] query_key,
+                   const int64_t[::1] key, int64_t[:, ::1] out, double slack, Py_ssize_t spread) noexcept nogil:
+    """nearest's search, query by query (see its docstring)."""
+    cdef Py_ssize_t i, c, s, gx, qx, qy, low, high
+    cdef double px, py, left, away, half
+    for i in range(query.shape[0]):
+        px, py = query[i, 0], query[i, 1]
+        qx = cell_index((px - g.x0) * g.per, -1, g.nx)  # outside the grid: the cell just outside
+        qy = cell_index((py - g.y0) * g.per, -1, g.ny)
+        nb.px, nb.py, nb.own, nb.k, nb.bound, nb.chosen = px, py, query_key[i], 0, nb.reach2, &out[i, 0]
+        # first the 3 x 3 cells around the query's (in a crowd they hold the m nearest, and the
+        # disc shrinks at once), then each column near the query, outward, as one run of points
+        # over the cells the disc covers there, less those 3 x 3
+        for gx in range(max(qx - 1, 0), min(qx + 2, g.nx)):
+            if qy + 1 >= 0 and qy - 1 < g.ny:
+                c = gx * g.ny
+                scan(g, nb, key, c + max(qy - 1, 0), c + min(qy + 1, g.ny - 1) + 1)
+        for s in range(2 * spread + 1):
+            gx = qx + (s + 1) // 2 if s % 2 else qx - s // 2  # 0, +1, -1, +2, -2, ...
+            if gx < 0 or gx >= g.nx:
+                continue
+            left = g.x0 + gx * g.cell - slack
+            away = max(max(left - px, px - (left + g.cell + 2.0 * slack)), 0.0)  # to the column, across
+            if away * away > nb.bound:
+                continue
+            # along the column: as far as the disc reaches, widened past any rounding of the root
+            half = sqrt(max(nb.bound - away * away, 0.0) + 1e-12 * nb.bound) + slack
+            low = cell_index((py - half - g.y0) * g.per, -1, g.ny)
+            high = cell_index((py + half - g.y0) * g.per, -1, g.ny)
+            low, high = max(low, 0), min(high, g.ny - 1)
+            c = gx * g.ny
+            if qx - 1 <= gx <= qx + 1:  # the 3 x 3 are done: the runs below and above them
+                scan(g, nb, key, c + low, c + min(high, qy - 2) + 1)
+                low = max(low, qy + 2)
+            scan(g, nb, key, c + low, c + high + 1)
 
 
 def close_pairs(
