@@ -11,6 +11,7 @@ side by side in one run:
     .venv/bin/python -m bench.bench_large --images 2         # only the first two images (a shorter run)
     .venv/bin/python -m bench.bench_large --robots 200 --assignment auction --results large-trial
     .venv/bin/python -m bench.bench_large --before cf836e5 --pairs 2   # the CLI's run beside revision REV's
+    .venv/bin/python -m bench.bench_large --scale 1000,3000,10000 --seconds 10   # cost per robot-step by size
 
 It runs what `pixelswarm run paper-sequence-1000 --no-video` runs (`sim.central.run_central`) in this
 process, with a `sim.stepclock.StepClock` that times each part of every control step on the engine's
@@ -325,6 +326,60 @@ def side_by_side(before: str, pairs: int, scene: str, seed: int = 3) -> list[str
     ]
 
 
+def scale_one(scene_name: str, robots: int, seconds: float) -> dict:
+    """One size of the scaling table: the scene's first image for ``seconds`` of display with
+    ``robots`` robots, the auction assigning; per warm step the wall time per robot by part."""
+    t0 = time.perf_counter()
+    scene = load_scene(scene_name, robots=robots, duration=seconds)
+    made = time.perf_counter() - t0
+    run = timed_run(scene, "auction", echo=False)
+    warm = ~run.cold
+    return {
+        "robots": robots,
+        "scene_s": made,
+        "cold_s": float(run.wall["assignment"][run.cold].sum()),
+        "us_per_robot_step": {p: float(run.wall[p][warm].mean()) / robots * 1e6 for p in PARTS},
+        "warm_ms_per_step": float(run.per_tick()[warm].mean()) * 1e3,
+        "realtime": run.display / run.metrics["wall_s"],
+        "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "contacts": run.metrics["contacts"],
+    }
+
+
+def scale_table(scene_name: str, sizes: list[int], seconds: float) -> list[str]:
+    """The scaling benchmark (issue 43): each size in a process of its own (its own peak RSS)."""
+    import subprocess
+
+    rows = [
+        "| robots | scene s | cold start s | warm ms per step | realtime factor (warm) | "
+        + " | ".join(f"{p} us" for p in PARTS)
+        + " | us per robot-step | x the first | peak RSS MB | contacts |",
+        "|---|---|---|---|---|" + "---|" * len(PARTS) + "---|---|---|---|",
+    ]
+    first = None
+    dt = RobotParams.from_dict(load_scene(scene_name).robot).dt
+    for n in sizes:
+        cmd = [sys.executable, "-m", "bench.bench_large", "--scene", scene_name, "--scale-one", str(n)]
+        done = subprocess.run([*cmd, "--seconds", str(seconds)], check=True, capture_output=True, text=True)
+        r = json.loads(done.stdout.strip().splitlines()[-1])
+        per = sum(r["us_per_robot_step"].values())
+        first = per if first is None else first
+        rows.append(
+            f"| {n} | {r['scene_s']:.1f} | {r['cold_s']:.1f} | {r['warm_ms_per_step']:.1f} | "
+            f"{dt * 1e3 / r['warm_ms_per_step']:.1f}x | "
+            + " | ".join(f"{r['us_per_robot_step'][p]:.2f}" for p in PARTS)
+            + f" | {per:.2f} | {per / first:.2f} | {r['rss_mb']:.0f} | {r['contacts']} |"
+        )
+        print(rows[-1], flush=True)
+    return rows + [
+        "",
+        f"The first image of `{scene_name}` for {seconds:g} s of display at each size (`--robots N`), the "
+        "auction assigning; wall time per robot and warm control step (a cold start at the first tick is "
+        "apart), each size in a process of its own. The parts are those of the tables above (`assignment`: "
+        "waiting for the auction on the second thread).",
+    ]
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--scene", default=SCENE)
@@ -337,7 +392,21 @@ def main() -> int:
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
     parser.add_argument("--before", help="git revision: its CLI run beside this checkout's, alternating")
     parser.add_argument("--pairs", type=int, default=2, help="--before: runs of each, alternating")
+    parser.add_argument("--scale", help="robot counts, e.g. 1000,3000,10000: the cost per robot-step at each size")
+    parser.add_argument("--seconds", type=float, default=10.0, help="--scale: seconds of display at each size")
+    parser.add_argument("--scale-one", type=int, help=argparse.SUPPRESS)  # one size of --scale, as JSON
     args = parser.parse_args()
+    if args.scale_one:
+        print(json.dumps(scale_one(args.scene, args.scale_one, args.seconds)))
+        return 0
+    if args.scale:
+        sizes = [int(n) for n in args.scale.split(",")]
+        lines = scale_table(args.scene, sizes, args.seconds)
+        command = f".venv/bin/python -m bench.bench_large --scale {args.scale} --seconds {args.seconds:g}"
+        write_results(
+            "scale", f"Central engine: cost per robot-step from {sizes[0]} to {sizes[-1]} robots", command, lines
+        )
+        return 0
     if args.before:
         lines = side_by_side(args.before, args.pairs, args.scene)
         command = f".venv/bin/python -m bench.bench_large --before {args.before} --pairs {args.pairs}"
