@@ -518,9 +518,10 @@ def scene_goal_set(scene: Scene, step: int, robots: int) -> tuple[np.ndarray, np
     """Goals (n,2) and colours (n,3) uint8 of image step `step` for n = robots <= scene.robots, e.g.
     the live count when robots drop out (paper 5.1.2). Seeded with scene.seed and cached; every step
     and count shares one arena K_r, so the picture keeps its size. Arrays are read-only."""
-    if scene.image_goals is None:
+    source = scene.image_goals
+    if source is None:
         raise SceneError(f'{scene.name}: the scene shows no image (no [[steps]] or [goals] kind = "image")')
-    return _wrap(lambda: scene.image_goals.goal_set(step, robots), scene.name)  # type: ignore[union-attr]
+    return _wrap(lambda: source.goal_set(step, robots), scene.name)
 
 
 def folder_scene(path: str, robots: int) -> dict[str, Any]:

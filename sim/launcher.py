@@ -89,6 +89,7 @@ class Child:
     log: Path
     command: list[str] = field(default_factory=list)  # module and arguments, to start it again
     client: ZenohSettings | None = None
+    reported: bool = False  # its exit was seen (a crash said once, or a kill on purpose)
 
 
 class Interrupted(Exception):
@@ -272,9 +273,9 @@ class Launcher:
     def _check_children(self, recorder: Recorder) -> None:
         for child in self.children:
             code = child.proc.poll()
-            if code is None or getattr(child, "reported", False):
+            if code is None or child.reported:
                 continue
-            child.reported = True  # type: ignore[attr-defined]
+            child.reported = True
             if child.name.startswith("agent"):
                 self.crashes.append(
                     {
@@ -598,7 +599,7 @@ class Launcher:
             for child in self.children:
                 if child.name.startswith("agent") and event["robot"] in child.robots and child.proc.poll() is None:
                     child.proc.send_signal(signal.SIGKILL)
-                    child.reported = True  # type: ignore[attr-defined]  # killed on purpose, not a crash
+                    child.reported = True  # killed on purpose, not a crash
                     self.failed.append({"robots": child.robots, "sim_time_s": t, "wall_time": time.time()})
                     self._say(
                         f"[{self.scene.name}] t={t:.1f} s: killed agent process {child.name} "
