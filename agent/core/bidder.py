@@ -267,7 +267,7 @@ class Participant:
         ``before``'s last agreed board (the same on every host; the live one may be mid-instance)
         says it owns the goal it continues, at price zero or at ``prices`` (in equilibrium for the
         new goals: Goals.warm_start.prices). Close frames then agree in a few rounds; distant ones
-        skip the coarse phases that build prices and fight a price war (bench/bench_carry.py; see
+        skip the coarse phases that build prices and fight a price war (`python -m bench.paper_figures carry`; see
         agent.assignment.frames_close). The old prices are not carried: they fit the old costs only.
         Call before the first instance."""
         previous = np.asarray(previous, np.int64)
