@@ -34,6 +34,14 @@ if TYPE_CHECKING:
 STEP_KEYS = ("name", "image", "shape", "hold", "region_counts", "method", "motion")
 METHODS = ("cvt", "kmeans")
 SHAPE_PIXELS = 256  # canvas side of the drawn shapes (goals live in the normalised square anyway)
+SHAPE_ROBOTS = 1000  # robots a SHAPE_PIXELS canvas serves; more get a canvas with as many pixels per robot
+
+
+def shape_pixels(robots: int) -> int:
+    """Canvas side of a drawn shape for a goal set of `robots`: SHAPE_PIXELS, grown beyond SHAPE_ROBOTS
+    robots so that each robot keeps the pixels it has there (the line of paper Fig. 4 has 4 pixels a
+    robot at 1000 robots on 256 px: at 10,000 on 256 px it would have fewer pixels than robots)."""
+    return max(SHAPE_PIXELS, math.ceil(SHAPE_PIXELS * math.sqrt(robots / SHAPE_ROBOTS)))
 
 
 @dataclass(frozen=True)
@@ -170,7 +178,7 @@ class StepGoals:
         step = self.steps[k]
         try:
             if k not in self._prepared:  # background and regions once per image, for every count
-                source: Any = draw(step.shape, SHAPE_PIXELS) if step.shape is not None else step.image
+                source: Any = draw(step.shape, shape_pixels(self.robots)) if step.shape is not None else step.image
                 self._prepared[k] = prepare_image(source)
             return goals_from_prepared(
                 self._prepared[k],

@@ -6,6 +6,7 @@ import argparse
 import math
 import signal
 import sys
+import threading
 import time
 import tomllib
 import typing
@@ -15,7 +16,16 @@ from typing import Any
 
 from agent.core.params import EPUCK, RobotParams
 from coordinator.goals_cli import add_goals_parser
-from coordinator.scene import CLOCKS, ENGINES, Scene, SceneError, load_scene, resolve_scene_path, shipped_scenes
+from coordinator.scene import (
+    CLOCKS,
+    ENGINES,
+    Scene,
+    SceneError,
+    make_goal_sets,
+    parse_scene,
+    resolve_scene_path,
+    shipped_scenes,
+)
 from transport.faults import parse_faults
 from transport.security import SecurityError, check_folder, router_config
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, open_session, settings_from_args
@@ -28,6 +38,7 @@ from .study import add_study_parser
 from .track import add_track_parser
 
 STARTUP_FAILED = 3  # exit code of a run whose agents did not all come alive (docs/cli.md)
+GOALS_SAID_AFTER = 1.0  # s: goal sets that take longer are said on stderr (progress within 2 s of the start)
 
 
 class UsageError(Exception):
@@ -239,6 +250,37 @@ def _hardware_scene(args: argparse.Namespace) -> Scene:
         raise UsageError(str(err)) from None
 
 
+def _make_goal_sets(scene: Scene, progress: typing.TextIO | None) -> Scene:
+    """The scene's goal sets (make_goal_sets). At thousands of robots they take seconds: once they
+    have taken GOALS_SAID_AFTER, progress hears what is going on, and when it is done (a scene refused
+    at once still answers in one line)."""
+    if scene.goal_plan is None or progress is None:
+        return make_goal_sets(scene)
+    images = len(scene.steps)
+    what = f"{images} image{'s' * (images != 1)}"
+    said = threading.Event()
+
+    def say() -> None:
+        said.set()
+        print(
+            f"[{scene.name}] {scene.robots} robots: making the goals of {what} (segmentation, CVT)",
+            file=progress,
+            flush=True,
+        )
+
+    start = time.monotonic()
+    timer = threading.Timer(GOALS_SAID_AFTER, say)
+    timer.daemon = True
+    timer.start()
+    try:
+        scene = make_goal_sets(scene)
+    finally:
+        timer.cancel()
+    if said.is_set():
+        print(f"[{scene.name}] goals of {what} made in {time.monotonic() - start:.1f} s", file=progress, flush=True)
+    return scene
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from .launcher import (  # heavy imports only when running
         AGENTS_TIMEOUT,
@@ -253,7 +295,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         if args.hardware is not None:
             scene = _hardware_scene(args)
         else:
-            scene = load_scene(args.scene, robots=args.robots, seed=args.seed, clock=args.clock, duration=args.duration)
+            scene = parse_scene(
+                args.scene, robots=args.robots, seed=args.seed, clock=args.clock, duration=args.duration
+            )
+            scene = _make_goal_sets(scene, None if args.quiet else sys.stderr)
     except (SceneError, ValueError) as err:
         raise UsageError(str(err)) from None
     try:
@@ -303,6 +348,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
         progress = None if args.quiet else sys.stderr
         view = _open_view(args.view, scene)
+        if progress is not None:  # the engine's own first line comes with its first tick
+            print(f"[{scene.name}] {scene.robots} robots: starting the central engine", file=progress, flush=True)
         try:
             path = run_central(
                 scene, out, video=args.video, plots=args.plots, progress=progress, reach=reach, view=view

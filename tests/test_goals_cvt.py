@@ -10,7 +10,9 @@ from scipy.spatial import cKDTree
 from coordinator import shapes
 from coordinator.goals import goals_from_prepared, prepare_image
 from coordinator.goals.cvt import _Assigner, binary_domain, cell_centroids, cvt_cost, density_domain, lloyd
-from coordinator.goals.sampling import poisson_samples
+from coordinator.goals.pipeline import PAPER_SAMPLES_MAX
+from coordinator.goals.resize import from_arena
+from coordinator.goals.sampling import lattice_samples, poisson_samples
 
 FIG4 = [
     ("disk", None),
@@ -93,19 +95,22 @@ def test_kmeans_variant_step_matches_scikit_learn():
     assert np.allclose(np.sort(ours, axis=0), np.sort(km.cluster_centers_, axis=0), atol=1e-9)
 
 
-def test_incremental_assignment_is_exact():
+@pytest.mark.parametrize("k", [12, 400])
+def test_incremental_assignment_is_exact(k):
     _, rows, cols = _region("L", 96)
     dom = density_domain(rows, cols)
     rng = np.random.default_rng(5)
-    gen = dom.points[rng.choice(len(dom.points), 12, replace=False)]
+    gen = dom.points[rng.choice(len(dom.points), k, replace=False)]
     assigner = _Assigner(dom)
-    for step in range(30):  # Lloyd moves, random jumps and over-relaxed steps
+    for step in range(30):  # Lloyd moves, random jumps (some off the picture) and over-relaxed steps
         idx, d2 = assigner.assign(gen)
         d, i = cKDTree(gen).query(dom.points)
         assert np.allclose(d2, d * d)
         gen = cell_centroids(dom, idx, gen)
         if step % 7 == 3:
-            gen[rng.integers(12)] += rng.normal(0, 15, 2)
+            gen[rng.integers(k, size=3)] += rng.normal(0, 15, (3, 2))
+        if step % 5 == 1:
+            gen += 2.5 * (cell_centroids(dom, idx, gen) - gen)
 
 
 def test_cost_of_eq1_does_not_depend_on_resolution():
@@ -125,3 +130,60 @@ def test_lloyd_converges_to_a_centroidal_configuration():
     idx, _ = _Assigner(dom).assign(gen)
     assert np.abs(cell_centroids(dom, idx, gen) - gen).max() < 1e-3  # generators sit on their centroids
     assert hist[-1] == pytest.approx(cvt_cost(dom, gen, 96.0))
+
+
+@pytest.mark.parametrize(
+    "name,size,region,n", [("line", 256, 0, 1500), ("T", 512, 0, 3000), ("disk_and_line", 400, 1, 2000)]
+)
+def test_lattice_samples_are_n_points_inside_the_region(name, size, region, n):
+    """A hexagonal lattice of n points in R_i, also where a whole row of it crosses the border at once
+    (shapes drawn square to the pixels), seeded."""
+    prep = prepare_image(shapes.draw(name, size))
+    rows, cols = prep.seg.pixels(region)
+    pts = lattice_samples(rows, cols, n, np.random.default_rng(3))
+    assert pts.shape == (n, 2)
+    inside = np.zeros(prep.shape, bool)
+    inside[rows, cols] = True
+    assert inside[pts[:, 1].astype(int), pts[:, 0].astype(int)].all()
+    d, _ = cKDTree(pts).query(pts, k=2)
+    spacing = np.sqrt(2 * len(rows) / (np.sqrt(3) * n))  # of n hexagons that cover R_i
+    assert np.median(d[:, 1]) == pytest.approx(spacing, rel=0.05) and d[:, 1].min() > 0.4 * spacing
+    assert np.array_equal(pts, lattice_samples(rows, cols, n, np.random.default_rng(3)))
+
+
+def test_regions_of_many_goals_start_from_a_lattice_and_settle_lower_in_few_iterations():
+    prep = prepare_image(shapes.draw("L", 400))
+    lattice = goals_from_prepared(prep, PAPER_SAMPLES_MAX + 1, seed=2)
+    paper = goals_from_prepared(
+        prep, PAPER_SAMPLES_MAX + 1, seed=2, init={0: _paper_samples(prep, PAPER_SAMPLES_MAX + 1, 2)}
+    )
+    assert any("hexagonal lattice" in note for note in lattice.params["notes"])
+    assert lattice.cost_history[-1] < 0.98 * paper.cost_history[-1]
+    assert len(lattice.cost_history) < len(paper.cost_history)
+    assert not any("lattice" in note for note in goals_from_prepared(prep, PAPER_SAMPLES_MAX, seed=2).params["notes"])
+
+
+def _paper_samples(prep, n, seed):
+    rows, cols = prep.seg.pixels(0)
+    return poisson_samples(rows, cols, n, np.random.default_rng([seed, 0]))[0]
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(1200)  # KMeans: about a minute on a quiet machine, many on a loaded one
+def test_ten_thousand_goals_cost_no_more_than_scikit_learn_kmeans_on_the_same_pixels():
+    """Issue 43: 10,000 goals from a picture cost (k-means cost over its foreground pixels) at most what
+    scikit-learn's KMeans (k-means++, one start) finds on the same pixels. A picture of 3 pixels a goal:
+    KMeans' time grows with pixels times goals."""
+    KMeans = pytest.importorskip("sklearn.cluster").KMeans
+    prep = prepare_image(shapes.draw("T", 400))
+    rows, cols = prep.seg.pixels(0)
+    pts = binary_domain(rows, cols).points
+    gs = goals_from_prepared(prep, 10000, seed=0)
+    ours = from_arena(gs.goals, prep.shape, gs.arena)
+    km = KMeans(n_clusters=10000, n_init=1, random_state=0).fit(pts)
+
+    def cost(centres):
+        d, _ = cKDTree(centres).query(pts)
+        return float(np.dot(d, d))
+
+    assert cost(ours) <= cost(km.cluster_centers_)

@@ -29,6 +29,9 @@ MAX_ITER = 300
 RELAX = 1.8  # initial over-relaxation of the Lloyd step (1 = plain Lloyd), see lloyd()
 _GROW = 1.25
 _MAX_RELAX = 4.0
+_CELL = 2.0  # side of the cells that localise the bounds of the nearest-generator search, in spacings
+_BLOCK = 2  # cells either side of a pixel's own whose generators' moves loosen its bound
+_PARALLEL = 20000  # tree queries of more pixels than this use every core
 
 
 @dataclass
@@ -74,43 +77,76 @@ def density_domain(rows: np.ndarray, cols: np.ndarray, *, k_d: float = K_D) -> D
 
 
 class _Assigner:
-    """Nearest generator of every pixel, exact and incremental (Hamerly's bounds): a pixel keeps its
-    generator while its distance to it is below a lower bound on the distance to any other generator
-    (the second-nearest distance at its last query, less the largest move of a generator since).
-    Only the other pixels, a few percent in late Lloyd iterations, are queried again."""
+    """Nearest generator of every pixel, exact and incremental (Hamerly's bounds, made local): a pixel
+    keeps its generator while its distance to it is below a lower bound on the distance to any other
+    generator. The bound is the second-nearest distance at its last query, less the largest move of a
+    generator that was near the pixel (within _BLOCK cells of a coarse grid); generators farther away
+    are at least _BLOCK cells less the largest move of all away. A few generators that jump (an
+    over-relaxed step) so re-query only the pixels round them, not the whole domain (with one bound
+    for all, such a step re-queried most pixels)."""
 
     def __init__(self, domain: Domain) -> None:
         self.domain = domain
         self.prev: np.ndarray | None = None
         n = len(domain.points)
         self.idx = np.zeros(n, np.int64)
-        self.dist = np.zeros(n)
+        self.d2 = np.zeros(n)
         self.lower = np.zeros(n)
+        self.origin = domain.points.min(axis=0) if n else np.zeros(2)
+        self.cell = 1.0
+        self.shape = (1, 1)
+        self.pixel_cell = np.zeros(n, np.int64)
+
+    def _grid(self, k: int) -> None:
+        self.cell = max(_CELL * float(np.sqrt(len(self.domain.points) / max(k, 1))), 2.0)
+        ij = np.floor((self.domain.points - self.origin) / self.cell).astype(np.int64)
+        self.shape = (int(ij[:, 0].max()) + 1, int(ij[:, 1].max()) + 1) if len(ij) else (1, 1)
+        self.pixel_cell = ij[:, 0] * self.shape[1] + ij[:, 1]
+
+    def _cells_of(self, gen: np.ndarray) -> np.ndarray:
+        # generators off the grid count in its border cells, which are no farther from any pixel
+        ij = np.floor((gen - self.origin) / self.cell).astype(np.int64)
+        i = np.clip(ij[:, 0], 0, self.shape[0] - 1)
+        j = np.clip(ij[:, 1], 0, self.shape[1] - 1)
+        return i * self.shape[1] + j
 
     def _query(self, gen: np.ndarray, sel: np.ndarray | slice) -> None:
         pts = self.domain.points[sel]
         k = 2 if len(gen) > 1 else 1
-        d, i = cKDTree(gen).query(pts, k=k, workers=-1 if len(pts) > 50000 else 1)
+        d, i = cKDTree(gen).query(pts, k=k, workers=-1 if len(pts) > _PARALLEL else 1)
         if k == 1:
-            self.idx[sel], self.dist[sel], self.lower[sel] = i, d, np.inf
+            self.idx[sel], self.lower[sel] = i, np.inf
         else:
-            self.idx[sel], self.dist[sel], self.lower[sel] = i[:, 0], d[:, 0], d[:, 1]
+            self.idx[sel], self.lower[sel] = i[:, 0], d[:, 1]
+
+    def _loosen(self, gen: np.ndarray, prev: np.ndarray) -> None:
+        """Lower the bounds by what the generators' moves from prev to gen may have taken off them."""
+        step = gen - prev
+        move = np.sqrt((step * step).sum(axis=1))
+        near = np.zeros(self.shape[0] * self.shape[1])
+        np.maximum.at(near, self._cells_of(prev), move)
+        near = ndimage.maximum_filter(near.reshape(self.shape), size=2 * _BLOCK + 1, mode="constant").ravel()
+        far = _BLOCK * self.cell - float(move.max())
+        self.lower = np.minimum(self.lower - near[self.pixel_cell], far)
 
     def assign(self, gen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(index of the nearest generator, squared distance to it) per pixel."""
-        if self.prev is None:
+        x, y = self.domain.x, self.domain.y
+        if self.prev is None or len(self.prev) != len(gen):
+            self._grid(len(gen))
             self._query(gen, slice(None))
         else:
-            step = gen - self.prev
-            self.lower -= float(np.sqrt((step * step).sum(axis=1).max()))
-            dx = self.domain.x - gen[:, 0][self.idx]
-            dy = self.domain.y - gen[:, 1][self.idx]
-            self.dist = np.sqrt(dx * dx + dy * dy)
-            check = self.dist > self.lower
+            self._loosen(gen, self.prev)
+            dx, dy = x - gen[:, 0][self.idx], y - gen[:, 1][self.idx]
+            check = np.sqrt(dx * dx + dy * dy) >= self.lower
             if check.any():
                 self._query(gen, np.nonzero(check)[0])
+        # the same arithmetic for every pixel, however it was assigned: the cost does not depend on
+        # which pixels were queried again
+        dx, dy = x - gen[:, 0][self.idx], y - gen[:, 1][self.idx]
+        self.d2 = dx * dx + dy * dy
         self.prev = gen.copy()
-        return self.idx, self.dist * self.dist
+        return self.idx, self.d2
 
 
 def cell_centroids(domain: Domain, idx: np.ndarray, gen: np.ndarray) -> np.ndarray:

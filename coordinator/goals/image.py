@@ -203,13 +203,14 @@ def foreground_mask(
         return Foreground(mask, "color", rgb, color, tolerance)
     if opaque is not None:
         return Foreground(opaque, "alpha", rgb, None, tolerance)
-    work = rgb
-    model, sigma, dominant = _border_model(to_lab(work), tolerance)
+    work, lab = rgb, to_lab(rgb)
+    model, sigma, dominant = _border_model(lab, tolerance)
     if sigma > 2.0:  # a noisy photo: decide on a denoised copy
         work = cv2.medianBlur(rgb, 5)
-        model, sigma, dominant = _border_model(to_lab(work), tolerance)
+        lab = to_lab(work)
+        model, sigma, dominant = _border_model(lab, tolerance)
     tol = max(tolerance, 4.0 * sigma)
-    mask = np.linalg.norm(to_lab(work) - model, axis=-1) > tol
+    mask = np.linalg.norm(lab - model, axis=-1) > tol
     if sigma > 1.0:
         mask = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
     bg = tuple(int(v) for v in lab_to_rgb(dominant.astype(np.float32)))

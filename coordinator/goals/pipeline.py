@@ -20,11 +20,15 @@ from .cvt import K_D, K_M, MAX_ITER, RELAX, TOLERANCE, binary_domain, density_do
 from .image import BG_TOLERANCE, Foreground, foreground_mask, load_image, split_channels
 from .model import GoalError, GoalSet
 from .resize import auto_arena, check_feasible, normalised_spacing, to_arena
-from .sampling import KS_FACTOR, ks_distance, poisson_samples
+from .sampling import KS_FACTOR, ks_distance, lattice_samples, poisson_samples
 from .segment import COLOR_TOLERANCE, Segmentation, segment
 
 METHODS = ("cvt", "kmeans")
 MAX_SIDE = 1024  # longer image side (pixels) used for goal generation; larger images are scaled down
+# Regions of up to this many goals start from the paper's random samples (4.2), as in every shipped
+# scene below 10,000 robots; larger ones from a hexagonal lattice, which Lloyd settles in a few
+# iterations to a lower cost (sampling.lattice_samples, bench/bench_goals.py).
+PAPER_SAMPLES_MAX = 1000
 
 
 @dataclass
@@ -192,6 +196,7 @@ def goals_from_prepared(
     if given:
         notes.append(f"initial samples of region(s) {', '.join(map(str, sorted(given)))} given by the caller")
     goals, regions, histories, ks_used = [], [], [], {}
+    lattice: list[int] = []  # regions whose initial samples are a lattice
     snapped = snapped_init = 0
     for region, n_i in zip(seg.regions, counts):
         if n_i == 0:
@@ -208,6 +213,10 @@ def goals_from_prepared(
             start, moved = _snap_inside(given[region.id], rows, cols)
             snapped_init += moved
             ks_used[region.id] = ks_distance(region.area, int(n_i)) / scale
+        elif n_i > PAPER_SAMPLES_MAX:
+            start = lattice_samples(rows, cols, int(n_i), np.random.default_rng([int(seed), region.id]))
+            ks_used[region.id] = ks_distance(region.area, int(n_i)) / scale
+            lattice.append(region.id)
         else:
             rng = np.random.default_rng([int(seed), region.id])
             start, ks = poisson_samples(rows, cols, int(n_i), rng)
@@ -224,6 +233,11 @@ def goals_from_prepared(
         goals.append(gen)
         regions.append(np.full(len(gen), region.id))
         histories.append(hist)
+    if lattice:
+        notes.append(
+            f"region(s) {', '.join(map(str, lattice))} of more than {PAPER_SAMPLES_MAX} goals: initial samples "
+            "on a hexagonal lattice"
+        )
     if snapped_init:
         notes.append(f"{snapped_init} given initial sample(s) lay outside their region and were moved into it")
     if snapped:

@@ -1,5 +1,6 @@
 """Initial samples inside a region R_i (paper 4.2): uniform darts accepted only if they keep a
-distance of at least K_s = 1.2 sqrt(A_i / (pi N_i)) from every accepted sample (Poisson-disk-like).
+distance of at least K_s = 1.2 sqrt(A_i / (pi N_i)) from every accepted sample (Poisson-disk-like);
+or, for regions of many goals, the points of a hexagonal lattice that fall in R_i.
 
 Coordinates are in pixel units: pixel (row r, column c) is the square [c, c+1) x [r, r+1).
 """
@@ -9,10 +10,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 KS_FACTOR = 1.2
 _TRIES_PER_SAMPLE = 40  # darts per wanted sample before K_s is relaxed
 _RELAX = 0.9  # K_s shrink factor when the region is too crowded (thin regions) to place N_i samples
+_LATTICE_STEPS = 24  # bisections of the lattice spacing: to 1e-7 of it (1e-4 pixels across a picture)
 
 
 def ks_distance(area: float, n: int, factor: float = KS_FACTOR) -> float:
@@ -25,8 +28,9 @@ def poisson_samples(
 ) -> tuple[np.ndarray, float]:
     """n samples (x, y) in pixel units inside the pixels (rows, cols) of R_i, pairwise >= K_s apart.
 
-    If n samples at K_s cannot be placed within 40 n darts (a thin or fragmented region), K_s is
-    relaxed by 10 % and the darts continue; returns (samples, K_s actually used)."""
+    Darts come in batches and are taken in order, each unless it lies closer than K_s to one taken
+    before. If n samples at K_s cannot be placed within 40 n darts (a thin or fragmented region), K_s
+    is relaxed by 10 % and the darts continue; returns (samples, K_s actually used)."""
     if n <= 0:
         return np.zeros((0, 2)), 0.0
     npx = len(rows)
@@ -35,35 +39,138 @@ def poisson_samples(
     ks = ks_distance(npx, n) if ks is None else float(ks)
     xs_c = cols.astype(float)
     ys_c = rows.astype(float)
-    accepted: list[tuple[float, float]] = []
+    accepted = np.zeros((0, 2))
     while True:
-        cell = ks / math.sqrt(2.0)
-        grid: dict[tuple[int, int], tuple[float, float]] = {}
-        for x, y in accepted:
-            grid[(int(x // cell), int(y // cell))] = (x, y)
-        ks2 = ks * ks
+        grid = _Grid(ks, xs_c, ys_c, accepted)
         budget = _TRIES_PER_SAMPLE * n
         while budget > 0 and len(accepted) < n:
             batch = min(budget, max(256, 4 * (n - len(accepted))))
             budget -= batch
             pick = rng.integers(npx, size=batch)
             jit = rng.random((batch, 2))
-            for x, y in zip((xs_c[pick] + jit[:, 0]).tolist(), (ys_c[pick] + jit[:, 1]).tolist()):
-                gx, gy = int(x // cell), int(y // cell)
-                ok = True
-                for i in range(gx - 2, gx + 3):
-                    for j in range(gy - 2, gy + 3):
-                        p = grid.get((i, j))
-                        if p is not None and (p[0] - x) ** 2 + (p[1] - y) ** 2 < ks2:
-                            ok = False
-                            break
-                    if not ok:
-                        break
-                if ok:
-                    grid[(gx, gy)] = (x, y)
-                    accepted.append((x, y))
-                    if len(accepted) == n:
-                        break
+            darts = np.stack([xs_c[pick] + jit[:, 0], ys_c[pick] + jit[:, 1]], axis=1)
+            darts = darts[~grid.too_close(darts)]
+            darts = _first_apart(darts, ks)[: n - len(accepted)]
+            grid.add(darts)
+            accepted = np.concatenate([accepted, darts])
         if len(accepted) == n:
-            return np.asarray(accepted), ks
+            return accepted, ks
         ks *= _RELAX
+
+
+class _Grid:
+    """The samples taken, in a grid of cells of K_s / sqrt(2) (one sample a cell at most): a dart
+    closer than K_s to one lies within two cells of it."""
+
+    def __init__(self, ks: float, xs: np.ndarray, ys: np.ndarray, taken: np.ndarray) -> None:
+        self.ks2 = ks * ks
+        self.cell = ks / math.sqrt(2.0)
+        self.taken = np.zeros((0, 2))
+        self.lo = np.array([xs.min(), ys.min()]) - 3 * self.cell
+        span = np.array([xs.max() + 1, ys.max() + 1]) + 3 * self.cell - self.lo
+        self.slot = np.full(tuple((span // self.cell).astype(int) + 1), -1, np.int32)
+        self.add(taken)
+
+    def _cells(self, pts: np.ndarray) -> np.ndarray:
+        return ((pts - self.lo) // self.cell).astype(np.int64)
+
+    def add(self, pts: np.ndarray) -> None:
+        c = self._cells(pts)
+        self.slot[c[:, 0], c[:, 1]] = np.arange(len(self.taken), len(self.taken) + len(pts))
+        self.taken = np.concatenate([self.taken, pts])
+
+    def too_close(self, darts: np.ndarray) -> np.ndarray:
+        """Darts closer than K_s to a sample taken."""
+        out = np.zeros(len(darts), bool)
+        if len(self.taken) == 0:
+            return out
+        c = self._cells(darts)
+        for di in range(-2, 3):
+            for dj in range(-2, 3):
+                j = self.slot[c[:, 0] + di, c[:, 1] + dj]
+                has = j >= 0
+                d = darts[has] - self.taken[j[has]]
+                out[has] |= d[:, 0] ** 2 + d[:, 1] ** 2 < self.ks2
+        return out
+
+
+def _first_apart(darts: np.ndarray, ks: float) -> np.ndarray:
+    """The darts taken in order, each unless closer than ks to one taken before it."""
+    if len(darts) < 2:
+        return darts
+    pairs = cKDTree(darts).query_pairs(ks * (1 + 1e-9), output_type="ndarray")
+    d = darts[pairs[:, 0]] - darts[pairs[:, 1]]
+    first, then = pairs[d[:, 0] ** 2 + d[:, 1] ** 2 < ks * ks].T  # first < then
+    kept = np.ones(len(darts), bool)
+    open_ = np.ones(len(darts), bool)  # not decided yet
+    while len(then):
+        # a dart next to a kept one is dropped; one whose earlier neighbours are all decided is kept
+        kept[then[kept[first] & ~open_[first]]] = False
+        open_[then[~kept[then]]] = False
+        waits = np.zeros(len(darts), bool)
+        waits[then[open_[first]]] = True
+        open_ &= waits
+        live = open_[then]
+        first, then = first[live], then[live]
+    return darts[kept]
+
+
+def lattice_samples(rows: np.ndarray, cols: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    """n samples (x, y) in pixel units inside the pixels (rows, cols) of R_i, on a hexagonal lattice
+    (its rows along the long axis of R_i, a seeded offset) whose spacing is chosen so that n of its
+    points fall in R_i.
+
+    The CVT of a region of many generators is a hexagonal lattice but near its border, so Lloyd's
+    method from one only settles the border: from random samples it needs tens of iterations at
+    thousands of goals and stops in a worse local minimum (bench/bench_goals.py). Where no spacing
+    gives exactly n points (a row of the lattice crossing the border at once), the spacing is bisected
+    down to that crossing and the points missing are taken evenly from the row crossing."""
+    if n <= 0:
+        return np.zeros((0, 2))
+    npx = len(rows)
+    if n > npx:
+        raise ValueError(f"cannot place {n} samples in {npx} pixels")
+    r0, c0 = int(rows.min()), int(cols.min())
+    inside = np.zeros((int(rows.max()) - r0 + 1, int(cols.max()) - c0 + 1), bool)
+    inside[rows - r0, cols - c0] = True
+    offset = rng.random(2)
+    # rows along the region's long axis: a bar's CVT lines up with its sides
+    _, axes = np.linalg.eigh(np.cov(np.stack([cols, rows]).astype(float)) if npx > 1 else np.eye(2))
+    angle = math.atan2(axes[1, 1], axes[0, 1])
+    rot = np.array([[math.cos(angle), -math.sin(angle)], [math.sin(angle), math.cos(angle)]])
+    basis = np.array([[1.0, 0.0], [0.5, math.sqrt(3) / 2]]) @ rot.T  # lattice (i, j) -> (x, y) at spacing 1
+    corners = np.array([[0, 0], [1, 0], [0, 1], [1, 1]]) * inside.shape[::-1] + [c0, r0]
+
+    def lattice(h: float) -> tuple[np.ndarray, np.ndarray]:
+        """(i, j) and position of the lattice points of spacing h in R_i."""
+        ij = corners @ np.linalg.inv(basis * h) - offset  # the bounding box in lattice coordinates
+        lo, hi = np.floor(ij.min(axis=0)) - 1, np.ceil(ij.max(axis=0)) + 1
+        i, j = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1))
+        p = (np.stack([i.ravel(), j.ravel()], axis=1) + offset) @ (basis * h)
+        keys = i.ravel().astype(np.int64) * (1 << 32) + j.ravel().astype(np.int64)  # one number a point
+        px = np.floor(p - [c0, r0]).astype(np.int64)
+        ok = (px[:, 0] >= 0) & (px[:, 0] < inside.shape[1]) & (px[:, 1] >= 0) & (px[:, 1] < inside.shape[0])
+        ok[ok] = inside[px[ok, 1], px[ok, 0]]
+        return keys[ok], p[ok]
+
+    h0 = math.sqrt(2 * npx / (math.sqrt(3) * n))  # n hexagons of this spacing cover A_i
+    lo, hi = min(h0 / 2, 0.86), 2 * h0  # below sqrt(3) / 2 every pixel holds a lattice point: n or more
+    few = lattice(hi)
+    while len(few[1]) > n:  # a spacing longer than R_i's bounding box holds one point at most
+        hi *= 2
+        few = lattice(hi)
+    if len(few[1]) == n:
+        return few[1]
+    for _ in range(_LATTICE_STEPS):
+        mid = (lo + hi) / 2
+        keys, p = lattice(mid)
+        if len(p) == n:
+            return p
+        if len(p) > n:
+            lo = mid
+        else:
+            hi, few = mid, (keys, p)
+    keys, p = lattice(lo)
+    crossing = np.flatnonzero(~np.isin(keys, few[0]))
+    pick = crossing[np.linspace(0, len(crossing) - 1, n - len(few[1])).round().astype(int)]
+    return np.concatenate([few[1], p[pick]])
