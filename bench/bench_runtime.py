@@ -264,12 +264,13 @@ def clear_caches(tree: Path, suffixes: set[str]) -> None:
             f.unlink()
 
 
-def worktree(rev: str, where: Path) -> str:
+def worktree(rev: str, where: Path, build: bool = True) -> str:
     """A fresh detached git worktree of ``rev`` at ``where``, its compiled core built (where it has
-    one: setup.py); its short commit. Its code, not this checkout's, is what runs from it (the
-    children start from the launcher's folder)."""
+    one: setup.py, and unless ``build`` is false: the goal pipeline needs none); its short commit.
+    Its code, not this checkout's, is what runs from it (the children start from the launcher's
+    folder)."""
     subprocess.run(["git", "worktree", "add", "--detach", str(where), rev], cwd=REPO, check=True, capture_output=True)
-    if (where / "setup.py").exists():
+    if build and (where / "setup.py").exists():
         build = [sys.executable, "setup.py", "build_ext", "--inplace", "-q"]
         subprocess.run(build, cwd=where, check=True, capture_output=True)
     found = subprocess.run(
@@ -287,12 +288,12 @@ def worktree(rev: str, where: Path) -> str:
 
 
 @contextlib.contextmanager
-def worktree_at(rev: str) -> Iterator[tuple[Path, str]]:
+def worktree_at(rev: str, build: bool = True) -> Iterator[tuple[Path, str]]:
     """`worktree` of ``rev`` in a temporary folder, removed afterwards: (its folder, its short commit)."""
     with tempfile.TemporaryDirectory() as tmp:
         where = Path(tmp) / "tree"
         try:
-            yield where, worktree(rev, where)
+            yield where, worktree(rev, where, build)
         finally:
             subprocess.run(["git", "worktree", "remove", "--force", str(where)], cwd=REPO, capture_output=True)
             subprocess.run(["git", "worktree", "prune"], cwd=REPO, capture_output=True)

@@ -163,7 +163,7 @@ def test_artist_region_counts_and_fewer_robots_than_regions():
         {"arena": -1.0},
         {"method": "voronoi"},
         {"robot_radius": 0.0},
-        {"n": 10_000},
+        {"n": 10_000_000},  # more goals than pixels even in the picture scaled up to MAX_UPSCALED_SIDE
     ],
 )
 def test_bad_arguments_are_goal_errors(bad):
@@ -198,3 +198,15 @@ def test_goal_family_adapts_to_the_number_of_robots():
         fam.for_robots(5)
     back = GoalFamily.from_json(fam.to_json())
     assert back.counts == fam.counts and np.allclose(back.sets[20].goals, fam.sets[20].goals, atol=1e-6)
+
+
+def test_a_picture_with_few_pixels_a_goal_is_scaled_up_and_keeps_its_regions():
+    """--robots 10000 on a small picture: under MIN_PIXELS_PER_GOAL pixels a goal the picture's pixels
+    are made k x k, and the goals stay in their regions of the picture as given."""
+    img = shapes.draw("two_squares", 64)
+    prep = prepare_image(img)
+    gs = generate_goals(img, 2 * max(r.area for r in prep.seg.regions))  # more goals than pixels
+    assert len(gs) == 2 * max(r.area for r in prep.seg.regions) and gs.params["image_size"] == [64, 64]
+    assert any("scaled up" in note for note in gs.params["notes"])
+    assert _in_own_region(gs, prep.seg.labels).all()
+    assert not any("scaled up" in note for note in generate_goals(img, 14).params["notes"])

@@ -3,9 +3,10 @@ samples (K_s) -> Lloyd iterations (CVT with the mass density of eq. 2, or k-mean
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import cv2
@@ -29,6 +30,10 @@ MAX_SIDE = 1024  # longer image side (pixels) used for goal generation; larger i
 # scene below 10,000 robots; larger ones from a hexagonal lattice, which Lloyd settles in a few
 # iterations to a lower cost (sampling.lattice_samples, bench/bench_goals.py).
 PAPER_SAMPLES_MAX = 1000
+# Below this many pixels a goal, goals snap to pixel centres and their spacing goes uneven: smaller
+# pictures are scaled up (each pixel k x k), to at most MAX_UPSCALED_SIDE pixels a side.
+MIN_PIXELS_PER_GOAL = 3
+MAX_UPSCALED_SIDE = 2 * MAX_SIDE
 
 
 @dataclass
@@ -125,6 +130,24 @@ def _snap_inside(gen: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple[n
     return out, len(out_idx)
 
 
+def _enlarged(prep: PreparedImage, counts: np.ndarray) -> tuple[PreparedImage, int]:
+    """prep, or prep with each pixel made k x k (and k) where a region has under MIN_PIXELS_PER_GOAL
+    pixels a goal: regions, colours and the normalised square stay as they are."""
+    tight = min((r.area / c for r, c in zip(prep.seg.regions, counts) if c > 0), default=math.inf)
+    if tight >= MIN_PIXELS_PER_GOAL:
+        return prep, 1
+    k = min(math.ceil(math.sqrt(MIN_PIXELS_PER_GOAL / tight)), MAX_UPSCALED_SIDE // max(prep.shape))
+    if k < 2:
+        return prep, 1
+
+    def up(a: np.ndarray) -> np.ndarray:
+        return np.repeat(np.repeat(a, k, axis=0), k, axis=1)
+
+    regions = [replace(r, area=r.area * k * k) for r in prep.seg.regions]
+    seg = Segmentation(up(prep.seg.labels), regions, list(prep.seg.notes))
+    return replace(prep, rgb=up(prep.rgb), alpha=None if prep.alpha is None else up(prep.alpha), seg=seg), k
+
+
 def _check_init(init: Mapping[int, np.ndarray] | None, counts: np.ndarray) -> dict[int, np.ndarray]:
     """The caller's initial samples per region id, checked: N_i finite (x, y) pixel positions each."""
     out: dict[int, np.ndarray] = {}
@@ -189,10 +212,14 @@ def goals_from_prepared(
 ) -> GoalSet:
     """N goals for a prepared image; see generate_goals."""
     _check_args(n, method, seed, arena, robot_radius, tol, max_iter, relax)
-    seg, scale = prep.seg, prep.scale
-    counts, notes = allocate_robots([r.area for r in seg.regions], int(n), region_counts)
-    notes = list(seg.notes) + notes
+    counts, notes = allocate_robots([r.area for r in prep.seg.regions], int(n), region_counts)
+    notes = list(prep.seg.notes) + notes
     given = _check_init(init, counts)
+    shown, (prep, k) = prep, _enlarged(prep, counts)
+    seg, scale = prep.seg, prep.scale
+    if k > 1:
+        notes.append(f"image scaled up {k} x: under {MIN_PIXELS_PER_GOAL} pixels a goal, goals snap to pixels")
+        given = {rid: pts * k for rid, pts in given.items()}
     if given:
         notes.append(f"initial samples of region(s) {', '.join(map(str, sorted(given)))} given by the caller")
     goals, regions, histories, ks_used = [], [], [], {}
@@ -263,7 +290,7 @@ def goals_from_prepared(
         "robot_radius": float(robot_radius),
         "conservative": bool(conservative),
         "image": prep.source,
-        "image_size": [prep.shape[1], prep.shape[0]],
+        "image_size": [shown.shape[1], shown.shape[0]],
         "background": {
             "source": prep.foreground.source,
             "color": list(prep.foreground.background) if prep.foreground.background else None,
