@@ -262,11 +262,10 @@ class SwarmView:
         k = len(batch)
         ticks = np.array([item[0] for item in batch], np.int64)
         times = np.array([item[1] for item in batch])
-        pose = np.stack([item[2] for item in batch])  # (K, N, 3) float32
-        n = pose.shape[1]
+        xy = np.stack([item[2][:, :2] for item in batch])  # (K, N, 2) float32
+        n = xy.shape[1]
         parts = np.full(k, n)
         index = [rr.TimeColumn("tick", sequence=ticks), rr.TimeColumn("time", duration=times)]
-        xy = np.ascontiguousarray(pose[..., :2])
         if self.dots is None:  # a picture of a thousand robots is hundreds of diameters across
             placed = xy[0][np.isfinite(xy[0]).all(axis=1)]
             spread = float(np.ptp(placed, axis=0).max()) if len(placed) else 0.0
@@ -280,7 +279,7 @@ class SwarmView:
         # the heading as a dark dot on each disc's rim, toward the front: one position a robot and tick,
         # where an arrow takes two vectors (float32: a tenth of float64's cos and sin)
         if not self.dots:  # a heading dot would hide a robot drawn as a dot
-            theta = pose[..., 2]  # NaN where unknown: no dot
+            theta = np.stack([item[2][:, 2] for item in batch])  # NaN where unknown: no dot
             nose = np.empty((k, n, 2), np.float32)
             np.cos(theta, out=nose[..., 0])
             np.sin(theta, out=nose[..., 1])
