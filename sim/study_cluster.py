@@ -37,6 +37,22 @@ _PR_SET_PDEATHSIG = 1
 ADDRESS = re.compile(r"^(tcp|tls)://[^\s/:]+:\d{1,5}$")
 
 
+# Dask's own periodic work, slowed for tasks that only wait on a subprocess: its statistical profiler
+# (100 Hz), event-loop watchdog (50 Hz) and system monitor (2 Hz) cost an idle scheduler and two
+# workers 7 % of a core, time a study's runs want on a small machine. docs/study.md gives them as
+# environment variables (quiet_env) for `dask scheduler` and `dask worker`.
+QUIET = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "1s",
+    "distributed.admin.system-monitor.interval": "5s",
+}
+
+
+def quiet_env() -> dict[str, str]:
+    """:data:`QUIET` as the environment variables Dask reads its configuration from."""
+    return {"DASK_" + key.upper().replace(".", "__").replace("-", "_"): str(v) for key, v in QUIET.items()}
+
+
 class ClusterError(Exception):
     """The scheduler cannot be reached or its address is not one: one line, nothing started."""
 
@@ -50,12 +66,14 @@ def connect(address: str | None, jobs: int) -> tuple[Any, Any]:
     """A client of the scheduler at ``address``, or of a local cluster of ``jobs`` worker threads on
     127.0.0.1 (returned second, to close after the client)."""
     try:
+        import dask
         from distributed import Client, LocalCluster
     except ImportError:
         raise ClusterError("studies run through dask.distributed: pip install 'dask[distributed]'") from None
     if address is None:
         # in this process, over Dask's in-process transport: no port is opened at all
-        cluster = LocalCluster(n_workers=1, threads_per_worker=jobs, processes=False, dashboard_address=None)
+        with dask.config.set(QUIET):  # read as the scheduler and worker are made
+            cluster = LocalCluster(n_workers=1, threads_per_worker=jobs, processes=False, dashboard_address=None)
         return Client(cluster), cluster
     check_address(address)
     try:
