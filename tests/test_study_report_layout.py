@@ -44,9 +44,11 @@ BODY_PX = 1152  # report.html's body: at most 72em of 16 px
 CHAR_PX, CELL_PX = 8, 13  # a character of the table's 0.85em sans-serif (bold headers: wider), a cell's padding
 
 
-@pytest.fixture
-def report(tmp_path, monkeypatch):
-    """The written study's report.html, and the metrics each axis's plot was drawn with."""
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    """The written study's report.html, and the metrics each axis's plot was drawn with (once a
+    module: the plots take seconds)."""
+    tmp_path = tmp_path_factory.mktemp("study-report")
     spec_path = tmp_path / "wide.toml"
     spec_path.write_text(SPEC)
     spec = load_spec(spec_path)
@@ -74,8 +76,9 @@ def report(tmp_path, monkeypatch):
         plotted[axis] = list(metrics)
         return plot_axis(spec, axis, rows, metrics)
 
-    monkeypatch.setattr(study_report, "plot_axis", spy)
-    return write_report(spec, study, "pixelswarm study wide.toml"), plotted
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(study_report, "plot_axis", spy)
+        return write_report(spec, study, "pixelswarm study wide.toml"), plotted
 
 
 def _summary(page: str) -> list[list[str]]:
