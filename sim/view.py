@@ -12,11 +12,11 @@ the swarm, so 1000 robots stay fluid:
 - ``metrics/clearance`` and ``metrics/at_goal``: time series.
 
 The run hands each tick over (:meth:`SwarmView.tick`, a copy) and goes on; a thread of the view's own
-logs what came in a tenth of a second at once, every tick's positions as one column (Rerun's cost is
-per call, not per robot). In a run far faster than real time the rest (hover, trails, the time series)
-is logged a few times a second of wall time. A display hundreds of robot diameters across (1000
-robots) draws the robots as dots of a few points, without headings: at true size they would be a
-pixel. Rerun's 2D views point y down, so the display entities are mirrored for drawing only: the
+logs what came in a tenth of a second at once (a quarter in a run far faster than real time), every
+tick's positions as one column (Rerun's cost is per call, not per robot). In a run far faster than
+real time the rest (hover, trails, the time series) is logged twice a second of wall time. A display
+hundreds of robot diameters across (1000 robots) draws the robots as dots of a few points, without
+headings: at true size they would be a pixel. Rerun's 2D views point y down, so the display entities are mirrored for drawing only: the
 recording holds the arena's coordinates, y up.
 
 The timelines are ``tick`` (the control step) and ``time`` (display time, s).
@@ -56,9 +56,10 @@ TRAIL_DOT = 0.004  # m, radius of a trail's dots
 TRAIL_ALPHA = 90
 QUEUE_TICKS = 1000  # ticks handed over and not yet logged, at most (then the run waits for the view)
 FLUSH_PERIOD = 0.1  # s: the view logs what came in this long as one batch (it refreshes at 10 Hz)
+FAST_FLUSH_PERIOD = 0.25  # s: the same after a batch of many ticks (a run too fast to watch tick by tick)
 MAX_BATCH = 200  # ticks a batch at most
 SLOW_BATCH = 3  # a batch of at most this many ticks is of a run near real time: everything logged at its last
-EXTRAS_PERIOD = 0.3  # s of wall time between two logs of the rest (hover, trails, metrics) in a faster run
+EXTRAS_PERIOD = 0.5  # s of wall time between two logs of the rest (hover, trails, metrics) in a faster run
 CLEARANCE_REACH = 0.3  # m: gaps up to this come from the compiled grid, larger ones from a k-d tree
 DOTS_ABOVE = 150  # robot diameters across the display above which robots are drawn as dots of a fixed size
 DOT = 2.5  # their radius then, in the viewer's points (at true size they would be a pixel or less)
@@ -144,6 +145,7 @@ class SwarmView:
         # ticks are logged on a thread of the view's own: the run hands over copies and goes on (a full
         # queue makes it wait: no tick is dropped)
         self._queue: queue.Queue[tuple[Any, ...] | None] = queue.Queue(maxsize=QUEUE_TICKS)
+        self._hurry = threading.Event()  # set by flush and close: log what there is without waiting for more
         self._logger = threading.Thread(target=self._drain, name="rerun-view", daemon=True)
         self._logger.start()
         self.rec = rr.RecordingStream("pixelswarm", recording_id=f"{name}-{os.getpid()}-{time.time_ns()}")
@@ -225,16 +227,17 @@ class SwarmView:
 
     def _drain(self) -> None:
         """Log the ticks handed over, a batch at a time: the ticks that came within FLUSH_PERIOD of the
-        batch's first (one in a real-time run, tens in a fast central one). The thread sleeps while they
-        gather, rather than wait on the queue: woken by every tick, it took the GIL from the run each time.
-        A failure to log is said once and the view stops; the run goes on (its ticks are dropped)."""
-        done = False
+        batch's first (one in a real-time run), or FAST_FLUSH_PERIOD after a batch of many (a fast central
+        run). The thread sleeps while they gather, rather than wait on the queue: woken by every tick, it
+        took the GIL from the run each time. A failure to log is said once and the view stops; the run
+        goes on (its ticks are dropped)."""
+        done, period = False, FLUSH_PERIOD
         while not done:
             first = self._queue.get()
             batch = [] if first is None else [first]
             done = first is None
             if not done and self._queue.qsize() < MAX_BATCH:
-                time.sleep(FLUSH_PERIOD)
+                self._hurry.wait(period)
             while not done and len(batch) < MAX_BATCH:
                 try:
                     item = self._queue.get_nowait()
@@ -243,6 +246,7 @@ class SwarmView:
                 done = item is None
                 if item is not None:
                     batch.append(item)
+            period = FLUSH_PERIOD if len(batch) <= SLOW_BATCH else FAST_FLUSH_PERIOD
             try:
                 if batch and self.failure is None:
                     self._log(batch)
@@ -384,12 +388,14 @@ class SwarmView:
         self.rec.log("swarm/trails", dots)
 
     def flush(self) -> None:
-        """Hand every tick given so far to its sink."""
+        """Hand every tick given so far to its sink (the run is over: no more batching)."""
+        self._hurry.set()
         self._queue.join()
         self.rec.flush()
 
     def close(self) -> None:
         """Hand every tick to its sink (a file is complete after this); stop the web server."""
+        self._hurry.set()
         if self._logger.is_alive():
             self._queue.put(None)
             self._logger.join()
