@@ -380,9 +380,9 @@ def simulate(
             if progress is not None and time.time() - last_say >= 1.0:
                 last_say = time.time()
                 at_goal = int(np.sum(_goal_error(pose, goal) <= params.goal_tolerance))
-                goals = f"at goal {at_goal}/{int(has_goal.sum())}" if has_goal.any() else "waiting for the goal set"
+                held = f"at goal {at_goal}/{int(has_goal.sum())}" if has_goal.any() else "waiting for the goal set"
                 print(
-                    f"[{scene.name}] central t={t:6.1f} s  step {k}  {goals}  contacts {len(world.contacts)}",
+                    f"[{scene.name}] central t={t:6.1f} s  step {k}  {held}  contacts {len(world.contacts)}",
                     file=progress,
                     flush=True,
                 )
