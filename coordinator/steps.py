@@ -85,7 +85,7 @@ def parse_step(data: Any, label: str, source: str = "") -> ImageStep:
     method = data.get("method", "cvt")
     if method not in METHODS:
         raise GoalError(f"{label}: method must be one of {', '.join(METHODS)}, not {method!r}")
-    name = str(data.get("name", shape if shape is not None else image.stem))  # type: ignore[union-attr]
+    name = str(data.get("name", shape if shape is not None else image.stem))  # type: ignore[union-attr]  # image is set where shape is not
     motion = parse_motion(data["motion"], label) if "motion" in data else None
     return ImageStep(
         name, image, shape, float(hold), parse_region_counts(data.get("region_counts"), label), method, motion

@@ -270,7 +270,7 @@ def _proto_value(value: Any) -> Any:
     if not isinstance(value, Message):
         return value
     if value.DESCRIPTOR.full_name in ("google.protobuf.Timestamp", "google.protobuf.Duration"):
-        return {"sec": value.seconds, "nsec": value.nanos}  # type: ignore[attr-defined]
+        return {"sec": value.seconds, "nsec": value.nanos}
     return proto_to_dict(value)
 
 

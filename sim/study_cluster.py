@@ -131,7 +131,7 @@ def run_task(run_id: str, args: list[str], out: str | None, stop_event: str, gra
     except ValueError:
         base = Path(tempfile.gettempdir())
     scratch = None if out is not None else Path(tempfile.mkdtemp(prefix=f"run-{run_id}-", dir=base))
-    target = Path(out) if out is not None else scratch / run_id  # type: ignore[operator]
+    target = Path(out) if out is not None else scratch / run_id  # type: ignore[operator]  # scratch is set where out is not
     for leftover in (target, target.with_name(target.name + ".partial")):
         if leftover.exists():  # an earlier attempt's, on a worker that died
             shutil.rmtree(leftover)

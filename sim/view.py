@@ -465,7 +465,7 @@ def replay(run_dir: Path, sink: str | os.PathLike, scene: dict[str, Any] | None 
     pose, color, goal, radius = data["pose"], data["color"], data["goal"], data["radius"]
     view = SwarmView(
         scene.get("name", run_dir.name),
-        arena,  # type: ignore[arg-type]
+        arena,
         obstacles,
         radius,
         robots=pose.shape[1],

@@ -214,4 +214,4 @@ def foreground_mask(
     if sigma > 1.0:
         mask = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
     bg = tuple(int(v) for v in lab_to_rgb(dominant.astype(np.float32)))
-    return Foreground(mask, "border", work, bg, tol)  # type: ignore[arg-type]
+    return Foreground(mask, "border", work, bg, tol)  # type: ignore[arg-type]  # bg: three ints, typed as tuple[int, ...]

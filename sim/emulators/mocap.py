@@ -129,7 +129,7 @@ def circle(robots: int, radius: float, speed: float) -> PoseFunction:
 
 
 class _OneLineParser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # type: ignore[override]
+    def error(self, message: str) -> None:  # type: ignore[override]  # exits, as argparse's NoReturn error does
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
