@@ -282,12 +282,6 @@ def _make_goal_sets(scene: Scene, progress: typing.TextIO | None) -> Scene:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from .launcher import (  # heavy imports only when running
-        AGENTS_TIMEOUT,
-        Launcher,
-        RunOptions,
-    )
-
     _check_numbers(args)  # before the scene: a bad flag is the flag's fault, not the scene file's
     try:
         if args.hardware is not None and _names_the_simulator(args.hardware):
@@ -360,6 +354,12 @@ def cmd_run(args: argparse.Namespace) -> int:
             if view is not None:
                 view.close()
         return 0
+    from .launcher import (  # heavy imports only for the distributed engine (after the goal sets: progress first)
+        AGENTS_TIMEOUT,
+        Launcher,
+        RunOptions,
+    )
+
     router = None
     if args.zenoh_config:
         raise UsageError("--zenoh-config is not supported here: each process of a run needs its own role's file")
