@@ -17,6 +17,11 @@ import psutil
 import pytest
 from hypothesis import HealthCheck, settings
 
+try:
+    from _pytest.nodeid import NodeId  # pytest 9.2's structured node ids
+except ImportError:  # an older pytest reads item._nodeid itself
+    NodeId = None
+
 # Property tests are seeded (same examples every run) and never fail for being slow on a loaded
 # 2-core machine: a health check on generation time is not something a user relies on.
 settings.register_profile(
@@ -25,6 +30,13 @@ settings.register_profile(
 settings.load_profile("pixelswarm")
 
 REPO = Path(__file__).resolve().parent.parent
+
+# pytest keeps each test module's assertion-rewritten bytecode in tests/__pycache__, unless writing
+# bytecode is off (PYTHONDONTWRITEBYTECODE=1, as on the development machine): then every pytest
+# process and every xdist worker rewrites and compiles every test module again, 5 of the 8 s it takes
+# to collect the suite, three times in `make test`. The sources' own bytecode is written before a test
+# run anyway (the Makefile); this turns writing on in pytest's processes only, not in the runs they start.
+sys.dont_write_bytecode = False
 
 
 def pixelswarm_cmd(*args: str) -> list[str]:
@@ -61,9 +73,8 @@ class SharedRuns:
     that failed fails every test that asks for it, with its error, without being made again.
 
     Tests that share a run also carry one ``xdist_group`` mark, so that `--dist loadgroup` gives them
-    one worker in turn rather than one worker waiting on the other's lock. (With pytest 9.2 and
-    pytest-xdist 3.8, loadgroup does not group: pytest-dev/pytest-xdist#1386. The lock keeps each run
-    to once per session all the same.)
+    one worker in turn rather than one worker waiting on the other's lock (with pytest 9.2 and
+    pytest-xdist 3.8 only through pytest_collection_modifyitems below: pytest-dev/pytest-xdist#1386).
     """
 
     def __init__(self, root: Path) -> None:
@@ -228,7 +239,16 @@ LONGEST_FIRST = (
 )
 
 
+@pytest.hookimpl(trylast=True)  # after pytest-xdist's own hook, which names each test's group
 def pytest_collection_modifyitems(config, items):
+    for item in items:
+        # --dist loadgroup: pytest-xdist 3.8 puts a test's xdist_group in its node id (test@group) by
+        # setting item._nodeid, which pytest 9.2 no longer reads (its node ids are structured), so no
+        # test was grouped and tests sharing a run waited for each other on two workers
+        # (pytest-dev/pytest-xdist#1386). Set the structured id to the same string.
+        grouped = item.__dict__.get("_nodeid")
+        if NodeId is not None and isinstance(grouped, str) and grouped != item.nodeid:
+            item._id = NodeId.parse(grouped)
     rank = {nodeid: k for k, nodeid in enumerate(LONGEST_FIRST)}
     # stable: the rest keep their order (a node id without parameters, or loadgroup's @group)
     items.sort(key=lambda item: rank.get(item.nodeid.split("[")[0].split("@")[0], len(rank)))

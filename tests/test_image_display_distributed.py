@@ -98,21 +98,27 @@ converge_hold = {converge_hold}
 
 @pytest.mark.slow
 def test_auction_survives_loss_and_delay(tmp_path):
+    # the run ends a second after the disk has formed (about 3 s in): every lock-step tick waits on
+    # lost auction messages, and the check is that the disk forms with valid agreements (one a tick)
     m, traj = run(
-        tmp_path, DISK.format(hold=40.0, converge_hold=3.0, events=""), "--faults", "auction:drop=0.1,delay=0.05"
+        tmp_path, DISK.format(hold=40.0, converge_hold=1.0, events=""), "--faults", "auction:drop=0.1,delay=0.05"
     )
     assert m["faults"], "the fault plan was not applied"
     assert_every_hold_formed(m, traj=traj)
     assert_agreements_valid(traj, min_complete=3)
 
 
-KILL_AT = 20.0  # s: the disk of 14 forms in about 10 s
+# s: after the disk of 14 has formed (converged_at 3.1 s in this seed's run; the margin is for a coordinator
+# that starts late on a loaded machine, as a lock-step display does not wait for it)
+KILL_AT = 10.0
+REFORM_WITHIN = 10.0  # s after the kill: the twelve hold the image by then (4.0 s in this seed's run)
 
 
 @pytest.mark.slow
 def test_two_of_fourteen_agents_die_and_twelve_reform_the_image(tmp_path):
     events = "\n".join(f'[[events]]\nkind = "fail"\nt = {KILL_AT}\nrobot = {r}' for r in (3, 9))
-    m, traj = run(tmp_path, DISK.format(hold=KILL_AT + 15.0, converge_hold=100.0, events=events))
+    # held until the time the twelve have to re-form is over: they must still hold the image then
+    m, traj = run(tmp_path, DISK.format(hold=KILL_AT + REFORM_WITHIN, converge_hold=100.0, events=events))
     assert m["contacts"] == 0
     assert len(m["agents_failed_by_scene"]) == 2
     t = traj["t"]
@@ -129,7 +135,7 @@ def test_two_of_fourteen_agents_die_and_twelve_reform_the_image(tmp_path):
         f"{np.round(err[-1] * 1000).astype(int).tolist()}; {why_not_formed(m, traj, 0.01)}"
     )
     assert len(first), "the twelve never re-formed the image: " + why
-    assert t[first[0]] - KILL_AT <= 10.0, why
+    assert t[first[0]] - KILL_AT <= REFORM_WITHIN, why
     assert formed[-1]
     assert_agreements_valid(traj)
 

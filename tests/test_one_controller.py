@@ -59,6 +59,23 @@ def picture(tmp_path) -> str:
 PICTURE_FLAGS = ("--robots", "30", "--seed", "2")
 
 
+def short_story(tmp_path) -> str:
+    """The shipped story with every keyframe from the second on 13 s earlier: the robots cross to the
+    first walker in 12 s instead of 25 (at under half the e-puck's speed), so a run into the second
+    keyframe is half as long. The keyframes, the robots and the rest are the story's."""
+    from coordinator.scene import SCENE_DIR
+
+    text = (SCENE_DIR / "story.toml").read_text()
+    shipped = "times = [0.0, 25.0, 33.0, 41.0, 56.0, 71.0, 79.0]"
+    assert shipped in text, "the shipped story's keyframe times changed: change them here too"
+    path = tmp_path / "story.toml"
+    path.write_text(text.replace(shipped, "times = [0.0, 12.0, 20.0, 28.0, 43.0, 58.0, 66.0]"))
+    return str(path)
+
+
+STORY_FLAGS = ("--seed", "1", "--duration", "13")  # into the second keyframe, which starts at 12 s
+
+
 def picture_run(shared_runs, tmp_path, engine: str) -> tuple[dict, dict]:
     """A lock-step run of the picture's 30 robots in one engine, shared with test_sync_auction (the
     agent hosts' run is its quiet run)."""
@@ -84,7 +101,7 @@ def assert_the_same_run(runs: dict[str, tuple[dict, dict]], central: dict) -> No
     "scene, flags",
     [
         ("picture", PICTURE_FLAGS),  # an image: the auction settles a block every tick
-        ("story", ("--seed", "1", "--duration", "26")),  # an animation of 14 robots, into its second keyframe
+        ("story", STORY_FLAGS),  # an animation of 14 robots, into its second keyframe
     ],
 )
 def test_the_auction_is_the_same_in_every_engine(tmp_path, shared_runs, scene, flags):
@@ -92,11 +109,9 @@ def test_the_auction_is_the_same_in_every_engine(tmp_path, shared_runs, scene, f
     is the same, and every recorded tick is one-to-one."""
     if scene == "picture":
         runs = {name: picture_run(shared_runs, tmp_path, name) for name in ENGINES}
-    else:
-        runs = {
-            name: run_scene(tmp_path, scene, "--clock", "lockstep", *flags, *engine, name=name.replace(" ", "-"))
-            for name, engine in ENGINES.items()
-        }
+    else:  # the central run is also the bounded-rounds test's unbounded one
+        story = short_story(tmp_path)
+        runs = {name: shared_runs.run(story, "--clock", "lockstep", *flags, *ENGINES[name]) for name in ENGINES}
     _, central = runs["central"]
     assert (central["assignment"] >= 0).all()  # every robot holds a goal from the first tick on
     assert len(np.unique(central["step"])) == (2 if scene == "story" else 1)
@@ -109,15 +124,17 @@ def test_the_auction_is_the_same_in_every_engine(tmp_path, shared_runs, scene, f
     "scene, flags",
     [
         ("picture", PICTURE_FLAGS),  # a cold start of many rounds, then warm blocks
-        ("story", ("--seed", "1", "--duration", "26")),  # into the second keyframe: its cold block spans ticks
+        ("story", STORY_FLAGS),  # into the second keyframe: its cold block spans ticks
     ],
 )
-def test_with_rounds_per_tick_bounded_blocks_span_ticks_and_every_engine_runs_the_same(tmp_path, scene, flags):
+def test_with_rounds_per_tick_bounded_blocks_span_ticks_and_every_engine_runs_the_same(
+    tmp_path, shared_runs, scene, flags
+):
     """`--rounds-per-tick 2`: a block of phases goes on over the ticks after its own while the robots
     drive to the last agreement, the next keyframe starts from the coordinator's warm start (its
     robots drive to the matched goals at once), and every engine adopts each agreement at the same
     tick. A cold start, whose robots have nothing to drive to, still agrees within its tick."""
-    source = picture(tmp_path) if scene == "picture" else scene
+    source = picture(tmp_path) if scene == "picture" else short_story(tmp_path)
     lockstep = ("--clock", "lockstep", *flags)
     runs = {
         name: run_scene(tmp_path, source, *lockstep, "--rounds-per-tick", "2", *engine, name=name.replace(" ", "-"))
@@ -126,7 +143,8 @@ def test_with_rounds_per_tick_bounded_blocks_span_ticks_and_every_engine_runs_th
     }
     _, central = runs["central"]
     if scene == "story":  # its robots cross the arena: warm blocks span ticks, agreements come later
-        _, unbounded = run_scene(tmp_path, source, *lockstep, *ENGINES["central"], name="unbounded")
+        # test_the_auction_is_the_same_in_every_engine's central run of the story, made once
+        _, unbounded = shared_runs.run(source, *lockstep, *ENGINES["central"])
         assert not np.array_equal(central["assignment"], unbounded["assignment"])
     assert (central["assignment"] >= 0).all()  # the cold start agreed at the first tick
     for k in np.flatnonzero(np.diff(central["step"])) + 1:  # the next keyframe: the matched goals at once

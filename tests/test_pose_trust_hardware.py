@@ -282,23 +282,28 @@ kinematics = "diffdrive"
 
 [layout]
 kind = "list"
-poses = [[-0.6, {low}, 0.0], [-0.6, {high}, 0.0]]
+poses = [[{start}, {low}, 0.0], [{start}, {high}, 0.0]]
 
 [goals]
 kind = "list"
-positions = [[0.6, {low}], [0.6, {high}]]
+positions = [[{end}, {low}], [{end}, {high}]]
 """
 GAP = 0.5  # m between the lanes: a swap moves each robot's tracked pose this far for one frame
 SWAP_AT_X = 0.0  # m: where along its lane robot 0 is when the frame is spoiled
+# m each robot drives, centred on SWAP_AT_X: at cruising speed by then, with 0.45 m (3.5 s) left after
+# it, more than the spoiled frames may take to be heard (at most five tries of 0.6 s)
+LANE = 0.9
 
 
 def lanes_run(tmp_path: Path, spawned: list, swap: bool) -> tuple[dict, list[float]]:
-    """Two robots driving 1.2 m along parallel lanes GAP apart, tracked by the emulated camera; with
+    """Two robots driving LANE along parallel lanes GAP apart, tracked by the emulated camera; with
     ``swap``, mid-lane, one frame draws each robot's marker at the other's pose. Returns the lab's
     report and when (time.monotonic()) the spoiled frames were drawn."""
     tmp_path.mkdir()
     scene_path = tmp_path / "lanes.toml"
-    scene_path.write_text(LANES.format(low=-GAP / 2, high=GAP / 2))
+    scene_path.write_text(
+        LANES.format(start=SWAP_AT_X - LANE / 2, end=SWAP_AT_X + LANE / 2, low=-GAP / 2, high=GAP / 2)
+    )
     router = loopback_router()
     heard: list[int] = []
     with (
@@ -336,7 +341,7 @@ def lanes_run(tmp_path: Path, spawned: list, swap: bool) -> tuple[dict, list[flo
     # period or two late on a loaded machine (motion capture's 50 Hz, less), and the last approach
     # overshoots by what the robot drives meanwhile.
     start = load_scene(str(scene_path)).poses[:, :2]
-    goals = start + [1.2, 0.0]
+    goals = start + [LANE, 0.0]
     true_xy = np.array([robot["pose"][:2] for robot in report["robots"]])
     assert np.all(np.hypot(*(true_xy - goals).T) <= 0.02), true_xy
     return report, camera.glitched
