@@ -37,3 +37,15 @@ def test_a_goal_index_the_goal_set_does_not_have_gives_no_figure():
 def test_runs_csv_gets_a_column_per_image_and_figure():
     row = flatten({"steps": [{"converged_at": 8.5, "assignment_over_optimum_m2": 0.0}, {"converged_at": None}]})
     assert row == {"steps.0.converged_at": 8.5, "steps.0.assignment_over_optimum_m2": 0.0, "steps.1.converged_at": None}
+
+
+def test_above_the_optimums_bound_a_run_says_none(monkeypatch):
+    """scipy's optimum at thousands of robots takes minutes; past OPTIMUM_UP_TO the run leaves it out."""
+    import sim.metrics
+
+    pose = np.array([[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]])
+    goal = np.array([[[1.0, 0.0], [0.0, 0.0]]])
+    assignment = np.array([[0, 1]])
+    assert assignment_over_optimum(pose, goal, assignment, np.array([0])) == [pytest.approx(2.0)]  # crossed
+    monkeypatch.setattr(sim.metrics, "OPTIMUM_UP_TO", 1)
+    assert assignment_over_optimum(pose, goal, assignment, np.array([0])) == [None]
