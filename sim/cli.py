@@ -38,7 +38,7 @@ from .study import add_study_parser
 from .track import add_track_parser
 
 STARTUP_FAILED = 3  # exit code of a run whose agents did not all come alive (docs/cli.md)
-GOALS_SAID_AFTER = 0.5  # s: goal sets that take longer are said on stderr (progress within 2 s of the start)
+GOALS_SAID_AFTER = 0.5  # s: goal sets that take longer are said on stderr, so a long start-up is not silent
 
 
 class UsageError(Exception):

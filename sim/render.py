@@ -202,7 +202,7 @@ def frame_indices(t: np.ndarray, fps: float, speed: float | None = 1.0, max_fram
     return idx
 
 
-HOLD_S = 3.0  # s of video that show the final picture at least: a run ends ~1 s after it forms (converge_hold)
+HOLD_S = 3.0  # s of video that show the final picture at least: a run ends converge_hold after it forms
 
 
 def held_frames(t: np.ndarray, formed_at: float | None, fps: float = 10, hold_s: float = HOLD_S) -> np.ndarray:

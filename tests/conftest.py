@@ -184,6 +184,19 @@ def wait_for(predicate, timeout: float, interval: float = 0.1):
     return predicate()
 
 
+def bus_when_listening(settings, stop):
+    """A Bus on ``settings`` once the run's router listens; None if ``stop`` (an Event) is set first."""
+    from transport.bus import Bus
+    from transport.session import TransportError
+
+    while True:
+        try:
+            return Bus(settings)
+        except TransportError:  # the run's router is not listening yet
+            if stop.wait(0.2):
+                return None
+
+
 def reap(pids: list[int]) -> list[int]:
     """Kill whatever of these (our own children) is still alive; return the ones that were."""
     alive = []

@@ -18,12 +18,11 @@ import numpy as np
 import pytest
 
 from sim.cli import main
-from tests.conftest import REPO, pixelswarm_cmd, run_pixelswarm
-from transport.bus import Bus
+from tests.conftest import REPO, bus_when_listening, pixelswarm_cmd, run_pixelswarm
 from transport.codec import Goals, Tick
 from transport.keys import Keys
 from transport.security import check_folder, client_config, make_certificates
-from transport.session import TransportError, free_port
+from transport.session import free_port
 
 ROBOTS = 6
 KEYS = Keys("default")
@@ -47,13 +46,9 @@ def _forge(folder: Path, endpoint: str, forged: np.ndarray, stop: threading.Even
     """Join the run as robot 3 and, once its clock ticks, publish a goal set for every robot."""
     settings = dataclasses.replace(client_config(folder, "robot-3", endpoint), connect_timeout_ms=1000)
     try:
-        while True:
-            try:
-                bus = Bus(settings)
-                break
-            except TransportError:  # the run's router is not listening yet
-                if stop.wait(0.2):
-                    return
+        bus = bus_when_listening(settings, stop)
+        if bus is None:
+            return
         with bus:
             clock = bus.subscribe(KEYS.clock, Tick)
             goals = bus.subscribe(KEYS.all_of("goals"), Goals)

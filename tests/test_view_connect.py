@@ -12,7 +12,6 @@ import json
 import signal
 import subprocess
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
@@ -23,27 +22,18 @@ pytest.importorskip("rerun")
 from coordinator.scene import load_scene  # noqa: E402
 from sim.central import simulate  # noqa: E402
 from sim.cli import main  # noqa: E402
-from tests.conftest import REPO, pixelswarm_cmd, run_pixelswarm  # noqa: E402
+from tests.conftest import REPO, bus_when_listening, pixelswarm_cmd, run_pixelswarm, wait_for  # noqa: E402
 from transport.bus import Bus  # noqa: E402
 from transport.codec import Goals, Tick, Truth  # noqa: E402
 from transport.keys import Keys  # noqa: E402
 from transport.security import AUTH_MODES, OBSERVER, client_config, make_certificates, router_config  # noqa: E402
-from transport.session import TransportError, free_port, listening, open_session  # noqa: E402
+from transport.session import free_port, listening, open_session  # noqa: E402
 
 from .test_view import recorded_swarm  # noqa: E402
 
 KEYS = Keys("default")
 RUN_TIMEOUT_S = 240.0  # a bound for a hung run, not a speed target
 FORGED_EPOCH = 1_000_000  # newer than any goal set the coordinator sends
-
-
-def _wait_until(predicate, timeout: float = 10.0) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if predicate():
-            return True
-        time.sleep(0.02)
-    return predicate()
 
 
 def _start(args: list[str], spawned: list, log: Path) -> subprocess.Popen:
@@ -63,7 +53,7 @@ def _viewer(endpoint: str, rrd: Path, spawned: list, *extra: str) -> subprocess.
 
 
 def _await_router(port: int, run: subprocess.Popen) -> None:
-    assert _wait_until(lambda: listening(port) or run.poll() is not None, 120), "the run's router never listened"
+    assert wait_for(lambda: listening(port) or run.poll() is not None, 120, 0.02), "the run's router never listened"
     assert run.poll() is None, "the run ended before its router listened"
 
 
@@ -120,8 +110,8 @@ def test_a_viewer_from_another_process_sees_every_robot_move_and_its_exit_leaves
     _await_router(port, run)
     endpoint = f"tcp/127.0.0.1:{port}"
     watcher, quitter = _viewer(endpoint, tmp_path / "a.rrd", spawned), _viewer(endpoint, tmp_path / "b.rrd", spawned)
-    assert _wait_until(
-        lambda: "watching 4 robots" in (tmp_path / "b.err").read_text() or quitter.poll() is not None, 180
+    assert wait_for(
+        lambda: "watching 4 robots" in (tmp_path / "b.err").read_text() or quitter.poll() is not None, 180, 0.02
     )
     assert "watching 4 robots" in (tmp_path / "b.err").read_text(), (tmp_path / "b.err").read_text()[-2000:]
     quitter.send_signal(signal.SIGKILL)  # the harshest exit: no goodbye to the router
@@ -188,7 +178,7 @@ def test_the_observer_reads_the_display_and_publishes_nothing(certs, auth):
                 robot.put(KEYS.state((0, 0), 1), b"own")
                 return truth.get(timeout=0.05) is not None and bool(states.drain())
 
-            assert _wait_until(reads)
+            assert wait_for(reads, 10.0, 0.02)
             forged = [KEYS.goals(9), KEYS.cmd(1), KEYS.states(1), KEYS.state((0, 0), 1), KEYS.poses, KEYS.pose(1)]
             forged += [KEYS.clock, KEYS.truth, KEYS.contact, KEYS.event]
             for key in forged:
@@ -199,14 +189,16 @@ def test_the_observer_reads_the_display_and_publishes_nothing(certs, auth):
             # to it, it has handled them; the coordinator's goal set after that reaches the recorder after
             # any forgery the router let through.
             late = observer.subscribe_raw(KEYS.event)
-            assert _wait_until(lambda: world.put(KEYS.event, b"probe") or bool(late.drain()))
+            assert wait_for(lambda: world.put(KEYS.event, b"probe") or bool(late.drain()), 10.0, 0.02)
             with bus("coordinator") as coordinator:
-                assert _wait_until(
+                assert wait_for(
                     lambda: (
                         coordinator.put(KEYS.goals(1), b"goal set") or (KEYS.goals(1), b"goal set") in listen()["robot"]
-                    )
+                    ),
+                    10.0,
+                    0.02,
                 )
-            assert _wait_until(lambda: (KEYS.goals(1), b"goal set") in listen()["recorder"])
+            assert wait_for(lambda: (KEYS.goals(1), b"goal set") in listen()["recorder"], 10.0, 0.02)
             got = listen()
             reached = {key for key, payload in got["recorder"] | got["world"] | got["robot"] if payload == b"forged"}
             assert not reached, reached
@@ -221,13 +213,9 @@ def _forge_as_observer(folder: Path, endpoint: str, starts: np.ndarray, stop: th
 
     settings = dataclasses.replace(client_config(folder, OBSERVER, endpoint), connect_timeout_ms=1000)
     try:
-        while True:
-            try:
-                bus = Bus(settings)
-                break
-            except TransportError:  # the run's router is not listening yet
-                if stop.wait(0.2):
-                    return
+        bus = bus_when_listening(settings, stop)
+        if bus is None:
+            return
         with bus:
             clock = bus.subscribe(KEYS.clock, Tick)
             message = Goals(FORGED_EPOCH, 1, starts.astype(np.float32), np.zeros((len(starts), 3), np.uint8))
