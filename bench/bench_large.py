@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 
 from agent.core.params import RobotParams
-from coordinator.scene import load_scene
+from coordinator.scene import load_scene, parse_scene
 from sim.central import run_central
 from sim.stepclock import PARTS, StepClock
 
@@ -357,7 +357,7 @@ def scale_table(scene_name: str, sizes: list[int], seconds: float) -> list[str]:
         "|---|---|---|---|---|" + "---|" * len(PARTS) + "---|---|---|---|",
     ]
     first = None
-    dt = RobotParams.from_dict(load_scene(scene_name).robot).dt
+    dt = RobotParams.from_dict(parse_scene(scene_name).robot).dt  # no goal sets needed for the period
     for n in sizes:
         cmd = [sys.executable, "-m", "bench.bench_large", "--scene", scene_name, "--scale-one", str(n)]
         done = subprocess.run([*cmd, "--seconds", str(seconds)], check=True, capture_output=True, text=True)
