@@ -525,7 +525,7 @@ class AgentHost:
 
     def _dead_now(self) -> set[int]:
         """The robots whose agent is dead, as liveliness says now."""
-        for _, ident, alive, _ in self.alive.drain():
+        for _, ident, alive, _, _ in self.alive.drain():
             if ident.isdigit():
                 (self.dead.discard if alive else self.dead.add)(int(ident))
                 if not alive and self.config.lockstep:

@@ -124,6 +124,8 @@ class Coordinator:
         self.live_changed = 0.0  # wall time of the last change in the live robots
         self.shown: tuple[int, frozenset[int]] | None = None  # (step, robots) of the current epoch
         self.ever_live: set[int] = set()
+        self.lives: dict[int, str] = {}  # each robot's agent's last incarnation heard
+        self.restarted: set[int] = set()  # robots whose agent was started again since the current epoch
         self.pixels = frozenset(scene.pixel_robots)  # the robots that show the image
         self.bodies: dict[int, np.ndarray] = {}  # dead robots' tracked positions
         self.body_inboxes: dict[int, Any] = {}
@@ -168,14 +170,20 @@ class Coordinator:
                 self.clock_refused[why] += 1
                 continue
             self.t = tick.stamp if self.t is None else max(self.t, tick.stamp)
-        for _, ident, alive, _ in self.alive.drain():
+        for _, ident, alive, _, life in self.alive.drain():
             if ident.isdigit() and int(ident) < self.scene.robots:
+                r = int(ident)
                 was_live = set(self.live)
-                (self.live.add if alive else self.live.discard)(int(ident))
-                if self.live != was_live:
+                (self.live.add if alive else self.live.discard)(r)
+                # A restarted agent bids only in goal sets published after it joined (agent.runtime):
+                # back within SETTLE_S, the live robots look unchanged, yet it needs a new set.
+                if alive and self.lives.setdefault(r, life) != life:
+                    self.lives[r] = life
+                    self.restarted.add(r)
+                if self.live != was_live or r in self.restarted:
                     self.live_changed = time.monotonic()
                 if alive:
-                    self.ever_live.add(int(ident))
+                    self.ever_live.add(r)
                 elif int(ident) not in self.body_inboxes:  # where does its body stay?
                     self.body_inboxes[int(ident)] = self.bus.subscribe(self.bus.keys.pose(int(ident)), Pose)
         for r, inbox in self.body_inboxes.items():
@@ -187,10 +195,11 @@ class Coordinator:
         if self.t is None or not robots:
             return False  # the show starts with the world's first tick
         step = self.scene.step_at(self.t)
+        restarted = bool(self.restarted & robots)
         if self.shown is not None:
-            if (step, robots) == self.shown:
+            if (step, robots) == self.shown and not restarted:
                 return False
-            if robots != self.shown[1] and time.monotonic() - self.live_changed < SETTLE_S:
+            if (robots != self.shown[1] or restarted) and time.monotonic() - self.live_changed < SETTLE_S:
                 return False
         dead = [r for r in self.ever_live - frozenset(self.live)]
         if any(r not in self.bodies for r in dead):
@@ -205,6 +214,7 @@ class Coordinator:
         before = self.current
         self.epoch += 1
         self.shown = (step, robots)
+        self.restarted.clear()
         self.current = Goals(
             self.epoch,
             0,

@@ -193,7 +193,7 @@ def _run(args: argparse.Namespace) -> int:
 def _wait_for_run(runs: LivelinessWatch, timeout: float) -> bool:
     end = time.monotonic() + timeout
     while time.monotonic() < end:
-        if any(alive for _, _, alive, _ in runs.drain()):
+        if any(alive for _, _, alive, _, _ in runs.drain()):
             return True
         time.sleep(0.05)
     return False
@@ -248,8 +248,8 @@ class Supervisor:
         world_seen, over = False, False
         reported: set[int] = set()
         while any(p.poll() is None for p, _ in self.procs):
-            over = over or any(not alive for _, _, alive, _ in runs.drain())
-            for _, _, alive, _ in worlds.drain():
+            over = over or any(not alive for _, _, alive, _, _ in runs.drain())
+            for _, _, alive, _, _ in worlds.drain():
                 world_seen |= alive
                 over = over or (world_seen and not alive)
             if over or self.stop_signal is not None:

@@ -239,7 +239,7 @@ class HardwareNode:
                 self.tracked[r] = True
 
     def _update_liveness(self) -> None:
-        for _, ident, alive, _ in self.alive.drain():
+        for _, ident, alive, _, _ in self.alive.drain():
             if ident.isdigit() and int(ident) < self.n:
                 i = int(ident)
                 self.live[i] = alive

@@ -581,7 +581,7 @@ class Launcher:
                 # (Ctrl-C during start-up) is lost, and the run would go on to its full duration.
                 bus.publish(bus.keys.event, Event({"kind": "end", "reason": end_sent}))
                 end_at = time.monotonic()
-            self._fail_agents(rec.sim_time)
+            self._fail_agents(rec)
             self._progress(rec)
             time.sleep(0.01)
 
@@ -589,17 +589,23 @@ class Launcher:
         """The run ends at the tick where the display has held converged for the scene's hold; with
         image steps, only convergence that began within the last step counts (as sim.central ends)."""
         last_start = self.scene.step_starts[-1] if self.scene.steps else 0.0
+        if any(e["t"] <= now + 1e-9 for e in self.failures):
+            return False  # a robot the scene kills by now is not killed yet: it is not the display for the rest
         return self.scene.ends_on_convergence and since >= last_start - 1e-9 and now - since >= self.scene.converge_hold
 
-    def _fail_agents(self, t: float) -> None:
-        """Scene 'fail' events: SIGKILL the process hosting the robot (a robot that dies, 5.1.2)."""
-        due = [e for e in getattr(self, "failures", []) if e["t"] <= t + 1e-9]
+    def _fail_agents(self, rec: Recorder) -> None:
+        """Scene 'fail' events: SIGKILL the process hosting the robot (a robot that dies, 5.1.2). The
+        recorder learns of the death at once, not when the bus drops the agent's token: it would
+        otherwise count the dead robot's body on its goal as part of a converged display."""
+        t = rec.sim_time
+        due = [e for e in self.failures if e["t"] <= t + 1e-9]
         for event in due:
             self.failures.remove(event)
             for child in self.children:
                 if child.name.startswith("agent") and event["robot"] in child.robots and child.proc.poll() is None:
                     child.proc.send_signal(signal.SIGKILL)
                     child.reported = True  # killed on purpose, not a crash
+                    rec.robots_died(child.robots)
                     self.failed.append({"robots": child.robots, "sim_time_s": t, "wall_time": time.time()})
                     self._say(
                         f"[{self.scene.name}] t={t:.1f} s: killed agent process {child.name} "

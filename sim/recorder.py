@@ -167,7 +167,7 @@ class Recorder:
 
     # --- intake -------------------------------------------------------------------------------
     def poll(self) -> None:
-        for role, ident, alive, wall in self.alive.drain():
+        for role, ident, alive, wall, _ in self.alive.drain():
             self.liveliness.append({"role": role, "id": ident, "alive": alive, "wall_time": wall})
             if role == "agent" and ident.isdigit() and int(ident) < self.n:
                 self.agent_alive[int(ident)] = alive
@@ -294,6 +294,11 @@ class Recorder:
             self._flushed = time.monotonic()
         if self.converged_since is not None and self.ends is not None and self.ends(self.converged_since, m.stamp):
             self.ended_at = len(tr.t)  # the run ends with this tick, whenever the world hears of it
+
+    def robots_died(self, robots: list[int]) -> None:
+        """Robots whose agent was killed (a scene's fail event): the display converges anew without them."""
+        self.agent_alive[[r for r in robots if r < self.n]] = False
+        self.converged_since = self.time_to_converge = None
 
     def _check_converged(self, t: float, pose: np.ndarray) -> None:
         """Converged: every live robot has a goal and is within tolerance of it (true position)."""

@@ -86,7 +86,7 @@ class Watcher:
         self.state_tick = np.full(robots, -1, np.int64)
 
     def look_at_worlds(self) -> None:
-        for _, _, alive, _ in self.worlds.drain():
+        for _, _, alive, _, _ in self.worlds.drain():
             self.world_seen |= alive
             self.world_alive = alive
 

@@ -101,7 +101,7 @@ class WorldNode:
 
     # --- inputs -------------------------------------------------------------------------------
     def _update_liveness(self) -> None:
-        for _, ident, alive, _ in self.alive.drain():
+        for _, ident, alive, _, _ in self.alive.drain():
             if not ident.isdigit() or int(ident) >= self.scene.robots:
                 continue
             i = int(ident)

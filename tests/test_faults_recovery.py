@@ -370,13 +370,13 @@ def test_the_coordinator_has_the_set_for_one_robot_fewer_ready_before_any_dies(m
     )
     bus = Bus()
     coordinator = service.Coordinator(bus, scene)
-    bus.alive.items = [(f"agent/{r}", str(r), True, 0.0) for r in range(6)]
+    bus.alive.items = [("agent", str(r), True, 0.0, "a") for r in range(6)]
     bus.clock.items = [("clock", Tick(0, 0.0, 0.1))]
     assert coordinator._follow_show() and len(bus.published[-1].robots) == 6
     coordinator._prepare_for_a_loss()
     assert made[-1:] == [5]
     before = len(made)
-    bus.alive.items = [("agent/2", "2", False, 0.0)]
+    bus.alive.items = [("agent", "2", False, 0.0, "a")]
     coordinator.bodies[2] = np.array([0.0, 0.0])  # its body's tracked position has come
     bus.clock.items = [("clock", Tick(10, 1.0, 0.1))]
     assert coordinator._follow_show()

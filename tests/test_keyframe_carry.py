@@ -212,7 +212,7 @@ def test_the_coordinator_sends_the_next_image_with_its_matching_and_prices(monke
     scene = load_scene("paper-sequence")
     bus = Bus()
     coordinator = service.Coordinator(bus, scene)
-    bus.alive.items = [(f"agent/{r}", str(r), True, 0.0) for r in range(scene.robots)]
+    bus.alive.items = [("agent", str(r), True, 0.0, "a") for r in range(scene.robots)]
     sent = []
     change = scene.step_starts[1]
     heard = -1  # the world publishes every tick: the coordinator hears each up to t

@@ -60,7 +60,7 @@ def test_a_host_is_alive_only_after_its_neighbours_hello_and_greets_until_its_fi
             end = time.monotonic() + 20.0
             came: set[str] = set()
             while came != {"0", "1"} and time.monotonic() < end:
-                came |= {ident for _, ident, up, _ in alive.drain() if up}
+                came |= {ident for _, ident, up, _, _ in alive.drain() if up}
                 time.sleep(0.05)
             a.running = b.running = False
             thread_a.join(timeout=5.0)

@@ -160,3 +160,33 @@ def test_a_realtime_agent_killed_and_started_again_is_heard_within_a_second(tmp_
     assert traj["goal_set_robots"][-1].all()
     assert m["end_reason"] == "converged"
     assert_show_completed(traj)
+
+
+def test_an_agent_started_again_gets_a_new_goal_set_and_a_blip_of_its_connection_does_not():
+    """Back within the coordinator's debounce, a restarted agent leaves the live robots as they were,
+    yet it bids only in goal sets published after it joined: the coordinator tells the restart (a new
+    incarnation of the agent) from a blip of its connection (the same one back)."""
+    from coordinator import service
+    from coordinator.scene import scene_from_dict
+    from transport.codec import Tick
+
+    from .test_scripted_movers import Bus
+
+    scene = scene_from_dict(
+        {"robots": 4, "seed": 5, "layout": {"kind": "grid", "spacing": 0.2}, "steps": [{"shape": "disk", "hold": 30}]}
+    )
+    bus = Bus()
+    coordinator = service.Coordinator(bus, scene)
+    bus.alive.items = [("agent", str(r), True, 0.0, "first") for r in range(4)]
+    bus.clock.items = [("clock", Tick(0, 0.0, 0.1))]
+    assert coordinator._follow_show() and bus.published[-1].epoch == 1
+    bus.alive.items = [("agent", "2", False, 0.0, "first"), ("agent", "2", True, 0.0, "first")]  # a blip
+    assert not coordinator._follow_show()
+    time.sleep(service.SETTLE_S + 0.05)
+    assert not coordinator._follow_show()
+    bus.alive.items = [("agent", "2", False, 0.0, "first"), ("agent", "2", True, 0.0, "again")]  # a restart
+    assert not coordinator._follow_show()  # debounced, as any change in the live robots
+    time.sleep(service.SETTLE_S + 0.05)
+    assert coordinator._follow_show() and bus.published[-1].epoch == 2
+    assert bus.published[-1].robots.tolist() == [0, 1, 2, 3]
+    assert not coordinator._follow_show()  # once

@@ -94,7 +94,7 @@ def test_the_goal_set_goes_to_the_robot_pixels_only():
     assert scene.pixel_robots == [0, 1, 2]
     bus = Bus()
     coordinator = Coordinator(bus, scene)
-    bus.alive.items = [(f"agent/{r}", str(r), True, 0.0) for r in (0, 1, 2, 4)]
+    bus.alive.items = [("agent", str(r), True, 0.0, "a") for r in (0, 1, 2, 4)]
     bus.clock.items = [("clock", Tick(0, 0.0, DT))]
     assert coordinator._follow_show()
     goals = bus.published[-1]

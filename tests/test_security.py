@@ -141,7 +141,7 @@ def test_a_robot_cannot_publish_goals_or_command_another_robot(secured, certs):
         def listen() -> dict[str, set]:
             heard["recorder"] += [key for key, _, _ in everything.drain()]
             heard["world"] += [key for key, _, _ in commands.drain()]
-            heard["alive"] += [ident for _, ident, _, _ in alive.drain()]
+            heard["alive"] += [ident for _, ident, _, _, _ in alive.drain()]
             return {name: set(keys) for name, keys in heard.items()}
 
         def probe() -> bool:

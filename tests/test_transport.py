@@ -46,6 +46,8 @@ from transport.faults import FaultSpec, parse_faults
 from transport.keys import Keys, cell_of
 from transport.session import TransportError, client_of, loopback_router, open_session
 
+from .conftest import wait_for
+
 SAMPLES = [
     Poses.one(Pose(3, 7, 0.7, 1.5, -2.0, 0.25)),  # a robot alone: a frame of one
     States.one(State(3, 7, 0.7, 1.0, 2.0, 0.1, -0.1, 0.045, 0.5, 0.5, 4, State.HAS_GOAL)),
@@ -521,8 +523,25 @@ def test_liveliness_reports_death(router):
         time.sleep(0.3)
         agent.close()
         time.sleep(0.3)
-        events = [(role, ident, alive) for role, ident, alive, _ in watch.drain()]
+        events = [(role, ident, alive) for role, ident, alive, _, _ in watch.drain()]
         assert events == [("agent", "4", True), ("agent", "4", False)]
+
+
+def test_a_restarted_agent_heard_before_its_old_token_ends_is_a_death_then_a_life(router):
+    """The old process's token may end after the new one's is heard: every watcher still sees the
+    robot die, then live, and the old token's late end is no death."""
+    with Bus(client_of(router), "t") as watcher:
+        watch = watcher.watch_alive("agent")
+        old, new = Bus(client_of(router), "t"), Bus(client_of(router), "t")
+        old.declare_alive("agent", 4)
+        assert wait_for(lambda: watch._live, timeout=5)
+        new.declare_alive("agent", 4)
+        assert wait_for(lambda: watch._live.get(("agent", "4")) == new.incarnation, timeout=5)
+        old.close()
+        time.sleep(0.3)
+        events = [(alive, life) for _, _, alive, _, life in watch.drain()]
+        new.close()
+        assert events == [(True, old.incarnation), (False, old.incarnation), (True, new.incarnation)]
 
 
 def test_occupied_port_is_a_clear_error(router):

@@ -162,7 +162,7 @@ def test_the_observer_reads_the_display_and_publishes_nothing(certs, auth):
                 heard["recorder"] |= {(key, payload) for key, payload, _ in everything.drain()}
                 heard["world"] |= {(key, payload) for key, payload, _ in commands.drain()}
                 heard["robot"] |= {(key, payload) for key, payload, _ in robots_hear.drain()}
-                heard["alive"] |= {f"{role}/{ident}" for role, ident, _, _ in alive.drain()}
+                heard["alive"] |= {f"{role}/{ident}" for role, ident, _, _, _ in alive.drain()}
                 return heard
 
             pose, velocity, rgb, applied = (

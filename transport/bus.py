@@ -11,6 +11,7 @@ from __future__ import annotations
 import heapq
 import itertools
 import math
+import os
 import queue
 import threading
 import time
@@ -268,17 +269,37 @@ class RawInbox:
 
 
 class LivelinessWatch:
-    """Liveliness tokens: (role, ident, alive, wall time) events, tokens already there included."""
+    """Liveliness tokens as (role, ident, alive, wall time, incarnation) events, tokens already there
+    included. An incarnation is one process's life (Bus.incarnation): an ident whose token comes back
+    under a new incarnation was started again, where the same one back is a blip of the connection.
+    Events are per ident and in order: a new incarnation heard before its predecessor's token is gone
+    counts as the old one's death, then the new one's life, and the old token's late end as nothing."""
 
     def __init__(self) -> None:
-        self._queue: queue.SimpleQueue[tuple[str, str, bool, float]] = queue.SimpleQueue()
+        self._queue: queue.SimpleQueue[tuple[str, str, bool, float, str]] = queue.SimpleQueue()
+        self._live: dict[tuple[str, str], str] = {}  # (role, ident) -> its live incarnation
+        self._lock = threading.Lock()
         self.subscriber: Any = None
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        role, ident = str(sample.key_expr).rsplit("/", 2)[-2:]
-        self._queue.put((role, ident, sample.kind == zenoh.SampleKind.PUT, time.time()))
+        parts = str(sample.key_expr).split("/alive/", 1)[-1].split("/")
+        if len(parts) < 2:
+            return
+        who, incarnation, alive = (parts[0], parts[1]), "/".join(parts[2:]), sample.kind == zenoh.SampleKind.PUT
+        now = time.time()
+        with self._lock:
+            live = self._live.get(who)
+            if alive and live is not None and live != incarnation:
+                self._queue.put((*who, False, now, live))
+            if alive:
+                self._live[who] = incarnation
+            elif live == incarnation:
+                del self._live[who]
+            else:
+                return  # a replaced incarnation's token ended
+            self._queue.put((*who, alive, now, incarnation))
 
-    def drain(self) -> list[tuple[str, str, bool, float]]:
+    def drain(self) -> list[tuple[str, str, bool, float, str]]:
         return _drain(self._queue)
 
 
@@ -304,6 +325,7 @@ class Bus:
         self.sent: Counter[str] = Counter()
         self.sent_bytes: Counter[str] = Counter()
         self._tokens: list[Any] = []
+        self.incarnation = os.urandom(4).hex()  # this process's life: a token back under another is a restart
         self._subscriptions: list[Any] = []
         self._pulled: list[Inbox[Any]] = []
         self.session = open_session(settings)
@@ -407,7 +429,7 @@ class Bus:
 
     # --- liveliness -----------------------------------------------------------------------
     def declare_alive(self, role: str, ident: int | str) -> Any:
-        token = self.session.liveliness().declare_token(self.keys.alive(role, ident))
+        token = self.session.liveliness().declare_token(self.keys.alive(role, ident, self.incarnation))
         self._tokens.append(token)
         return token
 

@@ -7,7 +7,8 @@ px/<display>/state/<id>              agent host broadcast: its robots' states of
 px/<display>/cmd/<id>                agent -> bodies: commands of a tick, one frame (<id>: the sender's first robot)
 px/<display>/goals/<epoch>           coordinator -> all: the goal set and colours
 px/<display>/auction/<epoch>/<id>    bids and prices of the distributed auction
-px/<display>/alive/<role>/<id>       liveliness tokens (role: agent, world, coordinator, run, ...)
+px/<display>/alive/<role>/<id>/<life> liveliness tokens (role: agent, world, coordinator, run, ...; life: a
+                                     process's incarnation)
 px/<display>/clock                   tick announcements
 px/<display>/config/<id>             run -> agents on other machines: robot <id>'s host configuration (a queryable)
 px/<display>/run/goals               run -> a restarted coordinator: the newest goal set recorded (a queryable)
@@ -110,8 +111,9 @@ class Keys:
         goes on from it (its epoch and step) instead of starting the show over."""
         return f"{self.root}/run/goals"
 
-    def alive(self, role: str, ident: int | str) -> str:
-        return f"{self.root}/alive/{role}/{ident}"
+    def alive(self, role: str, ident: int | str, incarnation: str = "*") -> str:
+        """A process's liveliness token (incarnation: its life, transport.bus.LivelinessWatch)."""
+        return f"{self.root}/alive/{role}/{ident}/{incarnation}"
 
     @property
     def clock(self) -> str:
@@ -135,7 +137,7 @@ class Keys:
         return f"{self.root}/{kind}/**"
 
     def alive_all(self, role: str | None = None) -> str:
-        return f"{self.root}/alive/{role}/*" if role else f"{self.root}/alive/**"
+        return f"{self.root}/alive/{role}/*/*" if role else f"{self.root}/alive/**"
 
     @property
     def everything(self) -> str:
