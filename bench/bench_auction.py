@@ -81,7 +81,7 @@ def run(n: int, per_process: int, steady: float, faults: str = "", seed: int = 1
             seen: set[str] = set()
             end = time.monotonic() + 120
             while len(seen) < len(hosts) and time.monotonic() < end:
-                seen.update(ident for _, ident, up, _ in alive.drain() if up)
+                seen.update(ident for _, ident, up, _, _ in alive.drain() if up)
                 time.sleep(0.05)
             time.sleep(1.0)  # subscriptions settle
             t = time.perf_counter()

@@ -80,7 +80,7 @@ def wait_until_alive(agent: psutil.Process, robot: int, timeout: float = 60.0) -
         watch = bus.watch_alive("agent")
         end = time.monotonic() + timeout
         while time.monotonic() < end:
-            if any(ident == str(robot) and up for _, ident, up, _ in watch.drain()):
+            if any(ident == str(robot) and up for _, ident, up, _, _ in watch.drain()):
                 return
             time.sleep(0.05)
     raise AssertionError(f"robot {robot}'s agent never came alive")
