@@ -1,4 +1,4 @@
-"""The compiled robot core (agent/core/*.pyx) and the simulated bodies' motion (sim/kinematics.pyx),
+"""The compiled robot core (agent/core/*.pyx) and the simulated bodies' motion (sim/bodies/kinematics.pyx),
 built by `pip install -e .` and so by `make run`.
 
 Floating point stays as the source writes it: no fast-math, and no fused multiply-add contraction,
@@ -21,6 +21,6 @@ DIRECTIVES = {
 
 modules = [
     Extension(path[:-4].replace("/", "."), [path], extra_compile_args=FLAGS)
-    for path in sorted(glob("agent/core/*.pyx") + glob("sim/*.pyx"))
+    for path in sorted(glob("agent/core/*.pyx") + glob("sim/bodies/*.pyx"))
 ]
 setup(ext_modules=cythonize(modules, compiler_directives=DIRECTIVES))

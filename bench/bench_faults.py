@@ -29,11 +29,11 @@ import psutil
 import agent.core.policy as policy
 from agent.core.params import DIFFDRIVE, HOLONOMIC
 from coordinator.scene import load_scene
-from sim.central import simulate
+from sim.central.engine import simulate
+from sim.central.link import InProcessLink
+from sim.central.lossy import circle_crossing, run_lossy
 from sim.emulators.faulty_peer import MODES_AND_ALL
-from sim.link import InProcessLink
-from sim.lossy import circle_crossing, run_lossy
-from sim.metrics import step_metrics, time_to_converge
+from sim.outputs.metrics import step_metrics, time_to_converge
 from sim.processes import stop_processes
 from transport.bus import Bus
 from transport.codec import Command, Contact, Tick
@@ -45,7 +45,7 @@ from transport.session import TransportError, ZenohSettings, client_of, free_por
 from .common import REPO, RESULTS, machine, parser_for, run_cli_scene, run_subcommand, write_results
 
 # --- lost and late states without the bus (loss) ----------------------------------------------
-LOSS_DOC = """What lost and late neighbour states do to collision avoidance (sim.lossy): contacts and clearance
+LOSS_DOC = """What lost and late neighbour states do to collision avoidance (sim.central.lossy): contacts and clearance
 over seeded runs of the antipodal circle, per loss rate, beside perfect information (every state
 heard at the next tick, what the central engine and a lock-step run without faults give).
 
@@ -160,7 +160,7 @@ def impaired_main(argv: list[str] | None = None) -> int:
             f"Impaired: `--faults {IMPAIRED_FAULTS}` (20 % of state messages lost per receiver, the rest 100 ms "
             "late with up to 20 ms jitter: a tick or two at 10 Hz), one agent process per robot, lock-step. "
             "Formed: every robot within 1 cm of its goal, seconds after the image changed "
-            "(sim.metrics.step_metrics). Contacts from the world's true poses.",
+            "(sim.outputs.metrics.step_metrics). Contacts from the world's true poses.",
         ],
     )
     return 0

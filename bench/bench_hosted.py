@@ -25,8 +25,8 @@ import orjson
 
 from agent.core.params import RobotParams
 from coordinator.scene import load_scene
-from sim.mcaplog import logged
-from sim.metrics import keyframe_errors
+from sim.outputs.mcaplog import logged
+from sim.outputs.metrics import keyframe_errors
 from tests.assignment_quality import agreements
 from transport.codec import State
 
@@ -365,8 +365,8 @@ def sync_main(argv: list[str] | None = None) -> int:
     parser.add_argument("--pairs", type=int, default=1)
     parser.add_argument("--results", default="sync", help="name of the results file in bench/results")
     opt = parser.parse_args(argv)
-    if not (opt.before / "sim" / "cli.py").is_file():
-        print(f"error: {opt.before} is not a checkout of pixelswarm (no sim/cli.py)", file=sys.stderr)
+    if not (opt.before / "sim" / "cli").exists() and not (opt.before / "sim" / "cli.py").exists():
+        print(f"error: {opt.before} is not a checkout of pixelswarm (no sim/cli)", file=sys.stderr)
         return 2
     rows = [
         "| engine | pair | code | wall s per tick | ticks | = central (1e-9 m) | ticks with a shared goal |",
@@ -442,7 +442,7 @@ print(json.dumps({{"cpu": u.ru_utime + u.ru_stime, "wall": time.perf_counter() -
 """
 PARSE = "from coordinator.scene import load_scene; load_scene({scene!r}, robots={robots}, seed={seed})"
 RESOLVED = "from coordinator.resolved import load_resolved; load_resolved({run_dir!r})"
-CHILDREN = {"world": "sim.world_node", "coordinator": "coordinator.service"}
+CHILDREN = {"world": "sim.node.world", "coordinator": "coordinator.service"}
 
 
 def child_load(tree: Path, module: str, load: str) -> dict:
@@ -482,8 +482,8 @@ def scenes_main(argv: list[str] | None = None) -> int:
     parser.add_argument("--before", type=Path, help="a checkout of the code before the change, to time too")
     parser.add_argument("--no-startup", dest="startup", action="store_false", help="skip the start-up runs")
     args = parser.parse_args(argv)
-    if args.before is not None and not (args.before / "sim" / "cli.py").is_file():
-        print(f"error: {args.before} is not a pixelswarm checkout (no sim/cli.py)", file=sys.stderr)
+    if args.before is not None and not any((args.before / "sim" / p).exists() for p in ("cli", "cli.py")):
+        print(f"error: {args.before} is not a pixelswarm checkout (no sim/cli)", file=sys.stderr)
         return 2
 
     from coordinator.resolved import save_resolved

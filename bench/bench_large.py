@@ -4,7 +4,7 @@ side by side in one run:
 
 - `auction` (the engine's default): the agents' auction (agent.core.bidder), one participant holding
   every robot; each `assign_period` the next block of epsilon-scaling phases is settled in-process on
-  the measured positions, warm from the last prices (sim.central.auction_assignment);
+  the measured positions, warm from the last prices (sim.central.engine.auction_assignment);
 - `optimal`: scipy's linear_sum_assignment each `assign_period`, kept unless better by Delta C.
 
     .venv/bin/python -m bench.bench_large                    # the whole sequence, both (about 20 min)
@@ -13,8 +13,8 @@ side by side in one run:
     .venv/bin/python -m bench.bench_large --before cf836e5 --pairs 2   # the CLI's run beside revision REV's
     .venv/bin/python -m bench.bench_large --scale 1000,3000,10000 --seconds 10   # cost per robot-step by size
 
-It runs what `pixelswarm run paper-sequence-1000 --no-video` runs (`sim.central.run_central`) in this
-process, with a `sim.stepclock.StepClock` that times each part of every control step on the engine's
+It runs what `pixelswarm run paper-sequence-1000 --no-video` runs (`sim.central.engine.run_central`) in this
+process, with a `sim.central.stepclock.StepClock` that times each part of every control step on the engine's
 thread: the tracker, the wait for the goal assignment, the preferred velocities, recording, the
 neighbour search, the control core (`control_step`, ORCA for every robot), the world (commands and
 `World.step`: 10 substeps with contact detection) and the rest; and, apart, the warm auction's own
@@ -45,8 +45,8 @@ import numpy as np
 
 from agent.core.params import RobotParams
 from coordinator.scene import load_scene, parse_scene
-from sim.central import run_central
-from sim.stepclock import PARTS, StepClock
+from sim.central.engine import run_central
+from sim.central.stepclock import PARTS, StepClock
 
 from .common import write_results
 
@@ -256,7 +256,7 @@ def image_table(scene: Any, runs: list[Run]) -> list[str]:
 def bounds(runs: list[Run], dt: float, robots: int) -> list[str]:
     """What bounds the realtime factor, from the measured parts. A warm auction runs on a second
     thread while the engine's thread searches neighbours, steps the control core and the world on
-    the goals the robots hold (sim.central): a step takes about the longer of the two, plus the
+    the goals the robots hold (sim.central.engine): a step takes about the longer of the two, plus the
     parts before the auction starts and after its result is in."""
     lines = [
         f"Realtime factor {TARGET:g} at a {dt:g} s control period leaves {dt / TARGET * 1e3:.1f} ms per "

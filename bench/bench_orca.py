@@ -1,4 +1,4 @@
-"""The central ORCA engine (sim.rvo) side by side with RVO2 (pyrvo) in one run.
+"""The central ORCA engine (sim.central.rvo) side by side with RVO2 (pyrvo) in one run.
 
 RVO2's own examples, same parameters, same preferred velocities, stepped alternately in one loop so
 that both see the same machine load:
@@ -35,7 +35,7 @@ from scipy.spatial import cKDTree
 
 from agent.core.control import preferred_velocity
 from agent.core.step import polygon_segments
-from sim.rvo import CentralOrca
+from sim.central.rvo import CentralOrca
 
 # added to every radius inside our ORCA lines (not to the body); ~7% of Circle's radius 1.5
 MARGIN = 0.1

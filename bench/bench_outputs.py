@@ -9,7 +9,7 @@ Video: the same frames (100 robots crossing a 4 x 3 m arena, 720 px, 300 frames 
 written as MPEG-4 part 2 with OpenCV (what display.mp4 was) and as H.264 with PyAV at two x264
 presets (the first is what display.mp4 is now): seconds to write, file size.
 
-Foxglove: building one ``foxglove.SceneUpdate`` (sim.foxglove.scene_update) and encoding it with
+Foxglove: building one ``foxglove.SceneUpdate`` (sim.outputs.foxglove.scene_update) and encoding it with
 protobuf (Foxglove's SDK), as the recorder does at every recorded tick (10 a second), at 14, 100 and 1000 robots.
 
 ``--mcap``: the size of log.mcap for one 100-robot lock-step run (:data:`MCAP_RUN`, the same run bit
@@ -35,8 +35,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import REPO, write_results  # noqa: E402
-from sim import render  # noqa: E402
-from sim.foxglove import scene_update  # noqa: E402
+from sim.outputs import render  # noqa: E402
+from sim.outputs.foxglove import scene_update  # noqa: E402
 
 ARENA = (0.0, 0.0, 4.0, 3.0)
 FRAMES, ROBOTS, SIZE_PX, FPS = 300, 100, 720, 10

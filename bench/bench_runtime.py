@@ -38,7 +38,7 @@ import psutil
 
 from agent.runtime import interpreter
 from coordinator.scene import load_scene
-from sim.tracker import world_of
+from sim.bodies.tracker import world_of
 from transport.bus import Bus
 from transport.codec import Command, Commands, State, States
 from transport.keys import Keys, cell_of, cells_of

@@ -31,7 +31,7 @@ from pathlib import Path
 import psutil
 
 from sim.processes import stop_processes
-from sim.study_cluster import quiet_env
+from sim.study.cluster import quiet_env
 
 from .common import REPO, write_results
 
@@ -85,7 +85,7 @@ def _loopback_cluster(root: Path, workers: int, command: list[str]) -> list[subp
     from transport.session import free_port
 
     address = f"tcp://127.0.0.1:{free_port()}"
-    # Dask's periodic work slowed as docs/study.md tells a cluster's owner (sim.study_cluster.QUIET)
+    # Dask's periodic work slowed as docs/study.md tells a cluster's owner (sim.study.cluster.QUIET)
     env = dict(os.environ, **quiet_env())
     quiet = {"cwd": REPO, "stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL, "env": env}
     scheduler = [sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1"]

@@ -1,10 +1,10 @@
-"""What the live view (`pixelswarm run --view`, sim.view) costs a central run, side by side in one process.
+"""What the live view (`pixelswarm run --view`, sim.outputs.view) costs a central run, side by side in one process.
 
     .venv/bin/python -m bench.bench_view [--scene paper-sequence-1000] [--duration 30] [--repeats 7]
 
-The same seeded central run (sim.central.simulate) alternately without a view and with one logging
+The same seeded central run (sim.central.engine.simulate) alternately without a view and with one logging
 every tick to an .rrd file in a temporary directory (the sink that needs no window). A run's time is
-its wall time from the start of the run until the view has written every tick (sim.view.SwarmView.close),
+its wall time from the start of the run until the view has written every tick (sim.outputs.view.SwarmView.close),
 per recorded tick; the figure is the median over the repeats of each pair's ratio (the two runs of a
 pair run back to back, under the same load from other work), with the process's CPU time per tick beside.
 """
@@ -19,8 +19,8 @@ from pathlib import Path
 
 from agent.core.params import RobotParams
 from coordinator.scene import load_scene
-from sim.central import simulate
-from sim.view import SwarmView
+from sim.central.engine import simulate
+from sim.outputs.view import SwarmView
 
 from .common import write_results
 

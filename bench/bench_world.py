@@ -1,4 +1,4 @@
-"""Micro-benchmark of sim.world.World.step(0.1) (10 substeps of 10 ms) at N = 100 and 1000.
+"""Micro-benchmark of sim.bodies.world.World.step(0.1) (10 substeps of 10 ms) at N = 100 and 1000.
 
 Run from the repository root:
 
@@ -20,9 +20,9 @@ The neighbour searches alone (agent.core.grid), beside the code of another revis
 
 times, on the same points (a formed display: a lattice 0.12 m apart, jittered by up to 2 cm; and
 one 0.6 m apart, fewer than 16 within reach) at
-1000 and 10,000 robots, the central engine's neighbour search (sim.link's, 1.2 m and 16 as
-paper-sequence-1000), the RVO2-shaped engine's (sim.rvo.CentralOrca.neighbours), the
-world's contact search (sim.proximity.close_pairs over a step of 10 substeps) and one robot's
+1000 and 10,000 robots, the central engine's neighbour search (sim.central.link's, 1.2 m and 16 as
+paper-sequence-1000), the RVO2-shaped engine's (sim.central.rvo.CentralOrca.neighbours), the
+world's contact search (sim.bodies.proximity.close_pairs over a step of 10 substeps) and one robot's
 gather in its own process (NeighbourTable.gather among 14 and 200 states). With ``--before``, a
 git worktree of REV (bench.bench_runtime.worktree) runs the same code first; rows alternate.
 """
@@ -46,7 +46,7 @@ from scipy.spatial.distance import pdist
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from agent.core.params import EPUCK as EPUCK_PARAMS  # noqa: E402
-from sim.world import Body, World  # noqa: E402
+from sim.bodies.world import Body, World  # noqa: E402
 
 EPUCK = Body.from_params(EPUCK_PARAMS)
 STEPS = 40
@@ -126,7 +126,7 @@ def main() -> None:
     out = Path(__file__).resolve().parent / "results" / "world.md"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(
-        "## sim.world.World.step(0.1): 10 substeps of 10 ms\n\n"
+        "## sim.bodies.world.World.step(0.1): 10 substeps of 10 ms\n\n"
         "Command: `.venv/bin/python bench/bench_world.py`\n\n"
         f"{env}\n\n{table}\n\n"
         "Scenarios: see the docstring of `bench/bench_world.py`. The last column is the detection a\n"
@@ -140,14 +140,14 @@ NEIGHBOUR_TIMINGS = r"""
 import json, sys, time
 import numpy as np
 try:  # CentralOrca was agent.core.rvo before it moved to sim
-    from sim.rvo import CentralOrca
+    from sim.central.rvo import CentralOrca
 except ImportError:
     from agent.core.rvo import CentralOrca
 from agent.neighbour_table import Heard, NeighbourTable
-from sim.proximity import close_pairs
+from sim.bodies.proximity import close_pairs
 from transport.codec import State
 try:  # before agent.core.grid the central engine had its own compiled copy
-    from sim.proximity import nearest_heard_compiled as central_search
+    from sim.bodies.proximity import nearest_heard_compiled as central_search
 except ImportError:
     from agent.neighbour_table import nearest_heard as central_search
 

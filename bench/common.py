@@ -96,7 +96,7 @@ def run_and_sample(args: list[str], period: float = 0.5, agents: int | None = No
 
 def agent_stats(log: Path) -> list[dict]:
     """Each agent process's report at its end (its ``stats`` event in the run's log)."""
-    from sim.mcaplog import read_mcap
+    from sim.outputs.mcaplog import read_mcap
 
     events = read_mcap(log, ["/event"]).get("/event", [])
     return [e for e in events if e.get("kind") == "stats" and e.get("role") == "agent"]

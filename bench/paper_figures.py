@@ -32,7 +32,7 @@ import scipy
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
-import sim.central as central
+import sim.central.engine as central
 from agent.assignment import frames_close
 from agent.core.bidder import Participant
 from agent.core.params import RobotParams
@@ -88,7 +88,7 @@ class AuctionCalls:
 
 
 class TimedAuction:
-    """Stands in for sim.central.auction_assignment (one block of the agents' auction, settled in the
+    """Stands in for sim.central.engine.auction_assignment (one block of the agents' auction, settled in the
     engine): times each call, then (outside the timed part) scores it."""
 
     def __init__(self, assign: Any) -> None:
@@ -115,7 +115,7 @@ class TimedAuction:
 
 @contextmanager
 def timed_auction() -> Iterator[AuctionCalls]:
-    """Patch the central engine's auction for the duration of one run (sim/central.py untouched)."""
+    """Patch the central engine's auction for the duration of one run (sim/central/engine.py untouched)."""
     timed = TimedAuction(central.auction_assignment)
     central.auction_assignment = timed
     try:
@@ -549,9 +549,9 @@ def results_lines(s: Summary, hysteresis: float) -> list[str]:
         )
     out += [
         "",
-        "Auction wall time is measured around each `sim.central.auction_assignment` call of the central "
+        "Auction wall time is measured around each `sim.central.engine.auction_assignment` call of the central "
         "engine (one block of the agents' auction, agent.core.bidder, with one participant holding every robot; "
-        "patched in by the script, sim/central.py unchanged); rounds are Jacobi rounds in which some robot bid; "
+        "patched in by the script, sim/central/engine.py unchanged); rounds are Jacobi rounds in which some robot bid; "
         "a cold start is the first call after an image change (a fresh participant, no prices yet: epsilon "
         "scaling from the goal set's extent² / 10 down to epsilon_A, by factors of 10). "
         "Execution time is `steps[k].converged_at` of metrics.json: the first sample at which every robot "

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.output import newest_goal_set
+from sim.outputs.write import newest_goal_set
 
 
 def members_and_current(traj: dict) -> tuple[np.ndarray, np.ndarray]:

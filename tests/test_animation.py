@@ -20,8 +20,8 @@ from coordinator.keyframe_steps import DEFAULT_FIRST_HOLD, DEFAULT_FRAME_TIME
 from coordinator.keyframes import keyframe_goals
 from coordinator.scene import SceneError, load_scene, scene_from_dict, scene_goal_set
 from coordinator.service import step_motion, step_timing
-from sim.central import run_central
-from sim.metrics import keyframe_errors
+from sim.central.engine import run_central
+from sim.outputs.metrics import keyframe_errors
 from transport.codec import Goals, decode
 
 from .conftest import run_pixelswarm

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim.metrics import assignment_over_optimum
-from sim.study_report import flatten
+from sim.outputs.metrics import assignment_over_optimum
+from sim.study.report import flatten
 
 
 def test_the_optimal_assignment_costs_nothing_over_and_a_swapped_one_its_excess():
@@ -41,11 +41,11 @@ def test_runs_csv_gets_a_column_per_image_and_figure():
 
 def test_above_the_optimums_bound_a_run_says_none(monkeypatch):
     """scipy's optimum at thousands of robots takes minutes; past OPTIMUM_UP_TO the run leaves it out."""
-    import sim.metrics
+    import sim.outputs.metrics
 
     pose = np.array([[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]])
     goal = np.array([[[1.0, 0.0], [0.0, 0.0]]])
     assignment = np.array([[0, 1]])
     assert assignment_over_optimum(pose, goal, assignment, np.array([0])) == [pytest.approx(2.0)]  # crossed
-    monkeypatch.setattr(sim.metrics, "OPTIMUM_UP_TO", 1)
+    monkeypatch.setattr(sim.outputs.metrics, "OPTIMUM_UP_TO", 1)
     assert assignment_over_optimum(pose, goal, assignment, np.array([0])) == [None]

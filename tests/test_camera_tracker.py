@@ -15,10 +15,10 @@ import pytest
 
 from hardware.camera import ArucoTracker, CameraConfig, CameraError, CameraPoseSource
 from hardware.config import HardwareConfigError
-from sim.cli import main
+from sim.cli.main import main
+from sim.cli.track import load_camera_config
 from sim.emulators.camera import OverheadCamera, poses_toml, render_frames, wandering_robots, write_video
 from sim.emulators.camera import main as emulator_main
-from sim.track import load_camera_config
 from tests.conftest import run_pixelswarm
 
 ROBOTS, FRAMES, FPS, SEED = 14, 100, 10.0, 7  # 100 frames: 99 % of them allows one miss

@@ -11,7 +11,7 @@ import json
 import numpy as np
 import pytest
 
-import sim.central as central
+import sim.central.engine as central
 from agent.core.params import RobotParams
 from coordinator.scene import load_scene
 

@@ -8,7 +8,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from agent.core.control import preferred_velocity
-from sim.rvo import CentralOrca
+from sim.central.rvo import CentralOrca
 
 # RVO2 (pyrvo 0.4.3) on the same 64-agent Circle: steps to completion (`bench_orca.py --quick`)
 RVO2_STEPS = 1727

@@ -1,5 +1,5 @@
 """The central engine runs a warm auction on a second thread while it steps the control core on the
-goals the robots hold, and steps again only the robots whose goal the auction changed (sim.central,
+goals the robots hold, and steps again only the robots whose goal the auction changed (sim.central.engine,
 ``overlap``). That is a speed-up, not a different engine: a run must be the same to the bit as one
 that waits for the auction before any control, on scenes where the auction does change goals (an
 image sequence, animation keyframes with eq. 27's hold, a moving goal set)."""
@@ -12,9 +12,9 @@ import json
 import numpy as np
 import pytest
 
-import sim.central as central
+import sim.central.engine as central
 from coordinator.scene import load_scene
-from sim.stepclock import StepClock
+from sim.central.stepclock import StepClock
 
 
 def fast_turning_triangle(duration: float):

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import re
 
-from sim.cli import build_parser
+from sim.cli.main import build_parser
 
 from .conftest import REPO
 

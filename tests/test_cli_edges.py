@@ -16,8 +16,8 @@ import psutil
 import pytest
 
 from coordinator.scene import load_scene
-from sim import cli
-from sim.world_node import WorldNode
+from sim.cli import main as cli
+from sim.node.world import WorldNode
 from transport.bus import Bus
 from transport.faults import fault_kinds
 from transport.session import free_port, loopback_router
@@ -74,7 +74,7 @@ def test_a_fault_plan_with_the_central_engine_is_refused(tmp_path):
     assert "central engine" in refused(tmp_path, "--engine", "central", "--faults", "state:drop=0.1")
 
 
-@pytest.mark.parametrize("module", ["agent", "sim.world_node"])
+@pytest.mark.parametrize("module", ["agent", "sim.node.world"])
 def test_the_processes_a_run_starts_refuse_a_fault_plan_of_no_message_kind(tmp_path, module):
     """`python -m agent` (as `pixelswarm agents` starts it, with the run's plan) and the world."""
     config = tmp_path / "host.json"
@@ -157,7 +157,7 @@ def test_zenoh_errors_are_one_readable_line_with_a_hint(tmp_path):
 
 
 def test_a_world_that_waits_in_vain_names_the_robots_and_does_not_run():
-    """By hand (`python -m sim.world_node`), a world whose agents do not all come says which; it does
+    """By hand (`python -m sim.node.world`), a world whose agents do not all come says which; it does
     not show the scene without them."""
     scene = load_scene("circle", robots=3, seed=0, clock="lockstep", duration=1.0)
     with Bus(loopback_router(), name="world") as bus:

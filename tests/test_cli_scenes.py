@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
-from sim import cli
+from sim.cli import main as cli
 
 
 def test_scene_list_columns_align_for_long_names(monkeypatch, capsys, tmp_path):

@@ -99,7 +99,7 @@ def test_invalid_scenes_say_what_is_wrong(data, message):
 def test_a_scene_sets_the_lock_step_deadline_and_the_command_line_checks_its_own(tmp_path, capsys):
     """A scene whose agents take longer than 2 s at an image change (1000 robots match the goal sets)
     names its own deadline; a bad --deadline is a one-line usage error that starts nothing."""
-    from sim.cli import main
+    from sim.cli.main import main
 
     assert load_scene("paper-sequence-1000").deadline == 8.0
     assert scene_from_dict({"robots": 3}).deadline == 2.0

@@ -9,7 +9,7 @@ import numpy as np
 
 from agent.core.params import DIFFDRIVE
 from coordinator.scene import load_scene
-from sim.world_node import WorldNode
+from sim.node.world import WorldNode
 from transport.bus import Bus
 from transport.codec import Command, Commands, Tick
 from transport.session import client_of, loopback_router

@@ -11,7 +11,7 @@ from agent.core.params import EPUCK, RobotParams
 from coordinator.goals import generate_goals
 from coordinator.keyframes import keyframe_goals
 from coordinator.scene import scene_from_dict
-from sim.world import Body, World
+from sim.bodies.world import Body, World
 from transport import epuck
 
 from .conftest import REPO
@@ -56,7 +56,7 @@ def test_every_package_assumes_the_same_robot_body():
 
 
 def test_the_goals_command_defaults_to_the_same_radius(tmp_path: Path):
-    from sim.cli import build_parser
+    from sim.cli.main import build_parser
 
     args = build_parser().parse_args(["goals", str(tmp_path / "picture.png"), "-n", "5"])
     assert args.robot_radius == EPUCK.radius

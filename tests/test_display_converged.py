@@ -1,11 +1,11 @@
-"""When the recorder calls the display converged (sim.recorder.display_converged): the rule that ends a
+"""When the recorder calls the display converged (sim.outputs.recorder.display_converged): the rule that ends a
 run on convergence and times `time_to_converge_s`."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from sim.recorder import display_converged
+from sim.outputs.recorder import display_converged
 from transport.codec import Goals, Timing
 
 TOL = 0.01

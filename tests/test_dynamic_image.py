@@ -16,7 +16,7 @@ from agent.core.params import EPUCK
 from agent.goal_sets import motion_of
 from coordinator.scene import SceneError, load_scene, scene_from_dict, scene_goal_set
 from coordinator.service import step_motion, step_timing
-from sim.central import run_central
+from sim.central.engine import run_central
 from transport.codec import Goals, Timing, as_sent, decode
 
 from .conftest import run_pixelswarm

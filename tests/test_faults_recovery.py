@@ -14,8 +14,8 @@ import psutil
 import pytest
 from mcap.exceptions import McapError
 
-from sim.mcaplog import McapLog, read_mcap
-from sim.ticklog import TICKS_FILE, TickLog, read_ticks
+from sim.outputs.mcaplog import McapLog, read_mcap
+from sim.outputs.ticklog import TICKS_FILE, TickLog, read_ticks
 from transport.session import free_port
 
 from .conftest import REPO, descendants, pixelswarm_cmd, reap, start_run, wait_for, write_disk
@@ -338,7 +338,7 @@ def test_a_world_that_dies_ends_the_run_marked_incomplete(tmp_path, spawned):
     proc = start_run(spawned, scene, out, "-k", "5")  # two agent hosts: the world is what dies here
     assert wait_for(lambda: ticks_so_far(out) >= 20, timeout=120)
     everyone = [p.pid for p in descendants(proc.pid)]
-    world = process_of(proc, "sim.world_node")
+    world = process_of(proc, "sim.node.world")
     assert world is not None
     world.send_signal(signal.SIGKILL)
     _, stderr = proc.communicate(timeout=60)

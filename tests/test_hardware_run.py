@@ -28,12 +28,12 @@ from coordinator.scene import load_scene, resolve_scene_path
 from hardware.config import load_hardware
 from hardware.epuck2 import Epuck2Config
 from hardware.ros2 import TWIST, Ros2BackendConfig, Ros2PosesConfig, Ros2PoseSource
-from sim.cli import main as cli_main
+from sim.cli.main import main as cli_main
 from sim.emulators.epuck2 import Epuck2Emulator
 from sim.emulators.lab import MOCAP_RATE, Lab
 from sim.emulators.lab import main as lab_main
 from sim.emulators.mocap import MocapEmulator
-from sim.hardware_node import STARTUP_TIMEOUT, HardwareNode, TwistDrive, WheelDrive
+from sim.node.hardware import STARTUP_TIMEOUT, HardwareNode, TwistDrive, WheelDrive
 from transport.bus import Bus
 from transport.codec import BEFORE_START, Command, Commands, Pose, Tick
 from transport.session import client_of, free_port, loopback_router, open_session

@@ -10,8 +10,8 @@ from agent.core.params import EPUCK, HOLONOMIC
 from agent.core.policy import Memory, act, heard_speed_limit, intend
 from agent.core.step import NeighbourStates
 from coordinator.scene import load_scene
-from sim.central import simulate
-from sim.link import InProcessLink
+from sim.central.engine import simulate
+from sim.central.link import InProcessLink
 
 PARAMS = EPUCK.with_(kinematics=HOLONOMIC)
 

@@ -16,7 +16,7 @@ from scipy.spatial import cKDTree
 from agent.core.params import RobotParams
 from coordinator import drawings
 from coordinator.scene import load_scene, scene_goal_set
-from sim.central import run_central
+from sim.central.engine import run_central
 
 TABLE_RADIUS = 1.0  # m: the paper's circular table, 2 m across
 MIN_SPACING = 0.06  # m between goals: a centimetre between two robots 5 cm across standing on them

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from coordinator.scene import load_scene
-from sim.central import simulate
-from sim.link import InProcessLink
-from sim.metrics import step_metrics, time_to_converge
+from sim.central.engine import simulate
+from sim.central.link import InProcessLink
+from sim.outputs.metrics import step_metrics, time_to_converge
 
 TOLERANCE = 0.01  # m: every robot within 1 cm of its goal
 

@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 
 from coordinator.goals.resize import auto_arena
 from coordinator.scene import load_scene, parse_scene, scene_goal_set
-from sim import cli
+from sim.cli import main as cli
 
 
 def colour_counts(colors: np.ndarray) -> dict[tuple[int, ...], int]:

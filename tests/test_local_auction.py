@@ -12,7 +12,7 @@ from scipy.sparse.csgraph import connected_components
 
 from agent.assignment import _boards, _words
 from agent.core.local_auction import LocalAuction, Words
-from sim.central import settle_in_process
+from sim.central.engine import settle_in_process
 from transport.codec import Boards, decode
 
 EPS = 1e-3

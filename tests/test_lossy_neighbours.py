@@ -1,4 +1,4 @@
-"""ORCA on lost and late neighbour states (issue 3), without the bus (sim.lossy): every robot hears
+"""ORCA on lost and late neighbour states (issue 3), without the bus (sim.central.lossy): every robot hears
 each neighbour's state of the tick before unless a seeded draw loses it or makes it a tick late, as
 an agent under ``--faults state:drop=...,delay=...`` does. Deterministic and a few seconds per run; the
 end-to-end twin over zenoh is in test_collision_avoidance.
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import pytest
 
-from sim.lossy import circle_crossing, run_lossy
+from sim.central.lossy import circle_crossing, run_lossy
 
 
 @pytest.mark.parametrize(

@@ -1,4 +1,4 @@
-"""log.mcap's channels (sim.recorder, sim.logschema, sim.mcaplog): every channel a Foxglove schema or
+"""log.mcap's channels (sim.outputs.recorder, sim.outputs.logschema, sim.outputs.mcaplog): every channel a Foxglove schema or
 a documented pixelswarm one, read back with the `mcap` package's own protobuf support and Foxglove's
 compiled schemas, without pixelswarm's reader; the per-tick kinds exactly as they crossed the bus.
 
@@ -16,8 +16,8 @@ from mcap.decoder import DecoderFactory as McapDecoderFactory
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from sim.logschema import logged_kinds
-from sim.recorder import SCENE_TOPIC, Recorder
+from sim.outputs.logschema import logged_kinds
+from sim.outputs.recorder import SCENE_TOPIC, Recorder
 from transport.codec import Bid, Boards, Commands, Event, Poses, States, Tick, Truth
 
 from .test_recorder_bids import Bus

@@ -20,13 +20,13 @@ from websockets.sync.client import connect
 
 from agent.core.params import RobotParams
 from coordinator.scene import load_scene
-from sim import render
-from sim.foxglove import DISPLAY_FRAME, QUANTUM, SCENE_UPDATE_SCHEMA_NAME, SceneUpdate, scene_update
-from sim.mcaplog import McapLog, mcap_channels, read_mcap
-from sim.output import write_run
-from sim.recorder import SCENE_TOPIC
-from sim.render import _View, frame_indices, held_frames, write_video
-from sim.rundir import RunDir
+from sim.outputs import render
+from sim.outputs.foxglove import DISPLAY_FRAME, QUANTUM, SCENE_UPDATE_SCHEMA_NAME, SceneUpdate, scene_update
+from sim.outputs.mcaplog import McapLog, mcap_channels, read_mcap
+from sim.outputs.recorder import SCENE_TOPIC
+from sim.outputs.render import _View, frame_indices, held_frames, write_video
+from sim.outputs.rundir import RunDir
+from sim.outputs.write import write_run
 
 from .conftest import run_pixelswarm
 

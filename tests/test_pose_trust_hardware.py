@@ -26,7 +26,7 @@ from hardware.ros2 import POSE_STAMPED, Ros2Messages, Ros2PosesConfig, Ros2PoseS
 from sim.emulators.camera import CameraStream, OverheadCamera
 from sim.emulators.lab import MOCAP_RATE, Lab
 from sim.emulators.mocap import MocapEmulator
-from sim.hardware_node import HardwareNode
+from sim.node.hardware import HardwareNode
 from transport.bus import Bus
 from transport.codec import BEFORE_START, Command, Pose
 from transport.rmw_zenoh import RosNode

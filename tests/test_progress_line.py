@@ -1,8 +1,8 @@
-"""The once-a-second progress line of a distributed run (sim.launcher.progress_line)."""
+"""The once-a-second progress line of a distributed run (sim.run.launcher.progress_line)."""
 
 from __future__ import annotations
 
-from sim.launcher import progress_line
+from sim.run.launcher import progress_line
 
 
 def test_before_the_goal_set_arrives_the_line_says_so_instead_of_counting_zero_of_zero():

@@ -1,6 +1,6 @@
 """The one neighbour search of every engine (agent.core.grid, compiled) against scipy's kd-tree: the
 same neighbours, nearest first, within reach, self excluded, equal distances by key then index; and
-the world's contact search (sim.proximity.close_pairs) against the kd-tree's pairs."""
+the world's contact search (sim.bodies.proximity.close_pairs) against the kd-tree's pairs."""
 
 from __future__ import annotations
 
@@ -10,11 +10,11 @@ from scipy.spatial import cKDTree
 
 from agent.core.grid import nearest
 from agent.neighbour_table import Heard, nearest_heard
-from sim.proximity import close_pairs
+from sim.bodies.proximity import close_pairs
 
 
 def nearest_within(position: np.ndarray, reach: float, m: int) -> np.ndarray:
-    """The central engine's (sim.rvo) use: every robot among all, strictly within reach."""
+    """The central engine's (sim.central.rvo) use: every robot among all, strictly within reach."""
     index = np.arange(len(position), dtype=np.int64)
     p = np.ascontiguousarray(position, dtype=float)
     return nearest(p, index, p, index, reach, m, False)
@@ -166,7 +166,7 @@ def test_the_agents_neighbour_choice_is_the_documented_rule(seed):
 
 @pytest.mark.parametrize("seed", range(12))
 def test_close_pairs_finds_the_kd_tree_s_pairs(seed):
-    """sim.proximity.close_pairs against the pairs a kd-tree finds in reach: the same overlapping
+    """sim.bodies.proximity.close_pairs against the pairs a kd-tree finds in reach: the same overlapping
     pairs with the same depths, the same smallest clearance, and a budget that stops it."""
     rng = np.random.default_rng(seed)
     n, rows = int(rng.integers(2, 400)), int(rng.integers(1, 4))

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.recorder import Recorder
+from sim.outputs.recorder import Recorder
 from transport.codec import AuctionRecord, Bid
 
 from .test_scripted_movers import Bus as MoverBus

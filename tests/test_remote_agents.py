@@ -14,7 +14,7 @@ from pathlib import Path
 import psutil
 import pytest
 
-from sim.agents_cli import format_ids, merge_configs, parse_ids
+from sim.run.remote_agents import format_ids, merge_configs, parse_ids
 from transport.session import free_port, listening
 
 from .conftest import REPO, agent_processes, pixelswarm_cmd, run_pixelswarm, wait_for

@@ -28,8 +28,8 @@ import numpy as np
 import psutil
 import pytest
 
-from sim.mcaplog import logged as mcap_logged
-from sim.ticklog import TICKS_FILE, read_ticks
+from sim.outputs.mcaplog import logged as mcap_logged
+from sim.outputs.ticklog import TICKS_FILE, read_ticks
 
 from .conftest import REPO, descendants, start_run, wait_for, write_disk
 

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from sim import metrics
-from sim.foxglove import QUANTUM, SceneUpdate, scene_update
-from sim.mcaplog import McapLog, mcap_channels, read_mcap
-from sim.render import _View, frame_indices, render_frame, write_plots, write_video
-from sim.rundir import RunDir, default_run_path, dumps_json, json_safe, write_json, write_npz
+from sim.outputs import metrics
+from sim.outputs.foxglove import QUANTUM, SceneUpdate, scene_update
+from sim.outputs.mcaplog import McapLog, mcap_channels, read_mcap
+from sim.outputs.render import _View, frame_indices, render_frame, write_plots, write_video
+from sim.outputs.rundir import RunDir, default_run_path, dumps_json, json_safe, write_json, write_npz
 
 from .conftest import run_pixelswarm
 

@@ -1,5 +1,5 @@
 """Our holonomic ORCA against RVO2 v2.0.3 (through pyrvo) on random one-step configurations, and
-our RVO2-shaped engine (sim.rvo.CentralOrca) on RVO2's own scenes.
+our RVO2-shaped engine (sim.central.rvo.CentralOrca) on RVO2's own scenes.
 
 RVO2 computes in float32, we in float64: inputs are drawn as float32 values so both see the same
 numbers, and results agree to float32 rounding (measured: at most 2e-6). Where RVO2's program is
@@ -21,7 +21,7 @@ from scipy.spatial import cKDTree
 from agent.core import control
 from agent.core.params import EPUCK
 from bench.bench_orca import MARGIN, CentralEngine, blocks, run
-from sim.rvo import CentralOrca
+from sim.central.rvo import CentralOrca
 
 
 @pytest.fixture

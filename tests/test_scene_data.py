@@ -13,7 +13,7 @@ import pytest
 
 from coordinator.resolved import GOAL_SETS_FILE, SCENE_FILE, load_resolved, save_resolved, stored_counts
 from coordinator.scene import SceneError, load_scene, scene_from_dict, scene_goal_set
-from sim.central import run_central
+from sim.central.engine import run_central
 
 from .conftest import REPO, run_scene
 
@@ -105,9 +105,9 @@ def test_the_world_reads_the_run_directory_without_the_image_pipeline(tmp_path):
     save_resolved(scene, tmp_path)
     code = (
         "import json, sys\n"
-        "import sim.world_node\n"
+        "import sim.node.world\n"
         "from coordinator.resolved import load_resolved\n"
-        "from sim.tracker import world_of\n"
+        "from sim.bodies.tracker import world_of\n"
         f"scene = load_resolved({str(tmp_path)!r})\n"
         "params, world = world_of(scene)\n"
         f"print(json.dumps([scene.arena, [m for m in {IMAGE_CODE!r} if m in sys.modules]]))\n"
@@ -119,7 +119,7 @@ def test_the_world_reads_the_run_directory_without_the_image_pipeline(tmp_path):
     assert loaded == []
 
 
-@pytest.mark.parametrize("module", ["sim.world_node", "coordinator.service"])
+@pytest.mark.parametrize("module", ["sim.node.world", "coordinator.service"])
 def test_a_child_given_no_resolved_scene_says_so_in_one_line(tmp_path, module):
     (tmp_path / SCENE_FILE).write_text('{"name": "x"}')
     out = subprocess.run(

@@ -15,8 +15,8 @@ from coordinator import shapes
 from coordinator.goals import generate_goals
 from coordinator.scene import SCENE_DIR, SceneError, load_scene, scene_from_dict, scene_goal_set
 from coordinator.steps import scale_region_counts
-from sim.central import run_central
-from sim.metrics import step_metrics, summarise
+from sim.central.engine import run_central
+from sim.outputs.metrics import step_metrics, summarise
 from transport.codec import as_sent
 
 BLUE_GOAL = 150  # blue channel above this: a goal on the blue part (the line of disk_and_line)

@@ -9,9 +9,9 @@ import numpy as np
 
 from coordinator.scene import scene_from_dict, scene_goal_set, scripted_position
 from coordinator.service import Coordinator
-from sim.central import run_central
-from sim.movers import Movers, scripted_velocity
-from sim.tracker import bodies_of, world_of
+from sim.bodies.movers import Movers, scripted_velocity
+from sim.bodies.tracker import bodies_of, world_of
+from sim.central.engine import run_central
 from transport.codec import Tick
 from transport.keys import Keys
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.cli import main
+from sim.cli.main import main
 from tests.conftest import REPO, bus_when_listening, pixelswarm_cmd, run_pixelswarm
 from transport.codec import Goals, Tick
 from transport.keys import Keys

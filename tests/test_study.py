@@ -17,7 +17,7 @@ from pathlib import Path
 import psutil
 import pytest
 
-from sim.cli import main
+from sim.cli.main import main
 from tests.conftest import REPO, descendants, wait_for
 
 # metrics of the processes and messages of a run, which the central engine has no counterpart for

@@ -1,4 +1,4 @@
-"""Studies on a Dask cluster (sim.study_cluster): a real `dask scheduler` and two `dask worker` processes
+"""Studies on a Dask cluster (sim.study.cluster): a real `dask scheduler` and two `dask worker` processes
 on 127.0.0.1, free ports, each worker with a directory of the test's; stopped by their ids at the end."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 import psutil
 import pytest
 
-from sim.cli import main
+from sim.cli.main import main
 from sim.processes import stop_processes
 from tests.conftest import REPO, wait_for
 from tests.test_study import GRID, grid, read_csv, study  # noqa: F401 - grid: the local study, run once

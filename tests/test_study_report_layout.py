@@ -1,4 +1,4 @@
-"""The study report reads in a 1280-pixel window (sim.study_report): the summary table fits, and a key
+"""The study report reads in a 1280-pixel window (sim.study.report): the summary table fits, and a key
 metric with one value in every run (contacts 0 throughout) is said in one line, not plotted.
 
 The study is written, not run: metrics.json files of a mission-sized spec (3 axes of 3 values, a
@@ -17,9 +17,9 @@ import subprocess
 
 import pytest
 
-from sim import study_report
-from sim.study import StudyDir, load_spec
-from sim.study_report import KEY_METRICS, write_report
+from sim.study import report as study_report
+from sim.study.report import KEY_METRICS, write_report
+from sim.study.spec import StudyDir, load_spec
 
 SPEC = """
 name = "wide"

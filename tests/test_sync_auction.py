@@ -19,7 +19,7 @@ from agent.assignment import AuctionLink
 from agent.core.bidder import Participant
 from agent.core.params import RobotParams
 from agent.core.rounds import BlockRounds
-from sim.central import play
+from sim.central.engine import play
 from transport.bus import Bus
 from transport.codec import Goals, Timing
 from transport.session import client_of, loopback_router, open_session
@@ -114,7 +114,7 @@ def test_a_block_with_one_round_a_tick_spans_ticks_and_is_agreed_at_one_tick_by_
     """rounds_per_tick = 1: the cold start agrees within tick 0 (its robots have nothing to drive to);
     once the robots have moved, the next block goes on over the ticks after its own, and every host
     adopts its agreement at the same tick, the one at which the central engine's single host
-    (sim.central.play, a round a tick) adopts it, with its board."""
+    (sim.central.engine.play, a round a tick) adopts it, with its board."""
     goals = np.array([[0.0, 0.0], [0.3, 0.0], [0.6, 0.0], [0.9, 0.0], [1.2, 0.0], [1.5, 0.0]])
     start = np.array([[0.1, 0.5], [0.2, 0.5], [0.3, 0.5], [0.4, 0.5], [0.5, 0.5], [0.6, 0.5]])
     moved = start[::-1] + [1.0, 0.0]  # the robots' order reversed: the agreement must change

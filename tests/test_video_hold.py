@@ -1,4 +1,4 @@
-"""display.mp4 holds the final picture for at least 3 s of video (sim.render.held_frames), whatever
+"""display.mp4 holds the final picture for at least 3 s of video (sim.outputs.render.held_frames), whatever
 ended the run: a picture's run ends about 1 s after it forms (converge_hold), too short to see."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from coordinator.scene import load_scene
-from sim.render import HOLD_S, _View, frame_indices, held_frames
+from sim.outputs.render import HOLD_S, _View, frame_indices, held_frames
 
 from .conftest import run_pixelswarm
 

@@ -1,4 +1,4 @@
-"""The live view in Rerun (sim.view, pixelswarm run --view, pixelswarm view): no window is opened here.
+"""The live view in Rerun (sim.outputs.view, pixelswarm run --view, pixelswarm view): no window is opened here.
 The logging path writes an .rrd file, read back with Rerun's own chunk reader; the web viewer is a real
 Rerun server process on 127.0.0.1, asked for its page and stopped."""
 
@@ -17,8 +17,8 @@ pytest.importorskip("rerun")
 
 from rerun.chunk import RrdReader  # noqa: E402
 
-from sim.cli import main  # noqa: E402
-from sim.view import SwarmView, replay, url_serves  # noqa: E402
+from sim.cli.main import main  # noqa: E402
+from sim.outputs.view import SwarmView, replay, url_serves  # noqa: E402
 
 from .conftest import run_pixelswarm  # noqa: E402
 

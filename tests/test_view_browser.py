@@ -11,7 +11,7 @@ pytest.importorskip("rerun")
 pytest.importorskip("playwright.sync_api")
 
 from bench.view_screenshot import chromium, screenshot  # noqa: E402
-from sim.view import SwarmView  # noqa: E402
+from sim.outputs.view import SwarmView  # noqa: E402
 
 pytestmark = pytest.mark.skipif(chromium() is None, reason="no Chromium installed")
 

@@ -20,8 +20,8 @@ import pytest
 pytest.importorskip("rerun")
 
 from coordinator.scene import load_scene  # noqa: E402
-from sim.central import simulate  # noqa: E402
-from sim.cli import main  # noqa: E402
+from sim.central.engine import simulate  # noqa: E402
+from sim.cli.main import main  # noqa: E402
 from tests.conftest import REPO, bus_when_listening, pixelswarm_cmd, run_pixelswarm, wait_for  # noqa: E402
 from transport.bus import Bus  # noqa: E402
 from transport.codec import Goals, Tick, Truth  # noqa: E402

@@ -1,4 +1,4 @@
-"""Tests of the simulated world (sim/world.py): kinematics, noise, substeps, contacts, perturbations."""
+"""Tests of the simulated world (sim/bodies/world.py): kinematics, noise, substeps, contacts, perturbations."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from scipy.spatial.distance import pdist, squareform
 
 from agent.core.params import EPUCK, RobotParams
-from sim.world import Body, Contact, World
+from sim.bodies.world import Body, Contact, World
 
 EPUCK_BODY = Body("diffdrive", radius=0.045, v_max=0.13)
 HOLO = Body("holonomic", radius=0.045, v_max=0.13)

@@ -108,7 +108,7 @@ cdef class Settings:
         tracking noise bound as margin (NH-ORCA's radii grow by the tracking error instead),
         neighbours are stale after params.stale_after, grown by the noise bound, and a broadcast
         velocity is committed for one period. ``horizons``: (tau, tau_obst, dt) other than the
-        params' (RVO2's simulator, sim.rvo)."""
+        params' (RVO2's simulator, sim.central.rvo)."""
         cdef Config c
         c.diffdrive = params.kinematics == "diffdrive"
         c.v_pref, c.k_a, c.v_max = params.v_pref, params.k_a, params.v_max
@@ -888,7 +888,7 @@ def step(Settings settings, Batch robots, heard, segments=None):
 
 
 def step_known(Settings settings, Batch robots, index, segments=None):
-    """RVO2's step (sim.rvo): robots that know each other perfectly. Each robot's neighbours
+    """RVO2's step (sim.central.rvo): robots that know each other perfectly. Each robot's neighbours
     are the rows ``index`` (B,M) of the batch itself (-1: none), as they are now, cooperating, of
     their own radius. Returns (v_cf (B,2), fallback (B,))."""
     cdef const int64_t[:, ::1] idx = np.ascontiguousarray(index, dtype=np.int64).reshape(robots.r.b, -1)

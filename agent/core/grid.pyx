@@ -2,10 +2,10 @@
 
 - `nearest`: each query point's up to ``m`` nearest points within ``reach``. An agent calls it for its
   one robot, a host for its K robots, the central engines for all of them (agent.neighbour_table,
-  agent.core.rvo, sim.link), so a robot's neighbours depend only on its own position and the points,
+  agent.core.rvo, sim.central.link), so a robot's neighbours depend only on its own position and the points,
   never on the batch it is computed in.
 - `close_pairs`: every pair of discs within reach of each other over a few states, with the closest
-  pair and the overlaps: the simulated world's contact detection (sim.proximity, sim.world).
+  pair and the overlaps: the simulated world's contact detection (sim.bodies.proximity, sim.bodies.world).
 
 The ranking, the same everywhere: a point j is nearer to a query q than a point l when
 (d2(q, j), key[j], j) < (d2(q, l), key[l], l) lexicographically, with d2 = dx * dx + dy * dy,

@@ -23,7 +23,7 @@ zenoh and no clock. A robot hears only the robots within ``reach`` of it, so no 
 
 The agreement costs at most N (epsilon_A + Delta C) over the optimum once the graph is connected.
 One host runs any subset of the robots (``own``); the central engine runs them all through the same
-rounds (sim.central.settle_in_process), so it and the agents agree bit for bit.
+rounds (sim.central.engine.settle_in_process), so it and the agents agree bit for bit.
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 In round r every host's robots that are not content bid against the board as merged after round
 r - 1 (Jacobi), and every host merges everyone's records of round r onto the same board. Pure: the
 caller carries each round's records to the other hosts and back (agent.assignment over the bus;
-sim.central with no other host). A block may span ticks: the caller decides how many rounds a tick
+sim.central.engine with no other host). A block may span ticks: the caller decides how many rounds a tick
 gets (``RobotParams.rounds_per_tick``), and the block is agreed at the same round everywhere.
 """
 

@@ -413,7 +413,7 @@ class CameraStream:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from sim.cli import OneLineParser  # usage errors as one line, like pixelswarm's
+    from sim.args import OneLineParser  # usage errors as one line, like pixelswarm's
 
     parser = OneLineParser(prog="python -m sim.emulators.camera", description=__doc__.split("\n\n")[0])
     parser.add_argument("out", type=Path, help="new folder to write video.avi, truth.csv and hardware.toml into")

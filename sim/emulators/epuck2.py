@@ -27,8 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from agent.core.params import EPUCK, RobotParams
-from sim.cli import OneLineParser
-from sim.cli_args import positive_int
+from sim.args import OneLineParser, positive_int
 
 COMMAND_PACKET = 0x80
 COMMAND_LENGTH = 21

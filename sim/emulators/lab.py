@@ -27,8 +27,7 @@ import numpy as np
 
 from agent.core.params import RobotParams
 from coordinator.scene import Scene, SceneError, load_scene
-from sim.cli import OneLineParser
-from sim.cli_args import positive_int
+from sim.args import OneLineParser, positive_int
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, settings_from_args
 
 from .epuck2 import Epuck2Emulator, UsageError, write_atomically

@@ -26,6 +26,7 @@ import numpy as np
 
 from hardware.config import HardwareConfigError
 from hardware.ros2 import POSE_STAMPED, Ros2Messages, Ros2PosesConfig
+from sim.args import OneLineParser
 from transport.rmw_zenoh import RosNode, RosPublisher
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, open_session, settings_from_args
 
@@ -128,11 +129,6 @@ def circle(robots: int, radius: float, speed: float) -> PoseFunction:
     return poses
 
 
-class _OneLineParser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # type: ignore[override]  # exits, as argparse's NoReturn error does
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
-
-
 def _positive(kind: type) -> Callable[[str], float]:
     def parse(text: str) -> float:
         try:
@@ -147,7 +143,7 @@ def _positive(kind: type) -> Callable[[str], float]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _OneLineParser(
+    parser = OneLineParser(
         prog="python -m sim.emulators.mocap",
         description="Publish motion-capture poses (geometry_msgs/PoseStamped) over rmw_zenoh: robots on a circle.",
     )

@@ -1,0 +1,95 @@
+"""Argument types shared by the command line's subcommands, and robot ids as messages write them."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import typing
+from pathlib import Path
+
+# s each start-up stage of a run (the coordinator, then every agent) has to come alive by default
+# (sim.run.launcher): on a loaded machine, tens of processes importing numpy and opening sessions at
+# once take minutes, not seconds
+STARTUP_TIMEOUT = 300.0
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """Usage errors as one line (and exit code 2), with `--help` for the rest."""
+
+    def error(self, message: str) -> typing.NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, not {value}")
+    return value
+
+
+FOXGLOVE_PORT = 8765  # Foxglove's own default for a WebSocket connection
+
+
+def port_number(text: str) -> int:
+    """A TCP port, 0 (a free one) to 65535."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a port number") from None
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"a port is 0 to 65535, not {value}")
+    return value
+
+
+def positive_seconds(text: str) -> float:
+    """A finite number of seconds above 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, not {text}")
+    return value
+
+
+def format_ids(ids: list[int]) -> str:
+    """The reverse of sim.run.remote_agents.parse_ids, for messages: [0, 1, 2, 3, 7] -> '0-3, 7'."""
+    runs: list[list[int]] = []
+    for i in sorted(ids):
+        if runs and i == runs[-1][1] + 1:
+            runs[-1][1] = i
+        else:
+            runs.append([i, i])
+    return ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in runs)
+
+
+WATCH_TIMEOUT = 60.0  # s `pixelswarm view --connect` waits for a running swarm's first tick
+
+
+def add_watch_args(view: argparse.ArgumentParser) -> None:
+    """`pixelswarm view`'s flags for watching a running swarm from its bus (sim.outputs.watch)."""
+    view.add_argument(
+        "--connect",
+        "-e",
+        metavar="ENDPOINT",
+        help="watch a running swarm instead: a read-only subscriber of the run's router (or one joined to it), "
+        "e.g. tcp/127.0.0.1:7447",
+    )
+    view.add_argument("--display", help="with --connect: the run's display name (default: default)")
+    view.add_argument(
+        "--secure",
+        type=Path,
+        metavar="DIR",
+        help="with --connect: join a secured bus as the observer role of a folder made by `pixelswarm certs`",
+    )
+    view.add_argument(
+        "--timeout",
+        type=positive_seconds,
+        default=WATCH_TIMEOUT,
+        metavar="SECONDS",
+        help=f"with --connect: how long to wait for the run's first tick (default {WATCH_TIMEOUT:g} s)",
+    )
+    view.add_argument("--quiet", "-q", action="store_true", help="with --connect: no progress lines")

@@ -1,0 +1,59 @@
+"""The central tracker (paper 7.1: an overhead camera, 2 mm / 3 deg) and the bodies of a scene."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from agent.core.params import HOLONOMIC, RobotParams
+from coordinator.scene import Scene
+from sim.bodies.movers import scripted_speed_limit
+from sim.bodies.world import Body, World
+
+
+def bodies_of(scene: Scene) -> tuple[RobotParams, list[Body]]:
+    """Every robot's body; scripted robots (dynamic obstacles) move holonomically along their path, as
+    fast as their script says (not capped at the robot pixels' v_max)."""
+    params = RobotParams.from_dict(scene.robot)
+    body = Body(params.kinematics, params.radius, params.v_max, params.wheel_base, params.omega_max)
+
+    def scripted(i: int) -> Body:
+        return Body(HOLONOMIC, params.radius, scripted_speed_limit(scene.scripted[i], params.v_max))
+
+    return params, [scripted(i) if i in scene.scripted else body for i in range(scene.robots)]
+
+
+def world_of(scene: Scene) -> tuple[RobotParams, World]:
+    params, bodies = bodies_of(scene)
+    return params, World(
+        bodies,
+        scene.poses,
+        arena=scene.arena,
+        obstacles=scene.obstacles,
+        actuation_noise=scene.noise.actuation,
+        seed=scene.seed,
+    )
+
+
+def tracker_of(scene: Scene) -> Tracker:
+    return Tracker(
+        scene.noise.tracking_xy, math.radians(scene.noise.tracking_theta_deg), np.random.default_rng([scene.seed, 1])
+    )
+
+
+@dataclass
+class Tracker:
+    """True poses plus seeded Gaussian noise, drawn for every robot every tick (reproducible)."""
+
+    sigma_xy: float
+    sigma_theta: float
+    rng: np.random.Generator = field(default_factory=lambda: np.random.default_rng(0))
+
+    def measure(self, poses: np.ndarray) -> np.ndarray:
+        noise = self.rng.standard_normal(poses.shape)
+        out = poses.copy()
+        out[:, :2] += self.sigma_xy * noise[:, :2]
+        out[:, 2] = (out[:, 2] + self.sigma_theta * noise[:, 2] + math.pi) % (2 * math.pi) - math.pi
+        return out

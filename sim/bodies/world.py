@@ -1,0 +1,629 @@
+"""The simulated world: N disc robots, their kinematics, actuation noise, arena and obstacles, contacts.
+
+A pure, deterministic physics object (no I/O, no clock, no zenoh) that the world process drives:
+``set_command`` / ``stop`` / ``teleport`` between calls to ``step(dt)``.
+
+Kinematics (per robot, so one world may hold a mixed swarm):
+
+- ``holonomic``: the command is a world-frame velocity (vx, vy); its norm is clipped to ``v_max``.
+  The heading theta is not changed by motion.
+- ``diffdrive``: the command is the pair of LINEAR wheel speeds (v_left, v_right) in m/s, each
+  clipped to +-``v_max``; v = (vl + vr) / 2, omega = (vr - vl) / wheel_base, omega clipped to
+  +-``omega_max``. Integration is the exact unicycle arc (no Euler error).
+
+Actuation noise: the actuation error is held for ``noise_period`` seconds of world time (default
+the control period, RobotParams.dt) on a fixed time grid: on entering each period the world draws an
+(N, 4) standard-normal array from its own ``numpy.random.Generator`` (seeded at construction),
+whatever the commands are. So the noise a robot gets never depends on the order in which commands
+arrived, nor on how time is chunked into ``step`` calls (one step(0.1) or ten step(0.01) draw the
+same numbers), and the same sequence of calls gives bit-identical poses. The realised command is
+``c * (1 + actuation_noise * n)`` per wheel (diffdrive) or ``c + actuation_noise * |c| * n``
+(holonomic, isotropic), plus ``actuation_noise_abs * n'`` (m/s) for robots whose command is
+non-zero (idle motors do not creep); it is then clipped to the limits again, so the speed limits
+hold with noise too. Within a noise period and between commands the motion is an exact arc, so the
+integration itself does not depend on the substep.
+
+Substeps: ``step(dt)`` splits dt into ``ceil(dt / substep)`` equal substeps (0.1 s -> 10 at the
+default 0.01 s) and checks contacts at the end of every substep, so a robot crossing another within
+one control period is still seen. Between substeps a pair can only slip by unseen if it overlaps by
+less than about s^2 / (8 (r_i + r_j)), s its relative displacement in one substep: for two e-pucks
+head-on at 0.13 m/s each (s = 2.6 mm) that is 0.01 mm.
+
+Contacts are RECORDED, NEVER RESOLVED: bodies may overlap. The world does not push robots apart, stop
+them, or hide the overlap; collision avoidance is the controller's job and this world measures how
+well it does. At every substep it detects robot-robot overlaps (centre distance < r_i + r_j),
+robot-obstacle overlaps (signed distance from centre to polygon < r; a centre inside the polygon
+counts as a negative distance) and robot-wall overlaps (signed distance from centre to the arena
+boundary < r; outside the arena counts as negative). A contact EVENT starts at the first substep a
+pair overlaps and ends (``t_end``) at the first substep it no longer does; ``max_depth`` is the
+largest overlap depth (r_i + r_j - distance, or r - signed distance) seen during the event. Robots
+that start overlapping are recorded at t = 0. Touching (distance exactly r_i + r_j) is not contact.
+
+``min_clearance`` is the exact smallest robot-robot clearance (centre distance minus both radii)
+over every substep state so far (negative means overlap); ``step_min_clearance()`` is the same over
+the states of the last step, its start included. Both are +inf with fewer than two robots. Finding
+it exactly and cheaply: a grid of cells on the positions at the start of the step (sim.bodies.proximity); all
+pairs within (clearance of the last step's closest pair now) + 2 r_max + 2 * (largest distance
+travelled in the step) are looked at, and checked at every substep unless they can neither overlap
+nor come closer than the smallest clearance found so far (when that radius takes in too many
+pairs, e.g. the pair was teleported apart: pairs within 2.5 r_max + 2 * travel, then if none came
+closer than r_max / 2, a nearest-neighbour query bounds the radius).
+
+``teleport(i, pose)`` moves a robot as if picked up by hand: no path length, velocity zero, the
+command kept (the controller decides what to send next). The new state is checked for contacts at
+the current time at the start of the next step.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.spatial import cKDTree
+from shapely.geometry import Polygon
+
+from agent.core.params import DIFFDRIVE, EPUCK, HOLONOMIC, KINEMATICS
+from sim.bodies.geometry import (
+    make_arena,
+    make_polygon,
+    polygon_signed_distance,
+    rect_signed_distance,
+    wrap_angle,
+)
+from sim.bodies.kinematics import Bodies, actuate, drive, limit
+from sim.bodies.proximity import close_pairs
+
+__all__ = ["Body", "Contact", "World"]
+
+_KINDS = ("robot", "obstacle", "wall")
+_KIND_ORDER = {k: n for n, k in enumerate(_KINDS)}
+
+
+def _positive(name: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name} must be a number, not {value!r}")
+    v = float(value)
+    if not (math.isfinite(v) and v > 0.0):
+        raise ValueError(f"{name} must be a finite positive number, not {value!r}")
+    return v
+
+
+def _non_negative(name: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name} must be a number, not {value!r}")
+    v = float(value)
+    if not (math.isfinite(v) and v >= 0.0):
+        raise ValueError(f"{name} must be a finite non-negative number, not {value!r}")
+    return v
+
+
+@dataclass(frozen=True)
+class Body:
+    """What the world knows of one robot's body (defaults: the paper's e-puck, Table 1)."""
+
+    kinematics: str  # HOLONOMIC | DIFFDRIVE
+    radius: float
+    v_max: float
+    wheel_base: float = EPUCK.wheel_base
+    omega_max: float = EPUCK.omega_max
+
+    def __post_init__(self) -> None:
+        if self.kinematics not in KINEMATICS:
+            raise ValueError(f"kinematics must be {HOLONOMIC!r} or {DIFFDRIVE!r}, not {self.kinematics!r}")
+        for name in ("radius", "v_max", "wheel_base", "omega_max"):
+            _positive(f"body {name}", getattr(self, name))
+
+    @classmethod
+    def from_params(cls, params: Any) -> Body:
+        """The body part of an ``agent.core.params.RobotParams`` (or anything with those fields)."""
+        return cls(
+            kinematics=params.kinematics,
+            radius=params.radius,
+            v_max=params.v_max,
+            wheel_base=params.wheel_base,
+            omega_max=params.omega_max,
+        )
+
+
+@dataclass
+class Contact:
+    """One contact event. ``j`` is the other robot (robot), the obstacle index (obstacle), or -1 (wall).
+
+    For robot-robot events i < j. ``t_end`` is None while the event is ongoing; the object returned
+    by ``World.step`` is the one the world updates, so it later shows ``t_end`` and ``max_depth``.
+    """
+
+    kind: str
+    i: int
+    j: int
+    t_start: float
+    t_end: float | None
+    max_depth: float
+
+
+class World:
+    """N disc robots in a plane with optional arena walls and polygon obstacles; see the module doc."""
+
+    def __init__(
+        self,
+        bodies: Sequence[Body],
+        poses: np.ndarray,
+        *,
+        arena: tuple[float, float, float, float] | None = None,
+        obstacles: Sequence[Sequence[tuple[float, float]]] = (),
+        actuation_noise: float = 0.02,
+        actuation_noise_abs: float = 0.0,
+        seed: int = 0,
+        substep: float = 0.01,
+        noise_period: float = EPUCK.dt,
+    ) -> None:
+        bodies = list(bodies)
+        if not bodies:
+            raise ValueError("a world needs at least one robot body")
+        for k, b in enumerate(bodies):
+            if not isinstance(b, Body):
+                raise ValueError(f"bodies[{k}] must be a Body, not {type(b).__name__}")
+        try:
+            p = np.array(poses, dtype=float)
+        except (TypeError, ValueError):
+            raise ValueError("poses must be an (N, 3) array of numbers (x, y, theta)") from None
+        if p.shape != (len(bodies), 3):
+            raise ValueError(f"poses must have shape ({len(bodies)}, 3) to match the bodies, not {p.shape}")
+        if not np.all(np.isfinite(p)):
+            raise ValueError("poses must be finite")
+        self._noise_rel = _non_negative("actuation_noise", actuation_noise)
+        self._noise_abs = _non_negative("actuation_noise_abs", actuation_noise_abs)
+        self._substep = _positive("substep", substep)
+        self._noise_period = _positive("noise_period", noise_period)
+        self._noise = np.zeros((len(bodies), 4))
+        self._noise_index: int | None = None  # the noise period self._noise belongs to
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise ValueError(f"seed must be a non-negative integer, not {seed!r}")
+        self._arena = make_arena(arena)
+        self._obstacles: list[Polygon] = [make_polygon(v, k) for k, v in enumerate(obstacles)]
+        self._obstacle_bounds = np.array([o.bounds for o in self._obstacles], dtype=float).reshape(-1, 4)
+
+        self._bodies = tuple(bodies)
+        self._n = n = len(bodies)
+        self._is_diff = np.array([b.kinematics == DIFFDRIVE for b in bodies])
+        self._radius = np.array([b.radius for b in bodies], dtype=float)
+        self._v_max = np.array([b.v_max for b in bodies], dtype=float)
+        self._wheel_base = np.array([b.wheel_base for b in bodies], dtype=float)
+        self._omega_max = np.array([b.omega_max for b in bodies], dtype=float)
+        self._r_max = float(self._radius.max())
+        self._bodies_c = Bodies(
+            self._v_max, self._is_diff, self._wheel_base, self._omega_max, self._noise_rel, self._noise_abs
+        )
+
+        self._rng = np.random.default_rng(int(seed))
+        self._pos = p[:, :2].copy()
+        self._theta = wrap_angle(p[:, 2])
+        self._cmd = np.zeros((n, 2))
+        self._vel = np.zeros((n, 2))
+        self._path = np.zeros(n)
+        self._n_cmd = np.zeros(n, dtype=np.int64)
+        self._t_sum = 0.0  # time, kept as a compensated (Neumaier) sum: ten steps of 0.1 s give 1.0
+        self._t_comp = 0.0
+        self._contacts: list[Contact] = []
+        self._active: dict[tuple[str, int, int], Contact] = {}
+        self._min_clearance = math.inf
+        self._step_min_clearance = math.inf
+        self._check_start = False
+        self._closest: tuple[int, int] | None = None  # the pair closest during the last step
+        self.last_substeps = 0  # number of substeps the last step() ran
+        self._unchecked: tuple | None = None  # a step whose contacts are not yet detected (step(check=False))
+        self._checked = 0  # steps checked for contacts (restore() cannot undo a checked one)
+
+        # the initial state: contacts at t = 0 and the initial clearance
+        self._step_min_clearance = self._detect(self._pos[None], np.zeros(1), 0.0, first_row=0)[1]
+
+    # ---------------------------------------------------------------- construction helpers
+
+    @classmethod
+    def from_params(cls, params: Any, poses: np.ndarray, **kwargs: Any) -> World:
+        """A world from one ``RobotParams`` (for every robot) or a sequence of them (one per robot)."""
+        n = len(np.asarray(poses))
+        if isinstance(params, (list, tuple)):
+            bodies = [Body.from_params(p) for p in params]
+        else:
+            bodies = [Body.from_params(params)] * n
+        return cls(bodies, poses, **kwargs)
+
+    # ---------------------------------------------------------------- state
+
+    @property
+    def bodies(self) -> tuple[Body, ...]:
+        return self._bodies
+
+    @property
+    def radii(self) -> np.ndarray:
+        return self._radius.copy()
+
+    @property
+    def arena(self) -> tuple[float, float, float, float] | None:
+        return self._arena
+
+    @property
+    def obstacles(self) -> list[Polygon]:
+        return list(self._obstacles)
+
+    @property
+    def substep(self) -> float:
+        """Longest integration and contact-check interval (s)."""
+        return self._substep
+
+    @property
+    def poses(self) -> np.ndarray:
+        """(N, 3) x, y, theta (theta in [-pi, pi)); a copy."""
+        return np.column_stack((self._pos, self._theta))
+
+    @property
+    def velocities(self) -> np.ndarray:
+        """(N, 2) world-frame velocity achieved over the last substep (displacement / substep); a copy."""
+        return self._vel.copy()
+
+    @property
+    def commands(self) -> np.ndarray:
+        """(N, 2) current commands after clipping to the limits; a copy."""
+        return self._cmd.copy()
+
+    @property
+    def time(self) -> float:
+        return self._t_sum + self._t_comp
+
+    @property
+    def path_length(self) -> np.ndarray:
+        """(N,) distance travelled along the path (arc length), teleports excluded; a copy."""
+        return self._path.copy()
+
+    @property
+    def commands_applied(self) -> np.ndarray:
+        """(N,) number of set_command calls per robot; a copy."""
+        return self._n_cmd.copy()
+
+    @property
+    def min_clearance(self) -> float:
+        self.check()
+        return self._min_clearance
+
+    def step_min_clearance(self) -> float:
+        """Minimum robot-robot clearance over the states of the last step (before any step: t = 0)."""
+        self.check()
+        return self._step_min_clearance
+
+    @property
+    def contacts(self) -> list[Contact]:
+        """Every contact event so far, in order of start (a new list of the live event objects)."""
+        self.check()
+        return list(self._contacts)
+
+    @property
+    def active_contacts(self) -> list[Contact]:
+        """The ongoing contact events."""
+        self.check()
+        return sorted(self._active.values(), key=_contact_order)
+
+    # ---------------------------------------------------------------- inputs
+
+    def _index(self, i: Any) -> int:
+        if isinstance(i, bool) or not isinstance(i, (int, np.integer)) or not 0 <= i < self._n:
+            raise ValueError(f"robot index must be an integer in [0, {self._n}), not {i!r}")
+        return int(i)
+
+    def set_command(self, i: int, a: float, b: float) -> None:
+        """Holonomic: world-frame (vx, vy); diffdrive: linear wheel speeds (v_left, v_right), m/s."""
+        i = self._index(i)
+        try:
+            a, b = float(a), float(b)
+        except (TypeError, ValueError):
+            raise ValueError(f"command for robot {i} must be two numbers, not ({a!r}, {b!r})") from None
+        if not (math.isfinite(a) and math.isfinite(b)):
+            raise ValueError(f"command for robot {i} must be finite, not ({a}, {b})")
+        vmax = self._v_max[i]
+        if self._is_diff[i]:
+            a, b = min(max(a, -vmax), vmax), min(max(b, -vmax), vmax)
+        else:
+            norm = math.hypot(a, b)
+            if norm > vmax:
+                a, b = a * vmax / norm, b * vmax / norm
+        self._cmd[i] = (a, b)
+        self._n_cmd[i] += 1
+
+    def set_commands(self, commands: np.ndarray) -> None:
+        """Every robot's command at once, (N, 2) with rows as ``set_command`` takes them, clipped the
+        same way (sim.bodies.kinematics.limit, whose norm may differ from math.hypot in the last bit). One
+        call instead of N: the central engine commands every robot each tick."""
+        c, bad = limit(self._bodies_c, commands)
+        if bad >= 0:
+            raise ValueError(f"command for robot {bad} must be finite, not {tuple(c[bad])}")
+        self._cmd[:] = c
+        self._n_cmd += 1
+
+    def stop(self, i: int) -> None:
+        """Zero robot i's command (e.g. its agent crashed); it stays zero until the next set_command."""
+        self._cmd[self._index(i)] = 0.0
+
+    def teleport(self, i: int, pose: tuple[float, float, float]) -> None:
+        """Move robot i to pose (x, y, theta) as if picked up by hand: velocity zero, no path length."""
+        i = self._index(i)
+        try:
+            x, y, th = (float(v) for v in pose)
+        except (TypeError, ValueError):
+            raise ValueError(f"teleport pose must be three numbers (x, y, theta), not {pose!r}") from None
+        if not all(math.isfinite(v) for v in (x, y, th)):
+            raise ValueError(f"teleport pose must be finite, not {pose!r}")
+        self._pos[i] = (x, y)
+        self._theta[i] = wrap_angle(th)
+        self._vel[i] = 0.0
+        self._check_start = True
+
+    def snapshot(self) -> tuple:
+        """The state that steps, commands and teleports change, for `restore` (the contacts so far
+        are checked first; they are not part of it)."""
+        self.check()
+        return (
+            self._checked,
+            self._pos.copy(),
+            self._theta.copy(),
+            self._vel.copy(),
+            self._path.copy(),
+            self._cmd.copy(),
+            self._n_cmd.copy(),
+            self._noise.copy(),
+            self._noise_index,
+            self._rng.bit_generator.state,
+            self._t_sum,
+            self._t_comp,
+            self._check_start,
+            self.last_substeps,
+        )
+
+    def restore(self, saved: tuple) -> None:
+        """Back to a `snapshot`, as if nothing had happened since: the central engine steps the
+        world on the commands it expects while the auction runs, and again if the auction changed
+        them. Contacts are not undone, so no step since may have been checked (one step with
+        ``check=False`` and nothing that reads contacts or clearance)."""
+        if saved[0] != self._checked:
+            raise ValueError("cannot restore: contacts were checked since the snapshot")
+        (
+            _,
+            pos,
+            theta,
+            vel,
+            path,
+            cmd,
+            n_cmd,
+            noise,
+            self._noise_index,
+            self._rng.bit_generator.state,
+            self._t_sum,
+            self._t_comp,
+            self._check_start,
+            self.last_substeps,
+        ) = saved
+        self._pos, self._theta, self._vel, self._path = pos.copy(), theta.copy(), vel.copy(), path.copy()
+        self._cmd, self._n_cmd, self._noise = cmd.copy(), n_cmd.copy(), noise.copy()
+        self._unchecked = None
+
+    # ---------------------------------------------------------------- dynamics
+
+    def step(self, dt: float, *, check: bool = True) -> list[Contact]:
+        """Advance by dt seconds in substeps; return the contact events that started during this step.
+        ``check=False`` leaves the contacts of this step to be detected by `check()` (or by anything
+        that reads contacts or clearance, or the next step, which returns them with its own): the
+        central engine moves robots on and looks for contacts while the next auction runs."""
+        dt = _positive("dt", dt)
+        before = self.check()
+        k = max(1, math.ceil(dt / self._substep - 1e-9))
+        h = dt / k
+        tk = np.linspace(0.0, dt, k + 1)  # substep times relative to the start of the step
+        t0 = self.time
+
+        # segments of constant actuation: split where a new noise period starts inside the step
+        period = self._noise_period
+        eps = 1e-9 * period
+        index = math.floor((t0 + eps) / period)
+        if index != self._noise_index:
+            self._draw_noise(index)
+        cuts = []
+        boundary = (index + 1) * period
+        while boundary < t0 + dt - eps:
+            cuts.append(boundary - t0)
+            boundary += period
+        bounds = [0.0, *cuts, dt]
+
+        pos, theta = self._pos.copy(), self._theta.copy()
+        traj = np.empty((k + 1, self._n, 2))
+        traj[0] = pos
+        ends = np.empty((1, self._n, 2))
+        motion = 0.0  # bound on any robot's distance from its start (sum of the longest arcs)
+        row = 1
+        for seg, (sa, sb) in enumerate(zip(bounds[:-1], bounds[1:])):
+            if seg:
+                self._draw_noise(index + seg)  # the period after the last segment's
+            moving = actuate(self._bodies_c, self._cmd, self._noise, theta)
+            end = k + 1 if seg == len(bounds) - 2 else int(np.searchsorted(tk, sb + eps, side="right"))
+            length = sb - sa
+            drive(moving, 0.0, tk[row:end] - sa, pos, traj[row:end])  # the substeps in the segment
+            row = end
+            drive(moving, 0.0, np.array([length]), pos, ends)  # and its end
+            pos = ends[0].copy()
+            speed, omega = np.abs(moving[:, 0]), moving[:, 3]
+            theta = theta + omega * length
+            self._path += speed * length
+            motion += float(speed.max()) * length
+
+        self._advance_time(dt)
+        times = t0 + tk
+        times[-1] = self.time
+        self._unchecked = (traj, times, motion * (1.0 + 1e-9), 0 if self._check_start else 1)
+
+        # velocity: the chord of the last substep, computed directly (no cancellation) if it lies in
+        # the last segment
+        if dt - h >= bounds[-2] - eps:
+            drive(moving, dt - h - bounds[-2], np.array([h]), np.zeros((self._n, 2)), ends)
+            self._vel = ends[0] / h
+        else:
+            self._vel = (traj[k] - traj[k - 1]) / h
+        self._pos = traj[k].copy()
+        self._theta = wrap_angle(theta)
+        self._check_start = False
+        self.last_substeps = k
+        return before + (self.check() if check else [])
+
+    def check(self) -> list[Contact]:
+        """Detect the contacts of a step run with ``check=False``; the contact events that started
+        during it (none if every step is checked)."""
+        if self._unchecked is None:
+            return []
+        traj, times, motion, first_row = self._unchecked
+        self._unchecked = None
+        self._checked += 1
+        started, self._step_min_clearance = self._detect(traj, times, motion, first_row)
+        return started
+
+    def _draw_noise(self, index: int) -> None:
+        self._noise = self._rng.standard_normal((self._n, 4))
+        self._noise_index = index
+
+    def _advance_time(self, dt: float) -> None:
+        s = self._t_sum
+        t = s + dt
+        if abs(s) >= abs(dt):
+            self._t_comp += (s - t) + dt
+        else:
+            self._t_comp += (dt - t) + s
+        self._t_sum = t
+
+    # ---------------------------------------------------------------- contacts
+
+    def _detect(
+        self, traj: np.ndarray, times: np.ndarray, motion: float, first_row: int
+    ) -> tuple[list[Contact], float]:
+        """Contacts and clearance over the states traj (rows, N, 2) at times (rows,).
+
+        ``motion`` bounds how far any robot is from traj[0] in any row. Rows before ``first_row`` count
+        for the clearance but not for contact events (they were checked at the end of the last step).
+        """
+        r = self._radius
+        groups: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]] = []  # kind, i, j, depth (rows, H)
+        step_min = math.inf
+
+        # robot-robot: the pairs within a search radius of each other at the start of the step
+        if self._n >= 2:
+            step_min, closest, ii, jj, depth = self._robot_pairs(traj, motion, first_row)
+            self._closest = closest
+            if ii.size:
+                groups.append(("robot", ii, jj, depth))
+
+        rows = traj[first_row:]
+        # walls: only robots that start within r + motion of one can reach it
+        if self._arena is not None and rows.shape[0]:
+            xmin, ymin, xmax, ymax = self._arena
+            x, y = traj[0, :, 0], traj[0, :, 1]
+            reach = r + motion + 1e-9
+            near = np.flatnonzero((x - xmin < reach) | (xmax - x < reach) | (y - ymin < reach) | (ymax - y < reach))
+            if near.size:
+                depth = r[near] - rect_signed_distance(rows[:, near], self._arena)  # (rows, near)
+                hit = np.flatnonzero(np.any(depth > 0.0, axis=0))
+                if hit.size:
+                    groups.append(("wall", near[hit], np.full(hit.size, -1), depth[:, hit]))
+
+        # obstacles: only robots whose swept disc may reach the obstacle's bounding box
+        if self._obstacles and rows.shape[0]:
+            reach = r + motion + 1e-9
+            p0 = traj[0]
+            for o, (poly, (x0, y0, x1, y1)) in enumerate(zip(self._obstacles, self._obstacle_bounds)):
+                x, y = p0[:, 0], p0[:, 1]
+                near = np.flatnonzero((x > x0 - reach) & (x < x1 + reach) & (y > y0 - reach) & (y < y1 + reach))
+                if near.size == 0:
+                    continue
+                sd = polygon_signed_distance(poly, rows[:, near].reshape(-1, 2))
+                sd = sd.reshape(rows.shape[0], near.size)
+                depth = r[near] - sd
+                hit = np.flatnonzero(np.any(depth > 0.0, axis=0))
+                if hit.size:
+                    groups.append(("obstacle", near[hit], np.full(hit.size, o), depth[:, hit]))
+
+        self._min_clearance = min(self._min_clearance, step_min)
+        return self._update_events(groups, times[first_row:]), step_min
+
+    def _robot_pairs(
+        self, traj: np.ndarray, motion: float, first_row: int
+    ) -> tuple[float, tuple[int, int], np.ndarray, np.ndarray, np.ndarray]:
+        """The smallest robot-robot clearance over the rows, a pair that has it, and the overlapping
+        pairs (i, j, depth (rows - first_row, H)), exactly: every pair that can overlap or be the
+        closest is searched (sim.bodies.proximity.close_pairs)."""
+        r = self._radius
+        base = 2.0 * self._r_max + 2.0 * motion  # any pair that can overlap is within this
+        base += 1e-9 * (1.0 + base)
+        found = None
+        if self._closest is not None:
+            # the clearance, in row 0, of the pair closest in the last step bounds this step's
+            # minimum: no pair farther than that + base can beat it. If that pair has drifted far
+            # apart (a teleport) while others are close, this looks at too many pairs: given up
+            a, b = self._closest
+            upper = math.hypot(*(traj[0, a] - traj[0, b])) - r[a] - r[b]
+            found = close_pairs(traj, r, max(upper, 0.0) + base, motion, first_row, bound=upper, budget=64 * self._n)
+        if found is None:
+            # pairs beyond base + margin keep a clearance above margin in every row
+            margin = 0.5 * self._r_max
+            found = close_pairs(traj, r, base + margin, motion, first_row)
+            assert found is not None  # without a budget the search is never given up
+            if not found[0] < margin:
+                # none came that close: bound the search by the nearest neighbours in row 0
+                dist, idx = cKDTree(traj[0]).query(traj[0], k=2)
+                radius = max(float(np.min(dist[:, 1] - r - r[idx[:, 1]])), 0.0) + base
+                found = close_pairs(traj, r, radius, motion, first_row)
+                assert found is not None
+        step_min, a, b, pairs, depth = found
+        return step_min, (a, b), pairs[:, 0], pairs[:, 1], depth
+
+    def _update_events(
+        self, groups: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]], times: np.ndarray
+    ) -> list[Contact]:
+        """Start, extend and end contact events from the overlap depths (positive = overlap) per row."""
+        started: list[Contact] = []
+        active = self._active
+        seen: set[tuple[str, int, int]] = set()
+        t_list = times.tolist()
+        for kind, ii, jj, depth in groups:
+            over = depth > 0.0
+            steady = np.all(over, axis=0).tolist()  # overlapping in every row: at most a deeper max
+            peak = depth.max(axis=0).tolist()
+            for c, (i, j) in enumerate(zip(ii.tolist(), jj.tolist())):
+                key = (kind, i, j)
+                seen.add(key)
+                event = active.get(key)
+                if event is not None and steady[c]:
+                    if peak[c] > event.max_depth:
+                        event.max_depth = peak[c]
+                    continue
+                for row, t in enumerate(t_list):
+                    d = float(depth[row, c])
+                    if d > 0.0:
+                        if event is None:
+                            event = Contact(kind, i, j, t, None, d)
+                            started.append(event)
+                        elif d > event.max_depth:
+                            event.max_depth = d
+                    elif event is not None:
+                        event.t_end = t
+                        event = None
+                if event is None:
+                    active.pop(key, None)
+                else:
+                    active[key] = event
+        if t_list:
+            for key in [k for k in active if k not in seen]:  # no overlap in any row: ended at the first
+                active.pop(key).t_end = t_list[0]
+        started.sort(key=_contact_order)
+        self._contacts.extend(started)
+        return started
+
+
+def _contact_order(c: Contact) -> tuple[float, int, int, int]:
+    return (c.t_start, _KIND_ORDER[c.kind], c.i, c.j)

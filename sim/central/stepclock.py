@@ -1,0 +1,56 @@
+"""Wall and CPU time per part of each control step of the central engine (bench/bench_large.py).
+
+The engine calls ``start()`` at the top of every tick and ``lap(part)`` after each part, which
+charges the time since the last lap to that part; a few clock reads per tick, so the engine always
+keeps one. The laps are the engine's own thread: a warm auction runs on a second thread meanwhile
+(sim.central.engine), and the "assignment" part is the time spent waiting for it; its own time is kept
+apart, in ``beside``. CPU time (this process's, both threads) is kept beside wall time because on a
+shared machine the wall time of a part counts whatever else ran meanwhile.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+# The parts of a control step, in the order the engine runs them.
+PARTS = ("tracker", "assignment", "preferred", "record", "neighbours", "control", "world", "other")
+
+
+class StepClock:
+    """Seconds per part and tick: ``wall[part][tick]`` and ``cpu[part][tick]``."""
+
+    def __init__(self) -> None:
+        self.wall: dict[str, list[float]] = {part: [] for part in PARTS}
+        self.cpu: dict[str, list[float]] = {part: [] for part in PARTS}
+        self.beside: list[float] = []  # per tick: wall seconds of the auction on the second thread (0: none)
+        self._last = (0.0, 0.0)
+
+    def start(self) -> None:
+        """A new tick: every part starts at zero."""
+        for part in PARTS:
+            self.wall[part].append(0.0)
+            self.cpu[part].append(0.0)
+        self.beside.append(0.0)
+        self._last = (time.perf_counter(), time.process_time())
+
+    def lap(self, part: str) -> None:
+        now = (time.perf_counter(), time.process_time())
+        self.wall[part][-1] += now[0] - self._last[0]
+        self.cpu[part][-1] += now[1] - self._last[1]
+        self._last = now
+
+    def timed_beside(self, work: Callable[..., Any], *args: Any) -> Any:
+        """Run work(*args) on whichever thread calls this, adding its wall time to this tick's
+        ``beside`` (the engine submits its auction to a second thread through it)."""
+        t = time.perf_counter()
+        out = work(*args)
+        self.beside[-1] += time.perf_counter() - t
+        return out
+
+    def arrays(self, cpu: bool = False) -> dict[str, np.ndarray]:
+        """(ticks,) seconds per part, wall time (or this process's CPU time)."""
+        return {part: np.array(spent) for part, spent in (self.cpu if cpu else self.wall).items()}

@@ -1,0 +1,643 @@
+"""The `pixelswarm` command: run a scene, run a router, make goals from an image, list scenes."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import sys
+import threading
+import time
+import tomllib
+import typing
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from agent.core.params import EPUCK, RobotParams
+from coordinator.goals_cli import add_goals_parser
+from coordinator.scene import (
+    CLOCKS,
+    ENGINES,
+    Scene,
+    SceneError,
+    make_goal_sets,
+    parse_scene,
+    resolve_scene_path,
+    shipped_scenes,
+)
+from sim.args import FOXGLOVE_PORT, STARTUP_TIMEOUT, OneLineParser, add_watch_args, port_number, positive_int
+from sim.cli.certs import add_certs_parser
+from sim.cli.track import add_track_parser
+from sim.outputs.rundir import default_run_path
+from sim.run.remote_agents import add_agents_parser
+from sim.study.runner import add_study_parser
+from transport.faults import parse_faults
+from transport.security import SecurityError, check_folder, router_config
+from transport.session import TransportError, ZenohSettings, add_zenoh_args, open_session, settings_from_args
+
+STARTUP_FAILED = 3  # exit code of a run whose agents did not all come alive (docs/cli.md)
+GOALS_SAID_AFTER = 0.5  # s: goal sets that take longer are said on stderr, so a long start-up is not silent
+
+
+class UsageError(Exception):
+    """Bad input from the user: one line, exit code 2."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = OneLineParser(prog="pixelswarm", description="Image and animation display with robot swarms.")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    run = sub.add_parser("run", help="run a scene: router, world, tracker, coordinator and one process per robot")
+    run.add_argument(
+        "scene",
+        help=f"a shipped scene ({', '.join(shipped_scenes())}), a path to a scene .toml, "
+        "an image (PNG, JPEG, BMP, TIFF) to display, or a folder of keyframe images "
+        "to play as an animation (file-name order)",
+    )
+    run.add_argument("--robots", "-n", type=positive_int, help="number of robots (overrides the scene)")
+    run.add_argument("--seed", type=int, help="random seed, a whole number >= 0 (overrides the scene)")
+    run.add_argument("--clock", choices=CLOCKS, help="clock (overrides the scene)")
+    run.add_argument("--duration", type=float, help="seconds of display time at most (overrides the scene)")
+    run.add_argument("--out", type=Path, help="run directory (default runs/<UTC time>-<scene>)")
+    run.add_argument(
+        "--engine",
+        choices=ENGINES,
+        help="distributed: one process per robot over zenoh (default, unless the scene says "
+        'engine = "central"); central: every robot stepped in one call with perfect '
+        "information (reference, and fast for large swarms)",
+    )
+    run.add_argument("--no-video", dest="video", action="store_false", help="skip display.mp4")
+    run.add_argument("--no-plots", dest="plots", action="store_false", help="skip clearance.png and trajectories.png")
+    run.add_argument(
+        "--agents-per-process",
+        "-k",
+        type=positive_int,
+        metavar="K",
+        help="robots per agent process (default 1: one process per robot, unless the scene "
+        "says agents_per_process = K)",
+    )
+    run.add_argument(
+        "--faults",
+        default="",
+        metavar="PLAN",
+        help="fault injection, e.g. 'state:drop=0.1,delay=0.05,jitter=0.01' (';' between kinds)",
+    )
+    run.add_argument(
+        "--range",
+        dest="reach",
+        type=float,
+        default=None,
+        metavar="R",
+        help="communication range in metres: a robot hears the states and auction words only of robots "
+        "within R (lock-step only; default: everyone hears everyone)",
+    )
+    run.add_argument(
+        "--rounds-per-tick",
+        type=int,
+        default=None,
+        metavar="N",
+        help="lock-step: at most N auction message rounds a tick, a block of phases spanning ticks "
+        "(default: the scene's [robot] rounds_per_tick, 0: every block agreed within its tick)",
+    )
+    run.add_argument(
+        "--deadline",
+        type=float,
+        default=None,
+        help="lock-step: seconds to wait for a late agent's command (default: the scene's, 2 s)",
+    )
+    run.add_argument(
+        "--agents-connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="spread agent processes over these routers, round robin (repeatable; default: ours)",
+    )
+    run.add_argument("--display", default="default", help="display name (key prefix), for several swarms")
+    run.add_argument(
+        "--remote-agents",
+        action="store_true",
+        help="start no agents: serve each robot's configuration on the bus and wait for `pixelswarm agents "
+        "--connect ENDPOINT` to start them (on this machine or others); give the endpoint with --listen",
+    )
+    run.add_argument(
+        "--agents-timeout",
+        type=float,
+        metavar="SECONDS",
+        help="--remote-agents: how long to wait for every robot's agent (default 60 s)",
+    )
+    run.add_argument(
+        "--startup-timeout",
+        type=float,
+        metavar="SECONDS",
+        help="how long the coordinator, then the agents, have to come alive (default "
+        f"{STARTUP_TIMEOUT:g} s); past it the run ends naming the robots still missing (exit code "
+        f"{STARTUP_FAILED})",
+    )
+    run.add_argument(
+        "--secure",
+        type=Path,
+        metavar="DIR",
+        help="a secured bus from a folder made by `pixelswarm certs`: mutual TLS, and each process "
+        "allowed only its role's keys (docs/security.md); one robot per agent process",
+    )
+    run.add_argument(
+        "--hardware",
+        type=Path,
+        metavar="FILE",
+        help="drive real robots (or emulated ones) named in a hardware file with [backend] and [poses], "
+        "on the wall clock; the robot count and start poses come from it (docs/hardware.md)",
+    )
+    run.add_argument(
+        "--foxglove",
+        type=port_number,
+        nargs="?",
+        const=FOXGLOVE_PORT,
+        metavar="PORT",
+        help=f"also stream log.mcap's channels live over Foxglove's WebSocket protocol on 127.0.0.1:PORT "
+        f"(default {FOXGLOVE_PORT}; 0: a free port), for the Foxglove app; distributed engine",
+    )
+    run.add_argument(
+        "--view",
+        nargs="?",
+        const="native",
+        metavar="native|web|FILE.rrd",
+        help="watch the swarm live in Rerun's viewer (pip install 'pixelswarm[view]'): native (the default) "
+        "opens its window, web serves its web viewer on 127.0.0.1 and prints the address (kept up after the "
+        "run until Ctrl-C), FILE.rrd writes the recording to a file",
+    )
+    run.add_argument("--quiet", "-q", action="store_true", help="no progress output")
+    add_zenoh_args(run, default_mode="router")
+    run.set_defaults(func=cmd_run)
+
+    router = sub.add_parser("router", help="run a standalone zenoh router (for several machines or processes)")
+    add_zenoh_args(router, default_mode="router")
+    router.set_defaults(func=cmd_router)
+
+    stop = sub.add_parser("stop", help="stop every robot of a hardware file at once (after a run died)")
+    stop.add_argument("--hardware", type=Path, metavar="FILE", required=True, help="the hardware file")
+    stop.add_argument(
+        "-e", "--connect", metavar="ENDPOINT", help="the router robots are reached through (ROS 2: rmw_zenohd)"
+    )
+    stop.set_defaults(func=cmd_stop)
+
+    view = sub.add_parser(
+        "view",
+        help="replay a finished run in Rerun's viewer (its trajectory.npz), or watch a running one with --connect "
+        "(pip install 'pixelswarm[view]')",
+    )
+    view.add_argument("run_dir", type=Path, nargs="?", metavar="RUN_DIR", help="a run directory (with trajectory.npz)")
+    add_watch_args(view)
+    view.add_argument(
+        "--web", action="store_true", help="serve Rerun's web viewer on 127.0.0.1 and print its address (until Ctrl-C)"
+    )
+    view.add_argument(
+        "--save",
+        type=Path,
+        metavar="FILE.rrd",
+        help="only write the recording to FILE.rrd (default: RUN_DIR/view.rrd, written once and then reused)",
+    )
+    view.set_defaults(func=cmd_view)
+
+    scenes = sub.add_parser("scenes", help="list the shipped scenes")
+    scenes.set_defaults(func=cmd_scenes)
+
+    add_goals_parser(sub)
+    add_agents_parser(sub)
+    add_certs_parser(sub)
+    add_track_parser(sub)
+    add_study_parser(sub)
+    return parser
+
+
+def _names_the_simulator(path: Path) -> bool:
+    """A hardware file whose backend is the simulated world (`kind = "sim"`)."""
+    from hardware.config import HardwareConfigError, load_hardware
+
+    try:
+        return load_hardware(path).backend_kind == "sim"
+    except HardwareConfigError as err:
+        raise UsageError(str(err)) from None
+
+
+def _hardware_scene(args: argparse.Namespace) -> Scene:
+    """The scene as a hardware run plays it: the hardware file's robots, on the wall clock."""
+    from hardware.config import HardwareConfigError
+    from sim.node.hardware import HardwareError, load_run
+
+    if (args.engine or "distributed") != "distributed":
+        raise UsageError("--hardware runs the distributed engine: drop --engine central")
+    if args.clock == "lockstep":
+        raise UsageError("--hardware runs on the wall clock: drop --clock lockstep")
+    if args.robots is not None:
+        raise UsageError("--hardware takes the number of robots from the hardware file: drop --robots")
+    if args.secure is not None:
+        raise UsageError(
+            "--hardware cannot be combined with --secure yet: its pose source joins outside the access rules"
+        )
+    try:
+        return load_run(str(args.hardware), args.scene, args.seed, args.duration)[1]
+    except (HardwareError, HardwareConfigError, SceneError) as err:
+        raise UsageError(str(err)) from None
+
+
+def _make_goal_sets(scene: Scene, progress: typing.TextIO | None) -> Scene:
+    """The scene's goal sets (make_goal_sets). At thousands of robots they take seconds: once they
+    have taken GOALS_SAID_AFTER, progress hears what is going on, and when it is done (a scene refused
+    at once still answers in one line)."""
+    if scene.goal_plan is None or progress is None:
+        return make_goal_sets(scene)
+    images = len(scene.steps)
+    what = f"{images} image{'s' * (images != 1)}"
+    said = threading.Event()
+
+    def say() -> None:
+        said.set()
+        print(
+            f"[{scene.name}] {scene.robots} robots: making the goals of {what} (segmentation, CVT)",
+            file=progress,
+            flush=True,
+        )
+
+    start = time.monotonic()
+    timer = threading.Timer(GOALS_SAID_AFTER, say)
+    timer.daemon = True
+    timer.start()
+    try:
+        scene = make_goal_sets(scene)
+    finally:
+        timer.cancel()
+    if said.is_set():
+        print(f"[{scene.name}] goals of {what} made in {time.monotonic() - start:.1f} s", file=progress, flush=True)
+    return scene
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    _check_numbers(args)  # before the scene: a bad flag is the flag's fault, not the scene file's
+    try:
+        if args.hardware is not None and _names_the_simulator(args.hardware):
+            args.hardware = None  # the simulated world, as without a hardware file
+        if args.hardware is not None:
+            scene = _hardware_scene(args)
+        else:
+            scene = parse_scene(
+                args.scene, robots=args.robots, seed=args.seed, clock=args.clock, duration=args.duration
+            )
+            scene = _make_goal_sets(scene, None if args.quiet else sys.stderr)
+    except (SceneError, ValueError) as err:
+        raise UsageError(str(err)) from None
+    try:
+        faults = parse_faults(args.faults)
+    except ValueError as err:
+        raise UsageError(f"--faults: {err}") from None
+    reach = math.inf if args.reach is None else args.reach
+    if not reach > 0:
+        raise UsageError(f"--range must be a positive distance in metres, not {args.reach}")
+    if math.isfinite(reach) and scene.clock != "lockstep":
+        raise UsageError("--range needs the lock-step clock: its auction runs in rounds of ticks")
+    if math.isfinite(reach) and args.hardware is not None:
+        raise UsageError("--range simulates a radio's reach; real robots have their own")
+    if args.rounds_per_tick is not None:
+        if args.rounds_per_tick < 0:
+            raise UsageError(f"--rounds-per-tick must be a whole number >= 0, not {args.rounds_per_tick}")
+        if scene.clock != "lockstep":
+            raise UsageError("--rounds-per-tick needs the lock-step clock: real time has no rounds of ticks")
+        if math.isfinite(reach):
+            raise UsageError("--rounds-per-tick is not supported with --range: its auction ends blocks by hops")
+        scene = replace(scene, robot={**scene.robot, "rounds_per_tick": args.rounds_per_tick})
+    try:
+        RobotParams.from_dict(scene.robot)
+    except ValueError as err:
+        raise UsageError(f"{args.scene}: {err}") from None
+    _check_remote_agents(args, scene)
+    out = args.out or default_run_path(scene.name)
+    if out.exists() or out.with_name(out.name + ".partial").exists():
+        raise UsageError(f"run directory {out} already exists; choose another --out")
+    _check_out(out)
+    if args.hardware is None and (args.engine or scene.engine) == "central":
+        from sim.central.engine import run_central
+
+        if args.secure is not None:
+            raise UsageError("--secure secures the bus between processes; the central engine has none")
+
+        if args.remote_agents:
+            raise UsageError("--remote-agents needs the distributed engine: the central engine has no agents")
+        if args.foxglove is not None:
+            raise UsageError("--foxglove streams the bus's messages; the central engine has none (use --view)")
+        if faults:
+            raise UsageError("--faults acts on messages; the central engine sends none (use --engine distributed)")
+        if any(e["kind"] in ("fail", "tracker-outage", "tracker-glitch") for e in scene.events):
+            raise UsageError(
+                "fail and tracker-outage events, and tracker-glitch ones (faults of processes and messages), need the distributed engine"
+            )
+
+        progress = None if args.quiet else sys.stderr
+        view = _open_view(args.view, scene)
+        if progress is not None:  # the engine's own first line comes with its first tick
+            print(f"[{scene.name}] {scene.robots} robots: starting the central engine", file=progress, flush=True)
+        try:
+            path = run_central(
+                scene, out, video=args.video, plots=args.plots, progress=progress, reach=reach, view=view
+            )
+            print(path, flush=True)
+            _keep_viewing(view)
+        finally:
+            if view is not None:
+                view.close()
+        return 0
+    from sim.run.launcher import (  # heavy imports only for the distributed engine (after the goal sets: progress first)
+        AGENTS_TIMEOUT,
+        Launcher,
+        RunOptions,
+    )
+
+    router = None
+    if args.zenoh_config:
+        raise UsageError("--zenoh-config is not supported here: each process of a run needs its own role's file")
+    if args.mode != "router":
+        raise UsageError("pixelswarm run embeds a router; to join an existing one use -e tcp/HOST:PORT")
+    k = args.agents_per_process or scene.agents_per_process
+    if args.secure is not None:
+        router = _secured_router(args, scene.robots, k)
+    elif args.listen:
+        router = ZenohSettings(mode="router", listen=list(args.listen), connect=list(args.connect))
+    options = RunOptions(
+        out=out,
+        video=args.video,
+        plots=args.plots,
+        agents_per_process=k,
+        display=args.display,
+        router=router,
+        connect=[] if args.listen else list(args.connect),
+        faults=faults,
+        agent_routers=list(args.agents_connect),
+        deadline=scene.deadline if args.deadline is None else args.deadline,
+        progress=None if args.quiet else sys.stderr,
+        secure=args.secure,
+        hardware=args.hardware,
+        remote_agents=args.remote_agents,
+        agents_timeout=AGENTS_TIMEOUT if args.agents_timeout is None else args.agents_timeout,
+        startup_timeout=STARTUP_TIMEOUT if args.startup_timeout is None else args.startup_timeout,
+        reach=reach,
+        foxglove=args.foxglove,
+    )
+    options.view = _open_view(args.view, scene)
+    try:
+        return _run_distributed(Launcher(scene, options))
+    finally:
+        if options.view is not None:
+            options.view.close()
+
+
+def _open_view(mode: str | None, scene: Scene) -> Any:
+    """The live view ``--view`` asks for (sim.outputs.view.SwarmView), or None; one line if it cannot start."""
+    if mode is None:
+        return None
+    from sim.outputs.view import SwarmView, ViewUnavailable
+
+    if mode not in ("native", "web") and not mode.endswith(".rrd"):
+        raise UsageError(f"--view takes native, web or a FILE.rrd to write, not {mode!r}")
+    if mode.endswith(".rrd") and not Path(mode).parent.is_dir():
+        raise UsageError(f"--view: no directory {Path(mode).parent} to write {Path(mode).name} in")
+    params = RobotParams.from_dict(scene.robot)
+    try:
+        view = SwarmView(
+            scene.name,
+            scene.arena,
+            scene.obstacles,
+            params.radius,
+            robots=scene.robots,
+            sink=mode,
+            tolerance=params.goal_tolerance,
+        )
+    except ViewUnavailable as err:
+        raise UsageError(f"--view: {err}") from None
+    if view.url is not None:
+        print(f"[{scene.name}] view: {view.url}", file=sys.stderr, flush=True)
+    return view
+
+
+def _keep_viewing(view: Any) -> None:
+    """After the run: a web view stays up until Ctrl-C (its page holds the whole run)."""
+    if view is None:
+        return
+    view.flush()
+    if view.url is not None:
+        print(f"view: {view.url} (Ctrl-C to stop)", file=sys.stderr, flush=True)
+        view.serve_until_interrupted()
+
+
+def _run_distributed(launcher: Any) -> int:
+    from sim.run.launcher import AgentsMissing, HardwareStartError, Interrupted
+
+    try:
+        path = launcher.run()
+    except (TransportError, HardwareStartError, AgentsMissing) as err:
+        raise UsageError(str(err)) from None
+    except Interrupted:
+        print("pixelswarm: interrupted; no run directory written", file=sys.stderr)
+        return 130
+    except RuntimeError as err:  # a run that failed (a process died at start-up, ...): one line
+        print(f"pixelswarm run: error: {err}", file=sys.stderr)
+        return 1
+    print(path, flush=True)
+    if launcher.startup_failure is not None:  # written, marked incomplete, for its logs
+        print(f"pixelswarm run: error: start-up failed: {launcher.startup_failure}", file=sys.stderr)
+        return STARTUP_FAILED
+    if launcher.stop_signal is not None:  # the user said stop: `pixelswarm run ... && next` goes no further
+        name = signal.Signals(launcher.stop_signal).name
+        if launcher.interrupted:
+            print(
+                f"pixelswarm run: stopped by {name}; what was recorded is in {path}, marked incomplete", file=sys.stderr
+            )
+        else:
+            print(f"pixelswarm run: {name} came as the run ended; {path} is complete", file=sys.stderr)
+        return 128 + launcher.stop_signal
+    _keep_viewing(launcher.opt.view)
+    return 0
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    from sim.outputs.view import VIEW_FILE, ViewUnavailable, replay, view_recording
+
+    if args.connect is not None or args.run_dir is None:
+        return _watch(args)
+    if args.secure is not None or args.display is not None:
+        raise UsageError("--secure and --display go with --connect ENDPOINT (watching a running swarm)")
+    run_dir = args.run_dir
+    if not (run_dir / "trajectory.npz").is_file() or not (run_dir / "scene.json").is_file():
+        raise UsageError(f"{run_dir} is not a run directory (no trajectory.npz and scene.json)")
+    try:
+        if args.save is not None:
+            replay(run_dir, args.save).close()
+            print(args.save)
+            return 0
+        rrd = run_dir / VIEW_FILE
+        if not rrd.is_file():
+            replay(run_dir, rrd).close()
+        view_recording(rrd, web=args.web)
+    except ViewUnavailable as err:
+        raise UsageError(str(err)) from None
+    except KeyboardInterrupt:
+        return 130
+    return 0
+
+
+def _watch(args: argparse.Namespace) -> int:
+    """`pixelswarm view --connect ENDPOINT`: a running swarm, from its bus (sim.outputs.watch)."""
+    from sim.outputs.view import ViewUnavailable
+    from sim.outputs.watch import WatchError, observer_settings, print_line, watch
+
+    if args.connect is None:
+        raise UsageError("give a RUN_DIR to replay, or --connect ENDPOINT to watch a running swarm")
+    if args.run_dir is not None:
+        raise UsageError(f"either a RUN_DIR to replay or --connect ENDPOINT, not both ({args.run_dir})")
+    if args.save is not None and args.web:
+        raise UsageError("--web serves the view, --save writes it to a file: choose one")
+    if args.save is not None and not args.save.parent.is_dir():
+        raise UsageError(f"--save: no directory {args.save.parent} to write {args.save.name} in")
+    display = args.display or "default"
+    try:
+        settings = observer_settings(args.connect, args.secure, display)
+        sink = args.save if args.save is not None else "web" if args.web else "native"
+        code = watch(settings, display, sink, timeout=args.timeout, say=print_line("pixelswarm view", args.quiet))
+    except (WatchError, ViewUnavailable) as err:
+        raise UsageError(str(err)) from None
+    if code == 0 and args.save is not None:
+        print(args.save, flush=True)
+    return code
+
+
+def _check_numbers(args: argparse.Namespace) -> None:
+    """UsageError naming the flag of a number out of its range."""
+    if args.seed is not None and args.seed < 0:
+        raise UsageError(f"--seed must be a whole number >= 0, not {args.seed}")
+    for flag in ("--duration", "--deadline", "--agents-timeout", "--startup-timeout"):
+        value = getattr(args, flag[2:].replace("-", "_"))
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise UsageError(f"{flag} must be a positive number of seconds, not {value:g}")
+
+
+def _check_out(out: Path) -> None:
+    """UsageError unless a run directory can be made at ``out`` (its parents are made as the run's
+    would be; the trial directory is removed)."""
+    trial = out.with_name(out.name + ".partial")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        trial.mkdir()
+    except OSError as err:
+        raise UsageError(f"--out {out}: cannot make a run directory there ({err.strerror or err})") from None
+    trial.rmdir()
+
+
+def _check_remote_agents(args: argparse.Namespace, scene: Scene) -> None:
+    """UsageError for what a run whose agents join from elsewhere cannot do."""
+    if args.agents_timeout is not None and not args.remote_agents:
+        raise UsageError("--agents-timeout goes with --remote-agents")
+    if args.remote_agents and (args.secure is not None or args.agents_connect):
+        raise UsageError("--remote-agents: the agents join by themselves; drop --secure and --agents-connect")
+    if args.remote_agents and any(e["kind"] == "fail" for e in scene.events):
+        raise UsageError("--remote-agents: the scene's fail events kill agent processes, which the run has none of")
+
+
+def _secured_router(args: argparse.Namespace, robots: int, k: int) -> ZenohSettings | None:
+    """`run --secure DIR`: the embedded router's settings if --listen names its endpoint (None: the
+    launcher picks a free loopback port); UsageError for anything a secured run cannot do."""
+    if k > 1:
+        raise UsageError(
+            f"--secure runs one robot per agent process, not {k} (-k or the scene's agents_per_process): "
+            "the access rules let a process speak for its own robot only"
+        )
+    if args.connect or args.agents_connect:
+        raise UsageError(
+            "--secure embeds its router and every process joins it; it cannot be used with -e or --agents-connect"
+        )
+    plain = [e for e in args.listen if not e.startswith("tls/")]
+    if plain:
+        raise UsageError(f"--secure listens with TLS only: --listen tls/HOST:PORT, not {plain[0]}")
+    try:
+        args.secure = check_folder(args.secure, robots, display=args.display)
+        return router_config(args.secure, args.listen) if args.listen else None
+    except SecurityError as err:
+        raise UsageError(f"--secure: {err}") from None
+
+
+def cmd_router(args: argparse.Namespace) -> int:
+    settings = settings_from_args(args)
+    if settings.mode != "router":
+        raise UsageError("pixelswarm router runs in router mode; drop -m")
+    if not settings.listen and not settings.config_file:
+        settings.listen = ["tcp/127.0.0.1:7447"]
+    session = open_session(settings)
+    stop = []
+    for s in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(s, lambda *_: stop.append(1))
+    where = ", ".join(settings.listen) or f"the endpoints of {settings.config_file}"
+    print(f"router listening on {where} (Ctrl-C to stop)", flush=True)
+    try:
+        while not stop:
+            time.sleep(0.1)
+    finally:
+        session.close()
+    return 0
+
+
+def cmd_stop(args: argparse.Namespace) -> int:
+    from hardware.config import HardwareConfigError, load_hardware
+    from hardware.stop import stop_all
+    from sim.node.hardware import backend_kind
+
+    try:
+        config = load_hardware(args.hardware)
+        settings = None
+        if backend_kind(config) == "ros2":
+            if not args.connect:
+                raise UsageError(f"{args.hardware}: ROS 2 robots are reached through a router: give -e ENDPOINT")
+            settings = ZenohSettings(mode="client", connect=[args.connect])
+        unreached = stop_all(config, settings)
+    except (HardwareConfigError, TransportError) as err:
+        raise UsageError(str(err)) from None
+    if unreached:
+        print(f"pixelswarm stop: error: robots {', '.join(map(str, unreached))} were not reached", file=sys.stderr)
+        return 1
+    print(f"stopped every robot of {args.hardware}")
+    return 0
+
+
+def cmd_scenes(args: argparse.Namespace) -> int:
+    # The files as written, not loaded: loading an animation draws its keyframes and generates
+    # every goal set (seconds per scene). `pixelswarm run` validates a scene in full.
+    rows = []
+    for name in shipped_scenes():
+        with open(resolve_scene_path(name), "rb") as f:
+            data = tomllib.load(f)
+        rows.append(
+            (
+                name,
+                int(data.get("robots", 0)),
+                data.get("robot", {}).get("kinematics", EPUCK.kinematics),
+                data.get("description", ""),
+            )
+        )
+    # columns as wide as their longest entry, so that any name length keeps them aligned
+    name_width = max((len(name) for name, *_ in rows), default=0)
+    robots_width = max((len(str(robots)) for _, robots, *_ in rows), default=0)
+    for name, robots, kinematics, description in rows:
+        print(f"{name:<{name_width}}  {robots:>{robots_width}d} robots  {kinematics:10s}  {description}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except (UsageError, TransportError) as err:
+        print(f"pixelswarm {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,390 @@
+"""The run's MCAP log, written through Foxglove's SDK (``foxglove-sdk``).
+
+Three kinds of channel:
+
+- pixelswarm's own message kinds: message encoding ``json``, schema encoding ``jsonschema`` (a
+  documented custom schema, ``pixelswarm.<Kind>``).  Payloads are Python dicts that may contain
+  numpy scalars/arrays and NaN/inf; they are converted to JSON-safe values (NaN/inf -> ``null``).
+- Foxglove's well-known schemas (:mod:`foxglove.messages`, e.g. ``foxglove.SceneUpdate``):
+  message and schema encoding ``protobuf``, the schema the SDK carries (:meth:`McapLog.add_foxglove_channel`).
+- pixelswarm's per-tick kinds (``pixelswarm.States``, ...): protobuf too, with the schema
+  sim.outputs.logschema builds (:meth:`McapLog.add_protobuf_channel`).
+
+All channels of one log belong to one SDK context, so :meth:`McapLog.serve` also streams every
+one of them live over Foxglove's WebSocket protocol (127.0.0.1) while the file is written.
+
+Also: :func:`read_mcap` / :func:`mcap_channels` (read back with mcap's own reader, protobuf
+decoded from the schema stored in the file, used by tests).
+
+No zenoh here: the recorder (a bus subscriber) calls this.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import threading
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import foxglove
+from foxglove.mcap import MCAPCompression, MCAPWriteOptions
+from google.protobuf.descriptor import FieldDescriptor
+from google.protobuf.message import Message
+from mcap.exceptions import McapError
+from mcap.reader import NonSeekingReader, make_reader
+from mcap.writer import MCAP0_MAGIC
+from mcap_protobuf.decoder import DecoderFactory
+
+from sim.outputs.rundir import dumps_json, json_safe
+
+__all__ = ["McapLog", "logged", "read_mcap", "mcap_channels", "proto_to_dict"]
+
+MESSAGE_ENCODING = "json"
+SCHEMA_ENCODING = "jsonschema"
+PROTOBUF = "protobuf"
+LOOPBACK = "127.0.0.1"
+
+_COMPRESSION = {
+    "zstd": MCAPCompression.Zstd,
+    "lz4": MCAPCompression.Lz4,
+    "none": None,
+    None: None,
+}
+
+
+class McapLog:
+    """Append-only MCAP log.  Thread-safe (bus callbacks may arrive on several threads).
+
+    ``McapLog(path)`` opens and starts the file; :meth:`close` (or leaving a ``with`` block)
+    writes the summary section.  A file that was not closed is still readable by mcap's
+    non-seeking reader up to the last flushed chunk, but Foxglove wants a closed file.
+    Messages are stamped with their log time (publish time the same), sequence numbers per channel from 1.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        *,
+        compression: str | None = "zstd",
+        chunk_size: int = 1 << 20,
+        profile: str = "",
+    ):
+        if compression not in _COMPRESSION:
+            raise ValueError(f"compression must be one of {sorted(k for k in _COMPRESSION if k)} or None")
+        self.path = Path(path)
+        self._context = foxglove.Context()
+        options = MCAPWriteOptions(
+            compression=_COMPRESSION[compression],
+            chunk_size=chunk_size,
+            profile=profile,
+            compression_threads=0,  # compress on the caller's thread: the recorder has a core to share
+        )
+        self._writer = foxglove.open_mcap(
+            self.path, allow_overwrite=True, context=self._context, writer_options=options
+        )
+        self._lock = threading.Lock()
+        self._channels: dict[str, tuple[int, Any]] = {}  # topic -> (channel id, schema key)
+        self._by_id: dict[int, foxglove.Channel] = {}
+        self._proto: set[int] = set()  # ids of the channels with a Foxglove (protobuf) schema
+        self._server: Any = None
+        self._closed = False
+        self.message_count = 0
+
+    # -- channels ----------------------------------------------------------------------------
+    def add_channel(
+        self,
+        topic: str,
+        schema_name: str,
+        json_schema: dict,
+        *,
+        metadata: dict[str, str] | None = None,
+    ) -> int:
+        """Register (or look up) a JSON channel; returns its id.
+
+        Adding the same topic again with the same schema returns the existing id; with a
+        different schema it raises ``ValueError``.
+        """
+        if not isinstance(json_schema, dict):
+            raise TypeError("json_schema must be a dict")
+        schema_text = json.dumps(json_safe(json_schema), sort_keys=True, separators=(",", ":"))
+        schema = foxglove.Schema(name=schema_name, encoding=SCHEMA_ENCODING, data=schema_text.encode("utf-8"))
+        return self._add(topic, (schema_name, schema_text), MESSAGE_ENCODING, schema, metadata)
+
+    def add_foxglove_channel(self, topic: str, message_type: Any, *, metadata: dict[str, str] | None = None) -> int:
+        """Register (or look up) a channel of one of Foxglove's schemas (a :mod:`foxglove.messages`
+        type, e.g. ``SceneUpdate``), protobuf-encoded with the schema the SDK carries."""
+        schema = message_type.get_schema()
+        key = (schema.name, schema.encoding)
+        cid = self._add(topic, key, schema.encoding, schema, metadata)
+        self._proto.add(cid)
+        return cid
+
+    def add_protobuf_channel(
+        self, topic: str, schema_name: str, descriptor_set: bytes, *, metadata: dict[str, str] | None = None
+    ) -> int:
+        """Register (or look up) a protobuf channel of a schema of our own (``schema_name``, the
+        message's full name; ``descriptor_set``, its serialized ``FileDescriptorSet``: sim.outputs.logschema)."""
+        schema = foxglove.Schema(name=schema_name, encoding=PROTOBUF, data=descriptor_set)
+        cid = self._add(topic, (schema_name, PROTOBUF), PROTOBUF, schema, metadata)
+        self._proto.add(cid)
+        return cid
+
+    def _add(self, topic: str, key: Any, encoding: str, schema: Any, metadata: dict[str, str] | None) -> int:
+        with self._lock:
+            self._check_open()
+            if topic in self._channels:
+                cid, known = self._channels[topic]
+                if known != key:
+                    raise ValueError(f"topic {topic!r} already registered with a different schema")
+                return cid
+            channel = foxglove.Channel(
+                topic,
+                message_encoding=encoding,
+                schema=schema,
+                metadata={str(k): str(v) for k, v in (metadata or {}).items()},
+                context=self._context,
+            )
+            cid = channel.id()
+            self._channels[topic] = (cid, key)
+            self._by_id[cid] = channel
+            return cid
+
+    def channel_id(self, topic: str) -> int | None:
+        """Id of an already registered topic, or None."""
+        entry = self._channels.get(topic)
+        return entry[0] if entry else None
+
+    # -- messages ----------------------------------------------------------------------------
+    def write(self, channel_id: int, log_time_ns: int, payload: Any) -> None:
+        """Write one message: a dict on a JSON channel (numpy -> lists, NaN -> null), a
+        :mod:`foxglove.messages` object on a Foxglove channel."""
+        if channel_id not in self._proto:
+            data = dumps_json(payload).encode("utf-8")
+        else:  # a google.protobuf message (sim.outputs.logschema's), or a foxglove.messages one
+            data = payload.SerializeToString() if isinstance(payload, Message) else payload.encode()
+        self.write_bytes(channel_id, log_time_ns, data)
+
+    def write_bytes(self, channel_id: int, log_time_ns: int, data: bytes) -> None:
+        """Write an already encoded message (e.g. JSON bytes received off the bus) unchanged.
+
+        On a JSON channel the caller guarantees ``data`` is UTF-8 JSON without NaN/Infinity literals.
+        """
+        log_time_ns = int(log_time_ns)
+        if log_time_ns < 0:
+            raise ValueError("MCAP times are unsigned nanoseconds")
+        with self._lock:
+            self._check_open()
+            channel = self._by_id.get(channel_id)
+            if channel is None:
+                raise KeyError(f"unknown channel id {channel_id}")
+            channel.log(bytes(data), log_time=log_time_ns)
+            self.message_count += 1
+
+    def add_metadata(self, name: str, data: dict[str, Any]) -> None:
+        """An MCAP metadata record (string -> string; other values are JSON-encoded)."""
+        flat = {str(k): (v if isinstance(v, str) else dumps_json(v)) for k, v in data.items()}
+        with self._lock:
+            self._check_open()
+            self._writer.write_metadata(name, flat)
+
+    def flush(self) -> None:
+        """Finish the chunk in progress and hand it to the OS: a process killed outright later
+        leaves a file whose chunks up to here mcap's reader reads (see :func:`read_mcap`)."""
+        with self._lock:
+            if not self._closed:
+                self._writer.flush()
+
+    # -- live --------------------------------------------------------------------------------
+    def serve(self, port: int = 0, name: str = "pixelswarm") -> int:
+        """Stream every channel live over Foxglove's WebSocket protocol on 127.0.0.1 (``port`` 0:
+        a free one) until :meth:`close`; returns the port.  Foxglove: Open connection, Foxglove
+        WebSocket, ``ws://127.0.0.1:PORT``."""
+        with self._lock:
+            self._check_open()
+            if self._server is None:
+                self._server = foxglove.start_server(name=name, host=LOOPBACK, port=port, context=self._context)
+            return int(self._server.port)
+
+    # -- lifecycle ---------------------------------------------------------------------------
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise ValueError(f"McapLog {self.path} is closed")
+
+    def close(self) -> None:
+        """Finish the file (summary, indexes) and stop the live server. Idempotent."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            try:
+                self._writer.close()
+            finally:
+                for channel in self._by_id.values():
+                    channel.close()
+                if self._server is not None:
+                    self._server.stop()
+
+    def __enter__(self) -> McapLog:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.close()
+
+
+# ------------------------------------------------------------------------------------------------
+# Reading back
+# ------------------------------------------------------------------------------------------------
+
+
+def proto_to_dict(message: Message) -> dict[str, Any]:
+    """A protobuf message as the dict Foxglove's JSON schema of it describes: every field, with its
+    default when unset; times (``google.protobuf.Timestamp`` / ``Duration``) as ``{"sec", "nsec"}``,
+    enums as numbers, bytes as bytes."""
+    out: dict[str, Any] = {}
+    for field in message.DESCRIPTOR.fields:
+        value = getattr(message, field.name)
+        if field.type == FieldDescriptor.TYPE_MESSAGE:
+            if field.message_type.GetOptions().map_entry:
+                out[field.name] = {k: _proto_value(v) for k, v in value.items()}
+            elif _is_repeated(field):
+                out[field.name] = [_proto_value(v) for v in value]
+            else:
+                out[field.name] = _proto_value(value)
+        else:
+            out[field.name] = list(value) if _is_repeated(field) else value
+    return out
+
+
+def _is_repeated(field: FieldDescriptor) -> bool:
+    repeated = getattr(field, "is_repeated", None)  # protobuf >= 6; label before it
+    return bool(repeated) if repeated is not None else field.label == FieldDescriptor.LABEL_REPEATED
+
+
+def _proto_value(value: Any) -> Any:
+    if not isinstance(value, Message):
+        return value
+    if value.DESCRIPTOR.full_name in ("google.protobuf.Timestamp", "google.protobuf.Duration"):
+        return {"sec": value.seconds, "nsec": value.nanos}
+    return proto_to_dict(value)
+
+
+class _Decoders:
+    """Message bytes -> dict, per channel: JSON parsed, protobuf decoded with the schema stored in
+    the file (mcap's protobuf support builds the message class from it)."""
+
+    def __init__(self) -> None:
+        self._protobuf = DecoderFactory()
+        self._by_schema: dict[int, Any] = {}
+
+    def decode(self, schema: Any, channel: Any, data: bytes) -> Any:
+        if channel.message_encoding == MESSAGE_ENCODING:
+            return json.loads(data)
+        if channel.message_encoding != PROTOBUF or schema is None:
+            raise ValueError(f"channel {channel.topic!r} has encoding {channel.message_encoding!r}")
+        decoder = self._by_schema.get(schema.id)
+        if decoder is None:
+            decoder = self._protobuf.decoder_for(PROTOBUF, schema)
+            if decoder is None:
+                raise ValueError(f"channel {channel.topic!r}: no protobuf decoder for schema {schema.name!r}")
+            self._by_schema[schema.id] = decoder
+        return proto_to_dict(decoder(data))
+
+
+def logged(path: str | os.PathLike, topics: Iterable[str]) -> list[tuple[int, str, Any]]:
+    """(log time in ns, topic, message decoded as :func:`read_mcap` decodes it) of every message
+    of these topics of a closed file, in log-time order across them."""
+    decoders = _Decoders()
+    with open(path, "rb") as fh:
+        messages = make_reader(fh).iter_messages(topics=sorted(topics), log_time_order=True)
+        return [(m.log_time, c.topic, decoders.decode(s, c, m.data)) for s, c, m in messages]
+
+
+def read_mcap(path: str | os.PathLike, topics: Iterable[str] | None = None) -> dict[str, list[dict]]:
+    """All messages by topic, decoded (JSON, or protobuf into dicts: :func:`proto_to_dict`), in
+    log-time order.
+
+    Channels without messages appear with an empty list.  ``topics`` restricts the result.  A file
+    that was never closed (its writer was killed) is read up to its last flushed chunk.
+    """
+    wanted = None if topics is None else set(topics)
+    out: dict[str, list[dict]] = {}
+    if not is_closed_mcap(path):
+        return _read_unfinished(path, wanted)
+    decoders = _Decoders()
+    with open(path, "rb") as fh:
+        reader = make_reader(fh)
+        summary = reader.get_summary()
+        if summary is not None:
+            for ch in summary.channels.values():
+                if wanted is None or ch.topic in wanted:
+                    out.setdefault(ch.topic, [])
+        for schema, channel, message in reader.iter_messages(topics=wanted, log_time_order=True):
+            out.setdefault(channel.topic, []).append(decoders.decode(schema, channel, message.data))
+    return out
+
+
+def is_closed_mcap(path: str | os.PathLike) -> bool:
+    """Whether the file ends with MCAP's closing magic (its writer finished it)."""
+    with open(path, "rb") as fh:
+        fh.seek(0, os.SEEK_END)
+        if fh.tell() < 2 * len(MCAP0_MAGIC):
+            return False
+        fh.seek(-len(MCAP0_MAGIC), os.SEEK_END)
+        return fh.read() == MCAP0_MAGIC
+
+
+def _read_unfinished(path: str | os.PathLike, wanted: set[str] | None) -> dict[str, list[dict]]:
+    """The messages of an unfinished file, read front to back until it ends mid-record (the
+    chunk in progress when the writer died: cut short, or still without its length)."""
+    out: dict[str, list[tuple[int, dict]]] = {}
+    decoders = _Decoders()
+    with open(path, "rb") as fh:
+        try:
+            for schema, channel, message in NonSeekingReader(fh).iter_messages(log_time_order=False):
+                if wanted is None or channel.topic in wanted:
+                    row = (message.log_time, decoders.decode(schema, channel, message.data))
+                    out.setdefault(channel.topic, []).append(row)
+        except McapError:
+            pass  # the chunk in progress when the writer died
+    return {topic: [m for _, m in sorted(rows, key=lambda r: r[0])] for topic, rows in out.items()}
+
+
+def mcap_channels(path: str | os.PathLike) -> dict[str, dict[str, Any]]:
+    """Per topic: ``schema_name``, ``schema_encoding``, ``message_encoding``, ``schema`` (the JSON
+    schema parsed, or a protobuf schema's ``FileDescriptorSet``), ``metadata`` and ``message_count`` (from the summary statistics)."""
+    with open(path, "rb") as fh:
+        reader = make_reader(fh)
+        summary = reader.get_summary()
+    if summary is None:
+        raise ValueError(f"{path}: no summary section (file not closed?)")
+    counts = summary.statistics.channel_message_counts if summary.statistics else {}
+    out: dict[str, dict[str, Any]] = {}
+    for cid, ch in summary.channels.items():
+        sc = summary.schemas.get(ch.schema_id)
+        out[ch.topic] = {
+            "channel_id": cid,
+            "schema_name": sc.name if sc else "",
+            "schema_encoding": sc.encoding if sc else "",
+            "schema": _schema_of(sc),
+            "message_encoding": ch.message_encoding,
+            "metadata": dict(ch.metadata),
+            "message_count": int(counts.get(cid, 0)),
+        }
+    return out
+
+
+def _schema_of(schema: Any) -> Any:
+    """A JSON schema parsed; a protobuf schema as its ``FileDescriptorSet``."""
+    if schema is None or not schema.data:
+        return None
+    if schema.encoding == PROTOBUF:
+        from google.protobuf.descriptor_pb2 import FileDescriptorSet
+
+        return FileDescriptorSet.FromString(schema.data)
+    return json.loads(schema.data)

@@ -1,0 +1,378 @@
+"""Run metrics from true world poses.  Pure functions (numpy + scipy), no zenoh.
+
+Shapes: ``t`` (T,), ``pose`` (T,N,3) as (x, y, theta), ``radius`` (N,), ``goal`` (T,N,2) with NaN
+where a robot has no goal.  Robots with non-finite positions at a sample (not yet spawned,
+removed) are ignored at that sample.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+__all__ = [
+    "clearance_over_time",
+    "clearance_at",
+    "contact_events",
+    "path_lengths",
+    "step_metrics",
+    "time_to_converge",
+    "summarise",
+]
+
+
+def _check_pose(pose: np.ndarray) -> np.ndarray:
+    pose = np.asarray(pose, dtype=float)
+    if pose.ndim != 3 or pose.shape[2] < 2:
+        raise ValueError(f"pose must have shape (T, N, 3), got {pose.shape}")
+    return pose
+
+
+def _radius(radius: Any, n: int) -> np.ndarray:
+    r = np.asarray(radius, dtype=float)
+    return np.broadcast_to(r, (n,)).astype(float) if r.ndim == 0 else r.reshape(n)
+
+
+def clearance_at(xy: np.ndarray, radius: np.ndarray) -> float:
+    """Minimum over pairs of ``|p_i - p_j| - r_i - r_j`` at one instant; +inf for fewer than 2
+    robots.  Non-finite positions are ignored.  Exact for any radii."""
+    xy = np.asarray(xy, dtype=float)[:, :2]
+    radius = np.asarray(radius, dtype=float)
+    ok = np.isfinite(xy).all(axis=1)
+    if not ok.all():
+        xy, radius = xy[ok], radius[ok]
+    n = len(xy)
+    if n < 2:
+        return float("inf")
+    if n <= 48:  # small: brute force
+        d = np.sqrt(((xy[:, None, :] - xy[None, :, :]) ** 2).sum(-1)) - radius[:, None] - radius[None, :]
+        iu = np.triu_indices(n, 1)
+        return float(d[iu].min())
+    tree = cKDTree(xy)
+    dist, idx = tree.query(xy, k=2)
+    nn_d, nn_j = dist[:, 1], idx[:, 1]
+    ub = float((nn_d - radius - radius[nn_j]).min())
+    rmin, rmax = float(radius.min()), float(radius.max())
+    if rmax == rmin:
+        return ub  # equal radii: the nearest centres give the smallest clearance
+    # Unequal radii: any pair better than ub has |p_i - p_j| < ub + r_i + r_j <= ub + 2 rmax.
+    pairs = tree.query_pairs(max(ub + 2 * rmax, 0.0), output_type="ndarray")
+    if len(pairs) == 0:
+        return ub
+    i, j = pairs[:, 0], pairs[:, 1]
+    c = np.sqrt(((xy[i] - xy[j]) ** 2).sum(-1)) - radius[i] - radius[j]
+    return float(min(ub, c.min()))
+
+
+def clearance_over_time(pose: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """(T,) minimum pairwise clearance (centre distance minus both radii) per sample.
+
+    Negative means overlap (contact).  +inf where fewer than two robots are present (N=1).
+    Uses a k-d tree per sample: N=1000, T=3000 takes a few seconds.
+    """
+    pose = _check_pose(pose)
+    T, N = pose.shape[:2]
+    r = _radius(radius, N)
+    out = np.full(T, np.inf)
+    if N < 2:
+        return out
+    for k in range(T):
+        out[k] = clearance_at(pose[k, :, :2], r)
+    return out
+
+
+def contact_events(pose: np.ndarray, radius: np.ndarray, tolerance: float = 0.0) -> int:
+    """Number of pair-contact events: a pair (i, j) starting to overlap (clearance < -tolerance)
+    at a sample where it did not overlap at the previous sample (counts the first sample too)."""
+    pose = _check_pose(pose)
+    T, N = pose.shape[:2]
+    r = _radius(radius, N)
+    if N < 2:
+        return 0
+    rmax = float(r.max())
+    prev: set[tuple[int, int]] = set()
+    events = 0
+    for k in range(T):
+        xy = pose[k, :, :2]
+        ok = np.flatnonzero(np.isfinite(xy).all(axis=1))
+        cur: set[tuple[int, int]] = set()
+        if len(ok) >= 2:
+            sub = xy[ok]
+            pairs = cKDTree(sub).query_pairs(2 * rmax, output_type="ndarray")
+            if len(pairs):
+                i, j = ok[pairs[:, 0]], ok[pairs[:, 1]]
+                c = np.sqrt(((xy[i] - xy[j]) ** 2).sum(-1)) - r[i] - r[j]
+                hit = c < -tolerance
+                cur = set(zip(i[hit].tolist(), j[hit].tolist()))
+        events += len(cur - prev)
+        prev = cur
+    return events
+
+
+def communication_parts(pose: np.ndarray, reach: float) -> np.ndarray:
+    """Per tick: the parts of the communication graph (robots within ``reach`` of each other hear
+    each other, positions as the wire carries them): 1 when every robot can reach every other."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    out = np.ones(len(pose), np.int64)
+    for k, xy in enumerate(np.asarray(pose, np.float32)[..., :2].astype(float)):
+        pairs = cKDTree(xy).query_pairs(reach, output_type="ndarray")
+        n = len(xy)
+        graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+        out[k] = connected_components(graph, directed=False)[0]
+    return out
+
+
+# robots: above, the optimum (N^2 costs, O(N^3) time: minutes at 10,000) is left to the benchmark
+# (bench.bench_auction), and a run's metrics say None
+OPTIMUM_UP_TO = 3000
+
+
+def assignment_over_optimum(pose: np.ndarray, goal: np.ndarray, assignment: np.ndarray, step: np.ndarray) -> list:
+    """Per image step: how much the assignment the robots drove by at the step's first tick costs
+    over the optimum for those positions (m^2, sum of squared distances, eq. 5-7; scipy's
+    linear_sum_assignment), or None where that tick is not one goal per robot, or it has more than
+    OPTIMUM_UP_TO robots."""
+    from scipy.optimize import linear_sum_assignment
+
+    out: list[float | None] = []
+    for k in np.unique(step):
+        first = int(np.flatnonzero(step == k)[0])
+        a, xy, g = assignment[first], pose[first, :, :2], goal[first]
+        if len(a) > OPTIMUM_UP_TO:
+            out.append(None)
+            continue
+        if (a < 0).any() or (a >= len(g)).any() or len(np.unique(a)) != len(a) or not np.isfinite(g).all():
+            out.append(None)
+            continue
+        goals = np.empty_like(g)
+        goals[a] = g  # goal index -> where it is
+        cost = ((xy[:, None, :] - goals[None]) ** 2).sum(-1)
+        rows, cols = linear_sum_assignment(cost)
+        out.append(float(cost[np.arange(len(a)), a].sum() - cost[rows, cols].sum()))
+    return out
+
+
+def path_lengths(pose: np.ndarray) -> np.ndarray:
+    """(N,) length of each robot's xy path (steps touching a non-finite sample are skipped)."""
+    pose = _check_pose(pose)
+    if pose.shape[0] < 2:
+        return np.zeros(pose.shape[1])
+    step = np.sqrt((np.diff(pose[:, :, :2], axis=0) ** 2).sum(-1))
+    return np.nansum(np.where(np.isfinite(step), step, np.nan), axis=0)
+
+
+def time_to_converge(t: np.ndarray, pose: np.ndarray, goal: np.ndarray, tolerance: float) -> float | None:
+    """First time ``t[k]`` such that from sample k to the end every robot that has a goal
+    (finite ``goal[s, i]``) at sample s is within ``tolerance`` of it (Euclidean, xy).
+
+    Returns a value of ``t`` (so with ``t[0] == 0`` it is the duration).  None if the condition
+    does not hold at the last sample, or if no robot ever has a goal.
+    """
+    t = np.asarray(t, dtype=float)
+    pose = _check_pose(pose)
+    goal = np.asarray(goal, dtype=float)
+    T, N = pose.shape[:2]
+    if goal.shape != (T, N, 2) or t.shape != (T,):
+        raise ValueError(f"shapes: t {t.shape}, pose {pose.shape}, goal {goal.shape}")
+    if T == 0:
+        return None
+    has_goal = np.isfinite(goal).all(axis=2)  # (T, N)
+    if not has_goal.any():
+        return None
+    err = np.sqrt(((pose[:, :, :2] - goal) ** 2).sum(-1))
+    within = np.where(has_goal, err <= tolerance, True)  # NaN pose -> err NaN -> False
+    ok = np.all(within, axis=1)  # (T,)
+    if not ok[-1]:
+        return None
+    bad = np.flatnonzero(~ok)
+    k = 0 if len(bad) == 0 else int(bad[-1]) + 1
+    return float(t[k])
+
+
+def step_metrics(
+    t: np.ndarray,
+    pose: np.ndarray,
+    goal: np.ndarray,
+    step: np.ndarray,
+    tolerance: float,
+    current: np.ndarray | None = None,
+    members: np.ndarray | None = None,
+) -> list[dict[str, Any]]:
+    """Per image step (``step`` (T,) int, the step shown at each sample; negative: none): its first
+    and last sample times ``t_start`` / ``t_end``, ``converged_at`` (seconds after t_start of the
+    first sample at which every robot with a goal is within ``tolerance``, or None),
+    ``max_goal_error_at_end`` and ``median_goal_error_at_end`` (m, at its last sample; None if no
+    robot has a goal there: an animation's keyframe ends before all robots arrive) and ``path_length_m`` (all robots' xy path while the step was shown, summed).
+
+    Distributed runs also give ``members`` (T, N): the robots of the newest goal set (the others,
+    e.g. dead ones, are not waited for) and ``current`` (T, N): whose goal comes from that set (until
+    the robots agree on a new set they still drive to the last one's goals, which do not count).
+
+    From arrays only, so the central engine and the distributed recorder report alike."""
+    t = np.asarray(t, dtype=float)
+    pose = _check_pose(pose)
+    goal = np.asarray(goal, dtype=float)
+    step = np.asarray(step).astype(int).reshape(-1)
+    if step.shape != t.shape or goal.shape != pose.shape[:2] + (2,):
+        raise ValueError(f"shapes: t {t.shape}, step {step.shape}, pose {pose.shape}, goal {goal.shape}")
+    err = np.sqrt(((pose[:, :, :2] - goal) ** 2).sum(-1))  # (T, N); NaN where no goal or no pose
+    has_goal = np.isfinite(goal).all(axis=2)
+    if members is not None:
+        has_goal = has_goal & members
+        err = np.where(members, err, np.nan)
+    arrived = err <= tolerance if current is None else (err <= tolerance) & current
+    within = np.where(has_goal, arrived, True).all(axis=1) & has_goal.any(axis=1)
+    moved = np.sqrt((np.diff(pose[:, :, :2], axis=0) ** 2).sum(-1))  # (T-1, N): sample k to k+1
+    out = []
+    for k in sorted(set(step[step >= 0].tolist()), key=lambda s: int(np.argmax(step == s))):
+        idx = np.flatnonzero(step == k)
+        first, last = int(idx[0]), int(idx[-1])
+        ok = idx[within[idx]]
+        at_end = err[last][has_goal[last]]
+        known = bool(len(at_end) and np.isfinite(at_end).any())
+        # Motion from each of the step's samples to the next one belongs to the step.
+        legs = moved[idx[idx < len(moved)]]
+        out.append(
+            {
+                "index": int(k),
+                "t_start": float(t[first]),
+                "t_end": float(t[last]),
+                "converged_at": float(t[ok[0]] - t[first]) if len(ok) else None,
+                "max_goal_error_at_end": float(np.nanmax(at_end)) if known else None,
+                "median_goal_error_at_end": float(np.nanmedian(at_end)) if known else None,
+                "path_length_m": float(np.nansum(legs)),
+            }
+        )
+    return out
+
+
+def _per_robot_second(values: Mapping[str, float] | None, robots: int, duration_s: float) -> dict[str, float | None]:
+    if not values:
+        return {}
+    denom = robots * duration_s
+    return {str(k): (float(v) / denom if denom > 0 else None) for k, v in values.items()}
+
+
+def summarise(
+    *,
+    t: np.ndarray,
+    pose: np.ndarray,
+    radius: np.ndarray,
+    wall_s: float,
+    contacts: int,
+    message_counts: Mapping[str, int] | None = None,
+    message_bytes: Mapping[str, int] | None = None,
+    missed_ticks: int = 0,
+    agents_crashed: int = 0,
+    goal: np.ndarray | None = None,
+    tolerance: float = 0.05,
+    clearance: np.ndarray | None = None,
+    step: np.ndarray | None = None,
+    step_current: np.ndarray | None = None,
+    step_members: np.ndarray | None = None,
+    **extra: Any,
+) -> dict[str, Any]:
+    """The metrics.json dict.
+
+    ``t`` (T,) seconds, ``pose`` (T,N,3), ``radius`` (N,) are the true world record; ``wall_s``
+    the wall-clock duration of the run; ``contacts`` the number of pair-contact events (counted by
+    the world, or with :func:`contact_events`); ``message_counts`` / ``message_bytes`` totals per
+    message kind over the whole run (all robots); ``goal`` (T,N,2) with NaN = no goal and
+    ``tolerance`` (m) for convergence; ``clearance`` (T,) if already computed; ``step`` (T,) the
+    image step per sample (with ``goal``, adds ``steps``: see :func:`step_metrics`).  Extra keyword
+    arguments are added as keys (e.g. ``assignment_cost``, ``scene``, ``seed``); they may not
+    replace a computed key.
+
+    Non-finite floats (e.g. ``min_clearance_m`` with one robot) are left as inf/NaN here;
+    :func:`sim.outputs.rundir.write_json` writes them as null.
+    """
+    t = np.asarray(t, dtype=float)
+    pose = _check_pose(pose)
+    T, N = pose.shape[:2]
+    if t.shape != (T,):
+        raise ValueError(f"t has shape {t.shape}, pose {pose.shape}")
+    r = _radius(radius, N)
+    clr = clearance_over_time(pose, r) if clearance is None else np.asarray(clearance, dtype=float)
+    duration = float(t[-1] - t[0]) if T else 0.0
+
+    finite = clr[np.isfinite(clr)]
+    if len(finite):
+        kmin = int(np.nanargmin(np.where(np.isfinite(clr), clr, np.inf)))
+        min_clear = float(clr[kmin])
+        min_clear_t = float(t[kmin] - t[0])
+    else:
+        min_clear, min_clear_t = float("inf"), None
+    max_overlap = max(0.0, -min_clear) if np.isfinite(min_clear) else 0.0
+
+    ttc = None
+    if goal is not None:
+        ttc_abs = time_to_converge(t, pose, goal, tolerance)
+        ttc = None if ttc_abs is None else float(ttc_abs - t[0])
+
+    wall_s = float(wall_s)
+    out: dict[str, Any] = {
+        "robots": int(N),
+        "samples": int(T),
+        "duration_s": duration,
+        "wall_s": wall_s,
+        "realtime_factor": (duration / wall_s) if wall_s > 0 else None,
+        "min_clearance_m": min_clear,
+        "min_clearance_at_s": min_clear_t,
+        "contacts": int(contacts),
+        "max_overlap_m": float(max_overlap),
+        "converged": ttc is not None,
+        "time_to_converge_s": ttc,
+        "convergence_tolerance_m": float(tolerance) if goal is not None else None,
+        "path_length_m": path_lengths(pose).tolist(),
+        "messages_per_robot_s": _per_robot_second(message_counts, N, duration),
+        "bytes_per_robot_s": _per_robot_second(message_bytes, N, duration),
+        "messages_total": {str(k): int(v) for k, v in (message_counts or {}).items()},
+        "bytes_total": {str(k): int(v) for k, v in (message_bytes or {}).items()},
+        "missed_ticks": int(missed_ticks),
+        "agents_crashed": int(agents_crashed),
+    }
+    if step is not None and goal is not None:
+        out["steps"] = step_metrics(t, pose, goal, step, tolerance, step_current, step_members)
+    clash = set(extra) & set(out)
+    if clash:
+        raise ValueError(f"summarise: extra keys would replace computed ones: {sorted(clash)}")
+    out.update(extra)
+    return out
+
+
+def keyframe_errors(
+    traj: Mapping[str, np.ndarray], step_starts: list[float], frame_periods: list[float], v_max: float
+) -> list[np.ndarray]:
+    """Per keyframe of a distributed animation (paper 6.2): the distance of each robot to its goal
+    when the keyframe's K_f dt is over, for the robots whose move the speed allows (distance from
+    where the robot was when it got its goal of this keyframe, carried or agreed, over the time left
+    is at most v_max); NaN for the others. From trajectory.npz's arrays (the recorder's names)."""
+    t, pose = traj["t"], traj["pose"][:, :, :2]
+    epochs = [int(e) for e in traj["goal_set_epochs"]]
+    steps = [int(s) for s in traj["goal_set_steps"]]
+    assignment, epoch = traj["assignment"], traj["assignment_epoch"]
+    out = []
+    for f, (start, period) in enumerate(zip(step_starts, frame_periods)):
+        errors = np.full(pose.shape[1], np.nan)
+        sets = [e for e, s in zip(epochs, steps) if s == f]
+        end = int(np.argmin(np.abs(t - (start + period))))
+        if sets:
+            e = sets[-1]
+            goals = traj["goal_sets"][epochs.index(e)]
+            for i in range(pose.shape[1]):
+                # its goal of this keyframe as last announced by K_f dt (the next keyframe's goal set
+                # may already have reached it in the sample at K_f dt)
+                rows = np.flatnonzero((epoch[:, i] == e) & (t >= start - 1e-9) & (t <= t[end] + 1e-9))
+                if not len(rows):
+                    continue
+                got, goal = int(rows[0]), goals[assignment[rows[-1], i]]
+                left = t[end] - t[got]
+                if left > 0 and np.hypot(*(pose[got, i] - goal)) / left <= v_max:
+                    errors[i] = np.hypot(*(pose[end, i] - goal))
+        out.append(errors)
+    return out

@@ -1,0 +1,427 @@
+"""The recorder: subscribes to everything on the bus and keeps what the run directory needs.
+
+It measures the run from the world's TRUE poses (``sim/truth``), never from what agents believed;
+it logs every message kind on its own MCAP channel (the per-tick kinds as protobuf, sim.outputs.logschema;
+the others as JSON), and at every recorded tick the display as a
+``foxglove.SceneUpdate`` (Foxglove's SDK, protobuf) on :data:`SCENE_TOPIC`; it counts messages and bytes per kind, and it
+decides when the display has converged.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+import typing
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import orjson
+
+from sim.outputs.foxglove import SceneUpdate, scene_update
+from sim.outputs.logschema import LoggedKind, kind_of
+from sim.outputs.mcaplog import McapLog
+from sim.outputs.ticklog import TickLog
+from transport.bus import Bus
+from transport.codec import (
+    BEFORE_START,
+    BY_NAME,
+    AuctionRecord,
+    Bid,
+    Commands,
+    Contact,
+    DropCounter,
+    Event,
+    Goals,
+    State,
+    States,
+    Truth,
+    decode,
+)
+from transport.plausible import AHEAD, GoalSets, stamp_agrees
+
+SCENE_TOPIC = "/display/scene"  # what Foxglove's 3D panel shows: robots in their LED colours, and goals
+
+FLUSH_EVERY = 1.0  # s of wall time between flushes of the MCAP log (a killed run keeps all but the last)
+
+_JSON_TYPES = {int: "integer", float: "number", str: "string", dict: "object"}
+
+
+def json_schema_of(message_type: type) -> dict[str, Any]:
+    """A JSON schema for a message dataclass (arrays become arrays of numbers)."""
+    hints = typing.get_type_hints(message_type)
+    props: dict[str, dict[str, Any]] = {}
+    for f in dataclasses.fields(message_type):
+        hint = hints.get(f.name)
+        default = f.default_factory() if f.default_factory is not dataclasses.MISSING else None
+        if hint in _JSON_TYPES:
+            props[f.name] = {"type": _JSON_TYPES[hint]}
+        elif getattr(getattr(default, "dtype", None), "names", None) or f.name == "records":
+            props[f.name] = {"type": "object"}  # records of several fields: one array per field (Bid, frames)
+        elif any(dataclasses.is_dataclass(t) for t in (hint, *typing.get_args(hint))):
+            props[f.name] = {"type": ["object", "null"]}  # a goal set's part (absent: null)
+        else:
+            props[f.name] = {"type": "array"}
+    return {"type": "object", "title": message_type.__name__, "properties": props}
+
+
+def _as_list(value: Any) -> Any:
+    """What orjson leaves to us: numpy arrays that are views with strides (e.g. a column of records)."""
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"cannot log a {type(value).__name__} as JSON")
+
+
+def display_converged(
+    pose: np.ndarray,
+    goal: np.ndarray,
+    assign_epoch: np.ndarray,
+    alive: np.ndarray,
+    newest: Goals | None,
+    tolerance: float,
+) -> bool:
+    """Every live robot within ``tolerance`` of its goal. Image scenes: only goals agreed on the
+    newest goal set count (not the last image's), and a goal set that still holds a dead robot is
+    not yet the display for the robots left (paper 5.1.2)."""
+    err = np.hypot(*(pose[alive, :2] - goal[alive]).T)
+    if not (np.all(np.isfinite(err)) and np.all(err <= tolerance)):
+        return False
+    if newest is None:
+        return True
+    members = newest.robots[newest.robots < len(alive)]
+    return bool(np.all(assign_epoch[alive] == newest.epoch) and np.all(alive[members]))
+
+
+@dataclass
+class Trajectory:
+    """Per-tick arrays, grown as truth messages arrive."""
+
+    t: list[float] = field(default_factory=list)
+    pose: list[np.ndarray] = field(default_factory=list)
+    velocity: list[np.ndarray] = field(default_factory=list)
+    color: list[np.ndarray] = field(default_factory=list)
+    goal: list[np.ndarray] = field(default_factory=list)
+    assignment: list[np.ndarray] = field(default_factory=list)
+    assignment_epoch: list[np.ndarray] = field(default_factory=list)
+    assignment_instance: list[np.ndarray] = field(default_factory=list)
+    step: list[int] = field(default_factory=list)
+    goal_set_epoch: list[int] = field(default_factory=list)
+    applied: np.ndarray | None = None
+    wall: list[float] = field(default_factory=list)  # wall time each tick arrived (real-time factor)
+
+
+RECORD_AHEAD = 25 * AHEAD  # ticks a state may come before the world's truth of its tick reaches the recorder
+
+
+class Recorder:
+    def __init__(
+        self, bus: Bus, robots: int, tolerance: float, log_path: str | None = None, ticks_path: str | None = None
+    ) -> None:
+        """``log_path``: the MCAP log; ``ticks_path``: every tick as it is recorded (sim.outputs.ticklog).
+        Both are written as the run goes, so a run killed outright leaves them readable."""
+        self.bus, self.keys, self.n = bus, bus.keys, robots
+        self.tolerance = tolerance
+        self.raw = bus.subscribe_raw(bus.keys.everything)
+        self.alive = bus.watch_alive()
+        self.traj = Trajectory()
+        self.goal = np.full((robots, 2), np.nan)
+        self.radius = np.full(robots, np.nan)  # as each robot announces it in its state
+        self.goal_index = np.full(robots, -1)
+        self.assign_epoch = np.zeros(robots, np.int64)
+        self.assign_instance = np.zeros(robots, np.int64)
+        self.state_tick = np.full(robots, np.iinfo(np.int64).min)  # the tick of each robot's newest state
+        self.latest_tick = -1  # the world's newest tick (its truth)
+        self.dt = 0.0  # the control period, once the world's truth has told it
+        # The record is what the swarm believed: goal sets and states judged as the robots judge them
+        # (transport.plausible), so a faulty peer's copies do not end up in the measurement.
+        self.believed = GoalSets()
+        self.row_of_tick: dict[int, int] = {}  # tick -> its row of the trajectory
+        self.step = 0  # the scene step of the newest goal set
+        self.goal_sets: dict[int, Goals] = {}  # epoch -> the coordinator's goal set
+        self.newest_goals: Goals | None = None  # the goal set of the highest epoch (read from zenoh's threads)
+        self.bid_positions: dict[
+            tuple[int, int], dict[int, tuple[float, float, float]]
+        ] = {}  # (epoch, instance) -> robot -> x, y, penalty
+        self.counts: dict[str, int] = {}
+        self.commands = 0  # commands sent, counted by record (a frame holds one robot's or a host's)
+        self.bytes: dict[str, int] = {}
+        self.drops = DropCounter()
+        self.contacts: list[Contact] = []
+        self.events: list[dict[str, Any]] = []
+        self.liveliness: list[dict[str, Any]] = []
+        self.agent_alive = np.zeros(robots, bool)
+        self.converged_since: float | None = None
+        self.ends: Callable[[float, float], bool] | None = None  # (converged since, now): the run ends here
+        self.ended_at: int | None = None  # ticks recorded when it ended (none recorded after)
+        self.time_to_converge: float | None = None
+        self.last_min_clearance = np.inf
+        self.log = McapLog(log_path) if log_path else None
+        self.ticks = TickLog(ticks_path, robots) if ticks_path else None
+        self._flushed = time.monotonic()
+        self._channels: dict[str, int] = {}
+        self.started_wall = time.time()
+        self.heading = True  # a heading arrow per robot in the scene: not for holonomic robots, which never turn
+        self.view: Any = None  # sim.outputs.view.SwarmView (pixelswarm run --view): the truth of every tick, one batch
+
+    # --- intake -------------------------------------------------------------------------------
+    def poll(self) -> None:
+        for role, ident, alive, wall, _ in self.alive.drain():
+            self.liveliness.append({"role": role, "id": ident, "alive": alive, "wall_time": wall})
+            if role == "agent" and ident.isdigit() and int(ident) < self.n:
+                self.agent_alive[int(ident)] = alive
+            self._log("alive", wall, {"role": role, "id": ident, "alive": alive})
+        for key, payload, wall in self.raw.drain():
+            kind = self.keys.kind_of(key)
+            self.counts[kind] = self.counts.get(kind, 0) + 1
+            self.bytes[kind] = self.bytes.get(kind, 0) + len(payload)
+            expected = BY_NAME.get(kind)
+            msg = decode(payload, expected, self.drops) if expected else None
+            if msg is None:
+                continue
+            if (as_proto := kind_of(msg)) is not None:
+                self._log_proto(kind, wall, as_proto, msg, key)
+            else:
+                record = msg.to_dict()
+                record["key"] = key
+                self._log(kind, wall, record)
+            if isinstance(msg, States):
+                for state in msg.messages():
+                    self._on_state(state)
+            elif isinstance(msg, Truth):
+                self._on_truth(msg, wall)
+            elif isinstance(msg, Bid):
+                self._on_bid(msg)
+            elif isinstance(msg, Goals):
+                now = self.traj.t[-1] if self.traj.t else None
+                if self.believed.admit(msg, now) is None and not msg.per_robot and msg.epoch not in self.goal_sets:
+                    self._on_goals(msg)
+            elif isinstance(msg, Commands):
+                self.commands += len(msg.records)
+            elif isinstance(msg, Contact):
+                self.contacts.append(msg)
+            elif isinstance(msg, Event):
+                self.events.append(msg.data)
+
+    def _on_state(self, s: State) -> None:
+        """A robot's goal and assignment of tick k go into row k, and on into the rows after it
+        until its next state: a row shows what every robot drove to at that tick, as the central
+        engine records it, however its truth and the states crossed the bus."""
+        r = s.robot
+        if r >= self.n:
+            return
+        if s.tick == BEFORE_START:  # a hello before the first tick: its size, no goal yet
+            self.radius[r] = s.radius if np.isnan(self.radius[r]) else self.radius[r]
+            return
+        row = self.row_of_tick.get(s.tick)
+        if s.tick > self.latest_tick + RECORD_AHEAD or s.tick == self.state_tick[r]:
+            return  # from the future, or a copy (the first heard is the robot's)
+        if self.dt and not stamp_agrees(s.tick, s.stamp, self.dt):
+            return  # its stamp is not its tick's
+        named = self.goal_sets.get(s.assign_epoch)
+        if named is not None and s.goal_index >= len(named.positions):
+            return  # a goal its goal set does not have (a damaged field)
+        goal = (s.goal_x, s.goal_y) if s.flags & State.HAS_GOAL else (np.nan, np.nan)
+        said = (goal, s.goal_index, s.assign_epoch, s.assign_instance)
+        newest = s.tick > self.state_tick[r]
+        if newest:
+            self.radius[r] = s.radius
+            self.goal[r], self.goal_index[r], self.assign_epoch[r], self.assign_instance[r] = said
+            self.state_tick[r] = s.tick
+        if row is None:
+            return
+        tr = self.traj
+        for i in range(row, len(tr.t) if newest else row + 1):
+            tr.goal[i][r], tr.assignment[i][r], tr.assignment_epoch[i][r], tr.assignment_instance[i][r] = said
+
+    def _on_goals(self, g: Goals) -> None:
+        """A new goal set: the newest from the tick the coordinator published it at (its stamp),
+        also in rows recorded before it arrived (the robots' states of those ticks may use it)."""
+        self.goal_sets[g.epoch] = g
+        if g.epoch != max(self.goal_sets):
+            return
+        self.step = g.timing.step
+        self.newest_goals = g
+        tr = self.traj
+        for i in range(len(tr.t) - 1, -1, -1):
+            if tr.t[i] < g.timing.stamp - 1e-9:
+                break
+            tr.step[i], tr.goal_set_epoch[i] = g.timing.step, g.epoch
+
+    def _on_bid(self, m: Bid) -> None:
+        """Keep the positions each robot bid from in each instance (its frozen position), so the
+        agreed assignments can be checked against the optimum on the same positions."""
+        recs = m.records
+        claims = recs[((recs["flags"] & AuctionRecord.RELEASED) == 0) & (recs["robot"] < self.n)]  # not releases
+        # as lists zipped in C, not a loop over records: every lock-step round of a host repeats its
+        # robots' claims, thousands of records a tick at 1000 robots
+        where = zip(claims["x"].tolist(), claims["y"].tolist(), claims["penalty"].tolist())
+        self.bid_positions.setdefault((m.epoch, m.instance), {}).update(zip(claims["robot"].tolist(), where))
+
+    def _on_truth(self, m: Truth, wall: float) -> None:
+        if m.count != self.n or self.ended_at is not None:
+            return
+        tr = self.traj
+        if tr.t and m.stamp <= tr.t[-1]:
+            return
+        self.row_of_tick[m.tick] = len(tr.t)
+        self.latest_tick = max(self.latest_tick, m.tick)
+        if m.tick > 0:
+            self.dt = m.stamp / m.tick  # the control period, as the world's clock counts it
+        tr.t.append(m.stamp)
+        tr.wall.append(wall)
+        tr.pose.append(m.pose)
+        tr.velocity.append(m.velocity)
+        tr.color.append(m.color)
+        tr.goal.append(self.goal.copy())
+        tr.assignment.append(self.goal_index.copy())
+        tr.assignment_epoch.append(self.assign_epoch.copy())
+        tr.assignment_instance.append(self.assign_instance.copy())
+        tr.step.append(self.step)
+        tr.goal_set_epoch.append(max(self.goal_sets) if self.goal_sets else 0)
+        tr.applied = m.applied
+        if self.ticks is not None:
+            self.ticks.append(m.stamp, wall, m.pose, m.velocity, m.color, self.goal, self.goal_index)
+        self.last_min_clearance = min(self.last_min_clearance, m.min_clearance)
+        self._check_converged(m.stamp, m.pose)
+        self._log_scene(wall, m)
+        if self.view is not None:  # missed: the ticks so far the world applied no command of the robot's
+            missed = np.maximum(0, m.tick - m.applied.astype(np.int64)) if len(m.applied) == self.n else None
+            self.view.tick(m.tick, m.stamp, m.pose, m.color, self.goal, radius=self.radius, missed=missed)
+        if self.log is not None and time.monotonic() - self._flushed >= FLUSH_EVERY:
+            self.log.flush()
+            self._flushed = time.monotonic()
+        if self.converged_since is not None and self.ends is not None and self.ends(self.converged_since, m.stamp):
+            self.ended_at = len(tr.t)  # the run ends with this tick, whenever the world hears of it
+
+    def robots_died(self, robots: list[int]) -> None:
+        """Robots whose agent was killed (a scene's fail event): the display converges anew without them."""
+        self.agent_alive[[r for r in robots if r < self.n]] = False
+        self.converged_since = self.time_to_converge = None
+
+    def _check_converged(self, t: float, pose: np.ndarray) -> None:
+        """Converged: every live robot has a goal and is within tolerance of it (true position)."""
+        if not self.agent_alive.any():
+            return
+        newest = self.goal_sets[max(self.goal_sets)] if self.goal_sets else None
+        if display_converged(pose, self.goal, self.assign_epoch, self.agent_alive, newest, self.tolerance):
+            if self.converged_since is None:
+                self.converged_since = t
+                self.time_to_converge = t
+        else:
+            self.converged_since = None
+            self.time_to_converge = None
+
+    @property
+    def sim_time(self) -> float:
+        return self.traj.t[-1] if self.traj.t else 0.0
+
+    # --- mcap ---------------------------------------------------------------------------------
+    def _log(self, kind: str, wall: float, payload: dict[str, Any]) -> None:
+        """One message on its kind's channel, as JSON (orjson: numpy arrays as lists, NaN and inf as
+        null; at 1000 robots json.dumps of every message took a fifth of the recorder's time)."""
+        if self.log is None:
+            return
+        cid = self._channels.get(kind)
+        if cid is None:
+            schema = json_schema_of(BY_NAME[kind]) if kind in BY_NAME else {"type": "object"}
+            name = BY_NAME[kind].__name__ if kind in BY_NAME else kind
+            cid = self._channels[kind] = self.log.add_channel("/" + kind, f"pixelswarm.{name}", schema)
+        self.log.write_bytes(
+            cid, int(wall * 1e9), orjson.dumps(payload, default=_as_list, option=orjson.OPT_SERIALIZE_NUMPY)
+        )
+
+    def _log_proto(self, kind: str, wall: float, as_proto: LoggedKind, msg: Any, key: str) -> None:
+        """A per-tick kind in its protobuf form (sim.outputs.logschema): its tables' numbers as the wire
+        has them, a fraction of their JSON's bytes."""
+        if self.log is None:
+            return
+        cid = self._channels.get(kind)
+        if cid is None:
+            cid = self._channels[kind] = self.log.add_protobuf_channel(
+                "/" + kind, as_proto.name, as_proto.descriptor_set
+            )
+        self.log.write_bytes(cid, int(wall * 1e9), as_proto.encode(msg, key))
+
+    def _log_scene(self, wall: float, m: Truth) -> None:
+        """The display at this tick for Foxglove's 3D panel (stamped, like every channel, with the
+        wall time it arrived, so the panels of one file play in step)."""
+        if self.log is None:
+            return
+        cid = self._channels.get(SCENE_TOPIC)
+        if cid is None:
+            cid = self._channels[SCENE_TOPIC] = self.log.add_foxglove_channel(SCENE_TOPIC, SceneUpdate)
+        t_ns = int(wall * 1e9)
+        update = scene_update(t_ns, m.pose, self.radius, m.color, goal=self.goal, heading=self.heading)
+        self.log.write_bytes(cid, t_ns, update.encode())
+
+    def close_log(self) -> None:
+        if self.log is not None:
+            self.log.close()
+        if self.ticks is not None:
+            self.ticks.close()
+
+    # --- results ------------------------------------------------------------------------------
+    def arrays(self) -> dict[str, np.ndarray]:
+        tr = self.traj
+        n = self.n
+        if not tr.t:
+            return {
+                "t": np.zeros(0),
+                "pose": np.zeros((0, n, 3)),
+                "velocity": np.zeros((0, n, 2)),
+                "color": np.zeros((0, n, 3), np.uint8),
+                "goal": np.zeros((0, n, 2)),
+                "assignment": np.zeros((0, n), int),
+            }
+        out = {
+            "t": np.array(tr.t),
+            "pose": np.stack(tr.pose),
+            "velocity": np.stack(tr.velocity),
+            "color": np.stack(tr.color).astype(np.uint8),
+            "goal": np.stack(tr.goal),
+            "assignment": np.stack(tr.assignment),
+            "step": np.array(tr.step),  # 0 throughout for a scene without images, as the central engine records
+        }
+        if self.goal_sets:
+            out.update(self._auction_arrays())
+        return out
+
+    def _auction_arrays(self) -> dict[str, np.ndarray]:
+        """The agreed assignments as the agents announced them (per tick: goal index, and the goal set
+        and instance it belongs to), the goal sets, and the positions the robots bid from in every
+        instance somebody announced."""
+        tr, n = self.traj, self.n
+        epoch = np.stack(tr.assignment_epoch)
+        instance = np.stack(tr.assignment_instance)
+        announced = sorted(
+            {(int(e), int(k)) for e, k in zip(epoch.ravel(), instance.ravel()) if e > 0 and k != State.CARRIED}
+        )  # carried goals were never agreed
+        positions = np.full((len(announced), n, 2), np.nan)
+        penalties = np.full((len(announced), n), np.nan)
+        for a, key in enumerate(announced):
+            for r, (x, y, penalty) in self.bid_positions.get(key, {}).items():
+                positions[a, r], penalties[a, r] = (x, y), penalty
+        epochs = sorted(self.goal_sets)
+        g_max = max(len(self.goal_sets[e].positions) for e in epochs)
+        goal_sets = np.full((len(epochs), g_max, 2), np.nan)
+        colors = np.zeros((len(epochs), g_max, 3), np.uint8)
+        members = np.zeros((len(epochs), n), bool)
+        for i, e in enumerate(epochs):
+            gs = self.goal_sets[e]
+            goal_sets[i, : len(gs.positions)] = gs.positions
+            colors[i, : len(gs.colors)] = gs.colors
+            members[i, gs.robots[gs.robots < n]] = True
+        return {
+            "goal_set_epoch": np.array(tr.goal_set_epoch),
+            "assignment_epoch": epoch,
+            "assignment_instance": instance,
+            "agreements": np.array(announced, np.int64).reshape(-1, 2),
+            "agreement_positions": positions,
+            "agreement_penalties": penalties,
+            "goal_set_epochs": np.array(epochs),
+            "goal_sets": goal_sets,
+            "goal_set_colors": colors,
+            "goal_set_robots": members,
+            "goal_set_steps": np.array([self.goal_sets[e].timing.step for e in epochs]),
+        }

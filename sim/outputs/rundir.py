@@ -1,0 +1,295 @@
+"""Atomic run directories and the small file writers that fill them.
+
+A run directory is written into a sibling ``<name>.partial/`` directory and renamed to its final
+name only by :meth:`RunDir.commit`, so a directory with the final name is always complete.  On an
+error or :meth:`RunDir.abort` the partial directory is removed.  A process that is killed outright
+(SIGKILL) leaves a ``*.partial`` directory behind, which by its name is marked incomplete.
+
+No zenoh here: these are pure writers that the recorder calls.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import enum
+import io
+import json
+import math
+import os
+import re
+import shutil
+import threading
+from pathlib import Path, PurePath
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "RunDir",
+    "default_run_path",
+    "json_safe",
+    "dumps_json",
+    "write_json",
+    "write_npz",
+    "PARTIAL_SUFFIX",
+]
+
+PARTIAL_SUFFIX = ".partial"
+
+
+# --------------------------------------------------------------------------------------------
+# JSON-safe conversion (shared with sim.outputs.mcaplog)
+# --------------------------------------------------------------------------------------------
+
+
+def _float_or_none(x: float) -> float | None:
+    return x if math.isfinite(x) else None
+
+
+def _array_safe(a: np.ndarray) -> Any:
+    if a.dtype.kind == "f":
+        finite = np.isfinite(a)
+        if finite.all():
+            return a.tolist()
+        obj = a.astype(object)
+        obj[~finite] = None
+        return obj.tolist()
+    if a.dtype.kind == "c":
+        return json_safe(np.stack([a.real, a.imag], axis=-1))
+    if a.dtype.kind in "biu":
+        return a.tolist()
+    if a.dtype.kind in "US":
+        return a.astype(str).tolist()
+    # object or other dtypes: convert element by element
+    return [json_safe(x) for x in a.tolist()] if a.ndim else json_safe(a.item())
+
+
+def json_safe(obj: Any) -> Any:
+    """Return a structure that ``json.dumps(..., allow_nan=False)`` accepts.
+
+    numpy scalars and arrays become Python numbers and (nested) lists; NaN and +/-inf become
+    ``None`` (JSON ``null``); tuples and sets become lists; dict keys become strings; paths become
+    strings; enums their value; bytes are decoded as UTF-8 (with replacement).
+    """
+    if obj is None or isinstance(obj, (bool, str, int)):
+        return obj
+    if isinstance(obj, float):
+        return _float_or_none(obj)
+    if isinstance(obj, dict):
+        return {(k if isinstance(k, str) else str(json_safe(k))): json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _array_safe(obj)
+    if isinstance(obj, np.generic):
+        if isinstance(obj, np.floating):
+            return _float_or_none(float(obj))
+        if isinstance(obj, np.bool_):
+            return bool(obj)
+        if isinstance(obj, np.integer):
+            return int(obj)
+        return json_safe(obj.item())
+    if isinstance(obj, (set, frozenset)):
+        return [json_safe(v) for v in sorted(obj, key=repr)]
+    if isinstance(obj, enum.Enum):
+        return json_safe(obj.value)
+    if isinstance(obj, PurePath):
+        return str(obj)
+    if isinstance(obj, (bytes, bytearray, memoryview)):
+        return bytes(obj).decode("utf-8", errors="replace")
+    if hasattr(obj, "tolist"):  # other array-likes
+        return json_safe(obj.tolist())
+    if hasattr(obj, "__dataclass_fields__"):
+        import dataclasses
+
+        return json_safe(dataclasses.asdict(obj))
+    raise TypeError(f"cannot convert {type(obj).__name__} to JSON")
+
+
+def dumps_json(obj: Any, *, indent: int | None = None) -> str:
+    """``json.dumps`` of :func:`json_safe` (NaN/inf -> null, numpy types converted)."""
+    sep = (",", ":") if indent is None else (",", ": ")
+    return json.dumps(json_safe(obj), allow_nan=False, indent=indent, separators=sep)
+
+
+def _atomic_write_bytes(path: Path, writer) -> None:
+    """Write through a temporary sibling file and rename it over ``path``."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}-{threading.get_ident()}")
+    try:
+        with open(tmp, "wb") as fh:
+            writer(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def write_json(path: str | os.PathLike, obj: Any, *, indent: int = 2) -> Path:
+    """Write ``obj`` as JSON (NaN/inf -> null, numpy types converted), atomically. Returns the path."""
+    path = Path(path)
+    text = dumps_json(obj, indent=indent) + "\n"
+    _atomic_write_bytes(path, lambda fh: fh.write(text.encode("utf-8")))
+    return path
+
+
+def write_npz(path: str | os.PathLike, *, compress: bool = True, **arrays: Any) -> Path:
+    """Write arrays to a ``.npz`` file (compressed by default), atomically. Returns the path.
+
+    The file is written exactly at ``path`` (no ``.npz`` suffix is appended).  Values are passed
+    through ``np.asarray``; object arrays are refused so the file loads without ``allow_pickle``.
+    """
+    path = Path(path)
+    clean = {}
+    for name, value in arrays.items():
+        a = np.asarray(value)
+        if a.dtype == object:
+            raise TypeError(f"write_npz: array {name!r} has dtype object; give it a numeric or str dtype")
+        clean[name] = a
+    save = np.savez_compressed if compress else np.savez
+
+    def _w(fh: io.BufferedWriter) -> None:
+        # ignored: to mypy a key of clean could be savez's own ``allow_pickle``
+        save(fh, **clean)  # type: ignore[arg-type]
+
+    _atomic_write_bytes(path, _w)
+    return path
+
+
+# --------------------------------------------------------------------------------------------
+# Run paths
+# --------------------------------------------------------------------------------------------
+
+_issued_lock = threading.Lock()
+_issued: set[Path] = set()
+
+
+def _slug(name: str) -> str:
+    s = re.sub(r"[^A-Za-z0-9._-]+", "-", str(name)).strip("-.")
+    return s or "run"
+
+
+def default_run_path(scene_name: str, *, root: str | os.PathLike = "runs", now: _dt.datetime | None = None) -> Path:
+    """``<root>/<UTC timestamp>-<scene>``, e.g. ``runs/20250131T142501Z-circle``.
+
+    Unique: if the name is already taken (final or ``.partial`` directory on disk, or handed out
+    earlier in this process) a suffix ``-2``, ``-3``, ... is appended.  The directory is not created.
+    """
+    now = now or _dt.datetime.now(_dt.UTC)
+    if now.tzinfo is not None:
+        now = now.astimezone(_dt.UTC)
+    stamp = now.strftime("%Y%m%dT%H%M%SZ")
+    base = f"{stamp}-{_slug(scene_name)}"
+    root = Path(root)
+    with _issued_lock:
+        k = 1
+        while True:
+            name = base if k == 1 else f"{base}-{k}"
+            cand = root / name
+            key = cand.resolve()
+            if key not in _issued and not cand.exists() and not cand.with_name(name + PARTIAL_SUFFIX).exists():
+                _issued.add(key)
+                return cand
+            k += 1
+
+
+# --------------------------------------------------------------------------------------------
+# RunDir
+# --------------------------------------------------------------------------------------------
+
+
+class RunDir:
+    """An output directory that appears under its final name only when complete.
+
+    >>> with RunDir(default_run_path("circle")) as rd:      # doctest: +SKIP
+    ...     write_json(rd / "metrics.json", {...})
+    ...     # leaving the block normally commits; an exception aborts
+
+    ``rd.path`` (and ``rd / name``) point into the partial directory while the run is open, and
+    at the final directory after :meth:`commit`.  Creating a RunDir whose final or partial
+    directory already exists raises ``FileExistsError`` (a stale ``*.partial`` is never reused).
+    """
+
+    def __init__(self, final_path: str | os.PathLike):
+        self.final_path = Path(final_path)
+        self.partial_path = self.final_path.with_name(self.final_path.name + PARTIAL_SUFFIX)
+        if self.final_path.exists():
+            raise FileExistsError(f"run directory already exists: {self.final_path}")
+        self.final_path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self.partial_path.mkdir()
+        except FileExistsError:
+            raise FileExistsError(
+                f"partial run directory already exists (another run, or a killed one: remove it): {self.partial_path}"
+            ) from None
+        self._state = "open"  # open | committed | aborted
+
+    # -- state -----------------------------------------------------------------------------
+    @property
+    def state(self) -> str:
+        return self._state
+
+    @property
+    def path(self) -> Path:
+        """Where to write: the partial directory while open, the final one after commit."""
+        return self.final_path if self._state == "committed" else self.partial_path
+
+    def __truediv__(self, name: str | os.PathLike) -> Path:
+        return self.path / name
+
+    def __fspath__(self) -> str:
+        return str(self.path)
+
+    def __repr__(self) -> str:
+        return f"RunDir({str(self.final_path)!r}, state={self._state})"
+
+    # -- transitions -------------------------------------------------------------------------
+    def commit(self) -> Path:
+        """Rename ``<name>.partial`` to ``<name>``. Returns the final path."""
+        if self._state == "committed":
+            return self.final_path
+        if self._state != "open":
+            raise RuntimeError(f"cannot commit a run directory that was {self._state}")
+        if self.final_path.exists():
+            raise FileExistsError(f"run directory appeared meanwhile: {self.final_path}")
+        _fsync_dir(self.partial_path)
+        os.rename(self.partial_path, self.final_path)
+        _fsync_dir(self.final_path.parent)
+        self._state = "committed"
+        return self.final_path
+
+    def abort(self) -> None:
+        """Remove the partial directory (no-op if already committed or aborted)."""
+        if self._state != "open":
+            return
+        self._state = "aborted"
+        shutil.rmtree(self.partial_path, ignore_errors=True)
+
+    # -- context manager ---------------------------------------------------------------------
+    def __enter__(self) -> RunDir:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is not None:
+            self.abort()
+        elif self._state == "open":
+            try:
+                self.commit()
+            except BaseException:
+                self.abort()
+                raise
+
+
+def _fsync_dir(path: Path) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)

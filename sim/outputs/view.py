@@ -1,0 +1,504 @@
+"""The live view of a swarm, and the replay of a finished run, in Rerun's viewer (``pixelswarm[view]``).
+
+:class:`SwarmView` logs a swarm to a Rerun recording, one entity for every robot whatever the size of
+the swarm, so 1000 robots stay fluid:
+
+- ``arena`` and ``obstacles``: outlines, once (static);
+- ``swarm/robots``: each robot as a disc in its LED colour, every tick (its colours and sizes at the
+  ticks they change), and per robot (on hover) its goal, whether it is at its goal and its missed ticks;
+- ``swarm/heading``: each robot's heading, a dark dot on its disc's rim toward its front;
+- ``swarm/goals``: the goals, faint, in their robots' colours (the picture beneath the swarm);
+- ``swarm/trails``: each robot's positions over the last 2 s, as faint dots;
+- ``metrics/clearance`` and ``metrics/at_goal``: time series.
+
+The run hands each tick over (:meth:`SwarmView.tick`, a copy) and goes on; a thread of the view's own
+logs what came in a tenth of a second at once (a quarter in a run far faster than real time), every
+tick's positions as one column (Rerun's cost is per call, not per robot). In a run far faster than
+real time the rest (hover, trails, the time series) is logged twice a second of wall time. A display
+hundreds of robot diameters across (1000 robots) draws the robots as dots of a few points, without
+headings: at true size they would be a pixel. Rerun's 2D views point y down, so the display entities are mirrored for drawing only: the
+recording holds the arena's coordinates, y up.
+
+The timelines are ``tick`` (the control step) and ``time`` (display time, s).
+
+Where it goes (``sink``): ``"native"`` starts Rerun's viewer on this machine (its window outlives the
+run); ``"web"`` serves Rerun's web viewer on 127.0.0.1 (:attr:`SwarmView.url`) until :meth:`close`;
+a path writes an ``.rrd`` file (what the tests read back, and what :func:`replay` writes beside a
+run's ``trajectory.npz``).  Every server listens on 127.0.0.1 only.
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import subprocess
+import sys
+import threading
+import time
+import urllib.parse
+import urllib.request
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sim.processes import stop_processes
+from transport.session import free_port, listening
+
+__all__ = ["SwarmView", "ViewUnavailable", "replay", "VIEW_FILE", "TRAIL"]
+
+VIEW_FILE = "view.rrd"  # beside trajectory.npz
+TRAIL = 10  # positions kept per robot's trail: every TRAIL_EVERY-th tick's
+TRAIL_EVERY = 2
+TRAIL_DOT = 0.004  # m, radius of a trail's dots
+TRAIL_ALPHA = 90
+QUEUE_TICKS = 1000  # ticks handed over and not yet logged, at most (then the run waits for the view)
+FLUSH_PERIOD = 0.1  # s: the view logs what came in this long as one batch (it refreshes at 10 Hz)
+FAST_FLUSH_PERIOD = 0.25  # s: the same after a batch of many ticks (a run too fast to watch tick by tick)
+MAX_BATCH = 200  # ticks a batch at most
+SLOW_BATCH = 3  # a batch of at most this many ticks is of a run near real time: everything logged at its last
+EXTRAS_PERIOD = 0.5  # s of wall time between two logs of the rest (hover, trails, metrics) in a faster run
+CLEARANCE_REACH = 0.3  # m: gaps up to this come from the compiled grid, larger ones from a k-d tree
+DOTS_ABOVE = 150  # robot diameters across the display above which robots are drawn as dots of a fixed size
+DOT = 2.5  # their radius then, in the viewer's points (at true size they would be a pixel or less)
+TRAIL_DOT_POINTS = 0.8  # a trail's dots then, in points
+NOSE = 0.65  # the heading dot's centre, in radii from the robot's
+NOSE_DOT = 0.3  # its radius, in robot radii
+NOSE_COLOR = (20, 20, 20)
+DRAW_ABOVE = 40.0  # draw order above the robots' discs (Rerun draws 2D points at 30)
+GOAL_ALPHA = 70  # the goals are faint: the picture beneath the robots
+LOOPBACK = "127.0.0.1"
+DISPLAY = ("arena", "obstacles", "swarm")  # the entities drawn on the display (the rest are time series)
+START_TIMEOUT = 30.0  # s for Rerun's server to listen
+
+
+class ViewUnavailable(Exception):
+    """rerun-sdk is not installed, or its viewer did not start: one line for the user."""
+
+
+def _rerun() -> Any:
+    try:
+        import rerun
+    except ImportError:
+        raise ViewUnavailable("the view needs rerun-sdk: pip install 'pixelswarm[view]'") from None
+    return rerun
+
+
+def _viewer() -> list[str]:
+    """Rerun's viewer binary, as rerun-sdk ships it (run directly: a process of ours to stop by its id,
+    not a wrapper whose child would outlive it)."""
+    try:
+        import rerun_cli
+    except ImportError:
+        raise ViewUnavailable("the view needs rerun-sdk: pip install 'pixelswarm[view]'") from None
+    binary = Path(rerun_cli.__file__).parent / "rerun"
+    if not binary.is_file():
+        raise ViewUnavailable(f"rerun-sdk has no viewer binary at {binary}")
+    return [str(binary)]
+
+
+def _wait_listening(port: int, proc: subprocess.Popen, timeout: float = START_TIMEOUT) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise ViewUnavailable(f"Rerun's viewer exited at start (code {proc.returncode})")
+        if listening(port, LOOPBACK):
+            return
+        time.sleep(0.1)
+    raise ViewUnavailable(f"Rerun's viewer did not listen on {LOOPBACK}:{port} within {timeout:g} s")
+
+
+class SwarmView:
+    """One recording of a swarm of ``radius.size`` robots; :meth:`tick` logs a tick."""
+
+    def __init__(
+        self,
+        name: str,
+        arena: tuple[float, float, float, float] | None,
+        obstacles: list[list[tuple[float, float]]],
+        radius: np.ndarray | float,
+        *,
+        robots: int,
+        sink: str | os.PathLike = "native",
+        tolerance: float = 0.02,
+    ) -> None:
+        rr = _rerun()
+        self._rr = rr
+        self.n = robots
+        self.radius = np.broadcast_to(np.asarray(radius, dtype=float), (robots,)).copy()
+        self.tolerance = tolerance
+        self.url: str | None = None
+        self.process: subprocess.Popen | None = None
+        self._trail: deque[np.ndarray] = deque(maxlen=TRAIL)
+        # what was logged last: logged again only when it changes
+        self._goals_shown: tuple[np.ndarray, np.ndarray] | None = None
+        self._rgb_shown: np.ndarray | None = None
+        self._radius_shown: np.ndarray | None = None
+        self.failure: str | None = None  # why the view stopped logging, if it did
+        self.dots: bool | None = None  # robots drawn as dots of DOT points (decided at the first tick)
+        self._extent = 0.0  # m across the arena, if known
+        self._extras_at = -np.inf  # time.monotonic() of the last batch that logged more than the robots
+        self._trail_rgb: np.ndarray | None = None  # the trail's colours, and the robots' colours they are of
+        self._trail_rgb_of: np.ndarray | None = None
+        # ticks are logged on a thread of the view's own: the run hands over copies and goes on (a full
+        # queue makes it wait: no tick is dropped)
+        self._queue: queue.Queue[tuple[Any, ...] | None] = queue.Queue(maxsize=QUEUE_TICKS)
+        self._hurry = threading.Event()  # set by flush and close: log what there is without waiting for more
+        self._logger = threading.Thread(target=self._drain, name="rerun-view", daemon=True)
+        self._logger.start()
+        self.rec = rr.RecordingStream("pixelswarm", recording_id=f"{name}-{os.getpid()}-{time.time_ns()}")
+        if sink in ("native", "web"):
+            self._serve(web=sink == "web")
+        else:
+            self.rec.save(str(sink), default_blueprint=_layout())
+        self._static(arena, obstacles)
+
+    # -- where it goes -----------------------------------------------------------------------
+    def _serve(self, web: bool) -> None:
+        """Rerun's viewer (its own process) listening on 127.0.0.1; this recording streams to it."""
+        grpc = free_port(LOOPBACK)
+        command = [*_viewer(), "--bind", LOOPBACK, "--port", str(grpc), "--expect-data-soon"]
+        if web:
+            page = free_port(LOOPBACK)
+            command += ["--serve-web", "--web-viewer-port", str(page)]
+        # the native window is the user's: it outlives the run (its own session); the web server is ours
+        self.process = subprocess.Popen(
+            command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=not web
+        )
+        _wait_listening(grpc, self.process)
+        proxy = f"rerun+http://{LOOPBACK}:{grpc}/proxy"
+        self.rec.connect_grpc(proxy, default_blueprint=_layout())
+        if web:
+            _wait_listening(page, self.process)
+            self.url = f"http://{LOOPBACK}:{page}/?url={urllib.parse.quote(proxy, safe='')}"
+        else:
+            self.process = None  # not ours to stop
+
+    def _static(
+        self, arena: tuple[float, float, float, float] | None, obstacles: list[list[tuple[float, float]]]
+    ) -> None:
+        """The arena's outline (None: not known, as to a viewer on the bus) and the obstacles."""
+        rr = self._rr
+        # Rerun's 2D views point y down (its issue 1387): mirrored for display, so the picture stands
+        # upright while the data keep the arena's frame (y up), as trajectory.npz has them
+        for entity in DISPLAY:
+            self.rec.log(entity, rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
+        nose = float(np.nanmax(self.radius, initial=0.0)) * NOSE_DOT
+        dots = rr.Points2D.from_fields(colors=[NOSE_COLOR], radii=[nose], draw_order=DRAW_ABOVE)
+        self.rec.log("swarm/heading", dots, static=True)
+        if arena is not None:
+            x0, y0, x1, y1 = arena
+            self._extent = max(x1 - x0, y1 - y0)
+            box = [[x0, y0], [x1, y0], [x1, y1], [x0, y1], [x0, y0]]
+            self.rec.log("arena", rr.LineStrips2D([box], colors=[(200, 200, 200)]), static=True)
+        if obstacles:
+            loops = [[*map(list, o), list(o[0])] for o in obstacles]
+            self.rec.log("obstacles", rr.LineStrips2D(loops, colors=[(120, 120, 120)]), static=True)
+
+    # -- a tick --------------------------------------------------------------------------------
+    def tick(
+        self,
+        tick: int,
+        t: float,
+        pose: np.ndarray,
+        color: np.ndarray,
+        goal: np.ndarray,
+        *,
+        radius: np.ndarray | None = None,
+        missed: np.ndarray | None = None,
+    ) -> None:
+        """The swarm at one tick: ``pose`` (N,3), ``color`` (N,3) uint8, ``goal`` (N,2) NaN = none,
+        ``missed`` (N,) ticks each robot has missed so far (distributed engine). Copied (in float32, as
+        Rerun keeps positions) and logged on the view's thread."""
+        if self.failure is not None:
+            return
+        copy = (
+            int(tick),
+            float(t),
+            np.array(pose, dtype=np.float32).reshape(-1, 3),
+            np.array(color, dtype=np.uint8).reshape(-1, 3),
+            np.array(goal, dtype=np.float32).reshape(-1, 2),
+            None if radius is None else np.array(radius, dtype=float),
+            None if missed is None else np.array(missed, dtype=np.int64),
+        )
+        self._queue.put(copy)
+
+    def _drain(self) -> None:
+        """Log the ticks handed over, a batch at a time: the ticks that came within FLUSH_PERIOD of the
+        batch's first (one in a real-time run), or FAST_FLUSH_PERIOD after a batch of many (a fast central
+        run). The thread sleeps while they gather, rather than wait on the queue: woken by every tick, it
+        took the GIL from the run each time. A failure to log is said once and the view stops; the run
+        goes on (its ticks are dropped)."""
+        done, period = False, FLUSH_PERIOD
+        while not done:
+            first = self._queue.get()
+            batch = [] if first is None else [first]
+            done = first is None
+            if not done and self._queue.qsize() < MAX_BATCH:
+                self._hurry.wait(period)
+            while not done and len(batch) < MAX_BATCH:
+                try:
+                    item = self._queue.get_nowait()
+                except queue.Empty:
+                    break
+                done = item is None
+                if item is not None:
+                    batch.append(item)
+            period = FLUSH_PERIOD if len(batch) <= SLOW_BATCH else FAST_FLUSH_PERIOD
+            try:
+                if batch and self.failure is None:
+                    self._log(batch)
+            except Exception as err:  # the view's fault, not the run's: one line, and no more logging
+                self.failure = f"{type(err).__name__}: {err}"
+                print(f"pixelswarm: the view stopped logging: {self.failure}", file=sys.stderr, flush=True)
+            finally:
+                for _ in range(len(batch) + done):
+                    self._queue.task_done()
+
+    def _log(self, batch: list[tuple[Any, ...]]) -> None:
+        """Every tick's robot positions and headings, as columns (one call an entity a batch: Rerun's
+        cost is per call, not per robot); colours and sizes at the ticks they changed (Rerun shows each
+        component's newest value); the rest once a batch, at its last tick: robots at goal, the smallest
+        clearance, what hover shows, the goals when they changed and the trails."""
+        rr, rec = self._rr, self.rec
+        k = len(batch)
+        ticks = np.array([item[0] for item in batch], np.int64)
+        times = np.array([item[1] for item in batch])
+        xy = np.stack([item[2][:, :2] for item in batch])  # (K, N, 2) float32
+        n = xy.shape[1]
+        parts = np.full(k, n)
+        index = [rr.TimeColumn("tick", sequence=ticks), rr.TimeColumn("time", duration=times)]
+        if self.dots is None:  # a picture of a thousand robots is hundreds of diameters across
+            placed = xy[0][np.isfinite(xy[0]).all(axis=1)]
+            spread = float(np.ptp(placed, axis=0).max()) if len(placed) else 0.0
+            size = (
+                2 * float(np.median(self.radius[np.isfinite(self.radius)])) if np.isfinite(self.radius).any() else 0.0
+            )
+            self.dots = size > 0 and max(self._extent, spread) > DOTS_ABOVE * size
+        rec.send_columns("swarm/robots", index, [self._column("Position2D", "Points2D", "positions", xy, parts)])
+        self._changes(batch, ticks, times)
+        r = np.where(np.isfinite(self.radius), self.radius, 0.0).astype(np.float32)
+        # the heading as a dark dot on each disc's rim, toward the front: one position a robot and tick,
+        # where an arrow takes two vectors (float32: a tenth of float64's cos and sin)
+        if not self.dots:  # a heading dot would hide a robot drawn as a dot
+            theta = np.stack([item[2][:, 2] for item in batch])  # NaN where unknown: no dot
+            nose = np.empty((k, n, 2), np.float32)
+            np.cos(theta, out=nose[..., 0])
+            np.sin(theta, out=nose[..., 1])
+            nose *= (r * NOSE)[None, :, None]
+            nose += xy
+            nose_column = self._column("Position2D", "Points2D", "positions", nose, parts)
+            rec.send_columns("swarm/heading", index, [nose_column])
+
+        self._keep_trail(ticks, xy)
+        # a fast run's batches are many ticks: what follows, at most every EXTRAS_PERIOD of wall time
+        if k > SLOW_BATCH and time.monotonic() - self._extras_at < EXTRAS_PERIOD:
+            return
+        self._extras_at = time.monotonic()
+        rec.set_time("tick", sequence=int(ticks[-1]))
+        rec.set_time("time", duration=float(times[-1]))
+        _, _, last_pose, last_rgb, last_goal, _, missed = batch[-1]
+        off = last_goal - last_pose[:, :2]
+        at_goal = np.einsum("nc,nc->n", off, off) <= self.tolerance**2  # NaN (no goal) is never at it
+        rec.log("metrics/at_goal", rr.Scalars(float(at_goal.sum())))
+        rec.log("metrics/clearance", rr.Scalars(_min_clearance(last_pose[:, :2].astype(float), r.astype(float))))
+        rec.log(
+            "swarm/robots",
+            rr.AnyValues(
+                goal_x=last_goal[:, 0],
+                goal_y=last_goal[:, 1],
+                at_goal=at_goal,
+                heading_rad=last_pose[:, 2],
+                missed_ticks=np.zeros(n, np.int64) if missed is None else missed,
+            ),
+        )
+        if self._goals_shown is None or not (
+            np.array_equal(last_goal, self._goals_shown[0], equal_nan=True)
+            and np.array_equal(last_rgb, self._goals_shown[1])
+        ):
+            has_goal = np.isfinite(last_goal).all(axis=1)
+            faint = np.column_stack([last_rgb[has_goal], np.full(int(has_goal.sum()), GOAL_ALPHA, np.uint8)])
+            radii = -DOT * 0.6 if self.dots else r[has_goal] * 0.6  # negative: in the viewer's points
+            rec.log("swarm/goals", rr.Points2D(last_goal[has_goal], colors=faint, radii=radii))
+            self._goals_shown = (last_goal, last_rgb)
+        self._log_trails(self._rgb_shown)
+
+    def _column(self, component: str, archetype: str, field: str, values: Any, parts: Any) -> Any:
+        """One component's values of several ticks, ``parts`` of them a tick, for send_columns: built from
+        the component's batch (the archetype's ``columns`` first splits every row apart, a tenth of a
+        millisecond per thousand robots and tick)."""
+        rr = self._rr
+        batch = getattr(rr.components, f"{component}Batch")(values.reshape(-1, *values.shape[2:]))
+        return batch.described(getattr(getattr(rr, archetype), f"descriptor_{field}")()).partition(parts)
+
+    def _changes(self, batch: list[tuple[Any, ...]], ticks: np.ndarray, times: np.ndarray) -> None:
+        """The robots' colours at the ticks of the batch they changed at, and their sizes when a tick
+        brought new ones."""
+        rr, rec = self._rr, self.rec
+        rgb = np.stack([item[3] for item in batch])
+        before = rgb[:1] if self._rgb_shown is None else self._rgb_shown[None]
+        changed = np.flatnonzero((rgb != np.concatenate([before, rgb[:-1]])).any(axis=(1, 2)))
+        if self._rgb_shown is None:
+            changed = np.union1d(changed, [0])
+        if changed.size:
+            at = [rr.TimeColumn("tick", sequence=ticks[changed]), rr.TimeColumn("time", duration=times[changed])]
+            colors = self._column("Color", "Points2D", "colors", rgb[changed], np.full(changed.size, rgb.shape[1]))
+            rec.send_columns("swarm/robots", at, [colors])
+            self._rgb_shown = batch[changed[-1]][3]
+        for i, item in enumerate(batch):
+            if item[5] is None and self._radius_shown is not None:
+                continue
+            radius = self.radius if item[5] is None else np.where(np.isfinite(item[5]), item[5], self.radius)
+            if self._radius_shown is None or not np.array_equal(radius, self._radius_shown, equal_nan=True):
+                self.radius = radius
+                at = [
+                    rr.TimeColumn("tick", sequence=ticks[i : i + 1]),
+                    rr.TimeColumn("time", duration=times[i : i + 1]),
+                ]
+                sizes = np.where(np.isfinite(radius), radius, 0.0)[None]
+                if self.dots:
+                    sizes = np.full_like(sizes, -DOT)
+                rec.send_columns(
+                    "swarm/robots", at, [self._column("Radius", "Points2D", "radii", sizes, [len(radius)])]
+                )
+                self._radius_shown = radius.copy()
+
+    def _keep_trail(self, ticks: np.ndarray, xy: np.ndarray) -> None:
+        """Each robot's positions of every TRAIL_EVERY-th tick, the last TRAIL of them."""
+        steps = np.flatnonzero(ticks % TRAIL_EVERY == 0)
+        if not self._trail and not (steps.size and steps[0] == 0):
+            self._trail.append(xy[0].copy())
+        for i in steps[-TRAIL:]:
+            self._trail.append(xy[i].copy())
+
+    def _log_trails(self, rgb: Any) -> None:
+        """The trails as faint dots in one flat batch (a strip per robot costs ten times as much to log);
+        their colours made again only when the robots' changed."""
+        if (
+            self._trail_rgb is None
+            or len(self._trail_rgb) != len(self._trail) * len(rgb)
+            or self._trail_rgb_of is not rgb
+        ):
+            faint = np.column_stack([rgb, np.full(len(rgb), TRAIL_ALPHA, np.uint8)])
+            self._trail_rgb, self._trail_rgb_of = np.tile(faint, (len(self._trail), 1)), rgb
+        radius = -TRAIL_DOT_POINTS if self.dots else TRAIL_DOT
+        dots = self._rr.Points2D(np.concatenate(self._trail), colors=self._trail_rgb, radii=radius)
+        self.rec.log("swarm/trails", dots)
+
+    def flush(self) -> None:
+        """Hand every tick given so far to its sink (the run is over: no more batching)."""
+        self._hurry.set()
+        self._queue.join()
+        self.rec.flush()
+
+    def close(self) -> None:
+        """Hand every tick to its sink (a file is complete after this); stop the web server."""
+        self._hurry.set()
+        if self._logger.is_alive():
+            self._queue.put(None)
+            self._logger.join()
+        self.rec.flush()
+        self.rec.disconnect()
+        if self.process is not None:
+            stop_processes([self.process], 10)
+            self.process = None
+
+    def serve_until_interrupted(self) -> None:
+        """Keep the web viewer up (after the run) until Ctrl-C or SIGTERM."""
+        if self.process is None:
+            return
+        stop_on_sigterm()
+        try:
+            self.process.wait()
+        except KeyboardInterrupt:
+            pass
+
+
+def _layout() -> Any:
+    """The viewer's layout: the display large, the two time series beside it, the side panels folded."""
+    import rerun.blueprint as rrb
+
+    display = rrb.Spatial2DView(name="display", origin="/", contents=[f"/{e}/**" for e in DISPLAY])
+    plots = rrb.Vertical(rrb.TimeSeriesView(origin="/metrics/clearance"), rrb.TimeSeriesView(origin="/metrics/at_goal"))
+    return rrb.Blueprint(rrb.Horizontal(display, plots, column_shares=[3, 1]), collapse_panels=True)
+
+
+def stop_on_sigterm() -> None:
+    """SIGTERM as Ctrl-C: the ``finally`` that stops the viewer's process runs."""
+    import signal
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, interrupt)
+
+
+def _min_clearance(xy: np.ndarray, r: np.ndarray) -> float:
+    """The smallest gap between two robots' discs (m) at positions (N, 2): the compiled grid of the
+    world's contact check over the pairs within CLEARANCE_REACH, a k-d tree if none is."""
+    from sim.bodies.proximity import close_pairs
+
+    ok = np.isfinite(xy).all(axis=1)
+    if ok.sum() < 2:
+        return float("nan")
+    xy, r = (xy, r) if ok.all() else (xy[ok], r[ok])
+    found = close_pairs(xy[None], r, CLEARANCE_REACH + 2 * float(r.max()), 0.0, 0)
+    if found is not None and np.isfinite(found[0]):
+        return found[0]
+    from scipy.spatial import cKDTree
+
+    dist, idx = cKDTree(xy).query(xy, k=2)
+    return float(np.min(dist[:, 1] - r - r[idx[:, 1]]))
+
+
+def replay(run_dir: Path, sink: str | os.PathLike, scene: dict[str, Any] | None = None) -> SwarmView:
+    """A finished run's ``trajectory.npz`` (and ``scene.json``) logged tick by tick to ``sink``."""
+    import json
+
+    data = np.load(run_dir / "trajectory.npz")
+    if scene is None:
+        scene = json.loads((run_dir / "scene.json").read_text())
+    arena = tuple(scene["arena"])
+    obstacles = [[tuple(v) for v in o] for o in scene.get("obstacles", [])]
+    pose, color, goal, radius = data["pose"], data["color"], data["goal"], data["radius"]
+    view = SwarmView(
+        scene.get("name", run_dir.name),
+        arena,
+        obstacles,
+        radius,
+        robots=pose.shape[1],
+        sink=sink,
+        tolerance=float(scene.get("robot", {}).get("goal_tolerance", 0.02)),
+    )
+    for k, t in enumerate(data["t"].tolist()):
+        view.tick(k, t, pose[k], color[k], goal[k])
+    return view
+
+
+def view_recording(rrd: Path, *, web: bool = False) -> None:
+    """Open a recording in Rerun's viewer: its window (returns at once; the window is the user's), or
+    its web viewer on 127.0.0.1, the address printed, until Ctrl-C."""
+    _rerun()
+    if not web:
+        command = [*_viewer(), "--bind", LOOPBACK, "--port", str(free_port(LOOPBACK)), str(rrd)]
+        subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+        return
+    grpc, page = free_port(LOOPBACK), free_port(LOOPBACK)
+    command = [*_viewer(), "--bind", LOOPBACK, "--port", str(grpc), "--serve-web"]
+    command += ["--web-viewer-port", str(page), str(rrd)]
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    stop_on_sigterm()
+    try:
+        _wait_listening(page, process)
+        proxy = f"rerun+http://{LOOPBACK}:{grpc}/proxy"
+        print(f"view: http://{LOOPBACK}:{page}/?url={urllib.parse.quote(proxy, safe='')} (Ctrl-C to stop)", flush=True)
+        process.wait()
+    finally:
+        stop_processes([process], 10)
+
+
+def url_serves(url: str) -> bool:
+    """Whether the page answers (the web viewer is up)."""
+    with urllib.request.urlopen(url, timeout=10) as response:
+        return bool(response.status == 200)

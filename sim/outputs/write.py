@@ -1,0 +1,131 @@
+"""Writing a finished run: metrics, trajectory, plots, video and the scene, then the atomic commit.
+
+A run that did not run its course (``complete=False`` in metrics: interrupted, its world died, its
+start-up failed) also gets a file INCOMPLETE holding its end reason, so that neither a person
+listing the directory nor a script testing for the file takes it for a finished run."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any, TypedDict
+
+import numpy as np
+
+from agent.core.params import RobotParams
+from coordinator.resolved import save_resolved
+from coordinator.scene import Scene
+from sim.outputs.metrics import assignment_over_optimum, clearance_over_time, communication_parts, summarise
+from sim.outputs.rundir import RunDir, write_json, write_npz
+
+INCOMPLETE = "INCOMPLETE"  # the marker file of a run directory whose run did not run its course
+
+
+class NewestGoalSet(TypedDict, total=False):
+    """metrics.summarise's arguments for the newest goal set (none in runs without goal sets)."""
+
+    step_members: np.ndarray
+    step_current: np.ndarray
+
+
+def newest_goal_set(arrays: dict[str, np.ndarray]) -> NewestGoalSet:
+    """Distributed image runs (trajectory.npz arrays): per tick, the robots of the newest goal set
+    (``step_members``) and whose announced goal comes from it (``step_current``); see
+    metrics.step_metrics."""
+    if "goal_set_epoch" not in arrays:
+        return {}
+    epochs = list(arrays["goal_set_epochs"])
+    newest = arrays["goal_set_epoch"]  # (T,)
+    rows = np.array([epochs.index(e) if e in epochs else -1 for e in newest])
+    members = np.where(rows[:, None] >= 0, arrays["goal_set_robots"][np.maximum(rows, 0)], False)
+    current = arrays["assignment_epoch"] == newest[:, None]
+    return {"step_members": members, "step_current": current}
+
+
+def write_run(
+    run_dir: RunDir,
+    scene: Scene,
+    params: RobotParams,
+    arrays: dict[str, np.ndarray],
+    *,
+    wall_s: float,
+    contacts: list[dict[str, Any]],
+    video: bool,
+    plots: bool,
+    reach: float = np.inf,
+    **metrics_extra: Any,
+) -> Path:
+    """Everything a run directory holds, from the true trajectory; returns the committed path.
+    ``reach``: the robots' communication range (m), whose splits of the swarm it reports.
+    ``complete=False`` among the metrics writes the INCOMPLETE marker."""
+    n = scene.robots
+    if np.isfinite(reach):
+        parts = communication_parts(arrays["pose"], reach)
+        metrics_extra.update(range_m=reach, split_ticks=int((parts > 1).sum()), most_parts=int(parts.max(initial=1)))
+    radius = np.full(n, params.radius)
+    t = arrays["t"]
+    clearance = clearance_over_time(arrays["pose"], radius) if len(t) else np.zeros(0)
+    metrics = summarise(
+        t=t,
+        pose=arrays["pose"],
+        radius=radius,
+        wall_s=wall_s,
+        contacts=len(contacts),
+        goal=arrays["goal"],
+        tolerance=params.goal_tolerance,
+        clearance=clearance,
+        step=arrays.get("step"),
+        **newest_goal_set(arrays),
+        scene=scene.name,
+        seed=scene.seed,
+        clock=scene.clock,
+        contact_events=contacts,
+        **metrics_extra,
+    )
+    if scene.steps and "assignment" in arrays and arrays.get("step") is not None and metrics.get("steps"):
+        over = assignment_over_optimum(arrays["pose"], arrays["goal"], arrays["assignment"], arrays["step"])
+        for entry, value in zip(metrics["steps"], over):
+            entry["assignment_over_optimum_m2"] = value
+    write_json(run_dir / "metrics.json", metrics)
+    if metrics_extra.get("complete") is False:
+        why = [metrics_extra.get("end_reason") or "incomplete", metrics_extra.get("startup_failure")]
+        (run_dir / INCOMPLETE).write_text("".join(f"{line}\n" for line in why if line))
+    # ignored: to mypy a key of arrays could be write_npz's own ``compress`` (none is)
+    write_npz(run_dir / "trajectory.npz", radius=radius, **arrays)  # type: ignore[arg-type]
+    # the renderers are imported only where used: they load matplotlib, OpenCV and PyAV
+    if len(t) and plots:
+        from sim.outputs.render import write_plots
+
+        write_plots(
+            run_dir.path,
+            t,
+            clearance,
+            arrays["pose"],
+            radius,
+            scene.arena,
+            scene.obstacles,
+            arrays["goal"],
+            color=arrays["color"],
+        )
+    if len(t) and video:
+        from sim.outputs.render import held_frames, write_video
+
+        formed = metrics.get("time_to_converge_s")
+        idx = held_frames(t, None if formed is None else float(t[0]) + formed)
+        try:
+            write_video(
+                run_dir / "display.mp4",
+                t[idx],
+                arrays["pose"][idx],
+                radius,
+                arrays["color"][idx],
+                scene.arena,
+                scene.obstacles,
+                arrays["goal"][idx],
+                speed=None,  # the frames are chosen: real time, and the final picture held
+                max_frames=0,
+            )
+        except RuntimeError as err:  # no encoder here: the run's data matter more than its video
+            print(f"pixelswarm: warning: no display.mp4: {err}", file=sys.stderr)
+    save_resolved(scene, run_dir.path, robot=params.to_dict())  # scene.json, goal_sets.npz
+    return run_dir.commit()

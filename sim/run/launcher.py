@@ -1,0 +1,703 @@
+"""The launcher: embeds a router, starts coordinator, world and agent processes, records the run.
+
+Every participant is a real OS process talking over a real zenoh router on loopback. Children run
+in their own process group (a terminal's Ctrl-C reaches only the launcher, which then shuts them
+down in order) and exit by themselves if the launcher disappears.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+
+from agent.core.params import HOLONOMIC, RobotParams
+from agent.runtime import HostConfig, interpreter
+from coordinator.resolved import save_resolved
+from coordinator.scene import Scene
+from sim.args import STARTUP_TIMEOUT, format_ids
+from sim.node.hardware import ERROR as HARDWARE_ERROR
+from sim.outputs.recorder import Recorder
+from sim.outputs.rundir import RunDir
+from sim.outputs.ticklog import TICKS_FILE
+from sim.outputs.write import write_run
+from sim.processes import stop_processes
+from sim.run.remote_agents import encode_remote_config
+from transport.bus import Bus
+from transport.codec import Event
+from transport.faults import FaultPlan, format_faults
+from transport.security import client_config, robot_role, router_config
+from transport.session import ZenohSettings, client_of, free_port, loopback_router
+
+AGENTS_TIMEOUT = 60.0  # s a run with remote agents waits for every robot's agent to come alive
+RESTARTS = 5  # times the launcher restarts a central service that died (beyond: the run goes on without it)
+RESTARTED = (
+    "coordinator",
+)  # the services it restarts; the simulated world is also the tracker: its death ends the run
+
+
+def progress_line(scene: str, t: float, at_goal: int, with_goal: int, min_clearance: float, contacts: int) -> str:
+    """The once-a-second progress line. Before any robot has a goal it says so, not ``at goal 0/0``
+    (a newcomer read that as a swarm that found no goals)."""
+    goals = f"at goal {at_goal}/{with_goal}" if with_goal else "waiting for the goal set"
+    return f"[{scene}] t={t:6.1f} s  {goals}  min clearance {min_clearance:+.3f} m  contacts {contacts}"
+
+
+@dataclass
+class RunOptions:
+    out: Path
+    video: bool = True
+    plots: bool = True  # clearance.png and trajectories.png
+    agents_per_process: int = 1
+    display: str = "default"
+    router: ZenohSettings | None = None  # None: embed one on a free loopback port
+    connect: list[str] = field(default_factory=list)  # an external router to join instead of embedding
+    faults: FaultPlan = field(default_factory=dict)
+    agent_routers: list[str] = field(default_factory=list)  # spread agents over these routers (round robin)
+    deadline: float = 2.0
+    progress: TextIO | None = sys.stderr
+    startup_timeout: float = STARTUP_TIMEOUT
+    secure: Path | None = None  # a folder from `pixelswarm certs`: each process joins as its role (docs/security.md)
+    hardware: Path | None = None  # a hardware file: real robots (sim/node/hardware.py) in place of the world
+    remote_agents: bool = False  # spawn no agents: serve their configs, `pixelswarm agents` starts them elsewhere
+    agents_timeout: float = AGENTS_TIMEOUT
+    reach: float = math.inf  # communication range (m): robots hear states and the auction only this close
+    foxglove: int | None = None  # serve the log live over Foxglove's WebSocket protocol on 127.0.0.1:PORT (0: free)
+    view: Any = (
+        None  # sim.outputs.view.SwarmView: the recorder logs the world's truth to it at every tick (agents never do)
+    )
+
+
+class HardwareStartError(Exception):
+    """The hardware node refused to start (robot out of reach, no poses): its one line for the user."""
+
+
+@dataclass
+class Child:
+    name: str
+    proc: subprocess.Popen
+    robots: list[int]
+    log: Path
+    command: list[str] = field(default_factory=list)  # module and arguments, to start it again
+    client: ZenohSettings | None = None
+    reported: bool = False  # its exit was seen (a crash said once, or a kill on purpose)
+
+
+class Interrupted(Exception):
+    pass
+
+
+class AgentsMissing(Exception):
+    """Remote agents that did not come within the timeout: one line naming their robots."""
+
+
+class StartupFailed(Exception):
+    """Agents of the run's own that did not come alive (their process exited, the start-up timeout
+    passed, the world ended): one line naming their robots."""
+
+
+def _robots(ids: list[int]) -> str:
+    """'robot 3' or 'robots 0-2, 5', for messages."""
+    return f"robot{'s' if len(ids) > 1 else ''} {format_ids(ids)}"
+
+
+class Launcher:
+    def __init__(self, scene: Scene, options: RunOptions) -> None:
+        self.world_exit: int | None = None  # the world process's exit code, once it exited
+        self.scene, self.opt = scene, options
+        self.params = RobotParams.from_dict(scene.robot)
+        self.children: list[Child] = []
+        self.crashes: list[dict[str, Any]] = []
+        self.restarts: list[dict[str, Any]] = []  # central services that died and were started again
+        self.stop_signal: int | None = None
+        self.startup_failure: str | None = None  # why the run ended before it started (StartupFailed)
+        self.interrupted = False  # a stop signal ended the run (written marked incomplete)
+        self.run_dir = RunDir(options.out)
+        self.failures = sorted((e for e in scene.events if e["kind"] == "fail"), key=lambda e: e["t"])
+        self.failed: list[dict[str, Any]] = []
+        if options.secure is not None and options.agents_per_process > 1:
+            raise ValueError("a secured run has one robot per agent process: the access rules give each its own keys")
+        if options.secure is not None and (options.connect or options.agent_routers):
+            raise ValueError("a secured run embeds its router: every process joins it, the recorder in its session")
+        if options.remote_agents and (options.secure is not None or options.agent_routers):
+            raise ValueError("remote agents join by themselves: not with --secure or --agents-connect")
+
+    # --- processes ----------------------------------------------------------------------------
+    def _spawn(
+        self, name: str, module: str, args: list[str], robots: list[int], client: ZenohSettings | None = None
+    ) -> Child:
+        log = self.run_dir / "logs" / f"{name}.log"
+        log.parent.mkdir(exist_ok=True)
+        zenoh_args = (client or self.client).to_args()
+        with open(log, "a") as fh:  # a restarted service goes on in its log
+            python = interpreter(len(robots)) if module == "agent" else [sys.executable]
+            proc = subprocess.Popen(
+                [*python, "-m", module, *args, "--exit-with-parent", *zenoh_args],
+                stdout=fh,
+                stderr=subprocess.STDOUT,
+                stdin=subprocess.DEVNULL,
+                start_new_session=True,
+                cwd=os.getcwd(),
+            )
+        child = Child(name, proc, robots, log, [module, *args], client)
+        self.children.append(child)
+        return child
+
+    def _restart(self, child: Child, code: int, recorder: Recorder) -> None:
+        """A central service died mid-run: start it again (it learns where the show is from the bus)."""
+        done = [r for r in self.restarts if r["process"] == child.name]
+        if len(done) >= RESTARTS or self.stop_signal is not None:
+            return
+        module, *args = child.command
+        again = self._spawn(child.name, module, args, child.robots, child.client)
+        self.restarts.append(
+            {"process": child.name, "returncode": code, "pid": again.proc.pid, "sim_time_s": recorder.sim_time}
+        )
+        print(
+            f"pixelswarm: {child.name} (pid {child.proc.pid}) exited with code {code}; restarted (pid {again.proc.pid})",
+            file=sys.stderr,
+            flush=True,
+        )
+
+    def _scene_args(self) -> list[str]:
+        """The children read the scene and its goal sets from the run directory (saved once, here)."""
+        return ["--run-dir", str(self.run_dir.path), "--display", self.opt.display]
+
+    @property
+    def _agent_robots(self) -> list[int]:
+        """The robots an agent drives (scripted movers have none)."""
+        return [i for i in range(self.scene.robots) if i not in self.scene.scripted]
+
+    def _host_config(self, robots: list[int]) -> HostConfig:
+        lockstep = self.scene.clock == "lockstep"
+        return HostConfig(
+            robots=robots,
+            params=self.params,
+            display=self.opt.display,
+            seed=self.scene.seed,
+            arena=self.scene.arena,
+            obstacles=self.scene.obstacles,
+            lockstep=lockstep,
+            greet=self._near_at_start(robots, self._agent_robots) if lockstep else [],
+            pursue={r: t for r, t in self.scene.pursuers.items() if r in robots},
+            frames=self._frames,
+            steps=list(self.scene.step_starts) if lockstep else [],
+            reach=self.opt.reach,
+        )
+
+    def _start_agents(self) -> None:
+        k = max(1, self.opt.agents_per_process)
+        ids = self._agent_robots
+        cfg_dir = self.run_dir / "config"
+        cfg_dir.mkdir(exist_ok=True)
+        # an agent gives up on its poses no sooner than the launcher gives up on it (_await_agents)
+        extra = ["--start-timeout", str(self.opt.startup_timeout)]
+        extra += ["--faults", format_faults(self.opt.faults)] if self.opt.faults else []
+        for h in range(math.ceil(len(ids) / k)):
+            robots = ids[h * k : (h + 1) * k]
+            config = self._host_config(robots)
+            path = cfg_dir / f"agents-{h:04d}.json"
+            path.write_text(config.to_json())
+            routers = self.opt.agent_routers
+            client = (
+                ZenohSettings(mode="client", connect=[routers[h % len(routers)]])
+                if routers
+                else self._as(robot_role(robots[0]))
+            )
+            self._spawn(f"agent-{h:04d}", "agent", ["--config", str(path), *extra], robots, client)
+
+    # --- remote agents (`pixelswarm agents` on other machines) -----------------------------------
+    def _serve_configs(self, bus: Bus) -> None:
+        """Each agent robot's host config, as for a robot alone in its process, answers a query on
+        px/<display>/config/<robot>; `pixelswarm agents` merges K of them into one host. The 'run'
+        token tells those agents when the run is over."""
+        self.fetched: set[int] = set()  # robots whose config was asked for (zenoh's threads add to it)
+        faults = format_faults(self.opt.faults)
+        for r in self._agent_robots:
+            key, payload = bus.keys.config(r), encode_remote_config(self._host_config([r]), faults)
+
+            def answer(r: int = r, key: str = key, payload: bytes = payload) -> list[tuple[str, bytes]]:
+                self.fetched.add(r)
+                return [(key, payload)]
+
+            bus.serve(key, answer)
+        bus.declare_alive("run", 0)
+
+    def _await_remote(self, rec: Recorder, stage: str, started: float) -> None:
+        """Wait until every agent robot's config was fetched (stage 'fetched': the world starts only
+        then, as its own wait for agents is bounded) or its agent is alive (stage 'alive')."""
+        ids = self._agent_robots
+        endpoint = ", ".join((self.opt.router.listen if self.opt.router else []) or self.client.connect)
+        while True:
+            rec.poll()
+            done = set(self.fetched) if stage == "fetched" else {i for i in ids if rec.agent_alive[i]}
+            missing = [i for i in ids if i not in done]
+            if not missing:
+                return
+            if self.stop_signal is not None:
+                raise Interrupted()
+            if self.world_exit is None and any(c.name == "world" and c.proc.poll() is not None for c in self.children):
+                raise RuntimeError("the world process exited while waiting for agents: see logs/world.log")
+            if time.monotonic() - started > self.opt.agents_timeout:
+                absent = [i for i in ids if not rec.agent_alive[i]]
+                raise AgentsMissing(
+                    f"no agent came for robots {format_ids(absent)} within {self.opt.agents_timeout:g} s "
+                    f"(start them with `pixelswarm agents --connect {endpoint}`)"
+                )
+            what = "configurations fetched" if stage == "fetched" else "agents alive"
+            self._say(f"[{self.scene.name}] waiting for agents: {len(ids) - len(missing)}/{len(ids)} robots' {what}")
+            time.sleep(0.05)
+
+    @property
+    def _frames(self) -> bool:
+        """Agent hosts of several robots trade one pose frame of every robot and one command frame a
+        tick with the world; a robot alone in its process keeps its own keys, as on hardware."""
+        return self.opt.agents_per_process > 1
+
+    def _near_at_start(self, robots: list[int], agents: list[int]) -> list[int]:
+        """The agent robots whose state may reach ``robots`` at the first ticks (within state reach at
+        the start): a lock-step host hears their hellos before it says it is alive (AgentHost.start)."""
+        xy = np.asarray(self.scene.poses, float)[:, :2]
+        own, mine = xy[robots], set(robots)
+        return [j for j in agents if j not in mine and np.min(np.hypot(*(own - xy[j]).T)) <= self.params.state_reach]
+
+    def _check_children(self, recorder: Recorder) -> None:
+        for child in self.children:
+            code = child.proc.poll()
+            if code is None or child.reported:
+                continue
+            child.reported = True
+            if child.name.startswith("agent"):
+                self.crashes.append(
+                    {
+                        "process": child.name,
+                        "pid": child.proc.pid,
+                        "robots": child.robots,
+                        "returncode": code,
+                        "sim_time_s": recorder.sim_time,
+                        "noticed_wall_time": time.time(),
+                    }
+                )
+                # Always reported, --quiet or not: a crash is not progress (at start-up, the one line
+                # that the start-up failed names its robots).
+                if self.startup_failure is None:
+                    print(
+                        f"pixelswarm: agent process {child.name} (pid {child.proc.pid}, robots {child.robots}) "
+                        f"exited with code {code}; its robots stay in the world, stopped",
+                        file=sys.stderr,
+                        flush=True,
+                    )
+            elif child.name == "world":
+                self.world_exit = code
+            elif child.name in RESTARTED:
+                self._restart(child, code, recorder)
+
+    def _stop_children(self) -> None:
+        self.shutdown_wall = min(time.time(), getattr(self, "shutdown_wall", float("inf")))
+        stop_processes([child.proc for child in self.children], 5.0)
+
+    # --- progress -----------------------------------------------------------------------------
+    def _say(self, text: str, force: bool = False) -> None:
+        out = self.opt.progress
+        if out is None:
+            return
+        now = time.monotonic()
+        if force or now - getattr(self, "_last_say", 0.0) >= 1.0:
+            self._last_say = now
+            print(text, file=out, flush=True)
+
+    def _progress(self, rec: Recorder) -> None:
+        if not rec.traj.t:
+            return
+        pose = rec.traj.pose[-1]
+        err = np.hypot(*(pose[:, :2] - rec.goal).T)
+        at_goal = int(np.sum(err <= self.params.goal_tolerance))
+        with_goal = int(np.sum(np.isfinite(err)))
+        self._say(
+            progress_line(self.scene.name, rec.sim_time, at_goal, with_goal, rec.last_min_clearance, len(rec.contacts))
+        )
+
+    # --- the run ------------------------------------------------------------------------------
+    def _on_signal(self, signum: int, frame: object) -> None:
+        if self.stop_signal is not None:
+            raise Interrupted()  # a second Ctrl-C: stop writing too
+        self.stop_signal = signum
+
+    def run(self) -> Path:
+        previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            return self._run()
+        except BaseException:
+            self._stop_children()
+            self.run_dir.abort()
+            raise
+        finally:
+            for s, handler in previous.items():
+                signal.signal(s, handler)
+
+    def _run(self) -> Path:
+        wall0 = time.time()
+        save_resolved(self.scene, self.run_dir.path, robot=self.params.to_dict())  # the children read it
+        if self.opt.connect:
+            settings = ZenohSettings(mode="client", connect=list(self.opt.connect))
+            self.client = settings
+        else:
+            settings = self.opt.router or self._embedded_router()
+            self.client = client_of(settings)
+        bus = Bus(settings, self.opt.display, name="launcher")
+        self.world_exit = None
+        try:
+            recorder = Recorder(
+                bus,
+                self.scene.robots,
+                self.params.goal_tolerance,
+                str(self.run_dir / "log.mcap"),
+                str(self.run_dir / TICKS_FILE),
+            )
+            recorder.ends = self._ends_on_convergence
+            recorder.heading = self.params.kinematics != HOLONOMIC
+            recorder.view = self.opt.view
+            if self.opt.foxglove is not None and recorder.log is not None:
+                port = recorder.log.serve(self.opt.foxglove)  # said even with -q: it is asked for, not progress
+                print(f"[{self.scene.name}] Foxglove live: ws://127.0.0.1:{port}", file=sys.stderr, flush=True)
+            bus.serve(bus.keys.run_goals, lambda: self._newest_goals(bus, recorder))
+            if self.opt.hardware is not None:  # refused at once (one line) if a robot or its pose is missing
+                self._start_hardware(recorder)
+            endpoint = ", ".join(settings.listen or settings.connect)
+            self._say(
+                f"[{self.scene.name}] {self.scene.robots} robots, {self.scene.clock} clock, router {endpoint}",
+                force=True,
+            )
+            coord = self._spawn("coordinator", "coordinator.service", self._scene_args(), [], self._as("coordinator"))
+            self._wait_alive(recorder, "coordinator", 1, coord)
+            if self.opt.remote_agents:
+                self._serve_configs(bus)
+                waiting_since = time.monotonic()
+                self._await_remote(recorder, "fetched", waiting_since)
+            else:
+                self._start_agents()
+            world_args = self._scene_args() + [
+                "--clock",
+                self.scene.clock,
+                "--duration",
+                str(self.scene.duration),
+                "--deadline",
+                str(self.opt.deadline),
+                # the world waits for the agents no shorter than the launcher does (_await_agents)
+                "--startup-timeout",
+                str(self.opt.agents_timeout if self.opt.remote_agents else self.opt.startup_timeout),
+            ]
+            world_args += ["--pose-frames"] if self._frames else []
+            # faults act where a message is received: commands (cmd:...) at the world
+            world_args += ["--faults", format_faults(self.opt.faults)] if self.opt.faults else []
+            if self.opt.hardware is None:
+                self._spawn("world", "sim.node.world", world_args, [], self._as("world"))
+            if self.opt.remote_agents:
+                self._await_remote(recorder, "alive", waiting_since)
+            try:
+                self._await_agents(recorder)
+            except StartupFailed as failure:
+                self.startup_failure = str(failure)
+                end_reason = "start-up failed"
+            else:
+                end_reason = self._loop(bus, recorder)
+            self._check_children(recorder)  # an agent that died as the world finished is still a crash
+            self._stop_children()
+            # Final statistics from agents, and on a loaded machine the last ticks still in flight:
+            # wait (bounded) until the world's final state has been recorded.
+            last_t = float(getattr(self, "world_stats", {}).get("ticks", 0)) * self.params.dt
+            settle, patience = time.monotonic() + 0.5, time.monotonic() + 10.0
+            while (
+                time.monotonic() < settle
+                or (self._ticks_in_flight(recorder, last_t) or self._stats_missing(recorder))
+                and time.monotonic() < patience
+            ):
+                recorder.poll()
+                time.sleep(0.05)
+            recorder.close_log()
+            (self.run_dir / TICKS_FILE).unlink(missing_ok=True)  # trajectory.npz holds them, and more
+        finally:
+            bus.close()
+        return self._write(recorder, end_reason, time.time() - wall0)
+
+    def _await_agents(self, rec: Recorder) -> None:
+        """Until every agent robot's agent has come alive (the world starts then), saying once a second
+        how many are awaited. StartupFailed naming the robots whose agent process exited, or that
+        were not alive within the start-up timeout or when the world ended. A stop signal ends the
+        wait: the run loop ends the run."""
+        ids = self._agent_robots
+        started = time.monotonic()
+        alive: set[int] = set()
+        seen = 0  # liveliness events taken in
+        while True:
+            rec.poll()
+            for event in rec.liveliness[seen:]:
+                if event["role"] == "agent" and event["alive"] and str(event["id"]).isdigit():
+                    alive.add(int(event["id"]))
+            seen = len(rec.liveliness)
+            missing = [i for i in ids if i not in alive]
+            if not missing or self.stop_signal is not None:
+                return
+            logs = self.opt.out / "logs"
+            exited = [c for c in self.children if c.name.startswith("agent") and c.proc.poll() is not None]
+            gone = sorted({r for c in exited for r in c.robots} & set(missing))
+            if gone:
+                codes = sorted({c.proc.returncode for c in exited if set(c.robots) & set(gone)})
+                raise StartupFailed(
+                    f"{_robots(missing)}: no agent came alive (the agent process of {_robots(gone)} exited "
+                    f"with code {', '.join(map(str, codes))}); see {logs}"
+                )
+            world_gone = any(c.name == "world" and c.proc.poll() is not None for c in self.children)
+            if world_gone or self._world_done(rec) is not None:
+                raise StartupFailed(
+                    f"{_robots(missing)}: no agent came alive before the world process ended; see {logs}"
+                )
+            if time.monotonic() - started > self.opt.startup_timeout:
+                raise StartupFailed(
+                    f"{_robots(missing)}: no agent came alive within {self.opt.startup_timeout:g} s "
+                    f"(--startup-timeout); see {logs}"
+                )
+            self._say(f"[{self.scene.name}] waiting for {len(missing)}/{len(ids)} agents to come alive")
+            time.sleep(0.05)
+
+    @staticmethod
+    def _ticks_in_flight(rec: Recorder, last_t: float) -> bool:
+        """The world's last ticks are still on their way to the recorder (a run that ended on
+        convergence records nothing after its end, so there is nothing to wait for)."""
+        return rec.ended_at is None and rec.sim_time < last_t - 1e-6
+
+    @staticmethod
+    def _newest_goals(bus: Bus, rec: Recorder) -> list[tuple[str, bytes]]:
+        newest = rec.newest_goals
+        return [] if newest is None else [(bus.keys.run_goals, newest.encode())]
+
+    def _stats_missing(self, rec: Recorder) -> bool:
+        """Agents report their statistics as they stop: the run waits (bounded) for those of every
+        agent that stopped cleanly; remote agents report once their `pixelswarm agents` has seen the
+        world end and stopped them."""
+        if self.opt.remote_agents:
+            expected = {int(e["id"]) for e in rec.liveliness if e["role"] == "agent" and e["alive"]}
+        else:
+            expected = {
+                r for c in self.children if c.name.startswith("agent") and c.proc.returncode == 0 for r in c.robots
+            }
+        reported = {r for e in rec.events if e.get("kind") == "stats" for r in e.get("robots", [])}
+        return not expected <= reported
+
+    def _start_hardware(self, rec: Recorder) -> None:
+        """The hardware node stands in for the world; it is started first, since the agents learn where
+        they are from it, and is alive once every robot is reached and tracked."""
+        args = self._scene_args() + ["--hardware", str(self.opt.hardware), "--duration", str(self.scene.duration)]
+        args += ["--pose-frames"] if self._frames else []
+        child = self._spawn("world", "sim.node.hardware", args, [], self._as("world"))
+
+        def refusal() -> str | None:
+            lines = child.log.read_text().splitlines() if child.log.exists() else []
+            return next(
+                (ln.removeprefix(HARDWARE_ERROR) for ln in reversed(lines) if ln.startswith(HARDWARE_ERROR)), None
+            )
+
+        try:
+            # The node's refusal counts as soon as it is written: closing its links to the robots
+            # can take a while, and the run is refused whatever it does after.
+            self._wait_alive(rec, "world", 1, child, gave_up=refusal)
+        except RuntimeError:
+            said = refusal()
+            if said is not None:
+                raise HardwareStartError(said) from None
+            raise
+
+    def _embedded_router(self) -> ZenohSettings:
+        """A router on a free loopback port; in a secured run, with mutual TLS and the folder's rules."""
+        if self.opt.secure is None:
+            return loopback_router()
+        return router_config(self.opt.secure, f"tls/127.0.0.1:{free_port()}")
+
+    def _as(self, role: str) -> ZenohSettings | None:
+        """A secured run: the session of a child of this role (None: the run's plain client). The
+        launcher's own session, the router's, is outside the rules: it records and ends the run."""
+        return None if self.opt.secure is None else client_config(self.opt.secure, role, self.client.connect)
+
+    def _wait_alive(
+        self, rec: Recorder, role: str, count: int, child: Child, gave_up: Callable[[], str | None] | None = None
+    ) -> None:
+        """Until ``count`` processes of ``role`` are alive; RuntimeError if ``child`` exits first or
+        (``gave_up``, checked every 0.2 s) says why it will not come."""
+        start = time.monotonic()
+        checked = start
+        seen: set[str] = set()
+        while len(seen) < count:
+            rec.poll()
+            seen |= {e["id"] for e in rec.liveliness if e["role"] == role and e["alive"]}
+            if child.proc.poll() is not None:
+                raise RuntimeError(f"{child.name} exited with code {child.proc.returncode}: see {child.log}")
+            if gave_up is not None and time.monotonic() - checked >= 0.2:
+                checked = time.monotonic()
+                if gave_up() is not None:
+                    raise RuntimeError(f"{child.name} gave up: see {child.log}")
+            if self.stop_signal is not None:
+                raise Interrupted()
+            if time.monotonic() - start > self.opt.startup_timeout:
+                raise RuntimeError(f"{role} did not come alive within {self.opt.startup_timeout:g} s")
+            time.sleep(0.02)
+
+    def _loop(self, bus: Bus, rec: Recorder) -> str:
+        end_sent: str | None = None  # the reason of the end event published, if any
+        end_at = 0.0  # when it was last published
+        while True:
+            rec.poll()
+            self._check_children(rec)
+            done = self._world_done(rec)
+            if done is not None:
+                self.world_stats = done
+                return end_sent or str(done.get("reason", "duration"))
+            if self.world_exit is not None:
+                # the world is the bodies and the tracker: nothing can go on without it; what was
+                # recorded so far is written, marked incomplete
+                self.world_stats, self.world_died = {}, True
+                print(
+                    f"pixelswarm: the world process exited with code {self.world_exit} (see logs/world.log); "
+                    "the run ends, incomplete",
+                    file=sys.stderr,
+                    flush=True,
+                )
+                return f"world exited with code {self.world_exit}"
+            if self.stop_signal is not None and not end_sent:
+                end_sent = "interrupted"
+                self.interrupted = True
+            if not end_sent and rec.ended_at is not None:
+                end_sent = "converged"
+            if end_sent and time.monotonic() - end_at >= 0.5:
+                # Again until the world is done: an event published before the world subscribed
+                # (Ctrl-C during start-up) is lost, and the run would go on to its full duration.
+                bus.publish(bus.keys.event, Event({"kind": "end", "reason": end_sent}))
+                end_at = time.monotonic()
+            self._fail_agents(rec)
+            self._progress(rec)
+            time.sleep(0.01)
+
+    def _ends_on_convergence(self, since: float, now: float) -> bool:
+        """The run ends at the tick where the display has held converged for the scene's hold; with
+        image steps, only convergence that began within the last step counts (as sim.central.engine ends)."""
+        last_start = self.scene.step_starts[-1] if self.scene.steps else 0.0
+        if any(e["t"] <= now + 1e-9 for e in self.failures):
+            return False  # a robot the scene kills by now is not killed yet: it is not the display for the rest
+        return self.scene.ends_on_convergence and since >= last_start - 1e-9 and now - since >= self.scene.converge_hold
+
+    def _fail_agents(self, rec: Recorder) -> None:
+        """Scene 'fail' events: SIGKILL the process hosting the robot (a robot that dies, 5.1.2). The
+        recorder learns of the death at once, not when the bus drops the agent's token: it would
+        otherwise count the dead robot's body on its goal as part of a converged display."""
+        t = rec.sim_time
+        due = [e for e in self.failures if e["t"] <= t + 1e-9]
+        for event in due:
+            self.failures.remove(event)
+            for child in self.children:
+                if child.name.startswith("agent") and event["robot"] in child.robots and child.proc.poll() is None:
+                    child.proc.send_signal(signal.SIGKILL)
+                    child.reported = True  # killed on purpose, not a crash
+                    rec.robots_died(child.robots)
+                    self.failed.append({"robots": child.robots, "sim_time_s": t, "wall_time": time.time()})
+                    self._say(
+                        f"[{self.scene.name}] t={t:.1f} s: killed agent process {child.name} "
+                        f"(robots {child.robots}) as the scene says",
+                        force=True,
+                    )
+
+    def _world_done(self, rec: Recorder) -> dict | None:
+        """The world's final report: from the bus, or once the world has exited cleanly and a busy
+        recorder still has not seen it (bounded wait), from the world's log."""
+
+        def on_bus() -> dict | None:
+            return next((e for e in rec.events if e.get("kind") == "world-done"), None)
+
+        if on_bus() is not None or self.world_exit != 0:
+            return on_bus()
+        end = time.monotonic() + 5.0
+        while on_bus() is None and time.monotonic() < end:
+            rec.poll()
+            time.sleep(0.02)
+        if on_bus() is not None:
+            return on_bus()
+        log = next((c.log for c in self.children if c.name == "world"), None)
+        lines = log.read_text().splitlines() if log is not None and log.exists() else []
+        report = next((ln for ln in reversed(lines) if ln.startswith("WORLD-DONE ")), None)
+        return json.loads(report[len("WORLD-DONE ") :]) if report else None
+
+    # --- outputs ------------------------------------------------------------------------------
+    def _write(self, rec: Recorder, end_reason: str, wall_s: float) -> Path:
+        interrupted = self.interrupted
+        if interrupted:
+            end_reason = "interrupted"
+        world_died = getattr(self, "world_died", False)
+        started = self.startup_failure is None
+        arrays = rec.arrays()
+        stats = getattr(self, "world_stats", {})
+        agent_stats = [e for e in rec.events if e.get("kind") == "stats" and e.get("role") == "agent"]
+        dropped: dict[str, int] = dict(rec.drops)
+        for s in agent_stats + [stats]:
+            for reason, k in (s.get("dropped") or {}).items():
+                dropped[reason] = dropped.get(reason, 0) + int(k)
+        walls = rec.traj.wall
+        stepping_wall = walls[-1] - walls[0] if len(walls) > 1 else 0.0  # start-up excluded
+        lost = [
+            e
+            for e in rec.liveliness
+            if e["role"] == "agent" and not e["alive"] and e["wall_time"] < getattr(self, "shutdown_wall", float("inf"))
+        ]
+        self._say(f"[{self.scene.name}] run ended ({end_reason}); writing {self.run_dir.path.name}", force=True)
+        return write_run(
+            self.run_dir,
+            self.scene,
+            self.params,
+            arrays,
+            wall_s=wall_s,
+            contacts=stats.get("contacts", []),
+            video=self.opt.video and not interrupted and started,
+            plots=self.opt.plots and started,
+            message_counts=rec.counts,
+            message_bytes=rec.bytes,
+            missed_ticks=int(stats.get("missed_ticks", 0)),
+            agents_crashed=len(self.crashes),
+            agents_failed_by_scene=self.failed,
+            end_reason=end_reason,
+            **({} if started else {"startup_failure": self.startup_failure}),
+            complete=not interrupted and not world_died and started,
+            engine="distributed",
+            reach=self.opt.reach,
+            agents_per_process=self.opt.agents_per_process,
+            # remote agents: the hosts that reported, one stats event each
+            agent_processes=len(agent_stats)
+            if self.opt.remote_agents
+            else sum(c.name.startswith("agent") for c in self.children),
+            min_clearance_substep_m=stats.get("min_clearance"),
+            commands_applied=int(sum(stats.get("commands_applied", []))),
+            commands_sent=rec.commands,
+            late_commands=int(stats.get("late_commands", 0)),
+            expired_commands=int(stats.get("expired_commands", 0)),
+            stopped_ticks=int(stats.get("stopped_ticks", 0)),
+            withheld_ticks=int(stats.get("withheld_ticks", 0)),
+            orca_fallbacks=int(sum(s.get("fallbacks", 0) for s in agent_stats)),
+            poses_held=int(sum(s.get("poses_held", 0) for s in agent_stats)),
+            deadlock_penalties=int(sum((s.get("auction") or {}).get("deadlock_penalties", 0) for s in agent_stats)),
+            dropped_messages=dropped,
+            crashes=self.crashes,
+            restarts=self.restarts,
+            liveliness_lost=[{"robot": e["id"], "wall_time": e["wall_time"]} for e in lost],
+            faults=format_faults(self.opt.faults),
+            stepping_wall_s=stepping_wall,
+            **({"hardware": stats["hardware"]} if "hardware" in stats else {}),
+            stepping_realtime_factor=(
+                float(arrays["t"][-1] - arrays["t"][0]) / stepping_wall if stepping_wall else None
+            ),
+        )

@@ -1,0 +1,283 @@
+"""`pixelswarm agents --connect ENDPOINT [--robots IDS] [-k K]`: agent processes for a run going elsewhere.
+
+The run (`pixelswarm run SCENE --listen ENDPOINT --remote-agents`) starts no agents: it serves each
+agent robot's host configuration on px/<display>/config/<robot> and waits for the robots to come
+alive. This command, on a robot's own computer or any machine that reaches the router, fetches the
+configurations it is asked for, joins them K robots to a process and starts `python -m agent
+--config -` with each on stdin, so nothing is read from a file system shared with the run.
+
+Its agents stop when the run's world ends or the run goes away (their liveliness tokens), on Ctrl-C
+or SIGTERM (passed on to them), and by themselves if this command dies (--exit-with-parent).
+Bad input (an endpoint that does not parse, robots the run does not have) is one line on stderr
+and exit code 2, with nothing started.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from typing import Any
+
+from agent.runtime import HostConfig, interpreter
+from sim.args import format_ids, positive_int
+from transport.bus import Bus, LivelinessWatch
+from transport.keys import Keys
+from transport.session import TransportError, ZenohSettings
+
+PROG = "pixelswarm agents"
+RUN_TIMEOUT = 60.0  # s to wait for a run to be there
+QUERY_TIMEOUT = 5.0  # s for the run to answer a configuration query
+STOP_GRACE = 5.0  # s an agent has to stop after SIGTERM before it is killed
+
+
+class UsageError(Exception):
+    """Bad input: one line, exit code 2."""
+
+
+# --- robot ids -------------------------------------------------------------------------------------
+def parse_ids(text: str) -> list[int]:
+    """Robot ids as a user writes them: '0-3,7' -> [0, 1, 2, 3, 7]."""
+    ids: set[int] = set()
+    for part in text.split(","):
+        low, dash, high = part.strip().partition("-")
+        if not low.isdigit() or (dash and not high.isdigit()):
+            raise ValueError(f"--robots {text!r}: expected ids and ranges like 0-3,7")
+        first, last = int(low), int(high) if dash else int(low)
+        if last < first:
+            raise ValueError(f"--robots {text!r}: the range {part.strip()} runs backwards")
+        ids.update(range(first, last + 1))
+    return sorted(ids)
+
+
+# --- what the run serves ---------------------------------------------------------------------------
+def encode_remote_config(config: HostConfig, faults: str) -> bytes:
+    """A robot's host configuration and the run's fault plan, as the run answers a config query."""
+    return json.dumps({"host": json.loads(config.to_json()), "faults": faults}).encode()
+
+
+def decode_remote_config(payload: bytes) -> tuple[HostConfig, str]:
+    data = json.loads(payload)
+    return HostConfig.from_json(json.dumps(data["host"])), str(data.get("faults", ""))
+
+
+def merge_configs(configs: list[HostConfig]) -> HostConfig:
+    """One host for several robots' configurations: their robots and pursuits together, and the
+    greetings of robots of other hosts only; the rest is the run's, the same in each."""
+    robots = sorted(r for c in configs for r in c.robots)
+    return dataclasses.replace(
+        configs[0],
+        robots=robots,
+        pursue={r: t for c in configs for r, t in c.pursue.items()},
+        greet=sorted({g for c in configs for g in c.greet} - set(robots)),
+    )
+
+
+def fetch_configs(bus: Bus, robots: list[int] | None) -> dict[int, tuple[HostConfig, str]]:
+    """The configurations the run serves for ``robots`` (None: every agent robot of the run). One
+    query per named robot, all in flight at once: the run counts a robot as claimed when asked."""
+    keys = [bus.keys.config("*")] if robots is None else [bus.keys.config(r) for r in robots]
+    found: dict[int, tuple[HostConfig, str]] = {}
+    for key, payload in bus.query_raw(keys, QUERY_TIMEOUT):
+        robot = Keys.last_id(key)
+        if robot is not None:
+            found[robot] = decode_remote_config(payload)
+    return found
+
+
+# --- the command -----------------------------------------------------------------------------------
+def add_agents_parser(subparsers: Any) -> None:
+    """Add the `agents` subcommand to an argparse subparsers object (sets func=run_agents)."""
+    p = subparsers.add_parser(
+        "agents",
+        help="start agent processes that join a run going elsewhere (`pixelswarm run --remote-agents`)",
+        description="Start agent processes for robots of a run started with `pixelswarm run SCENE "
+        "--listen ENDPOINT --remote-agents`; each robot's configuration comes from the run over the bus.",
+    )
+    p.add_argument(
+        "--connect",
+        "-e",
+        required=True,
+        metavar="ENDPOINT",
+        help="the run's router, or a router joined to it, e.g. tcp/192.168.1.10:7447",
+    )
+    p.add_argument("--robots", metavar="IDS", help="robot ids, e.g. 0-3,7 (default: every agent robot of the run)")
+    p.add_argument(
+        "--agents-per-process", "-k", type=positive_int, default=1, metavar="K", help="robots per agent process"
+    )
+    p.add_argument("--display", default="default", help="the run's display name (key prefix)")
+    p.add_argument(
+        "--timeout",
+        type=float,
+        default=RUN_TIMEOUT,
+        metavar="SECONDS",
+        help=f"how long to wait for the run to be there (default {RUN_TIMEOUT:g} s)",
+    )
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress output")
+    p.set_defaults(func=run_agents)
+
+
+def run_agents(args: argparse.Namespace) -> int:
+    try:
+        return _run(args)
+    except UsageError as err:
+        print(f"{PROG}: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+def _check_input(args: argparse.Namespace) -> tuple[list[int] | None, ZenohSettings]:
+    try:
+        robots = parse_ids(args.robots) if args.robots is not None else None
+        Keys(args.display)
+    except ValueError as err:
+        raise UsageError(str(err)) from None
+    if not args.timeout > 0:
+        raise UsageError(f"--timeout must be a positive number of seconds, not {args.timeout}")
+    settings = ZenohSettings(mode="client", connect=[args.connect])
+    try:
+        settings.to_config()  # zenoh's own check of the endpoint's form
+    except Exception:
+        raise UsageError(
+            f"--connect {args.connect!r} is not an endpoint: expected PROTOCOL/ADDRESS, e.g. tcp/127.0.0.1:7447"
+        ) from None
+    return robots, settings
+
+
+def _run(args: argparse.Namespace) -> int:
+    robots, settings = _check_input(args)
+    say = (lambda text: None) if args.quiet else (lambda text: print(f"{PROG}: {text}", file=sys.stderr, flush=True))
+    try:
+        bus = Bus(settings, args.display, name="agents")
+    except TransportError as err:
+        raise UsageError(str(err)) from None
+    with bus:
+        runs, worlds = bus.watch_alive("run"), bus.watch_alive("world")
+        if not _wait_for_run(runs, args.timeout):
+            print(
+                f"{PROG}: error: no run (display {args.display}) came on {args.connect} within {args.timeout:g} s; "
+                "start one with `pixelswarm run SCENE --listen ENDPOINT --remote-agents`",
+                file=sys.stderr,
+            )
+            return 1
+        configs = fetch_configs(bus, robots)
+        unknown = [r for r in robots or [] if r not in configs]
+        if unknown:
+            raise UsageError(
+                f"robots {format_ids(unknown)} are not agent robots of the run on {args.connect} "
+                f"(display {args.display})"
+            )
+        if not configs:
+            raise UsageError(f"the run on {args.connect} (display {args.display}) has no agent robots to start")
+        hosts = _hosts(configs, args.agents_per_process)
+        supervisor = Supervisor(settings)
+        with supervisor.forwarding_signals():
+            for config, faults in hosts:
+                supervisor.start(config, faults)
+            say(f"{len(hosts)} agent processes started for robots {format_ids(sorted(configs))} of the run")
+            code = supervisor.watch(runs, worlds)
+        say("the run ended; agents stopped" if code == 0 else f"agents stopped (exit code {code})")
+        return code
+
+
+def _wait_for_run(runs: LivelinessWatch, timeout: float) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if any(alive for _, _, alive, _, _ in runs.drain()):
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def _hosts(configs: dict[int, tuple[HostConfig, str]], k: int) -> list[tuple[HostConfig, str]]:
+    """The robots in id order, K to a host."""
+    ids = sorted(configs)
+    groups = [ids[h * k : (h + 1) * k] for h in range(math.ceil(len(ids) / k))]
+    return [(merge_configs([configs[r][0] for r in group]), configs[group[0]][1]) for group in groups]
+
+
+class Supervisor:
+    """The agent processes this command started: started with their config on stdin, stopped
+    together, and reported when one exits on its own."""
+
+    def __init__(self, settings: ZenohSettings) -> None:
+        self.settings = settings
+        self.procs: list[tuple[subprocess.Popen, list[int]]] = []
+        self.stop_signal: int | None = None
+        self.failed = False
+
+    def start(self, config: HostConfig, faults: str) -> None:
+        cmd = [*interpreter(len(config.robots)), "-m", "agent", "--config", "-", "--exit-with-parent"]
+        cmd += ["--faults", faults] if faults else []
+        # Its own session: a terminal's Ctrl-C reaches this command only, which passes it on.
+        proc = subprocess.Popen(
+            cmd + self.settings.to_args(), stdin=subprocess.PIPE, start_new_session=True, cwd=os.getcwd()
+        )
+        assert proc.stdin is not None
+        proc.stdin.write(config.to_json().encode())
+        proc.stdin.close()
+        self.procs.append((proc, config.robots))
+
+    @contextlib.contextmanager
+    def forwarding_signals(self) -> Iterator[None]:
+        """SIGINT and SIGTERM stop the agents (see watch); on the way out, none is left running."""
+        previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            yield
+        finally:
+            self.stop()
+            for s, handler in previous.items():
+                signal.signal(s, handler)
+
+    def _on_signal(self, signum: int, frame: object) -> None:
+        self.stop_signal = signum
+
+    def watch(self, runs: LivelinessWatch, worlds: LivelinessWatch) -> int:
+        """Until every agent has exited: stop them all once the run's world has ended (or the run is
+        gone, or a signal came). 0 when the run ended them, 128 + signal, or 1 if one failed."""
+        world_seen, over = False, False
+        reported: set[int] = set()
+        while any(p.poll() is None for p, _ in self.procs):
+            over = over or any(not alive for _, _, alive, _, _ in runs.drain())
+            for _, _, alive, _, _ in worlds.drain():
+                world_seen |= alive
+                over = over or (world_seen and not alive)
+            if over or self.stop_signal is not None:
+                self.stop()
+                break
+            for proc, robots in self.procs:
+                if proc.poll() not in (None, 0) and proc.pid not in reported:
+                    reported.add(proc.pid)
+                    self.failed = True
+                    print(
+                        f"{PROG}: agent process {proc.pid} (robots {format_ids(robots)}) exited with code "
+                        f"{proc.returncode}; its robots stay in the world, stopped",
+                        file=sys.stderr,
+                        flush=True,
+                    )
+            time.sleep(0.05)
+        if self.stop_signal is not None:
+            return 128 + self.stop_signal
+        return 1 if self.failed else 0
+
+    def stop(self) -> None:
+        """SIGTERM to every agent still running; those not gone within the grace are killed."""
+        for proc, _ in self.procs:
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+        deadline = time.monotonic() + STOP_GRACE
+        for proc, _ in self.procs:
+            try:
+                proc.wait(timeout=max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(timeout=STOP_GRACE)

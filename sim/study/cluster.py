@@ -1,0 +1,213 @@
+"""A study's runs on a Dask cluster (``dask.distributed``): this machine's, or one with workers elsewhere.
+
+Every run is one task, :func:`run_task`, which starts ``pixelswarm run`` on the worker that took it
+and waits for it. Without ``--scheduler`` the study starts a local cluster (one worker thread per
+job, in the study's process, over Dask's in-process transport: no port opened) and the task writes the run straight into the study
+directory, as before. With ``--scheduler tcp://HOST:8786`` the workers may be other machines with
+only pixelswarm installed: a task runs into its worker's own directory and sends the run directory
+back (a tar archive), which the study unpacks into ``DIR/runs/<id>`` as each run finishes.
+
+A worker that dies takes its runs with it (each run is stopped: it is its worker's child, told by the
+kernel when its parent dies); the scheduler gives the task to another worker, and the study records
+the run once, when a task's result comes back. Ctrl-C (or SIGTERM) sets a cluster-wide event that
+every task polls: each stops its run as a stopped study always did (SIGTERM, then SIGKILL after
+:data:`sim.study.runner.STOP_GRACE_S`).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import io
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import tarfile
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+LOOPBACK = "127.0.0.1"
+CONNECT_TIMEOUT_S = 10
+STOP_POLL_S = 0.5
+_PR_SET_PDEATHSIG = 1
+ADDRESS = re.compile(r"^(tcp|tls)://[^\s/:]+:\d{1,5}$")
+
+
+# Dask's own periodic work, slowed for tasks that only wait on a subprocess: its statistical profiler
+# (100 Hz), event-loop watchdog (50 Hz) and system monitor (2 Hz) cost an idle scheduler and two
+# workers 7 % of a core, time a study's runs want on a small machine. docs/study.md gives them as
+# environment variables (quiet_env) for `dask scheduler` and `dask worker`.
+QUIET = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "1s",
+    "distributed.admin.system-monitor.interval": "5s",
+}
+
+
+def quiet_env() -> dict[str, str]:
+    """:data:`QUIET` as the environment variables Dask reads its configuration from."""
+    return {"DASK_" + key.upper().replace(".", "__").replace("-", "_"): str(v) for key, v in QUIET.items()}
+
+
+class ClusterError(Exception):
+    """The scheduler cannot be reached or its address is not one: one line, nothing started."""
+
+
+def check_address(address: str) -> None:
+    if not ADDRESS.match(address):
+        raise ClusterError(f"--scheduler must be tcp://HOST:PORT, not {address!r} (a Dask scheduler's address)")
+
+
+def connect(address: str | None, jobs: int) -> tuple[Any, Any]:
+    """A client of the scheduler at ``address``, or of a local cluster of ``jobs`` worker threads on
+    127.0.0.1 (returned second, to close after the client)."""
+    try:
+        import dask
+        from distributed import Client, LocalCluster
+    except ImportError:
+        raise ClusterError("studies run through dask.distributed: pip install 'dask[distributed]'") from None
+    if address is None:
+        # in this process, over Dask's in-process transport: no port is opened at all
+        with dask.config.set(QUIET):  # read as the scheduler and worker are made
+            cluster = LocalCluster(n_workers=1, threads_per_worker=jobs, processes=False, dashboard_address=None)
+        return Client(cluster), cluster
+    check_address(address)
+    try:
+        return Client(address, timeout=CONNECT_TIMEOUT_S), None
+    except (OSError, TimeoutError) as err:
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise ClusterError(f"cannot reach the Dask scheduler at {address}: {first}") from None
+
+
+def _die_with_parent() -> None:
+    """In the run's process: SIGTERM when the worker that started it dies (Linux), so a killed
+    worker leaves no run behind; the run stops its own processes on SIGTERM."""
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+    except (OSError, AttributeError):
+        pass
+
+
+def _child_env() -> dict[str, str]:
+    root = str(Path(__file__).resolve().parents[1])  # this installation's code, whatever the directory
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [root, env.get("PYTHONPATH")]))
+    return env
+
+
+def _stopped(event_name: str) -> bool:
+    from distributed import Event
+
+    try:
+        return bool(Event(event_name).is_set())
+    except Exception:  # the scheduler gone: the study is gone, stop
+        return True
+
+
+def _stop(process: subprocess.Popen, grace: float) -> None:
+    process.send_signal(signal.SIGTERM)
+    try:
+        process.wait(grace)
+    except subprocess.TimeoutExpired:
+        try:
+            os.killpg(process.pid, signal.SIGKILL)  # the session it leads, made here
+        except ProcessLookupError:
+            pass
+        process.wait()
+
+
+def run_task(run_id: str, args: list[str], out: str | None, stop_event: str, grace: float) -> dict[str, Any]:
+    """One run on this worker: ``pixelswarm run ARGS --out DIR``. ``out``: the run directory the
+    study reads (its filesystem is this worker's), or None: a directory of this worker's, sent back
+    as ``archive`` (tar of the run directory, under its final or ``.partial`` name)."""
+    from distributed import get_worker
+
+    try:
+        base = Path(get_worker().local_directory)
+    except ValueError:
+        base = Path(tempfile.gettempdir())
+    scratch = None if out is not None else Path(tempfile.mkdtemp(prefix=f"run-{run_id}-", dir=base))
+    target = Path(out) if out is not None else scratch / run_id  # type: ignore[operator]  # scratch is set where out is not
+    for leftover in (target, target.with_name(target.name + ".partial")):
+        if leftover.exists():  # an earlier attempt's, on a worker that died
+            shutil.rmtree(leftover)
+    command = [sys.executable, "-m", "sim.cli", "run", *args, "--out", str(target)]
+    started = time.monotonic()
+    log = tempfile.TemporaryFile(dir=base)
+    try:
+        process = subprocess.Popen(
+            command,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            env=_child_env(),
+            start_new_session=True,
+            preexec_fn=_die_with_parent,
+        )
+        interrupted = False
+        while process.poll() is None:
+            try:
+                process.wait(STOP_POLL_S)
+            except subprocess.TimeoutExpired:
+                if _stopped(stop_event):
+                    interrupted = True
+                    _stop(process, grace)
+        log.seek(0)
+        output = log.read().decode(errors="replace")
+        result: dict[str, Any] = {
+            "id": run_id,
+            "returncode": process.returncode,
+            "process_wall_s": time.monotonic() - started,
+            "command": command,
+            "log": output,
+            "interrupted": interrupted,
+            "worker": _worker_address(),
+            "archive": None,
+        }
+        if scratch is not None:
+            result["archive"] = _archive(scratch)
+        return result
+    finally:
+        log.close()
+        if scratch is not None:
+            shutil.rmtree(scratch, ignore_errors=True)
+
+
+def _worker_address() -> str:
+    from distributed import get_worker
+
+    try:
+        return str(get_worker().address)
+    except ValueError:
+        return ""
+
+
+def _archive(folder: Path) -> bytes | None:
+    """The run directory in ``folder`` (final or .partial), as an uncompressed tar."""
+    entries = [p for p in folder.iterdir() if p.is_dir()]
+    if not entries:
+        return None
+    buffer = io.BytesIO()
+    with tarfile.open(fileobj=buffer, mode="w") as tar:
+        for entry in entries:
+            tar.add(entry, arcname=entry.name)
+    return buffer.getvalue()
+
+
+def unpack(archive: bytes, runs: Path) -> None:
+    """A run directory sent back by a worker, into the study's ``runs/`` (under a temporary name,
+    then renamed: a reader never sees half a run)."""
+    staging = Path(tempfile.mkdtemp(prefix=".incoming-", dir=runs))
+    try:
+        with tarfile.open(fileobj=io.BytesIO(archive), mode="r") as tar:
+            tar.extractall(staging, filter="data")
+        for entry in staging.iterdir():
+            destination = runs / entry.name
+            if destination.exists():
+                shutil.rmtree(destination)
+            os.replace(entry, destination)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)

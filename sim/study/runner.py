@@ -1,0 +1,267 @@
+"""`pixelswarm study SPEC.toml`: run a grid of conditions x seeds as `pixelswarm run` processes.
+
+A study spec names a scene and its settings (`[base]`), the settings to vary (`[axes]`, every
+combination) and the seeds; an optional `[baseline]` is one more condition (e.g. the central engine
+at zero loss) run for every seed and drawn beside the grid. The spec is checked in full before any
+run starts. Each run is a `pixelswarm run ... --no-video --no-plots -q --out DIR/runs/<id>` subprocess; a run
+directory appears under its final name only when written (sim/outputs/rundir.py), so a study resumes by
+skipping the runs whose directory says `"complete": true`. The report is sim/study/report.py.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Any, TextIO
+
+from sim.study.spec import (
+    Run,
+    Spec,
+    StudyDir,
+    StudyError,
+    check_same_study,
+    load_spec,
+    lock_study,
+    run_args,
+    write_text,
+)
+
+STOP_GRACE_S = 30.0  # a child stopped by SIGTERM writes what it recorded; after this it is killed
+STDERR_TAIL_CHARS = 2000
+
+
+class Interrupted(Exception):
+    """Ctrl-C or SIGTERM: the running children were stopped, finished runs kept."""
+
+
+# --------------------------------------------------------------------------------------------
+# Running: up to `jobs` children at once, progress on stderr, Ctrl-C stops the children
+# --------------------------------------------------------------------------------------------
+
+
+class Progress:
+    """One line per event: a bar, runs done / failed / total, and the time left at the pace so far."""
+
+    def __init__(self, total: int, jobs: int, stream: TextIO | None):
+        self.total, self.jobs, self.stream = total, jobs, stream
+        self.done = self.failed = 0
+        self.walls: list[float] = []
+
+    def line(self, running: int, note: str) -> None:
+        if self.stream is None:
+            return
+        finished = self.done + self.failed
+        width = 20
+        filled = round(width * finished / self.total) if self.total else width
+        left = self.total - finished
+        if not left:
+            eta = "finished"
+        elif self.walls:
+            eta = f"~{_duration(sum(self.walls) / len(self.walls) * left / min(self.jobs, left))} left"
+        else:
+            eta = "time left: after the first run"
+        bar = "#" * filled + "-" * (width - filled)
+        print(
+            f"[{bar}] {self.done} done, {self.failed} failed of {self.total}, {running} running, {eta}  {note}",
+            file=self.stream,
+            flush=True,
+        )
+
+
+def _duration(seconds: float) -> str:
+    seconds = round(seconds)
+    h, rest = divmod(seconds, 3600)
+    m, s = divmod(rest, 60)
+    return f"{h}h{m:02d}m" if h else f"{m}m{s:02d}s" if m else f"{s}s"
+
+
+def execute(spec: Spec, study: StudyDir, jobs: int, stream: TextIO | None, scheduler: str | None = None) -> Progress:
+    """Run every run not finished yet on a Dask cluster: the scheduler's at ``scheduler``, or a local
+    one of ``jobs`` threads (sim.study.cluster); record each one's outcome as it comes back."""
+    from distributed import Event, as_completed
+
+    from sim.study.cluster import connect, run_task, unpack
+
+    runs = spec.runs()
+    todo = [r for r in runs if study.metrics(r) is None]
+    client, cluster = connect(scheduler, jobs)
+    try:
+        slots = sum(client.nthreads().values()) or jobs if scheduler else jobs
+        progress = Progress(len(runs), max(1, slots), stream)
+        progress.done = len(runs) - len(todo)
+        if stream is not None:
+            where = f"on the cluster at {scheduler} ({slots} worker threads)" if scheduler else f"{jobs} at a time"
+            print(
+                f"study {spec.name}: {len(runs)} runs, {progress.done} already done, {len(todo)} to run, "
+                f"{where}, in {study.root}",
+                file=stream,
+                flush=True,
+            )
+        study.logs.mkdir(parents=True, exist_ok=True)
+        study.runs.mkdir(parents=True, exist_ok=True)
+        stop = Event(f"pixelswarm-study-stop-{os.getpid()}-{time.time_ns()}", client=client)
+        shared = scheduler is None  # a local worker writes into the study directory itself
+        futures = {}
+        for run in todo:
+            study.clear(run)
+            out = str(study.run_dir(run)) if shared else None
+            future = client.submit(
+                run_task, run.id, run_args(spec, run), out, stop.name, STOP_GRACE_S, key=f"run-{run.id}", pure=False
+            )
+            futures[future] = run
+        pending = set(futures)
+        try:
+            for future in as_completed(list(futures)):
+                pending.discard(future)
+                run = futures[future]
+                _finish(run, future, study, progress, unpack)
+                running = min(len(pending), progress.jobs)
+                progress.line(running, f"{run.id}: {'done' if study.metrics(run) else 'FAILED'}")
+        except KeyboardInterrupt:
+            stop.set()  # every task stops its run (SIGTERM, then SIGKILL after the grace)
+            _wait_stopped(list(pending))
+            raise Interrupted from None
+        return progress
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def _wait_stopped(pending: list[Any]) -> None:
+    """The tasks still out, given the grace to stop their runs (a second Ctrl-C stops waiting)."""
+    from distributed import wait
+
+    try:
+        wait(pending, timeout=STOP_GRACE_S + 15)
+    except (TimeoutError, KeyboardInterrupt):
+        pass
+    except Exception:  # a task that failed while stopping: nothing more to wait for
+        pass
+
+
+def _finish(run: Run, future: Any, study: StudyDir, progress: Progress, unpack: Any) -> None:
+    try:
+        result = future.result()
+    except Exception as err:  # the task itself failed (not the run): e.g. a worker died too often
+        result = {"returncode": None, "process_wall_s": 0.0, "command": [], "log": f"task failed: {err!r}"}
+    if result.get("archive"):
+        unpack(result["archive"], study.runs)
+    write_text(study.logs / f"{run.id}.log", result.get("log", ""))
+    wall = float(result.get("process_wall_s", 0.0))
+    record = {
+        "id": run.id,
+        "process_wall_s": wall,
+        "returncode": result.get("returncode"),
+        "command": result.get("command", []),
+        "worker": result.get("worker", ""),
+    }
+    if study.metrics(run) is not None:
+        progress.done += 1
+        progress.walls.append(wall)
+        record.update(status="done", error="")
+    else:
+        progress.failed += 1
+        tail = result.get("log", "")[-STDERR_TAIL_CHARS:]
+        record.update(status="failed", error=tail.strip() or f"exit code {result.get('returncode')}, no output")
+    study.write_record(run, record)
+
+
+# --------------------------------------------------------------------------------------------
+# The command
+# --------------------------------------------------------------------------------------------
+
+
+def default_jobs() -> int:
+    # a distributed run is several processes (router, world, agents): half the cores each
+    return max(1, (os.cpu_count() or 1) // 2)
+
+
+def add_study_parser(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "study",
+        help="run a grid of conditions x seeds (pixelswarm run each) and write a report",
+        description="Run every condition of a study spec for every seed and write runs.csv, summary.csv, "
+        "plots and report.html (docs/study.md). Rerun the same command to resume.",
+    )
+    p.add_argument("spec", type=Path, help="the study spec (TOML; see studies/ and docs/study.md)")
+    p.add_argument("--out", type=Path, help="study directory (default runs/study-<name>); reused to resume")
+    p.add_argument(
+        "--jobs", "-j", type=int, default=None, help=f"runs at once (default: half the cores, here {default_jobs()})"
+    )
+    p.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:PORT",
+        help="send the runs to the workers of this Dask scheduler (docs/study.md); default: a local cluster "
+        "of --jobs threads on 127.0.0.1",
+    )
+    p.set_defaults(func=cmd_study)
+
+
+def cmd_study(args: argparse.Namespace) -> int:
+    try:
+        if args.jobs is not None and args.jobs < 1:
+            raise StudyError(f"--jobs must be at least 1, not {args.jobs}")
+        if args.scheduler is not None:
+            from sim.study.cluster import ClusterError, check_address, connect
+
+            try:
+                check_address(args.scheduler)
+            except ClusterError as err:
+                raise StudyError(str(err)) from None
+        spec = load_spec(args.spec)
+        if args.scheduler is not None:  # reached before anything is written or started
+            try:
+                connect(args.scheduler, 1)[0].close()
+            except ClusterError as err:
+                raise StudyError(str(err)) from None
+        root = args.out or Path("runs") / f"study-{spec.name}"
+        if root.exists() and not root.is_dir():
+            raise StudyError(f"--out {root} is a file, not a directory")
+        check_same_study(spec, root)
+        lock = lock_study(root)
+    except StudyError as err:
+        print(f"pixelswarm study: error: {err}", file=sys.stderr)
+        return 2
+    try:
+        return _study(spec, StudyDir(root), args.jobs or default_jobs(), args)
+    finally:
+        lock.close()
+
+
+def _study(spec: Spec, study: StudyDir, jobs: int, args: argparse.Namespace) -> int:
+    from sim.study.cluster import ClusterError
+    from sim.study.report import write_report  # matplotlib only once runs are done
+
+    write_text(study.root / "spec.toml", spec.text)
+    held = {"scene": spec.scene, "base": spec.base, "baseline": spec.baseline}
+    write_text(study.root / "study.json", json.dumps(held, indent=2) + "\n")
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        progress = execute(spec, study, jobs, sys.stderr, args.scheduler)
+    except ClusterError as err:
+        print(f"pixelswarm study: error: {err}", file=sys.stderr)
+        return 2
+    except Interrupted:
+        done = sum(study.metrics(r) is not None for r in spec.runs())
+        print(
+            f"pixelswarm study: interrupted; {done} of {len(spec.runs())} runs done and kept. "
+            f"Run the same command again to resume.",
+            file=sys.stderr,
+        )
+        return 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    command = f"pixelswarm study {study.root / 'spec.toml'} --out NEW_DIR --jobs {jobs}"
+    report = write_report(spec, study, command)
+    print(report)
+    return 1 if progress.failed else 0
+
+
+def _raise_interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt

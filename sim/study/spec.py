@@ -1,0 +1,335 @@
+"""A study's spec (`[base]`, `[axes]`, seeds, `[baseline]`), checked in full, the grid of runs it
+makes, and the study directory they are written to (sim/study/runner.py runs them)."""
+
+from __future__ import annotations
+
+import dataclasses
+import fcntl
+import itertools
+import json
+import math
+import os
+import shutil
+import sys
+import tomllib
+from pathlib import Path
+from typing import Any
+
+from coordinator.scene import SceneError, load_scene
+
+ENGINES = ("distributed", "central")
+CLOCKS = ("lockstep", "realtime")
+FAULT_SETTINGS = ("loss", "delay", "jitter")  # the state messages' fault plan (transport/faults.py)
+
+
+class StudyError(Exception):
+    """A spec or command line that cannot be run: one line for the user, exit code 2."""
+
+
+# --------------------------------------------------------------------------------------------
+# The spec: settings, their checks, and the grid of runs they make
+# --------------------------------------------------------------------------------------------
+
+
+def _number(key: str, value: Any, *, minimum: float = 0.0, maximum: float = math.inf, positive=False) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise StudyError(f"{key}: {value!r} is not a number")
+    if value < minimum or value > maximum or (positive and value <= 0):
+        bound = "> 0" if positive else f"in [{minimum:g}, {maximum:g}]"
+        raise StudyError(f"{key}: {value!r} must be {bound}")
+    return float(value)
+
+
+def _reach(key: str, value: Any) -> float:
+    """A communication range: metres > 0, or inf (everyone hears everyone)."""
+    if isinstance(value, int | float) and not isinstance(value, bool) and value == math.inf:
+        return math.inf
+    return _number(key, value, positive=True)
+
+
+def _whole(key: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise StudyError(f"{key}: {value!r} is not a whole number >= 1")
+    return value
+
+
+def _choice(choices: tuple[str, ...]):
+    def check(key: str, value: Any) -> str:
+        if value not in choices:
+            raise StudyError(f"{key}: {value!r} is not one of {', '.join(choices)}")
+        return value
+
+    return check
+
+
+# Every setting a condition may give, with its check: the flags of `pixelswarm run` a study can vary.
+SETTINGS = {
+    "engine": _choice(ENGINES),
+    "clock": _choice(CLOCKS),
+    "robots": _whole,
+    "agents_per_process": _whole,
+    "duration": lambda k, v: _number(k, v, positive=True),
+    "deadline": lambda k, v: _number(k, v, positive=True),
+    "loss": lambda k, v: _number(k, v, maximum=1.0),
+    "delay": lambda k, v: _number(k, v),
+    "jitter": lambda k, v: _number(k, v),
+    "range": _reach,
+}
+
+
+def _check_setting(where: str, key: str, value: Any) -> Any:
+    if key in ("seed", "seeds"):
+        raise StudyError(f"{where}: seeds are not a setting; list them in seeds = [...]")
+    if key not in SETTINGS:
+        raise StudyError(f"{where}: unknown setting {key!r} (known: {', '.join(SETTINGS)})")
+    return SETTINGS[key](f"{where}.{key}", value)
+
+
+@dataclasses.dataclass(frozen=True)
+class Run:
+    """One `pixelswarm run`: its condition's settings and a seed."""
+
+    condition: str  # stable name of the settings that vary, e.g. "loss-0.2_agents_per_process-3"
+    settings: dict[str, Any]  # base, then the baseline's or the axes' values
+    seed: int
+
+    @property
+    def id(self) -> str:
+        return f"{self.condition}_seed-{self.seed}"
+
+
+@dataclasses.dataclass
+class Spec:
+    name: str
+    scene: str  # a shipped scene name or a path (made absolute)
+    seeds: list[int]
+    base: dict[str, Any]
+    axes: dict[str, list[Any]]
+    baseline: dict[str, Any] | None
+    text: str  # the spec file as written
+
+    def runs(self) -> list[Run]:
+        """Every combination of the axes for every seed, then the baseline's runs."""
+        runs = []
+        for condition, settings in self.conditions():
+            runs += [Run(condition, settings, seed) for seed in self.seeds]
+        return runs
+
+    def conditions(self) -> list[tuple[str, dict[str, Any]]]:
+        out = [(_name(values), {**self.base, **values}) for values in _grid(self.axes)]
+        if self.baseline is not None:
+            # the baseline is crossed with the axes it does not set itself
+            free = {k: v for k, v in self.axes.items() if k not in self.baseline}
+            for values in _grid(free):
+                out.append((_name(values, prefix="baseline"), {**self.base, **values, **self.baseline}))
+        return out
+
+    def columns(self) -> list[str]:
+        """The settings that tell conditions apart: the axes, then what the baseline changes."""
+        extra = [k for k in (self.baseline or {}) if k not in self.axes]
+        return list(self.axes) + extra
+
+
+def _grid(axes: dict[str, list[Any]]) -> list[dict[str, Any]]:
+    return [dict(zip(axes, combo)) for combo in itertools.product(*axes.values())]
+
+
+def _format(value: Any) -> str:
+    return format(value, ".12g") if isinstance(value, float) else str(value)
+
+
+def _name(values: dict[str, Any], prefix: str = "") -> str:
+    parts = ([prefix] if prefix else []) + [f"{k}-{_format(v)}" for k, v in values.items()]
+    return "_".join(parts) or "base"
+
+
+def load_spec(path: Path) -> Spec:
+    """Read and check a study spec; StudyError (one line) on anything that cannot be run."""
+    try:
+        text = path.read_text()
+        data = tomllib.loads(text)
+    except OSError as err:
+        raise StudyError(f"cannot read {path}: {err.strerror}") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise StudyError(f"{path}: not valid TOML: {err}") from None
+    unknown = set(data) - {"name", "seeds", "base", "axes", "baseline"}
+    if unknown:
+        raise StudyError(f"{path}: unknown key {sorted(unknown)[0]!r} (known: name, seeds, base, axes, baseline)")
+    name = data.get("name", path.stem)
+    if not isinstance(name, str) or not name.strip() or "/" in name:
+        raise StudyError(f"name: {name!r} must be a non-empty string without '/'")
+    seeds = data.get("seeds")
+    if not isinstance(seeds, list) or not seeds:
+        raise StudyError("seeds: give a non-empty list of whole numbers, e.g. seeds = [1, 2, 3]")
+    for s in seeds:
+        if isinstance(s, bool) or not isinstance(s, int) or s < 0:
+            raise StudyError(f"seeds: {s!r} is not a whole number >= 0")
+    if len(set(seeds)) != len(seeds):
+        raise StudyError("seeds: a seed is listed twice")
+
+    base = _table(data, "base")
+    scene = base.pop("scene", None)
+    if not isinstance(scene, str):
+        raise StudyError('base.scene: give the scene to run, e.g. scene = "circle"')
+    # a file or folder beside the spec (else where the command runs), made absolute for the children
+    for candidate in (path.parent / scene, Path(scene)):
+        if candidate.exists():
+            scene = str(candidate.resolve())
+            break
+    base = {k: _check_setting("base", k, v) for k, v in base.items()}
+
+    axes: dict[str, list[Any]] = {}
+    for key, values in _table(data, "axes").items():
+        if key == "scene":
+            raise StudyError("axes: scene is not an axis; write one spec per scene")
+        if not isinstance(values, list) or not values:
+            raise StudyError(f"axes.{key}: give a non-empty list of values")
+        checked = [_check_setting("axes", key, v) for v in values]
+        if len(set(checked)) != len(checked):
+            raise StudyError(f"axes.{key}: a value is listed twice")
+        axes[key] = checked
+
+    baseline = None
+    if "baseline" in data:
+        baseline = {k: _check_setting("baseline", k, v) for k, v in _table(data, "baseline").items()}
+        if not baseline:
+            raise StudyError('baseline: give the settings it changes, e.g. engine = "central"')
+
+    spec = Spec(name.strip(), scene, list(seeds), base, axes, baseline, text)
+    _check_conditions(spec)
+    return spec
+
+
+def _table(data: dict[str, Any], key: str) -> dict[str, Any]:
+    table = data.get(key, {})
+    if not isinstance(table, dict):
+        raise StudyError(f"{key}: must be a table ([{key}])")
+    return dict(table)
+
+
+def _check_conditions(spec: Spec) -> None:
+    """Load the scene as each condition changes it, and refuse what its engine cannot honour."""
+    scenes: dict[tuple, Any] = {}
+    for condition, settings in spec.conditions():
+        key = (settings.get("robots"), settings.get("clock"), settings.get("duration"))
+        if key not in scenes:
+            try:
+                scenes[key] = load_scene(spec.scene, robots=key[0], clock=key[1], duration=key[2])
+            except SceneError as err:
+                raise StudyError(str(err)) from None
+        scene = scenes[key]
+        if settings.get("engine", scene.engine) == "central":
+            faulty = [k for k in FAULT_SETTINGS if settings.get(k, 0.0) != 0.0]
+            if faulty:
+                raise StudyError(
+                    f"condition {condition}: engine central has no messages to lose or delay "
+                    f'({faulty[0]} = {settings[faulty[0]]:g}); use a [baseline] with engine = "central" and {faulty[0]} = 0'
+                )
+            if settings.get("clock", scene.clock) == "realtime":
+                raise StudyError(f"condition {condition}: engine central steps without a real-time clock")
+        if math.isfinite(settings.get("range", math.inf)) and settings.get("clock", scene.clock) != "lockstep":
+            raise StudyError(f'condition {condition}: range = {settings["range"]:g} needs clock = "lockstep"')
+
+
+def run_command(spec: Spec, run: Run, out: Path) -> list[str]:
+    """The `pixelswarm run` command line of one run."""
+    return [sys.executable, "-m", "sim.cli", "run", *run_args(spec, run), "--out", str(out)]
+
+
+def run_args(spec: Spec, run: Run) -> list[str]:
+    """The arguments of `pixelswarm run` for one run, but its --out (the worker's to choose)."""
+    s = run.settings
+    cmd = [spec.scene, "--seed", str(run.seed)]
+    for key, flag in (("engine", "--engine"), ("robots", "--robots"), ("clock", "--clock")):
+        if key in s:
+            cmd += [flag, str(s[key])]
+    for key, flag in (("duration", "--duration"), ("deadline", "--deadline")):
+        if key in s:
+            cmd += [flag, repr(s[key])]
+    if math.isfinite(s.get("range", math.inf)):
+        cmd += ["--range", repr(s["range"])]
+    if s.get("engine") != "central":
+        if "agents_per_process" in s:
+            cmd += ["--agents-per-process", str(s["agents_per_process"])]
+        if any(s.get(k, 0.0) for k in FAULT_SETTINGS):
+            drop, delay, jitter = (s.get(k, 0.0) for k in FAULT_SETTINGS)
+            cmd += ["--faults", f"state:drop={drop!r},delay={delay!r},jitter={jitter!r}"]
+    return cmd + ["--no-video", "--no-plots", "-q"]
+
+
+# --------------------------------------------------------------------------------------------
+# The study directory: run directories, a record per run, the lock
+# --------------------------------------------------------------------------------------------
+
+
+class StudyDir:
+    """DIR/runs/<id> (run directories), DIR/records/<id>.json (status, wall time, error),
+    DIR/logs/<id>.log (the run's output), DIR/spec.toml and the report."""
+
+    def __init__(self, root: Path):
+        self.root = root
+        self.runs = root / "runs"
+        self.records = root / "records"
+        self.logs = root / "logs"
+
+    def run_dir(self, run: Run) -> Path:
+        return self.runs / run.id
+
+    def metrics(self, run: Run) -> dict[str, Any] | None:
+        """metrics.json of a finished run, or None if the run is missing or incomplete."""
+        try:
+            metrics = json.loads((self.run_dir(run) / "metrics.json").read_text())
+        except (OSError, ValueError):
+            return None
+        return metrics if isinstance(metrics, dict) and metrics.get("complete") is True else None
+
+    def record(self, run: Run) -> dict[str, Any]:
+        try:
+            return json.loads((self.records / f"{run.id}.json").read_text())
+        except (OSError, ValueError):
+            return {}
+
+    def write_record(self, run: Run, record: dict[str, Any]) -> None:
+        write_text(self.records / f"{run.id}.json", json.dumps(record, indent=2) + "\n")
+
+    def clear(self, run: Run) -> None:
+        """Remove what an interrupted or killed attempt of this run left, before running it again."""
+        final = self.run_dir(run)
+        for leftover in (final, final.with_name(final.name + ".partial")):
+            if leftover.exists():
+                shutil.rmtree(leftover)
+
+
+def write_text(path: Path, text: str | bytes) -> None:
+    """Write through a temporary sibling and rename, so that no reader sees half a file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        tmp.write_bytes(text.encode() if isinstance(text, str) else text)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def lock_study(root: Path) -> Any:
+    """Hold DIR/.lock for the study's life: two studies on one directory would run the same runs."""
+    root.mkdir(parents=True, exist_ok=True)
+    handle = open(root / ".lock", "w")  # noqa: SIM115 - held open until the study ends
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        handle.close()
+        raise StudyError(f"another study is running in {root}") from None
+    return handle
+
+
+def check_same_study(spec: Spec, root: Path) -> None:
+    """A directory resumes only the study it holds: runs are named by what varies, so the base must match."""
+    try:
+        held = json.loads((root / "study.json").read_text())
+    except (OSError, ValueError):
+        return
+    mine = {"scene": spec.scene, "base": spec.base, "baseline": spec.baseline}
+    if held != json.loads(json.dumps(mine)):
+        raise StudyError(f"{root} holds another study (its scene, [base] or [baseline] differ); choose another --out")
