@@ -71,7 +71,9 @@ def video_rows(tmp: Path) -> list[tuple[str, float, float]]:
             for k in range(REPEATS):
                 path = tmp / f"v{len(rows)}-{k}.mp4"
                 start = time.perf_counter()
-                render.write_video(path, t, pose, radius, color, ARENA, (), goal, fps=FPS, size_px=SIZE_PX, **kwargs)
+                render.write_video(
+                    path, render.Recording(t, pose, radius, ARENA, (), goal, color), fps=FPS, size_px=SIZE_PX, **kwargs
+                )
                 times.append(time.perf_counter() - start)
         finally:
             render.H264_OPTIONS = saved

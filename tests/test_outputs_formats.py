@@ -24,7 +24,7 @@ from sim.outputs import render
 from sim.outputs.foxglove import DISPLAY_FRAME, QUANTUM, SCENE_UPDATE_SCHEMA_NAME, SceneUpdate, scene_update
 from sim.outputs.mcaplog import McapLog, mcap_channels, read_mcap
 from sim.outputs.recorder import SCENE_TOPIC
-from sim.outputs.render import _View, frame_indices, held_frames, write_video
+from sim.outputs.render import Recording, _View, frame_indices, held_frames, write_video
 from sim.outputs.rundir import RunDir
 from sim.outputs.write import write_run
 
@@ -74,7 +74,7 @@ def _top_level_boxes(path: Path) -> list[str]:
 def test_display_mp4_is_h264_that_browsers_play(tmp_path):
     t, pose, r, color, goal = _scene()
     path = tmp_path / "display.mp4"
-    n = write_video(path, t, pose, r, color, ARENA, [], goal, fps=10, size_px=320)
+    n = write_video(path, Recording(t, pose, r, ARENA, goal=goal, color=color), fps=10, size_px=320)
     codec, frames = _decode(path)
     view = _View(ARENA, 320)
     assert codec.name == "h264" and codec.profile == "High" and codec.pix_fmt == "yuv420p"
@@ -93,7 +93,7 @@ def test_display_mp4_is_h264_that_browsers_play(tmp_path):
 def test_display_mp4_frame_rate_and_count_follow_the_run(tmp_path):
     t, pose, r, color, _ = _scene(T=41)
     path = tmp_path / "display.mp4"
-    n = write_video(path, t, pose, r, color, ARENA, fps=5, size_px=160)
+    n = write_video(path, Recording(t, pose, r, ARENA, color=color), fps=5, size_px=160)
     with av.open(str(path)) as container:
         stream = container.streams.video[0]
         assert stream.average_rate == 5
@@ -106,7 +106,7 @@ def test_a_failed_encoder_leaves_no_video(tmp_path, monkeypatch):
     path = tmp_path / "display.mp4"
     monkeypatch.setattr(render, "H264_ENCODER", "no-such-encoder")
     with pytest.raises(RuntimeError, match="display.mp4"):
-        write_video(path, t, pose, r, color, ARENA, [], goal, size_px=160)
+        write_video(path, Recording(t, pose, r, ARENA, goal=goal, color=color), size_px=160)
     assert not path.exists()
 
 

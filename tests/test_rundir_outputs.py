@@ -15,7 +15,7 @@ from mcap.reader import make_reader
 from sim.outputs import metrics
 from sim.outputs.foxglove import QUANTUM, SceneUpdate, scene_update
 from sim.outputs.mcaplog import McapLog, mcap_channels, read_mcap
-from sim.outputs.render import _View, frame_indices, render_frame, write_plots, write_video
+from sim.outputs.render import Recording, _View, frame_indices, render_frame, write_plots, write_video
 from sim.outputs.rundir import RunDir, default_run_path, dumps_json, json_safe, write_json, write_npz
 
 from .conftest import run_pixelswarm
@@ -335,7 +335,7 @@ def test_render_frame():
 def test_write_video_frames(tmp_path):
     t, pose, r, color, goal = _scene(T=25)
     path = tmp_path / "display.mp4"
-    n = write_video(path, t, pose, r, color, ARENA, OBSTACLES, goal, fps=10, size_px=320)
+    n = write_video(path, Recording(t, pose, r, ARENA, OBSTACLES, goal, color), fps=10, size_px=320)
     assert n == 25
     cap = cv2.VideoCapture(str(path))
     assert cap.isOpened()
@@ -359,9 +359,8 @@ def test_write_video_frames(tmp_path):
     # subsampling: real-time frames at 5 fps, and capped
     assert len(frame_indices(t, fps=5)) == 13
     assert len(frame_indices(t, fps=10, speed=None, max_frames=10)) == 10
-    n2 = write_video(
-        tmp_path / "short.mp4", t, pose, r, color[0], ARENA, [], None, fps=10, size_px=160, speed=None, max_frames=7
-    )
+    short = Recording(t, pose, r, ARENA, color=color[0])
+    n2 = write_video(tmp_path / "short.mp4", short, fps=10, size_px=160, speed=None, max_frames=7)
     cap = cv2.VideoCapture(str(tmp_path / "short.mp4"))
     count = 0
     while cap.read()[0]:
@@ -373,7 +372,7 @@ def test_write_video_frames(tmp_path):
 def test_write_plots(tmp_path):
     t, pose, r, color, goal = _scene(T=40, N=4)
     clr = metrics.clearance_over_time(pose, r)
-    paths = write_plots(tmp_path / "plots", t, clr, pose, r, ARENA, OBSTACLES, goal, color=color)
+    paths = write_plots(tmp_path / "plots", Recording(t, pose, r, ARENA, OBSTACLES, goal, color), clr)
     assert set(paths) == {"clearance", "trajectories"}
     for name in ("clearance.png", "trajectories.png"):
         p = tmp_path / "plots" / name
@@ -381,7 +380,7 @@ def test_write_plots(tmp_path):
         img = cv2.imread(str(p))
         assert img is not None and img.shape[0] > 100 and img.shape[1] > 100
     # one robot: clearance all inf still plots
-    write_plots(tmp_path / "one", t, np.full(len(t), np.inf), pose[:, :1], r[:1], ARENA, [])
+    write_plots(tmp_path / "one", Recording(t, pose[:, :1], r[:1], ARENA), np.full(len(t), np.inf))
     assert (tmp_path / "one" / "clearance.png").stat().st_size > 0
 
 

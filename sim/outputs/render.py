@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
 from typing import Final
@@ -26,7 +27,34 @@ import cv2
 import numpy as np
 from av.codec.codec import UnknownCodecError
 
-__all__ = ["render_frame", "write_video", "write_plots", "frame_indices"]
+__all__ = ["Recording", "render_frame", "write_video", "write_plots", "frame_indices"]
+
+
+@dataclass(frozen=True)
+class Recording:
+    """A run as the writers draw it: ``t`` (T,), ``pose`` (T,N,3), ``radius`` (N,) or one for all, the
+    ``arena`` and its ``obstacles``, and optionally ``goal`` (T,N,2) or (N,2) and ``color`` (T,N,3) or
+    (N,3) RGB uint8."""
+
+    t: np.ndarray
+    pose: np.ndarray
+    radius: np.ndarray | float
+    arena: Sequence[float]
+    obstacles: Sequence[Sequence[Sequence[float]]] | None = ()
+    goal: np.ndarray | None = None
+    color: np.ndarray | None = None
+
+    def checked(self) -> Recording:
+        """Arrays as floats, with goals and colours given once broadcast over time."""
+        t, pose = np.asarray(self.t, dtype=float), np.asarray(self.pose, dtype=float)
+        if pose.ndim != 3 or pose.shape[0] != len(t):
+            raise ValueError(f"pose must be (T,N,3) with T = len(t); got {pose.shape}, T={len(t)}")
+        T, N = pose.shape[:2]
+        color = None if self.color is None else np.broadcast_to(np.asarray(self.color), (T, N, 3))
+        goal = None if self.goal is None else np.broadcast_to(np.asarray(self.goal, dtype=float), (T, N, 2))
+        radius = np.broadcast_to(np.asarray(self.radius, dtype=float), (N,))
+        return Recording(t, pose, radius, self.arena, self.obstacles or (), goal, color)
+
 
 BACKGROUND = (18, 18, 18)  # BGR
 ARENA_EDGE = (70, 70, 70)
@@ -221,13 +249,7 @@ def held_frames(t: np.ndarray, formed_at: float | None, fps: float = 10, hold_s:
 
 def write_video(
     path: str | os.PathLike,
-    t: np.ndarray,
-    pose: np.ndarray,
-    radius: np.ndarray,
-    color: np.ndarray | None,
-    arena: Sequence[float],
-    obstacles: Sequence[Sequence[Sequence[float]]] | None = (),
-    goal: np.ndarray | None = None,
+    recording: Recording,
     fps: float = 10,
     size_px: int = 720,
     *,
@@ -237,32 +259,19 @@ def write_video(
 ) -> int:
     """Write the top-down video; returns the number of frames written.
 
-    ``t`` (T,), ``pose`` (T,N,3), ``radius`` (N,), ``color`` (T,N,3) or (N,3) RGB uint8,
-    ``goal`` (T,N,2) optional.  Frame choice: :func:`frame_indices`.  The video is H.264 (PyAV);
+    Frame choice: :func:`frame_indices`.  The video is H.264 (PyAV);
     a ``fourcc`` (e.g. 'mp4v') writes with OpenCV's VideoWriter in that codec instead.  Raises
     RuntimeError if the encoder cannot be opened or fails; then no file is left at ``path``.
     """
     path = Path(path)
-    t = np.asarray(t, dtype=float)
-    pose = np.asarray(pose, dtype=float)
-    if pose.ndim != 3 or pose.shape[0] != len(t):
-        raise ValueError(f"pose must be (T,N,3) with T = len(t); got {pose.shape}, T={len(t)}")
-    T, N = pose.shape[:2]
-    radius = np.broadcast_to(np.asarray(radius, dtype=float), (N,))
-    if color is not None:
-        color = np.asarray(color)
-        if color.ndim == 2:
-            color = np.broadcast_to(color, (T, N, 3))
-    if goal is not None:
-        goal = np.asarray(goal, dtype=float)
-        if goal.ndim == 2:
-            goal = np.broadcast_to(goal, (T, N, 2))
+    rec = recording.checked()
+    t, pose, radius, color, goal = rec.t, rec.pose, np.asarray(rec.radius), rec.color, rec.goal
     idx = frame_indices(t, fps, speed, max_frames)
     if len(idx) == 0:
         raise ValueError("write_video: no samples")
 
-    view = _View(arena, size_px)
-    bg = view.background(obstacles)
+    view = _View(rec.arena, size_px)
+    bg = view.background(rec.obstacles)
     frames = (
         _draw(
             bg.copy(),
@@ -345,38 +354,23 @@ def _robot_colours(n: int, color: np.ndarray | None) -> np.ndarray:
 
 
 def write_plots(
-    out_dir: str | os.PathLike,
-    t: np.ndarray,
-    clearance: np.ndarray,
-    pose: np.ndarray,
-    radius: np.ndarray,
-    arena: Sequence[float],
-    obstacles: Sequence[Sequence[Sequence[float]]] | None = (),
-    goal: np.ndarray | None = None,
-    *,
-    color: np.ndarray | None = None,
-    dpi: int = 120,
-    max_points: int = 1500,
+    out_dir: str | os.PathLike, recording: Recording, clearance: np.ndarray, *, dpi: int = 120, max_points: int = 1500
 ) -> dict[str, Path]:
     """Write ``clearance.png`` (minimum pairwise clearance over time, zero line = contact) and
-    ``trajectories.png`` (every robot's path in the arena, start ○ and end ●, last goals ×).
-
-    ``color`` optional (N,3) or (T,N,3) RGB to colour paths (e.g. final LED colours; dark ones fall back to a
-    colormap).  Returns ``{"clearance": path, "trajectories": path}``.
-    """
-    from matplotlib.collections import LineCollection
-    from matplotlib.patches import Polygon, Rectangle
-
+    ``trajectories.png`` (every robot's path in the arena, start ○ and end ●, last goals ×), paths
+    coloured by the final LED colours (dark ones fall back to a colormap).  Returns
+    ``{"clearance": path, "trajectories": path}``."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    t = np.asarray(t, dtype=float)
-    clearance = np.asarray(clearance, dtype=float)
-    pose = np.asarray(pose, dtype=float)
-    T, N = pose.shape[:2]
-    radius = np.broadcast_to(np.asarray(radius, dtype=float), (N,))
-    paths: dict[str, Path] = {}
+    rec = recording.checked()
+    paths = {"clearance": out_dir / "clearance.png", "trajectories": out_dir / "trajectories.png"}
+    _plot_clearance(paths["clearance"], rec, np.asarray(clearance, dtype=float), dpi)
+    _plot_trajectories(paths["trajectories"], rec, dpi, max_points)
+    return paths
 
-    # -- clearance.png ---------------------------------------------------------------------------
+
+def _plot_clearance(path: Path, rec: Recording, clearance: np.ndarray, dpi: int) -> None:
+    t, N = rec.t, rec.pose.shape[1]
     fig = _figure(8, 3.6, dpi)
     ax = fig.add_subplot(1, 1, 1)
     fin = np.isfinite(clearance)
@@ -401,11 +395,16 @@ def write_plots(
     ax.grid(True, alpha=0.3)
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    paths["clearance"] = out_dir / "clearance.png"
-    fig.savefig(paths["clearance"], format="png")
+    fig.savefig(path, format="png")
 
-    # -- trajectories.png ------------------------------------------------------------------------
-    xmin, ymin, xmax, ymax = (float(v) for v in arena)
+
+def _plot_trajectories(path: Path, rec: Recording, dpi: int, max_points: int) -> None:
+    from matplotlib.collections import LineCollection
+    from matplotlib.patches import Polygon, Rectangle
+
+    t, pose, obstacles = rec.t, rec.pose, rec.obstacles
+    T, N = pose.shape[:2]
+    xmin, ymin, xmax, ymax = (float(v) for v in rec.arena)
     aspect = (ymax - ymin) / (xmax - xmin)
     fig = _figure(7.5, max(3.0, min(12.0, 7.0 * aspect + 0.8)), dpi)
     ax = fig.add_subplot(1, 1, 1)
@@ -414,9 +413,7 @@ def write_plots(
         pts = np.asarray(poly, dtype=float).reshape(-1, 2)
         if len(pts) >= 2:
             ax.add_patch(Polygon(pts, closed=True, fc="0.65", ec="0.4", lw=0.8, zorder=1))
-    if color is not None and np.ndim(color) == 3:
-        color = np.asarray(color)[-1]  # (T,N,3) given: use the final LED colours
-    cols = _robot_colours(N, color)
+    cols = _robot_colours(N, None if rec.color is None or T == 0 else rec.color[-1])  # the final LED colours
     step = max(1, int(np.ceil(T / max_points))) if T else 1
     sub = pose[::step, :, :2]
     if T and (T - 1) % step:
@@ -429,9 +426,8 @@ def write_plots(
     ms = 18 if N <= 50 else 6
     ax.scatter(starts[:, 0], starts[:, 1], s=ms, facecolors="none", edgecolors=cols, lw=0.8, zorder=3, label="start")
     ax.scatter(ends[:, 0], ends[:, 1], s=ms, c=cols, zorder=4, label="end")
-    if goal is not None:
-        g = np.asarray(goal, dtype=float)
-        g = g.reshape(-1, N, 2)
+    if rec.goal is not None:
+        g = rec.goal
         last = np.full((N, 2), np.nan)
         for i in range(N):
             okk = np.flatnonzero(np.isfinite(g[:, i]).all(axis=1))
@@ -448,6 +444,4 @@ def write_plots(
     ax.set_title(f"Trajectories, N = {N}, {dur:.1f} s")
     ax.legend(loc="upper right", fontsize=8, markerscale=1.0)
     fig.tight_layout()
-    paths["trajectories"] = out_dir / "trajectories.png"
-    fig.savefig(paths["trajectories"], format="png")
-    return paths
+    fig.savefig(path, format="png")

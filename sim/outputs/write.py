@@ -16,6 +16,7 @@ from agent.core.params import RobotParams
 from coordinator.resolved import save_resolved
 from coordinator.scene import Scene
 from sim.outputs.metrics import assignment_over_optimum, clearance_over_time, communication_parts, summarise
+from sim.outputs.render import Recording
 from sim.outputs.rundir import RunDir, write_json, write_npz
 
 INCOMPLETE = "INCOMPLETE"  # the marker file of a run directory whose run did not run its course
@@ -40,6 +41,14 @@ def newest_goal_set(arrays: dict[str, np.ndarray]) -> NewestGoalSet:
     members = np.where(rows[:, None] >= 0, arrays["goal_set_robots"][np.maximum(rows, 0)], False)
     current = arrays["assignment_epoch"] == newest[:, None]
     return {"step_members": members, "step_current": current}
+
+
+def recording_of(
+    scene: Scene, arrays: dict[str, np.ndarray], radius: np.ndarray, ticks: np.ndarray | slice = slice(None)
+) -> Recording:
+    """The run's trajectory arrays at these ticks, as the writers draw them."""
+    pick = {k: arrays[k][ticks] for k in ("t", "pose", "goal", "color")}
+    return Recording(pick["t"], pick["pose"], radius, scene.arena, scene.obstacles, pick["goal"], pick["color"])
 
 
 def write_run(
@@ -96,35 +105,15 @@ def write_run(
     if len(t) and plots:
         from sim.outputs.render import write_plots
 
-        write_plots(
-            run_dir.path,
-            t,
-            clearance,
-            arrays["pose"],
-            radius,
-            scene.arena,
-            scene.obstacles,
-            arrays["goal"],
-            color=arrays["color"],
-        )
+        write_plots(run_dir.path, recording_of(scene, arrays, radius), clearance)
     if len(t) and video:
         from sim.outputs.render import held_frames, write_video
 
         formed = metrics.get("time_to_converge_s")
         idx = held_frames(t, None if formed is None else float(t[0]) + formed)
         try:
-            write_video(
-                run_dir / "display.mp4",
-                t[idx],
-                arrays["pose"][idx],
-                radius,
-                arrays["color"][idx],
-                scene.arena,
-                scene.obstacles,
-                arrays["goal"][idx],
-                speed=None,  # the frames are chosen: real time, and the final picture held
-                max_frames=0,
-            )
+            # the frames are chosen: real time, and the final picture held
+            write_video(run_dir / "display.mp4", recording_of(scene, arrays, radius, idx), speed=None, max_frames=0)
         except RuntimeError as err:  # no encoder here: the run's data matter more than its video
             print(f"pixelswarm: warning: no display.mp4: {err}", file=sys.stderr)
     save_resolved(scene, run_dir.path, robot=params.to_dict())  # scene.json, goal_sets.npz
