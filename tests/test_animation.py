@@ -22,9 +22,8 @@ from coordinator.scene import SceneError, load_scene, scene_from_dict, scene_goa
 from coordinator.service import step_motion, step_timing
 from sim.central.engine import run_central
 from sim.outputs.metrics import keyframe_errors
+from tests.conftest import run_pixelswarm
 from transport.codec import Goals, decode
-
-from .conftest import run_pixelswarm
 
 DT = 0.1
 

@@ -14,18 +14,13 @@ from hypothesis import strategies as st
 from scipy.optimize import linear_sum_assignment
 
 from agent.core.bidder import CONTENT, RECORD, Participant
+from tests.support.assignment_quality import optimum
 
 
 def records(rows: list[tuple]) -> np.ndarray:
     """Records from (robot, goal, price, flags[, penalty, x, y]) tuples."""
     full = [tuple(r) + (0.0, 0.0, 0.0)[len(r) - 4 :] for r in rows]
     return np.array(full, RECORD)
-
-
-def optimum(positions: np.ndarray, goals: np.ndarray) -> float:
-    cost = ((positions[:, None, :] - goals[None, :, :]) ** 2).sum(-1)
-    rows, cols = linear_sum_assignment(cost)
-    return float(cost[rows, cols].sum())
 
 
 def run_protocol(

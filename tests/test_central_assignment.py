@@ -14,8 +14,7 @@ import pytest
 import sim.central.engine as central
 from agent.core.params import RobotParams
 from coordinator.scene import load_scene
-
-from .test_bidder import optimum
+from tests.support.assignment_quality import optimum
 
 
 @pytest.fixture

@@ -7,8 +7,7 @@ import argparse
 import re
 
 from sim.cli.main import build_parser
-
-from .conftest import REPO
+from tests.conftest import REPO
 
 CLI_MD = REPO / "docs" / "cli.md"
 

@@ -18,11 +18,10 @@ import pytest
 from coordinator.scene import load_scene
 from sim.cli import main as cli
 from sim.node.world import WorldNode
+from tests.conftest import REPO, descendants, pixelswarm_cmd, reap, run_pixelswarm, start_run, wait_for
 from transport.bus import Bus
 from transport.faults import fault_kinds
 from transport.session import free_port, loopback_router
-
-from .conftest import REPO, descendants, pixelswarm_cmd, reap, run_pixelswarm, start_run, wait_for
 
 FAST = ("--no-video", "--no-plots", "-q")
 

@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 
 from coordinator.scene import SceneError, load_scene, scene_from_dict, shipped_scenes
-
-from .conftest import run_pixelswarm
+from tests.conftest import run_pixelswarm
 
 SMALL = """
 robots = 6

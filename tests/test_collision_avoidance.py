@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from .conftest import run_pixelswarm
-from .test_one_controller import engine_run
+from tests.conftest import run_pixelswarm
+from tests.support.engines import engine_run
 
 
 def run_scene(tmp_path: Path, toml: str, *extra: str, name: str = "run") -> tuple[dict, dict]:

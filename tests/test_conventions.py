@@ -12,9 +12,8 @@ from coordinator.goals import generate_goals
 from coordinator.keyframes import keyframe_goals
 from coordinator.scene import scene_from_dict
 from sim.bodies.world import Body, World
+from tests.conftest import REPO
 from transport import epuck
-
-from .conftest import REPO
 
 PACKAGES = ("agent", "coordinator", "transport", "sim", "hardware", "bench")
 

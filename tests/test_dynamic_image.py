@@ -17,9 +17,8 @@ from agent.goal_sets import motion_of
 from coordinator.scene import SceneError, load_scene, scene_from_dict, scene_goal_set
 from coordinator.service import step_motion, step_timing
 from sim.central.engine import run_central
+from tests.conftest import run_pixelswarm
 from transport.codec import Goals, Timing, as_sent, decode
-
-from .conftest import run_pixelswarm
 
 RNG = np.random.default_rng(28)
 G0 = RNG.uniform(-0.6, 0.6, (12, 2))

@@ -10,9 +10,8 @@ import numpy as np
 import pytest
 
 from coordinator.scene import load_scene
-
-from .conftest import run_scene
-from .formation import first_formed_after, formed, goal_error, members_and_current, stays_formed_from
+from tests.conftest import run_scene
+from tests.support.formation import first_formed_after, formed, goal_error, members_and_current, stays_formed_from
 
 TOLERANCE = 0.01  # m
 CLEAR_OF_DISK = 0.3  # m of clearance from every controlled robot: a mover has left the disk

@@ -16,9 +16,8 @@ from mcap.exceptions import McapError
 
 from sim.outputs.mcaplog import McapLog, read_mcap
 from sim.outputs.ticklog import TICKS_FILE, TickLog, read_ticks
+from tests.conftest import REPO, descendants, pixelswarm_cmd, reap, start_run, wait_for, write_disk
 from transport.session import free_port
-
-from .conftest import REPO, descendants, pixelswarm_cmd, reap, start_run, wait_for, write_disk
 
 TOLERANCE = 0.01  # m: the show completes when every robot is this close to its goal at the end
 
@@ -357,9 +356,8 @@ def test_the_coordinator_has_the_set_for_one_robot_fewer_ready_before_any_dies(m
     from coordinator import service
     from coordinator.scene import scene_from_dict
     from coordinator.steps import StepGoals
+    from tests.support.fake_bus import Bus
     from transport.codec import Tick
-
-    from .test_scripted_movers import Bus
 
     made = []
     generate = StepGoals._generate

@@ -21,9 +21,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.conftest import REPO, descendants, pixelswarm_cmd, wait_for
 from transport.session import free_port, listening
-
-from .conftest import REPO, descendants, pixelswarm_cmd, wait_for
 
 RUN_TIMEOUT = 240  # s of wall time a run may take
 # what the codec counts a malformed message as (docs/protocol.md); the rest are other reasons

@@ -34,11 +34,10 @@ from sim.emulators.lab import MOCAP_RATE, Lab
 from sim.emulators.lab import main as lab_main
 from sim.emulators.mocap import MocapEmulator
 from sim.node.hardware import STARTUP_TIMEOUT, HardwareNode, TwistDrive, WheelDrive
+from tests.conftest import REPO, descendants, pixelswarm_cmd, reap, run_pixelswarm, wait_for
 from transport.bus import Bus
 from transport.codec import BEFORE_START, Command, Commands, Pose, Tick
 from transport.session import client_of, free_port, loopback_router, open_session
-
-from .conftest import REPO, descendants, pixelswarm_cmd, reap, run_pixelswarm, wait_for
 
 TIMEOUT = Epuck2Config.command_timeout  # s: the hardware files here keep the default
 PERIOD = EPUCK.dt  # s: the control period

@@ -12,8 +12,7 @@ from scipy.optimize import linear_sum_assignment
 
 from agent.core.params import EPUCK
 from coordinator import shapes
-
-from .conftest import run_pixelswarm
+from tests.conftest import run_pixelswarm
 
 
 @pytest.mark.slow

@@ -8,52 +8,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from .assignment_quality import agreements
-from .conftest import run_scene as run
-
-EPS_A = 1e-3  # m^2, the default epsilon_A (agent.core.params)
-
-
-def assert_agreements_valid(traj: dict, bound_per_robot: float = EPS_A, min_complete: int = 10) -> np.ndarray:
-    rep = agreements(traj)
-    assert rep.inconsistent == 0, "a robot announced two goals for one agreed instance"
-    assert rep.shared_goals == 0, "two robots announced the same goal in one agreed instance"
-    complete = [a for a in rep.agreements if np.isfinite(a.cost)]
-    assert len(complete) >= min_complete
-    for a in complete:
-        assert a.cost <= a.optimum + len(a.members) * bound_per_robot + a.penalties + 1e-6, (a.epoch, a.instance)
-    return rep.gaps()
-
-
-def assert_every_hold_formed(m: dict, tolerance: float = 0.01, traj: dict | None = None) -> None:
-    assert m["contacts"] == 0, m["contact_events"][:5]
-    for step in m["steps"]:
-        why = f"{step}; {why_not_formed(m, traj, tolerance)}" if traj is not None else step
-        assert step["converged_at"] is not None, why
-        assert step["max_goal_error_at_end"] <= tolerance, why
-
-
-def why_not_formed(m: dict, traj: dict, tolerance: float) -> str:
-    """What a failed hold looked like at the run's last sample (CI prints only the message): the
-    robots off their goals, whose assignment gave each goal and when it last changed, and the run's
-    goal sets, agreements, lost liveliness and end."""
-    t, err = traj["t"], np.hypot(*(traj["pose"][:, :, :2] - traj["goal"]).transpose(2, 0, 1))
-    off = [int(r) for r in np.flatnonzero(err[-1] > tolerance)]
-    rows = []
-    for r in off[:5]:
-        key = np.stack([traj["assignment_epoch"][:, r], traj["assignment_instance"][:, r], traj["assignment"][:, r]], 1)
-        changes = np.flatnonzero((key[1:] != key[:-1]).any(axis=1)) + 1
-        goal_changes = np.flatnonzero(traj["assignment"][1:, r] != traj["assignment"][:-1, r]) + 1
-        rows.append(
-            f"robot {r}: {err[-1, r]:.3f} m off goal {key[-1, 2]} (epoch {key[-1, 0]}, instance {key[-1, 1]}),"
-            f" goal changed at t={[round(float(t[i]), 1) for i in goal_changes[-4:]]},"
-            f" assignment at t={[round(float(t[i]), 1) for i in changes[-3:]]}"
-        )
-    return (
-        f"end {m.get('end_reason')} at t={float(t[-1]):.1f}; goal sets {[int(e) for e in traj['goal_set_epochs']]};"
-        f" agreements {len(traj['agreements'])}; liveliness lost {m.get('liveliness_lost')};"
-        f" off goal at the end: {rows or 'none'}"
-    )
+from tests.conftest import run_scene as run
+from tests.support.assignment_quality import EPS_A, assert_agreements_valid
+from tests.support.formation import assert_every_hold_formed, why_not_formed
 
 
 @pytest.mark.slow

@@ -10,8 +10,7 @@ from agent.assignment import frames_close
 from agent.core.bidder import Participant
 from bench.paper_figures import agree
 from coordinator.keyframes import goal_correspondence, goal_disparity, goal_matching
-
-from .test_bidder import optimum
+from tests.support.assignment_quality import optimum
 
 EPS = 1e-3
 
@@ -203,9 +202,8 @@ def test_the_coordinator_sends_the_next_image_with_its_matching_and_prices(monke
     for it; the first image carries none (its auction starts cold)."""
     from coordinator import service
     from coordinator.scene import load_scene
+    from tests.support.fake_bus import Bus
     from transport.codec import Goals, Tick, decode
-
-    from .test_scripted_movers import Bus
 
     calls = []
     monkeypatch.setattr(service, "goal_matching", lambda *a: calls.append(1) or goal_matching(*a))

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from .conftest import start_run
+from tests.conftest import start_run
 
 FAULTS = "state:drop=0.2,delay=0.1,jitter=0.02"
 

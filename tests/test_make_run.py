@@ -14,8 +14,9 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from .conftest import REPO
-from .test_image_display_distributed import assert_agreements_valid, assert_every_hold_formed
+from tests.conftest import REPO
+from tests.support.assignment_quality import assert_agreements_valid
+from tests.support.formation import assert_every_hold_formed
 
 pytestmark = pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
 

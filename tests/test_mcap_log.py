@@ -18,9 +18,8 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from sim.outputs.logschema import logged_kinds
 from sim.outputs.recorder import SCENE_TOPIC, Recorder
+from tests.support.fake_bus import RecorderBus
 from transport.codec import Bid, Boards, Commands, Event, Poses, States, Tick, Truth
-
-from .test_recorder_bids import Bus
 
 N = 6
 PER_TICK = {"/pose": Poses, "/state": States, "/cmd": Commands, "/auction": Bid, "/boards": Boards, "/sim/truth": Truth}
@@ -40,7 +39,7 @@ def _table(dtype: np.dtype, rows: int, rng: np.random.Generator) -> np.ndarray:
 
 def _messages(rng: np.random.Generator) -> dict[str, tuple[str, object]]:
     """One message of each kind logged as protobuf, with its key, and two logged as JSON."""
-    keys = Bus().keys
+    keys = RecorderBus().keys
     states = _table(States.RECORD, N, rng)
     states["robot"], states["radius"] = np.arange(N), 0.05
     boards = _table(Boards.WORD, 3, rng)
@@ -73,7 +72,7 @@ def log(tmp_path):
     """A recorder's log of one message of each kind (the truth twice: a scene per tick)."""
     rng = np.random.default_rng(11)
     sent = _messages(rng)
-    bus = Bus()
+    bus = RecorderBus()
     rec = Recorder(bus, robots=N, tolerance=0.01, log_path=str(tmp_path / "log.mcap"))
     rec.heading = False  # holonomic robots: their heading never changes
     bus.raw.items = [(key, msg.encode(), 100.0 + k) for k, (key, msg) in enumerate(sent.values())]

@@ -9,21 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from .conftest import run_scene
-
-ENGINES = {
-    "central": ("--engine", "central"),
-    "a process per robot": ("--engine", "distributed"),
-    # ten a host: every host decodes every other host's frames, so fewer hosts cost less, and the 14
-    # robots of swap and story still leave one host short
-    "agent hosts": ("--engine", "distributed", "-k", "10"),
-}
-
-
-def engine_run(shared_runs, scene: str, seed: int, engine: str) -> tuple[dict, dict]:
-    """A lock-step run of a shipped scene and seed in one engine, shared with the other tests that
-    read that run (test_collision_avoidance: fourteen e-pucks swap rows, a process per robot)."""
-    return shared_runs.run(scene, "--clock", "lockstep", "--seed", str(seed), *ENGINES[engine])
+from tests.conftest import run_scene
+from tests.support.engines import ENGINES, PICTURE_FLAGS, engine_run, picture, picture_run
 
 
 @pytest.mark.slow
@@ -44,21 +31,6 @@ def test_central_and_distributed_runs_of_one_seed_are_the_same_run(shared_runs, 
         assert metrics["time_to_converge_s"] == pytest.approx(m_central["time_to_converge_s"], abs=1e-9)
 
 
-def picture(tmp_path) -> str:
-    """A picture of two shapes (a disk and a bar), drawn here."""
-    import cv2
-
-    image = np.full((120, 160, 3), 255, np.uint8)
-    cv2.circle(image, (55, 60), 35, (0, 0, 200), -1)
-    cv2.rectangle(image, (100, 25), (145, 95), (200, 0, 0), -1)
-    path = tmp_path / "picture.png"
-    cv2.imwrite(str(path), image)
-    return str(path)
-
-
-PICTURE_FLAGS = ("--robots", "30", "--seed", "2")
-
-
 def short_story(tmp_path) -> str:
     """The shipped story with every keyframe from the second on 13 s earlier: the robots cross to the
     first walker in 12 s instead of 25 (at under half the e-puck's speed), so a run into the second
@@ -74,12 +46,6 @@ def short_story(tmp_path) -> str:
 
 
 STORY_FLAGS = ("--seed", "1", "--duration", "13")  # into the second keyframe, which starts at 12 s
-
-
-def picture_run(shared_runs, tmp_path, engine: str) -> tuple[dict, dict]:
-    """A lock-step run of the picture's 30 robots in one engine, shared with test_sync_auction (the
-    agent hosts' run is its quiet run)."""
-    return shared_runs.run(picture(tmp_path), "--clock", "lockstep", *PICTURE_FLAGS, *ENGINES[engine])
 
 
 def assert_the_same_run(runs: dict[str, tuple[dict, dict]], central: dict) -> None:

@@ -27,8 +27,7 @@ from sim.outputs.recorder import SCENE_TOPIC
 from sim.outputs.render import Recording, _View, frame_indices, held_frames, write_video
 from sim.outputs.rundir import RunDir
 from sim.outputs.write import write_run
-
-from .conftest import run_pixelswarm
+from tests.conftest import run_pixelswarm
 
 ARENA = (0.0, 0.0, 4.0, 3.0)
 FOXGLOVE_WS = "foxglove.sdk.v1"  # the subprotocol Foxglove's SDK serves its WebSocket protocol under

@@ -7,8 +7,7 @@ import pytest
 
 from agent.core.params import EPUCK
 from agent.lateness import Lateness, strayed
-
-from .conftest import run_scene
+from tests.conftest import run_scene
 
 
 def test_lateness_is_the_pose_age_beyond_the_quickest_seen_and_runs_out_with_the_command():

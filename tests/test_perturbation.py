@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 
 from coordinator.scene import load_scene
-
-from .conftest import run_scene
-from .formation import first_formed_after, formed, stays_formed_from
+from tests.conftest import run_scene
+from tests.support.formation import first_formed_after, formed, stays_formed_from
 
 TOLERANCE = 0.01  # m: every robot within 1 cm of its agreed goal
 

@@ -9,10 +9,9 @@ import pytest
 
 from agent.neighbour_table import NeighbourTable
 from agent.pose_trust import CONFIRM, PoseTrust
+from tests.conftest import run_scene
 from transport.codec import State
 from transport.plausible import AHEAD, FUTURE, INCONSISTENT, RESYNC, STALE, TickLine, stamp_agrees
-
-from .conftest import run_scene
 
 DT = 0.1
 

@@ -27,12 +27,12 @@ from sim.emulators.camera import CameraStream, OverheadCamera
 from sim.emulators.lab import MOCAP_RATE, Lab
 from sim.emulators.mocap import MocapEmulator
 from sim.node.hardware import HardwareNode
+from tests.conftest import wait_for
 from transport.bus import Bus
 from transport.codec import BEFORE_START, Command, Pose
 from transport.rmw_zenoh import RosNode
 from transport.session import client_of, loopback_router, open_session
 
-from .conftest import wait_for
 from .test_hardware_run import all_moving, moving_commands, scene_file, start_run
 
 # --- the gate: the rule every pose source applies ------------------------------------------------

@@ -13,9 +13,8 @@ from scipy.sparse.csgraph import connected_components
 
 from agent.core.params import EPUCK
 from coordinator.scene import load_scene, make_goal_sets, scene_goal_set
-
-from .conftest import assert_usage_error, run_scene
-from .test_one_controller import picture
+from tests.conftest import assert_usage_error, run_scene
+from tests.support.engines import picture
 
 TOLERANCE = 0.01  # m: every robot within 1 cm of its goal
 

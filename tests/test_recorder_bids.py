@@ -6,21 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from sim.outputs.recorder import Recorder
+from tests.support.fake_bus import RecorderBus
 from transport.codec import AuctionRecord, Bid
-
-from .test_scripted_movers import Bus as MoverBus
-from .test_scripted_movers import Inbox
-
-
-class Bus(MoverBus):
-    """The coordinator tests' bus without zenoh, with the recorder's raw inbox."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.raw = Inbox()
-
-    def subscribe_raw(self, key: str) -> Inbox:
-        return self.raw
 
 
 def bid(sender: int, instance: int, rows: list[tuple]) -> Bid:
@@ -33,7 +20,7 @@ def f(v: float) -> float:
 
 
 def test_the_recorder_keeps_each_claims_bid_position_per_instance():
-    bus = Bus()
+    bus = RecorderBus()
     rec = Recorder(bus, robots=4, tolerance=0.01)
     released = AuctionRecord.RELEASED
     said = [

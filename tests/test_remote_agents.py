@@ -15,9 +15,8 @@ import psutil
 import pytest
 
 from sim.run.remote_agents import format_ids, merge_configs, parse_ids
+from tests.conftest import REPO, agent_processes, pixelswarm_cmd, run_pixelswarm, wait_for
 from transport.session import free_port, listening
-
-from .conftest import REPO, agent_processes, pixelswarm_cmd, run_pixelswarm, wait_for
 
 TIMEOUT = 90  # s for one end-to-end command on a loaded machine
 

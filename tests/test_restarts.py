@@ -30,8 +30,7 @@ import pytest
 
 from sim.outputs.mcaplog import logged as mcap_logged
 from sim.outputs.ticklog import TICKS_FILE, read_ticks
-
-from .conftest import REPO, descendants, start_run, wait_for, write_disk
+from tests.conftest import REPO, descendants, start_run, wait_for, write_disk
 
 ROBOTS = 10
 VICTIM = 4
@@ -168,9 +167,8 @@ def test_an_agent_started_again_gets_a_new_goal_set_and_a_blip_of_its_connection
     incarnation of the agent) from a blip of its connection (the same one back)."""
     from coordinator import service
     from coordinator.scene import scene_from_dict
+    from tests.support.fake_bus import Bus
     from transport.codec import Tick
-
-    from .test_scripted_movers import Bus
 
     scene = scene_from_dict(
         {"robots": 4, "seed": 5, "layout": {"kind": "grid", "spacing": 0.2}, "steps": [{"shape": "disk", "hold": 30}]}

@@ -17,8 +17,7 @@ from sim.outputs.foxglove import QUANTUM, SceneUpdate, scene_update
 from sim.outputs.mcaplog import McapLog, mcap_channels, read_mcap
 from sim.outputs.render import Recording, _View, frame_indices, render_frame, write_plots, write_video
 from sim.outputs.rundir import RunDir, default_run_path, dumps_json, json_safe, write_json, write_npz
-
-from .conftest import run_pixelswarm
+from tests.conftest import run_pixelswarm
 
 POSE_SCHEMA = {
     "type": "object",

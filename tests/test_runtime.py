@@ -19,6 +19,7 @@ import pytest
 
 import agent.runtime
 from agent.runtime import interpreter
+from tests.conftest import REPO, agent_processes, descendants, pixelswarm_cmd, reap, run_pixelswarm, start_run, wait_for
 from transport.bus import Bus
 from transport.codec import VERSION, Pose, Poses
 from transport.session import (
@@ -31,8 +32,6 @@ from transport.session import (
     settings_from_options,
     zenoh_usage,
 )
-
-from .conftest import REPO, agent_processes, descendants, pixelswarm_cmd, reap, run_pixelswarm, start_run, wait_for
 
 SCENE = """
 name = "small"

@@ -14,8 +14,7 @@ import pytest
 from coordinator.resolved import GOAL_SETS_FILE, SCENE_FILE, load_resolved, save_resolved, stored_counts
 from coordinator.scene import SceneError, load_scene, scene_from_dict, scene_goal_set
 from sim.central.engine import run_central
-
-from .conftest import REPO, run_scene
+from tests.conftest import REPO, run_scene
 
 # A small image scene of every kind the loader makes goal sets for: [[steps]] with region counts and a
 # moving step, a scripted mover and a pursuer (fewer robot pixels than robots), and a drawn animation.

@@ -12,8 +12,8 @@ from coordinator.service import Coordinator
 from sim.bodies.movers import Movers, scripted_velocity
 from sim.bodies.tracker import bodies_of, world_of
 from sim.central.engine import run_central
+from tests.support.fake_bus import Bus
 from transport.codec import Tick
-from transport.keys import Keys
 
 DT = 0.1
 
@@ -48,33 +48,6 @@ def test_a_scripted_mover_moves_at_its_scripted_speed_not_the_robots_v_max():
 
 
 # --- the coordinator: movers are not robot pixels ----------------------------------------------------
-class Inbox:
-    def __init__(self) -> None:
-        self.items: list = []
-
-    def drain(self) -> list:
-        out, self.items = self.items, []
-        return out
-
-
-class Bus:
-    """What the coordinator uses of transport.bus.Bus, without zenoh."""
-
-    def __init__(self) -> None:
-        self.keys = Keys()
-        self.clock, self.alive, self.published = Inbox(), Inbox(), []
-
-    def subscribe(self, key: str, expected=None) -> Inbox:
-        return self.clock if key == self.keys.clock else Inbox()
-
-    def watch_alive(self, role=None) -> Inbox:
-        return self.alive
-
-    def serve(self, key: str, answer) -> None:
-        pass
-
-    def publish(self, key: str, msg) -> None:
-        self.published.append(msg)
 
 
 def test_the_goal_set_goes_to_the_robot_pixels_only():

@@ -20,12 +20,11 @@ from agent.core.bidder import Participant
 from agent.core.params import RobotParams
 from agent.core.rounds import BlockRounds
 from sim.central.engine import play
+from tests.conftest import assert_usage_error, reap, run_scene
+from tests.support.engines import ENGINES, PICTURE_FLAGS, picture, picture_run
 from transport.bus import Bus
 from transport.codec import Goals, Timing
 from transport.session import client_of, loopback_router, open_session
-
-from .conftest import assert_usage_error, reap, run_scene
-from .test_one_controller import ENGINES, PICTURE_FLAGS, picture, picture_run
 
 EPS, HYSTERESIS = 1e-3, 5e-3  # epsilon_A and Delta C, m^2 (agent.core.params defaults)
 

@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 
 import transport.bus as bus_module
 from agent.core.bidder import RECORD as bidder_record
+from tests.conftest import wait_for
 from transport.bus import CLOSE_LINGER, Bus
 from transport.codec import (
     BEFORE_START,
@@ -45,8 +46,6 @@ from transport.codec import (
 from transport.faults import FaultSpec, parse_faults
 from transport.keys import Keys, cell_of
 from transport.session import TransportError, client_of, loopback_router, open_session
-
-from .conftest import wait_for
 
 SAMPLES = [
     Poses.one(Pose(3, 7, 0.7, 1.5, -2.0, 0.25)),  # a robot alone: a frame of one

@@ -12,8 +12,7 @@ import pytest
 
 from coordinator.scene import load_scene
 from sim.outputs.render import HOLD_S, _View, frame_indices, held_frames
-
-from .conftest import run_pixelswarm
+from tests.conftest import run_pixelswarm
 
 FPS = 10
 

@@ -19,8 +19,7 @@ from rerun.chunk import RrdReader  # noqa: E402
 
 from sim.cli.main import main  # noqa: E402
 from sim.outputs.view import SwarmView, replay, url_serves  # noqa: E402
-
-from .conftest import run_pixelswarm  # noqa: E402
+from tests.conftest import run_pixelswarm  # noqa: E402
 
 ARENA = (-2.0, -1.5, 2.0, 1.5)
 

@@ -64,3 +64,23 @@ def agreements(npz: dict) -> Report:
             ag.penalties = float(np.nansum(npz["agreement_penalties"][a][members]))
         rep.agreements.append(ag)
     return rep
+
+
+def optimum(positions: np.ndarray, goals: np.ndarray) -> float:
+    cost = ((positions[:, None, :] - goals[None, :, :]) ** 2).sum(-1)
+    rows, cols = linear_sum_assignment(cost)
+    return float(cost[rows, cols].sum())
+
+
+EPS_A = 1e-3  # m^2, the default epsilon_A (agent.core.params)
+
+
+def assert_agreements_valid(traj: dict, bound_per_robot: float = EPS_A, min_complete: int = 10) -> np.ndarray:
+    rep = agreements(traj)
+    assert rep.inconsistent == 0, "a robot announced two goals for one agreed instance"
+    assert rep.shared_goals == 0, "two robots announced the same goal in one agreed instance"
+    complete = [a for a in rep.agreements if np.isfinite(a.cost)]
+    assert len(complete) >= min_complete
+    for a in complete:
+        assert a.cost <= a.optimum + len(a.members) * bound_per_robot + a.penalties + 1e-6, (a.epoch, a.instance)
+    return rep.gaps()

@@ -1,0 +1,41 @@
+"""One scene, one seed, in every engine: the engines' flags, and lock-step runs shared between the tests
+that compare them (test_one_controller, test_collision_avoidance, test_range_auction, test_sync_auction)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+ENGINES = {
+    "central": ("--engine", "central"),
+    "a process per robot": ("--engine", "distributed"),
+    # ten a host: every host decodes every other host's frames, so fewer hosts cost less, and the 14
+    # robots of swap and story still leave one host short
+    "agent hosts": ("--engine", "distributed", "-k", "10"),
+}
+
+
+def engine_run(shared_runs, scene: str, seed: int, engine: str) -> tuple[dict, dict]:
+    """A lock-step run of a shipped scene and seed in one engine, shared with the other tests that
+    read that run (test_collision_avoidance: fourteen e-pucks swap rows, a process per robot)."""
+    return shared_runs.run(scene, "--clock", "lockstep", "--seed", str(seed), *ENGINES[engine])
+
+
+def picture(tmp_path) -> str:
+    """A picture of two shapes (a disk and a bar), drawn here."""
+    import cv2
+
+    image = np.full((120, 160, 3), 255, np.uint8)
+    cv2.circle(image, (55, 60), 35, (0, 0, 200), -1)
+    cv2.rectangle(image, (100, 25), (145, 95), (200, 0, 0), -1)
+    path = tmp_path / "picture.png"
+    cv2.imwrite(str(path), image)
+    return str(path)
+
+
+PICTURE_FLAGS = ("--robots", "30", "--seed", "2")
+
+
+def picture_run(shared_runs, tmp_path, engine: str) -> tuple[dict, dict]:
+    """A lock-step run of the picture's 30 robots in one engine, shared with test_sync_auction (the
+    agent hosts' run is its quiet run)."""
+    return shared_runs.run(picture(tmp_path), "--clock", "lockstep", *PICTURE_FLAGS, *ENGINES[engine])

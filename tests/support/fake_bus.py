@@ -1,0 +1,45 @@
+"""What the coordinator and the recorder use of transport.bus.Bus, in process, without zenoh."""
+
+from __future__ import annotations
+
+from transport.keys import Keys
+
+
+class Inbox:
+    def __init__(self) -> None:
+        self.items: list = []
+
+    def drain(self) -> list:
+        out, self.items = self.items, []
+        return out
+
+
+class Bus:
+    """What the coordinator uses of transport.bus.Bus, without zenoh."""
+
+    def __init__(self) -> None:
+        self.keys = Keys()
+        self.clock, self.alive, self.published = Inbox(), Inbox(), []
+
+    def subscribe(self, key: str, expected=None) -> Inbox:
+        return self.clock if key == self.keys.clock else Inbox()
+
+    def watch_alive(self, role=None) -> Inbox:
+        return self.alive
+
+    def serve(self, key: str, answer) -> None:
+        pass
+
+    def publish(self, key: str, msg) -> None:
+        self.published.append(msg)
+
+
+class RecorderBus(Bus):
+    """The coordinator tests' bus without zenoh, with the recorder's raw inbox."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.raw = Inbox()
+
+    def subscribe_raw(self, key: str) -> Inbox:
+        return self.raw
