@@ -35,35 +35,13 @@ from sim.emulators.lab import main as lab_main
 from sim.emulators.mocap import MocapEmulator
 from sim.node.hardware import STARTUP_TIMEOUT, HardwareNode, TwistDrive, WheelDrive
 from tests.conftest import REPO, descendants, pixelswarm_cmd, reap, run_pixelswarm, wait_for
+from tests.support.hardware import all_moving, moving_commands, scene_file, start_run
 from transport.bus import Bus
 from transport.codec import BEFORE_START, Command, Commands, Pose, Tick
 from transport.session import client_of, free_port, loopback_router, open_session
 
 TIMEOUT = Epuck2Config.command_timeout  # s: the hardware files here keep the default
 PERIOD = EPUCK.dt  # s: the control period
-
-SCENE = """name = "hw-circle"
-robots = {robots}
-seed = 1
-clock = "realtime"
-duration = {duration}
-
-[robot]
-kinematics = "diffdrive"
-
-[layout]
-kind = "circle"
-spacing = 0.25
-
-[goals]
-kind = "antipodal"
-"""
-
-
-def scene_file(tmp_path: Path, robots: int = 4, duration: float = 60.0) -> Path:
-    path = tmp_path / "hw-circle.toml"
-    path.write_text(SCENE.format(robots=robots, duration=duration))
-    return path
 
 
 def start_lab(tmp_path: Path, scene: Path, spawned: list) -> tuple[subprocess.Popen, str, Path, Path]:
@@ -89,11 +67,6 @@ def stop_lab(proc: subprocess.Popen, log: Path) -> tuple[dict, str]:
     out, err = proc.communicate(timeout=30)
     assert proc.returncode == 0, err
     return json.loads(log.read_text()), out
-
-
-def moving_commands(log: list) -> np.ndarray:
-    rows = np.array(log, float).reshape(-1, 3)
-    return rows[(rows[:, 1] != 0) | (rows[:, 2] != 0)]
 
 
 def assert_one_line_error(result: subprocess.CompletedProcess, words: str) -> None:
@@ -212,27 +185,6 @@ def test_a_killed_agent_stops_its_robot_and_the_end_of_the_run_stops_all(tmp_pat
     assert moving_elsewhere  # the other robots went on
     for other in logs:
         assert other[-1, 1] == 0 and other[-1, 2] == 0  # all stopped at the end
-
-
-def start_run(
-    tmp_path: Path, scene: Path, hw: Path, endpoint: str, spawned: list, own_group: bool = False
-) -> subprocess.Popen:
-    """`pixelswarm run SCENE --hardware FILE` as its own process, a client of the router at ``endpoint``;
-    ``own_group``: in a process group of its own, as a shell starts a command."""
-    cmd = pixelswarm_cmd("run", str(scene), "--hardware", str(hw), "-e", endpoint)
-    run = subprocess.Popen(
-        [*cmd, "--out", str(tmp_path / "run"), "--no-video", "--no-plots", "-q"],
-        cwd=REPO,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=own_group,
-    )
-    spawned.append(run)
-    return run
-
-
-def all_moving(lab: Lab, commands: int = 10) -> bool:
-    return all(len(moving_commands(lab.emulator.log(r))) >= commands for r in range(lab.scene.robots))
 
 
 @pytest.mark.slow

@@ -28,12 +28,11 @@ from sim.emulators.lab import MOCAP_RATE, Lab
 from sim.emulators.mocap import MocapEmulator
 from sim.node.hardware import HardwareNode
 from tests.conftest import wait_for
+from tests.support.hardware import all_moving, moving_commands, scene_file, start_run
 from transport.bus import Bus
 from transport.codec import BEFORE_START, Command, Pose
 from transport.rmw_zenoh import RosNode
 from transport.session import client_of, loopback_router, open_session
-
-from .test_hardware_run import all_moving, moving_commands, scene_file, start_run
 
 # --- the gate: the rule every pose source applies ------------------------------------------------
 
