@@ -14,7 +14,7 @@ import numpy as np
 from coordinator import shapes
 from coordinator.goals_cli import add_goals_parser
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 HELPER = (
     "import argparse,sys; from coordinator.goals_cli import add_goals_parser; "
     "p=argparse.ArgumentParser(prog='pixelswarm'); s=p.add_subparsers(); add_goals_parser(s); "

@@ -23,13 +23,12 @@ from coordinator.scene import load_scene  # noqa: E402
 from sim.central.engine import simulate  # noqa: E402
 from sim.cli.main import main  # noqa: E402
 from tests.conftest import REPO, bus_when_listening, pixelswarm_cmd, run_pixelswarm, wait_for  # noqa: E402
+from tests.support.recording import recorded_swarm  # noqa: E402
 from transport.bus import Bus  # noqa: E402
 from transport.codec import Goals, Tick, Truth  # noqa: E402
 from transport.keys import Keys  # noqa: E402
 from transport.security import AUTH_MODES, OBSERVER, client_config, make_certificates, router_config  # noqa: E402
 from transport.session import free_port, listening, open_session  # noqa: E402
-
-from .test_view import recorded_swarm  # noqa: E402
 
 KEYS = Keys("default")
 RUN_TIMEOUT_S = 240.0  # a bound for a hung run, not a speed target

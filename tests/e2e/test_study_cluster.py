@@ -17,7 +17,7 @@ import pytest
 from sim.cli.main import main
 from sim.processes import stop_processes
 from tests.conftest import REPO, wait_for
-from tests.test_study import GRID, grid, read_csv, study  # noqa: F401 - grid: the local study, run once
+from tests.support.study import GRID, read_csv, study
 from transport.session import free_port, listening
 
 pytest.importorskip("distributed")
@@ -78,7 +78,7 @@ def _comparable(path: Path) -> list[dict[str, str]]:
 @pytest.mark.slow
 @pytest.mark.timeout(600)
 @pytest.mark.xdist_group("study-grid")
-def test_a_study_through_a_dask_cluster_is_the_local_study(grid, cluster, tmp_path):  # noqa: F811
+def test_a_study_through_a_dask_cluster_is_the_local_study(grid, cluster, tmp_path):
     out = tmp_path / "out"
     result = study(grid / "grid.toml", out, "--scheduler", cluster.address, timeout=540)
     assert result.returncode == 0, result.stderr[-3000:]

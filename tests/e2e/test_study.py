@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import base64
-import csv
 import itertools
 import json
 import math
@@ -12,55 +11,19 @@ import signal
 import subprocess
 import sys
 from html.parser import HTMLParser
-from pathlib import Path
 
 import psutil
 import pytest
 
 from sim.cli.main import main
 from tests.conftest import REPO, descendants, wait_for
+from tests.support.study import GRID, read_csv, study
 
 # metrics of the processes and messages of a run, which the central engine has no counterpart for
 PROCESS_ONLY = {
     *("engine", "wall_s", "realtime_factor", "end_reason"),
     *("messages_per_robot_s", "bytes_per_robot_s", "messages_total", "bytes_total"),
 }
-
-GRID = """
-name = "grid"
-seeds = [1, 2]
-[base]
-scene = "swap"
-engine = "central"
-[axes]
-robots = [2, 4]
-duration = [1.0, 1.5]
-"""
-
-
-def study(spec: Path, out: Path, *extra: str, timeout: float = 300) -> subprocess.CompletedProcess:
-    command = [sys.executable, "-m", "sim.cli", "study", str(spec), "--out", str(out), *extra]
-    return subprocess.run(command, capture_output=True, text=True, timeout=timeout, cwd=REPO)
-
-
-def read_csv(path: Path) -> list[dict[str, str]]:
-    with open(path, newline="") as f:
-        return list(csv.DictReader(f))
-
-
-@pytest.fixture(scope="module")
-def grid(shared_runs) -> Path:
-    """The 2 x 2 x 2-seed study, run once per session for the tests that read its outputs (a module
-    fixture alone is made once per xdist worker)."""
-
-    def make(root: Path) -> None:
-        spec = root / "grid.toml"
-        spec.write_text(GRID)
-        result = study(spec, root / "out", "--jobs", "2")
-        assert result.returncode == 0, result.stderr[-3000:]
-        assert result.stdout.strip().splitlines()[-1] == str(root / "out" / "report.html")
-
-    return shared_runs.once("study-grid", make)
 
 
 @pytest.mark.slow
