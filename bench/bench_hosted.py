@@ -244,7 +244,7 @@ new goal set (agent.core.bidder.Participant.carry).
 Reported per keyframe: K_f dt, how long after the keyframe began the hosts first agreed, how many
 robots' moves the speed allowed and their worst and mean distance to the goal when K_f dt was
 over. Too long for the test suite (minutes on 2 cores); the suite plays four keyframes with 14
-robots (tests/test_animation.py).
+robots (tests/unit/test_animation.py).
 
     .venv/bin/python -m bench.bench_hosted animation [--scene leaf] [-k 10]
     .venv/bin/python -m bench.bench_hosted animation --from RUN_DIR   # a finished `pixelswarm run leaf --engine distributed -k 10`
@@ -332,7 +332,7 @@ ENGINES = {"central": ["--engine", "central"], "a process per robot": [], "hosts
 
 
 def picture(folder: Path) -> Path:
-    """The test picture (tests/test_sync_auction.py): a disk and a bar."""
+    """The test picture (tests/support/engines.py: picture): a disk and a bar."""
     import cv2
 
     image = np.full((120, 160, 3), 255, np.uint8)

@@ -16,7 +16,7 @@ on the centroid and divided by sqrt(area) (so that a growing or shrinking region
 2. A local refinement: ICP restricted to rotation about the centroid (nearest edge point pairs, the
    best 2-D rotation of the pairs in closed form, repeated), kept only if it stays within a few degrees
    of step 1, which a correct refinement does.
-Accuracy: within 0.7 degree and 0.6 px on a rasterised L some 140 px tall (tests/test_keyframes.py);
+Accuracy: within 0.7 degree and 0.6 px on a rasterised L some 140 px tall (tests/unit/test_keyframes.py);
 what is left is Canny's whole-pixel edge points. All angles are counter-clockwise as seen, in the arena
 frame (y up).
 """

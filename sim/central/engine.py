@@ -162,7 +162,7 @@ def simulate(
     given) receives the wall and CPU time per part of each control step (bench/bench_large.py).
     ``overlap``: a warm auction runs on a second thread while this one searches neighbours and steps
     the control core on the goals the robots hold, and only the robots whose goal changed are
-    stepped again (the same run, to the bit, as without: tests/test_central_overlap.py)."""
+    stepped again (the same run, to the bit, as without: tests/integration/test_central_overlap.py)."""
     params, world = world_of(scene)
     tracker = tracker_of(scene)
     segments = static_segments(scene.arena, scene.obstacles)

@@ -5,7 +5,7 @@ starts later is not left waiting.
 
 Regression: with a fixed 0.5 s pause before tick 0 instead, a neighbour's tick-0 state could go
 unsent (zenoh tells a publisher about a new subscriber asynchronously) and the reproducibility check
-of tests/test_runtime.py failed 2 runs in 5 under load, each at tick 1."""
+of tests/e2e/test_runtime.py failed 2 runs in 5 under load, each at tick 1."""
 
 from __future__ import annotations
 
