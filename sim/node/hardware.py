@@ -1,15 +1,12 @@
-"""The hardware process: real bodies in place of the simulated world (the twin of sim/node/world.py).
+"""The hardware process: real robots as the body node's bodies (sim/node/body.py), on the wall clock.
 
-On the wall clock, every control period, it reads each robot's newest pose from the pose source and
-publishes Tick, the poses (a frame of one per robot, or one frame of all, exactly as the world node
-does, so agents cannot tell the difference) and Truth holding the tracked poses (what the recorder writes as the
-trajectory). Each robot's newest Command goes to the backend as soon as it arrives, wheel speeds clipped
-to v_max. Safety: a robot is sent a stop when its last command is older than the command timeout, when
-its agent's liveliness token disappears, or when its pose has been lost longer than the timeout (its pose
-is then not published, so its agent waits). Every robot is stopped when the run ends, on SIGTERM or
-SIGINT, on an error, and when the launcher is gone. What it cannot trust it drops and counts: a command
-for a tick not yet published or whose stamp is not its tick's, and (the pose source's gate,
-hardware/poses.py) a pose stamped older than one taken or in the future.
+Every control period the node reads each robot's newest pose from the pose source and publishes
+Tick, the poses (exactly as over the simulated world, so agents cannot tell the difference) and Truth
+holding the tracked poses. Each robot's newest Command goes to the drive as soon as it arrives, wheel
+speeds clipped to v_max. A robot whose pose has been lost longer than the command timeout is not
+published (its agent waits) and is stopped; every robot is stopped when the run ends, on SIGTERM or
+SIGINT, on an error, and when the launcher is gone. The pose source drops and counts a pose stamped
+older than one taken or in the future (hardware/poses.py).
 
     python -m sim.node.hardware --hardware hw.toml --scene paper-sequence -e tcp/127.0.0.1:7447
 """
@@ -33,20 +30,16 @@ from coordinator.resolved import load_resolved
 from coordinator.scene import Scene, SceneError, load_scene
 from hardware.config import HardwareConfig, HardwareConfigError, load_hardware
 from hardware.poses import STAMP_DROPS, PoseSample
+from sim.node.body import COMMAND_DROPS, STOP_REASONS, BodyNode, WallClock
 from transport.bus import Bus
-from transport.codec import BEFORE_START, Command, Event, Tick, Truth
-from transport.plausible import FUTURE, INCONSISTENT, stamp_agrees
+from transport.codec import Command, Event
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, settings_from_args
 
 STARTUP_TIMEOUT = 5.0  # s: every robot reached and every robot's pose seen, or the run is refused
 AGENTS_TIMEOUT = 60.0  # s: the agents' start-up (as the world node waits)
-BEFORE_START_EVERY = 0.2  # s: poses to robots whose agent is not live yet
 POLL = 0.02  # s: how often, within a period, commands, liveliness and safety are looked at
 ERROR = "hardware: error: "  # the one line the launcher shows when the node refuses to start
 RUNNABLE_BACKENDS = ("epuck2", "ros2")
-STOP_REASONS = ("command_timeout", "agent_lost", "pose_lost")
-COMMAND_DROPS = (FUTURE, INCONSISTENT)  # commands no honest agent sends: for a tick not yet published
-# (it answers the poses of a tick), or stamped other than at its tick's start
 
 
 class HardwareError(Exception):
@@ -186,51 +179,26 @@ def open_pose_source(config: HardwareConfig, settings: ZenohSettings) -> PoseSou
     return CameraPoseSource(config.poses)
 
 
-# --- the node ------------------------------------------------------------------------------------
-class HardwareNode:
+# --- the bodies ----------------------------------------------------------------------------------
+class HardwareBodies:
+    """Real robots as the node's bodies: a drive takes their commands, a pose source tells where they
+    are. A command holds for the hardware's command timeout of wall time; a pose older than it is lost."""
+
     def __init__(
-        self,
-        bus: Bus,
-        scene: Scene,
-        drive: Drive,
-        poses: PoseSource,
-        *,
-        timeout: float,
-        pose_frames: bool = False,
-        poses_name: str = "the pose source",
+        self, drive: Drive, poses: PoseSource, params: RobotParams, n: int, timeout: float, poses_name: str
     ) -> None:
-        """``timeout``: a robot whose command is older, or whose pose was lost longer, is stopped;
-        ``poses_name`` names the pose source in messages."""
-        self.bus, self.scene, self.keys = bus, scene, bus.keys
-        self.poses_name = poses_name
-        self.drive, self.poses, self.timeout, self.pose_frames = drive, poses, timeout, pose_frames
-        self.params = RobotParams.from_dict(scene.robot)
-        self.dt = self.params.dt
-        n = self.n = scene.robots
+        """``poses_name`` names the pose source in messages."""
+        self.drive, self.poses, self.params, self.timeout, self.poses_name = drive, poses, params, timeout, poses_name
+        self.n = n
         self.pose = np.zeros((n, 3))  # the last tracked pose of each robot
         self.tracked = np.zeros(n, bool)  # its pose is fresh (not older than the timeout)
         self.wheels = np.zeros((n, 2))  # what each robot was last told (m/s)
-        self.color = np.zeros((n, 3), np.uint8)
-        self.last_cmd_tick = np.full(n, -1)
-        self.last_cmd_time = np.full(n, -np.inf)  # time.monotonic() of each robot's newest command
-        self.live = np.zeros(n, bool)
-        self.ever_live = np.zeros(n, bool)
-        self.sent = np.zeros(n, int)  # commands handed to the backend, stops included
-        self.late = np.zeros(n, int)
-        self.dropped = {reason: np.zeros(n, int) for reason in COMMAND_DROPS}
-        self.stops = {reason: np.zeros(n, int) for reason in STOP_REASONS}
-        self.min_clearance = np.inf
-        self.missed_ticks = 0
-        self.tick = 0
-        self.cmd_inbox = bus.commands_inbox()
-        self.control_inbox = bus.subscribe(self.keys.event, Event)
-        self.alive = bus.watch_alive("agent")
-        self.running = True
-        self.end_reason = ""
-        self.parent_pid: int | None = None
+        self.sent = np.zeros(n, int)  # commands handed to the drive, stops included
+        self.contacts: list = []  # measured by the bodies themselves (sim/emulators/lab.py), not from the tracker
+        self.min_clearance = math.inf
+        self.unreached: list[int] = []  # robots not told to stop when the run ended
 
-    # --- inputs -------------------------------------------------------------------------------
-    def _read_poses(self) -> None:
+    def sense(self, t: float) -> None:
         """Each robot's newest pose; a robot whose pose is older than the timeout is not tracked now."""
         self.tracked[:] = False
         for r, s in self.poses.latest().items():
@@ -238,97 +206,48 @@ class HardwareNode:
                 self.pose[r] = (s.x, s.y, s.theta)
                 self.tracked[r] = True
 
-    def _update_liveness(self) -> None:
-        for _, ident, alive, _, _ in self.alive.drain():
-            if ident.isdigit() and int(ident) < self.n:
-                i = int(ident)
-                self.live[i] = alive
-                self.ever_live[i] |= alive
+    def measure(self, t: float) -> np.ndarray:
+        return self.pose
 
-    def _apply_commands(self, first: tuple | None = None) -> None:
-        """Every robot's newest command, to the backend at once (wheels clipped to v_max)."""
-        newest: dict[int, Command] = {}
-        for _, cmd in ([first] if first is not None else []) + self.cmd_inbox.drain():
-            i = cmd.robot
-            if i >= self.n or not self.live[i]:
-                continue
-            # taken, a command of a later tick would be the newest and shut out every honest one after it
-            why = (
-                FUTURE if cmd.tick > self.tick else None if stamp_agrees(cmd.tick, cmd.stamp, self.dt) else INCONSISTENT
-            )
-            if why is not None:
-                self.dropped[why][i] += 1
-                self.cmd_inbox.drops[why] += 1  # with the decoder's drops: the run's dropped_messages
-                continue
-            if cmd.tick <= self.last_cmd_tick[i]:
-                self.late[i] += 1  # older than one already applied
-                continue
-            if cmd.tick < self.tick:
-                self.late[i] += 1  # for a tick already over: still the newest, so it is applied
-            self.last_cmd_tick[i] = cmd.tick
-            self.last_cmd_time[i] = time.monotonic()
-            self.color[i] = (cmd.r, cmd.g, cmd.bl)
-            newest[i] = cmd
-        drive = [i for i in newest if self.tracked[i]]  # a robot out of sight is not driven blind
-        if drive:
-            v_max = self.params.v_max
-            wheels = np.array([(newest[i].a, newest[i].b) for i in drive], float)
-            self._send(drive, np.clip(np.nan_to_num(wheels, nan=0.0, posinf=0.0, neginf=0.0), -v_max, v_max))
+    def true_poses(self) -> np.ndarray:
+        return self.pose
 
-    def _send(self, ids: list[int], wheels: np.ndarray) -> None:
+    def now(self) -> float:
+        return time.monotonic()
+
+    def hold(self, cmd: Command) -> float:
+        return time.monotonic() + self.timeout
+
+    def horizon(self, span: float) -> float:
+        return time.monotonic()
+
+    def moving(self) -> np.ndarray:
+        return np.any(self.wheels != 0, axis=1)
+
+    def apply(self, ids: list[int], cmds: list[Command], colors: np.ndarray) -> None:
+        v_max = self.params.v_max
+        wheels = np.array([(c.a, c.b) for c in cmds], float)
+        self._send(ids, np.clip(np.nan_to_num(wheels, nan=0.0, posinf=0.0, neginf=0.0), -v_max, v_max), colors)
+
+    def stop(self, ids: list[int]) -> None:
+        self._send(ids, np.zeros((len(ids), 2)), np.zeros((len(ids), 3), np.uint8))
+
+    def _send(self, ids: list[int], wheels: np.ndarray, colors: np.ndarray) -> None:
         self.wheels[ids] = wheels
         self.sent[ids] += 1
-        self.drive.send(ids, wheels[:, 0], wheels[:, 1], self.color[ids])
+        self.drive.send(ids, wheels[:, 0], wheels[:, 1], colors)
 
-    def _enforce_safety(self) -> None:
-        """A stop to every moving robot whose agent is gone, whose command is stale or whose pose is lost."""
-        moving = np.any(self.wheels != 0, axis=1)
-        if not moving.any():
-            return
-        stale = time.monotonic() - self.last_cmd_time > self.timeout
-        causes = {"agent_lost": ~self.live, "pose_lost": ~self.tracked, "command_timeout": stale}
-        stop = np.zeros(self.n, bool)
-        for reason, cause in causes.items():
-            hit = moving & cause & ~stop
-            self.stops[reason] += hit
-            stop |= hit
-        if stop.any():
-            ids = np.flatnonzero(stop).tolist()
-            self._send(ids, np.zeros((len(ids), 2)))
+    def step(self, span: float) -> list:
+        return []  # real bodies move by themselves
 
-    def _check_control(self) -> None:
-        if self.parent_pid is not None and os.getppid() != self.parent_pid:
-            self.running = False  # orphaned: the launcher died without stopping us
-            self.end_reason = "launcher gone"
-        for _, ev in self.control_inbox.drain():
-            if isinstance(ev, Event) and ev.data.get("kind") == "end":
-                self.running = False
-                self.end_reason = str(ev.data.get("reason", "end"))
+    def own_movers(self, tick: int, t: float) -> None: ...
 
-    # --- outputs ------------------------------------------------------------------------------
-    def _publish_tick(self) -> None:
-        t = self.tick * self.dt
-        self.bus.publish(self.keys.clock, Tick(self.tick, t, self.dt))
-        self._publish_truth()
-        # As the world node: the tracker sees bodies, not agents (a dead agent's body is still
-        # published, so the coordinator keeps goals clear of it); a robot out of sight is not.
-        shown = np.flatnonzero(self.ever_live & self.tracked)
-        self.bus.publish_poses(self.tick, t, shown, self.pose[shown], self.pose_frames)
-        self._publish_before_start()
-
-    def _publish_before_start(self) -> None:
-        waiting = np.flatnonzero(~self.live & self.tracked)
-        self.bus.publish_poses(BEFORE_START, self.tick * self.dt, waiting, self.pose[waiting], frame=False)
-
-    def _publish_truth(self) -> None:
+    def truth(self, tick: int) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
         clearance = self._clearance()
         self.min_clearance = min(self.min_clearance, clearance)
         speed = self.wheels.mean(axis=1)
         velocity = np.column_stack([speed * np.cos(self.pose[:, 2]), speed * np.sin(self.pose[:, 2])])
-        self.bus.publish(
-            self.keys.truth,
-            Truth(self.tick, self.tick * self.dt, clearance, self.n, self.pose, velocity, self.color, self.sent),
-        )
+        return clearance, self.pose, velocity, self.sent
 
     def _clearance(self) -> float:
         """Smallest gap between the tracked robots' discs now (m)."""
@@ -338,78 +257,26 @@ class HardwareNode:
         gaps = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
         return float(gaps[np.triu_indices(len(xy), 1)].min() - 2 * self.params.radius)
 
-    # --- loops --------------------------------------------------------------------------------
-    def wait_for_hardware(self, startup_timeout: float) -> str | None:
-        """Until every robot is reached and tracked; None, or what is missing as one line."""
-        end = time.monotonic() + startup_timeout
-        while self.running:
-            self._read_poses()
-            unreached = self.drive.unreached()
-            lost = np.flatnonzero(~self.tracked).tolist()
-            if not unreached and not lost:
-                return None
-            if time.monotonic() >= end:
-                where = ", ".join(f"{r} ({self.drive.where(r)})" for r in unreached)
-                problems = [f"robots not reachable: {where}"] if unreached else []
-                if lost:
-                    future = self.poses.stats().get("future", 0)
-                    ahead = f"; {future} poses dropped as stamped in the future: is its clock ahead?" if future else ""
-                    problems.append(f"no pose for robots {', '.join(map(str, lost))} ({self.poses_name}{ahead})")
-                return f"within {startup_timeout:g} s, " + "; ".join(problems)
-            time.sleep(POLL)
-        return "stopped during start-up"
+    def applied(self) -> np.ndarray:
+        return self.sent
 
-    def wait_for_agents(self, timeout: float = AGENTS_TIMEOUT) -> bool:
-        start, last_sent = time.monotonic(), -math.inf
-        while self.running and time.monotonic() - start < timeout:
-            self._update_liveness()
-            self._check_control()
-            if self.live.all():
-                return True
-            if time.monotonic() - last_sent >= BEFORE_START_EVERY:
-                self._read_poses()
-                self._publish_before_start()
-                last_sent = time.monotonic()
-            time.sleep(POLL)
-        return bool(self.live.any())
+    def close(self) -> None:
+        """Stop every robot, whatever ended the run."""
+        self.unreached = self.drive.close()
+        self.poses.close()
 
-    def run(self) -> None:
-        if not self.wait_for_agents():
-            self.end_reason = self.end_reason or "no agent came alive"
-            return
-        steps = round(self.scene.duration / self.dt)
-        next_tick = time.monotonic()
-        while self.running and self.tick < steps:
-            self._read_poses()
-            self._update_liveness()
-            self._publish_tick()
-            self._enforce_safety()
-            next_tick = max(next_tick + self.dt, time.monotonic())  # after a stall, do not rush to catch up
-            while self.running and (left := next_tick - time.monotonic()) > 0:
-                got = self.cmd_inbox.get(timeout=min(POLL, left))
-                self._update_liveness()
-                self._apply_commands(got)
-                self._enforce_safety()
-                self._check_control()
-            self.missed_ticks += int((self.live & (self.last_cmd_tick < self.tick)).sum())
-            self.tick += 1
-            self._check_control()
-        self._read_poses()
-        self._publish_truth()  # where the robots are at the end
-        self.end_reason = self.end_reason or "duration"
-
-    def stats(self, unreached: list[int]) -> dict:
-        robots = []
+    def report(self, node: BodyNode) -> dict[str, Any]:
+        tally, robots = node.tally, []
         for i in range(self.n):
-            stops = {reason: int(self.stops[reason][i]) for reason in STOP_REASONS}
+            stops = {reason: int(tally.stops[reason][i]) for reason in STOP_REASONS}
             poses = self.poses.robot_stats(i)
             robots.append(
                 {
                     "robot": i,
                     "address": self.drive.where(i),
                     "commands_sent": int(self.sent[i]),
-                    "late_commands": int(self.late[i]),
-                    "dropped_commands": {reason: int(self.dropped[reason][i]) for reason in COMMAND_DROPS},
+                    "late_commands": int(tally.late[i]),
+                    "dropped_commands": {reason: int(tally.dropped[reason][i]) for reason in COMMAND_DROPS},
                     "dropped_poses": {reason: poses[reason] for reason in STAMP_DROPS},
                     "pose_restarts": poses["restarts"],
                     "watchdog_stops": sum(stops.values()),
@@ -417,23 +284,55 @@ class HardwareNode:
                     **self.drive.robot_stats(i),
                 }
             )
+        poses_stats = self.poses.stats()
         return {
-            "kind": "world-done",
-            "reason": self.end_reason,
-            "ticks": self.tick,
-            "missed_ticks": self.missed_ticks,
-            "late_commands": int(self.late.sum()),
-            "commands_applied": self.sent.tolist(),
-            "min_clearance": self.min_clearance if math.isfinite(self.min_clearance) else None,
-            "dropped": dict(self.cmd_inbox.drops + self.control_inbox.drops),
-            "contacts": [],  # measured by the bodies themselves (sim/emulators/lab.py), not from the tracker
             "hardware": {
                 "timeout_s": self.timeout,
                 "robots": robots,
-                "poses": self.poses.stats(),
-                "not_stopped_at_end": unreached,
-            },
+                "poses": poses_stats,
+                "not_stopped_at_end": self.unreached,
+            }
         }
+
+
+def hardware_node(
+    bus: Bus,
+    scene: Scene,
+    drive: Drive,
+    poses: PoseSource,
+    *,
+    timeout: float,
+    pose_frames: bool = False,
+    poses_name: str = "the pose source",
+) -> BodyNode:
+    """The body node on real robots, on the wall clock (``timeout``: a robot whose command is older, or
+    whose pose was lost longer, is stopped)."""
+    bodies = HardwareBodies(drive, poses, RobotParams.from_dict(scene.robot), scene.robots, timeout, poses_name)
+    clock = WallClock(POLL, catch_up=False)
+    return BodyNode(bus, scene, bodies, clock, startup_timeout=AGENTS_TIMEOUT, pose_frames=pose_frames)
+
+
+def wait_for_hardware(node: BodyNode, startup_timeout: float) -> str | None:
+    """Until every robot is reached and tracked; None, or what is missing as one line."""
+    bodies = node.backend
+    assert isinstance(bodies, HardwareBodies)
+    end = time.monotonic() + startup_timeout
+    while node.running:
+        bodies.sense(0.0)
+        unreached = bodies.drive.unreached()
+        lost = np.flatnonzero(~bodies.tracked).tolist()
+        if not unreached and not lost:
+            return None
+        if time.monotonic() >= end:
+            where = ", ".join(f"{r} ({bodies.drive.where(r)})" for r in unreached)
+            problems = [f"robots not reachable: {where}"] if unreached else []
+            if lost:
+                future = bodies.poses.stats().get("future", 0)
+                ahead = f"; {future} poses dropped as stamped in the future: is its clock ahead?" if future else ""
+                problems.append(f"no pose for robots {', '.join(map(str, lost))} ({bodies.poses_name}{ahead})")
+            return f"within {startup_timeout:g} s, " + "; ".join(problems)
+        time.sleep(POLL)
+    return "stopped during start-up"
 
 
 # --- the process ---------------------------------------------------------------------------------
@@ -489,7 +388,7 @@ def main(argv: list[str] | None = None) -> int:
     with bus:
         drive = open_drive(config, settings, RobotParams.from_dict(scene.robot))
         poses = open_pose_source(config, settings)
-        node = HardwareNode(
+        node = hardware_node(
             bus,
             scene,
             drive,
@@ -507,22 +406,20 @@ def main(argv: list[str] | None = None) -> int:
 
         for signum in (signal.SIGTERM, signal.SIGINT):
             signal.signal(signum, stop)
-        unreached: list[int] = []
         try:
             try:
                 drive.start()
                 poses.start()
             except (HardwareConfigError, TransportError, OSError, RuntimeError) as err:
                 return _fail(f"{config.path}: cannot start: {err}")
-            problem = node.wait_for_hardware(args.startup_timeout)
+            problem = wait_for_hardware(node, args.startup_timeout)
             if problem is not None:
                 return _fail(f"{config.path}: {problem}")
-            bus.declare_alive("world", 0)  # the launcher starts the agents now
-            node.run()
+            node.run()  # it declares itself alive: the launcher starts the agents now
         finally:
-            unreached = drive.close()  # stops every robot, whatever ended the run
-            poses.close()
-        stats = node.stats(unreached)
+            assert isinstance(node.backend, HardwareBodies)
+            node.backend.close()  # stops every robot, whatever ended the run
+        stats = node.stats()
         bus.publish(bus.keys.event, Event(stats))
         print("WORLD-DONE " + json.dumps(stats), flush=True)  # as the world node: the launcher's fallback
         bus.linger()

@@ -17,7 +17,7 @@ import pytest
 
 from coordinator.scene import load_scene
 from sim.cli import main as cli
-from sim.node.world import WorldNode
+from sim.node.world import world_node
 from tests.conftest import REPO, descendants, pixelswarm_cmd, reap, run_pixelswarm, start_run, wait_for
 from transport.bus import Bus
 from transport.faults import fault_kinds
@@ -160,8 +160,8 @@ def test_a_world_that_waits_in_vain_names_the_robots_and_does_not_run():
     not show the scene without them."""
     scene = load_scene("circle", robots=3, seed=0, clock="lockstep", duration=1.0)
     with Bus(loopback_router(), name="world") as bus:
-        node = WorldNode(bus, scene, startup_timeout=0.5)
-        node.run(scene.clock)
+        node = world_node(bus, scene, startup_timeout=0.5)
+        node.run()
     assert node.tick == 0
     assert node.end_reason == "no agent came alive for robots 0-2 within 0.5 s"
 

@@ -33,7 +33,7 @@ from sim.emulators.epuck2 import Epuck2Emulator
 from sim.emulators.lab import MOCAP_RATE, Lab
 from sim.emulators.lab import main as lab_main
 from sim.emulators.mocap import MocapEmulator
-from sim.node.hardware import STARTUP_TIMEOUT, HardwareNode, TwistDrive, WheelDrive
+from sim.node.hardware import STARTUP_TIMEOUT, TwistDrive, WheelDrive, hardware_node, wait_for_hardware
 from tests.conftest import REPO, descendants, pixelswarm_cmd, reap, run_pixelswarm, wait_for
 from tests.support.hardware import all_moving, moving_commands, scene_file, start_run
 from transport.bus import Bus
@@ -394,13 +394,13 @@ def test_the_hardware_node_stops_a_robot_whose_pose_is_lost_or_whose_commands_ce
         with MocapEmulator(mocap, client, rate=MOCAP_RATE), Bus(client, name="hardware") as node_bus:
             drive = WheelDrive(config.backend, RobotParams.from_dict(scene.robot))
             poses = Ros2PoseSource(config.poses, client)
-            node = HardwareNode(node_bus, scene, drive, poses, timeout=TIMEOUT)
+            node = hardware_node(node_bus, scene, drive, poses, timeout=TIMEOUT)
             runner = threading.Thread(target=node.run)
             last_tick = [0]
             try:
                 drive.start()
                 poses.start()
-                assert node.wait_for_hardware(10.0) is None
+                assert wait_for_hardware(node, 10.0) is None
                 runner.start()
                 ticks = agents.subscribe(agents.keys.clock, Tick)
                 seen_1 = agents.subscribe(agents.keys.pose(1), Pose)
@@ -433,7 +433,7 @@ def test_the_hardware_node_stops_a_robot_whose_pose_is_lost_or_whose_commands_ce
                 poses.close()
         logs = [np.array(emulator.log(r), float) for r in range(2)]
         shown_1 = [pose.tick for _, pose in seen_1.drain() if pose.tick != BEFORE_START]
-    stats = node.stats(unreached)["hardware"]["robots"]
+    stats = node.stats()["hardware"]["robots"]
 
     # Robot 1: stopped once its pose was older than the timeout (plus a period, plus a mocap frame) ...
     log = logs[1]

@@ -26,7 +26,7 @@ from hardware.ros2 import POSE_STAMPED, Ros2Messages, Ros2PosesConfig, Ros2PoseS
 from sim.emulators.camera import CameraStream, OverheadCamera
 from sim.emulators.lab import MOCAP_RATE, Lab
 from sim.emulators.mocap import MocapEmulator
-from sim.node.hardware import HardwareNode
+from sim.node.hardware import hardware_node
 from tests.conftest import wait_for
 from tests.support.hardware import all_moving, moving_commands, scene_file, start_run
 from transport.bus import Bus
@@ -206,22 +206,22 @@ def test_a_command_for_a_tick_not_yet_published_or_stamped_off_its_tick_is_dropp
     scene = load_scene(str(scene_file(tmp_path, robots=2)), clock="realtime")
     drive = StillDrive()
     with open_session(router), Bus(client_of(router), name="hardware") as bus:
-        node = HardwareNode(bus, scene, drive, StillPoses(2), timeout=0.3)
+        node = hardware_node(bus, scene, drive, StillPoses(2), timeout=0.3)
         node.live[:] = True
-        node._read_poses()
+        node.backend.sense(0.0)
         node.tick = 50
         dt = node.dt
 
         def command(tick: int, speed: float, stamp: float | None = None) -> None:
             stamp = tick * dt if stamp is None else stamp
-            node._apply_commands(("cmd", Command(0, tick, stamp, Command.WHEELS, speed, speed, 0, 0, 0)))
+            node.take_commands(("cmd", Command(0, tick, stamp, Command.WHEELS, speed, speed, 0, 0, 0)))
 
         command(51, 0.09)  # for a tick the node has not published: no agent can answer it
         command(50, 0.08, stamp=0.0)  # its stamp is not its tick's
         command(2**32 - 1, 0.07)  # forged at the largest tick: taken, it would shut out all for good
         command(50, 0.05)  # the real one, after all of them
         command(49, 0.04)  # older than the one applied: late, as before
-        stats = node.stats([])
+        stats = node.stats()
     assert drive.sent == [([0], [0.05], [0.05])]
     robot = stats["hardware"]["robots"][0]
     assert robot["dropped_commands"] == {"future": 2, "inconsistent": 1}

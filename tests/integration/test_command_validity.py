@@ -9,7 +9,7 @@ import numpy as np
 
 from agent.core.params import DIFFDRIVE
 from coordinator.scene import load_scene
-from sim.node.world import WorldNode
+from sim.node.world import world_node
 from transport.bus import Bus
 from transport.codec import Command, Commands, Tick
 from transport.session import client_of, loopback_router
@@ -44,19 +44,19 @@ def test_a_body_whose_agent_falls_silent_stops_after_its_last_command_runs_out()
     scene = load_scene("swap", robots=2, seed=0, clock="lockstep", duration=1.0)
     router = loopback_router()
     with Bus(router, name="world") as world_bus, Bus(client_of(router), name="agent") as agent_bus:
-        node = WorldNode(world_bus, scene, deadline=0.3, startup_timeout=10.0)
-        start = node.world.poses[0, :2].copy()
+        node = world_node(world_bus, scene, deadline=0.3, startup_timeout=10.0)
+        start = node.backend.true_poses()[0, :2].copy()
         done = threading.Event()
         agent = threading.Thread(
             target=_agent, args=(agent_bus, round(scene.duration / node.dt), node.params.kinematics == DIFFDRIVE, done)
         )
         agent.start()
         try:
-            node.run("lockstep")
+            node.run()
         finally:
             done.set()
             agent.join(5.0)
-        travelled = float(np.linalg.norm(node.world.poses[0, :2] - start))
+        travelled = float(np.linalg.norm(node.backend.true_poses()[0, :2] - start))
         stats = node.stats()
     period = node.dt
     # three periods of driving at most; with the old command held it would have driven ten

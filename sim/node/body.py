@@ -1,0 +1,356 @@
+"""The body node: one process between the robots' agents and their bodies, whatever the bodies are.
+
+Every control period (``BodyNode.step_tick``, the one loop) it publishes the clock, the truth and the
+tracker's poses, takes each robot's newest command to its body as it arrives, stops what it cannot
+trust (the watchdog) and lets the bodies move for the period. The bodies are a ``Backend``: the
+simulated world (sim/node/world.py) or real robots (sim/node/hardware.py), as in Crazyswarm2 and the
+Robotarium. The clock is injected: ``LockStep`` waits until every live agent answered the tick (a
+reproducible run), ``WallClock`` lets the period pass in slices of real time.
+
+A command holds for a time the backend gives (a period and a margin of simulated time, or the
+hardware's command timeout): a robot whose agent is late, blind, cut off or gone, or whose pose is
+lost, stops rather than drive on an old command, since ORCA's guarantee holds only for commands
+computed from the current poses. What no honest agent sends is dropped and counted: a command for a
+tick not yet published (taken as the newest, it would shut out every honest one after it) or
+stamped other than at its tick's start.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from agent.core.params import RobotParams
+from coordinator.scene import Scene
+from sim.args import format_ids
+from transport.bus import Bus
+from transport.codec import BEFORE_START, Command, Event, Goals, Tick, Truth
+from transport.codec import Contact as ContactMsg
+from transport.plausible import FUTURE, INCONSISTENT, GoalSets, stamp_agrees
+
+STARTUP_TIMEOUT = 60.0  # s the node waits for every agent by default (`pixelswarm run` says how long)
+BEFORE_START_EVERY = 0.2  # s: poses to robots whose agent is not live yet
+# s a lock-step tick waits at most while auction messages keep coming: twice the longest an agent waits
+# for a round (agent.assignment.ROUND_CAP); a peer that repeats auction messages held the world (and the
+# end of the run) for ever
+AUCTION_PATIENCE = 60.0
+STOP_REASONS = ("agent_lost", "pose_lost", "command_timeout")  # the watchdog's, in the order it asks
+COMMAND_DROPS = (FUTURE, INCONSISTENT)
+CONTACT_KINDS = {"robot": 0, "obstacle": 1, "wall": 2}
+
+
+class Backend(Protocol):
+    """The bodies: commands in, poses out, stop. ``tracked``: robots whose pose is known now."""
+
+    params: RobotParams
+    tracked: np.ndarray
+
+    @property
+    def min_clearance(self) -> float: ...  # the smallest clearance so far (m)
+    @property
+    def contacts(self) -> list: ...  # the contacts so far
+    def sense(self, t: float) -> None: ...  # take in the bodies at time t of the run
+    def measure(self, t: float) -> np.ndarray | None: ...  # the tracker's poses; None: withheld
+    def true_poses(self) -> np.ndarray: ...  # where the bodies are (told to robots before they start)
+    def now(self) -> float: ...  # the time commands hold in
+    def hold(self, cmd: Command) -> float: ...  # until when (in now()) a command holds
+    def horizon(self, span: float) -> float: ...  # a command must hold past this to drive the next span
+    def moving(self) -> np.ndarray: ...  # bodies a stop would change
+    def apply(self, ids: list[int], cmds: list[Command], colors: np.ndarray) -> None: ...
+    def stop(self, ids: list[int]) -> None: ...
+    def step(self, span: float) -> list: ...  # let the bodies move for span s; the contacts that began
+    def own_movers(self, tick: int, t: float) -> None: ...  # bodies the backend drives itself
+    def truth(self, tick: int) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]: ...
+    def applied(self) -> np.ndarray: ...  # commands applied per robot
+    def report(self, node: BodyNode) -> dict[str, Any]: ...  # what the run's report adds for them
+
+
+@dataclass
+class Tally:
+    """The run's statistics, per robot where the hardware report lists them."""
+
+    n: int
+    missed_ticks: int = 0  # robot-ticks a live agent did not answer in time
+    expired_commands: int = 0  # commands that arrived too late to drive anything
+    stopped_ticks: int = 0  # robot-ticks in which a live robot was stopped for want of a valid command
+    withheld_ticks: int = 0  # ticks whose poses the tracker withheld (an outage)
+    late: np.ndarray = field(init=False)  # commands older than one applied
+    dropped: dict[str, np.ndarray] = field(init=False)
+    stops: dict[str, np.ndarray] = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.late = np.zeros(self.n, int)
+        self.dropped = {reason: np.zeros(self.n, int) for reason in COMMAND_DROPS}
+        self.stops = {reason: np.zeros(self.n, int) for reason in STOP_REASONS}
+
+
+class LockStep:
+    """Publish tick k, wait until every live agent answered it or a deadline passes (a missed tick),
+    then advance one period. The deadline runs from the last auction message heard: agents that
+    still trade a tick's auction rounds (agent.assignment.AuctionLink.settle_block) are at work."""
+
+    def __init__(self, bus: Bus, deadline: float) -> None:
+        self.deadline = deadline
+        self.auction_traffic = [bus.subscribe_raw(bus.keys.all_of(kind)) for kind in ("auction", "boards")]
+
+    def spans(self, node: BodyNode) -> Iterator[float]:
+        deadline = time.monotonic() + self.deadline
+        patience = time.monotonic() + AUCTION_PATIENCE
+        while True:
+            node.take_commands(node.cmd_inbox.get(timeout=max(0.0, min(0.05, deadline - time.monotonic()))))
+            if sum(len(inbox.drain()) for inbox in self.auction_traffic):
+                deadline = min(time.monotonic() + self.deadline, patience)
+            node.update_liveness()
+            waiting = node.live & (node.last_cmd_tick < node.tick)
+            if not waiting.any() or time.monotonic() >= deadline or node.withheld:
+                break
+        yield node.dt
+
+
+class WallClock:
+    """Real time: the period passes in slices of the wall clock, each command taken as it arrives.
+    ``catch_up``: after a stall, run the missed slices at once (simulated time keeps to the wall);
+    real robots instead start the next period now rather than rush."""
+
+    def __init__(self, slice_s: float, catch_up: bool) -> None:
+        self.slice, self.catch_up = slice_s, catch_up
+        self.next: float | None = None
+
+    def spans(self, node: BodyNode) -> Iterator[float]:
+        now = time.monotonic()
+        due = now if self.next is None or (not self.catch_up and self.next < now) else self.next
+        for _ in range(max(1, round(node.dt / self.slice))):
+            due = self.next = due + self.slice
+            while node.running and (left := due - time.monotonic()) > 0:
+                node.take_commands(node.cmd_inbox.get(timeout=left))
+                node.update_liveness()
+                node.check_control()
+            if not node.running:
+                return
+            node.take_commands()
+            yield self.slice
+
+
+class BodyNode:
+    """The body node. Its attributes are the shared state of the loop's few steps (inputs, the
+    watchdog's, outputs); the statistics are grouped in ``tally``."""
+
+    def __init__(
+        self,
+        bus: Bus,
+        scene: Scene,
+        backend: Backend,
+        clock: LockStep | WallClock,
+        *,
+        startup_timeout: float = STARTUP_TIMEOUT,
+        pose_frames: bool = False,
+    ) -> None:
+        """``pose_frames``: each tick's poses as one frame of every robot, for agent hosts of several
+        robots, instead of a frame of one per robot."""
+        self.bus, self.scene, self.backend, self.clock = bus, scene, backend, clock
+        self.params, self.dt, n = backend.params, backend.params.dt, scene.robots
+        self.startup_timeout, self.pose_frames = startup_timeout, pose_frames
+        self.tally = Tally(n)
+        self.agent_robot = np.array([i not in scene.scripted for i in range(n)])  # scripted: no agent
+        self.color = np.zeros((n, 3), np.uint8)
+        self.color[~self.agent_robot] = 255
+        self.last_cmd_tick = np.full(n, -1)
+        self.valid_until = np.full(n, -np.inf)  # when each robot's command runs out (-inf: stopped)
+        self.live, self.ever_live = np.zeros(n, bool), np.zeros(n, bool)
+        self.tick, self.withheld, self.goal_epoch = 0, False, 0
+        self.believed = GoalSets(scene.arena)  # which goal sets can be the coordinator's (as the agents judge)
+        self.cmd_inbox = bus.commands_inbox()
+        self.control_inbox = bus.subscribe(bus.keys.event, Event)
+        self.goal_inbox = bus.subscribe(bus.keys.all_of("goals"), Goals)
+        self.alive = bus.watch_alive("agent")
+        self.running, self.end_reason = True, ""
+        self.parent_pid: int | None = None
+
+    # --- the loop -----------------------------------------------------------------------------
+    def run(self) -> None:
+        self.bus.declare_alive("world", 0)
+        if not self.wait_for_agents():
+            missing = np.flatnonzero(self.agent_robot & ~self.live).tolist()
+            self.end_reason = self.end_reason or (
+                f"no agent came alive for robots {format_ids(missing)} within {self.startup_timeout:g} s"
+            )
+            return
+        steps = round(self.scene.duration / self.dt)
+        while self.running and self.tick < steps:
+            self.step_tick()
+        self.backend.sense(self.tick * self.dt)
+        self._publish_truth()  # the state after the last step
+        self.end_reason = self.end_reason or "duration"
+
+    def step_tick(self) -> None:
+        """One control period: poses and the clock out, commands in as the clock lets them arrive,
+        the watchdog, the bodies moved."""
+        self.backend.sense(self.tick * self.dt)
+        self.update_liveness()
+        self._publish_tick()
+        stopped = 0
+        for span in self.clock.spans(self):
+            stopped = max(stopped, self._watchdog(span))
+            self._publish_contacts(self.backend.step(span))
+        self.tally.stopped_ticks += stopped
+        self.tally.missed_ticks += int((self.live & (self.last_cmd_tick < self.tick)).sum())
+        self.tick += 1
+        self.check_control()
+
+    def wait_for_agents(self) -> bool:
+        """Start when every robot's agent is alive, telling the robots still waiting where they are.
+        False if the start-up timeout passes first (or the run is ended): a swarm that lacks robots
+        is not shown in silence, as if it were the scene (``run`` names them)."""
+        start, last_sent = time.monotonic(), -math.inf
+        while self.running and time.monotonic() - start < self.startup_timeout:
+            self.update_liveness()
+            self.check_control()
+            if self.live[self.agent_robot].all():
+                return True
+            if time.monotonic() - last_sent >= BEFORE_START_EVERY:
+                self.backend.sense(0.0)
+                self._publish_before_start()
+                last_sent = time.monotonic()
+            time.sleep(0.02)
+        return False
+
+    # --- inputs -------------------------------------------------------------------------------
+    def update_liveness(self) -> None:
+        for _, ident, alive, _, _ in self.alive.drain():
+            if not ident.isdigit() or int(ident) >= self.scene.robots:
+                continue
+            i = int(ident)
+            if alive:
+                self.live[i] = self.ever_live[i] = True
+            elif self.live[i]:
+                self.live[i] = False
+                self._watchdog(0.0)  # a dead agent's body stays, stopped
+
+    def take_commands(self, first: tuple | None = None) -> None:
+        """Every robot's newest command, to its body at once (a robot out of sight is not driven blind)."""
+        arrived = ([first] if first is not None else []) + self.cmd_inbox.drain()
+        if any(not self.live[cmd.robot] for _, cmd in arrived if cmd.robot < self.scene.robots):
+            self.update_liveness()  # an agent's first command may overtake the news that it is alive
+        newest: dict[int, Command] = {}
+        for _, cmd in arrived:
+            i = cmd.robot
+            if i >= self.scene.robots or not self.live[i]:
+                continue
+            why = (
+                FUTURE if cmd.tick > self.tick else None if stamp_agrees(cmd.tick, cmd.stamp, self.dt) else INCONSISTENT
+            )
+            if why is not None:
+                self.tally.dropped[why][i] += 1
+                self.cmd_inbox.drops[why] += 1  # with the decoder's drops: the run's dropped messages
+                continue
+            if cmd.tick <= self.last_cmd_tick[i]:
+                self.tally.late[i] += 1
+                continue
+            self.last_cmd_tick[i] = cmd.tick
+            self.color[i] = (cmd.r, cmd.g, cmd.bl)
+            until = self.backend.hold(cmd)
+            if until <= self.backend.now():
+                self.tally.expired_commands += 1
+                continue
+            self.valid_until[i] = until
+            newest[i] = cmd
+        drive = [i for i in newest if self.backend.tracked[i]]
+        if drive:
+            self.backend.apply(drive, [newest[i] for i in drive], self.color[drive])
+
+    def _watchdog(self, span: float) -> int:
+        """Stop every body driven by a command whose agent is gone, whose pose is lost or whose command
+        runs out before the next ``span`` seconds have passed; how many live robots stand for want of one."""
+        expired = self.valid_until <= self.backend.horizon(span)
+        causes = {"agent_lost": ~self.live, "pose_lost": ~self.backend.tracked, "command_timeout": expired}
+        driven = np.isfinite(self.valid_until) & self.backend.moving()
+        stop = np.zeros(len(driven), bool)
+        for reason in STOP_REASONS:
+            hit = driven & causes[reason] & ~stop
+            self.tally.stops[reason] += hit
+            stop |= hit
+        if stop.any():
+            ids = np.flatnonzero(stop).tolist()
+            self.backend.stop(ids)
+            self.valid_until[ids] = -np.inf
+        return int((self.agent_robot & self.live & (expired | stop)).sum())
+
+    def check_control(self) -> None:
+        if self.parent_pid is not None and os.getppid() != self.parent_pid:
+            self.running = False  # orphaned: the launcher died without stopping us
+            self.end_reason = "launcher gone"
+        for _, ev in self.control_inbox.drain():
+            if ev.data.get("kind") == "end":
+                self.running = False
+                self.end_reason = str(ev.data.get("reason", "end"))
+
+    # --- outputs ------------------------------------------------------------------------------
+    def _publish_tick(self) -> None:
+        t = self.tick * self.dt
+        for _, goals in self.goal_inbox.drain():  # as the agents do, refusing epochs and stamps from the future
+            why = self.believed.admit(goals, t)
+            if why is None:
+                self.goal_epoch = max(self.goal_epoch, goals.epoch)
+            else:
+                self.goal_inbox.drops[why] += 1
+        self.bus.publish(self.bus.keys.clock, Tick(self.tick, t, self.dt, self.goal_epoch))
+        self._publish_truth()
+        measured = self.backend.measure(t)
+        self.withheld = measured is None
+        if measured is None:
+            self.tally.withheld_ticks += 1
+        else:
+            # The tracker sees bodies, not agents: a robot whose agent died is still tracked, so the
+            # coordinator learns where its body stays and keeps the goals clear of it (5.1.2).
+            shown = np.flatnonzero(self.ever_live & self.backend.tracked)
+            self.bus.publish_poses(self.tick, t, shown, measured[shown], self.pose_frames)
+            self._publish_before_start()
+        self.backend.own_movers(self.tick, t)
+
+    def _publish_before_start(self) -> None:
+        """Robots whose agent is not live yet hear where they are (no tracker noise drawn, so start-up
+        timing cannot change the noise sequence): they subscribe to their cells and join."""
+        waiting = np.flatnonzero(~self.live & self.agent_robot & self.backend.tracked)
+        poses = self.backend.true_poses()[waiting]
+        self.bus.publish_poses(BEFORE_START, self.tick * self.dt, waiting, poses, frame=False)
+
+    def _publish_truth(self) -> None:
+        clearance, poses, velocities, applied = self.backend.truth(self.tick)
+        truth = Truth(
+            self.tick, self.tick * self.dt, clearance, self.scene.robots, poses, velocities, self.color, applied
+        )
+        self.bus.publish(self.bus.keys.truth, truth)
+
+    def _publish_contacts(self, contacts: list) -> None:
+        for c in contacts:
+            msg = ContactMsg(CONTACT_KINDS[c.kind], c.i, c.j, c.t_start, c.max_depth)
+            self.bus.publish(self.bus.keys.contact, msg)
+
+    def stats(self) -> dict:
+        """The run's report (kind world-done), whatever the bodies."""
+        tally, backend = self.tally, self.backend
+        drops = self.cmd_inbox.drops + self.control_inbox.drops + self.goal_inbox.drops
+        return {
+            "kind": "world-done",
+            "reason": self.end_reason,
+            "ticks": self.tick,
+            "missed_ticks": tally.missed_ticks,
+            "late_commands": int(tally.late.sum()),
+            "expired_commands": tally.expired_commands,
+            "stopped_ticks": tally.stopped_ticks,
+            "withheld_ticks": tally.withheld_ticks,
+            "commands_applied": backend.applied().astype(int).tolist(),
+            "min_clearance": backend.min_clearance if math.isfinite(backend.min_clearance) else None,
+            "dropped": dict(drops),
+            "contacts": [
+                {"kind": c.kind, "i": c.i, "j": c.j, "t_start": c.t_start, "t_end": c.t_end, "max_depth": c.max_depth}
+                for c in backend.contacts
+            ],
+            **backend.report(self),
+        }

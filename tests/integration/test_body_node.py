@@ -1,0 +1,154 @@
+"""One body node: the simulated world and an emulated e-puck2 (real TCP on 127.0.0.1) are backends of
+the same node, driven by its one loop (sim.node.body.BodyNode.step_tick). A backend or node that grew
+a loop of its own would move bodies or publish the clock outside that method, or run a tick without it."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import numpy as np
+import pytest
+
+from agent.core.params import DIFFDRIVE, RobotParams
+from coordinator.scene import load_scene
+from hardware.config import load_hardware
+from hardware.poses import PoseSample
+from sim.emulators.epuck2 import Epuck2Emulator
+from sim.node.body import BodyNode
+from sim.node.hardware import WheelDrive, hardware_node, wait_for_hardware
+from sim.node.world import world_node
+from tests.support.hardware import moving_commands, scene_file
+from transport.bus import Bus
+from transport.codec import Command, Commands, Tick
+from transport.session import client_of, loopback_router
+
+SPEED = 0.05  # m/s on both wheels: straight ahead
+
+
+class OneLoopSpy:
+    """Counts the node's ticks and notes every backend call that moves bodies outside one of them."""
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch, node: BodyNode) -> None:
+        self.ticks, self.inside, self.outside, self.moved = 0, False, [], 0
+        tick = BodyNode.step_tick
+
+        def step_tick(this: BodyNode) -> None:
+            self.ticks += 1
+            self.inside = True
+            try:
+                tick(this)
+            finally:
+                self.inside = False
+
+        monkeypatch.setattr(BodyNode, "step_tick", step_tick)
+        for name in ("apply", "step"):
+            monkeypatch.setattr(node.backend, name, self._watched(name, getattr(node.backend, name)))
+
+    def _watched(self, name: str, method):  # noqa: ANN001, ANN202
+        def call(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+            if not self.inside:
+                self.outside.append(name)
+            self.moved += name == "apply"
+            return method(*args, **kwargs)
+
+        return call
+
+
+@contextmanager
+def agents_answering(bus: Bus, robots: int) -> Iterator[None]:
+    """Every robot's agent alive, answering each tick with straight ahead at SPEED."""
+    clock = bus.subscribe(bus.keys.clock, Tick)
+    for robot in range(robots):
+        bus.declare_alive("agent", robot)
+    done = threading.Event()
+
+    def answer() -> None:
+        while not done.is_set():
+            got = clock.get(timeout=0.05)
+            for robot in range(robots) if got is not None else ():
+                tick = got[1]
+                cmd = Command(robot, tick.tick, tick.stamp, Command.WHEELS, SPEED, SPEED, 0, 0, 0)
+                bus.publish(bus.keys.cmd(robot), Commands.one(cmd))
+
+    thread = threading.Thread(target=answer, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        done.set()
+        thread.join(5.0)
+
+
+def run_bounded(node: BodyNode, seconds: float) -> None:
+    runner = threading.Thread(target=node.run, daemon=True)
+    runner.start()
+    runner.join(seconds)
+    node.running = False
+    runner.join(10.0)
+    assert not runner.is_alive()
+
+
+def test_the_simulated_world_is_driven_by_the_node_s_one_loop(monkeypatch):
+    scene = load_scene("swap", robots=2, seed=3, clock="lockstep", duration=0.8)
+    router = loopback_router()
+    with Bus(router, name="world") as world_bus, Bus(client_of(router), name="agents") as agent_bus:
+        node = world_node(world_bus, scene, deadline=2.0, startup_timeout=10.0)
+        spy = OneLoopSpy(monkeypatch, node)
+        start = node.backend.true_poses().copy()
+        assert node.params.kinematics == DIFFDRIVE
+        with agents_answering(agent_bus, scene.robots):
+            run_bounded(node, 60.0)
+        moved = np.linalg.norm(node.backend.true_poses()[:, :2] - start[:, :2], axis=1)
+        stats = node.stats()
+    assert stats["reason"] == "duration" and stats["ticks"] == 8
+    assert spy.ticks == stats["ticks"]  # every tick, and only ticks, through BodyNode.step_tick
+    assert spy.outside == [] and spy.moved > 0
+    assert np.all(moved > 0.5 * SPEED * scene.duration)
+
+
+class EmulatorPoses:
+    """The emulator's true poses as the pose source (the test stands in for the motion capture)."""
+
+    def __init__(self, emulator: Epuck2Emulator, n: int) -> None:
+        self.emulator, self.n = emulator, n
+
+    def start(self) -> None: ...
+    def latest(self) -> dict[int, PoseSample]:
+        return {r: PoseSample(*self.emulator.pose(r), time.time(), 0.0) for r in range(self.n)}
+
+    def stats(self) -> dict[str, int]:
+        return {"stale": 0, "future": 0, "restarts": 0}
+
+    def robot_stats(self, robot: int) -> dict[str, int]:
+        return self.stats()
+
+    def close(self) -> None: ...
+
+
+def test_an_emulated_epuck2_is_driven_by_the_same_loop(tmp_path, monkeypatch):
+    scene = load_scene(str(scene_file(tmp_path, robots=2, duration=1.0)), clock="realtime")
+    router = loopback_router()
+    with Epuck2Emulator(2, poses=[(0, 0, 0), (0, 0.5, 0)]) as emulator:
+        hw = tmp_path / "hw.toml"
+        hw.write_text(emulator.hardware_toml())
+        drive = WheelDrive(load_hardware(hw).backend, RobotParams.from_dict(scene.robot))
+        with Bus(router, name="hardware") as node_bus, Bus(client_of(router), name="agents") as agent_bus:
+            node = hardware_node(node_bus, scene, drive, EmulatorPoses(emulator, 2), timeout=0.5)
+            spy = OneLoopSpy(monkeypatch, node)
+            drive.start()
+            try:
+                assert wait_for_hardware(node, 10.0) is None
+                with agents_answering(agent_bus, scene.robots):
+                    run_bounded(node, 30.0)
+            finally:
+                unreached = drive.close()
+            stats = node.stats()
+        logs = [emulator.log(r) for r in range(2)]
+    assert unreached == [] and stats["reason"] == "duration" and stats["ticks"] == 10
+    assert spy.ticks == stats["ticks"]
+    assert spy.outside == [] and spy.moved > 0
+    for log in logs:  # the robots were driven over TCP, then told to stop when the run ended
+        assert len(moving_commands(log)) > 0 and log[-1][1:] == (0, 0)
