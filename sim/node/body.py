@@ -17,8 +17,10 @@ stamped other than at its tick's start.
 
 from __future__ import annotations
 
+import json
 import math
 import os
+import signal
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -331,6 +333,24 @@ class BodyNode:
         for c in contacts:
             msg = ContactMsg(CONTACT_KINDS[c.kind], c.i, c.j, c.t_start, c.max_depth)
             self.bus.publish(self.bus.keys.contact, msg)
+
+    def end_on(self, *signums: int) -> None:
+        """These signals end the run, as an end event does."""
+
+        def stop(signum: int, frame: object) -> None:
+            self.running = False
+            self.end_reason = self.end_reason or "stopped"
+
+        for signum in signums:
+            signal.signal(signum, stop)
+
+    def report(self) -> None:
+        """The run's report as an event, and the same on stdout (the launcher's log file): a loaded
+        router may not deliver the message before this session closes."""
+        stats = self.stats()
+        self.bus.publish(self.bus.keys.event, Event(stats))
+        print("WORLD-DONE " + json.dumps(stats), flush=True)
+        self.bus.linger()
 
     def stats(self) -> dict:
         """The run's report (kind world-done), whatever the bodies."""

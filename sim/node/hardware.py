@@ -14,7 +14,6 @@ older than one taken or in the future (hardware/poses.py).
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import signal
@@ -32,11 +31,10 @@ from hardware.config import HardwareConfig, HardwareConfigError, load_hardware
 from hardware.poses import STAMP_DROPS, PoseSample
 from sim.node.body import COMMAND_DROPS, STOP_REASONS, BodyNode, WallClock
 from transport.bus import Bus
-from transport.codec import Command, Event
+from transport.codec import Command
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, settings_from_args
 
 STARTUP_TIMEOUT = 5.0  # s: every robot reached and every robot's pose seen, or the run is refused
-AGENTS_TIMEOUT = 60.0  # s: the agents' start-up (as the world node waits)
 POLL = 0.02  # s: how often, within a period, commands, liveliness and safety are looked at
 ERROR = "hardware: error: "  # the one line the launcher shows when the node refuses to start
 RUNNABLE_BACKENDS = ("epuck2", "ros2")
@@ -49,10 +47,6 @@ class HardwareError(Exception):
 # --- the hardware file, for a run ------------------------------------------------------------------
 def backend_kind(config: HardwareConfig) -> str:
     return config.backend_kind
-
-
-def poses_kind(config: HardwareConfig) -> str | None:
-    return config.poses_kind
 
 
 def check_runnable(config: HardwareConfig) -> int:
@@ -78,19 +72,10 @@ def command_timeout(config: HardwareConfig) -> float:
 def describe_poses(config: HardwareConfig) -> str:
     poses = config.poses
     assert poses is not None
-    return f"topic {poses.topic}" if poses_kind(config) == "ros2" else f"camera {poses.source!r}"
+    return f"topic {poses.topic}" if config.poses_kind == "ros2" else f"camera {poses.source!r}"
 
 
 # --- drives: the backends behind one small interface ---------------------------------------------
-class Drive(Protocol):
-    def start(self) -> None: ...
-    def send(self, ids: list[int], left: np.ndarray, right: np.ndarray, colors: np.ndarray) -> None: ...
-    def unreached(self) -> list[int]: ...
-    def where(self, robot: int) -> str: ...
-    def robot_stats(self, robot: int) -> dict[str, int]: ...
-    def close(self) -> list[int]: ...
-
-
 class WheelDrive:
     """e-puck2 robots take wheel speeds; the backend clips them to `max_wheel_speed`, set here to v_max."""
 
@@ -154,6 +139,9 @@ class TwistDrive:
         return []
 
 
+Drive = WheelDrive | TwistDrive  # start, send, unreached, where, robot_stats, close
+
+
 def open_drive(config: HardwareConfig, settings: ZenohSettings, params: RobotParams) -> Drive:
     if backend_kind(config) == "epuck2":
         return WheelDrive(config.backend, params)
@@ -170,7 +158,7 @@ class PoseSource(Protocol):
 
 def open_pose_source(config: HardwareConfig, settings: ZenohSettings) -> PoseSource:
     assert config.poses is not None  # check_runnable() refuses a file without
-    if poses_kind(config) == "ros2":
+    if config.poses_kind == "ros2":
         from hardware.ros2 import Ros2PoseSource
 
         return Ros2PoseSource(config.poses, settings)
@@ -309,7 +297,7 @@ def hardware_node(
     whose pose was lost longer, is stopped)."""
     bodies = HardwareBodies(drive, poses, RobotParams.from_dict(scene.robot), scene.robots, timeout, poses_name)
     clock = WallClock(POLL, catch_up=False)
-    return BodyNode(bus, scene, bodies, clock, startup_timeout=AGENTS_TIMEOUT, pose_frames=pose_frames)
+    return BodyNode(bus, scene, bodies, clock, pose_frames=pose_frames)
 
 
 def wait_for_hardware(node: BodyNode, startup_timeout: float) -> str | None:
@@ -397,15 +385,8 @@ def main(argv: list[str] | None = None) -> int:
             pose_frames=args.pose_frames,
             poses_name=describe_poses(config),
         )
-        if args.exit_with_parent:
-            node.parent_pid = os.getppid()
-
-        def stop(signum: int, frame: object) -> None:
-            node.running = False
-            node.end_reason = node.end_reason or "stopped"
-
-        for signum in (signal.SIGTERM, signal.SIGINT):
-            signal.signal(signum, stop)
+        node.parent_pid = os.getppid() if args.exit_with_parent else None
+        node.end_on(signal.SIGTERM, signal.SIGINT)
         try:
             try:
                 drive.start()
@@ -419,10 +400,7 @@ def main(argv: list[str] | None = None) -> int:
         finally:
             assert isinstance(node.backend, HardwareBodies)
             node.backend.close()  # stops every robot, whatever ended the run
-        stats = node.stats()
-        bus.publish(bus.keys.event, Event(stats))
-        print("WORLD-DONE " + json.dumps(stats), flush=True)  # as the world node: the launcher's fallback
-        bus.linger()
+        node.report()
     return 0
 
 

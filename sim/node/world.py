@@ -11,7 +11,6 @@ period and a margin (RobotParams.command_margin) of simulated time.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import signal
 import sys
@@ -26,7 +25,7 @@ from sim.bodies.movers import scripted_velocity
 from sim.bodies.tracker import tracker_of, world_of
 from sim.node.body import STARTUP_TIMEOUT, BodyNode, LockStep, WallClock
 from transport.bus import Bus
-from transport.codec import Command, Event, State, States
+from transport.codec import Command, State, States
 from transport.faults import parse_faults
 from transport.keys import cell_of
 from transport.session import TransportError, add_zenoh_args, settings_from_args
@@ -172,22 +171,11 @@ def main(argv: list[str] | None = None) -> int:
         node = world_node(
             bus, scene, deadline=args.deadline, startup_timeout=args.startup_timeout, pose_frames=args.pose_frames
         )
-        if args.exit_with_parent:
-            node.parent_pid = os.getppid()
-
-        def stop(signum: int, frame: object) -> None:
-            node.running = False
-            node.end_reason = node.end_reason or "stopped"
-
-        signal.signal(signal.SIGTERM, stop)
+        node.parent_pid = os.getppid() if args.exit_with_parent else None
+        node.end_on(signal.SIGTERM)
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # the launcher decides; Ctrl-C reaches it too
         node.run()
-        stats = node.stats()
-        bus.publish(bus.keys.event, Event(stats))
-        # The same report on stdout (the launcher's log file): a loaded router may not deliver the
-        # message before this session closes.
-        print("WORLD-DONE " + json.dumps(stats), flush=True)
-        bus.linger()
+        node.report()
     return 0
 
 
