@@ -24,9 +24,15 @@ more rounds of one or two bidders):
 - **Cached best goal.** Each robot keeps its best goal, its net value (exact while that goal's price
   is ``seen``) and an upper bound of its second-best value; prices only rise, so it is ranked again
   only when its best goal's price rose past that bound.
-- **Candidate goals.** A ranking over every goal also keeps the robot's K best goals and ``bound``,
-  an upper bound of every other goal's value. While the three best candidates beat it, they are the
-  three best goals (ties included) and a ranking costs K goals, not all of them.
+- **Candidate goals.** A ranking also keeps the robot's K best goals and ``bound``, the value of
+  the next best (an upper bound of every other goal's). While the three best candidates beat it,
+  they are the three best goals (ties included) and a ranking costs K goals, not all of them.
+- **The goal tree.** A ranking anew (the list is spent: widened) searches a k-d tree of the goals
+  with, per node, a lower bound of its prices: a node none of whose goals can rank among the K + 1
+  best is passed over, so a robot looks at the goals near it and those whose price makes them
+  competitive, not at every goal (no N x N work at ten thousand robots). Prices only rise, so a
+  node's stale bound still holds; a search renews the nodes it visits. The search is exact (value,
+  then the lower index, as a scan of every goal), so the board does not depend on the tree.
 - **Carried across blocks** (`moved_bound`), by the support function of the goal set's ``hull``
   points; without them the lists start anew each block.
 - **After a round** only the bidders and the robots they outbid are looked at again: a content
@@ -161,6 +167,38 @@ cpdef double moved_bound(double made, double x0, double y0, double dx, double dy
     return moved + 1e-9 * (fabs(moved) + fabs(made) + fabs(grow) + fabs(lowest) + 1.0)  # room for rounding
 
 
+LEAF = 8  # goals per leaf of the goal tree
+
+
+def goal_tree(goals, int leaf=LEAF):
+    """A k-d tree of the goals (G, 2), nodes in preorder: each splits its goals at the median of its
+    wider side. Returns (order, left, right, start, end, box): a node's goals are
+    order[start:end], its children left and right (-1: a leaf), box (M, 4) x0, x1, y0, y1."""
+    goals = np.asarray(goals, float).reshape(-1, 2)
+    order = np.arange(len(goals), dtype=np.int64)
+    left, right, start, end, box = [], [], [], [], []
+
+    def build(lo, hi):
+        node = len(start)
+        pts = goals[order[lo:hi]]
+        start.append(lo), end.append(hi), left.append(-1), right.append(-1)
+        if hi > lo:
+            box.append((pts[:, 0].min(), pts[:, 0].max(), pts[:, 1].min(), pts[:, 1].max()))
+        else:
+            box.append((INFINITY, -INFINITY, INFINITY, -INFINITY))
+        if hi - lo > leaf:
+            axis = int(np.argmax(np.ptp(pts, axis=0)))
+            order[lo:hi] = order[lo:hi][np.argsort(pts[:, axis], kind="stable")]
+            mid = (lo + hi) // 2
+            left[node] = build(lo, mid)
+            right[node] = build(mid, hi)
+        return node
+
+    build(0, len(goals))
+    ints = [np.array(a, np.int64) for a in (left, right, start, end)]
+    return order, *ints, np.array(box, float).reshape(-1, 4)
+
+
 cdef class Bidders:
     """The own robots of a host (rows) bidding on one goal set's board, with their cached rankings
     and candidates, and the scratch of a round (made once: nothing in the rounds allocates)."""
@@ -181,12 +219,17 @@ cdef class Bidders:
     cdef int64_t[::1] best
     cdef double[::1] value, second, seen
     # candidate lists: K goals per robot (-1: none), a bound of every other goal's value (+inf: no
-    # list), the value window list-making aims for, where the list was made and its bound there
+    # list), where the list was made and its bound there
     cdef int64_t[:, ::1] cand
-    cdef double[::1] bound, width, made_x, made_y, made_bound
-    # scratch of a ranking over every goal: values (G,), the window (4K) and its K + 1 best
-    cdef double[::1] values, window_value, top_value
-    cdef int64_t[::1] window_goal, top_goal
+    cdef double[::1] bound, made_x, made_y, made_bound
+    # the goal tree (goal_tree), per node a lower bound of its goals' prices, and the least penalty
+    # (none is negative: 0) that the nodes' bounds allow for
+    cdef int64_t[::1] order, node_left, node_right, node_start, node_end, node_parent, leaf_of
+    cdef double[::1] node_x0, node_x1, node_y0, node_y1, node_price
+    cdef double least_penalty
+    # scratch of a ranking anew: its K + 1 best goals so far
+    cdef double[::1] top_value
+    cdef int64_t[::1] top_goal
     # scratch of a block: who may bid, who waits, the queue, who was looked at, and per bid its goal,
     # price, the goal's owner before, the bidder's runner-up and third value, what it releases
     cdef int64_t[::1] may_bid, waiting, queue, look, bidders, bid_goal, owner_before, runner_up, held
@@ -212,11 +255,22 @@ cdef class Bidders:
         self.px, self.py = np.zeros(k), np.zeros(k)
         self.best, self.value = np.zeros(k, np.int64), np.zeros(k)
         self.second, self.seen = np.full(k, INFINITY), np.full(k, NAN)
+        if candidates < 2:
+            raise ValueError("a robot ranks at least 2 candidate goals")
         self.cand = np.full((k, candidates), -1, np.int64)
-        self.bound, self.width = np.full(k, INFINITY), np.ones(k)
+        self.bound = np.full(k, INFINITY)
         self.made_x, self.made_y, self.made_bound = np.zeros(k), np.zeros(k), np.full(k, INFINITY)
-        self.values, self.window_value, self.top_value = np.empty(g), np.empty(4 * candidates), np.empty(candidates + 1)
-        self.window_goal, self.top_goal = np.empty(4 * candidates, np.int64), np.empty(candidates + 1, np.int64)
+        self.order, self.node_left, self.node_right, self.node_start, self.node_end, box = goal_tree(goals)
+        self.node_x0, self.node_x1 = np.ascontiguousarray(box[:, 0]), np.ascontiguousarray(box[:, 1])
+        self.node_y0, self.node_y1 = np.ascontiguousarray(box[:, 2]), np.ascontiguousarray(box[:, 3])
+        self.node_price = np.full(len(box), -INFINITY)  # renewed by first_ranking
+        parent, leaf_of = np.full(len(box), -1, np.int64), np.zeros(g, np.int64)
+        inner = np.flatnonzero(np.asarray(self.node_left) >= 0)
+        parent[np.asarray(self.node_left)[inner]] = parent[np.asarray(self.node_right)[inner]] = inner
+        for node in np.flatnonzero(np.asarray(self.node_left) < 0):
+            leaf_of[self.order[self.node_start[node]:self.node_end[node]]] = node
+        self.node_parent, self.leaf_of = parent, leaf_of
+        self.top_value, self.top_goal = np.empty(candidates + 1), np.empty(candidates + 1, np.int64)
         self.may_bid, self.waiting, self.queue = np.zeros(k, np.int64), np.zeros(k, np.int64), np.zeros(k, np.int64)
         self.look, self.bidders, self.bid_goal = np.zeros(2 * k, np.int64), np.zeros(k, np.int64), np.zeros(k, np.int64)
         self.owner_before, self.runner_up, self.held = np.zeros(k, np.int64), np.zeros(k, np.int64), np.zeros(k, np.int64)
@@ -235,6 +289,7 @@ cdef class Bidders:
         self.penalty_goal = np.ascontiguousarray(goals, np.int64)
         self.penalty_cost = np.ascontiguousarray(costs, float)
         self.has_penalty = len(rows) > 0
+        self.least_penalty = min(float(np.min(self.penalty_cost, initial=0.0)), 0.0)
 
     cdef inline double penalty(self, Py_ssize_t i, int64_t j) noexcept nogil:
         cdef Py_ssize_t a
@@ -257,51 +312,87 @@ cdef class Bidders:
             c = c + self.penalty(i, j)
         return -c - self.price[j]
 
+    cdef inline double node_bound(self, int64_t node, double x, double y) noexcept nogil:
+        """An upper bound of the value to a robot at (x, y) of every goal of the node: the nearest
+        point of its box, its least price. Rounding is monotone, so the bound holds in floats too."""
+        cdef double dx = max(max(self.node_x0[node] - x, x - self.node_x1[node]), 0.0)
+        cdef double dy = max(max(self.node_y0[node] - y, y - self.node_y1[node]), 0.0)
+        return (-(dx * dx + dy * dy) - self.node_price[node]) - self.least_penalty
+
+    cdef void search(self, Py_ssize_t i, int64_t node, double bound) noexcept nogil:
+        """Robot i's K + 1 best goals of the node into ``top`` (by value, then the lower index),
+        passing over the nodes that cannot hold one; renews the least prices it looks at."""
+        cdef Py_ssize_t kk = self.cand.shape[1], a, s
+        cdef int64_t j, near, far
+        cdef double v, least = INFINITY, b_near, b_far
+        if bound < self.top_value[kk]:  # equal: a goal of the node may tie and rank first by index
+            return
+        if self.node_left[node] < 0:
+            for a in range(self.node_start[node], self.node_end[node]):
+                j = self.order[a]
+                least = min(least, self.price[j])
+                v = self.net_value(i, j)
+                if before(v, j, self.top_value[kk], self.top_goal[kk]):
+                    s = kk
+                    while s > 0 and before(v, j, self.top_value[s - 1], self.top_goal[s - 1]):
+                        self.top_value[s], self.top_goal[s] = self.top_value[s - 1], self.top_goal[s - 1]
+                        s -= 1
+                    self.top_value[s], self.top_goal[s] = v, j
+            self.node_price[node] = least
+            return
+        near, far = self.node_left[node], self.node_right[node]
+        b_near, b_far = self.node_bound(near, self.px[i], self.py[i]), self.node_bound(far, self.px[i], self.py[i])
+        if b_far > b_near:
+            near, far, b_near, b_far = far, near, b_far, b_near
+        self.search(i, near, b_near)
+        self.search(i, far, b_far)
+        self.node_price[node] = min(self.node_price[near], self.node_price[far])
+
     cdef Ranking rank_all(self, Py_ssize_t i) noexcept nogil:
-        """Robot i's three best goals over every goal. Renews its candidates: the best K of the goals
-        worth at least T = third best - width (T bounds the others); none when more than 4K are."""
-        cdef Py_ssize_t j, n = 0, s, a, kk = self.cand.shape[1], g = self.g
-        cdef double x = self.px[i], y = self.py[i], dx, dy, t, v
-        for j in range(g):  # the costs, in loops that vectorise
-            dx, dy = self.gx[j] - x, self.gy[j] - y
-            self.values[j] = dx * dx + dy * dy
-        for a in range(self.penalty_start[i], self.penalty_start[i + 1]):
-            self.values[self.penalty_goal[a]] += self.penalty_cost[a]
-        for j in range(g):
-            self.values[j] = -self.values[j] - self.price[j]
-        cdef Ranking r = top_three(self.values)
-        t = r.third - self.width[i]
-        for j in range(g):  # the window, in ascending goal index
-            if self.values[j] >= t:
-                if n < self.window_goal.shape[0]:
-                    self.window_value[n], self.window_goal[n] = self.values[j], j
-                n += 1
-        if n > self.window_goal.shape[0] or not t > -INFINITY:  # no list this time: a narrower window next
-            self.width[i] *= 0.25
-            for s in range(kk):
-                self.cand[i, s] = -1
-            self.bound[i] = INFINITY
-            self.made_bound[i] = INFINITY
-            return r
-        if n < kk:
-            self.width[i] *= 2.0
-        elif n > 2 * kk:
-            self.width[i] *= 0.5
+        """Robot i's three best goals over every goal, by a search of the goal tree. Renews its
+        candidates: its K best goals, ``bound`` the value of the next (it bounds every other goal)."""
+        cdef Py_ssize_t s, kk = self.cand.shape[1]
+        cdef Ranking r = unranked()
         for s in range(kk + 1):
             self.top_value[s], self.top_goal[s] = -INFINITY, -1
-        for a in range(n):  # ascending goal index: a strict > keeps the lower index first among equals
-            v = self.window_value[a]
-            if v > self.top_value[kk]:
-                s = kk
-                while s > 0 and v > self.top_value[s - 1]:
-                    self.top_value[s], self.top_goal[s] = self.top_value[s - 1], self.top_goal[s - 1]
-                    s -= 1
-                self.top_value[s], self.top_goal[s] = v, self.window_goal[a]
+        self.search(i, 0, self.node_bound(0, self.px[i], self.py[i]))
+        r.first, r.best = self.top_goal[0], self.top_value[0]
+        r.runner_up, r.second = self.top_goal[1], self.top_value[1]
+        r.third_goal, r.third = self.top_goal[2], self.top_value[2]  # K >= 2: top holds three
         for s in range(kk):
             self.cand[i, s] = self.top_goal[s]
-        self.bound[i] = self.made_bound[i] = max(t, self.top_value[kk])
-        self.made_x[i], self.made_y[i] = x, y
+        self.bound[i] = self.made_bound[i] = self.top_value[kk]
+        self.made_x[i], self.made_y[i] = self.px[i], self.py[i]
         return r
+
+    cdef void price_rose(self, int64_t j) noexcept nogil:
+        """Goal j's price rose: its leaf's least price, and its ancestors' while theirs rise too
+        (tighter bounds, fewer nodes searched)."""
+        cdef int64_t node = self.leaf_of[j], up
+        cdef Py_ssize_t a
+        cdef double least = INFINITY
+        for a in range(self.node_start[node], self.node_end[node]):
+            least = min(least, self.price[self.order[a]])
+        while least > self.node_price[node]:
+            self.node_price[node] = least
+            up = self.node_parent[node]
+            if up < 0:
+                return
+            least = min(self.node_price[self.node_left[up]], self.node_price[self.node_right[up]])
+            node = up
+
+    cdef void renew_prices(self) noexcept nogil:
+        """Every node's least price as the board stands (children come after their parent)."""
+        cdef Py_ssize_t node, a
+        cdef double least
+        for node in range(self.node_price.shape[0] - 1, -1, -1):
+            if self.node_left[node] >= 0:
+                least = min(self.node_price[self.node_left[node]], self.node_price[self.node_right[node]])
+            else:
+                least = INFINITY
+                for a in range(self.node_start[node], self.node_end[node]):
+                    least = min(least, self.price[self.order[a]])
+            self.node_price[node] = least
 
     cdef Ranking rank(self, Py_ssize_t i) noexcept nogil:
         """rank_all, from robot i's candidates when they provably hold its three best goals."""
@@ -349,6 +440,7 @@ cdef class Bidders:
         if self.g == 0:
             return self.k
         with nogil:
+            self.renew_prices()  # prices may have been set anew between blocks (a carried board)
             for j in range(self.g):
                 lowest = min(lowest, self.price[j])
             for i in range(self.k):
@@ -356,7 +448,7 @@ cdef class Bidders:
                 self.bound[i] = moved_bound(self.made_bound[i], x0, y0, self.px[i] - x0, self.py[i] - y0,
                                             self.hull_x, self.hull_y, lowest)
                 if self.bound[i] == INFINITY:
-                    self.made_bound[i] = INFINITY  # no list: rank_all ranks over every goal
+                    self.made_bound[i] = INFINITY  # no list: rank_all searches the goal tree
                 none += self.made_bound[i] == INFINITY
                 self.remember(i, self.rank(i))
         return none
@@ -409,6 +501,7 @@ cdef class Bidders:
             j = self.bid_goal[a]
             if greater(self.offer[a], self.robot[i], False, self.price[j], self.owner[j], self.released[j]):
                 self.price[j], self.owner[j], self.released[j] = self.offer[a], self.robot[i], False
+                self.price_rose(j)
         for a in range(n):
             i = self.bidders[a]
             # the goal bid on rose in price: the runner-up is the best now if it beats that goal's
