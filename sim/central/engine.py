@@ -45,7 +45,7 @@ from sim.bodies.tracker import tracker_of, world_of
 from sim.central.link import InProcessLink
 from sim.central.stepclock import StepClock
 from sim.outputs.rundir import RunDir
-from sim.outputs.write import write_run
+from sim.outputs.write import RunOutcome, write_run
 from transport.codec import Goals, as_sent, decode
 
 
@@ -419,23 +419,16 @@ def run_central(
             {"kind": c.kind, "i": c.i, "j": c.j, "t_start": c.t_start, "t_end": c.t_end, "max_depth": c.max_depth}
             for c in outcome.contacts
         ]
-        return write_run(
-            run_dir,
-            scene,
-            params,
-            outcome.arrays,
-            wall_s=outcome.wall_s,
-            contacts=contacts,
-            video=video,
-            plots=plots,
+        extra = dict(
             engine="central",
-            reach=reach,
             end_reason=outcome.end_reason,
             complete=True,
             orca_fallbacks=outcome.fallbacks,
             deadlock_penalties=outcome.penalties,
             min_clearance_substep_m=outcome.min_clearance if np.isfinite(outcome.min_clearance) else None,
         )
+        how = RunOutcome(outcome.wall_s, contacts, reach=reach, extra=extra)
+        return write_run(run_dir, scene, params, outcome.arrays, how, video=video, plots=plots)
     except BaseException:
         run_dir.abort()
         raise

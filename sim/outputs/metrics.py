@@ -7,7 +7,8 @@ removed) are ignored at that sample.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -21,6 +22,9 @@ __all__ = [
     "step_metrics",
     "time_to_converge",
     "summarise",
+    "Steps",
+    "Traffic",
+    "TrueRecord",
 ]
 
 
@@ -258,45 +262,62 @@ def _per_robot_second(values: Mapping[str, float] | None, robots: int, duration_
     return {str(k): (float(v) / denom if denom > 0 else None) for k, v in values.items()}
 
 
-def summarise(
-    *,
-    t: np.ndarray,
-    pose: np.ndarray,
-    radius: np.ndarray,
-    wall_s: float,
-    contacts: int,
-    message_counts: Mapping[str, int] | None = None,
-    message_bytes: Mapping[str, int] | None = None,
-    missed_ticks: int = 0,
-    agents_crashed: int = 0,
-    goal: np.ndarray | None = None,
-    tolerance: float = 0.05,
-    clearance: np.ndarray | None = None,
-    step: np.ndarray | None = None,
-    step_current: np.ndarray | None = None,
-    step_members: np.ndarray | None = None,
-    **extra: Any,
-) -> dict[str, Any]:
-    """The metrics.json dict.
+@dataclass(frozen=True)
+class Steps:
+    """A run's image steps: ``step`` (T,) the step shown at each sample (negative: none); in
+    distributed runs also, per sample, whose announced goal comes from the newest goal set
+    (``current``, (T,N)) and that set's robots (``members``, (T,N)); see :func:`step_metrics`."""
 
-    ``t`` (T,) seconds, ``pose`` (T,N,3), ``radius`` (N,) are the true world record; ``wall_s``
-    the wall-clock duration of the run; ``contacts`` the number of pair-contact events (counted by
-    the world, or with :func:`contact_events`); ``message_counts`` / ``message_bytes`` totals per
-    message kind over the whole run (all robots); ``goal`` (T,N,2) with NaN = no goal and
-    ``tolerance`` (m) for convergence; ``clearance`` (T,) if already computed; ``step`` (T,) the
-    image step per sample (with ``goal``, adds ``steps``: see :func:`step_metrics`).  Extra keyword
+    step: np.ndarray
+    current: np.ndarray | None = None
+    members: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class TrueRecord:
+    """The world's true record of a run: ``t`` (T,) seconds, ``pose`` (T,N,3), ``radius`` (N,);
+    ``goal`` (T,N,2) with NaN = no goal and ``tolerance`` (m) for convergence; ``clearance`` (T,)
+    if already computed; ``steps`` if the scene has image steps (with ``goal``, metrics per step)."""
+
+    t: np.ndarray
+    pose: np.ndarray
+    radius: np.ndarray | Sequence[float]
+    goal: np.ndarray | None = None
+    tolerance: float = 0.05
+    clearance: np.ndarray | None = None
+    steps: Steps | None = None
+
+
+@dataclass(frozen=True)
+class Traffic:
+    """What crossed the bus over the whole run (all robots): messages and bytes per message kind,
+    ticks robots missed, agents that crashed."""
+
+    counts: Mapping[str, int] = field(default_factory=dict)
+    bytes: Mapping[str, int] = field(default_factory=dict)
+    missed_ticks: int = 0
+    agents_crashed: int = 0
+
+
+def summarise(
+    record: TrueRecord, *, wall_s: float, contacts: int, traffic: Traffic | None = None, **extra: Any
+) -> dict[str, Any]:
+    """The metrics.json dict: ``wall_s`` the wall-clock duration of the run; ``contacts`` the number
+    of pair-contact events (counted by the world, or with :func:`contact_events`). Extra keyword
     arguments are added as keys (e.g. ``assignment_cost``, ``scene``, ``seed``); they may not
     replace a computed key.
 
     Non-finite floats (e.g. ``min_clearance_m`` with one robot) are left as inf/NaN here;
     :func:`sim.outputs.rundir.write_json` writes them as null.
     """
+    traffic = traffic or Traffic()
+    t, goal, tolerance, clearance = record.t, record.goal, record.tolerance, record.clearance
     t = np.asarray(t, dtype=float)
-    pose = _check_pose(pose)
+    pose = _check_pose(record.pose)
     T, N = pose.shape[:2]
     if t.shape != (T,):
         raise ValueError(f"t has shape {t.shape}, pose {pose.shape}")
-    r = _radius(radius, N)
+    r = _radius(record.radius, N)
     clr = clearance_over_time(pose, r) if clearance is None else np.asarray(clearance, dtype=float)
     duration = float(t[-1] - t[0]) if T else 0.0
 
@@ -329,15 +350,16 @@ def summarise(
         "time_to_converge_s": ttc,
         "convergence_tolerance_m": float(tolerance) if goal is not None else None,
         "path_length_m": path_lengths(pose).tolist(),
-        "messages_per_robot_s": _per_robot_second(message_counts, N, duration),
-        "bytes_per_robot_s": _per_robot_second(message_bytes, N, duration),
-        "messages_total": {str(k): int(v) for k, v in (message_counts or {}).items()},
-        "bytes_total": {str(k): int(v) for k, v in (message_bytes or {}).items()},
-        "missed_ticks": int(missed_ticks),
-        "agents_crashed": int(agents_crashed),
+        "messages_per_robot_s": _per_robot_second(traffic.counts, N, duration),
+        "bytes_per_robot_s": _per_robot_second(traffic.bytes, N, duration),
+        "messages_total": {str(k): int(v) for k, v in traffic.counts.items()},
+        "bytes_total": {str(k): int(v) for k, v in traffic.bytes.items()},
+        "missed_ticks": int(traffic.missed_ticks),
+        "agents_crashed": int(traffic.agents_crashed),
     }
-    if step is not None and goal is not None:
-        out["steps"] = step_metrics(t, pose, goal, step, tolerance, step_current, step_members)
+    if record.steps is not None and goal is not None:
+        steps = record.steps
+        out["steps"] = step_metrics(t, pose, goal, steps.step, tolerance, steps.current, steps.members)
     clash = set(extra) & set(out)
     if clash:
         raise ValueError(f"summarise: extra keys would replace computed ones: {sorted(clash)}")

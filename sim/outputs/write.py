@@ -7,46 +7,73 @@ listing the directory nor a script testing for the file takes it for a finished 
 from __future__ import annotations
 
 import sys
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypedDict
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from agent.core.params import RobotParams
 from coordinator.resolved import save_resolved
 from coordinator.scene import Scene
-from sim.outputs.metrics import assignment_over_optimum, clearance_over_time, communication_parts, summarise
-from sim.outputs.render import Recording
+from sim.outputs.metrics import (
+    Steps,
+    Traffic,
+    TrueRecord,
+    assignment_over_optimum,
+    clearance_over_time,
+    communication_parts,
+    summarise,
+)
 from sim.outputs.rundir import RunDir, write_json, write_npz
+
+if TYPE_CHECKING:  # the renderers load matplotlib, OpenCV and PyAV: imported only where used
+    from sim.outputs.render import Recording
 
 INCOMPLETE = "INCOMPLETE"  # the marker file of a run directory whose run did not run its course
 
 
-class NewestGoalSet(TypedDict, total=False):
-    """metrics.summarise's arguments for the newest goal set (none in runs without goal sets)."""
-
-    step_members: np.ndarray
-    step_current: np.ndarray
-
-
-def newest_goal_set(arrays: dict[str, np.ndarray]) -> NewestGoalSet:
+def newest_goal_set(arrays: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray] | None:
     """Distributed image runs (trajectory.npz arrays): per tick, the robots of the newest goal set
-    (``step_members``) and whose announced goal comes from it (``step_current``); see
-    metrics.step_metrics."""
+    and whose announced goal comes from it, both (T,N); None in runs without goal sets."""
     if "goal_set_epoch" not in arrays:
-        return {}
+        return None
     epochs = list(arrays["goal_set_epochs"])
     newest = arrays["goal_set_epoch"]  # (T,)
     rows = np.array([epochs.index(e) if e in epochs else -1 for e in newest])
     members = np.where(rows[:, None] >= 0, arrays["goal_set_robots"][np.maximum(rows, 0)], False)
     current = arrays["assignment_epoch"] == newest[:, None]
-    return {"step_members": members, "step_current": current}
+    return members, current
+
+
+def steps_of(arrays: dict[str, np.ndarray]) -> Steps | None:
+    """The run's image steps as metrics.step_metrics reads them; None without a step record."""
+    if arrays.get("step") is None:
+        return None
+    sets = newest_goal_set(arrays)
+    return Steps(arrays["step"]) if sets is None else Steps(arrays["step"], current=sets[1], members=sets[0])
+
+
+@dataclass
+class RunOutcome:
+    """How a run went, beside its trajectory: ``wall_s`` its wall-clock duration, the world's
+    ``contacts`` events, what crossed the bus (``traffic``), the robots' communication range
+    (``reach``, m: the run reports the swarm's splits by it) and further metrics.json keys
+    (``extra``; ``complete=False`` among them writes the INCOMPLETE marker)."""
+
+    wall_s: float
+    contacts: list[dict[str, Any]]
+    traffic: Traffic | None = None
+    reach: float = np.inf
+    extra: dict[str, Any] = field(default_factory=dict)
 
 
 def recording_of(
     scene: Scene, arrays: dict[str, np.ndarray], radius: np.ndarray, ticks: np.ndarray | slice = slice(None)
 ) -> Recording:
     """The run's trajectory arrays at these ticks, as the writers draw them."""
+    from sim.outputs.render import Recording
+
     pick = {k: arrays[k][ticks] for k in ("t", "pose", "goal", "color")}
     return Recording(pick["t"], pick["pose"], radius, scene.arena, scene.obstacles, pick["goal"], pick["color"])
 
@@ -56,39 +83,32 @@ def write_run(
     scene: Scene,
     params: RobotParams,
     arrays: dict[str, np.ndarray],
+    outcome: RunOutcome,
     *,
-    wall_s: float,
-    contacts: list[dict[str, Any]],
     video: bool,
     plots: bool,
-    reach: float = np.inf,
-    **metrics_extra: Any,
 ) -> Path:
-    """Everything a run directory holds, from the true trajectory; returns the committed path.
-    ``reach``: the robots' communication range (m), whose splits of the swarm it reports.
-    ``complete=False`` among the metrics writes the INCOMPLETE marker."""
+    """Everything a run directory holds, from the true trajectory; returns the committed path."""
     n = scene.robots
-    if np.isfinite(reach):
-        parts = communication_parts(arrays["pose"], reach)
-        metrics_extra.update(range_m=reach, split_ticks=int((parts > 1).sum()), most_parts=int(parts.max(initial=1)))
+    metrics_extra = dict(outcome.extra)
+    if np.isfinite(outcome.reach):
+        parts = communication_parts(arrays["pose"], outcome.reach)
+        metrics_extra.update(
+            range_m=outcome.reach, split_ticks=int((parts > 1).sum()), most_parts=int(parts.max(initial=1))
+        )
     radius = np.full(n, params.radius)
     t = arrays["t"]
     clearance = clearance_over_time(arrays["pose"], radius) if len(t) else np.zeros(0)
+    record = TrueRecord(t, arrays["pose"], radius, arrays["goal"], params.goal_tolerance, clearance, steps_of(arrays))
     metrics = summarise(
-        t=t,
-        pose=arrays["pose"],
-        radius=radius,
-        wall_s=wall_s,
-        contacts=len(contacts),
-        goal=arrays["goal"],
-        tolerance=params.goal_tolerance,
-        clearance=clearance,
-        step=arrays.get("step"),
-        **newest_goal_set(arrays),
+        record,
+        wall_s=outcome.wall_s,
+        contacts=len(outcome.contacts),
+        traffic=outcome.traffic,
         scene=scene.name,
         seed=scene.seed,
         clock=scene.clock,
-        contact_events=contacts,
+        contact_events=outcome.contacts,
         **metrics_extra,
     )
     if scene.steps and "assignment" in arrays and arrays.get("step") is not None and metrics.get("steps"):

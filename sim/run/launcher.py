@@ -27,10 +27,11 @@ from coordinator.resolved import save_resolved
 from coordinator.scene import Scene
 from sim.args import STARTUP_TIMEOUT, format_ids
 from sim.node.hardware import ERROR as HARDWARE_ERROR
+from sim.outputs.metrics import Traffic
 from sim.outputs.recorder import Recorder
 from sim.outputs.rundir import RunDir
 from sim.outputs.ticklog import TICKS_FILE
-from sim.outputs.write import write_run
+from sim.outputs.write import RunOutcome, write_run
 from sim.processes import stop_processes
 from sim.run.remote_agents import encode_remote_config
 from transport.bus import Bus
@@ -656,25 +657,13 @@ class Launcher:
             if e["role"] == "agent" and not e["alive"] and e["wall_time"] < getattr(self, "shutdown_wall", float("inf"))
         ]
         self._say(f"[{self.scene.name}] run ended ({end_reason}); writing {self.run_dir.path.name}", force=True)
-        return write_run(
-            self.run_dir,
-            self.scene,
-            self.params,
-            arrays,
-            wall_s=wall_s,
-            contacts=stats.get("contacts", []),
-            video=self.opt.video and not interrupted and started,
-            plots=self.opt.plots and started,
-            message_counts=rec.counts,
-            message_bytes=rec.bytes,
-            missed_ticks=int(stats.get("missed_ticks", 0)),
-            agents_crashed=len(self.crashes),
+        traffic = Traffic(rec.counts, rec.bytes, int(stats.get("missed_ticks", 0)), len(self.crashes))
+        extra = dict(
             agents_failed_by_scene=self.failed,
             end_reason=end_reason,
             **({} if started else {"startup_failure": self.startup_failure}),
             complete=not interrupted and not world_died and started,
             engine="distributed",
-            reach=self.opt.reach,
             agents_per_process=self.opt.agents_per_process,
             # remote agents: the hosts that reported, one stats event each
             agent_processes=len(agent_stats)
@@ -701,3 +690,6 @@ class Launcher:
                 float(arrays["t"][-1] - arrays["t"][0]) / stepping_wall if stepping_wall else None
             ),
         )
+        outcome = RunOutcome(wall_s, stats.get("contacts", []), traffic, self.opt.reach, extra)
+        video, plots = self.opt.video and not interrupted and started, self.opt.plots and started
+        return write_run(self.run_dir, self.scene, self.params, arrays, outcome, video=video, plots=plots)

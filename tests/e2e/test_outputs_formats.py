@@ -26,7 +26,7 @@ from sim.outputs.mcaplog import McapLog, mcap_channels, read_mcap
 from sim.outputs.recorder import SCENE_TOPIC
 from sim.outputs.render import Recording, _View, frame_indices, held_frames, write_video
 from sim.outputs.rundir import RunDir
-from sim.outputs.write import write_run
+from sim.outputs.write import RunOutcome, write_run
 from tests.conftest import run_pixelswarm
 
 ARENA = (0.0, 0.0, 4.0, 3.0)
@@ -114,9 +114,7 @@ def test_a_run_without_an_encoder_keeps_everything_else(tmp_path, monkeypatch, c
     t, pose, _, color, goal = _scene(T=25, N=3)
     arrays = {"t": t, "pose": pose, "velocity": np.zeros((25, 3, 2)), "color": color, "goal": goal}
     monkeypatch.setattr(render, "H264_ENCODER", "no-such-encoder")
-    out = write_run(
-        RunDir(tmp_path / "run"), scene, RobotParams(), arrays, wall_s=1.0, contacts=[], video=True, plots=True
-    )
+    out = write_run(RunDir(tmp_path / "run"), scene, RobotParams(), arrays, RunOutcome(1.0, []), video=True, plots=True)
     names = sorted(p.name for p in out.iterdir())
     assert "display.mp4" not in names
     assert {"metrics.json", "trajectory.npz", "scene.json", "clearance.png", "trajectories.png"} <= set(names)

@@ -12,7 +12,9 @@ from sim.outputs.write import newest_goal_set
 def members_and_current(traj: dict) -> tuple[np.ndarray, np.ndarray]:
     """(T, N) robots of the newest goal set at each tick, and whose announced goal comes from it."""
     sets = newest_goal_set(traj)
-    return sets["step_members"].astype(bool), sets["step_current"]
+    assert sets is not None, "not a distributed image run: no goal sets recorded"
+    members, current = sets
+    return members.astype(bool), current
 
 
 def goal_error(traj: dict) -> np.ndarray:

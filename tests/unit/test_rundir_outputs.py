@@ -225,17 +225,10 @@ def test_summarise_and_json(tmp_path):
     t, pose, r = _approach(T=101)
     goal = np.full((101, 2, 2), np.nan)
     m = metrics.summarise(
-        t=t,
-        pose=pose,
-        radius=r,
+        metrics.TrueRecord(t, pose, r, goal, tolerance=0.05),
         wall_s=5.0,
         contacts=1,
-        message_counts={"pose": 2020, "plan": 202},
-        message_bytes={"pose": 202000},
-        missed_ticks=3,
-        agents_crashed=0,
-        goal=goal,
-        tolerance=0.05,
+        traffic=metrics.Traffic({"pose": 2020, "plan": 202}, {"pose": 202000}, missed_ticks=3),
         scene="head-on",
         seed=np.int64(4),
     )
@@ -267,7 +260,7 @@ def test_summarise_and_json(tmp_path):
     assert m["bytes_per_robot_s"] == {"pose": pytest.approx(10100.0)}
     assert m["scene"] == "head-on"
     with pytest.raises(ValueError):
-        metrics.summarise(t=t, pose=pose, radius=r, wall_s=1.0, contacts=0, robots=5)
+        metrics.summarise(metrics.TrueRecord(t, pose, r), wall_s=1.0, contacts=0, robots=5)
 
     # converged run, one robot (no pairs -> min clearance inf -> null in JSON)
     T = 11
@@ -275,9 +268,7 @@ def test_summarise_and_json(tmp_path):
     p1[:, 0, 0] = np.minimum(np.arange(T) * 0.2, 1.0)
     g1 = np.zeros((T, 1, 2))
     g1[:, 0, 0] = 1.0
-    m1 = metrics.summarise(
-        t=np.arange(T) + 100.0, pose=p1, radius=[0.1], wall_s=0.0, contacts=0, goal=g1, tolerance=1e-9
-    )
+    m1 = metrics.summarise(metrics.TrueRecord(np.arange(T) + 100.0, p1, [0.1], g1, 1e-9), wall_s=0.0, contacts=0)
     assert m1["converged"] is True and m1["time_to_converge_s"] == pytest.approx(5.0)
     assert m1["realtime_factor"] is None
     out = write_json(tmp_path / "metrics.json", m1)

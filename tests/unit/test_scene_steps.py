@@ -16,7 +16,7 @@ from coordinator.goals import generate_goals
 from coordinator.scene import SCENE_DIR, SceneError, load_scene, scene_from_dict, scene_goal_set
 from coordinator.steps import scale_region_counts
 from sim.central.engine import run_central
-from sim.outputs.metrics import step_metrics, summarise
+from sim.outputs.metrics import TrueRecord, step_metrics, summarise
 from transport.codec import as_sent
 
 BLUE_GOAL = 150  # blue channel above this: a goal on the blue part (the line of disk_and_line)
@@ -274,5 +274,5 @@ def test_step_metrics_from_arrays():
     never = step_metrics(t[:2], pose[:2], goal[:2], np.array([0, 0]), 0.01)
     assert never[0]["converged_at"] is None and never[0]["max_goal_error_at_end"] == pytest.approx(0.2)
     assert never[0]["median_goal_error_at_end"] == pytest.approx(0.1)  # robots 0.2 m and 0 m off
-    plain = summarise(t=t, pose=pose, radius=np.full(2, 0.045), wall_s=1.0, contacts=0, goal=goal)
+    plain = summarise(TrueRecord(t, pose, np.full(2, 0.045), goal), wall_s=1.0, contacts=0)
     assert "steps" not in plain  # runs without a step record keep their metrics as they were
