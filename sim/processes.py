@@ -1,11 +1,13 @@
-"""Stopping the processes this program started, by their own handles."""
+"""Stopping the processes this program started, by their own handles, and this one on a signal."""
 
 from __future__ import annotations
 
 import signal
 import subprocess
+import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 
 
 def stop_processes(processes: Iterable[subprocess.Popen], grace: float) -> None:
@@ -21,3 +23,15 @@ def stop_processes(processes: Iterable[subprocess.Popen], grace: float) -> None:
         except subprocess.TimeoutExpired:
             p.kill()
             p.wait()
+
+
+@contextmanager
+def stopped_by_signals() -> Iterator[threading.Event]:
+    """An event that SIGINT or SIGTERM sets while inside; the previous handlers come back after."""
+    stop = threading.Event()
+    previous = {signum: signal.signal(signum, lambda *_: stop.set()) for signum in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield stop
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)

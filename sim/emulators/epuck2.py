@@ -17,7 +17,6 @@ import math
 import os
 import queue
 import selectors
-import signal
 import socket
 import sys
 import threading
@@ -28,6 +27,7 @@ from pathlib import Path
 
 from agent.core.params import EPUCK, RobotParams
 from sim.args import OneLineParser, positive_int
+from sim.processes import stopped_by_signals
 
 COMMAND_PACKET = 0x80
 COMMAND_LENGTH = 21
@@ -384,31 +384,31 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def say_final(poses: list[tuple[float, float, float]], report: dict, log: Path | None) -> None:
+    """Each robot's final pose on stdout, and the report in ``log`` if asked for."""
+    for rid, (x, y, theta) in enumerate(poses):
+        print(f"robot {rid}: x={x:.4f} m y={y:.4f} m theta={theta:.4f} rad", flush=True)
+    if log:
+        write_atomically(log, json.dumps(report))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    stop = threading.Event()
-    previous = {signum: signal.signal(signum, lambda *_: stop.set()) for signum in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        poses = read_poses(args.poses, args.robots) if args.poses else None
-        with Epuck2Emulator(args.robots, poses=poses) as emulator:
-            if args.write_hardware:
-                write_atomically(args.write_hardware, emulator.hardware_toml())
-            print(f"{args.robots} emulated e-puck2 robots at {' '.join(emulator.addresses)}", flush=True)
-            while not stop.wait(0.2):
-                pass
-            emulator.close()
-            for rid in range(args.robots):
-                x, y, theta = emulator.pose(rid)
-                print(f"robot {rid}: x={x:.4f} m y={y:.4f} m theta={theta:.4f} rad", flush=True)
-            if args.log:
-                write_atomically(args.log, json.dumps(emulator.report()))
-    except (UsageError, OSError) as err:
-        print(f"{parser.prog}: error: {err}", file=sys.stderr)
-        return 2
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
+    with stopped_by_signals() as stop:
+        try:
+            poses = read_poses(args.poses, args.robots) if args.poses else None
+            with Epuck2Emulator(args.robots, poses=poses) as emulator:
+                if args.write_hardware:
+                    write_atomically(args.write_hardware, emulator.hardware_toml())
+                print(f"{args.robots} emulated e-puck2 robots at {' '.join(emulator.addresses)}", flush=True)
+                while not stop.wait(0.2):
+                    pass
+                emulator.close()
+                say_final([emulator.pose(rid) for rid in range(args.robots)], emulator.report(), args.log)
+        except (UsageError, OSError) as err:
+            print(f"{parser.prog}: error: {err}", file=sys.stderr)
+            return 2
     return 0
 
 

@@ -13,9 +13,7 @@ between the emulated bodies (discs of the scene's robot radius).
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import signal
 import sys
 import threading
 import time
@@ -28,9 +26,10 @@ import numpy as np
 from agent.core.params import RobotParams
 from coordinator.scene import Scene, SceneError, load_scene
 from sim.args import OneLineParser, positive_int
+from sim.processes import stopped_by_signals
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, settings_from_args
 
-from .epuck2 import Epuck2Emulator, UsageError, write_atomically
+from .epuck2 import Epuck2Emulator, UsageError, say_final, write_atomically
 from .mocap import MocapEmulator
 
 MOCAP_RATE = 50.0  # Hz: PoseStamped per robot
@@ -199,32 +198,24 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("a client lab needs its router: -e ENDPOINT (or -m router -l ENDPOINT to be the router)")
     if not (math.isfinite(args.rate) and args.rate > 0):
         parser.error(f"--rate must be a positive number of Hz, not {args.rate}")
-    stop = threading.Event()
-    previous = {signum: signal.signal(signum, lambda *_: stop.set()) for signum in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        lab = open_lab(args, settings, stop)
-        if lab is None:
-            return 0
+    with stopped_by_signals() as stop:
         try:
-            if args.write_hardware:
-                write_atomically(args.write_hardware, lab.hardware_toml())
-            where = ", ".join(settings.listen or settings.connect)
-            print(f"lab: {lab.scene.robots} emulated e-puck2 robots, motion capture on {where}", flush=True)
-            stop.wait()
-        finally:
-            report = lab.close()
-        for rid, robot in enumerate(report["robots"]):
-            x, y, theta = robot["pose"]
-            print(f"robot {rid}: x={x:.4f} m y={y:.4f} m theta={theta:.4f} rad", flush=True)
-        print(f"contacts: {len(report['contacts'])}", flush=True)
-        if args.log:
-            write_atomically(args.log, json.dumps(report))
-    except (UsageError, SceneError, TransportError, OSError, ValueError) as err:
-        print(f"{parser.prog}: error: {err}", file=sys.stderr)
-        return 2
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
+            lab = open_lab(args, settings, stop)
+            if lab is None:
+                return 0
+            try:
+                if args.write_hardware:
+                    write_atomically(args.write_hardware, lab.hardware_toml())
+                where = ", ".join(settings.listen or settings.connect)
+                print(f"lab: {lab.scene.robots} emulated e-puck2 robots, motion capture on {where}", flush=True)
+                stop.wait()
+            finally:
+                report = lab.close()
+            say_final([tuple(robot["pose"]) for robot in report["robots"]], report, args.log)
+            print(f"contacts: {len(report['contacts'])}", flush=True)
+        except (UsageError, SceneError, TransportError, OSError, ValueError) as err:
+            print(f"{parser.prog}: error: {err}", file=sys.stderr)
+            return 2
     return 0
 
 

@@ -26,7 +26,7 @@ import numpy as np
 
 from hardware.config import HardwareConfigError
 from hardware.ros2 import POSE_STAMPED, Ros2Messages, Ros2PosesConfig
-from sim.args import OneLineParser
+from sim.args import OneLineParser, positive_int, positive_number, positive_seconds
 from transport.rmw_zenoh import RosNode, RosPublisher
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, open_session, settings_from_args
 
@@ -129,34 +129,21 @@ def circle(robots: int, radius: float, speed: float) -> PoseFunction:
     return poses
 
 
-def _positive(kind: type) -> Callable[[str], float]:
-    def parse(text: str) -> float:
-        try:
-            value = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-        if not (math.isfinite(value) and value > 0):
-            raise argparse.ArgumentTypeError(f"must be positive, not {text}")
-        return value
-
-    return parse
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(
         prog="python -m sim.emulators.mocap",
         description="Publish motion-capture poses (geometry_msgs/PoseStamped) over rmw_zenoh: robots on a circle.",
     )
-    parser.add_argument("--robots", type=_positive(int), default=4, help="number of robots (default 4)")
-    parser.add_argument("--rate", type=_positive(float), default=100.0, help="Hz (default 100)")
-    parser.add_argument("--radius", type=_positive(float), default=0.5, help="circle radius in m (default 0.5)")
+    parser.add_argument("--robots", type=positive_int, default=4, help="number of robots (default 4)")
+    parser.add_argument("--rate", type=positive_number, default=100.0, help="Hz (default 100)")
+    parser.add_argument("--radius", type=positive_number, default=0.5, help="circle radius in m (default 0.5)")
     parser.add_argument(
         "--speed", type=float, default=0.1, help="speed along the circle in m/s, negative for clockwise (default 0.1)"
     )
     parser.add_argument("--topic", default=Ros2PosesConfig.topic, help="topic with {id} (default %(default)s)")
     parser.add_argument("--domain", type=int, default=0, help="ROS domain id (default 0)")
     parser.add_argument("--frame", default="world", help="header frame_id (default world)")
-    parser.add_argument("--duration", type=_positive(float), help="stop after this many s (default: run until Ctrl-C)")
+    parser.add_argument("--duration", type=positive_seconds, help="stop after this many s (default: run until Ctrl-C)")
     add_zenoh_args(parser, default_mode="client")
     return parser
 
