@@ -35,7 +35,7 @@ import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, TypedDict, Unpack
 
 import numpy as np
 
@@ -173,38 +173,33 @@ def resolve_scene_path(name_or_path: str) -> Path:
     raise SceneError(f"unknown scene {name_or_path!r}: give a .toml path or one of {', '.join(shipped_scenes())}")
 
 
-def load_scene(
-    name_or_path: str,
-    *,
-    robots: int | None = None,
-    seed: int | None = None,
-    clock: str | None = None,
-    duration: float | None = None,
-) -> Scene:
+class Overrides(TypedDict, total=False):
+    """What the command line may set over a scene's file (None: the file's, or the default)."""
+
+    robots: int | None
+    seed: int | None
+    clock: str | None
+    duration: float | None
+
+
+def load_scene(name_or_path: str, **overrides: Unpack[Overrides]) -> Scene:
     """Read, complete and validate a scene, with its goal sets; command-line overrides win over the
     file. An image file is a scene too: its goals, a grid of robots."""
-    return make_goal_sets(parse_scene(name_or_path, robots=robots, seed=seed, clock=clock, duration=duration))
+    return make_goal_sets(parse_scene(name_or_path, **overrides))
 
 
-def parse_scene(
-    name_or_path: str,
-    *,
-    robots: int | None = None,
-    seed: int | None = None,
-    clock: str | None = None,
-    duration: float | None = None,
-) -> Scene:
+def parse_scene(name_or_path: str, **overrides: Unpack[Overrides]) -> Scene:
     """Read and validate a scene without making its goal sets: an image scene's goal sets, and the
     arena that holds them, come from make_goal_sets."""
     if Path(name_or_path).suffix.lower() in IMAGE_SUFFIXES:
         if not Path(name_or_path).is_file():
             raise SceneError(f"image {name_or_path} not found")
         return parse_scene_dict(
-            image_scene(name_or_path, robots or 14), source=name_or_path, seed=seed, clock=clock, duration=duration
+            image_scene(name_or_path, overrides.pop("robots", None) or 14), name_or_path, **overrides
         )
     if Path(name_or_path).is_dir():  # a folder of keyframes: an animation with the default timing
         return parse_scene_dict(
-            folder_scene(name_or_path, robots or 14), source=name_or_path, seed=seed, clock=clock, duration=duration
+            folder_scene(name_or_path, overrides.pop("robots", None) or 14), name_or_path, **overrides
         )
     path = resolve_scene_path(name_or_path)
     try:
@@ -213,35 +208,19 @@ def parse_scene(
         raise SceneError(f"{path}: not valid TOML: {err}") from None
     except OSError as err:
         raise SceneError(f"{path}: cannot read: {err.strerror}") from None
-    return parse_scene_dict(data, source=str(path), robots=robots, seed=seed, clock=clock, duration=duration)
+    return parse_scene_dict(data, str(path), **overrides)
 
 
-def scene_from_dict(
-    data: dict[str, Any],
-    *,
-    source: str = "<dict>",
-    robots: int | None = None,
-    seed: int | None = None,
-    clock: str | None = None,
-    duration: float | None = None,
-) -> Scene:
+def scene_from_dict(data: dict[str, Any], source: str = "<dict>", **overrides: Unpack[Overrides]) -> Scene:
     """A scene from its table (as the TOML file holds it), with its goal sets."""
-    scene = parse_scene_dict(data, source=source, robots=robots, seed=seed, clock=clock, duration=duration)
-    return make_goal_sets(scene)
+    return make_goal_sets(parse_scene_dict(data, source, **overrides))
 
 
-def parse_scene_dict(
-    data: dict[str, Any],
-    *,
-    source: str = "<dict>",
-    robots: int | None = None,
-    seed: int | None = None,
-    clock: str | None = None,
-    duration: float | None = None,
-) -> Scene:
+def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: Unpack[Overrides]) -> Scene:
     """A scene from its table, validated, without its goal sets: no image is read or drawn but a
     drawn animation's keyframes (make_goal_sets makes the goal sets and the arena that holds them)."""
     where = source
+    robots, seed, duration = overrides.get("robots"), overrides.get("seed"), overrides.get("duration")
     known = {
         "name",
         "robots",
@@ -296,7 +275,7 @@ def parse_scene_dict(
         arena=(0.0, 0.0, 0.0, 0.0),
         obstacles=[],
         events=list(data.get("events", [])),
-        clock=clock or data.get("clock", Scene.clock),
+        clock=overrides.get("clock") or data.get("clock", Scene.clock),
         engine=data.get("engine", Scene.engine),
         assignment=data.get("assignment", Scene.assignment),
         agents_per_process=data.get("agents_per_process", Scene.agents_per_process),
