@@ -15,18 +15,19 @@ image pipeline from the scene's source: only the coordinator asks for those.
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 import math
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 
 from .goals import GoalError
 from .motion import StepMotion
-from .scene import GoalSource, Noise, Scene, SceneError, goal_pipeline, parse_scene
+from .scene import GoalSource, Noise, Overrides, Scene, SceneError, goal_pipeline, load_scene, parse_scene
 from .steps import ImageStep
 
 SCENE_FILE = "scene.json"
@@ -233,3 +234,27 @@ def _read_only(values: np.ndarray, dtype: Any) -> np.ndarray:
     out = np.array(values, dtype)
     out.setflags(write=False)  # shared by every caller, as the pipeline's own sets
     return out
+
+
+def add_scene_args(parser: argparse.ArgumentParser) -> None:
+    """A run's child process is given its scene resolved in the run directory (no image pipeline),
+    or by name, with the command line's overrides."""
+    where = parser.add_mutually_exclusive_group(required=True)
+    where.add_argument("--run-dir", help="a run directory holding the resolved scene (no image pipeline)")
+    where.add_argument("--scene", help="a scene to load (with its goal sets: the image pipeline)")
+    parser.add_argument("--robots", type=int)
+    parser.add_argument("--seed", type=int)
+    parser.add_argument("--clock", choices=["lockstep", "realtime"])
+    parser.add_argument("--duration", type=float)
+    parser.add_argument("--display", default="default", help="the display's name (key prefix)")
+
+
+def scene_of_args(args: argparse.Namespace, **fixed: Unpack[Overrides]) -> Scene:
+    """The scene add_scene_args's arguments name; ``fixed`` wins over them (e.g. hardware: its robots,
+    the wall clock). ``args`` may also be `pixelswarm run`'s, which has no --run-dir. SceneError (one
+    line) if there is none."""
+    given: Overrides = {"robots": args.robots, "seed": args.seed, "clock": args.clock, "duration": args.duration}
+    given.update(fixed)
+    if getattr(args, "run_dir", None) is not None:
+        return load_resolved(args.run_dir, clock=given.get("clock"), duration=given.get("duration"))
+    return load_scene(args.scene, **given)

@@ -29,8 +29,8 @@ from transport.plausible import Clock
 from transport.session import TransportError, add_zenoh_args, settings_from_args
 
 from .keyframes import goal_matching
-from .resolved import load_resolved
-from .scene import Scene, SceneError, load_scene, scene_goal_set
+from .resolved import add_scene_args, scene_of_args
+from .scene import Scene, SceneError, scene_goal_set
 
 SETTLE_S = 0.5  # a change in the live robots must hold this long before a new goal set (debounce)
 BODY_WAIT_S = 1.0  # display seconds to wait for the tracked position of a dead robot's body (display
@@ -282,20 +282,12 @@ class Coordinator:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m coordinator.service")
-    where = parser.add_mutually_exclusive_group(required=True)
-    where.add_argument("--run-dir", help="a run directory holding the resolved scene and its goal sets")
-    where.add_argument("--scene", help="a scene to load (its goal sets made here)")
-    parser.add_argument("--robots", type=int)
-    parser.add_argument("--seed", type=int)
-    parser.add_argument("--display", default="default")
+    add_scene_args(parser)
     parser.add_argument("--exit-with-parent", action="store_true")
     add_zenoh_args(parser)
     args = parser.parse_args(argv)
     try:
-        if args.run_dir is not None:
-            scene = load_resolved(args.run_dir)
-        else:
-            scene = load_scene(args.scene, robots=args.robots, seed=args.seed)
+        scene = scene_of_args(args)
         bus = Bus(settings_from_args(args), args.display, name="coordinator")
     except (SceneError, TransportError) as err:
         print(f"coordinator: error: {err}", file=sys.stderr)

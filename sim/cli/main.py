@@ -236,7 +236,7 @@ def _hardware_scene(args: argparse.Namespace) -> Scene:
             "--hardware cannot be combined with --secure yet: its pose source joins outside the access rules"
         )
     try:
-        return load_run(str(args.hardware), args.scene, args.seed, args.duration)[1]
+        return load_run(args)[1]
     except (HardwareError, HardwareConfigError, SceneError) as err:
         raise UsageError(str(err)) from None
 

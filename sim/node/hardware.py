@@ -25,8 +25,8 @@ from typing import Any, Protocol
 import numpy as np
 
 from agent.core.params import DIFFDRIVE, RobotParams
-from coordinator.resolved import load_resolved
-from coordinator.scene import Scene, SceneError, load_scene
+from coordinator.resolved import add_scene_args, scene_of_args
+from coordinator.scene import Scene, SceneError
 from hardware.config import HardwareConfig, HardwareConfigError, load_hardware
 from hardware.poses import STAMP_DROPS, PoseSample
 from sim.node.body import COMMAND_DROPS, STOP_REASONS, BodyNode, WallClock
@@ -327,34 +327,22 @@ def wait_for_hardware(node: BodyNode, startup_timeout: float) -> str | None:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m sim.node.hardware")
     parser.add_argument("--hardware", required=True, help="the hardware file (needs [backend] and [poses])")
-    where = parser.add_mutually_exclusive_group(required=True)
-    where.add_argument("--run-dir", help="a run directory holding the resolved scene")
-    where.add_argument("--scene", help="a scene to load")
-    parser.add_argument("--seed", type=int)
-    parser.add_argument("--duration", type=float)
-    parser.add_argument("--display", default="default")
+    add_scene_args(parser)  # its robots are the hardware file's, its clock the wall clock
     parser.add_argument("--startup-timeout", type=float, default=STARTUP_TIMEOUT, help="s to reach robots and poses")
     parser.add_argument("--pose-frames", action="store_true", help="send each tick's poses as one frame (agent hosts)")
     parser.add_argument("--exit-with-parent", action="store_true")
-    parser.add_argument("--robots", type=int, help="ignored: the hardware file says how many")
-    parser.add_argument("--clock", help="ignored: hardware runs on the wall clock")
     add_zenoh_args(parser)
     return parser
 
 
-def load_run(
-    hardware: str, scene_name: str, seed: int | None, duration: float | None, run_dir: str | None = None
-) -> tuple[HardwareConfig, Scene]:
-    """The hardware file and the scene it runs (from ``run_dir``, resolved, if given), checked:
-    HardwareError, HardwareConfigError or SceneError."""
-    config = load_hardware(hardware)
+def load_run(args: argparse.Namespace) -> tuple[HardwareConfig, Scene]:
+    """The hardware file and the scene it runs (add_scene_args), checked: HardwareError,
+    HardwareConfigError or SceneError."""
+    config = load_hardware(args.hardware)
     robots = check_runnable(config)
-    if run_dir is not None:
-        scene = load_resolved(run_dir, clock="realtime", duration=duration)
-        if scene.robots != robots:
-            raise HardwareError(f"the run's scene has {scene.robots} robots, the hardware file {robots}")
-    else:
-        scene = load_scene(scene_name, robots=robots, seed=seed, clock="realtime", duration=duration)
+    scene = scene_of_args(args, robots=robots, clock="realtime")
+    if scene.robots != robots:  # a run directory's scene
+        raise HardwareError(f"the run's scene has {scene.robots} robots, the hardware file {robots}")
     if RobotParams.from_dict(scene.robot).kinematics != DIFFDRIVE:
         raise HardwareError(f"scene {scene.name!r} is for holonomic robots; real robots need kinematics = 'diffdrive'")
     return config, scene
@@ -368,7 +356,7 @@ def _fail(message: str) -> int:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        config, scene = load_run(args.hardware, args.scene, args.seed, args.duration, args.run_dir)
+        config, scene = load_run(args)
         settings = settings_from_args(args)
         bus = Bus(settings, args.display, seed=scene.seed, name="hardware")
     except (HardwareError, HardwareConfigError, SceneError, TransportError) as err:

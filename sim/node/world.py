@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from coordinator.resolved import load_resolved
-from coordinator.scene import Scene, SceneError, load_scene
+from coordinator.resolved import add_scene_args, scene_of_args
+from coordinator.scene import Scene, SceneError
 from sim.args import positive_seconds
 from sim.bodies.movers import scripted_velocity
 from sim.bodies.tracker import tracker_of, world_of
@@ -135,14 +135,7 @@ def world_node(
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m sim.node.world")
-    where = parser.add_mutually_exclusive_group(required=True)
-    where.add_argument("--run-dir", help="a run directory holding the resolved scene (no image pipeline)")
-    where.add_argument("--scene", help="a scene to load (with its goal sets: the image pipeline)")
-    parser.add_argument("--robots", type=int)
-    parser.add_argument("--seed", type=int)
-    parser.add_argument("--clock", choices=["lockstep", "realtime"])
-    parser.add_argument("--duration", type=float)
-    parser.add_argument("--display", default="default")
+    add_scene_args(parser)
     parser.add_argument("--deadline", type=float, default=2.0, help="lock-step: seconds to wait for commands")
     parser.add_argument("--faults", default="")
     parser.add_argument("--pose-frames", action="store_true", help="send each tick's poses as one frame (agent hosts)")
@@ -157,10 +150,7 @@ def main(argv: list[str] | None = None) -> int:
     add_zenoh_args(parser)
     args = parser.parse_args(argv)
     try:
-        if args.run_dir is not None:
-            scene = load_resolved(args.run_dir, clock=args.clock, duration=args.duration)
-        else:
-            scene = load_scene(args.scene, robots=args.robots, seed=args.seed, clock=args.clock, duration=args.duration)
+        scene = scene_of_args(args)
         bus = Bus(
             settings_from_args(args), args.display, faults=parse_faults(args.faults), seed=scene.seed, name="world"
         )
