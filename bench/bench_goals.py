@@ -31,7 +31,7 @@ import scipy
 from scipy.spatial import cKDTree
 
 from coordinator import shapes
-from coordinator.goals import goals_from_prepared, prepare_image
+from coordinator.goals import GoalOptions, goals_from_prepared, prepare_image
 from coordinator.goals.cvt import binary_domain, cvt_cost, density_domain
 from coordinator.goals.resize import from_arena
 
@@ -87,7 +87,7 @@ def run_case(n: int, size: int, shape: str, repeat: int, seed: int, before: Path
         k, e = _binary_cost(pts, goals_px, prep.scale), cvt_cost(dens, goals_px, prep.scale)
         return {"n": n, "size": size, "name": name, "time": t, "iters": iters, "kmeans_cost": k, "eq1_cost": e}
 
-    t, gs = _median_time(lambda: goals_from_prepared(prepare_image(img), n, seed=seed), repeat)
+    t, gs = _median_time(lambda: goals_from_prepared(prepare_image(img), n, GoalOptions(seed=seed)), repeat)
     out = [
         row("pixelswarm now (image -> goals)", t, gs.params["iterations"], from_arena(gs.goals, prep.shape, gs.arena))
     ]

@@ -38,7 +38,7 @@ from agent.core.bidder import Participant
 from agent.core.params import RobotParams
 from coordinator import shapes
 from coordinator.drawings import keyframes
-from coordinator.goals import goals_from_prepared, prepare_image
+from coordinator.goals import GoalOptions, goals_from_prepared, prepare_image
 from coordinator.goals.cvt import RELAX
 from coordinator.goals.resize import from_arena
 from coordinator.keyframes import KeyframeGoals, goal_correspondence, goal_matching, keyframe_goals
@@ -671,7 +671,9 @@ def fig4_runs(size: int, n: int, seeds: int, relax: float) -> list[dict]:
     for name, counts, title in FIG4_CASES:
         img = shapes.draw(name, size)
         prep = prepare_image(img)
-        sets = [goals_from_prepared(prep, n, seed=s, region_counts=counts, relax=relax) for s in range(seeds)]
+        sets = [
+            goals_from_prepared(prep, n, GoalOptions(seed=s, region_counts=counts, relax=relax)) for s in range(seeds)
+        ]
         top = max(gs.cost_history[0] for gs in sets)
         hists = [np.asarray(gs.cost_history) / top for gs in sets]
         best = min(sets, key=lambda gs: gs.cost_history[-1])
@@ -773,7 +775,7 @@ def keyframe_run(
     times, out = [], None
     for _ in range(repeat):
         t = time.perf_counter()
-        out = keyframe_goals(frames, n, init_from_previous=init, keep_counts=keep, seed=seed)
+        out = keyframe_goals(frames, n, GoalOptions(seed=seed), init_from_previous=init, keep_counts=keep)
         times.append(time.perf_counter() - t)
     assert out is not None
     return statistics.median(times), out

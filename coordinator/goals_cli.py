@@ -16,7 +16,7 @@ from typing import Any
 
 from transport import epuck
 
-from .goals import GoalError, goals_from_prepared, prepare_image
+from .goals import GoalError, GoalOptions, goals_from_prepared, prepare_image
 from .goals.cvt import MAX_ITER, RELAX, TOLERANCE
 from .goals.pipeline import METHODS
 
@@ -147,19 +147,18 @@ def run_goals(args: argparse.Namespace) -> int:
             _check_output(preview, "preview")
         counts = _region_counts(args.region_counts) if args.region_counts else None
         prep = prepare_image(args.image, background=args.background)
-        gs = goals_from_prepared(
-            prep,
-            args.n,
-            arena=args.arena,
-            method=args.method,
-            seed=args.seed,
-            robot_radius=args.robot_radius,
-            region_counts=counts,
-            conservative=args.conservative,
-            tol=args.tol,
-            max_iter=args.max_iter,
-            relax=args.relax,
+        options = GoalOptions(
+            args.arena,
+            args.method,
+            args.seed,
+            args.robot_radius,
+            counts,
+            args.conservative,
+            args.tol,
+            args.max_iter,
+            args.relax,
         )
+        gs = goals_from_prepared(prep, args.n, options)
         text = gs.to_json(indent=1) + "\n"
         jobs: list[tuple[Path, Callable[[Path], object]]] = [(out, lambda p: p.write_text(text))]
         if preview is not None:

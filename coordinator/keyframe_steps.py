@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from .drawings import KEYFRAME_ANIMATIONS, keyframes
-from .goals import IMAGE_SUFFIXES, GoalError
+from .goals import IMAGE_SUFFIXES, GoalError, GoalOptions
 from .keyframes import KeyframeGoals, keyframe_goals, keyframe_paths
 from .steps import METHODS, ImageStep, parse_region_counts, scale_region_counts
 
@@ -218,16 +218,9 @@ class FrameGoals:
         a = self.animation
         counts = scale_region_counts(a.region_counts, self.counts_for, n)
         try:
+            options = GoalOptions(arena, a.method, self.seed, self.radius, counts)
             kg = keyframe_goals(
-                list(a.images),
-                n,
-                init_from_previous=a.init_from_previous,
-                keep_counts=a.keep_counts,
-                arena=arena,
-                method=a.method,
-                seed=self.seed,
-                robot_radius=self.radius,
-                region_counts=counts,
+                list(a.images), n, options, init_from_previous=a.init_from_previous, keep_counts=a.keep_counts
             )
         except GoalError as err:
             raise GoalError(f"animation {a.name}, {n} robots: {err}") from None

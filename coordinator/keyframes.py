@@ -24,7 +24,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -32,11 +32,10 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial.distance import cdist
 
-from transport import epuck
-
-from .goals import IMAGE_SUFFIXES, GoalError, GoalSet, PreparedImage, goals_from_prepared, prepare_image
+from .goals import IMAGE_SUFFIXES, GoalError, GoalOptions, GoalSet, PreparedImage, goals_from_prepared, prepare_image
 from .goals.allocate import allocate_robots
 from .goals.family import rescale
+from .goals.pipeline import PAPER_OPTIONS
 from .goals.resize import from_arena
 from .keyframe_motion import MIN_CORRELATION, RegionShape, estimate_motion, fit_count, region_shape
 
@@ -269,14 +268,10 @@ def _load(images: Sequence[ImageLike] | str | os.PathLike[str], background: Any)
 def keyframe_goals(
     images: Sequence[ImageLike] | str | os.PathLike[str],
     n: int,
+    options: GoalOptions = PAPER_OPTIONS,
     *,
     init_from_previous: bool = True,
     keep_counts: bool = False,
-    arena: float | None = None,
-    method: str = "cvt",
-    seed: int = 0,
-    robot_radius: float = epuck.RADIUS,
-    region_counts: dict[int, int] | None = None,
     min_correlation: float = MIN_CORRELATION,
     scale_init: bool = True,
     background: Any = None,
@@ -290,13 +285,13 @@ def keyframe_goals(
     keep_counts: a region keeps the N_i of its region in the previous frame (when the regions
       correspond and it has room), instead of N_i proportional to its area in every frame; robots then
       stay in their region rather than stream between regions whose areas change.
-    region_counts: the artist's N_i for the first frame (and frames that do not correspond).
-    arena: K_r in metres, or None for the largest conservative arena any frame needs.
+    options: as in generate_goals; region_counts are the artist's N_i for the first frame (and frames
+      that do not correspond), arena None the largest conservative arena any frame needs, and frame f
+      uses seed + f for its random samples.
     min_correlation: the "sufficient correlation" of the region borders below which a region starts
       from fresh samples.
     scale_init: also scale the moved goals about the centroid so that their spacing follows the area
       per goal, sqrt((A_f / N_f) / (A_{f-1} / N_{f-1})) (a growing leaf); else move them rigidly.
-    seed: frame f uses seed + f for its random samples. Other arguments as in generate_goals.
     Raises GoalError on bad input."""
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
         raise GoalError(f"N must be a whole number of robots, at least 1, not {n!r}")
@@ -314,9 +309,9 @@ def keyframe_goals(
                 reason = f"the number of regions changed from {len(shapes[f - 1])} to {len(shapes[f])}"
             elif f > 0:
                 match = match_regions(shapes[f - 1], shapes[f])
-        counts = region_counts
+        counts = options.region_counts
         if keep_counts and match is not None:
-            counts = _carried_counts(prep, match, sets[-1]) or region_counts
+            counts = _carried_counts(prep, match, sets[-1]) or options.region_counts
         init: dict[int, np.ndarray] = {}
         motions: list[RegionMotion] = []
         if f > 0 and not init_from_previous:
@@ -327,16 +322,7 @@ def keyframe_goals(
                 prep, shapes[f], shapes[f - 1], match, sets[-1], n_i, min_correlation, scale_init
             )
         try:
-            gs = goals_from_prepared(
-                prep,
-                n,
-                arena=arena,
-                method=method,
-                seed=seed + f,
-                robot_radius=robot_radius,
-                region_counts=counts,
-                init=init,
-            )
+            gs = goals_from_prepared(prep, n, replace(options, seed=options.seed + f, region_counts=counts), init)
         except GoalError as err:
             raise GoalError(f"keyframe {f}: {err}") from None
         done = {m.region for m in motions if m.initialised}
@@ -344,7 +330,7 @@ def keyframe_goals(
         mode = "first" if f == 0 else "fresh" if not done else "previous" if done >= used else "partial"
         reports.append(FrameReport(f, mode, reason, motions, int(gs.params["iterations"]), time.perf_counter() - t0))
         sets.append(gs)
-    shared = float(arena) if arena is not None else max(s.arena for s in sets)
+    shared = float(options.arena) if options.arena is not None else max(s.arena for s in sets)
     sets = [rescale(s, shared) for s in sets]
     for r in reports:  # translations in metres of the common arena
         r.regions = [

@@ -173,22 +173,16 @@ class StepGoals:
         return shared
 
     def _generate(self, k: int, n: int, arena: float | None) -> GoalSet:
-        from .goals import goals_from_prepared, prepare_image  # the image pipeline: only where goals are made
+        from .goals import GoalOptions, goals_from_prepared, prepare_image  # the image pipeline: only where made
 
         step = self.steps[k]
         try:
             if k not in self._prepared:  # background and regions once per image, for every count
                 source: Any = draw(step.shape, shape_pixels(self.robots)) if step.shape is not None else step.image
                 self._prepared[k] = prepare_image(source)
-            return goals_from_prepared(
-                self._prepared[k],
-                n,
-                arena=arena,
-                method=step.method,
-                seed=self.seed,
-                robot_radius=self.radius,
-                region_counts=scale_region_counts(step.region_counts, self.counts_for, n),
-            )
+            counts = scale_region_counts(step.region_counts, self.counts_for, n)
+            options = GoalOptions(arena, step.method, self.seed, self.radius, counts)
+            return goals_from_prepared(self._prepared[k], n, options)
         except GoalError as err:
             raise GoalError(f"{self.labels[k]} ({step.name}), {n} robots: {err}") from None
 

@@ -1,7 +1,7 @@
 """Goal generation (paper section 4): an image becomes N goal positions and colours.
 
-from coordinator.goals import generate_goals
-gs = generate_goals("logo.png", 50, arena=2.0, seed=1)
+from coordinator.goals import GoalOptions, generate_goals
+gs = generate_goals("logo.png", 50, GoalOptions(arena=2.0, seed=1))
 gs.goals   # (50, 2) metres, arena frame (origin at the centre, y up)
 gs.colors  # (50, 3) uint8
 
@@ -18,11 +18,12 @@ from .model import IMAGE_SUFFIXES, GoalError, GoalSet
 
 if TYPE_CHECKING:
     from .family import GoalFamily, goal_family
-    from .pipeline import PreparedImage, generate_goals, goals_from_prepared, prepare_image
+    from .pipeline import GoalOptions, PreparedImage, generate_goals, goals_from_prepared, prepare_image
 
 _PIPELINE = {
     "GoalFamily": "family",
     "goal_family": "family",
+    "GoalOptions": "pipeline",
     "PreparedImage": "pipeline",
     "generate_goals": "pipeline",
     "goals_from_prepared": "pipeline",
@@ -33,6 +34,7 @@ __all__ = [
     "IMAGE_SUFFIXES",
     "GoalError",
     "GoalFamily",
+    "GoalOptions",
     "GoalSet",
     "PreparedImage",
     "generate_goals",

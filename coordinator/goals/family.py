@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from .model import GoalError, GoalSet
-from .pipeline import goals_from_prepared, prepare_image
+from .pipeline import PAPER_OPTIONS, GoalOptions, goals_from_prepared, prepare_image
 
 FAMILY_FORMAT = "pixelswarm.goal-family/1"
 
@@ -62,22 +62,21 @@ def rescale(gs: GoalSet, arena: float) -> GoalSet:
 def goal_family(
     image_or_path: str | os.PathLike[str] | np.ndarray,
     counts: Iterable[int],
+    options: GoalOptions = PAPER_OPTIONS,
     *,
-    arena: float | None = None,
     background: Any = None,
     min_area: int | None = None,
-    **kwargs: Any,
 ) -> GoalFamily:
     """Goal sets for every robot count in `counts` (the image is segmented once).
 
-    With arena=None every set gets the conservative arena of the most demanding set; with an explicit
-    arena every set must fit it (GoalError otherwise). Other keyword arguments go to generate_goals."""
+    With options.arena None every set gets the conservative arena of the most demanding set; with an
+    explicit arena every set must fit it (GoalError otherwise). The rest as in generate_goals."""
     wanted = sorted({int(c) for c in counts})
     if not wanted:
         raise GoalError("a goal family needs at least one robot count")
     prep = prepare_image(image_or_path, background=background, min_area=min_area)
-    sets = {r: goals_from_prepared(prep, r, arena=arena, **kwargs) for r in wanted}
-    if arena is None:
+    sets = {r: goals_from_prepared(prep, r, options) for r in wanted}
+    if options.arena is None:
         shared = max(s.arena for s in sets.values())  # each is its own conservative (auto) arena
         sets = {r: rescale(s, shared) for r, s in sets.items()}
     return GoalFamily(sets)

@@ -56,6 +56,51 @@ class PreparedImage:
         return float(max(self.shape))
 
 
+@dataclass(frozen=True)
+class GoalOptions:
+    """How goals are made from an image (paper section 4).
+
+    arena: K_r in metres; None picks the conservative 2 K_r for robots of radius robot_radius
+      (default: the e-puck's, transport.epuck.RADIUS), rounded up to a centimetre.
+    method: 'cvt' (Lloyd with the mass density of eq. 2) or 'kmeans' (binary density).
+    seed: the random initial samples' (4.2).
+    region_counts: the artist's N_i per region id (ids: regions by area, largest first).
+    conservative: with an explicit arena, require 2 K_r rather than K_r.
+    tol, max_iter, relax: Lloyd stopping rule and over-relaxation (relax=1: plain Lloyd), see cvt.lloyd.
+    """
+
+    arena: float | None = None
+    method: str = "cvt"
+    seed: int = 0
+    robot_radius: float = epuck.RADIUS
+    region_counts: Mapping[int, int] | None = None
+    conservative: bool = False
+    tol: float = TOLERANCE
+    max_iter: int = MAX_ITER
+    relax: float = RELAX
+
+    def check(self, n: Any) -> None:
+        """GoalError (one line) unless these options can make n goals."""
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)):
+            raise GoalError(f"N must be an integer, not {n!r}")
+        if n < 1:
+            raise GoalError(f"N must be at least 1, not {n}")
+        if self.method not in METHODS:
+            raise GoalError(f"method must be one of {', '.join(METHODS)}, not {self.method!r}")
+        seed = self.seed
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise GoalError(f"seed must be a non-negative integer, not {seed!r}")
+        if self.arena is not None and not (np.isfinite(self.arena) and self.arena > 0):
+            raise GoalError(f"arena must be a positive size in metres, not {self.arena!r}")
+        if not (np.isfinite(self.robot_radius) and self.robot_radius > 0):
+            raise GoalError(f"robot radius must be a positive length in metres, not {self.robot_radius!r}")
+        if not (self.tol > 0) or self.max_iter < 1 or not (1.0 <= self.relax <= 4.0):
+            raise GoalError("the Lloyd settings need tol > 0, max_iter >= 1 and 1 <= relax <= 4")
+
+
+PAPER_OPTIONS = GoalOptions()  # the paper's settings: the default of every goal maker
+
+
 def _shrink(
     rgb: np.ndarray, alpha: np.ndarray | None, max_side: int
 ) -> tuple[np.ndarray, np.ndarray | None, str | None]:
@@ -176,43 +221,16 @@ def _sum_histories(histories: list[list[float]]) -> list[float]:
     return padded.sum(axis=0).tolist()
 
 
-def _check_args(
-    n: Any, method: str, seed: Any, arena: float | None, robot_radius: float, tol: float, max_iter: int, relax: float
-) -> None:
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)):
-        raise GoalError(f"N must be an integer, not {n!r}")
-    if n < 1:
-        raise GoalError(f"N must be at least 1, not {n}")
-    if method not in METHODS:
-        raise GoalError(f"method must be one of {', '.join(METHODS)}, not {method!r}")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise GoalError(f"seed must be a non-negative integer, not {seed!r}")
-    if arena is not None and not (np.isfinite(arena) and arena > 0):
-        raise GoalError(f"arena must be a positive size in metres, not {arena!r}")
-    if not (np.isfinite(robot_radius) and robot_radius > 0):
-        raise GoalError(f"robot radius must be a positive length in metres, not {robot_radius!r}")
-    if not (tol > 0) or max_iter < 1 or not (1.0 <= relax <= 4.0):
-        raise GoalError("the Lloyd settings need tol > 0, max_iter >= 1 and 1 <= relax <= 4")
-
-
 def goals_from_prepared(
     prep: PreparedImage,
     n: int,
-    *,
-    arena: float | None = None,
-    method: str = "cvt",
-    seed: int = 0,
-    robot_radius: float = epuck.RADIUS,
-    region_counts: Mapping[int, int] | None = None,
-    conservative: bool = False,
-    tol: float = TOLERANCE,
-    max_iter: int = MAX_ITER,
-    relax: float = RELAX,
+    options: GoalOptions = PAPER_OPTIONS,
     init: Mapping[int, np.ndarray] | None = None,
 ) -> GoalSet:
     """N goals for a prepared image; see generate_goals."""
-    _check_args(n, method, seed, arena, robot_radius, tol, max_iter, relax)
-    counts, notes = allocate_robots([r.area for r in prep.seg.regions], int(n), region_counts)
+    options.check(n)
+    arena, method, seed, robot_radius = options.arena, options.method, options.seed, options.robot_radius
+    counts, notes = allocate_robots([r.area for r in prep.seg.regions], int(n), options.region_counts)
     notes = list(prep.seg.notes) + notes
     given = _check_init(init, counts)
     shown, (prep, k) = prep, _enlarged(prep, counts)
@@ -254,7 +272,7 @@ def goals_from_prepared(
                     f"{ks / ks_distance(region.area, int(n_i)):.2f} x 1.2 sqrt(A_i/(pi N_i))"
                 )
         domain = density_domain(rows, cols) if method == "cvt" else binary_domain(rows, cols)
-        gen, hist = lloyd(domain, start, scale, tol=tol, max_iter=max_iter, relax=relax)
+        gen, hist = lloyd(domain, start, scale, tol=options.tol, max_iter=options.max_iter, relax=options.relax)
         gen, moved = _snap_inside(gen, rows, cols)
         snapped += moved
         goals.append(gen)
@@ -278,7 +296,7 @@ def goals_from_prepared(
     if arena is None:
         arena = auto_arena(d_min, robot_radius)
     else:
-        check_feasible(d_min, int(n), float(arena), robot_radius, conservative)
+        check_feasible(d_min, int(n), float(arena), robot_radius, options.conservative)
     assert arena is not None
     history = _sum_histories(histories)
     params: dict[str, Any] = {
@@ -288,7 +306,7 @@ def goals_from_prepared(
         "method": method,
         "seed": int(seed),
         "robot_radius": float(robot_radius),
-        "conservative": bool(conservative),
+        "conservative": bool(options.conservative),
         "image": prep.source,
         "image_size": [shown.shape[1], shown.shape[0]],
         "background": {
@@ -309,9 +327,9 @@ def goals_from_prepared(
         "k_s_factor": KS_FACTOR,
         "k_m": K_M if method == "cvt" else None,
         "k_d": K_D if method == "cvt" else None,
-        "tol": tol,
-        "max_iter": max_iter,
-        "relax": relax,
+        "tol": options.tol,
+        "max_iter": options.max_iter,
+        "relax": options.relax,
         "iterations": max(len(history) - 1, 0),
         "cost": "eq. 1 / K_m in the normalised square Q (longer image side = 1)",
         "min_spacing": float(d_min * arena) if np.isfinite(d_min) else None,
@@ -323,47 +341,21 @@ def goals_from_prepared(
 def generate_goals(
     image_or_path: str | os.PathLike[str] | np.ndarray,
     n: int,
+    options: GoalOptions = PAPER_OPTIONS,
     *,
-    arena: float | None = None,
-    method: str = "cvt",
-    seed: int = 0,
-    robot_radius: float = epuck.RADIUS,
     background: Any = None,
-    region_counts: Mapping[int, int] | None = None,
-    conservative: bool = False,
-    tol: float = TOLERANCE,
-    max_iter: int = MAX_ITER,
-    relax: float = RELAX,
     min_area: int | None = None,
     init: Mapping[int, np.ndarray] | None = None,
 ) -> GoalSet:
     """N goal positions and colours that represent an image (paper section 4).
 
     image_or_path: a PNG/JPEG/BMP/TIFF path, or an RGB, RGBA or gray array (row 0 at the top).
-    arena: K_r in metres; None picks the conservative 2 K_r for robots of radius robot_radius
-      (default: the e-puck's, transport.epuck.RADIUS), rounded up to a centimetre.
-    method: 'cvt' (Lloyd with the mass density of eq. 2) or 'kmeans' (binary density).
+    options: GoalOptions.
     background: None (alpha channel, else the dominant border colour) or a colour ('#ffffff', 'r,g,b').
-    region_counts: the artist's N_i per region id (ids: regions by area, largest first).
-    conservative: with an explicit arena, require 2 K_r rather than K_r.
-    tol, max_iter, relax: Lloyd stopping rule and over-relaxation (relax=1: plain Lloyd), see cvt.lloyd.
     init: initial samples {region id: (N_i, 2) pixel positions (x, y)} that replace the random ones of
       section 4.2 for those regions (paper 6.1: the previous keyframe's goals, moved); samples outside
       R_i are first moved to its nearest free pixel.
     Raises GoalError (a ValueError with a one-line message) on bad input.
     """
     prep = prepare_image(image_or_path, background=background, min_area=min_area)
-    return goals_from_prepared(
-        prep,
-        n,
-        arena=arena,
-        method=method,
-        seed=seed,
-        robot_radius=robot_radius,
-        region_counts=region_counts,
-        conservative=conservative,
-        tol=tol,
-        max_iter=max_iter,
-        relax=relax,
-        init=init,
-    )
+    return goals_from_prepared(prep, n, options, init)

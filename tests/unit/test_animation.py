@@ -16,6 +16,7 @@ from agent.core.animation import frame_hold, iterations_left, synchronised_veloc
 from agent.core.params import EPUCK
 from agent.core.step import NeighbourStates, control_step
 from coordinator.drawings import keyframes
+from coordinator.goals import GoalOptions
 from coordinator.keyframe_steps import DEFAULT_FIRST_HOLD, DEFAULT_FRAME_TIME
 from coordinator.keyframes import keyframe_goals
 from coordinator.scene import SceneError, load_scene, scene_from_dict, scene_goal_set
@@ -133,7 +134,9 @@ def test_a_drawn_animation_becomes_one_step_per_keyframe_with_its_timing():
     assert [s.hold for s in scene.steps] == [12.0] + [4.0] * 5 + [7.0]
     assert scene.step_starts == [0.0, 12.0, 16.0, 20.0, 24.0, 28.0, 32.0]
     assert scene.duration == 39.0 and scene.ends_on_convergence
-    expected = keyframe_goals(keyframes("triangle", 128), 6, seed=1)  # paper 6.1: initialised from the previous
+    expected = keyframe_goals(
+        keyframes("triangle", 128), 6, GoalOptions(seed=1)
+    )  # paper 6.1: initialised from the previous
     for k in range(7):
         np.testing.assert_allclose(scene_goal_set(scene, k, 6)[0], expected.sets[k].goals)
     fewer = scene_goal_set(scene, 3, 4)[0]  # robots lost: the same arena K_r
@@ -167,7 +170,7 @@ def test_a_folder_plays_in_file_name_order_with_the_default_timing(tmp_path):
     assert [s.frame_period for s in scene.steps] == [DEFAULT_FIRST_HOLD, DEFAULT_FRAME_TIME, DEFAULT_FRAME_TIME]
     assert scene.duration == DEFAULT_FIRST_HOLD + 3 * DEFAULT_FRAME_TIME
     frames = keyframes("triangle", 128)
-    expected = keyframe_goals([frames[1], frames[2], frames[0]], 5, seed=1)
+    expected = keyframe_goals([frames[1], frames[2], frames[0]], 5, GoalOptions(seed=1))
     np.testing.assert_allclose(scene_goal_set(scene, 2, 5)[0], expected.sets[2].goals)
 
 

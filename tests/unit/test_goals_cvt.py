@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from coordinator import shapes
-from coordinator.goals import goals_from_prepared, prepare_image
+from coordinator.goals import GoalOptions, goals_from_prepared, prepare_image
 from coordinator.goals.cvt import _Assigner, binary_domain, cell_centroids, cvt_cost, density_domain, lloyd
 from coordinator.goals.pipeline import PAPER_SAMPLES_MAX
 from coordinator.goals.resize import from_arena
@@ -33,7 +33,7 @@ def _region(name: str, size: int = 160):
 def test_fig4_cost_never_rises_and_settles_within_30_iterations(name, counts):
     prep = prepare_image(shapes.draw(name, 160))
     for seed in range(25):
-        gs = goals_from_prepared(prep, 14, seed=seed, region_counts=counts)
+        gs = goals_from_prepared(prep, 14, GoalOptions(seed=seed, region_counts=counts))
         h = np.asarray(gs.cost_history)
         assert len(gs) == 14
         assert np.all(np.diff(h) <= 1e-12 * h[:-1]), f"seed {seed}: the cost rose"
@@ -45,7 +45,7 @@ def test_fig4_cost_never_rises_and_settles_within_30_iterations(name, counts):
 def test_plain_lloyd_never_raises_the_cost(method):
     prep = prepare_image(shapes.draw("L", 128))
     for seed in range(5):
-        h = np.asarray(goals_from_prepared(prep, 20, seed=seed, method=method, relax=1.0).cost_history)
+        h = np.asarray(goals_from_prepared(prep, 20, GoalOptions(seed=seed, method=method, relax=1.0)).cost_history)
         assert np.all(np.diff(h) <= 1e-12 * h[:-1]) and h[-1] < h[0]
 
 
@@ -153,14 +153,16 @@ def test_lattice_samples_are_n_points_inside_the_region(name, size, region, n):
 
 def test_regions_of_many_goals_start_from_a_lattice_and_settle_lower_in_few_iterations():
     prep = prepare_image(shapes.draw("L", 400))
-    lattice = goals_from_prepared(prep, PAPER_SAMPLES_MAX + 1, seed=2)
+    lattice = goals_from_prepared(prep, PAPER_SAMPLES_MAX + 1, GoalOptions(seed=2))
     paper = goals_from_prepared(
-        prep, PAPER_SAMPLES_MAX + 1, seed=2, init={0: _paper_samples(prep, PAPER_SAMPLES_MAX + 1, 2)}
+        prep, PAPER_SAMPLES_MAX + 1, GoalOptions(seed=2), init={0: _paper_samples(prep, PAPER_SAMPLES_MAX + 1, 2)}
     )
     assert any("hexagonal lattice" in note for note in lattice.params["notes"])
     assert lattice.cost_history[-1] < 0.98 * paper.cost_history[-1]
     assert len(lattice.cost_history) < len(paper.cost_history)
-    assert not any("lattice" in note for note in goals_from_prepared(prep, PAPER_SAMPLES_MAX, seed=2).params["notes"])
+    assert not any(
+        "lattice" in note for note in goals_from_prepared(prep, PAPER_SAMPLES_MAX, GoalOptions(seed=2)).params["notes"]
+    )
 
 
 def _paper_samples(prep, n, seed):
@@ -178,7 +180,7 @@ def test_ten_thousand_goals_cost_no_more_than_scikit_learn_kmeans_on_the_same_pi
     prep = prepare_image(shapes.draw("T", 400))
     rows, cols = prep.seg.pixels(0)
     pts = binary_domain(rows, cols).points
-    gs = goals_from_prepared(prep, 10000, seed=0)
+    gs = goals_from_prepared(prep, 10000, GoalOptions(seed=0))
     ours = from_arena(gs.goals, prep.shape, gs.arena)
     km = KMeans(n_clusters=10000, n_init=1, random_state=0).fit(pts)
 

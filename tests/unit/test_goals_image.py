@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from coordinator import shapes
-from coordinator.goals import GoalError, generate_goals
+from coordinator.goals import GoalError, GoalOptions, generate_goals
 from coordinator.goals.image import foreground_mask, load_image, parse_color
 
 SIZE = 96
@@ -134,7 +134,7 @@ def test_aspect_ratio_is_kept_and_y_points_up():
     wide = np.full((80, 160, 3), 255, np.uint8)
     wide[8:24, 8:24] = shapes.BLUE  # a square in the top-left corner
     wide[60:76, 136:152] = shapes.RED  # and one in the bottom-right corner
-    gs = generate_goals(wide, 8, arena=2.0, robot_radius=0.01)
+    gs = generate_goals(wide, 8, GoalOptions(arena=2.0, robot_radius=0.01))
     blue = gs.regions == [r["id"] for r in gs.params["regions"] if r["color"] == list(shapes.BLUE)][0]
     # the longer side (160 px) spans the arena (2 m): 1 px = 1/80 m, the image centred on the origin,
     # so columns 8-24 are x in [-0.9, -0.7] and rows 8-24 are y in [0.2, 0.4]

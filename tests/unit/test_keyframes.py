@@ -11,7 +11,7 @@ import pytest
 
 from coordinator import drawings, shapes
 from coordinator.drawings import KEYFRAME_ANIMATIONS, capsule, ellipse, keyframes, paint, polygon
-from coordinator.goals import GoalError, generate_goals, prepare_image
+from coordinator.goals import GoalError, GoalOptions, generate_goals, prepare_image
 from coordinator.goals.resize import from_arena
 from coordinator.keyframe_motion import estimate_motion, fit_count, region_shape
 from coordinator.keyframes import goal_disparity, keyframe_goals, match_regions
@@ -130,7 +130,7 @@ def test_every_frame_has_n_distinct_goals_in_its_foreground_on_one_scale(leaf_ru
     init = runs[(True, False)]
     assert [r.mode for r in init.reports] == ["first"] + ["previous"] * (len(frames) - 1)
     # the common arena is the one the most demanding frame needs on its own
-    own = [generate_goals(img, 100, seed=f).arena for f, img in enumerate(frames)]
+    own = [generate_goals(img, 100, GoalOptions(seed=f)).arena for f, img in enumerate(frames)]
     assert runs[(False, False)].arena == max(own)
 
 
@@ -196,10 +196,10 @@ def test_fit_count_thins_and_fills_inside_the_region():
 
 def test_pipeline_starts_lloyd_from_given_samples():
     img = shapes.draw("T", 160)
-    first = generate_goals(img, 40, seed=2)
+    first = generate_goals(img, 40, GoalOptions(seed=2))
     prep = prepare_image(img)
     start = from_arena(first.goals, prep.shape, first.arena)
-    again = generate_goals(img, 40, arena=first.arena, init={0: start})
+    again = generate_goals(img, 40, GoalOptions(arena=first.arena), init={0: start})
     # already converged: the first run stopped when eq. 1 fell by < 1e-4 in an iteration, near but
     # not at the minimum, so a few more iterations move the goals by a fraction of a pixel
     assert goal_disparity(first.goals, again.goals) < 0.25 * first.arena / 160

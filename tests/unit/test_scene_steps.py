@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from coordinator import shapes
-from coordinator.goals import generate_goals
+from coordinator.goals import GoalOptions, generate_goals
 from coordinator.scene import SCENE_DIR, SceneError, load_scene, scene_from_dict, scene_goal_set
 from coordinator.steps import scale_region_counts
 from sim.central.engine import run_central
@@ -170,7 +170,9 @@ def test_goal_sets_are_deterministic_and_cached(sequence):
 def test_every_step_and_count_shares_one_arena(sequence):
     k_r = sequence.image_goals.arena
     own = [
-        generate_goals(shapes.draw(s.shape, 256), 14, seed=sequence.seed, region_counts=s.region_counts).arena
+        generate_goals(
+            shapes.draw(s.shape, 256), 14, GoalOptions(seed=sequence.seed, region_counts=s.region_counts)
+        ).arena
         for s in sequence.steps
     ]
     assert k_r == pytest.approx(max(own))  # the largest conservative arena of the N-robot sets
