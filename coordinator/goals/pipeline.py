@@ -229,7 +229,6 @@ def goals_from_prepared(
 ) -> GoalSet:
     """N goals for a prepared image; see generate_goals."""
     options.check(n)
-    arena, method, seed, robot_radius = options.arena, options.method, options.seed, options.robot_radius
     counts, notes = allocate_robots([r.area for r in prep.seg.regions], int(n), options.region_counts)
     notes = list(prep.seg.notes) + notes
     given = _check_init(init, counts)
@@ -252,26 +251,16 @@ def goals_from_prepared(
                 "use a larger image or fewer robots"
             )
         rows, cols = seg.pixels(region.id)
-        if region.id in given:
-            # a caller's start (e.g. the previous keyframe's goals, paper 6.1): generators outside R_i
-            # could sit outside the Lloyd domain with an empty cell for ever, so they start inside
-            start, moved = _snap_inside(given[region.id], rows, cols)
-            snapped_init += moved
-            ks_used[region.id] = ks_distance(region.area, int(n_i)) / scale
-        elif n_i > PAPER_SAMPLES_MAX:
-            start = lattice_samples(rows, cols, int(n_i), np.random.default_rng([int(seed), region.id]))
-            ks_used[region.id] = ks_distance(region.area, int(n_i)) / scale
+        start, ks, how, moved = _initial_samples(region, int(n_i), rows, cols, given, options.seed)
+        ks_used[region.id], snapped_init = ks / scale, snapped_init + moved
+        if how == "lattice":
             lattice.append(region.id)
-        else:
-            rng = np.random.default_rng([int(seed), region.id])
-            start, ks = poisson_samples(rows, cols, int(n_i), rng)
-            ks_used[region.id] = ks / scale
-            if ks < ks_distance(region.area, int(n_i)) * (1 - 1e-9):
-                notes.append(
-                    f"region {region.id} is too thin for K_s: initial samples used K_s "
-                    f"{ks / ks_distance(region.area, int(n_i)):.2f} x 1.2 sqrt(A_i/(pi N_i))"
-                )
-        domain = density_domain(rows, cols) if method == "cvt" else binary_domain(rows, cols)
+        elif ks < ks_distance(region.area, int(n_i)) * (1 - 1e-9):
+            notes.append(
+                f"region {region.id} is too thin for K_s: initial samples used K_s "
+                f"{ks / ks_distance(region.area, int(n_i)):.2f} x 1.2 sqrt(A_i/(pi N_i))"
+            )
+        domain = density_domain(rows, cols) if options.method == "cvt" else binary_domain(rows, cols)
         gen, hist = lloyd(domain, start, scale, tol=options.tol, max_iter=options.max_iter, relax=options.relax)
         gen, moved = _snap_inside(gen, rows, cols)
         snapped += moved
@@ -292,28 +281,18 @@ def goals_from_prepared(
     cells = voronoi_cells(seg, goals_px, goal_regions)
     colors = cell_colors(prep.rgb, cells, len(goals_px), goals_px, seg.labels)
     d_min = normalised_spacing(goals_px, scale)
-    auto = arena is None
-    if arena is None:
-        arena = auto_arena(d_min, robot_radius)
+    if options.arena is None:
+        arena = auto_arena(d_min, options.robot_radius)
     else:
-        check_feasible(d_min, int(n), float(arena), robot_radius, options.conservative)
-    assert arena is not None
+        arena = float(options.arena)
+        check_feasible(d_min, int(n), arena, options.robot_radius, options.conservative)
     history = _sum_histories(histories)
     params: dict[str, Any] = {
         "n": int(n),
         "arena": float(arena),
-        "arena_auto": auto,
-        "method": method,
-        "seed": int(seed),
-        "robot_radius": float(robot_radius),
-        "conservative": bool(options.conservative),
-        "image": prep.source,
-        "image_size": [shown.shape[1], shown.shape[0]],
-        "background": {
-            "source": prep.foreground.source,
-            "color": list(prep.foreground.background) if prep.foreground.background else None,
-            "tolerance": round(float(prep.foreground.tolerance), 3),
-        },
+        "arena_auto": options.arena is None,
+        **_options_record(options),
+        **_image_record(prep, shown),
         "regions": [
             {
                 "id": r.id,
@@ -324,18 +303,60 @@ def goals_from_prepared(
             }
             for r, c in zip(seg.regions, counts)
         ],
-        "k_s_factor": KS_FACTOR,
-        "k_m": K_M if method == "cvt" else None,
-        "k_d": K_D if method == "cvt" else None,
-        "tol": options.tol,
-        "max_iter": options.max_iter,
-        "relax": options.relax,
         "iterations": max(len(history) - 1, 0),
         "cost": "eq. 1 / K_m in the normalised square Q (longer image side = 1)",
         "min_spacing": float(d_min * arena) if np.isfinite(d_min) else None,
         "notes": notes,
     }
     return GoalSet(to_arena(goals_px, prep.shape, float(arena)), colors, goal_regions, history, params)
+
+
+def _initial_samples(
+    region: Any, n_i: int, rows: np.ndarray, cols: np.ndarray, given: dict[int, np.ndarray], seed: int
+) -> tuple[np.ndarray, float, str, int]:
+    """R_i's initial samples and the K_s (pixels) they keep: the caller's ('given', e.g. the previous
+    keyframe's goals, paper 6.1), a hexagonal lattice above PAPER_SAMPLES_MAX goals ('lattice'), else
+    the paper's random samples (4.2, 'paper'); and how many given samples were moved inside R_i."""
+    paper_ks = ks_distance(region.area, n_i)
+    if region.id in given:
+        # generators outside R_i could sit outside the Lloyd domain with an empty cell for ever
+        start, moved = _snap_inside(given[region.id], rows, cols)
+        return start, paper_ks, "given", moved
+    rng = np.random.default_rng([int(seed), region.id])
+    if n_i > PAPER_SAMPLES_MAX:
+        return lattice_samples(rows, cols, n_i, rng), paper_ks, "lattice", 0
+    start, ks = poisson_samples(rows, cols, n_i, rng)
+    return start, ks, "paper", 0
+
+
+def _options_record(options: GoalOptions) -> dict[str, Any]:
+    cvt = options.method == "cvt"
+    return {
+        "method": options.method,
+        "seed": int(options.seed),
+        "robot_radius": float(options.robot_radius),
+        "conservative": bool(options.conservative),
+        "k_s_factor": KS_FACTOR,
+        "k_m": K_M if cvt else None,
+        "k_d": K_D if cvt else None,
+        "tol": options.tol,
+        "max_iter": options.max_iter,
+        "relax": options.relax,
+    }
+
+
+def _image_record(prep: PreparedImage, shown: PreparedImage) -> dict[str, Any]:
+    """The image as given (``shown``, before any scaling up) and its background."""
+    fg = prep.foreground
+    return {
+        "image": prep.source,
+        "image_size": [shown.shape[1], shown.shape[0]],
+        "background": {
+            "source": fg.source,
+            "color": list(fg.background) if fg.background else None,
+            "tolerance": round(float(fg.tolerance), 3),
+        },
+    }
 
 
 def generate_goals(
