@@ -12,6 +12,15 @@ a cold block, then warm blocks while the robots drive to their goals), timed in 
 each tree (its first block includes any JIT compilation):
 
     .venv/bin/python -m bench.bench_auction --before cf836e5 [--cases 14x1,100x1,1000x250] [--central 1000]
+
+With ``--cold SIZES`` instead: the auction's cold start by size (issue 43), the central engine's
+settling of a new image's goal set on a fresh board (``Participant.settle_alone``), paper-sequence-
+10000's first image at each robot count from the scene's initial poses. Per size: wall and CPU time,
+Jacobi rounds and bids, one to one, and with ``--optimal`` the gap to scipy's ``linear_sum_assignment``
+on the same positions against the bound N (epsilon_A + Delta C) (a dense N x N cost matrix: the
+benchmark's, never the run's):
+
+    .venv/bin/python -m bench.bench_auction --cold 1000,3000,10000 [--optimal]
 """
 
 from __future__ import annotations
@@ -28,8 +37,12 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from agent.core.bidder import Participant
+from agent.core.params import RobotParams
+from coordinator.scene import load_scene
+from sim.central.engine import _step_goals
 from transport.bus import Bus
-from transport.codec import Event, Goals, Timing
+from transport.codec import Event, Goals, Timing, as_sent
 from transport.session import client_of, loopback_router
 
 from .bench_runtime import worktree_at
@@ -213,6 +226,39 @@ def side_by_side(args: argparse.Namespace, cases: list[tuple[int, int]]) -> None
     )
 
 
+def cold_start(robots: int, optimal: bool) -> str:
+    """One size's row of the table."""
+    scene = load_scene("paper-sequence-10000", robots=robots)
+    params = RobotParams.from_dict(scene.robot)
+    pixels = np.arange(robots)
+    goals, _, _ = _step_goals(scene, 0, pixels)
+    position = as_sent(scene.poses)[:, :2]
+    wall, cpu = time.perf_counter(), time.process_time()
+    part = Participant(0, goals, pixels.tolist(), pixels.tolist(), params.assign_eps, params.assign_hysteresis)
+    goal = part.settle_alone(position)
+    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    one_to_one = len(set(goal.tolist())) == robots and bool((goal >= 0).all())
+    gap = bound = "-"
+    if optimal:
+        cost = ((position[:, None, :] - goals[None, :, :]) ** 2).sum(-1)
+        rows, cols = linear_sum_assignment(cost)
+        gap = f"{cost[pixels, goal].sum() - cost[rows, cols].sum():.4g}"
+        bound = f"{robots * (params.assign_eps + params.assign_hysteresis):.4g}"
+    return f"| {robots} | {wall:.2f} | {cpu:.2f} | {part.rounds} | {part.bids} | {one_to_one} | {gap} | {bound} |"
+
+
+def cold_starts(sizes: str, optimal: bool) -> None:
+    lines = [
+        "| robots | settle wall s | CPU s | rounds | bids | one to one | cost - optimum | N (eps_A + Delta C) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for robots in (int(n) for n in sizes.split(",")):
+        lines.append(cold_start(robots, optimal))
+        print(lines[-1], flush=True)
+    command = f".venv/bin/python -m bench.bench_auction --cold {sizes}" + " --optimal" * optimal
+    write_results("cold_auction", "The auction's cold start by size (central engine)", command, lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--quick", action="store_true", help="N = 14 only")
@@ -223,7 +269,12 @@ def main() -> None:
     parser.add_argument("--pairs", type=int, default=1, help="side by side: runs of each tree per case")
     parser.add_argument("--central", default="1000", help="side by side: robots of the central engine's cases")
     parser.add_argument("--blocks", type=int, default=30, help="side by side: blocks per central case")
+    parser.add_argument("--cold", metavar="SIZES", help="only the cold start at these robot counts, e.g. 1000,10000")
+    parser.add_argument("--optimal", action="store_true", help="with --cold: scipy's optimum too (minutes at 10,000)")
     args = parser.parse_args()
+    if args.cold:
+        cold_starts(args.cold, args.optimal)
+        return
     args.central = [int(v) for v in args.central.split(",") if v]
     # SIGTERM unwinds like Ctrl-C, so the finally blocks stop every node process this bench started
     signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
