@@ -216,12 +216,8 @@ def scene_from_dict(data: dict[str, Any], source: str = "<dict>", **overrides: U
     return make_goal_sets(parse_scene_dict(data, source, **overrides))
 
 
-def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: Unpack[Overrides]) -> Scene:
-    """A scene from its table, validated, without its goal sets: no image is read or drawn but a
-    drawn animation's keyframes (make_goal_sets makes the goal sets and the arena that holds them)."""
-    where = source
-    robots, seed, duration = overrides.get("robots"), overrides.get("seed"), overrides.get("duration")
-    known = {
+SCENE_KEYS = frozenset(
+    {
         "name",
         "robots",
         "seed",
@@ -245,7 +241,15 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
         "agents_per_process",
         "deadline",
     }
-    unknown = set(data) - known
+)  # a scene table's keys: any other is a mistake
+
+
+def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: Unpack[Overrides]) -> Scene:
+    """A scene from its table, validated, without its goal sets: no image is read or drawn but a
+    drawn animation's keyframes (make_goal_sets makes the goal sets and the arena that holds them)."""
+    where = source
+    robots, seed, duration = overrides.get("robots"), overrides.get("seed"), overrides.get("duration")
+    unknown = set(data) - SCENE_KEYS
     if unknown:
         raise SceneError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
     n = robots if robots is not None else data.get("robots", 14)
@@ -286,38 +290,14 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
         converge_hold=float(data.get("end", {}).get("converge_hold", Scene.converge_hold)),
         source=source,
     )
-    if scene.clock not in CLOCKS:
-        raise SceneError(f"{where}: clock must be one of {', '.join(CLOCKS)}, not {scene.clock!r}")
-    if scene.engine not in ENGINES:
-        raise SceneError(f"{where}: engine must be one of {', '.join(ENGINES)}, not {scene.engine!r}")
-    k = scene.agents_per_process
-    if not isinstance(k, int) or isinstance(k, bool) or k < 1:
-        raise SceneError(f"{where}: agents_per_process must be a whole number >= 1, not {k!r}")
-    if not _positive(scene.deadline):
-        raise SceneError(f"{where}: deadline must be a positive number of seconds, not {scene.deadline!r}")
-    scene.deadline = float(scene.deadline)
-    if scene.assignment not in ASSIGNMENTS:
-        raise SceneError(f"{where}: assignment must be one of {', '.join(ASSIGNMENTS)}, not {scene.assignment!r}")
+    _check_settings(scene, where)
     scene.obstacles = [_polygon(o, where) for o in data.get("obstacles", [])]
     scene.poses = initial_poses(scene.layout, n, radius, scene.seed, where)
     if scene.goals.get("kind") == "image":
         # One image is a sequence of one step, shown for the whole run.
         steps = [_wrap(lambda: parse_step(_image_step(scene.goals, scene.duration), "goals", source), where)]
     if steps:
-        scene.steps = steps
-        written_for = data.get("robots", n)  # region_counts were written for the file's count: --robots scales them
-        k_r = scene.goals.get("arena")
-        scene.goal_plan = GoalPlan(
-            animation,
-            ["goals"] if "steps" not in data else None,
-            written_for if isinstance(written_for, int) and written_for >= 1 else n,
-            float(k_r) if k_r is not None else None,
-            data.get("arena", "auto"),
-        )
-        for k, step in enumerate(steps):
-            if step.motion is not None:
-                _wrap(lambda: check_window(step.motion, f"steps[{k}]", scene.step_window(k)), where)  # noqa: B023 (called at once)
-        scene.goal_positions = np.full((n, 2), np.nan)
+        _plan_steps(scene, data, steps, animation, where)
     else:
         scene.goal_positions = scene_goals(scene.goals, scene.poses, where)
         scene.arena = _arena(data.get("arena", "auto"), scene, where)  # image scenes: make_goal_sets
@@ -331,6 +311,43 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
     for r in scene.scripted:
         scene.goal_positions[r] = np.nan  # a scripted robot follows its path, not a goal
     return scene
+
+
+def _check_settings(scene: Scene, where: str) -> None:
+    """The run settings a scene may carry: SceneError (one line) unless each is one of its kind."""
+    if scene.clock not in CLOCKS:
+        raise SceneError(f"{where}: clock must be one of {', '.join(CLOCKS)}, not {scene.clock!r}")
+    if scene.engine not in ENGINES:
+        raise SceneError(f"{where}: engine must be one of {', '.join(ENGINES)}, not {scene.engine!r}")
+    k = scene.agents_per_process
+    if not isinstance(k, int) or isinstance(k, bool) or k < 1:
+        raise SceneError(f"{where}: agents_per_process must be a whole number >= 1, not {k!r}")
+    if not _positive(scene.deadline):
+        raise SceneError(f"{where}: deadline must be a positive number of seconds, not {scene.deadline!r}")
+    scene.deadline = float(scene.deadline)
+    if scene.assignment not in ASSIGNMENTS:
+        raise SceneError(f"{where}: assignment must be one of {', '.join(ASSIGNMENTS)}, not {scene.assignment!r}")
+
+
+def _plan_steps(
+    scene: Scene, data: dict[str, Any], steps: list[ImageStep], animation: Animation | None, where: str
+) -> None:
+    """An image or animation scene's steps, and the plan make_goal_sets follows for their goal sets."""
+    n = scene.robots
+    scene.steps = steps
+    written_for = data.get("robots", n)  # region_counts were written for the file's count: --robots scales them
+    k_r = scene.goals.get("arena")
+    scene.goal_plan = GoalPlan(
+        animation,
+        ["goals"] if "steps" not in data else None,
+        written_for if isinstance(written_for, int) and written_for >= 1 else n,
+        float(k_r) if k_r is not None else None,
+        data.get("arena", "auto"),
+    )
+    for k, step in enumerate(steps):
+        if step.motion is not None:
+            _wrap(lambda: check_window(step.motion, f"steps[{k}]", scene.step_window(k)), where)  # noqa: B023 (called at once)
+    scene.goal_positions = np.full((n, 2), np.nan)
 
 
 def make_goal_sets(scene: Scene) -> Scene:
