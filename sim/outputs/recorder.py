@@ -43,6 +43,11 @@ from transport.plausible import AHEAD, GoalSets, stamp_agrees
 
 SCENE_TOPIC = "/display/scene"  # what Foxglove's 3D panel shows: robots in their LED colours, and goals
 
+# robots a tick the log holds every tick of: a larger swarm's per-tick kinds and scene are logged
+# every ceil(N / LOG_ROBOTS)-th tick of the world, so the log grows no faster than at this size (at
+# 10,000 robots a scene message alone is about 4 MB)
+LOG_ROBOTS = 1000
+
 FLUSH_EVERY = 1.0  # s of wall time between flushes of the MCAP log (a killed run keeps all but the last)
 
 _JSON_TYPES = {int: "integer", float: "number", str: "string", dict: "object"}
@@ -161,6 +166,7 @@ class Recorder:
         self._flushed = time.monotonic()
         self._channels: dict[str, int] = {}
         self.started_wall = time.time()
+        self.log_every = max(1, -(-robots // LOG_ROBOTS))  # ticks
         self.heading = True  # a heading arrow per robot in the scene: not for holonomic robots, which never turn
         self.view: Any = None  # sim.outputs.view.SwarmView (pixelswarm run --view): the truth of every tick, one batch
 
@@ -334,7 +340,7 @@ class Recorder:
     def _log_proto(self, kind: str, wall: float, as_proto: LoggedKind, msg: Any, key: str) -> None:
         """A per-tick kind in its protobuf form (sim.outputs.logschema): its tables' numbers as the wire
         has them, a fraction of their JSON's bytes."""
-        if self.log is None:
+        if self.log is None or self.latest_tick % self.log_every:
             return
         cid = self._channels.get(kind)
         if cid is None:
@@ -346,7 +352,7 @@ class Recorder:
     def _log_scene(self, wall: float, m: Truth) -> None:
         """The display at this tick for Foxglove's 3D panel (stamped, like every channel, with the
         wall time it arrived, so the panels of one file play in step)."""
-        if self.log is None:
+        if self.log is None or m.tick % self.log_every:
             return
         cid = self._channels.get(SCENE_TOPIC)
         if cid is None:

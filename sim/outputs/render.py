@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 from av.codec.codec import UnknownCodecError
 
-__all__ = ["Recording", "render_frame", "write_video", "write_plots", "frame_indices"]
+__all__ = ["Recording", "render_frame", "write_video", "write_plots", "frame_indices", "video_size"]
 
 
 @dataclass(frozen=True)
@@ -73,6 +73,62 @@ MP4_OPTIONS = {"movflags": "+faststart"}
 
 _SHIFT = 4  # sub-pixel bits for cv2 drawing
 _ONE = 1 << _SHIFT
+
+# robots: above, discs are drawn as pixel stamps all at once (numpy), not three anti-aliased OpenCV
+# calls a robot, which at 10,000 robots cost most of a frame; discs are then a few pixels wide, where
+# anti-aliasing and a heading tick show nothing
+STAMP_ABOVE = 1000
+MIN_DISC_PX = 2.0  # the narrowest disc a video draws (:func:`video_size`)
+MAX_VIDEO_PX = 4096  # H.264 level 5.1's widest frame
+
+
+def video_size(arena: Sequence[float], radius: np.ndarray | float, size_px: int = 720) -> int:
+    """``size_px``, or more (to :data:`MAX_VIDEO_PX`) until the smallest robot is a disc of
+    :data:`MIN_DISC_PX` across."""
+    r = float(np.min(np.asarray(radius, dtype=float)))
+    if not np.isfinite(r) or r <= 0:
+        return size_px
+    while size_px < MAX_VIDEO_PX and 2 * r * _View(arena, size_px).scale < MIN_DISC_PX:
+        size_px += 16
+    return min(size_px, MAX_VIDEO_PX)
+
+
+def _offsets(r_px: float, ring: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column offsets of the pixels of a disc (or its one-pixel rim) of radius ``r_px``."""
+    k = int(np.ceil(r_px + 0.5))
+    dy, dx = np.mgrid[-k : k + 1, -k : k + 1]
+    d = np.hypot(dx, dy)
+    keep = np.abs(d - r_px) <= 0.5 if ring else d <= r_px + 0.25
+    return dy[keep], dx[keep]
+
+
+def _stamp(img: np.ndarray, centre: np.ndarray, r_px: np.ndarray, bgr: np.ndarray, ring: bool = False) -> None:
+    """Discs of radius ``r_px`` (N,) at pixel ``centre`` (N, 2) (col, row) in colours ``bgr`` (N, 3),
+    one numpy assignment per distinct radius."""
+    h, w = img.shape[:2]
+    rounded = np.maximum(np.round(r_px * 2) / 2, 0.5)
+    for r in np.unique(rounded).tolist():
+        which = np.flatnonzero(rounded == r)
+        dy, dx = _offsets(r, ring)
+        rows = np.rint(centre[which, 1]).astype(np.int64)[:, None] + dy
+        cols = np.rint(centre[which, 0]).astype(np.int64)[:, None] + dx
+        inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+        colour = np.broadcast_to(bgr[which, None, :], (*rows.shape, 3))
+        img[rows[inside], cols[inside]] = colour[inside]
+
+
+def _draw_stamped(
+    img: np.ndarray, view: _View, pose: np.ndarray, radius: np.ndarray, bgr: np.ndarray, goal: np.ndarray | None
+) -> None:
+    """Goal rims and robots' discs as stamps (:data:`STAMP_ABOVE`)."""
+    rpx = radius * view.scale
+    if goal is not None:
+        g = np.asarray(goal, dtype=float).reshape(-1, 2)
+        gok = np.isfinite(g).all(axis=1)
+        dim = np.maximum(bgr * 0.45, 55).astype(np.uint8)
+        _stamp(img, view.px(g[gok]), rpx[gok], dim[gok], ring=True)
+    ok = np.isfinite(pose[:, :2]).all(axis=1)
+    _stamp(img, view.px(pose[ok, :2]), rpx[ok], bgr[ok].astype(np.uint8))
 
 
 class _View:
@@ -137,7 +193,9 @@ def _draw(
     else:
         bgr = np.asarray(color).reshape(n, 3)[:, ::-1].astype(np.int64)
 
-    if goal is not None:
+    if n > STAMP_ABOVE:
+        _draw_stamped(img, view, pose, radius, bgr, goal)
+    elif goal is not None:
         g = np.asarray(goal, dtype=float).reshape(n, 2)
         gok = np.isfinite(g).all(axis=1)
         if gok.any():
@@ -156,7 +214,7 @@ def _draw(
 
     xy = pose[:, :2]
     ok = np.isfinite(xy).all(axis=1)
-    if ok.any():
+    if ok.any() and n <= STAMP_ABOVE:
         has_th = np.isfinite(pose[:, 2])
         th = np.where(has_th, pose[:, 2], 0.0)
         xy0 = np.where(ok[:, None], xy, 0.0)
@@ -233,11 +291,13 @@ def frame_indices(t: np.ndarray, fps: float, speed: float | None = 1.0, max_fram
 HOLD_S = 3.0  # s of video that show the final picture at least: a run ends converge_hold after it forms
 
 
-def held_frames(t: np.ndarray, formed_at: float | None, fps: float = 10, hold_s: float = HOLD_S) -> np.ndarray:
-    """:func:`frame_indices` at real time, then the last sample repeated until the frames from
-    ``formed_at`` (the time the final picture formed; None: the last sample) on last ``hold_s``
-    seconds of video, so whatever ended the run, an audience sees its end picture."""
-    idx = frame_indices(t, fps)
+def held_frames(
+    t: np.ndarray, formed_at: float | None, fps: float = 10, hold_s: float = HOLD_S, speed: float = 1.0
+) -> np.ndarray:
+    """:func:`frame_indices` at ``speed`` (real time by default), then the last sample repeated until
+    the frames from ``formed_at`` (the time the final picture formed; None: the last sample) on last
+    ``hold_s`` seconds of video, so whatever ended the run, an audience sees its end picture."""
+    idx = frame_indices(t, fps, speed, max_frames=0)
     if not len(idx):
         return idx
     t = np.asarray(t, dtype=float)
@@ -353,6 +413,9 @@ def _robot_colours(n: int, color: np.ndarray | None) -> np.ndarray:
     return out
 
 
+PLOT_POINTS = 1_000_000  # points of all robots' paths in trajectories.png together
+
+
 def write_plots(
     out_dir: str | os.PathLike, recording: Recording, clearance: np.ndarray, *, dpi: int = 120, max_points: int = 1500
 ) -> dict[str, Path]:
@@ -414,7 +477,9 @@ def _plot_trajectories(path: Path, rec: Recording, dpi: int, max_points: int) ->
         if len(pts) >= 2:
             ax.add_patch(Polygon(pts, closed=True, fc="0.65", ec="0.4", lw=0.8, zorder=1))
     cols = _robot_colours(N, None if rec.color is None or T == 0 else rec.color[-1])  # the final LED colours
-    step = max(1, int(np.ceil(T / max_points))) if T else 1
+    # points a path, fewer with many robots: matplotlib's cost grows with all paths' points together
+    per_robot = max(50, min(max_points, PLOT_POINTS // max(N, 1)))
+    step = max(1, int(np.ceil(T / per_robot))) if T else 1
     sub = pose[::step, :, :2]
     if T and (T - 1) % step:
         sub = np.concatenate([sub, pose[-1:, :, :2]], axis=0)
@@ -426,13 +491,11 @@ def _plot_trajectories(path: Path, rec: Recording, dpi: int, max_points: int) ->
     ms = 18 if N <= 50 else 6
     ax.scatter(starts[:, 0], starts[:, 1], s=ms, facecolors="none", edgecolors=cols, lw=0.8, zorder=3, label="start")
     ax.scatter(ends[:, 0], ends[:, 1], s=ms, c=cols, zorder=4, label="end")
-    if rec.goal is not None:
+    if rec.goal is not None and T:
         g = rec.goal
-        last = np.full((N, 2), np.nan)
-        for i in range(N):
-            okk = np.flatnonzero(np.isfinite(g[:, i]).all(axis=1))
-            if len(okk):
-                last[i] = g[okk[-1], i]
+        known = np.isfinite(g).all(axis=2)  # (T, N)
+        at = T - 1 - np.argmax(known[::-1], axis=0)  # each robot's last sample with a goal
+        last = np.where(known.any(axis=0)[:, None], g[at, np.arange(N)], np.nan)
         if np.isfinite(last).any():
             ax.scatter(last[:, 0], last[:, 1], s=ms, marker="x", c="0.35", lw=0.8, zorder=3, label="goal")
     ax.set_xlim(xmin - 0.02 * (xmax - xmin), xmax + 0.02 * (xmax - xmin))

@@ -19,6 +19,8 @@ import os
 import re
 import shutil
 import threading
+import zipfile
+from collections.abc import Iterable
 from pathlib import Path, PurePath
 from typing import Any
 
@@ -153,6 +155,21 @@ def write_npz(path: str | os.PathLike, *, compress: bool = True, **arrays: Any) 
     def _w(fh: io.BufferedWriter) -> None:
         # ignored: to mypy a key of clean could be savez's own ``allow_pickle``
         save(fh, **clean)  # type: ignore[arg-type]
+
+    _atomic_write_bytes(path, _w)
+    return path
+
+
+def write_npz_streamed(path: str | os.PathLike, arrays: Iterable[tuple[str, np.ndarray]], level: int = 6) -> Path:
+    """As :func:`write_npz` (compressed), with the arrays taken one at a time from ``arrays``, so a
+    generator can make each (e.g. a float32 copy) only while it is written. ``level``: zlib's."""
+    path = Path(path)
+
+    def _w(fh: io.BufferedWriter) -> None:
+        with zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED, allowZip64=True, compresslevel=level) as z:
+            for name, value in arrays:
+                with z.open(f"{name}.npy", "w", force_zip64=True) as member:
+                    np.lib.format.write_array(member, np.asarray(value), allow_pickle=False)
 
     _atomic_write_bytes(path, _w)
     return path

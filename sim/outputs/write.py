@@ -7,6 +7,7 @@ listing the directory nor a script testing for the file takes it for a finished 
 from __future__ import annotations
 
 import sys
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -25,12 +26,45 @@ from sim.outputs.metrics import (
     communication_parts,
     summarise,
 )
-from sim.outputs.rundir import RunDir, write_json, write_npz
+from sim.outputs.rundir import RunDir, write_json, write_npz_streamed
 
 if TYPE_CHECKING:  # the renderers load matplotlib, OpenCV and PyAV: imported only where used
     from sim.outputs.render import Recording
 
 INCOMPLETE = "INCOMPLETE"  # the marker file of a run directory whose run did not run its course
+
+# robots: from here trajectory.npz keeps per-tick floats as float32 (positions to about 4 um at 60 m):
+# in float64 the arrays of paper-sequence-10000 alone are several GB. Below, float64 as the engines
+# compute them, which the tests comparing engines to the bit read.
+FLOAT32_FROM = 3000
+PER_TICK = ("pose", "velocity", "goal")  # (T, N, ...) float arrays
+# pixels times frames of display.mp4 above which its frames are taken at more than real time: the
+# encoder's and the drawing's cost grows with both, and a 10,000-robot video needs about 2400 px
+VIDEO_PIXEL_BUDGET = 6e9
+
+
+def write_trajectory(path: Path, arrays: dict[str, np.ndarray], radius: np.ndarray) -> Path:
+    """trajectory.npz. Arrays of a tick and more are stored in column-major order (np.load gives
+    them back as (T, N, ...) all the same): a robot's values at successive ticks are then neighbours
+    in the file, so deflate finds a robot at rest, a held goal or colour, and stores it once."""
+    single = radius.shape[0] >= FLOAT32_FROM
+
+    def stored() -> Iterator[tuple[str, np.ndarray]]:  # one copy at a time
+        yield "radius", radius
+        for name, a in arrays.items():
+            a = np.asarray(a)
+            if a.ndim >= 2:
+                a = np.asarray(a, np.float32 if single and name in PER_TICK else a.dtype, order="F")
+            yield name, a
+
+    return write_npz_streamed(path, stored())
+
+
+def video_speed(frames: int, size_px: int) -> float | None:
+    """The speed display.mp4 plays at: real time (None) unless its frames at real time exceed
+    :data:`VIDEO_PIXEL_BUDGET`."""
+    over = frames * size_px * size_px / VIDEO_PIXEL_BUDGET
+    return None if over <= 1 else float(np.ceil(over))
 
 
 def newest_goal_set(arrays: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray] | None:
@@ -119,21 +153,23 @@ def write_run(
     if metrics_extra.get("complete") is False:
         why = [metrics_extra.get("end_reason") or "incomplete", metrics_extra.get("startup_failure")]
         (run_dir / INCOMPLETE).write_text("".join(f"{line}\n" for line in why if line))
-    # ignored: to mypy a key of arrays could be write_npz's own ``compress`` (none is)
-    write_npz(run_dir / "trajectory.npz", radius=radius, **arrays)  # type: ignore[arg-type]
+    write_trajectory(run_dir / "trajectory.npz", arrays, radius)
     # the renderers are imported only where used: they load matplotlib, OpenCV and PyAV
     if len(t) and plots:
         from sim.outputs.render import write_plots
 
         write_plots(run_dir.path, recording_of(scene, arrays, radius), clearance)
     if len(t) and video:
-        from sim.outputs.render import held_frames, write_video
+        from sim.outputs.render import frame_indices, held_frames, video_size, write_video
 
         formed = metrics.get("time_to_converge_s")
-        idx = held_frames(t, None if formed is None else float(t[0]) + formed)
+        size = video_size(scene.arena, radius)
+        speed = video_speed(len(frame_indices(t, 10, max_frames=0)), size) or 1.0
+        idx = held_frames(t, None if formed is None else float(t[0]) + formed, speed=speed)
         try:
-            # the frames are chosen: real time, and the final picture held
-            write_video(run_dir / "display.mp4", recording_of(scene, arrays, radius, idx), speed=None, max_frames=0)
+            # the frames are chosen: real time (or faster, :func:`video_speed`), and the final picture held
+            shown = recording_of(scene, arrays, radius, idx)
+            write_video(run_dir / "display.mp4", shown, size_px=size, speed=None, max_frames=0)
         except RuntimeError as err:  # no encoder here: the run's data matter more than its video
             print(f"pixelswarm: warning: no display.mp4: {err}", file=sys.stderr)
     save_resolved(scene, run_dir.path, robot=params.to_dict())  # scene.json, goal_sets.npz

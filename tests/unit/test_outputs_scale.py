@@ -1,0 +1,83 @@
+"""The run directory's outputs at 10,000 robots (issue 43): display.mp4's frames show every robot as a
+disc at least 2 px across, drawn in bounded time; trajectory.npz is float32 at that scale and stores
+robots at rest compactly; the clearance's quick path is exact."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+from scipy.spatial.distance import pdist
+
+from sim.outputs.metrics import clearance_at
+from sim.outputs.render import MIN_DISC_PX, _View, render_frame, video_size
+from sim.outputs.write import FLOAT32_FROM, write_trajectory
+
+ARENA = (-39.88, -41.74, 39.88, 41.71)  # paper-sequence-10000's
+RADIUS = 0.037  # the e-puck's
+
+
+def grid_of(n: int, spacing: float = 0.8) -> np.ndarray:
+    side = int(np.ceil(np.sqrt(n)))
+    xy = np.stack(np.meshgrid(np.arange(side), np.arange(side)), -1).reshape(-1, 2)[:n] * spacing
+    return np.column_stack([xy - xy.mean(axis=0), np.zeros(n)])
+
+
+def test_the_video_of_10000_robots_is_large_enough_for_2_px_discs():
+    size = video_size(ARENA, RADIUS)
+    assert 2 * RADIUS * _View(ARENA, size).scale >= MIN_DISC_PX
+    assert video_size((0, 0, 4, 3), RADIUS) == 720  # small arenas keep the default
+
+
+@pytest.mark.timeout(60)
+def test_a_frame_of_10000_robots_shows_each_as_a_disc_of_2_px_or_more_quickly():
+    n = 10_000
+    pose = grid_of(n)
+    color = np.zeros((n, 3), np.uint8)
+    color[:, 1] = 255
+    color[4321] = (255, 0, 0)  # one robot to find: red among green
+    size = video_size(ARENA, RADIUS)
+    render_frame(0.0, pose, RADIUS, color, ARENA, goal=pose[:, :2], size_px=size)  # warm
+    start = time.perf_counter()
+    img = render_frame(0.0, pose, RADIUS, color, ARENA, goal=pose[:, :2], size_px=size)
+    assert time.perf_counter() - start < 2.0  # stamped all at once: a few ms on an idle core
+    red = (img[..., 2] > 200) & (img[..., 1] < 60)  # BGR
+    rows, cols = np.nonzero(red)
+    assert len(rows) >= 4
+    assert rows.max() - rows.min() + 1 >= 2 and cols.max() - cols.min() + 1 >= 2
+    green = (img[..., 1] > 200) & (img[..., 2] < 60)
+    assert green.sum() >= 4 * (n - 1)  # every other robot drawn too, none a single pixel
+
+
+def test_trajectory_npz_is_float32_and_compact_at_scale_and_exact_below(tmp_path):
+    ticks = 40
+    for n in (FLOAT32_FROM - 1, FLOAT32_FROM):
+        pose = np.repeat(grid_of(n)[None], ticks, axis=0) * 1.0001  # robots at rest
+        arrays = {
+            "t": np.arange(ticks) * 0.1,
+            "pose": pose,
+            "goal": pose[..., :2].copy(),
+            "assignment": np.broadcast_to(np.arange(n), (ticks, n)).copy(),
+        }
+        path = write_trajectory(tmp_path / f"{n}.npz", arrays, np.full(n, RADIUS))
+        with np.load(path) as z:
+            assert z["pose"].shape == pose.shape and z["t"].dtype == np.float64
+            if n < FLOAT32_FROM:
+                assert z["pose"].dtype == np.float64 and np.array_equal(z["pose"], pose)
+            else:
+                assert z["pose"].dtype == np.float32 and np.array_equal(z["pose"], pose.astype(np.float32))
+            np.testing.assert_array_equal(z["assignment"], arrays["assignment"])
+        raw = sum(a.nbytes for a in arrays.values())
+        assert path.stat().st_size < raw / 10  # a robot at rest is its first tick's bytes, repeated
+
+
+@pytest.mark.parametrize("spread", [0.5, 3.0, 40.0])
+@pytest.mark.parametrize("equal", [True, False])
+def test_clearance_at_is_the_smallest_over_all_pairs(spread, equal):
+    rng = np.random.default_rng(int(spread * 10) + equal)
+    xy = rng.uniform(0, spread, (400, 2))
+    radius = np.full(400, RADIUS) if equal else rng.uniform(0.02, 0.06, 400)
+    i, j = np.triu_indices(400, 1)
+    brute = pdist(xy) - radius[i] - radius[j]
+    assert clearance_at(xy, radius) == pytest.approx(brute.min(), abs=1e-12)
