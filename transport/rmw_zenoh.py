@@ -85,28 +85,33 @@ def mangle(name: str) -> str:
     return name.replace("/", "%") or "%"
 
 
-def node_token(domain: int, zid: str, node_id: int, namespace: str, node: str, enclave: str = "/") -> str:
+@dataclass(frozen=True)
+class NodeName:
+    """A ROS 2 node as rmw_zenoh names it in its liveliness tokens."""
+
+    domain: int
+    zid: str  # its Zenoh session's id
+    node_id: int
+    namespace: str
+    node: str
+    enclave: str = "/"
+
+    def head(self, entity_id: int, kind: str) -> str:
+        """The part of a token every entity of the node shares, for one entity."""
+        where = f"{ADMIN_SPACE}/{self.domain}/{self.zid}/{self.node_id}/{entity_id}/{kind}"
+        return f"{where}/{mangle(self.enclave)}/{mangle(self.namespace)}/{self.node}"
+
+
+def node_token(name: NodeName) -> str:
     """The liveliness token of a node (its id stands as both node id and entity id)."""
-    return f"{ADMIN_SPACE}/{domain}/{zid}/{node_id}/{node_id}/{NODE}/{mangle(enclave)}/{mangle(namespace)}/{node}"
+    return name.head(name.node_id, NODE)
 
 
 def entity_token(
-    domain: int,
-    zid: str,
-    node_id: int,
-    entity_id: int,
-    kind: str,
-    namespace: str,
-    node: str,
-    topic: str,
-    ros_type: str,
-    type_hash: str,
-    qos: str = DEFAULT_QOS,
-    enclave: str = "/",
+    name: NodeName, entity_id: int, kind: str, topic: str, ros_type: str, type_hash: str, qos: str = DEFAULT_QOS
 ) -> str:
     """The liveliness token of a publisher (MP) or subscription (MS) of a node; `topic` fully qualified."""
-    head = f"{ADMIN_SPACE}/{domain}/{zid}/{node_id}/{entity_id}/{kind}/{mangle(enclave)}/{mangle(namespace)}/{node}"
-    return f"{head}/{mangle(topic)}/{dds_type_name(ros_type)}/{mangle(type_hash)}/{qos}"
+    return f"{name.head(entity_id, kind)}/{mangle(topic)}/{dds_type_name(ros_type)}/{mangle(type_hash)}/{qos}"
 
 
 def gid_of(token: str) -> bytes:
@@ -174,7 +179,8 @@ class RosNode:
         self.node_id = node_id
         self.zid = str(session.info.zid())
         self._entity_ids = itertools.count(node_id + 1)
-        self.token = node_token(domain, self.zid, node_id, namespace, name)
+        self.names = NodeName(domain, self.zid, node_id, self.namespace, name)
+        self.token = node_token(self.names)
         self._liveliness = session.liveliness().declare_token(self.token)
         self._entities: list[RosPublisher | RosSubscriber] = []
         self._closed = False
@@ -212,19 +218,7 @@ class RosPublisher:
     def __init__(self, node: RosNode, topic: str, ros_type: str, type_hash: str, qos: str = DEFAULT_QOS) -> None:
         self.topic = topic
         self.key = topic_key(node.domain, topic, ros_type, type_hash)
-        self.token = entity_token(
-            node.domain,
-            node.zid,
-            node.node_id,
-            node.next_entity_id(),
-            PUBLISHER,
-            node.namespace,
-            node.name,
-            topic,
-            ros_type,
-            type_hash,
-            qos,
-        )
+        self.token = entity_token(node.names, node.next_entity_id(), PUBLISHER, topic, ros_type, type_hash, qos)
         self.gid = gid_of(self.token)
         self.sequence_number = 0
         self._lock = threading.Lock()  # the watchdog and the control loop may publish at once
@@ -273,18 +267,7 @@ class RosSubscriber:
         self._liveliness = None
         if not any_domain and "*" not in self.topic:
             check_name(self.topic)
-            self.token = entity_token(
-                node.domain,
-                node.zid,
-                node.node_id,
-                node.next_entity_id(),
-                SUBSCRIPTION,
-                node.namespace,
-                node.name,
-                self.topic,
-                ros_type,
-                type_hash,
-            )
+            self.token = entity_token(node.names, node.next_entity_id(), SUBSCRIPTION, self.topic, ros_type, type_hash)
             self._liveliness = node.session.liveliness().declare_token(self.token)
         self._ring: deque[tuple[float, str, bytes, bytes | None]] = deque(maxlen=capacity)
         self._subscriber = node.session.declare_subscriber(self.key, self._on_sample)

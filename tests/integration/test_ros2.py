@@ -31,6 +31,7 @@ from sim.emulators.mocap import MocapEmulator, circle
 from tests.conftest import REPO, wait_for
 from transport.rmw_zenoh import (
     Attachment,
+    NodeName,
     RosNode,
     entity_token,
     gid_of,
@@ -130,32 +131,22 @@ def test_rosbags_type_hashes_are_the_documented_ones():
 def test_liveliness_tokens_are_rmw_zenohs():
     # design.md's listener and talker of demo_nodes_cpp, verbatim
     zid = "aac3178e146ba6f1fc6e6a4085e77f21"
-    assert node_token(2, zid, 0, "/", "listener") == "@ros2_lv/2/aac3178e146ba6f1fc6e6a4085e77f21/0/0/NN/%/%/listener"
-    assert entity_token(2, zid, 0, 10, "MS", "/", "listener", "/chatter", "std_msgs/msg/String", STRING_HASH) == (
+    listener = NodeName(2, zid, 0, "/", "listener")
+    assert node_token(listener) == "@ros2_lv/2/aac3178e146ba6f1fc6e6a4085e77f21/0/0/NN/%/%/listener"
+    assert entity_token(listener, 10, "MS", "/chatter", "std_msgs/msg/String", STRING_HASH) == (
         "@ros2_lv/2/aac3178e146ba6f1fc6e6a4085e77f21/0/10/MS/%/%/listener/%chatter/std_msgs::msg::dds_::String_/"
         + STRING_HASH
         + "/::,10:,:,:,,"
     )
-    talker = entity_token(
-        2,
-        "8b20917502ee955ac4476e0266340d5c",
-        0,
-        10,
-        "MP",
-        "/",
-        "talker",
-        "/chatter",
-        "std_msgs/msg/String",
-        STRING_HASH,
-        qos="::,7:,:,:,,",
-    )
+    talker_node = NodeName(2, "8b20917502ee955ac4476e0266340d5c", 0, "/", "talker")
+    talker = entity_token(talker_node, 10, "MP", "/chatter", "std_msgs/msg/String", STRING_HASH, qos="::,7:,:,:,,")
     assert talker == (
         "@ros2_lv/2/8b20917502ee955ac4476e0266340d5c/0/10/MP/%/%/talker/%chatter/std_msgs::msg::dds_::String_/"
         + STRING_HASH
         + "/::,7:,:,:,,"
     )
     # a namespace's slashes become '%' too
-    assert node_token(0, zid, 3, "/lab/arena", "cam") == f"@ros2_lv/0/{zid}/3/3/NN/%/%lab%arena/cam"
+    assert node_token(NodeName(0, zid, 3, "/lab/arena", "cam")) == f"@ros2_lv/0/{zid}/3/3/NN/%/%lab%arena/cam"
 
 
 def test_attachment_is_seq_stamp_length_gid_little_endian():
@@ -190,9 +181,8 @@ def test_backend_puts_twist_and_color_as_rmw_zenoh_does(router):
         assert str(twist.encoding) == "application/cdr"
         seq, stamp, gid_length, gid = struct.unpack("<qqB16s", twist.attachment.to_bytes())
         # entity ids count up in the order of declaration: cmd_vel of robot 0, 1, then led of robot 0, 1
-        token = entity_token(
-            0, backend.node.zid, 0, 2, "MP", "/", "pixelswarm_backend", "/robot1/cmd_vel", TWIST, TWIST_HASH
-        )
+        node = NodeName(0, backend.node.zid, 0, "/", "pixelswarm_backend")
+        token = entity_token(node, 2, "MP", "/robot1/cmd_vel", TWIST, TWIST_HASH)
         assert (seq, gid_length, gid) == (1, 16, gid_of(token))
         assert before <= stamp <= after
         cdr = twist.payload.to_bytes()
@@ -208,7 +198,7 @@ def test_backend_puts_twist_and_color_as_rmw_zenoh_does(router):
         # the graph: one node token, an MP token per topic, exactly as design.md spells them
         tokens = {str(r.ok.key_expr) for r in observer.liveliness().get("@ros2_lv/0/**") if r.ok is not None}
         zid = backend.node.zid
-        assert node_token(0, zid, 0, "/", "pixelswarm_backend") in tokens
+        assert node_token(NodeName(0, zid, 0, "/", "pixelswarm_backend")) in tokens
         assert token in tokens
         assert (
             f"@ros2_lv/0/{zid}/0/4/MP/%/%/pixelswarm_backend/%robot1%led/std_msgs::msg::dds_::ColorRGBA_/"
