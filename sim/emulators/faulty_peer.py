@@ -32,7 +32,7 @@ Modes (each mutates only what it says; the layouts are transport/codec.py's, doc
 - ``all``: each copy from one of future-pose, future-state, future-cmd, malformed-all, stale-cmd,
   misc and restart, drawn at random among those that have something to send.
 
-Importable: ``FaultyPeer(settings, display, mode, ...)``; ``run(stop)`` blocks (tests run it in a
+Importable: ``FaultyPeer(settings, display, PeerPlan(mode, ...))``; ``run(stop)`` blocks (tests run it in a
 thread, or the module as a subprocess), ``summary()`` is the last line.
 """
 
@@ -47,6 +47,7 @@ import threading
 import time
 from collections import Counter, deque
 from collections.abc import Callable
+from dataclasses import dataclass
 from types import FrameType
 
 from transport.bus import Bus, RawInbox
@@ -234,28 +235,33 @@ def future_stamp(data: bytes, rng: random.Random, kind: str) -> tuple[str, bytes
     return "", None
 
 
+@dataclass(frozen=True)
+class PeerPlan:
+    """What the faulty peer does: the kinds it damages (``mode``, with the simulation's own if
+    ``include_sim``), the damages it does, copies a second (``rate``), from ``start_after`` s for
+    ``duration`` s (None: until stopped), and the seed of its choices."""
+
+    mode: str = "all"
+    rate: float = 350.0
+    duration: float | None = None
+    start_after: float = 0.0
+    seed: int = 0
+    include_sim: bool = False
+    damages: tuple[str, ...] = tuple(MALFORM)
+
+
 class FaultyPeer:
     """Hears a display's messages and re-publishes damaged copies of them (see the module's text)."""
 
     def __init__(
-        self,
-        settings: ZenohSettings,
-        display: str = "default",
-        mode: str = "all",
-        rate: float = 350.0,
-        duration: float | None = None,
-        start_after: float = 0.0,
-        seed: int = 0,
-        include_sim: bool = False,
-        connect_wait: float = 60.0,
-        damages: tuple[str, ...] = tuple(MALFORM),
+        self, settings: ZenohSettings, display: str = "default", plan: PeerPlan = PeerPlan(), connect_wait: float = 60.0
     ) -> None:
-        self.kinds = kinds_of(mode, include_sim)
-        unknown = set(damages) - set(MALFORM)
-        if unknown or not damages:
+        self.kinds = kinds_of(plan.mode, plan.include_sim)
+        unknown = set(plan.damages) - set(MALFORM)
+        if unknown or not plan.damages:
             raise ValueError(f"damages must be some of {', '.join(MALFORM)}, not {sorted(unknown) or 'none'}")
-        self.damages = tuple(damages)
-        if rate <= 0:
+        self.damages = tuple(plan.damages)
+        if plan.rate <= 0:
             raise ValueError("rate must be positive")
         self.settings = ZenohSettings(
             mode="client" if settings.mode == "router" else settings.mode,
@@ -265,8 +271,8 @@ class FaultyPeer:
             config_file=settings.config_file,
         )
         self.keys = Keys(display)
-        self.mode, self.rate, self.duration, self.start_after = mode, rate, duration, start_after
-        self.rng = random.Random(seed)
+        self.mode, self.rate, self.duration, self.start_after = plan.mode, plan.rate, plan.duration, plan.start_after
+        self.rng = random.Random(plan.seed)
         self.connect_wait = connect_wait
         self.heard: dict[str, deque[tuple[str, bytes]]] = {k: deque(maxlen=BUFFER) for k in self.kinds}
         self.heard_count: Counter[str] = Counter()
@@ -498,18 +504,16 @@ def main(argv: list[str] | None = None) -> int:
     if not settings.connect:
         print("faulty-peer: give the router with -e tcp/HOST:PORT", file=sys.stderr)
         return 2
-    peer = FaultyPeer(
-        settings,
-        display=args.display,
-        mode=args.mode,
-        rate=args.rate,
-        duration=args.duration,
-        start_after=args.start_after,
-        seed=args.seed,
-        include_sim=args.include_sim,
-        connect_wait=args.connect_wait,
-        damages=tuple(d for d in args.damage.split(",") if d),
+    plan = PeerPlan(
+        args.mode,
+        args.rate,
+        args.duration,
+        args.start_after,
+        args.seed,
+        args.include_sim,
+        tuple(d for d in args.damage.split(",") if d),
     )
+    peer = FaultyPeer(settings, args.display, plan, args.connect_wait)
     stop = threading.Event()
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
