@@ -243,6 +243,18 @@ class AuctionLink:
             self._settle()
             self._publish()
 
+    # --- the tick loop's auction step (agent.loop) ----------------------------------------------
+    @property
+    def watching(self) -> bool:
+        return self.active
+
+    def step(self, sensed: Any) -> None:
+        """This tick's step from the robots' bid positions (``where``): on_tick."""
+        self.on_tick(sensed.stamp, self.where() if self.where is not None else {})
+
+    def settled_beside(self) -> bool:
+        return False  # the bus's rounds are played within the step
+
     def penalise(self, robot: int, epoch: int, goal: int) -> None:
         if self.local is not None and epoch == self.local.epoch:
             self.local.penalise(robot, goal, self.params.deadlock_cost)

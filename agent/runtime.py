@@ -32,12 +32,14 @@ from transport.codec import BEFORE_START, Command, Commands, Event, Goals, Pose,
 from transport.keys import cell_of, cells_of
 from transport.plausible import INCONSISTENT, Clock, GoalSets, TickLine, stamp_agrees
 
+from . import loop
 from .assignment import AuctionLink
 from .core.params import DIFFDRIVE, RobotParams
-from .core.policy import GoalTiming, Memory, act, intend
-from .core.step import static_segments
+from .core.policy import Decision, GoalTiming, Memory
+from .core.step import NeighbourStates, static_segments
 from .goal_sets import motion_of, timing_of
 from .lateness import Lateness, strayed
+from .loop import Sensed
 from .neighbour_table import NeighbourTable
 from .pose_trust import PoseTrust
 
@@ -263,6 +265,7 @@ class AgentHost:
         self.parent_pid: int | None = None  # exit when this process (the launcher) is gone
         self.lateness = Lateness(p.dt, p.command_margin)  # real time: how old a pose is when acted on
         self._compute = 0.0  # wall seconds the last tick's step took (its command leaves that much later)
+        self.seams = loop.Seams(self, self.auction, self.segments, config.seed, config.reach)
 
     # --- start ------------------------------------------------------------------------------
     def start(self, timeout: float = 60.0) -> bool:
@@ -676,9 +679,9 @@ class AgentHost:
             self._step_tick([p for p in poses if p.tick == tick])
 
     def _step_tick(self, poses: list[Pose]) -> None:
+        """The one tick loop (agent.loop.tick) for the robots whose pose of one tick arrived."""
         began = time.monotonic()
         p = self.params
-        ids = [q.robot for q in poses]
         tick, stamp = poses[0].tick, poses[0].stamp
         if not self.config.lockstep:  # late: the body may have strayed from the pose (agent.lateness)
             late = self.lateness.at(stamp, began + self._compute)
@@ -686,84 +689,66 @@ class AgentHost:
                 p = p.grown(strayed(late, p.v_max))
         # a pose further than the robot could have driven is held: the robot brakes where it last was
         judged = [self.trust.judge(q.robot, q.tick, q.x, q.y, q.theta) for q in poses]
-        braking = [b for b, j in enumerate(judged) if j is None]
         pose_of = [j if j is not None else self.trust.last(q.robot) for q, j in zip(poses, judged)]
         position = np.array([(x, y) for x, y, _ in pose_of], float)
         heading = np.array([th for _, _, th in pose_of], float)
         if self.config.lockstep:
             self._await_states(tick, position)
-        mems = [self.memory[r] for r in ids]
-        for mem, xy in zip(mems, position):
-            mem.position = xy.copy()
-            mem.stamp = stamp
+        for q, xy in zip(poses, position):
+            self.memory[q.robot].position, self.memory[q.robot].stamp = xy.copy(), stamp
         self._bid_from = None
         if self.config.lockstep:
             self._take_up_goal_sets(tick, stamp)
         self._dead_now()
-        self.auction.on_tick(stamp, self._positions())
+        braking = np.array([j is None for j in judged], bool)
+        sensed = Sensed(np.array([q.robot for q in poses]), position, heading, tick, stamp, p, braking)
+        decision = loop.tick(self, sensed, self.seams)
+        self.fallbacks += int(np.count_nonzero(decision.step.fallback))
+        self.ticks_done += 1
+        self._compute = time.monotonic() - began
+
+    # --- the loop's seams: what the robots hold, the bus link -----------------------------------
+    def rows(self, ids: np.ndarray) -> np.ndarray:
+        return np.array([self.row_of[r] for r in ids.tolist()])
+
+    def goals(self, sensed: Sensed) -> tuple[np.ndarray, np.ndarray]:
+        """Each robot's goal as its goal set was published and its key (epoch, goal index)."""
+        mems = [self.memory[r] for r in sensed.ids.tolist()]
+        key = np.array([(m.assign_epoch, m.goal_index) for m in mems], np.int64).reshape(-1, 2)
+        return np.array([m.goal0 if m.goal_index >= 0 else m.goal for m in mems], float).reshape(-1, 2), key
+
+    def neighbours(self, sensed: Sensed) -> NeighbourStates:
+        p = sensed.params
         stopped = {r: p.v_max * p.dt for r in self.dead}  # it may have moved one period after its last state
         heard_within = min(p.neighbour_dist, self.config.reach)  # a robot hears states only within its range
-        neighbours = self.table.gather(ids, position, stamp, tick, heard_within, p.max_neighbours, stopped)
-        rows = np.array([self.row_of[r] for r in ids])
-        key = np.array([(m.assign_epoch, m.goal_index) for m in mems], np.int64).reshape(-1, 2)
-        goal0 = np.array([m.goal0 if m.goal_index >= 0 else m.goal for m in mems], float).reshape(-1, 2)
-        memory = self.policy_memory.rows(rows)
-        intent = intend(p, position, stamp, goal0, key, self.timing, memory)
-        decision = act(
-            p,
-            np.array(ids),
-            position,
-            heading,
-            intent,
-            memory,
-            neighbours,
-            self.segments,
-            seed=self.config.seed,
-            tick=tick,
-            watch_deadlocks=self.auction.active,
-            reach=self.config.reach,
+        ids = sensed.ids.tolist()
+        return self.table.gather(
+            ids, sensed.position, sensed.stamp, sensed.tick, heard_within, p.max_neighbours, stopped
         )
-        decision.memory.velocity[braking] = 0.0  # v_opt of a braking robot: it stands
-        self.policy_memory.put(rows, decision.memory)
-        result = decision.step
-        self.fallbacks += int(np.count_nonzero(result.fallback))
-        goal = decision.intent.goal
+
+    def send(self, sensed: Sensed, decision: Decision) -> None:
+        """Each robot's state and command on the bus, then the cells around the robots."""
+        p, tick, stamp, position = sensed.params, sensed.tick, sensed.stamp, sensed.position
+        goal, goal0 = decision.intent.goal, self.goals(sensed)[0]
         same = (goal == goal0) | (np.isnan(goal) & np.isnan(goal0))
-        moved = ~(same[:, 0] & same[:, 1])
-        for b in np.flatnonzero(moved).tolist():  # a moving goal set's goal moved (eq. 28)
+        mems = [self.memory[r] for r in sensed.ids.tolist()]
+        for b in np.flatnonzero(~(same[:, 0] & same[:, 1])).tolist():  # a moving goal set's goal moved (eq. 28)
             mems[b].goal = goal[b].copy()
-        for b in np.flatnonzero(decision.deadlocked).tolist():  # paper 5.5.5: C_d on this goal for good
-            self.auction.penalise(mems[b].robot, mems[b].assign_epoch, mems[b].goal_index)
         mode = Command.WHEELS if p.kinematics == DIFFDRIVE else Command.HOLONOMIC
-        velocity, command = result.velocity.copy(), result.command.copy()
-        velocity[braking], command[braking] = 0.0, 0.0
+        velocity, command = decision.step.velocity.copy(), decision.step.command.copy()
+        velocity[sensed.braking], command[sensed.braking] = 0.0, 0.0
         states, commands = [], []
-        for b, (pose, mem) in enumerate(zip(poses, mems)):
+        for b, mem in enumerate(mems):
             mem.last_tick = tick
             has_goal = math.isfinite(mem.goal[0]) and math.isfinite(mem.goal[1])  # np.all costs 6 us a robot
             at_goal = has_goal and math.dist(mem.goal, position[b]) <= p.goal_tolerance
             flags = (State.HAS_GOAL if has_goal else 0) | (State.AT_GOAL if at_goal else 0)
             gx, gy = mem.goal if has_goal else (0.0, 0.0)
-            states.append(
-                State(
-                    pose.robot,
-                    tick,
-                    stamp,
-                    float(position[b, 0]),
-                    float(position[b, 1]),
-                    float(velocity[b, 0]),
-                    float(velocity[b, 1]),
-                    p.radius,
-                    float(gx),
-                    float(gy),
-                    mem.goal_index,
-                    flags,
-                    mem.assign_epoch,
-                    mem.assign_instance,
-                )
-            )
+            x, y, vx, vy = float(position[b, 0]), float(position[b, 1]), float(velocity[b, 0]), float(velocity[b, 1])
+            goal_of = (float(gx), float(gy), mem.goal_index, flags, mem.assign_epoch, mem.assign_instance)
+            states.append(State(mem.robot, tick, stamp, x, y, vx, vy, p.radius, *goal_of))
             commands.append(
-                Command(pose.robot, tick, stamp, mode, float(command[b, 0]), float(command[b, 1]), *mem.color)
+                Command(mem.robot, tick, stamp, mode, float(command[b, 0]), float(command[b, 1]), *mem.color)
             )
         # States before commands: by the time the world moves on, neighbours have our states.
         self._publish_states(tick, stamp, states)
@@ -776,8 +761,6 @@ class AgentHost:
         self.table.forget_outside(self.cells.cells, self.cell_size, keep=self.dead)
         self.table.forget_silent(stamp - p.forget_after, keep=self.dead)
         self._bid_from = None  # the robots' velocities changed: they move where they bid from
-        self.ticks_done += 1
-        self._compute = time.monotonic() - began
 
     def stats(self) -> dict[str, Any]:
         drops: dict[str, int] = {}

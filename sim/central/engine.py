@@ -20,21 +20,23 @@ from __future__ import annotations
 
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor
-from functools import partial
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, NamedTuple, TextIO
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from agent import loop
 from agent.core.bidder import Participant
 from agent.core.goal_motion import GoalMotion
 from agent.core.local_auction import LocalAuction, new_auction
-from agent.core.policy import NO_GOAL, Decision, GoalTiming, Intent, Memory, act, intend
+from agent.core.params import RobotParams
+from agent.core.policy import NO_GOAL, Decision, GoalTiming, Memory
 from agent.core.rounds import BlockRounds
 from agent.core.step import NeighbourStates, static_segments
 from agent.goal_sets import timing_of
+from agent.loop import Seams, Sensed
 from agent.neighbour_table import Heard
 from coordinator.keyframes import goal_matching
 from coordinator.motion import StepMotion
@@ -148,6 +150,187 @@ class _Goals(NamedTuple):
     has_goal: np.ndarray  # (N,) a pixel with a goal (what convergence is judged on)
 
 
+class CentralAuction:
+    """The auction step of the central engine (agent.loop.Auction): the shown image's goal set and
+    the auction that assigns it, settled in this process, beside the policy when ``overlap``."""
+
+    def __init__(self, scene: Scene, params: RobotParams, movers: Movers, reach: float, beside: Beside) -> None:
+        self.scene, self.params, self.movers, self.reach, self.beside = scene, params, movers, reach, beside
+        self.goal_set, self.goal_colors = _scene_goals(scene)  # image scenes: the shown step's goal set, below
+        self.auction: Participant | LocalAuction | None = None  # image scenes: the auction of the shown goal set
+        ids = np.arange(scene.robots)
+        self.assignment = np.where(np.isfinite(self.goal_set).all(axis=1), ids, -1)  # scene goals: its own
+        # the goal set the assignment indexes: the shown one, or the last one until the shown one's first
+        # agreement when the auction's rounds per tick are bounded (the agents drive on as well)
+        self.assigned = (-1, self.goal_set, self.goal_colors)  # (image, goal set, colours)
+        self.block: BlockRounds | None = None  # lock-step rounds per tick bounded: the block under way
+        self.budget = params.rounds_per_tick if scene.assignment != "optimal" and not np.isfinite(reach) else 0
+        self.timing: dict[int, GoalTiming] = {}
+        self.motion: GoalMotion | None = None
+        self.t_start = 0.0  # when the shown step started
+        self.assigned_at: float | None = None  # when the shown goal set was last assigned
+        self.shown = -1  # the image step whose goal set the auction works on
+        self.pending: Future | None = None  # this tick's auction, running beside the control core
+        self.penalties = 0
+
+    def show(self, k: int) -> None:
+        """A new image: its goal set, and a fresh auction (the old prices mean nothing)."""
+        last = self.auction if isinstance(self.auction, Participant) and self.auction.agreed_instance >= 0 else None
+        self.shown, self.auction, self.assigned_at, self.block = k, None, None, None
+        if not self.scene.steps:
+            return
+        previous, image = self.goal_set, self.assigned[0]
+        self.goal_set, self.goal_colors, timing = _step_goals(self.scene, k, self.movers.pixels)
+        self.motion, self.t_start = timing.motion, timing.t_start
+        self.timing = {e: v for e, v in self.timing.items() if e == image + 1} | {k + 1: timing}
+        if self.budget and last is not None:  # as the agents with bounded rounds: the warm start
+            pixels, p = self.movers.pixels.tolist(), self.params
+            self.auction = Participant(k, self.goal_set, pixels, pixels, p.assign_eps, p.assign_hysteresis)
+            self.assignment = warm_start(self.auction, last, previous, self.goal_set, self.assignment)
+            self.assigned = (k, self.goal_set, self.goal_colors)
+
+    @property
+    def watching(self) -> bool:
+        return self.auction is not None
+
+    def step(self, sensed: Sensed) -> None:
+        """Paper 5.1: re-assign every iteration (every assign_period, as the agents do), warm-started
+        from the previous prices, with the hysteresis Delta C against flip-flops from tracking noise."""
+        t, p, movers = sensed.stamp, self.params, self.movers
+        # a moving goal set is auctioned with the positions mapped back to t = 0 (GoalMotion.to_initial_frame)
+        bid_from = (
+            sensed.position if self.motion is None else self.motion.to_initial_frame(sensed.position, t - self.t_start)
+        )
+        # the last tick is a pose with no command to follow (the world asks the agents for none)
+        last = sensed.tick == round(self.scene.duration / p.dt)
+        due = not last and (self.assigned_at is None or t - self.assigned_at >= p.assign_period - 1e-9)
+        auction = self.auction
+        if not self.scene.steps or not (due or self.block is not None):
+            pass
+        elif self.budget and not last and isinstance(auction, Participant):
+            # The agents' lock-step rounds, at most `budget` a tick: a block may span ticks, and its
+            # agreement takes effect at the tick of its last round (agent.core.rounds). A cold start
+            # (no auction yet) runs to its agreement below: no goal to drive to meanwhile.
+            if self.block is None:
+                self.block, self.assigned_at = BlockRounds(auction, bid_from), t
+            if play(self.block, self.budget):
+                self.block = None
+                self.assignment = np.full(len(self.assignment), -1)
+                self.assignment[auction.own_ids] = [auction.agreed.get(r, -1) for r in auction.own]
+                self.assigned = (self.shown, self.goal_set, self.goal_colors)
+        elif due:
+            if self.scene.assignment == "optimal":
+                before = None if self.assigned_at is None else self.assignment[movers.pixels]
+                best = optimal_assignment(bid_from[movers.pixels], self.goal_set, before, p.assign_hysteresis)
+                self.assignment = movers.pixel_assignment(best)
+            elif auction is None:  # a new image: a cold start (the old prices mean nothing)
+                pixels = movers.pixels.tolist()
+                self.auction = new_auction(self.shown, self.goal_set, pixels, pixels, p, self.reach)
+                self.assignment = auction_assignment(self.auction, bid_from)
+            else:
+                self.pending = self.beside.submit(auction_assignment, auction, bid_from)
+            self.assigned_at = t
+            self.assigned = (self.shown, self.goal_set, self.goal_colors)
+        self.beside.lap("assignment")
+
+    def settle(self) -> None:
+        """Wait for the auction beside (no overlap: before any robot decides)."""
+        if self.pending is not None and not self.beside.overlap:
+            self.settled_beside()
+
+    def settled_beside(self) -> bool:
+        """The auction beside is settled: True when it changed the assignment."""
+        if self.pending is None:
+            return False
+        settled, self.pending = self.pending.result(), None
+        self.beside.lap("assignment")
+        changed = not np.array_equal(settled, self.assignment)
+        self.assignment = settled
+        return changed
+
+    def penalise(self, robot: int, epoch: int, goal: int) -> None:
+        if self.auction is not None and epoch == self.shown + 1:  # a goal of an earlier set is no goal of this auction
+            self.auction.penalise(robot, goal, self.params.deadlock_cost)
+            self.penalties += 1
+
+
+class Beside:
+    """The auction's second thread and the clock of the engine's parts (sim.central.stepclock)."""
+
+    def __init__(self, clock: StepClock, overlap: bool) -> None:
+        self.clock, self.overlap = clock, overlap
+        self.pool = ThreadPoolExecutor(1, thread_name_prefix="auction")  # the auction beside the control core
+        self.lap = clock.lap
+
+    def submit(self, work: Any, *args: Any) -> Future:
+        return self.pool.submit(self.clock.timed_beside, work, *args)
+
+
+class Central:
+    """Every robot of a scene in one batch (agent.loop.Robots and Link): what the tracker measured,
+    the goals the assignment gives them, and their neighbours over the in-process link."""
+
+    def __init__(self, scene: Scene, link: InProcessLink, auction: CentralAuction, world: Any) -> None:
+        self.scene, self.link, self.auction, self.world, self.movers = scene, link, auction, world, auction.movers
+        self.params, self.tracker = auction.params, tracker_of(scene)
+        self.policy_memory = Memory.new(scene.robots, latency=self.params.stale_after)  # until a neighbour is heard
+        self.measured = np.zeros((scene.robots, 3))
+        self.made: tuple[int, np.ndarray, _Goals] | None = None  # the last goals made: (image, assignment, goals)
+
+    @property
+    def timing(self) -> dict[int, GoalTiming]:
+        return self.auction.timing
+
+    def sense(self, tick: int) -> Sensed:
+        """The poses as the tracker's messages carry them."""
+        self.measured = as_sent(self.tracker.measure(self.world.poses))
+        self.auction.beside.lap("tracker")
+        n, m = len(self.measured), self.measured
+        return Sensed(np.arange(n), m[:, :2], m[:, 2], tick, tick * self.params.dt, self.params, np.zeros(n, bool))
+
+    def rows(self, ids: np.ndarray) -> np.ndarray:
+        return ids
+
+    def neighbours(self, sensed: Sensed) -> NeighbourStates:
+        lap = self.auction.beside.lap
+        self.world.check()  # the contacts of the last step, while the auction runs beside
+        lap("world")
+        p = self.params
+        heard = self.link.neighbours(sensed.ids, sensed.position, sensed.stamp, p.neighbour_dist, p.max_neighbours)
+        lap("neighbours")
+        self.auction.settle()
+        return heard
+
+    def goals(self, sensed: Sensed) -> tuple[np.ndarray, np.ndarray]:
+        held = self.held()
+        return held.goal0, held.key
+
+    def held(self) -> _Goals:
+        """The goals the assignment gives the robots now."""
+        a, n = self.auction, self.scene.robots
+        image, goal_set, colors = a.assigned
+        assignment = a.assignment
+        # most ticks the auction keeps every goal: the goals are the last ones (unless a pursuer's moved)
+        made = self.made
+        if made is not None and made[0] == image and not self.movers.pursuers and np.array_equal(made[1], assignment):
+            return made[2]._replace(key=made[2].key.copy())  # the intent's key is written into (step_again)
+        if self.scene.steps:
+            has_goal = assignment >= 0
+            goal0 = np.where(has_goal[:, None], goal_set[assignment], np.nan)
+            color = np.where(has_goal[:, None], colors[assignment], 40).astype(np.uint8)
+            epoch = np.where(has_goal, image + 1, a.shown + 1)
+            key = np.stack([epoch, np.where(has_goal, assignment, NO_GOAL)], axis=1)
+        else:  # the scene's own goals, one per robot, as the agents hold them: no goal set, no auction
+            goal0, color, has_goal = goal_set, colors, np.isfinite(goal_set).all(axis=1)
+            key = np.stack([np.zeros(n, np.int64), np.full(n, NO_GOAL)], axis=1)
+        goal0, color = self.movers.goals(goal0, color, self.measured)  # a pursuer heads for its target
+        self.made = (image, assignment.copy(), _Goals(goal0, key, color, has_goal))
+        return self.made[2]._replace(key=key.copy())
+
+    def send(self, sensed: Sensed, decision: Decision) -> None:
+        """The world applies the commands between ticks (simulate)."""
+
+
 def simulate(
     scene: Scene,
     *,
@@ -157,73 +340,29 @@ def simulate(
     overlap: bool = True,
     view: Any = None,
 ) -> Outcome:
-    """Step every robot of the scene in this process, each deciding by the robot policy from what the
-    link let it hear (agent.core.policy), until the scene's duration or convergence. ``clock`` (if
-    given) receives the wall and CPU time per part of each control step (bench/bench_large.py).
-    ``overlap``: a warm auction runs on a second thread while this one searches neighbours and steps
-    the control core on the goals the robots hold, and only the robots whose goal changed are
-    stepped again (the same run, to the bit, as without: tests/integration/test_central_overlap.py)."""
-    params, world = world_of(scene)
-    tracker = tracker_of(scene)
-    segments = static_segments(scene.arena, scene.obstacles)
-    n = scene.robots
-    link = link if link is not None else InProcessLink(n)
-    movers = Movers(scene)  # scripted movers and pursuers: not robot pixels (sim.bodies.movers)
-    ids = np.arange(n)
-    goal_set, goal_colors = _scene_goals(scene)  # image scenes: the shown step's goal set, below
-    auction: Participant | LocalAuction | None = None  # image scenes: the auction of the shown goal set
-    assignment = np.where(np.isfinite(goal_set).all(axis=1), ids, -1)  # goal index per robot (scene goals: its own)
-    # the goal set the assignment indexes: the shown one, or the last one until the shown one's first
-    # agreement when the auction's rounds per tick are bounded (the agents drive on as well)
-    assigned_image, assigned_set, assigned_colors = -1, goal_set, goal_colors
-    block: BlockRounds | None = None  # lock-step rounds per tick bounded: the block under way
-    budget = params.rounds_per_tick if scene.assignment != "optimal" and not np.isfinite(link.reach) else 0
-    memory = Memory.new(n, latency=params.stale_after)  # until a neighbour is heard (agent.core.policy.act)
-    timing: dict[int, GoalTiming] = {}
-    motion: GoalMotion | None = None
-    t_start = 0.0  # when the shown step started
-    assigned_at: float | None = None  # when the shown goal set was last assigned
+    """Step every robot of the scene in this process through the one tick loop (agent.loop.tick),
+    each deciding by the robot policy from what the link let it hear, the world moving between
+    ticks, until the scene's duration or convergence. ``clock`` (if given) receives the wall and CPU
+    time per part of each control step (bench/bench_large.py). ``overlap``: a warm auction runs on a
+    second thread while this one searches neighbours and steps the control core on the goals the
+    robots hold, and only the robots whose goal changed are stepped again (the same run, to the bit,
+    as without: tests/integration/test_central_overlap.py)."""
     if any(e["kind"] in ("fail", "tracker-outage", "tracker-glitch") for e in scene.events):
         raise ValueError(
             "fail and tracker-outage events, and tracker-glitch ones (faults of processes and messages), need the distributed engine"
         )
-    events = sorted(scene.events, key=lambda e: e["t"])
-    last_step = max(len(scene.steps) - 1, 0)
-    shown = -1  # the image step whose goal set the auction works on
-    rec: dict[str, list] = {"t": [], "pose": [], "velocity": [], "color": [], "goal": [], "assignment": [], "step": []}
-    steps = round(scene.duration / params.dt)
-    fallbacks = penalties = 0
-    converged_since, end_reason = None, "duration"
+    params, world = world_of(scene)
+    link = link if link is not None else InProcessLink(scene.robots)
     clock = clock if clock is not None else StepClock()
+    beside = Beside(clock, overlap)
+    auction = CentralAuction(scene, params, Movers(scene), link.reach, beside)
+    robots = Central(scene, link, auction, world)
+    seams = Seams(robots, auction, static_segments(scene.arena, scene.obstacles), scene.seed, link.reach, clock.lap)
+    events = sorted(scene.events, key=lambda e: e["t"])
+    rec: dict[str, list] = {"t": [], "pose": [], "velocity": [], "color": [], "goal": [], "assignment": [], "step": []}
+    steps, last_step = round(scene.duration / params.dt), max(len(scene.steps) - 1, 0)
+    fallbacks, converged_since, end_reason = 0, None, "duration"
     wall0 = last_say = time.time()
-
-    made: tuple[int, np.ndarray, _Goals] | None = None  # the last goals made: (image, assignment, goals)
-
-    def goals_of(assignment: np.ndarray, measured: np.ndarray) -> _Goals:
-        nonlocal made
-        # most ticks the auction keeps every goal: the goals are the last ones (unless a pursuer's moved)
-        if (
-            made is not None
-            and made[0] == assigned_image
-            and not movers.pursuers
-            and np.array_equal(made[1], assignment)
-        ):
-            last = made[2]
-            return last._replace(key=last.key.copy())  # the intent's key is written into (_step_again)
-        if scene.steps:
-            has_goal = assignment >= 0
-            goal0 = np.where(has_goal[:, None], assigned_set[assignment], np.nan)
-            color = np.where(has_goal[:, None], assigned_colors[assignment], 40).astype(np.uint8)
-            epoch = np.where(has_goal, assigned_image + 1, shown + 1)
-            key = np.stack([epoch, np.where(has_goal, assignment, NO_GOAL)], axis=1)
-        else:  # the scene's own goals, one per robot, as the agents hold them: no goal set, no auction
-            goal0, color, has_goal = goal_set, goal_colors, np.isfinite(goal_set).all(axis=1)
-            key = np.stack([np.zeros(n, np.int64), np.full(n, NO_GOAL)], axis=1)
-        goal0, color = movers.goals(goal0, color, measured)  # a pursuer heads for its target
-        made = (assigned_image, assignment.copy(), _Goals(goal0, key, color, has_goal))
-        return made[2]._replace(key=key.copy())
-
-    beside = ThreadPoolExecutor(1, thread_name_prefix="auction")  # the auction beside the control core
     try:
         for tick in range(steps + 1):
             clock.start()
@@ -231,155 +370,42 @@ def simulate(
             while events and events[0]["t"] <= t + 1e-9:
                 ev = events.pop(0)
                 world.teleport(ev["robot"], tuple(ev["pose"]))
-            k = scene.step_at(t)
-            if k != shown:  # a new image: its goal set, and a fresh auction (the old prices mean nothing)
-                last_auction = auction if isinstance(auction, Participant) and auction.agreed_instance >= 0 else None
-                shown, auction, assigned_at, block = k, None, None, None
+            if (k := scene.step_at(t)) != auction.shown:
+                auction.show(k)
                 converged_since = None
-                if scene.steps:
-                    previous = goal_set
-                    goal_set, goal_colors, shown_timing = _step_goals(scene, k, movers.pixels)
-                    motion, t_start = shown_timing.motion, shown_timing.t_start
-                    timing = {e: v for e, v in timing.items() if e == assigned_image + 1} | {k + 1: shown_timing}
-                    if budget and last_auction is not None:  # as the agents with bounded rounds: the warm start
-                        pixels = movers.pixels.tolist()
-                        auction = Participant(k, goal_set, pixels, pixels, params.assign_eps, params.assign_hysteresis)
-                        assignment = warm_start(auction, last_auction, previous, goal_set, assignment)
-                        assigned_image, assigned_set, assigned_colors = shown, goal_set, goal_colors
             clock.lap("other")
-            measured = as_sent(tracker.measure(world.poses))  # the poses as the tracker's messages carry them
-            # a moving goal set is auctioned with the positions mapped back to t = 0 (GoalMotion.to_initial_frame)
-            bid_from = measured[:, :2] if motion is None else motion.to_initial_frame(measured[:, :2], t - t_start)
-            clock.lap("tracker")
-            pending = None  # this tick's auction, running beside the control core
-            # the last tick is a pose with no command to follow (the world asks the agents for none)
-            due = tick < steps and (assigned_at is None or t - assigned_at >= params.assign_period - 1e-9)
-            if (
-                scene.steps
-                and budget
-                and tick < steps
-                and isinstance(auction, Participant)
-                and (due or block is not None)
-            ):
-                # The agents' lock-step rounds, at most `budget` a tick: a block may span ticks, and
-                # its agreement takes effect at the tick of its last round (agent.core.rounds). A cold
-                # start (no auction yet) runs to its agreement below: no goal to drive to meanwhile.
-                if block is None:
-                    block, assigned_at = BlockRounds(auction, bid_from), t
-                if play(block, budget):
-                    block = None
-                    agreed = auction.agreed
-                    assignment = np.full(n, -1)
-                    assignment[auction.own_ids] = [agreed.get(r, -1) for r in auction.own]
-                    assigned_image, assigned_set, assigned_colors = shown, goal_set, goal_colors
-            elif scene.steps and due:
-                # Paper 5.1: re-assign every iteration (every assign_period, as the agents do),
-                # warm-started from the previous prices, with the hysteresis Delta C against flip-flops
-                # from tracking noise.
-                if scene.assignment == "optimal":
-                    assignment = movers.pixel_assignment(
-                        optimal_assignment(
-                            bid_from[movers.pixels],
-                            goal_set,
-                            None if assigned_at is None else assignment[movers.pixels],
-                            params.assign_hysteresis,
-                        )
-                    )
-                elif auction is None:  # a new image: a cold start (the old prices mean nothing)
-                    pixels = movers.pixels.tolist()
-                    auction = new_auction(k, goal_set, pixels, pixels, params, link.reach)
-                    assignment = auction_assignment(auction, bid_from)
-                else:
-                    pending = beside.submit(clock.timed_beside, auction_assignment, auction, bid_from)
-                assigned_at = t
-                assigned_image, assigned_set, assigned_colors = shown, goal_set, goal_colors
-            clock.lap("assignment")
-            world.check()  # the contacts of the last step
-            clock.lap("world")
-            nbs = link.neighbours(ids, measured[:, :2], t, params.neighbour_dist, params.max_neighbours)
-            clock.lap("neighbours")
-            if pending is not None and not overlap:
-                assignment, pending = pending.result(), None
-                clock.lap("assignment")
-            # While the auction runs, every robot decides on the goal it holds: a robot's decision
-            # depends on its own goal and its neighbours' states only, and most robots keep their
-            # goals, so only the robots whose goal changed decide again.
-            goals = goals_of(assignment, measured)
-            intent = intend(params, measured[:, :2], t, goals.goal0, goals.key, timing, memory)
-            clock.lap("preferred")
-            decide_now = partial(
-                act,
-                params,
-                seed=scene.seed,
-                tick=tick,
-                watch_deadlocks=auction is not None,
-                reach=link.reach,
-            )
-            decision = decide_now(ids, measured[:, :2], measured[:, 2], intent, memory, nbs, segments)
-            clock.lap("control")
-            # ... and the world moves on those commands: stepped again from here if the auction changed any
-            pose, moving = world.poses, world.velocities  # this tick's, recorded below
-            before = world.snapshot()
-            velocity_next = _move(world, movers, decision.step, pose, t, params.dt)
-            clock.lap("world")
-            if pending is not None:
-                settled = pending.result()
-                clock.lap("assignment")
-                if not np.array_equal(settled, assignment):
-                    assignment = settled
-                    goals = goals_of(assignment, measured)
-                    again = intend(params, measured[:, :2], t, goals.goal0, goals.key, timing, memory)
-                    clock.lap("preferred")
-                    _step_again(
-                        decision, _changed_rows(intent, again), again, decide_now, measured, memory, nbs, segments
-                    )
-                    clock.lap("control")
-                    world.restore(before)
-                    velocity_next = _move(world, movers, decision.step, pose, t, params.dt)
-                    clock.lap("world")
-            if auction is not None:
-                for robot in np.flatnonzero(decision.deadlocked).tolist():
-                    epoch, goal = decision.intent.key[robot].tolist()
-                    if epoch == shown + 1:  # a goal of an earlier set is no goal of this auction
-                        auction.penalise(robot, goal, params.deadlock_cost)
-                        penalties += 1
-            goal, has_goal = decision.intent.goal, goals.has_goal
-            memory = decision.memory
-            rec["t"].append(t)
-            rec["pose"].append(pose)
-            rec["velocity"].append(moving)
-            rec["color"].append(goals.color)
-            rec["goal"].append(goal)
-            rec["assignment"].append(assignment)
-            rec["step"].append(k)
+            decision = loop.tick(robots, robots.sense(tick), seams)
+            pose, goal, goals = world.poses, decision.intent.goal, robots.held()
+            for name, value in zip(rec, (t, pose, world.velocities, goals.color, goal, auction.assignment, k)):
+                rec[name].append(value)
             if view is not None:  # sim.outputs.view.SwarmView: the live view, one batch a tick
                 view.tick(tick, t, pose, goals.color, goal)
             clock.lap("record")
             # Converging ends the run only once the last image is up: earlier images keep their hold.
+            has_goal = goals.has_goal
             if (
                 k == last_step
                 and scene.ends_on_convergence
                 and has_goal.any()
-                and np.all(_goal_error(pose, goal)[has_goal] <= params.goal_tolerance)
+                and _at_goal(pose, goal, params)[has_goal].all()
             ):
                 converged_since = t if converged_since is None else converged_since
                 if t - converged_since >= scene.converge_hold:
                     end_reason = "converged"
-                    world.restore(before)  # the run ends here: no last step
-                    break
+                    break  # the run ends here: no last step
             else:
                 converged_since = None
             if tick == steps:
-                world.restore(before)
                 break
+            velocity_next = _move(world, robots.movers, decision.step, pose, t, params.dt)
+            clock.lap("world")
             # what the robots broadcast this tick: heard by their neighbours at the next
-            link.broadcast(_states(params, measured, pose, velocity_next, t, movers))
+            link.broadcast(_states(params, robots.measured, pose, velocity_next, t, robots.movers))
             fallbacks += int(decision.step.fallback.sum())
-            clock.lap("other")
             if progress is not None and time.time() - last_say >= 1.0:
                 last_say = time.time()
-                at_goal = int(np.sum(_goal_error(pose, goal) <= params.goal_tolerance))
-                held = f"at goal {at_goal}/{int(has_goal.sum())}" if has_goal.any() else "waiting for the goal set"
+                held = f"at goal {int(_at_goal(pose, goal, params).sum())}/{int(has_goal.sum())}"
+                held = held if has_goal.any() else "waiting for the goal set"
                 print(
                     f"[{scene.name}] central t={t:6.1f} s  step {k}  {held}  contacts {len(world.contacts)}",
                     file=progress,
@@ -387,13 +413,12 @@ def simulate(
                 )
             clock.lap("other")
     finally:
-        beside.shutdown()
+        beside.pool.shutdown()
     arrays = {k: np.stack(v) if k != "t" else np.array(v) for k, v in rec.items()}
     arrays["color"] = arrays["color"].astype(np.uint8)
     arrays["step"] = arrays["step"].astype(np.int64)
-    return Outcome(
-        arrays, list(world.contacts), float(world.min_clearance), fallbacks, penalties, end_reason, time.time() - wall0
-    )
+    how = (list(world.contacts), float(world.min_clearance), fallbacks, auction.penalties)
+    return Outcome(arrays, *how, end_reason, time.time() - wall0)
 
 
 def run_central(
@@ -477,20 +502,9 @@ def _states(params, measured: np.ndarray, pose: np.ndarray, velocity: np.ndarray
     )
 
 
-def _goal_error(pose: np.ndarray, goal: np.ndarray) -> np.ndarray:
-    """(N,) each robot's distance from its goal (NaN: none)."""
-    return np.hypot(*(pose[:, :2] - goal).T)
-
-
-def _changed_rows(old: Intent, new: Intent) -> np.ndarray:
-    """The robots whose goal, its key or preferred velocity differ, to the bit, between two intents."""
-
-    def bits(a: np.ndarray) -> np.ndarray:
-        return np.ascontiguousarray(a, dtype=float).view(np.int64)
-
-    changed = (bits(old.goal) != bits(new.goal)).any(axis=1) | (old.key != new.key).any(axis=1)
-    changed |= (bits(old.preferred) != bits(new.preferred)).any(axis=1)
-    return np.flatnonzero(changed)
+def _at_goal(pose: np.ndarray, goal: np.ndarray, params: RobotParams) -> np.ndarray:
+    """(N,) each robot within the goal tolerance of its goal (none: False)."""
+    return np.hypot(*(pose[:, :2] - goal).T) <= params.goal_tolerance
 
 
 def _move(world, movers: Movers, res, pose: np.ndarray, t: float, dt: float) -> np.ndarray:
@@ -501,25 +515,3 @@ def _move(world, movers: Movers, res, pose: np.ndarray, t: float, dt: float) -> 
     world.set_commands(as_sent(command))
     world.step(dt, check=False)
     return velocity
-
-
-def _step_again(
-    decision: Decision,
-    rows: np.ndarray,
-    intent: Intent,
-    decide_now,
-    measured: np.ndarray,
-    memory: Memory,
-    nbs: NeighbourStates,
-    segments: np.ndarray,
-) -> None:
-    """The robots at ``rows`` decide again on their new intent; the decision takes the new intent for
-    every robot (the others' is the same, to the bit). Per robot, a decision does not depend on
-    the rest of the batch."""
-    if rows.size:
-        again = decide_now(
-            rows, measured[rows, :2], measured[rows, 2], intent.rows(rows), memory.rows(rows), nbs.rows(rows), segments
-        )
-        decision.put(rows, again)
-    decision.intent = intent
-    decision.memory.hold_left, decision.memory.hold_for = intent.hold_left, intent.hold_for

@@ -1,5 +1,5 @@
 """The central engine runs a warm auction on a second thread while it steps the control core on the
-goals the robots hold, and steps again only the robots whose goal the auction changed (sim.central.engine,
+goals the robots hold, and steps again only the robots whose goal the auction changed (agent.loop.tick,
 ``overlap``). That is a speed-up, not a different engine: a run must be the same to the bit as one
 that waits for the auction before any control, on scenes where the auction does change goals (an
 image sequence, animation keyframes with eq. 27's hold, a moving goal set)."""
@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import sim.central.engine as central
+from agent import loop
 from coordinator.scene import load_scene
 from sim.central.stepclock import StepClock
 
@@ -35,13 +36,13 @@ SCENES = {
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if "100 robots" in n else n for n in SCENES])
 def test_a_run_with_the_auction_beside_the_control_core_is_the_same_to_the_bit(tmp_path, monkeypatch, name):
     stepped_again: list[int] = []
-    real = central._step_again
+    real = loop.step_again
 
     def spy(res, rows, *args):
         stepped_again.append(rows.size)
         return real(res, rows, *args)
 
-    monkeypatch.setattr(central, "_step_again", spy)
+    monkeypatch.setattr(loop, "step_again", spy)
     runs, clock = {}, StepClock()
     for overlap in (False, True):
         scene = SCENES[name]()

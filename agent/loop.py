@@ -1,0 +1,162 @@
+"""The one tick loop: what a batch of robots does each tick, in every engine.
+
+An agent process (one robot), an agent host (K robots), the central engine (every robot) and the
+loss study run ``tick`` and differ only in its seams: the ``Link`` (how robots hear each other's
+states and where their commands go: the bus, or in-process with or without impairment) and the
+``Auction`` step (over the bus, or settled in this process). The clock is the caller's: it says
+when a tick is due and brings what the robots know of it (``Sensed``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from .core.params import RobotParams
+from .core.policy import Decision, GoalTiming, Intent, Memory, act, intend
+from .core.step import NeighbourStates
+
+
+@dataclass
+class Sensed:
+    """What a batch of robots knows at a tick, before it hears its neighbours: each robot's tracked
+    pose (rows by robot), the tick and its display time, and the parameters it steers by (grown
+    when it acts late, agent.lateness)."""
+
+    ids: np.ndarray
+    position: np.ndarray  # (B,2)
+    heading: np.ndarray  # (B,)
+    tick: int
+    stamp: float
+    params: RobotParams
+    braking: np.ndarray  # (B,) bool: a pose it cannot trust (agent.pose_trust): the robot stands
+
+
+class Link(Protocol):
+    """How robots hear each other and where their commands go."""
+
+    def neighbours(self, sensed: Sensed) -> NeighbourStates: ...
+
+    def send(self, sensed: Sensed, decision: Decision) -> None: ...
+
+
+class Auction(Protocol):
+    """The goal auction's step of a tick (paper 5.1) and where deadlocks are charged (5.5.5)."""
+
+    @property
+    def watching(self) -> bool: ...  # an auction is under way: deadlocks are watched for it
+
+    def step(self, sensed: Sensed) -> None: ...
+
+    def settled_beside(self) -> bool: ...
+
+    def penalise(self, robot: int, epoch: int, goal: int) -> None: ...
+
+
+class Robots(Protocol):
+    """What the robots carry from tick to tick: the goals they hold and the policy's memory."""
+
+    policy_memory: Memory  # rows: the robots as ``rows`` numbers them
+
+    @property
+    def timing(self) -> Mapping[int, GoalTiming]: ...
+
+    def rows(self, ids: np.ndarray) -> np.ndarray: ...
+
+    def goals(self, sensed: Sensed) -> tuple[np.ndarray, np.ndarray]: ...  # goal0 (B,2), key (B,2)
+
+
+@dataclass
+class Seams:
+    """What one engine plugs into the loop; ``lap`` marks the end of a part of the tick (timing)."""
+
+    link: Link
+    auction: Auction
+    segments: np.ndarray | None
+    seed: int
+    reach: float = np.inf
+    lap: Callable[[str], None] = lambda part: None
+
+
+def tick(robots: Robots, sensed: Sensed, seams: Seams) -> Decision:
+    """One tick of a batch: the auction's step (an agreement is adopted at this tick), the states
+    heard, the policy (agent.core.policy), the deadlocks charged to the auction, commands out."""
+    seams.auction.step(sensed)
+    heard = seams.link.neighbours(sensed)
+    rows = robots.rows(sensed.ids)
+    memory = robots.policy_memory.rows(rows)
+    intent = _intend(robots, sensed, memory)
+    seams.lap("preferred")
+    decision = _act(sensed, intent, memory, heard, seams)
+    seams.lap("control")
+    if seams.auction.settled_beside():  # an auction beside the policy changed goals: those robots decide again
+        again = _intend(robots, sensed, memory)
+        seams.lap("preferred")
+        decide = lambda b: _act(_rows(sensed, b), again.rows(b), memory.rows(b), heard.rows(b), seams)
+        step_again(decision, changed_rows(intent, again), again, decide)
+        seams.lap("control")
+    for b in np.flatnonzero(decision.deadlocked).tolist():  # paper 5.5.5: C_d on this goal for good
+        epoch, goal = decision.intent.key[b].tolist()
+        seams.auction.penalise(int(sensed.ids[b]), epoch, goal)
+    decision.memory.velocity[sensed.braking] = 0.0  # v_opt of a braking robot: it stands
+    robots.policy_memory.put(rows, decision.memory)
+    seams.link.send(sensed, decision)
+    return decision
+
+
+def _intend(robots: Robots, sensed: Sensed, memory: Memory) -> Intent:
+    goal0, key = robots.goals(sensed)
+    return intend(sensed.params, sensed.position, sensed.stamp, goal0, key, robots.timing, memory)
+
+
+def _act(sensed: Sensed, intent: Intent, memory: Memory, heard: NeighbourStates, seams: Seams) -> Decision:
+    return act(
+        sensed.params,
+        sensed.ids,
+        sensed.position,
+        sensed.heading,
+        intent,
+        memory,
+        heard,
+        seams.segments,
+        seed=seams.seed,
+        tick=sensed.tick,
+        watch_deadlocks=seams.auction.watching,
+        reach=seams.reach,
+    )
+
+
+def _rows(sensed: Sensed, b: np.ndarray) -> Sensed:
+    return Sensed(
+        sensed.ids[b],
+        sensed.position[b],
+        sensed.heading[b],
+        sensed.tick,
+        sensed.stamp,
+        sensed.params,
+        sensed.braking[b],
+    )
+
+
+def changed_rows(old: Intent, new: Intent) -> np.ndarray:
+    """The robots whose goal, its key or preferred velocity differ, to the bit, between two intents."""
+
+    def bits(a: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(a, dtype=float).view(np.int64)
+
+    changed = (bits(old.goal) != bits(new.goal)).any(axis=1) | (old.key != new.key).any(axis=1)
+    changed |= (bits(old.preferred) != bits(new.preferred)).any(axis=1)
+    return np.flatnonzero(changed)
+
+
+def step_again(decision: Decision, rows: np.ndarray, intent: Intent, decide: Callable[[np.ndarray], Decision]) -> None:
+    """The robots at ``rows`` decide again on their new intent; the decision takes the new intent for
+    every robot (the others' is the same, to the bit). Per robot, a decision does not depend on
+    the rest of the batch."""
+    if rows.size:
+        decision.put(rows, decide(rows))
+    decision.intent = intent
+    decision.memory.hold_left, decision.memory.hold_for = intent.hold_left, intent.hold_for
