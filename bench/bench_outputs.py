@@ -12,6 +12,11 @@ presets (the first is what display.mp4 is now): seconds to write, file size.
 Foxglove: building one ``foxglove.SceneUpdate`` (sim.outputs.foxglove.scene_update) and encoding it with
 protobuf (Foxglove's SDK), as the recorder does at every recorded tick (10 a second), at 14, 100 and 1000 robots.
 
+``--large``: every output of a run directory at 10,000 robots (paper-sequence-10000's arena) from
+synthetic arrays of ``--ticks`` ticks, each written in a forked child: seconds, peak RSS above the
+arrays', bytes, and per tick, so the whole sequence's (:data:`SEQUENCE_TICKS`) can be extrapolated;
+the video over ``--frames`` frames only.
+
 ``--mcap``: the size of log.mcap for one 100-robot lock-step run (:data:`MCAP_RUN`, the same run bit
 for bit each time), per channel: messages, their bytes, and those bytes compressed alone with zstd
 (the file compresses the channels together, in chunks). ``--tree DIR`` runs the code of another
@@ -127,11 +132,133 @@ def mcap_rows(tree: Path) -> list[str]:
     return rows
 
 
+SEQUENCE_TICKS = 12350  # paper-sequence-10000: 1235 s of holds at dt = 0.1 s
+
+
+def synthetic_run(ticks: int, robots: int = 10_000) -> tuple[object, dict[str, np.ndarray]]:
+    """paper-sequence-10000's scene, and arrays as an engine records them: robots leave a grid for
+    random goals at v_pref and stop there (most of a hold is robots at rest)."""
+    from coordinator.scene import load_scene
+
+    scene = load_scene("paper-sequence-10000", robots=robots)
+    rng = np.random.default_rng(0)
+    x0, y0, x1, y1 = scene.arena
+    side = int(np.ceil(np.sqrt(robots)))
+    grid = np.stack(np.meshgrid(np.arange(side), np.arange(side)), -1).reshape(-1, 2)[:robots] * 0.8 - side * 0.4
+    goal = rng.uniform([x0 + 1, y0 + 1], [x1 - 1, y1 - 1], (robots, 2))
+    way = goal - grid
+    dist = np.hypot(*way.T)
+    travelled = np.minimum(np.arange(ticks)[:, None] * 0.045, dist)  # (T, N): 0.45 m/s for 0.1 s a tick
+    xy = grid + travelled[..., None] * (way / np.maximum(dist, 1e-9)[:, None])
+    pose = np.concatenate([xy, np.zeros((ticks, robots, 1))], -1)
+    arrays = {
+        "t": np.arange(ticks) * 0.1,
+        "pose": pose,
+        "velocity": np.gradient(xy, 0.1, axis=0),
+        "color": np.broadcast_to(rng.integers(0, 256, (robots, 3), dtype=np.uint8), (ticks, robots, 3)).copy(),
+        "goal": np.broadcast_to(goal, (ticks, robots, 2)).copy(),
+        "assignment": np.broadcast_to(rng.permutation(robots), (ticks, robots)).copy(),
+        "step": np.zeros(ticks, np.int64),
+    }
+    return scene, arrays
+
+
+def _rss_kb() -> int:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1])
+    return 0
+
+
+def _in_child(job, queue) -> None:  # type: ignore[no-untyped-def]
+    import resource
+
+    before = _rss_kb()
+    start = time.perf_counter()
+    size = job()
+    seconds = time.perf_counter() - start
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    queue.put((seconds, (peak - before) / 1024, size))
+
+
+def large_rows(ticks: int, frames: int) -> list[str]:
+    """Each output of a 10,000-robot run directory from :func:`synthetic_run`, one forked child each."""
+    import multiprocessing
+
+    from sim.outputs import write
+    from sim.outputs.metrics import TrueRecord, clearance_over_time, summarise
+
+    scene, arrays = synthetic_run(ticks)
+    radius = np.full(scene.robots, 0.037)
+    tmp = Path(tempfile.mkdtemp())
+    size = render.video_size(scene.arena, radius)
+
+    def metrics() -> int:
+        clearance = clearance_over_time(arrays["pose"], radius)
+        record = TrueRecord(arrays["t"], arrays["pose"], radius, arrays["goal"], 0.01, clearance)
+        return len(repr(summarise(record, wall_s=1.0, contacts=0)))
+
+    def npz() -> int:
+        path = tmp / "trajectory.npz"
+        write.write_trajectory(path, arrays, radius)
+        return path.stat().st_size
+
+    def plots() -> int:
+        clearance = np.zeros(ticks)
+        paths = render.write_plots(tmp, write.recording_of(scene, arrays, radius), clearance)
+        return sum(p.stat().st_size for p in paths.values())
+
+    def video() -> int:
+        rec = write.recording_of(scene, arrays, radius, np.arange(min(frames, ticks)))
+        render.write_video(tmp / "display.mp4", rec, speed=None, max_frames=0, size_px=size)
+        return (tmp / "display.mp4").stat().st_size
+
+    def scene_message() -> int:
+        return len(scene_update(0, arrays["pose"][-1], radius, arrays["color"][-1], goal=arrays["goal"][-1]).encode())
+
+    jobs = [("metrics + clearance", metrics, ticks), ("trajectory.npz", npz, ticks), ("plots", plots, ticks)]
+    jobs += [
+        (f"display.mp4 ({size} px)", video, min(frames, ticks)),
+        ("a scene message", scene_message, 1),
+    ]
+    context = multiprocessing.get_context("fork")
+    rows = [
+        "| output | ticks | s | s per tick | peak RSS above arrays, MB | bytes | bytes per tick |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name, job, count in jobs:
+        queue = context.Queue()
+        child = context.Process(target=_in_child, args=(job, queue))
+        child.start()
+        seconds, mb, written = queue.get()
+        child.join()
+        rows.append(
+            f"| {name} | {count} | {seconds:.2f} | {seconds / count:.4f} | {mb:.0f} | {written:,} | {written // count:,} |"
+        )
+    for p in tmp.iterdir():
+        p.unlink()
+    tmp.rmdir()
+    held = sum(a.nbytes for a in arrays.values()) / 1e6
+    rows += ["", f"Arrays held (float64 as the engines record them): {held:.0f} MB for {ticks} ticks."]
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--mcap", action="store_true", help="only log.mcap's size for one 100-robot run")
     parser.add_argument("--tree", type=Path, default=REPO, help="--mcap: the checkout whose code runs")
+    parser.add_argument("--large", action="store_true", help="each output of a 10,000-robot run directory")
+    parser.add_argument("--ticks", type=int, default=300, help="--large: ticks of synthetic arrays")
+    parser.add_argument("--frames", type=int, default=60, help="--large: frames of the video")
     args = parser.parse_args()
+    if args.large:
+        write_results(
+            "outputs_large",
+            "A 10,000-robot run directory's outputs, from synthetic arrays",
+            f".venv/bin/python bench/bench_outputs.py --large --ticks {args.ticks} --frames {args.frames}",
+            [*large_rows(args.ticks, args.frames), f"Load average at the end: {os.getloadavg()[0]:.1f}."],
+        )
+        return
     if args.mcap:
         describe = ["git", "describe", "--always", "--dirty"]
         commit = subprocess.run(describe, cwd=args.tree, capture_output=True, text=True)
