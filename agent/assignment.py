@@ -244,10 +244,6 @@ class AuctionLink:
             self._publish()
 
     # --- the tick loop's auction step (agent.loop) ----------------------------------------------
-    @property
-    def watching(self) -> bool:
-        return self.active
-
     def step(self, sensed: Any) -> None:
         """This tick's step from the robots' bid positions (``where``): on_tick."""
         self.on_tick(sensed.stamp, self.where() if self.where is not None else {})

@@ -47,7 +47,7 @@ class Auction(Protocol):
     """The goal auction's step of a tick (paper 5.1) and where deadlocks are charged (5.5.5)."""
 
     @property
-    def watching(self) -> bool: ...  # an auction is under way: deadlocks are watched for it
+    def active(self) -> bool: ...  # an auction is under way: deadlocks are watched for it
 
     def step(self, sensed: Sensed) -> None: ...
 
@@ -124,7 +124,7 @@ def _act(sensed: Sensed, intent: Intent, memory: Memory, heard: NeighbourStates,
         seams.segments,
         seed=seams.seed,
         tick=sensed.tick,
-        watch_deadlocks=seams.auction.watching,
+        watch_deadlocks=seams.auction.active,
         reach=seams.reach,
     )
 

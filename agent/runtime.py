@@ -56,7 +56,6 @@ class RobotMemory:
     goal: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
     goal_index: int = -1
     color: tuple[int, int, int] = IDLE_COLOR
-    last_tick: int = -1
     position: np.ndarray | None = None  # tracked position of the last tick
     assign_epoch: int = 0  # the agreed assignment that gave goal_index (image scenes)
     assign_instance: int = 0
@@ -739,7 +738,6 @@ class AgentHost:
         velocity[sensed.braking], command[sensed.braking] = 0.0, 0.0
         states, commands = [], []
         for b, mem in enumerate(mems):
-            mem.last_tick = tick
             has_goal = math.isfinite(mem.goal[0]) and math.isfinite(mem.goal[1])  # np.all costs 6 us a robot
             at_goal = has_goal and math.dist(mem.goal, position[b]) <= p.goal_tolerance
             flags = (State.HAS_GOAL if has_goal else 0) | (State.AT_GOAL if at_goal else 0)

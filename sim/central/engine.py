@@ -190,7 +190,7 @@ class CentralAuction:
             self.assigned = (k, self.goal_set, self.goal_colors)
 
     @property
-    def watching(self) -> bool:
+    def active(self) -> bool:
         return self.auction is not None
 
     def step(self, sensed: Sensed) -> None:
@@ -223,20 +223,16 @@ class CentralAuction:
                 before = None if self.assigned_at is None else self.assignment[movers.pixels]
                 best = optimal_assignment(bid_from[movers.pixels], self.goal_set, before, p.assign_hysteresis)
                 self.assignment = movers.pixel_assignment(best)
-            elif auction is None:  # a new image: a cold start (the old prices mean nothing)
-                pixels = movers.pixels.tolist()
-                self.auction = new_auction(self.shown, self.goal_set, pixels, pixels, p, self.reach)
-                self.assignment = auction_assignment(self.auction, bid_from)
-            else:
+            elif auction is not None and self.beside.overlap:
                 self.pending = self.beside.submit(auction_assignment, auction, bid_from)
+            else:  # a new image: a cold start (the old prices mean nothing)
+                if auction is None:
+                    pixels = movers.pixels.tolist()
+                    auction = self.auction = new_auction(self.shown, self.goal_set, pixels, pixels, p, self.reach)
+                self.assignment = auction_assignment(auction, bid_from)
             self.assigned_at = t
             self.assigned = (self.shown, self.goal_set, self.goal_colors)
         self.beside.lap("assignment")
-
-    def settle(self) -> None:
-        """Wait for the auction beside (no overlap: before any robot decides)."""
-        if self.pending is not None and not self.beside.overlap:
-            self.settled_beside()
 
     def settled_beside(self) -> bool:
         """The auction beside is settled: True when it changed the assignment."""
@@ -298,7 +294,6 @@ class Central:
         p = self.params
         heard = self.link.neighbours(sensed.ids, sensed.position, sensed.stamp, p.neighbour_dist, p.max_neighbours)
         lap("neighbours")
-        self.auction.settle()
         return heard
 
     def goals(self, sensed: Sensed) -> tuple[np.ndarray, np.ndarray]:
