@@ -39,8 +39,7 @@ from scipy.optimize import linear_sum_assignment
 
 from agent.core.bidder import Participant
 from agent.core.params import RobotParams
-from coordinator.scene import load_scene
-from sim.central.engine import _step_goals
+from coordinator.scene import load_scene, scene_goal_set
 from transport.bus import Bus
 from transport.codec import Event, Goals, Timing, as_sent
 from transport.session import client_of, loopback_router
@@ -231,7 +230,7 @@ def cold_start(robots: int, optimal: bool) -> str:
     scene = load_scene("paper-sequence-10000", robots=robots)
     params = RobotParams.from_dict(scene.robot)
     pixels = np.arange(robots)
-    goals, _, _ = _step_goals(scene, 0, pixels)
+    goals = as_sent(scene_goal_set(scene, 0, robots)[0])  # as the robots hear them
     position = as_sent(scene.poses)[:, :2]
     wall, cpu = time.perf_counter(), time.process_time()
     part = Participant(0, goals, pixels.tolist(), pixels.tolist(), params.assign_eps, params.assign_hysteresis)

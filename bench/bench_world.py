@@ -46,7 +46,7 @@ from scipy.spatial.distance import pdist
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from agent.core.params import EPUCK as EPUCK_PARAMS  # noqa: E402
-from sim.bodies.world import Body, World  # noqa: E402
+from sim.bodies.world import ActuationNoise, Body, World  # noqa: E402
 
 EPUCK = Body.from_params(EPUCK_PARAMS)
 STEPS = 40
@@ -70,7 +70,7 @@ def scenario(name: str, n: int, rng: np.random.Generator) -> tuple[World, np.nda
         cmds = rng.uniform(-0.13, 0.13, (n, 2))
     else:
         raise ValueError(name)
-    w = World([EPUCK] * n, poses, seed=0)
+    w = World([EPUCK] * n, poses, noise=ActuationNoise(seed=0))
     for i in range(n):
         w.set_command(i, *cmds[i])
     return w, cmds

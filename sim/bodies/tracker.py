@@ -10,7 +10,7 @@ import numpy as np
 from agent.core.params import HOLONOMIC, RobotParams
 from coordinator.scene import Scene
 from sim.bodies.movers import scripted_speed_limit
-from sim.bodies.world import Body, World
+from sim.bodies.world import ActuationNoise, Body, World
 
 
 def bodies_of(scene: Scene) -> tuple[RobotParams, list[Body]]:
@@ -32,8 +32,7 @@ def world_of(scene: Scene) -> tuple[RobotParams, World]:
         scene.poses,
         arena=scene.arena,
         obstacles=scene.obstacles,
-        actuation_noise=scene.noise.actuation,
-        seed=scene.seed,
+        noise=ActuationNoise(relative=scene.noise.actuation, seed=scene.seed),
     )
 
 

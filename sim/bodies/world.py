@@ -11,14 +11,14 @@ Kinematics (per robot, so one world may hold a mixed swarm):
   clipped to +-``v_max``; v = (vl + vr) / 2, omega = (vr - vl) / wheel_base, omega clipped to
   +-``omega_max``. Integration is the exact unicycle arc (no Euler error).
 
-Actuation noise: the actuation error is held for ``noise_period`` seconds of world time (default
+Actuation noise (ActuationNoise): the actuation error is held for ``period`` seconds of world time (default
 the control period, RobotParams.dt) on a fixed time grid: on entering each period the world draws an
 (N, 4) standard-normal array from its own ``numpy.random.Generator`` (seeded at construction),
 whatever the commands are. So the noise a robot gets never depends on the order in which commands
 arrived, nor on how time is chunked into ``step`` calls (one step(0.1) or ten step(0.01) draw the
 same numbers), and the same sequence of calls gives bit-identical poses. The realised command is
-``c * (1 + actuation_noise * n)`` per wheel (diffdrive) or ``c + actuation_noise * |c| * n``
-(holonomic, isotropic), plus ``actuation_noise_abs * n'`` (m/s) for robots whose command is
+``c * (1 + relative * n)`` per wheel (diffdrive) or ``c + relative * |c| * n``
+(holonomic, isotropic), plus ``absolute * n'`` (m/s) for robots whose command is
 non-zero (idle motors do not creep); it is then clipped to the limits again, so the speed limits
 hold with noise too. Within a noise period and between commands the motion is an exact arc, so the
 integration itself does not depend on the substep.
@@ -144,6 +144,20 @@ class Contact:
     max_depth: float
 
 
+@dataclass(frozen=True)
+class ActuationNoise:
+    """The world's actuation noise (see the module's text): ``relative`` to the command, ``absolute``
+    (m/s) for a moving robot, held for ``period`` s of world time, drawn from ``seed``."""
+
+    relative: float = 0.02
+    absolute: float = 0.0
+    period: float = EPUCK.dt
+    seed: int = 0
+
+
+DEFAULT_NOISE = ActuationNoise()  # the default: 2 % relative noise, seed 0
+
+
 class World:
     """N disc robots in a plane with optional arena walls and polygon obstacles; see the module doc."""
 
@@ -154,11 +168,8 @@ class World:
         *,
         arena: tuple[float, float, float, float] | None = None,
         obstacles: Sequence[Sequence[tuple[float, float]]] = (),
-        actuation_noise: float = 0.02,
-        actuation_noise_abs: float = 0.0,
-        seed: int = 0,
+        noise: ActuationNoise = DEFAULT_NOISE,
         substep: float = 0.01,
-        noise_period: float = EPUCK.dt,
     ) -> None:
         bodies = list(bodies)
         if not bodies:
@@ -174,12 +185,13 @@ class World:
             raise ValueError(f"poses must have shape ({len(bodies)}, 3) to match the bodies, not {p.shape}")
         if not np.all(np.isfinite(p)):
             raise ValueError("poses must be finite")
-        self._noise_rel = _non_negative("actuation_noise", actuation_noise)
-        self._noise_abs = _non_negative("actuation_noise_abs", actuation_noise_abs)
+        self._noise_rel = _non_negative("actuation noise", noise.relative)
+        self._noise_abs = _non_negative("absolute actuation noise", noise.absolute)
         self._substep = _positive("substep", substep)
-        self._noise_period = _positive("noise_period", noise_period)
+        self._noise_period = _positive("noise period", noise.period)
         self._noise = np.zeros((len(bodies), 4))
         self._noise_index: int | None = None  # the noise period self._noise belongs to
+        seed = noise.seed
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise ValueError(f"seed must be a non-negative integer, not {seed!r}")
         self._arena = make_arena(arena)

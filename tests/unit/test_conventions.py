@@ -48,10 +48,10 @@ def test_every_package_assumes_the_same_robot_body():
     assert scene.radius == EPUCK.radius == RobotParams().radius == epuck.RADIUS
     assert (EPUCK.v_max, EPUCK.omega_max, EPUCK.wheel_base) == (epuck.V_MAX, epuck.OMEGA_MAX, epuck.WHEEL_BASE)
     for goals in (generate_goals, keyframe_goals):
-        assert inspect.signature(goals).parameters["robot_radius"].default == EPUCK.radius
+        assert inspect.signature(goals).parameters["options"].default.robot_radius == EPUCK.radius
     body = Body(EPUCK.kinematics, EPUCK.radius, EPUCK.v_max)
     assert body == Body.from_params(EPUCK)
-    assert inspect.signature(World).parameters["noise_period"].default == EPUCK.dt
+    assert inspect.signature(World).parameters["noise"].default.period == EPUCK.dt
 
 
 def test_the_goals_command_defaults_to_the_same_radius(tmp_path: Path):

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from scipy.spatial.distance import pdist, squareform
 
 from agent.core.params import EPUCK, RobotParams
-from sim.bodies.world import Body, Contact, World
+from sim.bodies.world import ActuationNoise, Body, Contact, World
 
 EPUCK_BODY = Body("diffdrive", radius=0.045, v_max=0.13)
 HOLO = Body("holonomic", radius=0.045, v_max=0.13)
@@ -35,7 +35,7 @@ def test_set_commands_clips_every_robot_as_set_command_does():
     rng = np.random.default_rng(4)
     bodies = [EPUCK_BODY, HOLO, FAST_HOLO] * 20
     poses = np.column_stack((np.arange(60) * 0.3, np.zeros(60), rng.uniform(-3, 3, 60)))
-    one, batch = World(bodies, poses, seed=2), World(bodies, poses, seed=2)
+    one, batch = World(bodies, poses, noise=ActuationNoise(seed=2)), World(bodies, poses, noise=ActuationNoise(seed=2))
     for _ in range(5):
         cmd = rng.normal(0.0, 0.2, (60, 2)) * rng.choice([0.1, 1.0, 30.0], (60, 1))
         cmd[::9] *= 0.13 / np.hypot(cmd[::9, 0], cmd[::9, 1])[:, None]  # exactly on the holonomic limit
@@ -50,7 +50,7 @@ def test_set_commands_clips_every_robot_as_set_command_does():
 
 
 def test_holonomic_straight_line_exact_with_no_noise():
-    w = World([HOLO], [[0.1, -0.2, 0.7]], actuation_noise=0.0)
+    w = World([HOLO], [[0.1, -0.2, 0.7]], noise=ActuationNoise(relative=0.0))
     w.set_command(0, 0.06, -0.08)  # |v| = 0.1
     run(w, 2.0)
     assert w.time == 2.0
@@ -60,7 +60,7 @@ def test_holonomic_straight_line_exact_with_no_noise():
 
 
 def test_holonomic_speed_limit_clips_the_norm_and_keeps_the_direction():
-    w = World([HOLO], [[0.0, 0.0, 0.0]], actuation_noise=0.0)
+    w = World([HOLO], [[0.0, 0.0, 0.0]], noise=ActuationNoise(relative=0.0))
     w.set_command(0, 1.0, 1.0)
     np.testing.assert_allclose(w.commands[0], [0.13 / math.sqrt(2)] * 2)
     w.step(1.0)
@@ -72,7 +72,7 @@ def test_speed_limits_hold_with_noise_too():
     n = 200
     bodies = [HOLO] * (n // 2) + [EPUCK_BODY] * (n // 2)
     poses = np.column_stack([np.arange(n) * 1.0, np.zeros(n), np.zeros(n)])
-    w = World(bodies, poses, actuation_noise=0.2, actuation_noise_abs=0.05, seed=3)
+    w = World(bodies, poses, noise=ActuationNoise(relative=0.2, absolute=0.05, seed=3))
     for i in range(n):
         w.set_command(i, 0.2, 0.2)  # beyond the limit for both kinds
     for _ in range(20):
@@ -85,7 +85,7 @@ def test_speed_limits_hold_with_noise_too():
 
 def test_diffdrive_straight_line_along_heading():
     th = 0.4
-    w = World([EPUCK_BODY], [[1.0, 2.0, th]], actuation_noise=0.0)
+    w = World([EPUCK_BODY], [[1.0, 2.0, th]], noise=ActuationNoise(relative=0.0))
     w.set_command(0, 0.1, 0.1)
     run(w, 3.0)
     expected = [1.0 + 0.3 * math.cos(th), 2.0 + 0.3 * math.sin(th), th]
@@ -95,7 +95,7 @@ def test_diffdrive_straight_line_along_heading():
 
 
 def test_diffdrive_pure_rotation_stays_in_place():
-    w = World([EPUCK_BODY], [[0.5, 0.5, 0.0]], actuation_noise=0.0)
+    w = World([EPUCK_BODY], [[0.5, 0.5, 0.0]], noise=ActuationNoise(relative=0.0))
     w.set_command(0, -0.05, 0.05)
     omega = 0.1 / 0.0525
     run(w, 1.0)
@@ -109,7 +109,7 @@ def test_diffdrive_pure_rotation_stays_in_place():
 def test_diffdrive_arc_matches_closed_form(dt):
     vl, vr = 0.05, 0.1
     v, omega = (vl + vr) / 2, (vr - vl) / 0.0525
-    w = World([EPUCK_BODY], [[0.0, 0.0, 0.0]], actuation_noise=0.0)
+    w = World([EPUCK_BODY], [[0.0, 0.0, 0.0]], noise=ActuationNoise(relative=0.0))
     w.set_command(0, vl, vr)
     for _ in range(40):
         w.step(dt)
@@ -123,7 +123,7 @@ def test_diffdrive_arc_matches_closed_form(dt):
 
 
 def test_wheel_speeds_are_clipped_to_v_max_each():
-    w = World([EPUCK_BODY], [[0.0, 0.0, 0.0]], actuation_noise=0.0)
+    w = World([EPUCK_BODY], [[0.0, 0.0, 0.0]], noise=ActuationNoise(relative=0.0))
     w.set_command(0, 0.5, -0.5)
     np.testing.assert_allclose(w.commands[0], [0.13, -0.13])
     w.step(0.1)
@@ -134,14 +134,14 @@ def test_wheel_speeds_are_clipped_to_v_max_each():
 
 def test_turn_rate_is_limited_by_omega_max():
     body = Body("diffdrive", radius=0.045, v_max=0.13, omega_max=1.0)
-    w = World([body], [[0.0, 0.0, 0.0]], actuation_noise=0.0)
+    w = World([body], [[0.0, 0.0, 0.0]], noise=ActuationNoise(relative=0.0))
     w.set_command(0, -0.13, 0.13)
     w.step(0.5)
     assert w.poses[0, 2] == pytest.approx(0.5)
 
 
 def test_mixed_swarm_each_robot_follows_its_own_kinematics():
-    w = World([HOLO, EPUCK_BODY], [[0, 0, 1.0], [1, 0, 0.0]], actuation_noise=0.0)
+    w = World([HOLO, EPUCK_BODY], [[0, 0, 1.0], [1, 0, 0.0]], noise=ActuationNoise(relative=0.0))
     w.set_command(0, 0.0, 0.1)  # holonomic: move +y, heading unchanged
     w.set_command(1, 0.0, 0.1)  # diffdrive: left wheel stopped, turns left on an arc
     w.step(1.0)
@@ -170,7 +170,7 @@ def _noisy_run(seed, order=1):
     n = 6
     bodies = [EPUCK_BODY, HOLO] * (n // 2)
     poses = np.column_stack([np.arange(n) * 0.5, np.zeros(n), np.linspace(0, 1, n)])
-    w = World(bodies, poses, actuation_noise=0.05, actuation_noise_abs=0.002, seed=seed)
+    w = World(bodies, poses, noise=ActuationNoise(relative=0.05, absolute=0.002, seed=seed))
     for k in range(30):
         for i in list(range(n))[::order]:
             w.set_command(i, 0.1 * math.sin(k + i), 0.1 * math.cos(k - i))
@@ -196,7 +196,7 @@ def test_different_seeds_differ_when_noise_is_on():
 def test_noise_has_the_stated_relative_size():
     n = 4000
     poses = np.column_stack([np.arange(n) * 1.0, np.zeros(n), np.zeros(n)])
-    w = World([HOLO] * n, poses, actuation_noise=0.02, seed=1)
+    w = World([HOLO] * n, poses, noise=ActuationNoise(relative=0.02, seed=1))
     for i in range(n):
         w.set_command(i, 0.1, 0.0)
     w.step(0.1)  # one noise period: the error is held over it
@@ -213,9 +213,9 @@ def test_noise_does_not_depend_on_how_time_is_chunked_into_steps():
     # lock-step calls step(0.1); a real-time loop may call step(0.01) ten times: same world
     poses = [[0, 0, 0.3], [0.5, 0, 0.0], [1.0, 0, 2.0]]
     bodies = [EPUCK_BODY, HOLO, EPUCK_BODY]
-    one = World(bodies, poses, actuation_noise=0.1, actuation_noise_abs=0.01, seed=4)
-    many = World(bodies, poses, actuation_noise=0.1, actuation_noise_abs=0.01, seed=4)
-    odd = World(bodies, poses, actuation_noise=0.1, actuation_noise_abs=0.01, seed=4)
+    one = World(bodies, poses, noise=ActuationNoise(relative=0.1, absolute=0.01, seed=4))
+    many = World(bodies, poses, noise=ActuationNoise(relative=0.1, absolute=0.01, seed=4))
+    odd = World(bodies, poses, noise=ActuationNoise(relative=0.1, absolute=0.01, seed=4))
     for k in range(20):
         for w in (one, many, odd):
             for i in range(3):
@@ -233,8 +233,8 @@ def test_noise_does_not_depend_on_how_time_is_chunked_into_steps():
 
 
 def test_a_step_spanning_several_noise_periods_integrates_each_piece():
-    w = World([EPUCK_BODY], [[0, 0, 0]], actuation_noise=0.1, seed=5)
-    ref = World([EPUCK_BODY], [[0, 0, 0]], actuation_noise=0.1, seed=5)
+    w = World([EPUCK_BODY], [[0, 0, 0]], noise=ActuationNoise(relative=0.1, seed=5))
+    ref = World([EPUCK_BODY], [[0, 0, 0]], noise=ActuationNoise(relative=0.1, seed=5))
     w.set_command(0, 0.05, 0.1)
     ref.set_command(0, 0.05, 0.1)
     w.step(0.35)  # three and a half periods in one call
@@ -246,7 +246,7 @@ def test_a_step_spanning_several_noise_periods_integrates_each_piece():
 
 def test_stopped_robot_does_not_creep_even_with_absolute_noise():
     poses = [[0, 0, 0], [1, 0, 0]]
-    w = World([EPUCK_BODY, HOLO], poses, actuation_noise=0.1, actuation_noise_abs=0.01, seed=2)
+    w = World([EPUCK_BODY, HOLO], poses, noise=ActuationNoise(relative=0.1, absolute=0.01, seed=2))
     w.set_command(0, 0.1, 0.1)
     w.set_command(1, 0.1, 0.0)
     w.step(0.1)
@@ -266,8 +266,8 @@ def test_stopped_robot_does_not_creep_even_with_absolute_noise():
 def test_robots_crossing_within_one_control_period_are_detected_by_substeps():
     # they swap places in one 0.1 s step: at the start and at the end they are 0.2 m apart
     poses = [[-0.1, 0.0, 0.0], [0.1, 0.0, 0.0]]
-    coarse = World([FAST_HOLO, FAST_HOLO], poses, actuation_noise=0.0, substep=0.1)
-    fine = World([FAST_HOLO, FAST_HOLO], poses, actuation_noise=0.0)
+    coarse = World([FAST_HOLO, FAST_HOLO], poses, substep=0.1, noise=ActuationNoise(relative=0.0))
+    fine = World([FAST_HOLO, FAST_HOLO], poses, noise=ActuationNoise(relative=0.0))
     for w in (coarse, fine):
         w.set_command(0, 2.0, 0.0)
         w.set_command(1, -2.0, 0.0)
@@ -284,7 +284,7 @@ def test_robots_crossing_within_one_control_period_are_detected_by_substeps():
 
 
 def test_contact_event_starts_ends_and_records_its_depth_without_pushing():
-    w = World([HOLO, HOLO], [[0.0, 0.0, 0.0], [0.205, 0.0, 0.0]], actuation_noise=0.0)
+    w = World([HOLO, HOLO], [[0.0, 0.0, 0.0], [0.205, 0.0, 0.0]], noise=ActuationNoise(relative=0.0))
     w.set_command(0, 0.1, 0.0)
     w.set_command(1, -0.1, 0.0)
     assert run(w, 0.5) == []
@@ -321,7 +321,7 @@ def test_robots_starting_overlapped_are_recorded_at_t0():
 
 
 def test_wall_contact():
-    w = World([HOLO], [[0.5, 0.1025, 0.0]], arena=(0.0, 0.0, 1.0, 1.0), actuation_noise=0.0)
+    w = World([HOLO], [[0.5, 0.1025, 0.0]], arena=(0.0, 0.0, 1.0, 1.0), noise=ActuationNoise(relative=0.0))
     w.set_command(0, 0.0, -0.1)
     started = run(w, 1.0)  # y < 0.045 from t > 0.575
     assert len(started) == 1
@@ -342,7 +342,7 @@ def test_robot_starting_outside_the_arena_is_a_wall_contact():
 def test_obstacle_contact_records_the_obstacle_index_and_depth():
     far = [(5.0, 5.0), (6.0, 5.0), (6.0, 6.0)]
     square = [(0.4, 0.4), (0.6, 0.4), (0.6, 0.6), (0.4, 0.6)]
-    w = World([HOLO], [[0.2025, 0.5, 0.0]], obstacles=[far, square], actuation_noise=0.0)
+    w = World([HOLO], [[0.2025, 0.5, 0.0]], obstacles=[far, square], noise=ActuationNoise(relative=0.0))
     w.set_command(0, 0.1, 0.0)
     started = run(w, 1.6)  # x > 0.355 from t > 1.525
     assert [(c.kind, c.i, c.j) for c in started] == [("obstacle", 0, 1)]
@@ -360,7 +360,7 @@ def test_no_contact_when_robots_are_apart():
     n = 100
     g = np.stack(np.meshgrid(np.arange(10), np.arange(10)), -1).reshape(-1, 2) * 0.3
     poses = np.column_stack([g, np.zeros(n)])
-    w = World([EPUCK_BODY] * n, poses, arena=(-1, -1, 10, 10), actuation_noise=0.0)
+    w = World([EPUCK_BODY] * n, poses, arena=(-1, -1, 10, 10), noise=ActuationNoise(relative=0.0))
     for i in range(n):
         w.set_command(i, 0.1, 0.1)  # all in parallel along +x
     assert run(w, 2.0) == []
@@ -373,7 +373,7 @@ def test_no_contact_when_robots_are_apart():
 
 
 def test_min_clearance_tracks_the_closest_approach_and_the_last_step():
-    w = World([HOLO, HOLO], [[0.0, 0.0, 0.0], [1.0, 0.1, 0.0]], actuation_noise=0.0)
+    w = World([HOLO, HOLO], [[0.0, 0.0, 0.0], [1.0, 0.1, 0.0]], noise=ActuationNoise(relative=0.0))
     assert w.min_clearance == pytest.approx(math.hypot(1.0, 0.1) - 0.09)
     w.set_command(1, -0.1, 0.0)
     run(w, 10.0)  # passes at (0, 0.1) at t = 10
@@ -389,7 +389,7 @@ def test_min_clearance_tracks_the_closest_approach_and_the_last_step():
 def test_step_clearance_is_exact_after_the_closest_pair_is_pulled_apart():
     # robots 0 and 1 are the closest pair; 2 and 3 are next; then 1 is carried 50 m away
     poses = [[0, 0, 0], [0.1, 0, 0], [5, 5, 0], [5.3, 5, 0], [9, 9, 0]]
-    w = World([HOLO] * 5, poses, actuation_noise=0.0)
+    w = World([HOLO] * 5, poses, noise=ActuationNoise(relative=0.0))
     w.step(0.1)
     assert w.step_min_clearance() == pytest.approx(0.01)
     w.teleport(1, (50.0, 50.0, 0.0))
@@ -413,7 +413,7 @@ def test_clearance_and_contacts_match_brute_force(seed, n, spread):
     radii = rng.uniform(0.01, 0.08, n)
     bodies = [Body("holonomic" if k % 2 else "diffdrive", float(rd), 0.5) for k, rd in enumerate(radii)]
     poses = np.column_stack([rng.uniform(0, spread, (n, 2)), rng.uniform(-3, 3, n)])
-    w = World(bodies, poses, substep=0.1, seed=seed)  # one substep per step: check at step ends
+    w = World(bodies, poses, substep=0.1, noise=ActuationNoise(seed=seed))  # one substep per step: check at step ends
     sum_r = radii[:, None] + radii[None, :]
     iu = np.triu_indices(n, 1)
 
@@ -445,8 +445,8 @@ def test_clearance_over_substeps_matches_brute_force_on_every_substep(seed, n, s
     radii = rng.uniform(0.01, 0.06, n)
     bodies = [Body("holonomic" if k % 2 else "diffdrive", float(rd), 1.0) for k, rd in enumerate(radii)]
     poses = np.column_stack([rng.uniform(0, spread, (n, 2)), rng.uniform(-3, 3, n)])
-    coarse = World(bodies, poses, actuation_noise=0.0)
-    fine = World(bodies, poses, actuation_noise=0.0)
+    coarse = World(bodies, poses, noise=ActuationNoise(relative=0.0))
+    fine = World(bodies, poses, noise=ActuationNoise(relative=0.0))
     sum_r = (radii[:, None] + radii[None, :])[np.triu_indices(n, 1)]
     for _ in range(5):
         cmds = rng.uniform(-1.0, 1.0, (n, 2))
@@ -476,7 +476,7 @@ def test_contacts_checked_later_are_the_contacts_checked_at_once(seed, n):
     rng = np.random.default_rng(seed)
     bodies = [Body("holonomic" if k % 2 else "diffdrive", 0.05, 1.0) for k in range(n)]
     poses = np.column_stack([rng.uniform(0, 0.4, (n, 2)), rng.uniform(-3, 3, n)])  # crowded: contacts
-    now, later = (World(bodies, poses, seed=seed, arena=(-0.1, -0.1, 0.5, 0.5)) for _ in range(2))
+    now, later = (World(bodies, poses, arena=(-0.1, -0.1, 0.5, 0.5), noise=ActuationNoise(seed=seed)) for _ in range(2))
     started_now, started_later = [], []
     for k in range(12):
         cmds = rng.uniform(-1.0, 1.0, (n, 2))
@@ -506,7 +506,7 @@ def test_a_restored_snapshot_undoes_steps_commands_and_teleports():
     n = 12
     bodies = [Body("holonomic" if k % 2 else "diffdrive", 0.05, 1.0) for k in range(n)]
     poses = np.column_stack([rng.uniform(0, 0.4, (n, 2)), rng.uniform(-3, 3, n)])
-    kept, undone = (World(bodies, poses, seed=4, arena=(-0.1, -0.1, 0.5, 0.5)) for _ in range(2))
+    kept, undone = (World(bodies, poses, arena=(-0.1, -0.1, 0.5, 0.5), noise=ActuationNoise(seed=4)) for _ in range(2))
     for k in range(10):
         cmds = rng.uniform(-1.0, 1.0, (n, 2))
         before = undone.snapshot()
@@ -535,7 +535,7 @@ def test_a_restored_snapshot_undoes_steps_commands_and_teleports():
 
 
 def test_teleport_moves_without_path_and_zeroes_velocity():
-    w = World([EPUCK_BODY], [[0.0, 0.0, 0.0]], actuation_noise=0.0)
+    w = World([EPUCK_BODY], [[0.0, 0.0, 0.0]], noise=ActuationNoise(relative=0.0))
     w.set_command(0, 0.1, 0.1)
     w.step(0.5)
     w.teleport(0, (2.0, 3.0, 4.0))
@@ -548,7 +548,7 @@ def test_teleport_moves_without_path_and_zeroes_velocity():
 
 
 def test_teleport_into_and_out_of_contact_is_recorded_at_the_teleport_time():
-    w = World([HOLO, HOLO], [[0, 0, 0], [1, 0, 0]], actuation_noise=0.0)
+    w = World([HOLO, HOLO], [[0, 0, 0], [1, 0, 0]], noise=ActuationNoise(relative=0.0))
     w.step(0.3)
     w.teleport(1, (0.05, 0.0, 0.0))
     started = w.step(0.1)
@@ -592,9 +592,9 @@ def test_state_arrays_are_copies():
         lambda: World([HOLO], [[0, 0, 0]], arena=(0, 0, 1)),
         lambda: World([HOLO], [[0, 0, 0]], obstacles=[[(0, 0), (1, 1)]]),
         lambda: World([HOLO], [[0, 0, 0]], obstacles=[[(0, 0), (1, 1), (1, 0), (0, 1)]]),  # bow tie
-        lambda: World([HOLO], [[0, 0, 0]], actuation_noise=-0.1),
+        lambda: World([HOLO], [[0, 0, 0]], noise=ActuationNoise(relative=-0.1)),
         lambda: World([HOLO], [[0, 0, 0]], substep=0.0),
-        lambda: World([HOLO], [[0, 0, 0]], seed=-1),
+        lambda: World([HOLO], [[0, 0, 0]], noise=ActuationNoise(seed=-1)),
         lambda: World([HOLO], [[0, 0, 0]]).set_command(1, 0.0, 0.0),
         lambda: World([HOLO], [[0, 0, 0]]).set_command(0, float("inf"), 0.0),
         lambda: World([HOLO], [[0, 0, 0]]).set_commands(np.zeros((2, 2))),
