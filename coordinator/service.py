@@ -164,31 +164,7 @@ class Coordinator:
 
     def _follow_show(self) -> bool:
         """Image scenes: a new goal set when the step or the live robots change; True if published."""
-        for _, tick in self.clock.drain():
-            why = self.clock_heard.admit(tick, time.monotonic())  # one forged stamp jumped the show to its end
-            if why is not None:
-                self.clock_refused[why] += 1
-                continue
-            self.t = tick.stamp if self.t is None else max(self.t, tick.stamp)
-        for _, ident, alive, _, life in self.alive.drain():
-            if ident.isdigit() and int(ident) < self.scene.robots:
-                r = int(ident)
-                was_live = set(self.live)
-                (self.live.add if alive else self.live.discard)(r)
-                # A restarted agent bids only in goal sets published after it joined (agent.runtime):
-                # back within SETTLE_S, the live robots look unchanged, yet it needs a new set.
-                if alive and self.lives.setdefault(r, life) != life:
-                    self.lives[r] = life
-                    self.restarted.add(r)
-                if self.live != was_live or r in self.restarted:
-                    self.live_changed = time.monotonic()
-                if alive:
-                    self.ever_live.add(r)
-                elif int(ident) not in self.body_inboxes:  # where does its body stay?
-                    self.body_inboxes[int(ident)] = self.bus.subscribe(self.bus.keys.pose(int(ident)), Pose)
-        for r, inbox in self.body_inboxes.items():
-            for _, pose in inbox.drain():
-                self.bodies[r] = np.array([pose.x, pose.y])
+        self._hear()
         # Only robot pixels take goals: a pursuer is a live agent but chases its target, and a scripted
         # mover has no agent at all (paper Fig. 19's uncontrolled objects).
         robots = frozenset(self.live) & self.pixels
@@ -207,6 +183,43 @@ class Coordinator:
             if self.t - self.body_wait_since < BODY_WAIT_S:
                 return False
         self.body_wait_since = None
+        self._publish(step, robots, dead)
+        return True
+
+    def _hear(self) -> None:
+        """The world's clock, the agents' liveliness, and where dead robots' bodies stand."""
+        for _, tick in self.clock.drain():
+            why = self.clock_heard.admit(tick, time.monotonic())  # one forged stamp jumped the show to its end
+            if why is not None:
+                self.clock_refused[why] += 1
+                continue
+            self.t = tick.stamp if self.t is None else max(self.t, tick.stamp)
+        for _, ident, alive, _, life in self.alive.drain():
+            if ident.isdigit() and int(ident) < self.scene.robots:
+                self._hear_agent(int(ident), alive, life)
+        for r, inbox in self.body_inboxes.items():
+            for _, pose in inbox.drain():
+                self.bodies[r] = np.array([pose.x, pose.y])
+
+    def _hear_agent(self, r: int, alive: bool, life: str) -> None:
+        was_live = set(self.live)
+        (self.live.add if alive else self.live.discard)(r)
+        # A restarted agent bids only in goal sets published after it joined (agent.runtime): back
+        # within SETTLE_S, the live robots look unchanged, yet it needs a new set.
+        if alive and self.lives.setdefault(r, life) != life:
+            self.lives[r] = life
+            self.restarted.add(r)
+        if self.live != was_live or r in self.restarted:
+            self.live_changed = time.monotonic()
+        if alive:
+            self.ever_live.add(r)
+        elif r not in self.body_inboxes:  # where does its body stay?
+            self.body_inboxes[r] = self.bus.subscribe(self.bus.keys.pose(r), Pose)
+
+    def _publish(self, step: int, robots: frozenset[int], dead: list[int]) -> None:
+        """The next epoch's goal set: step's goals for these robots, clear of dead robots' bodies,
+        warm-started from the last set (and its keyframe correspondence, paper 6.1)."""
+        assert self.t is not None
         goals, colors = scene_goal_set(self.scene, step, len(robots))
         bodies = np.array([self.bodies[r] for r in dead if r in self.bodies]).reshape(-1, 2)
         if len(bodies):
@@ -230,7 +243,6 @@ class Coordinator:
             if follows_keyframe(before, self.current):  # the same matching is a keyframe's correspondence (6.1)
                 self.current.correspondence = Correspondence(before.epoch, matched)
         self.bus.publish(self.bus.keys.goals(self.epoch), self.current)
-        return True
 
     def _warm_start(self, before: Goals, goals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The auction's warm start from goal set ``before`` to these goals (goal_matching, on the
