@@ -265,6 +265,15 @@ def _load(images: Sequence[ImageLike] | str | os.PathLike[str], background: Any)
     return preps
 
 
+def _match_previous(shapes: list[list[RegionShape]], reason: str) -> tuple[list[int] | None, str]:
+    """The newest keyframe's regions matched to the previous one's (None and why not, if they cannot be)."""
+    if len(shapes) < 2:
+        return None, reason
+    if len(shapes[-1]) != len(shapes[-2]):
+        return None, f"the number of regions changed from {len(shapes[-2])} to {len(shapes[-1])}"
+    return match_regions(shapes[-2], shapes[-1]), reason
+
+
 def keyframe_goals(
     images: Sequence[ImageLike] | str | os.PathLike[str],
     n: int,
@@ -305,10 +314,7 @@ def keyframe_goals(
         match, reason = None, "first keyframe"
         if matching:
             shapes.append(_shapes(prep))
-            if f > 0 and len(shapes[f]) != len(shapes[f - 1]):
-                reason = f"the number of regions changed from {len(shapes[f - 1])} to {len(shapes[f])}"
-            elif f > 0:
-                match = match_regions(shapes[f - 1], shapes[f])
+            match, reason = _match_previous(shapes, reason)
         counts = options.region_counts
         if keep_counts and match is not None:
             counts = _carried_counts(prep, match, sets[-1]) or options.region_counts
@@ -333,17 +339,6 @@ def keyframe_goals(
     shared = float(options.arena) if options.arena is not None else max(s.arena for s in sets)
     sets = [rescale(s, shared) for s in sets]
     for r in reports:  # translations in metres of the common arena
-        r.regions = [
-            RegionMotion(
-                m.region,
-                m.previous,
-                (m.translation[0] * shared, m.translation[1] * shared),
-                m.rotation,
-                m.scale,
-                m.correlation,
-                m.initialised,
-            )
-            for m in r.regions
-        ]
+        r.regions = [replace(m, translation=(m.translation[0] * shared, m.translation[1] * shared)) for m in r.regions]
     h, w = preps[0].shape
     return KeyframeGoals(sets, reports, (w, h))
