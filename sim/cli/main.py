@@ -44,32 +44,32 @@ class UsageError(Exception):
     """Bad input from the user: one line, exit code 2."""
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = OneLineParser(prog="pixelswarm", description="Image and animation display with robot swarms.")
-    sub = parser.add_subparsers(dest="command", required=True)
-
-    run = sub.add_parser("run", help="run a scene: router, world, tracker, coordinator and one process per robot")
-    run.add_argument(
+def _add_run_scene(run: argparse.ArgumentParser) -> None:
+    """What to show: a scene, a picture or keyframes, and what overrides the scene's own settings."""
+    group = run.add_argument_group("the scene")
+    group.add_argument(
         "scene",
         help=f"a shipped scene ({', '.join(shipped_scenes())}), a path to a scene .toml, "
         "an image (PNG, JPEG, BMP, TIFF) to display, or a folder of keyframe images "
         "to play as an animation (file-name order)",
     )
-    run.add_argument("--robots", "-n", type=positive_int, help="number of robots (overrides the scene)")
-    run.add_argument("--seed", type=int, help="random seed, a whole number >= 0 (overrides the scene)")
-    run.add_argument("--clock", choices=CLOCKS, help="clock (overrides the scene)")
-    run.add_argument("--duration", type=float, help="seconds of display time at most (overrides the scene)")
-    run.add_argument("--out", type=Path, help="run directory (default runs/<UTC time>-<scene>)")
-    run.add_argument(
+    group.add_argument("--robots", "-n", type=positive_int, help="number of robots (overrides the scene)")
+    group.add_argument("--seed", type=int, help="random seed, a whole number >= 0 (overrides the scene)")
+    group.add_argument("--clock", choices=CLOCKS, help="clock (overrides the scene)")
+    group.add_argument("--duration", type=float, help="seconds of display time at most (overrides the scene)")
+
+
+def _add_run_engine(run: argparse.ArgumentParser) -> None:
+    """How the robots decide and hear each other."""
+    group = run.add_argument_group("the engine")
+    group.add_argument(
         "--engine",
         choices=ENGINES,
         help="distributed: one process per robot over zenoh (default, unless the scene says "
         'engine = "central"); central: every robot stepped in one call with perfect '
         "information (reference, and fast for large swarms)",
     )
-    run.add_argument("--no-video", dest="video", action="store_false", help="skip display.mp4")
-    run.add_argument("--no-plots", dest="plots", action="store_false", help="skip clearance.png and trajectories.png")
-    run.add_argument(
+    group.add_argument(
         "--agents-per-process",
         "-k",
         type=positive_int,
@@ -77,13 +77,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="robots per agent process (default 1: one process per robot, unless the scene "
         "says agents_per_process = K)",
     )
-    run.add_argument(
+    group.add_argument(
         "--faults",
         default="",
         metavar="PLAN",
         help="fault injection, e.g. 'state:drop=0.1,delay=0.05,jitter=0.01' (';' between kinds)",
     )
-    run.add_argument(
+    group.add_argument(
         "--range",
         dest="reach",
         type=float,
@@ -92,7 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="communication range in metres: a robot hears the states and auction words only of robots "
         "within R (lock-step only; default: everyone hears everyone)",
     )
-    run.add_argument(
+    group.add_argument(
         "--rounds-per-tick",
         type=int,
         default=None,
@@ -100,33 +100,38 @@ def build_parser() -> argparse.ArgumentParser:
         help="lock-step: at most N auction message rounds a tick, a block of phases spanning ticks "
         "(default: the scene's [robot] rounds_per_tick, 0: every block agreed within its tick)",
     )
-    run.add_argument(
+    group.add_argument(
         "--deadline",
         type=float,
         default=None,
         help="lock-step: seconds to wait for a late agent's command (default: the scene's, 2 s)",
     )
-    run.add_argument(
+
+
+def _add_run_processes(run: argparse.ArgumentParser) -> None:
+    """Where the run's processes are and how they reach each other."""
+    group = run.add_argument_group("processes and the bus")
+    group.add_argument(
         "--agents-connect",
         action="append",
         default=[],
         metavar="ENDPOINT",
         help="spread agent processes over these routers, round robin (repeatable; default: ours)",
     )
-    run.add_argument("--display", default="default", help="display name (key prefix), for several swarms")
-    run.add_argument(
+    group.add_argument("--display", default="default", help="display name (key prefix), for several swarms")
+    group.add_argument(
         "--remote-agents",
         action="store_true",
         help="start no agents: serve each robot's configuration on the bus and wait for `pixelswarm agents "
         "--connect ENDPOINT` to start them (on this machine or others); give the endpoint with --listen",
     )
-    run.add_argument(
+    group.add_argument(
         "--agents-timeout",
         type=float,
         metavar="SECONDS",
         help="--remote-agents: how long to wait for every robot's agent (default 60 s)",
     )
-    run.add_argument(
+    group.add_argument(
         "--startup-timeout",
         type=float,
         metavar="SECONDS",
@@ -134,21 +139,29 @@ def build_parser() -> argparse.ArgumentParser:
         f"{STARTUP_TIMEOUT:g} s); past it the run ends naming the robots still missing (exit code "
         f"{STARTUP_FAILED})",
     )
-    run.add_argument(
+    group.add_argument(
         "--secure",
         type=Path,
         metavar="DIR",
         help="a secured bus from a folder made by `pixelswarm certs`: mutual TLS, and each process "
         "allowed only its role's keys (docs/security.md); one robot per agent process",
     )
-    run.add_argument(
+    group.add_argument(
         "--hardware",
         type=Path,
         metavar="FILE",
         help="drive real robots (or emulated ones) named in a hardware file with [backend] and [poses], "
         "on the wall clock; the robot count and start poses come from it (docs/hardware.md)",
     )
-    run.add_argument(
+
+
+def _add_run_outputs(run: argparse.ArgumentParser) -> None:
+    """What the run leaves behind and shows while it runs."""
+    group = run.add_argument_group("outputs")
+    group.add_argument("--out", type=Path, help="run directory (default runs/<UTC time>-<scene>)")
+    group.add_argument("--no-video", dest="video", action="store_false", help="skip display.mp4")
+    group.add_argument("--no-plots", dest="plots", action="store_false", help="skip clearance.png and trajectories.png")
+    group.add_argument(
         "--foxglove",
         type=port_number,
         nargs="?",
@@ -157,7 +170,7 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"also stream log.mcap's channels live over Foxglove's WebSocket protocol on 127.0.0.1:PORT "
         f"(default {FOXGLOVE_PORT}; 0: a free port), for the Foxglove app; distributed engine",
     )
-    run.add_argument(
+    group.add_argument(
         "--view",
         nargs="?",
         const="native",
@@ -166,8 +179,19 @@ def build_parser() -> argparse.ArgumentParser:
         "opens its window, web serves its web viewer on 127.0.0.1 and prints the address (kept up after the "
         "run until Ctrl-C), FILE.rrd writes the recording to a file",
     )
-    run.add_argument("--quiet", "-q", action="store_true", help="no progress output")
+    group.add_argument("--quiet", "-q", action="store_true", help="no progress output")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = OneLineParser(prog="pixelswarm", description="Image and animation display with robot swarms.")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    run = sub.add_parser("run", help="run a scene: router, world, tracker, coordinator and one process per robot")
+    _add_run_scene(run)
+    _add_run_engine(run)
+    _add_run_processes(run)
     add_zenoh_args(run, default_mode="router")
+    _add_run_outputs(run)
     run.set_defaults(func=cmd_run)
 
     router = sub.add_parser("router", help="run a standalone zenoh router (for several machines or processes)")
