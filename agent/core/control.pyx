@@ -197,7 +197,7 @@ def perturbation(robot_ids, seed, tick=0, double magnitude=PERTURBATION):
     """The tiny vectors (B,2) added to non-zero preferred velocities: each component in
     [-magnitude, magnitude], a function of (robot id, seed, tick) only, so that symmetric
     configurations (head-on pairs, rings) stop being symmetric and every process agrees."""
-    ids = np.ascontiguousarray(np.asarray(robot_ids).reshape(-1).astype(np.uint64))
+    ids = np.ascontiguousarray(np.asarray(robot_ids).reshape(-1).astype(np.uint64, copy=False))
     cdef const uint64_t[::1] iv = ids
     cdef uint64_t s = seed % 2**64, t = tick % 2**64
     out = np.empty((len(ids), 2))
@@ -251,11 +251,13 @@ cdef inline bint _violates(Lines *L, int i, double x, double y, double by) noexc
 
 cdef bint _on_line(Lines *L, int i, int n, bint all_lines, Target *g, double *out) noexcept nogil:
     """The optimum on line i within the disk and the lines j < n (those with ``use`` unless
-    ``all_lines``). False if line i holds no such point."""
+    ``all_lines``). False if line i holds no such point (``out`` is then left as it was: no caller
+    reads it, so the search stops at the first line that empties line i)."""
     cdef double pix = L.px[i], piy = L.py[i], dix = L.dx[i], diy = L.dy[i]
     cdef double dot = pix * dix + piy * diy
     cdef double disc = dot * dot + g.radius * g.radius - (pix * pix + piy * piy)
-    cdef bint ok = disc >= 0.0
+    if not disc >= 0.0:
+        return False
     cdef double sq = sqrt(disc if disc > 0.0 else 0.0)
     cdef double t_left = -dot - sq, t_right = -dot + sq, den, num, t, t_best
     cdef int j
@@ -266,14 +268,17 @@ cdef bint _on_line(Lines *L, int i, int n, bint all_lines, Target *g, double *ou
         num = L.dx[j] * (piy - L.py[j]) - L.dy[j] * (pix - L.px[j])
         if fabs(den) <= C_EPSILON:  # parallel: line j empties line i if i lies on its forbidden side
             if num < 0.0:
-                ok = False
+                return False
             continue
         t = num / den
         if den > 0.0:
             t_right = t if t < t_right else t_right
         else:
             t_left = t if t > t_left else t_left
-    ok = ok and t_left <= t_right
+        if t_left > t_right:
+            return False
+    if not t_left <= t_right:
+        return False
     if g.directional:
         t_best = t_right if g.tx * dix + g.ty * diy > 0.0 else t_left
     else:
@@ -281,7 +286,7 @@ cdef bint _on_line(Lines *L, int i, int n, bint all_lines, Target *g, double *ou
         t_best = t_left if t_best < t_left else t_best
         t_best = t_right if t_best > t_right else t_best
     out[0], out[1] = pix + t_best * dix, piy + t_best * diy
-    return ok
+    return True
 
 
 cdef inline void _disk_optimum(Target *g, double *out) noexcept nogil:
@@ -318,7 +323,7 @@ cdef bint _optimise_few(Lines *L, int n, Target *g, double *out) noexcept nogil:
     The shrinking horizon's programs take this one: on bench_orca's Blocks its optimum moves crowds
     on sooner than the incremental program's, whose rounding differs."""
     cdef double at[2]
-    cdef double best_cost = INFINITY, cost, ex, ey, cx, cy
+    cdef double best_cost = INFINITY, cost, ex, ey, cx, cy, near
     cdef bint violated = False, good = False
     cdef int c
     _disk_optimum(g, out)
@@ -327,6 +332,13 @@ cdef bint _optimise_few(Lines *L, int n, Target *g, double *out) noexcept nogil:
         if not L.use[c] or not _violates(L, c, cx, cy, 0.0):
             continue
         violated = True
+        if good and not g.directional:
+            # no point of line c is nearer the target than the line itself: a line that cannot
+            # beat the best so far is not solved (less a slack far above any rounding of either)
+            near = fabs(L.dx[c] * (g.ty - L.py[c]) - L.dy[c] * (g.tx - L.px[c])) - 1e-9 * (
+                fabs(L.px[c]) + fabs(L.py[c]) + fabs(g.tx) + fabs(g.ty) + g.radius)
+            if near > 0.0 and near * near > best_cost:
+                continue
         if not _on_line(L, c, n, False, g, at):
             continue
         if g.directional:
@@ -611,8 +623,18 @@ cdef int _hard_lines(Config *s, Scratch *w, Robot *me, Edges *edges, Lines *extr
     cdef int n = 0, k
     cdef Robot still = me[0]
     cdef Other o
+    # an edge gets a line only within r_obst + vmax tau_obst of the robot; its bounding box is no
+    # farther than the edge, so an edge whose box lies well beyond that (far above any rounding of
+    # the distance) is passed over without computing it
+    cdef double reach = (r_obst + me.vmax * s.tau_obst) * (1.0 + 1e-6) + 1e-9, bx, by
+    cdef const double *e
     for k in range(edges.n):
-        if _obstacle_line(me, r_obst, edges.xy + 4 * k, s.tau_obst, line) < me.vmax:
+        e = edges.xy + 4 * k
+        bx = max(max(min(e[0], e[2]) - me.x, me.x - max(e[0], e[2])), 0.0)
+        by = max(max(min(e[1], e[3]) - me.y, me.y - max(e[1], e[3])), 0.0)
+        if bx * bx + by * by > reach * reach:
+            continue
+        if _obstacle_line(me, r_obst, e, s.tau_obst, line) < me.vmax:
             n = _push(L, n, line, me.vmax)
     for k in range(n_extra):
         line[0], line[1], line[2], line[3] = extra.px[k], extra.py[k], extra.dx[k], extra.dy[k]
@@ -887,17 +909,24 @@ def step(Settings settings, Batch robots, heard, segments=None):
     return out[:, 0:2].copy(), out[:, 2:4].copy(), out[:, 4] != 0, out[:, 5] != 0, out[:, 6].copy()
 
 
-def step_known(Settings settings, Batch robots, index, segments=None):
+def step_known(Settings settings, Batch robots, index, segments=None, out=None):
     """RVO2's step (sim.central.rvo): robots that know each other perfectly. Each robot's neighbours
     are the rows ``index`` (B,M) of the batch itself (-1: none), as they are now, cooperating, of
-    their own radius. Returns (v_cf (B,2), fallback (B,))."""
+    their own radius. Returns (v_cf (B,2), fallback (B,)); v_cf is written into ``out`` (B,2) if
+    given (an engine's spare buffer: not the batch's own velocities, which the neighbours read)."""
     cdef const int64_t[:, ::1] idx = np.ascontiguousarray(index, dtype=np.int64).reshape(robots.r.b, -1)
     cdef Obstacles obstacles = segments if isinstance(segments, Obstacles) else Obstacles(segments)
     cdef Py_ssize_t b = robots.r.b, i, j
     cdef int m = idx.shape[1], k
-    cdef Work work = Work(m, obstacles.e.n + 2 * m)
-    out, fallback = np.empty((b, 2)), np.zeros(b, bool)
+    if out is None:
+        out = np.empty((b, 2))
     cdef double[:, ::1] o = out
+    if o.shape[0] != b or o.shape[1] != 2:
+        raise ValueError(f"step_known: out must be ({b}, 2), not {out.shape}")
+    if b and &o[0, 0] == robots.r.velocity:
+        raise ValueError("step_known: out must not be the batch's velocities (its neighbours read them)")
+    cdef Work work = Work(m, obstacles.e.n + 2 * m)
+    fallback = np.zeros(b, bool)
     cdef unsigned char[::1] fb = fallback.view(np.uint8)
     cdef Config *s = &settings.c
     cdef Scratch *w = &work.s

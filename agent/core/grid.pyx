@@ -19,7 +19,7 @@ Positions must be finite.
 
 # cython: language_level=3
 
-from libc.math cimport fabs, floor, sqrt
+from libc.math cimport fabs, sqrt
 from libc.stdint cimport int64_t
 from libc.stdlib cimport free, malloc
 
@@ -108,13 +108,16 @@ cdef int grid_build(Grid *g, const double[:, ::1] points, double width) except -
 
 
 cdef inline Py_ssize_t cell_index(double v, Py_ssize_t low, Py_ssize_t high) noexcept nogil:
-    """floor(v) clamped to [low, high], clamped as a double first (v may be far beyond any int)."""
-    v = floor(v)
+    """floor(v) clamped to [low, high], clamped as a double first (v may be far beyond any int).
+    low and high are integers, so floor(v) < low exactly when v < low, and floor(v) > high exactly
+    when v >= high + 1; in between, floor is the truncation, one less where that rounded a negative
+    v up (no call to floor: the columns of a query take two of these each)."""
     if not v >= low:  # NaN too
         return low
-    if v > high:
+    if v >= high + 1.0:
         return high
-    return <Py_ssize_t>v
+    cdef Py_ssize_t t = <Py_ssize_t>v
+    return t - 1 if t > v else t
 
 
 cdef inline bint before(double d2, int64_t k, Py_ssize_t j, double d2b, int64_t kb, Py_ssize_t jb) noexcept nogil:
@@ -138,7 +141,7 @@ cdef struct Query:
     int64_t *chosen  # (m,) their indices (the query's row of the output)
 
 
-cdef void scan(Grid *g, Query *q, const int64_t[::1] key, Py_ssize_t first, Py_ssize_t last) noexcept nogil:
+cdef void scan(Grid *g, Query *q, const int64_t *key, Py_ssize_t first, Py_ssize_t last) noexcept nogil:
     """The points of cells first..last - 1 (consecutive in the grid's order) into q's neighbours,
     sorted by (d2, key, index), kept to m."""
     cdef Py_ssize_t a, j, p, m = q.m
@@ -147,14 +150,14 @@ cdef void scan(Grid *g, Query *q, const int64_t[::1] key, Py_ssize_t first, Py_s
     if first >= last:
         return
     for a in range(g.start[first], g.start[last]):
-        j = g.order[a]
-        kj = key[j]
-        if kj == q.own:
-            continue
         dx = g.sx[a] - q.px
         dy = g.sy[a] - q.py
         d2 = dx * dx + dy * dy
         if d2 > q.bound:  # most points: farther than the m-th kept (or than reach, until m are)
+            continue
+        j = g.order[a]
+        kj = key[j]
+        if kj == q.own:
             continue
         if not (d2 <= q.reach2 if q.inclusive else d2 < q.reach2):
             continue
@@ -229,7 +232,7 @@ def nearest(
         # columns either side of the query's that can hold a point within reach
         spread = cell_index(reach / g.cell + 2.0, 0, g.nx + 1)
         with nogil:  # the central engine's auction runs on another thread meanwhile
-            _queries(&g, &nb, query, query_key, key, out, slack, spread)
+            _queries(&g, &nb, query, query_key, &key[0], out, slack, spread)
     finally:
         grid_free(&g)
         free(best)
@@ -238,7 +241,7 @@ def nearest(
 
 
 cdef void _queries(Grid *g, Query *nb, const double[:, ::1] query, const int64_t[::1] query_key,
-                   const int64_t[::1] key, int64_t[:, ::1] out, double slack, Py_ssize_t spread) noexcept nogil:
+                   const int64_t *key, int64_t[:, ::1] out, double slack, Py_ssize_t spread) noexcept nogil:
     """nearest's search, query by query (see its docstring)."""
     cdef Py_ssize_t i, c, s, gx, qx, qy, low, high
     cdef double px, py, left, away, half

@@ -29,6 +29,10 @@ class CentralOrca:
 
     Neighbours, as RVO2's: up to max_neighbors agents closer than neighbor_dist (centre to centre),
     nearest first, equal distances by index.
+
+    After the first step ``position`` and ``velocity`` are the engine's own arrays, written in place
+    by the steps after it (a step's Python work around the core is then a few calls): copy them to
+    keep a state.
     """
 
     def __init__(
@@ -69,6 +73,13 @@ class CentralOrca:
         self.steps = 0
         self.fallback_count = 0  # robot-steps where the linear program was infeasible
         self.last_fallback = np.zeros(0, dtype=bool)
+        # per-step work kept between steps (a step is otherwise mostly Python around the core):
+        # agent indices, the core's views of the rows (they point into the arrays, which a step
+        # updates in place where they are the engine's own), and buffers this engine owns
+        self._index = np.zeros(0, dtype=np.int64)
+        self._ids = np.zeros(0, dtype=np.uint64)
+        self._batches: list[tuple[tuple[np.ndarray, ...], Batch]] = []
+        self._owned: dict[str, np.ndarray] = {}
 
     @property
     def num_agents(self) -> int:
@@ -103,18 +114,56 @@ class CentralOrca:
 
     def _neighbours_grid(self) -> np.ndarray:
         """(N, M) indices, -1 past the last: RVO2's rule (d^2 < neighbor_dist^2), ties by index."""
-        index = np.arange(self.num_agents, dtype=np.int64)
+        index = self._agent_index()
         p = np.ascontiguousarray(self.position, dtype=float)
         return nearest(p, index, p, index, self.neighbor_dist, self.max_neighbors, False)
 
+    def _agent_index(self) -> np.ndarray:
+        if len(self._index) != self.num_agents:
+            self._index = np.arange(self.num_agents, dtype=np.int64)
+            self._ids = self._index.astype(np.uint64)
+        return self._index
+
+    def _buffer(self, name: str, like: np.ndarray) -> np.ndarray:
+        """This engine's own (N,2) array ``name``, reused step after step."""
+        buf = self._owned.get(name)
+        if buf is None or buf.shape != like.shape:
+            buf = self._owned[name] = np.empty(like.shape)
+        return buf
+
     def preferred(self) -> np.ndarray:
-        """The preferred velocities of this step, perturbed if asked for."""
+        """The preferred velocities of this step, perturbed if asked for (then in the engine's own
+        buffer, rewritten each step)."""
         if not self.perturbation:
+            self.pref_velocity = np.ascontiguousarray(self.pref_velocity, dtype=float)
             return self.pref_velocity
-        return self.pref_velocity + perturbation(np.arange(self.num_agents), self.seed, self.steps, self.perturbation)
+        self._agent_index()
+        shift = perturbation(self._ids, self.seed, self.steps, self.perturbation)
+        return np.add(self.pref_velocity, shift, out=self._buffer("pref", shift))
+
+    def _rows(self, pref: np.ndarray) -> Batch:
+        """The core's view of the rows, made once per set of arrays: a step writes the engine's own
+        arrays in place, so the view stays current (its arrays are C-ordered float64: it does not
+        copy them)."""
+        for (p, v, w, r, s), rows in self._batches:
+            if p is self.position and v is self.velocity and w is pref and r is self.radius and s is self.max_speed:
+                return rows
+        self.position, self.velocity, self.radius, self.max_speed = (
+            np.ascontiguousarray(a, dtype=float) for a in (self.position, self.velocity, self.radius, self.max_speed)
+        )
+        arrays = (self.position, self.velocity, np.ascontiguousarray(pref, dtype=float), self.radius, self.max_speed)
+        rows = Batch(arrays[0], arrays[1], arrays[2], None, arrays[3], arrays[4])
+        # two views alive: the velocities alternate between two buffers
+        self._batches = [*self._batches[-1:], (arrays, rows)]
+        return rows
 
     def compute_new_velocities(self) -> tuple[np.ndarray, np.ndarray]:
         """The new velocities (N,2) and fallback flags (N,): infeasible at the full horizon."""
+        new_velocity, fallback = self._step_core()
+        return new_velocity.copy(), fallback
+
+    def _step_core(self) -> tuple[np.ndarray, np.ndarray]:
+        """compute_new_velocities into the engine's spare velocity buffer (not the current one)."""
         horizons = (self.time_horizon, self.time_horizon_obst, self.time_step)
         if self._settings is None or self._settings[0] != (horizons, self.safety, self.safety_margin):
             core = Settings(
@@ -123,14 +172,20 @@ class CentralOrca:
             self._settings = ((horizons, self.safety, self.safety_margin), core)
         if self._obstacles is None:
             self._obstacles = Obstacles(self.segments)
-        robots = Batch(self.position, self.velocity, self.preferred(), None, self.radius, self.max_speed)
-        return step_known(self._settings[1], robots, self._neighbours_grid(), self._obstacles)
+        robots = self._rows(self.preferred())
+        spare = self._buffer("velocity a", self.velocity)
+        if spare is self.velocity:
+            spare = self._buffer("velocity b", self.velocity)
+        return step_known(self._settings[1], robots, self._neighbours_grid(), self._obstacles, out=spare)
 
     def do_step(self) -> None:
-        new_velocity, fallback = self.compute_new_velocities()
+        new_velocity, fallback = self._step_core()
         self.velocity = new_velocity
-        self.position = self.position + new_velocity * self.time_step
+        if self.position is not self._owned.get("position"):
+            self.position = self._owned["position"] = self.position.copy()
+        # position + v dt, as one expression would, in place
+        self.position += np.multiply(new_velocity, self.time_step, out=self._buffer("motion", new_velocity))
         self.last_fallback = fallback
-        self.fallback_count += int(fallback.sum())
+        self.fallback_count += int(np.count_nonzero(fallback))
         self.global_time += self.time_step
         self.steps += 1
