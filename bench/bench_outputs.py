@@ -17,6 +17,9 @@ synthetic arrays of ``--ticks`` ticks, each written in a forked child: seconds, 
 arrays', bytes, and per tick, so the whole sequence's (:data:`SEQUENCE_TICKS`) can be extrapolated;
 the video over ``--frames`` frames only.
 
+It also logs ``--log-ticks`` ticks of a 10-host run's messages (:func:`log_rows`) through the
+recorder: log.mcap's bytes per message per channel and the whole sequence's log at that rate.
+
 ``--mcap``: the size of log.mcap for one 100-robot lock-step run (:data:`MCAP_RUN`, the same run bit
 for bit each time), per channel: messages, their bytes, and those bytes compressed alone with zstd
 (the file compresses the channels together, in chunks). ``--tree DIR`` runs the code of another
@@ -41,7 +44,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import REPO, write_results  # noqa: E402
 from sim.outputs import render  # noqa: E402
-from sim.outputs.foxglove import scene_update  # noqa: E402
+from sim.outputs.foxglove import scene_update, swarm_scene  # noqa: E402
 
 ARENA = (0.0, 0.0, 4.0, 3.0)
 FRAMES, ROBOTS, SIZE_PX, FPS = 300, 100, 720, 10
@@ -213,8 +216,8 @@ def large_rows(ticks: int, frames: int) -> list[str]:
         render.write_video(tmp / "display.mp4", rec, speed=None, max_frames=0, size_px=size)
         return (tmp / "display.mp4").stat().st_size
 
-    def scene_message() -> int:
-        return len(scene_update(0, arrays["pose"][-1], radius, arrays["color"][-1], goal=arrays["goal"][-1]).encode())
+    def scene_message() -> int:  # what the recorder writes above LOG_ROBOTS robots
+        return len(swarm_scene(0, arrays["pose"][-1], radius, arrays["color"][-1]))
 
     jobs = [("metrics + clearance", metrics, ticks), ("trajectory.npz", npz, ticks), ("plots", plots, ticks)]
     jobs += [
@@ -243,6 +246,111 @@ def large_rows(ticks: int, frames: int) -> list[str]:
     return rows
 
 
+SEQUENCE_IMAGES = 6  # paper-sequence-10000's goal sets, one an image
+PER_GOAL_SET = ("/goals", "/display/goals")  # channels with a message a goal set, not a tick
+HOSTS = 10  # --large's log: agent hosts of paper-sequence-10000 with -k 1000, a States and a Commands frame each a tick
+
+
+class _Inbox:
+    def __init__(self) -> None:
+        self.items: list = []
+
+    def drain(self) -> list:
+        out, self.items = self.items, []
+        return out
+
+
+class _Bus:
+    """What the recorder reads of a bus: its keys and two inboxes, fed in process."""
+
+    def __init__(self) -> None:
+        from transport.keys import Keys
+
+        self.keys, self.raw, self.alive = Keys(), _Inbox(), _Inbox()
+
+    def subscribe_raw(self, key: str) -> _Inbox:
+        return self.raw
+
+    def watch_alive(self) -> _Inbox:
+        return self.alive
+
+
+def _tick_messages(keys, arrays: dict[str, np.ndarray], k: int) -> list[tuple[str, bytes]]:  # type: ignore[no-untyped-def]
+    """What a 10,000-robot run of :data:`HOSTS` agent hosts sends at tick k: the tracker's poses, each
+    host's states and commands, the world's truth, and at tick 0 the goal set (no auction: its
+    traffic is at image changes)."""
+    from transport.codec import Commands, Goals, Poses, State, States, Timing, Truth
+
+    pose, vel, goal = arrays["pose"][k], arrays["velocity"][k], arrays["goal"][k]
+    n, stamp = len(pose), float(arrays["t"][k])
+    poses = np.zeros(n, Poses.RECORD)
+    poses["robot"], poses["x"], poses["y"], poses["theta"] = np.arange(n), *pose.T
+    states = np.zeros(n, States.RECORD)
+    states["robot"], states["x"], states["y"], states["vx"], states["vy"] = np.arange(n), *pose[:, :2].T, *vel.T
+    states["radius"], states["goal_x"], states["goal_y"] = 0.037, *goal.T
+    states["goal_index"], states["flags"], states["assign_epoch"] = arrays["assignment"][k], State.HAS_GOAL, 1
+    commands = np.zeros(n, Commands.RECORD)
+    commands["robot"], commands["a"], commands["b"] = np.arange(n), *vel.T
+    commands["r"], commands["g"], commands["bl"] = arrays["color"][k].T
+    truth = Truth(k, stamp, 0.1, n, pose, vel.astype(np.float32).astype(float))
+    truth.color, truth.applied = arrays["color"][k], np.full(n, k, np.uint32)
+    out = [(keys.poses, Poses(k, stamp, poses).encode())]
+    for host, part in enumerate(np.array_split(np.arange(n), HOSTS)):
+        out.append((keys.states(host), States(k, stamp, states[part]).encode()))
+        out.append((keys.cmd(int(part[0])), Commands(k, stamp, commands[part]).encode()))
+    if k == 0:  # the image's goal set, as the coordinator publishes it
+        goals = Goals(1, 0, goal, arrays["color"][k], np.arange(n), Timing(stamp=stamp))
+        out.insert(0, (keys.goals(1), goals.encode()))
+    return [*out, (keys.truth, truth.encode())]
+
+
+def log_rows(ticks: int) -> list[str]:
+    """log.mcap of ``ticks`` ticks of :func:`synthetic_run` as the recorder writes it from a
+    10-host run's messages: bytes per message per channel (before and after the file's zstd) and
+    the whole sequence's log at the same rate."""
+    import zstandard
+    from mcap.reader import make_reader
+
+    from sim.outputs.recorder import Recorder
+
+    _, arrays = synthetic_run(ticks)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "log.mcap"
+        bus = _Bus()
+        rec = Recorder(bus, robots=arrays["pose"].shape[1], tolerance=0.01, log_path=str(path))  # type: ignore[arg-type]
+        rec.heading = False  # paper-sequence-10000's robots are holonomic
+        start = time.perf_counter()
+        for k in range(ticks):
+            bus.raw.items = [(key, data, 1000.0 + 0.1 * k) for key, data in _tick_messages(bus.keys, arrays, k)]
+            rec.poll()
+        rec.close_log()
+        seconds = time.perf_counter() - start
+        size = path.stat().st_size
+        data: dict[str, list[bytes]] = {}
+        with open(path, "rb") as fh:
+            for _, channel, message in make_reader(fh).iter_messages():
+                data.setdefault(channel.topic, []).append(message.data)
+    compress = zstandard.ZstdCompressor(level=3).compress
+    table, once = [], 0
+    for topic, messages in sorted(data.items(), key=lambda kv: -sum(map(len, kv[1]))):
+        raw, packed = sum(map(len, messages)), len(compress(b"".join(messages)))
+        if topic in PER_GOAL_SET:
+            once += packed
+        whole = packed * (SEQUENCE_IMAGES if topic in PER_GOAL_SET else SEQUENCE_TICKS / ticks)
+        table.append(
+            f"| {topic} | {len(messages)} | {raw // len(messages):,} | {packed // len(messages):,} | {whole / 1e6:,.0f} |"
+        )
+    sequence = (size - once) / ticks * SEQUENCE_TICKS + once * SEQUENCE_IMAGES
+    return [
+        f"log.mcap of {ticks} ticks: {size:,} bytes, recorder {seconds / ticks * 1e3:.0f} ms a tick; the whole sequence"
+        f" ({SEQUENCE_TICKS} ticks, {SEQUENCE_IMAGES} goal sets) at that rate: **{sequence / 1e9:.2f} GB**",
+        "",
+        "| channel | messages | bytes per message | zstd alone, per message | sequence, zstd alone, MB |",
+        "|---|---|---|---|---|",
+        *table,
+    ]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--mcap", action="store_true", help="only log.mcap's size for one 100-robot run")
@@ -250,13 +358,20 @@ def main() -> None:
     parser.add_argument("--large", action="store_true", help="each output of a 10,000-robot run directory")
     parser.add_argument("--ticks", type=int, default=300, help="--large: ticks of synthetic arrays")
     parser.add_argument("--frames", type=int, default=60, help="--large: frames of the video")
+    parser.add_argument("--log-ticks", type=int, default=100, help="--large: ticks of log.mcap")
     args = parser.parse_args()
     if args.large:
         write_results(
             "outputs_large",
             "A 10,000-robot run directory's outputs, from synthetic arrays",
             f".venv/bin/python bench/bench_outputs.py --large --ticks {args.ticks} --frames {args.frames}",
-            [*large_rows(args.ticks, args.frames), f"Load average at the end: {os.getloadavg()[0]:.1f}."],
+            [
+                *large_rows(args.ticks, args.frames),
+                "",
+                *log_rows(args.log_ticks),
+                "",
+                f"Load average at the end: {os.getloadavg()[0]:.1f}.",
+            ],
         )
         return
     if args.mcap:

@@ -40,6 +40,51 @@ def _radius(radius: Any, n: int) -> np.ndarray:
     return np.broadcast_to(r, (n,)).astype(float) if r.ndim == 0 else r.reshape(n)
 
 
+# elements of a (ticks x robots) temporary the metrics build at once: the whole sequence at 10,000
+# robots is 1.2e8 of them, a GB a temporary in float64; the results are the same to the bit
+CHUNK = 1 << 20
+
+
+def _pose_shape(pose: Any) -> tuple[int, int]:
+    """(T, N) of a (T, N, >=2) pose array, without the float64 copy of all of it :func:`_check_pose` makes."""
+    shape = np.shape(pose)
+    if len(shape) != 3 or shape[2] < 2:
+        raise ValueError(f"pose must have shape (T, N, 3), got {shape}")
+    return shape[0], shape[1]
+
+
+def _chunks(ticks: int, robots: int) -> list[slice]:
+    """Ticks in slices of at most :data:`CHUNK` tick-robot elements (one tick at least)."""
+    step = max(1, CHUNK // max(robots, 1))
+    return [slice(a, min(a + step, ticks)) for a in range(0, ticks, step)]
+
+
+def _xy(pose: Any, ticks: slice | np.ndarray) -> np.ndarray:
+    return np.asarray(pose[ticks, :, :2], dtype=float)
+
+
+def _moved(pose: Any, rows: np.ndarray) -> np.ndarray:
+    """(len(rows), N): each robot's xy step from tick r to r + 1, for each r of ``rows``."""
+    return np.sqrt(((_xy(pose, rows + 1) - _xy(pose, rows)) ** 2).sum(-1))
+
+
+def _pairwise_nansum(rows: np.ndarray, n: int, values: Any) -> float:
+    """``np.nansum`` of the (len(rows), n) array ``values(rows)`` to the bit, built a piece of at most
+    :data:`CHUNK` elements at a time: numpy sums a contiguous array pairwise, halving it at a
+    multiple of 8 down to blocks of 128, so each half here is summed as numpy sums that half."""
+
+    def part(lo: int, hi: int) -> float:
+        if hi - lo > max(CHUNK, 128):  # numpy's blocks of 128 are not halved
+            half = (hi - lo) // 2
+            half -= half % 8
+            return part(lo, lo + half) + part(lo + half, hi)
+        first, last = lo // n, (hi - 1) // n
+        flat = values(rows[first : last + 1]).reshape(-1)[lo - first * n : hi - first * n]
+        return np.nansum(flat)
+
+    return float(part(0, len(rows) * n)) if len(rows) and n else 0.0
+
+
 NEAR = 0.1  # m: clearance_at looks first at the pairs within this of touching
 
 
@@ -135,7 +180,8 @@ def communication_parts(pose: np.ndarray, reach: float) -> np.ndarray:
     from scipy.sparse.csgraph import connected_components
 
     out = np.ones(len(pose), np.int64)
-    for k, xy in enumerate(np.asarray(pose, np.float32)[..., :2].astype(float)):
+    for k in range(len(pose)):  # one tick's positions at a time, as the wire carries them
+        xy = np.asarray(pose[k, :, :2], np.float32).astype(float)
         pairs = cKDTree(xy).query_pairs(reach, output_type="ndarray")
         n = len(xy)
         graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
@@ -175,11 +221,13 @@ def assignment_over_optimum(pose: np.ndarray, goal: np.ndarray, assignment: np.n
 
 def path_lengths(pose: np.ndarray) -> np.ndarray:
     """(N,) length of each robot's xy path (steps touching a non-finite sample are skipped)."""
-    pose = _check_pose(pose)
-    if pose.shape[0] < 2:
-        return np.zeros(pose.shape[1])
-    step = np.sqrt((np.diff(pose[:, :, :2], axis=0) ** 2).sum(-1))
-    return np.nansum(np.where(np.isfinite(step), step, np.nan), axis=0)
+    T, N = _pose_shape(pose)
+    total = np.zeros(N)
+    for ticks in _chunks(T - 1, N):
+        step = _moved(pose, np.arange(ticks.start, ticks.stop))
+        # numpy adds the rows of an axis-0 sum in order: the running total first keeps that order
+        total = np.nansum(np.concatenate([total[None], np.where(np.isfinite(step), step, np.nan)]), axis=0)
+    return total
 
 
 def time_to_converge(t: np.ndarray, pose: np.ndarray, goal: np.ndarray, tolerance: float) -> float | None:
@@ -190,24 +238,36 @@ def time_to_converge(t: np.ndarray, pose: np.ndarray, goal: np.ndarray, toleranc
     does not hold at the last sample, or if no robot ever has a goal.
     """
     t = np.asarray(t, dtype=float)
-    pose = _check_pose(pose)
-    goal = np.asarray(goal, dtype=float)
-    T, N = pose.shape[:2]
-    if goal.shape != (T, N, 2) or t.shape != (T,):
-        raise ValueError(f"shapes: t {t.shape}, pose {pose.shape}, goal {goal.shape}")
+    T, N = _pose_shape(pose)
+    if np.shape(goal) != (T, N, 2) or t.shape != (T,):
+        raise ValueError(f"shapes: t {t.shape}, pose {np.shape(pose)}, goal {np.shape(goal)}")
     if T == 0:
         return None
-    has_goal = np.isfinite(goal).all(axis=2)  # (T, N)
-    if not has_goal.any():
-        return None
-    err = np.sqrt(((pose[:, :, :2] - goal) ** 2).sum(-1))
-    within = np.where(has_goal, err <= tolerance, True)  # NaN pose -> err NaN -> False
-    ok = np.all(within, axis=1)  # (T,)
-    if not ok[-1]:
+    ok = np.zeros(T, bool)  # (T,)
+    any_goal = False
+    for ticks in _chunks(T, N):
+        g = np.asarray(goal[ticks], dtype=float)
+        has_goal = np.isfinite(g).all(axis=2)
+        any_goal = any_goal or bool(has_goal.any())
+        err = np.sqrt(((_xy(pose, ticks) - g) ** 2).sum(-1))
+        ok[ticks] = np.where(has_goal, err <= tolerance, True).all(axis=1)  # NaN pose -> err NaN -> False
+    if not any_goal or not ok[-1]:
         return None
     bad = np.flatnonzero(~ok)
     k = 0 if len(bad) == 0 else int(bad[-1]) + 1
     return float(t[k])
+
+
+def _goal_errors(pose: Any, goal: Any, members: np.ndarray | None, ticks: slice) -> tuple[np.ndarray, np.ndarray]:
+    """At these ticks, each robot's distance to its goal (NaN where no goal, no pose or not a member)
+    and whether it has a goal that counts, both (ticks, N)."""
+    g = np.asarray(goal[ticks], dtype=float)
+    err = np.sqrt(((_xy(pose, ticks) - g) ** 2).sum(-1))
+    has_goal = np.isfinite(g).all(axis=2)
+    if members is not None:
+        has_goal = has_goal & members[ticks]
+        err = np.where(members[ticks], err, np.nan)
+    return err, has_goal
 
 
 def step_metrics(
@@ -231,28 +291,26 @@ def step_metrics(
 
     From arrays only, so the central engine and the distributed recorder report alike."""
     t = np.asarray(t, dtype=float)
-    pose = _check_pose(pose)
-    goal = np.asarray(goal, dtype=float)
+    T, N = _pose_shape(pose)
     step = np.asarray(step).astype(int).reshape(-1)
-    if step.shape != t.shape or goal.shape != pose.shape[:2] + (2,):
-        raise ValueError(f"shapes: t {t.shape}, step {step.shape}, pose {pose.shape}, goal {goal.shape}")
-    err = np.sqrt(((pose[:, :, :2] - goal) ** 2).sum(-1))  # (T, N); NaN where no goal or no pose
-    has_goal = np.isfinite(goal).all(axis=2)
-    if members is not None:
-        has_goal = has_goal & members
-        err = np.where(members, err, np.nan)
-    arrived = err <= tolerance if current is None else (err <= tolerance) & current
-    within = np.where(has_goal, arrived, True).all(axis=1) & has_goal.any(axis=1)
-    moved = np.sqrt((np.diff(pose[:, :, :2], axis=0) ** 2).sum(-1))  # (T-1, N): sample k to k+1
+    if step.shape != t.shape or np.shape(goal) != (T, N, 2):
+        raise ValueError(f"shapes: t {t.shape}, step {step.shape}, pose {np.shape(pose)}, goal {np.shape(goal)}")
+
+    within = np.zeros(T, bool)
+    for ticks in _chunks(T, N):
+        err, has_goal = _goal_errors(pose, goal, members, ticks)
+        arrived = err <= tolerance if current is None else (err <= tolerance) & current[ticks]
+        within[ticks] = np.where(has_goal, arrived, True).all(axis=1) & has_goal.any(axis=1)
     out = []
     for k in sorted(set(step[step >= 0].tolist()), key=lambda s: int(np.argmax(step == s))):
         idx = np.flatnonzero(step == k)
         first, last = int(idx[0]), int(idx[-1])
         ok = idx[within[idx]]
-        at_end = err[last][has_goal[last]]
+        err, has_goal = _goal_errors(pose, goal, members, slice(last, last + 1))
+        at_end = err[0][has_goal[0]]
         known = bool(len(at_end) and np.isfinite(at_end).any())
         # Motion from each of the step's samples to the next one belongs to the step.
-        legs = moved[idx[idx < len(moved)]]
+        legs = _pairwise_nansum(idx[idx < T - 1], N, lambda rows: _moved(pose, rows))
         out.append(
             {
                 "index": int(k),
@@ -261,7 +319,7 @@ def step_metrics(
                 "converged_at": float(t[ok[0]] - t[first]) if len(ok) else None,
                 "max_goal_error_at_end": float(np.nanmax(at_end)) if known else None,
                 "median_goal_error_at_end": float(np.nanmedian(at_end)) if known else None,
-                "path_length_m": float(np.nansum(legs)),
+                "path_length_m": legs,
             }
         )
     return out

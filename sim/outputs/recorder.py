@@ -3,7 +3,9 @@
 It measures the run from the world's TRUE poses (``sim/truth``), never from what agents believed;
 it logs every message kind on its own MCAP channel (the per-tick kinds as protobuf, sim.outputs.logschema;
 the others as JSON), and at every recorded tick the display as a
-``foxglove.SceneUpdate`` (Foxglove's SDK, protobuf) on :data:`SCENE_TOPIC`; it counts messages and bytes per kind, and it
+``foxglove.SceneUpdate`` (Foxglove's SDK, protobuf) on :data:`SCENE_TOPIC` (a swarm of more than
+:data:`LOG_ROBOTS`: the robots as one entity every :data:`SCENE_PERIOD` of display time, and its goal
+sets on :data:`GOALS_TOPIC` as each arrives); it counts messages and bytes per kind, and it
 decides when the display has converged.
 """
 
@@ -19,7 +21,7 @@ from typing import Any
 import numpy as np
 import orjson
 
-from sim.outputs.foxglove import SceneUpdate, scene_update
+from sim.outputs.foxglove import SceneUpdate, goal_markers, scene_update, swarm_scene
 from sim.outputs.logschema import LoggedKind, kind_of
 from sim.outputs.mcaplog import McapLog
 from sim.outputs.ticklog import TickLog
@@ -42,11 +44,16 @@ from transport.codec import (
 from transport.plausible import AHEAD, GoalSets, stamp_agrees
 
 SCENE_TOPIC = "/display/scene"  # what Foxglove's 3D panel shows: robots in their LED colours, and goals
+GOALS_TOPIC = "/display/goals"  # above LOG_ROBOTS: the goal sets, apart from the robots
 
 # robots a tick the log holds every tick of: a larger swarm's per-tick kinds and scene are logged
 # every ceil(N / LOG_ROBOTS)-th tick of the world, so the log grows no faster than at this size (at
 # 10,000 robots a scene message alone is about 4 MB)
 LOG_ROBOTS = 1000
+# s of display time between scene messages above LOG_ROBOTS robots (a swarm's one entity, about 130
+# bytes a robot), and none while no robot moved or changed colour: the panel redraws from the newest
+SCENE_PERIOD = 1.0
+GOAL_DIAMETER = 0.4  # goal marker, as a fraction of the robots' diameter
 
 FLUSH_EVERY = 1.0  # s of wall time between flushes of the MCAP log (a killed run keeps all but the last)
 
@@ -168,6 +175,8 @@ class Recorder:
         self.started_wall = time.time()
         self.log_every = max(1, -(-robots // LOG_ROBOTS))  # ticks
         self.heading = True  # a heading arrow per robot in the scene: not for holonomic robots, which never turn
+        self._next_scene = -np.inf  # display time of the next scene message (above LOG_ROBOTS)
+        self._last_scene: bytes = b""  # the swarm's last scene message, but for its time
         self.view: Any = None  # sim.outputs.view.SwarmView (pixelswarm run --view): the truth of every tick, one batch
 
     # --- intake -------------------------------------------------------------------------------
@@ -201,7 +210,7 @@ class Recorder:
             elif isinstance(msg, Goals):
                 now = self.traj.t[-1] if self.traj.t else None
                 if self.believed.admit(msg, now) is None and not msg.per_robot and msg.epoch not in self.goal_sets:
-                    self._on_goals(msg)
+                    self._on_goals(msg, wall)
             elif isinstance(msg, Commands):
                 self.commands += len(msg.records)
             elif isinstance(msg, Contact):
@@ -240,7 +249,7 @@ class Recorder:
         for i in range(row, len(tr.t) if newest else row + 1):
             tr.goal[i][r], tr.assignment[i][r], tr.assignment_epoch[i][r], tr.assignment_instance[i][r] = said
 
-    def _on_goals(self, g: Goals) -> None:
+    def _on_goals(self, g: Goals, wall: float) -> None:
         """A new goal set: the newest from the tick the coordinator published it at (its stamp),
         also in rows recorded before it arrived (the robots' states of those ticks may use it)."""
         self.goal_sets[g.epoch] = g
@@ -248,6 +257,7 @@ class Recorder:
             return
         self.step = g.timing.step
         self.newest_goals = g
+        self._log_goals(wall, g)
         tr = self.traj
         for i in range(len(tr.t) - 1, -1, -1):
             if tr.t[i] < g.timing.stamp - 1e-9:
@@ -349,17 +359,41 @@ class Recorder:
             )
         self.log.write_bytes(cid, int(wall * 1e9), as_proto.encode(msg, key))
 
+    def _scene_channel(self, topic: str) -> int:
+        assert self.log is not None
+        cid = self._channels.get(topic)
+        if cid is None:
+            cid = self._channels[topic] = self.log.add_foxglove_channel(topic, SceneUpdate)
+        return cid
+
     def _log_scene(self, wall: float, m: Truth) -> None:
         """The display at this tick for Foxglove's 3D panel (stamped, like every channel, with the
-        wall time it arrived, so the panels of one file play in step)."""
-        if self.log is None or m.tick % self.log_every:
+        wall time it arrived, so the panels of one file play in step): every tick a robot an entity,
+        or above :data:`LOG_ROBOTS` robots the swarm's one entity every :data:`SCENE_PERIOD`."""
+        if self.log is None:
             return
-        cid = self._channels.get(SCENE_TOPIC)
-        if cid is None:
-            cid = self._channels[SCENE_TOPIC] = self.log.add_foxglove_channel(SCENE_TOPIC, SceneUpdate)
         t_ns = int(wall * 1e9)
-        update = scene_update(t_ns, m.pose, self.radius, m.color, goal=self.goal, heading=self.heading)
-        self.log.write_bytes(cid, t_ns, update.encode())
+        if self.n <= LOG_ROBOTS:
+            update = scene_update(t_ns, m.pose, self.radius, m.color, goal=self.goal, heading=self.heading)
+            self.log.write_bytes(self._scene_channel(SCENE_TOPIC), t_ns, update.encode())
+            return
+        if m.stamp < self._next_scene - 1e-9:
+            return
+        self._next_scene = (np.floor(m.stamp / SCENE_PERIOD + 1e-9) + 1) * SCENE_PERIOD
+        unstamped = swarm_scene(0, m.pose, self.radius, m.color)
+        if unstamped == self._last_scene:
+            return  # nothing moved: the newest message still shows it
+        self._last_scene = unstamped
+        self.log.write_bytes(self._scene_channel(SCENE_TOPIC), t_ns, swarm_scene(t_ns, m.pose, self.radius, m.color))
+
+    def _log_goals(self, wall: float, g: Goals) -> None:
+        """A swarm's goal set as a sphere a goal in its colour (:func:`goal_markers`): once a set."""
+        if self.log is None or self.n <= LOG_ROBOTS:
+            return
+        radius = self.radius[np.isfinite(self.radius)]
+        r = float(np.median(radius)) if len(radius) else 0.05  # before any state: a typical robot's
+        update = goal_markers(int(wall * 1e9), g.positions, g.colors, GOAL_DIAMETER * 2 * r)
+        self.log.write_bytes(self._scene_channel(GOALS_TOPIC), int(wall * 1e9), update)
 
     def close_log(self) -> None:
         if self.log is not None:

@@ -16,10 +16,11 @@ from mcap.decoder import DecoderFactory as McapDecoderFactory
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
+from sim.outputs.foxglove import GOALS_ENTITY, SWARM_ENTITY, goal_markers, swarm_scene
 from sim.outputs.logschema import logged_kinds
-from sim.outputs.recorder import SCENE_TOPIC, Recorder
+from sim.outputs.recorder import GOALS_TOPIC, LOG_ROBOTS, SCENE_PERIOD, SCENE_TOPIC, Recorder
 from tests.support.fake_bus import RecorderBus
-from transport.codec import Bid, Boards, Commands, Event, Poses, States, Tick, Truth
+from transport.codec import Bid, Boards, Commands, Event, Goals, Poses, States, Tick, Timing, Truth
 
 N = 6
 PER_TICK = {"/pose": Poses, "/state": States, "/cmd": Commands, "/auction": Bid, "/boards": Boards, "/sim/truth": Truth}
@@ -162,3 +163,102 @@ def test_the_scene_of_robots_that_never_turn_has_no_heading_arrows(log):
         assert len(entity.arrows) == 0  # an arrow that never turns says nothing
         assert (disc.pose.position.x, disc.pose.position.y) == pytest.approx(tuple(xy), abs=2.0**-15)
         assert disc.size.x == pytest.approx(0.1, abs=2.0**-14)  # the radius its state told
+
+
+# ------------------------------------------------------------------------------------------------
+# A swarm of thousands: one entity of discs at SCENE_PERIOD, goals once a goal set
+# ------------------------------------------------------------------------------------------------
+
+
+def _sdk_swarm(t_ns, xy, d, rgb):
+    """The swarm's message built object by object with Foxglove's SDK: what swarm_scene must encode."""
+    from foxglove.messages import (
+        Color,
+        CylinderPrimitive,
+        Duration,
+        Pose,
+        Quaternion,
+        SceneEntity,
+        SceneUpdate,
+        Timestamp,
+        Vector3,
+    )
+
+    discs = [
+        CylinderPrimitive(
+            pose=Pose(position=Vector3(x=x, y=y, z=0.005), orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)),
+            size=Vector3(x=size, y=size, z=0.01),
+            bottom_scale=1.0,
+            top_scale=1.0,
+            color=Color(r=r, g=g, b=b, a=1.0),
+        )
+        for (x, y), size, (r, g, b) in zip(xy.tolist(), d.tolist(), rgb.tolist())
+    ]
+    stamp = Timestamp(sec=t_ns // 10**9, nsec=t_ns % 10**9)
+    forever = Duration(sec=0, nsec=0)
+    entity = SceneEntity(timestamp=stamp, frame_id="display", id=SWARM_ENTITY, lifetime=forever, cylinders=discs)
+    return FoxgloveSceneUpdate.FromString(SceneUpdate(entities=[entity]).encode())
+
+
+def test_the_swarms_one_entity_is_what_foxgloves_sdk_builds_disc_by_disc():
+    rng = np.random.default_rng(5)
+    n = 300
+    pose = np.column_stack([rng.uniform(-40, 40, (n, 2)), rng.uniform(-3, 3, n)])
+    pose[7] = np.nan  # not there: not drawn
+    pose[8, :2] = 0.0  # at the origin: its zero coordinates are still there
+    radius, color = rng.uniform(0.03, 0.05, n), rng.integers(0, 256, (n, 3), dtype=np.uint8)
+    got = FoxgloveSceneUpdate.FromString(swarm_scene(12_345_678_901, pose, radius, color))
+    q = 2.0**-14
+    keep = np.arange(n) != 7
+    want = _sdk_swarm(
+        12_345_678_901,
+        np.round(pose[keep, :2] / q) * q,
+        np.round(2 * radius[keep] / q) * q,
+        np.round(color[keep] / 255.0 / q) * q,
+    )
+    assert got == want and len(got.entities[0].cylinders) == n - 1
+    assert got.entities[0].cylinders[7].pose.position.x == 0.0
+    gone = FoxgloveSceneUpdate.FromString(swarm_scene(0, np.full((3, 3), np.nan), 0.04))
+    assert [d.id for d in gone.deletions] == [SWARM_ENTITY] and not gone.entities
+    goals = FoxgloveSceneUpdate.FromString(goal_markers(0, pose[:, :2], color, 0.03))
+    (entity,) = goals.entities
+    assert entity.id == GOALS_ENTITY and len(entity.spheres) == n - 1
+    sphere = entity.spheres[0]
+    assert sphere.size.x == sphere.size.z == pytest.approx(0.03, abs=q) and sphere.pose.position.z == sphere.size.z / 2
+    assert sphere.color.a == 0.5 and sphere.color.r == pytest.approx(color[0, 0] / 255, abs=q)
+
+
+def test_a_swarm_is_logged_as_one_entity_every_scene_period_and_its_goals_once(tmp_path):
+    n = LOG_ROBOTS + 1
+    rng = np.random.default_rng(2)
+    start, goal = rng.uniform(0, 30, (n, 2)), rng.uniform(0, 30, (n, 2))
+    bus = RecorderBus()
+    rec = Recorder(bus, robots=n, tolerance=0.01, log_path=str(tmp_path / "log.mcap"))
+    rec.radius[:] = 0.037  # as the robots' states tell it
+    color = rng.integers(0, 256, (n, 3)).astype(np.uint8)
+    goals = Goals(1, 0, goal, color, np.arange(n), Timing(stamp=0.0))
+    items = [(bus.keys.goals(1), goals.encode(), 50.0)]
+    for k in range(36):  # moving until tick 15, then at rest
+        xy = start + (goal - start) * min(k, 15) / 15
+        truth = Truth(k, 0.1 * k, 0.1, n, np.column_stack([xy, np.zeros(n)]), np.zeros((n, 2)))
+        truth.color, truth.applied = color, np.full(n, k, np.uint32)
+        items.append((bus.keys.truth, truth.encode(), 100.0 + 0.1 * k))
+    bus.raw.items = items
+    rec.poll()
+    rec.close_log()
+    with open(tmp_path / "log.mcap", "rb") as fh:
+        logged = [
+            (c.topic, m.log_time, m.data) for _, c, m in make_reader(fh).iter_messages([SCENE_TOPIC, GOALS_TOPIC])
+        ]
+    scenes = [(t, FoxgloveSceneUpdate.FromString(d)) for topic, t, d in logged if topic == SCENE_TOPIC]
+    # at 0, 1 and 2 s of display time; at 3 s nothing had moved since 2 s
+    assert [round((t - 100e9) / 1e8) for t, _ in scenes] == [0, round(10 * SCENE_PERIOD), round(20 * SCENE_PERIOD)]
+    for _, update in scenes:
+        (entity,) = update.entities
+        assert entity.id == SWARM_ENTITY and len(entity.cylinders) == n
+    last = scenes[-1][1].entities[0].cylinders
+    np.testing.assert_allclose([[c.pose.position.x, c.pose.position.y] for c in last], goal, atol=2.0**-15)
+    ((topic, _, data),) = [row for row in logged if row[0] == GOALS_TOPIC]
+    (entity,) = FoxgloveSceneUpdate.FromString(data).entities
+    assert entity.id == GOALS_ENTITY and len(entity.spheres) == n
+    assert entity.spheres[0].size.x == pytest.approx(0.4 * 2 * 0.037, abs=2.0**-14)
