@@ -1,10 +1,8 @@
 """The run directory's outputs at 10,000 robots (issue 43): display.mp4's frames show every robot as a
-disc at least 2 px across, drawn in bounded time; trajectory.npz is float32 at that scale and stores
+disc at least 2 px across (its drawing time: bench_outputs --large); trajectory.npz is float32 at that scale and stores
 robots at rest compactly; the clearance's quick path is exact."""
 
 from __future__ import annotations
-
-import time
 
 import numpy as np
 import pytest
@@ -31,17 +29,14 @@ def test_the_video_of_10000_robots_is_large_enough_for_2_px_discs():
 
 
 @pytest.mark.timeout(60)
-def test_a_frame_of_10000_robots_shows_each_as_a_disc_of_2_px_or_more_quickly():
+def test_a_frame_of_10000_robots_shows_each_as_a_disc_of_2_px_or_more():
     n = 10_000
     pose = grid_of(n)
     color = np.zeros((n, 3), np.uint8)
     color[:, 1] = 255
     color[4321] = (255, 0, 0)  # one robot to find: red among green
     size = video_size(ARENA, RADIUS)
-    render_frame(0.0, pose, RADIUS, color, ARENA, goal=pose[:, :2], size_px=size)  # warm
-    start = time.perf_counter()
-    img = render_frame(0.0, pose, RADIUS, color, ARENA, goal=pose[:, :2], size_px=size)
-    assert time.perf_counter() - start < 2.0  # stamped all at once: a few ms on an idle core
+    img = render_frame(0.0, pose, RADIUS, color, ARENA, goal=pose[:, :2], size_px=size)  # its speed: bench_outputs
     red = (img[..., 2] > 200) & (img[..., 1] < 60)  # BGR
     rows, cols = np.nonzero(red)
     assert len(rows) >= 4
