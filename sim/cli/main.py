@@ -297,6 +297,26 @@ def _make_goal_sets(scene: Scene, progress: typing.TextIO | None) -> Scene:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    scene = _scene_to_run(args)
+    faults, reach = _faults_and_reach(args, scene)
+    if args.rounds_per_tick is not None:
+        scene = replace(scene, robot={**scene.robot, "rounds_per_tick": args.rounds_per_tick})
+    try:
+        RobotParams.from_dict(scene.robot)
+    except ValueError as err:
+        raise UsageError(f"{args.scene}: {err}") from None
+    _check_remote_agents(args, scene)
+    out = args.out or default_run_path(scene.name)
+    if out.exists() or out.with_name(out.name + ".partial").exists():
+        raise UsageError(f"run directory {out} already exists; choose another --out")
+    _check_out(out)
+    if args.hardware is None and (args.engine or scene.engine) == "central":
+        return _run_central(args, scene, out, faults, reach)
+    return _run_agents(args, scene, out, faults, reach)
+
+
+def _scene_to_run(args: argparse.Namespace) -> Scene:
+    """The scene `pixelswarm run` names, with its goal sets, or the hardware file's; UsageError if none."""
     _check_numbers(args)  # before the scene: a bad flag is the flag's fault, not the scene file's
     try:
         if args.hardware is not None and _names_the_simulator(args.hardware):
@@ -310,6 +330,11 @@ def cmd_run(args: argparse.Namespace) -> int:
             scene = _make_goal_sets(scene, None if args.quiet else sys.stderr)
     except (SceneError, ValueError) as err:
         raise UsageError(str(err)) from None
+    return scene
+
+
+def _faults_and_reach(args: argparse.Namespace, scene: Scene) -> tuple[Any, float]:
+    """--faults and --range, checked against the scene and each other (and --rounds-per-tick)."""
     try:
         faults = parse_faults(args.faults)
     except ValueError as err:
@@ -328,47 +353,42 @@ def cmd_run(args: argparse.Namespace) -> int:
             raise UsageError("--rounds-per-tick needs the lock-step clock: real time has no rounds of ticks")
         if math.isfinite(reach):
             raise UsageError("--rounds-per-tick is not supported with --range: its auction ends blocks by hops")
-        scene = replace(scene, robot={**scene.robot, "rounds_per_tick": args.rounds_per_tick})
+    return faults, reach
+
+
+def _run_central(args: argparse.Namespace, scene: Scene, out: Path, faults: Any, reach: float) -> int:
+    """The run with every robot in this process (--engine central)."""
+    from sim.central.engine import run_central
+
+    if args.secure is not None:
+        raise UsageError("--secure secures the bus between processes; the central engine has none")
+    if args.remote_agents:
+        raise UsageError("--remote-agents needs the distributed engine: the central engine has no agents")
+    if args.foxglove is not None:
+        raise UsageError("--foxglove streams the bus's messages; the central engine has none (use --view)")
+    if faults:
+        raise UsageError("--faults acts on messages; the central engine sends none (use --engine distributed)")
+    if any(e["kind"] in ("fail", "tracker-outage", "tracker-glitch") for e in scene.events):
+        raise UsageError(
+            "fail and tracker-outage events, and tracker-glitch ones (faults of processes and messages), need the distributed engine"
+        )
+
+    progress = None if args.quiet else sys.stderr
+    view = _open_view(args.view, scene)
+    if progress is not None:  # the engine's own first line comes with its first tick
+        print(f"[{scene.name}] {scene.robots} robots: starting the central engine", file=progress, flush=True)
     try:
-        RobotParams.from_dict(scene.robot)
-    except ValueError as err:
-        raise UsageError(f"{args.scene}: {err}") from None
-    _check_remote_agents(args, scene)
-    out = args.out or default_run_path(scene.name)
-    if out.exists() or out.with_name(out.name + ".partial").exists():
-        raise UsageError(f"run directory {out} already exists; choose another --out")
-    _check_out(out)
-    if args.hardware is None and (args.engine or scene.engine) == "central":
-        from sim.central.engine import run_central
+        path = run_central(scene, out, video=args.video, plots=args.plots, progress=progress, reach=reach, view=view)
+        print(path, flush=True)
+        _keep_viewing(view)
+    finally:
+        if view is not None:
+            view.close()
+    return 0
 
-        if args.secure is not None:
-            raise UsageError("--secure secures the bus between processes; the central engine has none")
 
-        if args.remote_agents:
-            raise UsageError("--remote-agents needs the distributed engine: the central engine has no agents")
-        if args.foxglove is not None:
-            raise UsageError("--foxglove streams the bus's messages; the central engine has none (use --view)")
-        if faults:
-            raise UsageError("--faults acts on messages; the central engine sends none (use --engine distributed)")
-        if any(e["kind"] in ("fail", "tracker-outage", "tracker-glitch") for e in scene.events):
-            raise UsageError(
-                "fail and tracker-outage events, and tracker-glitch ones (faults of processes and messages), need the distributed engine"
-            )
-
-        progress = None if args.quiet else sys.stderr
-        view = _open_view(args.view, scene)
-        if progress is not None:  # the engine's own first line comes with its first tick
-            print(f"[{scene.name}] {scene.robots} robots: starting the central engine", file=progress, flush=True)
-        try:
-            path = run_central(
-                scene, out, video=args.video, plots=args.plots, progress=progress, reach=reach, view=view
-            )
-            print(path, flush=True)
-            _keep_viewing(view)
-        finally:
-            if view is not None:
-                view.close()
-        return 0
+def _run_agents(args: argparse.Namespace, scene: Scene, out: Path, faults: Any, reach: float) -> int:
+    """The run with agent processes over an embedded router (the distributed engine, or hardware)."""
     from sim.run.launcher import (  # heavy imports only for the distributed engine (after the goal sets: progress first)
         AGENTS_TIMEOUT,
         Launcher,
