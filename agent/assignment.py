@@ -46,6 +46,7 @@ RESEND_IDLE = 1.0
 MAX_LEAD = 15.0  # s: the longest latency the robots' bid positions compensate (agent.runtime.bid_position)
 ROUND_RESEND = 0.1  # s: lock-step, the least a host waits for a round's records before it sends its own
 # again; at least RESEND_PER_ROBOT per robot, as every resend reaches every host and slows every round
+ROUND_BACKOFF = 8  # a round's resends space out to at most this many times the first interval
 ROUND_CAP = 30.0  # s: lock-step, the longest a host waits for one round; then its robots hold their positions
 
 OnAgreed = Callable[[int, int, dict[int, int], np.ndarray, np.ndarray], None]
@@ -142,6 +143,12 @@ class AuctionLink:
         if self.local is not None:
             return self.local.epoch
         return self.part.epoch if self.part is not None else 0
+
+    @property
+    def _swarm(self) -> int:
+        """The robots of the goal set under way (those a round may wait for)."""
+        auction = self.local if self.local is not None else self.part
+        return len(auction.robots) if auction is not None else 0
 
     def idle_robots(self) -> list[int]:
         own = set(self.local.own) if self.local else set(self.part.own) if self.part else set()
@@ -327,12 +334,17 @@ class AuctionLink:
                 return
             self.block_stamp = stamp
             self.block = BlockRounds(part, positions)
-        block, members = self.block, set(part.robots.tolist())
+        block, own = self.block, np.array(part.own, np.int64)
         for _ in range(rounds_in_tick(self.params, cold=part.agreed_instance < 0 and not self.warm)):
+            # robots with nothing to say this round (every host finds the same) are not waited for,
+            # and a host all of whose robots are quiet speaks only to ask for a message it missed
+            quiet = block.quiet(part.robots)
+            members = set(part.robots[~quiet].tolist())
+            speak = not block.quiet(own).all()
             news = block.say()
             key = (part.epoch, block.final, block.round)
             said = Bid(part.epoch, block.final, self.sender, block.round, part.board.digest(), len(news), news)
-            heard = self._round(key, said, members, lambda m: block.robots_of(m.sender, m.records))
+            heard = self._round(key, said, members, lambda m: block.robots_of(m.sender, m.records), speak)
             if heard is None:
                 self._abandon()
                 return
@@ -383,11 +395,13 @@ class AuctionLink:
         msg: Bid | Boards,
         members: set[int],
         robots_of: Callable[[Any], np.ndarray],
+        speak: bool = True,
     ) -> dict[int, Any] | None:
         """Publish our message of round ``key`` (epoch, block's final instance, round) and wait until
         every live robot in ``members`` has said its word in that round (a robot whose agent died is
         not waited for: ``dead``); returns the other hosts' messages by sender (None: ROUND_CAP ran
-        out)."""
+        out). Without ``speak`` the message goes out only as a resend: nobody waits for it, but it
+        asks the hosts that left the round for a message of theirs we missed (see _file)."""
         for old in [k for k in self.round_records if k < key]:
             del self.round_records[old]
         if key[:2] != self.said_block:  # a block's first round: forget the blocks before it (once, not
@@ -397,15 +411,20 @@ class AuctionLink:
                 del self.said[old]  # an earlier block: every host finished it before this tick came
             for old in [b for b in self.newest_round if b[:2] < key[:2]]:
                 del self.newest_round[old]
-        self.said[key] = (msg, -np.inf)
+        self.said[key] = (msg, -np.inf if speak else time.monotonic())
         self.waiting_for, start = key, time.monotonic()
-        resend = max(ROUND_RESEND, RESEND_PER_ROBOT * len(members))
+        # every resend reaches every host and may draw an answer from each: on a loaded machine, where
+        # a round outlasts the backstop, fixed resends fed the load that made them; each waits twice
+        # the last, up to ROUND_BACKOFF times the first
+        base = resend = max(ROUND_RESEND, RESEND_PER_ROBOT * max(len(members), self._swarm))
         said: set[int] = set(self.robots)  # robots heard in this round
         counted: set[int] = set()  # the senders whose robots are in ``said``
         try:
             while not self.stopped:
                 now = time.monotonic()
                 if now - self.said[key][1] >= resend:  # at once, then again while records are missing
+                    if self.said[key][1] > -np.inf:
+                        resend = min(2 * resend, ROUND_BACKOFF * base)
                     self._send(key)
                 heard = self.round_records.get(key, {})
                 for sender in heard.keys() - counted:  # a resent message names the same robots

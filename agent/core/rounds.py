@@ -13,7 +13,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from .bidder import RELEASED, SETTLED, Participant
+from .bidder import RELEASED, SETTLED, SMALL, Participant
 
 
 def claims(records: np.ndarray) -> np.ndarray:
@@ -33,7 +33,11 @@ class BlockRounds:
         self._last: np.ndarray | None = None  # our claims as last said
         self._before = 0  # the board's digest before this round's bids
         self._robots_of: dict[int, np.ndarray] = {}  # sender -> its robots, from its full first round
-        self._flags = np.zeros(int(part.robots.max(initial=0)) + 1, np.uint8)  # each robot's newest claim flags
+        size = int(part.robots.max(initial=0)) + 1
+        self._flags = np.zeros(size, np.uint8)  # each robot's newest claim: its flags, goal and price
+        self._goal = np.full(size, -1, np.int64)
+        self._price = np.zeros(size)
+        self._steady = False  # the last round kept the phase (and so the costs): quiet() may hold
 
     def say(self) -> np.ndarray:
         """Bid the next round; returns our records of it. After the first round only the claims that
@@ -47,7 +51,40 @@ class BlockRounds:
         k = self._claims
         news = mine if self._last is None else np.concatenate([mine[:k][mine[:k] != self._last], mine[k:]])
         self._last = mine[:k]
+        self._note(self._last)
         return news
+
+    def _note(self, records: np.ndarray) -> None:
+        """Keep each robot's newest claim among these records (releases are no claim)."""
+        if len(records) > SMALL:
+            mine = claims(records)
+            self._flags[mine["robot"]], self._goal[mine["robot"]] = mine["flags"], mine["goal"]
+            self._price[mine["robot"]] = mine["price"]
+            return
+        for robot, goal, price, flags, *_ in records.tolist():  # a robot a host: numpy costs more
+            if not flags & RELEASED:
+                self._flags[robot], self._goal[robot], self._price[robot] = flags, goal, price
+
+    def quiet(self, robots: np.ndarray) -> np.ndarray:
+        """Per robot of ``robots``: whether it has nothing to say in the next round, the same on
+        every host (they merged the same records onto the same board). Its newest claim said it is
+        content at the final phase's slack (SETTLED), the board still holds that claim (goal, owner,
+        price, not released) and the phase has not changed since the last round (costs and slack are
+        those it judged by, as penalties come into force only with a new phase). Prices only rise,
+        so no other goal became better for it: it bids nothing and its claim stays as said; its
+        releases are on every board already. Nobody waits for such a robot's word."""
+        robots = np.asarray(robots, np.int64)
+        if not self._steady or self._last is None:
+            return np.zeros(len(robots), bool)
+        board, goal = self.part.board, self._goal[robots]
+        at = np.maximum(goal, 0)
+        return (
+            ((self._flags[robots] & SETTLED) != 0)
+            & (goal >= 0)
+            & (board.owner[at] == robots)
+            & ~board.released[at]
+            & (board.price[at] == self._price[robots])
+        )
 
     def robots_of(self, sender: int, records: np.ndarray) -> np.ndarray:
         """The robots a host speaks for: those of its first round's claims."""
@@ -62,12 +99,16 @@ class BlockRounds:
         for sender, records in heard.items():
             records = part.members_only(records)
             self.robots_of(sender, records)
-            part.absorb(part.instance, self.round, 0, records)
-            theirs = claims(records)
-            self._flags[theirs["robot"]] = theirs["flags"]
-        # settled: every robot's claim says so this round, ours as just said, the others by their newest
+            part.absorb(part.instance, self.round, 0, records, members=True)
+            self._note(records)
+        # settled: every robot's claim says so this round, ours as just said, the others by their
+        # newest (a host that was quiet() said nothing: its robots are settled)
         assert self._last is not None
-        settled = bool(((self._last["flags"] & SETTLED) != 0).all()) and all(
-            bool(((self._flags[self._robots_of[s]] & SETTLED) != 0).all()) for s in heard
+        theirs = [self._robots_of[s] for s in heard]
+        settled = bool(((self._last["flags"] & SETTLED) != 0).all()) and (
+            not theirs or bool(((self._flags[np.concatenate(theirs)] & SETTLED) != 0).all())
         )
-        return part.close_round(part.board.digest() == self._before, settled)
+        phase = part.instance
+        agreed = part.close_round(part.board.digest() == self._before, settled)
+        self._steady = part.instance == phase
+        return agreed
