@@ -302,7 +302,7 @@ class AuctionLink:
                 self.others.add(msg.sender)
             if msg.instance > part.instance:  # the sender saw our instance agreed
                 self._begin(msg.instance, positions)
-            if part.absorb(msg.instance, msg.serial, msg.digest, msg.records):
+            if part.absorb(msg.instance, msg.serial, msg.digest, part.members_only(msg.records)):
                 self.board_changed = time.monotonic()
             if msg.instance == part.instance:
                 theirs.add(msg.digest)

@@ -202,14 +202,14 @@ class Coordinator:
                 self.bodies[r] = np.array([pose.x, pose.y])
 
     def _hear_agent(self, r: int, alive: bool, life: str) -> None:
-        was_live = set(self.live)
+        changed = (r in self.live) != alive  # not a copy of the set: thousands of agents say so at start
         (self.live.add if alive else self.live.discard)(r)
         # A restarted agent bids only in goal sets published after it joined (agent.runtime): back
         # within SETTLE_S, the live robots look unchanged, yet it needs a new set.
         if alive and self.lives.setdefault(r, life) != life:
             self.lives[r] = life
             self.restarted.add(r)
-        if self.live != was_live or r in self.restarted:
+        if changed or r in self.restarted:
             self.live_changed = time.monotonic()
         if alive:
             self.ever_live.add(r)

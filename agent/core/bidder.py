@@ -437,11 +437,11 @@ class Participant:
             return recs if all(r in self.row_of for r in ids) else recs[[r in self.row_of for r in ids]]
         return recs[np.isin(recs["robot"], self.robots)]
 
-    def absorb(self, instance: int, serial: int, digest: int, recs: np.ndarray, members: bool = False) -> bool:
-        """Merge another host's records; True when the board changed. Records of the current instance
-        are remembered per robot (the newest by serial) for the agreement check. ``members``: the
-        caller passed them through members_only already."""
-        recs = recs if members else self.members_only(recs)
+    def absorb(self, instance: int, serial: int, digest: int, recs: np.ndarray) -> bool:
+        """Merge another host's records, of robots of this goal set only (members_only: what came
+        over the bus passes through it first); True when the board changed. Records of the current
+        instance are remembered per robot (the newest by serial) for the agreement check."""
+        recs = np.asarray(recs, RECORD)
         if len(recs) <= SMALL:
             return self._absorb_each(instance, serial, digest, recs.tolist())
         robot = recs["robot"].astype(np.int64)

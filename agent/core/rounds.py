@@ -102,7 +102,7 @@ class BlockRounds:
         for sender, records in heard.items():
             records = part.members_only(records)
             self.robots_of(sender, records)
-            part.absorb(part.instance, self.round, 0, records, members=True)
+            part.absorb(part.instance, self.round, 0, records)
             self._note(records)
         # settled: every robot's claim says so this round, ours as just said, the others by their
         # newest (a host that was quiet() said nothing: its robots are settled)
