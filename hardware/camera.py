@@ -32,7 +32,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .config import HardwareConfigError
+from .config import HardwareConfigError, Started
 from .poses import PoseSample, StampGate
 
 # A detection whose side on the floor is off by more than this fraction is not a robot's marker
@@ -287,7 +287,7 @@ def is_file(source: int | str) -> bool:
     return isinstance(source, str) and "://" not in source
 
 
-class CameraPoseSource:
+class CameraPoseSource(Started):
     """Reads frames in a thread and hands out each robot's latest pose with its frame's time.
 
     A file's frames are timed by its frame rate from 0 and, with `realtime`, played at that rate like
@@ -356,12 +356,6 @@ class CameraPoseSource:
             self._thread.join()
         if self._capture is not None:
             self._capture.release()
-
-    def __enter__(self) -> CameraPoseSource:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def _run(self) -> None:
         assert self._capture is not None

@@ -19,7 +19,7 @@ import tomllib
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
 BACKEND_KINDS = {
     "epuck2": "hardware.epuck2:Epuck2Config",
@@ -51,6 +51,24 @@ def positive_number(table: Mapping[str, Any], key: str, default: float, where: s
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not (0 < value < float("inf")):
         raise HardwareConfigError(f"{where}: {key} must be a positive number, not {value!r}")
     return float(value)
+
+
+class Started:
+    """A backend, pose source or stand-in that runs from start() to close(): `with` starts it and
+    closes it however the block ends."""
+
+    def start(self) -> object:
+        raise NotImplementedError
+
+    def close(self) -> object:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
 
 @dataclass(frozen=True)

@@ -32,7 +32,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields, replace
 from typing import Any
 
-from .config import HardwareConfigError, check_keys, positive_number
+from .config import HardwareConfigError, Started, check_keys, positive_number
 
 log = logging.getLogger(__name__)
 
@@ -369,7 +369,7 @@ class RobotLink:
                 return
 
 
-class Epuck2Backend:
+class Epuck2Backend(Started):
     """Drives e-puck2 robots over Wi-Fi; robot ids are positions in `config.addresses`.
 
     One thread runs an asyncio event loop with one task per robot; the control loop's calls hand their work
@@ -463,13 +463,6 @@ class Epuck2Backend:
 
     def stats(self) -> dict[int, RobotStats]:
         return {link.robot_id: replace(link.stats) for link in self.links}
-
-    def __enter__(self) -> Epuck2Backend:
-        self.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def stop_robots(config: Epuck2Config, settings: object = None) -> list[int]:

@@ -46,7 +46,7 @@ from transport.rmw_zenoh import (
 )
 from transport.session import ZenohSettings, open_session
 
-from .config import HardwareConfigError
+from .config import HardwareConfigError, Started
 from .poses import PoseSample, StampGate
 
 TWIST = "geometry_msgs/msg/Twist"
@@ -241,7 +241,7 @@ class Ros2PosesConfig:
 # ---------------------------------------------------------------------------------------------------
 
 
-class Ros2Backend:
+class Ros2Backend(Started):
     """Robots that take Twist and ColorRGBA over rmw_zenoh; a watchdog stops a robot left without commands.
 
     Shaped like the other hardware backends: start(), set_commands(...), stop_all(), close(), stats().
@@ -349,15 +349,8 @@ class Ros2Backend:
         self._session.close()
         self._session = None
 
-    def __enter__(self) -> Ros2Backend:
-        self.start()
-        return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-
-class Ros2PoseSource:
+class Ros2PoseSource(Started):
     """The latest PoseStamped of every robot, from any publisher of the topic pattern over rmw_zenoh."""
 
     NODE_NAME = "pixelswarm_poses"
@@ -430,13 +423,6 @@ class Ros2PoseSource:
         self.node.close()
         self._session.close()
         self._session = None
-
-    def __enter__(self) -> Ros2PoseSource:
-        self.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 STOP_REPEATS = 3  # `pixelswarm stop` sends its stop this many times, a watchdog quarter apart: a fresh

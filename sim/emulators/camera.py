@@ -33,6 +33,8 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
+from hardware.config import Started
+
 if TYPE_CHECKING:
     from .mocap import PoseFunction
 
@@ -268,7 +270,7 @@ class _Reader:
             self.conn.close()
 
 
-class CameraStream:
+class CameraStream(Started):
     """The overhead camera as a network camera: frames of ``poses(t)`` (row i: robot i, t in s since
     start) rendered at ``rate`` Hz and served as MJPEG over HTTP on 127.0.0.1 (as many IP cameras serve
     them) to every client, for a CameraPoseSource reading `url`. `swap` and `shift` spoil one frame,
@@ -319,12 +321,6 @@ class CameraStream:
             clients, self._clients = self._clients, []
         for client in clients:
             client.thread.join()
-
-    def __enter__(self) -> CameraStream:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def poses_toml(self) -> str:
         """The hardware file's `[poses]` table that tracks this stream."""

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from agent.core.params import EPUCK, RobotParams
+from hardware.config import Started
 from sim.args import OneLineParser, positive_int
 from sim.processes import stopped_by_signals
 
@@ -134,7 +135,7 @@ def default_poses(count: int, params: RobotParams = EPUCK) -> list[Pose]:
     return [(i * 4 * params.radius, 0.0, 0.0) for i in range(count)]
 
 
-class Epuck2Emulator:
+class Epuck2Emulator(Started):
     """N emulated e-puck2 robots, each its own TCP server on 127.0.0.1, served by one thread.
 
     A robot serves one connection at a time: a new connection replaces the old one."""
@@ -231,12 +232,6 @@ class Epuck2Emulator:
         if self._thread.is_alive():
             self._thread.join()
         self._close_sockets()
-
-    def __enter__(self) -> Epuck2Emulator:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     # --- the server thread ---
     def _in_server_thread(self, action: Callable[[], None]) -> None:

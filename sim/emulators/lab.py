@@ -25,6 +25,7 @@ import numpy as np
 
 from agent.core.params import RobotParams
 from coordinator.scene import Scene, SceneError, load_scene
+from hardware.config import Started
 from sim.args import OneLineParser, positive_int
 from sim.processes import stopped_by_signals
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, settings_from_args
@@ -48,7 +49,7 @@ class ContactEpisode:
     max_depth: float
 
 
-class Lab:
+class Lab(Started):
     """N emulated e-puck2 robots at the scene's start poses, their true poses on motion capture."""
 
     def __init__(
@@ -110,12 +111,6 @@ class Lab:
         self._final = self.report()
         self.emulator.close()
         return self._final
-
-    def __enter__(self) -> Lab:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def report(self) -> dict[str, Any]:
         """Each robot's address, final pose and received commands (time.monotonic() s, steps/s), the

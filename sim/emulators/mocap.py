@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from hardware.config import HardwareConfigError
+from hardware.config import HardwareConfigError, Started
 from hardware.ros2 import POSE_STAMPED, Ros2Messages, Ros2PosesConfig
 from sim.args import OneLineParser, positive_int, positive_number, positive_seconds
 from transport.rmw_zenoh import RosNode, RosPublisher
@@ -35,7 +35,7 @@ RMW_ZENOHD = "tcp/127.0.0.1:7447"  # where rmw_zenohd listens by default
 PoseFunction = Callable[[float], np.ndarray]  # s since start -> (N, 3) rows of x (m), y (m), theta (rad)
 
 
-class MocapEmulator:
+class MocapEmulator(Started):
     """Publishes ``poses(t)`` (row i: robot i) as PoseStamped on ``topic`` (with {id}) at ``rate`` Hz,
     stamped by ``clock`` (the motion-capture machine's wall clock; a test may set it back or ahead)."""
 
@@ -106,13 +106,6 @@ class MocapEmulator:
         self._node.close()
         self._session.close()
         self._session = None
-
-    def __enter__(self) -> MocapEmulator:
-        self.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def circle(robots: int, radius: float, speed: float) -> PoseFunction:
