@@ -46,6 +46,8 @@ from libc.math cimport INFINITY, NAN, fabs, sqrt
 from libc.stdint cimport int64_t, uint8_t, uint64_t
 from libc.string cimport memcpy
 
+from agent.core.splitmix cimport splitmix64
+
 import numpy as np
 
 NO_OWNER = -1  # a goal nobody claimed
@@ -682,14 +684,6 @@ def merge_boards(boards, const int64_t[::1] rows, const uint8_t[:, ::1] told, wo
                     price[i, j], owner[i, j], released[i, j] = w_price[b, j], w_owner[b, j], w_released[b, j]
                     changed[a] = 1
     return out
-
-
-cdef inline uint64_t splitmix64(uint64_t x) noexcept nogil:
-    """Steele et al.'s SplitMix64 finaliser: an integer hash."""
-    x = x + <uint64_t>0x9E3779B97F4A7C15
-    x = (x ^ (x >> 30)) * <uint64_t>0xBF58476D1CE4E5B9
-    x = (x ^ (x >> 27)) * <uint64_t>0x94D049BB133111EB
-    return x ^ (x >> 31)
 
 
 def board_digest(const double[::1] price, const int64_t[::1] owner, const uint8_t[::1] released) -> int:
