@@ -34,7 +34,7 @@ import numpy as np
 from .drawings import KEYFRAME_ANIMATIONS, keyframes
 from .goals import IMAGE_SUFFIXES, GoalError, GoalOptions
 from .keyframes import KeyframeGoals, keyframe_goals, keyframe_paths
-from .steps import METHODS, ImageStep, parse_region_counts, scale_region_counts
+from .steps import METHODS, GoalSets, ImageStep, parse_region_counts, scale_region_counts
 
 ANIMATION_KEYS = (
     "keyframes",
@@ -176,9 +176,10 @@ def _times(value: Any, frames: int) -> list[float]:
     return starts
 
 
-class FrameGoals:
-    """The keyframes' goal sets for any robot count (the interface of coordinator.steps.StepGoals):
-    generated on demand with keyframe_goals, cached, seeded, and all in one arena K_r."""
+class FrameGoals(GoalSets):
+    """The keyframes' goal sets, generated with keyframe_goals, seeded, and all in one arena K_r."""
+
+    STEP = "keyframe"
 
     def __init__(
         self,
@@ -189,30 +190,22 @@ class FrameGoals:
         arena: float | None = None,
         counts_for: int | None = None,
     ) -> None:
-        self.animation, self.robots, self.seed, self.radius = animation, robots, seed, radius
+        super().__init__(len(animation.steps), robots)
         self.steps = list(animation.steps)
+        self.animation, self.seed, self.radius = animation, seed, radius
         self.counts_for = counts_for or robots
-        self._sets: dict[int, KeyframeGoals] = {}
-        self._frozen: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+        self._keyframes: dict[int, KeyframeGoals] = {}
         arena = arena if arena is not None else animation.arena
         self.arena = float(arena) if arena is not None else self._generate(robots, None).arena
 
-    def goal_set(self, step: int, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """Goals (n,2) in metres (arena frame) and colours (n,3) uint8 of keyframe `step`."""
-        if not 0 <= step < len(self.steps):
-            raise GoalError(f"keyframe {step} does not exist: the animation has keyframes 0..{len(self.steps) - 1}")
-        if not 1 <= n <= self.robots:
-            raise GoalError(f"goal sets exist for 1..{self.robots} robots, not {n}")
-        key = (step, n)
-        if key not in self._frozen:
-            kg = self._sets.get(n) or self._generate(n, self.arena)
-            self._frozen[key] = (_frozen(kg.sets[step].goals), _frozen(kg.sets[step].colors, np.uint8))
-        return self._frozen[key]
+    def _made(self, step: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+        kg = self._keyframes.get(n) or self._generate(n, self.arena)
+        return kg.sets[step].goals, kg.sets[step].colors
 
     def keyframe_goals(self, n: int) -> KeyframeGoals:
         """Every keyframe's goals for n robots, with keyframe_goals' reports (tools, tests)."""
         self.goal_set(0, n)
-        return self._sets[n]
+        return self._keyframes[n]
 
     def _generate(self, n: int, arena: float | None) -> KeyframeGoals:
         a = self.animation
@@ -224,11 +217,5 @@ class FrameGoals:
             )
         except GoalError as err:
             raise GoalError(f"animation {a.name}, {n} robots: {err}") from None
-        self._sets[n] = kg
+        self._keyframes[n] = kg
         return kg
-
-
-def _frozen(values: np.ndarray, dtype: Any = float) -> np.ndarray:
-    out = np.array(values, dtype)
-    out.setflags(write=False)  # shared by every caller of the cache
-    return out

@@ -25,17 +25,16 @@ from typing import Any, Unpack
 
 import numpy as np
 
-from .goals import GoalError
 from .motion import StepMotion
 from .scene import GoalSource, Noise, Overrides, Scene, SceneError, goal_pipeline, load_scene, parse_scene
-from .steps import ImageStep
+from .steps import GoalSets, ImageStep
 
 SCENE_FILE = "scene.json"
 GOAL_SETS_FILE = "goal_sets.npz"
 FORMAT = "pixelswarm.scene/1"
 
 
-class StoredGoals:
+class StoredGoals(GoalSets):
     """Goal sets read from a run directory (the GoalSource of a resolved scene). A count not stored is
     made by ``make`` (the image pipeline in arena K_r) when first asked for."""
 
@@ -47,8 +46,10 @@ class StoredGoals:
         robots: int,
         make: Callable[[], GoalSource],
     ) -> None:
-        self.arena, self.steps, self.robots = arena, steps, robots
-        self._sets = {key: (_read_only(g, float), _read_only(c, np.uint8)) for key, (g, c) in sets.items()}
+        super().__init__(steps, robots)
+        self.arena = arena
+        for (k, n), (goals, colors) in sets.items():
+            self._keep(k, n, goals, colors)
         self._make = make
         self._pipeline: GoalSource | None = None
 
@@ -57,17 +58,10 @@ class StoredGoals:
         """The robot counts whose goal sets were stored."""
         return sorted({n for _, n in self._sets})
 
-    def goal_set(self, step: int, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """Goals (n,2) in metres (arena frame) and colours (n,3) uint8 of step ``step``."""
-        if not 0 <= step < self.steps:
-            raise GoalError(f"step {step} does not exist: the scene has steps 0..{self.steps - 1}")
-        if not 1 <= n <= self.robots:
-            raise GoalError(f"goal sets exist for 1..{self.robots} robots, not {n}")
-        if (step, n) not in self._sets:
-            if self._pipeline is None:
-                self._pipeline = self._make()
-            self._sets[(step, n)] = self._pipeline.goal_set(step, n)
-        return self._sets[(step, n)]
+    def _made(self, step: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+        if self._pipeline is None:
+            self._pipeline = self._make()
+        return self._pipeline.goal_set(step, n)
 
 
 def stored_counts(scene: Scene) -> list[int]:
@@ -228,12 +222,6 @@ def _motion_of(data: dict[str, Any]) -> StepMotion:
         float(data["expansion"]),
         data["expansion_kind"],
     )
-
-
-def _read_only(values: np.ndarray, dtype: Any) -> np.ndarray:
-    out = np.array(values, dtype)
-    out.setflags(write=False)  # shared by every caller, as the pipeline's own sets
-    return out
 
 
 def add_scene_args(parser: argparse.ArgumentParser) -> None:

@@ -127,9 +127,38 @@ def scale_region_counts(counts: Mapping[int, int] | None, full: int, n: int) -> 
     return {i: int(c) for i, c in zip(ids, out[:-1])}
 
 
-class StepGoals:
-    """Goal sets (goals, colours) of a scene's steps for any robot count, generated on demand,
-    cached, deterministic (seeded), and all in the shared arena K_r."""
+class GoalSets:
+    """Goal sets (goals, colours) of a scene's steps for any robot count 1..robots: made on demand by
+    a subclass's _made (or stored), cached, and handed out read-only."""
+
+    STEP = "step"  # how errors name a step
+
+    def __init__(self, steps: int, robots: int) -> None:
+        self.step_count, self.robots = steps, robots
+        self._sets: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+
+    def goal_set(self, step: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Goals (n,2) in metres (arena frame, origin at the centre) and colours (n,3) uint8."""
+        if not 0 <= step < self.step_count:
+            raise GoalError(f"{self.STEP} {step} does not exist: there are {self.STEP}s 0..{self.step_count - 1}")
+        if not 1 <= n <= self.robots:
+            raise GoalError(f"goal sets exist for 1..{self.robots} robots, not {n}")
+        if (step, n) not in self._sets:
+            self._keep(step, n, *self._made(step, n))
+        return self._sets[(step, n)]
+
+    def _made(self, step: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+        raise NotImplementedError
+
+    def _keep(self, step: int, n: int, goals: np.ndarray, colors: np.ndarray) -> None:
+        goals, colors = np.array(goals, float), np.array(colors, np.uint8)
+        goals.setflags(write=False)  # shared by every caller of the cache
+        colors.setflags(write=False)
+        self._sets[(step, n)] = goals, colors
+
+
+class StepGoals(GoalSets):
+    """The image steps' goal sets, deterministic (seeded), and all in the shared arena K_r."""
 
     def __init__(
         self,
@@ -141,27 +170,18 @@ class StepGoals:
         labels: list[str] | None = None,
         counts_for: int | None = None,
     ) -> None:
+        super().__init__(len(steps), robots)
         self.steps = steps
         self.counts_for = counts_for or robots  # the robot count the artist's region_counts were written for
         self.labels = labels or [f"steps[{k}]" for k in range(len(steps))]  # how errors name each step
-        self.robots = robots
         self.seed = seed
         self.radius = radius
         self._prepared: dict[int, PreparedImage] = {}
-        self._sets: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
         self.arena = float(arena) if arena is not None else self._shared_arena()
 
-    def goal_set(self, step: int, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """Goals (n,2) in metres (arena frame, origin at the centre) and colours (n,3) uint8."""
-        if not 0 <= step < len(self.steps):
-            raise GoalError(f"step {step} does not exist: the scene has steps 0..{len(self.steps) - 1}")
-        if not 1 <= n <= self.robots:
-            raise GoalError(f"goal sets exist for 1..{self.robots} robots, not {n}")
-        key = (step, n)
-        if key not in self._sets:
-            gs = self._generate(step, n, self.arena)
-            self._sets[key] = self._freeze((gs.goals, gs.colors))
-        return self._sets[key]
+    def _made(self, step: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+        gs = self._generate(step, n, self.arena)
+        return gs.goals, gs.colors
 
     def _shared_arena(self) -> float:
         """K_r: the largest of the steps' own conservative arenas with all N robots."""
@@ -169,7 +189,7 @@ class StepGoals:
         shared = max(gs.arena for gs in own.values())
         for k, gs in own.items():
             # Goals scale linearly with K_r, so rescaling equals regenerating with arena=shared.
-            self._sets[(k, self.robots)] = self._freeze((gs.goals * (shared / gs.arena), gs.colors))
+            self._keep(k, self.robots, gs.goals * (shared / gs.arena), gs.colors)
         return shared
 
     def _generate(self, k: int, n: int, arena: float | None) -> GoalSet:
@@ -185,10 +205,3 @@ class StepGoals:
             return goals_from_prepared(self._prepared[k], n, options)
         except GoalError as err:
             raise GoalError(f"{self.labels[k]} ({step.name}), {n} robots: {err}") from None
-
-    @staticmethod
-    def _freeze(pair: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-        goals, colors = np.array(pair[0], float), np.array(pair[1], np.uint8)
-        goals.setflags(write=False)  # shared by every caller of the cache
-        colors.setflags(write=False)
-        return goals, colors
