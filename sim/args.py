@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 import typing
 from pathlib import Path
 
@@ -18,6 +19,12 @@ class OneLineParser(argparse.ArgumentParser):
 
     def error(self, message: str) -> typing.NoReturn:
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def refuse(prog: str, message: object) -> int:
+    """A command's bad input as one line `PROG: error: ...` on stderr; returns its exit code, 2."""
+    print(f"{prog}: error: {message}", file=sys.stderr)
+    return 2
 
 
 def positive_int(text: str) -> int:
@@ -64,6 +71,13 @@ def _positive(text: str, what: str) -> float:
     return value
 
 
+def add_seconds(parser: argparse.ArgumentParser, flag: str, default: float, help: str) -> None:
+    """A flag for how long to wait, in seconds above 0, whose help ends with its default."""
+    parser.add_argument(
+        flag, type=positive_seconds, default=default, metavar="SECONDS", help=f"{help} (default {default:g} s)"
+    )
+
+
 def format_ids(ids: list[int]) -> str:
     """The reverse of sim.run.remote_agents.parse_ids, for messages: [0, 1, 2, 3, 7] -> '0-3, 7'."""
     runs: list[list[int]] = []
@@ -94,11 +108,5 @@ def add_watch_args(view: argparse.ArgumentParser) -> None:
         metavar="DIR",
         help="with --connect: join a secured bus as the observer role of a folder made by `pixelswarm certs`",
     )
-    view.add_argument(
-        "--timeout",
-        type=positive_seconds,
-        default=WATCH_TIMEOUT,
-        metavar="SECONDS",
-        help=f"with --connect: how long to wait for the run's first tick (default {WATCH_TIMEOUT:g} s)",
-    )
+    add_seconds(view, "--timeout", WATCH_TIMEOUT, "with --connect: how long to wait for the run's first tick")
     view.add_argument("--quiet", "-q", action="store_true", help="with --connect: no progress lines")

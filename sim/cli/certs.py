@@ -8,10 +8,9 @@ Bad input (robots < 1, a folder that exists or cannot be written, a bad endpoint
 from __future__ import annotations
 
 import argparse
-import sys
 from typing import Any
 
-from sim.args import positive_int
+from sim.args import positive_int, refuse
 from transport.security import SecurityError, make_certificates
 
 PROG = "pixelswarm certs"
@@ -42,10 +41,8 @@ def run_certs(args: argparse.Namespace) -> int:
     try:
         path = make_certificates(args.dir, args.robots, connect=args.listen, display=args.display, overwrite=args.force)
     except (SecurityError, ValueError) as err:
-        print(f"{PROG}: error: {err}", file=sys.stderr)
-        return 2
+        return refuse(PROG, err)
     except OSError as err:
-        print(f"{PROG}: error: cannot write {args.dir}: {err.strerror or err}", file=sys.stderr)
-        return 2
+        return refuse(PROG, f"cannot write {args.dir}: {err.strerror or err}")
     print(path)
     return 0

@@ -26,7 +26,7 @@ from coordinator.scene import (
     resolve_scene_path,
     shipped_scenes,
 )
-from sim.args import FOXGLOVE_PORT, STARTUP_TIMEOUT, OneLineParser, add_watch_args, port_number, positive_int
+from sim.args import FOXGLOVE_PORT, STARTUP_TIMEOUT, OneLineParser, add_watch_args, port_number, positive_int, refuse
 from sim.cli.certs import add_certs_parser
 from sim.cli.track import add_track_parser
 from sim.outputs.rundir import default_run_path
@@ -677,8 +677,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return args.func(args)
     except (UsageError, TransportError) as err:
-        print(f"pixelswarm {args.command}: error: {err}", file=sys.stderr)
-        return 2
+        return refuse(f"pixelswarm {args.command}", err)
     except KeyboardInterrupt:
         return 130
 

@@ -25,6 +25,7 @@ import cv2
 
 from hardware.camera import MIN_REFERENCES, ArucoTracker, CameraConfig, CameraError, open_capture
 from hardware.config import HardwareConfigError
+from sim.args import refuse
 
 PROG = "pixelswarm track"
 PROGRESS_EVERY = 50  # frames between progress lines
@@ -132,11 +133,9 @@ def run_track(args: argparse.Namespace) -> int:
         os.replace(temp, out)
         temp = None
     except TrackError as err:
-        print(f"{PROG}: error: {err}", file=sys.stderr)
-        return 2
+        return refuse(PROG, err)
     except OSError as err:
-        print(f"{PROG}: error: cannot write {out}: {err.strerror or err}", file=sys.stderr)
-        return 2
+        return refuse(PROG, f"cannot write {out}: {err.strerror or err}")
     finally:
         if temp is not None:
             temp.unlink(missing_ok=True)

@@ -34,6 +34,7 @@ import cv2
 import numpy as np
 
 from hardware.config import Started
+from sim.args import refuse
 
 if TYPE_CHECKING:
     from .mocap import PoseFunction
@@ -437,8 +438,7 @@ def main(argv: list[str] | None = None) -> int:
         temp.rename(args.out)
         temp = None
     except OSError as err:
-        print(f"{parser.prog}: error: cannot write {args.out}: {err.strerror or err}", file=sys.stderr)
-        return 2
+        return refuse(parser.prog, f"cannot write {args.out}: {err.strerror or err}")
     finally:
         if temp is not None:
             shutil.rmtree(temp, ignore_errors=True)

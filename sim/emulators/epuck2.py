@@ -27,7 +27,7 @@ from pathlib import Path
 
 from agent.core.params import EPUCK, RobotParams
 from hardware.config import Started
-from sim.args import OneLineParser, positive_int
+from sim.args import OneLineParser, positive_int, refuse
 from sim.processes import stopped_by_signals
 
 COMMAND_PACKET = 0x80
@@ -402,8 +402,7 @@ def main(argv: list[str] | None = None) -> int:
                 emulator.close()
                 say_final([emulator.pose(rid) for rid in range(args.robots)], emulator.report(), args.log)
         except (UsageError, OSError) as err:
-            print(f"{parser.prog}: error: {err}", file=sys.stderr)
-            return 2
+            return refuse(parser.prog, err)
     return 0
 
 

@@ -26,7 +26,7 @@ import numpy as np
 from agent.core.params import RobotParams
 from coordinator.scene import Scene, SceneError, load_scene
 from hardware.config import Started
-from sim.args import OneLineParser, positive_int
+from sim.args import OneLineParser, positive_int, refuse
 from sim.processes import stopped_by_signals
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, settings_from_args
 
@@ -209,8 +209,7 @@ def main(argv: list[str] | None = None) -> int:
             say_final([tuple(robot["pose"]) for robot in report["robots"]], report, args.log)
             print(f"contacts: {len(report['contacts'])}", flush=True)
         except (UsageError, SceneError, TransportError, OSError, ValueError) as err:
-            print(f"{parser.prog}: error: {err}", file=sys.stderr)
-            return 2
+            return refuse(parser.prog, err)
     return 0
 
 

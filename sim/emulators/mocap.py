@@ -26,7 +26,7 @@ import numpy as np
 
 from hardware.config import HardwareConfigError, Started
 from hardware.ros2 import POSE_STAMPED, Ros2Messages, Ros2PosesConfig
-from sim.args import OneLineParser, positive_int, positive_number, positive_seconds
+from sim.args import OneLineParser, positive_int, positive_number, positive_seconds, refuse
 from transport.rmw_zenoh import RosNode, RosPublisher
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, open_session, settings_from_args
 
@@ -152,8 +152,7 @@ def main(argv: list[str] | None = None) -> int:
             circle(args.robots, args.radius, args.speed), settings, args.topic, args.domain, args.rate, args.frame
         )
     except HardwareConfigError as err:
-        print(f"{prog}: error: {err}", file=sys.stderr)
-        return 2
+        return refuse(prog, err)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
@@ -167,8 +166,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"{prog}: error: the pose function failed: {emulator.error}", file=sys.stderr)
                 return 1
     except TransportError as err:
-        print(f"{prog}: error: {err}", file=sys.stderr)
-        return 2
+        return refuse(prog, err)
     return 0
 
 

@@ -20,7 +20,7 @@ import numpy as np
 
 from coordinator.resolved import add_scene_args, scene_of_args
 from coordinator.scene import Scene, SceneError
-from sim.args import positive_seconds
+from sim.args import add_seconds, refuse
 from sim.bodies.movers import scripted_velocity
 from sim.bodies.tracker import tracker_of, world_of
 from sim.node.body import STARTUP_TIMEOUT, BodyNode, LockStep, WallClock
@@ -139,13 +139,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--deadline", type=float, default=2.0, help="lock-step: seconds to wait for commands")
     parser.add_argument("--faults", default="")
     parser.add_argument("--pose-frames", action="store_true", help="send each tick's poses as one frame (agent hosts)")
-    parser.add_argument(
-        "--startup-timeout",
-        type=positive_seconds,
-        default=STARTUP_TIMEOUT,
-        metavar="SECONDS",
-        help=f"how long to wait for every robot's agent to come alive (default {STARTUP_TIMEOUT:g} s)",
-    )
+    add_seconds(parser, "--startup-timeout", STARTUP_TIMEOUT, "how long to wait for every robot's agent to come alive")
     parser.add_argument("--exit-with-parent", action="store_true")
     add_zenoh_args(parser)
     args = parser.parse_args(argv)
@@ -155,8 +149,7 @@ def main(argv: list[str] | None = None) -> int:
             settings_from_args(args), args.display, faults=parse_faults(args.faults), seed=scene.seed, name="world"
         )
     except (SceneError, TransportError, ValueError) as err:
-        print(f"world: error: {err}", file=sys.stderr)
-        return 2
+        return refuse("world", err)
     with bus:
         node = world_node(
             bus, scene, deadline=args.deadline, startup_timeout=args.startup_timeout, pose_frames=args.pose_frames

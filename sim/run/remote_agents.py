@@ -28,7 +28,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from agent.runtime import HostConfig, interpreter
-from sim.args import format_ids, positive_int
+from sim.args import add_seconds, format_ids, positive_int, refuse
 from transport.bus import Bus, LivelinessWatch
 from transport.keys import Keys
 from transport.session import TransportError, ZenohSettings
@@ -114,13 +114,7 @@ def add_agents_parser(subparsers: Any) -> None:
         "--agents-per-process", "-k", type=positive_int, default=1, metavar="K", help="robots per agent process"
     )
     p.add_argument("--display", default="default", help="the run's display name (key prefix)")
-    p.add_argument(
-        "--timeout",
-        type=float,
-        default=RUN_TIMEOUT,
-        metavar="SECONDS",
-        help=f"how long to wait for the run to be there (default {RUN_TIMEOUT:g} s)",
-    )
+    add_seconds(p, "--timeout", RUN_TIMEOUT, "how long to wait for the run to be there")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress output")
     p.set_defaults(func=run_agents)
 
@@ -129,8 +123,7 @@ def run_agents(args: argparse.Namespace) -> int:
     try:
         return _run(args)
     except UsageError as err:
-        print(f"{PROG}: error: {err}", file=sys.stderr)
-        return 2
+        return refuse(PROG, err)
     except KeyboardInterrupt:
         return 130
 

@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 from typing import Any, TextIO
 
+from sim.args import refuse
 from sim.study.spec import (
     Run,
     Spec,
@@ -226,8 +227,7 @@ def cmd_study(args: argparse.Namespace) -> int:
         check_same_study(spec, root)
         lock = lock_study(root)
     except StudyError as err:
-        print(f"pixelswarm study: error: {err}", file=sys.stderr)
-        return 2
+        return refuse("pixelswarm study", err)
     try:
         return _study(spec, StudyDir(root), args.jobs or default_jobs(), args)
     finally:
@@ -245,8 +245,7 @@ def _study(spec: Spec, study: StudyDir, jobs: int, args: argparse.Namespace) -> 
     try:
         progress = execute(spec, study, jobs, sys.stderr, args.scheduler)
     except ClusterError as err:
-        print(f"pixelswarm study: error: {err}", file=sys.stderr)
-        return 2
+        return refuse("pixelswarm study", err)
     except Interrupted:
         done = sum(study.metrics(r) is not None for r in spec.runs())
         print(
