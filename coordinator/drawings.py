@@ -19,11 +19,8 @@ segmentation's colour tolerance, so each part is its own region R_i in every key
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Callable
-from pathlib import Path
 
-import cv2
 import numpy as np
 
 from .shapes import RED, RGB, WHITE, Inside, circle, coverage, union
@@ -356,17 +353,3 @@ def keyframes(name: str, size: int = SIZE) -> list[np.ndarray]:
     if name not in _ANIMATIONS:
         raise ValueError(f"unknown animation {name!r}; choose from {', '.join(KEYFRAME_ANIMATIONS)}")
     return _ANIMATIONS[name](size)
-
-
-def write_keyframe_folder(name: str, folder: str | os.PathLike[str], size: int = SIZE) -> list[Path]:
-    """Write the keyframes of `name` as 000.png, 001.png, ... into `folder` (created if missing);
-    keyframe folders are played in file-name order. Returns the paths written."""
-    out = Path(folder)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for k, img in enumerate(keyframes(name, size)):
-        path = out / f"{k:03d}.png"
-        if not cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR)):
-            raise OSError(f"cannot write {path}")
-        paths.append(path)
-    return paths
