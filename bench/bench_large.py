@@ -118,7 +118,7 @@ def scene_for(name: str, robots: int | None, images: int | None) -> tuple[Any, i
 
 def timed_run(scene: Any, assignment: str, echo: bool) -> Run:
     scene.assignment = assignment
-    clock = StepClock()
+    clock = StepClock(cpu=True)
     with tempfile.TemporaryDirectory(prefix="bench_large_") as tmp:
         path = run_central(scene, Path(tmp) / "run", video=False, progress=Progress(echo, assignment), clock=clock)
         metrics = json.loads((path / "metrics.json").read_text())

@@ -4,8 +4,10 @@ The engine calls ``start()`` at the top of every tick and ``lap(part)`` after ea
 charges the time since the last lap to that part; a few clock reads per tick, so the engine always
 keeps one. The laps are the engine's own thread: a warm auction runs on a second thread meanwhile
 (sim.central.engine), and the "assignment" part is the time spent waiting for it; its own time is kept
-apart, in ``beside``. CPU time (this process's, both threads) is kept beside wall time because on a
-shared machine the wall time of a part counts whatever else ran meanwhile.
+apart, in ``beside``. CPU time (this process's, both threads) is kept beside wall time when asked
+(``cpu``, by the bench), because on a shared machine the wall time of a part counts whatever else ran
+meanwhile; not otherwise: reading it is a system call that sums every thread's time, far dearer than
+the wall clock while the auction's thread runs, and the engine reads the clock a dozen times a tick.
 """
 
 from __future__ import annotations
@@ -23,7 +25,8 @@ PARTS = ("tracker", "assignment", "preferred", "record", "neighbours", "control"
 class StepClock:
     """Seconds per part and tick: ``wall[part][tick]`` and ``cpu[part][tick]``."""
 
-    def __init__(self) -> None:
+    def __init__(self, cpu: bool = False) -> None:
+        self.read_cpu = time.process_time if cpu else _no_cpu
         self.wall: dict[str, list[float]] = {part: [] for part in PARTS}
         self.cpu: dict[str, list[float]] = {part: [] for part in PARTS}
         self.beside: list[float] = []  # per tick: wall seconds of the auction on the second thread (0: none)
@@ -35,10 +38,10 @@ class StepClock:
             self.wall[part].append(0.0)
             self.cpu[part].append(0.0)
         self.beside.append(0.0)
-        self._last = (time.perf_counter(), time.process_time())
+        self._last = (time.perf_counter(), self.read_cpu())
 
     def lap(self, part: str) -> None:
-        now = (time.perf_counter(), time.process_time())
+        now = (time.perf_counter(), self.read_cpu())
         self.wall[part][-1] += now[0] - self._last[0]
         self.cpu[part][-1] += now[1] - self._last[1]
         self._last = now
@@ -54,3 +57,7 @@ class StepClock:
     def arrays(self, cpu: bool = False) -> dict[str, np.ndarray]:
         """(ticks,) seconds per part, wall time (or this process's CPU time)."""
         return {part: np.array(spent) for part, spent in (self.cpu if cpu else self.wall).items()}
+
+
+def _no_cpu() -> float:
+    return 0.0
