@@ -241,7 +241,31 @@ class Ros2PosesConfig:
 # ---------------------------------------------------------------------------------------------------
 
 
-class Ros2Backend(Started):
+class Ros2Node(Started):
+    """A ROS 2 node on a Zenoh session of its own, opened by start() and closed, node first, by close()."""
+
+    NODE_NAME = ""
+
+    def __init__(self, session_config: ZenohSettings) -> None:
+        self.session_config = session_config
+        self._session: Any = None
+        self.node: RosNode | None = None  # the ROS 2 node this appears as, once started
+
+    def _open(self, domain: int) -> RosNode:
+        self._session = open_session(self.session_config)
+        self.node = RosNode(self._session, self.NODE_NAME, domain)
+        return self.node
+
+    def close(self) -> None:
+        if self._session is None:
+            return
+        assert self.node is not None
+        self.node.close()
+        self._session.close()
+        self._session = None
+
+
+class Ros2Backend(Ros2Node):
     """Robots that take Twist and ColorRGBA over rmw_zenoh; a watchdog stops a robot left without commands.
 
     Shaped like the other hardware backends: start(), set_commands(...), stop_all(), close(), stats().
@@ -250,8 +274,8 @@ class Ros2Backend(Started):
     NODE_NAME = "pixelswarm_backend"
 
     def __init__(self, config: Ros2BackendConfig, session_config: ZenohSettings) -> None:
+        super().__init__(session_config)
         self.config = config
-        self.session_config = session_config
         self.messages = Ros2Messages(config.distro)
         n = len(config.namespaces)
         self._last_command = np.full(n, -np.inf)  # monotonic s
@@ -259,23 +283,18 @@ class Ros2Backend(Started):
         self._counts = {"commands": 0, "colors": 0, "zero_twists": 0, "watchdog_stops": 0}
         self._lock = threading.Lock()
         self._halt = threading.Event()
-        self._session: Any = None
-        self.node: RosNode | None = None  # the ROS 2 node this backend appears as, once started
         self._cmd: list[RosPublisher] = []  # per robot, once started
         self._led: list[RosPublisher] = []
         self._watchdog: threading.Thread | None = None
 
     def start(self) -> None:
-        self._session = open_session(self.session_config)
-        self.node = RosNode(self._session, self.NODE_NAME, self.config.domain)
+        node = self._open(self.config.domain)
         twist_hash = self.messages.type_hash(TWIST)
         color_hash = self.messages.type_hash(COLOR_RGBA)
         robots = range(len(self.config.namespaces))
-        self._cmd = [
-            self.node.publisher(self.config.topic(i, self.config.cmd_topic), TWIST, twist_hash) for i in robots
-        ]
+        self._cmd = [node.publisher(self.config.topic(i, self.config.cmd_topic), TWIST, twist_hash) for i in robots]
         self._led = [
-            self.node.publisher(self.config.topic(i, self.config.led_topic), COLOR_RGBA, color_hash) for i in robots
+            node.publisher(self.config.topic(i, self.config.led_topic), COLOR_RGBA, color_hash) for i in robots
         ]
         self._zero = self.messages.twist(0.0, 0.0)
         self._watchdog = threading.Thread(target=self._watch, name="ros2-watchdog", daemon=True)
@@ -344,35 +363,28 @@ class Ros2Backend(Started):
         if self._watchdog is not None:
             self._watchdog.join()
         self.stop_all()
-        assert self.node is not None
-        self.node.close()
-        self._session.close()
-        self._session = None
+        super().close()
 
 
-class Ros2PoseSource(Started):
+class Ros2PoseSource(Ros2Node):
     """The latest PoseStamped of every robot, from any publisher of the topic pattern over rmw_zenoh."""
 
     NODE_NAME = "pixelswarm_poses"
     RING = 4096  # samples held between two reads; older ones are superseded anyway
 
     def __init__(self, config: Ros2PosesConfig, session_config: ZenohSettings) -> None:
+        super().__init__(session_config)
         self.config = config
-        self.session_config = session_config
         self.messages = Ros2Messages()  # PoseStamped's layout is the same in every supported distro
         self._latest: dict[int, tuple[float, float, float, float, float]] = {}  # robot -> pose, stamp, arrival
         self._counts = {"received": 0, "undecodable": 0, "foreign": 0, "without_attachment": 0}
         self.gate = StampGate()  # stamps judged against this machine's clock (time.time())
-        self._session: Any = None
-        self.node: RosNode | None = None  # the ROS 2 node this source appears as, once started
         self._sub: RosSubscriber | None = None
 
     def start(self) -> None:
-        self._session = open_session(self.session_config)
-        domain = 0 if self.config.domain is None else self.config.domain
-        self.node = RosNode(self._session, self.NODE_NAME, domain)
+        node = self._open(0 if self.config.domain is None else self.config.domain)
         pose_hash = self.messages.type_hash(POSE_STAMPED)
-        self._sub = self.node.subscriber(
+        self._sub = node.subscriber(
             self.config.wildcard, POSE_STAMPED, pose_hash, any_domain=self.config.domain is None, capacity=self.RING
         )
 
@@ -415,14 +427,6 @@ class Ros2PoseSource(Started):
     def robot_stats(self, robot: int) -> dict[str, int]:
         """One robot's poses dropped for their stamps, and its source's restarts."""
         return self.gate.robot_stats(robot)
-
-    def close(self) -> None:
-        if self._session is None:
-            return
-        assert self.node is not None
-        self.node.close()
-        self._session.close()
-        self._session = None
 
 
 STOP_REPEATS = 3  # `pixelswarm stop` sends its stop this many times, a watchdog quarter apart: a fresh

@@ -20,22 +20,21 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from typing import Any
 
 import numpy as np
 
-from hardware.config import HardwareConfigError, Started
-from hardware.ros2 import POSE_STAMPED, Ros2Messages, Ros2PosesConfig
+from hardware.config import HardwareConfigError
+from hardware.ros2 import POSE_STAMPED, Ros2Messages, Ros2Node, Ros2PosesConfig
 from sim.args import OneLineParser, positive_int, positive_number, positive_seconds, refuse
-from transport.rmw_zenoh import RosNode, RosPublisher
-from transport.session import TransportError, ZenohSettings, add_zenoh_args, open_session, settings_from_args
+from transport.rmw_zenoh import RosPublisher
+from transport.session import TransportError, ZenohSettings, add_zenoh_args, settings_from_args
 
 RMW_ZENOHD = "tcp/127.0.0.1:7447"  # where rmw_zenohd listens by default
 
 PoseFunction = Callable[[float], np.ndarray]  # s since start -> (N, 3) rows of x (m), y (m), theta (rad)
 
 
-class MocapEmulator(Started):
+class MocapEmulator(Ros2Node):
     """Publishes ``poses(t)`` (row i: robot i) as PoseStamped on ``topic`` (with {id}) at ``rate`` Hz,
     stamped by ``clock`` (the motion-capture machine's wall clock; a test may set it back or ahead)."""
 
@@ -51,9 +50,9 @@ class MocapEmulator(Started):
         frame_id: str = "world",
         clock: Callable[[], float] = time.time,
     ) -> None:
+        super().__init__(session_config)
         self.config = Ros2PosesConfig(topic=topic, domain=domain, rate=rate)  # the same checks as a reader's
         self.poses = poses
-        self.session_config = session_config
         self.frame_id = frame_id
         self.clock = clock
         self.messages = Ros2Messages()
@@ -62,14 +61,12 @@ class MocapEmulator(Started):
         self._publishers: list[RosPublisher] = []
         self._halt = threading.Event()
         self._thread: threading.Thread | None = None
-        self._session: Any = None  # a zenoh session once started
 
     def start(self) -> None:
         """Open the session and publish; after close(), start() again publishes anew (a mocap restarted)."""
         self._halt.clear()
         self._publishers = []
-        self._session = open_session(self.session_config)
-        self._node = RosNode(self._session, self.NODE_NAME, self.config.domain or 0)
+        self._node = self._open(self.config.domain or 0)
         self._start = time.monotonic()
         self._thread = threading.Thread(target=self._run, name="mocap", daemon=True)
         self._thread.start()
@@ -103,9 +100,7 @@ class MocapEmulator(Started):
         self._halt.set()
         if self._thread is not None:
             self._thread.join()
-        self._node.close()
-        self._session.close()
-        self._session = None
+        super().close()
 
 
 def circle(robots: int, radius: float, speed: float) -> PoseFunction:
