@@ -22,6 +22,7 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -38,29 +39,23 @@ from .core.params import DIFFDRIVE, RobotParams
 from .core.policy import Decision, GoalTiming, Memory
 from .core.step import NeighbourStates, static_segments
 from .goal_sets import motion_of, timing_of
+from .held_goals import HeldGoals
 from .lateness import Lateness, strayed
 from .loop import Sensed
 from .neighbour_table import NeighbourTable
 from .pose_trust import PoseTrust
 
-IDLE_COLOR = (40, 40, 40)
 CARRIED = State.CARRIED  # assign_instance of a goal carried over from the previous keyframe
 GOAL_SETS_KEPT = 4  # goal sets remembered (an agreed assignment may still be of an older epoch)
 
 
 @dataclass
 class RobotMemory:
-    """What one robot carries from tick to tick."""
+    """Where one robot was last tracked (its goal is in AgentHost.held_goals)."""
 
     robot: int
-    goal: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
-    goal_index: int = -1
-    color: tuple[int, int, int] = IDLE_COLOR
     position: np.ndarray | None = None  # tracked position of the last tick
-    assign_epoch: int = 0  # the agreed assignment that gave goal_index (image scenes)
-    assign_instance: int = 0
     stamp: float = 0.0  # display time of `position`
-    goal0: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))  # the agreed goal in G^0 (eq. 28 at t=0)
 
 
 @dataclass
@@ -218,6 +213,7 @@ class AgentHost:
         self.row_of = {r: b for b, r in enumerate(self.own.tolist())}  # robot -> its row in the batches
         # rows: the own robots in id order; until a neighbour is heard, its states may be as old as stale_after
         self.policy_memory = Memory.new(len(self.own), latency=p.stale_after)
+        self.held_goals = HeldGoals.new(len(self.own))  # rows as policy_memory's
         self.pose_inbox = bus.inbox(Pose, only=self.own)
         for r in config.robots:
             bus.subscribe_into(self.keys.pose(r), self.pose_inbox)
@@ -234,7 +230,7 @@ class AgentHost:
             bus.subscribe_into(self.keys.state_of(target), self.state_inbox)
         self.goal_inbox = bus.subscribe(self.keys.all_of("goals"), Goals)
         self.goal_sets: dict[int, Goals] = {}  # the latest auctioned goal sets by epoch (timing, motion)
-        self.held: dict[int, Goals] = {}  # lock-step: goal sets heard that no tick has named yet
+        self.unnamed: dict[int, Goals] = {}  # lock-step: goal sets heard that no tick has named yet
         self.named: dict[int, int] = {}  # lock-step: tick -> the newest goal set the world named in it
         self.newest_heard = 0  # epoch of the newest goal set heard (per-robot goals too)
         self.believed = GoalSets(config.arena)  # which goal sets can be the coordinator's
@@ -357,7 +353,7 @@ class AgentHost:
             return
         self.newest_heard = max(self.newest_heard, goals.epoch)
         if self.config.lockstep and not goals.per_robot and goals.epoch > max(self.goal_sets, default=0):
-            self.held[goals.epoch] = goals
+            self.unnamed[goals.epoch] = goals
             return
         self._on_goals(goals)
 
@@ -379,23 +375,21 @@ class AgentHost:
                 del self.goal_sets[old]
             # a keyframe names its predecessor; an image follows the last
             follows = goals.correspondence.follows if goals.correspondence else self.auction.epoch
+            key = self.held_goals.key
             driving = {
-                r: m.goal_index for r, m in self.memory.items() if m.goal_index >= 0 and m.assign_epoch == follows
+                r: int(key[b, 1]) for r, b in self.row_of.items() if key[b, 1] >= 0 and key[b, 0] == follows
             }  # agreed or itself carried
             carried = self.auction.on_goals(goals, self._positions(), driving)
-            for r, g in carried.items():  # the next keyframe or image: drive on at once (6.2), the auction follows
-                self._drive_to(r, goals.epoch, CARRIED, g, goals.positions, goals.colors)
-            for r in self.auction.idle_robots():
-                if r in self.config.pursue:
-                    continue  # not a pixel: its goal comes from its target's broadcasts (_on_state)
-                mem = self.memory[r]  # not in this goal set (e.g. it joined late): it waits
-                mem.goal, mem.goal_index, mem.color = np.full(2, np.nan), -1, IDLE_COLOR
+            # the next keyframe or image: drive on at once (6.2), the auction follows
+            self._on_agreed(goals.epoch, CARRIED, carried, goals.positions, goals.colors)
+            # not in this goal set (e.g. it joined late): it waits; a pursuer is not a pixel, its goal
+            # comes from its target's broadcasts (_on_state)
+            self.held_goals.idle(self._rows_of(r for r in self.auction.idle_robots() if r not in self.config.pursue))
             return
-        for r, mem in self.memory.items():
-            if r < len(goals.positions):
-                if r not in self.config.pursue:  # a pursuer's goal comes from its target's broadcasts
-                    mem.goal = goals.positions[r].astype(float)
-                mem.color = color_of(goals.colors[r])
+        own = [r for r in self.own.tolist() if r < len(goals.positions)]
+        self.held_goals.color[self._rows_of(own)] = goals.colors[own]
+        sent = [r for r in own if r not in self.config.pursue]  # a pursuer's goal comes from its target's broadcasts
+        self.held_goals.goal[self._rows_of(sent)] = goals.positions[sent]
 
     @property
     def timing(self) -> dict[int, GoalTiming]:
@@ -416,21 +410,23 @@ class AgentHost:
             return self._bid_from
         newest = self.goal_sets[max(self.goal_sets)] if self.goal_sets else None
         motion = motion_of(newest) if newest is not None else None
-        out, on_way = {}, []
+        out, on_way, key = {}, [], self.held_goals.key
         for r, m in self.memory.items():
+            b = self.row_of[r]
             if m.position is None:
                 continue
             if motion is not None and newest is not None:
                 out[r] = motion.to_initial_frame(m.position, m.stamp - newest.timing.t_start)
-            elif newest is not None and m.assign_epoch == newest.epoch and m.goal_index >= 0:
+            elif newest is not None and key[b, 0] == newest.epoch and key[b, 1] >= 0:
                 on_way.append(m)  # on its way: where it will be
             else:
                 out[r] = m.position
         if on_way:
+            rows = self._rows_of(m.robot for m in on_way)
             lead = bid_position(
                 np.array([m.position for m in on_way]),
-                np.array([m.goal for m in on_way]),
-                self.policy_memory.velocity[[self.row_of[m.robot] for m in on_way]],
+                self.held_goals.goal[rows],
+                self.policy_memory.velocity[rows],
                 self.auction.latency,
             )
             out.update(zip([m.robot for m in on_way], lead))
@@ -442,26 +438,18 @@ class AgentHost:
         self, epoch: int, instance: int, goals: dict[int, int], positions: np.ndarray, colors: np.ndarray
     ) -> None:
         """An auction instance is agreed: each own robot drives to its goal and lights its colour."""
-        for r, g in goals.items():
-            self._drive_to(r, epoch, instance, g, positions, colors)
+        self._bid_from = None
+        index = np.fromiter(goals.values(), np.int64, len(goals))
+        self.held_goals.drive_to(self._rows_of(goals), epoch, instance, index, positions, colors)
 
     def _hold(self, robots: list[int]) -> None:
         """These robots' auction block was abandoned: they hold their positions (no goal), as
         another robot may have been agreed their goals."""
         self._bid_from = None
-        for r in robots:
-            mem = self.memory[r]
-            mem.goal, mem.goal_index, mem.goal0 = np.full(2, np.nan), -1, np.full(2, np.nan)
+        self.held_goals.hold(self._rows_of(robots))
 
-    def _drive_to(
-        self, robot: int, epoch: int, instance: int, goal: int, positions: np.ndarray, colors: np.ndarray
-    ) -> None:
-        self._bid_from = None
-        mem = self.memory[robot]
-        mem.goal, mem.goal_index = positions[goal].astype(float), goal
-        mem.goal0 = mem.goal.copy()  # a moving goal set's goal moves from here (eq. 28)
-        mem.color = color_of(colors[goal])
-        mem.assign_epoch, mem.assign_instance = epoch, instance
+    def _rows_of(self, robots: Iterable[int]) -> np.ndarray:
+        return np.array([self.row_of[r] for r in robots], np.int64)
 
     def _absorb(self) -> None:
         for _, goals in self.goal_inbox.drain():
@@ -482,7 +470,7 @@ class AgentHost:
         self.silent.discard(msg.robot)
         for robot, target in self.config.pursue.items():
             if msg.robot == target and robot in self.memory:
-                self.memory[robot].goal = np.array([msg.x, msg.y])
+                self.held_goals.goal[self.row_of[robot]] = msg.x, msg.y
 
     def _await_states(self, tick: int, position: np.ndarray) -> None:
         """Lock-step: wait until every nearby robot's state of the previous tick is here.
@@ -548,7 +536,7 @@ class AgentHost:
         deadline = time.monotonic() + GOAL_SET_WAIT
         while self.running and time.monotonic() < deadline:
             self._hear_clock()
-            has_step = due < 0 or any(g.timing.step >= due for g in (*self.goal_sets.values(), *self.held.values()))
+            has_step = due < 0 or any(g.timing.step >= due for g in (*self.goal_sets.values(), *self.unnamed.values()))
             if tick in self.named and has_step and self.newest_heard >= self.named[tick]:
                 break
             wait = min(deadline - time.monotonic(), 0.05)
@@ -561,13 +549,13 @@ class AgentHost:
             if got is not None:
                 self._hear_goals(got[1])
         # no clock message in time (a world that names no goal set): take up all that was heard
-        upto = self.named.get(tick, max(self.held, default=0))
+        upto = self.named.get(tick, max(self.unnamed, default=0))
         if due >= 0:
-            of_step = [e for e, g in {**self.goal_sets, **self.held}.items() if g.timing.step >= due]
+            of_step = [e for e, g in {**self.goal_sets, **self.unnamed}.items() if g.timing.step >= due]
             upto = max(upto, min(of_step, default=0))
         self.named = {t: e for t, e in self.named.items() if t > tick}
-        for epoch in sorted(e for e in self.held if e <= upto):
-            self._on_goals(self.held.pop(epoch))
+        for epoch in sorted(e for e in self.unnamed if e <= upto):
+            self._on_goals(self.unnamed.pop(epoch))
 
     def _hear_clock(self) -> None:
         assert self.clock_inbox is not None
@@ -712,9 +700,7 @@ class AgentHost:
 
     def goals(self, sensed: Sensed) -> tuple[np.ndarray, np.ndarray]:
         """Each robot's goal as its goal set was published and its key (epoch, goal index)."""
-        mems = [self.memory[r] for r in sensed.ids.tolist()]
-        key = np.array([(m.assign_epoch, m.goal_index) for m in mems], np.int64).reshape(-1, 2)
-        return np.array([m.goal0 if m.goal_index >= 0 else m.goal for m in mems], float).reshape(-1, 2), key
+        return self.held_goals.targets(self.rows(sensed.ids))
 
     def neighbours(self, sensed: Sensed) -> NeighbourStates:
         p = sensed.params
@@ -728,26 +714,22 @@ class AgentHost:
     def send(self, sensed: Sensed, decision: Decision) -> None:
         """Each robot's state and command on the bus, then the cells around the robots."""
         p, tick, stamp, position = sensed.params, sensed.tick, sensed.stamp, sensed.position
-        goal, goal0 = decision.intent.goal, self.goals(sensed)[0]
-        same = (goal == goal0) | (np.isnan(goal) & np.isnan(goal0))
-        mems = [self.memory[r] for r in sensed.ids.tolist()]
-        for b in np.flatnonzero(~(same[:, 0] & same[:, 1])).tolist():  # a moving goal set's goal moved (eq. 28)
-            mems[b].goal = goal[b].copy()
+        rows, held = self.rows(sensed.ids), self.held_goals
+        moved = held.has_goal(rows)  # a moving goal set's goal moved (eq. 28): where it is now
+        held.goal[rows[moved]] = decision.intent.goal[moved]
         mode = Command.WHEELS if p.kinematics == DIFFDRIVE else Command.HOLONOMIC
         velocity, command = decision.step.velocity.copy(), decision.step.command.copy()
         velocity[sensed.braking], command[sensed.braking] = 0.0, 0.0
+        goal, has_goal = held.goal[rows], np.isfinite(held.goal[rows]).all(axis=1)
+        at_goal = has_goal & (np.hypot(*(goal - position).T) <= p.goal_tolerance)
+        flags = np.where(has_goal, State.HAS_GOAL, 0) | np.where(at_goal, State.AT_GOAL, 0)
+        goal[~has_goal] = 0.0
         states, commands = [], []
-        for b, mem in enumerate(mems):
-            has_goal = math.isfinite(mem.goal[0]) and math.isfinite(mem.goal[1])  # np.all costs 6 us a robot
-            at_goal = has_goal and math.dist(mem.goal, position[b]) <= p.goal_tolerance
-            flags = (State.HAS_GOAL if has_goal else 0) | (State.AT_GOAL if at_goal else 0)
-            gx, gy = mem.goal if has_goal else (0.0, 0.0)
-            x, y, vx, vy = float(position[b, 0]), float(position[b, 1]), float(velocity[b, 0]), float(velocity[b, 1])
-            goal_of = (float(gx), float(gy), mem.goal_index, flags, mem.assign_epoch, mem.assign_instance)
-            states.append(State(mem.robot, tick, stamp, x, y, vx, vy, p.radius, *goal_of))
-            commands.append(
-                Command(mem.robot, tick, stamp, mode, float(command[b, 0]), float(command[b, 1]), *mem.color)
-            )
+        columns = (sensed.ids, position, velocity, goal, held.key[rows], flags, held.instance[rows])
+        for robot, (x, y), (vx, vy), (gx, gy), (epoch, index), f, instance in zip(*(c.tolist() for c in columns)):
+            states.append(State(robot, tick, stamp, x, y, vx, vy, p.radius, gx, gy, index, f, epoch, instance))
+        for robot, (cx, cy), color in zip(sensed.ids.tolist(), command.tolist(), held.color[rows].tolist()):
+            commands.append(Command(robot, tick, stamp, mode, cx, cy, *color))
         # States before commands: by the time the world moves on, neighbours have our states.
         self._publish_states(tick, stamp, states)
         self._publish_commands(tick, stamp, commands)
@@ -815,11 +797,6 @@ def bid_position(position: np.ndarray, goal: np.ndarray, velocity: np.ndarray, l
 def _at_most(tick: int, bound: int) -> int:
     """A tick claimed beyond ``bound`` counts as none (-1)."""
     return tick if tick <= bound else -1
-
-
-def color_of(rgb: np.ndarray) -> tuple[int, int, int]:
-    """An LED colour from a goal set's row."""
-    return int(rgb[0]), int(rgb[1]), int(rgb[2])
 
 
 def install_stop_handlers(host: AgentHost) -> None:

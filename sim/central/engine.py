@@ -32,10 +32,11 @@ from agent.core.bidder import Participant
 from agent.core.goal_motion import GoalMotion
 from agent.core.local_auction import LocalAuction, new_auction
 from agent.core.params import RobotParams
-from agent.core.policy import NO_GOAL, Decision, GoalTiming, Memory
+from agent.core.policy import Decision, GoalTiming, Memory
 from agent.core.rounds import BlockRounds
 from agent.core.step import NeighbourStates, static_segments
 from agent.goal_sets import timing_of
+from agent.held_goals import HeldGoals
 from agent.loop import Seams, Sensed
 from agent.neighbour_table import Heard
 from coordinator.keyframes import goal_matching
@@ -139,15 +140,6 @@ class Outcome(NamedTuple):
     penalties: int  # deadlocks declared (paper 5.5.5)
     end_reason: str
     wall_s: float
-
-
-class _Goals(NamedTuple):
-    """The goals an assignment gives the robots this tick (rows by robot)."""
-
-    goal0: np.ndarray  # (N,2) the goal as its set was published (NaN: none)
-    key: np.ndarray  # (N,2) (epoch, goal index)
-    color: np.ndarray  # (N,3) LED colour
-    has_goal: np.ndarray  # (N,) a pixel with a goal (what convergence is judged on)
 
 
 class CentralAuction:
@@ -271,7 +263,8 @@ class Central:
         self.params, self.tracker = auction.params, tracker_of(scene)
         self.policy_memory = Memory.new(scene.robots, latency=self.params.stale_after)  # until a neighbour is heard
         self.measured = np.zeros((scene.robots, 3))
-        self.made: tuple[int, np.ndarray, _Goals] | None = None  # the last goals made: (image, assignment, goals)
+        self.held_goals = HeldGoals.new(scene.robots)
+        self.made: tuple[int, np.ndarray] | None = None  # what the held goals were taken from: (image, assignment)
 
     @property
     def timing(self) -> dict[int, GoalTiming]:
@@ -297,30 +290,31 @@ class Central:
         return heard
 
     def goals(self, sensed: Sensed) -> tuple[np.ndarray, np.ndarray]:
-        held = self.held()
-        return held.goal0, held.key
+        self._take_up_assignment()
+        return self.held_goals.targets(sensed.ids)
 
-    def held(self) -> _Goals:
-        """The goals the assignment gives the robots now."""
-        a, n = self.auction, self.scene.robots
+    def _take_up_assignment(self) -> None:
+        """The robots hold the goals the assignment gives them now (agent.held_goals, as the agents)."""
+        a, held = self.auction, self.held_goals
         image, goal_set, colors = a.assigned
-        assignment = a.assignment
         # most ticks the auction keeps every goal: the goals are the last ones (unless a pursuer's moved)
-        made = self.made
-        if made is not None and made[0] == image and not self.movers.pursuers and np.array_equal(made[1], assignment):
-            return made[2]._replace(key=made[2].key.copy())  # the intent's key is written into (step_again)
+        if self.made is None or self.made[0] != image or not np.array_equal(self.made[1], a.assignment):
+            if self.scene.steps:
+                has_goal = a.assignment >= 0
+                held.drive_to(np.flatnonzero(has_goal), image + 1, 0, a.assignment[has_goal], goal_set, colors)
+                held.idle(np.flatnonzero(~has_goal))
+            else:  # the scene's own goals, one per robot, as the agents hold them: no goal set, no auction
+                held.goal[:], held.color[:] = goal_set, colors
+            self.made = (image, a.assignment.copy())
+        elif not self.movers.pursuers:
+            return
+        held.goal[:], held.color[:] = self.movers.goals(held.goal, held.color, self.measured)  # a pursuer's target
+
+    def has_goal(self) -> np.ndarray:
+        """The robots whose goal convergence is judged on: a pixel of the image with a goal."""
         if self.scene.steps:
-            has_goal = assignment >= 0
-            goal0 = np.where(has_goal[:, None], goal_set[assignment], np.nan)
-            color = np.where(has_goal[:, None], colors[assignment], 40).astype(np.uint8)
-            epoch = np.where(has_goal, image + 1, a.shown + 1)
-            key = np.stack([epoch, np.where(has_goal, assignment, NO_GOAL)], axis=1)
-        else:  # the scene's own goals, one per robot, as the agents hold them: no goal set, no auction
-            goal0, color, has_goal = goal_set, colors, np.isfinite(goal_set).all(axis=1)
-            key = np.stack([np.zeros(n, np.int64), np.full(n, NO_GOAL)], axis=1)
-        goal0, color = self.movers.goals(goal0, color, self.measured)  # a pursuer heads for its target
-        self.made = (image, assignment.copy(), _Goals(goal0, key, color, has_goal))
-        return self.made[2]._replace(key=key.copy())
+            return self.held_goals.key[:, 1] >= 0
+        return np.isfinite(self.auction.goal_set).all(axis=1)
 
     def send(self, sensed: Sensed, decision: Decision) -> None:
         """The world applies the commands between ticks (simulate)."""
@@ -370,14 +364,14 @@ def simulate(
                 converged_since = None
             clock.lap("other")
             decision = loop.tick(robots, robots.sense(tick), seams)
-            pose, goal, goals = world.poses, decision.intent.goal, robots.held()
-            for name, value in zip(rec, (t, pose, world.velocities, goals.color, goal, auction.assignment, k)):
+            pose, goal, color = world.poses, decision.intent.goal, robots.held_goals.color.copy()
+            for name, value in zip(rec, (t, pose, world.velocities, color, goal, auction.assignment, k)):
                 rec[name].append(value)
             if view is not None:  # sim.outputs.view.SwarmView: the live view, one batch a tick
-                view.tick(tick, t, pose, goals.color, goal)
+                view.tick(tick, t, pose, color, goal)
             clock.lap("record")
             # Converging ends the run only once the last image is up: earlier images keep their hold.
-            has_goal = goals.has_goal
+            has_goal = robots.has_goal()
             if (
                 k == last_step
                 and scene.ends_on_convergence
