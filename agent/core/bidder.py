@@ -2,29 +2,21 @@
 no zenoh and no clock (the runtime passes messages in and takes records out).
 
 An asynchronous forward auction (Bertsekas and Castanon 1991) whose prices and owners are agreed by
-max-consensus (Zavlanos et al. 2008). The board, net values, bids and Jacobi rounds are defined, and
-compiled, in agent.core.bidding: an agent host bids a round at a time between messages (``bid``); a
-host that owns every robot (the central engine) settles a block of phases in-process
-(``settle_alone``) through the same rounds, to the same board. Records only ever merge by their
-maximum, so lost, duplicated or reordered messages can delay agreement but never give a goal two owners.
+max-consensus (Zavlanos et al. 2008): instances on frozen positions, agreed by a snapshot, in blocks
+of epsilon-scaling phases, as docs/architecture.md ("Goal assignment") says. The board, net values,
+bids and Jacobi rounds are compiled in agent.core.bidding: an agent host bids a round at a time
+between messages (``bid``); a host that owns every robot (the central engine) settles a block of
+phases in-process (``settle_alone``) through the same rounds, to the same board. Records only ever
+merge by their maximum, so lost, duplicated or reordered messages can delay agreement but never give
+a goal two owners.
 
-- **Instances.** An instance runs on positions frozen when it starts, so costs stay fixed while
-  prices settle; a deadlock penalty (5.5.5) declared meanwhile counts from the next instance (a cost
-  that changed after a robot said it was content would break quiescence). Instance k is *agreed*
-  when every robot of the goal set has published, for k, a content record on distinct goals, all
-  written against the same board (equal digests). Such a snapshot is quiescent: every bid anyone
-  made is on that board, so nobody can bid again in k. Every agent checks this for itself, and a
-  record of instance k+1 from anyone proves k was agreed.
-- **Warm start and epsilon scaling.** Each instance starts from the last one's prices and owners
-  (paper 5.1 re-assigns each iteration); a robot keeps its goal unless another is better by more
-  than epsilon plus the hysteresis Delta C. Instances come in blocks, one per set of frozen
-  positions, of decreasing epsilon; only the block's final phase is agreed by a snapshot. Scaling
-  pays off on warm starts too: once robots have moved, the last prices are far from equilibrium, and
-  at epsilon_A alone they settle in a price war.
-
-The agreed assignment costs at most N (epsilon + Delta C) more than the optimum for the frozen
-positions and private costs (epsilon-complementary slackness against one price vector); each
-record carries its robot's total penalty, so the cost can be checked against the optimum plus them.
+- A deadlock penalty (5.5.5) declared during an instance counts from the next: a cost that changed
+  after a robot said it was content would break quiescence. A record of instance k+1 from anyone
+  proves k was agreed.
+- Scaling pays off on warm starts too: once robots have moved, the last prices are far from
+  equilibrium, and at epsilon_A alone they settle in a price war.
+- Each record carries its robot's total penalty, so the agreed cost (at most N (epsilon + Delta C)
+  over the optimum) can be checked against the optimum plus them.
 """
 
 from __future__ import annotations

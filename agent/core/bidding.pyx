@@ -110,15 +110,6 @@ cdef inline void rank_in(Ranking* r, int64_t j, double v) noexcept nogil:
         r.third_goal, r.third = j, v
 
 
-cdef Ranking top_three(const double[::1] values) noexcept nogil:
-    """The best, second and third of ``values`` over every goal."""
-    cdef Ranking r = unranked()
-    cdef Py_ssize_t j
-    for j in range(values.shape[0]):
-        rank_in(&r, j, values[j])
-    return r
-
-
 def merge_records(double[::1] price, int64_t[::1] owner, uint8_t[::1] released, const int64_t[::1] goal,
                   const double[::1] rec_price, const int64_t[::1] robot, const uint8_t[::1] rec_released) -> bool:
     """Max-consensus of records (goal, price, robot, released) into a board (price, owner, released);
@@ -639,9 +630,10 @@ def bid_on_own_boards(boards, const int64_t[::1] rows, const double[::1] slack, 
     cdef bint holds
     for a in range(rows.shape[0]):
         i = rows[a]
+        r = unranked()
         for j in range(g_count):
             values[j] = -cost[i, j] - price[i, j] - taken[a, j] * taken_cost[i]
-        r = top_three(values)
+            rank_in(&r, j, values[j])
         h = goal[i]
         holds = h >= 0 and owner[i, h] == robot[i] and not released[i, h]
         if holds and is_content(values[h], r.best, slack[a]):

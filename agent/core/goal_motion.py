@@ -58,22 +58,19 @@ class GoalMotion:
             return (1.0 + self.k_eg) ** t * np.log1p(self.k_eg)
         return np.full_like(t, self.k_eg)
 
-    def _rotation(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _turn(self, d: np.ndarray, t: np.ndarray, sign: float) -> np.ndarray:
+        """Vectors d (B,2) turned by sign * omega_G t: eq. 28's rotation (sign 1) or its inverse (-1)."""
         a = self.omega_g * t
-        return np.cos(a)[..., None], np.sin(a)[..., None]
+        c, s = np.cos(a), sign * np.sin(a)
+        return np.stack([c * d[..., 0] - s * d[..., 1], s * d[..., 0] + c * d[..., 1]], axis=-1)
 
     def positions(self, g0: ArrayLike, t: ArrayLike) -> np.ndarray:
         """g_j(t) (eq. 28) of goals g0 (B,2) at time t (scalar or (B,))."""
         g0 = np.asarray(g0, float)
         t = np.broadcast_to(np.asarray(t, float), g0.shape[:-1])
         centre = np.asarray(self.p_og, float)
-        d = g0 - centre
-        c, s = self._rotation(t)
-        k = self.scale(t)[..., None]
-        turned = np.stack(
-            [c[..., 0] * d[..., 0] - s[..., 0] * d[..., 1], s[..., 0] * d[..., 0] + c[..., 0] * d[..., 1]], axis=-1
-        )
-        return centre + t[..., None] * np.asarray(self.v_g, float) + k * turned
+        turned = self._turn(g0 - centre, t, 1.0)
+        return centre + t[..., None] * np.asarray(self.v_g, float) + self.scale(t)[..., None] * turned
 
     def velocities(self, g0: ArrayLike, t: ArrayLike) -> np.ndarray:
         """dg_j/dt (B,2): the derivative of eq. 28 at time t."""
@@ -97,11 +94,7 @@ class GoalMotion:
         t = np.broadcast_to(np.asarray(t, float), p.shape[:-1])
         centre = np.asarray(self.p_og, float)
         d = p - centre - t[..., None] * np.asarray(self.v_g, float)
-        c, s = self._rotation(t)
-        back = np.stack(
-            [c[..., 0] * d[..., 0] + s[..., 0] * d[..., 1], -s[..., 0] * d[..., 0] + c[..., 0] * d[..., 1]], axis=-1
-        )
-        return centre + back / self.scale(t)[..., None]
+        return centre + self._turn(d, t, -1.0) / self.scale(t)[..., None]
 
 
 def tracking_velocity(

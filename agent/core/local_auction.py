@@ -2,26 +2,13 @@
 it points to: Bertsekas and Castanon 1991, Zavlanos, Spesivtsev and Pappas 2008): pure logic, no
 zenoh and no clock. A robot hears only the robots within ``reach`` of it, so no one sees every bid.
 
-- **A board per robot.** Every round each robot merges the boards of the robots it hears into its
-  own by max-consensus (agent.core.bidding), so prices and owners spread a hop a round; no goal
-  gets two owners on one board.
-- **Bids (Jacobi).** A robot that holds no goal on its own board, or is not content with it, bids
-  on its best goal against that board, as agent.core.bidder's robots do. A goal set's first block
-  scales epsilon down in phases; later blocks, warm from the boards, run the final phase only.
-- **Knowing the auction ended, locally.** Rounds are synchronous (lock-step). A round in which no
-  robot's board or phase changed is followed only by such rounds. Each robot learns how far the
-  graph reaches from it (its eccentricity e: the round after which the set of robots it has heard
-  of, passed on by everyone, stops growing) and the latest round any board changed that news of
-  has reached it (max-consensus again). When that round is older than e rounds, the round e
-  rounds ago was quiet everywhere in its part of the graph: the phase is over, and the robot goes
-  on to the next one (a robot that hears a later phase follows). The final phase's end is the
-  agreement: the robot says so once, everyone who hears it has ended too, and adopts its goal.
-- **One-to-one.** At a quiet round neighbours' boards are equal (each merged the other's), so
-  every robot of a connected part holds its goal on one common board. A graph split into parts
-  agrees part by part, each one-to-one: a part trades its own goals, as a goal whose holder it has
-  not heard of costs more than any other.
+Each robot bids (Jacobi, as agent.core.bidder's robots do) against a board of its own, which it
+merges every round with the boards of the robots it hears (max-consensus, agent.core.bidding), and
+ends a phase once the newest change it knows of is older than its eccentricity in rounds. Why that
+ends the auction everywhere in its part of the graph, one-to-one even when the graph splits, is in
+docs/lockstep_auction.md ("Over a limited communication range"). A goal set's first block scales
+epsilon down in phases; later blocks, warm from the boards, run the final phase only.
 
-The agreement costs at most N (epsilon_A + Delta C) over the optimum once the graph is connected.
 One host runs any subset of the robots (``own``); the central engine runs them all through the same
 rounds (sim.central.engine.settle_in_process), so it and the agents agree bit for bit.
 """
@@ -178,19 +165,10 @@ class LocalAuction:
             self.board_changed[bid] = r
         speaking = np.flatnonzero(~self.said_end)
         self.said_end[self.ended] = True
-        return Words(
-            self.own_ids[speaking],
-            self.xy[speaking],
-            self.phase[speaking].copy(),
-            self.ended[speaking].copy(),
-            self.last[speaking].copy(),
-            self.board_changed[speaking] >= r - 1,
-            (self.grew[speaking] >= r - 1) | (r == 1),
-            self.known[speaking].copy(),
-            self.price[speaking].copy(),
-            self.owner[speaking].copy(),
-            self.released[speaking].copy(),
-        )
+        fresh, grown = self.board_changed >= r - 1, (self.grew >= r - 1) | (r == 1)
+        said = (self.own_ids, self.xy, self.phase, self.ended, self.last, fresh, grown, self.known)
+        board = (self.price, self.owner, self.released)
+        return Words(*(column[speaking] for column in (*said, *board)))  # Words' fields, in order
 
     def hear(self, words: Words) -> None:
         """Round r: what the robots said this round (own robots' words too; the reach decides who

@@ -55,9 +55,7 @@ class RobotParams:
             raise ValueError(f"kinematics must be one of {KINEMATICS}, not {self.kinematics!r}")
         for f in fields(self):
             value = getattr(self, f.name)
-            if f.name == "kinematics":
-                continue
-            if f.name in _MAY_BE_ZERO and value == 0:
+            if f.name == "kinematics" or (f.name in _MAY_BE_ZERO and value == 0):
                 continue
             if not (isinstance(value, (int, float)) and value == value and value > 0):
                 raise ValueError(f"robot parameter {f.name} must be a positive number, not {value!r}")

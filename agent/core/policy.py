@@ -26,7 +26,7 @@ from .control import preferred_velocity
 from .deadlock import blocked, count_blocked
 from .goal_motion import GoalMotion, tracking_velocity
 from .params import RobotParams
-from .step import NeighbourStates, StepResult, control_step
+from .step import NeighbourStates, Rows, StepResult, control_step
 
 NO_GOAL = -1  # goal index of a robot that holds no goal of a goal set
 
@@ -42,7 +42,7 @@ class GoalTiming:
 
 
 @dataclass
-class Memory:
+class Memory(Rows):
     """What a batch of robots carries from tick to tick (rows = robots)."""
 
     velocity: np.ndarray  # (B,2) v_cf of the last tick: ORCA's v_opt, and what neighbours heard
@@ -63,19 +63,9 @@ class Memory:
             np.full(batch, latency),
         )
 
-    def rows(self, index: np.ndarray) -> Memory:
-        return Memory(
-            self.velocity[index], self.hold_left[index], self.hold_for[index], self.blocked[index], self.latency[index]
-        )
-
-    def put(self, index: np.ndarray, other: Memory) -> None:
-        self.velocity[index], self.hold_left[index] = other.velocity, other.hold_left
-        self.hold_for[index], self.blocked[index] = other.hold_for, other.blocked
-        self.latency[index] = other.latency
-
 
 @dataclass
-class Intent:
+class Intent(Rows):
     """Where a batch heads this tick (stage one of the policy)."""
 
     key: np.ndarray  # (B,2) (epoch, goal index) of each robot's goal (goal index NO_GOAL: none)
@@ -84,29 +74,15 @@ class Intent:
     hold_left: np.ndarray  # (B,) the hold's memory after this tick
     hold_for: np.ndarray  # (B,2)
 
-    def rows(self, index: np.ndarray) -> Intent:
-        return Intent(
-            self.key[index], self.goal[index], self.preferred[index], self.hold_left[index], self.hold_for[index]
-        )
-
 
 @dataclass
-class Decision:
+class Decision(Rows):
     """A batch's tick: its intent, the control step, its memory for the next tick, and deadlocks."""
 
     intent: Intent
     step: StepResult
     memory: Memory
     deadlocked: np.ndarray  # (B,) bool: raise this robot's cost of its goal by C_d
-
-    def put(self, index: np.ndarray, other: Decision) -> None:
-        """Overwrite the rows ``index`` with a smaller batch's decision for those robots."""
-        for name in ("key", "goal", "preferred", "hold_left", "hold_for"):
-            getattr(self.intent, name)[index] = getattr(other.intent, name)
-        for name in ("velocity", "command", "pref_velocity", "fallback"):
-            getattr(self.step, name)[index] = getattr(other.step, name)
-        self.memory.put(index, other.memory)
-        self.deadlocked[index] = other.deadlocked
 
 
 def intend(

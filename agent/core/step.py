@@ -9,6 +9,7 @@ drives exactly as K separate processes would.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Self
 
 import numpy as np
 
@@ -16,8 +17,25 @@ from .control import Batch, Settings, preferred_velocities, step
 from .params import RobotParams
 
 
+class Rows:
+    """A dataclass of per-robot arrays (rows = robots; a field may itself be Rows), so that a smaller
+    batch can be cut out and its results put back, field by field."""
+
+    def rows(self, index: np.ndarray) -> Self:
+        """The robots at rows ``index`` (a smaller batch)."""
+        return type(self)(*(value[index] for value in vars(self).values()))
+
+    def put(self, index: np.ndarray, other: Self) -> None:
+        """Overwrite the rows ``index`` with a smaller batch's values for those robots."""
+        for name, value in vars(self).items():
+            if isinstance(value, Rows):
+                value.put(index, getattr(other, name))
+            else:
+                value[index] = getattr(other, name)
+
+
 @dataclass
-class NeighbourStates:
+class NeighbourStates(Rows):
     """What a batch of B robots heard from up to M neighbours each (padded; ``valid`` marks real ones)."""
 
     position: np.ndarray  # (B,M,2) as broadcast
@@ -38,20 +56,9 @@ class NeighbourStates:
             np.ones((batch, m), bool),
         )
 
-    def rows(self, index: np.ndarray) -> NeighbourStates:
-        """What the robots at rows ``index`` of the batch heard (a smaller batch)."""
-        return NeighbourStates(
-            self.position[index],
-            self.velocity[index],
-            self.radius[index],
-            self.age[index],
-            self.valid[index],
-            self.cooperative[index],
-        )
-
 
 @dataclass
-class StepResult:
+class StepResult(Rows):
     velocity: np.ndarray  # (B,2) collision-free holonomic velocity v_cf (broadcast to neighbours)
     command: np.ndarray  # (B,2) holonomic (vx, vy) or wheel speeds (v_left, v_right)
     pref_velocity: np.ndarray  # (B,2) eq. 9
