@@ -30,6 +30,7 @@ from sim.args import FOXGLOVE_PORT, STARTUP_TIMEOUT, OneLineParser, add_watch_ar
 from sim.cli.certs import add_certs_parser
 from sim.cli.track import add_track_parser
 from sim.outputs.rundir import default_run_path
+from sim.processes import stopped_by_signals
 from sim.run.remote_agents import add_agents_parser
 from sim.study.runner import add_study_parser
 from transport.faults import parse_faults
@@ -613,14 +614,11 @@ def cmd_router(args: argparse.Namespace) -> int:
     if not settings.listen and not settings.config_file:
         settings.listen = ["tcp/127.0.0.1:7447"]
     session = open_session(settings)
-    stop = []
-    for s in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(s, lambda *_: stop.append(1))
     where = ", ".join(settings.listen) or f"the endpoints of {settings.config_file}"
-    print(f"router listening on {where} (Ctrl-C to stop)", flush=True)
     try:
-        while not stop:
-            time.sleep(0.1)
+        with stopped_by_signals() as stop:
+            print(f"router listening on {where} (Ctrl-C to stop)", flush=True)
+            stop.wait()
     finally:
         session.close()
     return 0

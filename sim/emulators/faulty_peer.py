@@ -40,16 +40,15 @@ from __future__ import annotations
 
 import argparse
 import random
-import signal
 import struct
 import sys
 import threading
 import time
 from collections import Counter, deque
 from collections.abc import Callable
-from dataclasses import dataclass
-from types import FrameType
+from dataclasses import dataclass, replace
 
+from sim.processes import stopped_by_signals
 from transport.bus import Bus, RawInbox
 from transport.codec import BEFORE_START
 from transport.keys import Keys
@@ -82,26 +81,24 @@ _GOALS_SET_AT = 8  # goal set part body: epoch u32, per_robot u8, count u32
 _PART_HEADER = struct.Struct("<BBI")
 
 
+_MODE_KINDS = {
+    "future-pose": ("pose",),
+    "malformed-pose": ("pose",),
+    "future-state": ("state",),
+    "future-cmd": ("cmd",),
+    "stale-cmd": ("cmd",),
+    "malformed-all": BUS_KINDS,
+    "misc": MISC_KINDS,
+    "restart": FRAME_KINDS,
+    "all": BUS_KINDS,
+}
+
+
 def kinds_of(mode: str, include_sim: bool = False) -> tuple[str, ...]:
     """The key kinds a mode damages."""
-    kinds: tuple[str, ...]
-    if mode == "all":
-        kinds = BUS_KINDS
-    elif mode in ("future-pose", "malformed-pose"):
-        kinds = ("pose",)
-    elif mode == "future-state":
-        kinds = ("state",)
-    elif mode in ("future-cmd", "stale-cmd"):
-        kinds = ("cmd",)
-    elif mode == "malformed-all":
-        kinds = BUS_KINDS
-    elif mode == "misc":
-        kinds = MISC_KINDS
-    elif mode == "restart":
-        kinds = FRAME_KINDS
-    else:
+    if mode not in _MODE_KINDS:
         raise ValueError(f"unknown mode {mode!r}: one of {', '.join(MODES_AND_ALL)}")
-    return kinds + SIM_KINDS if include_sim and mode in ("malformed-all", "all") else kinds
+    return _MODE_KINDS[mode] + (SIM_KINDS if include_sim and mode in ("malformed-all", "all") else ())
 
 
 # --- damage: each takes a message and returns its damaged copy, or None where it does not apply ---
@@ -263,13 +260,7 @@ class FaultyPeer:
         self.damages = tuple(plan.damages)
         if plan.rate <= 0:
             raise ValueError("rate must be positive")
-        self.settings = ZenohSettings(
-            mode="client" if settings.mode == "router" else settings.mode,
-            connect=list(settings.connect),
-            listen=list(settings.listen),
-            multicast_scouting=settings.multicast_scouting,
-            config_file=settings.config_file,
-        )
+        self.settings = replace(settings, mode="client" if settings.mode == "router" else settings.mode)
         self.keys = Keys(display)
         self.mode, self.rate, self.duration, self.start_after = plan.mode, plan.rate, plan.duration, plan.start_after
         self.rng = random.Random(plan.seed)
@@ -514,15 +505,9 @@ def main(argv: list[str] | None = None) -> int:
         tuple(d for d in args.damage.split(",") if d),
     )
     peer = FaultyPeer(settings, args.display, plan, args.connect_wait)
-    stop = threading.Event()
-
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        stop.set()
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
     try:
-        peer.run(stop)
+        with stopped_by_signals() as stop:
+            peer.run(stop)
     except TransportError as err:
         print(f"faulty-peer: {err}", file=sys.stderr)
         return 1

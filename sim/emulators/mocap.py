@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import signal
 import sys
 import threading
 import time
@@ -26,6 +25,7 @@ import numpy as np
 from hardware.config import HardwareConfigError
 from hardware.ros2 import POSE_STAMPED, Ros2Messages, Ros2Node, Ros2PosesConfig
 from sim.args import OneLineParser, positive_int, positive_number, positive_seconds, refuse
+from sim.processes import stopped_by_signals
 from transport.rmw_zenoh import RosPublisher
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, settings_from_args
 
@@ -137,26 +137,22 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
     settings = settings_from_args(args)
     if not settings.connect and settings.mode != "router":
         settings.connect = [RMW_ZENOHD]
-    prog = "python -m sim.emulators.mocap"
+    prog = parser.prog
     try:
         emulator = MocapEmulator(
             circle(args.robots, args.radius, args.speed), settings, args.topic, args.domain, args.rate, args.frame
         )
     except HardwareConfigError as err:
         return refuse(prog, err)
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
-        with emulator:
+        with stopped_by_signals() as stop, emulator:
             print(f"mocap: {args.robots} robots on {emulator.config.topic} at {args.rate:g} Hz", flush=True)
-            try:
-                stop.wait(args.duration)
-            except KeyboardInterrupt:
-                pass
+            stop.wait(args.duration)
             if emulator.error is not None:
                 print(f"{prog}: error: the pose function failed: {emulator.error}", file=sys.stderr)
                 return 1

@@ -32,7 +32,7 @@ from sim.outputs.recorder import Recorder
 from sim.outputs.rundir import RunDir
 from sim.outputs.ticklog import TICKS_FILE
 from sim.outputs.write import RunOutcome, write_run
-from sim.processes import stop_processes
+from sim.processes import handling_signals, stop_processes
 from sim.run.remote_agents import encode_remote_config
 from transport.bus import Bus
 from transport.codec import Event
@@ -335,16 +335,13 @@ class Launcher:
         self.stop_signal = signum
 
     def run(self) -> Path:
-        previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-        try:
-            return self._run()
-        except BaseException:
-            self._stop_children()
-            self.run_dir.abort()
-            raise
-        finally:
-            for s, handler in previous.items():
-                signal.signal(s, handler)
+        with handling_signals(self._on_signal):
+            try:
+                return self._run()
+            except BaseException:
+                self._stop_children()
+                self.run_dir.abort()
+                raise
 
     def _run(self) -> Path:
         wall0 = time.time()

@@ -29,6 +29,7 @@ from typing import Any
 
 from agent.runtime import HostConfig, interpreter
 from sim.args import add_seconds, format_ids, positive_int, refuse
+from sim.processes import handling_signals
 from transport.bus import Bus, LivelinessWatch
 from transport.keys import Keys
 from transport.session import TransportError, ZenohSettings
@@ -223,13 +224,11 @@ class Supervisor:
     @contextlib.contextmanager
     def forwarding_signals(self) -> Iterator[None]:
         """SIGINT and SIGTERM stop the agents (see watch); on the way out, none is left running."""
-        previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-        try:
-            yield
-        finally:
-            self.stop()
-            for s, handler in previous.items():
-                signal.signal(s, handler)
+        with handling_signals(self._on_signal):
+            try:
+                yield
+            finally:
+                self.stop()
 
     def _on_signal(self, signum: int, frame: object) -> None:
         self.stop_signal = signum
