@@ -115,26 +115,43 @@ class Board:
         return self._digest[1]
 
 
-class Participant:
-    """The own robots of one host in the auction of one goal set (epoch)."""
+class Auction:
+    """What the auctions of one goal set (epoch) share: its goals and robots, this host's own robots
+    among them, and the epsilon-scaling schedule (Participant: one board for all; LocalAuction: a
+    board per robot, agent.core.local_auction)."""
 
     def __init__(
-        self, epoch: int, goals: np.ndarray, robots: list[int], own: list[int], eps: float, hysteresis: float = 0.0
+        self, epoch: int, goals: np.ndarray, robots: list[int], own: list[int], eps: float, hysteresis: float
     ) -> None:
         self.epoch = epoch
         self.goals = np.asarray(goals, float)
         self.robots = np.array(sorted(int(r) for r in robots), np.int64)
-        self.row_of = {int(r): i for i, r in enumerate(self.robots)}
         members = set(self.robots.tolist())
         self.own = sorted(int(r) for r in own if r in members)
         self.own_ids = np.array(self.own, np.int64)
         self.own_rows = np.searchsorted(self.robots, self.own_ids)  # own robots' rows among all robots
-        self.is_own = np.zeros(len(self.robots), bool)
-        self.is_own[self.own_rows] = True
-        self.is_own_id = np.zeros(int(self.robots.max(initial=0)) + 2, bool)  # by robot id + 1 (owner -1: none)
-        self.is_own_id[self.own_ids + 1] = True
         self.schedule = epsilon_schedule(self.goals, eps)
         self.hysteresis = hysteresis
+        self.agreed_instance = -1
+        self.bids = 0
+
+    @property
+    def phases(self) -> int:
+        """Instances come in blocks of this many epsilon-scaling phases, on one set of positions."""
+        return len(self.schedule)
+
+
+class Participant(Auction):
+    """The own robots of one host in the auction of one goal set (epoch), on one board."""
+
+    def __init__(
+        self, epoch: int, goals: np.ndarray, robots: list[int], own: list[int], eps: float, hysteresis: float = 0.0
+    ) -> None:
+        super().__init__(epoch, goals, robots, own, eps, hysteresis)
+        self.row_of = {int(r): i for i, r in enumerate(self.robots)}
+        self.is_own = np.isin(self.robots, self.own_ids)
+        self.is_own_id = np.zeros(int(self.robots.max(initial=0)) + 2, bool)  # by robot id + 1 (owner -1: none)
+        self.is_own_id[self.own_ids + 1] = True
         self.board = Board(len(self.goals))
         self.instance = -1  # not started: waits for the robots' positions
         k = len(self.own)
@@ -153,12 +170,10 @@ class Participant:
         self.heard_content = np.zeros(r, bool)
         self.heard_digest = np.zeros(r, np.uint64)
         self.heard_version = 0
-        self.agreed_instance = -1
         self._agreed: tuple[np.ndarray, dict[int, int] | None] = (np.zeros(0, np.int64), {})  # see agreed
         self.agreed_owner: np.ndarray | None = None  # per goal: its robot in the agreed instance (NO_OWNER: none)
         self.claims_changed = False  # own claims changed since the last publication
         self.published_digest: int | None = None  # the board digest of the last publication
-        self.bids = 0
         self.rounds = 0  # Jacobi rounds in which some own robot bid
         # the compiled rounds (agent.core.bidding) over the board, the claims and the penalties
         self._bidders = self._new_bidders(CANDIDATES, exact_hull=False)
@@ -196,11 +211,6 @@ class Participant:
         return self.started and self.agreed_instance == self.instance
 
     # --- instances --------------------------------------------------------------------------------
-    @property
-    def phases(self) -> int:
-        """Instances come in blocks of this many epsilon-scaling phases, on one set of positions."""
-        return len(self.schedule)
-
     def begin(self, instance: int, positions: Mapping[int, np.ndarray] | np.ndarray) -> None:
         """Start an instance, warm from the current board, and bid its first round (see _freeze)."""
         self._freeze(instance, positions)

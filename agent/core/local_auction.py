@@ -20,7 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .bidder import NO_OWNER, Participant, epsilon_schedule, frozen_positions
+from .bidder import NO_OWNER, Auction, Participant, frozen_positions
 from .bidding import bid_on_own_boards, merge_boards
 from .params import RobotParams
 
@@ -55,7 +55,7 @@ def _gather(mask: np.ndarray, values: np.ndarray, fill: float | int | bool) -> n
     return out
 
 
-class LocalAuction:
+class LocalAuction(Auction):
     """The own robots of one host in the range-limited auction of one goal set (epoch)."""
 
     def __init__(
@@ -68,16 +68,8 @@ class LocalAuction:
         hysteresis: float,
         reach: float,
     ) -> None:
-        self.epoch = epoch
-        self.goals = np.asarray(goals, float)
-        self.robots = np.array(sorted(int(r) for r in robots), np.int64)
-        members = set(self.robots.tolist())
-        self.own = sorted(int(r) for r in own if r in members)
-        self.own_ids = np.array(self.own, np.int64)
-        self.own_cols = np.searchsorted(self.robots, self.own_ids)
+        super().__init__(epoch, goals, robots, own, eps, hysteresis)
         self.reach = float(reach)
-        self.schedule = epsilon_schedule(self.goals, eps)
-        self.hysteresis = hysteresis
         k, g, n = len(self.own), len(self.goals), len(self.robots)
         if g < n:
             raise ValueError(f"{n} robots cannot share {g} goals one to one")
@@ -99,15 +91,9 @@ class LocalAuction:
         self.said_end = np.zeros(k, bool)
         self.round = 0
         self.block = -1
-        self.agreed_instance = -1
         self.agreed: dict[int, int] = {}
-        self.bids = 0
 
     # --- the interface the lock-step drivers share with agent.core.bidder.Participant ---------------
-    @property
-    def phases(self) -> int:
-        return len(self.schedule)
-
     @property
     def started(self) -> bool:
         return self.block >= 0
@@ -145,7 +131,7 @@ class LocalAuction:
         self.phase[:] = 0 if self.block == 0 else self.phases - 1
         self.last[:] = 0
         self.known[:] = False
-        self.known[np.arange(len(self.own)), self.own_cols] = True
+        self.known[np.arange(len(self.own)), self.own_rows] = True
         self.grew[:] = 0
         self.board_changed[:] = 1  # a new block: everyone's board is news (the graph changed)
         self.ended[:] = False
