@@ -32,7 +32,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .config import HardwareConfigError, Started
+from .config import HardwareConfigError, Started, check_keys
 from .poses import PoseSample, StampGate
 
 # A detection whose side on the floor is off by more than this fraction is not a robot's marker
@@ -68,10 +68,7 @@ class CameraConfig:
         """Validate a parsed `[poses]` table; `where` names it in errors (e.g. "robots.toml [poses]")."""
         if not isinstance(table, Mapping):
             raise HardwareConfigError(f"{where}: must be a table")
-        known = {f.name for f in fields(cls)} | {"kind"}
-        unknown = sorted(set(table) - known)
-        if unknown:
-            raise HardwareConfigError(f"{where}: unknown key {unknown[0]!r} (known: {', '.join(sorted(known))})")
+        check_keys(table, [f.name for f in fields(cls)] + ["kind"], where)
         if table.get("kind", "camera") != "camera":
             raise HardwareConfigError(f"{where}: kind must be 'camera', not {table['kind']!r}")
         values: dict[str, Any] = {}
