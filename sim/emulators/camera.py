@@ -43,10 +43,8 @@ Pose = tuple[float, float, float]  # x, y (metres), theta (radians)
 
 SUPERSAMPLE = 4  # hi-res pixels per image pixel, per axis, when drawing a marker
 CELL_PX = 24  # pixels per marker cell in the drawn marker image
-FOURCC = "FFV1"
-MAX_WANDERING = (
-    24  # robots whose plates the wandering grid keeps apart  # lossless, and written by opencv-python-headless's FFmpeg
-)
+FOURCC = "FFV1"  # lossless, and written by opencv-python-headless's FFmpeg
+MAX_WANDERING = 24  # robots whose plates the wandering grid keeps apart
 
 
 def _default_reference() -> dict[int, tuple[float, float]]:
