@@ -24,7 +24,6 @@ one arena K_r.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -34,6 +33,7 @@ import numpy as np
 from .drawings import KEYFRAME_ANIMATIONS, keyframes
 from .goals import IMAGE_SUFFIXES, GoalError, GoalOptions
 from .keyframes import KeyframeGoals, keyframe_goals, keyframe_paths
+from .motion import is_number
 from .steps import METHODS, GoalSets, ImageStep, parse_region_counts, scale_region_counts
 
 ANIMATION_KEYS = (
@@ -83,14 +83,14 @@ def parse_animation(data: Any, source: str = "") -> Animation:
             f"animation: unknown key(s) {', '.join(sorted(unknown))} (allowed: {', '.join(ANIMATION_KEYS)})"
         )
     name, images = _keyframes(data.get("keyframes"), source, data.get("size", 256))
-    frame_time = _seconds(data.get("frame_time", DEFAULT_FRAME_TIME), "frame_time")
-    last_hold = _seconds(data.get("last_hold", frame_time), "last_hold")
+    frame_time = _positive(data.get("frame_time", DEFAULT_FRAME_TIME), "frame_time")
+    last_hold = _positive(data.get("last_hold", frame_time), "last_hold")
     if "times" in data:
         if "first_hold" in data:
             raise GoalError("animation: give either times or first_hold (times[1] is when the first keyframe ends)")
         starts = _times(data["times"], len(images))
     else:
-        first = _seconds(data.get("first_hold", DEFAULT_FIRST_HOLD), "first_hold")
+        first = _positive(data.get("first_hold", DEFAULT_FIRST_HOLD), "first_hold")
         starts = [0.0] + [first + frame_time * f for f in range(len(images) - 1)]
     periods = [b - a for a, b in zip(starts, starts[1:])] + [frame_time]
     holds = periods[:-1] + [frame_time + last_hold]
@@ -109,7 +109,7 @@ def parse_animation(data: Any, source: str = "") -> Animation:
         method,
         _flag(data.get("keep_counts", False), "keep_counts"),
         _flag(data.get("init_from_previous", True), "init_from_previous"),
-        _length(data["arena"], "arena") if "arena" in data else None,
+        _positive(data["arena"], "arena", "metres") if "arena" in data else None,
     )
 
 
@@ -146,15 +146,9 @@ def _relative(path: str, source: str) -> Path:
     return p
 
 
-def _seconds(value: Any, key: str) -> float:
-    if not (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0):
-        raise GoalError(f"animation: {key} must be a positive number of seconds, not {value!r}")
-    return float(value)
-
-
-def _length(value: Any, key: str) -> float:
-    if not (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0):
-        raise GoalError(f"animation: {key} must be a positive number of metres, not {value!r}")
+def _positive(value: Any, key: str, unit: str = "seconds") -> float:
+    if not (is_number(value) and value > 0):
+        raise GoalError(f"animation: {key} must be a positive number of {unit}, not {value!r}")
     return float(value)
 
 
@@ -165,10 +159,7 @@ def _flag(value: Any, key: str) -> bool:
 
 
 def _times(value: Any, frames: int) -> list[float]:
-    ok = isinstance(value, list) and all(
-        isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value
-    )
-    if not ok or len(value) != frames:
+    if not (isinstance(value, list) and all(is_number(v) for v in value)) or len(value) != frames:
         raise GoalError(f"animation: times must list the start of each of the {frames} keyframes in seconds")
     starts = [float(v) for v in value]
     if starts[0] != 0.0 or any(b <= a for a, b in zip(starts, starts[1:])):

@@ -92,8 +92,13 @@ def check_window(motion: StepMotion, label: str, duration: float) -> None:
         )
 
 
+def is_number(value: Any) -> bool:
+    """A finite int or float (TOML's true and false are not numbers)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
 def _number(value: Any, label: str, unit: str) -> float:
-    if not (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)):
+    if not is_number(value):
         raise GoalError(f"{label} must be a number ({unit}), not {value!r}")
     return float(value)
 

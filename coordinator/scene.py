@@ -42,7 +42,7 @@ import numpy as np
 from transport import epuck
 
 from .goals import IMAGE_SUFFIXES, GoalError
-from .motion import check_window
+from .motion import check_window, is_number
 from .steps import ImageStep, StepGoals, parse_step
 
 if TYPE_CHECKING:
@@ -675,4 +675,4 @@ def _polygon(obstacle: Any, where: str) -> list[tuple[float, float]]:
 
 
 def _positive(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0
+    return is_number(value) and value > 0

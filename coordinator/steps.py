@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .goals import GoalError
-from .motion import StepMotion, parse_motion
+from .motion import StepMotion, is_number, parse_motion
 from .shapes import SHAPES, draw
 
 if TYPE_CHECKING:
@@ -67,7 +67,7 @@ def parse_step(data: Any, label: str, source: str = "") -> ImageStep:
     if unknown:
         raise GoalError(f"{label}: unknown key(s) {', '.join(sorted(unknown))} (allowed: {', '.join(STEP_KEYS)})")
     hold = data.get("hold")
-    if not (isinstance(hold, (int, float)) and not isinstance(hold, bool) and math.isfinite(hold) and hold > 0):
+    if not (is_number(hold) and hold > 0):
         raise GoalError(f"{label}: hold must be a positive number of seconds, not {hold!r}")
     if ("image" in data) == ("shape" in data):
         raise GoalError(f'{label} needs exactly one of image = "path" or shape = "name"')
