@@ -120,11 +120,15 @@ class Message:
                 raise Malformed("non-finite")
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-friendly view (for logs)."""
+        """JSON-friendly view (for logs): a record array as columns, one array per field (a host's
+        message holds up to K records, and a dict per record made the recorder's log of a
+        1000-robot auction cost more than the auction), any other array as a list."""
         out = {}
         for name in self.field_names():
             v = getattr(self, name)
-            out[name] = v.tolist() if isinstance(v, np.ndarray) else v
+            if isinstance(v, np.ndarray):
+                v = {k: v[k] for k in v.dtype.names} if v.dtype.names else v.tolist()
+            out[name] = v
         return out
 
 
@@ -536,13 +540,6 @@ class Bid(Message):
             raise Malformed("non-finite")
         return cls(epoch, instance, sender, serial, digest, count, items.copy())
 
-    def to_dict(self) -> dict[str, Any]:
-        """Records as columns (one array per field): a host's message holds up to K records, and a
-        dict per record made the recorder's log of a 1000-robot auction cost more than the auction."""
-        out = {name: getattr(self, name) for name in self.field_names() if name != "records"}
-        out["records"] = {k: self.records[k] for k in _field_names(self.RECORD)}
-        return out
-
 
 @dataclass
 class Boards(Message):
@@ -625,10 +622,7 @@ class Boards(Message):
         return cls(epoch, instance, sender, serial, goals, robots, count, words, known, records)
 
     def to_dict(self) -> dict[str, Any]:
-        out = {name: getattr(self, name) for name in self.field_names() if name not in ("words", "known", "records")}
-        out["words"] = {k: self.words[k] for k in _field_names(self.WORD)}
-        out["records"] = {k: self.records[k] for k in _field_names(self.RECORD)}
-        return out
+        return {k: v for k, v in super().to_dict().items() if k != "known"}
 
 
 @dataclass
@@ -745,12 +739,6 @@ class Frame(Message):
         if not all(test(v[i]) for i, test in cls._alone_rules):
             return None
         return v[2], [cls.VIEW(*v[_ALONE_RECORD_AT : _ALONE_RECORD_AT + 1], v[2], v[3], *v[_ALONE_RECORD_AT + 1 :])]
-
-    def to_dict(self) -> dict[str, Any]:
-        """Records as columns, one array per field (as Bid)."""
-        out = {name: getattr(self, name) for name in self.field_names() if name != "records"}
-        out["records"] = {k: self.records[k] for k in _field_names(self.RECORD)}
-        return out
 
 
 @dataclass
