@@ -29,18 +29,18 @@ from typing import Any
 import numpy as np
 
 from transport.bus import Bus
-from transport.codec import BEFORE_START, Command, Commands, Event, Goals, Pose, State, States, Tick
+from transport.codec import BEFORE_START, Command, Commands, Event, Goals, Pose, State, States
 from transport.keys import cell_of, cells_of
-from transport.plausible import INCONSISTENT, Clock, GoalSets, TickLine, stamp_agrees
+from transport.plausible import INCONSISTENT, GoalSets, TickLine, stamp_agrees
 
 from . import loop
 from .assignment import AuctionLink
+from .clocks import LockStep, WallClock
 from .core.params import DIFFDRIVE, RobotParams
 from .core.policy import Decision, GoalTiming, Memory
 from .core.step import NeighbourStates, static_segments
 from .goal_sets import motion_of, timing_of
 from .held_goals import HeldGoals
-from .lateness import Lateness, strayed
 from .loop import Sensed
 from .neighbour_table import NeighbourTable
 from .pose_trust import PoseTrust
@@ -140,7 +140,6 @@ AUCTION_SHARE = 0.2  # of a control period, counted from a tick's first pose, sp
 AUCTION_SHARE_COLD = 0.8  # ... until the newest goal set's first agreement: robots wait for it
 HELLO_EVERY = 0.1  # s between a lock-step host's hellos before the first tick
 HELLO_TIMEOUT = 30.0  # s a host waits for its neighbours' hellos before it says it is alive anyway
-GOAL_SET_WAIT = 10.0  # s a lock-step tick waits for its clock message and the goal sets it names
 
 
 class CellSubscriptions:
@@ -193,15 +192,10 @@ class AgentHost:
         self.pending: dict[int, Pose] = {}
         # What a pose may claim: its tick against the clock (lock-step) or the wall clock (real time),
         # and its place against where the robot could have driven (agent.pose_trust).
-        period = None if config.lockstep else config.params.dt
-        self.pose_lines = {r: TickLine(period) for r in config.robots}
-        self.clock = Clock()  # lock-step: the world's clock as heard
         self.trust = PoseTrust(config.params.v_max, config.params.dt, 2 * config.params.noise_bound)
-        self.silent: set[int] = set()  # nearby robots that did not answer in time (lock-step)
         self.greeted: dict[int, State] = {}  # lock-step: hellos heard before the first tick, by robot
         self.hello_from: list[State] = []  # our own hellos, sent until the first tick
         self.last_hello = -np.inf
-        self.state_waits = 0
         self.ticks_done = 0
         self.fallbacks = 0
         p = self.params
@@ -222,19 +216,15 @@ class AgentHost:
         self.state_inbox = bus.inbox(State, pulled=True)  # fed by the spatial cells around the robots ...
         if config.frames:  # ... and by every host's frames
             bus.subscribe_into(self.keys.states_all, self.state_inbox)
-        if config.lockstep:  # injected state delays count in ticks (reproducible); see Inbox.sim_time
-            self.state_inbox.sim_time = -math.inf
-            self.state_inbox.seen = {}  # states waited for arrive, even those the fault plan drops or holds
         self.cells = CellSubscriptions(bus, self.state_inbox, self.cell_size, reach=3 if config.lockstep else 2)
         for target in set(config.pursue.values()):  # a pursuer hears its target wherever it is
             bus.subscribe_into(self.keys.state_of(target), self.state_inbox)
         self.goal_inbox = bus.subscribe(self.keys.all_of("goals"), Goals)
         self.goal_sets: dict[int, Goals] = {}  # the latest auctioned goal sets by epoch (timing, motion)
-        self.unnamed: dict[int, Goals] = {}  # lock-step: goal sets heard that no tick has named yet
-        self.named: dict[int, int] = {}  # lock-step: tick -> the newest goal set the world named in it
         self.newest_heard = 0  # epoch of the newest goal set heard (per-robot goals too)
         self.believed = GoalSets(config.arena)  # which goal sets can be the coordinator's
-        self.clock_inbox = bus.subscribe(self.keys.clock, Tick) if config.lockstep else None
+        self.clock = LockStep(self) if config.lockstep else WallClock(self)
+        self.pose_lines = {r: TickLine(self.clock.pose_period) for r in config.robots}
         self.auction = AuctionLink(
             bus,
             config.robots,
@@ -258,8 +248,6 @@ class AgentHost:
         self.running = True
         self._bid_from: dict[int, np.ndarray] | None = None  # _positions(), until positions or goals change
         self.parent_pid: int | None = None  # exit when this process (the launcher) is gone
-        self.lateness = Lateness(p.dt, p.command_margin)  # real time: how old a pose is when acted on
-        self._compute = 0.0  # wall seconds the last tick's step took (its command leaves that much later)
         self.seams = loop.Seams(self, self.auction, self.segments, config.seed, config.reach)
 
     # --- start ------------------------------------------------------------------------------
@@ -278,7 +266,7 @@ class AgentHost:
         step (the world's clock past 0) greets nobody: its neighbours' states of every tick reach it
         anyway, and the poses of a tick already published wait for its first step."""
         for _, goals in self.bus.query(self.keys.all_of("goals"), Goals, timeout=2.0):
-            self._hear_goals(goals)
+            self.hear_goals(goals)
         where: dict[int, Pose] = {}
         ticking: list[Pose] = []  # poses of ticks under way (a robot whose body is tracked already)
         end = time.monotonic() + timeout
@@ -314,7 +302,7 @@ class AgentHost:
             self._say_hello()
             got = self.state_inbox.get(timeout=HELLO_EVERY / 2)
             if got is not None:
-                self._on_state(got[1])
+                self.on_state(got[1])
 
     def _say_hello(self) -> None:
         if not self.hello_from or time.monotonic() - self.last_hello < HELLO_EVERY:
@@ -342,7 +330,7 @@ class AgentHost:
             self.bus.put(self.keys.cmd(c.robot), Commands.encode_one(c), Commands.NAME)
 
     # --- messages -----------------------------------------------------------------------------
-    def _hear_goals(self, goals: Goals) -> None:
+    def hear_goals(self, goals: Goals) -> None:
         """A goal set heard. Lock-step holds a new one until the tick that takes it up
         (_take_up_goal_sets), so that every host takes it up at the same tick. One whose epoch or
         stamp lies beyond what the robots know is refused: taken as the newest, it shut out the
@@ -352,18 +340,16 @@ class AgentHost:
             self.goal_inbox.drops[why] += 1
             return
         self.newest_heard = max(self.newest_heard, goals.epoch)
-        if self.config.lockstep and not goals.per_robot and goals.epoch > max(self.goal_sets, default=0):
-            self.unnamed[goals.epoch] = goals
-            return
-        self._on_goals(goals)
+        if not self.clock.holds(goals):
+            self.on_goals(goals)
 
     def _display_time(self) -> float | None:
         """The newest display time the robots know: the lock-step clock, else their newest pose."""
-        if self.clock.newest is not None:
-            return self.clock.newest * self.params.dt
+        if (t := self.clock.display_time()) is not None:
+            return t
         return max((m.stamp for m in self.memory.values() if m.position is not None), default=None)
 
-    def _on_goals(self, goals: Goals) -> None:
+    def on_goals(self, goals: Goals) -> None:
         if not goals.per_robot:
             self._bid_from = None
             self.goal_sets[goals.epoch] = goals
@@ -453,12 +439,12 @@ class AgentHost:
 
     def _absorb(self) -> None:
         for _, goals in self.goal_inbox.drain():
-            self._hear_goals(goals)
+            self.hear_goals(goals)
         for state in self.state_inbox.take():
-            self._on_state(state)
+            self.on_state(state)
         self.auction.poll(self._positions())
 
-    def _on_state(self, msg: State) -> None:
+    def on_state(self, msg: State) -> None:
         if msg.tick == BEFORE_START:  # a hello (lock-step start-up), not a state to steer by
             if self.ticks_done < 2:
                 self.greeted[msg.robot] = msg
@@ -467,51 +453,10 @@ class AgentHost:
         if why is not None:
             self.state_inbox.drops[why] += 1
             return
-        self.silent.discard(msg.robot)
+        self.clock.silent.discard(msg.robot)
         for robot, target in self.config.pursue.items():
             if msg.robot == target and robot in self.memory:
                 self.held_goals.goal[self.row_of[robot]] = msg.x, msg.y
-
-    def _await_states(self, tick: int, position: np.ndarray) -> None:
-        """Lock-step: wait until every nearby robot's state of the previous tick is here.
-
-        Zenoh does not order a neighbour's state before the world's next pose (they travel different
-        paths), so without this wait the neighbour set would depend on timing. Only robots that were
-        within reach at the tick before can become neighbours now; one that stays silent for
-        ``state_wait`` is not waited for again until it speaks.
-        """
-        reach = self.params.state_reach
-        deadline = time.monotonic() + self.config.state_wait
-        seen = self.state_inbox.seen or {}  # arrived, whatever an injected fault then did with it
-        while True:
-            # an arrival claimed from beyond this tick proves nothing (a damaged or forged frame)
-            behind = [
-                s
-                for s in self.table.latest_before(tick)
-                if max(s.tick, _at_most(seen.get(s.robot, -1), tick)) < tick - 1
-            ]
-            if tick > 0 and self.ticks_done < 2:  # the first tick after tick 0: robots that greeted us
-                behind += [
-                    h for r, h in self.greeted.items() if r not in self.table and r not in seen and r not in self.memory
-                ]
-            missing = [
-                s.robot
-                for s in behind
-                if s.robot not in self.silent and np.min(np.hypot(position[:, 0] - s.x, position[:, 1] - s.y)) <= reach
-            ]
-            if not missing:
-                for _, state in self.state_inbox.drain():  # what arrived (seen) is taken in before the step
-                    self._on_state(state)
-                return
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                self.silent.update(missing)
-                return
-            self.state_waits += 1
-            # short: a state the fault plan dropped counts as arrived (seen) but rings nothing
-            got = self.state_inbox.get(timeout=min(remaining, 0.005))
-            if got is not None:
-                self._on_state(got[1])
 
     def _dead_now(self) -> set[int]:
         """The robots whose agent is dead, as liveliness says now."""
@@ -526,52 +471,6 @@ class AgentHost:
         """The robots the auction does not wait for: dead, or gone during the goal set in force."""
         return self._dead_now() | self.gone
 
-    def _take_up_goal_sets(self, tick: int, stamp: float) -> None:
-        """Lock-step: take up the goal sets due at this tick, so that every host takes each up at the
-        same tick: those up to the newest the world had heard when it published the tick (its clock
-        message names it), and the goal set of the scene step due now, which the coordinator
-        publishes only once it hears the tick. Newer goal sets wait for a tick that names them."""
-        assert self.clock_inbox is not None
-        due = int(np.searchsorted(self.config.steps, stamp + 1e-9, side="right")) - 1
-        deadline = time.monotonic() + GOAL_SET_WAIT
-        while self.running and time.monotonic() < deadline:
-            self._hear_clock()
-            has_step = due < 0 or any(g.timing.step >= due for g in (*self.goal_sets.values(), *self.unnamed.values()))
-            if tick in self.named and has_step and self.newest_heard >= self.named[tick]:
-                break
-            wait = min(deadline - time.monotonic(), 0.05)
-            if tick not in self.named:
-                got_tick = self.clock_inbox.get(timeout=max(wait, 0.0))
-                if got_tick is not None:
-                    self._on_clock(got_tick[1])
-                continue
-            got = self.goal_inbox.get(timeout=max(wait, 0.0))
-            if got is not None:
-                self._hear_goals(got[1])
-        # no clock message in time (a world that names no goal set): take up all that was heard
-        upto = self.named.get(tick, max(self.unnamed, default=0))
-        if due >= 0:
-            of_step = [e for e, g in {**self.goal_sets, **self.unnamed}.items() if g.timing.step >= due]
-            upto = max(upto, min(of_step, default=0))
-        self.named = {t: e for t, e in self.named.items() if t > tick}
-        for epoch in sorted(e for e in self.unnamed if e <= upto):
-            self._on_goals(self.unnamed.pop(epoch))
-
-    def _hear_clock(self) -> None:
-        assert self.clock_inbox is not None
-        for _, clock in self.clock_inbox.drain():
-            self._on_clock(clock)
-
-    def _on_clock(self, clock: Tick) -> None:
-        """Lock-step: a clock message names the goal set of its tick; its tick bounds the poses'.
-        The world publishes every tick, so a clock may not skip ahead of the last."""
-        why = self.clock.admit(clock, time.monotonic())
-        if why is not None:
-            assert self.clock_inbox is not None
-            self.clock_inbox.drops[why] += 1
-            return
-        self.named[clock.tick] = clock.goal_epoch
-
     # --- the loop -----------------------------------------------------------------------------
     def run(self) -> None:
         # One bell rung by poses, goal sets and auction messages: the loop sleeps until any arrives
@@ -584,7 +483,7 @@ class AgentHost:
             got = self.pose_inbox.get(timeout=0)
             if self.auction.active or self.goal_inbox.has_delayed:
                 for _, msg in self.goal_inbox.drain():
-                    self._hear_goals(msg)
+                    self.hear_goals(msg)
                 self.auction.poll(self._positions())
             if got is None:
                 if not self.ticks_done:
@@ -604,13 +503,12 @@ class AgentHost:
             # kept an overloaded agent a fixed number of ticks behind, every command late.
             for _, pose in self.pose_inbox.drain():
                 self._take_pose(pose)
-            if self.pending and not self.config.lockstep:
-                self.lateness.arrived(max(q.stamp for q in self.pending.values()), tick_start)
+            self.clock.poses_arrived(list(self.pending.values()), tick_start)
             # Collect the other robots' poses of this tick (they are published together). The inbox
             # hands a frame's records over one by one, so a loaded machine can split a tick's frame:
             # lock-step waits for all of them, as a block frozen on some robots' old poses would
             # make a different run.
-            deadline = tick_start + (self.config.state_wait if self.config.lockstep else self.config.batch_wait)
+            deadline = tick_start + self.clock.collect
             while len(self.pending) < len(self.memory) and self.running:
                 got = self.pose_inbox.get(timeout=max(0.0, deadline - time.monotonic()))
                 if got is None:
@@ -640,10 +538,7 @@ class AgentHost:
             return
         why = None if stamp_agrees(pose.tick, pose.stamp, self.params.dt) else INCONSISTENT
         if why is None:
-            now = None
-            if self.clock_inbox is not None:  # lock-step: the world's clock says which tick it is
-                self._hear_clock()
-                now = self.clock.newest
+            now = self.clock.newest_tick()  # lock-step: the world's clock says which tick it is
             why = self.pose_lines[pose.robot].admit(pose.tick, time.monotonic(), now)
         if why is not None:
             self.pose_inbox.drops[why] += 1
@@ -656,8 +551,7 @@ class AgentHost:
         """Compute and publish one tick for every robot whose pose has arrived."""
         if not self.pending:
             return
-        if self.config.lockstep:
-            self.state_inbox.sim_time = max(p.stamp for p in self.pending.values())
+        self.clock.before_step(list(self.pending.values()))
         self.table.advance(max(p.tick for p in self.pending.values()))
         self._absorb()
         poses = [self.pending.pop(r) for r in sorted(self.pending)]
@@ -668,31 +562,25 @@ class AgentHost:
     def _step_tick(self, poses: list[Pose]) -> None:
         """The one tick loop (agent.loop.tick) for the robots whose pose of one tick arrived."""
         began = time.monotonic()
-        p = self.params
         tick, stamp = poses[0].tick, poses[0].stamp
-        if not self.config.lockstep:  # late: the body may have strayed from the pose (agent.lateness)
-            late = self.lateness.at(stamp, began + self._compute)
-            if late > 0:
-                p = p.grown(strayed(late, p.v_max))
+        p = self.clock.params_at(stamp, began)
         # a pose further than the robot could have driven is held: the robot brakes where it last was
         judged = [self.trust.judge(q.robot, q.tick, q.x, q.y, q.theta) for q in poses]
         pose_of = [j if j is not None else self.trust.last(q.robot) for q, j in zip(poses, judged)]
         position = np.array([(x, y) for x, y, _ in pose_of], float)
         heading = np.array([th for _, _, th in pose_of], float)
-        if self.config.lockstep:
-            self._await_states(tick, position)
+        self.clock.await_neighbours(tick, position)
         for q, xy in zip(poses, position):
             self.memory[q.robot].position, self.memory[q.robot].stamp = xy.copy(), stamp
         self._bid_from = None
-        if self.config.lockstep:
-            self._take_up_goal_sets(tick, stamp)
+        self.clock.take_up_goal_sets(tick, stamp)
         self._dead_now()
         braking = np.array([j is None for j in judged], bool)
         sensed = Sensed(np.array([q.robot for q in poses]), position, heading, tick, stamp, p, braking)
         decision = loop.tick(self, sensed, self.seams)
         self.fallbacks += int(np.count_nonzero(decision.step.fallback))
         self.ticks_done += 1
-        self._compute = time.monotonic() - began
+        self.clock.stepped(began)
 
     # --- the loop's seams: what the robots hold, the bus link -----------------------------------
     def rows(self, ids: np.ndarray) -> np.ndarray:
@@ -744,7 +632,7 @@ class AgentHost:
 
     def stats(self) -> dict[str, Any]:
         drops: dict[str, int] = {}
-        inboxes: list[Any] = [self.pose_inbox, self.state_inbox, self.goal_inbox, self.auction.inbox, self.clock_inbox]
+        inboxes: list[Any] = [self.pose_inbox, self.state_inbox, self.goal_inbox, self.auction.inbox, self.clock.inbox]
         for inbox in filter(None, inboxes):
             for reason, n in inbox.drops.items():
                 drops[reason] = drops.get(reason, 0) + n
@@ -756,11 +644,11 @@ class AgentHost:
             "poses_held": self.trust.held,
             "dropped": drops,
             "neighbours_known": len(self.table),
-            "state_waits": self.state_waits,
+            "state_waits": self.clock.state_waits,
             "states_heard": self.state_inbox.received,  # messages (frames): its robots' neighbours' load
-            "worst_lateness_s": round(self.lateness.worst, 4),
-            "mean_lateness_s": round(self.lateness.mean, 4),
-            "silent": sorted(self.silent),
+            "worst_lateness_s": round(self.clock.lateness.worst, 4),
+            "mean_lateness_s": round(self.clock.lateness.mean, 4),
+            "silent": sorted(self.clock.silent),
             "auction": self.auction.stats(),
         }
 
@@ -792,11 +680,6 @@ def bid_position(position: np.ndarray, goal: np.ndarray, velocity: np.ndarray, l
     speed = np.hypot(*np.moveaxis(np.asarray(velocity, float), -1, 0))
     reach = np.minimum(1.0, speed * lead / np.maximum(d, 1e-9))
     return position + to_goal * np.where(d <= 1e-9, 0.0, reach)[..., None]
-
-
-def _at_most(tick: int, bound: int) -> int:
-    """A tick claimed beyond ``bound`` counts as none (-1)."""
-    return tick if tick <= bound else -1
 
 
 def install_stop_handlers(host: AgentHost) -> None:

@@ -105,7 +105,7 @@ def test_a_goal_set_heard_before_its_tick_waits_for_the_tick_that_names_it() -> 
         assert 2 not in host.goal_sets, "goal set 2 was taken up at a tick that did not name it"
 
         tick(2, 2)
-        assert 2 in host.goal_sets and not host.unnamed
+        assert 2 in host.goal_sets and not host.clock.unnamed
         stop_host(host, thread)
 
 

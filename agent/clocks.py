@@ -1,0 +1,206 @@
+"""The agent host's two clocks (its clock seam): the world's lock-step ticks, or the wall clock.
+
+Time is a message: both bring a tick's poses to the same host loop (agent.runtime.AgentHost) and
+differ only in what a tick waits for and what it may assume. Lock-step waits for every nearby
+robot's state of the tick before and takes up a goal set at the tick the world names it, so a run
+is reproducible from its seed. Real time waits a slice of the period for the rest of a tick's poses
+and grows the robots' margins by how late their poses are (agent.lateness).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from transport.bus import Inbox
+from transport.codec import Goals, Pose, Tick
+from transport.plausible import Clock
+
+from .core.params import RobotParams
+from .lateness import Lateness, strayed
+
+GOAL_SET_WAIT = 10.0  # s a lock-step tick waits for its clock message and the goal sets it names
+
+
+class WallClock:
+    """Real time: a tick's poses as they come; robots acting late grow their margins."""
+
+    lockstep = False
+
+    def __init__(self, host: Any) -> None:  # the agent.runtime.AgentHost whose ticks this clock brings
+        self.host, p = host, host.params
+        self.pose_period: float | None = p.dt  # a pose's tick may not run ahead of the wall clock
+        self.collect = host.config.batch_wait  # s to wait for the rest of a tick's poses
+        self.lateness = Lateness(p.dt, p.command_margin)  # how old a pose is when acted on
+        self.compute = 0.0  # wall seconds the last tick's step took (its command leaves that much later)
+        self.inbox: Inbox[Tick] | None = None  # the world's clock messages (lock-step)
+        self.silent: set[int] = set()
+        self.state_waits = 0
+
+    def newest_tick(self) -> int | None:
+        """The newest tick the world is known to have reached (None: not known)."""
+        return None
+
+    def display_time(self) -> float | None:
+        return None
+
+    def holds(self, goals: Goals) -> bool:
+        """A goal set held back until a tick takes it up (lock-step only)."""
+        return False
+
+    def poses_arrived(self, poses: list[Pose], wall: float) -> None:
+        if poses:
+            self.lateness.arrived(max(q.stamp for q in poses), wall)
+
+    def before_step(self, poses: list[Pose]) -> None:
+        pass
+
+    def params_at(self, stamp: float, began: float) -> RobotParams:
+        """Late: the body may have strayed from the pose (agent.lateness)."""
+        p = self.host.params
+        late = self.lateness.at(stamp, began + self.compute)
+        return p.grown(strayed(late, p.v_max)) if late > 0 else p
+
+    def await_neighbours(self, tick: int, position: np.ndarray) -> None:
+        pass
+
+    def take_up_goal_sets(self, tick: int, stamp: float) -> None:
+        pass
+
+    def stepped(self, began: float) -> None:
+        self.compute = time.monotonic() - began
+
+
+class LockStep(WallClock):
+    """The world's ticks: a tick waits for its neighbours' states and the goal sets it names."""
+
+    lockstep = True
+
+    def __init__(self, host: Any) -> None:
+        super().__init__(host)
+        self.pose_period, self.collect = None, host.config.state_wait
+        self.ticks = self.inbox = host.bus.subscribe(host.keys.clock, Tick)
+        self.clock = Clock()  # the world's clock as heard
+        self.named: dict[int, int] = {}  # tick -> the newest goal set the world named in it
+        self.unnamed: dict[int, Goals] = {}  # goal sets heard that no tick has named yet
+        # injected state delays count in ticks (reproducible); see Inbox.sim_time
+        host.state_inbox.sim_time = -math.inf
+        host.state_inbox.seen = {}  # states waited for arrive, even those the fault plan drops or holds
+
+    def newest_tick(self) -> int | None:
+        self.hear()
+        return self.clock.newest
+
+    def display_time(self) -> float | None:
+        return None if self.clock.newest is None else self.clock.newest * self.host.params.dt
+
+    def holds(self, goals: Goals) -> bool:
+        """A new goal set waits for the tick that takes it up, so that every host takes it up at the
+        same tick (take_up_goal_sets)."""
+        if goals.per_robot or goals.epoch <= max(self.host.goal_sets, default=0):
+            return False
+        self.unnamed[goals.epoch] = goals
+        return True
+
+    def poses_arrived(self, poses: list[Pose], wall: float) -> None:
+        pass
+
+    def before_step(self, poses: list[Pose]) -> None:
+        self.host.state_inbox.sim_time = max(p.stamp for p in poses)
+
+    def params_at(self, stamp: float, began: float) -> RobotParams:
+        return self.host.params
+
+    def await_neighbours(self, tick: int, position: np.ndarray) -> None:
+        """Wait until every nearby robot's state of the previous tick is here.
+
+        Zenoh does not order a neighbour's state before the world's next pose (they travel different
+        paths), so without this wait the neighbour set would depend on timing. Only robots that were
+        within reach at the tick before can become neighbours now; one that stays silent for
+        ``state_wait`` is not waited for again until it speaks.
+        """
+        host = self.host
+        reach = host.params.state_reach
+        deadline = time.monotonic() + host.config.state_wait
+        seen = host.state_inbox.seen or {}  # arrived, whatever an injected fault then did with it
+        while True:
+            # an arrival claimed from beyond this tick proves nothing (a damaged or forged frame)
+            behind = [
+                s
+                for s in host.table.latest_before(tick)
+                if max(s.tick, _at_most(seen.get(s.robot, -1), tick)) < tick - 1
+            ]
+            if tick > 0 and host.ticks_done < 2:  # the first tick after tick 0: robots that greeted us
+                behind += [
+                    h for r, h in host.greeted.items() if r not in host.table and r not in seen and r not in host.memory
+                ]
+            missing = [
+                s.robot
+                for s in behind
+                if s.robot not in self.silent and np.min(np.hypot(position[:, 0] - s.x, position[:, 1] - s.y)) <= reach
+            ]
+            if not missing:
+                for _, state in host.state_inbox.drain():  # what arrived (seen) is taken in before the step
+                    host.on_state(state)
+                return
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                self.silent.update(missing)
+                return
+            self.state_waits += 1
+            # short: a state the fault plan dropped counts as arrived (seen) but rings nothing
+            got = host.state_inbox.get(timeout=min(remaining, 0.005))
+            if got is not None:
+                host.on_state(got[1])
+
+    def take_up_goal_sets(self, tick: int, stamp: float) -> None:
+        """Take up the goal sets due at this tick, so that every host takes each up at the same tick:
+        those up to the newest the world had heard when it published the tick (its clock message
+        names it), and the goal set of the scene step due now, which the coordinator publishes only
+        once it hears the tick. Newer goal sets wait for a tick that names them."""
+        host = self.host
+        due = int(np.searchsorted(host.config.steps, stamp + 1e-9, side="right")) - 1
+        deadline = time.monotonic() + GOAL_SET_WAIT
+        while host.running and time.monotonic() < deadline:
+            self.hear()
+            has_step = due < 0 or any(g.timing.step >= due for g in (*host.goal_sets.values(), *self.unnamed.values()))
+            if tick in self.named and has_step and host.newest_heard >= self.named[tick]:
+                break
+            wait = max(min(deadline - time.monotonic(), 0.05), 0.0)
+            if tick not in self.named:
+                got_tick = self.ticks.get(timeout=wait)
+                if got_tick is not None:
+                    self._on_clock(got_tick[1])
+                continue
+            got = host.goal_inbox.get(timeout=wait)
+            if got is not None:
+                host.hear_goals(got[1])
+        # no clock message in time (a world that names no goal set): take up all that was heard
+        upto = self.named.get(tick, max(self.unnamed, default=0))
+        if due >= 0:
+            of_step = [e for e, g in {**host.goal_sets, **self.unnamed}.items() if g.timing.step >= due]
+            upto = max(upto, min(of_step, default=0))
+        self.named = {t: e for t, e in self.named.items() if t > tick}
+        for epoch in sorted(e for e in self.unnamed if e <= upto):
+            host.on_goals(self.unnamed.pop(epoch))
+
+    def hear(self) -> None:
+        for _, clock in self.ticks.drain():
+            self._on_clock(clock)
+
+    def _on_clock(self, clock: Tick) -> None:
+        """A clock message names the goal set of its tick; its tick bounds the poses'. The world
+        publishes every tick, so a clock may not skip ahead of the last."""
+        why = self.clock.admit(clock, time.monotonic())
+        if why is not None:
+            self.ticks.drops[why] += 1
+            return
+        self.named[clock.tick] = clock.goal_epoch
+
+
+def _at_most(tick: int, bound: int) -> int:
+    """A tick claimed beyond ``bound`` counts as none (-1)."""
+    return tick if tick <= bound else -1
