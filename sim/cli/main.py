@@ -627,12 +627,11 @@ def cmd_router(args: argparse.Namespace) -> int:
 def cmd_stop(args: argparse.Namespace) -> int:
     from hardware.config import HardwareConfigError, load_hardware
     from hardware.stop import stop_all
-    from sim.node.hardware import backend_kind
 
     try:
         config = load_hardware(args.hardware)
         settings = None
-        if backend_kind(config) == "ros2":
+        if config.backend_kind == "ros2":
             if not args.connect:
                 raise UsageError(f"{args.hardware}: ROS 2 robots are reached through a router: give -e ENDPOINT")
             settings = ZenohSettings(mode="client", connect=[args.connect])

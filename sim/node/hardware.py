@@ -45,14 +45,10 @@ class HardwareError(Exception):
 
 
 # --- the hardware file, for a run ------------------------------------------------------------------
-def backend_kind(config: HardwareConfig) -> str:
-    return config.backend_kind
-
-
 def check_runnable(config: HardwareConfig) -> int:
     """A hardware file a run can use (a backend with robots and a pose source); returns the robot count
     (robot ids are positions in the backend's list)."""
-    kind = backend_kind(config)
+    kind = config.backend_kind
     if kind not in RUNNABLE_BACKENDS:
         raise HardwareError(
             f"{config.path} [backend]: kind {kind!r} drives no robots; a run with --hardware needs one of: "
@@ -66,7 +62,7 @@ def check_runnable(config: HardwareConfig) -> int:
 def command_timeout(config: HardwareConfig) -> float:
     """The hardware file's own command timeout (e-puck2 `command_timeout`, ROS 2 `watchdog`)."""
     backend = config.backend
-    return float(backend.command_timeout if backend_kind(config) == "epuck2" else backend.watchdog)
+    return float(backend.command_timeout if config.backend_kind == "epuck2" else backend.watchdog)
 
 
 def describe_poses(config: HardwareConfig) -> str:
@@ -143,7 +139,7 @@ Drive = WheelDrive | TwistDrive  # start, send, unreached, where, robot_stats, c
 
 
 def open_drive(config: HardwareConfig, settings: ZenohSettings, params: RobotParams) -> Drive:
-    if backend_kind(config) == "epuck2":
+    if config.backend_kind == "epuck2":
         return WheelDrive(config.backend, params)
     return TwistDrive(config.backend, settings, params)
 
