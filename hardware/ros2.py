@@ -242,7 +242,8 @@ class Ros2PosesConfig:
 
 
 class Ros2Node(Started):
-    """A ROS 2 node on a Zenoh session of its own, opened by start() and closed, node first, by close()."""
+    """A ROS 2 node on a Zenoh session of its own, opened by start(), with a thread of its own if it
+    starts one (it ends when ``_halt`` is set), all closed by close() (safe to call twice)."""
 
     NODE_NAME = ""
 
@@ -250,6 +251,8 @@ class Ros2Node(Started):
         self.session_config = session_config
         self._session: Any = None
         self.node: RosNode | None = None  # the ROS 2 node this appears as, once started
+        self._halt = threading.Event()
+        self._thread: threading.Thread | None = None
 
     def _open(self, domain: int) -> RosNode:
         self._session = open_session(self.session_config)
@@ -259,10 +262,17 @@ class Ros2Node(Started):
     def close(self) -> None:
         if self._session is None:
             return
+        self._halt.set()
+        if self._thread is not None:
+            self._thread.join()
+        self._closing()
         assert self.node is not None
         self.node.close()
         self._session.close()
         self._session = None
+
+    def _closing(self) -> None:
+        """The last words once the thread has ended, before the node leaves the graph."""
 
 
 class Ros2Backend(Ros2Node):
@@ -282,10 +292,8 @@ class Ros2Backend(Ros2Node):
         self._stopped = np.ones(n, bool)  # a zero Twist went out since the last command
         self._counts = {"commands": 0, "colors": 0, "zero_twists": 0, "watchdog_stops": 0}
         self._lock = threading.Lock()
-        self._halt = threading.Event()
         self._cmd: list[RosPublisher] = []  # per robot, once started
         self._led: list[RosPublisher] = []
-        self._watchdog: threading.Thread | None = None
 
     def start(self) -> None:
         node = self._open(self.config.domain)
@@ -297,8 +305,8 @@ class Ros2Backend(Ros2Node):
             node.publisher(self.config.topic(i, self.config.led_topic), COLOR_RGBA, color_hash) for i in robots
         ]
         self._zero = self.messages.twist(0.0, 0.0)
-        self._watchdog = threading.Thread(target=self._watch, name="ros2-watchdog", daemon=True)
-        self._watchdog.start()
+        self._thread = threading.Thread(target=self._watch, name="ros2-watchdog", daemon=True)
+        self._thread.start()
 
     def set_commands(self, robot_ids: Any, v_linear: Any, omega: Any, colors_rgb255: Any | None = None) -> None:
         """Forward speed (m/s) and turn rate (rad/s) per robot, and optionally its LED colour (0-255 RGB)."""
@@ -355,15 +363,9 @@ class Ros2Backend(Ros2Node):
             out["moving"] = int((~self._stopped).sum())
         return out
 
-    def close(self) -> None:
-        """Stop every robot, then leave the ROS graph and close the session (safe to call twice)."""
-        if self._session is None:
-            return
-        self._halt.set()
-        if self._watchdog is not None:
-            self._watchdog.join()
+    def _closing(self) -> None:
+        """Stop every robot before leaving the ROS graph."""
         self.stop_all()
-        super().close()
 
 
 class Ros2PoseSource(Ros2Node):

@@ -59,8 +59,6 @@ class MocapEmulator(Ros2Node):
         self.published = 0
         self.error: Exception | None = None  # what stopped the publishing thread, if anything did
         self._publishers: list[RosPublisher] = []
-        self._halt = threading.Event()
-        self._thread: threading.Thread | None = None
 
     def start(self) -> None:
         """Open the session and publish; after close(), start() again publishes anew (a mocap restarted)."""
@@ -93,14 +91,6 @@ class MocapEmulator(Ros2Node):
                 deadline = max(deadline + period, time.monotonic() - period)
         except Exception as err:  # a bad pose function: keep the reason for the owner
             self.error = err
-
-    def close(self) -> None:
-        if self._session is None:
-            return
-        self._halt.set()
-        if self._thread is not None:
-            self._thread.join()
-        super().close()
 
 
 def circle(robots: int, radius: float, speed: float) -> PoseFunction:
