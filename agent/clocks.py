@@ -16,13 +16,15 @@ from typing import Any
 import numpy as np
 
 from transport.bus import Inbox
-from transport.codec import Goals, Pose, Tick
+from transport.codec import BEFORE_START, Goals, Pose, State, Tick
 from transport.plausible import Clock
 
 from .core.params import RobotParams
 from .lateness import Lateness, strayed
 
 GOAL_SET_WAIT = 10.0  # s a lock-step tick waits for its clock message and the goal sets it names
+HELLO_EVERY = 0.1  # s between a lock-step host's hellos before the first tick
+HELLO_TIMEOUT = 30.0  # s a host waits for its neighbours' hellos before it says it is alive anyway
 
 
 class WallClock:
@@ -39,6 +41,16 @@ class WallClock:
         self.inbox: Inbox[Tick] | None = None  # the world's clock messages (lock-step)
         self.silent: set[int] = set()
         self.state_waits = 0
+        self.hello_every = math.inf  # s between hellos (lock-step's start-up)
+
+    def greet(self, where: dict[int, Pose], timeout: float) -> None:
+        """Before the robots say they are alive, at ``where`` (lock-step only)."""
+
+    def say_hello(self) -> None:
+        pass
+
+    def hear_hello(self, hello: State) -> None:
+        pass
 
     def newest_tick(self) -> int | None:
         """The newest tick the world is known to have reached (None: not known)."""
@@ -86,9 +98,47 @@ class LockStep(WallClock):
         self.clock = Clock()  # the world's clock as heard
         self.named: dict[int, int] = {}  # tick -> the newest goal set the world named in it
         self.unnamed: dict[int, Goals] = {}  # goal sets heard that no tick has named yet
+        self.greeted: dict[int, State] = {}  # hellos heard before the first tick, by robot
+        self.hellos: list[State] = []  # our own, sent until the first tick
+        self.last_hello, self.hello_every = -math.inf, HELLO_EVERY
         # injected state delays count in ticks (reproducible); see Inbox.sim_time
         host.state_inbox.sim_time = -math.inf
         host.state_inbox.seen = {}  # states waited for arrive, even those the fault plan drops or holds
+
+    def greet(self, where: dict[int, Pose], timeout: float) -> None:
+        """Zenoh tells a publisher about a new subscriber asynchronously, so a neighbour's state of
+        tick 0 could go unsent to us, and our tick 1 then depended on timing. So each host sends a
+        hello per robot on its cells until its first tick, and says it is alive (the world starts
+        once everybody is) only when it has heard the hello of every robot near its own at the
+        start (``config.greet``, from the launcher): a hello heard proves the sender's session knows
+        our subscription, so its tick-0 state reaches us too. An agent started again while the
+        others step (the world's clock past 0) greets nobody: its neighbours' states of every tick
+        reach it anyway, and the poses of a tick already published wait for its first step."""
+        host = self.host
+        radius = host.params.radius
+        self.hellos = [
+            State(r, BEFORE_START, 0.0, q.x, q.y, 0.0, 0.0, radius, 0.0, 0.0, -1, 0, 0, 0)
+            for r, q in sorted(where.items())
+        ]
+        if max(q.stamp for q in where.values()) > 0.0:  # under way: its auction waits for the next goal set
+            host.bid_from = host.newest_heard + 1
+            return
+        expected = set(host.config.greet) - set(host.memory)
+        end = time.monotonic() + min(HELLO_TIMEOUT, timeout)
+        while host.running and not expected <= set(self.greeted) and time.monotonic() < end:
+            self.say_hello()
+            got = host.state_inbox.get(timeout=HELLO_EVERY / 2)
+            if got is not None:
+                host.on_state(got[1])
+
+    def say_hello(self) -> None:
+        if self.hellos and time.monotonic() - self.last_hello >= HELLO_EVERY:
+            self.host.publish_states(BEFORE_START, 0.0, self.hellos)
+            self.last_hello = time.monotonic()
+
+    def hear_hello(self, hello: State) -> None:
+        if self.host.ticks_done < 2:
+            self.greeted[hello.robot] = hello
 
     def newest_tick(self) -> int | None:
         self.hear()
@@ -135,7 +185,7 @@ class LockStep(WallClock):
             ]
             if tick > 0 and host.ticks_done < 2:  # the first tick after tick 0: robots that greeted us
                 behind += [
-                    h for r, h in host.greeted.items() if r not in host.table and r not in seen and r not in host.memory
+                    h for r, h in self.greeted.items() if r not in host.table and r not in seen and r not in host.memory
                 ]
             missing = [
                 s.robot

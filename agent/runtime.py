@@ -138,8 +138,6 @@ def interpreter(robots: int) -> list[str]:
 AUCTION_SHARE = 0.2  # of a control period, counted from a tick's first pose, spent on auction rounds after the
 # tick's step while an instance is open (counted from the pose so that rounds never push a host behind)
 AUCTION_SHARE_COLD = 0.8  # ... until the newest goal set's first agreement: robots wait for it
-HELLO_EVERY = 0.1  # s between a lock-step host's hellos before the first tick
-HELLO_TIMEOUT = 30.0  # s a host waits for its neighbours' hellos before it says it is alive anyway
 
 
 class CellSubscriptions:
@@ -193,9 +191,6 @@ class AgentHost:
         # What a pose may claim: its tick against the clock (lock-step) or the wall clock (real time),
         # and its place against where the robot could have driven (agent.pose_trust).
         self.trust = PoseTrust(config.params.v_max, config.params.dt, 2 * config.params.noise_bound)
-        self.greeted: dict[int, State] = {}  # lock-step: hellos heard before the first tick, by robot
-        self.hello_from: list[State] = []  # our own hellos, sent until the first tick
-        self.last_hello = -np.inf
         self.ticks_done = 0
         self.fallbacks = 0
         p = self.params
@@ -254,17 +249,7 @@ class AgentHost:
     def start(self, timeout: float = 60.0) -> bool:
         """Fetch the current goal set (late joiners too), learn where the robots are and subscribe to
         the cells around them, then announce every robot alive.
-
-        Lock-step first greets: zenoh tells a publisher about a new subscriber asynchronously, so a
-        neighbour's state of tick 0 could go unsent to us, and our tick 1 then depended on timing
-        (test_runtime's reproducibility check failed 2 runs in 5 under load, each at tick 1, with a
-        0.5 s pause before tick 0 that was meant to cover it). So each host sends a hello per robot
-        on its cells until its first tick, and says it is alive (the world starts once everybody
-        is) only when it has heard the hello of every robot near its own at the start
-        (``config.greet``, from the launcher): a hello heard proves the sender's session knows our
-        subscription, so its tick-0 state reaches us too. An agent started again while the others
-        step (the world's clock past 0) greets nobody: its neighbours' states of every tick reach it
-        anyway, and the poses of a tick already published wait for its first step."""
+        Lock-step first greets its neighbours (agent.clocks.LockStep.greet)."""
         for _, goals in self.bus.query(self.keys.all_of("goals"), Goals, timeout=2.0):
             self.hear_goals(goals)
         where: dict[int, Pose] = {}
@@ -279,38 +264,14 @@ class AgentHost:
         if len(where) < len(self.memory):
             return False
         self.cells.update(np.array([(q.x, q.y) for q in where.values()]))
-        under_way = max(q.stamp for q in where.values()) > 0.0
-        if self.config.lockstep:
-            self.hello_from = [
-                State(r, BEFORE_START, 0.0, q.x, q.y, 0.0, 0.0, self.params.radius, 0.0, 0.0, -1, 0, 0, 0)
-                for r, q in sorted(where.items())
-            ]
-            if not under_way:
-                self._await_hellos(min(HELLO_TIMEOUT, timeout))
-            else:
-                self.bid_from = self.newest_heard + 1
+        self.clock.greet(where, timeout)
         for q in ticking:
             self._take_pose(q)
         for r in self.config.robots:
             self.bus.declare_alive("agent", r)
         return True
 
-    def _await_hellos(self, timeout: float) -> None:
-        expected = set(self.config.greet) - set(self.memory)
-        end = time.monotonic() + timeout
-        while self.running and not expected <= set(self.greeted) and time.monotonic() < end:
-            self._say_hello()
-            got = self.state_inbox.get(timeout=HELLO_EVERY / 2)
-            if got is not None:
-                self.on_state(got[1])
-
-    def _say_hello(self) -> None:
-        if not self.hello_from or time.monotonic() - self.last_hello < HELLO_EVERY:
-            return
-        self._publish_states(BEFORE_START, 0.0, self.hello_from)
-        self.last_hello = time.monotonic()
-
-    def _publish_states(self, tick: int, stamp: float, states: list[State]) -> None:
+    def publish_states(self, tick: int, stamp: float, states: list[State]) -> None:
         """A host's frame of its robots' states, heard by every host; a robot alone its frame of one
         under its spatial cell (HostConfig.frames)."""
         if self.config.frames:
@@ -446,8 +407,7 @@ class AgentHost:
 
     def on_state(self, msg: State) -> None:
         if msg.tick == BEFORE_START:  # a hello (lock-step start-up), not a state to steer by
-            if self.ticks_done < 2:
-                self.greeted[msg.robot] = msg
+            self.clock.hear_hello(msg)
             return
         why = self.table.update(msg)
         if why is not None:
@@ -487,12 +447,12 @@ class AgentHost:
                 self.auction.poll(self._positions())
             if got is None:
                 if not self.ticks_done:
-                    self._say_hello()  # until the first tick: a neighbour may still wait for it
+                    self.clock.say_hello()  # until the first tick: a neighbour may still wait for it
                 if self.parent_pid is not None and os.getppid() != self.parent_pid:
                     self.running = False  # orphaned: the launcher died without stopping us
                 wait = min(0.2, self.auction.next_due()) if self.auction.active else 0.2
-                if not self.ticks_done and self.hello_from:
-                    wait = min(wait, HELLO_EVERY)
+                if not self.ticks_done:
+                    wait = min(wait, self.clock.hello_every)
                 if self.pose_inbox.has_delayed:
                     wait = min(wait, 0.005)
                 bell.wait(wait)
@@ -619,7 +579,7 @@ class AgentHost:
         for robot, (cx, cy), color in zip(sensed.ids.tolist(), command.tolist(), held.color[rows].tolist()):
             commands.append(Command(robot, tick, stamp, mode, cx, cy, *color))
         # States before commands: by the time the world moves on, neighbours have our states.
-        self._publish_states(tick, stamp, states)
+        self.publish_states(tick, stamp, states)
         self._publish_commands(tick, stamp, commands)
         # The cells around EVERY own robot, not only those of this tick's batch: under load a tick's
         # poses can arrive split, and cells dropped for the robots not in the batch took their

@@ -66,7 +66,7 @@ def test_a_host_is_alive_only_after_its_neighbours_hello_and_greets_until_its_fi
             thread_a.join(timeout=5.0)
             thread_b.join(timeout=5.0)
             assert came == {"0", "1"}, f"alive: {sorted(came)}"
-            assert 1 in a.greeted and 0 in b.greeted
+            assert 1 in a.clock.greeted and 0 in b.clock.greeted
     finally:
         stop.set()
         session.close()
