@@ -26,6 +26,7 @@ import math
 import sys
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -52,6 +53,19 @@ ROUND_CAP = 30.0  # s: lock-step, the longest a host waits for one round; then i
 OnAgreed = Callable[[int, int, dict[int, int], np.ndarray, np.ndarray], None]
 OnAbandoned = Callable[[list[int]], None]
 Where = Callable[[], dict[int, np.ndarray]]
+
+
+@dataclass
+class AuctionCounts:
+    """What a host's auction did, for its statistics (AuctionLink.stats)."""
+
+    sent: int = 0  # messages
+    received: int = 0
+    agreements: int = 0
+    penalties: int = 0  # deadlock penalties charged (paper 5.5.5)
+    rounds: int = 0  # lock-step rounds taken part in
+    abandoned: int = 0  # lock-step blocks given up (a round never completed)
+    first_agreement_s: list[float] = field(default_factory=list)  # per goal set: wall time from its arrival
 
 
 class AuctionLink:
@@ -93,8 +107,7 @@ class AuctionLink:
         self.said_block: tuple[int, int] | None = None  # (epoch, block) of the newest round in ``said``
         self.waiting_for: tuple[int, int, int] | None = None  # the round we wait in
         self.newest_round: dict[tuple[int, int, int], int] = {}  # (epoch, block, sender) -> its latest round heard
-        self.rounds = 0  # lock-step rounds taken part in
-        self.abandoned = 0  # lock-step blocks given up (a round never completed)
+        self.counts = AuctionCounts()
         self.stopped = False  # the host is shutting down: stop waiting for rounds
         ranged = math.isfinite(reach)
         self.inbox: Inbox[Any] = (
@@ -116,10 +129,8 @@ class AuctionLink:
         self.board_changed = 0.0  # monotonic time of the last change of the board
         self.mismatch = False  # a message of this instance came from a host with another board
         self.epoch_wall = 0.0
-        self.sent = self.received = self.agreements = self.penalties = 0
         self.heard = 0  # messages of the current goal set from other hosts (lock-step counts rounds by them)
         self.others: set[int] = set()  # ... and the hosts they came from
-        self.first_agreement_s: list[float] = []  # per goal set: wall time from its arrival to agreement
 
     @property
     def active(self) -> bool:
@@ -261,10 +272,10 @@ class AuctionLink:
     def penalise(self, robot: int, epoch: int, goal: int) -> None:
         if self.local is not None and epoch == self.local.epoch:
             self.local.penalise(robot, goal, self.params.deadlock_cost)
-            self.penalties += 1
+            self.counts.penalties += 1
         elif self.part is not None and epoch == self.part.epoch:
             self.part.penalise(robot, goal, self.params.deadlock_cost)
-            self.penalties += 1
+            self.counts.penalties += 1
 
     def next_due(self) -> float:
         """Seconds until something is due without a message arriving (a resend, a throttled digest,
@@ -294,7 +305,7 @@ class AuctionLink:
             return  # nothing new, nothing due
         theirs: set[int] = set()  # digests of this instance's messages, compared once below
         for _, msg in arrived:
-            self.received += 1
+            self.counts.received += 1
             if part is None or msg.epoch != part.epoch or not self._try_start(positions):
                 continue
             if msg.sender != self.sender:
@@ -348,7 +359,7 @@ class AuctionLink:
             if heard is None:
                 self._abandon()
                 return
-            self.rounds += 1
+            self.counts.rounds += 1
             if block.hear({sender: msg.records for sender, msg in heard.items()}):
                 self.block = None
                 self._report()
@@ -382,10 +393,10 @@ class AuctionLink:
             for w in theirs:
                 waiting -= set(w.robot[w.ended].tolist())
             local.hear(Words.join([words, *theirs]))
-            self.rounds += 1
-        self.agreements += 1
+            self.counts.rounds += 1
+        self.counts.agreements += 1
         if self.reported < 0:
-            self.first_agreement_s.append(time.monotonic() - self.epoch_wall)
+            self.counts.first_agreement_s.append(time.monotonic() - self.epoch_wall)
         self.reported = local.agreed_instance
         self.on_agreed(local.epoch, local.agreed_instance, dict(local.agreed), gs.positions, gs.colors)
 
@@ -446,7 +457,7 @@ class AuctionLink:
         """Keep other hosts' lock-step messages by (epoch, block's final instance, round), those of a
         goal set not heard of yet too (its message may come after a faster host's first round)."""
         for _, msg in arrived:
-            self.received += 1
+            self.counts.received += 1
             if msg.sender == self.sender or (self.active and msg.epoch < self.epoch):
                 continue
             key = (msg.epoch, msg.instance, msg.serial)
@@ -468,12 +479,12 @@ class AuctionLink:
         self.bus.publish((keys.boards if isinstance(msg, Boards) else keys.auction)(msg.epoch, self.sender), msg)
         self.said[key] = (msg, time.monotonic())
         self.last_sent = time.monotonic()
-        self.sent += 1
+        self.counts.sent += 1
 
     def _abandon(self) -> None:
         """A round never completed: our robots cannot know whether others adopted the block, so they
         hold their positions (drive to no goal) rather than drive to a goal another may hold."""
-        self.abandoned += 1
+        self.counts.abandoned += 1
         self.block = None
         own = self.local.own if self.local is not None else self.part.own if self.part is not None else []
         if self.on_abandoned is not None and own:
@@ -503,9 +514,9 @@ class AuctionLink:
         if part.agreed_instance <= self.reported:
             return False
         if self.reported < 0:  # the first agreement on this goal set
-            self.first_agreement_s.append(time.monotonic() - self.epoch_wall)
+            self.counts.first_agreement_s.append(time.monotonic() - self.epoch_wall)
         self.reported = part.agreed_instance
-        self.agreements += 1
+        self.counts.agreements += 1
         frozen = self.frozen_at.get(part.agreed_instance // part.phases)
         if frozen is not None:
             self.latency = min(MAX_LEAD, max(0.0, self.now - frozen))
@@ -522,7 +533,7 @@ class AuctionLink:
             Bid(part.epoch, part.instance, self.sender, self.serial, digest, len(items), items),
         )
         self.last_sent = time.monotonic()
-        self.sent += 1
+        self.counts.sent += 1
 
     def stats(self) -> dict:
         part = self.part
@@ -531,14 +542,14 @@ class AuctionLink:
             "instance": part.instance if part else -1,
             "agreed_instance": part.agreed_instance if part else -1,
             "bids": part.bids if part else 0,
-            "messages_sent": self.sent,
-            "messages_received": self.received,
-            "agreements": self.agreements,
-            "deadlock_penalties": self.penalties,
+            "messages_sent": self.counts.sent,
+            "messages_received": self.counts.received,
+            "agreements": self.counts.agreements,
+            "deadlock_penalties": self.counts.penalties,
             "latency_s": round(self.latency, 3),
-            "lockstep_rounds": self.rounds,
-            "abandoned_blocks": self.abandoned,
-            "first_agreement_s": [round(x, 4) for x in self.first_agreement_s],
+            "lockstep_rounds": self.counts.rounds,
+            "abandoned_blocks": self.counts.abandoned,
+            "first_agreement_s": [round(x, 4) for x in self.counts.first_agreement_s],
         }
 
 

@@ -87,13 +87,13 @@ def main(argv: list[str] | None = None) -> int:
                     "first_agreement_s": first,
                     "goals": {str(r): g for r, g in (link.part.agreed.items() if link.part else [])},
                     "bids": link.part.bids if link.part else 0,
-                    "agreements": link.agreements,
+                    "agreements": link.counts.agreements,
                     "cold_messages": sent0,
                     "cold_bytes": bytes0,
                     "steady_messages": bus.sent["auction"] - sent0,
                     "steady_bytes": bus.sent_bytes["auction"] - bytes0,
                     "steady_s": args.steady,
-                    "received": link.received,
+                    "received": link.counts.received,
                 }
             ),
         )

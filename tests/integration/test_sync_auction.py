@@ -100,9 +100,9 @@ def test_two_hosts_settle_a_block_over_the_bus_at_the_same_round():
                 for bus, own in ((bus_a, [0, 1]), (bus_b, [2, 3]))
             ]
             settle_first_block(links, message, start)
-            assert [link.rounds for link in links][0] == links[1].rounds >= 1
+            assert [link.counts.rounds for link in links][0] == links[1].counts.rounds >= 1
             for link in links:
-                assert link.part is not None and link.part.is_agreed and link.abandoned == 0
+                assert link.part is not None and link.part.is_agreed and link.counts.abandoned == 0
                 np.testing.assert_array_equal(link.part.board.price, central.board.price)
     finally:
         session.close()
@@ -148,7 +148,7 @@ def test_a_block_with_one_round_a_tick_spans_ticks_and_is_agreed_at_one_tick_by_
                     t.join(timeout=30.0)
                 assert not any(t.is_alive() for t in threads)
             for link in links:
-                assert link.abandoned == 0
+                assert link.counts.abandoned == 0
                 assert link.part is not None and link.part.agreed_instance == central.agreed_instance
                 np.testing.assert_array_equal(link.part.board.price, central.board.price)
     finally:
@@ -221,8 +221,8 @@ def test_after_a_blocks_first_round_hosts_send_only_the_claims_that_changed():
                 ]
                 settle_first_block(links, message, start)
                 time.sleep(0.2)  # the listener hears the last round
-                rounds = links[0].rounds
-                assert rounds > 1 and all(link.rounds == rounds and link.part.is_agreed for link in links)
+                rounds = links[0].counts.rounds
+                assert rounds > 1 and all(link.counts.rounds == rounds and link.part.is_agreed for link in links)
                 for link in links:
                     np.testing.assert_array_equal(link.part.board.price, central.board.price)
                     np.testing.assert_array_equal(link.part.board.owner, central.board.owner)
