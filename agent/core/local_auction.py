@@ -77,20 +77,9 @@ class LocalAuction(Auction):
         self.owner = np.full((k, g), NO_OWNER, np.int64)
         self.released = np.zeros((k, g), bool)
         self.goal = np.full(k, -1, np.int64)  # what each own robot claims on its board
-        self.cost = np.zeros((k, g))
         self.penalty = np.zeros((k, g))  # C_d in force this block
         self.pending = np.zeros((k, g))  # declared during this block: in force from the next
-        self.xy = np.zeros((k, 2))
-        self.taken_cost = np.zeros(k)
-        self.phase = np.zeros(k, np.int64)
-        self.last = np.zeros(k, np.int64)
-        self.known = np.zeros((k, n), bool)
-        self.grew = np.zeros(k, np.int64)  # the last round the known set grew
-        self.board_changed = np.zeros(k, np.int64)  # the last round the board changed
-        self.ended = np.zeros(k, bool)
-        self.said_end = np.zeros(k, bool)
-        self.round = 0
-        self.block = -1
+        self.block = -1  # the rest of a robot's state is its block's (begin_block)
         self.agreed: dict[int, int] = {}
 
     # --- the interface the lock-step drivers share with agent.core.bidder.Participant ---------------
@@ -128,14 +117,15 @@ class LocalAuction(Auction):
         self.xy = xy.astype(np.float32).astype(float)
         # A cold start scales epsilon down; a warm block starts at the final phase: each phase's end
         # costs its eccentricity in rounds, and from one tick to the next few robots bid at all.
-        self.phase[:] = 0 if self.block == 0 else self.phases - 1
-        self.last[:] = 0
-        self.known[:] = False
-        self.known[np.arange(len(self.own)), self.own_rows] = True
-        self.grew[:] = 0
-        self.board_changed[:] = 1  # a new block: everyone's board is news (the graph changed)
-        self.ended[:] = False
-        self.said_end[:] = False
+        k = len(self.own)
+        self.phase = np.full(k, 0 if self.block == 0 else self.phases - 1, np.int64)
+        self.last = np.zeros(k, np.int64)  # the latest round of change it knows of
+        self.known = np.zeros((k, len(self.robots)), bool)  # the robots it has heard of
+        self.known[np.arange(k), self.own_rows] = True
+        self.grew = np.zeros(k, np.int64)  # the last round the known set grew
+        self.board_changed = np.ones(k, np.int64)  # the last round the board changed: a new block's is news
+        self.ended = np.zeros(k, bool)
+        self.said_end = np.zeros(k, bool)
         self.round = 0
 
     # --- a round -------------------------------------------------------------------------------------
