@@ -233,12 +233,52 @@ def goals_from_prepared(
     notes = list(prep.seg.notes) + notes
     given = _check_init(init, counts)
     shown, (prep, k) = prep, _enlarged(prep, counts)
-    seg, scale = prep.seg, prep.scale
     if k > 1:
         notes.append(f"image scaled up {k} x: under {MIN_PIXELS_PER_GOAL} pixels a goal, goals snap to pixels")
         given = {rid: pts * k for rid, pts in given.items()}
     if given:
         notes.append(f"initial samples of region(s) {', '.join(map(str, sorted(given)))} given by the caller")
+    goals_px, goal_regions, history, ks_used = _lloyd_regions(prep, counts, given, options, notes)
+    seg, scale = prep.seg, prep.scale
+    cells = voronoi_cells(seg, goals_px, goal_regions)
+    colors = cell_colors(prep.rgb, cells, len(goals_px), goals_px, seg.labels)
+    d_min = normalised_spacing(goals_px, scale)
+    if options.arena is None:
+        arena = auto_arena(d_min, options.robot_radius)
+    else:
+        arena = float(options.arena)
+        check_feasible(d_min, int(n), arena, options.robot_radius, options.conservative)
+    params: dict[str, Any] = {
+        "n": int(n),
+        "arena": float(arena),
+        "arena_auto": options.arena is None,
+        **_options_record(options),
+        **_image_record(prep, shown),
+        "regions": [
+            {
+                "id": r.id,
+                "color": list(r.color),
+                "area_px": r.area,
+                "robots": int(c),
+                "k_s": round(ks_used.get(r.id, 0.0) * float(arena), 6),
+            }
+            for r, c in zip(seg.regions, counts)
+        ],
+        "iterations": max(len(history) - 1, 0),
+        "cost": "eq. 1 / K_m in the normalised square Q (longer image side = 1)",
+        "min_spacing": float(d_min * arena) if np.isfinite(d_min) else None,
+        "notes": notes,
+    }
+    return GoalSet(to_arena(goals_px, prep.shape, float(arena)), colors, goal_regions, history, params)
+
+
+def _lloyd_regions(
+    prep: PreparedImage, counts: np.ndarray, given: dict[int, np.ndarray], options: GoalOptions, notes: list[str]
+) -> tuple[np.ndarray, np.ndarray, list[float], dict[int, float]]:
+    """Each region R_i's N_i goals (pixels), from its initial samples through Lloyd's iterations
+    (4.2-4.3): the goals, their region ids, the summed cost per iteration and the K_s (normalised)
+    each region's samples kept; what the user should know is added to notes."""
+    seg, scale = prep.seg, prep.scale
     goals, regions, histories, ks_used = [], [], [], {}
     lattice: list[int] = []  # regions whose initial samples are a lattice
     snapped = snapped_init = 0
@@ -276,39 +316,7 @@ def goals_from_prepared(
         notes.append(f"{snapped_init} given initial sample(s) lay outside their region and were moved into it")
     if snapped:
         notes.append(f"{snapped} goal(s) ended in a concavity or hole and were moved into their region")
-    goals_px = np.concatenate(goals)
-    goal_regions = np.concatenate(regions)
-    cells = voronoi_cells(seg, goals_px, goal_regions)
-    colors = cell_colors(prep.rgb, cells, len(goals_px), goals_px, seg.labels)
-    d_min = normalised_spacing(goals_px, scale)
-    if options.arena is None:
-        arena = auto_arena(d_min, options.robot_radius)
-    else:
-        arena = float(options.arena)
-        check_feasible(d_min, int(n), arena, options.robot_radius, options.conservative)
-    history = _sum_histories(histories)
-    params: dict[str, Any] = {
-        "n": int(n),
-        "arena": float(arena),
-        "arena_auto": options.arena is None,
-        **_options_record(options),
-        **_image_record(prep, shown),
-        "regions": [
-            {
-                "id": r.id,
-                "color": list(r.color),
-                "area_px": r.area,
-                "robots": int(c),
-                "k_s": round(ks_used.get(r.id, 0.0) * float(arena), 6),
-            }
-            for r, c in zip(seg.regions, counts)
-        ],
-        "iterations": max(len(history) - 1, 0),
-        "cost": "eq. 1 / K_m in the normalised square Q (longer image side = 1)",
-        "min_spacing": float(d_min * arena) if np.isfinite(d_min) else None,
-        "notes": notes,
-    }
-    return GoalSet(to_arena(goals_px, prep.shape, float(arena)), colors, goal_regions, history, params)
+    return np.concatenate(goals), np.concatenate(regions), _sum_histories(histories), ks_used
 
 
 def _initial_samples(
