@@ -89,6 +89,10 @@ class GoalPlan:
 
 @dataclass
 class Scene:
+    """A parsed scene: a record, not a mix of concerns. One field per scene-file key (name, robots,
+    robot, layout, goals, arena, obstacles, events, clock, engine, ... converge_hold), plus what
+    parsing derives from them (poses, goal positions, steps and the goal sets made from them)."""
+
     name: str
     robots: int
     robot: dict[str, Any]
@@ -263,13 +267,7 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
     steps = list(animation.steps) if animation is not None else _steps(data, source, where)
     if animation is not None and ("steps" in data or "goals" in data):
         raise SceneError(f"{where}: give one of [animation], [[steps]] or [goals], not several")
-    if duration is None:
-        duration = data.get("duration", sum(s.hold for s in steps) if steps else Scene.duration)
-    if not _positive(duration):
-        raise SceneError(f"{where}: duration must be a positive number of seconds")
-    seed = seed if seed is not None else data.get("seed", Scene.seed)
-    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
-        raise SceneError(f"{where}: seed must be a whole number >= 0, not {seed!r}")
+    duration, seed = _duration_and_seed(data, steps, duration, seed, where)
     scene = Scene(
         name=str(data.get("name", Path(source).stem)),
         robots=n,
@@ -284,8 +282,8 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
         assignment=data.get("assignment", Scene.assignment),
         agents_per_process=data.get("agents_per_process", Scene.agents_per_process),
         deadline=data.get("deadline", Scene.deadline),
-        duration=float(duration),
-        seed=int(seed),
+        duration=duration,
+        seed=seed,
         noise=_noise(data.get("noise", {}), where),
         converge_hold=float(data.get("end", {}).get("converge_hold", Scene.converge_hold)),
         source=source,
@@ -302,6 +300,28 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
         scene.goal_positions = scene_goals(scene.goals, scene.poses, where)
         scene.arena = _arena(data.get("arena", "auto"), scene, where)  # image scenes: make_goal_sets
         _check_fit(scene, where)
+    _add_uncontrolled(scene, data, where)
+    return scene
+
+
+def _duration_and_seed(
+    data: dict[str, Any], steps: list[ImageStep], duration: float | None, seed: int | None, where: str
+) -> tuple[float, int]:
+    """The run's duration (by default the steps' hold times, summed) and seed: the overrides', else
+    the scene's, checked."""
+    if duration is None:
+        duration = data.get("duration", sum(s.hold for s in steps) if steps else Scene.duration)
+    if not _positive(duration):
+        raise SceneError(f"{where}: duration must be a positive number of seconds")
+    seed = seed if seed is not None else data.get("seed", Scene.seed)
+    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
+        raise SceneError(f"{where}: seed must be a whole number >= 0, not {seed!r}")
+    return float(duration), int(seed)
+
+
+def _add_uncontrolled(scene: Scene, data: dict[str, Any], where: str) -> None:
+    """The scene's events, checked, and its scripted movers and pursuers (paper Fig. 19's uncontrolled
+    objects), which take no goal."""
     for event in scene.events:
         _check_event(event, scene, where)
     scene.scripted = {_robot_index(e, scene, where): _waypoints(e, where) for e in data.get("scripted", [])}
@@ -310,7 +330,6 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
     }
     for r in scene.scripted:
         scene.goal_positions[r] = np.nan  # a scripted robot follows its path, not a goal
-    return scene
 
 
 def _check_settings(scene: Scene, where: str) -> None:
@@ -416,50 +435,63 @@ def initial_poses(layout: dict[str, Any], n: int, radius: float, seed: int, wher
         th = np.r_[np.full(bottom, math.pi / 2), np.full(n - bottom, -math.pi / 2)]
         return np.stack([np.r_[xs_b, xs_t], y, th], axis=1)
     if kind == "blocks":
-        # RVO2's Blocks: four square groups in the corners, centre `offset` from the origin.
-        per = math.ceil(n / 4)
-        side = math.ceil(math.sqrt(per))
-        offset = float(layout.get("offset", 1.7))
-        corners: list[tuple[float, float, float]] = []
-        for _q, (sx, sy) in enumerate([(1, 1), (-1, 1), (1, -1), (-1, -1)]):
-            for k in range(per):
-                if len(corners) == n:
-                    break
-                gx = (k % side - (side - 1) / 2) * spacing
-                gy = (k // side - (side - 1) / 2) * spacing
-                corners.append((sx * offset + gx, sy * offset + gy, math.atan2(-sy, -sx)))
-        return np.array(corners, float)
+        return _blocks(n, spacing, float(layout.get("offset", 1.7)))
     if kind == "random":
-        width, height = layout.get("size", [max(1.0, spacing * math.sqrt(n) * 1.5)] * 2)
-        rng = np.random.default_rng(seed)
-        pts: list[tuple[float, float]] = []
-        tries = 0
-        while len(pts) < n:
-            tries += 1
-            if tries > 200 * n:
-                raise SceneError(f"{where}: cannot place {n} robots {spacing} m apart in a {width} x {height} m area")
-            p = (rng.uniform(-width / 2, width / 2), rng.uniform(-height / 2, height / 2))
-            if all((p[0] - q[0]) ** 2 + (p[1] - q[1]) ** 2 >= spacing**2 for q in pts):
-                pts.append(p)
-        th = rng.uniform(-math.pi, math.pi, n)
-        return np.column_stack([np.array(pts), th])
-    if kind == "list":
+        return _scattered(layout, n, spacing, seed, where)
+    if kind in ("list", "file"):
+        return _listed(layout, n, where)
+    raise SceneError(f"{where}: layout kind must be one of {', '.join(LAYOUTS)}, not {kind!r}")
+
+
+def _blocks(n: int, spacing: float, offset: float) -> np.ndarray:
+    """RVO2's Blocks: four square groups in the corners, centre `offset` from the origin."""
+    per = math.ceil(n / 4)
+    side = math.ceil(math.sqrt(per))
+    corners: list[tuple[float, float, float]] = []
+    for sx, sy in [(1, 1), (-1, 1), (1, -1), (-1, -1)]:
+        for k in range(per):
+            if len(corners) == n:
+                break
+            gx = (k % side - (side - 1) / 2) * spacing
+            gy = (k // side - (side - 1) / 2) * spacing
+            corners.append((sx * offset + gx, sy * offset + gy, math.atan2(-sy, -sx)))
+    return np.array(corners, float)
+
+
+def _scattered(layout: dict[str, Any], n: int, spacing: float, seed: int, where: str) -> np.ndarray:
+    """Random positions at least `spacing` apart in the layout's area, random headings."""
+    width, height = layout.get("size", [max(1.0, spacing * math.sqrt(n) * 1.5)] * 2)
+    rng = np.random.default_rng(seed)
+    pts: list[tuple[float, float]] = []
+    tries = 0
+    while len(pts) < n:
+        tries += 1
+        if tries > 200 * n:
+            raise SceneError(f"{where}: cannot place {n} robots {spacing} m apart in a {width} x {height} m area")
+        p = (rng.uniform(-width / 2, width / 2), rng.uniform(-height / 2, height / 2))
+        if all((p[0] - q[0]) ** 2 + (p[1] - q[1]) ** 2 >= spacing**2 for q in pts):
+            pts.append(p)
+    th = rng.uniform(-math.pi, math.pi, n)
+    return np.column_stack([np.array(pts), th])
+
+
+def _listed(layout: dict[str, Any], n: int, where: str) -> np.ndarray:
+    """The first N poses the layout lists (kind 'list') or a CSV file of x,y[,theta] holds ('file')."""
+    if layout.get("kind") == "list":
         arr = np.asarray(layout.get("poses", []), float)
         if arr.ndim != 2 or arr.shape[1] != 3 or len(arr) < n:
             raise SceneError(f"{where}: layout.poses needs {n} [x, y, theta] rows")
         return arr[:n].copy()
-    if kind == "file":
-        path = Path(layout.get("path", ""))
-        try:
-            arr = np.loadtxt(path, delimiter=",", ndmin=2)
-        except (OSError, ValueError) as err:
-            raise SceneError(f"{where}: layout file {path}: {err}") from None
-        if arr.shape[1] == 2:
-            arr = np.column_stack([arr, np.zeros(len(arr))])
-        if arr.shape[1] != 3 or len(arr) < n:
-            raise SceneError(f"{where}: layout file {path} needs {n} rows of x,y[,theta]")
-        return arr[:n].astype(float)
-    raise SceneError(f"{where}: layout kind must be one of {', '.join(LAYOUTS)}, not {kind!r}")
+    path = Path(layout.get("path", ""))
+    try:
+        arr = np.loadtxt(path, delimiter=",", ndmin=2)
+    except (OSError, ValueError) as err:
+        raise SceneError(f"{where}: layout file {path}: {err}") from None
+    if arr.shape[1] == 2:
+        arr = np.column_stack([arr, np.zeros(len(arr))])
+    if arr.shape[1] != 3 or len(arr) < n:
+        raise SceneError(f"{where}: layout file {path} needs {n} rows of x,y[,theta]")
+    return arr[:n].astype(float)
 
 
 def scene_goals(goals: dict[str, Any], poses: np.ndarray, where: str = "scene") -> np.ndarray:
