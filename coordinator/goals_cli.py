@@ -46,21 +46,6 @@ def add_goals_parser(subparsers: Any) -> None:
     p.add_argument("image", help="PNG, JPEG, BMP or TIFF image (transparent pixels are background)")
     p.add_argument("-n", "--robots", dest="n", type=int, required=True, help="number of robots N")
     p.add_argument(
-        "--arena",
-        type=float,
-        default=None,
-        metavar="METRES",
-        help="side K_r of the square arena; default: the conservative 2 K_r for the robot radius "
-        "(paper 4.4), rounded up to a centimetre",
-    )
-    p.add_argument(
-        "--method",
-        choices=METHODS,
-        default="cvt",
-        help="cvt: Lloyd with the mass density of eq. 2; kmeans: binary density (faster)",
-    )
-    p.add_argument("--seed", type=int, default=0, help="seed of the initial samples (default 0)")
-    p.add_argument(
         "-o", "--output", default="goals.json", metavar="goals.json", help="output file (default goals.json)"
     )
     p.add_argument(
@@ -75,36 +60,61 @@ def add_goals_parser(subparsers: Any) -> None:
         metavar="COLOUR",
         help="background colour (#rrggbb, r,g,b or a name); default: alpha, else the border colour",
     )
-    p.add_argument(
+    _add_arena_flags(p.add_argument_group("arena (paper 4.4)"))
+    _add_placement_flags(p.add_argument_group("goal placement (paper 4.1-4.3)"))
+    p.set_defaults(func=run_goals)
+
+
+def _add_arena_flags(g: argparse._ArgumentGroup) -> None:
+    """The arena K_r and the robot size it is checked against."""
+    g.add_argument(
+        "--arena",
+        type=float,
+        default=None,
+        metavar="METRES",
+        help="side K_r of the square arena; default: the conservative 2 K_r for the robot radius "
+        "(paper 4.4), rounded up to a centimetre",
+    )
+    g.add_argument(
         "--robot-radius",
         type=float,
         default=epuck.RADIUS,
         metavar="METRES",
         help=f"robot radius r_A (default {epuck.RADIUS}, the e-puck)",
     )
-    p.add_argument(
+    g.add_argument(
         "--conservative", action="store_true", help="with --arena, require twice the minimum arena (2 K_r, paper 4.4)"
     )
-    p.add_argument(
+
+
+def _add_placement_flags(g: argparse._ArgumentGroup) -> None:
+    """N_i per region, the initial samples' seed and Lloyd's iterations."""
+    g.add_argument(
+        "--method",
+        choices=METHODS,
+        default="cvt",
+        help="cvt: Lloyd with the mass density of eq. 2; kmeans: binary density (faster)",
+    )
+    g.add_argument("--seed", type=int, default=0, help="seed of the initial samples (default 0)")
+    g.add_argument(
         "--region-counts",
         default=None,
         metavar="ID=N,...",
         help="the artist's robots per region, e.g. 0=10,1=4 (region 0 is the largest)",
     )
-    p.add_argument(
+    g.add_argument(
         "--tol",
         type=float,
         default=TOLERANCE,
         help=f"stop when the cost of eq. 1 falls by less than this fraction (default {TOLERANCE:g})",
     )
-    p.add_argument("--max-iter", type=int, default=MAX_ITER, help=f"most Lloyd iterations (default {MAX_ITER})")
-    p.add_argument(
+    g.add_argument("--max-iter", type=int, default=MAX_ITER, help=f"most Lloyd iterations (default {MAX_ITER})")
+    g.add_argument(
         "--relax",
         type=float,
         default=RELAX,
         help=f"over-relaxation of the Lloyd step, 1 to 4 (default {RELAX}; 1 = plain Lloyd)",
     )
-    p.set_defaults(func=run_goals)
 
 
 def _write_all(jobs: list[tuple[Path, Callable[[Path], object]]]) -> None:
