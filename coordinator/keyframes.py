@@ -331,14 +331,26 @@ def keyframe_goals(
             gs = goals_from_prepared(prep, n, replace(options, seed=options.seed + f, region_counts=counts), init)
         except GoalError as err:
             raise GoalError(f"keyframe {f}: {err}") from None
-        done = {m.region for m in motions if m.initialised}
-        used = {int(r) for r in np.unique(gs.regions)}
-        mode = "first" if f == 0 else "fresh" if not done else "previous" if done >= used else "partial"
-        reports.append(FrameReport(f, mode, reason, motions, int(gs.params["iterations"]), time.perf_counter() - t0))
+        reports.append(_frame_report(f, gs, motions, reason, time.perf_counter() - t0))
         sets.append(gs)
-    shared = float(options.arena) if options.arena is not None else max(s.arena for s in sets)
-    sets = [rescale(s, shared) for s in sets]
-    for r in reports:  # translations in metres of the common arena
+    return KeyframeGoals(*_in_one_arena(sets, reports, options.arena), (preps[0].shape[1], preps[0].shape[0]))
+
+
+def _frame_report(f: int, gs: GoalSet, motions: list[RegionMotion], reason: str, seconds: float) -> FrameReport:
+    """Whether frame f's regions started from G_{f-1} moved (all: "previous", some: "partial") or
+    from fresh samples ("fresh", or "first" for the first frame)."""
+    done = {m.region for m in motions if m.initialised}
+    used = {int(r) for r in np.unique(gs.regions)}
+    mode = "first" if f == 0 else "fresh" if not done else "previous" if done >= used else "partial"
+    return FrameReport(f, mode, reason, motions, int(gs.params["iterations"]), seconds)
+
+
+def _in_one_arena(
+    sets: list[GoalSet], reports: list[FrameReport], arena: float | None
+) -> tuple[list[GoalSet], list[FrameReport]]:
+    """Every frame's goal set in one arena K_r (None: the largest any frame needs), and the regions'
+    translations in metres of it."""
+    shared = float(arena) if arena is not None else max(s.arena for s in sets)
+    for r in reports:
         r.regions = [replace(m, translation=(m.translation[0] * shared, m.translation[1] * shared)) for m in r.regions]
-    h, w = preps[0].shape
-    return KeyframeGoals(sets, reports, (w, h))
+    return [rescale(s, shared) for s in sets], reports
