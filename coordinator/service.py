@@ -19,6 +19,7 @@ import signal
 import sys
 import time
 from collections import Counter
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -113,19 +114,45 @@ def follows_keyframe(before: Goals | None, goals: Goals) -> bool:
     )
 
 
+@dataclass
+class Roster:
+    """The agents heard alive, whose robots the next goal set is for, and when that last changed."""
+
+    live: set[int] = field(default_factory=set)
+    changed: float = 0.0  # wall time of the last change in the live robots
+    ever: set[int] = field(default_factory=set)  # robots whose agent was ever alive
+    lives: dict[int, str] = field(default_factory=dict)  # each robot's agent's last incarnation heard
+    restarted: set[int] = field(default_factory=set)  # robots whose agent was started again since the current epoch
+
+    def hear(self, r: int, alive: bool, life: str) -> None:
+        changed = (r in self.live) != alive  # not a copy of the set: thousands of agents say so at start
+        (self.live.add if alive else self.live.discard)(r)
+        # A restarted agent bids only in goal sets published after it joined (agent.runtime): back
+        # within SETTLE_S, the live robots look unchanged, yet it needs a new set.
+        if alive and self.lives.setdefault(r, life) != life:
+            self.lives[r] = life
+            self.restarted.add(r)
+        if changed or r in self.restarted:
+            self.changed = time.monotonic()
+        if alive:
+            self.ever.add(r)
+
+
 class Coordinator:
+    """The goal sets of a run (paper 5): each step's image for the robots whose agent is alive, clear
+    of dead robots' bodies, warm-started from the last set. Its state, beyond the roster of live
+    agents: the current set (epoch, shown), the world's clock as heard (t, clock_heard/_refused),
+    dead robots' bodies (bodies, body_inboxes, body_wait_since) and work done ahead (_matching,
+    ready_for_a_loss)."""
+
     def __init__(self, bus: Bus, scene: Scene) -> None:
         self.bus, self.scene = bus, scene
         self.current = scene_goal_message(scene)
         self.images = bool(scene.steps)
         self.epoch = 0
         self.t: float | None = None  # display time of the last tick
-        self.live: set[int] = set()
-        self.live_changed = 0.0  # wall time of the last change in the live robots
+        self.roster = Roster()
         self.shown: tuple[int, frozenset[int]] | None = None  # (step, robots) of the current epoch
-        self.ever_live: set[int] = set()
-        self.lives: dict[int, str] = {}  # each robot's agent's last incarnation heard
-        self.restarted: set[int] = set()  # robots whose agent was started again since the current epoch
         self.pixels = frozenset(scene.pixel_robots)  # the robots that show the image
         self.bodies: dict[int, np.ndarray] = {}  # dead robots' tracked positions
         self.body_inboxes: dict[int, Any] = {}
@@ -152,8 +179,8 @@ class Coordinator:
         robots = frozenset(int(r) for r in newest.robots)
         self.current, self.epoch = newest, newest.epoch
         self.shown = (newest.timing.step, robots)
-        self.ever_live |= robots
-        self.live_changed = time.monotonic()  # the live robots are heard again: none counts as a change yet
+        self.roster.ever |= robots
+        self.roster.changed = time.monotonic()  # the live robots are heard again: none counts as a change yet
         return newest
 
     def _answer(self) -> list[tuple[str, bytes]]:
@@ -167,17 +194,17 @@ class Coordinator:
         self._hear()
         # Only robot pixels take goals: a pursuer is a live agent but chases its target, and a scripted
         # mover has no agent at all (paper Fig. 19's uncontrolled objects).
-        robots = frozenset(self.live) & self.pixels
+        robots = frozenset(self.roster.live) & self.pixels
         if self.t is None or not robots:
             return False  # the show starts with the world's first tick
         step = self.scene.step_at(self.t)
-        restarted = bool(self.restarted & robots)
+        restarted = bool(self.roster.restarted & robots)
         if self.shown is not None:
             if (step, robots) == self.shown and not restarted:
                 return False
-            if (robots != self.shown[1] or restarted) and time.monotonic() - self.live_changed < SETTLE_S:
+            if (robots != self.shown[1] or restarted) and time.monotonic() - self.roster.changed < SETTLE_S:
                 return False
-        dead = [r for r in self.ever_live - frozenset(self.live)]
+        dead = [r for r in self.roster.ever - frozenset(self.roster.live)]
         if any(r not in self.bodies for r in dead):
             self.body_wait_since = self.t if self.body_wait_since is None else self.body_wait_since
             if self.t - self.body_wait_since < BODY_WAIT_S:
@@ -202,18 +229,8 @@ class Coordinator:
                 self.bodies[r] = np.array([pose.x, pose.y])
 
     def _hear_agent(self, r: int, alive: bool, life: str) -> None:
-        changed = (r in self.live) != alive  # not a copy of the set: thousands of agents say so at start
-        (self.live.add if alive else self.live.discard)(r)
-        # A restarted agent bids only in goal sets published after it joined (agent.runtime): back
-        # within SETTLE_S, the live robots look unchanged, yet it needs a new set.
-        if alive and self.lives.setdefault(r, life) != life:
-            self.lives[r] = life
-            self.restarted.add(r)
-        if changed or r in self.restarted:
-            self.live_changed = time.monotonic()
-        if alive:
-            self.ever_live.add(r)
-        elif r not in self.body_inboxes:  # where does its body stay?
+        self.roster.hear(r, alive, life)
+        if not alive and r not in self.body_inboxes:  # where does its body stay?
             self.body_inboxes[r] = self.bus.subscribe(self.bus.keys.pose(r), Pose)
 
     def _publish(self, step: int, robots: frozenset[int], dead: list[int]) -> None:
@@ -227,7 +244,7 @@ class Coordinator:
         before = self.current
         self.epoch += 1
         self.shown = (step, robots)
-        self.restarted.clear()
+        self.roster.restarted.clear()
         self.current = Goals(
             self.epoch,
             0,
