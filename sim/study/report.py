@@ -168,38 +168,10 @@ def plot_axis(spec: Spec, axis: str, rows: list[dict[str, Any]], metrics: list[s
     nrows = math.ceil(len(metrics) / ncols)
     fig = Figure(figsize=(4.2 * ncols, 3.2 * nrows), dpi=90)
     FigureCanvasAgg(fig)
-    span = (max(position.values()) - min(position.values())) or 1.0
     for k, metric in enumerate(metrics):
         ax = fig.add_subplot(nrows, ncols, k + 1)
-        for j, (key, members) in enumerate(sorted(series.items(), key=lambda kv: str(kv[0]))):
-            label = ", ".join(f"{a}={_short(v)}" for a, v in zip(others, key)) or spec.name
-            offset = (j - (len(series) - 1) / 2) * 0.02 * span  # side by side, not on top of each other
-            xs, means, stds = [], [], []
-            for v in values:
-                m, s, n = stats([r.get(metric) for r in members if r[axis] == v])
-                if n:
-                    xs.append(position[v] + offset)
-                    means.append(m)
-                    stds.append(0.0 if math.isnan(s) else s)
-            line = ax.errorbar(xs, means, yerr=stds, marker="o", capsize=3, label=label)
-            dots = [(position[r[axis]] + offset, r.get(metric)) for r in members if _is_number(r.get(metric))]
-            if dots:
-                dot_x, dot_y = zip(*dots)
-                ax.scatter(dot_x, dot_y, s=10, alpha=0.45, color=line[0].get_color())
-        for condition in dict.fromkeys(r["condition"] for r in base):
-            mine = [r for r in base if r["condition"] == condition]
-            m, s, n = stats([r.get(metric) for r in mine])
-            if not n:
-                continue
-            label = f"{condition} ({_baseline_words(spec)}, n={n})"
-            if axis in (spec.baseline or {}):
-                ax.axhline(m, color="0.3", linestyle="--", label=label)
-                if not math.isnan(s):
-                    ax.axhspan(m - s, m + s, color="0.5", alpha=0.2)
-            else:  # the baseline varies along this axis too: its own series
-                by = {v: stats([r.get(metric) for r in mine if r[axis] == v]) for v in values}
-                xs = [position[v] for v in values if by[v][2]]
-                ax.errorbar(xs, [by[v][0] for v in values if by[v][2]], marker="s", color="0.3", label=label)
+        _plot_grid(ax, spec, axis, series, metric, position)
+        _plot_baselines(ax, spec, axis, base, metric, position)
         ax.set_title(metric, fontsize=10)
         ax.set_xlabel(axis)
         ax.set_xticks(list(position.values()), [_short(v) for v in values])
@@ -210,6 +182,51 @@ def plot_axis(spec: Spec, axis: str, rows: list[dict[str, Any]], metrics: list[s
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png")
     return buffer.getvalue()
+
+
+def _plot_grid(
+    ax: Any, spec: Spec, axis: str, series: dict[tuple, list[dict[str, Any]]], metric: str, position: dict[Any, Any]
+) -> None:
+    """The grid's series in one panel: mean and std bars over the seeds at each value of `axis`,
+    each seed a dot."""
+    others = [a for a in spec.axes if a != axis]
+    span = (max(position.values()) - min(position.values())) or 1.0
+    for j, (key, members) in enumerate(sorted(series.items(), key=lambda kv: str(kv[0]))):
+        label = ", ".join(f"{a}={_short(v)}" for a, v in zip(others, key)) or spec.name
+        offset = (j - (len(series) - 1) / 2) * 0.02 * span  # side by side, not on top of each other
+        xs, means, stds = [], [], []
+        for v in spec.axes[axis]:
+            m, s, n = stats([r.get(metric) for r in members if r[axis] == v])
+            if n:
+                xs.append(position[v] + offset)
+                means.append(m)
+                stds.append(0.0 if math.isnan(s) else s)
+        line = ax.errorbar(xs, means, yerr=stds, marker="o", capsize=3, label=label)
+        dots = [(position[r[axis]] + offset, r.get(metric)) for r in members if _is_number(r.get(metric))]
+        if dots:
+            dot_x, dot_y = zip(*dots)
+            ax.scatter(dot_x, dot_y, s=10, alpha=0.45, color=line[0].get_color())
+
+
+def _plot_baselines(
+    ax: Any, spec: Spec, axis: str, base: list[dict[str, Any]], metric: str, position: dict[Any, Any]
+) -> None:
+    """Each baseline condition in one panel: a band (mean +- std) if it fixes `axis`, else a series."""
+    values = spec.axes[axis]
+    for condition in dict.fromkeys(r["condition"] for r in base):
+        mine = [r for r in base if r["condition"] == condition]
+        m, s, n = stats([r.get(metric) for r in mine])
+        if not n:
+            continue
+        label = f"{condition} ({_baseline_words(spec)}, n={n})"
+        if axis in (spec.baseline or {}):
+            ax.axhline(m, color="0.3", linestyle="--", label=label)
+            if not math.isnan(s):
+                ax.axhspan(m - s, m + s, color="0.5", alpha=0.2)
+        else:  # the baseline varies along this axis too: its own series
+            by = {v: stats([r.get(metric) for r in mine if r[axis] == v]) for v in values}
+            xs = [position[v] for v in values if by[v][2]]
+            ax.errorbar(xs, [by[v][0] for v in values if by[v][2]], marker="s", color="0.3", label=label)
 
 
 def _short(value: Any) -> str:
