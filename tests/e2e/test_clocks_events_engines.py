@@ -71,11 +71,24 @@ def test_central_engine_matches_the_scene_and_is_safe(tmp_path):
     np.testing.assert_allclose(traj["goal"][-1], traj2["goal"][-1], atol=1e-6)
 
 
+# Shipped scenes whose goal sets take seconds to make, loaded in full by another test that checks
+# the same (robots, a pose each) and more: loaded once per `make test`, there
+LOADED_ELSEWHERE = {
+    "paper-sequence-1000": "tests/unit/test_large_scene.py",
+    "paper-sequence-10000": "tests/unit/test_large_scene.py",
+    "leaf-1000": "tests/unit/test_animation.py::test_the_shipped_animations_load",
+}
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("name", shipped_scenes())
+@pytest.mark.parametrize("name", [name for name in shipped_scenes() if name not in LOADED_ELSEWHERE])
 def test_shipped_scenes_load(name):
     scene = load_scene(name)
     assert scene.robots >= 1 and scene.poses.shape == (scene.robots, 3)
+
+
+def test_the_scenes_loaded_elsewhere_are_shipped():
+    assert set(LOADED_ELSEWHERE) <= set(shipped_scenes())
 
 
 @pytest.mark.parametrize(

@@ -24,6 +24,7 @@ def colour_counts(colors: np.ndarray) -> dict[tuple[int, ...], int]:
 def test_paper_sequence_at_scale_is_the_paper_sequence_with_that_many_robots(robots):
     big, small = load_scene(f"paper-sequence-{robots}"), load_scene("paper-sequence")
     assert big.robots == robots and big.robot["kinematics"] == "holonomic"
+    assert big.poses.shape == (robots, 3)  # (test_shipped_scenes_load's check of this scene)
     assert [s.name for s in big.steps] == [s.name for s in small.steps]
     assert [s.shape for s in big.steps] == [s.shape for s in small.steps]
     r = big.radius
