@@ -91,24 +91,30 @@ def main(argv: list[str] | None = None) -> int:
         print(f"agent: error: {err}", file=sys.stderr)
         return 2
     with bus:
-        host = AgentHost(bus, config)
-        install_stop_handlers(host)
-        if "--exit-with-parent" in flags:
-            host.parent_pid = os.getppid()
-        if not host.start(timeout=start_timeout):
-            if host.running:  # not stopped meanwhile: the poses never came
-                print(
-                    f"agent: error: no pose arrived for my robots within {start_timeout:g} s; is the tracker running?",
-                    file=sys.stderr,
-                )
-            return 1
-        profile_to = os.environ.get("PIXELSWARM_PROFILE")
-        if profile_to:
-            run_profiled(host.run, Path(profile_to) / f"agent{config.robots[0]}.prof")
-        else:
-            host.run()
-        host.report()
-        bus.linger()
+        return _run_host(bus, config, start_timeout, "--exit-with-parent" in flags)
+
+
+def _run_host(bus: Bus, config: HostConfig, start_timeout: float, exit_with_parent: bool) -> int:
+    """Start the robots' host (their poses within start_timeout, else exit code 1), run its loop
+    until it is stopped, then report its statistics and let its last messages leave."""
+    host = AgentHost(bus, config)
+    install_stop_handlers(host)
+    if exit_with_parent:
+        host.parent_pid = os.getppid()
+    if not host.start(timeout=start_timeout):
+        if host.running:  # not stopped meanwhile: the poses never came
+            print(
+                f"agent: error: no pose arrived for my robots within {start_timeout:g} s; is the tracker running?",
+                file=sys.stderr,
+            )
+        return 1
+    profile_to = os.environ.get("PIXELSWARM_PROFILE")
+    if profile_to:
+        run_profiled(host.run, Path(profile_to) / f"agent{config.robots[0]}.prof")
+    else:
+        host.run()
+    host.report()
+    bus.linger()
     return 0
 
 
