@@ -46,7 +46,7 @@ import threading
 import time
 from collections import Counter, deque
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 from sim.processes import stopped_by_signals
 from transport.bus import Bus, RawInbox
@@ -247,6 +247,18 @@ class PeerPlan:
     damages: tuple[str, ...] = tuple(MALFORM)
 
 
+@dataclass
+class PeerTally:
+    """What the peer heard and sent, for its summary line."""
+
+    heard: Counter[str] = field(default_factory=Counter)  # messages heard, per key kind
+    sent: Counter[str] = field(default_factory=Counter)  # damaged copies sent, per key kind
+    damage: Counter[str] = field(default_factory=Counter)  # per sub-mode/damage
+    skipped: int = 0  # slots with nothing to damage
+    started: float | None = None  # wall (monotonic) time damage began
+    ended: float | None = None
+
+
 class FaultyPeer:
     """Hears a display's messages and re-publishes damaged copies of them (see the module's text)."""
 
@@ -257,25 +269,19 @@ class FaultyPeer:
         unknown = set(plan.damages) - set(MALFORM)
         if unknown or not plan.damages:
             raise ValueError(f"damages must be some of {', '.join(MALFORM)}, not {sorted(unknown) or 'none'}")
-        self.damages = tuple(plan.damages)
         if plan.rate <= 0:
             raise ValueError("rate must be positive")
         self.settings = replace(settings, mode="client" if settings.mode == "router" else settings.mode)
         self.keys = Keys(display)
-        self.mode, self.rate, self.duration, self.start_after = plan.mode, plan.rate, plan.duration, plan.start_after
+        self.plan = plan
         self.rng = random.Random(plan.seed)
         self.connect_wait = connect_wait
         self.heard: dict[str, deque[tuple[str, bytes]]] = {k: deque(maxlen=BUFFER) for k in self.kinds}
-        self.heard_count: Counter[str] = Counter()
         # stale-cmd: commands heard less than STALE_AFTER ago, and those old enough to re-send
         self.cmd_fresh: deque[tuple[float, str, bytes]] = deque(maxlen=100_000)
         self.cmd_old: deque[tuple[str, bytes]] = deque(maxlen=2000)
         self.first_tick_wall: float | None = None
-        self.started: float | None = None  # wall (monotonic) time damage began
-        self.ended: float | None = None
-        self.sent: Counter[str] = Counter()  # per key kind
-        self.damage: Counter[str] = Counter()  # per sub-mode/damage
-        self.skipped = 0  # slots with nothing to damage
+        self.tally = PeerTally()
         self.restart_at = 0.0
         self._own: set[bytes] = set()  # copies sent lately (the subscriptions hear them back)
         self._own_order: deque[bytes] = deque(maxlen=8192)
@@ -293,9 +299,9 @@ class FaultyPeer:
                 buffer = self.heard.get(kind)
                 if buffer is None:
                     continue
-                self.heard_count[kind] += 1
+                self.tally.heard[kind] += 1
                 buffer.append((key, data))
-                if kind == "cmd" and self.mode in ("stale-cmd", "all"):
+                if kind == "cmd" and self.plan.mode in ("stale-cmd", "all"):
                     self.cmd_fresh.append((wall, key, data))
 
     def _age_commands(self) -> None:
@@ -326,7 +332,7 @@ class FaultyPeer:
 
     def make_copy(self, now: float) -> tuple[str, bytes, str, str] | None:
         """(key, payload, key kind, damage) of one damaged copy, None if there is nothing to damage."""
-        sub = self.mode
+        sub = self.plan.mode
         if sub == "all":
             choices = [s for s in ALL_OF if self._available(s)]
             if not choices:
@@ -355,11 +361,11 @@ class FaultyPeer:
         if sub.startswith("future-"):
             out, what = future_tick(data, rng), sub
         elif sub in ("malformed-pose", "malformed-all"):
-            name = rng.choice(self.damages)
+            name = rng.choice(self.plan.damages)
             out, what = MALFORM[name](data, rng, kind), f"malformed:{name}"
         elif sub == "misc":
             if rng.random() < 0.5:
-                name = rng.choice(self.damages)
+                name = rng.choice(self.plan.damages)
                 out, what = MALFORM[name](data, rng, kind), f"malformed:{name}"
             else:
                 field, out = future_stamp(data, rng, kind)
@@ -405,48 +411,48 @@ class FaultyPeer:
                 for kind in sorted(set(self.kinds) | {"clock"})
             ]
             while not stop.is_set() and (
-                self.first_tick_wall is None or time.monotonic() < self.first_tick_wall + self.start_after
+                self.first_tick_wall is None or time.monotonic() < self.first_tick_wall + self.plan.start_after
             ):
                 self.hear(inboxes)
                 stop.wait(0.02)
-            self.started = time.monotonic()
-            self.restart_at = self.started
-            slots = 0
+            started = self.tally.started = self.restart_at = time.monotonic()
+            rate, slots = self.plan.rate, 0
             while not stop.is_set():
                 now = time.monotonic()
-                if self.duration is not None and now >= self.started + self.duration:
+                if self.plan.duration is not None and now >= started + self.plan.duration:
                     break
                 self.hear(inboxes)
                 self._age_commands()
-                due = int((now - self.started) * self.rate)
-                slots = max(slots, due - int(self.rate))  # at most a second's worth behind: no burst after a stall
+                due = int((now - started) * rate)
+                slots = max(slots, due - int(rate))  # at most a second's worth behind: no burst after a stall
                 while slots < due:
                     slots += 1
                     copy = self.make_copy(now)
                     if copy is None:
-                        self.skipped += 1
+                        self.tally.skipped += 1
                         continue
                     key, payload, kind, what = copy
                     self._sent_copy(payload)
                     bus.put(key, payload, kind)
-                    self.sent[kind] += 1
-                    self.damage[what] += 1
+                    self.tally.sent[kind] += 1
+                    self.tally.damage[what] += 1
                 stop.wait(0.01)
-            self.ended = time.monotonic()
+            self.tally.ended = time.monotonic()
         finally:
             bus.linger()
             bus.close()
-        return self.sent
+        return self.tally.sent
 
     def summary(self) -> str:
-        seconds = (self.ended or time.monotonic()) - self.started if self.started is not None else 0.0
-        total = sum(self.sent.values())
-        per_kind = " ".join(f"{k}={v}" for k, v in sorted(self.sent.items())) or "-"
-        per_damage = " ".join(f"{k}={v}" for k, v in sorted(self.damage.items())) or "-"
+        t = self.tally
+        seconds = (t.ended or time.monotonic()) - t.started if t.started is not None else 0.0
+        total = sum(t.sent.values())
+        per_kind = " ".join(f"{k}={v}" for k, v in sorted(t.sent.items())) or "-"
+        per_damage = " ".join(f"{k}={v}" for k, v in sorted(t.damage.items())) or "-"
         return (
-            f"faulty-peer: mode {self.mode}, sent {total} in {seconds:.1f} s "
+            f"faulty-peer: mode {self.plan.mode}, sent {total} in {seconds:.1f} s "
             f"({total / seconds if seconds > 0 else 0:.0f}/s); by kind: {per_kind}; by damage: {per_damage}; "
-            f"heard {sum(self.heard_count.values())}; nothing to damage {self.skipped}"
+            f"heard {sum(t.heard.values())}; nothing to damage {t.skipped}"
         )
 
 
