@@ -269,6 +269,37 @@ class _Reader:
             self.conn.close()
 
 
+class _Glitches:
+    """Frames to spoil as a misread marker would (two robots' markers swapped, one shifted), and
+    when each spoiled frame was rendered."""
+
+    def __init__(self) -> None:
+        self.rendered: list[float] = []  # time.monotonic() at which each spoiled frame was rendered
+        self._due: list[tuple[float, str, tuple]] = []  # (not before, "swap" or "shift", arguments)
+        self._lock = threading.Lock()
+
+    def add(self, at: float | None, kind: str, args: tuple) -> None:
+        with self._lock:
+            self._due.append((at or 0.0, kind, args))
+
+    def spoil(self, robots: dict[int, Pose], now: float) -> dict[int, Pose]:
+        with self._lock:
+            due = [g for g in self._due if g[0] <= now]
+            self._due = [g for g in self._due if g[0] > now]
+        spoiled = dict(robots)
+        for _, kind, args in due:
+            if kind == "swap":
+                a, b = args
+                spoiled[a], spoiled[b] = robots[b], robots[a]
+            else:
+                robot, dx, dy = args
+                x, y, theta = robots[robot]
+                spoiled[robot] = (x + dx, y + dy, theta)
+        if due:
+            self.rendered.append(now)
+        return spoiled
+
+
 class CameraStream(Started):
     """The overhead camera as a network camera: frames of ``poses(t)`` (row i: robot i, t in s since
     start) rendered at ``rate`` Hz and served as MJPEG over HTTP on 127.0.0.1 (as many IP cameras serve
@@ -289,10 +320,9 @@ class CameraStream(Started):
         self.rate = rate
         self.quality = quality
         self.frames = 0  # rendered
-        self.glitched: list[float] = []  # time.monotonic() at which each spoiled frame was rendered
         self.error: Exception | None = None  # what stopped the rendering thread, if anything did
         self._rng = np.random.default_rng(seed)
-        self._glitches: list[tuple[float, str, tuple]] = []  # (not before, "swap" or "shift", arguments)
+        self._glitches = _Glitches()
         self._clients: list[_Reader] = []
         self._lock = threading.Lock()
         self._halt = threading.Event()
@@ -321,6 +351,11 @@ class CameraStream(Started):
         for client in clients:
             client.thread.join()
 
+    @property
+    def glitched(self) -> list[float]:
+        """time.monotonic() at which each spoiled frame was rendered."""
+        return self._glitches.rendered
+
     def poses_toml(self) -> str:
         """The hardware file's `[poses]` table that tracks this stream."""
         return poses_toml(self.camera, self.url)
@@ -328,30 +363,11 @@ class CameraStream(Started):
     def swap(self, a: int, b: int, at: float | None = None) -> None:
         """Draw robot a's marker at b's pose and b's at a's in one frame, the first rendered at or
         after ``at`` (time.monotonic(); None: the next)."""
-        with self._lock:
-            self._glitches.append((at or 0.0, "swap", (a, b)))
+        self._glitches.add(at, "swap", (a, b))
 
     def shift(self, robot: int, dx: float, dy: float, at: float | None = None) -> None:
         """Draw a robot's marker (dx, dy) metres off its pose in one frame, as `swap` says which."""
-        with self._lock:
-            self._glitches.append((at or 0.0, "shift", (robot, dx, dy)))
-
-    def _spoil(self, robots: dict[int, Pose], now: float) -> dict[int, Pose]:
-        with self._lock:
-            due = [g for g in self._glitches if g[0] <= now]
-            self._glitches = [g for g in self._glitches if g[0] > now]
-        spoiled = dict(robots)
-        for _, kind, args in due:
-            if kind == "swap":
-                a, b = args
-                spoiled[a], spoiled[b] = robots[b], robots[a]
-            else:
-                robot, dx, dy = args
-                x, y, theta = robots[robot]
-                spoiled[robot] = (x + dx, y + dy, theta)
-        if due:
-            self.glitched.append(now)
-        return spoiled
+        self._glitches.add(at, "shift", (robot, dx, dy))
 
     def _render(self) -> None:
         period = 1.0 / self.rate
@@ -360,7 +376,9 @@ class CameraStream(Started):
             while not self._halt.wait(max(0.0, deadline - time.monotonic())):
                 now = time.monotonic()
                 rows = np.asarray(self.poses(now - self._started), float).reshape(-1, 3)
-                robots = self._spoil({i: (float(x), float(y), float(t)) for i, (x, y, t) in enumerate(rows)}, now)
+                robots = self._glitches.spoil(
+                    {i: (float(x), float(y), float(t)) for i, (x, y, t) in enumerate(rows)}, now
+                )
                 ok, jpeg = cv2.imencode(
                     ".jpg", self.camera.render(robots, self._rng), [cv2.IMWRITE_JPEG_QUALITY, self.quality]
                 )
