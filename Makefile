@@ -57,10 +57,11 @@ test: test-fast
 	$(PY) -m pytest -q -m "slow and not serial" -n auto --dist loadgroup --durations=10
 	$(PY) -m pytest -q -m "slow and serial" --durations=5
 
-# Everyday work: the suite without the end-to-end runs marked slow.
+# Everyday work: the suite without the end-to-end runs marked slow. --dist loadgroup: a module whose
+# costly module fixture its tests share runs on one worker (its xdist_group), which makes it once.
 test-fast: lint
 	@$(BYTECODE)
-	$(PY) -m pytest -q -m "not slow" -n auto
+	$(PY) -m pytest -q -m "not slow" -n auto --dist loadgroup
 
 bench: $(TSTAMP)
 	@$(BYTECODE)

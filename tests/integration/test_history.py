@@ -18,6 +18,10 @@ from coordinator import drawings
 from coordinator.scene import load_scene, scene_goal_set
 from sim.central.engine import run_central
 
+# --dist loadgroup gives the module one xdist worker: its module fixture (the history scene's goal sets) is made
+# once, not once on each worker
+pytestmark = pytest.mark.xdist_group("history")
+
 TABLE_RADIUS = 1.0  # m: the paper's circular table, 2 m across
 MIN_SPACING = 0.06  # m between goals: a centimetre between two robots 5 cm across standing on them
 EQ27_LAG = 0.04  # m: what eq. 27's held velocity leaves at the end of K_f dt (see below)

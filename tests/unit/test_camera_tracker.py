@@ -21,6 +21,10 @@ from sim.emulators.camera import OverheadCamera, poses_toml, render_frames, wand
 from sim.emulators.camera import main as emulator_main
 from tests.conftest import run_pixelswarm
 
+# --dist loadgroup gives the module one xdist worker: its module fixture (the rendered footage) is made
+# once, not once on each worker
+pytestmark = pytest.mark.xdist_group("camera-footage")
+
 ROBOTS, FRAMES, FPS, SEED = 14, 100, 10.0, 7  # 100 frames: 99 % of them allows one miss
 HIDDEN_ROBOT, HIDDEN_FRAMES = 3, range(5, 15)
 

@@ -18,6 +18,10 @@ from coordinator.keyframe_motion import estimate_motion, fit_count, region_shape
 from coordinator.keyframes import goal_disparity, keyframe_goals, match_regions
 from coordinator.shapes import BLUE, RED, union
 
+# --dist loadgroup gives the module one xdist worker: its module fixture (the leaf's keyframe goals) is made
+# once, not once on each worker
+pytestmark = pytest.mark.xdist_group("leaf-keyframes")
+
 SIZE = 400  # canvas of the rigid-motion tests: the moved L never touches its border
 
 

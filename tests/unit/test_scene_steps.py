@@ -19,6 +19,10 @@ from sim.central.engine import run_central
 from sim.outputs.metrics import TrueRecord, step_metrics, summarise
 from transport.codec import as_sent
 
+# --dist loadgroup gives the module one xdist worker: its module fixture (the paper sequence, loaded and played) is made
+# once, not once on each worker
+pytestmark = pytest.mark.xdist_group("scene-steps")
+
 BLUE_GOAL = 150  # blue channel above this: a goal on the blue part (the line of disk_and_line)
 
 

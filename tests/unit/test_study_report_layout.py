@@ -21,6 +21,10 @@ from sim.study import report as study_report
 from sim.study.report import KEY_METRICS, write_report
 from sim.study.spec import StudyDir, load_spec
 
+# --dist loadgroup gives the module one xdist worker: its module fixture (the written report) is made
+# once, not once on each worker
+pytestmark = pytest.mark.xdist_group("study-report")
+
 SPEC = """
 name = "wide"
 seeds = [1, 2]
