@@ -348,8 +348,8 @@ def simulate(
     robots = Central(scene, link, auction, world)
     seams = Seams(robots, auction, static_segments(scene.arena, scene.obstacles), scene.seed, link.reach, clock.lap)
     events = sorted(scene.events, key=lambda e: e["t"])
-    rec: dict[str, list] = {"t": [], "pose": [], "velocity": [], "color": [], "goal": [], "assignment": [], "step": []}
     steps, last_step = round(scene.duration / params.dt), max(len(scene.steps) - 1, 0)
+    rec = _recording(steps + 1, scene.robots)
     fallbacks, converged_since, end_reason = 0, None, "duration"
     wall0 = last_say = time.time()
     try:
@@ -366,7 +366,7 @@ def simulate(
             decision = loop.tick(robots, robots.sense(tick), seams)
             pose, goal, color = world.poses, decision.intent.goal, robots.held_goals.color.copy()
             for name, value in zip(rec, (t, pose, world.velocities, color, goal, auction.assignment, k)):
-                rec[name].append(value)
+                rec[name][tick] = value
             if view is not None:  # sim.outputs.view.SwarmView: the live view, one batch a tick
                 view.tick(tick, t, pose, color, goal)
             clock.lap("record")
@@ -403,9 +403,7 @@ def simulate(
             clock.lap("other")
     finally:
         beside.pool.shutdown()
-    arrays = {k: np.stack(v) if k != "t" else np.array(v) for k, v in rec.items()}
-    arrays["color"] = arrays["color"].astype(np.uint8)
-    arrays["step"] = arrays["step"].astype(np.int64)
+    arrays = {name: rows[: tick + 1] for name, rows in rec.items()}  # a converged run ends early
     how = (list(world.contacts), float(world.min_clearance), fallbacks, auction.penalties)
     return Outcome(arrays, *how, end_reason, time.time() - wall0)
 
@@ -489,6 +487,22 @@ def _states(params, measured: np.ndarray, pose: np.ndarray, velocity: np.ndarray
         np.full(n, t),
         movers.cooperative,
     )
+
+
+def _recording(ticks: int, n: int) -> dict[str, np.ndarray]:
+    """The recorded ticks' rows, filled tick by tick (a run's arrays are written once, not stacked from
+    a list of ticks at the end): t, pose, velocity, color, goal, assignment, step."""
+    shapes = {
+        "t": (),
+        "pose": (n, 3),
+        "velocity": (n, 2),
+        "color": (n, 3),
+        "goal": (n, 2),
+        "assignment": (n,),
+        "step": (),
+    }
+    types = {"color": np.uint8, "assignment": np.int64, "step": np.int64}
+    return {name: np.empty((ticks, *shape), types.get(name, float)) for name, shape in shapes.items()}
 
 
 def _at_goal(pose: np.ndarray, goal: np.ndarray, params: RobotParams) -> np.ndarray:
