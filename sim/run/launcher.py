@@ -56,6 +56,9 @@ def progress_line(scene: str, t: float, at_goal: int, with_goal: int, min_cleara
 
 @dataclass
 class RunOptions:
+    """How `pixelswarm run` runs a scene: a record, one field per run flag (--out, --no-video, -k,
+    --display, --connect, --faults, --secure, --hardware, --remote-agents, --reach, --foxglove ...)."""
+
     out: Path
     video: bool = True
     plots: bool = True  # clearance.png and trajectories.png
@@ -94,6 +97,26 @@ class Child:
     reported: bool = False  # its exit was seen (a crash said once, or a kill on purpose)
 
 
+@dataclass
+class Incidents:
+    """What befell the run's processes, for metrics.json: agent processes that crashed, central
+    services that died and were started again, and agents the scene killed ('fail' events)."""
+
+    crashes: list[dict[str, Any]] = field(default_factory=list)
+    restarts: list[dict[str, Any]] = field(default_factory=list)
+    failed: list[dict[str, Any]] = field(default_factory=list)
+
+
+@dataclass
+class WorldEnd:
+    """How the world process ended, as the launcher knows it: its exit code once it exited, the
+    statistics of its final report, and whether it died before the run ended."""
+
+    exit: int | None = None
+    stats: dict[str, Any] = field(default_factory=dict)
+    died: bool = False
+
+
 class Interrupted(Exception):
     pass
 
@@ -113,19 +136,22 @@ def _robots(ids: list[int]) -> str:
 
 
 class Launcher:
+    """Runs a scene's processes (router, coordinator, agents, world) and records the run. Its state:
+    the children and how they join (client, fetched); the run's end as the CLI reads it (stop_signal,
+    interrupted, startup_failure) and the world's (WorldEnd); the scene's failures to come and the
+    incidents so far, for metrics.json."""
+
     def __init__(self, scene: Scene, options: RunOptions) -> None:
-        self.world_exit: int | None = None  # the world process's exit code, once it exited
+        self.world = WorldEnd()
         self.scene, self.opt = scene, options
         self.params = RobotParams.from_dict(scene.robot)
         self.children: list[Child] = []
-        self.crashes: list[dict[str, Any]] = []
-        self.restarts: list[dict[str, Any]] = []  # central services that died and were started again
+        self.incidents = Incidents()
         self.stop_signal: int | None = None
         self.startup_failure: str | None = None  # why the run ended before it started (StartupFailed)
         self.interrupted = False  # a stop signal ended the run (written marked incomplete)
         self.run_dir = RunDir(options.out)
         self.failures = sorted((e for e in scene.events if e["kind"] == "fail"), key=lambda e: e["t"])
-        self.failed: list[dict[str, Any]] = []
         if options.secure is not None and options.agents_per_process > 1:
             raise ValueError("a secured run has one robot per agent process: the access rules give each its own keys")
         if options.secure is not None and (options.connect or options.agent_routers):
@@ -156,12 +182,12 @@ class Launcher:
 
     def _restart(self, child: Child, code: int, recorder: Recorder) -> None:
         """A central service died mid-run: start it again (it learns where the show is from the bus)."""
-        done = [r for r in self.restarts if r["process"] == child.name]
+        done = [r for r in self.incidents.restarts if r["process"] == child.name]
         if len(done) >= RESTARTS or self.stop_signal is not None:
             return
         module, *args = child.command
         again = self._spawn(child.name, module, args, child.robots, child.client)
-        self.restarts.append(
+        self.incidents.restarts.append(
             {"process": child.name, "returncode": code, "pid": again.proc.pid, "sim_time_s": recorder.sim_time}
         )
         print(
@@ -247,7 +273,7 @@ class Launcher:
                 return
             if self.stop_signal is not None:
                 raise Interrupted()
-            if self.world_exit is None and any(c.name == "world" and c.proc.poll() is not None for c in self.children):
+            if self.world.exit is None and any(c.name == "world" and c.proc.poll() is not None for c in self.children):
                 raise RuntimeError("the world process exited while waiting for agents: see logs/world.log")
             if time.monotonic() - started > self.opt.agents_timeout:
                 absent = [i for i in ids if not rec.agent_alive[i]]
@@ -279,7 +305,7 @@ class Launcher:
                 continue
             child.reported = True
             if child.name.startswith("agent"):
-                self.crashes.append(
+                self.incidents.crashes.append(
                     {
                         "process": child.name,
                         "pid": child.proc.pid,
@@ -299,7 +325,7 @@ class Launcher:
                         flush=True,
                     )
             elif child.name == "world":
-                self.world_exit = code
+                self.world.exit = code
             elif child.name in RESTARTED:
                 self._restart(child, code, recorder)
 
@@ -353,22 +379,9 @@ class Launcher:
             settings = self.opt.router or self._embedded_router()
             self.client = client_of(settings)
         bus = Bus(settings, self.opt.display, name="launcher")
-        self.world_exit = None
+        self.world = WorldEnd()
         try:
-            recorder = Recorder(
-                bus,
-                self.scene.robots,
-                self.params.goal_tolerance,
-                str(self.run_dir / "log.mcap"),
-                str(self.run_dir / TICKS_FILE),
-            )
-            recorder.ends = self._ends_on_convergence
-            recorder.heading = self.params.kinematics != HOLONOMIC
-            recorder.view = self.opt.view
-            if self.opt.foxglove is not None and recorder.log is not None:
-                port = recorder.log.serve(self.opt.foxglove)  # said even with -q: it is asked for, not progress
-                print(f"[{self.scene.name}] Foxglove live: ws://127.0.0.1:{port}", file=sys.stderr, flush=True)
-            bus.serve(bus.keys.run_goals, lambda: self._newest_goals(bus, recorder))
+            recorder = self._recorder(bus)
             if self.opt.hardware is not None:  # refused at once (one line) if a robot or its pose is missing
                 self._start_hardware(recorder)
             endpoint = ", ".join(settings.listen or settings.connect)
@@ -384,22 +397,8 @@ class Launcher:
                 self._await_remote(recorder, "fetched", waiting_since)
             else:
                 self._start_agents()
-            world_args = self._scene_args() + [
-                "--clock",
-                self.scene.clock,
-                "--duration",
-                str(self.scene.duration),
-                "--deadline",
-                str(self.opt.deadline),
-                # the world waits for the agents no shorter than the launcher does (_await_agents)
-                "--startup-timeout",
-                str(self.opt.agents_timeout if self.opt.remote_agents else self.opt.startup_timeout),
-            ]
-            world_args += ["--pose-frames"] if self._frames else []
-            # faults act where a message is received: commands (cmd:...) at the world
-            world_args += ["--faults", format_faults(self.opt.faults)] if self.opt.faults else []
             if self.opt.hardware is None:
-                self._spawn("world", "sim.node.world", world_args, [], self._as("world"))
+                self._spawn("world", "sim.node.world", self._world_args(), [], self._as("world"))
             if self.opt.remote_agents:
                 self._await_remote(recorder, "alive", waiting_since)
             try:
@@ -411,22 +410,61 @@ class Launcher:
                 end_reason = self._loop(bus, recorder)
             self._check_children(recorder)  # an agent that died as the world finished is still a crash
             self._stop_children()
-            # Final statistics from agents, and on a loaded machine the last ticks still in flight:
-            # wait (bounded) until the world's final state has been recorded.
-            last_t = float(getattr(self, "world_stats", {}).get("ticks", 0)) * self.params.dt
-            settle, patience = time.monotonic() + 0.5, time.monotonic() + 10.0
-            while (
-                time.monotonic() < settle
-                or (self._ticks_in_flight(recorder, last_t) or self._stats_missing(recorder))
-                and time.monotonic() < patience
-            ):
-                recorder.poll()
-                time.sleep(0.05)
+            self._record_the_last_ticks(recorder)
             recorder.close_log()
             (self.run_dir / TICKS_FILE).unlink(missing_ok=True)  # trajectory.npz holds them, and more
         finally:
             bus.close()
         return self._write(recorder, end_reason, time.time() - wall0)
+
+    def _recorder(self, bus: Bus) -> Recorder:
+        """The recorder of the world's truth (log.mcap, the ticks file, the live view and Foxglove),
+        which also answers a late joiner's question for the newest goal set."""
+        recorder = Recorder(
+            bus,
+            self.scene.robots,
+            self.params.goal_tolerance,
+            str(self.run_dir / "log.mcap"),
+            str(self.run_dir / TICKS_FILE),
+        )
+        recorder.ends = self._ends_on_convergence
+        recorder.heading = self.params.kinematics != HOLONOMIC
+        recorder.view = self.opt.view
+        if self.opt.foxglove is not None and recorder.log is not None:
+            port = recorder.log.serve(self.opt.foxglove)  # said even with -q: it is asked for, not progress
+            print(f"[{self.scene.name}] Foxglove live: ws://127.0.0.1:{port}", file=sys.stderr, flush=True)
+        bus.serve(bus.keys.run_goals, lambda: self._newest_goals(bus, recorder))
+        return recorder
+
+    def _world_args(self) -> list[str]:
+        """The simulated world's command line: the scene, its clock and how long it waits for agents."""
+        args = self._scene_args() + [
+            "--clock",
+            self.scene.clock,
+            "--duration",
+            str(self.scene.duration),
+            "--deadline",
+            str(self.opt.deadline),
+            # the world waits for the agents no shorter than the launcher does (_await_agents)
+            "--startup-timeout",
+            str(self.opt.agents_timeout if self.opt.remote_agents else self.opt.startup_timeout),
+        ]
+        args += ["--pose-frames"] if self._frames else []
+        # faults act where a message is received: commands (cmd:...) at the world
+        return args + (["--faults", format_faults(self.opt.faults)] if self.opt.faults else [])
+
+    def _record_the_last_ticks(self, recorder: Recorder) -> None:
+        """Final statistics from agents, and on a loaded machine the last ticks still in flight: wait
+        (bounded) until the world's final state has been recorded."""
+        last_t = float(self.world.stats.get("ticks", 0)) * self.params.dt
+        settle, patience = time.monotonic() + 0.5, time.monotonic() + 10.0
+        while (
+            time.monotonic() < settle
+            or (self._ticks_in_flight(recorder, last_t) or self._stats_missing(recorder))
+            and time.monotonic() < patience
+        ):
+            recorder.poll()
+            time.sleep(0.05)
 
     def _await_agents(self, rec: Recorder) -> None:
         """Until every agent robot's agent has come alive (the world starts then), saying once a second
@@ -557,19 +595,19 @@ class Launcher:
             self._check_children(rec)
             done = self._world_done(rec)
             if done is not None:
-                self.world_stats = done
+                self.world.stats = done
                 return end_sent or str(done.get("reason", "duration"))
-            if self.world_exit is not None:
+            if self.world.exit is not None:
                 # the world is the bodies and the tracker: nothing can go on without it; what was
                 # recorded so far is written, marked incomplete
-                self.world_stats, self.world_died = {}, True
+                self.world.stats, self.world.died = {}, True
                 print(
-                    f"pixelswarm: the world process exited with code {self.world_exit} (see logs/world.log); "
+                    f"pixelswarm: the world process exited with code {self.world.exit} (see logs/world.log); "
                     "the run ends, incomplete",
                     file=sys.stderr,
                     flush=True,
                 )
-                return f"world exited with code {self.world_exit}"
+                return f"world exited with code {self.world.exit}"
             if self.stop_signal is not None and not end_sent:
                 end_sent = "interrupted"
                 self.interrupted = True
@@ -605,7 +643,7 @@ class Launcher:
                     child.proc.send_signal(signal.SIGKILL)
                     child.reported = True  # killed on purpose, not a crash
                     rec.robots_died(child.robots)
-                    self.failed.append({"robots": child.robots, "sim_time_s": t, "wall_time": time.time()})
+                    self.incidents.failed.append({"robots": child.robots, "sim_time_s": t, "wall_time": time.time()})
                     self._say(
                         f"[{self.scene.name}] t={t:.1f} s: killed agent process {child.name} "
                         f"(robots {child.robots}) as the scene says",
@@ -619,7 +657,7 @@ class Launcher:
         def on_bus() -> dict | None:
             return next((e for e in rec.events if e.get("kind") == "world-done"), None)
 
-        if on_bus() is not None or self.world_exit != 0:
+        if on_bus() is not None or self.world.exit != 0:
             return on_bus()
         end = time.monotonic() + 5.0
         while on_bus() is None and time.monotonic() < end:
@@ -637,10 +675,9 @@ class Launcher:
         interrupted = self.interrupted
         if interrupted:
             end_reason = "interrupted"
-        world_died = getattr(self, "world_died", False)
         started = self.startup_failure is None
         arrays = rec.arrays()
-        stats = getattr(self, "world_stats", {})
+        stats = self.world.stats
         agent_stats = [e for e in rec.events if e.get("kind") == "stats" and e.get("role") == "agent"]
         dropped: dict[str, int] = dict(rec.drops)
         for s in agent_stats + [stats]:
@@ -654,12 +691,12 @@ class Launcher:
             if e["role"] == "agent" and not e["alive"] and e["wall_time"] < getattr(self, "shutdown_wall", float("inf"))
         ]
         self._say(f"[{self.scene.name}] run ended ({end_reason}); writing {self.run_dir.path.name}", force=True)
-        traffic = Traffic(rec.counts, rec.bytes, int(stats.get("missed_ticks", 0)), len(self.crashes))
+        traffic = Traffic(rec.counts, rec.bytes, int(stats.get("missed_ticks", 0)), len(self.incidents.crashes))
         extra = dict(
-            agents_failed_by_scene=self.failed,
+            agents_failed_by_scene=self.incidents.failed,
             end_reason=end_reason,
             **({} if started else {"startup_failure": self.startup_failure}),
-            complete=not interrupted and not world_died and started,
+            complete=not interrupted and not self.world.died and started,
             engine="distributed",
             agents_per_process=self.opt.agents_per_process,
             # remote agents: the hosts that reported, one stats event each
@@ -677,8 +714,8 @@ class Launcher:
             poses_held=int(sum(s.get("poses_held", 0) for s in agent_stats)),
             deadlock_penalties=int(sum((s.get("auction") or {}).get("deadlock_penalties", 0) for s in agent_stats)),
             dropped_messages=dropped,
-            crashes=self.crashes,
-            restarts=self.restarts,
+            crashes=self.incidents.crashes,
+            restarts=self.incidents.restarts,
             liveliness_lost=[{"robot": e["id"], "wall_time": e["wall_time"]} for e in lost],
             faults=format_faults(self.opt.faults),
             stepping_wall_s=stepping_wall,
