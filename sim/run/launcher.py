@@ -438,17 +438,10 @@ class Launcher:
 
     def _world_args(self) -> list[str]:
         """The simulated world's command line: the scene, its clock and how long it waits for agents."""
-        args = self._scene_args() + [
-            "--clock",
-            self.scene.clock,
-            "--duration",
-            str(self.scene.duration),
-            "--deadline",
-            str(self.opt.deadline),
-            # the world waits for the agents no shorter than the launcher does (_await_agents)
-            "--startup-timeout",
-            str(self.opt.agents_timeout if self.opt.remote_agents else self.opt.startup_timeout),
-        ]
+        # the world waits for the agents no shorter than the launcher does (_await_agents)
+        startup = self.opt.agents_timeout if self.opt.remote_agents else self.opt.startup_timeout
+        args = [*self._scene_args(), "--clock", self.scene.clock, "--duration", str(self.scene.duration)]
+        args += ["--deadline", str(self.opt.deadline), "--startup-timeout", str(startup)]
         args += ["--pose-frames"] if self._frames else []
         # faults act where a message is received: commands (cmd:...) at the world
         return args + (["--faults", format_faults(self.opt.faults)] if self.opt.faults else [])
