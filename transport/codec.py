@@ -45,14 +45,6 @@ def _finite(*values: float) -> None:
             raise Malformed("non-finite")
 
 
-def _all_finite(items: np.ndarray, fields: tuple[str, ...]) -> bool:
-    """Every value of these fields is finite. A message of a few records (one robot's, a hundred a
-    tick for each agent) in Python: numpy's reductions cost more there."""
-    if len(items) <= 8:
-        return all(math.isfinite(v) for k in fields for v in items[k].tolist())
-    return all(bool(np.isfinite(items[k]).all()) for k in fields)
-
-
 def _fixed_and_items(body: memoryview, fixed: struct.Struct, item: np.dtype) -> tuple[tuple, np.ndarray]:
     """A fixed part whose last field counts the items that follow; lengths must agree exactly."""
     if len(body) < fixed.size:
@@ -63,8 +55,10 @@ def _fixed_and_items(body: memoryview, fixed: struct.Struct, item: np.dtype) -> 
     return values, np.frombuffer(body[fixed.size :], item)
 
 
+_FEW = 8  # records a message checks in Python rather than numpy, whose reductions cost more for a few
 _ALONE_RECORD_AT = 4  # in a frame of one read whole: kind, version, tick, stamp, then the record
-_STRUCT_CODE = {"<u4": "I", "<i4": "i", "<f4": "f", "|u1": "B"}  # a record field's numpy type as struct reads it
+# a record field's numpy type as struct reads it
+_STRUCT_CODE = {"<u2": "H", "<u4": "I", "<i4": "i", "<f4": "f", "<f8": "d", "|u1": "B"}
 
 
 def _field_names(item: np.dtype) -> tuple[str, ...]:
@@ -72,6 +66,14 @@ def _field_names(item: np.dtype) -> tuple[str, ...]:
     if item.names is None:
         raise TypeError(f"{item} is not a record dtype")
     return item.names
+
+
+def _row_struct(item: np.dtype) -> struct.Struct:
+    """A packed record dtype as one struct."""
+    fields: Mapping[str, tuple] = item.fields or {}
+    row = struct.Struct("<" + "".join(_STRUCT_CODE[fields[k][0].str] for k in _field_names(item)))
+    assert row.size == item.itemsize, f"{item}: a record must be packed"
+    return row
 
 
 @dataclass
@@ -519,6 +521,8 @@ class Bid(Message):
     # the auction record, and the robot's total deadlock penalty in force (m^2), so its agreed cost
     # can be checked, and the position it bid from
     RECORD: ClassVar[np.dtype] = np.dtype(AuctionRecord.FIELDS + [("penalty", "<f4"), ("x", "<f4"), ("y", "<f4")])
+    _row: ClassVar[struct.Struct] = _row_struct(RECORD)  # a record as struct reads it
+    _row_floats: ClassVar[tuple[int, ...]] = tuple(map(_field_names(RECORD).index, ("price", "penalty", "x", "y")))
     epoch: int
     instance: int
     sender: int
@@ -535,10 +539,23 @@ class Bid(Message):
 
     @classmethod
     def _from(cls, body: memoryview) -> Bid:
-        (epoch, instance, sender, serial, digest, count), items = _fixed_and_items(body, cls._fixed, cls.RECORD)
-        if not _all_finite(items, ("price", "penalty", "x", "y")):
+        """Every host hears every host's bids, tens a tick, of a record or two each: a few records'
+        floats are checked by struct, and the records read from a writable copy of the bytes
+        (numpy's reductions and copy of a structured array cost several times as much there)."""
+        if len(body) < cls._fixed.size:
+            raise Malformed("truncated")
+        epoch, instance, sender, serial, digest, count = cls._fixed.unpack(body[: cls._fixed.size])
+        tail = body[cls._fixed.size :]
+        if len(tail) != count * cls.RECORD.itemsize:
+            raise Malformed("truncated")
+        items = np.frombuffer(bytearray(tail), cls.RECORD)
+        if count <= _FEW:
+            finite = all(math.isfinite(row[i]) for row in cls._row.iter_unpack(tail) for i in cls._row_floats)
+        else:
+            finite = all(bool(np.isfinite(items[k]).all()) for k in ("price", "penalty", "x", "y"))
+        if not finite:
             raise Malformed("non-finite")
-        return cls(epoch, instance, sender, serial, digest, count, items.copy())
+        return cls(epoch, instance, sender, serial, digest, count, items)
 
 
 @dataclass
