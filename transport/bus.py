@@ -214,18 +214,24 @@ class Inbox(Generic[T]):
         return _drain(self._queue)
 
     def take(self) -> list[T]:
-        """drain() without the keys. A pulled inbox of frames without injected faults or a ``seen``
-        record hands the records straight from zenoh's channels, on the owner's hot path once a
-        tick: no queue, and no key strings that the owner would not read."""
-        direct = self.pulled and self.frame is not None and self.seen is None and not self.fault.active
+        """drain() without the keys. A pulled inbox of frames without injected faults hands the
+        records straight from zenoh's channels (and notes them ``seen``, as _on_sample does), on the
+        owner's hot path once a tick: no queue between."""
+        direct = self.pulled and self.frame is not None and not self.fault.active
         if not direct or not self._queue.empty() or self.has_delayed:
             return [m for _, m in self.drain()]
         out: list[T] = []
+        seen = self.seen
         for sub in self.channels:
             while (sample := sub.try_recv()) is not None:
                 got = self._records(self._payload(sample), str(sample.key_expr))
-                if got is not None:
-                    out += got[1]
+                if got is None:
+                    continue
+                tick, views = got
+                out += views
+                if seen is not None and tick != BEFORE_START:  # not hellos
+                    for v in views:
+                        seen[v.robot] = max(seen.get(v.robot, tick), tick)
         return out
 
     def get(self, timeout: float | None = None) -> tuple[str, T] | None:
