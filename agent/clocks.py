@@ -9,6 +9,7 @@ and grows the robots' margins by how late their poses are (agent.lateness).
 
 from __future__ import annotations
 
+import bisect
 import math
 import time
 from typing import Any
@@ -212,7 +213,7 @@ class LockStep(WallClock):
         names it), and the goal set of the scene step due now, which the coordinator publishes only
         once it hears the tick. Newer goal sets wait for a tick that names them."""
         host = self.host
-        due = int(np.searchsorted(host.config.steps, stamp + 1e-9, side="right")) - 1
+        due = bisect.bisect_right(host.config.steps, stamp + 1e-9) - 1  # numpy's would make an array a tick
         deadline = time.monotonic() + GOAL_SET_WAIT
         while host.running and time.monotonic() < deadline:
             self.hear()
