@@ -33,6 +33,8 @@ from .bidding import NO_OWNER, Bidders, board_digest, merge_one, merge_records
 # so in every phase left
 CONTENT, RELEASED, SETTLED = AuctionRecord.CONTENT, AuctionRecord.RELEASED, AuctionRecord.SETTLED
 CANDIDATES = 16  # goals a robot ranks while no other can beat them (agent.core.bidding)
+ROUNDS_PER_ROBOT = 100  # settle_alone's bound on a phase's rounds, per robot: a phase's rounds grow with
+# the robots (a cold start of 30,000 needed over 100,000 in one phase), so a fixed bound broke large swarms
 SMALL = 8  # messages with up to this many records are merged record by record (numpy costs more there)
 
 RECORD = Bid.RECORD  # one robot's word on one goal (goal -1: it holds none yet), as a Bid carries it
@@ -338,15 +340,19 @@ class Participant(Auction):
         return rounds
 
     def settle_alone(
-        self, positions: Mapping[int, np.ndarray] | np.ndarray, max_rounds: int = 100_000, candidates: int = CANDIDATES
+        self,
+        positions: Mapping[int, np.ndarray] | np.ndarray,
+        max_rounds: int | None = None,
+        candidates: int = CANDIDATES,
     ) -> np.ndarray:
         """For a host that owns every robot of the goal set (the central engine): the next block of
         phases on these positions, warm from the board, bid to an agreed final phase. Nobody else
         bids, so every phase's snapshot is this host's own board, and a phase is over when every
         robot is content. The same rounds, bids and board as begin(), bid() and check_agreement(),
         without a return to Python between rounds (agent.core.bidding.Bidders.settle_block), each
-        robot ranking its ``candidates`` best goals while they provably hold its best. Returns each
-        own robot's agreed goal, in the order of ``own``."""
+        robot ranking its ``candidates`` best goals while they provably hold its best. A phase that
+        takes more than ``max_rounds`` rounds (ROUNDS_PER_ROBOT per robot by default) is an error.
+        Returns each own robot's agreed goal, in the order of ``own``."""
         if len(self.own) != len(self.robots):
             raise ValueError("settle_alone needs a host that owns every robot of the goal set")
         if candidates < 3:
@@ -356,6 +362,8 @@ class Participant(Auction):
         self.begin_block(positions)
         eps = np.array(self.schedule)
         slack = np.maximum(eps, eps[-1] + self.hysteresis)  # as self.slack, phase by phase
+        if max_rounds is None:
+            max_rounds = max(100_000, ROUNDS_PER_ROBOT * len(self.robots))
         rounds, bids, settled = self._bidders.settle_block(eps, slack, max_rounds)
         self.instance += min(settled, self.phases - 1)
         self.board.version += 1
