@@ -45,6 +45,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import REPO, write_results  # noqa: E402
 from sim.outputs import render  # noqa: E402
 from sim.outputs.foxglove import scene_update, swarm_scene  # noqa: E402
+from tests.support.fake_bus import RecorderBus  # noqa: E402
 
 ARENA = (0.0, 0.0, 4.0, 3.0)
 FRAMES, ROBOTS, SIZE_PX, FPS = 300, 100, 720, 10
@@ -251,30 +252,6 @@ PER_GOAL_SET = ("/goals", "/display/goals")  # channels with a message a goal se
 HOSTS = 10  # --large's log: agent hosts of paper-sequence-10000 with -k 1000, a States and a Commands frame each a tick
 
 
-class _Inbox:
-    def __init__(self) -> None:
-        self.items: list = []
-
-    def drain(self) -> list:
-        out, self.items = self.items, []
-        return out
-
-
-class _Bus:
-    """What the recorder reads of a bus: its keys and two inboxes, fed in process."""
-
-    def __init__(self) -> None:
-        from transport.keys import Keys
-
-        self.keys, self.raw, self.alive = Keys(), _Inbox(), _Inbox()
-
-    def subscribe_raw(self, key: str) -> _Inbox:
-        return self.raw
-
-    def watch_alive(self) -> _Inbox:
-        return self.alive
-
-
 def _tick_messages(keys, arrays: dict[str, np.ndarray], k: int) -> list[tuple[str, bytes]]:  # type: ignore[no-untyped-def]
     """What a 10,000-robot run of :data:`HOSTS` agent hosts sends at tick k: the tracker's poses, each
     host's states and commands, the world's truth, and at tick 0 the goal set (no auction: its
@@ -316,7 +293,7 @@ def log_rows(ticks: int) -> list[str]:
     _, arrays = synthetic_run(ticks)
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "log.mcap"
-        bus = _Bus()
+        bus = RecorderBus()  # what the recorder reads of a bus, fed in process
         rec = Recorder(bus, robots=arrays["pose"].shape[1], tolerance=0.01, log_path=str(path))  # type: ignore[arg-type]
         rec.heading = False  # paper-sequence-10000's robots are holonomic
         start = time.perf_counter()
