@@ -65,6 +65,8 @@ def newest(source: Ros2PoseSource, robot: int, received: int) -> PoseSample | No
     return latest.get(robot) if source.stats()["received"] >= received else None
 
 
+@pytest.mark.slow
+@pytest.mark.serial  # a restart is judged by arrival times on the wall clock: a busy test beside it made two stale
 def test_motion_capture_drops_a_replayed_and_a_future_pose_and_hears_a_restarted_system_at_once():
     router = loopback_router()
     client = client_of(router)
@@ -90,9 +92,7 @@ def test_motion_capture_drops_a_replayed_and_a_future_pose_and_hears_a_restarted
         mocap = MocapEmulator(lambda t: np.array([[5.0, 0.0, 0.0]]), client, rate=MOCAP_RATE)
         with mocap:
             assert wait_for(lambda: (p := source.latest().get(0)) is not None and p.x == 5.0, timeout=5)
-        # silent for longer than RESTART_AFTER: a pose of the first run still in flight lands well
-        # before the restart (under load one landed after, and the restart's first poses were stale)
-        time.sleep(RESTART_AFTER + 1.0)
+        time.sleep(RESTART_AFTER)
         mocap.poses = lambda t: np.array([[6.0, 0.0, 0.0]])
         mocap.clock = lambda: time.time() - 30.0
         received = source.stats()["received"]
