@@ -264,6 +264,8 @@ class AgentHost:
         if len(where) < len(self.memory):
             return False
         self.cells.update(np.array([(q.x, q.y) for q in where.values()]))
+        if self.believed.newest is None and max(q.stamp for q in where.values()) <= 0.0:
+            self.believed.newest = 0  # nothing to fetch at the run's start: its epochs count from 1
         self.clock.greet(where, timeout)
         for q in ticking:
             self._take_pose(q)

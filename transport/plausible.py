@@ -47,19 +47,24 @@ class GoalSets:
     an epoch may skip at most ``AHEAD`` of the newest heard; a goal set is not stamped ``RESYNC``
     beyond the display time the receiver knows; its goals lie in the arena; an epoch heard again
     holds the same goal set (the coordinator repeats its newest for late joiners); and a new epoch
-    holds a goal set of its own, not one already heard under another epoch."""
+    holds a goal set of its own, not one already heard under another epoch.
+
+    ``newest``: the newest epoch the receiver knows of when it starts, 0 for one that starts with the
+    run (epochs count from 1); None for one that may join a run under way, which takes the first epoch
+    it hears: a forged first epoch taken by the world, which names the goal set of each tick, held
+    every lock-step agent waiting for a goal set that never comes."""
 
     KEPT = 8  # epochs remembered
 
-    def __init__(self, arena: tuple[float, float, float, float] | None = None) -> None:
+    def __init__(self, arena: tuple[float, float, float, float] | None = None, newest: int | None = None) -> None:
         self.arena = arena
-        self.newest = 0
+        self.newest = newest
         self._sent: dict[int, bytes] = {}  # epoch -> its goal set as first heard
         self._content: dict[bytes, int] = {}  # a goal set without its epoch -> its epoch
 
     def admit(self, goals: Goals, now: float | None) -> str | None:
         """None to take the goal set, or why not. ``now``: the display time the receiver knows."""
-        if (self.newest and goals.epoch > self.newest + AHEAD) or (
+        if (self.newest is not None and goals.epoch > self.newest + AHEAD) or (
             now is not None and goals.timing.stamp > now + RESYNC
         ):
             return FUTURE
@@ -75,7 +80,7 @@ class GoalSets:
         if content in self._content:
             return "replayed"
         self._sent[goals.epoch], self._content[content] = sent, goals.epoch
-        self.newest = max(self.newest, goals.epoch)
+        self.newest = max(self.newest or 0, goals.epoch)
         for old in sorted(self._sent)[: -self.KEPT]:
             del self._sent[old]
         self._content = {c: e for c, e in self._content.items() if e in self._sent}

@@ -166,7 +166,7 @@ class BodyNode:
         self.valid_until = np.full(n, -np.inf)  # when each robot's command runs out (-inf: stopped)
         self.live, self.ever_live = np.zeros(n, bool), np.zeros(n, bool)
         self.tick, self.withheld, self.goal_epoch = 0, False, 0
-        self.believed = GoalSets(scene.arena)  # which goal sets can be the coordinator's (as the agents judge)
+        self.believed = GoalSets(scene.arena, newest=0)  # which goal sets can be the coordinator's (as the agents judge)
         self.cmd_inbox = bus.commands_inbox()
         self.control_inbox = bus.subscribe(bus.keys.event, Event)
         self.goal_inbox = bus.subscribe(bus.keys.all_of("goals"), Goals)

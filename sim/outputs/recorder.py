@@ -147,7 +147,7 @@ class Recorder:
         self.dt = 0.0  # the control period, once the world's truth has told it
         # The record is what the swarm believed: goal sets and states judged as the robots judge them
         # (transport.plausible), so a faulty peer's copies do not end up in the measurement.
-        self.believed = GoalSets()
+        self.believed = GoalSets(newest=0)  # it starts with the run
         self.row_of_tick: dict[int, int] = {}  # tick -> its row of the trajectory
         self.step = 0  # the scene step of the newest goal set
         self.goal_sets: dict[int, Goals] = {}  # epoch -> the coordinator's goal set

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -10,8 +11,8 @@ import pytest
 from agent.neighbour_table import NeighbourTable
 from agent.pose_trust import CONFIRM, PoseTrust
 from tests.conftest import run_scene
-from transport.codec import State
-from transport.plausible import AHEAD, FUTURE, INCONSISTENT, RESYNC, STALE, TickLine, stamp_agrees
+from transport.codec import Goals, State
+from transport.plausible import AHEAD, FUTURE, INCONSISTENT, RESYNC, STALE, GoalSets, TickLine, stamp_agrees
 
 DT = 0.1
 
@@ -77,6 +78,20 @@ def test_a_clock_that_jumped_ahead_is_followed_once_it_goes_on():
     assert line.admit(10, wall=0.0, now=None) is None
     jumped = [line.admit(1000 + k, wall=0.1 + k * DT, now=line.newest) for k in range(round(RESYNC / DT) + 1)]
     assert jumped[0] == FUTURE and jumped[-1] is None
+
+
+def test_a_receiver_that_starts_with_the_run_refuses_a_forged_first_epoch():
+    """The world heard a faulty peer's copy of goal set 1 under epoch 6625 before the coordinator's
+    own; it named 6625 in every clock tick, and every lock-step agent waited for it at every tick."""
+    honest = Goals(1, 0, np.array([[0.5, 0.5], [0.6, 0.5]]), np.zeros((2, 3), np.uint8), np.arange(2))
+    forged = dataclasses.replace(honest, epoch=6625)
+    at_start = GoalSets((0, 0, 1, 1), newest=0)
+    assert at_start.admit(forged, None) == FUTURE
+    assert at_start.admit(honest, None) is None and at_start.newest == 1
+    assert at_start.admit(forged, None) == FUTURE
+    joining = GoalSets((0, 0, 1, 1))  # may join a run under way: takes the epoch it hears first
+    assert joining.admit(dataclasses.replace(honest, epoch=40), None) is None
+    assert joining.admit(forged, None) == FUTURE
 
 
 def test_a_neighbour_state_from_the_future_is_refused_and_never_pushes_out_the_honest_ones():
