@@ -5,12 +5,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-COOPERATING: float
-NON_COOPERATING: float
-PERTURBATION: float
-EPSILON: float
-N_VERTICES: int
-
 class Settings:
     def __init__(
         self,
@@ -23,10 +17,6 @@ class Settings:
         committed: float | None = ...,
         horizons: tuple[float, float, float] | None = ...,
     ) -> None: ...
-    @property
-    def diffdrive(self) -> bool: ...
-    @property
-    def v_max(self) -> float: ...
     @property
     def omega_cap(self) -> float: ...
 
@@ -49,7 +39,7 @@ class Batch:
         vmax: ArrayLike | None = ...,
     ) -> None: ...
 
-def vertex_angles(dent: float, n: int = ...) -> list[float]: ...
+def vertex_angles(dent: float) -> list[float]: ...
 def preferred_velocity(position: ArrayLike, goal: ArrayLike, v_pref: float, k_a: float) -> np.ndarray: ...
 def perturbation(robot_ids: ArrayLike, seed: int, tick: int = ..., magnitude: float = ...) -> np.ndarray: ...
 def preferred_velocities(

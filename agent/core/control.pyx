@@ -1,20 +1,7 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
 """A robot's control step (paper 5.2-5.4), written once and compiled: the same code steps one robot
-in its own process, K robots in an agent host and every robot in the central engine.
-
-Per robot, in this order:
-  preferred velocity   eq. 9 toward the goal (or a given one), 45 degrees right when blocked, and a
-                       tiny seeded perturbation that breaks symmetric deadlocks;
-  neighbours           where each heard neighbour can be now (extrapolated by its committed
-                       velocity, grown by how far it may have strayed, stale ones as obstacles);
-  ORCA lines           eq. 10-12 per neighbour; obstacle edges and the safety lines (no overlap
-                       within dt) are hard;
-  linear program       eq. 13-14 incrementally (RVO2's linearProgram2); where infeasible the robot
-                       horizon shrinks (paper 5.3) and finally the largest violation of the robot lines
-                       is minimised (linearProgram3);
-  NH-ORCA              differential drive: radii grown by the tracking error E, the polygon P_AHV of
-                       trackable velocities hard, the mirrored polygon (driving backwards) where the
-                       forward program is infeasible, then (v, omega) and the wheel speeds.
+in its own process, K robots in an agent host and every robot in the central engine. What each part
+does, with the paper's section and this file's function, is in docs/control_step.md.
 
 A robot's result depends on its own row alone (no reduction across robots), so a robot steps the
 same, bit for bit, alone or in any batch. Lines are a point and a unit direction, the permissible
@@ -31,11 +18,11 @@ import math
 
 import numpy as np
 
-COOPERATING = 0.5  # responsibility c toward a robot running the same ORCA (eq. 12)
-NON_COOPERATING = 1.0  # toward a dynamic obstacle, or a robot whose state is stale
-PERTURBATION = 1e-4  # largest component of the symmetry-breaking perturbation (m/s)
-EPSILON = 1e-5  # two unit directions are parallel below this |det| (as RVO2)
-N_VERTICES = 24  # P_AHV's vertices, denser ahead where its boundary turns fastest
+cdef double COOPERATING = 0.5  # responsibility c toward a robot running the same ORCA (eq. 12)
+cdef double NON_COOPERATING = 1.0  # toward a dynamic obstacle, or a robot whose state is stale
+cdef double PERTURBATION = 1e-4  # largest component of the symmetry-breaking perturbation (m/s)
+cdef double EPSILON = 1e-5  # two unit directions are parallel below this |det| (as RVO2)
+cdef int N_VERTICES = 24  # P_AHV's vertices, denser ahead where its boundary turns fastest
 
 # radii 1 ppm larger in the safety and obstacle lines: gaps may close completely, rounding must not
 # turn that into an overlap
@@ -43,10 +30,6 @@ cdef double BUFFER = 1.0 + 1e-6
 cdef double SHRINK = 4.0  # where infeasible the robot horizon is divided by this, down to dt
 cdef double COS_RIGHT = cos(-math.pi / 4)
 cdef double SIN_RIGHT = sin(-math.pi / 4)
-cdef double C_EPSILON = EPSILON
-cdef double C_PERTURBATION = PERTURBATION
-cdef double C_COOPERATING = COOPERATING
-cdef double C_NON_COOPERATING = NON_COOPERATING
 DEF MAX_VERTICES = 32
 
 
@@ -129,26 +112,17 @@ cdef class Settings:
         self.c = c
 
     @property
-    def diffdrive(self):
-        return self.c.diffdrive
-
-    @property
-    def v_max(self):
-        return self.c.v_max
-
-    @property
     def omega_cap(self):
         """The largest usable angular speed: omega_max, and no more than keeps a wheel within v_max."""
         return self.c.omega_cap
 
 
-
-def vertex_angles(double dent, int n=N_VERTICES):
+def vertex_angles(double dent):
     """Angles (to the heading) of P_AHV's vertices, increasing in (-pi, pi], denser ahead.
 
     S_AHV is convex except for a dent where case C begins (|theta| = T omega_cap, ``dent``); that
     angle is a vertex, so every edge is a chord of a convex arc of the boundary and lies in S_AHV."""
-    u = [-1.0 + 2.0 * k / n for k in range(1, n)]
+    u = [-1.0 + 2.0 * k / N_VERTICES for k in range(1, N_VERTICES)]
     angles = {math.pi * math.copysign(abs(x) ** 1.5, x) for x in u} | {math.pi}
     if dent < math.pi:
         angles |= {-dent, dent}
@@ -235,7 +209,7 @@ def preferred_velocities(Settings settings, robot_ids, position, velocity, goal,
         if want > 0.5 * s.v_pref and sqrt(v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1]) < 0.25 * want:
             x, y = COS_RIGHT * x - SIN_RIGHT * y, SIN_RIGHT * x + COS_RIGHT * y
         if x != 0.0 or y != 0.0:
-            _perturbation(ids[i], seed_word, tick_word, C_PERTURBATION, d)
+            _perturbation(ids[i], seed_word, tick_word, PERTURBATION, d)
             x, y = x + d[0], y + d[1]
         o[i, 0], o[i, 1] = x, y
     return out
@@ -266,7 +240,7 @@ cdef bint _on_line(Lines *L, int i, int n, bint all_lines, Target *g, double *ou
             continue
         den = dix * L.dy[j] - diy * L.dx[j]
         num = L.dx[j] * (piy - L.py[j]) - L.dy[j] * (pix - L.px[j])
-        if fabs(den) <= C_EPSILON:  # parallel: line j empties line i if i lies on its forbidden side
+        if fabs(den) <= EPSILON:  # parallel: line j empties line i if i lies on its forbidden side
             if num < 0.0:
                 return False
             continue
@@ -380,7 +354,7 @@ cdef void _least_violation(Lines *L, Lines *Q, int n, int n_hard, Target *g, dou
                 Q.px[j], Q.py[j], Q.dx[j], Q.dy[j], Q.use[j] = L.px[j], L.py[j], L.dx[j], L.dy[j], True
                 continue
             den = dix * L.dy[j] - diy * L.dx[j]
-            par = fabs(den) <= C_EPSILON
+            par = fabs(den) <= EPSILON
             Q.use[j] = not (par and dix * L.dx[j] + diy * L.dy[j] > 0.0)  # same direction: i dominates
             if par:
                 Q.px[j], Q.py[j] = 0.5 * (pix + L.px[j]), 0.5 * (piy + L.py[j])
@@ -607,7 +581,7 @@ cdef void _prepare(Config *s, Neighbourhood *h, Py_ssize_t i, Scratch *w, double
         w.ng[k] = horizon * (2.0 if stale else 1.0) * vmax
         w.nr[k] = r + s.noise + w.ng[k]
         w.nlead[k] = horizon if not stale else 0.0
-        w.nc[k] = C_COOPERATING if h.cooperative[j] and not stale else C_NON_COOPERATING
+        w.nc[k] = COOPERATING if h.cooperative[j] and not stale else NON_COOPERATING
         w.nok[k] = ok
 
 
@@ -835,8 +809,7 @@ cdef Result _nh_orca(Config *s, Scratch *w, Robot *me, double heading, Edges *ed
 
 
 cdef struct Rows:
-    # a batch's own rows: position, optimisation velocity, preferred velocity (B,2); per robot its
-    # heading, radius and maximum speed (B,)
+    # Batch's arrays
     Py_ssize_t b
     const double *position
     const double *velocity
@@ -944,7 +917,7 @@ def step_known(Settings settings, Batch robots, index, segments=None, out=None):
                 j = j if j >= 0 else 0
                 w.nx[k], w.ny[k] = rows.position[2 * j], rows.position[2 * j + 1]
                 w.nvx[k], w.nvy[k] = rows.velocity[2 * j], rows.velocity[2 * j + 1]
-                w.nr[k], w.ng[k], w.nc[k], w.nlead[k] = rows.radius[j], 0.0, C_COOPERATING, 0.0
+                w.nr[k], w.ng[k], w.nc[k], w.nlead[k] = rows.radius[j], 0.0, COOPERATING, 0.0
             fb[i] = _orca(s, w, &me, &obstacles.e, NULL, 0, False, &o[i, 0])
     return out, fallback
 
@@ -966,7 +939,7 @@ def prepare_neighbours(Settings settings, heard, vmax=None):
         _prepare(&settings.c, &nb.n, i, w, settings.c.v_max if vmax is None else vmax)
         for k in range(w.used, m):  # padding: as an invalid slot
             w.nx[k] = w.ny[k] = w.nvx[k] = w.nvy[k] = w.ng[k] = w.nlead[k] = 0.0
-            w.nr[k], w.nc[k], w.nok[k] = settings.c.noise, C_COOPERATING, False
+            w.nr[k], w.nc[k], w.nok[k] = settings.c.noise, COOPERATING, False
         for k in range(m):
             o[i, k, 0], o[i, k, 1], o[i, k, 2], o[i, k, 3] = w.nx[k], w.ny[k], w.nvx[k], w.nvy[k]
             o[i, k, 4], o[i, k, 5], o[i, k, 6], o[i, k, 7], o[i, k, 8] = w.nr[k], w.ng[k], w.nc[k], w.nlead[k], w.nok[k]

@@ -210,8 +210,7 @@ def nearest(
     if q == 0 or n == 0 or m == 0 or not reach > 0.0:
         return out_array
     cdef Grid g
-    g.cx = g.cy = g.start = g.order = NULL
-    g.sx = g.sy = NULL
+    grid_build(&g, points, reach / PARTS)  # frees what it took if it raises
     cdef double *best = <double *>malloc(m * sizeof(double))
     cdef int64_t *best_key = <int64_t *>malloc(m * sizeof(int64_t))
     cdef Py_ssize_t i, spread
@@ -222,7 +221,6 @@ def nearest(
         if best == NULL or best_key == NULL:
             raise MemoryError()
         nb.reach2, nb.inclusive, nb.m, nb.best, nb.best_key = reach2, inclusive, m, best, best_key
-        grid_build(&g, points, reach / PARTS)
         for i in range(n):
             far = max(far, fabs(points[i, 0]), fabs(points[i, 1]))
         for i in range(q):
@@ -250,9 +248,6 @@ cdef void _queries(Grid *g, Query *nb, const double[:, ::1] query, const int64_t
         qx = cell_index((px - g.x0) * g.per, -1, g.nx)  # outside the grid: the cell just outside
         qy = cell_index((py - g.y0) * g.per, -1, g.ny)
         nb.px, nb.py, nb.own, nb.k, nb.bound, nb.chosen = px, py, query_key[i], 0, nb.reach2, &out[i, 0]
-        # first the 3 x 3 cells around the query's (in a crowd they hold the m nearest, and the
-        # disc shrinks at once), then each column near the query, outward, as one run of points
-        # over the cells the disc covers there, less those 3 x 3
         for gx in range(max(qx - 1, 0), min(qx + 2, g.nx)):
             if qy + 1 >= 0 and qy - 1 < g.ny:
                 c = gx * g.ny
@@ -313,8 +308,7 @@ def close_pairs(
     if rows == 0 or n == 0:
         return True, best, best_i, best_j, pairs_array[:0], depth_array[:0]
     cdef Grid g
-    g.cx = g.cy = g.start = g.order = NULL
-    g.sx = g.sy = NULL
+    grid_build(&g, traj[0], reach)  # frees what it took if it raises
     cdef double *d2 = <double *>malloc(rows * sizeof(double))
     cdef Py_ssize_t i, j, a, ax, ay, c, row
     cdef int64_t scanned = 0
@@ -325,7 +319,6 @@ def close_pairs(
     try:
         if d2 == NULL:
             raise MemoryError()
-        grid_build(&g, traj[0], reach)
         for i in range(n):
             for ax in range(max(g.cx[i] - 1, 0), min(g.cx[i] + 2, g.nx)):
                 for ay in range(max(g.cy[i] - 1, 0), min(g.cy[i] + 2, g.ny)):
