@@ -463,23 +463,6 @@ cdef struct Scratch:
     Lines Q
 
 
-cdef struct Neighbourhood:
-    # what a batch heard, (B,M) row-major: states as broadcast, with their ages
-    Py_ssize_t m
-    const double *position
-    const double *velocity
-    const double *radius
-    const double *age
-    const unsigned char *valid
-    const unsigned char *cooperative
-
-
-cdef struct Edges:
-    # obstacle edges shared by the batch: n x (ax, ay, bx, by)
-    int n
-    const double *xy
-
-
 cdef class Work:
     """Owns a Scratch for M neighbours and up to ``size`` lines."""
 
@@ -507,50 +490,43 @@ cdef class Work:
         free(self.flags)
 
 
-cdef const double *_data(const double[::1] flat):
-    return &flat[0] if flat.shape[0] else NULL
-
-
-cdef const unsigned char *_flags(const unsigned char[::1] flat):
-    return &flat[0] if flat.shape[0] else NULL
-
-
 cdef class Heard:
-    """What a batch heard: neighbours' states (B,M) as broadcast, with their ages."""
+    """What a batch heard: neighbours' states (B,M) as broadcast, with their ages, row-major."""
 
-    cdef Neighbourhood n
-    cdef object arrays  # kept alive: n points into them
+    cdef Py_ssize_t b, m
+    cdef const double[::1] position, velocity, radius, age
+    cdef const unsigned char[::1] valid, cooperative
 
     def __init__(self, states):
         """From agent.core.step.NeighbourStates (or anything with its six arrays)."""
         valid = np.ascontiguousarray(states.valid, dtype=bool)
-        b, m = valid.shape
+        self.b, self.m = valid.shape
         floats = [np.ascontiguousarray(x, dtype=float).reshape(-1) for x in (states.position, states.velocity, states.radius, states.age)]
-        flags = [valid.reshape(-1).view(np.uint8), np.ascontiguousarray(np.broadcast_to(states.cooperative, (b, m)), dtype=bool).reshape(-1).view(np.uint8)]
-        if any(len(x) != k * b * m for x, k in zip(floats, (2, 2, 1, 1))):
+        if any(len(x) != k * valid.size for x, k in zip(floats, (2, 2, 1, 1))):
             raise ValueError("neighbour states must be (B,M,2), (B,M,2), (B,M) and (B,M) arrays")
-        self.arrays = (floats, flags)
-        self.n = Neighbourhood(m, _data(floats[0]), _data(floats[1]), _data(floats[2]), _data(floats[3]), _flags(flags[0]), _flags(flags[1]))
+        self.position, self.velocity, self.radius, self.age = floats
+        self.valid = valid.reshape(-1).view(np.uint8)
+        self.cooperative = np.ascontiguousarray(np.broadcast_to(states.cooperative, valid.shape), dtype=bool).reshape(-1).view(np.uint8)
 
     @property
     def batch(self):
-        return len(self.arrays[1][0]) // self.n.m if self.n.m else -1
+        return self.b if self.m else -1
 
 
 cdef class Obstacles:
-    """Obstacle edges (S,2,2) as the core reads them."""
+    """Obstacle edges (S,2,2) as the core reads them: n x (ax, ay, bx, by), shared by the batch."""
 
-    cdef Edges e
-    cdef object xy
+    cdef int n
+    cdef const double[::1] xy
 
     def __init__(self, segments=None):
         self.xy = np.zeros(0) if segments is None else np.ascontiguousarray(segments, dtype=float).reshape(-1)
         if len(self.xy) % 4:
             raise ValueError("obstacle segments must be an (S,2,2) array")
-        self.e = Edges(len(self.xy) // 4, _data(self.xy))
+        self.n = len(self.xy) // 4
 
 
-cdef void _prepare(Config *s, Neighbourhood *h, Py_ssize_t i, Scratch *w, double vmax) noexcept nogil:
+cdef void _prepare(Config *s, Heard h, Py_ssize_t i, Scratch *w, double vmax) noexcept nogil:
     """Neighbour states as of now from states stamped ``age`` ago. Fresh: a broadcast velocity is
     executed for ``committed`` s; after that the neighbour may have turned to anything up to vmax, so
     its position is extrapolated by min(age, committed) and its radius grown by noise + h vmax, h the
@@ -585,7 +561,7 @@ cdef void _prepare(Config *s, Neighbourhood *h, Py_ssize_t i, Scratch *w, double
         w.nok[k] = ok
 
 
-cdef int _hard_lines(Config *s, Scratch *w, Robot *me, Edges *edges, Lines *extra, int n_extra) noexcept nogil:
+cdef int _hard_lines(Config *s, Scratch *w, Robot *me, Obstacles edges, Lines *extra, int n_extra) noexcept nogil:
     """The lines kept in every fallback: obstacle edges (own radius and margin), ``extra`` (P_AHV),
     then the safety lines: horizon dt around zero velocities with the true radii, a neighbour grown
     only up to our surface (grown over us, several such lines would have no common solution).
@@ -603,7 +579,7 @@ cdef int _hard_lines(Config *s, Scratch *w, Robot *me, Edges *edges, Lines *extr
     cdef double reach = (r_obst + me.vmax * s.tau_obst) * (1.0 + 1e-6) + 1e-9, bx, by
     cdef const double *e
     for k in range(edges.n):
-        e = edges.xy + 4 * k
+        e = &edges.xy[4 * k]
         bx = max(max(min(e[0], e[2]) - me.x, me.x - max(e[0], e[2])), 0.0)
         by = max(max(min(e[1], e[3]) - me.y, me.y - max(e[1], e[3])), 0.0)
         if bx * bx + by * by > reach * reach:
@@ -656,7 +632,7 @@ cdef int _robot_lines(Config *s, Scratch *w, Robot *me, double horizon, int star
     return n
 
 
-cdef bint _orca(Config *s, Scratch *w, Robot *me, Edges *edges, Lines *extra, int n_extra, bint full_only,
+cdef bint _orca(Config *s, Scratch *w, Robot *me, Obstacles edges, Lines *extra, int n_extra, bint full_only,
                 double *out) noexcept nogil:
     """Eq. 14 for one robot: the velocity closest to its preferred one in every half-plane. Where
     infeasible (returns True: a fallback) the horizon shrinks by SHRINK down to dt (paper 5.3),
@@ -780,7 +756,7 @@ cdef struct Result:
     bint reverse  # NH-ORCA: the mirrored polygon, driving backwards
 
 
-cdef Result _nh_orca(Config *s, Scratch *w, Robot *me, double heading, Edges *edges) noexcept nogil:
+cdef Result _nh_orca(Config *s, Scratch *w, Robot *me, double heading, Obstacles edges) noexcept nogil:
     """NH-ORCA: radii grown by the tracking error, P_AHV hard; where infeasible at the full horizon
     the mirrored polygon (driving backwards) at the full horizon, else the forward fallback."""
     cdef Result r
@@ -808,33 +784,20 @@ cdef Result _nh_orca(Config *s, Scratch *w, Robot *me, double heading, Edges *ed
 # ---------------------------------------------------------------- batches
 
 
-cdef struct Rows:
-    # Batch's arrays
-    Py_ssize_t b
-    const double *position
-    const double *velocity
-    const double *pref
-    const double *heading
-    const double *radius
-    const double *vmax
-
-
 cdef class Batch:
     """A batch's own rows: position, optimisation velocity, preferred velocity (B,2), and per
     robot its heading, radius and maximum speed (B,; a scalar for all; None: the settings' v_max)."""
 
-    cdef Rows r
-    cdef object arrays  # kept alive: r points into them
+    cdef Py_ssize_t b
+    cdef const double[::1] position, velocity, pref, heading, radius, vmax
 
     def __init__(self, position, velocity, pref, heading=None, radius=None, vmax=None):
-        p = np.ascontiguousarray(position, dtype=float).reshape(-1)
-        b = len(p) // 2
-        per_robot = [_per_robot(0.0 if x is None else x, b) for x in (heading, radius)] + [_per_robot(np.nan if vmax is None else vmax, b)]
-        rows = [p, np.ascontiguousarray(velocity, dtype=float).reshape(-1), np.ascontiguousarray(pref, dtype=float).reshape(-1)]
-        if len(rows[1]) != 2 * b or len(rows[2]) != 2 * b:
+        self.position, self.velocity, self.pref = [np.ascontiguousarray(x, dtype=float).reshape(-1) for x in (position, velocity, pref)]
+        self.b = self.position.shape[0] // 2
+        if self.velocity.shape[0] != 2 * self.b or self.pref.shape[0] != 2 * self.b:
             raise ValueError("position, velocity and preferred velocity must be (B,2) arrays of one B")
-        self.arrays = rows + per_robot
-        self.r = Rows(b, _data(rows[0]), _data(rows[1]), _data(rows[2]), _data(per_robot[0]), _data(per_robot[1]), _data(per_robot[2]))
+        self.heading, self.radius = [_per_robot(0.0 if x is None else x, self.b) for x in (heading, radius)]
+        self.vmax = _per_robot(np.nan if vmax is None else vmax, self.b)
 
 
 cdef _per_robot(value, Py_ssize_t b):
@@ -844,7 +807,7 @@ cdef _per_robot(value, Py_ssize_t b):
     return np.full(b, float(a)) if a.ndim == 0 else np.ascontiguousarray(np.broadcast_to(a.reshape(-1), (b,)))
 
 
-cdef inline Robot _robot(Rows *rows, Py_ssize_t i, Config *s) noexcept nogil:
+cdef inline Robot _robot(Batch rows, Py_ssize_t i, Config *s) noexcept nogil:
     cdef double vmax = rows.vmax[i] if isfinite(rows.vmax[i]) else s.v_max
     return Robot(rows.position[2 * i], rows.position[2 * i + 1], rows.velocity[2 * i], rows.velocity[2 * i + 1],
                  rows.pref[2 * i], rows.pref[2 * i + 1], rows.radius[i], vmax)
@@ -858,10 +821,10 @@ def step(Settings settings, Batch robots, heard, segments=None):
     error (B,)). Without the GIL: the central engine's auction runs on another thread meanwhile."""
     cdef Heard nb = heard if isinstance(heard, Heard) else Heard(heard)
     cdef Obstacles obstacles = segments if isinstance(segments, Obstacles) else Obstacles(segments)
-    cdef Py_ssize_t b = robots.r.b, i
+    cdef Py_ssize_t b = robots.b, i
     if nb.batch not in (b, -1):
         raise ValueError(f"{nb.batch} rows of neighbour states for {b} robots")
-    cdef Work work = Work(nb.n.m, obstacles.e.n + MAX_VERTICES + 2 * nb.n.m)
+    cdef Work work = Work(nb.m, obstacles.n + MAX_VERTICES + 2 * nb.m)
     out = np.zeros((b, 7))
     cdef double[:, ::1] o = out
     cdef Config *s = &settings.c
@@ -870,12 +833,12 @@ def step(Settings settings, Batch robots, heard, segments=None):
     cdef Result r
     with nogil:
         for i in range(b):
-            me = _robot(&robots.r, i, s)
-            _prepare(s, &nb.n, i, w, me.vmax)
+            me = _robot(robots, i, s)
+            _prepare(s, nb, i, w, me.vmax)
             if s.diffdrive:
-                r = _nh_orca(s, w, &me, robots.r.heading[i], &obstacles.e)
+                r = _nh_orca(s, w, &me, robots.heading[i], obstacles)
             else:
-                r.fallback = _orca(s, w, &me, &obstacles.e, NULL, 0, False, &r.vx)
+                r.fallback = _orca(s, w, &me, obstacles, NULL, 0, False, &r.vx)
                 r.c0, r.c1, r.error, r.reverse = r.vx, r.vy, 0.0, False
             o[i, 0], o[i, 1], o[i, 2], o[i, 3] = r.vx, r.vy, r.c0, r.c1
             o[i, 4], o[i, 5], o[i, 6] = r.fallback, r.reverse, r.error
@@ -887,27 +850,26 @@ def step_known(Settings settings, Batch robots, index, segments=None, out=None):
     are the rows ``index`` (B,M) of the batch itself (-1: none), as they are now, cooperating, of
     their own radius. Returns (v_cf (B,2), fallback (B,)); v_cf is written into ``out`` (B,2) if
     given (an engine's spare buffer: not the batch's own velocities, which the neighbours read)."""
-    cdef const int64_t[:, ::1] idx = np.ascontiguousarray(index, dtype=np.int64).reshape(robots.r.b, -1)
+    cdef const int64_t[:, ::1] idx = np.ascontiguousarray(index, dtype=np.int64).reshape(robots.b, -1)
     cdef Obstacles obstacles = segments if isinstance(segments, Obstacles) else Obstacles(segments)
-    cdef Py_ssize_t b = robots.r.b, i, j
+    cdef Py_ssize_t b = robots.b, i, j
     cdef int m = idx.shape[1], k
     if out is None:
         out = np.empty((b, 2))
     cdef double[:, ::1] o = out
     if o.shape[0] != b or o.shape[1] != 2:
         raise ValueError(f"step_known: out must be ({b}, 2), not {out.shape}")
-    if b and &o[0, 0] == robots.r.velocity:
+    if b and &o[0, 0] == &robots.velocity[0]:
         raise ValueError("step_known: out must not be the batch's velocities (its neighbours read them)")
-    cdef Work work = Work(m, obstacles.e.n + 2 * m)
+    cdef Work work = Work(m, obstacles.n + 2 * m)
     fallback = np.zeros(b, bool)
     cdef unsigned char[::1] fb = fallback.view(np.uint8)
     cdef Config *s = &settings.c
     cdef Scratch *w = &work.s
-    cdef Rows *rows = &robots.r
     cdef Robot me
     with nogil:
         for i in range(b):
-            me = _robot(rows, i, s)
+            me = _robot(robots, i, s)
             w.used = m
             while w.used > 0 and idx[i, w.used - 1] < 0:
                 w.used -= 1
@@ -915,10 +877,10 @@ def step_known(Settings settings, Batch robots, index, segments=None, out=None):
                 j = idx[i, k]
                 w.nok[k] = j >= 0
                 j = j if j >= 0 else 0
-                w.nx[k], w.ny[k] = rows.position[2 * j], rows.position[2 * j + 1]
-                w.nvx[k], w.nvy[k] = rows.velocity[2 * j], rows.velocity[2 * j + 1]
-                w.nr[k], w.ng[k], w.nc[k], w.nlead[k] = rows.radius[j], 0.0, COOPERATING, 0.0
-            fb[i] = _orca(s, w, &me, &obstacles.e, NULL, 0, False, &o[i, 0])
+                w.nx[k], w.ny[k] = robots.position[2 * j], robots.position[2 * j + 1]
+                w.nvx[k], w.nvy[k] = robots.velocity[2 * j], robots.velocity[2 * j + 1]
+                w.nr[k], w.ng[k], w.nc[k], w.nlead[k] = robots.radius[j], 0.0, COOPERATING, 0.0
+            fb[i] = _orca(s, w, &me, obstacles, NULL, 0, False, &o[i, 0])
     return out, fallback
 
 
@@ -930,13 +892,13 @@ def prepare_neighbours(Settings settings, heard, vmax=None):
     (B,M,2), radius (B,M) grown, growth (B,M), responsibility (B,M), lead (B,M), valid (B,M))."""
     cdef Heard nb = heard if isinstance(heard, Heard) else Heard(heard)
     cdef Py_ssize_t b = max(nb.batch, 0), i
-    cdef int m = nb.n.m, k
+    cdef int m = nb.m, k
     cdef Work work = Work(m, 1)
     cdef Scratch *w = &work.s
     out = np.empty((b, m, 9))
     cdef double[:, :, ::1] o = out
     for i in range(b):
-        _prepare(&settings.c, &nb.n, i, w, settings.c.v_max if vmax is None else vmax)
+        _prepare(&settings.c, nb, i, w, settings.c.v_max if vmax is None else vmax)
         for k in range(w.used, m):  # padding: as an invalid slot
             w.nx[k] = w.ny[k] = w.nvx[k] = w.nvy[k] = w.ng[k] = w.nlead[k] = 0.0
             w.nr[k], w.nc[k], w.nok[k] = settings.c.noise, COOPERATING, False
