@@ -93,9 +93,7 @@ _SETTINGS: dict[tuple, Settings] = {}
 def settings_of(params: RobotParams) -> Settings:
     """The compiled core's settings of ``params`` (all but the radius, which a late real-time agent
     grows every tick: made once per shape)."""
-    key = (params.kinematics, params.v_pref, params.k_a, params.v_max, params.tau, params.tau_obst, params.dt,
-           params.noise_bound, params.stale_after, params.wheel_base, params.omega_max, params.t_orient,
-           params.error_min, params.error_max)  # fmt: skip
+    key = tuple(value for name, value in vars(params).items() if name != "radius")
     found = _SETTINGS.get(key)
     if found is None:
         found = _SETTINGS[key] = Settings(params)
