@@ -28,24 +28,22 @@ HELLO_EVERY = 0.1  # s between a lock-step host's hellos before the first tick
 HELLO_TIMEOUT = 30.0  # s a host waits for its neighbours' hellos before it says it is alive anyway
 
 
-class WallClock:
-    """Real time: a tick's poses as they come; robots acting late grow their margins."""
-
-    lockstep = False
+class HostClock:
+    """What the host asks of its clock at each point of a tick; each hook does nothing unless the
+    clock needs it."""
 
     def __init__(self, host: Any) -> None:  # the agent.runtime.AgentHost whose ticks this clock brings
-        self.host, p = host, host.params
-        self.pose_period: float | None = p.dt  # a pose's tick may not run ahead of the wall clock
-        self.collect = host.config.batch_wait  # s to wait for the rest of a tick's poses
-        self.lateness = Lateness(p.dt, p.command_margin)  # how old a pose is when acted on
-        self.compute = 0.0  # wall seconds the last tick's step took (its command leaves that much later)
+        self.host = host
+        self.pose_period: float | None = None  # a pose's tick may not run ahead of the wall clock by more
+        self.collect = 0.0  # s to wait for the rest of a tick's poses
+        self.lateness = Lateness(host.params.dt, host.params.command_margin)  # real time: a pose's age acted on
         self.inbox: Inbox[Tick] | None = None  # the world's clock messages (lock-step)
-        self.silent: set[int] = set()
+        self.silent: set[int] = set()  # lock-step: nearby robots that did not answer in time
         self.state_waits = 0
         self.hello_every = math.inf  # s between hellos (lock-step's start-up)
 
     def greet(self, where: dict[int, Pose], timeout: float) -> None:
-        """Before the robots say they are alive, at ``where`` (lock-step only)."""
+        """Before the robots say they are alive, at ``where``."""
 
     def say_hello(self) -> None:
         pass
@@ -61,21 +59,17 @@ class WallClock:
         return None
 
     def holds(self, goals: Goals) -> bool:
-        """A goal set held back until a tick takes it up (lock-step only)."""
+        """A goal set held back until a tick takes it up."""
         return False
 
     def poses_arrived(self, poses: list[Pose], wall: float) -> None:
-        if poses:
-            self.lateness.arrived(max(q.stamp for q in poses), wall)
+        pass
 
     def before_step(self, poses: list[Pose]) -> None:
         pass
 
     def params_at(self, stamp: float, began: float) -> RobotParams:
-        """Late: the body may have strayed from the pose (agent.lateness)."""
-        p = self.host.params
-        late = self.lateness.at(stamp, began + self.compute)
-        return p.grown(strayed(late, p.v_max)) if late > 0 else p
+        return self.host.params
 
     def await_neighbours(self, tick: int, position: np.ndarray) -> None:
         pass
@@ -84,17 +78,37 @@ class WallClock:
         pass
 
     def stepped(self, began: float) -> None:
-        self.compute = time.monotonic() - began
+        pass
 
 
-class LockStep(WallClock):
-    """The world's ticks: a tick waits for its neighbours' states and the goal sets it names."""
-
-    lockstep = True
+class WallClock(HostClock):
+    """Real time: a tick's poses as they come; robots acting late grow their margins."""
 
     def __init__(self, host: Any) -> None:
         super().__init__(host)
-        self.pose_period, self.collect = None, host.config.state_wait
+        self.pose_period, self.collect = host.params.dt, host.config.batch_wait
+        self.compute = 0.0  # wall seconds the last tick's step took (its command leaves that much later)
+
+    def poses_arrived(self, poses: list[Pose], wall: float) -> None:
+        if poses:
+            self.lateness.arrived(max(q.stamp for q in poses), wall)
+
+    def params_at(self, stamp: float, began: float) -> RobotParams:
+        """Late: the body may have strayed from the pose (agent.lateness)."""
+        p = self.host.params
+        late = self.lateness.at(stamp, began + self.compute)
+        return p.grown(strayed(late, p.v_max)) if late > 0 else p
+
+    def stepped(self, began: float) -> None:
+        self.compute = time.monotonic() - began
+
+
+class LockStep(HostClock):
+    """The world's ticks: a tick waits for its neighbours' states and the goal sets it names."""
+
+    def __init__(self, host: Any) -> None:
+        super().__init__(host)
+        self.collect = host.config.state_wait
         self.ticks = self.inbox = host.bus.subscribe(host.keys.clock, Tick)
         self.clock = Clock()  # the world's clock as heard
         self.named: dict[int, int] = {}  # tick -> the newest goal set the world named in it
@@ -156,14 +170,8 @@ class LockStep(WallClock):
         self.unnamed[goals.epoch] = goals
         return True
 
-    def poses_arrived(self, poses: list[Pose], wall: float) -> None:
-        pass
-
     def before_step(self, poses: list[Pose]) -> None:
         self.host.state_inbox.sim_time = max(p.stamp for p in poses)
-
-    def params_at(self, stamp: float, began: float) -> RobotParams:
-        return self.host.params
 
     def await_neighbours(self, tick: int, position: np.ndarray) -> None:
         """Wait until every nearby robot's state of the previous tick is here.

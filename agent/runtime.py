@@ -35,7 +35,7 @@ from transport.plausible import INCONSISTENT, GoalSets, TickLine, stamp_agrees
 
 from . import loop
 from .assignment import AuctionLink
-from .clocks import LockStep, WallClock
+from .clocks import HostClock, LockStep, WallClock
 from .core.params import DIFFDRIVE, RobotParams
 from .core.policy import Decision, GoalTiming, Memory
 from .core.step import NeighbourStates, static_segments
@@ -218,7 +218,7 @@ class AgentHost:
         self.goal_sets: dict[int, Goals] = {}  # the latest auctioned goal sets by epoch (timing, motion)
         self.newest_heard = 0  # epoch of the newest goal set heard (per-robot goals too)
         self.believed = GoalSets(config.arena)  # which goal sets can be the coordinator's
-        self.clock = LockStep(self) if config.lockstep else WallClock(self)
+        self.clock: HostClock = LockStep(self) if config.lockstep else WallClock(self)
         self.pose_lines = {r: TickLine(self.clock.pose_period) for r in config.robots}
         self.auction = AuctionLink(
             bus,

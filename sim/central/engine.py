@@ -364,9 +364,12 @@ def simulate(
                 converged_since = None
             clock.lap("other")
             decision = loop.tick(robots, robots.sense(tick), seams)
-            pose, goal, color = world.poses, decision.intent.goal, robots.held_goals.color.copy()
-            for name, value in zip(rec, (t, pose, world.velocities, color, goal, auction.assignment, k)):
+            pose, goal = world.poses, decision.intent.goal
+            for name, value in zip(
+                rec, (t, pose, world.velocities, robots.held_goals.color, goal, auction.assignment, k)
+            ):
                 rec[name][tick] = value
+            color = rec["color"][tick]  # this tick's colours, as recorded
             if view is not None:  # sim.outputs.view.SwarmView: the live view, one batch a tick
                 view.tick(tick, t, pose, color, goal)
             clock.lap("record")
