@@ -18,8 +18,8 @@ disc per robot (no arrow, no metadata), about a third of the bytes; its goals ar
 from __future__ import annotations
 
 import struct
-from collections.abc import Callable, Iterable
-from typing import Any
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import numpy as np
 from foxglove.messages import (
@@ -77,6 +77,17 @@ def _pose(x: float, y: float, z: float, qz: float, qw: float) -> Pose:
     return Pose(position=Vector3(x=x, y=y, z=z), orientation=Quaternion(x=0.0, y=0.0, z=qz, w=qw))
 
 
+class _Drawn(NamedTuple):
+    """One tick's robots as drawn: rounded to QUANTUM, as lists (the SDK's messages take floats)."""
+
+    xy: list  # (N, 2) disc centres, m
+    r: list  # (N,) radii, m
+    qz: list  # (N,) heading as a rotation about z: its quaternion's z and w
+    qw: list
+    rgb: list  # (N, 3) LED colours, 0..1
+    goal: list  # (N, 2) goals, m (NaN: none)
+
+
 def scene_update(
     t_ns: int,
     pose: np.ndarray,
@@ -84,9 +95,6 @@ def scene_update(
     color: np.ndarray | None = None,
     *,
     goal: np.ndarray | None = None,
-    ids: Iterable[Any] | None = None,
-    frame_id: str = DISPLAY_FRAME,
-    height: float = DISC_HEIGHT,
     heading: bool = True,
 ) -> SceneUpdate:
     """A ``foxglove.SceneUpdate`` at time ``t_ns`` (ns) for N robots.
@@ -100,74 +108,75 @@ def scene_update(
     n = len(pose)
     radius = np.broadcast_to(np.asarray(radius, dtype=float), (n,))
     rgb = np.broadcast_to(NO_LED, (n, 3)) if color is None else np.asarray(color).reshape(n, 3)
-    rgb_unit = _quantised(np.asarray(rgb, dtype=float) / 255.0)
     goal_xy = np.full((n, 2), np.nan) if goal is None else np.asarray(goal, dtype=float).reshape(n, 2)
-    ids = [str(i) for i in (range(n) if ids is None else ids)]
     theta = np.where(np.isfinite(pose[:, 2]), pose[:, 2], 0.0)
-    qz, qw = _quantised(np.sin(theta / 2)), _quantised(np.cos(theta / 2))
     drawn = (np.isfinite(pose[:, :2]).all(axis=1) & np.isfinite(radius) & (radius > 0)).tolist()
+    robots = _Drawn(
+        *(_quantised(a) for a in (pose[:, :2], radius, np.sin(theta / 2), np.cos(theta / 2))),
+        _quantised(np.asarray(rgb, dtype=float) / 255.0),
+        _quantised(goal_xy),
+    )
     has_goal = np.isfinite(goal_xy).all(axis=1).tolist()
-    xy, r, gxy = (_quantised(a) for a in (pose[:, :2], radius, goal_xy))
     stamp = _timestamp(t_ns)
-    forever = Duration(sec=0, nsec=0)
-    dark = Color(r=HEADING_COLOR[0], g=HEADING_COLOR[1], b=HEADING_COLOR[2], a=1.0)
-
     entities, deletions = [], []
     for i in range(n):
-        if not drawn[i]:
+        if drawn[i]:
+            entities.append(_robot_entity(stamp, i, robots, heading, has_goal[i]))
+        else:
             deletions.append(
-                SceneEntityDeletion(timestamp=stamp, type=SceneEntityDeletionType.MatchingId, id=f"robot/{ids[i]}")
+                SceneEntityDeletion(timestamp=stamp, type=SceneEntityDeletionType.MatchingId, id=f"robot/{i}")
             )
-            continue
-        x, y = xy[i]
-        red, green, blue = rgb_unit[i]
-        cylinders = [
-            CylinderPrimitive(
-                pose=_pose(x, y, height / 2, qz[i], qw[i]),
-                size=Vector3(x=2 * r[i], y=2 * r[i], z=height),
-                bottom_scale=1.0,
-                top_scale=1.0,
-                color=Color(r=red, g=green, b=blue, a=1.0),
-            )
-        ]
-        arrows = []
-        if heading:
-            arrows.append(
-                ArrowPrimitive(
-                    pose=_pose(x, y, height, qz[i], qw[i]),
-                    shaft_length=0.6 * r[i],
-                    shaft_diameter=0.15 * r[i],
-                    head_length=0.35 * r[i],
-                    head_diameter=0.35 * r[i],
-                    color=dark,
-                )
-            )
-        spheres, metadata = [], []
-        if has_goal[i]:
-            d = 2 * r[i] * GOAL_SIZE
-            gx, gy = gxy[i]
-            spheres.append(
-                SpherePrimitive(
-                    pose=_pose(gx, gy, d / 2, *FLAT[2:]),
-                    size=Vector3(x=d, y=d, z=d),
-                    color=Color(r=red, g=green, b=blue, a=GOAL_ALPHA),
-                )
-            )
-            metadata.append(KeyValuePair(key="goal", value=f"{gx:.3f}, {gy:.3f}"))
-        entities.append(
-            SceneEntity(
-                timestamp=stamp,
-                frame_id=frame_id,
-                id=f"robot/{ids[i]}",
-                lifetime=forever,
-                frame_locked=False,
-                metadata=metadata,
-                cylinders=cylinders,
-                arrows=arrows,
-                spheres=spheres,
+    return SceneUpdate(deletions=deletions, entities=entities)
+
+
+def _robot_entity(stamp: Timestamp, i: int, robots: _Drawn, heading: bool, has_goal: bool) -> SceneEntity:
+    """Robot i's disc, its heading arrow and its goal sphere (with the goal in its metadata)."""
+    (x, y), r, qz, qw = robots.xy[i], robots.r[i], robots.qz[i], robots.qw[i]
+    red, green, blue = robots.rgb[i]
+    cylinders = [
+        CylinderPrimitive(
+            pose=_pose(x, y, DISC_HEIGHT / 2, qz, qw),
+            size=Vector3(x=2 * r, y=2 * r, z=DISC_HEIGHT),
+            bottom_scale=1.0,
+            top_scale=1.0,
+            color=Color(r=red, g=green, b=blue, a=1.0),
+        )
+    ]
+    arrows = []
+    if heading:
+        arrows.append(
+            ArrowPrimitive(
+                pose=_pose(x, y, DISC_HEIGHT, qz, qw),
+                shaft_length=0.6 * r,
+                shaft_diameter=0.15 * r,
+                head_length=0.35 * r,
+                head_diameter=0.35 * r,
+                color=Color(r=HEADING_COLOR[0], g=HEADING_COLOR[1], b=HEADING_COLOR[2], a=1.0),
             )
         )
-    return SceneUpdate(deletions=deletions, entities=entities)
+    spheres, metadata = [], []
+    if has_goal:
+        d = 2 * r * GOAL_SIZE
+        gx, gy = robots.goal[i]
+        spheres.append(
+            SpherePrimitive(
+                pose=_pose(gx, gy, d / 2, *FLAT[2:]),
+                size=Vector3(x=d, y=d, z=d),
+                color=Color(r=red, g=green, b=blue, a=GOAL_ALPHA),
+            )
+        )
+        metadata.append(KeyValuePair(key="goal", value=f"{gx:.3f}, {gy:.3f}"))
+    return SceneEntity(
+        timestamp=stamp,
+        frame_id=DISPLAY_FRAME,
+        id=f"robot/{i}",
+        lifetime=Duration(sec=0, nsec=0),  # forever
+        frame_locked=False,
+        metadata=metadata,
+        cylinders=cylinders,
+        arrows=arrows,
+        spheres=spheres,
+    )
 
 
 # SceneEntity's field numbers in Foxglove's schema (foxglove/SceneEntity.proto)
