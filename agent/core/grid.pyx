@@ -2,7 +2,7 @@
 
 - `nearest`: each query point's up to ``m`` nearest points within ``reach``. An agent calls it for its
   one robot, a host for its K robots, the central engines for all of them (agent.neighbour_table,
-  agent.core.rvo, sim.central.link), so a robot's neighbours depend only on its own position and the points,
+  sim.central.rvo, sim.central.link), so a robot's neighbours depend only on its own position and the points,
   never on the batch it is computed in.
 - `close_pairs`: every pair of discs within reach of each other over a few states, with the closest
   pair and the overlaps: the simulated world's contact detection (sim.bodies.proximity, sim.bodies.world).
@@ -92,7 +92,7 @@ cdef int grid_build(Grid *g, const double[:, ::1] points, double width) except -
         g.start[g.cx[i] * g.ny + g.cy[i] + 1] += 1
     for c in range(cells):
         g.start[c + 1] += g.start[c]
-    # counting sort, stable: order[start[c] + k] is the k-th lowest index in cell c (cx as scratch)
+    # counting sort, stable: order[start[c] + k] is the k-th lowest index in cell c
     for i in range(n):
         c = g.cx[i] * g.ny + g.cy[i]
         g.order[g.start[c]] = i
@@ -394,10 +394,8 @@ def neighbour_rows(const int64_t[:, ::1] idx, const double[:, ::1] table):
                 break
             if j >= table.shape[0]:
                 raise IndexError(f"neighbour_rows: index {j} past the table's {table.shape[0]} rows")
-            position[i, k, 0] = table[j, 0]
-            position[i, k, 1] = table[j, 1]
-            velocity[i, k, 0] = table[j, 2]
-            velocity[i, k, 1] = table[j, 3]
+            position[i, k, 0], position[i, k, 1] = table[j, 0], table[j, 1]
+            velocity[i, k, 0], velocity[i, k, 1] = table[j, 2], table[j, 3]
             radius[i, k] = table[j, 4]
             age[i, k] = table[j, 5]
             valid[i, k] = 1
