@@ -154,6 +154,8 @@ class Participant(Auction):
         self.is_own = np.isin(self.robots, self.own_ids)
         self.is_own_id = np.zeros(int(self.robots.max(initial=0)) + 2, bool)  # by robot id + 1 (owner -1: none)
         self.is_own_id[self.own_ids + 1] = True
+        self._member = np.zeros(np.iinfo(RECORD["robot"]).max + 1, bool)  # by any robot id a record can carry
+        self._member[self.robots] = True
         self.board = Board(len(self.goals))
         self.instance = -1  # not started: waits for the robots' positions
         k = len(self.own)
@@ -445,7 +447,7 @@ class Participant(Auction):
         if len(recs) <= SMALL:  # a robot per host: a set lookup costs less than np.isin
             ids = recs["robot"].tolist()
             return recs if all(r in self.row_of for r in ids) else recs[[r in self.row_of for r in ids]]
-        return recs[np.isin(recs["robot"], self.robots)]
+        return recs[self._member[recs["robot"]]]
 
     def absorb(self, instance: int, serial: int, digest: int, recs: np.ndarray) -> bool:
         """Merge another host's records, of robots of this goal set only (members_only: what came
