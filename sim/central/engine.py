@@ -320,6 +320,22 @@ class Central:
         """The world applies the commands between ticks (simulate)."""
 
 
+class Convergence:
+    """Whether every robot has held its goal for ``hold`` s (None: the run does not end on it);
+    judged only once the last image is up, as earlier images keep their hold."""
+
+    def __init__(self, hold: float | None) -> None:
+        self.hold = hold
+        self.since: float | None = None  # when the robots last arrived, all of them
+
+    def held(self, t: float, at_goals: bool) -> bool:
+        if self.hold is None or not at_goals:
+            self.since = None
+            return False
+        self.since = t if self.since is None else self.since
+        return t - self.since >= self.hold
+
+
 def simulate(
     scene: Scene,
     *,
@@ -336,10 +352,7 @@ def simulate(
     second thread while this one searches neighbours and steps the control core on the goals the
     robots hold, and only the robots whose goal changed are stepped again (the same run, to the bit,
     as without: tests/integration/test_central_overlap.py)."""
-    if any(e["kind"] in ("fail", "tracker-outage", "tracker-glitch") for e in scene.events):
-        raise ValueError(
-            "fail and tracker-outage events, and tracker-glitch ones (faults of processes and messages), need the distributed engine"
-        )
+    _refuse_process_faults(scene)
     params, world = world_of(scene)
     link = link if link is not None else InProcessLink(scene.robots)
     clock = clock if clock is not None else StepClock()
@@ -350,18 +363,17 @@ def simulate(
     events = sorted(scene.events, key=lambda e: e["t"])
     steps, last_step = round(scene.duration / params.dt), max(len(scene.steps) - 1, 0)
     rec = _recording(steps + 1, scene.robots)
-    fallbacks, converged_since, end_reason = 0, None, "duration"
+    converged = Convergence(scene.converge_hold if scene.ends_on_convergence else None)
+    fallbacks, end_reason = 0, "duration"
     wall0 = last_say = time.time()
     try:
         for tick in range(steps + 1):
             clock.start()
             t = tick * params.dt
-            while events and events[0]["t"] <= t + 1e-9:
-                ev = events.pop(0)
-                world.teleport(ev["robot"], tuple(ev["pose"]))
+            while events and events[0]["t"] <= t + 1e-9:  # the scene's scripted teleports
+                world.teleport(events[0]["robot"], tuple(events.pop(0)["pose"]))
             if (k := scene.step_at(t)) != auction.shown:
                 auction.show(k)
-                converged_since = None
             clock.lap("other")
             decision = loop.tick(robots, robots.sense(tick), seams)
             pose, goal = world.poses, decision.intent.goal
@@ -373,20 +385,11 @@ def simulate(
             if view is not None:  # sim.outputs.view.SwarmView: the live view, one batch a tick
                 view.tick(tick, t, pose, color, goal)
             clock.lap("record")
-            # Converging ends the run only once the last image is up: earlier images keep their hold.
             has_goal = robots.has_goal()
-            if (
-                k == last_step
-                and scene.ends_on_convergence
-                and has_goal.any()
-                and _at_goal(pose, goal, params)[has_goal].all()
-            ):
-                converged_since = t if converged_since is None else converged_since
-                if t - converged_since >= scene.converge_hold:
-                    end_reason = "converged"
-                    break  # the run ends here: no last step
-            else:
-                converged_since = None
+            last_image_up = k == last_step and has_goal.any()
+            if converged.held(t, last_image_up and _at_goal(pose, goal, params)[has_goal].all()):
+                end_reason = "converged"
+                break  # the run ends here: no last step
             if tick == steps:
                 break
             velocity_next = _move(world, robots.movers, decision.step, pose, t, params.dt)
@@ -396,19 +399,29 @@ def simulate(
             fallbacks += int(decision.step.fallback.sum())
             if progress is not None and time.time() - last_say >= 1.0:
                 last_say = time.time()
-                held = f"at goal {int(_at_goal(pose, goal, params).sum())}/{int(has_goal.sum())}"
-                held = held if has_goal.any() else "waiting for the goal set"
-                print(
-                    f"[{scene.name}] central t={t:6.1f} s  step {k}  {held}  contacts {len(world.contacts)}",
-                    file=progress,
-                    flush=True,
-                )
+                _say_progress(progress, scene.name, (t, k), _at_goal(pose, goal, params), has_goal, world)
             clock.lap("other")
     finally:
         beside.pool.shutdown()
     arrays = {name: rows[: tick + 1] for name, rows in rec.items()}  # a converged run ends early
     how = (list(world.contacts), float(world.min_clearance), fallbacks, auction.penalties)
     return Outcome(arrays, *how, end_reason, time.time() - wall0)
+
+
+def _refuse_process_faults(scene: Scene) -> None:
+    if any(e["kind"] in ("fail", "tracker-outage", "tracker-glitch") for e in scene.events):
+        raise ValueError(
+            "fail and tracker-outage events, and tracker-glitch ones (faults of processes and messages), need the distributed engine"
+        )
+
+
+def _say_progress(
+    out: TextIO, name: str, when: tuple[float, int], at_goal: np.ndarray, has_goal: np.ndarray, world
+) -> None:
+    """One line of progress: the display time and step, the robots at their goals, the contacts."""
+    (t, k), held = when, f"at goal {int(at_goal.sum())}/{int(has_goal.sum())}"
+    held = held if has_goal.any() else "waiting for the goal set"
+    print(f"[{name}] central t={t:6.1f} s  step {k}  {held}  contacts {len(world.contacts)}", file=out, flush=True)
 
 
 def run_central(
