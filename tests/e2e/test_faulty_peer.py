@@ -76,7 +76,13 @@ def run_with_peer(where: Path, run_args: tuple[str, ...], mode: str = "all") -> 
             stderr=subprocess.PIPE,
             text=True,
         )
-        _, err = run.communicate(timeout=RUN_TIMEOUT)
+        try:
+            _, err = run.communicate(timeout=RUN_TIMEOUT)
+        except subprocess.TimeoutExpired:
+            _stop(run)
+            pytest.fail(
+                f"the run took over {RUN_TIMEOUT} s: its processes' logs are in {where / 'run.partial' / 'logs'}"
+            )
         assert run.returncode == 0, err[-3000:]
     finally:
         if peer is not None:
