@@ -89,8 +89,9 @@ class Inbox(Generic[T]):
         self._rng: Any = None
         self.subscriber: Any = None
         self.bell: threading.Event | None = None  # rung on every arrival: one wait serves several inboxes
-        # robot -> the newest tick of its records that reached this inbox, whatever the fault plan did
-        # with them (None: not kept). A lock-step owner waits on it, then the plan's deterministic fate.
+        # robot -> the tick of its record that reached this inbox last, whatever the fault plan did
+        # with it (None: not kept). A lock-step owner waits on it, then the plan's deterministic fate.
+        # The last, not the greatest: one forged from the future would stand for thousands of ticks.
         self.seen: dict[int, int] | None = None
         self.pulled = pulled
         self.channels: list[Any] = []  # pulled: the subscribers whose channels feed this inbox
@@ -140,7 +141,7 @@ class Inbox(Generic[T]):
         finally:  # after the records are queued, held or dropped: whoever waits on seen finds them
             if self.seen is not None and tick != BEFORE_START:  # not hellos
                 for v in views:
-                    self.seen[v.robot] = max(self.seen.get(v.robot, tick), tick)
+                    self.seen[v.robot] = tick
 
     def _draws(self, key: str | None = None, stamp: float | None = None) -> Any:
         """The random draws of this inbox's fault: one stream, or, given a message's key and stamp,
@@ -231,7 +232,7 @@ class Inbox(Generic[T]):
                 out += views
                 if seen is not None and tick != BEFORE_START:  # not hellos
                     for v in views:
-                        seen[v.robot] = max(seen.get(v.robot, tick), tick)
+                        seen[v.robot] = tick
         return out
 
     def get(self, timeout: float | None = None) -> tuple[str, T] | None:

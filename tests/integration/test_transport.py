@@ -433,6 +433,22 @@ def test_a_pulled_inbox_needs_no_thread_and_keeps_what_came_before_an_unsubscrib
         assert inbox.drain() == []  # nothing from the cell it left
 
 
+def test_a_state_forged_from_the_future_does_not_stand_for_the_robots_next_ones(router):
+    """A lock-step host waits on ``seen`` for a nearby robot's state of the tick before (even one
+    its fault plan then drops); a copy of a state with its tick moved 5000 ahead, kept as the
+    greatest, made every later wait for that robot run out."""
+    with Bus(client_of(router), "t") as a, Bus(client_of(router), "t") as b:
+        inbox = b.inbox(State, pulled=True)
+        inbox.seen = {}
+        b.subscribe_into(b.keys.state_cell((0, 0)), inbox)
+        time.sleep(0.3)
+        for tick in (5, 5005, 6):
+            a.publish(a.keys.state((0, 0), 4), States.one(State(4, tick, 0.5, 0, 0, 0, 0, 0.045, 0, 0, -1, 0)))
+            time.sleep(0.2)
+            inbox.take()
+            assert inbox.seen == {4: tick}
+
+
 def test_taking_from_a_pulled_inbox_gives_what_draining_gives_records_queued_first(router):
     """take() is drain() without the keys: records a wait already queued come first, then those
     still in zenoh's channels in the order each cell's robots spoke, malformed ones counted."""
