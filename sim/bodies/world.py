@@ -158,6 +158,25 @@ class ActuationNoise:
 DEFAULT_NOISE = ActuationNoise()  # the default: 2 % relative noise, seed 0
 
 
+def _checked_bodies(bodies: Sequence[Body], poses: np.ndarray) -> tuple[list[Body], np.ndarray]:
+    """The bodies as a list and their poses as an (N, 3) float array, or a ValueError saying what is wrong."""
+    bodies = list(bodies)
+    if not bodies:
+        raise ValueError("a world needs at least one robot body")
+    for k, b in enumerate(bodies):
+        if not isinstance(b, Body):
+            raise ValueError(f"bodies[{k}] must be a Body, not {type(b).__name__}")
+    try:
+        p = np.array(poses, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError("poses must be an (N, 3) array of numbers (x, y, theta)") from None
+    if p.shape != (len(bodies), 3):
+        raise ValueError(f"poses must have shape ({len(bodies)}, 3) to match the bodies, not {p.shape}")
+    if not np.all(np.isfinite(p)):
+        raise ValueError("poses must be finite")
+    return bodies, p
+
+
 class World:
     """N disc robots in a plane with optional arena walls and polygon obstacles; see the module doc."""
 
@@ -171,20 +190,7 @@ class World:
         noise: ActuationNoise = DEFAULT_NOISE,
         substep: float = 0.01,
     ) -> None:
-        bodies = list(bodies)
-        if not bodies:
-            raise ValueError("a world needs at least one robot body")
-        for k, b in enumerate(bodies):
-            if not isinstance(b, Body):
-                raise ValueError(f"bodies[{k}] must be a Body, not {type(b).__name__}")
-        try:
-            p = np.array(poses, dtype=float)
-        except (TypeError, ValueError):
-            raise ValueError("poses must be an (N, 3) array of numbers (x, y, theta)") from None
-        if p.shape != (len(bodies), 3):
-            raise ValueError(f"poses must have shape ({len(bodies)}, 3) to match the bodies, not {p.shape}")
-        if not np.all(np.isfinite(p)):
-            raise ValueError("poses must be finite")
+        bodies, p = _checked_bodies(bodies, poses)
         self._noise_rel = _non_negative("actuation noise", noise.relative)
         self._noise_abs = _non_negative("absolute actuation noise", noise.absolute)
         self._substep = _positive("substep", substep)
