@@ -369,6 +369,15 @@ class Traffic:
     agents_crashed: int = 0
 
 
+def _least_clearance(t: np.ndarray, clearance: np.ndarray) -> tuple[float, float | None]:
+    """The least finite clearance over the run and when, from its start (inf and None: none finite)."""
+    finite = np.isfinite(clearance)
+    if not finite.any():
+        return float("inf"), None
+    k = int(np.argmin(np.where(finite, clearance, np.inf)))
+    return float(clearance[k]), float(t[k] - t[0])
+
+
 def summarise(
     record: TrueRecord, *, wall_s: float, contacts: int, traffic: Traffic | None = None, **extra: Any
 ) -> dict[str, Any]:
@@ -391,13 +400,7 @@ def summarise(
     clr = clearance_over_time(pose, r) if clearance is None else np.asarray(clearance, dtype=float)
     duration = float(t[-1] - t[0]) if T else 0.0
 
-    finite = clr[np.isfinite(clr)]
-    if len(finite):
-        kmin = int(np.nanargmin(np.where(np.isfinite(clr), clr, np.inf)))
-        min_clear = float(clr[kmin])
-        min_clear_t = float(t[kmin] - t[0])
-    else:
-        min_clear, min_clear_t = float("inf"), None
+    min_clear, min_clear_t = _least_clearance(t, clr)
     max_overlap = max(0.0, -min_clear) if np.isfinite(min_clear) else 0.0
 
     ttc = None
