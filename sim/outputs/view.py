@@ -259,8 +259,7 @@ class SwarmView:
     def _log(self, batch: list[tuple[Any, ...]]) -> None:
         """Every tick's robot positions and headings, as columns (one call an entity a batch: Rerun's
         cost is per call, not per robot); colours and sizes at the ticks they changed (Rerun shows each
-        component's newest value); the rest once a batch, at its last tick: robots at goal, the smallest
-        clearance, what hover shows, the goals when they changed and the trails."""
+        component's newest value); the rest once a batch, at its last tick (_log_last)."""
         rr, rec = self._rr, self.rec
         k = len(batch)
         ticks = np.array([item[0] for item in batch], np.int64)
@@ -269,13 +268,8 @@ class SwarmView:
         n = xy.shape[1]
         parts = np.full(k, n)
         index = [rr.TimeColumn("tick", sequence=ticks), rr.TimeColumn("time", duration=times)]
-        if self.dots is None:  # a picture of a thousand robots is hundreds of diameters across
-            placed = xy[0][np.isfinite(xy[0]).all(axis=1)]
-            spread = float(np.ptp(placed, axis=0).max()) if len(placed) else 0.0
-            size = (
-                2 * float(np.median(self.radius[np.isfinite(self.radius)])) if np.isfinite(self.radius).any() else 0.0
-            )
-            self.dots = size > 0 and max(self._extent, spread) > DOTS_ABOVE * size
+        if self.dots is None:
+            self.dots = self._as_dots(xy[0])
         rec.send_columns("swarm/robots", index, [self._column("Position2D", "Points2D", "positions", xy, parts)])
         self._changes(batch, ticks, times)
         r = np.where(np.isfinite(self.radius), self.radius, 0.0).astype(np.float32)
@@ -296,9 +290,24 @@ class SwarmView:
         if k > SLOW_BATCH and time.monotonic() - self._extras_at < EXTRAS_PERIOD:
             return
         self._extras_at = time.monotonic()
-        rec.set_time("tick", sequence=int(ticks[-1]))
-        rec.set_time("time", duration=float(times[-1]))
-        _, _, last_pose, last_rgb, last_goal, _, missed = batch[-1]
+        self._log_last(batch[-1], r)
+
+    def _as_dots(self, xy: np.ndarray) -> bool:
+        """Whether robots are drawn as dots: a picture of a thousand robots is hundreds of diameters across."""
+        placed = xy[np.isfinite(xy).all(axis=1)]
+        spread = float(np.ptp(placed, axis=0).max()) if len(placed) else 0.0
+        known = np.isfinite(self.radius)
+        size = 2 * float(np.median(self.radius[known])) if known.any() else 0.0
+        return size > 0 and max(self._extent, spread) > DOTS_ABOVE * size
+
+    def _log_last(self, last: tuple[Any, ...], r: np.ndarray) -> None:
+        """What the batch's last tick shows beyond positions: robots at goal, the smallest clearance,
+        what hover shows, the goals when they changed and the trails."""
+        rr, rec = self._rr, self.rec
+        tick, t, last_pose, last_rgb, last_goal, _, missed = last
+        rec.set_time("tick", sequence=int(tick))
+        rec.set_time("time", duration=float(t))
+        n = len(last_pose)
         off = last_goal - last_pose[:, :2]
         at_goal = np.einsum("nc,nc->n", off, off) <= self.tolerance**2  # NaN (no goal) is never at it
         rec.log("metrics/at_goal", rr.Scalars(float(at_goal.sum())))
