@@ -387,7 +387,7 @@ def simulate(
             clock.lap("record")
             has_goal = robots.has_goal()
             last_image_up = k == last_step and has_goal.any()
-            if converged.held(t, last_image_up and _at_goal(pose, goal, params)[has_goal].all()):
+            if converged.held(t, bool(last_image_up and _at_goal(pose, goal, params)[has_goal].all())):
                 end_reason = "converged"
                 break  # the run ends here: no last step
             if tick == steps:

@@ -112,9 +112,12 @@ def scene_update(
     theta = np.where(np.isfinite(pose[:, 2]), pose[:, 2], 0.0)
     drawn = (np.isfinite(pose[:, :2]).all(axis=1) & np.isfinite(radius) & (radius > 0)).tolist()
     robots = _Drawn(
-        *(_quantised(a) for a in (pose[:, :2], radius, np.sin(theta / 2), np.cos(theta / 2))),
-        _quantised(np.asarray(rgb, dtype=float) / 255.0),
-        _quantised(goal_xy),
+        xy=_quantised(pose[:, :2]),
+        r=_quantised(radius),
+        qz=_quantised(np.sin(theta / 2)),
+        qw=_quantised(np.cos(theta / 2)),
+        rgb=_quantised(np.asarray(rgb, dtype=float) / 255.0),
+        goal=_quantised(goal_xy),
     )
     has_goal = np.isfinite(goal_xy).all(axis=1).tolist()
     stamp = _timestamp(t_ns)
