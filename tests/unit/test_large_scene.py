@@ -20,7 +20,7 @@ def colour_counts(colors: np.ndarray) -> dict[tuple[int, ...], int]:
     return {tuple(int(c) for c in v): int(n) for v, n in zip(values, counts)}
 
 
-@pytest.mark.parametrize("robots", [1000, 10000])
+@pytest.mark.parametrize("robots", [1000, pytest.param(10000, marks=pytest.mark.slow)])  # 10,000: goals for seconds
 def test_paper_sequence_at_scale_is_the_paper_sequence_with_that_many_robots(robots):
     big, small = load_scene(f"paper-sequence-{robots}"), load_scene("paper-sequence")
     assert big.robots == robots and big.robot["kinematics"] == "holonomic"
