@@ -10,7 +10,6 @@ import json
 import math
 import os
 import shutil
-import sys
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -229,11 +228,6 @@ def _check_conditions(spec: Spec) -> None:
                 raise StudyError(f"condition {condition}: engine central steps without a real-time clock")
         if math.isfinite(settings.get("range", math.inf)) and settings.get("clock", scene.clock) != "lockstep":
             raise StudyError(f'condition {condition}: range = {settings["range"]:g} needs clock = "lockstep"')
-
-
-def run_command(spec: Spec, run: Run, out: Path) -> list[str]:
-    """The `pixelswarm run` command line of one run."""
-    return [sys.executable, "-m", "sim.cli", "run", *run_args(spec, run), "--out", str(out)]
 
 
 def run_args(spec: Spec, run: Run) -> list[str]:
