@@ -90,9 +90,10 @@ class BlockRounds:
         )
 
     def robots_of(self, sender: int, records: np.ndarray) -> np.ndarray:
-        """The robots a host speaks for: those of its first round's claims."""
+        """The robots a host speaks for: those of its first round's claims, of robots of this goal set
+        only (a damaged copy's robot id must not index a robot's flags in hear)."""
         if sender not in self._robots_of:
-            self._robots_of[sender] = claims(records)["robot"]
+            self._robots_of[sender] = claims(self.part.members_only(records))["robot"]
         return self._robots_of[sender]
 
     def hear(self, heard: Mapping[int, np.ndarray]) -> bool:
@@ -100,8 +101,7 @@ class BlockRounds:
         True: the block is agreed, at this round for every host."""
         part = self.part
         for sender, records in heard.items():
-            if sender not in self._robots_of:
-                self.robots_of(sender, part.members_only(records))
+            self.robots_of(sender, records)
         if heard:  # one merge of every host's records: a robot per host sends a record or two each
             # (joined as bytes: numpy concatenates structured arrays field by field, slowly)
             joined = b"".join([np.asarray(records, RECORD).tobytes() for records in heard.values()])
