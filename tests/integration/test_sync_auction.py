@@ -68,6 +68,32 @@ def test_lockstep_rounds_give_the_central_board_to_the_bit(robots, split):
         position = position + 0.3 * (goals[assigned] - position) + rng.normal(0.0, 0.01, position.shape)
 
 
+def test_a_damaged_copy_naming_a_robot_outside_the_goal_set_does_not_stop_a_host():
+    """A faulty peer's copy of a host's first records of a block, its robot id damaged to 128 in a goal
+    set of 16: AuctionLink._round asks robots_of with the raw records before hear, and the id then
+    indexed the robots' flags (IndexError: the agent process died). The block still agrees on the
+    central board."""
+    rng = np.random.default_rng(5)
+    goals, ids = rng.uniform(-2.0, 2.0, (16, 2)), list(range(16))
+    position = rng.uniform(-3.0, 3.0, (16, 2))
+    central = Participant(1, goals, ids, ids, EPS, HYSTERESIS)
+    hosts = [Participant(1, goals, ids, ids[a : a + 4], EPS, HYSTERESIS) for a in range(0, 16, 4)]
+    assigned = central.settle_alone(position)
+    blocks = [BlockRounds(h, position) for h in hosts]
+    for r in range(1, 100_000):
+        said = {i: block.say() for i, block in enumerate(blocks)}
+        if r == 1:
+            forged = said[1].copy()
+            forged["robot"][:] = 128
+            blocks[0].robots_of(1, forged)  # heard first, as the link counts who spoke
+        agreed = [block.hear({j: recs for j, recs in said.items() if j != i}) for i, block in enumerate(blocks)]
+        if all(agreed):
+            break
+    for h in hosts:
+        np.testing.assert_array_equal(h.board.owner, central.board.owner)
+        assert h.agreed == {r: int(assigned[r]) for r in h.own}
+
+
 def settle_first_block(links: list[AuctionLink], message: Goals, start: np.ndarray) -> None:
     """Every host takes the goal set up and settles its first block over the bus at tick 0, each in
     its own thread, as agent hosts do in their processes."""
