@@ -166,7 +166,8 @@ class BodyNode:
         self.valid_until = np.full(n, -np.inf)  # when each robot's command runs out (-inf: stopped)
         self.live, self.ever_live = np.zeros(n, bool), np.zeros(n, bool)
         self.tick, self.withheld, self.goal_epoch = 0, False, 0
-        self.believed = GoalSets(scene.arena, newest=0)  # which goal sets can be the coordinator's (as the agents judge)
+        # which goal sets can be the coordinator's, as the agents judge them; the world starts with the run
+        self.believed = GoalSets(scene.arena, newest=0)
         self.cmd_inbox = bus.commands_inbox()
         self.control_inbox = bus.subscribe(bus.keys.event, Event)
         self.goal_inbox = bus.subscribe(bus.keys.all_of("goals"), Goals)
