@@ -139,9 +139,13 @@ class Inbox(Generic[T]):
         try:
             self._deliver(key, views)
         finally:  # after the records are queued, held or dropped: whoever waits on seen finds them
-            if self.seen is not None and tick != BEFORE_START:  # not hellos
-                for v in views:
-                    self.seen[v.robot] = tick
+            self._saw(tick, views)
+
+    def _saw(self, tick: int, views: list) -> None:
+        """Note the tick of these records as their robots' last seen (hellos are not ticks)."""
+        if self.seen is not None and tick != BEFORE_START:
+            for v in views:
+                self.seen[v.robot] = tick
 
     def _draws(self, key: str | None = None, stamp: float | None = None) -> Any:
         """The random draws of this inbox's fault: one stream, or, given a message's key and stamp,
@@ -222,7 +226,6 @@ class Inbox(Generic[T]):
         if not direct or not self._queue.empty() or self.has_delayed:
             return [m for _, m in self.drain()]
         out: list[T] = []
-        seen = self.seen
         for sub in self.channels:
             while (sample := sub.try_recv()) is not None:
                 got = self._records(self._payload(sample), str(sample.key_expr))
@@ -230,9 +233,7 @@ class Inbox(Generic[T]):
                     continue
                 tick, views = got
                 out += views
-                if seen is not None and tick != BEFORE_START:  # not hellos
-                    for v in views:
-                        seen[v.robot] = tick
+                self._saw(tick, views)
         return out
 
     def get(self, timeout: float | None = None) -> tuple[str, T] | None:
