@@ -1,22 +1,15 @@
 """The distributed goal auction (paper 5.1.1) as seen by the robots of one agent host: pure logic,
-no zenoh and no clock (the runtime passes messages in and takes records out).
+no zenoh and no clock (the runtime passes messages in and takes records out). Its instances, blocks
+of epsilon-scaling phases, snapshots, deadlock penalties and max-consensus are as
+docs/architecture.md ("Goal assignment") says. The board, net values, bids and Jacobi rounds are
+compiled in agent.core.bidding: an agent host bids a round at a time between messages (``bid``); a
+host that owns every robot (the central engine) settles a block of phases in-process
+(``settle_alone``) through the same rounds, to the same board.
 
-An asynchronous forward auction (Bertsekas and Castanon 1991) whose prices and owners are agreed by
-max-consensus (Zavlanos et al. 2008): instances on frozen positions, agreed by a snapshot, in blocks
-of epsilon-scaling phases, as docs/architecture.md ("Goal assignment") says. The board, net values,
-bids and Jacobi rounds are compiled in agent.core.bidding: an agent host bids a round at a time
-between messages (``bid``); a host that owns every robot (the central engine) settles a block of
-phases in-process (``settle_alone``) through the same rounds, to the same board. Records only ever
-merge by their maximum, so lost, duplicated or reordered messages can delay agreement but never give
-a goal two owners.
-
-- A deadlock penalty (5.5.5) declared during an instance counts from the next: a cost that changed
-  after a robot said it was content would break quiescence. A record of instance k+1 from anyone
-  proves k was agreed.
+- A penalty counts from the next instance because a cost that changed after a robot said it was
+  content would break quiescence. A record of instance k+1 from anyone proves k was agreed.
 - Scaling pays off on warm starts too: once robots have moved, the last prices are far from
   equilibrium, and at epsilon_A alone they settle in a price war.
-- Each record carries its robot's total penalty, so the agreed cost (at most N (epsilon + Delta C)
-  over the optimum) can be checked against the optimum plus them.
 """
 
 from __future__ import annotations
@@ -133,7 +126,10 @@ class Auction:
         self.own_ids = np.array(self.own, np.int64)
         self.own_rows = np.searchsorted(self.robots, self.own_ids)  # own robots' rows among all robots
         self.schedule = epsilon_schedule(self.goals, eps)
-        self.hysteresis = hysteresis
+        # per phase, how much better another goal must be before a robot bids: the phase's epsilon, and
+        # never less than the final phase's epsilon_A + Delta C (paper 5.1's hysteresis). A phase
+        # tighter than the final one would move robots for gains that Delta C is there to ignore.
+        self.slacks = np.maximum(self.schedule, self.schedule[-1] + hysteresis)
         self.agreed_instance = -1
         self.bids = 0
 
@@ -201,10 +197,7 @@ class Participant(Auction):
 
     @property
     def slack(self) -> float:
-        """How much better another goal must be before a robot bids: the phase's epsilon, and never
-        less than the final phase's epsilon_A + Delta C (paper 5.1's hysteresis). A phase tighter
-        than the final one would move robots for gains that Delta C is there to ignore."""
-        return max(self.eps, self.schedule[-1] + self.hysteresis)
+        return float(self.slacks[self.phase])
 
     @property
     def started(self) -> bool:
@@ -342,10 +335,7 @@ class Participant(Auction):
         return rounds
 
     def settle_alone(
-        self,
-        positions: Mapping[int, np.ndarray] | np.ndarray,
-        max_rounds: int | None = None,
-        candidates: int = CANDIDATES,
+        self, positions: Mapping[int, np.ndarray] | np.ndarray, candidates: int = CANDIDATES
     ) -> np.ndarray:
         """For a host that owns every robot of the goal set (the central engine): the next block of
         phases on these positions, warm from the board, bid to an agreed final phase. Nobody else
@@ -353,7 +343,7 @@ class Participant(Auction):
         robot is content. The same rounds, bids and board as begin(), bid() and check_agreement(),
         without a return to Python between rounds (agent.core.bidding.Bidders.settle_block), each
         robot ranking its ``candidates`` best goals while they provably hold its best. A phase that
-        takes more than ``max_rounds`` rounds (ROUNDS_PER_ROBOT per robot by default) is an error.
+        takes more than ROUNDS_PER_ROBOT rounds per robot (at least 100,000) is an error.
         Returns each own robot's agreed goal, in the order of ``own``."""
         if len(self.own) != len(self.robots):
             raise ValueError("settle_alone needs a host that owns every robot of the goal set")
@@ -362,11 +352,8 @@ class Participant(Auction):
         if not self._exact_hull or self._bidders.candidates != candidates:
             self._bidders, self._exact_hull = self._new_bidders(candidates, exact_hull=True), True
         self.begin_block(positions)
-        eps = np.array(self.schedule)
-        slack = np.maximum(eps, eps[-1] + self.hysteresis)  # as self.slack, phase by phase
-        if max_rounds is None:
-            max_rounds = max(100_000, ROUNDS_PER_ROBOT * len(self.robots))
-        rounds, bids, settled = self._bidders.settle_block(eps, slack, max_rounds)
+        max_rounds = max(100_000, ROUNDS_PER_ROBOT * len(self.robots))
+        rounds, bids, settled = self._bidders.settle_block(np.array(self.schedule), self.slacks, max_rounds)
         self.instance += min(settled, self.phases - 1)
         self.board.version += 1
         self.bids, self.rounds, self.claims_changed = self.bids + bids, self.rounds + rounds, True
@@ -386,7 +373,7 @@ class Participant(Auction):
         """Lock-step: records(), each claim flagged SETTLED when its robot is content at the final
         phase's slack (the least: no later phase would have it bid)."""
         recs = self.records()
-        settled = self._bidders.contentment(self.schedule[-1] + self.hysteresis)
+        settled = self._bidders.contentment(self.slacks[-1])
         recs["flags"][: len(self.own)] |= np.where(settled, SETTLED, 0).astype(np.uint8)
         return recs
 

@@ -198,8 +198,7 @@ class LocalAuction(Auction):
     def _bid(self, rows: np.ndarray) -> np.ndarray:
         """Own robots (rows) not content at their phase's slack bid (bidding.bid_on_own_boards);
         returns the rows that bid."""
-        eps = np.asarray(self.schedule)[self.phase[rows]]
-        slack = np.maximum(eps, self.schedule[-1] + self.hysteresis)
+        eps, slack = np.asarray(self.schedule)[self.phase[rows]], self.slacks[self.phase[rows]]
         # A goal whose holder is not among the robots heard of (out of reach) costs more than any
         # other: a part trades its own goals and takes another's only when it has too few, so a
         # graph that splits stays one-to-one (the holder could not learn that it lost its goal).

@@ -1,10 +1,7 @@
-"""Lock-step: one block of epsilon-scaling phases (paper 5.1.1) bid in numbered message rounds.
-
-In round r every host's robots that are not content bid against the board as merged after round
-r - 1 (Jacobi), and every host merges everyone's records of round r onto the same board. Pure: the
-caller carries each round's records to the other hosts and back (agent.assignment over the bus;
-sim.central.engine with no other host). A block may span ticks: the caller decides how many rounds a tick
-gets (``RobotParams.rounds_per_tick``), and the block is agreed at the same round everywhere.
+"""Lock-step: one block of epsilon-scaling phases (paper 5.1.1) bid in numbered message rounds, as
+docs/lockstep_auction.md says. Pure: the caller carries each round's records to the other hosts and
+back (agent.assignment over the bus; sim.central.engine with no other host) and decides how many
+rounds a tick gets (``RobotParams.rounds_per_tick``).
 """
 
 from __future__ import annotations
