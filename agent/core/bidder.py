@@ -20,7 +20,7 @@ import numpy as np
 
 from transport.codec import AuctionRecord, Bid
 
-from .bidding import NO_OWNER, Bidders, board_digest, merge_one, merge_records
+from .bidding import NO_OWNER, Bidders, Heard, board_digest
 
 # the auction record's flags (transport.codec.AuctionRecord); SETTLED: content at the final phase's slack,
 # so in every phase left
@@ -73,29 +73,15 @@ def frozen_positions(positions: Mapping[int, np.ndarray] | np.ndarray, own: list
 
 
 class Board:
-    """Per goal: the greatest (price, lower robot id, released) record seen."""
+    """Per goal: the greatest (price, lower robot id, released) record seen (records merge by
+    agent.core.bidding: Participant.absorb, the compiled rounds)."""
 
     def __init__(self, goals: int) -> None:
         self.price = np.zeros(goals)
         self.owner = np.full(goals, NO_OWNER, dtype=np.int64)
         self.released = np.zeros(goals, bool)
-        self._released = self.released.view(np.uint8)  # as the compiled rounds read it
         self.version = 0  # counts changes: cached digests and views key on it
         self._digest: tuple[int, int] | None = None
-
-    def merge(self, goal: np.ndarray, price: np.ndarray, robot: np.ndarray, released: np.ndarray) -> bool:
-        """Max-consensus of a batch of records into the board; True when any was new information."""
-        goal, robot = np.ascontiguousarray(goal, np.int64), np.ascontiguousarray(robot, np.int64)
-        price, released = np.ascontiguousarray(price, float), np.ascontiguousarray(released, np.uint8)
-        changed = merge_records(self.price, self.owner, self._released, goal, price, robot, released)
-        self.version += changed
-        return changed
-
-    def merge_one(self, goal: int, price: float, robot: int, released: bool) -> bool:
-        """The same for one record (a robot per host: most messages carry one or two records)."""
-        changed = merge_one(self.price, self.owner, self._released, goal, price, robot, released)
-        self.version += changed
-        return changed
 
     def holds(self, robot: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """Per (robot, goal) pair: the robot owns the goal on this board and has not released it."""
@@ -106,7 +92,7 @@ class Board:
     def digest(self) -> int:
         """64 bits that tell boards apart (agent.core.bidding.board_digest), cached per version."""
         if self._digest is None or self._digest[0] != self.version:
-            self._digest = (self.version, board_digest(self.price, self.owner, self._released))
+            self._digest = (self.version, board_digest(self.price, self.owner, self.released.view(np.uint8)))
         return self._digest[1]
 
 
@@ -170,6 +156,7 @@ class Participant(Auction):
         self.heard_content = np.zeros(r, bool)
         self.heard_digest = np.zeros(r, np.uint64)
         self.heard_version = 0
+        self._heard = Heard(self)  # absorb's merges, compiled
         self._agreed: tuple[np.ndarray, dict[int, int] | None] = (np.zeros(0, np.int64), {})  # see agreed
         self.agreed_owner: np.ndarray | None = None  # per goal: its robot in the agreed instance (NO_OWNER: none)
         self.claims_changed = False  # own claims changed since the last publication
@@ -440,41 +427,10 @@ class Participant(Auction):
         """Merge another host's records, of robots of this goal set only (members_only: what came
         over the bus passes through it first); True when the board changed. Records of the current
         instance are remembered per robot (the newest by serial) for the agreement check."""
-        recs = np.asarray(recs, RECORD)
-        if len(recs) <= SMALL:
-            return self._absorb_each(instance, serial, digest, recs.tolist())
-        robot = recs["robot"].astype(np.int64)
-        released = (recs["flags"] & RELEASED) != 0
-        changed = self.board.merge(recs["goal"], recs["price"], robot, released)
-        if instance != self.instance:
-            return changed
-        row = np.searchsorted(self.robots, robot)  # members_only: every robot has its row
-        newer = (self.heard_instance[row] < instance) | (serial > self.heard_serial[row])
-        take = ~released & ~self.is_own[row] & newer
-        if take.any():
-            r, rec = row[take], recs[take]
-            self.heard_instance[r], self.heard_serial[r] = instance, serial
-            self.heard_goal[r], self.heard_price[r] = rec["goal"], rec["price"]
-            self.heard_content[r] = (rec["flags"] & CONTENT) != 0
-            self.heard_digest[r] = np.uint64(digest)
-            self.heard_version += 1
-        return changed
-
-    def _absorb_each(self, instance: int, serial: int, digest: int, recs: list[tuple]) -> bool:
-        """absorb() record by record: cheaper than array operations for a few records."""
-        changed = False
-        for robot, goal, price, flags, _, _, _ in recs:
-            released = bool(flags & RELEASED)
-            changed |= self.board.merge_one(goal, price, robot, released)
-            row = self.row_of[robot]
-            if instance != self.instance or released or self.is_own[row]:
-                continue
-            if self.heard_instance[row] < instance or serial > self.heard_serial[row]:
-                self.heard_instance[row], self.heard_serial[row] = instance, serial
-                self.heard_goal[row], self.heard_price[row] = goal, price
-                self.heard_content[row] = bool(flags & CONTENT)
-                self.heard_digest[row] = digest
-                self.heard_version += 1
+        recs = np.ascontiguousarray(recs, RECORD)
+        changed, heard = self._heard.absorb(recs, instance, instance == self.instance, serial, digest)
+        self.board.version += changed
+        self.heard_version += heard
         return changed
 
     def _settled_view(self, same_board: bool) -> bool:

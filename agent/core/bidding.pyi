@@ -6,24 +6,6 @@ import numpy as np
 
 NO_OWNER: int
 
-def merge_records(
-    price: np.ndarray,
-    owner: np.ndarray,
-    released: np.ndarray,
-    goal: np.ndarray,
-    rec_price: np.ndarray,
-    robot: np.ndarray,
-    rec_released: np.ndarray,
-) -> bool: ...
-def merge_one(
-    price: np.ndarray,
-    owner: np.ndarray,
-    released: np.ndarray,
-    goal: int,
-    rec_price: float,
-    robot: int,
-    rec_released: bool,
-) -> bool: ...
 def moved_bound(
     made: float, x0: float, y0: float, dx: float, dy: float, hull_x: np.ndarray, hull_y: np.ndarray, lowest: float
 ) -> float: ...
@@ -32,6 +14,10 @@ def bid_on_own_boards(
     boards: Any, rows: np.ndarray, slack: np.ndarray, eps: np.ndarray, taken: np.ndarray
 ) -> np.ndarray: ...
 def merge_boards(boards: Any, rows: np.ndarray, told: np.ndarray, words: Any) -> np.ndarray: ...
+
+class Heard:
+    def __init__(self, part: Any) -> None: ...
+    def absorb(self, recs: np.ndarray, instance: int, current: bool, serial: int, digest: int) -> tuple[bool, bool]: ...
 
 class Bidders:
     has_penalty: bool

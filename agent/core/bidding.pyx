@@ -43,15 +43,18 @@ more rounds of one or two bidders):
 # cython: language_level=3
 
 from libc.math cimport INFINITY, NAN, fabs, sqrt
-from libc.stdint cimport int64_t, uint8_t, uint64_t
+from libc.stdint cimport int32_t, int64_t, uint8_t, uint16_t, uint64_t
 from libc.string cimport memcpy
 
 from agent.core.splitmix cimport splitmix64
 
 import numpy as np
 
+from transport.codec import AuctionRecord
+
 NO_OWNER = -1  # a goal nobody claimed
 cdef int64_t NOBODY = -1
+cdef uint8_t CONTENT = AuctionRecord.CONTENT, RELEASED = AuctionRecord.RELEASED  # a record's flags
 # Relative slack for the rounding of a bid. A bid leaves its robot's value of the goal exactly epsilon
 # below its next-best value in real numbers; in floats, price + (v1 - v2) + eps then -cost - price can
 # land an ulp short, the robot is not content with the goal it just won, gives it up and bids again.
@@ -110,28 +113,67 @@ cdef inline void rank_in(Ranking* r, int64_t j, double v) noexcept nogil:
         r.third_goal, r.third = j, v
 
 
-def merge_records(double[::1] price, int64_t[::1] owner, uint8_t[::1] released, const int64_t[::1] goal,
-                  const double[::1] rec_price, const int64_t[::1] robot, const uint8_t[::1] rec_released) -> bool:
-    """Max-consensus of records (goal, price, robot, released) into a board (price, owner, released);
-    True when any was new information. Records of goals off the board are ignored."""
-    cdef Py_ssize_t a
-    cdef int64_t j
-    cdef bint changed = False
-    for a in range(goal.shape[0]):
-        j = goal[a]
-        if 0 <= j < price.shape[0] and greater(rec_price[a], robot[a], rec_released[a], price[j], owner[j], released[j]):
-            price[j], owner[j], released[j] = rec_price[a], robot[a], rec_released[a]
-            changed = True
-    return changed
+cdef packed struct Record:  # transport.codec.Bid.RECORD, one robot's word on one goal as the wire carries it
+    uint16_t robot
+    int32_t goal
+    double price
+    uint8_t flags
+    float penalty, x, y
 
 
-def merge_one(double[::1] price, int64_t[::1] owner, uint8_t[::1] released, int64_t goal, double rec_price,
-              int64_t robot, bint rec_released) -> bool:
-    """merge_records for one record (most messages of a robot per host carry one or two)."""
-    if 0 <= goal < price.shape[0] and greater(rec_price, robot, rec_released, price[goal], owner[goal], released[goal]):
-        price[goal], owner[goal], released[goal] = rec_price, robot, rec_released
-        return True
-    return False
+cdef inline Py_ssize_t row_among(const int64_t[::1] robots, int64_t robot) noexcept nogil:
+    """The robot's row among the sorted ``robots`` (-1: not among them)."""
+    cdef Py_ssize_t lo = 0, hi = robots.shape[0], mid
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if robots[mid] < robot:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo if lo < robots.shape[0] and robots[lo] == robot else -1
+
+
+cdef class Heard:
+    """Other hosts' records merged into a board (max-consensus; records of goals off the board are
+    ignored) and, of the current instance, each other robot's newest claim (by serial) noted for the
+    agreement check. The arrays are a Participant's (agent.core.bidder), shared: held here so that a
+    message of one record costs no more than its merge."""
+
+    cdef double[::1] price, heard_price
+    cdef int64_t[::1] owner, robots, heard_instance, heard_serial, heard_goal
+    cdef uint8_t[::1] released, is_own, heard_content
+    cdef uint64_t[::1] heard_digest
+
+    def __init__(self, part):
+        self.price, self.owner, self.released = part.board.price, part.board.owner, part.board.released.view(np.uint8)
+        self.robots, self.is_own = part.robots, part.is_own.view(np.uint8)
+        self.heard_instance, self.heard_serial = part.heard_instance, part.heard_serial
+        self.heard_goal, self.heard_price = part.heard_goal, part.heard_price
+        self.heard_content, self.heard_digest = part.heard_content.view(np.uint8), part.heard_digest
+
+    def absorb(self, const Record[::1] recs, int64_t instance, bint current, int64_t serial,
+               uint64_t digest) -> tuple[bool, bool]:
+        """Merge the records (of ``instance``: the ``current`` one or not); returns (the board
+        changed, a claim was noted)."""
+        cdef bint changed = False, heard = False, rel
+        cdef Py_ssize_t a, row
+        cdef int64_t j
+        for a in range(recs.shape[0]):
+            j, rel = recs[a].goal, (recs[a].flags & RELEASED) != 0
+            if 0 <= j < self.price.shape[0] and greater(recs[a].price, recs[a].robot, rel, self.price[j],
+                                                        self.owner[j], self.released[j]):
+                self.price[j], self.owner[j], self.released[j] = recs[a].price, recs[a].robot, rel
+                changed = True
+            row = row_among(self.robots, recs[a].robot)
+            if not current or rel or row < 0 or self.is_own[row]:
+                continue
+            if self.heard_instance[row] < instance or serial > self.heard_serial[row]:
+                self.heard_instance[row], self.heard_serial[row] = instance, serial
+                self.heard_goal[row], self.heard_price[row] = j, recs[a].price
+                self.heard_content[row] = (recs[a].flags & CONTENT) != 0
+                self.heard_digest[row] = digest
+                heard = True
+        return changed, heard
 
 
 cpdef double moved_bound(double made, double x0, double y0, double dx, double dy, const double[::1] hull_x,

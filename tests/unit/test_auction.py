@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.optimize import linear_sum_assignment
 
-from agent.core.bidder import Board, Participant
+from agent.core.bidder import RECORD, RELEASED, Participant
 
 
 def _cost(positions, goals, owner):
@@ -76,15 +76,22 @@ def test_hysteresis_keeps_a_goal_against_a_small_gain(hysteresis, keeps):
 
 
 def test_merge_highest_bid_wins_ties_to_lower_id_and_outbid_owner_loses():
-    board = Board(2)
+    part = Participant(1, np.zeros((2, 2)), list(range(10)), [], 1e-3)
+    board = part.board
     board.price[:], board.owner[:] = [1.0, 0.0], [7, -1]
-    assert board.merge(np.array([0, 0, 1]), np.array([2.0, 2.0, 0.5]), np.array([3, 2, 5]), np.zeros(3, bool))
+
+    def merge(goal, price, robot, released=False) -> bool:  # records of another host, as absorb takes them
+        recs = np.zeros(len(goal), RECORD)
+        recs["goal"], recs["price"], recs["robot"], recs["flags"] = goal, price, robot, RELEASED if released else 0
+        return part.absorb(0, 0, 0, recs)
+
+    assert merge([0, 0, 1], [2.0, 2.0, 0.5], [3, 2, 5])
     assert board.owner.tolist() == [2, 5] and board.price.tolist() == [2.0, 0.5]
     # a lower bid than the current price does not take the goal; nor does a higher robot id at an equal price
-    assert not board.merge(np.array([0, 0]), np.array([1.5, 2.0]), np.array([9, 4]), np.zeros(2, bool))
-    assert not board.merge_one(0, 2.0, 4, False) and board.owner[0] == 2
+    assert not merge([0, 0], [1.5, 2.0], [9, 4])
+    assert not merge([0], [2.0], [4]) and board.owner[0] == 2
     # at an equal price and robot, "released" is the greater record
-    assert board.merge_one(0, 2.0, 2, True) and board.released.tolist() == [True, False]
+    assert merge([0], [2.0], [2], released=True) and board.released.tolist() == [True, False]
     assert not board.holds(np.array([2]), np.array([0]))[0]
 
 
