@@ -33,6 +33,7 @@ import numpy as np
 
 from transport.bus import Bus, Inbox
 from transport.codec import Bid, Boards, Goals
+from transport.plausible import INCONSISTENT
 
 from .core.bidder import RELEASED, Participant
 from .core.local_auction import NO_OWNER, LocalAuction, Words, new_auction
@@ -188,6 +189,9 @@ class AuctionLink:
         warm, keyframe = goals.warm_start, goals.correspondence
         if self.lockstep:  # the block begins at the next tick, as the central engine starts a new image
             self.block_stamp = -np.inf
+            for heard in self.round_records.values():  # filed before the set came: _fits checks them now
+                for sender in [s for s, msg in heard.items() if not self._fits(msg)]:
+                    del heard[sender]
             # with rounds per tick bounded (large swarms), from the warm start: a cold one would span many
             self.warm = bool(self.params.rounds_per_tick) and before is not None and self._warm_start(before, goals)
             if self.warm and before is not None and warm is not None:
@@ -306,7 +310,7 @@ class AuctionLink:
         theirs: set[int] = set()  # digests of this instance's messages, compared once below
         for _, msg in arrived:
             self.counts.received += 1
-            if part is None or msg.epoch != part.epoch or not self._try_start(positions):
+            if part is None or msg.epoch != part.epoch or not self._fits(msg) or not self._try_start(positions):
                 continue
             if msg.sender != self.sender:
                 self.heard += 1
@@ -458,7 +462,7 @@ class AuctionLink:
         goal set not heard of yet too (its message may come after a faster host's first round)."""
         for _, msg in arrived:
             self.counts.received += 1
-            if msg.sender == self.sender or (self.active and msg.epoch < self.epoch):
+            if msg.sender == self.sender or (self.active and msg.epoch < self.epoch) or not self._fits(msg):
                 continue
             key = (msg.epoch, msg.instance, msg.serial)
             self.round_records.setdefault(key, {})[msg.sender] = msg
@@ -471,6 +475,20 @@ class AuctionLink:
             answer = key in self.said and key != self.waiting_for and newest == msg.serial
             if answer and time.monotonic() - self.said[key][1] >= ROUND_RESEND:
                 self._send(key)
+
+    def _fits(self, msg: Bid | Boards) -> bool:
+        """A bid of the goal set under way names its robots and its goals only (-1: none yet); one
+        that does not is counted and dropped (it must not index the auction's arrays). An intact
+        message (the codec checks) fails this only if its sender is faulty. A bid of a goal set not
+        heard yet is checked when the set arrives (on_goals)."""
+        part = self.part
+        if not isinstance(msg, Bid) or part is None or msg.epoch != part.epoch:
+            return True
+        records, goals = msg.records, len(part.goals)
+        if len(part.members_only(records)) == len(records) and all(-1 <= g < goals for g in records["goal"].tolist()):
+            return True
+        self.inbox.drops[INCONSISTENT] += 1
+        return False
 
     def _send(self, key: tuple[int, int, int]) -> None:
         """Publish (again) our message of this round."""

@@ -4,7 +4,10 @@ Every message starts with a two-byte header (kind, version). Poses, states and c
 travel as frames (a robot alone sends a frame of one); a goal set is a sequence of parts, each with
 its own (part kind, part version, length) header. ``decode`` never raises: a malformed, truncated,
 wrong-kind, wrong-version or non-finite message returns None and is counted in the ``DropCounter``
-passed in, so nothing a peer sends can break a control loop. The layouts: docs/protocol.md.
+passed in, so nothing a peer sends can break a control loop. The kinds whose content every host
+must hold to the bit (goal sets and the auction's messages: one damaged record there splits the
+hosts' boards for the rest of a goal set) end in a CRC-32 of the bytes before it, and a copy
+damaged on its way is dropped as ``checksum``. The layouts: docs/protocol.md.
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ from __future__ import annotations
 import json
 import math
 import struct
+import zlib
 from collections import Counter
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields
@@ -20,8 +24,20 @@ from typing import Any, ClassVar, TypeVar, overload
 
 import numpy as np
 
-VERSION = 3  # of the message header and every kind's layout; a goal set's parts have their own
+VERSION = 4  # of the message header and every kind's layout; a goal set's parts have their own
 _HEADER = struct.Struct("<BB")
+_CHECKSUM = struct.Struct("<I")  # CRC-32 (zlib's) of a CHECKED kind's bytes before it
+
+
+def with_checksum(data: bytes) -> bytes:
+    """A CHECKED kind's bytes with their checksum after them."""
+    return data + _CHECKSUM.pack(zlib.crc32(data))
+
+
+def intact(data: bytes | memoryview) -> bool:
+    """Whether a CHECKED kind's bytes end in the checksum of the rest."""
+    cut = len(data) - _CHECKSUM.size
+    return cut >= 0 and zlib.crc32(data[:cut]) == _CHECKSUM.unpack_from(data, cut)[0]
 
 
 def as_sent(values: Any) -> np.ndarray:
@@ -32,7 +48,7 @@ def as_sent(values: Any) -> np.ndarray:
 
 
 class DropCounter(Counter):
-    """Counts dropped messages by reason ('truncated', 'version', 'kind', 'non-finite', 'invalid')."""
+    """Counts dropped messages by reason ('truncated', 'version', 'kind', 'checksum', 'non-finite', 'invalid')."""
 
 
 class Malformed(ValueError):
@@ -82,6 +98,7 @@ class Message:
 
     KIND: ClassVar[int] = 0
     NAME: ClassVar[str] = ""
+    CHECKED: ClassVar[bool] = False  # ends in a checksum (with_checksum)
     _fixed: ClassVar[struct.Struct]
     _names: ClassVar[tuple[str, ...]] = ()
     _values: ClassVar[Any] = None  # reads every field at once (a host encodes 500 records a tick)
@@ -99,7 +116,8 @@ class Message:
         return cls._names
 
     def encode(self) -> bytes:
-        return _HEADER.pack(self.KIND, VERSION) + self._fixed.pack(*self._fixed_values()) + self._tail()
+        data = _HEADER.pack(self.KIND, VERSION) + self._fixed.pack(*self._fixed_values()) + self._tail()
+        return with_checksum(data) if self.CHECKED else data
 
     def _fixed_values(self) -> tuple:
         self.field_names()
@@ -365,6 +383,7 @@ class Goals(Message):
 
     KIND: ClassVar[int] = 5
     NAME: ClassVar[str] = "goals"
+    CHECKED: ClassVar[bool] = True
     PART: ClassVar[int] = 1  # the goal set itself
     PART_VERSION: ClassVar[int] = 1
     _fixed: ClassVar[struct.Struct] = struct.Struct("<")
@@ -517,6 +536,7 @@ class Bid(Message):
 
     KIND: ClassVar[int] = 9
     NAME: ClassVar[str] = "auction"
+    CHECKED: ClassVar[bool] = True
     _fixed: ClassVar[struct.Struct] = struct.Struct("<IIIIQI")
     # the auction record, and the robot's total deadlock penalty in force (m^2), so its agreed cost
     # can be checked, and the position it bid from
@@ -569,6 +589,7 @@ class Boards(Message):
 
     KIND: ClassVar[int] = 13
     NAME: ClassVar[str] = "boards"
+    CHECKED: ClassVar[bool] = True
     _fixed: ClassVar[struct.Struct] = struct.Struct("<IIIIIII")
     WORD: ClassVar[np.dtype] = np.dtype(
         [
@@ -967,7 +988,11 @@ def decode(
         message_type = MESSAGE_TYPES.get(kind)
         if message_type is None or (expected is not None and message_type is not expected):
             raise Malformed("kind")
-        return message_type._from(view[_HEADER.size :])
+        if not message_type.CHECKED:
+            return message_type._from(view[_HEADER.size :])
+        if not intact(view):
+            raise Malformed("checksum")
+        return message_type._from(view[_HEADER.size : len(view) - _CHECKSUM.size])
     except Malformed as err:
         reason = str(err)
     except (struct.error, ValueError, TypeError, OverflowError):

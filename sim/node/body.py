@@ -32,7 +32,7 @@ from agent.core.params import RobotParams
 from coordinator.scene import Scene
 from sim.args import format_ids
 from transport.bus import Bus
-from transport.codec import BEFORE_START, Command, Event, Goals, Tick, Truth
+from transport.codec import BEFORE_START, Command, Event, Goals, Tick, Truth, intact
 from transport.codec import Contact as ContactMsg
 from transport.plausible import FUTURE, INCONSISTENT, GoalSets, stamp_agrees
 
@@ -106,7 +106,8 @@ class LockStep:
         patience = time.monotonic() + AUCTION_PATIENCE
         while True:
             node.take_commands(node.cmd_inbox.get(timeout=max(0.0, min(0.05, deadline - time.monotonic()))))
-            if sum(len(inbox.drain()) for inbox in self.auction_traffic):
+            heard = [data for inbox in self.auction_traffic for _, data, _ in inbox.drain()]
+            if any(map(intact, heard)):  # a damaged copy is no agent at work
                 deadline = min(time.monotonic() + self.deadline, patience)
             node.update_liveness()
             waiting = node.live & (node.last_cmd_tick < node.tick)

@@ -29,7 +29,7 @@ from transport.session import free_port, listening
 RUN_TIMEOUT = 600
 pytestmark = pytest.mark.timeout(RUN_TIMEOUT + 120)  # a test that makes a shared run waits for it in its setup
 # what the codec counts a malformed message as (docs/protocol.md); the rest are other reasons
-CODEC_REASONS = {"truncated", "version", "kind", "non-finite", "invalid"}
+CODEC_REASONS = {"truncated", "version", "kind", "checksum", "non-finite", "invalid"}
 CIRCLE = ("circle", "--robots", "20", "--clock", "lockstep", "--seed", "3", "--duration", "30")
 # the first two images of the paper sequence (30 s each) and 2 s of the third
 PAPER_HOSTS = ("paper-sequence", "--clock", "lockstep", "--seed", "3", "-k", "7", "--duration", "62")

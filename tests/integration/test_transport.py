@@ -7,6 +7,7 @@ import math
 import struct
 import threading
 import time
+import zlib
 
 import numpy as np
 import pytest
@@ -219,8 +220,9 @@ def test_an_inbox_drops_what_a_frame_drops():
 
 def _parts(data: bytes) -> list[tuple[int, int, bytes]]:
     """A Goals message's parts as (part kind, part version, body), read by hand from the layout in
-    docs/protocol.md."""
-    out, at = [], 2
+    docs/protocol.md: after the header, parts up to the CRC-32 of everything before it."""
+    assert struct.unpack("<I", data[-4:])[0] == zlib.crc32(data[:-4])
+    data, out, at = data[:-4], [], 2
     while at < len(data):
         kind, version, length = struct.unpack_from("<BBI", data, at)
         out.append((kind, version, data[at + 6 : at + 6 + length]))
@@ -228,8 +230,13 @@ def _parts(data: bytes) -> list[tuple[int, int, bytes]]:
     return out
 
 
+def _sealed(data: bytes) -> bytes:
+    """A goal set's bytes and their CRC-32, by hand."""
+    return data + struct.pack("<I", zlib.crc32(data))
+
+
 def _join(parts: list[tuple[int, int, bytes]]) -> bytes:
-    return bytes([Goals.KIND, VERSION]) + b"".join(struct.pack("<BBI", k, v, len(b)) + b for k, v, b in parts)
+    return _sealed(bytes([Goals.KIND, VERSION]) + b"".join(struct.pack("<BBI", k, v, len(b)) + b for k, v, b in parts))
 
 
 def test_a_goal_set_is_its_parts_each_with_its_own_header_and_absent_parts_are_absent():
@@ -273,8 +280,12 @@ def test_a_goal_set_with_torn_missing_repeated_or_misplaced_parts_is_dropped():
     drops = DropCounter()
     data = SAMPLES[6].encode()
     parts = _parts(data)
-    assert decode(data[:-3], drops=drops) is None  # the last part shorter than its header says
-    assert decode(data + b"\x05", drops=drops) is None  # a torn part header
+    assert decode(data[:-5] + data[-4:], drops=drops) is None  # a byte lost on the way: the checksum tells
+    assert drops == {"checksum": 1}
+    drops.clear()
+    body = data[:-4]  # as sent, with its checksum made anew
+    assert decode(_sealed(body[:-3]), drops=drops) is None  # the last part shorter than its header says
+    assert decode(_sealed(body + b"\x05"), drops=drops) is None  # a torn part header
     short = [(k, v, b[:-1]) if k == Correspondence.PART else (k, v, b) for k, v, b in parts]
     assert decode(_join(short), drops=drops) is None  # a part that is not the length its goal count needs
     assert drops == {"truncated": 3}
@@ -282,7 +293,7 @@ def test_a_goal_set_with_torn_missing_repeated_or_misplaced_parts_is_dropped():
     assert decode(_join(parts[1:2] + parts[:1] + parts[2:]), drops=drops) is None  # the goal set not first
     assert decode(_join(parts + parts[-1:]), drops=drops) is None  # a part twice
     assert decode(_join(parts + parts[:1]), drops=drops) is None  # the goal set twice
-    assert decode(bytes([Goals.KIND, VERSION]), drops=drops) is None  # no part at all
+    assert decode(_join([]), drops=drops) is None  # no part at all
     assert drops["invalid"] == 5
 
 

@@ -8,7 +8,9 @@ equal field by field (float32 fields as float32 rounds them), and a mutated one 
 formed (an int overwritten with 0, a frame cut at a record's end) re-encodes to exactly the bytes it
 came from (a goal set less the parts of kinds it does not know, which it skips). Where the verdict
 is certain it is checked: a wrong version is `version`, a wrong kind `kind`, a NaN or infinity
-`non-finite`, a fixed-length message cut or extended `truncated`. For the frames, ``decode_views``
+`non-finite`, a fixed-length message cut or extended `truncated`, a goal set or auction message
+mutated under the checksum of what was sent `checksum` (mutated and sealed anew, as a faulty sender
+would, it meets the same verdicts as any other kind). For the frames, ``decode_views``
 and the one-struct ``Frame.views_alone`` agree with ``decode`` on every input.
 
 A warning is an error here: a decoder that warns on what a peer sent raises where warnings are errors.
@@ -58,10 +60,11 @@ from transport.codec import (
     WarmStart,
     decode,
     decode_views,
+    with_checksum,
 )
 
 EXAMPLES = 10_000  # per message kind: every example fuzzes each kind once
-REASONS = {"truncated", "version", "kind", "non-finite", "invalid"}
+REASONS = {"truncated", "version", "kind", "checksum", "non-finite", "invalid"}
 U16, U32, U64 = 2**16 - 1, 2**32 - 1, 2**64 - 1
 I32_MIN, I32_MAX = -(2**31), 2**31 - 1
 F32_MAX = float(np.finfo(np.float32).max)
@@ -405,7 +408,23 @@ class Case:
 
 
 def _mutate(c: Choices, msg: Message, want: Message) -> Case:
+    """A kind that ends in a checksum has its bytes before it mutated, then either sealed anew (what a
+    faulty sender sends: its layout is fuzzed as any other kind's) or sent with the checksum of the
+    bytes unmutated (damaged on the way: dropped as such unless its kind or version says otherwise)."""
+    if not msg.CHECKED:
+        return _mutate_body(c, msg, want, msg.encode())
     data = msg.encode()
+    body, checksum = data[:-4], data[-4:]
+    case = _mutate_body(c, msg, want, body)
+    expect = None if len(case.data) < 2 else case.expect  # the checksum's bytes are its header now
+    if c.below(2):
+        return Case(with_checksum(case.data), case.what + ", sealed anew", expect, case.want)
+    if case.data != body and case.data[:2] == body[:2]:  # a header is read before the checksum
+        expect = "checksum"
+    return Case(case.data + checksum, case.what, expect, case.want)
+
+
+def _mutate_body(c: Choices, msg: Message, want: Message, data: bytes) -> Case:
     kind, mode = type(msg), c.below(16)
     fixed_length = kind in (Tick, Contact, Truth, Bid, Boards)
     if mode < 2:
@@ -473,13 +492,13 @@ def _canonical(kind: type[Message], data: bytes) -> bytes:
         return data[:2] + json.dumps(json.loads(data[2:]), allow_nan=False, separators=(",", ":")).encode()
     if kind is not Goals:
         return data
-    parts, at = [], 2
-    while at < len(data):
+    parts, at, end = [], 2, len(data) - 4  # the parts, then the checksum
+    while at < end:
         part, _, length = struct.unpack_from("<BBI", data, at)
         parts.append((part, data[at : at + 6 + length]))
         at += 6 + length
     known = sorted((p for p in parts if p[0] == Goals.PART or p[0] in Goals._PARTS), key=lambda p: p[0])
-    return data[:2] + b"".join(body for _, body in known)
+    return with_checksum(data[:2] + b"".join(body for _, body in known))
 
 
 def _same(got: object, want: object, path: str = "") -> None:
@@ -571,7 +590,8 @@ def test_the_layouts_fuzzed_are_the_codecs():
         for seed in range(20):
             msg, _ = make(Choices(seed))
             if kind is not Event:
-                assert 2 + sum(struct.calcsize(code) for _, code, _ in _layout(msg)) == len(msg.encode())
+                checksum = 4 if kind.CHECKED else 0
+                assert 2 + sum(struct.calcsize(code) for _, code, _ in _layout(msg)) + checksum == len(msg.encode())
 
 
 @pytest.mark.filterwarnings("error")
