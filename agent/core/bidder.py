@@ -153,7 +153,7 @@ class Participant(Auction):
         self.heard_serial = np.zeros(r, np.int64)
         self.heard_goal = np.full(r, -1, np.int64)
         self.heard_price = np.zeros(r)
-        self.heard_content = np.zeros(r, bool)
+        self.heard_flags = np.zeros(r, np.uint8)
         self.heard_digest = np.zeros(r, np.uint64)
         self.heard_version = 0
         self._heard = Heard(self)  # absorb's merges, compiled
@@ -447,7 +447,7 @@ class Participant(Auction):
         if not self._content_all().all():
             return False
         others = ~self.is_own
-        ok = (self.heard_instance[others] == self.instance) & self.heard_content[others]
+        ok = (self.heard_instance[others] == self.instance) & ((self.heard_flags[others] & CONTENT) != 0)
         if same_board:
             ok &= self.heard_digest[others] == np.uint64(self.board.digest())
         if not ok.all():

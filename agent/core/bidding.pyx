@@ -54,7 +54,7 @@ from transport.codec import AuctionRecord
 
 NO_OWNER = -1  # a goal nobody claimed
 cdef int64_t NOBODY = -1
-cdef uint8_t CONTENT = AuctionRecord.CONTENT, RELEASED = AuctionRecord.RELEASED  # a record's flags
+cdef uint8_t RELEASED = AuctionRecord.RELEASED  # a record's flag
 # Relative slack for the rounding of a bid. A bid leaves its robot's value of the goal exactly epsilon
 # below its next-best value in real numbers; in floats, price + (v1 - v2) + eps then -cost - price can
 # land an ulp short, the robot is not content with the goal it just won, gives it up and bids again.
@@ -141,7 +141,7 @@ cdef class Heard:
 
     cdef double[::1] price, heard_price
     cdef int64_t[::1] owner, robots, heard_instance, heard_serial, heard_goal
-    cdef uint8_t[::1] released, is_own, heard_content
+    cdef uint8_t[::1] released, is_own, heard_flags
     cdef uint64_t[::1] heard_digest
 
     def __init__(self, part):
@@ -149,7 +149,7 @@ cdef class Heard:
         self.robots, self.is_own = part.robots, part.is_own.view(np.uint8)
         self.heard_instance, self.heard_serial = part.heard_instance, part.heard_serial
         self.heard_goal, self.heard_price = part.heard_goal, part.heard_price
-        self.heard_content, self.heard_digest = part.heard_content.view(np.uint8), part.heard_digest
+        self.heard_flags, self.heard_digest = part.heard_flags, part.heard_digest
 
     def absorb(self, const Record[::1] recs, int64_t instance, bint current, int64_t serial,
                uint64_t digest) -> tuple[bool, bool]:
@@ -170,7 +170,7 @@ cdef class Heard:
             if self.heard_instance[row] < instance or serial > self.heard_serial[row]:
                 self.heard_instance[row], self.heard_serial[row] = instance, serial
                 self.heard_goal[row], self.heard_price[row] = j, recs[a].price
-                self.heard_content[row] = (recs[a].flags & CONTENT) != 0
+                self.heard_flags[row] = recs[a].flags
                 self.heard_digest[row] = digest
                 heard = True
         return changed, heard

@@ -33,10 +33,6 @@ class BlockRounds:
         self._last: np.ndarray | None = None  # our claims as last said
         self._before = 0  # the board's digest before this round's bids
         self._robots_of: dict[int, np.ndarray] = {}  # sender -> its robots, from its full first round
-        size = int(part.robots.max(initial=0)) + 1
-        self._flags = np.zeros(size, np.uint8)  # each robot's newest claim: its flags, goal and price
-        self._goal = np.full(size, -1, np.int64)
-        self._price = np.zeros(size)
         self._steady = False  # the last round kept the phase (and so the costs): quiet() may hold
 
     def say(self) -> np.ndarray:
@@ -51,19 +47,20 @@ class BlockRounds:
         k = self._claims
         news = mine if self._last is None else np.concatenate([mine[:k][mine[:k] != self._last], mine[k:]])
         self._last = mine[:k]
-        self._note(self._last)
         return news
 
-    def _note(self, records: np.ndarray) -> None:
-        """Keep each robot's newest claim among these records (releases are no claim)."""
-        if len(records) > SMALL:
-            mine = claims(records)
-            self._flags[mine["robot"]], self._goal[mine["robot"]] = mine["flags"], mine["goal"]
-            self._price[mine["robot"]] = mine["price"]
-            return
-        for robot, goal, price, flags, *_ in records.tolist():  # a robot a host: numpy costs more
-            if not flags & RELEASED:
-                self._flags[robot], self._goal[robot], self._price[robot] = flags, goal, price
+    def _newest(self, robots: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Each robot's newest claim this block (flags, goal, price): ours as last said, the others' as
+        the participant heard them (Participant.absorb: the newest by round, releases are no claim)."""
+        assert self._last is not None
+        part = self.part
+        row = np.searchsorted(part.robots, robots)
+        flags = np.where(part.heard_instance[row] > self.final - part.phases, part.heard_flags[row], 0)  # this block's
+        goal, price = part.heard_goal[row], part.heard_price[row]
+        own = part.is_own[row]
+        mine = self._last[np.searchsorted(part.own_ids, robots[own])]
+        flags[own], goal[own], price[own] = mine["flags"], mine["goal"], mine["price"]
+        return flags, goal, price
 
     def quiet(self, robots: np.ndarray) -> np.ndarray:
         """Per robot of ``robots``: whether it has nothing to say in the next round, the same on
@@ -76,14 +73,14 @@ class BlockRounds:
         robots = np.asarray(robots, np.int64)
         if not self._steady or self._last is None:
             return np.zeros(len(robots), bool)
-        board, goal = self.part.board, self._goal[robots]
+        board, (flags, goal, price) = self.part.board, self._newest(robots)
         at = np.maximum(goal, 0)
         return (
-            ((self._flags[robots] & SETTLED) != 0)
+            ((flags & SETTLED) != 0)
             & (goal >= 0)
             & (board.owner[at] == robots)
             & ~board.released[at]
-            & (board.price[at] == self._price[robots])
+            & (board.price[at] == price)
         )
 
     def robots_of(self, sender: int, records: np.ndarray) -> np.ndarray:
@@ -104,14 +101,10 @@ class BlockRounds:
             joined = b"".join([np.asarray(records, RECORD).tobytes() for records in heard.values()])
             records = part.members_only(np.frombuffer(joined, RECORD))
             part.absorb(part.instance, self.round, 0, records)
-            self._note(records)
         # settled: every robot's claim says so this round, ours as just said, the others by their
         # newest (a host that was quiet() said nothing: its robots are settled)
-        assert self._last is not None
-        theirs = [self._robots_of[s] for s in heard]
-        settled = bool(((self._last["flags"] & SETTLED) != 0).all()) and (
-            not theirs or bool(((self._flags[np.concatenate(theirs)] & SETTLED) != 0).all())
-        )
+        theirs = np.concatenate([self._robots_of[s] for s in heard] or [np.zeros(0, np.int64)])
+        settled = bool(((self._newest(np.concatenate([self.part.own_ids, theirs]))[0] & SETTLED) != 0).all())
         phase = part.instance
         agreed = part.close_round(part.board.digest() == self._before, settled)
         self._steady = part.instance == phase
