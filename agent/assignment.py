@@ -69,6 +69,117 @@ class AuctionCounts:
     first_agreement_s: list[float] = field(default_factory=list)  # per goal set: wall time from its arrival
 
 
+class RoundExchange:
+    """Lock-step: one host's side of the auction's numbered rounds on the bus. Our message of each
+    round is kept until its block is over, to send again to a host that missed it; the other hosts'
+    messages are filed by (epoch, block's final instance, round) as they come, those of rounds and
+    goal sets not reached yet too (a faster host may be a round ahead)."""
+
+    def __init__(
+        self, bus: Bus, robots: list[int], inbox: Inbox[Any], counts: AuctionCounts, keeps: Callable[[Any], bool]
+    ) -> None:
+        """``keeps``: whether a message that arrived is one to file (the link's _keeps)."""
+        self.bus, self.robots, self.sender, self.inbox, self.counts = bus, robots, robots[0], inbox, counts
+        self.keeps = keeps
+        self.dead: Callable[[], set[int]] = set  # robots whose agent is known dead now: not waited for
+        self.records: dict[tuple[int, int, int], dict[int, Any]] = {}  # round -> sender -> its message
+        self.said: dict[tuple[int, int, int], tuple[Bid | Boards, float]] = {}  # our rounds' messages, when last sent
+        self.said_block: tuple[int, int] | None = None  # (epoch, block) of the newest round in ``said``
+        self.waiting_for: tuple[int, int, int] | None = None  # the round we wait in
+        self.newest_round: dict[tuple[int, int, int], int] = {}  # (epoch, block, sender) -> its latest round heard
+        self.stopped = False  # the host is shutting down: stop waiting for rounds
+
+    def round(
+        self,
+        key: tuple[int, int, int],
+        msg: Bid | Boards,
+        members: set[int],
+        robots_of: Callable[[Any], np.ndarray],
+        resend: tuple[float, bool],
+    ) -> dict[int, Any] | None:
+        """Publish our message of round ``key`` (epoch, block's final instance, round) and wait until
+        every live robot in ``members`` has said its word in that round; returns the other hosts'
+        messages by sender (None: ROUND_CAP ran out). ``resend``: the first wait before our message
+        goes out again, and whether we speak: if not, the message goes out only as a resend, which
+        nobody waits for but which asks the hosts that left the round for a message of theirs we
+        missed (see file)."""
+        base, speak = resend
+        for old in [k for k in self.records if k < key]:
+            del self.records[old]
+        if key[:2] != self.said_block:  # a block's first round: forget the blocks before it (once, not
+            # every round: a block may take thousands of rounds)
+            self.said_block = key[:2]
+            for old in [k for k in self.said if k[:2] != key[:2] and k < key]:
+                del self.said[old]  # an earlier block: every host finished it before this tick came
+            for old in [b for b in self.newest_round if b[:2] < key[:2]]:
+                del self.newest_round[old]
+        self.said[key] = (msg, -np.inf if speak else time.monotonic())
+        self.waiting_for, start = key, time.monotonic()
+        # every resend reaches every host and may draw an answer from each: on a loaded machine, where
+        # a round outlasts the backstop, fixed resends fed the load that made them; each waits twice
+        # the last, up to ROUND_BACKOFF times the first
+        wait = base
+        said: set[int] = set(self.robots)  # robots heard in this round
+        counted: set[int] = set()  # the senders whose robots are in ``said``
+        try:
+            while not self.stopped:
+                now = time.monotonic()
+                if now - self.said[key][1] >= wait:  # at once, then again while records are missing
+                    if self.said[key][1] > -np.inf:
+                        wait = min(2 * wait, ROUND_BACKOFF * base)
+                    self.send(key)
+                heard = self.records.get(key, {})
+                for sender in heard.keys() - counted:  # a resent message names the same robots
+                    said.update(robots_of(heard[sender]).tolist())
+                    counted.add(sender)
+                if members <= said | self.dead():
+                    return heard
+                if now - start >= ROUND_CAP:
+                    return None
+                due = min(self.said[key][1] + wait, start + ROUND_CAP)
+                got = self.inbox.get(timeout=max(0.0, due - time.monotonic()))
+                self.file([got] if got is not None else [])
+                self.file(self.inbox.drain())
+            return None
+        finally:
+            self.waiting_for = None
+
+    def say(self, key: tuple[int, int, int], msg: Bid | Boards) -> None:
+        """Our last message of a block: sent once, and again to whoever asks for it (file)."""
+        self.said[key] = (msg, -np.inf)
+        self.send(key)
+
+    def file(self, arrived: list) -> None:
+        """Keep other hosts' messages (those ``keeps`` takes) by round."""
+        for _, msg in arrived:
+            self.counts.received += 1
+            if msg.sender == self.sender or not self.keeps(msg):
+                continue
+            key = (msg.epoch, msg.instance, msg.serial)
+            self.records.setdefault(key, {})[msg.sender] = msg
+            # The sender may still wait in a round we have left, for our records of it if it lost them;
+            # not when we heard it in a later round (its message is an answer itself: no ping-pong).
+            block = (msg.epoch, msg.instance, msg.sender)
+            self.newest_round[block] = newest = max(self.newest_round.get(block, 0), msg.serial)
+            answer = key in self.said and key != self.waiting_for and newest == msg.serial
+            if answer and time.monotonic() - self.said[key][1] >= ROUND_RESEND:
+                self.send(key)
+
+    def weed(self) -> None:
+        """Drop the filed messages ``keeps`` no longer takes (a new goal set tells what fits it)."""
+        for heard in self.records.values():
+            for sender in [s for s, msg in heard.items() if not self.keeps(msg)]:
+                del heard[sender]
+
+    def send(self, key: tuple[int, int, int]) -> None:
+        """Publish (again) our message of this round."""
+        msg, _ = self.said[key]
+        keys = self.bus.keys
+        self.bus.publish((keys.boards if isinstance(msg, Boards) else keys.auction)(msg.epoch, self.sender), msg)
+        self.said[key] = (msg, time.monotonic())
+        self.counts.sent += 1
+
+
 class AuctionLink:
     """The auction of one host's robots: goal sets in, agreed goals out through ``on_agreed``."""
 
@@ -97,19 +208,10 @@ class AuctionLink:
         self.bus, self.robots, self.params, self.on_agreed = bus, sorted(robots), params, on_agreed
         self.where = where
         self.lockstep, self.on_abandoned = lockstep, on_abandoned
-        self.dead = dead if dead is not None else set
         self.block_stamp = -np.inf  # lock-step: display time of the last block's tick
         self.block: BlockRounds | None = None  # lock-step: the block under way (it may span ticks)
         self.warm = False  # lock-step: the goal set's auction began from the coordinator's warm start
-        self.round_records: dict[
-            tuple[int, int, int], dict[int, Any]
-        ] = {}  # (epoch, block, round) -> sender -> its message (Bid or Boards)
-        self.said: dict[tuple[int, int, int], tuple[Bid | Boards, float]] = {}  # our rounds' messages, when last sent
-        self.said_block: tuple[int, int] | None = None  # (epoch, block) of the newest round in ``said``
-        self.waiting_for: tuple[int, int, int] | None = None  # the round we wait in
-        self.newest_round: dict[tuple[int, int, int], int] = {}  # (epoch, block, sender) -> its latest round heard
         self.counts = AuctionCounts()
-        self.stopped = False  # the host is shutting down: stop waiting for rounds
         ranged = math.isfinite(reach)
         self.inbox: Inbox[Any] = (
             bus.subscribe(bus.keys.all_of("boards"), Boards)
@@ -117,6 +219,8 @@ class AuctionLink:
             else bus.subscribe(bus.keys.all_of("auction"), Bid)
         )
         self.sender = self.robots[0]
+        self.exchange = RoundExchange(bus, self.robots, self.inbox, self.counts, self._keeps)
+        self.exchange.dead = dead if dead is not None else set
         self.part: Participant | None = None
         self.local: LocalAuction | None = None  # the range-limited auction, in place of part
         self.goal_set: Goals | None = None
@@ -130,8 +234,6 @@ class AuctionLink:
         self.board_changed = 0.0  # monotonic time of the last change of the board
         self.mismatch = False  # a message of this instance came from a host with another board
         self.epoch_wall = 0.0
-        self.heard = 0  # messages of the current goal set from other hosts (lock-step counts rounds by them)
-        self.others: set[int] = set()  # ... and the hosts they came from
 
     @property
     def active(self) -> bool:
@@ -180,7 +282,7 @@ class AuctionLink:
         if self.active and goals.epoch <= self.epoch:
             return {}
         auction = new_auction(goals.epoch, goals.positions, goals.robots.tolist(), self.robots, self.params, self.reach)
-        self.goal_set, self.epoch_wall, self.reported, self.others = goals, time.monotonic(), -1, set()
+        self.goal_set, self.epoch_wall, self.reported = goals, time.monotonic(), -1
         self.block = None  # a block of the last goal set is given up
         if isinstance(auction, LocalAuction):  # lock-step only: a cold start at the next tick
             self.local, self.block_stamp = auction, -np.inf
@@ -189,9 +291,7 @@ class AuctionLink:
         warm, keyframe = goals.warm_start, goals.correspondence
         if self.lockstep:  # the block begins at the next tick, as the central engine starts a new image
             self.block_stamp = -np.inf
-            for heard in self.round_records.values():  # filed before the set came: _fits checks them now
-                for sender in [s for s, msg in heard.items() if not self._fits(msg)]:
-                    del heard[sender]
+            self.exchange.weed()  # bids filed before the set came: _keeps checks them now
             # with rounds per tick bounded (large swarms), from the warm start: a cold one would span many
             self.warm = bool(self.params.rounds_per_tick) and before is not None and self._warm_start(before, goals)
             if self.warm and before is not None and warm is not None:
@@ -303,18 +403,15 @@ class AuctionLink:
         part = self.part
         arrived = self.inbox.drain()
         if self.lockstep:  # kept for the rounds of the next block (settle_block)
-            self._file(arrived)
+            self.exchange.file(arrived)
             return
         if not arrived and part is not None and part.started and self.next_due() > 0:
             return  # nothing new, nothing due
         theirs: set[int] = set()  # digests of this instance's messages, compared once below
         for _, msg in arrived:
             self.counts.received += 1
-            if part is None or msg.epoch != part.epoch or not self._fits(msg) or not self._try_start(positions):
+            if part is None or msg.epoch != part.epoch or not self._keeps(msg) or not self._try_start(positions):
                 continue
-            if msg.sender != self.sender:
-                self.heard += 1
-                self.others.add(msg.sender)
             if msg.instance > part.instance:  # the sender saw our instance agreed
                 self._begin(msg.instance, positions)
             if part.absorb(msg.instance, msg.serial, msg.digest, part.members_only(msg.records)):
@@ -359,7 +456,10 @@ class AuctionLink:
             news = block.say()
             key = (part.epoch, block.final, block.round)
             said = Bid(part.epoch, block.final, self.sender, block.round, part.board.digest(), len(news), news)
-            heard = self._round(key, said, members, lambda m: block.robots_of(m.sender, m.records), speak)
+            base = self._resend_base(len(members))
+            heard = self.exchange.round(
+                key, said, members, lambda m: block.robots_of(m.sender, m.records), (base, speak)
+            )
             if heard is None:
                 self._abandon()
                 return
@@ -386,10 +486,10 @@ class AuctionLink:
             key = (local.epoch, local.instance, local.round)
             said = _boards(local, words, self.sender)
             if local.done:  # our robots' last words: said once (and again to whoever missed them)
-                self.said[key] = (said, -np.inf)
-                self._send(key)
+                self.exchange.say(key, said)
                 break
-            heard = self._round(key, said, waiting, lambda m: m.words["robot"])
+            base = self._resend_base(len(waiting))
+            heard = self.exchange.round(key, said, waiting, lambda m: m.words["robot"], (base, True))
             if heard is None:
                 self._abandon()
                 return
@@ -404,83 +504,19 @@ class AuctionLink:
         self.reported = local.agreed_instance
         self.on_agreed(local.epoch, local.agreed_instance, dict(local.agreed), gs.positions, gs.colors)
 
-    def _round(
-        self,
-        key: tuple[int, int, int],
-        msg: Bid | Boards,
-        members: set[int],
-        robots_of: Callable[[Any], np.ndarray],
-        speak: bool = True,
-    ) -> dict[int, Any] | None:
-        """Publish our message of round ``key`` (epoch, block's final instance, round) and wait until
-        every live robot in ``members`` has said its word in that round (a robot whose agent died is
-        not waited for: ``dead``); returns the other hosts' messages by sender (None: ROUND_CAP ran
-        out). Without ``speak`` the message goes out only as a resend: nobody waits for it, but it
-        asks the hosts that left the round for a message of theirs we missed (see _file)."""
-        for old in [k for k in self.round_records if k < key]:
-            del self.round_records[old]
-        if key[:2] != self.said_block:  # a block's first round: forget the blocks before it (once, not
-            # every round: a block may take thousands of rounds)
-            self.said_block = key[:2]
-            for old in [k for k in self.said if k[:2] != key[:2] and k < key]:
-                del self.said[old]  # an earlier block: every host finished it before this tick came
-            for old in [b for b in self.newest_round if b[:2] < key[:2]]:
-                del self.newest_round[old]
-        self.said[key] = (msg, -np.inf if speak else time.monotonic())
-        self.waiting_for, start = key, time.monotonic()
-        # every resend reaches every host and may draw an answer from each: on a loaded machine, where
-        # a round outlasts the backstop, fixed resends fed the load that made them; each waits twice
-        # the last, up to ROUND_BACKOFF times the first
-        base = resend = max(ROUND_RESEND, RESEND_PER_ROBOT * max(len(members), self._swarm))
-        said: set[int] = set(self.robots)  # robots heard in this round
-        counted: set[int] = set()  # the senders whose robots are in ``said``
-        try:
-            while not self.stopped:
-                now = time.monotonic()
-                if now - self.said[key][1] >= resend:  # at once, then again while records are missing
-                    if self.said[key][1] > -np.inf:
-                        resend = min(2 * resend, ROUND_BACKOFF * base)
-                    self._send(key)
-                heard = self.round_records.get(key, {})
-                for sender in heard.keys() - counted:  # a resent message names the same robots
-                    said.update(robots_of(heard[sender]).tolist())
-                    counted.add(sender)
-                if members <= said | self.dead():
-                    return heard
-                if now - start >= ROUND_CAP:
-                    return None
-                due = min(self.said[key][1] + resend, start + ROUND_CAP)
-                got = self.inbox.get(timeout=max(0.0, due - time.monotonic()))
-                self._file([got] if got is not None else [])
-                self._file(self.inbox.drain())
-            return None
-        finally:
-            self.waiting_for = None
+    def _resend_base(self, members: int) -> float:
+        """Lock-step: the first wait for a round's records before our message goes out again; at least
+        RESEND_PER_ROBOT per robot, as every resend reaches every host and slows every round."""
+        return max(ROUND_RESEND, RESEND_PER_ROBOT * max(members, self._swarm))
 
-    def _file(self, arrived: list) -> None:
-        """Keep other hosts' lock-step messages by (epoch, block's final instance, round), those of a
-        goal set not heard of yet too (its message may come after a faster host's first round)."""
-        for _, msg in arrived:
-            self.counts.received += 1
-            if msg.sender == self.sender or (self.active and msg.epoch < self.epoch) or not self._fits(msg):
-                continue
-            key = (msg.epoch, msg.instance, msg.serial)
-            self.round_records.setdefault(key, {})[msg.sender] = msg
-            self.others.add(msg.sender)
-            self.heard += 1
-            # The sender may still wait in a round we have left, for our records of it if it lost them;
-            # not when we heard it in a later round (its message is an answer itself: no ping-pong).
-            block = (msg.epoch, msg.instance, msg.sender)
-            self.newest_round[block] = newest = max(self.newest_round.get(block, 0), msg.serial)
-            answer = key in self.said and key != self.waiting_for and newest == msg.serial
-            if answer and time.monotonic() - self.said[key][1] >= ROUND_RESEND:
-                self._send(key)
-
-    def _fits(self, msg: Bid | Boards) -> bool:
-        """A bid of the goal set under way names its robots and its goals only (-1: none yet); one
-        that does not is counted and dropped (it must not index the auction's arrays). An intact
-        message (the codec checks) fails this only if its sender is faulty. A bid of a goal set not
-        heard yet is checked when the set arrives (on_goals)."""
+    def _keeps(self, msg: Bid | Boards) -> bool:
+        """Whether another host's message is one to take: not of an earlier goal set, and a bid of the
+        goal set under way names its robots and its goals only (-1: none yet); one that does not is
+        counted and dropped (it must not index the auction's arrays). An intact message (the codec
+        checks) fails this only if its sender is faulty. A bid of a goal set not heard yet is checked
+        when the set arrives (on_goals)."""
+        if self.active and msg.epoch < self.epoch:
+            return False
         part = self.part
         if not isinstance(msg, Bid) or part is None or msg.epoch != part.epoch:
             return True
@@ -490,14 +526,9 @@ class AuctionLink:
         self.inbox.drops[INCONSISTENT] += 1
         return False
 
-    def _send(self, key: tuple[int, int, int]) -> None:
-        """Publish (again) our message of this round."""
-        msg, _ = self.said[key]
-        keys = self.bus.keys
-        self.bus.publish((keys.boards if isinstance(msg, Boards) else keys.auction)(msg.epoch, self.sender), msg)
-        self.said[key] = (msg, time.monotonic())
-        self.last_sent = time.monotonic()
-        self.counts.sent += 1
+    def stop(self) -> None:
+        """The host is shutting down: stop waiting for rounds."""
+        self.exchange.stopped = True
 
     def _abandon(self) -> None:
         """A round never completed: our robots cannot know whether others adopted the block, so they

@@ -647,7 +647,7 @@ def bid_position(position: np.ndarray, goal: np.ndarray, velocity: np.ndarray, l
 def install_stop_handlers(host: AgentHost) -> None:
     def stop(signum: int, frame: object) -> None:
         host.running = False
-        host.auction.stopped = True
+        host.auction.stop()
 
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)

@@ -133,11 +133,11 @@ def test_a_bid_naming_a_goal_outside_the_set_is_dropped_before_and_after_its_set
     try:
         with Bus(client_of(router), "integrity") as bus:
             link = AuctionLink(bus, [0, 1, 2, 3], params, lambda *_: None, lockstep=True)
-            link._file([("key", forged)])  # before the goal set: no way to tell yet
-            assert link.round_records[(1, 0, 1)] == {4: forged}
+            link.exchange.file([("key", forged)])  # before the goal set: no way to tell yet
+            assert link.exchange.records[(1, 0, 1)] == {4: forged}
             link.on_goals(message, {})
-            assert link.round_records[(1, 0, 1)] == {} and link.inbox.drops["inconsistent"] == 1
-            link._file([("key", forged)])
-            assert link.round_records[(1, 0, 1)] == {} and link.inbox.drops["inconsistent"] == 2
+            assert link.exchange.records[(1, 0, 1)] == {} and link.inbox.drops["inconsistent"] == 1
+            link.exchange.file([("key", forged)])
+            assert link.exchange.records[(1, 0, 1)] == {} and link.inbox.drops["inconsistent"] == 2
     finally:
         session.close()
