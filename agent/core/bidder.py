@@ -28,7 +28,7 @@ CONTENT, RELEASED, SETTLED = AuctionRecord.CONTENT, AuctionRecord.RELEASED, Auct
 CANDIDATES = 16  # goals a robot ranks while no other can beat them (agent.core.bidding)
 ROUNDS_PER_ROBOT = 100  # settle_alone's bound on a phase's rounds, per robot: a phase's rounds grow with
 # the robots (a cold start of 30,000 needed over 100,000 in one phase), so a fixed bound broke large swarms
-SMALL = 8  # messages with up to this many records are merged record by record (numpy costs more there)
+SMALL = 8  # members_only looks up the records of messages up to this size one by one (numpy costs more there)
 
 RECORD = Bid.RECORD  # one robot's word on one goal (goal -1: it holds none yet), as a Bid carries it
 

@@ -10,15 +10,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from .bidder import RECORD, RELEASED, SETTLED, SMALL, Participant
-
-
-def claims(records: np.ndarray) -> np.ndarray:
-    """The claims among a round's records (the rest are releases)."""
-    if len(records) <= SMALL:  # a robot per host: a structured array's mask costs more than Python
-        keep = [i for i, flags in enumerate(records["flags"].tolist()) if not flags & RELEASED]
-        return records if len(keep) == len(records) else records[keep]
-    return records[(records["flags"] & RELEASED) == 0]
+from .bidder import RECORD, RELEASED, SETTLED, Participant
 
 
 class BlockRounds:
@@ -87,7 +79,8 @@ class BlockRounds:
         """The robots a host speaks for: those of its first round's claims, of robots of this goal set
         only (a damaged copy's robot id must not index a robot's flags in hear)."""
         if sender not in self._robots_of:
-            self._robots_of[sender] = claims(self.part.members_only(records))["robot"]
+            recs = self.part.members_only(records)
+            self._robots_of[sender] = recs[(recs["flags"] & RELEASED) == 0]["robot"]  # claims, not releases
         return self._robots_of[sender]
 
     def hear(self, heard: Mapping[int, np.ndarray]) -> bool:
