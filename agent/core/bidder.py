@@ -14,6 +14,7 @@ host that owns every robot (the central engine) settles a block of phases in-pro
 
 from __future__ import annotations
 
+from collections import defaultdict
 from collections.abc import Mapping
 
 import numpy as np
@@ -101,6 +102,8 @@ class Auction:
     among them, and the epsilon-scaling schedule (Participant: one board for all; LocalAuction: a
     board per robot, agent.core.local_auction)."""
 
+    pending: defaultdict[tuple[int, int], float] | np.ndarray  # C_d per (own row, goal) declared, not in force yet
+
     def __init__(
         self, epoch: int, goals: np.ndarray, robots: list[int], own: list[int], eps: float, hysteresis: float
     ) -> None:
@@ -124,6 +127,12 @@ class Auction:
         """Instances come in blocks of this many epsilon-scaling phases, on one set of positions."""
         return len(self.schedule)
 
+    def penalise(self, robot: int, goal: int, cost: float) -> None:
+        """Deadlock (paper 5.5.5): the robot's cost of this goal rises by C_d for good, from the next
+        instance (a Participant) or block (a LocalAuction)."""
+        if robot in self.own and 0 <= goal < len(self.goals):
+            self.pending[self.own.index(robot), goal] += cost
+
 
 class Participant(Auction):
     """The own robots of one host in the auction of one goal set (epoch), on one board."""
@@ -145,7 +154,7 @@ class Participant(Auction):
         # C_d per (own row, goal) in force this instance (deadlocks: few, so no K x G array), and those
         # declared during it, in force from the next
         self.penalty: dict[tuple[int, int], float] = {}
-        self.pending: dict[tuple[int, int], float] = {}
+        self.pending: defaultdict[tuple[int, int], float] = defaultdict(float)
         self.goal = np.full(k, -1, np.int64)  # what each own robot claims
         # the newest record of every other robot in the current instance, and the board it was written on
         r = len(self.robots)
@@ -227,7 +236,7 @@ class Participant(Auction):
             for key, cost in self.pending.items():
                 self.penalty[key] = self.penalty.get(key, 0.0) + cost
             self._bidders.set_penalties(*self._penalties())
-        self.pending = {}
+        self.pending = defaultdict(float)
         # Costs change only with the positions (a new block) or a penalty: the other phases of a
         # block keep them, and the rankings too (prices only rise, the compiled rounds follow them).
         if new_block or penalised:
@@ -377,12 +386,6 @@ class Participant(Auction):
         self.instance = (self.instance // self.phases + 1) * self.phases - 1  # the block's final phase
         self._adopt()
         return True
-
-    def penalise(self, robot: int, goal: int, cost: float) -> None:
-        """Deadlock (5.5.5): the robot's cost of this goal rises by C_d for good, from the next instance."""
-        if robot in self.own and 0 <= goal < len(self.goals):
-            key = (self.own.index(robot), goal)
-            self.pending[key] = self.pending.get(key, 0.0) + cost
 
     # --- messages ---------------------------------------------------------------------------------
     @property

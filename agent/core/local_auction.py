@@ -78,7 +78,7 @@ class LocalAuction(Auction):
         self.released = np.zeros((k, g), bool)
         self.goal = np.full(k, -1, np.int64)  # what each own robot claims on its board
         self.penalty = np.zeros((k, g))  # C_d in force this block
-        self.pending = np.zeros((k, g))  # declared during this block: in force from the next
+        self.pending: np.ndarray = np.zeros((k, g))  # declared during this block: in force from the next
         self.block = -1  # the rest of a robot's state is its block's (begin_block)
         self.agreed: dict[int, int] = {}
 
@@ -96,11 +96,6 @@ class LocalAuction(Auction):
     def done(self) -> bool:
         """Every own robot has ended the block and said so."""
         return bool(self.said_end.all())
-
-    def penalise(self, robot: int, goal: int, cost: float) -> None:
-        """A deadlock penalty C_d (paper 5.5.5) on a goal: in force from the next block."""
-        if robot in self.own and 0 <= goal < len(self.goals):
-            self.pending[self.own.index(robot), goal] += cost
 
     def begin_block(self, positions: Mapping[int, np.ndarray] | np.ndarray) -> None:
         """Freeze the own robots' positions (a mapping robot -> (x, y), or rows by robot id), bring
