@@ -48,6 +48,7 @@ from sim.bodies.tracker import tracker_of, world_of
 from sim.central.link import InProcessLink
 from sim.central.stepclock import StepClock
 from sim.outputs.rundir import RunDir
+from sim.outputs.stream import SCRATCH, TickRecorder
 from sim.outputs.write import RunOutcome, write_run
 from transport.codec import Goals, as_sent, decode
 
@@ -133,7 +134,7 @@ def warm_start(
 class Outcome(NamedTuple):
     """What a central run produced: the recorded ticks and what the world and the robots counted."""
 
-    arrays: dict[str, np.ndarray]  # t, pose, velocity, color, goal, assignment, step (rows by tick)
+    arrays: dict[str, Any]  # t, pose, velocity, color, goal, assignment, step (rows by tick; sim.outputs.stream)
     contacts: list  # the world's contact events
     min_clearance: float  # m, over the run's sub-steps
     fallbacks: int  # robot-ticks where ORCA's program was infeasible
@@ -344,6 +345,7 @@ def simulate(
     clock: StepClock | None = None,
     overlap: bool = True,
     view: Any = None,
+    record_to: Path | None = None,
 ) -> Outcome:
     """Step every robot of the scene in this process through the one tick loop (agent.loop.tick),
     each deciding by the robot policy from what the link let it hear, the world moving between
@@ -351,7 +353,8 @@ def simulate(
     time per part of each control step (bench/bench_large.py). ``overlap``: a warm auction runs on a
     second thread while this one searches neighbours and steps the control core on the goals the
     robots hold, and only the robots whose goal changed are stepped again (the same run, to the bit,
-    as without: tests/integration/test_central_overlap.py)."""
+    as without: tests/integration/test_central_overlap.py). ``record_to``: stream the recording to
+    files in this directory (sim.outputs.stream) instead of holding it in memory."""
     _refuse_process_faults(scene)
     params, world = world_of(scene)
     link = link if link is not None else InProcessLink(scene.robots)
@@ -362,7 +365,7 @@ def simulate(
     seams = Seams(robots, auction, static_segments(scene.arena, scene.obstacles), scene.seed, link.reach, clock.lap)
     events = sorted(scene.events, key=lambda e: e["t"])
     steps, last_step = round(scene.duration / params.dt), max(len(scene.steps) - 1, 0)
-    rec = _recording(steps + 1, scene.robots)
+    rec = TickRecorder(steps + 1, scene.robots, record_to)
     converged = Convergence(scene.converge_hold if scene.ends_on_convergence else None)
     fallbacks, end_reason = 0, "duration"
     wall0 = last_say = time.time()
@@ -377,11 +380,8 @@ def simulate(
             clock.lap("other")
             decision = loop.tick(robots, robots.sense(tick), seams)
             pose, goal = world.poses, decision.intent.goal
-            for name, value in zip(
-                rec, (t, pose, world.velocities, robots.held_goals.color, goal, auction.assignment, k)
-            ):
-                rec[name][tick] = value
-            color = rec["color"][tick]  # this tick's colours, as recorded
+            rows = (pose, world.velocities, robots.held_goals.color, goal, auction.assignment)
+            color = rec.record(tick, t, k, rows)["color"]  # this tick's colours, as recorded
             if view is not None:  # sim.outputs.view.SwarmView: the live view, one batch a tick
                 view.tick(tick, t, pose, color, goal)
             clock.lap("record")
@@ -403,7 +403,7 @@ def simulate(
             clock.lap("other")
     finally:
         beside.pool.shutdown()
-    arrays = {name: rows[: tick + 1] for name, rows in rec.items()}  # a converged run ends early
+    arrays = rec.arrays(tick + 1)  # a converged run ends early
     how = (list(world.contacts), float(world.min_clearance), fallbacks, auction.penalties)
     return Outcome(arrays, *how, end_reason, time.time() - wall0)
 
@@ -441,7 +441,9 @@ def run_central(
     run_dir = RunDir(out)
     try:
         link = InProcessLink(scene.robots, reach=reach)
-        outcome = simulate(scene, link=link, progress=progress, clock=clock, overlap=overlap, view=view)
+        outcome = simulate(
+            scene, link=link, progress=progress, clock=clock, overlap=overlap, view=view, record_to=run_dir / SCRATCH
+        )
         params, _ = world_of(scene)
         contacts = [
             {"kind": c.kind, "i": c.i, "j": c.j, "t_start": c.t_start, "t_end": c.t_end, "max_depth": c.max_depth}
@@ -503,22 +505,6 @@ def _states(params, measured: np.ndarray, pose: np.ndarray, velocity: np.ndarray
         np.full(n, t),
         movers.cooperative,
     )
-
-
-def _recording(ticks: int, n: int) -> dict[str, np.ndarray]:
-    """The recorded ticks' rows, filled tick by tick (a run's arrays are written once, not stacked from
-    a list of ticks at the end): t, pose, velocity, color, goal, assignment, step."""
-    shapes = {
-        "t": (),
-        "pose": (n, 3),
-        "velocity": (n, 2),
-        "color": (n, 3),
-        "goal": (n, 2),
-        "assignment": (n,),
-        "step": (),
-    }
-    types = {"color": np.uint8, "assignment": np.int64, "step": np.int64}
-    return {name: np.empty((ticks, *shape), types.get(name, float)) for name, shape in shapes.items()}
 
 
 def _at_goal(pose: np.ndarray, goal: np.ndarray, params: RobotParams) -> np.ndarray:

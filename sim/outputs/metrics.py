@@ -59,7 +59,7 @@ def _chunks(ticks: int, robots: int) -> list[slice]:
     return [slice(a, min(a + step, ticks)) for a in range(0, ticks, step)]
 
 
-def _xy(pose: Any, ticks: slice | np.ndarray) -> np.ndarray:
+def _xy(pose: Any, ticks: int | slice | np.ndarray) -> np.ndarray:
     return np.asarray(pose[ticks, :, :2], dtype=float)
 
 
@@ -134,14 +134,14 @@ def clearance_over_time(pose: np.ndarray, radius: np.ndarray) -> np.ndarray:
     Negative means overlap (contact).  +inf where fewer than two robots are present (N=1).
     Uses a k-d tree per sample: N=1000, T=3000 takes a few seconds.
     """
-    pose = _check_pose(pose)
-    T, N = pose.shape[:2]
+    pose = pose if hasattr(pose, "shape") else np.asarray(pose, dtype=float)
+    T, N = _pose_shape(pose)
     r = _radius(radius, N)
     out = np.full(T, np.inf)
     if N < 2:
         return out
-    for k in range(T):
-        out[k] = clearance_at(pose[k, :, :2], r)
+    for k in range(T):  # a tick at a time: the poses may be on disk (sim.outputs.stream)
+        out[k] = clearance_at(_xy(pose, k), r)
     return out
 
 
@@ -392,10 +392,11 @@ def summarise(
     traffic = traffic or Traffic()
     t, goal, tolerance, clearance = record.t, record.goal, record.tolerance, record.clearance
     t = np.asarray(t, dtype=float)
-    pose = _check_pose(record.pose)
-    T, N = pose.shape[:2]
+    # read a piece at a time below: the poses may be on disk (sim.outputs.stream)
+    pose = record.pose if hasattr(record.pose, "shape") else np.asarray(record.pose, dtype=float)
+    T, N = _pose_shape(pose)
     if t.shape != (T,):
-        raise ValueError(f"t has shape {t.shape}, pose {pose.shape}")
+        raise ValueError(f"t has shape {t.shape}, pose {np.shape(pose)}")
     r = _radius(record.radius, N)
     clr = clearance_over_time(pose, r) if clearance is None else np.asarray(clearance, dtype=float)
     duration = float(t[-1] - t[0]) if T else 0.0

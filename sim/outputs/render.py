@@ -20,7 +20,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
-from typing import Final
+from typing import Any, Final
 
 import av
 import cv2
@@ -45,15 +45,30 @@ class Recording:
     color: np.ndarray | None = None
 
     def checked(self) -> Recording:
-        """Arrays as floats, with goals and colours given once broadcast over time."""
-        t, pose = np.asarray(self.t, dtype=float), np.asarray(self.pose, dtype=float)
+        """Arrays as floats, with goals and colours given once broadcast over time; arrays on disk
+        (sim.outputs.stream) stay there, read a piece at a time by the writers."""
+        t, pose = np.asarray(self.t, dtype=float), _floats(self.pose)
         if pose.ndim != 3 or pose.shape[0] != len(t):
             raise ValueError(f"pose must be (T,N,3) with T = len(t); got {pose.shape}, T={len(t)}")
         T, N = pose.shape[:2]
-        color = None if self.color is None else np.broadcast_to(np.asarray(self.color), (T, N, 3))
-        goal = None if self.goal is None else np.broadcast_to(np.asarray(self.goal, dtype=float), (T, N, 2))
+        color = None if self.color is None else _over_time(self.color, (T, N, 3), None)
+        goal = None if self.goal is None else _over_time(self.goal, (T, N, 2), float)
         radius = np.broadcast_to(np.asarray(self.radius, dtype=float), (N,))
         return Recording(t, pose, radius, self.arena, self.obstacles or (), goal, color)
+
+
+def _on_disk(a: Any) -> bool:
+    """An array read a piece at a time (sim.outputs.stream.OnDisk), not to be loaded whole."""
+    return hasattr(a, "shape") and not isinstance(a, np.ndarray)
+
+
+def _floats(a: Any) -> Any:
+    return a if _on_disk(a) else np.asarray(a, dtype=float)
+
+
+def _over_time(a: Any, shape: tuple[int, ...], dtype: Any) -> Any:
+    """(T, N, k) values given per tick, or once for every tick."""
+    return a if _on_disk(a) else np.broadcast_to(np.asarray(a, dtype=dtype), shape)
 
 
 BACKGROUND = (18, 18, 18)  # BGR
@@ -492,10 +507,7 @@ def _plot_trajectories(path: Path, rec: Recording, dpi: int, max_points: int) ->
     ax.scatter(starts[:, 0], starts[:, 1], s=ms, facecolors="none", edgecolors=cols, lw=0.8, zorder=3, label="start")
     ax.scatter(ends[:, 0], ends[:, 1], s=ms, c=cols, zorder=4, label="end")
     if rec.goal is not None and T:
-        g = rec.goal
-        known = np.isfinite(g).all(axis=2)  # (T, N)
-        at = T - 1 - np.argmax(known[::-1], axis=0)  # each robot's last sample with a goal
-        last = np.where(known.any(axis=0)[:, None], g[at, np.arange(N)], np.nan)
+        last = _last_goals(rec.goal, T, N)
         if np.isfinite(last).any():
             ax.scatter(last[:, 0], last[:, 1], s=ms, marker="x", c="0.35", lw=0.8, zorder=3, label="goal")
     ax.set_xlim(xmin - 0.02 * (xmax - xmin), xmax + 0.02 * (xmax - xmin))
@@ -508,3 +520,17 @@ def _plot_trajectories(path: Path, rec: Recording, dpi: int, max_points: int) ->
     ax.legend(loc="upper right", fontsize=8, markerscale=1.0)
     fig.tight_layout()
     fig.savefig(path, format="png")
+
+
+def _last_goals(goal: Any, T: int, N: int, chunk: int = 1 << 20) -> np.ndarray:
+    """(N, 2) each robot's goal at its last sample with one (NaN: never one), from ``goal`` (T, N, 2)
+    read about ``chunk`` values at a time."""
+    last = np.full((N, 2), np.nan)
+    ticks = max(1, chunk // max(N, 1))
+    for first in range(0, T, ticks):
+        g = np.asarray(goal[first : first + ticks], dtype=float)
+        known = np.isfinite(g).all(axis=2)  # (ticks, N)
+        has = known.any(axis=0)
+        at = len(g) - 1 - np.argmax(known[::-1], axis=0)  # each robot's last sample with a goal here
+        last[has] = g[at[has], np.flatnonzero(has)]
+    return last

@@ -160,16 +160,20 @@ def write_npz(path: str | os.PathLike, *, compress: bool = True, **arrays: Any) 
     return path
 
 
-def write_npz_streamed(path: str | os.PathLike, arrays: Iterable[tuple[str, np.ndarray]], level: int = 6) -> Path:
+def write_npz_streamed(path: str | os.PathLike, arrays: Iterable[tuple[str, Any]], level: int = 6) -> Path:
     """As :func:`write_npz` (compressed), with the arrays taken one at a time from ``arrays``, so a
-    generator can make each (e.g. a float32 copy) only while it is written. ``level``: zlib's."""
+    generator can make each (e.g. a float32 copy) only while it is written. ``level``: zlib's. A
+    value with a ``write(file)`` method writes its own .npy member (e.g. a piece at a time)."""
     path = Path(path)
 
     def _w(fh: io.BufferedWriter) -> None:
         with zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED, allowZip64=True, compresslevel=level) as z:
             for name, value in arrays:
                 with z.open(f"{name}.npy", "w", force_zip64=True) as member:
-                    np.lib.format.write_array(member, np.asarray(value), allow_pickle=False)
+                    if hasattr(value, "write"):
+                        value.write(member)
+                    else:
+                        np.lib.format.write_array(member, np.asarray(value), allow_pickle=False)
 
     _atomic_write_bytes(path, _w)
     return path

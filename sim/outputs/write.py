@@ -6,6 +6,7 @@ listing the directory nor a script testing for the file takes it for a finished 
 
 from __future__ import annotations
 
+import shutil
 import sys
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -27,37 +28,58 @@ from sim.outputs.metrics import (
     summarise,
 )
 from sim.outputs.rundir import RunDir, write_json, write_npz_streamed
+from sim.outputs.stream import FLOAT32_FROM, PER_TICK, SCRATCH, OnDisk
 
 if TYPE_CHECKING:  # the renderers load matplotlib, OpenCV and PyAV: imported only where used
     from sim.outputs.render import Recording
 
 INCOMPLETE = "INCOMPLETE"  # the marker file of a run directory whose run did not run its course
 
-# robots: from here trajectory.npz keeps per-tick floats as float32 (positions to about 4 um at 60 m):
-# in float64 the arrays of paper-sequence-10000 alone are several GB. Below, float64 as the engines
-# compute them, which the tests comparing engines to the bit read.
-FLOAT32_FROM = 3000
-PER_TICK = ("pose", "velocity", "goal")  # (T, N, ...) float arrays
 # pixels times frames of display.mp4 above which its frames are taken at more than real time: the
 # encoder's and the drawing's cost grows with both, and a 10,000-robot video needs about 2400 px
 VIDEO_PIXEL_BUDGET = 6e9
 
 
-def write_trajectory(path: Path, arrays: dict[str, np.ndarray], radius: np.ndarray) -> Path:
+def write_trajectory(path: Path, arrays: dict[str, Any], radius: np.ndarray) -> Path:
     """trajectory.npz. Arrays of a tick and more are stored in column-major order (np.load gives
     them back as (T, N, ...) all the same): a robot's values at successive ticks are then neighbours
-    in the file, so deflate finds a robot at rest, a held goal or colour, and stores it once."""
+    in the file, so deflate finds a robot at rest, a held goal or colour, and stores it once. Per-tick
+    floats are float32 from :data:`FLOAT32_FROM` robots. A recording on disk (sim.outputs.stream) is
+    read a block of robots at a time."""
     single = radius.shape[0] >= FLOAT32_FROM
 
-    def stored() -> Iterator[tuple[str, np.ndarray]]:  # one copy at a time
+    def stored() -> Iterator[tuple[str, Any]]:  # one copy at a time
         yield "radius", radius
         for name, a in arrays.items():
-            a = np.asarray(a)
-            if a.ndim >= 2:
-                a = np.asarray(a, np.float32 if single and name in PER_TICK else a.dtype, order="F")
-            yield name, a
+            kind = np.float32 if single and name in PER_TICK else np.dtype(a.dtype)
+            if isinstance(a, OnDisk):
+                yield name, ColumnMajor(a, kind)
+            elif np.ndim(a) >= 2:
+                yield name, np.asarray(a, kind, order="F")
+            else:
+                yield name, np.asarray(a)
 
     return write_npz_streamed(path, stored())
+
+
+class ColumnMajor:
+    """An array on disk as trajectory.npz stores it (column-major, in ``dtype``), written a block of
+    robots at a time: its file order runs over the ticks first, then the robots, then the rest."""
+
+    BLOCK_BYTES = 1 << 26  # of one block of robots' values over every tick
+
+    def __init__(self, array: OnDisk, dtype: Any) -> None:
+        self.array, self.dtype = array, np.dtype(dtype)
+
+    def write(self, out: Any) -> None:
+        a, (ticks, robots, *rest) = self.array, self.array.shape
+        header = {"descr": np.lib.format.dtype_to_descr(self.dtype), "fortran_order": True, "shape": a.shape}
+        np.lib.format.write_array_header_1_0(out, header)
+        block = max(1, self.BLOCK_BYTES // max(1, ticks * a.dtype.itemsize * int(np.prod(rest, dtype=int))))
+        for last in np.ndindex(*rest[::-1]):  # the trailing axes, the last one slowest
+            for first in range(0, robots, block):
+                values = a[(slice(None), slice(first, first + block), *last[::-1])]
+                out.write(np.ascontiguousarray(values.T, self.dtype).tobytes())
 
 
 def video_speed(frames: int, size_px: int) -> float | None:
@@ -103,12 +125,13 @@ class RunOutcome:
 
 
 def recording_of(
-    scene: Scene, arrays: dict[str, np.ndarray], radius: np.ndarray, ticks: np.ndarray | slice = slice(None)
+    scene: Scene, arrays: dict[str, Any], radius: np.ndarray, ticks: np.ndarray | slice | None = None
 ) -> Recording:
-    """The run's trajectory arrays at these ticks, as the writers draw them."""
+    """The run's trajectory arrays at these ticks (None: all, as they are: on disk ones stay there),
+    as the writers draw them."""
     from sim.outputs.render import Recording
 
-    pick = {k: arrays[k][ticks] for k in ("t", "pose", "goal", "color")}
+    pick = {k: arrays[k] if ticks is None else arrays[k][ticks] for k in ("t", "pose", "goal", "color")}
     return Recording(pick["t"], pick["pose"], radius, scene.arena, scene.obstacles, pick["goal"], pick["color"])
 
 
@@ -116,7 +139,7 @@ def write_run(
     run_dir: RunDir,
     scene: Scene,
     params: RobotParams,
-    arrays: dict[str, np.ndarray],
+    arrays: dict[str, Any],
     outcome: RunOutcome,
     *,
     video: bool,
@@ -173,4 +196,5 @@ def write_run(
         except RuntimeError as err:  # no encoder here: the run's data matter more than its video
             print(f"pixelswarm: warning: no display.mp4: {err}", file=sys.stderr)
     save_resolved(scene, run_dir.path, robot=params.to_dict())  # scene.json, goal_sets.npz
+    shutil.rmtree(run_dir / SCRATCH, ignore_errors=True)  # a streamed recording's raw files (sim.outputs.stream)
     return run_dir.commit()

@@ -1,0 +1,115 @@
+"""The central engine's recording, tick by tick: held in memory, or streamed to disk in chunks of ticks.
+
+A whole 10,000-robot sequence is about 7 GB of per-tick rows in float64, more than a run may hold
+(issue 43: peak RSS at most 4 GB). Streamed, each array's rows go to a raw file in the run's partial
+directory (:data:`SCRATCH`, removed before the run directory is committed) a chunk of ticks at a
+time, as float32 from :data:`FLOAT32_FROM` robots (what trajectory.npz stores anyway) and float64
+below (the engines compared to the bit on small runs). The writers read the files back through
+:class:`OnDisk`, a piece at a time.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+# robots: from here per-tick floats are recorded, and trajectory.npz keeps them, as float32 (positions
+# to about 4 um at 60 m); in float64 the arrays of paper-sequence-10000 alone are several GB. Below,
+# float64 as the engines compute them, which the tests comparing engines to the bit read.
+FLOAT32_FROM = 3000
+PER_TICK = ("pose", "velocity", "goal")  # (T, N, ...) float arrays
+SCRATCH = ".ticks"  # in a partial run directory: the streamed recording's raw files
+CHUNK_BYTES = 1 << 25  # a chunk of ticks held before it is appended to the files
+
+# the recorded arrays: each robot's shape and type of a tick (t and step: one per tick, held in memory)
+ROWS: dict[str, tuple[tuple[int, ...], Any]] = {
+    "pose": ((3,), np.float64),
+    "velocity": ((2,), np.float64),
+    "color": ((3,), np.uint8),
+    "goal": ((2,), np.float64),
+    "assignment": ((), np.int64),
+}
+
+
+class OnDisk:
+    """A (T, N, ...) array in a raw file, read a piece at a time: each index maps the file only while
+    it copies the piece out, so the file's pages do not stay in the process's memory. Indexed as a
+    numpy array (ticks first); ``np.asarray`` reads all of it."""
+
+    def __init__(self, path: Path, dtype: Any, shape: tuple[int, ...]) -> None:
+        self.path, self.dtype, self.shape = Path(path), np.dtype(dtype), shape
+        self.ndim = len(shape)
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, key: Any) -> np.ndarray:
+        if 0 in self.shape:  # nothing recorded: an empty file cannot be mapped
+            return np.empty(self.shape, self.dtype)[key]
+        mapped = np.memmap(self.path, self.dtype, "r", shape=self.shape)
+        piece = np.array(mapped[key])  # a copy: the map goes with ``mapped``
+        del mapped
+        return piece
+
+    def __array__(self, dtype: Any = None, copy: bool | None = None) -> np.ndarray:
+        whole = self[...]
+        return whole if dtype is None else whole.astype(dtype, copy=False)
+
+
+class TickRecorder:
+    """The recorded ticks' rows, taken a tick at a time (:meth:`record`): t, pose, velocity, color,
+    goal, assignment and step. ``directory``: stream them to raw files there (created); None: hold
+    them in arrays sized for ``ticks`` ticks."""
+
+    def __init__(self, ticks: int, robots: int, directory: Path | None = None) -> None:
+        self.robots, self.directory = robots, directory
+        self.t, self.step = np.empty(ticks), np.empty(ticks, np.int64)
+        single = directory is not None and robots >= FLOAT32_FROM
+        self.types = {name: np.float32 if single and name in PER_TICK else kind for name, (_, kind) in ROWS.items()}
+        tick_bytes = sum(np.dtype(self.types[n]).itemsize * robots * int(np.prod(s)) for n, (s, _) in ROWS.items())
+        held = ticks if directory is None else max(1, min(ticks, CHUNK_BYTES // max(tick_bytes, 1)))
+        self.rows = {name: np.empty((held, robots, *shape), self.types[name]) for name, (shape, _) in ROWS.items()}
+        self.filled = 0  # ticks in self.rows not yet appended to the files
+        self.written = 0  # ticks in the files
+        if directory is not None:
+            directory.mkdir(parents=True, exist_ok=True)
+            for name in ROWS:
+                self._path(name).write_bytes(b"")
+
+    def _path(self, name: str) -> Path:
+        assert self.directory is not None
+        return self.directory / f"{name}.raw"
+
+    def record(self, tick: int, t: float, step: int, rows: tuple[np.ndarray, ...]) -> dict[str, np.ndarray]:
+        """Records a tick (ticks come in order from 0): its time, image step and rows in the order of
+        :data:`ROWS`. Returns its rows as recorded (e.g. colours as uint8)."""
+        if self.directory is not None and self.filled == len(self.rows["pose"]):
+            self._append()
+        self.t[tick], self.step[tick] = t, step
+        at = self.filled if self.directory is not None else tick
+        for held, value in zip(self.rows.values(), rows, strict=True):
+            held[at] = value
+        self.filled += 1
+        return {name: held[at] for name, held in self.rows.items()}
+
+    def _append(self) -> None:
+        for name, held in self.rows.items():
+            with open(self._path(name), "ab") as out:
+                out.write(held[: self.filled].tobytes())
+        self.written, self.filled = self.written + self.filled, 0
+
+    def arrays(self, ticks: int) -> dict[str, Any]:
+        """The first ``ticks`` ticks recorded (a converged run ends early), by name: numpy arrays, or
+        :class:`OnDisk` ones when streamed."""
+        out: dict[str, Any] = {"t": self.t[:ticks]}
+        if self.directory is None:
+            out |= {name: held[:ticks] for name, held in self.rows.items()}
+        else:
+            self._append()
+            assert self.written == ticks, f"{self.written} ticks recorded, {ticks} asked for"
+            for name, (shape, _) in ROWS.items():
+                out[name] = OnDisk(self._path(name), self.types[name], (ticks, self.robots, *shape))
+            self.rows = {}  # the chunk's memory goes; the files hold the run
+        return out | {"step": self.step[:ticks]}
