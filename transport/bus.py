@@ -15,6 +15,7 @@ import os
 import queue
 import threading
 import time
+import zlib
 from collections import Counter
 from collections.abc import Callable, Iterator
 from typing import Any, Generic, TypeVar, cast, overload
@@ -149,13 +150,11 @@ class Inbox(Generic[T]):
 
     def _draws(self, key: str | None = None, stamp: float | None = None) -> Any:
         """The random draws of this inbox's fault: one stream, or, given a message's key and stamp,
-        a stream of that message alone (reproducible in lock-step). random and zlib are imported
-        here because a robot's process without faults never needs them (its memory)."""
+        a stream of that message alone (reproducible in lock-step). random is imported here because
+        a robot's process without faults never needs it (its memory)."""
         import random
 
         if self._seed is None:
-            import zlib
-
             self._seed = zlib.crc32(self._seed_text.encode())
             self._rng = random.Random(self._seed)
         return self._rng if key is None else random.Random(f"{self._seed}/{key}/{stamp!r}")
