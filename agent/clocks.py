@@ -117,8 +117,8 @@ class LockStep(HostClock):
         self.hellos: list[State] = []  # our own, sent until the first tick
         self.last_hello, self.hello_every = -math.inf, HELLO_EVERY
         # injected state delays count in ticks (reproducible); see Inbox.sim_time
-        host.state_inbox.sim_time = -math.inf
-        host.state_inbox.seen = {}  # states waited for arrive, even those the fault plan drops or holds
+        host.inbox.state.sim_time = -math.inf
+        host.inbox.state.seen = {}  # states waited for arrive, even those the fault plan drops or holds
 
     def greet(self, where: dict[int, Pose], timeout: float) -> None:
         """Zenoh tells a publisher about a new subscriber asynchronously, so a neighbour's state of
@@ -142,7 +142,7 @@ class LockStep(HostClock):
         end = time.monotonic() + min(HELLO_TIMEOUT, timeout)
         while host.running and not expected <= set(self.greeted) and time.monotonic() < end:
             self.say_hello()
-            got = host.state_inbox.get(timeout=HELLO_EVERY / 2)
+            got = host.inbox.state.get(timeout=HELLO_EVERY / 2)
             if got is not None:
                 host.on_state(got[1])
 
@@ -171,7 +171,7 @@ class LockStep(HostClock):
         return True
 
     def before_step(self, poses: list[Pose]) -> None:
-        self.host.state_inbox.sim_time = max(p.stamp for p in poses)
+        self.host.inbox.state.sim_time = max(p.stamp for p in poses)
 
     def await_neighbours(self, tick: int, position: np.ndarray) -> None:
         """Wait until every nearby robot's state of the previous tick is here.
@@ -184,7 +184,7 @@ class LockStep(HostClock):
         host = self.host
         reach = host.params.state_reach
         deadline = time.monotonic() + host.config.state_wait
-        seen = host.state_inbox.seen or {}  # arrived, whatever an injected fault then did with it
+        seen = host.inbox.state.seen or {}  # arrived, whatever an injected fault then did with it
         while True:
             # an arrival claimed from beyond this tick proves nothing (a damaged or forged frame)
             behind = [
@@ -202,7 +202,7 @@ class LockStep(HostClock):
                 if s.robot not in self.silent and np.min(np.hypot(position[:, 0] - s.x, position[:, 1] - s.y)) <= reach
             ]
             if not missing:
-                for _, state in host.state_inbox.drain():  # what arrived (seen) is taken in before the step
+                for _, state in host.inbox.state.drain():  # what arrived (seen) is taken in before the step
                     host.on_state(state)
                 return
             remaining = deadline - time.monotonic()
@@ -211,7 +211,7 @@ class LockStep(HostClock):
                 return
             self.state_waits += 1
             # short: a state the fault plan dropped counts as arrived (seen) but rings nothing
-            got = host.state_inbox.get(timeout=min(remaining, 0.005))
+            got = host.inbox.state.get(timeout=min(remaining, 0.005))
             if got is not None:
                 host.on_state(got[1])
 
@@ -234,7 +234,7 @@ class LockStep(HostClock):
                 if got_tick is not None:
                     self._on_clock(got_tick[1])
                 continue
-            got = host.goal_inbox.get(timeout=wait)
+            got = host.inbox.goals.get(timeout=wait)
             if got is not None:
                 host.hear_goals(got[1])
         # no clock message in time (a world that names no goal set): take up all that was heard

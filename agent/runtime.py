@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from transport.bus import Bus
+from transport.bus import Bus, Inbox, LivelinessWatch
 from transport.codec import BEFORE_START, Command, Commands, Event, Goals, Pose, State, States
 from transport.keys import cell_of, cells_of
 from transport.plausible import INCONSISTENT, GoalSets, TickLine, stamp_agrees
@@ -179,6 +179,36 @@ class CellSubscriptions:
         return len(self._subs)
 
 
+@dataclass
+class Inboxes:
+    """What a host hears: its robots' poses, its neighbours' states (by the spatial cells around its
+    robots), the goal sets, and which agents are alive."""
+
+    pose: Inbox[Pose]
+    state: Inbox[State]
+    cells: CellSubscriptions
+    goals: Inbox[Goals]
+    alive: LivelinessWatch
+
+    @classmethod
+    def of(cls, bus: Bus, config: HostConfig, own: np.ndarray) -> Inboxes:
+        # One subscription per own robot: a host receives only its robots' poses (with frames, those
+        # sent before its robots are live, and then its robots' rows of the tracker's frames).
+        keys = bus.keys
+        pose = bus.inbox(Pose, only=own)
+        for r in config.robots:
+            bus.subscribe_into(keys.pose(r), pose)
+        if config.frames:
+            bus.subscribe_into(keys.poses, pose)
+        state = bus.inbox(State, pulled=True)  # fed by the spatial cells around the robots ...
+        if config.frames:  # ... and by every host's frames
+            bus.subscribe_into(keys.states_all, state)
+        cells = CellSubscriptions(bus, state, config.params.cell_size, reach=3 if config.lockstep else 2)
+        for target in set(config.pursue.values()):  # a pursuer hears its target wherever it is
+            bus.subscribe_into(keys.state_of(target), state)
+        return cls(pose, state, cells, bus.subscribe(keys.all_of("goals"), Goals), bus.watch_alive("agent"))
+
+
 class AgentHost:
     """K robots in one process, each deciding for itself from its own messages."""
 
@@ -196,25 +226,12 @@ class AgentHost:
         p = self.params
         self.cell_size = p.cell_size
         self.segments = static_segments(config.arena, config.obstacles)
-        # One subscription per own robot: a host receives only its robots' poses (with frames, those
-        # sent before its robots are live, and then its robots' rows of the tracker's frames).
         self.own = np.array(sorted(config.robots))
         self.row_of = {r: b for b, r in enumerate(self.own.tolist())}  # robot -> its row in the batches
         # rows: the own robots in id order; until a neighbour is heard, its states may be as old as stale_after
         self.policy_memory = Memory.new(len(self.own), latency=p.stale_after)
         self.held_goals = HeldGoals.new(len(self.own))  # rows as policy_memory's
-        self.pose_inbox = bus.inbox(Pose, only=self.own)
-        for r in config.robots:
-            bus.subscribe_into(self.keys.pose(r), self.pose_inbox)
-        if config.frames:
-            bus.subscribe_into(self.keys.poses, self.pose_inbox)
-        self.state_inbox = bus.inbox(State, pulled=True)  # fed by the spatial cells around the robots ...
-        if config.frames:  # ... and by every host's frames
-            bus.subscribe_into(self.keys.states_all, self.state_inbox)
-        self.cells = CellSubscriptions(bus, self.state_inbox, self.cell_size, reach=3 if config.lockstep else 2)
-        for target in set(config.pursue.values()):  # a pursuer hears its target wherever it is
-            bus.subscribe_into(self.keys.state_of(target), self.state_inbox)
-        self.goal_inbox = bus.subscribe(self.keys.all_of("goals"), Goals)
+        self.inbox = Inboxes.of(bus, config, self.own)
         self.goal_sets: dict[int, Goals] = {}  # the latest auctioned goal sets by epoch (timing, motion)
         self.newest_heard = 0  # epoch of the newest goal set heard (per-robot goals too)
         self.believed = GoalSets(config.arena)  # which goal sets can be the coordinator's
@@ -231,7 +248,6 @@ class AgentHost:
             dead=self._not_bidding,
             reach=config.reach,
         )
-        self.alive = bus.watch_alive("agent")
         self.dead: set[int] = set()  # robots whose agent died: their bodies stand still (5.1.2)
         # Lock-step: robots whose agent died during the goal set in force. One started again cannot
         # join that goal set's auction under way, so it is not waited for until the next goal set,
@@ -256,14 +272,14 @@ class AgentHost:
         ticking: list[Pose] = []  # poses of ticks under way (a robot whose body is tracked already)
         end = time.monotonic() + timeout
         while len(where) < len(self.memory) and self.running and time.monotonic() < end:
-            got = self.pose_inbox.get(timeout=0.2)
+            got = self.inbox.pose.get(timeout=0.2)
             if got is not None:
                 where[got[1].robot] = got[1]
                 if got[1].tick != BEFORE_START:
                     ticking.append(got[1])
         if len(where) < len(self.memory):
             return False
-        self.cells.update(np.array([(q.x, q.y) for q in where.values()]))
+        self.inbox.cells.update(np.array([(q.x, q.y) for q in where.values()]))
         if self.believed.newest is None and max(q.stamp for q in where.values()) <= 0.0:
             self.believed.newest = 0  # nothing to fetch at the run's start: its epochs count from 1
         self.clock.greet(where, timeout)
@@ -300,7 +316,7 @@ class AgentHost:
         coordinator's real ones and froze the show on its image."""
         why = self.believed.admit(goals, self._display_time())
         if why is not None:
-            self.goal_inbox.drops[why] += 1
+            self.inbox.goals.drops[why] += 1
             return
         self.newest_heard = max(self.newest_heard, goals.epoch)
         if not self.clock.holds(goals):
@@ -401,9 +417,9 @@ class AgentHost:
         return np.array([self.row_of[r] for r in robots], np.int64)
 
     def _absorb(self) -> None:
-        for _, goals in self.goal_inbox.drain():
+        for _, goals in self.inbox.goals.drain():
             self.hear_goals(goals)
-        for state in self.state_inbox.take():
+        for state in self.inbox.state.take():
             self.on_state(state)
         self.auction.poll(self._positions())
 
@@ -413,7 +429,7 @@ class AgentHost:
             return
         why = self.table.update(msg)
         if why is not None:
-            self.state_inbox.drops[why] += 1
+            self.inbox.state.drops[why] += 1
             return
         self.clock.silent.discard(msg.robot)
         for robot, target in self.config.pursue.items():
@@ -422,7 +438,7 @@ class AgentHost:
 
     def _dead_now(self) -> set[int]:
         """The robots whose agent is dead, as liveliness says now."""
-        for _, ident, alive, _, _ in self.alive.drain():
+        for _, ident, alive, _, _ in self.inbox.alive.drain():
             if ident.isdigit():
                 (self.dead.discard if alive else self.dead.add)(int(ident))
                 if not alive and self.config.lockstep:
@@ -438,13 +454,13 @@ class AgentHost:
         # One bell rung by poses, goal sets and auction messages: the loop sleeps until any arrives
         # (auction rounds go on between ticks) or something is due.
         bell = threading.Event()
-        for inbox in (self.pose_inbox, self.goal_inbox, self.auction.inbox):
+        for inbox in (self.inbox.pose, self.inbox.goals, self.auction.inbox):
             inbox.bell = bell
         while self.running:
             bell.clear()
-            got = self.pose_inbox.get(timeout=0)
-            if self.auction.active or self.goal_inbox.has_delayed:
-                for _, msg in self.goal_inbox.drain():
+            got = self.inbox.pose.get(timeout=0)
+            if self.auction.active or self.inbox.goals.has_delayed:
+                for _, msg in self.inbox.goals.drain():
                     self.hear_goals(msg)
                 self.auction.poll(self._positions())
             if got is None:
@@ -455,7 +471,7 @@ class AgentHost:
                 wait = min(0.2, self.auction.next_due()) if self.auction.active else 0.2
                 if not self.ticks_done:
                     wait = min(wait, self.clock.hello_every)
-                if self.pose_inbox.has_delayed:
+                if self.inbox.pose.has_delayed:
                     wait = min(wait, 0.005)
                 bell.wait(wait)
                 continue
@@ -463,7 +479,7 @@ class AgentHost:
             self._take_pose(got[1])
             # Behind (poses of later ticks queued): act on the newest only. Working through a backlog
             # kept an overloaded agent a fixed number of ticks behind, every command late.
-            for _, pose in self.pose_inbox.drain():
+            for _, pose in self.inbox.pose.drain():
                 self._take_pose(pose)
             self.clock.poses_arrived(list(self.pending.values()), tick_start)
             # Collect the other robots' poses of this tick (they are published together). The inbox
@@ -472,7 +488,7 @@ class AgentHost:
             # make a different run.
             deadline = tick_start + self.clock.collect
             while len(self.pending) < len(self.memory) and self.running:
-                got = self.pose_inbox.get(timeout=max(0.0, deadline - time.monotonic()))
+                got = self.inbox.pose.get(timeout=max(0.0, deadline - time.monotonic()))
                 if got is None:
                     break
                 self._take_pose(got[1])
@@ -503,7 +519,7 @@ class AgentHost:
             now = self.clock.newest_tick()  # lock-step: the world's clock says which tick it is
             why = self.pose_lines[pose.robot].admit(pose.tick, time.monotonic(), now)
         if why is not None:
-            self.pose_inbox.drops[why] += 1
+            self.inbox.pose.drops[why] += 1
             return
         held = self.pending.get(pose.robot)
         if held is None or pose.tick > held.tick:
@@ -587,14 +603,14 @@ class AgentHost:
         # poses can arrive split, and cells dropped for the robots not in the batch took their
         # neighbours' states with them (forget_outside): at 100 robots one robot then saw nobody.
         known = [m.position for m in self.memory.values() if m.position is not None]
-        self.cells.update(np.array(known))
-        self.table.forget_outside(self.cells.cells, self.cell_size, keep=self.dead)
+        self.inbox.cells.update(np.array(known))
+        self.table.forget_outside(self.inbox.cells.cells, self.cell_size, keep=self.dead)
         self.table.forget_silent(stamp - p.forget_after, keep=self.dead)
         self._bid_from = None  # the robots' velocities changed: they move where they bid from
 
     def stats(self) -> dict[str, Any]:
         drops: dict[str, int] = {}
-        inboxes: list[Any] = [self.pose_inbox, self.state_inbox, self.goal_inbox, self.auction.inbox, self.clock.inbox]
+        inboxes: list[Any] = [self.inbox.pose, self.inbox.state, self.inbox.goals, self.auction.inbox, self.clock.inbox]
         for inbox in filter(None, inboxes):
             for reason, n in inbox.drops.items():
                 drops[reason] = drops.get(reason, 0) + n
@@ -607,7 +623,7 @@ class AgentHost:
             "dropped": drops,
             "neighbours_known": len(self.table),
             "state_waits": self.clock.state_waits,
-            "states_heard": self.state_inbox.received,  # messages (frames): its robots' neighbours' load
+            "states_heard": self.inbox.state.received,  # messages (frames): its robots' neighbours' load
             "worst_lateness_s": round(self.clock.lateness.worst, 4),
             "mean_lateness_s": round(self.clock.lateness.mean, 4),
             "silent": sorted(self.clock.silent),

@@ -114,14 +114,14 @@ def test_a_tick_whose_poses_frame_comes_in_pieces_is_stepped_whole() -> None:
     with world_and_agent_buses() as (world, agent_bus):
         commands = world.commands_inbox()
         host = AgentHost(agent_bus, HostConfig(robots=[0, 1], params=PARAMS, lockstep=True, frames=True))
-        deliver = host.pose_inbox._deliver
+        deliver = host.inbox.pose._deliver
 
         def in_pieces(key: str, msgs: list) -> None:  # 0.2 s between records: 4 times the real-time batch wait
             for m in msgs:
                 deliver(key, [m])
                 time.sleep(0.2)
 
-        host.pose_inbox._deliver = in_pieces  # type: ignore[method-assign]
+        host.inbox.pose._deliver = in_pieces  # type: ignore[method-assign]
         batches: list[list[int]] = []
         step_tick = host._step_tick
 
