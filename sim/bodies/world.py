@@ -440,18 +440,8 @@ class World:
         tk = np.linspace(0.0, dt, k + 1)  # substep times relative to the start of the step
         t0 = self.time
 
-        # segments of constant actuation: split where a new noise period starts inside the step
-        period = self._noise_period
-        eps = 1e-9 * period
-        index = math.floor((t0 + eps) / period)
-        if index != self._noise_index:
-            self._draw_noise(index)
-        cuts = []
-        boundary = (index + 1) * period
-        while boundary < t0 + dt - eps:
-            cuts.append(boundary - t0)
-            boundary += period
-        bounds = [0.0, *cuts, dt]
+        index, bounds = self._actuation_segments(t0, dt)
+        eps = 1e-9 * self._noise_period
 
         pos, theta = self._pos.copy(), self._theta.copy()
         traj = np.empty((k + 1, self._n, 2))
@@ -491,6 +481,21 @@ class World:
         self._check_start = False
         self.last_substeps = k
         return before + (self.check() if check else [])
+
+    def _actuation_segments(self, t0: float, dt: float) -> tuple[int, list[float]]:
+        """The step's segments of constant actuation, split where a new noise period starts inside
+        it: the noise period at its start (its noise drawn) and the segments' bounds (s from t0)."""
+        period = self._noise_period
+        eps = 1e-9 * period
+        index = math.floor((t0 + eps) / period)
+        if index != self._noise_index:
+            self._draw_noise(index)
+        cuts = []
+        boundary = (index + 1) * period
+        while boundary < t0 + dt - eps:
+            cuts.append(boundary - t0)
+            boundary += period
+        return index, [0.0, *cuts, dt]
 
     def check(self) -> list[Contact]:
         """Detect the contacts of a step run with ``check=False``; the contact events that started
