@@ -69,6 +69,17 @@ class AuctionCounts:
     first_agreement_s: list[float] = field(default_factory=list)  # per goal set: wall time from its arrival
 
 
+@dataclass(frozen=True)
+class LockStepRounds:
+    """What the tick-synchronous rounds need of a host beside the auction itself."""
+
+    on_abandoned: OnAbandoned | None = None  # hears of own robots whose block could not finish (they
+    # must hold their positions: another robot may hold their goals now)
+    dead: Callable[[], set[int]] = set  # the robots whose agent is known dead now: not waited for
+    reach: float = math.inf  # a robot hears the auction only from robots this close (m): the
+    # range-limited auction (core.local_auction)
+
+
 class RoundExchange:
     """Lock-step: one host's side of the auction's numbered rounds on the bus. Our message of each
     round is kept until its block is over, to send again to a host that missed it; the other hosts'
@@ -190,29 +201,21 @@ class AuctionLink:
         params: RobotParams,
         on_agreed: OnAgreed,
         where: Where | None = None,
-        lockstep: bool = False,
-        on_abandoned: OnAbandoned | None = None,
-        dead: Callable[[], set[int]] | None = None,
-        reach: float = math.inf,
+        lockstep: LockStepRounds | None = None,
     ) -> None:
         """``where``: the own robots' bid positions now (the runtime's), asked again when an agreement
         was handed to ``on_agreed`` just before a new block freezes its positions. ``lockstep``: the
-        tick-synchronous rounds (settle_block); ``on_abandoned`` hears of own robots whose block could
-        not finish (they must hold their positions: another robot may hold their goals now); ``dead``:
-        the robots whose agent is known dead now (their records are not waited for); ``reach``: a
-        robot hears the auction only from robots this close (m): the range-limited auction
-        (core.local_auction), lock-step only."""
-        if math.isfinite(reach) and not lockstep:
-            raise ValueError("a communication range needs the lock-step clock")
-        self.reach = reach
+        tick-synchronous rounds (settle_block); None: real time."""
+        rounds = lockstep if lockstep is not None else LockStepRounds()
+        self.reach = rounds.reach
         self.bus, self.robots, self.params, self.on_agreed = bus, sorted(robots), params, on_agreed
         self.where = where
-        self.lockstep, self.on_abandoned = lockstep, on_abandoned
+        self.lockstep, self.on_abandoned = lockstep is not None, rounds.on_abandoned
         self.block_stamp = -np.inf  # lock-step: display time of the last block's tick
         self.block: BlockRounds | None = None  # lock-step: the block under way (it may span ticks)
         self.warm = False  # lock-step: the goal set's auction began from the coordinator's warm start
         self.counts = AuctionCounts()
-        ranged = math.isfinite(reach)
+        ranged = math.isfinite(self.reach)
         self.inbox: Inbox[Any] = (
             bus.subscribe(bus.keys.all_of("boards"), Boards)
             if ranged
@@ -220,7 +223,7 @@ class AuctionLink:
         )
         self.sender = self.robots[0]
         self.exchange = RoundExchange(bus, self.robots, self.inbox, self.counts, self._keeps)
-        self.exchange.dead = dead if dead is not None else set
+        self.exchange.dead = rounds.dead
         self.part: Participant | None = None
         self.local: LocalAuction | None = None  # the range-limited auction, in place of part
         self.goal_set: Goals | None = None

@@ -34,7 +34,7 @@ from transport.keys import cell_of, cells_of
 from transport.plausible import INCONSISTENT, GoalSets, TickLine, stamp_agrees
 
 from . import loop
-from .assignment import AuctionLink
+from .assignment import AuctionLink, LockStepRounds
 from .clocks import HostClock, LockStep, WallClock
 from .core.params import DIFFDRIVE, RobotParams
 from .core.policy import Decision, GoalTiming, Memory
@@ -237,17 +237,10 @@ class AgentHost:
         self.believed = GoalSets(config.arena)  # which goal sets can be the coordinator's
         self.clock: HostClock = LockStep(self) if config.lockstep else WallClock(self)
         self.pose_lines = {r: TickLine(self.clock.pose_period) for r in config.robots}
-        self.auction = AuctionLink(
-            bus,
-            config.robots,
-            self.params,
-            self._on_agreed,
-            where=self._positions,
-            lockstep=config.lockstep,
-            on_abandoned=self._hold,
-            dead=self._not_bidding,
-            reach=config.reach,
-        )
+        if math.isfinite(config.reach) and not config.lockstep:
+            raise ValueError("a communication range needs the lock-step clock")
+        rounds = LockStepRounds(self._hold, self._not_bidding, config.reach) if config.lockstep else None
+        self.auction = AuctionLink(bus, config.robots, self.params, self._on_agreed, self._positions, rounds)
         self.dead: set[int] = set()  # robots whose agent died: their bodies stand still (5.1.2)
         # Lock-step: robots whose agent died during the goal set in force. One started again cannot
         # join that goal set's auction under way, so it is not waited for until the next goal set,

@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from agent.assignment import AuctionLink
+from agent.assignment import AuctionLink, LockStepRounds
 from agent.core.params import RobotParams
 from transport.bus import Bus
 from transport.codec import Bid, Goals, Timing, decode, with_checksum
@@ -61,7 +61,7 @@ def _hosts(router, params: RobotParams, told: dict[int, int]) -> tuple[list[Bus]
             list(range(h * PER_HOST, (h + 1) * PER_HOST)),
             params,
             lambda e, i, g, p, c: told.update(g),
-            lockstep=True,
+            lockstep=LockStepRounds(),
         )
         for h, bus in enumerate(buses)
     ]
@@ -132,7 +132,7 @@ def test_a_bid_naming_a_goal_outside_the_set_is_dropped_before_and_after_its_set
     session = open_session(router)
     try:
         with Bus(client_of(router), "integrity") as bus:
-            link = AuctionLink(bus, [0, 1, 2, 3], params, lambda *_: None, lockstep=True)
+            link = AuctionLink(bus, [0, 1, 2, 3], params, lambda *_: None, lockstep=LockStepRounds())
             link.exchange.file([("key", forged)])  # before the goal set: no way to tell yet
             assert link.exchange.records[(1, 0, 1)] == {4: forged}
             link.on_goals(message, {})

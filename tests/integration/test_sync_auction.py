@@ -15,7 +15,7 @@ import time
 import numpy as np
 import pytest
 
-from agent.assignment import AuctionLink
+from agent.assignment import AuctionLink, LockStepRounds
 from agent.core.bidder import Participant
 from agent.core.params import RobotParams
 from agent.core.rounds import BlockRounds
@@ -122,7 +122,7 @@ def test_two_hosts_settle_a_block_over_the_bus_at_the_same_round():
     try:
         with Bus(client_of(router), "sync") as bus_a, Bus(client_of(router), "sync") as bus_b:
             links = [
-                AuctionLink(bus, own, params, lambda e, i, g, p, c: told.update({min(g): g}), lockstep=True)
+                AuctionLink(bus, own, params, lambda e, i, g, p, c: told.update({min(g): g}), lockstep=LockStepRounds())
                 for bus, own in ((bus_a, [0, 1]), (bus_b, [2, 3]))
             ]
             settle_first_block(links, message, start)
@@ -159,7 +159,9 @@ def test_a_block_with_one_round_a_tick_spans_ticks_and_is_agreed_at_one_tick_by_
     try:
         with Bus(client_of(router), "sync") as bus_a, Bus(client_of(router), "sync") as bus_b:
             links = [
-                AuctionLink(bus, own, params, lambda e, i, g, p, c: told[min(g)].append((tick, g)), lockstep=True)
+                AuctionLink(
+                    bus, own, params, lambda e, i, g, p, c: told[min(g)].append((tick, g)), lockstep=LockStepRounds()
+                )
                 for bus, own in ((bus_a, [0, 1, 2]), (bus_b, [3, 4, 5]))
             ]
             time.sleep(0.5)  # every subscription declared before the first round
@@ -242,7 +244,9 @@ def test_after_a_blocks_first_round_hosts_send_only_the_claims_that_changed():
             buses = [Bus(client_of(router), "sync") for _ in range(3)]
             try:
                 links = [
-                    AuctionLink(bus, list(range(10 * h, 10 * h + 10)), params, lambda *a: None, lockstep=True)
+                    AuctionLink(
+                        bus, list(range(10 * h, 10 * h + 10)), params, lambda *a: None, lockstep=LockStepRounds()
+                    )
                     for h, bus in enumerate(buses)
                 ]
                 settle_first_block(links, message, start)
