@@ -191,8 +191,8 @@ class World:
         substep: float = 0.01,
     ) -> None:
         bodies, p = _checked_bodies(bodies, poses)
-        self._noise_rel = _non_negative("actuation noise", noise.relative)
-        self._noise_abs = _non_negative("absolute actuation noise", noise.absolute)
+        noise_rel = _non_negative("actuation noise", noise.relative)
+        noise_abs = _non_negative("absolute actuation noise", noise.absolute)
         self._substep = _positive("substep", substep)
         self._noise_period = _positive("noise period", noise.period)
         self._noise = np.zeros((len(bodies), 4))
@@ -209,12 +209,10 @@ class World:
         self._is_diff = np.array([b.kinematics == DIFFDRIVE for b in bodies])
         self._radius = np.array([b.radius for b in bodies], dtype=float)
         self._v_max = np.array([b.v_max for b in bodies], dtype=float)
-        self._wheel_base = np.array([b.wheel_base for b in bodies], dtype=float)
-        self._omega_max = np.array([b.omega_max for b in bodies], dtype=float)
+        wheel_base = np.array([b.wheel_base for b in bodies], dtype=float)
+        omega_max = np.array([b.omega_max for b in bodies], dtype=float)
         self._r_max = float(self._radius.max())
-        self._bodies_c = Bodies(
-            self._v_max, self._is_diff, self._wheel_base, self._omega_max, self._noise_rel, self._noise_abs
-        )
+        self._bodies_c = Bodies(self._v_max, self._is_diff, wheel_base, omega_max, noise_rel, noise_abs)
 
         self._rng = np.random.default_rng(int(seed))
         self._pos = p[:, :2].copy()
