@@ -51,13 +51,12 @@ def write_trajectory(path: Path, arrays: dict[str, Any], radius: np.ndarray) -> 
     def stored() -> Iterator[tuple[str, Any]]:  # one copy at a time
         yield "radius", radius
         for name, a in arrays.items():
-            kind = np.float32 if single and name in PER_TICK else np.dtype(a.dtype)
+            a = a if isinstance(a, OnDisk) else np.asarray(a)
+            kind = np.float32 if single and name in PER_TICK else a.dtype
             if isinstance(a, OnDisk):
                 yield name, ColumnMajor(a, kind)
-            elif np.ndim(a) >= 2:
-                yield name, np.asarray(a, kind, order="F")
             else:
-                yield name, np.asarray(a)
+                yield name, np.asarray(a, kind, order="F") if a.ndim >= 2 else a
 
     return write_npz_streamed(path, stored())
 
