@@ -157,6 +157,7 @@ class Participant(Auction):
         self.pending: defaultdict[tuple[int, int], float] = defaultdict(float)
         self.goal = np.full(k, -1, np.int64)  # what each own robot claims
         # the newest record of every other robot in the current instance, and the board it was written on
+        # (lock-step rounds note the own robots' claims here too: agent.core.rounds)
         r = len(self.robots)
         self.heard_instance = np.full(r, -1, np.int64)
         self.heard_serial = np.zeros(r, np.int64)

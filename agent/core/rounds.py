@@ -39,20 +39,19 @@ class BlockRounds:
         k = self._claims
         news = mine if self._last is None else np.concatenate([mine[:k][mine[:k] != self._last], mine[k:]])
         self._last = mine[:k]
+        # noted beside the others' claims as absorb notes them: each robot's newest claim in one place
+        rows = part.own_rows
+        part.heard_instance[rows], part.heard_flags[rows] = part.instance, self._last["flags"]
+        part.heard_goal[rows], part.heard_price[rows] = self._last["goal"], self._last["price"]
         return news
 
     def _newest(self, robots: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Each robot's newest claim this block (flags, goal, price): ours as last said, the others' as
         the participant heard them (Participant.absorb: the newest by round, releases are no claim)."""
-        assert self._last is not None
         part = self.part
         row = np.searchsorted(part.robots, robots)
         flags = np.where(part.heard_instance[row] > self.final - part.phases, part.heard_flags[row], 0)  # this block's
-        goal, price = part.heard_goal[row], part.heard_price[row]
-        own = part.is_own[row]
-        mine = self._last[np.searchsorted(part.own_ids, robots[own])]
-        flags[own], goal[own], price[own] = mine["flags"], mine["goal"], mine["price"]
-        return flags, goal, price
+        return flags, part.heard_goal[row], part.heard_price[row]
 
     def quiet(self, robots: np.ndarray) -> np.ndarray:
         """Per robot of ``robots``: whether it has nothing to say in the next round, the same on
