@@ -51,6 +51,79 @@ def _drain(q: queue.SimpleQueue, limit: int | None = None) -> list:
     return out
 
 
+class InjectedFault(Generic[T]):
+    """An inbox's injected fault (``--faults``): each message dropped or delayed by a draw, and the
+    delayed ones kept until they are due, on the wall clock or (lock-step) on the owner's tick clock."""
+
+    def __init__(self, spec: FaultSpec, seed: str) -> None:
+        self.spec = spec
+        self._delayed: list[tuple[float, int, str, T]] = []  # by wall-clock release time
+        self._held: list[tuple[float, int, str, T]] = []  # by release on the owner's tick clock
+        self._order = itertools.count()
+        self._lock = threading.Lock()
+        self._seed_text = seed
+        # The seed's crc32 and the random stream, made when first drawn from (_draws).
+        self._seed: int | None = None
+        self._rng: Any = None
+
+    def _draws(self, key: str | None = None, stamp: float | None = None) -> Any:
+        """The random draws: one stream, or, given a message's key and stamp, a stream of that
+        message alone (reproducible in lock-step). random is imported here because a robot's
+        process without faults never needs it (its memory)."""
+        import random
+
+        if self._seed is None:
+            self._seed = zlib.crc32(self._seed_text.encode())
+            self._rng = random.Random(self._seed)
+        return self._rng if key is None else random.Random(f"{self._seed}/{key}/{stamp!r}")
+
+    def admit(self, key: str, msgs: list[T], inbox: Inbox[T]) -> bool:
+        """The fate of one delivery (a frame's records share it): dropped (counted ``fault``: False),
+        queued in the inbox, or kept until its delay has passed."""
+        spec = self.spec
+        stamp: float | None = getattr(msgs[0], "stamp", None) if msgs else None
+        # A hello (tick BEFORE_START) is not on the tick clock, which does not run before the first
+        # tick: held on it, it would wait for a tick that waits for it; drawn as a function of the
+        # message, every resend of it would meet the same fate.
+        tick = getattr(msgs[0], "tick", -1) if msgs else -1
+        on_ticks = inbox.sim_time is not None and stamp is not None and 0 <= tick != BEFORE_START
+        with self._lock:
+            rng = self._draws(key, stamp) if on_ticks else self._draws()
+            if rng.random() < spec.drop:
+                inbox.drops["fault"] += 1
+                return False
+            delay = spec.delay + rng.random() * spec.jitter
+            if delay <= 0.0:
+                for m in msgs:
+                    inbox._queue.put((key, m))
+                return True
+            if on_ticks and stamp is not None:  # on the owner's tick clock in lock-step, else on the wall clock
+                heap, release = self._held, stamp + delay
+            else:
+                heap, release = self._delayed, time.monotonic() + delay
+            for m in msgs:
+                heapq.heappush(heap, (release, next(self._order), key, m))
+        return True
+
+    def release(self, sim_time: float | None, out: queue.SimpleQueue[tuple[str, T]]) -> None:
+        """Queue the kept messages that are due."""
+        if not (self._delayed or self._held):
+            return
+        now = time.monotonic()
+        with self._lock:
+            while self._delayed and self._delayed[0][0] <= now:
+                _, _, key, msg = heapq.heappop(self._delayed)
+                out.put((key, msg))
+            ticks = -math.inf if sim_time is None else sim_time + 1e-9
+            while self._held and self._held[0][0] <= ticks:
+                _, _, key, msg = heapq.heappop(self._held)
+                out.put((key, msg))
+
+    @property
+    def waiting(self) -> bool:
+        return bool(self._delayed or self._held)
+
+
 class Inbox(Generic[T]):
     """Messages of one subscription, decoded, filtered by faults, waiting for the owner's loop."""
 
@@ -69,25 +142,16 @@ class Inbox(Generic[T]):
         self.expected = expected
         self.frame: type[Frame] | None = FRAME_OF.get(cast(type, expected))
         self.only = None if only is None else set(np.asarray(only).tolist())
-        self.fault = fault
+        self.fault: InjectedFault[T] | None = InjectedFault(fault, seed) if fault.active else None
         self.drops = DropCounter()
         self.received = 0
         self.bytes = 0
         self._queue: queue.SimpleQueue[tuple[str, T]] = queue.SimpleQueue()
-        self._delayed: list[tuple[float, int, str, T]] = []  # by wall-clock release time
-        self._held: list[tuple[float, int, str, T]] = []  # by release on the owner's tick clock
         # The owner's tick clock (seconds), when it steps in lock-step: an injected delay then counts
         # from a message's stamp on that clock, and each message's draw is a function of the message,
         # so a lock-step run with faults is reproducible (a wall-clock delay is a number of ticks that
         # depends on how fast the machine steps).
         self.sim_time: float | None = None
-        self._order = itertools.count()
-        self._lock = threading.Lock()
-        self._seed_text = seed
-        # The seed's crc32 and the fault's random stream, made when first drawn from (_draws): only
-        # an inbox with an active fault draws.
-        self._seed: int | None = None
-        self._rng: Any = None
         self.subscriber: Any = None
         self.bell: threading.Event | None = None  # rung on every arrival: one wait serves several inboxes
         # robot -> the tick of its record that reached this inbox last, whatever the fault plan did
@@ -148,68 +212,25 @@ class Inbox(Generic[T]):
             for v in views:
                 self.seen[v.robot] = tick
 
-    def _draws(self, key: str | None = None, stamp: float | None = None) -> Any:
-        """The random draws of this inbox's fault: one stream, or, given a message's key and stamp,
-        a stream of that message alone (reproducible in lock-step). random is imported here because
-        a robot's process without faults never needs it (its memory)."""
-        import random
-
-        if self._seed is None:
-            self._seed = zlib.crc32(self._seed_text.encode())
-            self._rng = random.Random(self._seed)
-        return self._rng if key is None else random.Random(f"{self._seed}/{key}/{stamp!r}")
-
     def _deliver(self, key: str, msgs: list[T]) -> None:
-        if self.fault is _NO_FAULT or not self.fault.active:
+        if self.fault is None:
             for m in msgs:
                 self._queue.put((key, m))
-            if self.bell is not None:
-                self.bell.set()
-            return
-        stamp: float | None = getattr(msgs[0], "stamp", None) if msgs else None
-        # A hello (tick BEFORE_START) is not on the tick clock, which does not run before the first
-        # tick: held on it, it would wait for a tick that waits for it; drawn as a function of the
-        # message, every resend of it would meet the same fate.
-        tick = getattr(msgs[0], "tick", -1) if msgs else -1
-        on_ticks = self.sim_time is not None and stamp is not None and 0 <= tick != BEFORE_START
-        with self._lock:
-            rng = self._draws(key, stamp) if on_ticks else self._draws()
-            if rng.random() < self.fault.drop:
-                self.drops["fault"] += 1
-                return
-            delay = self.fault.delay + rng.random() * self.fault.jitter
-            if delay <= 0.0:
-                for m in msgs:
-                    self._queue.put((key, m))
-            else:  # on the owner's tick clock in lock-step, else on the wall clock
-                if on_ticks and stamp is not None:
-                    heap, release = self._held, stamp + delay
-                else:
-                    heap, release = self._delayed, time.monotonic() + delay
-                for m in msgs:
-                    heapq.heappush(heap, (release, next(self._order), key, m))
+        elif not self.fault.admit(key, msgs, self):
+            return  # dropped: nothing to wake the owner for
         # Rung for held messages too: an owner asleep on the bell learns it has messages to release
         # (a message held without a ring waited for the owner's next wake-up, a tick or more late).
         if self.bell is not None:
             self.bell.set()
 
     def _release_delayed(self) -> None:
-        if not (self._delayed or self._held):
-            return
-        now = time.monotonic()
-        with self._lock:
-            while self._delayed and self._delayed[0][0] <= now:
-                _, _, key, msg = heapq.heappop(self._delayed)
-                self._queue.put((key, msg))
-            ticks = -math.inf if self.sim_time is None else self.sim_time + 1e-9
-            while self._held and self._held[0][0] <= ticks:
-                _, _, key, msg = heapq.heappop(self._held)
-                self._queue.put((key, msg))
+        if self.fault is not None:
+            self.fault.release(self.sim_time, self._queue)
 
     @property
     def has_delayed(self) -> bool:
         """Messages held back by an injected delay (their owner must poll until they are due)."""
-        return bool(self._delayed or self._held)
+        return self.fault is not None and self.fault.waiting
 
     def drain(self) -> list[tuple[str, T]]:
         """Every message that has arrived (and whose injected delay has passed), oldest first."""
@@ -221,7 +242,7 @@ class Inbox(Generic[T]):
         """drain() without the keys. A pulled inbox of frames without injected faults hands the
         records straight from zenoh's channels (and notes them ``seen``, as _on_sample does), on the
         owner's hot path once a tick: no queue between."""
-        direct = self.pulled and self.frame is not None and not self.fault.active
+        direct = self.pulled and self.frame is not None and self.fault is None
         if not direct or not self._queue.empty() or self.has_delayed:
             return [m for _, m in self.drain()]
         out: list[T] = []
@@ -245,7 +266,7 @@ class Inbox(Generic[T]):
                 return self._queue.get_nowait()
             except queue.Empty:
                 pass
-            wait = PULL_EVERY if self.pulled else 0.005 if self._delayed else None
+            wait = PULL_EVERY if self.pulled else 0.005 if self.has_delayed else None
             if deadline is not None:
                 remaining = deadline - time.monotonic()
                 if remaining <= 0:
