@@ -16,7 +16,7 @@ from typing import Protocol
 import numpy as np
 
 from .core.params import RobotParams
-from .core.policy import Decision, GoalTiming, Intent, Memory, act, intend
+from .core.policy import Decision, GoalTiming, Intent, Memory, Surroundings, act, intend
 from .core.step import NeighbourStates
 
 
@@ -121,11 +121,7 @@ def _act(sensed: Sensed, intent: Intent, memory: Memory, heard: NeighbourStates,
         intent,
         memory,
         heard,
-        seams.segments,
-        seed=seams.seed,
-        tick=sensed.tick,
-        watch_deadlocks=seams.auction.active,
-        reach=seams.reach,
+        Surroundings(seams.segments, seams.seed, sensed.tick, seams.auction.active, seams.reach),
     )
 
 

@@ -26,7 +26,7 @@ from .control import preferred_velocity
 from .deadlock import blocked, count_blocked
 from .goal_motion import GoalMotion, tracking_velocity
 from .params import RobotParams
-from .step import NeighbourStates, Rows, StepResult, control_step
+from .step import NeighbourStates, Rows, StepResult, Surroundings, control_step
 
 NO_GOAL = -1  # goal index of a robot that holds no goal of a goal set
 
@@ -144,17 +144,10 @@ def act(
     intent: Intent,
     memory: Memory,
     neighbours: NeighbourStates,
-    segments: np.ndarray | None,
-    *,
-    seed: int,
-    tick: int,
-    watch_deadlocks: bool,
-    reach: float = np.inf,
+    around: Surroundings,
 ) -> Decision:
-    """Stage two: collision-free velocity and command, and deadlock detection while an auction can
-    act on it (``watch_deadlocks``; otherwise the blocked counts wait as they are). ``reach``: the
-    robots hear states only from this close (m): they drive no faster than heard_speed_limit."""
-    preferred, latency = intent.preferred, memory.latency
+    """Stage two: collision-free velocity and command, and deadlock detection."""
+    preferred, latency, reach = intent.preferred, memory.latency, around.reach
     if np.isfinite(reach):
         ages = np.where(neighbours.valid, neighbours.age, np.inf)
         freshest = ages.min(axis=1, initial=np.inf)
@@ -168,13 +161,11 @@ def act(
         memory.velocity,
         intent.goal,
         neighbours,
-        segments,
-        seed=seed,
-        tick=tick,
-        preferred=preferred,
+        around,
+        preferred,
     )
     counts, deadlocked = memory.blocked, np.zeros(len(position), bool)
-    if watch_deadlocks and params.deadlock_cost > 0:
+    if around.watch_deadlocks and params.deadlock_cost > 0:
         to_goal = np.where((intent.key[:, 1] >= 0)[:, None], intent.goal - position, np.nan)
         now = blocked(params, to_goal, res.pref_velocity, res.velocity)
         counts, deadlocked = count_blocked(counts, now, params.deadlock_iterations)

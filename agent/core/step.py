@@ -100,6 +100,20 @@ def settings_of(params: RobotParams) -> Settings:
     return found
 
 
+@dataclass(frozen=True)
+class Surroundings:
+    """What a batch's robots decide within beside their own state and what they heard: the static
+    obstacles' segments, the seed and tick of the symmetry-breaking perturbation, whether an auction
+    can act on a deadlock (``watch_deadlocks``; otherwise the blocked counts wait as they are), and
+    the range they hear states within (m: they drive no faster than heard_speed_limit)."""
+
+    segments: np.ndarray | None = None
+    seed: int = 0
+    tick: int = 0
+    watch_deadlocks: bool = False
+    reach: float = np.inf
+
+
 def control_step(
     params: RobotParams,
     robot_ids: np.ndarray,
@@ -108,10 +122,7 @@ def control_step(
     velocity: np.ndarray,
     goal: np.ndarray,
     neighbours: NeighbourStates,
-    segments: np.ndarray | None = None,
-    *,
-    seed: int = 0,
-    tick: int = 0,
+    around: Surroundings = Surroundings(),
     preferred: np.ndarray | None = None,
 ) -> StepResult:
     """Paper 5.2-5.4 for a batch: preferred velocity (eq. 9), ORCA or NH-ORCA, controls.
@@ -120,7 +131,7 @@ def control_step(
     frame, or the feed-forward toward a moving goal of a dynamic image, agent.core.animation and
     agent.core.goal_motion); NaN rows use eq. 9."""
     core = settings_of(params)
-    pref = preferred_velocities(core, robot_ids, position, velocity, goal, preferred, seed, tick)
+    pref = preferred_velocities(core, robot_ids, position, velocity, goal, preferred, around.seed, around.tick)
     robots = Batch(position, velocity, pref, heading, params.radius)
-    v_cf, command, fallback, _, _ = step(core, robots, neighbours, segments)
+    v_cf, command, fallback, _, _ = step(core, robots, neighbours, around.segments)
     return StepResult(v_cf, command, pref, fallback)

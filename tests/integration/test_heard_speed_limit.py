@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from agent.core.params import EPUCK, HOLONOMIC
-from agent.core.policy import Memory, act, heard_speed_limit, intend
+from agent.core.policy import Memory, Surroundings, act, heard_speed_limit, intend
 from agent.core.step import NeighbourStates
 from coordinator.scene import load_scene
 from sim.central.engine import simulate
@@ -40,11 +40,7 @@ def _decide(reach: float, memory: Memory) -> tuple[float, Memory]:
         intent,
         memory,
         NeighbourStates.empty(1),
-        None,
-        seed=1,
-        tick=0,
-        watch_deadlocks=False,
-        reach=reach,
+        Surroundings(None, seed=1, tick=0, watch_deadlocks=False, reach=reach),
     )
     return float(np.hypot(*d.step.velocity[0])), d.memory
 

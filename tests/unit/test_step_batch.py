@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from agent.core.params import DIFFDRIVE, HOLONOMIC, RobotParams
-from agent.core.step import NeighbourStates, control_step, static_segments
+from agent.core.step import NeighbourStates, Surroundings, control_step, static_segments
 
 FIELDS = ("velocity", "command", "pref_velocity", "fallback")
 
@@ -49,8 +49,8 @@ def test_a_batch_gives_each_robot_the_bits_it_gets_alone(kinematics, walls, give
         preferred = rng.uniform(-0.12, 0.12, (b, 2))
         preferred[rng.random(b) < 0.5] = np.nan
     params = RobotParams(kinematics=kinematics)
-    kw = dict(seed=5, tick=11)
-    full = control_step(params, ids, position, heading, velocity, goal, nb, segments, preferred=preferred, **kw)
+    around = Surroundings(segments, seed=5, tick=11)
+    full = control_step(params, ids, position, heading, velocity, goal, nb, around, preferred)
     assert full.fallback.any() and not full.fallback.all()  # both the program and its fallback ran
     for i in range(b):
         row = slice(i, i + 1)
@@ -62,9 +62,8 @@ def test_a_batch_gives_each_robot_the_bits_it_gets_alone(kinematics, walls, give
             velocity[row],
             goal[row],
             nb.rows(row),
-            segments,
-            preferred=None if preferred is None else preferred[row],
-            **kw,
+            around,
+            None if preferred is None else preferred[row],
         )
         for f in FIELDS:
             assert getattr(one, f)[0].tobytes() == getattr(full, f)[i].tobytes(), (i, f)
