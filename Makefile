@@ -51,13 +51,12 @@ lint: $(TSTAMP)
 	$(VENV)/bin/lint-imports
 	$(VENV)/bin/mypy
 
-# The whole suite: the in-process tests and the end-to-end runs (marked slow) in one pass on every
-# core, then those marked serial one at a time (on the wall clock, another run beside them makes
-# robots late). One pass, not test-fast's then the runs': its short tests fill a core whenever the
-# other has a long run to finish, where two passes each ended with a core idle.
-test: lint
-	@$(BYTECODE)
-	$(PY) -m pytest -q -m "not serial" -n auto --dist loadgroup --durations=10
+# The whole suite: the in-process tests, then the end-to-end runs (marked slow) on every core, then
+# those marked serial one at a time (on the wall clock, another run beside them makes robots late).
+# Not one pass of both: the in-process tests' CPU beside the lock-step runs made those runs slower
+# than the pass saved, and a viewer beside them missed its robots.
+test: test-fast
+	$(PY) -m pytest -q -m "slow and not serial" -n auto --dist loadgroup --durations=10
 	$(PY) -m pytest -q -m "slow and serial" --durations=5
 
 # Everyday work: the suite without the end-to-end runs marked slow. --dist loadgroup: a module whose
