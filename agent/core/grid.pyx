@@ -141,7 +141,7 @@ cdef struct Query:
     int64_t *chosen  # (m,) their indices (the query's row of the output)
 
 
-cdef void scan(Grid *g, Query *q, const int64_t *key, Py_ssize_t first, Py_ssize_t last) noexcept nogil:
+cdef inline void scan(Grid *g, Query *q, const int64_t *key, Py_ssize_t first, Py_ssize_t last) noexcept nogil:
     """The points of cells first..last - 1 (consecutive in the grid's order) into q's neighbours,
     sorted by (d2, key, index), kept to m."""
     cdef Py_ssize_t a, j, p, m = q.m
@@ -241,7 +241,7 @@ def nearest(
 cdef void _queries(Grid *g, Query *nb, const double[:, ::1] query, const int64_t[::1] query_key,
                    const int64_t *key, int64_t[:, ::1] out, double slack, Py_ssize_t spread) noexcept nogil:
     """nearest's search, query by query (see its docstring)."""
-    cdef Py_ssize_t i, c, s, gx, qx, qy, low, high
+    cdef Py_ssize_t i, c, s, gx, qx, qy, low, high, missed
     cdef double px, py, left, away, half
     for i in range(query.shape[0]):
         px, py = query[i, 0], query[i, 1]
@@ -252,13 +252,22 @@ cdef void _queries(Grid *g, Query *nb, const double[:, ::1] query, const int64_t
             if qy + 1 >= 0 and qy - 1 < g.ny:
                 c = gx * g.ny
                 scan(g, nb, key, c + max(qy - 1, 0), c + min(qy + 1, g.ny - 1) + 1)
+        missed = 0
         for s in range(2 * spread + 1):
             gx = qx + (s + 1) // 2 if s % 2 else qx - s // 2  # 0, +1, -1, +2, -2, ...
+            if s % 2 == 1:
+                missed = 0  # a new pair of columns, one either side, each farther than the last
             if gx < 0 or gx >= g.nx:
+                missed += 1
                 continue
             left = g.x0 + gx * g.cell - slack
             away = max(max(left - px, px - (left + g.cell + 2.0 * slack)), 0.0)  # to the column, across
             if away * away > nb.bound:
+                # the disc only shrinks and columns only get farther: when neither column of a
+                # pair reaches it, none beyond does
+                missed += 1
+                if missed == 2:
+                    break
                 continue
             # along the column: as far as the disc reaches, widened past any rounding of the root
             half = sqrt(max(nb.bound - away * away, 0.0) + 1e-12 * nb.bound) + slack
