@@ -11,6 +11,7 @@ side on the left: det(d, v - p) >= 0.
 from libc.math cimport INFINITY, atan2, copysign, cos, fabs, isfinite, sin, sqrt, tan
 from libc.stdint cimport int64_t, uint64_t
 from libc.stdlib cimport free, malloc
+from libc.string cimport memset
 
 from agent.core.splitmix cimport splitmix64
 
@@ -374,38 +375,67 @@ cdef void _least_violation(Lines *L, Lines *Q, int n, int n_hard, Target *g, dou
 # ---------------------------------------------------------------- ORCA lines (eq. 10-12)
 
 
-cdef inline void _orca_line(Robot *me, Other *o, double tau, double dt, double *line) noexcept nogil:
+cdef struct Pair:
+    # what an ORCA line toward a neighbour takes from the pair whatever the horizon, and the lines
+    # along the cone's legs (which do not depend on it either), made when first needed
+    double rpx, rpy, rvx, rvy, dist2, big_r, big_r2, vx, vy, c
+    bint apart
+    bint made[2]  # leg[0]: the left leg's line, leg[1]: the right's
+    double leg[2][4]
+
+
+cdef inline void _pair(Robot *me, Other *o, Pair *p) noexcept nogil:
+    p.rpx, p.rpy, p.rvx, p.rvy = o.x - me.x, o.y - me.y, me.vx - o.vx, me.vy - o.vy
+    p.dist2 = p.rpx * p.rpx + p.rpy * p.rpy
+    p.big_r = me.radius + o.radius
+    p.big_r2 = p.big_r * p.big_r
+    p.apart = p.dist2 > p.big_r2
+    p.vx, p.vy, p.c = me.vx, me.vy, o.c
+    p.made[0] = p.made[1] = False
+
+
+cdef inline void _pair_line(Pair *p, double tau, double dt, double *line) noexcept nogil:
     """The ORCA half-plane toward one neighbour: u is the smallest change of the relative velocity
     that leaves the velocity obstacle of horizon tau (truncated cone, eq. 10), the line passes
     through v_opt + c u, normal to the obstacle's boundary. An overlapping pair takes the cut-off
     circle of horizon dt: it separates within one control period."""
-    cdef double rpx = o.x - me.x, rpy = o.y - me.y, rvx = me.vx - o.vx, rvy = me.vy - o.vy
-    cdef double dist2 = rpx * rpx + rpy * rpy
-    cdef double big_r = me.radius + o.radius
-    cdef double big_r2 = big_r * big_r
-    cdef bint apart = dist2 > big_r2
-    cdef double inv_h = 1.0 / tau if apart else 1.0 / dt
+    cdef double rpx = p.rpx, rpy = p.rpy, rvx = p.rvx, rvy = p.rvy
+    cdef double inv_h = 1.0 / tau if p.apart else 1.0 / dt
     cdef double wx = rvx - inv_h * rpx, wy = rvy - inv_h * rpy
     cdef double w2 = wx * wx + wy * wy, dot1 = wx * rpx + wy * rpy
     cdef double wl, ux, uy, scale, leg, inv_d2, ldx, ldy, dot2
-    if not apart or (dot1 < 0.0 and dot1 * dot1 > big_r2 * w2):  # the cut-off circle
+    cdef int side
+    if not p.apart or (dot1 < 0.0 and dot1 * dot1 > p.big_r2 * w2):  # the cut-off circle
         wl = sqrt(w2)
         if wl == 0.0:
             ux, uy = 1.0, 0.0
         else:
             ux, uy = wx / wl, wy / wl
-        scale = big_r * inv_h - wl
-        line[0], line[1], line[2], line[3] = me.vx + o.c * (scale * ux), me.vy + o.c * (scale * uy), uy, -ux
+        scale = p.big_r * inv_h - wl
+        line[0], line[1], line[2], line[3] = p.vx + p.c * (scale * ux), p.vy + p.c * (scale * uy), uy, -ux
         return
-    leg = sqrt(dist2 - big_r2 if dist2 > big_r2 else 0.0)  # a leg of the cone
-    if not rpx * wy - rpy * wx > 0.0:
+    side = 0 if rpx * wy - rpy * wx > 0.0 else 1
+    if p.made[side]:
+        line[0], line[1], line[2], line[3] = p.leg[side][0], p.leg[side][1], p.leg[side][2], p.leg[side][3]
+        return
+    leg = sqrt(p.dist2 - p.big_r2 if p.dist2 > p.big_r2 else 0.0)  # a leg of the cone
+    if side:
         leg = -leg
-    inv_d2 = 1.0 / (dist2 if dist2 > 0.0 else 1.0)
-    ldx = (rpx * leg - rpy * big_r) * inv_d2
-    ldy = (rpy * leg + rpx * big_r) * inv_d2
+    inv_d2 = 1.0 / (p.dist2 if p.dist2 > 0.0 else 1.0)
+    ldx = (rpx * leg - rpy * p.big_r) * inv_d2
+    ldy = (rpy * leg + rpx * p.big_r) * inv_d2
     dot2 = rvx * ldx + rvy * ldy
-    line[0], line[1] = me.vx + o.c * (dot2 * ldx - rvx), me.vy + o.c * (dot2 * ldy - rvy)
+    line[0], line[1] = p.vx + p.c * (dot2 * ldx - rvx), p.vy + p.c * (dot2 * ldy - rvy)
     line[2], line[3] = ldx, ldy
+    p.leg[side][0], p.leg[side][1], p.leg[side][2], p.leg[side][3] = line[0], line[1], line[2], line[3]
+    p.made[side] = True
+
+
+cdef inline void _orca_line(Robot *me, Other *o, double tau, double dt, double *line) noexcept nogil:
+    cdef Pair p
+    memset(&p, 0, sizeof(Pair))  # the legs are made here, never read: this tells the compiler so
+    _pair(me, o, &p)
+    _pair_line(&p, tau, dt, line)
 
 
 cdef inline double _obstacle_line(Robot *me, double radius, const double *seg, double tau_obst,
@@ -459,6 +489,7 @@ cdef struct Scratch:
     double *nc  # responsibility
     double *nlead  # s further along its velocity to where it most likely is
     unsigned char *nok
+    Pair *pairs  # toward each neighbour, for its robot lines at every horizon
     Lines L
     Lines Q
 
@@ -469,12 +500,15 @@ cdef class Work:
     cdef Scratch s
     cdef double *block
     cdef unsigned char *flags
+    cdef Pair *pairs
 
     def __cinit__(self, int m, int size):
         self.block = <double *>malloc(sizeof(double) * (8 * m + 8 * size + 1))
         self.flags = <unsigned char *>malloc(m + 2 * size + 1)
-        if self.block == NULL or self.flags == NULL:
+        self.pairs = <Pair *>malloc(sizeof(Pair) * (m + 1))
+        if self.block == NULL or self.flags == NULL or self.pairs == NULL:
             raise MemoryError()
+        self.s.pairs = self.pairs
         cdef double *b = self.block
         self.s.m = self.s.used = m
         self.s.nx, self.s.ny, self.s.nvx, self.s.nvy = b, b + m, b + 2 * m, b + 3 * m
@@ -488,6 +522,7 @@ cdef class Work:
     def __dealloc__(self):
         free(self.block)
         free(self.flags)
+        free(self.pairs)
 
 
 cdef class Heard:
@@ -610,10 +645,11 @@ cdef int _hard_lines(Config *s, Scratch *w, Robot *me, Obstacles edges, Lines *e
     return n
 
 
-cdef int _robot_lines(Config *s, Scratch *w, Robot *me, double horizon, int start) noexcept nogil:
+cdef int _robot_lines(Config *s, Scratch *w, Robot *me, double horizon, int start, bint again) noexcept nogil:
     """The ORCA lines toward the neighbours at ``horizon``, after the hard ones: a neighbour heard
     late where it most likely is, its body not grown (the safety lines keep us off where it may
-    have strayed); ``margin`` on both radii. Returns the new count."""
+    have strayed); ``margin`` on both radii. ``again``: the same robot and neighbours as the last
+    call, at another horizon (what does not depend on it is kept). Returns the new count."""
     cdef Robot grown = me[0]
     cdef double line[4]
     cdef double lead, left
@@ -623,11 +659,13 @@ cdef int _robot_lines(Config *s, Scratch *w, Robot *me, double horizon, int star
     for k in range(w.used):
         if not w.nok[k]:
             continue
-        lead = w.nlead[k] if s.safety else 0.0
-        left = w.ng[k] if s.safety else 0.0
-        o = Other(w.nx[k] + lead * w.nvx[k], w.ny[k] + lead * w.nvy[k], w.nvx[k], w.nvy[k],
-                  w.nr[k] - left + s.margin, w.nc[k])
-        _orca_line(&grown, &o, horizon, s.dt, line)
+        if not again:
+            lead = w.nlead[k] if s.safety else 0.0
+            left = w.ng[k] if s.safety else 0.0
+            o = Other(w.nx[k] + lead * w.nvx[k], w.ny[k] + lead * w.nvy[k], w.nvx[k], w.nvy[k],
+                      w.nr[k] - left + s.margin, w.nc[k])
+            _pair(&grown, &o, &w.pairs[k])
+        _pair_line(&w.pairs[k], horizon, s.dt, line)
         n = _push(&w.L, n, line, me.vmax)
     return n
 
@@ -641,7 +679,7 @@ cdef bint _orca(Config *s, Scratch *w, Robot *me, Obstacles edges, Lines *extra,
     horizon (``out`` is then meaningful only where it returns False)."""
     cdef Target g = Target(me.tx, me.ty, me.vmax, False)
     cdef int n_hard = _hard_lines(s, w, me, edges, extra, n_extra)
-    cdef int n = _robot_lines(s, w, me, s.tau, n_hard)
+    cdef int n = _robot_lines(s, w, me, s.tau, n_hard, False)
     cdef double horizon = s.tau
     cdef int k
     if _optimise(&w.L, n, True, &g, out):
@@ -650,7 +688,7 @@ cdef bint _orca(Config *s, Scratch *w, Robot *me, Obstacles edges, Lines *extra,
         return True
     while s.safety and horizon > s.dt:
         horizon = max(horizon / SHRINK, s.dt)
-        n = _robot_lines(s, w, me, horizon, n_hard)
+        n = _robot_lines(s, w, me, horizon, n_hard, True)
         for k in range(n):
             w.L.use[k] = True
         if _optimise_few(&w.L, n, &g, out):
