@@ -394,13 +394,13 @@ cdef inline void _pair(Robot *me, Other *o, Pair *p) noexcept nogil:
     p.made[0] = p.made[1] = False
 
 
-cdef inline void _pair_line(Pair *p, double tau, double dt, double *line) noexcept nogil:
+cdef inline void _pair_line(Pair *p, double inv_tau, double inv_dt, double *line) noexcept nogil:
     """The ORCA half-plane toward one neighbour: u is the smallest change of the relative velocity
     that leaves the velocity obstacle of horizon tau (truncated cone, eq. 10), the line passes
     through v_opt + c u, normal to the obstacle's boundary. An overlapping pair takes the cut-off
-    circle of horizon dt: it separates within one control period."""
+    circle of horizon dt: it separates within one control period. Horizons as 1 / tau, 1 / dt."""
     cdef double rpx = p.rpx, rpy = p.rpy, rvx = p.rvx, rvy = p.rvy
-    cdef double inv_h = 1.0 / tau if p.apart else 1.0 / dt
+    cdef double inv_h = inv_tau if p.apart else inv_dt
     cdef double wx = rvx - inv_h * rpx, wy = rvy - inv_h * rpy
     cdef double w2 = wx * wx + wy * wy, dot1 = wx * rpx + wy * rpy
     cdef double wl, ux, uy, scale, leg, inv_d2, ldx, ldy, dot2
@@ -435,7 +435,7 @@ cdef inline void _orca_line(Robot *me, Other *o, double tau, double dt, double *
     cdef Pair p
     memset(&p, 0, sizeof(Pair))  # the legs are made here, never read: this tells the compiler so
     _pair(me, o, &p)
-    _pair_line(&p, tau, dt, line)
+    _pair_line(&p, 1.0 / tau, 1.0 / dt, line)
 
 
 cdef inline double _obstacle_line(Robot *me, double radius, const double *seg, double tau_obst,
@@ -652,7 +652,7 @@ cdef int _robot_lines(Config *s, Scratch *w, Robot *me, double horizon, int star
     call, at another horizon (what does not depend on it is kept). Returns the new count."""
     cdef Robot grown = me[0]
     cdef double line[4]
-    cdef double lead, left
+    cdef double lead, left, inv_tau = 1.0 / horizon, inv_dt = 1.0 / s.dt
     cdef int n = start, k
     cdef Other o
     grown.radius = me.radius + s.margin
@@ -665,7 +665,7 @@ cdef int _robot_lines(Config *s, Scratch *w, Robot *me, double horizon, int star
             o = Other(w.nx[k] + lead * w.nvx[k], w.ny[k] + lead * w.nvy[k], w.nvx[k], w.nvy[k],
                       w.nr[k] - left + s.margin, w.nc[k])
             _pair(&grown, &o, &w.pairs[k])
-        _pair_line(&w.pairs[k], horizon, s.dt, line)
+        _pair_line(&w.pairs[k], inv_tau, inv_dt, line)
         n = _push(&w.L, n, line, me.vmax)
     return n
 
