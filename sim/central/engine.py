@@ -373,8 +373,7 @@ def simulate(
         for tick in range(steps + 1):
             clock.start()
             t = tick * params.dt
-            while events and events[0]["t"] <= t + 1e-9:  # the scene's scripted teleports
-                world.teleport(events[0]["robot"], tuple(events.pop(0)["pose"]))
+            _teleport_due(world, events, t)
             if (k := scene.step_at(t)) != auction.shown:
                 auction.show(k)
             clock.lap("other")
@@ -397,15 +396,20 @@ def simulate(
             # what the robots broadcast this tick: heard by their neighbours at the next
             link.broadcast(_states(params, robots.measured, pose, velocity_next, t, robots.movers))
             fallbacks += int(decision.step.fallback.sum())
-            if progress is not None and time.time() - last_say >= 1.0:
-                last_say = time.time()
-                _say_progress(progress, scene.name, (t, k), _at_goal(pose, goal, params), has_goal, world)
+            if progress is not None and time.time() - last_say >= 1.0:  # a line a second
+                last_say = _say_progress(progress, scene.name, (t, k), _at_goal(pose, goal, params), has_goal, world)
             clock.lap("other")
     finally:
         beside.pool.shutdown()
     arrays = rec.arrays(tick + 1)  # a converged run ends early
     how = (list(world.contacts), float(world.min_clearance), fallbacks, auction.penalties)
     return Outcome(arrays, *how, end_reason, time.time() - wall0)
+
+
+def _teleport_due(world, events: list[dict], t: float) -> None:
+    """The scene's scripted teleports due by time t (events sorted by time, taken off as done)."""
+    while events and events[0]["t"] <= t + 1e-9:
+        world.teleport(events[0]["robot"], tuple(events.pop(0)["pose"]))
 
 
 def _refuse_process_faults(scene: Scene) -> None:
@@ -417,11 +421,13 @@ def _refuse_process_faults(scene: Scene) -> None:
 
 def _say_progress(
     out: TextIO, name: str, when: tuple[float, int], at_goal: np.ndarray, has_goal: np.ndarray, world
-) -> None:
-    """One line of progress: the display time and step, the robots at their goals, the contacts."""
+) -> float:
+    """One line of progress: the display time and step, the robots at their goals, the contacts;
+    returns the wall time it was said."""
     (t, k), held = when, f"at goal {int(at_goal.sum())}/{int(has_goal.sum())}"
     held = held if has_goal.any() else "waiting for the goal set"
     print(f"[{name}] central t={t:6.1f} s  step {k}  {held}  contacts {len(world.contacts)}", file=out, flush=True)
+    return time.time()
 
 
 def run_central(
