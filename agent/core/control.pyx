@@ -553,12 +553,20 @@ cdef class Obstacles:
 
     cdef int n
     cdef const double[::1] xy
+    cdef double[::1] box  # n x (x low, x high, y low, y high): each edge's bounding box
 
     def __init__(self, segments=None):
         self.xy = np.zeros(0) if segments is None else np.ascontiguousarray(segments, dtype=float).reshape(-1)
         if len(self.xy) % 4:
             raise ValueError("obstacle segments must be an (S,2,2) array")
         self.n = len(self.xy) // 4
+        self.box = np.empty(4 * self.n + 1)
+        cdef const double *e
+        cdef int k
+        for k in range(self.n):
+            e = &self.xy[4 * k]
+            self.box[4 * k], self.box[4 * k + 1] = min(e[0], e[2]), max(e[0], e[2])
+            self.box[4 * k + 2], self.box[4 * k + 3] = min(e[1], e[3]), max(e[1], e[3])
 
 
 cdef void _prepare(Config *s, Heard h, Py_ssize_t i, Scratch *w, double vmax) noexcept nogil:
@@ -612,14 +620,14 @@ cdef int _hard_lines(Config *s, Scratch *w, Robot *me, Obstacles edges, Lines *e
     # farther than the edge, so an edge whose box lies well beyond that (far above any rounding of
     # the distance) is passed over without computing it
     cdef double reach = (r_obst + me.vmax * s.tau_obst) * (1.0 + 1e-6) + 1e-9, bx, by
-    cdef const double *e
+    cdef const double *box
     for k in range(edges.n):
-        e = &edges.xy[4 * k]
-        bx = max(max(min(e[0], e[2]) - me.x, me.x - max(e[0], e[2])), 0.0)
-        by = max(max(min(e[1], e[3]) - me.y, me.y - max(e[1], e[3])), 0.0)
+        box = &edges.box[4 * k]
+        bx = max(max(box[0] - me.x, me.x - box[1]), 0.0)
+        by = max(max(box[2] - me.y, me.y - box[3]), 0.0)
         if bx * bx + by * by > reach * reach:
             continue
-        if _obstacle_line(me, r_obst, e, s.tau_obst, line) < me.vmax:
+        if _obstacle_line(me, r_obst, &edges.xy[4 * k], s.tau_obst, line) < me.vmax:
             n = _push(L, n, line, me.vmax)
     for k in range(n_extra):
         line[0], line[1], line[2], line[3] = extra.px[k], extra.py[k], extra.dx[k], extra.dy[k]
