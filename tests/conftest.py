@@ -233,6 +233,7 @@ def spawned():
 # meanwhile. (Tests sharing a run carry an xdist_group mark; `--dist loadgroup` starts those groups
 # first, the largest first, then the rest in this order.) Node ids without parameters, longest first.
 LONGEST_FIRST = (
+    "tests/unit/test_goals_cvt.py::test_ten_thousand_goals_cost_no_more_than_scikit_learn_kmeans_on_the_same_pixels",
     "tests/unit/test_codec_fuzz.py::test_every_kind_decodes_what_was_encoded_or_drops_it_with_one_reason",
     "tests/e2e/test_make_run.py::test_make_run_writes_a_complete_run_directory",
     "tests/e2e/test_image_display_distributed.py::test_the_paper_sequence_forms_every_image_in_agent_hosts_as_in_the_central_engine",
