@@ -227,39 +227,29 @@ def spawned():
         p.wait(timeout=10)
 
 
-# The longest tests of the parallel passes (twenty seconds or more each on 2 cores, by wall time,
-# waits included, in a pass beside other work), started first: xdist hands tests to its workers in
-# collection order, and a long test picked up at the end of the pass leaves the other workers idle
-# meanwhile. (Tests sharing a run carry an xdist_group mark; `--dist loadgroup` starts those groups
-# first, the largest first, then the rest in this order.) Node ids without parameters, longest first.
+# The longest tests of the parallel passes (half a minute or more each on 2 cores, by wall time, waits
+# included), started first: xdist hands tests to its workers in collection order, and a long test
+# picked up at the end of the pass leaves the other workers idle meanwhile. (Tests sharing a run carry
+# an xdist_group mark; `--dist loadgroup` starts those groups first, the largest first, then the rest
+# in this order.) Node ids without parameters, longest first.
 LONGEST_FIRST = (
-    "tests/unit/test_goals_cvt.py::test_ten_thousand_goals_cost_no_more_than_scikit_learn_kmeans_on_the_same_pixels",
-    "tests/unit/test_codec_fuzz.py::test_every_kind_decodes_what_was_encoded_or_drops_it_with_one_reason",
-    "tests/e2e/test_make_run.py::test_make_run_writes_a_complete_run_directory",
+    "tests/e2e/test_lockstep_faults.py::test_two_lockstep_runs_with_lost_and_delayed_states_are_the_same_run",
+    "tests/e2e/test_one_controller.py::test_the_auction_is_the_same_in_every_engine",
     "tests/e2e/test_image_display_distributed.py::test_the_paper_sequence_forms_every_image_in_agent_hosts_as_in_the_central_engine",
-    "tests/e2e/test_image_display_distributed.py::test_auction_survives_loss_and_delay",
-    "tests/e2e/test_study_cluster.py::test_a_worker_killed_mid_study_leaves_every_run_done_once",
-    "tests/e2e/test_range_auction.py::test_a_hundred_robot_picture_in_hosts_forms_with_a_quarter_of_its_diameter_in_reach",
-    "tests/integration/test_ten_thousand.py::test_ten_thousand_robots_cold_start_one_to_one_without_contact",
-    "tests/e2e/test_view_browser.py::test_the_web_view_shows_the_robots_upright_in_headless_chromium",
-    "tests/unit/test_pose_trust.py::test_a_swapped_marker_on_the_simulated_tracker_brakes_the_robot_without_contact_or_detour",
+    "tests/e2e/test_make_run.py::test_make_run_writes_a_complete_run_directory",
     "tests/e2e/test_image_display_distributed.py::test_two_of_fourteen_agents_die_and_twelve_reform_the_image",
     "tests/e2e/test_collision_avoidance.py::test_loss_and_delay_on_states_cause_no_contact",
-    "tests/e2e/test_view.py::test_a_distributed_run_is_viewed_from_the_recorder",
-    "tests/e2e/test_cli_edges.py::test_twenty_lockstep_agents_start_and_finish_while_both_cores_are_busy",
-    "tests/e2e/test_runtime.py::test_lockstep_is_reproducible_and_hosts_match_processes",
-    "tests/unit/test_large_scene.py::test_paper_sequence_at_scale_is_the_paper_sequence_with_that_many_robots",
-    "tests/e2e/test_image_display_distributed.py::test_hundred_holonomic_robots_in_agent_hosts",
-    "tests/unit/test_goal_tree.py::test_cold_start_is_one_to_one_and_within_n_epsilon_of_the_optimum",
-    "tests/unit/test_animation.py::test_the_shipped_animations_load",
-    "tests/e2e/test_clocks_events_engines.py::test_a_robot_picked_up_by_hand_returns_to_its_goal",
-    "tests/e2e/test_lockstep_faults.py::test_two_lockstep_runs_with_lost_and_delayed_states_are_the_same_run",
-    "tests/unit/test_dynamic_image.py::test_fourteen_epucks_follow_the_rotating_growing_triangle_over_zenoh",
-    "tests/e2e/test_study.py::test_without_impairment_a_distributed_run_has_every_metric_of_the_central_run",
-    "tests/e2e/test_faults_recovery.py::test_a_tenth_of_the_agents_killed_at_once_and_the_rest_form_the_image_for_the_survivors",
+    "tests/e2e/test_range_auction.py::test_a_hundred_robot_picture_in_hosts_forms_with_a_quarter_of_its_diameter_in_reach",
+    "tests/e2e/test_one_controller.py::test_central_and_distributed_runs_of_one_seed_are_the_same_run",
+    "tests/e2e/test_image_display_distributed.py::test_auction_survives_loss_and_delay",
     "tests/unit/test_bidder.py::test_lossy_network_agrees_on_one_owner_per_goal",
+    "tests/e2e/test_study.py::test_the_grid_runs_with_one_command_one_row_per_run",
     "tests/integration/test_paper_figures.py::test_quick_reproduction_writes_sane_figures",
+    "tests/e2e/test_runtime.py::test_lockstep_is_reproducible_and_hosts_match_processes",
+    "tests/e2e/test_image_display_distributed.py::test_hundred_holonomic_robots_in_agent_hosts",
+    "tests/e2e/test_faults_recovery.py::test_a_tenth_of_the_agents_killed_at_once_and_the_rest_form_the_image_for_the_survivors",
     "tests/unit/test_animation.py::test_fourteen_agents_play_four_keyframes_of_the_story_over_zenoh",
+    "tests/unit/test_goals_cvt.py::test_ten_thousand_goals_cost_no_more_than_scikit_learn_kmeans_on_the_same_pixels",
 )
 
 
