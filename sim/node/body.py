@@ -17,6 +17,7 @@ stamped other than at its tick's start.
 
 from __future__ import annotations
 
+import bisect
 import json
 import math
 import os
@@ -42,6 +43,9 @@ BEFORE_START_EVERY = 0.2  # s: poses to robots whose agent is not live yet
 # for a round (agent.assignment.ROUND_CAP); a peer that repeats auction messages held the world (and the
 # end of the run) for ever
 AUCTION_PATIENCE = 60.0
+# s a lock-step tick that begins a scene step waits at most for the step's goal set: as long as an agent
+# waits for it (agent.clocks.GOAL_SET_WAIT), and the deadline runs on after, so an agent that gave up answers
+GOAL_SET_PATIENCE = 10.0
 STOP_REASONS = ("agent_lost", "pose_lost", "command_timeout")  # the watchdog's, in the order it asks
 COMMAND_DROPS = (FUTURE, INCONSISTENT)
 CONTACT_KINDS = {"robot": 0, "obstacle": 1, "wall": 2}
@@ -95,7 +99,8 @@ class Tally:
 class LockStep:
     """Publish tick k, wait until every live agent answered it or a deadline passes (a missed tick),
     then advance one period. The deadline runs from the last auction message heard: agents that
-    still trade a tick's auction rounds (agent.assignment.AuctionLink.settle_block) are at work."""
+    still trade a tick's auction rounds (agent.assignment.AuctionLink.settle_block) are at work; and,
+    for at most GOAL_SET_PATIENCE, while the goal set of a scene step that begins at the tick is unheard."""
 
     def __init__(self, bus: Bus, deadline: float) -> None:
         self.deadline = deadline
@@ -104,10 +109,14 @@ class LockStep:
     def spans(self, node: BodyNode) -> Iterator[float]:
         deadline = time.monotonic() + self.deadline
         patience = time.monotonic() + AUCTION_PATIENCE
+        goal_set_patience = time.monotonic() + GOAL_SET_PATIENCE
         while True:
             node.take_commands(node.cmd_inbox.get(timeout=max(0.0, min(0.05, deadline - time.monotonic()))))
             heard = [data for inbox in self.auction_traffic for _, data, _ in inbox.drain()]
-            if any(map(intact, heard)):  # a damaged copy is no agent at work
+            node.hear_goals()
+            # a step's goal set unheard at its first tick: the coordinator works it out, the agents wait for it
+            at_work = time.monotonic() < goal_set_patience and node.awaits_goal_set()
+            if any(map(intact, heard)) or at_work:  # a damaged copy is no agent at work
                 deadline = min(time.monotonic() + self.deadline, patience)
             node.update_liveness()
             waiting = node.live & (node.last_cmd_tick < node.tick)
@@ -169,6 +178,7 @@ class BodyNode:
         self.tick, self.withheld, self.goal_epoch = 0, False, 0
         # which goal sets can be the coordinator's, as the agents judge them; the world starts with the run
         self.believed = GoalSets(scene.arena, newest=0)
+        self.step_starts, self.step_heard = scene.step_starts, -1  # the newest scene step whose goal set came
         self.cmd_inbox = bus.commands_inbox()
         self.control_inbox = bus.subscribe(bus.keys.event, Event)
         self.goal_inbox = bus.subscribe(bus.keys.all_of("goals"), Goals)
@@ -236,6 +246,25 @@ class BodyNode:
                 self.live[i] = False
                 self._watchdog(0.0)  # a dead agent's body stays, stopped
 
+    def hear_goals(self) -> None:
+        """Take in the goal sets heard, as the agents do, refusing epochs and stamps from the future."""
+        for _, goals in self.goal_inbox.drain():
+            why = self.believed.admit(goals, self.tick * self.dt)
+            if why is None:
+                self.goal_epoch = max(self.goal_epoch, goals.epoch)
+                self.step_heard = max(self.step_heard, goals.timing.step)
+            else:
+                self.goal_inbox.drops[why] += 1
+
+    def step_due(self, tick: int) -> int:
+        """The scene step shown at ``tick`` (-1: none)."""
+        return bisect.bisect_right(self.step_starts, tick * self.dt + 1e-9) - 1
+
+    def awaits_goal_set(self) -> bool:
+        """This tick begins a scene step whose goal set has not been heard."""
+        due = self.step_due(self.tick)
+        return due > self.step_heard and due > self.step_due(self.tick - 1)
+
     def take_commands(self, first: tuple | None = None) -> None:
         """Every robot's newest command, to its body at once (a robot out of sight is not driven blind)."""
         arrived = ([first] if first is not None else []) + self.cmd_inbox.drain()
@@ -297,12 +326,7 @@ class BodyNode:
     # --- outputs ------------------------------------------------------------------------------
     def _publish_tick(self) -> None:
         t = self.tick * self.dt
-        for _, goals in self.goal_inbox.drain():  # as the agents do, refusing epochs and stamps from the future
-            why = self.believed.admit(goals, t)
-            if why is None:
-                self.goal_epoch = max(self.goal_epoch, goals.epoch)
-            else:
-                self.goal_inbox.drops[why] += 1
+        self.hear_goals()
         self.bus.publish(self.bus.keys.clock, Tick(self.tick, t, self.dt, self.goal_epoch))
         self._publish_truth()
         measured = self.backend.measure(t)
