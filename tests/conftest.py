@@ -249,7 +249,6 @@ LONGEST_FIRST = (
     "tests/e2e/test_image_display_distributed.py::test_hundred_holonomic_robots_in_agent_hosts",
     "tests/e2e/test_faults_recovery.py::test_a_tenth_of_the_agents_killed_at_once_and_the_rest_form_the_image_for_the_survivors",
     "tests/unit/test_animation.py::test_fourteen_agents_play_four_keyframes_of_the_story_over_zenoh",
-    "tests/unit/test_goals_cvt.py::test_ten_thousand_goals_cost_no_more_than_scikit_learn_kmeans_on_the_same_pixels",
 )
 
 

@@ -170,19 +170,19 @@ def _paper_samples(prep, n, seed):
     return poisson_samples(rows, cols, n, np.random.default_rng([seed, 0]))[0]
 
 
-@pytest.mark.slow
-@pytest.mark.timeout(1200)  # KMeans: about a minute on a quiet machine, many on a loaded one
-def test_ten_thousand_goals_cost_no_more_than_scikit_learn_kmeans_on_the_same_pixels():
-    """Issue 43: 10,000 goals from a picture cost (k-means cost over its foreground pixels) at most what
-    scikit-learn's KMeans (k-means++, one start) finds on the same pixels. A picture of 3 pixels a goal:
-    KMeans' time grows with pixels times goals."""
+def test_many_goals_cost_no_more_than_scikit_learn_kmeans_on_the_same_pixels():
+    """Issue 43: goals from a picture beyond the paper's sample count (from a lattice) cost (k-means
+    cost over its foreground pixels) at most what scikit-learn's KMeans (k-means++, one start) finds
+    on the same pixels: 3,000 goals on a picture of 3 pixels a goal. KMeans' time grows with pixels
+    times goals; the 10,000-goal case is bench.bench_goals's (minutes of KMeans)."""
     KMeans = pytest.importorskip("sklearn.cluster").KMeans
-    prep = prepare_image(shapes.draw("T", 400))
+    prep = prepare_image(shapes.draw("T", 220))
     rows, cols = prep.seg.pixels(0)
     pts = binary_domain(rows, cols).points
-    gs = goals_from_prepared(prep, 10000, GoalOptions(seed=0))
+    gs = goals_from_prepared(prep, 3000, GoalOptions(seed=0))
+    assert any("hexagonal lattice" in note for note in gs.params["notes"])  # the path of 10,000 goals
     ours = from_arena(gs.goals, prep.shape, gs.arena)
-    km = KMeans(n_clusters=10000, n_init=1, random_state=0).fit(pts)
+    km = KMeans(n_clusters=3000, n_init=1, random_state=0).fit(pts)
 
     def cost(centres):
         d, _ = cKDTree(centres).query(pts)
