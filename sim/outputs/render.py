@@ -200,61 +200,84 @@ def _draw(
     color: np.ndarray | None,
     goal: np.ndarray | None,
 ) -> np.ndarray:
+    """The swarm on ``img``: each goal as a dim ring, each robot as a disc in its LED colour with a
+    heading tick, and the display time in the corner; above :data:`STAMP_ABOVE` robots as stamps."""
     n = len(pose)
-    rpx = radius * view.scale
-    r_fx = np.maximum(np.round(rpx * _ONE), _ONE).astype(np.int64)
-    if color is None:
-        bgr = np.full((n, 3), 230, dtype=np.int64)
-    else:
-        bgr = np.asarray(color).reshape(n, 3)[:, ::-1].astype(np.int64)
-
+    bgr = _led_bgr(color, n)
     if n > STAMP_ABOVE:
         _draw_stamped(img, view, pose, radius, bgr, goal)
-    elif goal is not None:
-        g = np.asarray(goal, dtype=float).reshape(n, 2)
-        gok = np.isfinite(g).all(axis=1)
-        if gok.any():
-            gfx = view.fixed(np.where(gok[:, None], g, 0.0))
-            gcol = np.maximum(bgr * 0.45, 55).astype(np.int64)
-            for i in np.flatnonzero(gok).tolist():
-                cv2.circle(
-                    img,
-                    (int(gfx[i, 0]), int(gfx[i, 1])),
-                    int(r_fx[i]),
-                    tuple(int(c) for c in gcol[i]),
-                    1,
-                    cv2.LINE_AA,
-                    _SHIFT,
-                )
+    else:
+        rpx = radius * view.scale
+        r_fx = np.maximum(np.round(rpx * _ONE), _ONE).astype(np.int64)  # fixed-point radii, at least a pixel
+        if goal is not None:
+            _draw_goal_rings(img, view, goal, bgr, r_fx)
+        _draw_robot_discs(img, view, pose, radius, bgr, rpx, r_fx)
+    if time_s is not None and np.isfinite(time_s):
+        _draw_display_time(img, view, time_s)
+    return img
 
+
+def _led_bgr(color: np.ndarray | None, n: int) -> np.ndarray:
+    """The robots' LED colours (RGB, None: white) as OpenCV's BGR, (N, 3) int64."""
+    if color is None:
+        return np.full((n, 3), 230, dtype=np.int64)
+    return np.asarray(color).reshape(n, 3)[:, ::-1].astype(np.int64)
+
+
+def _draw_goal_rings(img: np.ndarray, view: _View, goal: np.ndarray, bgr: np.ndarray, r_fx: np.ndarray) -> None:
+    """Each robot's goal (NaN: none) as a one-pixel ring of its size, in a dim shade of its colour."""
+    g = np.asarray(goal, dtype=float).reshape(len(bgr), 2)
+    gok = np.isfinite(g).all(axis=1)
+    if not gok.any():
+        return
+    gfx = view.fixed(np.where(gok[:, None], g, 0.0))
+    gcol = np.maximum(bgr * 0.45, 55).astype(np.int64)
+    for i in np.flatnonzero(gok).tolist():
+        centre = (int(gfx[i, 0]), int(gfx[i, 1]))
+        cv2.circle(img, centre, int(r_fx[i]), tuple(int(c) for c in gcol[i]), 1, cv2.LINE_AA, _SHIFT)
+
+
+def _draw_robot_discs(
+    img: np.ndarray,
+    view: _View,
+    pose: np.ndarray,
+    radius: np.ndarray,
+    bgr: np.ndarray,
+    rpx: np.ndarray,
+    r_fx: np.ndarray,
+) -> None:
+    """Each placed robot as a disc with a rim, and where its heading is known a tick from its centre
+    toward its front (dark on a light disc, light on a dark one)."""
     xy = pose[:, :2]
     ok = np.isfinite(xy).all(axis=1)
-    if ok.any() and n <= STAMP_ABOVE:
-        has_th = np.isfinite(pose[:, 2])
-        th = np.where(has_th, pose[:, 2], 0.0)
-        xy0 = np.where(ok[:, None], xy, 0.0)
-        c = view.fixed(xy0)
-        tip = view.fixed(xy0 + 0.95 * radius[:, None] * np.stack([np.cos(th), np.sin(th)], axis=-1))
-        lum = 0.114 * bgr[:, 0] + 0.587 * bgr[:, 1] + 0.299 * bgr[:, 2]
-        tick_thick = np.clip(np.round(rpx * 0.18), 1, 4).astype(int)
-        cl, tl, rl, bl = c.tolist(), tip.tolist(), r_fx.tolist(), bgr.tolist()
-        for i in np.flatnonzero(ok).tolist():
-            centre = (cl[i][0], cl[i][1])
-            col = tuple(bl[i])
-            cv2.circle(img, centre, rl[i], col, -1, cv2.LINE_AA, _SHIFT)
-            cv2.circle(img, centre, rl[i], ROBOT_RIM, 1, cv2.LINE_AA, _SHIFT)
-            if has_th[i]:
-                tick = (20, 20, 20) if lum[i] > 110 else (200, 200, 200)
-                cv2.line(img, centre, (tl[i][0], tl[i][1]), tick, int(tick_thick[i]), cv2.LINE_AA, _SHIFT)
+    if not ok.any():
+        return
+    has_th = np.isfinite(pose[:, 2])
+    th = np.where(has_th, pose[:, 2], 0.0)
+    xy0 = np.where(ok[:, None], xy, 0.0)
+    c = view.fixed(xy0)
+    tip = view.fixed(xy0 + 0.95 * radius[:, None] * np.stack([np.cos(th), np.sin(th)], axis=-1))
+    lum = 0.114 * bgr[:, 0] + 0.587 * bgr[:, 1] + 0.299 * bgr[:, 2]
+    tick_thick = np.clip(np.round(rpx * 0.18), 1, 4).astype(int)
+    cl, tl, rl, bl = c.tolist(), tip.tolist(), r_fx.tolist(), bgr.tolist()
+    for i in np.flatnonzero(ok).tolist():
+        centre = (cl[i][0], cl[i][1])
+        col = tuple(bl[i])
+        cv2.circle(img, centre, rl[i], col, -1, cv2.LINE_AA, _SHIFT)
+        cv2.circle(img, centre, rl[i], ROBOT_RIM, 1, cv2.LINE_AA, _SHIFT)
+        if has_th[i]:
+            tick = (20, 20, 20) if lum[i] > 110 else (200, 200, 200)
+            cv2.line(img, centre, (tl[i][0], tl[i][1]), tick, int(tick_thick[i]), cv2.LINE_AA, _SHIFT)
 
-    if time_s is not None and np.isfinite(time_s):
-        fs = max(0.35, view.height / 1300)
-        label = f"t = {time_s:7.2f} s"
-        (tw, th_), base = cv2.getTextSize(label, cv2.FONT_HERSHEY_SIMPLEX, fs, 1)
-        x0, y0 = 4, 4 + th_
-        cv2.rectangle(img, (x0 - 2, y0 - th_ - 3), (x0 + tw + 2, y0 + base), BACKGROUND, -1)
-        cv2.putText(img, label, (x0, y0), cv2.FONT_HERSHEY_SIMPLEX, fs, TEXT, 1, cv2.LINE_AA)
-    return img
+
+def _draw_display_time(img: np.ndarray, view: _View, time_s: float) -> None:
+    """``t = ... s`` in the top-left corner, on a patch of background."""
+    fs = max(0.35, view.height / 1300)
+    label = f"t = {time_s:7.2f} s"
+    (tw, th_), base = cv2.getTextSize(label, cv2.FONT_HERSHEY_SIMPLEX, fs, 1)
+    x0, y0 = 4, 4 + th_
+    cv2.rectangle(img, (x0 - 2, y0 - th_ - 3), (x0 + tw + 2, y0 + base), BACKGROUND, -1)
+    cv2.putText(img, label, (x0, y0), cv2.FONT_HERSHEY_SIMPLEX, fs, TEXT, 1, cv2.LINE_AA)
 
 
 def render_frame(
