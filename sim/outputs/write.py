@@ -145,17 +145,43 @@ def write_run(
     plots: bool,
 ) -> Path:
     """Everything a run directory holds, from the true trajectory; returns the committed path."""
-    n = scene.robots
-    metrics_extra = dict(outcome.extra)
-    if np.isfinite(outcome.reach):
-        parts = communication_parts(arrays["pose"], outcome.reach)
-        metrics_extra.update(
-            range_m=outcome.reach, split_ticks=int((parts > 1).sum()), most_parts=int(parts.max(initial=1))
-        )
-    radius = np.full(n, params.radius)
+    radius = np.full(scene.robots, params.radius)
     t = arrays["t"]
     clearance = clearance_over_time(arrays["pose"], radius) if len(t) else np.zeros(0)
-    record = TrueRecord(t, arrays["pose"], radius, arrays["goal"], params.goal_tolerance, clearance, steps_of(arrays))
+    metrics = _run_metrics(scene, params, arrays, outcome, radius, clearance)
+    write_json(run_dir / "metrics.json", metrics)
+    if outcome.extra.get("complete") is False:
+        _mark_incomplete(run_dir, outcome.extra)
+    write_trajectory(run_dir / "trajectory.npz", arrays, radius)
+    # the renderers are imported only where used: they load matplotlib, OpenCV and PyAV
+    if len(t) and plots:
+        from sim.outputs.render import write_plots
+
+        write_plots(run_dir.path, recording_of(scene, arrays, radius), clearance)
+    if len(t) and video:
+        _write_display_video(run_dir, scene, arrays, radius, metrics.get("time_to_converge_s"))
+    save_resolved(scene, run_dir.path, robot=params.to_dict())  # scene.json, goal_sets.npz
+    shutil.rmtree(run_dir / SCRATCH, ignore_errors=True)  # a streamed recording's raw files (sim.outputs.stream)
+    return run_dir.commit()
+
+
+def _run_metrics(
+    scene: Scene,
+    params: RobotParams,
+    arrays: dict[str, Any],
+    outcome: RunOutcome,
+    radius: np.ndarray,
+    clearance: np.ndarray,
+) -> dict[str, Any]:
+    """metrics.json: the true record's summary, the swarm's splits by the communication range (if
+    the robots have one), each image step's assignment against the optimum, and the outcome's keys."""
+    extra = dict(outcome.extra)
+    if np.isfinite(outcome.reach):
+        parts = communication_parts(arrays["pose"], outcome.reach)
+        extra.update(range_m=outcome.reach, split_ticks=int((parts > 1).sum()), most_parts=int(parts.max(initial=1)))
+    record = TrueRecord(
+        arrays["t"], arrays["pose"], radius, arrays["goal"], params.goal_tolerance, clearance, steps_of(arrays)
+    )
     metrics = summarise(
         record,
         wall_s=outcome.wall_s,
@@ -165,35 +191,34 @@ def write_run(
         seed=scene.seed,
         clock=scene.clock,
         contact_events=outcome.contacts,
-        **metrics_extra,
+        **extra,
     )
     if scene.steps and "assignment" in arrays and arrays.get("step") is not None and metrics.get("steps"):
         over = assignment_over_optimum(arrays["pose"], arrays["goal"], arrays["assignment"], arrays["step"])
         for entry, value in zip(metrics["steps"], over):
             entry["assignment_over_optimum_m2"] = value
-    write_json(run_dir / "metrics.json", metrics)
-    if metrics_extra.get("complete") is False:
-        why = [metrics_extra.get("end_reason") or "incomplete", metrics_extra.get("startup_failure")]
-        (run_dir / INCOMPLETE).write_text("".join(f"{line}\n" for line in why if line))
-    write_trajectory(run_dir / "trajectory.npz", arrays, radius)
-    # the renderers are imported only where used: they load matplotlib, OpenCV and PyAV
-    if len(t) and plots:
-        from sim.outputs.render import write_plots
+    return metrics
 
-        write_plots(run_dir.path, recording_of(scene, arrays, radius), clearance)
-    if len(t) and video:
-        from sim.outputs.render import frame_indices, held_frames, video_size, write_video
 
-        formed = metrics.get("time_to_converge_s")
-        size = video_size(scene.arena, radius)
-        speed = video_speed(len(frame_indices(t, 10, max_frames=0)), size) or 1.0
-        idx = held_frames(t, None if formed is None else float(t[0]) + formed, speed=speed)
-        try:
-            # the frames are chosen: real time (or faster, :func:`video_speed`), and the final picture held
-            shown = recording_of(scene, arrays, radius, idx)
-            write_video(run_dir / "display.mp4", shown, size_px=size, speed=None, max_frames=0)
-        except RuntimeError as err:  # no encoder here: the run's data matter more than its video
-            print(f"pixelswarm: warning: no display.mp4: {err}", file=sys.stderr)
-    save_resolved(scene, run_dir.path, robot=params.to_dict())  # scene.json, goal_sets.npz
-    shutil.rmtree(run_dir / SCRATCH, ignore_errors=True)  # a streamed recording's raw files (sim.outputs.stream)
-    return run_dir.commit()
+def _mark_incomplete(run_dir: RunDir, extra: dict[str, Any]) -> None:
+    """The INCOMPLETE marker, holding why the run ended early (and why it failed to start, if it did)."""
+    why = [extra.get("end_reason") or "incomplete", extra.get("startup_failure")]
+    (run_dir / INCOMPLETE).write_text("".join(f"{line}\n" for line in why if line))
+
+
+def _write_display_video(
+    run_dir: RunDir, scene: Scene, arrays: dict[str, Any], radius: np.ndarray, formed: float | None
+) -> None:
+    """display.mp4: frames at real time (or faster, :func:`video_speed`), the final picture held once
+    the display ``formed`` (s from the start; None: it never did). No encoder here: a warning."""
+    from sim.outputs.render import frame_indices, held_frames, video_size, write_video
+
+    t = arrays["t"]
+    size = video_size(scene.arena, radius)
+    speed = video_speed(len(frame_indices(t, 10, max_frames=0)), size) or 1.0
+    idx = held_frames(t, None if formed is None else float(t[0]) + formed, speed=speed)
+    try:
+        shown = recording_of(scene, arrays, radius, idx)
+        write_video(run_dir / "display.mp4", shown, size_px=size, speed=None, max_frames=0)
+    except RuntimeError as err:  # no encoder here: the run's data matter more than its video
+        print(f"pixelswarm: warning: no display.mp4: {err}", file=sys.stderr)
