@@ -389,26 +389,13 @@ def summarise(
     Non-finite floats (e.g. ``min_clearance_m`` with one robot) are left as inf/NaN here;
     :func:`sim.outputs.rundir.write_json` writes them as null.
     """
-    traffic = traffic or Traffic()
-    t, goal, tolerance, clearance = record.t, record.goal, record.tolerance, record.clearance
-    t = np.asarray(t, dtype=float)
+    t = np.asarray(record.t, dtype=float)
     # read a piece at a time below: the poses may be on disk (sim.outputs.stream)
     pose = record.pose if hasattr(record.pose, "shape") else np.asarray(record.pose, dtype=float)
     T, N = _pose_shape(pose)
     if t.shape != (T,):
         raise ValueError(f"t has shape {t.shape}, pose {np.shape(pose)}")
-    r = _radius(record.radius, N)
-    clr = clearance_over_time(pose, r) if clearance is None else np.asarray(clearance, dtype=float)
     duration = float(t[-1] - t[0]) if T else 0.0
-
-    min_clear, min_clear_t = _least_clearance(t, clr)
-    max_overlap = max(0.0, -min_clear) if np.isfinite(min_clear) else 0.0
-
-    ttc = None
-    if goal is not None:
-        ttc_abs = time_to_converge(t, pose, goal, tolerance)
-        ttc = None if ttc_abs is None else float(ttc_abs - t[0])
-
     wall_s = float(wall_s)
     out: dict[str, Any] = {
         "robots": int(N),
@@ -416,29 +403,60 @@ def summarise(
         "duration_s": duration,
         "wall_s": wall_s,
         "realtime_factor": (duration / wall_s) if wall_s > 0 else None,
-        "min_clearance_m": min_clear,
-        "min_clearance_at_s": min_clear_t,
-        "contacts": int(contacts),
-        "max_overlap_m": float(max_overlap),
-        "converged": ttc is not None,
-        "time_to_converge_s": ttc,
-        "convergence_tolerance_m": float(tolerance) if goal is not None else None,
+        **_closeness(record, t, pose, N, contacts),
+        **_convergence(record, t, pose),
         "path_length_m": path_lengths(pose).tolist(),
-        "messages_per_robot_s": _per_robot_second(traffic.counts, N, duration),
-        "bytes_per_robot_s": _per_robot_second(traffic.bytes, N, duration),
-        "messages_total": {str(k): int(v) for k, v in traffic.counts.items()},
-        "bytes_total": {str(k): int(v) for k, v in traffic.bytes.items()},
-        "missed_ticks": int(traffic.missed_ticks),
-        "agents_crashed": int(traffic.agents_crashed),
+        **_bus_traffic(traffic or Traffic(), N, duration),
     }
-    if record.steps is not None and goal is not None:
+    if record.steps is not None and record.goal is not None:
         steps = record.steps
-        out["steps"] = step_metrics(t, pose, goal, steps.step, tolerance, steps.current, steps.members)
+        out["steps"] = step_metrics(t, pose, record.goal, steps.step, record.tolerance, steps.current, steps.members)
     clash = set(extra) & set(out)
     if clash:
         raise ValueError(f"summarise: extra keys would replace computed ones: {sorted(clash)}")
     out.update(extra)
     return out
+
+
+def _closeness(record: TrueRecord, t: np.ndarray, pose: Any, robots: int, contacts: int) -> dict[str, Any]:
+    """How close the robots came: the least clearance and when, the contact events, the deepest overlap."""
+    r = _radius(record.radius, robots)
+    clearance = record.clearance
+    clr = clearance_over_time(pose, r) if clearance is None else np.asarray(clearance, dtype=float)
+    min_clear, min_clear_t = _least_clearance(t, clr)
+    max_overlap = max(0.0, -min_clear) if np.isfinite(min_clear) else 0.0
+    return {
+        "min_clearance_m": min_clear,
+        "min_clearance_at_s": min_clear_t,
+        "contacts": int(contacts),
+        "max_overlap_m": float(max_overlap),
+    }
+
+
+def _convergence(record: TrueRecord, t: np.ndarray, pose: Any) -> dict[str, Any]:
+    """Whether and when (s from the start) every robot held its goal, and the tolerance it was held to."""
+    goal, tolerance = record.goal, record.tolerance
+    ttc = None
+    if goal is not None:
+        ttc_abs = time_to_converge(t, pose, goal, tolerance)
+        ttc = None if ttc_abs is None else float(ttc_abs - t[0])
+    return {
+        "converged": ttc is not None,
+        "time_to_converge_s": ttc,
+        "convergence_tolerance_m": float(tolerance) if goal is not None else None,
+    }
+
+
+def _bus_traffic(traffic: Traffic, robots: int, duration_s: float) -> dict[str, Any]:
+    """What crossed the bus: per robot and second, in total, and the ticks missed and agents crashed."""
+    return {
+        "messages_per_robot_s": _per_robot_second(traffic.counts, robots, duration_s),
+        "bytes_per_robot_s": _per_robot_second(traffic.bytes, robots, duration_s),
+        "messages_total": {str(k): int(v) for k, v in traffic.counts.items()},
+        "bytes_total": {str(k): int(v) for k, v in traffic.bytes.items()},
+        "missed_ticks": int(traffic.missed_ticks),
+        "agents_crashed": int(traffic.agents_crashed),
+    }
 
 
 def keyframe_errors(
