@@ -178,7 +178,9 @@ def _checked_bodies(bodies: Sequence[Body], poses: np.ndarray) -> tuple[list[Bod
 
 
 class World:
-    """N disc robots in a plane with optional arena walls and polygon obstacles; see the module doc."""
+    """N disc robots in a plane with optional arena walls and polygon obstacles; see the module doc.
+    Its parts: the bodies' limits (here), the held actuation noise (_HeldNoise), what steps change
+    (_Motion) and the contacts and clearance (_ContactWatch)."""
 
     def __init__(
         self,
@@ -194,47 +196,33 @@ class World:
         noise_rel = _non_negative("actuation noise", noise.relative)
         noise_abs = _non_negative("absolute actuation noise", noise.absolute)
         self._substep = _positive("substep", substep)
-        self._noise_period = _positive("noise period", noise.period)
-        self._noise = np.zeros((len(bodies), 4))
-        self._noise_index: int | None = None  # the noise period self._noise belongs to
+        noise_period = _positive("noise period", noise.period)
         seed = noise.seed
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise ValueError(f"seed must be a non-negative integer, not {seed!r}")
-        self._arena = make_arena(arena)
-        self._obstacles: list[Polygon] = [make_polygon(v, k) for k, v in enumerate(obstacles)]
-        self._obstacle_bounds = np.array([o.bounds for o in self._obstacles], dtype=float).reshape(-1, 4)
+        arena = make_arena(arena)
+        polygons = [make_polygon(v, k) for k, v in enumerate(obstacles)]
 
         self._bodies = tuple(bodies)
         self._n = n = len(bodies)
         self._is_diff = np.array([b.kinematics == DIFFDRIVE for b in bodies])
-        self._radius = np.array([b.radius for b in bodies], dtype=float)
+        radius = np.array([b.radius for b in bodies], dtype=float)
         self._v_max = np.array([b.v_max for b in bodies], dtype=float)
         wheel_base = np.array([b.wheel_base for b in bodies], dtype=float)
         omega_max = np.array([b.omega_max for b in bodies], dtype=float)
-        self._r_max = float(self._radius.max())
         self._bodies_c = Bodies(self._v_max, self._is_diff, wheel_base, omega_max, noise_rel, noise_abs)
 
-        self._rng = np.random.default_rng(int(seed))
-        self._pos = p[:, :2].copy()
-        self._theta = wrap_angle(p[:, 2])
-        self._cmd = np.zeros((n, 2))
-        self._vel = np.zeros((n, 2))
-        self._path = np.zeros(n)
-        self._n_cmd = np.zeros(n, dtype=np.int64)
-        self._t_sum = 0.0  # time, kept as a compensated (Neumaier) sum: ten steps of 0.1 s give 1.0
-        self._t_comp = 0.0
-        self._contacts: list[Contact] = []
-        self._active: dict[tuple[str, int, int], Contact] = {}
-        self._min_clearance = math.inf
+        self._noise = _HeldNoise(n, noise_period, int(seed))
+        self._m = _Motion.at_rest(p)
+        self._watch = _ContactWatch(radius, arena, polygons)
         self._step_min_clearance = math.inf
         self._check_start = False
-        self._closest: tuple[int, int] | None = None  # the pair closest during the last step
         self.last_substeps = 0  # number of substeps the last step() ran
         self._unchecked: tuple | None = None  # a step whose contacts are not yet detected (step(check=False))
         self._checked = 0  # steps checked for contacts (restore() cannot undo a checked one)
 
         # the initial state: contacts at t = 0 and the initial clearance
-        self._step_min_clearance = self._detect(self._pos[None], np.zeros(1), 0.0, first_row=0)[1]
+        self._step_min_clearance = self._watch.detect(self._m.pos[None], np.zeros(1), 0.0, first_row=0)[1]
 
     # ---------------------------------------------------------------- construction helpers
 
@@ -256,15 +244,15 @@ class World:
 
     @property
     def radii(self) -> np.ndarray:
-        return self._radius.copy()
+        return self._watch.radius.copy()
 
     @property
     def arena(self) -> tuple[float, float, float, float] | None:
-        return self._arena
+        return self._watch.arena
 
     @property
     def obstacles(self) -> list[Polygon]:
-        return list(self._obstacles)
+        return list(self._watch.obstacles)
 
     @property
     def substep(self) -> float:
@@ -274,36 +262,36 @@ class World:
     @property
     def poses(self) -> np.ndarray:
         """(N, 3) x, y, theta (theta in [-pi, pi)); a copy."""
-        return np.column_stack((self._pos, self._theta))
+        return np.column_stack((self._m.pos, self._m.theta))
 
     @property
     def velocities(self) -> np.ndarray:
         """(N, 2) world-frame velocity achieved over the last substep (displacement / substep); a copy."""
-        return self._vel.copy()
+        return self._m.vel.copy()
 
     @property
     def commands(self) -> np.ndarray:
         """(N, 2) current commands after clipping to the limits; a copy."""
-        return self._cmd.copy()
+        return self._m.cmd.copy()
 
     @property
     def time(self) -> float:
-        return self._t_sum + self._t_comp
+        return self._m.time
 
     @property
     def path_length(self) -> np.ndarray:
         """(N,) distance travelled along the path (arc length), teleports excluded; a copy."""
-        return self._path.copy()
+        return self._m.path.copy()
 
     @property
     def commands_applied(self) -> np.ndarray:
         """(N,) number of set_command calls per robot; a copy."""
-        return self._n_cmd.copy()
+        return self._m.n_cmd.copy()
 
     @property
     def min_clearance(self) -> float:
         self.check()
-        return self._min_clearance
+        return self._watch.min_clearance
 
     def step_min_clearance(self) -> float:
         """Minimum robot-robot clearance over the states of the last step (before any step: t = 0)."""
@@ -314,13 +302,13 @@ class World:
     def contacts(self) -> list[Contact]:
         """Every contact event so far, in order of start (a new list of the live event objects)."""
         self.check()
-        return list(self._contacts)
+        return list(self._watch.events)
 
     @property
     def active_contacts(self) -> list[Contact]:
         """The ongoing contact events."""
         self.check()
-        return sorted(self._active.values(), key=_contact_order)
+        return sorted(self._watch.active.values(), key=_contact_order)
 
     # ---------------------------------------------------------------- inputs
 
@@ -345,8 +333,8 @@ class World:
             norm = math.hypot(a, b)
             if norm > vmax:
                 a, b = a * vmax / norm, b * vmax / norm
-        self._cmd[i] = (a, b)
-        self._n_cmd[i] += 1
+        self._m.cmd[i] = (a, b)
+        self._m.n_cmd[i] += 1
 
     def set_commands(self, commands: np.ndarray) -> None:
         """Every robot's command at once, (N, 2) with rows as ``set_command`` takes them, clipped the
@@ -355,12 +343,12 @@ class World:
         c, bad = limit(self._bodies_c, commands)
         if bad >= 0:
             raise ValueError(f"command for robot {bad} must be finite, not {tuple(c[bad])}")
-        self._cmd[:] = c
-        self._n_cmd += 1
+        self._m.cmd[:] = c
+        self._m.n_cmd += 1
 
     def stop(self, i: int) -> None:
         """Zero robot i's command (e.g. its agent crashed); it stays zero until the next set_command."""
-        self._cmd[self._index(i)] = 0.0
+        self._m.cmd[self._index(i)] = 0.0
 
     def teleport(self, i: int, pose: tuple[float, float, float]) -> None:
         """Move robot i to pose (x, y, theta) as if picked up by hand: velocity zero, no path length."""
@@ -371,31 +359,16 @@ class World:
             raise ValueError(f"teleport pose must be three numbers (x, y, theta), not {pose!r}") from None
         if not all(math.isfinite(v) for v in (x, y, th)):
             raise ValueError(f"teleport pose must be finite, not {pose!r}")
-        self._pos[i] = (x, y)
-        self._theta[i] = wrap_angle(th)
-        self._vel[i] = 0.0
+        self._m.pos[i] = (x, y)
+        self._m.theta[i] = wrap_angle(th)
+        self._m.vel[i] = 0.0
         self._check_start = True
 
     def snapshot(self) -> tuple:
         """The state that steps, commands and teleports change, for `restore` (the contacts so far
         are checked first; they are not part of it)."""
         self.check()
-        return (
-            self._checked,
-            self._pos.copy(),
-            self._theta.copy(),
-            self._vel.copy(),
-            self._path.copy(),
-            self._cmd.copy(),
-            self._n_cmd.copy(),
-            self._noise.copy(),
-            self._noise_index,
-            self._rng.bit_generator.state,
-            self._t_sum,
-            self._t_comp,
-            self._check_start,
-            self.last_substeps,
-        )
+        return (self._checked, self._m.copy(), self._noise.saved(), self._check_start, self.last_substeps)
 
     def restore(self, saved: tuple) -> None:
         """Back to a `snapshot`, as if nothing had happened since: the central engine steps the
@@ -404,24 +377,9 @@ class World:
         ``check=False`` and nothing that reads contacts or clearance)."""
         if saved[0] != self._checked:
             raise ValueError("cannot restore: contacts were checked since the snapshot")
-        (
-            _,
-            pos,
-            theta,
-            vel,
-            path,
-            cmd,
-            n_cmd,
-            noise,
-            self._noise_index,
-            self._rng.bit_generator.state,
-            self._t_sum,
-            self._t_comp,
-            self._check_start,
-            self.last_substeps,
-        ) = saved
-        self._pos, self._theta, self._vel, self._path = pos.copy(), theta.copy(), vel.copy(), path.copy()
-        self._cmd, self._n_cmd, self._noise = cmd.copy(), n_cmd.copy(), noise.copy()
+        _, motion, noise, self._check_start, self.last_substeps = saved
+        self._m = motion.copy()
+        self._noise.restore(noise)
         self._unchecked = None
 
     # ---------------------------------------------------------------- dynamics
@@ -436,12 +394,13 @@ class World:
         k = max(1, math.ceil(dt / self._substep - 1e-9))
         h = dt / k
         tk = np.linspace(0.0, dt, k + 1)  # substep times relative to the start of the step
-        t0 = self.time
+        m = self._m
+        t0 = m.time
 
-        index, bounds = self._actuation_segments(t0, dt)
-        eps = 1e-9 * self._noise_period
+        index, bounds = self._noise.segments(t0, dt)
+        eps = 1e-9 * self._noise.period
 
-        pos, theta = self._pos.copy(), self._theta.copy()
+        pos, theta = m.pos.copy(), m.theta.copy()
         traj = np.empty((k + 1, self._n, 2))
         traj[0] = pos
         ends = np.empty((1, self._n, 2))
@@ -449,8 +408,8 @@ class World:
         row = 1
         for seg, (sa, sb) in enumerate(zip(bounds[:-1], bounds[1:])):
             if seg:
-                self._draw_noise(index + seg)  # the period after the last segment's
-            moving = actuate(self._bodies_c, self._cmd, self._noise, theta)
+                self._noise.draw(index + seg)  # the period after the last segment's
+            moving = actuate(self._bodies_c, m.cmd, self._noise.values, theta)
             end = k + 1 if seg == len(bounds) - 2 else int(np.searchsorted(tk, sb + eps, side="right"))
             length = sb - sa
             drive(moving, 0.0, tk[row:end] - sa, pos, traj[row:end])  # the substeps in the segment
@@ -459,41 +418,26 @@ class World:
             pos = ends[0].copy()
             speed, omega = np.abs(moving[:, 0]), moving[:, 3]
             theta = theta + omega * length
-            self._path += speed * length
+            m.path += speed * length
             motion += float(speed.max()) * length
 
-        self._advance_time(dt)
+        m.advance(dt)
         times = t0 + tk
-        times[-1] = self.time
+        times[-1] = m.time
         self._unchecked = (traj, times, motion * (1.0 + 1e-9), 0 if self._check_start else 1)
 
         # velocity: the chord of the last substep, computed directly (no cancellation) if it lies in
         # the last segment
         if dt - h >= bounds[-2] - eps:
             drive(moving, dt - h - bounds[-2], np.array([h]), np.zeros((self._n, 2)), ends)
-            self._vel = ends[0] / h
+            m.vel = ends[0] / h
         else:
-            self._vel = (traj[k] - traj[k - 1]) / h
-        self._pos = traj[k].copy()
-        self._theta = wrap_angle(theta)
+            m.vel = (traj[k] - traj[k - 1]) / h
+        m.pos = traj[k].copy()
+        m.theta = wrap_angle(theta)
         self._check_start = False
         self.last_substeps = k
         return before + (self.check() if check else [])
-
-    def _actuation_segments(self, t0: float, dt: float) -> tuple[int, list[float]]:
-        """The step's segments of constant actuation, split where a new noise period starts inside
-        it: the noise period at its start (its noise drawn) and the segments' bounds (s from t0)."""
-        period = self._noise_period
-        eps = 1e-9 * period
-        index = math.floor((t0 + eps) / period)
-        if index != self._noise_index:
-            self._draw_noise(index)
-        cuts = []
-        boundary = (index + 1) * period
-        while boundary < t0 + dt - eps:
-            cuts.append(boundary - t0)
-            boundary += period
-        return index, [0.0, *cuts, dt]
 
     def check(self) -> list[Contact]:
         """Detect the contacts of a step run with ``check=False``; the contact events that started
@@ -503,74 +447,170 @@ class World:
         traj, times, motion, first_row = self._unchecked
         self._unchecked = None
         self._checked += 1
-        started, self._step_min_clearance = self._detect(traj, times, motion, first_row)
+        started, self._step_min_clearance = self._watch.detect(traj, times, motion, first_row)
         return started
 
-    def _draw_noise(self, index: int) -> None:
-        self._noise = self._rng.standard_normal((self._n, 4))
-        self._noise_index = index
 
-    def _advance_time(self, dt: float) -> None:
-        s = self._t_sum
+class _HeldNoise:
+    """The actuation noise of the module's text: an (N, 4) standard-normal draw from the world's own
+    generator on entering each ``period`` of world time, held for the period whatever the commands."""
+
+    def __init__(self, robots: int, period: float, seed: int) -> None:
+        self.period = period
+        self.values = np.zeros((robots, 4))
+        self.index: int | None = None  # the noise period self.values belongs to
+        self.rng = np.random.default_rng(seed)
+
+    def draw(self, index: int) -> None:
+        self.values = self.rng.standard_normal((len(self.values), 4))
+        self.index = index
+
+    def segments(self, t0: float, dt: float) -> tuple[int, list[float]]:
+        """A step's segments of constant actuation, split where a new noise period starts inside it:
+        the noise period at its start (its noise drawn) and the segments' bounds (s from t0)."""
+        period = self.period
+        eps = 1e-9 * period
+        index = math.floor((t0 + eps) / period)
+        if index != self.index:
+            self.draw(index)
+        cuts = []
+        boundary = (index + 1) * period
+        while boundary < t0 + dt - eps:
+            cuts.append(boundary - t0)
+            boundary += period
+        return index, [0.0, *cuts, dt]
+
+    def saved(self) -> tuple:
+        return self.values.copy(), self.index, self.rng.bit_generator.state
+
+    def restore(self, saved: tuple) -> None:
+        values, self.index, self.rng.bit_generator.state = saved
+        self.values = values.copy()
+
+
+@dataclass
+class _Motion:
+    """What steps, commands and teleports change (a snapshot's part): positions, headings, the
+    commands and how many were applied, the last substep's velocities, path lengths, and the time."""
+
+    pos: np.ndarray  # (N, 2)
+    theta: np.ndarray  # (N,) in [-pi, pi)
+    cmd: np.ndarray  # (N, 2) after clipping to the limits
+    vel: np.ndarray  # (N, 2)
+    path: np.ndarray  # (N,) arc length, teleports excluded
+    n_cmd: np.ndarray  # (N,) set_command calls
+    t_sum: float = 0.0  # time, kept as a compensated (Neumaier) sum: ten steps of 0.1 s give 1.0
+    t_comp: float = 0.0
+
+    @classmethod
+    def at_rest(cls, poses: np.ndarray) -> _Motion:
+        n = len(poses)
+        zeros = np.zeros((n, 2))
+        return cls(
+            poses[:, :2].copy(), wrap_angle(poses[:, 2]), zeros, zeros.copy(), np.zeros(n), np.zeros(n, np.int64)
+        )
+
+    @property
+    def time(self) -> float:
+        return self.t_sum + self.t_comp
+
+    def advance(self, dt: float) -> None:
+        s = self.t_sum
         t = s + dt
         if abs(s) >= abs(dt):
-            self._t_comp += (s - t) + dt
+            self.t_comp += (s - t) + dt
         else:
-            self._t_comp += (dt - t) + s
-        self._t_sum = t
+            self.t_comp += (dt - t) + s
+        self.t_sum = t
 
-    # ---------------------------------------------------------------- contacts
+    def copy(self) -> _Motion:
+        return _Motion(
+            self.pos.copy(),
+            self.theta.copy(),
+            self.cmd.copy(),
+            self.vel.copy(),
+            self.path.copy(),
+            self.n_cmd.copy(),
+            self.t_sum,
+            self.t_comp,
+        )
 
-    def _detect(
-        self, traj: np.ndarray, times: np.ndarray, motion: float, first_row: int
-    ) -> tuple[list[Contact], float]:
+
+class _ContactWatch:
+    """Contacts recorded, never resolved (the module's text): the robots' discs against each other,
+    the arena's walls and the obstacles over a step's substep states; every event so far, the ongoing
+    ones, the smallest clearance so far, and the pair closest in the last step (where the next
+    step's search starts)."""
+
+    def __init__(
+        self, radius: np.ndarray, arena: tuple[float, float, float, float] | None, obstacles: list[Polygon]
+    ) -> None:
+        self.radius, self.r_max, self.n = radius, float(radius.max()), len(radius)
+        self.arena, self.obstacles = arena, obstacles
+        self.obstacle_bounds = np.array([o.bounds for o in obstacles], dtype=float).reshape(-1, 4)
+        self.events: list[Contact] = []
+        self.active: dict[tuple[str, int, int], Contact] = {}
+        self.min_clearance = math.inf
+        self.closest: tuple[int, int] | None = None  # the pair closest during the last step
+
+    def detect(self, traj: np.ndarray, times: np.ndarray, motion: float, first_row: int) -> tuple[list[Contact], float]:
         """Contacts and clearance over the states traj (rows, N, 2) at times (rows,).
 
         ``motion`` bounds how far any robot is from traj[0] in any row. Rows before ``first_row`` count
         for the clearance but not for contact events (they were checked at the end of the last step).
         """
-        r = self._radius
         groups: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]] = []  # kind, i, j, depth (rows, H)
         step_min = math.inf
 
         # robot-robot: the pairs within a search radius of each other at the start of the step
-        if self._n >= 2:
+        if self.n >= 2:
             step_min, closest, ii, jj, depth = self._robot_pairs(traj, motion, first_row)
-            self._closest = closest
+            self.closest = closest
             if ii.size:
                 groups.append(("robot", ii, jj, depth))
-
         rows = traj[first_row:]
-        # walls: only robots that start within r + motion of one can reach it
-        if self._arena is not None and rows.shape[0]:
-            xmin, ymin, xmax, ymax = self._arena
-            x, y = traj[0, :, 0], traj[0, :, 1]
-            reach = r + motion + 1e-9
-            near = np.flatnonzero((x - xmin < reach) | (xmax - x < reach) | (y - ymin < reach) | (ymax - y < reach))
-            if near.size:
-                depth = r[near] - rect_signed_distance(rows[:, near], self._arena)  # (rows, near)
-                hit = np.flatnonzero(np.any(depth > 0.0, axis=0))
-                if hit.size:
-                    groups.append(("wall", near[hit], np.full(hit.size, -1), depth[:, hit]))
-
-        # obstacles: only robots whose swept disc may reach the obstacle's bounding box
-        if self._obstacles and rows.shape[0]:
-            reach = r + motion + 1e-9
-            p0 = traj[0]
-            for o, (poly, (x0, y0, x1, y1)) in enumerate(zip(self._obstacles, self._obstacle_bounds)):
-                x, y = p0[:, 0], p0[:, 1]
-                near = np.flatnonzero((x > x0 - reach) & (x < x1 + reach) & (y > y0 - reach) & (y < y1 + reach))
-                if near.size == 0:
-                    continue
-                sd = polygon_signed_distance(poly, rows[:, near].reshape(-1, 2))
-                sd = sd.reshape(rows.shape[0], near.size)
-                depth = r[near] - sd
-                hit = np.flatnonzero(np.any(depth > 0.0, axis=0))
-                if hit.size:
-                    groups.append(("obstacle", near[hit], np.full(hit.size, o), depth[:, hit]))
-
-        self._min_clearance = min(self._min_clearance, step_min)
+        if rows.shape[0]:
+            groups += self._wall_overlaps(traj[0], rows, motion)
+            groups += self._obstacle_overlaps(traj[0], rows, motion)
+        self.min_clearance = min(self.min_clearance, step_min)
         return self._update_events(groups, times[first_row:]), step_min
+
+    def _wall_overlaps(
+        self, start: np.ndarray, rows: np.ndarray, motion: float
+    ) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]:
+        """The robots over a wall in any row: only robots that start within r + motion of one can reach it."""
+        if self.arena is None:
+            return []
+        r = self.radius
+        xmin, ymin, xmax, ymax = self.arena
+        x, y = start[:, 0], start[:, 1]
+        reach = r + motion + 1e-9
+        near = np.flatnonzero((x - xmin < reach) | (xmax - x < reach) | (y - ymin < reach) | (ymax - y < reach))
+        if not near.size:
+            return []
+        depth = r[near] - rect_signed_distance(rows[:, near], self.arena)  # (rows, near)
+        hit = np.flatnonzero(np.any(depth > 0.0, axis=0))
+        return [("wall", near[hit], np.full(hit.size, -1), depth[:, hit])] if hit.size else []
+
+    def _obstacle_overlaps(
+        self, start: np.ndarray, rows: np.ndarray, motion: float
+    ) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]:
+        """The robots over an obstacle in any row: only robots whose swept disc may reach its bounding box."""
+        out: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]] = []
+        r = self.radius
+        reach = r + motion + 1e-9
+        for o, (poly, (x0, y0, x1, y1)) in enumerate(zip(self.obstacles, self.obstacle_bounds)):
+            x, y = start[:, 0], start[:, 1]
+            near = np.flatnonzero((x > x0 - reach) & (x < x1 + reach) & (y > y0 - reach) & (y < y1 + reach))
+            if near.size == 0:
+                continue
+            sd = polygon_signed_distance(poly, rows[:, near].reshape(-1, 2))
+            sd = sd.reshape(rows.shape[0], near.size)
+            depth = r[near] - sd
+            hit = np.flatnonzero(np.any(depth > 0.0, axis=0))
+            if hit.size:
+                out.append(("obstacle", near[hit], np.full(hit.size, o), depth[:, hit]))
+        return out
 
     def _robot_pairs(
         self, traj: np.ndarray, motion: float, first_row: int
@@ -578,20 +618,20 @@ class World:
         """The smallest robot-robot clearance over the rows, a pair that has it, and the overlapping
         pairs (i, j, depth (rows - first_row, H)), exactly: every pair that can overlap or be the
         closest is searched (sim.bodies.proximity.close_pairs)."""
-        r = self._radius
-        base = 2.0 * self._r_max + 2.0 * motion  # any pair that can overlap is within this
+        r = self.radius
+        base = 2.0 * self.r_max + 2.0 * motion  # any pair that can overlap is within this
         base += 1e-9 * (1.0 + base)
         found = None
-        if self._closest is not None:
+        if self.closest is not None:
             # the clearance, in row 0, of the pair closest in the last step bounds this step's
             # minimum: no pair farther than that + base can beat it. If that pair has drifted far
             # apart (a teleport) while others are close, this looks at too many pairs: given up
-            a, b = self._closest
+            a, b = self.closest
             upper = math.hypot(*(traj[0, a] - traj[0, b])) - r[a] - r[b]
-            found = close_pairs(traj, r, max(upper, 0.0) + base, motion, first_row, bound=upper, budget=64 * self._n)
+            found = close_pairs(traj, r, max(upper, 0.0) + base, motion, first_row, bound=upper, budget=64 * self.n)
         if found is None:
             # pairs beyond base + margin keep a clearance above margin in every row
-            margin = 0.5 * self._r_max
+            margin = 0.5 * self.r_max
             found = close_pairs(traj, r, base + margin, motion, first_row)
             assert found is not None  # without a budget the search is never given up
             if not found[0] < margin:
@@ -608,7 +648,7 @@ class World:
     ) -> list[Contact]:
         """Start, extend and end contact events from the overlap depths (positive = overlap) per row."""
         started: list[Contact] = []
-        active = self._active
+        active = self.active
         seen: set[tuple[str, int, int]] = set()
         t_list = times.tolist()
         for kind, ii, jj, depth in groups:
@@ -642,7 +682,7 @@ class World:
             for key in [k for k in active if k not in seen]:  # no overlap in any row: ended at the first
                 active.pop(key).t_end = t_list[0]
         started.sort(key=_contact_order)
-        self._contacts.extend(started)
+        self.events.extend(started)
         return started
 
 
