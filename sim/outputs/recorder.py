@@ -126,138 +126,379 @@ class Trajectory:
 RECORD_AHEAD = 25 * AHEAD  # ticks a state may come before the world's truth of its tick reaches the recorder
 
 
+@dataclass
+class RobotsSaid:
+    """What each robot said in its newest state: its goal (NaN: none) and the goal's index, the goal
+    set (epoch) and auction instance that agreed it, its radius (NaN until it says), and that state's
+    tick. What a tick records of the robots is a copy of these."""
+
+    goal: np.ndarray
+    goal_index: np.ndarray
+    assign_epoch: np.ndarray
+    assign_instance: np.ndarray
+    radius: np.ndarray
+    state_tick: np.ndarray
+
+    @classmethod
+    def nothing_yet(cls, robots: int) -> RobotsSaid:
+        return cls(
+            goal=np.full((robots, 2), np.nan),
+            goal_index=np.full(robots, -1),
+            assign_epoch=np.zeros(robots, np.int64),
+            assign_instance=np.zeros(robots, np.int64),
+            radius=np.full(robots, np.nan),
+            state_tick=np.full(robots, np.iinfo(np.int64).min),
+        )
+
+
+@dataclass
+class GoalSetsHeard:
+    """The coordinator's goal sets as the swarm believed them: judged as the robots judge them
+    (transport.plausible), so a faulty peer's copies do not end up in the measurement; every
+    epoch's, the newest (read from zenoh's threads) and the scene step it shows."""
+
+    believed: GoalSets = field(default_factory=lambda: GoalSets(newest=0))  # it starts with the run
+    by_epoch: dict[int, Goals] = field(default_factory=dict)
+    newest: Goals | None = None  # the goal set of the highest epoch
+    step: int = 0  # the scene step of the newest goal set
+
+
+@dataclass
+class WorldHeard:
+    """What the world's truth messages told beside the trajectory: its newest tick, its control
+    period (once a tick after the first told it), each tick's row, the least clearance so far."""
+
+    latest_tick: int = -1
+    dt: float = 0.0
+    row_of_tick: dict[int, int] = field(default_factory=dict)
+    least_clearance: float = np.inf
+
+
+@dataclass
+class BusTally:
+    """What crossed the bus: messages and bytes per kind, commands (a frame holds one robot's or a
+    host's: counted by record), and messages dropped as they failed to decode."""
+
+    counts: dict[str, int] = field(default_factory=dict)
+    bytes: dict[str, int] = field(default_factory=dict)
+    commands: int = 0
+    drops: DropCounter = field(default_factory=DropCounter)
+
+
+@dataclass
+class RunEvents:
+    """What happened beside the ticks: the world's contact events, the run's events (as published)
+    and every process coming alive or going."""
+
+    contacts: list[Contact] = field(default_factory=list)
+    events: list[dict[str, Any]] = field(default_factory=list)
+    liveliness: list[dict[str, Any]] = field(default_factory=list)
+
+
+@dataclass
+class Convergence:
+    """Whether the display has converged (:func:`display_converged`) and since when, over the robots
+    whose agent is alive, and the tick the run ends with (``ends``: converged since, now -> end here)."""
+
+    tolerance: float
+    agent_alive: np.ndarray
+    converged_since: float | None = None
+    time_to_converge: float | None = None
+    ends: Callable[[float, float], bool] | None = None
+    ended_at: int | None = None  # ticks recorded when it ended (none recorded after)
+
+    def check(self, t: float, pose: np.ndarray, said: RobotsSaid, newest: Goals | None) -> None:
+        """Converged: every live robot has a goal and is within tolerance of it (true position)."""
+        if not self.agent_alive.any():
+            return
+        if display_converged(pose, said.goal, said.assign_epoch, self.agent_alive, newest, self.tolerance):
+            if self.converged_since is None:
+                self.converged_since = t
+                self.time_to_converge = t
+        else:
+            self.converged_since = None
+            self.time_to_converge = None
+
+
+class DisplayLog:
+    """The run's logs, written as it goes: every message on its kind's MCAP channel (the per-tick
+    kinds as protobuf every :attr:`every`-th tick), the display as Foxglove scenes, and every tick
+    in the tick log (sim.outputs.ticklog)."""
+
+    def __init__(self, robots: int, log_path: str | None, ticks_path: str | None) -> None:
+        self.n = robots
+        self.log = McapLog(log_path) if log_path else None
+        self.ticks = TickLog(ticks_path, robots) if ticks_path else None
+        self._flushed = time.monotonic()
+        self._channels: dict[str, int] = {}
+        self.every = max(1, -(-robots // LOG_ROBOTS))  # ticks
+        self.heading = True  # a heading arrow per robot in the scene: not for holonomic robots, which never turn
+        self._next_scene = -np.inf  # display time of the next scene message (above LOG_ROBOTS)
+        self._last_scene: bytes = b""  # the swarm's last scene message, but for its time
+
+    def json(self, kind: str, wall: float, payload: dict[str, Any]) -> None:
+        """One message on its kind's channel, as JSON (orjson: numpy arrays as lists, NaN and inf as
+        null; at 1000 robots json.dumps of every message took a fifth of the recorder's time)."""
+        if self.log is None:
+            return
+        cid = self._channels.get(kind)
+        if cid is None:
+            schema = json_schema_of(BY_NAME[kind]) if kind in BY_NAME else {"type": "object"}
+            name = BY_NAME[kind].__name__ if kind in BY_NAME else kind
+            cid = self._channels[kind] = self.log.add_channel("/" + kind, f"pixelswarm.{name}", schema)
+        self.log.write_bytes(
+            cid, int(wall * 1e9), orjson.dumps(payload, default=_as_list, option=orjson.OPT_SERIALIZE_NUMPY)
+        )
+
+    def proto(self, kind: str, wall: float, as_proto: LoggedKind, msg: Any, key: str, tick: int) -> None:
+        """A per-tick kind in its protobuf form (sim.outputs.logschema): its tables' numbers as the wire
+        has them, a fraction of their JSON's bytes; at the world's ``tick``, if a logged one."""
+        if self.log is None or tick % self.every:
+            return
+        cid = self._channels.get(kind)
+        if cid is None:
+            cid = self._channels[kind] = self.log.add_protobuf_channel(
+                "/" + kind, as_proto.name, as_proto.descriptor_set
+            )
+        self.log.write_bytes(cid, int(wall * 1e9), as_proto.encode(msg, key))
+
+    def _scene_channel(self, topic: str) -> int:
+        assert self.log is not None
+        cid = self._channels.get(topic)
+        if cid is None:
+            cid = self._channels[topic] = self.log.add_foxglove_channel(topic, SceneUpdate)
+        return cid
+
+    def scene(self, wall: float, m: Truth, radius: np.ndarray, goal: np.ndarray) -> None:
+        """The display at this tick for Foxglove's 3D panel (stamped, like every channel, with the
+        wall time it arrived, so the panels of one file play in step): every tick a robot an entity,
+        or above :data:`LOG_ROBOTS` robots the swarm's one entity every :data:`SCENE_PERIOD`."""
+        if self.log is None:
+            return
+        t_ns = int(wall * 1e9)
+        if self.n <= LOG_ROBOTS:
+            update = scene_update(t_ns, m.pose, radius, m.color, goal=goal, heading=self.heading)
+            self.log.write_bytes(self._scene_channel(SCENE_TOPIC), t_ns, update.encode())
+            return
+        if m.stamp < self._next_scene - 1e-9:
+            return
+        self._next_scene = (np.floor(m.stamp / SCENE_PERIOD + 1e-9) + 1) * SCENE_PERIOD
+        unstamped = swarm_scene(0, m.pose, radius, m.color)
+        if unstamped == self._last_scene:
+            return  # nothing moved: the newest message still shows it
+        self._last_scene = unstamped
+        self.log.write_bytes(self._scene_channel(SCENE_TOPIC), t_ns, swarm_scene(t_ns, m.pose, radius, m.color))
+
+    def goals(self, wall: float, g: Goals, radius: np.ndarray) -> None:
+        """A swarm's goal set as a sphere a goal in its colour (:func:`goal_markers`): once a set."""
+        if self.log is None or self.n <= LOG_ROBOTS:
+            return
+        known = radius[np.isfinite(radius)]
+        r = float(np.median(known)) if len(known) else 0.05  # before any state: a typical robot's
+        update = goal_markers(int(wall * 1e9), g.positions, g.colors, GOAL_DIAMETER * 2 * r)
+        self.log.write_bytes(self._scene_channel(GOALS_TOPIC), int(wall * 1e9), update)
+
+    def flush_now_and_then(self) -> None:
+        """Flush the MCAP log every :data:`FLUSH_EVERY` of wall time (a killed run keeps all but the last)."""
+        if self.log is not None and time.monotonic() - self._flushed >= FLUSH_EVERY:
+            self.log.flush()
+            self._flushed = time.monotonic()
+
+    def close(self) -> None:
+        if self.log is not None:
+            self.log.close()
+        if self.ticks is not None:
+            self.ticks.close()
+
+
 class Recorder:
+    """The run's record from the bus, in parts with one job each: the trajectory (what each tick
+    records), what the robots said (:class:`RobotsSaid`), the goal sets heard, what the world's truth
+    told (:class:`WorldHeard`), the bids' positions, the bus tally, the run's events, convergence, and
+    the logs written as it goes (:class:`DisplayLog`). The launcher reads them by the names below."""
+
     def __init__(
         self, bus: Bus, robots: int, tolerance: float, log_path: str | None = None, ticks_path: str | None = None
     ) -> None:
         """``log_path``: the MCAP log; ``ticks_path``: every tick as it is recorded (sim.outputs.ticklog).
         Both are written as the run goes, so a run killed outright leaves them readable."""
-        self.bus, self.keys, self.n = bus, bus.keys, robots
-        self.tolerance = tolerance
+        self.bus, self.n = bus, robots
         self.raw = bus.subscribe_raw(bus.keys.everything)
         self.alive = bus.watch_alive()
         self.traj = Trajectory()
-        self.goal = np.full((robots, 2), np.nan)
-        self.radius = np.full(robots, np.nan)  # as each robot announces it in its state
-        self.goal_index = np.full(robots, -1)
-        self.assign_epoch = np.zeros(robots, np.int64)
-        self.assign_instance = np.zeros(robots, np.int64)
-        self.state_tick = np.full(robots, np.iinfo(np.int64).min)  # the tick of each robot's newest state
-        self.latest_tick = -1  # the world's newest tick (its truth)
-        self.dt = 0.0  # the control period, once the world's truth has told it
-        # The record is what the swarm believed: goal sets and states judged as the robots judge them
-        # (transport.plausible), so a faulty peer's copies do not end up in the measurement.
-        self.believed = GoalSets(newest=0)  # it starts with the run
-        self.row_of_tick: dict[int, int] = {}  # tick -> its row of the trajectory
-        self.step = 0  # the scene step of the newest goal set
-        self.goal_sets: dict[int, Goals] = {}  # epoch -> the coordinator's goal set
-        self.newest_goals: Goals | None = None  # the goal set of the highest epoch (read from zenoh's threads)
+        self.said = RobotsSaid.nothing_yet(robots)  # as each robot announces it in its state
+        self.sets = GoalSetsHeard()
+        self.world = WorldHeard()
         self.bid_positions: dict[
             tuple[int, int], dict[int, tuple[float, float, float]]
         ] = {}  # (epoch, instance) -> robot -> x, y, penalty
-        self.counts: dict[str, int] = {}
-        self.commands = 0  # commands sent, counted by record (a frame holds one robot's or a host's)
-        self.bytes: dict[str, int] = {}
-        self.drops = DropCounter()
-        self.contacts: list[Contact] = []
-        self.events: list[dict[str, Any]] = []
-        self.liveliness: list[dict[str, Any]] = []
-        self.agent_alive = np.zeros(robots, bool)
-        self.converged_since: float | None = None
-        self.ends: Callable[[float, float], bool] | None = None  # (converged since, now): the run ends here
-        self.ended_at: int | None = None  # ticks recorded when it ended (none recorded after)
-        self.time_to_converge: float | None = None
-        self.last_min_clearance = np.inf
-        self.log = McapLog(log_path) if log_path else None
-        self.ticks = TickLog(ticks_path, robots) if ticks_path else None
-        self._flushed = time.monotonic()
-        self._channels: dict[str, int] = {}
-        self.started_wall = time.time()
-        self.log_every = max(1, -(-robots // LOG_ROBOTS))  # ticks
-        self.heading = True  # a heading arrow per robot in the scene: not for holonomic robots, which never turn
-        self._next_scene = -np.inf  # display time of the next scene message (above LOG_ROBOTS)
-        self._last_scene: bytes = b""  # the swarm's last scene message, but for its time
+        self.tally = BusTally()
+        self.happened = RunEvents()
+        self.progress = Convergence(tolerance, np.zeros(robots, bool))
+        self.out = DisplayLog(robots, log_path, ticks_path)
         self.view: Any = None  # sim.outputs.view.SwarmView (pixelswarm run --view): the truth of every tick, one batch
+
+    # --- the parts, by the names the launcher and the tests read ---------------------------------
+    @property
+    def goal(self) -> np.ndarray:
+        return self.said.goal
+
+    @property
+    def radius(self) -> np.ndarray:
+        return self.said.radius
+
+    @property
+    def newest_goals(self) -> Goals | None:
+        return self.sets.newest
+
+    @property
+    def counts(self) -> dict[str, int]:
+        return self.tally.counts
+
+    @property
+    def bytes(self) -> dict[str, int]:
+        return self.tally.bytes
+
+    @property
+    def commands(self) -> int:
+        return self.tally.commands
+
+    @property
+    def drops(self) -> DropCounter:
+        return self.tally.drops
+
+    @property
+    def contacts(self) -> list[Contact]:
+        return self.happened.contacts
+
+    @property
+    def events(self) -> list[dict[str, Any]]:
+        return self.happened.events
+
+    @property
+    def liveliness(self) -> list[dict[str, Any]]:
+        return self.happened.liveliness
+
+    @property
+    def agent_alive(self) -> np.ndarray:
+        return self.progress.agent_alive
+
+    @property
+    def ended_at(self) -> int | None:
+        return self.progress.ended_at
+
+    @property
+    def last_min_clearance(self) -> float:
+        return self.world.least_clearance
+
+    @property
+    def log(self) -> McapLog | None:
+        return self.out.log
+
+    @property
+    def ends(self) -> Callable[[float, float], bool] | None:
+        """(converged since, now): the run ends here."""
+        return self.progress.ends
+
+    @ends.setter
+    def ends(self, ends: Callable[[float, float], bool] | None) -> None:
+        self.progress.ends = ends
+
+    @property
+    def heading(self) -> bool:
+        """A heading arrow per robot in the scene: not for holonomic robots, which never turn."""
+        return self.out.heading
+
+    @heading.setter
+    def heading(self, heading: bool) -> None:
+        self.out.heading = heading
 
     # --- intake -------------------------------------------------------------------------------
     def poll(self) -> None:
         for role, ident, alive, wall, _ in self.alive.drain():
-            self.liveliness.append({"role": role, "id": ident, "alive": alive, "wall_time": wall})
+            self.happened.liveliness.append({"role": role, "id": ident, "alive": alive, "wall_time": wall})
             if role == "agent" and ident.isdigit() and int(ident) < self.n:
-                self.agent_alive[int(ident)] = alive
-            self._log("alive", wall, {"role": role, "id": ident, "alive": alive})
+                self.progress.agent_alive[int(ident)] = alive
+            self.out.json("alive", wall, {"role": role, "id": ident, "alive": alive})
+        tally = self.tally
         for key, payload, wall in self.raw.drain():
-            kind = self.keys.kind_of(key)
-            self.counts[kind] = self.counts.get(kind, 0) + 1
-            self.bytes[kind] = self.bytes.get(kind, 0) + len(payload)
+            kind = self.bus.keys.kind_of(key)
+            tally.counts[kind] = tally.counts.get(kind, 0) + 1
+            tally.bytes[kind] = tally.bytes.get(kind, 0) + len(payload)
             expected = BY_NAME.get(kind)
-            msg = decode(payload, expected, self.drops) if expected else None
+            msg = decode(payload, expected, tally.drops) if expected else None
             if msg is None:
                 continue
             if (as_proto := kind_of(msg)) is not None:
-                self._log_proto(kind, wall, as_proto, msg, key)
+                self.out.proto(kind, wall, as_proto, msg, key, self.world.latest_tick)
             else:
                 record = msg.to_dict()
                 record["key"] = key
-                self._log(kind, wall, record)
-            if isinstance(msg, States):
-                for state in msg.messages():
-                    self._on_state(state)
-            elif isinstance(msg, Truth):
-                self._on_truth(msg, wall)
-            elif isinstance(msg, Bid):
-                self._on_bid(msg)
-            elif isinstance(msg, Goals):
-                now = self.traj.t[-1] if self.traj.t else None
-                if self.believed.admit(msg, now) is None and not msg.per_robot and msg.epoch not in self.goal_sets:
-                    self._on_goals(msg, wall)
-            elif isinstance(msg, Commands):
-                self.commands += len(msg.records)
-            elif isinstance(msg, Contact):
-                self.contacts.append(msg)
-            elif isinstance(msg, Event):
-                self.events.append(msg.data)
+                self.out.json(kind, wall, record)
+            self._take(msg, wall)
+
+    def _take(self, msg: Any, wall: float) -> None:
+        """A decoded message into the part of the record it belongs to."""
+        if isinstance(msg, States):
+            for state in msg.messages():
+                self._on_state(state)
+        elif isinstance(msg, Truth):
+            self._on_truth(msg, wall)
+        elif isinstance(msg, Bid):
+            self._on_bid(msg)
+        elif isinstance(msg, Goals):
+            now = self.traj.t[-1] if self.traj.t else None
+            sets = self.sets
+            if sets.believed.admit(msg, now) is None and not msg.per_robot and msg.epoch not in sets.by_epoch:
+                self._on_goals(msg, wall)
+        elif isinstance(msg, Commands):
+            self.tally.commands += len(msg.records)
+        elif isinstance(msg, Contact):
+            self.happened.contacts.append(msg)
+        elif isinstance(msg, Event):
+            self.happened.events.append(msg.data)
 
     def _on_state(self, s: State) -> None:
         """A robot's goal and assignment of tick k go into row k, and on into the rows after it
         until its next state: a row shows what every robot drove to at that tick, as the central
         engine records it, however its truth and the states crossed the bus."""
-        r = s.robot
+        r, said, world = s.robot, self.said, self.world
         if r >= self.n:
             return
         if s.tick == BEFORE_START:  # a hello before the first tick: its size, no goal yet
-            self.radius[r] = s.radius if np.isnan(self.radius[r]) else self.radius[r]
+            said.radius[r] = s.radius if np.isnan(said.radius[r]) else said.radius[r]
             return
-        row = self.row_of_tick.get(s.tick)
-        if s.tick > self.latest_tick + RECORD_AHEAD or s.tick == self.state_tick[r]:
+        row = world.row_of_tick.get(s.tick)
+        if s.tick > world.latest_tick + RECORD_AHEAD or s.tick == said.state_tick[r]:
             return  # from the future, or a copy (the first heard is the robot's)
-        if self.dt and not stamp_agrees(s.tick, s.stamp, self.dt):
+        if world.dt and not stamp_agrees(s.tick, s.stamp, world.dt):
             return  # its stamp is not its tick's
-        named = self.goal_sets.get(s.assign_epoch)
+        named = self.sets.by_epoch.get(s.assign_epoch)
         if named is not None and s.goal_index >= len(named.positions):
             return  # a goal its goal set does not have (a damaged field)
         goal = (s.goal_x, s.goal_y) if s.flags & State.HAS_GOAL else (np.nan, np.nan)
-        said = (goal, s.goal_index, s.assign_epoch, s.assign_instance)
-        newest = s.tick > self.state_tick[r]
+        told = (goal, s.goal_index, s.assign_epoch, s.assign_instance)
+        newest = s.tick > said.state_tick[r]
         if newest:
-            self.radius[r] = s.radius
-            self.goal[r], self.goal_index[r], self.assign_epoch[r], self.assign_instance[r] = said
-            self.state_tick[r] = s.tick
+            said.radius[r] = s.radius
+            said.goal[r], said.goal_index[r], said.assign_epoch[r], said.assign_instance[r] = told
+            said.state_tick[r] = s.tick
         if row is None:
             return
         tr = self.traj
         for i in range(row, len(tr.t) if newest else row + 1):
-            tr.goal[i][r], tr.assignment[i][r], tr.assignment_epoch[i][r], tr.assignment_instance[i][r] = said
+            tr.goal[i][r], tr.assignment[i][r], tr.assignment_epoch[i][r], tr.assignment_instance[i][r] = told
 
     def _on_goals(self, g: Goals, wall: float) -> None:
         """A new goal set: the newest from the tick the coordinator published it at (its stamp),
         also in rows recorded before it arrived (the robots' states of those ticks may use it)."""
-        self.goal_sets[g.epoch] = g
-        if g.epoch != max(self.goal_sets):
+        sets = self.sets
+        sets.by_epoch[g.epoch] = g
+        if g.epoch != max(sets.by_epoch):
             return
-        self.step = g.timing.step
-        self.newest_goals = g
-        self._log_goals(wall, g)
+        sets.step = g.timing.step
+        sets.newest = g
+        self.out.goals(wall, g, self.said.radius)
         tr = self.traj
         for i in range(len(tr.t) - 1, -1, -1):
             if tr.t[i] < g.timing.stamp - 1e-9:
@@ -275,131 +516,60 @@ class Recorder:
         self.bid_positions.setdefault((m.epoch, m.instance), {}).update(zip(claims["robot"].tolist(), where))
 
     def _on_truth(self, m: Truth, wall: float) -> None:
-        if m.count != self.n or self.ended_at is not None:
+        """A tick of the world's truth: its row of the trajectory (the robots' goals and assignments
+        as last said), the tick log, the display's convergence, the scene, the live view."""
+        progress, world, said = self.progress, self.world, self.said
+        if m.count != self.n or progress.ended_at is not None:
             return
         tr = self.traj
         if tr.t and m.stamp <= tr.t[-1]:
             return
-        self.row_of_tick[m.tick] = len(tr.t)
-        self.latest_tick = max(self.latest_tick, m.tick)
+        world.row_of_tick[m.tick] = len(tr.t)
+        world.latest_tick = max(world.latest_tick, m.tick)
         if m.tick > 0:
-            self.dt = m.stamp / m.tick  # the control period, as the world's clock counts it
+            world.dt = m.stamp / m.tick  # the control period, as the world's clock counts it
+        self._append_row(m, wall)
+        if self.out.ticks is not None:
+            self.out.ticks.append(m.stamp, wall, m.pose, m.velocity, m.color, said.goal, said.goal_index)
+        world.least_clearance = min(world.least_clearance, m.min_clearance)
+        newest = self.sets.by_epoch[max(self.sets.by_epoch)] if self.sets.by_epoch else None
+        progress.check(m.stamp, m.pose, said, newest)
+        self.out.scene(wall, m, said.radius, said.goal)
+        if self.view is not None:  # missed: the ticks so far the world applied no command of the robot's
+            missed = np.maximum(0, m.tick - m.applied.astype(np.int64)) if len(m.applied) == self.n else None
+            self.view.tick(m.tick, m.stamp, m.pose, m.color, said.goal, radius=said.radius, missed=missed)
+        self.out.flush_now_and_then()
+        if progress.converged_since is not None and progress.ends is not None:
+            if progress.ends(progress.converged_since, m.stamp):
+                progress.ended_at = len(tr.t)  # the run ends with this tick, whenever the world hears of it
+
+    def _append_row(self, m: Truth, wall: float) -> None:
+        """What a tick records: the world's truth, and a copy of what the robots said."""
+        tr, said = self.traj, self.said
         tr.t.append(m.stamp)
         tr.wall.append(wall)
         tr.pose.append(m.pose)
         tr.velocity.append(m.velocity)
         tr.color.append(m.color)
-        tr.goal.append(self.goal.copy())
-        tr.assignment.append(self.goal_index.copy())
-        tr.assignment_epoch.append(self.assign_epoch.copy())
-        tr.assignment_instance.append(self.assign_instance.copy())
-        tr.step.append(self.step)
-        tr.goal_set_epoch.append(max(self.goal_sets) if self.goal_sets else 0)
+        tr.goal.append(said.goal.copy())
+        tr.assignment.append(said.goal_index.copy())
+        tr.assignment_epoch.append(said.assign_epoch.copy())
+        tr.assignment_instance.append(said.assign_instance.copy())
+        tr.step.append(self.sets.step)
+        tr.goal_set_epoch.append(max(self.sets.by_epoch) if self.sets.by_epoch else 0)
         tr.applied = m.applied
-        if self.ticks is not None:
-            self.ticks.append(m.stamp, wall, m.pose, m.velocity, m.color, self.goal, self.goal_index)
-        self.last_min_clearance = min(self.last_min_clearance, m.min_clearance)
-        self._check_converged(m.stamp, m.pose)
-        self._log_scene(wall, m)
-        if self.view is not None:  # missed: the ticks so far the world applied no command of the robot's
-            missed = np.maximum(0, m.tick - m.applied.astype(np.int64)) if len(m.applied) == self.n else None
-            self.view.tick(m.tick, m.stamp, m.pose, m.color, self.goal, radius=self.radius, missed=missed)
-        if self.log is not None and time.monotonic() - self._flushed >= FLUSH_EVERY:
-            self.log.flush()
-            self._flushed = time.monotonic()
-        if self.converged_since is not None and self.ends is not None and self.ends(self.converged_since, m.stamp):
-            self.ended_at = len(tr.t)  # the run ends with this tick, whenever the world hears of it
 
     def robots_died(self, robots: list[int]) -> None:
         """Robots whose agent was killed (a scene's fail event): the display converges anew without them."""
-        self.agent_alive[[r for r in robots if r < self.n]] = False
-        self.converged_since = self.time_to_converge = None
-
-    def _check_converged(self, t: float, pose: np.ndarray) -> None:
-        """Converged: every live robot has a goal and is within tolerance of it (true position)."""
-        if not self.agent_alive.any():
-            return
-        newest = self.goal_sets[max(self.goal_sets)] if self.goal_sets else None
-        if display_converged(pose, self.goal, self.assign_epoch, self.agent_alive, newest, self.tolerance):
-            if self.converged_since is None:
-                self.converged_since = t
-                self.time_to_converge = t
-        else:
-            self.converged_since = None
-            self.time_to_converge = None
+        self.progress.agent_alive[[r for r in robots if r < self.n]] = False
+        self.progress.converged_since = self.progress.time_to_converge = None
 
     @property
     def sim_time(self) -> float:
         return self.traj.t[-1] if self.traj.t else 0.0
 
-    # --- mcap ---------------------------------------------------------------------------------
-    def _log(self, kind: str, wall: float, payload: dict[str, Any]) -> None:
-        """One message on its kind's channel, as JSON (orjson: numpy arrays as lists, NaN and inf as
-        null; at 1000 robots json.dumps of every message took a fifth of the recorder's time)."""
-        if self.log is None:
-            return
-        cid = self._channels.get(kind)
-        if cid is None:
-            schema = json_schema_of(BY_NAME[kind]) if kind in BY_NAME else {"type": "object"}
-            name = BY_NAME[kind].__name__ if kind in BY_NAME else kind
-            cid = self._channels[kind] = self.log.add_channel("/" + kind, f"pixelswarm.{name}", schema)
-        self.log.write_bytes(
-            cid, int(wall * 1e9), orjson.dumps(payload, default=_as_list, option=orjson.OPT_SERIALIZE_NUMPY)
-        )
-
-    def _log_proto(self, kind: str, wall: float, as_proto: LoggedKind, msg: Any, key: str) -> None:
-        """A per-tick kind in its protobuf form (sim.outputs.logschema): its tables' numbers as the wire
-        has them, a fraction of their JSON's bytes."""
-        if self.log is None or self.latest_tick % self.log_every:
-            return
-        cid = self._channels.get(kind)
-        if cid is None:
-            cid = self._channels[kind] = self.log.add_protobuf_channel(
-                "/" + kind, as_proto.name, as_proto.descriptor_set
-            )
-        self.log.write_bytes(cid, int(wall * 1e9), as_proto.encode(msg, key))
-
-    def _scene_channel(self, topic: str) -> int:
-        assert self.log is not None
-        cid = self._channels.get(topic)
-        if cid is None:
-            cid = self._channels[topic] = self.log.add_foxglove_channel(topic, SceneUpdate)
-        return cid
-
-    def _log_scene(self, wall: float, m: Truth) -> None:
-        """The display at this tick for Foxglove's 3D panel (stamped, like every channel, with the
-        wall time it arrived, so the panels of one file play in step): every tick a robot an entity,
-        or above :data:`LOG_ROBOTS` robots the swarm's one entity every :data:`SCENE_PERIOD`."""
-        if self.log is None:
-            return
-        t_ns = int(wall * 1e9)
-        if self.n <= LOG_ROBOTS:
-            update = scene_update(t_ns, m.pose, self.radius, m.color, goal=self.goal, heading=self.heading)
-            self.log.write_bytes(self._scene_channel(SCENE_TOPIC), t_ns, update.encode())
-            return
-        if m.stamp < self._next_scene - 1e-9:
-            return
-        self._next_scene = (np.floor(m.stamp / SCENE_PERIOD + 1e-9) + 1) * SCENE_PERIOD
-        unstamped = swarm_scene(0, m.pose, self.radius, m.color)
-        if unstamped == self._last_scene:
-            return  # nothing moved: the newest message still shows it
-        self._last_scene = unstamped
-        self.log.write_bytes(self._scene_channel(SCENE_TOPIC), t_ns, swarm_scene(t_ns, m.pose, self.radius, m.color))
-
-    def _log_goals(self, wall: float, g: Goals) -> None:
-        """A swarm's goal set as a sphere a goal in its colour (:func:`goal_markers`): once a set."""
-        if self.log is None or self.n <= LOG_ROBOTS:
-            return
-        radius = self.radius[np.isfinite(self.radius)]
-        r = float(np.median(radius)) if len(radius) else 0.05  # before any state: a typical robot's
-        update = goal_markers(int(wall * 1e9), g.positions, g.colors, GOAL_DIAMETER * 2 * r)
-        self.log.write_bytes(self._scene_channel(GOALS_TOPIC), int(wall * 1e9), update)
-
     def close_log(self) -> None:
-        if self.log is not None:
-            self.log.close()
-        if self.ticks is not None:
-            self.ticks.close()
+        self.out.close()
 
     # --- results ------------------------------------------------------------------------------
     def arrays(self) -> dict[str, np.ndarray]:
@@ -423,7 +593,7 @@ class Recorder:
             "assignment": np.stack(tr.assignment),
             "step": np.array(tr.step),  # 0 throughout for a scene without images, as the central engine records
         }
-        if self.goal_sets:
+        if self.sets.by_epoch:
             out.update(self._auction_arrays())
         return out
 
@@ -442,13 +612,13 @@ class Recorder:
         for a, key in enumerate(announced):
             for r, (x, y, penalty) in self.bid_positions.get(key, {}).items():
                 positions[a, r], penalties[a, r] = (x, y), penalty
-        epochs = sorted(self.goal_sets)
-        g_max = max(len(self.goal_sets[e].positions) for e in epochs)
+        epochs = sorted(self.sets.by_epoch)
+        g_max = max(len(self.sets.by_epoch[e].positions) for e in epochs)
         goal_sets = np.full((len(epochs), g_max, 2), np.nan)
         colors = np.zeros((len(epochs), g_max, 3), np.uint8)
         members = np.zeros((len(epochs), n), bool)
         for i, e in enumerate(epochs):
-            gs = self.goal_sets[e]
+            gs = self.sets.by_epoch[e]
             goal_sets[i, : len(gs.positions)] = gs.positions
             colors[i, : len(gs.colors)] = gs.colors
             members[i, gs.robots[gs.robots < n]] = True
@@ -463,5 +633,5 @@ class Recorder:
             "goal_sets": goal_sets,
             "goal_set_colors": colors,
             "goal_set_robots": members,
-            "goal_set_steps": np.array([self.goal_sets[e].timing.step for e in epochs]),
+            "goal_set_steps": np.array([self.sets.by_epoch[e].timing.step for e in epochs]),
         }
