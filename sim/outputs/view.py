@@ -38,6 +38,7 @@ import time
 import urllib.parse
 import urllib.request
 from collections import deque
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -109,6 +110,94 @@ def _wait_listening(port: int, proc: subprocess.Popen, timeout: float = START_TI
     raise ViewUnavailable(f"Rerun's viewer did not listen on {LOOPBACK}:{port} within {timeout:g} s")
 
 
+class _TickHandover:
+    """The ticks the run hands over (copies), logged by ``log`` on a thread of the view's own a batch
+    at a time: the run goes on (a full queue makes it wait: no tick is dropped)."""
+
+    def __init__(self, log: Callable[[list[tuple[Any, ...]]], None]) -> None:
+        self._log = log
+        self.failure: str | None = None  # why the view stopped logging, if it did
+        self._queue: queue.Queue[tuple[Any, ...] | None] = queue.Queue(maxsize=QUEUE_TICKS)
+        self._hurry = threading.Event()  # set by flush and close: log what there is without waiting for more
+        self._logger = threading.Thread(target=self._drain, name="rerun-view", daemon=True)
+        self._logger.start()
+
+    def put(self, item: tuple[Any, ...]) -> None:
+        self._queue.put(item)
+
+    def _drain(self) -> None:
+        """Log the ticks handed over, a batch at a time: the ticks that came within FLUSH_PERIOD of the
+        batch's first (one in a real-time run), or FAST_FLUSH_PERIOD after a batch of many (a fast central
+        run). The thread sleeps while they gather, rather than wait on the queue: woken by every tick, it
+        took the GIL from the run each time. A failure to log is said once and the view stops; the run
+        goes on (its ticks are dropped)."""
+        done, period = False, FLUSH_PERIOD
+        while not done:
+            first = self._queue.get()
+            batch = [] if first is None else [first]
+            done = first is None
+            if not done and self._queue.qsize() < MAX_BATCH:
+                self._hurry.wait(period)
+            while not done and len(batch) < MAX_BATCH:
+                try:
+                    item = self._queue.get_nowait()
+                except queue.Empty:
+                    break
+                done = item is None
+                if item is not None:
+                    batch.append(item)
+            period = FLUSH_PERIOD if len(batch) <= SLOW_BATCH else FAST_FLUSH_PERIOD
+            try:
+                if batch and self.failure is None:
+                    self._log(batch)
+            except Exception as err:  # the view's fault, not the run's: one line, and no more logging
+                self.failure = f"{type(err).__name__}: {err}"
+                print(f"pixelswarm: the view stopped logging: {self.failure}", file=sys.stderr, flush=True)
+            finally:
+                for _ in range(len(batch) + done):
+                    self._queue.task_done()
+
+    def flush(self) -> None:
+        """Every tick handed over so far logged (no more batching)."""
+        self._hurry.set()
+        self._queue.join()
+
+    def close(self) -> None:
+        """Every tick logged, and the thread ended."""
+        self._hurry.set()
+        if self._logger.is_alive():
+            self._queue.put(None)
+            self._logger.join()
+
+
+class _Trails:
+    """Each robot's trail: its positions of every TRAIL_EVERY-th tick, the last TRAIL of them, logged
+    as faint dots in its colour."""
+
+    def __init__(self) -> None:
+        self._points: deque[np.ndarray] = deque(maxlen=TRAIL)
+        self._rgb: np.ndarray | None = None  # the trail's colours, and the robots' colours they are of
+        self._rgb_of: np.ndarray | None = None
+
+    def keep(self, ticks: np.ndarray, xy: np.ndarray) -> None:
+        """Each robot's positions of every TRAIL_EVERY-th tick, the last TRAIL of them."""
+        steps = np.flatnonzero(ticks % TRAIL_EVERY == 0)
+        if not self._points and not (steps.size and steps[0] == 0):
+            self._points.append(xy[0].copy())
+        for i in steps[-TRAIL:]:
+            self._points.append(xy[i].copy())
+
+    def log(self, rr: Any, rec: Any, rgb: Any, dots: bool | None) -> None:
+        """The trails as faint dots in one flat batch (a strip per robot costs ten times as much to log);
+        their colours made again only when the robots' changed."""
+        if self._rgb is None or len(self._rgb) != len(self._points) * len(rgb) or self._rgb_of is not rgb:
+            faint = np.column_stack([rgb, np.full(len(rgb), TRAIL_ALPHA, np.uint8)])
+            self._rgb, self._rgb_of = np.tile(faint, (len(self._points), 1)), rgb
+        radius = -TRAIL_DOT_POINTS if dots else TRAIL_DOT
+        points = rr.Points2D(np.concatenate(self._points), colors=self._rgb, radii=radius)
+        rec.log("swarm/trails", points)
+
+
 class SwarmView:
     """One recording of a swarm of ``radius.size`` robots; :meth:`tick` logs a tick."""
 
@@ -130,29 +219,27 @@ class SwarmView:
         self.tolerance = tolerance
         self.url: str | None = None
         self.process: subprocess.Popen | None = None
-        self._trail: deque[np.ndarray] = deque(maxlen=TRAIL)
         # what was logged last: logged again only when it changes
         self._goals_shown: tuple[np.ndarray, np.ndarray] | None = None
         self._rgb_shown: np.ndarray | None = None
         self._radius_shown: np.ndarray | None = None
-        self.failure: str | None = None  # why the view stopped logging, if it did
         self.dots: bool | None = None  # robots drawn as dots of DOT points (decided at the first tick)
         self._extent = 0.0  # m across the arena, if known
         self._extras_at = -np.inf  # time.monotonic() of the last batch that logged more than the robots
-        self._trail_rgb: np.ndarray | None = None  # the trail's colours, and the robots' colours they are of
-        self._trail_rgb_of: np.ndarray | None = None
-        # ticks are logged on a thread of the view's own: the run hands over copies and goes on (a full
-        # queue makes it wait: no tick is dropped)
-        self._queue: queue.Queue[tuple[Any, ...] | None] = queue.Queue(maxsize=QUEUE_TICKS)
-        self._hurry = threading.Event()  # set by flush and close: log what there is without waiting for more
-        self._logger = threading.Thread(target=self._drain, name="rerun-view", daemon=True)
-        self._logger.start()
+        self._trails = _Trails()
+        # ticks are logged on a thread of the view's own: the run hands over copies and goes on
+        self._handover = _TickHandover(self._log)
         self.rec = rr.RecordingStream("pixelswarm", recording_id=f"{name}-{os.getpid()}-{time.time_ns()}")
         if sink in ("native", "web"):
             self._serve(web=sink == "web")
         else:
             self.rec.save(str(sink), default_blueprint=_layout())
         self._static(arena, obstacles)
+
+    @property
+    def failure(self) -> str | None:
+        """Why the view stopped logging, if it did."""
+        return self._handover.failure
 
     # -- where it goes -----------------------------------------------------------------------
     def _serve(self, web: bool) -> None:
@@ -211,7 +298,7 @@ class SwarmView:
         """The swarm at one tick: ``pose`` (N,3), ``color`` (N,3) uint8, ``goal`` (N,2) NaN = none,
         ``missed`` (N,) ticks each robot has missed so far (distributed engine). Copied (in float32, as
         Rerun keeps positions) and logged on the view's thread."""
-        if self.failure is not None:
+        if self._handover.failure is not None:
             return
         copy = (
             int(tick),
@@ -222,39 +309,7 @@ class SwarmView:
             None if radius is None else np.array(radius, dtype=float),
             None if missed is None else np.array(missed, dtype=np.int64),
         )
-        self._queue.put(copy)
-
-    def _drain(self) -> None:
-        """Log the ticks handed over, a batch at a time: the ticks that came within FLUSH_PERIOD of the
-        batch's first (one in a real-time run), or FAST_FLUSH_PERIOD after a batch of many (a fast central
-        run). The thread sleeps while they gather, rather than wait on the queue: woken by every tick, it
-        took the GIL from the run each time. A failure to log is said once and the view stops; the run
-        goes on (its ticks are dropped)."""
-        done, period = False, FLUSH_PERIOD
-        while not done:
-            first = self._queue.get()
-            batch = [] if first is None else [first]
-            done = first is None
-            if not done and self._queue.qsize() < MAX_BATCH:
-                self._hurry.wait(period)
-            while not done and len(batch) < MAX_BATCH:
-                try:
-                    item = self._queue.get_nowait()
-                except queue.Empty:
-                    break
-                done = item is None
-                if item is not None:
-                    batch.append(item)
-            period = FLUSH_PERIOD if len(batch) <= SLOW_BATCH else FAST_FLUSH_PERIOD
-            try:
-                if batch and self.failure is None:
-                    self._log(batch)
-            except Exception as err:  # the view's fault, not the run's: one line, and no more logging
-                self.failure = f"{type(err).__name__}: {err}"
-                print(f"pixelswarm: the view stopped logging: {self.failure}", file=sys.stderr, flush=True)
-            finally:
-                for _ in range(len(batch) + done):
-                    self._queue.task_done()
+        self._handover.put(copy)
 
     def _log(self, batch: list[tuple[Any, ...]]) -> None:
         """Every tick's robot positions and headings, as columns (one call an entity a batch: Rerun's
@@ -285,7 +340,7 @@ class SwarmView:
             nose_column = self._column("Position2D", "Points2D", "positions", nose, parts)
             rec.send_columns("swarm/heading", index, [nose_column])
 
-        self._keep_trail(ticks, xy)
+        self._trails.keep(ticks, xy)
         # a fast run's batches are many ticks: what follows, at most every EXTRAS_PERIOD of wall time
         if k > SLOW_BATCH and time.monotonic() - self._extras_at < EXTRAS_PERIOD:
             return
@@ -331,7 +386,7 @@ class SwarmView:
             radii = -DOT * 0.6 if self.dots else r[has_goal] * 0.6  # negative: in the viewer's points
             rec.log("swarm/goals", rr.Points2D(last_goal[has_goal], colors=faint, radii=radii))
             self._goals_shown = (last_goal, last_rgb)
-        self._log_trails(self._rgb_shown)
+        self._trails.log(self._rr, self.rec, self._rgb_shown, self.dots)
 
     def _column(self, component: str, archetype: str, field: str, values: Any, parts: Any) -> Any:
         """One component's values of several ticks, ``parts`` of them a tick, for send_columns: built from
@@ -373,40 +428,14 @@ class SwarmView:
                 )
                 self._radius_shown = radius.copy()
 
-    def _keep_trail(self, ticks: np.ndarray, xy: np.ndarray) -> None:
-        """Each robot's positions of every TRAIL_EVERY-th tick, the last TRAIL of them."""
-        steps = np.flatnonzero(ticks % TRAIL_EVERY == 0)
-        if not self._trail and not (steps.size and steps[0] == 0):
-            self._trail.append(xy[0].copy())
-        for i in steps[-TRAIL:]:
-            self._trail.append(xy[i].copy())
-
-    def _log_trails(self, rgb: Any) -> None:
-        """The trails as faint dots in one flat batch (a strip per robot costs ten times as much to log);
-        their colours made again only when the robots' changed."""
-        if (
-            self._trail_rgb is None
-            or len(self._trail_rgb) != len(self._trail) * len(rgb)
-            or self._trail_rgb_of is not rgb
-        ):
-            faint = np.column_stack([rgb, np.full(len(rgb), TRAIL_ALPHA, np.uint8)])
-            self._trail_rgb, self._trail_rgb_of = np.tile(faint, (len(self._trail), 1)), rgb
-        radius = -TRAIL_DOT_POINTS if self.dots else TRAIL_DOT
-        dots = self._rr.Points2D(np.concatenate(self._trail), colors=self._trail_rgb, radii=radius)
-        self.rec.log("swarm/trails", dots)
-
     def flush(self) -> None:
         """Hand every tick given so far to its sink (the run is over: no more batching)."""
-        self._hurry.set()
-        self._queue.join()
+        self._handover.flush()
         self.rec.flush()
 
     def close(self) -> None:
         """Hand every tick to its sink (a file is complete after this); stop the web server."""
-        self._hurry.set()
-        if self._logger.is_alive():
-            self._queue.put(None)
-            self._logger.join()
+        self._handover.close()
         self.rec.flush()
         self.rec.disconnect()
         if self.process is not None:
