@@ -34,6 +34,7 @@ from .resolved import add_scene_args, scene_of_args
 from .scene import Scene, SceneError, scene_goal_set
 
 SETTLE_S = 0.5  # a change in the live robots must hold this long before a new goal set (debounce)
+FIRST_SET_PATIENCE = 5.0  # s after the world's first tick that the first goal set waits for every robot's agent
 BODY_WAIT_S = 1.0  # display seconds to wait for the tracked position of a dead robot's body (display
 # time, not wall time: a lock-step world waits up to its deadline for the dead robot's command before
 # its next tick, so on a loaded machine a wall-clock wait can run out before the body's first pose)
@@ -141,7 +142,7 @@ class Roster:
 class Coordinator:
     """The goal sets of a run (paper 5): each step's image for the robots whose agent is alive, clear
     of dead robots' bodies, warm-started from the last set. Its state, beyond the roster of live
-    agents: the current set (epoch, shown), the world's clock as heard (t, clock_heard/_refused),
+    agents: the current set (epoch, shown), the world's clock as heard (t, first_tick_at, clock_heard/_refused),
     dead robots' bodies (bodies, body_inboxes, body_wait_since) and work done ahead (_matching,
     ready_for_a_loss)."""
 
@@ -151,6 +152,7 @@ class Coordinator:
         self.images = bool(scene.steps)
         self.epoch = 0
         self.t: float | None = None  # display time of the last tick
+        self.first_tick_at: float | None = None  # wall time the world's first tick was heard
         self.roster = Roster()
         self.shown: tuple[int, frozenset[int]] | None = None  # (step, robots) of the current epoch
         self.pixels = frozenset(scene.pixel_robots)  # the robots that show the image
@@ -197,6 +199,8 @@ class Coordinator:
         robots = frozenset(self.roster.live) & self.pixels
         if self.t is None or not robots:
             return False  # the show starts with the world's first tick
+        if self.shown is None and robots != self.pixels and not self._patience_out():
+            return False  # agents not heard yet would join in a second epoch, at a tick load decides
         step = self.scene.step_at(self.t)
         restarted = bool(self.roster.restarted & robots)
         if self.shown is not None:
@@ -213,6 +217,10 @@ class Coordinator:
         self._publish(step, robots, dead)
         return True
 
+    def _patience_out(self) -> bool:
+        assert self.first_tick_at is not None
+        return time.monotonic() - self.first_tick_at >= FIRST_SET_PATIENCE
+
     def _hear(self) -> None:
         """The world's clock, the agents' liveliness, and where dead robots' bodies stand."""
         for _, tick in self.clock.drain():
@@ -221,6 +229,7 @@ class Coordinator:
                 self.clock_refused[why] += 1
                 continue
             self.t = tick.stamp if self.t is None else max(self.t, tick.stamp)
+            self.first_tick_at = self.first_tick_at or time.monotonic()
         for _, ident, alive, _, life in self.alive.drain():
             if ident.isdigit() and int(ident) < self.scene.robots:
                 self._hear_agent(int(ident), alive, life)
