@@ -1,4 +1,4 @@
-"""The world's robot-robot detection (sim.bodies.world.World._detect) on agent.core.grid's compiled grid:
+"""The world's robot-robot detection (sim.bodies.world._ContactWatch.detect) on agent.core.grid's compiled grid:
 every pair whose centres are within ``reach`` in the first state is found on a grid of cells that
 wide (every such pair lies in the 3 x 3 cells around either one's cell), then checked in every
 state. It returns the smallest clearance over the pairs checked and the pairs that overlap, with
