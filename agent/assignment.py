@@ -114,7 +114,12 @@ class RoundExchange:
         goes out again, and whether we speak: if not, the message goes out only as a resend, which
         nobody waits for but which asks the hosts that left the round for a message of theirs we
         missed (see file)."""
-        base, speak = resend
+        self.open(key, msg, resend[1])
+        return self.close(key, members, robots_of, resend[0])
+
+    def open(self, key: tuple[int, int, int], msg: Bid | Boards, speak: bool) -> None:
+        """Say our message of round ``key`` (if we ``speak``); its records are waited for by close,
+        at once or at the next tick (a tick's last round when rounds per tick are bounded)."""
         for old in [k for k in self.records if k < key]:
             del self.records[old]
         if key[:2] != self.said_block:  # a block's first round: forget the blocks before it (once, not
@@ -124,33 +129,41 @@ class RoundExchange:
                 del self.said[old]  # an earlier block: every host finished it before this tick came
             for old in [b for b in self.newest_round if b[:2] < key[:2]]:
                 del self.newest_round[old]
-        self.said[key] = (msg, -np.inf if speak else time.monotonic())
-        self.waiting_for, start = key, time.monotonic()
+        self.said[key] = (msg, time.monotonic())
+        self.waiting_for = key  # an open round is no round we left: its messages draw no answer (file)
+        if speak:
+            self.send(key)
+
+    def close(
+        self, key: tuple[int, int, int], members: set[int], robots_of: Callable[[Any], np.ndarray], base: float
+    ) -> dict[int, Any] | None:
+        """Wait until every live robot in ``members`` has said its word in the open round ``key``;
+        the other hosts' messages by sender (None: ROUND_CAP ran out). Our message goes out again
+        ``base`` s after it last went out or the wait began, whichever is later."""
         # every resend reaches every host and may draw an answer from each: on a loaded machine, where
         # a round outlasts the backstop, fixed resends fed the load that made them; each waits twice
         # the last, up to ROUND_BACKOFF times the first
-        wait = base
+        wait, start = base, time.monotonic()
         said: set[int] = set(self.robots)  # robots heard in this round
         counted: set[int] = set()  # the senders whose robots are in ``said``
         try:
             while not self.stopped:
-                now = time.monotonic()
-                if now - self.said[key][1] >= wait:  # at once, then again while records are missing
-                    if self.said[key][1] > -np.inf:
-                        wait = min(2 * wait, ROUND_BACKOFF * base)
-                    self.send(key)
+                self.file(self.inbox.drain())
                 heard = self.records.get(key, {})
                 for sender in heard.keys() - counted:  # a resent message names the same robots
                     said.update(robots_of(heard[sender]).tolist())
                     counted.add(sender)
                 if members <= said | self.dead():
                     return heard
+                now = time.monotonic()
                 if now - start >= ROUND_CAP:
                     return None
-                due = min(self.said[key][1] + wait, start + ROUND_CAP)
+                if now - max(self.said[key][1], start) >= wait:
+                    wait = min(2 * wait, ROUND_BACKOFF * base)
+                    self.send(key)
+                due = min(max(self.said[key][1], start) + wait, start + ROUND_CAP)
                 got = self.inbox.get(timeout=max(0.0, due - time.monotonic()))
                 self.file([got] if got is not None else [])
-                self.file(self.inbox.drain())
             return None
         finally:
             self.waiting_for = None
@@ -213,6 +226,8 @@ class AuctionLink:
         self.lockstep, self.on_abandoned = lockstep is not None, rounds.on_abandoned
         self.block_stamp = -np.inf  # lock-step: display time of the last block's tick
         self.block: BlockRounds | None = None  # lock-step: the block under way (it may span ticks)
+        # lock-step, rounds per tick bounded: the round said at the last tick, heard at this one
+        self.open_round: tuple[BlockRounds, tuple[int, int, int], set[int], float] | None = None
         self.warm = False  # lock-step: the goal set's auction began from the coordinator's warm start
         self.counts = AuctionCounts()
         ranged = math.isfinite(self.reach)
@@ -286,7 +301,7 @@ class AuctionLink:
             return {}
         auction = new_auction(goals.epoch, goals.positions, goals.robots.tolist(), self.robots, self.params, self.reach)
         self.goal_set, self.epoch_wall, self.reported = goals, time.monotonic(), -1
-        self.block = None  # a block of the last goal set is given up
+        self.block = self.open_round = None  # a block of the last goal set is given up
         if isinstance(auction, LocalAuction):  # lock-step only: a cold start at the next tick
             self.local, self.block_stamp = auction, -np.inf
             return {}
@@ -433,15 +448,19 @@ class AuctionLink:
     # --- lock-step ----------------------------------------------------------------------------------
     def settle_block(self, stamp: float, positions: dict[int, np.ndarray]) -> None:
         """Lock-step, at each tick: every ``assign_period`` the next block of phases, frozen on this
-        tick's positions, bid through its rounds with every other host and agreed before this tick's
-        commands; its agreement goes to ``on_agreed`` at this tick. A host with no robot in the goal
-        set takes no part."""
+        tick's positions, bid through its rounds with every other host; its agreement goes to
+        ``on_agreed`` at the tick of its last round's end, the same for every host. With rounds per
+        tick bounded a tick's last round is heard at the next tick, before anything else: its
+        messages travel while the robots step, and no tick waits on a round of its own. A host with
+        no robot in the goal set takes no part."""
         if self.local is not None:
             self._settle_local(stamp, positions)
             return
         part = self.part
         if part is None or not part.own:
             return
+        if self.open_round is not None and self._close_round(*self.open_round):
+            return  # given up
         if self.block is None:
             if not all(r in positions for r in part.own):
                 return
@@ -449,28 +468,42 @@ class AuctionLink:
                 return
             self.block_stamp = stamp
             self.block = BlockRounds(part, positions)
-        block, own = self.block, np.array(part.own, np.int64)
-        for _ in range(rounds_in_tick(self.params, cold=part.agreed_instance < 0 and not self.warm)):
-            # robots with nothing to say this round (every host finds the same) are not waited for,
-            # and a host all of whose robots are quiet speaks only to ask for a message it missed
-            quiet = block.quiet(part.robots)
-            members = set(part.robots[~quiet].tolist())
-            speak = not block.quiet(own).all()
-            news = block.say()
-            key = (part.epoch, block.final, block.round)
-            said = Bid(part.epoch, block.final, self.sender, block.round, part.board.digest(), len(news), news)
-            base = self._resend_base(len(members))
-            heard = self.exchange.round(
-                key, said, members, lambda m: block.robots_of(m.sender, m.records), (base, speak)
-            )
-            if heard is None:
-                self._abandon()
+        budget = rounds_in_tick(self.params, cold=part.agreed_instance < 0 and not self.warm)
+        for played in range(1, budget + 1):
+            opened = self._open_round(self.block)
+            if played == budget:  # heard at the next tick (budget is bounded)
+                self.open_round = opened
                 return
-            self.counts.rounds += 1
-            if block.hear({sender: msg.records for sender, msg in heard.items()}):
-                self.block = None
-                self._report()
+            if self._close_round(*opened) or self.block is None:
                 return
+
+    def _open_round(self, block: BlockRounds) -> tuple[BlockRounds, tuple[int, int, int], set[int], float]:
+        """Say our robots' bids of the block's next round; the round as close_round takes it. Robots
+        with nothing to say (every host finds the same) are not waited for, and a host all of whose
+        robots are quiet speaks only to ask for a message it missed."""
+        part = block.part
+        quiet = block.quiet(part.robots)
+        members = set(part.robots[~quiet].tolist())
+        speak = not block.quiet(np.array(part.own, np.int64)).all()
+        news = block.say()
+        key = (part.epoch, block.final, block.round)
+        said = Bid(part.epoch, block.final, self.sender, block.round, part.board.digest(), len(news), news)
+        self.exchange.open(key, said, speak)
+        return block, key, members, self._resend_base(len(members))
+
+    def _close_round(self, block: BlockRounds, key: tuple[int, int, int], members: set[int], base: float) -> bool:
+        """Wait for the other hosts' records of an open round and merge them: the block agreed (its
+        agreement reported) or given up ends it. True: given up."""
+        self.open_round = None
+        heard = self.exchange.close(key, members, lambda m: block.robots_of(m.sender, m.records), base)
+        if heard is None:
+            self._abandon()
+            return True
+        self.counts.rounds += 1
+        if block.hear({sender: msg.records for sender, msg in heard.items()}):
+            self.block = None
+            self._report()
+        return False
 
     def _settle_local(self, stamp: float, positions: dict[int, np.ndarray]) -> None:
         """The range-limited auction's block (core.local_auction): the same rounds as in the central

@@ -26,6 +26,7 @@ class BlockRounds:
         self._before = 0  # the board's digest before this round's bids
         self._robots_of: dict[int, np.ndarray] = {}  # sender -> its robots, from its full first round
         self._steady = False  # the last round kept the phase (and so the costs): quiet() may hold
+        self.open = False  # a round said and not yet heard (the tick's last, heard at the next tick)
 
     def say(self) -> np.ndarray:
         """Bid the next round; returns our records of it. After the first round only the claims that
@@ -33,6 +34,7 @@ class BlockRounds:
         changes no board (max-consensus)."""
         part = self.part
         self.round += 1
+        self.open = True
         self._before = part.board.digest()
         part.bid()
         mine = part.round_records()
@@ -86,6 +88,7 @@ class BlockRounds:
         """Merge the other hosts' records of this round (sender -> records) and close the round;
         True: the block is agreed, at this round for every host."""
         part = self.part
+        self.open = False
         for sender, records in heard.items():
             self.robots_of(sender, records)
         if heard:  # one merge of every host's records: a robot per host sends a record or two each

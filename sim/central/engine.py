@@ -92,11 +92,12 @@ def settle_in_process(auction: LocalAuction, positions: np.ndarray, max_rounds: 
 
 
 def play(block: BlockRounds, rounds: int) -> bool:
-    """Up to ``rounds`` rounds of a block whose every robot this process holds (no messages);
+    """``rounds`` rounds of a block whose every robot this process holds (no messages), the last
+    left open, to be heard at the next tick as the agents hear theirs (AuctionLink.settle_block);
     True once it is agreed."""
-    for _ in range(rounds):
+    for played in range(1, rounds + 1):
         block.say()
-        if block.hear({}):
+        if played < rounds and block.hear({}):
             return True
     return False
 
@@ -201,16 +202,16 @@ class CentralAuction:
         if not self.scene.steps or not (due or self.block is not None):
             pass
         elif self.budget and not last and isinstance(auction, Participant):
-            # The agents' lock-step rounds, at most `budget` a tick: a block may span ticks, and its
-            # agreement takes effect at the tick of its last round (agent.core.rounds). A cold start
-            # (no auction yet) runs to its agreement below: no goal to drive to meanwhile.
-            if self.block is None:
+            # The agents' lock-step rounds, at most `budget` a tick: a block may span ticks, the tick's
+            # last round is heard at the next tick, first (as the agents hear theirs from the bus), and
+            # the agreement takes effect at the tick its last round is heard (agent.core.rounds). A
+            # cold start (no auction yet) runs to its agreement below: no goal to drive to meanwhile.
+            if self.block is not None and self.block.open and self.block.hear({}):
+                self._adopt(auction)
+            if self.block is None and due:
                 self.block, self.assigned_at = BlockRounds(auction, bid_from), t
-            if play(self.block, self.budget):
-                self.block = None
-                self.assignment = np.full(len(self.assignment), -1)
-                self.assignment[auction.own_ids] = [auction.agreed.get(r, -1) for r in auction.own]
-                self.assigned = (self.shown, self.goal_set, self.goal_colors)
+            if self.block is not None and play(self.block, self.budget):
+                self._adopt(auction)
         elif due:
             if self.scene.assignment == "optimal":
                 before = None if self.assigned_at is None else self.assignment[movers.pixels]
@@ -226,6 +227,13 @@ class CentralAuction:
             self.assigned_at = t
             self.assigned = (self.shown, self.goal_set, self.goal_colors)
         self.beside.lap("assignment")
+
+    def _adopt(self, auction: Participant) -> None:
+        """The block just agreed: every robot takes its goal of the agreement at this tick."""
+        self.block = None
+        self.assignment = np.full(len(self.assignment), -1)
+        self.assignment[auction.own_ids] = [auction.agreed.get(r, -1) for r in auction.own]
+        self.assigned = (self.shown, self.goal_set, self.goal_colors)
 
     def settled_beside(self) -> bool:
         """The auction beside is settled: True when it changed the assignment."""
