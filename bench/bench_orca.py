@@ -35,7 +35,7 @@ from scipy.spatial import cKDTree
 
 from agent.core.control import preferred_velocity
 from agent.core.step import polygon_segments
-from sim.central.rvo import CentralOrca
+from sim.central.rvo import CentralOrca, Options
 
 # added to every radius inside our ORCA lines (not to the body); ~7% of Circle's radius 1.5
 MARGIN = 0.1
@@ -118,7 +118,7 @@ class CentralEngine:
     label = "ours (CentralOrca)"
 
     def __init__(self, scn: Scenario) -> None:
-        self.sim = CentralOrca(*scn.params, safety_margin=MARGIN, perturbation=PERTURBATION)
+        self.sim = CentralOrca(*scn.params, Options(safety_margin=MARGIN, perturbation=PERTURBATION))
         for p in scn.positions:
             self.sim.add_agent(p)
         for obstacle in scn.obstacles:
@@ -259,7 +259,7 @@ def write(sections: list[str]) -> None:
         f"Python {platform.python_version()}, numpy {numpy.__version__}, scipy {scipy.__version__}; "
         f"date {time.strftime('%Y-%m-%d')}. Both engines stepped alternately "
         "in one process; times are wall-clock of `do_step` and noisy on a shared machine.\n\n"
-        f"Ours: `CentralOrca(..., safety_margin={MARGIN})`: safety lines (no overlap within dt) "
+        f"Ours: `CentralOrca(..., Options(safety_margin={MARGIN}))`: safety lines (no overlap within dt) "
         "hard, horizon shrunk by 4 until feasible down to dt, then least violation; "
         f"ORCA radii +{MARGIN}; preferred velocities perturbed by up to {PERTURBATION} "
         "(seeded, per robot and step). RVO2: pyrvo 0.4.3 (RVO2 v2.0.3, float32).\n\n"

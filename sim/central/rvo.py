@@ -8,6 +8,8 @@ same code as every robot's, with perfect information.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from agent.core.control import Batch, Obstacles, Settings, perturbation, step_known
@@ -15,17 +17,29 @@ from agent.core.grid import nearest
 from agent.core.params import EPUCK
 from agent.core.step import polygon_segments
 
-__all__ = ["CentralOrca"]
+__all__ = ["CentralOrca", "Options"]
+
+
+@dataclass(frozen=True)
+class Options:
+    """What pixelswarm's control core adds to RVO2's step: ``safety_margin`` is added to every radius
+    in the robots' ORCA lines (not to the bodies, nor to the safety lines), ``safety=False`` gives
+    RVO2's semantics; ``perturbation`` > 0 adds the seeded symmetry breaking of `perturbation`
+    (robot id = agent index, tick = step)."""
+
+    safety_margin: float = 0.0
+    safety: bool = True
+    perturbation: float = 0.0
+    seed: int = 0
 
 
 class CentralOrca:
     """RVO2-like simulator: ``add_agent``, ``add_obstacle``, ``set_pref_velocity``, ``do_step``.
 
     Agent defaults mirror RVO2's ``setAgentDefaults`` (neighbour distance, max neighbours, horizons,
-    radius, max speed). The options go to the control core (agent.core.control): ``safety_margin`` is
-    added to every radius in the robots' ORCA lines (not to the bodies, nor to the safety lines),
-    ``safety=False`` gives RVO2's semantics; ``perturbation`` > 0 adds the seeded symmetry breaking
-    of `perturbation` (robot id = agent index, tick = step).
+    radius, max speed); the ``Options`` go to the control core (agent.core.control). Its attributes
+    are RVO2's simulator state (those defaults, the per-agent arrays, the clock) and the core's
+    views kept between steps, flat as RVO2 keeps them.
 
     Neighbours, as RVO2's: up to max_neighbors agents closer than neighbor_dist (centre to centre),
     nearest first, equal distances by index.
@@ -44,11 +58,7 @@ class CentralOrca:
         time_horizon_obst: float,
         radius: float,
         max_speed: float,
-        *,
-        safety_margin: float = 0.0,
-        safety: bool = True,
-        perturbation: float = 0.0,
-        seed: int = 0,
+        options: Options = Options(),
     ) -> None:
         self.time_step = float(time_step)
         self.neighbor_dist = float(neighbor_dist)
@@ -57,10 +67,7 @@ class CentralOrca:
         self.time_horizon_obst = float(time_horizon_obst)
         self.default_radius = float(radius)
         self.default_max_speed = float(max_speed)
-        self.safety_margin = float(safety_margin)
-        self.safety = bool(safety)
-        self.perturbation = float(perturbation)
-        self.seed = int(seed)
+        self.options = options
         self._settings: tuple | None = None  # (what it was made of, the core's Settings)
         self._obstacles: Obstacles | None = None  # the segments as the core reads them
         self.position = np.zeros((0, 2))
@@ -134,11 +141,11 @@ class CentralOrca:
     def preferred(self) -> np.ndarray:
         """The preferred velocities of this step, perturbed if asked for (then in the engine's own
         buffer, rewritten each step)."""
-        if not self.perturbation:
+        if not self.options.perturbation:
             self.pref_velocity = np.ascontiguousarray(self.pref_velocity, dtype=float)
             return self.pref_velocity
         self._agent_index()
-        shift = perturbation(self._ids, self.seed, self.steps, self.perturbation)
+        shift = perturbation(self._ids, self.options.seed, self.steps, self.options.perturbation)
         return np.add(self.pref_velocity, shift, out=self._buffer("pref", shift))
 
     def _rows(self, pref: np.ndarray) -> Batch:
@@ -165,11 +172,10 @@ class CentralOrca:
     def _step_core(self) -> tuple[np.ndarray, np.ndarray]:
         """compute_new_velocities into the engine's spare velocity buffer (not the current one)."""
         horizons = (self.time_horizon, self.time_horizon_obst, self.time_step)
-        if self._settings is None or self._settings[0] != (horizons, self.safety, self.safety_margin):
-            core = Settings(
-                EPUCK, safety=self.safety, margin=self.safety_margin, timeout=0.0, noise=0.0, horizons=horizons
-            )
-            self._settings = ((horizons, self.safety, self.safety_margin), core)
+        o = self.options
+        if self._settings is None or self._settings[0] != (horizons, o):
+            core = Settings(EPUCK, safety=o.safety, margin=o.safety_margin, timeout=0.0, noise=0.0, horizons=horizons)
+            self._settings = ((horizons, o), core)
         if self._obstacles is None:
             self._obstacles = Obstacles(self.segments)
         robots = self._rows(self.preferred())

@@ -8,7 +8,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from agent.core.control import preferred_velocity
-from sim.central.rvo import CentralOrca
+from sim.central.rvo import CentralOrca, Options
 
 # RVO2 (pyrvo 0.4.3) on the same 64-agent Circle: steps to completion (`bench_orca.py --quick`)
 RVO2_STEPS = 1727
@@ -19,7 +19,7 @@ def test_scaled_circle_completes_within_rvo2_steps_without_any_overlap():
     angle = np.arange(n) * 2.0 * np.pi / n
     start = 51.2 * np.stack([np.cos(angle), np.sin(angle)], -1)
     goal = -start
-    sim = CentralOrca(0.25, 15.0, 10, 10.0, 10.0, radius, 2.0, safety_margin=0.1, perturbation=1e-4, seed=0)
+    sim = CentralOrca(0.25, 15.0, 10, 10.0, 10.0, radius, 2.0, Options(safety_margin=0.1, perturbation=1e-4, seed=0))
     for p in start:
         sim.add_agent(p)
     done_at = None
