@@ -118,7 +118,7 @@ class CentralEngine:
     label = "ours (CentralOrca)"
 
     def __init__(self, scn: Scenario) -> None:
-        self.sim = CentralOrca(*scn.params, Options(safety_margin=MARGIN, perturbation=PERTURBATION))
+        self.sim = CentralOrca(*scn.params, options=Options(safety_margin=MARGIN, perturbation=PERTURBATION))
         for p in scn.positions:
             self.sim.add_agent(p)
         for obstacle in scn.obstacles:
