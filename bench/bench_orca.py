@@ -118,7 +118,9 @@ class CentralEngine:
     label = "ours (CentralOrca)"
 
     def __init__(self, scn: Scenario) -> None:
-        self.sim = CentralOrca(*scn.params, options=Options(safety_margin=MARGIN, perturbation=PERTURBATION))
+        dt, neighbor_dist, max_neighbors, tau, tau_obst, radius, max_speed = scn.params
+        options = Options(safety_margin=MARGIN, perturbation=PERTURBATION)
+        self.sim = CentralOrca(dt, neighbor_dist, max_neighbors, tau, tau_obst, radius, max_speed, options)
         for p in scn.positions:
             self.sim.add_agent(p)
         for obstacle in scn.obstacles:
