@@ -56,7 +56,9 @@ def _gather(mask: np.ndarray, values: np.ndarray, fill: float | int | bool) -> n
 
 
 class LocalAuction(Auction):
-    """The own robots of one host in the range-limited auction of one goal set (epoch)."""
+    """The own robots of one host in the range-limited auction of one goal set (epoch). Its
+    attributes are each own robot's board and block state, kept flat: the compiled rounds
+    (agent.core.bidding.bid_on_own_boards) read them by name."""
 
     def __init__(
         self,
