@@ -355,18 +355,15 @@ def simulate(
     view: Any = None,
     record_to: Path | None = None,
 ) -> Outcome:
-    """Step every robot of the scene in this process through the one tick loop (agent.loop.tick),
-    each deciding by the robot policy from what the link let it hear, the world moving between
-    ticks, until the scene's duration or convergence. ``clock`` (if given) receives the wall and CPU
-    time per part of each control step (bench/bench_large.py). ``overlap``: a warm auction runs on a
-    second thread while this one searches neighbours and steps the control core on the goals the
-    robots hold, and only the robots whose goal changed are stepped again (the same run, to the bit,
-    as without: tests/integration/test_central_overlap.py). ``record_to``: stream the recording to
-    files in this directory (sim.outputs.stream) instead of holding it in memory."""
+    """Every robot of the scene through the one tick loop (agent.loop.tick), in this process, the
+    world moving between ticks, until the scene's duration or convergence. ``clock``: the wall and
+    CPU time of each part of a step (bench/bench_large.py). ``overlap``: a warm auction runs on a
+    second thread beside the neighbour search and the control core on the goals held, and only the
+    robots whose goal changed are stepped again (the same run to the bit: test_central_overlap.py).
+    ``record_to``: the recording streamed to files in this directory (sim.outputs.stream)."""
     _refuse_process_faults(scene)
     params, world = world_of(scene)
-    link = link if link is not None else InProcessLink(scene.robots)
-    clock = clock if clock is not None else StepClock()
+    link, clock = link or InProcessLink(scene.robots), clock or StepClock()
     beside = Beside(clock, overlap)
     auction = CentralAuction(scene, params, Movers(scene), link.reach, beside)
     robots = Central(scene, link, auction, world)
@@ -387,14 +384,9 @@ def simulate(
             clock.lap("other")
             decision = loop.tick(robots, robots.sense(tick), seams)
             pose, goal = world.poses, decision.intent.goal
-            rows = (pose, world.velocities, robots.held_goals.color, goal, auction.assignment)
-            color = rec.record(tick, t, k, rows)["color"]  # this tick's colours, as recorded
-            if view is not None:  # sim.outputs.view.SwarmView: the live view, one batch a tick
-                view.tick(tick, t, pose, color, goal)
+            _record_tick(rec, view, (tick, t, k), robots, goal)
             clock.lap("record")
-            has_goal = robots.has_goal()
-            last_image_up = k == last_step and has_goal.any()
-            if converged.held(t, bool(last_image_up and _at_goal(pose, goal, params)[has_goal].all())):
+            if converged.held(t, _all_at_goals(robots, k == last_step, pose, goal)):
                 end_reason = "converged"
                 break  # the run ends here: no last step
             if tick == steps:
@@ -405,13 +397,29 @@ def simulate(
             link.broadcast(_states(params, robots.measured, pose, velocity_next, t, robots.movers))
             fallbacks += int(decision.step.fallback.sum())
             if progress is not None and time.time() - last_say >= 1.0:  # a line a second
-                last_say = _say_progress(progress, scene.name, (t, k), _at_goal(pose, goal, params), has_goal, world)
+                at_goal = _at_goal(pose, goal, params)
+                last_say = _say_progress(progress, scene.name, (t, k), at_goal, robots.has_goal(), world)
             clock.lap("other")
     finally:
         beside.pool.shutdown()
     arrays = rec.arrays(tick + 1)  # a converged run ends early
     how = (list(world.contacts), float(world.min_clearance), fallbacks, auction.penalties)
     return Outcome(arrays, *how, end_reason, time.time() - wall0)
+
+
+def _record_tick(rec: TickRecorder, view: Any, when: tuple[int, float, int], robots: Central, goal: np.ndarray) -> None:
+    """This tick's row of the recording, and the live view's batch (sim.outputs.view.SwarmView)."""
+    (tick, t, k), world = when, robots.world
+    rows = (world.poses, world.velocities, robots.held_goals.color, goal, robots.auction.assignment)
+    color = rec.record(tick, t, k, rows)["color"]  # this tick's colours, as recorded
+    if view is not None:
+        view.tick(tick, t, world.poses, color, goal)
+
+
+def _all_at_goals(robots: Central, last_image: bool, pose: np.ndarray, goal: np.ndarray) -> bool:
+    """The last image is up and every robot with a goal is at it (the run may end on convergence)."""
+    has_goal = robots.has_goal()
+    return bool(last_image and has_goal.any() and _at_goal(pose, goal, robots.params)[has_goal].all())
 
 
 def _teleport_due(world, events: list[dict], t: float) -> None:
