@@ -454,6 +454,7 @@ def run_central(
     plots: bool = True,
     progress: TextIO | None = sys.stderr,
     clock: StepClock | None = None,
+    overlap: bool = True,
     reach: float = np.inf,
     view: Any = None,
 ) -> Path:
@@ -462,7 +463,9 @@ def run_central(
     run_dir = RunDir(out)
     try:
         link = InProcessLink(scene.robots, reach=reach)
-        outcome = simulate(scene, link=link, progress=progress, clock=clock, view=view, record_to=run_dir / SCRATCH)
+        outcome = simulate(
+            scene, link=link, progress=progress, clock=clock, overlap=overlap, view=view, record_to=run_dir / SCRATCH
+        )
         params, _ = world_of(scene)
         contacts = [
             {"kind": c.kind, "i": c.i, "j": c.j, "t_start": c.t_start, "t_end": c.t_end, "max_depth": c.max_depth}
