@@ -123,10 +123,7 @@ hold = 45.0
 def test_hundred_holonomic_robots_in_agent_hosts(tmp_path):
     # two hosts of fifty: a lock-step run is the same run however the robots are hosted
     # (test_one_controller.py), and every host decodes every other host's frames, so fewer cost less
-    # every block within its tick, as the paper assigns every iteration: an agreement a tick to check
-    # the bound on (the default's one round a tick agrees a block every many ticks; test_one_controller
-    # checks those runs against the central engine's)
-    m, traj = run(tmp_path, HUNDRED, "--agents-per-process", "50", "--rounds-per-tick", "0", timeout=900)
+    m, traj = run(tmp_path, HUNDRED, "--agents-per-process", "50", timeout=900)
     assert_every_hold_formed(m, traj=traj)
     # with hysteresis Delta C the bound is N (epsilon_A + Delta C) (plus deadlock penalties in force)
     assert_agreements_valid(traj, bound_per_robot=EPS_A + 5e-3)
