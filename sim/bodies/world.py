@@ -364,6 +364,12 @@ class World:
         self._m.vel[i] = 0.0
         self._check_start = True
 
+    def teleport_due(self, events: list[dict], t: float) -> None:
+        """The scene's scripted teleports due by time t (``events`` sorted by time, taken off as done)."""
+        while events and events[0]["t"] <= t + 1e-9:
+            event = events.pop(0)
+            self.teleport(event["robot"], tuple(event["pose"]))
+
     def snapshot(self) -> tuple:
         """The state that steps, commands and teleports change, for `restore` (the contacts so far
         are checked first; they are not part of it)."""
@@ -499,7 +505,7 @@ class _Motion:
     vel: np.ndarray  # (N, 2)
     path: np.ndarray  # (N,) arc length, teleports excluded
     n_cmd: np.ndarray  # (N,) set_command calls
-    t_sum: float = 0.0  # time, kept as a compensated (Neumaier) sum: ten steps of 0.1 s give 1.0
+    t_sum: float = 0.0  # time, kept as a compensated (Neumaier) sum: repeated steps of dt add up exactly
     t_comp: float = 0.0
 
     @classmethod

@@ -378,7 +378,7 @@ def simulate(
         for tick in range(steps + 1):
             clock.start()
             t = tick * params.dt
-            _teleport_due(world, events, t)
+            world.teleport_due(events, t)
             if (k := scene.step_at(t)) != auction.shown:
                 auction.show(k)
             clock.lap("other")
@@ -420,12 +420,6 @@ def _all_at_goals(robots: Central, last_image: bool, pose: np.ndarray, goal: np.
     """The last image is up and every robot with a goal is at it (the run may end on convergence)."""
     has_goal = robots.has_goal()
     return bool(last_image and has_goal.any() and _at_goal(pose, goal, robots.params)[has_goal].all())
-
-
-def _teleport_due(world, events: list[dict], t: float) -> None:
-    """The scene's scripted teleports due by time t (events sorted by time, taken off as done)."""
-    while events and events[0]["t"] <= t + 1e-9:
-        world.teleport(events[0]["robot"], tuple(events.pop(0)["pose"]))
 
 
 def _refuse_process_faults(scene: Scene) -> None:

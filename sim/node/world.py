@@ -55,9 +55,7 @@ class SimulatedBodies:
         return self.world.contacts
 
     def sense(self, t: float) -> None:
-        while self.events and self.events[0]["t"] <= t + 1e-9:
-            ev = self.events.pop(0)
-            self.world.teleport(ev["robot"], tuple(ev["pose"]))
+        self.world.teleport_due(self.events, t)
 
     def measure(self, t: float) -> np.ndarray | None:
         """Within a scene's tracker outage none (the agents hear no pose, so none can answer)."""
