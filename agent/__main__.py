@@ -99,8 +99,7 @@ def _run_host(bus: Bus, config: HostConfig, start_timeout: float, exit_with_pare
     until it is stopped, then report its statistics and let its last messages leave."""
     host = AgentHost(bus, config)
     install_stop_handlers(host)
-    if exit_with_parent:
-        host.parent_pid = os.getppid()
+    parent = os.getppid() if exit_with_parent else None  # exit when the launcher is gone
     if not host.start(timeout=start_timeout):
         if host.running:  # not stopped meanwhile: the poses never came
             print(
@@ -110,9 +109,9 @@ def _run_host(bus: Bus, config: HostConfig, start_timeout: float, exit_with_pare
         return 1
     profile_to = os.environ.get("PIXELSWARM_PROFILE")
     if profile_to:
-        run_profiled(host.run, Path(profile_to) / f"agent{config.robots[0]}.prof")
+        run_profiled(lambda: host.run(parent), Path(profile_to) / f"agent{config.robots[0]}.prof")
     else:
-        host.run()
+        host.run(parent)
     host.report()
     bus.linger()
     return 0

@@ -109,7 +109,7 @@ class LockStep(HostClock):
     def __init__(self, host: Any) -> None:
         super().__init__(host)
         self.collect = host.config.state_wait
-        self.ticks = self.inbox = host.bus.subscribe(host.keys.clock, Tick)
+        self.ticks = self.inbox = host.bus.subscribe(host.bus.keys.clock, Tick)
         self.clock = Clock()  # the world's clock as heard
         self.named: dict[int, int] = {}  # tick -> the newest goal set the world named in it
         self.unnamed: dict[int, Goals] = {}  # goal sets heard that no tick has named yet
@@ -136,9 +136,9 @@ class LockStep(HostClock):
             for r, q in sorted(where.items())
         ]
         if max(q.stamp for q in where.values()) > 0.0:  # under way: its auction waits for the next goal set
-            host.bid_from = host.newest_heard + 1
+            host.goal_sets.bid_from = host.goal_sets.newest_heard + 1
             return
-        expected = set(host.config.greet) - set(host.memory)
+        expected = set(host.config.greet) - set(host.config.robots)
         end = time.monotonic() + min(HELLO_TIMEOUT, timeout)
         while host.running and not expected <= set(self.greeted) and time.monotonic() < end:
             self.say_hello()
@@ -152,7 +152,7 @@ class LockStep(HostClock):
             self.last_hello = time.monotonic()
 
     def hear_hello(self, hello: State) -> None:
-        if self.host.ticks_done < 2:
+        if self.host.tally.ticks < 2:
             self.greeted[hello.robot] = hello
 
     def newest_tick(self) -> int | None:
@@ -165,7 +165,7 @@ class LockStep(HostClock):
     def holds(self, goals: Goals) -> bool:
         """A new goal set waits for the tick that takes it up, so that every host takes it up at the
         same tick (take_up_goal_sets)."""
-        if goals.per_robot or goals.epoch <= max(self.host.goal_sets, default=0):
+        if goals.per_robot or goals.epoch <= max(self.host.goal_sets.by_epoch, default=0):
             return False
         self.unnamed[goals.epoch] = goals
         return True
@@ -192,9 +192,9 @@ class LockStep(HostClock):
                 for s in host.table.latest_before(tick)
                 if max(s.tick, _at_most(seen.get(s.robot, -1), tick)) < tick - 1
             ]
-            if tick > 0 and host.ticks_done < 2:  # the first tick after tick 0: robots that greeted us
+            if tick > 0 and host.tally.ticks < 2:  # the first tick after tick 0: robots that greeted us
                 behind += [
-                    h for r, h in self.greeted.items() if r not in host.table and r not in seen and r not in host.memory
+                    h for r, h in self.greeted.items() if r not in host.table and r not in seen and r not in host.robots
                 ]
             missing = [
                 s.robot
@@ -225,8 +225,10 @@ class LockStep(HostClock):
         deadline = time.monotonic() + GOAL_SET_WAIT
         while host.running and time.monotonic() < deadline:
             self.hear()
-            has_step = due < 0 or any(g.timing.step >= due for g in (*host.goal_sets.values(), *self.unnamed.values()))
-            if tick in self.named and has_step and host.newest_heard >= self.named[tick]:
+            has_step = due < 0 or any(
+                g.timing.step >= due for g in (*host.goal_sets.by_epoch.values(), *self.unnamed.values())
+            )
+            if tick in self.named and has_step and host.goal_sets.newest_heard >= self.named[tick]:
                 break
             wait = max(min(deadline - time.monotonic(), 0.05), 0.0)
             if tick not in self.named:
@@ -240,7 +242,7 @@ class LockStep(HostClock):
         # no clock message in time (a world that names no goal set): take up all that was heard
         upto = self.named.get(tick, max(self.unnamed, default=0))
         if due >= 0:
-            of_step = [e for e, g in {**host.goal_sets, **self.unnamed}.items() if g.timing.step >= due]
+            of_step = [e for e, g in {**host.goal_sets.by_epoch, **self.unnamed}.items() if g.timing.step >= due]
             upto = max(upto, min(of_step, default=0))
         self.named = {t: e for t, e in self.named.items() if t > tick}
         for epoch in sorted(e for e in self.unnamed if e <= upto):

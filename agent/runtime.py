@@ -22,7 +22,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -209,72 +209,177 @@ class Inboxes:
         return cls(pose, state, cells, bus.subscribe(keys.all_of("goals"), Goals), bus.watch_alive("agent"))
 
 
-class AgentHost:
-    """K robots in one process, each deciding for itself from its own messages."""
+class OwnRobots:
+    """The robots a host steps: their rows in its batches (in id order) and where each was last tracked."""
 
-    def __init__(self, bus: Bus, config: HostConfig) -> None:
-        self.bus, self.config, self.params = bus, config, config.params
-        self.keys = bus.keys
-        self.memory = {r: RobotMemory(r) for r in config.robots}
-        self.table = NeighbourTable(config.params.dt)
+    def __init__(self, robots: list[int]) -> None:
+        self.ids = np.array(sorted(robots))
+        self.row_of = {r: b for b, r in enumerate(self.ids.tolist())}  # robot -> its row in the batches
+        self.tracked = {r: RobotMemory(r) for r in robots}  # in the configuration's order
+
+    def __contains__(self, robot: object) -> bool:
+        return robot in self.tracked
+
+    def __len__(self) -> int:
+        return len(self.tracked)
+
+    def rows(self, robots: Iterable[int]) -> np.ndarray:
+        return np.array([self.row_of[r] for r in robots], np.int64)
+
+    def known(self) -> list[RobotMemory]:
+        """The robots tracked at least once."""
+        return [m for m in self.tracked.values() if m.position is not None]
+
+
+class PoseIntake:
+    """The poses the next step acts on, by robot. What a pose may claim: its tick against the clock
+    (lock-step) or the wall clock (real time), and its place against where the robot could have
+    driven (agent.pose_trust)."""
+
+    def __init__(self, config: HostConfig, pose_period: float | None) -> None:
+        p = config.params
+        self.dt = p.dt
         self.pending: dict[int, Pose] = {}
-        # What a pose may claim: its tick against the clock (lock-step) or the wall clock (real time),
-        # and its place against where the robot could have driven (agent.pose_trust).
-        self.trust = PoseTrust(config.params.v_max, config.params.dt, 2 * config.params.noise_bound)
-        self.ticks_done = 0
-        self.fallbacks = 0
-        p = self.params
-        self.cell_size = p.cell_size
-        self.segments = static_segments(config.arena, config.obstacles)
-        self.own = np.array(sorted(config.robots))
-        self.row_of = {r: b for b, r in enumerate(self.own.tolist())}  # robot -> its row in the batches
-        # rows: the own robots in id order; until a neighbour is heard, its states may be as old as stale_after
-        self.policy_memory = Memory.new(len(self.own), latency=p.stale_after)
-        self.held_goals = HeldGoals.new(len(self.own))  # rows as policy_memory's
-        self.inbox = Inboxes.of(bus, config, self.own)
-        self.goal_sets: dict[int, Goals] = {}  # the latest auctioned goal sets by epoch (timing, motion)
-        self.newest_heard = 0  # epoch of the newest goal set heard (per-robot goals too)
-        self.believed = GoalSets(config.arena)  # which goal sets can be the coordinator's
-        self.clock: HostClock = LockStep(self) if config.lockstep else WallClock(self)
-        self.pose_lines = {r: TickLine(self.clock.pose_period) for r in config.robots}
-        if math.isfinite(config.reach) and not config.lockstep:
-            raise ValueError("a communication range needs the lock-step clock")
-        rounds = LockStepRounds(self._hold, self._not_bidding, config.reach) if config.lockstep else None
-        self.auction = AuctionLink(bus, config.robots, self.params, self._on_agreed, self._positions, rounds)
-        self.dead: set[int] = set()  # robots whose agent died: their bodies stand still (5.1.2)
-        # Lock-step: robots whose agent died during the goal set in force. One started again cannot
-        # join that goal set's auction under way, so it is not waited for until the next goal set,
-        # which the coordinator publishes for it; nor does an agent started during a show bid in a
-        # goal set heard at its start (bid_from).
+        self.trust = PoseTrust(p.v_max, p.dt, 2 * p.noise_bound)
+        self.lines = {r: TickLine(pose_period) for r in config.robots}
+
+    def take(self, pose: Pose, newest_tick: Callable[[], int | None]) -> str | None:
+        """Hold a robot's pose for the next step (the newest tick wins), or say why it is refused.
+        ``newest_tick``: the tick the world is known to have reached (lock-step's clock)."""
+        why = None if stamp_agrees(pose.tick, pose.stamp, self.dt) else INCONSISTENT
+        if why is None:
+            why = self.lines[pose.robot].admit(pose.tick, time.monotonic(), newest_tick())
+        if why is None:
+            held = self.pending.get(pose.robot)
+            if held is None or pose.tick > held.tick:
+                self.pending[pose.robot] = pose
+        return why
+
+    def judged(self, poses: list[Pose]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Each robot's position and heading to drive on, and whether it brakes: a pose further than
+        the robot could have driven is held, and the robot brakes where it last was."""
+        judged = [self.trust.judge(q.robot, q.tick, q.x, q.y, q.theta) for q in poses]
+        pose_of = [j if j is not None else self.trust.last(q.robot) for q, j in zip(poses, judged)]
+        position = np.array([(x, y) for x, y, _ in pose_of], float)
+        heading = np.array([th for _, _, th in pose_of], float)
+        return position, heading, np.array([j is None for j in judged], bool)
+
+
+class GoalSetsHeard:
+    """The coordinator's goal sets as a host knows them: those taken up, by epoch (their timing and
+    motion; an agreed assignment may still be of an older epoch), the newest epoch heard (per-robot
+    goals too), which can be the coordinator's, and the first its robots may bid in: an agent
+    started during a show joins the auction at the next goal set (agent.clocks.LockStep.greet)."""
+
+    def __init__(self, arena: tuple[float, float, float, float] | None) -> None:
+        self.by_epoch: dict[int, Goals] = {}
+        self.newest_heard = 0
+        self.believed = GoalSets(arena)
+        self.bid_from = 0
+
+    @property
+    def newest(self) -> Goals | None:
+        return self.by_epoch[max(self.by_epoch)] if self.by_epoch else None
+
+    def forget_old(self) -> None:
+        for old in sorted(self.by_epoch)[:-GOAL_SETS_KEPT]:
+            del self.by_epoch[old]
+
+
+class Departures:
+    """Robots whose agent died, as liveliness says: their bodies stand still (5.1.2). Lock-step also
+    keeps those that died during the goal set in force (``gone``): one started again cannot join
+    that goal set's auction under way, so it is not waited for until the next goal set, which the
+    coordinator publishes for it."""
+
+    def __init__(self, alive: LivelinessWatch, lockstep: bool) -> None:
+        self.alive, self.lockstep = alive, lockstep
+        self.dead: set[int] = set()
         self.gone: set[int] = set()
         self.gone_since = 0  # the goal set ``gone`` is of
-        self.bid_from = 0
+
+    def now(self) -> set[int]:
+        """The robots whose agent is dead, as liveliness says now."""
+        for _, ident, alive, _, _ in self.alive.drain():
+            if ident.isdigit():
+                (self.dead.discard if alive else self.dead.add)(int(ident))
+                if not alive and self.lockstep:
+                    self.gone.add(int(ident))
+        return self.dead
+
+    def not_bidding(self) -> set[int]:
+        """The robots the auction does not wait for: dead, or gone during the goal set in force."""
+        return self.now() | self.gone
+
+    def new_goal_set(self, epoch: int) -> None:
+        if epoch != self.gone_since:  # a new goal set (the coordinator repeats the newest)
+            self.gone, self.gone_since = set(self.dead), epoch
+
+
+@dataclass
+class Tally:
+    """What a host counts for its statistics."""
+
+    ticks: int = 0  # ticks stepped
+    fallbacks: int = 0  # robot-ticks whose program was infeasible and the fallback ran
+
+
+class AgentHost:
+    """K robots in one process, each deciding for itself from its own messages.
+
+    Its state is grouped by what it is about (its robots, the poses of the next step, the goal sets
+    heard, the departed, the tally) beside the parts it steps with (the neighbour table, the goals
+    and policy memory by row, the inboxes, the clock, the auction and the loop's seams)."""
+
+    def __init__(self, bus: Bus, config: HostConfig) -> None:
+        self.bus, self.config = bus, config
+        p = config.params
+        self.robots = OwnRobots(config.robots)
+        self.table = NeighbourTable(p.dt)
+        self.tally = Tally()
+        # rows: the own robots in id order; until a neighbour is heard, its states may be as old as stale_after
+        self.policy_memory = Memory.new(len(self.robots), latency=p.stale_after)
+        self.held_goals = HeldGoals.new(len(self.robots))  # rows as policy_memory's
+        self.inbox = Inboxes.of(bus, config, self.robots.ids)
+        self.goal_sets = GoalSetsHeard(config.arena)
+        self.clock: HostClock = LockStep(self) if config.lockstep else WallClock(self)
+        self.poses = PoseIntake(config, self.clock.pose_period)
+        if math.isfinite(config.reach) and not config.lockstep:
+            raise ValueError("a communication range needs the lock-step clock")
+        self.departed = Departures(self.inbox.alive, config.lockstep)
+        rounds = LockStepRounds(self._hold, self.departed.not_bidding, config.reach) if config.lockstep else None
+        self.auction = AuctionLink(bus, config.robots, p, self._on_agreed, self._positions, rounds)
         self.running = True
         self._bid_from: dict[int, np.ndarray] | None = None  # _positions(), until positions or goals change
-        self.parent_pid: int | None = None  # exit when this process (the launcher) is gone
-        self.seams = loop.Seams(self, self.auction, self.segments, config.seed, config.reach)
+        segments = static_segments(config.arena, config.obstacles)
+        self.seams = loop.Seams(self, self.auction, segments, config.seed, config.reach)
+
+    @property
+    def params(self) -> RobotParams:
+        return self.config.params
 
     # --- start ------------------------------------------------------------------------------
     def start(self, timeout: float = 60.0) -> bool:
         """Fetch the current goal set (late joiners too), learn where the robots are and subscribe to
         the cells around them, then announce every robot alive.
         Lock-step first greets its neighbours (agent.clocks.LockStep.greet)."""
-        for _, goals in self.bus.query(self.keys.all_of("goals"), Goals, timeout=2.0):
+        for _, goals in self.bus.query(self.bus.keys.all_of("goals"), Goals, timeout=2.0):
             self.hear_goals(goals)
         where: dict[int, Pose] = {}
         ticking: list[Pose] = []  # poses of ticks under way (a robot whose body is tracked already)
         end = time.monotonic() + timeout
-        while len(where) < len(self.memory) and self.running and time.monotonic() < end:
+        while len(where) < len(self.robots) and self.running and time.monotonic() < end:
             got = self.inbox.pose.get(timeout=0.2)
             if got is not None:
                 where[got[1].robot] = got[1]
                 if got[1].tick != BEFORE_START:
                     ticking.append(got[1])
-        if len(where) < len(self.memory):
+        if len(where) < len(self.robots):
             return False
         self.inbox.cells.update(np.array([(q.x, q.y) for q in where.values()]))
-        if self.believed.newest is None and max(q.stamp for q in where.values()) <= 0.0:
-            self.believed.newest = 0  # nothing to fetch at the run's start: its epochs count from 1
+        believed = self.goal_sets.believed
+        if believed.newest is None and max(q.stamp for q in where.values()) <= 0.0:
+            believed.newest = 0  # nothing to fetch at the run's start: its epochs count from 1
         self.clock.greet(where, timeout)
         for q in ticking:
             self._take_pose(q)
@@ -285,21 +390,23 @@ class AgentHost:
     def publish_states(self, tick: int, stamp: float, states: list[State]) -> None:
         """A host's frame of its robots' states, heard by every host; a robot alone its frame of one
         under its spatial cell (HostConfig.frames)."""
+        keys = self.bus.keys
         if self.config.frames:
-            host = int(self.own[0])
-            self.bus.publish(self.keys.states(host), States.of(tick, stamp, states))
+            self.bus.publish(keys.states(int(self.robots.ids[0])), States.of(tick, stamp, states))
             return
         for s in states:
-            self.bus.put(self.keys.state(cell_of(s.x, s.y, self.cell_size), s.robot), States.encode_one(s), States.NAME)
+            self.bus.put(
+                keys.state(cell_of(s.x, s.y, self.params.cell_size), s.robot), States.encode_one(s), States.NAME
+            )
 
     def _publish_commands(self, tick: int, stamp: float, commands: list[Command]) -> None:
         """A host's frame of its robots' commands; a robot alone its frame of one (HostConfig.frames)."""
+        keys = self.bus.keys
         if self.config.frames:
-            host = int(self.own[0])
-            self.bus.publish(self.keys.cmd(host), Commands.of(tick, stamp, commands))
+            self.bus.publish(keys.cmd(int(self.robots.ids[0])), Commands.of(tick, stamp, commands))
             return
         for c in commands:
-            self.bus.put(self.keys.cmd(c.robot), Commands.encode_one(c), Commands.NAME)
+            self.bus.put(keys.cmd(c.robot), Commands.encode_one(c), Commands.NAME)
 
     # --- messages -----------------------------------------------------------------------------
     def hear_goals(self, goals: Goals) -> None:
@@ -307,11 +414,11 @@ class AgentHost:
         (_take_up_goal_sets), so that every host takes it up at the same tick. One whose epoch or
         stamp lies beyond what the robots know is refused: taken as the newest, it shut out the
         coordinator's real ones and froze the show on its image."""
-        why = self.believed.admit(goals, self._display_time())
+        why = self.goal_sets.believed.admit(goals, self._display_time())
         if why is not None:
             self.inbox.goals.drops[why] += 1
             return
-        self.newest_heard = max(self.newest_heard, goals.epoch)
+        self.goal_sets.newest_heard = max(self.goal_sets.newest_heard, goals.epoch)
         if not self.clock.holds(goals):
             self.on_goals(goals)
 
@@ -319,39 +426,37 @@ class AgentHost:
         """The newest display time the robots know: the lock-step clock, else their newest pose."""
         if (t := self.clock.display_time()) is not None:
             return t
-        return max((m.stamp for m in self.memory.values() if m.position is not None), default=None)
+        return max((m.stamp for m in self.robots.known()), default=None)
 
     def on_goals(self, goals: Goals) -> None:
         if not goals.per_robot:
             self._bid_from = None
-            self.goal_sets[goals.epoch] = goals
-            if goals.epoch < self.bid_from:
+            self.goal_sets.by_epoch[goals.epoch] = goals
+            if goals.epoch < self.goal_sets.bid_from:
                 return  # its auction began before this agent joined: the robots wait for the next
-            if goals.epoch != self.gone_since:  # a new goal set (the coordinator repeats the newest)
-                self.gone, self.gone_since = set(self.dead), goals.epoch
-            for old in sorted(self.goal_sets)[:-GOAL_SETS_KEPT]:
-                del self.goal_sets[old]
+            self.departed.new_goal_set(goals.epoch)
+            self.goal_sets.forget_old()
             # a keyframe names its predecessor; an image follows the last
             follows = goals.correspondence.follows if goals.correspondence else self.auction.epoch
             key = self.held_goals.key
             driving = {
-                r: int(key[b, 1]) for r, b in self.row_of.items() if key[b, 1] >= 0 and key[b, 0] == follows
+                r: int(key[b, 1]) for r, b in self.robots.row_of.items() if key[b, 1] >= 0 and key[b, 0] == follows
             }  # agreed or itself carried
             carried = self.auction.on_goals(goals, self._positions(), driving)
             # the next keyframe or image: drive on at once (6.2), the auction follows
             self._on_agreed(goals.epoch, CARRIED, carried, goals.positions, goals.colors)
             # not in this goal set (e.g. it joined late): it waits; a pursuer is not a pixel, its goal
             # comes from its target's broadcasts (_on_state)
-            self.held_goals.idle(self._rows_of(r for r in self.auction.idle_robots() if r not in self.config.pursue))
+            self.held_goals.idle(self.robots.rows(r for r in self.auction.idle_robots() if r not in self.config.pursue))
             return
-        own = [r for r in self.own.tolist() if r < len(goals.positions)]
-        self.held_goals.color[self._rows_of(own)] = goals.colors[own]
+        own = [r for r in self.robots.ids.tolist() if r < len(goals.positions)]
+        self.held_goals.color[self.robots.rows(own)] = goals.colors[own]
         sent = [r for r in own if r not in self.config.pursue]  # a pursuer's goal comes from its target's broadcasts
-        self.held_goals.goal[self._rows_of(sent)] = goals.positions[sent]
+        self.held_goals.goal[self.robots.rows(sent)] = goals.positions[sent]
 
     @property
     def timing(self) -> dict[int, GoalTiming]:
-        return {epoch: timing_of(gs) for epoch, gs in self.goal_sets.items()}
+        return {epoch: timing_of(gs) for epoch, gs in self.goal_sets.by_epoch.items()}
 
     def _positions(self) -> dict[int, np.ndarray]:
         """The own robots' positions as the auction takes them. A moving goal set (paper 7.4.1) is
@@ -366,21 +471,21 @@ class AgentHost:
         goals or goal sets change: the auction polls it many times a tick."""
         if self._bid_from is not None:
             return self._bid_from
-        newest = self.goal_sets[max(self.goal_sets)] if self.goal_sets else None
+        newest = self.goal_sets.newest
         motion = motion_of(newest) if newest is not None else None
         out, on_way, key = {}, [], self.held_goals.key
-        for r, m in self.memory.items():
-            b = self.row_of[r]
+        for m in self.robots.tracked.values():
             if m.position is None:
                 continue
+            b = self.robots.row_of[m.robot]
             if motion is not None and newest is not None:
-                out[r] = motion.to_initial_frame(m.position, m.stamp - newest.timing.t_start)
+                out[m.robot] = motion.to_initial_frame(m.position, m.stamp - newest.timing.t_start)
             elif newest is not None and key[b, 0] == newest.epoch and key[b, 1] >= 0:
                 on_way.append(m)  # on its way: where it will be
             else:
-                out[r] = m.position
+                out[m.robot] = m.position
         if on_way:
-            rows = self._rows_of(m.robot for m in on_way)
+            rows = self.robots.rows(m.robot for m in on_way)
             lead = bid_position(
                 np.array([m.position for m in on_way]),
                 self.held_goals.goal[rows],
@@ -388,7 +493,7 @@ class AgentHost:
                 self.auction.latency,
             )
             out.update(zip([m.robot for m in on_way], lead))
-            out = {r: out[r] for r in self.memory if r in out}  # in the robots' order, as before
+            out = {r: out[r] for r in self.robots.tracked if r in out}  # in the robots' order, as before
         self._bid_from = out
         return out
 
@@ -398,16 +503,13 @@ class AgentHost:
         """An auction instance is agreed: each own robot drives to its goal and lights its colour."""
         self._bid_from = None
         index = np.fromiter(goals.values(), np.int64, len(goals))
-        self.held_goals.drive_to(self._rows_of(goals), epoch, instance, index, positions, colors)
+        self.held_goals.drive_to(self.robots.rows(goals), epoch, instance, index, positions, colors)
 
     def _hold(self, robots: list[int]) -> None:
         """These robots' auction block was abandoned: they hold their positions (no goal), as
         another robot may have been agreed their goals."""
         self._bid_from = None
-        self.held_goals.hold(self._rows_of(robots))
-
-    def _rows_of(self, robots: Iterable[int]) -> np.ndarray:
-        return np.array([self.row_of[r] for r in robots], np.int64)
+        self.held_goals.hold(self.robots.rows(robots))
 
     def _absorb(self) -> None:
         for _, goals in self.inbox.goals.drain():
@@ -426,24 +528,12 @@ class AgentHost:
             return
         self.clock.silent.discard(msg.robot)
         for robot, target in self.config.pursue.items():
-            if msg.robot == target and robot in self.memory:
-                self.held_goals.goal[self.row_of[robot]] = msg.x, msg.y
-
-    def _dead_now(self) -> set[int]:
-        """The robots whose agent is dead, as liveliness says now."""
-        for _, ident, alive, _, _ in self.inbox.alive.drain():
-            if ident.isdigit():
-                (self.dead.discard if alive else self.dead.add)(int(ident))
-                if not alive and self.config.lockstep:
-                    self.gone.add(int(ident))
-        return self.dead
-
-    def _not_bidding(self) -> set[int]:
-        """The robots the auction does not wait for: dead, or gone during the goal set in force."""
-        return self._dead_now() | self.gone
+            if msg.robot == target and robot in self.robots:
+                self.held_goals.goal[self.robots.row_of[robot]] = msg.x, msg.y
 
     # --- the loop -----------------------------------------------------------------------------
-    def run(self) -> None:
+    def run(self, parent_pid: int | None = None) -> None:
+        """Step every tick until stopped, or (``parent_pid``) until that process, the launcher, is gone."""
         # One bell rung by poses, goal sets and auction messages: the loop sleeps until any arrives
         # (auction rounds go on between ticks) or something is due.
         bell = threading.Event()
@@ -457,16 +547,11 @@ class AgentHost:
                     self.hear_goals(msg)
                 self.auction.poll(self._positions())
             if got is None:
-                if not self.ticks_done:
+                if not self.tally.ticks:
                     self.clock.say_hello()  # until the first tick: a neighbour may still wait for it
-                if self.parent_pid is not None and os.getppid() != self.parent_pid:
+                if parent_pid is not None and os.getppid() != parent_pid:
                     self.running = False  # orphaned: the launcher died without stopping us
-                wait = min(0.2, self.auction.next_due()) if self.auction.active else 0.2
-                if not self.ticks_done:
-                    wait = min(wait, self.clock.hello_every)
-                if self.inbox.pose.has_delayed:
-                    wait = min(wait, 0.005)
-                bell.wait(wait)
+                bell.wait(self._idle_wait())
                 continue
             tick_start = time.monotonic()
             self._take_pose(got[1])
@@ -474,19 +559,28 @@ class AgentHost:
             # kept an overloaded agent a fixed number of ticks behind, every command late.
             for _, pose in self.inbox.pose.drain():
                 self._take_pose(pose)
-            self.clock.poses_arrived(list(self.pending.values()), tick_start)
+            self.clock.poses_arrived(list(self.poses.pending.values()), tick_start)
             # Collect the other robots' poses of this tick (they are published together). The inbox
             # hands a frame's records over one by one, so a loaded machine can split a tick's frame:
             # lock-step waits for all of them, as a block frozen on some robots' old poses would
             # make a different run.
             deadline = tick_start + self.clock.collect
-            while len(self.pending) < len(self.memory) and self.running:
+            while len(self.poses.pending) < len(self.robots) and self.running:
                 got = self.inbox.pose.get(timeout=max(0.0, deadline - time.monotonic()))
                 if got is None:
                     break
                 self._take_pose(got[1])
             self.step()
             self._auction_rounds(bell, tick_start)
+
+    def _idle_wait(self) -> float:
+        """How long the loop may sleep with no pose: until an auction round or a hello is due."""
+        wait = min(0.2, self.auction.next_due()) if self.auction.active else 0.2
+        if not self.tally.ticks:
+            wait = min(wait, self.clock.hello_every)
+        if self.inbox.pose.has_delayed:
+            wait = min(wait, 0.005)
+        return wait
 
     def _auction_rounds(self, bell: threading.Event, tick_start: float) -> None:
         """Real time, after a tick, while an auction instance is open: keep trading messages until a
@@ -505,27 +599,21 @@ class AgentHost:
             bell.wait(min(end - now, link.next_due()))
 
     def _take_pose(self, pose: Pose) -> None:
-        if pose.robot not in self.memory or pose.tick == BEFORE_START:
+        if pose.robot not in self.robots or pose.tick == BEFORE_START:
             return
-        why = None if stamp_agrees(pose.tick, pose.stamp, self.params.dt) else INCONSISTENT
-        if why is None:
-            now = self.clock.newest_tick()  # lock-step: the world's clock says which tick it is
-            why = self.pose_lines[pose.robot].admit(pose.tick, time.monotonic(), now)
+        why = self.poses.take(pose, self.clock.newest_tick)  # lock-step: the world's clock says which tick it is
         if why is not None:
             self.inbox.pose.drops[why] += 1
-            return
-        held = self.pending.get(pose.robot)
-        if held is None or pose.tick > held.tick:
-            self.pending[pose.robot] = pose
 
     def step(self) -> None:
         """Compute and publish one tick for every robot whose pose has arrived."""
-        if not self.pending:
+        pending = self.poses.pending
+        if not pending:
             return
-        self.clock.before_step(list(self.pending.values()))
-        self.table.advance(max(p.tick for p in self.pending.values()))
+        self.clock.before_step(list(pending.values()))
+        self.table.advance(max(p.tick for p in pending.values()))
         self._absorb()
-        poses = [self.pending.pop(r) for r in sorted(self.pending)]
+        poses = [pending.pop(r) for r in sorted(pending)]
         # Robots of a host may hold poses of different ticks (real time): group by tick.
         for tick in sorted({p.tick for p in poses}):
             self._step_tick([p for p in poses if p.tick == tick])
@@ -535,27 +623,22 @@ class AgentHost:
         began = time.monotonic()
         tick, stamp = poses[0].tick, poses[0].stamp
         p = self.clock.params_at(stamp, began)
-        # a pose further than the robot could have driven is held: the robot brakes where it last was
-        judged = [self.trust.judge(q.robot, q.tick, q.x, q.y, q.theta) for q in poses]
-        pose_of = [j if j is not None else self.trust.last(q.robot) for q, j in zip(poses, judged)]
-        position = np.array([(x, y) for x, y, _ in pose_of], float)
-        heading = np.array([th for _, _, th in pose_of], float)
+        position, heading, braking = self.poses.judged(poses)
         self.clock.await_neighbours(tick, position)
         for q, xy in zip(poses, position):
-            self.memory[q.robot].position, self.memory[q.robot].stamp = xy.copy(), stamp
+            self.robots.tracked[q.robot].position, self.robots.tracked[q.robot].stamp = xy.copy(), stamp
         self._bid_from = None
         self.clock.take_up_goal_sets(tick, stamp)
-        self._dead_now()
-        braking = np.array([j is None for j in judged], bool)
+        self.departed.now()
         sensed = Sensed(np.array([q.robot for q in poses]), position, heading, tick, stamp, p, braking)
         decision = loop.tick(self, sensed, self.seams)
-        self.fallbacks += int(np.count_nonzero(decision.step.fallback))
-        self.ticks_done += 1
+        self.tally.fallbacks += int(np.count_nonzero(decision.step.fallback))
+        self.tally.ticks += 1
         self.clock.stepped(began)
 
     # --- the loop's seams: what the robots hold, the bus link -----------------------------------
     def rows(self, ids: np.ndarray) -> np.ndarray:
-        return np.array([self.row_of[r] for r in ids.tolist()])
+        return self.robots.rows(ids.tolist())
 
     def goals(self, sensed: Sensed) -> tuple[np.ndarray, np.ndarray]:
         """Each robot's goal as its goal set was published and its key (epoch, goal index)."""
@@ -563,7 +646,7 @@ class AgentHost:
 
     def neighbours(self, sensed: Sensed) -> NeighbourStates:
         p = sensed.params
-        stopped = {r: p.v_max * p.dt for r in self.dead}  # it may have moved one period after its last state
+        stopped = {r: p.v_max * p.dt for r in self.departed.dead}  # it may have moved one period after its last state
         heard_within = min(p.neighbour_dist, self.config.reach)  # a robot hears states only within its range
         ids = sensed.ids.tolist()
         return self.table.gather(
@@ -595,10 +678,10 @@ class AgentHost:
         # The cells around EVERY own robot, not only those of this tick's batch: under load a tick's
         # poses can arrive split, and cells dropped for the robots not in the batch took their
         # neighbours' states with them (forget_outside): at 100 robots one robot then saw nobody.
-        known = [m.position for m in self.memory.values() if m.position is not None]
-        self.inbox.cells.update(np.array(known))
-        self.table.forget_outside(self.inbox.cells.cells, self.cell_size, keep=self.dead)
-        self.table.forget_silent(stamp - p.forget_after, keep=self.dead)
+        self.inbox.cells.update(np.array([m.position for m in self.robots.known()]))
+        dead = self.departed.dead
+        self.table.forget_outside(self.inbox.cells.cells, self.params.cell_size, keep=dead)
+        self.table.forget_silent(stamp - p.forget_after, keep=dead)
         self._bid_from = None  # the robots' velocities changed: they move where they bid from
 
     def stats(self) -> dict[str, Any]:
@@ -610,9 +693,9 @@ class AgentHost:
         return {
             "role": "agent",
             "robots": self.config.robots,
-            "ticks": self.ticks_done,
-            "fallbacks": self.fallbacks,
-            "poses_held": self.trust.held,
+            "ticks": self.tally.ticks,
+            "fallbacks": self.tally.fallbacks,
+            "poses_held": self.poses.trust.held,
             "dropped": drops,
             "neighbours_known": len(self.table),
             "state_waits": self.clock.state_waits,
@@ -624,7 +707,7 @@ class AgentHost:
         }
 
     def report(self) -> None:
-        self.bus.publish(self.keys.event, Event({"kind": "stats", **self.stats()}))
+        self.bus.publish(self.bus.keys.event, Event({"kind": "stats", **self.stats()}))
 
 
 def bid_position(position: np.ndarray, goal: np.ndarray, velocity: np.ndarray, lead: float) -> np.ndarray:

@@ -114,5 +114,5 @@ def test_the_world_waits_for_the_goal_set_of_a_step_due_at_its_tick() -> None:
     finally:
         session.close()
     assert stats["reason"] == "duration" and stats["ticks"] == 10, stats
-    assert set(host.goal_sets) == {1, 2}, "a goal set was not taken up"
+    assert set(host.goal_sets.by_epoch) == {1, 2}, "a goal set was not taken up"
     assert stats["missed_ticks"] == 0, stats

@@ -96,16 +96,16 @@ def test_a_goal_set_heard_before_its_tick_waits_for_the_tick_that_names_it() -> 
 
         world.publish(world.keys.goals(1), goal_set(1, 0.5))  # scene step 0's goal set
         tick(0, 0)  # named by no tick yet: taken up as the step due at tick 0
-        assert set(host.goal_sets) == {1}
+        assert set(host.goal_sets.by_epoch) == {1}
 
         world.publish(world.keys.goals(2), goal_set(2, 0.6))  # an agent died: no step announced it
         time.sleep(0.5)
         tick(1, 1)
-        assert host.newest_heard == 2, "goal set 2 was not heard before tick 1"
-        assert 2 not in host.goal_sets, "goal set 2 was taken up at a tick that did not name it"
+        assert host.goal_sets.newest_heard == 2, "goal set 2 was not heard before tick 1"
+        assert 2 not in host.goal_sets.by_epoch, "goal set 2 was taken up at a tick that did not name it"
 
         tick(2, 2)
-        assert 2 in host.goal_sets and not host.clock.unnamed
+        assert 2 in host.goal_sets.by_epoch and not host.clock.unnamed
         stop_host(host, thread)
 
 

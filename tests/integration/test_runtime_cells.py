@@ -23,7 +23,7 @@ def test_a_split_tick_keeps_the_neighbours_of_the_robots_not_in_it() -> None:
         neighbour = State(5, 1, 0.1, far[0] + 0.3, far[1], 0.0, 0.0, params.radius, 0.0, 0.0, -1, 0, 0, 0)
         host.table.update(neighbour)
         host._step_tick([Pose(0, 2, 0.2, 0.0, 0.0, 0.0)])  # only robot 0's pose of tick 2 so far
-        assert cell_of(*far, host.cell_size) in host.inbox.cells.cells
+        assert cell_of(*far, host.params.cell_size) in host.inbox.cells.cells
         assert [s.robot for s in host.table.latest_before(3)] == [5], "robot 1's neighbour was forgotten"
 
 
@@ -39,7 +39,7 @@ def test_a_neighbour_silent_for_seconds_is_forgotten_not_a_phantom_obstacle() ->
         dead = State(6, 1, 0.1, -0.5, 0.0, 0.0, 0.0, params.radius, 0.0, 0.0, -1, 0, 0, 0)
         host.table.update(gone)
         host.table.update(dead)
-        host.dead.add(6)
+        host.departed.dead.add(6)
         host._step_tick([Pose(0, 2, 0.2, 0.0, 0.0, 0.0)])
         assert 5 in host.table  # silent for 0.1 s: a neighbour (stale after 0.5 s, still avoided)
         ticks = round((params.forget_after + 0.2) / params.dt)
