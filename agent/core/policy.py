@@ -26,7 +26,7 @@ from .control import preferred_velocity
 from .deadlock import blocked, count_blocked
 from .goal_motion import GoalMotion, tracking_velocity
 from .params import RobotParams
-from .step import NeighbourStates, Rows, StepResult, Surroundings, control_step
+from .step import NeighbourStates, OwnStates, Rows, StepResult, Surroundings, control_step
 
 NO_GOAL = -1  # goal index of a robot that holds no goal of a goal set
 
@@ -153,17 +153,8 @@ def act(
         freshest = ages.min(axis=1, initial=np.inf)
         latency = np.where(np.isfinite(freshest), np.maximum(freshest, 0.0), memory.latency)
         preferred = _within_speed(params, position, intent, heard_speed_limit(params, reach, latency))
-    res = control_step(
-        params,
-        robot_ids,
-        position,
-        heading,
-        memory.velocity,
-        intent.goal,
-        neighbours,
-        around,
-        preferred,
-    )
+    own = OwnStates(robot_ids, position, heading, memory.velocity, intent.goal, preferred)
+    res = control_step(params, own, neighbours, around)
     counts, deadlocked = memory.blocked, np.zeros(len(position), bool)
     if around.watch_deadlocks and params.deadlock_cost > 0:
         to_goal = np.where((intent.key[:, 1] >= 0)[:, None], intent.goal - position, np.nan)

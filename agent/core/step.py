@@ -114,24 +114,29 @@ class Surroundings:
     reach: float = np.inf
 
 
-def control_step(
-    params: RobotParams,
-    robot_ids: np.ndarray,
-    position: np.ndarray,
-    heading: np.ndarray,
-    velocity: np.ndarray,
-    goal: np.ndarray,
-    neighbours: NeighbourStates,
-    around: Surroundings = Surroundings(),
-    preferred: np.ndarray | None = None,
-) -> StepResult:
-    """Paper 5.2-5.4 for a batch: preferred velocity (eq. 9), ORCA or NH-ORCA, controls.
+@dataclass
+class OwnStates:
+    """What each robot of a batch knows of itself when it steps (rows = robots)."""
 
-    preferred (B,2), optional: rows with finite values replace eq. 9 (eq. 27 held in an animation
-    frame, or the feed-forward toward a moving goal of a dynamic image, agent.core.animation and
-    agent.core.goal_motion); NaN rows use eq. 9."""
+    ids: np.ndarray  # (B,) the robots' ids (they seed the symmetry-breaking perturbation)
+    position: np.ndarray  # (B,2)
+    heading: np.ndarray  # (B,)
+    velocity: np.ndarray  # (B,2) the last tick's v_cf: ORCA's v_opt
+    goal: np.ndarray  # (B,2) NaN: none
+    # (B,2): rows with finite values replace eq. 9 (eq. 27 held in an animation frame, or the
+    # feed-forward toward a moving goal of a dynamic image, agent.core.animation and
+    # agent.core.goal_motion); NaN rows, or None, use eq. 9
+    preferred: np.ndarray | None = None
+
+
+def control_step(
+    params: RobotParams, own: OwnStates, neighbours: NeighbourStates, around: Surroundings = Surroundings()
+) -> StepResult:
+    """Paper 5.2-5.4 for a batch: preferred velocity (eq. 9), ORCA or NH-ORCA, controls."""
     core = settings_of(params)
-    pref = preferred_velocities(core, robot_ids, position, velocity, goal, preferred, around.seed, around.tick)
-    robots = Batch(position, velocity, pref, heading, params.radius)
+    pref = preferred_velocities(
+        core, own.ids, own.position, own.velocity, own.goal, own.preferred, around.seed, around.tick
+    )
+    robots = Batch(own.position, own.velocity, pref, own.heading, params.radius)
     v_cf, command, fallback, _, _ = step(core, robots, neighbours, around.segments)
     return StepResult(v_cf, command, pref, fallback)

@@ -466,10 +466,10 @@ def test_a_robot_steps_on_the_compiled_core_without_a_jit(kinematics):
     code = (
         "import sys, numpy as np\n"
         "from agent.core.params import RobotParams\n"
-        "from agent.core.step import NeighbourStates, control_step\n"
+        "from agent.core.step import NeighbourStates, OwnStates, control_step\n"
         f"p = RobotParams(kinematics={kinematics!r})\n"
-        "r = control_step(p, np.arange(1), np.zeros((1, 2)), np.zeros(1), np.zeros((1, 2)), np.ones((1, 2)),\n"
-        "                 NeighbourStates.empty(1))\n"
+        "own = OwnStates(np.arange(1), np.zeros((1, 2)), np.zeros(1), np.zeros((1, 2)), np.ones((1, 2)))\n"
+        "r = control_step(p, own, NeighbourStates.empty(1))\n"
         "print(bool(r.command.any()), sorted(m for m in ('numba', 'llvmlite') if m in sys.modules))"
     )
     out = subprocess.run([*interpreter(1), "-c", code], capture_output=True, text=True, cwd=REPO, timeout=60)

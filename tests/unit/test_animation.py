@@ -14,7 +14,7 @@ from scipy.optimize import linear_sum_assignment
 
 from agent.core.animation import frame_hold, iterations_left, synchronised_velocity
 from agent.core.params import EPUCK
-from agent.core.step import NeighbourStates, control_step
+from agent.core.step import NeighbourStates, OwnStates, control_step
 from coordinator.drawings import keyframes
 from coordinator.goals import GoalOptions
 from coordinator.keyframe_steps import DEFAULT_FIRST_HOLD, DEFAULT_FRAME_TIME
@@ -107,7 +107,8 @@ def test_control_step_takes_the_preferred_velocity_given():
     position, goal = np.array([[0.0, 0.0], [1.0, 0.0]]), np.array([[0.5, 0.0], [1.5, 0.0]])
     given = np.array([[0.02, 0.01], [np.nan, np.nan]])
     moving = np.array([[0.02, 0.01], [p.v_pref, 0.0]])  # (a robot at rest that wants to move turns right)
-    res = control_step(p, np.arange(2), position, np.zeros(2), moving, goal, NeighbourStates.empty(2), preferred=given)
+    own = OwnStates(np.arange(2), position, np.zeros(2), moving, goal, preferred=given)
+    res = control_step(p, own, NeighbourStates.empty(2))
     np.testing.assert_allclose(res.pref_velocity[0], [0.02, 0.01], atol=1e-4)  # eq. 27 (a tiny perturbation)
     np.testing.assert_allclose(res.pref_velocity[1], [p.v_pref, 0.0], atol=1e-4)  # eq. 9 where none is given
     np.testing.assert_allclose(res.velocity[0], [0.02, 0.01], atol=1e-4)

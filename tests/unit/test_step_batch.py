@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from agent.core.params import DIFFDRIVE, HOLONOMIC, RobotParams
-from agent.core.step import NeighbourStates, Surroundings, control_step, static_segments
+from agent.core.step import NeighbourStates, OwnStates, Surroundings, control_step, static_segments
 
 FIELDS = ("velocity", "command", "pref_velocity", "fallback")
 
@@ -50,20 +50,18 @@ def test_a_batch_gives_each_robot_the_bits_it_gets_alone(kinematics, walls, give
         preferred[rng.random(b) < 0.5] = np.nan
     params = RobotParams(kinematics=kinematics)
     around = Surroundings(segments, seed=5, tick=11)
-    full = control_step(params, ids, position, heading, velocity, goal, nb, around, preferred)
+    full = control_step(params, OwnStates(ids, position, heading, velocity, goal, preferred), nb, around)
     assert full.fallback.any() and not full.fallback.all()  # both the program and its fallback ran
     for i in range(b):
         row = slice(i, i + 1)
-        one = control_step(
-            params,
+        own = OwnStates(
             ids[row],
             position[row],
             heading[row],
             velocity[row],
             goal[row],
-            nb.rows(row),
-            around,
             None if preferred is None else preferred[row],
         )
+        one = control_step(params, own, nb.rows(row), around)
         for f in FIELDS:
             assert getattr(one, f)[0].tobytes() == getattr(full, f)[i].tobytes(), (i, f)
