@@ -175,6 +175,9 @@ class BodyNode:
         self.last_cmd_tick = np.full(n, -1)
         self.valid_until = np.full(n, -np.inf)  # when each robot's command runs out (-inf: stopped)
         self.live, self.ever_live = np.zeros(n, bool), np.zeros(n, bool)
+        # this tick's commands of robots not yet heard alive: a restarted agent's first command may
+        # overtake the news that it is alive by more than the one drain take_commands waits for
+        self.early: list[tuple] = []
         self.tick, self.withheld, self.goal_epoch = 0, False, 0
         # which goal sets can be the coordinator's, as the agents judge them; the world starts with the run
         self.believed = GoalSets(scene.arena, newest=0)
@@ -214,6 +217,7 @@ class BodyNode:
             self._publish_contacts(self.backend.step(span))
         self.tally.stopped_ticks += stopped
         self.tally.missed_ticks += int((self.live & (self.last_cmd_tick < self.tick)).sum())
+        self.early = []  # a dead agent's commands are never applied later
         self.tick += 1
         self.check_control()
 
@@ -267,9 +271,10 @@ class BodyNode:
 
     def take_commands(self, first: tuple | None = None) -> None:
         """Every robot's newest command, to its body at once (a robot out of sight is not driven blind)."""
-        arrived = ([first] if first is not None else []) + self.cmd_inbox.drain()
+        arrived = self.early + ([first] if first is not None else []) + self.cmd_inbox.drain()
         if any(not self.live[cmd.robot] for _, cmd in arrived if cmd.robot < self.scene.robots):
             self.update_liveness()  # an agent's first command may overtake the news that it is alive
+        self.early = [(k, cmd) for k, cmd in arrived if cmd.robot < self.scene.robots and not self.live[cmd.robot]]
         newest: dict[int, Command] = {}
         for _, cmd in arrived:
             i = cmd.robot
