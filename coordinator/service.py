@@ -251,6 +251,9 @@ class Coordinator:
         if len(bodies):
             goals = clear_of_bodies(goals, bodies, 2 * self.scene.radius + 0.05)  # room for its inflated radius
         before = self.current
+        # Lock-step: every host starts the set's auction from the same board, within the same bound of
+        # rounds a tick; an agent started again has no last agreement to warm-start from, so nobody does.
+        cold = self.scene.clock == "lockstep" and bool(self.roster.restarted & robots)
         self.epoch += 1
         self.shown = (step, robots)
         self.roster.restarted.clear()
@@ -265,7 +268,7 @@ class Coordinator:
         )
         if before is not None and not before.per_robot and len(before.positions) == len(goals):
             matched, prices = self._warm_start(before, goals)
-            self.current.warm_start = WarmStart(before.epoch, matched, prices)
+            self.current.warm_start = None if cold else WarmStart(before.epoch, matched, prices)
             if follows_keyframe(before, self.current):  # the same matching is a keyframe's correspondence (6.1)
                 self.current.correspondence = Correspondence(before.epoch, matched)
         self.bus.publish(self.bus.keys.goals(self.epoch), self.current)

@@ -187,4 +187,7 @@ def test_an_agent_started_again_gets_a_new_goal_set_and_a_blip_of_its_connection
     time.sleep(service.SETTLE_S + 0.05)
     assert coordinator._follow_show() and bus.published[-1].epoch == 2
     assert bus.published[-1].robots.tolist() == [0, 1, 2, 3]
+    # lock-step: no warm start the new incarnation could not share (it has no last agreement), so every
+    # host starts the auction from the same board and bound of rounds a tick
+    assert bus.published[-1].warm_start is None
     assert not coordinator._follow_show()  # once
