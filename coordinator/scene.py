@@ -89,7 +89,7 @@ class GoalPlan:
 
 @dataclass
 class Scene:
-    """A parsed scene: a record, not a mix of concerns. One field per scene-file key (name, robots,
+    """A parsed scene: a record, not a mix of concerns. One attribute per scene-file key (name, robots,
     robot, layout, goals, arena, obstacles, events, clock, engine, ... converge_hold), plus what
     parsing derives from them (poses, goal positions, steps and the goal sets made from them)."""
 

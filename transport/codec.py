@@ -379,6 +379,7 @@ class Goals(Message):
     set is part 1 of the message; ``timing`` (part 2) always follows it, the other parts only when
     they apply: ``motion`` (a dynamic image), ``correspondence`` (a keyframe after a keyframe) and
     ``warm_start`` (the auction's start after an image or keyframe). Each part has its own version.
+    A record: one attribute per field of the message (docs/protocol.md).
     """
 
     KIND: ClassVar[int] = 5
@@ -585,7 +586,8 @@ class Boards(Message):
     whether it ended the block, the newest round of change it knows of; the robots it has heard of
     (``known``: a bit per robot of the goal set, only from words flagged GROWN) and its board's owned
     records (``records``: auction records, the owner as ``robot``, RELEASED for a goal released at
-    that price; the word's ``records`` of them, only from words flagged FRESH)."""
+    that price; the word's ``records`` of them, only from words flagged FRESH). A record: one
+    attribute per field of the message (docs/protocol.md)."""
 
     KIND: ClassVar[int] = 13
     NAME: ClassVar[str] = "boards"

@@ -14,11 +14,16 @@ HOLONOMIC = "holonomic"
 DIFFDRIVE = "diffdrive"
 KINEMATICS = (HOLONOMIC, DIFFDRIVE)
 _MAY_BE_ZERO = {"assign_hysteresis", "deadlock_cost", "rounds_per_tick"}  # 0 turns the feature (or bound) off
+# rounds_per_tick of a lock-step scene made for agent processes that sets none: its one round a tick is
+# heard at the next tick, so no tick waits on a round (docs/lockstep_auction.md, "Rounds per tick")
+BUS_ROUNDS_PER_TICK = 1
 
 
 @dataclass(frozen=True)
 class RobotParams:
-    """What one robot knows about itself: its body and its controller settings."""
+    """What one robot knows about itself: its body and its controller settings.
+
+    A record: one attribute per setting (the paper's symbols in the comments), read as a table."""
 
     kinematics: str = DIFFDRIVE
     radius: float = epuck.RADIUS  # r_A

@@ -56,7 +56,7 @@ def progress_line(scene: str, t: float, at_goal: int, with_goal: int, min_cleara
 
 @dataclass
 class RunOptions:
-    """How `pixelswarm run` runs a scene: a record, one field per run flag (--out, --no-video, -k,
+    """How `pixelswarm run` runs a scene: a record, one attribute per run flag (--out, --no-video, -k,
     --display, --connect, --faults, --secure, --hardware, --remote-agents, --reach, --foxglove ...)."""
 
     out: Path
