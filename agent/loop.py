@@ -10,7 +10,7 @@ when a tick is due and brings what the robots know of it (``Sensed``).
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol
 
 import numpy as np
@@ -126,15 +126,8 @@ def _act(sensed: Sensed, intent: Intent, memory: Memory, heard: NeighbourStates,
 
 
 def _rows(sensed: Sensed, b: np.ndarray) -> Sensed:
-    return Sensed(
-        sensed.ids[b],
-        sensed.position[b],
-        sensed.heading[b],
-        sensed.tick,
-        sensed.stamp,
-        sensed.params,
-        sensed.braking[b],
-    )
+    s = sensed
+    return replace(s, ids=s.ids[b], position=s.position[b], heading=s.heading[b], braking=s.braking[b])
 
 
 def changed_rows(old: Intent, new: Intent) -> np.ndarray:

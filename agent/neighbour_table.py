@@ -73,23 +73,21 @@ class NeighbourTable:
         if not self._states:
             return 0
         at = cells_of([(kept[-1].x, kept[-1].y) for kept in self._states.values()], cell_size).tolist()
-        gone = [r for r, (cx, cy) in zip(self._states, at) if (cx, cy) not in cells and r not in keep]
-        for r in gone:
-            del self._states[r]
-        return len(gone)
+        return self._forget([r for r, (cx, cy) in zip(self._states, at) if (cx, cy) not in cells and r not in keep])
 
     def forget_silent(self, before: float, keep: set[int] | frozenset[int] = frozenset()) -> int:
         """Drop robots whose newest state is stamped before ``before`` (display time), except ``keep``
         (robots whose agent died: their bodies stand where they were last heard). We listen to the
         cells around our robots, so a robot anywhere near them is heard every period; one silent
         for seconds has left those cells, and its last state, in a cell we still listen to, would
-        stay for good as a phantom obstacle (forget_outside keeps it). At 1000 robots one robot
-        stopped 3.8 m short of its goal with nobody within 3.8 m, beside where a robot of another
-        host had left its host's cells 37 s earlier. Returns how many were dropped."""
-        gone = [r for r, kept in self._states.items() if kept[-1].stamp < before and r not in keep]
-        for r in gone:
+        stay for good as a phantom obstacle (forget_outside keeps it) that a robot may stop short of
+        its goal for. Returns how many were dropped."""
+        return self._forget([r for r, kept in self._states.items() if kept[-1].stamp < before and r not in keep])
+
+    def _forget(self, robots: list[int]) -> int:
+        for r in robots:
             del self._states[r]
-        return len(gone)
+        return len(robots)
 
     def __len__(self) -> int:
         return len(self._states)

@@ -23,7 +23,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -102,24 +102,10 @@ class HostConfig:
         )
 
     def to_json(self) -> str:
-        return json.dumps(
-            {
-                "robots": self.robots,
-                "params": self.params.to_dict(),
-                "display": self.display,
-                "seed": self.seed,
-                "arena": self.arena,
-                "obstacles": self.obstacles,
-                "batch_wait": self.batch_wait,
-                "lockstep": self.lockstep,
-                "state_wait": self.state_wait,
-                "pursue": self.pursue,
-                "greet": self.greet,
-                "frames": self.frames,
-                "steps": self.steps,
-                "reach": self.reach if math.isfinite(self.reach) else None,
-            }
-        )
+        data = {f.name: getattr(self, f.name) for f in fields(self)}
+        data["params"] = self.params.to_dict()
+        data["reach"] = self.reach if math.isfinite(self.reach) else None
+        return json.dumps(data)
 
 
 def interpreter(robots: int) -> list[str]:
