@@ -246,7 +246,28 @@ _EPOCH = struct.Struct("<I")  # the goal set a part refers to
 
 
 @dataclass
-class Timing:
+class _FixedPart:
+    """A goal set's part of one fixed layout: its fields in order, then ``_check`` of what they hold."""
+
+    _layout: ClassVar[struct.Struct]
+
+    def pack(self, count: int) -> bytes:
+        return self._layout.pack(*(getattr(self, f.name) for f in fields(self)))
+
+    @classmethod
+    def unpack(cls, body: memoryview, count: int) -> Any:
+        if len(body) != cls._layout.size:
+            raise Malformed("truncated")
+        part = cls(*cls._layout.unpack(body))
+        part._check()
+        return part
+
+    def _check(self) -> None:
+        raise NotImplementedError
+
+
+@dataclass
+class Timing(_FixedPart):
     """Part 2 of a goal set: when it was published (``stamp``), the scene step (image) it shows and
     how long (``hold``, s), the display time the step began (t = 0 of eq. 28, the keyframe's start)
     and the K_f dt of an animation keyframe (paper 6.2, eq. 27; 0: not a keyframe)."""
@@ -260,22 +281,14 @@ class Timing:
     t_start: float = 0.0
     frame_period: float = 0.0
 
-    def pack(self, count: int) -> bytes:
-        return self._layout.pack(self.stamp, self.step, self.hold, self.t_start, self.frame_period)
-
-    @classmethod
-    def unpack(cls, body: memoryview, count: int) -> Timing:
-        if len(body) != cls._layout.size:
-            raise Malformed("truncated")
-        part = cls(*cls._layout.unpack(body))
-        _finite(part.stamp, part.hold, part.t_start, part.frame_period)
-        if part.frame_period < 0:
+    def _check(self) -> None:
+        _finite(self.stamp, self.hold, self.t_start, self.frame_period)
+        if self.frame_period < 0:
             raise Malformed("invalid")
-        return part
 
 
 @dataclass
-class Motion:
+class Motion(_FixedPart):
     """Part 3 of a goal set: its motion as a dynamic image (paper 7.4.1, eq. 28, with t = display
     time - t_start): v_G, omega_G, p_OG, K_eG, and whether the scaling is geometric. Absent: the
     goal set stands still."""
@@ -296,18 +309,10 @@ class Motion:
         """It translates, rotates or scales."""
         return any((self.v_gx, self.v_gy, self.omega_g, self.k_eg))
 
-    def pack(self, count: int) -> bytes:
-        return self._layout.pack(self.v_gx, self.v_gy, self.omega_g, self.p_ogx, self.p_ogy, self.k_eg, self.geometric)
-
-    @classmethod
-    def unpack(cls, body: memoryview, count: int) -> Motion:
-        if len(body) != cls._layout.size:
-            raise Malformed("truncated")
-        part = cls(*cls._layout.unpack(body))
-        _finite(part.v_gx, part.v_gy, part.omega_g, part.p_ogx, part.p_ogy, part.k_eg)
-        if part.geometric not in (0, 1) or (part.geometric and part.k_eg <= -1):
+    def _check(self) -> None:
+        _finite(self.v_gx, self.v_gy, self.omega_g, self.p_ogx, self.p_ogy, self.k_eg)
+        if self.geometric not in (0, 1) or (self.geometric and self.k_eg <= -1):
             raise Malformed("invalid")
-        return part
 
 
 @dataclass
