@@ -14,7 +14,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from agent.core.params import EPUCK, RobotParams
+from agent.core.params import BUS_ROUNDS_PER_TICK, EPUCK, RobotParams
 from coordinator.goals_cli import add_goals_parser
 from coordinator.scene import (
     CLOCKS,
@@ -99,7 +99,8 @@ def _add_run_engine(run: argparse.ArgumentParser) -> None:
         default=None,
         metavar="N",
         help="lock-step: at most N auction message rounds a tick, a block of phases spanning ticks "
-        "(default: the scene's [robot] rounds_per_tick, 0: every block agreed within its tick)",
+        "(default: the scene's [robot] rounds_per_tick; if it sets none, 1 for a scene made for agent "
+        "processes, 0 for one made for the central engine: every block agreed within its tick)",
     )
     group.add_argument(
         "--deadline",
@@ -300,8 +301,7 @@ def _make_goal_sets(scene: Scene, progress: typing.TextIO | None) -> Scene:
 def cmd_run(args: argparse.Namespace) -> int:
     scene = _scene_to_run(args)
     faults, reach = _faults_and_reach(args, scene)
-    if args.rounds_per_tick is not None:
-        scene = replace(scene, robot={**scene.robot, "rounds_per_tick": args.rounds_per_tick})
+    scene = _with_rounds_per_tick(args, scene, reach)
     try:
         RobotParams.from_dict(scene.robot)
     except ValueError as err:
@@ -314,6 +314,18 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.hardware is None and (args.engine or scene.engine) == "central":
         return _run_central(args, scene, out, faults, reach)
     return _run_agents(args, scene, out, faults, reach)
+
+
+def _with_rounds_per_tick(args: argparse.Namespace, scene: Scene, reach: float) -> Scene:
+    """--rounds-per-tick, or the scene's; a lock-step scene made for agent processes (its engine
+    distributed) that sets none is bounded to BUS_ROUNDS_PER_TICK, whichever engine runs it, so
+    every engine runs it the same; scenes made for the central engine agree every block within its
+    tick (paper 5.1). Written into the scene, so the run directory says which it was."""
+    rounds = args.rounds_per_tick
+    if rounds is None and "rounds_per_tick" not in scene.robot and args.hardware is None:
+        bus = scene.engine == "distributed" and scene.clock == "lockstep" and not math.isfinite(reach)
+        rounds = BUS_ROUNDS_PER_TICK if bus and scene.assignment == "auction" else None
+    return scene if rounds is None else replace(scene, robot={**scene.robot, "rounds_per_tick": rounds})
 
 
 def _scene_to_run(args: argparse.Namespace) -> Scene:
