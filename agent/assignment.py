@@ -310,8 +310,13 @@ class AuctionLink:
         if self.lockstep:  # the block begins at the next tick, as the central engine starts a new image
             self.block_stamp = -np.inf
             self.exchange.weed()  # bids filed before the set came: _keeps checks them now
-            # with rounds per tick bounded (large swarms), from the warm start: a cold one would span many
-            self.warm = bool(self.params.rounds_per_tick) and before is not None and self._warm_start(before, goals)
+            # with rounds per tick bounded, from the warm start: a cold one would span many ticks
+            first = self._first_warm_start(goals)
+            self.warm = bool(self.params.rounds_per_tick) and (
+                first or (before is not None and self._warm_start(before, goals))
+            )
+            if self.warm and warm is not None and first:
+                return self.part.start_from(goals.robots[warm.matched], warm.prices)
             if self.warm and before is not None and warm is not None:
                 return self.part.carry(before, warm.matched, current=current, prices=warm.prices)
             return {}
@@ -339,6 +344,13 @@ class AuctionLink:
             and len(before.goals) == len(goals.positions)
             and np.array_equal(before.robots, np.sort(np.asarray(goals.robots, np.int64)))
         )
+
+    @staticmethod
+    def _first_warm_start(goals: Goals) -> bool:
+        """The run's first goal set, warm-started from where its robots start (WarmStart.matched_from
+        0): every host starts from it, none has a last set to carry."""
+        warm = goals.warm_start
+        return warm is not None and warm.matched_from == 0 and not goals.per_robot and len(goals.robots) == goals.count
 
     def _try_start(self, positions: dict[int, np.ndarray]) -> bool:
         part = self.part

@@ -271,7 +271,16 @@ class Coordinator:
             self.current.warm_start = None if cold else WarmStart(before.epoch, matched, prices)
             if follows_keyframe(before, self.current):  # the same matching is a keyframe's correspondence (6.1)
                 self.current.correspondence = Correspondence(before.epoch, matched)
+        elif before is None and self._rounds_bounded():
+            # the first set, from where the robots start: they drive at once while its auction spans ticks
+            starts = np.asarray(self.scene.poses, float)[self.current.robots, :2]
+            self.current.warm_start = WarmStart(0, *goal_matching(starts, _as_sent(goals)))
         self.bus.publish(self.bus.keys.goals(self.epoch), self.current)
+
+    def _rounds_bounded(self) -> bool:
+        """Lock-step with the auction's rounds per tick bounded: a block spans ticks
+        (docs/lockstep_auction.md), so the robots need goals to drive to meanwhile."""
+        return self.scene.clock == "lockstep" and bool(self.scene.robot.get("rounds_per_tick", 0))
 
     def _warm_start(self, before: Goals, goals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The auction's warm start from goal set ``before`` to these goals (goal_matching, on the

@@ -346,7 +346,8 @@ class WarmStart:
     """Part 5 of a goal set: where its auction starts, after an image or keyframe: per goal, the goal
     of set ``matched_from`` matched to it and prices in equilibrium for that matching
     (coordinator.keyframes.goal_matching, computed once by the coordinator rather than by every
-    agent host at once while its robots drive). Absent: a cold start."""
+    agent host at once while its robots drive). ``matched_from`` 0: the run's first set, matched to
+    where the robots start (per goal, its robot's index in the set's robots). Absent: a cold start."""
 
     PART: ClassVar[int] = 5
     VERSION: ClassVar[int] = 1
@@ -370,7 +371,7 @@ class WarmStart:
         prices = np.frombuffer(body[at:], "<f8").copy()
         if not np.all(np.isfinite(prices)):
             raise Malformed("non-finite")
-        if matched_from == 0 or (matched < 0).any() or (matched >= count).any():
+        if (matched < 0).any() or (matched >= count).any():
             raise Malformed("invalid")
         return cls(matched_from, matched, prices)
 

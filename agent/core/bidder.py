@@ -296,6 +296,21 @@ class Participant(Auction):
                 self.goal[k] = g if g >= 0 and owner[g] == r else -1
         return carried
 
+    def start_from(self, owner: np.ndarray, prices: np.ndarray) -> dict[int, int]:
+        """The first goal set's warm start (Goals.warm_start from the robots' start positions): the
+        auction starts with goal j claimed by robot ``owner[j]`` at ``prices[j]``, in equilibrium for
+        that matching, the same board on every host; each own robot drives to its goal until the
+        auction agrees. Returns robot -> goal. Call before the first instance."""
+        owner = np.asarray(owner, np.int64)
+        if self.started or len(owner) != len(self.goals) or len(prices) != len(self.goals):
+            return {}
+        self.board.owner[:] = owner
+        self.board.price[:] = prices
+        self.board.version += 1
+        goal_of = {r: j for j, r in enumerate(owner.tolist())}
+        self.goal[:] = [goal_of.get(r, -1) for r in self.own]
+        return {r: goal_of[r] for r in self.own if r in goal_of}
+
     def adopt_if_settled(self) -> None:
         """Adopt the current instance if every robot is content on one board (someone reached a later one)."""
         if self.final_phase and self._content_all().all():

@@ -126,8 +126,19 @@ def warm_start(
     ``previous``: the last image's goals, which ``assignment`` indexes. Returns the carried assignment."""
     matched, prices = goal_matching(previous, goals)
     current = {r: int(g) for r, g in enumerate(assignment.tolist()) if g >= 0}
-    carried = auction.carry(before, matched, current=current, prices=prices)
-    out = np.full(len(assignment), -1)
+    return _by_carried(auction.carry(before, matched, current=current, prices=prices), len(assignment))
+
+
+def start_warm(auction: Participant, poses: np.ndarray, goals: np.ndarray, robots: int) -> np.ndarray:
+    """The first image's auction begun from where its robots start, as the coordinator's first goal
+    set begins it when rounds per tick are bounded (WarmStart.matched_from 0): each robot drives at
+    once to the goal matched to its start. Returns the carried assignment of ``robots`` robots."""
+    matched, prices = goal_matching(np.asarray(poses, float)[auction.robots, :2], goals)
+    return _by_carried(auction.start_from(auction.robots[matched], prices), robots)
+
+
+def _by_carried(carried: dict[int, int], robots: int) -> np.ndarray:
+    out = np.full(robots, -1)
     out[list(carried)] = list(carried.values())
     return out
 
@@ -170,6 +181,7 @@ class CentralAuction:
     def show(self, k: int) -> None:
         """A new image: its goal set, and a fresh auction (the old prices mean nothing)."""
         last = self.auction if isinstance(self.auction, Participant) and self.auction.agreed_instance >= 0 else None
+        first = self.shown < 0
         self.shown, self.auction, self.assigned_at, self.block = k, None, None, None
         if not self.scene.steps:
             return
@@ -177,10 +189,13 @@ class CentralAuction:
         self.goal_set, self.goal_colors, timing = _step_goals(self.scene, k, self.movers.pixels)
         self.motion, self.t_start = timing.motion, timing.t_start
         self.timing = {e: v for e, v in self.timing.items() if e == image + 1} | {k + 1: timing}
-        if self.budget and last is not None:  # as the agents with bounded rounds: the warm start
+        if self.budget and (last is not None or first):  # as the agents with bounded rounds: the warm start
             pixels, p = self.movers.pixels.tolist(), self.params
             self.auction = Participant(k, self.goal_set, pixels, pixels, p.assign_eps, p.assign_hysteresis)
-            self.assignment = warm_start(self.auction, last, previous, self.goal_set, self.assignment)
+            if last is not None:
+                self.assignment = warm_start(self.auction, last, previous, self.goal_set, self.assignment)
+            else:
+                self.assignment = start_warm(self.auction, self.scene.poses, self.goal_set, len(self.assignment))
             self.assigned = (k, self.goal_set, self.goal_colors)
 
     @property
