@@ -324,6 +324,22 @@ def _router_dict(directory: Path, listen: list[str], auth: str, robots: int, dis
     return conf
 
 
+def _folder(directory: str | Path, display: str, auth: str) -> tuple[Path, dict]:
+    """A folder of access rules, resolved, and its manifest, if it is one, readable, for ``display``."""
+    if auth not in AUTH_MODES:
+        raise SecurityError(f"auth must be one of {', '.join(AUTH_MODES)}, not {auth!r}")
+    directory = Path(directory).resolve()
+    if not directory.is_dir():
+        raise SecurityError(f"{directory} is not a folder; make one with `pixelswarm certs DIR --robots N`")
+    if not os.access(directory, os.R_OK | os.X_OK):
+        raise SecurityError(f"cannot read {directory}")
+    manifest = _manifest(directory)
+    made_for = manifest.get("display", "default")
+    if made_for != display:
+        raise SecurityError(f"{directory} holds access rules for display {made_for!r}, not {display!r}")
+    return directory, manifest
+
+
 def _manifest(directory: Path) -> dict:
     path = directory / MANIFEST
     try:
@@ -374,22 +390,12 @@ def check_folder(
     """The folder, resolved, if a run of robots 0..robots-1 on ``display`` can use it: its access rules
     cover those robots and that display, and the files of the router, the services and every robot
     are there and readable. Otherwise SecurityError, with one line saying what is wrong."""
-    if auth not in AUTH_MODES:
-        raise SecurityError(f"auth must be one of {', '.join(AUTH_MODES)}, not {auth!r}")
-    directory = Path(directory).resolve()
-    if not directory.is_dir():
-        raise SecurityError(f"{directory} is not a folder; make one with `pixelswarm certs DIR --robots N`")
-    if not os.access(directory, os.R_OK | os.X_OK):
-        raise SecurityError(f"cannot read {directory}")
-    manifest = _manifest(directory)
+    directory, manifest = _folder(directory, display, auth)
     if manifest["robots"] < robots:
         raise SecurityError(
             f"{directory} was made for {manifest['robots']} robots and this run has {robots}; "
             f"make a folder for them with `pixelswarm certs DIR --robots {robots}`"
         )
-    made_for = manifest.get("display", "default")
-    if made_for != display:
-        raise SecurityError(f"{directory} holds access rules for display {made_for!r}, not {display!r}")
     for role in [ROUTER, *services, *(robot_role(i) for i in range(robots))]:
         for name in _files(role, auth):
             if not os.access(directory / name, os.R_OK):
@@ -401,14 +407,7 @@ def check_role(directory: str | Path, role: str, *, display: str = "default", au
     """The folder, resolved, if a session of ``role`` on ``display`` can open from it (its files are
     there and readable: a viewer's machine needs only ``ca.pem`` and the observer's files), else
     SecurityError in one line; a folder made before the role existed says so."""
-    if auth not in AUTH_MODES:
-        raise SecurityError(f"auth must be one of {', '.join(AUTH_MODES)}, not {auth!r}")
-    directory = Path(directory).resolve()
-    if not directory.is_dir():
-        raise SecurityError(f"{directory} is not a folder; make one with `pixelswarm certs DIR --robots N`")
-    made_for = _manifest(directory).get("display", "default")
-    if made_for != display:
-        raise SecurityError(f"{directory} holds access rules for display {made_for!r}, not {display!r}")
+    directory, _ = _folder(directory, display, auth)
     for name in _files(role, auth):
         if not os.access(directory / name, os.R_OK):
             if not (directory / name).exists() and role in SERVICES:
