@@ -66,10 +66,10 @@ def _hull_vertices(goals: np.ndarray, exact: bool = True) -> tuple[np.ndarray, n
     return np.ascontiguousarray(corners[:, 0], float), np.ascontiguousarray(corners[:, 1], float)
 
 
-def frozen_positions(positions: Mapping[int, np.ndarray] | np.ndarray, own: list[int]) -> np.ndarray:
+def frozen_positions(positions: Mapping[int, np.ndarray] | np.ndarray, own: list[int] | np.ndarray) -> np.ndarray:
     """The ``own`` robots' positions (K, 2) from a mapping robot -> (x, y) or rows by robot id."""
     if isinstance(positions, np.ndarray):
-        return np.asarray(positions, float)[np.array(own, np.int64)].reshape(-1, 2)
+        return np.asarray(positions, float)[np.asarray(own, np.int64)].reshape(-1, 2)
     return np.array([positions[r] for r in own], float).reshape(-1, 2)
 
 
@@ -135,7 +135,9 @@ class Auction:
 
 
 class Participant(Auction):
-    """The own robots of one host in the auction of one goal set (epoch), on one board."""
+    """The own robots of one host in the auction of one goal set (epoch), on one board. Its 29
+    attributes stay flat: the compiled rounds (agent.core.bidding.Heard, Bidders) and the lock-step
+    rounds (agent.core.rounds) read and write the board, claims and heard records by name."""
 
     def __init__(
         self, epoch: int, goals: np.ndarray, robots: list[int], own: list[int], eps: float, hysteresis: float = 0.0
@@ -224,14 +226,15 @@ class Participant(Auction):
         goals = np.array([g for _, g in keys], np.int64)
         return rows, goals, np.array([self.penalty[key] for key in keys], float)
 
-    def _freeze(self, instance: int, positions: Mapping[int, np.ndarray] | np.ndarray) -> None:
+    def _freeze(self, instance: int, positions: Mapping[int, np.ndarray] | np.ndarray, rank: bool = True) -> None:
         """begin() up to its first round: the first instance of a block freezes the positions (the
-        block's other phases share them); penalties declared meanwhile come into force."""
+        block's other phases share them); penalties declared meanwhile come into force. Without
+        ``rank`` the robots' first ranking is left to the caller (settle_beside's thread)."""
         if self.started and not self.is_agreed and instance > self.instance:
             self.adopt_if_settled()  # someone reached a later instance: ours was agreed
         new_block = not self.started or instance // self.phases != self.instance // self.phases
         if new_block and self.own:
-            self.position = frozen_positions(positions, self.own)
+            self.position = frozen_positions(positions, self.own_ids if isinstance(positions, np.ndarray) else self.own)
         penalised = any(cost != 0.0 for cost in self.pending.values())
         if penalised:
             for key, cost in self.pending.items():
@@ -242,7 +245,8 @@ class Participant(Auction):
         # block keep them, and the rankings too (prices only rise, the compiled rounds follow them).
         if new_block or penalised:
             self._bidders.freeze(self.position)
-            self.without_list = self._bidders.first_ranking()
+            if rank:
+                self.without_list = self._bidders.first_ranking()
         self.instance = instance
         self.claims_changed = True  # the new instance's records are news
 
@@ -357,15 +361,26 @@ class Participant(Auction):
         robot ranking its ``candidates`` best goals while they provably hold its best. A phase that
         takes more than ROUNDS_PER_ROBOT rounds per robot (at least 100,000) is an error.
         Returns each own robot's agreed goal, in the order of ``own``."""
+        self.settle_beside(positions, candidates)
+        return self.settled()
+
+    def settle_beside(self, positions: Mapping[int, np.ndarray] | np.ndarray, candidates: int = CANDIDATES) -> None:
+        """settle_alone's block, begun on a thread of its own that never takes the interpreter's
+        lock (Bidders.settle_beside): the caller works on meanwhile, touching nothing of this
+        auction but ``penalise`` (it counts from the next block), until ``settled``."""
         if len(self.own) != len(self.robots):
             raise ValueError("settle_alone needs a host that owns every robot of the goal set")
         if candidates < 3:
             raise ValueError("settle_alone ranks at least 3 candidate goals per robot")
         if not self._exact_hull or self._bidders.candidates != candidates:
             self._bidders, self._exact_hull = self._new_bidders(candidates, exact_hull=True), True
-        self.begin_block(positions)
+        self.begin_block(positions, rank=False)  # a new block: its first ranking is the thread's
         max_rounds = max(100_000, ROUNDS_PER_ROBOT * len(self.robots))
-        rounds, bids, settled = self._bidders.settle_block(np.array(self.schedule), self.slacks, max_rounds)
+        self._bidders.settle_beside(np.array(self.schedule), self.slacks, max_rounds)
+
+    def settled(self) -> np.ndarray:
+        """The block of settle_beside, agreed: each own robot's goal, in the order of ``own``."""
+        rounds, bids, settled, self.without_list, _ = self._bidders.settled()
         self.instance += min(settled, self.phases - 1)
         self.board.version += 1
         self.bids, self.rounds, self.claims_changed = self.bids + bids, self.rounds + rounds, True
@@ -374,12 +389,22 @@ class Participant(Auction):
         self._adopt()
         return self.goal.copy()
 
+    @property
+    def settling(self) -> bool:
+        """A block of settle_beside is under way (``settled`` not called yet)."""
+        return self._bidders.settling
+
+    @property
+    def beside_seconds(self) -> float:
+        """The wall seconds the last block of settle_beside took on its thread."""
+        return self._bidders.job_seconds
+
     # --- lock-step rounds ----------------------------------------------------------------------------
-    def begin_block(self, positions: Mapping[int, np.ndarray] | np.ndarray) -> None:
+    def begin_block(self, positions: Mapping[int, np.ndarray] | np.ndarray, rank: bool = True) -> None:
         """Begin the next block of phases on these positions, warm from the board, bidding nothing
-        yet (lock-step: every host bids in round 1 against the same board)."""
+        yet (lock-step: every host bids in round 1 against the same board); ``rank``: as _freeze."""
         first = (self.instance // self.phases + 1) * self.phases if self.started else 0
-        self._freeze(first, positions)
+        self._freeze(first, positions, rank)
 
     def round_records(self) -> np.ndarray:
         """Lock-step: records(), each claim flagged SETTLED when its robot is content at the final

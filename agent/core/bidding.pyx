@@ -45,6 +45,7 @@ more rounds of one or two bidders):
 from libc.math cimport INFINITY, NAN, fabs, sqrt
 from libc.stdint cimport int32_t, int64_t, uint8_t, uint16_t, uint64_t
 from libc.string cimport memcpy
+from posix.time cimport CLOCK_MONOTONIC, clock_gettime, timespec
 
 from agent.core.splitmix cimport splitmix64
 
@@ -60,6 +61,28 @@ cdef uint8_t RELEASED = AuctionRecord.RELEASED  # a record's flag
 # land an ulp short, the robot is not content with the goal it just won, gives it up and bids again.
 # Each such bid releases a goal, and at large warm prices the releases feed a price war that never ends.
 cdef double ROUNDING = 1e-12
+
+
+cdef extern from "<pthread.h>" nogil:
+    ctypedef struct pthread_t:
+        pass
+    ctypedef struct pthread_mutex_t:
+        pass
+    ctypedef struct pthread_cond_t:
+        pass
+    int pthread_create(pthread_t* thread, void* attr, void* (*start)(void*) noexcept nogil, void* arg)
+    int pthread_join(pthread_t thread, void** result)
+    int pthread_mutex_init(pthread_mutex_t* mutex, void* attr)
+    int pthread_mutex_destroy(pthread_mutex_t* mutex)
+    int pthread_mutex_lock(pthread_mutex_t* mutex)
+    int pthread_mutex_unlock(pthread_mutex_t* mutex)
+    int pthread_cond_init(pthread_cond_t* cond, void* attr)
+    int pthread_cond_destroy(pthread_cond_t* cond)
+    int pthread_cond_wait(pthread_cond_t* cond, pthread_mutex_t* mutex)
+    int pthread_cond_broadcast(pthread_cond_t* cond)
+
+cdef enum Job:  # the state of settle_beside's thread
+    IDLE, ASKED, DONE, STOP
 
 
 cdef inline bint greater(double price, int64_t robot, bint released, double b_price, int64_t b_owner,
@@ -270,6 +293,18 @@ cdef class Bidders:
     cdef int64_t[::1] may_bid, waiting, queue, look, bidders, bid_goal, owner_before, runner_up, held
     cdef double[::1] offer, third, held_price
     cdef uint8_t[::1] touched, unhappy
+    # a block settling on a thread of its own (settle_beside): its phases, and what it came to; the
+    # thread, made at the first block, sleeps on ``job_wake`` between blocks
+    cdef const double[::1] job_eps, job_slack
+    cdef int64_t job_max_rounds, job_rounds, job_bids
+    cdef Py_ssize_t job_settled, job_without
+    cdef readonly double job_seconds  # the wall time of the last block on the thread
+    cdef pthread_t job_thread
+    cdef pthread_mutex_t job_lock
+    cdef pthread_cond_t job_wake
+    cdef Job job
+    cdef bint has_thread
+    cdef readonly bint settling
 
     def __init__(self, board, goals, robot, goal, hull, int candidates):
         """``board``: price, owner and released (bool) of the goal set; ``goals`` (G, 2); ``robot``:
@@ -470,22 +505,28 @@ cdef class Bidders:
     def first_ranking(self) -> int:
         """Every robot's ranking at a block's start (or once penalties rose), from its candidates where
         moved_bound still proves them. Returns how many robots had no list to start from."""
+        cdef Py_ssize_t none
+        with nogil:
+            none = self.rank_first()
+        return none
+
+    cdef Py_ssize_t rank_first(self) noexcept nogil:
+        """first_ranking's work."""
         cdef double lowest = INFINITY, x0, y0
         cdef Py_ssize_t i, j, none = 0
         if self.g == 0:
             return self.k
-        with nogil:
-            self.renew_prices()  # prices may have been set anew between blocks (a carried board)
-            for j in range(self.g):
-                lowest = min(lowest, self.price[j])
-            for i in range(self.k):
-                x0, y0 = self.made_x[i], self.made_y[i]
-                self.bound[i] = moved_bound(self.made_bound[i], x0, y0, self.px[i] - x0, self.py[i] - y0,
-                                            self.hull_x, self.hull_y, lowest)
-                if self.bound[i] == INFINITY:
-                    self.made_bound[i] = INFINITY  # no list: rank_all searches the goal tree
-                none += self.made_bound[i] == INFINITY
-                self.remember(i, self.rank(i))
+        self.renew_prices()  # prices may have been set anew between blocks (a carried board)
+        for j in range(self.g):
+            lowest = min(lowest, self.price[j])
+        for i in range(self.k):
+            x0, y0 = self.made_x[i], self.made_y[i]
+            self.bound[i] = moved_bound(self.made_bound[i], x0, y0, self.px[i] - x0, self.py[i] - y0,
+                                        self.hull_x, self.hull_y, lowest)
+            if self.bound[i] == INFINITY:
+                self.made_bound[i] = INFINITY  # no list: rank_all searches the goal tree
+            none += self.made_bound[i] == INFINITY
+            self.remember(i, self.rank(i))
         return none
 
     def ranking(self) -> tuple[np.ndarray, np.ndarray]:
@@ -610,44 +651,138 @@ cdef class Bidders:
         """A block of epsilon-scaling phases (``eps``, ``slack``), after first_ranking: per phase the
         Jacobi rounds until every robot is content. Leaves every cached best value exact. Returns
         (rounds, bids, phases settled): fewer than len(eps) when a phase ran out of rounds."""
+        self.job_eps, self.job_slack, self.job_max_rounds = eps, slack, max_rounds
+        with nogil:
+            self.settle_job()
+        return self.job_rounds, self.job_bids, self.job_settled
+
+    def settle_beside(self, eps, slack, int64_t max_rounds) -> None:
+        """first_ranking and settle_block on a thread of this module's own, which never takes the
+        interpreter's lock: the central engine steps its robots meanwhile, and neither waits for the
+        other to hand the lock over. The thread stays for the next block, asleep (a thread woken
+        is run sooner than one made anew on a busy machine). Nothing may touch these bidders, their
+        board or claims until ``settled`` has returned."""
+        if self.settling:
+            raise RuntimeError("a block is settling already")
+        self.job_eps = np.ascontiguousarray(eps, float)
+        self.job_slack = np.ascontiguousarray(slack, float)
+        self.job_max_rounds = max_rounds
+        if not self.has_thread:
+            pthread_mutex_init(&self.job_lock, NULL)
+            pthread_cond_init(&self.job_wake, NULL)
+            self.job = IDLE
+            if pthread_create(&self.job_thread, NULL, settle_thread, <void*>self) != 0:
+                pthread_cond_destroy(&self.job_wake)
+                pthread_mutex_destroy(&self.job_lock)
+                raise OSError("no thread to settle the block on")
+            self.has_thread = True
+        with nogil:
+            pthread_mutex_lock(&self.job_lock)
+            self.job = ASKED
+            pthread_cond_broadcast(&self.job_wake)
+            pthread_mutex_unlock(&self.job_lock)
+        self.settling = True
+
+    def settled(self) -> tuple[int, int, int, int, float]:
+        """Wait for the block of settle_beside: (rounds, bids, phases settled, robots without a
+        list at its start, wall seconds it took on its thread)."""
+        if not self.settling:
+            raise RuntimeError("no block is settling")
+        with nogil:
+            pthread_mutex_lock(&self.job_lock)
+            while self.job != DONE:
+                pthread_cond_wait(&self.job_wake, &self.job_lock)
+            self.job = IDLE
+            pthread_mutex_unlock(&self.job_lock)
+        self.settling = False
+        return self.job_rounds, self.job_bids, self.job_settled, self.job_without, self.job_seconds
+
+    def __dealloc__(self):
+        if not self.has_thread:
+            return
+        with nogil:  # a block under way is finished first
+            pthread_mutex_lock(&self.job_lock)
+            while self.job == ASKED:
+                pthread_cond_wait(&self.job_wake, &self.job_lock)
+            self.job = STOP
+            pthread_cond_broadcast(&self.job_wake)
+            pthread_mutex_unlock(&self.job_lock)
+            pthread_join(self.job_thread, NULL)
+        pthread_cond_destroy(&self.job_wake)
+        pthread_mutex_destroy(&self.job_lock)
+
+    cdef void serve(self) noexcept nogil:
+        """settle_beside's thread: each block asked for, until told to stop."""
+        pthread_mutex_lock(&self.job_lock)
+        while True:
+            while self.job != ASKED and self.job != STOP:
+                pthread_cond_wait(&self.job_wake, &self.job_lock)
+            if self.job == STOP:
+                break
+            pthread_mutex_unlock(&self.job_lock)
+            self.settle_timed()
+            pthread_mutex_lock(&self.job_lock)
+            self.job = DONE
+            pthread_cond_broadcast(&self.job_wake)
+        pthread_mutex_unlock(&self.job_lock)
+
+    cdef void settle_job(self) noexcept nogil:
+        """settle_block's work on the phases of ``job_eps``, ``job_slack``, into job_rounds, job_bids
+        and job_settled."""
+        cdef const double[::1] eps = self.job_eps
+        cdef const double[::1] slack = self.job_slack
         cdef Py_ssize_t i, a, phase, later, n, n_may = 0, k = self.k
         cdef bint scan = True
         cdef int64_t rounds = 0, bids = 0, r, b, left
         cdef double least
         cdef Py_ssize_t settled = eps.shape[0]
-        with nogil:
-            for i in range(k):
-                self.seen[i] = self.price[self.best[i]]
-                self.touched[i] = False  # robots whose contentment may have changed since the last scan
-            for phase in range(eps.shape[0]):
-                if scan:  # after bids (or at first): who is not content at the least slack left
-                    least = slack[phase]
-                    for later in range(phase + 1, slack.shape[0]):
-                        least = min(least, slack[later])
-                    for a in range(n_may):
-                        self.touched[self.may_bid[a]] = True
-                    n_may = 0
-                    for i in range(k):  # in ascending rows, as a scan of every robot
-                        if phase == 0 or self.touched[i]:
-                            self.touched[i] = False
-                            if not self.content(i, least):
-                                self.may_bid[n_may] = i
-                                n_may += 1
-                n = 0
-                for a in range(n_may):  # who is not content at this phase's slack
-                    i = self.may_bid[a]
-                    if not self.content(i, slack[phase]):
-                        self.waiting[n] = i
-                        n += 1
-                r, b, left = self.rounds(n, eps[phase], slack[phase], max_rounds)
-                rounds, bids, scan = rounds + r, bids + b, r > 0
-                if left:
-                    settled = phase
-                    break
-            if settled == eps.shape[0]:
-                for i in range(k):  # every best value exact for the prices as they are now
-                    self.refresh(i)
-        return rounds, bids, settled
+        for i in range(k):
+            self.seen[i] = self.price[self.best[i]]
+            self.touched[i] = False  # robots whose contentment may have changed since the last scan
+        for phase in range(eps.shape[0]):
+            if scan:  # after bids (or at first): who is not content at the least slack left
+                least = slack[phase]
+                for later in range(phase + 1, slack.shape[0]):
+                    least = min(least, slack[later])
+                for a in range(n_may):
+                    self.touched[self.may_bid[a]] = True
+                n_may = 0
+                for i in range(k):  # in ascending rows, as a scan of every robot
+                    if phase == 0 or self.touched[i]:
+                        self.touched[i] = False
+                        if not self.content(i, least):
+                            self.may_bid[n_may] = i
+                            n_may += 1
+            n = 0
+            for a in range(n_may):  # who is not content at this phase's slack
+                i = self.may_bid[a]
+                if not self.content(i, slack[phase]):
+                    self.waiting[n] = i
+                    n += 1
+            r, b, left = self.rounds(n, eps[phase], slack[phase], self.job_max_rounds)
+            rounds, bids, scan = rounds + r, bids + b, r > 0
+            if left:
+                settled = phase
+                break
+        if settled == eps.shape[0]:
+            for i in range(k):  # every best value exact for the prices as they are now
+                self.refresh(i)
+        self.job_rounds, self.job_bids, self.job_settled = rounds, bids, settled
+
+    cdef void settle_timed(self) noexcept nogil:
+        """The block's first ranking, then its phases, timed (settle_beside's thread)."""
+        cdef timespec t0, t1
+        clock_gettime(CLOCK_MONOTONIC, &t0)
+        self.job_without = self.rank_first()
+        self.settle_job()
+        clock_gettime(CLOCK_MONOTONIC, &t1)
+        self.job_seconds = (t1.tv_sec - t0.tv_sec) + 1e-9 * (t1.tv_nsec - t0.tv_nsec)
+
+
+cdef void* settle_thread(void* bidders) noexcept nogil:
+    """The thread of Bidders.settle_beside."""
+    (<Bidders>bidders).serve()
+    return NULL
 
 
 def bid_on_own_boards(boards, const int64_t[::1] rows, const double[::1] slack, const double[::1] eps,

@@ -11,18 +11,20 @@ Image scenes play their steps: at time t the robots are auctioned (paper 5.1) on
 the step whose hold contains t. The auction is the agents' own (agent.core.bidder) with one
 participant holding every robot: each `assign_period` the next block of epsilon-scaling phases starts
 from the measured positions, warm from the last prices, and settles without messages (compiled,
-agent.core.bidding) on a second thread while this one decides every robot's tick on the goal it holds;
+agent.core.bidding) on a thread of its own, which never takes the interpreter's lock, while this one
+decides every robot's tick on the goal it holds;
 only the robots whose goal the auction changed decide again, so the run is the one that waiting for
 the auction would give, to the bit.
 """
 
 from __future__ import annotations
 
+import ctypes
 import sys
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NamedTuple, TextIO
+from typing import Any, NamedTuple, TextIO, TypedDict, Unpack
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -107,13 +109,19 @@ def auction_assignment(auction: Participant | LocalAuction, position: np.ndarray
     these positions (rows by robot id), warm from the last prices, as the agents settle theirs; a
     robot keeps its goal unless another is better by epsilon_A + Delta C. The participant holds
     every robot, so every phase's snapshot is its own board. Over a limited range every robot keeps
-    its own board and the rounds are the agents' (agent.core.local_auction)."""
-    assignment = np.full(len(position), -1)
+    its own board and the rounds are the agents' (agent.core.local_auction). A block begun beside
+    the control core (Participant.settle_beside, on these positions) is waited for."""
     if isinstance(auction, LocalAuction):
         settle_in_process(auction, position)
-        assignment[auction.own_ids] = [auction.agreed[r] for r in auction.own]
-    else:
-        assignment[auction.own_ids] = auction.settle_alone(position)
+        return _by_robot(auction, [auction.agreed[r] for r in auction.own], len(position))
+    goals = auction.settled() if auction.settling else auction.settle_alone(position)  # begun beside, or now
+    return _by_robot(auction, goals, len(position))
+
+
+def _by_robot(auction: Participant | LocalAuction, goals: Any, robots: int) -> np.ndarray:
+    """Goal index per robot (-1: none) from the auction's goals of its own robots."""
+    assignment = np.full(robots, -1)
+    assignment[auction.own_ids] = goals
     return assignment
 
 
@@ -155,48 +163,57 @@ class Outcome(NamedTuple):
     wall_s: float
 
 
+@dataclass
+class Shown:
+    """The image step the auction works on (-1: none yet): its goal set and colours as the agents
+    decode them, and how its goals move from when it started (None: a still image)."""
+
+    k: int
+    goal_set: np.ndarray
+    goal_colors: np.ndarray
+    motion: GoalMotion | None = None
+    t_start: float = 0.0
+
+
 class CentralAuction:
     """The auction step of the central engine (agent.loop.Auction): the shown image's goal set and
     the auction that assigns it, settled in this process, beside the policy when ``overlap``."""
 
     def __init__(self, scene: Scene, params: RobotParams, movers: Movers, reach: float, beside: Beside) -> None:
         self.scene, self.params, self.movers, self.reach, self.beside = scene, params, movers, reach, beside
-        self.goal_set, self.goal_colors = _scene_goals(scene)  # image scenes: the shown step's goal set, below
+        self.image = Shown(-1, *_scene_goals(scene))  # image scenes: the shown step's, below
         self.auction: Participant | LocalAuction | None = None  # image scenes: the auction of the shown goal set
         ids = np.arange(scene.robots)
-        self.assignment = np.where(np.isfinite(self.goal_set).all(axis=1), ids, -1)  # scene goals: its own
+        self.assignment = np.where(np.isfinite(self.image.goal_set).all(axis=1), ids, -1)  # scene goals: its own
         # the goal set the assignment indexes: the shown one, or the last one until the shown one's first
         # agreement when the auction's rounds per tick are bounded (the agents drive on as well)
-        self.assigned = (-1, self.goal_set, self.goal_colors)  # (image, goal set, colours)
+        self.assigned = (-1, self.image.goal_set, self.image.goal_colors)  # (image, goal set, colours)
         self.block: BlockRounds | None = None  # lock-step rounds per tick bounded: the block under way
         self.budget = params.rounds_per_tick if scene.assignment != "optimal" and not np.isfinite(reach) else 0
         self.timing: dict[int, GoalTiming] = {}
-        self.motion: GoalMotion | None = None
-        self.t_start = 0.0  # when the shown step started
         self.assigned_at: float | None = None  # when the shown goal set was last assigned
-        self.shown = -1  # the image step whose goal set the auction works on
-        self.pending: Future | None = None  # this tick's auction, running beside the control core
+        self.pending: tuple[Participant, np.ndarray] | None = None  # a block settling beside, and its positions
         self.penalties = 0
 
     def show(self, k: int) -> None:
         """A new image: its goal set, and a fresh auction (the old prices mean nothing)."""
         last = self.auction if isinstance(self.auction, Participant) and self.auction.agreed_instance >= 0 else None
-        first = self.shown < 0
-        self.shown, self.auction, self.assigned_at, self.block = k, None, None, None
+        first = self.image.k < 0
+        self.image.k, self.auction, self.assigned_at, self.block = k, None, None, None
         if not self.scene.steps:
             return
-        previous, image = self.goal_set, self.assigned[0]
-        self.goal_set, self.goal_colors, timing = _step_goals(self.scene, k, self.movers.pixels)
-        self.motion, self.t_start = timing.motion, timing.t_start
+        previous, image = self.image.goal_set, self.assigned[0]
+        goal_set, colors, timing = _step_goals(self.scene, k, self.movers.pixels)
+        self.image = Shown(k, goal_set, colors, timing.motion, timing.t_start)
         self.timing = {e: v for e, v in self.timing.items() if e == image + 1} | {k + 1: timing}
         if self.budget and (last is not None or first):  # as the agents with bounded rounds: the warm start
             pixels, p = self.movers.pixels.tolist(), self.params
-            self.auction = Participant(k, self.goal_set, pixels, pixels, p.assign_eps, p.assign_hysteresis)
+            self.auction = Participant(k, self.image.goal_set, pixels, pixels, p.assign_eps, p.assign_hysteresis)
             if last is not None:
-                self.assignment = warm_start(self.auction, last, previous, self.goal_set, self.assignment)
+                self.assignment = warm_start(self.auction, last, previous, self.image.goal_set, self.assignment)
             else:
-                self.assignment = start_warm(self.auction, self.scene.poses, self.goal_set, len(self.assignment))
-            self.assigned = (k, self.goal_set, self.goal_colors)
+                self.assignment = start_warm(self.auction, self.scene.poses, self.image.goal_set, len(self.assignment))
+            self.assigned = (k, self.image.goal_set, self.image.goal_colors)
 
     @property
     def active(self) -> bool:
@@ -207,8 +224,9 @@ class CentralAuction:
         from the previous prices, with the hysteresis Delta C against flip-flops from tracking noise."""
         t, p, movers = sensed.stamp, self.params, self.movers
         # a moving goal set is auctioned with the positions mapped back to t = 0 (GoalMotion.to_initial_frame)
+        motion = self.image.motion
         bid_from = (
-            sensed.position if self.motion is None else self.motion.to_initial_frame(sensed.position, t - self.t_start)
+            sensed.position if motion is None else motion.to_initial_frame(sensed.position, t - self.image.t_start)
         )
         # the last tick is a pose with no command to follow (the world asks the agents for none)
         last = sensed.tick == round(self.scene.duration / p.dt)
@@ -230,17 +248,20 @@ class CentralAuction:
         elif due:
             if self.scene.assignment == "optimal":
                 before = None if self.assigned_at is None else self.assignment[movers.pixels]
-                best = optimal_assignment(bid_from[movers.pixels], self.goal_set, before, p.assign_hysteresis)
+                best = optimal_assignment(bid_from[movers.pixels], self.image.goal_set, before, p.assign_hysteresis)
                 self.assignment = movers.pixel_assignment(best)
-            elif auction is not None and self.beside.overlap:
-                self.pending = self.beside.submit(auction_assignment, auction, bid_from)
+            elif isinstance(auction, Participant) and self.beside.overlap:
+                auction.settle_beside(bid_from)
+                self.pending = (auction, bid_from)
             else:  # a new image: a cold start (the old prices mean nothing)
                 if auction is None:
                     pixels = movers.pixels.tolist()
-                    auction = self.auction = new_auction(self.shown, self.goal_set, pixels, pixels, p, self.reach)
+                    auction = self.auction = new_auction(
+                        self.image.k, self.image.goal_set, pixels, pixels, p, self.reach
+                    )
                 self.assignment = auction_assignment(auction, bid_from)
             self.assigned_at = t
-            self.assigned = (self.shown, self.goal_set, self.goal_colors)
+            self.assigned = (self.image.k, self.image.goal_set, self.image.goal_colors)
         self.beside.lap("assignment")
 
     def _adopt(self, auction: Participant) -> None:
@@ -248,34 +269,35 @@ class CentralAuction:
         self.block = None
         self.assignment = np.full(len(self.assignment), -1)
         self.assignment[auction.own_ids] = [auction.agreed.get(r, -1) for r in auction.own]
-        self.assigned = (self.shown, self.goal_set, self.goal_colors)
+        self.assigned = (self.image.k, self.image.goal_set, self.image.goal_colors)
 
     def settled_beside(self) -> bool:
         """The auction beside is settled: True when it changed the assignment."""
         if self.pending is None:
             return False
-        settled, self.pending = self.pending.result(), None
+        (auction, bid_from), self.pending = self.pending, None
+        settled = auction_assignment(auction, bid_from)
+        self.beside.clock.add_beside(auction.beside_seconds)
         self.beside.lap("assignment")
         changed = not np.array_equal(settled, self.assignment)
         self.assignment = settled
         return changed
 
     def penalise(self, robot: int, epoch: int, goal: int) -> None:
-        if self.auction is not None and epoch == self.shown + 1:  # a goal of an earlier set is no goal of this auction
+        if (
+            self.auction is not None and epoch == self.image.k + 1
+        ):  # a goal of an earlier set is no goal of this auction
             self.auction.penalise(robot, goal, self.params.deadlock_cost)
             self.penalties += 1
 
 
 class Beside:
-    """The auction's second thread and the clock of the engine's parts (sim.central.stepclock)."""
+    """Whether a warm auction settles beside the control core (``overlap``), and the clock of the
+    engine's parts (sim.central.stepclock)."""
 
     def __init__(self, clock: StepClock, overlap: bool) -> None:
         self.clock, self.overlap = clock, overlap
-        self.pool = ThreadPoolExecutor(1, thread_name_prefix="auction")  # the auction beside the control core
         self.lap = clock.lap
-
-    def submit(self, work: Any, *args: Any) -> Future:
-        return self.pool.submit(self.clock.timed_beside, work, *args)
 
 
 class Central:
@@ -338,7 +360,7 @@ class Central:
         """The robots whose goal convergence is judged on: a pixel of the image with a goal."""
         if self.scene.steps:
             return self.held_goals.key[:, 1] >= 0
-        return np.isfinite(self.auction.goal_set).all(axis=1)
+        return np.isfinite(self.auction.image.goal_set).all(axis=1)
 
     def send(self, sensed: Sensed, decision: Decision) -> None:
         """The world applies the commands between ticks (simulate)."""
@@ -377,6 +399,7 @@ def simulate(
     robots whose goal changed are stepped again (the same run to the bit: test_central_overlap.py).
     ``record_to``: the recording streamed to files in this directory (sim.outputs.stream)."""
     _refuse_process_faults(scene)
+    _keep_freed_memory()
     params, world = world_of(scene)
     link, clock = link or InProcessLink(scene.robots), clock or StepClock()
     beside = Beside(clock, overlap)
@@ -389,37 +412,47 @@ def simulate(
     converged = Convergence(scene.converge_hold if scene.ends_on_convergence else None)
     fallbacks, end_reason = 0, "duration"
     wall0 = last_say = time.time()
-    try:
-        for tick in range(steps + 1):
-            clock.start()
-            t = tick * params.dt
-            world.teleport_due(events, t)
-            if (k := scene.step_at(t)) != auction.shown:
-                auction.show(k)
-            clock.lap("other")
-            decision = loop.tick(robots, robots.sense(tick), seams)
-            pose, goal = world.poses, decision.intent.goal
-            _record_tick(rec, view, (tick, t, k), robots, goal)
-            clock.lap("record")
-            if converged.held(t, _all_at_goals(robots, k == last_step, pose, goal)):
-                end_reason = "converged"
-                break  # the run ends here: no last step
-            if tick == steps:
-                break
-            velocity_next = _move(world, robots.movers, decision.step, pose, t, params.dt)
-            clock.lap("world")
-            # what the robots broadcast this tick: heard by their neighbours at the next
-            link.broadcast(_states(params, robots.measured, pose, velocity_next, t, robots.movers))
-            fallbacks += int(decision.step.fallback.sum())
-            if progress is not None and time.time() - last_say >= 1.0:  # a line a second
-                at_goal = _at_goal(pose, goal, params)
-                last_say = _say_progress(progress, scene.name, (t, k), at_goal, robots.has_goal(), world)
-            clock.lap("other")
-    finally:
-        beside.pool.shutdown()
+    for tick in range(steps + 1):
+        clock.start()
+        t = tick * params.dt
+        world.teleport_due(events, t)
+        if (k := scene.step_at(t)) != auction.image.k:
+            auction.show(k)
+        clock.lap("other")
+        decision = loop.tick(robots, robots.sense(tick), seams)
+        pose, goal = world.poses, decision.intent.goal
+        _record_tick(rec, view, (tick, t, k), robots, goal)
+        clock.lap("record")
+        if converged.held(t, _all_at_goals(robots, k == last_step, pose, goal)):
+            end_reason = "converged"
+            break  # the run ends here: no last step
+        if tick == steps:
+            break
+        velocity_next = _move(world, robots.movers, decision.step, pose, t, params.dt)
+        clock.lap("world")
+        # what the robots broadcast this tick: heard by their neighbours at the next
+        link.broadcast(_states(params, robots.measured, pose, velocity_next, t, robots.movers))
+        fallbacks += int(decision.step.fallback.sum())
+        if progress is not None and time.time() - last_say >= 1.0:  # a line a second
+            at_goal = _at_goal(pose, goal, params)
+            last_say = _say_progress(progress, scene.name, (t, k), at_goal, robots.has_goal(), world)
+        clock.lap("other")
     arrays = rec.arrays(tick + 1)  # a converged run ends early
     how = (list(world.contacts), float(world.min_clearance), fallbacks, auction.penalties)
     return Outcome(arrays, *how, end_reason, time.time() - wall0)
+
+
+def _keep_freed_memory() -> None:
+    """Let the C heap keep what a tick frees for the next (glibc's mallopt; elsewhere nothing): every
+    tick makes and drops arrays of 0.1-1 MB (neighbour arrays, substep states), which glibc would
+    otherwise hand back to the system and fault in anew, page by page, the next tick."""
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):
+        return
+    mallopt(-3, 32 << 20)  # M_MMAP_THRESHOLD: blocks below 32 MB come from the heap
+    mallopt(-1, 128 << 20)  # M_TRIM_THRESHOLD: the heap shrinks only past 128 MB free at its top
+    mallopt(-2, 16 << 20)  # M_TOP_PAD: and grows 16 MB at a time
 
 
 def _record_tick(rec: TickRecorder, view: Any, when: tuple[int, float, int], robots: Central, goal: np.ndarray) -> None:
@@ -455,6 +488,13 @@ def _say_progress(
     return time.time()
 
 
+class Timing(TypedDict, total=False):
+    """How simulate times its parts and runs its auction (as its keywords ``clock`` and ``overlap``)."""
+
+    clock: StepClock | None
+    overlap: bool
+
+
 def run_central(
     scene: Scene,
     out: Path,
@@ -462,19 +502,16 @@ def run_central(
     video: bool = True,
     plots: bool = True,
     progress: TextIO | None = sys.stderr,
-    clock: StepClock | None = None,
-    overlap: bool = True,
     reach: float = np.inf,
     view: Any = None,
+    **timing: Unpack[Timing],
 ) -> Path:
     """Run the scene with every robot in this process (``simulate``); returns the run directory.
-    ``reach``: the robots' communication range (m)."""
+    ``reach``: the robots' communication range (m); ``timing``: simulate's clock and overlap."""
     run_dir = RunDir(out)
     try:
         link = InProcessLink(scene.robots, reach=reach)
-        outcome = simulate(
-            scene, link=link, progress=progress, clock=clock, overlap=overlap, view=view, record_to=run_dir / SCRATCH
-        )
+        outcome = simulate(scene, link=link, progress=progress, view=view, record_to=run_dir / SCRATCH, **timing)
         params, _ = world_of(scene)
         contacts = [
             {"kind": c.kind, "i": c.i, "j": c.j, "t_start": c.t_start, "t_end": c.t_end, "max_depth": c.max_depth}

@@ -13,8 +13,6 @@ the wall clock while the auction's thread runs, and the engine reads the clock a
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
-from typing import Any
 
 import numpy as np
 
@@ -46,13 +44,10 @@ class StepClock:
         self.cpu[part][-1] += now[1] - self._last[1]
         self._last = now
 
-    def timed_beside(self, work: Callable[..., Any], *args: Any) -> Any:
-        """Run work(*args) on whichever thread calls this, adding its wall time to this tick's
-        ``beside`` (the engine submits its auction to a second thread through it)."""
-        t = time.perf_counter()
-        out = work(*args)
-        self.beside[-1] += time.perf_counter() - t
-        return out
+    def add_beside(self, seconds: float) -> None:
+        """The wall seconds a warm auction took on its own thread, this tick (the engine reads them
+        from the thread when it collects the auction's result)."""
+        self.beside[-1] += seconds
 
     def arrays(self, cpu: bool = False) -> dict[str, np.ndarray]:
         """(ticks,) seconds per part, wall time (or this process's CPU time)."""
