@@ -27,7 +27,7 @@ import numpy as np
 
 cdef enum:
     CELLS_PER_POINT = 16  # a grid has at most this many cells per point (coarser cells past it), or 1024
-    PARTS = 3  # nearest's cells are reach / PARTS wide (3: crowded and sparse displays alike)
+    PARTS = 3  # nearest's cells are reach / PARTS wide where the points are crowded (see cell_width)
 
 
 cdef struct Grid:
@@ -178,6 +178,23 @@ cdef inline void scan(Grid *g, Query *q, const int64_t *key, Py_ssize_t first, P
             q.bound = q.best[m - 1]
 
 
+cdef double cell_width(const double[:, ::1] points, double reach, Py_ssize_t m) noexcept:
+    """nearest's cells: reach / PARTS wide where a disc of ``reach`` holds m points or more on the
+    points' mean density (the m nearest are then much nearer than reach, and narrow cells pass over
+    the rest), else reach wide: the 3 x 3 cells around a query hold its whole disc, read in three
+    runs, not a run per narrow column. The cells change which points are read, never the neighbours."""
+    cdef Py_ssize_t n = points.shape[0], i
+    cdef double x0 = points[0, 0], x1 = points[0, 0], y0 = points[0, 1], y1 = points[0, 1]
+    for i in range(1, n):
+        x0 = min(x0, points[i, 0])
+        x1 = max(x1, points[i, 0])
+        y0 = min(y0, points[i, 1])
+        y1 = max(y1, points[i, 1])
+    if n * 3.141592653589793 * reach * reach >= m * (x1 - x0 + reach) * (y1 - y0 + reach):
+        return reach / PARTS
+    return reach
+
+
 def nearest(
     const double[:, ::1] query,
     const int64_t[::1] query_key,
@@ -192,7 +209,7 @@ def nearest(
     kd-tree), nearest first by (d2, key, index), -1 past the last. A point whose key is the query's
     own (query_key) is never its neighbour: a robot is not its own neighbour.
 
-    Cells are reach / PARTS wide. Each query looks first at the 3 x 3 cells around its own (in a
+    Cells are reach / PARTS wide among crowded points (cell_width). Each query looks first at the 3 x 3 cells around its own (in a
     crowd the m nearest are there, much nearer than reach, and the disc searched shrinks to the
     m-th distance at once, as RVO2's k-d tree shrinks its range), then at each column near it,
     outward: a column's cells are consecutive in the grid's order, so it is read as one run of
@@ -210,7 +227,7 @@ def nearest(
     if q == 0 or n == 0 or m == 0 or not reach > 0.0:
         return out_array
     cdef Grid g
-    grid_build(&g, points, reach / PARTS)  # frees what it took if it raises
+    grid_build(&g, points, cell_width(points, reach, m))  # frees what it took if it raises
     cdef double *best = <double *>malloc(m * sizeof(double))
     cdef int64_t *best_key = <int64_t *>malloc(m * sizeof(int64_t))
     cdef Py_ssize_t i, spread
@@ -384,29 +401,34 @@ def neighbour_rows(const int64_t[:, ::1] idx, const double[:, ::1] table):
     vy, radius, age and cooperative (0 or 1); idx (Q, m) is `nearest`'s. Returns position and
     velocity (Q, m, 2), radius, age, valid and cooperative (Q, m); a slot past the last neighbour
     holds zeros, radius 1, not valid, cooperative."""
-    cdef Py_ssize_t q = idx.shape[0], m = idx.shape[1], i, k, j
+    cdef Py_ssize_t q = idx.shape[0], m = idx.shape[1], i, k, j, n = table.shape[0]
     if table.shape[1] != 7:
         raise ValueError("neighbour_rows: table (N, 7): x, y, vx, vy, radius, age, cooperative")
-    position_array, velocity_array = np.zeros((q, m, 2)), np.zeros((q, m, 2))
-    radius_array, age_array = np.ones((q, m)), np.zeros((q, m))
-    valid_array, cooperative_array = np.zeros((q, m), dtype=bool), np.ones((q, m), dtype=bool)
+    position_array, velocity_array = np.empty((q, m, 2)), np.empty((q, m, 2))
+    radius_array, age_array = np.empty((q, m)), np.empty((q, m))
+    valid_array, cooperative_array = np.empty((q, m), dtype=bool), np.empty((q, m), dtype=bool)
     cdef double[:, :, ::1] position = position_array
     cdef double[:, :, ::1] velocity = velocity_array
     cdef double[:, ::1] radius = radius_array
     cdef double[:, ::1] age = age_array
     cdef unsigned char[:, ::1] valid = valid_array.view(np.uint8)
     cdef unsigned char[:, ::1] cooperative = cooperative_array.view(np.uint8)
-    for i in range(q):
+    for i in range(q):  # every slot written once: a neighbour's state, or the padding past the last
         for k in range(m):
             j = idx[i, k]
+            if j >= n:
+                raise IndexError(f"neighbour_rows: index {j} past the table's {n} rows")
             if j < 0:
                 break
-            if j >= table.shape[0]:
-                raise IndexError(f"neighbour_rows: index {j} past the table's {table.shape[0]} rows")
             position[i, k, 0], position[i, k, 1] = table[j, 0], table[j, 1]
             velocity[i, k, 0], velocity[i, k, 1] = table[j, 2], table[j, 3]
             radius[i, k] = table[j, 4]
             age[i, k] = table[j, 5]
             valid[i, k] = 1
             cooperative[i, k] = table[j, 6] != 0.0
+        else:
+            continue
+        for k in range(k, m):
+            position[i, k, 0] = position[i, k, 1] = velocity[i, k, 0] = velocity[i, k, 1] = 0.0
+            radius[i, k], age[i, k], valid[i, k], cooperative[i, k] = 1.0, 0.0, 0, 1
     return position_array, velocity_array, radius_array, age_array, valid_array, cooperative_array
