@@ -122,12 +122,15 @@ class RoundExchange:
         at once or at the next tick (a tick's last round when rounds per tick are bounded)."""
         for old in [k for k in self.records if k < key]:
             del self.records[old]
-        if key[:2] != self.said_block:  # a block's first round: forget the blocks before it (once, not
-            # every round: a block may take thousands of rounds)
-            self.said_block = key[:2]
-            for old in [k for k in self.said if k[:2] != key[:2] and k < key]:
-                del self.said[old]  # an earlier block: every host finished it before this tick came
-            for old in [b for b in self.newest_round if b[:2] < key[:2]]:
+        if key[:2] != self.said_block:  # a block's first round: forget the blocks before the last (once,
+            # not every round: a block may take thousands of rounds)
+            last, self.said_block = self.said_block, key[:2]
+            # The last block's messages stay: with rounds per tick bounded its final round is heard at
+            # this tick, where a host that lost a message of it still waits while we begin the next.
+            # Hosts are at most one block apart: nobody agrees a block without everyone's records of it.
+            for old in [k for k in self.said if k[:2] not in (key[:2], last) and k < key]:
+                del self.said[old]
+            for old in [b for b in self.newest_round if b[:2] < key[:2] and b[:2] != last]:
                 del self.newest_round[old]
         self.said[key] = (msg, time.monotonic())
         self.waiting_for = key  # an open round is no round we left: its messages draw no answer (file)
