@@ -60,6 +60,45 @@ def run_scene(tmp_path: Path, scene: str, *extra: str, name: str = "run", timeou
     return json.loads((out / "metrics.json").read_text()), dict(np.load(out / "trajectory.npz"))
 
 
+def run_scenes(tmp_path: Path, runs: dict[str, tuple[str, ...]], timeout: float = 600) -> dict[str, tuple[dict, dict]]:
+    """`run_scene` of each ``name: (scene, *extra)``, all started at once and each waited for:
+    ``{name: (metrics.json, trajectory.npz)}``. A lock-step run waits on its messages more than it
+    computes, so runs a test compares side by side share the CPU their waits leave, and a lock-step
+    run is the same run beside another (what the tests that compare them check)."""
+    procs = {}
+    try:
+        for name, (scene, *extra) in runs.items():
+            if scene.lstrip().startswith(("robots", "name", "[", "seed")):
+                path = tmp_path / f"{name}.toml"
+                path.write_text(scene)
+                scene = str(path)
+            command = pixelswarm_cmd("run", scene, "--out", str(tmp_path / name), "--no-video", "--no-plots", "-q")
+            procs[name] = subprocess.Popen(
+                [*command, *extra], cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
+            )
+        end = time.monotonic() + timeout
+        for name, proc in procs.items():
+            _, stderr = proc.communicate(timeout=max(end - time.monotonic(), 1.0))
+            assert proc.returncode == 0, f"{name}: {stderr[-3000:]}"
+    finally:
+        for proc in procs.values():  # a failed or timed-out run leaves none of the others behind
+            if proc.poll() is None:
+                for child in descendants(proc.pid):
+                    try:
+                        child.kill()
+                    except psutil.Error:
+                        pass
+                proc.kill()
+                proc.wait(timeout=10)
+    return {
+        name: (
+            json.loads((tmp_path / name / "metrics.json").read_text()),
+            dict(np.load(tmp_path / name / "trajectory.npz")),
+        )
+        for name in runs
+    }
+
+
 class SharedRuns:
     """End-to-end runs (or any costly outputs) shared between tests that check different things about
     the same run.

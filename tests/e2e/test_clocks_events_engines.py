@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from coordinator.scene import SceneError, load_scene, scene_from_dict, shipped_scenes
-from tests.conftest import run_pixelswarm
+from tests.conftest import run_pixelswarm, run_scenes
 
 SMALL = """
 robots = 6
@@ -61,11 +61,12 @@ def test_a_robot_picked_up_by_hand_returns_to_its_goal(tmp_path):
 @pytest.mark.slow
 def test_central_engine_matches_the_scene_and_is_safe(tmp_path):
     toml = SMALL.format(duration=60.0, clock="lockstep", extra="")
-    m, traj = run(tmp_path, toml, "--engine", "central")
+    # and the same scene distributed (in two agent hosts), run at the same time
+    runs = run_scenes(tmp_path, {"run": (toml, "--engine", "central"), "distributed": (toml, "-k", "3")})
+    (m, traj), (m2, traj2) = runs["run"], runs["distributed"]
     assert m["engine"] == "central" and m["contacts"] == 0 and m["converged"]
     assert traj["pose"].shape[1] == 6
-    # same scene, distributed (in two agent hosts): same start, same goals, both arrive
-    m2, traj2 = run(tmp_path, toml, "-k", "3", name="distributed")
+    # same scene, distributed: same start, same goals, both arrive
     assert m2["engine"] == "distributed" and m2["converged"]
     np.testing.assert_allclose(traj["pose"][0], traj2["pose"][0])
     np.testing.assert_allclose(traj["goal"][-1], traj2["goal"][-1], atol=1e-6)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import run_scene as run
+from tests.conftest import run_scenes
 from tests.support.assignment_quality import EPS_A, assert_agreements_valid
 from tests.support.formation import assert_every_hold_formed, why_not_formed
 
@@ -19,9 +20,11 @@ def test_the_paper_sequence_forms_every_image_in_agent_hosts_as_in_the_central_e
     # Issue 5 end to end, on `make run`'s default scene: the six images form in turn, each within 1 cm
     # by the end of its hold, with the agents' own auction; a lock-step run is the same in every engine
     # (test_one_controller.py), so two hosts of seven robots stand for fourteen processes at a tenth
-    # of the CPU, and the central engine's run of the seed is the same run.
-    m, traj = run(tmp_path, "paper-sequence", "-k", "7", name="hosts")
-    m_central, central = run(tmp_path, "paper-sequence", "--engine", "central", name="central")
+    # of the CPU, and the central engine's run of the seed is the same run (the two run at once).
+    runs = run_scenes(
+        tmp_path, {"hosts": ("paper-sequence", "-k", "7"), "central": ("paper-sequence", "--engine", "central")}
+    )
+    (m, traj), (_, central) = runs["hosts"], runs["central"]
     assert m["agent_processes"] == 2 and m["missed_ticks"] == 0
     assert [s["index"] for s in m["steps"]] == list(range(6))
     assert_every_hold_formed(m, traj=traj)

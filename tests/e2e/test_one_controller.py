@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.conftest import run_scene
+from tests.conftest import run_scenes
 from tests.support.engines import ENGINES, PICTURE_FLAGS, engine_run, picture, picture_run
 
 
@@ -106,11 +106,12 @@ def test_with_rounds_per_tick_bounded_blocks_span_ticks_and_every_engine_runs_th
     the wire as the hosts' do; test_the_auction_is_the_same_in_every_engine runs it on these scenes."""
     source = picture(tmp_path) if scene == "picture" else short_story(tmp_path)
     lockstep = ("--clock", "lockstep", *flags)
-    runs = {
-        name: run_scene(tmp_path, source, *lockstep, "--rounds-per-tick", "2", *engine, name=name.replace(" ", "-"))
-        for name, engine in ENGINES.items()
-        if name != "a process per robot"
-    }
+    engines = [name for name in ENGINES if name != "a process per robot"]
+    done = run_scenes(  # at once: a lock-step run is the same run beside another
+        tmp_path,
+        {name.replace(" ", "-"): (source, *lockstep, "--rounds-per-tick", "2", *ENGINES[name]) for name in engines},
+    )
+    runs = {name: done[name.replace(" ", "-")] for name in engines}
     _, central = runs["central"]
     if scene == "story":  # its robots cross the arena: warm blocks span ticks, agreements come later
         _, unbounded = shared_runs.run(source, *lockstep, "--rounds-per-tick", "0", *ENGINES["central"])
