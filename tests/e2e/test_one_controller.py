@@ -13,9 +13,12 @@ from tests.conftest import run_scenes
 from tests.support.engines import ENGINES, PICTURE_FLAGS, engine_run, picture, picture_run
 
 
+# Only a parameter whose runs another test reads carries that run's xdist group (--dist loadgroup runs a
+# group's tests on one worker in turn); the others, whose runs are their own, go to whichever worker is free.
 @pytest.mark.slow
-@pytest.mark.xdist_group("swap-seed-1")
-@pytest.mark.parametrize("scene, seed", [("swap", 1), ("circle", 2)])
+@pytest.mark.parametrize(
+    "scene, seed", [pytest.param("swap", 1, marks=pytest.mark.xdist_group("swap-seed-1")), ("circle", 2)]
+)
 def test_central_and_distributed_runs_of_one_seed_are_the_same_run(shared_runs, scene, seed):
     runs = {name: engine_run(shared_runs, scene, seed, name) for name in ENGINES}
     (m_central, central) = runs["central"]
@@ -62,11 +65,11 @@ def assert_the_same_run(runs: dict[str, tuple[dict, dict]], central: dict) -> No
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("picture-30")
 @pytest.mark.parametrize(
     "scene, flags",
     [
-        ("picture", PICTURE_FLAGS),  # an image: the auction settles a block every tick
+        # an image: the auction settles a block every tick (its runs are test_sync_auction's too)
+        pytest.param("picture", PICTURE_FLAGS, marks=pytest.mark.xdist_group("picture-30")),
         ("story", STORY_FLAGS),  # an animation of 14 robots, into its second keyframe
     ],
 )
@@ -84,8 +87,7 @@ def test_the_auction_is_the_same_in_every_engine(tmp_path, shared_runs, scene, f
     assert_the_same_run(runs, central)
 
 
-@pytest.mark.slow
-@pytest.mark.xdist_group("picture-30")
+@pytest.mark.slow  # its runs are its own (--rounds-per-tick 2): in no xdist group
 @pytest.mark.parametrize(
     "scene, flags",
     [
