@@ -280,6 +280,7 @@ LONGEST_FIRST = (
     "tests/e2e/test_collision_avoidance.py::test_loss_and_delay_on_states_cause_no_contact",
     "tests/e2e/test_range_auction.py::test_a_hundred_robot_picture_in_hosts_forms_with_a_quarter_of_its_diameter_in_reach",
     "tests/e2e/test_one_controller.py::test_central_and_distributed_runs_of_one_seed_are_the_same_run",
+    "tests/e2e/test_one_controller.py::test_with_rounds_per_tick_bounded_blocks_span_ticks_and_every_engine_runs_the_same",
     "tests/e2e/test_image_display_distributed.py::test_auction_survives_loss_and_delay",
     "tests/unit/test_bidder.py::test_lossy_network_agrees_on_one_owner_per_goal",
     "tests/e2e/test_study.py::test_the_grid_runs_with_one_command_one_row_per_run",
