@@ -207,8 +207,45 @@ class RoundExchange:
         self.counts.sent += 1
 
 
+@dataclass
+class Publishing:
+    """Real time: when a host publishes its auction message (the module's rule) and what it knows of
+    the others' boards."""
+
+    serial: int = 0  # our messages so far
+    last_sent: float = -math.inf  # monotonic time of our last message
+    instance_stamp: float = -math.inf  # display time the current instance started
+    board_changed: float = 0.0  # monotonic time of the last change of the board
+    mismatch: bool = False  # a message of this instance came from a host with another board
+
+
+@dataclass
+class Blocks:
+    """Lock-step: the block of phases under way, which may span ticks."""
+
+    stamp: float = -math.inf  # display time of the last block's tick
+    block: BlockRounds | None = None
+    # rounds per tick bounded: the round said at the last tick, heard at this one
+    open_round: tuple[BlockRounds, tuple[int, int, int], set[int], float] | None = None
+    warm: bool = False  # the goal set's auction began from the coordinator's warm start
+
+
+@dataclass
+class AuctionTimes:
+    """When things happened, for the auction's latency (which the robots' bid positions compensate)
+    and its statistics."""
+
+    now: float = 0.0  # display time of the last tick
+    frozen_at: dict[int, float] = field(default_factory=dict)  # block of instances -> display time its positions froze
+    latency: float = 0.0  # display seconds from freezing a block's positions to adopting its agreement
+    epoch_wall: float = 0.0  # monotonic time the goal set under way arrived
+
+
 class AuctionLink:
-    """The auction of one host's robots: goal sets in, agreed goals out through ``on_agreed``."""
+    """The auction of one host's robots: goal sets in, agreed goals out through ``on_agreed``. Its
+    attributes are the host's seams (bus, robots, params, callbacks, inbox and rounds exchange), the
+    auction under way (part or local, its goal set, the last agreement reported) and the state of
+    each clock's protocol, grouped (publishing: real time; blocks: lock-step; times: both)."""
 
     def __init__(
         self,
@@ -223,38 +260,35 @@ class AuctionLink:
         was handed to ``on_agreed`` just before a new block freezes its positions. ``lockstep``: the
         tick-synchronous rounds (settle_block); None: real time."""
         rounds = lockstep if lockstep is not None else LockStepRounds()
-        self.reach = rounds.reach
         self.bus, self.robots, self.params, self.on_agreed = bus, sorted(robots), params, on_agreed
-        self.where = where
-        self.lockstep, self.on_abandoned = lockstep is not None, rounds.on_abandoned
-        self.block_stamp = -np.inf  # lock-step: display time of the last block's tick
-        self.block: BlockRounds | None = None  # lock-step: the block under way (it may span ticks)
-        # lock-step, rounds per tick bounded: the round said at the last tick, heard at this one
-        self.open_round: tuple[BlockRounds, tuple[int, int, int], set[int], float] | None = None
-        self.warm = False  # lock-step: the goal set's auction began from the coordinator's warm start
+        self.where, self.rounds, self.lockstep = where, rounds, lockstep is not None
         self.counts = AuctionCounts()
-        ranged = math.isfinite(self.reach)
         self.inbox: Inbox[Any] = (
             bus.subscribe(bus.keys.all_of("boards"), Boards)
-            if ranged
+            if math.isfinite(rounds.reach)
             else bus.subscribe(bus.keys.all_of("auction"), Bid)
         )
-        self.sender = self.robots[0]
         self.exchange = RoundExchange(bus, self.robots, self.inbox, self.counts, self._keeps)
         self.exchange.dead = rounds.dead
         self.part: Participant | None = None
         self.local: LocalAuction | None = None  # the range-limited auction, in place of part
         self.goal_set: Goals | None = None
-        self.serial = 0
-        self.last_sent = -np.inf
-        self.instance_stamp = -np.inf  # display time the current instance started
-        self.now = 0.0  # display time of the last tick
-        self.frozen_at: dict[int, float] = {}  # block of instances -> display time its positions froze here
-        self.latency = 0.0  # display seconds from freezing a block's positions to adopting its agreement
         self.reported = -1  # the last agreed instance handed to on_agreed
-        self.board_changed = 0.0  # monotonic time of the last change of the board
-        self.mismatch = False  # a message of this instance came from a host with another board
-        self.epoch_wall = 0.0
+        self.publishing, self.blocks, self.times = Publishing(), Blocks(), AuctionTimes()
+
+    @property
+    def sender(self) -> int:
+        """The host's name in the auction: its first robot."""
+        return self.robots[0]
+
+    @property
+    def reach(self) -> float:
+        return self.rounds.reach
+
+    @property
+    def latency(self) -> float:
+        """Display seconds from freezing a block's positions to adopting its agreement, as last measured."""
+        return self.times.latency
 
     @property
     def active(self) -> bool:
@@ -303,24 +337,24 @@ class AuctionLink:
         if self.active and goals.epoch <= self.epoch:
             return {}
         auction = new_auction(goals.epoch, goals.positions, goals.robots.tolist(), self.robots, self.params, self.reach)
-        self.goal_set, self.epoch_wall, self.reported = goals, time.monotonic(), -1
-        self.block = self.open_round = None  # a block of the last goal set is given up
+        self.goal_set, self.times.epoch_wall, self.reported = goals, time.monotonic(), -1
+        self.blocks.block = self.blocks.open_round = None  # a block of the last goal set is given up
         if isinstance(auction, LocalAuction):  # lock-step only: a cold start at the next tick
-            self.local, self.block_stamp = auction, -np.inf
+            self.local, self.blocks.stamp = auction, -np.inf
             return {}
         before, self.part = self.part, auction
         warm, keyframe = goals.warm_start, goals.correspondence
         if self.lockstep:  # the block begins at the next tick, as the central engine starts a new image
-            self.block_stamp = -np.inf
+            self.blocks.stamp = -np.inf
             self.exchange.weed()  # bids filed before the set came: _keeps checks them now
             # with rounds per tick bounded, from the warm start: a cold one would span many ticks
             first = self._first_warm_start(goals)
-            self.warm = bool(self.params.rounds_per_tick) and (
+            self.blocks.warm = bool(self.params.rounds_per_tick) and (
                 first or (before is not None and self._warm_start(before, goals))
             )
-            if self.warm and warm is not None and first:
+            if self.blocks.warm and warm is not None and first:
                 return self.part.start_from(goals.robots[warm.matched], warm.prices)
-            if self.warm and before is not None and warm is not None:
+            if self.blocks.warm and before is not None and warm is not None:
                 return self.part.carry(before, warm.matched, current=current, prices=warm.prices)
             return {}
         carried = {}
@@ -377,23 +411,23 @@ class AuctionLink:
             positions = self.where()
         part.begin(instance, positions)
         block = part.instance // part.phases
-        if block not in self.frozen_at:
-            self.frozen_at[block] = self.now
-            for old in [b for b in self.frozen_at if b < block - 4]:
-                del self.frozen_at[old]
+        if block not in self.times.frozen_at:
+            self.times.frozen_at[block] = self.times.now
+            for old in [b for b in self.times.frozen_at if b < block - 4]:
+                del self.times.frozen_at[old]
 
     def on_tick(self, stamp: float, positions: dict[int, np.ndarray]) -> None:
         """Each control iteration: start the next instance (warm, on this tick's positions) once the
         last is agreed (paper 5.1: re-assign every iteration)."""
-        self.now = max(self.now, stamp)
+        self.times.now = max(self.times.now, stamp)
         if self.lockstep:
             self.settle_block(stamp, positions)
             return
         if not self._try_start(positions):
             return
         part, _ = self._under_way()
-        if part.is_agreed and stamp - self.instance_stamp >= self.params.assign_period - 1e-9:
-            self.instance_stamp = stamp
+        if part.is_agreed and stamp - self.publishing.instance_stamp >= self.params.assign_period - 1e-9:
+            self.publishing.instance_stamp = stamp
             self._begin(part.instance + 1, positions)
             self._settle()
             self._publish()
@@ -424,11 +458,11 @@ class AuctionLink:
             return 0.005
         now = time.monotonic()
         busy = max(RESEND_BUSY, RESEND_PER_ROBOT * len(part.robots))
-        due = self.last_sent + (RESEND_IDLE if part.is_agreed else busy)
+        due = self.publishing.last_sent + (RESEND_IDLE if part.is_agreed else busy)
         if part.claims_changed:
             return 0.0
-        if (part.has_news or self.mismatch) and part.view_complete():
-            due = min(due, max(self.last_sent + DIGEST_EVERY, self.board_changed + QUIET))
+        if (part.has_news or self.publishing.mismatch) and part.view_complete():
+            due = min(due, max(self.publishing.last_sent + DIGEST_EVERY, self.publishing.board_changed + QUIET))
         return max(0.0, due - now)
 
     def poll(self, positions: dict[int, np.ndarray]) -> None:
@@ -448,15 +482,15 @@ class AuctionLink:
             if msg.instance > part.instance:  # the sender saw our instance agreed
                 self._begin(msg.instance, positions)
             if part.absorb(msg.instance, msg.serial, msg.digest, part.members_only(msg.records)):
-                self.board_changed = time.monotonic()
+                self.publishing.board_changed = time.monotonic()
             if msg.instance == part.instance:
                 theirs.add(msg.digest)
         if part is None or not part.started:
             return
-        self.mismatch |= bool(theirs - {part.board.digest()})
+        self.publishing.mismatch |= bool(theirs - {part.board.digest()})
         self._settle()
         if part.claims_changed:
-            self.board_changed = time.monotonic()
+            self.publishing.board_changed = time.monotonic()
         if self.next_due() <= 0:
             self._publish()
 
@@ -474,22 +508,22 @@ class AuctionLink:
         part = self.part
         if part is None or not part.own:
             return
-        if self.open_round is not None and self._close_round(*self.open_round):
+        if self.blocks.open_round is not None and self._close_round(*self.blocks.open_round):
             return  # given up
-        if self.block is None:
+        if self.blocks.block is None:
             if not all(r in positions for r in part.own):
                 return
-            if part.started and stamp - self.block_stamp < self.params.assign_period - 1e-9:
+            if part.started and stamp - self.blocks.stamp < self.params.assign_period - 1e-9:
                 return
-            self.block_stamp = stamp
-            self.block = BlockRounds(part, positions)
-        budget = rounds_in_tick(self.params, cold=part.agreed_instance < 0 and not self.warm)
+            self.blocks.stamp = stamp
+            self.blocks.block = BlockRounds(part, positions)
+        budget = rounds_in_tick(self.params, cold=part.agreed_instance < 0 and not self.blocks.warm)
         for played in range(1, budget + 1):
-            opened = self._open_round(self.block)
+            opened = self._open_round(self.blocks.block)
             if played == budget:  # heard at the next tick (budget is bounded)
-                self.open_round = opened
+                self.blocks.open_round = opened
                 return
-            if self._close_round(*opened) or self.block is None:
+            if self._close_round(*opened) or self.blocks.block is None:
                 return
 
     def _open_round(self, block: BlockRounds) -> tuple[BlockRounds, tuple[int, int, int], set[int], float]:
@@ -509,14 +543,14 @@ class AuctionLink:
     def _close_round(self, block: BlockRounds, key: tuple[int, int, int], members: set[int], base: float) -> bool:
         """Wait for the other hosts' records of an open round and merge them: the block agreed (its
         agreement reported) or given up ends it. True: given up."""
-        self.open_round = None
+        self.blocks.open_round = None
         heard = self.exchange.close(key, members, lambda m: block.robots_of(m.sender, m.records), base)
         if heard is None:
             self._abandon()
             return True
         self.counts.rounds += 1
         if block.hear({sender: msg.records for sender, msg in heard.items()}):
-            self.block = None
+            self.blocks.block = None
             self._report()
         return False
 
@@ -527,9 +561,9 @@ class AuctionLink:
         local, gs = self.local, self.goal_set
         if local is None or gs is None or not local.own or not all(r in positions for r in local.own):
             return
-        if local.started and stamp - self.block_stamp < self.params.assign_period - 1e-9:
+        if local.started and stamp - self.blocks.stamp < self.params.assign_period - 1e-9:
             return
-        self.block_stamp = stamp
+        self.blocks.stamp = stamp
         local.begin_block(positions)
         waiting = set(local.robots.tolist())
         while True:
@@ -551,7 +585,7 @@ class AuctionLink:
             self.counts.rounds += 1
         self.counts.agreements += 1
         if self.reported < 0:
-            self.counts.first_agreement_s.append(time.monotonic() - self.epoch_wall)
+            self.counts.first_agreement_s.append(time.monotonic() - self.times.epoch_wall)
         self.reported = local.agreed_instance
         self.on_agreed(local.epoch, local.agreed_instance, dict(local.agreed), gs.positions, gs.colors)
 
@@ -585,10 +619,10 @@ class AuctionLink:
         """A round never completed: our robots cannot know whether others adopted the block, so they
         hold their positions (drive to no goal) rather than drive to a goal another may hold."""
         self.counts.abandoned += 1
-        self.block = None
+        self.blocks.block = None
         own = self.local.own if self.local is not None else self.part.own if self.part is not None else []
-        if self.on_abandoned is not None and own:
-            self.on_abandoned(list(own))
+        if self.rounds.on_abandoned is not None and own:
+            self.rounds.on_abandoned(list(own))
 
     # --- internals --------------------------------------------------------------------------------
     def _under_way(self) -> tuple[Participant, Goals]:
@@ -614,25 +648,25 @@ class AuctionLink:
         if part.agreed_instance <= self.reported:
             return False
         if self.reported < 0:  # the first agreement on this goal set
-            self.counts.first_agreement_s.append(time.monotonic() - self.epoch_wall)
+            self.counts.first_agreement_s.append(time.monotonic() - self.times.epoch_wall)
         self.reported = part.agreed_instance
         self.counts.agreements += 1
-        frozen = self.frozen_at.get(part.agreed_instance // part.phases)
+        frozen = self.times.frozen_at.get(part.agreed_instance // part.phases)
         if frozen is not None:
-            self.latency = min(MAX_LEAD, max(0.0, self.now - frozen))
+            self.times.latency = min(MAX_LEAD, max(0.0, self.times.now - frozen))
         self.on_agreed(part.epoch, part.agreed_instance, dict(part.agreed), gs.positions, gs.colors)
         return True
 
     def _publish(self) -> None:
         part, _ = self._under_way()
         digest, items = part.outgoing()
-        self.mismatch = False
-        self.serial += 1
+        self.publishing.mismatch = False
+        self.publishing.serial += 1
         self.bus.publish(
             self.bus.keys.auction(part.epoch, self.sender),
-            Bid(part.epoch, part.instance, self.sender, self.serial, digest, len(items), items),
+            Bid(part.epoch, part.instance, self.sender, self.publishing.serial, digest, len(items), items),
         )
-        self.last_sent = time.monotonic()
+        self.publishing.last_sent = time.monotonic()
         self.counts.sent += 1
 
     def stats(self) -> dict:
@@ -646,7 +680,7 @@ class AuctionLink:
             "messages_received": self.counts.received,
             "agreements": self.counts.agreements,
             "deadlock_penalties": self.counts.penalties,
-            "latency_s": round(self.latency, 3),
+            "latency_s": round(self.times.latency, 3),
             "lockstep_rounds": self.counts.rounds,
             "abandoned_blocks": self.counts.abandoned,
             "first_agreement_s": [round(x, 4) for x in self.counts.first_agreement_s],
