@@ -54,16 +54,28 @@ cdef void grid_free(Grid *g) noexcept:
     g.sx = g.sy = NULL
 
 
+cdef struct Box:
+    double x0, x1, y0, y1
+
+
+cdef Box bounds(const double[:, ::1] points) noexcept:
+    """The points' bounding box (at least one point)."""
+    cdef Box b = Box(points[0, 0], points[0, 0], points[0, 1], points[0, 1])
+    cdef Py_ssize_t i
+    for i in range(1, points.shape[0]):
+        b.x0 = min(b.x0, points[i, 0])
+        b.x1 = max(b.x1, points[i, 0])
+        b.y0 = min(b.y0, points[i, 1])
+        b.y1 = max(b.y1, points[i, 1])
+    return b
+
+
 cdef int grid_build(Grid *g, const double[:, ::1] points, double width) except -1:
     """The cells of the points, at least ``width`` wide (wider where there would be too many, so a
     far outlier cannot ask for billions of cells). At least one point."""
     cdef Py_ssize_t n = points.shape[0], i, c, cells
-    cdef double x0 = points[0, 0], x1 = points[0, 0], y0 = points[0, 1], y1 = points[0, 1]
-    for i in range(1, n):
-        x0 = min(x0, points[i, 0])
-        x1 = max(x1, points[i, 0])
-        y0 = min(y0, points[i, 1])
-        y1 = max(y1, points[i, 1])
+    cdef Box box = bounds(points)
+    cdef double x0 = box.x0, x1 = box.x1, y0 = box.y0, y1 = box.y1
     # a little wider, so two points within a width are never two cells apart by rounding
     cdef double cell = width * (1.0 + 1e-6) + 1e-12
     cdef double cap = max(CELLS_PER_POINT * n, 1024)
@@ -183,14 +195,8 @@ cdef double cell_width(const double[:, ::1] points, double reach, Py_ssize_t m) 
     points' mean density (the m nearest are then much nearer than reach, and narrow cells pass over
     the rest), else reach wide: the 3 x 3 cells around a query hold its whole disc, read in three
     runs, not a run per narrow column. The cells change which points are read, never the neighbours."""
-    cdef Py_ssize_t n = points.shape[0], i
-    cdef double x0 = points[0, 0], x1 = points[0, 0], y0 = points[0, 1], y1 = points[0, 1]
-    for i in range(1, n):
-        x0 = min(x0, points[i, 0])
-        x1 = max(x1, points[i, 0])
-        y0 = min(y0, points[i, 1])
-        y1 = max(y1, points[i, 1])
-    if n * 3.141592653589793 * reach * reach >= m * (x1 - x0 + reach) * (y1 - y0 + reach):
+    cdef Box b = bounds(points)
+    if points.shape[0] * 3.141592653589793 * reach * reach >= m * (b.x1 - b.x0 + reach) * (b.y1 - b.y0 + reach):
         return reach / PARTS
     return reach
 
