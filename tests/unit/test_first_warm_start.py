@@ -5,22 +5,28 @@ tens of rounds (thousands at 1000 robots) all fall in the first tick."""
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
 from scipy.optimize import linear_sum_assignment
 
 from agent.core.bidder import Participant
 from coordinator import service
-from coordinator.scene import load_scene
+from coordinator.scene import scene_from_dict
 from tests.support.fake_bus import Bus
 from transport.codec import Goals, Tick, decode
 
 
 def _first_set(rounds_per_tick: int, clock: str = "lockstep") -> tuple[Goals, np.ndarray]:
-    scene = load_scene("paper-sequence", clock=clock)
-    scene = replace(scene, robot={**scene.robot, "rounds_per_tick": rounds_per_tick})
+    scene = scene_from_dict(
+        {
+            "robots": 20,
+            "seed": 5,
+            "clock": clock,
+            "robot": {"rounds_per_tick": rounds_per_tick},
+            "layout": {"kind": "grid", "spacing": 0.2},
+            "steps": [{"shape": "disk", "hold": 30}],
+        }
+    )
     bus = Bus()
     coordinator = service.Coordinator(bus, scene)
     bus.alive.items = [("agent", str(r), True, 0.0, "a") for r in range(scene.robots)]
