@@ -229,7 +229,7 @@ class Participant(Auction):
     def _freeze(self, instance: int, positions: Mapping[int, np.ndarray] | np.ndarray, rank: bool = True) -> None:
         """begin() up to its first round: the first instance of a block freezes the positions (the
         block's other phases share them); penalties declared meanwhile come into force. Without
-        ``rank`` the robots' first ranking is left to the caller (settle_beside's thread)."""
+        ``rank`` the robots' first ranking is left to the caller (the compiled settle_block)."""
         if self.started and not self.is_agreed and instance > self.instance:
             self.adopt_if_settled()  # someone reached a later instance: ours was agreed
         new_block = not self.started or instance // self.phases != self.instance // self.phases
@@ -361,26 +361,37 @@ class Participant(Auction):
         robot ranking its ``candidates`` best goals while they provably hold its best. A phase that
         takes more than ROUNDS_PER_ROBOT rounds per robot (at least 100,000) is an error.
         Returns each own robot's agreed goal, in the order of ``own``."""
-        self.settle_beside(positions, candidates)
-        return self.settled()
+        block = self._block_to_settle(positions, candidates)  # first: it may make new bidders
+        return self._adopt_settled(self._bidders.settle_block(*block))
 
     def settle_beside(self, positions: Mapping[int, np.ndarray] | np.ndarray, candidates: int = CANDIDATES) -> None:
         """settle_alone's block, begun on a thread of its own that never takes the interpreter's
         lock (Bidders.settle_beside): the caller works on meanwhile, touching nothing of this
         auction but ``penalise`` (it counts from the next block), until ``settled``."""
+        block = self._block_to_settle(positions, candidates)  # first: it may make new bidders
+        self._bidders.settle_beside(*block)
+
+    def settled(self) -> np.ndarray:
+        """The block of settle_beside, agreed: each own robot's goal, in the order of ``own``."""
+        return self._adopt_settled(self._bidders.settled())
+
+    def _block_to_settle(
+        self, positions: Mapping[int, np.ndarray] | np.ndarray, candidates: int
+    ) -> tuple[np.ndarray, np.ndarray, int]:
+        """The next block begun for the compiled rounds (its first ranking is theirs): its phases'
+        epsilons and slacks, and the rounds a phase may take."""
         if len(self.own) != len(self.robots):
             raise ValueError("settle_alone needs a host that owns every robot of the goal set")
         if candidates < 3:
             raise ValueError("settle_alone ranks at least 3 candidate goals per robot")
         if not self._exact_hull or self._bidders.candidates != candidates:
             self._bidders, self._exact_hull = self._new_bidders(candidates, exact_hull=True), True
-        self.begin_block(positions, rank=False)  # a new block: its first ranking is the thread's
-        max_rounds = max(100_000, ROUNDS_PER_ROBOT * len(self.robots))
-        self._bidders.settle_beside(np.array(self.schedule), self.slacks, max_rounds)
+        self.begin_block(positions, rank=False)
+        return np.array(self.schedule), self.slacks, max(100_000, ROUNDS_PER_ROBOT * len(self.robots))
 
-    def settled(self) -> np.ndarray:
-        """The block of settle_beside, agreed: each own robot's goal, in the order of ``own``."""
-        rounds, bids, settled, self.without_list, _ = self._bidders.settled()
+    def _adopt_settled(self, outcome: tuple[int, int, int, int, float]) -> np.ndarray:
+        """A settled block's outcome (Bidders.settle_block) adopted: each own robot's goal."""
+        rounds, bids, settled, self.without_list, _ = outcome
         self.instance += min(settled, self.phases - 1)
         self.board.version += 1
         self.bids, self.rounds, self.claims_changed = self.bids + bids, self.rounds + rounds, True

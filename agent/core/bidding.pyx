@@ -647,26 +647,25 @@ cdef class Bidders:
                     self.unhappy[r] = False  # queued once
         return rounds, bids, n
 
-    def settle_block(self, const double[::1] eps, const double[::1] slack, int64_t max_rounds) -> tuple[int, int, int]:
-        """A block of epsilon-scaling phases (``eps``, ``slack``), after first_ranking: per phase the
-        Jacobi rounds until every robot is content. Leaves every cached best value exact. Returns
-        (rounds, bids, phases settled): fewer than len(eps) when a phase ran out of rounds."""
-        self.job_eps, self.job_slack, self.job_max_rounds = eps, slack, max_rounds
+    def settle_block(self, eps, slack, int64_t max_rounds) -> tuple[int, int, int, int, float]:
+        """A block of epsilon-scaling phases (``eps``, ``slack``): its first ranking (first_ranking),
+        then per phase the Jacobi rounds until every robot is content. Leaves every cached best value
+        exact. Returns (rounds, bids, phases settled: fewer than len(eps) when a phase ran out of
+        rounds, robots without a list at its start, wall seconds it took)."""
+        self.ask(eps, slack, max_rounds)
         with nogil:
-            self.settle_job()
-        return self.job_rounds, self.job_bids, self.job_settled
+            self.settle_timed()
+        return self.outcome()
 
     def settle_beside(self, eps, slack, int64_t max_rounds) -> None:
-        """first_ranking and settle_block on a thread of this module's own, which never takes the
-        interpreter's lock: the central engine steps its robots meanwhile, and neither waits for the
-        other to hand the lock over. The thread stays for the next block, asleep (a thread woken
-        is run sooner than one made anew on a busy machine). Nothing may touch these bidders, their
-        board or claims until ``settled`` has returned."""
+        """settle_block on a thread of this module's own, which never takes the interpreter's lock:
+        the central engine steps its robots meanwhile, and neither waits for the other to hand the
+        lock over. The thread stays for the next block, asleep (a thread woken is run sooner than
+        one made anew on a busy machine). Nothing may touch these bidders, their board or claims
+        until ``settled`` has returned."""
         if self.settling:
             raise RuntimeError("a block is settling already")
-        self.job_eps = np.ascontiguousarray(eps, float)
-        self.job_slack = np.ascontiguousarray(slack, float)
-        self.job_max_rounds = max_rounds
+        self.ask(eps, slack, max_rounds)
         if not self.has_thread:
             pthread_mutex_init(&self.job_lock, NULL)
             pthread_cond_init(&self.job_wake, NULL)
@@ -684,8 +683,7 @@ cdef class Bidders:
         self.settling = True
 
     def settled(self) -> tuple[int, int, int, int, float]:
-        """Wait for the block of settle_beside: (rounds, bids, phases settled, robots without a
-        list at its start, wall seconds it took on its thread)."""
+        """Wait for the block of settle_beside; what settle_block returns."""
         if not self.settling:
             raise RuntimeError("no block is settling")
         with nogil:
@@ -695,6 +693,15 @@ cdef class Bidders:
             self.job = IDLE
             pthread_mutex_unlock(&self.job_lock)
         self.settling = False
+        return self.outcome()
+
+    cdef void ask(self, eps, slack, int64_t max_rounds):
+        """The block's phases and round bound, for settle_timed."""
+        self.job_eps = np.ascontiguousarray(eps, float)
+        self.job_slack = np.ascontiguousarray(slack, float)
+        self.job_max_rounds = max_rounds
+
+    cdef tuple outcome(self):
         return self.job_rounds, self.job_bids, self.job_settled, self.job_without, self.job_seconds
 
     def __dealloc__(self):
@@ -727,7 +734,7 @@ cdef class Bidders:
         pthread_mutex_unlock(&self.job_lock)
 
     cdef void settle_job(self) noexcept nogil:
-        """settle_block's work on the phases of ``job_eps``, ``job_slack``, into job_rounds, job_bids
+        """The phases of ``job_eps``, ``job_slack`` after the first ranking, into job_rounds, job_bids
         and job_settled."""
         cdef const double[::1] eps = self.job_eps
         cdef const double[::1] slack = self.job_slack
@@ -770,7 +777,7 @@ cdef class Bidders:
         self.job_rounds, self.job_bids, self.job_settled = rounds, bids, settled
 
     cdef void settle_timed(self) noexcept nogil:
-        """The block's first ranking, then its phases, timed (settle_beside's thread)."""
+        """The block's first ranking, then its phases, timed (settle_block's work)."""
         cdef timespec t0, t1
         clock_gettime(CLOCK_MONOTONIC, &t0)
         self.job_without = self.rank_first()

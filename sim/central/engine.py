@@ -444,15 +444,15 @@ def simulate(
 
 def _keep_freed_memory() -> None:
     """Let the C heap keep what a tick frees for the next (glibc's mallopt; elsewhere nothing): every
-    tick makes and drops arrays of 0.1-1 MB (neighbour arrays, substep states), which glibc would
-    otherwise hand back to the system and fault in anew, page by page, the next tick."""
+    tick makes and drops large arrays (neighbour arrays, substep states), which glibc would otherwise
+    hand back to the system and fault in anew, page by page, the next tick."""
     try:
         mallopt = ctypes.CDLL(None).mallopt
     except (OSError, AttributeError):
         return
-    mallopt(-3, 32 << 20)  # M_MMAP_THRESHOLD: blocks below 32 MB come from the heap
-    mallopt(-1, 128 << 20)  # M_TRIM_THRESHOLD: the heap shrinks only past 128 MB free at its top
-    mallopt(-2, 16 << 20)  # M_TOP_PAD: and grows 16 MB at a time
+    mallopt(-3, 32 << 20)  # M_MMAP_THRESHOLD: a tick's arrays come from the heap, not fresh mappings
+    mallopt(-1, 128 << 20)  # M_TRIM_THRESHOLD: what they free stays in the heap for the next tick
+    mallopt(-2, 16 << 20)  # M_TOP_PAD: the heap grows in steps that hold a tick's arrays
 
 
 def _record_tick(rec: TickRecorder, view: Any, when: tuple[int, float, int], robots: Central, goal: np.ndarray) -> None:
