@@ -50,18 +50,12 @@ def run_pixelswarm(*args: str, timeout: float = 240) -> subprocess.CompletedProc
 def run_scene(tmp_path: Path, scene: str, *extra: str, name: str = "run", timeout: float = 600) -> tuple[dict, dict]:
     """`pixelswarm run` of a shipped scene, a scene file or inline scene TOML, without video or plots; returns
     metrics.json and trajectory.npz."""
-    if scene.lstrip().startswith(("robots", "name", "[", "seed")):
-        path = tmp_path / f"{name}.toml"
-        path.write_text(scene)
-        scene = str(path)
-    out = tmp_path / name
-    result = run_pixelswarm("run", scene, "--out", str(out), "--no-video", "--no-plots", "-q", *extra, timeout=timeout)
-    assert result.returncode == 0, result.stderr[-3000:]
-    return json.loads((out / "metrics.json").read_text()), dict(np.load(out / "trajectory.npz"))
+    return run_scenes(tmp_path, {name: (scene, *extra)}, timeout=timeout)[name]
 
 
 def run_scenes(tmp_path: Path, runs: dict[str, tuple[str, ...]], timeout: float = 600) -> dict[str, tuple[dict, dict]]:
-    """`run_scene` of each ``name: (scene, *extra)``, all started at once and each waited for:
+    """`pixelswarm run` of each ``name: (scene, *extra)`` (a shipped scene, a scene file or inline
+    scene TOML, without video or plots), all started at once and each waited for:
     ``{name: (metrics.json, trajectory.npz)}``. A lock-step run waits on its messages more than it
     computes, so runs a test compares side by side share the CPU their waits leave, and a lock-step
     run is the same run beside another (what the tests that compare them check)."""

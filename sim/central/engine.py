@@ -284,9 +284,8 @@ class CentralAuction:
         return changed
 
     def penalise(self, robot: int, epoch: int, goal: int) -> None:
-        if (
-            self.auction is not None and epoch == self.image.k + 1
-        ):  # a goal of an earlier set is no goal of this auction
+        # a goal of an earlier set is no goal of this auction
+        if self.auction is not None and epoch == self.image.k + 1:
             self.auction.penalise(robot, goal, self.params.deadlock_cost)
             self.penalties += 1
 
