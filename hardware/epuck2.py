@@ -86,20 +86,10 @@ class Command:
         return replace(self, left=0, right=0)
 
 
-def encode_command(command: Command) -> bytes:
+def encode_command(c: Command) -> bytes:
     """The 21-byte packet for a command."""
-    levels = [level for led in command.rgb for level in led]
-    return struct.pack(
-        COMMAND_FORMAT,
-        COMMAND_ID,
-        command.request,
-        command.settings,
-        command.left,
-        command.right,
-        command.leds,
-        *levels,
-        command.speaker,
-    )
+    levels = [level for led in c.rgb for level in led]
+    return struct.pack(COMMAND_FORMAT, COMMAND_ID, c.request, c.settings, c.left, c.right, c.leds, *levels, c.speaker)
 
 
 def wheel_steps(speed: float, limit: float) -> int:

@@ -72,7 +72,22 @@ def describe_poses(config: HardwareConfig) -> str:
 
 
 # --- drives: the backends behind one small interface ---------------------------------------------
-class WheelDrive:
+class BackendDrive:
+    """What the drives share: the backend starts itself; a drive without connections reaches every robot."""
+
+    backend: Any
+
+    def start(self) -> None:
+        self.backend.start()
+
+    def unreached(self) -> list[int]:
+        return []  # a topic has no connection to check
+
+    def robot_stats(self, robot: int) -> dict[str, int]:
+        return {"reconnects": 0}
+
+
+class WheelDrive(BackendDrive):
     """e-puck2 robots take wheel speeds; the backend clips them to `max_wheel_speed`, set here to v_max."""
 
     def __init__(self, backend_config: Any, params: RobotParams) -> None:
@@ -80,9 +95,6 @@ class WheelDrive:
 
         limit = min(backend_config.max_wheel_speed, params.v_max)
         self.backend = Epuck2Backend(replace(backend_config, max_wheel_speed=limit))
-
-    def start(self) -> None:
-        self.backend.start()
 
     def send(self, ids: list[int], left: np.ndarray, right: np.ndarray, colors: np.ndarray) -> None:
         self.backend.set_commands(ids, left.tolist(), right.tolist(), colors.tolist())
@@ -106,7 +118,7 @@ class WheelDrive:
         return self.backend.close()
 
 
-class TwistDrive:
+class TwistDrive(BackendDrive):
     """ROS 2 robots take a body velocity: wheel speeds become v = (l + r) / 2, omega = (r - l) / wheel base."""
 
     def __init__(self, backend_config: Any, settings: ZenohSettings, params: RobotParams) -> None:
@@ -115,20 +127,11 @@ class TwistDrive:
         self.backend = Ros2Backend(backend_config, settings)
         self.wheel_base = params.wheel_base
 
-    def start(self) -> None:
-        self.backend.start()
-
     def send(self, ids: list[int], left: np.ndarray, right: np.ndarray, colors: np.ndarray) -> None:
         self.backend.set_commands(ids, (left + right) / 2, (right - left) / self.wheel_base, colors)
 
-    def unreached(self) -> list[int]:
-        return []  # a topic has no connection to check
-
     def where(self, robot: int) -> str:
         return self.backend.config.topic(robot, self.backend.config.cmd_topic)
-
-    def robot_stats(self, robot: int) -> dict[str, int]:
-        return {"reconnects": 0}
 
     def close(self) -> list[int]:
         self.backend.close()
@@ -360,14 +363,9 @@ def main(argv: list[str] | None = None) -> int:
     with bus:
         drive = open_drive(config, settings, RobotParams.from_dict(scene.robot))
         poses = open_pose_source(config, settings)
+        timeout, poses_name = command_timeout(config), describe_poses(config)
         node = hardware_node(
-            bus,
-            scene,
-            drive,
-            poses,
-            timeout=command_timeout(config),
-            pose_frames=args.pose_frames,
-            poses_name=describe_poses(config),
+            bus, scene, drive, poses, timeout=timeout, pose_frames=args.pose_frames, poses_name=poses_name
         )
         node.parent_pid = os.getppid() if args.exit_with_parent else None
         node.end_on(signal.SIGTERM, signal.SIGINT)
