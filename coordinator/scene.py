@@ -195,16 +195,12 @@ def load_scene(name_or_path: str, **overrides: Unpack[Overrides]) -> Scene:
 def parse_scene(name_or_path: str, **overrides: Unpack[Overrides]) -> Scene:
     """Read and validate a scene without making its goal sets: an image scene's goal sets, and the
     arena that holds them, come from make_goal_sets."""
-    if Path(name_or_path).suffix.lower() in IMAGE_SUFFIXES:
-        if not Path(name_or_path).is_file():
-            raise SceneError(f"image {name_or_path} not found")
-        return parse_scene_dict(
-            image_scene(name_or_path, overrides.pop("robots", None) or 14), name_or_path, **overrides
-        )
-    if Path(name_or_path).is_dir():  # a folder of keyframes: an animation with the default timing
-        return parse_scene_dict(
-            folder_scene(name_or_path, overrides.pop("robots", None) or 14), name_or_path, **overrides
-        )
+    is_image = Path(name_or_path).suffix.lower() in IMAGE_SUFFIXES
+    if is_image and not Path(name_or_path).is_file():
+        raise SceneError(f"image {name_or_path} not found")
+    if is_image or Path(name_or_path).is_dir():  # a picture, or a folder of keyframes with the default timing
+        table = (image_scene if is_image else folder_scene)(name_or_path, overrides.pop("robots", None) or 14)
+        return parse_scene_dict(table, name_or_path, **overrides)
     path = resolve_scene_path(name_or_path)
     try:
         data = tomllib.loads(path.read_text())
@@ -220,32 +216,11 @@ def scene_from_dict(data: dict[str, Any], source: str = "<dict>", **overrides: U
     return make_goal_sets(parse_scene_dict(data, source, **overrides))
 
 
+# a scene table's keys: any other is a mistake
 SCENE_KEYS = frozenset(
-    {
-        "name",
-        "robots",
-        "seed",
-        "clock",
-        "duration",
-        "robot",
-        "layout",
-        "goals",
-        "arena",
-        "obstacles",
-        "events",
-        "noise",
-        "end",
-        "description",
-        "scripted",
-        "pursuers",
-        "steps",
-        "animation",
-        "engine",
-        "assignment",
-        "agents_per_process",
-        "deadline",
-    }
-)  # a scene table's keys: any other is a mistake
+    "name robots seed clock duration robot layout goals arena obstacles events noise end description scripted "
+    "pursuers steps animation engine assignment agents_per_process deadline".split()
+)
 
 
 def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: Unpack[Overrides]) -> Scene:
@@ -334,18 +309,15 @@ def _add_uncontrolled(scene: Scene, data: dict[str, Any], where: str) -> None:
 
 def _check_settings(scene: Scene, where: str) -> None:
     """The run settings a scene may carry: SceneError (one line) unless each is one of its kind."""
-    if scene.clock not in CLOCKS:
-        raise SceneError(f"{where}: clock must be one of {', '.join(CLOCKS)}, not {scene.clock!r}")
-    if scene.engine not in ENGINES:
-        raise SceneError(f"{where}: engine must be one of {', '.join(ENGINES)}, not {scene.engine!r}")
+    for key, choices in (("clock", CLOCKS), ("engine", ENGINES), ("assignment", ASSIGNMENTS)):
+        if (value := getattr(scene, key)) not in choices:
+            raise SceneError(f"{where}: {key} must be one of {', '.join(choices)}, not {value!r}")
     k = scene.agents_per_process
     if not isinstance(k, int) or isinstance(k, bool) or k < 1:
         raise SceneError(f"{where}: agents_per_process must be a whole number >= 1, not {k!r}")
     if not _positive(scene.deadline):
         raise SceneError(f"{where}: deadline must be a positive number of seconds, not {scene.deadline!r}")
     scene.deadline = float(scene.deadline)
-    if scene.assignment not in ASSIGNMENTS:
-        raise SceneError(f"{where}: assignment must be one of {', '.join(ASSIGNMENTS)}, not {scene.assignment!r}")
 
 
 def _plan_steps(
