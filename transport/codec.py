@@ -493,15 +493,12 @@ class Goals(Message):
         }
         for _, name in self._PARTS.values():
             part = getattr(self, name)
-            out[name] = (
-                None
-                if part is None
-                else {
-                    f.name: (v.tolist() if isinstance(v := getattr(part, f.name), np.ndarray) else v)
-                    for f in fields(part)
-                }
-            )
+            out[name] = None if part is None else {f.name: _plain(getattr(part, f.name)) for f in fields(part)}
         return out
+
+
+def _plain(value: Any) -> Any:
+    return value.tolist() if isinstance(value, np.ndarray) else value
 
 
 def _part(kind: int, version: int, body: bytes) -> bytes:
@@ -600,15 +597,8 @@ class Boards(Message):
     CHECKED: ClassVar[bool] = True
     _fixed: ClassVar[struct.Struct] = struct.Struct("<IIIIIII")
     WORD: ClassVar[np.dtype] = np.dtype(
-        [
-            ("robot", "<u2"),
-            ("x", "<f4"),
-            ("y", "<f4"),
-            ("phase", "u1"),
-            ("flags", "u1"),
-            ("last", "<u4"),
-            ("records", "<u4"),
-        ]
+        [("robot", "<u2"), ("x", "<f4"), ("y", "<f4"), ("phase", "u1"), ("flags", "u1")]
+        + [("last", "<u4"), ("records", "<u4")]
     )
     RECORD: ClassVar[np.dtype] = AuctionRecord.DTYPE
     ENDED: ClassVar[int] = 1  # the robot ended the block: its goal is agreed
@@ -824,23 +814,11 @@ class States(Frame):
     KIND: ClassVar[int] = 12
     VIEW: ClassVar[type] = State
     NAME: ClassVar[str] = State.NAME
-    RECORD: ClassVar[np.dtype] = np.dtype(
-        [
-            ("robot", "<u4"),
-            ("x", "<f4"),
-            ("y", "<f4"),
-            ("vx", "<f4"),
-            ("vy", "<f4"),
-            ("radius", "<f4"),
-            ("goal_x", "<f4"),
-            ("goal_y", "<f4"),
-            ("goal_index", "<i4"),
-            ("flags", "u1"),
-            ("assign_epoch", "<u4"),
-            ("assign_instance", "<u4"),
-        ]
-    )
     _floats: ClassVar[tuple[str, ...]] = ("x", "y", "vx", "vy", "radius", "goal_x", "goal_y")
+    RECORD: ClassVar[np.dtype] = np.dtype(
+        [("robot", "<u4"), *((k, "<f4") for k in _floats), ("goal_index", "<i4"), ("flags", "u1")]
+        + [("assign_epoch", "<u4"), ("assign_instance", "<u4")]
+    )
     _rules = (("radius", lambda radius: radius > 0),)
 
 
@@ -882,16 +860,8 @@ class Truth(Message):
             raise Malformed("non-finite")
         if not (np.all(np.isfinite(items["pose"])) and np.all(np.isfinite(items["vel"]))):
             raise Malformed("non-finite")
-        return cls(
-            tick,
-            stamp,
-            min_clearance,
-            count,
-            items["pose"].copy(),
-            items["vel"].astype(float),
-            items["rgb"].copy(),
-            items["applied"].copy(),
-        )
+        pose, rgb, applied = (items[k].copy() for k in ("pose", "rgb", "applied"))
+        return cls(tick, stamp, min_clearance, count, pose, items["vel"].astype(float), rgb, applied)
 
     def validate(self) -> None:  # min_clearance may be +inf with one robot
         _finite(self.stamp)
