@@ -1,27 +1,10 @@
 """A secured bus: one certificate authority per deployment, a certificate per role, and access control.
 
-`make_certificates(dir, robots)` writes a folder with everything a secured run needs:
-
-    ca.pem, ca-key.pem            the deployment's certificate authority (keep ca-key.pem off the robots)
-    <role>.pem, <role>-key.pem    a certificate whose common name is the role, and its private key
-    <role>.json5                  a Zenoh client configuration opening a session as that role (mutual TLS)
-    router.json5                  the router: mutual TLS, access control keyed on certificate common names
-    usrpwd/credentials.txt        the alternative, user/password: the router's user:password dictionary
-    usrpwd/<role>.json5           a client as that user (TLS checks the router; the password names the role)
-    usrpwd/router.json5           the router: user/password and access control keyed on user names
-    roles.json                    how many robots and which display the access rules were written for
-
-Roles: coordinator, tracker, world, recorder, observer, router and robot-<id>. The access rules follow the
-key schema (transport/keys.py) and deny by default: only the coordinator publishes goal sets, only the tracker
-and the world publish poses, robot i publishes only its own state, command and auction keys, the recorder
-only reads, and the observer (a viewer from another process) only reads what the display shows. The rules are enforced by the router, so every session must go through it (clients only).
-
-Endpoints: the files hold the router endpoint given to `make_certificates(connect=...)`, or none; then
-`client_config(dir, role, connect)` / `router_config(dir, listen)` give it when a session opens. Both
-return ZenohSettings (open_session, Bus) that start from the role's file, which names the folder's
-files by absolute path: use the folder where it was made, or at the same path on another machine.
-`check_folder(dir, robots, display=...)` says, before anything starts, whether a run can use a folder.
-"""
+`make_certificates(dir, robots)` writes the folder docs/security.md describes (certificates, client and
+router configurations for mutual TLS or user/password, roles.json). The access rules follow the key
+schema (transport/keys.py) and deny by default; the router enforces them, so every session goes through
+it. `client_config` / `router_config` give a role's ZenohSettings, `check_folder` says, before anything
+starts, whether a run can use a folder."""
 
 from __future__ import annotations
 
@@ -226,35 +209,17 @@ def _service_grants(keys: Keys) -> dict[str, list[dict]]:
 def _robot_grants(keys: Keys, robot: int) -> list[dict]:
     """What only robot i may do: publish its own keys, hear its own pose and command."""
     role = robot_role(robot)
+    own = [keys.state_of(robot), keys.states(robot), keys.cmd(robot), keys.auction_of(robot), keys.boards_of(robot)]
     return _grants(
-        role,
-        put=[
-            keys.state_of(robot),
-            keys.states(robot),
-            keys.cmd(robot),
-            keys.auction_of(robot),
-            keys.boards_of(robot),
-            keys.event,
-        ],
-        read=[keys.pose(robot), keys.cmd(robot)],
-        token=[keys.alive("agent", robot)],
+        role, put=[*own, keys.event], read=[keys.pose(robot), keys.cmd(robot)], token=[keys.alive("agent", robot)]
     )
 
 
 def _every_robot_grants(keys: Keys) -> list[dict]:
     """What every robot may read: neighbours' states, poses frames, goals, bids, the clock."""
+    heard = [keys.all_of(kind) for kind in ("state", "goals", "auction", "boards")]
     return _grants(
-        "robots",
-        read=[
-            keys.poses,
-            keys.all_of("state"),
-            keys.all_of("goals"),
-            keys.all_of("auction"),
-            keys.all_of("boards"),
-            keys.clock,
-        ],
-        query=[keys.all_of("goals")],
-        watch=[keys.alive_all()],
+        "robots", read=[keys.poses, *heard, keys.clock], query=[keys.all_of("goals")], watch=[keys.alive_all()]
     )
 
 
@@ -324,11 +289,15 @@ def _router_dict(directory: Path, listen: list[str], auth: str, robots: int, dis
     return conf
 
 
-def _folder(directory: str | Path, display: str, auth: str) -> tuple[Path, dict]:
-    """A folder of access rules, resolved, and its manifest, if it is one, readable, for ``display``."""
+def _resolved(directory: str | Path, auth: str) -> Path:
     if auth not in AUTH_MODES:
         raise SecurityError(f"auth must be one of {', '.join(AUTH_MODES)}, not {auth!r}")
-    directory = Path(directory).resolve()
+    return Path(directory).resolve()
+
+
+def _folder(directory: str | Path, display: str, auth: str) -> tuple[Path, dict]:
+    """A folder of access rules, resolved, and its manifest, if it is one, readable, for ``display``."""
+    directory = _resolved(directory, auth)
     if not directory.is_dir():
         raise SecurityError(f"{directory} is not a folder; make one with `pixelswarm certs DIR --robots N`")
     if not os.access(directory, os.R_OK | os.X_OK):
@@ -359,9 +328,7 @@ def _manifest(directory: Path) -> dict:
 
 def _role_file(directory: str | Path, role: str, auth: str) -> str:
     """The role's configuration file in a folder made by make_certificates."""
-    if auth not in AUTH_MODES:
-        raise SecurityError(f"auth must be one of {', '.join(AUTH_MODES)}, not {auth!r}")
-    directory = Path(directory).resolve()
+    directory = _resolved(directory, auth)
     robots = _manifest(directory)["robots"]
     if role not in roles(robots):
         raise SecurityError(f"no role {role!r} in {directory} (robots 0..{robots - 1})")
@@ -462,12 +429,7 @@ def _tls_host(endpoint: str) -> str:
 
 
 def make_certificates(
-    directory: str | Path,
-    robots: int,
-    *,
-    connect: str | None = None,
-    display: str = "default",
-    overwrite: bool = False,
+    directory: str | Path, robots: int, *, connect: str | None = None, display: str = "default", overwrite: bool = False
 ) -> Path:
     """Write the folder described at the top of this module; return its absolute path.
 
