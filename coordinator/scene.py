@@ -1,33 +1,12 @@
-"""Scenes: TOML files naming the robots, their layout and goals, the arena, obstacles, events and clock.
+"""Scenes: TOML files naming the robots, their layout and goals, the arena, obstacles, events and clock
+(every key: docs/scenes.md).
 
 A scene is data. Loading one has two parts: ``parse_scene`` reads and validates the file (its own
 checks, the robots, layout and events; no image work), and ``make_goal_sets`` runs the image pipeline
 for the scene's goal sets and the "auto" arena that holds them. ``load_scene`` does both, before any
 process starts, and raises ``SceneError`` with one line saying what is wrong and how to fix it. A run
 does this once: the launcher saves the result in the run directory (coordinator.resolved) and every
-process of the run reads it from there.
-
-    name = "circle"
-    robots = 20              # --robots overrides
-    seed = 1
-    clock = "lockstep"       # or "realtime"
-    deadline = 2.0           # lock-step: seconds the world waits for a late command (--deadline overrides)
-    duration = 120.0         # seconds of display time at most
-    [robot]                  # robot parameters (paper Table 1 defaults), e.g. kinematics = "holonomic"
-    [layout]                 # kind = "circle" | "grid" | "random" | "rows" | "blocks" | "file"
-    [goals]                  # kind = "antipodal" | "swap" | "list" | "stay" | "none" | "image"
-    [[steps]]                # an image sequence: shape = "disk" or image = "a.png", hold = 25.0 (see coordinator.steps)
-                             # [steps.motion]: a dynamic image, the goal set moves (coordinator.motion)
-    [animation]              # keyframes = "story" | "folder/" | ["a.png", ...], frame_time = 5.0
-                             # (an animation, see coordinator.keyframe_steps)
-    [arena]                  # size = [width, height] (centred on the origin), or "auto"
-    [[obstacles]]            # vertices = [[x, y], ...] counter-clockwise
-    [[events]]               # t = 10.0, kind = "teleport", robot = 3, pose = [x, y, theta]
-    [[scripted]]             # robot = 0, waypoints = [[t, x, y], ...]: a dynamic obstacle, no agent
-    [[pursuers]]             # robot = 1, target = 0: its goal is wherever the target last broadcast
-    [noise]                  # tracking_xy = 0.002, tracking_theta_deg = 3.0, actuation = 0.02
-    [end]                    # converge_hold = 1.0 (end after all robots hold their goals this long)
-"""
+process of the run reads it from there."""
 
 from __future__ import annotations
 

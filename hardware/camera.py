@@ -1,24 +1,9 @@
 """The overhead-camera pose source: one ArUco marker on top of each robot, seen by a fixed camera.
 
-The paper tracks its robots with an overhead camera at 10 Hz to 2 mm and 3 deg. Here each robot
-carries a square ArUco marker whose id is the robot's id; the floor plane is calibrated by a
-homography (image -> floor, metres) fitted to reference markers lying at known floor positions, or
-given as a matrix. A robot's position is its marker's centre on the floor, its heading the direction
-from that centre to the middle of the marker's top edge (OpenCV's corners 0 and 1). A robot not seen
-in a frame is reported lost; its last pose keeps its own time and ages, it is never invented.
-
-The `[poses]` table of the hardware file::
-
-    [poses]
-    kind = "camera"
-    source = 0                    # a device number, a video file or a stream URL ("rtsp://...")
-    dictionary = "DICT_4X4_50"    # any cv2.aruco dictionary
-    marker_size = 0.05            # side of the black square, metres
-    rate = 10.0                   # frames per second asked of a device
-    [poses.reference]             # marker id -> [x, y] of its centre on the floor, metres
-    "46" = [0.1, 0.1]
-    ...                           # (or: homography = [[...], [...], [...]], image pixels -> floor metres)
-"""
+Each robot's marker id is its robot id; a homography (image -> floor metres), fitted to reference
+markers or given, places the marker's centre on the floor, and the middle of its top edge gives the
+heading. A robot not seen in a frame is reported lost, never invented. The `[poses]` table and how to
+set a camera up: docs/camera.md."""
 
 from __future__ import annotations
 

@@ -1,16 +1,7 @@
-"""The hardware file: which robots a run drives (`[backend]`) and where their poses come from (`[poses]`).
-
-    [backend]
-    kind = "epuck2"
-    addresses = ["127.0.0.1:41000", "127.0.0.1:41001"]
-    [poses]
-    kind = "ros2"
-    topic = "/robot{id}/pose"
-
-Each table names its `kind`; the kind's config class (found through an import string, so backends and
-pose sources written in other modules plug in here) validates the rest with `from_table(table, where)`.
-Robot ids are positions in the backend's list of robots.
-"""
+"""The hardware file: which robots a run drives (`[backend]`) and where their poses come from (`[poses]`),
+as docs/hardware.md describes it. Each table names its `kind`; the kind's config class (found through an
+import string, so backends and pose sources written in other modules plug in here) validates the rest
+with `from_table(table, where)`. Robot ids are positions in the backend's list of robots."""
 
 from __future__ import annotations
 
@@ -26,10 +17,7 @@ BACKEND_KINDS = {
     "ros2": "hardware.ros2:Ros2BackendConfig",
     "sim": "hardware.config:SimBackendConfig",
 }
-POSE_KINDS = {
-    "ros2": "hardware.ros2:Ros2PosesConfig",
-    "camera": "hardware.camera:CameraConfig",
-}
+POSE_KINDS = {"ros2": "hardware.ros2:Ros2PosesConfig", "camera": "hardware.camera:CameraConfig"}
 TABLES = ("backend", "poses")
 
 

@@ -1,23 +1,9 @@
 """GCtronic e-puck2 robots over Wi-Fi: one TCP connection per robot, the robot being the server.
 
-Protocol (GCtronic wiki, "e-puck2 PC side development", section "Communication protocol: WiFi"):
-the PC sends a 21-byte command packet, 0x80 followed by
-
-    byte  1      request: bit 0 image stream, bit 1 sensors
-    byte  2      settings: bit 0 calibrate IR sensors, bit 1 onboard obstacle avoidance, bit 2 set motor steps
-    bytes 3-4    left motor speed, int16 little-endian, steps/s
-    bytes 5-6    right motor speed, int16 little-endian, steps/s
-    byte  7      LEDs: bit 0 LED1, bit 1 LED3, bit 2 LED5, bit 3 LED7, bit 4 body LED, bit 5 front LED
-    bytes 8-19   red, green, blue of LED2, LED4, LED6, LED8, each 0-100
-    byte  20     speaker (0: leave the sound as it is)
-
-and the robot answers each command with 0x03 (nothing requested), 0x02 + 104 bytes of sensors or 0x01 +
-38,400 bytes of QQVGA RGB565 image. A robot keeps its last wheel speeds until told otherwise, so the
-backend stops every robot whose commands cease (the watchdog), on `stop_all()` and on `close()`.
-One thread runs an asyncio event loop with a task per robot; the control loop's calls hand work to it.
-
-Usage, once per control period: `backend.set_commands(ids, left_mps, right_mps, colours_rgb255)`.
-"""
+The 21-byte command packet and the robot's answers: docs/hardware.md ("What goes on the wire"). A robot
+keeps its last wheel speeds until told otherwise, so the backend stops every robot whose commands cease
+(the watchdog), on `stop_all()` and on `close()`. One thread runs an asyncio event loop with a task per
+robot; the control loop's calls hand work to it."""
 
 from __future__ import annotations
 

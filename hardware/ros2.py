@@ -1,25 +1,9 @@
-"""ROS 2 robots and motion capture, reached through rmw_zenoh.
+"""ROS 2 robots and motion capture, reached through rmw_zenoh (docs/ros2.md).
 
-A robot running ROS 2 with `RMW_IMPLEMENTATION=rmw_zenoh_cpp` takes `geometry_msgs/Twist` on
-`<namespace>/cmd_vel` and (here) an LED colour as `std_msgs/ColorRGBA` on `<namespace>/led`; a motion
-capture system publishes `geometry_msgs/PoseStamped` per robot. `Ros2Backend` sends the commands,
-`Ros2PoseSource` reads the poses. CDR encoding and decoding, and the RIHS01 type hashes, come from
-rosbags' message definitions of the chosen ROS 2 distribution; the Zenoh side is transport.rmw_zenoh.
-
-In a robots file:
-
-    [backend]
-    kind = "ros2"
-    namespaces = ["robot0", "robot1"]   # robot id = position in this list
-    cmd_topic = "cmd_vel"
-    led_topic = "led"
-    domain = 0
-
-    [poses]
-    kind = "ros2"
-    topic = "/robot{id}/pose"
-    rate = 10.0                          # Hz: the control rate the poses are resampled to
-"""
+`Ros2Backend` sends `geometry_msgs/Twist` on `<namespace>/cmd_vel` and an LED colour as
+`std_msgs/ColorRGBA` on `<namespace>/led`; `Ros2PoseSource` reads a motion-capture system's
+`geometry_msgs/PoseStamped` per robot. CDR and the RIHS01 type hashes come from rosbags' message
+definitions of the chosen ROS 2 distribution; the Zenoh side is transport.rmw_zenoh."""
 
 from __future__ import annotations
 

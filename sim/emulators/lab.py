@@ -53,12 +53,7 @@ class Lab(Started):
     """N emulated e-puck2 robots at the scene's start poses, their true poses on motion capture."""
 
     def __init__(
-        self,
-        scene: Scene,
-        settings: ZenohSettings,
-        *,
-        rate: float = MOCAP_RATE,
-        first_port: int | None = None,
+        self, scene: Scene, settings: ZenohSettings, *, rate: float = MOCAP_RATE, first_port: int | None = None
     ) -> None:
         """``first_port``: robot i listens on first_port + i (a static hardware file); None: free ports."""
         self.scene = scene

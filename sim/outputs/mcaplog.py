@@ -46,12 +46,7 @@ SCHEMA_ENCODING = "jsonschema"
 PROTOBUF = "protobuf"
 LOOPBACK = "127.0.0.1"
 
-_COMPRESSION = {
-    "zstd": MCAPCompression.Zstd,
-    "lz4": MCAPCompression.Lz4,
-    "none": None,
-    None: None,
-}
+_COMPRESSION = {"zstd": MCAPCompression.Zstd, "lz4": MCAPCompression.Lz4, "none": None, None: None}
 
 
 class McapLog:
@@ -64,12 +59,7 @@ class McapLog:
     """
 
     def __init__(
-        self,
-        path: str | os.PathLike,
-        *,
-        compression: str | None = "zstd",
-        chunk_size: int = 1 << 20,
-        profile: str = "",
+        self, path: str | os.PathLike, *, compression: str | None = "zstd", chunk_size: int = 1 << 20, profile: str = ""
     ):
         if compression not in _COMPRESSION:
             raise ValueError(f"compression must be one of {sorted(k for k in _COMPRESSION if k)} or None")
@@ -94,12 +84,7 @@ class McapLog:
 
     # -- channels ----------------------------------------------------------------------------
     def add_channel(
-        self,
-        topic: str,
-        schema_name: str,
-        json_schema: dict,
-        *,
-        metadata: dict[str, str] | None = None,
+        self, topic: str, schema_name: str, json_schema: dict, *, metadata: dict[str, str] | None = None
     ) -> int:
         """Register (or look up) a JSON channel; returns its id.
 

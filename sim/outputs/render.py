@@ -1,17 +1,10 @@
-"""What an audience would see, and the plots of a run.  Pure writers, no zenoh.
+"""What an audience would see, and the plots of a run (docs/outputs.md). Pure writers, no zenoh.
 
-* :func:`render_frame` — one top-down BGR image: dark background (a robot display in a dark room),
-  obstacles as grey polygons, robots as discs in their LED colour with a thin heading tick, optional
-  faint goal rings, the time in the top-left corner.  OpenCV drawing, anti-aliased, sub-pixel.
-* :func:`write_video` — those frames into an H.264 MP4 (yuv420p, High profile, 'faststart') that
-  browsers play, encoded with PyAV's bundled libx264 (the pip OpenCV wheels have no H.264 encoder).
-* :func:`write_plots` — ``clearance.png`` and ``trajectories.png`` with matplotlib's Agg canvas
-  (no pyplot, so no global backend state is touched).
-
-Conventions: world x right, y up; ``pose`` (..., 3) is (x, y, theta) in metres/radians; ``color``
-is LED colour as **RGB** uint8; ``arena`` is (xmin, ymin, xmax, ymax); ``obstacles`` is a list of
-polygons, each a list of (x, y) vertices.
-"""
+:func:`render_frame` draws one top-down BGR frame with OpenCV, :func:`write_video` encodes frames as
+browser-playable H.264 MP4 with PyAV's libx264 (the pip OpenCV wheels have no H.264 encoder), and
+:func:`write_plots` draws ``clearance.png`` and ``trajectories.png`` on matplotlib's Agg canvas (no pyplot:
+no global backend state). World x right, y up; poses (x, y, theta); colours RGB uint8; ``arena`` is
+(xmin, ymin, xmax, ymax); obstacles are lists of (x, y) vertices."""
 
 from __future__ import annotations
 
