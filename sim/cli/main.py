@@ -402,11 +402,8 @@ def _run_central(args: argparse.Namespace, scene: Scene, out: Path, faults: Any,
 
 def _run_agents(args: argparse.Namespace, scene: Scene, out: Path, faults: Any, reach: float) -> int:
     """The run with agent processes over an embedded router (the distributed engine, or hardware)."""
-    from sim.run.launcher import (  # heavy imports only for the distributed engine (after the goal sets: progress first)
-        AGENTS_TIMEOUT,
-        Launcher,
-        RunOptions,
-    )
+    # heavy imports only for the distributed engine (after the goal sets: progress first)
+    from sim.run.launcher import AGENTS_TIMEOUT, Launcher, RunOptions
 
     router = None
     if args.zenoh_config:
@@ -458,15 +455,8 @@ def _open_view(mode: str | None, scene: Scene) -> Any:
         raise UsageError(f"--view: no directory {Path(mode).parent} to write {Path(mode).name} in")
     params = RobotParams.from_dict(scene.robot)
     try:
-        view = SwarmView(
-            scene.name,
-            scene.arena,
-            scene.obstacles,
-            params.radius,
-            robots=scene.robots,
-            sink=mode,
-            tolerance=params.goal_tolerance,
-        )
+        display = (scene.name, scene.arena, scene.obstacles, params.radius)
+        view = SwarmView(*display, robots=scene.robots, sink=mode, tolerance=params.goal_tolerance)
     except ViewUnavailable as err:
         raise UsageError(f"--view: {err}") from None
     if view.url is not None:
@@ -664,14 +654,8 @@ def cmd_scenes(args: argparse.Namespace) -> int:
     for name in shipped_scenes():
         with open(resolve_scene_path(name), "rb") as f:
             data = tomllib.load(f)
-        rows.append(
-            (
-                name,
-                int(data.get("robots", 0)),
-                data.get("robot", {}).get("kinematics", EPUCK.kinematics),
-                data.get("description", ""),
-            )
-        )
+        kinematics = data.get("robot", {}).get("kinematics", EPUCK.kinematics)
+        rows.append((name, int(data.get("robots", 0)), kinematics, data.get("description", "")))
     # columns as wide as their longest entry, so that any name length keeps them aligned
     name_width = max((len(name) for name, *_ in rows), default=0)
     robots_width = max((len(str(robots)) for _, robots, *_ in rows), default=0)
