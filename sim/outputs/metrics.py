@@ -28,13 +28,6 @@ __all__ = [
 ]
 
 
-def _check_pose(pose: np.ndarray) -> np.ndarray:
-    pose = np.asarray(pose, dtype=float)
-    if pose.ndim != 3 or pose.shape[2] < 2:
-        raise ValueError(f"pose must have shape (T, N, 3), got {pose.shape}")
-    return pose
-
-
 def _radius(radius: Any, n: int) -> np.ndarray:
     r = np.asarray(radius, dtype=float)
     return np.broadcast_to(r, (n,)).astype(float) if r.ndim == 0 else r.reshape(n)
@@ -46,7 +39,7 @@ CHUNK = 1 << 20
 
 
 def _pose_shape(pose: Any) -> tuple[int, int]:
-    """(T, N) of a (T, N, >=2) pose array, without the float64 copy of all of it :func:`_check_pose` makes."""
+    """(T, N) of a (T, N, >=2) pose array, without a float64 copy of all of it."""
     shape = np.shape(pose)
     if len(shape) != 3 or shape[2] < 2:
         raise ValueError(f"pose must have shape (T, N, 3), got {shape}")
@@ -148,8 +141,8 @@ def clearance_over_time(pose: np.ndarray, radius: np.ndarray) -> np.ndarray:
 def contact_events(pose: np.ndarray, radius: np.ndarray, tolerance: float = 0.0) -> int:
     """Number of pair-contact events: a pair (i, j) starting to overlap (clearance < -tolerance)
     at a sample where it did not overlap at the previous sample (counts the first sample too)."""
-    pose = _check_pose(pose)
-    T, N = pose.shape[:2]
+    T, N = _pose_shape(pose)
+    pose = np.asarray(pose, dtype=float)
     r = _radius(radius, N)
     if N < 2:
         return 0

@@ -26,15 +26,8 @@ import numpy as np
 from sim.study.spec import Spec, StudyDir, write_text
 
 # What a decentralisation study looks at first (paper 7: safety, convergence, path length, timeliness).
-KEY_METRICS = (
-    "contacts",
-    "min_clearance_m",
-    "time_to_converge_s",
-    "converged",
-    "path_length_m.mean",
-    "missed_ticks",
-    "late_commands",
-    "orca_fallbacks",
+KEY_METRICS = tuple(
+    "contacts min_clearance_m time_to_converge_s converged path_length_m.mean missed_ticks late_commands orca_fallbacks".split()
 )
 NOT_SUMMARISED = {"seed"}  # numbers that name a run rather than measure it
 
