@@ -462,7 +462,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--display", default="default", help="display name (key prefix)")
     parser.add_argument("--mode", choices=MODES_AND_ALL, required=True, help="what to damage and how")
-    parser.add_argument("--rate", type=float, default=350.0, help="damaged copies a second (default 350)")
+    parser.add_argument("--rate", type=float, default=PeerPlan.rate, help="damaged copies a second (default 350)")
     parser.add_argument("--duration", type=float, default=None, help="seconds of damage (default: until stopped)")
     parser.add_argument(
         "--start-after", type=float, default=0.0, help="seconds after the run's first clock tick before damage begins"
@@ -492,24 +492,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    settings = ZenohSettings(
-        mode="client",
-        connect=list(args.connect),
-        multicast_scouting=args.multicast_scouting,
-        config_file=args.zenoh_config,
-    )
+    zenoh = {"multicast_scouting": args.multicast_scouting, "config_file": args.zenoh_config}
+    settings = ZenohSettings(mode="client", connect=list(args.connect), **zenoh)
     if not settings.connect:
         print("faulty-peer: give the router with -e tcp/HOST:PORT", file=sys.stderr)
         return 2
-    plan = PeerPlan(
-        args.mode,
-        args.rate,
-        args.duration,
-        args.start_after,
-        args.seed,
-        args.include_sim,
-        tuple(d for d in args.damage.split(",") if d),
-    )
+    damages = tuple(d for d in args.damage.split(",") if d)
+    plan = PeerPlan(args.mode, args.rate, args.duration, args.start_after, args.seed, args.include_sim, damages)
     peer = FaultyPeer(settings, args.display, plan, args.connect_wait)
     try:
         with stopped_by_signals() as stop:
