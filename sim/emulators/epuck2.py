@@ -62,15 +62,8 @@ def parse_command(packet: bytes) -> ReceivedCommand:
     if len(packet) != COMMAND_LENGTH or packet[0] != COMMAND_PACKET:
         raise ValueError("not a command packet")
     rgb = tuple((packet[i], packet[i + 1], packet[i + 2]) for i in range(8, 20, 3))
-    return ReceivedCommand(
-        request=packet[1],
-        settings=packet[2],
-        left=int.from_bytes(packet[3:5], "little", signed=True),
-        right=int.from_bytes(packet[5:7], "little", signed=True),
-        leds=packet[7],
-        rgb=rgb,
-        speaker=packet[20],
-    )
+    left, right = (int.from_bytes(packet[at : at + 2], "little", signed=True) for at in (3, 5))
+    return ReceivedCommand(packet[1], packet[2], left, right, packet[7], rgb, packet[20])
 
 
 def step_pose(pose: Pose, left: float, right: float, wheel_base: float, dt: float) -> Pose:
@@ -341,12 +334,8 @@ def read_poses(path: Path, count: int) -> list[Pose]:
         raise UsageError(f"{path}: no such poses file") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
         raise UsageError(f"{path}: not a JSON list of poses: {err}") from None
-    ok = isinstance(data, list) and all(
-        isinstance(p, list)
-        and len(p) == 3
-        and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in p)
-        for p in data
-    )
+    number = lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    ok = isinstance(data, list) and all(isinstance(p, list) and len(p) == 3 and all(map(number, p)) for p in data)
     if not ok:
         raise UsageError(f"{path}: poses must be a JSON list of [x, y, theta] numbers")
     if len(data) != count:

@@ -120,7 +120,7 @@ def world_node(
     bus: Bus,
     scene: Scene,
     *,
-    deadline: float = 2.0,
+    deadline: float = Scene.deadline,
     startup_timeout: float = STARTUP_TIMEOUT,
     pose_frames: bool = False,
 ) -> BodyNode:
@@ -134,7 +134,9 @@ def world_node(
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m sim.node.world")
     add_scene_args(parser)
-    parser.add_argument("--deadline", type=float, default=2.0, help="lock-step: seconds to wait for commands")
+    parser.add_argument(
+        "--deadline", type=float, default=Scene.deadline, help="lock-step: seconds to wait for commands"
+    )
     parser.add_argument("--faults", default="")
     parser.add_argument("--pose-frames", action="store_true", help="send each tick's poses as one frame (agent hosts)")
     add_seconds(parser, "--startup-timeout", STARTUP_TIMEOUT, "how long to wait for every robot's agent to come alive")
