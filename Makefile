@@ -18,7 +18,7 @@ $(PY):
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 
-$(STAMP): pyproject.toml setup.py $(wildcard agent/core/*.pyx sim/bodies/*.pyx) | $(PY)
+$(STAMP): pyproject.toml setup.py $(wildcard agent/core/*.pyx agent/core/*.pxd sim/bodies/*.pyx) | $(PY)
 	@echo "make: installing pixelswarm and its dependencies into $(VENV) and compiling its core with Cython (a minute or two the first time)"
 	$(PY) -m pip install -q -e .
 	touch $@

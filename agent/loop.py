@@ -79,6 +79,7 @@ class Seams:
     seed: int
     reach: float = np.inf
     lap: Callable[[str], None] = lambda part: None
+    threads: int = 1  # threads sharing the batch's control step (agent.core.step.Surroundings)
 
 
 def tick(robots: Robots, sensed: Sensed, seams: Seams) -> Decision:
@@ -121,7 +122,7 @@ def _act(sensed: Sensed, intent: Intent, memory: Memory, heard: NeighbourStates,
         intent,
         memory,
         heard,
-        Surroundings(seams.segments, seams.seed, sensed.tick, seams.auction.active, seams.reach),
+        Surroundings(seams.segments, seams.seed, sensed.tick, seams.auction.active, seams.reach, seams.threads),
     )
 
 

@@ -156,12 +156,18 @@ class Heard:
 
 
 def nearest_heard(
-    robot_ids, positions: np.ndarray, stamp: float, heard: Heard, neighbour_dist: float, max_neighbours: int
+    robot_ids,
+    positions: np.ndarray,
+    stamp: float,
+    heard: Heard,
+    neighbour_dist: float,
+    max_neighbours: int,
+    threads: int = 1,
 ) -> NeighbourStates:
     """Padded neighbour arrays for a batch at display time ``stamp``: each robot's nearest
     ``max_neighbours`` heard states within ``neighbour_dist`` of it (never its own), nearest first,
     ties by robot id (agent.core.grid.nearest), so every process and engine picks the same neighbours
-    from the same states, for one robot, a host's K or all of them."""
+    from the same states, for one robot, a host's K or all of them (on ``threads`` threads)."""
     batch = len(robot_ids)
     if len(heard.ids) == 0:
         return NeighbourStates.empty(batch)
@@ -173,6 +179,7 @@ def nearest_heard(
         f64(heard.ids, dtype=np.int64),
         float(neighbour_dist),
         int(max_neighbours),
+        threads=threads,
     )
     table = np.empty((len(heard.ids), 7))  # per state: x, y, vx, vy, radius, age, cooperative
     table[:, 0:2], table[:, 2:4], table[:, 4] = heard.position, heard.velocity, heard.radius

@@ -14,6 +14,7 @@ from libc.stdlib cimport free, malloc
 from libc.string cimport memset
 
 from agent.core.splitmix cimport splitmix64
+from agent.core.crew cimport MAX_HANDS, share_rows
 
 import math
 
@@ -23,6 +24,7 @@ cdef double COOPERATING = 0.5  # responsibility c toward a robot running the sam
 cdef double NON_COOPERATING = 1.0  # toward a dynamic obstacle, or a robot whose state is stale
 cdef double PERTURBATION = 1e-4  # largest component of the symmetry-breaking perturbation (m/s)
 cdef double EPSILON = 1e-5  # two unit directions are parallel below this |det| (as RVO2)
+cdef Py_ssize_t ROWS_PER_CHUNK = 16  # rows a thread of the central engine's crew claims at a time
 cdef int N_VERTICES = 24  # P_AHV's vertices, denser ahead where its boundary turns fastest
 
 # radii 1 ppm larger in the safety and obstacle lines: gaps may close completely, rounding must not
@@ -859,35 +861,61 @@ cdef inline Robot _robot(Batch rows, Py_ssize_t i, Config *s) noexcept nogil:
                  rows.pref[2 * i], rows.pref[2 * i + 1], rows.radius[i], vmax)
 
 
-def step(Settings settings, Batch robots, heard, segments=None):
+cdef void _step_one(Config *s, Batch robots, Heard nb, Obstacles obstacles, Scratch *w, Py_ssize_t i,
+                    double *o) noexcept nogil:
+    """Row i of step: o = (v_cf, command, fallback, reverse, tracking error)."""
+    cdef Robot me = _robot(robots, i, s)
+    cdef Result r
+    _prepare(s, nb, i, w, me.vmax)
+    if s.diffdrive:
+        r = _nh_orca(s, w, &me, robots.heading[i], obstacles)
+    else:
+        r.fallback = _orca(s, w, &me, obstacles, NULL, 0, False, &r.vx)
+        r.c0, r.c1, r.error, r.reverse = r.vx, r.vy, 0.0, False
+    o[0], o[1], o[2], o[3], o[4], o[5], o[6] = r.vx, r.vy, r.c0, r.c1, r.fallback, r.reverse, r.error
+
+
+cdef struct StepJob:  # step's batch, as its crew's hands read it
+    Config *s
+    void *robots  # Batch
+    void *heard  # Heard
+    void *obstacles  # Obstacles
+    Scratch *scratch[MAX_HANDS]  # each hand's own
+    double *out  # (B, 7)
+
+
+cdef void _step_rows(void *job, int hand, Py_ssize_t start, Py_ssize_t stop) noexcept nogil:
+    cdef StepJob *j = <StepJob *>job
+    cdef Py_ssize_t i
+    for i in range(start, stop):
+        _step_one(j.s, <Batch>j.robots, <Heard>j.heard, <Obstacles>j.obstacles, j.scratch[hand], i, j.out + 7 * i)
+
+
+def step(Settings settings, Batch robots, heard, segments=None, int threads=1):
     """One control step of a batch: each robot's collision-free velocity from what it heard
     (agent.core.step.NeighbourStates (B,M), or a Heard of it) and the obstacle edges (S,2,2, or
     Obstacles), shared by the batch. Returns (v_cf (B,2), command (B,2): v_cf, or a
     differential-drive robot's wheel speeds (left, right), fallback (B,), reverse (B,), tracking
-    error (B,)). Without the GIL: the central engine's auction runs on another thread meanwhile."""
+    error (B,)). Without the GIL: the central engine's auction runs on another thread meanwhile.
+    ``threads`` > 1 shares the rows among that many threads (agent.core.crew; each robot's row is its
+    own, so the result is the same to the bit)."""
     cdef Heard nb = heard if isinstance(heard, Heard) else Heard(heard)
     cdef Obstacles obstacles = segments if isinstance(segments, Obstacles) else Obstacles(segments)
-    cdef Py_ssize_t b = robots.b, i
+    cdef Py_ssize_t b = robots.b
     if nb.batch not in (b, -1):
         raise ValueError(f"{nb.batch} rows of neighbour states for {b} robots")
-    cdef Work work = Work(nb.m, obstacles.n + MAX_VERTICES + 2 * nb.m)
+    threads = max(1, min(threads, MAX_HANDS, (b + ROWS_PER_CHUNK - 1) // ROWS_PER_CHUNK))
+    works = [Work(nb.m, obstacles.n + MAX_VERTICES + 2 * nb.m) for _ in range(threads)]
     out = np.zeros((b, 7))
     cdef double[:, ::1] o = out
-    cdef Config *s = &settings.c
-    cdef Scratch *w = &work.s
-    cdef Robot me
-    cdef Result r
+    cdef StepJob job
+    cdef int hand
+    job.s, job.robots, job.heard, job.obstacles = &settings.c, <void *>robots, <void *>nb, <void *>obstacles
+    job.out = &o[0, 0] if b else NULL
+    for hand in range(threads):
+        job.scratch[hand] = &(<Work>works[hand]).s
     with nogil:
-        for i in range(b):
-            me = _robot(robots, i, s)
-            _prepare(s, nb, i, w, me.vmax)
-            if s.diffdrive:
-                r = _nh_orca(s, w, &me, robots.heading[i], obstacles)
-            else:
-                r.fallback = _orca(s, w, &me, obstacles, NULL, 0, False, &r.vx)
-                r.c0, r.c1, r.error, r.reverse = r.vx, r.vy, 0.0, False
-            o[i, 0], o[i, 1], o[i, 2], o[i, 3] = r.vx, r.vy, r.c0, r.c1
-            o[i, 4], o[i, 5], o[i, 6] = r.fallback, r.reverse, r.error
+        share_rows(_step_rows, &job, b, ROWS_PER_CHUNK, threads)
     return out[:, 0:2].copy(), out[:, 2:4].copy(), out[:, 4] != 0, out[:, 5] != 0, out[:, 6].copy()
 
 

@@ -11,6 +11,7 @@ def nearest(
     reach: float,
     m: int,
     inclusive: bool = True,
+    threads: int = 1,
 ) -> npt.NDArray[np.int64]: ...
 def close_pairs(
     traj: npt.NDArray[np.float64],

@@ -21,13 +21,16 @@ Positions must be finite.
 
 from libc.math cimport fabs, sqrt
 from libc.stdint cimport int64_t
-from libc.stdlib cimport free, malloc
+from libc.stdlib cimport calloc, free, malloc
+
+from agent.core.crew cimport MAX_HANDS, share_rows
 
 import numpy as np
 
 cdef enum:
     CELLS_PER_POINT = 16  # a grid has at most this many cells per point (coarser cells past it), or 1024
     PARTS = 3  # nearest's cells are reach / PARTS wide where the points are crowded (see cell_width)
+    QUERIES_PER_CHUNK = 32  # queries a thread of the central engine's crew claims at a time
 
 
 cdef struct Grid:
@@ -209,6 +212,7 @@ def nearest(
     double reach,
     Py_ssize_t m,
     bint inclusive=True,
+    int threads=1,
 ):
     """(Q, m) int64: for each query point (Q, 2), the indices of its up to ``m`` nearest points
     (N, 2) within ``reach`` (d2 <= reach^2 if ``inclusive``, else d2 < reach^2, as RVO2 and scipy's
@@ -221,7 +225,7 @@ def nearest(
     outward: a column's cells are consecutive in the grid's order, so it is read as one run of
     points over the cells the disc covers there (where fewer than m are in reach, the whole disc
     is read in a few runs). The ranking is a total order, so the points met and their order do not
-    matter.
+    matter, and ``threads`` > 1 (queries shared among them) gives the same result.
     """
     cdef Py_ssize_t q = query.shape[0], n = points.shape[0]
     if query_key.shape[0] != q or key.shape[0] != n or (q and query.shape[1] != 2) or (n and points.shape[1] != 2):
@@ -234,16 +238,21 @@ def nearest(
         return out_array
     cdef Grid g
     grid_build(&g, points, cell_width(points, reach, m))  # frees what it took if it raises
-    cdef double *best = <double *>malloc(m * sizeof(double))
-    cdef int64_t *best_key = <int64_t *>malloc(m * sizeof(int64_t))
+    cdef int t
+    threads = max(1, min(threads, MAX_HANDS, (q + QUERIES_PER_CHUNK - 1) // QUERIES_PER_CHUNK))
+    cdef Query *each = <Query *>calloc(threads, sizeof(Query))  # a thread's own query and its best
+    cdef Queries job
     cdef Py_ssize_t i, spread
     cdef double slack, far = 0.0
-    cdef Query nb
-    cdef double reach2 = reach * reach
     try:
-        if best == NULL or best_key == NULL:
+        if each == NULL:
             raise MemoryError()
-        nb.reach2, nb.inclusive, nb.m, nb.best, nb.best_key = reach2, inclusive, m, best, best_key
+        for t in range(threads):
+            each[t].reach2, each[t].inclusive, each[t].m = reach * reach, inclusive, m
+            each[t].best = <double *>malloc(m * sizeof(double))
+            each[t].best_key = <int64_t *>malloc(m * sizeof(int64_t))
+            if each[t].best == NULL or each[t].best_key == NULL:
+                raise MemoryError()
         for i in range(n):
             far = max(far, fabs(points[i, 0]), fabs(points[i, 1]))
         for i in range(q):
@@ -252,56 +261,75 @@ def nearest(
         slack = 1e-9 * (g.cell + far)
         # columns either side of the query's that can hold a point within reach
         spread = cell_index(reach / g.cell + 2.0, 0, g.nx + 1)
-        with nogil:  # the central engine's auction runs on another thread meanwhile
-            _queries(&g, &nb, query, query_key, &key[0], out, slack, spread)
+        job = Queries(&g, each, &query[0, 0], &query_key[0], &key[0], &out[0, 0], slack, spread)
+        with nogil:  # the central engine's auction runs beside
+            share_rows(_queries, &job, q, QUERIES_PER_CHUNK, threads)
     finally:
         grid_free(&g)
-        free(best)
-        free(best_key)
+        for t in range(threads if each != NULL else 0):
+            free(each[t].best)
+            free(each[t].best_key)
+        free(each)
     return out_array
 
 
-cdef void _queries(Grid *g, Query *nb, const double[:, ::1] query, const int64_t[::1] query_key,
-                   const int64_t *key, int64_t[:, ::1] out, double slack, Py_ssize_t spread) noexcept nogil:
-    """nearest's search, query by query (see its docstring)."""
-    cdef Py_ssize_t i, c, s, gx, qx, qy, low, high, missed
-    cdef double px, py, left, away, half
-    for i in range(query.shape[0]):
-        px, py = query[i, 0], query[i, 1]
-        qx = cell_index((px - g.x0) * g.per, -1, g.nx)  # outside the grid: the cell just outside
-        qy = cell_index((py - g.y0) * g.per, -1, g.ny)
-        nb.px, nb.py, nb.own, nb.k, nb.bound, nb.chosen = px, py, query_key[i], 0, nb.reach2, &out[i, 0]
-        for gx in range(max(qx - 1, 0), min(qx + 2, g.nx)):
-            if qy + 1 >= 0 and qy - 1 < g.ny:
-                c = gx * g.ny
-                scan(g, nb, key, c + max(qy - 1, 0), c + min(qy + 1, g.ny - 1) + 1)
-        missed = 0
-        for s in range(2 * spread + 1):
-            gx = qx + (s + 1) // 2 if s % 2 else qx - s // 2  # 0, +1, -1, +2, -2, ...
-            if s % 2 == 1:
-                missed = 0  # a new pair of columns, one either side, each farther than the last
-            if gx < 0 or gx >= g.nx:
-                missed += 1
-                continue
-            left = g.x0 + gx * g.cell - slack
-            away = max(max(left - px, px - (left + g.cell + 2.0 * slack)), 0.0)  # to the column, across
-            if away * away > nb.bound:
-                # the disc only shrinks and columns only get farther: when neither column of a
-                # pair reaches it, none beyond does
-                missed += 1
-                if missed == 2:
-                    break
-                continue
-            # along the column: as far as the disc reaches, widened past any rounding of the root
-            half = sqrt(max(nb.bound - away * away, 0.0) + 1e-12 * nb.bound) + slack
-            low = cell_index((py - half - g.y0) * g.per, -1, g.ny)
-            high = cell_index((py + half - g.y0) * g.per, -1, g.ny)
-            low, high = max(low, 0), min(high, g.ny - 1)
+cdef struct Queries:  # nearest's queries, as its crew's hands read them
+    Grid *g
+    Query *each  # each hand's own
+    const double *xy  # (Q, 2)
+    const int64_t *own  # (Q,) their keys
+    const int64_t *key  # (N,) the points'
+    int64_t *out  # (Q, m)
+    double slack
+    Py_ssize_t spread
+
+
+cdef void _queries(void *job, int hand, Py_ssize_t start, Py_ssize_t stop) noexcept nogil:
+    cdef Queries *j = <Queries *>job
+    cdef Py_ssize_t i, m = j.each[hand].m
+    for i in range(start, stop):
+        _query(j.g, &j.each[hand], j.xy[2 * i], j.xy[2 * i + 1], j.own[i], j.key, j.out + m * i, j.slack, j.spread)
+
+
+cdef void _query(Grid *g, Query *nb, double px, double py, int64_t own, const int64_t *key, int64_t *chosen,
+                 double slack, Py_ssize_t spread) noexcept nogil:
+    """nearest's search for one query point (see its docstring): its neighbours into ``chosen``."""
+    cdef Py_ssize_t c, s, gx, qx, qy, low, high, missed
+    cdef double left, away, half
+    qx = cell_index((px - g.x0) * g.per, -1, g.nx)  # outside the grid: the cell just outside
+    qy = cell_index((py - g.y0) * g.per, -1, g.ny)
+    nb.px, nb.py, nb.own, nb.k, nb.bound, nb.chosen = px, py, own, 0, nb.reach2, chosen
+    for gx in range(max(qx - 1, 0), min(qx + 2, g.nx)):
+        if qy + 1 >= 0 and qy - 1 < g.ny:
             c = gx * g.ny
-            if qx - 1 <= gx <= qx + 1:  # the 3 x 3 are done: the runs below and above them
-                scan(g, nb, key, c + low, c + min(high, qy - 2) + 1)
-                low = max(low, qy + 2)
-            scan(g, nb, key, c + low, c + high + 1)
+            scan(g, nb, key, c + max(qy - 1, 0), c + min(qy + 1, g.ny - 1) + 1)
+    missed = 0
+    for s in range(2 * spread + 1):
+        gx = qx + (s + 1) // 2 if s % 2 else qx - s // 2  # 0, +1, -1, +2, -2, ...
+        if s % 2 == 1:
+            missed = 0  # a new pair of columns, one either side, each farther than the last
+        if gx < 0 or gx >= g.nx:
+            missed += 1
+            continue
+        left = g.x0 + gx * g.cell - slack
+        away = max(max(left - px, px - (left + g.cell + 2.0 * slack)), 0.0)  # to the column, across
+        if away * away > nb.bound:
+            # the disc only shrinks and columns only get farther: when neither column of a
+            # pair reaches it, none beyond does
+            missed += 1
+            if missed == 2:
+                break
+            continue
+        # along the column: as far as the disc reaches, widened past any rounding of the root
+        half = sqrt(max(nb.bound - away * away, 0.0) + 1e-12 * nb.bound) + slack
+        low = cell_index((py - half - g.y0) * g.per, -1, g.ny)
+        high = cell_index((py + half - g.y0) * g.per, -1, g.ny)
+        low, high = max(low, 0), min(high, g.ny - 1)
+        c = gx * g.ny
+        if qx - 1 <= gx <= qx + 1:  # the 3 x 3 are done: the runs below and above them
+            scan(g, nb, key, c + low, c + min(high, qy - 2) + 1)
+            low = max(low, qy + 2)
+        scan(g, nb, key, c + low, c + high + 1)
 
 
 def close_pairs(

@@ -105,13 +105,15 @@ class Surroundings:
     """What a batch's robots decide within beside their own state and what they heard: the static
     obstacles' segments, the seed and tick of the symmetry-breaking perturbation, whether an auction
     can act on a deadlock (``watch_deadlocks``; otherwise the blocked counts wait as they are), and
-    the range they hear states within (m: they drive no faster than heard_speed_limit)."""
+    the range they hear states within (m: they drive no faster than heard_speed_limit), and how
+    many threads share the batch's rows (the central engine: one a core; the same result to the bit)."""
 
     segments: np.ndarray | None = None
     seed: int = 0
     tick: int = 0
     watch_deadlocks: bool = False
     reach: float = np.inf
+    threads: int = 1
 
 
 @dataclass
@@ -138,5 +140,5 @@ def control_step(
         core, own.ids, own.position, own.velocity, own.goal, own.preferred, around.seed, around.tick
     )
     robots = Batch(own.position, own.velocity, pref, own.heading, params.radius)
-    v_cf, command, fallback, _, _ = step(core, robots, neighbours, around.segments)
+    v_cf, command, fallback, _, _ = step(core, robots, neighbours, around.segments, around.threads)
     return StepResult(v_cf, command, pref, fallback)

@@ -20,6 +20,7 @@ the auction would give, to the bit.
 from __future__ import annotations
 
 import ctypes
+import os
 import sys
 import time
 from dataclasses import dataclass
@@ -404,7 +405,9 @@ def simulate(
     beside = Beside(clock, overlap)
     auction = CentralAuction(scene, params, Movers(scene), link.reach, beside)
     robots = Central(scene, link, auction, world)
-    seams = Seams(robots, auction, static_segments(scene.arena, scene.obstacles), scene.seed, link.reach, clock.lap)
+    link.threads = threads = len(os.sched_getaffinity(0))  # the batch's rows shared among the cores
+    segments = static_segments(scene.arena, scene.obstacles)
+    seams = Seams(robots, auction, segments, scene.seed, link.reach, clock.lap, threads)
     events = sorted(scene.events, key=lambda e: e["t"])
     steps, last_step = round(scene.duration / params.dt), max(len(scene.steps) - 1, 0)
     rec = TickRecorder(steps + 1, scene.robots, record_to)

@@ -31,6 +31,7 @@ class InProcessLink:
         if not reach > 0:
             raise ValueError(f"the communication range must be a positive distance, not {reach}")
         self.robots, self.drop, self.late, self.reach = robots, drop, late, float(reach)
+        self.threads = 1  # that share the neighbour search of every robot at once (set by the engine)
         self.impaired = drop > 0 or late > 0
         self.rng = np.random.default_rng(seed)
         self.last: Heard | None = None  # what everybody heard (no impairment)
@@ -69,7 +70,7 @@ class InProcessLink:
         if not self.impaired:
             if self.last is None:
                 return NeighbourStates.empty(len(robot_ids))
-            return nearest_heard(robot_ids, position, stamp, self.last, neighbour_dist, max_neighbours)
+            return nearest_heard(robot_ids, position, stamp, self.last, neighbour_dist, max_neighbours, self.threads)
         out = NeighbourStates.empty(len(robot_ids), max_neighbours)
         if self.delayed is None:
             return out

@@ -13,11 +13,11 @@ from agent.neighbour_table import Heard, nearest_heard
 from sim.bodies.proximity import close_pairs
 
 
-def nearest_within(position: np.ndarray, reach: float, m: int) -> np.ndarray:
+def nearest_within(position: np.ndarray, reach: float, m: int, threads: int = 1) -> np.ndarray:
     """The central engine's (sim.central.rvo) use: every robot among all, strictly within reach."""
     index = np.arange(len(position), dtype=np.int64)
     p = np.ascontiguousarray(position, dtype=float)
-    return nearest(p, index, p, index, reach, m, False)
+    return nearest(p, index, p, index, reach, m, False, threads)
 
 
 def kd_tree_neighbours(position: np.ndarray, reach: float, m: int) -> np.ndarray:
@@ -48,9 +48,10 @@ def kd_tree_ranked(query, query_key, points, key, reach, m, inclusive) -> np.nda
     "seed, n, side, reach, m",
     [(0, 1000, 25.0, 1.2, 16), (1, 300, 3.0, 1.0, 8), (2, 50, 100.0, 5.0, 4), (3, 2, 1.0, 2.0, 1)],
 )
-def test_the_same_neighbours_as_a_kd_tree(seed, n, side, reach, m):
+@pytest.mark.parametrize("threads", [1, 3])  # the central engine shares the queries among its cores
+def test_the_same_neighbours_as_a_kd_tree(seed, n, side, reach, m, threads):
     position = np.random.default_rng(seed).uniform(0.0, side, (n, 2))
-    np.testing.assert_array_equal(nearest_within(position, reach, m), kd_tree_neighbours(position, reach, m))
+    np.testing.assert_array_equal(nearest_within(position, reach, m, threads), kd_tree_neighbours(position, reach, m))
 
 
 def test_reach_is_strict_and_ties_go_to_the_lower_index():

@@ -65,3 +65,20 @@ def test_a_batch_gives_each_robot_the_bits_it_gets_alone(kinematics, walls, give
         one = control_step(params, own, nb.rows(row), around)
         for f in FIELDS:
             assert getattr(one, f)[0].tobytes() == getattr(full, f)[i].tobytes(), (i, f)
+
+
+@pytest.mark.parametrize("kinematics", [HOLONOMIC, DIFFDRIVE])
+def test_threads_sharing_a_batch_give_the_bits_of_one(kinematics):
+    """The central engine shares its batch's rows among its cores: the same bits as one thread."""
+    rng = np.random.default_rng(kinematics == DIFFDRIVE)
+    b, m = 400, 8
+    ids, position, heading, velocity, goal, nb = crowd(rng, b, m)
+    segments = static_segments((-1.0, -1.0, 1.0, 1.0), [])
+    own = OwnStates(ids, position, heading, velocity, goal)
+    params = RobotParams(kinematics=kinematics)
+    one, shared = (
+        control_step(params, own, nb, Surroundings(segments, seed=5, tick=11, threads=threads)) for threads in (1, 4)
+    )
+    assert one.fallback.any() and not one.fallback.all()
+    for f in FIELDS:
+        assert getattr(one, f).tobytes() == getattr(shared, f).tobytes(), f
