@@ -11,6 +11,7 @@ side by side in one run:
     .venv/bin/python -m bench.bench_large --images 2         # only the first two images (a shorter run)
     .venv/bin/python -m bench.bench_large --robots 200 --assignment auction --results large-trial
     .venv/bin/python -m bench.bench_large --before cf836e5 --pairs 2   # the CLI's run beside revision REV's
+    .venv/bin/python -m bench.bench_large --before cf836e5 --before-path DIR   # DIR: `pip install --target DIR numba`
     .venv/bin/python -m bench.bench_large --scale 1000,3000,10000 --seconds 10   # cost per robot-step by size
 
 It runs what `pixelswarm run paper-sequence-1000 --no-video` runs (`sim.central.engine.run_central`) in this
@@ -290,9 +291,11 @@ def bounds(runs: list[Run], dt: float, robots: int) -> list[str]:
     return lines
 
 
-def side_by_side(before: str, pairs: int, scene: str, seed: int = 3) -> list[str]:
+def side_by_side(before: str, pairs: int, scene: str, before_path: str | None = None, seed: int = 3) -> list[str]:
     """`pixelswarm run SCENE --engine central` from a git worktree of ``before`` and from this
-    checkout, alternating: each run's realtime factor, wall time and contacts (metrics.json)."""
+    checkout, alternating: each run's realtime factor, wall time and contacts (metrics.json).
+    ``before_path``: a folder put first on the before runs' PYTHONPATH, for a package the code
+    before needs and this checkout does not (cf836e5's numba: `pip install --target DIR numba`)."""
     import subprocess
 
     from .bench_runtime import worktree_at
@@ -305,7 +308,11 @@ def side_by_side(before: str, pairs: int, scene: str, seed: int = 3) -> list[str
             for what, tree in (("before", old), ("after", REPO)):
                 out = Path(tmp) / f"{what}{pair}"
                 cmd = [sys.executable, "-m", "sim.cli", "run", scene, "--engine", "central", "--seed", str(seed)]
-                subprocess.run([*cmd, "--no-video", "-q", "--out", str(out)], cwd=tree, check=True, capture_output=True)
+                env = dict(os.environ)
+                if what == "before" and before_path:
+                    env["PYTHONPATH"] = os.pathsep.join(filter(None, [before_path, env.get("PYTHONPATH")]))
+                run = [*cmd, "--no-video", "-q", "--out", str(out)]
+                subprocess.run(run, cwd=tree, env=env, check=True, capture_output=True)
                 m = json.loads((out / "metrics.json").read_text())
                 factors[what].append(m["realtime_factor"])
                 label = f"{commit} (before)" if what == "before" else "current"
@@ -392,6 +399,7 @@ def main() -> int:
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
     parser.add_argument("--before", help="git revision: its CLI run beside this checkout's, alternating")
     parser.add_argument("--pairs", type=int, default=2, help="--before: runs of each, alternating")
+    parser.add_argument("--before-path", help="--before: a folder first on its PYTHONPATH (e.g. numba for cf836e5)")
     parser.add_argument("--scale", help="robot counts, e.g. 1000,3000,10000: the cost per robot-step at each size")
     parser.add_argument("--seconds", type=float, default=10.0, help="--scale: seconds of display at each size")
     parser.add_argument("--scale-one", type=int, help=argparse.SUPPRESS)  # one size of --scale, as JSON
@@ -408,8 +416,9 @@ def main() -> int:
         )
         return 0
     if args.before:
-        lines = side_by_side(args.before, args.pairs, args.scene)
+        lines = side_by_side(args.before, args.pairs, args.scene, args.before_path)
         command = f".venv/bin/python -m bench.bench_large --before {args.before} --pairs {args.pairs}"
+        command += f" --before-path {args.before_path}" if args.before_path else ""
         write_results("large_before", f"Central engine, {args.scene}: before and after", command, lines)
         return 0
 
