@@ -29,7 +29,6 @@ from transport.codec import Correspondence, Goals, Motion, Pose, Tick, Timing, W
 from transport.plausible import Clock
 from transport.session import TransportError, add_zenoh_args, settings_from_args
 
-from .keyframes import goal_matching
 from .resolved import add_scene_args, scene_of_args
 from .scene import Scene, SceneError, scene_goal_set
 
@@ -92,6 +91,14 @@ def step_motion(scene: Scene, step: int) -> Motion | None:
 RESUME_WAIT_S = 2.0  # s a starting coordinator waits for the run's newest goal set (none: a new run)
 
 PREPARE_AHEAD = 5.0  # s of display before an image change that the coordinator prepares its warm start
+
+
+def goal_matching(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """coordinator.keyframes.goal_matching, imported on first use: that module loads the image pipeline
+    and SciPy, which a coordinator whose goals are no image's would load at every start for nothing."""
+    from .keyframes import goal_matching as matching
+
+    return matching(a, b)
 
 
 def _as_sent(positions: np.ndarray) -> np.ndarray:

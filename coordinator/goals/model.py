@@ -7,7 +7,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 FORMAT = "pixelswarm.goals/1"
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")  # the files load_image reads
@@ -55,6 +54,9 @@ class GoalSet:
         """Smallest distance between two goals, in metres (inf for fewer than two goals)."""
         if len(self.goals) < 2:
             return float("inf")
+        # here only: every process that reads a goal set (a run's coordinator) would load SciPy for it
+        from scipy.spatial import cKDTree
+
         d, _ = cKDTree(self.goals).query(self.goals, k=2)
         return float(d[:, 1].min())
 

@@ -118,6 +118,24 @@ def test_the_world_reads_the_run_directory_without_the_image_pipeline(tmp_path):
     assert loaded == []
 
 
+def test_the_coordinator_of_a_run_without_images_starts_without_scipy_or_the_image_pipeline(tmp_path):
+    """A fresh coordinator process of a scene whose goals are no image's (the circle's antipodes): its
+    module, the resolved scene and the goal set it serves, and neither SciPy nor the image pipeline,
+    which every run's coordinator loaded at its start before."""
+    save_resolved(load_scene("circle", robots=4, seed=1), tmp_path)
+    code = (
+        "import json, sys\n"
+        "from coordinator import service\n"
+        "from coordinator.resolved import load_resolved\n"
+        "from tests.support.fake_bus import Bus\n"
+        f"[(key, goals)] = service.Coordinator(Bus(), load_resolved({str(tmp_path)!r}))._answer()\n"
+        f"print(json.dumps([m for m in ('scipy', 'coordinator.keyframes', *{IMAGE_CODE!r}) if m in sys.modules]))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert json.loads(out.stdout) == []
+
+
 @pytest.mark.parametrize("module", ["sim.node.world", "coordinator.service"])
 def test_a_child_given_no_resolved_scene_says_so_in_one_line(tmp_path, module):
     (tmp_path / SCENE_FILE).write_text('{"name": "x"}')
