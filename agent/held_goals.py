@@ -53,10 +53,11 @@ class HeldGoals:
         self.hold(rows)
         self.color[rows] = IDLE_COLOR
 
-    def has_goal(self, rows: np.ndarray) -> np.ndarray:
+    def has_goal(self, rows: np.ndarray | slice) -> np.ndarray:
         return self.key[rows, 1] >= 0
 
-    def targets(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def targets(self, rows: np.ndarray | slice) -> tuple[np.ndarray, np.ndarray]:
         """What the policy steers these robots to (agent.loop.Robots.goals): a held goal as its set
-        was published (the policy moves it, eq. 28), else where the robot was sent; and the keys."""
-        return np.where(self.has_goal(rows)[:, None], self.goal0[rows], self.goal[rows]), self.key[rows]
+        was published (the policy moves it, eq. 28), else where the robot was sent; and the keys (a
+        copy, also of every row: the tick's intent keeps them while new goals are taken up)."""
+        return np.where(self.has_goal(rows)[:, None], self.goal0[rows], self.goal[rows]), self.key[rows].copy()

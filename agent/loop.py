@@ -64,7 +64,7 @@ class Robots(Protocol):
     @property
     def timing(self) -> Mapping[int, GoalTiming]: ...
 
-    def rows(self, ids: np.ndarray) -> np.ndarray: ...
+    def rows(self, ids: np.ndarray) -> np.ndarray | slice: ...  # slice(None): every robot, in order
 
     def goals(self, sensed: Sensed) -> tuple[np.ndarray, np.ndarray]: ...  # goal0 (B,2), key (B,2)
 

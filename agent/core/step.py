@@ -21,11 +21,11 @@ class Rows:
     """A dataclass of per-robot arrays (rows = robots; a field may itself be Rows), so that a smaller
     batch can be cut out and its results put back, field by field."""
 
-    def rows(self, index: np.ndarray) -> Self:
+    def rows(self, index: np.ndarray | slice) -> Self:
         """The robots at rows ``index`` (a smaller batch)."""
         return type(self)(*(value[index] for value in vars(self).values()))
 
-    def put(self, index: np.ndarray, other: Self) -> None:
+    def put(self, index: np.ndarray | slice, other: Self) -> None:
         """Overwrite the rows ``index`` with a smaller batch's values for those robots."""
         for name, value in vars(self).items():
             if isinstance(value, Rows):

@@ -323,8 +323,8 @@ class Central:
         n, m = len(self.measured), self.measured
         return Sensed(np.arange(n), m[:, :2], m[:, 2], tick, tick * self.params.dt, self.params, np.zeros(n, bool))
 
-    def rows(self, ids: np.ndarray) -> np.ndarray:
-        return ids
+    def rows(self, ids: np.ndarray) -> slice:
+        return slice(None)  # every robot, in order: the memory's rows are read and written in place
 
     def neighbours(self, sensed: Sensed) -> NeighbourStates:
         lap = self.auction.beside.lap
@@ -337,7 +337,7 @@ class Central:
 
     def goals(self, sensed: Sensed) -> tuple[np.ndarray, np.ndarray]:
         self._take_up_assignment()
-        return self.held_goals.targets(sensed.ids)
+        return self.held_goals.targets(self.rows(sensed.ids))
 
     def _take_up_assignment(self) -> None:
         """The robots hold the goals the assignment gives them now (agent.held_goals, as the agents)."""
