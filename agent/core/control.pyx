@@ -8,7 +8,7 @@ same, bit for bit, alone or in any batch. Lines are a point and a unit direction
 side on the left: det(d, v - p) >= 0.
 """
 
-from libc.math cimport INFINITY, atan2, copysign, cos, fabs, isfinite, sin, sqrt, tan
+from libc.math cimport INFINITY, atan2, copysign, cos, fabs, hypot, isfinite, sin, sqrt, tan
 from libc.stdint cimport int64_t, uint64_t
 from libc.stdlib cimport free, malloc
 from libc.string cimport memset
@@ -917,6 +917,30 @@ def step(Settings settings, Batch robots, heard, segments=None, int threads=1):
     with nogil:
         share_rows(_step_rows, &job, b, ROWS_PER_CHUNK, threads)
     return out[:, 0:2].copy(), out[:, 2:4].copy(), out[:, 4] != 0, out[:, 5] != 0, out[:, 6].copy()
+
+
+def blocked(params, to_goal, pref_velocity, velocity):
+    """Paper 5.5.5 for a batch, (B,) bool: each robot near its goal but not on it, its v_cf far from
+    its v_pref, and no headway toward the goal (agent.core.deadlock). ``to_goal`` (B,2): goal minus
+    position (NaN: no goal)."""
+    cdef const double[:, ::1] g = np.ascontiguousarray(to_goal, dtype=float).reshape(-1, 2)
+    cdef const double[:, ::1] p = np.ascontiguousarray(pref_velocity, dtype=float).reshape(-1, 2)
+    cdef const double[:, ::1] v = np.ascontiguousarray(velocity, dtype=float).reshape(-1, 2)
+    cdef double tolerance = params.goal_tolerance, near = params.deadlock_near, speed = params.deadlock_speed
+    cdef double d, gap, headway
+    cdef Py_ssize_t i, b = g.shape[0]
+    if p.shape[0] != b or v.shape[0] != b:
+        raise ValueError("to_goal, pref_velocity and velocity must be (B,2) arrays of one B")
+    out = np.zeros(b, bool)
+    cdef unsigned char[::1] o = out.view(np.uint8)
+    for i in range(b):
+        d = hypot(g[i, 0], g[i, 1])
+        if not (isfinite(d) and d > tolerance and d <= near):
+            continue
+        gap = hypot(p[i, 0] - v[i, 0], p[i, 1] - v[i, 1])
+        headway = (v[i, 0] * g[i, 0] + v[i, 1] * g[i, 1]) / d
+        o[i] = gap > speed and headway < speed
+    return out
 
 
 def step_known(Settings settings, Batch robots, index, segments=None, out=None):

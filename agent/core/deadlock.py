@@ -1,4 +1,5 @@
-"""Deadlock detection (paper 5.5.5), over a batch of robots: pure, no clock.
+"""Deadlock detection (paper 5.5.5), over a batch of robots: pure, no clock. Whether a robot is
+blocked in an iteration is part of its compiled arithmetic (agent.core.control.blocked); here, the count.
 
 A robot is *blocked* in an iteration when it is near its goal but not on it, its collision-free
 velocity differs from its preferred velocity by more than a threshold, and it makes no headway
@@ -14,20 +15,6 @@ crowded image from forming.
 from __future__ import annotations
 
 import numpy as np
-
-from .params import RobotParams
-
-
-def blocked(params: RobotParams, to_goal: np.ndarray, pref_velocity: np.ndarray, velocity: np.ndarray) -> np.ndarray:
-    """(B,) bool: near the goal (not on it), v_cf far from v_pref and no headway toward the goal.
-    ``to_goal`` (B,2): goal minus position (NaN: no goal)."""
-    to_goal = np.asarray(to_goal, float)
-    d = np.hypot(to_goal[:, 0], to_goal[:, 1])
-    near = np.isfinite(d) & (d > params.goal_tolerance) & (d <= params.deadlock_near)
-    velocity = np.asarray(velocity, float)
-    gap = np.hypot(*(np.asarray(pref_velocity) - velocity).T)
-    headway = np.where(near, (velocity * to_goal).sum(axis=1) / np.where(near, d, 1.0), 0.0)
-    return near & (gap > params.deadlock_speed) & (headway < params.deadlock_speed)
 
 
 def count_blocked(counts: np.ndarray, now_blocked: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray]:

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .animation import frame_hold, iterations_left
-from .control import preferred_velocity
-from .deadlock import blocked, count_blocked
+from .control import blocked, preferred_velocity
+from .deadlock import count_blocked
 from .goal_motion import GoalMotion, tracking_velocity
 from .params import RobotParams
 from .step import NeighbourStates, OwnStates, Rows, StepResult, Surroundings, control_step

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from agent.core.deadlock import blocked, count_blocked
+from agent.core.control import blocked
+from agent.core.deadlock import count_blocked
 from agent.core.params import RobotParams
 
 P = RobotParams()
