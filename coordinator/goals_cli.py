@@ -16,9 +16,8 @@ from typing import Any
 
 from transport import epuck
 
-from .goals import GoalError, GoalOptions, goals_from_prepared, prepare_image
-from .goals.cvt import MAX_ITER, RELAX, TOLERANCE
-from .goals.pipeline import METHODS
+from .goals import GoalError
+from .goals.defaults import MAX_ITER, METHODS, RELAX, TOLERANCE
 
 PROG = "pixelswarm goals"
 
@@ -149,6 +148,9 @@ def _check_output(path: Path, what: str) -> None:
 
 def run_goals(args: argparse.Namespace) -> int:
     """Run the goals command; returns the exit code (2 on bad input, with one line on stderr)."""
+    # here only: the image pipeline loads OpenCV and SciPy, which every other command would load for nothing
+    from .goals import GoalOptions, goals_from_prepared, prepare_image
+
     try:
         out = Path(args.output)
         preview = Path(args.preview) if args.preview else None

@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .goals import GoalError
+from .goals.defaults import METHODS
 from .motion import StepMotion, is_number, parse_motion
 from .shapes import SHAPES, draw
 
@@ -32,7 +33,6 @@ if TYPE_CHECKING:
     from .goals import GoalSet, PreparedImage
 
 STEP_KEYS = ("name", "image", "shape", "hold", "region_counts", "method", "motion")
-METHODS = ("cvt", "kmeans")
 SHAPE_PIXELS = 256  # canvas side of the drawn shapes (goals live in the normalised square anyway)
 SHAPE_ROBOTS = 1000  # robots a SHAPE_PIXELS canvas serves; more get a canvas with as many pixels per robot
 

@@ -22,11 +22,10 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
+from .defaults import MAX_ITER, RELAX, TOLERANCE
+
 K_M = 1e15
 K_D = 0.1
-TOLERANCE = 1e-4  # stop when the cost of eq. 1 falls by less than this fraction in one iteration
-MAX_ITER = 300
-RELAX = 1.8  # initial over-relaxation of the Lloyd step (1 = plain Lloyd), see lloyd()
 _GROW = 1.25
 _MAX_RELAX = 4.0
 _CELL = 2.0  # side of the cells that localise the bounds of the nearest-generator search, in spacings

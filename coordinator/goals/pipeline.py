@@ -17,14 +17,14 @@ from transport import epuck
 
 from .allocate import allocate_robots
 from .colors import cell_colors, voronoi_cells
-from .cvt import K_D, K_M, MAX_ITER, RELAX, TOLERANCE, binary_domain, density_domain, lloyd
+from .cvt import K_D, K_M, binary_domain, density_domain, lloyd
+from .defaults import MAX_ITER, METHODS, RELAX, TOLERANCE
 from .image import BG_TOLERANCE, Foreground, foreground_mask, load_image, split_channels
 from .model import GoalError, GoalSet
 from .resize import auto_arena, check_feasible, normalised_spacing, to_arena
 from .sampling import KS_FACTOR, ks_distance, lattice_samples, poisson_samples
 from .segment import COLOR_TOLERANCE, Segmentation, segment
 
-METHODS = ("cvt", "kmeans")
 MAX_SIDE = 1024  # longer image side (pixels) used for goal generation; larger images are scaled down
 # Regions of up to this many goals start from the paper's random samples (4.2), as in every shipped
 # scene below 10,000 robots; larger ones from a hexagonal lattice, which Lloyd settles in a few

@@ -108,6 +108,19 @@ def test_command_in_a_subprocess(tmp_path):
     assert not (tmp_path / "h.json").exists()
 
 
+def test_the_command_line_of_every_command_loads_no_image_pipeline_nor_scipy():
+    """`pixelswarm`'s command line holds this command's parser (its defaults from coordinator.goals.defaults):
+    building it, as every command does first (a run, a refused one, the agents, the router), loads
+    neither the image pipeline nor SciPy."""
+    code = (
+        "import sys; from sim.cli.main import build_parser; build_parser(); "
+        "print([m for m in ('scipy', 'coordinator.goals.pipeline', 'coordinator.goals.cvt') if m in sys.modules])"
+    )
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "[]"
+
+
 def test_notes_go_to_stderr_without_failing(tmp_path, capsys):
     img, _ = shapes.photo_like(128, seed=2)
     path = tmp_path / "photo.jpg"
