@@ -62,7 +62,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.spatial import cKDTree
 from shapely.geometry import Polygon
 
 from agent.core.params import DIFFDRIVE, EPUCK, HOLONOMIC, KINEMATICS
@@ -641,7 +640,10 @@ class _ContactWatch:
             found = close_pairs(traj, r, base + margin, motion, first_row)
             assert found is not None  # without a budget the search is never given up
             if not found[0] < margin:
-                # none came that close: bound the search by the nearest neighbours in row 0
+                # none came that close: bound the search by the nearest neighbours in row 0 (SciPy
+                # imported here: a world process that never gets this far does not load it)
+                from scipy.spatial import cKDTree
+
                 dist, idx = cKDTree(traj[0]).query(traj[0], k=2)
                 radius = max(float(np.min(dist[:, 1] - r - r[idx[:, 1]])), 0.0) + base
                 found = close_pairs(traj, r, radius, motion, first_row)
