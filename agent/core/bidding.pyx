@@ -61,6 +61,7 @@ from agent.core.crew cimport (
     pthread_mutex_t,
     pthread_mutex_unlock,
     pthread_t,
+    working_beside,
 )
 from agent.core.splitmix cimport splitmix64
 
@@ -724,7 +725,9 @@ cdef class Bidders:
             if self.job == STOP:
                 break
             pthread_mutex_unlock(&self.job_lock)
+            working_beside(1)  # the crew sharing the engine's rows leaves this block a core
             self.settle_timed()
+            working_beside(-1)
             pthread_mutex_lock(&self.job_lock)
             self.job = DONE
             pthread_cond_broadcast(&self.job_wake)

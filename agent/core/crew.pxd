@@ -27,3 +27,4 @@ cdef enum:
 ctypedef void (*RowsJob)(void *job, int hand, Py_ssize_t start, Py_ssize_t stop) noexcept nogil
 
 cdef void share_rows(RowsJob run, void *job, Py_ssize_t rows, Py_ssize_t chunk, int hands) noexcept nogil
+cdef void working_beside(int threads) noexcept nogil

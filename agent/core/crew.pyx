@@ -4,7 +4,9 @@ Rows go out in chunks, claimed under a lock as hands come free, and each row is 
 code whoever claims it, so the result is the same to the bit on any number of threads. The caller
 works too and waits only for chunks already claimed: on a busy machine, a helper the OS has not
 woken in time claims nothing, and the batch costs what it costs on one thread. The helpers are
-started at the first batch that asks for them and sleep between batches.
+started at the first batch that asks for them and sleep between batches. A thread of the process
+that works beside the crew on a core of its own (the central engine's auction) says so
+(`working_beside`), and a batch is shared among that many hands fewer.
 """
 
 cdef struct Crew:
@@ -19,6 +21,7 @@ cdef struct Crew:
     int hands  # hands that may claim this batch's rows (a hand's scratch exists below this)
     Py_ssize_t next, rows, chunk  # the next unclaimed row, the batch's rows, rows per claim
     int working  # chunks claimed and not yet done
+    int beside  # other threads of the process at work on a core (working_beside)
 
 
 cdef Crew crew
@@ -61,8 +64,8 @@ cdef void share_rows(RowsJob run, void *job, Py_ssize_t rows, Py_ssize_t chunk, 
     """run(job, hand, start, stop) over rows 0..rows - 1 in chunks of ``chunk``, shared among up to
     ``hands`` threads (this one included); returns when every row is done."""
     cdef pthread_t thread
-    hands = max(1, min(hands, MAX_HANDS, (rows + chunk - 1) // chunk))
     pthread_mutex_lock(&crew.lock)
+    hands = max(1, min(hands - crew.beside, MAX_HANDS, (rows + chunk - 1) // chunk))
     if hands == 1 or crew.busy:
         pthread_mutex_unlock(&crew.lock)
         run(job, 0, 0, rows)
@@ -80,4 +83,11 @@ cdef void share_rows(RowsJob run, void *job, Py_ssize_t rows, Py_ssize_t chunk, 
     while crew.working:
         pthread_cond_wait(&crew.done, &crew.lock)
     crew.busy, crew.rows, crew.job = False, 0, NULL  # a helper that wakes late finds nothing to claim
+    pthread_mutex_unlock(&crew.lock)
+
+
+cdef void working_beside(int threads) noexcept nogil:
+    """``threads`` more (or, negative, fewer) threads of this process now work beside the crew."""
+    pthread_mutex_lock(&crew.lock)
+    crew.beside += threads
     pthread_mutex_unlock(&crew.lock)
