@@ -14,7 +14,7 @@ from libc.stdlib cimport free, malloc
 from libc.string cimport memset
 
 from agent.core.splitmix cimport splitmix64
-from agent.core.crew cimport MAX_HANDS, share_rows
+from agent.core.crew cimport MAX_HANDS, most_hands, share_rows
 
 import math
 
@@ -904,7 +904,7 @@ def step(Settings settings, Batch robots, heard, segments=None, int threads=1):
     cdef Py_ssize_t b = robots.b
     if nb.batch not in (b, -1):
         raise ValueError(f"{nb.batch} rows of neighbour states for {b} robots")
-    threads = max(1, min(threads, MAX_HANDS, (b + ROWS_PER_CHUNK - 1) // ROWS_PER_CHUNK))
+    threads = most_hands(b, ROWS_PER_CHUNK, threads)
     works = [Work(nb.m, obstacles.n + MAX_VERTICES + 2 * nb.m) for _ in range(threads)]
     out = np.zeros((b, 7))
     cdef double[:, ::1] o = out

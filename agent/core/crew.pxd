@@ -26,5 +26,6 @@ cdef enum:
 # rows start..stop - 1 of a job, by hand ``hand`` (0: the caller; each hand has its own scratch)
 ctypedef void (*RowsJob)(void *job, int hand, Py_ssize_t start, Py_ssize_t stop) noexcept nogil
 
+cdef int most_hands(Py_ssize_t rows, Py_ssize_t chunk, int hands) noexcept nogil
 cdef void share_rows(RowsJob run, void *job, Py_ssize_t rows, Py_ssize_t chunk, int hands) noexcept nogil
 cdef void working_beside(int threads) noexcept nogil

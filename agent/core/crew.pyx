@@ -60,12 +60,17 @@ cdef void *_helper(void *arg) noexcept nogil:
     return NULL
 
 
+cdef int most_hands(Py_ssize_t rows, Py_ssize_t chunk, int hands) noexcept nogil:
+    """The most hands share_rows may give a batch: the caller makes each one's scratch."""
+    return max(1, min(hands, MAX_HANDS, (rows + chunk - 1) // chunk))
+
+
 cdef void share_rows(RowsJob run, void *job, Py_ssize_t rows, Py_ssize_t chunk, int hands) noexcept nogil:
     """run(job, hand, start, stop) over rows 0..rows - 1 in chunks of ``chunk``, shared among up to
     ``hands`` threads (this one included); returns when every row is done."""
     cdef pthread_t thread
     pthread_mutex_lock(&crew.lock)
-    hands = max(1, min(hands - crew.beside, MAX_HANDS, (rows + chunk - 1) // chunk))
+    hands = most_hands(rows, chunk, hands - crew.beside)
     if hands == 1 or crew.busy:
         pthread_mutex_unlock(&crew.lock)
         run(job, 0, 0, rows)

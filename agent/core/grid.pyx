@@ -23,7 +23,7 @@ from libc.math cimport fabs, sqrt
 from libc.stdint cimport int64_t
 from libc.stdlib cimport calloc, free, malloc
 
-from agent.core.crew cimport MAX_HANDS, share_rows
+from agent.core.crew cimport most_hands, share_rows
 
 import numpy as np
 
@@ -239,7 +239,7 @@ def nearest(
     cdef Grid g
     grid_build(&g, points, cell_width(points, reach, m))  # frees what it took if it raises
     cdef int t
-    threads = max(1, min(threads, MAX_HANDS, (q + QUERIES_PER_CHUNK - 1) // QUERIES_PER_CHUNK))
+    threads = most_hands(q, QUERIES_PER_CHUNK, threads)
     cdef Query *each = <Query *>calloc(threads, sizeof(Query))  # a thread's own query and its best
     cdef Queries job
     cdef Py_ssize_t i, spread
@@ -326,7 +326,7 @@ cdef void _query(Grid *g, Query *nb, double px, double py, int64_t own, const in
         high = cell_index((py + half - g.y0) * g.per, -1, g.ny)
         low, high = max(low, 0), min(high, g.ny - 1)
         c = gx * g.ny
-        if qx - 1 <= gx <= qx + 1:  # the 3 x 3 are done: the runs below and above them
+        if qx - 1 <= gx <= qx + 1:  # the cells around the query's are done: the runs below and above them
             scan(g, nb, key, c + low, c + min(high, qy - 2) + 1)
             low = max(low, qy + 2)
         scan(g, nb, key, c + low, c + high + 1)
