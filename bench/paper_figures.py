@@ -41,8 +41,9 @@ from coordinator.drawings import keyframes
 from coordinator.goals import GoalOptions, goals_from_prepared, prepare_image
 from coordinator.goals.cvt import RELAX
 from coordinator.goals.resize import from_arena
-from coordinator.keyframes import KeyframeGoals, goal_correspondence, goal_matching, keyframe_goals
+from coordinator.keyframes import KeyframeGoals, goal_correspondence, keyframe_goals
 from coordinator.scene import Scene, resolve_scene_path, scene_from_dict, scene_goal_set
+from coordinator.warm_start import goal_matching
 
 from .common import REPO, RESULTS, machine, parser_for, run_subcommand, write_results
 
@@ -853,7 +854,7 @@ def keyframes_main(argv: list[str] | None = None) -> int:
 CARRY_DOC = """Consecutive keyframes: bids to agree on frame f's goal set when the auction starts cold, from the
 previous frame's assignment carried over by the goals' correspondence (agent.core.bidder.carry,
 prices zero), from that assignment with the previous prices carried too, or from the goal sets'
-own matching and its prices (coordinator.keyframes.goal_matching, sent with the goal set: what the agents do after an agreed
+own matching and its prices (coordinator.warm_start.goal_matching, sent with the goal set: what the agents do after an agreed
 frame).
 
 Robots stand on frame f-1's goals (2 mm noise); frame f is frame f-1 turned and moved, its goals
@@ -878,8 +879,8 @@ CARRY_EXPLAIN = (
 CARRY_MATCHING = (
     "What the agents do (`agent.assignment.AuctionLink._warm_start`): after an agreed frame the "
     "coordinator sends with frame f's goal set the matching of frame f-1's goals to frame f's, with prices "
-    "in equilibrium for it (`coordinator.keyframes.goal_matching`: scipy's `linear_sum_assignment` as if a "
-    "robot stood on each old goal, its dual prices by shortest paths; its wall time is included here), each "
+    "in equilibrium for it (`coordinator.warm_start.goal_matching`: the robots' auction settled once as if a "
+    "robot stood on each old goal; its wall time is included here), each "
     "robot claims the goal its last one is matched to, and the auction starts from those claims and prices. "
     "The prices are nearly in equilibrium for the real positions, whatever the frames' disparity. "
     "`frames_close` now only decides for a frame whose robots changed (a robot died)."
@@ -919,7 +920,7 @@ def agree(parts: list[Participant], positions: np.ndarray, max_rounds: int = 100
 def start_from_matching(parts: list[Participant], first: list[Participant], g1: np.ndarray, g2: np.ndarray) -> None:
     """What the agents do after an agreed frame (agent.assignment.AuctionLink._warm_start): claims and
     prices from the goal sets' matching."""
-    matched, prices = goal_matching(g1, g2)
+    matched, prices = goal_matching(g1, g2, CARRY_EPS)
     for new, old in zip(parts, first):
         new.carry(old, matched, prices=prices)
 

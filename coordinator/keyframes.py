@@ -121,57 +121,16 @@ def goal_disparity(a: np.ndarray, b: np.ndarray) -> float:
 
 def goal_correspondence(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """For each goal of G_f (``b``), the index of its corresponding goal in G_{f-1} (``a``): the
-    one-to-one matching of least total squared distance (eq. 7). The robots use it to carry their
-    assignment from one keyframe to the next (a robot on goal i of G_{f-1} drives on to the goal that
-    corresponds to it) while they auction G_f. Raises GoalError unless both sets have one size."""
-    return _matching(a, b)[1]
-
-
-def goal_matching(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A warm start for the auction of the next image of a sequence (paper 7.2) or keyframe of an
-    animation (6.1): goal_correspondence (as if a robot stood on each goal of ``a``) and prices in
-    equilibrium for it, lowest zero. The coordinator sends both with the goal set (its warm start part,
-    Goals.warm_start): robots stand within millimetres of their goals once an image has formed, so the
-    prices are nearly in equilibrium for the real positions, and the agents' auction starts from the
-    carried claims and only corrects what the millimetres change. Computed once here, not by every
-    agent host: hosts that all did it at once would be late with their commands while robots drive.
-
-    The matching is scipy's linear_sum_assignment. Its prices are the LP duals, which scipy does not
-    return: with old goal i matched to new goal j, equilibrium asks p_j <= p_k + c_ik - c_ij for every
-    k, so p is the shortest-path distance to each goal in the graph of those edges (no negative
-    cycle: the matching is optimal), found by relaxing every edge at once until nothing changes
-    (on this dense graph far faster than scipy's csgraph.bellman_ford)."""
-    cost, previous = _matching(a, b)
-    # edge k -> j: what goal k costs the robot on j's old goal more than goal j does
-    edge = cost[previous].T - cost[previous, np.arange(len(previous))][None, :]
-    price = _shortest_paths(edge)
-    return previous, price - price.min()
-
-
-def _matching(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The squared distances from the goals of ``a`` to those of ``b``, and per goal of ``b`` the goal
-    of ``a`` matched to it (least total squared distance)."""
+    one-to-one matching of least total squared distance (eq. 7), scipy's linear_sum_assignment on
+    every pair (a measure of a frame's change; the robots carry their goals over by the auction's
+    matching, coordinator.warm_start). Raises GoalError unless both sets have one size."""
     a, b = np.asarray(a, float).reshape(-1, 2), np.asarray(b, float).reshape(-1, 2)
     if len(a) != len(b) or len(a) == 0:
         raise GoalError(f"goal correspondence needs two non-empty goal sets of one size, not {len(a)} and {len(b)}")
-    cost = cdist(a, b, "sqeuclidean")
-    rows, cols = linear_sum_assignment(cost)
+    rows, cols = linear_sum_assignment(cdist(a, b, "sqeuclidean"))
     previous = np.empty(len(b), np.int64)
     previous[cols] = rows
-    return cost, previous
-
-
-def _shortest_paths(edge: np.ndarray) -> np.ndarray:
-    """Distances to every node from a source with a zero edge to each, over ``edge[k, j]`` (k -> j; no
-    negative cycle), relaxing every edge at once until nothing changes."""
-    n = len(edge)
-    dist = np.zeros(n)
-    for _ in range(n):  # a shortest path has at most n edges
-        relaxed = np.minimum(dist, (dist[:, None] + edge).min(axis=0))
-        if np.array_equal(relaxed, dist):
-            break
-        dist = relaxed
-    return dist
+    return previous
 
 
 def keyframe_paths(folder: str | os.PathLike[str]) -> list[Path]:

@@ -31,6 +31,7 @@ from transport.session import TransportError, add_zenoh_args, settings_from_args
 
 from .resolved import add_scene_args, scene_of_args
 from .scene import Scene, SceneError, scene_goal_set
+from .warm_start import goal_matching
 
 SETTLE_S = 0.5  # a change in the live robots must hold this long before a new goal set (debounce)
 FIRST_SET_PATIENCE = 5.0  # s after the world's first tick that the first goal set waits for every robot's agent
@@ -91,14 +92,6 @@ def step_motion(scene: Scene, step: int) -> Motion | None:
 RESUME_WAIT_S = 2.0  # s a starting coordinator waits for the run's newest goal set (none: a new run)
 
 PREPARE_AHEAD = 5.0  # s of display before an image change that the coordinator prepares its warm start
-
-
-def goal_matching(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """coordinator.keyframes.goal_matching, imported on first use: that module loads the image pipeline
-    and SciPy, which a coordinator whose goals are no image's would load at every start for nothing."""
-    from .keyframes import goal_matching as matching
-
-    return matching(a, b)
 
 
 def _as_sent(positions: np.ndarray) -> np.ndarray:
@@ -281,8 +274,14 @@ class Coordinator:
         elif before is None and self._rounds_bounded():
             # the first set, from where the robots start: they drive at once while its auction spans ticks
             starts = np.asarray(self.scene.poses, float)[self.current.robots, :2]
-            self.current.warm_start = WarmStart(0, *goal_matching(starts, _as_sent(goals)))
+            self.current.warm_start = WarmStart(0, *goal_matching(starts, _as_sent(goals), self._eps))
         self.bus.publish(self.bus.keys.goals(self.epoch), self.current)
+
+    @property
+    def _eps(self) -> float | None:
+        """The robots' epsilon_A, which the warm start's matching settles to (None: their default)."""
+        eps = self.scene.robot.get("assign_eps")
+        return None if eps is None else float(eps)
 
     def _rounds_bounded(self) -> bool:
         """Lock-step with the auction's rounds per tick bounded: a block spans ticks
@@ -294,7 +293,7 @@ class Coordinator:
         positions as the agents decode them: float32), computed once per pair and kept."""
         key = (before.epoch, np.asarray(goals, float).tobytes())
         if self._matching is None or self._matching[0] != key:
-            self._matching = (key, goal_matching(_as_sent(before.positions), _as_sent(goals)))
+            self._matching = (key, goal_matching(_as_sent(before.positions), _as_sent(goals), self._eps))
         return self._matching[1]
 
     def _prepare_next(self) -> None:

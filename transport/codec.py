@@ -345,7 +345,7 @@ class Correspondence:
 class WarmStart:
     """Part 5 of a goal set: where its auction starts, after an image or keyframe: per goal, the goal
     of set ``matched_from`` matched to it and prices in equilibrium for that matching
-    (coordinator.keyframes.goal_matching, computed once by the coordinator rather than by every
+    (coordinator.warm_start.goal_matching, computed once by the coordinator rather than by every
     agent host at once while its robots drive). ``matched_from`` 0: the run's first set, matched to
     where the robots start (per goal, its robot's index in the set's robots). Absent: a cold start."""
 

@@ -42,10 +42,10 @@ from agent.goal_sets import timing_of
 from agent.held_goals import HeldGoals
 from agent.loop import Seams, Sensed
 from agent.neighbour_table import Heard
-from coordinator.keyframes import goal_matching
 from coordinator.motion import StepMotion
 from coordinator.scene import Scene, scene_goal_set
 from coordinator.service import scene_goal_message, step_motion, step_timing
+from coordinator.warm_start import goal_matching
 from sim.bodies.movers import Movers
 from sim.bodies.tracker import tracker_of, world_of
 from sim.central.link import InProcessLink
@@ -130,10 +130,10 @@ def warm_start(
     auction: Participant, before: Participant, previous: np.ndarray, goals: np.ndarray, assignment: np.ndarray
 ) -> np.ndarray:
     """The next image's auction begun from the coordinator's warm start (the goal sets' matching and
-    its prices, coordinator.keyframes.goal_matching), as the agents begin it with rounds per tick
+    its prices, coordinator.warm_start.goal_matching), as the agents begin it with rounds per tick
     bounded: each robot drives at once to the goal its last one is matched to (agent.assignment).
     ``previous``: the last image's goals, which ``assignment`` indexes. Returns the carried assignment."""
-    matched, prices = goal_matching(previous, goals)
+    matched, prices = goal_matching(previous, goals, auction.schedule[-1])
     current = {r: int(g) for r, g in enumerate(assignment.tolist()) if g >= 0}
     return _by_carried(auction.carry(before, matched, current=current, prices=prices), len(assignment))
 
@@ -142,7 +142,7 @@ def start_warm(auction: Participant, poses: np.ndarray, goals: np.ndarray, robot
     """The first image's auction begun from where its robots start, as the coordinator's first goal
     set begins it when rounds per tick are bounded (WarmStart.matched_from 0): each robot drives at
     once to the goal matched to its start. Returns the carried assignment of ``robots`` robots."""
-    matched, prices = goal_matching(np.asarray(poses, float)[auction.robots, :2], goals)
+    matched, prices = goal_matching(np.asarray(poses, float)[auction.robots, :2], goals, auction.schedule[-1])
     return _by_carried(auction.start_from(auction.robots[matched], prices), robots)
 
 

@@ -10,6 +10,7 @@ import pytest
 from scipy.optimize import linear_sum_assignment
 
 from agent.core.bidder import Participant
+from agent.core.params import RobotParams
 from coordinator import service
 from coordinator.scene import scene_from_dict
 from tests.support.fake_bus import Bus
@@ -44,11 +45,12 @@ def test_the_first_set_is_warm_started_from_the_least_distance_matching_of_the_r
     cost = ((starts[:, None, :] - first.positions[None, :, :]) ** 2).sum(-1)
     rows, cols = linear_sum_assignment(cost)
     matched_cost = cost[warm.matched, np.arange(len(warm.matched))].sum()
-    assert matched_cost == pytest.approx(cost[rows, cols].sum(), rel=1e-12, abs=1e-12)  # scipy's optimum
-    # the prices are in equilibrium for it: no robot prefers another goal at these prices
+    eps = RobotParams().assign_eps  # the robots' auction, settled once by the coordinator
+    assert matched_cost <= cost[rows, cols].sum() + len(cost) * eps + 1e-12  # scipy's optimum, within N eps
+    # the prices are in epsilon-equilibrium for it: no robot prefers another goal by more than eps
     value = cost + warm.prices[None, :]
     held = value[warm.matched, np.arange(len(warm.matched))]
-    assert (held <= value[warm.matched].min(axis=1) + 1e-9).all()
+    assert (held <= value[warm.matched].min(axis=1) + eps + 1e-9).all()
 
 
 @pytest.mark.parametrize("rounds, clock", [(0, "lockstep"), (1, "realtime")])

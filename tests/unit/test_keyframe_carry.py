@@ -9,7 +9,8 @@ import pytest
 from agent.assignment import frames_close
 from agent.core.bidder import Participant
 from bench.paper_figures import agree
-from coordinator.keyframes import goal_correspondence, goal_disparity, goal_matching
+from coordinator.keyframes import goal_correspondence, goal_disparity
+from coordinator.warm_start import goal_matching
 from tests.support.assignment_quality import optimum
 
 EPS = 1e-3
@@ -128,10 +129,11 @@ def two_images(n: int = 60, seed: int = 3) -> tuple[np.ndarray, np.ndarray, np.n
     return disk, np.vstack([rest, line])[rng.permutation(n)], disk + rng.normal(0.0, 0.002, disk.shape)
 
 
-def assert_equilibrium(stand_ins: np.ndarray, goals: np.ndarray, prices: np.ndarray) -> None:
-    """Robot j standing on ``stand_ins[j]`` holds goal j: no goal is worth more to it at these prices."""
+def assert_equilibrium(stand_ins: np.ndarray, goals: np.ndarray, prices: np.ndarray, eps: float = EPS) -> None:
+    """Robot j standing on ``stand_ins[j]`` holds goal j: no goal is worth more than ``eps`` more to
+    it at these prices (the auction's epsilon-complementary slackness)."""
     value = -((stand_ins[:, None, :] - goals[None, :, :]) ** 2).sum(-1) - prices[None, :]
-    assert np.all(value.max(axis=1) - np.diag(value) <= 1e-9)
+    assert np.all(value.max(axis=1) - np.diag(value) <= eps + 1e-9)
     assert prices.min() == 0.0
 
 
@@ -145,9 +147,9 @@ def test_the_next_image_starts_warm_from_the_goal_sets_matching_and_agrees_far_s
     hosts = [robots[0::3], robots[1::3], robots[2::3]]
     first = [Participant(1, g1, robots, h, EPS) for h in hosts]
     exchange(first, pos)
-    previous, prices = goal_matching(g1, g2)
+    previous, prices = goal_matching(g1, g2, EPS)
     assert sorted(previous.tolist()) == robots  # a one-to-one matching of the goals
-    assert ((g2 - g1[previous]) ** 2).sum() <= optimum(g1, g2) + 1e-9
+    assert ((g2 - g1[previous]) ** 2).sum() <= optimum(g1, g2) + len(robots) * EPS + 1e-9
     assert_equilibrium(g1[previous], g2, prices)
 
     warm_parts = [Participant(2, g2, robots, h, EPS) for h in hosts]
@@ -155,7 +157,6 @@ def test_the_next_image_starts_warm_from_the_goal_sets_matching_and_agrees_far_s
     for new, old in zip(warm_parts, first):
         carried.update(new.carry(old, previous, prices=prices))
     assert sorted(carried.values()) == robots  # every robot drives to a distinct goal at once
-    assert np.array_equal(goal_correspondence(g1, g2), previous)  # a keyframe's correspondence is this matching
     assert all(np.array_equal(p.board.price, prices) for p in warm_parts)
     warm_rounds = agree(warm_parts, pos)
     cold_parts = [Participant(2, g2, robots, h, EPS) for h in hosts]
@@ -183,7 +184,7 @@ def test_a_warm_start_of_four_hosts_agrees_at_any_price_level(offset: float) -> 
     first = [Participant(1, g1, robots, h, EPS) for h in hosts]
     exchange(first, pos)
     first[0].goal[0] = -1  # mid-instance: this host's first robot lost its goal to a bid not yet answered
-    previous, prices = goal_matching(g1, g2)
+    previous, prices = goal_matching(g1, g2, EPS)
     parts = [Participant(2, g2, robots, h, EPS) for h in hosts]
     for new, old in zip(parts, first):
         new.carry(old, previous, prices=prices + offset)
