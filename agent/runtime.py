@@ -30,7 +30,7 @@ import numpy as np
 
 from transport.bus import Bus, Inbox, LivelinessWatch
 from transport.codec import BEFORE_START, Command, Commands, Event, Goals, Pose, State, States
-from transport.keys import cell_of, cells_of
+from transport.keys import cell_of, cells_of, robots_ident
 from transport.plausible import INCONSISTENT, GoalSets, TickLine, stamp_agrees
 
 from . import loop
@@ -80,6 +80,7 @@ class HostConfig:
     steps: list[float] = field(default_factory=list)  # lock-step: display times the scene's goal sets are due
     # (a tick waits for its step's goal set, so that every engine adopts it at the same tick)
     reach: float = math.inf  # communication range (m): states and the auction heard only from robots this close
+    swarm: int = 0  # robots in the run (0: not known): lock-step hellos are rarer in large swarms (agent.clocks)
 
     @classmethod
     def from_json(cls, text: str) -> HostConfig:
@@ -99,6 +100,7 @@ class HostConfig:
             frames=bool(data.get("frames", False)),
             steps=[float(t) for t in data.get("steps", [])],
             reach=math.inf if data.get("reach") is None else float(data["reach"]),
+            swarm=int(data.get("swarm", 0)),
         )
 
     def to_json(self) -> str:
@@ -369,8 +371,7 @@ class AgentHost:
         self.clock.greet(where, timeout)
         for q in ticking:
             self._take_pose(q)
-        for r in self.config.robots:
-            self.bus.declare_alive("agent", r)
+        self.bus.declare_alive("agent", robots_ident(self.config.robots))
         return True
 
     def publish_states(self, tick: int, stamp: float, states: list[State]) -> None:

@@ -25,7 +25,7 @@ import zenoh
 
 from .codec import BEFORE_START, FRAME_OF, Command, DropCounter, Frame, Message, MessageT, Poses, decode, decode_views
 from .faults import FaultPlan, FaultSpec
-from .keys import Keys
+from .keys import Keys, robots_of_ident
 from .session import ZenohSettings, open_session
 
 _NO_FAULT = FaultSpec()
@@ -313,19 +313,25 @@ class LivelinessWatch:
         parts = str(sample.key_expr).split("/alive/", 1)[-1].split("/")
         if len(parts) < 2:
             return
-        who, incarnation, alive = (parts[0], parts[1]), "/".join(parts[2:]), sample.kind == zenoh.SampleKind.PUT
+        role, incarnation, alive = parts[0], "/".join(parts[2:]), sample.kind == zenoh.SampleKind.PUT
+        robots = robots_of_ident(parts[1]) if role == "agent" else None
+        idents = [parts[1]] if robots is None else [str(r) for r in robots]  # a host's token: each robot's event
         now = time.time()
         with self._lock:
-            live = self._live.get(who)
-            if alive and live is not None and live != incarnation:
-                self._queue.put((*who, False, now, live))
-            if alive:
-                self._live[who] = incarnation
-            elif live == incarnation:
-                del self._live[who]
-            else:
-                return  # a replaced incarnation's token ended
-            self._queue.put((*who, alive, now, incarnation))
+            for ident in idents:
+                self._take((role, ident), incarnation, alive, now)
+
+    def _take(self, who: tuple[str, str], incarnation: str, alive: bool, now: float) -> None:
+        live = self._live.get(who)
+        if alive and live is not None and live != incarnation:
+            self._queue.put((*who, False, now, live))
+        if alive:
+            self._live[who] = incarnation
+        elif live == incarnation:
+            del self._live[who]
+        else:
+            return  # a replaced incarnation's token ended
+        self._queue.put((*who, alive, now, incarnation))
 
     def drain(self) -> list[tuple[str, str, bool, float, str]]:
         return _drain(self._queue)

@@ -8,7 +8,7 @@ px/<display>/cmd/<id>                agent -> bodies: commands of a tick, one fr
 px/<display>/goals/<epoch>           coordinator -> all: the goal set and colours
 px/<display>/auction/<epoch>/<id>    bids and prices of the distributed auction
 px/<display>/alive/<role>/<id>/<life> liveliness tokens (role: agent, world, coordinator, run, ...; life: a
-                                     process's incarnation)
+                                     process's incarnation; an agent host's <id> names its robots: robots_ident)
 px/<display>/clock                   tick announcements
 px/<display>/config/<id>             run -> agents on other machines: robot <id>'s host configuration (a queryable)
 px/<display>/run/goals               run -> a restarted coordinator: the newest goal set recorded (a queryable)
@@ -28,6 +28,31 @@ from numpy.typing import ArrayLike
 
 PREFIX = "px"
 _NAME = re.compile(r"^[A-Za-z0-9_\-]+$")
+_RUN = re.compile(r"^(\d+)(?:-(\d+))?$")  # a run of robot ids in a liveliness ident
+
+
+def robots_ident(robots: list[int]) -> str:
+    """An agent host's liveliness ident: its robots as runs of consecutive ids, "0-999" or "3_5-7".
+    One token per host: zenoh propagates tokens in time that grows faster than their number (10,000
+    robots' tokens took minutes to reach the launcher), and a host lives and dies as a whole."""
+    runs: list[list[int]] = []
+    for r in sorted(set(robots)):
+        if runs and r == runs[-1][1] + 1:
+            runs[-1][1] = r
+        else:
+            runs.append([r, r])
+    return "_".join(str(a) if a == b else f"{a}-{b}" for a, b in runs)
+
+
+def robots_of_ident(ident: str) -> list[int] | None:
+    """The robots a liveliness ident of robots_ident names; None if it names none."""
+    robots: list[int] = []
+    for run in ident.split("_"):
+        bounds = _RUN.match(run)
+        if bounds is None or int(bounds[2] or bounds[1]) < int(bounds[1]):
+            return None
+        robots.extend(range(int(bounds[1]), int(bounds[2] or bounds[1]) + 1))
+    return robots
 
 
 def cell_of(x: float, y: float, cell_size: float) -> tuple[int, int]:

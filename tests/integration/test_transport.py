@@ -45,7 +45,7 @@ from transport.codec import (
     decode_views,
 )
 from transport.faults import FaultSpec, parse_faults
-from transport.keys import Keys, cell_of
+from transport.keys import Keys, cell_of, robots_ident, robots_of_ident
 from transport.session import TransportError, client_of, loopback_router, open_session
 
 SAMPLES = [
@@ -551,6 +551,35 @@ def test_liveliness_reports_death(router):
         time.sleep(0.3)
         events = [(role, ident, alive) for role, ident, alive, _, _ in watch.drain()]
         assert events == [("agent", "4", True), ("agent", "4", False)]
+
+
+def test_a_hosts_one_token_is_each_of_its_robots_life_and_death(router):
+    """An agent host declares one token naming its robots (robots_ident): watchers hear each robot
+    come alive and die, as from a token per robot."""
+    with Bus(client_of(router), "t") as watcher:
+        watch = watcher.watch_alive("agent")
+        host = Bus(client_of(router), "t")
+        host.declare_alive("agent", robots_ident([7, 3, 4, 5, 9]))
+        time.sleep(0.3)
+        host.close()
+        time.sleep(0.3)
+        events = [(ident, alive) for _, ident, alive, _, _ in watch.drain()]
+        robots = ["3", "4", "5", "7", "9"]
+        assert events == [(r, True) for r in robots] + [(r, False) for r in robots]
+
+
+@pytest.mark.parametrize(
+    "robots, ident",
+    [([4], "4"), ([0, 1, 2], "0-2"), ([9, 3, 5, 4, 7], "3-5_7_9"), (list(range(1000, 2000)), "1000-1999")],
+)
+def test_robots_ident_names_a_hosts_robots_as_runs(robots, ident):
+    assert robots_ident(robots) == ident
+    assert robots_of_ident(ident) == sorted(robots)
+
+
+@pytest.mark.parametrize("ident", ["", "a", "3-", "5-3", "1_x", "-4", "2--3"])
+def test_an_ident_that_names_no_robots_is_none(ident):
+    assert robots_of_ident(ident) is None
 
 
 def test_a_restarted_agent_heard_before_its_old_token_ends_is_a_death_then_a_life(router):
