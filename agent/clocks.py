@@ -24,7 +24,8 @@ from .core.params import RobotParams
 from .lateness import Lateness, strayed
 
 GOAL_SET_WAIT = 10.0  # s a lock-step tick waits for its clock message and the goal sets it names
-HELLO_EVERY = 0.1  # s between a lock-step host's hellos before the first tick
+HELLO_EVERY = 0.1  # s between a lock-step host's hellos before the first tick, in swarms of up to
+HELLO_SWARM = 1000  # robots; in larger ones proportionally less often: every host hears every hello
 HELLO_TIMEOUT = 30.0  # s a host waits for its neighbours' hellos before it says it is alive anyway
 
 
@@ -115,7 +116,8 @@ class LockStep(HostClock):
         self.unnamed: dict[int, Goals] = {}  # goal sets heard that no tick has named yet
         self.greeted: dict[int, State] = {}  # hellos heard before the first tick, by robot
         self.hellos: list[State] = []  # our own, sent until the first tick
-        self.last_hello, self.hello_every = -math.inf, HELLO_EVERY
+        self.last_hello = -math.inf
+        self.hello_every = HELLO_EVERY * max(1.0, host.config.swarm / HELLO_SWARM)
         # injected state delays count in ticks (reproducible); see Inbox.sim_time
         host.inbox.state.sim_time = -math.inf
         host.inbox.state.seen = {}  # states waited for arrive, even those the fault plan drops or holds
@@ -142,12 +144,12 @@ class LockStep(HostClock):
         end = time.monotonic() + min(HELLO_TIMEOUT, timeout)
         while host.running and not expected <= set(self.greeted) and time.monotonic() < end:
             self.say_hello()
-            got = host.inbox.state.get(timeout=HELLO_EVERY / 2)
+            got = host.inbox.state.get(timeout=self.hello_every / 2)
             if got is not None:
                 host.on_state(got[1])
 
     def say_hello(self) -> None:
-        if self.hellos and time.monotonic() - self.last_hello >= HELLO_EVERY:
+        if self.hellos and time.monotonic() - self.last_hello >= self.hello_every:
             self.host.publish_states(BEFORE_START, 0.0, self.hellos)
             self.last_hello = time.monotonic()
 

@@ -220,6 +220,7 @@ class Launcher:
             frames=self._frames,
             steps=list(self.scene.step_starts) if lockstep else [],
             reach=self.opt.reach,
+            swarm=len(self._agent_robots),
         )
 
     def _start_agents(self) -> None:
