@@ -273,8 +273,7 @@ class Coordinator:
                 self.current.correspondence = Correspondence(before.epoch, matched)
         elif before is None and self._rounds_bounded():
             # the first set, from where the robots start: they drive at once while its auction spans ticks
-            starts = np.asarray(self.scene.poses, float)[self.current.robots, :2]
-            self.current.warm_start = WarmStart(0, *goal_matching(starts, _as_sent(goals), self._eps))
+            self.current.warm_start = WarmStart(0, *self._first_warm_start(self.current.robots, goals))
         self.bus.publish(self.bus.keys.goals(self.epoch), self.current)
 
     @property
@@ -296,9 +295,21 @@ class Coordinator:
             self._matching = (key, goal_matching(_as_sent(before.positions), _as_sent(goals), self._eps))
         return self._matching[1]
 
+    def _first_warm_start(self, robots: np.ndarray, goals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The first set's warm start from where its robots start (goal_matching), kept."""
+        starts = np.asarray(self.scene.poses, float)[robots, :2]
+        key = (0, np.asarray(goals, float).tobytes() + starts.tobytes())
+        if self._matching is None or self._matching[0] != key:
+            self._matching = (key, goal_matching(starts, _as_sent(goals), self._eps))
+        return self._matching[1]
+
     def _prepare_next(self) -> None:
-        """While an image is held, the next one's warm start, PREPARE_AHEAD s before it is due: the
-        matching of a large goal set would otherwise delay the change."""
+        """The next image's warm start ahead of time: the matching of a large goal set would otherwise
+        delay the change, and the agents wait for it (agent.clocks.GOAL_SET_WAIT). The first set's
+        while the agents start; each next one's PREPARE_AHEAD s before it is due, while an image is held."""
+        if self.current is None and self._matching is None and self.scene.steps and self._rounds_bounded():
+            first = np.array(sorted(self.pixels), np.int64)  # the first set's robots once all are alive
+            self._first_warm_start(first, scene_goal_set(self.scene, 0, len(first))[0])
         if self.shown is None or self.t is None or self.current is None:
             return
         step, robots = self.shown[0] + 1, self.shown[1]

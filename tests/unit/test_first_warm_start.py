@@ -12,13 +12,13 @@ from scipy.optimize import linear_sum_assignment
 from agent.core.bidder import Participant
 from agent.core.params import RobotParams
 from coordinator import service
-from coordinator.scene import scene_from_dict
+from coordinator.scene import Scene, scene_from_dict
 from tests.support.fake_bus import Bus
 from transport.codec import Goals, Tick, decode
 
 
-def _first_set(rounds_per_tick: int, clock: str = "lockstep") -> tuple[Goals, np.ndarray]:
-    scene = scene_from_dict(
+def _scene(rounds_per_tick: int, clock: str = "lockstep") -> Scene:
+    return scene_from_dict(
         {
             "robots": 20,
             "seed": 5,
@@ -28,6 +28,10 @@ def _first_set(rounds_per_tick: int, clock: str = "lockstep") -> tuple[Goals, np
             "steps": [{"shape": "disk", "hold": 30}],
         }
     )
+
+
+def _first_set(rounds_per_tick: int, clock: str = "lockstep") -> tuple[Goals, np.ndarray]:
+    scene = _scene(rounds_per_tick, clock)
     bus = Bus()
     coordinator = service.Coordinator(bus, scene)
     bus.alive.items = [("agent", str(r), True, 0.0, "a") for r in range(scene.robots)]
@@ -51,6 +55,25 @@ def test_the_first_set_is_warm_started_from_the_least_distance_matching_of_the_r
     value = cost + warm.prices[None, :]
     held = value[warm.matched, np.arange(len(warm.matched))]
     assert (held <= value[warm.matched].min(axis=1) + eps + 1e-9).all()
+
+
+def test_the_first_sets_matching_is_made_while_the_agents_start(monkeypatch) -> None:
+    """The coordinator matches the first set to the robots' starts before the world's first tick
+    (at 10,000 robots that takes seconds, and the agents' first tick waits for the set), once."""
+    calls = []
+    matching = service.goal_matching
+    monkeypatch.setattr(service, "goal_matching", lambda *a: calls.append(1) or matching(*a))
+    scene = _scene(rounds_per_tick=1)
+    bus = Bus()
+    coordinator = service.Coordinator(bus, scene)
+    coordinator._prepare_next()  # no tick yet: the agents are starting
+    coordinator._prepare_next()
+    assert len(calls) == 1 and not bus.published
+    bus.alive.items = [("agent", str(r), True, 0.0, "a") for r in range(scene.robots)]
+    bus.clock.items = [("clock", Tick(0, 0.0, 0.1))]
+    assert coordinator._follow_show()
+    first = decode(bus.published[-1].encode(), Goals)
+    assert len(calls) == 1 and first.warm_start is not None  # the prepared one
 
 
 @pytest.mark.parametrize("rounds, clock", [(0, "lockstep"), (1, "realtime")])
