@@ -21,6 +21,13 @@ on the same positions against the bound N (epsilon_A + Delta C) (a dense N x N c
 benchmark's, never the run's):
 
     .venv/bin/python -m bench.bench_auction --cold 1000,3000,10000 [--optimal]
+
+With ``--warm-start SIZES --before REV``: the coordinator's warm start (``goal_matching``: the first
+image matched to the robots' starts, and the second to the first) in this checkout beside REV's, in a
+fresh process of each tree, paper-sequence-10000's images at each robot count; per case its wall
+time and the total squared distance over scipy's optimum (up to 3000 robots: a dense matrix):
+
+    .venv/bin/python -m bench.bench_auction --warm-start 1000,3000,10000 --before a559cd5~1
 """
 
 from __future__ import annotations
@@ -225,6 +232,77 @@ def side_by_side(args: argparse.Namespace, cases: list[tuple[int, int]]) -> None
     )
 
 
+# Run with ``python -c`` in a tree: its goal_matching (coordinator.warm_start, or coordinator.keyframes
+# before) on paper-sequence-10000's images at N robots, each case in at most LIMIT s. Prints JSON.
+WARM = """
+import json, multiprocessing, sys, time
+import numpy as np
+from coordinator.scene import load_scene, scene_goal_set
+from transport.codec import as_sent
+import coordinator.keyframes
+goal_matching = getattr(coordinator.keyframes, "goal_matching", None)  # before a559cd5 (the editable
+if goal_matching is None:  # install would find this checkout's coordinator.warm_start from any tree)
+    from coordinator.warm_start import goal_matching
+n, limit = int(sys.argv[1]), float(sys.argv[2])
+scene = load_scene("paper-sequence-10000", robots=n)
+g0, g1 = (as_sent(scene_goal_set(scene, k, n)[0]) for k in (0, 1))
+cases = {"starts to image 1": (np.asarray(scene.poses, float)[:, :2], g0), "image 1 to 2": (g0, g1)}
+def timed(a, b, out):
+    t = time.perf_counter()
+    matched, _ = goal_matching(a, b)
+    out.put((time.perf_counter() - t, float(((b - a[matched]) ** 2).sum())))
+found = {}
+for name, (a, b) in cases.items():
+    out = multiprocessing.Queue()
+    p = multiprocessing.Process(target=timed, args=(a, b, out))
+    p.start()
+    p.join(limit)
+    if p.is_alive():
+        p.kill()
+        found[name] = None
+    else:
+        found[name] = out.get()
+print(json.dumps(found))
+"""
+WARM_LIMIT = 120.0  # s a case may take before it is given up (the dense matching at 10,000 robots takes longer)
+
+
+def warm_starts(sizes: str, before: str) -> None:
+    """The warm start's matching by size, this checkout beside ``before``."""
+    rows = [
+        "| robots | case | code | s | total squared distance - optimum (m^2) |",
+        "|---|---|---|---|---|",
+    ]
+    with worktree_at(before) as (tree, commit):
+        for n in (int(v) for v in sizes.split(",")):
+            optimum = {}
+            if n <= 3000:
+                scene = load_scene("paper-sequence-10000", robots=n)
+                g0, g1 = (as_sent(scene_goal_set(scene, k, n)[0]) for k in (0, 1))
+                for name, (a, b) in {
+                    "starts to image 1": (np.asarray(scene.poses, float)[:, :2], g0),
+                    "image 1 to 2": (g0, g1),
+                }.items():
+                    cost = ((a[:, None, :] - b[None, :, :]) ** 2).sum(-1)
+                    r, c = linear_sum_assignment(cost)
+                    optimum[name] = float(cost[r, c].sum())
+            for what, where in (("before " + commit, tree), ("after", REPO)):
+                done = subprocess.run(
+                    [sys.executable, "-c", WARM, str(n), str(WARM_LIMIT)],
+                    cwd=where,
+                    check=True,
+                    capture_output=True,
+                    text=True,
+                )
+                for name, got in json.loads(done.stdout.splitlines()[-1]).items():
+                    seconds = f"{got[0]:.2f}" if got else f"> {WARM_LIMIT:.0f}"
+                    gap = f"{got[1] - optimum[name]:.3g}" if got and name in optimum else "-"
+                    rows.append(f"| {n} | {name} | {what} | {seconds} | {gap} |")
+                    print(rows[-1], flush=True)
+    command = f".venv/bin/python -m bench.bench_auction --warm-start {sizes} --before {before}"
+    write_results("warm_start", "The coordinator's warm start by size", command, rows)
+
+
 def cold_start(robots: int, optimal: bool) -> str:
     """One size's row of the table."""
     scene = load_scene("paper-sequence-10000", robots=robots)
@@ -270,7 +348,11 @@ def main() -> None:
     parser.add_argument("--blocks", type=int, default=30, help="side by side: blocks per central case")
     parser.add_argument("--cold", metavar="SIZES", help="only the cold start at these robot counts, e.g. 1000,10000")
     parser.add_argument("--optimal", action="store_true", help="with --cold: scipy's optimum too (minutes at 10,000)")
+    parser.add_argument("--warm-start", metavar="SIZES", help="only the warm start's matching, beside --before")
     args = parser.parse_args()
+    if args.warm_start:
+        warm_starts(args.warm_start, args.before or "HEAD")
+        return
     if args.cold:
         cold_starts(args.cold, args.optimal)
         return
