@@ -24,8 +24,8 @@ from .core.params import RobotParams
 from .lateness import Lateness, strayed
 
 GOAL_SET_WAIT = 10.0  # s a lock-step tick waits for its clock message and the goal sets it names
-HELLO_EVERY = 0.1  # s between a lock-step host's hellos before the first tick, in swarms of up to
-HELLO_SWARM = 1000  # robots; in larger ones proportionally less often: every host hears every hello
+HELLO_EVERY = 0.1  # s between a lock-step host's hellos before the first tick, up to HELLO_SWARM robots
+HELLO_SWARM = 1000  # larger swarms say hello proportionally less often: every host hears every hello
 HELLO_TIMEOUT = 30.0  # s a host waits for its neighbours' hellos before it says it is alive anyway
 
 

@@ -159,7 +159,7 @@ class Coordinator:
         self.bodies: dict[int, np.ndarray] = {}  # dead robots' tracked positions
         self.body_inboxes: dict[int, Any] = {}
         self.body_wait_since: float | None = None
-        self._matching: tuple[tuple[int, bytes], tuple[np.ndarray, np.ndarray]] | None = None  # goal_matching's last
+        self._matching: tuple[tuple[bytes, bytes], tuple[np.ndarray, np.ndarray]] | None = None  # goal_matching's last
         self.ready_for_a_loss = False  # _prepare_for_a_loss has run
         self.clock_heard = Clock()
         self.clock_refused: Counter[str] = Counter()  # clock messages not believed, by reason
@@ -267,13 +267,13 @@ class Coordinator:
             step_motion(self.scene, step),
         )
         if before is not None and not before.per_robot and len(before.positions) == len(goals):
-            matched, prices = self._warm_start(before, goals)
+            matched, prices = self._warm_start(_as_sent(before.positions), goals)
             self.current.warm_start = None if cold else WarmStart(before.epoch, matched, prices)
             if follows_keyframe(before, self.current):  # the same matching is a keyframe's correspondence (6.1)
                 self.current.correspondence = Correspondence(before.epoch, matched)
         elif before is None and self._rounds_bounded():
             # the first set, from where the robots start: they drive at once while its auction spans ticks
-            self.current.warm_start = WarmStart(0, *self._first_warm_start(self.current.robots, goals))
+            self.current.warm_start = WarmStart(0, *self._warm_start(self._starts(self.current.robots), goals))
         self.bus.publish(self.bus.keys.goals(self.epoch), self.current)
 
     @property
@@ -287,21 +287,19 @@ class Coordinator:
         (docs/lockstep_auction.md), so the robots need goals to drive to meanwhile."""
         return self.scene.clock == "lockstep" and bool(self.scene.robot.get("rounds_per_tick", 0))
 
-    def _warm_start(self, before: Goals, goals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The auction's warm start from goal set ``before`` to these goals (goal_matching, on the
-        positions as the agents decode them: float32), computed once per pair and kept."""
-        key = (before.epoch, np.asarray(goals, float).tobytes())
+    def _warm_start(self, start: np.ndarray, goals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The auction's warm start from robots standing on ``start`` (the last set's goals as the
+        agents decode them, or where the robots start) to these goals (goal_matching), computed once
+        per pair and kept: _prepare_next makes it ahead of time."""
+        start, goals = np.asarray(start, float), _as_sent(goals)
+        key = (start.tobytes(), goals.tobytes())
         if self._matching is None or self._matching[0] != key:
-            self._matching = (key, goal_matching(_as_sent(before.positions), _as_sent(goals), self._eps))
+            self._matching = (key, goal_matching(start, goals, self._eps))
         return self._matching[1]
 
-    def _first_warm_start(self, robots: np.ndarray, goals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The first set's warm start from where its robots start (goal_matching), kept."""
-        starts = np.asarray(self.scene.poses, float)[robots, :2]
-        key = (0, np.asarray(goals, float).tobytes() + starts.tobytes())
-        if self._matching is None or self._matching[0] != key:
-            self._matching = (key, goal_matching(starts, _as_sent(goals), self._eps))
-        return self._matching[1]
+    def _starts(self, robots: np.ndarray) -> np.ndarray:
+        """Where these robots start: the first set's warm start matches them from there."""
+        return np.asarray(self.scene.poses, float)[robots, :2]
 
     def _prepare_next(self) -> None:
         """The next image's warm start ahead of time: the matching of a large goal set would otherwise
@@ -309,7 +307,7 @@ class Coordinator:
         while the agents start; each next one's PREPARE_AHEAD s before it is due, while an image is held."""
         if self.current is None and self._matching is None and self.scene.steps and self._rounds_bounded():
             first = np.array(sorted(self.pixels), np.int64)  # the first set's robots once all are alive
-            self._first_warm_start(first, scene_goal_set(self.scene, 0, len(first))[0])
+            self._warm_start(self._starts(first), scene_goal_set(self.scene, 0, len(first))[0])
         if self.shown is None or self.t is None or self.current is None:
             return
         step, robots = self.shown[0] + 1, self.shown[1]
@@ -317,7 +315,7 @@ class Coordinator:
             return
         goals, _ = scene_goal_set(self.scene, step, len(robots))
         if len(goals) == len(self.current.positions) and not self.bodies:
-            self._warm_start(self.current, goals)
+            self._warm_start(_as_sent(self.current.positions), goals)
 
     def _prepare_for_a_loss(self) -> None:
         """Once, after the first goal set: the current image's set for one robot fewer. The first
