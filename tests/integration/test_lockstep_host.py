@@ -21,6 +21,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
+from agent.clocks import HELLO_EVERY, HELLO_SWARM
 from agent.core.params import RobotParams
 from agent.runtime import AgentHost, HostConfig
 from transport.bus import Bus, Inbox
@@ -137,3 +138,14 @@ def test_a_tick_whose_poses_frame_comes_in_pieces_is_stepped_whole() -> None:
             await_commands(commands, k, {0, 1})
         stop_host(host, thread)
         assert batches == [[0, 1]] * 3, f"the ticks were stepped in batches {batches}"
+
+
+def test_a_host_in_a_large_swarm_says_hello_less_often() -> None:
+    """Every host hears every host's hellos before the first tick: beyond HELLO_SWARM robots in the
+    run (the launcher's HostConfig.swarm, through the host's config file) they come proportionally
+    less often, so that 10,000 robots' hellos do not swamp the machine."""
+    with world_and_agent_buses() as (_, agent_bus):
+        for swarm, every in [(40, HELLO_EVERY), (HELLO_SWARM, HELLO_EVERY), (5 * HELLO_SWARM, 5 * HELLO_EVERY)]:
+            config = HostConfig.from_json(HostConfig(robots=[0], params=PARAMS, lockstep=True, swarm=swarm).to_json())
+            assert config.swarm == swarm
+            assert AgentHost(agent_bus, config).clock.hello_every == every
