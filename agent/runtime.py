@@ -137,11 +137,15 @@ class CellSubscriptions:
     extra ring puts a subscription in place over a second before anyone in that cell can become a
     neighbour, and the neighbour set never depends on how fast a declaration travelled (runs stay
     reproducible). In real time the 5x5 cells suffice and halve the traffic.
+
+    A host of several robots hears every host's frames (HostConfig.frames): its cells are only the
+    neighbourhood its table keeps, with no subscription (``listen`` off); thousands of them, moving
+    with the robots, were declarations the router passed to every session for nothing.
     """
 
-    def __init__(self, bus: Bus, inbox: Any, cell_size: float, reach: int = 3) -> None:
-        self.bus, self.inbox, self.cell_size, self.reach = bus, inbox, cell_size, reach
-        self._subs: dict[tuple[int, int], Any] = {}
+    def __init__(self, bus: Bus, inbox: Any, cell_size: float, reach: int = 3, listen: bool = True) -> None:
+        self.bus, self.inbox, self.cell_size, self.reach, self.listen = bus, inbox, cell_size, reach, listen
+        self._subs: dict[tuple[int, int], Any] = {}  # cell -> its subscriber (None: not listening)
         self._own: list[list[int]] | None = None  # the robots' own cells at the last update
 
     def update(self, positions: np.ndarray) -> None:
@@ -155,9 +159,12 @@ class CellSubscriptions:
         span = range(-self.reach, self.reach + 1)
         wanted = {(cx + dx, cy + dy) for cx, cy in own for dx in span for dy in span}
         for cell in set(self._subs) - wanted:
-            self.bus.unsubscribe(self._subs.pop(cell))
+            if (sub := self._subs.pop(cell)) is not None:
+                self.bus.unsubscribe(sub)
         for cell in sorted(wanted - set(self._subs)):
-            self._subs[cell] = self.bus.subscribe_into(self.bus.keys.state_cell(cell), self.inbox)
+            self._subs[cell] = (
+                self.bus.subscribe_into(self.bus.keys.state_cell(cell), self.inbox) if self.listen else None
+            )
 
     @property
     def cells(self) -> set[tuple[int, int]]:
@@ -180,18 +187,17 @@ class Inboxes:
 
     @classmethod
     def of(cls, bus: Bus, config: HostConfig, own: np.ndarray) -> Inboxes:
-        # One subscription per own robot: a host receives only its robots' poses (with frames, those
-        # sent before its robots are live, and then its robots' rows of the tracker's frames).
+        # A host of several robots keeps its rows of the tracker's frames; a robot alone hears its own
+        # key (a subscription per robot would be a thread per robot in zenoh-python).
         keys = bus.keys
         pose = bus.inbox(Pose, only=own)
-        for r in config.robots:
-            bus.subscribe_into(keys.pose(r), pose)
-        if config.frames:
-            bus.subscribe_into(keys.poses, pose)
+        for key in [keys.poses] if config.frames else [keys.pose(r) for r in config.robots]:
+            bus.subscribe_into(key, pose)
         state = bus.inbox(State, pulled=True)  # fed by the spatial cells around the robots ...
         if config.frames:  # ... and by every host's frames
             bus.subscribe_into(keys.states_all, state)
-        cells = CellSubscriptions(bus, state, config.params.cell_size, reach=3 if config.lockstep else 2)
+        reach = 3 if config.lockstep else 2
+        cells = CellSubscriptions(bus, state, config.params.cell_size, reach, listen=not config.frames)
         for target in set(config.pursue.values()):  # a pursuer hears its target wherever it is
             bus.subscribe_into(keys.state_of(target), state)
         return cls(pose, state, cells, bus.subscribe(keys.all_of("goals"), Goals), bus.watch_alive("agent"))

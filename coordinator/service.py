@@ -20,11 +20,10 @@ import sys
 import time
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
-from transport.bus import Bus
+from transport.bus import Bus, Inbox
 from transport.codec import Correspondence, Goals, Motion, Pose, Tick, Timing, WarmStart
 from transport.plausible import Clock
 from transport.session import TransportError, add_zenoh_args, settings_from_args
@@ -143,7 +142,7 @@ class Coordinator:
     """The goal sets of a run (paper 5): each step's image for the robots whose agent is alive, clear
     of dead robots' bodies, warm-started from the last set. Its state, beyond the roster of live
     agents: the current set (epoch, shown), the world's clock as heard (t, first_tick_at, clock_heard/_refused),
-    dead robots' bodies (bodies, body_inboxes, body_wait_since) and work done ahead (_matching,
+    dead robots' bodies (bodies, body_poses, body_wait_since) and work done ahead (_matching,
     ready_for_a_loss)."""
 
     def __init__(self, bus: Bus, scene: Scene) -> None:
@@ -157,7 +156,7 @@ class Coordinator:
         self.shown: tuple[int, frozenset[int]] | None = None  # (step, robots) of the current epoch
         self.pixels = frozenset(scene.pixel_robots)  # the robots that show the image
         self.bodies: dict[int, np.ndarray] = {}  # dead robots' tracked positions
-        self.body_inboxes: dict[int, Any] = {}
+        self.body_poses: Inbox[Pose] | None = None  # the tracker's poses of dead robots, from the first death
         self.body_wait_since: float | None = None
         self._matching: tuple[tuple[bytes, bytes], tuple[np.ndarray, np.ndarray]] | None = None  # goal_matching's last
         self.ready_for_a_loss = False  # _prepare_for_a_loss has run
@@ -233,14 +232,23 @@ class Coordinator:
         for _, ident, alive, _, life in self.alive.drain():
             if ident.isdigit() and int(ident) < self.scene.robots:
                 self._hear_agent(int(ident), alive, life)
-        for r, inbox in self.body_inboxes.items():
-            for _, pose in inbox.drain():
-                self.bodies[r] = np.array([pose.x, pose.y])
+        for _, pose in self.body_poses.drain() if self.body_poses else []:
+            self.bodies[pose.robot] = np.array([pose.x, pose.y])
 
     def _hear_agent(self, r: int, alive: bool, life: str) -> None:
         self.roster.hear(r, alive, life)
-        if not alive and r not in self.body_inboxes:  # where does its body stay?
-            self.body_inboxes[r] = self.bus.subscribe(self.bus.keys.pose(r), Pose)
+        if not alive:
+            self._watch_body(r)
+
+    def _watch_body(self, r: int) -> None:
+        """Hear where dead robots' bodies stay: one subscription to every pose, each robot's or a
+        frame of all, keeping the dead robots' records (not a subscription per robot: zenoh-python
+        gives each its own thread)."""
+        dead = np.array(sorted((self.roster.ever - self.roster.live) | {r}))
+        if self.body_poses is None:
+            self.body_poses = self.bus.subscribe(self.bus.keys.all_of("pose"), Pose, only=dead)
+        else:
+            self.body_poses.hear_only(dead)
 
     def _publish(self, step: int, robots: frozenset[int], dead: list[int]) -> None:
         """The next epoch's goal set: step's goals for these robots, clear of dead robots' bodies,

@@ -17,7 +17,7 @@ import threading
 import time
 import zlib
 from collections import Counter
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any, Generic, TypeVar, cast, overload
 
 import numpy as np
@@ -141,7 +141,9 @@ class Inbox(Generic[T]):
         and are decoded on the owner's thread (see Bus.inbox)."""
         self.expected = expected
         self.frame: type[Frame] | None = FRAME_OF.get(cast(type, expected))
-        self.only = None if only is None else set(np.asarray(only).tolist())
+        self.only: tuple[set[int], np.ndarray] | None = None  # the robots kept, as a set and as ids
+        if only is not None:
+            self.hear_only(only)
         self.fault: InjectedFault[T] | None = InjectedFault(fault, seed) if fault.active else None
         self.drops = DropCounter()
         self.received = 0
@@ -161,6 +163,11 @@ class Inbox(Generic[T]):
         self.pulled = pulled
         self.channels: list[Any] = []  # pulled: the subscribers whose channels feed this inbox
 
+    def hear_only(self, robots: Iterable[int] | np.ndarray) -> None:
+        """From now on, keep only these robots' records of the frames that arrive."""
+        ids = np.unique(np.fromiter(robots, np.int64))
+        self.only = (set(ids.tolist()), ids)  # one assignment: the thread that decodes reads both
+
     def _pull(self) -> None:
         """Pulled: take in every sample waiting in the channels, on the caller's thread."""
         for sub in self.channels:
@@ -178,16 +185,17 @@ class Inbox(Generic[T]):
         """A frame's (tick, records), only those of robots ``only`` if given; None if malformed, or
         if the key names one robot and the frame holds anything but that robot's record (a damaged
         robot id would make one robot's pose or state another's)."""
-        got = decode_views(payload, cast("type[Frame]", self.frame), self.drops)
+        only = self.only
+        got = decode_views(payload, cast("type[Frame]", self.frame), self.drops, None if only is None else only[1])
         if got is None:
             return None
         alone = Keys.robot_alone(key)
         if alone is not None and (len(got[1]) != 1 or got[1][0].robot != alone):
             self.drops["misaddressed"] += 1
             return None
-        if self.only is None:
+        if only is None:
             return got
-        return got[0], [v for v in got[1] if v.robot in self.only]
+        return got[0], [v for v in got[1] if v.robot in only[0]]
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         payload = self._payload(sample)
@@ -424,14 +432,15 @@ class Bus:
         return inbox
 
     @overload
-    def subscribe(self, keyexpr: str, expected: type[T]) -> Inbox[T]: ...
+    def subscribe(self, keyexpr: str, expected: type[T], only: np.ndarray | None = None) -> Inbox[T]: ...
 
     @overload
-    def subscribe(self, keyexpr: str, expected: None = None) -> Inbox[Message]: ...
+    def subscribe(self, keyexpr: str, expected: None = None, only: None = None) -> Inbox[Message]: ...
 
-    def subscribe(self, keyexpr: str, expected: type | None = None) -> Inbox[Any]:
-        """An inbox of decoded messages (or frames' records) from one key expression."""
-        inbox = self.inbox(expected)
+    def subscribe(self, keyexpr: str, expected: type | None = None, only: np.ndarray | None = None) -> Inbox[Any]:
+        """An inbox of decoded messages (or frames' records, of robots ``only`` if given) from one
+        key expression."""
+        inbox = self.inbox(expected, only)
         inbox.subscriber = self.subscribe_into(keyexpr, inbox)
         return inbox
 

@@ -697,11 +697,14 @@ class Frame(Message):
     def count(self) -> int:
         return len(self.records)
 
-    def messages(self) -> list:
-        """One view per record: the robot, the frame's tick and stamp, the record."""
+    def messages(self, only: np.ndarray | None = None) -> list:
+        """One view per record (of robots ``only``, if given): the robot, the frame's tick and
+        stamp, the record. A host keeps its own rows of a frame of every robot: those picked out
+        first, not a view made of each and most thrown away."""
         tick, stamp = self.tick, self.stamp
         view: Callable[..., Any] = self.VIEW
-        return [view(robot, tick, stamp, *rest) for robot, *rest in self.records.tolist()]
+        records = self.records if only is None else self.records[np.isin(self.records["robot"], only)]
+        return [view(robot, tick, stamp, *rest) for robot, *rest in records.tolist()]
 
     def _fixed_values(self) -> tuple:
         return (self.tick, self.stamp)
@@ -981,12 +984,13 @@ def decode(
 
 
 def decode_views(
-    data: bytes | memoryview, frame: type[Frame], drops: DropCounter | None = None
+    data: bytes | memoryview, frame: type[Frame], drops: DropCounter | None = None, only: np.ndarray | None = None
 ) -> tuple[int, list] | None:
     """A frame of this kind as (tick, one view per record), what an inbox of views hands over: a
-    frame of one in one struct call (Frame.views_alone), anything else through the frame; None
-    (and a counted drop) for anything malformed. Never raises."""
+    frame of one in one struct call (Frame.views_alone, whoever its robot), anything else through
+    the frame (only robots ``only``'s records, if given); None (and a counted drop) for anything
+    malformed. Never raises."""
     if isinstance(data, bytes) and (alone := frame.views_alone(data)) is not None:
         return alone
     got = decode(data, frame, drops)
-    return None if got is None else (got.tick, got.messages())
+    return None if got is None else (got.tick, got.messages(only))

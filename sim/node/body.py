@@ -348,10 +348,13 @@ class BodyNode:
 
     def _publish_before_start(self) -> None:
         """Robots whose agent is not live yet hear where they are (no tracker noise drawn, so start-up
-        timing cannot change the noise sequence): they subscribe to their cells and join."""
+        timing cannot change the noise sequence): they subscribe to their cells and join. Agent hosts
+        hear them in a frame, as they hear the tracker."""
         waiting = np.flatnonzero(~self.live & self.agent_robot & self.backend.tracked)
+        if not len(waiting):
+            return
         poses = self.backend.true_poses()[waiting]
-        self.bus.publish_poses(BEFORE_START, self.tick * self.dt, waiting, poses, frame=False)
+        self.bus.publish_poses(BEFORE_START, self.tick * self.dt, waiting, poses, self.pose_frames)
 
     def _publish_truth(self) -> None:
         clearance, poses, velocities, applied = self.backend.truth(self.tick)

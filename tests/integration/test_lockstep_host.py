@@ -57,7 +57,7 @@ def run_host(world: Bus, host: AgentHost, where: np.ndarray) -> threading.Thread
     thread.start()
     end = time.monotonic() + 20.0
     while not started.is_set() and time.monotonic() < end:
-        world.publish_poses(BEFORE_START, 0.0, np.array(host.config.robots), where, frame=False)
+        world.publish_poses(BEFORE_START, 0.0, np.array(host.config.robots), where, host.config.frames)
         time.sleep(0.1)
     assert started.is_set(), "the host did not start"
     return thread

@@ -638,3 +638,52 @@ def test_a_frame_on_a_key_naming_one_robot_holds_that_robots_record_alone(router
         assert [(p.robot, p.x) for _, p in poses.drain()] == [(3, 0.0)]
         assert [s.robot for s in states.take()] == [4]
         assert poses.drops["misaddressed"] == 1 and states.drops["misaddressed"] == 1
+
+
+def test_one_subscription_to_every_pose_keeps_the_robots_it_names_from_frames_and_single_keys(router):
+    """What the coordinator hears of dead robots' bodies: their records of the tracker's frames and
+    of single robots' keys, through one subscription, widened when another robot dies."""
+    with Bus(client_of(router), "t") as a, Bus(client_of(router), "t") as b:
+        bodies = b.subscribe(b.keys.all_of("pose"), Pose, only=np.array([5]))
+        time.sleep(0.3)
+        a.publish_poses(1, 0.1, np.arange(8), np.arange(24.0).reshape(8, 3), frame=True)
+        a.publish_poses(1, 0.1, np.array([5, 6]), np.ones((2, 3)), frame=False)
+        time.sleep(0.3)
+        assert [(p.robot, p.x) for _, p in bodies.drain()] == [(5, 15.0), (5, 1.0)]
+        bodies.hear_only(np.array([5, 2]))
+        a.publish_poses(2, 0.2, np.arange(8), np.zeros((8, 3)), frame=True)
+        time.sleep(0.3)
+        assert sorted(p.robot for _, p in bodies.drain()) == [2, 5]
+
+
+def test_the_coordinator_hears_where_a_dead_robots_body_stays_in_the_trackers_frames(router):
+    """Agent hosts hear the tracker as frames of every robot: a dead robot's body is in them, and the
+    coordinator learns where it stays, to keep the goals clear of it (paper 5.1.2), instead of
+    waiting for a pose on the robot's own key that never comes."""
+    from coordinator.scene import scene_from_dict
+    from coordinator.service import Coordinator
+
+    scene = scene_from_dict(
+        {"robots": 4, "seed": 5, "layout": {"kind": "grid", "spacing": 0.2}, "steps": [{"shape": "disk", "hold": 30}]}
+    )
+    with Bus(client_of(router), "t") as world, Bus(client_of(router), "t") as hosts, Bus(client_of(router), "t") as c:
+        coordinator = Coordinator(c, scene)
+
+        def live() -> set[int]:
+            coordinator._hear()
+            return coordinator.roster.live
+
+        hosts.declare_alive("agent", "0-2")
+        last = hosts.declare_alive("agent", "3")
+        assert wait_for(lambda: live() == {0, 1, 2, 3}, timeout=5.0)
+        last.undeclare()
+        assert wait_for(lambda: live() == {0, 1, 2}, timeout=5.0)
+        poses = np.arange(12.0).reshape(4, 3)
+
+        def heard() -> bool:
+            world.publish_poses(8, 0.8, np.arange(4), poses, frame=True)
+            coordinator._hear()
+            return 3 in coordinator.bodies
+
+        assert wait_for(heard, timeout=5.0)
+        assert list(coordinator.bodies) == [3] and coordinator.bodies[3].tolist() == [9.0, 10.0]

@@ -165,3 +165,6 @@ def test_a_host_listens_to_the_square_of_cells_around_each_of_its_robots():
         }
         assert cells.cells == bus.live == expect
         assert all(type(c) is int for cell in cells.cells for c in cell)  # key expressions print ints
+        kept = CellSubscriptions(_Cells(), inbox=None, cell_size=0.7, reach=2, listen=False)
+        kept.update(positions)  # a host hearing every host's frames: the same cells kept, none declared
+        assert kept.cells == expect and not kept.bus.live
