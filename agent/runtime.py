@@ -128,6 +128,27 @@ AUCTION_SHARE = 0.2  # of a control period, counted from a tick's first pose, sp
 AUCTION_SHARE_COLD = 0.8  # ... until the newest goal set's first agreement: robots wait for it
 
 
+class KeepCells:
+    """The records placed in these spatial cells (transport.keys.cells_of), a host's neighbourhood,
+    and those of ``robots`` wherever they are (the robots its pursuers chase)."""
+
+    def __init__(self, cells: set[tuple[int, int]], cell_size: float, robots: frozenset[int]) -> None:
+        self.cells, self.cell_size, self.robots = cells, cell_size, robots
+        self._keys = np.unique(np.array([self._key(c) for c in cells], np.int64))
+        self._ids = np.array(sorted(robots), np.int64)
+
+    @staticmethod
+    def _key(cell: Any) -> Any:
+        return cell[0] * (1 << 32) + cell[1]  # one int64 per cell (or per column of cells), for np.isin
+
+    def mask(self, records: np.ndarray) -> np.ndarray:
+        cells = cells_of(np.column_stack([records["x"], records["y"]]), self.cell_size)
+        return np.isin(self._key(cells.T), self._keys) | np.isin(records["robot"], self._ids)
+
+    def keeps(self, view: Any) -> bool:
+        return cell_of(view.x, view.y, self.cell_size) in self.cells or view.robot in self.robots
+
+
 class CellSubscriptions:
     """Subscriptions to the spatial cells around each robot, shared by the robots of a host.
 
@@ -138,13 +159,15 @@ class CellSubscriptions:
     neighbour, and the neighbour set never depends on how fast a declaration travelled (runs stay
     reproducible). In real time the 5x5 cells suffice and halve the traffic.
 
-    A host of several robots hears every host's frames (HostConfig.frames): its cells are only the
-    neighbourhood its table keeps, with no subscription (``listen`` off); thousands of them, moving
-    with the robots, were declarations the router passed to every session for nothing.
+    A host of several robots hears every host's frames (HostConfig.frames): there its cells pick
+    the records of those frames its inbox keeps (``listen`` off), with no subscription; thousands of
+    them, moving with the robots, were declarations the router passed to every session for nothing,
+    and every host made a view of every robot's state a tick, most of them too far to matter.
     """
 
     def __init__(self, bus: Bus, inbox: Any, cell_size: float, reach: int = 3, listen: bool = True) -> None:
         self.bus, self.inbox, self.cell_size, self.reach, self.listen = bus, inbox, cell_size, reach, listen
+        self.targets: frozenset[int] = frozenset()  # robots heard wherever they are (not listening)
         self._subs: dict[tuple[int, int], Any] = {}  # cell -> its subscriber (None: not listening)
         self._own: list[list[int]] | None = None  # the robots' own cells at the last update
 
@@ -165,6 +188,8 @@ class CellSubscriptions:
             self._subs[cell] = (
                 self.bus.subscribe_into(self.bus.keys.state_cell(cell), self.inbox) if self.listen else None
             )
+        if not self.listen:
+            self.inbox.keep = KeepCells(wanted, self.cell_size, self.targets)
 
     @property
     def cells(self) -> set[tuple[int, int]]:
@@ -198,7 +223,8 @@ class Inboxes:
             bus.subscribe_into(keys.states_all, state)
         reach = 3 if config.lockstep else 2
         cells = CellSubscriptions(bus, state, config.params.cell_size, reach, listen=not config.frames)
-        for target in set(config.pursue.values()):  # a pursuer hears its target wherever it is
+        cells.targets = frozenset(config.pursue.values())  # a pursuer hears its target wherever it is
+        for target in cells.targets:
             bus.subscribe_into(keys.state_of(target), state)
         return cls(pose, state, cells, bus.subscribe(keys.all_of("goals"), Goals), bus.watch_alive("agent"))
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from transport.bus import Bus, Inbox
+from transport.bus import Bus, Inbox, KeepRobots
 from transport.codec import Correspondence, Goals, Motion, Pose, Tick, Timing, WarmStart
 from transport.plausible import Clock
 from transport.session import TransportError, add_zenoh_args, settings_from_args
@@ -248,7 +248,7 @@ class Coordinator:
         if self.body_poses is None:
             self.body_poses = self.bus.subscribe(self.bus.keys.all_of("pose"), Pose, only=dead)
         else:
-            self.body_poses.hear_only(dead)
+            self.body_poses.keep = KeepRobots(dead)
 
     def _publish(self, step: int, robots: frozenset[int], dead: list[int]) -> None:
         """The next epoch's goal set: step's goals for these robots, clear of dead robots' bodies,

@@ -23,7 +23,19 @@ from typing import Any, Generic, TypeVar, cast, overload
 import numpy as np
 import zenoh
 
-from .codec import BEFORE_START, FRAME_OF, Command, DropCounter, Frame, Message, MessageT, Poses, decode, decode_views
+from .codec import (
+    BEFORE_START,
+    FRAME_OF,
+    Command,
+    DropCounter,
+    Frame,
+    Message,
+    MessageT,
+    Poses,
+    RecordFilter,
+    decode,
+    decode_views,
+)
 from .faults import FaultPlan, FaultSpec
 from .keys import Keys, robots_of_ident
 from .session import ZenohSettings, open_session
@@ -124,6 +136,20 @@ class InjectedFault(Generic[T]):
         return bool(self._delayed or self._held)
 
 
+class KeepRobots:
+    """These robots' records (a host's own poses; dead robots' bodies for the coordinator)."""
+
+    def __init__(self, robots: Iterable[int] | np.ndarray) -> None:
+        self.ids = np.unique(np.fromiter(robots, np.int64))
+        self.robots = set(self.ids.tolist())
+
+    def mask(self, records: np.ndarray) -> np.ndarray:
+        return np.isin(records["robot"], self.ids)
+
+    def keeps(self, view: Any) -> bool:
+        return view.robot in self.robots
+
+
 class Inbox(Generic[T]):
     """Messages of one subscription, decoded, filtered by faults, waiting for the owner's loop."""
 
@@ -141,9 +167,9 @@ class Inbox(Generic[T]):
         and are decoded on the owner's thread (see Bus.inbox)."""
         self.expected = expected
         self.frame: type[Frame] | None = FRAME_OF.get(cast(type, expected))
-        self.only: tuple[set[int], np.ndarray] | None = None  # the robots kept, as a set and as ids
-        if only is not None:
-            self.hear_only(only)
+        # which records of the frames are kept (None: all); replaced whole, as the thread that
+        # decodes may be reading it
+        self.keep: RecordFilter | None = None if only is None else KeepRobots(only)
         self.fault: InjectedFault[T] | None = InjectedFault(fault, seed) if fault.active else None
         self.drops = DropCounter()
         self.received = 0
@@ -163,11 +189,6 @@ class Inbox(Generic[T]):
         self.pulled = pulled
         self.channels: list[Any] = []  # pulled: the subscribers whose channels feed this inbox
 
-    def hear_only(self, robots: Iterable[int] | np.ndarray) -> None:
-        """From now on, keep only these robots' records of the frames that arrive."""
-        ids = np.unique(np.fromiter(robots, np.int64))
-        self.only = (set(ids.tolist()), ids)  # one assignment: the thread that decodes reads both
-
     def _pull(self) -> None:
         """Pulled: take in every sample waiting in the channels, on the caller's thread."""
         for sub in self.channels:
@@ -182,20 +203,17 @@ class Inbox(Generic[T]):
         return payload
 
     def _records(self, payload: bytes, key: str) -> tuple[int, list] | None:
-        """A frame's (tick, records), only those of robots ``only`` if given; None if malformed, or
-        if the key names one robot and the frame holds anything but that robot's record (a damaged
-        robot id would make one robot's pose or state another's)."""
-        only = self.only
-        got = decode_views(payload, cast("type[Frame]", self.frame), self.drops, None if only is None else only[1])
-        if got is None:
-            return None
-        alone = Keys.robot_alone(key)
-        if alone is not None and (len(got[1]) != 1 or got[1][0].robot != alone):
+        """A frame's (tick, records), those ``keep`` keeps; None if malformed, or if the key names
+        one robot and the frame holds anything but that robot's record (a damaged robot id would
+        make one robot's pose or state another's)."""
+        keep, alone = self.keep, Keys.robot_alone(key)
+        got = decode_views(payload, cast("type[Frame]", self.frame), self.drops, keep if alone is None else None)
+        if got is None or alone is None:
+            return got
+        if len(got[1]) != 1 or got[1][0].robot != alone:
             self.drops["misaddressed"] += 1
             return None
-        if only is None:
-            return got
-        return got[0], [v for v in got[1] if v.robot in only[0]]
+        return got if keep is None or keep.keeps(got[1][0]) else (got[0], [])
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         payload = self._payload(sample)

@@ -20,7 +20,7 @@ from collections import Counter
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields
 from operator import attrgetter
-from typing import Any, ClassVar, TypeVar, overload
+from typing import Any, ClassVar, Protocol, TypeVar, overload
 
 import numpy as np
 
@@ -697,13 +697,13 @@ class Frame(Message):
     def count(self) -> int:
         return len(self.records)
 
-    def messages(self, only: np.ndarray | None = None) -> list:
-        """One view per record (of robots ``only``, if given): the robot, the frame's tick and
-        stamp, the record. A host keeps its own rows of a frame of every robot: those picked out
+    def messages(self, keep: RecordFilter | None = None) -> list:
+        """One view per record (those ``keep`` keeps, if given): the robot, the frame's tick and
+        stamp, the record. A host keeps a few rows of a frame of every robot: those picked out
         first, not a view made of each and most thrown away."""
         tick, stamp = self.tick, self.stamp
         view: Callable[..., Any] = self.VIEW
-        records = self.records if only is None else self.records[np.isin(self.records["robot"], only)]
+        records = self.records if keep is None else self.records[keep.mask(self.records)]
         return [view(robot, tick, stamp, *rest) for robot, *rest in records.tolist()]
 
     def _fixed_values(self) -> tuple:
@@ -983,14 +983,25 @@ def decode(
     return None
 
 
+class RecordFilter(Protocol):
+    """Which records of a frame an inbox keeps (transport.bus.KeepRobots, agent.runtime's cells)."""
+
+    def mask(self, records: np.ndarray) -> np.ndarray:
+        """The records kept, of a frame's structured array."""
+        ...
+
+    def keeps(self, view: Any) -> bool:
+        """Whether the view of one record is kept."""
+        ...
+
+
 def decode_views(
-    data: bytes | memoryview, frame: type[Frame], drops: DropCounter | None = None, only: np.ndarray | None = None
+    data: bytes | memoryview, frame: type[Frame], drops: DropCounter | None = None, keep: RecordFilter | None = None
 ) -> tuple[int, list] | None:
-    """A frame of this kind as (tick, one view per record), what an inbox of views hands over: a
-    frame of one in one struct call (Frame.views_alone, whoever its robot), anything else through
-    the frame (only robots ``only``'s records, if given); None (and a counted drop) for anything
-    malformed. Never raises."""
+    """A frame of this kind as (tick, one view per record it keeps), what an inbox of views hands
+    over: a frame of one in one struct call (Frame.views_alone), anything else through the frame;
+    None (and a counted drop) for anything malformed. Never raises."""
     if isinstance(data, bytes) and (alone := frame.views_alone(data)) is not None:
-        return alone
+        return alone if keep is None or keep.keeps(alone[1][0]) else (alone[0], [])
     got = decode(data, frame, drops)
-    return None if got is None else (got.tick, got.messages(only))
+    return None if got is None else (got.tick, got.messages(keep))

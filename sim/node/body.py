@@ -33,8 +33,9 @@ from agent.core.params import RobotParams
 from coordinator.scene import Scene
 from sim.args import format_ids
 from transport.bus import Bus
-from transport.codec import BEFORE_START, Command, Event, Goals, Tick, Truth, intact
+from transport.codec import BEFORE_START, Command, Event, Goals, State, States, Tick, Truth, intact
 from transport.codec import Contact as ContactMsg
+from transport.keys import cell_of
 from transport.plausible import FUTURE, INCONSISTENT, GoalSets, stamp_agrees
 
 STARTUP_TIMEOUT = 60.0  # s the node waits for every agent by default (`pixelswarm run` says how long)
@@ -71,7 +72,7 @@ class Backend(Protocol):
     def apply(self, ids: list[int], cmds: list[Command], colors: np.ndarray) -> None: ...
     def stop(self, ids: list[int]) -> None: ...
     def step(self, span: float) -> list: ...  # let the bodies move for span s; the contacts that began
-    def own_movers(self, tick: int, t: float) -> None: ...  # bodies the backend drives itself
+    def own_movers(self, tick: int, t: float) -> list[State]: ...  # bodies it drives itself: their states
     def truth(self, tick: int) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]: ...
     def applied(self) -> np.ndarray: ...  # commands applied per robot
     def report(self, node: BodyNode) -> dict[str, Any]: ...  # what the run's report adds for them
@@ -344,7 +345,17 @@ class BodyNode:
             shown = np.flatnonzero(self.ever_live & self.backend.tracked)
             self.bus.publish_poses(self.tick, t, shown, measured[shown], self.pose_frames)
             self._publish_before_start()
-        self.backend.own_movers(self.tick, t)
+        self._publish_movers(self.backend.own_movers(self.tick, t))
+
+    def _publish_movers(self, states: list[State]) -> None:
+        """The movers' states, as agents broadcast theirs: a frame on ``state/<first>`` that every
+        agent host hears, or each under its spatial cell for robots alone (HostConfig.frames)."""
+        keys = self.bus.keys
+        if self.pose_frames and states:
+            self.bus.publish(keys.states(states[0].robot), States.of(self.tick, self.tick * self.dt, states))
+            return
+        for s in states:
+            self.bus.publish(keys.state(cell_of(s.x, s.y, self.params.cell_size), s.robot), States.one(s))
 
     def _publish_before_start(self) -> None:
         """Robots whose agent is not live yet hear where they are (no tracker noise drawn, so start-up

@@ -31,7 +31,7 @@ from hardware.config import HardwareConfig, HardwareConfigError, load_hardware
 from hardware.poses import STAMP_DROPS, PoseSample
 from sim.node.body import COMMAND_DROPS, STOP_REASONS, BodyNode, WallClock
 from transport.bus import Bus
-from transport.codec import Command
+from transport.codec import Command, State
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, settings_from_args
 
 STARTUP_TIMEOUT = 5.0  # s: every robot reached and every robot's pose seen, or the run is refused
@@ -227,7 +227,8 @@ class HardwareBodies:
     def step(self, span: float) -> list:
         return []  # real bodies move by themselves
 
-    def own_movers(self, tick: int, t: float) -> None: ...
+    def own_movers(self, tick: int, t: float) -> list[State]:
+        return []
 
     def truth(self, tick: int) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
         clearance = self._clearance()

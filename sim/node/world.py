@@ -25,9 +25,8 @@ from sim.bodies.movers import scripted_velocity
 from sim.bodies.tracker import tracker_of, world_of
 from sim.node.body import STARTUP_TIMEOUT, BodyNode, LockStep, WallClock
 from transport.bus import Bus
-from transport.codec import Command, State, States
+from transport.codec import Command, State
 from transport.faults import parse_faults
-from transport.keys import cell_of
 from transport.session import TransportError, add_zenoh_args, settings_from_args
 
 
@@ -94,16 +93,17 @@ class SimulatedBodies:
     def step(self, span: float) -> list:
         return self.world.step(span)
 
-    def own_movers(self, tick: int, t: float) -> None:
+    def own_movers(self, tick: int, t: float) -> list[State]:
         """Scripted robots are dynamic obstacles: they follow their path and broadcast a state flagged
         as not avoiding anybody, so agents take full responsibility (paper Fig. 19)."""
         dt, radius = self.params.dt, self.params.radius
+        states = []
         for i, waypoints in self.scene.scripted.items():
             x, y, _ = self.world.poses[i]
             vx, vy = scripted_velocity(waypoints, self.world.poses[i], t, dt)
             self.world.set_command(i, float(vx), float(vy))
-            state = State(i, tick, t, x, y, vx, vy, radius, 0.0, 0.0, -1, State.DYNAMIC)
-            self.bus.publish(self.bus.keys.state(cell_of(x, y, self.params.cell_size), i), States.one(state))
+            states.append(State(i, tick, t, x, y, vx, vy, radius, 0.0, 0.0, -1, State.DYNAMIC))
+        return states
 
     def truth(self, tick: int) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
         clearance = self.world.step_min_clearance() if tick else self.world.min_clearance

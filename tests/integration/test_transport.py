@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 import transport.bus as bus_module
 from agent.core.bidder import RECORD as bidder_record
 from tests.conftest import wait_for
-from transport.bus import CLOSE_LINGER, Bus
+from transport.bus import CLOSE_LINGER, Bus, KeepRobots
 from transport.codec import (
     BEFORE_START,
     BY_NAME,
@@ -650,7 +650,7 @@ def test_one_subscription_to_every_pose_keeps_the_robots_it_names_from_frames_an
         a.publish_poses(1, 0.1, np.array([5, 6]), np.ones((2, 3)), frame=False)
         time.sleep(0.3)
         assert [(p.robot, p.x) for _, p in bodies.drain()] == [(5, 15.0), (5, 1.0)]
-        bodies.hear_only(np.array([5, 2]))
+        bodies.keep = KeepRobots([5, 2])
         a.publish_poses(2, 0.2, np.arange(8), np.zeros((8, 3)), frame=True)
         time.sleep(0.3)
         assert sorted(p.robot for _, p in bodies.drain()) == [2, 5]

@@ -13,9 +13,6 @@ class Inbox:
         out, self.items = self.items, []
         return out
 
-    def hear_only(self, robots) -> None:
-        pass  # the items a test puts in are what is heard
-
 
 class Bus:
     """What the coordinator uses of transport.bus.Bus, without zenoh."""

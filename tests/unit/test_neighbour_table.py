@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 
 from agent.neighbour_table import NeighbourTable
@@ -165,6 +167,28 @@ def test_a_host_listens_to_the_square_of_cells_around_each_of_its_robots():
         }
         assert cells.cells == bus.live == expect
         assert all(type(c) is int for cell in cells.cells for c in cell)  # key expressions print ints
-        kept = CellSubscriptions(_Cells(), inbox=None, cell_size=0.7, reach=2, listen=False)
-        kept.update(positions)  # a host hearing every host's frames: the same cells kept, none declared
-        assert kept.cells == expect and not kept.bus.live
+        # a host hearing every host's frames: the same cells, none declared; its inbox keeps their records
+        inbox = SimpleNamespace(keep=None)
+        kept = CellSubscriptions(_Cells(), inbox=inbox, cell_size=0.7, reach=2, listen=False)
+        kept.update(positions)
+        assert kept.cells == expect and not kept.bus.live and inbox.keep.cells == expect
+
+
+def test_a_host_keeps_the_records_of_its_cells_and_of_the_robots_its_pursuers_chase():
+    """KeepCells picks a frame's records with numpy, and a lone record's view in Python: the same
+    records either way, those in the cells (by transport.keys.cell_of) or of a chased robot."""
+    from agent.runtime import KeepCells
+    from transport.codec import States
+    from transport.keys import cell_of
+
+    rng = np.random.default_rng(8)
+    records = np.zeros(400, States.RECORD)
+    records["robot"] = np.arange(400)
+    records["x"], records["y"] = rng.uniform(-4, 4, (2, 400)).astype(np.float32)
+    cells = {cell_of(float(x), float(y), 0.7) for x, y in rng.uniform(-4, 4, (30, 2))}
+    keep = KeepCells(cells, 0.7, frozenset({3, 7}))
+    views = States(5, 0.5, records).messages()
+    expect = [v.robot for v in views if cell_of(v.x, v.y, 0.7) in cells or v.robot in (3, 7)]
+    assert 3 in expect and 7 in expect and 0 < len(expect) < 200
+    assert records["robot"][keep.mask(records)].tolist() == expect
+    assert [v.robot for v in views if keep.keeps(v)] == expect
