@@ -47,6 +47,10 @@ AUCTION_PATIENCE = 60.0
 # s a lock-step tick that begins a scene step waits at most for the step's goal set: as long as an agent
 # waits for it (agent.clocks.GOAL_SET_WAIT), and the deadline runs on after, so an agent that gave up answers
 GOAL_SET_PATIENCE = 10.0
+# s the first lock-step tick waits at most for every agent's command: every agent process takes its first
+# step at the same moment, paging in its code, and 100 one-robot processes on 2 cores overran the
+# deadline (92 robots stood still at tick 0, and the run was no longer the central engine's)
+FIRST_TICK_PATIENCE = 10.0
 STOP_REASONS = ("agent_lost", "pose_lost", "command_timeout")  # the watchdog's, in the order it asks
 COMMAND_DROPS = (FUTURE, INCONSISTENT)
 CONTACT_KINDS = {"robot": 0, "obstacle": 1, "wall": 2}
@@ -98,8 +102,9 @@ class Tally:
 
 
 class LockStep:
-    """Publish tick k, wait until every live agent answered it or a deadline passes (a missed tick),
-    then advance one period. The deadline runs from the last auction message heard: agents that
+    """Publish tick k, wait until every live agent answered it or a deadline passes (a missed tick;
+    the first tick's is FIRST_TICK_PATIENCE), then advance one period. The deadline runs from the
+    last auction message heard: agents that
     still trade a tick's auction rounds (agent.assignment.AuctionLink.settle_block) are at work; and,
     for at most GOAL_SET_PATIENCE, while the goal set of a scene step that begins at the tick is unheard."""
 
@@ -108,7 +113,7 @@ class LockStep:
         self.auction_traffic = [bus.subscribe_raw(bus.keys.all_of(kind)) for kind in ("auction", "boards")]
 
     def spans(self, node: BodyNode) -> Iterator[float]:
-        deadline = time.monotonic() + self.deadline
+        deadline = time.monotonic() + (self.deadline if node.tick else max(self.deadline, FIRST_TICK_PATIENCE))
         patience = time.monotonic() + AUCTION_PATIENCE
         goal_set_patience = time.monotonic() + GOAL_SET_PATIENCE
         while True:

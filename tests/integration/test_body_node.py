@@ -152,3 +152,46 @@ def test_an_emulated_epuck2_is_driven_by_the_same_loop(tmp_path, monkeypatch):
     assert spy.outside == [] and spy.moved > 0
     for log in logs:  # the robots were driven over TCP, then told to stop when the run ended
         assert len(moving_commands(log)) > 0 and log[-1][1:] == (0, 0)
+
+
+class _SlowFirstAnswers:
+    """What LockStep.spans reads of a body node whose two agents answer each tick ``after`` seconds
+    after the world begins to wait for them."""
+
+    dt, withheld = 0.1, False
+
+    def __init__(self, tick: int, after: float) -> None:
+        self.tick, self.live = tick, np.ones(2, bool)
+        self.last_cmd_tick = np.full(2, tick - 1)
+        self.answer_at = time.monotonic() + after
+        self.cmd_inbox = self
+
+    def get(self, timeout: float) -> None:
+        time.sleep(timeout)
+
+    def take_commands(self, first: object) -> None:
+        if time.monotonic() >= self.answer_at:
+            self.last_cmd_tick[:] = self.tick
+
+    def hear_goals(self) -> None:
+        pass
+
+    def awaits_goal_set(self) -> bool:
+        return False
+
+    def update_liveness(self) -> None:
+        pass
+
+
+def test_the_first_lockstep_tick_waits_past_the_deadline_for_every_agent(monkeypatch):
+    """Every agent process takes its first step at once: a first tick answered past the deadline is
+    waited for (up to FIRST_TICK_PATIENCE), where any later tick is missed."""
+    from sim.node import body
+    from tests.support.fake_bus import RecorderBus
+
+    monkeypatch.setattr(body, "FIRST_TICK_PATIENCE", 5.0)
+    clock = body.LockStep(RecorderBus(), deadline=0.3)  # type: ignore[arg-type]
+    for tick, answered in [(0, True), (1, False)]:
+        node = _SlowFirstAnswers(tick, after=1.0)
+        next(clock.spans(node))  # type: ignore[arg-type]
+        assert (node.last_cmd_tick == tick).all() == answered
