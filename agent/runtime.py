@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from transport.bus import Bus, Inbox, LivelinessWatch
-from transport.codec import BEFORE_START, Command, Commands, Event, Goals, Pose, State, States
+from transport.codec import BEFORE_START, Command, Commands, Event, Goals, Pose, State
 from transport.keys import cell_of, cells_of, robots_ident
 from transport.plausible import INCONSISTENT, GoalSets, TickLine, stamp_agrees
 
@@ -409,14 +409,8 @@ class AgentHost:
     def publish_states(self, tick: int, stamp: float, states: list[State]) -> None:
         """A host's frame of its robots' states, heard by every host; a robot alone its frame of one
         under its spatial cell (HostConfig.frames)."""
-        keys = self.bus.keys
-        if self.config.frames:
-            self.bus.publish(keys.states(int(self.robots.ids[0])), States.of(tick, stamp, states))
-            return
-        for s in states:
-            self.bus.put(
-                keys.state(cell_of(s.x, s.y, self.params.cell_size), s.robot), States.encode_one(s), States.NAME
-            )
+        first = int(self.robots.ids[0]) if self.config.frames else None
+        self.bus.publish_states(tick, stamp, states, self.params.cell_size, first)
 
     def _publish_commands(self, tick: int, stamp: float, commands: list[Command]) -> None:
         """A host's frame of its robots' commands; a robot alone its frame of one (HostConfig.frames)."""

@@ -169,16 +169,17 @@ print(json.dumps({"times": times, "bids": part.bids, "rounds": part.rounds, "dig
 """
 
 
-def central(tree: Path, n: int, blocks: int, seed: int = 1) -> dict:
-    """The central engine's settling in a fresh process of ``tree``'s code."""
+def in_tree(tree: Path, snippet: str, *args: object) -> dict:
+    """What a snippet prints last (JSON), run in a fresh process of ``tree``'s code."""
     out = subprocess.run(
-        [sys.executable, "-c", CENTRAL, str(n), str(blocks), str(seed)],
-        cwd=tree,
-        check=True,
-        capture_output=True,
-        text=True,
+        [sys.executable, "-c", snippet, *map(str, args)], cwd=tree, check=True, capture_output=True, text=True
     )
     return json.loads(out.stdout.splitlines()[-1])
+
+
+def central(tree: Path, n: int, blocks: int, seed: int = 1) -> dict:
+    """The central engine's settling in a fresh process of ``tree``'s code."""
+    return in_tree(tree, CENTRAL, n, blocks, seed)
 
 
 def side_by_side(args: argparse.Namespace, cases: list[tuple[int, int]]) -> None:
@@ -286,14 +287,7 @@ def warm_starts(sizes: str, before: str) -> None:
     with worktree_at(before) as (tree, commit):
         for n in (int(v) for v in sizes.split(",")):
             for what, where in (("before " + commit, tree), ("after", REPO)):
-                done = subprocess.run(
-                    [sys.executable, "-c", WARM, str(n), str(WARM_LIMIT), str(WARM_OPTIMUM)],
-                    cwd=where,
-                    check=True,
-                    capture_output=True,
-                    text=True,
-                )
-                for name, got in json.loads(done.stdout.splitlines()[-1]).items():
+                for name, got in in_tree(where, WARM, n, WARM_LIMIT, WARM_OPTIMUM).items():
                     seconds = f"{got[0]:.2f}" if got else f"> {WARM_LIMIT:.0f}"
                     gap = f"{got[1]:.3g}" if got and got[1] is not None else "-"
                     rows.append(f"| {n} | {name} | {what} | {seconds} | {gap} |")

@@ -232,7 +232,7 @@ class Coordinator:
         for _, ident, alive, _, life in self.alive.drain():
             if ident.isdigit() and int(ident) < self.scene.robots:
                 self._hear_agent(int(ident), alive, life)
-        for _, pose in self.body_poses.drain() if self.body_poses else []:
+        for _, pose in self.body_poses.drain() if self.body_poses is not None else []:
             self.bodies[pose.robot] = np.array([pose.x, pose.y])
 
     def _hear_agent(self, r: int, alive: bool, life: str) -> None:

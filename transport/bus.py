@@ -33,11 +33,13 @@ from .codec import (
     MessageT,
     Poses,
     RecordFilter,
+    State,
+    States,
     decode,
     decode_views,
 )
 from .faults import FaultPlan, FaultSpec
-from .keys import Keys, robots_of_ident
+from .keys import Keys, cell_of, robots_of_ident
 from .session import ZenohSettings, open_session
 
 _NO_FAULT = FaultSpec()
@@ -406,6 +408,15 @@ class Bus:
             return
         for i in range(len(records)):
             self.publish(self.keys.pose(int(records["robot"][i])), Poses(tick, stamp, records[i : i + 1]))
+
+    def publish_states(self, tick: int, stamp: float, states: list[State], cell_size: float, first: int | None) -> None:
+        """Broadcast states of a tick: one frame on ``state/<first>`` that every agent host hears
+        (``first``: the sender's first robot), else each robot's frame of one under its spatial cell."""
+        if first is not None:
+            self.publish(self.keys.states(first), States.of(tick, stamp, states))
+            return
+        for s in states:
+            self.put(self.keys.state(cell_of(s.x, s.y, cell_size), s.robot), States.encode_one(s), States.NAME)
 
     def put(self, key: str, payload: bytes, kind: str = "raw") -> None:
         # BLOCK, not DROP: in lock-step runs a silently dropped message would break reproducibility.

@@ -33,9 +33,8 @@ from agent.core.params import RobotParams
 from coordinator.scene import Scene
 from sim.args import format_ids
 from transport.bus import Bus
-from transport.codec import BEFORE_START, Command, Event, Goals, State, States, Tick, Truth, intact
+from transport.codec import BEFORE_START, Command, Event, Goals, State, Tick, Truth, intact
 from transport.codec import Contact as ContactMsg
-from transport.keys import cell_of
 from transport.plausible import FUTURE, INCONSISTENT, GoalSets, stamp_agrees
 
 STARTUP_TIMEOUT = 60.0  # s the node waits for every agent by default (`pixelswarm run` says how long)
@@ -353,14 +352,10 @@ class BodyNode:
         self._publish_movers(self.backend.own_movers(self.tick, t))
 
     def _publish_movers(self, states: list[State]) -> None:
-        """The movers' states, as agents broadcast theirs: a frame on ``state/<first>`` that every
-        agent host hears, or each under its spatial cell for robots alone (HostConfig.frames)."""
-        keys = self.bus.keys
-        if self.pose_frames and states:
-            self.bus.publish(keys.states(states[0].robot), States.of(self.tick, self.tick * self.dt, states))
-            return
-        for s in states:
-            self.bus.publish(keys.state(cell_of(s.x, s.y, self.params.cell_size), s.robot), States.one(s))
+        """The movers' states, as agents broadcast theirs: a frame that every agent host hears, or
+        each under its spatial cell for robots alone (HostConfig.frames)."""
+        first = states[0].robot if self.pose_frames and states else None
+        self.bus.publish_states(self.tick, self.tick * self.dt, states, self.params.cell_size, first)
 
     def _publish_before_start(self) -> None:
         """Robots whose agent is not live yet hear where they are (no tracker noise drawn, so start-up
