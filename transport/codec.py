@@ -61,11 +61,16 @@ def _finite(*values: float) -> None:
             raise Malformed("non-finite")
 
 
+def _leading(layout: struct.Struct, body: memoryview, exact: bool = False) -> tuple:
+    """The fields of ``layout`` at the start of ``body`` (``exact``: the whole of it), or truncated."""
+    if len(body) < layout.size or (exact and len(body) != layout.size):
+        raise Malformed("truncated")
+    return layout.unpack_from(body)
+
+
 def _fixed_and_items(body: memoryview, fixed: struct.Struct, item: np.dtype) -> tuple[tuple, np.ndarray]:
     """A fixed part whose last field counts the items that follow; lengths must agree exactly."""
-    if len(body) < fixed.size:
-        raise Malformed("truncated")
-    values = fixed.unpack(body[: fixed.size])
+    values = _leading(fixed, body)
     if len(body) != fixed.size + values[-1] * item.itemsize:
         raise Malformed("truncated")
     return values, np.frombuffer(body[fixed.size :], item)
@@ -128,9 +133,7 @@ class Message:
 
     @classmethod
     def _from(cls, body: memoryview) -> Message:
-        if len(body) != cls._fixed.size:
-            raise Malformed("truncated")
-        msg = cls(*cls._fixed.unpack(body))
+        msg = cls(*_leading(cls._fixed, body, exact=True))
         msg.validate()
         return msg
 
@@ -256,9 +259,7 @@ class _FixedPart:
 
     @classmethod
     def unpack(cls, body: memoryview, count: int) -> Any:
-        if len(body) != cls._layout.size:
-            raise Malformed("truncated")
-        part = cls(*cls._layout.unpack(body))
+        part = cls(*_leading(cls._layout, body, exact=True))
         part._check()
         return part
 
@@ -454,9 +455,7 @@ class Goals(Message):
         _, version, goal_set = parts[0]
         if version != cls.PART_VERSION:
             raise Malformed("version")
-        if len(goal_set) < cls._set.size:
-            raise Malformed("truncated")
-        epoch, per_robot, count = cls._set.unpack(goal_set[: cls._set.size])
+        epoch, per_robot, count = _leading(cls._set, goal_set)
         end = cls._set.size + count * cls.RECORD.itemsize
         if len(goal_set) < end or (len(goal_set) - end) % 2:
             raise Malformed("truncated")
@@ -566,9 +565,7 @@ class Bid(Message):
         """Every host hears every host's bids, tens a tick, of a record or two each: a few records'
         floats are checked by struct, and the records read from a writable copy of the bytes
         (numpy's reductions and copy of a structured array cost several times as much there)."""
-        if len(body) < cls._fixed.size:
-            raise Malformed("truncated")
-        epoch, instance, sender, serial, digest, count = cls._fixed.unpack(body[: cls._fixed.size])
+        epoch, instance, sender, serial, digest, count = _leading(cls._fixed, body)
         tail = body[cls._fixed.size :]
         if len(tail) != count * cls.RECORD.itemsize:
             raise Malformed("truncated")
@@ -630,9 +627,7 @@ class Boards(Message):
 
     @classmethod
     def _from(cls, body: memoryview) -> Boards:
-        if len(body) < cls._fixed.size:
-            raise Malformed("truncated")
-        epoch, instance, sender, serial, goals, robots, count = cls._fixed.unpack(body[: cls._fixed.size])
+        epoch, instance, sender, serial, goals, robots, count = _leading(cls._fixed, body)
         at = cls._fixed.size + count * cls.WORD.itemsize
         if len(body) < at:
             raise Malformed("truncated")
@@ -961,9 +956,7 @@ def decode(
     """Decode one message; None (and a counted drop) for anything malformed. Never raises."""
     try:
         view = memoryview(data)
-        if len(view) < _HEADER.size:
-            raise Malformed("truncated")
-        kind, version = _HEADER.unpack(view[: _HEADER.size])
+        kind, version = _leading(_HEADER, view)
         if version != VERSION:
             raise Malformed("version")
         message_type = MESSAGE_TYPES.get(kind)
