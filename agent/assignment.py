@@ -329,8 +329,9 @@ class AuctionLink:
     ) -> dict[int, int]:
         """A new goal set: a new auction. Each own robot carries its ``current`` goal in the last set
         (robot -> goal index) over to the new set; returns the carried goals, which the robots drive
-        to until the auction agrees. After an agreed last set of the same robots the goals carry over
-        by the goal sets' matching and the auction starts from it, prices included (_warm_start).
+        to until the auction agrees. After a last set of the same robots that agreed, or whose robots
+        still drive to its own warm start, the goals carry over by the goal sets' matching and the
+        auction starts from it, prices included (_warm_start).
         Otherwise a keyframe carries by the coordinator's goal correspondence, and the auction starts
         from the carried claims only when the last one had agreed (a board still in a price war is
         no assignment) and the frames are close (frames_close)."""
@@ -368,13 +369,15 @@ class AuctionLink:
 
     @staticmethod
     def _warm_start(before: Participant, goals: Goals) -> bool:
-        """The next image of a sequence or keyframe of an animation, with the same robots, after an
-        agreed last one: the auction starts warm from the two goal sets' matching and its prices, as
+        """The next image of a sequence or keyframe of an animation, with the same robots, after a
+        last one every host holds alike (Participant.common_owner: agreed, or still on its warm
+        start, as a block of ten thousand robots at a bounded round a tick may outlast an image; a
+        cold start would then play every round within one tick): the auction starts warm from the two goal sets' matching and its prices, as
         the coordinator sends them with the new set (its WarmStart part), and each
         robot drives to the goal its last one is matched to: a warm start agrees in a fraction of a
         cold start's message rounds (bench/results/carry.md)."""
         return (
-            before.agreed_instance >= 0
+            before.common_owner is not None
             and not goals.per_robot
             and goals.warm_start is not None
             and goals.warm_start.matched_from == before.epoch

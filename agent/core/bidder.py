@@ -171,6 +171,7 @@ class Participant(Auction):
         self._heard = Heard(self)  # absorb's merges, compiled
         self._agreed: tuple[np.ndarray, dict[int, int] | None] = (np.zeros(0, np.int64), {})  # see agreed
         self.agreed_owner: np.ndarray | None = None  # per goal: its robot in the agreed instance (NO_OWNER: none)
+        self.start_owner: np.ndarray | None = None  # per goal: its robot on the board a warm start began from
         self.claims_changed = False  # own claims changed since the last publication
         self.published_digest: int | None = None  # the board digest of the last publication
         self.rounds = 0  # Jacobi rounds in which some own robot bid
@@ -201,6 +202,13 @@ class Participant(Auction):
     @property
     def started(self) -> bool:
         return self.instance >= 0
+
+    @property
+    def common_owner(self) -> np.ndarray | None:
+        """Per goal its robot on the last board every host holds alike: the agreed one, else the one
+        a warm start began from, whose goals the robots drive to until the first agreement (at ten
+        thousand robots a warm block may outlast an image). None: neither."""
+        return self.agreed_owner if self.agreed_owner is not None else self.start_owner
 
     @property
     def is_agreed(self) -> bool:
@@ -285,13 +293,14 @@ class Participant(Auction):
         }
         if claim:
             i = previous[j]
-            last = before.agreed_owner  # every host adopted the same board; the live one may be mid-instance
+            last = before.common_owner  # the same on every host; the live board may be mid-instance
             if last is None:
                 last = np.where(before.board.released, NO_OWNER, before.board.owner)
             held = np.isin(last[i], self.robots)
             owner = np.full(len(self.goals), NO_OWNER, np.int64)
             owner[j[held]] = last[i[held]]
             self.board.owner[:] = owner
+            self.start_owner = owner.copy()
             if prices is not None:
                 self.board.price[:] = prices
             self.board.version += 1
@@ -311,6 +320,7 @@ class Participant(Auction):
         self.board.owner[:] = owner
         self.board.price[:] = prices
         self.board.version += 1
+        self.start_owner = owner.copy()
         goal_of = {r: j for j, r in enumerate(owner.tolist())}
         self.goal[:] = [goal_of.get(r, -1) for r in self.own]
         return {r: goal_of[r] for r in self.own if r in goal_of}

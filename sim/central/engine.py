@@ -198,7 +198,7 @@ class CentralAuction:
 
     def show(self, k: int) -> None:
         """A new image: its goal set, and a fresh auction (the old prices mean nothing)."""
-        last = self.auction if isinstance(self.auction, Participant) and self.auction.agreed_instance >= 0 else None
+        last = self.auction if isinstance(self.auction, Participant) and self.auction.common_owner is not None else None
         first = self.image.k < 0
         self.image.k, self.auction, self.assigned_at, self.block = k, None, None, None
         if not self.scene.steps:

@@ -169,6 +169,41 @@ def test_the_next_image_starts_warm_from_the_goal_sets_matching_and_agrees_far_s
     assert warm_rounds * 3 < cold_rounds, (warm_rounds, cold_rounds)
 
 
+def test_an_image_whose_warm_start_never_agreed_hands_its_warm_board_to_the_next() -> None:
+    """At ten thousand robots, one round a tick, the first image's warm block outlasted its hold: the
+    robots formed it on the warm start's goals and the auction never agreed. The next image still
+    starts warm, from the board the first one started from (the same on every host, whatever each
+    host's live board holds mid-block), and agrees within the bound; a cold start there played
+    every round within one tick and the world gave up on every robot's command."""
+    g1, g2, pos = two_images(n=90, seed=4)
+    robots = list(range(len(g1)))
+    hosts = [robots[h::3] for h in range(3)]
+    matched, start_prices = goal_matching(pos, g1, EPS)  # the first image's warm start from the robots' starts
+    first = [Participant(1, g1, robots, h, EPS) for h in hosts]
+    drive = {}
+    for p in first:
+        drive.update(p.start_from(np.asarray(robots)[matched], start_prices))
+        p.begin(0, {r: pos[r] for r in p.own})  # a block under way, never agreed
+        p.bid_until_quiet()
+    assert not any(p.agreed for p in first) and all(p.common_owner is not None for p in first)
+    previous, prices = goal_matching(g1, g2, EPS)
+    parts = [Participant(2, g2, robots, h, EPS) for h in hosts]
+    carried: dict[int, int] = {}
+    for new, old in zip(parts, first):
+        carried.update(new.carry(old, previous, current={r: drive[r] for r in old.own}, prices=prices))
+    assert sorted(carried.values()) == robots  # every robot drives to a distinct goal at once
+    for p in parts[1:]:  # every host starts from the same board
+        np.testing.assert_array_equal(p.board.owner, parts[0].board.owner)
+    assert sorted(parts[0].board.owner.tolist()) == robots
+    rounds = agree(parts, pos)
+    result = {r: g for p in parts for r, g in p.agreed.items()}
+    assert sorted(result.values()) == robots
+    cost = sum(((pos[r] - g2[g]) ** 2).sum() for r, g in result.items())
+    assert cost <= optimum(pos, g2) + len(robots) * EPS + 1e-9
+    cold = agree([Participant(2, g2, robots, h, EPS) for h in hosts], pos)
+    assert rounds * 3 < cold, (rounds, cold)
+
+
 @pytest.mark.parametrize("offset", [0.0, 8000.0])
 def test_a_warm_start_of_four_hosts_agrees_at_any_price_level(offset: float) -> None:
     """The runtime's case at 1000 robots, smaller: the new image comes while the next instance of the
