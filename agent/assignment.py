@@ -371,11 +371,11 @@ class AuctionLink:
     def _warm_start(before: Participant, goals: Goals) -> bool:
         """The next image of a sequence or keyframe of an animation, with the same robots, after a
         last one every host holds alike (Participant.common_owner: agreed, or still on its warm
-        start, as a block of ten thousand robots at a bounded round a tick may outlast an image; a
-        cold start would then play every round within one tick): the auction starts warm from the two goal sets' matching and its prices, as
-        the coordinator sends them with the new set (its WarmStart part), and each
-        robot drives to the goal its last one is matched to: a warm start agrees in a fraction of a
-        cold start's message rounds (bench/results/carry.md)."""
+        start): the auction starts warm from the two goal sets' matching and its prices, as the
+        coordinator sends them with the new set (its WarmStart part), and each robot drives to the
+        goal its last one is matched to. A warm start agrees in a fraction of a cold start's message
+        rounds (bench/results/carry.md); a cold one plays every round within one tick, which at ten
+        thousand robots, whose warm block may outlast an image, is longer than the world waits."""
         return (
             before.common_owner is not None
             and not goals.per_robot
