@@ -389,6 +389,7 @@ class AgentHost:
         ticking: list[Pose] = []  # poses of ticks under way (a robot whose body is tracked already)
         end = time.monotonic() + timeout
         while len(where) < len(self.robots) and self.running and time.monotonic() < end:
+            self.bus.renew_if_due()
             got = self.inbox.pose.get(timeout=0.2)
             if got is not None:
                 where[got[1].robot] = got[1]
@@ -554,6 +555,7 @@ class AgentHost:
             inbox.bell = bell
         while self.running:
             bell.clear()
+            self.bus.renew_if_due()  # the link to the router came back a while ago
             got = self.inbox.pose.get(timeout=0)
             if self.auction.active or self.inbox.goals.has_delayed:
                 for _, msg in self.inbox.goals.drain():
@@ -708,6 +710,7 @@ class AgentHost:
             "robots": self.config.robots,
             "ticks": self.tally.ticks,
             "fallbacks": self.tally.fallbacks,
+            "subscriptions_renewed": self.bus.renewals,
             "poses_held": self.poses.trust.held,
             "dropped": drops,
             "neighbours_known": len(self.table),

@@ -340,6 +340,7 @@ class Coordinator:
         self.bus.declare_alive("coordinator", 0)
         next_publish = 0.0
         while self.running:
+            self.bus.renew_if_due()  # its link to the router came back a while ago
             if self.images and self._follow_show():
                 next_publish = time.monotonic() + period
             elif self.images:

@@ -51,6 +51,9 @@ PULL_EVERY = 0.002
 # its own thread and has no flush, and on a loaded machine a session closed at once can drop what it
 # still holds, such as a process's last report.
 CLOSE_LINGER = 0.2
+# leases a client waits, once its link to the router is back, before it declares its subscriptions
+# again (Bus.renew_if_due): by then the router has let go of the session the link carried before.
+RENEW_AFTER_LEASES = 2
 T = TypeVar("T")  # what an inbox delivers: a message, or one robot's record of a frame (codec.Pose, ...)
 
 
@@ -310,6 +313,30 @@ class Inbox(Generic[T]):
         return iter(self.drain())
 
 
+class Feed:
+    """One declaration of a bus (a subscriber, a liveliness subscriber, a queryable), which
+    Bus.renew_if_due can declare again. Its owner holds the feed, never zenoh's object."""
+
+    def __init__(self, declare: Callable[[], Any]) -> None:
+        self._declare = declare
+        self.declared = declare()
+
+    def try_recv(self) -> Any:
+        return self.declared.try_recv()
+
+    def renew(self) -> None:
+        """The new declaration first, so nothing is missed between; what both deliver meanwhile
+        comes twice, as a replay (refused as stale, or the same state again)."""
+        old, self.declared = self.declared, self._declare()
+        try:
+            old.undeclare()
+        except zenoh.ZError:
+            pass  # undeclared already
+
+    def undeclare(self) -> None:
+        self.declared.undeclare()
+
+
 class RawInbox:
     """Raw samples (key, bytes, wall time) for the recorder, which logs what crossed the bus."""
 
@@ -388,9 +415,15 @@ class Bus:
         self.sent_bytes: Counter[str] = Counter()
         self._tokens: list[Any] = []
         self.incarnation = os.urandom(4).hex()  # this process's life: a token back under another is a restart
-        self._subscriptions: list[Any] = []
+        self._subscriptions: list[Feed] = []
         self._pulled: list[Inbox[Any]] = []
         self.session = open_session(settings)
+        self.renewals = 0  # times the link to the router came back and every feed was declared again
+        self._link_lost = False
+        self._renew_at: float | None = None  # time.monotonic() at which to renew (renew_if_due)
+        if settings.mode == "client":
+            # held: the listener lives as long as this object
+            self._link = self.session.info.declare_transport_events_listener(self._on_link, history=False)
 
     # --- publishing -----------------------------------------------------------------------
     def publish(self, key: str, msg: Message) -> None:
@@ -473,18 +506,23 @@ class Bus:
         inbox.subscriber = self.subscribe_into(keyexpr, inbox)
         return inbox
 
-    def subscribe_into(self, keyexpr: str, inbox: Inbox[Any]) -> Any:
-        """Add another key expression feeding an existing inbox; returns the subscriber to undeclare."""
-        sub: Any
+    def subscribe_into(self, keyexpr: str, inbox: Inbox[Any]) -> Feed:
+        """Add another key expression feeding an existing inbox; returns the feed to unsubscribe."""
         if inbox.pulled:
-            sub = self.session.declare_subscriber(keyexpr, zenoh.handlers.FifoChannel(PULL_CAPACITY))
-            inbox.channels.append(sub)
+            feed = self._feed(
+                lambda: self.session.declare_subscriber(keyexpr, zenoh.handlers.FifoChannel(PULL_CAPACITY))
+            )
+            inbox.channels.append(feed)
         else:
-            sub = self.session.declare_subscriber(keyexpr, inbox._on_sample)
-        self._subscriptions.append(sub)
-        return sub
+            feed = self._feed(lambda: self.session.declare_subscriber(keyexpr, inbox._on_sample))
+        return feed
 
-    def unsubscribe(self, subscriber: Any) -> None:
+    def _feed(self, declare: Callable[[], Any]) -> Feed:
+        feed = Feed(declare)
+        self._subscriptions.append(feed)
+        return feed
+
+    def unsubscribe(self, subscriber: Feed) -> None:
         for inbox in self._pulled:
             if subscriber in inbox.channels:
                 inbox._pull()  # what it already holds was received: keep it
@@ -495,8 +533,7 @@ class Bus:
 
     def subscribe_raw(self, keyexpr: str) -> RawInbox:
         inbox = RawInbox()
-        inbox.subscriber = self.session.declare_subscriber(keyexpr, inbox._on_sample)
-        self._subscriptions.append(inbox.subscriber)
+        inbox.subscriber = self._feed(lambda: self.session.declare_subscriber(keyexpr, inbox._on_sample))
         return inbox
 
     # --- liveliness -----------------------------------------------------------------------
@@ -507,10 +544,10 @@ class Bus:
 
     def watch_alive(self, role: str | None = None) -> LivelinessWatch:
         watch = LivelinessWatch()
-        watch.subscriber = self.session.liveliness().declare_subscriber(
-            self.keys.alive_all(role), history=True, handler=watch._on_sample
+        keyexpr = self.keys.alive_all(role)
+        watch.subscriber = self._feed(
+            lambda: self.session.liveliness().declare_subscriber(keyexpr, history=True, handler=watch._on_sample)
         )
-        self._subscriptions.append(watch.subscriber)
         return watch
 
     # --- queries (late joiners fetch the current goal set) ------------------------------------
@@ -519,9 +556,7 @@ class Bus:
             for key, payload in answer():
                 query.reply(key, payload)
 
-        q = self.session.declare_queryable(keyexpr, handler)
-        self._subscriptions.append(q)
-        return q
+        return self._feed(lambda: self.session.declare_queryable(keyexpr, handler))
 
     def query(self, keyexpr: str, expected: type[MessageT], timeout: float = 2.0) -> list[tuple[str, MessageT]]:
         out = []
@@ -542,6 +577,30 @@ class Bus:
                 if ok is not None:
                     out.append((str(ok.key_expr), ok.payload.to_bytes()))
         return out
+
+    # --- the link to the router -----------------------------------------------------------------
+    def _on_link(self, event: Any) -> None:
+        """zenoh's thread: the client's link to its router went (DELETE) or came (PUT). Only notes it."""
+        if event.kind == zenoh.SampleKind.DELETE:
+            self._link_lost = True
+        elif self._link_lost:
+            self._link_lost = False
+            self._renew_at = time.monotonic() + RENEW_AFTER_LEASES * self.settings.lease_ms / 1000
+
+    def renew_if_due(self) -> bool:
+        """On the owner's thread, a while after the link to the router came back: declare every
+        feed again. On a starved machine (100 one-robot agents starting on 2 cores) links dropped
+        and came back, and in a few agents every subscription made before delivered nothing more
+        while those made after did: such an agent never heard a pose or a tick again."""
+        if self._renew_at is None or time.monotonic() < self._renew_at:
+            return False
+        self._renew_at = None
+        for inbox in self._pulled:
+            inbox._pull()  # what the old channels hold was received: keep it
+        for feed in self._subscriptions:
+            feed.renew()
+        self.renewals += 1
+        return True
 
     def linger(self) -> None:
         """Before a process closes its session: give zenoh's sending thread CLOSE_LINGER since the

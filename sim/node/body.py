@@ -213,6 +213,7 @@ class BodyNode:
     def step_tick(self) -> None:
         """One control period: poses and the clock out, commands in as the clock lets them arrive,
         the watchdog, the bodies moved."""
+        self.bus.renew_if_due()  # its link to the router came back a while ago
         self.backend.sense(self.tick * self.dt)
         self.update_liveness()
         self._publish_tick()
@@ -232,6 +233,7 @@ class BodyNode:
         is not shown in silence, as if it were the scene (``run`` names them)."""
         start, last_sent = time.monotonic(), -math.inf
         while self.running and time.monotonic() - start < self.startup_timeout:
+            self.bus.renew_if_due()
             self.update_liveness()
             self.check_control()
             if self.live[self.agent_robot].all():

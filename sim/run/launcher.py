@@ -706,6 +706,7 @@ class Launcher:
             withheld_ticks=int(stats.get("withheld_ticks", 0)),
             orca_fallbacks=int(sum(s.get("fallbacks", 0) for s in agent_stats)),
             poses_held=int(sum(s.get("poses_held", 0) for s in agent_stats)),
+            subscriptions_renewed=int(sum(s.get("subscriptions_renewed", 0) for s in agent_stats)),
             deadlock_penalties=int(sum((s.get("auction") or {}).get("deadlock_penalties", 0) for s in agent_stats)),
             dropped_messages=dropped,
             crashes=self.incidents.crashes,

@@ -18,12 +18,15 @@ import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from types import SimpleNamespace
 
 import numpy as np
+import zenoh
 
 from agent.clocks import HELLO_EVERY, HELLO_SWARM
 from agent.core.params import RobotParams
 from agent.runtime import AgentHost, HostConfig
+from tests.conftest import wait_for
 from transport.bus import Bus, Inbox
 from transport.codec import BEFORE_START, Command, Goals, Pose, Poses, Tick, Timing
 from transport.session import client_of, loopback_router, open_session
@@ -167,3 +170,29 @@ def test_a_host_of_many_robots_holds_as_many_subscriptions_as_a_host_of_two() ->
         before = len(agent_bus._subscriptions)
         AgentHost(agent_bus, HostConfig(robots=list(range(200, 210)), params=PARAMS, lockstep=True))
         assert len(agent_bus._subscriptions) - before >= 10  # robots alone: one pose key each
+
+
+def test_a_host_whose_link_came_back_declares_its_subscriptions_again_and_steps_on() -> None:
+    """The router can lose a client's subscriptions when the client's link drops and returns on a
+    starved machine (transport.bus.Bus.renew_if_due): the host's loop declares them again. Here the
+    link's events are told to the bus, and its subscriptions are made deaf under it."""
+    with world_and_agent_buses() as (world, agent_bus):
+        commands = world.commands_inbox()
+        host = AgentHost(agent_bus, HostConfig(robots=[0], params=PARAMS, lockstep=True))
+        thread = run_host(world, host, np.zeros((1, 3)))
+
+        def tick(k: int) -> None:
+            world.publish(world.keys.clock, Tick(k, k * DT, DT, 0))
+            world.publish(world.keys.pose(0), Poses.one(Pose(0, k, k * DT, 0.0, 0.0, 0.0)))
+
+        tick(0)
+        await_commands(commands, 0, {0})
+        for i, feed in enumerate(agent_bus._subscriptions):  # what the router dropped: declared, and deaf
+            feed.declared.undeclare()
+            feed.declared = agent_bus.session.declare_subscriber(f"nowhere/{i}", zenoh.handlers.FifoChannel(1))
+        agent_bus._on_link(SimpleNamespace(kind=zenoh.SampleKind.DELETE))
+        agent_bus._on_link(SimpleNamespace(kind=zenoh.SampleKind.PUT))
+        assert wait_for(lambda: agent_bus.renewals == 1, timeout=10.0)
+        tick(1)
+        await_commands(commands, 1, {0})
+        stop_host(host, thread)

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import signal
 import struct
+import subprocess
 import threading
 import time
 import zlib
@@ -16,7 +18,7 @@ from hypothesis import strategies as st
 
 import transport.bus as bus_module
 from agent.core.bidder import RECORD as bidder_record
-from tests.conftest import wait_for
+from tests.conftest import REPO, pixelswarm_cmd, wait_for
 from transport.bus import CLOSE_LINGER, Bus, KeepRobots
 from transport.codec import (
     BEFORE_START,
@@ -46,7 +48,7 @@ from transport.codec import (
 )
 from transport.faults import FaultSpec, parse_faults
 from transport.keys import Keys, cell_of, robots_ident, robots_of_ident
-from transport.session import TransportError, client_of, loopback_router, open_session
+from transport.session import TransportError, ZenohSettings, client_of, free_port, loopback_router, open_session
 
 SAMPLES = [
     Poses.one(Pose(3, 7, 0.7, 1.5, -2.0, 0.25)),  # a robot alone: a frame of one
@@ -687,3 +689,35 @@ def test_the_coordinator_hears_where_a_dead_robots_body_stays_in_the_trackers_fr
 
         assert wait_for(heard, timeout=5.0)
         assert list(coordinator.bodies) == [3] and coordinator.bodies[3].tolist() == [9.0, 10.0]
+
+
+@pytest.mark.slow
+def test_a_client_whose_link_to_its_router_came_back_declares_its_subscriptions_again(spawned):
+    """A starved router let go of a client's session after the client had reconnected, and with it
+    the subscriptions the client made before: 100 one-robot agents starting on 2 cores, a few never
+    heard their poses again. A client declares every subscription again a while after its link
+    comes back. Here the router is frozen past its lease (the link drops and returns) and the loss
+    is made by undeclaring the subscriber under the bus."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = subprocess.Popen(pixelswarm_cmd("router", "-l", endpoint), cwd=REPO, stdout=subprocess.PIPE, text=True)
+    spawned.append(router)
+    assert router.stdout is not None
+    with router.stdout:
+        assert "listening" in router.stdout.readline()
+    client = ZenohSettings(mode="client", connect=[endpoint])
+    with Bus(client, "t") as a, Bus(client, "t") as b:
+        inbox = b.subscribe(b.keys.pose(1), Pose)
+
+        def heard(tick: int) -> bool:
+            a.publish(a.keys.pose(1), Poses.one(Pose(1, tick, 0.1 * tick, 0.0, 0.0, 0.0)))
+            b.renew_if_due()
+            return any(m.tick == tick for _, m in _collect(inbox, 1, timeout=0.2))
+
+        assert wait_for(lambda: heard(1), timeout=5.0)
+        assert not b.renew_if_due() and b.renewals == 0  # the link never went: nothing to renew
+        inbox.subscriber.declared.undeclare()  # what the router dropped
+        router.send_signal(signal.SIGSTOP)
+        time.sleep(1.5 * b.settings.lease_ms / 1000)
+        router.send_signal(signal.SIGCONT)
+        assert wait_for(lambda: heard(2), timeout=20.0), "the subscription was not declared again"
+        assert b.renewals == 1
