@@ -9,7 +9,6 @@ starts, whether a run can use a folder."""
 from __future__ import annotations
 
 import datetime
-import ipaddress
 import json
 import os
 import secrets
@@ -18,11 +17,6 @@ import tempfile
 from collections.abc import Iterable
 from pathlib import Path
 
-from cryptography import x509
-from cryptography.hazmat.primitives import hashes, serialization
-from cryptography.hazmat.primitives.asymmetric import ec
-from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
-
 from .keys import Keys
 from .session import ZenohSettings
 
@@ -30,7 +24,6 @@ SERVICES = ("coordinator", "tracker", "world", "recorder", "observer")
 OBSERVER = "observer"  # a viewer watching a run (`pixelswarm view --connect`): reads the display, never publishes
 ROUTER = "router"
 AUTH_MODES = ("tls", "usrpwd")
-VALID_DAYS = 365  # certificates are renewed by making a new folder, once a deployment season
 LOOPBACK_NAMES = ("127.0.0.1", "localhost")  # the router certificate always names these
 USRPWD = "usrpwd"
 MANIFEST = "roles.json"
@@ -47,92 +40,6 @@ def robot_role(robot: int) -> str:
 def roles(robots: int) -> list[str]:
     """Every role of a deployment with robots 0..robots-1, the router last."""
     return [*SERVICES, *(robot_role(i) for i in range(robots)), ROUTER]
-
-
-# --- certificates -----------------------------------------------------------------------------
-
-
-def _name(common_name: str) -> x509.Name:
-    return x509.Name(
-        [
-            x509.NameAttribute(NameOID.ORGANIZATION_NAME, "pixelswarm"),
-            x509.NameAttribute(NameOID.COMMON_NAME, common_name),
-        ]
-    )
-
-
-def _san(hosts: Iterable[str]) -> x509.SubjectAlternativeName:
-    names: list[x509.GeneralName] = []
-    for host in dict.fromkeys(hosts):
-        try:
-            names.append(x509.IPAddress(ipaddress.ip_address(host)))
-        except ValueError:
-            names.append(x509.DNSName(host))
-    return x509.SubjectAlternativeName(names)
-
-
-def _pem_key(key: ec.EllipticCurvePrivateKey) -> bytes:
-    return key.private_bytes(
-        serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
-    )
-
-
-def _sign(
-    subject: str,
-    key: ec.EllipticCurvePrivateKey,
-    issuer: x509.Name,
-    issuer_key: ec.EllipticCurvePrivateKey,
-    now: datetime.datetime,
-) -> x509.CertificateBuilder:
-    # Back-dated an hour so that a robot whose clock lags a little still accepts the certificate.
-    return (
-        x509.CertificateBuilder()
-        .subject_name(_name(subject))
-        .issuer_name(issuer)
-        .public_key(key.public_key())
-        .serial_number(x509.random_serial_number())
-        .not_valid_before(now - datetime.timedelta(hours=1))
-        .not_valid_after(now + datetime.timedelta(days=VALID_DAYS))
-        .add_extension(x509.SubjectKeyIdentifier.from_public_key(key.public_key()), critical=False)
-        .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(issuer_key.public_key()), critical=False)
-    )
-
-
-def _certificate_authority(now: datetime.datetime) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
-    key = ec.generate_private_key(ec.SECP256R1())
-    cert = (
-        _sign("pixelswarm CA", key, _name("pixelswarm CA"), key, now)
-        .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
-        .add_extension(
-            x509.KeyUsage(False, False, False, False, False, True, True, False, False),  # cert and CRL signing
-            critical=True,
-        )
-        .sign(key, hashes.SHA256())
-    )
-    return key, cert
-
-
-def _role_certificate(
-    role: str, hosts: Iterable[str], ca_key: ec.EllipticCurvePrivateKey, ca: x509.Certificate, now: datetime.datetime
-) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
-    """A certificate naming the role. The router's also names its hosts (clients check the name they
-    dialled) and serves TLS; the others only prove who is connecting."""
-    key = ec.generate_private_key(ec.SECP256R1())
-    usage = [ExtendedKeyUsageOID.CLIENT_AUTH]
-    if role == ROUTER:
-        usage.append(ExtendedKeyUsageOID.SERVER_AUTH)
-    cert = (
-        _sign(role, key, ca.subject, ca_key, now)
-        .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-        .add_extension(
-            x509.KeyUsage(True, False, False, False, False, False, False, False, False),  # digital signature
-            critical=True,
-        )
-        .add_extension(x509.ExtendedKeyUsage(usage), critical=False)
-        .add_extension(_san([*hosts, role] if role == ROUTER else [role]), critical=False)
-        .sign(ca_key, hashes.SHA256())
-    )
-    return key, cert
 
 
 # --- access control ---------------------------------------------------------------------------
@@ -454,16 +361,23 @@ def make_certificates(
     connect_list = [connect] if connect else []
     staging = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial", dir=parent))
     try:
+        from . import certificates  # here: of the commands, only `pixelswarm certs` loads cryptography
+
         now = datetime.datetime.now(datetime.UTC)
-        ca_key, ca = _certificate_authority(now)
-        _write(staging / "ca.pem", ca.public_bytes(serialization.Encoding.PEM))
-        _write(staging / "ca-key.pem", _pem_key(ca_key), secret=True)
+        ca_key, ca = certificates.authority(now)
+        _write(staging / "ca.pem", certificates.pem(ca))
+        _write(staging / "ca-key.pem", certificates.pem_key(ca_key), secret=True)
         (staging / USRPWD).mkdir()
         passwords = {}
         for role in roles(robots):
-            key, cert = _role_certificate(role, hosts, ca_key, ca, now)
-            _write(staging / f"{role}.pem", cert.public_bytes(serialization.Encoding.PEM))
-            _write(staging / f"{role}-key.pem", _pem_key(key), secret=True)
+            # The router's certificate also names its hosts (clients check the name they dialled)
+            # and serves TLS; the others only prove who is connecting.
+            router = role == ROUTER
+            key, cert = certificates.role_certificate(
+                role, [*hosts, role] if router else [role], router, ca_key, ca, now
+            )
+            _write(staging / f"{role}.pem", certificates.pem(cert))
+            _write(staging / f"{role}-key.pem", certificates.pem_key(key), secret=True)
             if role == ROUTER:
                 continue
             passwords[role] = secrets.token_urlsafe(24)

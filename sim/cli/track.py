@@ -19,13 +19,12 @@ import sys
 import tempfile
 import tomllib
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
-import cv2
-
-from hardware.camera import MIN_REFERENCES, ArucoTracker, CameraConfig, CameraError, open_capture
-from hardware.config import HardwareConfigError
 from sim.args import refuse
+
+if TYPE_CHECKING:
+    from hardware.camera import CameraConfig
 
 PROG = "pixelswarm track"
 PROGRESS_EVERY = 50  # frames between progress lines
@@ -57,6 +56,10 @@ def add_track_parser(subparsers: Any) -> None:
 
 def load_camera_config(path: Path) -> CameraConfig:
     """The `[poses]` table of a hardware file, validated."""
+    # here, as in track_video: OpenCV loads only when this command runs, not with every `pixelswarm`
+    from hardware.camera import CameraConfig
+    from hardware.config import HardwareConfigError
+
     try:
         with open(path, "rb") as f:
             data = tomllib.load(f)
@@ -74,6 +77,10 @@ def load_camera_config(path: Path) -> CameraConfig:
 
 def track_video(video: Path, config: CameraConfig, out: TextIO, progress: TextIO | None) -> tuple[int, int]:
     """Track every frame of `video`, writing CSV rows to `out`; returns (frames, rows)."""
+    import cv2
+
+    from hardware.camera import MIN_REFERENCES, ArucoTracker, CameraError, open_capture
+
     if not video.is_file():
         raise TrackError(f"no such video file {video}")
     try:
