@@ -67,6 +67,7 @@ class Watcher:
     """The subscriptions of one viewer, and the robots' goals and sizes as their states last said."""
 
     def __init__(self, bus: Bus) -> None:
+        self.bus = bus
         keys = bus.keys
         self.truth: Inbox[Truth] = bus.subscribe(keys.truth, Truth)
         self.states: RawInbox = bus.subscribe_raw(keys.all_of("state"))
@@ -85,6 +86,7 @@ class Watcher:
         self.state_tick = np.full(robots, -1, np.int64)
 
     def look_at_worlds(self) -> None:
+        self.bus.renew_if_due()  # its link to the router came back a while ago
         for _, _, alive, _, _ in self.worlds.drain():
             self.world_seen |= alive
             self.world_alive = alive

@@ -178,7 +178,7 @@ def _run(args: argparse.Namespace) -> int:
             for config, faults in hosts:
                 supervisor.start(config, faults)
             say(f"{len(hosts)} agent processes started for robots {format_ids(sorted(configs))} of the run")
-            code = supervisor.watch(runs, worlds)
+            code = supervisor.watch(bus, runs, worlds)
         say("the run ended; agents stopped" if code == 0 else f"agents stopped (exit code {code})")
         return code
 
@@ -233,12 +233,13 @@ class Supervisor:
     def _on_signal(self, signum: int, frame: object) -> None:
         self.stop_signal = signum
 
-    def watch(self, runs: LivelinessWatch, worlds: LivelinessWatch) -> int:
+    def watch(self, bus: Bus, runs: LivelinessWatch, worlds: LivelinessWatch) -> int:
         """Until every agent has exited: stop them all once the run's world has ended (or the run is
         gone, or a signal came). 0 when the run ended them, 128 + signal, or 1 if one failed."""
         world_seen, over = False, False
         reported: set[int] = set()
         while any(p.poll() is None for p, _ in self.procs):
+            bus.renew_if_due()  # its link to the router came back a while ago
             over = over or any(not alive for _, _, alive, _, _ in runs.drain())
             for _, _, alive, _, _ in worlds.drain():
                 world_seen |= alive
