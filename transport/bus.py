@@ -52,7 +52,7 @@ PULL_EVERY = 0.002
 # still holds, such as a process's last report.
 CLOSE_LINGER = 0.2
 # leases a client waits, once its link to the router is back, before it declares its subscriptions
-# again (Bus.renew_if_due): by then the router has let go of the session the link carried before.
+# again (Bus.renew_if_due): time for the router to settle what it held of the link before.
 RENEW_AFTER_LEASES = 2
 T = TypeVar("T")  # what an inbox delivers: a message, or one robot's record of a frame (codec.Pose, ...)
 
