@@ -370,6 +370,7 @@ class AgentHost:
         rounds = LockStepRounds(self._hold, self.departed.not_bidding, config.reach) if config.lockstep else None
         self.auction = AuctionLink(bus, config.robots, p, self._on_agreed, self._positions, rounds)
         self.running = True
+        self._deaf_since: float | None = None  # when the subscriptions were last renewed and no pose came since
         self._bid_from: dict[int, np.ndarray] | None = None  # _positions(), until positions or goals change
         segments = static_segments(config.arena, config.obstacles)
         self.seams = loop.Seams(self, self.auction, segments, config.seed, config.reach)
@@ -389,9 +390,10 @@ class AgentHost:
         ticking: list[Pose] = []  # poses of ticks under way (a robot whose body is tracked already)
         end = time.monotonic() + timeout
         while len(where) < len(self.robots) and self.running and time.monotonic() < end:
-            self.bus.renew_if_due()
+            self._keep_subscriptions()
             got = self.inbox.pose.get(timeout=0.2)
             if got is not None:
+                self._deaf_since = None
                 where[got[1].robot] = got[1]
                 if got[1].tick != BEFORE_START:
                     ticking.append(got[1])
@@ -555,7 +557,7 @@ class AgentHost:
             inbox.bell = bell
         while self.running:
             bell.clear()
-            self.bus.renew_if_due()  # the link to the router came back a while ago
+            self._keep_subscriptions()
             got = self.inbox.pose.get(timeout=0)
             if self.auction.active or self.inbox.goals.has_delayed:
                 for _, msg in self.inbox.goals.drain():
@@ -569,6 +571,7 @@ class AgentHost:
                 bell.wait(self._idle_wait())
                 continue
             tick_start = time.monotonic()
+            self._deaf_since = None
             self._take_pose(got[1])
             # Behind (poses of later ticks queued): act on the newest only. Working through a backlog
             # kept an overloaded agent a fixed number of ticks behind, every command late.
@@ -587,6 +590,17 @@ class AgentHost:
                 self._take_pose(got[1])
             self.step()
             self._auction_rounds(bell, tick_start)
+
+    def _keep_subscriptions(self) -> None:
+        """A while after the link to the router came back, declare the subscriptions again
+        (Bus.renew_if_due); then again at that interval until a pose comes. On a starved machine
+        one renewal left a few agents as deaf as before."""
+        now = time.monotonic()
+        if self.bus.renew_if_due():
+            self._deaf_since = now
+        elif self._deaf_since is not None and now - self._deaf_since >= self.bus.renew_delay:
+            self.bus.renew()
+            self._deaf_since = now
 
     def _idle_wait(self) -> float:
         """How long the loop may sleep with no pose: until an auction round or a hello is due."""

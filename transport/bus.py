@@ -585,7 +585,12 @@ class Bus:
             self._link_lost = True
         elif self._link_lost:
             self._link_lost = False
-            self._renew_at = time.monotonic() + RENEW_AFTER_LEASES * self.settings.lease_ms / 1000
+            self._renew_at = time.monotonic() + self.renew_delay
+
+    @property
+    def renew_delay(self) -> float:
+        """Seconds from the link's return to the renewal."""
+        return RENEW_AFTER_LEASES * self.settings.lease_ms / 1000
 
     def renew_if_due(self) -> bool:
         """On the owner's thread, a while after the link to the router came back: declare every
@@ -594,13 +599,17 @@ class Bus:
         while those made after did: such an agent never heard a pose or a tick again."""
         if self._renew_at is None or time.monotonic() < self._renew_at:
             return False
+        self.renew()
+        return True
+
+    def renew(self) -> None:
+        """Declare every feed again, now (renew_if_due)."""
         self._renew_at = None
         for inbox in self._pulled:
             inbox._pull()  # what the old channels hold was received: keep it
         for feed in self._subscriptions:
             feed.renew()
         self.renewals += 1
-        return True
 
     def linger(self) -> None:
         """Before a process closes its session: give zenoh's sending thread CLOSE_LINGER since the
