@@ -207,6 +207,16 @@ def agent_processes(pid: int) -> list[psutil.Process]:
     return out
 
 
+def deafen(bus) -> None:
+    """Make every subscription of a transport.bus.Bus deaf, as a link drop left some on a starved
+    machine: still declared, hearing nothing (Bus.renew_if_due declares them again)."""
+    import zenoh  # here: most tests that import this module never open a session
+
+    for i, feed in enumerate(bus._subscriptions):
+        feed.declared.undeclare()
+        feed.declared = bus.session.declare_subscriber(f"nowhere/{i}", zenoh.handlers.FifoChannel(1))
+
+
 def wait_for(predicate, timeout: float, interval: float = 0.1):
     end = time.monotonic() + timeout
     while time.monotonic() < end:

@@ -328,10 +328,7 @@ class Feed:
         """The new declaration first, so nothing is missed between; what both deliver meanwhile
         comes twice, as a replay (refused as stale, or the same state again)."""
         old, self.declared = self.declared, self._declare()
-        try:
-            old.undeclare()
-        except zenoh.ZError:
-            pass  # undeclared already
+        old.undeclare()
 
     def undeclare(self) -> None:
         self.declared.undeclare()

@@ -378,7 +378,7 @@ def make_certificates(
             )
             _write(staging / f"{role}.pem", certificates.pem(cert))
             _write(staging / f"{role}-key.pem", certificates.pem_key(key), secret=True)
-            if role == ROUTER:
+            if router:
                 continue
             passwords[role] = secrets.token_urlsafe(24)
             _write(staging / f"{role}.json5", _json5(_client_dict(final, role, connect_list, "tls"), f"client {role}"))

@@ -27,7 +27,7 @@ import zenoh
 from agent.clocks import HELLO_EVERY, HELLO_SWARM
 from agent.core.params import RobotParams
 from agent.runtime import AgentHost, HostConfig
-from tests.conftest import wait_for
+from tests.conftest import deafen, wait_for
 from transport.bus import Bus, Inbox
 from transport.codec import BEFORE_START, Command, Goals, Pose, Poses, Tick, Timing
 from transport.session import client_of, loopback_router, open_session
@@ -191,16 +191,11 @@ def test_a_host_whose_link_came_back_declares_its_subscriptions_again_until_a_po
         tick(0)
         await_commands(commands, 0, {0})
 
-        def deafen() -> None:  # what the drop did: declared, and deaf
-            for i, feed in enumerate(agent_bus._subscriptions):
-                feed.declared.undeclare()
-                feed.declared = agent_bus.session.declare_subscriber(f"nowhere/{i}", zenoh.handlers.FifoChannel(1))
-
-        deafen()
+        deafen(agent_bus)
         agent_bus._on_link(SimpleNamespace(kind=zenoh.SampleKind.DELETE))
         agent_bus._on_link(SimpleNamespace(kind=zenoh.SampleKind.PUT))
         assert wait_for(lambda: agent_bus.renewals == 1, timeout=10.0)
-        deafen()
+        deafen(agent_bus)
         tick(1)  # unheard
         assert wait_for(lambda: agent_bus.renewals == 2, timeout=10.0)
         tick(2)

@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 
 import transport.bus as bus_module
 from agent.core.bidder import RECORD as bidder_record
-from tests.conftest import REPO, pixelswarm_cmd, wait_for
+from tests.conftest import REPO, deafen, pixelswarm_cmd, wait_for
 from transport.bus import CLOSE_LINGER, Bus, KeepRobots
 from transport.codec import (
     BEFORE_START,
@@ -693,11 +693,10 @@ def test_the_coordinator_hears_where_a_dead_robots_body_stays_in_the_trackers_fr
 
 @pytest.mark.slow
 def test_a_client_whose_link_to_its_router_came_back_declares_its_subscriptions_again(spawned):
-    """A starved router let go of a client's session after the client had reconnected, and with it
-    the subscriptions the client made before: 100 one-robot agents starting on 2 cores, a few never
-    heard their poses again. A client declares every subscription again a while after its link
-    comes back. Here the router is frozen past its lease (the link drops and returns) and the loss
-    is made by undeclaring the subscriber under the bus."""
+    """On a starved machine (100 one-robot agents starting on 2 cores) links dropped and came back,
+    and a few agents' subscriptions made before went deaf: they never heard a pose again. A client
+    declares every subscription again a while after its link comes back. Here the router is frozen
+    past its lease (the link drops and returns) and the subscriptions are made deaf under the bus."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = subprocess.Popen(pixelswarm_cmd("router", "-l", endpoint), cwd=REPO, stdout=subprocess.PIPE, text=True)
     spawned.append(router)
@@ -715,7 +714,7 @@ def test_a_client_whose_link_to_its_router_came_back_declares_its_subscriptions_
 
         assert wait_for(lambda: heard(1), timeout=5.0)
         assert not b.renew_if_due() and b.renewals == 0  # the link never went: nothing to renew
-        inbox.subscriber.declared.undeclare()  # what the router dropped
+        deafen(b)
         router.send_signal(signal.SIGSTOP)
         time.sleep(1.5 * b.settings.lease_ms / 1000)
         router.send_signal(signal.SIGCONT)
