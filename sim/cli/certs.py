@@ -13,17 +13,19 @@ from typing import Any
 from sim.args import positive_int, refuse
 from transport.security import SecurityError, make_certificates
 
+# `pixelswarm --help` and `pixelswarm certs --help`
+HELP = "make certificates, client configurations and access rules for a secured bus"
+ABOUT = (
+    "Make a certificate authority, a certificate and a Zenoh configuration for each role "
+    "(coordinator, tracker, world, recorder, observer, router, robot-<id>), and the router's access rules."
+)
+
 PROG = "pixelswarm certs"
 
 
 def add_certs_parser(subparsers: Any) -> None:
     """Add the `certs` subcommand to an argparse subparsers object (sets func=run_certs)."""
-    p = subparsers.add_parser(
-        "certs",
-        help="make certificates, client configurations and access rules for a secured bus",
-        description="Make a certificate authority, a certificate and a Zenoh configuration for each role "
-        "(coordinator, tracker, world, recorder, observer, router, robot-<id>), and the router's access rules.",
-    )
+    p = subparsers.add_parser("certs", help=HELP, description=ABOUT)
     p.add_argument("dir", help="folder to create (must not exist or be empty)")
     p.add_argument("-n", "--robots", type=positive_int, required=True, help="number of robots (ids 0..N-1)")
     p.add_argument(

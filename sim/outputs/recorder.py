@@ -315,7 +315,7 @@ class Recorder:
     """The run's record from the bus, in parts with one job each: the trajectory (what each tick
     records), what the robots said (:class:`RobotsSaid`), the goal sets heard, what the world's truth
     told (:class:`WorldHeard`), the bids' positions, the bus tally, the run's events, convergence, and
-    the logs written as it goes (:class:`DisplayLog`). The launcher reads them by the names below."""
+    the logs written as it goes (:class:`DisplayLog`). The launcher reads the parts."""
 
     def __init__(
         self, bus: Bus, robots: int, tolerance: float, log_path: str | None = None, ticks_path: str | None = None
@@ -337,55 +337,6 @@ class Recorder:
         self.progress = Convergence(tolerance, np.zeros(robots, bool))
         self.out = DisplayLog(robots, log_path, ticks_path)
         self.view: Any = None  # sim.outputs.view.SwarmView (pixelswarm run --view): the truth of every tick, one batch
-
-    # --- the parts, by the names the launcher and the tests read ---------------------------------
-    @property
-    def goal(self) -> np.ndarray:
-        return self.said.goal
-
-    @property
-    def radius(self) -> np.ndarray:
-        return self.said.radius
-
-    @property
-    def newest_goals(self) -> Goals | None:
-        return self.sets.newest
-
-    @property
-    def counts(self) -> dict[str, int]:
-        return self.tally.counts
-
-    @property
-    def bytes(self) -> dict[str, int]:
-        return self.tally.bytes
-
-    @property
-    def commands(self) -> int:
-        return self.tally.commands
-
-    @property
-    def drops(self) -> DropCounter:
-        return self.tally.drops
-
-    @property
-    def contacts(self) -> list[Contact]:
-        return self.happened.contacts
-
-    @property
-    def events(self) -> list[dict[str, Any]]:
-        return self.happened.events
-
-    @property
-    def liveliness(self) -> list[dict[str, Any]]:
-        return self.happened.liveliness
-
-    @property
-    def agent_alive(self) -> np.ndarray:
-        return self.progress.agent_alive
-
-    @property
-    def ended_at(self) -> int | None:
-        return self.progress.ended_at
 
     @property
     def last_min_clearance(self) -> float:

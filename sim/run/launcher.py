@@ -268,7 +268,7 @@ class Launcher:
         endpoint = ", ".join((self.opt.router.listen if self.opt.router else []) or self.client.connect)
         while True:
             rec.poll()
-            done = set(self.fetched) if stage == "fetched" else {i for i in ids if rec.agent_alive[i]}
+            done = set(self.fetched) if stage == "fetched" else {i for i in ids if rec.progress.agent_alive[i]}
             missing = [i for i in ids if i not in done]
             if not missing:
                 return
@@ -277,7 +277,7 @@ class Launcher:
             if self.world.exit is None and any(c.name == "world" and c.proc.poll() is not None for c in self.children):
                 raise RuntimeError("the world process exited while waiting for agents: see logs/world.log")
             if time.monotonic() - started > self.opt.agents_timeout:
-                absent = [i for i in ids if not rec.agent_alive[i]]
+                absent = [i for i in ids if not rec.progress.agent_alive[i]]
                 raise AgentsMissing(
                     f"no agent came for robots {format_ids(absent)} within {self.opt.agents_timeout:g} s "
                     f"(start them with `pixelswarm agents --connect {endpoint}`)"
@@ -348,11 +348,13 @@ class Launcher:
         if not rec.traj.t:
             return
         pose = rec.traj.pose[-1]
-        err = np.hypot(*(pose[:, :2] - rec.goal).T)
+        err = np.hypot(*(pose[:, :2] - rec.said.goal).T)
         at_goal = int(np.sum(err <= self.params.goal_tolerance))
         with_goal = int(np.sum(np.isfinite(err)))
         self._say(
-            progress_line(self.scene.name, rec.sim_time, at_goal, with_goal, rec.last_min_clearance, len(rec.contacts))
+            progress_line(
+                self.scene.name, rec.sim_time, at_goal, with_goal, rec.last_min_clearance, len(rec.happened.contacts)
+            )
         )
 
     # --- the run ------------------------------------------------------------------------------
@@ -471,10 +473,10 @@ class Launcher:
         seen = 0  # liveliness events taken in
         while True:
             rec.poll()
-            for event in rec.liveliness[seen:]:
+            for event in rec.happened.liveliness[seen:]:
                 if event["role"] == "agent" and event["alive"] and str(event["id"]).isdigit():
                     alive.add(int(event["id"]))
-            seen = len(rec.liveliness)
+            seen = len(rec.happened.liveliness)
             missing = [i for i in ids if i not in alive]
             if not missing or self.stop_signal is not None:
                 return
@@ -504,11 +506,11 @@ class Launcher:
     def _ticks_in_flight(rec: Recorder, last_t: float) -> bool:
         """The world's last ticks are still on their way to the recorder (a run that ended on
         convergence records nothing after its end, so there is nothing to wait for)."""
-        return rec.ended_at is None and rec.sim_time < last_t - 1e-6
+        return rec.progress.ended_at is None and rec.sim_time < last_t - 1e-6
 
     @staticmethod
     def _newest_goals(bus: Bus, rec: Recorder) -> list[tuple[str, bytes]]:
-        newest = rec.newest_goals
+        newest = rec.sets.newest
         return [] if newest is None else [(bus.keys.run_goals, newest.encode())]
 
     def _stats_missing(self, rec: Recorder) -> bool:
@@ -516,12 +518,12 @@ class Launcher:
         agent that stopped cleanly; remote agents report once their `pixelswarm agents` has seen the
         world end and stopped them."""
         if self.opt.remote_agents:
-            expected = {int(e["id"]) for e in rec.liveliness if e["role"] == "agent" and e["alive"]}
+            expected = {int(e["id"]) for e in rec.happened.liveliness if e["role"] == "agent" and e["alive"]}
         else:
             expected = {
                 r for c in self.children if c.name.startswith("agent") and c.proc.returncode == 0 for r in c.robots
             }
-        reported = {r for e in rec.events if e.get("kind") == "stats" for r in e.get("robots", [])}
+        reported = {r for e in rec.happened.events if e.get("kind") == "stats" for r in e.get("robots", [])}
         return not expected <= reported
 
     def _start_hardware(self, rec: Recorder) -> None:
@@ -568,7 +570,7 @@ class Launcher:
         seen: set[str] = set()
         while len(seen) < count:
             rec.poll()
-            seen |= {e["id"] for e in rec.liveliness if e["role"] == role and e["alive"]}
+            seen |= {e["id"] for e in rec.happened.liveliness if e["role"] == role and e["alive"]}
             if child.proc.poll() is not None:
                 raise RuntimeError(f"{child.name} exited with code {child.proc.returncode}: see {child.log}")
             if gave_up is not None and time.monotonic() - checked >= 0.2:
@@ -605,7 +607,7 @@ class Launcher:
             if self.stop_signal is not None and not end_sent:
                 end_sent = "interrupted"
                 self.interrupted = True
-            if not end_sent and rec.ended_at is not None:
+            if not end_sent and rec.progress.ended_at is not None:
                 end_sent = "converged"
             if end_sent and time.monotonic() - end_at >= 0.5:
                 # Again until the world is done: an event published before the world subscribed
@@ -649,7 +651,7 @@ class Launcher:
         recorder still has not seen it (bounded wait), from the world's log."""
 
         def on_bus() -> dict | None:
-            return next((e for e in rec.events if e.get("kind") == "world-done"), None)
+            return next((e for e in rec.happened.events if e.get("kind") == "world-done"), None)
 
         if on_bus() is not None or self.world.exit != 0:
             return on_bus()
@@ -672,8 +674,8 @@ class Launcher:
         started = self.startup_failure is None
         arrays = rec.arrays()
         stats = self.world.stats
-        agent_stats = [e for e in rec.events if e.get("kind") == "stats" and e.get("role") == "agent"]
-        dropped: dict[str, int] = dict(rec.drops)
+        agent_stats = [e for e in rec.happened.events if e.get("kind") == "stats" and e.get("role") == "agent"]
+        dropped: dict[str, int] = dict(rec.tally.drops)
         for s in agent_stats + [stats]:
             for reason, k in (s.get("dropped") or {}).items():
                 dropped[reason] = dropped.get(reason, 0) + int(k)
@@ -681,11 +683,13 @@ class Launcher:
         stepping_wall = walls[-1] - walls[0] if len(walls) > 1 else 0.0  # start-up excluded
         lost = [
             e
-            for e in rec.liveliness
+            for e in rec.happened.liveliness
             if e["role"] == "agent" and not e["alive"] and e["wall_time"] < getattr(self, "shutdown_wall", float("inf"))
         ]
         self._say(f"[{self.scene.name}] run ended ({end_reason}); writing {self.run_dir.path.name}", force=True)
-        traffic = Traffic(rec.counts, rec.bytes, int(stats.get("missed_ticks", 0)), len(self.incidents.crashes))
+        traffic = Traffic(
+            rec.tally.counts, rec.tally.bytes, int(stats.get("missed_ticks", 0)), len(self.incidents.crashes)
+        )
         extra = dict(
             agents_failed_by_scene=self.incidents.failed,
             end_reason=end_reason,
@@ -699,7 +703,7 @@ class Launcher:
             else sum(c.name.startswith("agent") for c in self.children),
             min_clearance_substep_m=stats.get("min_clearance"),
             commands_applied=int(sum(stats.get("commands_applied", []))),
-            commands_sent=rec.commands,
+            commands_sent=rec.tally.commands,
             late_commands=int(stats.get("late_commands", 0)),
             expired_commands=int(stats.get("expired_commands", 0)),
             stopped_ticks=int(stats.get("stopped_ticks", 0)),

@@ -34,6 +34,13 @@ from transport.bus import Bus, LivelinessWatch
 from transport.keys import Keys
 from transport.session import TransportError, ZenohSettings
 
+# `pixelswarm --help` and `pixelswarm agents --help`
+HELP = "start agent processes that join a run going elsewhere (`pixelswarm run --remote-agents`)"
+ABOUT = (
+    "Start agent processes for robots of a run started with `pixelswarm run SCENE "
+    "--listen ENDPOINT --remote-agents`; each robot's configuration comes from the run over the bus."
+)
+
 PROG = "pixelswarm agents"
 RUN_TIMEOUT = 60.0  # s to wait for a run to be there
 QUERY_TIMEOUT = 5.0  # s for the run to answer a configuration query
@@ -97,12 +104,7 @@ def fetch_configs(bus: Bus, robots: list[int] | None) -> dict[int, tuple[HostCon
 # --- the command -----------------------------------------------------------------------------------
 def add_agents_parser(subparsers: Any) -> None:
     """Add the `agents` subcommand to an argparse subparsers object (sets func=run_agents)."""
-    p = subparsers.add_parser(
-        "agents",
-        help="start agent processes that join a run going elsewhere (`pixelswarm run --remote-agents`)",
-        description="Start agent processes for robots of a run started with `pixelswarm run SCENE "
-        "--listen ENDPOINT --remote-agents`; each robot's configuration comes from the run over the bus.",
-    )
+    p = subparsers.add_parser("agents", help=HELP, description=ABOUT)
     p.add_argument(
         "--connect",
         "-e",

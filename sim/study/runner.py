@@ -32,6 +32,13 @@ from sim.study.spec import (
     write_text,
 )
 
+# `pixelswarm --help` and `pixelswarm study --help`
+HELP = "run a grid of conditions x seeds (pixelswarm run each) and write a report"
+ABOUT = (
+    "Run every condition of a study spec for every seed and write runs.csv, summary.csv, "
+    "plots and report.html (docs/study.md). Rerun the same command to resume."
+)
+
 STOP_GRACE_S = 30.0  # a child stopped by SIGTERM writes what it recorded; after this it is killed
 STDERR_TAIL_CHARS = 2000
 
@@ -184,12 +191,7 @@ def default_jobs() -> int:
 
 
 def add_study_parser(subparsers: Any) -> None:
-    p = subparsers.add_parser(
-        "study",
-        help="run a grid of conditions x seeds (pixelswarm run each) and write a report",
-        description="Run every condition of a study spec for every seed and write runs.csv, summary.csv, "
-        "plots and report.html (docs/study.md). Rerun the same command to resume.",
-    )
+    p = subparsers.add_parser("study", help=HELP, description=ABOUT)
     p.add_argument("spec", type=Path, help="the study spec (TOML; see studies/ and docs/study.md)")
     p.add_argument("--out", type=Path, help="study directory (default runs/study-<name>); reused to resume")
     p.add_argument(

@@ -234,7 +234,7 @@ def test_a_swarm_is_logged_as_one_entity_every_scene_period_and_its_goals_once(t
     start, goal = rng.uniform(0, 30, (n, 2)), rng.uniform(0, 30, (n, 2))
     bus = RecorderBus()
     rec = Recorder(bus, robots=n, tolerance=0.01, log_path=str(tmp_path / "log.mcap"))
-    rec.radius[:] = 0.037  # as the robots' states tell it
+    rec.said.radius[:] = 0.037  # as the robots' states tell it
     color = rng.integers(0, 256, (n, 3)).astype(np.uint8)
     goals = Goals(1, 0, goal, color, np.arange(n), Timing(stamp=0.0))
     items = [(bus.keys.goals(1), goals.encode(), 50.0)]
