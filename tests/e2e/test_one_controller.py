@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from sim.outputs.mcaplog import read_mcap
 from tests.conftest import run_scenes
 from tests.support.engines import ENGINES, PICTURE_FLAGS, engine_run, picture, picture_run
 
@@ -123,3 +124,50 @@ def test_with_rounds_per_tick_bounded_blocks_span_ticks_and_every_engine_runs_th
         assert (central["assignment"][k] != central["assignment"][k - 1]).any()
     assert all(metrics["contacts"] == 0 for metrics, _ in runs.values())
     assert_the_same_run(runs, central)
+
+
+# The paper's first three shapes with the second held for half a second: at one auction round a tick
+# its warm block cannot agree before the third comes.
+UNAGREED_SEQUENCE = """
+name = "unagreed-image"
+robots = 14
+seed = 1
+clock = "lockstep"
+[robot]
+kinematics = "diffdrive"
+[layout]
+kind = "grid"
+spacing = 0.2
+[[steps]]
+shape = "disk"
+hold = 2.0
+[[steps]]
+shape = "disk_and_line"
+region_counts = { 0 = 10, 1 = 4 }
+hold = 0.5
+[[steps]]
+shape = "disk_and_line"
+region_counts = { 0 = 6, 1 = 8 }
+hold = 3.0
+"""
+
+
+@pytest.mark.slow
+def test_an_image_whose_block_never_agreed_hands_its_warm_board_to_the_next_in_every_engine(tmp_path):
+    """The ten-thousand-robot case, at 14: an image's warm block outlasts its hold, so its auction never
+    agrees; the next image starts warm from the board the unagreed one started from (a cold start
+    would agree within its first tick, every round played in it). The central engine and agent hosts
+    take the same path: the same run to the bit, one-to-one at every tick, no contact."""
+    flags = ("--clock", "lockstep", "--rounds-per-tick", "1")
+    engines = {"central": ENGINES["central"], "agent-hosts": ("--engine", "distributed", "-k", "7")}
+    runs = run_scenes(tmp_path, {name: (UNAGREED_SEQUENCE, *flags, *engine) for name, engine in engines.items()})
+    _, central = runs["central"]
+    assert list(np.unique(central["step"])) == [0, 1, 2]
+    assert (central["assignment"] >= 0).all()  # every robot drives to a goal at every tick
+    assert all(metrics["contacts"] == 0 for metrics, _ in runs.values())
+    assert_the_same_run(runs, central)
+    stats = [e for e in read_mcap(tmp_path / "agent-hosts" / "log.mcap", ["/event"])["/event"] if e["kind"] == "stats"]
+    assert len(stats) == 2
+    # only the first image agreed: the second's block never did, and the third's, warm, not in its 3 s
+    for host in stats:
+        assert len(host["auction"]["first_agreement_s"]) == 1, host["auction"]
