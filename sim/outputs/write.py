@@ -9,6 +9,7 @@ from __future__ import annotations
 import shutil
 import sys
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -147,19 +148,23 @@ def write_run(
     """Everything a run directory holds, from the true trajectory; returns the committed path."""
     radius = np.full(scene.robots, params.radius)
     t = arrays["t"]
-    clearance = clearance_over_time(arrays["pose"], radius) if len(t) else np.zeros(0)
-    metrics = _run_metrics(scene, params, arrays, outcome, radius, clearance)
-    write_json(run_dir / "metrics.json", metrics)
-    if outcome.extra.get("complete") is False:
-        _mark_incomplete(run_dir, outcome.extra)
-    write_trajectory(run_dir / "trajectory.npz", arrays, radius)
-    # the renderers are imported only where used: they load matplotlib, OpenCV and PyAV
-    if len(t) and plots:
-        from sim.outputs.render import write_plots
+    # trajectory.npz on a thread beside the metrics and drawings: deflate and the disk leave the
+    # interpreter's lock free, so on two cores the largest file costs little of the run's end
+    with ThreadPoolExecutor(1, thread_name_prefix="trajectory") as writer:
+        trajectory = writer.submit(write_trajectory, run_dir / "trajectory.npz", arrays, radius)
+        clearance = clearance_over_time(arrays["pose"], radius) if len(t) else np.zeros(0)
+        metrics = _run_metrics(scene, params, arrays, outcome, radius, clearance)
+        write_json(run_dir / "metrics.json", metrics)
+        if outcome.extra.get("complete") is False:
+            _mark_incomplete(run_dir, outcome.extra)
+        # the renderers are imported only where used: they load matplotlib, OpenCV and PyAV
+        if len(t) and plots:
+            from sim.outputs.render import write_plots
 
-        write_plots(run_dir.path, recording_of(scene, arrays, radius), clearance)
-    if len(t) and video:
-        _write_display_video(run_dir, scene, arrays, radius, metrics.get("time_to_converge_s"))
+            write_plots(run_dir.path, recording_of(scene, arrays, radius), clearance)
+        if len(t) and video:
+            _write_display_video(run_dir, scene, arrays, radius, metrics.get("time_to_converge_s"))
+        trajectory.result()  # its error, if any, is the run's
     save_resolved(scene, run_dir.path, robot=params.to_dict())  # scene.json, goal_sets.npz
     shutil.rmtree(run_dir / SCRATCH, ignore_errors=True)  # a streamed recording's raw files (sim.outputs.stream)
     return run_dir.commit()
