@@ -345,10 +345,23 @@ def make_certificates(
     certificate names only 127.0.0.1 and localhost. The folder appears whole or not at all; an
     existing non-empty one is replaced only with ``overwrite``.
     """
+    final = _folder_to_write(directory, robots, display, overwrite)
+    hosts = [*LOOPBACK_NAMES, *([_tls_host(connect)] if connect else [])]
+    staging = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial", dir=final.parent))
+    try:
+        _write_folder(staging, final, robots, hosts, [connect] if connect else [], display)
+        _replace(staging, final)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return final
+
+
+def _folder_to_write(directory: str | Path, robots: int, display: str, overwrite: bool) -> Path:
+    """The folder make_certificates may write, absolute; SecurityError for what it may not."""
     if robots < 1:
         raise SecurityError(f"robots must be at least 1, not {robots}")
     Keys(display)  # the display name must be one the key schema accepts
-    hosts = [*LOOPBACK_NAMES, *([_tls_host(connect)] if connect else [])]
     final = Path(directory).resolve()
     if final.exists() and not final.is_dir():
         raise SecurityError(f"{final} exists and is not a folder")
@@ -357,46 +370,42 @@ def make_certificates(
     parent = final.parent
     if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
         raise SecurityError(f"cannot write into {parent}")
-
-    connect_list = [connect] if connect else []
-    staging = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial", dir=parent))
-    try:
-        from . import certificates  # here: of the commands, only `pixelswarm certs` loads cryptography
-
-        now = datetime.datetime.now(datetime.UTC)
-        ca_key, ca = certificates.authority(now)
-        _write(staging / "ca.pem", certificates.pem(ca))
-        _write(staging / "ca-key.pem", certificates.pem_key(ca_key), secret=True)
-        (staging / USRPWD).mkdir()
-        passwords = {}
-        for role in roles(robots):
-            # The router's certificate also names its hosts (clients check the name they dialled)
-            # and serves TLS; the others only prove who is connecting.
-            router = role == ROUTER
-            key, cert = certificates.role_certificate(
-                role, [*hosts, role] if router else [role], router, ca_key, ca, now
-            )
-            _write(staging / f"{role}.pem", certificates.pem(cert))
-            _write(staging / f"{role}-key.pem", certificates.pem_key(key), secret=True)
-            if router:
-                continue
-            passwords[role] = secrets.token_urlsafe(24)
-            _write(staging / f"{role}.json5", _json5(_client_dict(final, role, connect_list, "tls"), f"client {role}"))
-            _write(
-                staging / USRPWD / f"{role}.json5",
-                _json5(_client_dict(final, role, connect_list, "usrpwd", passwords[role]), f"client {role}"),
-                secret=True,
-            )
-        _write(staging / USRPWD / "credentials.txt", "".join(f"{r}:{p}\n" for r, p in passwords.items()), secret=True)
-        for auth, where in (("tls", staging), ("usrpwd", staging / USRPWD)):
-            conf = _router_dict(final, connect_list, auth, robots, display)
-            _write(where / "router.json5", _json5(conf, f"router, {auth}"))
-        _write(staging / MANIFEST, json.dumps({"robots": robots, "display": display}) + "\n")
-        _replace(staging, final)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
     return final
+
+
+def _write_folder(
+    staging: Path, final: Path, robots: int, hosts: list[str], connect_list: list[str], display: str
+) -> None:
+    """Everything of the folder into ``staging``; the configurations name their files at ``final``."""
+    from . import certificates  # here: of the commands, only `pixelswarm certs` loads cryptography
+
+    now = datetime.datetime.now(datetime.UTC)
+    ca_key, ca = certificates.authority(now)
+    _write(staging / "ca.pem", certificates.pem(ca))
+    _write(staging / "ca-key.pem", certificates.pem_key(ca_key), secret=True)
+    (staging / USRPWD).mkdir()
+    passwords = {}
+    for role in roles(robots):
+        # The router's certificate also names its hosts (clients check the name they dialled)
+        # and serves TLS; the others only prove who is connecting.
+        router = role == ROUTER
+        key, cert = certificates.role_certificate(role, [*hosts, role] if router else [role], router, ca_key, ca, now)
+        _write(staging / f"{role}.pem", certificates.pem(cert))
+        _write(staging / f"{role}-key.pem", certificates.pem_key(key), secret=True)
+        if router:
+            continue
+        passwords[role] = secrets.token_urlsafe(24)
+        _write(staging / f"{role}.json5", _json5(_client_dict(final, role, connect_list, "tls"), f"client {role}"))
+        _write(
+            staging / USRPWD / f"{role}.json5",
+            _json5(_client_dict(final, role, connect_list, "usrpwd", passwords[role]), f"client {role}"),
+            secret=True,
+        )
+    _write(staging / USRPWD / "credentials.txt", "".join(f"{r}:{p}\n" for r, p in passwords.items()), secret=True)
+    for auth, where in (("tls", staging), ("usrpwd", staging / USRPWD)):
+        conf = _router_dict(final, connect_list, auth, robots, display)
+        _write(where / "router.json5", _json5(conf, f"router, {auth}"))
+    _write(staging / MANIFEST, json.dumps({"robots": robots, "display": display}) + "\n")
 
 
 def _replace(staging: Path, final: Path) -> None:
