@@ -390,7 +390,9 @@ class LivelinessWatch:
 
 
 class Bus:
-    """One participant's connection to the swarm: publish typed messages, subscribe to inboxes."""
+    """One participant's connection to the swarm: publish typed messages, subscribe to inboxes. Its
+    attributes are the session and its settings, the key schema, the fault plan, and what it declared
+    (publishers, feeds, tokens) with the link's state, kept together: a renewal declares them all again."""
 
     def __init__(
         self,
