@@ -287,6 +287,7 @@ LONGEST_FIRST = (
     "tests/e2e/test_one_controller.py::test_with_rounds_per_tick_bounded_blocks_span_ticks_and_every_engine_runs_the_same",
     "tests/e2e/test_image_display_distributed.py::test_auction_survives_loss_and_delay",
     "tests/unit/test_bidder.py::test_lossy_network_agrees_on_one_owner_per_goal",
+    "tests/unit/test_codec_fuzz.py::test_every_kind_decodes_what_was_encoded_or_drops_it_with_one_reason",
     "tests/e2e/test_study.py::test_the_grid_runs_with_one_command_one_row_per_run",
     "tests/integration/test_paper_figures.py::test_quick_reproduction_writes_sane_figures",
     "tests/e2e/test_runtime.py::test_lockstep_is_reproducible_and_hosts_match_processes",
