@@ -320,6 +320,19 @@ def assert_usage_error(tmp_path: Path, message: str, *args: str) -> None:
     assert not (tmp_path / "r").exists()
 
 
+# The paper's 14 e-pucks on their starting grid (scenes/paper-sequence.toml), in lock-step: a scene
+# of them is a name before this and its steps after it.
+PAPER_E_PUCKS = """
+robots = 14
+seed = 1
+clock = "lockstep"
+[robot]
+kinematics = "diffdrive"
+[layout]
+kind = "grid"
+spacing = 0.2
+"""
+
 # A small show for the fault and restart tests: robots on a grid form a disk.
 DISK = """
 name = "faults"

@@ -14,29 +14,24 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from tests.conftest import REPO
+from tests.conftest import PAPER_E_PUCKS, REPO
 from tests.support.assignment_quality import assert_agreements_valid
 from tests.support.formation import assert_every_hold_formed
 
 pytestmark = pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
 
 
-PAPER_DISK = """
-name = "paper-disk"
-robots = 14
-seed = 1
-clock = "lockstep"
-[robot]
-kinematics = "diffdrive"
-[layout]
-kind = "grid"
-spacing = 0.2
+PAPER_DISK = (
+    'name = "paper-disk"'
+    + PAPER_E_PUCKS
+    + """
 [[steps]]
 shape = "disk"
 hold = 30.0
 [end]
 converge_hold = 3.0
 """
+)
 
 
 @pytest.mark.slow

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from sim.outputs.mcaplog import read_mcap
-from tests.conftest import run_scenes
+from tests.conftest import PAPER_E_PUCKS, run_scenes
 from tests.support.engines import ENGINES, PICTURE_FLAGS, engine_run, picture, picture_run
 
 
@@ -128,16 +128,10 @@ def test_with_rounds_per_tick_bounded_blocks_span_ticks_and_every_engine_runs_th
 
 # The paper's first three shapes with the second held for half a second: at one auction round a tick
 # its warm block cannot agree before the third comes.
-UNAGREED_SEQUENCE = """
-name = "unagreed-image"
-robots = 14
-seed = 1
-clock = "lockstep"
-[robot]
-kinematics = "diffdrive"
-[layout]
-kind = "grid"
-spacing = 0.2
+UNAGREED_SEQUENCE = (
+    'name = "unagreed-image"'
+    + PAPER_E_PUCKS
+    + """
 [[steps]]
 shape = "disk"
 hold = 2.0
@@ -150,6 +144,7 @@ shape = "disk_and_line"
 region_counts = { 0 = 6, 1 = 8 }
 hold = 3.0
 """
+)
 
 
 @pytest.mark.slow
