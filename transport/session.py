@@ -47,6 +47,9 @@ class ZenohSettings:
             conf.insert_json5("listen/endpoints", json.dumps(self.listen))
         conf.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast_scouting))
         conf.insert_json5("transport/link/tx/lease", str(self.lease_ms))
+        if self.mode != "client" and not (self.multicast_scouting or self.connect or self.config_file):
+            # nobody to scout for: zenoh's open would spend its scouting delay (half a second) waiting
+            conf.insert_json5("scouting/delay", "0")
         if self.mode == "client":
             # A client that loses its router should fail loudly, not wait forever.
             conf.insert_json5("connect/timeout_ms", str(self.connect_timeout_ms))
