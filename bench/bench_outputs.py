@@ -295,7 +295,7 @@ def log_rows(ticks: int) -> list[str]:
         path = Path(tmp) / "log.mcap"
         bus = RecorderBus()  # what the recorder reads of a bus, fed in process
         rec = Recorder(bus, robots=arrays["pose"].shape[1], tolerance=0.01, log_path=str(path))  # type: ignore[arg-type]
-        rec.heading = False  # paper-sequence-10000's robots are holonomic
+        rec.out.heading = False  # paper-sequence-10000's robots are holonomic
         start = time.perf_counter()
         for k in range(ticks):
             bus.raw.items = [(key, data, 1000.0 + 0.1 * k) for key, data in _tick_messages(bus.keys, arrays, k)]

@@ -338,32 +338,6 @@ class Recorder:
         self.out = DisplayLog(robots, log_path, ticks_path)
         self.view: Any = None  # sim.outputs.view.SwarmView (pixelswarm run --view): the truth of every tick, one batch
 
-    @property
-    def last_min_clearance(self) -> float:
-        return self.world.least_clearance
-
-    @property
-    def log(self) -> McapLog | None:
-        return self.out.log
-
-    @property
-    def ends(self) -> Callable[[float, float], bool] | None:
-        """(converged since, now): the run ends here."""
-        return self.progress.ends
-
-    @ends.setter
-    def ends(self, ends: Callable[[float, float], bool] | None) -> None:
-        self.progress.ends = ends
-
-    @property
-    def heading(self) -> bool:
-        """A heading arrow per robot in the scene: not for holonomic robots, which never turn."""
-        return self.out.heading
-
-    @heading.setter
-    def heading(self, heading: bool) -> None:
-        self.out.heading = heading
-
     # --- intake -------------------------------------------------------------------------------
     def poll(self) -> None:
         for role, ident, alive, wall, _ in self.alive.drain():

@@ -353,7 +353,7 @@ class Launcher:
         with_goal = int(np.sum(np.isfinite(err)))
         self._say(
             progress_line(
-                self.scene.name, rec.sim_time, at_goal, with_goal, rec.last_min_clearance, len(rec.happened.contacts)
+                self.scene.name, rec.sim_time, at_goal, with_goal, rec.world.least_clearance, len(rec.happened.contacts)
             )
         )
 
@@ -430,11 +430,11 @@ class Launcher:
             str(self.run_dir / "log.mcap"),
             str(self.run_dir / TICKS_FILE),
         )
-        recorder.ends = self._ends_on_convergence
-        recorder.heading = self.params.kinematics != HOLONOMIC
+        recorder.progress.ends = self._ends_on_convergence
+        recorder.out.heading = self.params.kinematics != HOLONOMIC
         recorder.view = self.opt.view
-        if self.opt.foxglove is not None and recorder.log is not None:
-            port = recorder.log.serve(self.opt.foxglove)  # said even with -q: it is asked for, not progress
+        if self.opt.foxglove is not None and recorder.out.log is not None:
+            port = recorder.out.log.serve(self.opt.foxglove)  # said even with -q: it is asked for, not progress
             print(f"[{self.scene.name}] Foxglove live: ws://127.0.0.1:{port}", file=sys.stderr, flush=True)
         bus.serve(bus.keys.run_goals, lambda: self._newest_goals(bus, recorder))
         return recorder

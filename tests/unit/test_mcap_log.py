@@ -75,7 +75,7 @@ def log(tmp_path):
     sent = _messages(rng)
     bus = RecorderBus()
     rec = Recorder(bus, robots=N, tolerance=0.01, log_path=str(tmp_path / "log.mcap"))
-    rec.heading = False  # holonomic robots: their heading never changes
+    rec.out.heading = False  # holonomic robots: their heading never changes
     bus.raw.items = [(key, msg.encode(), 100.0 + k) for k, (key, msg) in enumerate(sent.values())]
     rec.poll()
     rec.close_log()
