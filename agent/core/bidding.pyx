@@ -278,10 +278,10 @@ cdef class Bidders:
     # list), where the list was made and its bound there
     cdef int64_t[:, ::1] cand
     cdef double[::1] bound, made_x, made_y, made_bound
-    # the goal tree (goal_tree), per node a lower bound of its goals' prices, and the least penalty
-    # (none is negative: 0) that the nodes' bounds allow for
+    # the goal tree (goal_tree), per node a lower bound of its goals' prices, a plane under them
+    # (fit_price_planes), and the least penalty (none is negative: 0) that the nodes' bounds allow for
     cdef int64_t[::1] order, node_left, node_right, node_start, node_end, node_parent, leaf_of
-    cdef double[::1] node_x0, node_x1, node_y0, node_y1, node_price
+    cdef double[::1] node_x0, node_x1, node_y0, node_y1, node_price, plane_a, plane_bx, plane_by
     cdef double least_penalty
     # scratch of a ranking anew: its K + 1 best goals so far
     cdef double[::1] top_value
@@ -332,6 +332,7 @@ cdef class Bidders:
         self.node_x0, self.node_x1 = np.ascontiguousarray(box[:, 0]), np.ascontiguousarray(box[:, 1])
         self.node_y0, self.node_y1 = np.ascontiguousarray(box[:, 2]), np.ascontiguousarray(box[:, 3])
         self.node_price = np.full(len(box), -INFINITY)  # renewed by first_ranking
+        self.plane_a, self.plane_bx, self.plane_by = np.full(len(box), -INFINITY), np.zeros(len(box)), np.zeros(len(box))
         parent, leaf_of = np.full(len(box), -1, np.int64), np.zeros(g, np.int64)
         inner = np.flatnonzero(np.asarray(self.node_left) >= 0)
         parent[np.asarray(self.node_left)[inner]] = parent[np.asarray(self.node_right)[inner]] = inner
@@ -380,12 +381,28 @@ cdef class Bidders:
             c = c + self.penalty(i, j)
         return -c - self.price[j]
 
-    cdef inline double node_bound(self, int64_t node, double x, double y) noexcept nogil:
-        """An upper bound of the value to a robot at (x, y) of every goal of the node: the nearest
-        point of its box, its least price. Rounding is monotone, so the bound holds in floats too."""
+    cdef inline double box_distance2(self, int64_t node, double x, double y) noexcept nogil:
+        """The squared distance from (x, y) to the nearest point of the node's box."""
         cdef double dx = max(max(self.node_x0[node] - x, x - self.node_x1[node]), 0.0)
         cdef double dy = max(max(self.node_y0[node] - y, y - self.node_y1[node]), 0.0)
-        return (-(dx * dx + dy * dy) - self.node_price[node]) - self.least_penalty
+        return dx * dx + dy * dy
+
+    cdef inline double node_bound(self, int64_t node, double x, double y) noexcept nogil:
+        """An upper bound of the value to a robot at (x, y) of every goal of the node, the lesser of two:
+        the nearest point of its box at its least price (rounding is monotone, so it holds in floats
+        too); and the same for the plane under its prices, b_j >= a + beta . g_j, which gives
+        -|g_j - p|^2 - b_j <= -|g_j - q|^2 - a - beta . p + |beta|^2 / 4 with q = p - beta / 2 (less
+        loose where prices climb across the node, as they do across a picture the robots approach
+        from one side; with room for rounding)."""
+        cdef double flat = (-self.box_distance2(node, x, y) - self.node_price[node]) - self.least_penalty
+        cdef double bx = self.plane_bx[node], by = self.plane_by[node], d2, lift, tilted
+        if (bx == 0.0 and by == 0.0) or not flat > -INFINITY:  # no slope, or no goal
+            return flat
+        d2 = self.box_distance2(node, x - 0.5 * bx, y - 0.5 * by)
+        lift = 0.25 * (bx * bx + by * by)
+        tilted = -d2 - self.plane_a[node] - bx * x - by * y + lift - self.least_penalty
+        tilted += 1e-9 * (d2 + fabs(self.plane_a[node]) + fabs(bx * x) + fabs(by * y) + lift + 1.0)
+        return min(flat, tilted)
 
     cdef void search(self, Py_ssize_t i, int64_t node, double bound) noexcept nogil:
         """Robot i's K + 1 best goals of the node into ``top`` (by value, then the lower index),
@@ -448,6 +465,39 @@ cdef class Bidders:
                 return
             least = min(self.node_price[self.node_left[up]], self.node_price[self.node_right[up]])
             node = up
+
+    cdef void fit_price_planes(self) noexcept nogil:
+        """Per node, a plane under its goals' prices: the least-squares slope beta over its goals,
+        lowered onto the lowest, b_j >= a + beta . g_j (with room for rounding). Prices only rise
+        until the next fit (at a block's start), so the plane stays under them."""
+        cdef Py_ssize_t node, a, lo, hi
+        cdef int64_t j
+        cdef double n, mx, my, mb, sxx, sxy, syy, sxb, syb, det, bx, by, least, u, ux, uy
+        for node in range(self.node_price.shape[0]):
+            lo, hi = self.node_start[node], self.node_end[node]
+            bx = by = 0.0
+            if hi - lo >= 3:
+                n, mx, my, mb = hi - lo, 0.0, 0.0, 0.0
+                for a in range(lo, hi):
+                    j = self.order[a]
+                    mx, my, mb = mx + self.gx[j], my + self.gy[j], mb + self.price[j]
+                mx, my, mb = mx / n, my / n, mb / n
+                sxx = sxy = syy = sxb = syb = 0.0
+                for a in range(lo, hi):
+                    j = self.order[a]
+                    ux, uy, u = self.gx[j] - mx, self.gy[j] - my, self.price[j] - mb
+                    sxx, sxy, syy = sxx + ux * ux, sxy + ux * uy, syy + uy * uy
+                    sxb, syb = sxb + ux * u, syb + uy * u
+                det = sxx * syy - sxy * sxy
+                if det > 1e-9 * sxx * syy:  # goals not on a line
+                    bx, by = (syy * sxb - sxy * syb) / det, (sxx * syb - sxy * sxb) / det
+            least = INFINITY
+            for a in range(lo, hi):
+                j = self.order[a]
+                ux, uy = bx * self.gx[j], by * self.gy[j]
+                u = self.price[j] - ux - uy
+                least = min(least, u - 1e-9 * (fabs(self.price[j]) + fabs(ux) + fabs(uy) + 1.0))
+            self.plane_a[node], self.plane_bx[node], self.plane_by[node] = least, bx, by
 
     cdef void renew_prices(self) noexcept nogil:
         """Every node's least price as the board stands (children come after their parent)."""
@@ -515,6 +565,7 @@ cdef class Bidders:
         if self.g == 0:
             return self.k
         self.renew_prices()  # prices may have been set anew between blocks (a carried board)
+        self.fit_price_planes()
         for j in range(self.g):
             lowest = min(lowest, self.price[j])
         for i in range(self.k):

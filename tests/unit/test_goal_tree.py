@@ -29,19 +29,24 @@ def test_goal_tree_holds_every_goal_once_in_boxes_that_hold_them() -> None:
             assert (start[left[node]], end[right[node]]) == (start[node], end[node])
 
 
-@pytest.mark.parametrize("grid", [False, True])
-def test_rankings_by_the_tree_are_those_over_every_goal(grid: bool) -> None:
-    """After bids have raised prices here and there (and on a grid, where values tie), each robot's
-    best goal and value are a scan's over every goal, the lower index first among equals."""
+@pytest.mark.parametrize("board", ["uniform", "grid", "graded"])
+def test_rankings_by_the_tree_are_those_over_every_goal(board: str) -> None:
+    """After bids have raised prices here and there (and on a grid, where values tie; and from prices
+    that climb across the goals, as a warm board's do, where the tree bounds its nodes by a plane
+    under their prices), each robot's best goal and value are a scan's over every goal, the lower
+    index first among equals."""
     rng = np.random.default_rng(7)
     n = 300
-    if grid:
+    if board == "grid":
         xs = np.arange(20, dtype=float) * 0.25
         goals = np.stack(np.meshgrid(xs, xs), axis=-1).reshape(-1, 2)[:n]
         pos = np.round(rng.uniform(-1, 6, (n, 2)) * 4) / 4
     else:
         goals, pos = rng.uniform(-3, 3, (n, 2)), rng.uniform(-6, 0, (n, 2))
     part = Participant(1, goals, range(n), range(n), EPS, HYSTERESIS)
+    if board == "graded":  # robots to one side pay more for the near goals, and the prices say so
+        part.board.price[:] = 12.0 * (3.0 - goals[:, 0]) + 2.0 * goals[:, 1] + rng.uniform(0, 4, n)
+        part.board.version += 1
     part.begin_block(pos)
     for _ in range(40):
         part.bid()
