@@ -235,6 +235,17 @@ class DisplayLog:
         self.heading = True  # a heading arrow per robot in the scene: not for holonomic robots, which never turn
         self._next_scene = -np.inf  # display time of the next scene message (above LOG_ROBOTS)
         self._last_scene: bytes = b""  # the swarm's last scene message, but for its time
+        self._goal_sets: dict[str, bytes] = {}  # per goal-set key, the payload logged last
+
+    def repeats(self, kind: str, key: str, payload: bytes) -> bool:
+        """A goal set the coordinator published again unchanged (it does every second, for late
+        joiners): logged once, as thousands of goals a second would make most of the log. A changed
+        one is logged again."""
+        if kind != "goals":
+            return False
+        same = self._goal_sets.get(key) == payload
+        self._goal_sets[key] = payload
+        return same
 
     def json(self, kind: str, wall: float, payload: dict[str, Any]) -> None:
         """One message on its kind's channel, as JSON (orjson: numpy arrays as lists, NaN and inf as
@@ -356,7 +367,7 @@ class Recorder:
                 continue
             if (as_proto := kind_of(msg)) is not None:
                 self.out.proto(kind, wall, as_proto, msg, key, self.world.latest_tick)
-            else:
+            elif not self.out.repeats(kind, key, payload):
                 record = msg.to_dict()
                 record["key"] = key
                 self.out.json(kind, wall, record)

@@ -262,3 +262,24 @@ def test_a_swarm_is_logged_as_one_entity_every_scene_period_and_its_goals_once(t
     (entity,) = FoxgloveSceneUpdate.FromString(data).entities
     assert entity.id == GOALS_ENTITY and len(entity.spheres) == n
     assert entity.spheres[0].size.x == pytest.approx(0.4 * 2 * 0.037, abs=2.0**-14)
+
+
+def test_a_goal_set_published_again_unchanged_is_logged_once_and_a_changed_one_again(tmp_path):
+    """The coordinator republishes its goal set every second for late joiners: the log keeps the
+    first copy (the recorder still counts every copy), and a copy that changed is logged too."""
+    rng = np.random.default_rng(5)
+    bus = RecorderBus()
+    rec = Recorder(bus, robots=N, tolerance=0.01, log_path=str(tmp_path / "log.mcap"))
+    color = rng.integers(0, 256, (N, 3)).astype(np.uint8)
+    first = Goals(1, 0, rng.uniform(0, 3, (N, 2)), color, np.arange(N), Timing(stamp=0.0))
+    changed = Goals(1, 0, rng.uniform(0, 3, (N, 2)), color, np.arange(N), Timing(stamp=0.0))
+    second = Goals(2, 0, rng.uniform(0, 3, (N, 2)), color, np.arange(N), Timing(stamp=5.0))
+    sent = [(1, first), (1, first), (1, first), (1, changed), (2, second), (2, second)]
+    bus.raw.items = [(bus.keys.goals(e), g.encode(), 100.0 + k) for k, (e, g) in enumerate(sent)]
+    rec.poll()
+    rec.close_log()
+    logged = _read(tmp_path / "log.mcap")["/goals"][2]
+    assert [(g["epoch"], g["positions"]) for g in logged] == [
+        (g.epoch, g.positions.astype(np.float32).astype(float).tolist()) for g in (first, changed, second)
+    ]  # positions cross the bus as float32
+    assert rec.tally.counts["goals"] == len(sent)
