@@ -341,7 +341,7 @@ seed = 5
 clock = "{clock}"
 [layout]
 kind = "grid"
-spacing = 0.2
+spacing = {spacing}
 [[steps]]
 shape = "disk"
 hold = {hold}
@@ -354,7 +354,12 @@ converge_hold = {converge_hold}
 def write_disk(tmp_path: Path, robots: int = 10, clock: str = "lockstep", hold: float = 30.0, **kw: object) -> Path:
     path = tmp_path / "faults.toml"
     text = DISK.format(
-        robots=robots, clock=clock, hold=hold, converge_hold=kw.get("converge_hold", 100.0), events=kw.get("events", "")
+        robots=robots,
+        clock=clock,
+        hold=hold,
+        spacing=kw.get("spacing", 0.2),
+        converge_hold=kw.get("converge_hold", 100.0),
+        events=kw.get("events", ""),
     )
     path.write_text(text)
     return path

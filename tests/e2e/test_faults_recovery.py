@@ -299,8 +299,9 @@ def test_a_router_killed_and_restarted_every_component_reconnects_and_the_show_c
     first = router()
     # real time: the world goes on while the router is gone (a lock-step world would wait for it).
     # The run ends 3 s after the ten hold the disk again: no robot is lost, so the disk is formed only
-    # after the router is back, and what is checked is that it forms, not for how long it is held
-    scene = write_disk(tmp_path, clock="realtime", hold=20.0, converge_hold=3.0)
+    # after the router is back, and what is checked is that it forms, not for how long it is held.
+    # Spaced 0.4 m, three robots drive at once for about 3 s (at 0.2 m, for half a second: missed once)
+    scene = write_disk(tmp_path, clock="realtime", hold=20.0, converge_hold=3.0, spacing=0.4)
     out = tmp_path / "run"
     proc = start_run(spawned, scene, out, "-e", endpoint)
     assert wait_for(lambda: driving(out) >= 3, timeout=120)  # on their way to the disk
