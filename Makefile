@@ -54,16 +54,17 @@ lint: $(TSTAMP)
 # The whole suite: the in-process tests, then the end-to-end runs (marked slow) on every core, then
 # those marked serial one at a time (on the wall clock, another run beside them makes robots late).
 # Not one pass of both: the in-process tests' CPU beside the lock-step runs made those runs slower
-# than the pass saved, and a viewer beside them missed its robots.
+# than the pass saved, and a viewer beside them missed its robots. Three workers on two cores: a test
+# that waits on its processes or the bus leaves a core idle that a third worker takes.
 test: test-fast
-	$(PY) -m pytest -q -m "slow and not serial" -n auto --dist loadgroup --durations=10
+	$(PY) -m pytest -q -m "slow and not serial" -n 3 --dist loadgroup --durations=10
 	$(PY) -m pytest -q -m "slow and serial" --durations=5
 
 # Everyday work: the suite without the end-to-end runs marked slow. --dist loadgroup: a module whose
 # costly module fixture its tests share runs on one worker (its xdist_group), which makes it once.
 test-fast: lint
 	@$(BYTECODE)
-	$(PY) -m pytest -q -m "not slow" -n auto --dist loadgroup
+	$(PY) -m pytest -q -m "not slow" -n 3 --dist loadgroup
 
 bench: $(TSTAMP)
 	@$(BYTECODE)
