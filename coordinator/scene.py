@@ -213,7 +213,7 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
     n = robots if robots is not None else data.get("robots", 14)
     if not isinstance(n, int) or isinstance(n, bool) or n < 1:
         raise SceneError(f"{where}: robots must be a whole number >= 1, not {n!r}")
-    robot = dict(data.get("robot", {}))
+    robot = _table(data, "robot", {}, where)
     radius = robot.get("radius", epuck.RADIUS)
     if not _positive(radius):
         raise SceneError(f"{where}: robot radius must be a positive number of metres, not {radius!r}")
@@ -226,11 +226,11 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
         name=str(data.get("name", Path(source).stem)),
         robots=n,
         robot=robot,
-        layout=dict(data.get("layout", {"kind": "grid"})),
-        goals=dict(data.get("goals", {"kind": "none"})),
+        layout=_table(data, "layout", {"kind": "grid"}, where),
+        goals=_table(data, "goals", {"kind": "none"}, where),
         arena=(0.0, 0.0, 0.0, 0.0),
         obstacles=[],
-        events=list(data.get("events", [])),
+        events=_tables(data, "events", where),
         clock=overrides.get("clock") or data.get("clock", Scene.clock),
         engine=data.get("engine", Scene.engine),
         assignment=data.get("assignment", Scene.assignment),
@@ -238,8 +238,8 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
         deadline=data.get("deadline", Scene.deadline),
         duration=duration,
         seed=seed,
-        noise=_noise(data.get("noise", {}), where),
-        converge_hold=float(data.get("end", {}).get("converge_hold", Scene.converge_hold)),
+        noise=_noise(_table(data, "noise", {}, where), where),
+        converge_hold=float(_table(data, "end", {}, where).get("converge_hold", Scene.converge_hold)),
         source=source,
     )
     _check_settings(scene, where)
@@ -278,9 +278,9 @@ def _add_uncontrolled(scene: Scene, data: dict[str, Any], where: str) -> None:
     objects), which take no goal."""
     for event in scene.events:
         _check_event(event, scene, where)
-    scene.scripted = {_robot_index(e, scene, where): _waypoints(e, where) for e in data.get("scripted", [])}
+    scene.scripted = {_robot_index(e, scene, where): _waypoints(e, where) for e in _tables(data, "scripted", where)}
     scene.pursuers = {
-        _robot_index(e, scene, where): _robot_index(e, scene, where, "target") for e in data.get("pursuers", [])
+        _robot_index(e, scene, where): _robot_index(e, scene, where, "target") for e in _tables(data, "pursuers", where)
     }
     for r in scene.scripted:
         scene.goal_positions[r] = np.nan  # a scripted robot follows its path, not a goal
@@ -636,6 +636,22 @@ def _waypoints(entry: dict[str, Any], where: str) -> np.ndarray:
 def scripted_position(waypoints: np.ndarray, t: float) -> np.ndarray:
     """Where a scripted robot should be at time t (straight segments, holding the ends)."""
     return np.array([np.interp(t, waypoints[:, 0], waypoints[:, 1]), np.interp(t, waypoints[:, 0], waypoints[:, 2])])
+
+
+def _table(data: dict[str, Any], key: str, default: dict[str, Any], where: str) -> dict[str, Any]:
+    """The scene's table ``key`` (a copy), or ``default`` when it has none."""
+    value = data.get(key, default)
+    if not isinstance(value, dict):
+        raise SceneError(f"{where}: {key} must be a table ([{key}] with key = value lines), not {value!r}")
+    return dict(value)
+
+
+def _tables(data: dict[str, Any], key: str, where: str) -> list[dict[str, Any]]:
+    """The scene's array of tables ``key`` ([[key]] blocks), or none."""
+    value = data.get(key, [])
+    if not (isinstance(value, list) and all(isinstance(v, dict) for v in value)):
+        raise SceneError(f"{where}: {key} must be [[{key}]] tables, not {value!r}")
+    return list(value)
 
 
 def _noise(data: dict[str, Any], where: str) -> Noise:

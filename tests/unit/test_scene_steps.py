@@ -131,6 +131,18 @@ def test_bad_sequences_say_what_is_wrong(data, message):
         scene_from_dict({"robots": 6, "layout": {"kind": "grid", "spacing": 0.2}, **data})
 
 
+@pytest.mark.parametrize(
+    "key, value",
+    [("robot", "e-puck"), ("layout", "grid"), ("goals", "disk"), ("noise", 3), ("end", 1.0)]
+    + [(key, value) for key in ("events", "scripted", "pursuers") for value in ("fail", ["fail"])],
+)
+def test_a_table_written_as_a_value_names_its_key(key, value):
+    """`robot = "e-puck"` where [robot] belongs: one line that names the key, not a Python error."""
+    with pytest.raises(SceneError, match=rf"^s.toml: {key} must be .*\[{key}\]") as err:
+        scene_from_dict({"robots": 4, key: value}, "s.toml")
+    assert "\n" not in str(err.value)
+
+
 # --- goal sets of a step for a robot count ------------------------------------------------------
 @pytest.mark.parametrize(
     "counts, full, n, expected",
