@@ -175,6 +175,16 @@ def shared_runs(tmp_path_factory, worker_id) -> SharedRuns:
     return SharedRuns((base.parent if worker_id != "master" else base) / "shared-runs")
 
 
+def ticks_so_far(out: Path) -> int:
+    """How many ticks the run writing to ``out`` has recorded so far (its run.partial's tick file)."""
+    from sim.outputs.ticklog import TICKS_FILE, read_ticks
+
+    try:
+        return len(read_ticks(Path(str(out) + ".partial") / TICKS_FILE)["t"])
+    except (OSError, ValueError):
+        return 0
+
+
 def start_run(spawned: list, scene: Path | str, out: Path, *extra: str) -> subprocess.Popen:
     """`pixelswarm run` of a scene in the background, without video or plots; ``spawned`` reaps it."""
     proc = subprocess.Popen(

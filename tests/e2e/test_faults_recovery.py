@@ -16,18 +16,10 @@ from mcap.exceptions import McapError
 
 from sim.outputs.mcaplog import McapLog, read_mcap
 from sim.outputs.ticklog import TICKS_FILE, TickLog, read_ticks
-from tests.conftest import REPO, descendants, pixelswarm_cmd, reap, start_run, wait_for, write_disk
+from tests.conftest import REPO, descendants, pixelswarm_cmd, reap, start_run, ticks_so_far, wait_for, write_disk
 from transport.session import free_port
 
 TOLERANCE = 0.01  # m: the show completes when every robot is this close to its goal at the end
-
-
-def ticks_so_far(out: Path) -> int:
-    path = Path(str(out) + ".partial") / TICKS_FILE
-    try:
-        return len(read_ticks(path)["t"])
-    except (OSError, ValueError):
-        return 0
 
 
 def flushed_stamps(out: Path) -> int:
