@@ -296,11 +296,10 @@ SWAP_AT_X = 0.0  # m: where along its lane robot 0 is when the frame is spoiled
 LANE = 0.9
 
 
-def lanes_run(tmp_path: Path, spawned: list, swap: bool) -> tuple[dict, list[float]]:
-    """Two robots driving LANE along parallel lanes GAP apart, tracked by the emulated camera; with
-    ``swap``, mid-lane, one frame draws each robot's marker at the other's pose. Returns the lab's
-    report and when (time.monotonic()) the spoiled frames were drawn."""
-    tmp_path.mkdir()
+def lanes_run(tmp_path: Path, spawned: list) -> tuple[dict, list[float]]:
+    """Two robots driving LANE along parallel lanes GAP apart, tracked by the emulated camera;
+    mid-lane, one frame draws each robot's marker at the other's pose. Returns the lab's report and
+    when (time.monotonic()) the spoiled frames were drawn."""
     scene_path = tmp_path / "lanes.toml"
     scene_path.write_text(
         LANES.format(start=SWAP_AT_X - LANE / 2, end=SWAP_AT_X + LANE / 2, low=-GAP / 2, high=GAP / 2)
@@ -321,7 +320,7 @@ def lanes_run(tmp_path: Path, spawned: list, swap: bool) -> tuple[dict, list[flo
         assert wait_for(lambda: lab.emulator.pose(0)[0] >= SWAP_AT_X or run.poll() is not None, 60)
         # one spoiled frame, again if the node's ticks happened to miss it (frames and ticks are
         # not in step), until robot 0's agent has heard one
-        for _ in range(5 if swap else 0):
+        for _ in range(5):
             poses.drain()
             camera.swap(0, 1)
             end = time.monotonic() + 0.6
@@ -334,7 +333,7 @@ def lanes_run(tmp_path: Path, spawned: list, swap: bool) -> tuple[dict, list[flo
         report = lab.close()
     assert run.returncode == 0, err[-3000:]
     assert camera.error is None
-    assert heard or not swap, "robot 0's agent never heard a swapped pose"
+    assert heard, "robot 0's agent never heard a swapped pose"
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert metrics["end_reason"] == "converged"
     assert all(r["dropped_poses"] == {"stale": 0, "future": 0} for r in metrics["hardware"]["robots"])
@@ -370,18 +369,18 @@ def path_length(path: np.ndarray) -> float:
 @pytest.mark.slow
 @pytest.mark.serial
 def test_a_marker_swap_for_one_frame_makes_the_robots_brake_not_swerve(tmp_path, spawned):
-    """The same two-lane run twice on the emulated camera, the second with one frame in which the two
-    robots' markers are swapped (each robot's tracked pose jumps GAP = 0.5 m): no contact, neither
-    robot's TRUE path leaves the path of the run without the swap by 2 cm nor grows by 2 cm, and each
-    robot is stopped on the jump and drives on after it."""
-    plain, _ = lanes_run(tmp_path / "plain", spawned, swap=False)
-    swapped, glitched = lanes_run(tmp_path / "swapped", spawned, swap=True)
-    assert plain["contacts"] == [] and swapped["contacts"] == []
+    """A two-lane run on the emulated camera with one frame in which the two robots' markers are
+    swapped (each robot's tracked pose jumps GAP = 0.5 m): no contact, neither robot's TRUE path
+    leaves its lane by 2 cm nor is 2 cm longer or shorter than the lane (a run without the swap:
+    7 mm and 1 mm, the camera's noise), and each robot is stopped on the jump and drives on after it."""
+    swapped, glitched = lanes_run(tmp_path, spawned)
+    assert swapped["contacts"] == []
+    start = load_scene(str(tmp_path / "lanes.toml")).poses[:, :2]
     for robot in (0, 1):
-        before, after = path_of(plain, robot), path_of(swapped, robot)
-        detour = distance_to_path(after, before).max()
+        after, lane = path_of(swapped, robot), np.array([start[robot], start[robot] + [LANE, 0.0]])
+        detour = distance_to_path(after, lane).max()
         assert detour < 0.02, (robot, detour)
-        assert abs(path_length(after) - path_length(before)) < 0.02, (robot, path_length(after), path_length(before))
+        assert abs(path_length(after) - LANE) < 0.02, (robot, path_length(after))
         # braked: a stop reached it within half a second of a spoiled frame; and it moved on after
         log = np.array(swapped["robots"][robot]["log"], float)
         stops = [t for t, left, right in log if left == 0 and right == 0]
