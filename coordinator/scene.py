@@ -239,7 +239,7 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
         duration=duration,
         seed=seed,
         noise=_noise(_table(data, "noise", {}, where), where),
-        converge_hold=float(_table(data, "end", {}, where).get("converge_hold", Scene.converge_hold)),
+        converge_hold=_converge_hold(_table(data, "end", {}, where), where),
         source=source,
     )
     _check_settings(scene, where)
@@ -363,6 +363,9 @@ def _parse_animation(table: Any, source: str, where: str) -> Animation:
 def initial_poses(layout: dict[str, Any], n: int, radius: float, seed: int, where: str = "scene") -> np.ndarray:
     """Initial poses (N,3) of a layout; headings face the arena centre for circle and rows."""
     kind = layout.get("kind", "grid")
+    for key in ("spacing", "radius", "offset"):
+        if key in layout and not _positive(layout[key]):
+            raise SceneError(f"{where}: layout {key} must be a positive number of metres, not {layout[key]!r}")
     spacing = float(layout.get("spacing", 4.0 * radius))
     if kind == "circle":
         # Auto radius keeps neighbours on the circle `spacing` apart (RVO2's Circle, at display scale).
@@ -652,6 +655,13 @@ def _tables(data: dict[str, Any], key: str, where: str) -> list[dict[str, Any]]:
     if not (isinstance(value, list) and all(isinstance(v, dict) for v in value)):
         raise SceneError(f"{where}: {key} must be [[{key}]] tables, not {value!r}")
     return list(value)
+
+
+def _converge_hold(end: dict[str, Any], where: str) -> float:
+    hold = end.get("converge_hold", Scene.converge_hold)
+    if not (is_number(hold) and hold >= 0):
+        raise SceneError(f"{where}: [end] converge_hold must be a number of seconds >= 0, not {hold!r}")
+    return float(hold)
 
 
 def _noise(data: dict[str, Any], where: str) -> Noise:

@@ -143,6 +143,22 @@ def test_a_table_written_as_a_value_names_its_key(key, value):
     assert "\n" not in str(err.value)
 
 
+@pytest.mark.parametrize(
+    "data, message",
+    [
+        ({"layout": {"kind": "circle", "spacing": "wide"}}, "layout spacing must be a positive number"),
+        ({"layout": {"kind": "circle", "radius": -0.5}}, "layout radius must be a positive number"),
+        ({"layout": {"kind": "blocks", "offset": [1]}}, "layout offset must be a positive number"),
+        ({"end": {"converge_hold": "long"}}, "converge_hold must be a number of seconds >= 0"),
+        ({"end": {"converge_hold": -1}}, "converge_hold must be a number of seconds >= 0"),
+    ],
+)
+def test_a_bad_number_in_the_layout_or_the_end_names_its_key(data, message):
+    with pytest.raises(SceneError, match=message) as err:
+        scene_from_dict({"robots": 4, **data}, "s.toml")
+    assert "\n" not in str(err.value)
+
+
 # --- goal sets of a step for a robot count ------------------------------------------------------
 @pytest.mark.parametrize(
     "counts, full, n, expected",
