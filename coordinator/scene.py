@@ -619,8 +619,8 @@ def _check_event(event: dict[str, Any], scene: Scene, where: str) -> None:
         raise SceneError(f"{where}: tracker-glitch event needs t > 0 and offset = [dx, dy] (m)")
 
 
-def _robot_index(entry: Any, scene: Scene, where: str, key: str = "robot") -> int:
-    value = entry.get(key) if isinstance(entry, dict) else None
+def _robot_index(entry: dict[str, Any], scene: Scene, where: str, key: str = "robot") -> int:
+    value = entry.get(key)
     if not (isinstance(value, int) and 0 <= value < scene.robots):
         raise SceneError(f"{where}: {key} must be a robot index in 0..{scene.robots - 1}, not {value!r}")
     return value

@@ -235,16 +235,16 @@ class DisplayLog:
         self.heading = True  # a heading arrow per robot in the scene: not for holonomic robots, which never turn
         self._next_scene = -np.inf  # display time of the next scene message (above LOG_ROBOTS)
         self._last_scene: bytes = b""  # the swarm's last scene message, but for its time
-        self._goal_sets: dict[str, bytes] = {}  # per goal-set key, the payload logged last
+        self._last_goals: tuple[str, bytes] | None = None  # the goal set logged last: its key and payload
 
     def repeats(self, kind: str, key: str, payload: bytes) -> bool:
         """A goal set the coordinator published again unchanged (it does every second, for late
-        joiners): logged once, as thousands of goals a second would make most of the log. A changed
-        one is logged again."""
+        joiners, the newest set only): logged once, as thousands of goals a second would make most
+        of the log. A changed one is logged again."""
         if kind != "goals":
             return False
-        same = self._goal_sets.get(key) == payload
-        self._goal_sets[key] = payload
+        same = self._last_goals == (key, payload)
+        self._last_goals = (key, payload)
         return same
 
     def json(self, kind: str, wall: float, payload: dict[str, Any]) -> None:
