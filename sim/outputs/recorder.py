@@ -207,6 +207,12 @@ class Convergence:
     ends: Callable[[float, float], bool] | None = None
     ended_at: int | None = None  # ticks recorded when it ended (none recorded after)
 
+    def end_reason(self, world_reason: str) -> str:
+        """The run's end as recorded. A recorder behind the world (a loaded machine) sees the display
+        hold converged only after the world, told too late, ran on to its duration: the recording
+        still ends at the converged tick."""
+        return "converged" if world_reason == "duration" and self.ended_at is not None else world_reason
+
     def check(self, t: float, pose: np.ndarray, said: RobotsSaid, newest: Goals | None) -> None:
         """Converged: every live robot has a goal and is within tolerance of it (true position)."""
         if not self.agent_alive.any():

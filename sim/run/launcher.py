@@ -414,6 +414,7 @@ class Launcher:
             self._check_children(recorder)  # an agent that died as the world finished is still a crash
             self._stop_children()
             self._record_the_last_ticks(recorder)
+            end_reason = recorder.progress.end_reason(end_reason)
             recorder.close_log()
             (self.run_dir / TICKS_FILE).unlink(missing_ok=True)  # trajectory.npz holds them, and more
         finally:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.outputs.recorder import display_converged
+from sim.outputs.recorder import Convergence, display_converged
 from transport.codec import Goals, Timing
 
 TOL = 0.01
@@ -48,3 +48,13 @@ def test_a_goal_set_that_still_holds_a_dead_robot_is_not_the_display_for_the_rob
     alive = np.array([True, True, True, False])
     assert not display_converged(pose, goal, np.full(4, 1), alive, goal_set(1, [0, 1, 2, 3]), TOL)
     assert display_converged(pose, goal, np.array([2, 2, 2, 1]), alive, goal_set(2, [0, 1, 2]), TOL)
+
+
+def test_a_run_recorded_as_converged_ends_converged_whatever_the_world_ran_on_to():
+    """A recorder behind the world (a loaded machine) sees the hold end after the world ran to its
+    duration: the recording ends at the converged tick, and so does the run's reason."""
+    progress = Convergence(TOL, np.ones(4, bool))
+    assert progress.end_reason("duration") == "duration"  # never held converged
+    progress.ended_at = 168
+    assert progress.end_reason("duration") == "converged"
+    assert progress.end_reason("world exited with code 1") == "world exited with code 1"
