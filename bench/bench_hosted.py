@@ -7,6 +7,7 @@ and loading a scene at start-up. One module, a benchmark per name; each writes b
     .venv/bin/python -m bench.bench_hosted sequence [--scene paper-sequence-100] [-k 10]
     .venv/bin/python -m bench.bench_hosted animation [--scene leaf] [-k 10] [--from RUN_DIR]
     .venv/bin/python -m bench.bench_hosted sync --before DIR [--robots 30] [--pairs 1]
+    .venv/bin/python -m bench.bench_hosted processes [--circle 100] [--animation 40] [--repeat 2]
     .venv/bin/python -m bench.bench_hosted scenes [--scene paper-sequence ...] [--before DIR]
 """
 
@@ -27,7 +28,7 @@ from agent.core.params import RobotParams
 from coordinator.scene import load_scene
 from sim.outputs.mcaplog import logged
 from sim.outputs.metrics import keyframe_errors
-from tests.assignment_quality import agreements
+from tests.support.assignment_quality import agreements
 from transport.codec import State
 
 from .common import REPO, load_run, parser_for, run_cli_scene, run_subcommand, steps_table, write_results
@@ -547,7 +548,70 @@ def scenes_main(argv: list[str] | None = None) -> int:
     return 0
 
 
+# --- a robot per process in lock-step (processes) ------------------------------------------------
+PROCESSES_DOC = """Issue 43's robot-per-process rows: a lock-step run with an agent process per robot beside the
+central engine's run of the same flags, --repeat times: the stepping realtime factor (display seconds
+over wall seconds between the first and last recorded tick), contacts, missed ticks, and whether the
+trajectories are the central engine's to 1e-9 m. Two scenes: `circle` with --circle robots for
+--duration s, and an animation of four keyframes (a disk crossing a bar, drawn into a temporary
+folder) with --animation robots, whole: 30 s to form the first keyframe, then 5 s per keyframe.
+
+    python -m bench.bench_hosted processes [--circle 100] [--animation 40] [--duration 20] [--repeat 2]
+"""
+
+
+def keyframes(folder: Path, count: int = 4) -> Path:
+    """``count`` PNGs of a disk moving across a fixed bar, in ``folder``/frames."""
+    import cv2
+
+    frames = folder / "frames"
+    frames.mkdir()
+    for i in range(count):
+        image = np.full((120, 160, 3), 255, np.uint8)
+        cv2.circle(image, (35 + 30 * i, 60), 28, (0, 0, 200), -1)
+        cv2.rectangle(image, (70, 10), (90, 110), (200, 0, 0), -1)
+        cv2.imwrite(str(frames / f"frame{i}.png"), image)
+    return frames
+
+
+def processes_main(argv: list[str] | None = None) -> int:
+    parser = parser_for("bench.bench_hosted processes", PROCESSES_DOC)
+    parser.add_argument("--circle", type=int, default=100, help="robots (and agent processes) on the circle")
+    parser.add_argument("--animation", type=int, default=40, help="robots (and agent processes) of the animation")
+    parser.add_argument("--duration", type=float, default=20.0, help="s of display of the circle")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--repeat", type=int, default=2)
+    opt = parser.parse_args(argv)
+    rows = [
+        "| scene | robots | run | stepping realtime factor | wall s | contacts | missed ticks | = central (1e-9 m) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    with tempfile.TemporaryDirectory() as tmp:
+        scenes = {
+            "circle": ["circle", "--robots", str(opt.circle), "--duration", f"{opt.duration:g}"],
+            "animation": [str(keyframes(Path(tmp))), "--robots", str(opt.animation)],
+        }
+        for name, scene in scenes.items():
+            args = [*scene, "--clock", "lockstep", "--seed", str(opt.seed), "--no-plots"]
+            robots = int(scene[2])
+            _, central = run_in_tree(REPO, [*args, "--engine", "central"], Path(tmp) / f"{name}-central")
+            for k in range(opt.repeat):
+                m, traj = run_in_tree(REPO, args, Path(tmp) / f"{name}-{k}")
+                same = len(traj["t"]) == len(central["t"]) and (
+                    float(np.abs(traj["pose"][..., :2] - central["pose"][..., :2]).max()) <= 1e-9
+                )
+                rows.append(
+                    f"| {name} | {robots} | {k + 1} | {m['stepping_realtime_factor']:.2f} | {m['wall_s']:.1f} | "
+                    f"{m['contacts']} | {m['missed_ticks']} | {'yes' if same else 'no'} |"
+                )
+                print(rows[-1], flush=True)
+    command = "python -m bench.bench_hosted processes " + " ".join(argv if argv is not None else sys.argv[1:])
+    write_results("processes", "A robot per process in lock-step, beside the central engine", command.strip(), rows)
+    return 0
+
+
 COMMANDS = {
+    "processes": processes_main,
     "hosted": hosted_main,
     "sequence": sequence_main,
     "animation": animation_main,

@@ -4,7 +4,7 @@ Each writes its results, with its command and date, to bench/results/<name>.md.
 
 BENCHMARKS.md holds today's figures, chosen from those by hand: it is not rebuilt from them.
 
-make bench                      # everything (tens of minutes on 2 cores)
+make bench                      # everything (tens of minutes on 2 cores): python -m bench.run_all
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ BENCHES = [
     ["bench.bench_hosted"],
     ["bench.bench_hosted", "sequence"],
     ["bench.bench_hosted", "animation"],
+    ["bench.bench_hosted", "processes"],
     ["bench.paper_figures"],
     ["bench.paper_figures", "keyframes"],
     ["bench.paper_figures", "carry"],

@@ -1,0 +1,19 @@
+"""Every benchmark in bench/ imports as a user would run it (a module renamed elsewhere in the tree
+breaks a benchmark only when someone next runs it, which may be months later) and says how to run it."""
+
+from __future__ import annotations
+
+import importlib
+
+import pytest
+
+from tests.conftest import REPO
+
+MODULES = sorted(p.stem for p in (REPO / "bench").glob("*.py") if p.stem not in ("__init__", "common"))
+
+
+@pytest.mark.parametrize("name", MODULES)
+def test_a_benchmark_imports_and_says_how_to_run_it(name):
+    module = importlib.import_module(f"bench.{name}")
+    doc = module.__doc__ or ""
+    assert f"python -m bench.{name}" in doc or f"bench/{name}.py" in doc, f"bench/{name}.py: no command line in its docstring"
