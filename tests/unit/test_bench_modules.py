@@ -16,4 +16,6 @@ MODULES = sorted(p.stem for p in (REPO / "bench").glob("*.py") if p.stem not in 
 def test_a_benchmark_imports_and_says_how_to_run_it(name):
     module = importlib.import_module(f"bench.{name}")
     doc = module.__doc__ or ""
-    assert f"python -m bench.{name}" in doc or f"bench/{name}.py" in doc, f"bench/{name}.py: no command line in its docstring"
+    assert f"python -m bench.{name}" in doc or f"bench/{name}.py" in doc, (
+        f"bench/{name}.py: no command line in its docstring"
+    )
