@@ -8,6 +8,7 @@ and loading a scene at start-up. One module, a benchmark per name; each writes b
     .venv/bin/python -m bench.bench_hosted animation [--scene leaf] [-k 10] [--from RUN_DIR]
     .venv/bin/python -m bench.bench_hosted sync --before DIR [--robots 30] [--pairs 1]
     .venv/bin/python -m bench.bench_hosted processes [--circle 100] [--animation 40] [--repeat 2]
+    .venv/bin/python -m bench.bench_hosted beside SCENE [pixelswarm run flags] [--repeat 1]
     .venv/bin/python -m bench.bench_hosted scenes [--scene paper-sequence ...] [--before DIR]
 """
 
@@ -344,13 +345,14 @@ def picture(folder: Path) -> Path:
     return path
 
 
-def run_in_tree(code: Path, args: list[str], out: Path) -> tuple[dict, dict]:
-    """`pixelswarm run` with the code of ``code`` (its folder first on the import path)."""
+def run_in_tree(code: Path, args: list[str], out: Path, arrays: bool = True) -> tuple[dict, dict]:
+    """`pixelswarm run` with the code of ``code`` (its folder first on the import path): its metrics,
+    and (``arrays``) its trajectory.npz loaded."""
     cmd = [sys.executable, "-m", "sim.cli", "run", *args, "--out", str(out), "--no-video", "-q"]
     proc = subprocess.run(cmd, cwd=code, capture_output=True, text=True)
     if proc.returncode != 0:
         raise RuntimeError(f"run failed ({code}): {proc.stderr[-2000:]}")
-    return json.loads((out / "metrics.json").read_text()), dict(np.load(out / "trajectory.npz"))
+    return json.loads((out / "metrics.json").read_text()), dict(np.load(out / "trajectory.npz")) if arrays else {}
 
 
 def shared_ticks(traj: dict) -> int:
@@ -548,13 +550,67 @@ def scenes_main(argv: list[str] | None = None) -> int:
     return 0
 
 
-# --- a robot per process in lock-step (processes) ------------------------------------------------
-PROCESSES_DOC = """Issue 43's robot-per-process rows: a lock-step run with an agent process per robot beside the
-central engine's run of the same flags, --repeat times: the stepping realtime factor (display seconds
-over wall seconds between the first and last recorded tick), contacts, missed ticks, and whether the
-trajectories are the central engine's to 1e-9 m. Two scenes: `circle` with --circle robots for
---duration s, and an animation of four keyframes (a disk crossing a bar, drawn into a temporary
-folder) with --animation robots, whole: 30 s to form the first keyframe, then 5 s per keyframe.
+# --- distributed runs beside the central engine's (beside, processes) -----------------------------
+BESIDE_DOC = """A distributed run beside the central engine's run of the same flags: `pixelswarm run SCENE
+[flags]` with `--engine central`, then as given (the distributed engine unless the flags say
+otherwise) --repeat times. Per run: the stepping realtime factor (display seconds over wall seconds
+between the first and last recorded tick), contacts, missed ticks, and whether the trajectories are
+the central engine's: poses to 1e-9 m and the assignment at every recorded tick, or the first display
+time where they part. Written to bench/results/<--results>.md.
+
+    python -m bench.bench_hosted beside paper-sequence-10000 -k 1000 --clock lockstep --rounds-per-tick 1 --duration 247.5
+"""
+BESIDE_HEADER = [
+    "| scene | robots | run | stepping realtime factor | wall s | contacts | missed ticks | = central (poses to 1e-9 m, assignment) |",
+    "|---|---|---|---|---|---|---|---|",
+]
+
+
+def parted_at(traj: Path, central: Path) -> str:
+    """'yes' if two runs' trajectory.npz hold the same ticks, poses to 1e-9 m and assignments; else
+    the display time from which they part (read key by key: a 10,000-robot run's arrays are large)."""
+    with np.load(traj) as a, np.load(central) as b:
+        t, n = a["t"], min(len(a["t"]), len(b["t"]))
+        apart = np.abs(a["pose"][:n, :, :2] - b["pose"][:n, :, :2]).max(axis=(1, 2)) > 1e-9
+        if "goal_set_epochs" in b.files:  # scenes of per-robot goals: the central engine records each its own
+            apart |= (a["assignment"][:n] != b["assignment"][:n]).any(axis=1)
+        if not apart.any():
+            return "yes" if len(a["t"]) == len(b["t"]) else f"no: {len(a['t'])} ticks, central {len(b['t'])}"
+        return f"no: from t = {t[int(np.argmax(apart))]:.1f} s"
+
+
+def beside_central(name: str, args: list[str], out: Path, repeat: int) -> list[str]:
+    """The rows of BESIDE_HEADER: ``args`` run --repeat times beside the central engine's run of them."""
+    run_in_tree(REPO, [*args, "--engine", "central"], out / f"{name}-central", arrays=False)
+    rows = []
+    for k in range(repeat):
+        m, _ = run_in_tree(REPO, args, out / f"{name}-{k}", arrays=False)
+        same = parted_at(out / f"{name}-{k}" / "trajectory.npz", out / f"{name}-central" / "trajectory.npz")
+        rows.append(
+            f"| {name} | {m['robots']} | {k + 1} | {m['stepping_realtime_factor']:.2f} | {m['wall_s']:.1f} | "
+            f"{m['contacts']} | {m['missed_ticks']} | {same} |"
+        )
+        print(rows[-1], flush=True)
+    return rows
+
+
+def beside_main(argv: list[str] | None = None) -> int:
+    parser = parser_for("bench.bench_hosted beside", BESIDE_DOC)
+    parser.add_argument("scene", help="a scene, picture or folder, as `pixelswarm run` takes it")
+    parser.add_argument("--repeat", type=int, default=1)
+    parser.add_argument("--results", default="beside", help="bench/results/<name>.md (default beside)")
+    opt, flags = parser.parse_known_args(argv)
+    with tempfile.TemporaryDirectory() as tmp:
+        rows = beside_central(Path(opt.scene).name, [opt.scene, *flags, "--no-plots"], Path(tmp), opt.repeat)
+    command = "python -m bench.bench_hosted beside " + " ".join(argv if argv is not None else sys.argv[1:])
+    write_results(opt.results, "A distributed run beside the central engine", command.strip(), BESIDE_HEADER + rows)
+    return 0
+
+
+PROCESSES_DOC = """Issue 43's robot-per-process rows (as `beside`): a lock-step run with an agent process per robot
+beside the central engine's run of the same flags, --repeat times. Two scenes: `circle` with --circle
+robots for --duration s, and an animation of four keyframes (a disk crossing a bar, drawn into a
+temporary folder) with --animation robots, whole: 30 s to form the first keyframe, then 5 s per keyframe.
 
     python -m bench.bench_hosted processes [--circle 100] [--animation 40] [--duration 20] [--repeat 2]
 """
@@ -582,10 +638,7 @@ def processes_main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--repeat", type=int, default=2)
     opt = parser.parse_args(argv)
-    rows = [
-        "| scene | robots | run | stepping realtime factor | wall s | contacts | missed ticks | = central (1e-9 m) |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
+    rows = list(BESIDE_HEADER)
     with tempfile.TemporaryDirectory() as tmp:
         scenes = {
             "circle": ["circle", "--robots", str(opt.circle), "--duration", f"{opt.duration:g}"],
@@ -593,24 +646,14 @@ def processes_main(argv: list[str] | None = None) -> int:
         }
         for name, scene in scenes.items():
             args = [*scene, "--clock", "lockstep", "--seed", str(opt.seed), "--no-plots"]
-            robots = int(scene[2])
-            _, central = run_in_tree(REPO, [*args, "--engine", "central"], Path(tmp) / f"{name}-central")
-            for k in range(opt.repeat):
-                m, traj = run_in_tree(REPO, args, Path(tmp) / f"{name}-{k}")
-                same = len(traj["t"]) == len(central["t"]) and (
-                    float(np.abs(traj["pose"][..., :2] - central["pose"][..., :2]).max()) <= 1e-9
-                )
-                rows.append(
-                    f"| {name} | {robots} | {k + 1} | {m['stepping_realtime_factor']:.2f} | {m['wall_s']:.1f} | "
-                    f"{m['contacts']} | {m['missed_ticks']} | {'yes' if same else 'no'} |"
-                )
-                print(rows[-1], flush=True)
+            rows += beside_central(name, args, Path(tmp), opt.repeat)
     command = "python -m bench.bench_hosted processes " + " ".join(argv if argv is not None else sys.argv[1:])
     write_results("processes", "A robot per process in lock-step, beside the central engine", command.strip(), rows)
     return 0
 
 
 COMMANDS = {
+    "beside": beside_main,
     "processes": processes_main,
     "hosted": hosted_main,
     "sequence": sequence_main,
