@@ -20,6 +20,9 @@ the video over ``--frames`` frames only.
 It also logs ``--log-ticks`` ticks of a 10-host run's messages (:func:`log_rows`) through the
 recorder: log.mcap's bytes per message per channel and the whole sequence's log at that rate.
 
+``--clearance``: the smallest clearance of one tick (metrics.clearance_at, on the world's grid) beside
+scipy's k-d tree, CPU ms at 1000 and 10,000 robots, scattered and formed.
+
 ``--mcap``: the size of log.mcap for one 100-robot lock-step run (:data:`MCAP_RUN`, the same run bit
 for bit each time), per channel: messages, their bytes, and those bytes compressed alone with zstd
 (the file compresses the channels together, in chunks). ``--tree DIR`` runs the code of another
@@ -328,8 +331,50 @@ def log_rows(ticks: int) -> list[str]:
     ]
 
 
+def kdtree_clearance(xy: np.ndarray, radius: np.ndarray) -> float:
+    """The reference of ``--clearance``: the smallest clearance from scipy's k-d tree (the pairs within
+    touching distance plus 0.1 m, else each robot's nearest), for equal radii."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(xy, balanced_tree=False, compact_nodes=False)
+    r = float(radius[0])
+    near = tree.query_pairs(2 * r + 0.1, output_type="ndarray")
+    if len(near):
+        return float(np.sqrt(((xy[near[:, 0]] - xy[near[:, 1]]) ** 2).sum(-1)).min() - 2 * r)
+    return float(tree.query(xy, k=2)[0][:, 1].min() - 2 * r)
+
+
+def clearance_rows(repeat: int = 20) -> list[str]:
+    """CPU ms per tick of metrics.clearance_at (the world's grid) beside scipy's k-d tree, at 1000 and
+    10,000 robots (radius 0.045 m), scattered over paper-sequence-1000's arena scaled by sqrt(N) and
+    formed on a 0.1 m lattice (jittered 3 mm): what clearance_over_time spends on each recorded tick."""
+    from sim.outputs.metrics import clearance_at
+
+    rng = np.random.default_rng(0)
+    rows = ["| robots | layout | grid ms | k-d tree ms | the same clearance |", "|---|---|---|---|---|"]
+    for n in (1000, 10000):
+        side = int(np.ceil(np.sqrt(n)))
+        lattice = np.stack(np.meshgrid(np.arange(side), np.arange(side)), -1).reshape(-1, 2)[:n] * 0.1
+        layouts = {"scattered": rng.uniform(0, 48.9 * np.sqrt(n / 1000), (n, 2))}
+        layouts["formed"] = lattice + rng.normal(0, 0.003, (n, 2))
+        radius = np.full(n, 0.045)
+        for name, xy in layouts.items():
+            ms, got = [], []
+            for f in (clearance_at, kdtree_clearance):
+                got.append(f(xy, radius))
+                start = time.process_time()
+                for _ in range(repeat):
+                    f(xy, radius)
+                ms.append((time.process_time() - start) / repeat * 1e3)
+            same = abs(got[0] - got[1]) <= 1e-12
+            rows.append(f"| {n} | {name} | {ms[0]:.3f} | {ms[1]:.3f} | {'yes' if same else 'no'} |")
+            print(rows[-1], flush=True)
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
+    parser.add_argument("--clearance", action="store_true", help="only the clearance of a tick, beside scipy's")
     parser.add_argument("--mcap", action="store_true", help="only log.mcap's size for one 100-robot run")
     parser.add_argument("--tree", type=Path, default=REPO, help="--mcap: the checkout whose code runs")
     parser.add_argument("--large", action="store_true", help="each output of a 10,000-robot run directory")
@@ -337,6 +382,14 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=60, help="--large: frames of the video")
     parser.add_argument("--log-ticks", type=int, default=100, help="--large: ticks of log.mcap")
     args = parser.parse_args()
+    if args.clearance:
+        write_results(
+            "clearance",
+            "The smallest clearance of a recorded tick: the world's grid beside scipy's k-d tree",
+            ".venv/bin/python bench/bench_outputs.py --clearance",
+            [*clearance_rows(), "", f"Load average at the end: {os.getloadavg()[0]:.1f}."],
+        )
+        return
     if args.large:
         write_results(
             "outputs_large",

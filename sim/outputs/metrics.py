@@ -14,6 +14,8 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
+from sim.bodies.proximity import close_pairs
+
 __all__ = [
     "clearance_over_time",
     "clearance_at",
@@ -83,49 +85,32 @@ NEAR = 0.1  # m: clearance_at looks first at the pairs within this of touching
 
 def clearance_at(xy: np.ndarray, radius: np.ndarray) -> float:
     """Minimum over pairs of ``|p_i - p_j| - r_i - r_j`` at one instant; +inf for fewer than 2
-    robots.  Non-finite positions are ignored.  Exact for any radii."""
-    xy = np.asarray(xy, dtype=float)[:, :2]
+    robots.  Non-finite positions are ignored.  Exact for any radii: the world's grid search for
+    close pairs (sim.bodies.proximity) over the pairs within a reach that grows until the smallest
+    clearance it finds is one no pair beyond it could beat."""
+    xy = np.ascontiguousarray(np.asarray(xy, dtype=float)[:, :2])
     radius = np.asarray(radius, dtype=float)
     ok = np.isfinite(xy).all(axis=1)
     if not ok.all():
-        xy, radius = xy[ok], radius[ok]
-    n = len(xy)
-    if n < 2:
+        xy, radius = np.ascontiguousarray(xy[ok]), radius[ok]
+    if len(xy) < 2:
         return float("inf")
-    if n <= 48:  # small: brute force
-        d = np.sqrt(((xy[:, None, :] - xy[None, :, :]) ** 2).sum(-1)) - radius[:, None] - radius[None, :]
-        iu = np.triu_indices(n, 1)
-        return float(d[iu].min())
-    # an unbalanced tree builds in half the time, and one tick queries it once or twice
-    tree = cKDTree(xy, balanced_tree=False, compact_nodes=False)
-    rmin, rmax = float(radius.min()), float(radius.max())
-    near = tree.query_pairs(2 * rmax + NEAR, output_type="ndarray")
-    if len(near):
-        # any pair closer than its radii plus NEAR is among these: the smallest clearance is theirs,
-        # found without a nearest-neighbour query for every robot
-        i, j = near[:, 0], near[:, 1]
-        c = np.sqrt(((xy[i] - xy[j]) ** 2).sum(-1)) - radius[i] - radius[j]
-        if c.min() <= NEAR:
-            return float(c.min())
-    dist, idx = tree.query(xy, k=2)
-    nn_d, nn_j = dist[:, 1], idx[:, 1]
-    ub = float((nn_d - radius - radius[nn_j]).min())
-    if rmax == rmin:
-        return ub  # equal radii: the nearest centres give the smallest clearance
-    # Unequal radii: any pair better than ub has |p_i - p_j| < ub + r_i + r_j <= ub + 2 rmax.
-    pairs = tree.query_pairs(max(ub + 2 * rmax, 0.0), output_type="ndarray")
-    if len(pairs) == 0:
-        return ub
-    i, j = pairs[:, 0], pairs[:, 1]
-    c = np.sqrt(((xy[i] - xy[j]) ** 2).sum(-1)) - radius[i] - radius[j]
-    return float(min(ub, c.min()))
+    rmax = float(radius.max())
+    span = float(np.hypot(*(xy.max(axis=0) - xy.min(axis=0))))  # every pair is within this
+    reach = 2 * rmax + NEAR
+    while True:
+        got = close_pairs(xy[None], radius, reach, 0.0, 0)
+        assert got is not None  # no budget given
+        # a pair of clearance c is within reach if c <= reach - 2 rmax
+        if got[0] <= reach - 2 * rmax or reach > span:
+            return got[0]
+        reach *= 4
 
 
 def clearance_over_time(pose: np.ndarray, radius: np.ndarray) -> np.ndarray:
     """(T,) minimum pairwise clearance (centre distance minus both radii) per sample.
 
     Negative means overlap (contact).  +inf where fewer than two robots are present (N=1).
-    Uses a k-d tree per sample: N=1000, T=3000 takes a few seconds.
     """
     pose = pose if hasattr(pose, "shape") else np.asarray(pose, dtype=float)
     T, N = _pose_shape(pose)
@@ -133,8 +118,10 @@ def clearance_over_time(pose: np.ndarray, radius: np.ndarray) -> np.ndarray:
     out = np.full(T, np.inf)
     if N < 2:
         return out
-    for k in range(T):  # a tick at a time: the poses may be on disk (sim.outputs.stream)
-        out[k] = clearance_at(_xy(pose, k), r)
+    rows = max(1, CHUNK // (2 * N))  # ticks read at once: the poses may be on disk (sim.outputs.stream)
+    for lo in range(0, T, rows):
+        for k, xy in enumerate(_xy(pose, slice(lo, lo + rows)), lo):
+            out[k] = clearance_at(xy, r)
     return out
 
 
