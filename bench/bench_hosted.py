@@ -552,13 +552,13 @@ def scenes_main(argv: list[str] | None = None) -> int:
 
 # --- distributed runs beside the central engine's (beside, processes) -----------------------------
 BESIDE_DOC = """A distributed run beside the central engine's run of the same flags: `pixelswarm run SCENE
-[flags]` with `--engine central`, then as given (the distributed engine unless the flags say
-otherwise) --repeat times. Per run: the stepping realtime factor (display seconds over wall seconds
+[flags]` with `--engine central`, then as given (flags that run the distributed engine) --repeat times. Per run: the stepping realtime factor (display seconds over wall seconds
 between the first and last recorded tick), contacts, missed ticks, and whether the trajectories are
 the central engine's: poses to 1e-9 m and the assignment at every recorded tick, or the first display
 time where they part. Written to bench/results/<--results>.md.
 
-    python -m bench.bench_hosted beside paper-sequence-10000 -k 1000 --clock lockstep --rounds-per-tick 1 --duration 247.5
+    python -m bench.bench_hosted beside paper-sequence-10000 --engine distributed -k 1000 --clock lockstep \
+        --rounds-per-tick 1 --duration 247.5
 """
 BESIDE_HEADER = [
     "| scene | robots | run | stepping realtime factor | wall s | contacts | missed ticks | = central (poses to 1e-9 m, assignment) |",
@@ -585,6 +585,8 @@ def beside_central(name: str, args: list[str], out: Path, repeat: int) -> list[s
     rows = []
     for k in range(repeat):
         m, _ = run_in_tree(REPO, args, out / f"{name}-{k}", arrays=False)
+        if m["engine"] != "distributed":
+            raise ValueError(f"{name} ran in the {m['engine']} engine: give --engine distributed")
         same = parted_at(out / f"{name}-{k}" / "trajectory.npz", out / f"{name}-central" / "trajectory.npz")
         rows.append(
             f"| {name} | {m['robots']} | {k + 1} | {m['stepping_realtime_factor']:.2f} | {m['wall_s']:.1f} | "
@@ -601,7 +603,11 @@ def beside_main(argv: list[str] | None = None) -> int:
     parser.add_argument("--results", default="beside", help="bench/results/<name>.md (default beside)")
     opt, flags = parser.parse_known_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
-        rows = beside_central(Path(opt.scene).name, [opt.scene, *flags, "--no-plots"], Path(tmp), opt.repeat)
+        try:
+            rows = beside_central(Path(opt.scene).name, [opt.scene, *flags, "--no-plots"], Path(tmp), opt.repeat)
+        except ValueError as err:
+            print(f"error: {err}", file=sys.stderr)
+            return 2
     command = "python -m bench.bench_hosted beside " + " ".join(argv if argv is not None else sys.argv[1:])
     write_results(opt.results, "A distributed run beside the central engine", command.strip(), BESIDE_HEADER + rows)
     return 0
