@@ -552,8 +552,9 @@ def scenes_main(argv: list[str] | None = None) -> int:
 
 # --- distributed runs beside the central engine's (beside, processes) -----------------------------
 BESIDE_DOC = """A distributed run beside the central engine's run of the same flags: `pixelswarm run SCENE
-[flags]` with `--engine central`, then as given (flags that run the distributed engine) --repeat times. Per run: the stepping realtime factor (display seconds over wall seconds
-between the first and last recorded tick), contacts, missed ticks, and whether the trajectories are
+[flags]` with `--engine central`, then as given (flags that run the distributed engine) --repeat
+times. Per run: the stepping realtime factor (display seconds over wall seconds between the first and
+last recorded tick), contacts, missed ticks, when each image formed, and whether the trajectories are
 the central engine's: poses to 1e-9 m and the assignment at every recorded tick, or the first display
 time where they part. Written to bench/results/<--results>.md.
 
@@ -561,9 +562,15 @@ time where they part. Written to bench/results/<--results>.md.
         --rounds-per-tick 1 --duration 247.5
 """
 BESIDE_HEADER = [
-    "| scene | robots | run | stepping realtime factor | wall s | contacts | missed ticks | = central (poses to 1e-9 m, assignment) |",
-    "|---|---|---|---|---|---|---|---|",
+    "| scene | robots | run | stepping realtime factor | wall s | contacts | missed ticks | images formed, s after each began | = central (poses to 1e-9 m, assignment) |",
+    "|---|---|---|---|---|---|---|---|---|",
 ]
+
+
+def formed(m: dict) -> str:
+    """When each image step of a run formed (every robot within 1 cm: metrics' converged_at), '-' for
+    one that did not; '' for a scene of no image steps."""
+    return ", ".join("-" if s["converged_at"] is None else f"{s['converged_at']:.1f}" for s in m.get("steps", []))
 
 
 def parted_at(traj: Path, central: Path) -> str:
@@ -590,7 +597,7 @@ def beside_central(name: str, args: list[str], out: Path, repeat: int) -> list[s
         same = parted_at(out / f"{name}-{k}" / "trajectory.npz", out / f"{name}-central" / "trajectory.npz")
         rows.append(
             f"| {name} | {m['robots']} | {k + 1} | {m['stepping_realtime_factor']:.2f} | {m['wall_s']:.1f} | "
-            f"{m['contacts']} | {m['missed_ticks']} | {same} |"
+            f"{m['contacts']} | {m['missed_ticks']} | {formed(m)} | {same} |"
         )
         print(rows[-1], flush=True)
     return rows
