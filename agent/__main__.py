@@ -17,10 +17,9 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-# Before numpy loads, as `pixelswarm` does for the processes it starts: a robot's computer may start
-# this module itself, and OpenBLAS's thread per core would double the start-up's CPU for no product
-# an agent makes. A user's own setting stands.
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+from . import ONE_BLAS_THREAD
+
+os.environ.setdefault(*ONE_BLAS_THREAD)  # before numpy loads: a robot's computer may start this module itself
 
 from transport.bus import Bus
 from transport.faults import parse_faults

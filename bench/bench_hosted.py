@@ -324,7 +324,8 @@ SYNC_DOC = """What the tick-synchronous auction (issue 21, docs/lockstep_auction
 picture, side by side with the code before it: per engine (a process per robot, agent hosts of K),
 runs of the same seed alternate between a checkout of the code before (``--before DIR``, e.g. made
 with `git worktree add DIR COMMIT`) and this one; each reports the wall time per tick, whether it
-is the central engine's run to 1e-9 m, and the recorded ticks where two robots drive to one goal.
+is the central engine's run (poses to 1e-9 m and assignments, as `beside`), and the recorded ticks
+where two robots drive to one goal.
 
     python -m bench.bench_hosted sync --before ../pixelswarm-before --robots 30 --pairs 2
 """
@@ -372,34 +373,27 @@ def sync_main(argv: list[str] | None = None) -> int:
         print(f"error: {opt.before} is not a checkout of pixelswarm (no sim/cli)", file=sys.stderr)
         return 2
     rows = [
-        "| engine | pair | code | wall s per tick | ticks | = central (1e-9 m) | ticks with a shared goal |",
+        "| engine | pair | code | wall s per tick | ticks | = central (poses to 1e-9 m, assignment) | ticks with a shared goal |",
         "|---|---|---|---|---|---|---|",
     ]
     with tempfile.TemporaryDirectory() as tmp:
         image = picture(Path(tmp))
         args = [str(image), "--robots", str(opt.robots), "--clock", "lockstep", "--seed", str(opt.seed)]
         codes = {"before": opt.before.resolve(), "now": REPO}
-        central = {
-            name: run_in_tree(code, args + ENGINES["central"], Path(tmp) / f"central-{name}")[1]
-            for name, code in codes.items()
-        }
+        for name, code in codes.items():
+            run_in_tree(code, args + ENGINES["central"], Path(tmp) / f"central-{name}", arrays=False)
         for engine, flags in ENGINES.items():
             if engine == "central":
                 continue
             for pair in range(opt.pairs):
                 order = list(codes) if pair % 2 == 0 else list(reversed(codes))
                 for name in order:
-                    m, traj = run_in_tree(
-                        codes[name], args + flags, Path(tmp) / f"{engine}-{pair}-{name}".replace(" ", "-")
-                    )
-                    ref = central[name]
-                    same = (
-                        len(traj["t"]) == len(ref["t"])
-                        and float(np.abs(traj["pose"][..., :2] - ref["pose"][..., :2]).max()) <= 1e-9
-                    )
+                    out = Path(tmp) / f"{engine}-{pair}-{name}".replace(" ", "-")
+                    m, traj = run_in_tree(codes[name], args + flags, out)
+                    same = parted_at(out / "trajectory.npz", Path(tmp) / f"central-{name}" / "trajectory.npz")
                     per_tick = m["stepping_wall_s"] / max(m["samples"] - 1, 1)
                     rows.append(
-                        f"| {engine} | {pair + 1} | {name} | {per_tick:.3f} | {len(traj['t'])} | {'yes' if same else 'no'} | {shared_ticks(traj)} |"
+                        f"| {engine} | {pair + 1} | {name} | {per_tick:.3f} | {len(traj['t'])} | {same} | {shared_ticks(traj)} |"
                     )
                     print(rows[-1], flush=True)
     command = "python -m bench.bench_hosted sync " + " ".join(argv if argv is not None else sys.argv[1:])

@@ -2,7 +2,6 @@
 
 import os
 
-# Set before numpy loads, here and in every process a run starts (they inherit it): our processes keep
-# their cores busy with threads of their own, and OpenBLAS's threads would only spin beside them after
-# each large product of goal generation. A user's own setting stands.
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+from agent import ONE_BLAS_THREAD
+
+os.environ.setdefault(*ONE_BLAS_THREAD)  # before numpy loads, here and in every process a run starts

@@ -88,11 +88,11 @@ def clearance_at(xy: np.ndarray, radius: np.ndarray) -> float:
     robots.  Non-finite positions are ignored.  Exact for any radii: the world's grid search for
     close pairs (sim.bodies.proximity) over the pairs within a reach that grows until the smallest
     clearance it finds is one no pair beyond it could beat."""
-    xy = np.ascontiguousarray(np.asarray(xy, dtype=float)[:, :2])
+    xy = np.asarray(xy, dtype=float)[:, :2]
     radius = np.asarray(radius, dtype=float)
     ok = np.isfinite(xy).all(axis=1)
     if not ok.all():
-        xy, radius = np.ascontiguousarray(xy[ok]), radius[ok]
+        xy, radius = xy[ok], radius[ok]
     if len(xy) < 2:
         return float("inf")
     rmax = float(radius.max())

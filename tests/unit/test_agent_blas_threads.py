@@ -8,6 +8,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 from tests.conftest import REPO
 
 PROBE = """
@@ -22,15 +24,10 @@ print(max(i["num_threads"] for i in threadpool_info() if i["internal_api"] == "o
 """
 
 
-def test_an_agent_process_loads_openblas_with_one_thread():
+@pytest.mark.parametrize("given, threads", [(None, "1"), ("2", "2")])  # a user's own setting stands
+def test_an_agent_process_loads_openblas_with_one_thread_unless_told(given, threads):
     env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    env |= {} if given is None else {"OPENBLAS_NUM_THREADS": given}
     got = subprocess.run([sys.executable, "-c", PROBE], env=env, cwd=REPO, capture_output=True, text=True, timeout=60)
     assert got.returncode == 0, got.stderr[-2000:]
-    assert got.stdout.split()[-1] == "1", got.stdout
-
-
-def test_a_users_own_blas_setting_stands():
-    env = dict(os.environ, OPENBLAS_NUM_THREADS="2")
-    got = subprocess.run([sys.executable, "-c", PROBE], env=env, cwd=REPO, capture_output=True, text=True, timeout=60)
-    assert got.returncode == 0, got.stderr[-2000:]
-    assert got.stdout.split()[-1] == "2", got.stdout
+    assert got.stdout.split()[-1] == threads, got.stdout
