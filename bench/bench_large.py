@@ -13,6 +13,7 @@ side by side in one run:
     .venv/bin/python -m bench.bench_large --before cf836e5 --pairs 2   # the CLI's run beside revision REV's
     .venv/bin/python -m bench.bench_large --before cf836e5 --before-path DIR   # DIR: `pip install --target DIR numba`
     .venv/bin/python -m bench.bench_large --scale 1000,3000,10000 --seconds 10   # cost per robot-step by size
+    .venv/bin/python -m bench.bench_large --scale 1000,3000,10000,30000 --seconds 10 --rounds-per-tick 1
 
 It runs what `pixelswarm run paper-sequence-1000 --no-video` runs (`sim.central.engine.run_central`) in this
 process, with a `sim.central.stepclock.StepClock` that times each part of every control step on the engine's
@@ -38,7 +39,7 @@ import resource
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -333,11 +334,14 @@ def side_by_side(before: str, pairs: int, scene: str, before_path: str | None = 
     ]
 
 
-def scale_one(scene_name: str, robots: int, seconds: float) -> dict:
+def scale_one(scene_name: str, robots: int, seconds: float, rounds: int | None) -> dict:
     """One size of the scaling table: the scene's first image for ``seconds`` of display with
-    ``robots`` robots, the auction assigning; per warm step the wall time per robot by part."""
+    ``robots`` robots, the auction assigning (at most ``rounds`` a tick when given, as
+    ``--rounds-per-tick``); per warm step the wall time per robot by part."""
     t0 = time.perf_counter()
     scene = load_scene(scene_name, robots=robots, duration=seconds)
+    if rounds is not None:
+        scene = replace(scene, robot={**scene.robot, "rounds_per_tick": rounds})
     made = time.perf_counter() - t0
     run = timed_run(scene, "auction", echo=False)
     warm = ~run.cold
@@ -353,7 +357,7 @@ def scale_one(scene_name: str, robots: int, seconds: float) -> dict:
     }
 
 
-def scale_table(scene_name: str, sizes: list[int], seconds: float) -> list[str]:
+def scale_table(scene_name: str, sizes: list[int], seconds: float, rounds: int | None) -> list[str]:
     """The scaling benchmark (issue 43): each size in a process of its own (its own peak RSS)."""
     import subprocess
 
@@ -367,7 +371,8 @@ def scale_table(scene_name: str, sizes: list[int], seconds: float) -> list[str]:
     dt = RobotParams.from_dict(parse_scene(scene_name).robot).dt  # no goal sets needed for the period
     for n in sizes:
         cmd = [sys.executable, "-m", "bench.bench_large", "--scene", scene_name, "--scale-one", str(n)]
-        done = subprocess.run([*cmd, "--seconds", str(seconds)], check=True, capture_output=True, text=True)
+        cmd += ["--seconds", str(seconds)] + ([] if rounds is None else ["--rounds-per-tick", str(rounds)])
+        done = subprocess.run(cmd, check=True, capture_output=True, text=True)
         r = json.loads(done.stdout.strip().splitlines()[-1])
         per = sum(r["us_per_robot_step"].values())
         first = per if first is None else first
@@ -378,12 +383,13 @@ def scale_table(scene_name: str, sizes: list[int], seconds: float) -> list[str]:
             + f" | {per:.2f} | {per / first:.2f} | {r['rss_mb']:.0f} | {r['contacts']} |"
         )
         print(rows[-1], flush=True)
+    bounded = "" if rounds is None else f" (at most {rounds} of its rounds a tick, `--rounds-per-tick {rounds}`)"
     return rows + [
         "",
         f"The first image of `{scene_name}` for {seconds:g} s of display at each size (`--robots N`), the "
-        "auction assigning; wall time per robot and warm control step (a cold start at the first tick is "
+        f"auction assigning{bounded}; wall time per robot and warm control step (a cold start at the first tick is "
         "apart), each size in a process of its own. The parts are those of the tables above (`assignment`: "
-        "waiting for the auction on the second thread).",
+        "the auction's bounded rounds, or the wait for a block agreed within its tick on the second thread).",
     ]
 
 
@@ -402,17 +408,25 @@ def main() -> int:
     parser.add_argument("--before-path", help="--before: a folder first on its PYTHONPATH (e.g. numba for cf836e5)")
     parser.add_argument("--scale", help="robot counts, e.g. 1000,3000,10000: the cost per robot-step at each size")
     parser.add_argument("--seconds", type=float, default=10.0, help="--scale: seconds of display at each size")
+    parser.add_argument(
+        "--rounds-per-tick", type=int, help="--scale: the auction's rounds a tick at most (default: the scene's)"
+    )
     parser.add_argument("--scale-one", type=int, help=argparse.SUPPRESS)  # one size of --scale, as JSON
     args = parser.parse_args()
     if args.scale_one:
-        print(json.dumps(scale_one(args.scene, args.scale_one, args.seconds)))
+        print(json.dumps(scale_one(args.scene, args.scale_one, args.seconds, args.rounds_per_tick)))
         return 0
     if args.scale:
         sizes = [int(n) for n in args.scale.split(",")]
-        lines = scale_table(args.scene, sizes, args.seconds)
+        lines = scale_table(args.scene, sizes, args.seconds, args.rounds_per_tick)
         command = f".venv/bin/python -m bench.bench_large --scale {args.scale} --seconds {args.seconds:g}"
+        if args.rounds_per_tick is not None:
+            command += f" --rounds-per-tick {args.rounds_per_tick}"
         write_results(
-            "scale", f"Central engine: cost per robot-step from {sizes[0]} to {sizes[-1]} robots", command, lines
+            "scale" if args.rounds_per_tick is None else f"scale_rounds{args.rounds_per_tick}",
+            f"Central engine: cost per robot-step from {sizes[0]} to {sizes[-1]} robots",
+            command,
+            lines,
         )
         return 0
     if args.before:

@@ -47,7 +47,9 @@ def test_the_scene_or_the_flag_decides_otherwise(tmp_path, text, flag, reach, ex
     assert rounds(text, tmp_path, flag, reach=reach) == expected
 
 
-def test_the_shipped_large_scenes_agree_every_block_within_its_tick():
-    for name in ("paper-sequence-1000", "paper-sequence-10000", "leaf-1000"):
-        args = SimpleNamespace(rounds_per_tick=None, hardware=None, engine=None)
+def test_the_shipped_large_scenes_agree_every_block_within_its_tick_but_ten_thousand_robots_one_round_a_tick():
+    args = SimpleNamespace(rounds_per_tick=None, hardware=None, engine=None)
+    for name in ("paper-sequence-1000", "leaf-1000"):
         assert "rounds_per_tick" not in cli._with_rounds_per_tick(args, parse_scene(name), math.inf).robot, name
+    ten_thousand = cli._with_rounds_per_tick(args, parse_scene("paper-sequence-10000"), math.inf)
+    assert ten_thousand.robot["rounds_per_tick"] == 1
