@@ -6,8 +6,10 @@ its own (part kind, part version, length) header. ``decode`` never raises: a mal
 wrong-kind, wrong-version or non-finite message returns None and is counted in the ``DropCounter``
 passed in, so nothing a peer sends can break a control loop. The kinds whose content every host
 must hold to the bit (goal sets and the auction's messages: one damaged record there splits the
-hosts' boards for the rest of a goal set) end in a CRC-32 of the bytes before it, and a copy
-damaged on its way is dropped as ``checksum``. The layouts: docs/protocol.md.
+hosts' boards for the rest of a goal set) and the robots' states end in a CRC-32 of the bytes
+before it, and a copy damaged on its way is dropped as ``checksum``. Poses and commands do not:
+a pose that jumps is the pose trust's to judge (agent.pose_trust), a command is checked against
+its tick. The layouts: docs/protocol.md.
 """
 
 from __future__ import annotations
@@ -24,9 +26,10 @@ from typing import Any, ClassVar, Protocol, TypeVar, overload
 
 import numpy as np
 
-VERSION = 4  # of the message header and every kind's layout; a goal set's parts have their own
+VERSION = 5  # of the message header and every kind's layout; a goal set's parts have their own
 _HEADER = struct.Struct("<BB")
 _CHECKSUM = struct.Struct("<I")  # CRC-32 (zlib's) of a CHECKED kind's bytes before it
+CHECKSUM_SIZE = _CHECKSUM.size
 
 
 def with_checksum(data: bytes) -> bytes:
@@ -686,7 +689,8 @@ class Frame(Message):
     def encode_one(cls, view: Any) -> bytes:
         """``one(view).encode()``, the same bytes, packed in one struct call (a robot alone sends
         two a tick)."""
-        return cls._alone.pack(cls.KIND, VERSION, view.tick, view.stamp, *cls._record_of(view))
+        data = cls._alone.pack(cls.KIND, VERSION, view.tick, view.stamp, *cls._record_of(view))
+        return with_checksum(data) if cls.CHECKED else data
 
     @property
     def count(self) -> int:
@@ -763,9 +767,11 @@ class Frame(Message):
         robot alone sends each tick, and an agent hears tens of (through numpy, a frame of one and
         its view cost five times as much). None for anything else (a longer frame, or anything
         wrong), for decode to read and count. The same checks as ``_from``."""
-        if len(data) != cls._alone.size:
+        if len(data) != cls._alone.size + (_CHECKSUM.size if cls.CHECKED else 0):
             return None
-        v = cls._alone.unpack(data)
+        if cls.CHECKED and not intact(data):
+            return None
+        v = cls._alone.unpack_from(data)
         if v[0] != cls.KIND or v[1] != VERSION or not math.isfinite(v[3]):
             return None
         if not all(map(math.isfinite, v[cls._alone_floats])):
@@ -810,6 +816,9 @@ class States(Frame):
     state did."""
 
     KIND: ClassVar[int] = 12
+    # checked: a damaged copy that still decodes would be believed by the neighbours' ORCA and, as the
+    # goal a robot says it holds, by the run's record of the display
+    CHECKED: ClassVar[bool] = True
     VIEW: ClassVar[type] = State
     NAME: ClassVar[str] = State.NAME
     _floats: ClassVar[tuple[str, ...]] = ("x", "y", "vx", "vy", "radius", "goal_x", "goal_y")

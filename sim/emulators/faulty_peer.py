@@ -50,7 +50,7 @@ from dataclasses import dataclass, field, replace
 
 from sim.processes import stopped_by_signals
 from transport.bus import Bus, RawInbox
-from transport.codec import BEFORE_START
+from transport.codec import BEFORE_START, CHECKSUM_SIZE, Commands, Poses, States, with_checksum
 from transport.keys import Keys
 from transport.session import ZENOH_HELP, TransportError, ZenohSettings
 
@@ -75,6 +75,7 @@ _F64 = struct.Struct("<d")
 _TICK_AT = 2  # frames and clock ticks: the u32 tick right after the header
 _FRAME_FIXED = 14  # header, tick, stamp
 _RECORD_SIZE = {"pose": 16, "cmd": 16, "state": 45}
+_CHECKED_FRAMES = {f.NAME for f in (Poses, Commands, States) if f.CHECKED}  # frames that end in a checksum
 # where a kind's count fields lie (byte offsets of u32s in the message)
 _COUNT_AT = {"auction": (26,), "boards": (18, 22, 26), "sim/truth": (18,)}
 _GOALS_SET_AT = 8  # goal set part body: epoch u32, per_robot u8, count u32
@@ -120,6 +121,15 @@ def _forward_u32(data: bytes, at: int, rng: random.Random, skip_before_start: bo
     if value >= BEFORE_START - 1 or (skip_before_start and value == BEFORE_START):
         return None
     return _put(data, at, _U32.pack(min(value + rng.randint(1, FUTURE_MAX), BEFORE_START - 1)))
+
+
+def _sealed(kind: str, forged: bytes | None) -> bytes | None:
+    """A forged frame of a kind that ends in a checksum, with the checksum of its new bytes: the
+    future and restart modes imitate a sender whose frames are intact, so what they test is the
+    receiver's judgement of the tick, not the checksum."""
+    if forged is None or kind not in _CHECKED_FRAMES:
+        return forged
+    return with_checksum(forged[:-CHECKSUM_SIZE])
 
 
 def future_tick(data: bytes, rng: random.Random) -> bytes | None:
@@ -359,7 +369,7 @@ class FaultyPeer:
             return None
         key, data = picked
         if sub.startswith("future-"):
-            out, what = future_tick(data, rng), sub
+            out, what = _sealed(kind, future_tick(data, rng)), sub
         elif sub in ("malformed-pose", "malformed-all"):
             name = rng.choice(self.plan.damages)
             out, what = MALFORM[name](data, rng, kind), f"malformed:{name}"
@@ -371,7 +381,7 @@ class FaultyPeer:
                 field, out = future_stamp(data, rng, kind)
                 what = f"future:{field}"
         elif sub == "restart":
-            out, what = self._restarted(key, data, now), "restart"
+            out, what = _sealed(kind, self._restarted(key, data, now)), "restart"
         else:
             raise ValueError(sub)
         if out is None or out == data:
