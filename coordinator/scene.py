@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any, Protocol, TypedDict, Unpack
 
 import numpy as np
 
+from agent.core.grid import nearest
 from transport import epuck
 
 from .goals import IMAGE_SUFFIXES, GoalError
@@ -578,15 +579,16 @@ def _check_fit(scene: Scene, where: str) -> None:
             f"{where}: {int(outside.sum())} of {scene.robots} robots do not fit in the "
             f"{xmax - xmin:.2f} x {ymax - ymin:.2f} m arena; enlarge [arena] size or use fewer robots"
         )
-    if len(xy) > 1:
-        from scipy.spatial import cKDTree
-
-        d, _ = cKDTree(xy).query(xy, k=2)
-        if d[:, 1].min() < 2 * r:
-            raise SceneError(
-                f"{where}: robots start overlapping (closest centres {d[:, 1].min():.3f} m, "
-                f"diameter {2 * r:.3f} m); increase layout spacing"
-            )
+    # the nearest other robot closer than a diameter, if any (the robots' own neighbour search)
+    xy = np.ascontiguousarray(xy, dtype=float)
+    ids = np.arange(len(xy), dtype=np.int64)
+    near = nearest(xy, ids, xy, ids, 2 * r, 1, inclusive=False)[:, 0]
+    if (near >= 0).any():
+        closest = float(np.min(np.hypot(*(xy[near >= 0] - xy[near[near >= 0]]).T)))
+        raise SceneError(
+            f"{where}: robots start overlapping (closest centres {closest:.3f} m, "
+            f"diameter {2 * r:.3f} m); increase layout spacing"
+        )
 
 
 EVENT_KINDS = ("teleport", "fail", "tracker-outage", "tracker-glitch")

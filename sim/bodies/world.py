@@ -64,6 +64,7 @@ from typing import Any
 import numpy as np
 from shapely.geometry import Polygon
 
+from agent.core.grid import nearest
 from agent.core.params import DIFFDRIVE, EPUCK, HOLONOMIC, KINEMATICS
 from sim.bodies.geometry import (
     make_arena,
@@ -640,16 +641,25 @@ class _ContactWatch:
             found = close_pairs(traj, r, base + margin, motion, first_row)
             assert found is not None  # without a budget the search is never given up
             if not found[0] < margin:
-                # none came that close: bound the search by the nearest neighbours in row 0 (SciPy
-                # imported here: a world process that never gets this far does not load it)
-                from scipy.spatial import cKDTree
-
-                dist, idx = cKDTree(traj[0]).query(traj[0], k=2)
-                radius = max(float(np.min(dist[:, 1] - r - r[idx[:, 1]])), 0.0) + base
+                # none came that close: bound the search by a pair of nearest neighbours in row 0
+                radius = self._nearest_clearance(traj[0], base + margin) + base
                 found = close_pairs(traj, r, radius, motion, first_row)
                 assert found is not None
         step_min, a, b, pairs, depth = found
         return step_min, (a, b), pairs[:, 0], pairs[:, 1], depth
+
+    def _nearest_clearance(self, xy: np.ndarray, reach: float) -> float:
+        """The least clearance (at least 0) of a robot and its nearest neighbour: the closest pair's
+        or more, found within a reach that grows until some robot has a neighbour in it."""
+        xy = np.ascontiguousarray(xy, dtype=float)
+        ids = np.arange(len(xy), dtype=np.int64)
+        while True:
+            near = nearest(xy, ids, xy, ids, reach, 1)[:, 0]
+            if (near >= 0).any():
+                has = near >= 0
+                gaps = np.hypot(*(xy[has] - xy[near[has]]).T) - self.radius[has] - self.radius[near[has]]
+                return max(float(gaps.min()), 0.0)
+            reach *= 4.0
 
     def _update_events(
         self, groups: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]], times: np.ndarray

@@ -12,7 +12,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from sim.bodies.proximity import close_pairs
 
@@ -133,6 +132,8 @@ def contact_events(pose: np.ndarray, radius: np.ndarray, tolerance: float = 0.0)
     r = _radius(radius, N)
     if N < 2:
         return 0
+    from scipy.spatial import cKDTree  # here: the launcher imports this module, and most runs never call this
+
     rmax = float(r.max())
     prev: set[tuple[int, int]] = set()
     events = 0
@@ -158,6 +159,7 @@ def communication_parts(pose: np.ndarray, reach: float) -> np.ndarray:
     each other, positions as the wire carries them): 1 when every robot can reach every other."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
 
     out = np.ones(len(pose), np.int64)
     for k in range(len(pose)):  # one tick's positions at a time, as the wire carries them

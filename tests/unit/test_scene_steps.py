@@ -159,6 +159,21 @@ def test_a_bad_number_in_the_layout_or_the_end_names_its_key(data, message):
     assert "\n" not in str(err.value)
 
 
+@pytest.mark.parametrize("gap, overlapping", [(0.05, True), (0.0899, True), (0.09, False), (1.0, False)])
+def test_robots_that_start_closer_than_a_diameter_are_refused_with_the_closest_gap(gap, overlapping):
+    """Two robots (radius 0.045 m) placed ``gap`` apart among others far away: one line naming the
+    closest centres, or accepted when they touch at most."""
+    poses = [[0.0, 0.0, 0.0], [gap, 0.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]]
+    data = {"robots": 4, "layout": {"kind": "list", "poses": poses}, "goals": {"kind": "antipodal"}}
+    if not overlapping:
+        assert scene_from_dict(data, "s.toml").robots == 4
+        return
+    with pytest.raises(
+        SceneError, match=rf"robots start overlapping \(closest centres {gap:.3f} m, diameter 0.090 m\)"
+    ):
+        scene_from_dict(data, "s.toml")
+
+
 # --- goal sets of a step for a robot count ------------------------------------------------------
 @pytest.mark.parametrize(
     "counts, full, n, expected",
