@@ -35,7 +35,7 @@ from sim.emulators.lab import main as lab_main
 from sim.emulators.mocap import MocapEmulator
 from sim.node.hardware import STARTUP_TIMEOUT, TwistDrive, WheelDrive, hardware_node, wait_for_hardware
 from tests.conftest import REPO, descendants, pixelswarm_cmd, reap, run_pixelswarm, wait_for
-from tests.support.hardware import all_moving, moving_commands, scene_file, start_run
+from tests.support.hardware import GOALS, all_moving, moving_commands, scene_file, start_run
 from transport.bus import Bus
 from transport.codec import BEFORE_START, Command, Commands, Pose, Tick
 from transport.session import client_of, free_port, loopback_router, open_session
@@ -88,7 +88,7 @@ def in_process(main, args: list[str], capsys) -> subprocess.CompletedProcess:
 
 @pytest.mark.slow
 @pytest.mark.serial
-def test_a_circle_through_emulated_robots_converges_without_contacts(tmp_path, spawned):
+def test_a_crossing_through_emulated_robots_converges_without_contacts(tmp_path, spawned):
     scene = scene_file(tmp_path)
     lab, endpoint, hw, log = start_lab(tmp_path, scene, spawned)
     out = tmp_path / "run"
@@ -112,9 +112,8 @@ def test_a_circle_through_emulated_robots_converges_without_contacts(tmp_path, s
     assert metrics["end_reason"] == "converged"
 
     # Every robot within 1 cm of its goal, measured on the emulated bodies themselves.
-    start = load_scene(str(scene)).poses[:, :2]
     true_xy = np.array([robot["pose"][:2] for robot in report["robots"]])
-    assert np.all(np.hypot(*(true_xy + start).T) <= 0.01), true_xy  # antipodal goals: -start
+    assert np.all(np.hypot(*(true_xy - GOALS).T) <= 0.01), true_xy
     assert report["contacts"] == [] and "contacts: 0" in printed
     assert len(report["trajectory"]["t"]) > 0
 
@@ -224,9 +223,8 @@ def test_robots_stop_while_the_pose_source_is_down_and_the_display_completes_whe
     assert all(r["stops"]["pose_lost"] >= 1 for r in metrics["hardware"]["robots"])
 
     # The display completes: every robot within 1 cm of its goal by its TRUE pose, no contacts.
-    start = load_scene(str(scene_path)).poses[:, :2]
     true_xy = np.array([robot["pose"][:2] for robot in report["robots"]])
-    assert np.all(np.hypot(*(true_xy + start).T) <= 0.01), true_xy  # antipodal goals: -start
+    assert np.all(np.hypot(*(true_xy - GOALS).T) <= 0.01), true_xy
     assert report["contacts"] == []
 
 

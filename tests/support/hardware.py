@@ -1,4 +1,4 @@
-"""Runs on emulated hardware (test_hardware_run, test_pose_trust_hardware): a real-time circle scene, the
+"""Runs on emulated hardware (test_hardware_run, test_pose_trust_hardware): a real-time crossing scene, the
 commands an emulated robot received, and `pixelswarm run --hardware` as its own process."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import numpy as np
 from sim.emulators.lab import Lab
 from tests.conftest import REPO, pixelswarm_cmd
 
-SCENE = """name = "hw-circle"
+SCENE = """name = "hw-crossing"
 robots = {robots}
 seed = 1
 clock = "realtime"
@@ -21,17 +21,25 @@ duration = {duration}
 kinematics = "diffdrive"
 
 [layout]
-kind = "circle"
-spacing = 0.25
+kind = "list"
+poses = {poses}
 
 [goals]
-kind = "antipodal"
+kind = "list"
+positions = {goals}
 """
+# Two pairs of robots swap places across the centre, each pair on lanes 16 cm apart, one pair across
+# the other: every robot meets two others. (Four robots on a circle swapping with the robot opposite
+# all meet in the centre, and creep round each other there for seconds.)
+POSES = [(0.3, 0.08, 3.14159), (-0.3, -0.08, 0.0), (0.08, -0.3, 1.5708), (-0.08, 0.3, -1.5708)]
+GOALS = np.array([(-0.3, 0.08), (0.3, -0.08), (0.08, 0.3), (-0.08, -0.3)])
 
 
 def scene_file(tmp_path: Path, robots: int = 4, duration: float = 60.0) -> Path:
-    path = tmp_path / "hw-circle.toml"
-    path.write_text(SCENE.format(robots=robots, duration=duration))
+    """The crossing of up to four robots (the first ``robots`` of POSES and GOALS), in real time."""
+    path = tmp_path / "hw-crossing.toml"
+    poses, goals = [list(p) for p in POSES[:robots]], GOALS[:robots].tolist()
+    path.write_text(SCENE.format(robots=robots, duration=duration, poses=poses, goals=goals))
     return path
 
 
