@@ -246,11 +246,13 @@ def test_ctrl_c_writes_what_was_recorded_marked_incomplete_and_exits_130(tmp_pat
 def test_twenty_lockstep_agents_start_while_both_cores_are_busy_and_finish(tmp_path, spawned):
     """Issue 40: with both cores saturated, start-up used to time out (`no agent came alive`) and the
     run still exited 0. The cores stay busy until the first tick is recorded, start-up over: a
-    lock-step run after it is the same run however loaded the machine is."""
+    lock-step run after it is the same run however loaded the machine is, so it ends 5 s in."""
     busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
     out = tmp_path / "r"
     try:
-        proc = start_run(spawned, "circle", out, "--robots", "20", "--clock", "lockstep", "--seed", "1")
+        proc = start_run(
+            spawned, "circle", out, "--robots", "20", "--clock", "lockstep", "--seed", "1", "--duration", "5"
+        )
         assert wait_for(lambda: ticks_so_far(out) > 0 or proc.poll() is not None, timeout=600)
     finally:
         for p in busy:
