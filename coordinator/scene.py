@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any, Protocol, TypedDict, Unpack
 
 import numpy as np
 
-from agent.core.grid import nearest
+from agent.core.grid import nearest_other
 from transport import epuck
 
 from .goals import IMAGE_SUFFIXES, GoalError
@@ -579,12 +579,9 @@ def _check_fit(scene: Scene, where: str) -> None:
             f"{where}: {int(outside.sum())} of {scene.robots} robots do not fit in the "
             f"{xmax - xmin:.2f} x {ymax - ymin:.2f} m arena; enlarge [arena] size or use fewer robots"
         )
-    # the nearest other robot closer than a diameter, if any (the robots' own neighbour search)
-    xy = np.ascontiguousarray(xy, dtype=float)
-    ids = np.arange(len(xy), dtype=np.int64)
-    near = nearest(xy, ids, xy, ids, 2 * r, 1, inclusive=False)[:, 0]
-    if (near >= 0).any():
-        closest = float(np.min(np.hypot(*(xy[near >= 0] - xy[near[near >= 0]]).T)))
+    _, apart = nearest_other(xy, 2 * r)
+    if (apart < 2 * r).any():
+        closest = float(apart.min())
         raise SceneError(
             f"{where}: robots start overlapping (closest centres {closest:.3f} m, "
             f"diameter {2 * r:.3f} m); increase layout spacing"

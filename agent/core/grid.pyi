@@ -13,6 +13,7 @@ def nearest(
     inclusive: bool = True,
     threads: int = 1,
 ) -> npt.NDArray[np.int64]: ...
+def nearest_other(points: npt.ArrayLike, reach: float) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]: ...
 def close_pairs(
     traj: npt.NDArray[np.float64],
     radius: npt.NDArray[np.float64],

@@ -3,7 +3,7 @@
 - `nearest`: each query point's up to ``m`` nearest points within ``reach``. An agent calls it for its
   one robot, a host for its K robots, the central engines for all of them (agent.neighbour_table,
   sim.central.rvo, sim.central.link), so a robot's neighbours depend only on its own position and the points,
-  never on the batch it is computed in.
+  never on the batch it is computed in. `nearest_other`: each point's nearest other point.
 - `close_pairs`: every pair of discs within reach of each other over a few states, with the closest
   pair and the overlaps: the simulated world's contact detection (sim.bodies.proximity, sim.bodies.world).
 
@@ -330,6 +330,19 @@ cdef void _query(Grid *g, Query *nb, double px, double py, int64_t own, const in
             scan(g, nb, key, c + low, c + min(high, qy - 2) + 1)
             low = max(low, qy + 2)
         scan(g, nb, key, c + low, c + high + 1)
+
+
+def nearest_other(points, double reach):
+    """Each point's nearest other point within ``reach`` (N, 2): its index (-1: none) and the
+    distance between their centres (inf: none). A scene's robots that start overlapping, the
+    world's bound on its closest pair."""
+    xy = np.ascontiguousarray(points, dtype=float).reshape(-1, 2)
+    ids = np.arange(len(xy), dtype=np.int64)
+    other = nearest(xy, ids, xy, ids, reach, 1)[:, 0]
+    has = other >= 0
+    distance = np.full(len(xy), np.inf)
+    distance[has] = np.hypot(*(xy[has] - xy[other[has]]).T)
+    return other, distance
 
 
 def close_pairs(

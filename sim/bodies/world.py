@@ -64,7 +64,7 @@ from typing import Any
 import numpy as np
 from shapely.geometry import Polygon
 
-from agent.core.grid import nearest
+from agent.core.grid import nearest_other
 from agent.core.params import DIFFDRIVE, EPUCK, HOLONOMIC, KINEMATICS
 from sim.bodies.geometry import (
     make_arena,
@@ -651,13 +651,11 @@ class _ContactWatch:
     def _nearest_clearance(self, xy: np.ndarray, reach: float) -> float:
         """The least clearance (at least 0) of a robot and its nearest neighbour: the closest pair's
         or more, found within a reach that grows until some robot has a neighbour in it."""
-        xy = np.ascontiguousarray(xy, dtype=float)
-        ids = np.arange(len(xy), dtype=np.int64)
         while True:
-            near = nearest(xy, ids, xy, ids, reach, 1)[:, 0]
-            if (near >= 0).any():
-                has = near >= 0
-                gaps = np.hypot(*(xy[has] - xy[near[has]]).T) - self.radius[has] - self.radius[near[has]]
+            other, apart = nearest_other(xy, reach)
+            has = other >= 0
+            if has.any():
+                gaps = apart[has] - self.radius[has] - self.radius[other[has]]
                 return max(float(gaps.min()), 0.0)
             reach *= 4.0
 

@@ -50,7 +50,7 @@ from dataclasses import dataclass, field, replace
 
 from sim.processes import stopped_by_signals
 from transport.bus import Bus, RawInbox
-from transport.codec import BEFORE_START, CHECKSUM_SIZE, Commands, Poses, States, with_checksum
+from transport.codec import BEFORE_START, CHECKSUM_SIZE, FRAME_OF, with_checksum
 from transport.keys import Keys
 from transport.session import ZENOH_HELP, TransportError, ZenohSettings
 
@@ -75,7 +75,7 @@ _F64 = struct.Struct("<d")
 _TICK_AT = 2  # frames and clock ticks: the u32 tick right after the header
 _FRAME_FIXED = 14  # header, tick, stamp
 _RECORD_SIZE = {"pose": 16, "cmd": 16, "state": 45}
-_CHECKED_FRAMES = {f.NAME for f in (Poses, Commands, States) if f.CHECKED}  # frames that end in a checksum
+_CHECKED_FRAMES = {f.NAME for f in FRAME_OF.values() if f.CHECKED}  # frames that end in a checksum
 # where a kind's count fields lie (byte offsets of u32s in the message)
 _COUNT_AT = {"auction": (26,), "boards": (18, 22, 26), "sim/truth": (18,)}
 _GOALS_SET_AT = 8  # goal set part body: epoch u32, per_robot u8, count u32

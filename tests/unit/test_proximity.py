@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from agent.core.grid import nearest
+from agent.core.grid import nearest, nearest_other
 from agent.neighbour_table import Heard, nearest_heard
 from sim.bodies.proximity import close_pairs
 
@@ -163,6 +163,19 @@ def test_the_agents_neighbour_choice_is_the_documented_rule(seed):
     )
     for name in ("position", "velocity", "radius", "age", "valid", "cooperative"):
         np.testing.assert_array_equal(getattr(again, name), getattr(got, name), err_msg=name)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_each_point_s_nearest_other_is_the_kd_tree_s_within_reach(seed):
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(0, 5, (200, 2))
+    reach = 0.2
+    other, apart = nearest_other(xy, reach)
+    d, i = cKDTree(xy).query(xy, k=2, distance_upper_bound=reach)
+    found = np.isfinite(d[:, 1])
+    assert found.any() and not found.all()
+    np.testing.assert_array_equal(other, np.where(found, i[:, 1], -1))
+    np.testing.assert_allclose(apart, d[:, 1], rtol=0, atol=1e-12)
 
 
 @pytest.mark.parametrize("seed", range(12))
