@@ -161,6 +161,7 @@ def watch(
     view: Any = None
     with Bus(settings, display, name=OBSERVER) as bus:
         watcher = Watcher(bus)
+        say(f"waiting for a run on display {display} to tick")  # subscribed: from here no tick is missed
         try:
             first = watcher.first_tick(timeout)
             if first is None:

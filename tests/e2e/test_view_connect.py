@@ -28,7 +28,7 @@ from transport.bus import Bus  # noqa: E402
 from transport.codec import Goals, Tick, Truth  # noqa: E402
 from transport.keys import Keys  # noqa: E402
 from transport.security import AUTH_MODES, OBSERVER, client_config, make_certificates, router_config  # noqa: E402
-from transport.session import free_port, listening, open_session  # noqa: E402
+from transport.session import free_port, listening, loopback_router, open_session  # noqa: E402
 
 KEYS = Keys("default")
 RUN_TIMEOUT_S = 240.0  # a bound for a hung run, not a speed target
@@ -56,6 +56,12 @@ def _await_router(port: int, run: subprocess.Popen) -> None:
     assert run.poll() is None, "the run ended before its router listened"
 
 
+def _await_waiting(viewer: subprocess.Popen, err: Path) -> None:
+    """The viewer has subscribed (it says so): from now on it misses no tick."""
+    assert wait_for(lambda: "waiting for a run" in err.read_text() or viewer.poll() is not None, 60, 0.02)
+    assert viewer.poll() is None, err.read_text()[-2000:]
+
+
 def _seen_as_run(rrd: Path, out: Path) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """What a viewer recorded, checked against the run's trajectory.npz tick by tick: every robot's
     position and colour as the run wrote them, up to the run's last recorded tick (the world may tick
@@ -81,9 +87,11 @@ def _seen_as_run(rrd: Path, out: Path) -> dict[int, tuple[np.ndarray, np.ndarray
 def test_a_viewer_from_another_process_sees_every_robot_move_and_its_exit_leaves_the_run_whole(tmp_path, spawned):
     """Two viewers join a lock-step run on its router: one is killed (SIGKILL) once it has seen a tick,
     the other watches to the end. The run is whole and the same as without them (the central engine's
-    run of the seed); the second viewer's recording is the run."""
-    port = free_port()
+    run of the seed); the second viewer's recording is the run. The viewers wait at the router before
+    the run starts: a lock-step run of four robots is over in a second or two."""
+    router = loopback_router()
     out = tmp_path / "run"
+    endpoint = router.listen[0]
     # a deadline no loaded machine reaches: no tick is missed, so the run is the central engine's to the bit
     args = [
         "run",
@@ -101,34 +109,36 @@ def test_a_viewer_from_another_process_sees_every_robot_move_and_its_exit_leaves
         "--deadline",
         "60",
     ]
-    run = _start(
-        [*args, "--no-video", "--no-plots", "-q", "-l", f"tcp/127.0.0.1:{port}", "--out", str(out)],
-        spawned,
-        tmp_path / "run.err",
-    )
-    _await_router(port, run)
-    endpoint = f"tcp/127.0.0.1:{port}"
-    watcher, quitter = _viewer(endpoint, tmp_path / "a.rrd", spawned), _viewer(endpoint, tmp_path / "b.rrd", spawned)
-    assert wait_for(
-        lambda: "watching 4 robots" in (tmp_path / "b.err").read_text() or quitter.poll() is not None, 180, 0.02
-    )
-    assert "watching 4 robots" in (tmp_path / "b.err").read_text(), (tmp_path / "b.err").read_text()[-2000:]
-    quitter.send_signal(signal.SIGKILL)  # the harshest exit: no goodbye to the router
-    quitter.wait(timeout=30)
-    stdout, _ = run.communicate(timeout=RUN_TIMEOUT_S)
-    assert run.returncode == 0, (tmp_path / "run.err").read_text()[-3000:]
-    metrics = json.loads((out / "metrics.json").read_text())
-    assert metrics["complete"] and metrics["converged"] and metrics["missed_ticks"] == 0, metrics
-    # undisturbed: the lock-step run is, to the bit, the central engine's run of the seed (no auction in swap)
-    central = simulate(load_scene("swap", robots=4, seed=1, clock="lockstep", duration=12), progress=None).arrays
-    trajectory = np.load(out / "trajectory.npz")
-    np.testing.assert_array_equal(trajectory["t"], central["t"])
-    assert np.abs(trajectory["pose"][..., :2] - central["pose"][..., :2]).max() <= 1e-9
-    viewed, _ = watcher.communicate(timeout=60)
-    assert watcher.returncode == 0, (tmp_path / "a.err").read_text()[-3000:]
-    assert viewed.strip() == str(tmp_path / "a.rrd")
-    _seen_as_run(tmp_path / "a.rrd", out)
-    assert "the run ended" in (tmp_path / "a.err").read_text()
+    with open_session(router):  # the router the viewers and the run join
+        watcher, quitter = (
+            _viewer(endpoint, tmp_path / "a.rrd", spawned),
+            _viewer(endpoint, tmp_path / "b.rrd", spawned),
+        )
+        _await_waiting(watcher, tmp_path / "a.err")
+        _await_waiting(quitter, tmp_path / "b.err")
+        run = _start(
+            [*args, "--no-video", "--no-plots", "-q", "-e", endpoint, "--out", str(out)], spawned, tmp_path / "run.err"
+        )
+        assert wait_for(
+            lambda: "watching 4 robots" in (tmp_path / "b.err").read_text() or quitter.poll() is not None, 180, 0.02
+        )
+        assert "watching 4 robots" in (tmp_path / "b.err").read_text(), (tmp_path / "b.err").read_text()[-2000:]
+        quitter.send_signal(signal.SIGKILL)  # the harshest exit: no goodbye to the router
+        quitter.wait(timeout=30)
+        stdout, _ = run.communicate(timeout=RUN_TIMEOUT_S)
+        assert run.returncode == 0, (tmp_path / "run.err").read_text()[-3000:]
+        metrics = json.loads((out / "metrics.json").read_text())
+        assert metrics["complete"] and metrics["converged"] and metrics["missed_ticks"] == 0, metrics
+        # undisturbed: the lock-step run is, to the bit, the central engine's run of the seed (no auction in swap)
+        central = simulate(load_scene("swap", robots=4, seed=1, clock="lockstep", duration=12), progress=None).arrays
+        trajectory = np.load(out / "trajectory.npz")
+        np.testing.assert_array_equal(trajectory["t"], central["t"])
+        assert np.abs(trajectory["pose"][..., :2] - central["pose"][..., :2]).max() <= 1e-9
+        viewed, _ = watcher.communicate(timeout=60)
+        assert watcher.returncode == 0, (tmp_path / "a.err").read_text()[-3000:]
+        assert viewed.strip() == str(tmp_path / "a.rrd")
+        _seen_as_run(tmp_path / "a.rrd", out)
+        assert "the run ended" in (tmp_path / "a.err").read_text()
 
 
 @pytest.fixture(scope="module")
