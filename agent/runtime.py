@@ -157,7 +157,9 @@ class CellSubscriptions:
     about a new subscriber asynchronously, so in lock-step a robot subscribes to 7x7 cells: the
     extra ring puts a subscription in place over a second before anyone in that cell can become a
     neighbour, and the neighbour set never depends on how fast a declaration travelled (runs stay
-    reproducible). In real time the 5x5 cells suffice and halve the traffic.
+    reproducible). In real time the 5x5 cells suffice and halve the traffic. Where the cells around
+    a robot alone cover a third of the arena or more, it hears every robot's state on one
+    subscription and keeps those in its cells (``listen`` off, window_covers_a_third).
 
     A host of several robots hears every host's frames (HostConfig.frames): there its cells pick
     the records of those frames its inbox keeps (``listen`` off), with no subscription; thousands of
@@ -219,14 +221,28 @@ class Inboxes:
         for key in [keys.poses] if config.frames else [keys.pose(r) for r in config.robots]:
             bus.subscribe_into(key, pose)
         state = bus.inbox(State, pulled=True)  # fed by the spatial cells around the robots ...
-        if config.frames:  # ... and by every host's frames
-            bus.subscribe_into(keys.states_all, state)
         reach = 3 if config.lockstep else 2
-        cells = CellSubscriptions(bus, state, config.params.cell_size, reach, listen=not config.frames)
+        everyone = not config.frames and window_covers_a_third(config.arena, config.params.cell_size, reach)
+        if config.frames or everyone:  # ... or by every host's frames, or every robot's
+            bus.subscribe_into(keys.states_all if config.frames else keys.states_in_cells, state)
+        cells = CellSubscriptions(bus, state, config.params.cell_size, reach, listen=not (config.frames or everyone))
         cells.targets = frozenset(config.pursue.values())  # a pursuer hears its target wherever it is
-        for target in cells.targets:
+        for target in () if everyone else cells.targets:
             bus.subscribe_into(keys.state_of(target), state)
         return cls(pose, state, cells, bus.subscribe(keys.all_of("goals"), Goals), bus.watch_alive("agent"))
+
+
+def window_covers_a_third(arena: tuple[float, float, float, float] | None, cell_size: float, reach: int) -> bool:
+    """Whether a robot's square of cells covers at least a third of the arena's. A robot alone then
+    hears every robot's state on one subscription and keeps those in its cells (KeepCells): the
+    states its cells' subscriptions would bring, and a few more to throw away, where zenoh would
+    otherwise match each arrival against tens of subscriptions (docs/protocol.md)."""
+    if arena is None:
+        return False
+    x0, y0, x1, y1 = arena
+    columns = math.floor(x1 / cell_size) - math.floor(x0 / cell_size) + 1
+    rows = math.floor(y1 / cell_size) - math.floor(y0 / cell_size) + 1
+    return 3 * (2 * reach + 1) ** 2 >= columns * rows
 
 
 class OwnRobots:

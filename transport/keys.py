@@ -98,6 +98,11 @@ class Keys:
         """Every host's frames (not the cells: one chunk after 'state')."""
         return f"{self.root}/state/*"
 
+    @property
+    def states_in_cells(self) -> str:
+        """Every robot alone's state, whatever its cell."""
+        return f"{self.root}/state/*/*/*"
+
     def state_of(self, robot: int) -> str:
         """One robot's broadcasts, whatever cell it is in."""
         return f"{self.root}/state/*/*/{robot}"

@@ -6,12 +6,16 @@ robots, and one robot drove into a neighbour it no longer knew of."""
 
 from __future__ import annotations
 
+import time
+
+import numpy as np
+
 from agent.core.params import RobotParams
 from agent.runtime import AgentHost, HostConfig
 from transport.bus import Bus
 from transport.codec import Pose, State
 from transport.keys import cell_of
-from transport.session import loopback_router
+from transport.session import client_of, loopback_router, open_session
 
 
 def test_a_split_tick_keeps_the_neighbours_of_the_robots_not_in_it() -> None:
@@ -47,3 +51,47 @@ def test_a_neighbour_silent_for_seconds_is_forgotten_not_a_phantom_obstacle() ->
             host._step_tick([Pose(0, k, k * params.dt, 0.0, 0.0, 0.0)])
         assert 5 not in host.table, "a robot silent for longer than forget_after is still an obstacle"
         assert 6 in host.table, "a dead robot's body was forgotten"
+
+
+def _heard_far(arena: tuple[float, float, float, float]) -> tuple[int, list[int]]:
+    """A robot alone at the origin in ``arena``; another session says a state in the robot's cells
+    and one five cells away, then the near one again: how many samples arrived, and which robots'
+    states the robot kept."""
+    params = RobotParams(kinematics="holonomic")
+    router = loopback_router()
+    keep_router = open_session(router)
+    try:
+        with Bus(client_of(router), "one") as bus, Bus(client_of(router), "one") as other:
+            host = AgentHost(bus, HostConfig(robots=[0], params=params, arena=arena))
+            host.inbox.cells.update(np.zeros((1, 2)))
+            inbox, cell = host.inbox.state, params.cell_size
+
+            def say(robot: int, x: float) -> None:
+                state = State(robot, 1, 0.1, x, 0.0, 0.0, 0.0, params.radius, 0.0, 0.0, -1, 0, 0, 0)
+                other.publish_states(1, 0.1, [state], cell, None)
+
+            kept: list[int] = []
+            deadline = time.monotonic() + 10.0
+            while 5 not in kept:  # zenoh tells the publisher of a new subscriber asynchronously
+                assert time.monotonic() < deadline, "the near state never arrived"
+                say(5, 0.5 * cell)
+                time.sleep(0.05)
+                kept += [s.robot for s in inbox.take()]
+            before, kept = inbox.received, []
+            say(6, 5.5 * cell)  # beyond the 5x5 cells around the robot
+            say(7, 0.5 * cell)  # after it on the same link: once it is here, so is the far one
+            while 7 not in kept:
+                assert time.monotonic() < deadline, "the second near state never arrived"
+                time.sleep(0.02)
+                kept += [s.robot for s in inbox.take()]
+            return inbox.received - before, kept
+    finally:
+        keep_router.close()
+
+
+def test_a_robot_alone_in_a_small_arena_hears_every_state_on_one_subscription_and_keeps_its_cells() -> None:
+    """Its cells cover over a third of the arena's: one subscription to every robot's state instead
+    of 25 (agent.runtime.window_covers_a_third); the far state arrives and is not kept. In a large
+    arena it listens to its cells only, and the far state never arrives."""
+    assert _heard_far((-1.0, -1.0, 1.0, 1.0)) == (2, [7])
+    assert _heard_far((-10.0, -10.0, 10.0, 10.0)) == (1, [7])
