@@ -15,6 +15,7 @@ and loading a scene at start-up. One module, a benchmark per name; each writes b
 from __future__ import annotations
 
 import json
+import resource
 import statistics
 import subprocess
 import sys
@@ -556,8 +557,8 @@ time where they part. Written to bench/results/<--results>.md.
         --rounds-per-tick 1 --duration 247.5
 """
 BESIDE_HEADER = [
-    "| scene | robots | run | stepping realtime factor | wall s | contacts | missed ticks | images formed, s after each began | = central (poses to 1e-9 m, assignment) |",
-    "|---|---|---|---|---|---|---|---|---|",
+    "| scene | robots | run | code | stepping realtime factor | wall s | CPU s | contacts | missed ticks | images formed, s after each began | = central (poses to 1e-9 m, assignment) |",
+    "|---|---|---|---|---|---|---|---|---|---|---|",
 ]
 
 
@@ -580,20 +581,28 @@ def parted_at(traj: Path, central: Path) -> str:
         return f"no: from t = {t[int(np.argmax(apart))]:.1f} s"
 
 
-def beside_central(name: str, args: list[str], out: Path, repeat: int) -> list[str]:
-    """The rows of BESIDE_HEADER: ``args`` run --repeat times beside the central engine's run of them."""
+def beside_central(name: str, args: list[str], out: Path, repeat: int, before: Path | None = None) -> list[str]:
+    """The rows of BESIDE_HEADER: ``args`` run --repeat times beside the central engine's run of them;
+    with ``before`` (a checkout of the code before), each time by both codes, in alternating order.
+    CPU s: of every process of the run (the launcher waits for each)."""
     run_in_tree(REPO, [*args, "--engine", "central"], out / f"{name}-central", arrays=False)
+    codes = {"now": REPO} | ({"before": before.resolve()} if before is not None else {})
     rows = []
     for k in range(repeat):
-        m, _ = run_in_tree(REPO, args, out / f"{name}-{k}", arrays=False)
-        if m["engine"] != "distributed":
-            raise ValueError(f"{name} ran in the {m['engine']} engine: give --engine distributed")
-        same = parted_at(out / f"{name}-{k}" / "trajectory.npz", out / f"{name}-central" / "trajectory.npz")
-        rows.append(
-            f"| {name} | {m['robots']} | {k + 1} | {m['stepping_realtime_factor']:.2f} | {m['wall_s']:.1f} | "
-            f"{m['contacts']} | {m['missed_ticks']} | {formed(m)} | {same} |"
-        )
-        print(rows[-1], flush=True)
+        for code in list(codes) if k % 2 == 0 else list(reversed(codes)):
+            run = out / f"{name}-{k}-{code}"
+            cpu = resource.getrusage(resource.RUSAGE_CHILDREN)
+            m, _ = run_in_tree(codes[code], args, run, arrays=False)
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpu_s = after.ru_utime + after.ru_stime - cpu.ru_utime - cpu.ru_stime
+            if m["engine"] != "distributed":
+                raise ValueError(f"{name} ran in the {m['engine']} engine: give --engine distributed")
+            same = parted_at(run / "trajectory.npz", out / f"{name}-central" / "trajectory.npz")
+            rows.append(
+                f"| {name} | {m['robots']} | {k + 1} | {code} | {m['stepping_realtime_factor']:.2f} | {m['wall_s']:.1f} | "
+                f"{cpu_s:.1f} | {m['contacts']} | {m['missed_ticks']} | {formed(m)} | {same} |"
+            )
+            print(rows[-1], flush=True)
     return rows
 
 
@@ -619,7 +628,10 @@ beside the central engine's run of the same flags, --repeat times. Two scenes: `
 robots for --duration s, and an animation of four keyframes (a disk crossing a bar, drawn into a
 temporary folder) with --animation robots, whole: 30 s to form the first keyframe, then 5 s per keyframe.
 
-    python -m bench.bench_hosted processes [--circle 100] [--animation 40] [--duration 20] [--repeat 2]
+    python -m bench.bench_hosted processes [--circle 100] [--animation 40] [--duration 20] [--repeat 2] [--before DIR]
+
+``--before DIR``: each run also by a checkout of the code before (`git worktree add DIR COMMIT`, its
+compiled core built or copied in), alternating; ``--circle 0`` or ``--animation 0`` leaves a scene out.
 """
 
 
@@ -644,7 +656,11 @@ def processes_main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration", type=float, default=20.0, help="s of display of the circle")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--repeat", type=int, default=2)
+    parser.add_argument("--before", type=Path, help="a checkout of the code before, run beside this one")
     opt = parser.parse_args(argv)
+    if opt.before is not None and not (opt.before / "sim" / "cli").exists():
+        print(f"error: {opt.before} is not a checkout of pixelswarm (no sim/cli)", file=sys.stderr)
+        return 2
     rows = list(BESIDE_HEADER)
     with tempfile.TemporaryDirectory() as tmp:
         scenes = {
@@ -652,8 +668,10 @@ def processes_main(argv: list[str] | None = None) -> int:
             "animation": [str(keyframes(Path(tmp))), "--robots", str(opt.animation)],
         }
         for name, scene in scenes.items():
+            if scene[scene.index("--robots") + 1] == "0":
+                continue
             args = [*scene, "--clock", "lockstep", "--seed", str(opt.seed), "--no-plots"]
-            rows += beside_central(name, args, Path(tmp), opt.repeat)
+            rows += beside_central(name, args, Path(tmp), opt.repeat, opt.before)
     command = "python -m bench.bench_hosted processes " + " ".join(argv if argv is not None else sys.argv[1:])
     write_results("processes", "A robot per process in lock-step, beside the central engine", command.strip(), rows)
     return 0
