@@ -239,10 +239,8 @@ def window_covers_a_third(arena: tuple[float, float, float, float] | None, cell_
     otherwise match each arrival against tens of subscriptions (docs/protocol.md)."""
     if arena is None:
         return False
-    x0, y0, x1, y1 = arena
-    columns = math.floor(x1 / cell_size) - math.floor(x0 / cell_size) + 1
-    rows = math.floor(y1 / cell_size) - math.floor(y0 / cell_size) + 1
-    return 3 * (2 * reach + 1) ** 2 >= columns * rows
+    (c0, r0), (c1, r1) = cell_of(arena[0], arena[1], cell_size), cell_of(arena[2], arena[3], cell_size)
+    return 3 * (2 * reach + 1) ** 2 >= (c1 - c0 + 1) * (r1 - r0 + 1)
 
 
 class OwnRobots:
