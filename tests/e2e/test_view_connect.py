@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import signal
+import socket
 import subprocess
 import threading
 from pathlib import Path
@@ -301,9 +302,12 @@ def test_bad_input_to_view_connect_is_one_line_and_exit_2(tmp_path, capsys, cert
 
 
 def test_no_router_at_the_endpoint_is_one_line_and_exit_2(tmp_path):
-    result = run_pixelswarm(
-        "view", "--connect", f"tcp/127.0.0.1:{free_port()}", "--save", str(tmp_path / "v.rrd"), timeout=60
-    )
+    # A port bound here and never listened on refuses connections, and no other test's router can
+    # take it meanwhile (a port free_port found free once served another test's run).
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", 0))
+        endpoint = f"tcp/127.0.0.1:{held.getsockname()[1]}"
+        result = run_pixelswarm("view", "--connect", endpoint, "--save", str(tmp_path / "v.rrd"), timeout=60)
     assert result.returncode == 2 and "pixelswarm view: error:" in result.stderr, result.stderr
     assert len(result.stderr.strip().splitlines()) == 1 and "Traceback" not in result.stderr
     assert not (tmp_path / "v.rrd").exists()
