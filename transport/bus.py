@@ -402,8 +402,13 @@ class Bus:
         faults: FaultPlan | None = None,
         seed: int = 0,
         name: str = "",
+        hears_itself: bool = True,
     ) -> None:
+        """``hears_itself``: what this session puts reaches its own matching subscriptions too. A
+        process that keeps what it says itself (a robot alone) turns it off: zenoh would hand each of
+        its states and claims back to its own callbacks, only to be dropped there."""
         self.keys = Keys(display)
+        self._destination = zenoh.Locality.ANY if hears_itself else zenoh.Locality.REMOTE
         self.settings = settings
         self.faults = dict(faults or {})
         self._seed = seed
@@ -452,7 +457,9 @@ class Bus:
 
     def put(self, key: str, payload: bytes, kind: str = "raw") -> None:
         # BLOCK, not DROP: in lock-step runs a silently dropped message would break reproducibility.
-        self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
+        self.session.put(
+            key, payload, congestion_control=zenoh.CongestionControl.BLOCK, allowed_destination=self._destination
+        )
         self._last_put = time.monotonic()
         self.sent[kind] += 1
         self.sent_bytes[kind] += len(payload)

@@ -12,6 +12,9 @@ import numpy as np
 
 from .bidder import RECORD, RELEASED, SETTLED, Participant
 
+# a record as its bytes: compared whole, not field by field (numpy compares structured arrays slowly)
+RECORD_BYTES = np.dtype((np.void, RECORD.itemsize))
+
 
 class BlockRounds:
     """The rounds of one block, begun on frozen positions, warm from the participant's board."""
@@ -39,7 +42,11 @@ class BlockRounds:
         part.bid()
         mine = part.round_records()
         k = self._claims
-        news = mine if self._last is None else np.concatenate([mine[:k][mine[:k] != self._last], mine[k:]])
+        if self._last is None:
+            news = mine
+        else:
+            changed = mine[:k].view(RECORD_BYTES) != self._last.view(RECORD_BYTES)
+            news = np.concatenate([mine[:k][changed], mine[k:]])
         self._last = mine[:k]
         # noted beside the others' claims as absorb notes them: each robot's newest claim in one place
         rows = part.own_rows

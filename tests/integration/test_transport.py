@@ -447,6 +447,24 @@ def test_bus_publish_subscribe_and_drop_malformed(router):
         assert inbox.drops["truncated"] == 1 and inbox.drops["kind"] == 1
 
 
+def test_a_bus_that_does_not_hear_itself_still_reaches_the_others(router):
+    """A robot alone (agent/__main__.py) keeps what it says: its states and claims reach every
+    other session, never its own subscriptions; a bus that hears itself gets its own back."""
+
+    def state(robot):
+        return States.one(State(robot, 1, 0.1, 0, 0, 0, 0, 0.045, 0, 0, -1, 0))
+
+    with Bus(client_of(router), "t", hears_itself=False) as alone, Bus(client_of(router), "t") as other:
+        own, theirs = (bus.subscribe(bus.keys.all_of("state"), State) for bus in (alone, other))
+        time.sleep(0.3)
+        alone.publish(alone.keys.state((0, 0), 5), state(5))
+        other.publish(other.keys.state((0, 0), 6), state(6))
+        assert sorted(m.robot for _, m in _collect(theirs, 2)) == [5, 6]
+        assert [m.robot for _, m in _collect(own, 1)] == [6]
+        time.sleep(0.2)
+        assert own.get(timeout=0.1) is None
+
+
 def test_a_pulled_inbox_needs_no_thread_and_keeps_what_came_before_an_unsubscribe(router):
     """An agent's neighbour states: many cell subscriptions, read once a tick on the owner's
     thread. Zenoh-python gives a callback subscription a Python thread of its own; a pulled one
