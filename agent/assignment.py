@@ -536,7 +536,7 @@ class AuctionLink:
         part = block.part
         quiet = block.quiet(part.robots)
         members = set(part.robots[~quiet].tolist())
-        speak = not block.quiet(np.array(part.own, np.int64)).all()
+        speak = not quiet[part.own_rows].all()
         news = block.say()
         key = (part.epoch, block.final, block.round)
         said = Bid(part.epoch, block.final, self.sender, block.round, part.board.digest(), len(news), news)
