@@ -90,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
             faults=faults,
             seed=config.seed,
             name=f"agent{config.robots[0]}",
-            hears_itself=len(config.robots) > 1,  # a host's robots hear each other through its frame
+            hears_itself=len(config.robots) > 1,  # a host's robots hear each other through the bus
         )
     except TransportError as err:
         print(f"agent: error: {err}", file=sys.stderr)

@@ -223,9 +223,10 @@ class Inboxes:
         state = bus.inbox(State, pulled=True)  # fed by the spatial cells around the robots ...
         reach = 3 if config.lockstep else 2
         everyone = not config.frames and window_covers_a_third(config.arena, config.params.cell_size, reach)
-        if config.frames or everyone:  # ... or by every host's frames, or every robot's
+        whole = config.frames or everyone  # ... or by every host's frames, or every robot's, kept by cell
+        if whole:
             bus.subscribe_into(keys.states_all if config.frames else keys.states_in_cells, state)
-        cells = CellSubscriptions(bus, state, config.params.cell_size, reach, listen=not (config.frames or everyone))
+        cells = CellSubscriptions(bus, state, config.params.cell_size, reach, listen=not whole)
         cells.targets = frozenset(config.pursue.values())  # a pursuer hears its target wherever it is
         for target in () if everyone else cells.targets:
             bus.subscribe_into(keys.state_of(target), state)

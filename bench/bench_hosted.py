@@ -663,13 +663,12 @@ def processes_main(argv: list[str] | None = None) -> int:
         return 2
     rows = list(BESIDE_HEADER)
     with tempfile.TemporaryDirectory() as tmp:
-        scenes = {
-            "circle": ["circle", "--robots", str(opt.circle), "--duration", f"{opt.duration:g}"],
-            "animation": [str(keyframes(Path(tmp))), "--robots", str(opt.animation)],
-        }
+        scenes = {}  # a count of 0 leaves its scene out
+        if opt.circle:
+            scenes["circle"] = ["circle", "--robots", str(opt.circle), "--duration", f"{opt.duration:g}"]
+        if opt.animation:
+            scenes["animation"] = [str(keyframes(Path(tmp))), "--robots", str(opt.animation)]
         for name, scene in scenes.items():
-            if scene[scene.index("--robots") + 1] == "0":
-                continue
             args = [*scene, "--clock", "lockstep", "--seed", str(opt.seed), "--no-plots"]
             rows += beside_central(name, args, Path(tmp), opt.repeat, opt.before)
     command = "python -m bench.bench_hosted processes " + " ".join(argv if argv is not None else sys.argv[1:])
