@@ -45,10 +45,9 @@ run: $(STAMP)
 	$(VENV)/bin/pixelswarm run $(SCENE) $(if $(ROBOTS),--robots $(ROBOTS)) $(RUN_ARGS)
 
 # Lint and format (ruff), the packages' import contracts and types (mypy): part of every test run.
+LINT := $(VENV)/bin/ruff check . && $(VENV)/bin/ruff format --check . && $(VENV)/bin/lint-imports
 lint: $(TSTAMP)
-	$(VENV)/bin/ruff check .
-	$(VENV)/bin/ruff format --check .
-	$(VENV)/bin/lint-imports
+	$(LINT)
 	$(VENV)/bin/mypy
 
 # The whole suite: the in-process tests, then the end-to-end runs (marked slow) on every core, then
@@ -62,9 +61,15 @@ test: test-fast
 
 # Everyday work: the suite without the end-to-end runs marked slow. --dist loadgroup: a module whose
 # costly module fixture its tests share runs on one worker (its xdist_group), which makes it once.
-test-fast: lint
+# mypy (a single core for half a minute on a fresh clone) checks the types beside the tests, which
+# leave part of the second core idle; its report follows theirs.
+test-fast: $(TSTAMP)
+	$(LINT)
 	@$(BYTECODE)
-	$(PY) -m pytest -q -m "not slow" -n 3 --dist loadgroup
+	@echo "make: the fast tests, with mypy checking the types beside them"
+	@$(VENV)/bin/mypy > $(VENV)/mypy.out 2>&1 & types=$$!; \
+	$(PY) -m pytest -q -m "not slow" -n 3 --dist loadgroup; tests=$$?; \
+	wait $$types; typed=$$?; cat $(VENV)/mypy.out; [ $$tests -eq 0 ] && [ $$typed -eq 0 ]
 
 bench: $(TSTAMP)
 	@$(BYTECODE)
