@@ -187,7 +187,8 @@ class State:
     radius it asks others to avoid (r + tracking error for differential drive), ``goal_index`` the
     goal it holds (-1 for none): in image scenes, its goal in the agreed assignment of auction
     instance ``assign_instance`` of goal set ``assign_epoch``, or (instance CARRIED) the goal its
-    goal in the previous keyframe carried over to while the new keyframe's auction runs.
+    goal in the previous keyframe carried over to while the new keyframe's auction runs. Its
+    attributes are the wire record's fields, one each (docs/protocol.md).
     """
 
     NAME: ClassVar[str] = "state"
