@@ -4,6 +4,7 @@ Run from the repository root:
 
     .venv/bin/python bench/bench_outputs.py          # prints a table and writes bench/results/outputs.md
     .venv/bin/python bench/bench_outputs.py --mcap [--tree DIR]   # log.mcap of a 100-robot run: bench/results/mcap.md
+    .venv/bin/python bench/bench_outputs.py --encode --tree DIR   # the recorder's protobuf encoding: mcap_encode.md
 
 Video: the same frames (100 robots crossing a 4 x 3 m arena, 720 px, 300 frames = 30 s at 10 fps)
 written as MPEG-4 part 2 with OpenCV (what display.mp4 was) and as H.264 with PyAV at two x264
@@ -27,6 +28,10 @@ scipy's k-d tree, CPU ms at 1000 and 10,000 robots, scattered and formed.
 for bit each time), per channel: messages, their bytes, and those bytes compressed alone with zstd
 (the file compresses the channels together, in chunks). ``--tree DIR`` runs the code of another
 checkout (e.g. a ``git worktree`` of an earlier commit, its compiled core built) for a before figure.
+
+``--encode``: what the recorder spends turning one per-tick message into its protobuf form for
+log.mcap (sim.outputs.logschema), by table size, beside another checkout's logschema (``--tree``,
+loaded beside this one in the same process): microseconds per message (median of 7 batches) and bytes.
 """
 
 from __future__ import annotations
@@ -372,11 +377,62 @@ def clearance_rows(repeat: int = 20) -> list[str]:
     return rows
 
 
+def _logschema_of(tree: Path):  # type: ignore[no-untyped-def]
+    """``tree``'s sim/outputs/logschema.py as a module of its own (it imports this tree's codec)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(f"logschema_{abs(hash(tree))}", tree / "sim/outputs/logschema.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
+
+
+def encode_rows(before: Path) -> list[str]:
+    from sim.outputs import logschema
+    from transport.codec import Boards, Poses, States
+
+    rng = np.random.default_rng(0)
+
+    def table(dtype: np.dtype, n: int) -> np.ndarray:
+        out = np.zeros(n, dtype)
+        for name in dtype.names or ():
+            wide = out[name].dtype
+            out[name] = rng.normal(0, 2, n) if wide.kind == "f" else rng.integers(0, min(np.iinfo(wide).max, 1000), n)
+        return out
+
+    words = table(Boards.WORD, 50)
+    words["flags"], words["records"] = Boards.FRESH, 100  # a host of 50 with every board record fresh
+    messages = {f"States, {n} records": States(7, 0.7, table(States.RECORD, n)) for n in (1, 250, 1000)}
+    messages |= {f"Poses, {n} records": Poses(7, 0.7, table(Poses.RECORD, n)) for n in (1, 1000)}
+    boards = Boards(1, 4, 0, 3, 100, 100, 50, words, np.zeros((0, 13), np.uint8), table(Boards.RECORD, 5000))
+    messages["Boards, 50 words and 5000 records"] = boards
+    codes = {"now": logschema, "before": _logschema_of(before)}
+    rows = ["| message | us now | us before | bytes now | bytes before |", "|---|---|---|---|---|"]
+    for name, message in messages.items():
+        us, size = {}, {}
+        for code, module in codes.items():
+            kind = module.kind_of(message)
+            batches = []
+            for _ in range(7):
+                t = time.perf_counter()
+                for _ in range(50):
+                    encoded = kind.encode(message, "pixelswarm/state/0")
+                batches.append((time.perf_counter() - t) / 50 * 1e6)
+            us[code], size[code] = float(np.median(batches)), len(encoded)
+        rows.append(f"| {name} | {us['now']:.0f} | {us['before']:.0f} | {size['now']} | {size['before']} |")
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--clearance", action="store_true", help="only the clearance of a tick, beside scipy's")
     parser.add_argument("--mcap", action="store_true", help="only log.mcap's size for one 100-robot run")
-    parser.add_argument("--tree", type=Path, default=REPO, help="--mcap: the checkout whose code runs")
+    parser.add_argument(
+        "--tree", type=Path, default=REPO, help="--mcap: the checkout whose code runs; --encode: before"
+    )
+    parser.add_argument("--encode", action="store_true", help="only the protobuf encoding of log.mcap's per-tick kinds")
     parser.add_argument("--large", action="store_true", help="each output of a 10,000-robot run directory")
     parser.add_argument("--ticks", type=int, default=300, help="--large: ticks of synthetic arrays")
     parser.add_argument("--frames", type=int, default=60, help="--large: frames of the video")
@@ -402,6 +458,14 @@ def main() -> None:
                 "",
                 f"Load average at the end: {os.getloadavg()[0]:.1f}.",
             ],
+        )
+        return
+    if args.encode:
+        write_results(
+            "mcap_encode",
+            "The recorder's protobuf encoding of one per-tick message, beside another checkout's",
+            f".venv/bin/python bench/bench_outputs.py --encode --tree {args.tree}",
+            encode_rows(args.tree.resolve()),
         )
         return
     if args.mcap:

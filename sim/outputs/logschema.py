@@ -8,10 +8,14 @@ as the double it widens to: ~19 characters, and digits compress badly), which ma
 ``mcap``'s protobuf support decode it with no pixelswarm code:
 
 - the kind's fixed fields, in their wire types (``uint32``, ``uint64``, ``float``, ``double``);
-- each table as a nested message with one packed repeated field per column, in the column's wire
-  type (a float32 stays a ``float``: the log holds exactly what crossed the bus), the JSON log's
-  ``records: {column: [...]}`` shape; ``Boards`` has ``words`` and ``records``, and ``known`` as
-  bytes (the bit rows one after the other, ``(robots + 7) // 8`` bytes each);
+- each table as a nested message with one packed repeated field per column, in a type that holds
+  the column's wire type exactly (a float32 stays a ``float``: the log holds exactly what crossed the
+  bus), the JSON log's ``records: {column: [...]}`` shape; ``Boards`` has ``words`` and ``records``,
+  and ``known`` as bytes (the bit rows one after the other, ``(robots + 7) // 8`` bytes each). Bytes
+  and 16-bit integers are ``uint32``; wider integers fixed-width (``fixed32``, ``sfixed32``,
+  ``fixed64``), so that a large table's columns go into the message as numpy's own bytes (:class:`Table`):
+  protobuf's Python API sets repeated fields a value at a time, which made encoding the range-limited
+  auction's boards most of a recorder's time;
 - ``Truth`` (the world's true state, sim only) has a table ``records`` of a row per robot: ``x``,
   ``y``, ``theta`` (float, as poses cross the bus; the world's doubles are in trajectory.npz), ``vx``,
   ``vy``, ``r``, ``g``, ``b``, ``applied``;
@@ -38,8 +42,13 @@ _F = descriptor_pb2.FieldDescriptorProto
 # struct format characters and numpy types -> protobuf field types (the wire's own widths)
 _BY_STRUCT = {"I": _F.TYPE_UINT32, "H": _F.TYPE_UINT32, "B": _F.TYPE_UINT32, "i": _F.TYPE_INT32}
 _BY_STRUCT |= {"Q": _F.TYPE_UINT64, "f": _F.TYPE_FLOAT, "d": _F.TYPE_DOUBLE}
-_BY_DTYPE = {"u1": _F.TYPE_UINT32, "u2": _F.TYPE_UINT32, "u4": _F.TYPE_UINT32, "i4": _F.TYPE_INT32}
-_BY_DTYPE |= {"u8": _F.TYPE_UINT64, "f4": _F.TYPE_FLOAT, "f8": _F.TYPE_DOUBLE}
+# numpy column types -> (protobuf field type, the little-endian type of its packed values; VARINT:
+# varints, for the narrow integers: flags and robot ids in a byte or two where fixed32 takes four)
+VARINT = "varint"
+_BY_DTYPE = {"u1": (_F.TYPE_UINT32, VARINT), "u2": (_F.TYPE_UINT32, VARINT), "u4": (_F.TYPE_FIXED32, "<u4")}
+_BY_DTYPE |= {"i4": (_F.TYPE_SFIXED32, "<i4"), "u8": (_F.TYPE_FIXED64, "<u8")}
+_BY_DTYPE |= {"f4": (_F.TYPE_FLOAT, "<f4"), "f8": (_F.TYPE_DOUBLE, "<f8")}
+LENGTH_DELIMITED = 2  # protobuf's wire type of packed repeated fields, nested messages and bytes
 
 # The world's poses are float64; logged as float32, as every pose crosses the bus (0.24 um at 4 m). Their
 # noise-like low bytes were a quarter of the log, and trajectory.npz keeps them whole.
@@ -58,27 +67,88 @@ def _truth_rows(m: Truth) -> np.ndarray:
     return rows
 
 
+def _varint(value: int) -> bytes:
+    if value < 0x80:
+        return bytes((value,))
+    out = bytearray()
+    while value > 0x7F:
+        out.append(value & 0x7F | 0x80)
+        value >>= 7
+    out.append(value)
+    return bytes(out)
+
+
+def _varints(values: np.ndarray) -> bytes:
+    """Unsigned integers below 2**21 (uint8 and uint16 columns) as protobuf's varints, one after the
+    other: seven bits a byte, low bits first, the top bit set on every byte but a value's last."""
+    if not len(values) or values.max() < 1 << 7:  # most columns: a byte each
+        return values.astype(np.uint8).tobytes()
+    v = values.astype(np.uint32)
+    more = [v >= 1 << 7, v >= 1 << 14]  # whether a value takes a second, a third byte
+    size = 1 + more[0].view(np.uint8) + more[1].view(np.uint8)
+    first = np.cumsum(size, dtype=np.int64) - size  # where each value's bytes begin
+    out = np.empty(int(first[-1] + size[-1]), np.uint8)
+    out[first] = (v & 0x7F).astype(np.uint8) | more[0].view(np.uint8) << 7
+    out[first[more[0]] + 1] = ((v[more[0]] >> 7) & 0x7F).astype(np.uint8) | more[1][more[0]].view(np.uint8) << 7
+    out[first[more[1]] + 2] = (v[more[1]] >> 14).astype(np.uint8)
+    return out.tobytes()
+
+
+def _tag(number: int) -> bytes:
+    return _varint(number << 3 | LENGTH_DELIMITED)
+
+
+def _column(values: np.ndarray, packed: str) -> bytes:
+    return _varints(values) if packed == VARINT else values.astype(packed).tobytes()
+
+
+FEW_ROWS = 16  # a table of at most this many rows goes through protobuf's setters: a column's
+# numpy bytes cost more than setting a few values, and less than setting many
+
+
+@dataclass(frozen=True)
+class Table:
+    """A message's table as a field of its protobuf form: a nested message of a packed column per
+    field (``columns``: name, its tag, its packed type), or bytes when it has none (Boards.known)."""
+
+    name: str
+    tag: bytes
+    rows_of: Callable[[Any], np.ndarray]
+    columns: tuple[tuple[str, bytes, str], ...]
+
+    def packed(self, rows: np.ndarray) -> bytes:
+        """The table as its field's bytes, each column written whole: a field is its tag, its
+        length and its bytes."""
+        columns = [(tag, _column(rows[name], t)) for name, tag, t in self.columns]
+        payload = b"".join([tag + _varint(len(column)) + column for tag, column in columns])
+        return self.tag + _varint(len(payload)) + payload
+
+
 @dataclass(frozen=True)
 class LoggedKind:
     """One kind's protobuf message class and schema, and how a decoded message fills it."""
 
     name: str  # the schema's (and message's) full name, pixelswarm.<Kind>
     scalars: tuple[str, ...]  # the fixed fields, in order
-    tables: dict[str, Callable[[Any], np.ndarray]]  # table name -> its records of a message
+    tables: tuple[Table, ...]
     message_class: Any
     descriptor_set: bytes  # the schema as MCAP stores it: a serialized FileDescriptorSet
 
     def encode(self, message: Message, key: str) -> bytes:
+        # protobuf reads a message's fields in any order: the library's fields, then the large tables
         out = self.message_class(key=key, **{name: getattr(message, name) for name in self.scalars})
-        for table, rows_of in self.tables.items():
-            rows = rows_of(message)
-            if rows.dtype.names is None:  # Boards.known: its bit rows as bytes
-                setattr(out, table, np.ascontiguousarray(rows, np.uint8).tobytes())
-                continue
-            columns = getattr(out, table)
-            for column in rows.dtype.names:
-                getattr(columns, column).extend(rows[column].tolist())
-        return out.SerializeToString()
+        large = []
+        for table in self.tables:
+            rows = table.rows_of(message)
+            if not table.columns:
+                setattr(out, table.name, np.ascontiguousarray(rows, np.uint8).tobytes())
+            elif len(rows) <= FEW_ROWS:
+                columns = getattr(out, table.name)
+                for name, _, _ in table.columns:
+                    getattr(columns, name).extend(rows[name].tolist())
+            else:
+                large.append(table.packed(rows))
+        return out.SerializeToString() + b"".join(large)
 
 
 def _field(message: Any, name: str, number: int, kind: int, repeated: bool = False) -> None:
@@ -95,23 +165,28 @@ def _build(kind: type[Message], tables: dict[str, tuple[np.dtype | None, Callabl
     for number, (field, code) in enumerate(zip(scalars, codes), start=1):
         _field(message, field, number, _BY_STRUCT[code])
     number = len(scalars)
-    for table, (dtype, _) in tables.items():
+    encoders = []
+    for table, (dtype, rows_of) in tables.items():
         number += 1
         if dtype is None:
             _field(message, table, number, _F.TYPE_BYTES)
+            encoders.append(Table(table, _tag(number), rows_of, ()))
             continue
         nested = message.nested_type.add(name=table.capitalize())
+        columns = []
         for k, column in enumerate(dtype.names or (), start=1):
-            _field(nested, column, k, _BY_DTYPE[dtype[column].str[1:]], repeated=True)
+            field_type, packed = _BY_DTYPE[dtype[column].str[1:]]
+            _field(nested, column, k, field_type, repeated=True)
+            columns.append((column, _tag(k), packed))
         field = message.field.add(name=table, number=number, type=_F.TYPE_MESSAGE)
         field.type_name = f".{PACKAGE}.{name}.{nested.name}"
+        encoders.append(Table(table, _tag(number), rows_of, tuple(columns)))
     _field(message, "key", number + 1, _F.TYPE_STRING)
     pool = descriptor_pool.DescriptorPool()  # its own: nothing else of ours is a protobuf type
     pool.Add(file)
     cls = message_factory.GetMessageClass(pool.FindMessageTypeByName(f"{PACKAGE}.{name}"))
     descriptor_set = descriptor_pb2.FileDescriptorSet(file=[file]).SerializeToString()
-    getters = {table: getter for table, (_, getter) in tables.items()}
-    return LoggedKind(f"{PACKAGE}.{name}", scalars, getters, cls, descriptor_set)
+    return LoggedKind(f"{PACKAGE}.{name}", scalars, tuple(encoders), cls, descriptor_set)
 
 
 def _records(m: Any) -> np.ndarray:

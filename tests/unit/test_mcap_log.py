@@ -43,11 +43,18 @@ def _messages(rng: np.random.Generator) -> dict[str, tuple[str, object]]:
     keys = RecorderBus().keys
     states = _table(States.RECORD, N, rng)
     states["robot"], states["radius"] = np.arange(N), 0.05
-    boards = _table(Boards.WORD, 3, rng)
+    # more rows than FEW_ROWS (logschema: their columns go in as numpy's bytes), robot ids in one,
+    # two and three bytes of varint
+    boards = _table(Boards.WORD, 20, rng)
+    boards["robot"] = rng.integers(0, 2**16, 20)
+    boards["robot"][:3] = [5, 300, 40000]
     boards["flags"] = Boards.FRESH | Boards.GROWN
-    boards["records"] = [1, 0, 2]
-    records = _table(Boards.RECORD, 3, rng)
-    records["goal"] = [0, 4, 2]
+    boards["records"] = 1
+    boards["records"][:2] = [0, 2]
+    records = _table(Boards.RECORD, 20, rng)
+    records["goal"] = np.arange(20) % 5
+    bid = _table(Bid.RECORD, 40, rng)  # a column of 160 bytes or more: its length takes two bytes
+    bid["goal"][0] = -1  # a robot that holds no goal yet: signed integers read back signed
     commands = _table(Commands.RECORD, N, rng)
     commands["mode"] = np.arange(N) % 2  # velocity or wheel speeds: the codec refuses other modes
     pose = np.column_stack([rng.uniform(0, 4, (N, 2)), np.zeros(N)])  # float64, as the world has it
@@ -58,10 +65,10 @@ def _messages(rng: np.random.Generator) -> dict[str, tuple[str, object]]:
         "/pose": (keys.poses, Poses(7, 0.7, _table(Poses.RECORD, N, rng))),
         "/state": (keys.states(0), States(7, 0.7, states)),
         "/cmd": (keys.cmd(0), Commands(7, 0.7, commands)),
-        "/auction": (keys.auction(1, 0), Bid(1, 4, 0, 9, 2**63 + 5, 5, _table(Bid.RECORD, 5, rng))),
+        "/auction": (keys.auction(1, 0), Bid(1, 4, 0, 9, 2**63 + 5, 40, bid)),
         "/boards": (
             keys.boards(1, 0),
-            Boards(1, 4, 0, 3, 5, N, 3, boards, rng.integers(0, 256, (3, 1), np.uint8), records),
+            Boards(1, 4, 0, 3, 5, N, 20, boards, rng.integers(0, 256, (20, 1), np.uint8), records),
         ),
         "/sim/truth": (keys.truth, truth),
         "/event": (keys.event, Event({"what": "end", "reason": "converged"})),
