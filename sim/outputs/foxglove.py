@@ -39,6 +39,8 @@ from foxglove.messages import (
     Vector3,
 )
 
+from sim.outputs.logschema import length_delimited
+
 __all__ = ["SCENE_UPDATE_SCHEMA_NAME", "DISPLAY_FRAME", "SceneUpdate", "goal_markers", "scene_update", "swarm_scene"]
 
 SCENE_UPDATE_SCHEMA_NAME = "foxglove.SceneUpdate"
@@ -177,20 +179,6 @@ def _robot_entity(stamp: Timestamp, i: int, robots: _Drawn, heading: bool, has_g
 
 # SceneEntity's field numbers in Foxglove's schema (foxglove/SceneEntity.proto)
 SPHERES, CYLINDERS = 9, 10
-_LENGTH_DELIMITED = 2  # protobuf's wire type of a message field
-
-
-def _varint(value: int) -> bytes:
-    out = bytearray()
-    while value >= 0x80:
-        out.append(value & 0x7F | 0x80)
-        value >>= 7
-    out.append(value)
-    return bytes(out)
-
-
-def _field(number: int, body: bytes) -> bytes:
-    return _varint(number << 3 | _LENGTH_DELIMITED) + _varint(len(body)) + body
 
 
 def _places(record: bytes, value: float) -> list[int]:
@@ -207,7 +195,7 @@ def _repeated(number: int, one: Callable[..., Any], columns: np.ndarray) -> byte
     each row's doubles in their places. The SDK builds its objects one by one, which at 10,000
     robots costs several times what the log can spend on a scene."""
     stand_ins = [1000.0 + j + 2.0**-30 for j in range(columns.shape[1])]  # a value no primitive holds
-    record = _field(number, one(*stand_ins).encode())
+    record = length_delimited(number, one(*stand_ins).encode())
     places = [_places(record, v) for v in stand_ins]
     if not all(places):
         raise ValueError("a primitive holds each of its values as a double")
@@ -226,7 +214,7 @@ def _one_entity(t_ns: int, entity: str, frame_id: str, primitives: bytes) -> byt
         deleted = SceneEntityDeletion(timestamp=stamp, type=SceneEntityDeletionType.MatchingId, id=entity)
         return SceneUpdate(deletions=[deleted], entities=[]).encode()
     head = SceneEntity(timestamp=stamp, frame_id=frame_id, id=entity, lifetime=Duration(sec=0, nsec=0))
-    return _field(2, head.encode() + primitives)  # SceneUpdate.entities
+    return length_delimited(2, head.encode() + primitives)  # SceneUpdate.entities
 
 
 def _disc(height: float) -> Callable[..., CylinderPrimitive]:

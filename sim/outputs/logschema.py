@@ -35,7 +35,7 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
 from transport.codec import Bid, Boards, Commands, Message, Poses, States, Truth
 
-__all__ = ["PACKAGE", "LoggedKind", "kind_of", "logged_kinds"]
+__all__ = ["PACKAGE", "LoggedKind", "kind_of", "length_delimited", "logged_kinds", "varint"]
 
 PACKAGE = "pixelswarm"
 _F = descriptor_pb2.FieldDescriptorProto
@@ -67,7 +67,9 @@ def _truth_rows(m: Truth) -> np.ndarray:
     return rows
 
 
-def _varint(value: int) -> bytes:
+def varint(value: int) -> bytes:
+    """An unsigned integer as protobuf's varint: seven bits a byte, low bits first, the top bit set
+    on every byte but the last."""
     if value < 0x80:
         return bytes((value,))
     out = bytearray()
@@ -79,8 +81,7 @@ def _varint(value: int) -> bytes:
 
 
 def _varints(values: np.ndarray) -> bytes:
-    """Unsigned integers below 2**21 (uint8 and uint16 columns) as protobuf's varints, one after the
-    other: seven bits a byte, low bits first, the top bit set on every byte but a value's last."""
+    """Unsigned integers below 2**21 (uint8 and uint16 columns) as :func:`varint` s, one after the other."""
     if not len(values) or values.max() < 1 << 7:  # most columns: a byte each
         return values.astype(np.uint8).tobytes()
     v = values.astype(np.uint32)
@@ -94,8 +95,10 @@ def _varints(values: np.ndarray) -> bytes:
     return out.tobytes()
 
 
-def _tag(number: int) -> bytes:
-    return _varint(number << 3 | LENGTH_DELIMITED)
+def length_delimited(number: int, body: bytes) -> bytes:
+    """Field ``number`` of a message holding ``body`` (a nested message, bytes, a packed column): its
+    tag, its length, its bytes."""
+    return varint(number << 3 | LENGTH_DELIMITED) + varint(len(body)) + body
 
 
 def _column(values: np.ndarray, packed: str) -> bytes:
@@ -109,19 +112,18 @@ FEW_ROWS = 16  # a table of at most this many rows goes through protobuf's sette
 @dataclass(frozen=True)
 class Table:
     """A message's table as a field of its protobuf form: a nested message of a packed column per
-    field (``columns``: name, its tag, its packed type), or bytes when it has none (Boards.known)."""
+    field (``columns``: name, its field number, its packed type), or bytes when it has none (Boards.known)."""
 
     name: str
-    tag: bytes
+    number: int
     rows_of: Callable[[Any], np.ndarray]
-    columns: tuple[tuple[str, bytes, str], ...]
+    columns: tuple[tuple[str, int, str], ...]
 
     def packed(self, rows: np.ndarray) -> bytes:
-        """The table as its field's bytes, each column written whole: a field is its tag, its
-        length and its bytes."""
-        columns = [(tag, _column(rows[name], t)) for name, tag, t in self.columns]
-        payload = b"".join([tag + _varint(len(column)) + column for tag, column in columns])
-        return self.tag + _varint(len(payload)) + payload
+        """The table as its field's bytes, each column written whole."""
+        return length_delimited(
+            self.number, b"".join([length_delimited(k, _column(rows[name], t)) for name, k, t in self.columns])
+        )
 
 
 @dataclass(frozen=True)
@@ -170,17 +172,17 @@ def _build(kind: type[Message], tables: dict[str, tuple[np.dtype | None, Callabl
         number += 1
         if dtype is None:
             _field(message, table, number, _F.TYPE_BYTES)
-            encoders.append(Table(table, _tag(number), rows_of, ()))
+            encoders.append(Table(table, number, rows_of, ()))
             continue
         nested = message.nested_type.add(name=table.capitalize())
         columns = []
         for k, column in enumerate(dtype.names or (), start=1):
             field_type, packed = _BY_DTYPE[dtype[column].str[1:]]
             _field(nested, column, k, field_type, repeated=True)
-            columns.append((column, _tag(k), packed))
+            columns.append((column, k, packed))
         field = message.field.add(name=table, number=number, type=_F.TYPE_MESSAGE)
         field.type_name = f".{PACKAGE}.{name}.{nested.name}"
-        encoders.append(Table(table, _tag(number), rows_of, tuple(columns)))
+        encoders.append(Table(table, number, rows_of, tuple(columns)))
     _field(message, "key", number + 1, _F.TYPE_STRING)
     pool = descriptor_pool.DescriptorPool()  # its own: nothing else of ours is a protobuf type
     pool.Add(file)
