@@ -30,8 +30,9 @@ for bit each time), per channel: messages, their bytes, and those bytes compress
 checkout (e.g. a ``git worktree`` of an earlier commit, its compiled core built) for a before figure.
 
 ``--encode``: what the recorder spends turning one per-tick message into its protobuf form for
-log.mcap (sim.outputs.logschema), by table size, beside another checkout's logschema (``--tree``,
-loaded beside this one in the same process): microseconds per message (median of 7 batches) and bytes.
+log.mcap (sim.outputs.logschema), by table size, and building the display's SceneUpdate
+(sim.outputs.foxglove), beside another checkout's modules (``--tree``, loaded beside these in the
+same process): microseconds per message (median of 7 batches) and bytes.
 """
 
 from __future__ import annotations
@@ -105,7 +106,7 @@ def scene_rows() -> list[tuple[int, float, int]]:
         times = []
         for _ in range(20):
             start = time.perf_counter()
-            data = scene_update(1_000_000_000, pose[0], radius, color, goal=goal[0]).encode()
+            data = scene_update(1_000_000_000, pose[0], radius, color, goal=goal[0])
             times.append(time.perf_counter() - start)
         rows.append((n, float(np.median(times)) * 1e3, len(data)))
     return rows
@@ -377,11 +378,11 @@ def clearance_rows(repeat: int = 20) -> list[str]:
     return rows
 
 
-def _logschema_of(tree: Path):  # type: ignore[no-untyped-def]
-    """``tree``'s sim/outputs/logschema.py as a module of its own (it imports this tree's codec)."""
+def _module_of(tree: Path, name: str):  # type: ignore[no-untyped-def]
+    """``tree``'s sim/outputs/<name>.py as a module of its own (it imports this tree's other modules)."""
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location(f"logschema_{abs(hash(tree))}", tree / "sim/outputs/logschema.py")
+    spec = importlib.util.spec_from_file_location(f"{name}_{abs(hash(tree))}", tree / f"sim/outputs/{name}.py")
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module  # dataclasses look their module up
@@ -408,7 +409,7 @@ def encode_rows(before: Path) -> list[str]:
     messages |= {f"Poses, {n} records": Poses(7, 0.7, table(Poses.RECORD, n)) for n in (1, 1000)}
     boards = Boards(1, 4, 0, 3, 100, 100, 50, words, np.zeros((0, 13), np.uint8), table(Boards.RECORD, 5000))
     messages["Boards, 50 words and 5000 records"] = boards
-    codes = {"now": logschema, "before": _logschema_of(before)}
+    codes = {"now": logschema, "before": _module_of(before, "logschema")}
     rows = ["| message | us now | us before | bytes now | bytes before |", "|---|---|---|---|---|"]
     for name, message in messages.items():
         us, size = {}, {}
@@ -422,6 +423,21 @@ def encode_rows(before: Path) -> list[str]:
                 batches.append((time.perf_counter() - t) / 50 * 1e6)
             us[code], size[code] = float(np.median(batches)), len(encoded)
         rows.append(f"| {name} | {us['now']:.0f} | {us['before']:.0f} | {size['now']} | {size['before']} |")
+    scenes = {"now": scene_update, "before": _module_of(before, "foxglove").scene_update}
+    for n in (14, 100, 1000):
+        _, pose, radius, color, goal = crossing(2, n)
+        for code, build in scenes.items():
+            batches = []
+            for _ in range(7):
+                t = time.perf_counter()
+                for _ in range(5):
+                    scene = build(1_000_000_000, pose[0], radius, color, goal=goal[0])
+                    encoded = scene if isinstance(scene, bytes) else scene.encode()
+                batches.append((time.perf_counter() - t) / 5 * 1e6)
+            us[code], size[code] = float(np.median(batches)), len(encoded)
+        rows.append(
+            f"| SceneUpdate, {n} robots | {us['now']:.0f} | {us['before']:.0f} | {size['now']} | {size['before']} |"
+        )
     return rows
 
 
@@ -432,7 +448,9 @@ def main() -> None:
     parser.add_argument(
         "--tree", type=Path, default=REPO, help="--mcap: the checkout whose code runs; --encode: before"
     )
-    parser.add_argument("--encode", action="store_true", help="only the protobuf encoding of log.mcap's per-tick kinds")
+    parser.add_argument(
+        "--encode", action="store_true", help="only the protobuf encoding of log.mcap's per-tick messages"
+    )
     parser.add_argument("--large", action="store_true", help="each output of a 10,000-robot run directory")
     parser.add_argument("--ticks", type=int, default=300, help="--large: ticks of synthetic arrays")
     parser.add_argument("--frames", type=int, default=60, help="--large: frames of the video")
@@ -463,7 +481,7 @@ def main() -> None:
     if args.encode:
         write_results(
             "mcap_encode",
-            "The recorder's protobuf encoding of one per-tick message, beside another checkout's",
+            "The recorder's protobuf encoding of one per-tick message and scene, beside another checkout's",
             f".venv/bin/python bench/bench_outputs.py --encode --tree {args.tree}",
             encode_rows(args.tree.resolve()),
         )

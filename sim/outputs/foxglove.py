@@ -17,9 +17,10 @@ disc per robot (no arrow, no metadata), about a third of the bytes; its goals ar
 
 from __future__ import annotations
 
+import functools
 import struct
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 from foxglove.messages import (
@@ -59,10 +60,6 @@ QUANTUM = 2.0**-14  # lengths to 1/16384 m (0.06 mm), colours and rotations to 1
 # noise), and a robot at rest repeats the same bytes tick after tick: the log's compression stores both once
 
 
-def _quantised(a: Any) -> list:
-    return (np.round(np.asarray(a, dtype=float) / QUANTUM) * QUANTUM).tolist()
-
-
 def _timestamp(t_ns: int) -> Timestamp:
     t_ns = int(t_ns)
     return Timestamp(sec=t_ns // 1_000_000_000, nsec=t_ns % 1_000_000_000)
@@ -72,15 +69,30 @@ def _pose(x: float, y: float, z: float, qz: float, qw: float) -> Pose:
     return Pose(position=Vector3(x=x, y=y, z=z), orientation=Quaternion(x=0.0, y=0.0, z=qz, w=qw))
 
 
-class _Drawn(NamedTuple):
-    """One tick's robots as drawn: rounded to QUANTUM, as lists (the SDK's messages take floats)."""
+def _robot_disc(x: float, y: float, qz: float, qw: float, d: float, red: float, green: float, blue: float) -> Any:
+    return CylinderPrimitive(
+        pose=_pose(x, y, DISC_HEIGHT / 2, qz, qw),
+        size=Vector3(x=d, y=d, z=DISC_HEIGHT),
+        bottom_scale=1.0,
+        top_scale=1.0,
+        color=Color(r=red, g=green, b=blue, a=1.0),
+    )
 
-    xy: list  # (N, 2) disc centres, m
-    r: list  # (N,) radii, m
-    qz: list  # (N,) heading as a rotation about z: its quaternion's z and w
-    qw: list
-    rgb: list  # (N, 3) LED colours, 0..1
-    goal: list  # (N, 2) goals, m (NaN: none)
+
+def _heading_arrow(x: float, y: float, qz: float, qw: float, shaft: float, width: float, head: float) -> Any:
+    return ArrowPrimitive(
+        pose=_pose(x, y, DISC_HEIGHT, qz, qw),
+        shaft_length=shaft,
+        shaft_diameter=width,
+        head_length=head,
+        head_diameter=head,
+        color=Color(r=HEADING_COLOR[0], g=HEADING_COLOR[1], b=HEADING_COLOR[2], a=1.0),
+    )
+
+
+def _robot_goal(x: float, y: float, half: float, d: float, red: float, green: float, blue: float) -> Any:
+    color = Color(r=red, g=green, b=blue, a=GOAL_ALPHA)
+    return SpherePrimitive(pose=_pose(x, y, half, *FLAT[2:]), size=Vector3(x=d, y=d, z=d), color=color)
 
 
 def scene_update(
@@ -91,13 +103,16 @@ def scene_update(
     *,
     goal: np.ndarray | None = None,
     heading: bool = True,
-) -> SceneUpdate:
-    """A ``foxglove.SceneUpdate`` at time ``t_ns`` (ns) for N robots.
+) -> bytes:
+    """An encoded ``foxglove.SceneUpdate`` at time ``t_ns`` (ns) for N robots.
 
     ``pose`` (N,3) x, y, theta; ``radius`` (N,) or scalar, m; ``color`` (N,3) LED RGB uint8 (None:
     grey); ``goal`` (N,2) with NaN = no goal.  A robot whose position or radius is not finite is
     not drawn, and its earlier entity is deleted, so a robot that has left does not linger.
     Write it on a channel added with ``McapLog.add_foxglove_channel(topic, SceneUpdate)``.
+
+    Each robot's disc, arrow and goal sphere are the SDK's encoding of one, copied with the robot's
+    numbers (:func:`_records`); the SDK builds each entity's head (its id and metadata).
     """
     pose = np.asarray(pose, dtype=float).reshape(-1, 3)
     n = len(pose)
@@ -105,80 +120,37 @@ def scene_update(
     rgb = np.broadcast_to(NO_LED, (n, 3)) if color is None else np.asarray(color).reshape(n, 3)
     goal_xy = np.full((n, 2), np.nan) if goal is None else np.asarray(goal, dtype=float).reshape(n, 2)
     theta = np.where(np.isfinite(pose[:, 2]), pose[:, 2], 0.0)
-    drawn = (np.isfinite(pose[:, :2]).all(axis=1) & np.isfinite(radius) & (radius > 0)).tolist()
-    robots = _Drawn(
-        xy=_quantised(pose[:, :2]),
-        r=_quantised(radius),
-        qz=_quantised(np.sin(theta / 2)),
-        qw=_quantised(np.cos(theta / 2)),
-        rgb=_quantised(np.asarray(rgb, dtype=float) / 255.0),
-        goal=_quantised(goal_xy),
-    )
-    has_goal = np.isfinite(goal_xy).all(axis=1).tolist()
-    stamp = _timestamp(t_ns)
+    drawn = np.isfinite(pose[:, :2]).all(axis=1) & np.isfinite(radius) & (radius > 0)
+    has_goal = np.isfinite(goal_xy).all(axis=1)
+    x, y, r, qz, qw, red, green, blue, gx, gy = _columns(
+        pose[:, :2], radius, np.sin(theta / 2), np.cos(theta / 2), np.asarray(rgb, dtype=float) / 255.0, goal_xy
+    ).T
+    d = 2 * r * GOAL_SIZE
+    parts = [_records(CYLINDERS, _robot_disc, np.column_stack([x, y, qz, qw, 2 * r, red, green, blue]))]
+    if heading:
+        parts.append(_records(ARROWS, _heading_arrow, np.column_stack([x, y, qz, qw, 0.6 * r, 0.15 * r, 0.35 * r])))
+    spheres = _records(SPHERES, _robot_goal, np.column_stack([gx, gy, d / 2, d, red, green, blue]))
+    stamp, forever = _timestamp(t_ns), Duration(sec=0, nsec=0)
     entities, deletions = [], []
     for i in range(n):
-        if drawn[i]:
-            entities.append(_robot_entity(stamp, i, robots, heading, has_goal[i]))
-        else:
+        if not drawn[i]:
             deletions.append(
                 SceneEntityDeletion(timestamp=stamp, type=SceneEntityDeletionType.MatchingId, id=f"robot/{i}")
             )
-    return SceneUpdate(deletions=deletions, entities=entities)
-
-
-def _robot_entity(stamp: Timestamp, i: int, robots: _Drawn, heading: bool, has_goal: bool) -> SceneEntity:
-    """Robot i's disc, its heading arrow and its goal sphere (with the goal in its metadata)."""
-    (x, y), r, qz, qw = robots.xy[i], robots.r[i], robots.qz[i], robots.qw[i]
-    red, green, blue = robots.rgb[i]
-    cylinders = [
-        CylinderPrimitive(
-            pose=_pose(x, y, DISC_HEIGHT / 2, qz, qw),
-            size=Vector3(x=2 * r, y=2 * r, z=DISC_HEIGHT),
-            bottom_scale=1.0,
-            top_scale=1.0,
-            color=Color(r=red, g=green, b=blue, a=1.0),
+            continue
+        metadata = [KeyValuePair(key="goal", value=f"{gx[i]:.3f}, {gy[i]:.3f}")] if has_goal[i] else []
+        head = SceneEntity(
+            timestamp=stamp, frame_id=DISPLAY_FRAME, id=f"robot/{i}", lifetime=forever, metadata=metadata
         )
-    ]
-    arrows = []
-    if heading:
-        arrows.append(
-            ArrowPrimitive(
-                pose=_pose(x, y, DISC_HEIGHT, qz, qw),
-                shaft_length=0.6 * r,
-                shaft_diameter=0.15 * r,
-                head_length=0.35 * r,
-                head_diameter=0.35 * r,
-                color=Color(r=HEADING_COLOR[0], g=HEADING_COLOR[1], b=HEADING_COLOR[2], a=1.0),
-            )
-        )
-    spheres, metadata = [], []
-    if has_goal:
-        d = 2 * r * GOAL_SIZE
-        gx, gy = robots.goal[i]
-        spheres.append(
-            SpherePrimitive(
-                pose=_pose(gx, gy, d / 2, *FLAT[2:]),
-                size=Vector3(x=d, y=d, z=d),
-                color=Color(r=red, g=green, b=blue, a=GOAL_ALPHA),
-            )
-        )
-        metadata.append(KeyValuePair(key="goal", value=f"{gx:.3f}, {gy:.3f}"))
-    return SceneEntity(
-        timestamp=stamp,
-        frame_id=DISPLAY_FRAME,
-        id=f"robot/{i}",
-        lifetime=Duration(sec=0, nsec=0),  # forever
-        frame_locked=False,
-        metadata=metadata,
-        cylinders=cylinders,
-        arrows=arrows,
-        spheres=spheres,
-    )
+        body = b"".join([part[i] for part in parts] + ([spheres[i]] if has_goal[i] else []))
+        entities.append(length_delimited(ENTITIES, head.encode() + body))
+    return SceneUpdate(deletions=deletions, entities=[]).encode() + b"".join(entities)
 
 
-# SceneEntity's field numbers in Foxglove's schema (foxglove/SceneEntity.proto)
-SPHERES, CYLINDERS = 9, 10
+# SceneUpdate's and SceneEntity's field numbers in Foxglove's schema (foxglove/SceneUpdate.proto,
+# foxglove/SceneEntity.proto)
+ENTITIES = 2
+ARROWS, SPHERES, CYLINDERS = 7, 9, 10
 
 
 def _places(record: bytes, value: float) -> list[int]:
@@ -189,22 +161,30 @@ def _places(record: bytes, value: float) -> list[int]:
     return places
 
 
-def _repeated(number: int, one: Callable[..., Any], columns: np.ndarray) -> bytes:
-    """A repeated message field, a primitive per row of ``columns`` (n, k): the SDK's encoding of one
-    primitive, ``one(*k values)``, made with k distinct stand-in values, then copied n times with
-    each row's doubles in their places. The SDK builds its objects one by one, which at 10,000
-    robots costs several times what the log can spend on a scene."""
-    stand_ins = [1000.0 + j + 2.0**-30 for j in range(columns.shape[1])]  # a value no primitive holds
+@functools.lru_cache(maxsize=16)  # the per-robot primitives' templates, the same every tick
+def _template(number: int, one: Callable[..., Any], values: int) -> tuple[bytes, list[list[int]]]:
+    """The field ``number`` holding ``one`` primitive of stand-in values, and where each value is."""
+    stand_ins = [1000.0 + j + 2.0**-30 for j in range(values)]  # a value no primitive holds
     record = length_delimited(number, one(*stand_ins).encode())
     places = [_places(record, v) for v in stand_ins]
     if not all(places):
         raise ValueError("a primitive holds each of its values as a double")
+    return record, places
+
+
+def _records(number: int, one: Callable[..., Any], columns: np.ndarray) -> list[bytes]:
+    """A repeated message field's records, a primitive per row of ``columns`` (n, k): the SDK's
+    encoding of one primitive, ``one(*k values)``, made with k distinct stand-in values, then copied n
+    times with each row's doubles in their places. The SDK builds its objects one by one, which at
+    10,000 robots costs several times what the log can spend on a scene."""
+    record, places = _template(number, one, columns.shape[1])
     out = np.tile(np.frombuffer(record, np.uint8), (len(columns), 1))
     doubles = np.ascontiguousarray(columns, "<f8").view(np.uint8).reshape(len(columns), -1, 8)
     for j, at in enumerate(places):
         for k in at:  # a disc's diameter is its size's x and y
             out[:, k : k + 8] = doubles[:, j]
-    return out.tobytes()
+    whole, size = out.tobytes(), len(record)
+    return [whole[i : i + size] for i in range(0, len(whole), size)]
 
 
 def _one_entity(t_ns: int, entity: str, frame_id: str, primitives: bytes) -> bytes:
@@ -217,6 +197,7 @@ def _one_entity(t_ns: int, entity: str, frame_id: str, primitives: bytes) -> byt
     return length_delimited(2, head.encode() + primitives)  # SceneUpdate.entities
 
 
+@functools.cache  # one closure, one template (_template), per size
 def _disc(height: float) -> Callable[..., CylinderPrimitive]:
     def one(x: float, y: float, d: float, red: float, green: float, blue: float) -> CylinderPrimitive:
         return CylinderPrimitive(
@@ -230,6 +211,7 @@ def _disc(height: float) -> Callable[..., CylinderPrimitive]:
     return one
 
 
+@functools.cache  # one closure, one template (_template), per size
 def _goal_sphere(d: float) -> Callable[..., SpherePrimitive]:
     def one(x: float, y: float, red: float, green: float, blue: float) -> SpherePrimitive:
         color = Color(r=red, g=green, b=blue, a=GOAL_ALPHA)
@@ -266,7 +248,7 @@ def swarm_scene(
     drawn = np.isfinite(pose[:, :2]).all(axis=1) & np.isfinite(radius) & (radius > 0)
     columns = _columns(pose[drawn, :2], 2 * radius[drawn], np.asarray(rgb, dtype=float)[drawn] / 255.0)
     return _one_entity(
-        t_ns, SWARM_ENTITY, frame_id, _repeated(CYLINDERS, _disc(height), columns) if drawn.any() else b""
+        t_ns, SWARM_ENTITY, frame_id, b"".join(_records(CYLINDERS, _disc(height), columns)) if drawn.any() else b""
     )
 
 
@@ -282,5 +264,5 @@ def goal_markers(
     columns = _columns(goals[keep], np.asarray(rgb, dtype=float)[keep] / 255.0)
     d = float(np.round(diameter / QUANTUM) * QUANTUM)
     return _one_entity(
-        t_ns, GOALS_ENTITY, frame_id, _repeated(SPHERES, _goal_sphere(d), columns) if keep.any() else b""
+        t_ns, GOALS_ENTITY, frame_id, b"".join(_records(SPHERES, _goal_sphere(d), columns)) if keep.any() else b""
     )

@@ -295,7 +295,7 @@ class DisplayLog:
         t_ns = int(wall * 1e9)
         if self.n <= LOG_ROBOTS:
             update = scene_update(t_ns, m.pose, radius, m.color, goal=goal, heading=self.heading)
-            self.log.write_bytes(self._scene_channel(SCENE_TOPIC), t_ns, update.encode())
+            self.log.write_bytes(self._scene_channel(SCENE_TOPIC), t_ns, update)
             return
         if m.stamp < self._next_scene - 1e-9:
             return

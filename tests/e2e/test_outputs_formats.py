@@ -267,6 +267,67 @@ def test_a_run_shows_in_foxglove_and_in_a_browser(tmp_path):
     assert len(frames) == len(held_frames(traj["t"], None if formed is None else traj["t"][0] + formed))
 
 
+def _sdk_scene(t_ns, pose, radius, color, goal, heading) -> bytes:  # type: ignore[no-untyped-def]
+    """The display as Foxglove's SDK builds it object by object: the reference for scene_update,
+    which copies the SDK's encoding of one robot's primitives with each robot's numbers."""
+    import foxglove.messages as fm
+
+    def q(v: float) -> float:
+        return float(np.round(v / QUANTUM) * QUANTUM)
+
+    def at(x: float, y: float, z: float, qz: float = 0.0, qw: float = 1.0) -> fm.Pose:
+        return fm.Pose(position=fm.Vector3(x=x, y=y, z=z), orientation=fm.Quaternion(x=0.0, y=0.0, z=qz, w=qw))
+
+    stamp, entities, deletions = fm.Timestamp(sec=t_ns // 10**9, nsec=t_ns % 10**9), [], []
+    for i, ((x, y, theta), r, rgb, (gx, gy)) in enumerate(zip(pose, radius, color, goal)):
+        if not (np.isfinite([x, y, r]).all() and r > 0):
+            gone = fm.SceneEntityDeletion(timestamp=stamp, type=fm.SceneEntityDeletionType.MatchingId, id=f"robot/{i}")
+            deletions.append(gone)
+            continue
+        x, y, r, qz, qw = q(x), q(y), q(r), q(np.sin(theta / 2)), q(np.cos(theta / 2))
+        red, green, blue = (q(c / 255.0) for c in rgb)
+        scales = {"bottom_scale": 1.0, "top_scale": 1.0, "color": fm.Color(r=red, g=green, b=blue, a=1.0)}
+        disc = fm.CylinderPrimitive(pose=at(x, y, 0.005, qz, qw), size=fm.Vector3(x=2 * r, y=2 * r, z=0.01), **scales)
+        arrows = []
+        if heading:
+            shape = {"shaft_length": 0.6 * r, "shaft_diameter": 0.15 * r, "head_length": 0.35 * r}
+            dark = fm.Color(r=0.1, g=0.1, b=0.1, a=1.0)
+            arrows.append(fm.ArrowPrimitive(pose=at(x, y, 0.01, qz, qw), head_diameter=0.35 * r, color=dark, **shape))
+        spheres, metadata = [], []
+        if np.isfinite([gx, gy]).all():
+            gx, gy, d = q(gx), q(gy), 2 * r * 0.4
+            see_through = fm.Color(r=red, g=green, b=blue, a=0.5)
+            spheres = [fm.SpherePrimitive(pose=at(gx, gy, d / 2), size=fm.Vector3(x=d, y=d, z=d), color=see_through)]
+            metadata = [fm.KeyValuePair(key="goal", value=f"{gx:.3f}, {gy:.3f}")]
+        head = {
+            "timestamp": stamp,
+            "frame_id": DISPLAY_FRAME,
+            "id": f"robot/{i}",
+            "lifetime": fm.Duration(sec=0, nsec=0),
+        }
+        entities.append(fm.SceneEntity(**head, metadata=metadata, cylinders=[disc], arrows=arrows, spheres=spheres))
+    return SceneUpdate(deletions=deletions, entities=entities).encode()
+
+
+@pytest.mark.parametrize("heading", [True, False])
+def test_the_display_is_the_scene_foxgloves_sdk_builds_robot_by_robot(heading):
+    rng = np.random.default_rng(5)
+    n = 40
+    pose = np.column_stack([rng.uniform(-2, 2, (n, 2)), rng.uniform(-np.pi, np.pi, n)])
+    pose[0] = 0.0  # zeros: fields the SDK leaves out and scene_update writes; the same message
+    pose[1, :2] = np.nan  # not drawn: deleted
+    radius = rng.uniform(0.03, 0.1, n)
+    radius[2] = np.nan
+    color = rng.integers(0, 256, (n, 3)).astype(np.uint8)
+    goal = rng.uniform(-2, 2, (n, 2))
+    goal[3:9] = np.nan  # no goal: no sphere, no metadata
+    t_ns = 7_123_456_789
+    ours = FoxgloveSceneUpdate.FromString(scene_update(t_ns, pose, radius, color, goal=goal, heading=heading))
+    reference = FoxgloveSceneUpdate.FromString(_sdk_scene(t_ns, pose, radius, color, goal, heading))
+    assert [d.id for d in ours.deletions] == ["robot/1", "robot/2"]
+    assert len(ours.entities) == n - 2 and ours == reference
+
+
 def test_the_log_streams_live_to_a_foxglove_websocket_client(tmp_path):
     """`pixelswarm run --foxglove`: the log's channels, served by Foxglove's SDK on 127.0.0.1, reach a
     client of Foxglove's WebSocket protocol (websockets, another implementation) as they are written."""
