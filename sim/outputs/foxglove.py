@@ -90,7 +90,7 @@ def _heading_arrow(x: float, y: float, qz: float, qw: float, shaft: float, width
     )
 
 
-def _robot_goal(x: float, y: float, half: float, d: float, red: float, green: float, blue: float) -> Any:
+def _goal_sphere(x: float, y: float, half: float, d: float, red: float, green: float, blue: float) -> Any:
     color = Color(r=red, g=green, b=blue, a=GOAL_ALPHA)
     return SpherePrimitive(pose=_pose(x, y, half, *FLAT[2:]), size=Vector3(x=d, y=d, z=d), color=color)
 
@@ -129,7 +129,7 @@ def scene_update(
     parts = [_records(CYLINDERS, _robot_disc, np.column_stack([x, y, qz, qw, 2 * r, red, green, blue]))]
     if heading:
         parts.append(_records(ARROWS, _heading_arrow, np.column_stack([x, y, qz, qw, 0.6 * r, 0.15 * r, 0.35 * r])))
-    spheres = _records(SPHERES, _robot_goal, np.column_stack([gx, gy, d / 2, d, red, green, blue]))
+    spheres = _records(SPHERES, _goal_sphere, np.column_stack([gx, gy, d / 2, d, red, green, blue]))
     stamp, forever = _timestamp(t_ns), Duration(sec=0, nsec=0)
     entities, deletions = [], []
     for i in range(n):
@@ -194,7 +194,7 @@ def _one_entity(t_ns: int, entity: str, frame_id: str, primitives: bytes) -> byt
         deleted = SceneEntityDeletion(timestamp=stamp, type=SceneEntityDeletionType.MatchingId, id=entity)
         return SceneUpdate(deletions=[deleted], entities=[]).encode()
     head = SceneEntity(timestamp=stamp, frame_id=frame_id, id=entity, lifetime=Duration(sec=0, nsec=0))
-    return length_delimited(2, head.encode() + primitives)  # SceneUpdate.entities
+    return length_delimited(ENTITIES, head.encode() + primitives)
 
 
 @functools.cache  # one closure, one template (_template), per size
@@ -207,15 +207,6 @@ def _disc(height: float) -> Callable[..., CylinderPrimitive]:
             top_scale=1.0,
             color=Color(r=red, g=green, b=blue, a=1.0),
         )
-
-    return one
-
-
-@functools.cache  # one closure, one template (_template), per size
-def _goal_sphere(d: float) -> Callable[..., SpherePrimitive]:
-    def one(x: float, y: float, red: float, green: float, blue: float) -> SpherePrimitive:
-        color = Color(r=red, g=green, b=blue, a=GOAL_ALPHA)
-        return SpherePrimitive(pose=_pose(x, y, d / 2, *FLAT[2:]), size=Vector3(x=d, y=d, z=d), color=color)
 
     return one
 
@@ -261,8 +252,9 @@ def goal_markers(
     goals = np.asarray(goals, dtype=float).reshape(-1, 2)
     rgb = np.broadcast_to(NO_LED, (len(goals), 3)) if color is None else np.asarray(color).reshape(-1, 3)
     keep = np.isfinite(goals).all(axis=1)
-    columns = _columns(goals[keep], np.asarray(rgb, dtype=float)[keep] / 255.0)
     d = float(np.round(diameter / QUANTUM) * QUANTUM)
+    sizes = np.broadcast_to([d / 2, d], (int(keep.sum()), 2))  # a sphere's centre height and diameter
+    columns = np.column_stack([_columns(goals[keep]), sizes, _columns(np.asarray(rgb, dtype=float)[keep] / 255.0)])
     return _one_entity(
-        t_ns, GOALS_ENTITY, frame_id, b"".join(_records(SPHERES, _goal_sphere(d), columns)) if keep.any() else b""
+        t_ns, GOALS_ENTITY, frame_id, b"".join(_records(SPHERES, _goal_sphere, columns)) if keep.any() else b""
     )
