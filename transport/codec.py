@@ -81,6 +81,7 @@ def _fixed_and_items(body: memoryview, fixed: struct.Struct, item: np.dtype) -> 
 
 _FEW = 8  # records a message checks in Python rather than numpy, whose reductions cost more for a few
 _ALONE_RECORD_AT = 4  # in a frame of one read whole: kind, version, tick, stamp, then the record
+_ONE_RECORD_AT = 2  # in its body: tick, stamp, then the record
 # a record field's numpy type as struct reads it
 _STRUCT_CODE = {"<u2": "H", "<u4": "I", "<i4": "i", "<f4": "f", "<f8": "d", "|u1": "B"}
 
@@ -719,20 +720,30 @@ class Frame(Message):
             raise Malformed("truncated")
         tick, stamp = cls._fixed.unpack(body[:size])
         _finite(stamp)
-        # The record's float fields lie side by side: one strided view checks them all at once
-        # (a check per field cost more than the rest of decoding a frame of one).
-        start, width = cls._float_block
         count = (len(body) - size) // cls.RECORD.itemsize
-        if (
-            count
-            and not np.isfinite(np.ndarray((count, width), "<f4", body, size + start, (cls.RECORD.itemsize, 4))).all()
-        ):
-            raise Malformed("non-finite")
+        if count == 1:  # a robot alone's: its checks in one struct call cost a fraction of numpy's
+            if (why := cls._unsound_one(cls._one.unpack(body))) is not None:
+                raise Malformed(why)
+        elif count:
+            # The record's float fields lie side by side: one strided view checks them all at once.
+            start, width = cls._float_block
+            if not np.isfinite(np.ndarray((count, width), "<f4", body, size + start, (cls.RECORD.itemsize, 4))).all():
+                raise Malformed("non-finite")
         # its own writable bytes: a copy of a structured array costs several times more
         records = np.frombuffer(bytearray(body[size:]), cls.RECORD)
-        if not all(test(records[k]).all() for k, test in cls._rules):
+        if count > 1 and not all(test(records[k]).all() for k, test in cls._rules):
             raise Malformed("invalid")
         return cls(tick, stamp, records)
+
+    @classmethod
+    def _unsound_one(cls, v: tuple) -> str | None:
+        """Why a frame of one record, read whole into ``v`` (tick, stamp, the record's fields), is
+        malformed (the reason ``_from`` counts), or None: the same checks as ``_from``'s on a column."""
+        if not math.isfinite(v[1]) or not all(map(math.isfinite, v[cls._one_floats])):
+            return "non-finite"
+        if not all(test(v[i]) for i, test in cls._one_rules):
+            return "invalid"
+        return None
 
     # Rules of a kind's records beyond finite numbers: (field, test), each test taking a value or a
     # column of values, so that frames (numpy) and views (struct) are checked by the same rules.
@@ -740,8 +751,9 @@ class Frame(Message):
     # Derived from RECORD once per kind (__init_subclass__):
     _float_block: ClassVar[tuple[int, int]]  # (byte offset in a record, count) of the float fields
     _alone: ClassVar[struct.Struct]  # a whole message of one record: header, tick, stamp, the record
-    _alone_floats: ClassVar[slice]  # the record's float fields in what _alone reads
-    _alone_rules: ClassVar[tuple[tuple[int, Callable[[Any], Any]], ...]]  # _rules by position in it
+    _one: ClassVar[struct.Struct]  # the body of a frame of one record: tick, stamp, the record
+    _one_floats: ClassVar[slice]  # the record's float fields in what _one reads
+    _one_rules: ClassVar[tuple[tuple[int, Callable[[Any], Any]], ...]]  # _rules by position in it
     _record_of: ClassVar[Callable[[Any], tuple]]  # a view's record fields, in the record's order
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
@@ -757,9 +769,10 @@ class Frame(Message):
         row = "".join(_STRUCT_CODE[fields[k][0].str] for k in names)
         assert struct.calcsize("<" + row) == cls.RECORD.itemsize, f"{cls.__name__}: a record must be packed"
         cls._alone = struct.Struct(_HEADER.format + cls._fixed.format[1:] + row)
-        first = _ALONE_RECORD_AT + names.index(cls._floats[0])
-        cls._alone_floats = slice(first, first + len(cls._floats))
-        cls._alone_rules = tuple((_ALONE_RECORD_AT + names.index(k), test) for k, test in cls._rules)
+        cls._one = struct.Struct(cls._fixed.format + row)
+        first = _ONE_RECORD_AT + names.index(cls._floats[0])
+        cls._one_floats = slice(first, first + len(cls._floats))
+        cls._one_rules = tuple((_ONE_RECORD_AT + names.index(k), test) for k, test in cls._rules)
         cls._record_of = staticmethod(attrgetter(*names))
 
     @classmethod
@@ -773,11 +786,7 @@ class Frame(Message):
         if cls.CHECKED and not intact(data):
             return None
         v = cls._alone.unpack_from(data)
-        if v[0] != cls.KIND or v[1] != VERSION or not math.isfinite(v[3]):
-            return None
-        if not all(map(math.isfinite, v[cls._alone_floats])):
-            return None
-        if not all(test(v[i]) for i, test in cls._alone_rules):
+        if v[0] != cls.KIND or v[1] != VERSION or cls._unsound_one(v[2:]) is not None:
             return None
         return v[2], [cls.VIEW(*v[_ALONE_RECORD_AT : _ALONE_RECORD_AT + 1], v[2], v[3], *v[_ALONE_RECORD_AT + 1 :])]
 
