@@ -30,9 +30,10 @@ for bit each time), per channel: messages, their bytes, and those bytes compress
 checkout (e.g. a ``git worktree`` of an earlier commit, its compiled core built) for a before figure.
 
 ``--encode``: what the recorder spends turning one per-tick message into its protobuf form for
-log.mcap (sim.outputs.logschema), by table size, and building the display's SceneUpdate
-(sim.outputs.foxglove), beside another checkout's modules (``--tree``, loaded beside these in the
-same process): microseconds per message (median of 7 batches) and bytes.
+log.mcap (sim.outputs.logschema), by table size, decoding it off the bus first (transport.codec),
+and building the display's SceneUpdate (sim.outputs.foxglove), beside another checkout's modules
+(``--tree``, loaded beside these in the same process): microseconds per message (median of 7
+batches) and bytes.
 """
 
 from __future__ import annotations
@@ -378,11 +379,11 @@ def clearance_rows(repeat: int = 20) -> list[str]:
     return rows
 
 
-def _module_of(tree: Path, name: str):  # type: ignore[no-untyped-def]
-    """``tree``'s sim/outputs/<name>.py as a module of its own (it imports this tree's other modules)."""
+def _module_of(tree: Path, name: str, package: str = "sim/outputs"):  # type: ignore[no-untyped-def]
+    """``tree``'s <package>/<name>.py as a module of its own (it imports this tree's other modules)."""
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location(f"{name}_{abs(hash(tree))}", tree / f"sim/outputs/{name}.py")
+    spec = importlib.util.spec_from_file_location(f"{name}_{abs(hash(tree))}", tree / f"{package}/{name}.py")
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module  # dataclasses look their module up
@@ -405,7 +406,7 @@ def encode_rows(before: Path) -> list[str]:
 
     words = table(Boards.WORD, 50)
     words["flags"], words["records"] = Boards.FRESH, 100  # a host of 50 with every board record fresh
-    messages = {f"States, {n} records": States(7, 0.7, table(States.RECORD, n)) for n in (1, 250, 1000)}
+    messages = {f"States, {n} records": States(7, 0.7, table(States.RECORD, n)) for n in (1, 6, 250, 1000)}
     messages |= {f"Poses, {n} records": Poses(7, 0.7, table(Poses.RECORD, n)) for n in (1, 1000)}
     boards = Boards(1, 4, 0, 3, 100, 100, 50, words, np.zeros((0, 13), np.uint8), table(Boards.RECORD, 5000))
     messages["Boards, 50 words and 5000 records"] = boards
@@ -423,6 +424,7 @@ def encode_rows(before: Path) -> list[str]:
                 batches.append((time.perf_counter() - t) / 50 * 1e6)
             us[code], size[code] = float(np.median(batches)), len(encoded)
         rows.append(f"| {name} | {us['now']:.0f} | {us['before']:.0f} | {size['now']} | {size['before']} |")
+    rows += decode_rows(before, messages)
     scenes = {"now": scene_update, "before": _module_of(before, "foxglove").scene_update}
     for n in (14, 100, 1000):
         _, pose, radius, color, goal = crossing(2, n)
@@ -438,6 +440,30 @@ def encode_rows(before: Path) -> list[str]:
         rows.append(
             f"| SceneUpdate, {n} robots | {us['now']:.0f} | {us['before']:.0f} | {size['now']} | {size['before']} |"
         )
+    return rows
+
+
+def decode_rows(before: Path, messages: dict) -> list[str]:
+    """What the recorder spends decoding a frame off the bus before it logs it (transport.codec.decode),
+    beside ``before``'s codec: the frames of one and of many records among ``messages``."""
+    from transport import codec
+
+    codecs = {"now": codec, "before": _module_of(before, "codec", "transport")}
+    rows = []
+    for name, message in messages.items():
+        if not name.startswith("States") or message.count > 250:
+            continue
+        us = {}
+        for code, module in codecs.items():
+            data, kind = message.encode(), getattr(module, type(message).__name__)
+            batches = []
+            for _ in range(7):
+                t = time.perf_counter()
+                for _ in range(200):
+                    module.decode(data, kind)
+                batches.append((time.perf_counter() - t) / 200 * 1e6)
+            us[code] = float(np.median(batches))
+        rows.append(f"| decoding it: {name} | {us['now']:.1f} | {us['before']:.1f} | | |")
     return rows
 
 
