@@ -456,6 +456,10 @@ def test_a_ros2_backend_gets_wheel_speeds_as_a_body_velocity():
     router = loopback_router()
     config = Ros2BackendConfig(namespaces=["robot0", "robot1"])
     twists: list[bytes] = []
+
+    def twist(k: int):  # a Twist received, decoded
+        return get_typestore(Stores.ROS2_JAZZY).deserialize_cdr(twists[k], TWIST)
+
     with open_session(router) as observer:
         observer.declare_subscriber("0/robot1/cmd_vel/**", lambda sample: twists.append(sample.payload.to_bytes()))
         drive = TwistDrive(config, client_of(router), EPUCK)
@@ -464,7 +468,9 @@ def test_a_ros2_backend_gets_wheel_speeds_as_a_body_velocity():
             assert wait_for(lambda: drive.send([1], np.array([0.04]), np.array([0.06]), np.zeros((1, 3))) or twists, 10)
         finally:
             drive.close()  # a zero Twist to every robot
-    first, last = (get_typestore(Stores.ROS2_JAZZY).deserialize_cdr(t, TWIST) for t in (twists[0], twists[-1]))
+        # sent before close returns, it may still be on the router's side of the link (one run in 30 under load)
+        wait_for(lambda: twist(-1).linear.x == 0, 5)
+    first, last = twist(0), twist(-1)
     assert first.linear.x == pytest.approx(0.05) and first.angular.z == pytest.approx(0.02 / EPUCK.wheel_base)
     assert (first.linear.y, first.linear.z, first.angular.x, first.angular.y) == (0, 0, 0, 0)
     assert last.linear.x == 0 and last.angular.z == 0
