@@ -80,8 +80,7 @@ def _fixed_and_items(body: memoryview, fixed: struct.Struct, item: np.dtype) -> 
 
 
 _FEW = 8  # records a message checks in Python rather than numpy, whose reductions cost more for a few
-_ALONE_RECORD_AT = 4  # in a frame of one read whole: kind, version, tick, stamp, then the record
-_ONE_RECORD_AT = 2  # in its body: tick, stamp, then the record
+_ONE_RECORD_AT = 2  # in the body of a frame of one: tick, stamp, then the record
 # a record field's numpy type as struct reads it
 _STRUCT_CODE = {"<u2": "H", "<u4": "I", "<i4": "i", "<f4": "f", "<f8": "d", "|u1": "B"}
 
@@ -719,15 +718,20 @@ class Frame(Message):
         if len(body) < size or (len(body) - size) % cls.RECORD.itemsize:
             raise Malformed("truncated")
         tick, stamp = cls._fixed.unpack(body[:size])
-        _finite(stamp)
         count = (len(body) - size) // cls.RECORD.itemsize
-        if count == 1:  # a robot alone's: its checks in one struct call cost a fraction of numpy's
+        if count == 1:  # a robot alone's: its checks (the stamp's too) in one struct call cost a fraction of numpy's
             if (why := cls._unsound_one(cls._one.unpack(body))) is not None:
                 raise Malformed(why)
-        elif count:
+        else:
+            _finite(stamp)
             # The record's float fields lie side by side: one strided view checks them all at once.
             start, width = cls._float_block
-            if not np.isfinite(np.ndarray((count, width), "<f4", body, size + start, (cls.RECORD.itemsize, 4))).all():
+            if (
+                count
+                and not np.isfinite(
+                    np.ndarray((count, width), "<f4", body, size + start, (cls.RECORD.itemsize, 4))
+                ).all()
+            ):
                 raise Malformed("non-finite")
         # its own writable bytes: a copy of a structured array costs several times more
         records = np.frombuffer(bytearray(body[size:]), cls.RECORD)
@@ -785,10 +789,12 @@ class Frame(Message):
             return None
         if cls.CHECKED and not intact(data):
             return None
-        v = cls._alone.unpack_from(data)
-        if v[0] != cls.KIND or v[1] != VERSION or cls._unsound_one(v[2:]) is not None:
+        if data[0] != cls.KIND or data[1] != VERSION:
             return None
-        return v[2], [cls.VIEW(*v[_ALONE_RECORD_AT : _ALONE_RECORD_AT + 1], v[2], v[3], *v[_ALONE_RECORD_AT + 1 :])]
+        v = cls._one.unpack_from(data, _HEADER.size)
+        if cls._unsound_one(v) is not None:
+            return None
+        return v[0], [cls.VIEW(v[_ONE_RECORD_AT], v[0], v[1], *v[_ONE_RECORD_AT + 1 :])]
 
 
 @dataclass

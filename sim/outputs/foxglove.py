@@ -129,6 +129,7 @@ def scene_update(
     parts = [_records(CYLINDERS, _robot_disc, np.column_stack([x, y, qz, qw, 2 * r, red, green, blue]))]
     if heading:
         parts.append(_records(ARROWS, _heading_arrow, np.column_stack([x, y, qz, qw, 0.6 * r, 0.15 * r, 0.35 * r])))
+    robots = np.hstack(parts)  # a robot's disc (and arrow), a row each
     spheres = _records(SPHERES, _goal_sphere, np.column_stack([gx, gy, d / 2, d, red, green, blue]))
     stamp, forever = _timestamp(t_ns), Duration(sec=0, nsec=0)
     entities, deletions = [], []
@@ -142,7 +143,7 @@ def scene_update(
         head = SceneEntity(
             timestamp=stamp, frame_id=DISPLAY_FRAME, id=f"robot/{i}", lifetime=forever, metadata=metadata
         )
-        body = b"".join([part[i] for part in parts] + ([spheres[i]] if has_goal[i] else []))
+        body = robots[i].tobytes() + (spheres[i].tobytes() if has_goal[i] else b"")
         entities.append(length_delimited(ENTITIES, head.encode() + body))
     return SceneUpdate(deletions=deletions, entities=[]).encode() + b"".join(entities)
 
@@ -172,8 +173,8 @@ def _template(number: int, one: Callable[..., Any], values: int) -> tuple[bytes,
     return record, places
 
 
-def _records(number: int, one: Callable[..., Any], columns: np.ndarray) -> list[bytes]:
-    """A repeated message field's records, a primitive per row of ``columns`` (n, k): the SDK's
+def _records(number: int, one: Callable[..., Any], columns: np.ndarray) -> np.ndarray:
+    """A repeated message field's records, a row of bytes per row of ``columns`` (n, k): the SDK's
     encoding of one primitive, ``one(*k values)``, made with k distinct stand-in values, then copied n
     times with each row's doubles in their places. The SDK builds its objects one by one, which at
     10,000 robots costs several times what the log can spend on a scene."""
@@ -183,8 +184,7 @@ def _records(number: int, one: Callable[..., Any], columns: np.ndarray) -> list[
     for j, at in enumerate(places):
         for k in at:  # a disc's diameter is its size's x and y
             out[:, k : k + 8] = doubles[:, j]
-    whole, size = out.tobytes(), len(record)
-    return [whole[i : i + size] for i in range(0, len(whole), size)]
+    return out
 
 
 def _one_entity(t_ns: int, entity: str, frame_id: str, primitives: bytes) -> bytes:
@@ -239,7 +239,7 @@ def swarm_scene(
     drawn = np.isfinite(pose[:, :2]).all(axis=1) & np.isfinite(radius) & (radius > 0)
     columns = _columns(pose[drawn, :2], 2 * radius[drawn], np.asarray(rgb, dtype=float)[drawn] / 255.0)
     return _one_entity(
-        t_ns, SWARM_ENTITY, frame_id, b"".join(_records(CYLINDERS, _disc(height), columns)) if drawn.any() else b""
+        t_ns, SWARM_ENTITY, frame_id, _records(CYLINDERS, _disc(height), columns).tobytes() if drawn.any() else b""
     )
 
 
@@ -256,5 +256,5 @@ def goal_markers(
     sizes = np.broadcast_to([d / 2, d], (int(keep.sum()), 2))  # a sphere's centre height and diameter
     columns = np.column_stack([_columns(goals[keep]), sizes, _columns(np.asarray(rgb, dtype=float)[keep] / 255.0)])
     return _one_entity(
-        t_ns, GOALS_ENTITY, frame_id, b"".join(_records(SPHERES, _goal_sphere, columns)) if keep.any() else b""
+        t_ns, GOALS_ENTITY, frame_id, _records(SPHERES, _goal_sphere, columns).tobytes() if keep.any() else b""
     )

@@ -144,11 +144,9 @@ class McapLog:
     # -- messages ----------------------------------------------------------------------------
     def write(self, channel_id: int, log_time_ns: int, payload: Any) -> None:
         """Write one message: a dict on a JSON channel (numpy -> lists, NaN -> null), a
-        :mod:`foxglove.messages` object or its encoding on a Foxglove channel."""
+        :mod:`foxglove.messages` object on a Foxglove channel (its encoding: :meth:`write_bytes`)."""
         if channel_id not in self._proto:
             data = dumps_json(payload).encode("utf-8")
-        elif isinstance(payload, bytes):  # encoded already (sim.outputs.foxglove)
-            data = payload
         else:  # a google.protobuf message (sim.outputs.logschema's), or a foxglove.messages one
             data = payload.SerializeToString() if isinstance(payload, Message) else payload.encode()
         self.write_bytes(channel_id, log_time_ns, data)

@@ -202,7 +202,7 @@ def test_scene_update_messages_read_back_with_foxgloves_schemas(tmp_path):
         assert log.add_foxglove_channel(SCENE_TOPIC, SceneUpdate) == cid
         with pytest.raises(ValueError, match="different schema"):
             log.add_channel(SCENE_TOPIC, SCENE_UPDATE_SCHEMA_NAME, {"type": "object"})
-        log.write(cid, 2_250_000_000, scene_update(2_250_000_000, pose, radius, color, goal=goal))
+        log.write_bytes(cid, 2_250_000_000, scene_update(2_250_000_000, pose, radius, color, goal=goal))
     _scene_channel(path)
 
     (theirs,) = _decoded_by_foxglove(path, SCENE_TOPIC)
@@ -345,7 +345,7 @@ def test_the_log_streams_live_to_a_foxglove_websocket_client(tmp_path):
             assert (channel["schemaName"], channel["encoding"]) == (SCENE_UPDATE_SCHEMA_NAME, "protobuf")
             ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 7, "channelId": channel["id"]}]}))
             time.sleep(0.2)  # the server takes the subscription on its own thread
-            log.write(cid, 3_000_000_000, scene_update(3_000_000_000, pose, 0.05, [RED, GREEN]))
+            log.write_bytes(cid, 3_000_000_000, scene_update(3_000_000_000, pose, 0.05, [RED, GREEN]))
             while isinstance(frame := ws.recv(timeout=10), str):
                 pass  # status and other text frames
         opcode, subscription, log_time = struct.unpack_from("<BIQ", frame)

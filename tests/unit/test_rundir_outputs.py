@@ -105,7 +105,7 @@ def test_mcap_scene_update(tmp_path):
     pose = np.array([[0.0, 0.0, 0.0], [1.0, 2.0, math.pi / 2], [np.nan, np.nan, np.nan]])
     with McapLog(path, compression="lz4") as log:
         cid = log.add_foxglove_channel("/display", SceneUpdate)
-        log.write(
+        log.write_bytes(
             cid,
             1_500_000_000,
             scene_update(
