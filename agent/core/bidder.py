@@ -430,10 +430,7 @@ class Participant(Auction):
     def round_records(self) -> np.ndarray:
         """Lock-step: records(), each claim flagged SETTLED when its robot is content at the final
         phase's slack (the least: no later phase would have it bid)."""
-        recs = self.records()
-        settled = self._bidders.contentment(self.slacks[-1])
-        recs["flags"][: len(self.own)] |= np.where(settled, SETTLED, 0).astype(np.uint8)
-        return recs
+        return self._bidders.records(self.position, self.slack, True, float(self.slacks[-1]))
 
     def close_round(self, unchanged: bool, settled: bool) -> bool:
         """Lock-step: every host merged the same records of a round onto the same board, so all
@@ -463,21 +460,9 @@ class Participant(Auction):
 
     def records(self) -> np.ndarray:
         """What the own robots say now: a claim each, and the goals they released that still carry
-        their release on the board (so that others learn the price even if a message was lost)."""
-        holds = self.board.holds(self.own_ids, self.goal)
-        claims = np.zeros(len(self.own), RECORD)
-        claims["robot"] = self.own_ids
-        claims["goal"] = np.where(holds, self.goal, -1)
-        claims["price"] = np.where(holds, self.board.price[np.maximum(self.goal, 0)], 0.0)
-        claims["flags"] = np.where(self._content_all(), CONTENT, 0)
-        rows, _, costs = self._penalties()
-        claims["penalty"] = np.bincount(rows, costs, minlength=len(self.own))
-        claims["x"], claims["y"] = self.position[:, 0], self.position[:, 1]
-        rel = np.flatnonzero(self.board.released & self.is_own_id[self.board.owner + 1])
-        releases = np.zeros(len(rel), RECORD)
-        releases["robot"], releases["goal"] = self.board.owner[rel], rel
-        releases["price"], releases["flags"] = self.board.price[rel], RELEASED
-        return np.concatenate([claims, releases])
+        their release on the board (so that others learn the price even if a message was lost);
+        compiled (agent.core.bidding: Bidders.records)."""
+        return self._bidders.records(self.position, self.slack, False, 0.0)
 
     def members_only(self, recs: np.ndarray) -> np.ndarray:
         """Another host's records of robots of this goal set only: a damaged or forged robot id is

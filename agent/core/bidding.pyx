@@ -67,11 +67,12 @@ from agent.core.splitmix cimport splitmix64
 
 import numpy as np
 
-from transport.codec import AuctionRecord
+from transport.codec import AuctionRecord, Bid
 
 NO_OWNER = -1  # a goal nobody claimed
 cdef int64_t NOBODY = -1
-cdef uint8_t RELEASED = AuctionRecord.RELEASED  # a record's flag
+cdef uint8_t RELEASED = AuctionRecord.RELEASED  # a record's flags
+cdef uint8_t CONTENT = AuctionRecord.CONTENT, SETTLED = AuctionRecord.SETTLED
 # Relative slack for the rounding of a bid. A bid leaves its robot's value of the goal exactly epsilon
 # below its next-best value in real numbers; in floats, price + (v1 - v2) + eps then -cost - price can
 # land an ulp short, the robot is not content with the goal it just won, gives it up and bids again.
@@ -594,6 +595,43 @@ cdef class Bidders:
         if self.g:
             for i in range(self.k):
                 o[i] = self.content(i, slack)
+        return out
+
+    def records(self, const double[:, ::1] position, double slack, bint settled, double final_slack) -> np.ndarray:
+        """What the robots say now (agent.core.bidder.Participant.records): a claim each, of the goal
+        it holds on the board (else -1, price 0), CONTENT when content at ``slack`` and, if
+        ``settled``, SETTLED when content at ``final_slack``, with its penalties' sum and its
+        ``position``; then, in goal order, the goals they released that still carry the release."""
+        cdef Py_ssize_t i, j, a, k = self.k, released = 0, n
+        cdef int64_t g, owner
+        cdef double penalty
+        for j in range(self.g):
+            owner = self.owner[j]
+            released += self.released[j] and 0 <= owner < self.row_of_id.shape[0] and self.row_of_id[owner] >= 0
+        out = np.zeros(k + released, Bid.RECORD)
+        cdef Record[::1] r = out
+        for i in range(k):
+            g = self.goal[i]
+            r[i].robot = <uint16_t>self.robot[i]
+            r[i].goal = -1
+            if 0 <= g < self.g and self.owner[g] == self.robot[i] and not self.released[g]:
+                r[i].goal, r[i].price = <int32_t>g, self.price[g]
+            penalty = 0.0
+            for a in range(self.penalty_start[i], self.penalty_start[i + 1]):
+                penalty += self.penalty_cost[a]
+            r[i].penalty, r[i].x, r[i].y = <float>penalty, <float>position[i, 0], <float>position[i, 1]
+        if self.g:  # every robot's CONTENT before any SETTLED: content() renews the robot's ranking
+            for i in range(k):
+                r[i].flags = CONTENT if self.content(i, slack) else 0
+            for i in range(k):
+                if settled and self.content(i, final_slack):
+                    r[i].flags |= SETTLED
+        n = k
+        for j in range(self.g):
+            owner = self.owner[j]
+            if self.released[j] and 0 <= owner < self.row_of_id.shape[0] and self.row_of_id[owner] >= 0:
+                r[n].robot, r[n].goal, r[n].price, r[n].flags = <uint16_t>owner, <int32_t>j, self.price[j], RELEASED
+                n += 1
         return out
 
     # --- rounds -------------------------------------------------------------------------------------

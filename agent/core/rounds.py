@@ -44,9 +44,10 @@ class BlockRounds:
         k = self._claims
         if self._last is None:
             news = mine
-        else:
-            changed = mine[:k].view(RECORD_BYTES) != self._last.view(RECORD_BYTES)
-            news = np.concatenate([mine[:k][changed], mine[k:]])
+        else:  # one mask over the records (numpy concatenates structured arrays field by field, slowly)
+            said = np.ones(len(mine), bool)
+            said[:k] = mine[:k].view(RECORD_BYTES) != self._last.view(RECORD_BYTES)
+            news = mine[said]
         self._last = mine[:k]
         # noted beside the others' claims as absorb notes them: each robot's newest claim in one place
         rows = part.own_rows
@@ -61,6 +62,11 @@ class BlockRounds:
         row = np.searchsorted(part.robots, robots)
         flags = np.where(part.heard_instance[row] > self.final - part.phases, part.heard_flags[row], 0)  # this block's
         return flags, part.heard_goal[row], part.heard_price[row]
+
+    def _settled(self, heard: Mapping[int, np.ndarray]) -> bool:
+        """Whether the newest claim of each robot, ours and those of the hosts ``heard``, is SETTLED."""
+        theirs = np.concatenate([self._robots_of[s] for s in heard] or [np.zeros(0, np.int64)])
+        return bool(((self._newest(np.concatenate([self.part.own_ids, theirs]))[0] & SETTLED) != 0).all())
 
     def quiet(self, robots: np.ndarray) -> np.ndarray:
         """Per robot of ``robots``: whether it has nothing to say in the next round, the same on
@@ -104,10 +110,11 @@ class BlockRounds:
             records = part.members_only(np.frombuffer(joined, RECORD))
             part.absorb(part.instance, self.round, 0, records)
         # settled: every robot's claim says so this round, ours as just said, the others by their
-        # newest (a host that was quiet() said nothing: its robots are settled)
-        theirs = np.concatenate([self._robots_of[s] for s in heard] or [np.zeros(0, np.int64)])
-        settled = bool(((self._newest(np.concatenate([self.part.own_ids, theirs]))[0] & SETTLED) != 0).all())
+        # newest (a host that was quiet() said nothing: its robots are settled); asked only of a
+        # round that changed nothing before the final phase, the one whose close it decides
+        unchanged = part.board.digest() == self._before
+        settled = unchanged and not part.final_phase and self._settled(heard)
         phase = part.instance
-        agreed = part.close_round(part.board.digest() == self._before, settled)
+        agreed = part.close_round(unchanged, settled)
         self._steady = part.instance == phase
         return agreed

@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linear_sum_assignment
 
-from agent.core.bidder import CONTENT, RECORD, Participant
+from agent.core.bidder import CONTENT, RECORD, RELEASED, SETTLED, Participant
 from tests.support.assignment_quality import optimum
 
 
@@ -221,6 +221,31 @@ def test_records_round_trip_through_the_codec() -> None:
     assert [int(g) for g in back.records["goal"]] == [1, -1]
     assert back.records["penalty"][0] == np.float32(0.2) and back.records["y"][0] == -0.5
     assert decode(msg.encode()[:-3]) is None
+
+
+def test_what_a_host_says_is_a_claim_per_robot_then_its_releases_in_goal_order() -> None:
+    """Hand-computed: robots 0 and 2 of three, goals on a line, costs |g - p|^2 (eq. 7). Robot 2
+    holds goal 2 at its best; robot 0 bid away from goal 0, whose release the board still carries,
+    and holds nothing yet; robot 0's penalty of 0.5 on goal 1 is in force."""
+    goals = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
+    p = Participant(1, goals, [0, 1, 2], [0, 2], eps=0.01, hysteresis=0.0)
+    p.penalise(0, 1, 0.5)
+    p.board.price[:], p.board.owner[:], p.board.released[:] = [0.3, 0.0, 0.1], [0, -1, 2], [True, False, False]
+    p.goal[:] = [-1, 2]
+    p.begin_block({0: np.array([0.9, 0.0]), 2: np.array([2.0, 0.25])})  # ranks on this board, bids nothing
+    said = p.round_records()
+    # robot 0: holds nothing, so neither content nor settled; its penalties' sum; where it bid from
+    assert said[0].tolist() == (0, -1, 0.0, 0, 0.5, np.float32(0.9), 0.0)
+    # robot 2: goal 2 at the board's price, content (net value -0.0625 - 0.1 against -1.0625 and
+    # -4.3625) at the first phase's slack and at the final one's
+    assert said[1].tolist() == (2, 2, 0.1, CONTENT | SETTLED, 0.0, 2.0, 0.25)
+    assert said[2].tolist() == (0, 0, 0.3, RELEASED, 0.0, 0.0, 0.0)  # robot 0's release of goal 0
+    assert len(said) == 3
+    said["flags"][1] = CONTENT
+    assert p.records().tobytes() == said.tobytes()  # SETTLED only in the lock-step rounds
+    p.board.price[2] = 1.05  # goal 1 is now better by 0.05: within this phase's slack 0.4, not the final 0.01
+    p.board.version += 1
+    assert p.round_records()[1].tolist() == (2, 2, 1.05, CONTENT, 0.0, 2.0, 0.25)
 
 
 @pytest.mark.parametrize("n", [50])
