@@ -37,10 +37,14 @@ def with_checksum(data: bytes) -> bytes:
     return data + _CHECKSUM.pack(zlib.crc32(data))
 
 
+# CRC-32 of any bytes followed by their own CRC-32 (little-endian): the same constant whatever the
+# bytes, and for given bytes no other four bytes after them give it (the tail's CRC is one-to-one).
+_RESIDUE = 0x2144DF1C
+
+
 def intact(data: bytes | memoryview) -> bool:
-    """Whether a CHECKED kind's bytes end in the checksum of the rest."""
-    cut = len(data) - _CHECKSUM.size
-    return cut >= 0 and zlib.crc32(data[:cut]) == _CHECKSUM.unpack_from(data, cut)[0]
+    """Whether a CHECKED kind's bytes end in the checksum of the rest (one pass, no copy)."""
+    return len(data) >= _CHECKSUM.size and zlib.crc32(data) == _RESIDUE
 
 
 def as_sent(values: Any) -> np.ndarray:
@@ -743,10 +747,14 @@ class Frame(Message):
     def _unsound_one(cls, v: tuple) -> str | None:
         """Why a frame of one record, read whole into ``v`` (tick, stamp, the record's fields), is
         malformed (the reason ``_from`` counts), or None: the same checks as ``_from``'s on a column."""
-        if not math.isfinite(v[1]) or not all(map(math.isfinite, v[cls._one_floats])):
+        # The record's floats are float32 (__init_subclass__): their sum cannot overflow, so it is
+        # finite exactly when each of them is (one call, where a test each cost an agent a tenth
+        # of its intake).
+        if not math.isfinite(v[1]) or not math.isfinite(sum(v[cls._one_floats])):
             return "non-finite"
-        if not all(test(v[i]) for i, test in cls._one_rules):
-            return "invalid"
+        for i, test in cls._one_rules:
+            if not test(v[i]):
+                return "invalid"
         return None
 
     # Rules of a kind's records beyond finite numbers: (field, test), each test taking a value or a
