@@ -57,6 +57,7 @@ class MocapEmulator(Ros2Node):
         self.clock = clock
         self.messages = Ros2Messages()
         self.published = 0
+        self.last_sent = -math.inf  # monotonic s when the last poses were handed to zenoh
         self.error: Exception | None = None  # what stopped the publishing thread, if anything did
         self._publishers: list[RosPublisher] = []
 
@@ -80,6 +81,7 @@ class MocapEmulator(Ros2Node):
         for pub, (x, y, theta) in zip(self._publishers, rows):
             pub.publish(self.messages.pose_stamped(x, y, theta, stamp, self.frame_id))
         self.published += len(rows)
+        self.last_sent = time.monotonic()
         return len(rows)
 
     def _run(self) -> None:
