@@ -251,7 +251,8 @@ class Inbox(Generic[T]):
             return  # dropped: nothing to wake the owner for
         # Rung for held messages too: an owner asleep on the bell learns it has messages to release
         # (a message held without a ring waited for the owner's next wake-up, a tick or more late).
-        if self.bell is not None:
+        # A pulled inbox delivers on its owner's thread, awake by then: nobody to wake.
+        if self.bell is not None and not self.pulled:
             self.bell.set()
 
     def _release_delayed(self) -> None:
