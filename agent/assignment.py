@@ -266,8 +266,7 @@ class AuctionLink:
         # Lock-step reads the other hosts' messages only within its rounds, where it waits for them:
         # they wait in zenoh's channel until then (pulled), not a thread woken for each.
         kind, key = (Boards, "boards") if math.isfinite(rounds.reach) else (Bid, "auction")
-        self.inbox: Inbox[Any] = bus.inbox(kind, pulled=self.lockstep)
-        self.inbox.subscriber = bus.subscribe_into(bus.keys.all_of(key), self.inbox)
+        self.inbox: Inbox[Any] = bus.subscribe(bus.keys.all_of(key), kind, pulled=self.lockstep)
         self.exchange = RoundExchange(bus, self.robots, self.inbox, self.counts, self._keeps)
         self.exchange.dead = rounds.dead
         self.part: Participant | None = None

@@ -111,8 +111,7 @@ class LockStep(HostClock):
         super().__init__(host)
         self.collect = host.config.state_wait
         # read when a pose comes or a tick waits for its goal sets (the pose wakes the loop): pulled
-        self.ticks = self.inbox = host.bus.inbox(Tick, pulled=True)
-        self.ticks.subscriber = host.bus.subscribe_into(host.bus.keys.clock, self.ticks)
+        self.ticks = self.inbox = host.bus.subscribe(host.bus.keys.clock, Tick, pulled=True)
         self.clock = Clock()  # the world's clock as heard
         self.named: dict[int, int] = {}  # tick -> the newest goal set the world named in it
         self.unnamed: dict[int, Goals] = {}  # goal sets heard that no tick has named yet

@@ -501,15 +501,21 @@ class Bus:
         return inbox
 
     @overload
-    def subscribe(self, keyexpr: str, expected: type[T], only: np.ndarray | None = None) -> Inbox[T]: ...
+    def subscribe(
+        self, keyexpr: str, expected: type[T], only: np.ndarray | None = None, *, pulled: bool = False
+    ) -> Inbox[T]: ...
 
     @overload
-    def subscribe(self, keyexpr: str, expected: None = None, only: None = None) -> Inbox[Message]: ...
+    def subscribe(
+        self, keyexpr: str, expected: None = None, only: None = None, *, pulled: bool = False
+    ) -> Inbox[Message]: ...
 
-    def subscribe(self, keyexpr: str, expected: type | None = None, only: np.ndarray | None = None) -> Inbox[Any]:
+    def subscribe(
+        self, keyexpr: str, expected: type | None = None, only: np.ndarray | None = None, *, pulled: bool = False
+    ) -> Inbox[Any]:
         """An inbox of decoded messages (or frames' records, of robots ``only`` if given) from one
-        key expression."""
-        inbox = self.inbox(expected, only)
+        key expression (``pulled``: see inbox)."""
+        inbox = self.inbox(expected, only, pulled=pulled)
         inbox.subscriber = self.subscribe_into(keyexpr, inbox)
         return inbox
 

@@ -15,7 +15,7 @@ host that owns every robot (the central engine) settles a block of phases in-pro
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
 import numpy as np
 
@@ -432,14 +432,14 @@ class Participant(Auction):
         phase's slack (the least: no later phase would have it bid)."""
         return self._bidders.records(self.position, self.slack, True, float(self.slacks[-1]))
 
-    def close_round(self, unchanged: bool, settled: bool) -> bool:
+    def close_round(self, unchanged: bool, settled: Callable[[], bool]) -> bool:
         """Lock-step: every host merged the same records of a round onto the same board, so all
         decide alike. A round that changed nothing ends its phase: the next begins, or the block is
-        agreed (True) in the final phase or when every robot said it is ``settled`` (the phases left
-        would pass without a bid, as settle_alone passes them)."""
+        agreed (True) in the final phase or when every robot said it is ``settled()`` (the phases
+        left would pass without a bid, as settle_alone passes them; asked only then)."""
         if not unchanged:
             return False
-        if not (self.final_phase or settled):
+        if not (self.final_phase or settled()):
             self._freeze(self.instance + 1, {})
             return False
         self.instance = (self.instance // self.phases + 1) * self.phases - 1  # the block's final phase

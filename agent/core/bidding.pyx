@@ -603,11 +603,10 @@ cdef class Bidders:
         ``settled``, SETTLED when content at ``final_slack``, with its penalties' sum and its
         ``position``; then, in goal order, the goals they released that still carry the release."""
         cdef Py_ssize_t i, j, a, k = self.k, released = 0, n
-        cdef int64_t g, owner
+        cdef int64_t g
         cdef double penalty
         for j in range(self.g):
-            owner = self.owner[j]
-            released += self.released[j] and 0 <= owner < self.row_of_id.shape[0] and self.row_of_id[owner] >= 0
+            released += self.released_by_own(j)
         out = np.zeros(k + released, Bid.RECORD)
         cdef Record[::1] r = out
         for i in range(k):
@@ -623,16 +622,20 @@ cdef class Bidders:
         if self.g:  # every robot's CONTENT before any SETTLED: content() renews the robot's ranking
             for i in range(k):
                 r[i].flags = CONTENT if self.content(i, slack) else 0
-            for i in range(k):
-                if settled and self.content(i, final_slack):
+            for i in range(k if settled else 0):
+                if self.content(i, final_slack):
                     r[i].flags |= SETTLED
         n = k
         for j in range(self.g):
-            owner = self.owner[j]
-            if self.released[j] and 0 <= owner < self.row_of_id.shape[0] and self.row_of_id[owner] >= 0:
-                r[n].robot, r[n].goal, r[n].price, r[n].flags = <uint16_t>owner, <int32_t>j, self.price[j], RELEASED
+            if self.released_by_own(j):
+                r[n].robot, r[n].goal, r[n].price, r[n].flags = <uint16_t>self.owner[j], <int32_t>j, self.price[j], RELEASED
                 n += 1
         return out
+
+    cdef inline bint released_by_own(self, Py_ssize_t j) noexcept nogil:
+        """Goal j carries a release, by one of these robots, on the board."""
+        cdef int64_t owner = self.owner[j]
+        return self.released[j] and 0 <= owner < self.row_of_id.shape[0] and self.row_of_id[owner] >= 0
 
     # --- rounds -------------------------------------------------------------------------------------
     cdef Py_ssize_t jacobi_round(self, Py_ssize_t n, double eps) noexcept nogil:

@@ -110,11 +110,8 @@ class BlockRounds:
             records = part.members_only(np.frombuffer(joined, RECORD))
             part.absorb(part.instance, self.round, 0, records)
         # settled: every robot's claim says so this round, ours as just said, the others by their
-        # newest (a host that was quiet() said nothing: its robots are settled); asked only of a
-        # round that changed nothing before the final phase, the one whose close it decides
-        unchanged = part.board.digest() == self._before
-        settled = unchanged and not part.final_phase and self._settled(heard)
+        # newest (a host that was quiet() said nothing: its robots are settled)
         phase = part.instance
-        agreed = part.close_round(unchanged, settled)
+        agreed = part.close_round(part.board.digest() == self._before, lambda: self._settled(heard))
         self._steady = part.instance == phase
         return agreed
