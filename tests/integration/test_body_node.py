@@ -20,6 +20,7 @@ from sim.emulators.epuck2 import Epuck2Emulator
 from sim.node.body import BodyNode
 from sim.node.hardware import WheelDrive, hardware_node, wait_for_hardware
 from sim.node.world import world_node
+from tests.conftest import wait_for
 from tests.support.hardware import moving_commands, scene_file
 from transport.bus import Bus
 from transport.codec import Command, Commands, Tick
@@ -146,6 +147,8 @@ def test_an_emulated_epuck2_is_driven_by_the_same_loop(tmp_path, monkeypatch):
             finally:
                 unreached = drive.close()
             stats = node.stats()
+        # close returns once the stops have left; the emulator's reader may log them a moment later
+        wait_for(lambda: all(emulator.log(r)[-1][1:] == (0, 0) for r in range(2)), 5)
         logs = [emulator.log(r) for r in range(2)]
     assert unreached == [] and stats["reason"] == "duration" and stats["ticks"] == 10
     assert spy.ticks == stats["ticks"]
