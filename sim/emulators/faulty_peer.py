@@ -47,6 +47,7 @@ import time
 from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from typing import TextIO
 
 from sim.processes import stopped_by_signals
 from transport.bus import Bus, RawInbox
@@ -411,8 +412,10 @@ class FaultyPeer:
                     raise
                 stop.wait(0.5)
 
-    def run(self, stop: threading.Event | None = None) -> Counter[str]:
-        """Hear, wait for the first tick (and start_after), damage until duration or ``stop``."""
+    def run(self, stop: threading.Event | None = None, report: TextIO | None = None) -> Counter[str]:
+        """Hear, wait for the first tick (and start_after), damage until duration or ``stop``;
+        ``report``: where the summary line goes once the damage ends, before the session closes
+        (closing waits on the router, for seconds when it is stalled or gone)."""
         stop = stop or threading.Event()
         bus = self._open(stop)
         try:
@@ -449,6 +452,8 @@ class FaultyPeer:
                 stop.wait(0.01)
             self.tally.ended = time.monotonic()
         finally:
+            if report is not None:
+                print(self.summary(), file=report, flush=True)
             bus.linger()
             bus.close()
         return self.tally.sent
@@ -512,11 +517,10 @@ def main(argv: list[str] | None = None) -> int:
     peer = FaultyPeer(settings, args.display, plan, args.connect_wait)
     try:
         with stopped_by_signals() as stop:
-            peer.run(stop)
+            peer.run(stop, report=sys.stdout)
     except TransportError as err:
         print(f"faulty-peer: {err}", file=sys.stderr)
         return 1
-    print(peer.summary(), flush=True)
     return 0
 
 

@@ -14,14 +14,18 @@ images, each held 15 s. `python -m bench.bench_faults faulty-peer` runs the issu
 from __future__ import annotations
 
 import json
+import os
+import queue
 import signal
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 import pytest
 
-from tests.conftest import REPO, descendants, pixelswarm_cmd, wait_for
+from tests.conftest import REPO, descendants, pixelswarm_cmd, ticks_so_far, wait_for
 from transport.session import free_port, listening
 
 # s of wall time a run may take: it catches a hang, not slowness (a paper run at a quarter of real time,
@@ -51,6 +55,12 @@ def _stop(proc: subprocess.Popen, timeout: float = 15) -> None:
             proc.wait()
 
 
+def peer_command(port: int, mode: str = "all") -> list[str]:
+    return [sys.executable, "-m", "sim.emulators.faulty_peer", "-e", f"tcp/127.0.0.1:{port}", "--mode", mode] + [
+        *("--rate", "350", "--start-after", "0.5", "--seed", "1")
+    ]
+
+
 def run_with_peer(where: Path, run_args: tuple[str, ...], mode: str = "all") -> None:
     """`pixelswarm run` on a free port with the faulty peer attached once its router listens; writes
     the run to where/run and the peer's summary line to where/peer.txt."""
@@ -76,12 +86,7 @@ def run_with_peer(where: Path, run_args: tuple[str, ...], mode: str = "all") -> 
     try:
         assert wait_for(lambda: run.poll() is not None or listening(port), 60), "the run's router never listened"
         peer = subprocess.Popen(
-            [sys.executable, "-m", "sim.emulators.faulty_peer", "-e", f"tcp/127.0.0.1:{port}", "--mode", mode]
-            + ["--rate", "350", "--start-after", "0.5", "--seed", "1"],
-            cwd=REPO,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
+            peer_command(port, mode), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
         )
         try:
             _, err = run.communicate(timeout=RUN_TIMEOUT)
@@ -210,3 +215,37 @@ def test_the_paper_sequence_with_hosts_forms_its_images_despite_a_faulty_peer(pa
 @pytest.mark.xdist_group("faulty-peer-paper-k7")
 def test_the_paper_sequence_with_hosts_counts_the_faulty_peers_copies_by_reason(paper_hosts):
     check_drops_by_reason(paper_hosts[0])
+
+
+@pytest.mark.slow
+def test_a_peer_stopped_while_its_router_stalls_says_what_it_sent_at_once(tmp_path):
+    """Closing a session waits on its router, for seconds when the router is stalled (9 s seen): the
+    peer's summary line, which its users read, comes as soon as it stops damaging, not after that
+    (the paper run's test once found none: the peer was killed, still closing, 15 s after SIGTERM)."""
+    port, out = free_port(), tmp_path / "run"
+    flags = ("--robots", "4", "--clock", "realtime", "--duration", "60", "-l", f"tcp/127.0.0.1:{port}")
+    command = pixelswarm_cmd("run", "circle", *flags, "--out", str(out), "--no-video", "--no-plots", "-q")
+    run = subprocess.Popen(
+        command, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
+    )
+    peer = None
+    try:
+        assert wait_for(lambda: run.poll() is not None or listening(port), 60), "the run's router never listened"
+        peer = subprocess.Popen(peer_command(port), cwd=REPO, stdout=subprocess.PIPE, text=True)
+        lines: queue.SimpleQueue[str] = queue.SimpleQueue()
+        threading.Thread(target=lambda: [lines.put(line) for line in peer.stdout], daemon=True).start()
+        assert wait_for(lambda: ticks_so_far(out) >= 30, 60), "the run never ticked"  # the peer damages by now
+        os.killpg(run.pid, signal.SIGSTOP)  # the run's router (in its launcher) stalls ...
+        time.sleep(3.0)  # ... while the peer fills what the link to it holds
+        peer.send_signal(signal.SIGTERM)
+        try:
+            line = lines.get(timeout=5.0)
+        except queue.Empty:
+            pytest.fail("the peer said nothing within 5 s of SIGTERM")
+        assert line.startswith("faulty-peer: mode all, sent ") and "by damage: -" not in line, line
+    finally:
+        os.killpg(run.pid, signal.SIGCONT)
+        if peer is not None:
+            peer.kill()
+            peer.wait()
+        _stop(run)
