@@ -42,7 +42,6 @@ from agent.goal_sets import timing_of
 from agent.held_goals import HeldGoals
 from agent.loop import Seams, Sensed
 from agent.neighbour_table import Heard
-from coordinator.motion import StepMotion
 from coordinator.scene import Scene, scene_goal_set
 from coordinator.service import scene_goal_message, step_motion, step_timing
 from coordinator.warm_start import goal_matching
@@ -54,14 +53,6 @@ from sim.outputs.rundir import RunDir
 from sim.outputs.stream import SCRATCH, TickRecorder
 from sim.outputs.write import RunOutcome, write_run
 from transport.codec import Goals, as_sent, decode
-
-
-def goal_motion(motion: StepMotion | None) -> GoalMotion | None:
-    """A scene step's motion as the agents' core takes it (eq. 28); None for a still image."""
-    if motion is None:
-        return None
-    out = GoalMotion(motion.velocity, motion.angular_velocity, motion.center, motion.expansion, motion.geometric)
-    return None if out.is_static else out
 
 
 def optimal_assignment(
