@@ -927,6 +927,56 @@ def bid_on_own_boards(boards, const int64_t[::1] rows, const double[::1] slack, 
     return out[:n]
 
 
+def hear_words(boards, const int64_t[::1] rows, words, int64_t r) -> tuple[np.ndarray, np.ndarray]:
+    """The range-limited auction's hearing (agent.core.local_auction.LocalAuction.hear, ``boards``):
+    each robot of ``rows`` hears the ``words`` said within its reach by robots other than itself,
+    and takes from them that the block ended, the latest phase, the robots they have heard of (the
+    rows whose known set grows note round ``r``) and the latest round of change. Returns, per row,
+    whether its phase moved on or its known set grew, and which of the words it was told a board by
+    (len(rows), M), for merge_boards."""
+    cdef const double[:, ::1] xy = boards.xy
+    cdef const int64_t[::1] robot = boards.own_ids
+    cdef int64_t[::1] phase = boards.phase, last = boards.last, grew = boards.grew
+    cdef uint8_t[::1] ended = boards.ended.view(np.uint8)
+    cdef uint8_t[:, ::1] known = boards.known.view(np.uint8)
+    cdef const double[:, ::1] w_xy = np.ascontiguousarray(words.xy, float)
+    cdef const int64_t[::1] w_robot = np.ascontiguousarray(words.robot, np.int64)
+    cdef const int64_t[::1] w_phase = np.ascontiguousarray(words.phase, np.int64)
+    cdef const int64_t[::1] w_last = np.ascontiguousarray(words.last, np.int64)
+    cdef const uint8_t[::1] w_ended = np.ascontiguousarray(words.ended, bool).view(np.uint8)
+    cdef const uint8_t[::1] w_fresh = np.ascontiguousarray(words.fresh, bool).view(np.uint8)
+    cdef const uint8_t[::1] w_grown = np.ascontiguousarray(words.grown, bool).view(np.uint8)
+    cdef const uint8_t[:, ::1] w_known = np.ascontiguousarray(words.known, bool).view(np.uint8)
+    cdef double reach2 = boards.reach * boards.reach, dx, dy
+    out, told_array = np.zeros(rows.shape[0], bool), np.zeros((rows.shape[0], w_robot.shape[0]), np.uint8)
+    cdef uint8_t[::1] changed = out.view(np.uint8)
+    cdef uint8_t[:, ::1] told = told_array
+    cdef Py_ssize_t a, b, n
+    cdef int64_t i, later, latest
+    cdef bint grown
+    for a in range(rows.shape[0]):
+        i = rows[a]
+        later, latest, grown = -1, 0, False
+        for b in range(w_robot.shape[0]):
+            dx, dy = xy[i, 0] - w_xy[b, 0], xy[i, 1] - w_xy[b, 1]
+            if not dx * dx + dy * dy <= reach2 or w_robot[b] == robot[i]:
+                continue
+            if w_ended[b]:
+                ended[i] = True  # the final phase proved over
+            later, latest = max(later, w_phase[b]), max(latest, w_last[b])
+            if w_grown[b]:
+                for n in range(known.shape[1]):
+                    if w_known[b, n] and not known[i, n]:
+                        known[i, n], grown = True, True
+            told[a, b] = w_fresh[b]
+        if later > phase[i]:  # a later phase: its sender proved ours over
+            phase[i], changed[a] = later, True
+        if grown:  # the goals it may take changed (LocalAuction._bid)
+            grew[i], changed[a] = r, True
+        last[i] = max(last[i], latest)
+    return out, told_array
+
+
 def merge_boards(boards, const int64_t[::1] rows, const uint8_t[:, ::1] told, words) -> np.ndarray:
     """The range-limited auction's max-consensus: into each robot of ``rows``, the boards (``words``:
     price, owner, released, (M, G)) of the robots it was ``told`` (len(rows), M). Returns where each

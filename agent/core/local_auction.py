@@ -21,7 +21,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .bidder import NO_OWNER, Auction, Participant, frozen_positions
-from .bidding import bid_on_own_boards, merge_boards
+from .bidding import bid_on_own_boards, hear_words, merge_boards
 from .params import RobotParams
 
 
@@ -43,16 +43,6 @@ class Words(NamedTuple):
     @staticmethod
     def join(parts: list[Words]) -> Words:
         return Words(*(np.concatenate(cols) for cols in zip(*parts, strict=True)))
-
-
-def _gather(mask: np.ndarray, values: np.ndarray, fill: float | int | bool) -> np.ndarray:
-    """(A, D, ...): for each row of ``mask`` (A, M), the ``values`` (M, ...) of its True columns,
-    left-aligned and padded with ``fill`` to the greatest count (D >= 1)."""
-    count = mask.sum(axis=1)
-    out = np.full((len(mask), max(int(count.max(initial=0)), 1), *values.shape[1:]), fill, values.dtype)
-    rows, cols = np.nonzero(mask)
-    out[rows, np.arange(len(cols)) - np.repeat(np.cumsum(count) - count, count)] = values[cols]
-    return out
 
 
 class LocalAuction(Auction):
@@ -152,25 +142,9 @@ class LocalAuction(Auction):
         active = np.flatnonzero(~self.ended)
         if len(active) == 0:
             return
-        d = self.xy[active, None, :] - words.xy[None, :, :]
-        hears = (d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] <= self.reach * self.reach) & (
-            words.robot[None, :] != self.own_ids[active, None]
-        )
-        self.ended[active] |= (hears & words.ended[None, :]).any(axis=1)  # the final phase proved over
-        later = _gather(hears, words.phase, -1).max(axis=1)
-        changed = later > self.phase[active]  # a later phase: its sender proved ours over
-        self.phase[active] = np.maximum(self.phase[active], later)
-        told = hears & words.grown[None, :]
-        if told.any():
-            known = self.known[active] | _gather(told, words.known, False).any(axis=1)
-            grown = (known != self.known[active]).any(axis=1)
-            self.known[active] = known
-            self.grew[active[grown]] = r
-            changed |= grown  # the goals it may take changed (_bid)
-        self.last[active] = np.maximum(self.last[active], _gather(hears, words.last, 0).max(axis=1))
-        told = hears & words.fresh[None, :]
+        changed, told = hear_words(self, active, words, r)  # who hears whom; phases, known sets, lasts
         if told.any():  # max-consensus of the boards each was told into its own
-            merged = merge_boards(self, active, np.ascontiguousarray(told).view(np.uint8), words)
+            merged = merge_boards(self, active, told, words)
             self.board_changed[active[merged]] = r
             changed |= merged
         self.last[active[changed]] = r
