@@ -37,6 +37,7 @@ class Batch:
         heading: ArrayLike | None = ...,
         radius: ArrayLike | None = ...,
         vmax: ArrayLike | None = ...,
+        cap: ArrayLike | None = ...,
     ) -> None: ...
 
 def vertex_angles(dent: float) -> list[float]: ...

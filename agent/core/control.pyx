@@ -834,18 +834,20 @@ cdef Result _nh_orca(Config *s, Scratch *w, Robot *me, double heading, Obstacles
 
 cdef class Batch:
     """A batch's own rows: position, optimisation velocity, preferred velocity (B,2), and per
-    robot its heading, radius and maximum speed (B,; a scalar for all; None: the settings' v_max)."""
+    robot its heading, radius and maximum speed (B,; a scalar for all; None: the settings' v_max),
+    and a cap on the speed of its own new velocity (``cap``, NaN or None: none), which unlike
+    ``vmax`` leaves what it assumes of its neighbours' speeds as it is."""
 
     cdef Py_ssize_t b
-    cdef const double[::1] position, velocity, pref, heading, radius, vmax
+    cdef const double[::1] position, velocity, pref, heading, radius, vmax, cap
 
-    def __init__(self, position, velocity, pref, heading=None, radius=None, vmax=None):
+    def __init__(self, position, velocity, pref, heading=None, radius=None, vmax=None, cap=None):
         self.position, self.velocity, self.pref = [np.ascontiguousarray(x, dtype=float).reshape(-1) for x in (position, velocity, pref)]
         self.b = self.position.shape[0] // 2
         if self.velocity.shape[0] != 2 * self.b or self.pref.shape[0] != 2 * self.b:
             raise ValueError("position, velocity and preferred velocity must be (B,2) arrays of one B")
         self.heading, self.radius = [_per_robot(0.0 if x is None else x, self.b) for x in (heading, radius)]
-        self.vmax = _per_robot(np.nan if vmax is None else vmax, self.b)
+        self.vmax, self.cap = [_per_robot(np.nan if x is None else x, self.b) for x in (vmax, cap)]
 
 
 cdef _per_robot(value, Py_ssize_t b):
@@ -867,6 +869,8 @@ cdef void _step_one(Config *s, Batch robots, Heard nb, Obstacles obstacles, Scra
     cdef Robot me = _robot(robots, i, s)
     cdef Result r
     _prepare(s, nb, i, w, me.vmax)
+    if robots.cap[i] < me.vmax:  # NaN: no cap
+        me.vmax = robots.cap[i]
     if s.diffdrive:
         r = _nh_orca(s, w, &me, robots.heading[i], obstacles)
     else:

@@ -147,13 +147,16 @@ def act(
     around: Surroundings,
 ) -> Decision:
     """Stage two: collision-free velocity and command, and deadlock detection."""
-    preferred, latency, reach = intent.preferred, memory.latency, around.reach
+    preferred, latency, reach, cap = intent.preferred, memory.latency, around.reach, None
     if np.isfinite(reach):
         ages = np.where(neighbours.valid, neighbours.age, np.inf)
         freshest = ages.min(axis=1, initial=np.inf)
         latency = np.where(np.isfinite(freshest), np.maximum(freshest, 0.0), memory.latency)
-        preferred = _within_speed(params, position, intent, heard_speed_limit(params, reach, latency))
-    own = OwnStates(robot_ids, position, heading, memory.velocity, intent.goal, preferred)
+        cap = heard_speed_limit(params, reach, latency)
+        # the limit holds for the velocity ORCA chooses too: avoiding, it may choose one faster
+        # than the preferred one, and two robots so fast could meet before either heard the other
+        preferred = _within_speed(params, position, intent, cap)
+    own = OwnStates(robot_ids, position, heading, memory.velocity, intent.goal, preferred, cap)
     res = control_step(params, own, neighbours, around)
     counts, deadlocked = memory.blocked, np.zeros(len(position), bool)
     if around.watch_deadlocks and params.deadlock_cost > 0:

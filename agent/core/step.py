@@ -129,6 +129,7 @@ class OwnStates:
     # feed-forward toward a moving goal of a dynamic image, agent.core.animation and
     # agent.core.goal_motion); NaN rows, or None, use eq. 9
     preferred: np.ndarray | None = None
+    speed_cap: np.ndarray | None = None  # (B,) m/s its new velocity keeps within (None: v_max alone)
 
 
 def control_step(
@@ -139,6 +140,6 @@ def control_step(
     pref = preferred_velocities(
         core, own.ids, own.position, own.velocity, own.goal, own.preferred, around.seed, around.tick
     )
-    robots = Batch(own.position, own.velocity, pref, own.heading, params.radius)
+    robots = Batch(own.position, own.velocity, pref, own.heading, params.radius, cap=own.speed_cap)
     v_cf, command, fallback, _, _ = step(core, robots, neighbours, around.segments, around.threads)
     return StepResult(v_cf, command, pref, fallback)
