@@ -26,7 +26,7 @@ from typing import Any, ClassVar, Protocol, TypeVar, overload
 
 import numpy as np
 
-VERSION = 5  # of the message header and every kind's layout; a goal set's parts have their own
+VERSION = 6  # of the message header and every kind's layout; a goal set's parts have their own
 _HEADER = struct.Struct("<BB")
 _CHECKSUM = struct.Struct("<I")  # CRC-32 (zlib's) of a CHECKED kind's bytes before it
 CHECKSUM_SIZE = _CHECKSUM.size
@@ -862,6 +862,9 @@ class Truth(Message):
 
     KIND: ClassVar[int] = 6
     NAME: ClassVar[str] = "sim/truth"
+    # checked, as Contact and Event are: the recorder believes them as they come, and a damaged copy
+    # that still decodes (a stamp from the future, a count, a number) would rewrite the run's record
+    CHECKED: ClassVar[bool] = True
     _fixed: ClassVar[struct.Struct] = struct.Struct("<IdfI")
     RECORD: ClassVar[np.dtype] = np.dtype(
         [("pose", "<f8", (3,)), ("vel", "<f4", (2,)), ("rgb", "u1", (3,)), ("applied", "<u4")]
@@ -904,6 +907,7 @@ class Contact(Message):
 
     KIND: ClassVar[int] = 7
     NAME: ClassVar[str] = "sim/contact"
+    CHECKED: ClassVar[bool] = True
     _fixed: ClassVar[struct.Struct] = struct.Struct("<BIidf")
     contact_kind: int
     i: int
@@ -918,6 +922,7 @@ class Event(Message):
 
     KIND: ClassVar[int] = 8
     NAME: ClassVar[str] = "event"
+    CHECKED: ClassVar[bool] = True
     _fixed: ClassVar[struct.Struct] = struct.Struct("<")
     data: dict = field(default_factory=dict)
 

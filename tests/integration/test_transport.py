@@ -138,7 +138,7 @@ def test_non_finite_is_rejected():
     assert decode(States.one(State(1, 1, 0.1, 0, 0, math.inf, 0, 0.045, 0, 0, -1, 0)).encode(), drops=drops) is None
     bad_goals = Goals(1, 0, np.array([[np.nan, 0.0]]), np.zeros((1, 3), np.uint8)).encode()
     assert decode(bad_goals, drops=drops) is None
-    assert decode(bytes([Event.KIND, VERSION]) + b'{"a": NaN}', drops=drops) is None
+    assert decode(with_checksum(bytes([Event.KIND, VERSION]) + b'{"a": NaN}'), drops=drops) is None
     assert drops["non-finite"] == 4
 
 
@@ -240,6 +240,30 @@ def test_a_state_damaged_on_its_way_is_dropped_not_believed():
     # the same bytes sealed again (a sender that meant them) read as that other goal
     (state,) = decode(with_checksum(bytes(damaged[:-4])), States).messages()
     assert (state.robot, state.goal_x, state.goal_y) == (3, 0.125, 0.5)
+
+
+def test_what_the_recorder_believes_damaged_on_its_way_is_dropped_not_believed():
+    """The world's truth and contacts and the run's events go into metrics.json as they come: a copy
+    damaged on its way that still decodes (a faulty peer's once put a drop reason 'trRncated' there)
+    is dropped by its checksum. Sealed anew (a sender that meant them) the same bytes would read."""
+    stats = Event({"kind": "stats", "dropped": {"truncated": 3}})
+    truth = Truth(
+        7, 0.7, 0.01, 1, np.zeros((1, 3)), np.zeros((1, 2)), np.zeros((1, 3), np.uint8), np.ones(1, np.uint32)
+    )
+    contact = Contact(0, 1, 2, 0.5, 0.003)
+    drops = DropCounter()
+    for msg, damage in (
+        (stats, lambda b: b.replace(b"truncated", b"trRncated")),
+        (truth, lambda b: b[:6] + struct.pack("<d", 70.0) + b[14:]),  # a stamp from the future
+        (contact, lambda b: b[:-8] + struct.pack("<f", 0.3) + b[-4:]),  # a contact 100 times deeper
+    ):
+        data = msg.encode()
+        assert struct.unpack("<I", data[-4:])[0] == zlib.crc32(data[:-4])
+        damaged = damage(data[:-4]) + data[-4:]
+        assert decode(damaged, type(msg), drops) is None
+        sealed = decode(with_checksum(damaged[:-4]), type(msg))
+        assert sealed is not None and sealed != msg
+    assert drops == {"checksum": 3}
 
 
 def _parts(data: bytes) -> list[tuple[int, int, bytes]]:

@@ -491,8 +491,10 @@ def _overwrite_event_value(c: Choices, msg: Event) -> Case:
 def _canonical(kind: type[Message], data: bytes) -> bytes:
     """The bytes a well-formed message re-encodes to: itself; a goal set without the parts of kinds
     it skips (in the order of their kinds, as it encodes them); an event as compact JSON."""
-    if kind is Event:
-        return data[:2] + json.dumps(json.loads(data[2:]), allow_nan=False, separators=(",", ":")).encode()
+    if kind is Event:  # its JSON between the header and the checksum
+        return with_checksum(
+            data[:2] + json.dumps(json.loads(data[2:-4]), allow_nan=False, separators=(",", ":")).encode()
+        )
     if kind is not Goals:
         return data
     parts, at, end = [], 2, len(data) - 4  # the parts, then the checksum
