@@ -17,10 +17,14 @@ DIRECTIVES = {
     "wraparound": False,
     "cdivision": True,
     "initializedcheck": False,
+    "auto_pickle": False,  # nothing compiled is pickled: no __reduce__ code in each class
 }
+
+# Cython's own support code (memoryviews above all) in one module every other imports, not a copy in each
+SHARED = "agent.core._cython"
 
 modules = [
     Extension(path[:-4].replace("/", "."), [path], extra_compile_args=FLAGS)
     for path in sorted(glob("agent/core/*.pyx") + glob("sim/bodies/*.pyx"))
-]
-setup(ext_modules=cythonize(modules, compiler_directives=DIRECTIVES))
+] + [Extension(SHARED, [SHARED.replace(".", "/") + ".c"], extra_compile_args=FLAGS)]
+setup(ext_modules=cythonize(modules, compiler_directives=DIRECTIVES, shared_utility_qualified_name=SHARED))

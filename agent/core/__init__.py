@@ -3,7 +3,7 @@
 
 from importlib.util import find_spec
 
-_COMPILED = ("bidding", "control", "crew", "grid")  # agent/core/*.pyx
+_COMPILED = ("_cython", "bidding", "control", "crew", "grid")  # agent/core/*.pyx and Cython's shared support
 if any(find_spec(f"{__name__}.{name}") is None for name in _COMPILED):
     raise SystemExit(
         "pixelswarm: the compiled robot core (agent/core/*.pyx) is not built: run `make run` or `pip install -e .`"
