@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from transport.bus import Bus, Inbox, KeepRobots
-from transport.codec import Correspondence, Goals, Motion, Pose, Tick, Timing, WarmStart
+from transport.codec import Correspondence, Goals, Motion, Pose, Tick, Timing, WarmStart, as_sent
 from transport.plausible import Clock
 from transport.session import TransportError, add_zenoh_args, settings_from_args
 
@@ -91,11 +91,6 @@ def step_motion(scene: Scene, step: int) -> Motion | None:
 RESUME_WAIT_S = 2.0  # s a starting coordinator waits for the run's newest goal set (none: a new run)
 
 PREPARE_AHEAD = 5.0  # s of display before an image change that the coordinator prepares its warm start
-
-
-def _as_sent(positions: np.ndarray) -> np.ndarray:
-    """Goal positions as the agents decode them from a Goals message (float32 on the wire)."""
-    return np.asarray(positions, np.float32).astype(float)
 
 
 def follows_keyframe(before: Goals | None, goals: Goals) -> bool:
@@ -275,7 +270,7 @@ class Coordinator:
             step_motion(self.scene, step),
         )
         if before is not None and not before.per_robot and len(before.positions) == len(goals):
-            matched, prices = self._warm_start(_as_sent(before.positions), goals)
+            matched, prices = self._warm_start(as_sent(before.positions), goals)
             self.current.warm_start = None if cold else WarmStart(before.epoch, matched, prices)
             if follows_keyframe(before, self.current):  # the same matching is a keyframe's correspondence (6.1)
                 self.current.correspondence = Correspondence(before.epoch, matched)
@@ -299,7 +294,7 @@ class Coordinator:
         """The auction's warm start from robots standing on ``start`` (the last set's goals as the
         agents decode them, or where the robots start) to these goals (goal_matching), computed once
         per pair and kept: _prepare_next makes it ahead of time."""
-        start, goals = np.asarray(start, float), _as_sent(goals)
+        start, goals = np.asarray(start, float), as_sent(goals)
         key = (start.tobytes(), goals.tobytes())
         if self._matching is None or self._matching[0] != key:
             self._matching = (key, goal_matching(start, goals, self._eps))
@@ -323,7 +318,7 @@ class Coordinator:
             return
         goals, _ = scene_goal_set(self.scene, step, len(robots))
         if len(goals) == len(self.current.positions) and not self.bodies:
-            self._warm_start(_as_sent(self.current.positions), goals)
+            self._warm_start(as_sent(self.current.positions), goals)
 
     def _prepare_for_a_loss(self) -> None:
         """Once, after the first goal set: the current image's set for one robot fewer. The first

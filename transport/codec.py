@@ -966,15 +966,6 @@ MESSAGE_TYPES: dict[int, type[Message]] = {
 BY_NAME: dict[str, type[Message]] = {t.NAME: t for t in MESSAGE_TYPES.values()}
 
 
-def register(message_type: type[Message]) -> type[Message]:
-    """Add a message kind defined elsewhere (e.g. the auction's) to the decoder tables."""
-    if message_type.KIND in MESSAGE_TYPES and MESSAGE_TYPES[message_type.KIND] is not message_type:
-        raise ValueError(f"message kind {message_type.KIND} is taken")
-    MESSAGE_TYPES[message_type.KIND] = message_type
-    BY_NAME[message_type.NAME] = message_type
-    return message_type
-
-
 MessageT = TypeVar("MessageT", bound=Message)
 
 

@@ -40,10 +40,6 @@ class GoalMotion:
         if self.geometric and not self.k_eg > -1.0:
             raise ValueError(f"a geometric expansion K_eG must be > -1, not {self.k_eg}")
 
-    @property
-    def is_static(self) -> bool:
-        return self.v_g == (0.0, 0.0) and self.omega_g == 0.0 and self.k_eg == 0.0
-
     def scale(self, t: ArrayLike) -> np.ndarray:
         """s(t): how much the pattern has grown since t = 0 (1 at t = 0)."""
         t = np.asarray(t, float)

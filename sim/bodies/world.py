@@ -219,7 +219,6 @@ class World:
         self._check_start = False
         self.last_substeps = 0  # number of substeps the last step() ran
         self._unchecked: tuple | None = None  # a step whose contacts are not yet detected (step(check=False))
-        self._checked = 0  # steps checked for contacts (restore() cannot undo a checked one)
 
         # the initial state: contacts at t = 0 and the initial clearance
         self._step_min_clearance = self._watch.detect(self._m.pos[None], np.zeros(1), 0.0, first_row=0)[1]
@@ -241,10 +240,6 @@ class World:
     @property
     def bodies(self) -> tuple[Body, ...]:
         return self._bodies
-
-    @property
-    def radii(self) -> np.ndarray:
-        return self._watch.radius.copy()
 
     @property
     def arena(self) -> tuple[float, float, float, float] | None:
@@ -370,24 +365,6 @@ class World:
             event = events.pop(0)
             self.teleport(event["robot"], tuple(event["pose"]))
 
-    def snapshot(self) -> tuple:
-        """The state that steps, commands and teleports change, for `restore` (the contacts so far
-        are checked first; they are not part of it)."""
-        self.check()
-        return (self._checked, self._m.copy(), self._noise.saved(), self._check_start, self.last_substeps)
-
-    def restore(self, saved: tuple) -> None:
-        """Back to a `snapshot`, as if nothing had happened since: the central engine steps the
-        world on the commands it expects while the auction runs, and again if the auction changed
-        them. Contacts are not undone, so no step since may have been checked (one step with
-        ``check=False`` and nothing that reads contacts or clearance)."""
-        if saved[0] != self._checked:
-            raise ValueError("cannot restore: contacts were checked since the snapshot")
-        _, motion, noise, self._check_start, self.last_substeps = saved
-        self._m = motion.copy()
-        self._noise.restore(noise)
-        self._unchecked = None
-
     # ---------------------------------------------------------------- dynamics
 
     def step(self, dt: float, *, check: bool = True) -> list[Contact]:
@@ -452,7 +429,6 @@ class World:
             return []
         traj, times, motion, first_row = self._unchecked
         self._unchecked = None
-        self._checked += 1
         started, self._step_min_clearance = self._watch.detect(traj, times, motion, first_row)
         return started
 
@@ -486,18 +462,11 @@ class _HeldNoise:
             boundary += period
         return index, [0.0, *cuts, dt]
 
-    def saved(self) -> tuple:
-        return self.values.copy(), self.index, self.rng.bit_generator.state
-
-    def restore(self, saved: tuple) -> None:
-        values, self.index, self.rng.bit_generator.state = saved
-        self.values = values.copy()
-
 
 @dataclass
 class _Motion:
-    """What steps, commands and teleports change (a snapshot's part): positions, headings, the
-    commands and how many were applied, the last substep's velocities, path lengths, and the time."""
+    """What steps, commands and teleports change: positions, headings, the commands and how many
+    were applied, the last substep's velocities, path lengths, and the time."""
 
     pos: np.ndarray  # (N, 2)
     theta: np.ndarray  # (N,) in [-pi, pi)
@@ -528,18 +497,6 @@ class _Motion:
         else:
             self.t_comp += (dt - t) + s
         self.t_sum = t
-
-    def copy(self) -> _Motion:
-        return _Motion(
-            self.pos.copy(),
-            self.theta.copy(),
-            self.cmd.copy(),
-            self.vel.copy(),
-            self.path.copy(),
-            self.n_cmd.copy(),
-            self.t_sum,
-            self.t_comp,
-        )
 
 
 class _ContactWatch:

@@ -136,11 +136,6 @@ class McapLog:
             self._by_id[cid] = channel
             return cid
 
-    def channel_id(self, topic: str) -> int | None:
-        """Id of an already registered topic, or None."""
-        entry = self._channels.get(topic)
-        return entry[0] if entry else None
-
     # -- messages ----------------------------------------------------------------------------
     def write(self, channel_id: int, log_time_ns: int, payload: Any) -> None:
         """Write one message: a dict on a JSON channel (numpy -> lists, NaN -> null), a

@@ -499,38 +499,6 @@ def test_contacts_checked_later_are_the_contacts_checked_at_once(seed, n):
     assert sorted(map(event, started_later), key=str) == sorted(map(event, started_now), key=str) and started_now
 
 
-def test_a_restored_snapshot_undoes_steps_commands_and_teleports():
-    """What the central engine relies on when the auction changes commands it already stepped: a
-    world stepped from a snapshot and restored is the world that never took those steps."""
-    rng = np.random.default_rng(3)
-    n = 12
-    bodies = [Body("holonomic" if k % 2 else "diffdrive", 0.05, 1.0) for k in range(n)]
-    poses = np.column_stack([rng.uniform(0, 0.4, (n, 2)), rng.uniform(-3, 3, n)])
-    kept, undone = (World(bodies, poses, arena=(-0.1, -0.1, 0.5, 0.5), noise=ActuationNoise(seed=4)) for _ in range(2))
-    for k in range(10):
-        cmds = rng.uniform(-1.0, 1.0, (n, 2))
-        before = undone.snapshot()
-        undone.teleport(k % n, (0.2, 0.2, 0.0))
-        undone.set_commands(rng.uniform(-1.0, 1.0, (n, 2)))  # a step that did not happen
-        undone.step(0.15, check=False)
-        undone.restore(before)
-        for w in (kept, undone):
-            w.set_commands(cmds)
-            w.step(0.1, check=bool(k % 2))
-    np.testing.assert_array_equal(undone.poses, kept.poses)
-    np.testing.assert_array_equal(undone.velocities, kept.velocities)
-    np.testing.assert_array_equal(undone.path_length, kept.path_length)
-    np.testing.assert_array_equal(undone.commands_applied, kept.commands_applied)
-    assert undone.time == kept.time and undone.min_clearance == kept.min_clearance
-    event = lambda c: (c.kind, c.i, c.j, c.t_start, c.t_end, c.max_depth)
-    assert [event(c) for c in undone.contacts] == [event(c) for c in kept.contacts] and kept.contacts
-    # contacts are not undone: a checked step cannot be
-    before = undone.snapshot()
-    undone.step(0.1)
-    with pytest.raises(ValueError, match="contacts were checked"):
-        undone.restore(before)
-
-
 # ------------------------------------------------------------------ perturbations
 
 
