@@ -4,12 +4,15 @@ A whole 10,000-robot sequence is about 7 GB of per-tick rows in float64, more th
 (issue 43: peak RSS at most 4 GB). Streamed, each array's rows go to a raw file in the run's partial
 directory (:data:`SCRATCH`, removed before the run directory is committed) a chunk of ticks at a
 time, as float32 from :data:`FLOAT32_FROM` robots (what trajectory.npz stores anyway) and float64
-below (the engines compared to the bit on small runs). The writers read the files back through
-:class:`OnDisk`, a piece at a time.
+below (the engines compared to the bit on small runs). A thread of its own writes a chunk while the
+engine fills the next (a write releases the interpreter's lock). The writers read the files back
+through :class:`OnDisk`, a piece at a time.
 """
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +24,7 @@ import numpy as np
 FLOAT32_FROM = 3000
 PER_TICK = ("pose", "velocity", "goal")  # (T, N, ...) float arrays
 SCRATCH = ".ticks"  # in a partial run directory: the streamed recording's raw files
-CHUNK_BYTES = 1 << 25  # a chunk of ticks held before it is appended to the files
+CHUNK_BYTES = 1 << 24  # a chunk of ticks held before it is appended to the files (two are held)
 
 # the recorded arrays: each robot's shape and type of a tick (t and step: one per tick, held in memory)
 ROWS: dict[str, tuple[tuple[int, ...], Any]] = {
@@ -72,7 +75,10 @@ class TickRecorder:
         held = ticks if directory is None else max(1, min(ticks, CHUNK_BYTES // max(tick_bytes, 1)))
         self.rows = {name: np.empty((held, robots, *shape), self.types[name]) for name, (shape, _) in ROWS.items()}
         self.filled = 0  # ticks in self.rows not yet appended to the files
-        self.written = 0  # ticks in the files
+        self.written = 0  # ticks in the files, or on their way (``pending``)
+        self.spare: dict[str, np.ndarray] | None = None  # the other chunk's rows, once a chunk is on its way
+        self.pending: Future | None = None  # the write of the chunk before
+        self.writer = ThreadPoolExecutor(1, thread_name_prefix="recording") if directory is not None else None
         if directory is not None:
             directory.mkdir(parents=True, exist_ok=True)
             for name in ROWS:
@@ -95,10 +101,24 @@ class TickRecorder:
         return {name: held[at] for name, held in self.rows.items()}
 
     def _append(self) -> None:
-        for name, held in self.rows.items():
-            with open(self._path(name), "ab") as out:
-                out.write(held[: self.filled].tobytes())
-        self.written, self.filled = self.written + self.filled, 0
+        """The chunk to the writer thread; the next is filled in the other set of rows."""
+        assert self.writer is not None
+        chunk, filled = self.rows, self.filled
+        self._wait()  # the other set's write is done: it can be filled again
+        self.pending = self.writer.submit(self._write, chunk, filled) if filled else None
+        self.rows = self.spare or {name: np.empty_like(held) for name, held in chunk.items()}
+        self.spare, self.written, self.filled = chunk, self.written + filled, 0
+
+    def _write(self, rows: dict[str, np.ndarray], filled: int) -> None:
+        for name, held in rows.items():
+            # appended, never created: a run aborted meanwhile has removed the files, and none comes back
+            with open(os.open(self._path(name), os.O_WRONLY | os.O_APPEND), "wb") as out:
+                out.write(held[:filled].data.cast("B"))  # the rows as they lie: no copy
+
+    def _wait(self) -> None:
+        if self.pending is not None:
+            pending, self.pending = self.pending, None
+            pending.result()  # a write that failed fails the run here
 
     def arrays(self, ticks: int) -> dict[str, Any]:
         """The first ``ticks`` ticks recorded (a converged run ends early), by name: numpy arrays, or
@@ -107,9 +127,12 @@ class TickRecorder:
         if self.directory is None:
             out |= {name: held[:ticks] for name, held in self.rows.items()}
         else:
+            assert self.writer is not None
             self._append()
+            self._wait()
+            self.writer.shutdown()
             assert self.written == ticks, f"{self.written} ticks recorded, {ticks} asked for"
             for name, (shape, _) in ROWS.items():
                 out[name] = OnDisk(self._path(name), self.types[name], (ticks, self.robots, *shape))
-            self.rows = {}  # the chunk's memory goes; the files hold the run
+            self.rows, self.spare = {}, None  # the chunks' memory goes; the files hold the run
         return out | {"step": self.step[:ticks]}
