@@ -20,7 +20,6 @@ import dataclasses
 import json
 import math
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -29,7 +28,7 @@ from typing import Any
 
 from agent.runtime import HostConfig, interpreter
 from sim.args import add_seconds, format_ids, positive_int, refuse
-from sim.processes import handling_signals
+from sim.processes import handling_signals, stop_processes
 from transport.bus import Bus, LivelinessWatch
 from transport.keys import Keys
 from transport.session import TransportError, ZenohSettings
@@ -266,13 +265,4 @@ class Supervisor:
 
     def stop(self) -> None:
         """SIGTERM to every agent still running; those not gone within the grace are killed."""
-        for proc, _ in self.procs:
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
-        deadline = time.monotonic() + STOP_GRACE
-        for proc, _ in self.procs:
-            try:
-                proc.wait(timeout=max(0.1, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(timeout=STOP_GRACE)
+        stop_processes([proc for proc, _ in self.procs], STOP_GRACE)
