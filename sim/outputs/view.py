@@ -60,7 +60,6 @@ FAST_FLUSH_PERIOD = 0.25  # s: the same after a batch of many ticks (a run too f
 MAX_BATCH = 200  # ticks a batch at most
 SLOW_BATCH = 3  # a batch of at most this many ticks is of a run near real time: everything logged at its last
 EXTRAS_PERIOD = 0.5  # s of wall time between two logs of the rest (hover, trails, metrics) in a faster run
-CLEARANCE_REACH = 0.3  # m: gaps up to this come from the compiled grid, larger ones from a k-d tree
 DOTS_ABOVE = 150  # robot diameters across the display above which robots are drawn as dots of a fixed size
 DOT = 2.5  # their radius then, in the viewer's points (at true size they would be a pixel or less)
 TRAIL_DOT_POINTS = 0.8  # a trail's dots then, in points
@@ -473,21 +472,12 @@ def stop_on_sigterm() -> None:
 
 
 def _min_clearance(xy: np.ndarray, r: np.ndarray) -> float:
-    """The smallest gap between two robots' discs (m) at positions (N, 2): the compiled grid of the
-    world's contact check over the pairs within CLEARANCE_REACH, a k-d tree if none is."""
-    from sim.bodies.proximity import close_pairs
+    """The smallest gap between two robots' discs (m) at positions (N, 2), as metrics.json takes it;
+    NaN, no point on the plot, with fewer than two robots placed."""
+    from sim.outputs.metrics import clearance_at
 
-    ok = np.isfinite(xy).all(axis=1)
-    if ok.sum() < 2:
-        return float("nan")
-    xy, r = (xy, r) if ok.all() else (xy[ok], r[ok])
-    found = close_pairs(xy[None], r, CLEARANCE_REACH + 2 * float(r.max()), 0.0, 0)
-    if found is not None and np.isfinite(found[0]):
-        return found[0]
-    from scipy.spatial import cKDTree
-
-    dist, idx = cKDTree(xy).query(xy, k=2)
-    return float(np.min(dist[:, 1] - r - r[idx[:, 1]]))
+    gap = clearance_at(xy, r)
+    return gap if np.isfinite(gap) else float("nan")
 
 
 def replay(run_dir: Path, sink: str | os.PathLike, scene: dict[str, Any] | None = None) -> SwarmView:
