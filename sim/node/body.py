@@ -23,7 +23,7 @@ import math
 import os
 import signal
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -112,10 +112,12 @@ class LockStep:
         self.auction_traffic = [bus.subscribe_raw(bus.keys.all_of(kind)) for kind in ("auction", "boards")]
 
     def spans(self, node: BodyNode) -> Iterator[float]:
+        came = _commands_on_the_tick_clock(node)
         deadline = time.monotonic() + (self.deadline if node.tick else max(self.deadline, FIRST_TICK_PATIENCE))
         patience = time.monotonic() + AUCTION_PATIENCE
         goal_set_patience = time.monotonic() + GOAL_SET_PATIENCE
         while True:
+            lost = came()  # read before the commands are taken: one seen by then is queued, held or lost
             node.take_commands(node.cmd_inbox.get(timeout=max(0.0, min(0.05, deadline - time.monotonic()))))
             heard = [data for inbox in self.auction_traffic for _, data, _ in inbox.drain()]
             node.hear_goals()
@@ -124,10 +126,23 @@ class LockStep:
             if any(map(intact, heard)) or at_work:  # a damaged copy is no agent at work
                 deadline = min(time.monotonic() + self.deadline, patience)
             node.update_liveness()
-            waiting = node.live & (node.last_cmd_tick < node.tick)
+            waiting = node.live & (node.last_cmd_tick < node.tick) & ~lost
             if not waiting.any() or time.monotonic() >= deadline or node.withheld:
                 break
         yield node.dt
+
+
+def _commands_on_the_tick_clock(node: BodyNode) -> Callable[[], np.ndarray]:
+    """Under injected command faults (``--faults cmd:...``), as the agents' under state faults: a
+    command's fate is drawn from the command itself and its delay counts on the run's clock, and a
+    robot whose command for this tick came is not waited for, whatever the plan did with it (a lost
+    one would hold every tick to its deadline). Returns, per robot, whether it came."""
+    inbox, n = node.cmd_inbox, len(node.live)
+    if inbox.fault is None:
+        return lambda: np.zeros(n, bool)
+    inbox.sim_time = node.tick * node.dt
+    seen = inbox.seen = {} if inbox.seen is None else inbox.seen
+    return lambda: np.array([seen.get(i) == node.tick for i in range(n)])
 
 
 class WallClock:

@@ -29,3 +29,21 @@ def test_two_lockstep_runs_with_lost_and_delayed_states_are_the_same_run(tmp_pat
     assert first_metrics["contacts"] == 0 and first_metrics["converged"]
     assert len(first["t"]) == len(second["t"])
     assert np.array_equal(first["pose"], second["pose"])
+
+
+@pytest.mark.slow
+def test_two_lockstep_runs_with_lost_commands_are_the_same_run(tmp_path, spawned):
+    """The world draws a command's fate from the command itself, and does not wait out its deadline
+    for one that came and was lost (a robot without its command stands for the tick)."""
+    args = ("--robots", "8", "--clock", "lockstep", "--seed", "3", "--faults", "cmd:drop=0.2", "--duration", "20")
+    runs = {name: start_run(spawned, "circle", tmp_path / name, *args) for name in ("first", "second")}
+    for proc in runs.values():
+        _, stderr = proc.communicate(timeout=600)
+        assert proc.returncode == 0, stderr[-3000:]
+    metrics = [json.loads((tmp_path / name / "metrics.json").read_text()) for name in runs]
+    first, second = (dict(np.load(tmp_path / name / "trajectory.npz")) for name in runs)
+    assert metrics[0]["dropped_messages"].get("fault", 0) > 0 and metrics[0]["missed_ticks"] > 0
+    assert metrics[0]["contacts"] == 0 and metrics[0]["converged"]
+    assert metrics[0]["missed_ticks"] == metrics[1]["missed_ticks"]
+    assert len(first["t"]) == len(second["t"])
+    assert np.array_equal(first["pose"], second["pose"])
