@@ -53,6 +53,7 @@ def preferred_velocities(
     given: ArrayLike | None,
     seed: int,
     tick: int,
+    cap: ArrayLike | None = ...,
 ) -> np.ndarray: ...
 def step(
     settings: Settings, robots: Batch, heard: Any, segments: ArrayLike | Obstacles | None = ..., threads: int = 1

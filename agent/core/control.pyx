@@ -185,21 +185,23 @@ def perturbation(robot_ids, seed, tick=0, double magnitude=PERTURBATION):
     return out
 
 
-def preferred_velocities(Settings settings, robot_ids, position, velocity, goal, given, seed, tick):
+def preferred_velocities(Settings settings, robot_ids, position, velocity, goal, given, seed, tick, cap=None):
     """A batch's preferred velocities (B,2): eq. 9 toward ``goal``, or the finite rows of ``given``
-    (an animation's eq. 27, a moving goal's feed-forward); turned 45 degrees right where the robot
-    wants to move but barely does (every robot applying the rule turns a standoff into a
-    roundabout); then the perturbation where not zero."""
+    (an animation's eq. 27, a moving goal's feed-forward); scaled down to the robot's speed ``cap``
+    (B,; NaN or None: none; Batch's); turned 45 degrees right where the robot wants to move but
+    barely does (every robot applying the rule turns a standoff into a roundabout); then the
+    perturbation where not zero."""
     cdef const double[:, ::1] p = np.ascontiguousarray(position, dtype=float)
     cdef const double[:, ::1] v = np.ascontiguousarray(velocity, dtype=float)
     cdef const double[:, ::1] g = np.ascontiguousarray(goal, dtype=float)
     b = p.shape[0]
     cdef const double[:, ::1] w = np.full((b, 2), np.nan) if given is None else np.ascontiguousarray(given, dtype=float)
     cdef const uint64_t[::1] ids = np.ascontiguousarray(np.asarray(robot_ids).reshape(-1).astype(np.uint64))
+    cdef const double[::1] c = _per_robot(np.nan if cap is None else cap, b)
     cdef uint64_t seed_word = seed % 2**64, tick_word = tick % 2**64
     out = np.empty((b, 2))
     cdef double[:, ::1] o = out
-    cdef double want, x, y
+    cdef double want, x, y, speed
     cdef double d[2]
     cdef Py_ssize_t i
     cdef Config *s = &settings.c
@@ -208,6 +210,9 @@ def preferred_velocities(Settings settings, robot_ids, position, velocity, goal,
         if isfinite(w[i, 0]) and isfinite(w[i, 1]):
             o[i, 0], o[i, 1] = w[i, 0], w[i, 1]
         x, y = o[i, 0], o[i, 1]
+        speed = hypot(x, y)
+        if speed > c[i]:  # NaN: no cap
+            x, y = x * (c[i] / speed), y * (c[i] / speed)
         want = sqrt(x * x + y * y)
         if want > 0.5 * s.v_pref and sqrt(v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1]) < 0.25 * want:
             x, y = COS_RIGHT * x - SIN_RIGHT * y, SIN_RIGHT * x + COS_RIGHT * y

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .animation import frame_hold, iterations_left
-from .control import blocked, preferred_velocity
+from .control import blocked
 from .deadlock import count_blocked
 from .goal_motion import GoalMotion, tracking_velocity
 from .params import RobotParams
@@ -147,16 +147,15 @@ def act(
     around: Surroundings,
 ) -> Decision:
     """Stage two: collision-free velocity and command, and deadlock detection."""
-    preferred, latency, reach, cap = intent.preferred, memory.latency, around.reach, None
+    latency, reach, cap = memory.latency, around.reach, None
     if np.isfinite(reach):
         ages = np.where(neighbours.valid, neighbours.age, np.inf)
         freshest = ages.min(axis=1, initial=np.inf)
         latency = np.where(np.isfinite(freshest), np.maximum(freshest, 0.0), memory.latency)
+        # the limit holds for the preferred velocity and for the one ORCA chooses: avoiding, it may
+        # choose one faster than the preferred, and two robots so fast could meet before either heard the other
         cap = heard_speed_limit(params, reach, latency)
-        # the limit holds for the velocity ORCA chooses too: avoiding, it may choose one faster
-        # than the preferred one, and two robots so fast could meet before either heard the other
-        preferred = _within_speed(params, position, intent, cap)
-    own = OwnStates(robot_ids, position, heading, memory.velocity, intent.goal, preferred, cap)
+    own = OwnStates(robot_ids, position, heading, memory.velocity, intent.goal, intent.preferred, cap)
     res = control_step(params, own, neighbours, around)
     counts, deadlocked = memory.blocked, np.zeros(len(position), bool)
     if around.watch_deadlocks and params.deadlock_cost > 0:
@@ -174,16 +173,3 @@ def heard_speed_limit(params: RobotParams, reach: float, latency: np.ndarray) ->
     to slow, never to contact). No gap at all (a range shorter than two bodies): standing still."""
     gap = max(reach - 2.0 * params.radius - params.noise_bound, 0.0)
     return gap / (2.0 * (np.asarray(latency, float) + 2.0 * params.dt))
-
-
-def _within_speed(params: RobotParams, position: np.ndarray, intent: Intent, limit: np.ndarray) -> np.ndarray:
-    """The intent's preferred velocities (eq. 9 where it gives none), scaled down to ``limit``; rows
-    already within it keep the intent's (NaN: eq. 9 in the control step, as without a limit)."""
-    given = np.isfinite(intent.preferred).all(axis=1)
-    pref = np.where(
-        given[:, None], intent.preferred, preferred_velocity(position, intent.goal, params.v_pref, params.k_a)
-    )
-    speed = np.hypot(pref[:, 0], pref[:, 1])
-    over = speed > limit
-    scaled = pref * np.where(over, limit / np.where(over, speed, 1.0), 1.0)[:, None]
-    return np.where(over[:, None], scaled, intent.preferred)

@@ -129,7 +129,7 @@ class OwnStates:
     # feed-forward toward a moving goal of a dynamic image, agent.core.animation and
     # agent.core.goal_motion); NaN rows, or None, use eq. 9
     preferred: np.ndarray | None = None
-    speed_cap: np.ndarray | None = None  # (B,) m/s its new velocity keeps within (None: v_max alone)
+    speed_cap: np.ndarray | None = None  # (B,) m/s its preferred and new velocities keep within (None: v_max)
 
 
 def control_step(
@@ -138,7 +138,7 @@ def control_step(
     """Paper 5.2-5.4 for a batch: preferred velocity (eq. 9), ORCA or NH-ORCA, controls."""
     core = settings_of(params)
     pref = preferred_velocities(
-        core, own.ids, own.position, own.velocity, own.goal, own.preferred, around.seed, around.tick
+        core, own.ids, own.position, own.velocity, own.goal, own.preferred, around.seed, around.tick, own.speed_cap
     )
     robots = Batch(own.position, own.velocity, pref, own.heading, params.radius, cap=own.speed_cap)
     v_cf, command, fallback, _, _ = step(core, robots, neighbours, around.segments, around.threads)
