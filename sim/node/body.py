@@ -117,7 +117,7 @@ class LockStep:
         patience = time.monotonic() + AUCTION_PATIENCE
         goal_set_patience = time.monotonic() + GOAL_SET_PATIENCE
         while True:
-            lost = came()  # read before the commands are taken: one seen by then is queued, held or lost
+            arrived = came()  # read before the commands are taken: one seen by then is queued, held or lost
             node.take_commands(node.cmd_inbox.get(timeout=max(0.0, min(0.05, deadline - time.monotonic()))))
             heard = [data for inbox in self.auction_traffic for _, data, _ in inbox.drain()]
             node.hear_goals()
@@ -126,7 +126,7 @@ class LockStep:
             if any(map(intact, heard)) or at_work:  # a damaged copy is no agent at work
                 deadline = min(time.monotonic() + self.deadline, patience)
             node.update_liveness()
-            waiting = node.live & (node.last_cmd_tick < node.tick) & ~lost
+            waiting = node.live & (node.last_cmd_tick < node.tick) & ~arrived
             if not waiting.any() or time.monotonic() >= deadline or node.withheld:
                 break
         yield node.dt
