@@ -23,7 +23,7 @@ import math
 import os
 import signal
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -111,13 +111,21 @@ class LockStep:
         self.deadline = deadline
         self.auction_traffic = [bus.subscribe_raw(bus.keys.all_of(kind)) for kind in ("auction", "boards")]
 
+    def publishing(self, node: BodyNode) -> None:
+        """Tick ``node.tick`` is about to go out. Under injected command faults (``--faults cmd:...``),
+        as the agents' under state faults: a command's fate is drawn from the command itself and its
+        delay counts on the run's clock, and the inbox notes each robot's commands as they come,
+        whatever the plan does with them (``spans`` then waits for none that came and was lost)."""
+        if node.cmd_inbox.fault is not None:
+            node.cmd_inbox.sim_time = node.tick * node.dt
+            node.cmd_inbox.seen = {} if node.cmd_inbox.seen is None else node.cmd_inbox.seen
+
     def spans(self, node: BodyNode) -> Iterator[float]:
-        came = _commands_on_the_tick_clock(node)
         deadline = time.monotonic() + (self.deadline if node.tick else max(self.deadline, FIRST_TICK_PATIENCE))
         patience = time.monotonic() + AUCTION_PATIENCE
         goal_set_patience = time.monotonic() + GOAL_SET_PATIENCE
         while True:
-            arrived = came()  # read before the commands are taken: one seen by then is queued, held or lost
+            arrived = _came(node)  # read before the commands are taken: one seen by then is queued, held or lost
             node.take_commands(node.cmd_inbox.get(timeout=max(0.0, min(0.05, deadline - time.monotonic()))))
             heard = [data for inbox in self.auction_traffic for _, data, _ in inbox.drain()]
             node.hear_goals()
@@ -132,17 +140,12 @@ class LockStep:
         yield node.dt
 
 
-def _commands_on_the_tick_clock(node: BodyNode) -> Callable[[], np.ndarray]:
-    """Under injected command faults (``--faults cmd:...``), as the agents' under state faults: a
-    command's fate is drawn from the command itself and its delay counts on the run's clock, and a
-    robot whose command for this tick came is not waited for, whatever the plan did with it (a lost
-    one would hold every tick to its deadline). Returns, per robot, whether it came."""
-    inbox, n = node.cmd_inbox, len(node.live)
-    if inbox.fault is None:
-        return lambda: np.zeros(n, bool)
-    inbox.sim_time = node.tick * node.dt
-    seen = inbox.seen = {} if inbox.seen is None else inbox.seen
-    return lambda: np.array([seen.get(i) == node.tick for i in range(n)])
+def _came(node: BodyNode) -> np.ndarray:
+    """Per robot, whether its command for this tick came (LockStep.publishing: under command faults)."""
+    seen = node.cmd_inbox.seen
+    if seen is None:
+        return np.zeros(len(node.live), bool)
+    return np.array([seen.get(i) == node.tick for i in range(len(node.live))])
 
 
 class WallClock:
@@ -153,6 +156,9 @@ class WallClock:
     def __init__(self, slice_s: float, catch_up: bool) -> None:
         self.slice, self.catch_up = slice_s, catch_up
         self.next: float | None = None
+
+    def publishing(self, node: BodyNode) -> None:
+        """Tick ``node.tick`` is about to go out: nothing to prepare."""
 
     def spans(self, node: BodyNode) -> Iterator[float]:
         now = time.monotonic()
@@ -231,6 +237,7 @@ class BodyNode:
         self.bus.renew_if_due()  # its link to the router came back a while ago
         self.backend.sense(self.tick * self.dt)
         self.update_liveness()
+        self.clock.publishing(self)
         self._publish_tick()
         stopped = 0
         for span in self.clock.spans(self):

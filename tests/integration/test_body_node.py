@@ -162,7 +162,7 @@ class _SlowFirstAnswers:
     after the world begins to wait for them."""
 
     dt, withheld = 0.1, False
-    fault = None  # its command inbox's: no fault plan
+    seen = None  # its command inbox notes no arrivals (no fault plan)
 
     def __init__(self, tick: int, after: float) -> None:
         self.tick, self.live = tick, np.ones(2, bool)
