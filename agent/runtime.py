@@ -134,7 +134,7 @@ class KeepCells:
 
     def __init__(self, cells: set[tuple[int, int]], cell_size: float, robots: frozenset[int]) -> None:
         self.cells, self.cell_size, self.robots = cells, cell_size, robots
-        self._keys = np.unique(np.array([self._key(c) for c in cells], np.int64))
+        self._keys = np.array(sorted(self._key(c) for c in cells), np.int64)  # a set's: unique already
         self._ids = np.array(sorted(robots), np.int64)
 
     @staticmethod

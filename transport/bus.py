@@ -145,8 +145,9 @@ class KeepRobots:
     """These robots' records (a host's own poses; dead robots' bodies for the coordinator)."""
 
     def __init__(self, robots: Iterable[int] | np.ndarray) -> None:
-        self.ids = np.unique(np.fromiter(robots, np.int64))
-        self.robots = set(self.ids.tolist())
+        # sorted(set()), not np.unique: numpy's unique loads numpy.ma, a megabyte in a robot's process
+        self.robots = {int(r) for r in robots}
+        self.ids = np.array(sorted(self.robots), np.int64)
 
     def mask(self, records: np.ndarray) -> np.ndarray:
         return np.isin(records["robot"], self.ids)
