@@ -58,17 +58,14 @@ class McapLog:
     Messages are stamped with their log time (publish time the same), sequence numbers per channel from 1.
     """
 
-    def __init__(
-        self, path: str | os.PathLike, *, compression: str | None = "zstd", chunk_size: int = 1 << 20, profile: str = ""
-    ):
+    def __init__(self, path: str | os.PathLike, *, compression: str | None = "zstd"):
         if compression not in _COMPRESSION:
             raise ValueError(f"compression must be one of {sorted(k for k in _COMPRESSION if k)} or None")
         self.path = Path(path)
         self._context = foxglove.Context()
         options = MCAPWriteOptions(
             compression=_COMPRESSION[compression],
-            chunk_size=chunk_size,
-            profile=profile,
+            chunk_size=1 << 20,
             compression_threads=0,  # compress on the caller's thread: the recorder has a core to share
         )
         self._writer = foxglove.open_mcap(
@@ -83,9 +80,7 @@ class McapLog:
         self.message_count = 0
 
     # -- channels ----------------------------------------------------------------------------
-    def add_channel(
-        self, topic: str, schema_name: str, json_schema: dict, *, metadata: dict[str, str] | None = None
-    ) -> int:
+    def add_channel(self, topic: str, schema_name: str, json_schema: dict) -> int:
         """Register (or look up) a JSON channel; returns its id.
 
         Adding the same topic again with the same schema returns the existing id; with a
@@ -95,28 +90,21 @@ class McapLog:
             raise TypeError("json_schema must be a dict")
         schema_text = json.dumps(json_safe(json_schema), sort_keys=True, separators=(",", ":"))
         schema = foxglove.Schema(name=schema_name, encoding=SCHEMA_ENCODING, data=schema_text.encode("utf-8"))
-        return self._add(topic, (schema_name, schema_text), MESSAGE_ENCODING, schema, metadata)
+        return self._add(topic, (schema_name, schema_text), MESSAGE_ENCODING, schema)
 
-    def add_foxglove_channel(self, topic: str, message_type: Any, *, metadata: dict[str, str] | None = None) -> int:
+    def add_foxglove_channel(self, topic: str, message_type: Any) -> int:
         """Register (or look up) a channel of one of Foxglove's schemas (a :mod:`foxglove.messages`
         type, e.g. ``SceneUpdate``), protobuf-encoded with the schema the SDK carries."""
         schema = message_type.get_schema()
-        key = (schema.name, schema.encoding)
-        cid = self._add(topic, key, schema.encoding, schema, metadata)
-        self._proto.add(cid)
-        return cid
+        return self._add(topic, (schema.name, schema.encoding), schema.encoding, schema, proto=True)
 
-    def add_protobuf_channel(
-        self, topic: str, schema_name: str, descriptor_set: bytes, *, metadata: dict[str, str] | None = None
-    ) -> int:
+    def add_protobuf_channel(self, topic: str, schema_name: str, descriptor_set: bytes) -> int:
         """Register (or look up) a protobuf channel of a schema of our own (``schema_name``, the
         message's full name; ``descriptor_set``, its serialized ``FileDescriptorSet``: sim.outputs.logschema)."""
         schema = foxglove.Schema(name=schema_name, encoding=PROTOBUF, data=descriptor_set)
-        cid = self._add(topic, (schema_name, PROTOBUF), PROTOBUF, schema, metadata)
-        self._proto.add(cid)
-        return cid
+        return self._add(topic, (schema_name, PROTOBUF), PROTOBUF, schema, proto=True)
 
-    def _add(self, topic: str, key: Any, encoding: str, schema: Any, metadata: dict[str, str] | None) -> int:
+    def _add(self, topic: str, key: Any, encoding: str, schema: Any, proto: bool = False) -> int:
         with self._lock:
             self._check_open()
             if topic in self._channels:
@@ -125,15 +113,13 @@ class McapLog:
                     raise ValueError(f"topic {topic!r} already registered with a different schema")
                 return cid
             channel = foxglove.Channel(
-                topic,
-                message_encoding=encoding,
-                schema=schema,
-                metadata={str(k): str(v) for k, v in (metadata or {}).items()},
-                context=self._context,
+                topic, message_encoding=encoding, schema=schema, metadata={}, context=self._context
             )
             cid = channel.id()
             self._channels[topic] = (cid, key)
             self._by_id[cid] = channel
+            if proto:
+                self._proto.add(cid)
             return cid
 
     # -- messages ----------------------------------------------------------------------------

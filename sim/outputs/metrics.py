@@ -187,10 +187,8 @@ def assignment_over_optimum(pose: np.ndarray, goal: np.ndarray, assignment: np.n
     for k in np.unique(step):
         first = int(np.flatnonzero(step == k)[0])
         a, xy, g = assignment[first], pose[first, :, :2], goal[first]
-        if len(a) > OPTIMUM_UP_TO:
-            out.append(None)
-            continue
-        if (a < 0).any() or (a >= len(g)).any() or len(np.unique(a)) != len(a) or not np.isfinite(g).all():
+        one_goal_each = (a >= 0).all() and (a < len(g)).all() and len(np.unique(a)) == len(a)
+        if len(a) > OPTIMUM_UP_TO or not one_goal_each or not np.isfinite(g).all():
             out.append(None)
             continue
         goals = np.empty_like(g)
@@ -228,10 +226,8 @@ def time_to_converge(t: np.ndarray, pose: np.ndarray, goal: np.ndarray, toleranc
     ok = np.zeros(T, bool)  # (T,)
     any_goal = False
     for ticks in _chunks(T, N):
-        g = np.asarray(goal[ticks], dtype=float)
-        has_goal = np.isfinite(g).all(axis=2)
+        err, has_goal = _goal_errors(pose, goal, None, ticks)
         any_goal = any_goal or bool(has_goal.any())
-        err = np.sqrt(((_xy(pose, ticks) - g) ** 2).sum(-1))
         ok[ticks] = np.where(has_goal, err <= tolerance, True).all(axis=1)  # NaN pose -> err NaN -> False
     if not any_goal or not ok[-1]:
         return None
