@@ -371,16 +371,12 @@ class FaultyPeer:
         key, data = picked
         if sub.startswith("future-"):
             out, what = _sealed(kind, future_tick(data, rng)), sub
-        elif sub in ("malformed-pose", "malformed-all"):
+        elif sub == "misc" and rng.random() >= 0.5:  # else malformed, as below
+            field, out = future_stamp(data, rng, kind)
+            what = f"future:{field}"
+        elif sub in ("malformed-pose", "malformed-all", "misc"):
             name = rng.choice(self.plan.damages)
             out, what = MALFORM[name](data, rng, kind), f"malformed:{name}"
-        elif sub == "misc":
-            if rng.random() < 0.5:
-                name = rng.choice(self.plan.damages)
-                out, what = MALFORM[name](data, rng, kind), f"malformed:{name}"
-            else:
-                field, out = future_stamp(data, rng, kind)
-                what = f"future:{field}"
         elif sub == "restart":
             out, what = _sealed(kind, self._restarted(key, data, now)), "restart"
         else:

@@ -187,28 +187,24 @@ def _records(number: int, one: Callable[..., Any], columns: np.ndarray) -> np.nd
     return out
 
 
-def _one_entity(t_ns: int, entity: str, frame_id: str, primitives: bytes) -> bytes:
+def _one_entity(t_ns: int, entity: str, primitives: bytes) -> bytes:
     """A SceneUpdate of one entity holding ``primitives`` (encoded fields), or deleting it if none."""
     stamp = _timestamp(t_ns)
     if not primitives:
         deleted = SceneEntityDeletion(timestamp=stamp, type=SceneEntityDeletionType.MatchingId, id=entity)
         return SceneUpdate(deletions=[deleted], entities=[]).encode()
-    head = SceneEntity(timestamp=stamp, frame_id=frame_id, id=entity, lifetime=Duration(sec=0, nsec=0))
+    head = SceneEntity(timestamp=stamp, frame_id=DISPLAY_FRAME, id=entity, lifetime=Duration(sec=0, nsec=0))
     return length_delimited(ENTITIES, head.encode() + primitives)
 
 
-@functools.cache  # one closure, one template (_template), per size
-def _disc(height: float) -> Callable[..., CylinderPrimitive]:
-    def one(x: float, y: float, d: float, red: float, green: float, blue: float) -> CylinderPrimitive:
-        return CylinderPrimitive(
-            pose=_pose(x, y, height / 2, *FLAT[2:]),
-            size=Vector3(x=d, y=d, z=height),
-            bottom_scale=1.0,
-            top_scale=1.0,
-            color=Color(r=red, g=green, b=blue, a=1.0),
-        )
-
-    return one
+def _swarm_disc(x: float, y: float, d: float, red: float, green: float, blue: float) -> CylinderPrimitive:
+    return CylinderPrimitive(
+        pose=_pose(x, y, DISC_HEIGHT / 2, *FLAT[2:]),
+        size=Vector3(x=d, y=d, z=DISC_HEIGHT),
+        bottom_scale=1.0,
+        top_scale=1.0,
+        color=Color(r=red, g=green, b=blue, a=1.0),
+    )
 
 
 def _columns(*parts: np.ndarray) -> np.ndarray:
@@ -217,15 +213,7 @@ def _columns(*parts: np.ndarray) -> np.ndarray:
     return np.round(columns / QUANTUM) * QUANTUM
 
 
-def swarm_scene(
-    t_ns: int,
-    pose: np.ndarray,
-    radius: np.ndarray,
-    color: np.ndarray | None = None,
-    *,
-    frame_id: str = DISPLAY_FRAME,
-    height: float = DISC_HEIGHT,
-) -> bytes:
+def swarm_scene(t_ns: int, pose: np.ndarray, radius: np.ndarray, color: np.ndarray | None = None) -> bytes:
     """An encoded ``foxglove.SceneUpdate`` of N robots as one entity, :data:`SWARM_ENTITY`: a disc per
     robot with a finite position and radius, in its LED colour (None: grey), in robot order; no
     such robot deletes the entity.
@@ -238,14 +226,10 @@ def swarm_scene(
     rgb = np.broadcast_to(NO_LED, (n, 3)) if color is None else np.asarray(color).reshape(n, 3)
     drawn = np.isfinite(pose[:, :2]).all(axis=1) & np.isfinite(radius) & (radius > 0)
     columns = _columns(pose[drawn, :2], 2 * radius[drawn], np.asarray(rgb, dtype=float)[drawn] / 255.0)
-    return _one_entity(
-        t_ns, SWARM_ENTITY, frame_id, _records(CYLINDERS, _disc(height), columns).tobytes() if drawn.any() else b""
-    )
+    return _one_entity(t_ns, SWARM_ENTITY, _records(CYLINDERS, _swarm_disc, columns).tobytes() if drawn.any() else b"")
 
 
-def goal_markers(
-    t_ns: int, goals: np.ndarray, color: np.ndarray | None, diameter: float, *, frame_id: str = DISPLAY_FRAME
-) -> bytes:
+def goal_markers(t_ns: int, goals: np.ndarray, color: np.ndarray | None, diameter: float) -> bytes:
     """An encoded ``foxglove.SceneUpdate`` of a goal set as one entity, :data:`GOALS_ENTITY`: a
     translucent sphere of ``diameter`` (m) per finite goal of ``goals`` (G,2) in its colour
     ``color`` (G,3) RGB uint8 (None: grey); no finite goal deletes the entity."""
@@ -255,6 +239,4 @@ def goal_markers(
     d = float(np.round(diameter / QUANTUM) * QUANTUM)
     sizes = np.broadcast_to([d / 2, d], (int(keep.sum()), 2))  # a sphere's centre height and diameter
     columns = np.column_stack([_columns(goals[keep]), sizes, _columns(np.asarray(rgb, dtype=float)[keep] / 255.0)])
-    return _one_entity(
-        t_ns, GOALS_ENTITY, frame_id, _records(SPHERES, _goal_sphere, columns).tobytes() if keep.any() else b""
-    )
+    return _one_entity(t_ns, GOALS_ENTITY, _records(SPHERES, _goal_sphere, columns).tobytes() if keep.any() else b"")

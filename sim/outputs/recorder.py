@@ -219,11 +219,9 @@ class Convergence:
             return
         if display_converged(pose, said.goal, said.assign_epoch, self.agent_alive, newest, self.tolerance):
             if self.converged_since is None:
-                self.converged_since = t
-                self.time_to_converge = t
+                self.converged_since = self.time_to_converge = t
         else:
-            self.converged_since = None
-            self.time_to_converge = None
+            self.converged_since = self.time_to_converge = None
 
 
 class DisplayLog:

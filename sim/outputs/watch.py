@@ -74,10 +74,7 @@ class Watcher:
         self.worlds: LivelinessWatch = bus.watch_alive("world")
         self.world_seen = False
         self.world_alive = False
-        self.n = 0
-        self.goal = np.zeros((0, 2))
-        self.radius = np.zeros(0)
-        self.state_tick = np.zeros(0, np.int64)
+        self.size(0)
 
     def size(self, robots: int) -> None:
         self.n = robots

@@ -147,9 +147,7 @@ def _wait_stopped(pending: list[Any]) -> None:
 
     try:
         wait(pending, timeout=STOP_GRACE_S + 15)
-    except (TimeoutError, KeyboardInterrupt):
-        pass
-    except Exception:  # a task that failed while stopping: nothing more to wait for
+    except (KeyboardInterrupt, Exception):  # also a task that failed while stopping: nothing more to wait for
         pass
 
 
