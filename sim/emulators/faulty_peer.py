@@ -330,10 +330,7 @@ class FaultyPeer:
 
     @staticmethod
     def _pick(buffer: deque, rng: random.Random) -> tuple | None:
-        try:
-            return buffer[rng.randrange(len(buffer))] if buffer else None
-        except IndexError:  # an empty buffer
-            return None
+        return buffer[rng.randrange(len(buffer))] if buffer else None
 
     # --- one damaged copy -------------------------------------------------------------------
     def _available(self, sub: str) -> bool:

@@ -324,7 +324,7 @@ class SwarmView:
         index = [rr.TimeColumn("tick", sequence=ticks), rr.TimeColumn("time", duration=times)]
         if self.dots is None:
             self.dots = self._as_dots(xy[0])
-        rec.send_columns("swarm/robots", index, [self._column("Position2D", "Points2D", "positions", xy, parts)])
+        rec.send_columns("swarm/robots", index, [self._column("Position2D", "positions", xy, parts)])
         self._changes(batch, ticks, times)
         r = np.where(np.isfinite(self.radius), self.radius, 0.0).astype(np.float32)
         # the heading as a dark dot on each disc's rim, toward the front: one position a robot and tick,
@@ -336,8 +336,7 @@ class SwarmView:
             np.sin(theta, out=nose[..., 1])
             nose *= (r * NOSE)[None, :, None]
             nose += xy
-            nose_column = self._column("Position2D", "Points2D", "positions", nose, parts)
-            rec.send_columns("swarm/heading", index, [nose_column])
+            rec.send_columns("swarm/heading", index, [self._column("Position2D", "positions", nose, parts)])
 
         self._trails.keep(ticks, xy)
         # a fast run's batches are many ticks: what follows, at most every EXTRAS_PERIOD of wall time
@@ -387,13 +386,13 @@ class SwarmView:
             self._goals_shown = (last_goal, last_rgb)
         self._trails.log(self._rr, self.rec, self._rgb_shown, self.dots)
 
-    def _column(self, component: str, archetype: str, field: str, values: Any, parts: Any) -> Any:
-        """One component's values of several ticks, ``parts`` of them a tick, for send_columns: built from
-        the component's batch (the archetype's ``columns`` first splits every row apart, a tenth of a
-        millisecond per thousand robots and tick)."""
+    def _column(self, component: str, field: str, values: Any, parts: Any) -> Any:
+        """One Points2D component's values of several ticks, ``parts`` of them a tick, for send_columns:
+        built from the component's batch (the archetype's ``columns`` first splits every row apart, a
+        tenth of a millisecond per thousand robots and tick)."""
         rr = self._rr
         batch = getattr(rr.components, f"{component}Batch")(values.reshape(-1, *values.shape[2:]))
-        return batch.described(getattr(getattr(rr, archetype), f"descriptor_{field}")()).partition(parts)
+        return batch.described(getattr(rr.Points2D, f"descriptor_{field}")()).partition(parts)
 
     def _changes(self, batch: list[tuple[Any, ...]], ticks: np.ndarray, times: np.ndarray) -> None:
         """The robots' colours at the ticks of the batch they changed at, and their sizes when a tick
@@ -406,7 +405,7 @@ class SwarmView:
             changed = np.union1d(changed, [0])
         if changed.size:
             at = [rr.TimeColumn("tick", sequence=ticks[changed]), rr.TimeColumn("time", duration=times[changed])]
-            colors = self._column("Color", "Points2D", "colors", rgb[changed], np.full(changed.size, rgb.shape[1]))
+            colors = self._column("Color", "colors", rgb[changed], np.full(changed.size, rgb.shape[1]))
             rec.send_columns("swarm/robots", at, [colors])
             self._rgb_shown = batch[changed[-1]][3]
         for i, item in enumerate(batch):
@@ -422,9 +421,7 @@ class SwarmView:
                 sizes = np.where(np.isfinite(radius), radius, 0.0)[None]
                 if self.dots:
                     sizes = np.full_like(sizes, -DOT)
-                rec.send_columns(
-                    "swarm/robots", at, [self._column("Radius", "Points2D", "radii", sizes, [len(radius)])]
-                )
+                rec.send_columns("swarm/robots", at, [self._column("Radius", "radii", sizes, [len(radius)])])
                 self._radius_shown = radius.copy()
 
     def flush(self) -> None:

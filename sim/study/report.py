@@ -250,8 +250,7 @@ def versions() -> dict[str, str]:
             out[name] = importlib.metadata.version(dist)
         except importlib.metadata.PackageNotFoundError:
             out[name] = "not installed"
-    commit = _git_commit()
-    if commit:
+    if commit := _git_commit():
         out["pixelswarm source"] = commit
     return out
 
@@ -384,11 +383,9 @@ def write_report(spec: Spec, study: StudyDir, command: str) -> Path:
     measured = [m for m in KEY_METRICS if any(_is_number(r.get(m)) for r in rows)]
     constant = constant_metrics(rows, measured)
     metrics = [m for m in measured if m not in constant]
-    plots = {}
-    if metrics:
-        for axis, values in spec.axes.items():
-            if len(values) > 1:
-                plots[axis] = plot_axis(spec, axis, rows, metrics)
+    plots = {
+        axis: plot_axis(spec, axis, rows, metrics) for axis, values in spec.axes.items() if metrics and len(values) > 1
+    }
     write_text(study.root / "runs.csv", to_csv(columns, rows))
     write_text(study.root / "summary.csv", to_csv(summary_head, summary))
     for axis, png in plots.items():

@@ -109,10 +109,7 @@ class Spec:
 
     def runs(self) -> list[Run]:
         """Every combination of the axes for every seed, then the baseline's runs."""
-        runs = []
-        for condition, settings in self.conditions():
-            runs += [Run(condition, settings, seed) for seed in self.seeds]
-        return runs
+        return [Run(condition, settings, seed) for condition, settings in self.conditions() for seed in self.seeds]
 
     def conditions(self) -> list[tuple[str, dict[str, Any]]]:
         out = [(_name(values), {**self.base, **values}) for values in _grid(self.axes)]
