@@ -513,8 +513,7 @@ class Recorder:
 
     # --- results ------------------------------------------------------------------------------
     def arrays(self) -> dict[str, np.ndarray]:
-        tr = self.traj
-        n = self.n
+        tr, n = self.traj, self.n
         if not tr.t:
             return {
                 "t": np.zeros(0),

@@ -40,7 +40,8 @@ class Recording:
     def checked(self) -> Recording:
         """Arrays as floats, with goals and colours given once broadcast over time; arrays on disk
         (sim.outputs.stream) stay there, read a piece at a time by the writers."""
-        t, pose = np.asarray(self.t, dtype=float), _floats(self.pose)
+        t = np.asarray(self.t, dtype=float)
+        pose = self.pose if _on_disk(self.pose) else np.asarray(self.pose, dtype=float)
         if pose.ndim != 3 or pose.shape[0] != len(t):
             raise ValueError(f"pose must be (T,N,3) with T = len(t); got {pose.shape}, T={len(t)}")
         T, N = pose.shape[:2]
@@ -53,10 +54,6 @@ class Recording:
 def _on_disk(a: Any) -> bool:
     """An array read a piece at a time (sim.outputs.stream.OnDisk), not to be loaded whole."""
     return hasattr(a, "shape") and not isinstance(a, np.ndarray)
-
-
-def _floats(a: Any) -> Any:
-    return a if _on_disk(a) else np.asarray(a, dtype=float)
 
 
 def _over_time(a: Any, shape: tuple[int, ...], dtype: Any) -> Any:

@@ -157,7 +157,7 @@ def run_task(run_id: str, args: list[str], out: str | None, stop_event: str, gra
                     _stop(process, grace)
         log.seek(0)
         output = log.read().decode(errors="replace")
-        result: dict[str, Any] = {
+        return {
             "id": run_id,
             "returncode": process.returncode,
             "process_wall_s": time.monotonic() - started,
@@ -165,11 +165,8 @@ def run_task(run_id: str, args: list[str], out: str | None, stop_event: str, gra
             "log": output,
             "interrupted": interrupted,
             "worker": _worker_address(),
-            "archive": None,
+            "archive": None if scratch is None else _archive(scratch),
         }
-        if scratch is not None:
-            result["archive"] = _archive(scratch)
-        return result
     finally:
         log.close()
         if scratch is not None:
