@@ -179,7 +179,6 @@ class _Trails:
         self._rgb_of: np.ndarray | None = None
 
     def keep(self, ticks: np.ndarray, xy: np.ndarray) -> None:
-        """Each robot's positions of every TRAIL_EVERY-th tick, the last TRAIL of them."""
         steps = np.flatnonzero(ticks % TRAIL_EVERY == 0)
         if not self._points and not (steps.size and steps[0] == 0):
             self._points.append(xy[0].copy())
