@@ -472,8 +472,7 @@ class Recorder:
         if self.out.ticks is not None:
             self.out.ticks.append(m.stamp, wall, m.pose, m.velocity, m.color, said.goal, said.goal_index)
         world.least_clearance = min(world.least_clearance, m.min_clearance)
-        newest = self.sets.by_epoch[max(self.sets.by_epoch)] if self.sets.by_epoch else None
-        progress.check(m.stamp, m.pose, said, newest)
+        progress.check(m.stamp, m.pose, said, self.sets.newest)
         self.out.scene(wall, m, said.radius, said.goal)
         if self.view is not None:  # missed: the ticks so far the world applied no command of the robot's
             missed = np.maximum(0, m.tick - m.applied.astype(np.int64)) if len(m.applied) == self.n else None
