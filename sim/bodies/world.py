@@ -82,21 +82,13 @@ _KINDS = ("robot", "obstacle", "wall")
 _KIND_ORDER = {k: n for n, k in enumerate(_KINDS)}
 
 
-def _positive(name: str, value: Any) -> float:
+def _number(name: str, value: Any, *, zero: bool = False) -> float:
+    """``value`` as a finite float above 0 (at least 0 with ``zero``), or a ValueError naming ``name``."""
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise ValueError(f"{name} must be a number, not {value!r}")
     v = float(value)
-    if not (math.isfinite(v) and v > 0.0):
-        raise ValueError(f"{name} must be a finite positive number, not {value!r}")
-    return v
-
-
-def _non_negative(name: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise ValueError(f"{name} must be a number, not {value!r}")
-    v = float(value)
-    if not (math.isfinite(v) and v >= 0.0):
-        raise ValueError(f"{name} must be a finite non-negative number, not {value!r}")
+    if not (math.isfinite(v) and (v >= 0.0 if zero else v > 0.0)):
+        raise ValueError(f"{name} must be a finite {'non-negative' if zero else 'positive'} number, not {value!r}")
     return v
 
 
@@ -114,7 +106,7 @@ class Body:
         if self.kinematics not in KINEMATICS:
             raise ValueError(f"kinematics must be {HOLONOMIC!r} or {DIFFDRIVE!r}, not {self.kinematics!r}")
         for name in ("radius", "v_max", "wheel_base", "omega_max"):
-            _positive(f"body {name}", getattr(self, name))
+            _number(f"body {name}", getattr(self, name))
 
     @classmethod
     def from_params(cls, params: Any) -> Body:
@@ -193,10 +185,10 @@ class World:
         substep: float = 0.01,
     ) -> None:
         bodies, p = _checked_bodies(bodies, poses)
-        noise_rel = _non_negative("actuation noise", noise.relative)
-        noise_abs = _non_negative("absolute actuation noise", noise.absolute)
-        self._substep = _positive("substep", substep)
-        noise_period = _positive("noise period", noise.period)
+        noise_rel = _number("actuation noise", noise.relative, zero=True)
+        noise_abs = _number("absolute actuation noise", noise.absolute, zero=True)
+        self._substep = _number("substep", substep)
+        noise_period = _number("noise period", noise.period)
         seed = noise.seed
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise ValueError(f"seed must be a non-negative integer, not {seed!r}")
@@ -372,7 +364,7 @@ class World:
         ``check=False`` leaves the contacts of this step to be detected by `check()` (or by anything
         that reads contacts or clearance, or the next step, which returns them with its own): the
         central engine moves robots on and looks for contacts while the next auction runs."""
-        dt = _positive("dt", dt)
+        dt = _number("dt", dt)
         before = self.check()
         k = max(1, math.ceil(dt / self._substep - 1e-9))
         h = dt / k
