@@ -79,7 +79,6 @@ class CentralOrca:
         self.global_time = 0.0
         self.steps = 0
         self.fallback_count = 0  # robot-steps where the linear program was infeasible
-        self.last_fallback = np.zeros(0, dtype=bool)
         # per-step work kept between steps (a step is otherwise mostly Python around the core):
         # agent indices, the core's views of the rows (they point into the arrays, which a step
         # updates in place where they are the engine's own), and buffers this engine owns
@@ -164,13 +163,9 @@ class CentralOrca:
         self._batches = [*self._batches[-1:], (arrays, rows)]
         return rows
 
-    def compute_new_velocities(self) -> tuple[np.ndarray, np.ndarray]:
-        """The new velocities (N,2) and fallback flags (N,): infeasible at the full horizon."""
-        new_velocity, fallback = self._step_core()
-        return new_velocity.copy(), fallback
-
     def _step_core(self) -> tuple[np.ndarray, np.ndarray]:
-        """compute_new_velocities into the engine's spare velocity buffer (not the current one)."""
+        """The new velocities (N,2), in the engine's spare velocity buffer (not the current one), and
+        fallback flags (N,): infeasible at the full horizon."""
         horizons = (self.time_horizon, self.time_horizon_obst, self.time_step)
         o = self.options
         if self._settings is None or self._settings[0] != (horizons, o):
@@ -191,7 +186,6 @@ class CentralOrca:
             self.position = self._owned["position"] = self.position.copy()
         # position + v dt, as one expression would, in place
         self.position += np.multiply(new_velocity, self.time_step, out=self._buffer("motion", new_velocity))
-        self.last_fallback = fallback
         self.fallback_count += int(np.count_nonzero(fallback))
         self.global_time += self.time_step
         self.steps += 1
