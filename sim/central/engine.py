@@ -23,7 +23,7 @@ import ctypes
 import os
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, NamedTuple, TextIO, TypedDict, Unpack
 
@@ -506,10 +506,7 @@ def run_central(
         link = InProcessLink(scene.robots, reach=reach)
         outcome = simulate(scene, link=link, progress=progress, view=view, record_to=run_dir / SCRATCH, **timing)
         params, _ = world_of(scene)
-        contacts = [
-            {"kind": c.kind, "i": c.i, "j": c.j, "t_start": c.t_start, "t_end": c.t_end, "max_depth": c.max_depth}
-            for c in outcome.contacts
-        ]
+        contacts = [asdict(c) for c in outcome.contacts]
         extra = dict(
             engine="central",
             end_reason=outcome.end_reason,

@@ -24,7 +24,7 @@ import os
 import signal
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
@@ -437,9 +437,6 @@ class BodyNode:
             "commands_applied": backend.applied().astype(int).tolist(),
             "min_clearance": backend.min_clearance if math.isfinite(backend.min_clearance) else None,
             "dropped": dict(drops),
-            "contacts": [
-                {"kind": c.kind, "i": c.i, "j": c.j, "t_start": c.t_start, "t_end": c.t_end, "max_depth": c.max_depth}
-                for c in backend.contacts
-            ],
+            "contacts": [asdict(c) for c in backend.contacts],  # sim.bodies.world.Contact's fields
             **backend.report(self),
         }
