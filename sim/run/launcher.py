@@ -42,9 +42,8 @@ from transport.session import ZenohSettings, client_of, free_port, loopback_rout
 
 AGENTS_TIMEOUT = 60.0  # s a run with remote agents waits for every robot's agent to come alive
 RESTARTS = 5  # times the launcher restarts a central service that died (beyond: the run goes on without it)
-RESTARTED = (
-    "coordinator",
-)  # the services it restarts; the simulated world is also the tracker: its death ends the run
+# the services it restarts; the simulated world is also the tracker: its death ends the run
+RESTARTED = ("coordinator",)
 
 
 def progress_line(scene: str, t: float, at_goal: int, with_goal: int, min_clearance: float, contacts: int) -> str:
@@ -77,9 +76,8 @@ class RunOptions:
     agents_timeout: float = AGENTS_TIMEOUT
     reach: float = math.inf  # communication range (m): robots hear states and the auction only this close
     foxglove: int | None = None  # serve the log live over Foxglove's WebSocket protocol on 127.0.0.1:PORT (0: free)
-    view: Any = (
-        None  # sim.outputs.view.SwarmView: the recorder logs the world's truth to it at every tick (agents never do)
-    )
+    # sim.outputs.view.SwarmView: the recorder logs the world's truth to it at every tick (agents never do)
+    view: Any = None
 
 
 class HardwareStartError(Exception):
@@ -376,8 +374,7 @@ class Launcher:
         wall0 = time.time()
         save_resolved(self.scene, self.run_dir.path, robot=self.params.to_dict())  # the children read it
         if self.opt.connect:
-            settings = ZenohSettings(mode="client", connect=list(self.opt.connect))
-            self.client = settings
+            settings = self.client = ZenohSettings(mode="client", connect=list(self.opt.connect))
         else:
             settings = self.opt.router or self._embedded_router()
             self.client = client_of(settings)

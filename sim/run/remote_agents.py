@@ -136,8 +136,6 @@ def _check_input(args: argparse.Namespace) -> tuple[list[int] | None, ZenohSetti
         Keys(args.display)
     except ValueError as err:
         raise UsageError(str(err)) from None
-    if not args.timeout > 0:
-        raise UsageError(f"--timeout must be a positive number of seconds, not {args.timeout}")
     settings = ZenohSettings(mode="client", connect=[args.connect])
     try:
         settings.to_config()  # zenoh's own check of the endpoint's form
