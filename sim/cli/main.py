@@ -335,15 +335,11 @@ def _scene_to_run(args: argparse.Namespace) -> Scene:
         if args.hardware is not None and _names_the_simulator(args.hardware):
             args.hardware = None  # the simulated world, as without a hardware file
         if args.hardware is not None:
-            scene = _hardware_scene(args)
-        else:
-            scene = parse_scene(
-                args.scene, robots=args.robots, seed=args.seed, clock=args.clock, duration=args.duration
-            )
-            scene = _make_goal_sets(scene, None if args.quiet else sys.stderr)
+            return _hardware_scene(args)
+        scene = parse_scene(args.scene, robots=args.robots, seed=args.seed, clock=args.clock, duration=args.duration)
+        return _make_goal_sets(scene, None if args.quiet else sys.stderr)
     except (SceneError, ValueError) as err:
         raise UsageError(str(err)) from None
-    return scene
 
 
 def _faults_and_reach(args: argparse.Namespace, scene: Scene) -> tuple[Any, float]:
