@@ -65,8 +65,7 @@ def optimal_assignment(
     while they cross the arena (bench/bench_large.py compares it with the auction)."""
     cost = ((position[:, None, :] - goals[None, :, :]) ** 2).sum(-1)
     rows, cols = linear_sum_assignment(cost)
-    best = np.full(len(position), -1)
-    best[rows] = cols
+    best = _goal_index(len(position), rows, cols)
     if previous is not None and (previous >= 0).all():
         keep = cost[np.arange(len(position)), previous].sum()
         if keep - cost[rows, cols].sum() < hysteresis:
@@ -105,16 +104,9 @@ def auction_assignment(auction: Participant | LocalAuction, position: np.ndarray
     the control core (Participant.settle_beside, on these positions) is waited for."""
     if isinstance(auction, LocalAuction):
         settle_in_process(auction, position)
-        return _by_robot(auction, [auction.agreed[r] for r in auction.own], len(position))
+        return _goal_index(len(position), auction.own_ids, [auction.agreed[r] for r in auction.own])
     goals = auction.settled() if auction.settling else auction.settle_alone(position)  # begun beside, or now
-    return _by_robot(auction, goals, len(position))
-
-
-def _by_robot(auction: Participant | LocalAuction, goals: Any, robots: int) -> np.ndarray:
-    """Goal index per robot (-1: none) from the auction's goals of its own robots."""
-    assignment = np.full(robots, -1)
-    assignment[auction.own_ids] = goals
-    return assignment
+    return _goal_index(len(position), auction.own_ids, goals)
 
 
 def warm_start(
@@ -126,7 +118,8 @@ def warm_start(
     ``previous``: the last image's goals, which ``assignment`` indexes. Returns the carried assignment."""
     matched, prices = goal_matching(previous, goals, auction.schedule[-1])
     current = {r: int(g) for r, g in enumerate(assignment.tolist()) if g >= 0}
-    return _by_carried(auction.carry(before, matched, current=current, prices=prices), len(assignment))
+    carried = auction.carry(before, matched, current=current, prices=prices)
+    return _goal_index(len(assignment), list(carried), list(carried.values()))
 
 
 def start_warm(auction: Participant, poses: np.ndarray, goals: np.ndarray, robots: int) -> np.ndarray:
@@ -134,12 +127,14 @@ def start_warm(auction: Participant, poses: np.ndarray, goals: np.ndarray, robot
     set begins it when rounds per tick are bounded (WarmStart.matched_from 0): each robot drives at
     once to the goal matched to its start. Returns the carried assignment of ``robots`` robots."""
     matched, prices = goal_matching(np.asarray(poses, float)[auction.robots, :2], goals, auction.schedule[-1])
-    return _by_carried(auction.start_from(auction.robots[matched], prices), robots)
+    carried = auction.start_from(auction.robots[matched], prices)
+    return _goal_index(robots, list(carried), list(carried.values()))
 
 
-def _by_carried(carried: dict[int, int], robots: int) -> np.ndarray:
+def _goal_index(robots: int, ids: Any, goals: Any) -> np.ndarray:
+    """Goal index per robot (-1: none), ``goals`` being those of the robots ``ids``."""
     out = np.full(robots, -1)
-    out[list(carried)] = list(carried.values())
+    out[ids] = goals
     return out
 
 
@@ -259,8 +254,8 @@ class CentralAuction:
     def _adopt(self, auction: Participant) -> None:
         """The block just agreed: every robot takes its goal of the agreement at this tick."""
         self.block = None
-        self.assignment = np.full(len(self.assignment), -1)
-        self.assignment[auction.own_ids] = [auction.agreed.get(r, -1) for r in auction.own]
+        agreed = [auction.agreed.get(r, -1) for r in auction.own]
+        self.assignment = _goal_index(len(self.assignment), auction.own_ids, agreed)
         self.assigned = (self.image.k, self.image.goal_set, self.image.goal_colors)
 
     def settled_beside(self) -> bool:
