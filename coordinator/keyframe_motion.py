@@ -30,6 +30,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .goals.resize import to_arena
+from .goals.sampling import in_region
 from .goals.segment import Segmentation
 
 BINS = 360  # polar-angle bins of the border signature
@@ -129,17 +130,6 @@ def estimate_motion(prev: RegionShape, cur: RegionShape) -> tuple[float, float, 
     return theta, scale, float(c1)
 
 
-def _inside(pts: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """Whether each point (x, y), pixel units, lies in a pixel of the region."""
-    r0, c0 = int(rows.min()), int(cols.min())
-    mask = np.zeros((int(rows.max()) - r0 + 1, int(cols.max()) - c0 + 1), bool)
-    mask[rows - r0, cols - c0] = True
-    px, py = np.floor(pts[:, 0]).astype(int) - c0, np.floor(pts[:, 1]).astype(int) - r0
-    ok = (px >= 0) & (px < mask.shape[1]) & (py >= 0) & (py < mask.shape[0])
-    ok[ok] = mask[py[ok], px[ok]]
-    return ok
-
-
 def fit_count(px: np.ndarray, n: int, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     """The N_i initial samples of region R_i (pixels rows, cols) from its moved goals (pixel units).
 
@@ -150,7 +140,7 @@ def fit_count(px: np.ndarray, n: int, rows: np.ndarray, cols: np.ndarray) -> np.
     rest stay evenly spread; missing samples go where R_i is farthest from every sample
     (farthest-point insertion on the pixel centres), i.e. where the region has grown or goals were dropped."""
     pts = np.asarray(px, float).reshape(-1, 2)
-    pts = pts[_inside(pts, rows, cols)] if len(pts) else pts
+    pts = pts[in_region(pts, rows, cols)] if len(pts) else pts
     while len(pts) > n:
         d, _ = cKDTree(pts).query(pts, k=2)
         pts = np.delete(pts, int(np.argmin(d[:, 1])), axis=0)

@@ -23,6 +23,7 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from .defaults import MAX_ITER, RELAX, TOLERANCE
+from .sampling import region_box
 
 K_M = 1e15
 K_D = 0.1
@@ -61,11 +62,8 @@ def binary_domain(rows: np.ndarray, cols: np.ndarray) -> Domain:
 
 def density_domain(rows: np.ndarray, cols: np.ndarray, *, k_d: float = K_D) -> Domain:
     """Eq. 2 density over the convex hull R^_i of R_i (see the module docstring)."""
-    r0, c0 = int(rows.min()), int(cols.min())
-    h, w = int(rows.max()) - r0 + 1, int(cols.max()) - c0 + 1
-    inside = np.zeros((h, w), bool)
-    inside[rows - r0, cols - c0] = True
-    hull = np.zeros((h, w), np.uint8)
+    inside, r0, c0 = region_box(rows, cols)
+    hull = np.zeros(inside.shape, np.uint8)
     pts = np.stack([cols - c0, rows - r0], axis=1).astype(np.int32)
     cv2.fillConvexPoly(hull, cv2.convexHull(pts), 1)
     ring = ndimage.distance_transform_cdt(~inside, metric="chessboard")

@@ -22,7 +22,7 @@ from .defaults import MAX_ITER, METHODS, RELAX, TOLERANCE
 from .image import BG_TOLERANCE, Foreground, foreground_mask, load_image, split_channels
 from .model import GoalError, GoalSet
 from .resize import auto_arena, check_feasible, normalised_spacing, to_arena
-from .sampling import KS_FACTOR, ks_distance, lattice_samples, poisson_samples
+from .sampling import KS_FACTOR, in_region, ks_distance, lattice_samples, poisson_samples
 from .segment import COLOR_TOLERANCE, Segmentation, segment
 
 MAX_SIDE = 1024  # longer image side (pixels) used for goal generation; larger images are scaled down
@@ -150,14 +150,7 @@ def prepare_image(
 def _snap_inside(gen: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, int]:
     """Move generators that ended outside R_i (in a concavity or hole) to the nearest point of the
     nearest pixel of R_i that no other generator lies within a pixel of."""
-    r0, c0 = int(rows.min()), int(cols.min())
-    inside = np.zeros((int(rows.max()) - r0 + 1, int(cols.max()) - c0 + 1), bool)
-    inside[rows - r0, cols - c0] = True
-    px = np.floor(gen[:, 0]).astype(int) - c0
-    py = np.floor(gen[:, 1]).astype(int) - r0
-    ok = (px >= 0) & (px < inside.shape[1]) & (py >= 0) & (py < inside.shape[0])
-    ok[ok] = inside[py[ok], px[ok]]
-    out_idx = np.nonzero(~ok)[0]
+    out_idx = np.nonzero(~in_region(gen, rows, cols))[0]
     if len(out_idx) == 0:
         return gen, 0
     out = gen.copy()

@@ -18,6 +18,23 @@ _RELAX = 0.9  # K_s shrink factor when the region is too crowded (thin regions) 
 _LATTICE_STEPS = 24  # bisections of the lattice spacing: to 1e-7 of it (1e-4 pixels across a picture)
 
 
+def region_box(rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, int, int]:
+    """The pixels (rows, cols) of R_i as a mask of their bounding box, and the box's first row and column."""
+    r0, c0 = int(rows.min()), int(cols.min())
+    mask = np.zeros((int(rows.max()) - r0 + 1, int(cols.max()) - c0 + 1), bool)
+    mask[rows - r0, cols - c0] = True
+    return mask, r0, c0
+
+
+def in_region(pts: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """Whether each point (x, y), pixel units, lies in a pixel of R_i (pixels rows, cols)."""
+    mask, r0, c0 = region_box(rows, cols)
+    px, py = np.floor(pts[:, 0]).astype(int) - c0, np.floor(pts[:, 1]).astype(int) - r0
+    ok = (px >= 0) & (px < mask.shape[1]) & (py >= 0) & (py < mask.shape[0])
+    ok[ok] = mask[py[ok], px[ok]]
+    return ok
+
+
 def ks_distance(area: float, n: int, factor: float = KS_FACTOR) -> float:
     """K_s = factor * sqrt(A_i / (pi N_i)), the radius of a circle of area A_i / N_i times 1.2."""
     return factor * math.sqrt(area / (math.pi * n))
@@ -130,9 +147,7 @@ def lattice_samples(rows: np.ndarray, cols: np.ndarray, n: int, rng: np.random.G
     npx = len(rows)
     if n > npx:
         raise ValueError(f"cannot place {n} samples in {npx} pixels")
-    r0, c0 = int(rows.min()), int(cols.min())
-    inside = np.zeros((int(rows.max()) - r0 + 1, int(cols.max()) - c0 + 1), bool)
-    inside[rows - r0, cols - c0] = True
+    inside, r0, c0 = region_box(rows, cols)
     offset = rng.random(2)
     # rows along the region's long axis: a bar's CVT lines up with its sides
     _, axes = np.linalg.eigh(np.cov(np.stack([cols, rows]).astype(float)) if npx > 1 else np.eye(2))
