@@ -33,21 +33,12 @@ import numpy as np
 from .drawings import KEYFRAME_ANIMATIONS, keyframes
 from .goals import IMAGE_SUFFIXES, GoalError, GoalOptions
 from .keyframes import KeyframeGoals, keyframe_goals, keyframe_paths
-from .motion import is_number
-from .steps import METHODS, GoalSets, ImageStep, parse_region_counts, scale_region_counts
+from .motion import check_keys, is_number
+from .steps import METHODS, GoalSets, ImageStep, parse_region_counts, scale_region_counts, scene_relative
 
-ANIMATION_KEYS = (
-    "keyframes",
-    "frame_time",
-    "first_hold",
-    "last_hold",
-    "times",
-    "region_counts",
-    "method",
-    "keep_counts",
-    "init_from_previous",
-    "size",
-    "arena",
+ANIMATION_KEYS = tuple(
+    "keyframes frame_time first_hold last_hold times region_counts method keep_counts init_from_previous "
+    "size arena".split()
 )
 DEFAULT_FRAME_TIME = 5.0  # s between keyframes: K_f = 50 control periods at 10 Hz
 DEFAULT_FIRST_HOLD = 30.0  # s to form the first keyframe from the start layout (as an image step of Fig. 12)
@@ -77,11 +68,7 @@ def parse_animation(data: Any, source: str = "") -> Animation:
     bad input (one line)."""
     if not isinstance(data, dict):
         raise GoalError('animation must be a table with keyframes = "name", "folder/" or ["a.png", ...]')
-    unknown = set(data) - set(ANIMATION_KEYS)
-    if unknown:
-        raise GoalError(
-            f"animation: unknown key(s) {', '.join(sorted(unknown))} (allowed: {', '.join(ANIMATION_KEYS)})"
-        )
+    check_keys(data, ANIMATION_KEYS, "animation")
     name, images = _keyframes(data.get("keyframes"), source, data.get("size", 256))
     frame_time = _positive(data.get("frame_time", DEFAULT_FRAME_TIME), "frame_time")
     last_hold = _positive(data.get("last_hold", frame_time), "last_hold")
@@ -120,7 +107,7 @@ def _keyframes(value: Any, source: str, size: Any) -> tuple[str, list[Any]]:
             raise GoalError(f"animation: size must be a whole number of pixels in 32..2048, not {size!r}")
         return value, keyframes(value, size)
     if isinstance(value, str):
-        folder = _relative(value, source)
+        folder = scene_relative(value, source)
         if not folder.is_dir():
             raise GoalError(
                 f"animation: keyframes {value!r} is neither a drawn animation "
@@ -128,7 +115,7 @@ def _keyframes(value: Any, source: str, size: Any) -> tuple[str, list[Any]]:
             )
         return folder.name, list(keyframe_paths(folder))
     if isinstance(value, list) and value and all(isinstance(v, str) for v in value):
-        paths = [_relative(v, source) for v in value]
+        paths = [scene_relative(v, source) for v in value]
         for p in paths:
             if p.suffix.lower() not in IMAGE_SUFFIXES or not p.is_file():
                 raise GoalError(f"animation: keyframe {p} is not an image file ({', '.join(IMAGE_SUFFIXES)})")
@@ -137,13 +124,6 @@ def _keyframes(value: Any, source: str, size: Any) -> tuple[str, list[Any]]:
         "animation: keyframes must be a drawn animation "
         f"({', '.join(KEYFRAME_ANIMATIONS)}), a folder, or a list of image files, not {value!r}"
     )
-
-
-def _relative(path: str, source: str) -> Path:
-    p = Path(path)
-    if not p.is_absolute() and Path(source).suffix == ".toml":
-        p = Path(source).parent / p  # relative to the scene file, like [[steps]] images
-    return p
 
 
 def _positive(value: Any, key: str, unit: str = "seconds") -> float:

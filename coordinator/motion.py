@@ -65,11 +65,7 @@ def parse_motion(data: Any, label: str) -> StepMotion:
     """A StepMotion from a TOML table. Raises GoalError (one line)."""
     if not isinstance(data, dict):
         raise GoalError(f"{label}.motion must be a table (keys: {', '.join(MOTION_KEYS)})")
-    unknown = set(data) - set(MOTION_KEYS)
-    if unknown:
-        raise GoalError(
-            f"{label}.motion: unknown key(s) {', '.join(sorted(unknown))} (allowed: {', '.join(MOTION_KEYS)})"
-        )
+    check_keys(data, MOTION_KEYS, f"{label}.motion")
     velocity = _pair(data.get("velocity", [0.0, 0.0]), f"{label}.motion.velocity", "[vx, vy] in m/s")
     center = _pair(data.get("center", [0.0, 0.0]), f"{label}.motion.center", "[x, y] in metres")
     omega = _number(data.get("angular_velocity", 0.0), f"{label}.motion.angular_velocity", "rad/s")
@@ -90,6 +86,12 @@ def check_window(motion: StepMotion, label: str, duration: float) -> None:
             f"{label}.motion: a linear contraction of {motion.expansion}/s shrinks the pattern to "
             f"nothing after {-1.0 / motion.expansion:.1f} s, within the {duration:.1f} s it is shown"
         )
+
+
+def check_keys(data: dict[str, Any], allowed: tuple[str, ...], label: str) -> None:
+    """GoalError naming the keys of a scene table that are not ``allowed``."""
+    if unknown := set(data) - set(allowed):
+        raise GoalError(f"{label}: unknown key(s) {', '.join(sorted(unknown))} (allowed: {', '.join(allowed)})")
 
 
 def is_number(value: Any) -> TypeGuard[float]:

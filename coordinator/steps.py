@@ -26,7 +26,7 @@ import numpy as np
 
 from .goals import GoalError
 from .goals.defaults import METHODS
-from .motion import StepMotion, is_number, parse_motion
+from .motion import StepMotion, check_keys, is_number, parse_motion
 from .shapes import SHAPES, draw
 
 if TYPE_CHECKING:
@@ -63,9 +63,7 @@ def parse_step(data: Any, label: str, source: str = "") -> ImageStep:
     """An ImageStep from a TOML table; `label` names it in errors (e.g. "steps[2]")."""
     if not isinstance(data, dict):
         raise GoalError(f'{label} must be a table with shape = "name" or image = "path", and hold')
-    unknown = set(data) - set(STEP_KEYS)
-    if unknown:
-        raise GoalError(f"{label}: unknown key(s) {', '.join(sorted(unknown))} (allowed: {', '.join(STEP_KEYS)})")
+    check_keys(data, STEP_KEYS, label)
     hold = data.get("hold")
     if not (is_number(hold) and hold > 0):
         raise GoalError(f"{label}: hold must be a positive number of seconds, not {hold!r}")
@@ -77,9 +75,7 @@ def parse_step(data: Any, label: str, source: str = "") -> ImageStep:
         if shape not in SHAPES:
             raise GoalError(f"{label}: shape must be one of {', '.join(SHAPES)}, not {shape!r}")
     else:
-        image = Path(str(data["image"]))
-        if not image.is_absolute() and Path(source).suffix == ".toml":
-            image = Path(source).parent / image  # relative to the scene file, like [layout] files
+        image = scene_relative(str(data["image"]), source)
         if not image.is_file():
             raise GoalError(f"{label}: image {image} not found")
     method = data.get("method", "cvt")
@@ -90,6 +86,14 @@ def parse_step(data: Any, label: str, source: str = "") -> ImageStep:
     return ImageStep(
         name, image, shape, float(hold), parse_region_counts(data.get("region_counts"), label), method, motion
     )
+
+
+def scene_relative(path: str, source: str) -> Path:
+    """A path a scene file names, relative to that file (like [layout] files)."""
+    p = Path(path)
+    if not p.is_absolute() and Path(source).suffix == ".toml":
+        p = Path(source).parent / p
+    return p
 
 
 def parse_region_counts(value: Any, label: str) -> dict[int, int] | None:
