@@ -320,18 +320,8 @@ def history_frames() -> list[list[Part]]:
     bang, earth = [big_bang(0.0), big_bang(1.0)], [planet_earth(0.22), planet_earth(0.44)]
     life = [sea((0.45, 0.7), None), sea((0.32, 0.72), (0.55, 0.62))]
     dino = [dinosaur(0.0), dinosaur(1.0)]
-    return (
-        bang
-        + bang[-1:]
-        + [solar_system(math.radians(45.0 * k)) for k in range(9)]
-        + earth
-        + earth[-1:]
-        + life
-        + life[-1:]
-        + dino
-        + dino[-1:]
-        + [person(False), person(True)]
-    )
+    orbit = [solar_system(math.radians(45.0 * k)) for k in range(9)]
+    return [*bang, bang[-1], *orbit, *earth, earth[-1], *life, life[-1], *dino, dino[-1], person(False), person(True)]
 
 
 _BEE_ANGLES = (-0.15, -1.6, -3.0)  # the bee flies round the flower head, right to top to left

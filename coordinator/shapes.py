@@ -16,7 +16,6 @@ import numpy as np
 RGB = tuple[int, int, int]
 RED: RGB = (220, 40, 40)
 BLUE: RGB = (30, 80, 200)
-GREEN: RGB = (40, 160, 60)
 WHITE: RGB = (255, 255, 255)
 
 Inside = Callable[[np.ndarray, np.ndarray], np.ndarray]
