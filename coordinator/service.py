@@ -226,14 +226,11 @@ class Coordinator:
             self.first_tick_at = self.first_tick_at or time.monotonic()
         for _, ident, alive, _, life in self.alive.drain():
             if ident.isdigit() and int(ident) < self.scene.robots:
-                self._hear_agent(int(ident), alive, life)
+                self.roster.hear(int(ident), alive, life)
+                if not alive:
+                    self._watch_body(int(ident))
         for _, pose in self.body_poses.drain() if self.body_poses is not None else []:
             self.bodies[pose.robot] = np.array([pose.x, pose.y])
-
-    def _hear_agent(self, r: int, alive: bool, life: str) -> None:
-        self.roster.hear(r, alive, life)
-        if not alive:
-            self._watch_body(r)
 
     def _watch_body(self, r: int) -> None:
         """Hear where dead robots' bodies stay: one subscription to every pose, each robot's or a
