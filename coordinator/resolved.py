@@ -70,6 +70,10 @@ def stored_counts(scene: Scene) -> list[int]:
     return sorted({scene.robots, len(scene.pixel_robots)} - {0})
 
 
+# the scene's settings that scene.json holds as they are, in its order
+_AS_IS = "name source robots seed clock engine assignment agents_per_process deadline duration converge_hold".split()
+
+
 def save_resolved(scene: Scene, folder: Path, robot: dict[str, Any] | None = None) -> None:
     """Write scene.json and, for an image scene, goal_sets.npz into ``folder``. ``robot``: the robot
     parameters to record (default: the scene's own [robot] table)."""
@@ -86,17 +90,7 @@ def save_resolved(scene: Scene, folder: Path, robot: dict[str, Any] | None = Non
         image = {"arena": float(scene.image_goals.arena), "counts": counts, "file": GOAL_SETS_FILE}
     record = {
         "format": FORMAT,
-        "name": scene.name,
-        "source": scene.source,
-        "robots": scene.robots,
-        "seed": scene.seed,
-        "clock": scene.clock,
-        "engine": scene.engine,
-        "assignment": scene.assignment,
-        "agents_per_process": scene.agents_per_process,
-        "deadline": scene.deadline,
-        "duration": scene.duration,
-        "converge_hold": scene.converge_hold,
+        **{key: getattr(scene, key) for key in _AS_IS},
         "arena": list(scene.arena),
         "obstacles": [[list(v) for v in o] for o in scene.obstacles],
         "robot": dict(scene.robot if robot is None else robot),
