@@ -25,7 +25,6 @@ one arena K_r.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -56,11 +55,6 @@ class Animation:
     keep_counts: bool = False
     init_from_previous: bool = True
     arena: float | None = None  # K_r, metres; None: the largest conservative arena any keyframe needs
-
-
-def folder_table(folder: str | Path) -> dict[str, Any]:
-    """The [animation] table of `pixelswarm run folder/`: its images in name order, default timing."""
-    return {"keyframes": str(folder)}
 
 
 def parse_animation(data: Any, source: str = "") -> Animation:

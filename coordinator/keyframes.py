@@ -164,10 +164,6 @@ def match_regions(prev: Sequence[RegionShape], cur: Sequence[RegionShape]) -> li
     return out
 
 
-def _shapes(prep: PreparedImage) -> list[RegionShape]:
-    return [region_shape(prep.seg, r.id, r.lab) for r in prep.seg.regions]
-
-
 def _initial_samples(
     prep: PreparedImage,
     shapes: list[RegionShape],
@@ -272,7 +268,7 @@ def keyframe_goals(
         t0 = time.perf_counter()
         match, reason = None, "first keyframe"
         if matching:
-            shapes.append(_shapes(prep))
+            shapes.append([region_shape(prep.seg, r.id, r.lab) for r in prep.seg.regions])
             match, reason = _match_previous(shapes, reason)
         counts = options.region_counts
         if keep_counts and match is not None:

@@ -511,12 +511,10 @@ def folder_scene(path: str, robots: int) -> dict[str, Any]:
     """The scene for `pixelswarm run folder/ --robots N`: a grid of e-pucks playing the folder's images
     as keyframes in file-name order, with coordinator.keyframe_steps' default timing (30 s to form the
     first keyframe, then one every 5 s, the last shown 5 s more)."""
-    from .keyframe_steps import folder_table
-
     return {
         "name": Path(path).resolve().name,
         "robots": robots,
-        "animation": folder_table(Path(path).resolve()),
+        "animation": {"keyframes": str(Path(path).resolve())},
         "layout": {"kind": "grid", "spacing": 0.2},
     }
 
