@@ -81,11 +81,7 @@ def step_motion(scene: Scene, step: int) -> Motion | None:
     """A step's goal set's motion part: the motion of a dynamic image (eq. 28), None for a still one.
     The robots compute their moving goals and synchronised velocities from it themselves."""
     m = scene.steps[step].motion
-    if m is None:
-        return None
-    return Motion(
-        m.velocity[0], m.velocity[1], m.angular_velocity, m.center[0], m.center[1], m.expansion, int(m.geometric)
-    )
+    return None if m is None else Motion(*m.velocity, m.angular_velocity, *m.center, m.expansion, int(m.geometric))
 
 
 RESUME_WAIT_S = 2.0  # s a starting coordinator waits for the run's newest goal set (none: a new run)

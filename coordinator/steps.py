@@ -178,8 +178,7 @@ class StepGoals(GoalSets):
         self.steps = steps
         self.counts_for = counts_for or robots  # the robot count the artist's region_counts were written for
         self.labels = labels or [f"steps[{k}]" for k in range(len(steps))]  # how errors name each step
-        self.seed = seed
-        self.radius = radius
+        self.seed, self.radius = seed, radius
         self._prepared: dict[int, PreparedImage] = {}
         self.arena = float(arena) if arena is not None else self._shared_arena()
 
