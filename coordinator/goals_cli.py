@@ -124,9 +124,7 @@ def _write_all(jobs: list[tuple[Path, Callable[[Path], object]]]) -> None:
     os.umask(umask)
     try:
         for path, write in jobs:
-            fd, name = tempfile.mkstemp(
-                prefix=f".{path.name}.", suffix=path.suffix or ".tmp", dir=path.parent if str(path.parent) else "."
-            )
+            fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix or ".tmp", dir=path.parent)
             os.close(fd)
             os.chmod(name, 0o666 & ~umask)
             temps.append(Path(name))
@@ -139,11 +137,10 @@ def _write_all(jobs: list[tuple[Path, Callable[[Path], object]]]) -> None:
 
 
 def _check_output(path: Path, what: str) -> None:
-    parent = path.parent if str(path.parent) else Path(".")
     if path.is_dir():
         raise GoalError(f"{what} {path} is a directory")
-    if not parent.is_dir():
-        raise GoalError(f"cannot write {what} {path}: no such directory {parent}")
+    if not path.parent.is_dir():
+        raise GoalError(f"cannot write {what} {path}: no such directory {path.parent}")
 
 
 def run_goals(args: argparse.Namespace) -> int:
