@@ -179,7 +179,7 @@ def parse_scene(name_or_path: str, **overrides: Unpack[Overrides]) -> Scene:
     if is_image and not Path(name_or_path).is_file():
         raise SceneError(f"image {name_or_path} not found")
     if is_image or Path(name_or_path).is_dir():  # a picture, or a folder of keyframes with the default timing
-        table = (image_scene if is_image else folder_scene)(name_or_path, overrides.pop("robots", None) or 14)
+        table = _file_scene(name_or_path, overrides.pop("robots", None) or 14, is_image)
         return parse_scene_dict(table, name_or_path, **overrides)
     path = resolve_scene_path(name_or_path)
     try:
@@ -507,27 +507,17 @@ def scene_goal_set(scene: Scene, step: int, robots: int) -> tuple[np.ndarray, np
     return _wrap(lambda: source.goal_set(step, robots), scene.name)
 
 
-def folder_scene(path: str, robots: int) -> dict[str, Any]:
-    """The scene for `pixelswarm run folder/ --robots N`: a grid of e-pucks playing the folder's images
-    as keyframes in file-name order, with coordinator.keyframe_steps' default timing (30 s to form the
-    first keyframe, then one every 5 s, the last shown 5 s more)."""
-    return {
-        "name": Path(path).resolve().name,
-        "robots": robots,
-        "animation": {"keyframes": str(Path(path).resolve())},
-        "layout": {"kind": "grid", "spacing": 0.2},
-    }
-
-
-def image_scene(path: str, robots: int) -> dict[str, Any]:
-    """The scene for `pixelswarm run picture.png --robots N`: a grid of e-pucks, the picture's goals."""
-    return {
-        "name": Path(path).stem,
-        "robots": robots,
-        "goals": {"kind": "image", "image": str(Path(path).resolve())},
-        "layout": {"kind": "grid", "spacing": 0.2},
-        "duration": 120.0,
-    }
+def _file_scene(path: str, robots: int, image: bool) -> dict[str, Any]:
+    """The scene for `pixelswarm run picture.png --robots N` (the picture's goals, for 120 s) or
+    `pixelswarm run folder/ --robots N` (the folder's images as keyframes in file-name order, with
+    coordinator.keyframe_steps' default timing: 30 s to form the first keyframe, then one every 5 s,
+    the last shown 5 s more): a grid of e-pucks."""
+    full = Path(path).resolve()
+    name = Path(path).stem if image else full.name
+    table = {"name": name, "robots": robots, "layout": {"kind": "grid", "spacing": 0.2}}
+    if image:
+        return table | {"goals": {"kind": "image", "image": str(full)}, "duration": 120.0}
+    return table | {"animation": {"keyframes": str(full)}}
 
 
 def _arena(spec: Any, scene: Scene, where: str) -> tuple[float, float, float, float]:
