@@ -167,11 +167,6 @@ class FrameGoals(GoalSets):
         kg = self._keyframes.get(n) or self._generate(n, self.arena)
         return kg.sets[step].goals, kg.sets[step].colors
 
-    def keyframe_goals(self, n: int) -> KeyframeGoals:
-        """Every keyframe's goals for n robots, with keyframe_goals' reports (tools, tests)."""
-        self.goal_set(0, n)
-        return self._keyframes[n]
-
     def _generate(self, n: int, arena: float | None) -> KeyframeGoals:
         a = self.animation
         counts = scale_region_counts(a.region_counts, self.counts_for, n)
