@@ -91,12 +91,9 @@ class GoalSet:
     def from_dict(cls, data: dict[str, Any]) -> GoalSet:
         if data.get("format", FORMAT) != FORMAT:
             raise ValueError(f"unsupported goal-set format {data.get('format')!r}")
+        # __post_init__ makes the arrays
         return cls(
-            goals=np.asarray(data["goals"], dtype=float).reshape(-1, 2),
-            colors=np.asarray(data["colors"], dtype=np.uint8).reshape(-1, 3),
-            regions=np.asarray(data["regions"], dtype=int).reshape(-1),
-            cost_history=list(data.get("cost_history", [])),
-            params=dict(data.get("params", {})),
+            data["goals"], data["colors"], data["regions"], data.get("cost_history", []), dict(data.get("params", {}))
         )
 
     @classmethod
