@@ -61,26 +61,18 @@ def _triangle(cx: float, cy: float, r: float) -> Inside:
     return inside
 
 
+def _fig4_rect(x0: float, x1: float, y0: float, y1: float) -> Inside:
+    """A rectangle measured in pixels of the paper's Fig. 4 (512 px canvas)."""
+    return _rect(x0 / 512, x1 / 512, y0 / 512, y1 / 512)
+
+
 # name -> list of (part, default colour); proportions measured on the paper's Fig. 4 (512 px canvas)
 _SHAPES: dict[str, list[tuple[Inside, RGB]]] = {
     "disk": [(circle(0.5, 0.5, 150 / 512), RED)],
-    "disk_and_line": [
-        (circle(190 / 512, 0.5, 120 / 512), RED),
-        (_rect(380 / 512, 420 / 512, 80 / 512, 430 / 512), BLUE),
-    ],
-    "line": [(_rect(236 / 512, 276 / 512, 60 / 512, 452 / 512), BLUE)],
-    "L": [
-        (
-            union(_rect(140 / 512, 220 / 512, 80 / 512, 430 / 512), _rect(140 / 512, 400 / 512, 350 / 512, 430 / 512)),
-            RED,
-        )
-    ],
-    "T": [
-        (
-            union(_rect(100 / 512, 412 / 512, 80 / 512, 160 / 512), _rect(216 / 512, 296 / 512, 80 / 512, 440 / 512)),
-            BLUE,
-        )
-    ],
+    "disk_and_line": [(circle(190 / 512, 0.5, 120 / 512), RED), (_fig4_rect(380, 420, 80, 430), BLUE)],
+    "line": [(_fig4_rect(236, 276, 60, 452), BLUE)],
+    "L": [(union(_fig4_rect(140, 220, 80, 430), _fig4_rect(140, 400, 350, 430)), RED)],
+    "T": [(union(_fig4_rect(100, 412, 80, 160), _fig4_rect(216, 296, 80, 440)), BLUE)],
     "ring": [(_ring(0.5, 0.5, 0.36, 0.2), RED)],
     "two_squares": [(_rect(0.15, 0.5, 0.3, 0.7), RED), (_rect(0.5, 0.85, 0.3, 0.7), BLUE)],
     "triangle": [(_triangle(0.5, 0.5, 0.3), RED)],
