@@ -187,12 +187,8 @@ def flower(bee_angle: float | None) -> list[Part]:
     circle round the flower head, its body along the circle as if flying round it."""
     cx, cy = 0.5, 0.40
     stem = union(capsule((cx, 0.88), (cx, cy), 0.022), ellipse(0.59, 0.70, 0.09, 0.035, math.radians(-30)))
-    petals = union(
-        *(
-            circle(cx + 0.10 * math.cos(a), cy + 0.10 * math.sin(a), 0.068)
-            for a in np.linspace(0, 2 * math.pi, 6, endpoint=False) + math.pi / 2
-        )
-    )
+    around = np.linspace(0, 2 * math.pi, 6, endpoint=False) + math.pi / 2
+    petals = union(*(circle(cx + 0.10 * math.cos(a), cy + 0.10 * math.sin(a), 0.068) for a in around))
     parts: list[Part] = [(stem, STEM), (petals, PETAL), (circle(cx, cy, 0.06), FLOWER_CENTRE)]
     if bee_angle is not None:
         bx, by = cx + 0.33 * math.cos(bee_angle), cy + 0.30 * math.sin(bee_angle)
@@ -226,11 +222,8 @@ def big_bang(burst: float) -> list[Part]:
     for k in range(8):
         a = math.pi / 8 + k * math.pi / 4
         reach = 0.2 + burst * (0.25 if k % 2 == 0 else 0.13)
-        fire.append(
-            polygon(
-                [_on_circle(_CENTRE, 0.12, a - 0.3), _on_circle(_CENTRE, reach, a), _on_circle(_CENTRE, 0.12, a + 0.3)]
-            )
-        )
+        ray = [_on_circle(_CENTRE, 0.12, a - 0.3), _on_circle(_CENTRE, reach, a), _on_circle(_CENTRE, 0.12, a + 0.3)]
+        fire.append(polygon(ray))
     return [(union(*fire), BANG_FIRE), (circle(*_CENTRE, 0.09 + 0.01 * burst), BANG_CORE)]
 
 
