@@ -79,17 +79,13 @@ def signature(border: np.ndarray) -> np.ndarray:
     return np.interp(np.arange(BINS), filled, sig[filled], period=BINS)
 
 
-def _rotate(pts: np.ndarray, theta: float) -> np.ndarray:
-    c, s = np.cos(theta), np.sin(theta)
-    return pts @ np.array([[c, s], [-s, c]])
-
-
 def _icp_rotation(a: np.ndarray, b: np.ndarray, theta: float, iters: int = 30) -> float:
     """Refine the rotation of point set a onto b (both centred) by ICP about the origin; pairs more than
     three times the median distance apart (parts of the border that changed shape) are left out."""
     tree = cKDTree(b)
     for _ in range(iters):
-        p = _rotate(a, theta)
+        c, s = np.cos(theta), np.sin(theta)
+        p = a @ np.array([[c, s], [-s, c]])
         d, j = tree.query(p)
         keep = d <= 3.0 * np.median(d) + 1e-12
         p, q = p[keep], b[j[keep]]
