@@ -156,7 +156,6 @@ class FrameGoals(GoalSets):
         counts_for: int | None = None,
     ) -> None:
         super().__init__(len(animation.steps), robots)
-        self.steps = list(animation.steps)
         self.animation, self.seed, self.radius = animation, seed, radius
         self.counts_for = counts_for or robots
         self._keyframes: dict[int, KeyframeGoals] = {}

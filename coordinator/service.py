@@ -176,10 +176,8 @@ class Coordinator:
         return newest
 
     def _answer(self) -> list[tuple[str, bytes]]:
-        current = self.current
-        if current is None:
-            return []
-        return [(self.bus.keys.goals(current.epoch), current.encode())]
+        current = self.current  # once: the bus's thread asks while the loop may replace it
+        return [] if current is None else [(self.bus.keys.goals(current.epoch), current.encode())]
 
     def _follow_show(self) -> bool:
         """Image scenes: a new goal set when the step or the live robots change; True if published."""
