@@ -23,7 +23,7 @@ from .image import BG_TOLERANCE, Foreground, foreground_mask, load_image, split_
 from .model import GoalError, GoalSet
 from .resize import auto_arena, check_feasible, normalised_spacing, to_arena
 from .sampling import KS_FACTOR, in_region, ks_distance, lattice_samples, poisson_samples
-from .segment import COLOR_TOLERANCE, Segmentation, segment
+from .segment import Segmentation, segment
 
 MAX_SIDE = 1024  # longer image side (pixels) used for goal generation; larger images are scaled down
 # Regions of up to this many goals start from the paper's random samples (4.2), as in every shipped
@@ -101,13 +101,11 @@ class GoalOptions:
 PAPER_OPTIONS = GoalOptions()  # the paper's settings: the default of every goal maker
 
 
-def _shrink(
-    rgb: np.ndarray, alpha: np.ndarray | None, max_side: int
-) -> tuple[np.ndarray, np.ndarray | None, str | None]:
+def _shrink(rgb: np.ndarray, alpha: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None, str | None]:
     h, w = rgb.shape[:2]
-    if max(h, w) <= max_side:
+    if max(h, w) <= MAX_SIDE:
         return rgb, alpha, None
-    k = max_side / max(h, w)
+    k = MAX_SIDE / max(h, w)
     size = (max(1, round(w * k)), max(1, round(h * k)))
     small = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
     a = None if alpha is None else cv2.resize(alpha, size, interpolation=cv2.INTER_AREA)
@@ -115,33 +113,27 @@ def _shrink(
 
 
 def prepare_image(
-    image: str | os.PathLike[str] | np.ndarray,
-    *,
-    background: Any = None,
-    bg_tolerance: float = BG_TOLERANCE,
-    color_tol: float = COLOR_TOLERANCE,
-    min_area: int | None = None,
-    max_side: int = MAX_SIDE,
+    image: str | os.PathLike[str] | np.ndarray, *, background: Any = None, min_area: int | None = None
 ) -> PreparedImage:
     """Load (path, or an RGB/RGBA/gray array), subtract the background and segment into regions R_i.
 
-    Images whose longer side exceeds max_side pixels are scaled down first (goals live in the
-    normalised square, so only their precision, a fraction of a max_side pixel, depends on it)."""
+    Images whose longer side exceeds MAX_SIDE pixels are scaled down first (goals live in the
+    normalised square, so only their precision, a fraction of a MAX_SIDE pixel, depends on it)."""
     if isinstance(image, np.ndarray):
         rgb, alpha = split_channels(image)
         source = "<array>"
     else:
         rgb, alpha = load_image(image)
         source = os.fspath(image)
-    rgb, alpha, scaled = _shrink(rgb, alpha, max_side)
-    fg = foreground_mask(rgb, alpha, background=background, tolerance=bg_tolerance)
-    seg = segment(fg.work, fg.mask, color_tol=color_tol, min_area=min_area)
+    rgb, alpha, scaled = _shrink(rgb, alpha)
+    fg = foreground_mask(rgb, alpha, background=background)
+    seg = segment(fg.work, fg.mask, min_area=min_area)
     if scaled:
         seg.notes.insert(0, scaled)
     if not seg.regions:
         how = {
             "alpha": "every pixel is transparent",
-            "color": f"every pixel is within {bg_tolerance:g} of the background colour",
+            "color": f"every pixel is within {BG_TOLERANCE:g} of the background colour",
         }.get(fg.source, "the image is a single background colour")
         raise GoalError(f"no foreground in {source}: {how}")
     return PreparedImage(rgb, alpha, fg, seg, source)
