@@ -184,14 +184,10 @@ def _border_model(lab: np.ndarray, tol: float) -> tuple[np.ndarray, float, np.nd
 
 
 def foreground_mask(
-    rgb: np.ndarray,
-    alpha: np.ndarray | None = None,
-    *,
-    background: str | tuple[int, int, int] | None = None,
-    tolerance: float = BG_TOLERANCE,
+    rgb: np.ndarray, alpha: np.ndarray | None = None, *, background: str | tuple[int, int, int] | None = None
 ) -> Foreground:
     """Background subtraction. Transparent pixels (alpha < 128) are always background; an explicit
-    background colour removes the pixels within `tolerance` of it as well; without either, the dominant
+    background colour removes the pixels within BG_TOLERANCE of it as well; without either, the dominant
     border colour is the background (fitted as a smooth gradient, with a tolerance raised to 4 sigma of
     the border's noise; noisy images are median-filtered first)."""
     rgb = np.asarray(rgb, dtype=np.uint8)
@@ -199,17 +195,17 @@ def foreground_mask(
     if background is not None:
         color = parse_color(background)
         diff = np.linalg.norm(to_lab(rgb) - to_lab(np.array(color, np.uint8)), axis=-1)
-        mask = diff > tolerance if opaque is None else (diff > tolerance) & opaque
-        return Foreground(mask, "color", rgb, color, tolerance)
+        mask = diff > BG_TOLERANCE if opaque is None else (diff > BG_TOLERANCE) & opaque
+        return Foreground(mask, "color", rgb, color, BG_TOLERANCE)
     if opaque is not None:
-        return Foreground(opaque, "alpha", rgb, None, tolerance)
+        return Foreground(opaque, "alpha", rgb, None, BG_TOLERANCE)
     work, lab = rgb, to_lab(rgb)
-    model, sigma, dominant = _border_model(lab, tolerance)
+    model, sigma, dominant = _border_model(lab, BG_TOLERANCE)
     if sigma > 2.0:  # a noisy photo: decide on a denoised copy
         work = cv2.medianBlur(rgb, 5)
         lab = to_lab(work)
-        model, sigma, dominant = _border_model(lab, tolerance)
-    tol = max(tolerance, 4.0 * sigma)
+        model, sigma, dominant = _border_model(lab, BG_TOLERANCE)
+    tol = max(BG_TOLERANCE, 4.0 * sigma)
     mask = np.linalg.norm(lab - model, axis=-1) > tol
     if sigma > 1.0:
         mask = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0

@@ -1,6 +1,6 @@
 """Segmentation of the foreground into regions R_i by colour and connectivity (paper 4.1).
 
-Foreground colours are grouped into a palette (colours closer than `color_tol` Delta E merge); each
+Foreground colours are grouped into a palette (colours closer than COLOR_TOLERANCE Delta E merge); each
 connected (8-neighbour) set of pixels of one palette colour is a candidate region, so touching shapes of
 different colour stay different regions, unless their colours meet in a smooth gradient (the shading of
 one object) rather than at an edge. Weak candidates, those smaller than `min_area` pixels or thin
@@ -174,9 +174,7 @@ def _absorb_weak(comp: np.ndarray, weak: np.ndarray) -> tuple[np.ndarray, int]:
     return comp, absorbed
 
 
-def segment(
-    rgb: np.ndarray, mask: np.ndarray, *, color_tol: float = COLOR_TOLERANCE, min_area: int | None = None
-) -> Segmentation:
+def segment(rgb: np.ndarray, mask: np.ndarray, *, min_area: int | None = None) -> Segmentation:
     """Split the foreground `mask` of `rgb` into regions R_i (see the module docstring)."""
     h, w = mask.shape
     min_area = default_min_area(mask.shape) if min_area is None else int(min_area)
@@ -185,7 +183,7 @@ def segment(
         return Segmentation(np.full((h, w), -1, np.int64), [], notes)
     lab = to_lab(rgb).astype(np.float64)
     pal = np.full((h, w), -1, np.int64)
-    pal[mask] = _palette(lab[mask], color_tol)
+    pal[mask] = _palette(lab[mask], COLOR_TOLERANCE)
     comp = _components(pal)
     n = int(comp.max()) + 1
     area = np.bincount(comp[comp >= 0], minlength=n)
@@ -197,7 +195,7 @@ def segment(
     # touching strong regions that meet in a smooth gradient are one region
     left = np.zeros(comp.shape, bool)
     left[comp >= 0] = weak[comp[comp >= 0]]
-    comp, merged = _merge_smooth(np.where(left, -1, comp), lab, color_tol / 2.0)
+    comp, merged = _merge_smooth(np.where(left, -1, comp), lab, COLOR_TOLERANCE / 2.0)
     if merged:
         notes.append(f"{merged} region(s) joined across smooth colour gradients (shading)")
     # weak pieces that touch no strong region: merge them with each other by connectivity
