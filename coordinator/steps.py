@@ -89,7 +89,7 @@ def parse_step(data: Any, label: str, source: str = "") -> ImageStep:
 
 
 def scene_relative(path: str, source: str) -> Path:
-    """A path a scene file names, relative to that file (like [layout] files)."""
+    """A path that a scene names: a relative one is relative to the scene file (when there is one)."""
     p = Path(path)
     if not p.is_absolute() and Path(source).suffix == ".toml":
         p = Path(source).parent / p
