@@ -87,9 +87,8 @@ class GoalOptions:
             raise GoalError(f"N must be at least 1, not {n}")
         if self.method not in METHODS:
             raise GoalError(f"method must be one of {', '.join(METHODS)}, not {self.method!r}")
-        seed = self.seed
-        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-            raise GoalError(f"seed must be a non-negative integer, not {seed!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+            raise GoalError(f"seed must be a non-negative integer, not {self.seed!r}")
         if self.arena is not None and not (np.isfinite(self.arena) and self.arena > 0):
             raise GoalError(f"arena must be a positive size in metres, not {self.arena!r}")
         if not (np.isfinite(self.robot_radius) and self.robot_radius > 0):

@@ -45,10 +45,6 @@ class Segmentation:
     _order: np.ndarray | None = field(default=None, repr=False)
     _starts: np.ndarray | None = field(default=None, repr=False)
 
-    @property
-    def mask(self) -> np.ndarray:
-        return self.labels >= 0
-
     def pixels(self, region_id: int) -> tuple[np.ndarray, np.ndarray]:
         """(rows, cols) of the pixels of region R_i."""
         flat = self.labels.ravel()
