@@ -270,12 +270,6 @@ class Coordinator:
             self.current.warm_start = WarmStart(0, *self._warm_start(self._starts(self.current.robots), goals))
         self.bus.publish(self.bus.keys.goals(self.epoch), self.current)
 
-    @property
-    def _eps(self) -> float | None:
-        """The robots' epsilon_A, which the warm start's matching settles to (None: their default)."""
-        eps = self.scene.robot.get("assign_eps")
-        return None if eps is None else float(eps)
-
     def _rounds_bounded(self) -> bool:
         """Lock-step with the auction's rounds per tick bounded: a block spans ticks
         (docs/lockstep_auction.md), so the robots need goals to drive to meanwhile."""
@@ -288,7 +282,8 @@ class Coordinator:
         start, goals = np.asarray(start, float), as_sent(goals)
         key = (start.tobytes(), goals.tobytes())
         if self._matching is None or self._matching[0] != key:
-            self._matching = (key, goal_matching(start, goals, self._eps))
+            eps = self.scene.robot.get("assign_eps")  # the robots' epsilon_A, which the matching settles to
+            self._matching = (key, goal_matching(start, goals, None if eps is None else float(eps)))
         return self._matching[1]
 
     def _starts(self, robots: np.ndarray) -> np.ndarray:
