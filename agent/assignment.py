@@ -728,18 +728,8 @@ def _boards(local: LocalAuction, words: Words, sender: int) -> Boards:
     records["goal"], records["price"] = goals, words.price[rows, goals]
     records["robot"], records["flags"] = words.owner[rows, goals], words.released[rows, goals] * RELEASED
     known = np.packbits(words.known[words.grown], axis=1).reshape(-1, (len(local.robots) + 7) // 8)
-    return Boards(
-        local.epoch,
-        local.instance,
-        sender,
-        local.round,
-        len(local.goals),
-        len(local.robots),
-        len(out),
-        out,
-        known,
-        records,
-    )
+    fixed = (local.epoch, local.instance, sender, local.round, len(local.goals), len(local.robots), len(out))
+    return Boards(*fixed, out, known, records)
 
 
 def _fits(msg: Boards, local: LocalAuction) -> bool:
@@ -767,23 +757,9 @@ def _words(msg: Boards, local: LocalAuction) -> Words:
     known = np.zeros((k, n), bool)
     known[grown] = np.unpackbits(msg.known[: int(grown.sum())], axis=1, count=n).astype(bool)
     price, owner, released = np.zeros((k, g)), np.full((k, g), NO_OWNER, np.int64), np.zeros((k, g), bool)
-    rows = np.repeat(np.arange(k), w["records"])
-    price[rows, r["goal"]], owner[rows, r["goal"]], released[rows, r["goal"]] = (
-        r["price"],
-        r["robot"],
-        (r["flags"] & RELEASED) != 0,
-    )
+    rows, goal = np.repeat(np.arange(k), w["records"]), r["goal"]
+    price[rows, goal], owner[rows, goal] = r["price"], r["robot"]
+    released[rows, goal] = (r["flags"] & RELEASED) != 0
     xy = np.stack([w["x"], w["y"]], axis=1).astype(float)
-    return Words(
-        w["robot"].astype(np.int64),
-        xy,
-        w["phase"].astype(np.int64),
-        (flags & Boards.ENDED) != 0,
-        w["last"].astype(np.int64),
-        fresh,
-        grown,
-        known,
-        price,
-        owner,
-        released,
-    )
+    robot, phase, last = (w[key].astype(np.int64) for key in ("robot", "phase", "last"))
+    return Words(robot, xy, phase, (flags & Boards.ENDED) != 0, last, fresh, grown, known, price, owner, released)
