@@ -96,19 +96,16 @@ def load_object(target: str, kind: str, where: str) -> Any:
     return getattr(module, name)
 
 
-def _config_class(kind: Any, kinds: Mapping[str, str], where: str) -> Any:
-    if not isinstance(kind, str) or kind not in kinds:
-        raise HardwareConfigError(f"{where}: unknown kind {kind!r} (known: {', '.join(sorted(kinds))})")
-    return load_object(kinds[kind], kind, where)
-
-
 def parse_table(table: Any, kinds: Mapping[str, str], where: str) -> Any:
     """One `[backend]` or `[poses]` table -> its kind's config object."""
     if not isinstance(table, dict):
         raise HardwareConfigError(f"{where}: must be a table")
     if "kind" not in table:
         raise HardwareConfigError(f"{where}: missing key 'kind' (one of: {', '.join(sorted(kinds))})")
-    return _config_class(table["kind"], kinds, where).from_table(table, where)
+    kind = table["kind"]
+    if not isinstance(kind, str) or kind not in kinds:
+        raise HardwareConfigError(f"{where}: unknown kind {kind!r} (known: {', '.join(sorted(kinds))})")
+    return load_object(kinds[kind], kind, where).from_table(table, where)
 
 
 def parse_hardware(data: Mapping[str, Any], path: Path) -> HardwareConfig:

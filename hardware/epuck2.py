@@ -25,7 +25,6 @@ log = logging.getLogger(__name__)
 DEFAULT_PORT = 1000
 COMMAND_ID = 0x80
 COMMAND_FORMAT = "<BBBhhB12BB"  # id, request, settings, left, right, LEDs, 4 x RGB, speaker
-COMMAND_SIZE = struct.calcsize(COMMAND_FORMAT)
 IMAGE_ID, SENSORS_ID, EMPTY_ID = 0x01, 0x02, 0x03
 ANSWER_SIZES = {IMAGE_ID: 160 * 120 * 2, SENSORS_ID: 104, EMPTY_ID: 0}
 REQUEST_IMAGE, REQUEST_SENSORS = 0x01, 0x02

@@ -342,10 +342,7 @@ class Ros2Backend(Ros2Node):
 
     def stats(self) -> dict[str, Any]:
         with self._lock:
-            out: dict[str, Any] = dict(self._counts)
-            out["robots"] = len(self.config.namespaces)
-            out["moving"] = int((~self._stopped).sum())
-        return out
+            return dict(self._counts, robots=len(self.config.namespaces), moving=int((~self._stopped).sum()))
 
     def _closing(self) -> None:
         """Stop every robot before leaving the ROS graph."""

@@ -433,8 +433,7 @@ class Bus:
 
     # --- publishing -----------------------------------------------------------------------
     def publish(self, key: str, msg: Message) -> None:
-        payload = msg.encode()
-        self.put(key, payload, msg.NAME)
+        self.put(key, msg.encode(), msg.NAME)
 
     def publish_poses(self, tick: int, stamp: float, robots: np.ndarray, poses: np.ndarray, frame: bool) -> None:
         """The tracker's poses (x, y, theta rows) of these robots at a tick: one frame of them all on

@@ -778,8 +778,7 @@ class Frame(Message):
         ):
             raise TypeError(f"{cls.__name__}: the float fields of a record must be adjacent float32")
         cls._float_block = (offsets[0], len(offsets))
-        row = "".join(_STRUCT_CODE[fields[k][0].str] for k in names)
-        assert struct.calcsize("<" + row) == cls.RECORD.itemsize, f"{cls.__name__}: a record must be packed"
+        row = _row_struct(cls.RECORD).format[1:]
         cls._alone = struct.Struct(_HEADER.format + cls._fixed.format[1:] + row)
         cls._one = struct.Struct(cls._fixed.format + row)
         first = _ONE_RECORD_AT + names.index(cls._floats[0])
