@@ -124,16 +124,11 @@ class NeighbourTable:
         states = self.latest_before(tick)
         if not states:
             return NeighbourStates.empty(len(robot_ids))
-        fields = np.array(
+        rows = np.array(
             [(s.robot, s.x, s.y, s.vx, s.vy, s.radius, s.stamp, s.flags & State.DYNAMIC) for s in states], float
         )  # one pass over the states, one array
         heard = Heard(
-            fields[:, 0].astype(np.int64),
-            fields[:, 1:3],
-            fields[:, 3:5],
-            fields[:, 5].copy(),
-            fields[:, 6],
-            fields[:, 7] == 0,
+            rows[:, 0].astype(np.int64), rows[:, 1:3], rows[:, 3:5], rows[:, 5].copy(), rows[:, 6], rows[:, 7] == 0
         )
         if stopped:
             for i, s in enumerate(states):

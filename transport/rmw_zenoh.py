@@ -260,9 +260,6 @@ class RosSubscriber:
         self.topic = qualified(topic, node.namespace)
         domain = "*" if any_domain else str(node.domain)
         self.key = f"{domain}/{self.topic.strip('/')}/{dds_type_name(ros_type)}/*"
-        self.received = 0
-        self.without_attachment = 0
-        self.foreign = 0
         self.token: str | None = None
         self._liveliness = None
         if not any_domain and "*" not in self.topic:
@@ -283,11 +280,9 @@ class RosSubscriber:
         out = []
         while self._ring:
             arrival, key, payload, raw_attachment = self._ring.popleft()
-            self.received += 1
             try:
                 domain, topic, _, type_hash = parse_topic_key(key)
             except RosNameError:  # a non-numeric domain chunk: not an rmw_zenoh key
-                self.foreign += 1
                 continue
             attachment = None
             if raw_attachment is not None:
@@ -295,8 +290,6 @@ class RosSubscriber:
                     attachment = Attachment.decode(raw_attachment)
                 except ValueError:
                     pass
-            if attachment is None:
-                self.without_attachment += 1
             out.append(RosSample(domain, topic, type_hash, payload, attachment, arrival))
         return out
 
