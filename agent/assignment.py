@@ -296,9 +296,8 @@ class AuctionLink:
     @property
     def cold(self) -> bool:
         """The goal set's auction has not agreed yet (its robots have no goal of it, unless carried)."""
-        if self.local is not None:
-            return self.local.agreed_instance < 0
-        return self.part is not None and self.part.agreed_instance < 0
+        auction = self.local if self.local is not None else self.part
+        return auction is not None and auction.agreed_instance < 0
 
     @property
     def busy(self) -> bool:
@@ -308,9 +307,8 @@ class AuctionLink:
     @property
     def epoch(self) -> int:
         """The goal set of the current auction (0: none yet)."""
-        if self.local is not None:
-            return self.local.epoch
-        return self.part.epoch if self.part is not None else 0
+        auction = self.local if self.local is not None else self.part
+        return auction.epoch if auction is not None else 0
 
     @property
     def _swarm(self) -> int:
@@ -443,11 +441,9 @@ class AuctionLink:
         return False  # the bus's rounds are played within the step
 
     def penalise(self, robot: int, epoch: int, goal: int) -> None:
-        if self.local is not None and epoch == self.local.epoch:
-            self.local.penalise(robot, goal, self.params.deadlock_cost)
-            self.counts.penalties += 1
-        elif self.part is not None and epoch == self.part.epoch:
-            self.part.penalise(robot, goal, self.params.deadlock_cost)
+        auction = self.local if self.local is not None else self.part
+        if auction is not None and epoch == auction.epoch:
+            auction.penalise(robot, goal, self.params.deadlock_cost)
             self.counts.penalties += 1
 
     def next_due(self) -> float:
