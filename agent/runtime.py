@@ -197,9 +197,6 @@ class CellSubscriptions:
     def cells(self) -> set[tuple[int, int]]:
         return set(self._subs)
 
-    def __len__(self) -> int:
-        return len(self._subs)
-
 
 @dataclass
 class Inboxes:
