@@ -650,11 +650,7 @@ class Boards(Message):
             raise Malformed("truncated")
         known = np.frombuffer(body[at : at + grown * row], np.uint8).reshape(grown, row).copy()
         records = np.frombuffer(body[at + grown * row :], cls.RECORD).copy()
-        if not (
-            np.all(np.isfinite(words["x"]))
-            and np.all(np.isfinite(words["y"]))
-            and np.all(np.isfinite(records["price"]))
-        ):
+        if not all(np.isfinite(column).all() for column in (words["x"], words["y"], records["price"])):
             raise Malformed("non-finite")
         if (records["goal"] < 0).any() or (records["goal"] >= goals).any():
             raise Malformed("invalid")
@@ -730,12 +726,8 @@ class Frame(Message):
             _finite(stamp)
             # The record's float fields lie side by side: one strided view checks them all at once.
             start, width = cls._float_block
-            if (
-                count
-                and not np.isfinite(
-                    np.ndarray((count, width), "<f4", body, size + start, (cls.RECORD.itemsize, 4))
-                ).all()
-            ):
+            strides = (cls.RECORD.itemsize, 4)
+            if count and not np.isfinite(np.ndarray((count, width), "<f4", body, size + start, strides)).all():
                 raise Malformed("non-finite")
         # its own writable bytes: a copy of a structured array costs several times more
         records = np.frombuffer(bytearray(body[size:]), cls.RECORD)
