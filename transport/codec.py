@@ -443,11 +443,8 @@ class Goals(Message):
         items = np.empty(count, self.RECORD)
         items["x"], items["y"] = self.positions[:, 0], self.positions[:, 1]
         items["rgb"] = self.colors
-        goal_set = (
-            self._set.pack(self.epoch, self.per_robot, count)
-            + items.tobytes()
-            + np.asarray(self.robots, "<u2").tobytes()
-        )
+        robots = np.asarray(self.robots, "<u2").tobytes()
+        goal_set = self._set.pack(self.epoch, self.per_robot, count) + items.tobytes() + robots
         out = [_part(self.PART, self.PART_VERSION, goal_set)]
         for _, name in self._PARTS.values():
             part = getattr(self, name)
@@ -627,11 +624,8 @@ class Boards(Message):
         row = (self.robots + 7) // 8
         known = np.asarray(self.known, np.uint8)
         known = known.reshape(-1, row) if row else known.reshape(0, 0)  # numpy infers no rows of width 0
-        return (
-            np.asarray(self.words, self.WORD).tobytes()
-            + known.tobytes()
-            + np.asarray(self.records, self.RECORD).tobytes()
-        )
+        words, records = np.asarray(self.words, self.WORD), np.asarray(self.records, self.RECORD)
+        return words.tobytes() + known.tobytes() + records.tobytes()
 
     @classmethod
     def _from(cls, body: memoryview) -> Boards:
@@ -642,11 +636,9 @@ class Boards(Message):
         words = np.frombuffer(body[cls._fixed.size : at], cls.WORD).copy()
         row = (robots + 7) // 8
         grown = int(np.count_nonzero(words["flags"] & cls.GROWN))
-        n_records = int(words["records"][(words["flags"] & cls.FRESH) != 0].sum())
-        if (
-            len(body) != at + grown * row + n_records * cls.RECORD.itemsize
-            or words["records"][(words["flags"] & cls.FRESH) == 0].any()
-        ):
+        fresh = (words["flags"] & cls.FRESH) != 0
+        n_records = int(words["records"][fresh].sum())
+        if len(body) != at + grown * row + n_records * cls.RECORD.itemsize or words["records"][~fresh].any():
             raise Malformed("truncated")
         known = np.frombuffer(body[at : at + grown * row], np.uint8).reshape(grown, row).copy()
         records = np.frombuffer(body[at + grown * row :], cls.RECORD).copy()
