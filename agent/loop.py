@@ -114,16 +114,8 @@ def _intend(robots: Robots, sensed: Sensed, memory: Memory) -> Intent:
 
 
 def _act(sensed: Sensed, intent: Intent, memory: Memory, heard: NeighbourStates, seams: Seams) -> Decision:
-    return act(
-        sensed.params,
-        sensed.ids,
-        sensed.position,
-        sensed.heading,
-        intent,
-        memory,
-        heard,
-        Surroundings(seams.segments, seams.seed, sensed.tick, seams.auction.active, seams.reach, seams.threads),
-    )
+    around = Surroundings(seams.segments, seams.seed, sensed.tick, seams.auction.active, seams.reach, seams.threads)
+    return act(sensed.params, sensed.ids, sensed.position, sensed.heading, intent, memory, heard, around)
 
 
 def _rows(sensed: Sensed, b: np.ndarray) -> Sensed:

@@ -515,12 +515,8 @@ class AgentHost:
                 out[m.robot] = m.position
         if on_way:
             rows = self.robots.rows(m.robot for m in on_way)
-            lead = bid_position(
-                np.array([m.position for m in on_way]),
-                self.held_goals.goal[rows],
-                self.policy_memory.velocity[rows],
-                self.auction.latency,
-            )
+            goal, velocity = self.held_goals.goal[rows], self.policy_memory.velocity[rows]
+            lead = bid_position(np.array([m.position for m in on_way]), goal, velocity, self.auction.latency)
             out.update(zip([m.robot for m in on_way], lead))
             out = {r: out[r] for r in self.robots.tracked if r in out}  # in the robots' order, as before
         self._bid_from = out
