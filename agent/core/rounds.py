@@ -81,13 +81,8 @@ class BlockRounds:
             return np.zeros(len(robots), bool)
         board, (flags, goal, price) = self.part.board, self._newest(robots)
         at = np.maximum(goal, 0)
-        return (
-            ((flags & SETTLED) != 0)
-            & (goal >= 0)
-            & (board.owner[at] == robots)
-            & ~board.released[at]
-            & (board.price[at] == price)
-        )
+        held = (goal >= 0) & (board.owner[at] == robots) & ~board.released[at] & (board.price[at] == price)
+        return ((flags & SETTLED) != 0) & held
 
     def robots_of(self, sender: int, records: np.ndarray) -> np.ndarray:
         """The robots a host speaks for: those of its first round's claims, of robots of this goal set
