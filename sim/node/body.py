@@ -116,9 +116,11 @@ class LockStep:
         as the agents' under state faults: a command's fate is drawn from the command itself and its
         delay counts on the run's clock, and the inbox notes each robot's commands as they come,
         whatever the plan does with them (``spans`` then waits for none that came and was lost)."""
-        if node.cmd_inbox.fault is not None:
-            node.cmd_inbox.sim_time = node.tick * node.dt
-            node.cmd_inbox.seen = {} if node.cmd_inbox.seen is None else node.cmd_inbox.seen
+        inbox = node.cmd_inbox
+        if inbox.fault is not None:
+            inbox.sim_time = node.tick * node.dt
+            if inbox.seen is None:  # noted from the first tick on
+                inbox.seen = {}
 
     def spans(self, node: BodyNode) -> Iterator[float]:
         deadline = time.monotonic() + (self.deadline if node.tick else max(self.deadline, FIRST_TICK_PATIENCE))
