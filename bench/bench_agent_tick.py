@@ -6,7 +6,8 @@ worktree`` of it, run with the same Python from there) and with the current code
 ``--pairs`` times each. Both trees' bytecode is compiled first, as `make run` does, so that a robot's
 process runs with the same interpreter flags in each (agent.runtime.interpreter). Per run: each agent process's CPU
 (psutil cpu_times, user + system) over the world's stepping, as % of a core (median and mean over
-the agents), and the missed ticks the world counted.
+the agents), and the missed ticks the world counted; and where each agent's resident memory lies at
+the end of the stepping (psutil memory_maps, by part: the compiled core, numpy, zenoh, ...).
 
     python -m bench.bench_agent_tick [--before 2f61ee4] [--robots 10] [--duration 20] [--pairs 2]
     python -m bench.bench_agent_tick --robots 250 --agents-per-process 125   # hosts of 125 robots
@@ -35,6 +36,30 @@ BEFORE = "2f61ee4"  # main before this branch: the code without its per-tick wor
 GOALS_EVERY = 1.0  # s between the coordinator's repeats of its goal set, each checked again
 SAMPLE_EVERY = 0.25  # s between CPU samples of the agent processes
 EDGE = 1.0  # s left out of each end of the stepping window (the first ticks, the shutdown)
+MAPS_EVERY = 2.0  # s between readings of the agents' memory maps (slower to read than a CPU sample)
+PARTS = ("compiled core", "numpy", "zenoh", "Python", "heap", "anonymous", "other")  # of an agent's RSS
+
+
+def part_of(path: str) -> str:
+    """Which part of an agent's memory a mapping is, by its path (memory_maps' grouping)."""
+    for needle, part in (("/agent/core/", "compiled core"), ("/sim/bodies/", "compiled core"), ("numpy", "numpy")):
+        if needle in path:
+            return part
+    if "zenoh" in path:
+        return "zenoh"
+    if "libpython" in path:
+        return "Python"
+    if path == "[heap]":
+        return "heap"
+    return "anonymous" if path in ("", "[anon]") or path.startswith("[anon:") else "other"
+
+
+def memory_parts(process: psutil.Process) -> dict[str, float]:
+    """The process's resident bytes by part (PARTS)."""
+    out = dict.fromkeys(PARTS, 0.0)
+    for m in process.memory_maps(grouped=True):
+        out[part_of(m.path)] += m.rss
+    return out
 
 
 def run_scene(cwd: Path, robots: int, duration: float, seed: int, per_process: int = 1) -> dict:
@@ -52,7 +77,9 @@ def run_scene(cwd: Path, robots: int, duration: float, seed: int, per_process: i
             env={k: v for k, v in os.environ.items() if k != "PIXELSWARM_PROFILE"},
         )
         series: dict[int, list[tuple[float, float, float]]] = {}  # agent pid -> (wall, CPU seconds, RSS bytes)
+        maps: dict[int, list[tuple[float, dict[str, float]]]] = {}  # agent pid -> (wall, memory_parts)
         watched: dict[int, psutil.Process] = {}
+        maps_due = 0.0
         while proc.poll() is None:
             try:
                 children = psutil.Process(proc.pid).children(recursive=True)
@@ -65,10 +92,15 @@ def run_scene(cwd: Path, robots: int, duration: float, seed: int, per_process: i
                 except psutil.Error:
                     pass
             now = time.monotonic()
+            read_maps = now >= maps_due
+            if read_maps:
+                maps_due = now + MAPS_EVERY
             for pid, p in list(watched.items()):
                 try:
                     t, m = p.cpu_times(), p.memory_info()
                     series.setdefault(pid, []).append((now, t.user + t.system, m.rss))
+                    if read_maps:
+                        maps.setdefault(pid, []).append((now, memory_parts(p)))
                 except psutil.Error:
                     watched.pop(pid)
             time.sleep(SAMPLE_EVERY)
@@ -87,6 +119,7 @@ def run_scene(cwd: Path, robots: int, duration: float, seed: int, per_process: i
         if j > i:
             cpu.append(100 * (c[j] - c[i]) / (t[j] - t[i]))
             rss.append(r[j])  # at the end of the stepping: a robot's process has its memory by then
+    parts = [[parts for t, parts in maps.get(pid, []) if t <= end][-1:] for pid in series]  # the last before the end
     ticks = max(int(m.get("samples", 1)) - 1, 1) * robots
     if not cpu:  # no two samples inside the window (a loaded machine sampled too seldom)
         cpu = [float("nan")]
@@ -97,7 +130,16 @@ def run_scene(cwd: Path, robots: int, duration: float, seed: int, per_process: i
         "missed": int(m["missed_ticks"]),
         "missed_share": m["missed_ticks"] / ticks,
         "load": os.getloadavg()[0],
+        "parts": [p[0] for p in parts if p],  # per agent: its memory_parts at the end of the stepping
     }
+
+
+def _parts_row(label: str, agents: list[dict[str, float]]) -> str:
+    if not agents:
+        return f"| {label} |" + " - |" * (len(PARTS) + 1)
+    medians = [np.median([a[part] for a in agents]) / 2**20 for part in PARTS]
+    total = np.median([sum(a.values()) for a in agents]) / 2**20
+    return f"| {label} | " + " | ".join(f"{v:.2f}" for v in medians) + f" | {total:.2f} |"
 
 
 def checks_per_tick(robots: int, dt: float, reps: int = 2000) -> float:
@@ -169,6 +211,7 @@ def main() -> None:
         "|---|---|---|---|---|---|---|",
     ]
     figures: dict[str, list[float]] = {"before": [], "after": []}
+    parts: dict[str, list[dict[str, float]]] = {"before": [], "after": []}
     with worktree_at(before_rev) as (old, _):
         for tree in (old, REPO):  # what a robot's process imports, optimised too (-OO)
             compile_robot = [sys.executable, "-m", "compileall", "-q", "-o", "0", "-o", "2", "agent", "transport"]
@@ -177,6 +220,7 @@ def main() -> None:
             for what, cwd in (("before", old), ("after", REPO)):
                 r = run_scene(cwd, args.robots, args.duration, args.seed, args.agents_per_process)
                 figures[what].append(r["cpu_median"])
+                parts[what] += r["parts"]
                 label = f"{before_rev} (before)" if what == "before" else "current"
                 rows.append(
                     f"| {pair} | {label} | {r['load']:.1f} | {r['cpu_median']:.2f} | {r['cpu_mean']:.2f} | "
@@ -190,6 +234,13 @@ def main() -> None:
     rows += [
         "",
         f"Median over the pairs: {b:.2f} % before, {a:.2f} % after ({a / b:.2f}x).",
+        "",
+        "Where an agent's resident memory lies at the end of the stepping, MB (median over the agents of every pair; "
+        "psutil memory_maps, by the mapping's path; each column's median apart, so the total is its own median):",
+        "",
+        "| code | " + " | ".join(PARTS) + " | total |",
+        "|---|" + "---|" * (len(PARTS) + 1),
+        *(_parts_row(label, parts[what]) for what, label in (("before", before_rev), ("after", "current"))),
         "",
         f"The checks alone (checks_per_tick: every other robot's state, the pose, the goal set's repeats): "
         f"{checks:.1f} us a tick, {100 * checks / tick_us:.2f} % of the agent's {tick_us:.0f} us of CPU a tick.",
