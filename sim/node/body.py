@@ -50,6 +50,10 @@ GOAL_SET_PATIENCE = 10.0
 # step at the same moment, paging in its code, and 100 one-robot processes on 2 cores overran the
 # deadline (92 robots stood still at tick 0, and the run was no longer the central engine's)
 FIRST_TICK_PATIENCE = 10.0
+# s a lock-step tick at which the scene kills robots (a 'fail' event) waits at most for their agents to be
+# gone: the launcher kills them once its recorder has seen the tick, and a loaded recorder lags by seconds
+# of display (robots killed 6 s late found the image's hold over before the survivors' goal set came)
+FAIL_PATIENCE = 10.0
 STOP_REASONS = ("agent_lost", "pose_lost", "command_timeout")  # the watchdog's, in the order it asks
 COMMAND_DROPS = (FUTURE, INCONSISTENT)
 CONTACT_KINDS = {"robot": 0, "obstacle": 1, "wall": 2}
@@ -105,7 +109,9 @@ class LockStep:
     the first tick's is FIRST_TICK_PATIENCE), then advance one period. The deadline runs from the
     last auction message heard: agents that
     still trade a tick's auction rounds (agent.assignment.AuctionLink.settle_block) are at work; and,
-    for at most GOAL_SET_PATIENCE, while the goal set of a scene step that begins at the tick is unheard."""
+    for at most GOAL_SET_PATIENCE, while the goal set of a scene step that begins at the tick is unheard.
+    A tick at which the scene kills robots waits (at most FAIL_PATIENCE) until their agents are gone, so
+    they die at the scene's tick however far behind the launcher is."""
 
     def __init__(self, bus: Bus, deadline: float) -> None:
         self.deadline = deadline
@@ -126,6 +132,8 @@ class LockStep:
         deadline = time.monotonic() + (self.deadline if node.tick else max(self.deadline, FIRST_TICK_PATIENCE))
         patience = time.monotonic() + AUCTION_PATIENCE
         goal_set_patience = time.monotonic() + GOAL_SET_PATIENCE
+        fail_patience = time.monotonic() + FAIL_PATIENCE
+        dies = node.killed_at(node.tick)
         while True:
             arrived = _came(node)  # read before the commands are taken: one seen by then is queued, held or lost
             node.take_commands(node.cmd_inbox.get(timeout=max(0.0, min(0.05, deadline - time.monotonic()))))
@@ -137,7 +145,8 @@ class LockStep:
                 deadline = min(time.monotonic() + self.deadline, patience)
             node.update_liveness()
             waiting = node.live & (node.last_cmd_tick < node.tick) & ~arrived
-            if not waiting.any() or time.monotonic() >= deadline or node.withheld:
+            dying = (node.live & dies).any() and time.monotonic() < fail_patience
+            if (not waiting.any() or time.monotonic() >= deadline or node.withheld) and not dying:
                 break
         yield node.dt
 
@@ -216,6 +225,11 @@ class BodyNode:
         self.alive = bus.watch_alive("agent")
         self.running, self.end_reason = True, ""
         self.parent_pid: int | None = None
+        # tick -> robots the scene kills then: the first tick at or after the event's time, the one
+        # whose truth tells the launcher to kill them (sim.run.launcher)
+        self.kills: dict[int, list[int]] = {}
+        for event in (e for e in scene.events if e["kind"] == "fail"):
+            self.kills.setdefault(math.ceil(event["t"] / self.dt - 1e-6), []).append(int(event["robot"]))
 
     # --- the loop -----------------------------------------------------------------------------
     def run(self) -> None:
@@ -280,6 +294,12 @@ class BodyNode:
             elif self.live[i]:
                 self.live[i] = False
                 self._watchdog(0.0)  # a dead agent's body stays, stopped
+
+    def killed_at(self, tick: int) -> np.ndarray:
+        """Per robot, whether the scene kills it at this tick."""
+        dies = np.zeros(self.scene.robots, bool)
+        dies[self.kills.get(tick, [])] = True
+        return dies
 
     def hear_goals(self) -> None:
         """Take in the goal sets heard, as the agents do, refusing epochs and stamps from the future."""

@@ -186,6 +186,9 @@ class _SlowFirstAnswers:
     def update_liveness(self) -> None:
         pass
 
+    def killed_at(self, tick: int) -> np.ndarray:
+        return np.zeros(2, bool)
+
 
 def test_the_first_lockstep_tick_waits_past_the_deadline_for_every_agent(monkeypatch):
     """Every agent process takes its first step at once: a first tick answered past the deadline is
@@ -199,3 +202,31 @@ def test_the_first_lockstep_tick_waits_past_the_deadline_for_every_agent(monkeyp
         node = _SlowFirstAnswers(tick, after=1.0)
         next(clock.spans(node))  # type: ignore[arg-type]
         assert (node.last_cmd_tick == tick).all() == answered
+
+
+class _KilledLate(_SlowFirstAnswers):
+    """Both agents answer at once; the scene kills robot 1 at tick 5, and its agent is gone ``after``
+    seconds later (the launcher kills it once its recorder has seen the tick)."""
+
+    def __init__(self, tick: int, after: float) -> None:
+        super().__init__(tick, after=0.0)
+        self.gone_at = time.monotonic() + after
+
+    def update_liveness(self) -> None:
+        self.live[1] = time.monotonic() < self.gone_at
+
+    def killed_at(self, tick: int) -> np.ndarray:
+        return np.array([False, tick == 5])
+
+
+def test_a_lockstep_tick_at_which_the_scene_kills_a_robot_waits_until_its_agent_is_gone():
+    """A loaded launcher kills a robot seconds of display after the scene's time, unless the world
+    waits for it at that tick; no other tick waits for a death."""
+    from sim.node import body
+    from tests.support.fake_bus import RecorderBus
+
+    clock = body.LockStep(RecorderBus(), deadline=0.3)  # type: ignore[arg-type]
+    for tick, dead in [(5, True), (6, False)]:
+        node = _KilledLate(tick, after=1.0)
+        next(clock.spans(node))  # type: ignore[arg-type]
+        assert node.live[1] == (not dead)
