@@ -5,6 +5,7 @@ Floating point stays as the source writes it: no fast-math, and no fused multipl
 which would round a robot's arithmetic differently on different machines.
 """
 
+import os
 from glob import glob
 
 from Cython.Build import cythonize
@@ -27,4 +28,9 @@ modules = [
     Extension(path[:-4].replace("/", "."), [path], extra_compile_args=FLAGS)
     for path in sorted(glob("agent/core/*.pyx") + glob("sim/bodies/*.pyx"))
 ] + [Extension(SHARED, [SHARED.replace(".", "/") + ".c"], extra_compile_args=FLAGS)]
-setup(ext_modules=cythonize(modules, compiler_directives=DIRECTIVES, shared_utility_qualified_name=SHARED))
+# One module translated and compiled per core at once: a fresh clone's set-up waits less for the core
+JOBS = os.cpu_count() or 1
+setup(
+    ext_modules=cythonize(modules, compiler_directives=DIRECTIVES, shared_utility_qualified_name=SHARED, nthreads=JOBS),
+    options={"build_ext": {"parallel": JOBS}},
+)
