@@ -18,7 +18,8 @@ $(PY):
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 
-$(STAMP): pyproject.toml setup.py $(wildcard agent/core/*.pyx agent/core/*.pxd sim/bodies/*.pyx) | $(PY)
+CORE := pyproject.toml setup.py $(wildcard agent/core/*.pyx agent/core/*.pxd sim/bodies/*.pyx)
+$(STAMP): $(CORE) | $(PY)
 	@echo "make: installing pixelswarm and its dependencies into $(VENV) and compiling its core with Cython (a minute or two the first time)"
 	$(PY) -m pip install -q -e .
 	touch $@
@@ -31,14 +32,15 @@ BYTECODE := echo "make: bringing the bytecode of our sources, numpy and zenoh up
 	$(PY) -c "import compileall, os, re, numpy, zenoh; [compileall.compile_dir(os.path.dirname(m.__file__), \
 	quiet=1, optimize=2, rx=re.compile('/tests/')) for m in (numpy, zenoh)]"
 
-# pyrvo (RVO2's bindings) is the reference of the ORCA cross-checks and benchmarks; its metadata
-# pins an old numpy, so it goes in without its dependencies (they are ours already).
-$(TSTAMP): pyproject.toml $(STAMP)
-	@echo "make: installing the test tools (pytest, ruff, mypy, import-linter, rerun-sdk, ...) into $(VENV)"
+# The project and the test tools in one pip call, which stands for `make run`'s install too: each
+# `pip install -e` compiles the core again. pyrvo (RVO2's bindings) is the reference of the ORCA
+# cross-checks and benchmarks; its metadata pins an old numpy, so it goes in without its dependencies.
+$(TSTAMP): $(CORE) | $(PY)
+	@echo "make: installing pixelswarm, its dependencies and the test tools (pytest, ruff, mypy, import-linter, rerun-sdk, ...) into $(VENV) and compiling its core with Cython (a few minutes the first time)"
 	$(PY) -m pip install -q -e '.[test]'
 	@echo "make: installing pyrvo, RVO2's bindings, the reference of the ORCA cross-checks"
 	$(PY) -m pip install -q --no-deps 'pyrvo>=0.4'
-	touch $@
+	touch $(STAMP) $@
 
 run: $(STAMP)
 	@$(BYTECODE)
