@@ -77,7 +77,7 @@ def run_scene(cwd: Path, robots: int, duration: float, seed: int, per_process: i
             env={k: v for k, v in os.environ.items() if k != "PIXELSWARM_PROFILE"},
         )
         series: dict[int, list[tuple[float, float, float]]] = {}  # agent pid -> (wall, CPU seconds, RSS bytes)
-        maps: dict[int, list[tuple[float, dict[str, float]]]] = {}  # agent pid -> (wall, memory_parts)
+        maps: dict[int, list[tuple[float, dict[str, float], float]]] = {}  # agent pid -> (wall, memory_parts, USS)
         watched: dict[int, psutil.Process] = {}
         maps_due = 0.0
         while proc.poll() is None:
@@ -100,7 +100,7 @@ def run_scene(cwd: Path, robots: int, duration: float, seed: int, per_process: i
                     t, m = p.cpu_times(), p.memory_info()
                     series.setdefault(pid, []).append((now, t.user + t.system, m.rss))
                     if read_maps:
-                        maps.setdefault(pid, []).append((now, memory_parts(p)))
+                        maps.setdefault(pid, []).append((now, memory_parts(p), p.memory_full_info().uss))
                 except psutil.Error:
                     watched.pop(pid)
             time.sleep(SAMPLE_EVERY)
@@ -119,18 +119,19 @@ def run_scene(cwd: Path, robots: int, duration: float, seed: int, per_process: i
         if j > i:
             cpu.append(100 * (c[j] - c[i]) / (t[j] - t[i]))
             rss.append(r[j])  # at the end of the stepping: a robot's process has its memory by then
-    parts = [[parts for t, parts in maps.get(pid, []) if t <= end][-1:] for pid in series]  # the last before the end
+    last = [[(parts, uss) for t, parts, uss in maps.get(pid, []) if t <= end][-1:] for pid in series]  # before the end
     ticks = max(int(m.get("samples", 1)) - 1, 1) * robots
     if not cpu:  # no two samples inside the window (a loaded machine sampled too seldom)
         cpu = [float("nan")]
     return {
         "cpu_median": float(np.median(cpu)),
         "rss_mb": float(np.median(rss)) / 2**20 if rss else float("nan"),
+        "uss_mb": float(np.median([x[0][1] for x in last if x])) / 2**20 if any(last) else float("nan"),
         "cpu_mean": float(np.mean(cpu)),
         "missed": int(m["missed_ticks"]),
         "missed_share": m["missed_ticks"] / ticks,
         "load": os.getloadavg()[0],
-        "parts": [p[0] for p in parts if p],  # per agent: its memory_parts at the end of the stepping
+        "parts": [x[0][0] for x in last if x],  # per agent: its memory_parts at the end of the stepping
     }
 
 
@@ -207,8 +208,8 @@ def main() -> None:
         sys.exit(2)
     before_rev = rev.stdout.strip()
     rows = [
-        "| pair | code | load avg | agent CPU % of a core (median) | (mean) | agent RSS MB (median) | missed ticks (share) |",
-        "|---|---|---|---|---|---|---|",
+        "| pair | code | load avg | agent CPU % of a core (median) | (mean) | agent RSS MB (median) | USS MB (median) | missed ticks (share) |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     figures: dict[str, list[float]] = {"before": [], "after": []}
     parts: dict[str, list[dict[str, float]]] = {"before": [], "after": []}
@@ -224,7 +225,7 @@ def main() -> None:
                 label = f"{before_rev} (before)" if what == "before" else "current"
                 rows.append(
                     f"| {pair} | {label} | {r['load']:.1f} | {r['cpu_median']:.2f} | {r['cpu_mean']:.2f} | "
-                    f"{r['rss_mb']:.1f} | {r['missed']} ({100 * r['missed_share']:.2f}%) |"
+                    f"{r['rss_mb']:.1f} | {r['uss_mb']:.1f} | {r['missed']} ({100 * r['missed_share']:.2f}%) |"
                 )
                 print(rows[-1], flush=True)
     b, a = np.nanmedian(figures["before"]), np.nanmedian(figures["after"])  # nan: a run without a window
@@ -248,7 +249,9 @@ def main() -> None:
         f"Scene: `pixelswarm run circle --robots {args.robots} --clock realtime --duration {args.duration:g} "
         f"--seed {args.seed} --agents-per-process {args.agents_per_process}`, before and after alternating. "
         "CPU: each agent process's user + system CPU seconds (psutil cpu_times) over the world's stepping (less a second at each "
-        "end) per wall second; RSS: each agent process's resident memory at the end of the stepping. Missed ticks: a live agent's command for tick k had not reached the world when "
+        "end) per wall second; RSS: each agent process's resident memory at the end of the stepping; USS: the part "
+        "of it no other process maps (psutil memory_full_info: without the pages of code and libraries that "
+        "every robot's process on the machine maps). Missed ticks: a live agent's command for tick k had not reached the world when "
         "tick k+1 began. Load avg: the machine's 1-minute load after the run (a shared machine).",
     ]
     command = " ".join(["python -m bench.bench_agent_tick", *sys.argv[1:]])
