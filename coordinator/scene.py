@@ -577,6 +577,22 @@ def _check_fit(scene: Scene, where: str) -> None:
 
 
 EVENT_KINDS = ("teleport", "fail", "tracker-outage", "tracker-glitch")
+EVENT_SLACK = 1e-9  # s: an event at t is due at the tick stamped t, however tick x dt rounds
+
+
+def events_of(scene: Scene, kind: str) -> list[dict[str, Any]]:
+    """The scene's events of one kind, in order of time (for take_due)."""
+    return sorted((e for e in scene.events if e["kind"] == kind), key=lambda e: e["t"])
+
+
+def take_due(events: list[dict[str, Any]], t: float) -> list[dict[str, Any]]:
+    """The events due by time t, taken off ``events`` (events_of's, in order of time)."""
+    due = 0
+    while due < len(events) and events[due]["t"] <= t + EVENT_SLACK:
+        due += 1
+    taken = events[:due]
+    del events[:due]
+    return taken
 
 
 def _check_event(event: dict[str, Any], scene: Scene, where: str) -> None:

@@ -66,6 +66,7 @@ from shapely.geometry import Polygon
 
 from agent.core.grid import nearest_other
 from agent.core.params import DIFFDRIVE, EPUCK, HOLONOMIC, KINEMATICS
+from coordinator.scene import take_due
 from sim.bodies.geometry import (
     make_arena,
     make_polygon,
@@ -353,8 +354,7 @@ class World:
 
     def teleport_due(self, events: list[dict], t: float) -> None:
         """The scene's scripted teleports due by time t (``events`` sorted by time, taken off as done)."""
-        while events and events[0]["t"] <= t + 1e-9:
-            event = events.pop(0)
+        for event in take_due(events, t):
             self.teleport(event["robot"], tuple(event["pose"]))
 
     # ---------------------------------------------------------------- dynamics

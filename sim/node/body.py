@@ -30,7 +30,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from agent.core.params import RobotParams
-from coordinator.scene import Scene
+from coordinator.scene import Scene, events_of, take_due
 from sim.args import format_ids
 from transport.bus import Bus
 from transport.codec import BEFORE_START, Command, Event, Goals, State, Tick, Truth, intact
@@ -133,7 +133,7 @@ class LockStep:
         patience = time.monotonic() + AUCTION_PATIENCE
         goal_set_patience = time.monotonic() + GOAL_SET_PATIENCE
         fail_patience = time.monotonic() + FAIL_PATIENCE
-        dies = node.killed_at(node.tick)
+        dies = node.killed_now()
         while True:
             arrived = _came(node)  # read before the commands are taken: one seen by then is queued, held or lost
             node.take_commands(node.cmd_inbox.get(timeout=max(0.0, min(0.05, deadline - time.monotonic()))))
@@ -145,7 +145,7 @@ class LockStep:
                 deadline = min(time.monotonic() + self.deadline, patience)
             node.update_liveness()
             waiting = node.live & (node.last_cmd_tick < node.tick) & ~arrived
-            dying = (node.live & dies).any() and time.monotonic() < fail_patience
+            dying = node.live[dies].any() and time.monotonic() < fail_patience
             if (not waiting.any() or time.monotonic() >= deadline or node.withheld) and not dying:
                 break
         yield node.dt
@@ -225,11 +225,7 @@ class BodyNode:
         self.alive = bus.watch_alive("agent")
         self.running, self.end_reason = True, ""
         self.parent_pid: int | None = None
-        # tick -> robots the scene kills then: the first tick at or after the event's time, the one
-        # whose truth tells the launcher to kill them (sim.run.launcher)
-        self.kills: dict[int, list[int]] = {}
-        for event in (e for e in scene.events if e["kind"] == "fail"):
-            self.kills.setdefault(math.ceil(event["t"] / self.dt - 1e-6), []).append(int(event["robot"]))
+        self.failures = events_of(scene, "fail")  # the scene's kills to come
 
     # --- the loop -----------------------------------------------------------------------------
     def run(self) -> None:
@@ -295,11 +291,10 @@ class BodyNode:
                 self.live[i] = False
                 self._watchdog(0.0)  # a dead agent's body stays, stopped
 
-    def killed_at(self, tick: int) -> np.ndarray:
-        """Per robot, whether the scene kills it at this tick."""
-        dies = np.zeros(self.scene.robots, bool)
-        dies[self.kills.get(tick, [])] = True
-        return dies
+    def killed_now(self) -> list[int]:
+        """The robots the scene kills at this tick: the launcher kills them once it has seen the tick,
+        by the same rule (sim.run.launcher)."""
+        return [int(e["robot"]) for e in take_due(self.failures, self.tick * self.dt)]
 
     def hear_goals(self) -> None:
         """Take in the goal sets heard, as the agents do, refusing epochs and stamps from the future."""

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from coordinator.resolved import add_scene_args, scene_of_args
-from coordinator.scene import Scene, SceneError
+from coordinator.scene import Scene, SceneError, events_of
 from sim.args import add_seconds, refuse
 from sim.bodies.movers import scripted_velocity
 from sim.bodies.tracker import tracker_of, world_of
@@ -39,7 +39,7 @@ class SimulatedBodies:
         self.params, self.world = world_of(scene)
         self.tracker = tracker_of(scene)
         self.tracked = np.ones(scene.robots, bool)  # the tracker sees every body (or, in an outage, none)
-        self.events = sorted((e for e in scene.events if e["kind"] == "teleport"), key=lambda e: e["t"])
+        self.events = events_of(scene, "teleport")
         # the scene's tracker outages: display time windows [t, t + duration) in which no pose is sent
         self.outages = [(e["t"], e["t"] + e["duration"]) for e in scene.events if e["kind"] == "tracker-outage"]
         # the scene's tracker glitches: display time -> [(robot, offset)] reported off for that tick

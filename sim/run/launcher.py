@@ -24,7 +24,7 @@ import numpy as np
 from agent.core.params import HOLONOMIC, RobotParams
 from agent.runtime import HostConfig, interpreter
 from coordinator.resolved import save_resolved
-from coordinator.scene import Scene
+from coordinator.scene import EVENT_SLACK, Scene, events_of, take_due
 from sim.args import STARTUP_TIMEOUT, format_ids
 from sim.node.hardware import ERROR as HARDWARE_ERROR
 from sim.outputs.metrics import Traffic
@@ -149,7 +149,7 @@ class Launcher:
         self.startup_failure: str | None = None  # why the run ended before it started (StartupFailed)
         self.interrupted = False  # a stop signal ended the run (written marked incomplete)
         self.run_dir = RunDir(options.out)
-        self.failures = sorted((e for e in scene.events if e["kind"] == "fail"), key=lambda e: e["t"])
+        self.failures = events_of(scene, "fail")
         if options.secure is not None and options.agents_per_process > 1:
             raise ValueError("a secured run has one robot per agent process: the access rules give each its own keys")
         if options.secure is not None and (options.connect or options.agent_routers):
@@ -620,7 +620,7 @@ class Launcher:
         """The run ends at the tick where the display has held converged for the scene's hold; with
         image steps, only convergence that began within the last step counts (as sim.central.engine ends)."""
         last_start = self.scene.step_starts[-1] if self.scene.steps else 0.0
-        if any(e["t"] <= now + 1e-9 for e in self.failures):
+        if self.failures and self.failures[0]["t"] <= now + EVENT_SLACK:
             return False  # a robot the scene kills by now is not killed yet: it is not the display for the rest
         return self.scene.ends_on_convergence and since >= last_start - 1e-9 and now - since >= self.scene.converge_hold
 
@@ -629,9 +629,7 @@ class Launcher:
         recorder learns of the death at once, not when the bus drops the agent's token: it would
         otherwise count the dead robot's body on its goal as part of a converged display."""
         t = rec.sim_time
-        due = [e for e in self.failures if e["t"] <= t + 1e-9]
-        for event in due:
-            self.failures.remove(event)
+        for event in take_due(self.failures, t):
             for child in self.children:
                 if child.name.startswith("agent") and event["robot"] in child.robots and child.proc.poll() is None:
                     child.proc.send_signal(signal.SIGKILL)

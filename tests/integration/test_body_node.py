@@ -186,8 +186,8 @@ class _SlowFirstAnswers:
     def update_liveness(self) -> None:
         pass
 
-    def killed_at(self, tick: int) -> np.ndarray:
-        return np.zeros(2, bool)
+    def killed_now(self) -> list[int]:
+        return []
 
 
 def test_the_first_lockstep_tick_waits_past_the_deadline_for_every_agent(monkeypatch):
@@ -215,8 +215,8 @@ class _KilledLate(_SlowFirstAnswers):
     def update_liveness(self) -> None:
         self.live[1] = time.monotonic() < self.gone_at
 
-    def killed_at(self, tick: int) -> np.ndarray:
-        return np.array([False, tick == 5])
+    def killed_now(self) -> list[int]:
+        return [1] if self.tick == 5 else []
 
 
 def test_a_lockstep_tick_at_which_the_scene_kills_a_robot_waits_until_its_agent_is_gone():
