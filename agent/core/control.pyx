@@ -201,7 +201,7 @@ def preferred_velocities(Settings settings, robot_ids, position, velocity, goal,
     cdef uint64_t seed_word = seed % 2**64, tick_word = tick % 2**64
     out = np.empty((b, 2))
     cdef double[:, ::1] o = out
-    cdef double want, x, y, speed
+    cdef double want, x, y
     cdef double d[2]
     cdef Py_ssize_t i
     cdef Config *s = &settings.c
@@ -210,10 +210,10 @@ def preferred_velocities(Settings settings, robot_ids, position, velocity, goal,
         if isfinite(w[i, 0]) and isfinite(w[i, 1]):
             o[i, 0], o[i, 1] = w[i, 0], w[i, 1]
         x, y = o[i, 0], o[i, 1]
-        speed = hypot(x, y)
-        if speed > c[i]:  # NaN: no cap
-            x, y = x * (c[i] / speed), y * (c[i] / speed)
         want = sqrt(x * x + y * y)
+        if want > c[i]:  # NaN: no cap
+            x, y = x * (c[i] / want), y * (c[i] / want)
+            want = sqrt(x * x + y * y)
         if want > 0.5 * s.v_pref and sqrt(v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1]) < 0.25 * want:
             x, y = COS_RIGHT * x - SIN_RIGHT * y, SIN_RIGHT * x + COS_RIGHT * y
         if x != 0.0 or y != 0.0:
