@@ -6,12 +6,15 @@ import argparse
 import math
 import sys
 import typing
-from pathlib import Path
 
 # s each start-up stage of a run (the coordinator, then every agent) has to come alive by default
 # (sim.run.launcher): on a loaded machine, tens of processes importing numpy and opening sessions at
 # once take minutes, not seconds
 STARTUP_TIMEOUT = 300.0
+
+
+class UsageError(Exception):
+    """Bad input from the user: one line `PROG: error: ...` (refuse), exit code 2."""
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -34,20 +37,6 @@ def positive_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be at least 1, not {value}")
-    return value
-
-
-FOXGLOVE_PORT = 8765  # Foxglove's own default for a WebSocket connection
-
-
-def port_number(text: str) -> int:
-    """A TCP port, 0 (a free one) to 65535."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a port number") from None
-    if not 0 <= value <= 65535:
-        raise argparse.ArgumentTypeError(f"a port is 0 to 65535, not {value}")
     return value
 
 
@@ -87,26 +76,3 @@ def format_ids(ids: list[int]) -> str:
         else:
             runs.append([i, i])
     return ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in runs)
-
-
-WATCH_TIMEOUT = 60.0  # s `pixelswarm view --connect` waits for a running swarm's first tick
-
-
-def add_watch_args(view: argparse.ArgumentParser) -> None:
-    """`pixelswarm view`'s flags for watching a running swarm from its bus (sim.outputs.watch)."""
-    view.add_argument(
-        "--connect",
-        "-e",
-        metavar="ENDPOINT",
-        help="watch a running swarm instead: a read-only subscriber of the run's router (or one joined to it), "
-        "e.g. tcp/127.0.0.1:7447",
-    )
-    view.add_argument("--display", help="with --connect: the run's display name (default: default)")
-    view.add_argument(
-        "--secure",
-        type=Path,
-        metavar="DIR",
-        help="with --connect: join a secured bus as the observer role of a folder made by `pixelswarm certs`",
-    )
-    add_seconds(view, "--timeout", WATCH_TIMEOUT, "with --connect: how long to wait for the run's first tick")
-    view.add_argument("--quiet", "-q", action="store_true", help="with --connect: no progress lines")

@@ -26,7 +26,7 @@ from coordinator.scene import (
     resolve_scene_path,
     shipped_scenes,
 )
-from sim.args import FOXGLOVE_PORT, STARTUP_TIMEOUT, OneLineParser, add_watch_args, port_number, positive_int, refuse
+from sim.args import STARTUP_TIMEOUT, OneLineParser, UsageError, add_seconds, positive_int, refuse
 from sim.cli.certs import add_certs_parser
 from sim.cli.track import add_track_parser
 from sim.outputs.rundir import default_run_path
@@ -41,8 +41,21 @@ STARTUP_FAILED = 3  # exit code of a run whose agents did not all come alive (do
 GOALS_SAID_AFTER = 0.5  # s: goal sets that take longer are said on stderr, so a long start-up is not silent
 
 
-class UsageError(Exception):
-    """Bad input from the user: one line, exit code 2."""
+FOXGLOVE_PORT = 8765  # Foxglove's own default for a WebSocket connection
+
+
+def port_number(text: str) -> int:
+    """A TCP port, 0 (a free one) to 65535."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a port number") from None
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"a port is 0 to 65535, not {value}")
+    return value
+
+
+WATCH_TIMEOUT = 60.0  # s `pixelswarm view --connect` waits for a running swarm's first tick
 
 
 def _add_run_scene(run: argparse.ArgumentParser) -> None:
@@ -207,13 +220,42 @@ def build_parser() -> argparse.ArgumentParser:
     )
     stop.set_defaults(func=cmd_stop)
 
+    _add_view_parser(sub)
+    scenes = sub.add_parser("scenes", help="list the shipped scenes")
+    scenes.set_defaults(func=cmd_scenes)
+
+    add_goals_parser(sub)
+    add_agents_parser(sub)
+    add_certs_parser(sub)
+    add_track_parser(sub)
+    add_study_parser(sub)
+    return parser
+
+
+def _add_view_parser(sub: Any) -> None:
+    """`pixelswarm view`: a finished run replayed, or a running swarm watched from its bus (sim.outputs.watch)."""
     view = sub.add_parser(
         "view",
         help="replay a finished run in Rerun's viewer (its trajectory.npz), or watch a running one with --connect "
         "(pip install 'pixelswarm[view]')",
     )
     view.add_argument("run_dir", type=Path, nargs="?", metavar="RUN_DIR", help="a run directory (with trajectory.npz)")
-    add_watch_args(view)
+    view.add_argument(
+        "--connect",
+        "-e",
+        metavar="ENDPOINT",
+        help="watch a running swarm instead: a read-only subscriber of the run's router (or one joined to it), "
+        "e.g. tcp/127.0.0.1:7447",
+    )
+    view.add_argument("--display", help="with --connect: the run's display name (default: default)")
+    view.add_argument(
+        "--secure",
+        type=Path,
+        metavar="DIR",
+        help="with --connect: join a secured bus as the observer role of a folder made by `pixelswarm certs`",
+    )
+    add_seconds(view, "--timeout", WATCH_TIMEOUT, "with --connect: how long to wait for the run's first tick")
+    view.add_argument("--quiet", "-q", action="store_true", help="with --connect: no progress lines")
     view.add_argument(
         "--web", action="store_true", help="serve Rerun's web viewer on 127.0.0.1 and print its address (until Ctrl-C)"
     )
@@ -224,16 +266,6 @@ def build_parser() -> argparse.ArgumentParser:
         help="only write the recording to FILE.rrd (default: RUN_DIR/view.rrd, written once and then reused)",
     )
     view.set_defaults(func=cmd_view)
-
-    scenes = sub.add_parser("scenes", help="list the shipped scenes")
-    scenes.set_defaults(func=cmd_scenes)
-
-    add_goals_parser(sub)
-    add_agents_parser(sub)
-    add_certs_parser(sub)
-    add_track_parser(sub)
-    add_study_parser(sub)
-    return parser
 
 
 def _names_the_simulator(path: Path) -> bool:

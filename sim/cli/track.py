@@ -21,17 +21,13 @@ import tomllib
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
-from sim.args import refuse
+from sim.args import UsageError, refuse
 
 if TYPE_CHECKING:
     from hardware.camera import CameraConfig
 
 PROG = "pixelswarm track"
 PROGRESS_EVERY = 50  # frames between progress lines
-
-
-class TrackError(Exception):
-    """Bad input to `pixelswarm track`: one line, exit code 2."""
 
 
 def add_track_parser(subparsers: Any) -> None:
@@ -64,15 +60,15 @@ def load_camera_config(path: Path) -> CameraConfig:
         with open(path, "rb") as f:
             data = tomllib.load(f)
     except OSError as err:
-        raise TrackError(f"cannot read hardware file {path}: {err.strerror or err}") from None
+        raise UsageError(f"cannot read hardware file {path}: {err.strerror or err}") from None
     except tomllib.TOMLDecodeError as err:
-        raise TrackError(f"hardware file {path} is not valid TOML: {err}") from None
+        raise UsageError(f"hardware file {path} is not valid TOML: {err}") from None
     if "poses" not in data:
-        raise TrackError(f"hardware file {path} has no [poses] table")
+        raise UsageError(f"hardware file {path} has no [poses] table")
     try:
         return CameraConfig.from_table(data["poses"], f"{path} [poses]")
     except HardwareConfigError as err:
-        raise TrackError(str(err)) from None
+        raise UsageError(str(err)) from None
 
 
 def track_video(video: Path, config: CameraConfig, out: TextIO, progress: TextIO | None) -> tuple[int, int]:
@@ -82,11 +78,11 @@ def track_video(video: Path, config: CameraConfig, out: TextIO, progress: TextIO
     from hardware.camera import MIN_REFERENCES, ArucoTracker, CameraError, open_capture
 
     if not video.is_file():
-        raise TrackError(f"no such video file {video}")
+        raise UsageError(f"no such video file {video}")
     try:
         capture = open_capture(str(video))
     except CameraError as err:
-        raise TrackError(str(err)) from None
+        raise UsageError(str(err)) from None
     try:
         fps = capture.get(cv2.CAP_PROP_FPS)
         fps = fps if fps > 0 else config.rate  # a video without a frame rate: the configured one
@@ -111,9 +107,9 @@ def track_video(video: Path, config: CameraConfig, out: TextIO, progress: TextIO
     finally:
         capture.release()
     if frames == 0:
-        raise TrackError(f"no frames could be read from {video}")
+        raise UsageError(f"no frames could be read from {video}")
     if not tracker.calibrated:
-        raise TrackError(
+        raise UsageError(
             f"fewer than {MIN_REFERENCES} of the reference markers {sorted(config.reference)} were ever seen in {video}"
         )
     return frames, rows
@@ -127,7 +123,7 @@ def run_track(args: argparse.Namespace) -> int:
         config = load_camera_config(args.hardware)
         parent = out.parent if str(out.parent) else Path(".")
         if out.is_dir() or not parent.is_dir():
-            raise TrackError(
+            raise UsageError(
                 f"cannot write {out}: {'a directory' if out.is_dir() else 'no such directory ' + str(parent)}"
             )
         fd, name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".partial", dir=parent)
@@ -139,7 +135,7 @@ def run_track(args: argparse.Namespace) -> int:
             frames, rows = track_video(args.video, config, f, None if args.quiet else sys.stderr)
         os.replace(temp, out)
         temp = None
-    except TrackError as err:
+    except UsageError as err:
         return refuse(PROG, err)
     except OSError as err:
         return refuse(PROG, f"cannot write {out}: {err.strerror or err}")

@@ -27,7 +27,7 @@ from pathlib import Path
 
 from agent.core.params import EPUCK, RobotParams
 from hardware.config import Started
-from sim.args import OneLineParser, positive_int, refuse
+from sim.args import OneLineParser, UsageError, positive_int, refuse
 from sim.processes import stopped_by_signals
 
 COMMAND_PACKET = 0x80
@@ -322,10 +322,6 @@ class Epuck2Emulator(Started):
 
 
 # --- command line ---
-class UsageError(Exception):
-    """Bad input: one line on stderr, exit code 2."""
-
-
 def read_poses(path: Path, count: int) -> list[Pose]:
     """A JSON list of [x, y, theta], one per robot."""
     try:

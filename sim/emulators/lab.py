@@ -13,7 +13,6 @@ between the emulated bodies (discs of the scene's robot radius).
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import threading
 import time
@@ -26,11 +25,11 @@ import numpy as np
 from agent.core.params import RobotParams
 from coordinator.scene import Scene, SceneError, load_scene
 from hardware.config import Started
-from sim.args import OneLineParser, positive_int, refuse
+from sim.args import OneLineParser, UsageError, positive_int, positive_number, refuse
 from sim.processes import stopped_by_signals
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, settings_from_args
 
-from .epuck2 import Epuck2Emulator, UsageError, say_final, write_atomically
+from .epuck2 import Epuck2Emulator, say_final, write_atomically
 from .mocap import MocapEmulator
 
 MOCAP_RATE = 50.0  # Hz: PoseStamped per robot
@@ -152,7 +151,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--scene", required=True, help="a shipped scene or a scene file: its start layout")
     parser.add_argument("--robots", "-n", type=positive_int, help="number of robots (overrides the scene)")
     parser.add_argument("--seed", type=int, help="random seed (overrides the scene's, for random layouts)")
-    parser.add_argument("--rate", type=float, default=MOCAP_RATE, help=f"motion capture Hz (default {MOCAP_RATE:g})")
+    parser.add_argument(
+        "--rate", type=positive_number, default=MOCAP_RATE, help=f"motion capture Hz (default {MOCAP_RATE:g})"
+    )
     parser.add_argument("--port", type=positive_int, help="robot i listens on PORT + i (default: free ports)")
     parser.add_argument("--write-hardware", type=Path, metavar="FILE.toml", help="write a hardware file for the lab")
     parser.add_argument(
@@ -186,8 +187,6 @@ def main(argv: list[str] | None = None) -> int:
     settings = settings_from_args(args)
     if settings.mode == "client" and not settings.connect:
         parser.error("a client lab needs its router: -e ENDPOINT (or -m router -l ENDPOINT to be the router)")
-    if not (math.isfinite(args.rate) and args.rate > 0):
-        parser.error(f"--rate must be a positive number of Hz, not {args.rate}")
     with stopped_by_signals() as stop:
         try:
             lab = open_lab(args, settings, stop)

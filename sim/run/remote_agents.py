@@ -27,7 +27,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from agent.runtime import HostConfig, interpreter
-from sim.args import add_seconds, format_ids, positive_int, refuse
+from sim.args import UsageError, add_seconds, format_ids, positive_int, refuse
 from sim.processes import handling_signals, stop_processes
 from transport.bus import Bus, LivelinessWatch
 from transport.keys import Keys
@@ -44,10 +44,6 @@ PROG = "pixelswarm agents"
 RUN_TIMEOUT = 60.0  # s to wait for a run to be there
 QUERY_TIMEOUT = 5.0  # s for the run to answer a configuration query
 STOP_GRACE = 5.0  # s an agent has to stop after SIGTERM before it is killed
-
-
-class UsageError(Exception):
-    """Bad input: one line, exit code 2."""
 
 
 # --- robot ids -------------------------------------------------------------------------------------
