@@ -30,6 +30,7 @@ from coordinator.scene import Scene, SceneError
 from hardware.config import HardwareConfig, HardwareConfigError, load_hardware
 from hardware.poses import STAMP_DROPS, PoseSample
 from sim.node.body import COMMAND_DROPS, STOP_REASONS, BodyNode, WallClock
+from sim.outputs.metrics import clearance_at
 from transport.bus import Bus
 from transport.codec import Command, State
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, settings_from_args
@@ -231,19 +232,12 @@ class HardwareBodies:
         return []
 
     def truth(self, tick: int) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
-        clearance = self._clearance()
+        tracked = self.pose[self.tracked, :2]  # the smallest gap between their discs now (m)
+        clearance = clearance_at(tracked, np.full(len(tracked), self.params.radius))
         self.min_clearance = min(self.min_clearance, clearance)
         speed = self.wheels.mean(axis=1)
         velocity = np.column_stack([speed * np.cos(self.pose[:, 2]), speed * np.sin(self.pose[:, 2])])
         return clearance, self.pose, velocity, self.sent
-
-    def _clearance(self) -> float:
-        """Smallest gap between the tracked robots' discs now (m)."""
-        xy = self.pose[self.tracked, :2]
-        if len(xy) < 2:
-            return math.inf
-        gaps = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
-        return float(gaps[np.triu_indices(len(xy), 1)].min() - 2 * self.params.radius)
 
     def applied(self) -> np.ndarray:
         return self.sent
