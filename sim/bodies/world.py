@@ -41,13 +41,8 @@ that start overlapping are recorded at t = 0. Touching (distance exactly r_i + r
 
 ``min_clearance`` is the exact smallest robot-robot clearance (centre distance minus both radii)
 over every substep state so far (negative means overlap); ``step_min_clearance()`` is the same over
-the states of the last step, its start included. Both are +inf with fewer than two robots. Finding
-it exactly and cheaply: a grid of cells on the positions at the start of the step (sim.bodies.proximity); all
-pairs within (clearance of the last step's closest pair now) + 2 r_max + 2 * (largest distance
-travelled in the step) are looked at, and checked at every substep unless they can neither overlap
-nor come closer than the smallest clearance found so far (when that radius takes in too many
-pairs, e.g. the pair was teleported apart: pairs within 2.5 r_max + 2 * travel, then if none came
-closer than r_max / 2, a nearest-neighbour query bounds the radius).
+the states of the last step, its start included. Both are +inf with fewer than two robots, and
+exact: _ContactWatch._robot_pairs says how the pairs that can have it are found.
 
 ``teleport(i, pose)`` moves a robot as if picked up by hand: no path length, velocity zero, the
 command kept (the controller decides what to send next). The new state is checked for contacts at
@@ -58,7 +53,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -112,13 +107,7 @@ class Body:
     @classmethod
     def from_params(cls, params: Any) -> Body:
         """The body part of an ``agent.core.params.RobotParams`` (or anything with those fields)."""
-        return cls(
-            kinematics=params.kinematics,
-            radius=params.radius,
-            v_max=params.v_max,
-            wheel_base=params.wheel_base,
-            omega_max=params.omega_max,
-        )
+        return cls(*(getattr(params, f.name) for f in fields(cls)))
 
 
 @dataclass
