@@ -88,10 +88,9 @@ def _rerun() -> Any:
 def _viewer() -> list[str]:
     """Rerun's viewer binary, as rerun-sdk ships it (run directly: a process of ours to stop by its id,
     not a wrapper whose child would outlive it)."""
-    try:
-        import rerun_cli
-    except ImportError:
-        raise ViewUnavailable("the view needs rerun-sdk: pip install 'pixelswarm[view]'") from None
+    _rerun()  # rerun_cli comes in rerun-sdk's wheel
+    import rerun_cli
+
     binary = Path(rerun_cli.__file__).parent / "rerun"
     if not binary.is_file():
         raise ViewUnavailable(f"rerun-sdk has no viewer binary at {binary}")
