@@ -198,13 +198,7 @@ def _one_entity(t_ns: int, entity: str, primitives: bytes) -> bytes:
 
 
 def _swarm_disc(x: float, y: float, d: float, red: float, green: float, blue: float) -> CylinderPrimitive:
-    return CylinderPrimitive(
-        pose=_pose(x, y, DISC_HEIGHT / 2, *FLAT[2:]),
-        size=Vector3(x=d, y=d, z=DISC_HEIGHT),
-        bottom_scale=1.0,
-        top_scale=1.0,
-        color=Color(r=red, g=green, b=blue, a=1.0),
-    )
+    return _robot_disc(x, y, *FLAT[2:], d, red, green, blue)  # unturned: the same at any heading
 
 
 def _columns(*parts: np.ndarray) -> np.ndarray:
