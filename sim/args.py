@@ -67,6 +67,16 @@ def add_seconds(parser: argparse.ArgumentParser, flag: str, default: float, help
     )
 
 
+def check_endpoint(settings: typing.Any, endpoint: str) -> None:
+    """UsageError unless zenoh reads ``endpoint``, which ``settings`` connect to, as an endpoint."""
+    try:
+        settings.to_config()  # zenoh's own check of the endpoint's form
+    except Exception:
+        raise UsageError(
+            f"--connect {endpoint!r} is not an endpoint: expected PROTOCOL/ADDRESS, e.g. tcp/127.0.0.1:7447"
+        ) from None
+
+
 def format_ids(ids: list[int]) -> str:
     """The reverse of sim.run.remote_agents.parse_ids, for messages: [0, 1, 2, 3, 7] -> '0-3, 7'."""
     runs: list[list[int]] = []

@@ -561,7 +561,7 @@ def cmd_view(args: argparse.Namespace) -> int:
 def _watch(args: argparse.Namespace) -> int:
     """`pixelswarm view --connect ENDPOINT`: a running swarm, from its bus (sim.outputs.watch)."""
     from sim.outputs.view import ViewUnavailable
-    from sim.outputs.watch import WatchError, observer_settings, print_line, watch
+    from sim.outputs.watch import observer_settings, print_line, watch
 
     if args.connect is None:
         raise UsageError("give a RUN_DIR to replay, or --connect ENDPOINT to watch a running swarm")
@@ -576,7 +576,7 @@ def _watch(args: argparse.Namespace) -> int:
         settings = observer_settings(args.connect, args.secure, display)
         sink = args.save if args.save is not None else "web" if args.web else "native"
         code = watch(settings, display, sink, timeout=args.timeout, say=print_line("pixelswarm view", args.quiet))
-    except (WatchError, ViewUnavailable) as err:
+    except ViewUnavailable as err:
         raise UsageError(str(err)) from None
     if code == 0 and args.save is not None:
         print(args.save, flush=True)

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from sim.args import UsageError, check_endpoint
 from sim.outputs.view import SwarmView, stop_on_sigterm
 from transport.bus import Bus, Inbox, LivelinessWatch, RawInbox
 from transport.codec import BEFORE_START, State, States, Truth, decode
@@ -38,13 +39,9 @@ POLL = 0.2  # s between looks at liveliness while no tick comes
 NO_RUN = 1  # exit code: no tick came within the timeout
 
 
-class WatchError(ValueError):
-    """Bad input (an endpoint that does not parse, a folder without the observer role): one line."""
-
-
 def observer_settings(endpoint: str, secure: Path | None, display: str) -> ZenohSettings:
     """A client session of the run's router at ``endpoint``: plain, or as the observer role of a folder
-    made by `pixelswarm certs` (its TLS certificate, the router's access rules)."""
+    made by `pixelswarm certs` (its TLS certificate, the router's access rules); UsageError for bad input."""
     try:
         Keys(display)
         if secure is not None:
@@ -53,13 +50,8 @@ def observer_settings(endpoint: str, secure: Path | None, display: str) -> Zenoh
         else:
             settings = ZenohSettings(mode="client", connect=[endpoint])
     except (SecurityError, ValueError) as err:
-        raise WatchError(str(err)) from None
-    try:
-        settings.to_config()  # zenoh's own check of the endpoint's form
-    except Exception:
-        raise WatchError(
-            f"--connect {endpoint!r} is not an endpoint: expected PROTOCOL/ADDRESS, e.g. tcp/127.0.0.1:7447"
-        ) from None
+        raise UsageError(str(err)) from None
+    check_endpoint(settings, endpoint)
     return settings
 
 

@@ -27,7 +27,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from agent.runtime import HostConfig, interpreter
-from sim.args import UsageError, add_seconds, format_ids, positive_int, refuse
+from sim.args import UsageError, add_seconds, check_endpoint, format_ids, positive_int, refuse
 from sim.processes import handling_signals, stop_processes
 from transport.bus import Bus, LivelinessWatch
 from transport.keys import Keys
@@ -133,12 +133,7 @@ def _check_input(args: argparse.Namespace) -> tuple[list[int] | None, ZenohSetti
     except ValueError as err:
         raise UsageError(str(err)) from None
     settings = ZenohSettings(mode="client", connect=[args.connect])
-    try:
-        settings.to_config()  # zenoh's own check of the endpoint's form
-    except Exception:
-        raise UsageError(
-            f"--connect {args.connect!r} is not an endpoint: expected PROTOCOL/ADDRESS, e.g. tcp/127.0.0.1:7447"
-        ) from None
+    check_endpoint(settings, args.connect)
     return robots, settings
 
 
