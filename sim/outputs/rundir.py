@@ -106,7 +106,7 @@ def dumps_json(obj: Any, *, indent: int | None = None) -> str:
     return json.dumps(json_safe(obj), allow_nan=False, indent=indent, separators=sep)
 
 
-def _atomic_write_bytes(path: Path, writer) -> None:
+def atomic_write(path: Path, writer) -> None:
     """Write through a temporary sibling file and rename it over ``path``."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}-{threading.get_ident()}")
@@ -125,7 +125,7 @@ def write_json(path: str | os.PathLike, obj: Any, *, indent: int = 2) -> Path:
     """Write ``obj`` as JSON (NaN/inf -> null, numpy types converted), atomically. Returns the path."""
     path = Path(path)
     text = dumps_json(obj, indent=indent) + "\n"
-    _atomic_write_bytes(path, lambda fh: fh.write(text.encode("utf-8")))
+    atomic_write(path, lambda fh: fh.write(text.encode("utf-8")))
     return path
 
 
@@ -148,7 +148,7 @@ def write_npz(path: str | os.PathLike, *, compress: bool = True, **arrays: Any) 
         # ignored: to mypy a key of clean could be savez's own ``allow_pickle``
         save(fh, **clean)  # type: ignore[arg-type]
 
-    _atomic_write_bytes(path, _w)
+    atomic_write(path, _w)
     return path
 
 
@@ -167,7 +167,7 @@ def write_npz_streamed(path: str | os.PathLike, arrays: Iterable[tuple[str, Any]
                     else:
                         np.lib.format.write_array(member, np.asarray(value), allow_pickle=False)
 
-    _atomic_write_bytes(path, _w)
+    atomic_write(path, _w)
     return path
 
 

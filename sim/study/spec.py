@@ -8,16 +8,14 @@ import fcntl
 import itertools
 import json
 import math
-import os
 import shutil
 import tomllib
 from pathlib import Path
 from typing import Any
 
-from coordinator.scene import SceneError, load_scene
+from coordinator.scene import CLOCKS, ENGINES, SceneError, load_scene
+from sim.outputs.rundir import atomic_write
 
-ENGINES = ("distributed", "central")
-CLOCKS = ("lockstep", "realtime")
 FAULT_SETTINGS = ("loss", "delay", "jitter")  # the state messages' fault plan (transport/faults.py)
 
 
@@ -294,13 +292,8 @@ class StudyDir:
 def write_text(path: Path, text: str | bytes) -> None:
     """Write through a temporary sibling and rename, so that no reader sees half a file."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        tmp.write_bytes(text.encode() if isinstance(text, str) else text)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    data = text.encode() if isinstance(text, str) else text
+    atomic_write(path, lambda fh: fh.write(data))
 
 
 def lock_study(root: Path) -> Any:
