@@ -197,7 +197,6 @@ class World:
         self._noise = _HeldNoise(n, noise_period, int(seed))
         self._m = _Motion.at_rest(p)
         self._watch = _ContactWatch(radius, arena, polygons)
-        self._step_min_clearance = math.inf
         self._check_start = False
         self.last_substeps = 0  # number of substeps the last step() ran
         self._unchecked: tuple | None = None  # a step whose contacts are not yet detected (step(check=False))

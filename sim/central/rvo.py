@@ -76,7 +76,6 @@ class CentralOrca:
         self.radius = np.zeros(0)
         self.max_speed = np.zeros(0)
         self.segments = np.zeros((0, 2, 2))
-        self.global_time = 0.0
         self.steps = 0
         self.fallback_count = 0  # robot-steps where the linear program was infeasible
         # per-step work kept between steps (a step is otherwise mostly Python around the core):
@@ -187,5 +186,4 @@ class CentralOrca:
         # position + v dt, as one expression would, in place
         self.position += np.multiply(new_velocity, self.time_step, out=self._buffer("motion", new_velocity))
         self.fallback_count += int(np.count_nonzero(fallback))
-        self.global_time += self.time_step
         self.steps += 1
