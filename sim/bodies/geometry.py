@@ -12,14 +12,6 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon
 
-__all__ = [
-    "make_arena",
-    "make_polygon",
-    "polygon_signed_distance",
-    "rect_signed_distance",
-    "wrap_angle",
-]
-
 
 def wrap_angle(theta: np.ndarray | float) -> np.ndarray:
     """Wrap angles to [-pi, pi)."""

@@ -15,8 +15,6 @@ import numpy as np
 
 from agent.core import grid
 
-__all__ = ["close_pairs"]
-
 
 def close_pairs(
     traj: np.ndarray,

@@ -72,8 +72,6 @@ from sim.bodies.geometry import (
 from sim.bodies.kinematics import Bodies, actuate, drive, limit
 from sim.bodies.proximity import close_pairs
 
-__all__ = ["Body", "Contact", "World"]
-
 _KINDS = ("robot", "obstacle", "wall")
 _KIND_ORDER = {k: n for n, k in enumerate(_KINDS)}
 

@@ -17,8 +17,6 @@ from agent.core.grid import nearest
 from agent.core.params import EPUCK
 from agent.core.step import polygon_segments
 
-__all__ = ["CentralOrca", "Options"]
-
 
 @dataclass(frozen=True)
 class Options:

@@ -42,8 +42,6 @@ from foxglove.messages import (
 
 from sim.outputs.logschema import length_delimited
 
-__all__ = ["SCENE_UPDATE_SCHEMA_NAME", "DISPLAY_FRAME", "SceneUpdate", "goal_markers", "scene_update", "swarm_scene"]
-
 SCENE_UPDATE_SCHEMA_NAME = "foxglove.SceneUpdate"
 DISPLAY_FRAME = "display"  # the plane the robots move on, x right and y up as in the arena (metres)
 

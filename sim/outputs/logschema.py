@@ -35,8 +35,6 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
 from transport.codec import Bid, Boards, Commands, Message, Poses, States, Truth
 
-__all__ = ["PACKAGE", "LoggedKind", "kind_of", "length_delimited", "logged_kinds", "varint"]
-
 PACKAGE = "pixelswarm"
 _F = descriptor_pb2.FieldDescriptorProto
 # struct format characters and numpy types -> protobuf field types (the wire's own widths)

@@ -39,8 +39,6 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from sim.outputs.rundir import dumps_json, json_safe
 
-__all__ = ["McapLog", "logged", "read_mcap", "mcap_channels", "proto_to_dict"]
-
 MESSAGE_ENCODING = "json"
 SCHEMA_ENCODING = "jsonschema"
 PROTOBUF = "protobuf"

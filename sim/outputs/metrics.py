@@ -15,19 +15,6 @@ import numpy as np
 
 from sim.bodies.proximity import close_pairs
 
-__all__ = [
-    "clearance_over_time",
-    "clearance_at",
-    "contact_events",
-    "path_lengths",
-    "step_metrics",
-    "time_to_converge",
-    "summarise",
-    "Steps",
-    "Traffic",
-    "TrueRecord",
-]
-
 
 def _radius(radius: Any, n: int) -> np.ndarray:
     r = np.asarray(radius, dtype=float)

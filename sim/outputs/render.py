@@ -20,8 +20,6 @@ import cv2
 import numpy as np
 from av.codec.codec import UnknownCodecError
 
-__all__ = ["Recording", "render_frame", "write_video", "write_plots", "frame_indices", "video_size"]
-
 
 @dataclass(frozen=True)
 class Recording:

@@ -26,8 +26,6 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["RunDir", "default_run_path", "json_safe", "dumps_json", "write_json", "write_npz", "PARTIAL_SUFFIX"]
-
 PARTIAL_SUFFIX = ".partial"
 
 

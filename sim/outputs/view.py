@@ -47,8 +47,6 @@ import numpy as np
 from sim.processes import stop_processes
 from transport.session import free_port, listening
 
-__all__ = ["SwarmView", "ViewUnavailable", "replay", "VIEW_FILE", "TRAIL"]
-
 VIEW_FILE = "view.rrd"  # beside trajectory.npz
 TRAIL = 10  # positions kept per robot's trail: every TRAIL_EVERY-th tick's
 TRAIL_EVERY = 2
