@@ -37,6 +37,16 @@ def handling_signals(handler: Callable[[int, Any], None]) -> Iterator[None]:
             signal.signal(signum, old)
 
 
+def stop_on_sigterm() -> Any:
+    """SIGTERM as Ctrl-C (a KeyboardInterrupt), so the ``finally`` blocks that stop what this process
+    started run; returns the handler it replaces."""
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    return signal.signal(signal.SIGTERM, interrupt)
+
+
 @contextmanager
 def stopped_by_signals() -> Iterator[threading.Event]:
     """An event that SIGINT or SIGTERM sets while inside."""

@@ -44,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from sim.processes import stop_processes
+from sim.processes import stop_on_sigterm, stop_processes
 from transport.session import free_port, listening
 
 VIEW_FILE = "view.rrd"  # beside trajectory.npz
@@ -452,16 +452,6 @@ def _layout() -> Any:
     display = rrb.Spatial2DView(name="display", origin="/", contents=[f"/{e}/**" for e in DISPLAY])
     plots = rrb.Vertical(rrb.TimeSeriesView(origin="/metrics/clearance"), rrb.TimeSeriesView(origin="/metrics/at_goal"))
     return rrb.Blueprint(rrb.Horizontal(display, plots, column_shares=[3, 1]), collapse_panels=True)
-
-
-def stop_on_sigterm() -> None:
-    """SIGTERM as Ctrl-C: the ``finally`` that stops the viewer's process runs."""
-    import signal
-
-    def interrupt(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGTERM, interrupt)
 
 
 def _min_clearance(xy: np.ndarray, r: np.ndarray) -> float:

@@ -25,7 +25,8 @@ from typing import Any
 import numpy as np
 
 from sim.args import UsageError, check_endpoint
-from sim.outputs.view import SwarmView, stop_on_sigterm
+from sim.outputs.view import SwarmView
+from sim.processes import stop_on_sigterm
 from transport.bus import Bus, Inbox, LivelinessWatch, RawInbox
 from transport.codec import BEFORE_START, State, States, Truth, decode
 from transport.epuck import RADIUS

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from sim.args import refuse
+from sim.processes import stop_on_sigterm
 from sim.study.spec import (
     Run,
     Spec,
@@ -241,7 +242,7 @@ def _study(spec: Spec, study: StudyDir, jobs: int, args: argparse.Namespace) -> 
     write_text(study.root / "spec.toml", spec.text)
     held = {"scene": spec.scene, "base": spec.base, "baseline": spec.baseline}
     write_text(study.root / "study.json", json.dumps(held, indent=2) + "\n")
-    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    previous = stop_on_sigterm()
     try:
         progress = execute(spec, study, jobs, sys.stderr, args.scheduler)
     except ClusterError as err:
@@ -260,7 +261,3 @@ def _study(spec: Spec, study: StudyDir, jobs: int, args: argparse.Namespace) -> 
     report = write_report(spec, study, command)
     print(report)
     return 1 if progress.failed else 0
-
-
-def _raise_interrupt(signum: int, frame: Any) -> None:
-    raise KeyboardInterrupt
