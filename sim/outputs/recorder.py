@@ -24,6 +24,7 @@ import orjson
 from sim.outputs.foxglove import SceneUpdate, goal_markers, scene_update, swarm_scene
 from sim.outputs.logschema import LoggedKind, kind_of
 from sim.outputs.mcaplog import McapLog
+from sim.outputs.stream import ROWS
 from sim.outputs.ticklog import TickLog
 from transport.bus import Bus
 from transport.codec import (
@@ -514,14 +515,7 @@ class Recorder:
     def arrays(self) -> dict[str, np.ndarray]:
         tr, n = self.traj, self.n
         if not tr.t:
-            return {
-                "t": np.zeros(0),
-                "pose": np.zeros((0, n, 3)),
-                "velocity": np.zeros((0, n, 2)),
-                "color": np.zeros((0, n, 3), np.uint8),
-                "goal": np.zeros((0, n, 2)),
-                "assignment": np.zeros((0, n), int),
-            }
+            return {"t": np.zeros(0)} | {name: np.zeros((0, n, *shape), kind) for name, (shape, kind) in ROWS.items()}
         out = {
             "t": np.array(tr.t),
             "pose": np.stack(tr.pose),
