@@ -189,21 +189,17 @@ def _build(kind: type[Message], tables: dict[str, tuple[np.dtype | None, Callabl
     return LoggedKind(f"{PACKAGE}.{name}", scalars, tuple(encoders), cls, descriptor_set)
 
 
-def _records(m: Any) -> np.ndarray:
-    return m.records
-
-
 def logged_kinds() -> dict[type[Message], LoggedKind]:
     """Every kind logged as protobuf, by its class."""
     if not _KINDS:
         for frame in (Poses, States, Commands, Bid):
-            _KINDS[frame] = _build(frame, {"records": (frame.RECORD, _records)})
+            _KINDS[frame] = _build(frame, {"records": (frame.RECORD, lambda m: m.records)})
         _KINDS[Boards] = _build(
             Boards,
             {
                 "words": (Boards.WORD, lambda m: m.words),
                 "known": (None, lambda m: m.known),
-                "records": (Boards.RECORD, _records),
+                "records": (Boards.RECORD, lambda m: m.records),
             },
         )
         _KINDS[Truth] = _build(Truth, {"records": (TRUTH_ROW, _truth_rows)})

@@ -379,7 +379,6 @@ class Launcher:
             settings = self.opt.router or self._embedded_router()
             self.client = client_of(settings)
         bus = Bus(settings, self.opt.display, name="launcher")
-        self.world = WorldEnd()
         try:
             recorder = self._recorder(bus)
             if self.opt.hardware is not None:  # refused at once (one line) if a robot or its pose is missing
