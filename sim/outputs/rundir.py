@@ -73,13 +73,9 @@ def json_safe(obj: Any) -> Any:
         return [json_safe(v) for v in obj]
     if isinstance(obj, np.ndarray):
         return _array_safe(obj)
-    if isinstance(obj, np.generic):
-        if isinstance(obj, np.floating):
-            return _float_or_none(float(obj))
-        if isinstance(obj, np.bool_):
-            return bool(obj)
-        if isinstance(obj, np.integer):
-            return int(obj)
+    if isinstance(obj, np.floating):  # float(), not item(): a long double's item() is one again
+        return _float_or_none(float(obj))
+    if isinstance(obj, np.generic):  # numpy's bools and integers as Python's
         return json_safe(obj.item())
     if isinstance(obj, (set, frozenset)):
         return [json_safe(v) for v in sorted(obj, key=repr)]
