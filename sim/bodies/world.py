@@ -3,13 +3,9 @@
 A pure, deterministic physics object (no I/O, no clock, no zenoh) that the world process drives:
 ``set_command`` / ``stop`` / ``teleport`` between calls to ``step(dt)``.
 
-Kinematics (per robot, so one world may hold a mixed swarm):
-
-- ``holonomic``: the command is a world-frame velocity (vx, vy); its norm is clipped to ``v_max``.
-  The heading theta is not changed by motion.
-- ``diffdrive``: the command is the pair of LINEAR wheel speeds (v_left, v_right) in m/s, each
-  clipped to +-``v_max``; v = (vl + vr) / 2, omega = (vr - vl) / wheel_base, omega clipped to
-  +-``omega_max``. Integration is the exact unicycle arc (no Euler error).
+Kinematics, per robot (one world may hold a mixed swarm): a ``holonomic`` command is a world-frame
+velocity (vx, vy), a ``diffdrive`` one the LINEAR wheel speeds (v_left, v_right) in m/s; their limits,
+noise and exact arcs (no Euler error) are sim.bodies.kinematics's.
 
 Actuation noise (ActuationNoise): the actuation error is held for ``period`` seconds of world time (default
 the control period, RobotParams.dt) on a fixed time grid: on entering each period the world draws an
@@ -17,10 +13,7 @@ the control period, RobotParams.dt) on a fixed time grid: on entering each perio
 whatever the commands are. So the noise a robot gets never depends on the order in which commands
 arrived, nor on how time is chunked into ``step`` calls (one step(0.1) or ten step(0.01) draw the
 same numbers), and the same sequence of calls gives bit-identical poses. The realised command is
-``c * (1 + relative * n)`` per wheel (diffdrive) or ``c + relative * |c| * n``
-(holonomic, isotropic), plus ``absolute * n'`` (m/s) for robots whose command is
-non-zero (idle motors do not creep); it is then clipped to the limits again, so the speed limits
-hold with noise too. Within a noise period and between commands the motion is an exact arc, so the
+clipped to the limits again, so the speed limits hold with noise too. Within a noise period and between commands the motion is an exact arc, so the
 integration itself does not depend on the substep.
 
 Substeps: ``step(dt)`` splits dt into ``ceil(dt / substep)`` equal substeps (0.1 s -> 10 at the
