@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import signal
 import sys
@@ -415,16 +416,12 @@ def _run_central(args: argparse.Namespace, scene: Scene, out: Path, faults: Any,
         )
 
     progress = None if args.quiet else sys.stderr
-    view = _open_view(args.view, scene)
-    if progress is not None:  # the engine's own first line comes with its first tick
-        print(f"[{scene.name}] {scene.robots} robots: starting the central engine", file=progress, flush=True)
-    try:
+    with _open_view(args.view, scene) as view:
+        if progress is not None:  # the engine's own first line comes with its first tick
+            print(f"[{scene.name}] {scene.robots} robots: starting the central engine", file=progress, flush=True)
         path = run_central(scene, out, video=args.video, plots=args.plots, progress=progress, reach=reach, view=view)
         print(path, flush=True)
         _keep_viewing(view)
-    finally:
-        if view is not None:
-            view.close()
     return 0
 
 
@@ -463,18 +460,15 @@ def _run_agents(args: argparse.Namespace, scene: Scene, out: Path, faults: Any, 
         reach=reach,
         foxglove=args.foxglove,
     )
-    options.view = _open_view(args.view, scene)
-    try:
+    with _open_view(args.view, scene) as options.view:
         return _run_distributed(Launcher(scene, options))
-    finally:
-        if options.view is not None:
-            options.view.close()
 
 
 def _open_view(mode: str | None, scene: Scene) -> Any:
-    """The live view ``--view`` asks for (sim.outputs.view.SwarmView), or None; one line if it cannot start."""
+    """The live view ``--view`` asks for (sim.outputs.view.SwarmView), or None, as a context that closes
+    it; one line if it cannot start."""
     if mode is None:
-        return None
+        return contextlib.nullcontext()
     from sim.outputs.view import SwarmView, ViewUnavailable
 
     if mode not in ("native", "web") and not mode.endswith(".rrd"):
@@ -489,7 +483,7 @@ def _open_view(mode: str | None, scene: Scene) -> Any:
         raise UsageError(f"--view: {err}") from None
     if view.url is not None:
         print(f"[{scene.name}] view: {view.url}", file=sys.stderr, flush=True)
-    return view
+    return contextlib.closing(view)
 
 
 def _keep_viewing(view: Any) -> None:
