@@ -15,12 +15,12 @@ liveliness goes (the run ended), on Ctrl-C or SIGTERM, or when no tick came with
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -148,7 +148,6 @@ def watch(
     .rrd path, as SwarmView takes). Exit code: 0 the run ended, NO_RUN no tick within ``timeout``,
     130 interrupted (the recording is whole either way). TransportError if the router is not there."""
     stop_on_sigterm()
-    view: Any = None
     with Bus(settings, display, name=OBSERVER) as bus:
         watcher = Watcher(bus)
         say(f"waiting for a run on display {display} to tick")  # subscribed: from here no tick is missed
@@ -158,22 +157,19 @@ def watch(
                 say(f"no run on display {display} ticked within {timeout:g} s")
                 return NO_RUN
             # an e-puck's size until the robots' states say theirs
-            view = SwarmView(display, None, [], RADIUS, robots=watcher.n, sink=sink)
-            say(f"watching {watcher.n} robots of display {display} from tick {first.tick}")
-            if view.url is not None:
-                say(f"view: {view.url}")
-            logged, last = watcher.follow(view, first)
-            say(f"the run ended at tick {last}; {logged} ticks viewed")
-            view.flush()
-            if view.url is not None:
-                say(f"view: {view.url} (Ctrl-C to stop)")
-                view.serve_until_interrupted()
-            return 0
+            with contextlib.closing(SwarmView(display, None, [], RADIUS, robots=watcher.n, sink=sink)) as view:
+                say(f"watching {watcher.n} robots of display {display} from tick {first.tick}")
+                if view.url is not None:
+                    say(f"view: {view.url}")
+                logged, last = watcher.follow(view, first)
+                say(f"the run ended at tick {last}; {logged} ticks viewed")
+                view.flush()
+                if view.url is not None:
+                    say(f"view: {view.url} (Ctrl-C to stop)")
+                    view.serve_until_interrupted()
+                return 0
         except KeyboardInterrupt:
             return 130
-        finally:
-            if view is not None:
-                view.close()
 
 
 def print_line(prog: str, quiet: bool) -> Callable[[str], None]:
