@@ -12,6 +12,7 @@ parameters. Tests read its true poses and the log of (receive time, left, right)
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -255,11 +256,9 @@ class Epuck2Emulator(Started):
                 self._receive(rid)
 
     def _drain_wake(self) -> None:
-        try:
+        with contextlib.suppress(BlockingIOError):
             while self._wake_r.recv(4096):
                 pass
-        except BlockingIOError:
-            pass
         while not self._requests.empty():
             self._requests.get()()
 
@@ -382,8 +381,7 @@ def main(argv: list[str] | None = None) -> int:
                 if args.write_hardware:
                     write_atomically(args.write_hardware, emulator.hardware_toml())
                 print(f"{args.robots} emulated e-puck2 robots at {' '.join(emulator.addresses)}", flush=True)
-                while not stop.wait(0.2):
-                    pass
+                stop.wait()
                 emulator.close()
                 say_final([emulator.pose(rid) for rid in range(args.robots)], emulator.report(), args.log)
         except (UsageError, OSError) as err:

@@ -10,6 +10,7 @@ No zenoh here: these are pure writers that the recorder calls.
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import enum
 import io
@@ -295,8 +296,7 @@ def _fsync_dir(path: Path) -> None:
     except OSError:
         return
     try:
-        os.fsync(fd)
-    except OSError:
-        pass
+        with contextlib.suppress(OSError):
+            os.fsync(fd)
     finally:
         os.close(fd)

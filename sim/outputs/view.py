@@ -29,6 +29,7 @@ run's ``trajectory.npz``).  Every server listens on 127.0.0.1 only.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import queue
 import subprocess
@@ -439,10 +440,8 @@ class SwarmView:
         if self.process is None:
             return
         stop_on_sigterm()
-        try:
+        with contextlib.suppress(KeyboardInterrupt):
             self.process.wait()
-        except KeyboardInterrupt:
-            pass
 
 
 def _layout() -> Any:

@@ -16,6 +16,7 @@ every task polls: each stops its run as a stopped study always did (SIGTERM, the
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import io
 import os
@@ -86,10 +87,8 @@ def connect(address: str | None, jobs: int) -> tuple[Any, Any]:
 def _die_with_parent() -> None:
     """In the run's process: SIGTERM when the worker that started it dies (Linux), so a killed
     worker leaves no run behind; the run stops its own processes on SIGTERM."""
-    try:
+    with contextlib.suppress(OSError, AttributeError):
         ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
-    except (OSError, AttributeError):
-        pass
 
 
 def _child_env() -> dict[str, str]:
@@ -113,10 +112,8 @@ def _stop(process: subprocess.Popen, grace: float) -> None:
     try:
         process.wait(grace)
     except subprocess.TimeoutExpired:
-        try:
+        with contextlib.suppress(ProcessLookupError):
             os.killpg(process.pid, signal.SIGKILL)  # the session it leads, made here
-        except ProcessLookupError:
-            pass
         process.wait()
 
 

@@ -11,6 +11,7 @@ skipping the runs whose directory says `"complete": true`. The report is sim/stu
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import signal
@@ -146,10 +147,9 @@ def _wait_stopped(pending: list[Any]) -> None:
     """The tasks still out, given the grace to stop their runs (a second Ctrl-C stops waiting)."""
     from distributed import wait
 
-    try:
+    # also a task that failed while stopping: nothing more to wait for
+    with contextlib.suppress(KeyboardInterrupt, Exception):
         wait(pending, timeout=STOP_GRACE_S + 15)
-    except (KeyboardInterrupt, Exception):  # also a task that failed while stopping: nothing more to wait for
-        pass
 
 
 def _finish(run: Run, future: Any, study: StudyDir, progress: Progress, unpack: Any) -> None:
