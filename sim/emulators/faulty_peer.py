@@ -489,7 +489,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     # zenoh: a client of the run's router (-m is not offered: --mode is the peer's)
     parser.add_argument(
-        "-e", "--connect", action="append", default=[], metavar="ENDPOINT", help=ZENOH_HELP["--connect"]
+        "-e", "--connect", action="append", required=True, metavar="ENDPOINT", help=ZENOH_HELP["--connect"]
     )
     parser.add_argument("--zenoh-config", metavar="FILE", help=ZENOH_HELP["--zenoh-config"])
     parser.add_argument(
@@ -502,9 +502,6 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     zenoh = {"multicast_scouting": args.multicast_scouting, "config_file": args.zenoh_config}
     settings = ZenohSettings(mode="client", connect=list(args.connect), **zenoh)
-    if not settings.connect:
-        print("faulty-peer: give the router with -e tcp/HOST:PORT", file=sys.stderr)
-        return 2
     damages = tuple(d for d in args.damage.split(",") if d)
     plan = PeerPlan(args.mode, args.rate, args.duration, args.start_after, args.seed, args.include_sim, damages)
     peer = FaultyPeer(settings, args.display, plan, args.connect_wait)
