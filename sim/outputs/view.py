@@ -12,12 +12,8 @@ the swarm, so 1000 robots stay fluid:
 - ``metrics/clearance`` and ``metrics/at_goal``: time series.
 
 The run hands each tick over (:meth:`SwarmView.tick`, a copy) and goes on; a thread of the view's own
-logs what came in a tenth of a second at once (a quarter in a run far faster than real time), every
-tick's positions as one column (Rerun's cost is per call, not per robot). In a run far faster than
-real time the rest (hover, trails, the time series) is logged twice a second of wall time. A display
-hundreds of robot diameters across (1000 robots) draws the robots as dots of a few points, without
-headings: at true size they would be a pixel. Rerun's 2D views point y down, so the display entities are mirrored for drawing only: the
-recording holds the arena's coordinates, y up.
+logs them in batches (_TickHandover), as docs/cli.md (``--view``) tells. The recording holds the
+arena's coordinates, y up (the display entities are mirrored for drawing only).
 
 The timelines are ``tick`` (the control step) and ``time`` (display time, s).
 
