@@ -410,9 +410,7 @@ def _encode_opencv(path: Path, frames: Iterable[np.ndarray], fps: float, width: 
         raise RuntimeError(f"OpenCV wrote no video data to {path}")
 
 
-# ------------------------------------------------------------------------------------------------
-# Plots
-# ------------------------------------------------------------------------------------------------
+# --- Plots ----------------------------------------------------------------------------------------
 
 
 def _figure(w_in: float, h_in: float, dpi: int):

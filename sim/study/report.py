@@ -32,9 +32,7 @@ KEY_METRICS = tuple(
 NOT_SUMMARISED = {"seed"}  # numbers that name a run rather than measure it
 
 
-# --------------------------------------------------------------------------------------------
-# Rows
-# --------------------------------------------------------------------------------------------
+# --- Rows -----------------------------------------------------------------------------------------
 
 
 def flatten(metrics: dict[str, Any]) -> dict[str, Any]:
@@ -136,9 +134,7 @@ def _cell(value: Any) -> Any:
     return repr(value) if isinstance(value, float) else value
 
 
-# --------------------------------------------------------------------------------------------
-# Plots: each key metric against each axis, seeds' spread, the baseline beside
-# --------------------------------------------------------------------------------------------
+# --- Plots: each key metric against each axis, seeds' spread, the baseline beside -----------------
 
 
 def plot_axis(spec: Spec, axis: str, rows: list[dict[str, Any]], metrics: list[str]) -> bytes:
@@ -230,9 +226,7 @@ def _baseline_words(spec: Spec) -> str:
     return ", ".join(f"{k}={_short(v)}" for k, v in (spec.baseline or {}).items())
 
 
-# --------------------------------------------------------------------------------------------
-# report.html and the files
-# --------------------------------------------------------------------------------------------
+# --- report.html and the files --------------------------------------------------------------------
 
 
 def machine() -> dict[str, str]:

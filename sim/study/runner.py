@@ -49,9 +49,7 @@ class Interrupted(Exception):
     """Ctrl-C or SIGTERM: the running children were stopped, finished runs kept."""
 
 
-# --------------------------------------------------------------------------------------------
-# Running: up to `jobs` children at once, progress on stderr, Ctrl-C stops the children
-# --------------------------------------------------------------------------------------------
+# --- Running: up to `jobs` children at once, progress on stderr, Ctrl-C stops the children --------
 
 
 class Progress:
@@ -179,9 +177,7 @@ def _finish(run: Run, future: Any, study: StudyDir, progress: Progress, unpack: 
     study.write_record(run, record)
 
 
-# --------------------------------------------------------------------------------------------
-# The command
-# --------------------------------------------------------------------------------------------
+# --- The command ----------------------------------------------------------------------------------
 
 
 def default_jobs() -> int:

@@ -23,9 +23,7 @@ class StudyError(Exception):
     """A spec or command line that cannot be run: one line for the user, exit code 2."""
 
 
-# --------------------------------------------------------------------------------------------
-# The spec: settings, their checks, and the grid of runs they make
-# --------------------------------------------------------------------------------------------
+# --- The spec: settings, their checks, and the grid of runs they make -----------------------------
 
 
 def _number(key: str, value: Any, *, minimum: float = 0.0, maximum: float = math.inf, positive=False) -> float:
@@ -246,9 +244,7 @@ def run_args(spec: Spec, run: Run) -> list[str]:
     return cmd + ["--no-video", "--no-plots", "-q"]
 
 
-# --------------------------------------------------------------------------------------------
-# The study directory: run directories, a record per run, the lock
-# --------------------------------------------------------------------------------------------
+# --- The study directory: run directories, a record per run, the lock -----------------------------
 
 
 class StudyDir:
