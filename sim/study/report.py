@@ -74,18 +74,14 @@ def collect(spec: Spec, study: StudyDir) -> tuple[list[str], list[dict[str, Any]
         row: dict[str, Any] = {"id": run.id, "condition": run.condition, "seed": run.seed, "status": status}
         row.update({k: run.settings.get(k) for k in settings})
         row["process_wall_s"] = record.get("process_wall_s") if status == record.get("status") else None
-        row["error"] = _one_line(record.get("error", "")) if status == "failed" else ""
+        said = [line.strip() for line in record.get("error", "").splitlines() if line.strip()]
+        row["error"] = said[-1] if said and status == "failed" else ""  # its last line
         if metrics is not None:
             flat = flatten(metrics)
             metric_names.update(dict.fromkeys(k for k in flat if k not in head))
             row.update({k: v for k, v in flat.items() if k not in head})
         rows.append(row)
     return head + list(metric_names), rows
-
-
-def _one_line(text: str) -> str:
-    lines = [line.strip() for line in text.splitlines() if line.strip()]
-    return lines[-1] if lines else ""
 
 
 def summarise(spec: Spec, columns: list[str], rows: list[dict[str, Any]]) -> tuple[list[str], list[dict[str, Any]]]:
