@@ -45,33 +45,30 @@ def roles(robots: int) -> list[str]:
 # --- access control ---------------------------------------------------------------------------
 
 
-def _rule(rule_id: str, messages: list[str], flow: str, key_exprs: list[str]) -> dict:
-    return {"id": rule_id, "permission": "allow", "flows": [flow], "messages": messages, "key_exprs": key_exprs}
+# What each grant of _grants lets a subject do, as the router's rules: (what, messages, flow). Every
+# flow is seen from the router: what a client sends comes in (ingress), what it receives goes out (egress).
+_GRANT_RULES: dict[str, tuple[tuple[str, list[str], str], ...]] = {
+    "put": (("publishes", ["put"], "ingress"),),
+    # a subscription is declared in, and its samples go out
+    "read": (("subscribes", ["declare_subscriber"], "ingress"), ("receives", ["put"], "egress")),
+    "token": (("declares alive", ["liveliness_token"], "ingress"),),
+    "watch": (
+        ("watches", ["declare_liveliness_subscriber", "liveliness_query"], "ingress"),
+        ("sees alive", ["liveliness_token"], "egress"),
+    ),
+    "query": (("asks", ["query"], "ingress"), ("hears answers", ["reply"], "egress")),
+    "serve": (("serves", ["declare_queryable", "reply"], "ingress"), ("is asked", ["query"], "egress")),
+}
 
 
-def _grants(prefix: str, *, put=(), read=(), token=(), watch=(), query=(), serve=()) -> list[dict]:
-    """The router's allow rules for what one subject may do. Every flow is seen from the router:
-    what a client sends comes in (ingress), what it receives goes out (egress)."""
-    rules = []
-    if put:
-        rules.append(_rule(f"{prefix} publishes", ["put"], "ingress", list(put)))
-    if read:  # a subscription is declared in, and its samples go out
-        rules.append(_rule(f"{prefix} subscribes", ["declare_subscriber"], "ingress", list(read)))
-        rules.append(_rule(f"{prefix} receives", ["put"], "egress", list(read)))
-    if token:
-        rules.append(_rule(f"{prefix} declares alive", ["liveliness_token"], "ingress", list(token)))
-    if watch:
-        rules.append(
-            _rule(f"{prefix} watches", ["declare_liveliness_subscriber", "liveliness_query"], "ingress", list(watch))
-        )
-        rules.append(_rule(f"{prefix} sees alive", ["liveliness_token"], "egress", list(watch)))
-    if query:
-        rules.append(_rule(f"{prefix} asks", ["query"], "ingress", list(query)))
-        rules.append(_rule(f"{prefix} hears answers", ["reply"], "egress", list(query)))
-    if serve:
-        rules.append(_rule(f"{prefix} serves", ["declare_queryable", "reply"], "ingress", list(serve)))
-        rules.append(_rule(f"{prefix} is asked", ["query"], "egress", list(serve)))
-    return rules
+def _grants(prefix: str, **grants: list[str]) -> list[dict]:
+    """The router's allow rules for what one subject may do (``put=[key expressions]``, ...)."""
+    return [
+        {"id": f"{prefix} {what}", "permission": "allow", "flows": [flow], "messages": messages, "key_exprs": exprs}
+        for grant, rules in _GRANT_RULES.items()
+        if (exprs := list(grants.get(grant, ())))
+        for what, messages, flow in rules
+    ]
 
 
 def _service_grants(keys: Keys) -> dict[str, list[dict]]:
