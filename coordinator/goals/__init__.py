@@ -16,32 +16,15 @@ from typing import TYPE_CHECKING, Any
 
 from .model import IMAGE_SUFFIXES, GoalError, GoalSet
 
-if TYPE_CHECKING:
-    from .family import GoalFamily, goal_family
-    from .pipeline import GoalOptions, PreparedImage, generate_goals, goals_from_prepared, prepare_image
+if TYPE_CHECKING:  # the names __getattr__ imports on first use, for type checkers
+    from .family import GoalFamily, goal_family  # noqa: F401
+    from .pipeline import GoalOptions, PreparedImage, generate_goals, goals_from_prepared, prepare_image  # noqa: F401
 
-_PIPELINE = {
-    "GoalFamily": "family",
-    "goal_family": "family",
-    "GoalOptions": "pipeline",
-    "PreparedImage": "pipeline",
-    "generate_goals": "pipeline",
-    "goals_from_prepared": "pipeline",
-    "prepare_image": "pipeline",
-}
-
-__all__ = [
-    "IMAGE_SUFFIXES",
-    "GoalError",
-    "GoalFamily",
-    "GoalOptions",
-    "GoalSet",
-    "PreparedImage",
-    "generate_goals",
-    "goal_family",
-    "goals_from_prepared",
-    "prepare_image",
-]
+# the pipeline's names: the module each comes from on first use
+_PIPELINE = dict.fromkeys(("GoalFamily", "goal_family"), "family") | dict.fromkeys(
+    ("GoalOptions", "PreparedImage", "generate_goals", "goals_from_prepared", "prepare_image"), "pipeline"
+)
+__all__ = ["IMAGE_SUFFIXES", "GoalError", "GoalSet", *_PIPELINE]
 
 
 def __getattr__(name: str) -> Any:
