@@ -11,13 +11,13 @@ import math
 import threading
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Any
 
 import cv2
 import numpy as np
 
-from .config import HardwareConfigError, Started, check_keys
+from .config import HardwareConfigError, Started, check_table, is_number
 from .poses import PoseSample, StampGate
 
 # A detection whose side on the floor is off by more than this fraction is not a robot's marker
@@ -51,11 +51,7 @@ class CameraConfig:
     @classmethod
     def from_table(cls, table: Mapping[str, Any], where: str) -> CameraConfig:
         """Validate a parsed `[poses]` table; `where` names it in errors (e.g. "robots.toml [poses]")."""
-        if not isinstance(table, Mapping):
-            raise HardwareConfigError(f"{where}: must be a table")
-        check_keys(table, [f.name for f in fields(cls)] + ["kind"], where)
-        if table.get("kind", "camera") != "camera":
-            raise HardwareConfigError(f"{where}: kind must be 'camera', not {table['kind']!r}")
+        check_table(table, cls, "camera", where)
         values: dict[str, Any] = {}
         if "source" in table:
             values["source"] = _source(table["source"], where)
@@ -93,7 +89,7 @@ def _dictionary_size(name: str) -> int:
 
 
 def _number(value: Any, what: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+    if not is_number(value):
         raise HardwareConfigError(f"{what} must be a finite number, not {value!r}")
     return float(value)
 

@@ -6,9 +6,10 @@ with `from_table(table, where)`. Robot ids are positions in the backend's list o
 from __future__ import annotations
 
 import importlib
+import math
 import tomllib
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, Self
 
@@ -33,10 +34,24 @@ def check_keys(table: Mapping[str, Any], known: Iterable[str], where: str) -> No
         raise HardwareConfigError(f"{where}: unknown key {unknown[0]!r} (known: {', '.join(sorted(known))})")
 
 
+def check_table(table: Any, config: type, kind: str, where: str) -> None:
+    """A table of ``kind`` with no key its config class (a dataclass) does not know."""
+    if not isinstance(table, Mapping):
+        raise HardwareConfigError(f"{where}: must be a table")
+    check_keys(table, ["kind", *(f.name for f in fields(config))], where)
+    if table.get("kind", kind) != kind:
+        raise HardwareConfigError(f"{where}: kind must be {kind!r}, not {table['kind']!r}")
+
+
+def is_number(value: Any) -> bool:
+    """A finite int or float (TOML's true and false are not numbers)."""
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
 def positive_number(table: Mapping[str, Any], key: str, default: float, where: str) -> float:
     """A key holding a finite number > 0, or the default when the key is absent."""
     value = table.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (0 < value < float("inf")):
+    if not (is_number(value) and value > 0):
         raise HardwareConfigError(f"{where}: {key} must be a positive number, not {value!r}")
     return float(value)
 

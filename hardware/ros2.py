@@ -30,7 +30,7 @@ from transport.rmw_zenoh import (
 )
 from transport.session import ZenohSettings, open_session
 
-from .config import HardwareConfigError, Started
+from .config import HardwareConfigError, Started, check_table, is_number
 from .poses import PoseSample, StampGate
 
 TWIST = "geometry_msgs/msg/Twist"
@@ -99,16 +99,8 @@ class Ros2Messages:
 
 
 def _from_table(cls: type, table: Any, where: str) -> Any:
-    if not isinstance(table, dict):
-        raise HardwareConfigError(f"{where}: expected a table, not {type(table).__name__}")
-    if table.get("kind", "ros2") != "ros2":
-        raise HardwareConfigError(f"{where}: kind must be 'ros2', not {table['kind']!r}")
-    fields = dataclasses.fields(cls)
-    known = [f.name for f in fields]
-    unknown = sorted(set(table) - set(known) - {"kind"})
-    if unknown:
-        raise HardwareConfigError(f"{where}: unknown key {unknown[0]!r} (known: kind, {', '.join(known)})")
-    missing = [f.name for f in fields if f.default is dataclasses.MISSING and f.name not in table]
+    check_table(table, cls, "ros2", where)
+    missing = [f.name for f in dataclasses.fields(cls) if f.default is dataclasses.MISSING and f.name not in table]
     if missing:
         raise HardwareConfigError(f"{where}: missing key {missing[0]!r}")
     try:
@@ -120,10 +112,6 @@ def _from_table(cls: type, table: Any, where: str) -> Any:
 def _need(ok: bool, message: str) -> None:
     if not ok:
         raise HardwareConfigError(message)
-
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _check_domain(value: Any) -> None:
@@ -171,7 +159,7 @@ class Ros2BackendConfig:
         _check_domain(self.domain)
         _need(self.distro in DISTROS, f"distro must be one of {', '.join(DISTROS)}, not {self.distro!r}")
         _need(
-            _is_number(self.watchdog) and self.watchdog > 0,
+            is_number(self.watchdog) and self.watchdog > 0,
             f"watchdog must be a positive time in s, not {self.watchdog!r}",
         )
 
@@ -200,7 +188,7 @@ class Ros2PosesConfig:
         _check_topic(self.topic.replace(ROBOT_ID, "0"), "topic")
         if self.domain is not None:
             _check_domain(self.domain)
-        _need(_is_number(self.rate) and self.rate > 0, f"rate must be a positive number of Hz, not {self.rate!r}")
+        _need(is_number(self.rate) and self.rate > 0, f"rate must be a positive number of Hz, not {self.rate!r}")
 
     @classmethod
     def from_table(cls, table: Any, where: str) -> Ros2PosesConfig:
