@@ -70,8 +70,9 @@ def stored_counts(scene: Scene) -> list[int]:
     return sorted({scene.robots, len(scene.pixel_robots)} - {0})
 
 
-# the scene's settings that scene.json holds as they are, in its order
-_AS_IS = "name source robots seed clock engine assignment agents_per_process deadline duration converge_hold".split()
+# the scene's settings that scene.json holds as they are, in its order, each with its type
+_AS_IS = {"name": str, "source": str, "robots": int, "seed": int, "clock": str, "engine": str, "assignment": str}
+_AS_IS |= {"agents_per_process": int, "deadline": float, "duration": float, "converge_hold": float}
 
 
 def save_resolved(scene: Scene, folder: Path, robot: dict[str, Any] | None = None) -> None:
@@ -139,24 +140,14 @@ def _scene_of(data: dict[str, Any]) -> Scene:
     ).reshape(-1, 2)
     xmin, ymin, xmax, ymax = (float(v) for v in data["arena"])
     return Scene(
-        name=data["name"],
-        robots=int(data["robots"]),
+        **{key: kind(data[key]) for key, kind in _AS_IS.items()},
         robot=dict(data["robot"]),
         layout=dict(data["layout"]),
         goals=dict(data["goals"]),
         arena=(xmin, ymin, xmax, ymax),
         obstacles=[[(float(x), float(y)) for x, y in o] for o in data["obstacles"]],
         events=list(data["events"]),
-        clock=data["clock"],
-        engine=data["engine"],
-        assignment=data["assignment"],
-        agents_per_process=int(data["agents_per_process"]),
-        deadline=float(data["deadline"]),
-        duration=float(data["duration"]),
-        seed=int(data["seed"]),
         noise=Noise(**data["noise"]),
-        converge_hold=float(data["converge_hold"]),
-        source=data["source"],
         scripted={int(r): np.array(w, float) for r, w in data["scripted"].items()},
         pursuers={int(r): int(t) for r, t in data["pursuers"].items()},
         steps=[_step_of(s) for s in data["steps"]],
