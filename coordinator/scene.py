@@ -10,6 +10,7 @@ process of the run reads it from there."""
 
 from __future__ import annotations
 
+import bisect
 import math
 import tomllib
 from dataclasses import dataclass, field
@@ -402,15 +403,10 @@ def _blocks(n: int, spacing: float, offset: float) -> np.ndarray:
     """RVO2's Blocks: four square groups in the corners, centre `offset` from the origin."""
     per = math.ceil(n / 4)
     side = math.ceil(math.sqrt(per))
-    corners: list[tuple[float, float, float]] = []
-    for sx, sy in [(1, 1), (-1, 1), (1, -1), (-1, -1)]:
-        for k in range(per):
-            if len(corners) == n:
-                break
-            gx = (k % side - (side - 1) / 2) * spacing
-            gy = (k // side - (side - 1) / 2) * spacing
-            corners.append((sx * offset + gx, sy * offset + gy, math.atan2(-sy, -sx)))
-    return np.array(corners, float)
+    block = [((k % side - (side - 1) / 2) * spacing, (k // side - (side - 1) / 2) * spacing) for k in range(per)]
+    corners = [(1, 1), (-1, 1), (1, -1), (-1, -1)]
+    poses = [(sx * offset + gx, sy * offset + gy, math.atan2(-sy, -sx)) for sx, sy in corners for gx, gy in block]
+    return np.array(poses[:n], float)
 
 
 def _scattered(layout: dict[str, Any], n: int, spacing: float, seed: int, where: str) -> np.ndarray:
@@ -587,9 +583,7 @@ def events_of(scene: Scene, kind: str) -> list[dict[str, Any]]:
 
 def take_due(events: list[dict[str, Any]], t: float) -> list[dict[str, Any]]:
     """The events due by time t, taken off ``events`` (events_of's, in order of time)."""
-    due = 0
-    while due < len(events) and events[due]["t"] <= t + EVENT_SLACK:
-        due += 1
+    due = bisect.bisect_right(events, t + EVENT_SLACK, key=lambda e: e["t"])
     taken = events[:due]
     del events[:due]
     return taken

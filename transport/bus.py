@@ -572,24 +572,15 @@ class Bus:
         return self._feed(lambda: self.session.declare_queryable(keyexpr, handler))
 
     def query(self, keyexpr: str, expected: type[MessageT], timeout: float = 2.0) -> list[tuple[str, MessageT]]:
-        out = []
         drops = DropCounter()
-        for key, payload in self.query_raw([keyexpr], timeout):
-            msg = decode(payload, expected, drops)
-            if msg is not None:
-                out.append((key, msg))
-        return out
+        got = [(key, decode(payload, expected, drops)) for key, payload in self.query_raw([keyexpr], timeout)]
+        return [(key, msg) for key, msg in got if msg is not None]
 
     def query_raw(self, keyexprs: list[str], timeout: float = 2.0) -> list[tuple[str, bytes]]:
         """Every answer to these queries, all in flight at once: (key, payload bytes)."""
         pending = [self.session.get(keyexpr, timeout=timeout) for keyexpr in keyexprs]
-        out = []
-        for replies in pending:
-            for reply in replies:
-                ok = getattr(reply, "ok", None)
-                if ok is not None:
-                    out.append((str(ok.key_expr), ok.payload.to_bytes()))
-        return out
+        answers = (getattr(reply, "ok", None) for replies in pending for reply in replies)
+        return [(str(ok.key_expr), ok.payload.to_bytes()) for ok in answers if ok is not None]
 
     # --- the link to the router -----------------------------------------------------------------
     def _on_link(self, event: Any) -> None:
