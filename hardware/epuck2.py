@@ -8,6 +8,7 @@ robot; the control loop's calls hand work to it."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import math
 import socket
@@ -281,10 +282,8 @@ class RobotLink:
                 if self.pending is not None:
                     await self._send(writer)
                     continue
-                try:
+                with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(self._changed.wait(), self._watchdog_due())
-                except TimeoutError:
-                    pass
         finally:
             reading.cancel()
 

@@ -14,7 +14,7 @@ import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Self
 
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
@@ -98,15 +98,20 @@ class Ros2Messages:
 # Configuration: a table of a robots file; defaults live in the dataclasses, checks in __post_init__.
 
 
-def _from_table(cls: type, table: Any, where: str) -> Any:
-    check_table(table, cls, "ros2", where)
-    missing = [f.name for f in dataclasses.fields(cls) if f.default is dataclasses.MISSING and f.name not in table]
-    if missing:
-        raise HardwareConfigError(f"{where}: missing key {missing[0]!r}")
-    try:
-        return cls(**{k: v for k, v in table.items() if k != "kind"})
-    except HardwareConfigError as err:
-        raise HardwareConfigError(f"{where}: {err}") from None
+class _Ros2Table:
+    """A config dataclass read from its table (``kind = "ros2"``), its key's errors named ``where``."""
+
+    @classmethod
+    def from_table(cls, table: Any, where: str) -> Self:
+        check_table(table, cls, "ros2", where)
+        fields = dataclasses.fields(cls)  # type: ignore[arg-type]  # the subclasses are dataclasses
+        missing = [f.name for f in fields if f.default is dataclasses.MISSING and f.name not in table]
+        if missing:
+            raise HardwareConfigError(f"{where}: missing key {missing[0]!r}")
+        try:
+            return cls(**{k: v for k, v in table.items() if k != "kind"})
+        except HardwareConfigError as err:
+            raise HardwareConfigError(f"{where}: {err}") from None
 
 
 def _need(ok: bool, message: str) -> None:
@@ -122,16 +127,16 @@ def _check_domain(value: Any) -> None:
     )
 
 
-def _check_topic(value: Any, key: str) -> None:
+def _check_name(value: Any, key: str, what: str = "topic") -> None:
     _need(isinstance(value, str), f"{key} must be a string, not {value!r}")
     try:
-        check_name(value)
+        check_name(value, what)
     except RosNameError as err:
         raise HardwareConfigError(f"{key}: {err}") from None
 
 
 @dataclass(frozen=True)
-class Ros2BackendConfig:
+class Ros2BackendConfig(_Ros2Table):
     """`[backend] kind = "ros2"`: which robots, on which topics, in which ROS domain."""
 
     namespaces: list[str]
@@ -145,14 +150,11 @@ class Ros2BackendConfig:
         _need(isinstance(self.namespaces, list) and len(self.namespaces) > 0, "namespaces must be a non-empty list")
         for ns in self.namespaces:
             _need(isinstance(ns, str) and ns.strip("/") != "", f"namespace {ns!r} must be a non-empty string")
-            try:
-                check_name(ns, "namespace")
-            except RosNameError as err:
-                raise HardwareConfigError(str(err)) from None
+            _check_name(ns, "namespaces", "namespace")
         cleaned = [ns.strip("/") for ns in self.namespaces]
         _need(len(set(cleaned)) == len(cleaned), "namespaces must differ from each other")
         for key in ("cmd_topic", "led_topic"):
-            _check_topic(getattr(self, key), key)
+            _check_name(getattr(self, key), key)
             _need(
                 not getattr(self, key).startswith("/"), f"{key} is relative to each robot's namespace: no leading '/'"
             )
@@ -163,17 +165,13 @@ class Ros2BackendConfig:
             f"watchdog must be a positive time in s, not {self.watchdog!r}",
         )
 
-    @classmethod
-    def from_table(cls, table: Any, where: str) -> Ros2BackendConfig:
-        return _from_table(cls, table, where)
-
     def topic(self, robot: int, relative: str) -> str:
         """The fully qualified topic of one robot, e.g. /robot0/cmd_vel."""
         return qualified(relative, "/" + self.namespaces[robot].strip("/"))
 
 
 @dataclass(frozen=True)
-class Ros2PosesConfig:
+class Ros2PosesConfig(_Ros2Table):
     """`[poses] kind = "ros2"`: PoseStamped per robot, e.g. from a motion-capture system's ROS 2 driver."""
 
     topic: str = "/robot{id}/pose"
@@ -185,14 +183,10 @@ class Ros2PosesConfig:
             isinstance(self.topic, str) and self.topic.count(ROBOT_ID) == 1,
             f"topic must name the robot once as {ROBOT_ID}, e.g. /robot{{id}}/pose, not {self.topic!r}",
         )
-        _check_topic(self.topic.replace(ROBOT_ID, "0"), "topic")
+        _check_name(self.topic.replace(ROBOT_ID, "0"), "topic")
         if self.domain is not None:
             _check_domain(self.domain)
         _need(is_number(self.rate) and self.rate > 0, f"rate must be a positive number of Hz, not {self.rate!r}")
-
-    @classmethod
-    def from_table(cls, table: Any, where: str) -> Ros2PosesConfig:
-        return _from_table(cls, table, where)
 
     def topic_of(self, robot: int) -> str:
         """The fully qualified pose topic of one robot, e.g. /robot3/pose."""
