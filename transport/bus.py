@@ -8,6 +8,7 @@ counted per inbox and never raise.
 
 from __future__ import annotations
 
+import contextlib
 import heapq
 import itertools
 import math
@@ -295,10 +296,8 @@ class Inbox(Generic[T]):
         while True:
             self._pull()
             self._release_delayed()
-            try:
+            with contextlib.suppress(queue.Empty):
                 return self._queue.get_nowait()
-            except queue.Empty:
-                pass
             wait = PULL_EVERY if self.pulled else 0.005 if self.has_delayed else None
             if deadline is not None:
                 remaining = deadline - time.monotonic()
@@ -622,15 +621,11 @@ class Bus:
 
     def close(self) -> None:
         for token in self._tokens:
-            try:
+            with contextlib.suppress(Exception):
                 token.undeclare()
-            except Exception:
-                pass
         self._tokens.clear()
-        try:
+        with contextlib.suppress(Exception):
             self.session.close()
-        except Exception:
-            pass
 
     def __enter__(self) -> Bus:
         return self

@@ -488,13 +488,8 @@ class Goals(Message):
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly view (for logs): each part as an object, absent ones None."""
-        out: dict[str, Any] = {
-            "epoch": self.epoch,
-            "per_robot": self.per_robot,
-            "positions": self.positions.tolist(),
-            "colors": np.asarray(self.colors).tolist(),
-            "robots": np.asarray(self.robots).tolist(),
-        }
+        out: dict[str, Any] = {"epoch": self.epoch, "per_robot": self.per_robot}
+        out |= {k: np.asarray(getattr(self, k)).tolist() for k in ("positions", "colors", "robots")}
         for _, name in self._PARTS.values():
             part = getattr(self, name)
             out[name] = None if part is None else {f.name: _plain(getattr(part, f.name)) for f in fields(part)}

@@ -20,6 +20,7 @@ rosbags) live with the caller.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import re
 import struct
@@ -285,11 +286,8 @@ class RosSubscriber:
             except RosNameError:  # a non-numeric domain chunk: not an rmw_zenoh key
                 continue
             attachment = None
-            if raw_attachment is not None:
-                try:
-                    attachment = Attachment.decode(raw_attachment)
-                except ValueError:
-                    pass
+            with contextlib.suppress(ValueError):  # a malformed attachment: the message without it
+                attachment = None if raw_attachment is None else Attachment.decode(raw_attachment)
             out.append(RosSample(domain, topic, type_hash, payload, attachment, arrival))
         return out
 
