@@ -23,7 +23,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .shapes import RED, RGB, WHITE, Inside, circle, coverage, union
+from .shapes import RED, RGB, WHITE, Inside, circle, coverage, polygon, union
 
 SIZE = 256  # default canvas side in pixels
 
@@ -82,21 +82,6 @@ def ellipse(cx: float, cy: float, a: float, b: float, angle: float = 0.0) -> Ins
     def inside(x: np.ndarray, y: np.ndarray) -> np.ndarray:
         u, v = (x - cx) * c + (y - cy) * s, -(x - cx) * s + (y - cy) * c
         return (u / a) ** 2 + (v / b) ** 2 < 1.0
-
-    return inside
-
-
-def polygon(points: list[tuple[float, float]]) -> Inside:
-    """A convex polygon (vertices in order)."""
-    p = np.asarray(points, float)
-    q = np.roll(p, -1, axis=0)
-    sign = np.sign(np.sum(p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1]))
-
-    def inside(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        out = np.ones(np.shape(x), bool)
-        for (x0, y0), (x1, y1) in zip(p, q):
-            out &= sign * ((x1 - x0) * (y - y0) - (y1 - y0) * (x - x0)) > 0
-        return out
 
     return inside
 

@@ -47,18 +47,25 @@ def _ring(cx: float, cy: float, r_out: float, r_in: float) -> Inside:
     return lambda x, y: outer(x, y) & ~inner(x, y)
 
 
-def _triangle(cx: float, cy: float, r: float) -> Inside:
-    """An equilateral triangle, apex up, centroid (cx, cy), circumradius r (the rotating and growing
-    triangle of the paper's Fig. 18 turns about its centroid)."""
-    corners = [(cx + r * math.cos(a), cy - r * math.sin(a)) for a in (math.pi / 2, math.pi * 7 / 6, -math.pi / 6)]
+def polygon(points: list[tuple[float, float]]) -> Inside:
+    """A convex polygon (vertices in order)."""
+    p = np.asarray(points, float)
+    q = np.roll(p, -1, axis=0)
+    sign = np.sign(np.sum(p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1]))
 
     def inside(x: np.ndarray, y: np.ndarray) -> np.ndarray:
         out = np.ones(np.shape(x), bool)
-        for (x0, y0), (x1, y1) in zip(corners, corners[1:] + corners[:1]):
-            out &= (x1 - x0) * (y - y0) - (y1 - y0) * (x - x0) <= 0  # inside: the same side of every edge
+        for (x0, y0), (x1, y1) in zip(p, q):
+            out &= sign * ((x1 - x0) * (y - y0) - (y1 - y0) * (x - x0)) > 0
         return out
 
     return inside
+
+
+def _triangle(cx: float, cy: float, r: float) -> Inside:
+    """An equilateral triangle, apex up, centroid (cx, cy), circumradius r (the rotating and growing
+    triangle of the paper's Fig. 18 turns about its centroid)."""
+    return polygon([(cx + r * math.cos(a), cy - r * math.sin(a)) for a in (math.pi / 2, math.pi * 7 / 6, -math.pi / 6)])
 
 
 def _fig4_rect(x0: float, x1: float, y0: float, y1: float) -> Inside:
