@@ -522,10 +522,8 @@ def _arena(spec: Any, scene: Scene, where: str) -> tuple[float, float, float, fl
         if scene.image_goals is not None:  # every step's picture, all robots (fewer robots: inside it)
             pts += [scene_goal_set(scene, k, scene.robots)[0] for k in range(len(scene.steps))]
             pts += _swept(scene)  # a moving picture: wherever it goes
-        goals = scene.goal_positions[~np.isnan(scene.goal_positions).any(axis=1)]
-        pts.append(goals)
-        pts += [np.asarray(o) for o in scene.obstacles]
-        allp = np.vstack(pts)
+        pts.append(scene.goal_positions[~np.isnan(scene.goal_positions).any(axis=1)])
+        allp = np.vstack(pts + [np.asarray(o) for o in scene.obstacles])
         margin = 4 * scene.radius + 0.1
         lo, hi = allp.min(axis=0) - margin, allp.max(axis=0) + margin
         return (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))

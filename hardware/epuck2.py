@@ -267,7 +267,11 @@ class RobotLink:
 
     async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         writer.get_extra_info("socket").setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # no batching
-        self._count_connection()
+        if self.stats.connections:
+            self.stats.reconnects += 1
+            log.warning("e-puck2 %d (%s:%d): connected again", self.robot_id, self.host, self.port)
+        self.stats.connections += 1
+        self.stats.connected = True
         if self.pending is None:  # the robot gets what it should be doing now (a stop once commands are stale)
             self.pending = self.wanted
             self.pending_seq += 1
@@ -286,13 +290,6 @@ class RobotLink:
                     await asyncio.wait_for(self._changed.wait(), self._watchdog_due())
         finally:
             reading.cancel()
-
-    def _count_connection(self) -> None:
-        if self.stats.connections:
-            self.stats.reconnects += 1
-            log.warning("e-puck2 %d (%s:%d): connected again", self.robot_id, self.host, self.port)
-        self.stats.connections += 1
-        self.stats.connected = True
 
     async def _send(self, writer: asyncio.StreamWriter) -> None:
         command, seq = self.pending, self.pending_seq

@@ -193,16 +193,8 @@ def add_zenoh_args(parser: argparse.ArgumentParser, default_mode: str = "client"
     )
     group.add_argument("-e", "--connect", action="append", default=[], metavar="ENDPOINT", help=ZENOH_HELP["--connect"])
     group.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT", help=ZENOH_HELP["--listen"])
-    group.add_argument(
-        "--no-multicast-scouting",
-        dest="multicast_scouting",
-        action="store_false",
-        default=False,
-        help=ZENOH_HELP["--no-multicast-scouting"],
-    )
-    group.add_argument(
-        "--multicast-scouting", dest="multicast_scouting", action="store_true", help=ZENOH_HELP["--multicast-scouting"]
-    )
+    for flag, action in (("--no-multicast-scouting", "store_false"), ("--multicast-scouting", "store_true")):
+        group.add_argument(flag, dest="multicast_scouting", action=action, default=False, help=ZENOH_HELP[flag])
     group.add_argument("--zenoh-config", metavar="FILE", help=ZENOH_HELP["--zenoh-config"])
 
 
