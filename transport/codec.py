@@ -75,14 +75,6 @@ def _leading(layout: struct.Struct, body: memoryview, exact: bool = False) -> tu
     return layout.unpack_from(body)
 
 
-def _fixed_and_items(body: memoryview, fixed: struct.Struct, item: np.dtype) -> tuple[tuple, np.ndarray]:
-    """A fixed part whose last field counts the items that follow; lengths must agree exactly."""
-    values = _leading(fixed, body)
-    if len(body) != fixed.size + values[-1] * item.itemsize:
-        raise Malformed("truncated")
-    return values, np.frombuffer(body[fixed.size :], item)
-
-
 _FEW = 8  # records a message checks in Python rather than numpy, whose reductions cost more for a few
 _ONE_RECORD_AT = 2  # in the body of a frame of one: tick, stamp, then the record
 # a record field's numpy type as struct reads it
@@ -488,16 +480,12 @@ class Goals(Message):
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly view (for logs): each part as an object, absent ones None."""
-        out: dict[str, Any] = {"epoch": self.epoch, "per_robot": self.per_robot}
-        out |= {k: np.asarray(getattr(self, k)).tolist() for k in ("positions", "colors", "robots")}
+        plain = lambda obj, names: {k: np.asarray(getattr(obj, k)).tolist() for k in names}
+        out = plain(self, ("epoch", "per_robot", "positions", "colors", "robots"))
         for _, name in self._PARTS.values():
             part = getattr(self, name)
-            out[name] = None if part is None else {f.name: _plain(getattr(part, f.name)) for f in fields(part)}
+            out[name] = None if part is None else plain(part, [f.name for f in fields(part)])
         return out
-
-
-def _plain(value: Any) -> Any:
-    return value.tolist() if isinstance(value, np.ndarray) else value
 
 
 def _part(kind: int, version: int, body: bytes) -> bytes:
@@ -866,7 +854,10 @@ class Truth(Message):
 
     @classmethod
     def _from(cls, body: memoryview) -> Truth:
-        (tick, stamp, min_clearance, count), items = _fixed_and_items(body, cls._fixed, cls.RECORD)
+        tick, stamp, min_clearance, count = _leading(cls._fixed, body)
+        if len(body) != cls._fixed.size + count * cls.RECORD.itemsize:
+            raise Malformed("truncated")
+        items = np.frombuffer(body[cls._fixed.size :], cls.RECORD)
         _finite(stamp)
         if math.isnan(min_clearance) or min_clearance == -math.inf:  # +inf with one robot; never NaN or -inf
             raise Malformed("non-finite")
