@@ -180,8 +180,7 @@ class ArucoTracker:
         self.homography: np.ndarray | None = None if config.homography is None else np.array(config.homography)
         # the running mean of each reference marker's image centre: a fixed camera's calibration
         # grows more precise with every frame
-        self._reference_sum: dict[int, np.ndarray] = {}
-        self._reference_count: dict[int, int] = {}
+        self._reference_sum: dict[int, np.ndarray] = {}  # marker -> (sum of x, of y, count)
         self._last: dict[int, MarkerPose] = {}
 
     @property
@@ -229,23 +228,18 @@ class ArucoTracker:
 
     def _calibrate(self, seen: dict[int, np.ndarray]) -> None:
         centres = {m: marker_centre(c) for m, c in seen.items()}
-        moved = [
-            np.linalg.norm(p - self._reference_sum[m] / self._reference_count[m]) > CAMERA_MOVED_PX
-            for m, p in centres.items()
-            if m in self._reference_sum
-        ]
+        means = {m: s[:2] / s[2] for m, s in self._reference_sum.items()}
+        moved = [np.linalg.norm(p - means[m]) > CAMERA_MOVED_PX for m, p in centres.items() if m in means]
         if moved and sum(moved) * 2 > len(moved):
             # the old calibration is wrong now: no poses until the references are seen again
             self._reference_sum.clear()
-            self._reference_count.clear()
             self.homography = None
         for m, p in centres.items():
-            self._reference_sum[m] = self._reference_sum.get(m, 0.0) + p
-            self._reference_count[m] = self._reference_count.get(m, 0) + 1
+            self._reference_sum[m] = self._reference_sum.get(m, 0.0) + np.append(p, 1.0)
         if len(self._reference_sum) < MIN_REFERENCES:
             return
         ids = sorted(self._reference_sum)
-        image = np.array([self._reference_sum[m] / self._reference_count[m] for m in ids])
+        image = np.array([self._reference_sum[m][:2] / self._reference_sum[m][2] for m in ids])
         floor = np.array([self.config.reference[m] for m in ids])
         homography, _ = cv2.findHomography(image, floor)
         if homography is not None:
