@@ -599,10 +599,8 @@ def _check_event(event: dict[str, Any], scene: Scene, where: str) -> None:
         if not (_positive(event.get("t")) and _positive(event.get("duration"))):
             raise SceneError(f"{where}: tracker-outage event needs a time t > 0 and a duration > 0 (s)")
         return
-    robot, t = event.get("robot"), event.get("t")
-    if not (isinstance(robot, int) and 0 <= robot < scene.robots):
-        raise SceneError(f"{where}: {kind} event robot must be an index in 0..{scene.robots - 1}")
-    if not _positive(t):
+    _robot_index(event, scene, f"{where}: {kind} event")
+    if not _positive(event.get("t")):
         raise SceneError(f"{where}: {kind} event needs a time t > 0")
     pose = event.get("pose")
     if kind == "teleport" and not (isinstance(pose, list) and len(pose) == 3):
