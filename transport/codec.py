@@ -104,28 +104,17 @@ class Message:
     NAME: ClassVar[str] = ""
     CHECKED: ClassVar[bool] = False  # ends in a checksum (with_checksum)
     _fixed: ClassVar[struct.Struct]
-    _names: ClassVar[tuple[str, ...]] = ()
-    _values: ClassVar[Any] = None  # reads every field at once (a host encodes 500 records a tick)
-
-    def __init_subclass__(cls, **kwargs: Any) -> None:
-        super().__init_subclass__(**kwargs)
-        cls._names = ()  # filled on first use: the dataclass decorator runs after this hook
 
     @classmethod
     def field_names(cls) -> tuple[str, ...]:
-        if not cls._names:
-            cls._names = tuple(f.name for f in fields(cls))
-            get = attrgetter(*cls._names)
-            cls._values = get if len(cls._names) > 1 else lambda m: (get(m),)  # one name: no tuple
-        return cls._names
+        return tuple(f.name for f in fields(cls))
 
     def encode(self) -> bytes:
         data = _HEADER.pack(self.KIND, VERSION) + self._fixed.pack(*self._fixed_values()) + self._tail()
         return with_checksum(data) if self.CHECKED else data
 
-    def _fixed_values(self) -> tuple:
-        self.field_names()
-        return type(self)._values(self)  # the class attribute: a lambda would bind to self
+    def _fixed_values(self) -> tuple:  # the kinds whose every field is in the fixed part (Tick, Contact)
+        return tuple(getattr(self, name) for name in self.field_names())
 
     def _tail(self) -> bytes:
         return b""
