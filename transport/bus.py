@@ -79,10 +79,8 @@ class InjectedFault(Generic[T]):
         self._held: list[tuple[float, int, str, T]] = []  # by release on the owner's tick clock
         self._order = itertools.count()
         self._lock = threading.Lock()
-        self._seed_text = seed
-        # The seed's crc32 and the random stream, made when first drawn from (_draws).
-        self._seed: int | None = None
-        self._rng: Any = None
+        self._seed = zlib.crc32(seed.encode())
+        self._rng: Any = None  # the random stream, made when first drawn from (_draws)
 
     def _draws(self, key: str | None = None, stamp: float | None = None) -> Any:
         """The random draws: one stream, or, given a message's key and stamp, a stream of that
@@ -90,8 +88,7 @@ class InjectedFault(Generic[T]):
         process without faults never needs it (its memory)."""
         import random
 
-        if self._seed is None:
-            self._seed = zlib.crc32(self._seed_text.encode())
+        if self._rng is None:
             self._rng = random.Random(self._seed)
         return self._rng if key is None else random.Random(f"{self._seed}/{key}/{stamp!r}")
 
@@ -129,13 +126,11 @@ class InjectedFault(Generic[T]):
             return
         now = time.monotonic()
         with self._lock:
-            while self._delayed and self._delayed[0][0] <= now:
-                _, _, key, msg = heapq.heappop(self._delayed)
-                out.put((key, msg))
             ticks = -math.inf if sim_time is None else sim_time + 1e-9
-            while self._held and self._held[0][0] <= ticks:
-                _, _, key, msg = heapq.heappop(self._held)
-                out.put((key, msg))
+            for heap, due in ((self._delayed, now), (self._held, ticks)):
+                while heap and heap[0][0] <= due:
+                    _, _, key, msg = heapq.heappop(heap)
+                    out.put((key, msg))
 
     @property
     def waiting(self) -> bool:
