@@ -72,42 +72,30 @@ def _grants(prefix: str, **grants: list[str]) -> list[dict]:
 
 
 def _service_grants(keys: Keys) -> dict[str, list[dict]]:
-    alive = keys.alive_all()
-    return {
-        "coordinator": _grants(
-            "coordinator",
-            put=[keys.all_of("goals")],
-            serve=[keys.all_of("goals")],
-            query=[keys.run_goals],  # restarted mid-run: the newest goal set, from the launcher
-            read=[keys.clock, keys.all_of("pose"), keys.poses],
-            token=[keys.alive_all("coordinator")],
-            watch=[alive],
-        ),
-        "tracker": _grants(
-            "tracker",
-            put=[keys.all_of("pose"), keys.poses],
-            read=[keys.clock],
-            token=[keys.alive_all("tracker")],
-            watch=[alive],
-        ),
+    """What each service may do; every one watches who is alive, and those that run the show (the
+    coordinator, the tracker, the world) declare themselves alive."""
+    grants: dict[str, dict[str, list[str]]] = {
+        "coordinator": {
+            "put": [keys.all_of("goals")],
+            "serve": [keys.all_of("goals")],
+            "query": [keys.run_goals],  # restarted mid-run: the newest goal set, from the launcher
+            "read": [keys.clock, keys.all_of("pose"), keys.poses],
+        },
+        "tracker": {"put": [keys.all_of("pose"), keys.poses], "read": [keys.clock]},
         # The simulated world is the tracker of a simulation, and also drives its scripted obstacles,
         # which broadcast states like robots.
-        "world": _grants(
-            "world",
-            put=[keys.clock, keys.all_of("pose"), keys.poses, keys.all_of("state"), keys.all_of("sim"), keys.event],
-            read=[keys.all_of("cmd"), keys.event, keys.all_of("goals")],  # goals: each tick names the newest
-            token=[keys.alive_all("world")],
-            watch=[alive],
-        ),
-        "recorder": _grants("recorder", read=[keys.everything], watch=[alive]),
+        "world": {
+            "put": [keys.clock, keys.all_of("pose"), keys.poses, keys.all_of("state"), keys.all_of("sim"), keys.event],
+            "read": [keys.all_of("cmd"), keys.event, keys.all_of("goals")],  # goals: each tick names the newest
+        },
+        "recorder": {"read": [keys.everything]},
         # A viewer: the truth of each tick, the robots' states (goals, sizes), goal sets, the clock and
         # events; no put, token, query or queryable, so joining costs the run's processes nothing.
-        OBSERVER: _grants(
-            OBSERVER,
-            read=[keys.all_of("sim"), keys.all_of("state"), keys.all_of("goals"), keys.clock, keys.event],
-            watch=[alive],
-        ),
+        OBSERVER: {"read": [keys.all_of("sim"), keys.all_of("state"), keys.all_of("goals"), keys.clock, keys.event]},
     }
+    for role in ("coordinator", "tracker", "world"):
+        grants[role]["token"] = [keys.alive_all(role)]
+    return {role: _grants(role, **grant, watch=[keys.alive_all()]) for role, grant in grants.items()}
 
 
 def _robot_grants(keys: Keys, robot: int) -> list[dict]:
