@@ -25,24 +25,22 @@ class PoseSample(NamedTuple):
 
 class StampGate:
     """Per robot, which poses a source takes: one stamped later than the newest taken, and not ahead
-    of the clock by more than ``future_margin``; after ``restart_after`` s with none taken, any
+    of the clock by more than FUTURE_MARGIN; after RESTART_AFTER s with none taken, any
     pose not from the future (a restarted source). Not thread-safe: its source holds its lock."""
 
-    def __init__(self, future_margin: float = FUTURE_MARGIN, restart_after: float = RESTART_AFTER) -> None:
-        self.future_margin = future_margin
-        self.restart_after = restart_after
+    def __init__(self) -> None:
         self._newest: dict[int, tuple[float, float]] = {}  # robot -> stamp taken, when it arrived
         self._counts = {reason: Counter[int]() for reason in (*STAMP_DROPS, "restarts")}
 
     def admit(self, robot: int, stamp: float, now: float, arrival: float) -> bool:
         """Whether to take a pose of ``robot`` stamped ``stamp``, judged against ``now`` on the stamp's
         clock; ``arrival`` is when it arrived (s on any monotonic clock, the same for every call)."""
-        if stamp > now + self.future_margin:
+        if stamp > now + FUTURE_MARGIN:
             self._counts["future"][robot] += 1
             return False
         newest = self._newest.get(robot)
         if newest is not None and stamp <= newest[0]:
-            if arrival - newest[1] < self.restart_after:
+            if arrival - newest[1] < RESTART_AFTER:
                 self._counts["stale"][robot] += 1
                 return False
             self._counts["restarts"][robot] += 1
