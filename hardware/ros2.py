@@ -153,11 +153,9 @@ class Ros2BackendConfig(_Ros2Table):
             _check_name(ns, "namespaces", "namespace")
         cleaned = [ns.strip("/") for ns in self.namespaces]
         _need(len(set(cleaned)) == len(cleaned), "namespaces must differ from each other")
-        for key in ("cmd_topic", "led_topic"):
-            _check_name(getattr(self, key), key)
-            _need(
-                not getattr(self, key).startswith("/"), f"{key} is relative to each robot's namespace: no leading '/'"
-            )
+        for key, topic in (("cmd_topic", self.cmd_topic), ("led_topic", self.led_topic)):
+            _check_name(topic, key)
+            _need(not topic.startswith("/"), f"{key} is relative to each robot's namespace: no leading '/'")
         _check_domain(self.domain)
         _need(self.distro in DISTROS, f"distro must be one of {', '.join(DISTROS)}, not {self.distro!r}")
         _need(
