@@ -11,6 +11,7 @@ import os
 import sys
 import tempfile
 from collections.abc import Callable
+from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
@@ -156,16 +157,9 @@ def run_goals(args: argparse.Namespace) -> int:
             _check_output(preview, "preview")
         counts = _region_counts(args.region_counts) if args.region_counts else None
         prep = prepare_image(args.image, background=args.background)
+        # every option is a flag of the same name; region counts come parsed
         options = GoalOptions(
-            args.arena,
-            args.method,
-            args.seed,
-            args.robot_radius,
-            counts,
-            args.conservative,
-            args.tol,
-            args.max_iter,
-            args.relax,
+            **{f.name: getattr(args, f.name) for f in fields(GoalOptions)} | {"region_counts": counts}
         )
         gs = goals_from_prepared(prep, args.n, options)
         text = gs.to_json(indent=1) + "\n"
