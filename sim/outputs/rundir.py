@@ -122,37 +122,20 @@ def write_json(path: str | os.PathLike, obj: Any, *, indent: int = 2) -> Path:
     return path
 
 
-def write_npz(path: str | os.PathLike, *, compress: bool = True, **arrays: Any) -> Path:
-    """Write arrays to a ``.npz`` file (compressed by default), atomically. Returns the path.
-
-    The file is written exactly at ``path`` (no ``.npz`` suffix is appended).  Values are passed
-    through ``np.asarray``; object arrays are refused so the file loads without ``allow_pickle``.
-    """
-    path = Path(path)
-    clean = {}
-    for name, value in arrays.items():
-        a = np.asarray(value)
-        if a.dtype == object:
-            raise TypeError(f"write_npz: array {name!r} has dtype object; give it a numeric or str dtype")
-        clean[name] = a
-    save = np.savez_compressed if compress else np.savez
-
-    def _w(fh: io.BufferedWriter) -> None:
-        # ignored: to mypy a key of clean could be savez's own ``allow_pickle``
-        save(fh, **clean)  # type: ignore[arg-type]
-
-    atomic_write(path, _w)
-    return path
+def write_npz(path: str | os.PathLike, **arrays: Any) -> Path:
+    """Write arrays to a compressed ``.npz`` file exactly at ``path`` (no suffix appended),
+    atomically; object arrays are refused (ValueError) so the file loads without ``allow_pickle``."""
+    return write_npz_streamed(path, arrays.items())
 
 
-def write_npz_streamed(path: str | os.PathLike, arrays: Iterable[tuple[str, Any]], level: int = 6) -> Path:
-    """As :func:`write_npz` (compressed), with the arrays taken one at a time from ``arrays``, so a
-    generator can make each (e.g. a float32 copy) only while it is written. ``level``: zlib's. A
+def write_npz_streamed(path: str | os.PathLike, arrays: Iterable[tuple[str, Any]]) -> Path:
+    """As :func:`write_npz`, with the arrays taken one at a time from ``arrays``, so a
+    generator can make each (e.g. a float32 copy) only while it is written (zlib's level 6). A
     value with a ``write(file)`` method writes its own .npy member (e.g. a piece at a time)."""
     path = Path(path)
 
     def _w(fh: io.BufferedWriter) -> None:
-        with zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED, allowZip64=True, compresslevel=level) as z:
+        with zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED, allowZip64=True, compresslevel=6) as z:
             for name, value in arrays:
                 with z.open(f"{name}.npy", "w", force_zip64=True) as member:
                     if hasattr(value, "write"):
