@@ -317,19 +317,17 @@ def frame_indices(t: np.ndarray, fps: float, speed: float | None = 1.0, max_fram
 HOLD_S = 3.0  # s of video that show the final picture at least: a run ends converge_hold after it forms
 
 
-def held_frames(
-    t: np.ndarray, formed_at: float | None, fps: float = 10, hold_s: float = HOLD_S, speed: float = 1.0
-) -> np.ndarray:
+def held_frames(t: np.ndarray, formed_at: float | None, fps: float = 10, speed: float = 1.0) -> np.ndarray:
     """:func:`frame_indices` at ``speed`` (real time by default), then the last sample repeated until
     the frames from ``formed_at`` (the time the final picture formed; None: the last sample) on last
-    ``hold_s`` seconds of video, so whatever ended the run, an audience sees its end picture."""
+    :data:`HOLD_S` seconds of video, so whatever ended the run, an audience sees its end picture."""
     idx = frame_indices(t, fps, speed, max_frames=0)
     if not len(idx):
         return idx
     t = np.asarray(t, dtype=float)
     since = float(t[-1]) if formed_at is None else float(formed_at)
     shown = int(np.count_nonzero(t[idx] >= since - 1e-9))
-    missing = max(0, int(np.ceil(hold_s * fps - 1e-9)) - shown)
+    missing = max(0, int(np.ceil(HOLD_S * fps - 1e-9)) - shown)
     return np.concatenate([idx, np.full(missing, idx[-1], dtype=idx.dtype)])
 
 
@@ -413,11 +411,11 @@ def _encode_opencv(path: Path, frames: Iterable[np.ndarray], fps: float, width: 
 # --- Plots ----------------------------------------------------------------------------------------
 
 
-def _figure(w_in: float, h_in: float, dpi: int):
+def _figure(w_in: float, h_in: float):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(w_in, h_in), dpi=dpi)
+    fig = Figure(figsize=(w_in, h_in), dpi=PLOT_DPI)
     FigureCanvasAgg(fig)
     return fig
 
@@ -438,11 +436,11 @@ def _robot_colours(n: int, color: np.ndarray | None) -> np.ndarray:
 
 
 PLOT_POINTS = 1_000_000  # points of all robots' paths in trajectories.png together
+PATH_POINTS = 1500  # points of one robot's path at most
+PLOT_DPI = 120
 
 
-def write_plots(
-    out_dir: str | os.PathLike, recording: Recording, clearance: np.ndarray, *, dpi: int = 120, max_points: int = 1500
-) -> dict[str, Path]:
+def write_plots(out_dir: str | os.PathLike, recording: Recording, clearance: np.ndarray) -> dict[str, Path]:
     """Write ``clearance.png`` (minimum pairwise clearance over time, zero line = contact) and
     ``trajectories.png`` (every robot's path in the arena, start ○ and end ●, last goals ×), paths
     coloured by the final LED colours (dark ones fall back to a colormap).  Returns
@@ -451,14 +449,14 @@ def write_plots(
     out_dir.mkdir(parents=True, exist_ok=True)
     rec = recording.checked()
     paths = {"clearance": out_dir / "clearance.png", "trajectories": out_dir / "trajectories.png"}
-    _plot_clearance(paths["clearance"], rec, np.asarray(clearance, dtype=float), dpi)
-    _plot_trajectories(paths["trajectories"], rec, dpi, max_points)
+    _plot_clearance(paths["clearance"], rec, np.asarray(clearance, dtype=float))
+    _plot_trajectories(paths["trajectories"], rec)
     return paths
 
 
-def _plot_clearance(path: Path, rec: Recording, clearance: np.ndarray, dpi: int) -> None:
+def _plot_clearance(path: Path, rec: Recording, clearance: np.ndarray) -> None:
     t, N = rec.t, rec.pose.shape[1]
-    fig = _figure(8, 3.6, dpi)
+    fig = _figure(8, 3.6)
     ax = fig.add_subplot(1, 1, 1)
     fin = np.isfinite(clearance)
     if fin.any():
@@ -485,7 +483,7 @@ def _plot_clearance(path: Path, rec: Recording, clearance: np.ndarray, dpi: int)
     fig.savefig(path, format="png")
 
 
-def _plot_trajectories(path: Path, rec: Recording, dpi: int, max_points: int) -> None:
+def _plot_trajectories(path: Path, rec: Recording) -> None:
     from matplotlib.collections import LineCollection
     from matplotlib.patches import Polygon, Rectangle
 
@@ -493,7 +491,7 @@ def _plot_trajectories(path: Path, rec: Recording, dpi: int, max_points: int) ->
     T, N = pose.shape[:2]
     xmin, ymin, xmax, ymax = (float(v) for v in rec.arena)
     aspect = (ymax - ymin) / (xmax - xmin)
-    fig = _figure(7.5, max(3.0, min(12.0, 7.0 * aspect + 0.8)), dpi)
+    fig = _figure(7.5, max(3.0, min(12.0, 7.0 * aspect + 0.8)))
     ax = fig.add_subplot(1, 1, 1)
     ax.add_patch(Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, fill=False, ec="0.3", lw=1.0))
     for poly in obstacles or []:
@@ -502,7 +500,7 @@ def _plot_trajectories(path: Path, rec: Recording, dpi: int, max_points: int) ->
             ax.add_patch(Polygon(pts, closed=True, fc="0.65", ec="0.4", lw=0.8, zorder=1))
     cols = _robot_colours(N, None if rec.color is None or T == 0 else rec.color[-1])  # the final LED colours
     # points a path, fewer with many robots: matplotlib's cost grows with all paths' points together
-    per_robot = max(50, min(max_points, PLOT_POINTS // max(N, 1)))
+    per_robot = max(50, min(PATH_POINTS, PLOT_POINTS // max(N, 1)))
     step = max(1, int(np.ceil(T / per_robot))) if T else 1
     sub = pose[::step, :, :2]
     if T and (T - 1) % step:
