@@ -34,8 +34,8 @@ class SimulatedBodies:
     """The simulated world as the node's bodies: physics, the tracker with its noise, and the scene's
     teleports, tracker outages and glitches; it drives the scripted movers itself."""
 
-    def __init__(self, bus: Bus, scene: Scene) -> None:
-        self.bus, self.scene = bus, scene
+    def __init__(self, scene: Scene) -> None:
+        self.scene = scene
         self.params, self.world = world_of(scene)
         self.tracker = tracker_of(scene)
         self.tracked = np.ones(scene.robots, bool)  # the tracker sees every body (or, in an outage, none)
@@ -126,7 +126,7 @@ def world_node(
 ) -> BodyNode:
     """The body node on the simulated world, on the scene's clock (``deadline``: lock-step, seconds to
     wait for commands)."""
-    bodies = SimulatedBodies(bus, scene)
+    bodies = SimulatedBodies(scene)
     clock = LockStep(bus, deadline) if scene.clock == "lockstep" else WallClock(bodies.world.substep, catch_up=True)
     return BodyNode(bus, scene, bodies, clock, startup_timeout=startup_timeout, pose_frames=pose_frames)
 

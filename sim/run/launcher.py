@@ -389,7 +389,7 @@ class Launcher:
                 force=True,
             )
             coord = self._spawn("coordinator", "coordinator.service", self._scene_args(), [], self._as("coordinator"))
-            self._wait_alive(recorder, "coordinator", 1, coord)
+            self._wait_alive(recorder, "coordinator", coord)
             if self.opt.remote_agents:
                 self._serve_configs(bus)
                 waiting_since = time.monotonic()
@@ -539,7 +539,7 @@ class Launcher:
         try:
             # The node's refusal counts as soon as it is written: closing its links to the robots
             # can take a while, and the run is refused whatever it does after.
-            self._wait_alive(rec, "world", 1, child, gave_up=refusal)
+            self._wait_alive(rec, "world", child, gave_up=refusal)
         except RuntimeError:
             said = refusal()
             if said is not None:
@@ -558,16 +558,16 @@ class Launcher:
         return None if self.opt.secure is None else client_config(self.opt.secure, role, self.client.connect)
 
     def _wait_alive(
-        self, rec: Recorder, role: str, count: int, child: Child, gave_up: Callable[[], str | None] | None = None
+        self, rec: Recorder, role: str, child: Child, gave_up: Callable[[], str | None] | None = None
     ) -> None:
-        """Until ``count`` processes of ``role`` are alive; RuntimeError if ``child`` exits first or
-        (``gave_up``, checked every 0.2 s) says why it will not come."""
+        """Until a process of ``role`` is alive; RuntimeError if ``child`` exits first or (``gave_up``,
+        checked every 0.2 s) says why it will not come."""
         start = time.monotonic()
         checked = start
-        seen: set[str] = set()
-        while len(seen) < count:
+        alive = False
+        while not alive:
             rec.poll()
-            seen |= {e["id"] for e in rec.happened.liveliness if e["role"] == role and e["alive"]}
+            alive = any(e["role"] == role and e["alive"] for e in rec.happened.liveliness)
             if child.proc.poll() is not None:
                 raise RuntimeError(f"{child.name} exited with code {child.proc.returncode}: see {child.log}")
             if gave_up is not None and time.monotonic() - checked >= 0.2:
