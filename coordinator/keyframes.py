@@ -10,8 +10,8 @@ initialize the computation of the goal positions of region R_i in the current fr
    alone for shapes that cross, so each term only needs to be roughly right.
 2. Motion: the translation T_i^f is the difference of the region centroids; the rotation M_i^f comes
    from the region border (Canny edges), see keyframe_motion.estimate_motion.
-3. Initial samples: G_{f-1} of R_i, moved by T_i^f and M_i^f (and scaled with the area per goal when
-   `scale_init`), then thinned or filled to this frame's N_i, start the Lloyd iterations (section 4.3).
+3. Initial samples: G_{f-1} of R_i, moved by T_i^f and M_i^f (and scaled with the area per goal), then
+   thinned or filled to this frame's N_i, start the Lloyd iterations (section 4.3).
    A region whose border correlation is below `min_correlation`, and every region of a frame whose
    region count differs from the previous frame's, starts from fresh random samples (section 4.2).
 
@@ -26,7 +26,6 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -172,7 +171,6 @@ def _initial_samples(
     prev_set: GoalSet,
     counts: np.ndarray,
     min_correlation: float,
-    scale_init: bool,
 ) -> tuple[dict[int, np.ndarray], list[RegionMotion], str]:
     """Initial samples (pixel units) per region of frame f: the goals of its region in frame f-1
     (G_{f-1}) moved by T_i^f and M_i^f; also the regions' motions and which regions match poorly."""
@@ -188,7 +186,7 @@ def _initial_samples(
         elif counts[rid] > 0 and len(pts) > 0:
             c, s = np.cos(rotation), np.sin(rotation)
             # spacing follows the area per goal A_i / N_i: the region's growth, less what N_i changed by
-            spread = scale * np.sqrt(len(pts) / counts[rid]) if scale_init else 1.0
+            spread = scale * np.sqrt(len(pts) / counts[rid])
             m = np.array([[c, -s], [s, c]]) * spread  # M_i^f
             moved = (pts - old.centroid) @ m.T + cur.centroid  # M_i^f about the centroid, then T_i^f
             init[rid] = fit_count(from_arena(moved, prep.shape, 1.0), int(counts[rid]), *prep.seg.pixels(rid))
@@ -203,7 +201,7 @@ def _carried_counts(prep: PreparedImage, match: list[int], prev_set: GoalSet) ->
     return carried if all(carried[r.id] <= r.area for r in prep.seg.regions) else None
 
 
-def _load(images: Sequence[ImageLike] | str | os.PathLike[str], background: Any) -> list[PreparedImage]:
+def _load(images: Sequence[ImageLike] | str | os.PathLike[str]) -> list[PreparedImage]:
     if isinstance(images, (str, os.PathLike)):
         images = keyframe_paths(images)
     if len(images) == 0:
@@ -211,7 +209,7 @@ def _load(images: Sequence[ImageLike] | str | os.PathLike[str], background: Any)
     preps = []
     for k, img in enumerate(images):
         try:
-            preps.append(prepare_image(img, background=background))
+            preps.append(prepare_image(img))
         except GoalError as err:
             raise GoalError(f"keyframe {k}: {err}") from None
     if len({p.shape for p in preps}) > 1:
@@ -237,8 +235,6 @@ def keyframe_goals(
     init_from_previous: bool = True,
     keep_counts: bool = False,
     min_correlation: float = MIN_CORRELATION,
-    scale_init: bool = True,
-    background: Any = None,
 ) -> KeyframeGoals:
     """N goals per keyframe I_1..I_F (paper 6.1), all in one arena.
 
@@ -253,13 +249,12 @@ def keyframe_goals(
       that do not correspond), arena None the largest conservative arena any frame needs, and frame f
       uses seed + f for its random samples.
     min_correlation: the "sufficient correlation" of the region borders below which a region starts
-      from fresh samples.
-    scale_init: also scale the moved goals about the centroid so that their spacing follows the area
-      per goal, sqrt((A_f / N_f) / (A_{f-1} / N_{f-1})) (a growing leaf); else move them rigidly.
+      from fresh samples. The moved goals are also scaled about the centroid so that their spacing
+      follows the area per goal, sqrt((A_f / N_f) / (A_{f-1} / N_{f-1})) (a growing leaf).
     Raises GoalError on bad input."""
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
         raise GoalError(f"N must be a whole number of robots, at least 1, not {n!r}")
-    preps = _load(images, background)
+    preps = _load(images)
     matching = init_from_previous or keep_counts
     shapes: list[list[RegionShape]] = []
     sets: list[GoalSet] = []
@@ -280,7 +275,7 @@ def keyframe_goals(
         elif match is not None:
             n_i, _ = allocate_robots([r.area for r in prep.seg.regions], int(n), counts)
             init, motions, reason = _initial_samples(
-                prep, shapes[f], shapes[f - 1], match, sets[-1], n_i, min_correlation, scale_init
+                prep, shapes[f], shapes[f - 1], match, sets[-1], n_i, min_correlation
             )
         try:
             gs = goals_from_prepared(prep, n, replace(options, seed=options.seed + f, region_counts=counts), init)
