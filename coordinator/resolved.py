@@ -183,29 +183,17 @@ def _step_record(step: ImageStep) -> dict[str, Any]:
 
 
 def _step_of(data: dict[str, Any]) -> ImageStep:
-    motion = data.get("motion")
-    counts = data.get("region_counts")
+    """An ImageStep as _step_record wrote it (its fields by name, JSON's lists and strings made over)."""
+    image, counts, motion = data["image"], data.get("region_counts"), data.get("motion")
+    if motion is not None:
+        motion = StepMotion(**motion | {"velocity": tuple(motion["velocity"]), "center": tuple(motion["center"])})
     return ImageStep(
-        name=data["name"],
-        image=None if data["image"] is None else Path(data["image"]),
-        shape=data["shape"],
-        hold=float(data["hold"]),
-        region_counts=None if counts is None else {int(k): int(v) for k, v in counts.items()},
-        method=data["method"],
-        motion=None if motion is None else _motion_of(motion),
-        frame_period=float(data["frame_period"]),
-        keyframe=data["keyframe"],
-    )
-
-
-def _motion_of(data: dict[str, Any]) -> StepMotion:
-    (vx, vy), (cx, cy) = data["velocity"], data["center"]
-    return StepMotion(
-        (float(vx), float(vy)),
-        float(data["angular_velocity"]),
-        (float(cx), float(cy)),
-        float(data["expansion"]),
-        data["expansion_kind"],
+        **data
+        | {
+            "image": None if image is None else Path(image),
+            "region_counts": None if counts is None else {int(k): int(v) for k, v in counts.items()},
+            "motion": motion,
+        }
     )
 
 
