@@ -26,8 +26,7 @@ class Lateness:
     def __init__(self, dt: float, command_margin: float, window: int = WINDOW) -> None:
         self.most = dt + command_margin  # a later command never drives: its body stands
         self._quickest: deque[float] = deque(maxlen=window)  # wall time minus stamp, per tick
-        self.latest = 0.0  # lateness of the last tick acted on (s)
-        self.worst = 0.0  # ... and the worst seen (s), for the host's statistics
+        self.worst = 0.0  # the worst lateness acted on (s), for the host's statistics
         self.total, self.count = 0.0, 0  # ... and their sum over the ticks acted on
 
     def arrived(self, stamp: float, wall: float) -> None:
@@ -39,7 +38,7 @@ class Lateness:
         if not self._quickest:
             return 0.0
         late = min(max(wall - stamp - min(self._quickest), 0.0), self.most)
-        self.latest, self.worst = late, max(self.worst, late)
+        self.worst = max(self.worst, late)
         self.total, self.count = self.total + late, self.count + 1
         return late
 

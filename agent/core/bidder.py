@@ -135,7 +135,7 @@ class Auction:
 
 
 class Participant(Auction):
-    """The own robots of one host in the auction of one goal set (epoch), on one board. Its 29
+    """The own robots of one host in the auction of one goal set (epoch), on one board. Its 28
     attributes stay flat: the compiled rounds (agent.core.bidding.Heard, Bidders) and the lock-step
     rounds (agent.core.rounds) read and write the board, claims and heard records by name."""
 
@@ -145,8 +145,6 @@ class Participant(Auction):
         super().__init__(epoch, goals, robots, own, eps, hysteresis)
         self.row_of = {int(r): i for i, r in enumerate(self.robots)}
         self.is_own = np.isin(self.robots, self.own_ids)
-        self.is_own_id = np.zeros(int(self.robots.max(initial=0)) + 2, bool)  # by robot id + 1 (owner -1: none)
-        self.is_own_id[self.own_ids + 1] = True
         self._member = np.zeros(np.iinfo(RECORD["robot"]).max + 1, bool)  # by any robot id a record can carry
         self._member[self.robots] = True
         self.board = Board(len(self.goals))
