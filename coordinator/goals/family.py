@@ -8,7 +8,6 @@ import json
 import os
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -63,9 +62,6 @@ def goal_family(
     image_or_path: str | os.PathLike[str] | np.ndarray,
     counts: Iterable[int],
     options: GoalOptions = PAPER_OPTIONS,
-    *,
-    background: Any = None,
-    min_area: int | None = None,
 ) -> GoalFamily:
     """Goal sets for every robot count in `counts` (the image is segmented once).
 
@@ -74,7 +70,7 @@ def goal_family(
     wanted = sorted({int(c) for c in counts})
     if not wanted:
         raise GoalError("a goal family needs at least one robot count")
-    prep = prepare_image(image_or_path, background=background, min_area=min_area)
+    prep = prepare_image(image_or_path)
     sets = {r: goals_from_prepared(prep, r, options) for r in wanted}
     if options.arena is None:
         shared = max(s.arena for s in sets.values())  # each is its own conservative (auto) arena

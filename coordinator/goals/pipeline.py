@@ -356,19 +356,16 @@ def generate_goals(
     n: int,
     options: GoalOptions = PAPER_OPTIONS,
     *,
-    background: Any = None,
-    min_area: int | None = None,
     init: Mapping[int, np.ndarray] | None = None,
 ) -> GoalSet:
     """N goal positions and colours that represent an image (paper section 4).
 
     image_or_path: a PNG/JPEG/BMP/TIFF path, or an RGB, RGBA or gray array (row 0 at the top).
-    options: GoalOptions.
-    background: None (alpha channel, else the dominant border colour) or a colour ('#ffffff', 'r,g,b').
+    options: GoalOptions. The background is the alpha channel, else the dominant border colour
+      (prepare_image takes another).
     init: initial samples {region id: (N_i, 2) pixel positions (x, y)} that replace the random ones of
       section 4.2 for those regions (paper 6.1: the previous keyframe's goals, moved); samples outside
       R_i are first moved to its nearest free pixel.
     Raises GoalError (a ValueError with a one-line message) on bad input.
     """
-    prep = prepare_image(image_or_path, background=background, min_area=min_area)
-    return goals_from_prepared(prep, n, options, init)
+    return goals_from_prepared(prepare_image(image_or_path), n, options, init)
