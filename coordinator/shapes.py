@@ -9,7 +9,7 @@ RGBA with transparent background when alpha=True.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 
 import numpy as np
 
@@ -111,26 +111,20 @@ def draw(
     name: str,
     size: int = 256,
     *,
-    colors: Sequence[RGB] | None = None,
     background: RGB = WHITE,
     antialias: bool = False,
     alpha: bool = False,
 ) -> np.ndarray:
     """Draw shape `name` (one of SHAPES) on a size x size canvas.
 
-    colors: one colour per part (disk_and_line and two_squares have two parts), else the paper's.
     antialias: 4 x 4 supersampled edges (mixed colours along the boundary), else crisp pixels.
     alpha: RGBA with alpha = coverage; the RGB of transparent pixels is then the background."""
     if name not in _SHAPES:
         raise ValueError(f"unknown shape {name!r}; choose from {', '.join(SHAPES)}")
-    parts = _SHAPES[name]
-    cols = [c for _, c in parts] if colors is None else list(colors)
-    if len(cols) != len(parts):
-        raise ValueError(f"shape {name!r} has {len(parts)} part(s), got {len(cols)} colour(s)")
     img = np.empty((size, size, 3), float)
     img[:] = background
     total = np.zeros((size, size))
-    for (inside, _), col in zip(parts, cols):
+    for inside, col in _SHAPES[name]:
         cov = coverage(inside, size, 4 if antialias else 1)
         img = img * (1 - cov[..., None]) + np.asarray(col, float) * cov[..., None]
         total = np.maximum(total, cov)
