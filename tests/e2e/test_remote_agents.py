@@ -80,11 +80,12 @@ def check_picture(tmp_path: Path, run: subprocess.Popen, agents: subprocess.Pope
 def test_agents_from_another_process_tree_form_the_picture(tmp_path, spawned):
     port = free_port()
     run = start_run(spawned, tmp_path, port)
+    # the run says what it waits for (agents started at once with it can be there before it looks)
+    assert wait_for(lambda: "waiting for agents" in (tmp_path / "run.err").read_text(), timeout=30)
     agents = start(spawned, tmp_path / "agents.err", "agents", "--connect", f"tcp/127.0.0.1:{port}")
     started = agents_of(agents, 6)
     assert len(started) == 6, (tmp_path / "agents.err").read_text()  # one robot per process by default
     check_picture(tmp_path, run, agents, started)
-    assert "waiting for agents" in (tmp_path / "run.err").read_text()
     assert processes_on(port) == []
 
 
