@@ -579,11 +579,15 @@ def events_of(scene: Scene, kind: str) -> list[dict[str, Any]]:
     return sorted((e for e in scene.events if e["kind"] == kind), key=lambda e: e["t"])
 
 
+def count_due(events: list[dict[str, Any]], t: float) -> int:
+    """How many of ``events`` (events_of's, in order of time) are due by time t."""
+    return bisect.bisect_right(events, t + EVENT_SLACK, key=lambda e: e["t"])
+
+
 def take_due(events: list[dict[str, Any]], t: float) -> list[dict[str, Any]]:
-    """The events due by time t, taken off ``events`` (events_of's, in order of time)."""
-    due = bisect.bisect_right(events, t + EVENT_SLACK, key=lambda e: e["t"])
-    taken = events[:due]
-    del events[:due]
+    """The events due by time t, taken off ``events``."""
+    taken = events[: count_due(events, t)]
+    del events[: len(taken)]
     return taken
 
 

@@ -14,6 +14,7 @@ its tick. The layouts: docs/protocol.md.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import struct
@@ -106,6 +107,7 @@ class Message:
     _fixed: ClassVar[struct.Struct]
 
     @classmethod
+    @functools.cache  # once per class: every decode validates the fields, and Tick goes out every tick
     def field_names(cls) -> tuple[str, ...]:
         return tuple(f.name for f in fields(cls))
 

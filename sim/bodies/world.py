@@ -12,9 +12,9 @@ the control period, RobotParams.dt) on a fixed time grid: on entering each perio
 (N, 4) standard-normal array from its own ``numpy.random.Generator`` (seeded at construction),
 whatever the commands are. So the noise a robot gets never depends on the order in which commands
 arrived, nor on how time is chunked into ``step`` calls (one step(0.1) or ten step(0.01) draw the
-same numbers), and the same sequence of calls gives bit-identical poses. The realised command is
-clipped to the limits again, so the speed limits hold with noise too. Within a noise period and between commands the motion is an exact arc, so the
-integration itself does not depend on the substep.
+same numbers), and the same sequence of calls gives bit-identical poses. The noisy command is clipped
+to the limits again, so the speed limits hold with noise too. Within a noise period and between
+commands the motion is an exact arc, so the integration itself does not depend on the substep.
 
 Substeps: ``step(dt)`` splits dt into ``ceil(dt / substep)`` equal substeps (0.1 s -> 10 at the
 default 0.01 s) and checks contacts at the end of every substep, so a robot crossing another within

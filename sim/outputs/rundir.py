@@ -10,7 +10,6 @@ No zenoh here: these are pure writers that the recorder calls.
 
 from __future__ import annotations
 
-import contextlib
 import datetime as _dt
 import enum
 import io
@@ -273,7 +272,8 @@ def _fsync_dir(path: Path) -> None:
     except OSError:
         return
     try:
-        with contextlib.suppress(OSError):
-            os.fsync(fd)
+        os.fsync(fd)
+    except OSError:
+        pass
     finally:
         os.close(fd)

@@ -24,7 +24,7 @@ import numpy as np
 from agent.core.params import HOLONOMIC, RobotParams
 from agent.runtime import HostConfig, interpreter
 from coordinator.resolved import save_resolved
-from coordinator.scene import EVENT_SLACK, Scene, events_of, take_due
+from coordinator.scene import Scene, count_due, events_of, take_due
 from sim.args import STARTUP_TIMEOUT, format_ids
 from sim.node.hardware import ERROR as HARDWARE_ERROR
 from sim.outputs.metrics import Traffic
@@ -619,7 +619,7 @@ class Launcher:
         """The run ends at the tick where the display has held converged for the scene's hold; with
         image steps, only convergence that began within the last step counts (as sim.central.engine ends)."""
         last_start = self.scene.step_starts[-1] if self.scene.steps else 0.0
-        if self.failures and self.failures[0]["t"] <= now + EVENT_SLACK:
+        if count_due(self.failures, now):
             return False  # a robot the scene kills by now is not killed yet: it is not the display for the rest
         return self.scene.ends_on_convergence and since >= last_start - 1e-9 and now - since >= self.scene.converge_hold
 
