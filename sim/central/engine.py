@@ -61,8 +61,7 @@ def optimal_assignment(
     """Goal index per robot: the assignment of least total squared distance (eq. 5-7, scipy's
     linear_sum_assignment), kept only if it lowers the cost of the previous iteration's assignment by
     at least Delta C (paper 5.1's hysteresis for noisy positions). Scene `assignment = "optimal"`,
-    solved every `assign_period`: scipy takes 10 ms for 1000 robots near their goals, about 1 s
-    while they cross the arena (bench/bench_large.py compares it with the auction)."""
+    solved every `assign_period` (bench/bench_large.py compares it with the auction)."""
     cost = ((position[:, None, :] - goals[None, :, :]) ** 2).sum(-1)
     rows, cols = linear_sum_assignment(cost)
     best = _goal_index(len(position), rows, cols)

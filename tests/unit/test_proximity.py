@@ -115,8 +115,7 @@ def test_a_batch_of_one_is_its_row_of_every_batch():
 
 
 def test_the_closest_valid_neighbours_in_order():
-    """(Was agent.core.neighbours.nearest_first's test.) Of the valid states, those within reach,
-    nearest first, at most M."""
+    """Of the valid states, those within reach, nearest first, at most M."""
     npos = np.array([[3.0, 0.0], [1.0, 0.0], [0.5, 0.0], [2.0, 0.0], [9.0, 0.0]])
     valid = np.array([True, True, False, True, True])
     radius = np.arange(5.0)
