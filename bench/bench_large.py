@@ -77,6 +77,7 @@ class Run:
     wall: dict[str, np.ndarray]  # part -> (ticks,) seconds
     cpu: dict[str, np.ndarray]  # this process's CPU time (every thread)
     beside: np.ndarray  # (ticks,) wall seconds of the warm auction on the second thread (0: none)
+    bids: np.ndarray  # (ticks,) that auction's bids
 
     @property
     def display(self) -> float:
@@ -126,7 +127,8 @@ def timed_run(scene: Any, assignment: str, echo: bool) -> Run:
         metrics = json.loads((path / "metrics.json").read_text())
         with np.load(path / "trajectory.npz") as z:
             step = np.array(z["step"])
-    return Run(assignment, metrics, step, clock.arrays(), clock.arrays(cpu=True), np.array(clock.beside))
+    beside = np.array(clock.beside), np.array(clock.bids)
+    return Run(assignment, metrics, step, clock.arrays(), clock.arrays(cpu=True), *beside)
 
 
 def ms(x: float) -> str:
@@ -196,6 +198,15 @@ def summary_table(runs: list[Run]) -> list[str]:
         [
             f"{ms(a.mean())} / {ms(np.percentile(a, 90))} / {ms(a.max())}" if a.any() else "-"
             for a in (r.beside[~r.cold] for r in runs)
+        ],
+    )
+    row(
+        "auction bids per warm step (median / p90 / max); ns of its time per bid",
+        [
+            f"{np.median(b):.0f} / {np.percentile(b, 90):.0f} / {b.max()}; {1e9 * r.beside.sum() / b.sum():.0f}"
+            if b.any()
+            else "-"
+            for r, b in ((r, r.bids[~r.cold]) for r in runs)
         ],
     )
     row(

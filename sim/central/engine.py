@@ -262,8 +262,9 @@ class CentralAuction:
         if self.pending is None:
             return False
         (auction, bid_from), self.pending = self.pending, None
+        bids = auction.bids
         settled = auction_assignment(auction, bid_from)
-        self.beside.clock.add_beside(auction.beside_seconds)
+        self.beside.clock.add_beside(auction.beside_seconds, auction.bids - bids)
         self.beside.lap("assignment")
         changed = not np.array_equal(settled, self.assignment)
         self.assignment = settled

@@ -28,6 +28,7 @@ class StepClock:
         self.wall: dict[str, list[float]] = {part: [] for part in PARTS}
         self.cpu: dict[str, list[float]] = {part: [] for part in PARTS}
         self.beside: list[float] = []  # per tick: wall seconds of the auction on the second thread (0: none)
+        self.bids: list[int] = []  # per tick: the bids of that auction's block
         self._last = (0.0, 0.0)
 
     def start(self) -> None:
@@ -36,6 +37,7 @@ class StepClock:
             self.wall[part].append(0.0)
             self.cpu[part].append(0.0)
         self.beside.append(0.0)
+        self.bids.append(0)
         self._last = (time.perf_counter(), self.read_cpu())
 
     def lap(self, part: str) -> None:
@@ -44,10 +46,11 @@ class StepClock:
         self.cpu[part][-1] += now[1] - self._last[1]
         self._last = now
 
-    def add_beside(self, seconds: float) -> None:
-        """The wall seconds a warm auction took on its own thread, this tick (the engine reads them
-        from the thread when it collects the auction's result)."""
+    def add_beside(self, seconds: float, bids: int) -> None:
+        """The wall seconds a warm auction took on its own thread this tick, and its bids (the engine
+        reads them from the thread when it collects the auction's result)."""
         self.beside[-1] += seconds
+        self.bids[-1] += bids
 
     def arrays(self, cpu: bool = False) -> dict[str, np.ndarray]:
         """(ticks,) seconds per part, wall time (or this process's CPU time)."""
