@@ -54,6 +54,7 @@ from .common import write_results
 
 SCENE = "paper-sequence-1000"
 ASSIGNMENTS = ("auction", "optimal")
+WAR_BIDS = 3000  # a warm block of more bids than this is counted as a price war
 TARGET, GOAL_ROBOTS = 30.0, 1000  # the realtime factor issue 6 asks of the central engine, at 1000 robots
 PART_NAMES = {
     "tracker": "tracker",
@@ -78,6 +79,7 @@ class Run:
     cpu: dict[str, np.ndarray]  # this process's CPU time (every thread)
     beside: np.ndarray  # (ticks,) wall seconds of the warm auction on the second thread (0: none)
     bids: np.ndarray  # (ticks,) that auction's bids
+    reassigned: np.ndarray  # (ticks,) the robots whose goal it changed
 
     @property
     def display(self) -> float:
@@ -127,7 +129,7 @@ def timed_run(scene: Any, assignment: str, echo: bool) -> Run:
         metrics = json.loads((path / "metrics.json").read_text())
         with np.load(path / "trajectory.npz") as z:
             step = np.array(z["step"])
-    beside = np.array(clock.beside), np.array(clock.bids)
+    beside = np.array(clock.beside), np.array(clock.bids), np.array(clock.reassigned)
     return Run(assignment, metrics, step, clock.arrays(), clock.arrays(cpu=True), *beside)
 
 
@@ -207,6 +209,13 @@ def summary_table(runs: list[Run]) -> list[str]:
             if b.any()
             else "-"
             for r, b in ((r, r.bids[~r.cold]) for r in runs)
+        ],
+    )
+    row(
+        f"warm steps of over {WAR_BIDS} bids: share; bids and robots given another goal, per step (mean)",
+        [
+            f"{100 * w.mean():.0f} %; {r.bids[w].mean():.0f} and {r.reassigned[w].mean():.1f}" if w.any() else "-"
+            for r, w in ((r, (r.bids > WAR_BIDS) & ~r.cold) for r in runs)
         ],
     )
     row(

@@ -264,11 +264,11 @@ class CentralAuction:
         (auction, bid_from), self.pending = self.pending, None
         bids = auction.bids
         settled = auction_assignment(auction, bid_from)
-        self.beside.clock.add_beside(auction.beside_seconds, auction.bids - bids)
+        reassigned = int((settled != self.assignment).sum())
+        self.beside.clock.add_beside(auction.beside_seconds, auction.bids - bids, reassigned)
         self.beside.lap("assignment")
-        changed = not np.array_equal(settled, self.assignment)
         self.assignment = settled
-        return changed
+        return reassigned > 0
 
     def penalise(self, robot: int, epoch: int, goal: int) -> None:
         # a goal of an earlier set is no goal of this auction

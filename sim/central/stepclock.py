@@ -29,6 +29,7 @@ class StepClock:
         self.cpu: dict[str, list[float]] = {part: [] for part in PARTS}
         self.beside: list[float] = []  # per tick: wall seconds of the auction on the second thread (0: none)
         self.bids: list[int] = []  # per tick: the bids of that auction's block
+        self.reassigned: list[int] = []  # per tick: the robots whose goal that block changed
         self._last = (0.0, 0.0)
 
     def start(self) -> None:
@@ -38,6 +39,7 @@ class StepClock:
             self.cpu[part].append(0.0)
         self.beside.append(0.0)
         self.bids.append(0)
+        self.reassigned.append(0)
         self._last = (time.perf_counter(), self.read_cpu())
 
     def lap(self, part: str) -> None:
@@ -46,11 +48,12 @@ class StepClock:
         self.cpu[part][-1] += now[1] - self._last[1]
         self._last = now
 
-    def add_beside(self, seconds: float, bids: int) -> None:
-        """The wall seconds a warm auction took on its own thread this tick, and its bids (the engine
-        reads them from the thread when it collects the auction's result)."""
+    def add_beside(self, seconds: float, bids: int, reassigned: int) -> None:
+        """The wall seconds a warm auction took on its own thread this tick, its bids and the robots
+        whose goal it changed (the engine reads them when it collects the auction's result)."""
         self.beside[-1] += seconds
         self.bids[-1] += bids
+        self.reassigned[-1] += reassigned
 
     def arrays(self, cpu: bool = False) -> dict[str, np.ndarray]:
         """(ticks,) seconds per part, wall time (or this process's CPU time)."""

@@ -57,7 +57,7 @@ def test_a_run_with_the_auction_beside_the_control_core_is_the_same_to_the_bit(t
     assert sum(stepped_again) > 0  # the auction did change goals while the control core ran on the old
     # the clock kept the auction's own time on the second thread and its bids: none at the cold start, some after
     assert clock.beside[0] == 0.0 and sum(clock.beside[1:]) > 0.0
-    assert clock.bids[0] == 0 and sum(clock.bids[1:]) > 0
+    assert clock.bids[0] == 0 and sum(clock.bids[1:]) > 0 and sum(clock.reassigned) > 0
     waited, beside = (np.load(runs[o] / "trajectory.npz") for o in (False, True))
     assert sorted(waited.files) == sorted(beside.files)
     for key in waited.files:
