@@ -100,26 +100,11 @@ class RoundExchange:
         self.newest_round: dict[tuple[int, int, int], int] = {}  # (epoch, block, sender) -> its latest round heard
         self.stopped = False  # the host is shutting down: stop waiting for rounds
 
-    def round(
-        self,
-        key: tuple[int, int, int],
-        msg: Bid | Boards,
-        members: set[int],
-        robots_of: Callable[[Any], np.ndarray],
-        resend: tuple[float, bool],
-    ) -> dict[int, Any] | None:
-        """Publish our message of round ``key`` (epoch, block's final instance, round) and wait until
-        every live robot in ``members`` has said its word in that round; returns the other hosts'
-        messages by sender (None: ROUND_CAP ran out). ``resend``: the first wait before our message
-        goes out again, and whether we speak: if not, the message goes out only as a resend, which
-        nobody waits for but which asks the hosts that left the round for a message of theirs we
-        missed (see file)."""
-        self.open(key, msg, resend[1])
-        return self.close(key, members, robots_of, resend[0])
-
     def open(self, key: tuple[int, int, int], msg: Bid | Boards, speak: bool) -> None:
-        """Say our message of round ``key`` (if we ``speak``); its records are waited for by close,
-        at once or at the next tick (a tick's last round when rounds per tick are bounded)."""
+        """Say our message of round ``key`` (epoch, block's final instance, round); its records are
+        waited for by close, at once or at the next tick (a tick's last round when rounds per tick
+        are bounded). Not ``speak``: the message goes out only as a resend, which nobody waits for
+        but which asks the hosts that left the round for a message of theirs we missed (see file)."""
         for old in [k for k in self.records if k < key]:
             del self.records[old]
         if key[:2] != self.said_block:  # a block's first round: forget the blocks before the last (once,
@@ -281,10 +266,6 @@ class AuctionLink:
         return self.robots[0]
 
     @property
-    def reach(self) -> float:
-        return self.rounds.reach
-
-    @property
     def latency(self) -> float:
         """Display seconds from freezing a block's positions to adopting its agreement, as last measured."""
         return self.times.latency
@@ -334,7 +315,9 @@ class AuctionLink:
         no assignment) and the frames are close (frames_close)."""
         if self.active and goals.epoch <= self.epoch:
             return {}
-        auction = new_auction(goals.epoch, goals.positions, goals.robots.tolist(), self.robots, self.params, self.reach)
+        auction = new_auction(
+            goals.epoch, goals.positions, goals.robots.tolist(), self.robots, self.params, self.rounds.reach
+        )
         self.goal_set, self.times.epoch_wall, self.reported = goals, time.monotonic(), -1
         self.blocks.block = self.blocks.open_round = None  # a block of the last goal set is given up
         if isinstance(auction, LocalAuction):  # lock-step only: a cold start at the next tick
@@ -556,8 +539,8 @@ class AuctionLink:
         """The range-limited auction's block (core.local_auction): the same rounds as in the central
         engine, each host saying its robots' words and hearing everyone's, every robot keeping only
         what came from within reach. A robot that said it ended the block is not waited for again."""
-        local, gs = self.local, self.goal_set
-        if local is None or gs is None or not local.own or not all(r in positions for r in local.own):
+        local = self.local
+        if local is None or not local.own or not all(r in positions for r in local.own):
             return
         if local.started and stamp - self.blocks.stamp < self.params.assign_period - 1e-9:
             return
@@ -571,8 +554,8 @@ class AuctionLink:
             if local.done:  # our robots' last words: said once (and again to whoever missed them)
                 self.exchange.say(key, said)
                 break
-            base = self._resend_base(len(waiting))
-            heard = self.exchange.round(key, said, waiting, lambda m: m.words["robot"], (base, True))
+            self.exchange.open(key, said, speak=True)
+            heard = self.exchange.close(key, waiting, lambda m: m.words["robot"], self._resend_base(len(waiting)))
             if heard is None:
                 self._abandon()
                 return
@@ -581,11 +564,7 @@ class AuctionLink:
                 waiting -= set(w.robot[w.ended].tolist())
             local.hear(Words.join([words, *theirs]))
             self.counts.rounds += 1
-        self.counts.agreements += 1
-        if self.reported < 0:
-            self.counts.first_agreement_s.append(time.monotonic() - self.times.epoch_wall)
-        self.reported = local.agreed_instance
-        self.on_agreed(local.epoch, local.agreed_instance, dict(local.agreed), gs.positions, gs.colors)
+        self._report()
 
     def _resend_base(self, members: int) -> float:
         """Lock-step: the first wait for a round's records before our message goes out again; at least
@@ -641,18 +620,20 @@ class AuctionLink:
         self._report()
 
     def _report(self) -> bool:
-        """Hand a new agreement to on_agreed (once per agreed instance); True when there was one."""
-        part, gs = self._under_way()
-        if part.agreed_instance <= self.reported:
+        """Hand a new agreement of the auction under way (the participant's or the range-limited
+        one's) to on_agreed, once per agreed instance; True when there was one."""
+        auction = self.local if self.local is not None else self._under_way()[0]
+        gs = self.goal_set
+        if gs is None or auction.agreed_instance <= self.reported:
             return False
         if self.reported < 0:  # the first agreement on this goal set
             self.counts.first_agreement_s.append(time.monotonic() - self.times.epoch_wall)
-        self.reported = part.agreed_instance
+        self.reported = auction.agreed_instance
         self.counts.agreements += 1
-        frozen = self.times.frozen_at.get(part.agreed_instance // part.phases)
+        frozen = self.times.frozen_at.get(auction.agreed_instance // auction.phases)  # real time only
         if frozen is not None:
             self.times.latency = min(MAX_LEAD, max(0.0, self.times.now - frozen))
-        self.on_agreed(part.epoch, part.agreed_instance, dict(part.agreed), gs.positions, gs.colors)
+        self.on_agreed(auction.epoch, auction.agreed_instance, dict(auction.agreed), gs.positions, gs.colors)
         return True
 
     def _publish(self) -> None:

@@ -18,7 +18,7 @@ import threading
 import time
 import zlib
 from collections import Counter
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable
 from typing import Any, Generic, TypeVar, cast, overload
 
 import numpy as np
@@ -182,7 +182,6 @@ class Inbox(Generic[T]):
         # so a lock-step run with faults is reproducible (a wall-clock delay is a number of ticks that
         # depends on how fast the machine steps).
         self.sim_time: float | None = None
-        self.subscriber: Any = None
         self.bell: threading.Event | None = None  # rung on every arrival: one wait serves several inboxes
         # robot -> the tick of its record that reached this inbox last, whatever the fault plan did
         # with it (None: not kept). A lock-step owner waits on it, then the plan's deterministic fate.
@@ -305,9 +304,6 @@ class Inbox(Generic[T]):
                 if deadline is not None and time.monotonic() >= deadline:
                     return None
 
-    def __iter__(self) -> Iterator[tuple[str, T]]:
-        return iter(self.drain())
-
 
 class Feed:
     """One declaration of a bus (a subscriber, a liveliness subscriber, a queryable), which
@@ -335,7 +331,6 @@ class RawInbox:
 
     def __init__(self) -> None:
         self._queue: queue.SimpleQueue[tuple[str, bytes, float]] = queue.SimpleQueue()
-        self.subscriber: Any = None
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         self._queue.put((str(sample.key_expr), sample.payload.to_bytes(), time.time()))
@@ -355,7 +350,6 @@ class LivelinessWatch:
         self._queue: queue.SimpleQueue[tuple[str, str, bool, float, str]] = queue.SimpleQueue()
         self._live: dict[tuple[str, str], str] = {}  # (role, ident) -> its live incarnation
         self._lock = threading.Lock()
-        self.subscriber: Any = None
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         parts = str(sample.key_expr).split("/alive/", 1)[-1].split("/")
@@ -510,7 +504,7 @@ class Bus:
         """An inbox of decoded messages (or frames' records, of robots ``only`` if given) from one
         key expression (``pulled``: see inbox)."""
         inbox = self.inbox(expected, only, pulled=pulled)
-        inbox.subscriber = self.subscribe_into(keyexpr, inbox)
+        self.subscribe_into(keyexpr, inbox)
         return inbox
 
     def subscribe_into(self, keyexpr: str, inbox: Inbox[Any]) -> Feed:
@@ -540,7 +534,7 @@ class Bus:
 
     def subscribe_raw(self, keyexpr: str) -> RawInbox:
         inbox = RawInbox()
-        inbox.subscriber = self._feed(lambda: self.session.declare_subscriber(keyexpr, inbox._on_sample))
+        self._feed(lambda: self.session.declare_subscriber(keyexpr, inbox._on_sample))
         return inbox
 
     # --- liveliness -----------------------------------------------------------------------
@@ -552,7 +546,7 @@ class Bus:
     def watch_alive(self, role: str | None = None) -> LivelinessWatch:
         watch = LivelinessWatch()
         keyexpr = self.keys.alive_all(role)
-        watch.subscriber = self._feed(
+        self._feed(
             lambda: self.session.liveliness().declare_subscriber(keyexpr, history=True, handler=watch._on_sample)
         )
         return watch
@@ -566,8 +560,7 @@ class Bus:
         return self._feed(lambda: self.session.declare_queryable(keyexpr, handler))
 
     def query(self, keyexpr: str, expected: type[MessageT], timeout: float = 2.0) -> list[tuple[str, MessageT]]:
-        drops = DropCounter()
-        got = [(key, decode(payload, expected, drops)) for key, payload in self.query_raw([keyexpr], timeout)]
+        got = [(key, decode(payload, expected)) for key, payload in self.query_raw([keyexpr], timeout)]
         return [(key, msg) for key, msg in got if msg is not None]
 
     def query_raw(self, keyexprs: list[str], timeout: float = 2.0) -> list[tuple[str, bytes]]:

@@ -63,10 +63,10 @@ class Malformed(ValueError):
     """Raised inside decoders; turned into a counted drop by ``decode``."""
 
 
-def _finite(*values: float) -> None:
-    for v in values:
-        if not math.isfinite(v):
-            raise Malformed("non-finite")
+def _finite(*values: Any) -> None:
+    """Numbers or arrays of them: all finite, or the message is dropped as non-finite."""
+    if not all(np.isfinite(v).all() for v in values):
+        raise Malformed("non-finite")
 
 
 def _leading(layout: struct.Struct, body: memoryview, exact: bool = False) -> tuple:
@@ -361,8 +361,7 @@ class WarmStart:
         at = _EPOCH.size + 4 * count
         matched = np.frombuffer(body[_EPOCH.size : at], "<i4").astype(np.int64)
         prices = np.frombuffer(body[at:], "<f8").copy()
-        if not np.all(np.isfinite(prices)):
-            raise Malformed("non-finite")
+        _finite(prices)
         if (matched < 0).any() or (matched >= count).any():
             raise Malformed("invalid")
         return cls(matched_from, matched, prices)
@@ -448,9 +447,7 @@ class Goals(Message):
         if len(goal_set) < end or (len(goal_set) - end) % 2:
             raise Malformed("truncated")
         items = np.frombuffer(goal_set[cls._set.size : end], cls.RECORD)
-        # finite before the cast to float64: a signalling NaN warns in the cast
-        if not (np.isfinite(items["x"]).all() and np.isfinite(items["y"]).all()):
-            raise Malformed("non-finite")
+        _finite(items["x"], items["y"])  # before the cast to float64: a signalling NaN warns in the cast
         positions = np.stack([items["x"], items["y"]], axis=1).astype(float)
         robots = np.frombuffer(goal_set[end:], "<u2").astype(np.int64)
         msg = cls(epoch, per_robot, positions, items["rgb"].copy(), robots)
@@ -616,8 +613,7 @@ class Boards(Message):
             raise Malformed("truncated")
         known = np.frombuffer(body[at : at + grown * row], np.uint8).reshape(grown, row).copy()
         records = np.frombuffer(body[at + grown * row :], cls.RECORD).copy()
-        if not all(np.isfinite(column).all() for column in (words["x"], words["y"], records["price"])):
-            raise Malformed("non-finite")
+        _finite(words["x"], words["y"], records["price"])
         if (records["goal"] < 0).any() or (records["goal"] >= goals).any():
             raise Malformed("invalid")
         return cls(epoch, instance, sender, serial, goals, robots, count, words, known, records)
@@ -849,16 +845,11 @@ class Truth(Message):
         if len(body) != cls._fixed.size + count * cls.RECORD.itemsize:
             raise Malformed("truncated")
         items = np.frombuffer(body[cls._fixed.size :], cls.RECORD)
-        _finite(stamp)
+        _finite(stamp, items["pose"], items["vel"])
         if math.isnan(min_clearance) or min_clearance == -math.inf:  # +inf with one robot; never NaN or -inf
-            raise Malformed("non-finite")
-        if not (np.all(np.isfinite(items["pose"])) and np.all(np.isfinite(items["vel"]))):
             raise Malformed("non-finite")
         pose, rgb, applied = (items[k].copy() for k in ("pose", "rgb", "applied"))
         return cls(tick, stamp, min_clearance, count, pose, items["vel"].astype(float), rgb, applied)
-
-    def validate(self) -> None:  # min_clearance may be +inf with one robot
-        _finite(self.stamp)
 
 
 @dataclass
@@ -895,10 +886,10 @@ class Event(Message):
     @classmethod
     def _from(cls, body: memoryview) -> Event:
         try:
-            data = json.loads(bytes(body), parse_constant=_reject_constant, parse_float=_finite_float)
+            data = json.loads(bytes(body), parse_constant=_finite_float, parse_float=_finite_float)
         except Malformed:
             raise
-        except (ValueError, UnicodeDecodeError) as err:
+        except ValueError as err:  # UnicodeDecodeError too
             raise Malformed("invalid") from err
         if not isinstance(data, dict):
             raise Malformed("invalid")
@@ -908,12 +899,9 @@ class Event(Message):
         return dict(self.data)
 
 
-def _reject_constant(name: str) -> None:
-    raise Malformed("non-finite")
-
-
 def _finite_float(text: str) -> float:
-    """A JSON number as a float; one too large for a float (1e999) is an infinity, dropped as NaN is."""
+    """A JSON number (or constant: NaN, Infinity) as a float; one too large for a float (1e999) is
+    an infinity, dropped as NaN is."""
     value = float(text)
     if not math.isfinite(value):
         raise Malformed("non-finite")
