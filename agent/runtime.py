@@ -45,7 +45,6 @@ from .loop import Sensed
 from .neighbour_table import NeighbourTable
 from .pose_trust import PoseTrust
 
-CARRIED = State.CARRIED  # assign_instance of a goal carried over from the previous keyframe
 GOAL_SETS_KEPT = 4  # goal sets remembered (an agreed assignment may still be of an older epoch)
 
 
@@ -473,7 +472,7 @@ class AgentHost:
             }  # agreed or itself carried
             carried = self.auction.on_goals(goals, self._positions(), driving)
             # the next keyframe or image: drive on at once (6.2), the auction follows
-            self._on_agreed(goals.epoch, CARRIED, carried, goals.positions, goals.colors)
+            self._on_agreed(goals.epoch, State.CARRIED, carried, goals.positions, goals.colors)
             # not in this goal set (e.g. it joined late): it waits; a pursuer is not a pixel, its goal
             # comes from its target's broadcasts (_on_state)
             self.held_goals.idle(self.robots.rows(r for r in self.auction.idle_robots() if r not in self.config.pursue))

@@ -82,17 +82,10 @@ _ONE_RECORD_AT = 2  # in the body of a frame of one: tick, stamp, then the recor
 _STRUCT_CODE = {"<u2": "H", "<u4": "I", "<i4": "i", "<f4": "f", "<f8": "d", "|u1": "B"}
 
 
-def _field_names(item: np.dtype) -> tuple[str, ...]:
-    """The fields of a record dtype (numpy types ``names`` optional: a plain dtype has none)."""
-    if item.names is None:
-        raise TypeError(f"{item} is not a record dtype")
-    return item.names
-
-
 def _row_struct(item: np.dtype) -> struct.Struct:
     """A packed record dtype as one struct."""
     fields: Mapping[str, tuple] = item.fields or {}
-    row = struct.Struct("<" + "".join(_STRUCT_CODE[fields[k][0].str] for k in _field_names(item)))
+    row = struct.Struct("<" + "".join(_STRUCT_CODE[fields[k][0].str] for k in item.names or ()))
     assert row.size == item.itemsize, f"{item}: a record must be packed"
     return row
 
@@ -521,7 +514,7 @@ class Bid(Message):
     # can be checked, and the position it bid from
     RECORD: ClassVar[np.dtype] = np.dtype(AuctionRecord.FIELDS + [("penalty", "<f4"), ("x", "<f4"), ("y", "<f4")])
     _row: ClassVar[struct.Struct] = _row_struct(RECORD)  # a record as struct reads it
-    _row_floats: ClassVar[tuple[int, ...]] = tuple(map(_field_names(RECORD).index, ("price", "penalty", "x", "y")))
+    _row_floats: ClassVar[tuple[int, ...]] = tuple(map((RECORD.names or ()).index, ("price", "penalty", "x", "y")))
     epoch: int
     instance: int
     sender: int
@@ -724,7 +717,7 @@ class Frame(Message):
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
-        names = _field_names(cls.RECORD)
+        names = cls.RECORD.names or ()
         fields: Mapping[str, tuple] = cls.RECORD.fields or {}
         offsets = [fields[k][1] for k in cls._floats]
         if any(fields[k][0] != np.dtype("<f4") for k in cls._floats) or offsets != list(
