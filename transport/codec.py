@@ -108,8 +108,14 @@ class Message:
         data = _HEADER.pack(self.KIND, VERSION) + self._fixed.pack(*self._fixed_values()) + self._tail()
         return with_checksum(data) if self.CHECKED else data
 
-    def _fixed_values(self) -> tuple:  # the kinds whose every field is in the fixed part (Tick, Contact)
-        return tuple(getattr(self, name) for name in self.field_names())
+    @classmethod
+    @functools.cache
+    def _fixed_names(cls) -> tuple[str, ...]:
+        """The fields the fixed part packs: the first ones, one per field of ``_fixed``."""
+        return cls.field_names()[: len(cls._fixed.unpack(bytes(cls._fixed.size)))]
+
+    def _fixed_values(self) -> tuple:  # overridden where a count is the length of a table
+        return tuple(getattr(self, name) for name in self._fixed_names())
 
     def _tail(self) -> bytes:
         return b""
@@ -410,9 +416,6 @@ class Goals(Message):
         """The goal set translates, rotates or scales (a dynamic image)."""
         return self.motion is not None and self.motion.moves
 
-    def _fixed_values(self) -> tuple:
-        return ()
-
     def _tail(self) -> bytes:
         count = len(self.positions)
         items = np.empty(count, self.RECORD)
@@ -661,9 +664,6 @@ class Frame(Message):
         records = self.records if keep is None else self.records[keep.mask(self.records)]
         return [view(robot, tick, stamp, *rest) for robot, *rest in records.tolist()]
 
-    def _fixed_values(self) -> tuple:
-        return (self.tick, self.stamp)
-
     def _tail(self) -> bytes:
         return np.asarray(self.records, self.RECORD).tobytes()
 
@@ -869,9 +869,6 @@ class Event(Message):
     CHECKED: ClassVar[bool] = True
     _fixed: ClassVar[struct.Struct] = struct.Struct("<")
     data: dict = field(default_factory=dict)
-
-    def _fixed_values(self) -> tuple:
-        return ()
 
     def _tail(self) -> bytes:
         return json.dumps(self.data, allow_nan=False, separators=(",", ":")).encode()
