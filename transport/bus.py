@@ -19,7 +19,7 @@ import time
 import zlib
 from collections import Counter
 from collections.abc import Callable, Iterable
-from typing import Any, Generic, TypeVar, cast, overload
+from typing import Any, Generic, TypeVar, cast
 
 import numpy as np
 import zenoh
@@ -157,7 +157,7 @@ class Inbox(Generic[T]):
 
     def __init__(
         self,
-        expected: type[T] | None,
+        expected: type[T],
         fault: FaultSpec,
         seed: str,
         only: np.ndarray | None = None,
@@ -219,7 +219,7 @@ class Inbox(Generic[T]):
     def _on_sample(self, sample: zenoh.Sample) -> None:
         payload = self._payload(sample)
         if self.frame is None:
-            msg = decode(payload, cast("type[Message] | None", self.expected), self.drops)
+            msg = decode(payload, cast("type[Message]", self.expected), self.drops)
             if msg is not None:
                 self._deliver(str(sample.key_expr), [cast(T, msg)])
             return
@@ -454,17 +454,7 @@ class Bus:
         self.sent_bytes[kind] += len(payload)
 
     # --- subscribing ----------------------------------------------------------------------
-    @overload
-    def inbox(self, expected: type[T], only: np.ndarray | None = None, *, pulled: bool = False) -> Inbox[T]: ...
-
-    @overload
-    def inbox(
-        self, expected: None = None, only: np.ndarray | None = None, *, pulled: bool = False
-    ) -> Inbox[Message]: ...
-
-    def inbox(
-        self, expected: type | None = None, only: np.ndarray | None = None, *, pulled: bool = False
-    ) -> Inbox[Any]:
+    def inbox(self, expected: type[T], only: np.ndarray | None = None, *, pulled: bool = False) -> Inbox[T]:
         """An empty inbox; feed it with ``subscribe_into``. ``expected``: a message kind, or a record
         view (codec.Pose, State, Command) to receive frames as their records (see Inbox). Faults
         for the expected kind apply here.
@@ -473,11 +463,10 @@ class Bus:
         subscriptions queue samples in zenoh's channels and the owner decodes them when it reads,
         instead of a Python thread per subscription waking for every sample and contending for the
         GIL with the owner's tick. Nothing rings a bell on arrival: the owner polls."""
-        name = getattr(expected, "NAME", None)  # a message kind's or a view's (its frame's) name
-        fault = self.faults.get(name, _NO_FAULT) if name else _NO_FAULT
+        fault = self.faults.get(getattr(expected, "NAME", ""), _NO_FAULT)  # a kind's or a view's (its frame's)
         self._n_subs += 1
         seed = f"{self._seed}/{self._name}/{self._n_subs}"
-        inbox: Inbox[Any] = Inbox(expected, fault, seed, only, pulled)
+        inbox = Inbox(expected, fault, seed, only, pulled)
         if pulled:
             self._pulled.append(inbox)
         return inbox
@@ -488,19 +477,9 @@ class Bus:
         self.subscribe_into(self.keys.all_of("cmd"), inbox)
         return inbox
 
-    @overload
     def subscribe(
         self, keyexpr: str, expected: type[T], only: np.ndarray | None = None, *, pulled: bool = False
-    ) -> Inbox[T]: ...
-
-    @overload
-    def subscribe(
-        self, keyexpr: str, expected: None = None, only: None = None, *, pulled: bool = False
-    ) -> Inbox[Message]: ...
-
-    def subscribe(
-        self, keyexpr: str, expected: type | None = None, only: np.ndarray | None = None, *, pulled: bool = False
-    ) -> Inbox[Any]:
+    ) -> Inbox[T]:
         """An inbox of decoded messages (or frames' records, of robots ``only`` if given) from one
         key expression (``pulled``: see inbox)."""
         inbox = self.inbox(expected, only, pulled=pulled)
