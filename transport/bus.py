@@ -284,24 +284,23 @@ class Inbox(Generic[T]):
                 self._saw(tick, views)
         return out
 
-    def get(self, timeout: float | None = None) -> tuple[str, T] | None:
-        """Wait for one message (None on timeout)."""
-        deadline = None if timeout is None else time.monotonic() + timeout
+    def get(self, timeout: float) -> tuple[str, T] | None:
+        """Wait up to ``timeout`` s for one message (None if none came)."""
+        deadline = time.monotonic() + timeout
         while True:
             self._pull()
             self._release_delayed()
             with contextlib.suppress(queue.Empty):
                 return self._queue.get_nowait()
-            wait = PULL_EVERY if self.pulled else 0.005 if self.has_delayed else None
-            if deadline is not None:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    return None
-                wait = remaining if wait is None else min(wait, remaining)
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return None
+            # a pulled inbox or held messages: look again soon, as nothing rings the queue for them
+            wait = min(PULL_EVERY if self.pulled else 0.005 if self.has_delayed else remaining, remaining)
             try:
                 return self._queue.get(timeout=wait)
             except queue.Empty:
-                if deadline is not None and time.monotonic() >= deadline:
+                if time.monotonic() >= deadline:
                     return None
 
 
