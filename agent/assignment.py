@@ -266,11 +266,6 @@ class AuctionLink:
         return self.robots[0]
 
     @property
-    def latency(self) -> float:
-        """Display seconds from freezing a block's positions to adopting its agreement, as last measured."""
-        return self.times.latency
-
-    @property
     def active(self) -> bool:
         return self.part is not None or self.local is not None
 

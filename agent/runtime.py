@@ -318,13 +318,13 @@ class GoalSetsHeard:
 
 
 class Departures:
-    """Robots whose agent died, as liveliness says: their bodies stand still (5.1.2). Lock-step also
-    keeps those that died during the goal set in force (``gone``): one started again cannot join
-    that goal set's auction under way, so it is not waited for until the next goal set, which the
-    coordinator publishes for it."""
+    """Robots whose agent died, as liveliness says: their bodies stand still (5.1.2). Also those that
+    died during the goal set in force (``gone``), which lock-step's auction does not wait for: one
+    started again cannot join that goal set's auction under way, so it is not waited for until the
+    next goal set, which the coordinator publishes for it."""
 
-    def __init__(self, alive: LivelinessWatch, lockstep: bool) -> None:
-        self.alive, self.lockstep = alive, lockstep
+    def __init__(self, alive: LivelinessWatch) -> None:
+        self.alive = alive
         self.dead: set[int] = set()
         self.gone: set[int] = set()
         self.gone_since = 0  # the goal set ``gone`` is of
@@ -334,7 +334,7 @@ class Departures:
         for _, ident, alive, _, _ in self.alive.drain():
             if ident.isdigit():
                 (self.dead.discard if alive else self.dead.add)(int(ident))
-                if not alive and self.lockstep:
+                if not alive:
                     self.gone.add(int(ident))
         return self.dead
 
@@ -378,7 +378,7 @@ class AgentHost:
         self.poses = PoseIntake(config, self.clock.pose_period)
         if math.isfinite(config.reach) and not config.lockstep:
             raise ValueError("a communication range needs the lock-step clock")
-        self.departed = Departures(self.inbox.alive, config.lockstep)
+        self.departed = Departures(self.inbox.alive)
         rounds = LockStepRounds(self._hold, self.departed.not_bidding, config.reach) if config.lockstep else None
         self.auction = AuctionLink(bus, config.robots, p, self._on_agreed, self._positions, rounds)
         self.running = True
@@ -515,7 +515,7 @@ class AgentHost:
         if on_way:
             rows = self.robots.rows(m.robot for m in on_way)
             goal, velocity = self.held_goals.goal[rows], self.policy_memory.velocity[rows]
-            lead = bid_position(np.array([m.position for m in on_way]), goal, velocity, self.auction.latency)
+            lead = bid_position(np.array([m.position for m in on_way]), goal, velocity, self.auction.times.latency)
             out.update(zip([m.robot for m in on_way], lead))
             out = {r: out[r] for r in self.robots.tracked if r in out}  # in the robots' order, as before
         self._bid_from = out
