@@ -454,9 +454,8 @@ class Bus:
 
     # --- subscribing ----------------------------------------------------------------------
     def inbox(self, expected: type[T], only: np.ndarray | None = None, *, pulled: bool = False) -> Inbox[T]:
-        """An empty inbox; feed it with ``subscribe_into``. ``expected``: a message kind, or a record
-        view (codec.Pose, State, Command) to receive frames as their records (see Inbox). Faults
-        for the expected kind apply here.
+        """An empty inbox of ``expected`` (see Inbox), with the faults for that kind; feed it with
+        ``subscribe_into``.
 
         ``pulled``: for an inbox its owner reads once a tick (an agent's neighbour states). Its
         subscriptions queue samples in zenoh's channels and the owner decodes them when it reads,
