@@ -617,8 +617,7 @@ class AuctionLink:
     def _report(self) -> bool:
         """Hand a new agreement of the auction under way (the participant's or the range-limited
         one's) to on_agreed, once per agreed instance; True when there was one."""
-        auction = self.local if self.local is not None else self._under_way()[0]
-        gs = self.goal_set
+        auction, gs = (self.local, self.goal_set) if self.local is not None else self._under_way()
         if gs is None or auction.agreed_instance <= self.reported:
             return False
         if self.reported < 0:  # the first agreement on this goal set
