@@ -704,11 +704,17 @@ def _boards(local: LocalAuction, words: Words, sender: int) -> Boards:
 
 
 def _fits(msg: Boards, local: LocalAuction) -> bool:
-    """Words and records of robots of this goal set: a forged message is no robot's word (and must
-    not index the auction's arrays). The codec dropped any whose records name goals beyond its
-    goal count, or are not as many as its words say, or whose known sets are not one per word that
-    grew; _words reads only messages whose goal and robot counts are this set's."""
-    return bool(np.isin(msg.words["robot"], local.robots).all() and np.isin(msg.records["robot"], local.robots).all())
+    """Words of robots of this goal set, records of its goals, as many as the words say and known
+    sets for those that grew: a damaged or forged message is no robot's word (and must not index
+    the auction's arrays)."""
+    w, r = msg.words, msg.records
+    grown = int(((w["flags"].astype(np.int64) & Boards.GROWN) != 0).sum())
+    return (
+        bool(np.isin(w["robot"], local.robots).all() and np.isin(r["robot"], local.robots).all())
+        and bool((r["goal"] >= 0).all() and (r["goal"] < len(local.goals)).all())
+        and int(w["records"].sum()) == len(r)
+        and len(msg.known) >= grown
+    )
 
 
 def _words(msg: Boards, local: LocalAuction) -> Words:
