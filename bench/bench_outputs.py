@@ -310,7 +310,7 @@ def log_rows(ticks: int) -> list[str]:
         for k in range(ticks):
             bus.raw.items = [(key, data, 1000.0 + 0.1 * k) for key, data in _tick_messages(bus.keys, arrays, k)]
             rec.poll()
-        rec.close_log()
+        rec.out.close()
         seconds = time.perf_counter() - start
         size = path.stat().st_size
         data: dict[str, list[bytes]] = {}

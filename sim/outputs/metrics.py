@@ -290,9 +290,7 @@ def step_metrics(
     return out
 
 
-def _per_robot_second(values: Mapping[str, float] | None, robots: int, duration_s: float) -> dict[str, float | None]:
-    if not values:
-        return {}
+def _per_robot_second(values: Mapping[str, float], robots: int, duration_s: float) -> dict[str, float | None]:
     denom = robots * duration_s
     return {str(k): (float(v) / denom if denom > 0 else None) for k, v in values.items()}
 

@@ -204,7 +204,6 @@ class Convergence:
     tolerance: float
     agent_alive: np.ndarray
     converged_since: float | None = None
-    time_to_converge: float | None = None
     ends: Callable[[float, float], bool] | None = None
     ended_at: int | None = None  # ticks recorded when it ended (none recorded after)
 
@@ -220,9 +219,9 @@ class Convergence:
             return
         if display_converged(pose, said.goal, said.assign_epoch, self.agent_alive, newest, self.tolerance):
             if self.converged_since is None:
-                self.converged_since = self.time_to_converge = t
+                self.converged_since = t
         else:
-            self.converged_since = self.time_to_converge = None
+            self.converged_since = None
 
 
 class DisplayLog:
@@ -502,14 +501,11 @@ class Recorder:
     def robots_died(self, robots: list[int]) -> None:
         """Robots whose agent was killed (a scene's fail event): the display converges anew without them."""
         self.progress.agent_alive[[r for r in robots if r < self.n]] = False
-        self.progress.converged_since = self.progress.time_to_converge = None
+        self.progress.converged_since = None
 
     @property
     def sim_time(self) -> float:
         return self.traj.t[-1] if self.traj.t else 0.0
-
-    def close_log(self) -> None:
-        self.out.close()
 
     # --- results ------------------------------------------------------------------------------
     def arrays(self) -> dict[str, np.ndarray]:

@@ -150,12 +150,6 @@ class Launcher:
         self.interrupted = False  # a stop signal ended the run (written marked incomplete)
         self.run_dir = RunDir(options.out)
         self.failures = events_of(scene, "fail")
-        if options.secure is not None and options.agents_per_process > 1:
-            raise ValueError("a secured run has one robot per agent process: the access rules give each its own keys")
-        if options.secure is not None and (options.connect or options.agent_routers):
-            raise ValueError("a secured run embeds its router: every process joins it, the recorder in its session")
-        if options.remote_agents and (options.secure is not None or options.agent_routers):
-            raise ValueError("remote agents join by themselves: not with --secure or --agents-connect")
 
     # --- processes ----------------------------------------------------------------------------
     def _spawn(
@@ -272,7 +266,7 @@ class Launcher:
                 return
             if self.stop_signal is not None:
                 raise Interrupted()
-            if self.world.exit is None and any(c.name == "world" and c.proc.poll() is not None for c in self.children):
+            if any(c.name == "world" and c.proc.poll() is not None for c in self.children):
                 raise RuntimeError("the world process exited while waiting for agents: see logs/world.log")
             if time.monotonic() - started > self.opt.agents_timeout:
                 absent = [i for i in ids if not rec.progress.agent_alive[i]]
@@ -411,7 +405,7 @@ class Launcher:
             self._stop_children()
             self._record_the_last_ticks(recorder)
             end_reason = recorder.progress.end_reason(end_reason)
-            recorder.close_log()
+            recorder.out.close()
             (self.run_dir / TICKS_FILE).unlink(missing_ok=True)  # trajectory.npz holds them, and more
         finally:
             bus.close()

@@ -85,7 +85,7 @@ def log(tmp_path):
     rec.out.heading = False  # holonomic robots: their heading never changes
     bus.raw.items = [(key, msg.encode(), 100.0 + k) for k, (key, msg) in enumerate(sent.values())]
     rec.poll()
-    rec.close_log()
+    rec.out.close()
     return tmp_path / "log.mcap", sent
 
 
@@ -252,7 +252,7 @@ def test_a_swarm_is_logged_as_one_entity_every_scene_period_and_its_goals_once(t
         items.append((bus.keys.truth, truth.encode(), 100.0 + 0.1 * k))
     bus.raw.items = items
     rec.poll()
-    rec.close_log()
+    rec.out.close()
     with open(tmp_path / "log.mcap", "rb") as fh:
         logged = [
             (c.topic, m.log_time, m.data) for _, c, m in make_reader(fh).iter_messages([SCENE_TOPIC, GOALS_TOPIC])
@@ -284,7 +284,7 @@ def test_a_goal_set_published_again_unchanged_is_logged_once_and_a_changed_one_a
     sent = [(1, first), (1, first), (1, first), (1, changed), (2, second), (2, second)]
     bus.raw.items = [(bus.keys.goals(e), g.encode(), 100.0 + k) for k, (e, g) in enumerate(sent)]
     rec.poll()
-    rec.close_log()
+    rec.out.close()
     logged = _read(tmp_path / "log.mcap")["/goals"][2]
     assert [(g["epoch"], g["positions"]) for g in logged] == [
         (g.epoch, g.positions.astype(np.float32).astype(float).tolist()) for g in (first, changed, second)
