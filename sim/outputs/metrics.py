@@ -111,8 +111,8 @@ def clearance_over_time(pose: np.ndarray, radius: np.ndarray) -> np.ndarray:
     return out
 
 
-def contact_events(pose: np.ndarray, radius: np.ndarray, tolerance: float = 0.0) -> int:
-    """Number of pair-contact events: a pair (i, j) starting to overlap (clearance < -tolerance)
+def contact_events(pose: np.ndarray, radius: np.ndarray) -> int:
+    """Number of pair-contact events: a pair (i, j) starting to overlap (clearance < 0)
     at a sample where it did not overlap at the previous sample (counts the first sample too)."""
     T, N = _pose_shape(pose)
     pose = np.asarray(pose, dtype=float)
@@ -129,13 +129,10 @@ def contact_events(pose: np.ndarray, radius: np.ndarray, tolerance: float = 0.0)
         ok = np.flatnonzero(np.isfinite(xy).all(axis=1))
         cur: set[tuple[int, int]] = set()
         if len(ok) >= 2:
-            sub = xy[ok]
-            pairs = cKDTree(sub).query_pairs(2 * rmax, output_type="ndarray")
-            if len(pairs):
-                i, j = ok[pairs[:, 0]], ok[pairs[:, 1]]
-                c = np.sqrt(((xy[i] - xy[j]) ** 2).sum(-1)) - r[i] - r[j]
-                hit = c < -tolerance
-                cur = set(zip(i[hit].tolist(), j[hit].tolist()))
+            pairs = cKDTree(xy[ok]).query_pairs(2 * rmax, output_type="ndarray")
+            i, j = ok[pairs[:, 0]], ok[pairs[:, 1]]
+            hit = np.sqrt(((xy[i] - xy[j]) ** 2).sum(-1)) - r[i] - r[j] < 0
+            cur = set(zip(i[hit].tolist(), j[hit].tolist()))
         events += len(cur - prev)
         prev = cur
     return events

@@ -277,13 +277,6 @@ class DisplayLog:
             )
         self.log.write_bytes(cid, int(wall * 1e9), as_proto.encode(msg, key))
 
-    def _scene_channel(self, topic: str) -> int:
-        assert self.log is not None
-        cid = self._channels.get(topic)
-        if cid is None:
-            cid = self._channels[topic] = self.log.add_foxglove_channel(topic, SceneUpdate)
-        return cid
-
     def scene(self, wall: float, m: Truth, radius: np.ndarray, goal: np.ndarray) -> None:
         """The display at this tick for Foxglove's 3D panel (stamped, like every channel, with the
         wall time it arrived, so the panels of one file play in step): every tick a robot an entity,
@@ -291,9 +284,10 @@ class DisplayLog:
         if self.log is None:
             return
         t_ns = int(wall * 1e9)
+        channel = self.log.add_foxglove_channel(SCENE_TOPIC, SceneUpdate)  # added once, then looked up
         if self.n <= LOG_ROBOTS:
             update = scene_update(t_ns, m.pose, radius, m.color, goal=goal, heading=self.heading)
-            self.log.write_bytes(self._scene_channel(SCENE_TOPIC), t_ns, update)
+            self.log.write_bytes(channel, t_ns, update)
             return
         if m.stamp < self._next_scene - 1e-9:
             return
@@ -302,7 +296,7 @@ class DisplayLog:
         if unstamped == self._last_scene:
             return  # nothing moved: the newest message still shows it
         self._last_scene = unstamped
-        self.log.write_bytes(self._scene_channel(SCENE_TOPIC), t_ns, swarm_scene(t_ns, m.pose, radius, m.color))
+        self.log.write_bytes(channel, t_ns, swarm_scene(t_ns, m.pose, radius, m.color))
 
     def goals(self, wall: float, g: Goals, radius: np.ndarray) -> None:
         """A swarm's goal set as a sphere a goal in its colour (:func:`goal_markers`): once a set."""
@@ -311,7 +305,7 @@ class DisplayLog:
         known = radius[np.isfinite(radius)]
         r = float(np.median(known)) if len(known) else 0.05  # before any state: a typical robot's
         update = goal_markers(int(wall * 1e9), g.positions, g.colors, GOAL_DIAMETER * 2 * r)
-        self.log.write_bytes(self._scene_channel(GOALS_TOPIC), int(wall * 1e9), update)
+        self.log.write_bytes(self.log.add_foxglove_channel(GOALS_TOPIC, SceneUpdate), int(wall * 1e9), update)
 
     def flush_now_and_then(self) -> None:
         """Flush the MCAP log every :data:`FLUSH_EVERY` of wall time (a killed run keeps all but the last)."""
@@ -344,9 +338,8 @@ class Recorder:
         self.said = RobotsSaid.nothing_yet(robots)  # as each robot announces it in its state
         self.sets = GoalSetsHeard()
         self.world = WorldHeard()
-        self.bid_positions: dict[
-            tuple[int, int], dict[int, tuple[float, float, float]]
-        ] = {}  # (epoch, instance) -> robot -> x, y, penalty
+        # (epoch, instance) -> robot -> x, y, penalty
+        self.bid_positions: dict[tuple[int, int], dict[int, tuple[float, float, float]]] = {}
         self.tally = BusTally()
         self.happened = RunEvents()
         self.progress = Convergence(tolerance, np.zeros(robots, bool))

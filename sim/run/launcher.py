@@ -642,13 +642,12 @@ class Launcher:
         def on_bus() -> dict | None:
             return next((e for e in rec.happened.events if e.get("kind") == "world-done"), None)
 
+        if self.world.exit == 0:
+            end = time.monotonic() + 5.0
+            while on_bus() is None and time.monotonic() < end:
+                rec.poll()
+                time.sleep(0.02)
         if on_bus() is not None or self.world.exit != 0:
-            return on_bus()
-        end = time.monotonic() + 5.0
-        while on_bus() is None and time.monotonic() < end:
-            rec.poll()
-            time.sleep(0.02)
-        if on_bus() is not None:
             return on_bus()
         log = next((c.log for c in self.children if c.name == "world"), None)
         lines = log.read_text().splitlines() if log is not None and log.exists() else []
