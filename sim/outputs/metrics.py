@@ -94,10 +94,8 @@ def clearance_at(xy: np.ndarray, radius: np.ndarray) -> float:
 
 
 def clearance_over_time(pose: np.ndarray, radius: np.ndarray) -> np.ndarray:
-    """(T,) minimum pairwise clearance (centre distance minus both radii) per sample.
-
-    Negative means overlap (contact).  +inf where fewer than two robots are present (N=1).
-    """
+    """(T,) minimum pairwise clearance (centre distance minus both radii) per sample: negative is
+    overlap (contact), +inf with fewer than two robots."""
     pose = pose if hasattr(pose, "shape") else np.asarray(pose, dtype=float)
     T, N = _pose_shape(pose)
     r = _radius(radius, N)
@@ -195,12 +193,9 @@ def path_lengths(pose: np.ndarray) -> np.ndarray:
 
 
 def time_to_converge(t: np.ndarray, pose: np.ndarray, goal: np.ndarray, tolerance: float) -> float | None:
-    """First time ``t[k]`` such that from sample k to the end every robot that has a goal
-    (finite ``goal[s, i]``) at sample s is within ``tolerance`` of it (Euclidean, xy).
-
-    Returns a value of ``t`` (so with ``t[0] == 0`` it is the duration).  None if the condition
-    does not hold at the last sample, or if no robot ever has a goal.
-    """
+    """First time ``t[k]`` such that from sample k to the end every robot that has a goal (finite
+    ``goal[s, i]``) at sample s is within ``tolerance`` of it (xy); None if that does not hold at the
+    last sample, or no robot ever has a goal."""
     t = np.asarray(t, dtype=float)
     T, N = _pose_shape(pose)
     if np.shape(goal) != (T, N, 2) or t.shape != (T,):

@@ -120,7 +120,6 @@ class Trajectory:
     assignment_instance: list[np.ndarray] = field(default_factory=list)
     step: list[int] = field(default_factory=list)
     goal_set_epoch: list[int] = field(default_factory=list)
-    applied: np.ndarray | None = None
     wall: list[float] = field(default_factory=list)  # wall time each tick arrived (real-time factor)
 
 
@@ -489,7 +488,6 @@ class Recorder:
         tr.assignment_instance.append(said.assign_instance.copy())
         tr.step.append(self.sets.step)
         tr.goal_set_epoch.append(max(self.sets.by_epoch) if self.sets.by_epoch else 0)
-        tr.applied = m.applied
 
     def robots_died(self, robots: list[int]) -> None:
         """Robots whose agent was killed (a scene's fail event): the display converges anew without them."""

@@ -289,13 +289,9 @@ def render_frame(
 
 
 def frame_indices(t: np.ndarray, fps: float, speed: float | None = 1.0, max_frames: int = 3000) -> np.ndarray:
-    """Sample indices shown by :func:`write_video`.
-
-    With ``speed`` (default 1.0 = real time) frames are taken at ``t[0] + k * speed / fps``
-    (the latest sample at or before each frame time), so the video plays at ``speed`` x real time.
-    With ``speed=None`` every sample is a frame.  Then, if there are more than ``max_frames``,
-    they are subsampled evenly to ``max_frames`` (the video plays faster).
-    """
+    """Sample indices shown by :func:`write_video`: the latest sample at or before each frame time
+    ``t[0] + k * speed / fps`` (the video plays at ``speed`` x real time), or with ``speed=None`` every
+    sample; more than ``max_frames`` (0: no limit) are subsampled evenly to it (the video plays faster)."""
     t = np.asarray(t, dtype=float)
     T = len(t)
     if T == 0:
@@ -341,12 +337,9 @@ def write_video(
     max_frames: int = 3000,
     fourcc: str | None = None,
 ) -> int:
-    """Write the top-down video; returns the number of frames written.
-
-    Frame choice: :func:`frame_indices`.  The video is H.264 (PyAV);
-    a ``fourcc`` (e.g. 'mp4v') writes with OpenCV's VideoWriter in that codec instead.  Raises
-    RuntimeError if the encoder cannot be opened or fails; then no file is left at ``path``.
-    """
+    """Write the top-down video of the :func:`frame_indices` samples; returns how many frames it wrote.
+    H.264 (PyAV), or with a ``fourcc`` (e.g. 'mp4v') OpenCV's VideoWriter in that codec. RuntimeError
+    if the encoder cannot be opened or fails; then no file is left at ``path``."""
     path = Path(path)
     rec = recording.checked()
     t, pose, radius, color, goal = rec.t, rec.pose, np.asarray(rec.radius), rec.color, rec.goal
