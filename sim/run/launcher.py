@@ -460,14 +460,10 @@ class Launcher:
         wait: the run loop ends the run."""
         ids = self._agent_robots
         started = time.monotonic()
-        alive: set[int] = set()
-        seen = 0  # liveliness events taken in
         while True:
             rec.poll()
-            for event in rec.happened.liveliness[seen:]:
-                if event["role"] == "agent" and event["alive"] and str(event["id"]).isdigit():
-                    alive.add(int(event["id"]))
-            seen = len(rec.happened.liveliness)
+            events = rec.happened.liveliness
+            alive = {int(e["id"]) for e in events if e["role"] == "agent" and e["alive"] and str(e["id"]).isdigit()}
             missing = [i for i in ids if i not in alive]
             if not missing or self.stop_signal is not None:
                 return
