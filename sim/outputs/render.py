@@ -168,13 +168,9 @@ class _View:
         xmin, ymin, xmax, ymax = self.arena
         corners = self.fixed(np.array([[xmin, ymin], [xmax, ymin], [xmax, ymax], [xmin, ymax]]))
         cv2.polylines(img, [corners.astype(np.int32)], True, ARENA_EDGE, 1, cv2.LINE_AA, _SHIFT)
-        for poly in obstacles or []:
-            pts = np.asarray(poly, dtype=float).reshape(-1, 2)
-            if len(pts) < 2:
-                continue
-            p = self.fixed(pts).astype(np.int32)
-            if len(pts) >= 3:
-                cv2.fillPoly(img, [p], OBSTACLE_FILL, cv2.LINE_AA, _SHIFT)
+        for poly in obstacles or []:  # polygons of 3 vertices or more (coordinator.scene)
+            p = self.fixed(np.asarray(poly, dtype=float).reshape(-1, 2)).astype(np.int32)
+            cv2.fillPoly(img, [p], OBSTACLE_FILL, cv2.LINE_AA, _SHIFT)
             cv2.polylines(img, [p], True, OBSTACLE_EDGE, 1, cv2.LINE_AA, _SHIFT)
         return img
 
@@ -488,9 +484,7 @@ def _plot_trajectories(path: Path, rec: Recording) -> None:
     ax = fig.add_subplot(1, 1, 1)
     ax.add_patch(Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, fill=False, ec="0.3", lw=1.0))
     for poly in obstacles or []:
-        pts = np.asarray(poly, dtype=float).reshape(-1, 2)
-        if len(pts) >= 2:
-            ax.add_patch(Polygon(pts, closed=True, fc="0.65", ec="0.4", lw=0.8, zorder=1))
+        ax.add_patch(Polygon(np.asarray(poly, dtype=float), closed=True, fc="0.65", ec="0.4", lw=0.8, zorder=1))
     cols = _robot_colours(N, None if rec.color is None or T == 0 else rec.color[-1])  # the final LED colours
     # points a path, fewer with many robots: matplotlib's cost grows with all paths' points together
     per_robot = max(50, min(PATH_POINTS, PLOT_POINTS // max(N, 1)))
