@@ -219,8 +219,8 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
     radius = robot.get("radius", epuck.RADIUS)
     if not _positive(radius):
         raise SceneError(f"{where}: robot radius must be a positive number of metres, not {radius!r}")
-    animation = _parse_animation(data["animation"], source, where) if "animation" in data else None
-    steps = list(animation.steps) if animation is not None else _steps(data, source, where)
+    animation = _parse_animation(data["animation"], source) if "animation" in data else None
+    steps = list(animation.steps) if animation is not None else _steps(data, source)
     if animation is not None and ("steps" in data or "goals" in data):
         raise SceneError(f"{where}: give one of [animation], [[steps]] or [goals], not several")
     duration, seed = _duration_and_seed(data, steps, duration, seed, where)
@@ -354,10 +354,10 @@ def goal_pipeline(scene: Scene, arena: float | None = None) -> StepGoals | Frame
     )
 
 
-def _parse_animation(table: Any, source: str, where: str) -> Animation:
+def _parse_animation(table: Any, source: str) -> Animation:
     from .keyframe_steps import parse_animation  # draws a drawn animation's keyframes (OpenCV)
 
-    animation: Animation = _wrap(lambda: parse_animation(table, source), where)
+    animation: Animation = _wrap(lambda: parse_animation(table, source), source)
     return animation
 
 
@@ -466,15 +466,15 @@ def scene_goals(goals: dict[str, Any], poses: np.ndarray, where: str = "scene") 
 
 
 # --- checks --------------------------------------------------------------------------------------
-def _steps(data: dict[str, Any], source: str, where: str) -> list[ImageStep]:
+def _steps(data: dict[str, Any], source: str) -> list[ImageStep]:
     if "steps" not in data:
         return []
     if "goals" in data:
-        raise SceneError(f"{where}: give either [[steps]] (an image sequence) or [goals], not both")
+        raise SceneError(f"{source}: give either [[steps]] (an image sequence) or [goals], not both")
     entries = data["steps"]
     if not (isinstance(entries, list) and entries):
-        raise SceneError(f"{where}: steps must be one or more [[steps]] tables")
-    return [_wrap(lambda: parse_step(e, f"steps[{k}]", source), where) for k, e in enumerate(entries)]  # noqa: B023
+        raise SceneError(f"{source}: steps must be one or more [[steps]] tables")
+    return [_wrap(lambda: parse_step(e, f"steps[{k}]", source), source) for k, e in enumerate(entries)]  # noqa: B023
 
 
 def _image_step(goals: dict[str, Any], hold: float) -> dict[str, Any]:
