@@ -14,7 +14,6 @@ import os
 import secrets
 import shutil
 import tempfile
-from collections.abc import Iterable
 from pathlib import Path
 
 from .keys import Keys
@@ -187,9 +186,9 @@ def _resolved(directory: str | Path, auth: str) -> Path:
     return Path(directory).resolve()
 
 
-def _folder(directory: str | Path, display: str, auth: str) -> tuple[Path, dict]:
+def _folder(directory: str | Path, display: str) -> tuple[Path, dict]:
     """A folder of access rules, resolved, and its manifest, if it is one, readable, for ``display``."""
-    directory = _resolved(directory, auth)
+    directory = Path(directory).resolve()
     if not directory.is_dir():
         raise SecurityError(f"{directory} is not a folder; make one with `pixelswarm certs DIR --robots N`")
     if not os.access(directory, os.R_OK | os.X_OK):
@@ -227,47 +226,35 @@ def _role_file(directory: str | Path, role: str, auth: str) -> str:
     return str(directory / (USRPWD if auth == "usrpwd" else "") / f"{role}.json5")
 
 
-def _files(role: str, auth: str) -> list[str]:
-    """The files a session of this role reads, relative to the folder."""
-    where = f"{USRPWD}/" if auth == "usrpwd" else ""
-    files = ["ca.pem", f"{where}{role}.json5"]
-    if role == ROUTER or auth == "tls":  # the router presents its certificate in both modes
-        files += [f"{role}.pem", f"{role}-key.pem"]
-    if role == ROUTER and auth == "usrpwd":
-        files.append(f"{USRPWD}/credentials.txt")
-    return files
+def _files(role: str) -> list[str]:
+    """The files a TLS session of this role reads, relative to the folder (a run checks its folder
+    before it starts, and runs with client certificates)."""
+    return ["ca.pem", f"{role}.json5", f"{role}.pem", f"{role}-key.pem"]
 
 
-def check_folder(
-    directory: str | Path,
-    robots: int,
-    *,
-    display: str = "default",
-    services: Iterable[str] = ("coordinator", "world"),
-    auth: str = "tls",
-) -> Path:
+def check_folder(directory: str | Path, robots: int, *, display: str = "default") -> Path:
     """The folder, resolved, if a run of robots 0..robots-1 on ``display`` can use it: its access rules
-    cover those robots and that display, and the files of the router, the services and every robot
-    are there and readable. Otherwise SecurityError, with one line saying what is wrong."""
-    directory, manifest = _folder(directory, display, auth)
+    cover those robots and that display, and the files of the router, the coordinator, the world and
+    every robot are there and readable. Otherwise SecurityError, with one line saying what is wrong."""
+    directory, manifest = _folder(directory, display)
     if manifest["robots"] < robots:
         raise SecurityError(
             f"{directory} was made for {manifest['robots']} robots and this run has {robots}; "
             f"make a folder for them with `pixelswarm certs DIR --robots {robots}`"
         )
-    for role in [ROUTER, *services, *(robot_role(i) for i in range(robots))]:
-        for name in _files(role, auth):
+    for role in [ROUTER, "coordinator", "world", *(robot_role(i) for i in range(robots))]:
+        for name in _files(role):
             if not os.access(directory / name, os.R_OK):
                 raise SecurityError(f"cannot read {directory / name} (the {role}'s)")
     return directory
 
 
-def check_role(directory: str | Path, role: str, *, display: str = "default", auth: str = "tls") -> Path:
+def check_role(directory: str | Path, role: str, *, display: str = "default") -> Path:
     """The folder, resolved, if a session of ``role`` on ``display`` can open from it (its files are
     there and readable: a viewer's machine needs only ``ca.pem`` and the observer's files), else
     SecurityError in one line; a folder made before the role existed says so."""
-    directory, _ = _folder(directory, display, auth)
-    for name in _files(role, auth):
+    directory, _ = _folder(directory, display)
+    for name in _files(role):
         if not os.access(directory / name, os.R_OK):
             if not (directory / name).exists() and role in SERVICES:
                 raise SecurityError(
