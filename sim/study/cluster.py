@@ -31,7 +31,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-LOOPBACK = "127.0.0.1"
 CONNECT_TIMEOUT_S = 10
 STOP_POLL_S = 0.5
 _PR_SET_PDEATHSIG = 1
@@ -144,23 +143,19 @@ def run_task(run_id: str, args: list[str], out: str | None, stop_event: str, gra
             start_new_session=True,
             preexec_fn=_die_with_parent,
         )
-        interrupted = False
         while process.poll() is None:
             try:
                 process.wait(STOP_POLL_S)
             except subprocess.TimeoutExpired:
                 if _stopped(stop_event):
-                    interrupted = True
                     _stop(process, grace)
         log.seek(0)
         output = log.read().decode(errors="replace")
         return {
-            "id": run_id,
             "returncode": process.returncode,
             "process_wall_s": time.monotonic() - started,
             "command": command,
             "log": output,
-            "interrupted": interrupted,
             "worker": _worker_address(),
             "archive": None if scratch is None else _archive(scratch),
         }
