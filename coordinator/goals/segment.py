@@ -135,13 +135,11 @@ def _merge_smooth(comp: np.ndarray, lab: np.ndarray, step: float) -> tuple[np.nd
 
 
 def _interior_counts(comp: np.ndarray, n: int) -> np.ndarray:
-    """Per component, the number of pixels whose 8 neighbours all belong to it."""
-    p = np.pad(comp, 1, constant_values=-2)
-    h, w = comp.shape
-    inside = comp >= 0
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            inside &= p[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w] == comp
+    """Per component, the number of pixels whose 8 neighbours all belong to it (the least and the
+    greatest label round them are their own; off the image counts as none)."""
+    low = ndimage.minimum_filter(comp, size=3, mode="constant", cval=-2)
+    high = ndimage.maximum_filter(comp, size=3, mode="constant", cval=-2)
+    inside = (comp >= 0) & (low == comp) & (high == comp)
     return np.bincount(comp[inside], minlength=n)
 
 
