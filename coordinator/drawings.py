@@ -181,13 +181,10 @@ def flower(bee_angle: float | None) -> list[Part]:
     return parts
 
 
-def triangle(angle: float, radius: float, centre: tuple[float, float] = (0.5, 0.5)) -> list[Part]:
-    """An equilateral triangle with circumradius `radius`, turned by `angle` (radians, y down)."""
-    pts = [
-        (centre[0] + radius * math.cos(angle + a), centre[1] + radius * math.sin(angle + a))
-        for a in (-math.pi / 2, math.pi / 6, 5 * math.pi / 6)
-    ]
-    return [(polygon(pts), RED)]
+def triangle(angle: float, radius: float) -> list[Part]:
+    """An equilateral triangle round the centre with circumradius `radius`, turned by `angle` (radians, y down)."""
+    corners = (-math.pi / 2, math.pi / 6, 5 * math.pi / 6)
+    return [(polygon([_on_circle(_CENTRE, radius, -(angle + a)) for a in corners]), RED)]
 
 
 # --- the History of the Universe (paper 7.5.2, Fig. 21) ----------------------------------------------

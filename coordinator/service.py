@@ -58,7 +58,7 @@ def palette(n: int) -> np.ndarray:
     return (np.array(rgb).reshape(-1, 3) * 255).round().astype(np.uint8)
 
 
-def scene_goal_message(scene: Scene, epoch: int = 1) -> Goals | None:
+def scene_goal_message(scene: Scene) -> Goals | None:
     """Per-robot goals of a scene (RVO2-style examples), or None when the scene has none."""
     goals = scene.goal_positions
     if np.isnan(goals).all():
@@ -67,7 +67,7 @@ def scene_goal_message(scene: Scene, epoch: int = 1) -> Goals | None:
     # message carries finite numbers only.
     none = np.isnan(goals).any(axis=1)
     goals = np.where(none[:, None], scene.poses[:, :2], goals)
-    return Goals(epoch, 1, goals, palette(len(goals)))
+    return Goals(1, 1, goals, palette(len(goals)))
 
 
 def step_timing(scene: Scene, step: int, stamp: float = 0.0) -> Timing:
@@ -160,11 +160,11 @@ class Coordinator:
         self.running = True
         self.parent_pid: int | None = None
 
-    def resume(self, timeout: float = RESUME_WAIT_S) -> Goals | None:
+    def resume(self) -> Goals | None:
         """Go on from the newest goal set the run recorded, if there is one (a restart mid-run): its
         epoch, step and robots become the current ones, so the next goal set is published only when
         the step or the live robots change, with the next epoch. The goal set gone on from, if any."""
-        found = [g for _, g in self.bus.query(self.bus.keys.run_goals, Goals, timeout=timeout) if not g.per_robot]
+        found = [g for _, g in self.bus.query(self.bus.keys.run_goals, Goals, timeout=RESUME_WAIT_S) if not g.per_robot]
         if not self.images or not found:
             return None
         newest = max(found, key=lambda g: g.epoch)

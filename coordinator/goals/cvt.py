@@ -60,16 +60,16 @@ def binary_domain(rows: np.ndarray, cols: np.ndarray) -> Domain:
     return _domain(rows, cols, np.ones(len(rows)), np.ones(len(rows), bool))
 
 
-def density_domain(rows: np.ndarray, cols: np.ndarray, *, k_d: float = K_D) -> Domain:
+def density_domain(rows: np.ndarray, cols: np.ndarray) -> Domain:
     """Eq. 2 density over the convex hull R^_i of R_i (see the module docstring)."""
     inside, r0, c0 = region_box(rows, cols)
     hull = np.zeros(inside.shape, np.uint8)
     pts = np.stack([cols - c0, rows - r0], axis=1).astype(np.int32)
     cv2.fillConvexPoly(hull, cv2.convexHull(pts), 1)
     ring = ndimage.distance_transform_cdt(~inside, metric="chessboard")
-    max_ring = int(np.floor(16.0 / -np.log10(k_d))) if 0 < k_d < 1 else 0
+    max_ring = int(np.floor(16.0 / -np.log10(K_D)))
     rr, cc = np.nonzero(inside | ((hull > 0) & (ring <= max_ring)))
-    weights = np.power(float(k_d), ring[rr, cc].astype(float))
+    weights = np.power(K_D, ring[rr, cc].astype(float))
     return _domain(rr + r0, cc + c0, weights, inside[rr, cc])
 
 
@@ -87,7 +87,6 @@ class _Assigner:
         self.prev: np.ndarray | None = None
         n = len(domain.points)
         self.idx = np.zeros(n, np.int64)
-        self.d2 = np.zeros(n)
         self.lower = np.zeros(n)
         self.origin = domain.points.min(axis=0) if n else np.zeros(2)
         self.cell = 1.0
@@ -141,9 +140,8 @@ class _Assigner:
         # the same arithmetic for every pixel, however it was assigned: the cost does not depend on
         # which pixels were queried again
         dx, dy = x - gen[:, 0][self.idx], y - gen[:, 1][self.idx]
-        self.d2 = dx * dx + dy * dy
         self.prev = gen.copy()
-        return self.idx, self.d2
+        return self.idx, dx * dx + dy * dy
 
 
 def cell_centroids(domain: Domain, idx: np.ndarray, gen: np.ndarray) -> np.ndarray:

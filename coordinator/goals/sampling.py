@@ -35,9 +35,9 @@ def in_region(pts: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray
     return ok
 
 
-def ks_distance(area: float, n: int, factor: float = KS_FACTOR) -> float:
-    """K_s = factor * sqrt(A_i / (pi N_i)), the radius of a circle of area A_i / N_i times 1.2."""
-    return factor * math.sqrt(area / (math.pi * n))
+def ks_distance(area: float, n: int) -> float:
+    """K_s = 1.2 sqrt(A_i / (pi N_i)), the radius of a circle of area A_i / N_i times 1.2."""
+    return KS_FACTOR * math.sqrt(area / (math.pi * n))
 
 
 def poisson_samples(
