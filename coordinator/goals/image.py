@@ -176,8 +176,11 @@ def _border_model(lab: np.ndarray, tol: float) -> tuple[np.ndarray, float, np.nd
         resid = np.linalg.norm(vals - terms @ coef, axis=1)
         sigma = 1.4826 * float(np.median(resid[inliers])) if inliers.any() else 0.0
         inliers = resid < max(2.0 * tol, 4.0 * sigma)
-    rows, cols = np.indices((h, w)).reshape(2, -1)
-    return (_quadratic_terms(rows, cols, h, w) @ coef).reshape(h, w, 3), sigma, dominant
+    x = (np.arange(w) / max(w - 1, 1) - 0.5)[None, :, None]
+    y = (np.arange(h) / max(h - 1, 1) - 0.5)[:, None, None]
+    c = coef[:, None, None, :]
+    model = c[0] + c[1] * x + c[2] * y + c[3] * x * x + c[4] * x * y + c[5] * y * y
+    return model, sigma, dominant
 
 
 def foreground_mask(
