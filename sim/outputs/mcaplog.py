@@ -24,7 +24,7 @@ from __future__ import annotations
 import json
 import os
 import threading
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +34,7 @@ from google.protobuf.descriptor import FieldDescriptor
 from google.protobuf.message import Message
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
+from mcap.records import Schema
 from mcap.writer import MCAP0_MAGIC
 from mcap_protobuf.decoder import DecoderFactory
 
@@ -236,35 +237,23 @@ def _proto_value(value: Any) -> Any:
     return proto_to_dict(value)
 
 
-class _Decoders:
-    """Message bytes -> dict, per channel: JSON parsed, protobuf decoded with the schema stored in
-    the file (mcap's protobuf support builds the message class from it)."""
+class _Decoders(DecoderFactory):
+    """Message bytes -> dict, for mcap's reader: JSON parsed, protobuf decoded by mcap's protobuf support
+    (which builds the message class from the schema stored in the file) into a dict (:func:`proto_to_dict`)."""
 
-    def __init__(self) -> None:
-        self._protobuf = DecoderFactory()
-        self._by_schema: dict[int, Any] = {}
-
-    def decode(self, schema: Any, channel: Any, data: bytes) -> Any:
-        if channel.message_encoding == MESSAGE_ENCODING:
-            return json.loads(data)
-        if channel.message_encoding != PROTOBUF or schema is None:
-            raise ValueError(f"channel {channel.topic!r} has encoding {channel.message_encoding!r}")
-        decoder = self._by_schema.get(schema.id)
-        if decoder is None:
-            decoder = self._protobuf.decoder_for(PROTOBUF, schema)
-            if decoder is None:
-                raise ValueError(f"channel {channel.topic!r}: no protobuf decoder for schema {schema.name!r}")
-            self._by_schema[schema.id] = decoder
-        return proto_to_dict(decoder(data))
+    def decoder_for(self, message_encoding: str, schema: Schema | None) -> Callable[[bytes], Any] | None:
+        if message_encoding == MESSAGE_ENCODING:
+            return json.loads
+        decode = super().decoder_for(message_encoding, schema)
+        return None if decode is None else lambda data: proto_to_dict(decode(data))
 
 
 def logged(path: str | os.PathLike, topics: Iterable[str]) -> list[tuple[int, str, Any]]:
     """(log time in ns, topic, message decoded as :func:`read_mcap` decodes it) of every message
     of these topics of a closed file, in log-time order across them."""
-    decoders = _Decoders()
     with open(path, "rb") as fh:
-        messages = make_reader(fh).iter_messages(topics=sorted(topics), log_time_order=True)
-        return [(m.log_time, c.topic, decoders.decode(s, c, m.data)) for s, c, m in messages]
+        messages = make_reader(fh, decoder_factories=[_Decoders()]).iter_decoded_messages(topics=sorted(topics))
+        return [(m.log_time, c.topic, decoded) for _, c, m, decoded in messages]
 
 
 def read_mcap(path: str | os.PathLike, topics: Iterable[str] | None = None) -> dict[str, list[dict]]:
@@ -278,16 +267,15 @@ def read_mcap(path: str | os.PathLike, topics: Iterable[str] | None = None) -> d
     out: dict[str, list[dict]] = {}
     if not is_closed_mcap(path):
         return _read_unfinished(path, wanted)
-    decoders = _Decoders()
     with open(path, "rb") as fh:
-        reader = make_reader(fh)
+        reader = make_reader(fh, decoder_factories=[_Decoders()])
         summary = reader.get_summary()
         if summary is not None:
             for ch in summary.channels.values():
                 if wanted is None or ch.topic in wanted:
                     out.setdefault(ch.topic, [])
-        for schema, channel, message in reader.iter_messages(topics=wanted, log_time_order=True):
-            out.setdefault(channel.topic, []).append(decoders.decode(schema, channel, message.data))
+        for _, channel, _, decoded in reader.iter_decoded_messages(topics=wanted):
+            out.setdefault(channel.topic, []).append(decoded)
     return out
 
 
@@ -305,13 +293,11 @@ def _read_unfinished(path: str | os.PathLike, wanted: set[str] | None) -> dict[s
     """The messages of an unfinished file, read front to back until it ends mid-record (the
     chunk in progress when the writer died: cut short, or still without its length)."""
     out: dict[str, list[tuple[int, dict]]] = {}
-    decoders = _Decoders()
     with open(path, "rb") as fh:
+        reader = NonSeekingReader(fh, decoder_factories=[_Decoders()])
         try:
-            for schema, channel, message in NonSeekingReader(fh).iter_messages(log_time_order=False):
-                if wanted is None or channel.topic in wanted:
-                    row = (message.log_time, decoders.decode(schema, channel, message.data))
-                    out.setdefault(channel.topic, []).append(row)
+            for _, channel, message, decoded in reader.iter_decoded_messages(topics=wanted, log_time_order=False):
+                out.setdefault(channel.topic, []).append((message.log_time, decoded))
         except McapError:
             pass  # the chunk in progress when the writer died
     return {topic: [m for _, m in sorted(rows, key=lambda r: r[0])] for topic, rows in out.items()}
