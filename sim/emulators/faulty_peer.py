@@ -237,10 +237,8 @@ def future_stamp(data: bytes, rng: random.Random, kind: str) -> tuple[str, bytes
             return "stamp", None
         stamp = _F64.unpack_from(data, at)[0]
         return "stamp", _put(data, at, _F64.pack(stamp + rng.uniform(1.0, 1000.0)))
-    if kind in ("auction", "boards"):
-        field, at = rng.choice((("epoch", 2), ("serial", 14)))
-        return field, _forward_u32(data, at, rng)
-    return "", None
+    field, at = rng.choice((("epoch", 2), ("serial", 14)))  # a bid or a board (the misc kinds' last)
+    return field, _forward_u32(data, at, rng)
 
 
 @dataclass(frozen=True)
@@ -328,10 +326,6 @@ class FaultyPeer:
         self._own_order.append(payload)
         self._own.add(payload)
 
-    @staticmethod
-    def _pick(buffer: deque, rng: random.Random) -> tuple | None:
-        return buffer[rng.randrange(len(buffer))] if buffer else None
-
     # --- one damaged copy -------------------------------------------------------------------
     def _available(self, sub: str) -> bool:
         if sub == "stale-cmd":
@@ -355,17 +349,16 @@ class FaultyPeer:
     def _copy_of(self, sub: str, now: float) -> tuple[str, bytes, str, str] | None:
         rng = self.rng
         if sub == "stale-cmd":
-            picked = self._pick(self.cmd_old, rng)
-            return None if picked is None else (picked[0], picked[1], "cmd", "stale-cmd")
+            if not self.cmd_old:
+                return None
+            key, data = rng.choice(self.cmd_old)
+            return key, data, "cmd", "stale-cmd"
         candidates = self.kinds if sub == "malformed-all" else kinds_of(sub)
         kinds = [k for k in candidates if self.heard.get(k)]
         if not kinds:
             return None
         kind = rng.choice(kinds)
-        picked = self._pick(self.heard[kind], rng)
-        if picked is None:
-            return None
-        key, data = picked
+        key, data = rng.choice(self.heard[kind])
         if sub.startswith("future-"):
             out, what = _sealed(kind, future_tick(data, rng)), sub
         elif sub == "misc" and rng.random() >= 0.5:  # else malformed, as below
@@ -374,10 +367,8 @@ class FaultyPeer:
         elif sub in ("malformed-pose", "malformed-all", "misc"):
             name = rng.choice(self.plan.damages)
             out, what = MALFORM[name](data, rng, kind), f"malformed:{name}"
-        elif sub == "restart":
+        else:  # restart
             out, what = _sealed(kind, self._restarted(key, data, now)), "restart"
-        else:
-            raise ValueError(sub)
         if out is None or out == data:
             return None
         return key, out, kind, what
