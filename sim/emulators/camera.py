@@ -44,6 +44,8 @@ Pose = tuple[float, float, float]  # x, y (metres), theta (radians)
 SUPERSAMPLE = 4  # hi-res pixels per image pixel, per axis, when drawing a marker
 CELL_PX = 24  # pixels per marker cell in the drawn marker image
 FOURCC = "FFV1"  # lossless, and written by opencv-python-headless's FFmpeg
+STREAM_RATE = 10.0  # Hz: CameraStream's frames (a hardware file's camera rate, by default)
+JPEG_QUALITY = 95
 MAX_WANDERING = 24  # robots whose plates the wandering grid keeps apart
 
 
@@ -302,26 +304,16 @@ class _Glitches:
 
 class CameraStream(Started):
     """The overhead camera as a network camera: frames of ``poses(t)`` (row i: robot i, t in s since
-    start) rendered at ``rate`` Hz and served as MJPEG over HTTP on 127.0.0.1 (as many IP cameras serve
+    start) rendered at STREAM_RATE Hz and served as MJPEG over HTTP on 127.0.0.1 (as many IP cameras serve
     them) to every client, for a CameraPoseSource reading `url`. `swap` and `shift` spoil one frame,
     as a misread marker would."""
 
-    def __init__(
-        self,
-        poses: PoseFunction,
-        camera: OverheadCamera | None = None,
-        *,
-        rate: float = 10.0,
-        seed: int = 0,
-        quality: int = 95,
-    ) -> None:
+    def __init__(self, poses: PoseFunction, camera: OverheadCamera) -> None:
         self.poses = poses
-        self.camera = camera or OverheadCamera()
-        self.rate = rate
-        self.quality = quality
+        self.camera = camera
         self.frames = 0  # rendered
         self.error: Exception | None = None  # what stopped the rendering thread, if anything did
-        self._rng = np.random.default_rng(seed)
+        self._rng = np.random.default_rng(0)  # the pixel noise's
         self._glitches = _Glitches()
         self._clients: list[_Reader] = []
         self._lock = threading.Lock()
@@ -370,7 +362,7 @@ class CameraStream(Started):
         self._glitches.add(at, "shift", (robot, dx, dy))
 
     def _render(self) -> None:
-        period = 1.0 / self.rate
+        period = 1.0 / STREAM_RATE
         deadline = self._started
         try:
             while not self._halt.wait(max(0.0, deadline - time.monotonic())):
@@ -380,7 +372,7 @@ class CameraStream(Started):
                     {i: (float(x), float(y), float(t)) for i, (x, y, t) in enumerate(rows)}, now
                 )
                 ok, jpeg = cv2.imencode(
-                    ".jpg", self.camera.render(robots, self._rng), [cv2.IMWRITE_JPEG_QUALITY, self.quality]
+                    ".jpg", self.camera.render(robots, self._rng), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY]
                 )
                 if not ok:
                     raise RuntimeError("JPEG encoding failed")
