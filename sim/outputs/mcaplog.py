@@ -73,7 +73,6 @@ class McapLog:
         self._lock = threading.Lock()
         self._channels: dict[str, tuple[int, Any]] = {}  # topic -> (channel id, schema key)
         self._by_id: dict[int, foxglove.Channel] = {}
-        self._proto: set[int] = set()  # ids of the channels with a Foxglove (protobuf) schema
         self._server: Any = None
         self._closed = False
         self.message_count = 0
@@ -95,15 +94,15 @@ class McapLog:
         """Register (or look up) a channel of one of Foxglove's schemas (a :mod:`foxglove.messages`
         type, e.g. ``SceneUpdate``), protobuf-encoded with the schema the SDK carries."""
         schema = message_type.get_schema()
-        return self._add(topic, (schema.name, schema.encoding), schema.encoding, schema, proto=True)
+        return self._add(topic, (schema.name, schema.encoding), schema.encoding, schema)
 
     def add_protobuf_channel(self, topic: str, schema_name: str, descriptor_set: bytes) -> int:
         """Register (or look up) a protobuf channel of a schema of our own (``schema_name``, the
         message's full name; ``descriptor_set``, its serialized ``FileDescriptorSet``: sim.outputs.logschema)."""
         schema = foxglove.Schema(name=schema_name, encoding=PROTOBUF, data=descriptor_set)
-        return self._add(topic, (schema_name, PROTOBUF), PROTOBUF, schema, proto=True)
+        return self._add(topic, (schema_name, PROTOBUF), PROTOBUF, schema)
 
-    def _add(self, topic: str, key: Any, encoding: str, schema: Any, proto: bool = False) -> int:
+    def _add(self, topic: str, key: Any, encoding: str, schema: Any) -> int:
         with self._lock:
             self._check_open()
             if topic in self._channels:
@@ -117,15 +116,14 @@ class McapLog:
             cid = channel.id()
             self._channels[topic] = (cid, key)
             self._by_id[cid] = channel
-            if proto:
-                self._proto.add(cid)
             return cid
 
     # -- messages ----------------------------------------------------------------------------
     def write(self, channel_id: int, log_time_ns: int, payload: Any) -> None:
         """Write one message: a dict on a JSON channel (numpy -> lists, NaN -> null), a
         :mod:`foxglove.messages` object on a Foxglove channel (its encoding: :meth:`write_bytes`)."""
-        if channel_id not in self._proto:
+        channel = self._by_id.get(channel_id)  # None: write_bytes says so
+        if channel is None or channel.message_encoding == MESSAGE_ENCODING:
             data = dumps_json(payload).encode("utf-8")
         else:  # a google.protobuf message (sim.outputs.logschema's), or a foxglove.messages one
             data = payload.SerializeToString() if isinstance(payload, Message) else payload.encode()
@@ -162,14 +160,14 @@ class McapLog:
                 self._writer.flush()
 
     # -- live --------------------------------------------------------------------------------
-    def serve(self, port: int = 0, name: str = "pixelswarm") -> int:
+    def serve(self, port: int = 0) -> int:
         """Stream every channel live over Foxglove's WebSocket protocol on 127.0.0.1 (``port`` 0:
         a free one) until :meth:`close`; returns the port.  Foxglove: Open connection, Foxglove
         WebSocket, ``ws://127.0.0.1:PORT``."""
         with self._lock:
             self._check_open()
             if self._server is None:
-                self._server = foxglove.start_server(name=name, host=LOOPBACK, port=port, context=self._context)
+                self._server = foxglove.start_server(name="pixelswarm", host=LOOPBACK, port=port, context=self._context)
             return int(self._server.port)
 
     # -- lifecycle ---------------------------------------------------------------------------

@@ -206,7 +206,6 @@ class SwarmView:
     ) -> None:
         rr = _rerun()
         self._rr = rr
-        self.n = robots
         self.radius = np.broadcast_to(np.asarray(radius, dtype=float), (robots,)).copy()
         self.tolerance = tolerance
         self.url: str | None = None
