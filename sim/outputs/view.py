@@ -227,11 +227,6 @@ class SwarmView:
             self.rec.save(str(sink), default_blueprint=_layout())
         self._static(arena, obstacles)
 
-    @property
-    def failure(self) -> str | None:
-        """Why the view stopped logging, if it did."""
-        return self._handover.failure
-
     # -- where it goes -----------------------------------------------------------------------
     def _serve(self, web: bool) -> None:
         """Rerun's viewer (its own process) listening on 127.0.0.1; this recording streams to it."""
