@@ -140,14 +140,12 @@ class Epuck2Emulator(Started):
         poses: Sequence[Pose] | None = None,
         ports: Sequence[int] | None = None,
         params: RobotParams = EPUCK,
-        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         poses = list(poses) if poses is not None else default_poses(count, params)
         ports = list(ports) if ports is not None else [0] * count
         if count < 1 or len(poses) != count or len(ports) != count:
             raise ValueError(f"need one pose and one port for each of {count} robots")
-        self.clock = clock
-        now = clock()
+        now = time.monotonic()
         self.robots = [
             EmulatedRobot(pose=(float(x), float(y), float(t)), params=params, since=now) for x, y, t in poses
         ]
@@ -181,7 +179,7 @@ class Epuck2Emulator(Started):
         """The robot's true pose now."""
         with self._lock:
             robot = self.robots[robot_id]
-            robot.advance(self.clock())
+            robot.advance(time.monotonic())
             return robot.pose
 
     def log(self, robot_id: int) -> list[tuple[float, int, int]]:
@@ -302,7 +300,7 @@ class Epuck2Emulator(Started):
             del buffer[:COMMAND_LENGTH]
             with self._lock:
                 robot = self.robots[rid]
-                robot.apply(command, self.clock())
+                robot.apply(command, time.monotonic())
                 answer = robot.answer(command)
             try:
                 conn.sendall(answer)
