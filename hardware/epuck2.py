@@ -2,8 +2,7 @@
 
 The 21-byte command packet and the robot's answers: docs/hardware.md ("What goes on the wire"). A robot
 keeps its last wheel speeds until told otherwise, so the backend stops every robot whose commands cease
-(the watchdog), on `stop_all()` and on `close()`. One thread runs an asyncio event loop with a task per
-robot; the control loop's calls hand work to it."""
+(the watchdog), on `stop_all()` and on `close()`."""
 
 from __future__ import annotations
 
