@@ -61,8 +61,19 @@ BUS_KINDS = ("pose", "state", "cmd", "goals", "auction", "boards", "clock", "eve
 SIM_KINDS = ("sim/truth", "sim/contact")
 # the sub-modes ``all`` draws from (malformed-all covers malformed-pose)
 ALL_OF = ("future-pose", "future-state", "future-cmd", "malformed-all", "stale-cmd", "misc", "restart")
-MODES = ("future-pose", "future-state", "future-cmd", "malformed-pose", "malformed-all", "stale-cmd", "misc", "restart")
-MODES_AND_ALL = (*MODES, "all")
+# each mode and the key kinds it damages
+_MODE_KINDS = {
+    "future-pose": ("pose",),
+    "future-state": ("state",),
+    "future-cmd": ("cmd",),
+    "malformed-pose": ("pose",),
+    "malformed-all": BUS_KINDS,
+    "stale-cmd": ("cmd",),
+    "misc": MISC_KINDS,
+    "restart": FRAME_KINDS,
+    "all": BUS_KINDS,
+}
+MODES_AND_ALL = tuple(_MODE_KINDS)
 
 STALE_AFTER = 2.0  # s: a command is re-sent unchanged only this long after it was first heard
 FUTURE_MAX = 10_000  # ticks: how far a future tick (epoch, serial) goes at most
@@ -81,19 +92,6 @@ _CHECKED_FRAMES = {f.NAME for f in FRAME_OF.values() if f.CHECKED}  # frames tha
 _COUNT_AT = {"auction": (26,), "boards": (18, 22, 26), "sim/truth": (18,)}
 _GOALS_SET_AT = 8  # goal set part body: epoch u32, per_robot u8, count u32
 _PART_HEADER = struct.Struct("<BBI")
-
-
-_MODE_KINDS = {
-    "future-pose": ("pose",),
-    "malformed-pose": ("pose",),
-    "future-state": ("state",),
-    "future-cmd": ("cmd",),
-    "stale-cmd": ("cmd",),
-    "malformed-all": BUS_KINDS,
-    "misc": MISC_KINDS,
-    "restart": FRAME_KINDS,
-    "all": BUS_KINDS,
-}
 
 
 def kinds_of(mode: str, include_sim: bool = False) -> tuple[str, ...]:
