@@ -253,40 +253,43 @@ class DisplayLog:
     def json(self, kind: str, wall: float, payload: dict[str, Any]) -> None:
         """One message on its kind's channel, as JSON (orjson: numpy arrays as lists, NaN and inf as
         null; at 1000 robots json.dumps of every message took a fifth of the recorder's time)."""
-        if self.log is None:
+        if (log := self.log) is None:
             return
-        cid = self._channels.get(kind)
-        if cid is None:
-            schema = json_schema_of(BY_NAME[kind]) if kind in BY_NAME else {"type": "object"}
-            name = BY_NAME[kind].__name__ if kind in BY_NAME else kind
-            cid = self._channels[kind] = self.log.add_channel("/" + kind, f"pixelswarm.{name}", schema)
-        self.log.write_bytes(
-            cid, int(wall * 1e9), orjson.dumps(payload, default=_as_list, option=orjson.OPT_SERIALIZE_NUMPY)
-        )
+
+        def add() -> int:
+            if kind not in BY_NAME:
+                return log.add_channel("/" + kind, f"pixelswarm.{kind}", {"type": "object"})
+            return log.add_channel("/" + kind, f"pixelswarm.{BY_NAME[kind].__name__}", json_schema_of(BY_NAME[kind]))
+
+        payload_bytes = orjson.dumps(payload, default=_as_list, option=orjson.OPT_SERIALIZE_NUMPY)
+        log.write_bytes(self._channel(kind, add), int(wall * 1e9), payload_bytes)
 
     def proto(self, kind: str, wall: float, as_proto: LoggedKind, msg: Any, key: str, tick: int) -> None:
         """A per-tick kind in its protobuf form (sim.outputs.logschema): its tables' numbers as the wire
         has them, a fraction of their JSON's bytes; at the world's ``tick``, if a logged one."""
-        if self.log is None or tick % self.every:
+        if (log := self.log) is None or tick % self.every:
             return
+        cid = self._channel(kind, lambda: log.add_protobuf_channel("/" + kind, as_proto.name, as_proto.descriptor_set))
+        log.write_bytes(cid, int(wall * 1e9), as_proto.encode(msg, key))
+
+    def _channel(self, kind: str, add: Callable[[], int]) -> int:
+        """The log's channel of ``kind`` (a key kind or a scene topic), ``add``ed at its first message."""
         cid = self._channels.get(kind)
         if cid is None:
-            cid = self._channels[kind] = self.log.add_protobuf_channel(
-                "/" + kind, as_proto.name, as_proto.descriptor_set
-            )
-        self.log.write_bytes(cid, int(wall * 1e9), as_proto.encode(msg, key))
+            cid = self._channels[kind] = add()
+        return cid
 
     def scene(self, wall: float, m: Truth, radius: np.ndarray, goal: np.ndarray) -> None:
         """The display at this tick for Foxglove's 3D panel (stamped, like every channel, with the
         wall time it arrived, so the panels of one file play in step): every tick a robot an entity,
         or above :data:`LOG_ROBOTS` robots the swarm's one entity every :data:`SCENE_PERIOD`."""
-        if self.log is None:
+        if (log := self.log) is None:
             return
         t_ns = int(wall * 1e9)
-        channel = self.log.add_foxglove_channel(SCENE_TOPIC, SceneUpdate)  # added once, then looked up
+        channel = self._channel(SCENE_TOPIC, lambda: log.add_foxglove_channel(SCENE_TOPIC, SceneUpdate))
         if self.n <= LOG_ROBOTS:
             update = scene_update(t_ns, m.pose, radius, m.color, goal=goal, heading=self.heading)
-            self.log.write_bytes(channel, t_ns, update)
+            log.write_bytes(channel, t_ns, update)
             return
         if m.stamp < self._next_scene - 1e-9:
             return
@@ -295,16 +298,17 @@ class DisplayLog:
         if unstamped == self._last_scene:
             return  # nothing moved: the newest message still shows it
         self._last_scene = unstamped
-        self.log.write_bytes(channel, t_ns, swarm_scene(t_ns, m.pose, radius, m.color))
+        log.write_bytes(channel, t_ns, swarm_scene(t_ns, m.pose, radius, m.color))
 
     def goals(self, wall: float, g: Goals, radius: np.ndarray) -> None:
         """A swarm's goal set as a sphere a goal in its colour (:func:`goal_markers`): once a set."""
-        if self.log is None or self.n <= LOG_ROBOTS:
+        if (log := self.log) is None or self.n <= LOG_ROBOTS:
             return
         known = radius[np.isfinite(radius)]
         r = float(np.median(known)) if len(known) else 0.05  # before any state: a typical robot's
         update = goal_markers(int(wall * 1e9), g.positions, g.colors, GOAL_DIAMETER * 2 * r)
-        self.log.write_bytes(self.log.add_foxglove_channel(GOALS_TOPIC, SceneUpdate), int(wall * 1e9), update)
+        channel = self._channel(GOALS_TOPIC, lambda: log.add_foxglove_channel(GOALS_TOPIC, SceneUpdate))
+        log.write_bytes(channel, int(wall * 1e9), update)
 
     def flush_now_and_then(self) -> None:
         """Flush the MCAP log every :data:`FLUSH_EVERY` of wall time (a killed run keeps all but the last)."""

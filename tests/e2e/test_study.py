@@ -240,7 +240,7 @@ def test_bad_command_lines_exit_2(tmp_path, capsys):
 @pytest.mark.slow
 def test_ctrl_c_stops_the_runs_it_started_and_keeps_the_finished_ones(tmp_path):
     # a short central run, then a long distributed one to interrupt: on the wall clock, as two robots in
-    # lock-step converge (and end the run) within 1.5 s of its start, before a loaded machine's Ctrl-C
+    # lock-step converge (and end the run) so soon that a loaded machine's Ctrl-C may come after
     spec = tmp_path / "spec.toml"
     spec.write_text(
         'seeds = [1]\n[base]\nscene = "swap"\nrobots = 2\nengine = "central"\nduration = 1.0\n'
