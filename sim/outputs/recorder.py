@@ -466,7 +466,7 @@ class Recorder:
             world.dt = m.stamp / m.tick  # the control period, as the world's clock counts it
         self._append_row(m, wall)
         if self.out.ticks is not None:
-            self.out.ticks.append(m.stamp, wall, m.pose, m.velocity, m.color, said.goal, said.goal_index)
+            self.out.ticks.append(m.stamp, wall, (m.pose, m.velocity, m.color, said.goal, said.goal_index))
         world.least_clearance = min(world.least_clearance, m.min_clearance)
         progress.check(m.stamp, m.pose, said, self.sets.newest)
         self.out.scene(wall, m, said.radius, said.goal)

@@ -16,24 +16,17 @@ from pathlib import Path
 
 import numpy as np
 
+from sim.outputs.stream import ROWS
+
 TICKS_FILE = "ticks.bin"  # in the run directory, next to log.mcap
 FORMAT = "pixelswarm-ticks/1"
 
 
 def tick_dtype(robots: int) -> np.dtype:
-    """One tick of a display of ``robots`` robots: the same names as trajectory.npz's arrays."""
-    n = robots
-    return np.dtype(
-        [
-            ("t", "<f8"),
-            ("wall", "<f8"),
-            ("pose", "<f8", (n, 3)),
-            ("velocity", "<f8", (n, 2)),
-            ("color", "u1", (n, 3)),
-            ("goal", "<f8", (n, 2)),
-            ("assignment", "<i8", (n,)),
-        ]
-    )
+    """One tick of a display of ``robots`` robots: its time, wall time and the recorded rows
+    (sim.outputs.stream.ROWS), by the same names as trajectory.npz's arrays."""
+    rows = [(name, kind, (robots, *shape)) for name, (shape, kind) in ROWS.items()]
+    return np.dtype([("t", "<f8"), ("wall", "<f8"), *rows])
 
 
 class TickLog:
@@ -46,22 +39,14 @@ class TickLog:
         self._fd: int | None = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         os.write(self._fd, (json.dumps(header) + "\n").encode())
 
-    def append(
-        self,
-        t: float,
-        wall: float,
-        pose: np.ndarray,
-        velocity: np.ndarray,
-        color: np.ndarray,
-        goal: np.ndarray,
-        assignment: np.ndarray,
-    ) -> None:
+    def append(self, t: float, wall: float, rows: tuple[np.ndarray, ...]) -> None:
+        """A tick's record: its time, wall time and rows in the order of sim.outputs.stream.ROWS."""
         if self._fd is None:
             return
         rec = np.zeros(1, self.dtype)
         rec["t"], rec["wall"] = t, wall
-        rec["pose"][0], rec["velocity"][0], rec["color"][0] = pose, velocity, color
-        rec["goal"][0], rec["assignment"][0] = goal, assignment
+        for name, value in zip(ROWS, rows, strict=True):
+            rec[name][0] = value
         os.write(self._fd, rec.tobytes())  # one write a tick: a kill leaves whole records and at most one torn
 
     def close(self) -> None:

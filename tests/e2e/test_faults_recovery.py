@@ -59,7 +59,7 @@ def test_a_torn_tick_file_reads_up_to_its_last_whole_tick(tmp_path):
     rng = np.random.default_rng(0)
     for k in range(5):
         pose = rng.normal(size=(3, 3))
-        log.append(k * 0.1, 100.0 + k, pose, pose[:, :2], np.full((3, 3), 7), np.full((3, 2), np.nan), np.arange(3))
+        log.append(k * 0.1, 100.0 + k, (pose, pose[:, :2], np.full((3, 3), 7), np.full((3, 2), np.nan), np.arange(3)))
     log.close()
     path = tmp_path / TICKS_FILE
     path.write_bytes(path.read_bytes()[:-10])  # killed in the middle of the fifth record
