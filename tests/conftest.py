@@ -330,6 +330,24 @@ def assert_usage_error(tmp_path: Path, message: str, *args: str) -> None:
     assert not (tmp_path / "r").exists()
 
 
+# What every metrics.json holds (docs/outputs.md), whatever the engine
+METRIC_KEYS = (
+    "robots",
+    "duration_s",
+    "wall_s",
+    "realtime_factor",
+    "min_clearance_m",
+    "contacts",
+    "max_overlap_m",
+    "converged",
+    "time_to_converge_s",
+    "path_length_m",
+    "messages_per_robot_s",
+    "bytes_per_robot_s",
+    "missed_ticks",
+    "agents_crashed",
+)
+
 # The paper's 14 e-pucks on their starting grid (scenes/paper-sequence.toml), in lock-step: a scene
 # of them is a name before this and its steps after it.
 PAPER_E_PUCKS = """
