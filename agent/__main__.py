@@ -15,7 +15,6 @@ import math
 import os
 import sys
 from collections.abc import Callable
-from pathlib import Path
 
 from . import ONE_BLAS_THREAD
 
@@ -48,7 +47,8 @@ options:
   --exit-with-parent    stop when the parent process exits
 
 """ + zenoh_usage()
-# getopt, not argparse: argparse and the modules it loads would stay in every robot's process.
+# getopt, not argparse, and os.path, not pathlib: they and the modules they load (urllib.parse and
+# ipaddress for pathlib) would stay in every robot's process.
 OPTIONS = ["help", "config=", "faults=", "start-timeout=", "exit-with-parent", *ZENOH_LONG]
 
 
@@ -114,7 +114,7 @@ def _run_host(bus: Bus, config: HostConfig, start_timeout: float, exit_with_pare
         return 1
     profile_to = os.environ.get("PIXELSWARM_PROFILE")
     if profile_to:
-        run_profiled(lambda: host.run(parent), Path(profile_to) / f"agent{config.robots[0]}.prof")
+        run_profiled(lambda: host.run(parent), os.path.join(profile_to, f"agent{config.robots[0]}.prof"))
     else:
         host.run(parent)
     host.report()
@@ -135,7 +135,7 @@ def _seconds(text: str | None, default: float) -> float:
     return value
 
 
-def run_profiled(run: Callable[[], None], path: Path) -> None:
+def run_profiled(run: Callable[[], None], path: str) -> None:
     """Run under cProfile (this thread only: zenoh's callbacks are not counted) and write the
     statistics to ``path`` even if ``run`` raises."""
     import cProfile  # here: only a profiled run pays for it
@@ -146,7 +146,7 @@ def run_profiled(run: Callable[[], None], path: Path) -> None:
         run()
     finally:
         profile.disable()
-        path.parent.mkdir(parents=True, exist_ok=True)
+        os.makedirs(os.path.dirname(path), exist_ok=True)
         profile.dump_stats(path)
 
 

@@ -14,7 +14,6 @@ as a feed-forward term.
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
 import os
@@ -117,6 +116,8 @@ def interpreter(robots: int) -> list[str]:
     too (its tracebacks still name each file and line). Only where their optimised bytecode is
     compiled (make does it), as compiling them at every start would cost more than it saves; not
     for hosts of many robots, whose memory is mostly their robots' and would save little."""
+    import importlib.util  # here: the launcher asks, a robot's process need not load it
+
     samples = (json.__file__, np.__file__, __file__)  # the standard library, numpy, ours
     compiled = all(os.path.exists(importlib.util.cache_from_source(f, optimization=2)) for f in samples)
     return [sys.executable, *(["-OO", "-X", "no_debug_ranges"] if compiled and robots == 1 else [])]

@@ -446,10 +446,12 @@ def test_the_agent_shares_one_malloc_arena_when_it_runs_one_robot(tmp_path, monk
 
 def test_a_robot_process_loads_no_module_a_robot_never_uses():
     """Each module is memory in every one of N robot processes: random serves injected faults,
-    cProfile a profiled run, socket finding a router's port, and numpy.ma nothing of a robot's
-    (np.unique loads it). A robot without them never loads them, however its cells move or whichever
-    robots its inbox keeps. (zlib it loads: it checks goal sets' and bids' checksums.)"""
+    cProfile a profiled run, socket finding a router's port, importlib.util the launcher's choice of
+    interpreter, pathlib (with urllib.parse and ipaddress) nothing a robot needs, and numpy.ma nothing
+    of a robot's (np.unique loads it). A robot without them never loads them, however its cells move
+    or whichever robots its inbox keeps. (zlib it loads: it checks goal sets' and bids' checksums.)"""
     code = (
+        f"NOT_LOADED = {('random', 'cProfile', 'socket', 'importlib.util', 'pathlib', 'ipaddress', 'numpy.ma')!r}\n"
         "import sys, numpy as np, zenoh, agent.__main__\n"
         "from agent.runtime import CellSubscriptions\n"
         "from transport.bus import KeepRobots\n"
@@ -462,7 +464,7 @@ def test_a_robot_process_loads_no_module_a_robot_never_uses():
         "cells = CellSubscriptions(Bus(), None, 0.5)\n"
         "cells.update(np.array([[0.1, 0.2], [0.3, 0.2]]))\n"
         "cells.update(np.array([[2.1, 0.2], [0.3, 0.2]]))\n"
-        "print(len(cells.cells), own.ids.tolist(), sorted(m for m in ('random', 'cProfile', 'socket', 'numpy.ma') if m in sys.modules))"
+        "print(len(cells.cells), own.ids.tolist(), sorted(m for m in NOT_LOADED if m in sys.modules))"
     )
     out = subprocess.run([*interpreter(1), "-c", code], capture_output=True, text=True, cwd=REPO, timeout=60)
     assert out.returncode == 0, out.stderr[-500:]
