@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import getopt
+import importlib.util
 import json
 import os
 import platform
@@ -17,7 +18,6 @@ import numpy as np
 import psutil
 import pytest
 
-import agent.runtime
 from agent.runtime import interpreter
 from tests.conftest import (
     REPO,
@@ -368,7 +368,7 @@ def test_a_robot_alone_in_its_process_runs_without_docstrings_where_their_optimi
         asked.append(optimization)
         return str(compiled)
 
-    monkeypatch.setattr(agent.runtime.importlib.util, "cache_from_source", cache_from_source)
+    monkeypatch.setattr(importlib.util, "cache_from_source", cache_from_source)  # interpreter() imports it itself
     assert interpreter(1) == [sys.executable, "-OO", "-X", "no_debug_ranges"]
     assert set(asked) == {2}
     assert interpreter(2) == [sys.executable]
