@@ -66,6 +66,7 @@ class AuctionCounts:
     penalties: int = 0  # deadlock penalties charged (paper 5.5.5)
     rounds: int = 0  # lock-step rounds taken part in
     abandoned: int = 0  # lock-step blocks given up (a round never completed)
+    dropped: int = 0  # lock-step blocks dropped unagreed at block_max_age
     first_agreement_s: list[float] = field(default_factory=list)  # per goal set: wall time from its arrival
 
 
@@ -486,6 +487,9 @@ class AuctionLink:
             return
         if self.blocks.open_round is not None and self._close_round(*self.blocks.open_round):
             return  # given up
+        if self.blocks.block is not None and self.params.stale_block(stamp - self.blocks.stamp):
+            # dropped unagreed: the robots keep the last agreement, and the next block begins now
+            self.blocks.block, self.counts.dropped = None, self.counts.dropped + 1
         if self.blocks.block is None:
             if not all(r in positions for r in part.own):
                 return
@@ -656,6 +660,7 @@ class AuctionLink:
             "latency_s": round(self.times.latency, 3),
             "lockstep_rounds": self.counts.rounds,
             "abandoned_blocks": self.counts.abandoned,
+            "dropped_blocks": self.counts.dropped,
             "first_agreement_s": [round(x, 4) for x in self.counts.first_agreement_s],
         }
 

@@ -13,7 +13,8 @@ from transport import epuck
 HOLONOMIC = "holonomic"
 DIFFDRIVE = "diffdrive"
 KINEMATICS = (HOLONOMIC, DIFFDRIVE)
-_MAY_BE_ZERO = {"assign_hysteresis", "deadlock_cost", "rounds_per_tick"}  # 0 turns the feature (or bound) off
+# 0 turns the feature (or bound) off
+_MAY_BE_ZERO = {"assign_hysteresis", "deadlock_cost", "rounds_per_tick", "block_max_age"}
 # rounds_per_tick of a lock-step scene made for agent processes that sets none: its one round a tick is
 # heard at the next tick, so no tick waits on a round (docs/lockstep_auction.md, "Rounds per tick")
 BUS_ROUNDS_PER_TICK = 1
@@ -50,6 +51,9 @@ class RobotParams:
     assign_hysteresis: float = 5e-3  # Delta C: keep the goal unless another is better by this much
     assign_period: float = 0.1  # s between auction instances (paper 5.1: every control iteration)
     rounds_per_tick: int = 0  # lock-step: most message rounds a tick gives the auction (0: until agreed)
+    # lock-step, rounds per tick bounded: a block not agreed this long after it began is dropped (its
+    # positions are stale: adopted late, its agreement swapped robots that sat on their goals); 0: never
+    block_max_age: float = 10.0
     deadlock_cost: float = 0.1  # C_d, added for good to the cost of the goal a robot is stuck before
     deadlock_iterations: int = 50  # N_d, iterations blocked before a deadlock is declared (5 s: outlasts a crowd)
     deadlock_speed: float = 0.03  # |v_pref - v_cf| above this, and headway below it, count as blocked (m/s)
@@ -97,6 +101,11 @@ class RobotParams:
 
     def with_(self, **changes: Any) -> RobotParams:
         return replace(self, **changes)
+
+    def stale_block(self, age: float) -> bool:
+        """Whether a block begun ``age`` seconds of display time ago and not agreed is dropped
+        (block_max_age), alike in every engine: ticks' stamps, not a wall clock."""
+        return self.block_max_age > 0 and age > self.block_max_age - 1e-9
 
     def grown(self, by: float) -> RobotParams:
         """A copy with the radius larger by ``by`` >= 0. Without with_'s checks, which a larger radius

@@ -227,6 +227,8 @@ class CentralAuction:
             # cold start (no auction yet) runs to its agreement below: no goal to drive to meanwhile.
             if self.block is not None and self.block.open and self.block.hear({}):
                 self._adopt(auction)
+            if self.block is not None and self.assigned_at is not None and p.stale_block(t - self.assigned_at):
+                self.block = None  # the robots keep the last agreement; the next block begins now
             if self.block is None and due:
                 self.block, self.assigned_at = BlockRounds(auction, bid_from), t
             if self.block is not None and play(self.block, self.budget):
