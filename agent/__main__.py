@@ -1,11 +1,8 @@
 """Entry point of an agent process: `python -m agent --config host.json [zenoh flags]`.
 
-`--config -` reads the config from stdin: `pixelswarm agents` hands over what it fetched from the
-run that way, so a robot's computer needs no file shared with the run.
-
-One process runs the robots its config names (one by default; K with --agents-per-process). With
-PIXELSWARM_PROFILE=DIR in its environment (`pixelswarm run` passes its own on), the host's loop runs
-under cProfile and its statistics go to DIR/agent<first robot>.prof when it stops (`python -m pstats`).
+One process runs the robots its config names (one by default; K with --agents-per-process). `--config -` reads
+the config from stdin, so a robot's computer needs no file shared with the run. With PIXELSWARM_PROFILE=DIR in its
+environment, the host's loop runs under cProfile and its statistics go to DIR/agent<first robot>.prof.
 """
 
 from __future__ import annotations

@@ -1,23 +1,12 @@
-"""The goal auction on the bus: binds the pure participant (core/bidder.py) of a host's robots to
-zenoh. One message per host carries all its robots' records, so an agent host of K robots costs the
-swarm what one robot does.
+"""The goal auction on the bus: binds the pure participant (core/bidder.py) of a host's robots to zenoh.
 
-When to publish: at once when an own claim changed (a bid or a release); when only the board changed
-(others need our digest to see agreement) and nobody seems to be bidding any more (no storms of
-digests that are stale at once), or when a message arrived written against another board
-than ours (one of us missed something: answering lets the other catch up, so a lost message costs a
-round trip, not a timeout), once the board has been quiet for QUIET seconds (while bids fly, digests
-would only be stale) and at most every DIGEST_EVERY seconds; and as a backstop every RESEND_BUSY
-seconds (more in large swarms) while an instance is open, RESEND_IDLE when agreed (late joiners).
-
-Lock-step (``lockstep``): the auction is tick-synchronous. A block of phases that starts at tick k
-bids from the positions of tick k in numbered rounds: in round r each host's robots bid against the
-board as merged after round r - 1 (Jacobi), and the host publishes its records tagged (instance,
-round), after the first round only the claims that changed and its releases; it goes on to round
-r + 1 once every robot's host has spoken in round r. The rounds are the
-central engine's (Participant.settle_alone) bid for bid, so every host ends with its board, and the
-block is agreed at the same round everywhere, before any robot's command of tick k: everyone adopts
-it at tick k (settle_block).
+One message per host carries all its robots' records, so a host of K robots costs the swarm what one robot does.
+Real time: a host publishes at once when an own claim changed (a bid or a release); its digest when only the board
+changed (others need it to see agreement) or a message came written against another board (answering lets the
+other catch up in a round trip, not a timeout), once the board has been quiet for QUIET seconds and at most every
+DIGEST_EVERY; and as a backstop every RESEND_BUSY seconds while an instance is open, RESEND_IDLE when agreed (for
+late joiners). Lock-step (``lockstep``) plays numbered Jacobi rounds, bid for bid the central engine's, so every
+host agrees a block at the same round and adopts it at the same tick (settle_block, docs/lockstep_auction.md).
 """
 
 from __future__ import annotations
@@ -46,8 +35,7 @@ RESEND_BUSY = 0.25  # a lost message stalls a phase until a resend: short while 
 RESEND_PER_ROBOT = 0.01  # ... but every resend reaches every host: the backstop grows with the swarm
 RESEND_IDLE = 1.0
 MAX_LEAD = 15.0  # s: the longest latency the robots' bid positions compensate (agent.runtime.bid_position)
-ROUND_RESEND = 0.1  # s: lock-step, the least a host waits for a round's records before it sends its own
-# again; at least RESEND_PER_ROBOT per robot, as every resend reaches every host and slows every round
+ROUND_RESEND = 0.1  # s: lock-step, the least a host waits for a round's records before resending (_resend_base)
 ROUND_BACKOFF = 8  # a round's resends space out to at most this many times the first interval
 ROUND_CAP = 30.0  # s: lock-step, the longest a host waits for one round; then its robots hold their positions
 
@@ -74,11 +62,9 @@ class AuctionCounts:
 class LockStepRounds:
     """What the tick-synchronous rounds need of a host beside the auction itself."""
 
-    on_abandoned: OnAbandoned | None = None  # hears of own robots whose block could not finish (they
-    # must hold their positions: another robot may hold their goals now)
+    on_abandoned: OnAbandoned | None = None  # own robots whose block could not finish: they hold their positions
     dead: Callable[[], set[int]] = set  # the robots whose agent is known dead now: not waited for
-    reach: float = math.inf  # a robot hears the auction only from robots this close (m): the
-    # range-limited auction (core.local_auction)
+    reach: float = math.inf  # m: a robot hears the auction only from robots this close (core.local_auction)
 
 
 class RoundExchange:
@@ -108,12 +94,10 @@ class RoundExchange:
         but which asks the hosts that left the round for a message of theirs we missed (see file)."""
         for old in [k for k in self.records if k < key]:
             del self.records[old]
-        if key[:2] != self.said_block:  # a block's first round: forget the blocks before the last (once,
-            # not every round: a block may take thousands of rounds)
+        if key[:2] != self.said_block:  # a block's first round: forget the blocks before the last
             last, self.said_block = self.said_block, key[:2]
-            # The last block's messages stay: with rounds per tick bounded its final round is heard at
-            # this tick, where a host that lost a message of it still waits while we begin the next.
-            # Hosts are at most one block apart: nobody agrees a block without everyone's records of it.
+            # The last block's messages stay: with rounds per tick bounded, a host that lost one of its final
+            # round still waits for it. Hosts are at most one block apart: none agrees a block without everyone's.
             for old in [k for k in self.said if k[:2] not in (key[:2], last) and k < key]:
                 del self.said[old]
             for old in [b for b in self.newest_round if b[:2] < key[:2] and b[:2] != last]:
@@ -129,9 +113,8 @@ class RoundExchange:
         """Wait until every live robot in ``members`` has said its word in the open round ``key``;
         the other hosts' messages by sender (None: ROUND_CAP ran out). Our message goes out again
         ``base`` s after it last went out or the wait began, whichever is later."""
-        # every resend reaches every host and may draw an answer from each: on a loaded machine, where
-        # a round outlasts the backstop, fixed resends fed the load that made them; each waits twice
-        # the last, up to ROUND_BACKOFF times the first
+        # every resend reaches every host and may draw an answer from each: back off (twice the last wait, up
+        # to ROUND_BACKOFF times the first) so that resends do not feed the load that delays the round
         wait, start = base, time.monotonic()
         said: set[int] = set(self.robots)  # robots heard in this round
         counted: set[int] = set()  # the senders whose robots are in ``said``
@@ -305,10 +288,9 @@ class AuctionLink:
         (robot -> goal index) over to the new set; returns the carried goals, which the robots drive
         to until the auction agrees. After a last set of the same robots that agreed, or whose robots
         still drive to its own warm start, the goals carry over by the goal sets' matching and the
-        auction starts from it, prices included (_warm_start).
-        Otherwise a keyframe carries by the coordinator's goal correspondence, and the auction starts
-        from the carried claims only when the last one had agreed (a board still in a price war is
-        no assignment) and the frames are close (frames_close)."""
+        auction starts from it, prices included (_warm_start). Otherwise a keyframe carries by the
+        coordinator's goal correspondence, and the auction starts from the carried claims only when the
+        last one had agreed (a board still in a price war is no assignment) and the frames are close (frames_close)."""
         if self.active and goals.epoch <= self.epoch:
             return {}
         auction = new_auction(
@@ -349,9 +331,8 @@ class AuctionLink:
         last one every host holds alike (Participant.common_owner: agreed, or still on its warm
         start): the auction starts warm from the two goal sets' matching and its prices, as the
         coordinator sends them with the new set (its WarmStart part), and each robot drives to the
-        goal its last one is matched to. A warm start agrees in a fraction of a cold start's message
-        rounds (bench/results/carry.md); a cold one plays every round within one tick, which at ten
-        thousand robots, whose warm block may outlast an image, is longer than the world waits."""
+        goal its last one is matched to. A warm start agrees in far fewer rounds than a cold one, which
+        plays every round within one tick: in a large swarm, longer than the world waits."""
         return (
             before.common_owner is not None
             and not goals.per_robot
@@ -674,11 +655,10 @@ def rounds_in_tick(params: RobotParams, cold: bool) -> int:
 
 def frames_close(before: np.ndarray, goals: np.ndarray, previous: np.ndarray) -> bool:
     """Whether consecutive keyframes differ little enough for the auction to start from the carried
-    assignment (Participant.carry) at prices zero, when the warm start from the goal sets' matching
-    (the WarmStart part of Goals) does not apply (the last auction never agreed, or the robots changed): corresponding goals on average at most one and a half
-    typical goal spacings (the median distance from a goal to its nearest neighbour) apart: closer,
-    the carried claims agree in fewer rounds than a cold start; further, in more
-    (bench/results/carry.md)."""
+    assignment (Participant.carry) at prices zero, when the warm start (Goals' WarmStart part) does not
+    apply: corresponding goals on average at most one and a half typical goal spacings (the median
+    distance from a goal to its nearest neighbour) apart. Closer, the carried claims agree in fewer
+    rounds than a cold start; further, in more."""
     goals = np.asarray(goals, float)
     ok = previous >= 0
     if len(goals) < 2 or not ok.any():

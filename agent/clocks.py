@@ -124,14 +124,13 @@ class LockStep(HostClock):
         host.inbox.state.seen = {}  # states waited for arrive, even those the fault plan drops or holds
 
     def greet(self, where: dict[int, Pose], timeout: float) -> None:
-        """Zenoh tells a publisher about a new subscriber asynchronously, so a neighbour's state of
-        tick 0 could go unsent to us, and our tick 1 then depended on timing. So each host sends a
-        hello per robot on its cells until its first tick, and says it is alive (the world starts
-        once everybody is) only when it has heard the hello of every robot near its own at the
-        start (``config.greet``, from the launcher): a hello heard proves the sender's session knows
-        our subscription, so its tick-0 state reaches us too. An agent started again while the
-        others step (the world's clock past 0) greets nobody: its neighbours' states of every tick
-        reach it anyway, and the poses of a tick already published wait for its first step."""
+        """Before the robots say they are alive: make sure the neighbours' tick-0 states will reach us.
+
+        Zenoh tells a publisher of a new subscriber asynchronously, so a neighbour's tick-0 state could go
+        unsent and our tick 1 would depend on timing. Each host sends a hello per robot on its cells until
+        its first tick and says it is alive (the world starts once everybody is) only when it has heard the
+        hello of every robot near its own (``config.greet``): a hello proves the sender's session knows our
+        subscription. An agent started again while the others step greets nobody: it hears every tick anyway."""
         host = self.host
         radius = host.params.radius
         self.hellos = [
@@ -146,8 +145,7 @@ class LockStep(HostClock):
         while host.running and not expected <= set(self.greeted) and time.monotonic() < end:
             self.say_hello()
             # Looked at twice a hello period, not waited on: a wait on the pulled inbox looks every
-            # PULL_EVERY, and a hundred hosts greeting at once that often took both cores from the
-            # others still starting.
+            # PULL_EVERY, too often when many hosts greet at once.
             time.sleep(self.hello_every / 2)
             for _, state in host.inbox.state.drain():
                 host.on_state(state)

@@ -1,16 +1,9 @@
 """How late an agent acts on its pose, and how far its robot may stray from its plan meanwhile.
 
-Real time only. A pose is stamped with the display time of its tick; the agent cannot read the
-tracker's clock, so it measures how long a pose takes from its stamp to being acted on against the
-quickest it has seen lately (the transport's own latency, which every pose pays): what is beyond
-that is lateness, from an overloaded machine (the process woke late, or waited behind others).
-
-An agent late by L plans for it as NH-ORCA plans for its tracking error: its command takes effect
-L after the pose was measured, while its body still executes the previous command (or stands,
-the command run out), so it may be up to 2 v_max L from where the plan starts (a full reversal).
-It grows its own radius by that, in its own constraints and in the state it broadcasts, so its
-neighbours leave it the room too. A command later than one period and the command margin never
-drives (the body stops), so lateness is counted up to that.
+Real time only (docs/overload.md, rule 3). Lateness is how much longer than the quickest pose seen lately (the
+transport's own latency) a pose takes from its stamp to being acted on. An agent late by L may be up to 2 v_max L
+from where its plan starts (a full reversal), so it grows its own radius by that, in its constraints and in the
+state it broadcasts; a command later than one period and the command margin never drives, so L counts up to that.
 """
 
 from __future__ import annotations

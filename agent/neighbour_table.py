@@ -43,8 +43,7 @@ class NeighbourTable:
         self.now = tick
 
     def update(self, state: State) -> str | None:
-        """Keep the two newest states by tick, oldest first (a host takes a thousand a tick); None,
-        or why the state was refused."""
+        """Keep the two newest states by tick, oldest first; None, or why the state was refused."""
         if self.now is not None and state.tick > self.now + AHEAD:
             return FUTURE
         if not stamp_agrees(state.tick, state.stamp, self.dt):
@@ -66,10 +65,9 @@ class NeighbourTable:
         self, cells: set[tuple[int, int]], cell_size: float, keep: set[int] | frozenset[int] = frozenset()
     ) -> int:
         """Drop robots whose newest state lies in a cell we no longer listen to, except ``keep``
-        (robots whose agent died: their bodies stand where they were last heard, and will never
-        speak again when we come back). We cannot hear them any more, so their state would only
-        age, and an aged state's uncertainty grows without bound: a phantom obstacle where the robot
-        was long ago. Returns how many were dropped."""
+        (robots whose agent died: their bodies stand where they were last heard). We cannot hear the
+        others any more, and an aged state's uncertainty grows without bound: a phantom obstacle.
+        Returns how many were dropped."""
         if not self._states:
             return 0
         at = cells_of([(kept[-1].x, kept[-1].y) for kept in self._states.values()], cell_size).tolist()
@@ -77,11 +75,9 @@ class NeighbourTable:
 
     def forget_silent(self, before: float, keep: set[int] | frozenset[int] = frozenset()) -> int:
         """Drop robots whose newest state is stamped before ``before`` (display time), except ``keep``
-        (robots whose agent died: their bodies stand where they were last heard). We listen to the
-        cells around our robots, so a robot anywhere near them is heard every period; one silent
-        for seconds has left those cells, and its last state, in a cell we still listen to, would
-        stay for good as a phantom obstacle (forget_outside keeps it) that a robot may stop short of
-        its goal for. Returns how many were dropped."""
+        (as in forget_outside). A robot near ours is heard every period; one silent for longer has left
+        our cells, and its last state, in a cell we still listen to, would stay for good as a phantom
+        obstacle. Returns how many were dropped."""
         return self._forget([r for r, kept in self._states.items() if kept[-1].stamp < before and r not in keep])
 
     def _forget(self, robots: list[int]) -> int:

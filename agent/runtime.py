@@ -1,15 +1,10 @@
 """The agent runtime: binds the pure control core to the bus for K robots in one process.
 
-Per tick, each robot: takes its pose from the tracker, its neighbours' latest states from their
-broadcasts, computes its collision-free velocity and command, then publishes its state (to the
-spatial cell it is in) and its command and LED colour. Time comes only from messages: the tick and
-its stamp arrive with the pose.
-
-Animations and dynamic images: the goal set's message says when its step began, an animation
-keyframe's K_f dt and a dynamic image's motion. A robot whose agreed goal belongs to a keyframe holds
-eq. 27's velocity (agent.core.animation); one whose goal set moves computes its goal g_j(t) and the
-goal's velocity from its tick's stamp (eq. 28, agent.core.goal_motion) and drives with that velocity
-as a feed-forward term.
+Per tick, each robot takes its pose (time comes only from messages: the tick and its stamp arrive with it) and
+its neighbours' latest states, computes its collision-free velocity and command, then publishes its state (to its
+spatial cell), its command and LED colour. A robot whose goal belongs to a keyframe holds eq. 27's velocity
+(agent.core.animation); one whose goal set moves drives to g_j(t) with the goal's velocity as a feed-forward term
+(eq. 28, agent.core.goal_motion).
 """
 
 from __future__ import annotations
@@ -69,14 +64,11 @@ class HostConfig:
     batch_wait: float = 0.05  # how long to wait for the other robots' poses of a tick (real time)
     lockstep: bool = False  # wait for the previous tick's states of nearby robots (reproducible runs)
     state_wait: float = 1.5  # lock-step: how long to wait for a nearby robot's state before going on
-    # (a loaded machine delayed states past 0.5 s and broke reproducibility; the world waits 2 s)
     pursue: dict[int, int] = field(default_factory=dict)  # robot -> the robot whose broadcasts are its goal
     greet: list[int] = field(default_factory=list)  # lock-step: robots near ours at the start (see AgentHost.start)
-    frames: bool = False  # a host of several robots: poses from the tracker's frame of every robot; one frame a
-    # tick of the robots' states, heard by every host, and one of their commands. Else each robot alone: its
-    # own pose, its state under its spatial cell, its own commands (each a frame of one)
+    frames: bool = False  # a host of several robots: one frame a tick of poses, of states, of commands (else per robot)
     steps: list[float] = field(default_factory=list)  # lock-step: display times the scene's goal sets are due
-    # (a tick waits for its step's goal set, so that every engine adopts it at the same tick)
+    # (a tick waits for its goal set, so that every engine adopts it at the same tick)
     reach: float = math.inf  # communication range (m): states and the auction heard only from robots this close
     swarm: int = 0  # robots in the run (0: not known): lock-step hellos are rarer in large swarms (agent.clocks)
 
@@ -111,11 +103,9 @@ class HostConfig:
 def interpreter(robots: int) -> list[str]:
     """The Python and its flags that run an agent process of ``robots`` robots (then `-m agent`).
 
-    A robot's own process runs with -OO: docstrings, numpy's above all, are megabytes of its
-    memory that it never reads; and with -X no_debug_ranges, as its code's column positions are
-    too (its tracebacks still name each file and line). Only where their optimised bytecode is
-    compiled (make does it), as compiling them at every start would cost more than it saves; not
-    for hosts of many robots, whose memory is mostly their robots' and would save little."""
+    A robot alone runs with -OO and -X no_debug_ranges, dropping docstrings and column positions it never reads,
+    but only where make has compiled that optimised bytecode (compiling it at every start costs more than it saves).
+    """
     import importlib.util  # here: the launcher asks, a robot's process need not load it
 
     samples = (json.__file__, np.__file__, __file__)  # the standard library, numpy, ours
@@ -123,8 +113,7 @@ def interpreter(robots: int) -> list[str]:
     return [sys.executable, *(["-OO", "-X", "no_debug_ranges"] if compiled and robots == 1 else [])]
 
 
-AUCTION_SHARE = 0.2  # of a control period, counted from a tick's first pose, spent on auction rounds after the
-# tick's step while an instance is open (counted from the pose so that rounds never push a host behind)
+AUCTION_SHARE = 0.2  # of a control period, spent on auction rounds after a tick (AgentHost._auction_rounds)
 AUCTION_SHARE_COLD = 0.8  # ... until the newest goal set's first agreement: robots wait for it
 
 
@@ -152,19 +141,12 @@ class KeepCells:
 class CellSubscriptions:
     """Subscriptions to the spatial cells around each robot, shared by the robots of a host.
 
-    Cells are half the neighbour reach (neighbour distance plus what two robots close in three
-    ticks); the 5x5 cells around a robot's own cover its neighbour reach. Zenoh tells publishers
-    about a new subscriber asynchronously, so in lock-step a robot subscribes to 7x7 cells: the
-    extra ring puts a subscription in place over a second before anyone in that cell can become a
-    neighbour, and the neighbour set never depends on how fast a declaration travelled (runs stay
-    reproducible). In real time the 5x5 cells suffice and halve the traffic. Where the cells around
-    a robot alone cover a third of the arena or more, it hears every robot's state on one
-    subscription and keeps those in its cells (``listen`` off, window_covers_a_third).
-
-    A host of several robots hears every host's frames (HostConfig.frames): there its cells pick
-    the records of those frames its inbox keeps (``listen`` off), with no subscription; thousands of
-    them, moving with the robots, were declarations the router passed to every session for nothing,
-    and every host made a view of every robot's state a tick, most of them too far to matter.
+    Cells are half the neighbour reach (RobotParams.cell_size): the 5x5 cells around a robot's own cover it. Zenoh
+    tells publishers of a new subscriber asynchronously, so lock-step subscribes to 7x7 cells: the extra ring is in
+    place before anyone in it can become a neighbour, and the neighbour set (so the run) never depends on how fast a
+    declaration travelled. With ``listen`` off there are no subscriptions: the cells only pick the records the
+    inbox keeps, for a host of frames (HostConfig.frames) or a robot alone whose cells cover a third of the arena
+    (window_covers_a_third).
     """
 
     def __init__(self, bus: Bus, inbox: Any, cell_size: float, reach: int = 3, listen: bool = True) -> None:
@@ -174,13 +156,12 @@ class CellSubscriptions:
         self._own: list[list[int]] | None = None  # the robots' own cells at the last update
 
     def update(self, positions: np.ndarray) -> None:
-        # cell_of for every robot at once: a host places hundreds a tick
+        # every robot's cell at once: a host may place hundreds a tick
         own = cells_of(positions, self.cell_size).tolist()
         if own == self._own:
             return  # most ticks: every robot is still in its cell
         self._own = own
-        # the square of cells around each, as a set: np.unique or np.sort would page numpy's sorting
-        # code into every robot's process for a few dozen cells
+        # the square of cells around each, as a set: np.unique would load numpy's sorting code into every robot
         span = range(-self.reach, self.reach + 1)
         wanted = {(cx + dx, cy + dy) for cx, cy in own for dx in span for dy in span}
         for cell in set(self._subs) - wanted:
@@ -231,10 +212,9 @@ class Inboxes:
 
 
 def window_covers_a_third(arena: tuple[float, float, float, float] | None, cell_size: float, reach: int) -> bool:
-    """Whether a robot's square of cells covers at least a third of the arena's. A robot alone then
-    hears every robot's state on one subscription and keeps those in its cells (KeepCells): the
-    states its cells' subscriptions would bring, and a few more to throw away, where zenoh would
-    otherwise match each arrival against tens of subscriptions (docs/protocol.md)."""
+    """Whether a robot's square of cells covers at least a third of the arena's. A robot alone then hears every
+    state on one subscription and keeps those in its cells (KeepCells), where zenoh would otherwise match each
+    arrival against tens of subscriptions (docs/protocol.md)."""
     if arena is None:
         return False
     (c0, r0), (c1, r1) = cell_of(arena[0], arena[1], cell_size), cell_of(arena[2], arena[3], cell_size)
@@ -361,8 +341,7 @@ class AgentHost:
 
     Its state is grouped by what it is about (its robots, the poses of the next step, the goal sets
     heard, the departed, the tally) beside the parts it steps with (the neighbour table, the goals
-    and policy memory by row, the inboxes, the clock, the auction and the loop's seams): 17
-    attributes, each one of those groups or parts."""
+    and policy memory by row, the inboxes, the clock, the auction and the loop's seams)."""
 
     def __init__(self, bus: Bus, config: HostConfig) -> None:
         self.bus, self.config = bus, config
@@ -440,9 +419,9 @@ class AgentHost:
     # --- messages -----------------------------------------------------------------------------
     def hear_goals(self, goals: Goals) -> None:
         """A goal set heard. Lock-step holds a new one until the tick that takes it up
-        (_take_up_goal_sets), so that every host takes it up at the same tick. One whose epoch or
-        stamp lies beyond what the robots know is refused: taken as the newest, it shut out the
-        coordinator's real ones and froze the show on its image."""
+        (HostClock.take_up_goal_sets), so that every host takes it up at the same tick. One whose epoch
+        or stamp lies beyond what the robots know is refused: taken as the newest, it would shut out
+        the coordinator's real ones."""
         why = self.goal_sets.believed.admit(goals, self._display_time())
         if why is not None:
             self.inbox.goals.drops[why] += 1
@@ -488,16 +467,13 @@ class AgentHost:
         return {epoch: timing_of(gs) for epoch, gs in self.goal_sets.by_epoch.items()}
 
     def _positions(self) -> dict[int, np.ndarray]:
-        """The own robots' positions as the auction takes them. A moving goal set (paper 7.4.1) is
-        auctioned on G^0, the goals as published, with each robot's position mapped back through
-        eq. 28's similarity at the time it was tracked: the squared distances then differ from
-        those to the moving goals by the common factor s(t)^2 only, so the auction assigns as if it
-        ran on the goals where they are at the instance's start (agent.core.goal_motion), while the
-        auction code and its messages stay those of a still image. Epsilon_A and Delta C then count
-        in G^0's frame: s(t)^2 times them in the display's. A robot on its way to a goal of the
-        newest set bids from where it will be when the instance is adopted (bid_position,
-        lead: this host's last measured latency of the auction). Kept until the positions, velocities,
-        goals or goal sets change: the auction polls it many times a tick."""
+        """The own robots' positions as the auction takes them (cached until positions or goals change).
+
+        A moving goal set (paper 7.4.1) is auctioned on G^0, the goals as published, with each position mapped back
+        through eq. 28's similarity at the time it was tracked: squared distances then differ from those to the
+        moving goals by the common factor s(t)^2 only, so the assignment is the same while the auction stays that
+        of a still image; Epsilon_A and Delta C count in G^0's frame (agent.core.goal_motion). A robot on its way
+        to a goal of the newest set bids from where it will be when the instance is adopted (bid_position)."""
         if self._bid_from is not None:
             return self._bid_from
         newest = self.goal_sets.newest
@@ -518,7 +494,7 @@ class AgentHost:
             goal, velocity = self.held_goals.goal[rows], self.policy_memory.velocity[rows]
             lead = bid_position(np.array([m.position for m in on_way]), goal, velocity, self.auction.times.latency)
             out.update(zip([m.robot for m in on_way], lead))
-            out = {r: out[r] for r in self.robots.tracked if r in out}  # in the robots' order, as before
+            out = {r: out[r] for r in self.robots.tracked if r in out}  # back in the robots' order
         self._bid_from = out
         return out
 
@@ -582,15 +558,12 @@ class AgentHost:
             tick_start = time.monotonic()
             self._deaf_since = None
             self._take_pose(got[1])
-            # Behind (poses of later ticks queued): act on the newest only. Working through a backlog
-            # kept an overloaded agent a fixed number of ticks behind, every command late.
+            # Behind (poses of later ticks queued): act on the newest only (docs/overload.md, rule 2).
             for _, pose in self.inbox.pose.drain():
                 self._take_pose(pose)
             self.clock.poses_arrived(list(self.poses.pending.values()), tick_start)
-            # Collect the other robots' poses of this tick (they are published together). The inbox
-            # hands a frame's records over one by one, so a loaded machine can split a tick's frame:
-            # lock-step waits for all of them, as a block frozen on some robots' old poses would
-            # make a different run.
+            # Collect the other robots' poses of this tick: a loaded machine can split a tick's frame, and
+            # lock-step waits for all of them, as a block frozen on some robots' old poses makes a different run.
             deadline = tick_start + self.clock.collect
             while len(self.poses.pending) < len(self.robots) and self.running:
                 got = self.inbox.pose.get(timeout=max(0.0, deadline - time.monotonic()))
@@ -602,8 +575,7 @@ class AgentHost:
 
     def _keep_subscriptions(self) -> None:
         """A while after the link to the router came back, declare the subscriptions again
-        (Bus.renew_if_due); then again at that interval until a pose comes. On a starved machine
-        one renewal left a few agents as deaf as before."""
+        (Bus.renew_if_due); then again at that interval until a pose comes, as one renewal may not suffice."""
         now = time.monotonic()
         if self.bus.renew_if_due():
             self._deaf_since = now
@@ -713,9 +685,8 @@ class AgentHost:
         # States before commands: by the time the world moves on, neighbours have our states.
         self.publish_states(tick, stamp, states)
         self._publish_commands(tick, stamp, commands)
-        # The cells around EVERY own robot, not only those of this tick's batch: under load a tick's
-        # poses can arrive split, and cells dropped for the robots not in the batch took their
-        # neighbours' states with them (forget_outside): at 100 robots one robot then saw nobody.
+        # The cells around EVERY own robot, not only this tick's batch: a tick's poses can arrive split, and
+        # dropping the others' cells would forget their neighbours' states (forget_outside).
         self.inbox.cells.update(np.array([m.position for m in self.robots.known()]))
         dead = self.departed.dead
         self.table.forget_outside(self.inbox.cells.cells, self.params.cell_size, keep=dead)
@@ -750,21 +721,13 @@ class AgentHost:
 
 
 def bid_position(position: np.ndarray, goal: np.ndarray, velocity: np.ndarray, lead: float) -> np.ndarray:
-    """Where a robot driving to its goal will be ``lead`` seconds on (the host's last delay from
-    freezing positions to adopting their agreement): along the straight line to the goal, as far as
-    its speed carries it, never past the goal (a blocked robot stays put). Bidding from there
-    compensates the auction's latency: an assignment computed from where the robots were when its
-    instance began, but adopted seconds later once they have moved on, sends them back, and robots
-    then swap goals back and forth for good. For squared distances, robots that have all covered the same fraction of their straight
-    way to optimally assigned goals keep that assignment optimal, so leading agrees with the
-    assignment being carried out.
+    """Where a robot driving to its goal will be ``lead`` seconds on (the host's last delay from freezing positions
+    to adopting their agreement): along the straight line to the goal, as far as its speed carries it, never past it.
+    Rows of positions, goals and velocities (one call for a host's robots).
 
-    The speed counts, not its component toward the goal: the next block of instances freezes its
-    positions right after an agreement, when a robot that got another goal still moves as it did
-    for its last one. Counting only the way toward the goal would bid such robots from where they
-    were (or from their old goals), and the next agreement would send them back.
-
-    A batch: rows of positions, goals and velocities (one call for a host's robots)."""
+    Bidding from there compensates the auction's latency (docs/architecture.md, "Latency compensation"). The speed
+    counts, not its component toward the goal: right after an agreement a robot given another goal still moves as
+    it did for its last one, and bidding from where it was would send it back."""
     position = np.asarray(position, float)
     to_goal = np.asarray(goal, float) - position
     if lead <= 0:

@@ -1,19 +1,11 @@
 """Keyframe drawings for the animations pixelswarm ships (paper 6 and 7.3), drawn procedurally.
 
-- "leaf": a leaf on a branch that grows in spring, withers in fall (turning yellow, then brown,
-  shrinking and curling) and is blown from the branch in winter (falling and turning), the paper's
-  1000-robot animation;
-- "story": the paper's 14-robot story (Fig. 16): a walking human (three poses), a heap, then a flower
-  circled by a bee;
-- "triangle": a triangle that rotates and grows;
-- "history": the History of the Universe of the paper's 50-robot show (7.5.2, Fig. 21): the big bang,
-  the Solar system with the Earth orbiting the Sun and the Moon orbiting the Earth, a zoom onto the
-  Earth, the sea where a microbe and a fish appear, a dinosaur stretching its neck and a human.
-
-Like coordinator.shapes, drawings live in the unit square (x right, y down), parts are painted in order
-(later parts cover earlier ones) with crisp pixel-centre edges on a white background, and every
-keyframe is an (H, W, 3) uint8 RGB array. Colours of touching parts differ by far more than the
-segmentation's colour tolerance, so each part is its own region R_i in every keyframe.
+"leaf" (the paper's 1000-robot leaf: grows, withers, is blown off), "story" (the paper's 14-robot story,
+Fig. 16), "triangle" (rotates and grows) and "history" (the History of the Universe of the 50-robot show,
+7.5.2, Fig. 21). As in coordinator.shapes, drawings live in the unit square (x right, y down), parts are
+painted in order with crisp pixel-centre edges on white, and each keyframe is an (H, W, 3) uint8 RGB
+array. Touching parts differ in colour by far more than the segmentation's tolerance, so each part is
+its own region R_i.
 """
 
 from __future__ import annotations
@@ -212,7 +204,7 @@ def big_bang(burst: float) -> list[Part]:
 def solar_system(earth_angle: float) -> list[Part]:
     """The Sun, the Earth at `earth_angle` on its orbit and the Moon on its own orbit round the Earth,
     twice as fast (so that a few keyframes show both orbits)."""
-    # as large as fits (the robots' spacing grows with the area): the Moon passes the Sun 0.023 clear
+    # as large as fits (the robots' spacing grows with the area) with the Moon clear of the Sun
     earth = _on_circle(_CENTRE, 0.314, earth_angle)
     moon = _on_circle(earth, 0.118, 2.0 * earth_angle + math.pi / 2)
     return [(circle(*_CENTRE, 0.135), SUN), (circle(*earth, 0.065), EARTH), (circle(*moon, 0.038), MOON)]
@@ -287,11 +279,10 @@ def person(arms_up: bool) -> list[Part]:
 
 
 def history_frames() -> list[list[Part]]:
-    """The parts of the 23 keyframes of the History of the Universe, in play order: the big bang (2), a
-    whole orbit of the Earth in eighths (9, the first and last alike), the zoom onto the Earth (2), the
-    sea (2), the dinosaur (2) and the human (2). The robots reach a keyframe's goals just as the next
-    keyframe begins (eq. 27), so the picture that ends each of the first four chapters is given twice:
-    the second time the robots hold it still."""
+    """The parts of the History of the Universe's keyframes, in play order: the big bang, an orbit of
+    the Earth in eighths, the zoom onto the Earth, the sea, the dinosaur and the human. The robots reach
+    a keyframe's goals just as the next begins (eq. 27), so the picture ending each of the first four
+    chapters is given twice, to be held still."""
     bang, earth = [big_bang(0.0), big_bang(1.0)], [planet_earth(0.22), planet_earth(0.44)]
     life = [sea((0.45, 0.7), None), sea((0.32, 0.72), (0.55, 0.62))]
     dino = [dinosaur(0.0), dinosaur(1.0)]

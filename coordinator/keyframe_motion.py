@@ -1,24 +1,12 @@
 """Motion of a region R_i between two keyframes (paper 6.1) and the initial samples it yields.
 
-"The translation of each region R_i is computed along frames using its centroid, while the rotation is
-computed along frames by matching of features (Canny edges) on the region border."
-
-The rotation M_i^f is found in two steps, both on the Canny edge points of the region's mask, centred
-on the centroid and divided by sqrt(area) (so that a growing or shrinking region keeps its features):
-1. A global search: the border signature r(phi), the largest edge radius in each 1-degree bin of the
-   polar angle, is cross-correlated (circularly, by FFT) with the previous frame's. A rotation by theta
-   shifts the signature by theta, so the best shift is the rotation, found whatever its size and with
-   no starting guess; the normalised correlation at that shift (-1..1) is the "sufficient correlation"
-   test of the paper (a moved copy scores above 0.9, a walking figure's next pose about 0.55, a disk
-   against an L about 0). Keyframes are close in time, so among near-equal shifts (a shape with
-   symmetry) the smallest rotation wins: the score is penalised by 0.05 per 180 degrees. A round
-   region (a signature flatter than its pixels) has no rotation to find.
-2. A local refinement: ICP restricted to rotation about the centroid (nearest edge point pairs, the
-   best 2-D rotation of the pairs in closed form, repeated), kept only if it stays within a few degrees
-   of step 1, which a correct refinement does.
-Accuracy: within 0.7 degree and 0.6 px on a rasterised L some 140 px tall (tests/unit/test_keyframes.py);
-what is left is Canny's whole-pixel edge points. All angles are counter-clockwise as seen, in the arena
-frame (y up).
+The translation T_i^f is the centroid shift. The rotation M_i^f is found on the Canny edge points of the
+region's border, centred on the centroid and divided by sqrt(area) so that a growing region keeps its
+features: the border signatures r(phi) are cross-correlated circularly (by FFT), and as a rotation
+shifts the signature, the best shift is the rotation, whatever its size; the normalised correlation
+there (-1..1) is the paper's "sufficient correlation" test. Among near-equal shifts (a symmetric shape)
+the smallest rotation wins, as keyframes are close in time. ICP about the centroid then refines it,
+kept only within ICP_REACH. Angles are counter-clockwise as seen, in the arena frame (y up).
 """
 
 from __future__ import annotations
@@ -34,7 +22,7 @@ from .goals.sampling import in_region
 from .goals.segment import Segmentation
 
 BINS = 360  # polar-angle bins of the border signature
-MIN_CORRELATION = 0.8  # "sufficient correlation" of two region borders (a moved copy scores > 0.9)
+MIN_CORRELATION = 0.8  # "sufficient correlation" of two region borders (paper 6.1)
 SMALL_TURN_PRIOR = 0.05  # score penalty per pi radians of rotation (prefer small turns on ties)
 ICP_REACH = np.radians(5.0)  # how far ICP may move the rotation of the signature search
 
@@ -100,10 +88,10 @@ def estimate_motion(prev: RegionShape, cur: RegionShape) -> tuple[float, float, 
     """(rotation M_i^f in radians, scale sqrt(A_f / A_{f-1}), border correlation -1..1) of a region
     from frame f-1 to frame f; its translation T_i^f is cur.centroid - prev.centroid.
 
-    The signatures are known to about a pixel, 1 / sqrt(pixels) in their units: a signature that
-    varies less than that is round (a disk), with no rotation to find; two round regions match
-    perfectly. Otherwise that pixel is added to each signature's variance before correlating, so that
-    rasterisation noise on an almost round region cannot pass for a good match."""
+    The signatures are known to half a pixel, 0.5 / sqrt(pixels) in their units: a signature varying
+    less is round (a disk), with no rotation to find, and two round regions match perfectly. Otherwise
+    that noise is added to each signature's variance, so that rasterisation noise on an almost round
+    region cannot pass for a good match."""
     scale = float(np.sqrt(cur.area / prev.area))
     sa, sb = signature(prev.border), signature(cur.border)
     noise_a, noise_b = 0.5 / np.sqrt(prev.pixels), 0.5 / np.sqrt(cur.pixels)  # half a pixel
@@ -129,12 +117,10 @@ def estimate_motion(prev: RegionShape, cur: RegionShape) -> tuple[float, float, 
 def fit_count(px: np.ndarray, n: int, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     """The N_i initial samples of region R_i (pixels rows, cols) from its moved goals (pixel units).
 
-    Moved goals that fall outside R_i (the region changed shape: it curled, or the motion estimate is
-    off) are dropped rather than pushed onto the border, where they would crowd and cost Lloyd many
-    iterations to spread out again (and could leave it in a worse local minimum). N_i follows the area
-    (section 4.2) and changes between frames: surplus goals go one of the closest pair at a time, so the
-    rest stay evenly spread; missing samples go where R_i is farthest from every sample
-    (farthest-point insertion on the pixel centres), i.e. where the region has grown or goals were dropped."""
+    Moved goals outside R_i (it changed shape, or the motion estimate is off) are dropped rather than
+    pushed onto the border, where they would crowd and slow Lloyd or leave it in a worse local minimum.
+    Surplus goals go one of the closest pair at a time, so the rest stay evenly spread; missing ones go
+    where R_i is farthest from every sample (farthest-point insertion on the pixel centres)."""
     pts = np.asarray(px, float).reshape(-1, 2)
     pts = pts[in_region(pts, rows, cols)] if len(pts) else pts
     while len(pts) > n:

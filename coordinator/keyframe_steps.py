@@ -1,25 +1,10 @@
 """Animations in scenes (paper 6): the ``[animation]`` table, keyframe timing, and the goal sets.
 
-    [animation]
-    keyframes = "story"         # a drawn animation (coordinator.drawings: leaf, story, triangle, history),
-                                # a folder of images (played in file-name order), or a list of files
-    frame_time = 5.0            # K_f dt: seconds from one keyframe to the next (default 5 s)
-    first_hold = 30.0           # seconds to form the first keyframe from the start layout (default 30 s)
-    last_hold = 5.0             # the last keyframe stays this long after the robots reach it (default frame_time)
-    # times = [0, 30, 35, 42]   # or: when each keyframe begins (first 0, increasing), instead of the above
-    region_counts = { 0 = 10 }  # optional: the artist's N_i in the first keyframe (paper 4.2)
-    method = "cvt"              # or "kmeans"
-    keep_counts = false         # a region keeps its N_i from frame to frame (coordinator.keyframes)
-    init_from_previous = true   # paper 6.1: each frame's goals start from the previous frame's
-    size = 256                  # drawn animations: canvas side in pixels (512 for 1000 robots)
-    arena = 2.5                 # optional: K_r in metres (default: the largest conservative arena of any frame)
-
-Each keyframe becomes one scene step. Keyframe f begins at its start time and its robots arrive at its
-goals when keyframe f+1 begins (eq. 27 over K_f dt = the time between the two starts); the first
-keyframe's K_f dt is `first_hold` (the robots come from wherever the layout put them), the last's is
-`frame_time`, after which it is shown for `last_hold`. The goal sets come from
-coordinator.keyframes.keyframe_goals (each frame initialised from the previous one, paper 6.1), all in
-one arena K_r.
+The table's keys and defaults: docs/scenes.md. Each keyframe becomes one scene step. Keyframe f begins
+at its start time and its robots reach its goals when keyframe f+1 begins (eq. 27 over K_f dt = the time
+between the two starts); the first keyframe's K_f dt is `first_hold` (the robots come from the start
+layout), the last's is `frame_time`, after which it is shown for `last_hold`. The goal sets come from
+coordinator.keyframes.keyframe_goals, all in one arena K_r.
 """
 
 from __future__ import annotations

@@ -1,22 +1,11 @@
 """Goal generation for animations (paper 6.1): one goal set G_f per keyframe I_f, f = 1..N_F.
 
-"In parts of the animation where the number of regions remains constant and there is sufficient
-correlation, the goal positions computed for region R_i in the previous frame G_{f-1} serve to
-initialize the computation of the goal positions of region R_i in the current frame G_f." Here:
-
-1. Correspondence: the regions of I_f and I_{f-1} are paired by an optimal assignment (scipy's
-   linear_sum_assignment) on a cost that adds their colour difference (Delta E in Lab), centroid
-   distance and area ratio. Colour alone would fail for a leaf that turns from green to brown, position
-   alone for shapes that cross, so each term only needs to be roughly right.
-2. Motion: the translation T_i^f is the difference of the region centroids; the rotation M_i^f comes
-   from the region border (Canny edges), see keyframe_motion.estimate_motion.
-3. Initial samples: G_{f-1} of R_i, moved by T_i^f and M_i^f (and scaled with the area per goal), then
-   thinned or filled to this frame's N_i, start the Lloyd iterations (section 4.3).
-   A region whose border correlation is below `min_correlation`, and every region of a frame whose
-   region count differs from the previous frame's, starts from fresh random samples (section 4.2).
-
-All frames share one arena K_r (the largest conservative arena any frame needs), so the frames line up
-and one metre is the same number of pixels in every frame, as coordinator.steps does for image steps.
+The regions of I_f and I_{f-1} are paired by an optimal assignment on colour (Delta E in Lab), centroid
+shift and area ratio together: colour alone fails for a leaf turning brown, position alone for shapes
+that cross. G_{f-1} of R_i, moved by T_i^f (the centroid shift) and M_i^f (keyframe_motion.estimate_motion),
+scaled with the area per goal and thinned or filled to N_i, starts the Lloyd iterations (4.3); a region
+below `min_correlation`, and every region of a frame whose region count changed, starts from fresh
+random samples (4.2). All frames share one arena K_r, so one metre is the same number of pixels in each.
 """
 
 from __future__ import annotations

@@ -1,19 +1,8 @@
 """Dynamic images (paper 7.4.1): the ``[steps.motion]`` table of an image step.
 
-    [[steps]]
-    shape = "triangle"
-    hold = 90.0
-    [steps.motion]
-    velocity = [0.0, 0.0]          # v_G, m/s: the pattern's centre moves
-    angular_velocity = 0.05        # omega_G, rad/s, counter-clockwise about the centre
-    center = [0.0, 0.0]            # p_OG at the step's start, m (default: the arena centre, where the
-                                   # picture is centred)
-    expansion = 0.01               # K_eG, 1/s: > 0 grows, < 0 shrinks
-    expansion_kind = "linear"      # s(t) = 1 + K_eG t, or "geometric": s(t) = (1 + K_eG)^t
-
-The coordinator publishes the goal set once with these numbers (transport.codec.Goals); the robots
-compute their moving goals themselves (agent.core.goal_motion, eq. 28). This module only parses and
-bounds the motion: the arena must hold the pattern wherever it goes.
+Keys: docs/scenes.md. The coordinator publishes the goal set once with these numbers
+(transport.codec.Goals); the robots compute their moving goals themselves (agent.core.goal_motion,
+eq. 28). This module only parses and bounds the motion: the arena must hold the pattern wherever it goes.
 """
 
 from __future__ import annotations
@@ -34,11 +23,11 @@ EXPANSION_KINDS = ("linear", "geometric")
 class StepMotion:
     """A goal set's constant motion and deformation (eq. 28), as the scene gives it."""
 
-    velocity: tuple[float, float] = (0.0, 0.0)  # v_G
-    angular_velocity: float = 0.0  # omega_G
-    center: tuple[float, float] = (0.0, 0.0)  # p_OG
-    expansion: float = 0.0  # K_eG
-    expansion_kind: str = "linear"
+    velocity: tuple[float, float] = (0.0, 0.0)  # v_G, m/s
+    angular_velocity: float = 0.0  # omega_G, rad/s, counter-clockwise about the centre
+    center: tuple[float, float] = (0.0, 0.0)  # p_OG at the step's start, m
+    expansion: float = 0.0  # K_eG, 1/s: > 0 grows, < 0 shrinks
+    expansion_kind: str = "linear"  # s(t) = 1 + K_eG t, or "geometric": s(t) = (1 + K_eG)^t
 
     @property
     def geometric(self) -> bool:

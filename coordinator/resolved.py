@@ -1,16 +1,10 @@
 """A resolved scene: a scene with its goal sets made, saved in a run directory and read back.
 
-A run makes its goal sets once (the launcher, with the image pipeline) and saves them with the scene:
-
-    scene.json      the scene as run: robots, their start poses and goals, the arena (the "auto" one
-                    resolved), obstacles, events, steps and their timing, clock, noise, seed
-    goal_sets.npz   image scenes: every step's goal positions (n,2) and LED colours (n,3) for the run's
-                    robot counts, and the arena K_r they share
-
-The coordinator and the world read the scene from there (``load_resolved``): no TOML is parsed and no
-image is read, so the world never loads the image pipeline. Goal sets for a robot count the run did
-not save (robots lost, paper 5.1.2) are made when first asked for, in the same arena K_r, by the
-image pipeline from the scene's source: only the coordinator asks for those.
+The launcher makes the goal sets once and saves them with the scene as scene.json and goal_sets.npz
+(docs/outputs.md). The coordinator and the world read the scene from there (``load_resolved``), parsing
+no TOML and reading no image, so the world never loads the image pipeline. Goal sets for a robot count
+not saved (robots lost, paper 5.1.2) are made when first asked for, in the same arena K_r; only the
+coordinator asks for those.
 """
 
 from __future__ import annotations

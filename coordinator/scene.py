@@ -1,12 +1,10 @@
 """Scenes: TOML files naming the robots, their layout and goals, the arena, obstacles, events and clock
 (every key: docs/scenes.md).
 
-A scene is data. Loading one has two parts: ``parse_scene`` reads and validates the file (its own
-checks, the robots, layout and events; no image work), and ``make_goal_sets`` runs the image pipeline
-for the scene's goal sets and the "auto" arena that holds them. ``load_scene`` does both, before any
-process starts, and raises ``SceneError`` with one line saying what is wrong and how to fix it. A run
-does this once: the launcher saves the result in the run directory (coordinator.resolved) and every
-process of the run reads it from there."""
+``parse_scene`` reads and validates a scene without image work; ``make_goal_sets`` runs the image
+pipeline for its goal sets and the "auto" arena; ``load_scene`` does both and raises ``SceneError`` with
+one line saying what is wrong and how to fix it. The launcher saves the result in the run directory
+(coordinator.resolved), where every process of the run reads it."""
 
 from __future__ import annotations
 
@@ -70,9 +68,8 @@ class GoalPlan:
 
 @dataclass
 class Scene:
-    """A parsed scene: a record, not a mix of concerns. One attribute per scene-file key (name, robots,
-    robot, layout, goals, arena, obstacles, events, clock, engine, ... converge_hold), plus what
-    parsing derives from them (poses, goal positions, steps and the goal sets made from them)."""
+    """A parsed scene: one attribute per scene-file key, plus what parsing derives from them (poses,
+    goal positions, steps and their goal sets)."""
 
     name: str
     robots: int
@@ -120,7 +117,7 @@ class Scene:
 
     def step_at(self, t: float) -> int:
         """The step shown at time t (the last one stays after its hold ends); 0 without steps."""
-        # the starts as step_starts sums them, counted up to t (every tick asks: no arrays made)
+        # step_starts' sums without building arrays: every tick asks
         k, start = 0, 0.0
         for n, step in enumerate(self.steps[:-1], 1):
             start += step.hold
@@ -504,10 +501,8 @@ def scene_goal_set(scene: Scene, step: int, robots: int) -> tuple[np.ndarray, np
 
 
 def _file_scene(path: str, robots: int, image: bool) -> dict[str, Any]:
-    """The scene for `pixelswarm run picture.png --robots N` (the picture's goals, for 120 s) or
-    `pixelswarm run folder/ --robots N` (the folder's images as keyframes in file-name order, with
-    coordinator.keyframe_steps' default timing: 30 s to form the first keyframe, then one every 5 s,
-    the last shown 5 s more): a grid of e-pucks."""
+    """The scene for `pixelswarm run picture.png --robots N` (the picture's goals) or `pixelswarm run
+    folder/ --robots N` (the folder's images as keyframes in file-name order, default timing): a grid of e-pucks."""
     full = Path(path).resolve()
     name = Path(path).stem if image else full.name
     table = {"name": name, "robots": robots, "layout": {"kind": "grid", "spacing": 0.2}}

@@ -1,13 +1,11 @@
 """The coordinator service: publishes what the display should show (goal sets, with an epoch).
 
-Image scenes: each scene step (an image and its hold time) is shown with the goal set for the robots
-alive (paper 5.1.2: eq. 8's set for the current count); a new step, or an agent dying or joining,
-starts a new epoch, and the robots re-auction. Display time comes from the world's clock ticks.
-Late joiners ask for the current goal set with a query; the set is also re-published every second,
-so a lost message costs at most a second. A coordinator started again mid-run (the launcher restarts
-one that died) first asks the run for the newest goal set recorded and goes on from its epoch and
-step: the robots keep their goals, and the show is not started over. Animation keyframes are steps too (one epoch per keyframe,
-with its K_f dt for eq. 27); a dynamic image's motion (eq. 28) is published once with its goal set.
+Each scene step (an image, or an animation keyframe with its K_f dt for eq. 27) is shown with the goal
+set for the robots alive (paper 5.1.2: eq. 8's set for the current count); a new step, or an agent dying
+or joining, starts a new epoch and the robots re-auction. Display time comes from the world's clock
+ticks. The current set answers queries and is re-published every second, so a lost message costs at
+most a second; a restarted coordinator goes on from the run's newest recorded set, so the show does not
+start over. A dynamic image's motion (eq. 28) is published once with its goal set.
 """
 
 from __future__ import annotations
@@ -34,9 +32,8 @@ from .warm_start import goal_matching
 
 SETTLE_S = 0.5  # a change in the live robots must hold this long before a new goal set (debounce)
 FIRST_SET_PATIENCE = 5.0  # s after the world's first tick that the first goal set waits for every robot's agent
-BODY_WAIT_S = 1.0  # display seconds to wait for the tracked position of a dead robot's body (display
-# time, not wall time: a lock-step world waits up to its deadline for the dead robot's command before
-# its next tick, so on a loaded machine a wall-clock wait can run out before the body's first pose)
+BODY_WAIT_S = 1.0  # display s to wait for a dead robot's tracked body; display time, not wall time: a
+# lock-step world may wait out its deadline for the dead robot's command before its next tick
 
 
 def clear_of_bodies(goals: np.ndarray, bodies: np.ndarray, clearance: float) -> np.ndarray:
@@ -131,10 +128,8 @@ class Roster:
 
 class Coordinator:
     """The goal sets of a run (paper 5): each step's image for the robots whose agent is alive, clear
-    of dead robots' bodies, warm-started from the last set. Its state, beyond the roster of live
-    agents: the current set (epoch, shown), the world's clock as heard (t, first_tick_at, clock_heard/_refused),
-    dead robots' bodies (bodies, body_poses, body_wait_since) and work done ahead (_matching,
-    ready_for_a_loss). Its 21 attributes stay flat: each group is read by one handler of the bus."""
+    of dead robots' bodies, warm-started from the last set. Its attributes stay flat: each group (the
+    roster, current set, clock heard, dead bodies, work done ahead) is read by one handler of the bus."""
 
     def __init__(self, bus: Bus, scene: Scene) -> None:
         self.bus, self.scene = bus, scene
@@ -212,7 +207,7 @@ class Coordinator:
     def _hear(self) -> None:
         """The world's clock, the agents' liveliness, and where dead robots' bodies stand."""
         for _, tick in self.clock.drain():
-            why = self.clock_heard.admit(tick, time.monotonic())  # one forged stamp jumped the show to its end
+            why = self.clock_heard.admit(tick, time.monotonic())  # a forged stamp could jump the show to its end
             if why is not None:
                 self.clock_refused[why] += 1
                 continue
@@ -227,9 +222,8 @@ class Coordinator:
             self.bodies[pose.robot] = np.array([pose.x, pose.y])
 
     def _watch_body(self, r: int) -> None:
-        """Hear where dead robots' bodies stay: one subscription to every pose, each robot's or a
-        frame of all, keeping the dead robots' records (not a subscription per robot: zenoh-python
-        gives each its own thread)."""
+        """Hear where dead robots' bodies stay: one subscription to every pose, keeping the dead robots'
+        poses only (not one per robot: zenoh-python gives each subscription its own thread)."""
         dead = np.array(sorted((self.roster.ever - self.roster.live) | {r}))
         if self.body_poses is None:
             self.body_poses = self.bus.subscribe(self.bus.keys.all_of("pose"), Pose, only=dead)
@@ -307,9 +301,8 @@ class Coordinator:
             self._warm_start(as_sent(self.current.positions), goals)
 
     def _prepare_for_a_loss(self) -> None:
-        """Once, after the first goal set: the current image's set for one robot fewer. The first
-        set made here loads the image pipeline (OpenCV, SciPy) and prepares the image, slow on a
-        loaded machine: made only when a robot dies, it would hold up the survivors' set."""
+        """Once, after the first goal set: the current image's set for one robot fewer, so that loading
+        the image pipeline (OpenCV, SciPy) does not hold up the survivors' set when a robot dies."""
         if self.ready_for_a_loss or self.shown is None:
             return
         self.ready_for_a_loss = True

@@ -1,17 +1,10 @@
 """Image sequences (paper 7.2, Fig. 12): a scene's ``[[steps]]``, each an image shown for ``hold`` seconds.
 
-    [[steps]]
-    shape = "disk_and_line"              # or image = "picture.png" (relative to the scene file)
-    region_counts = { 0 = 10, 1 = 4 }    # the artist's N_i per region (ids: by area, largest first)
-    hold = 25.0
-    [steps.motion]                       # optional: a dynamic image (paper 7.4.1, coordinator.motion)
-    angular_velocity = 0.05
-
-region_counts are for the scene's `robots`; other counts (--robots, robots lost) get them scaled.
-Every step's goal set, for every robot count r the swarm may have (paper 5.1.2: the set for the
-live count when robots drop out), lives in ONE arena of size K_r: the largest conservative arena any
-step needs with all N robots. The picture therefore keeps its size across steps and robot losses.
-Errors are GoalError (one line); the scene loader prefixes them with the scene's name.
+Keys: docs/scenes.md. region_counts are for the scene's `robots`; other counts (--robots, robots lost)
+get them scaled. Every step's goal set, for every robot count the swarm may have (paper 5.1.2), lives
+in one arena K_r, the largest conservative arena any step needs with all N robots, so the picture keeps
+its size across steps and robot losses. Errors are GoalError (one line); the scene loader prefixes them
+with the scene's name.
 """
 
 from __future__ import annotations
@@ -39,8 +32,8 @@ SHAPE_ROBOTS = 1000  # robots a SHAPE_PIXELS canvas serves; more get a canvas wi
 
 def shape_pixels(robots: int) -> int:
     """Canvas side of a drawn shape for a goal set of `robots`: SHAPE_PIXELS, grown beyond SHAPE_ROBOTS
-    robots so that each robot keeps the pixels it has there (the line of paper Fig. 4 has 4 pixels a
-    robot at 1000 robots on 256 px: at 10,000 on 256 px it would have fewer pixels than robots)."""
+    robots so that each robot keeps the pixels it has there (else a thin shape, such as the line of
+    paper Fig. 4, would have fewer pixels than robots)."""
     return max(SHAPE_PIXELS, math.ceil(SHAPE_PIXELS * math.sqrt(robots / SHAPE_ROBOTS)))
 
 

@@ -5,7 +5,7 @@ set's goals, so the coordinator settles the auction once as if a robot stood on 
 host then starts from that matching and its prices, and its auction only corrects what the
 millimetres change. The first set of a run with rounds per tick bounded is matched from where the
 robots start. It is the robots' own auction (agent.core.bidder, settled alone as the central engine
-settles it): candidate goals from a goal tree, no N x N array, so it scales to 10,000 robots.
+settles it): candidate goals from a goal tree, no N x N array, so it scales to large swarms.
 """
 
 from __future__ import annotations

@@ -25,9 +25,8 @@ from .poses import PoseSample, StampGate
 SIDE_TOLERANCE = 0.25
 # Reference markers that move by more than this many pixels mean the camera moved: calibrate anew.
 CAMERA_MOVED_PX = 3.0
-# Fits lines to the marker's edges: on blurred, noisy frames it measured markedly more precise than
-# CORNER_REFINE_SUBPIX (whose saddle-point model does not fit a square's outer corners) at no cost in
-# speed (`python -m bench.bench_hardware tracker`).
+# Fits lines to the marker's edges: more precise on blurred, noisy frames than CORNER_REFINE_SUBPIX,
+# whose saddle-point model does not fit a square's outer corners.
 CORNER_REFINEMENT = cv2.aruco.CORNER_REFINE_CONTOUR
 # Fewer floor points than this do not determine a homography.
 MIN_REFERENCES = 4

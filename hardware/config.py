@@ -1,7 +1,8 @@
-"""The hardware file: which robots a run drives (`[backend]`) and where their poses come from (`[poses]`),
-as docs/hardware.md describes it. Each table names its `kind`; the kind's config class (found through an
-import string, so backends and pose sources written in other modules plug in here) validates the rest
-with `from_table(table, where)`. Robot ids are positions in the backend's list of robots."""
+"""The hardware file: which robots a run drives (`[backend]`) and where their poses come from (`[poses]`).
+
+Each table names its `kind`; the kind's config class (found through an import string, so backends and pose
+sources written in other modules plug in here) validates the rest with `from_table(table, where)`. Robot ids
+are positions in the backend's list of robots. The file: docs/hardware.md."""
 
 from __future__ import annotations
 

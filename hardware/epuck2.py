@@ -56,7 +56,7 @@ class Command:
 
     left: int = 0
     right: int = 0
-    rgb: tuple[tuple[int, int, int], ...] = ((0, 0, 0),) * RGB_LEDS  # LED2, LED4, LED6, LED8
+    rgb: tuple[tuple[int, int, int], ...] = ((0, 0, 0),) * RGB_LEDS
     leds: int = 0
     request: int = 0
     settings: int = 0
@@ -129,7 +129,7 @@ class AnswerReader:
 
 
 def parse_address(address: Any, where: str) -> tuple[str, int]:
-    """ "host:port" or "host" (port 1000) -> (host, port)."""
+    """ "host:port" or "host" (port DEFAULT_PORT) -> (host, port)."""
     if not isinstance(address, str) or not address.strip():
         raise HardwareConfigError(f"{where}: an address must be a non-empty string like 'host:port', not {address!r}")
     host, colon, port_text = address.strip().rpartition(":")

@@ -8,8 +8,7 @@ import sys
 import typing
 
 # s each start-up stage of a run (the coordinator, then every agent) has to come alive by default
-# (sim.run.launcher): on a loaded machine, tens of processes importing numpy and opening sessions at
-# once take minutes, not seconds
+# (sim.run.launcher): generous, since many processes start at once on a loaded machine
 STARTUP_TIMEOUT = 300.0
 
 

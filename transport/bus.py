@@ -44,13 +44,12 @@ from .keys import Keys, cell_of, robots_of_ident
 from .session import ZenohSettings, open_session
 
 _NO_FAULT = FaultSpec()
-# A pulled inbox: samples one subscription holds before zenoh's receiving thread waits for the owner
-# (a tick's states are tens), and how often a wait for one looks again.
+# A pulled inbox: samples one subscription holds before zenoh's receiving thread waits for the owner,
+# and how often a wait for one looks again.
 PULL_CAPACITY = 100_000
 PULL_EVERY = 0.002
 # s a process waits after its last put before it closes its session (Bus.linger): zenoh sends from
-# its own thread and has no flush, and on a loaded machine a session closed at once can drop what it
-# still holds, such as a process's last report.
+# its own thread and has no flush, so a session closed at once can drop a process's last report.
 CLOSE_LINGER = 0.2
 # leases a client waits, once its link to the router is back, before it declares its subscriptions
 # again (Bus.renew_if_due): time for the router to settle what it held of the link before.
@@ -84,8 +83,7 @@ class InjectedFault(Generic[T]):
 
     def _draws(self, key: str | None = None, stamp: float | None = None) -> Any:
         """The random draws: one stream, or, given a message's key and stamp, a stream of that
-        message alone (reproducible in lock-step). random is imported here because a robot's
-        process without faults never needs it (its memory)."""
+        message alone (reproducible in lock-step). Imported here: a process without faults never needs it."""
         import random
 
         if self._rng is None:
@@ -141,7 +139,7 @@ class KeepRobots:
     """These robots' records (a host's own poses; dead robots' bodies for the coordinator)."""
 
     def __init__(self, robots: Iterable[int] | np.ndarray) -> None:
-        # sorted(set()), not np.unique: numpy's unique loads numpy.ma, a megabyte in a robot's process
+        # sorted(set()), not np.unique, which loads numpy.ma into a robot's process
         self.robots = {int(r) for r in robots}
         self.ids = np.array(sorted(self.robots), np.int64)
 
@@ -177,15 +175,13 @@ class Inbox(Generic[T]):
         self.received = 0
         self.bytes = 0
         self._queue: queue.SimpleQueue[tuple[str, T]] = queue.SimpleQueue()
-        # The owner's tick clock (seconds), when it steps in lock-step: an injected delay then counts
-        # from a message's stamp on that clock, and each message's draw is a function of the message,
-        # so a lock-step run with faults is reproducible (a wall-clock delay is a number of ticks that
-        # depends on how fast the machine steps).
+        # The owner's tick clock (s) in lock-step: an injected delay then counts from a message's stamp
+        # and each draw is a function of the message, so a lock-step run with faults is reproducible.
         self.sim_time: float | None = None
         self.bell: threading.Event | None = None  # rung on every arrival: one wait serves several inboxes
-        # robot -> the tick of its record that reached this inbox last, whatever the fault plan did
-        # with it (None: not kept). A lock-step owner waits on it, then the plan's deterministic fate.
-        # The last, not the greatest: one forged from the future would stand for thousands of ticks.
+        # robot -> the tick of its record that reached this inbox last, whatever the fault plan did with
+        # it (None: not kept); a lock-step owner waits on it. The last, not the greatest: a tick forged
+        # from the future would otherwise stand.
         self.seen: dict[int, int] | None = None
         self.pulled = pulled
         self.channels: list[Any] = []  # pulled: the subscribers whose channels feed this inbox
@@ -245,9 +241,8 @@ class Inbox(Generic[T]):
                 self._queue.put((key, m))
         elif not self.fault.admit(key, msgs, self):
             return  # dropped: nothing to wake the owner for
-        # Rung for held messages too: an owner asleep on the bell learns it has messages to release
-        # (a message held without a ring waited for the owner's next wake-up, a tick or more late).
-        # A pulled inbox delivers on its owner's thread, awake by then: nobody to wake.
+        # Rung for held messages too, so an owner asleep on the bell releases them in time. A pulled
+        # inbox delivers on its owner's thread, awake by then: nobody to wake.
         if self.bell is not None and not self.pulled:
             self.bell.set()
 
@@ -457,10 +452,9 @@ class Bus:
         """An empty inbox of ``expected`` (see Inbox), with the faults for that kind; feed it with
         ``subscribe_into``.
 
-        ``pulled``: for an inbox its owner reads once a tick (an agent's neighbour states). Its
-        subscriptions queue samples in zenoh's channels and the owner decodes them when it reads,
-        instead of a Python thread per subscription waking for every sample and contending for the
-        GIL with the owner's tick. Nothing rings a bell on arrival: the owner polls."""
+        ``pulled``: for an inbox its owner reads once a tick (an agent's neighbour states). Samples wait
+        in zenoh's channels and the owner decodes them when it reads, so no Python thread wakes per
+        sample to contend for the GIL. Nothing rings a bell on arrival: the owner polls."""
         fault = self.faults.get(getattr(expected, "NAME", ""), _NO_FAULT)  # a kind's or a view's (its frame's)
         self._n_subs += 1
         seed = f"{self._seed}/{self._name}/{self._n_subs}"
@@ -561,10 +555,8 @@ class Bus:
         return RENEW_AFTER_LEASES * self.settings.lease_ms / 1000
 
     def renew_if_due(self) -> bool:
-        """On the owner's thread, a while after the link to the router came back: declare every
-        feed again. On a starved machine (100 one-robot agents starting on 2 cores) links dropped
-        and came back, and in a few agents every subscription made before delivered nothing more
-        while those made after did: such an agent never heard a pose or a tick again."""
+        """On the owner's thread, a while after the link to the router came back: declare every feed
+        again, as subscriptions made before the link dropped may deliver nothing more."""
         if self._renew_at is None or time.monotonic() < self._renew_at:
             return False
         self.renew()

@@ -1,15 +1,11 @@
 """Versioned, compact binary codecs for every message kind, with validating decoders.
 
-Every message starts with a two-byte header (kind, version). Poses, states and commands always
-travel as frames (a robot alone sends a frame of one); a goal set is a sequence of parts, each with
-its own (part kind, part version, length) header. ``decode`` never raises: a malformed, truncated,
-wrong-kind, wrong-version or non-finite message returns None and is counted in the ``DropCounter``
-passed in, so nothing a peer sends can break a control loop. The kinds whose content every host
-must hold to the bit (goal sets and the auction's messages: one damaged record there splits the
-hosts' boards for the rest of a goal set) and the robots' states end in a CRC-32 of the bytes
-before it, and a copy damaged on its way is dropped as ``checksum``. Poses and commands do not:
-a pose that jumps is the pose trust's to judge (agent.pose_trust), a command is checked against
-its tick. The layouts: docs/protocol.md.
+Every message starts with a (kind, version) header; poses, states and commands travel as frames (a robot
+alone sends a frame of one), and a goal set is a sequence of parts with their own headers. ``decode`` never
+raises: anything malformed returns None and is counted in the ``DropCounter``, so nothing a peer sends can
+break a control loop. Goal sets, the auction's messages and states end in a CRC-32 (every host must hold them
+to the bit); poses and commands do not: a jumping pose is the pose trust's to judge (agent.pose_trust), a
+command is checked against its tick. The layouts: docs/protocol.md.
 """
 
 from __future__ import annotations
@@ -132,9 +128,8 @@ class Message:
                 raise Malformed("non-finite")
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-friendly view (for logs): a record array as columns, one array per field (a host's
-        message holds up to K records, and a dict per record made the recorder's log of a
-        1000-robot auction cost more than the auction), any other array as a list."""
+        """JSON-friendly view (for logs): a record array as columns, one array per field (a dict per
+        record costs too much for a host's K records), any other array as a list."""
         out = {}
         for name in self.field_names():
             v = getattr(self, name)
@@ -148,8 +143,7 @@ BEFORE_START = 0xFFFFFFFF  # tick of a frame sent before the robots' agents are 
 
 
 # One robot's record of a frame as a Python object: its robot, the frame's tick and stamp, then the
-# record's fields in the record's order. The wire knows only frames (a robot alone sends a frame of
-# one); these views are for readers that take robots one at a time.
+# record's fields in order. The wire knows only frames; views are for readers that take robots one at a time.
 
 
 @dataclass
@@ -335,10 +329,10 @@ class Correspondence:
 @dataclass
 class WarmStart:
     """Part 5 of a goal set: where its auction starts, after an image or keyframe: per goal, the goal
-    of set ``matched_from`` matched to it and prices in equilibrium for that matching
-    (coordinator.warm_start.goal_matching, computed once by the coordinator rather than by every
-    agent host at once while its robots drive). ``matched_from`` 0: the run's first set, matched to
-    where the robots start (per goal, its robot's index in the set's robots). Absent: a cold start."""
+    of set ``matched_from`` matched to it and prices in equilibrium for that matching (computed once by
+    the coordinator, coordinator.warm_start.goal_matching, not by every host). ``matched_from`` 0: the
+    run's first set, matched to where the robots start (per goal, its robot's index in the set's robots).
+    Absent: a cold start."""
 
     PART: ClassVar[int] = 5
     VERSION: ClassVar[int] = 1
@@ -534,9 +528,8 @@ class Bid(Message):
 
     @classmethod
     def _from(cls, body: memoryview) -> Bid:
-        """Every host hears every host's bids, tens a tick, of a record or two each: a few records'
-        floats are checked by struct, and the records read from a writable copy of the bytes
-        (numpy's reductions and copy of a structured array cost several times as much there)."""
+        """A bid usually holds a record or two: a few records' floats are checked by struct, and the
+        records read from a writable copy of the bytes, both cheaper than numpy for so few."""
         epoch, instance, sender, serial, digest, count = _leading(cls._fixed, body)
         tail = body[cls._fixed.size :]
         if len(tail) != count * cls.RECORD.itemsize:
@@ -621,10 +614,8 @@ class Boards(Message):
 @dataclass
 class Frame(Message):
     """A tick's records of one or many robots: the fixed part (tick, stamp), then one record per
-    robot to the end of the message. Every pose, state and command crosses the wire in a frame; a
-    robot alone sends a frame of one, exactly as long as its message alone would be. Agent hosts of
-    K robots send one frame of each a tick: per robot, a message costs each process it crosses as
-    much as a whole frame does. Who sent it, the key says."""
+    robot to the end of the message. A host of K robots sends one frame of each kind a tick, since a
+    message per robot would cost each process it crosses as much as a whole frame. The key says who sent it."""
 
     _fixed: ClassVar[struct.Struct] = struct.Struct("<Id")
     VIEW: ClassVar[type]  # the record as a Python object (Pose, State, Command)
@@ -657,8 +648,7 @@ class Frame(Message):
 
     def messages(self, keep: RecordFilter | None = None) -> list:
         """One view per record (those ``keep`` keeps, if given): the robot, the frame's tick and
-        stamp, the record. A host keeps a few rows of a frame of every robot: those picked out
-        first, not a view made of each and most thrown away."""
+        stamp, the record. The kept rows are picked out first, so no view is made only to be thrown away."""
         tick, stamp = self.tick, self.stamp
         view: Callable[..., Any] = self.VIEW
         records = self.records if keep is None else self.records[keep.mask(self.records)]
@@ -674,7 +664,7 @@ class Frame(Message):
             raise Malformed("truncated")
         tick, stamp = cls._fixed.unpack(body[:size])
         count = (len(body) - size) // cls.RECORD.itemsize
-        if count == 1:  # a robot alone's: its checks (the stamp's too) in one struct call cost a fraction of numpy's
+        if count == 1:  # a robot alone's: checked (the stamp too) in one struct call, cheaper than numpy
             if (why := cls._unsound_one(cls._one.unpack(body))) is not None:
                 raise Malformed(why)
         else:
@@ -684,7 +674,7 @@ class Frame(Message):
             strides = (cls.RECORD.itemsize, 4)
             if count and not np.isfinite(np.ndarray((count, width), "<f4", body, size + start, strides)).all():
                 raise Malformed("non-finite")
-        # its own writable bytes: a copy of a structured array costs several times more
+        # its own writable bytes: cheaper than a copy of the structured array
         records = np.frombuffer(bytearray(body[size:]), cls.RECORD)
         if count > 1 and not all(test(records[k]).all() for k, test in cls._rules):
             raise Malformed("invalid")
@@ -695,8 +685,7 @@ class Frame(Message):
         """Why a frame of one record, read whole into ``v`` (tick, stamp, the record's fields), is
         malformed (the reason ``_from`` counts), or None: the same checks as ``_from``'s on a column."""
         # The record's floats are float32 (__init_subclass__): their sum cannot overflow, so it is
-        # finite exactly when each of them is (one call, where a test each cost an agent a tenth
-        # of its intake).
+        # finite exactly when each of them is.
         if not math.isfinite(v[1]) or not math.isfinite(sum(v[cls._one_floats])):
             return "non-finite"
         for i, test in cls._one_rules:
@@ -735,10 +724,9 @@ class Frame(Message):
 
     @classmethod
     def views_alone(cls, data: bytes) -> tuple[int, list] | None:
-        """(tick, [view]) of a well-formed message of one record, read in one struct call: what a
-        robot alone sends each tick, and an agent hears tens of (through numpy, a frame of one and
-        its view cost five times as much). None for anything else (a longer frame, or anything
-        wrong), for decode to read and count. The same checks as ``_from``."""
+        """(tick, [view]) of a well-formed message of one record (what a robot alone sends each tick),
+        read in one struct call rather than through numpy. None for anything else (a longer frame, or
+        anything wrong), for decode to read and count. The same checks as ``_from``."""
         if len(data) != cls._alone.size + (_CHECKSUM.size if cls.CHECKED else 0):
             return None
         if cls.CHECKED and not intact(data):
@@ -780,10 +768,8 @@ class Commands(Frame):
 @dataclass
 class States(Frame):
     """Agent host -> agent hosts: the states of its robots at one tick (a host's hellos before its
-    first tick too, tick BEFORE_START). A robot alone files its frame of one under its spatial
-    cell; a host's frame goes to every host: a host of hundreds of robots spread over the display
-    listens to most cells anyway, and one frame costs each process it crosses what one robot's
-    state did."""
+    first tick too, tick BEFORE_START). A robot alone files its frame of one under its spatial cell; a
+    host's frame goes to every host, since a host of many robots listens to most cells anyway."""
 
     KIND: ClassVar[int] = 12
     # checked: a damaged copy that still decodes would be believed by the neighbours' ORCA and, as the

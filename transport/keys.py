@@ -1,20 +1,8 @@
 """The key-expression schema: every key the system uses is built here and nowhere else.
 
-px/<display>/pose/<id>               tracker -> agent i: its tracked pose of a tick, a frame of one
-px/<display>/pose                    tracker -> agent hosts: every robot's pose of a tick, one frame
-px/<display>/state/<cx>/<cy>/<id>    a robot alone: its state, a frame of one filed under its spatial cell
-px/<display>/state/<id>              agent host broadcast: its robots' states of a tick, one frame (<id>: its first)
-px/<display>/cmd/<id>                agent -> bodies: commands of a tick, one frame (<id>: the sender's first robot)
-px/<display>/goals/<epoch>           coordinator -> all: the goal set and colours
-px/<display>/auction/<epoch>/<id>    bids and prices of the distributed auction
-px/<display>/alive/<role>/<id>/<life> liveliness tokens (role: agent, world, coordinator, run, ...; life: a
-                                     process's incarnation; an agent host's <id> names its robots: robots_ident)
-px/<display>/clock                   tick announcements
-px/<display>/config/<id>             run -> agents on other machines: robot <id>'s host configuration (a queryable)
-px/<display>/run/goals               run -> a restarted coordinator: the newest goal set recorded (a queryable)
-px/<display>/sim/truth               simulation only: true poses (for the recorder, never agents)
-px/<display>/sim/contact             simulation only: contact events
-px/<display>/event                   low-rate run events (end of run, reports)
+Every key of a display starts with ``px/<display>/``, then its kind (pose, state, cmd, goals, auction, boards,
+alive, clock, config, run, sim, event); each method says what its key carries. The table of keys, who sends
+what to whom: docs/protocol.md ("Key expressions").
 """
 
 from __future__ import annotations
@@ -33,8 +21,8 @@ _RUN = re.compile(r"^(\d+)(?:-(\d+))?$")  # a run of robot ids in a liveliness i
 
 def robots_ident(robots: list[int]) -> str:
     """An agent host's liveliness ident: its robots as runs of consecutive ids, "0-999" or "3_5-7".
-    One token per host: zenoh propagates tokens in time that grows faster than their number (10,000
-    robots' tokens took minutes to reach the launcher), and a host lives and dies as a whole."""
+    One token per host: zenoh's propagation of tokens slows faster than their number grows, and a
+    host lives and dies as a whole."""
     runs: list[list[int]] = []
     for r in sorted(set(robots)):
         if runs and r == runs[-1][1] + 1:
@@ -61,7 +49,7 @@ def cell_of(x: float, y: float, cell_size: float) -> tuple[int, int]:
 
 
 def cells_of(xy: ArrayLike, cell_size: float) -> np.ndarray:
-    """cell_of for rows of positions at once: (N, 2) int64 (a host places a thousand a tick)."""
+    """cell_of for rows of positions at once: (N, 2) int64 (a host places all its robots each tick)."""
     return np.floor(np.asarray(xy, float).reshape(-1, 2) / cell_size).astype(np.int64)
 
 

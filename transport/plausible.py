@@ -1,13 +1,12 @@
 """What a well-formed message may claim, bounded by what its receiver already knows.
 
 A decoder checks that a message is well formed; this checks that its tick is believable. A frame's
-stamp is the start of its tick (tick x dt: the clock, the trackers and the agents all stamp so), so a
-frame whose two disagree was damaged. A tick may not lie ahead of the receiver's own clock by more
-than ``AHEAD`` ticks, and may not be older than the newest the receiver holds from that sender: the
-newest tick wins, so one frame from the future would otherwise make every honest frame after it
-look old. A sender that really went back (a tracker or a clock restarted, counting from 0 again)
-is heard again once its new line has gone on for ``RESYNC`` seconds (TickLine).
-Each refusal names its reason, counted by the receiver with the decoder's drops.
+stamp is the start of its tick (tick x dt), so a frame whose two disagree was damaged. A tick may not
+lie more than ``AHEAD`` ticks ahead of the receiver's clock, nor be older than the newest the receiver
+holds from that sender: the newest tick wins, so one frame from the future would otherwise make every
+honest frame after it look old. A sender that really went back (restarted, counting from 0 again) is
+heard again once its new line has gone on for ``RESYNC`` s (TickLine). Each refusal names its reason,
+counted by the receiver with the decoder's drops.
 """
 
 from __future__ import annotations
@@ -50,9 +49,8 @@ class GoalSets:
     holds a goal set of its own, not one already heard under another epoch.
 
     ``newest``: the newest epoch the receiver knows of when it starts, 0 for one that starts with the
-    run (epochs count from 1); None for one that may join a run under way, which takes the first epoch
-    it hears: a forged first epoch taken by the world, which names the goal set of each tick, held
-    every lock-step agent waiting for a goal set that never comes."""
+    run (epochs count from 1), so that it takes no forged first epoch; None for one that may join a
+    run under way, which takes the first epoch it hears."""
 
     KEPT = 8  # epochs remembered
 

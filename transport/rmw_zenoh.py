@@ -1,21 +1,9 @@
 """ROS 2 over Zenoh as rmw_zenoh_cpp puts it on the wire: keys, attachments, liveliness tokens.
 
-A ROS 2 node running rmw_zenoh publishes a message as a Zenoh put of its CDR bytes on
-
-    <domain>/<topic without leading slash>/<dds type name>/<type hash>
-    e.g. 0/robot1/cmd_vel/geometry_msgs::msg::dds_::Twist_/RIHS01_9c45...8d2a
-
-(Humble builds write `TypeHashNotSupported` for the hash) with encoding `application/cdr` and an
-attachment: int64 LE sequence number, int64 LE source timestamp (ns since the UNIX epoch), one byte
-holding the gid's length (16) and the 16-byte gid. Every node, publisher and subscription also holds a
-liveliness token that ROS graph tools (`ros2 topic list`, `ros2 node list`) read:
-
-    @ros2_lv/<domain>/<zid>/<node id>/<node id>/NN/<enclave>/<namespace>/<node>
-    @ros2_lv/<domain>/<zid>/<node id>/<entity id>/<MP|MS>/<enclave>/<namespace>/<node>/<topic>/<type>/<hash>/<qos>
-
-with every `/` inside a name written as `%` (an empty namespace or enclave is just `%`).
-Source: ros2/rmw_zenoh docs/design.md. This module knows only bytes; message semantics (CDR through
-rosbags) live with the caller.
+A ROS 2 node running rmw_zenoh publishes a message as a Zenoh put of its CDR bytes on a topic key, with an
+attachment (sequence number, source timestamp, gid); every node, publisher and subscription holds a liveliness
+token that ROS graph tools read. The layouts, from ros2/rmw_zenoh's docs/design.md: docs/ros2.md ("On the
+wire"). This module knows only bytes; message semantics (CDR through rosbags) live with the caller.
 """
 
 from __future__ import annotations

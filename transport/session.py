@@ -48,7 +48,7 @@ class ZenohSettings:
         conf.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast_scouting))
         conf.insert_json5("transport/link/tx/lease", str(self.lease_ms))
         if self.mode != "client" and not (self.multicast_scouting or self.connect or self.config_file):
-            # nobody to scout for: zenoh's open would spend its scouting delay (half a second) waiting
+            # nobody to scout for: zenoh's open would otherwise wait out its scouting delay
             conf.insert_json5("scouting/delay", "0")
         if self.mode == "client":
             # A client that loses its router should fail loudly, not wait forever.
@@ -147,11 +147,10 @@ def zenoh_reason(text: str, mode: str) -> tuple[str, str]:
 def one_malloc_arena() -> bool:
     """Have every thread of this process allocate from one malloc arena, before its session opens.
 
-    glibc gives each thread that allocates an arena of its own, and zenoh runs several threads: each
-    arena's part-used pages count in the process's RSS. A robot's process allocates little, so its
-    threads share one (as MALLOC_ARENA_MAX=1 would). Not for a host of many robots, whose threads
-    allocate more and would wait on the one arena's lock. False where the C library has no mallopt
-    (not glibc): nothing changes there."""
+    glibc gives each allocating thread (zenoh runs several) an arena whose part-used pages count in RSS;
+    a robot's process allocates little, so its threads share one (as MALLOC_ARENA_MAX=1 would). Not for a
+    host of many robots, whose threads would wait on the arena's lock. False where the C library has no
+    mallopt (not glibc): nothing changes there."""
     import ctypes  # here, not above: numpy loads it anyway, a process without numpy only if it asks
 
     m_arena_max = -8  # glibc's malloc.h

@@ -5,16 +5,11 @@ frame's, its preferred velocity becomes
 
     v_pref = min(v_max, |g - p| / (K_f dt)) (g - p) / |g - p|          (eq. 27)
 
-and is held for K_f iterations, so that every robot arrives when the next keyframe begins (the
-robots' motions are synchronised, the display passes through the keyframes); then the usual eq. 9
-takes over. A robot that learns its goal late (the distributed auction needs a few iterations to
-agree on a new goal set) uses the iterations left of the frame instead of K_f: it still arrives with
-the others (``iterations_left``).
-
-What is held here is the arrival time rather than the velocity: each iteration of the hold takes
-eq. 27 from where the robot is over the iterations left. A robot that moves as it prefers gets the
-same velocity every time (the paper's constant hold); one that collision avoidance slowed down
-catches up, up to v_max, instead of arriving late by what it lost.
+and is held for K_f iterations, so that every robot arrives when the next keyframe begins; then eq. 9
+takes over. A robot that learns its goal late (the auction needs a few iterations) uses the iterations
+left of the frame instead (``iterations_left``). What is held is the arrival time rather than the
+velocity: each iteration takes eq. 27 from where the robot is over the iterations left, so a robot
+that collision avoidance slowed down catches up, up to v_max, instead of arriving late.
 """
 
 from __future__ import annotations

@@ -1,15 +1,12 @@
-"""The distributed goal auction (paper 5.1.1) as seen by the robots of one agent host: pure logic,
-no zenoh and no clock (the runtime passes messages in and takes records out). Its instances, blocks
-of epsilon-scaling phases, snapshots, deadlock penalties and max-consensus are as
-docs/architecture.md ("Goal assignment") says. The board, net values, bids and Jacobi rounds are
-compiled in agent.core.bidding: an agent host bids a round at a time between messages (``bid``); a
-host that owns every robot (the central engine) settles a block of phases in-process
-(``settle_alone``) through the same rounds, to the same board.
+"""The distributed goal auction (paper 5.1.1) as seen by the robots of one agent host: pure logic, no zenoh, no clock.
 
-- A penalty counts from the next instance because a cost that changed after a robot said it was
-  content would break quiescence. A record of instance k+1 from anyone proves k was agreed.
-- Scaling pays off on warm starts too: once robots have moved, the last prices are far from
-  equilibrium, and at epsilon_A alone they settle in a price war.
+Instances, blocks of epsilon-scaling phases, snapshots, deadlock penalties and max-consensus are as
+docs/architecture.md ("Goal assignment") says. The Jacobi rounds are compiled in agent.core.bidding: an agent host
+bids a round at a time between messages (``bid``); a host that owns every robot (the central engine) settles a
+block in-process (``settle_alone``) through the same rounds, to the same board. A penalty counts from the next
+instance, as a cost that changed after a robot said it was content would break quiescence. Scaling pays off on
+warm starts too: once robots have moved, the last prices are far from equilibrium, and at epsilon_A alone they
+settle in a price war.
 """
 
 from __future__ import annotations
@@ -23,12 +20,10 @@ from transport.codec import AuctionRecord, Bid
 
 from .bidding import NO_OWNER, Bidders, Heard, board_digest
 
-# the auction record's flags (transport.codec.AuctionRecord); SETTLED: content at the final phase's slack,
-# so in every phase left
+# the auction record's flags (transport.codec.AuctionRecord); SETTLED: content at the final phase's slack
 CONTENT, RELEASED, SETTLED = AuctionRecord.CONTENT, AuctionRecord.RELEASED, AuctionRecord.SETTLED
 CANDIDATES = 16  # goals a robot ranks while no other can beat them (agent.core.bidding)
-ROUNDS_PER_ROBOT = 100  # settle_alone's bound on a phase's rounds, per robot: a phase's rounds grow with
-# the robots (a cold start of 30,000 needed over 100,000 in one phase), so a fixed bound broke large swarms
+ROUNDS_PER_ROBOT = 100  # settle_alone's bound on a phase's rounds, per robot (a phase's rounds grow with the robots)
 SMALL = 8  # members_only looks up the records of messages up to this size one by one (numpy costs more there)
 
 RECORD = Bid.RECORD  # one robot's word on one goal (goal -1: it holds none yet), as a Bid carries it
@@ -87,7 +82,7 @@ class Board:
     def holds(self, robot: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """Per (robot, goal) pair: the robot owns the goal on this board and has not released it."""
         goal = np.asarray(goal, np.int64)
-        safe = np.minimum(np.maximum(goal, 0), max(len(self.price) - 1, 0))  # np.clip costs 10x more here
+        safe = np.minimum(np.maximum(goal, 0), max(len(self.price) - 1, 0))  # np.clip costs more here
         return (goal >= 0) & (self.owner[safe] == robot) & ~self.released[safe]
 
     def digest(self) -> int:
@@ -115,9 +110,8 @@ class Auction:
         self.own_ids = np.array(self.own, np.int64)
         self.own_rows = np.searchsorted(self.robots, self.own_ids)  # own robots' rows among all robots
         self.schedule = epsilon_schedule(self.goals, eps)
-        # per phase, how much better another goal must be before a robot bids: the phase's epsilon, and
-        # never less than the final phase's epsilon_A + Delta C (paper 5.1's hysteresis). A phase
-        # tighter than the final one would move robots for gains that Delta C is there to ignore.
+        # per phase, how much better another goal must be before a robot bids: the phase's epsilon, never less
+        # than the final epsilon_A + Delta C (paper 5.1's hysteresis, in every phase: docs/architecture.md)
         self.slacks = np.maximum(self.schedule, self.schedule[-1] + hysteresis)
         self.agreed_instance = -1
         self.bids = 0
@@ -135,9 +129,9 @@ class Auction:
 
 
 class Participant(Auction):
-    """The own robots of one host in the auction of one goal set (epoch), on one board. Its 28
-    attributes stay flat: the compiled rounds (agent.core.bidding.Heard, Bidders) and the lock-step
-    rounds (agent.core.rounds) read and write the board, claims and heard records by name."""
+    """The own robots of one host in the auction of one goal set (epoch), on one board. Its attributes
+    stay flat: the compiled rounds (agent.core.bidding.Heard, Bidders) and the lock-step rounds
+    (agent.core.rounds) read and write the board, claims and heard records by name."""
 
     def __init__(
         self, epoch: int, goals: np.ndarray, robots: list[int], own: list[int], eps: float, hysteresis: float = 0.0
@@ -204,8 +198,8 @@ class Participant(Auction):
     @property
     def common_owner(self) -> np.ndarray | None:
         """Per goal its robot on the last board every host holds alike: the agreed one, else the one
-        a warm start began from, whose goals the robots drive to until the first agreement (at ten
-        thousand robots a warm block may outlast an image). None: neither."""
+        a warm start began from, whose goals the robots drive to until the first agreement (in a large
+        swarm a warm block may outlast an image). None: neither."""
         return self.agreed_owner if self.agreed_owner is not None else self.start_owner
 
     @property
@@ -273,9 +267,8 @@ class Participant(Auction):
         ``before``'s last agreed board (the same on every host; the live one may be mid-instance)
         says it owns the goal it continues, at price zero or at ``prices`` (in equilibrium for the
         new goals: Goals.warm_start.prices). Close frames then agree in a few rounds; distant ones
-        skip the coarse phases that build prices and fight a price war (`python -m bench.paper_figures carry`; see
-        agent.assignment.frames_close). The old prices are not carried: they fit the old costs only.
-        Call before the first instance."""
+        skip the coarse phases that build prices and fight a price war (agent.assignment.frames_close).
+        The old prices are not carried: they fit the old costs only. Call before the first instance."""
         previous = np.asarray(previous, np.int64)
         if self.started or not before.started or len(previous) != len(self.goals):
             return {}
@@ -363,12 +356,11 @@ class Participant(Auction):
     ) -> np.ndarray:
         """For a host that owns every robot of the goal set (the central engine): the next block of
         phases on these positions, warm from the board, bid to an agreed final phase. Nobody else
-        bids, so every phase's snapshot is this host's own board, and a phase is over when every
-        robot is content. The same rounds, bids and board as begin(), bid() and check_agreement(),
-        without a return to Python between rounds (agent.core.bidding.Bidders.settle_block), each
-        robot ranking its ``candidates`` best goals while they provably hold its best. A phase that
-        takes more than ROUNDS_PER_ROBOT rounds per robot (at least 100,000) is an error.
-        Returns each own robot's agreed goal, in the order of ``own``."""
+        bids, so a phase is over when every robot is content. The same rounds, bids and board as
+        begin(), bid() and check_agreement(), compiled (agent.core.bidding.Bidders.settle_block), each
+        robot ranking its ``candidates`` best goals while they provably hold its best. Returns each own
+        robot's agreed goal, in the order of ``own``; a phase that takes more than ROUNDS_PER_ROBOT
+        rounds per robot (at least 100,000) raises RuntimeError."""
         block = self._block_to_settle(positions, candidates)  # first: it may make new bidders
         return self._adopt_settled(self._bidders.settle_block(*block))
 

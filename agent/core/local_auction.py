@@ -1,16 +1,12 @@
-"""The goal auction over a limited communication range (paper 5.1.1 with the decentralised auction
-it points to: Bertsekas and Castanon 1991, Zavlanos, Spesivtsev and Pappas 2008): pure logic, no
-zenoh and no clock. A robot hears only the robots within ``reach`` of it, so no one sees every bid.
+"""The goal auction over a limited communication range (paper 5.1.1): pure logic, no zenoh and no clock.
 
-Each robot bids (Jacobi, as agent.core.bidder's robots do) against a board of its own, which it
-merges every round with the boards of the robots it hears (max-consensus, agent.core.bidding), and
-ends a phase once the newest change it knows of is older than its eccentricity in rounds. Why that
-ends the auction everywhere in its part of the graph, one-to-one even when the graph splits, is in
-docs/lockstep_auction.md ("Over a limited communication range"). A goal set's first block scales
-epsilon down in phases; later blocks, warm from the boards, run the final phase only.
-
-One host runs any subset of the robots (``own``); the central engine runs them all through the same
-rounds (sim.central.engine.settle_in_process), so it and the agents agree bit for bit.
+The decentralised auction the paper points to (Bertsekas and Castanon 1991; Zavlanos, Spesivtsev and Pappas 2008):
+a robot hears only the robots within ``reach`` of it. Each bids (Jacobi) against a board of its own, merged every
+round with the boards it hears (max-consensus), and ends a phase once the newest change it knows of is older than
+its eccentricity in rounds; why that ends the auction everywhere in its part of the graph, one-to-one even when
+the graph splits, is in docs/lockstep_auction.md ("Over a limited communication range"). One host runs any subset
+of the robots (``own``); the central engine runs them all through the same rounds
+(sim.central.engine.settle_in_process), so it and the agents agree bit for bit.
 """
 
 from __future__ import annotations

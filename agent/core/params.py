@@ -52,7 +52,7 @@ class RobotParams:
     assign_period: float = 0.1  # s between auction instances (paper 5.1: every control iteration)
     rounds_per_tick: int = 0  # lock-step: most message rounds a tick gives the auction (0: until agreed)
     # lock-step, rounds per tick bounded: a block not agreed this long after it began is dropped (its
-    # positions are stale: adopted late, its agreement swapped robots that sat on their goals); 0: never
+    # positions are stale: adopted late, its agreement would move robots off their goals); 0: never
     block_max_age: float = 10.0
     deadlock_cost: float = 0.1  # C_d, added for good to the cost of the goal a robot is stuck before
     deadlock_iterations: int = 50  # N_d, iterations blocked before a deadlock is declared (5 s: outlasts a crowd)

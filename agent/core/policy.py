@@ -1,17 +1,11 @@
 """The robot policy: what a batch of robots decides in one tick from what each of them knows.
 
-Every engine calls ``intend`` then ``act`` and nothing else to decide: an agent process (one robot or a host of K), the
-central engine (every robot in one batch) and the loss study. Per robot the result depends only on
-that robot's row, so a robot decides the same whatever batch it is stepped in.
-
-A tick has two stages, kept apart so the central engine can redo the second for the robots whose goal
-an auction changed while the first ran:
-
-- ``intend``: where each robot heads now and the preferred velocity where eq. 9 does not apply: in an
-  animation keyframe eq. 27, held K_f iterations from the goal's change (agent.core.animation); toward
-  a moving goal set its goal's velocity fed forward (eq. 28, agent.core.goal_motion).
-- ``act``: ORCA or NH-ORCA with symmetry breaking (agent.core.step), then deadlock detection (paper
-  5.5.5): the robots whose goal is to carry the penalty C_d in the next auction.
+Every engine (an agent process, the central engine, the loss study) decides through ``intend`` then ``act`` only,
+and per robot the result depends only on its row, so a robot decides the same whatever batch it is stepped in.
+The stages are kept apart so the central engine can redo the second for the robots whose goal an auction changed
+while the first ran. ``intend``: where each robot heads and its preferred velocity where eq. 9 does not apply
+(a keyframe's eq. 27, agent.core.animation; a moving goal's velocity fed forward, eq. 28, agent.core.goal_motion).
+``act``: ORCA or NH-ORCA with symmetry breaking (agent.core.step), then deadlock detection (paper 5.5.5).
 """
 
 from __future__ import annotations

@@ -125,8 +125,7 @@ class OwnStates:
     heading: np.ndarray  # (B,)
     velocity: np.ndarray  # (B,2) the last tick's v_cf: ORCA's v_opt
     goal: np.ndarray  # (B,2) NaN: none
-    # (B,2): rows with finite values replace eq. 9 (eq. 27 held in an animation frame, or the
-    # feed-forward toward a moving goal of a dynamic image, agent.core.animation and
+    # (B,2): finite rows replace eq. 9 (eq. 27's hold, agent.core.animation; a moving goal's feed-forward,
     # agent.core.goal_motion); NaN rows, or None, use eq. 9
     preferred: np.ndarray | None = None
     speed_cap: np.ndarray | None = None  # (B,) m/s its preferred and new velocities keep within (None: v_max)

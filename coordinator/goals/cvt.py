@@ -75,12 +75,10 @@ def density_domain(rows: np.ndarray, cols: np.ndarray) -> Domain:
 
 class _Assigner:
     """Nearest generator of every pixel, exact and incremental (Hamerly's bounds, made local): a pixel
-    keeps its generator while its distance to it is below a lower bound on the distance to any other
-    generator. The bound is the second-nearest distance at its last query, less the largest move of a
-    generator that was near the pixel (within _BLOCK cells of a coarse grid); generators farther away
-    are at least _BLOCK cells less the largest move of all away. A few generators that jump (an
-    over-relaxed step) so re-query only the pixels round them, not the whole domain (with one bound
-    for all, such a step re-queried most pixels)."""
+    keeps its generator while its distance to it is below a lower bound on the distance to any other.
+    The bound is the second-nearest distance at its last query, less the largest move of a generator
+    within _BLOCK cells of a coarse grid (farther ones are at least _BLOCK cells less the largest move
+    of all away), so a few generators that jump re-query only the pixels round them."""
 
     def __init__(self, domain: Domain) -> None:
         self.domain = domain
@@ -174,12 +172,11 @@ def lloyd(
 ) -> tuple[np.ndarray, list[float]]:
     """Lloyd iterations from `init` until the cost of eq. 1 falls by less than `tol` (relative).
 
-    Each iteration computes the Voronoi cells and their mass centroids C_j (eq. 4). With relax = 1 the
-    generators move to C_j (plain Lloyd). With relax > 1 they first try the over-relaxed step
-    q + w (C - q) (w starts at `relax`, grows by 25 % after each accepted step up to 4, and resets when
-    a step is refused) and keep it only if it lowers the cost; otherwise they take the plain Lloyd step.
-    Either way the cost never rises; over-relaxation shortens the slow tails of Lloyd's method (a
-    generator creeping round a corner) so that the cost settles within a few tens of iterations.
+    Each iteration moves the generators to their cells' mass centroids C_j (eq. 4). With relax > 1 they
+    first try the over-relaxed step q + w (C - q) (w starts at `relax`, grows by _GROW after each
+    accepted step up to _MAX_RELAX, and resets when one is refused) and keep it only if it lowers the
+    cost. Either way the cost never rises; over-relaxation shortens Lloyd's slow tails (a generator
+    creeping round a corner).
 
     Returns (generators in pixel units, cost of eq. 1 per iteration: history[0] is the cost of `init`,
     history[-1] the cost of the returned generators)."""

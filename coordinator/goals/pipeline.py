@@ -26,9 +26,8 @@ from .sampling import KS_FACTOR, in_region, ks_distance, lattice_samples, poisso
 from .segment import Segmentation, segment
 
 MAX_SIDE = 1024  # longer image side (pixels) used for goal generation; larger images are scaled down
-# Regions of up to this many goals start from the paper's random samples (4.2), as in every shipped
-# scene below 10,000 robots; larger ones from a hexagonal lattice, which Lloyd settles in a few
-# iterations to a lower cost (sampling.lattice_samples, bench/bench_goals.py).
+# Regions of up to this many goals start from the paper's random samples (4.2); larger ones from a
+# hexagonal lattice, which Lloyd settles in fewer iterations to a lower cost (sampling.lattice_samples).
 PAPER_SAMPLES_MAX = 1000
 # Below this many pixels a goal, goals snap to pixel centres and their spacing goes uneven: smaller
 # pictures are scaled up (each pixel k x k), to at most MAX_UPSCALED_SIDE pixels a side.

@@ -15,7 +15,7 @@ from scipy.spatial import cKDTree
 KS_FACTOR = 1.2
 _TRIES_PER_SAMPLE = 40  # darts per wanted sample before K_s is relaxed
 _RELAX = 0.9  # K_s shrink factor when the region is too crowded (thin regions) to place N_i samples
-_LATTICE_STEPS = 24  # bisections of the lattice spacing: to 1e-7 of it (1e-4 pixels across a picture)
+_LATTICE_STEPS = 24  # bisections of the lattice spacing: to 1e-7 of it
 
 
 def region_box(rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, int, int]:
@@ -36,7 +36,7 @@ def in_region(pts: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray
 
 
 def ks_distance(area: float, n: int) -> float:
-    """K_s = 1.2 sqrt(A_i / (pi N_i)), the radius of a circle of area A_i / N_i times 1.2."""
+    """K_s (paper 4.2): KS_FACTOR times the radius of a circle of area A_i / N_i."""
     return KS_FACTOR * math.sqrt(area / (math.pi * n))
 
 
@@ -46,8 +46,8 @@ def poisson_samples(
     """n samples (x, y) in pixel units inside the pixels (rows, cols) of R_i, pairwise >= K_s apart.
 
     Darts come in batches and are taken in order, each unless it lies closer than K_s to one taken
-    before. If n samples at K_s cannot be placed within 40 n darts (a thin or fragmented region), K_s
-    is relaxed by 10 % and the darts continue; returns (samples, K_s actually used)."""
+    before. If n samples cannot be placed within _TRIES_PER_SAMPLE n darts (a thin or fragmented
+    region), K_s shrinks by _RELAX and the darts continue; returns (samples, K_s actually used)."""
     if n <= 0:
         return np.zeros((0, 2)), 0.0
     npx = len(rows)
@@ -134,14 +134,12 @@ def _first_apart(darts: np.ndarray, ks: float) -> np.ndarray:
 
 def lattice_samples(rows: np.ndarray, cols: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
     """n samples (x, y) in pixel units inside the pixels (rows, cols) of R_i, on a hexagonal lattice
-    (its rows along the long axis of R_i, a seeded offset) whose spacing is chosen so that n of its
-    points fall in R_i.
+    (its rows along the long axis of R_i, a seeded offset) whose spacing puts n of its points in R_i.
 
     The CVT of a region of many generators is a hexagonal lattice but near its border, so Lloyd's
-    method from one only settles the border: from random samples it needs tens of iterations at
-    thousands of goals and stops in a worse local minimum (bench/bench_goals.py). Where no spacing
-    gives exactly n points (a row of the lattice crossing the border at once), the spacing is bisected
-    down to that crossing and the points missing are taken evenly from the row crossing."""
+    method from one only settles the border, where from random samples it stops in a worse local
+    minimum. Where no spacing gives exactly n points (a lattice row crossing the border at once), the
+    spacing is bisected down to that crossing and the missing points are taken evenly from that row."""
     if n <= 0:
         return np.zeros((0, 2))
     npx = len(rows)

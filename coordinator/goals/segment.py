@@ -1,13 +1,11 @@
 """Segmentation of the foreground into regions R_i by colour and connectivity (paper 4.1).
 
 Foreground colours are grouped into a palette (colours closer than COLOR_TOLERANCE Delta E merge); each
-connected (8-neighbour) set of pixels of one palette colour is a candidate region, so touching shapes of
-different colour stay different regions, unless their colours meet in a smooth gradient (the shading of
-one object) rather than at an edge. Weak candidates, those smaller than `min_area` pixels or thin
-(almost no pixel whose 8 neighbours share its region: anti-aliased edges, hairlines), are absorbed into
-the neighbouring region they share the longest border with; weak pieces touching no region are merged
-with each other and kept if together they reach `min_area`, otherwise dropped with a note.
-Region ids are ordered by area, largest first.
+8-connected set of pixels of one palette colour is a candidate region, so touching shapes of different
+colour stay apart unless their colours meet in a smooth gradient (shading) rather than at an edge. Weak
+candidates (under `min_area` pixels, or thin: anti-aliased edges, hairlines) join the neighbour they
+share the longest border with; weak pieces touching no region are merged and kept if together they
+reach `min_area`, else dropped with a note. Region ids are ordered by area, largest first.
 """
 
 from __future__ import annotations

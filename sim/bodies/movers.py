@@ -15,7 +15,7 @@ import numpy as np
 from coordinator.scene import Scene, scripted_position
 
 # A mover's body allows this much more than its script's top speed, so that it makes up the drift of
-# the actuation noise (2 %) within a control period or two instead of falling behind for good.
+# the actuation noise within a control period or two instead of falling behind for good.
 CATCH_UP = 1.25
 
 

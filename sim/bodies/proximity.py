@@ -1,12 +1,9 @@
-"""The world's robot-robot detection (sim.bodies.world._ContactWatch.detect) on agent.core.grid's compiled grid:
-every pair whose centres are within ``reach`` in the first state is found on a grid of cells that
-wide (every such pair lies in the 3 x 3 cells around either one's cell), then checked in every
-state. It returns the smallest clearance over the pairs checked and the pairs that overlap, with
-their depths (a kd-tree costs its build every step, even with no pair in reach). Only +, -, * and
-sqrt touch the coordinates, (xa - xb)^2 + (ya - yb)^2 with a < b, then sqrt, so the distances are
-the same to the bit as numpy's.
+"""The world's robot-robot detection (sim.bodies.world._ContactWatch.detect) on agent.core.grid's grid.
 
-Positions must be finite.
+Every pair whose centres are within ``reach`` in the first state is found on a grid of cells that wide
+(such a pair lies in the 3 x 3 cells around either one's cell), then checked in every state. Only +, -, *
+and sqrt touch the coordinates, (xa - xb)^2 + (ya - yb)^2 with a < b, so the distances equal numpy's to
+the bit. Positions must be finite.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The central tracker (paper 7.1: an overhead camera, 2 mm / 3 deg) and the bodies of a scene."""
+"""The central tracker (paper 7.1: an overhead camera, with seeded noise) and the bodies of a scene."""
 
 from __future__ import annotations
 

@@ -1,45 +1,9 @@
 """The simulated world: N disc robots, their kinematics, actuation noise, arena and obstacles, contacts.
 
 A pure, deterministic physics object (no I/O, no clock, no zenoh) that the world process drives:
-``set_command`` / ``stop`` / ``teleport`` between calls to ``step(dt)``.
-
-Kinematics, per robot (one world may hold a mixed swarm): a ``holonomic`` command is a world-frame
-velocity (vx, vy), a ``diffdrive`` one the LINEAR wheel speeds (v_left, v_right) in m/s; their limits,
-noise and exact arcs (no Euler error) are sim.bodies.kinematics's.
-
-Actuation noise (ActuationNoise): the actuation error is held for ``period`` seconds of world time (default
-the control period, RobotParams.dt) on a fixed time grid: on entering each period the world draws an
-(N, 4) standard-normal array from its own ``numpy.random.Generator`` (seeded at construction),
-whatever the commands are. So the noise a robot gets never depends on the order in which commands
-arrived, nor on how time is chunked into ``step`` calls (one step(0.1) or ten step(0.01) draw the
-same numbers), and the same sequence of calls gives bit-identical poses. The noisy command is clipped
-to the limits again, so the speed limits hold with noise too. Within a noise period and between
-commands the motion is an exact arc, so the integration itself does not depend on the substep.
-
-Substeps: ``step(dt)`` splits dt into ``ceil(dt / substep)`` equal substeps (0.1 s -> 10 at the
-default 0.01 s) and checks contacts at the end of every substep, so a robot crossing another within
-one control period is still seen. Between substeps a pair can only slip by unseen if it overlaps by
-less than about s^2 / (8 (r_i + r_j)), s its relative displacement in one substep: for two e-pucks
-head-on at 0.13 m/s each (s = 2.6 mm) that is 0.01 mm.
-
-Contacts are RECORDED, NEVER RESOLVED: bodies may overlap. The world does not push robots apart, stop
-them, or hide the overlap; collision avoidance is the controller's job and this world measures how
-well it does. At every substep it detects robot-robot overlaps (centre distance < r_i + r_j),
-robot-obstacle overlaps (signed distance from centre to polygon < r; a centre inside the polygon
-counts as a negative distance) and robot-wall overlaps (signed distance from centre to the arena
-boundary < r; outside the arena counts as negative). A contact EVENT starts at the first substep a
-pair overlaps and ends (``t_end``) at the first substep it no longer does; ``max_depth`` is the
-largest overlap depth (r_i + r_j - distance, or r - signed distance) seen during the event. Robots
-that start overlapping are recorded at t = 0. Touching (distance exactly r_i + r_j) is not contact.
-
-``min_clearance`` is the exact smallest robot-robot clearance (centre distance minus both radii)
-over every substep state so far (negative means overlap); ``step_min_clearance()`` is the same over
-the states of the last step, its start included. Both are +inf with fewer than two robots, and
-exact: _ContactWatch._robot_pairs says how the pairs that can have it are found.
-
-``teleport(i, pose)`` moves a robot as if picked up by hand: no path length, velocity zero, the
-command kept (the controller decides what to send next). The new state is checked for contacts at
-the current time at the start of the next step.
+``set_command`` / ``stop`` / ``teleport`` between calls to ``step(dt)``; the same sequence of calls gives
+bit-identical poses. Contacts are RECORDED, NEVER RESOLVED: bodies may overlap, since collision avoidance
+is the controller's job and this world measures how well it does.
 """
 
 from __future__ import annotations
@@ -105,8 +69,11 @@ class Body:
 class Contact:
     """One contact event. ``j`` is the other robot (robot), the obstacle index (obstacle), or -1 (wall).
 
-    For robot-robot events i < j. ``t_end`` is None while the event is ongoing; the object returned
-    by ``World.step`` is the one the world updates, so it later shows ``t_end`` and ``max_depth``.
+    Overlap: centre distance < r_i + r_j (i < j), or signed distance from the centre to the obstacle or
+    arena boundary < r (negative inside an obstacle or outside the arena); touching is not contact. An
+    event starts at the first substep with overlap (robots overlapping at the start: t = 0) and ends
+    (``t_end``, None while ongoing) at the first without; ``max_depth`` is the deepest overlap seen. The
+    object ``World.step`` returns is the one the world updates, so it later shows both.
     """
 
     kind: str
@@ -119,8 +86,10 @@ class Contact:
 
 @dataclass(frozen=True)
 class ActuationNoise:
-    """The world's actuation noise (see the module's text): ``relative`` to the command, ``absolute``
-    (m/s) for a moving robot, held for ``period`` s of world time, drawn from ``seed``."""
+    """The world's actuation noise: ``relative`` to the command, ``absolute`` (m/s) for a moving robot,
+    drawn from ``seed`` and held for ``period`` s of world time on a fixed grid, whatever the commands, so
+    it depends neither on the order commands arrive in nor on how time is chunked into ``step`` calls.
+    The noisy command is clipped to the limits again."""
 
     relative: float = 0.02
     absolute: float = 0.0
@@ -151,9 +120,10 @@ def _checked_bodies(bodies: Sequence[Body], poses: np.ndarray) -> tuple[list[Bod
 
 
 class World:
-    """N disc robots in a plane with optional arena walls and polygon obstacles; see the module doc.
-    Its parts: the bodies' limits (here), the held actuation noise (_HeldNoise), what steps change
-    (_Motion) and the contacts and clearance (_ContactWatch)."""
+    """N disc robots (a mixed swarm allowed) in a plane with optional arena walls and polygon obstacles.
+
+    Its parts: the held actuation noise (_HeldNoise), what steps change (_Motion) and the contacts and
+    clearance (_ContactWatch); limits, noise and exact arcs are sim.bodies.kinematics's."""
 
     def __init__(
         self,
@@ -257,11 +227,13 @@ class World:
 
     @property
     def min_clearance(self) -> float:
+        """Exact smallest robot-robot clearance (centre distance minus both radii; negative: overlap)
+        over every substep state so far; +inf with fewer than two robots."""
         self.check()
         return self._watch.min_clearance
 
     def step_min_clearance(self) -> float:
-        """Minimum robot-robot clearance over the states of the last step (before any step: t = 0)."""
+        """``min_clearance`` over the states of the last step, its start included (before any step: t = 0)."""
         self.check()
         return self._step_min_clearance
 
@@ -304,9 +276,8 @@ class World:
         self._m.n_cmd[i] += 1
 
     def set_commands(self, commands: np.ndarray) -> None:
-        """Every robot's command at once, (N, 2) with rows as ``set_command`` takes them, clipped the
-        same way (sim.bodies.kinematics.limit, whose norm may differ from math.hypot in the last bit). One
-        call instead of N: the central engine commands every robot each tick."""
+        """Every robot's command at once, (N, 2) rows as ``set_command`` takes them, clipped the same way
+        (sim.bodies.kinematics.limit, whose norm may differ from math.hypot in the last bit)."""
         c, bad = limit(self._bodies_c, commands)
         if bad >= 0:
             raise ValueError(f"command for robot {bad} must be finite, not {tuple(c[bad])}")
@@ -318,7 +289,8 @@ class World:
         self._m.cmd[self._index(i)] = 0.0
 
     def teleport(self, i: int, pose: tuple[float, float, float]) -> None:
-        """Move robot i to pose (x, y, theta) as if picked up by hand: velocity zero, no path length."""
+        """Move robot i to pose (x, y, theta) as if picked up by hand: velocity zero, no path length, the
+        command kept; the new state's contacts are checked at the start of the next step."""
         i = self._index(i)
         try:
             x, y, th = (float(v) for v in pose)
@@ -339,10 +311,14 @@ class World:
     # ---------------------------------------------------------------- dynamics
 
     def step(self, dt: float, *, check: bool = True) -> list[Contact]:
-        """Advance by dt seconds in substeps; return the contact events that started during this step.
-        ``check=False`` leaves the contacts of this step to be detected by `check()` (or by anything
-        that reads contacts or clearance, or the next step, which returns them with its own): the
-        central engine moves robots on and looks for contacts while the next auction runs."""
+        """Advance by dt seconds; return the contact events that started during this step.
+
+        dt is split into ceil(dt / substep) equal substeps, each checked for contacts, so a robot crossing
+        another within one control period is still seen (a pair slips by only if it overlaps by less than
+        about s^2 / (8 (r_i + r_j)), s its relative displacement in a substep). Within a noise period the
+        motion is an exact arc. ``check=False`` leaves this step's contacts to `check()` (or to whatever
+        reads contacts or clearance next), so the central engine can detect them while the next auction runs.
+        """
         dt = _number("dt", dt)
         before = self.check()
         k = max(1, math.ceil(dt / self._substep - 1e-9))
@@ -405,7 +381,7 @@ class World:
 
 
 class _HeldNoise:
-    """The actuation noise of the module's text: an (N, 4) standard-normal draw from the world's own
+    """The actuation noise (ActuationNoise): an (N, 4) standard-normal draw from the world's own
     generator on entering each ``period`` of world time, held for the period whatever the commands."""
 
     def __init__(self, robots: int, period: float, seed: int) -> None:
@@ -471,10 +447,9 @@ class _Motion:
 
 
 class _ContactWatch:
-    """Contacts recorded, never resolved (the module's text): the robots' discs against each other,
-    the arena's walls and the obstacles over a step's substep states; every event so far, the ongoing
-    ones, the smallest clearance so far, and the pair closest in the last step (where the next
-    step's search starts)."""
+    """Contacts, recorded and never resolved, of the robots' discs against each other, the arena's walls
+    and the obstacles over a step's substep states; ``closest`` (the pair closest in the last step) is
+    where the next step's search starts."""
 
     def __init__(
         self, radius: np.ndarray, arena: tuple[float, float, float, float] | None, obstacles: list[Polygon]
@@ -557,9 +532,8 @@ class _ContactWatch:
         base += 1e-9 * (1.0 + base)
         found = None
         if self.closest is not None:
-            # the clearance, in row 0, of the pair closest in the last step bounds this step's
-            # minimum: no pair farther than that + base can beat it. If that pair has drifted far
-            # apart (a teleport) while others are close, this looks at too many pairs: given up
+            # the last step's closest pair bounds this step's minimum: no pair farther than that + base
+            # can beat it (the budget gives up if that pair has drifted apart, e.g. a teleport)
             a, b = self.closest
             upper = math.hypot(*(traj[0, a] - traj[0, b])) - r[a] - r[b]
             found = close_pairs(traj, r, max(upper, 0.0) + base, motion, first_row, bound=upper, budget=64 * self.n)

@@ -1,20 +1,12 @@
 """The central engine: every robot of a scene in this process, each deciding by the robot policy.
 
-Robots hear each other through an in-process link (sim.central.link): each robot's state of a tick reaches
-its neighbours at the next, rounded as the wire rounds it, and goal sets arrive as the agents decode
-them. Without impairment that is exactly what lock-step agents over the bus know, so a central run
-and a distributed run of one seed are the same run where no auction is involved; with a seeded loss
-the same loop is the loss study (sim.central.lossy). It is the reference against which decentralisation is
-studied and the fast path for large swarms.
-
-Image scenes play their steps: at time t the robots are auctioned (paper 5.1) onto the goal set of
-the step whose hold contains t. The auction is the agents' own (agent.core.bidder) with one
-participant holding every robot: each `assign_period` the next block of epsilon-scaling phases starts
-from the measured positions, warm from the last prices, and settles without messages (compiled,
-agent.core.bidding) on a thread of its own, which never takes the interpreter's lock, while this one
-decides every robot's tick on the goal it holds;
-only the robots whose goal the auction changed decide again, so the run is the one that waiting for
-the auction would give, to the bit.
+Robots hear each other through an in-process link (sim.central.link): a robot's state of a tick reaches
+its neighbours at the next, rounded as the wire rounds it, so without impairment a central run and a
+lock-step distributed run of one seed are the same run where no auction is involved; with a seeded loss
+it is the loss study (sim.central.lossy). Image scenes are auctioned (paper 5.1) by the agents' own
+auction with one participant holding every robot; a warm block settles on a thread of its own while
+every robot decides on the goal it holds, and only the robots whose goal changed decide again, so the
+run is the one waiting for the auction would give, to the bit.
 """
 
 from __future__ import annotations
@@ -60,8 +52,7 @@ def optimal_assignment(
 ) -> np.ndarray:
     """Goal index per robot: the assignment of least total squared distance (eq. 5-7, scipy's
     linear_sum_assignment), kept only if it lowers the cost of the previous iteration's assignment by
-    at least Delta C (paper 5.1's hysteresis for noisy positions). Scene `assignment = "optimal"`,
-    solved every `assign_period` (bench/bench_large.py compares it with the auction)."""
+    at least Delta C (paper 5.1's hysteresis for noisy positions). Scene `assignment = "optimal"`."""
     cost = ((position[:, None, :] - goals[None, :, :]) ** 2).sum(-1)
     rows, cols = linear_sum_assignment(cost)
     best = _goal_index(len(position), rows, cols)
@@ -96,11 +87,9 @@ def play(block: BlockRounds, rounds: int) -> bool:
 
 def auction_assignment(auction: Participant | LocalAuction, position: np.ndarray) -> np.ndarray:
     """Goal index per robot (-1: none): the auction's next block of phases (paper 5.1.1) settled on
-    these positions (rows by robot id), warm from the last prices, as the agents settle theirs; a
-    robot keeps its goal unless another is better by epsilon_A + Delta C. The participant holds
-    every robot, so every phase's snapshot is its own board. Over a limited range every robot keeps
-    its own board and the rounds are the agents' (agent.core.local_auction). A block begun beside
-    the control core (Participant.settle_beside, on these positions) is waited for."""
+    these positions (rows by robot id), warm from the last prices, as the agents settle theirs; a robot
+    keeps its goal unless another is better by epsilon_A + Delta C. Over a limited range the rounds are
+    the agents' (agent.core.local_auction). A block begun beside (Participant.settle_beside) is waited for."""
     if isinstance(auction, LocalAuction):
         settle_in_process(auction, position)
         return _goal_index(len(position), auction.own_ids, [auction.agreed[r] for r in auction.own])
@@ -221,10 +210,9 @@ class CentralAuction:
         if not self.scene.steps or not (due or self.block is not None):
             pass
         elif self.budget and not last and isinstance(auction, Participant):
-            # The agents' lock-step rounds, at most `budget` a tick: a block may span ticks, the tick's
-            # last round is heard at the next tick, first (as the agents hear theirs from the bus), and
-            # the agreement takes effect at the tick its last round is heard (agent.core.rounds). A
-            # cold start (no auction yet) runs to its agreement below: no goal to drive to meanwhile.
+            # The agents' lock-step rounds, at most `budget` a tick (agent.core.rounds): a tick's last
+            # round is heard first at the next, and the agreement takes effect when it is heard. A cold
+            # start (no auction yet) runs to its agreement below: no goal to drive to meanwhile.
             if self.block is not None and self.block.open and self.block.hear({}):
                 self._adopt(auction)
             if self.block is not None and self.assigned_at is not None and p.stale_block(t - self.assigned_at):
@@ -382,10 +370,9 @@ def simulate(
 ) -> Outcome:
     """Every robot of the scene through the one tick loop (agent.loop.tick), in this process, the
     world moving between ticks, until the scene's duration or convergence. ``clock``: the wall and
-    CPU time of each part of a step (bench/bench_large.py). ``overlap``: a warm auction runs on a
-    second thread beside the neighbour search and the control core on the goals held, and only the
-    robots whose goal changed are stepped again (the same run to the bit: test_central_overlap.py).
-    ``record_to``: the recording streamed to files in this directory (sim.outputs.stream)."""
+    CPU time of each part of a step. ``overlap``: a warm auction settles on a second thread beside the
+    neighbour search and the control core (the same run to the bit). ``record_to``: the recording
+    streamed to files in this directory (sim.outputs.stream)."""
     _refuse_process_faults(scene)
     _keep_freed_memory()
     params, world = world_of(scene)
@@ -423,7 +410,7 @@ def simulate(
         # what the robots broadcast this tick: heard by their neighbours at the next
         link.broadcast(_states(params, robots.measured, pose, velocity_next, t, robots.movers))
         fallbacks += int(decision.step.fallback.sum())
-        if progress is not None and time.time() - last_say >= 1.0:  # a line a second
+        if progress is not None and time.time() - last_say >= 1.0:
             at_goal = _at_goal(pose, goal, params)
             last_say = _say_progress(progress, scene.name, (t, k), at_goal, robots.has_goal(), world)
         clock.lap("other")
@@ -433,9 +420,8 @@ def simulate(
 
 
 def _keep_freed_memory() -> None:
-    """Let the C heap keep what a tick frees for the next (glibc's mallopt; elsewhere nothing): every
-    tick makes and drops large arrays (neighbour arrays, substep states), which glibc would otherwise
-    hand back to the system and fault in anew, page by page, the next tick."""
+    """Let the C heap keep what a tick frees for the next (glibc's mallopt; elsewhere nothing), rather
+    than hand a tick's large arrays back to the system and fault them in anew the next tick."""
     try:
         mallopt = ctypes.CDLL(None).mallopt
     except (OSError, AttributeError):

@@ -1,13 +1,11 @@
 """How robots hear each other inside one process: the central engine's and the loss study's link.
 
-A robot's state of tick k (its tracked position, its collision-free velocity) reaches the others at
-tick k + 1, as over the bus in lock-step, so with no impairment a central run and a distributed run of
-one seed are the same run. Impairment is a property of the link: a seeded draw per (receiver, sender)
-and tick loses a state (``drop``) or makes it a tick late (``late``), as an agent under
-``--faults state:drop=P,delay=S`` lives with; each receiver keeps the newest state it heard of each
-sender and steers by its age (agent.core.control). A communication range (``reach``) limits whom a
-robot hears: states only of robots whose last known position is within it (as the agents' own
-neighbour query), and the auction only from robots within it (agent.core.local_auction).
+A robot's state of tick k (tracked position, collision-free velocity) reaches the others at tick k + 1,
+as over the bus in lock-step. Impairment: a seeded draw per (receiver, sender) and tick loses a state
+(``drop``) or makes it a tick late (``late``), as under ``--faults state:drop=P,delay=S``; each receiver
+steers by the age of the newest state it heard (agent.core.control). A communication range (``reach``)
+limits whom a robot hears, states as the agents' neighbour query does and the auction as
+agent.core.local_auction does.
 """
 
 from __future__ import annotations

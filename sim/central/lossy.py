@@ -1,10 +1,8 @@
 """Lost and late neighbour states without the bus: a study tool for what message loss does to ORCA.
 
 The central engine's loop and robot policy (sim.central.engine.simulate) with an impaired in-process link
-(sim.central.link): each robot hears each neighbour's state of the tick before only if a seeded draw neither
-loses it (``drop``) nor makes it a tick late (``late``). That is what an agent under
-``--faults state:drop=P,delay=S`` lives with, made deterministic and fast: seconds per run instead of
-minutes, so sweeps over loss rates and seeds are cheap (`python -m bench.bench_faults loss`).
+(sim.central.link): what an agent under ``--faults state:drop=P,delay=S`` lives with, made deterministic
+and cheap enough to sweep loss rates and seeds.
 """
 
 from __future__ import annotations
@@ -43,8 +41,7 @@ def circle_crossing(robots: int, kinematics: str, seed: int, duration: float = 2
 
 def run_lossy(scene: Scene, drop: float, late: float, seed: int = 0) -> LossyResult:
     """Step the scene's robots toward their scene goals with states lost with probability ``drop`` and
-    a tick late with probability ``late`` (per sender and receiver): the central engine's loop and
-    robot policy with an impaired in-process link."""
+    a tick late with probability ``late`` (per sender and receiver)."""
     link = InProcessLink(scene.robots, drop=drop, late=late, seed=seed)
     out = simulate(scene, link=link, progress=None)
     ticks = len(out.arrays["t"])

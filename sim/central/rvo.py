@@ -1,9 +1,7 @@
-"""A central, synchronous ORCA stepper over all robots with perfect information, with RVO2's API shape
-(like its doStep: one snapshot, every robot's new velocity, then all move): the engine
-bench/bench_orca.py runs beside RVO2 itself.
+"""A central, synchronous ORCA stepper over all robots with perfect information, in RVO2's API shape.
 
-Neighbours come from agent.core.grid and velocities from agent.core.control, both compiled: the
-same code as every robot's, with perfect information.
+Like RVO2's doStep: one snapshot, every robot's new velocity, then all move. Neighbours come from
+agent.core.grid and velocities from agent.core.control: the same compiled code as every robot's.
 """
 
 from __future__ import annotations
@@ -34,17 +32,9 @@ class Options:
 class CentralOrca:
     """RVO2-like simulator: ``add_agent``, ``add_obstacle``, ``set_pref_velocity``, ``do_step``.
 
-    Agent defaults mirror RVO2's ``setAgentDefaults`` (neighbour distance, max neighbours, horizons,
-    radius, max speed); the ``Options`` go to the control core (agent.core.control). Its attributes
-    are RVO2's simulator state (those defaults, the per-agent arrays, the clock) and the core's
-    views kept between steps, flat as RVO2 keeps them.
-
-    Neighbours, as RVO2's: up to max_neighbors agents closer than neighbor_dist (centre to centre),
-    nearest first, equal distances by index.
-
-    After the first step ``position`` and ``velocity`` are the engine's own arrays, written in place
-    by the steps after it (a step's Python work around the core is then a few calls): copy them to
-    keep a state.
+    Agent defaults mirror RVO2's ``setAgentDefaults``; the ``Options`` go to the control core
+    (agent.core.control). After the first step ``position`` and ``velocity`` are the engine's own
+    arrays, written in place by later steps: copy them to keep a state.
     """
 
     def __init__(
@@ -76,9 +66,8 @@ class CentralOrca:
         self.segments = np.zeros((0, 2, 2))
         self.steps = 0
         self.fallback_count = 0  # robot-steps where the linear program was infeasible
-        # per-step work kept between steps (a step is otherwise mostly Python around the core):
-        # agent indices, the core's views of the rows (they point into the arrays, which a step
-        # updates in place where they are the engine's own), and buffers this engine owns
+        # kept between steps: agent indices, the core's views of the rows (into the arrays a step
+        # updates in place) and the buffers this engine owns
         self._index = np.zeros(0, dtype=np.int64)
         self._ids = np.zeros(0, dtype=np.uint64)
         self._batches: list[tuple[tuple[np.ndarray, ...], Batch]] = []

@@ -1,13 +1,10 @@
-"""Wall and CPU time per part of each control step of the central engine (bench/bench_large.py).
+"""Wall and CPU time per part of each control step of the central engine.
 
-The engine calls ``start()`` at the top of every tick and ``lap(part)`` after each part, which
-charges the time since the last lap to that part; a few clock reads per tick, so the engine always
-keeps one. The laps are the engine's own thread: a warm auction runs on a second thread meanwhile
-(sim.central.engine), and the "assignment" part is the time spent waiting for it; its own time is kept
-apart, in ``beside``. CPU time (this process's, both threads) is kept beside wall time when asked
-(``cpu``, by the bench), because on a shared machine the wall time of a part counts whatever else ran
-meanwhile; not otherwise: reading it is a system call that sums every thread's time, far dearer than
-the wall clock while the auction's thread runs, and the engine reads the clock a dozen times a tick.
+The engine calls ``start()`` at the top of every tick and ``lap(part)`` after each part, which charges the
+time since the last lap to that part. Laps are the engine's own thread: the "assignment" part is the time
+spent waiting for the warm auction on the second thread, whose own time is kept in ``beside``. CPU time
+(this process's, both threads), which unlike wall time ignores whatever else runs on a shared machine, is
+read only when asked (``cpu``): it is a system call far dearer than the wall clock.
 """
 
 from __future__ import annotations

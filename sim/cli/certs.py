@@ -1,8 +1,8 @@
-"""`pixelswarm certs DIR --robots N`: a certificate authority, a certificate and a Zenoh configuration per
-role, and the router's access rules, for a secured bus (transport/security.py, docs/security.md).
+"""`pixelswarm certs DIR --robots N`: certificates, configurations and access rules for a secured bus.
 
-Bad input (robots < 1, a folder that exists or cannot be written, a bad endpoint) is one line
-`pixelswarm certs: error: ...` on stderr and exit code 2, with nothing written.
+A certificate authority, a certificate and a Zenoh configuration per role, and the router's access rules
+(transport/security.py, docs/security.md). Bad input is one line on stderr and exit code 2, with nothing
+written.
 """
 
 from __future__ import annotations

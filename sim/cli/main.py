@@ -301,9 +301,8 @@ def _hardware_scene(args: argparse.Namespace) -> Scene:
 
 
 def _make_goal_sets(scene: Scene, progress: typing.TextIO | None) -> Scene:
-    """The scene's goal sets (make_goal_sets). At thousands of robots they take seconds: once they
-    have taken GOALS_SAID_AFTER, progress hears what is going on, and when it is done (a scene refused
-    at once still answers in one line)."""
+    """The scene's goal sets (make_goal_sets); once they take longer than GOALS_SAID_AFTER, progress
+    hears what is being made and when it is done."""
     if scene.goal_plan is None or progress is None:
         return make_goal_sets(scene)
     images = len(scene.steps)
@@ -350,10 +349,11 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def _with_rounds_per_tick(args: argparse.Namespace, scene: Scene, reach: float) -> Scene:
-    """--rounds-per-tick, or the scene's; a lock-step scene made for agent processes (its engine
-    distributed) that sets none is bounded to BUS_ROUNDS_PER_TICK, whichever engine runs it, so
-    every engine runs it the same; scenes made for the central engine agree every block within its
-    tick (paper 5.1). Written into the scene, so the run directory says which it was."""
+    """--rounds-per-tick, or the scene's, written into the scene so the run directory says which.
+
+    A lock-step scene made for agent processes that sets none gets BUS_ROUNDS_PER_TICK whichever engine
+    runs it, so every engine runs it the same; scenes made for the central engine agree every block
+    within its tick (paper 5.1)."""
     rounds = args.rounds_per_tick
     if rounds is None and "rounds_per_tick" not in scene.robot and args.hardware is None:
         bus = scene.engine == "distributed" and scene.clock == "lockstep" and not math.isfinite(reach)
@@ -670,15 +670,13 @@ def cmd_stop(args: argparse.Namespace) -> int:
 
 
 def cmd_scenes(args: argparse.Namespace) -> int:
-    # The files as written, not loaded: loading an animation draws its keyframes and generates
-    # every goal set (seconds per scene). `pixelswarm run` validates a scene in full.
+    # The files as written, not loaded: loading an animation makes every goal set (`run` validates).
     rows = []
     for name in shipped_scenes():
         with open(resolve_scene_path(name), "rb") as f:
             data = tomllib.load(f)
         kinematics = data.get("robot", {}).get("kinematics", EPUCK.kinematics)
         rows.append((name, int(data.get("robots", 0)), kinematics, data.get("description", "")))
-    # columns as wide as their longest entry, so that any name length keeps them aligned
     name_width = max((len(name) for name, *_ in rows), default=0)
     robots_width = max((len(str(robots)) for _, robots, *_ in rows), default=0)
     for name, robots, kinematics, description in rows:

@@ -1,13 +1,9 @@
 """`pixelswarm track SOURCE --hardware FILE --out poses.csv`: the overhead-camera tracker, offline.
 
-Reads the `[poses]` table (kind "camera") of a hardware file, runs hardware.camera's ArucoTracker over
-every frame of the video and writes one CSV row per robot seen per frame: `t,id,x,y,theta,frame`
-(t in seconds from the video's frame rate, x and y in metres on the floor, theta in radians). A robot
-not seen in a frame has no row there. Progress goes to stderr.
-
-Bad input (missing or unreadable video or hardware file, a bad `[poses]` table, a video in which the
-reference markers never show) prints one line `pixelswarm track: error: ...` and returns 2; the CSV is
-written beside its final name and renamed only when complete.
+Runs hardware.camera's ArucoTracker, set up by a hardware file's `[poses]` table (kind "camera"), over
+every frame and writes one CSV row per robot seen per frame: `t,id,x,y,theta,frame` (t in s from the
+video's frame rate, x and y in m on the floor, theta in rad). Bad input is one line on stderr and exit
+code 2; the CSV takes its name only when complete. See docs/camera.md.
 """
 
 from __future__ import annotations

@@ -98,7 +98,7 @@ class OverheadCamera:
             self._draw_marker(frame, to_image, _marker_image(self.dictionary, marker), pose)
         if self.blur_sigma > 0:
             frame = cv2.GaussianBlur(frame, (0, 0), self.blur_sigma)
-        # OpenCV's generator, seeded from rng for each frame: many times faster than numpy's here
+        # OpenCV's generator, seeded from rng for each frame: faster than numpy's here
         noise = np.empty_like(frame)
         cv2.setRNGSeed(int(rng.integers(2**31)))
         cv2.randn(noise, 0.0, self.noise_sigma)  # type: ignore[call-overload]  # stubs lack the Scalar form

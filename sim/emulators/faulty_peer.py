@@ -1,39 +1,31 @@
-"""A faulty peer on an open bus (issue 40): it hears a display's messages and re-publishes damaged
-copies of them, about ``rate`` a second, on the keys it heard them on.
+"""A faulty peer on an open bus: it hears a display's messages and re-publishes damaged copies of them,
+``rate`` a second, on the keys it heard them on (docs/faults.md).
 
     python -m sim.emulators.faulty_peer -e tcp/127.0.0.1:PORT [--display NAME] --mode MODE
-        [--rate 350] [--duration S] [--start-after S] [--seed N]
+        [--rate R] [--duration S] [--start-after S] [--seed N]
 
-It opens a zenoh client session of its own (multicast scouting off), subscribes to what its mode
-damages under ``px/<display>/`` (leaving out its own copies, which it hears back), waits for the
-run's first clock tick, then ``--start-after`` seconds more, and damages for ``--duration`` seconds
-(default: until SIGTERM or SIGINT). It ends with one line on stdout: the copies it sent, per key kind and per damage.
+A zenoh client of its own; it ignores its own copies heard back, starts ``--start-after`` s after the run's
+first clock tick, damages for ``--duration`` s (default: until SIGTERM or SIGINT) and ends with one line on
+stdout: the copies it sent, per key kind and per damage.
 
-Modes (each mutates only what it says; the layouts are transport/codec.py's, docs/protocol.md):
+Modes (each mutates only what it says; the layouts: docs/protocol.md):
 
-- ``future-pose``, ``future-state``, ``future-cmd``: pose, state or command frames whose tick (the
-  u32 after the two-byte header) is moved into the future by 1..10000 ticks, the rest intact
-  (frames of tick BEFORE_START are left alone).
-- ``malformed-pose``: pose frames truncated, extended, with a header byte (kind, version), the count
-  (for a frame: its length no longer a whole number of records) or random bytes overwritten
-  (``--damage`` picks some of these: truncated, extended, header, count, random). Most copies fail
-  to decode; some do not: a frame cut to its fixed part (no record), extended by whole records,
-  or with random bytes in its values (a forged record).
-- ``malformed-all``: every key kind of the bus (pose, state, cmd, goals, auction, boards, clock,
-  event; with ``--include-sim`` also sim/truth and sim/contact) damaged the same ways; a goal set's,
-  bid's, board word's or truth's count field is overwritten where it has one.
-- ``stale-cmd``: commands re-sent unchanged 2 s or more after the peer first heard them.
-- ``misc``: clock ticks, goal sets, bids and boards, malformed (as above) or future-stamped (a
-  clock's tick, stamp or goal epoch; a goal set's epoch or timing stamp; a bid's or board's epoch or
-  serial (round), moved forward).
-- ``restart``: pose, state and command frames as a restarted sender would send them: the tick
-  replaced by one counting from 0 again (10 a second of wall time since the peer's last
-  "restart", one every 10 s), only when that is behind the tick it replaces.
-- ``all``: each copy from one of future-pose, future-state, future-cmd, malformed-all, stale-cmd,
-  misc and restart, drawn at random among those that have something to send.
+- ``future-pose``, ``future-state``, ``future-cmd``: frames with their tick moved 1..FUTURE_MAX ticks into
+  the future, the rest intact (frames of tick BEFORE_START are left alone).
+- ``malformed-pose``: pose frames truncated, extended, or with a header byte, the count or random bytes
+  overwritten (``--damage`` picks among these). Some copies still decode: a frame cut to its fixed part,
+  extended by whole records, or with a forged record.
+- ``malformed-all``: every key kind of the bus (with ``--include-sim`` also sim/truth and sim/contact)
+  damaged the same ways, a count field overwritten where the kind has one.
+- ``stale-cmd``: commands re-sent unchanged STALE_AFTER s or more after they were first heard.
+- ``misc``: clock ticks, goal sets, bids and boards, malformed or with a tick, stamp, epoch or serial
+  (round) moved forward.
+- ``restart``: frames with the tick of a sender restarted every RESTART_EVERY s (counting from 0 at
+  RESTART_RATE a second), only when that is behind the tick it replaces.
+- ``all``: each copy from one of the modes in ALL_OF, drawn among those with something to send.
 
-Importable: ``FaultyPeer(settings, display, PeerPlan(mode, ...))``; ``run(stop)`` blocks (tests run it in a
-thread, or the module as a subprocess), ``summary()`` is the last line.
+Importable: ``FaultyPeer(settings, display, PeerPlan(mode, ...))``; ``run(stop)`` blocks, ``summary()`` is
+the last line.
 """
 
 from __future__ import annotations
@@ -397,7 +389,7 @@ class FaultyPeer:
     def run(self, stop: threading.Event | None = None, report: TextIO | None = None) -> Counter[str]:
         """Hear, wait for the first tick (and start_after), damage until duration or ``stop``;
         ``report``: where the summary line goes once the damage ends, before the session closes
-        (closing waits on the router, for seconds when it is stalled or gone)."""
+        (closing can wait long on a stalled or gone router)."""
         stop = stop or threading.Event()
         bus = self._open(stop)
         try:

@@ -1,18 +1,12 @@
 """The body node: one process between the robots' agents and their bodies, whatever the bodies are.
 
-Every control period (``BodyNode.step_tick``, the one loop) it publishes the clock, the truth and the
-tracker's poses, takes each robot's newest command to its body as it arrives, stops what it cannot
-trust (the watchdog) and lets the bodies move for the period. The bodies are a ``Backend``: the
-simulated world (sim/node/world.py) or real robots (sim/node/hardware.py), as in Crazyswarm2 and the
-Robotarium. The clock is injected: ``LockStep`` waits until every live agent answered the tick (a
-reproducible run), ``WallClock`` lets the period pass in slices of real time.
-
-A command holds for a time the backend gives (a period and a margin of simulated time, or the
-hardware's command timeout): a robot whose agent is late, blind, cut off or gone, or whose pose is
-lost, stops rather than drive on an old command, since ORCA's guarantee holds only for commands
-computed from the current poses. What no honest agent sends is dropped and counted: a command for a
-tick not yet published (taken as the newest, it would shut out every honest one after it) or
-stamped other than at its tick's start.
+Every control period (``BodyNode.step_tick``) it publishes the clock, the truth and the tracker's poses,
+takes each robot's newest command to its body, stops what it cannot trust (the watchdog) and lets the
+bodies (a ``Backend``: sim/node/world.py or sim/node/hardware.py) move; the clock is ``LockStep``
+(reproducible) or ``WallClock``. A command holds only for a time the backend gives: a robot whose agent
+is late or gone, or whose pose is lost, stops, since ORCA's guarantee holds only for commands computed
+from the current poses. Commands no honest agent sends (for a tick not yet published, or stamped other
+than at its tick's start) are dropped and counted.
 """
 
 from __future__ import annotations
@@ -39,20 +33,17 @@ from transport.plausible import FUTURE, INCONSISTENT, GoalSets, stamp_agrees
 
 STARTUP_TIMEOUT = 60.0  # s the node waits for every agent by default (`pixelswarm run` says how long)
 BEFORE_START_EVERY = 0.2  # s: poses to robots whose agent is not live yet
-# s a lock-step tick waits at most while auction messages keep coming: twice the longest an agent waits
-# for a round (agent.assignment.ROUND_CAP); a peer that repeats auction messages held the world (and the
-# end of the run) for ever
+# s a lock-step tick waits at most while auction messages keep coming (twice agent.assignment.ROUND_CAP),
+# so a peer that repeats auction messages cannot hold the world for ever
 AUCTION_PATIENCE = 60.0
-# s a lock-step tick that begins a scene step waits at most for the step's goal set: as long as an agent
-# waits for it (agent.clocks.GOAL_SET_WAIT), and the deadline runs on after, so an agent that gave up answers
+# s a lock-step tick that begins a scene step waits at most for its goal set: as an agent does
+# (agent.clocks.GOAL_SET_WAIT), with the deadline after, so an agent that gave up still answers
 GOAL_SET_PATIENCE = 10.0
-# s the first lock-step tick waits at most for every agent's command: every agent process takes its first
-# step at the same moment, paging in its code, and 100 one-robot processes on 2 cores overran the
-# deadline (92 robots stood still at tick 0, and the run was no longer the central engine's)
+# s the first lock-step tick waits at most for every agent's command: every agent process pages in its
+# code for its first step at the same moment, and a missed first tick makes a different run
 FIRST_TICK_PATIENCE = 10.0
 # s a lock-step tick at which the scene kills robots (a 'fail' event) waits at most for their agents to be
-# gone: the launcher kills them once its recorder has seen the tick, and a loaded recorder lags by seconds
-# of display (robots killed 6 s late found the image's hold over before the survivors' goal set came)
+# gone: the launcher kills them only once its recorder, which may lag, has seen the tick
 FAIL_PATIENCE = 10.0
 STOP_REASONS = ("agent_lost", "pose_lost", "command_timeout")  # the watchdog's, in the order it asks
 COMMAND_DROPS = (FUTURE, INCONSISTENT)
@@ -105,23 +96,19 @@ class Tally:
 
 
 class LockStep:
-    """Publish tick k, wait until every live agent answered it or a deadline passes (a missed tick;
-    the first tick's is FIRST_TICK_PATIENCE), then advance one period. The deadline runs from the
-    last auction message heard: agents that
-    still trade a tick's auction rounds (agent.assignment.AuctionLink.settle_block) are at work; and,
-    for at most GOAL_SET_PATIENCE, while the goal set of a scene step that begins at the tick is unheard.
-    A tick at which the scene kills robots waits (at most FAIL_PATIENCE) until their agents are gone, so
-    they die at the scene's tick however far behind the launcher is."""
+    """Publish tick k, wait until every live agent answered it or a deadline passes (a missed tick),
+    then advance one period. The deadline runs from the last auction message heard (agents still
+    trading rounds are at work) or, within GOAL_SET_PATIENCE, while a starting step's goal set is
+    unheard; a tick at which the scene kills robots waits (FAIL_PATIENCE) until their agents are gone."""
 
     def __init__(self, bus: Bus, deadline: float) -> None:
         self.deadline = deadline
         self.auction_traffic = [bus.subscribe_raw(bus.keys.all_of(kind)) for kind in ("auction", "boards")]
 
     def publishing(self, node: BodyNode) -> None:
-        """Tick ``node.tick`` is about to go out. Under injected command faults (``--faults cmd:...``),
-        as the agents' under state faults: a command's fate is drawn from the command itself and its
-        delay counts on the run's clock, and the inbox notes each robot's commands as they come,
-        whatever the plan does with them (``spans`` then waits for none that came and was lost)."""
+        """Tick ``node.tick`` is about to go out. Under command faults (``--faults cmd:...``) delays count
+        on the run's clock and the inbox notes each robot's commands as they come, so ``spans`` waits
+        for none that came and was lost."""
         inbox = node.cmd_inbox
         if inbox.fault is not None:
             inbox.sim_time = node.tick * node.dt

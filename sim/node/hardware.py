@@ -1,12 +1,9 @@
 """The hardware process: real robots as the body node's bodies (sim/node/body.py), on the wall clock.
 
-Every control period the node reads each robot's newest pose from the pose source and publishes
-Tick, the poses (exactly as over the simulated world, so agents cannot tell the difference) and Truth
-holding the tracked poses. Each robot's newest Command goes to the drive as soon as it arrives, wheel
-speeds clipped to v_max. A robot whose pose has been lost longer than the command timeout is not
-published (its agent waits) and is stopped; every robot is stopped when the run ends, on SIGTERM or
-SIGINT, on an error, and when the launcher is gone. The pose source drops and counts a pose stamped
-older than one taken or in the future (hardware/poses.py).
+It publishes Tick, the poses and Truth exactly as the simulated world does, so agents cannot tell the
+difference; commands go to the drive as they arrive, wheel speeds clipped to v_max. A robot whose pose
+has been lost longer than the command timeout is not published (its agent waits) and is stopped; every
+robot is stopped however the run ends (SIGTERM, SIGINT, an error, the launcher gone). See docs/hardware.md.
 
     python -m sim.node.hardware --hardware hw.toml --scene paper-sequence -e tcp/127.0.0.1:7447
 """

@@ -1,11 +1,10 @@
 """The world process: the simulated bodies, the central tracker and the clock, on the bus.
 
-The simulated world is one backend of the body node (sim/node/body.py). Real time: physics in
-substeps on the wall clock; every control period (10 Hz) the tracker publishes each robot's pose
-(with seeded noise, paper 7.1: 2 mm / 3 deg) and commands are applied as they arrive, as on
-hardware. Lock-step: the node waits for every live agent's command for the tick, then the world
-advances one period; lock-step runs are reproducible from the seed. A command holds for its control
-period and a margin (RobotParams.command_margin) of simulated time.
+The simulated world is one backend of the body node (sim/node/body.py). Real time: physics in substeps
+on the wall clock, the tracker's poses (seeded noise, paper 7.1) every control period, and commands
+applied as they arrive, as on hardware. Lock-step: each tick waits for every live agent's command, so
+runs are reproducible from the seed. A command holds for its control period and a margin
+(RobotParams.command_margin) of simulated time.
 """
 
 from __future__ import annotations

@@ -1,18 +1,11 @@
 """The display as Foxglove's ``foxglove.SceneUpdate``, built with Foxglove's own SDK (``foxglove-sdk``).
 
-The message types are the SDK's (:mod:`foxglove.messages`): typed, and encoded as protobuf with
-the schema Foxglove publishes, so Foxglove's 3D panel shows a run with no configuration and the
-file is several times smaller than the JSON it replaces.
-
-:func:`scene_update` builds one message: one entity per robot, ``robot/<id>``, holding its disc
-(a flat cylinder, the robot's diameter, its LED colour), a heading arrow and, if it has one, its
-goal as a small translucent sphere in the same colour; the entity's metadata says the robot's goal
-(hover over it in the 3D panel).  Every entity is in the one frame :data:`DISPLAY_FRAME`, so no
-transform is needed for the panel to draw them.
-
-A swarm of thousands is drawn by :func:`swarm_scene` instead: one entity, :data:`SWARM_ENTITY`, of a
-disc per robot (no arrow, no metadata), about a third of the bytes; its goals are
-:func:`goal_markers`, one entity of a sphere per goal, written when the goal set changes.
+The SDK's message types (:mod:`foxglove.messages`) are encoded as protobuf with the schema Foxglove publishes,
+so Foxglove's 3D panel shows a run with no configuration. :func:`scene_update` makes one entity per robot,
+``robot/<id>``: its disc in its LED colour, a heading arrow, its goal as a translucent sphere, and the goal in
+its metadata (hover in the 3D panel). A swarm of thousands is drawn by :func:`swarm_scene` as one entity,
+:data:`SWARM_ENTITY` (a disc per robot), and its goals by :func:`goal_markers`, written when the goal set
+changes. Every entity is in the one frame :data:`DISPLAY_FRAME`, so the panel needs no transform.
 """
 
 from __future__ import annotations
@@ -48,14 +41,14 @@ DISPLAY_FRAME = "display"  # the plane the robots move on, x right and y up as i
 DISC_HEIGHT = 0.01  # m: a flat disc, as a robot's LED top is seen from above
 GOAL_SIZE = 0.4  # goal sphere diameter, as a fraction of the robot's diameter
 GOAL_ALPHA = 0.5  # a goal is where the robot's colour will be, not a robot
-SWARM_ENTITY = "robots"  # swarm_update's one entity
+SWARM_ENTITY = "robots"  # swarm_scene's one entity
 GOALS_ENTITY = "goals"  # goal_markers' one entity
 NO_LED = (160, 160, 160)  # RGB of a robot whose LED colour is not known
 HEADING_COLOR = (0.1, 0.1, 0.1)
 FLAT = (0.0, 0.0, 0.0, 1.0)  # the identity rotation
-QUANTUM = 2.0**-14  # lengths to 1/16384 m (0.06 mm), colours and rotations to 1/16384: far below what a
-# viewer sees. A power of two, so each double's low mantissa bytes are zeros (decimal rounding left them
-# noise), and a robot at rest repeats the same bytes tick after tick: the log's compression stores both once
+QUANTUM = 2.0**-14  # lengths to 1/16384 m, colours and rotations to 1/16384: far below what a viewer sees.
+# A power of two, so each double's low mantissa bytes are zeros and a robot at rest repeats the same bytes
+# tick after tick: the log's compression stores both once
 
 
 def _timestamp(t_ns: int) -> Timestamp:
@@ -174,8 +167,8 @@ def _template(number: int, one: Callable[..., Any], values: int) -> tuple[bytes,
 def _records(number: int, one: Callable[..., Any], columns: np.ndarray) -> np.ndarray:
     """A repeated message field's records, a row of bytes per row of ``columns`` (n, k): the SDK's
     encoding of one primitive, ``one(*k values)``, made with k distinct stand-in values, then copied n
-    times with each row's doubles in their places. The SDK builds its objects one by one, which at
-    10,000 robots costs several times what the log can spend on a scene."""
+    times with each row's doubles in their places: the SDK building objects one by one is too slow for a
+    large swarm."""
     record, places = _template(number, one, columns.shape[1])
     out = np.tile(np.frombuffer(record, np.uint8), (len(columns), 1))
     doubles = np.ascontiguousarray(columns, "<f8").view(np.uint8).reshape(len(columns), -1, 8)

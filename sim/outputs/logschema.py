@@ -1,27 +1,12 @@
 """pixelswarm's per-tick message kinds as protobuf, for log.mcap: documented custom schemas.
 
-The kinds a run sends every tick carry tables of records (a robot's pose, state or command, an
-auction record, a world truth row). As JSON each number cost its decimal digits (a float32 written
-as the double it widens to: ~19 characters, and digits compress badly), which made them most of
-``log.mcap``. Here each becomes a protobuf message ``pixelswarm.<Kind>`` (the class name in
-:mod:`transport.codec`) whose schema, a ``FileDescriptorSet``, is stored in the file, so Foxglove and
-``mcap``'s protobuf support decode it with no pixelswarm code:
-
-- the kind's fixed fields, in their wire types (``uint32``, ``uint64``, ``float``, ``double``);
-- each table as a nested message with one packed repeated field per column, in a type that holds
-  the column's wire type exactly (a float32 stays a ``float``: the log holds exactly what crossed the
-  bus), the JSON log's ``records: {column: [...]}`` shape; ``Boards`` has ``words`` and ``records``,
-  and ``known`` as bytes (the bit rows one after the other, ``(robots + 7) // 8`` bytes each). Bytes
-  and 16-bit integers are ``uint32``; wider integers fixed-width (``fixed32``, ``sfixed32``,
-  ``fixed64``), so that a large table's columns go into the message as numpy's own bytes (:class:`Table`):
-  protobuf's Python API sets repeated fields a value at a time, which made encoding the range-limited
-  auction's boards most of a recorder's time;
-- ``Truth`` (the world's true state, sim only) has a table ``records`` of a row per robot: ``x``,
-  ``y``, ``theta`` (float, as poses cross the bus; the world's doubles are in trajectory.npz), ``vx``,
-  ``vy``, ``r``, ``g``, ``b``, ``applied``;
-- ``key``: the bus key it came on (who sent it).
-
-Docs: docs/outputs.md (log.mcap).
+Each kind sent every tick becomes a protobuf message ``pixelswarm.<Kind>`` (the class in :mod:`transport.codec`)
+whose schema, a ``FileDescriptorSet``, is stored in the file, so Foxglove and ``mcap`` decode it with no
+pixelswarm code: the kind's fixed fields, each table as a nested message of one packed column per field in a
+type that holds the wire's values exactly (the log holds what crossed the bus), and ``key``, the bus key it
+came on. ``Boards.known`` is bytes (the bit rows one after the other, ``(robots + 7) // 8`` bytes each). Wider
+integers are fixed-width, so a large table's columns go in as numpy's own bytes (:class:`Table`): protobuf's
+Python API sets repeated fields a value at a time. Details: docs/outputs.md (log.mcap).
 """
 
 from __future__ import annotations
@@ -48,8 +33,7 @@ _BY_DTYPE |= {"i4": (_F.TYPE_SFIXED32, "<i4"), "u8": (_F.TYPE_FIXED64, "<u8")}
 _BY_DTYPE |= {"f4": (_F.TYPE_FLOAT, "<f4"), "f8": (_F.TYPE_DOUBLE, "<f8")}
 LENGTH_DELIMITED = 2  # protobuf's wire type of packed repeated fields, nested messages and bytes
 
-# The world's poses are float64; logged as float32, as every pose crosses the bus (0.24 um at 4 m). Their
-# noise-like low bytes were a quarter of the log, and trajectory.npz keeps them whole.
+# The world's poses are float64; logged as float32, as every pose crosses the bus (trajectory.npz keeps them whole)
 TRUTH_ROW = np.dtype(
     [("x", "<f4"), ("y", "<f4"), ("theta", "<f4"), ("vx", "<f4"), ("vy", "<f4")]
     + [("r", "u1"), ("g", "u1"), ("b", "u1"), ("applied", "<u4")]

@@ -1,22 +1,11 @@
-"""The run's MCAP log, written through Foxglove's SDK (``foxglove-sdk``).
+"""The run's MCAP log, written through Foxglove's SDK (``foxglove-sdk``); no zenoh here, the recorder calls it.
 
-Three kinds of channel:
-
-- pixelswarm's own message kinds: message encoding ``json``, schema encoding ``jsonschema`` (a
-  documented custom schema, ``pixelswarm.<Kind>``).  Payloads are Python dicts that may contain
-  numpy scalars/arrays and NaN/inf; they are converted to JSON-safe values (NaN/inf -> ``null``).
-- Foxglove's well-known schemas (:mod:`foxglove.messages`, e.g. ``foxglove.SceneUpdate``):
-  message and schema encoding ``protobuf``, the schema the SDK carries (:meth:`McapLog.add_foxglove_channel`).
-- pixelswarm's per-tick kinds (``pixelswarm.States``, ...): protobuf too, with the schema
-  sim.outputs.logschema builds (:meth:`McapLog.add_protobuf_channel`).
-
-All channels of one log belong to one SDK context, so :meth:`McapLog.serve` also streams every
-one of them live over Foxglove's WebSocket protocol (127.0.0.1) while the file is written.
-
-Also: :func:`read_mcap` / :func:`mcap_channels` (read back with mcap's own reader, protobuf
-decoded from the schema stored in the file, used by tests).
-
-No zenoh here: the recorder (a bus subscriber) calls this.
+Three kinds of channel: pixelswarm's own message kinds as ``json`` with a ``jsonschema`` schema
+(``pixelswarm.<Kind>``; numpy values made JSON-safe, NaN/inf -> ``null``); Foxglove's well-known schemas
+(:mod:`foxglove.messages`, e.g. ``foxglove.SceneUpdate``) as ``protobuf``; and the per-tick kinds
+(``pixelswarm.States``, ...) as ``protobuf`` with sim.outputs.logschema's schemas. All channels share one SDK
+context, so :meth:`McapLog.serve` can stream them live over Foxglove's WebSocket protocol (127.0.0.1) as the
+file is written. :func:`read_mcap` and :func:`mcap_channels` read a log back with mcap's own reader.
 """
 
 from __future__ import annotations
@@ -51,10 +40,9 @@ _COMPRESSION = {"zstd": MCAPCompression.Zstd, "lz4": MCAPCompression.Lz4, "none"
 class McapLog:
     """Append-only MCAP log.  Thread-safe (bus callbacks may arrive on several threads).
 
-    ``McapLog(path)`` opens and starts the file; :meth:`close` (or leaving a ``with`` block)
-    writes the summary section.  A file that was not closed is still readable by mcap's
-    non-seeking reader up to the last flushed chunk, but Foxglove wants a closed file.
-    Messages are stamped with their log time (publish time the same), sequence numbers per channel from 1.
+    :meth:`close` (or leaving a ``with`` block) writes the summary section; an unclosed file is readable
+    up to its last flushed chunk (:func:`read_mcap`), but Foxglove wants a closed one. Messages carry
+    their log time as publish time too, and sequence numbers per channel from 1.
     """
 
     def __init__(self, path: str | os.PathLike, *, compression: str | None = "zstd"):
@@ -302,8 +290,9 @@ def _read_unfinished(path: str | os.PathLike, wanted: set[str] | None) -> dict[s
 
 
 def mcap_channels(path: str | os.PathLike) -> dict[str, dict[str, Any]]:
-    """Per topic: ``schema_name``, ``schema_encoding``, ``message_encoding``, ``schema`` (the JSON
-    schema parsed, or a protobuf schema's ``FileDescriptorSet``), ``metadata`` and ``message_count`` (from the summary statistics)."""
+    """Per topic: ``schema_name``, ``schema_encoding``, ``message_encoding``, ``schema`` (the JSON schema
+    parsed, or a protobuf schema's ``FileDescriptorSet``), ``metadata`` and ``message_count`` (from the
+    summary statistics)."""
     with open(path, "rb") as fh:
         reader = make_reader(fh)
         summary = reader.get_summary()

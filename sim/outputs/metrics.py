@@ -21,8 +21,8 @@ def _radius(radius: Any, n: int) -> np.ndarray:
     return np.broadcast_to(r, (n,)).astype(float) if r.ndim == 0 else r.reshape(n)
 
 
-# elements of a (ticks x robots) temporary the metrics build at once: the whole sequence at 10,000
-# robots is 1.2e8 of them, a GB a temporary in float64; the results are the same to the bit
+# elements of a (ticks x robots) temporary the metrics build at once, so a long run's temporaries stay
+# small; the results are the same to the bit as over the whole array
 CHUNK = 1 << 20
 
 
@@ -153,8 +153,7 @@ def communication_parts(pose: np.ndarray, reach: float) -> np.ndarray:
     return out
 
 
-# robots: above, the optimum (N^2 costs, O(N^3) time: minutes at 10,000) is left to the benchmark
-# (bench.bench_auction), and a run's metrics say None
+# robots above which the optimum (N^2 costs, O(N^3) time) is left to bench.bench_auction: a run's metrics say None
 OPTIMUM_UP_TO = 3000
 
 
@@ -236,17 +235,14 @@ def step_metrics(
     current: np.ndarray | None = None,
     members: np.ndarray | None = None,
 ) -> list[dict[str, Any]]:
-    """Per image step (``step`` (T,) int, the step shown at each sample; negative: none): its first
-    and last sample times ``t_start`` / ``t_end``, ``converged_at`` (seconds after t_start of the
-    first sample at which every robot with a goal is within ``tolerance``, or None),
-    ``max_goal_error_at_end`` and ``median_goal_error_at_end`` (m, at its last sample; None if no
-    robot has a goal there: an animation's keyframe ends before all robots arrive) and ``path_length_m`` (all robots' xy path while the step was shown, summed).
+    """Per image step (``step`` (T,) int, the step shown at each sample; negative: none): ``t_start`` /
+    ``t_end``, ``converged_at`` (s after t_start until every robot with a goal is within ``tolerance``, or
+    None), ``max_goal_error_at_end`` and ``median_goal_error_at_end`` (m, at its last sample; None if no robot
+    has a goal there) and ``path_length_m`` (all robots' xy path during the step, summed).
 
-    Distributed runs also give ``members`` (T, N): the robots of the newest goal set (the others,
-    e.g. dead ones, are not waited for) and ``current`` (T, N): whose goal comes from that set (until
-    the robots agree on a new set they still drive to the last one's goals, which do not count).
-
-    From arrays only, so the central engine and the distributed recorder report alike."""
+    Distributed runs also give ``members`` (T, N), the robots of the newest goal set (the others, e.g. dead
+    ones, are not waited for), and ``current`` (T, N), whose goal comes from that set (goals of an older set
+    do not count). From arrays only, so the central engine and the distributed recorder report alike."""
     t = np.asarray(t, dtype=float)
     T, N = _pose_shape(pose)
     step = np.asarray(step).astype(int).reshape(-1)

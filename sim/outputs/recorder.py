@@ -1,12 +1,9 @@
 """The recorder: subscribes to everything on the bus and keeps what the run directory needs.
 
-It measures the run from the world's TRUE poses (``sim/truth``), never from what agents believed;
-it logs every message kind on its own MCAP channel (the per-tick kinds as protobuf, sim.outputs.logschema;
-the others as JSON), and at every recorded tick the display as a
-``foxglove.SceneUpdate`` (Foxglove's SDK, protobuf) on :data:`SCENE_TOPIC` (a swarm of more than
-:data:`LOG_ROBOTS`: the robots as one entity every :data:`SCENE_PERIOD` of display time, and its goal
-sets on :data:`GOALS_TOPIC` as each arrives); it counts messages and bytes per kind, and it
-decides when the display has converged.
+It measures the run from the world's TRUE poses (``sim/truth``), never from what agents believed. It logs
+every message kind on its own MCAP channel (per-tick kinds as protobuf, sim.outputs.logschema; the others as
+JSON) and the display as Foxglove scenes, counts messages and bytes per kind, and decides when the display
+has converged. Details: docs/outputs.md.
 """
 
 from __future__ import annotations
@@ -47,12 +44,10 @@ from transport.plausible import AHEAD, GoalSets, stamp_agrees
 SCENE_TOPIC = "/display/scene"  # what Foxglove's 3D panel shows: robots in their LED colours, and goals
 GOALS_TOPIC = "/display/goals"  # above LOG_ROBOTS: the goal sets, apart from the robots
 
-# robots a tick the log holds every tick of: a larger swarm's per-tick kinds and scene are logged
-# every ceil(N / LOG_ROBOTS)-th tick of the world, so the log grows no faster than at this size (at
-# 10,000 robots a scene message alone is about 4 MB)
+# the most robots whose every tick is logged: a larger swarm's per-tick kinds and scene are logged every
+# ceil(N / LOG_ROBOTS)-th tick, so the log grows no faster than at this size
 LOG_ROBOTS = 1000
-# s of display time between scene messages above LOG_ROBOTS robots (a swarm's one entity, about 130
-# bytes a robot), and none while no robot moved or changed colour: the panel redraws from the newest
+# s of display time between scene messages above LOG_ROBOTS robots; none while nothing moved or changed colour
 SCENE_PERIOD = 1.0
 GOAL_DIAMETER = 0.4  # goal marker, as a fraction of the robots' diameter
 
@@ -241,9 +236,8 @@ class DisplayLog:
         self._last_goals: tuple[str, bytes] | None = None  # the goal set logged last: its key and payload
 
     def repeats(self, kind: str, key: str, payload: bytes) -> bool:
-        """A goal set the coordinator published again unchanged (it does every second, for late
-        joiners, the newest set only): logged once, as thousands of goals a second would make most
-        of the log. A changed one is logged again."""
+        """A goal set the coordinator republished unchanged (for late joiners): logged once, or its
+        repeats would make most of the log. A changed one is logged again."""
         if kind != "goals":
             return False
         same = self._last_goals == (key, payload)
@@ -251,8 +245,7 @@ class DisplayLog:
         return same
 
     def json(self, kind: str, wall: float, payload: dict[str, Any]) -> None:
-        """One message on its kind's channel, as JSON (orjson: numpy arrays as lists, NaN and inf as
-        null; at 1000 robots json.dumps of every message took a fifth of the recorder's time)."""
+        """One message on its kind's channel, as JSON (orjson: numpy arrays as lists, NaN and inf as null)."""
         if (log := self.log) is None:
             return
 
@@ -265,8 +258,8 @@ class DisplayLog:
         log.write_bytes(self._channel(kind, add), int(wall * 1e9), payload_bytes)
 
     def proto(self, kind: str, wall: float, as_proto: LoggedKind, msg: Any, key: str, tick: int) -> None:
-        """A per-tick kind in its protobuf form (sim.outputs.logschema): its tables' numbers as the wire
-        has them, a fraction of their JSON's bytes; at the world's ``tick``, if a logged one."""
+        """A per-tick kind in its protobuf form (sim.outputs.logschema), its tables' numbers as the wire has
+        them; at the world's ``tick``, if a logged one."""
         if (log := self.log) is None or tick % self.every:
             return
         cid = self._channel(kind, lambda: log.add_protobuf_channel("/" + kind, as_proto.name, as_proto.descriptor_set))
@@ -311,7 +304,7 @@ class DisplayLog:
         log.write_bytes(channel, int(wall * 1e9), update)
 
     def flush_now_and_then(self) -> None:
-        """Flush the MCAP log every :data:`FLUSH_EVERY` of wall time (a killed run keeps all but the last)."""
+        """Flush the MCAP log every :data:`FLUSH_EVERY` of wall time."""
         if self.log is not None and time.monotonic() - self._flushed >= FLUSH_EVERY:
             self.log.flush()
             self._flushed = time.monotonic()
@@ -446,8 +439,7 @@ class Recorder:
         agreed assignments can be checked against the optimum on the same positions."""
         recs = m.records
         claims = recs[((recs["flags"] & AuctionRecord.RELEASED) == 0) & (recs["robot"] < self.n)]  # not releases
-        # as lists zipped in C, not a loop over records: every lock-step round of a host repeats its
-        # robots' claims, thousands of records a tick at 1000 robots
+        # lists zipped in C, not a loop over records: a host's every lock-step round repeats its robots' claims
         where = zip(claims["x"].tolist(), claims["y"].tolist(), claims["penalty"].tolist())
         self.bid_positions.setdefault((m.epoch, m.instance), {}).update(zip(claims["robot"].tolist(), where))
 

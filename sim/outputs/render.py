@@ -77,9 +77,8 @@ MP4_OPTIONS = {"movflags": "+faststart"}
 _SHIFT = 4  # sub-pixel bits for cv2 drawing
 _ONE = 1 << _SHIFT
 
-# robots: above, discs are drawn as pixel stamps all at once (numpy), not three anti-aliased OpenCV
-# calls a robot, which at 10,000 robots cost most of a frame; discs are then a few pixels wide, where
-# anti-aliasing and a heading tick show nothing
+# robots above which discs are drawn as pixel stamps all at once (numpy), not OpenCV calls per robot:
+# discs are then a few pixels wide, where anti-aliasing and a heading tick show nothing
 STAMP_ABOVE = 1000
 MIN_DISC_PX = 2.0  # the narrowest disc a video draws (:func:`video_size`)
 MAX_VIDEO_PX = 4096  # H.264 level 5.1's widest frame

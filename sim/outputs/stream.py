@@ -1,12 +1,10 @@
 """The central engine's recording, tick by tick: held in memory, or streamed to disk in chunks of ticks.
 
-A whole 10,000-robot sequence is about 7 GB of per-tick rows in float64, more than a run may hold
-(issue 43: peak RSS at most 4 GB). Streamed, each array's rows go to a raw file in the run's partial
-directory (:data:`SCRATCH`, removed before the run directory is committed) a chunk of ticks at a
-time, as float32 from :data:`FLOAT32_FROM` robots (what trajectory.npz stores anyway) and float64
-below (the engines compared to the bit on small runs). A thread of its own writes a chunk while the
-engine fills the next (a write releases the interpreter's lock). The writers read the files back
-through :class:`OnDisk`, a piece at a time.
+A large swarm's per-tick rows would not fit a run's memory bound (peak RSS at most 4 GB). Streamed, each
+array's rows go a chunk of ticks at a time to a raw file in the run's partial directory (:data:`SCRATCH`,
+removed before the run directory is committed), in the types :data:`FLOAT32_FROM` sets. A thread of its own
+writes a chunk while the engine fills the next. The writers read the files back through :class:`OnDisk`, a
+piece at a time.
 """
 
 from __future__ import annotations
@@ -18,9 +16,8 @@ from typing import Any
 
 import numpy as np
 
-# robots: from here per-tick floats are recorded, and trajectory.npz keeps them, as float32 (positions
-# to about 4 um at 60 m); in float64 the arrays of paper-sequence-10000 alone are several GB. Below,
-# float64 as the engines compute them, which the tests comparing engines to the bit read.
+# robots from which streamed per-tick floats are recorded, and trajectory.npz keeps them, as float32 (positions
+# to about 4 um at 60 m); below, float64 as the engines compute them, for the tests comparing engines to the bit
 FLOAT32_FROM = 3000
 PER_TICK = ("pose", "velocity", "goal")  # (T, N, ...) float arrays
 SCRATCH = ".ticks"  # in a partial run directory: the streamed recording's raw files

@@ -1,11 +1,9 @@
 """The trajectory as it is recorded: one fixed-size record a tick, appended to a file as it arrives.
 
-The run directory's ``trajectory.npz`` is written when a run ends; a run whose launcher is killed
-outright (SIGKILL) never gets there, so the recorder also appends every tick here as it records it
-(an unbuffered write: what a killed process wrote is in the file). :func:`read_ticks` reads every
-whole record, and so the ticks up to the kill, of a partial run directory.
-
-The file is one JSON header line (the robot count and the record's fields) and then the records.
+A run whose launcher is killed outright (SIGKILL) never writes ``trajectory.npz``, so the recorder also
+appends every tick here with an unbuffered write; :func:`read_ticks` reads every whole record, and so the
+ticks up to the kill, of a partial run directory. The file is one JSON header line (its format and the robot
+count) and then the records.
 """
 
 from __future__ import annotations

@@ -1,26 +1,13 @@
 """The live view of a swarm, and the replay of a finished run, in Rerun's viewer (``pixelswarm[view]``).
 
-:class:`SwarmView` logs a swarm to a Rerun recording, one entity for every robot whatever the size of
-the swarm, so 1000 robots stay fluid:
-
-- ``arena`` and ``obstacles``: outlines, once (static);
-- ``swarm/robots``: each robot as a disc in its LED colour, every tick (its colours and sizes at the
-  ticks they change), and per robot (on hover) its goal, whether it is at its goal and its missed ticks;
-- ``swarm/heading``: each robot's heading, a dark dot on its disc's rim toward its front;
-- ``swarm/goals``: the goals, faint, in their robots' colours (the picture beneath the swarm);
-- ``swarm/trails``: each robot's positions over the last 2 s, as faint dots;
-- ``metrics/clearance`` and ``metrics/at_goal``: time series.
-
-The run hands each tick over (:meth:`SwarmView.tick`, a copy) and goes on; a thread of the view's own
-logs them in batches (_TickHandover), as docs/cli.md (``--view``) tells. The recording holds the
-arena's coordinates, y up (the display entities are mirrored for drawing only).
-
-The timelines are ``tick`` (the control step) and ``time`` (display time, s).
-
-Where it goes (``sink``): ``"native"`` starts Rerun's viewer on this machine (its window outlives the
-run); ``"web"`` serves Rerun's web viewer on 127.0.0.1 (:attr:`SwarmView.url`) until :meth:`close`;
-a path writes an ``.rrd`` file (what the tests read back, and what :func:`replay` writes beside a
-run's ``trajectory.npz``).  Every server listens on 127.0.0.1 only.
+:class:`SwarmView` logs all robots as one entity, whatever the swarm's size: ``arena`` and ``obstacles``
+(static), ``swarm/robots`` (discs in LED colours; goal, at-goal and missed ticks on hover), ``swarm/heading``,
+``swarm/goals`` (faint), ``swarm/trails``, and the time series ``metrics/clearance`` and ``metrics/at_goal``,
+on the timelines ``tick`` (control step) and ``time`` (display time, s). The run hands each tick over and a
+thread of the view's own logs them in batches (docs/cli.md, ``--view``). The recording keeps the arena's
+frame, y up. ``sink``: ``"native"`` (Rerun's viewer on this machine; its window outlives the run), ``"web"``
+(Rerun's web viewer, :attr:`SwarmView.url`, until :meth:`close`) or an ``.rrd`` file's path. Every server
+listens on 127.0.0.1 only.
 """
 
 from __future__ import annotations
@@ -119,11 +106,10 @@ class _TickHandover:
         self._queue.put(item)
 
     def _drain(self) -> None:
-        """Log the ticks handed over, a batch at a time: the ticks that came within FLUSH_PERIOD of the
-        batch's first (one in a real-time run), or FAST_FLUSH_PERIOD after a batch of many (a fast central
-        run). The thread sleeps while they gather, rather than wait on the queue: woken by every tick, it
-        took the GIL from the run each time. A failure to log is said once and the view stops; the run
-        goes on (its ticks are dropped)."""
+        """Log the ticks handed over, a batch at a time: those within FLUSH_PERIOD of the batch's first, or
+        FAST_FLUSH_PERIOD after a batch of many. The thread sleeps while they gather rather than wait on the
+        queue, which would wake it, and take the GIL from the run, at every tick. A failure to log is said
+        once and the view stops; the run goes on."""
         done, period = False, FLUSH_PERIOD
         while not done:
             first = self._queue.get()
@@ -180,8 +166,8 @@ class _Trails:
             self._points.append(xy[i].copy())
 
     def log(self, rr: Any, rec: Any, rgb: Any, dots: bool | None) -> None:
-        """The trails as faint dots in one flat batch (a strip per robot costs ten times as much to log);
-        their colours made again only when the robots' changed."""
+        """The trails as faint dots in one flat batch (far cheaper to log than a strip per robot); their
+        colours made again only when the robots' changed."""
         if self._rgb is None or len(self._rgb) != len(self._points) * len(rgb) or self._rgb_of is not rgb:
             faint = np.column_stack([rgb, np.full(len(rgb), TRAIL_ALPHA, np.uint8)])
             self._rgb, self._rgb_of = np.tile(faint, (len(self._points), 1)), rgb
@@ -315,7 +301,7 @@ class SwarmView:
         self._changes(batch, ticks, times)
         r = np.where(np.isfinite(self.radius), self.radius, 0.0).astype(np.float32)
         # the heading as a dark dot on each disc's rim, toward the front: one position a robot and tick,
-        # where an arrow takes two vectors (float32: a tenth of float64's cos and sin)
+        # where an arrow takes two vectors
         if not self.dots:  # a heading dot would hide a robot drawn as a dot
             theta = np.stack([item[2][:, 2] for item in batch])  # NaN where unknown: no dot
             nose = np.empty((k, n, 2), np.float32)
@@ -375,8 +361,7 @@ class SwarmView:
 
     def _column(self, component: str, field: str, values: Any, parts: Any) -> Any:
         """One Points2D component's values of several ticks, ``parts`` of them a tick, for send_columns:
-        built from the component's batch (the archetype's ``columns`` first splits every row apart, a
-        tenth of a millisecond per thousand robots and tick)."""
+        built from the component's batch, as the archetype's ``columns`` would first split every row apart."""
         rr = self._rr
         batch = getattr(rr.components, f"{component}Batch")(values.reshape(-1, *values.shape[2:]))
         return batch.described(getattr(rr.Points2D, f"descriptor_{field}")()).partition(parts)

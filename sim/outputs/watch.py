@@ -1,16 +1,12 @@
 """`pixelswarm view --connect ENDPOINT`: watch a running swarm from another process, as a read-only
 subscriber on its bus.
 
-The viewer hears what the run broadcasts anyway: the world's (or the hardware node's) truth of each
-tick on ``sim/truth`` (every robot's pose, LED colour and applied commands, one message), the robots'
-states (their goals and sizes) and the world's liveliness. It publishes nothing, declares no token and
-asks no question, so no process of the run does anything for it: the router forwards it copies of
-messages the run's recorder already subscribes to. On a secured bus it joins as the ``observer`` role,
-which the router lets read those keys and nothing else (transport.security).
-
-What it hears goes to sim.outputs.view.SwarmView, one batch a tick, as `pixelswarm run --view` logs it. The
-arena and obstacles are not on the bus, so the view fits the robots. It ends when the world's
-liveliness goes (the run ended), on Ctrl-C or SIGTERM, or when no tick came within ``timeout``.
+It hears what the run broadcasts anyway (the truth of each tick on ``sim/truth``, the robots' states, the
+world's liveliness) and publishes nothing, declares no token and asks no question, so no process of the run
+does anything for it. On a secured bus it joins as the ``observer`` role, which may read those keys and
+nothing else (transport.security). Each tick goes to sim.outputs.view.SwarmView as `pixelswarm run --view`
+logs it; the arena is not on the bus, so the view fits the robots. It ends when the world's liveliness goes,
+on Ctrl-C or SIGTERM, or when no tick came within ``timeout``.
 """
 
 from __future__ import annotations

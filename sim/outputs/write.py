@@ -37,7 +37,7 @@ if TYPE_CHECKING:  # the renderers load matplotlib, OpenCV and PyAV: imported on
 INCOMPLETE = "INCOMPLETE"  # the marker file of a run directory whose run did not run its course
 
 # pixels times frames of display.mp4 above which its frames are taken at more than real time: the
-# encoder's and the drawing's cost grows with both, and a 10,000-robot video needs about 2400 px
+# encoder's and the drawing's cost grows with both
 VIDEO_PIXEL_BUDGET = 6e9
 
 
@@ -149,7 +149,7 @@ def write_run(
     radius = np.full(scene.robots, params.radius)
     t = arrays["t"]
     # trajectory.npz on a thread beside the metrics and drawings: deflate and the disk leave the
-    # interpreter's lock free, so on two cores the largest file costs little of the run's end
+    # interpreter's lock free, so the largest file is written in parallel
     with ThreadPoolExecutor(1, thread_name_prefix="trajectory") as writer:
         trajectory = writer.submit(write_trajectory, run_dir / "trajectory.npz", arrays, radius)
         clearance = clearance_over_time(arrays["pose"], radius) if len(t) else np.zeros(0)
@@ -157,7 +157,6 @@ def write_run(
         write_json(run_dir / "metrics.json", metrics)
         if outcome.extra.get("complete") is False:
             _mark_incomplete(run_dir, outcome.extra)
-        # the renderers are imported only where used: they load matplotlib, OpenCV and PyAV
         if len(t) and plots:
             from sim.outputs.render import write_plots
 

@@ -47,16 +47,14 @@ RESTARTED = ("coordinator",)
 
 
 def progress_line(scene: str, t: float, at_goal: int, with_goal: int, min_clearance: float, contacts: int) -> str:
-    """The once-a-second progress line. Before any robot has a goal it says so, not ``at goal 0/0``
-    (a newcomer read that as a swarm that found no goals)."""
+    """The once-a-second progress line; before any robot has a goal it says so, not ``at goal 0/0``."""
     goals = f"at goal {at_goal}/{with_goal}" if with_goal else "waiting for the goal set"
     return f"[{scene}] t={t:6.1f} s  {goals}  min clearance {min_clearance:+.3f} m  contacts {contacts}"
 
 
 @dataclass
 class RunOptions:
-    """How `pixelswarm run` runs a scene: a record, one attribute per run flag (--out, --no-video, -k,
-    --display, --connect, --faults, --secure, --hardware, --remote-agents, --reach, --foxglove ...)."""
+    """How `pixelswarm run` runs a scene: one attribute per run flag (--out, --no-video, -k, --connect ...)."""
 
     out: Path
     video: bool = True
@@ -134,10 +132,9 @@ def _robots(ids: list[int]) -> str:
 
 
 class Launcher:
-    """Runs a scene's processes (router, coordinator, agents, world) and records the run. Its state:
-    the children and how they join (client, fetched); the run's end as the CLI reads it (stop_signal,
-    interrupted, startup_failure) and the world's (WorldEnd); the scene's failures to come and the
-    incidents so far, for metrics.json."""
+    """Runs a scene's processes (router, coordinator, agents, world) and records the run.
+
+    The CLI reads the run's end from stop_signal, interrupted and startup_failure."""
 
     def __init__(self, scene: Scene, options: RunOptions) -> None:
         self.world = WorldEnd()
@@ -238,7 +235,7 @@ class Launcher:
 
     # --- remote agents (`pixelswarm agents` on other machines) -----------------------------------
     def _serve_configs(self, bus: Bus) -> None:
-        """Each agent robot's host config, as for a robot alone in its process, answers a query on
+        """Serve each agent robot's host config (as for a robot alone in its process) on
         px/<display>/config/<robot>; `pixelswarm agents` merges K of them into one host. The 'run'
         token tells those agents when the run is over."""
         self.fetched: set[int] = set()  # robots whose config was asked for (zenoh's threads add to it)
@@ -308,8 +305,7 @@ class Launcher:
                         "noticed_wall_time": time.time(),
                     }
                 )
-                # Always reported, --quiet or not: a crash is not progress (at start-up, the one line
-                # that the start-up failed names its robots).
+                # said even with --quiet: a crash is not progress (at start-up, StartupFailed names it)
                 if self.startup_failure is None:
                     print(
                         f"pixelswarm: agent process {child.name} (pid {child.proc.pid}, robots {child.robots}) "
@@ -441,8 +437,7 @@ class Launcher:
         return args + (["--faults", format_faults(self.opt.faults)] if self.opt.faults else [])
 
     def _record_the_last_ticks(self, recorder: Recorder) -> None:
-        """Final statistics from agents, and on a loaded machine the last ticks still in flight: wait
-        (bounded) until the world's final state has been recorded."""
+        """Wait (bounded) for the agents' final statistics and the world's last ticks still in flight."""
         last_t = float(self.world.stats.get("ticks", 0)) * self.params.dt
         settle, patience = time.monotonic() + 0.5, time.monotonic() + 10.0
         while (
@@ -454,10 +449,10 @@ class Launcher:
             time.sleep(0.05)
 
     def _await_agents(self, rec: Recorder) -> None:
-        """Until every agent robot's agent has come alive (the world starts then), saying once a second
-        how many are awaited. StartupFailed naming the robots whose agent process exited, or that
-        were not alive within the start-up timeout or when the world ended. A stop signal ends the
-        wait: the run loop ends the run."""
+        """Wait until every agent robot's agent is alive; a stop signal ends the wait.
+
+        Raises StartupFailed naming the robots whose agent process exited, or that were not alive
+        within the start-up timeout or when the world ended."""
         ids = self._agent_robots
         started = time.monotonic()
         while True:
@@ -501,9 +496,8 @@ class Launcher:
         return [] if newest is None else [(bus.keys.run_goals, newest.encode())]
 
     def _stats_missing(self, rec: Recorder) -> bool:
-        """Agents report their statistics as they stop: the run waits (bounded) for those of every
-        agent that stopped cleanly; remote agents report once their `pixelswarm agents` has seen the
-        world end and stopped them."""
+        """Whether statistics are still due from an agent that stopped cleanly (remote agents report
+        once their `pixelswarm agents` has seen the world end)."""
         if self.opt.remote_agents:
             expected = {int(e["id"]) for e in rec.happened.liveliness if e["role"] == "agent" and e["alive"]}
         else:
@@ -527,8 +521,7 @@ class Launcher:
             )
 
         try:
-            # The node's refusal counts as soon as it is written: closing its links to the robots
-            # can take a while, and the run is refused whatever it does after.
+            # The refusal counts once written: the node may take a while to close its robot links.
             self._wait_alive(rec, "world", child, gave_up=refusal)
         except RuntimeError:
             said = refusal()
@@ -581,8 +574,7 @@ class Launcher:
                 self.world.stats = done
                 return end_sent or str(done.get("reason", "duration"))
             if self.world.exit is not None:
-                # the world is the bodies and the tracker: nothing can go on without it; what was
-                # recorded so far is written, marked incomplete
+                # the world is the bodies and the tracker: the run ends, written marked incomplete
                 self.world.stats, self.world.died = {}, True
                 print(
                     f"pixelswarm: the world process exited with code {self.world.exit} (see logs/world.log); "
@@ -597,8 +589,7 @@ class Launcher:
             if not end_sent and rec.progress.ended_at is not None:
                 end_sent = "converged"
             if end_sent and time.monotonic() - end_at >= 0.5:
-                # Again until the world is done: an event published before the world subscribed
-                # (Ctrl-C during start-up) is lost, and the run would go on to its full duration.
+                # Repeated until the world is done: an end published before the world subscribed is lost.
                 bus.publish(bus.keys.event, Event({"kind": "end", "reason": end_sent}))
                 end_at = time.monotonic()
             self._fail_agents(rec)
@@ -614,9 +605,8 @@ class Launcher:
         return self.scene.ends_on_convergence and since >= last_start - 1e-9 and now - since >= self.scene.converge_hold
 
     def _fail_agents(self, rec: Recorder) -> None:
-        """Scene 'fail' events: SIGKILL the process hosting the robot (a robot that dies, 5.1.2). The
-        recorder learns of the death at once, not when the bus drops the agent's token: it would
-        otherwise count the dead robot's body on its goal as part of a converged display."""
+        """Scene 'fail' events: SIGKILL the process hosting the robot (a robot that dies, paper 5.1.2).
+        The recorder is told at once, so a dead robot on its goal never counts toward convergence."""
         t = rec.sim_time
         for event in take_due(self.failures, t):
             for child in self.children:

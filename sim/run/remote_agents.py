@@ -1,15 +1,11 @@
 """`pixelswarm agents --connect ENDPOINT [--robots IDS] [-k K]`: agent processes for a run going elsewhere.
 
-The run (`pixelswarm run SCENE --listen ENDPOINT --remote-agents`) starts no agents: it serves each
-agent robot's host configuration on px/<display>/config/<robot> and waits for the robots to come
-alive. This command, on a robot's own computer or any machine that reaches the router, fetches the
-configurations it is asked for, joins them K robots to a process and starts `python -m agent
---config -` with each on stdin, so nothing is read from a file system shared with the run.
-
-Its agents stop when the run's world ends or the run goes away (their liveliness tokens), on Ctrl-C
-or SIGTERM (passed on to them), and by themselves if this command dies (--exit-with-parent).
-Bad input (an endpoint that does not parse, robots the run does not have) is one line on stderr
-and exit code 2, with nothing started.
+The run (`pixelswarm run SCENE --listen ENDPOINT --remote-agents`) starts no agents: it serves each agent
+robot's host configuration on px/<display>/config/<robot>. This command, on any machine that reaches the
+router, fetches the configurations it is asked for, joins them K robots to a process and passes each on
+stdin, so no file system is shared with the run. Its agents stop when the run's world ends or the run goes
+away (liveliness tokens), on Ctrl-C or SIGTERM, and by themselves if this command dies; bad input is one
+line on stderr and exit code 2, with nothing started.
 """
 
 from __future__ import annotations

@@ -1,16 +1,12 @@
 """A study's runs on a Dask cluster (``dask.distributed``): this machine's, or one with workers elsewhere.
 
-Every run is one task, :func:`run_task`, which starts ``pixelswarm run`` on the worker that took it
-and waits for it. Without ``--scheduler`` the study starts a local cluster (one worker thread per
-job, in the study's process, over Dask's in-process transport: no port opened) and the task writes the run straight into the study
-directory, as before. With ``--scheduler tcp://HOST:8786`` the workers may be other machines with
-only pixelswarm installed: a task runs into its worker's own directory and sends the run directory
-back (a tar archive), which the study unpacks into ``DIR/runs/<id>`` as each run finishes.
-
-A worker that dies takes its runs with it (each run is stopped: it is its worker's child, told by the
-kernel when its parent dies); the scheduler gives the task to another worker, and the study records
-the run once, when a task's result comes back. Ctrl-C (or SIGTERM) sets a cluster-wide event that
-every task polls: each stops its run as a stopped study always did (SIGTERM, then SIGKILL after
+Every run is one task, :func:`run_task`, which starts ``pixelswarm run`` on the worker that took it and waits
+for it. Without ``--scheduler`` a local cluster runs in the study's process (Dask's in-process transport: no
+port opened) and each task writes its run straight into the study directory; with ``--scheduler`` a task runs
+into its worker's own directory and sends the run back as a tar archive, unpacked into ``DIR/runs/<id>``. A
+worker that dies takes its runs with it (each is its worker's child) and the scheduler gives the task to
+another; the study records a run once, when its task's result comes back. Ctrl-C or SIGTERM sets a
+cluster-wide event every task polls: each stops its run (SIGTERM, then SIGKILL after
 :data:`sim.study.runner.STOP_GRACE_S`).
 """
 
@@ -37,10 +33,9 @@ _PR_SET_PDEATHSIG = 1
 ADDRESS = re.compile(r"^(tcp|tls)://[^\s/:]+:\d{1,5}$")
 
 
-# Dask's own periodic work, slowed for tasks that only wait on a subprocess: its statistical profiler
-# (100 Hz), event-loop watchdog (50 Hz) and system monitor (2 Hz) cost an idle scheduler and two
-# workers 7 % of a core, time a study's runs want on a small machine. docs/study.md gives them as
-# environment variables (quiet_env) for `dask scheduler` and `dask worker`.
+# Dask's own periodic work (profiler, event-loop watchdog, system monitor), slowed for tasks that only wait on
+# a subprocess: its CPU is the runs' on a small machine. docs/study.md gives these as environment variables
+# (quiet_env) for `dask scheduler` and `dask worker`.
 QUIET = {
     "distributed.worker.profile.enabled": False,
     "distributed.admin.tick.interval": "1s",

@@ -263,8 +263,8 @@ def _table(head: list[str], rows: list[list[Any]], css_class: str = "") -> str:
 
 
 def _breakable(text: Any) -> str:
-    """Escaped, with a line-break opportunity after each ``_`` and ``.`` of a word: a browser does
-    not break ``time_to_converge_s`` on its own, and such headers made the table wider than a window."""
+    """Escaped, with a line-break opportunity after each ``_`` and ``.`` of a word: a browser does not
+    break ``time_to_converge_s`` on its own, and such headers would widen the table past the window."""
     return "<wbr>".join(html.escape(part) for part in _BREAK_AFTER.split(str(text)))
 
 
@@ -335,9 +335,9 @@ def render_html(
 
 
 def summary_table(spec: Spec, summary: list[dict[str, Any]], metrics: list[str]) -> str:
-    """A row per condition: its settings (the columns name it; its id, in summary.csv, made the
-    table wider than a window), then each metric's mean and std. A study with a baseline gets a
-    first column saying which rows are the baseline's; a column of failed runs only if some failed."""
+    """A row per condition: its settings (they name it; its id, in summary.csv, would widen the table),
+    then each metric's mean and std. A study with a baseline gets a first column saying which rows are
+    the baseline's; a column of failed runs only if some failed."""
     settings = spec.columns()
     marked = spec.baseline is not None
     failed = any(s["failed"] for s in summary)  # else no column: the page says none failed

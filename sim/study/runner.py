@@ -1,11 +1,9 @@
-"""`pixelswarm study SPEC.toml`: run a grid of conditions x seeds as `pixelswarm run` processes.
+"""`pixelswarm study SPEC.toml`: run a grid of conditions x seeds as `pixelswarm run` processes (docs/study.md).
 
-A study spec names a scene and its settings (`[base]`), the settings to vary (`[axes]`, every
-combination) and the seeds; an optional `[baseline]` is one more condition (e.g. the central engine
-at zero loss) run for every seed and drawn beside the grid. The spec is checked in full before any
-run starts. Each run is a `pixelswarm run ... --no-video --no-plots -q --out DIR/runs/<id>` subprocess; a run
-directory appears under its final name only when written (sim/outputs/rundir.py), so a study resumes by
-skipping the runs whose directory says `"complete": true`. The report is sim/study/report.py.
+The spec (sim/study/spec.py) is checked in full before any run starts. Each run is a `pixelswarm run` subprocess
+writing DIR/runs/<id>; a run directory appears under its final name only when written (sim/outputs/rundir.py),
+so a study resumes by skipping the runs whose directory says `"complete": true`. The report is
+sim/study/report.py.
 """
 
 from __future__ import annotations
