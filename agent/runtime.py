@@ -74,24 +74,14 @@ class HostConfig:
 
     @classmethod
     def from_json(cls, text: str) -> HostConfig:
+        """The configuration to_json wrote; keys it lacks take the defaults above."""
         data = json.loads(text)
-        return cls(
-            robots=[int(r) for r in data["robots"]],
-            params=RobotParams.from_dict(data["params"]),
-            display=data.get("display", "default"),
-            seed=int(data.get("seed", 0)),
-            arena=tuple(data["arena"]) if data.get("arena") else None,
-            obstacles=[[tuple(v) for v in o] for o in data.get("obstacles", [])],
-            batch_wait=float(data.get("batch_wait", 0.05)),
-            lockstep=bool(data.get("lockstep", False)),
-            state_wait=float(data.get("state_wait", 1.5)),
-            pursue={int(k): int(v) for k, v in data.get("pursue", {}).items()},
-            greet=[int(r) for r in data.get("greet", [])],
-            frames=bool(data.get("frames", False)),
-            steps=[float(t) for t in data.get("steps", [])],
-            reach=math.inf if data.get("reach") is None else float(data["reach"]),
-            swarm=int(data.get("swarm", 0)),
-        )
+        data["params"] = RobotParams.from_dict(data["params"])
+        data["arena"] = tuple(data["arena"]) if data.get("arena") else None
+        data["obstacles"] = [[tuple(v) for v in o] for o in data.get("obstacles", [])]
+        data["pursue"] = {int(k): int(v) for k, v in data.get("pursue", {}).items()}  # JSON keys are strings
+        data["reach"] = math.inf if data.get("reach") is None else float(data["reach"])
+        return cls(**{f.name: data[f.name] for f in fields(cls) if f.name in data})
 
     def to_json(self) -> str:
         data = {f.name: getattr(self, f.name) for f in fields(self)}
