@@ -40,9 +40,8 @@ from transport.session import TransportError, ZenohSettings, add_zenoh_args, ope
 
 STARTUP_FAILED = 3  # exit code of a run whose agents did not all come alive (docs/cli.md)
 GOALS_SAID_AFTER = 0.5  # s: goal sets that take longer are said on stderr, so a long start-up is not silent
-
-
 FOXGLOVE_PORT = 8765  # Foxglove's own default for a WebSocket connection
+WATCH_TIMEOUT = 60.0  # s `pixelswarm view --connect` waits for a running swarm's first tick
 
 
 def port_number(text: str) -> int:
@@ -54,9 +53,6 @@ def port_number(text: str) -> int:
     if not 0 <= value <= 65535:
         raise argparse.ArgumentTypeError(f"a port is 0 to 65535, not {value}")
     return value
-
-
-WATCH_TIMEOUT = 60.0  # s `pixelswarm view --connect` waits for a running swarm's first tick
 
 
 def _add_run_scene(run: argparse.ArgumentParser) -> None:
@@ -269,19 +265,8 @@ def _add_view_parser(sub: Any) -> None:
     view.set_defaults(func=cmd_view)
 
 
-def _names_the_simulator(path: Path) -> bool:
-    """A hardware file whose backend is the simulated world (`kind = "sim"`)."""
-    from hardware.config import HardwareConfigError, load_hardware
-
-    try:
-        return load_hardware(path).backend_kind == "sim"
-    except HardwareConfigError as err:
-        raise UsageError(str(err)) from None
-
-
 def _hardware_scene(args: argparse.Namespace) -> Scene:
     """The scene as a hardware run plays it: the hardware file's robots, on the wall clock."""
-    from hardware.config import HardwareConfigError
     from sim.node.hardware import HardwareError, load_run
 
     if (args.engine or "distributed") != "distributed":
@@ -296,7 +281,7 @@ def _hardware_scene(args: argparse.Namespace) -> Scene:
         )
     try:
         return load_run(args)[1]
-    except (HardwareError, HardwareConfigError, SceneError) as err:
+    except HardwareError as err:  # SceneError and HardwareConfigError are ValueErrors, which _scene_to_run catches
         raise UsageError(str(err)) from None
 
 
@@ -363,9 +348,11 @@ def _with_rounds_per_tick(args: argparse.Namespace, scene: Scene, reach: float) 
 
 def _scene_to_run(args: argparse.Namespace) -> Scene:
     """The scene `pixelswarm run` names, with its goal sets, or the hardware file's; UsageError if none."""
+    from hardware.config import load_hardware
+
     _check_numbers(args)  # before the scene: a bad flag is the flag's fault, not the scene file's
-    try:
-        if args.hardware is not None and _names_the_simulator(args.hardware):
+    try:  # SceneError and hardware.config's HardwareConfigError are ValueErrors
+        if args.hardware is not None and load_hardware(args.hardware).backend_kind == "sim":
             args.hardware = None  # the simulated world, as without a hardware file
         if args.hardware is not None:
             return _hardware_scene(args)

@@ -49,11 +49,6 @@ JPEG_QUALITY = 95
 MAX_WANDERING = 24  # robots whose plates the wandering grid keeps apart
 
 
-def _default_reference() -> dict[int, tuple[float, float]]:
-    # the last four ids of DICT_4X4_50 near the floor's corners, clear of the robots' area
-    return {46: (0.1, 0.1), 47: (1.9, 0.1), 48: (1.9, 1.4), 49: (0.1, 1.4)}
-
-
 @dataclass(frozen=True)
 class OverheadCamera:
     """The camera, the floor and how frames are spoiled."""
@@ -66,7 +61,10 @@ class OverheadCamera:
     keystone: float = 0.1  # the far edge is drawn this fraction narrower: the camera is tilted
     dictionary: str = "DICT_4X4_50"
     marker_size: float = 0.05
-    reference: dict[int, tuple[float, float]] = field(default_factory=_default_reference)
+    # the last four ids of DICT_4X4_50 near the floor's corners, clear of the robots' area
+    reference: dict[int, tuple[float, float]] = field(
+        default_factory=lambda: {46: (0.1, 0.1), 47: (1.9, 0.1), 48: (1.9, 1.4), 49: (0.1, 1.4)}
+    )
     blur_sigma: float = 1.0  # pixels
     noise_sigma: float = 4.0  # grey levels
     floor_grey: float = 110.0
@@ -177,20 +175,17 @@ def wandering_robots(n: int, frames: int, fps: float, seed: int) -> list[dict[in
     phase, speed = rng.uniform(0, 2 * np.pi, n), rng.uniform(-1.5, 1.5, n)
     heading, turn = rng.uniform(-np.pi, np.pi, n), rng.uniform(-1.0, 1.0, n)
     radius = 0.06
-    out = []
-    for k in range(frames):
-        t = k / fps
-        out.append(
-            {
-                i: (
-                    spots[i][0] + radius * math.cos(phase[i] + speed[i] * t),
-                    spots[i][1] + radius * math.sin(phase[i] + speed[i] * t),
-                    math.remainder(heading[i] + turn[i] * t, 2 * math.pi),
-                )
-                for i in range(n)
-            }
-        )
-    return out
+    return [
+        {
+            i: (
+                spots[i][0] + radius * math.cos(phase[i] + speed[i] * t),
+                spots[i][1] + radius * math.sin(phase[i] + speed[i] * t),
+                math.remainder(heading[i] + turn[i] * t, 2 * math.pi),
+            )
+            for i in range(n)
+        }
+        for t in (k / fps for k in range(frames))
+    ]
 
 
 def render_frames(camera: OverheadCamera, poses: Iterable[dict[int, Pose]], seed: int) -> Iterator[np.ndarray]:
@@ -377,11 +372,8 @@ class CameraStream(Started):
                 if not ok:
                     raise RuntimeError("JPEG encoding failed")
                 data = jpeg.tobytes()
-                part = b"--%s\r\nContent-Type: image/jpeg\r\nContent-Length: %d\r\n\r\n%s\r\n" % (
-                    _BOUNDARY,
-                    len(data),
-                    data,
-                )
+                head = b"--%s\r\nContent-Type: image/jpeg\r\nContent-Length: %d\r\n\r\n" % (_BOUNDARY, len(data))
+                part = head + data + b"\r\n"
                 with self._lock:
                     self._clients = [client for client in self._clients if not client.gone]
                     for client in self._clients:

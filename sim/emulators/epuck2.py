@@ -11,7 +11,6 @@ parameters. Tests read its true poses and the log of (receive time, left, right)
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import json
 import math
@@ -193,7 +192,15 @@ class Epuck2Emulator(Started):
 
     def drop_connection(self, robot_id: int) -> None:
         """Close the robot's connection from its side (as a Wi-Fi drop does); it keeps its wheel speeds."""
-        self._in_server_thread(lambda: self._drop(robot_id))
+        done = threading.Event()
+
+        def drop() -> None:  # in the server thread, which owns the sockets
+            self._drop(robot_id)
+            done.set()
+
+        self._requests.put(drop)
+        self._wake_w.send(b"\0")
+        done.wait()
 
     def report(self) -> dict:
         """Each robot's address, final pose and commands received (time.monotonic() seconds, steps/s)."""
@@ -226,17 +233,6 @@ class Epuck2Emulator(Started):
         self._close_sockets()
 
     # --- the server thread ---
-    def _in_server_thread(self, action: Callable[[], None]) -> None:
-        done = threading.Event()
-
-        def run() -> None:
-            action()
-            done.set()
-
-        self._requests.put(run)
-        self._wake_w.send(b"\0")
-        done.wait()
-
     def _serve(self) -> None:
         while not self._closing:
             self._serve_ready(self._selector.select())
@@ -347,7 +343,15 @@ def write_atomically(path: Path, text: str) -> None:
         raise UsageError(f"{path}: cannot write: {err.strerror or err}") from None
 
 
-def build_parser() -> argparse.ArgumentParser:
+def say_final(poses: list[tuple[float, float, float]], report: dict, log: Path | None) -> None:
+    """Each robot's final pose on stdout, and the report in ``log`` if asked for."""
+    for rid, (x, y, theta) in enumerate(poses):
+        print(f"robot {rid}: x={x:.4f} m y={y:.4f} m theta={theta:.4f} rad", flush=True)
+    if log:
+        write_atomically(log, json.dumps(report))
+
+
+def main(argv: list[str] | None = None) -> int:
     parser = OneLineParser(
         prog="python -m sim.emulators.epuck2",
         description="Emulated e-puck2 robots on Wi-Fi (TCP servers on 127.0.0.1) until SIGINT or SIGTERM.",
@@ -358,19 +362,6 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--log", type=Path, metavar="FILE.json", help="on exit, write each robot's received commands and final pose"
     )
-    return parser
-
-
-def say_final(poses: list[tuple[float, float, float]], report: dict, log: Path | None) -> None:
-    """Each robot's final pose on stdout, and the report in ``log`` if asked for."""
-    for rid, (x, y, theta) in enumerate(poses):
-        print(f"robot {rid}: x={x:.4f} m y={y:.4f} m theta={theta:.4f} rad", flush=True)
-    if log:
-        write_atomically(log, json.dumps(report))
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
     args = parser.parse_args(argv)
     with stopped_by_signals() as stop:
         try:

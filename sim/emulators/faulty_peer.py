@@ -317,16 +317,15 @@ class FaultyPeer:
         self._own.add(payload)
 
     # --- one damaged copy -------------------------------------------------------------------
-    def _available(self, sub: str) -> bool:
-        if sub == "stale-cmd":
-            return bool(self.cmd_old)
-        return any(self.heard.get(k) for k in (self.kinds if sub == "malformed-all" else kinds_of(sub)))
+    def _heard_kinds(self, sub: str) -> list[str]:
+        """The key kinds a sub-mode damages that something was heard on."""
+        return [k for k in (self.kinds if sub == "malformed-all" else kinds_of(sub)) if self.heard.get(k)]
 
     def make_copy(self, now: float) -> tuple[str, bytes, str, str] | None:
         """(key, payload, key kind, damage) of one damaged copy, None if there is nothing to damage."""
         sub = self.plan.mode
         if sub == "all":
-            choices = [s for s in ALL_OF if self._available(s)]
+            choices = [s for s in ALL_OF if (self.cmd_old if s == "stale-cmd" else self._heard_kinds(s))]
             if not choices:
                 return None
             sub = self.rng.choice(choices)
@@ -343,8 +342,7 @@ class FaultyPeer:
                 return None
             key, data = rng.choice(self.cmd_old)
             return key, data, "cmd", "stale-cmd"
-        candidates = self.kinds if sub == "malformed-all" else kinds_of(sub)
-        kinds = [k for k in candidates if self.heard.get(k)]
+        kinds = self._heard_kinds(sub)
         if not kinds:
             return None
         kind = rng.choice(kinds)
@@ -445,7 +443,7 @@ class FaultyPeer:
         )
 
 
-def build_parser() -> argparse.ArgumentParser:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m sim.emulators.faulty_peer", description="A faulty peer: re-publishes damaged copies."
     )
@@ -476,11 +474,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--multicast-scouting", action="store_true", default=False, help=ZENOH_HELP["--multicast-scouting"]
     )
-    return parser
-
-
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    args = parser.parse_args(argv)
     zenoh = {"multicast_scouting": args.multicast_scouting, "config_file": args.zenoh_config}
     settings = ZenohSettings(mode="client", connect=list(args.connect), **zenoh)
     damages = tuple(d for d in args.damage.split(",") if d)

@@ -101,7 +101,8 @@ class Lab(Started):
         if self._recorder.is_alive():
             self._recorder.join()
         self.mocap.close()
-        self._close_contacts()
+        self.contacts.extend(self._open.values())  # still open: they end here
+        self._open.clear()
         self._final = self.report()
         self.emulator.close()
         return self._final
@@ -136,33 +137,8 @@ class Lab(Started):
         for pair in [p for p in self._open if p not in overlapping]:
             self.contacts.append(self._open.pop(pair))
 
-    def _close_contacts(self) -> None:
-        self.contacts.extend(self._open.values())
-        self._open.clear()
-
 
 # --- command line ---
-def build_parser() -> argparse.ArgumentParser:
-    parser = OneLineParser(
-        prog="python -m sim.emulators.lab",
-        description="Emulated e-puck2 robots at a scene's start layout and motion capture of their true poses "
-        "(PoseStamped over rmw_zenoh), until SIGINT or SIGTERM.",
-    )
-    parser.add_argument("--scene", required=True, help="a shipped scene or a scene file: its start layout")
-    parser.add_argument("--robots", "-n", type=positive_int, help="number of robots (overrides the scene)")
-    parser.add_argument("--seed", type=int, help="random seed (overrides the scene's, for random layouts)")
-    parser.add_argument(
-        "--rate", type=positive_number, default=MOCAP_RATE, help=f"motion capture Hz (default {MOCAP_RATE:g})"
-    )
-    parser.add_argument("--port", type=positive_int, help="robot i listens on PORT + i (default: free ports)")
-    parser.add_argument("--write-hardware", type=Path, metavar="FILE.toml", help="write a hardware file for the lab")
-    parser.add_argument(
-        "--log", type=Path, metavar="FILE.json", help="on exit, write commands, final and recorded true poses, contacts"
-    )
-    add_zenoh_args(parser, default_mode="client")
-    return parser
-
-
 def open_lab(args: argparse.Namespace, settings: ZenohSettings, stop: threading.Event) -> Lab | None:
     """The lab, started; a client lab waits for its router (None if stopped while waiting)."""
     scene = load_scene(args.scene, robots=args.robots, seed=args.seed)
@@ -182,7 +158,23 @@ def open_lab(args: argparse.Namespace, settings: ZenohSettings, stop: threading.
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    parser = OneLineParser(
+        prog="python -m sim.emulators.lab",
+        description="Emulated e-puck2 robots at a scene's start layout and motion capture of their true poses "
+        "(PoseStamped over rmw_zenoh), until SIGINT or SIGTERM.",
+    )
+    parser.add_argument("--scene", required=True, help="a shipped scene or a scene file: its start layout")
+    parser.add_argument("--robots", "-n", type=positive_int, help="number of robots (overrides the scene)")
+    parser.add_argument("--seed", type=int, help="random seed (overrides the scene's, for random layouts)")
+    parser.add_argument(
+        "--rate", type=positive_number, default=MOCAP_RATE, help=f"motion capture Hz (default {MOCAP_RATE:g})"
+    )
+    parser.add_argument("--port", type=positive_int, help="robot i listens on PORT + i (default: free ports)")
+    parser.add_argument("--write-hardware", type=Path, metavar="FILE.toml", help="write a hardware file for the lab")
+    parser.add_argument(
+        "--log", type=Path, metavar="FILE.json", help="on exit, write commands, final and recorded true poses, contacts"
+    )
+    add_zenoh_args(parser, default_mode="client")
     args = parser.parse_args(argv)
     settings = settings_from_args(args)
     if settings.mode == "client" and not settings.connect:

@@ -13,7 +13,6 @@ From a shell (robots on a circle, turning; Ctrl-C stops):
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 import threading
@@ -109,7 +108,7 @@ def circle(robots: int, radius: float, speed: float) -> PoseFunction:
     return poses
 
 
-def build_parser() -> argparse.ArgumentParser:
+def main(argv: list[str] | None = None) -> int:
     parser = OneLineParser(
         prog="python -m sim.emulators.mocap",
         description="Publish motion-capture poses (geometry_msgs/PoseStamped) over rmw_zenoh: robots on a circle.",
@@ -125,11 +124,6 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--frame", default="world", help="header frame_id (default world)")
     parser.add_argument("--duration", type=positive_seconds, help="stop after this many s (default: run until Ctrl-C)")
     add_zenoh_args(parser, default_mode="client")
-    return parser
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
     args = parser.parse_args(argv)
     settings = settings_from_args(args)
     if not settings.connect and settings.mode != "router":

@@ -118,9 +118,10 @@ def run_task(run_id: str, args: list[str], out: str | None, stop_event: str, gra
     from distributed import get_worker
 
     try:
-        base = Path(get_worker().local_directory)
-    except ValueError:
-        base = Path(tempfile.gettempdir())
+        worker = get_worker()
+    except ValueError:  # not on a worker
+        worker = None
+    base = Path(worker.local_directory if worker is not None else tempfile.gettempdir())
     scratch = None if out is not None else Path(tempfile.mkdtemp(prefix=f"run-{run_id}-", dir=base))
     target = Path(out) if out is not None else scratch / run_id  # type: ignore[operator]  # scratch is set where out is not
     for leftover in (target, target.with_name(target.name + ".partial")):
@@ -151,22 +152,13 @@ def run_task(run_id: str, args: list[str], out: str | None, stop_event: str, gra
             "process_wall_s": time.monotonic() - started,
             "command": command,
             "log": output,
-            "worker": _worker_address(),
+            "worker": str(worker.address) if worker is not None else "",
             "archive": None if scratch is None else _archive(scratch),
         }
     finally:
         log.close()
         if scratch is not None:
             shutil.rmtree(scratch, ignore_errors=True)
-
-
-def _worker_address() -> str:
-    from distributed import get_worker
-
-    try:
-        return str(get_worker().address)
-    except ValueError:
-        return ""
 
 
 def _archive(folder: Path) -> bytes | None:

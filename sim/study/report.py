@@ -39,10 +39,8 @@ def flatten(metrics: dict[str, Any]) -> dict[str, Any]:
     """The scalars of metrics.json: nested tables one level down as `table.key`, number lists as `key.mean`."""
     out: dict[str, Any] = {}
     for key, value in metrics.items():
-        if isinstance(value, bool):
-            out[key] = int(value)
-        elif isinstance(value, int | float | str) or value is None:
-            out[key] = value
+        if isinstance(value, bool | int | float | str) or value is None:
+            out[key] = int(value) if isinstance(value, bool) else value
         elif isinstance(value, dict):
             for sub, v in value.items():
                 if isinstance(v, bool | int | float | str):
@@ -225,16 +223,13 @@ def _baseline_words(spec: Spec) -> str:
 # --- report.html and the files --------------------------------------------------------------------
 
 
-def machine() -> dict[str, str]:
-    return {
+def machine_and_software() -> dict[str, str]:
+    out = {
         "platform": platform.platform(),
         "processor": platform.processor() or platform.machine(),
         "cores": str(os.cpu_count()),
+        "python": platform.python_version(),
     }
-
-
-def versions() -> dict[str, str]:
-    out = {"python": platform.python_version()}
     for name, dist in (("numpy", "numpy"), ("zenoh", "eclipse-zenoh"), ("pixelswarm", "pixelswarm")):
         try:
             out[name] = importlib.metadata.version(dist)
@@ -313,7 +308,7 @@ def render_html(
         "<h2>Spec</h2>",
         f"<pre>{html.escape(spec.text)}</pre>",
         "<h2>Machine and software</h2>",
-        _table(["what", "value"], [[k, v] for k, v in {**machine(), **versions()}.items()]),
+        _table(["what", "value"], [[k, v] for k, v in machine_and_software().items()]),
         "<h2>Plots</h2>",
         "<p>Each point: the mean over the seeds, bars one standard deviation, dots the seeds; "
         "a dashed line and grey band: the baseline's mean and standard deviation.</p>",

@@ -20,6 +20,7 @@ from typing import Any, TextIO
 
 from sim.args import refuse
 from sim.processes import stop_on_sigterm
+from sim.study.cluster import ClusterError, check_address, connect, run_task, unpack
 from sim.study.spec import (
     Run,
     Spec,
@@ -89,9 +90,7 @@ def _duration(seconds: float) -> str:
 def execute(spec: Spec, study: StudyDir, jobs: int, stream: TextIO | None, scheduler: str | None = None) -> Progress:
     """Run every run not finished yet on a Dask cluster: the scheduler's at ``scheduler``, or a local
     one of ``jobs`` threads (sim.study.cluster); record each one's outcome as it comes back."""
-    from distributed import Event, as_completed
-
-    from sim.study.cluster import connect, run_task, unpack
+    from distributed import Event, as_completed, wait
 
     runs = spec.runs()
     todo = [r for r in runs if study.metrics(r) is None]
@@ -125,12 +124,15 @@ def execute(spec: Spec, study: StudyDir, jobs: int, stream: TextIO | None, sched
             for future in as_completed(list(futures)):
                 pending.discard(future)
                 run = futures[future]
-                _finish(run, future, study, progress, unpack)
+                _finish(run, future, study, progress)
                 running = min(len(pending), progress.jobs)
                 progress.line(running, f"{run.id}: {'done' if study.metrics(run) else 'FAILED'}")
         except KeyboardInterrupt:
             stop.set()  # every task stops its run (SIGTERM, then SIGKILL after the grace)
-            _wait_stopped(list(pending))
+            # given the grace to stop their runs (a second Ctrl-C stops waiting; a task that failed
+            # while stopping: nothing more to wait for)
+            with contextlib.suppress(KeyboardInterrupt, Exception):
+                wait(list(pending), timeout=STOP_GRACE_S + 15)
             raise Interrupted from None
         return progress
     finally:
@@ -139,16 +141,7 @@ def execute(spec: Spec, study: StudyDir, jobs: int, stream: TextIO | None, sched
             cluster.close()
 
 
-def _wait_stopped(pending: list[Any]) -> None:
-    """The tasks still out, given the grace to stop their runs (a second Ctrl-C stops waiting)."""
-    from distributed import wait
-
-    # also a task that failed while stopping: nothing more to wait for
-    with contextlib.suppress(KeyboardInterrupt, Exception):
-        wait(pending, timeout=STOP_GRACE_S + 15)
-
-
-def _finish(run: Run, future: Any, study: StudyDir, progress: Progress, unpack: Any) -> None:
+def _finish(run: Run, future: Any, study: StudyDir, progress: Progress) -> None:
     try:
         result = future.result()
     except Exception as err:  # the task itself failed (not the run): e.g. a worker died too often
@@ -204,24 +197,16 @@ def cmd_study(args: argparse.Namespace) -> int:
         if args.jobs is not None and args.jobs < 1:
             raise StudyError(f"--jobs must be at least 1, not {args.jobs}")
         if args.scheduler is not None:
-            from sim.study.cluster import ClusterError, check_address, connect
-
-            try:
-                check_address(args.scheduler)
-            except ClusterError as err:
-                raise StudyError(str(err)) from None
+            check_address(args.scheduler)
         spec = load_spec(args.spec)
         if args.scheduler is not None:  # reached before anything is written or started
-            try:
-                connect(args.scheduler, 1)[0].close()
-            except ClusterError as err:
-                raise StudyError(str(err)) from None
+            connect(args.scheduler, 1)[0].close()
         root = args.out or Path("runs") / f"study-{spec.name}"
         if root.exists() and not root.is_dir():
             raise StudyError(f"--out {root} is a file, not a directory")
         check_same_study(spec, root)
         lock = lock_study(root)
-    except StudyError as err:
+    except (StudyError, ClusterError) as err:
         return refuse("pixelswarm study", err)
     try:
         return _study(spec, StudyDir(root), args.jobs or default_jobs(), args)
@@ -230,7 +215,6 @@ def cmd_study(args: argparse.Namespace) -> int:
 
 
 def _study(spec: Spec, study: StudyDir, jobs: int, args: argparse.Namespace) -> int:
-    from sim.study.cluster import ClusterError
     from sim.study.report import write_report  # matplotlib only once runs are done
 
     write_text(study.root / "spec.toml", spec.text)

@@ -35,13 +35,6 @@ def _number(key: str, value: Any, *, minimum: float = 0.0, maximum: float = math
     return float(value)
 
 
-def _reach(key: str, value: Any) -> float:
-    """A communication range: metres > 0, or inf (everyone hears everyone)."""
-    if isinstance(value, int | float) and not isinstance(value, bool) and value == math.inf:
-        return math.inf
-    return _number(key, value, positive=True)
-
-
 def _whole(key: str, value: Any) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
         raise StudyError(f"{key}: {value!r} is not a whole number >= 1")
@@ -68,7 +61,7 @@ SETTINGS = {
     "loss": lambda k, v: _number(k, v, maximum=1.0),
     "delay": lambda k, v: _number(k, v),
     "jitter": lambda k, v: _number(k, v),
-    "range": _reach,
+    "range": lambda k, v: math.inf if v == math.inf else _number(k, v, positive=True),  # inf: everyone hears everyone
 }
 
 
@@ -227,12 +220,9 @@ def run_args(spec: Spec, run: Run) -> list[str]:
     """The arguments of `pixelswarm run` for one run, but its --out (the worker's to choose)."""
     s = run.settings
     cmd = [spec.scene, "--seed", str(run.seed)]
-    for key, flag in (("engine", "--engine"), ("robots", "--robots"), ("clock", "--clock")):
+    for key in ("engine", "robots", "clock", "duration", "deadline"):
         if key in s:
-            cmd += [flag, str(s[key])]
-    for key, flag in (("duration", "--duration"), ("deadline", "--deadline")):
-        if key in s:
-            cmd += [flag, repr(s[key])]
+            cmd += [f"--{key}", str(s[key])]  # a float's str is its repr: every digit
     if math.isfinite(s.get("range", math.inf)):
         cmd += ["--range", repr(s["range"])]
     if s.get("engine") != "central":
