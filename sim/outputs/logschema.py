@@ -52,8 +52,6 @@ def _truth_rows(m: Truth) -> np.ndarray:
 def varint(value: int) -> bytes:
     """An unsigned integer as protobuf's varint: seven bits a byte, low bits first, the top bit set
     on every byte but the last."""
-    if value < 0x80:
-        return bytes((value,))
     out = bytearray()
     while value > 0x7F:
         out.append(value & 0x7F | 0x80)

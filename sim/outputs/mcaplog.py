@@ -198,15 +198,14 @@ def proto_to_dict(message: Message) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for field in message.DESCRIPTOR.fields:
         value = getattr(message, field.name)
-        if field.type == FieldDescriptor.TYPE_MESSAGE:
-            if field.message_type.GetOptions().map_entry:
-                out[field.name] = {k: _proto_value(v) for k, v in value.items()}
-            elif _is_repeated(field):
-                out[field.name] = [_proto_value(v) for v in value]
-            else:
-                out[field.name] = _proto_value(value)
-        else:
+        if field.type != FieldDescriptor.TYPE_MESSAGE:
             out[field.name] = list(value) if _is_repeated(field) else value
+        elif field.message_type.GetOptions().map_entry:
+            out[field.name] = {k: _proto_value(v) for k, v in value.items()}
+        elif _is_repeated(field):
+            out[field.name] = [_proto_value(v) for v in value]
+        else:
+            out[field.name] = _proto_value(value)
     return out
 
 
@@ -294,8 +293,7 @@ def mcap_channels(path: str | os.PathLike) -> dict[str, dict[str, Any]]:
     parsed, or a protobuf schema's ``FileDescriptorSet``), ``metadata`` and ``message_count`` (from the
     summary statistics)."""
     with open(path, "rb") as fh:
-        reader = make_reader(fh)
-        summary = reader.get_summary()
+        summary = make_reader(fh).get_summary()
     if summary is None:
         raise ValueError(f"{path}: no summary section (file not closed?)")
     counts = summary.statistics.channel_message_counts if summary.statistics else {}

@@ -102,9 +102,8 @@ def clearance_over_time(pose: np.ndarray, radius: np.ndarray) -> np.ndarray:
     out = np.full(T, np.inf)
     if N < 2:
         return out
-    rows = max(1, CHUNK // (2 * N))  # ticks read at once: the poses may be on disk (sim.outputs.stream)
-    for lo in range(0, T, rows):
-        for k, xy in enumerate(_xy(pose, slice(lo, lo + rows)), lo):
+    for ticks in _chunks(T, 2 * N):  # a piece at a time: the poses may be on disk (sim.outputs.stream)
+        for k, xy in enumerate(_xy(pose, ticks), ticks.start):
             out[k] = clearance_at(xy, r)
     return out
 
@@ -320,15 +319,6 @@ class Traffic:
     agents_crashed: int = 0
 
 
-def _least_clearance(t: np.ndarray, clearance: np.ndarray) -> tuple[float, float | None]:
-    """The least finite clearance over the run and when, from its start (inf and None: none finite)."""
-    finite = np.isfinite(clearance)
-    if not finite.any():
-        return float("inf"), None
-    k = int(np.argmin(np.where(finite, clearance, np.inf)))
-    return float(clearance[k]), float(t[k] - t[0])
-
-
 def summarise(
     record: TrueRecord, *, wall_s: float, contacts: int, traffic: Traffic | None = None, **extra: Any
 ) -> dict[str, Any]:
@@ -372,15 +362,15 @@ def summarise(
 def _closeness(record: TrueRecord, t: np.ndarray, pose: Any, robots: int, contacts: int) -> dict[str, Any]:
     """How close the robots came: the least clearance and when, the contact events, the deepest overlap."""
     r = _radius(record.radius, robots)
-    clearance = record.clearance
-    clr = clearance_over_time(pose, r) if clearance is None else np.asarray(clearance, dtype=float)
-    min_clear, min_clear_t = _least_clearance(t, clr)
-    max_overlap = max(0.0, -min_clear) if np.isfinite(min_clear) else 0.0
+    clr = clearance_over_time(pose, r) if record.clearance is None else np.asarray(record.clearance, dtype=float)
+    finite = np.isfinite(clr)  # the least finite clearance and when (none: inf, None)
+    k = int(np.argmin(np.where(finite, clr, np.inf))) if finite.any() else None
+    min_clear = float("inf") if k is None else float(clr[k])
     return {
         "min_clearance_m": min_clear,
-        "min_clearance_at_s": min_clear_t,
+        "min_clearance_at_s": None if k is None else float(t[k] - t[0]),
         "contacts": int(contacts),
-        "max_overlap_m": float(max_overlap),
+        "max_overlap_m": 0.0 if k is None else float(max(0.0, -min_clear)),
     }
 
 

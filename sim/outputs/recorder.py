@@ -499,15 +499,9 @@ class Recorder:
         tr, n = self.traj, self.n
         if not tr.t:
             return {"t": np.zeros(0)} | {name: np.zeros((0, n, *shape), kind) for name, (shape, kind) in ROWS.items()}
-        out = {
-            "t": np.array(tr.t),
-            "pose": np.stack(tr.pose),
-            "velocity": np.stack(tr.velocity),
-            "color": np.stack(tr.color).astype(np.uint8),
-            "goal": np.stack(tr.goal),
-            "assignment": np.stack(tr.assignment),
-            "step": np.array(tr.step),  # 0 throughout for a scene without images, as the central engine records
-        }
+        out = {"t": np.array(tr.t)} | {name: np.stack(getattr(tr, name)) for name in ROWS}
+        out["color"] = out["color"].astype(np.uint8)
+        out["step"] = np.array(tr.step)  # 0 throughout for a scene without images, as the central engine records
         if self.sets.by_epoch:
             out.update(self._auction_arrays())
         return out

@@ -76,6 +76,7 @@ MP4_OPTIONS = {"movflags": "+faststart"}
 
 _SHIFT = 4  # sub-pixel bits for cv2 drawing
 _ONE = 1 << _SHIFT
+_MARGIN = 0.03  # of the frame's size, left around the arena (at least 2 px)
 
 # robots above which discs are drawn as pixel stamps all at once (numpy), not OpenCV calls per robot:
 # discs are then a few pixels wide, where anti-aliasing and a heading tick show nothing
@@ -136,12 +137,12 @@ def _draw_stamped(
 class _View:
     """World -> pixel transform for an arena, plus the static background."""
 
-    def __init__(self, arena: Sequence[float], size_px: int, margin_frac: float = 0.03):
+    def __init__(self, arena: Sequence[float], size_px: int):
         xmin, ymin, xmax, ymax = (float(v) for v in arena)
         if not (xmax > xmin and ymax > ymin):
             raise ValueError(f"bad arena {arena}")
         self.arena = (xmin, ymin, xmax, ymax)
-        margin = max(2, int(round(size_px * margin_frac)))
+        margin = max(2, int(round(size_px * _MARGIN)))
         self.scale = (size_px - 2 * margin) / max(xmax - xmin, ymax - ymin)  # px per metre
         w = int(round((xmax - xmin) * self.scale)) + 2 * margin
         h = int(round((ymax - ymin) * self.scale)) + 2 * margin
@@ -162,8 +163,7 @@ class _View:
         return np.round(self.px(xy) * _ONE).astype(np.int64)
 
     def background(self, obstacles: Sequence[Sequence[Sequence[float]]] | None) -> np.ndarray:
-        img = np.empty((self.height, self.width, 3), np.uint8)
-        img[:] = BACKGROUND
+        img = np.full((self.height, self.width, 3), BACKGROUND, np.uint8)
         xmin, ymin, xmax, ymax = self.arena
         corners = self.fixed(np.array([[xmin, ymin], [xmax, ymin], [xmax, ymax], [xmin, ymax]]))
         cv2.polylines(img, [corners.astype(np.int32)], True, ARENA_EDGE, 1, cv2.LINE_AA, _SHIFT)
@@ -337,23 +337,16 @@ def write_video(
     if the encoder cannot be opened or fails; then no file is left at ``path``."""
     path = Path(path)
     rec = recording.checked()
-    t, pose, radius, color, goal = rec.t, rec.pose, np.asarray(rec.radius), rec.color, rec.goal
-    idx = frame_indices(t, fps, speed, max_frames)
+    idx = frame_indices(rec.t, fps, speed, max_frames)
     if len(idx) == 0:
         raise ValueError("write_video: no samples")
 
     view = _View(rec.arena, size_px)
     bg = view.background(rec.obstacles)
+    at = lambda a, k: None if a is None else a[k]  # a tick's values, or none
+    radius = np.asarray(rec.radius)
     frames = (
-        _draw(
-            bg.copy(),
-            view,
-            float(t[k]),
-            pose[k],
-            radius,
-            None if color is None else color[k],
-            None if goal is None else goal[k],
-        )
+        _draw(bg.copy(), view, float(rec.t[k]), rec.pose[k], radius, at(rec.color, k), at(rec.goal, k))
         for k in idx.tolist()
     )
     try:
@@ -462,9 +455,8 @@ def _plot_clearance(path: Path, rec: Recording, clearance: np.ndarray) -> None:
     else:
         ax.text(0.5, 0.5, "fewer than two robots: no pairs", transform=ax.transAxes, ha="center")
     ax.axhline(0.0, color="#d62728", ls="--", lw=1.0, label="contact (0 m)")
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("clearance [m]")
-    ax.set_title(f"Minimum clearance between robots (centre distance − radii), N = {N}")
+    title = f"Minimum clearance between robots (centre distance − radii), N = {N}"
+    ax.set(xlabel="time [s]", ylabel="clearance [m]", title=title)
     ax.grid(True, alpha=0.3)
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
@@ -506,20 +498,18 @@ def _plot_trajectories(path: Path, rec: Recording) -> None:
     ax.set_xlim(xmin - 0.02 * (xmax - xmin), xmax + 0.02 * (xmax - xmin))
     ax.set_ylim(ymin - 0.02 * (ymax - ymin), ymax + 0.02 * (ymax - ymin))
     ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
     dur = float(t[-1] - t[0]) if len(t) else 0.0
-    ax.set_title(f"Trajectories, N = {N}, {dur:.1f} s")
+    ax.set(xlabel="x [m]", ylabel="y [m]", title=f"Trajectories, N = {N}, {dur:.1f} s")
     ax.legend(loc="upper right", fontsize=8, markerscale=1.0)
     fig.tight_layout()
     fig.savefig(path, format="png")
 
 
-def _last_goals(goal: Any, T: int, N: int, chunk: int = 1 << 20) -> np.ndarray:
+def _last_goals(goal: Any, T: int, N: int) -> np.ndarray:
     """(N, 2) each robot's goal at its last sample with one (NaN: never one), from ``goal`` (T, N, 2)
-    read about ``chunk`` values at a time."""
+    read about a million values at a time."""
     last = np.full((N, 2), np.nan)
-    ticks = max(1, chunk // max(N, 1))
+    ticks = max(1, (1 << 20) // max(N, 1))
     for first in range(0, T, ticks):
         g = np.asarray(goal[first : first + ticks], dtype=float)
         known = np.isfinite(g).all(axis=2)  # (ticks, N)

@@ -10,6 +10,8 @@ No zenoh here: these are pure writers that the recorder calls.
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import datetime as _dt
 import enum
 import io
@@ -86,8 +88,6 @@ def json_safe(obj: Any) -> Any:
     if hasattr(obj, "tolist"):  # other array-likes
         return json_safe(obj.tolist())
     if hasattr(obj, "__dataclass_fields__"):
-        import dataclasses
-
         return json_safe(dataclasses.asdict(obj))
     raise TypeError(f"cannot convert {type(obj).__name__} to JSON")
 
@@ -267,13 +267,9 @@ class RunDir:
 
 
 def _fsync_dir(path: Path) -> None:
-    try:
+    with contextlib.suppress(OSError):  # a directory some systems cannot open or sync
         fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)

@@ -162,8 +162,7 @@ class _Trails:
         steps = np.flatnonzero(ticks % TRAIL_EVERY == 0)
         if not self._points and not (steps.size and steps[0] == 0):
             self._points.append(xy[0].copy())
-        for i in steps[-TRAIL:]:
-            self._points.append(xy[i].copy())
+        self._points.extend(xy[i].copy() for i in steps[-TRAIL:])
 
     def log(self, rr: Any, rec: Any, rgb: Any, dots: bool | None) -> None:
         """The trails as faint dots in one flat batch (far cheaper to log than a strip per robot); their
@@ -333,7 +332,6 @@ class SwarmView:
         tick, t, last_pose, last_rgb, last_goal, _, missed = last
         rec.set_time("tick", sequence=int(tick))
         rec.set_time("time", duration=float(t))
-        n = len(last_pose)
         off = last_goal - last_pose[:, :2]
         at_goal = np.einsum("nc,nc->n", off, off) <= self.tolerance**2  # NaN (no goal) is never at it
         rec.log("metrics/at_goal", rr.Scalars(float(at_goal.sum())))
@@ -345,7 +343,7 @@ class SwarmView:
                 goal_y=last_goal[:, 1],
                 at_goal=at_goal,
                 heading_rad=last_pose[:, 2],
-                missed_ticks=np.zeros(n, np.int64) if missed is None else missed,
+                missed_ticks=np.zeros(len(last_pose), np.int64) if missed is None else missed,
             ),
         )
         if self._goals_shown is None or not (
@@ -385,11 +383,8 @@ class SwarmView:
                 continue
             radius = self.radius if item[5] is None else np.where(np.isfinite(item[5]), item[5], self.radius)
             if self._radius_shown is None or not np.array_equal(radius, self._radius_shown, equal_nan=True):
-                self.radius = radius
-                at = [
-                    rr.TimeColumn("tick", sequence=ticks[i : i + 1]),
-                    rr.TimeColumn("time", duration=times[i : i + 1]),
-                ]
+                self.radius, one = radius, slice(i, i + 1)
+                at = [rr.TimeColumn("tick", sequence=ticks[one]), rr.TimeColumn("time", duration=times[one])]
                 sizes = np.where(np.isfinite(radius), radius, 0.0)[None]
                 if self.dots:
                     sizes = np.full_like(sizes, -DOT)
@@ -464,7 +459,6 @@ def replay(run_dir: Path, sink: str | os.PathLike, scene: dict[str, Any] | None 
 def view_recording(rrd: Path, *, web: bool = False) -> None:
     """Open a recording in Rerun's viewer: its window (returns at once; the window is the user's), or
     its web viewer on 127.0.0.1, the address printed, until Ctrl-C."""
-    _rerun()
     if not web:
         command = [*_viewer(), "--bind", LOOPBACK, "--port", str(free_port(LOOPBACK)), str(rrd)]
         subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)

@@ -86,11 +86,9 @@ class Watcher:
             rec = msg.records
             robot = rec["robot"].astype(np.int64)
             ok = robot < self.n
-            hello = ok & (msg.tick == BEFORE_START)  # before the first tick: its size, no goal yet
-            self.radius[robot[hello]] = np.where(
-                np.isnan(self.radius[robot[hello]]), rec["radius"][hello], self.radius[robot[hello]]
-            )
-            if msg.tick == BEFORE_START:
+            if msg.tick == BEFORE_START:  # before the first tick: its size, no goal yet
+                known = self.radius[robot[ok]]
+                self.radius[robot[ok]] = np.where(np.isnan(known), rec["radius"][ok], known)
                 continue
             newer = ok.copy()
             newer[ok] = msg.tick >= self.state_tick[robot[ok]]

@@ -82,13 +82,6 @@ class ColumnMajor:
                 out.write(np.ascontiguousarray(values.T, self.dtype).tobytes())
 
 
-def video_speed(frames: int, size_px: int) -> float | None:
-    """The speed display.mp4 plays at: real time (None) unless its frames at real time exceed
-    :data:`VIDEO_PIXEL_BUDGET`."""
-    over = frames * size_px * size_px / VIDEO_PIXEL_BUDGET
-    return None if over <= 1 else float(np.ceil(over))
-
-
 def newest_goal_set(arrays: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray] | None:
     """Distributed image runs (trajectory.npz arrays): per tick, the robots of the newest goal set
     and whose announced goal comes from it, both (T,N); None in runs without goal sets."""
@@ -213,13 +206,15 @@ def _mark_incomplete(run_dir: RunDir, extra: dict[str, Any]) -> None:
 def _write_display_video(
     run_dir: RunDir, scene: Scene, arrays: dict[str, Any], radius: np.ndarray, formed: float | None
 ) -> None:
-    """display.mp4: frames at real time (or faster, :func:`video_speed`), the final picture held once
+    """display.mp4: frames at real time (or faster, :data:`VIDEO_PIXEL_BUDGET`), the final picture held once
     the display ``formed`` (s from the start; None: it never did). No encoder here: a warning."""
     from sim.outputs.render import frame_indices, held_frames, video_size, write_video
 
     t = arrays["t"]
     size = video_size(scene.arena, radius)
-    speed = video_speed(len(frame_indices(t, 10, max_frames=0)), size) or 1.0
+    # real time, unless its frames at real time exceed the budget
+    over = len(frame_indices(t, 10, max_frames=0)) * size * size / VIDEO_PIXEL_BUDGET
+    speed = 1.0 if over <= 1 else float(np.ceil(over))
     idx = held_frames(t, None if formed is None else float(t[0]) + formed, speed=speed)
     try:
         shown = recording_of(scene, arrays, radius, idx)
