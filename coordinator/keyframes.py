@@ -145,11 +145,8 @@ def match_regions(prev: Sequence[RegionShape], cur: Sequence[RegionShape]) -> li
                 + np.linalg.norm(c.centroid - p.centroid) / SHIFT_SCALE
                 + abs(np.log(c.area / p.area)) / AREA_SCALE
             )
-    rows, cols = linear_sum_assignment(cost)
-    out = [0] * len(cur)
-    for r, c in zip(rows, cols):
-        out[int(r)] = int(c)
-    return out
+    _, cols = linear_sum_assignment(cost)  # square: every row, in order
+    return [int(c) for c in cols]
 
 
 def _initial_samples(

@@ -20,7 +20,7 @@ from typing import Any, Unpack
 import numpy as np
 
 from .motion import StepMotion
-from .scene import GoalSource, Noise, Overrides, Scene, SceneError, goal_pipeline, load_scene, parse_scene
+from .scene import Noise, Overrides, Scene, SceneError, goal_pipeline, load_scene, parse_scene
 from .steps import GoalSets, ImageStep
 
 SCENE_FILE = "scene.json"
@@ -29,7 +29,7 @@ FORMAT = "pixelswarm.scene/1"
 
 
 class StoredGoals(GoalSets):
-    """Goal sets read from a run directory (the GoalSource of a resolved scene). A count not stored is
+    """Goal sets read from a run directory (the image_goals of a resolved scene). A count not stored is
     made by ``make`` (the image pipeline in arena K_r) when first asked for."""
 
     def __init__(
@@ -38,14 +38,14 @@ class StoredGoals(GoalSets):
         sets: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]],
         steps: int,
         robots: int,
-        make: Callable[[], GoalSource],
+        make: Callable[[], GoalSets],
     ) -> None:
         super().__init__(steps, robots)
         self.arena = arena
         for (k, n), (goals, colors) in sets.items():
             self._keep(k, n, goals, colors)
         self._make = make
-        self._pipeline: GoalSource | None = None
+        self._pipeline: GoalSets | None = None
 
     @property
     def counts(self) -> list[int]:
@@ -161,7 +161,7 @@ def _stored_goals(path: Path, scene: Scene, arena: float) -> StoredGoals:
     except (OSError, ValueError, KeyError) as err:
         raise SceneError(f"{path}: cannot read the run's goal sets: {err}") from None
 
-    def make() -> GoalSource:
+    def make() -> GoalSets:
         """The image pipeline for the scene as the run parsed it, in the run's arena K_r."""
         parsed = parse_scene(scene.source, robots=scene.robots, seed=scene.seed, duration=scene.duration)
         return goal_pipeline(parsed, arena)

@@ -13,7 +13,7 @@ import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol, TypedDict, Unpack
+from typing import TYPE_CHECKING, Any, TypedDict, Unpack
 
 import numpy as np
 
@@ -22,7 +22,7 @@ from transport import epuck
 
 from .goals import IMAGE_SUFFIXES, GoalError
 from .motion import check_window, is_number
-from .steps import ImageStep, StepGoals, parse_step
+from .steps import GoalSets, ImageStep, StepGoals, parse_step
 
 if TYPE_CHECKING:
     from .keyframe_steps import Animation, FrameGoals
@@ -44,15 +44,6 @@ class Noise:
     tracking_xy: float = 0.002  # paper 7.1: localised with a precision of 2 mm ...
     tracking_theta_deg: float = 3.0  # ... and 3 degrees
     actuation: float = 0.02  # relative std of wheel-speed / velocity execution
-
-
-class GoalSource(Protocol):
-    """Every step's goal sets in one arena K_r: made by the image pipeline (StepGoals, FrameGoals) or
-    read from a run directory (coordinator.resolved.StoredGoals)."""
-
-    arena: float  # K_r, metres
-
-    def goal_set(self, step: int, n: int) -> tuple[np.ndarray, np.ndarray]: ...
 
 
 @dataclass
@@ -94,7 +85,7 @@ class Scene:
     goal_set: np.ndarray | None = None  # (N,2) goals the robots assign themselves to (image scenes): step 0's
     goal_colors: np.ndarray | None = None  # (N,3) uint8 LED colours of those goals
     steps: list[ImageStep] = field(default_factory=list)  # image scenes: the images in order, with hold times
-    image_goals: GoalSource | None = field(default=None, repr=False)  # every step's goal sets, shared K_r
+    image_goals: GoalSets | None = field(default=None, repr=False)  # every step's goal sets, shared K_r
     goal_plan: GoalPlan | None = field(default=None, repr=False)  # image scenes: how their goal sets are made
     poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # initial poses (N,3)
     goal_positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # per-robot goals (N,2), NaN: none
@@ -204,32 +195,30 @@ SCENE_KEYS = frozenset(
 def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: Unpack[Overrides]) -> Scene:
     """A scene from its table, validated, without its goal sets: no image is read or drawn but a
     drawn animation's keyframes (make_goal_sets makes the goal sets and the arena that holds them)."""
-    where = source
     robots, seed, duration = overrides.get("robots"), overrides.get("seed"), overrides.get("duration")
-    unknown = set(data) - SCENE_KEYS
-    if unknown:
-        raise SceneError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
+    if unknown := set(data) - SCENE_KEYS:
+        raise SceneError(f"{source}: unknown key(s) {', '.join(sorted(unknown))}")
     n = robots if robots is not None else data.get("robots", 14)
     if not isinstance(n, int) or isinstance(n, bool) or n < 1:
-        raise SceneError(f"{where}: robots must be a whole number >= 1, not {n!r}")
-    robot = _table(data, "robot", {}, where)
+        raise SceneError(f"{source}: robots must be a whole number >= 1, not {n!r}")
+    robot = _table(data, "robot", {}, source)
     radius = robot.get("radius", epuck.RADIUS)
     if not _positive(radius):
-        raise SceneError(f"{where}: robot radius must be a positive number of metres, not {radius!r}")
+        raise SceneError(f"{source}: robot radius must be a positive number of metres, not {radius!r}")
     animation = _parse_animation(data["animation"], source) if "animation" in data else None
     steps = list(animation.steps) if animation is not None else _steps(data, source)
     if animation is not None and ("steps" in data or "goals" in data):
-        raise SceneError(f"{where}: give one of [animation], [[steps]] or [goals], not several")
-    duration, seed = _duration_and_seed(data, steps, duration, seed, where)
+        raise SceneError(f"{source}: give one of [animation], [[steps]] or [goals], not several")
+    duration, seed = _duration_and_seed(data, steps, duration, seed, source)
     scene = Scene(
         name=str(data.get("name", Path(source).stem)),
         robots=n,
         robot=robot,
-        layout=_table(data, "layout", {"kind": "grid"}, where),
-        goals=_table(data, "goals", {"kind": "none"}, where),
+        layout=_table(data, "layout", {"kind": "grid"}, source),
+        goals=_table(data, "goals", {"kind": "none"}, source),
         arena=(0.0, 0.0, 0.0, 0.0),
         obstacles=[],
-        events=_tables(data, "events", where),
+        events=_tables(data, "events", source),
         clock=overrides.get("clock") or data.get("clock", Scene.clock),
         engine=data.get("engine", Scene.engine),
         assignment=data.get("assignment", Scene.assignment),
@@ -237,23 +226,23 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
         deadline=data.get("deadline", Scene.deadline),
         duration=duration,
         seed=seed,
-        noise=_noise(_table(data, "noise", {}, where), where),
-        converge_hold=_converge_hold(_table(data, "end", {}, where), where),
+        noise=_noise(_table(data, "noise", {}, source), source),
+        converge_hold=_converge_hold(_table(data, "end", {}, source), source),
         source=source,
     )
-    _check_settings(scene, where)
-    scene.obstacles = [_polygon(o, where) for o in data.get("obstacles", [])]
-    scene.poses = initial_poses(scene.layout, n, radius, scene.seed, where)
+    _check_settings(scene, source)
+    scene.obstacles = [_polygon(o, source) for o in data.get("obstacles", [])]
+    scene.poses = initial_poses(scene.layout, n, radius, scene.seed, source)
     if scene.goals.get("kind") == "image":
         # One image is a sequence of one step, shown for the whole run.
-        steps = [_wrap(lambda: parse_step(_image_step(scene.goals, scene.duration), "goals", source), where)]
+        steps = [_wrap(lambda: parse_step(_image_step(scene.goals, scene.duration), "goals", source), source)]
     if steps:
-        _plan_steps(scene, data, steps, animation, where)
+        _plan_steps(scene, data, steps, animation, source)
     else:
-        scene.goal_positions = scene_goals(scene.goals, scene.poses, where)
-        scene.arena = _arena(data.get("arena", "auto"), scene, where)  # image scenes: make_goal_sets
-        _check_fit(scene, where)
-    _add_uncontrolled(scene, data, where)
+        scene.goal_positions = scene_goals(scene.goals, scene.poses, source)
+        scene.arena = _arena(data.get("arena", "auto"), scene, source)  # image scenes: make_goal_sets
+        _check_fit(scene, source)
+    _add_uncontrolled(scene, data, source)
     return scene
 
 

@@ -137,7 +137,7 @@ class Coordinator:
         self.images = bool(scene.steps)
         self.epoch = 0
         self.t: float | None = None  # display time of the last tick
-        self.first_tick_at: float | None = None  # wall time the world's first tick was heard
+        self.first_tick_at = 0.0  # wall time the world's first tick was heard (0: none yet)
         self.roster = Roster()
         self.shown: tuple[int, frozenset[int]] | None = None  # (step, robots) of the current epoch
         self.pixels = frozenset(scene.pixel_robots)  # the robots that show the image
@@ -182,7 +182,8 @@ class Coordinator:
         robots = frozenset(self.roster.live) & self.pixels
         if self.t is None or not robots:
             return False  # the show starts with the world's first tick
-        if self.shown is None and robots != self.pixels and not self._patience_out():
+        patient = time.monotonic() - self.first_tick_at < FIRST_SET_PATIENCE
+        if self.shown is None and robots != self.pixels and patient:
             return False  # agents not heard yet would join in a second epoch, at a tick load decides
         step = self.scene.step_at(self.t)
         restarted = bool(self.roster.restarted & robots)
@@ -191,7 +192,7 @@ class Coordinator:
                 return False
             if (robots != self.shown[1] or restarted) and time.monotonic() - self.roster.changed < SETTLE_S:
                 return False
-        dead = [r for r in self.roster.ever - frozenset(self.roster.live)]
+        dead = list(self.roster.ever - self.roster.live)
         if any(r not in self.bodies for r in dead):
             self.body_wait_since = self.t if self.body_wait_since is None else self.body_wait_since
             if self.t - self.body_wait_since < BODY_WAIT_S:
@@ -199,10 +200,6 @@ class Coordinator:
         self.body_wait_since = None
         self._publish(step, robots, dead)
         return True
-
-    def _patience_out(self) -> bool:
-        assert self.first_tick_at is not None
-        return time.monotonic() - self.first_tick_at >= FIRST_SET_PATIENCE
 
     def _hear(self) -> None:
         """The world's clock, the agents' liveliness, and where dead robots' bodies stand."""

@@ -125,10 +125,12 @@ def scale_region_counts(counts: Mapping[int, int] | None, full: int, n: int) -> 
 
 
 class GoalSets:
-    """Goal sets (goals, colours) of a scene's steps for any robot count 1..robots: made on demand by
-    a subclass's _made (or stored), cached, and handed out read-only."""
+    """Goal sets (goals, colours) of a scene's steps for any robot count 1..robots, all in one arena K_r:
+    made on demand by a subclass's _made (the image pipeline: StepGoals, FrameGoals) or stored
+    (coordinator.resolved.StoredGoals), cached, and handed out read-only."""
 
     STEP = "step"  # how errors name a step
+    arena: float  # K_r, metres: set by each subclass
 
     def __init__(self, steps: int, robots: int) -> None:
         self.step_count, self.robots = steps, robots

@@ -6,9 +6,7 @@ transparent pixels as background. Colour distances are CIE76 Delta E in Lab.
 
 from __future__ import annotations
 
-import contextlib
 import os
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,17 +40,6 @@ class Foreground:
     tolerance: float
 
 
-@contextlib.contextmanager
-def _quiet_opencv() -> Iterator[None]:
-    logging = cv2.utils.logging
-    old = logging.getLogLevel()
-    logging.setLogLevel(logging.LOG_LEVEL_SILENT)
-    try:
-        yield
-    finally:
-        logging.setLogLevel(old)
-
-
 def load_image(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray | None]:
     """Read a PNG, JPEG, BMP or TIFF file: (RGB uint8, alpha uint8 or None). Raises GoalError."""
     p = Path(path)
@@ -66,8 +53,13 @@ def load_image(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray | N
         raise GoalError(f"cannot read {p}: {exc.strerror or exc}") from None
     if not data.startswith(_MAGIC):
         raise GoalError(f"cannot read {p}: not a PNG, JPEG, BMP or TIFF image")
-    with _quiet_opencv():
+    logging = cv2.utils.logging  # quiet: a damaged file is our one-line error, not OpenCV's warning
+    level = logging.getLogLevel()
+    logging.setLogLevel(logging.LOG_LEVEL_SILENT)
+    try:
         raw = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    finally:
+        logging.setLogLevel(level)
     if raw is None or raw.size == 0:
         raise GoalError(f"cannot read {p}: the image data is damaged or unsupported")
     return split_channels(raw, bgr=True)
@@ -139,25 +131,15 @@ def lab_to_rgb(lab: np.ndarray) -> np.ndarray:
     return np.clip(np.round(rgb * 255.0), 0, 255).astype(np.uint8)
 
 
-def _border(h: int, w: int) -> np.ndarray:
-    band = max(1, round(0.01 * min(h, w)))
-    m = np.zeros((h, w), bool)
-    m[:band], m[-band:], m[:, :band], m[:, -band:] = True, True, True, True
-    return m
-
-
-def _quadratic_terms(ys: np.ndarray, xs: np.ndarray, h: int, w: int) -> np.ndarray:
-    x = xs / max(w - 1, 1) - 0.5
-    y = ys / max(h - 1, 1) - 0.5
-    return np.stack([np.ones_like(x), x, y, x * x, x * y, y * y], axis=1)
-
-
 def _border_model(lab: np.ndarray, tol: float) -> tuple[np.ndarray, float, np.ndarray]:
     """Fit a smooth (quadratic) Lab background to the border pixels that share the dominant colour.
 
     Returns (background Lab per pixel, robust noise sigma in Delta E, dominant colour)."""
     h, w = lab.shape[:2]
-    ys, xs = np.nonzero(_border(h, w))
+    band = max(1, round(0.01 * min(h, w)))  # the border: a band of 1 % of the shorter side
+    border = np.zeros((h, w), bool)
+    border[:band], border[-band:], border[:, :band], border[:, -band:] = True, True, True, True
+    ys, xs = np.nonzero(border)
     vals = lab[ys, xs].astype(np.float64)
     k = np.floor((vals + np.array([0.0, 128.0, 128.0])) / 8.0).astype(np.int64)
     _, inv, counts = np.unique((k[:, 0] * 64 + k[:, 1]) * 64 + k[:, 2], return_inverse=True, return_counts=True)
@@ -166,7 +148,8 @@ def _border_model(lab: np.ndarray, tol: float) -> tuple[np.ndarray, float, np.nd
     inliers = resid < 2.0 * tol
     if float(np.max(resid[inliers])) < 0.5:  # a flat background colour
         return np.broadcast_to(dominant, lab.shape), 0.0, dominant
-    terms = _quadratic_terms(ys, xs, h, w)
+    u, v = xs / max(w - 1, 1) - 0.5, ys / max(h - 1, 1) - 0.5  # the border pixels, the image centred on 0
+    terms = np.stack([np.ones_like(u), u, v, u * u, u * v, v * v], axis=1)
     coef = np.zeros((terms.shape[1], 3))
     coef[0] = dominant
     sigma = 0.0

@@ -196,9 +196,6 @@ def _check_init(init: Mapping[int, np.ndarray] | None, counts: np.ndarray) -> di
 
 def _sum_histories(histories: list[list[float]]) -> list[float]:
     """Total cost per iteration; a region that has converged keeps its last cost."""
-    histories = [h for h in histories if h]
-    if not histories:
-        return []
     length = max(len(h) for h in histories)
     padded = np.array([h + [h[-1]] * (length - len(h)) for h in histories])
     return padded.sum(axis=0).tolist()

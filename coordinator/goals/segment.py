@@ -53,11 +53,6 @@ class Segmentation:
         return np.divmod(idx, self.labels.shape[1])
 
 
-def default_min_area(shape: tuple[int, ...]) -> int:
-    """Specks below this many pixels are not regions: 0.02 % of the image, at least 16 pixels."""
-    return max(16, int(round(2e-4 * shape[0] * shape[1])))
-
-
 def _palette(lab: np.ndarray, tol: float) -> np.ndarray:
     """Palette index per colour (rows of lab): leader clustering on a coarse Lab histogram, refined."""
     q = tol / 2.0
@@ -169,7 +164,8 @@ def _absorb_weak(comp: np.ndarray, weak: np.ndarray) -> tuple[np.ndarray, int]:
 def segment(rgb: np.ndarray, mask: np.ndarray, *, min_area: int | None = None) -> Segmentation:
     """Split the foreground `mask` of `rgb` into regions R_i (see the module docstring)."""
     h, w = mask.shape
-    min_area = default_min_area(mask.shape) if min_area is None else int(min_area)
+    # specks below min_area pixels are not regions: by default 0.02 % of the image, at least 16 pixels
+    min_area = max(16, int(round(2e-4 * h * w))) if min_area is None else int(min_area)
     notes: list[str] = []
     if not mask.any():
         return Segmentation(np.full((h, w), -1, np.int64), [], notes)
