@@ -43,7 +43,6 @@ from .faults import FaultPlan, FaultSpec
 from .keys import Keys, cell_of, robots_of_ident
 from .session import ZenohSettings, open_session
 
-_NO_FAULT = FaultSpec()
 # A pulled inbox: samples one subscription holds before zenoh's receiving thread waits for the owner,
 # and how often a wait for one looks again.
 PULL_CAPACITY = 100_000
@@ -79,20 +78,13 @@ class InjectedFault(Generic[T]):
         self._order = itertools.count()
         self._lock = threading.Lock()
         self._seed = zlib.crc32(seed.encode())
-        self._rng: Any = None  # the random stream, made when first drawn from (_draws)
-
-    def _draws(self, key: str | None = None, stamp: float | None = None) -> Any:
-        """The random draws: one stream, or, given a message's key and stamp, a stream of that
-        message alone (reproducible in lock-step). Imported here: a process without faults never needs it."""
-        import random
-
-        if self._rng is None:
-            self._rng = random.Random(self._seed)
-        return self._rng if key is None else random.Random(f"{self._seed}/{key}/{stamp!r}")
+        self._rng: Any = None  # the random stream, made when first drawn from (admit)
 
     def admit(self, key: str, msgs: list[T], inbox: Inbox[T]) -> bool:
         """The fate of one delivery (a frame's records share it): dropped (counted ``fault``: False),
         queued in the inbox, or kept until its delay has passed."""
+        import random  # here: a process without faults never needs it
+
         spec = self.spec
         stamp: float | None = getattr(msgs[0], "stamp", None) if msgs else None
         # A hello (tick BEFORE_START) is not on the tick clock, which does not run before the first
@@ -101,7 +93,9 @@ class InjectedFault(Generic[T]):
         tick = getattr(msgs[0], "tick", -1) if msgs else -1
         on_ticks = inbox.sim_time is not None and stamp is not None and 0 <= tick != BEFORE_START
         with self._lock:
-            rng = self._draws(key, stamp) if on_ticks else self._draws()
+            # one stream, or on the tick clock a stream of this message alone (reproducible in lock-step)
+            self._rng = self._rng or random.Random(self._seed)
+            rng = random.Random(f"{self._seed}/{key}/{stamp!r}") if on_ticks else self._rng
             if rng.random() < spec.drop:
                 inbox.drops["fault"] += 1
                 return False
@@ -120,7 +114,7 @@ class InjectedFault(Generic[T]):
 
     def release(self, sim_time: float | None, out: queue.SimpleQueue[tuple[str, T]]) -> None:
         """Queue the kept messages that are due."""
-        if not (self._delayed or self._held):
+        if not self.waiting:
             return
         now = time.monotonic()
         with self._lock:
@@ -153,14 +147,7 @@ class KeepRobots:
 class Inbox(Generic[T]):
     """Messages of one subscription, decoded, filtered by faults, waiting for the owner's loop."""
 
-    def __init__(
-        self,
-        expected: type[T],
-        fault: FaultSpec,
-        seed: str,
-        only: np.ndarray | None = None,
-        pulled: bool = False,
-    ) -> None:
+    def __init__(self, expected: type[T], fault: FaultSpec, seed: str, only: np.ndarray | None, pulled: bool) -> None:
         """``expected``: a message kind, or a record view (codec.Pose, State, Command) whose frames
         arrive as their records (only those of robots ``only``, if given); a fault drops or delays
         a frame whole. ``pulled``: samples wait in zenoh's channels until the owner reads the inbox,
@@ -266,7 +253,7 @@ class Inbox(Generic[T]):
         records straight from zenoh's channels (and notes them ``seen``, as _on_sample does), on the
         owner's hot path once a tick: no queue between."""
         direct = self.pulled and self.frame is not None and self.fault is None
-        if not direct or not self._queue.empty() or self.has_delayed:
+        if not direct or not self._queue.empty():
             return [m for _, m in self.drain()]
         out: list[T] = []
         for sub in self.channels:
@@ -455,7 +442,7 @@ class Bus:
         ``pulled``: for an inbox its owner reads once a tick (an agent's neighbour states). Samples wait
         in zenoh's channels and the owner decodes them when it reads, so no Python thread wakes per
         sample to contend for the GIL. Nothing rings a bell on arrival: the owner polls."""
-        fault = self.faults.get(getattr(expected, "NAME", ""), _NO_FAULT)  # a kind's or a view's (its frame's)
+        fault = self.faults.get(getattr(expected, "NAME", ""), FaultSpec())  # a kind's or a view's (its frame's)
         self._n_subs += 1
         seed = f"{self._seed}/{self._name}/{self._n_subs}"
         inbox = Inbox(expected, fault, seed, only, pulled)
@@ -465,9 +452,7 @@ class Bus:
 
     def commands_inbox(self) -> Inbox[Command]:
         """Every robot's commands, one record at a time: what a body process reads."""
-        inbox = self.inbox(Command)
-        self.subscribe_into(self.keys.all_of("cmd"), inbox)
-        return inbox
+        return self.subscribe(self.keys.all_of("cmd"), Command)
 
     def subscribe(
         self, keyexpr: str, expected: type[T], only: np.ndarray | None = None, *, pulled: bool = False

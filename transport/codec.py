@@ -119,13 +119,9 @@ class Message:
     @classmethod
     def _from(cls, body: memoryview) -> Message:
         msg = cls(*_leading(cls._fixed, body, exact=True))
-        msg.validate()
+        if not all(math.isfinite(v) for v in msg._fixed_values() if isinstance(v, float)):
+            raise Malformed("non-finite")
         return msg
-
-    def validate(self) -> None:
-        for v in self._fixed_values():
-            if isinstance(v, float) and not math.isfinite(v):
-                raise Malformed("non-finite")
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly view (for logs): a record array as columns, one array per field (a dict per
@@ -392,13 +388,10 @@ class Goals(Message):
 
     # the parts after the goal set: part kind -> (its class, its field)
     _PARTS: ClassVar[dict[int, tuple[Any, str]]] = {
-        t.PART: (t, name)
-        for t, name in (
-            (Timing, "timing"),
-            (Motion, "motion"),
-            (Correspondence, "correspondence"),
-            (WarmStart, "warm_start"),
-        )
+        Timing.PART: (Timing, "timing"),
+        Motion.PART: (Motion, "motion"),
+        Correspondence.PART: (Correspondence, "correspondence"),
+        WarmStart.PART: (WarmStart, "warm_start"),
     }
 
     @property
@@ -688,10 +681,7 @@ class Frame(Message):
         # finite exactly when each of them is.
         if not math.isfinite(v[1]) or not math.isfinite(sum(v[cls._one_floats])):
             return "non-finite"
-        for i, test in cls._one_rules:
-            if not test(v[i]):
-                return "invalid"
-        return None
+        return None if all(test(v[i]) for i, test in cls._one_rules) else "invalid"
 
     # Rules of a kind's records beyond finite numbers: (field, test), each test taking a value or a
     # column of values, so that frames (numpy) and views (struct) are checked by the same rules.

@@ -47,17 +47,18 @@ def parse_faults(text: str) -> FaultPlan:
     """Parse 'KIND:drop=P,delay=S,jitter=S[;KIND:...]' into a plan; ValueError with a clear message
     (an unknown KIND too, with the kinds there are)."""
     plan: FaultPlan = {}
+    kinds = fault_kinds()
     for part in filter(None, (p.strip() for p in text.split(";"))):
         kind, sep, body = part.partition(":")
-        if not sep or not kind.strip():
+        kind = kind.strip()
+        if not sep or not kind:
             raise ValueError(f"fault {part!r}: expected KIND:drop=P,delay=S,jitter=S")
-        kinds = fault_kinds()
-        if kind.strip() not in kinds:
+        if kind not in kinds:
             import difflib  # here: a robot's process loads it only to refuse a plan
 
-            close = difflib.get_close_matches(kind.strip(), kinds, n=1)
+            close = difflib.get_close_matches(kind, kinds, n=1)
             maybe = f"did you mean {close[0]!r}? " if close else ""
-            raise ValueError(f"fault {part!r}: no message kind {kind.strip()!r} ({maybe}kinds: {', '.join(kinds)})")
+            raise ValueError(f"fault {part!r}: no message kind {kind!r} ({maybe}kinds: {', '.join(kinds)})")
         values: dict[str, float] = {}
         for item in filter(None, (i.strip() for i in body.split(","))):
             name, eq, value = item.partition("=")
@@ -67,7 +68,7 @@ def parse_faults(text: str) -> FaultPlan:
                 values[name.strip()] = float(value)
             except ValueError:
                 raise ValueError(f"fault {part!r}: {value!r} is not a number") from None
-        plan[kind.strip()] = FaultSpec(**values)
+        plan[kind] = FaultSpec(**values)
     return plan
 
 

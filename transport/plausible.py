@@ -68,7 +68,7 @@ class GoalSets:
             return FUTURE
         if self.arena is not None and len(goals.positions):
             low, high = goals.positions.min(axis=0), goals.positions.max(axis=0)
-            if low[0] < self.arena[0] or low[1] < self.arena[1] or high[0] > self.arena[2] or high[1] > self.arena[3]:
+            if (low < self.arena[:2]).any() or (high > self.arena[2:]).any():
                 return "invalid"
         sent = goals.encode()
         first = self._sent.get(goals.epoch)

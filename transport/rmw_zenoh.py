@@ -145,14 +145,6 @@ class RosSample:
     arrival: float  # time.monotonic() when it arrived
 
 
-def parse_topic_key(key: str) -> tuple[int, str, str, str]:
-    """(domain, fully qualified topic, dds type name, type hash) of a data key."""
-    parts = key.split("/")
-    if len(parts) < 4 or not parts[0].isdigit():
-        raise RosNameError(f"{key!r} is not an rmw_zenoh topic key")
-    return int(parts[0]), "/" + "/".join(parts[1:-2]), parts[-2], parts[-1]
-
-
 class RosNode:
     """A ROS 2 node on a Zenoh session: its token, and the publishers and subscriptions it declares."""
 
@@ -238,13 +230,7 @@ class RosSubscriber:
     ``type_hash``, so that ROS graph tools list it."""
 
     def __init__(
-        self,
-        node: RosNode,
-        topic: str,
-        ros_type: str,
-        type_hash: str,
-        any_domain: bool = False,
-        capacity: int = 1024,
+        self, node: RosNode, topic: str, ros_type: str, type_hash: str, any_domain: bool, capacity: int
     ) -> None:
         self.topic = qualified(topic, node.namespace)
         domain = "*" if any_domain else str(node.domain)
@@ -269,14 +255,15 @@ class RosSubscriber:
         out = []
         while self._ring:
             arrival, key, payload, raw_attachment = self._ring.popleft()
-            try:
-                domain, topic, _, type_hash = parse_topic_key(key)
-            except RosNameError:  # a non-numeric domain chunk: not an rmw_zenoh key
+            # a data key: <domain>/<topic without leading slash>/<dds type name>/<type hash>
+            parts = key.split("/")
+            if len(parts) < 4 or not parts[0].isdigit():  # not an rmw_zenoh key
                 continue
             attachment = None
             with contextlib.suppress(ValueError):  # a malformed attachment: the message without it
                 attachment = None if raw_attachment is None else Attachment.decode(raw_attachment)
-            out.append(RosSample(domain, topic, type_hash, payload, attachment, arrival))
+            topic = "/" + "/".join(parts[1:-2])
+            out.append(RosSample(int(parts[0]), topic, parts[-1], payload, attachment, arrival))
         return out
 
     def close(self) -> None:

@@ -97,23 +97,6 @@ def _service_grants(keys: Keys) -> dict[str, list[dict]]:
     return {role: _grants(role, **grant, watch=[keys.alive_all()]) for role, grant in grants.items()}
 
 
-def _robot_grants(keys: Keys, robot: int) -> list[dict]:
-    """What only robot i may do: publish its own keys, hear its own pose and command."""
-    role = robot_role(robot)
-    own = [keys.state_of(robot), keys.states(robot), keys.cmd(robot), keys.auction_of(robot), keys.boards_of(robot)]
-    return _grants(
-        role, put=[*own, keys.event], read=[keys.pose(robot), keys.cmd(robot)], token=[keys.alive("agent", robot)]
-    )
-
-
-def _every_robot_grants(keys: Keys) -> list[dict]:
-    """What every robot may read: neighbours' states, poses frames, goals, bids, the clock."""
-    heard = [keys.all_of(kind) for kind in ("state", "goals", "auction", "boards")]
-    return _grants(
-        "robots", read=[keys.poses, *heard, keys.clock], query=[keys.all_of("goals")], watch=[keys.alive_all()]
-    )
-
-
 def access_control(robots: int, *, by: str = "cert_common_names", display: str = "default") -> dict:
     """Zenoh `access_control` for a router: default deny, and the grants of every role. ``by`` names
     how the router knows a role: "cert_common_names" (mutual TLS) or "usernames" (user/password)."""
@@ -131,9 +114,14 @@ def access_control(robots: int, *, by: str = "cert_common_names", display: str =
 
     for role, grants in _service_grants(keys).items():
         grant(role, [role], grants)
-    for i in range(robots):
-        grant(robot_role(i), [robot_role(i)], _robot_grants(keys, i))
-    grant("robots", [robot_role(i) for i in range(robots)], _every_robot_grants(keys))
+    for i in range(robots):  # what only robot i may do: publish its own keys, hear its own pose and command
+        role = robot_role(i)
+        put = [keys.state_of(i), keys.states(i), keys.cmd(i), keys.auction_of(i), keys.boards_of(i), keys.event]
+        grant(role, [role], _grants(role, put=put, read=[keys.pose(i), keys.cmd(i)], token=[keys.alive("agent", i)]))
+    # what every robot may read: neighbours' states, poses frames, goals, bids, the clock
+    heard = [keys.poses, *(keys.all_of(kind) for kind in ("state", "goals", "auction", "boards")), keys.clock]
+    every = _grants("robots", read=heard, query=[keys.all_of("goals")], watch=[keys.alive_all()])
+    grant("robots", [robot_role(i) for i in range(robots)], every)
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
 
@@ -180,12 +168,6 @@ def _router_dict(directory: Path, listen: list[str], auth: str, robots: int, dis
     return conf
 
 
-def _resolved(directory: str | Path, auth: str) -> Path:
-    if auth not in AUTH_MODES:
-        raise SecurityError(f"auth must be one of {', '.join(AUTH_MODES)}, not {auth!r}")
-    return Path(directory).resolve()
-
-
 def _folder(directory: str | Path, display: str) -> tuple[Path, dict]:
     """A folder of access rules, resolved, and its manifest, if it is one, readable, for ``display``."""
     directory = Path(directory).resolve()
@@ -219,7 +201,9 @@ def _manifest(directory: Path) -> dict:
 
 def _role_file(directory: str | Path, role: str, auth: str) -> str:
     """The role's configuration file in a folder made by make_certificates."""
-    directory = _resolved(directory, auth)
+    if auth not in AUTH_MODES:
+        raise SecurityError(f"auth must be one of {', '.join(AUTH_MODES)}, not {auth!r}")
+    directory = Path(directory).resolve()
     robots = _manifest(directory)["robots"]
     if role not in roles(robots):
         raise SecurityError(f"no role {role!r} in {directory} (robots 0..{robots - 1})")

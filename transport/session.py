@@ -197,19 +197,19 @@ def add_zenoh_args(parser: argparse.ArgumentParser, default_mode: str = "client"
     group.add_argument("--zenoh-config", metavar="FILE", help=ZENOH_HELP["--zenoh-config"])
 
 
-def zenoh_usage(default_mode: str = "client") -> str:
+def zenoh_usage() -> str:
     """The zenoh flags' part of a help text, laid out as argparse lays out add_zenoh_args's."""
     lines = ["zenoh:"]
     for flag, shown in _ZENOH_SHOWN.items():
-        text = textwrap.fill(ZENOH_HELP[flag].format(default_mode=default_mode), 76, subsequent_indent=" " * 24)
+        text = textwrap.fill(ZENOH_HELP[flag].format(default_mode="client"), 76, subsequent_indent=" " * 24)
         lines.append(f"  {shown:<22}{text}" if len(shown) < 21 else f"  {shown}\n{'':24}{text}")
     return "\n".join(lines)
 
 
-def settings_from_options(options: list[tuple[str, str]], default_mode: str = "client") -> ZenohSettings:
+def settings_from_options(options: list[tuple[str, str]]) -> ZenohSettings:
     """The settings of the zenoh flags among getopt's (flag, value) pairs, as settings_from_args
     reads them from add_zenoh_args; other flags are left to the caller."""
-    settings = ZenohSettings(mode=default_mode)
+    settings = ZenohSettings()
     for flag, value in options:
         if flag in ("-m", "--mode"):
             settings.mode = value
