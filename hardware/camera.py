@@ -52,10 +52,9 @@ class CameraConfig:
         """Validate a parsed `[poses]` table; `where` names it in errors (e.g. "robots.toml [poses]")."""
         check_table(table, cls, "camera", where)
         values: dict[str, Any] = {}
-        if "source" in table:
-            values["source"] = _source(table["source"], where)
-        if "dictionary" in table:
-            values["dictionary"] = _dictionary_name(table["dictionary"], where)
+        for key, check in (("source", _source), ("dictionary", _dictionary_name)):
+            if key in table:
+                values[key] = check(table[key], where)
         for key in ("marker_size", "rate"):
             if key in table:
                 values[key] = _positive(table[key], f"{where}: {key}")
@@ -156,13 +155,6 @@ class TrackedFrame:
     lost: frozenset[int]
 
 
-def make_detector(dictionary: str, corner_refinement: int = CORNER_REFINEMENT) -> cv2.aruco.ArucoDetector:
-    """OpenCV's ArUco detector for a dictionary name, with the given corner refinement."""
-    parameters = cv2.aruco.DetectorParameters()
-    parameters.cornerRefinementMethod = corner_refinement
-    return cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary)), parameters)
-
-
 def marker_centre(corners: np.ndarray) -> np.ndarray:
     """The centre of a square seen in perspective: where its diagonals cross (not its corners' mean)."""
     h = np.hstack([corners, np.ones((4, 1))])
@@ -175,7 +167,10 @@ class ArucoTracker:
 
     def __init__(self, config: CameraConfig, corner_refinement: int = CORNER_REFINEMENT) -> None:
         self.config = config
-        self.detector = make_detector(config.dictionary, corner_refinement)
+        parameters = cv2.aruco.DetectorParameters()
+        parameters.cornerRefinementMethod = corner_refinement
+        dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, config.dictionary))
+        self.detector = cv2.aruco.ArucoDetector(dictionary, parameters)
         self.homography: np.ndarray | None = None if config.homography is None else np.array(config.homography)
         # the running mean of each reference marker's image centre: a fixed camera's calibration
         # grows more precise with every frame

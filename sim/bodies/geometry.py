@@ -40,13 +40,11 @@ def rect_signed_distance(xy: np.ndarray, arena: tuple[float, float, float, float
     ``xy`` has shape (..., 2); the result has shape (...).
     """
     xmin, ymin, xmax, ymax = arena
-    x = xy[..., 0]
-    y = xy[..., 1]
+    x, y = xy[..., 0], xy[..., 1]
     inside = np.minimum(np.minimum(x - xmin, xmax - x), np.minimum(y - ymin, ymax - y))
     ox = np.maximum(np.maximum(xmin - x, x - xmax), 0.0)
     oy = np.maximum(np.maximum(ymin - y, y - ymax), 0.0)
-    outside = np.hypot(ox, oy)
-    return np.where(inside >= 0.0, inside, -outside)
+    return np.where(inside >= 0.0, inside, -np.hypot(ox, oy))
 
 
 def make_polygon(vertices: Sequence[Sequence[float]], index: int = 0) -> Polygon:
@@ -71,8 +69,6 @@ def make_polygon(vertices: Sequence[Sequence[float]], index: int = 0) -> Polygon
 def polygon_signed_distance(poly: Polygon, xy: np.ndarray) -> np.ndarray:
     """Signed distance from points (M, 2) to a polygon: positive outside, negative inside."""
     xy = np.asarray(xy, dtype=float).reshape(-1, 2)
-    if xy.shape[0] == 0:
-        return np.empty(0)
     d = shapely.distance(poly.exterior, shapely.points(xy))
     inside = shapely.contains_xy(poly, xy[:, 0], xy[:, 1])
     return np.where(inside, -d, d)

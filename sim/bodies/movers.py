@@ -40,11 +40,10 @@ class Movers:
     same control core: which robots are pixels, the pursuers' goals, and the scripted movers' commands."""
 
     def __init__(self, scene: Scene) -> None:
-        n = scene.robots
         self.scripted = dict(scene.scripted)
         self.pursuers = dict(scene.pursuers)
         self.pixels = np.array(scene.pixel_robots, np.int64)  # the robots the goal set is auctioned to
-        self.cooperative = np.ones(n, bool)  # runs the same ORCA; a scripted mover avoids nobody
+        self.cooperative = np.ones(scene.robots, bool)  # runs the same ORCA; a scripted mover avoids nobody
         self.cooperative[list(self.scripted)] = False
 
     def pixel_assignment(self, chosen: np.ndarray) -> np.ndarray:

@@ -17,7 +17,7 @@ def bodies_of(scene: Scene) -> tuple[RobotParams, list[Body]]:
     """Every robot's body; scripted robots (dynamic obstacles) move holonomically along their path, as
     fast as their script says (not capped at the robot pixels' v_max)."""
     params = RobotParams.from_dict(scene.robot)
-    body = Body(params.kinematics, params.radius, params.v_max, params.wheel_base, params.omega_max)
+    body = Body.from_params(params)
 
     def scripted(i: int) -> Body:
         return Body(HOLONOMIC, params.radius, scripted_speed_limit(scene.scripted[i], params.v_max))

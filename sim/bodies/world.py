@@ -31,6 +31,7 @@ from sim.bodies.proximity import close_pairs
 
 _KINDS = ("robot", "obstacle", "wall")
 _KIND_ORDER = {k: n for n, k in enumerate(_KINDS)}
+_Overlaps = list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]  # kind, i, j, depth (rows, H) per group
 
 
 def _number(name: str, value: Any, *, zero: bool = False) -> float:
@@ -170,12 +171,9 @@ class World:
     @classmethod
     def from_params(cls, params: Any, poses: np.ndarray, **kwargs: Any) -> World:
         """A world from one ``RobotParams`` (for every robot) or a sequence of them (one per robot)."""
-        n = len(np.asarray(poses))
         if isinstance(params, (list, tuple)):
-            bodies = [Body.from_params(p) for p in params]
-        else:
-            bodies = [Body.from_params(params)] * n
-        return cls(bodies, poses, **kwargs)
+            return cls([Body.from_params(p) for p in params], poses, **kwargs)
+        return cls([Body.from_params(params)] * len(np.asarray(poses)), poses, **kwargs)
 
     # ---------------------------------------------------------------- state
 
@@ -468,7 +466,7 @@ class _ContactWatch:
         ``motion`` bounds how far any robot is from traj[0] in any row. Rows before ``first_row`` count
         for the clearance but not for contact events (they were checked at the end of the last step).
         """
-        groups: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]] = []  # kind, i, j, depth (rows, H)
+        groups: _Overlaps = []
         step_min = math.inf
 
         # robot-robot: the pairs within a search radius of each other at the start of the step
@@ -484,9 +482,7 @@ class _ContactWatch:
         self.min_clearance = min(self.min_clearance, step_min)
         return self._update_events(groups, times[first_row:]), step_min
 
-    def _wall_overlaps(
-        self, start: np.ndarray, rows: np.ndarray, motion: float
-    ) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]:
+    def _wall_overlaps(self, start: np.ndarray, rows: np.ndarray, motion: float) -> _Overlaps:
         """The robots over a wall in any row: only robots that start within r + motion of one can reach it."""
         if self.arena is None:
             return []
@@ -501,20 +497,17 @@ class _ContactWatch:
         hit = np.flatnonzero(np.any(depth > 0.0, axis=0))
         return [("wall", near[hit], np.full(hit.size, -1), depth[:, hit])] if hit.size else []
 
-    def _obstacle_overlaps(
-        self, start: np.ndarray, rows: np.ndarray, motion: float
-    ) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]:
+    def _obstacle_overlaps(self, start: np.ndarray, rows: np.ndarray, motion: float) -> _Overlaps:
         """The robots over an obstacle in any row: only robots whose swept disc may reach its bounding box."""
-        out: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]] = []
+        out: _Overlaps = []
         r = self.radius
         reach = r + motion + 1e-9
+        x, y = start[:, 0], start[:, 1]
         for o, (poly, (x0, y0, x1, y1)) in enumerate(zip(self.obstacles, self.obstacle_bounds)):
-            x, y = start[:, 0], start[:, 1]
             near = np.flatnonzero((x > x0 - reach) & (x < x1 + reach) & (y > y0 - reach) & (y < y1 + reach))
             if near.size == 0:
                 continue
-            sd = polygon_signed_distance(poly, rows[:, near].reshape(-1, 2))
-            sd = sd.reshape(rows.shape[0], near.size)
+            sd = polygon_signed_distance(poly, rows[:, near].reshape(-1, 2)).reshape(rows.shape[0], near.size)
             depth = r[near] - sd
             hit = np.flatnonzero(np.any(depth > 0.0, axis=0))
             if hit.size:
@@ -561,9 +554,7 @@ class _ContactWatch:
                 return max(float(gaps.min()), 0.0)
             reach *= 4.0
 
-    def _update_events(
-        self, groups: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]], times: np.ndarray
-    ) -> list[Contact]:
+    def _update_events(self, groups: _Overlaps, times: np.ndarray) -> list[Contact]:
         """Start, extend and end contact events from the overlap depths (positive = overlap) per row."""
         started: list[Contact] = []
         active = self.active

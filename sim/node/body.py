@@ -377,13 +377,11 @@ class BodyNode:
             shown = np.flatnonzero(self.ever_live & self.backend.tracked)
             self.bus.publish_poses(self.tick, t, shown, measured[shown], self.pose_frames)
             self._publish_before_start()
-        self._publish_movers(self.backend.own_movers(self.tick, t))
-
-    def _publish_movers(self, states: list[State]) -> None:
-        """The movers' states, as agents broadcast theirs: a frame that every agent host hears, or
-        each under its spatial cell for robots alone (HostConfig.frames)."""
+        # the movers' states, as agents broadcast theirs: a frame that every agent host hears, or each
+        # under its spatial cell for robots alone (HostConfig.frames)
+        states = self.backend.own_movers(self.tick, t)
         first = states[0].robot if self.pose_frames and states else None
-        self.bus.publish_states(self.tick, self.tick * self.dt, states, self.params.cell_size, first)
+        self.bus.publish_states(self.tick, t, states, self.params.cell_size, first)
 
     def _publish_before_start(self) -> None:
         """Robots whose agent is not live yet hear where they are (no tracker noise drawn, so start-up
@@ -404,8 +402,7 @@ class BodyNode:
 
     def _publish_contacts(self, contacts: list) -> None:
         for c in contacts:
-            msg = ContactMsg(CONTACT_KINDS[c.kind], c.i, c.j, c.t_start, c.max_depth)
-            self.bus.publish(self.bus.keys.contact, msg)
+            self.bus.publish(self.bus.keys.contact, ContactMsg(CONTACT_KINDS[c.kind], c.i, c.j, c.t_start, c.max_depth))
 
     def end_on(self, *signums: int) -> None:
         """These signals end the run, as an end event does."""

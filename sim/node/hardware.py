@@ -57,18 +57,6 @@ def check_runnable(config: HardwareConfig) -> int:
     return len(config.backend.addresses if kind == "epuck2" else config.backend.namespaces)
 
 
-def command_timeout(config: HardwareConfig) -> float:
-    """The hardware file's own command timeout (e-puck2 `command_timeout`, ROS 2 `watchdog`)."""
-    backend = config.backend
-    return float(backend.command_timeout if config.backend_kind == "epuck2" else backend.watchdog)
-
-
-def describe_poses(config: HardwareConfig) -> str:
-    poses = config.poses
-    assert poses is not None
-    return f"topic {poses.topic}" if config.poses_kind == "ros2" else f"camera {poses.source!r}"
-
-
 # --- drives: the backends behind one small interface ---------------------------------------------
 class BackendDrive:
     """What the drives share: the backend starts itself; a drive without connections reaches every robot."""
@@ -139,10 +127,12 @@ class TwistDrive(BackendDrive):
 Drive = WheelDrive | TwistDrive  # start, send, unreached, where, robot_stats, close
 
 
-def open_drive(config: HardwareConfig, settings: ZenohSettings, params: RobotParams) -> Drive:
+def open_drive(config: HardwareConfig, settings: ZenohSettings, params: RobotParams) -> tuple[Drive, float]:
+    """The drive and the hardware file's own command timeout (e-puck2 `command_timeout`, ROS 2 `watchdog`)."""
+    backend = config.backend
     if config.backend_kind == "epuck2":
-        return WheelDrive(config.backend, params)
-    return TwistDrive(config.backend, settings, params)
+        return WheelDrive(backend, params), float(backend.command_timeout)
+    return TwistDrive(backend, settings, params), float(backend.watchdog)
 
 
 class PoseSource(Protocol):
@@ -153,15 +143,16 @@ class PoseSource(Protocol):
     def close(self) -> None: ...
 
 
-def open_pose_source(config: HardwareConfig, settings: ZenohSettings) -> PoseSource:
+def open_pose_source(config: HardwareConfig, settings: ZenohSettings) -> tuple[PoseSource, str]:
+    """The pose source and its name in messages."""
     assert config.poses is not None  # check_runnable() refuses a file without
     if config.poses_kind == "ros2":
         from hardware.ros2 import Ros2PoseSource
 
-        return Ros2PoseSource(config.poses, settings)
+        return Ros2PoseSource(config.poses, settings), f"topic {config.poses.topic}"
     from hardware.camera import CameraPoseSource
 
-    return CameraPoseSource(config.poses)
+    return CameraPoseSource(config.poses), f"camera {config.poses.source!r}"
 
 
 # --- the bodies ----------------------------------------------------------------------------------
@@ -169,12 +160,8 @@ class HardwareBodies:
     """Real robots as the node's bodies: a drive takes their commands, a pose source tells where they
     are. A command holds for the hardware's command timeout of wall time; a pose older than it is lost."""
 
-    def __init__(
-        self, drive: Drive, poses: PoseSource, params: RobotParams, n: int, timeout: float, poses_name: str
-    ) -> None:
-        """``poses_name`` names the pose source in messages."""
-        self.drive, self.poses, self.params, self.timeout, self.poses_name = drive, poses, params, timeout, poses_name
-        self.n = n
+    def __init__(self, drive: Drive, poses: PoseSource, params: RobotParams, n: int, timeout: float) -> None:
+        self.drive, self.poses, self.params, self.timeout, self.n = drive, poses, params, timeout, n
         self.pose = np.zeros((n, 3))  # the last tracked pose of each robot
         self.tracked = np.zeros(n, bool)  # its pose is fresh (not older than the timeout)
         self.wheels = np.zeros((n, 2))  # what each robot was last told (m/s)
@@ -263,12 +250,11 @@ class HardwareBodies:
                     **self.drive.robot_stats(i),
                 }
             )
-        poses_stats = self.poses.stats()
         return {
             "hardware": {
                 "timeout_s": self.timeout,
                 "robots": robots,
-                "poses": poses_stats,
+                "poses": self.poses.stats(),
                 "not_stopped_at_end": self.unreached,
             }
         }
@@ -282,17 +268,16 @@ def hardware_node(
     *,
     timeout: float,
     pose_frames: bool = False,
-    poses_name: str = "the pose source",
 ) -> BodyNode:
     """The body node on real robots, on the wall clock (``timeout``: a robot whose command is older, or
     whose pose was lost longer, is stopped)."""
-    bodies = HardwareBodies(drive, poses, RobotParams.from_dict(scene.robot), scene.robots, timeout, poses_name)
-    clock = WallClock(POLL, catch_up=False)
-    return BodyNode(bus, scene, bodies, clock, pose_frames=pose_frames)
+    bodies = HardwareBodies(drive, poses, RobotParams.from_dict(scene.robot), scene.robots, timeout)
+    return BodyNode(bus, scene, bodies, WallClock(POLL, catch_up=False), pose_frames=pose_frames)
 
 
-def wait_for_hardware(node: BodyNode, startup_timeout: float) -> str | None:
-    """Until every robot is reached and tracked; None, or what is missing as one line."""
+def wait_for_hardware(node: BodyNode, startup_timeout: float, poses_name: str = "the pose source") -> str | None:
+    """Until every robot is reached and tracked; None, or what is missing as one line (``poses_name``
+    names the pose source)."""
     bodies = node.backend
     assert isinstance(bodies, HardwareBodies)
     end = time.monotonic() + startup_timeout
@@ -308,7 +293,7 @@ def wait_for_hardware(node: BodyNode, startup_timeout: float) -> str | None:
             if lost:
                 future = bodies.poses.stats().get("future", 0)
                 ahead = f"; {future} poses dropped as stamped in the future: is its clock ahead?" if future else ""
-                problems.append(f"no pose for robots {', '.join(map(str, lost))} ({bodies.poses_name}{ahead})")
+                problems.append(f"no pose for robots {', '.join(map(str, lost))} ({poses_name}{ahead})")
             return f"within {startup_timeout:g} s, " + "; ".join(problems)
         time.sleep(POLL)
     return "stopped during start-up"
@@ -353,12 +338,9 @@ def main(argv: list[str] | None = None) -> int:
     except (HardwareError, HardwareConfigError, SceneError, TransportError) as err:
         return _fail(str(err))
     with bus:
-        drive = open_drive(config, settings, RobotParams.from_dict(scene.robot))
-        poses = open_pose_source(config, settings)
-        timeout, poses_name = command_timeout(config), describe_poses(config)
-        node = hardware_node(
-            bus, scene, drive, poses, timeout=timeout, pose_frames=args.pose_frames, poses_name=poses_name
-        )
+        drive, timeout = open_drive(config, settings, RobotParams.from_dict(scene.robot))
+        poses, poses_name = open_pose_source(config, settings)
+        node = hardware_node(bus, scene, drive, poses, timeout=timeout, pose_frames=args.pose_frames)
         node.parent_pid = os.getppid() if args.exit_with_parent else None
         node.end_on(signal.SIGTERM, signal.SIGINT)
         try:
@@ -367,7 +349,7 @@ def main(argv: list[str] | None = None) -> int:
                 poses.start()
             except (HardwareConfigError, TransportError, OSError, RuntimeError) as err:
                 return _fail(f"{config.path}: cannot start: {err}")
-            problem = wait_for_hardware(node, args.startup_timeout)
+            problem = wait_for_hardware(node, args.startup_timeout, poses_name)
             if problem is not None:
                 return _fail(f"{config.path}: {problem}")
             node.run()  # it declares itself alive: the launcher starts the agents now
