@@ -55,12 +55,11 @@ def optimal_assignment(
     at least Delta C (paper 5.1's hysteresis for noisy positions). Scene `assignment = "optimal"`."""
     cost = ((position[:, None, :] - goals[None, :, :]) ** 2).sum(-1)
     rows, cols = linear_sum_assignment(cost)
-    best = _goal_index(len(position), rows, cols)
     if previous is not None and (previous >= 0).all():
         keep = cost[np.arange(len(position)), previous].sum()
         if keep - cost[rows, cols].sum() < hysteresis:
             return previous
-    return best
+    return _goal_index(len(position), rows, cols)
 
 
 def settle_in_process(auction: LocalAuction, positions: np.ndarray, max_rounds: int = 1_000_000) -> int:
@@ -152,10 +151,14 @@ class Shown:
 
 class CentralAuction:
     """The auction step of the central engine (agent.loop.Auction): the shown image's goal set and
-    the auction that assigns it, settled in this process, beside the policy when ``overlap``."""
+    the auction that assigns it, settled in this process, beside the policy when ``overlap``; ``clock``
+    times the engine's parts (sim.central.stepclock)."""
 
-    def __init__(self, scene: Scene, params: RobotParams, movers: Movers, reach: float, beside: Beside) -> None:
-        self.scene, self.params, self.movers, self.reach, self.beside = scene, params, movers, reach, beside
+    def __init__(
+        self, scene: Scene, params: RobotParams, movers: Movers, reach: float, clock: StepClock, overlap: bool
+    ) -> None:
+        self.scene, self.params, self.movers, self.reach = scene, params, movers, reach
+        self.clock, self.overlap = clock, overlap
         self.image = Shown(-1, *_scene_goals(scene))  # image scenes: the shown step's, below
         self.auction: Participant | LocalAuction | None = None  # image scenes: the auction of the shown goal set
         ids = np.arange(scene.robots)
@@ -226,7 +229,7 @@ class CentralAuction:
                 before = None if self.assigned_at is None else self.assignment[movers.pixels]
                 best = optimal_assignment(bid_from[movers.pixels], self.image.goal_set, before, p.assign_hysteresis)
                 self.assignment = movers.pixel_assignment(best)
-            elif isinstance(auction, Participant) and self.beside.overlap:
+            elif isinstance(auction, Participant) and self.overlap:
                 auction.settle_beside(bid_from)
                 self.pending = (auction, bid_from)
             else:  # a new image: a cold start (the old prices mean nothing)
@@ -238,7 +241,7 @@ class CentralAuction:
                 self.assignment = auction_assignment(auction, bid_from)
             self.assigned_at = t
             self.assigned = (self.image.k, self.image.goal_set, self.image.goal_colors)
-        self.beside.lap("assignment")
+        self.clock.lap("assignment")
 
     def _adopt(self, auction: Participant) -> None:
         """The block just agreed: every robot takes its goal of the agreement at this tick."""
@@ -255,8 +258,8 @@ class CentralAuction:
         bids = auction.bids
         settled = auction_assignment(auction, bid_from)
         reassigned = int((settled != self.assignment).sum())
-        self.beside.clock.add_beside(auction.beside_seconds, auction.bids - bids, reassigned)
-        self.beside.lap("assignment")
+        self.clock.add_beside(auction.beside_seconds, auction.bids - bids, reassigned)
+        self.clock.lap("assignment")
         self.assignment = settled
         return reassigned > 0
 
@@ -265,15 +268,6 @@ class CentralAuction:
         if self.auction is not None and epoch == self.image.k + 1:
             self.auction.penalise(robot, goal, self.params.deadlock_cost)
             self.penalties += 1
-
-
-class Beside:
-    """Whether a warm auction settles beside the control core (``overlap``), and the clock of the
-    engine's parts (sim.central.stepclock)."""
-
-    def __init__(self, clock: StepClock, overlap: bool) -> None:
-        self.clock, self.overlap = clock, overlap
-        self.lap = clock.lap
 
 
 class Central:
@@ -295,7 +289,7 @@ class Central:
     def sense(self, tick: int) -> Sensed:
         """The poses as the tracker's messages carry them."""
         self.measured = as_sent(self.tracker.measure(self.world.poses))
-        self.auction.beside.lap("tracker")
+        self.auction.clock.lap("tracker")
         n, m = len(self.measured), self.measured
         return Sensed(np.arange(n), m[:, :2], m[:, 2], tick, tick * self.params.dt, self.params, np.zeros(n, bool))
 
@@ -303,7 +297,7 @@ class Central:
         return slice(None)  # every robot, in order: the memory's rows are read and written in place
 
     def neighbours(self, sensed: Sensed) -> NeighbourStates:
-        lap = self.auction.beside.lap
+        lap = self.auction.clock.lap
         self.world.check()  # the contacts of the last step, while the auction runs beside
         lap("world")
         p = self.params
@@ -312,12 +306,8 @@ class Central:
         return heard
 
     def goals(self, sensed: Sensed) -> tuple[np.ndarray, np.ndarray]:
-        self._take_up_assignment()
-        return self.held_goals.targets(self.rows(sensed.ids))
-
-    def _take_up_assignment(self) -> None:
         """The robots hold the goals the assignment gives them now (agent.held_goals, as the agents)."""
-        a, held = self.auction, self.held_goals
+        a, held, rows = self.auction, self.held_goals, self.rows(sensed.ids)
         image, goal_set, colors = a.assigned
         # most ticks the auction keeps every goal: the goals are the last ones (unless a pursuer's moved)
         if self.made is None or self.made[0] != image or not np.array_equal(self.made[1], a.assignment):
@@ -329,8 +319,9 @@ class Central:
                 held.goal[:], held.color[:] = goal_set, colors
             self.made = (image, a.assignment.copy())
         elif not self.movers.pursuers:
-            return
+            return held.targets(rows)
         held.goal[:], held.color[:] = self.movers.goals(held.goal, held.color, self.measured)  # a pursuer's target
+        return held.targets(rows)
 
     def has_goal(self) -> np.ndarray:
         """The robots whose goal convergence is judged on: a pixel of the image with a goal."""
@@ -377,8 +368,7 @@ def simulate(
     _keep_freed_memory()
     params, world = world_of(scene)
     link, clock = link or InProcessLink(scene.robots), clock or StepClock()
-    beside = Beside(clock, overlap)
-    auction = CentralAuction(scene, params, Movers(scene), link.reach, beside)
+    auction = CentralAuction(scene, params, Movers(scene), link.reach, clock, overlap)
     robots = Central(scene, link, auction, world)
     link.threads = threads = len(os.sched_getaffinity(0))  # the batch's rows shared among the cores
     segments = static_segments(scene.arena, scene.obstacles)

@@ -15,8 +15,6 @@ import numpy as np
 from agent.core.step import NeighbourStates
 from agent.neighbour_table import Heard, nearest_heard
 
-_UNHEARD = -np.inf
-
 
 class InProcessLink:
     """The states of one tick, heard by every robot at the next (optionally lost or late)."""
@@ -34,7 +32,7 @@ class InProcessLink:
         self.rng = np.random.default_rng(seed)
         self.last: Heard | None = None  # what everybody heard (no impairment)
         n = robots if self.impaired else 0
-        self.heard_stamp = np.full((n, n), _UNHEARD)  # [receiver, sender]: stamp of the newest state heard
+        self.heard_stamp = np.full((n, n), -np.inf)  # [receiver, sender]: stamp of the newest state heard (-inf: none)
         self.heard_pos, self.heard_vel = np.zeros((n, n, 2)), np.zeros((n, n, 2))
         self.delayed: tuple[np.ndarray, Heard] | None = None  # states of the last tick that arrive a tick late
         self.on_time = self.draws = 0

@@ -21,7 +21,7 @@ class StepClock:
     """Seconds per part and tick: ``wall[part][tick]`` and ``cpu[part][tick]``."""
 
     def __init__(self, cpu: bool = False) -> None:
-        self.read_cpu = time.process_time if cpu else _no_cpu
+        self.read_cpu = time.process_time if cpu else lambda: 0.0
         self.wall: dict[str, list[float]] = {part: [] for part in PARTS}
         self.cpu: dict[str, list[float]] = {part: [] for part in PARTS}
         self.beside: list[float] = []  # per tick: wall seconds of the auction on the second thread (0: none)
@@ -55,7 +55,3 @@ class StepClock:
     def arrays(self, cpu: bool = False) -> dict[str, np.ndarray]:
         """(ticks,) seconds per part, wall time (or this process's CPU time)."""
         return {part: np.array(spent) for part, spent in (self.cpu if cpu else self.wall).items()}
-
-
-def _no_cpu() -> float:
-    return 0.0

@@ -147,6 +147,8 @@ class Launcher:
         self.interrupted = False  # a stop signal ended the run (written marked incomplete)
         self.run_dir = RunDir(options.out)
         self.failures = events_of(scene, "fail")
+        self.shutdown_wall = math.inf  # when the launcher first stopped its children (wall clock)
+        self._last_say = 0.0  # when progress was last said (monotonic)
 
     # --- processes ----------------------------------------------------------------------------
     def _spawn(
@@ -319,7 +321,7 @@ class Launcher:
                 self._restart(child, code, recorder)
 
     def _stop_children(self) -> None:
-        self.shutdown_wall = min(time.time(), getattr(self, "shutdown_wall", float("inf")))
+        self.shutdown_wall = min(time.time(), self.shutdown_wall)
         stop_processes([child.proc for child in self.children], 5.0)
 
     # --- progress -----------------------------------------------------------------------------
@@ -328,7 +330,7 @@ class Launcher:
         if out is None:
             return
         now = time.monotonic()
-        if force or now - getattr(self, "_last_say", 0.0) >= 1.0:
+        if force or now - self._last_say >= 1.0:
             self._last_say = now
             print(text, file=out, flush=True)
 
@@ -423,7 +425,12 @@ class Launcher:
         if self.opt.foxglove is not None and recorder.out.log is not None:
             port = recorder.out.log.serve(self.opt.foxglove)  # said even with -q: it is asked for, not progress
             print(f"[{self.scene.name}] Foxglove live: ws://127.0.0.1:{port}", file=sys.stderr, flush=True)
-        bus.serve(bus.keys.run_goals, lambda: self._newest_goals(bus, recorder))
+
+        def newest_goals() -> list[tuple[str, bytes]]:
+            newest = recorder.sets.newest
+            return [] if newest is None else [(bus.keys.run_goals, newest.encode())]
+
+        bus.serve(bus.keys.run_goals, newest_goals)
         return recorder
 
     def _world_args(self) -> list[str]:
@@ -437,14 +444,14 @@ class Launcher:
         return args + (["--faults", format_faults(self.opt.faults)] if self.opt.faults else [])
 
     def _record_the_last_ticks(self, recorder: Recorder) -> None:
-        """Wait (bounded) for the agents' final statistics and the world's last ticks still in flight."""
+        """Wait (bounded) for the agents' final statistics and the world's last ticks still in flight
+        (a run that ended on convergence records nothing after its end, so there is nothing to wait for)."""
         last_t = float(self.world.stats.get("ticks", 0)) * self.params.dt
         settle, patience = time.monotonic() + 0.5, time.monotonic() + 10.0
-        while (
-            time.monotonic() < settle
-            or (self._ticks_in_flight(recorder, last_t) or self._stats_missing(recorder))
-            and time.monotonic() < patience
-        ):
+        while time.monotonic() < patience:
+            ticks_due = recorder.progress.ended_at is None and recorder.sim_time < last_t - 1e-6
+            if time.monotonic() >= settle and not (ticks_due or self._stats_missing(recorder)):
+                return
             recorder.poll()
             time.sleep(0.05)
 
@@ -483,17 +490,6 @@ class Launcher:
                 )
             self._say(f"[{self.scene.name}] waiting for {len(missing)}/{len(ids)} agents to come alive")
             time.sleep(0.05)
-
-    @staticmethod
-    def _ticks_in_flight(rec: Recorder, last_t: float) -> bool:
-        """The world's last ticks are still on their way to the recorder (a run that ended on
-        convergence records nothing after its end, so there is nothing to wait for)."""
-        return rec.progress.ended_at is None and rec.sim_time < last_t - 1e-6
-
-    @staticmethod
-    def _newest_goals(bus: Bus, rec: Recorder) -> list[tuple[str, bytes]]:
-        newest = rec.sets.newest
-        return [] if newest is None else [(bus.keys.run_goals, newest.encode())]
 
     def _stats_missing(self, rec: Recorder) -> bool:
         """Whether statistics are still due from an agent that stopped cleanly (remote agents report
@@ -658,7 +654,7 @@ class Launcher:
         lost = [
             e
             for e in rec.happened.liveliness
-            if e["role"] == "agent" and not e["alive"] and e["wall_time"] < getattr(self, "shutdown_wall", float("inf"))
+            if e["role"] == "agent" and not e["alive"] and e["wall_time"] < self.shutdown_wall
         ]
         self._say(f"[{self.scene.name}] run ended ({end_reason}); writing {self.run_dir.path.name}", force=True)
         traffic = Traffic(

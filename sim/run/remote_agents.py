@@ -122,7 +122,7 @@ def run_agents(args: argparse.Namespace) -> int:
         return 130
 
 
-def _check_input(args: argparse.Namespace) -> tuple[list[int] | None, ZenohSettings]:
+def _run(args: argparse.Namespace) -> int:
     try:
         robots = parse_ids(args.robots) if args.robots is not None else None
         Keys(args.display)
@@ -130,11 +130,6 @@ def _check_input(args: argparse.Namespace) -> tuple[list[int] | None, ZenohSetti
         raise UsageError(str(err)) from None
     settings = ZenohSettings(mode="client", connect=[args.connect])
     check_endpoint(settings, args.connect)
-    return robots, settings
-
-
-def _run(args: argparse.Namespace) -> int:
-    robots, settings = _check_input(args)
     say = (lambda text: None) if args.quiet else (lambda text: print(f"{PROG}: {text}", file=sys.stderr, flush=True))
     try:
         bus = Bus(settings, args.display, name="agents")
