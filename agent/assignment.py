@@ -254,10 +254,14 @@ class AuctionLink:
         return self.part is not None or self.local is not None
 
     @property
+    def _auction(self) -> Participant | LocalAuction | None:
+        """The auction under way: the range-limited one, else the participant (None: none yet)."""
+        return self.local if self.local is not None else self.part
+
+    @property
     def cold(self) -> bool:
         """The goal set's auction has not agreed yet (its robots have no goal of it, unless carried)."""
-        auction = self.local if self.local is not None else self.part
-        return auction is not None and auction.agreed_instance < 0
+        return self._auction is not None and self._auction.agreed_instance < 0
 
     @property
     def busy(self) -> bool:
@@ -267,17 +271,10 @@ class AuctionLink:
     @property
     def epoch(self) -> int:
         """The goal set of the current auction (0: none yet)."""
-        auction = self.local if self.local is not None else self.part
-        return auction.epoch if auction is not None else 0
-
-    @property
-    def _swarm(self) -> int:
-        """The robots of the goal set under way (those a round may wait for)."""
-        auction = self.local if self.local is not None else self.part
-        return len(auction.robots) if auction is not None else 0
+        return self._auction.epoch if self._auction is not None else 0
 
     def idle_robots(self) -> list[int]:
-        own = set(self.local.own) if self.local else set(self.part.own) if self.part else set()
+        own = set(self._auction.own) if self._auction is not None else set()
         return [r for r in self.robots if r not in own]
 
     # --- inputs -----------------------------------------------------------------------------------
@@ -401,7 +398,7 @@ class AuctionLink:
         return False  # the bus's rounds are played within the step
 
     def penalise(self, robot: int, epoch: int, goal: int) -> None:
-        auction = self.local if self.local is not None else self.part
+        auction = self._auction
         if auction is not None and epoch == auction.epoch:
             auction.penalise(robot, goal, self.params.deadlock_cost)
             self.counts.penalties += 1
@@ -548,8 +545,10 @@ class AuctionLink:
 
     def _resend_base(self, members: int) -> float:
         """Lock-step: the first wait for a round's records before our message goes out again; at least
-        RESEND_PER_ROBOT per robot, as every resend reaches every host and slows every round."""
-        return max(ROUND_RESEND, RESEND_PER_ROBOT * max(members, self._swarm))
+        RESEND_PER_ROBOT per robot, as every resend reaches every host and slows every round; the
+        robots of the goal set under way are those a round may wait for."""
+        swarm = len(self._auction.robots) if self._auction is not None else 0
+        return max(ROUND_RESEND, RESEND_PER_ROBOT * max(members, swarm))
 
     def _keeps(self, msg: Bid | Boards) -> bool:
         """Whether another host's message is one to take: not of an earlier goal set, and a bid of the
@@ -577,7 +576,7 @@ class AuctionLink:
         hold their positions (drive to no goal) rather than drive to a goal another may hold."""
         self.counts.abandoned += 1
         self.blocks.block = None
-        own = self.local.own if self.local is not None else self.part.own if self.part is not None else []
+        own = self._auction.own if self._auction is not None else []
         if self.rounds.on_abandoned is not None and own:
             self.rounds.on_abandoned(list(own))
 

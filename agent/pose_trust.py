@@ -41,20 +41,17 @@ class PoseTrust:
     def judge(self, robot: int, tick: int, x: float, y: float, theta: float) -> tuple[float, float, float] | None:
         """The pose to drive on, or None to brake: held on the last trusted pose until confirmed."""
         last = self.trusted.get(robot)
-        if last is None or self._within(last, tick, x, y):
-            self.trusted[robot] = _Place(tick, x, y, theta)
-            self.candidate.pop(robot, None)
-            return (x, y, theta)
-        cand = self.candidate.get(robot)
-        agreeing = cand.agreeing + 1 if cand is not None and self._within(cand, tick, x, y) else 1
-        if agreeing >= CONFIRM:
-            self.trusted[robot] = _Place(tick, x, y, theta)
-            del self.candidate[robot]
-            return (x, y, theta)
-        self.candidate[robot] = _Place(tick, x, y, theta, agreeing)
-        last.tick = max(last.tick, tick - 1)  # braking, it stands: its reach does not grow while held
-        self.held += 1
-        return None
+        if last is not None and not self._within(last, tick, x, y):
+            cand = self.candidate.get(robot)
+            agreeing = cand.agreeing + 1 if cand is not None and self._within(cand, tick, x, y) else 1
+            if agreeing < CONFIRM:
+                self.candidate[robot] = _Place(tick, x, y, theta, agreeing)
+                last.tick = max(last.tick, tick - 1)  # braking, it stands: its reach does not grow while held
+                self.held += 1
+                return None
+        self.trusted[robot] = _Place(tick, x, y, theta)  # within reach, or confirmed
+        self.candidate.pop(robot, None)
+        return (x, y, theta)
 
     def last(self, robot: int) -> tuple[float, float, float]:
         place = self.trusted[robot]

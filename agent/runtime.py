@@ -248,13 +248,12 @@ class PoseIntake:
     def take(self, pose: Pose, newest_tick: Callable[[], int | None]) -> str | None:
         """Hold a robot's pose for the next step (the newest tick wins), or say why it is refused.
         ``newest_tick``: the tick the world is known to have reached (lock-step's clock)."""
-        why = None if stamp_agrees(pose.tick, pose.stamp, self.dt) else INCONSISTENT
-        if why is None:
-            why = self.lines[pose.robot].admit(pose.tick, time.monotonic(), newest_tick())
-        if why is None:
-            held = self.pending.get(pose.robot)
-            if held is None or pose.tick > held.tick:
-                self.pending[pose.robot] = pose
+        if not stamp_agrees(pose.tick, pose.stamp, self.dt):
+            return INCONSISTENT
+        why = self.lines[pose.robot].admit(pose.tick, time.monotonic(), newest_tick())
+        held = self.pending.get(pose.robot)
+        if why is None and (held is None or pose.tick > held.tick):
+            self.pending[pose.robot] = pose
         return why
 
     def judged(self, poses: list[Pose]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -282,10 +281,6 @@ class GoalSetsHeard:
     @property
     def newest(self) -> Goals | None:
         return self.by_epoch[max(self.by_epoch)] if self.by_epoch else None
-
-    def forget_old(self) -> None:
-        for old in sorted(self.by_epoch)[:-GOAL_SETS_KEPT]:
-            del self.by_epoch[old]
 
 
 class Departures:
@@ -433,7 +428,8 @@ class AgentHost:
             if goals.epoch < self.goal_sets.bid_from:
                 return  # its auction began before this agent joined: the robots wait for the next
             self.departed.new_goal_set(goals.epoch)
-            self.goal_sets.forget_old()
+            for old in sorted(self.goal_sets.by_epoch)[:-GOAL_SETS_KEPT]:
+                del self.goal_sets.by_epoch[old]
             # a keyframe names its predecessor; an image follows the last
             follows = goals.correspondence.follows if goals.correspondence else self.auction.epoch
             key = self.held_goals.key

@@ -93,8 +93,7 @@ class RobotParams:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> RobotParams:
-        known = {f.name for f in fields(cls)}
-        unknown = set(data) - known
+        unknown = set(data) - {f.name for f in fields(cls)}
         if unknown:
             raise ValueError(f"unknown robot parameter(s): {', '.join(sorted(unknown))}")
         return cls(**data)

@@ -108,15 +108,11 @@ def intend(
         if gs.motion is not None:  # eq. 28: the goal moves, its velocity is fed forward
             t = stamp - gs.t_start
             goal[rows] = gs.motion.positions(goal0[rows], t)
+            velocity = gs.motion.velocities(goal0[rows], t)
             preferred[rows] = tracking_velocity(
-                position[rows],
-                goal[rows],
-                gs.motion.velocities(goal0[rows], t),
-                params.v_pref,
-                params.k_a,
-                params.v_max,
+                position[rows], goal[rows], velocity, params.v_pref, params.k_a, params.v_max
             )
-        elif gs.frame_period > 0:
+        else:  # a keyframe (the filter above)
             keyframe[rows] = True
             t_start[rows], period[rows] = gs.t_start, gs.frame_period
     hold_left, hold_for = memory.hold_left.copy(), memory.hold_for.copy()
