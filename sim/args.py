@@ -1,4 +1,4 @@
-"""Argument types shared by the command line's subcommands, and robot ids as messages write them."""
+"""Argument types shared by the command line's subcommands, and robot ids as users and messages write them."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ import typing
 # s each start-up stage of a run (the coordinator, then every agent) has to come alive by default
 # (sim.run.launcher): generous, since many processes start at once on a loaded machine
 STARTUP_TIMEOUT = 300.0
+AGENTS_TIMEOUT = 60.0  # s a run with remote agents waits for every robot's agent to come alive by default
 
 
 class UsageError(Exception):
@@ -76,8 +77,22 @@ def check_endpoint(settings: typing.Any, endpoint: str) -> None:
         ) from None
 
 
+def parse_ids(text: str) -> list[int]:
+    """Robot ids as a user writes them: '0-3,7' -> [0, 1, 2, 3, 7]."""
+    ids: set[int] = set()
+    for part in text.split(","):
+        low, dash, high = part.strip().partition("-")
+        if not low.isdigit() or (dash and not high.isdigit()):
+            raise ValueError(f"--robots {text!r}: expected ids and ranges like 0-3,7")
+        first, last = int(low), int(high) if dash else int(low)
+        if last < first:
+            raise ValueError(f"--robots {text!r}: the range {part.strip()} runs backwards")
+        ids.update(range(first, last + 1))
+    return sorted(ids)
+
+
 def format_ids(ids: list[int]) -> str:
-    """The reverse of sim.run.remote_agents.parse_ids, for messages: [0, 1, 2, 3, 7] -> '0-3, 7'."""
+    """The reverse of parse_ids, for messages: [0, 1, 2, 3, 7] -> '0-3, 7'."""
     runs: list[list[int]] = []
     for i in sorted(ids):
         if runs and i == runs[-1][1] + 1:

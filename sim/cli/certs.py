@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from sim.args import positive_int, refuse
+from sim.args import UsageError, positive_int
 from transport.security import SecurityError, make_certificates
 
 # `pixelswarm --help` and `pixelswarm certs --help`
@@ -19,8 +19,6 @@ ABOUT = (
     "Make a certificate authority, a certificate and a Zenoh configuration for each role "
     "(coordinator, tracker, world, recorder, observer, router, robot-<id>), and the router's access rules."
 )
-
-PROG = "pixelswarm certs"
 
 
 def add_certs_parser(subparsers: Any) -> None:
@@ -40,11 +38,12 @@ def add_certs_parser(subparsers: Any) -> None:
 
 
 def run_certs(args: argparse.Namespace) -> int:
+    """The command; bad input is a UsageError, which `pixelswarm` says as one line (exit code 2)."""
     try:
         path = make_certificates(args.dir, args.robots, connect=args.listen, display=args.display, overwrite=args.force)
     except (SecurityError, ValueError) as err:
-        return refuse(PROG, err)
+        raise UsageError(str(err)) from None
     except OSError as err:
-        return refuse(PROG, f"cannot write {args.dir}: {err.strerror or err}")
+        raise UsageError(f"cannot write {args.dir}: {err.strerror or err}") from None
     print(path)
     return 0

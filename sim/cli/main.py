@@ -27,10 +27,10 @@ from coordinator.scene import (
     resolve_scene_path,
     shipped_scenes,
 )
-from sim.args import STARTUP_TIMEOUT, OneLineParser, UsageError, add_seconds, positive_int, refuse
+from sim.args import AGENTS_TIMEOUT, STARTUP_TIMEOUT, OneLineParser, UsageError, add_seconds, positive_int, refuse
 from sim.cli.certs import add_certs_parser
 from sim.cli.track import add_track_parser
-from sim.outputs.rundir import default_run_path
+from sim.outputs.rundir import PARTIAL_SUFFIX, default_run_path
 from sim.processes import stopped_by_signals
 from sim.run.remote_agents import add_agents_parser
 from sim.study.runner import add_study_parser
@@ -141,11 +141,12 @@ def _add_run_processes(run: argparse.ArgumentParser) -> None:
         "--agents-timeout",
         type=float,
         metavar="SECONDS",
-        help="--remote-agents: how long to wait for every robot's agent (default 60 s)",
+        help=f"--remote-agents: how long to wait for every robot's agent (default {AGENTS_TIMEOUT:g} s)",
     )
     group.add_argument(
         "--startup-timeout",
         type=float,
+        default=STARTUP_TIMEOUT,
         metavar="SECONDS",
         help="how long the coordinator, then the agents, have to come alive (default "
         f"{STARTUP_TIMEOUT:g} s); past it the run ends naming the robots still missing (exit code "
@@ -325,8 +326,6 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise UsageError(f"{args.scene}: {err}") from None
     _check_remote_agents(args, scene)
     out = args.out or default_run_path(scene.name)
-    if out.exists() or out.with_name(out.name + ".partial").exists():
-        raise UsageError(f"run directory {out} already exists; choose another --out")
     _check_out(out)
     if args.hardware is None and (args.engine or scene.engine) == "central":
         return _run_central(args, scene, out, faults, reach)
@@ -415,7 +414,7 @@ def _run_central(args: argparse.Namespace, scene: Scene, out: Path, faults: Any,
 def _run_agents(args: argparse.Namespace, scene: Scene, out: Path, faults: Any, reach: float) -> int:
     """The run with agent processes over an embedded router (the distributed engine, or hardware)."""
     # heavy imports only for the distributed engine (after the goal sets: progress first)
-    from sim.run.launcher import AGENTS_TIMEOUT, Launcher, RunOptions
+    from sim.run.launcher import Launcher, RunOptions
 
     router = None
     if args.zenoh_config:
@@ -443,7 +442,7 @@ def _run_agents(args: argparse.Namespace, scene: Scene, out: Path, faults: Any, 
         hardware=args.hardware,
         remote_agents=args.remote_agents,
         agents_timeout=AGENTS_TIMEOUT if args.agents_timeout is None else args.agents_timeout,
-        startup_timeout=STARTUP_TIMEOUT if args.startup_timeout is None else args.startup_timeout,
+        startup_timeout=args.startup_timeout,
         reach=reach,
         foxglove=args.foxglove,
     )
@@ -575,9 +574,11 @@ def _check_numbers(args: argparse.Namespace) -> None:
 
 
 def _check_out(out: Path) -> None:
-    """UsageError unless a run directory can be made at ``out`` (its parents are made as the run's
-    would be; the trial directory is removed)."""
-    trial = out.with_name(out.name + ".partial")
+    """UsageError unless a run directory can be made at ``out``: neither it nor its partial directory
+    exists, and its parents are made as the run's would be (the trial directory is removed)."""
+    trial = out.with_name(out.name + PARTIAL_SUFFIX)
+    if out.exists() or trial.exists():
+        raise UsageError(f"run directory {out} already exists; choose another --out")
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         trial.mkdir()

@@ -17,7 +17,7 @@ import tomllib
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
-from sim.args import UsageError, refuse
+from sim.args import UsageError
 
 if TYPE_CHECKING:
     from hardware.camera import CameraConfig
@@ -112,7 +112,8 @@ def track_video(video: Path, config: CameraConfig, out: TextIO, progress: TextIO
 
 
 def run_track(args: argparse.Namespace) -> int:
-    """Run the track command; returns the exit code (2 on bad input, with one line on stderr)."""
+    """Run the track command; bad input, or a CSV that cannot be written, is a UsageError, which
+    `pixelswarm` says as one line (exit code 2)."""
     out: Path = args.out
     temp: Path | None = None
     try:
@@ -131,10 +132,8 @@ def run_track(args: argparse.Namespace) -> int:
             frames, rows = track_video(args.video, config, f, None if args.quiet else sys.stderr)
         os.replace(temp, out)
         temp = None
-    except UsageError as err:
-        return refuse(PROG, err)
     except OSError as err:
-        return refuse(PROG, f"cannot write {out}: {err.strerror or err}")
+        raise UsageError(f"cannot write {out}: {err.strerror or err}") from None
     finally:
         if temp is not None:
             temp.unlink(missing_ok=True)

@@ -25,7 +25,7 @@ from agent.core.params import HOLONOMIC, RobotParams
 from agent.runtime import HostConfig, interpreter
 from coordinator.resolved import save_resolved
 from coordinator.scene import Scene, count_due, events_of, take_due
-from sim.args import STARTUP_TIMEOUT, format_ids
+from sim.args import AGENTS_TIMEOUT, STARTUP_TIMEOUT, format_ids
 from sim.node.hardware import ERROR as HARDWARE_ERROR
 from sim.outputs.metrics import Traffic
 from sim.outputs.recorder import Recorder
@@ -40,7 +40,6 @@ from transport.faults import FaultPlan, format_faults
 from transport.security import client_config, robot_role, router_config
 from transport.session import ZenohSettings, client_of, free_port, loopback_router
 
-AGENTS_TIMEOUT = 60.0  # s a run with remote agents waits for every robot's agent to come alive
 RESTARTS = 5  # times the launcher restarts a central service that died (beyond: the run goes on without it)
 # the services it restarts; the simulated world is also the tracker: its death ends the run
 RESTARTED = ("coordinator",)
@@ -129,6 +128,12 @@ class StartupFailed(Exception):
 def _robots(ids: list[int]) -> str:
     """'robot 3' or 'robots 0-2, 5', for messages."""
     return f"robot{'s' if len(ids) > 1 else ''} {format_ids(ids)}"
+
+
+def _last_said(log: Path, prefix: str) -> str | None:
+    """The rest of the last line of a child's log that starts with ``prefix`` (None: none, or no log)."""
+    lines = log.read_text().splitlines() if log.exists() else []
+    return next((ln.removeprefix(prefix) for ln in reversed(lines) if ln.startswith(prefix)), None)
 
 
 class Launcher:
@@ -509,18 +514,11 @@ class Launcher:
         args = self._scene_args() + ["--hardware", str(self.opt.hardware), "--duration", str(self.scene.duration)]
         args += ["--pose-frames"] if self._frames else []
         child = self._spawn("world", "sim.node.hardware", args, [], self._as("world"))
-
-        def refusal() -> str | None:
-            lines = child.log.read_text().splitlines() if child.log.exists() else []
-            return next(
-                (ln.removeprefix(HARDWARE_ERROR) for ln in reversed(lines) if ln.startswith(HARDWARE_ERROR)), None
-            )
-
         try:
             # The refusal counts once written: the node may take a while to close its robot links.
-            self._wait_alive(rec, "world", child, gave_up=refusal)
+            self._wait_alive(rec, "world", child, gave_up=lambda: _last_said(child.log, HARDWARE_ERROR))
         except RuntimeError:
-            said = refusal()
+            said = _last_said(child.log, HARDWARE_ERROR)
             if said is not None:
                 raise HardwareStartError(said) from None
             raise
@@ -632,9 +630,8 @@ class Launcher:
         if on_bus() is not None or self.world.exit != 0:
             return on_bus()
         log = next((c.log for c in self.children if c.name == "world"), None)
-        lines = log.read_text().splitlines() if log is not None and log.exists() else []
-        report = next((ln for ln in reversed(lines) if ln.startswith("WORLD-DONE ")), None)
-        return json.loads(report[len("WORLD-DONE ") :]) if report else None
+        report = None if log is None else _last_said(log, "WORLD-DONE ")
+        return None if report is None else json.loads(report)
 
     # --- outputs ------------------------------------------------------------------------------
     def _write(self, rec: Recorder, end_reason: str, wall_s: float) -> Path:

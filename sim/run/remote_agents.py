@@ -23,7 +23,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from agent.runtime import HostConfig, interpreter
-from sim.args import UsageError, add_seconds, check_endpoint, format_ids, positive_int, refuse
+from sim.args import UsageError, add_seconds, check_endpoint, format_ids, parse_ids, positive_int
 from sim.processes import handling_signals, stop_processes
 from transport.bus import Bus, LivelinessWatch
 from transport.keys import Keys
@@ -40,21 +40,6 @@ PROG = "pixelswarm agents"
 RUN_TIMEOUT = 60.0  # s to wait for a run to be there
 QUERY_TIMEOUT = 5.0  # s for the run to answer a configuration query
 STOP_GRACE = 5.0  # s an agent has to stop after SIGTERM before it is killed
-
-
-# --- robot ids -------------------------------------------------------------------------------------
-def parse_ids(text: str) -> list[int]:
-    """Robot ids as a user writes them: '0-3,7' -> [0, 1, 2, 3, 7]."""
-    ids: set[int] = set()
-    for part in text.split(","):
-        low, dash, high = part.strip().partition("-")
-        if not low.isdigit() or (dash and not high.isdigit()):
-            raise ValueError(f"--robots {text!r}: expected ids and ranges like 0-3,7")
-        first, last = int(low), int(high) if dash else int(low)
-        if last < first:
-            raise ValueError(f"--robots {text!r}: the range {part.strip()} runs backwards")
-        ids.update(range(first, last + 1))
-    return sorted(ids)
 
 
 # --- what the run serves ---------------------------------------------------------------------------
@@ -114,15 +99,7 @@ def add_agents_parser(subparsers: Any) -> None:
 
 
 def run_agents(args: argparse.Namespace) -> int:
-    try:
-        return _run(args)
-    except UsageError as err:
-        return refuse(PROG, err)
-    except KeyboardInterrupt:
-        return 130
-
-
-def _run(args: argparse.Namespace) -> int:
+    """The command; bad input is a UsageError, which `pixelswarm` says as one line (exit code 2)."""
     try:
         robots = parse_ids(args.robots) if args.robots is not None else None
         Keys(args.display)

@@ -86,7 +86,7 @@ def _die_with_parent() -> None:
 
 
 def _child_env() -> dict[str, str]:
-    root = str(Path(__file__).resolve().parents[1])  # this installation's code, whatever the directory
+    root = str(Path(__file__).resolve().parents[2])  # the folder holding this installation's sim/
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [root, env.get("PYTHONPATH")]))
     return env
@@ -111,6 +111,13 @@ def _stop(process: subprocess.Popen, grace: float) -> None:
         process.wait()
 
 
+def clear_run_dir(final: Path) -> None:
+    """Remove what an interrupted or killed attempt of a run left (its final or .partial directory)."""
+    for leftover in (final, final.with_name(final.name + ".partial")):
+        if leftover.exists():
+            shutil.rmtree(leftover)
+
+
 def run_task(run_id: str, args: list[str], out: str | None, stop_event: str, grace: float) -> dict[str, Any]:
     """One run on this worker: ``pixelswarm run ARGS --out DIR``. ``out``: the run directory the
     study reads (its filesystem is this worker's), or None: a directory of this worker's, sent back
@@ -124,9 +131,7 @@ def run_task(run_id: str, args: list[str], out: str | None, stop_event: str, gra
     base = Path(worker.local_directory if worker is not None else tempfile.gettempdir())
     scratch = None if out is not None else Path(tempfile.mkdtemp(prefix=f"run-{run_id}-", dir=base))
     target = Path(out) if out is not None else scratch / run_id  # type: ignore[operator]  # scratch is set where out is not
-    for leftover in (target, target.with_name(target.name + ".partial")):
-        if leftover.exists():  # an earlier attempt's, on a worker that died
-            shutil.rmtree(leftover)
+    clear_run_dir(target)  # an earlier attempt's, on a worker that died
     command = [sys.executable, "-m", "sim.cli", "run", *args, "--out", str(target)]
     started = time.monotonic()
     log = tempfile.TemporaryFile(dir=base)

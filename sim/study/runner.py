@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import os
 import signal
 import sys
@@ -18,15 +17,14 @@ import time
 from pathlib import Path
 from typing import Any, TextIO
 
-from sim.args import refuse
+from sim.args import UsageError
 from sim.processes import stop_on_sigterm
-from sim.study.cluster import ClusterError, check_address, connect, run_task, unpack
+from sim.study.cluster import ClusterError, check_address, clear_run_dir, connect, run_task, unpack
 from sim.study.spec import (
     Run,
     Spec,
     StudyDir,
     StudyError,
-    check_same_study,
     load_spec,
     lock_study,
     run_args,
@@ -113,7 +111,7 @@ def execute(spec: Spec, study: StudyDir, jobs: int, stream: TextIO | None, sched
         shared = scheduler is None  # a local worker writes into the study directory itself
         futures = {}
         for run in todo:
-            study.clear(run)
+            clear_run_dir(study.run_dir(run))  # before running it again
             out = str(study.run_dir(run)) if shared else None
             future = client.submit(
                 run_task, run.id, run_args(spec, run), out, stop.name, STOP_GRACE_S, key=f"run-{run.id}", pure=False
@@ -193,6 +191,8 @@ def add_study_parser(subparsers: Any) -> None:
 
 
 def cmd_study(args: argparse.Namespace) -> int:
+    """The command; a spec, flag or scheduler that cannot be used is a UsageError, which `pixelswarm`
+    says as one line (exit code 2)."""
     try:
         if args.jobs is not None and args.jobs < 1:
             raise StudyError(f"--jobs must be at least 1, not {args.jobs}")
@@ -201,15 +201,15 @@ def cmd_study(args: argparse.Namespace) -> int:
         spec = load_spec(args.spec)
         if args.scheduler is not None:  # reached before anything is written or started
             connect(args.scheduler, 1)[0].close()
-        root = args.out or Path("runs") / f"study-{spec.name}"
-        if root.exists() and not root.is_dir():
-            raise StudyError(f"--out {root} is a file, not a directory")
-        check_same_study(spec, root)
-        lock = lock_study(root)
+        study = StudyDir(args.out or Path("runs") / f"study-{spec.name}")
+        if study.root.exists() and not study.root.is_dir():
+            raise StudyError(f"--out {study.root} is a file, not a directory")
+        study.check_same(spec)
+        lock = lock_study(study.root)
     except (StudyError, ClusterError) as err:
-        return refuse("pixelswarm study", err)
+        raise UsageError(str(err)) from None
     try:
-        return _study(spec, StudyDir(root), args.jobs or default_jobs(), args)
+        return _study(spec, study, args.jobs or default_jobs(), args)
     finally:
         lock.close()
 
@@ -217,14 +217,12 @@ def cmd_study(args: argparse.Namespace) -> int:
 def _study(spec: Spec, study: StudyDir, jobs: int, args: argparse.Namespace) -> int:
     from sim.study.report import write_report  # matplotlib only once runs are done
 
-    write_text(study.root / "spec.toml", spec.text)
-    held = {"scene": spec.scene, "base": spec.base, "baseline": spec.baseline}
-    write_text(study.root / "study.json", json.dumps(held, indent=2) + "\n")
+    study.hold(spec)
     previous = stop_on_sigterm()
     try:
         progress = execute(spec, study, jobs, sys.stderr, args.scheduler)
     except ClusterError as err:
-        return refuse("pixelswarm study", err)
+        raise UsageError(str(err)) from None
     except Interrupted:
         done = sum(study.metrics(r) is not None for r in spec.runs())
         print(

@@ -8,7 +8,6 @@ import fcntl
 import itertools
 import json
 import math
-import shutil
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -239,7 +238,7 @@ def run_args(spec: Spec, run: Run) -> list[str]:
 
 class StudyDir:
     """DIR/runs/<id> (run directories), DIR/records/<id>.json (status, wall time, error),
-    DIR/logs/<id>.log (the run's output), DIR/spec.toml and the report."""
+    DIR/logs/<id>.log (the run's output), DIR/spec.toml and study.json (hold), and the report."""
 
     def __init__(self, root: Path):
         self.root = root
@@ -267,12 +266,26 @@ class StudyDir:
     def write_record(self, run: Run, record: dict[str, Any]) -> None:
         write_text(self.records / f"{run.id}.json", json.dumps(record, indent=2) + "\n")
 
-    def clear(self, run: Run) -> None:
-        """Remove what an interrupted or killed attempt of this run left, before running it again."""
-        final = self.run_dir(run)
-        for leftover in (final, final.with_name(final.name + ".partial")):
-            if leftover.exists():
-                shutil.rmtree(leftover)
+    def check_same(self, spec: Spec) -> None:
+        """A directory resumes only the study it holds (hold): runs are named by what varies, so the base
+        must match."""
+        try:
+            held = json.loads((self.root / "study.json").read_text())
+        except (OSError, ValueError):
+            return
+        if held != json.loads(json.dumps(_held(spec))):
+            raise StudyError(
+                f"{self.root} holds another study (its scene, [base] or [baseline] differ); choose another --out"
+            )
+
+    def hold(self, spec: Spec) -> None:
+        """DIR/spec.toml, the spec as written, and DIR/study.json, what check_same compares."""
+        write_text(self.root / "spec.toml", spec.text)
+        write_text(self.root / "study.json", json.dumps(_held(spec), indent=2) + "\n")
+
+
+def _held(spec: Spec) -> dict[str, Any]:
+    return {"scene": spec.scene, "base": spec.base, "baseline": spec.baseline}
 
 
 def write_text(path: Path, text: str | bytes) -> None:
@@ -292,14 +305,3 @@ def lock_study(root: Path) -> Any:
         handle.close()
         raise StudyError(f"another study is running in {root}") from None
     return handle
-
-
-def check_same_study(spec: Spec, root: Path) -> None:
-    """A directory resumes only the study it holds: runs are named by what varies, so the base must match."""
-    try:
-        held = json.loads((root / "study.json").read_text())
-    except (OSError, ValueError):
-        return
-    mine = {"scene": spec.scene, "base": spec.base, "baseline": spec.baseline}
-    if held != json.loads(json.dumps(mine)):
-        raise StudyError(f"{root} holds another study (its scene, [base] or [baseline] differ); choose another --out")
