@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -149,6 +150,14 @@ def _runs_under(worker: psutil.Process) -> list[psutil.Process]:
         return [p for p in worker.children(recursive=True) if "sim.cli" in " ".join(p.cmdline())]
     except psutil.Error:
         return []
+
+
+def test_a_worker_process_finds_this_checkouts_code_first():
+    """A worker starts a run's processes with this installation's code ahead on PYTHONPATH."""
+    from sim.study.cluster import _child_env
+
+    first = _child_env()["PYTHONPATH"].split(os.pathsep)[0]
+    assert Path(first) == REPO
 
 
 def test_a_bad_scheduler_address_is_one_line_exit_2_and_starts_nothing(tmp_path, capsys):
