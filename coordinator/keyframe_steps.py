@@ -17,7 +17,7 @@ import numpy as np
 from .drawings import KEYFRAME_ANIMATIONS, keyframes
 from .goals import IMAGE_SUFFIXES, GoalError, GoalOptions
 from .keyframes import KeyframeGoals, keyframe_goals, keyframe_paths
-from .motion import check_keys, is_number
+from .motion import check_keys, is_number, one_of, positive
 from .steps import METHODS, GoalSets, ImageStep, parse_region_counts, scale_region_counts, scene_relative
 
 ANIMATION_KEYS = tuple(
@@ -49,20 +49,18 @@ def parse_animation(data: Any, source: str = "") -> Animation:
         raise GoalError('animation must be a table with keyframes = "name", "folder/" or ["a.png", ...]')
     check_keys(data, ANIMATION_KEYS, "animation")
     name, images = _keyframes(data.get("keyframes"), source, data.get("size", 256))
-    frame_time = _positive(data.get("frame_time", DEFAULT_FRAME_TIME), "frame_time")
-    last_hold = _positive(data.get("last_hold", frame_time), "last_hold")
+    frame_time = positive(data.get("frame_time", DEFAULT_FRAME_TIME), "animation: frame_time")
+    last_hold = positive(data.get("last_hold", frame_time), "animation: last_hold")
     if "times" in data:
         if "first_hold" in data:
             raise GoalError("animation: give either times or first_hold (times[1] is when the first keyframe ends)")
         starts = _times(data["times"], len(images))
     else:
-        first = _positive(data.get("first_hold", DEFAULT_FIRST_HOLD), "first_hold")
+        first = positive(data.get("first_hold", DEFAULT_FIRST_HOLD), "animation: first_hold")
         starts = [0.0] + [first + frame_time * f for f in range(len(images) - 1)]
     periods = [b - a for a, b in zip(starts, starts[1:])] + [frame_time]
     holds = periods[:-1] + [frame_time + last_hold]
-    method = data.get("method", "cvt")
-    if method not in METHODS:
-        raise GoalError(f"animation: method must be one of {', '.join(METHODS)}, not {method!r}")
+    method = one_of(data.get("method", "cvt"), METHODS, "animation: method")
     steps = tuple(
         ImageStep(f"{name}[{f}]", None, None, hold, method=method, frame_period=period, keyframe=f)
         for f, (hold, period) in enumerate(zip(holds, periods))
@@ -75,7 +73,7 @@ def parse_animation(data: Any, source: str = "") -> Animation:
         method,
         _flag(data.get("keep_counts", False), "keep_counts"),
         _flag(data.get("init_from_previous", True), "init_from_previous"),
-        _positive(data["arena"], "arena", "metres") if "arena" in data else None,
+        positive(data["arena"], "animation: arena", "metres") if "arena" in data else None,
     )
 
 
@@ -103,12 +101,6 @@ def _keyframes(value: Any, source: str, size: Any) -> tuple[str, list[Any]]:
         "animation: keyframes must be a drawn animation "
         f"({', '.join(KEYFRAME_ANIMATIONS)}), a folder, or a list of image files, not {value!r}"
     )
-
-
-def _positive(value: Any, key: str, unit: str = "seconds") -> float:
-    if not (is_number(value) and value > 0):
-        raise GoalError(f"animation: {key} must be a positive number of {unit}, not {value!r}")
-    return float(value)
 
 
 def _flag(value: Any, key: str) -> bool:

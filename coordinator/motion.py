@@ -3,6 +3,8 @@
 Keys: docs/scenes.md. The coordinator publishes the goal set once with these numbers
 (transport.codec.Goals); the robots compute their moving goals themselves (agent.core.goal_motion,
 eq. 28). This module only parses and bounds the motion: the arena must hold the pattern wherever it goes.
+It also holds the checks of scene values that steps, animations and scenes share (check_keys, is_number,
+positive, one_of): the lowest module that scene parsing imports.
 """
 
 from __future__ import annotations
@@ -59,9 +61,7 @@ def parse_motion(data: Any, label: str) -> StepMotion:
     center = _pair(data.get("center", [0.0, 0.0]), f"{label}.motion.center", "[x, y] in metres")
     omega = _number(data.get("angular_velocity", 0.0), f"{label}.motion.angular_velocity", "rad/s")
     expansion = _number(data.get("expansion", 0.0), f"{label}.motion.expansion", "per second")
-    kind = data.get("expansion_kind", "linear")
-    if kind not in EXPANSION_KINDS:
-        raise GoalError(f"{label}.motion.expansion_kind must be one of {', '.join(EXPANSION_KINDS)}, not {kind!r}")
+    kind = one_of(data.get("expansion_kind", "linear"), EXPANSION_KINDS, f"{label}.motion.expansion_kind")
     if kind == "geometric" and expansion <= -1.0:
         raise GoalError(f"{label}.motion.expansion must be > -1 for a geometric expansion, not {expansion}")
     return StepMotion(velocity, omega, center, expansion, kind)
@@ -86,6 +86,27 @@ def check_keys(data: dict[str, Any], allowed: tuple[str, ...], label: str) -> No
 def is_number(value: Any) -> TypeGuard[float]:
     """A finite int or float (TOML's true and false are not numbers)."""
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def is_positive(value: Any) -> TypeGuard[float]:
+    """A finite number > 0."""
+    return is_number(value) and value > 0
+
+
+def positive(value: Any, label: str, unit: str = "seconds", error: type[ValueError] = GoalError) -> float:
+    """``value`` as a float if it is a positive number; else ``error`` (a scene's: SceneError) saying that
+    ``label`` must be a positive number of ``unit``."""
+    if not is_positive(value):
+        raise error(f"{label} must be a positive number of {unit}, not {value!r}")
+    return float(value)
+
+
+def one_of(value: Any, choices: tuple[str, ...], label: str, error: type[ValueError] = GoalError) -> Any:
+    """``value`` if it is one of ``choices``; else ``error`` (a scene's: SceneError) saying that ``label``
+    must be one of them."""
+    if value not in choices:
+        raise error(f"{label} must be one of {', '.join(choices)}, not {value!r}")
+    return value
 
 
 def _number(value: Any, label: str, unit: str) -> float:

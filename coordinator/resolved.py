@@ -20,7 +20,7 @@ from typing import Any, Unpack
 import numpy as np
 
 from .motion import StepMotion
-from .scene import Noise, Overrides, Scene, SceneError, goal_pipeline, load_scene, parse_scene
+from .scene import CLOCKS, Noise, Overrides, Scene, SceneError, goal_pipeline, load_scene, parse_scene
 from .steps import GoalSets, ImageStep
 
 SCENE_FILE = "scene.json"
@@ -199,7 +199,7 @@ def add_scene_args(parser: argparse.ArgumentParser) -> None:
     where.add_argument("--scene", help="a scene to load (with its goal sets: the image pipeline)")
     parser.add_argument("--robots", type=int)
     parser.add_argument("--seed", type=int)
-    parser.add_argument("--clock", choices=["lockstep", "realtime"])
+    parser.add_argument("--clock", choices=CLOCKS)
     parser.add_argument("--duration", type=float)
     parser.add_argument("--display", default="default", help="the display's name (key prefix)")
 

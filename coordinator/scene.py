@@ -12,6 +12,7 @@ import bisect
 import math
 import tomllib
 from dataclasses import dataclass, field
+from itertools import accumulate
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypedDict, Unpack
 
@@ -21,7 +22,7 @@ from agent.core.grid import nearest_other
 from transport import epuck
 
 from .goals import IMAGE_SUFFIXES, GoalError
-from .motion import check_window, is_number
+from .motion import check_window, is_number, is_positive, one_of, positive
 from .steps import GoalSets, ImageStep, StepGoals, parse_step
 
 if TYPE_CHECKING:
@@ -104,18 +105,11 @@ class Scene:
     @property
     def step_starts(self) -> list[float]:
         """When each step's hold begins: step k spans [sum of the previous holds, + hold_k)."""
-        return [float(s) for s in np.cumsum([0.0] + [s.hold for s in self.steps[:-1]])] if self.steps else []
+        return list(accumulate((s.hold for s in self.steps[:-1]), initial=0.0)) if self.steps else []
 
     def step_at(self, t: float) -> int:
         """The step shown at time t (the last one stays after its hold ends); 0 without steps."""
-        # step_starts' sums without building arrays: every tick asks
-        k, start = 0, 0.0
-        for n, step in enumerate(self.steps[:-1], 1):
-            start += step.hold
-            if not start <= t + 1e-9:
-                break
-            k = n
-        return k
+        return max(bisect.bisect_right(self.step_starts, t + 1e-9) - 1, 0)
 
     @property
     def ends_on_convergence(self) -> bool:
@@ -202,9 +196,7 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
     if not isinstance(n, int) or isinstance(n, bool) or n < 1:
         raise SceneError(f"{source}: robots must be a whole number >= 1, not {n!r}")
     robot = _table(data, "robot", {}, source)
-    radius = robot.get("radius", epuck.RADIUS)
-    if not _positive(radius):
-        raise SceneError(f"{source}: robot radius must be a positive number of metres, not {radius!r}")
+    radius = positive(robot.get("radius", epuck.RADIUS), f"{source}: robot radius", "metres", SceneError)
     animation = _parse_animation(data["animation"], source) if "animation" in data else None
     steps = list(animation.steps) if animation is not None else _steps(data, source)
     if animation is not None and ("steps" in data or "goals" in data):
@@ -253,7 +245,7 @@ def _duration_and_seed(
     the scene's, checked."""
     if duration is None:
         duration = data.get("duration", sum(s.hold for s in steps) if steps else Scene.duration)
-    if not _positive(duration):
+    if not is_positive(duration):
         raise SceneError(f"{where}: duration must be a positive number of seconds")
     seed = seed if seed is not None else data.get("seed", Scene.seed)
     if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
@@ -277,14 +269,11 @@ def _add_uncontrolled(scene: Scene, data: dict[str, Any], where: str) -> None:
 def _check_settings(scene: Scene, where: str) -> None:
     """The run settings a scene may carry: SceneError (one line) unless each is one of its kind."""
     for key, choices in (("clock", CLOCKS), ("engine", ENGINES), ("assignment", ASSIGNMENTS)):
-        if (value := getattr(scene, key)) not in choices:
-            raise SceneError(f"{where}: {key} must be one of {', '.join(choices)}, not {value!r}")
+        one_of(getattr(scene, key), choices, f"{where}: {key}", SceneError)
     k = scene.agents_per_process
     if not isinstance(k, int) or isinstance(k, bool) or k < 1:
         raise SceneError(f"{where}: agents_per_process must be a whole number >= 1, not {k!r}")
-    if not _positive(scene.deadline):
-        raise SceneError(f"{where}: deadline must be a positive number of seconds, not {scene.deadline!r}")
-    scene.deadline = float(scene.deadline)
+    scene.deadline = positive(scene.deadline, f"{where}: deadline", error=SceneError)
 
 
 def _plan_steps(
@@ -352,8 +341,8 @@ def initial_poses(layout: dict[str, Any], n: int, radius: float, seed: int, wher
     """Initial poses (N,3) of a layout; headings face the arena centre for circle and rows."""
     kind = layout.get("kind", "grid")
     for key in ("spacing", "radius", "offset"):
-        if key in layout and not _positive(layout[key]):
-            raise SceneError(f"{where}: layout {key} must be a positive number of metres, not {layout[key]!r}")
+        if key in layout:
+            positive(layout[key], f"{where}: layout {key}", "metres", SceneError)
     spacing = float(layout.get("spacing", 4.0 * radius))
     if kind == "circle":
         # Auto radius keeps neighbours on the circle `spacing` apart (RVO2's Circle, at display scale).
@@ -512,7 +501,7 @@ def _arena(spec: Any, scene: Scene, where: str) -> tuple[float, float, float, fl
         lo, hi = allp.min(axis=0) - margin, allp.max(axis=0) + margin
         return (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
     size = spec.get("size") if isinstance(spec, dict) else None
-    if not (isinstance(size, list) and len(size) == 2 and all(_positive(s) for s in size)):
+    if not (isinstance(size, list) and len(size) == 2 and all(is_positive(s) for s in size)):
         raise SceneError(f'{where}: arena must be "auto" or have size = [width, height] in metres')
     w, h = float(size[0]), float(size[1])
     for k, box in enumerate(_swept(scene)):
@@ -580,15 +569,13 @@ def _check_event(event: dict[str, Any], scene: Scene, where: str) -> None:
     agent process of a robot (SIGKILL) at display time t, its body stays in the world, stopped;
     tracker-outage: the tracker sends no pose from t for `duration` seconds; tracker-glitch: at t the
     tracker reports the robot `offset` = [dx, dy] off for one tick (a swapped marker; docs/faults.md)."""
-    kind = event.get("kind")
-    if kind not in EVENT_KINDS:
-        raise SceneError(f"{where}: event kind must be one of {', '.join(EVENT_KINDS)}, not {kind!r}")
+    kind = one_of(event.get("kind"), EVENT_KINDS, f"{where}: event kind", SceneError)
     if kind == "tracker-outage":
-        if not (_positive(event.get("t")) and _positive(event.get("duration"))):
+        if not (is_positive(event.get("t")) and is_positive(event.get("duration"))):
             raise SceneError(f"{where}: tracker-outage event needs a time t > 0 and a duration > 0 (s)")
         return
     _robot_index(event, scene, f"{where}: {kind} event")
-    if not _positive(event.get("t")):
+    if not is_positive(event.get("t")):
         raise SceneError(f"{where}: {kind} event needs a time t > 0")
     pose = event.get("pose")
     if kind == "teleport" and not (isinstance(pose, list) and len(pose) == 3):
@@ -662,7 +649,3 @@ def _polygon(obstacle: Any, where: str) -> list[tuple[float, float]]:
     pts = [(float(x), float(y)) for x, y in verts]
     area2 = sum(x0 * y1 - x1 * y0 for (x0, y0), (x1, y1) in zip(pts, pts[1:] + pts[:1]))
     return pts if area2 > 0 else pts[::-1]  # counter-clockwise, as ORCA's obstacle lines expect
-
-
-def _positive(value: Any) -> bool:
-    return is_number(value) and value > 0

@@ -19,7 +19,7 @@ import numpy as np
 
 from .goals import GoalError
 from .goals.defaults import METHODS
-from .motion import StepMotion, check_keys, is_number, parse_motion
+from .motion import StepMotion, check_keys, one_of, parse_motion, positive
 from .shapes import SHAPES, draw
 
 if TYPE_CHECKING:
@@ -57,28 +57,20 @@ def parse_step(data: Any, label: str, source: str = "") -> ImageStep:
     if not isinstance(data, dict):
         raise GoalError(f'{label} must be a table with shape = "name" or image = "path", and hold')
     check_keys(data, STEP_KEYS, label)
-    hold = data.get("hold")
-    if not (is_number(hold) and hold > 0):
-        raise GoalError(f"{label}: hold must be a positive number of seconds, not {hold!r}")
+    hold = positive(data.get("hold"), f"{label}: hold")
     if ("image" in data) == ("shape" in data):
         raise GoalError(f'{label} needs exactly one of image = "path" or shape = "name"')
     image, shape = None, None
     if "shape" in data:
-        shape = data["shape"]
-        if shape not in SHAPES:
-            raise GoalError(f"{label}: shape must be one of {', '.join(SHAPES)}, not {shape!r}")
+        shape = one_of(data["shape"], SHAPES, f"{label}: shape")
     else:
         image = scene_relative(str(data["image"]), source)
         if not image.is_file():
             raise GoalError(f"{label}: image {image} not found")
-    method = data.get("method", "cvt")
-    if method not in METHODS:
-        raise GoalError(f"{label}: method must be one of {', '.join(METHODS)}, not {method!r}")
+    method = one_of(data.get("method", "cvt"), METHODS, f"{label}: method")
     name = str(data.get("name", shape if shape is not None else image.stem))  # type: ignore[union-attr]  # image is set where shape is not
     motion = parse_motion(data["motion"], label) if "motion" in data else None
-    return ImageStep(
-        name, image, shape, float(hold), parse_region_counts(data.get("region_counts"), label), method, motion
-    )
+    return ImageStep(name, image, shape, hold, parse_region_counts(data.get("region_counts"), label), method, motion)
 
 
 def scene_relative(path: str, source: str) -> Path:

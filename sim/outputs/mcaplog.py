@@ -27,7 +27,7 @@ from mcap.records import Schema
 from mcap.writer import MCAP0_MAGIC
 from mcap_protobuf.decoder import DecoderFactory
 
-from sim.outputs.rundir import dumps_json, json_safe
+from sim.outputs.rundir import dumps_json
 
 MESSAGE_ENCODING = "json"
 SCHEMA_ENCODING = "jsonschema"
@@ -74,7 +74,7 @@ class McapLog:
         """
         if not isinstance(json_schema, dict):
             raise TypeError("json_schema must be a dict")
-        schema_text = json.dumps(json_safe(json_schema), sort_keys=True, separators=(",", ":"))
+        schema_text = dumps_json(json_schema, sort_keys=True)
         schema = foxglove.Schema(name=schema_name, encoding=SCHEMA_ENCODING, data=schema_text.encode("utf-8"))
         return self._add(topic, (schema_name, schema_text), MESSAGE_ENCODING, schema)
 

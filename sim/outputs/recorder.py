@@ -21,6 +21,7 @@ import orjson
 from sim.outputs.foxglove import SceneUpdate, goal_markers, scene_update, swarm_scene
 from sim.outputs.logschema import LoggedKind, kind_of
 from sim.outputs.mcaplog import McapLog
+from sim.outputs.rundir import json_safe
 from sim.outputs.stream import ROWS
 from sim.outputs.ticklog import TickLog
 from transport.bus import Bus
@@ -72,13 +73,6 @@ def json_schema_of(message_type: type) -> dict[str, Any]:
         else:
             props[f.name] = {"type": "array"}
     return {"type": "object", "title": message_type.__name__, "properties": props}
-
-
-def _as_list(value: Any) -> Any:
-    """What orjson leaves to us: numpy arrays that are views with strides (e.g. a column of records)."""
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"cannot log a {type(value).__name__} as JSON")
 
 
 def display_converged(
@@ -254,7 +248,8 @@ class DisplayLog:
                 return log.add_channel("/" + kind, f"pixelswarm.{kind}", {"type": "object"})
             return log.add_channel("/" + kind, f"pixelswarm.{BY_NAME[kind].__name__}", json_schema_of(BY_NAME[kind]))
 
-        payload_bytes = orjson.dumps(payload, default=_as_list, option=orjson.OPT_SERIALIZE_NUMPY)
+        # what orjson leaves to json_safe: numpy arrays that are views with strides (e.g. a column of records)
+        payload_bytes = orjson.dumps(payload, default=json_safe, option=orjson.OPT_SERIALIZE_NUMPY)
         log.write_bytes(self._channel(kind, add), int(wall * 1e9), payload_bytes)
 
     def proto(self, kind: str, wall: float, as_proto: LoggedKind, msg: Any, key: str, tick: int) -> None:
@@ -457,29 +452,27 @@ class Recorder:
         if m.tick > 0:
             world.dt = m.stamp / m.tick  # the control period, as the world's clock counts it
         self._append_row(m, wall)
-        if self.out.ticks is not None:
-            self.out.ticks.append(m.stamp, wall, (m.pose, m.velocity, m.color, said.goal, said.goal_index))
         world.least_clearance = min(world.least_clearance, m.min_clearance)
         progress.check(m.stamp, m.pose, said, self.sets.newest)
         self.out.scene(wall, m, said.radius, said.goal)
-        if self.view is not None:  # missed: the ticks so far the world applied no command of the robot's
-            missed = np.maximum(0, m.tick - m.applied.astype(np.int64)) if len(m.applied) == self.n else None
-            self.view.tick(m.tick, m.stamp, m.pose, m.color, said.goal, radius=said.radius, missed=missed)
+        if self.view is not None:
+            self.view.truth(m, said.goal, said.radius)
         self.out.flush_now_and_then()
         if progress.converged_since is not None and progress.ends is not None:
             if progress.ends(progress.converged_since, m.stamp):
                 progress.ended_at = len(tr.t)  # the run ends with this tick, whenever the world hears of it
 
     def _append_row(self, m: Truth, wall: float) -> None:
-        """What a tick records: the world's truth, and a copy of what the robots said."""
+        """What a tick records, in the trajectory and the tick log: the world's truth, and a copy of
+        what the robots said."""
         tr, said = self.traj, self.said
+        row = (m.pose, m.velocity, m.color, said.goal.copy(), said.goal_index.copy())  # sim.outputs.stream.ROWS
+        for name, value in zip(ROWS, row, strict=True):
+            getattr(tr, name).append(value)
+        if self.out.ticks is not None:
+            self.out.ticks.append(m.stamp, wall, row)
         tr.t.append(m.stamp)
         tr.wall.append(wall)
-        tr.pose.append(m.pose)
-        tr.velocity.append(m.velocity)
-        tr.color.append(m.color)
-        tr.goal.append(said.goal.copy())
-        tr.assignment.append(said.goal_index.copy())
         tr.assignment_epoch.append(said.assign_epoch.copy())
         tr.assignment_instance.append(said.assign_instance.copy())
         tr.step.append(self.sets.step)

@@ -92,10 +92,10 @@ def json_safe(obj: Any) -> Any:
     raise TypeError(f"cannot convert {type(obj).__name__} to JSON")
 
 
-def dumps_json(obj: Any, *, indent: int | None = None) -> str:
+def dumps_json(obj: Any, *, indent: int | None = None, sort_keys: bool = False) -> str:
     """``json.dumps`` of :func:`json_safe` (NaN/inf -> null, numpy types converted)."""
     sep = (",", ":") if indent is None else (",", ": ")
-    return json.dumps(json_safe(obj), allow_nan=False, indent=indent, separators=sep)
+    return json.dumps(json_safe(obj), allow_nan=False, indent=indent, separators=sep, sort_keys=sort_keys)
 
 
 def atomic_write(path: Path, writer) -> None:

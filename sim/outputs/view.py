@@ -28,7 +28,9 @@ from typing import Any
 
 import numpy as np
 
+from sim.outputs.metrics import clearance_at
 from sim.processes import stop_on_sigterm, stop_processes
+from transport.codec import Truth
 from transport.session import free_port, listening
 
 VIEW_FILE = "view.rrd"  # beside trajectory.npz
@@ -255,6 +257,12 @@ class SwarmView:
             self.rec.log("obstacles", rr.LineStrips2D(loops, colors=[(120, 120, 120)]), static=True)
 
     # -- a tick --------------------------------------------------------------------------------
+    def truth(self, m: Truth, goal: np.ndarray, radius: np.ndarray) -> None:
+        """:meth:`tick` of the world's truth, with the goals and sizes the robots' states said; missed: the
+        ticks so far the world applied no command of the robot's."""
+        missed = np.maximum(0, m.tick - m.applied.astype(np.int64)) if len(m.applied) == m.count else None
+        self.tick(m.tick, m.stamp, m.pose, m.color, goal, radius=radius, missed=missed)
+
     def tick(
         self,
         tick: int,
@@ -335,7 +343,8 @@ class SwarmView:
         off = last_goal - last_pose[:, :2]
         at_goal = np.einsum("nc,nc->n", off, off) <= self.tolerance**2  # NaN (no goal) is never at it
         rec.log("metrics/at_goal", rr.Scalars(float(at_goal.sum())))
-        rec.log("metrics/clearance", rr.Scalars(_min_clearance(last_pose[:, :2].astype(float), r.astype(float))))
+        gap = clearance_at(last_pose[:, :2].astype(float), r.astype(float))  # as metrics.json takes it
+        rec.log("metrics/clearance", rr.Scalars(gap if np.isfinite(gap) else float("nan")))  # NaN: no point
         rec.log(
             "swarm/robots",
             rr.AnyValues(
@@ -421,15 +430,6 @@ def _layout() -> Any:
     display = rrb.Spatial2DView(name="display", origin="/", contents=[f"/{e}/**" for e in DISPLAY])
     plots = rrb.Vertical(rrb.TimeSeriesView(origin="/metrics/clearance"), rrb.TimeSeriesView(origin="/metrics/at_goal"))
     return rrb.Blueprint(rrb.Horizontal(display, plots, column_shares=[3, 1]), collapse_panels=True)
-
-
-def _min_clearance(xy: np.ndarray, r: np.ndarray) -> float:
-    """The smallest gap between two robots' discs (m) at positions (N, 2), as metrics.json takes it;
-    NaN, no point on the plot, with fewer than two robots placed."""
-    from sim.outputs.metrics import clearance_at
-
-    gap = clearance_at(xy, r)
-    return gap if np.isfinite(gap) else float("nan")
 
 
 def replay(run_dir: Path, sink: str | os.PathLike, scene: dict[str, Any] | None = None) -> SwarmView:

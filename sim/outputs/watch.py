@@ -118,8 +118,7 @@ class Watcher:
         while True:
             if msg is not None and msg.count == self.n and msg.tick >= last:
                 self.take_states()
-                missed = np.maximum(0, msg.tick - msg.applied.astype(np.int64)) if len(msg.applied) == self.n else None
-                view.tick(msg.tick, msg.stamp, msg.pose, msg.color, self.goal, radius=self.radius, missed=missed)
+                view.truth(msg, self.goal, self.radius)
                 logged, last = logged + 1, msg.tick
             self.look_at_worlds()
             if self.world_seen and not self.world_alive:
