@@ -258,17 +258,11 @@ class Participant(Auction):
         current: Mapping[int, int] | None = None,
         prices: np.ndarray | None = None,
     ) -> dict[int, int]:
-        """The previous keyframe's assignment carried over by the goals' correspondence (paper 6.1;
-        ``previous[j]``: the goal of ``before`` that goal j continues, -1 none): a robot driving to goal
-        i there gets i's successor, and drives to it until this auction agrees. ``current``: each own
-        robot's goal in ``before`` (default: its agreed goal, else its claim). Returns robot -> goal.
-
-        With ``claim`` the auction also starts from it: each robot claims its carried goal where
-        ``before``'s last agreed board (the same on every host; the live one may be mid-instance)
-        says it owns the goal it continues, at price zero or at ``prices`` (in equilibrium for the
-        new goals: Goals.warm_start.prices). Close frames then agree in a few rounds; distant ones
-        skip the coarse phases that build prices and fight a price war (agent.assignment.frames_close).
-        The old prices are not carried: they fit the old costs only. Call before the first instance."""
+        """The previous goal set's assignment carried over by the goals' correspondence (paper 6.1;
+        ``previous[j]``: the goal of ``before`` that goal j continues, -1 none). ``current``: each own
+        robot's goal in ``before`` (default: its agreed goal, else its claim). With ``claim`` the auction
+        starts from it, at ``prices`` if given (docs/architecture.md, "Consecutive goal sets"). Returns
+        robot -> goal. Call before the first instance."""
         previous = np.asarray(previous, np.int64)
         if self.started or not before.started or len(previous) != len(self.goals):
             return {}
@@ -301,10 +295,9 @@ class Participant(Auction):
         return carried
 
     def start_from(self, owner: np.ndarray, prices: np.ndarray) -> dict[int, int]:
-        """The first goal set's warm start (Goals.warm_start from the robots' start positions): the
-        auction starts with goal j claimed by robot ``owner[j]`` at ``prices[j]``, in equilibrium for
-        that matching, the same board on every host; each own robot drives to its goal until the
-        auction agrees. Returns robot -> goal. Call before the first instance."""
+        """The first goal set's warm start (Goals.warm_start from the start positions): goal j claimed
+        by robot ``owner[j]`` at ``prices[j]``, on every host alike. Returns robot -> goal. Call before
+        the first instance."""
         owner = np.asarray(owner, np.int64)
         if self.started or len(owner) != len(self.goals) or len(prices) != len(self.goals):
             return {}
@@ -355,12 +348,9 @@ class Participant(Auction):
         self, positions: Mapping[int, np.ndarray] | np.ndarray, candidates: int = CANDIDATES
     ) -> np.ndarray:
         """For a host that owns every robot of the goal set (the central engine): the next block of
-        phases on these positions, warm from the board, bid to an agreed final phase. Nobody else
-        bids, so a phase is over when every robot is content. The same rounds, bids and board as
-        begin(), bid() and check_agreement(), compiled (agent.core.bidding.Bidders.settle_block), each
-        robot ranking its ``candidates`` best goals while they provably hold its best. Returns each own
-        robot's agreed goal, in the order of ``own``; a phase that takes more than ROUNDS_PER_ROBOT
-        rounds per robot (at least 100,000) raises RuntimeError."""
+        phases on these positions, warm from the board, bid to agreement by the same rounds as bid()
+        (compiled: Bidders.settle_block). Returns each own robot's agreed goal, in the order of ``own``;
+        a phase of over ROUNDS_PER_ROBOT rounds per robot (at least 100,000) raises RuntimeError."""
         block = self._block_to_settle(positions, candidates)  # first: it may make new bidders
         return self._adopt_settled(self._bidders.settle_block(*block))
 

@@ -152,7 +152,8 @@ class Shown:
 class CentralAuction:
     """The auction step of the central engine (agent.loop.Auction): the shown image's goal set and
     the auction that assigns it, settled in this process, beside the policy when ``overlap``; ``clock``
-    times the engine's parts (sim.central.stepclock)."""
+    times the engine's parts (sim.central.stepclock). Its attributes are the seams it was given, the
+    shown image and its auction, and the assignment with when and from which block it was made."""
 
     def __init__(
         self, scene: Scene, params: RobotParams, movers: Movers, reach: float, clock: StepClock, overlap: bool

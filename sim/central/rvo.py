@@ -34,7 +34,8 @@ class CentralOrca:
 
     Agent defaults mirror RVO2's ``setAgentDefaults``; the ``Options`` go to the control core
     (agent.core.control). After the first step ``position`` and ``velocity`` are the engine's own
-    arrays, written in place by later steps: copy them to keep a state.
+    arrays, written in place by later steps: copy them to keep a state. Its attributes are RVO2's
+    simulator's (defaults, then one array per agent field) and the buffers the steps reuse.
     """
 
     def __init__(
