@@ -68,6 +68,7 @@ def _forge(folder: Path, endpoint: str, forged: np.ndarray, stop: threading.Even
 
 
 @pytest.mark.slow
+@pytest.mark.serial
 def test_a_secured_run_converges_and_a_robots_forged_goal_set_changes_no_goal(tmp_path, spawned):
     made = run_pixelswarm("certs", str(tmp_path / "certs"), "--robots", str(ROBOTS), timeout=60)
     assert made.returncode == 0, made.stderr
@@ -78,7 +79,9 @@ def test_a_secured_run_converges_and_a_robots_forged_goal_set_changes_no_goal(tm
     report: dict = {"genuine_goal_sets": 0, "last_tick": None, "forged": 0, "first_forged_tick": None}
     stop = threading.Event()
     forger = threading.Thread(target=_forge, args=(folder, endpoint, _rotated(starts, np.pi / 2), stop, report))
-    args = ["run", "circle", "--robots", str(ROBOTS), "--secure", str(folder), "--clock", "lockstep"]
+    # In real time the robots are on their way for seconds of wall time: the forger's TLS session opens
+    # while they move (a lock-step run swaps them in less time than that session takes to open).
+    args = ["run", "circle", "--robots", str(ROBOTS), "--secure", str(folder), "--clock", "realtime"]
     args += ["--no-video", "--no-plots", "--duration", "30", "--listen", endpoint, "--out", str(out), "-q"]
     run = subprocess.Popen(pixelswarm_cmd(*args), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     spawned.append(run)
