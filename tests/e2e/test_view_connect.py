@@ -238,6 +238,7 @@ def _forge_as_observer(folder: Path, endpoint: str, starts: np.ndarray, stop: th
 
 
 @pytest.mark.slow
+@pytest.mark.serial
 @pytest.mark.timeout(360)
 def test_a_viewer_watches_a_secured_run_as_the_observer_which_cannot_publish(tmp_path, spawned):
     """`pixelswarm view --connect tls/... --secure DIR` on a secured run sees every robot move; a session
@@ -250,7 +251,10 @@ def test_a_viewer_watches_a_secured_run_as_the_observer_which_cannot_publish(tmp
     port = free_port()
     endpoint = f"tls/127.0.0.1:{port}"
     out = tmp_path / "run"
-    args = ["run", "circle", "--robots", str(robots), "--secure", str(folder), "--clock", "lockstep", "--seed", "1"]
+    # In real time the robots move for seconds of wall time: the viewer and the forger, which join only
+    # once the run's router listens (and open TLS sessions), see them on their way (a lock-step run of
+    # three robots is over in about as long as those sessions take to open).
+    args = ["run", "circle", "--robots", str(robots), "--secure", str(folder), "--clock", "realtime", "--seed", "1"]
     args += ["--no-video", "--no-plots", "-q", "--duration", "30", "--listen", endpoint, "--out", str(out)]
     starts = np.asarray(load_scene("circle", robots=robots).poses, float)[:, :2]
     report: dict = {"forged": 0}
