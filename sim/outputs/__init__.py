@@ -1,2 +1,1 @@
-"""What a run leaves behind and shows: the recorder, metrics, run directory, video and plots, MCAP,
-the live view. May import sim.bodies."""
+"""The run's outputs: recorder, metrics, run directory, video, plots, MCAP, live view. May import sim.bodies."""

@@ -1,16 +1,10 @@
-"""pixelswarm's per-tick message kinds as protobuf, for log.mcap: documented custom schemas.
-
-Each kind sent every tick becomes a protobuf message ``pixelswarm.<Kind>`` (the class in :mod:`transport.codec`)
-whose schema, a ``FileDescriptorSet``, is stored in the file, so Foxglove and ``mcap`` decode it with no
-pixelswarm code: the kind's fixed fields, each table as a nested message of one packed column per field in a
-type that holds the wire's values exactly (the log holds what crossed the bus), and ``key``, the bus key it
-came on. ``Boards.known`` is bytes (the bit rows one after the other, ``(robots + 7) // 8`` bytes each). Wider
-integers are fixed-width, so a large table's columns go in as numpy's own bytes (:class:`Table`): protobuf's
-Python API sets repeated fields a value at a time. Details: docs/outputs.md (log.mcap).
-"""
+"""pixelswarm's per-tick message kinds as protobuf ``pixelswarm.<Kind>`` for log.mcap, whose schemas the file holds
+(Foxglove decodes them with no pixelswarm code): the fixed fields, each table as packed columns of the wire's
+exact values, and ``key``, the bus key. Details: docs/outputs.md (log.mcap)."""
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -25,8 +19,8 @@ _F = descriptor_pb2.FieldDescriptorProto
 # struct format characters and numpy types -> protobuf field types (the wire's own widths)
 _BY_STRUCT = {"I": _F.TYPE_UINT32, "H": _F.TYPE_UINT32, "B": _F.TYPE_UINT32, "i": _F.TYPE_INT32}
 _BY_STRUCT |= {"Q": _F.TYPE_UINT64, "f": _F.TYPE_FLOAT, "d": _F.TYPE_DOUBLE}
-# numpy column types -> (protobuf field type, the little-endian type of its packed values; VARINT:
-# varints, for the narrow integers: flags and robot ids in a byte or two where fixed32 takes four)
+# numpy column types -> (protobuf field type, its packed values' type; VARINT for narrow integers: a byte or two
+# where fixed32 takes four; wider ones fixed-width, so a large column goes in as numpy's own bytes)
 VARINT = "varint"
 _BY_DTYPE = {"u1": (_F.TYPE_UINT32, VARINT), "u2": (_F.TYPE_UINT32, VARINT), "u4": (_F.TYPE_FIXED32, "<u4")}
 _BY_DTYPE |= {"i4": (_F.TYPE_SFIXED32, "<i4"), "u8": (_F.TYPE_FIXED64, "<u8")}
@@ -50,8 +44,7 @@ def _truth_rows(m: Truth) -> np.ndarray:
 
 
 def varint(value: int) -> bytes:
-    """An unsigned integer as protobuf's varint: seven bits a byte, low bits first, the top bit set
-    on every byte but the last."""
+    """An unsigned integer as protobuf's varint: seven bits a byte, low first, the top bit set but on the last."""
     out = bytearray()
     while value > 0x7F:
         out.append(value & 0x7F | 0x80)
@@ -76,8 +69,7 @@ def _varints(values: np.ndarray) -> bytes:
 
 
 def length_delimited(number: int, body: bytes) -> bytes:
-    """Field ``number`` of a message holding ``body`` (a nested message, bytes, a packed column): its
-    tag, its length, its bytes."""
+    """Field ``number`` of a message holding ``body`` (a nested message, bytes, a packed column)."""
     return varint(number << 3 | LENGTH_DELIMITED) + varint(len(body)) + body
 
 
@@ -91,8 +83,8 @@ FEW_ROWS = 16  # a table of at most this many rows goes through protobuf's sette
 
 @dataclass(frozen=True)
 class Table:
-    """A message's table as a field of its protobuf form: a nested message of a packed column per
-    field (``columns``: name, its field number, its packed type), or bytes when it has none (Boards.known)."""
+    """A message's table as a nested message of a packed column per field (``columns``: name, number, packed
+    type), or bytes when it has none (Boards.known)."""
 
     name: str
     number: int
@@ -171,24 +163,17 @@ def _build(kind: type[Message], tables: dict[str, tuple[np.dtype | None, Callabl
     return LoggedKind(f"{PACKAGE}.{name}", scalars, tuple(encoders), cls, descriptor_set)
 
 
+@functools.cache
 def logged_kinds() -> dict[type[Message], LoggedKind]:
     """Every kind logged as protobuf, by its class."""
-    if not _KINDS:
-        for frame in (Poses, States, Commands, Bid):
-            _KINDS[frame] = _build(frame, {"records": (frame.RECORD, lambda m: m.records)})
-        _KINDS[Boards] = _build(
-            Boards,
-            {
-                "words": (Boards.WORD, lambda m: m.words),
-                "known": (None, lambda m: m.known),
-                "records": (Boards.RECORD, lambda m: m.records),
-            },
-        )
-        _KINDS[Truth] = _build(Truth, {"records": (TRUTH_ROW, _truth_rows)})
-    return _KINDS
-
-
-_KINDS: dict[type[Message], LoggedKind] = {}
+    kinds: dict[type[Message], LoggedKind] = {
+        frame: _build(frame, {"records": (frame.RECORD, lambda m: m.records)})
+        for frame in (Poses, States, Commands, Bid)
+    }
+    boards = {"words": (Boards.WORD, lambda m: m.words), "known": (None, lambda m: m.known)}
+    kinds[Boards] = _build(Boards, boards | {"records": (Boards.RECORD, lambda m: m.records)})
+    kinds[Truth] = _build(Truth, {"records": (TRUTH_ROW, _truth_rows)})
+    return kinds
 
 
 def kind_of(message: Message) -> LoggedKind | None:

@@ -1,12 +1,6 @@
-"""The run's MCAP log, written through Foxglove's SDK (``foxglove-sdk``); no zenoh here, the recorder calls it.
-
-Three kinds of channel: pixelswarm's own message kinds as ``json`` with a ``jsonschema`` schema
-(``pixelswarm.<Kind>``; numpy values made JSON-safe, NaN/inf -> ``null``); Foxglove's well-known schemas
-(:mod:`foxglove.messages`, e.g. ``foxglove.SceneUpdate``) as ``protobuf``; and the per-tick kinds
-(``pixelswarm.States``, ...) as ``protobuf`` with sim.outputs.logschema's schemas. All channels share one SDK
-context, so :meth:`McapLog.serve` can stream them live over Foxglove's WebSocket protocol (127.0.0.1) as the
-file is written. :func:`read_mcap` and :func:`mcap_channels` read a log back with mcap's own reader.
-"""
+"""The run's MCAP log, written through Foxglove's SDK: JSON channels (``jsonschema``), Foxglove's schemas and
+sim.outputs.logschema's as protobuf, all in one SDK context that :meth:`McapLog.serve` can stream live; read
+back with mcap's own reader (:func:`read_mcap`, :func:`mcap_channels`)."""
 
 from __future__ import annotations
 
@@ -38,23 +32,16 @@ _COMPRESSION = {"zstd": MCAPCompression.Zstd, "lz4": MCAPCompression.Lz4, "none"
 
 
 class McapLog:
-    """Append-only MCAP log.  Thread-safe (bus callbacks may arrive on several threads).
-
-    :meth:`close` (or leaving a ``with`` block) writes the summary section; an unclosed file is readable
-    up to its last flushed chunk (:func:`read_mcap`), but Foxglove wants a closed one. Messages carry
-    their log time as publish time too, and sequence numbers per channel from 1.
-    """
+    """Append-only MCAP log, thread-safe; :meth:`close` writes the summary section Foxglove wants (an
+    unclosed file is readable up to its last flushed chunk)."""
 
     def __init__(self, path: str | os.PathLike, *, compression: str | None = "zstd"):
         if compression not in _COMPRESSION:
             raise ValueError(f"compression must be one of {sorted(k for k in _COMPRESSION if k)} or None")
         self.path = Path(path)
         self._context = foxglove.Context()
-        options = MCAPWriteOptions(
-            compression=_COMPRESSION[compression],
-            chunk_size=1 << 20,
-            compression_threads=0,  # compress on the caller's thread: the recorder has a core to share
-        )
+        # compressed on the caller's thread: the recorder has a core to share
+        options = MCAPWriteOptions(compression=_COMPRESSION[compression], chunk_size=1 << 20, compression_threads=0)
         self._writer = foxglove.open_mcap(
             self.path, allow_overwrite=True, context=self._context, writer_options=options
         )
@@ -62,16 +49,11 @@ class McapLog:
         self._channels: dict[str, tuple[int, Any]] = {}  # topic -> (channel id, schema key)
         self._by_id: dict[int, foxglove.Channel] = {}
         self._server: Any = None
-        self._closed = False
+        self.closed = False
         self.message_count = 0
 
-    # -- channels ----------------------------------------------------------------------------
     def add_channel(self, topic: str, schema_name: str, json_schema: dict) -> int:
-        """Register (or look up) a JSON channel; returns its id.
-
-        Adding the same topic again with the same schema returns the existing id; with a
-        different schema it raises ``ValueError``.
-        """
+        """Register (or look up: ValueError if with another schema) a JSON channel; returns its id."""
         if not isinstance(json_schema, dict):
             raise TypeError("json_schema must be a dict")
         schema_text = dumps_json(json_schema, sort_keys=True)
@@ -79,14 +61,12 @@ class McapLog:
         return self._add(topic, (schema_name, schema_text), MESSAGE_ENCODING, schema)
 
     def add_foxglove_channel(self, topic: str, message_type: Any) -> int:
-        """Register (or look up) a channel of one of Foxglove's schemas (a :mod:`foxglove.messages`
-        type, e.g. ``SceneUpdate``), protobuf-encoded with the schema the SDK carries."""
+        """Register (or look up) a channel of a :mod:`foxglove.messages` type, e.g. ``SceneUpdate``."""
         schema = message_type.get_schema()
         return self._add(topic, (schema.name, schema.encoding), schema.encoding, schema)
 
     def add_protobuf_channel(self, topic: str, schema_name: str, descriptor_set: bytes) -> int:
-        """Register (or look up) a protobuf channel of a schema of our own (``schema_name``, the
-        message's full name; ``descriptor_set``, its serialized ``FileDescriptorSet``: sim.outputs.logschema)."""
+        """Register (or look up) a protobuf channel of our own schema (sim.outputs.logschema)."""
         schema = foxglove.Schema(name=schema_name, encoding=PROTOBUF, data=descriptor_set)
         return self._add(topic, (schema_name, PROTOBUF), PROTOBUF, schema)
 
@@ -106,10 +86,8 @@ class McapLog:
             self._by_id[cid] = channel
             return cid
 
-    # -- messages ----------------------------------------------------------------------------
     def write(self, channel_id: int, log_time_ns: int, payload: Any) -> None:
-        """Write one message: a dict on a JSON channel (numpy -> lists, NaN -> null), a
-        :mod:`foxglove.messages` object on a Foxglove channel (its encoding: :meth:`write_bytes`)."""
+        """Write a dict on a JSON channel (NaN -> null), a protobuf or :mod:`foxglove.messages` one on others."""
         channel = self._by_id.get(channel_id)  # None: write_bytes says so
         if channel is None or channel.message_encoding == MESSAGE_ENCODING:
             data = dumps_json(payload).encode("utf-8")
@@ -118,10 +96,7 @@ class McapLog:
         self.write_bytes(channel_id, log_time_ns, data)
 
     def write_bytes(self, channel_id: int, log_time_ns: int, data: bytes) -> None:
-        """Write an already encoded message (e.g. JSON bytes received off the bus) unchanged.
-
-        On a JSON channel the caller guarantees ``data`` is UTF-8 JSON without NaN/Infinity literals.
-        """
+        """Write an already encoded message unchanged (JSON: UTF-8, without NaN/Infinity literals)."""
         log_time_ns = int(log_time_ns)
         if log_time_ns < 0:
             raise ValueError("MCAP times are unsigned nanoseconds")
@@ -141,38 +116,30 @@ class McapLog:
             self._writer.write_metadata(name, flat)
 
     def flush(self) -> None:
-        """Finish the chunk in progress and hand it to the OS: a process killed outright later
-        leaves a file whose chunks up to here mcap's reader reads (see :func:`read_mcap`)."""
+        """Finish the chunk in progress and hand it to the OS: a kill later leaves it readable."""
         with self._lock:
-            if not self._closed:
+            if not self.closed:
                 self._writer.flush()
 
-    # -- live --------------------------------------------------------------------------------
     def serve(self, port: int = 0) -> int:
-        """Stream every channel live over Foxglove's WebSocket protocol on 127.0.0.1 (``port`` 0:
-        a free one) until :meth:`close`; returns the port.  Foxglove: Open connection, Foxglove
-        WebSocket, ``ws://127.0.0.1:PORT``."""
+        """Stream every channel live over Foxglove's WebSocket protocol on 127.0.0.1 (``port`` 0: a free
+        one) until :meth:`close`; returns the port."""
         with self._lock:
             self._check_open()
             if self._server is None:
                 self._server = foxglove.start_server(name="pixelswarm", host=LOOPBACK, port=port, context=self._context)
             return int(self._server.port)
 
-    # -- lifecycle ---------------------------------------------------------------------------
-    @property
-    def closed(self) -> bool:
-        return self._closed
-
     def _check_open(self) -> None:
-        if self._closed:
+        if self.closed:
             raise ValueError(f"McapLog {self.path} is closed")
 
     def close(self) -> None:
         """Finish the file (summary, indexes) and stop the live server. Idempotent."""
         with self._lock:
-            if self._closed:
+            if self.closed:
                 return
-            self._closed = True
+            self.closed = True
             try:
                 self._writer.close()
             finally:
@@ -188,13 +155,9 @@ class McapLog:
         self.close()
 
 
-# --- Reading back ---------------------------------------------------------------------------------
-
-
 def proto_to_dict(message: Message) -> dict[str, Any]:
-    """A protobuf message as the dict Foxglove's JSON schema of it describes: every field, with its
-    default when unset; times (``google.protobuf.Timestamp`` / ``Duration``) as ``{"sec", "nsec"}``,
-    enums as numbers, bytes as bytes."""
+    """A protobuf message as the dict Foxglove's JSON schema describes: every field (default when unset),
+    times as ``{"sec", "nsec"}``, enums as numbers."""
     out: dict[str, Any] = {}
     for field in message.DESCRIPTOR.fields:
         value = getattr(message, field.name)
@@ -223,8 +186,7 @@ def _proto_value(value: Any) -> Any:
 
 
 class _Decoders(DecoderFactory):
-    """Message bytes -> dict, for mcap's reader: JSON parsed, protobuf decoded by mcap's protobuf support
-    (which builds the message class from the schema stored in the file) into a dict (:func:`proto_to_dict`)."""
+    """Message bytes -> dict for mcap's reader: JSON parsed, protobuf by the file's schema (:func:`proto_to_dict`)."""
 
     def decoder_for(self, message_encoding: str, schema: Schema | None) -> Callable[[bytes], Any] | None:
         if message_encoding == MESSAGE_ENCODING:
@@ -234,20 +196,15 @@ class _Decoders(DecoderFactory):
 
 
 def logged(path: str | os.PathLike, topics: Iterable[str]) -> list[tuple[int, str, Any]]:
-    """(log time in ns, topic, message decoded as :func:`read_mcap` decodes it) of every message
-    of these topics of a closed file, in log-time order across them."""
+    """(log time ns, topic, decoded message) of these topics of a closed file, in log-time order."""
     with open(path, "rb") as fh:
         messages = make_reader(fh, decoder_factories=[_Decoders()]).iter_decoded_messages(topics=sorted(topics))
         return [(m.log_time, c.topic, decoded) for _, c, m, decoded in messages]
 
 
 def read_mcap(path: str | os.PathLike, topics: Iterable[str] | None = None) -> dict[str, list[dict]]:
-    """All messages by topic, decoded (JSON, or protobuf into dicts: :func:`proto_to_dict`), in
-    log-time order.
-
-    Channels without messages appear with an empty list.  ``topics`` restricts the result.  A file
-    that was never closed (its writer was killed) is read up to its last flushed chunk.
-    """
+    """All messages (of ``topics``) by topic, decoded, in log-time order; empty channels too. A file never
+    closed (its writer was killed) is read up to its last flushed chunk."""
     wanted = None if topics is None else set(topics)
     out: dict[str, list[dict]] = {}
     if not is_closed_mcap(path):
@@ -275,8 +232,7 @@ def is_closed_mcap(path: str | os.PathLike) -> bool:
 
 
 def _read_unfinished(path: str | os.PathLike, wanted: set[str] | None) -> dict[str, list[dict]]:
-    """The messages of an unfinished file, read front to back until it ends mid-record (the
-    chunk in progress when the writer died: cut short, or still without its length)."""
+    """The messages of an unfinished file, read front to back until it ends mid-record."""
     out: dict[str, list[tuple[int, dict]]] = {}
     with open(path, "rb") as fh:
         reader = NonSeekingReader(fh, decoder_factories=[_Decoders()])
@@ -289,9 +245,8 @@ def _read_unfinished(path: str | os.PathLike, wanted: set[str] | None) -> dict[s
 
 
 def mcap_channels(path: str | os.PathLike) -> dict[str, dict[str, Any]]:
-    """Per topic: ``schema_name``, ``schema_encoding``, ``message_encoding``, ``schema`` (the JSON schema
-    parsed, or a protobuf schema's ``FileDescriptorSet``), ``metadata`` and ``message_count`` (from the
-    summary statistics)."""
+    """Per topic of a closed file: its channel id, schema (name, encoding, parsed), message encoding,
+    metadata and message count."""
     with open(path, "rb") as fh:
         summary = make_reader(fh).get_summary()
     if summary is None:

@@ -1,9 +1,5 @@
-"""Run metrics from true world poses.  Pure functions (numpy + scipy), no zenoh.
-
-Shapes: ``t`` (T,), ``pose`` (T,N,3) as (x, y, theta), ``radius`` (N,), ``goal`` (T,N,2) with NaN
-where a robot has no goal.  Robots with non-finite positions at a sample (not yet spawned,
-removed) are ignored at that sample.
-"""
+"""Run metrics from true world poses: ``t`` (T,), ``pose`` (T,N,3), ``radius`` (N,), ``goal`` (T,N,2) (NaN:
+none); a robot without a finite position at a sample is ignored there."""
 
 from __future__ import annotations
 
@@ -21,8 +17,7 @@ def _radius(radius: Any, n: int) -> np.ndarray:
     return np.broadcast_to(r, (n,)).astype(float) if r.ndim == 0 else r.reshape(n)
 
 
-# elements of a (ticks x robots) temporary the metrics build at once, so a long run's temporaries stay
-# small; the results are the same to the bit as over the whole array
+# elements of a (ticks x robots) temporary built at once: a long run's stay small, results the same to the bit
 CHUNK = 1 << 20
 
 
@@ -50,9 +45,8 @@ def _moved(pose: Any, rows: np.ndarray) -> np.ndarray:
 
 
 def _pairwise_nansum(rows: np.ndarray, n: int, values: Any) -> float:
-    """``np.nansum`` of the (len(rows), n) array ``values(rows)`` to the bit, built a piece of at most
-    :data:`CHUNK` elements at a time: numpy sums a contiguous array pairwise, halving it at a
-    multiple of 8 down to blocks of 128, so each half here is summed as numpy sums that half."""
+    """``np.nansum`` of ``values(rows)`` (len(rows), n) to the bit, built :data:`CHUNK` elements at a time: halved
+    as numpy's pairwise sum halves it (at a multiple of 8, down to blocks of 128)."""
 
     def part(lo: int, hi: int) -> float:
         if hi - lo > max(CHUNK, 128):  # numpy's blocks of 128 are not halved
@@ -70,10 +64,8 @@ NEAR = 0.1  # m: clearance_at looks first at the pairs within this of touching
 
 
 def clearance_at(xy: np.ndarray, radius: np.ndarray) -> float:
-    """Minimum over pairs of ``|p_i - p_j| - r_i - r_j`` at one instant; +inf for fewer than 2
-    robots.  Non-finite positions are ignored.  Exact for any radii: the world's grid search for
-    close pairs (sim.bodies.proximity) over the pairs within a reach that grows until the smallest
-    clearance it finds is one no pair beyond it could beat."""
+    """Minimum over pairs of ``|p_i - p_j| - r_i - r_j`` (+inf: fewer than 2 robots), exact: close pairs within a
+    reach that grows until no pair beyond it could beat the smallest found."""
     xy = np.asarray(xy, dtype=float)[:, :2]
     radius = np.asarray(radius, dtype=float)
     ok = np.isfinite(xy).all(axis=1)
@@ -94,8 +86,7 @@ def clearance_at(xy: np.ndarray, radius: np.ndarray) -> float:
 
 
 def clearance_over_time(pose: np.ndarray, radius: np.ndarray) -> np.ndarray:
-    """(T,) minimum pairwise clearance (centre distance minus both radii) per sample: negative is
-    overlap (contact), +inf with fewer than two robots."""
+    """(T,) :func:`clearance_at` per sample: negative is overlap (contact)."""
     pose = pose if hasattr(pose, "shape") else np.asarray(pose, dtype=float)
     T, N = _pose_shape(pose)
     r = _radius(radius, N)
@@ -109,8 +100,7 @@ def clearance_over_time(pose: np.ndarray, radius: np.ndarray) -> np.ndarray:
 
 
 def contact_events(pose: np.ndarray, radius: np.ndarray) -> int:
-    """Number of pair-contact events: a pair (i, j) starting to overlap (clearance < 0)
-    at a sample where it did not overlap at the previous sample (counts the first sample too)."""
+    """Pair-contact events: pairs overlapping at a sample (the first too) but not at the one before."""
     T, N = _pose_shape(pose)
     pose = np.asarray(pose, dtype=float)
     r = _radius(radius, N)
@@ -136,8 +126,7 @@ def contact_events(pose: np.ndarray, radius: np.ndarray) -> int:
 
 
 def communication_parts(pose: np.ndarray, reach: float) -> np.ndarray:
-    """Per tick: the parts of the communication graph (robots within ``reach`` of each other hear
-    each other, positions as the wire carries them): 1 when every robot can reach every other."""
+    """Per tick: the parts of the graph of robots within ``reach`` (positions as the wire carries them)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
@@ -157,10 +146,8 @@ OPTIMUM_UP_TO = 3000
 
 
 def assignment_over_optimum(pose: np.ndarray, goal: np.ndarray, assignment: np.ndarray, step: np.ndarray) -> list:
-    """Per image step: how much the assignment the robots drove by at the step's first tick costs
-    over the optimum for those positions (m^2, sum of squared distances, eq. 5-7; scipy's
-    linear_sum_assignment), or None where that tick is not one goal per robot, or it has more than
-    OPTIMUM_UP_TO robots."""
+    """Per image step: the cost (m^2, eq. 5-7) of the assignment at its first tick over the optimum, or None
+    where that is not one goal per robot or there are more than OPTIMUM_UP_TO robots."""
     from scipy.optimize import linear_sum_assignment
 
     out: list[float | None] = []
@@ -191,9 +178,8 @@ def path_lengths(pose: np.ndarray) -> np.ndarray:
 
 
 def time_to_converge(t: np.ndarray, pose: np.ndarray, goal: np.ndarray, tolerance: float) -> float | None:
-    """First time ``t[k]`` such that from sample k to the end every robot that has a goal (finite
-    ``goal[s, i]``) at sample s is within ``tolerance`` of it (xy); None if that does not hold at the
-    last sample, or no robot ever has a goal."""
+    """First ``t[k]`` from which on every robot with a goal is within ``tolerance`` of it; None if not at
+    the end, or no robot ever has a goal."""
     t = np.asarray(t, dtype=float)
     T, N = _pose_shape(pose)
     if np.shape(goal) != (T, N, 2) or t.shape != (T,):
@@ -214,8 +200,8 @@ def time_to_converge(t: np.ndarray, pose: np.ndarray, goal: np.ndarray, toleranc
 
 
 def _goal_errors(pose: Any, goal: Any, members: np.ndarray | None, ticks: slice) -> tuple[np.ndarray, np.ndarray]:
-    """At these ticks, each robot's distance to its goal (NaN where no goal, no pose or not a member)
-    and whether it has a goal that counts, both (ticks, N)."""
+    """At these ticks, each robot's distance to its goal (NaN: none, no pose, not a member) and whether it
+    has a goal that counts, both (ticks, N)."""
     g = np.asarray(goal[ticks], dtype=float)
     err = np.sqrt(((_xy(pose, ticks) - g) ** 2).sum(-1))
     has_goal = np.isfinite(g).all(axis=2)
@@ -234,14 +220,9 @@ def step_metrics(
     current: np.ndarray | None = None,
     members: np.ndarray | None = None,
 ) -> list[dict[str, Any]]:
-    """Per image step (``step`` (T,) int, the step shown at each sample; negative: none): ``t_start`` /
-    ``t_end``, ``converged_at`` (s after t_start until every robot with a goal is within ``tolerance``, or
-    None), ``max_goal_error_at_end`` and ``median_goal_error_at_end`` (m, at its last sample; None if no robot
-    has a goal there) and ``path_length_m`` (all robots' xy path during the step, summed).
-
-    Distributed runs also give ``members`` (T, N), the robots of the newest goal set (the others, e.g. dead
-    ones, are not waited for), and ``current`` (T, N), whose goal comes from that set (goals of an older set
-    do not count). From arrays only, so the central engine and the distributed recorder report alike."""
+    """Per image step (``step`` (T,), negative: none): its times, convergence, goal errors at its end and path
+    length. Distributed runs also give ``members`` (T, N), the newest goal set's robots (no other is waited
+    for), and ``current`` (T, N), whose goal comes from that set."""
     t = np.asarray(t, dtype=float)
     T, N = _pose_shape(pose)
     step = np.asarray(step).astype(int).reshape(-1)
@@ -284,9 +265,7 @@ def _per_robot_second(values: Mapping[str, float], robots: int, duration_s: floa
 
 @dataclass(frozen=True)
 class Steps:
-    """A run's image steps: ``step`` (T,) the step shown at each sample (negative: none); in
-    distributed runs also, per sample, whose announced goal comes from the newest goal set
-    (``current``, (T,N)) and that set's robots (``members``, (T,N)); see :func:`step_metrics`."""
+    """A run's image steps, as :func:`step_metrics` takes them."""
 
     step: np.ndarray
     current: np.ndarray | None = None
@@ -295,9 +274,7 @@ class Steps:
 
 @dataclass(frozen=True)
 class TrueRecord:
-    """The world's true record of a run: ``t`` (T,) seconds, ``pose`` (T,N,3), ``radius`` (N,);
-    ``goal`` (T,N,2) with NaN = no goal and ``tolerance`` (m) for convergence; ``clearance`` (T,)
-    if already computed; ``steps`` if the scene has image steps (with ``goal``, metrics per step)."""
+    """The world's true record of a run (``clearance``: if already computed; ``steps``: image steps)."""
 
     t: np.ndarray
     pose: np.ndarray
@@ -310,8 +287,7 @@ class TrueRecord:
 
 @dataclass(frozen=True)
 class Traffic:
-    """What crossed the bus over the whole run (all robots): messages and bytes per message kind,
-    ticks robots missed, agents that crashed."""
+    """What crossed the bus over the run: messages and bytes per kind, ticks missed, agents crashed."""
 
     counts: Mapping[str, int] = field(default_factory=dict)
     bytes: Mapping[str, int] = field(default_factory=dict)
@@ -322,14 +298,8 @@ class Traffic:
 def summarise(
     record: TrueRecord, *, wall_s: float, contacts: int, traffic: Traffic | None = None, **extra: Any
 ) -> dict[str, Any]:
-    """The metrics.json dict: ``wall_s`` the wall-clock duration of the run; ``contacts`` the number
-    of pair-contact events (counted by the world, or with :func:`contact_events`). Extra keyword
-    arguments are added as keys (e.g. ``assignment_cost``, ``scene``, ``seed``); they may not
-    replace a computed key.
-
-    Non-finite floats (e.g. ``min_clearance_m`` with one robot) are left as inf/NaN here;
-    :func:`sim.outputs.rundir.write_json` writes them as null.
-    """
+    """The metrics.json dict (inf/NaN left for write_json to make null); ``extra`` keys are added, and may
+    not replace a computed one."""
     t = np.asarray(record.t, dtype=float)
     # read a piece at a time below: the poses may be on disk (sim.outputs.stream)
     pose = record.pose if hasattr(record.pose, "shape") else np.asarray(record.pose, dtype=float)
@@ -338,6 +308,8 @@ def summarise(
         raise ValueError(f"t has shape {t.shape}, pose {np.shape(pose)}")
     duration = float(t[-1] - t[0]) if T else 0.0
     wall_s = float(wall_s)
+    goal, traffic = record.goal, traffic or Traffic()
+    converged = None if goal is None else time_to_converge(t, pose, goal, record.tolerance)
     out: dict[str, Any] = {
         "robots": int(N),
         "samples": int(T),
@@ -345,15 +317,20 @@ def summarise(
         "wall_s": wall_s,
         "realtime_factor": (duration / wall_s) if wall_s > 0 else None,
         **_closeness(record, t, pose, N, contacts),
-        **_convergence(record, t, pose),
+        "converged": converged is not None,
+        "time_to_converge_s": None if converged is None else float(converged - t[0]),
+        "convergence_tolerance_m": float(record.tolerance) if goal is not None else None,
         "path_length_m": path_lengths(pose).tolist(),
-        **_bus_traffic(traffic or Traffic(), N, duration),
+        "messages_per_robot_s": _per_robot_second(traffic.counts, N, duration),
+        "bytes_per_robot_s": _per_robot_second(traffic.bytes, N, duration),
+        "messages_total": {str(k): int(v) for k, v in traffic.counts.items()},
+        "bytes_total": {str(k): int(v) for k, v in traffic.bytes.items()},
+        "missed_ticks": int(traffic.missed_ticks),
+        "agents_crashed": int(traffic.agents_crashed),
     }
-    if record.steps is not None and record.goal is not None:
-        steps = record.steps
-        out["steps"] = step_metrics(t, pose, record.goal, steps.step, record.tolerance, steps.current, steps.members)
-    clash = set(extra) & set(out)
-    if clash:
+    if (steps := record.steps) is not None and goal is not None:
+        out["steps"] = step_metrics(t, pose, goal, steps.step, record.tolerance, steps.current, steps.members)
+    if clash := set(extra) & set(out):
         raise ValueError(f"summarise: extra keys would replace computed ones: {sorted(clash)}")
     out.update(extra)
     return out
@@ -374,39 +351,11 @@ def _closeness(record: TrueRecord, t: np.ndarray, pose: Any, robots: int, contac
     }
 
 
-def _convergence(record: TrueRecord, t: np.ndarray, pose: Any) -> dict[str, Any]:
-    """Whether and when (s from the start) every robot held its goal, and the tolerance it was held to."""
-    goal, tolerance = record.goal, record.tolerance
-    ttc = None
-    if goal is not None:
-        ttc_abs = time_to_converge(t, pose, goal, tolerance)
-        ttc = None if ttc_abs is None else float(ttc_abs - t[0])
-    return {
-        "converged": ttc is not None,
-        "time_to_converge_s": ttc,
-        "convergence_tolerance_m": float(tolerance) if goal is not None else None,
-    }
-
-
-def _bus_traffic(traffic: Traffic, robots: int, duration_s: float) -> dict[str, Any]:
-    """What crossed the bus: per robot and second, in total, and the ticks missed and agents crashed."""
-    return {
-        "messages_per_robot_s": _per_robot_second(traffic.counts, robots, duration_s),
-        "bytes_per_robot_s": _per_robot_second(traffic.bytes, robots, duration_s),
-        "messages_total": {str(k): int(v) for k, v in traffic.counts.items()},
-        "bytes_total": {str(k): int(v) for k, v in traffic.bytes.items()},
-        "missed_ticks": int(traffic.missed_ticks),
-        "agents_crashed": int(traffic.agents_crashed),
-    }
-
-
 def keyframe_errors(
     traj: Mapping[str, np.ndarray], step_starts: list[float], frame_periods: list[float], v_max: float
 ) -> list[np.ndarray]:
-    """Per keyframe of a distributed animation (paper 6.2): the distance of each robot to its goal
-    when the keyframe's K_f dt is over, for the robots whose move the speed allows (distance from
-    where the robot was when it got its goal of this keyframe, carried or agreed, over the time left
-    is at most v_max); NaN for the others. From trajectory.npz's arrays (the recorder's names)."""
+    """Per keyframe of a distributed animation (paper 6.2), from trajectory.npz's arrays: each robot's distance
+    to its goal when K_f dt is over, if v_max allowed the move from where it got that goal (else NaN)."""
     t, pose = traj["t"], traj["pose"][:, :, :2]
     epochs = [int(e) for e in traj["goal_set_epochs"]]
     steps = [int(s) for s in traj["goal_set_steps"]]

@@ -1,10 +1,5 @@
-"""The recorder: subscribes to everything on the bus and keeps what the run directory needs.
-
-It measures the run from the world's TRUE poses (``sim/truth``), never from what agents believed. It logs
-every message kind on its own MCAP channel (per-tick kinds as protobuf, sim.outputs.logschema; the others as
-JSON) and the display as Foxglove scenes, counts messages and bytes per kind, and decides when the display
-has converged. Details: docs/outputs.md.
-"""
+"""The recorder: keeps what the run directory needs from the bus, measured from the world's TRUE poses
+(``sim/truth``), never from what agents believed; logs every kind to MCAP. Details: docs/outputs.md."""
 
 from __future__ import annotations
 
@@ -45,8 +40,7 @@ from transport.plausible import AHEAD, GoalSets, stamp_agrees
 SCENE_TOPIC = "/display/scene"  # what Foxglove's 3D panel shows: robots in their LED colours, and goals
 GOALS_TOPIC = "/display/goals"  # above LOG_ROBOTS: the goal sets, apart from the robots
 
-# the most robots whose every tick is logged: a larger swarm's per-tick kinds and scene are logged every
-# ceil(N / LOG_ROBOTS)-th tick, so the log grows no faster than at this size
+# the most robots whose every tick is logged: a larger swarm's every ceil(N / LOG_ROBOTS)-th, so the log grows no faster
 LOG_ROBOTS = 1000
 # s of display time between scene messages above LOG_ROBOTS robots; none while nothing moved or changed colour
 SCENE_PERIOD = 1.0
@@ -83,9 +77,8 @@ def display_converged(
     newest: Goals | None,
     tolerance: float,
 ) -> bool:
-    """Every live robot within ``tolerance`` of its goal. Image scenes: only goals agreed on the
-    newest goal set count (not the last image's), and a goal set that still holds a dead robot is
-    not yet the display for the robots left (paper 5.1.2)."""
+    """Every live robot within ``tolerance`` of its goal, agreed on the newest goal set, which holds no
+    dead robot (paper 5.1.2)."""
     err = np.hypot(*(pose[alive, :2] - goal[alive]).T)
     if not (np.all(np.isfinite(err)) and np.all(err <= tolerance)):
         return False
@@ -117,9 +110,8 @@ RECORD_AHEAD = 25 * AHEAD  # ticks a state may come before the world's truth of 
 
 @dataclass
 class RobotsSaid:
-    """What each robot said in its newest state: its goal (NaN: none) and the goal's index, the goal
-    set (epoch) and auction instance that agreed it, its radius (NaN until it says), and that state's
-    tick. What a tick records of the robots is a copy of these."""
+    """What each robot said in its newest state (goal NaN: none; radius NaN until it says); a tick
+    records a copy of these."""
 
     goal: np.ndarray
     goal_index: np.ndarray
@@ -142,9 +134,8 @@ class RobotsSaid:
 
 @dataclass
 class GoalSetsHeard:
-    """The coordinator's goal sets as the swarm believed them: judged as the robots judge them
-    (transport.plausible), so a faulty peer's copies do not end up in the measurement; every
-    epoch's, the newest (read from zenoh's threads) and the scene step it shows."""
+    """The goal sets as the swarm believed them (judged as robots judge them, so a faulty peer's copies
+    are not measured): every epoch's, the newest and the scene step it shows."""
 
     believed: GoalSets = field(default_factory=lambda: GoalSets(newest=0))  # it starts with the run
     by_epoch: dict[int, Goals] = field(default_factory=dict)
@@ -154,8 +145,7 @@ class GoalSetsHeard:
 
 @dataclass
 class WorldHeard:
-    """What the world's truth messages told beside the trajectory: its newest tick, its control
-    period (once a tick after the first told it), each tick's row, the least clearance so far."""
+    """What the world's truth told beside the trajectory: newest tick, control period, rows, least clearance."""
 
     latest_tick: int = -1
     dt: float = 0.0
@@ -165,8 +155,7 @@ class WorldHeard:
 
 @dataclass
 class BusTally:
-    """What crossed the bus: messages and bytes per kind, commands (a frame holds one robot's or a
-    host's: counted by record), and messages dropped as they failed to decode."""
+    """What crossed the bus: messages and bytes per kind, commands (by record) and undecodable drops."""
 
     counts: dict[str, int] = field(default_factory=dict)
     bytes: dict[str, int] = field(default_factory=dict)
@@ -176,8 +165,7 @@ class BusTally:
 
 @dataclass
 class RunEvents:
-    """What happened beside the ticks: the world's contact events, the run's events (as published)
-    and every process coming alive or going."""
+    """What happened beside the ticks: contacts, the run's events, processes coming alive or going."""
 
     contacts: list[Contact] = field(default_factory=list)
     events: list[dict[str, Any]] = field(default_factory=list)
@@ -186,8 +174,8 @@ class RunEvents:
 
 @dataclass
 class Convergence:
-    """Whether the display has converged (:func:`display_converged`) and since when, over the robots
-    whose agent is alive, and the tick the run ends with (``ends``: converged since, now -> end here)."""
+    """Whether and since when the display has converged over the live agents, and the run's end
+    (``ends``: converged since, now -> end here)."""
 
     tolerance: float
     agent_alive: np.ndarray
@@ -196,9 +184,7 @@ class Convergence:
     ended_at: int | None = None  # ticks recorded when it ended (none recorded after)
 
     def end_reason(self, world_reason: str) -> str:
-        """The run's end as recorded. A recorder behind the world (a loaded machine) sees the display
-        hold converged only after the world, told too late, ran on to its duration: the recording
-        still ends at the converged tick."""
+        """The run's end as recorded: a recorder behind the world still ends at the converged tick."""
         return "converged" if world_reason == "duration" and self.ended_at is not None else world_reason
 
     def check(self, t: float, pose: np.ndarray, said: RobotsSaid, newest: Goals | None) -> None:
@@ -213,9 +199,7 @@ class Convergence:
 
 
 class DisplayLog:
-    """The run's logs, written as it goes: every message on its kind's MCAP channel (the per-tick
-    kinds as protobuf every :attr:`every`-th tick), the display as Foxglove scenes, and every tick
-    in the tick log (sim.outputs.ticklog)."""
+    """The run's logs, written as it goes: each kind on its MCAP channel, Foxglove scenes, the tick log."""
 
     def __init__(self, robots: int, log_path: str | None, ticks_path: str | None) -> None:
         self.n = robots
@@ -230,8 +214,7 @@ class DisplayLog:
         self._last_goals: tuple[str, bytes] | None = None  # the goal set logged last: its key and payload
 
     def repeats(self, kind: str, key: str, payload: bytes) -> bool:
-        """A goal set the coordinator republished unchanged (for late joiners): logged once, or its
-        repeats would make most of the log. A changed one is logged again."""
+        """A goal set republished unchanged (for late joiners): logged once, or it would fill the log."""
         if kind != "goals":
             return False
         same = self._last_goals == (key, payload)
@@ -253,8 +236,7 @@ class DisplayLog:
         log.write_bytes(self._channel(kind, add), int(wall * 1e9), payload_bytes)
 
     def proto(self, kind: str, wall: float, as_proto: LoggedKind, msg: Any, key: str, tick: int) -> None:
-        """A per-tick kind in its protobuf form (sim.outputs.logschema), its tables' numbers as the wire has
-        them; at the world's ``tick``, if a logged one."""
+        """A per-tick kind in its protobuf form (sim.outputs.logschema), at a logged ``tick``."""
         if (log := self.log) is None or tick % self.every:
             return
         cid = self._channel(kind, lambda: log.add_protobuf_channel("/" + kind, as_proto.name, as_proto.descriptor_set))
@@ -268,16 +250,14 @@ class DisplayLog:
         return cid
 
     def scene(self, wall: float, m: Truth, radius: np.ndarray, goal: np.ndarray) -> None:
-        """The display at this tick for Foxglove's 3D panel (stamped, like every channel, with the
-        wall time it arrived, so the panels of one file play in step): every tick a robot an entity,
-        or above :data:`LOG_ROBOTS` robots the swarm's one entity every :data:`SCENE_PERIOD`."""
+        """The display for Foxglove's 3D panel, at wall time (panels play in step): an entity a robot, or
+        above :data:`LOG_ROBOTS` the swarm's one entity every :data:`SCENE_PERIOD`."""
         if (log := self.log) is None:
             return
         t_ns = int(wall * 1e9)
         channel = self._channel(SCENE_TOPIC, lambda: log.add_foxglove_channel(SCENE_TOPIC, SceneUpdate))
         if self.n <= LOG_ROBOTS:
-            update = scene_update(t_ns, m.pose, radius, m.color, goal=goal, heading=self.heading)
-            log.write_bytes(channel, t_ns, update)
+            log.write_bytes(channel, t_ns, scene_update(t_ns, m.pose, radius, m.color, goal=goal, heading=self.heading))
             return
         if m.stamp < self._next_scene - 1e-9:
             return
@@ -289,7 +269,7 @@ class DisplayLog:
         log.write_bytes(channel, t_ns, swarm_scene(t_ns, m.pose, radius, m.color))
 
     def goals(self, wall: float, g: Goals, radius: np.ndarray) -> None:
-        """A swarm's goal set as a sphere a goal in its colour (:func:`goal_markers`): once a set."""
+        """A large swarm's goal set as spheres in its colours (:func:`goal_markers`): once a set."""
         if (log := self.log) is None or self.n <= LOG_ROBOTS:
             return
         known = radius[np.isfinite(radius)]
@@ -312,16 +292,11 @@ class DisplayLog:
 
 
 class Recorder:
-    """The run's record from the bus, in parts with one job each: the trajectory (what each tick
-    records), what the robots said (:class:`RobotsSaid`), the goal sets heard, what the world's truth
-    told (:class:`WorldHeard`), the bids' positions, the bus tally, the run's events, convergence, and
-    the logs written as it goes (:class:`DisplayLog`). The launcher reads the parts."""
+    """The run's record from the bus, in parts with one job each; the launcher reads the parts."""
 
     def __init__(
         self, bus: Bus, robots: int, tolerance: float, log_path: str | None = None, ticks_path: str | None = None
     ) -> None:
-        """``log_path``: the MCAP log; ``ticks_path``: every tick as it is recorded (sim.outputs.ticklog).
-        Both are written as the run goes, so a run killed outright leaves them readable."""
         self.bus, self.n = bus, robots
         self.raw = bus.subscribe_raw(bus.keys.everything)
         self.alive = bus.watch_alive()
@@ -337,7 +312,6 @@ class Recorder:
         self.out = DisplayLog(robots, log_path, ticks_path)
         self.view: Any = None  # sim.outputs.view.SwarmView (pixelswarm run --view): the truth of every tick, one batch
 
-    # --- intake -------------------------------------------------------------------------------
     def poll(self) -> None:
         for role, ident, alive, wall, _ in self.alive.drain():
             self.happened.liveliness.append({"role": role, "id": ident, "alive": alive, "wall_time": wall})
@@ -356,9 +330,7 @@ class Recorder:
             if (as_proto := kind_of(msg)) is not None:
                 self.out.proto(kind, wall, as_proto, msg, key, self.world.latest_tick)
             elif not self.out.repeats(kind, key, payload):
-                record = msg.to_dict()
-                record["key"] = key
-                self.out.json(kind, wall, record)
+                self.out.json(kind, wall, msg.to_dict() | {"key": key})
             self._take(msg, wall)
 
     def _take(self, msg: Any, wall: float) -> None:
@@ -372,8 +344,7 @@ class Recorder:
             self._on_bid(msg)
         elif isinstance(msg, Goals):
             now = self.traj.t[-1] if self.traj.t else None
-            sets = self.sets
-            if sets.believed.admit(msg, now) is None and not msg.per_robot and msg.epoch not in sets.by_epoch:
+            if self.sets.believed.admit(msg, now) is None and not msg.per_robot and msg.epoch not in self.sets.by_epoch:
                 self._on_goals(msg, wall)
         elif isinstance(msg, Commands):
             self.tally.commands += len(msg.records)
@@ -383,9 +354,8 @@ class Recorder:
             self.happened.events.append(msg.data)
 
     def _on_state(self, s: State) -> None:
-        """A robot's goal and assignment of tick k go into row k, and on into the rows after it
-        until its next state: a row shows what every robot drove to at that tick, as the central
-        engine records it, however its truth and the states crossed the bus."""
+        """A robot's goal and assignment of tick k go into row k and the rows after it until its next
+        state, as the central engine records it."""
         r, said, world = s.robot, self.said, self.world
         if r >= self.n:
             return
@@ -414,14 +384,12 @@ class Recorder:
             tr.goal[i][r], tr.assignment[i][r], tr.assignment_epoch[i][r], tr.assignment_instance[i][r] = told
 
     def _on_goals(self, g: Goals, wall: float) -> None:
-        """A new goal set: the newest from the tick the coordinator published it at (its stamp),
-        also in rows recorded before it arrived (the robots' states of those ticks may use it)."""
+        """A new goal set: the newest from its stamp on, also in rows recorded before it arrived."""
         sets = self.sets
         sets.by_epoch[g.epoch] = g
         if g.epoch != max(sets.by_epoch):
             return
-        sets.step = g.timing.step
-        sets.newest = g
+        sets.step, sets.newest = g.timing.step, g
         self.out.goals(wall, g, self.said.radius)
         tr = self.traj
         for i in range(len(tr.t) - 1, -1, -1):
@@ -430,8 +398,7 @@ class Recorder:
             tr.step[i], tr.goal_set_epoch[i] = g.timing.step, g.epoch
 
     def _on_bid(self, m: Bid) -> None:
-        """Keep the positions each robot bid from in each instance (its frozen position), so the
-        agreed assignments can be checked against the optimum on the same positions."""
+        """The positions each robot bid from in each instance, to check agreements against the optimum."""
         recs = m.records
         claims = recs[((recs["flags"] & AuctionRecord.RELEASED) == 0) & (recs["robot"] < self.n)]  # not releases
         # lists zipped in C, not a loop over records: a host's every lock-step round repeats its robots' claims
@@ -439,8 +406,7 @@ class Recorder:
         self.bid_positions.setdefault((m.epoch, m.instance), {}).update(zip(claims["robot"].tolist(), where))
 
     def _on_truth(self, m: Truth, wall: float) -> None:
-        """A tick of the world's truth: its row of the trajectory (the robots' goals and assignments
-        as last said), the tick log, the display's convergence, the scene, the live view."""
+        """A tick of the world's truth: its row, the tick log, convergence, the scene, the live view."""
         progress, world, said = self.progress, self.world, self.said
         if m.count != self.n or progress.ended_at is not None:
             return
@@ -458,13 +424,12 @@ class Recorder:
         if self.view is not None:
             self.view.truth(m, said.goal, said.radius)
         self.out.flush_now_and_then()
-        if progress.converged_since is not None and progress.ends is not None:
-            if progress.ends(progress.converged_since, m.stamp):
-                progress.ended_at = len(tr.t)  # the run ends with this tick, whenever the world hears of it
+        since, ends = progress.converged_since, progress.ends
+        if since is not None and ends is not None and ends(since, m.stamp):
+            progress.ended_at = len(tr.t)  # the run ends with this tick, whenever the world hears of it
 
     def _append_row(self, m: Truth, wall: float) -> None:
-        """What a tick records, in the trajectory and the tick log: the world's truth, and a copy of
-        what the robots said."""
+        """A tick's row in the trajectory and the tick log: the truth, and a copy of what robots said."""
         tr, said = self.traj, self.said
         row = (m.pose, m.velocity, m.color, said.goal.copy(), said.goal_index.copy())  # sim.outputs.stream.ROWS
         for name, value in zip(ROWS, row, strict=True):
@@ -487,7 +452,6 @@ class Recorder:
     def sim_time(self) -> float:
         return self.traj.t[-1] if self.traj.t else 0.0
 
-    # --- results ------------------------------------------------------------------------------
     def arrays(self) -> dict[str, np.ndarray]:
         tr, n = self.traj, self.n
         if not tr.t:
@@ -500,9 +464,7 @@ class Recorder:
         return out
 
     def _auction_arrays(self) -> dict[str, np.ndarray]:
-        """The agreed assignments as the agents announced them (per tick: goal index, and the goal set
-        and instance it belongs to), the goal sets, and the positions the robots bid from in every
-        instance somebody announced."""
+        """The agreed assignments as announced, the goal sets, and the positions bid from in each instance."""
         tr, n = self.traj, self.n
         epoch = np.stack(tr.assignment_epoch)
         instance = np.stack(tr.assignment_instance)

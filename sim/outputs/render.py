@@ -1,10 +1,5 @@
-"""What an audience would see, and the plots of a run (docs/outputs.md). Pure writers, no zenoh.
-
-:func:`render_frame` draws one top-down BGR frame with OpenCV, :func:`write_video` encodes frames as
-browser-playable H.264 MP4 with PyAV's libx264 (the pip OpenCV wheels have no H.264 encoder), and
-:func:`write_plots` draws ``clearance.png`` and ``trajectories.png`` on matplotlib's Agg canvas (no pyplot:
-no global backend state). World x right, y up; poses (x, y, theta); colours RGB uint8; ``arena`` is
-(xmin, ymin, xmax, ymax); obstacles are lists of (x, y) vertices."""
+"""What an audience would see, and the plots of a run: top-down frames (OpenCV), H.264 MP4 (PyAV's libx264: the pip
+OpenCV wheels have none) and plots (matplotlib's Agg canvas, no pyplot state). World x right, y up; colours RGB."""
 
 from __future__ import annotations
 
@@ -23,9 +18,7 @@ from av.codec.codec import UnknownCodecError
 
 @dataclass(frozen=True)
 class Recording:
-    """A run as the writers draw it: ``t`` (T,), ``pose`` (T,N,3), ``radius`` (N,) or one for all, the
-    ``arena`` and its ``obstacles``, and optionally ``goal`` (T,N,2) or (N,2) and ``color`` (T,N,3) or
-    (N,3) RGB uint8."""
+    """A run as the writers draw it; ``radius``, ``goal`` and ``color`` may be given once for all ticks."""
 
     t: np.ndarray
     pose: np.ndarray
@@ -36,8 +29,7 @@ class Recording:
     color: np.ndarray | None = None
 
     def checked(self) -> Recording:
-        """Arrays as floats, with goals and colours given once broadcast over time; arrays on disk
-        (sim.outputs.stream) stay there, read a piece at a time by the writers."""
+        """Arrays as floats, broadcast over time; arrays on disk (sim.outputs.stream) stay there."""
         t = np.asarray(self.t, dtype=float)
         pose = self.pose if _on_disk(self.pose) else np.asarray(self.pose, dtype=float)
         if pose.ndim != 3 or pose.shape[0] != len(t):
@@ -66,8 +58,7 @@ OBSTACLE_EDGE = (150, 150, 150)
 ROBOT_RIM = (85, 85, 85)
 TEXT = (210, 210, 210)
 
-# H.264 as every browser decodes it: 4:2:0 chroma, High profile; moov atom first so playback starts
-# before the whole file has downloaded.  CRF 23 is x264's own default quality.
+# H.264 as every browser decodes it (4:2:0, High profile), playable before it has all downloaded; x264's default CRF
 H264_ENCODER: Final = "libx264"  # Final: PyAV then knows add_stream makes a video stream
 H264_OPTIONS = {"crf": "23", "preset": "veryfast"}
 H264_PROFILE = "High"
@@ -78,16 +69,15 @@ _SHIFT = 4  # sub-pixel bits for cv2 drawing
 _ONE = 1 << _SHIFT
 _MARGIN = 0.03  # of the frame's size, left around the arena (at least 2 px)
 
-# robots above which discs are drawn as pixel stamps all at once (numpy), not OpenCV calls per robot:
-# discs are then a few pixels wide, where anti-aliasing and a heading tick show nothing
+# robots above which discs are stamped all at once (numpy), not drawn one by one: a few pixels wide, where
+# anti-aliasing and a heading tick show nothing
 STAMP_ABOVE = 1000
 MIN_DISC_PX = 2.0  # the narrowest disc a video draws (:func:`video_size`)
 MAX_VIDEO_PX = 4096  # H.264 level 5.1's widest frame
 
 
 def video_size(arena: Sequence[float], radius: np.ndarray | float, size_px: int = 720) -> int:
-    """``size_px``, or more (to :data:`MAX_VIDEO_PX`) until the smallest robot is a disc of
-    :data:`MIN_DISC_PX` across."""
+    """``size_px``, or more (to :data:`MAX_VIDEO_PX`) until the smallest robot is :data:`MIN_DISC_PX` across."""
     r = float(np.min(np.asarray(radius, dtype=float)))
     if not np.isfinite(r) or r <= 0:
         return size_px
@@ -106,8 +96,7 @@ def _offsets(r_px: float, ring: bool) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _stamp(img: np.ndarray, centre: np.ndarray, r_px: np.ndarray, bgr: np.ndarray, ring: bool = False) -> None:
-    """Discs of radius ``r_px`` (N,) at pixel ``centre`` (N, 2) (col, row) in colours ``bgr`` (N, 3),
-    one numpy assignment per distinct radius."""
+    """Discs of radius ``r_px`` (N,) at pixel ``centre`` (N, 2) in ``bgr`` (N, 3), an assignment per radius."""
     h, w = img.shape[:2]
     rounded = np.maximum(np.round(r_px * 2) / 2, 0.5)
     for r in np.unique(rounded).tolist():
@@ -128,8 +117,7 @@ def _draw_stamped(
     if goal is not None:
         g = np.asarray(goal, dtype=float).reshape(-1, 2)
         gok = np.isfinite(g).all(axis=1)
-        dim = np.maximum(bgr * 0.45, 55).astype(np.uint8)
-        _stamp(img, view.px(g[gok]), rpx[gok], dim[gok], ring=True)
+        _stamp(img, view.px(g[gok]), rpx[gok], _dim(bgr).astype(np.uint8)[gok], ring=True)
     ok = np.isfinite(pose[:, :2]).all(axis=1)
     _stamp(img, view.px(pose[ok, :2]), rpx[ok], bgr[ok].astype(np.uint8))
 
@@ -183,58 +171,40 @@ def _draw(
     color: np.ndarray | None,
     goal: np.ndarray | None,
 ) -> np.ndarray:
-    """The swarm on ``img``: each goal as a dim ring, each robot as a disc in its LED colour with a
-    heading tick, and the display time in the corner; above :data:`STAMP_ABOVE` robots as stamps."""
+    """The swarm on ``img`` in its LED colours (None: white), and the display time in the top-left corner."""
     n = len(pose)
-    bgr = _led_bgr(color, n)
-    if n > STAMP_ABOVE:
-        _draw_stamped(img, view, pose, radius, bgr, goal)
-    else:
-        rpx = radius * view.scale
-        r_fx = np.maximum(np.round(rpx * _ONE), _ONE).astype(np.int64)  # fixed-point radii, at least a pixel
-        if goal is not None:
-            _draw_goal_rings(img, view, goal, bgr, r_fx)
-        _draw_robot_discs(img, view, pose, radius, bgr, rpx, r_fx)
+    bgr = np.full((n, 3), 230, np.int64) if color is None else np.asarray(color).reshape(n, 3)[:, ::-1].astype(np.int64)
+    (_draw_stamped if n > STAMP_ABOVE else _draw_discs)(img, view, pose, radius, bgr, goal)
     if time_s is not None and np.isfinite(time_s):
-        _draw_display_time(img, view, time_s)
+        fs = max(0.35, view.height / 1300)
+        label = f"t = {time_s:7.2f} s"
+        (tw, th), base = cv2.getTextSize(label, cv2.FONT_HERSHEY_SIMPLEX, fs, 1)
+        x0, y0 = 4, 4 + th
+        cv2.rectangle(img, (x0 - 2, y0 - th - 3), (x0 + tw + 2, y0 + base), BACKGROUND, -1)  # on background
+        cv2.putText(img, label, (x0, y0), cv2.FONT_HERSHEY_SIMPLEX, fs, TEXT, 1, cv2.LINE_AA)
     return img
 
 
-def _led_bgr(color: np.ndarray | None, n: int) -> np.ndarray:
-    """The robots' LED colours (RGB, None: white) as OpenCV's BGR, (N, 3) int64."""
-    if color is None:
-        return np.full((n, 3), 230, dtype=np.int64)
-    return np.asarray(color).reshape(n, 3)[:, ::-1].astype(np.int64)
+def _dim(bgr: np.ndarray) -> np.ndarray:
+    """A goal's dim shade of its robot's colour."""
+    return np.maximum(bgr * 0.45, 55)
 
 
-def _draw_goal_rings(img: np.ndarray, view: _View, goal: np.ndarray, bgr: np.ndarray, r_fx: np.ndarray) -> None:
-    """Each robot's goal (NaN: none) as a one-pixel ring of its size, in a dim shade of its colour."""
-    g = np.asarray(goal, dtype=float).reshape(len(bgr), 2)
+def _draw_discs(
+    img: np.ndarray, view: _View, pose: np.ndarray, radius: np.ndarray, bgr: np.ndarray, goal: np.ndarray | None
+) -> None:
+    """Each goal (NaN: none) as a dim one-pixel ring of its robot's size; each placed robot as a disc with a
+    rim and, where its heading is known, a tick toward its front (dark on a light disc, light on a dark one)."""
+    rpx = radius * view.scale
+    r_fx = np.maximum(np.round(rpx * _ONE), _ONE).astype(np.int64)  # fixed-point radii, at least a pixel
+    g = np.full((len(bgr), 2), np.nan) if goal is None else np.asarray(goal, dtype=float).reshape(len(bgr), 2)
     gok = np.isfinite(g).all(axis=1)
-    if not gok.any():
-        return
-    gfx = view.fixed(np.where(gok[:, None], g, 0.0))
-    gcol = np.maximum(bgr * 0.45, 55).astype(np.int64)
+    gfx, gcol = view.fixed(np.where(gok[:, None], g, 0.0)), _dim(bgr).astype(np.int64)
     for i in np.flatnonzero(gok).tolist():
         centre = (int(gfx[i, 0]), int(gfx[i, 1]))
         cv2.circle(img, centre, int(r_fx[i]), tuple(int(c) for c in gcol[i]), 1, cv2.LINE_AA, _SHIFT)
-
-
-def _draw_robot_discs(
-    img: np.ndarray,
-    view: _View,
-    pose: np.ndarray,
-    radius: np.ndarray,
-    bgr: np.ndarray,
-    rpx: np.ndarray,
-    r_fx: np.ndarray,
-) -> None:
-    """Each placed robot as a disc with a rim, and where its heading is known a tick from its centre
-    toward its front (dark on a light disc, light on a dark one)."""
     xy = pose[:, :2]
     ok = np.isfinite(xy).all(axis=1)
-    if not ok.any():
-        return
     has_th = np.isfinite(pose[:, 2])
     th = np.where(has_th, pose[:, 2], 0.0)
     xy0 = np.where(ok[:, None], xy, 0.0)
@@ -244,23 +214,12 @@ def _draw_robot_discs(
     tick_thick = np.clip(np.round(rpx * 0.18), 1, 4).astype(int)
     cl, tl, rl, bl = c.tolist(), tip.tolist(), r_fx.tolist(), bgr.tolist()
     for i in np.flatnonzero(ok).tolist():
-        centre = (cl[i][0], cl[i][1])
-        col = tuple(bl[i])
-        cv2.circle(img, centre, rl[i], col, -1, cv2.LINE_AA, _SHIFT)
+        centre = tuple(cl[i])
+        cv2.circle(img, centre, rl[i], tuple(bl[i]), -1, cv2.LINE_AA, _SHIFT)
         cv2.circle(img, centre, rl[i], ROBOT_RIM, 1, cv2.LINE_AA, _SHIFT)
         if has_th[i]:
             tick = (20, 20, 20) if lum[i] > 110 else (200, 200, 200)
-            cv2.line(img, centre, (tl[i][0], tl[i][1]), tick, int(tick_thick[i]), cv2.LINE_AA, _SHIFT)
-
-
-def _draw_display_time(img: np.ndarray, view: _View, time_s: float) -> None:
-    """``t = ... s`` in the top-left corner, on a patch of background."""
-    fs = max(0.35, view.height / 1300)
-    label = f"t = {time_s:7.2f} s"
-    (tw, th_), base = cv2.getTextSize(label, cv2.FONT_HERSHEY_SIMPLEX, fs, 1)
-    x0, y0 = 4, 4 + th_
-    cv2.rectangle(img, (x0 - 2, y0 - th_ - 3), (x0 + tw + 2, y0 + base), BACKGROUND, -1)
-    cv2.putText(img, label, (x0, y0), cv2.FONT_HERSHEY_SIMPLEX, fs, TEXT, 1, cv2.LINE_AA)
+            cv2.line(img, centre, tuple(tl[i]), tick, int(tick_thick[i]), cv2.LINE_AA, _SHIFT)
 
 
 def render_frame(
@@ -273,20 +232,16 @@ def render_frame(
     goal: np.ndarray | None = None,
     size_px: int = 720,
 ) -> np.ndarray:
-    """One frame (H, W, 3) uint8 BGR.  ``pose`` (N,3), ``radius`` (N,) or scalar, ``color`` (N,3)
-    RGB uint8 (None: white), ``goal`` (N,2) with NaN = none.  The longer arena side spans
-    ``size_px`` pixels including a small margin; both sides are even."""
+    """One BGR frame whose longer arena side spans ``size_px`` pixels with a margin (``color`` None: white)."""
     pose = np.asarray(pose, dtype=float).reshape(-1, 3)
-    n = len(pose)
-    radius = np.broadcast_to(np.asarray(radius, dtype=float), (n,))
+    radius = np.broadcast_to(np.asarray(radius, dtype=float), (len(pose),))
     view = _View(arena, size_px)
     return _draw(view.background(obstacles), view, time_s, pose, radius, color, goal)
 
 
 def frame_indices(t: np.ndarray, fps: float, speed: float | None = 1.0, max_frames: int = 3000) -> np.ndarray:
-    """Sample indices shown by :func:`write_video`: the latest sample at or before each frame time
-    ``t[0] + k * speed / fps`` (the video plays at ``speed`` x real time), or with ``speed=None`` every
-    sample; more than ``max_frames`` (0: no limit) are subsampled evenly to it (the video plays faster)."""
+    """The samples :func:`write_video` shows: the latest at each frame time at ``speed`` x real time (None: every
+    sample), subsampled evenly to at most ``max_frames`` (0: no limit)."""
     t = np.asarray(t, dtype=float)
     T = len(t)
     if T == 0:
@@ -309,9 +264,8 @@ HOLD_S = 3.0  # s of video that show the final picture at least: a run ends conv
 
 
 def held_frames(t: np.ndarray, formed_at: float | None, fps: float = 10, speed: float = 1.0) -> np.ndarray:
-    """:func:`frame_indices` at ``speed`` (real time by default), then the last sample repeated until
-    the frames from ``formed_at`` (the time the final picture formed; None: the last sample) on last
-    :data:`HOLD_S` seconds of video, so whatever ended the run, an audience sees its end picture."""
+    """:func:`frame_indices`, then the last sample repeated until the final picture (formed at ``formed_at``;
+    None: the last sample) shows for :data:`HOLD_S` seconds of video."""
     idx = frame_indices(t, fps, speed, max_frames=0)
     if not len(idx):
         return idx
@@ -332,9 +286,8 @@ def write_video(
     max_frames: int = 3000,
     fourcc: str | None = None,
 ) -> int:
-    """Write the top-down video of the :func:`frame_indices` samples; returns how many frames it wrote.
-    H.264 (PyAV), or with a ``fourcc`` (e.g. 'mp4v') OpenCV's VideoWriter in that codec. RuntimeError
-    if the encoder cannot be opened or fails; then no file is left at ``path``."""
+    """Write the video of the :func:`frame_indices` samples (H.264, or OpenCV's ``fourcc``); returns its frame
+    count. RuntimeError if the encoder fails; then no file is left at ``path``."""
     path = Path(path)
     rec = recording.checked()
     idx = frame_indices(rec.t, fps, speed, max_frames)
@@ -389,16 +342,14 @@ def _encode_opencv(path: Path, frames: Iterable[np.ndarray], fps: float, width: 
         raise RuntimeError(f"OpenCV wrote no video data to {path}")
 
 
-# --- Plots ----------------------------------------------------------------------------------------
-
-
-def _figure(w_in: float, h_in: float):
+def _figure(w_in: float, h_in: float) -> tuple[Any, Any]:
+    """A figure on its own Agg canvas, and its one axes."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(w_in, h_in), dpi=PLOT_DPI)
     FigureCanvasAgg(fig)
-    return fig
+    return fig, fig.add_subplot(1, 1, 1)
 
 
 def _robot_colours(n: int, color: np.ndarray | None) -> np.ndarray:
@@ -411,9 +362,8 @@ def _robot_colours(n: int, color: np.ndarray | None) -> np.ndarray:
         return base
     rgb = np.asarray(color, dtype=float).reshape(n, 3) / 255.0
     bright = rgb.max(axis=1) > 0.25
-    out = base.copy()
-    out[bright, :3] = rgb[bright]
-    return out
+    base[bright, :3] = rgb[bright]
+    return base
 
 
 PLOT_POINTS = 1_000_000  # points of all robots' paths in trajectories.png together
@@ -422,10 +372,8 @@ PLOT_DPI = 120
 
 
 def write_plots(out_dir: str | os.PathLike, recording: Recording, clearance: np.ndarray) -> dict[str, Path]:
-    """Write ``clearance.png`` (minimum pairwise clearance over time, zero line = contact) and
-    ``trajectories.png`` (every robot's path in the arena, start ○ and end ●, last goals ×), paths
-    coloured by the final LED colours (dark ones fall back to a colormap).  Returns
-    ``{"clearance": path, "trajectories": path}``."""
+    """Write ``clearance.png`` (minimum clearance over time) and ``trajectories.png`` (every robot's path in its
+    final LED colour, start, end and last goal); returns their paths by name."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     rec = recording.checked()
@@ -437,8 +385,7 @@ def write_plots(out_dir: str | os.PathLike, recording: Recording, clearance: np.
 
 def _plot_clearance(path: Path, rec: Recording, clearance: np.ndarray) -> None:
     t, N = rec.t, rec.pose.shape[1]
-    fig = _figure(8, 3.6)
-    ax = fig.add_subplot(1, 1, 1)
+    fig, ax = _figure(8, 3.6)
     fin = np.isfinite(clearance)
     if fin.any():
         ax.plot(t, np.where(fin, clearance, np.nan), color="#1f77b4", lw=1.2, label="minimum clearance")
@@ -471,8 +418,7 @@ def _plot_trajectories(path: Path, rec: Recording) -> None:
     T, N = pose.shape[:2]
     xmin, ymin, xmax, ymax = (float(v) for v in rec.arena)
     aspect = (ymax - ymin) / (xmax - xmin)
-    fig = _figure(7.5, max(3.0, min(12.0, 7.0 * aspect + 0.8)))
-    ax = fig.add_subplot(1, 1, 1)
+    fig, ax = _figure(7.5, max(3.0, min(12.0, 7.0 * aspect + 0.8)))
     ax.add_patch(Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, fill=False, ec="0.3", lw=1.0))
     for poly in obstacles or []:
         ax.add_patch(Polygon(np.asarray(poly, dtype=float), closed=True, fc="0.65", ec="0.4", lw=0.8, zorder=1))
@@ -495,19 +441,16 @@ def _plot_trajectories(path: Path, rec: Recording) -> None:
         last = _last_goals(rec.goal, T, N)
         if np.isfinite(last).any():
             ax.scatter(last[:, 0], last[:, 1], s=ms, marker="x", c="0.35", lw=0.8, zorder=3, label="goal")
-    ax.set_xlim(xmin - 0.02 * (xmax - xmin), xmax + 0.02 * (xmax - xmin))
-    ax.set_ylim(ymin - 0.02 * (ymax - ymin), ymax + 0.02 * (ymax - ymin))
-    ax.set_aspect("equal")
-    dur = float(t[-1] - t[0]) if len(t) else 0.0
-    ax.set(xlabel="x [m]", ylabel="y [m]", title=f"Trajectories, N = {N}, {dur:.1f} s")
+    dx, dy, dur = 0.02 * (xmax - xmin), 0.02 * (ymax - ymin), float(t[-1] - t[0]) if len(t) else 0.0
+    ax.set(xlim=(xmin - dx, xmax + dx), ylim=(ymin - dy, ymax + dy), aspect="equal", xlabel="x [m]", ylabel="y [m]")
+    ax.set_title(f"Trajectories, N = {N}, {dur:.1f} s")
     ax.legend(loc="upper right", fontsize=8, markerscale=1.0)
     fig.tight_layout()
     fig.savefig(path, format="png")
 
 
 def _last_goals(goal: Any, T: int, N: int) -> np.ndarray:
-    """(N, 2) each robot's goal at its last sample with one (NaN: never one), from ``goal`` (T, N, 2)
-    read about a million values at a time."""
+    """(N, 2) each robot's last goal (NaN: none), ``goal`` (T, N, 2) read a million values at a time."""
     last = np.full((N, 2), np.nan)
     ticks = max(1, (1 << 20) // max(N, 1))
     for first in range(0, T, ticks):

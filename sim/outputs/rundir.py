@@ -1,12 +1,4 @@
-"""Atomic run directories and the small file writers that fill them.
-
-A run directory is written into a sibling ``<name>.partial/`` directory and renamed to its final
-name only by :meth:`RunDir.commit`, so a directory with the final name is always complete.  On an
-error or :meth:`RunDir.abort` the partial directory is removed.  A process that is killed outright
-(SIGKILL) leaves a ``*.partial`` directory behind, which by its name is marked incomplete.
-
-No zenoh here: these are pure writers that the recorder calls.
-"""
+"""Atomic run directories (written as ``<name>.partial/``, renamed when complete) and the writers that fill them."""
 
 from __future__ import annotations
 
@@ -31,25 +23,19 @@ import numpy as np
 PARTIAL_SUFFIX = ".partial"
 
 
-# --- JSON-safe conversion (shared with sim.outputs.mcaplog) ---------------------------------------
-
-
 def _float_or_none(x: float) -> float | None:
     return x if math.isfinite(x) else None
 
 
 def _array_safe(a: np.ndarray) -> Any:
-    if a.dtype.kind == "f":
-        finite = np.isfinite(a)
-        if finite.all():
-            return a.tolist()
+    if a.dtype.kind == "f" and not (finite := np.isfinite(a)).all():
         obj = a.astype(object)
         obj[~finite] = None
         return obj.tolist()
+    if a.dtype.kind in "biuf":
+        return a.tolist()
     if a.dtype.kind == "c":
         return json_safe(np.stack([a.real, a.imag], axis=-1))
-    if a.dtype.kind in "biu":
-        return a.tolist()
     if a.dtype.kind in "US":
         return a.astype(str).tolist()
     # object or other dtypes: convert element by element
@@ -57,12 +43,8 @@ def _array_safe(a: np.ndarray) -> Any:
 
 
 def json_safe(obj: Any) -> Any:
-    """Return a structure that ``json.dumps(..., allow_nan=False)`` accepts.
-
-    numpy scalars and arrays become Python numbers and (nested) lists; NaN and +/-inf become
-    ``None`` (JSON ``null``); tuples and sets become lists; dict keys become strings; paths become
-    strings; enums their value; bytes are decoded as UTF-8 (with replacement).
-    """
+    """A structure ``json.dumps(..., allow_nan=False)`` accepts: numpy values as Python's (NaN, inf: None), sets
+    as lists, keys and paths as strings, enums as their value, bytes decoded as UTF-8."""
     if obj is None or isinstance(obj, (bool, str, int)):
         return obj
     if isinstance(obj, float):
@@ -122,16 +104,13 @@ def write_json(path: str | os.PathLike, obj: Any, *, indent: int = 2) -> Path:
 
 
 def write_npz(path: str | os.PathLike, **arrays: Any) -> Path:
-    """Write arrays to a compressed ``.npz`` file exactly at ``path`` (no suffix appended),
-    atomically; object arrays are refused (ValueError) so the file loads without ``allow_pickle``."""
+    """Write arrays to a compressed ``.npz`` exactly at ``path``, atomically; object arrays are refused."""
     return write_npz_streamed(path, arrays.items())
 
 
 def write_npz_streamed(path: str | os.PathLike, arrays: Iterable[tuple[str, Any]]) -> Path:
-    """As :func:`write_npz`, with the arrays taken one at a time from ``arrays``, so a
-    generator can make each (e.g. a float32 copy) only while it is written (zlib's level 6). A
-    value with a ``write(file)`` method writes its own .npy member (e.g. a piece at a time)."""
-    path = Path(path)
+    """As :func:`write_npz`, the arrays taken one at a time (a generator makes each only while it is written);
+    a value with a ``write(file)`` method writes its own .npy member."""
 
     def _w(fh: io.BufferedWriter) -> None:
         with zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED, allowZip64=True, compresslevel=6) as z:
@@ -142,32 +121,22 @@ def write_npz_streamed(path: str | os.PathLike, arrays: Iterable[tuple[str, Any]
                     else:
                         np.lib.format.write_array(member, np.asarray(value), allow_pickle=False)
 
-    atomic_write(path, _w)
-    return path
+    atomic_write(Path(path), _w)
+    return Path(path)
 
-
-# --- Run paths ------------------------------------------------------------------------------------
 
 _issued_lock = threading.Lock()
 _issued: set[Path] = set()
 
 
-def _slug(name: str) -> str:
-    s = re.sub(r"[^A-Za-z0-9._-]+", "-", str(name)).strip("-.")
-    return s or "run"
-
-
 def default_run_path(scene_name: str, *, root: str | os.PathLike = "runs", now: _dt.datetime | None = None) -> Path:
-    """``<root>/<UTC timestamp>-<scene>``, e.g. ``runs/20250131T142501Z-circle``.
-
-    Unique: if the name is already taken (final or ``.partial`` directory on disk, or handed out
-    earlier in this process) a suffix ``-2``, ``-3``, ... is appended.  The directory is not created.
-    """
+    """``<root>/<UTC timestamp>-<scene>``, not created; made unique (``-2``, ``-3``, ...) against the final and
+    ``.partial`` directories on disk and those handed out earlier in this process."""
     now = now or _dt.datetime.now(_dt.UTC)
     if now.tzinfo is not None:
         now = now.astimezone(_dt.UTC)
-    stamp = now.strftime("%Y%m%dT%H%M%SZ")
-    base = f"{stamp}-{_slug(scene_name)}"
+    slug = re.sub(r"[^A-Za-z0-9._-]+", "-", str(scene_name)).strip("-.") or "run"
+    base = f"{now.strftime('%Y%m%dT%H%M%SZ')}-{slug}"
     root = Path(root)
     with _issued_lock:
         k = 1
@@ -181,20 +150,9 @@ def default_run_path(scene_name: str, *, root: str | os.PathLike = "runs", now: 
             k += 1
 
 
-# --- RunDir ---------------------------------------------------------------------------------------
-
-
 class RunDir:
-    """An output directory that appears under its final name only when complete.
-
-    >>> with RunDir(default_run_path("circle")) as rd:      # doctest: +SKIP
-    ...     write_json(rd / "metrics.json", {...})
-    ...     # leaving the block normally commits; an exception aborts
-
-    ``rd.path`` (and ``rd / name``) point into the partial directory while the run is open, and
-    at the final directory after :meth:`commit`.  Creating a RunDir whose final or partial
-    directory already exists raises ``FileExistsError`` (a stale ``*.partial`` is never reused).
-    """
+    """An output directory that appears under its final name only when complete: leaving a ``with`` block
+    commits it, an exception aborts it. FileExistsError if its final or partial directory exists."""
 
     def __init__(self, final_path: str | os.PathLike):
         self.final_path = Path(final_path)
@@ -208,17 +166,12 @@ class RunDir:
             raise FileExistsError(
                 f"partial run directory already exists (another run, or a killed one: remove it): {self.partial_path}"
             ) from None
-        self._state = "open"  # open | committed | aborted
-
-    # -- state -----------------------------------------------------------------------------
-    @property
-    def state(self) -> str:
-        return self._state
+        self.state = "open"  # open | committed | aborted
 
     @property
     def path(self) -> Path:
         """Where to write: the partial directory while open, the final one after commit."""
-        return self.final_path if self._state == "committed" else self.partial_path
+        return self.final_path if self.state == "committed" else self.partial_path
 
     def __truediv__(self, name: str | os.PathLike) -> Path:
         return self.path / name
@@ -227,38 +180,36 @@ class RunDir:
         return str(self.path)
 
     def __repr__(self) -> str:
-        return f"RunDir({str(self.final_path)!r}, state={self._state})"
+        return f"RunDir({str(self.final_path)!r}, state={self.state})"
 
-    # -- transitions -------------------------------------------------------------------------
     def commit(self) -> Path:
         """Rename ``<name>.partial`` to ``<name>``. Returns the final path."""
-        if self._state == "committed":
+        if self.state == "committed":
             return self.final_path
-        if self._state != "open":
-            raise RuntimeError(f"cannot commit a run directory that was {self._state}")
+        if self.state != "open":
+            raise RuntimeError(f"cannot commit a run directory that was {self.state}")
         if self.final_path.exists():
             raise FileExistsError(f"run directory appeared meanwhile: {self.final_path}")
         _fsync_dir(self.partial_path)
         os.rename(self.partial_path, self.final_path)
         _fsync_dir(self.final_path.parent)
-        self._state = "committed"
+        self.state = "committed"
         return self.final_path
 
     def abort(self) -> None:
         """Remove the partial directory (no-op if already committed or aborted)."""
-        if self._state != "open":
+        if self.state != "open":
             return
-        self._state = "aborted"
+        self.state = "aborted"
         shutil.rmtree(self.partial_path, ignore_errors=True)
 
-    # -- context manager ---------------------------------------------------------------------
     def __enter__(self) -> RunDir:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
         if exc_type is not None:
             self.abort()
-        elif self._state == "open":
+        elif self.state == "open":
             try:
                 self.commit()
             except BaseException:

@@ -1,11 +1,5 @@
-"""The central engine's recording, tick by tick: held in memory, or streamed to disk in chunks of ticks.
-
-A large swarm's per-tick rows would not fit a run's memory bound (peak RSS at most 4 GB). Streamed, each
-array's rows go a chunk of ticks at a time to a raw file in the run's partial directory (:data:`SCRATCH`,
-removed before the run directory is committed), in the types :data:`FLOAT32_FROM` sets. A thread of its own
-writes a chunk while the engine fills the next. The writers read the files back through :class:`OnDisk`, a
-piece at a time.
-"""
+"""The central engine's recording, tick by tick: held in memory, or (a large swarm, to stay within the memory
+bound) streamed a chunk of ticks at a time to raw files in :data:`SCRATCH`, read back through :class:`OnDisk`."""
 
 from __future__ import annotations
 
@@ -16,8 +10,7 @@ from typing import Any
 
 import numpy as np
 
-# robots from which streamed per-tick floats are recorded, and trajectory.npz keeps them, as float32 (positions
-# to about 4 um at 60 m); below, float64 as the engines compute them, for the tests comparing engines to the bit
+# robots from which streamed per-tick floats are float32 (to 4 um at 60 m); below, float64 as the engines compute them
 FLOAT32_FROM = 3000
 PER_TICK = ("pose", "velocity", "goal")  # (T, N, ...) float arrays
 SCRATCH = ".ticks"  # in a partial run directory: the streamed recording's raw files
@@ -34,9 +27,8 @@ ROWS: dict[str, tuple[tuple[int, ...], Any]] = {
 
 
 class OnDisk:
-    """A (T, N, ...) array in a raw file, read a piece at a time: each index maps the file only while
-    it copies the piece out, so the file's pages do not stay in the process's memory. Indexed as a
-    numpy array (ticks first); ``np.asarray`` reads all of it."""
+    """A (T, N, ...) array in a raw file, indexed as numpy's: the file is mapped only while a piece is copied out,
+    so its pages do not stay in memory."""
 
     def __init__(self, path: Path, dtype: Any, shape: tuple[int, ...]) -> None:
         self.path, self.dtype, self.shape = Path(path), np.dtype(dtype), shape
@@ -59,9 +51,8 @@ class OnDisk:
 
 
 class TickRecorder:
-    """The recorded ticks' rows, taken a tick at a time (:meth:`record`): t, pose, velocity, color,
-    goal, assignment and step. ``directory``: stream them to raw files there (created); None: hold
-    them in arrays sized for ``ticks`` ticks."""
+    """The recorded ticks' rows: streamed to raw files in ``directory`` (created), a thread writing a chunk while
+    the next fills, or (None) held in arrays for ``ticks`` ticks."""
 
     def __init__(self, ticks: int, robots: int, directory: Path | None = None) -> None:
         self.robots, self.directory = robots, directory
@@ -86,8 +77,7 @@ class TickRecorder:
         return self.directory / f"{name}.raw"
 
     def record(self, tick: int, t: float, step: int, rows: tuple[np.ndarray, ...]) -> dict[str, np.ndarray]:
-        """Records a tick (ticks come in order from 0): its time, image step and rows in the order of
-        :data:`ROWS`. Returns its rows as recorded (e.g. colours as uint8)."""
+        """Records a tick (in order from 0), its rows in the order of :data:`ROWS`; returns them as recorded."""
         if self.directory is not None and self.filled == len(self.rows["pose"]):
             self._append()
         self.t[tick], self.step[tick] = t, step
@@ -118,8 +108,7 @@ class TickRecorder:
             pending.result()  # a write that failed fails the run here
 
     def arrays(self, ticks: int) -> dict[str, Any]:
-        """The first ``ticks`` ticks recorded (a converged run ends early), by name: numpy arrays, or
-        :class:`OnDisk` ones when streamed."""
+        """The first ``ticks`` ticks recorded by name: numpy arrays, or :class:`OnDisk` ones when streamed."""
         out: dict[str, Any] = {"t": self.t[:ticks]}
         if self.directory is None:
             out |= {name: held[:ticks] for name, held in self.rows.items()}

@@ -1,10 +1,5 @@
-"""The trajectory as it is recorded: one fixed-size record a tick, appended to a file as it arrives.
-
-A run whose launcher is killed outright (SIGKILL) never writes ``trajectory.npz``, so the recorder also
-appends every tick here with an unbuffered write; :func:`read_ticks` reads every whole record, and so the
-ticks up to the kill, of a partial run directory. The file is one JSON header line (its format and the robot
-count) and then the records.
-"""
+"""The trajectory as it is recorded, a fixed-size record a tick after a JSON header line: a launcher killed
+outright never writes ``trajectory.npz``, and :func:`read_ticks` reads the ticks up to the kill."""
 
 from __future__ import annotations
 
@@ -21,8 +16,7 @@ FORMAT = "pixelswarm-ticks/1"
 
 
 def tick_dtype(robots: int) -> np.dtype:
-    """One tick of a display of ``robots`` robots: its time, wall time and the recorded rows
-    (sim.outputs.stream.ROWS), by the same names as trajectory.npz's arrays."""
+    """One tick's record: its time, wall time and rows (sim.outputs.stream.ROWS), named as in trajectory.npz."""
     rows = [(name, kind, (robots, *shape)) for name, (shape, kind) in ROWS.items()]
     return np.dtype([("t", "<f8"), ("wall", "<f8"), *rows])
 
@@ -54,9 +48,7 @@ class TickLog:
 
 
 def read_ticks(path: str | os.PathLike) -> dict[str, np.ndarray]:
-    """Every whole tick of a tick file, as trajectory.npz's arrays (``t``, ``pose``, ...); a torn
-    last record (the writer was killed in the middle of it) is left out. ValueError if the file is
-    not a tick file."""
+    """Every whole tick of a tick file as trajectory.npz's arrays (a torn last one left out); ValueError if not one."""
     data = Path(path).read_bytes()
     line, sep, body = data.partition(b"\n")
     try:

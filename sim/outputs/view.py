@@ -1,18 +1,11 @@
-"""The live view of a swarm, and the replay of a finished run, in Rerun's viewer (``pixelswarm[view]``).
-
-:class:`SwarmView` logs all robots as one entity, whatever the swarm's size: ``arena`` and ``obstacles``
-(static), ``swarm/robots`` (discs in LED colours; goal, at-goal and missed ticks on hover), ``swarm/heading``,
-``swarm/goals`` (faint), ``swarm/trails``, and the time series ``metrics/clearance`` and ``metrics/at_goal``,
-on the timelines ``tick`` (control step) and ``time`` (display time, s). The run hands each tick over and a
-thread of the view's own logs them in batches (docs/cli.md, ``--view``). The recording keeps the arena's
-frame, y up. ``sink``: ``"native"`` (Rerun's viewer on this machine; its window outlives the run), ``"web"``
-(Rerun's web viewer, :attr:`SwarmView.url`, until :meth:`close`) or an ``.rrd`` file's path. Every server
-listens on 127.0.0.1 only.
-"""
+"""The live view of a swarm, and the replay of a finished run, in Rerun's viewer (``pixelswarm[view]``): all
+robots as one entity whatever the swarm's size, logged in batches on a thread of the view's own (docs/cli.md,
+``--view``), to Rerun's native or web viewer (on 127.0.0.1 only) or an ``.rrd`` file."""
 
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import queue
 import subprocess
@@ -70,8 +63,7 @@ def _rerun() -> Any:
 
 
 def _viewer() -> list[str]:
-    """Rerun's viewer binary, as rerun-sdk ships it (run directly: a process of ours to stop by its id,
-    not a wrapper whose child would outlive it)."""
+    """Rerun's viewer binary from rerun-sdk's wheel (run directly: a wrapper's child would outlive it)."""
     _rerun()  # rerun_cli comes in rerun-sdk's wheel
     import rerun_cli
 
@@ -93,8 +85,8 @@ def _wait_listening(port: int, proc: subprocess.Popen, timeout: float = START_TI
 
 
 class _TickHandover:
-    """The ticks the run hands over (copies), logged by ``log`` on a thread of the view's own a batch
-    at a time: the run goes on (a full queue makes it wait: no tick is dropped)."""
+    """The ticks the run hands over, logged by ``log`` a batch at a time on a thread of their own (a full
+    queue makes the run wait: no tick is dropped)."""
 
     def __init__(self, log: Callable[[list[tuple[Any, ...]]], None]) -> None:
         self._log = log
@@ -108,25 +100,18 @@ class _TickHandover:
         self._queue.put(item)
 
     def _drain(self) -> None:
-        """Log the ticks handed over, a batch at a time: those within FLUSH_PERIOD of the batch's first, or
-        FAST_FLUSH_PERIOD after a batch of many. The thread sleeps while they gather rather than wait on the
-        queue, which would wake it, and take the GIL from the run, at every tick. A failure to log is said
-        once and the view stops; the run goes on."""
+        """Log batches of the ticks within FLUSH_PERIOD (FAST_FLUSH_PERIOD after a large batch), sleeping while
+        they gather (waking at each tick would take the GIL from the run). A failure stops the view, not the run."""
         done, period = False, FLUSH_PERIOD
         while not done:
-            first = self._queue.get()
-            batch = [] if first is None else [first]
-            done = first is None
-            if not done and self._queue.qsize() < MAX_BATCH:
+            items = [self._queue.get()]  # None: close
+            if items[0] is not None and self._queue.qsize() < MAX_BATCH:
                 self._hurry.wait(period)
-            while not done and len(batch) < MAX_BATCH:
-                try:
-                    item = self._queue.get_nowait()
-                except queue.Empty:
-                    break
-                done = item is None
-                if item is not None:
-                    batch.append(item)
+            with contextlib.suppress(queue.Empty):
+                while items[-1] is not None and len(items) < MAX_BATCH:
+                    items.append(self._queue.get_nowait())
+            done = items[-1] is None
+            batch = [item for item in items if item is not None]
             period = FLUSH_PERIOD if len(batch) <= SLOW_BATCH else FAST_FLUSH_PERIOD
             try:
                 if batch and self.failure is None:
@@ -135,7 +120,7 @@ class _TickHandover:
                 self.failure = f"{type(err).__name__}: {err}"
                 print(f"pixelswarm: the view stopped logging: {self.failure}", file=sys.stderr, flush=True)
             finally:
-                for _ in range(len(batch) + done):
+                for _ in items:
                     self._queue.task_done()
 
     def flush(self) -> None:
@@ -152,8 +137,7 @@ class _TickHandover:
 
 
 class _Trails:
-    """Each robot's trail: its positions of every TRAIL_EVERY-th tick, the last TRAIL of them, logged
-    as faint dots in its colour."""
+    """Each robot's trail: its last TRAIL positions of every TRAIL_EVERY-th tick, as faint dots in its colour."""
 
     def __init__(self) -> None:
         self._points: deque[np.ndarray] = deque(maxlen=TRAIL)
@@ -167,8 +151,7 @@ class _Trails:
         self._points.extend(xy[i].copy() for i in steps[-TRAIL:])
 
     def log(self, rr: Any, rec: Any, rgb: Any, dots: bool | None) -> None:
-        """The trails as faint dots in one flat batch (far cheaper to log than a strip per robot); their
-        colours made again only when the robots' changed."""
+        """The trails as one flat batch of dots (far cheaper than a strip per robot)."""
         if self._rgb is None or len(self._rgb) != len(self._points) * len(rgb) or self._rgb_of is not rgb:
             faint = np.column_stack([rgb, np.full(len(rgb), TRAIL_ALPHA, np.uint8)])
             self._rgb, self._rgb_of = np.tile(faint, (len(self._points), 1)), rgb
@@ -191,8 +174,7 @@ class SwarmView:
         sink: str | os.PathLike = "native",
         tolerance: float = 0.02,
     ) -> None:
-        rr = _rerun()
-        self._rr = rr
+        self._rr = rr = _rerun()
         self.radius = np.broadcast_to(np.asarray(radius, dtype=float), (robots,)).copy()
         self.tolerance = tolerance
         self.url: str | None = None
@@ -214,7 +196,6 @@ class SwarmView:
             self.rec.save(str(sink), default_blueprint=_layout())
         self._static(arena, obstacles)
 
-    # -- where it goes -----------------------------------------------------------------------
     def _serve(self, web: bool) -> None:
         """Rerun's viewer (its own process) listening on 127.0.0.1; this recording streams to it."""
         grpc = free_port(LOOPBACK)
@@ -240,8 +221,7 @@ class SwarmView:
     ) -> None:
         """The arena's outline (None: not known, as to a viewer on the bus) and the obstacles."""
         rr = self._rr
-        # Rerun's 2D views point y down (its issue 1387): mirrored for display, so the picture stands
-        # upright while the data keep the arena's frame (y up), as trajectory.npz has them
+        # Rerun's 2D views point y down: mirrored, so the picture stands upright and the data keep y up
         for entity in DISPLAY:
             self.rec.log(entity, rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
         nose = float(np.nanmax(self.radius, initial=0.0)) * NOSE_DOT
@@ -256,10 +236,8 @@ class SwarmView:
             loops = [[*map(list, o), list(o[0])] for o in obstacles]
             self.rec.log("obstacles", rr.LineStrips2D(loops, colors=[(120, 120, 120)]), static=True)
 
-    # -- a tick --------------------------------------------------------------------------------
     def truth(self, m: Truth, goal: np.ndarray, radius: np.ndarray) -> None:
-        """:meth:`tick` of the world's truth, with the goals and sizes the robots' states said; missed: the
-        ticks so far the world applied no command of the robot's."""
+        """:meth:`tick` of the world's truth, with the goals and sizes the robots' states said."""
         missed = np.maximum(0, m.tick - m.applied.astype(np.int64)) if len(m.applied) == m.count else None
         self.tick(m.tick, m.stamp, m.pose, m.color, goal, radius=radius, missed=missed)
 
@@ -274,9 +252,8 @@ class SwarmView:
         radius: np.ndarray | None = None,
         missed: np.ndarray | None = None,
     ) -> None:
-        """The swarm at one tick: ``pose`` (N,3), ``color`` (N,3) uint8, ``goal`` (N,2) NaN = none,
-        ``missed`` (N,) ticks each robot has missed so far (distributed engine). Copied (in float32, as
-        Rerun keeps positions) and logged on the view's thread."""
+        """The swarm at one tick (``goal`` NaN: none; ``missed``: ticks each robot missed so far), copied in
+        float32 (as Rerun keeps positions) and logged on the view's thread."""
         if self._handover.failure is not None:
             return
         copy = (
@@ -291,24 +268,20 @@ class SwarmView:
         self._handover.put(copy)
 
     def _log(self, batch: list[tuple[Any, ...]]) -> None:
-        """Every tick's robot positions and headings, as columns (one call an entity a batch: Rerun's
-        cost is per call, not per robot); colours and sizes at the ticks they changed (Rerun shows each
-        component's newest value); the rest once a batch, at its last tick (_log_last)."""
-        rr, rec = self._rr, self.rec
+        """Every tick's positions and headings as columns (Rerun's cost is per call, not per robot); colours
+        and sizes where they changed; the rest once a batch, at its last tick."""
         k = len(batch)
         ticks = np.array([item[0] for item in batch], np.int64)
         times = np.array([item[1] for item in batch])
         xy = np.stack([item[2][:, :2] for item in batch])  # (K, N, 2) float32
         n = xy.shape[1]
         parts = np.full(k, n)
-        index = [rr.TimeColumn("tick", sequence=ticks), rr.TimeColumn("time", duration=times)]
         if self.dots is None:
             self.dots = self._as_dots(xy[0])
-        rec.send_columns("swarm/robots", index, [self._column("Position2D", "positions", xy, parts)])
+        self._send("swarm/robots", ticks, times, "Position2D", xy, parts)
         self._changes(batch, ticks, times)
         r = np.where(np.isfinite(self.radius), self.radius, 0.0).astype(np.float32)
-        # the heading as a dark dot on each disc's rim, toward the front: one position a robot and tick,
-        # where an arrow takes two vectors
+        # the heading as a dark dot toward each disc's front (one position, where an arrow takes two)
         if not self.dots:  # a heading dot would hide a robot drawn as a dot
             theta = np.stack([item[2][:, 2] for item in batch])  # NaN where unknown: no dot
             nose = np.empty((k, n, 2), np.float32)
@@ -316,7 +289,7 @@ class SwarmView:
             np.sin(theta, out=nose[..., 1])
             nose *= (r * NOSE)[None, :, None]
             nose += xy
-            rec.send_columns("swarm/heading", index, [self._column("Position2D", "positions", nose, parts)])
+            self._send("swarm/heading", ticks, times, "Position2D", nose, parts)
 
         self._trails.keep(ticks, xy)
         # a fast run's batches are many ticks: what follows, at most every EXTRAS_PERIOD of wall time
@@ -334,8 +307,7 @@ class SwarmView:
         return size > 0 and max(self._extent, spread) > DOTS_ABOVE * size
 
     def _log_last(self, last: tuple[Any, ...], r: np.ndarray) -> None:
-        """What the batch's last tick shows beyond positions: robots at goal, the smallest clearance,
-        what hover shows, the goals when they changed and the trails."""
+        """The batch's last tick beyond positions: metrics, hover, the goals when they changed, trails."""
         rr, rec = self._rr, self.rec
         tick, t, last_pose, last_rgb, last_goal, _, missed = last
         rec.set_time("tick", sequence=int(tick))
@@ -366,26 +338,26 @@ class SwarmView:
             self._goals_shown = (last_goal, last_rgb)
         self._trails.log(self._rr, self.rec, self._rgb_shown, self.dots)
 
-    def _column(self, component: str, field: str, values: Any, parts: Any) -> Any:
-        """One Points2D component's values of several ticks, ``parts`` of them a tick, for send_columns:
-        built from the component's batch, as the archetype's ``columns`` would first split every row apart."""
+    def _send(self, entity: str, ticks: Any, times: Any, component: str, values: Any, parts: Any) -> None:
+        """One Points2D component's values of several ticks (``parts`` a tick) as columns, built whole (the
+        archetype's ``columns`` would split every row apart)."""
         rr = self._rr
+        index = [rr.TimeColumn("tick", sequence=ticks), rr.TimeColumn("time", duration=times)]
         batch = getattr(rr.components, f"{component}Batch")(values.reshape(-1, *values.shape[2:]))
-        return batch.described(getattr(rr.Points2D, f"descriptor_{field}")()).partition(parts)
+        field = {"Position2D": "positions", "Color": "colors", "Radius": "radii"}[component]
+        column = batch.described(getattr(rr.Points2D, f"descriptor_{field}")()).partition(parts)
+        self.rec.send_columns(entity, index, [column])
 
     def _changes(self, batch: list[tuple[Any, ...]], ticks: np.ndarray, times: np.ndarray) -> None:
-        """The robots' colours at the ticks of the batch they changed at, and their sizes when a tick
-        brought new ones."""
-        rr, rec = self._rr, self.rec
+        """The robots' colours and sizes at the ticks they changed at."""
         rgb = np.stack([item[3] for item in batch])
         before = rgb[:1] if self._rgb_shown is None else self._rgb_shown[None]
         changed = np.flatnonzero((rgb != np.concatenate([before, rgb[:-1]])).any(axis=(1, 2)))
         if self._rgb_shown is None:
             changed = np.union1d(changed, [0])
         if changed.size:
-            at = [rr.TimeColumn("tick", sequence=ticks[changed]), rr.TimeColumn("time", duration=times[changed])]
-            colors = self._column("Color", "colors", rgb[changed], np.full(changed.size, rgb.shape[1]))
-            rec.send_columns("swarm/robots", at, [colors])
+            parts = np.full(changed.size, rgb.shape[1])
+            self._send("swarm/robots", ticks[changed], times[changed], "Color", rgb[changed], parts)
             self._rgb_shown = batch[changed[-1]][3]
         for i, item in enumerate(batch):
             if item[5] is None and self._radius_shown is not None:
@@ -393,11 +365,9 @@ class SwarmView:
             radius = self.radius if item[5] is None else np.where(np.isfinite(item[5]), item[5], self.radius)
             if self._radius_shown is None or not np.array_equal(radius, self._radius_shown, equal_nan=True):
                 self.radius, one = radius, slice(i, i + 1)
-                at = [rr.TimeColumn("tick", sequence=ticks[one]), rr.TimeColumn("time", duration=times[one])]
-                sizes = np.where(np.isfinite(radius), radius, 0.0)[None]
-                if self.dots:
-                    sizes = np.full_like(sizes, -DOT)
-                rec.send_columns("swarm/robots", at, [self._column("Radius", "radii", sizes, [len(radius)])])
+                known = np.where(np.isfinite(radius), radius, 0.0)[None]
+                sizes = np.full_like(known, -DOT) if self.dots else known
+                self._send("swarm/robots", ticks[one], times[one], "Radius", sizes, [len(radius)])
                 self._radius_shown = radius.copy()
 
     def flush(self) -> None:
@@ -434,31 +404,21 @@ def _layout() -> Any:
 
 def replay(run_dir: Path, sink: str | os.PathLike, scene: dict[str, Any] | None = None) -> SwarmView:
     """A finished run's ``trajectory.npz`` (and ``scene.json``) logged tick by tick to ``sink``."""
-    import json
-
     data = np.load(run_dir / "trajectory.npz")
     if scene is None:
         scene = json.loads((run_dir / "scene.json").read_text())
     arena = tuple(scene["arena"])
     obstacles = [[tuple(v) for v in o] for o in scene.get("obstacles", [])]
     pose, color, goal, radius = data["pose"], data["color"], data["goal"], data["radius"]
-    view = SwarmView(
-        scene.get("name", run_dir.name),
-        arena,
-        obstacles,
-        radius,
-        robots=pose.shape[1],
-        sink=sink,
-        tolerance=float(scene.get("robot", {}).get("goal_tolerance", 0.02)),
-    )
+    name, tolerance = scene.get("name", run_dir.name), float(scene.get("robot", {}).get("goal_tolerance", 0.02))
+    view = SwarmView(name, arena, obstacles, radius, robots=pose.shape[1], sink=sink, tolerance=tolerance)
     for k, t in enumerate(data["t"].tolist()):
         view.tick(k, t, pose[k], color[k], goal[k])
     return view
 
 
 def view_recording(rrd: Path, *, web: bool = False) -> None:
-    """Open a recording in Rerun's viewer: its window (returns at once; the window is the user's), or
-    its web viewer on 127.0.0.1, the address printed, until Ctrl-C."""
+    """Open a recording in Rerun's window (the user's: returns at once), or its web viewer until Ctrl-C."""
     if not web:
         command = [*_viewer(), "--bind", LOOPBACK, "--port", str(free_port(LOOPBACK)), str(rrd)]
         subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)

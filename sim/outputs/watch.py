@@ -1,13 +1,5 @@
-"""`pixelswarm view --connect ENDPOINT`: watch a running swarm from another process, as a read-only
-subscriber on its bus.
-
-It hears what the run broadcasts anyway (the truth of each tick on ``sim/truth``, the robots' states, the
-world's liveliness) and publishes nothing, declares no token and asks no question, so no process of the run
-does anything for it. On a secured bus it joins as the ``observer`` role, which may read those keys and
-nothing else (transport.security). Each tick goes to sim.outputs.view.SwarmView as `pixelswarm run --view`
-logs it; the arena is not on the bus, so the view fits the robots. It ends when the world's liveliness goes,
-on Ctrl-C or SIGTERM, or when no tick came within ``timeout``.
-"""
+"""`pixelswarm view --connect ENDPOINT`: watch a running swarm from another process, a read-only subscriber (the
+``observer`` role on a secured bus) to what the run broadcasts anyway, so no process of the run does anything for it."""
 
 from __future__ import annotations
 
@@ -37,8 +29,8 @@ NO_RUN = 1  # exit code: no tick came within the timeout
 
 
 def observer_settings(endpoint: str, secure: Path | None, display: str) -> ZenohSettings:
-    """A client session of the run's router at ``endpoint``: plain, or as the observer role of a folder
-    made by `pixelswarm certs` (its TLS certificate, the router's access rules); UsageError for bad input."""
+    """A client session of the run's router at ``endpoint``, plain or as the observer of a `pixelswarm certs`
+    folder; UsageError for bad input."""
     try:
         Keys(display)
         if secure is not None:
@@ -111,8 +103,7 @@ class Watcher:
         return None
 
     def follow(self, view: SwarmView, first: Truth) -> tuple[int, int]:
-        """Log every tick heard until the world's liveliness has gone (and AFTER_WORLD more); returns
-        (ticks logged, the last tick)."""
+        """Log every tick heard until AFTER_WORLD after the world's liveliness went; returns (ticks, last tick)."""
         logged, last, quiet_since = 0, first.tick, None
         msg: Truth | None = first
         while True:
@@ -137,9 +128,8 @@ def watch(
     timeout: float = RUN_TIMEOUT,
     say: Callable[[str], None] = lambda text: None,
 ) -> int:
-    """Watch the run on ``display`` through the router of ``settings`` into ``sink`` (native, web or an
-    .rrd path, as SwarmView takes). Exit code: 0 the run ended, NO_RUN no tick within ``timeout``,
-    130 interrupted (the recording is whole either way). TransportError if the router is not there."""
+    """Watch the run on ``display`` into ``sink`` (as SwarmView takes it). Exit code: 0 the run ended, NO_RUN no
+    tick within ``timeout``, 130 interrupted (the recording whole either way)."""
     stop_on_sigterm()
     with Bus(settings, display, name=OBSERVER) as bus:
         watcher = Watcher(bus)

@@ -1,8 +1,4 @@
-"""Writing a finished run: metrics, trajectory, plots, video and the scene, then the atomic commit.
-
-A run that did not run its course (``complete=False`` in metrics: interrupted, its world died, its
-start-up failed) also gets a file INCOMPLETE holding its end reason, so that neither a person
-listing the directory nor a script testing for the file takes it for a finished run."""
+"""Writing a finished run: metrics, trajectory, plots, video and the scene, then the atomic commit."""
 
 from __future__ import annotations
 
@@ -36,17 +32,13 @@ if TYPE_CHECKING:  # the renderers load matplotlib, OpenCV and PyAV: imported on
 
 INCOMPLETE = "INCOMPLETE"  # the marker file of a run directory whose run did not run its course
 
-# pixels times frames of display.mp4 above which its frames are taken at more than real time: the
-# encoder's and the drawing's cost grows with both
+# pixels times frames of display.mp4 above which it plays faster than real time (its cost grows with both)
 VIDEO_PIXEL_BUDGET = 6e9
 
 
 def write_trajectory(path: Path, arrays: dict[str, Any], radius: np.ndarray) -> Path:
-    """trajectory.npz. Arrays of a tick and more are stored in column-major order (np.load gives
-    them back as (T, N, ...) all the same): a robot's values at successive ticks are then neighbours
-    in the file, so deflate finds a robot at rest, a held goal or colour, and stores it once. Per-tick
-    floats are float32 from :data:`FLOAT32_FROM` robots. A recording on disk (sim.outputs.stream) is
-    read a block of robots at a time."""
+    """trajectory.npz, arrays column-major (a robot's successive ticks adjacent, for deflate to store a robot at
+    rest once), per-tick floats as float32 from :data:`FLOAT32_FROM` robots."""
     single = radius.shape[0] >= FLOAT32_FROM
 
     def stored() -> Iterator[tuple[str, Any]]:  # one copy at a time
@@ -63,8 +55,7 @@ def write_trajectory(path: Path, arrays: dict[str, Any], radius: np.ndarray) -> 
 
 
 class ColumnMajor:
-    """An array on disk as trajectory.npz stores it (column-major, in ``dtype``), written a block of
-    robots at a time: its file order runs over the ticks first, then the robots, then the rest."""
+    """An array on disk as trajectory.npz stores it (column-major, in ``dtype``), written a block of robots at once."""
 
     BLOCK_BYTES = 1 << 26  # of one block of robots' values over every tick
 
@@ -83,8 +74,7 @@ class ColumnMajor:
 
 
 def newest_goal_set(arrays: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray] | None:
-    """Distributed image runs (trajectory.npz arrays): per tick, the robots of the newest goal set
-    and whose announced goal comes from it, both (T,N); None in runs without goal sets."""
+    """Per tick, the newest goal set's robots and whose announced goal comes from it (T,N); None without goal sets."""
     if "goal_set_epoch" not in arrays:
         return None
     epochs = list(arrays["goal_set_epochs"])
@@ -95,20 +85,10 @@ def newest_goal_set(arrays: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarr
     return members, current
 
 
-def steps_of(arrays: dict[str, np.ndarray]) -> Steps | None:
-    """The run's image steps as metrics.step_metrics reads them; None without a step record."""
-    if arrays.get("step") is None:
-        return None
-    sets = newest_goal_set(arrays)
-    return Steps(arrays["step"]) if sets is None else Steps(arrays["step"], current=sets[1], members=sets[0])
-
-
 @dataclass
 class RunOutcome:
-    """How a run went, beside its trajectory: ``wall_s`` its wall-clock duration, the world's
-    ``contacts`` events, what crossed the bus (``traffic``), the robots' communication range
-    (``reach``, m: the run reports the swarm's splits by it) and further metrics.json keys
-    (``extra``; ``complete=False`` among them writes the INCOMPLETE marker)."""
+    """How a run went beside its trajectory: ``reach`` the robots' communication range (m), ``extra`` further
+    metrics.json keys (``complete=False`` writes the INCOMPLETE marker)."""
 
     wall_s: float
     contacts: list[dict[str, Any]]
@@ -120,8 +100,7 @@ class RunOutcome:
 def recording_of(
     scene: Scene, arrays: dict[str, Any], radius: np.ndarray, ticks: np.ndarray | slice | None = None
 ) -> Recording:
-    """The run's trajectory arrays at these ticks (None: all, as they are: on disk ones stay there),
-    as the writers draw them."""
+    """The run's trajectory arrays at these ticks (None: all, on disk ones staying there) as the writers draw them."""
     from sim.outputs.render import Recording
 
     pick = {k: arrays[k] if ticks is None else arrays[k][ticks] for k in ("t", "pose", "goal", "color")}
@@ -141,8 +120,7 @@ def write_run(
     """Everything a run directory holds, from the true trajectory; returns the committed path."""
     radius = np.full(scene.robots, params.radius)
     t = arrays["t"]
-    # trajectory.npz on a thread beside the metrics and drawings: deflate and the disk leave the
-    # interpreter's lock free, so the largest file is written in parallel
+    # trajectory.npz on a thread (deflate and the disk free the GIL) beside the metrics and drawings
     with ThreadPoolExecutor(1, thread_name_prefix="trajectory") as writer:
         trajectory = writer.submit(write_trajectory, run_dir / "trajectory.npz", arrays, radius)
         clearance = clearance_over_time(arrays["pose"], radius) if len(t) else np.zeros(0)
@@ -170,26 +148,17 @@ def _run_metrics(
     radius: np.ndarray,
     clearance: np.ndarray,
 ) -> dict[str, Any]:
-    """metrics.json: the true record's summary, the swarm's splits by the communication range (if
-    the robots have one), each image step's assignment against the optimum, and the outcome's keys."""
-    extra = dict(outcome.extra)
+    """metrics.json: the true record's summary, splits by the communication range, assignments over the optimum."""
+    keys: dict[str, Any] = dict(
+        scene=scene.name, seed=scene.seed, clock=scene.clock, contact_events=outcome.contacts, **outcome.extra
+    )
     if np.isfinite(outcome.reach):
         parts = communication_parts(arrays["pose"], outcome.reach)
-        extra.update(range_m=outcome.reach, split_ticks=int((parts > 1).sum()), most_parts=int(parts.max(initial=1)))
-    record = TrueRecord(
-        arrays["t"], arrays["pose"], radius, arrays["goal"], params.goal_tolerance, clearance, steps_of(arrays)
-    )
-    metrics = summarise(
-        record,
-        wall_s=outcome.wall_s,
-        contacts=len(outcome.contacts),
-        traffic=outcome.traffic,
-        scene=scene.name,
-        seed=scene.seed,
-        clock=scene.clock,
-        contact_events=outcome.contacts,
-        **extra,
-    )
+        keys.update(range_m=outcome.reach, split_ticks=int((parts > 1).sum()), most_parts=int(parts.max(initial=1)))
+    members, current = newest_goal_set(arrays) or (None, None)
+    steps = None if arrays.get("step") is None else Steps(arrays["step"], current=current, members=members)
+    record = TrueRecord(arrays["t"], arrays["pose"], radius, arrays["goal"], params.goal_tolerance, clearance, steps)
+    metrics = summarise(record, wall_s=outcome.wall_s, contacts=len(outcome.contacts), traffic=outcome.traffic, **keys)
     if scene.steps and "assignment" in arrays and arrays.get("step") is not None and metrics.get("steps"):
         over = assignment_over_optimum(arrays["pose"], arrays["goal"], arrays["assignment"], arrays["step"])
         for entry, value in zip(metrics["steps"], over):
@@ -198,7 +167,7 @@ def _run_metrics(
 
 
 def _mark_incomplete(run_dir: RunDir, extra: dict[str, Any]) -> None:
-    """The INCOMPLETE marker, holding why the run ended early (and why it failed to start, if it did)."""
+    """The INCOMPLETE marker, holding why the run ended early (or failed to start): no one takes it for finished."""
     why = [extra.get("end_reason") or "incomplete", extra.get("startup_failure")]
     (run_dir / INCOMPLETE).write_text("".join(f"{line}\n" for line in why if line))
 
@@ -206,8 +175,8 @@ def _mark_incomplete(run_dir: RunDir, extra: dict[str, Any]) -> None:
 def _write_display_video(
     run_dir: RunDir, scene: Scene, arrays: dict[str, Any], radius: np.ndarray, formed: float | None
 ) -> None:
-    """display.mp4: frames at real time (or faster, :data:`VIDEO_PIXEL_BUDGET`), the final picture held once
-    the display ``formed`` (s from the start; None: it never did). No encoder here: a warning."""
+    """display.mp4 at real time (or faster, :data:`VIDEO_PIXEL_BUDGET`), holding the final picture once the display
+    ``formed`` (s from the start; None: never). No encoder here: a warning."""
     from sim.outputs.render import frame_indices, held_frames, video_size, write_video
 
     t = arrays["t"]
