@@ -1,9 +1,5 @@
-"""Entry point of an agent process: `python -m agent --config host.json [zenoh flags]`.
-
-One process runs the robots its config names (one by default; K with --agents-per-process). `--config -` reads
-the config from stdin, so a robot's computer needs no file shared with the run. With PIXELSWARM_PROFILE=DIR in its
-environment, the host's loop runs under cProfile and its statistics go to DIR/agent<first robot>.prof.
-"""
+"""Entry point of an agent process: `python -m agent --config host.json [zenoh flags]` (`--config -`: stdin).
+With PIXELSWARM_PROFILE=DIR the host's loop runs under cProfile into DIR/agent<first robot>.prof."""
 
 from __future__ import annotations
 
@@ -17,16 +13,10 @@ from . import ONE_BLAS_THREAD
 
 os.environ.setdefault(*ONE_BLAS_THREAD)  # before numpy loads: a robot's computer may start this module itself
 
+from transport import session
 from transport.bus import Bus
 from transport.faults import parse_faults
-from transport.session import (
-    ZENOH_LONG,
-    ZENOH_SHORT,
-    TransportError,
-    one_malloc_arena,
-    settings_from_options,
-    zenoh_usage,
-)
+from transport.session import ZENOH_LONG, ZENOH_SHORT, TransportError, one_malloc_arena, zenoh_usage
 
 from .runtime import AgentHost, HostConfig, install_stop_handlers
 
@@ -44,8 +34,7 @@ options:
   --exit-with-parent    stop when the parent process exits
 
 """ + zenoh_usage()
-# getopt, not argparse, and os.path, not pathlib: they and the modules they load (urllib.parse and
-# ipaddress for pathlib) would stay in every robot's process.
+# getopt, not argparse, and os.path, not pathlib: the modules they load would stay in every robot's process
 OPTIONS = ["help", "config=", "faults=", "start-timeout=", "exit-with-parent", *ZENOH_LONG]
 
 
@@ -81,14 +70,9 @@ def main(argv: list[str] | None = None) -> int:
     if len(config.robots) == 1:
         one_malloc_arena()  # before zenoh's threads start
     try:
-        bus = Bus(
-            settings_from_options(options),
-            config.display,
-            faults=faults,
-            seed=config.seed,
-            name=f"agent{config.robots[0]}",
-            hears_itself=len(config.robots) > 1,  # a host's robots hear each other through the bus
-        )
+        settings, name = session.settings_from_options(options), f"agent{config.robots[0]}"
+        hears_itself = len(config.robots) > 1  # a host's robots hear each other through the bus
+        bus = Bus(settings, config.display, faults=faults, seed=config.seed, name=name, hears_itself=hears_itself)
     except TransportError as err:
         print(f"agent: error: {err}", file=sys.stderr)
         return 2
@@ -97,8 +81,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run_host(bus: Bus, config: HostConfig, start_timeout: float, exit_with_parent: bool) -> int:
-    """Start the robots' host (their poses within start_timeout, else exit code 1), run its loop
-    until it is stopped, then report its statistics and let its last messages leave."""
+    """Start the robots' host (exit code 1 without their poses), run its loop, then report its statistics."""
     host = AgentHost(bus, config)
     install_stop_handlers(host)
     parent = os.getppid() if exit_with_parent else None  # exit when the launcher is gone
@@ -109,8 +92,7 @@ def _run_host(bus: Bus, config: HostConfig, start_timeout: float, exit_with_pare
                 file=sys.stderr,
             )
         return 1
-    profile_to = os.environ.get("PIXELSWARM_PROFILE")
-    if profile_to:
+    if profile_to := os.environ.get("PIXELSWARM_PROFILE"):
         run_profiled(lambda: host.run(parent), os.path.join(profile_to, f"agent{config.robots[0]}.prof"))
     else:
         host.run(parent)
@@ -133,8 +115,7 @@ def _seconds(text: str | None, default: float) -> float:
 
 
 def run_profiled(run: Callable[[], None], path: str) -> None:
-    """Run under cProfile (this thread only: zenoh's callbacks are not counted) and write the
-    statistics to ``path`` even if ``run`` raises."""
+    """Run under cProfile (this thread only) and write the statistics to ``path`` even if ``run`` raises."""
     import cProfile  # here: only a profiled run pays for it
 
     profile = cProfile.Profile()

@@ -1,13 +1,6 @@
-"""The goal auction on the bus: binds the pure participant (core/bidder.py) of a host's robots to zenoh.
-
-One message per host carries all its robots' records, so a host of K robots costs the swarm what one robot does.
-Real time: a host publishes at once when an own claim changed (a bid or a release); its digest when only the board
-changed (others need it to see agreement) or a message came written against another board (answering lets the
-other catch up in a round trip, not a timeout), once the board has been quiet for QUIET seconds and at most every
-DIGEST_EVERY; and as a backstop every RESEND_BUSY seconds while an instance is open, RESEND_IDLE when agreed (for
-late joiners). Lock-step (``lockstep``) plays numbered Jacobi rounds, bid for bid the central engine's, so every
-host agrees a block at the same round and adopts it at the same tick (settle_block, docs/lockstep_auction.md).
-"""
+"""The goal auction on the bus: binds the pure participant (core/bidder.py) of a host's robots to zenoh, one message
+per host. Real time publishes on news (throttled: QUIET, DIGEST_EVERY) with a resend backstop; lock-step plays
+numbered rounds, bid for bid the central engine's, so every host adopts a block at the same tick (settle_block)."""
 
 from __future__ import annotations
 
@@ -68,15 +61,11 @@ class LockStepRounds:
 
 
 class RoundExchange:
-    """Lock-step: one host's side of the auction's numbered rounds on the bus. Our message of each
-    round is kept until its block is over, to send again to a host that missed it; the other hosts'
-    messages are filed by (epoch, block's final instance, round) as they come, those of rounds and
-    goal sets not reached yet too (a faster host may be a round ahead)."""
+    """Lock-step: a host's side of the auction's rounds: ours kept to resend, the others' filed by round (``keeps``)."""
 
     def __init__(
         self, bus: Bus, robots: list[int], inbox: Inbox[Any], counts: AuctionCounts, keeps: Callable[[Any], bool]
     ) -> None:
-        """``keeps``: whether a message that arrived is one to file (the link's _keeps)."""
         self.bus, self.robots, self.sender, self.inbox, self.counts = bus, robots, robots[0], inbox, counts
         self.keeps = keeps
         self.dead: Callable[[], set[int]] = set  # robots whose agent is known dead now: not waited for
@@ -88,20 +77,13 @@ class RoundExchange:
         self.stopped = False  # the host is shutting down: stop waiting for rounds
 
     def open(self, key: tuple[int, int, int], msg: Bid | Boards, speak: bool) -> None:
-        """Say our message of round ``key`` (epoch, block's final instance, round); its records are
-        waited for by close, at once or at the next tick (a tick's last round when rounds per tick
-        are bounded). Not ``speak``: the message goes out only as a resend, which nobody waits for
-        but which asks the hosts that left the round for a message of theirs we missed (see file)."""
-        for old in [k for k in self.records if k < key]:
-            del self.records[old]
+        """Say our message of round ``key`` (epoch, block's final instance, round); not ``speak``: only as a resend."""
+        self.records = {k: heard for k, heard in self.records.items() if k >= key}
         if key[:2] != self.said_block:  # a block's first round: forget the blocks before the last
             last, self.said_block = self.said_block, key[:2]
-            # The last block's messages stay: with rounds per tick bounded, a host that lost one of its final
-            # round still waits for it. Hosts are at most one block apart: none agrees a block without everyone's.
-            for old in [k for k in self.said if k[:2] not in (key[:2], last) and k < key]:
-                del self.said[old]
-            for old in [b for b in self.newest_round if b[:2] < key[:2] and b[:2] != last]:
-                del self.newest_round[old]
+            # the last block's stay: a host that lost one of its final round still waits for it
+            self.said = {k: said for k, said in self.said.items() if k[:2] in (key[:2], last) or k >= key}
+            self.newest_round = {b: n for b, n in self.newest_round.items() if b[:2] >= key[:2] or b[:2] == last}
         self.said[key] = (msg, time.monotonic())
         self.waiting_for = key  # an open round is no round we left: its messages draw no answer (file)
         if speak:
@@ -110,11 +92,8 @@ class RoundExchange:
     def close(
         self, key: tuple[int, int, int], members: set[int], robots_of: Callable[[Any], np.ndarray], base: float
     ) -> dict[int, Any] | None:
-        """Wait until every live robot in ``members`` has said its word in the open round ``key``;
-        the other hosts' messages by sender (None: ROUND_CAP ran out). Our message goes out again
-        ``base`` s after it last went out or the wait began, whichever is later."""
-        # every resend reaches every host and may draw an answer from each: back off (twice the last wait, up
-        # to ROUND_BACKOFF times the first) so that resends do not feed the load that delays the round
+        """Wait for every live robot in ``members``'s word in round ``key``: messages by sender (None: timed out)."""
+        # every resend reaches every host and may draw an answer from each: back off so as not to feed the load
         wait, start = base, time.monotonic()
         said: set[int] = set(self.robots)  # robots heard in this round
         counted: set[int] = set()  # the senders whose robots are in ``said``
@@ -153,8 +132,7 @@ class RoundExchange:
                 continue
             key = (msg.epoch, msg.instance, msg.serial)
             self.records.setdefault(key, {})[msg.sender] = msg
-            # The sender may still wait in a round we have left, for our records of it if it lost them;
-            # not when we heard it in a later round (its message is an answer itself: no ping-pong).
+            # answer a sender still waiting in a round we left, unless heard in a later round (no ping-pong)
             block = (msg.epoch, msg.instance, msg.sender)
             self.newest_round[block] = newest = max(self.newest_round.get(block, 0), msg.serial)
             answer = key in self.said and key != self.waiting_for and newest == msg.serial
@@ -178,8 +156,7 @@ class RoundExchange:
 
 @dataclass
 class Publishing:
-    """Real time: when a host publishes its auction message (the module's rule) and what it knows of
-    the others' boards."""
+    """Real time: when a host publishes its auction message and what it knows of the others' boards."""
 
     serial: int = 0  # our messages so far
     last_sent: float = -math.inf  # monotonic time of our last message
@@ -201,8 +178,7 @@ class Blocks:
 
 @dataclass
 class AuctionTimes:
-    """When things happened, for the auction's latency (which the robots' bid positions compensate)
-    and its statistics."""
+    """When things happened, for the auction's latency (the robots' bid positions compensate it) and statistics."""
 
     now: float = 0.0  # display time of the last tick
     frozen_at: dict[int, float] = field(default_factory=dict)  # block of instances -> display time its positions froze
@@ -211,10 +187,8 @@ class AuctionTimes:
 
 
 class AuctionLink:
-    """The auction of one host's robots: goal sets in, agreed goals out through ``on_agreed``. Its
-    attributes are the host's seams (bus, robots, params, callbacks, inbox and rounds exchange), the
-    auction under way (part or local, its goal set, the last agreement reported) and the state of
-    each clock's protocol, grouped (publishing: real time; blocks: lock-step; times: both)."""
+    """The auction of one host's robots: goal sets in, agreed goals out through ``on_agreed``. ``where``: the robots'
+    bid positions now (asked again before a block freezes them); ``lockstep``: the rounds (None: real time)."""
 
     def __init__(
         self,
@@ -225,15 +199,11 @@ class AuctionLink:
         where: Where | None = None,
         lockstep: LockStepRounds | None = None,
     ) -> None:
-        """``where``: the own robots' bid positions now (the runtime's), asked again when an agreement
-        was handed to ``on_agreed`` just before a new block freezes its positions. ``lockstep``: the
-        tick-synchronous rounds (settle_block); None: real time."""
         rounds = lockstep if lockstep is not None else LockStepRounds()
         self.bus, self.robots, self.params, self.on_agreed = bus, sorted(robots), params, on_agreed
         self.where, self.rounds, self.lockstep = where, rounds, lockstep is not None
         self.counts = AuctionCounts()
-        # Lock-step reads the other hosts' messages only within its rounds, where it waits for them:
-        # they wait in zenoh's channel until then (pulled), not a thread woken for each.
+        # Lock-step reads the others' messages only within its rounds: they wait in zenoh's channel (pulled)
         kind, key = (Boards, "boards") if math.isfinite(rounds.reach) else (Bid, "auction")
         self.inbox: Inbox[Any] = bus.subscribe(bus.keys.all_of(key), kind, pulled=self.lockstep)
         self.exchange = RoundExchange(bus, self.robots, self.inbox, self.counts, self._keeps)
@@ -277,17 +247,11 @@ class AuctionLink:
         own = set(self._auction.own) if self._auction is not None else set()
         return [r for r in self.robots if r not in own]
 
-    # --- inputs -----------------------------------------------------------------------------------
     def on_goals(
         self, goals: Goals, positions: dict[int, np.ndarray], current: dict[int, int] | None = None
     ) -> dict[int, int]:
-        """A new goal set: a new auction. Each own robot carries its ``current`` goal in the last set
-        (robot -> goal index) over to the new set; returns the carried goals, which the robots drive
-        to until the auction agrees. After a last set of the same robots that agreed, or whose robots
-        still drive to its own warm start, the goals carry over by the goal sets' matching and the
-        auction starts from it, prices included (_warm_start). Otherwise a keyframe carries by the
-        coordinator's goal correspondence, and the auction starts from the carried claims only when the
-        last one had agreed (a board still in a price war is no assignment) and the frames are close (frames_close)."""
+        """A new goal set: a new auction. Returns the goals the robots carry over from their ``current`` ones to drive
+        to until it agrees: by the sets' matching (_warm_start), else a keyframe's correspondence."""
         if self.active and goals.epoch <= self.epoch:
             return {}
         auction = new_auction(
@@ -324,12 +288,7 @@ class AuctionLink:
 
     @staticmethod
     def _warm_start(before: Participant, goals: Goals) -> bool:
-        """The next image of a sequence or keyframe of an animation, with the same robots, after a
-        last one every host holds alike (Participant.common_owner: agreed, or still on its warm
-        start): the auction starts warm from the two goal sets' matching and its prices, as the
-        coordinator sends them with the new set (its WarmStart part), and each robot drives to the
-        goal its last one is matched to. A warm start agrees in far fewer rounds than a cold one, which
-        plays every round within one tick: in a large swarm, longer than the world waits."""
+        """Whether the auction starts warm from the coordinator's WarmStart: the same robots, a last set held alike."""
         return (
             before.common_owner is not None
             and not goals.per_robot
@@ -341,8 +300,7 @@ class AuctionLink:
 
     @staticmethod
     def _first_warm_start(goals: Goals) -> bool:
-        """The run's first goal set, warm-started from where its robots start (WarmStart.matched_from
-        0): every host starts from it, none has a last set to carry."""
+        """The run's first goal set, warm-started from where its robots start (WarmStart.matched_from 0)."""
         warm = goals.warm_start
         return warm is not None and warm.matched_from == 0 and not goals.per_robot and len(goals.robots) == goals.count
 
@@ -357,10 +315,7 @@ class AuctionLink:
         return True
 
     def _begin(self, instance: int, positions: dict[int, np.ndarray]) -> None:
-        """Begin an instance; note when this host froze the positions of a new block of phases (the
-        auction's latency, which the robots' bid positions compensate, runs from there). A later
-        instance proves ours agreed: its agreement goes to the robots first, so the new block
-        freezes where they are going now, not where the last agreement but one sent them."""
+        """Begin an instance (a later one proves ours agreed: the robots take it first), noting when a block froze."""
         part, _ = self._under_way()
         if part.started and not part.is_agreed and instance > part.instance:
             part.adopt_if_settled()
@@ -370,12 +325,10 @@ class AuctionLink:
         block = part.instance // part.phases
         if block not in self.times.frozen_at:
             self.times.frozen_at[block] = self.times.now
-            for old in [b for b in self.times.frozen_at if b < block - 4]:
-                del self.times.frozen_at[old]
+            self.times.frozen_at = {b: t for b, t in self.times.frozen_at.items() if b >= block - 4}
 
     def on_tick(self, stamp: float, positions: dict[int, np.ndarray]) -> None:
-        """Each control iteration: start the next instance (warm, on this tick's positions) once the
-        last is agreed (paper 5.1: re-assign every iteration)."""
+        """Each control iteration: start the next instance once the last is agreed (5.1: re-assign every iteration)."""
         self.times.now = max(self.times.now, stamp)
         if self.lockstep:
             self.settle_block(stamp, positions)
@@ -389,7 +342,6 @@ class AuctionLink:
             self._settle()
             self._publish()
 
-    # --- the tick loop's auction step (agent.loop) ----------------------------------------------
     def step(self, sensed: Any) -> None:
         """This tick's step from the robots' bid positions (``where``): on_tick."""
         self.on_tick(sensed.stamp, self.where() if self.where is not None else {})
@@ -404,21 +356,19 @@ class AuctionLink:
             self.counts.penalties += 1
 
     def next_due(self) -> float:
-        """Seconds until something is due without a message arriving (a resend, a throttled digest,
-        an injected delay ending)."""
+        """Seconds until something is due without a message arriving (a resend, a digest, a delay ending)."""
         part = self.part
         if part is None or not part.started or self.lockstep:
             return 1.0
         if self.inbox.has_delayed:
             return 0.005
-        now = time.monotonic()
         busy = max(RESEND_BUSY, RESEND_PER_ROBOT * len(part.robots))
         due = self.publishing.last_sent + (RESEND_IDLE if part.is_agreed else busy)
         if part.claims_changed:
             return 0.0
         if (part.has_news or self.publishing.mismatch) and part.view_complete():
             due = min(due, max(self.publishing.last_sent + DIGEST_EVERY, self.publishing.board_changed + QUIET))
-        return max(0.0, due - now)
+        return max(0.0, due - time.monotonic())
 
     def poll(self, positions: dict[int, np.ndarray]) -> None:
         """Take in what arrived, bid, check agreement, publish what others need."""
@@ -449,14 +399,9 @@ class AuctionLink:
         if self.next_due() <= 0:
             self._publish()
 
-    # --- lock-step ----------------------------------------------------------------------------------
     def settle_block(self, stamp: float, positions: dict[int, np.ndarray]) -> None:
-        """Lock-step, at each tick: every ``assign_period`` the next block of phases, frozen on this
-        tick's positions, bid through its rounds with every other host; its agreement goes to
-        ``on_agreed`` at the tick of its last round's end, the same for every host. With rounds per
-        tick bounded a tick's last round is heard at the next tick, before anything else: its
-        messages travel while the robots step, and no tick waits on a round of its own. A host with
-        no robot in the goal set takes no part."""
+        """Lock-step, each tick: every ``assign_period`` a block frozen on this tick's positions, agreed at the same
+        tick by every host (with rounds per tick bounded, a tick's last round is heard at the next)."""
         if self.local is not None:
             self._settle_local(stamp, positions)
             return
@@ -485,9 +430,7 @@ class AuctionLink:
                 return
 
     def _open_round(self, block: BlockRounds) -> tuple[BlockRounds, tuple[int, int, int], set[int], float]:
-        """Say our robots' bids of the block's next round; the round as close_round takes it. Robots
-        with nothing to say (every host finds the same) are not waited for, and a host all of whose
-        robots are quiet speaks only to ask for a message it missed."""
+        """Say our robots' bids of the block's next round (quiet robots are not waited for); the round to close."""
         part = block.part
         quiet = block.quiet(part.robots)
         members = set(part.robots[~quiet].tolist())
@@ -499,8 +442,7 @@ class AuctionLink:
         return block, key, members, self._resend_base(len(members))
 
     def _close_round(self, block: BlockRounds, key: tuple[int, int, int], members: set[int], base: float) -> bool:
-        """Wait for the other hosts' records of an open round and merge them: the block agreed (its
-        agreement reported) or given up ends it. True: given up."""
+        """Wait for the other hosts' records of an open round and merge them; True: given up."""
         self.blocks.open_round = None
         heard = self.exchange.close(key, members, lambda m: block.robots_of(m.sender, m.records), base)
         if heard is None:
@@ -513,9 +455,7 @@ class AuctionLink:
         return False
 
     def _settle_local(self, stamp: float, positions: dict[int, np.ndarray]) -> None:
-        """The range-limited auction's block (core.local_auction): the same rounds as in the central
-        engine, each host saying its robots' words and hearing everyone's, every robot keeping only
-        what came from within reach. A robot that said it ended the block is not waited for again."""
+        """The range-limited auction's block (core.local_auction): the central engine's rounds, heard within reach."""
         local = self.local
         if local is None or not local.own or not all(r in positions for r in local.own):
             return
@@ -544,18 +484,13 @@ class AuctionLink:
         self._report()
 
     def _resend_base(self, members: int) -> float:
-        """Lock-step: the first wait for a round's records before our message goes out again; at least
-        RESEND_PER_ROBOT per robot, as every resend reaches every host and slows every round; the
-        robots of the goal set under way are those a round may wait for."""
+        """Lock-step: the first wait before our message goes out again (every resend reaches every host)."""
         swarm = len(self._auction.robots) if self._auction is not None else 0
         return max(ROUND_RESEND, RESEND_PER_ROBOT * max(members, swarm))
 
     def _keeps(self, msg: Bid | Boards) -> bool:
-        """Whether another host's message is one to take: not of an earlier goal set, and a bid of the
-        goal set under way names its robots and its goals only (-1: none yet); one that does not is
-        counted and dropped (it must not index the auction's arrays). An intact message (the codec
-        checks) fails this only if its sender is faulty. A bid of a goal set not heard yet is checked
-        when the set arrives (on_goals)."""
+        """Whether another host's message is one to take: not of an earlier goal set, and a bid of the set under
+        way names its robots and goals only (it must not index the auction's arrays); else counted and dropped."""
         if self.active and msg.epoch < self.epoch:
             return False
         part = self.part
@@ -572,18 +507,15 @@ class AuctionLink:
         self.exchange.stopped = True
 
     def _abandon(self) -> None:
-        """A round never completed: our robots cannot know whether others adopted the block, so they
-        hold their positions (drive to no goal) rather than drive to a goal another may hold."""
+        """A round never completed: our robots hold their positions, as others may have adopted the block."""
         self.counts.abandoned += 1
         self.blocks.block = None
         own = self._auction.own if self._auction is not None else []
         if self.rounds.on_abandoned is not None and own:
             self.rounds.on_abandoned(list(own))
 
-    # --- internals --------------------------------------------------------------------------------
     def _under_way(self) -> tuple[Participant, Goals]:
-        """The participant and goal set of the auction under way (the steps below run only once
-        on_goals has begun one)."""
+        """The participant and goal set of the auction under way (once on_goals has begun one)."""
         if self.part is None or self.goal_set is None:
             raise RuntimeError("no auction under way")
         return self.part, self.goal_set
@@ -599,8 +531,7 @@ class AuctionLink:
         self._report()
 
     def _report(self) -> bool:
-        """Hand a new agreement of the auction under way (the participant's or the range-limited
-        one's) to on_agreed, once per agreed instance; True when there was one."""
+        """Hand a new agreement of the auction under way to on_agreed, once per instance; True when there was one."""
         auction, gs = (self.local, self.goal_set) if self.local is not None else self._under_way()
         if gs is None or auction.agreed_instance <= self.reported:
             return False
@@ -646,18 +577,12 @@ class AuctionLink:
 
 
 def rounds_in_tick(params: RobotParams, cold: bool) -> int:
-    """The most rounds a tick gives a block: ``rounds_per_tick``; every round it needs (agreed within
-    its tick: paper 5.1, an assignment every iteration) when that is 0 or the block is a ``cold``
-    start, whose robots have no goal to drive to meanwhile."""
+    """The most rounds a tick gives a block: ``rounds_per_tick``, or all it needs (also for a ``cold`` start)."""
     return params.rounds_per_tick if params.rounds_per_tick and not cold else sys.maxsize
 
 
 def frames_close(before: np.ndarray, goals: np.ndarray, previous: np.ndarray) -> bool:
-    """Whether consecutive keyframes differ little enough for the auction to start from the carried
-    assignment (Participant.carry) at prices zero, when the warm start (Goals' WarmStart part) does not
-    apply: corresponding goals on average at most one and a half typical goal spacings (the median
-    distance from a goal to its nearest neighbour) apart. Closer, the carried claims agree in fewer
-    rounds than a cold start; further, in more."""
+    """Whether keyframes are close enough (mean 1.5 goal spacings) for the auction to start from the carried claims."""
     goals = np.asarray(goals, float)
     ok = previous >= 0
     if len(goals) < 2 or not ok.any():
@@ -671,8 +596,7 @@ def frames_close(before: np.ndarray, goals: np.ndarray, previous: np.ndarray) ->
 
 
 def _boards(local: LocalAuction, words: Words, sender: int) -> Boards:
-    """Our robots' words of a round on the wire: a known set only when it grew, a board's owned
-    records only when it changed (what is left out, the hearers merged before)."""
+    """Our robots' words of a round on the wire: known sets that grew, owned records that changed only."""
     flags = words.ended * Boards.ENDED + words.fresh * Boards.FRESH + words.grown * Boards.GROWN
     rows, goals = np.nonzero((words.owner != NO_OWNER) & words.fresh[:, None])
     out = np.zeros(len(words.robot), Boards.WORD)
@@ -688,9 +612,7 @@ def _boards(local: LocalAuction, words: Words, sender: int) -> Boards:
 
 
 def _fits(msg: Boards, local: LocalAuction) -> bool:
-    """Words of robots of this goal set, records of its goals, as many as the words say and known
-    sets for those that grew: a damaged or forged message is no robot's word (and must not index
-    the auction's arrays)."""
+    """Whether a message fits this goal set: a damaged or forged one must not index the auction's arrays."""
     w, r = msg.words, msg.records
     grown = int(((w["flags"].astype(np.int64) & Boards.GROWN) != 0).sum())
     return (

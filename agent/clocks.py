@@ -1,11 +1,4 @@
-"""The agent host's two clocks (its clock seam): the world's lock-step ticks, or the wall clock.
-
-Time is a message: both bring a tick's poses to the same host loop (agent.runtime.AgentHost) and
-differ only in what a tick waits for and what it may assume. Lock-step waits for every nearby
-robot's state of the tick before and takes up a goal set at the tick the world names it, so a run
-is reproducible from its seed. Real time waits a slice of the period for the rest of a tick's poses
-and grows the robots' margins by how late their poses are (agent.lateness).
-"""
+"""The agent host's two clocks: the world's lock-step ticks (reproducible from the seed), or the wall clock."""
 
 from __future__ import annotations
 
@@ -30,8 +23,7 @@ HELLO_TIMEOUT = 30.0  # s a host waits for its neighbours' hellos before it says
 
 
 class HostClock:
-    """What the host asks of its clock at each point of a tick; each hook does nothing unless the
-    clock needs it."""
+    """What the host asks of its clock at each point of a tick; each hook does nothing unless the clock needs it."""
 
     def __init__(self, host: Any) -> None:  # the agent.runtime.AgentHost whose ticks this clock brings
         self.host = host
@@ -43,14 +35,11 @@ class HostClock:
         self.state_waits = 0
         self.hello_every = math.inf  # s between hellos (lock-step's start-up)
 
-    def greet(self, where: dict[int, Pose], timeout: float) -> None:
-        """Before the robots say they are alive, at ``where``."""
+    def greet(self, where: dict[int, Pose], timeout: float) -> None: ...  # before the robots say they are alive
 
-    def say_hello(self) -> None:
-        pass
+    def say_hello(self) -> None: ...
 
-    def hear_hello(self, hello: State) -> None:
-        pass
+    def hear_hello(self, hello: State) -> None: ...
 
     def newest_tick(self) -> int | None:
         """The newest tick the world is known to have reached (None: not known)."""
@@ -63,23 +52,18 @@ class HostClock:
         """A goal set held back until a tick takes it up."""
         return False
 
-    def poses_arrived(self, poses: list[Pose], wall: float) -> None:
-        pass
+    def poses_arrived(self, poses: list[Pose], wall: float) -> None: ...
 
-    def before_step(self, poses: list[Pose]) -> None:
-        pass
+    def before_step(self, poses: list[Pose]) -> None: ...
 
     def params_at(self, stamp: float, began: float) -> RobotParams:
         return self.host.params
 
-    def await_neighbours(self, tick: int, position: np.ndarray) -> None:
-        pass
+    def await_neighbours(self, tick: int, position: np.ndarray) -> None: ...
 
-    def take_up_goal_sets(self, tick: int, stamp: float) -> None:
-        pass
+    def take_up_goal_sets(self, tick: int, stamp: float) -> None: ...
 
-    def stepped(self, began: float) -> None:
-        pass
+    def stepped(self, began: float) -> None: ...
 
 
 class WallClock(HostClock):
@@ -124,17 +108,10 @@ class LockStep(HostClock):
         host.inbox.state.seen = {}  # states waited for arrive, even those the fault plan drops or holds
 
     def greet(self, where: dict[int, Pose], timeout: float) -> None:
-        """Before the robots say they are alive: make sure the neighbours' tick-0 states will reach us.
-
-        Zenoh tells a publisher of a new subscriber asynchronously, so a neighbour's tick-0 state could go
-        unsent and our tick 1 would depend on timing. Each host sends a hello per robot on its cells until
-        its first tick and says it is alive (the world starts once everybody is) only when it has heard the
-        hello of every robot near its own (``config.greet``): a hello proves the sender's session knows our
-        subscription. An agent started again while the others step greets nobody: it hears every tick anyway."""
+        """Before the robots say they are alive: hear every nearby robot's hello, so their tick-0 states reach us."""
         host = self.host
-        radius = host.params.radius
         self.hellos = [
-            State(r, BEFORE_START, 0.0, q.x, q.y, 0.0, 0.0, radius, 0.0, 0.0, -1, 0, 0, 0)
+            State(r, BEFORE_START, 0.0, q.x, q.y, 0.0, 0.0, host.params.radius, 0.0, 0.0, -1, 0, 0, 0)
             for r, q in sorted(where.items())
         ]
         if max(q.stamp for q in where.values()) > 0.0:  # under way: its auction waits for the next goal set
@@ -144,8 +121,7 @@ class LockStep(HostClock):
         end = time.monotonic() + min(HELLO_TIMEOUT, timeout)
         while host.running and not expected <= set(self.greeted) and time.monotonic() < end:
             self.say_hello()
-            # Looked at twice a hello period, not waited on: a wait on the pulled inbox looks every
-            # PULL_EVERY, too often when many hosts greet at once.
+            # looked at twice a hello period: a wait on the pulled inbox looks too often when many hosts greet
             time.sleep(self.hello_every / 2)
             for _, state in host.inbox.state.drain():
                 host.on_state(state)
@@ -156,7 +132,7 @@ class LockStep(HostClock):
             self.last_hello = time.monotonic()
 
     def hear_hello(self, hello: State) -> None:
-        if self.host.tally.ticks < 2:
+        if self.host.ticks < 2:
             self.greeted[hello.robot] = hello
 
     def newest_tick(self) -> int | None:
@@ -167,8 +143,7 @@ class LockStep(HostClock):
         return None if self.clock.newest is None else self.clock.newest * self.host.params.dt
 
     def holds(self, goals: Goals) -> bool:
-        """A new goal set waits for the tick that takes it up, so that every host takes it up at the
-        same tick (take_up_goal_sets)."""
+        """A new goal set waits for the tick that takes it up, the same for every host (take_up_goal_sets)."""
         if goals.per_robot or goals.epoch <= max(self.host.goal_sets.by_epoch, default=0):
             return False
         self.unnamed[goals.epoch] = goals
@@ -178,33 +153,21 @@ class LockStep(HostClock):
         self.host.inbox.state.sim_time = max(p.stamp for p in poses)
 
     def await_neighbours(self, tick: int, position: np.ndarray) -> None:
-        """Wait until every nearby robot's state of the previous tick is here.
-
-        Zenoh does not order a neighbour's state before the world's next pose (they travel different
-        paths), so without this wait the neighbour set would depend on timing. Only robots that were
-        within reach at the tick before can become neighbours now; one that stays silent for
-        ``state_wait`` is not waited for again until it speaks.
-        """
+        """Wait for every nearby robot's state of the last tick; one silent ``state_wait`` is skipped till it speaks."""
         host = self.host
         reach = host.params.state_reach
         deadline = time.monotonic() + host.config.state_wait
         seen = host.inbox.state.seen or {}  # arrived, whatever an injected fault then did with it
+        # the newest tick heard of a robot: an arrival claimed from beyond this tick proves nothing (damaged, forged)
+        heard = lambda s: max(s.tick, _at_most(seen.get(s.robot, -1), tick))
+        near = lambda s: np.min(np.hypot(position[:, 0] - s.x, position[:, 1] - s.y)) <= reach
         while True:
-            # an arrival claimed from beyond this tick proves nothing (a damaged or forged frame)
-            behind = [
-                s
-                for s in host.table.latest_before(tick)
-                if max(s.tick, _at_most(seen.get(s.robot, -1), tick)) < tick - 1
-            ]
-            if tick > 0 and host.tally.ticks < 2:  # the first tick after tick 0: robots that greeted us
+            behind = [s for s in host.table.latest_before(tick) if heard(s) < tick - 1]
+            if tick > 0 and host.ticks < 2:  # the first tick after tick 0: robots that greeted us
                 behind += [
                     h for r, h in self.greeted.items() if r not in host.table and r not in seen and r not in host.robots
                 ]
-            missing = [
-                s.robot
-                for s in behind
-                if s.robot not in self.silent and np.min(np.hypot(position[:, 0] - s.x, position[:, 1] - s.y)) <= reach
-            ]
+            missing = [s.robot for s in behind if s.robot not in self.silent and near(s)]
             if not missing:
                 for _, state in host.inbox.state.drain():  # what arrived (seen) is taken in before the step
                     host.on_state(state)
@@ -220,10 +183,7 @@ class LockStep(HostClock):
                 host.on_state(got[1])
 
     def take_up_goal_sets(self, tick: int, stamp: float) -> None:
-        """Take up the goal sets due at this tick, so that every host takes each up at the same tick:
-        those up to the newest the world had heard when it published the tick (its clock message
-        names it), and the goal set of the scene step due now, which the coordinator publishes only
-        once it hears the tick. Newer goal sets wait for a tick that names them."""
+        """Take up the goal sets due at this tick (its clock message names them), the same for every host."""
         host = self.host
         due = bisect.bisect_right(host.config.steps, stamp + 1e-9) - 1  # numpy's would make an array a tick
         deadline = time.monotonic() + GOAL_SET_WAIT
@@ -257,8 +217,7 @@ class LockStep(HostClock):
             self._on_clock(clock)
 
     def _on_clock(self, clock: Tick) -> None:
-        """A clock message names the goal set of its tick; its tick bounds the poses'. The world
-        publishes every tick, so a clock may not skip ahead of the last."""
+        """A clock message names the goal set of its tick; its tick bounds the poses' (it may not skip ahead)."""
         why = self.clock.admit(clock, time.monotonic())
         if why is not None:
             self.ticks.drops[why] += 1

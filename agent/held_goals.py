@@ -1,11 +1,4 @@
-"""The goals robots hold: the one goal bookkeeping of every engine (agent.loop.Robots.goals).
-
-Rows by robot. A robot holds the goal its agreed assignment gave it (paper 5.1), or none: where the
-goal stood when its goal set was published (``goal0``), where it is now (``goal``: a moving goal
-set's goal moves, eq. 28; a robot with no goal of a goal set may still be sent somewhere, to a
-scene's own goal or its target's position), its key (the goal set's epoch, the goal's index or
-NO_GOAL), the auction instance that agreed it, and the LED colour it shows.
-"""
+"""The goals robots hold, by row: the one goal bookkeeping of every engine (agent.loop.Robots.goals)."""
 
 from __future__ import annotations
 
@@ -20,6 +13,8 @@ IDLE_COLOR = (40, 40, 40)
 
 @dataclass
 class HeldGoals:
+    """Each robot's agreed goal (5.1) or none, where it is now (eq. 28), its key, agreeing instance and LED colour."""
+
     goal0: np.ndarray  # (N,2) NaN: none
     goal: np.ndarray  # (N,2) NaN: none
     key: np.ndarray  # (N,2) int64 (epoch, goal index)
@@ -36,8 +31,7 @@ class HeldGoals:
     def drive_to(
         self, rows: np.ndarray, epoch: int, instance: int, index: np.ndarray, positions: np.ndarray, colors: np.ndarray
     ) -> None:
-        """The robots at ``rows`` were agreed goals ``index`` of goal set ``epoch``: each drives to its
-        goal and lights its colour."""
+        """The robots at ``rows`` were agreed goals ``index`` of goal set ``epoch``: they drive there, lit."""
         self.goal0[rows] = self.goal[rows] = positions[index]
         self.key[rows, 0], self.key[rows, 1] = epoch, index
         self.instance[rows] = instance
@@ -57,7 +51,5 @@ class HeldGoals:
         return self.key[rows, 1] >= 0
 
     def targets(self, rows: np.ndarray | slice) -> tuple[np.ndarray, np.ndarray]:
-        """What the policy steers these robots to (agent.loop.Robots.goals): a held goal as its set
-        was published (the policy moves it, eq. 28), else where the robot was sent; and the keys (a
-        copy, also of every row: the tick's intent keeps them while new goals are taken up)."""
+        """What the policy steers these robots to (a held goal as published, else where sent) and a copy of the keys."""
         return np.where(self.has_goal(rows)[:, None], self.goal0[rows], self.goal[rows]), self.key[rows].copy()

@@ -1,10 +1,4 @@
-"""How late an agent acts on its pose, and how far its robot may stray from its plan meanwhile.
-
-Real time only (docs/overload.md, rule 3). Lateness is how much longer than the quickest pose seen lately (the
-transport's own latency) a pose takes from its stamp to being acted on. An agent late by L may be up to 2 v_max L
-from where its plan starts (a full reversal), so it grows its own radius by that, in its constraints and in the
-state it broadcasts; a command later than one period and the command margin never drives, so L counts up to that.
-"""
+"""How late an agent acts on its pose, and how far its robot may stray meanwhile (real time: docs/overload.md)."""
 
 from __future__ import annotations
 
@@ -41,5 +35,5 @@ class Lateness:
 
 
 def strayed(late: float, v_max: float) -> float:
-    """How far a body may be from where its plan starts when a command late by ``late`` takes over."""
+    """How far a body may be from where its plan starts when a command late by ``late`` takes over (a reversal)."""
     return 2.0 * v_max * late

@@ -1,11 +1,4 @@
-"""The one tick loop: what a batch of robots does each tick, in every engine.
-
-An agent process (one robot), an agent host (K robots), the central engine (every robot) and the
-loss study run ``tick`` and differ only in its seams: the ``Link`` (how robots hear each other's
-states and where their commands go: the bus, or in-process with or without impairment) and the
-``Auction`` step (over the bus, or settled in this process). The clock is the caller's: it says
-when a tick is due and brings what the robots know of it (``Sensed``).
-"""
+"""The one tick loop of every engine (agent, host, central, loss study): they differ only in its seams."""
 
 from __future__ import annotations
 
@@ -22,9 +15,7 @@ from .core.step import NeighbourStates
 
 @dataclass
 class Sensed:
-    """What a batch of robots knows at a tick, before it hears its neighbours: each robot's tracked
-    pose (rows by robot), the tick and its display time, and the parameters it steers by (grown
-    when it acts late, agent.lateness)."""
+    """What a batch of robots knows at a tick before it hears its neighbours (params grown when late)."""
 
     ids: np.ndarray
     position: np.ndarray  # (B,2)
@@ -83,8 +74,7 @@ class Seams:
 
 
 def tick(robots: Robots, sensed: Sensed, seams: Seams) -> Decision:
-    """One tick of a batch: the auction's step (an agreement is adopted at this tick), the states
-    heard, the policy (agent.core.policy), the deadlocks charged to the auction, commands out."""
+    """One tick of a batch: the auction's step, the states heard, the policy, deadlocks charged, commands out."""
     seams.auction.step(sensed)
     heard = seams.link.neighbours(sensed)
     rows = robots.rows(sensed.ids)
@@ -118,26 +108,21 @@ def _act(sensed: Sensed, intent: Intent, memory: Memory, heard: NeighbourStates,
     return act(sensed.params, sensed.ids, sensed.position, sensed.heading, intent, memory, heard, around)
 
 
-def _rows(sensed: Sensed, b: np.ndarray) -> Sensed:
-    s = sensed
+def _rows(s: Sensed, b: np.ndarray) -> Sensed:
     return replace(s, ids=s.ids[b], position=s.position[b], heading=s.heading[b], braking=s.braking[b])
 
 
 def changed_rows(old: Intent, new: Intent) -> np.ndarray:
     """The robots whose goal, its key or preferred velocity differ, to the bit, between two intents."""
 
-    def bits(a: np.ndarray) -> np.ndarray:
-        return np.ascontiguousarray(a, dtype=float).view(np.int64)
-
+    bits = lambda a: np.ascontiguousarray(a, dtype=float).view(np.int64)
     changed = (bits(old.goal) != bits(new.goal)).any(axis=1) | (old.key != new.key).any(axis=1)
     changed |= (bits(old.preferred) != bits(new.preferred)).any(axis=1)
     return np.flatnonzero(changed)
 
 
 def step_again(decision: Decision, rows: np.ndarray, intent: Intent, decide: Callable[[np.ndarray], Decision]) -> None:
-    """The robots at ``rows`` decide again on their new intent; the decision takes the new intent for
-    every robot (the others' is the same, to the bit). Per robot, a decision does not depend on
-    the rest of the batch."""
+    """The robots at ``rows`` decide again; the decision takes the new intent (the others' is the same, to the bit)."""
     if rows.size:
         decision.put(rows, decide(rows))
     decision.intent = intent

@@ -14,16 +14,10 @@ from transport.plausible import AHEAD, FUTURE, INCONSISTENT, stamp_agrees
 from .core.grid import nearest, neighbour_rows
 from .core.step import NeighbourStates
 
-_tick = attrgetter("tick")
-
 
 class NeighbourTable:
-    """Latest broadcast states per robot id, keeping the two newest so a lock-step tick can use
-    exactly the states of the previous tick (the same information whatever the arrival order).
-
-    A state may not claim a tick beyond the table's clock (``advance``: the tick its robots step)
-    by more than transport.plausible.AHEAD, nor a stamp other than its tick's start: kept as the
-    newest, a state from the future would push the honest ones out."""
+    """The two newest broadcast states per robot (a lock-step tick uses exactly the previous tick's). A state from
+    the future (beyond AHEAD) or with a wrong stamp is refused: kept as newest, it would push the honest ones out."""
 
     def __init__(self, dt: float) -> None:
         self.dt = dt
@@ -31,15 +25,12 @@ class NeighbourTable:
         self._states: dict[int, list[State]] = {}
 
     def advance(self, tick: int) -> None:
-        """The table's robots step ``tick`` now. A clock that went back (the tracker restarted,
-        counting from 0 again) makes every state held newer than anything to come: forget them."""
+        """The table's robots step ``tick`` now; a clock that went back (the tracker restarted) forgets every state."""
         if self.now is not None and tick < self.now:
             self._states.clear()
         elif self.now is None:  # states heard before the first tick were taken unchecked
-            for robot, kept in list(self._states.items()):
-                kept[:] = [s for s in kept if s.tick <= tick + AHEAD]
-                if not kept:
-                    del self._states[robot]
+            plausible = {r: [s for s in kept if s.tick <= tick + AHEAD] for r, kept in self._states.items()}
+            self._states = {r: kept for r, kept in plausible.items() if kept}
         self.now = tick
 
     def update(self, state: State) -> str | None:
@@ -48,15 +39,12 @@ class NeighbourTable:
             return FUTURE
         if not stamp_agrees(state.tick, state.stamp, self.dt):
             return INCONSISTENT
-        kept = self._states.get(state.robot)
-        if kept is None:
-            self._states[state.robot] = [state]
-            return None
-        if kept[-1].tick == state.tick or kept[0].tick == state.tick:
+        kept = self._states.setdefault(state.robot, [])
+        if kept and (kept[-1].tick == state.tick or kept[0].tick == state.tick):
             return None  # duplicate (of one of the at most two kept)
         kept.append(state)
-        if state.tick < kept[-2].tick:  # out of order (rare): sort only then
-            kept.sort(key=_tick)
+        if len(kept) > 1 and state.tick < kept[-2].tick:  # out of order (rare): sort only then
+            kept.sort(key=attrgetter("tick"))
         if len(kept) > 2:
             del kept[0]
         return None
@@ -64,20 +52,14 @@ class NeighbourTable:
     def forget_outside(
         self, cells: set[tuple[int, int]], cell_size: float, keep: set[int] | frozenset[int] = frozenset()
     ) -> int:
-        """Drop robots whose newest state lies in a cell we no longer listen to, except ``keep``
-        (robots whose agent died: their bodies stand where they were last heard). We cannot hear the
-        others any more, and an aged state's uncertainty grows without bound: a phantom obstacle.
-        Returns how many were dropped."""
+        """Drop (and count) robots last heard in a cell we no longer hear, phantom obstacles, except ``keep`` (dead)."""
         if not self._states:
             return 0
         at = cells_of([(kept[-1].x, kept[-1].y) for kept in self._states.values()], cell_size).tolist()
         return self._forget([r for r, (cx, cy) in zip(self._states, at) if (cx, cy) not in cells and r not in keep])
 
     def forget_silent(self, before: float, keep: set[int] | frozenset[int] = frozenset()) -> int:
-        """Drop robots whose newest state is stamped before ``before`` (display time), except ``keep``
-        (as in forget_outside). A robot near ours is heard every period; one silent for longer has left
-        our cells, and its last state, in a cell we still listen to, would stay for good as a phantom
-        obstacle. Returns how many were dropped."""
+        """Drop (and count) robots silent since before ``before`` (gone: phantom obstacles), except ``keep``."""
         return self._forget([r for r, kept in self._states.items() if kept[-1].stamp < before and r not in keep])
 
     def _forget(self, robots: list[int]) -> int:
@@ -92,14 +74,8 @@ class NeighbourTable:
         return robot in self._states
 
     def latest_before(self, tick: int) -> list[State]:
-        """For each robot, its newest state stamped before ``tick``."""
-        out = []
-        for kept in self._states.values():
-            for s in reversed(kept):
-                if s.tick < tick:
-                    out.append(s)
-                    break
-        return out
+        """For each robot, its newest state stamped before ``tick`` (kept: at most two, oldest first)."""
+        return [kept[-1] if kept[-1].tick < tick else kept[0] for kept in self._states.values() if kept[0].tick < tick]
 
     def gather(
         self,
@@ -111,12 +87,7 @@ class NeighbourTable:
         max_neighbours: int,
         stopped: dict[int, float] | None = None,
     ) -> NeighbourStates:
-        """Padded neighbour arrays for a batch: the nearest ``max_neighbours`` within ``neighbour_dist``.
-
-        ``stopped``: robots whose agent is dead (liveliness lost), with how far they may have moved
-        after their last state. Their bodies stand still (the world or hardware proxy stops a robot
-        whose agent died), so they are static obstacles at their last position, grown by that
-        distance, instead of silent robots whose possible position grows with age without bound."""
+        """Padded neighbour arrays for a batch; ``stopped``: dead agents' robots (static, grown by a last move)."""
         states = self.latest_before(tick)
         if not states:
             return NeighbourStates.empty(len(robot_ids))
@@ -155,10 +126,7 @@ def nearest_heard(
     max_neighbours: int,
     threads: int = 1,
 ) -> NeighbourStates:
-    """Padded neighbour arrays for a batch at display time ``stamp``: each robot's nearest
-    ``max_neighbours`` heard states within ``neighbour_dist`` of it (never its own), nearest first,
-    ties by robot id (agent.core.grid.nearest), so every process and engine picks the same neighbours
-    from the same states, for one robot, a host's K or all of them (on ``threads`` threads)."""
+    """Padded neighbour arrays: the nearest heard states (ties by id), so every engine picks the same neighbours."""
     batch = len(robot_ids)
     if len(heard.ids) == 0:
         return NeighbourStates.empty(batch)

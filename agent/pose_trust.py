@@ -1,11 +1,5 @@
-"""Which tracked positions a robot drives on.
-
-A tracker's error is millimetres (paper 7.1), and a robot moves at most v_max a second. A pose
-further from the last trusted one than the robot could have driven since is a tracker glitch (a
-swapped marker, a reflection in motion capture) until more poses agree with it: the robot brakes
-on its last trusted position meanwhile, and takes the new place only once ``CONFIRM`` poses in a
-row agree with each other there (a robot really picked up and put down, paper Fig. 20).
-"""
+"""Which tracked positions a robot drives on: a pose further than it could have driven is a tracker glitch, and it
+brakes on its last trusted one until ``CONFIRM`` poses agree on the new place (picked up and put down, Fig. 20)."""
 
 from __future__ import annotations
 
@@ -28,8 +22,7 @@ class PoseTrust:
     """Per robot, the last trusted pose and a candidate new place."""
 
     def __init__(self, v_max: float, dt: float, slack: float) -> None:
-        """``slack``: what tracking noise may add to a move (m)."""
-        self.v_max, self.dt, self.slack = v_max, dt, slack
+        self.v_max, self.dt, self.slack = v_max, dt, slack  # slack: what tracking noise may add to a move (m)
         self.trusted: dict[int, _Place] = {}
         self.candidate: dict[int, _Place] = {}
         self.held = 0  # poses held back so far (robot-ticks braked)

@@ -1,11 +1,5 @@
-"""The agent runtime: binds the pure control core to the bus for K robots in one process.
-
-Per tick, each robot takes its pose (time comes only from messages: the tick and its stamp arrive with it) and
-its neighbours' latest states, computes its collision-free velocity and command, then publishes its state (to its
-spatial cell), its command and LED colour. A robot whose goal belongs to a keyframe holds eq. 27's velocity
-(agent.core.animation); one whose goal set moves drives to g_j(t) with the goal's velocity as a feed-forward term
-(eq. 28, agent.core.goal_motion).
-"""
+"""The agent runtime: binds the pure control core to the bus for K robots in one process (time comes only from
+messages: each tick, poses and neighbours' states in; states, commands and LED colours out)."""
 
 from __future__ import annotations
 
@@ -67,8 +61,7 @@ class HostConfig:
     pursue: dict[int, int] = field(default_factory=dict)  # robot -> the robot whose broadcasts are its goal
     greet: list[int] = field(default_factory=list)  # lock-step: robots near ours at the start (see AgentHost.start)
     frames: bool = False  # a host of several robots: one frame a tick of poses, of states, of commands (else per robot)
-    steps: list[float] = field(default_factory=list)  # lock-step: display times the scene's goal sets are due
-    # (a tick waits for its goal set, so that every engine adopts it at the same tick)
+    steps: list[float] = field(default_factory=list)  # lock-step: display times goal sets are due (a tick waits)
     reach: float = math.inf  # communication range (m): states and the auction heard only from robots this close
     swarm: int = 0  # robots in the run (0: not known): lock-step hellos are rarer in large swarms (agent.clocks)
 
@@ -91,11 +84,7 @@ class HostConfig:
 
 
 def interpreter(robots: int) -> list[str]:
-    """The Python and its flags that run an agent process of ``robots`` robots (then `-m agent`).
-
-    A robot alone runs with -OO and -X no_debug_ranges, dropping docstrings and column positions it never reads,
-    but only where make has compiled that optimised bytecode (compiling it at every start costs more than it saves).
-    """
+    """The Python and flags that run an agent process: a robot alone runs -OO where make compiled that bytecode."""
     import importlib.util  # here: the launcher asks, a robot's process need not load it
 
     samples = (json.__file__, np.__file__, __file__)  # the standard library, numpy, ours
@@ -108,8 +97,7 @@ AUCTION_SHARE_COLD = 0.8  # ... until the newest goal set's first agreement: rob
 
 
 class KeepCells:
-    """The records placed in these spatial cells (transport.keys.cells_of), a host's neighbourhood,
-    and those of ``robots`` wherever they are (the robots its pursuers chase)."""
+    """The records in these spatial cells (a host's neighbourhood), and those of ``robots`` (its pursuers' targets)."""
 
     def __init__(self, cells: set[tuple[int, int]], cell_size: float, robots: frozenset[int]) -> None:
         self.cells, self.cell_size, self.robots = cells, cell_size, robots
@@ -129,15 +117,8 @@ class KeepCells:
 
 
 class CellSubscriptions:
-    """Subscriptions to the spatial cells around each robot, shared by the robots of a host.
-
-    Cells are half the neighbour reach (RobotParams.cell_size): the 5x5 cells around a robot's own cover it. Zenoh
-    tells publishers of a new subscriber asynchronously, so lock-step subscribes to 7x7 cells: the extra ring is in
-    place before anyone in it can become a neighbour, and the neighbour set (so the run) never depends on how fast a
-    declaration travelled. With ``listen`` off there are no subscriptions: the cells only pick the records the
-    inbox keeps, for a host of frames (HostConfig.frames) or a robot alone whose cells cover a third of the arena
-    (window_covers_a_third).
-    """
+    """Subscriptions to the 5x5 cells around each robot; lock-step's 7x7 are in place before anyone in the outer ring
+    can become a neighbour (zenoh is asynchronous). With ``listen`` off they only pick what the inbox keeps."""
 
     def __init__(self, bus: Bus, inbox: Any, cell_size: float, reach: int = 3, listen: bool = True) -> None:
         self.bus, self.inbox, self.cell_size, self.reach, self.listen = bus, inbox, cell_size, reach, listen
@@ -171,8 +152,7 @@ class CellSubscriptions:
 
 @dataclass
 class Inboxes:
-    """What a host hears: its robots' poses, its neighbours' states (by the spatial cells around its
-    robots), the goal sets, and which agents are alive."""
+    """What a host hears: its robots' poses, its neighbours' states (by cell), the goal sets, which agents live."""
 
     pose: Inbox[Pose]
     state: Inbox[State]
@@ -182,8 +162,7 @@ class Inboxes:
 
     @classmethod
     def of(cls, bus: Bus, config: HostConfig, own: np.ndarray) -> Inboxes:
-        # A host of several robots keeps its rows of the tracker's frames; a robot alone hears its own
-        # key (a subscription per robot would be a thread per robot in zenoh-python).
+        # a host keeps its rows of the tracker's frames (a subscription per robot is a thread in zenoh-python)
         keys = bus.keys
         pose = bus.inbox(Pose, only=own)
         for key in [keys.poses] if config.frames else [keys.pose(r) for r in config.robots]:
@@ -202,9 +181,7 @@ class Inboxes:
 
 
 def window_covers_a_third(arena: tuple[float, float, float, float] | None, cell_size: float, reach: int) -> bool:
-    """Whether a robot's square of cells covers at least a third of the arena's. A robot alone then hears every
-    state on one subscription and keeps those in its cells (KeepCells), where zenoh would otherwise match each
-    arrival against tens of subscriptions (docs/protocol.md)."""
+    """Whether a robot's cells cover a third of the arena: one subscription to all states is then cheaper."""
     if arena is None:
         return False
     (c0, r0), (c1, r1) = cell_of(arena[0], arena[1], cell_size), cell_of(arena[2], arena[3], cell_size)
@@ -234,9 +211,7 @@ class OwnRobots:
 
 
 class PoseIntake:
-    """The poses the next step acts on, by robot. What a pose may claim: its tick against the clock
-    (lock-step) or the wall clock (real time), and its place against where the robot could have
-    driven (agent.pose_trust)."""
+    """The poses the next step acts on, by robot, checked against the clock and where the robot could have driven."""
 
     def __init__(self, config: HostConfig, pose_period: float | None) -> None:
         p = config.params
@@ -246,8 +221,7 @@ class PoseIntake:
         self.lines = {r: TickLine(pose_period) for r in config.robots}
 
     def take(self, pose: Pose, newest_tick: Callable[[], int | None]) -> str | None:
-        """Hold a robot's pose for the next step (the newest tick wins), or say why it is refused.
-        ``newest_tick``: the tick the world is known to have reached (lock-step's clock)."""
+        """Hold a robot's pose for the next step (the newest tick wins), or say why it is refused."""
         if not stamp_agrees(pose.tick, pose.stamp, self.dt):
             return INCONSISTENT
         why = self.lines[pose.robot].admit(pose.tick, time.monotonic(), newest_tick())
@@ -257,20 +231,14 @@ class PoseIntake:
         return why
 
     def judged(self, poses: list[Pose]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Each robot's position and heading to drive on, and whether it brakes: a pose further than
-        the robot could have driven is held, and the robot brakes where it last was."""
+        """Each robot's position and heading to drive on, and whether it brakes on its last trusted pose."""
         judged = [self.trust.judge(q.robot, q.tick, q.x, q.y, q.theta) for q in poses]
-        pose_of = [j if j is not None else self.trust.last(q.robot) for q, j in zip(poses, judged)]
-        position = np.array([(x, y) for x, y, _ in pose_of], float)
-        heading = np.array([th for _, _, th in pose_of], float)
-        return position, heading, np.array([j is None for j in judged], bool)
+        pose_of = np.array([j if j is not None else self.trust.last(q.robot) for q, j in zip(poses, judged)], float)
+        return pose_of[:, :2].copy(), pose_of[:, 2].copy(), np.array([j is None for j in judged], bool)
 
 
 class GoalSetsHeard:
-    """The coordinator's goal sets as a host knows them: those taken up, by epoch (their timing and
-    motion; an agreed assignment may still be of an older epoch), the newest epoch heard (per-robot
-    goals too), which can be the coordinator's, and the first its robots may bid in: an agent
-    started during a show joins the auction at the next goal set (agent.clocks.LockStep.greet)."""
+    """The goal sets a host took up, by epoch, the newest epoch heard, and the first its robots may bid in."""
 
     def __init__(self, arena: tuple[float, float, float, float] | None) -> None:
         self.by_epoch: dict[int, Goals] = {}
@@ -278,16 +246,10 @@ class GoalSetsHeard:
         self.believed = GoalSets(arena)
         self.bid_from = 0
 
-    @property
-    def newest(self) -> Goals | None:
-        return self.by_epoch[max(self.by_epoch)] if self.by_epoch else None
-
 
 class Departures:
-    """Robots whose agent died, as liveliness says: their bodies stand still (5.1.2). Also those that
-    died during the goal set in force (``gone``), which lock-step's auction does not wait for: one
-    started again cannot join that goal set's auction under way, so it is not waited for until the
-    next goal set, which the coordinator publishes for it."""
+    """Robots whose agent died: their bodies stand still (5.1.2); those ``gone`` during the goal set in force cannot
+    rejoin its auction, so lock-step does not wait for them until the next."""
 
     def __init__(self, alive: LivelinessWatch) -> None:
         self.alive = alive
@@ -313,27 +275,15 @@ class Departures:
             self.gone, self.gone_since = set(self.dead), epoch
 
 
-@dataclass
-class Tally:
-    """What a host counts for its statistics."""
-
-    ticks: int = 0  # ticks stepped
-    fallbacks: int = 0  # robot-ticks whose program was infeasible and the fallback ran
-
-
 class AgentHost:
-    """K robots in one process, each deciding for itself from its own messages.
-
-    Its state is grouped by what it is about (its robots, the poses of the next step, the goal sets
-    heard, the departed, the tally) beside the parts it steps with (the neighbour table, the goals
-    and policy memory by row, the inboxes, the clock, the auction and the loop's seams)."""
+    """K robots in one process, each deciding for itself from its own messages."""
 
     def __init__(self, bus: Bus, config: HostConfig) -> None:
         self.bus, self.config = bus, config
         p = config.params
         self.robots = OwnRobots(config.robots)
         self.table = NeighbourTable(p.dt)
-        self.tally = Tally()
+        self.ticks = self.fallbacks = 0  # ticks stepped; robot-ticks whose program was infeasible (fallback ran)
         # rows: the own robots in id order; until a neighbour is heard, its states may be as old as stale_after
         self.policy_memory = Memory.new(len(self.robots), latency=p.stale_after)
         self.held_goals = HeldGoals.new(len(self.robots))  # rows as policy_memory's
@@ -356,11 +306,8 @@ class AgentHost:
     def params(self) -> RobotParams:
         return self.config.params
 
-    # --- start ------------------------------------------------------------------------------
     def start(self, timeout: float = 60.0) -> bool:
-        """Fetch the current goal set (late joiners too), learn where the robots are and subscribe to
-        the cells around them, then announce every robot alive.
-        Lock-step first greets its neighbours (agent.clocks.LockStep.greet)."""
+        """Fetch the goal set, learn where the robots are and subscribe to their cells, then announce them alive."""
         for _, goals in self.bus.query(self.bus.keys.all_of("goals"), Goals, timeout=2.0):
             self.hear_goals(goals)
         where: dict[int, Pose] = {}
@@ -387,8 +334,7 @@ class AgentHost:
         return True
 
     def publish_states(self, tick: int, stamp: float, states: list[State]) -> None:
-        """A host's frame of its robots' states, heard by every host; a robot alone its frame of one
-        under its spatial cell (HostConfig.frames)."""
+        """A host's frame of its robots' states; a robot alone its frame of one under its cell (HostConfig.frames)."""
         first = int(self.robots.ids[0]) if self.config.frames else None
         self.bus.publish_states(tick, stamp, states, self.params.cell_size, first)
 
@@ -401,25 +347,19 @@ class AgentHost:
         for c in commands:
             self.bus.put(keys.cmd(c.robot), Commands.encode_one(c), Commands.NAME)
 
-    # --- messages -----------------------------------------------------------------------------
     def hear_goals(self, goals: Goals) -> None:
-        """A goal set heard. Lock-step holds a new one until the tick that takes it up
-        (HostClock.take_up_goal_sets), so that every host takes it up at the same tick. One whose epoch
-        or stamp lies beyond what the robots know is refused: taken as the newest, it would shut out
-        the coordinator's real ones."""
-        why = self.goal_sets.believed.admit(goals, self._display_time())
+        """A goal set heard (lock-step holds it until its tick: HostClock.holds). One whose epoch or stamp lies
+        beyond what the robots know is refused: taken as the newest, it would shut out the coordinator's."""
+        now = self.clock.display_time()  # the newest display time known: the lock-step clock, else the newest pose
+        if now is None:
+            now = max((m.stamp for m in self.robots.known()), default=None)
+        why = self.goal_sets.believed.admit(goals, now)
         if why is not None:
             self.inbox.goals.drops[why] += 1
             return
         self.goal_sets.newest_heard = max(self.goal_sets.newest_heard, goals.epoch)
         if not self.clock.holds(goals):
             self.on_goals(goals)
-
-    def _display_time(self) -> float | None:
-        """The newest display time the robots know: the lock-step clock, else their newest pose."""
-        if (t := self.clock.display_time()) is not None:
-            return t
-        return max((m.stamp for m in self.robots.known()), default=None)
 
     def on_goals(self, goals: Goals) -> None:
         if not goals.per_robot:
@@ -439,8 +379,7 @@ class AgentHost:
             carried = self.auction.on_goals(goals, self._positions(), driving)
             # the next keyframe or image: drive on at once (6.2), the auction follows
             self._on_agreed(goals.epoch, State.CARRIED, carried, goals.positions, goals.colors)
-            # not in this goal set (e.g. it joined late): it waits; a pursuer is not a pixel, its goal
-            # comes from its target's broadcasts (_on_state)
+            # not in this goal set (e.g. it joined late): it waits; a pursuer's goal comes from its target (on_state)
             self.held_goals.idle(self.robots.rows(r for r in self.auction.idle_robots() if r not in self.config.pursue))
             return
         own = [r for r in self.robots.ids.tolist() if r < len(goals.positions)]
@@ -453,16 +392,12 @@ class AgentHost:
         return {epoch: timing_of(gs) for epoch, gs in self.goal_sets.by_epoch.items()}
 
     def _positions(self) -> dict[int, np.ndarray]:
-        """The own robots' positions as the auction takes them (cached until positions or goals change).
-
-        A moving goal set (paper 7.4.1) is auctioned on G^0, the goals as published, with each position mapped back
-        through eq. 28's similarity at the time it was tracked: squared distances then differ from those to the
-        moving goals by the common factor s(t)^2 only, so the assignment is the same while the auction stays that
-        of a still image; Epsilon_A and Delta C count in G^0's frame (agent.core.goal_motion). A robot on its way
-        to a goal of the newest set bids from where it will be when the instance is adopted (bid_position)."""
+        """The own robots' positions as the auction takes them (cached): for a moving goal set (7.4.1) mapped back
+        through eq. 28, for a robot on its way to a goal where it will be when the instance is adopted."""
         if self._bid_from is not None:
             return self._bid_from
-        newest = self.goal_sets.newest
+        by_epoch = self.goal_sets.by_epoch
+        newest = by_epoch[max(by_epoch)] if by_epoch else None
         motion = motion_of(newest) if newest is not None else None
         out, on_way, key = {}, [], self.held_goals.key
         for m in self.robots.tracked.values():
@@ -493,17 +428,9 @@ class AgentHost:
         self.held_goals.drive_to(self.robots.rows(goals), epoch, instance, index, positions, colors)
 
     def _hold(self, robots: list[int]) -> None:
-        """These robots' auction block was abandoned: they hold their positions (no goal), as
-        another robot may have been agreed their goals."""
+        """These robots' auction block was abandoned: they hold (another may have been agreed their goals)."""
         self._bid_from = None
         self.held_goals.hold(self.robots.rows(robots))
-
-    def _absorb(self) -> None:
-        for _, goals in self.inbox.goals.drain():
-            self.hear_goals(goals)
-        for state in self.inbox.state.take():
-            self.on_state(state)
-        self.auction.poll(self._positions())
 
     def on_state(self, msg: State) -> None:
         if msg.tick == BEFORE_START:  # a hello (lock-step start-up), not a state to steer by
@@ -518,11 +445,9 @@ class AgentHost:
             if msg.robot == target and robot in self.robots:
                 self.held_goals.goal[self.robots.row_of[robot]] = msg.x, msg.y
 
-    # --- the loop -----------------------------------------------------------------------------
     def run(self, parent_pid: int | None = None) -> None:
         """Step every tick until stopped, or (``parent_pid``) until that process, the launcher, is gone."""
-        # One bell rung by poses, goal sets and auction messages: the loop sleeps until any arrives
-        # (auction rounds go on between ticks) or something is due.
+        # one bell rung by poses, goal sets and auction messages: the loop sleeps until any arrives or one is due
         bell = threading.Event()
         for inbox in (self.inbox.pose, self.inbox.goals, self.auction.inbox):
             inbox.bell = bell
@@ -535,7 +460,7 @@ class AgentHost:
                     self.hear_goals(msg)
                 self.auction.poll(self._positions())
             if got is None:
-                if not self.tally.ticks:
+                if not self.ticks:
                     self.clock.say_hello()  # until the first tick: a neighbour may still wait for it
                 if parent_pid is not None and os.getppid() != parent_pid:
                     self.running = False  # orphaned: the launcher died without stopping us
@@ -548,8 +473,7 @@ class AgentHost:
             for _, pose in self.inbox.pose.drain():
                 self._take_pose(pose)
             self.clock.poses_arrived(list(self.poses.pending.values()), tick_start)
-            # Collect the other robots' poses of this tick: a loaded machine can split a tick's frame, and
-            # lock-step waits for all of them, as a block frozen on some robots' old poses makes a different run.
+            # the rest of this tick's poses (a loaded machine can split a frame): lock-step waits for all of them
             deadline = tick_start + self.clock.collect
             while len(self.poses.pending) < len(self.robots) and self.running:
                 got = self.inbox.pose.get(timeout=max(0.0, deadline - time.monotonic()))
@@ -560,8 +484,7 @@ class AgentHost:
             self._auction_rounds(bell, tick_start)
 
     def _keep_subscriptions(self) -> None:
-        """A while after the link to the router came back, declare the subscriptions again
-        (Bus.renew_if_due); then again at that interval until a pose comes, as one renewal may not suffice."""
+        """Declare the subscriptions again after the router link came back, until a pose comes (Bus.renew_if_due)."""
         now = time.monotonic()
         if self.bus.renew_if_due():
             self._deaf_since = now
@@ -572,17 +495,14 @@ class AgentHost:
     def _idle_wait(self) -> float:
         """How long the loop may sleep with no pose: until an auction round or a hello is due."""
         wait = min(0.2, self.auction.next_due()) if self.auction.active else 0.2
-        if not self.tally.ticks:
+        if not self.ticks:
             wait = min(wait, self.clock.hello_every)
         if self.inbox.pose.has_delayed:
             wait = min(wait, 0.005)
         return wait
 
     def _auction_rounds(self, bell: threading.Event, tick_start: float) -> None:
-        """Real time, after a tick, while an auction instance is open: keep trading messages until a
-        share of the control period from the tick's first pose (``tick_start``) is over, so the
-        rounds never make the next command late. (Lock-step's rounds are played within the tick,
-        agent.assignment.AuctionLink.settle_block.)"""
+        """Real time: trade auction messages for a share of the period, never making the next command late."""
         link = self.auction
         share = AUCTION_SHARE_COLD if link.cold else AUCTION_SHARE
         end = tick_start + share * self.params.dt
@@ -608,10 +528,13 @@ class AgentHost:
             return
         self.clock.before_step(list(pending.values()))
         self.table.advance(max(p.tick for p in pending.values()))
-        self._absorb()
+        for _, goals in self.inbox.goals.drain():  # what arrived meanwhile
+            self.hear_goals(goals)
+        for state in self.inbox.state.take():
+            self.on_state(state)
+        self.auction.poll(self._positions())
         poses = [pending.pop(r) for r in sorted(pending)]
-        # Robots of a host may hold poses of different ticks (real time): group by tick.
-        for tick in sorted({p.tick for p in poses}):
+        for tick in sorted({p.tick for p in poses}):  # a host's robots may hold poses of different ticks
             self._step_tick([p for p in poses if p.tick == tick])
 
     def _step_tick(self, poses: list[Pose]) -> None:
@@ -628,11 +551,10 @@ class AgentHost:
         self.departed.now()
         sensed = Sensed(np.array([q.robot for q in poses]), position, heading, tick, stamp, p, braking)
         decision = loop.tick(self, sensed, self.seams)
-        self.tally.fallbacks += int(np.count_nonzero(decision.step.fallback))
-        self.tally.ticks += 1
+        self.fallbacks += int(np.count_nonzero(decision.step.fallback))
+        self.ticks += 1
         self.clock.stepped(began)
 
-    # --- the loop's seams: what the robots hold, the bus link -----------------------------------
     def rows(self, ids: np.ndarray) -> np.ndarray:
         return self.robots.rows(ids.tolist())
 
@@ -671,8 +593,7 @@ class AgentHost:
         # States before commands: by the time the world moves on, neighbours have our states.
         self.publish_states(tick, stamp, states)
         self._publish_commands(tick, stamp, commands)
-        # The cells around EVERY own robot, not only this tick's batch: a tick's poses can arrive split, and
-        # dropping the others' cells would forget their neighbours' states (forget_outside).
+        # the cells around EVERY own robot, not only this batch: a tick's poses can arrive split (forget_outside)
         self.inbox.cells.update(np.array([m.position for m in self.robots.known()]))
         dead = self.departed.dead
         self.table.forget_outside(self.inbox.cells.cells, self.params.cell_size, keep=dead)
@@ -688,8 +609,8 @@ class AgentHost:
         return {
             "role": "agent",
             "robots": self.config.robots,
-            "ticks": self.tally.ticks,
-            "fallbacks": self.tally.fallbacks,
+            "ticks": self.ticks,
+            "fallbacks": self.fallbacks,
             "subscriptions_renewed": self.bus.renewals,
             "poses_held": self.poses.trust.held,
             "dropped": drops,
@@ -707,13 +628,7 @@ class AgentHost:
 
 
 def bid_position(position: np.ndarray, goal: np.ndarray, velocity: np.ndarray, lead: float) -> np.ndarray:
-    """Where a robot driving to its goal will be ``lead`` seconds on (the host's last delay from freezing positions
-    to adopting their agreement): along the straight line to the goal, as far as its speed carries it, never past it.
-    Rows of positions, goals and velocities (one call for a host's robots).
-
-    Bidding from there compensates the auction's latency (docs/architecture.md, "Latency compensation"). The speed
-    counts, not its component toward the goal: right after an agreement a robot given another goal still moves as
-    it did for its last one, and bidding from where it was would send it back."""
+    """Where robots will be ``lead`` s on (the auction's latency): toward the goal, as far as their speed carries."""
     position = np.asarray(position, float)
     to_goal = np.asarray(goal, float) - position
     if lead <= 0:
