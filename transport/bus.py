@@ -1,9 +1,8 @@
 """The bus: a zenoh session with typed publishing, queued subscriptions, liveliness and faults.
 
-Zenoh calls subscriber callbacks on its own threads; here a callback only decodes and queues (never
-blocks, never calls zenoh), and the owner's loop drains the queue. A pulled inbox has no callback:
-its samples wait in zenoh's channels and are decoded when the owner reads it. Decoding failures are
-counted per inbox and never raise.
+A subscriber callback (on zenoh's threads) only decodes and queues, never blocks; the owner's loop drains
+the queue. A pulled inbox's samples wait in zenoh's channels until the owner reads it. Decoding failures
+are counted per inbox and never raise.
 """
 
 from __future__ import annotations
@@ -43,15 +42,11 @@ from .faults import FaultPlan, FaultSpec
 from .keys import Keys, cell_of, robots_of_ident
 from .session import ZenohSettings, open_session
 
-# A pulled inbox: samples one subscription holds before zenoh's receiving thread waits for the owner,
-# and how often a wait for one looks again.
-PULL_CAPACITY = 100_000
-PULL_EVERY = 0.002
-# s a process waits after its last put before it closes its session (Bus.linger): zenoh sends from
-# its own thread and has no flush, so a session closed at once can drop a process's last report.
+PULL_CAPACITY = 100_000  # samples a pulled subscription holds before zenoh's thread waits for the owner
+PULL_EVERY = 0.002  # s between looks of a wait on a pulled inbox
+# s a process waits after its last put before closing its session (Bus.linger): zenoh has no flush
 CLOSE_LINGER = 0.2
-# leases a client waits, once its link to the router is back, before it declares its subscriptions
-# again (Bus.renew_if_due): time for the router to settle what it held of the link before.
+# leases a client waits, once its link to the router is back, before declaring its feeds again (renew_if_due)
 RENEW_AFTER_LEASES = 2
 T = TypeVar("T")  # what an inbox delivers: a message, or one robot's record of a frame (codec.Pose, ...)
 
@@ -87,9 +82,8 @@ class InjectedFault(Generic[T]):
 
         spec = self.spec
         stamp: float | None = getattr(msgs[0], "stamp", None) if msgs else None
-        # A hello (tick BEFORE_START) is not on the tick clock, which does not run before the first
-        # tick: held on it, it would wait for a tick that waits for it; drawn as a function of the
-        # message, every resend of it would meet the same fate.
+        # A hello (tick BEFORE_START) is off the tick clock: held on it, it would wait for a tick that
+        # waits for it, and every resend of it would meet the same fate.
         tick = getattr(msgs[0], "tick", -1) if msgs else -1
         on_ticks = inbox.sim_time is not None and stamp is not None and 0 <= tick != BEFORE_START
         with self._lock:
@@ -148,14 +142,11 @@ class Inbox(Generic[T]):
     """Messages of one subscription, decoded, filtered by faults, waiting for the owner's loop."""
 
     def __init__(self, expected: type[T], fault: FaultSpec, seed: str, only: np.ndarray | None, pulled: bool) -> None:
-        """``expected``: a message kind, or a record view (codec.Pose, State, Command) whose frames
-        arrive as their records (only those of robots ``only``, if given); a fault drops or delays
-        a frame whole. ``pulled``: samples wait in zenoh's channels until the owner reads the inbox,
-        and are decoded on the owner's thread (see Bus.inbox)."""
+        """``expected``: a message kind, or a record view (codec.Pose, State, Command) whose frames arrive
+        as their records (robots ``only``'s, if given). ``pulled``: decoded when read (see Bus.inbox)."""
         self.expected = expected
         self.frame: type[Frame] | None = FRAME_OF.get(cast(type, expected))
-        # which records of the frames are kept (None: all); replaced whole, as the thread that
-        # decodes may be reading it
+        # which records of the frames are kept (None: all); replaced whole, as zenoh's thread may read it
         self.keep: RecordFilter | None = None if only is None else KeepRobots(only)
         self.fault: InjectedFault[T] | None = InjectedFault(fault, seed) if fault.active else None
         self.drops = DropCounter()
@@ -166,9 +157,8 @@ class Inbox(Generic[T]):
         # and each draw is a function of the message, so a lock-step run with faults is reproducible.
         self.sim_time: float | None = None
         self.bell: threading.Event | None = None  # rung on every arrival: one wait serves several inboxes
-        # robot -> the tick of its record that reached this inbox last, whatever the fault plan did with
-        # it (None: not kept); a lock-step owner waits on it. The last, not the greatest: a tick forged
-        # from the future would otherwise stand.
+        # robot -> the tick of its record that arrived last, whatever the faults did (None: not kept), for
+        # a lock-step owner. The last, not the greatest: a tick forged from the future would otherwise stand.
         self.seen: dict[int, int] | None = None
         self.pulled = pulled
         self.channels: list[Any] = []  # pulled: the subscribers whose channels feed this inbox
@@ -187,9 +177,8 @@ class Inbox(Generic[T]):
         return payload
 
     def _records(self, payload: bytes, key: str) -> tuple[int, list] | None:
-        """A frame's (tick, records), those ``keep`` keeps; None if malformed, or if the key names
-        one robot and the frame holds anything but that robot's record (a damaged robot id would
-        make one robot's pose or state another's)."""
+        """A frame's (tick, records ``keep`` keeps); None if malformed, or if the key names one robot and
+        the frame holds anything but its record (a damaged robot id would make it another robot's)."""
         keep, alone = self.keep, Keys.robot_alone(key)
         got = decode_views(payload, cast("type[Frame]", self.frame), self.drops, keep if alone is None else None)
         if got is None or alone is None:
@@ -200,21 +189,15 @@ class Inbox(Generic[T]):
         return got if keep is None or keep.keeps(got[1][0]) else (got[0], [])
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        payload = self._payload(sample)
+        payload, key = self._payload(sample), str(sample.key_expr)
         if self.frame is None:
-            msg = decode(payload, cast("type[Message]", self.expected), self.drops)
-            if msg is not None:
-                self._deliver(str(sample.key_expr), [cast(T, msg)])
-            return
-        key = str(sample.key_expr)
-        got = self._records(payload, key)
-        if got is None:
-            return
-        tick, views = got
-        try:
-            self._deliver(key, views)
-        finally:  # after the records are queued, held or dropped: whoever waits on seen finds them
-            self._saw(tick, views)
+            if (msg := decode(payload, cast("type[Message]", self.expected), self.drops)) is not None:
+                self._deliver(key, [cast(T, msg)])
+        elif (got := self._records(payload, key)) is not None:
+            try:
+                self._deliver(key, got[1])
+            finally:  # after the records are queued, held or dropped: whoever waits on seen finds them
+                self._saw(*got)
 
     def _saw(self, tick: int, views: list) -> None:
         """Note the tick of these records as their robots' last seen (hellos are not ticks)."""
@@ -228,8 +211,7 @@ class Inbox(Generic[T]):
                 self._queue.put((key, m))
         elif not self.fault.admit(key, msgs, self):
             return  # dropped: nothing to wake the owner for
-        # Rung for held messages too, so an owner asleep on the bell releases them in time. A pulled
-        # inbox delivers on its owner's thread, awake by then: nobody to wake.
+        # Rung for held messages too, to release them in time; a pulled inbox's owner is awake already.
         if self.bell is not None and not self.pulled:
             self.bell.set()
 
@@ -249,21 +231,17 @@ class Inbox(Generic[T]):
         return _drain(self._queue)
 
     def take(self) -> list[T]:
-        """drain() without the keys. A pulled inbox of frames without injected faults hands the
-        records straight from zenoh's channels (and notes them ``seen``, as _on_sample does), on the
-        owner's hot path once a tick: no queue between."""
+        """drain() without the keys. A pulled inbox of frames without faults hands the records straight
+        from zenoh's channels (noted ``seen``), on the owner's hot path: no queue between."""
         direct = self.pulled and self.frame is not None and self.fault is None
         if not direct or not self._queue.empty():
             return [m for _, m in self.drain()]
         out: list[T] = []
         for sub in self.channels:
             while (sample := sub.try_recv()) is not None:
-                got = self._records(self._payload(sample), str(sample.key_expr))
-                if got is None:
-                    continue
-                tick, views = got
-                out += views
-                self._saw(tick, views)
+                if (got := self._records(self._payload(sample), str(sample.key_expr))) is not None:
+                    out += got[1]
+                    self._saw(*got)
         return out
 
     def get(self, timeout: float) -> tuple[str, T] | None:
@@ -287,8 +265,7 @@ class Inbox(Generic[T]):
 
 
 class Feed:
-    """One declaration of a bus (a subscriber, a liveliness subscriber, a queryable), which
-    Bus.renew_if_due can declare again. Its owner holds the feed, never zenoh's object."""
+    """One declaration of a bus (subscriber, liveliness subscriber, queryable) that Bus.renew can redo."""
 
     def __init__(self, declare: Callable[[], Any]) -> None:
         self._declare = declare
@@ -298,8 +275,7 @@ class Feed:
         return self.declared.try_recv()
 
     def renew(self) -> None:
-        """The new declaration first, so nothing is missed between; what both deliver meanwhile
-        comes twice, as a replay (refused as stale, or the same state again)."""
+        """The new declaration first, so nothing is missed; what both deliver comes twice, as a replay."""
         old, self.declared = self.declared, self._declare()
         old.undeclare()
 
@@ -321,11 +297,9 @@ class RawInbox:
 
 
 class LivelinessWatch:
-    """Liveliness tokens as (role, ident, alive, wall time, incarnation) events, tokens already there
-    included. An incarnation is one process's life (Bus.incarnation): an ident whose token comes back
-    under a new incarnation was started again, where the same one back is a blip of the connection.
-    Events are per ident and in order: a new incarnation heard before its predecessor's token is gone
-    counts as the old one's death, then the new one's life, and the old token's late end as nothing."""
+    """Liveliness tokens (those already there too) as (role, ident, alive, wall time, incarnation) events.
+    An incarnation is one process's life (Bus.incarnation): a token back under a new one is a restart, under
+    the same one a blip. A new incarnation before the old token is gone counts as the old one's death."""
 
     def __init__(self) -> None:
         self._queue: queue.SimpleQueue[tuple[str, str, bool, float, str]] = queue.SimpleQueue()
@@ -361,9 +335,8 @@ class LivelinessWatch:
 
 
 class Bus:
-    """One participant's connection to the swarm: publish typed messages, subscribe to inboxes. Its
-    attributes are the session and its settings, the key schema, the fault plan, and what it declared
-    (publishers, feeds, tokens) with the link's state, kept together: a renewal declares them all again."""
+    """One participant's connection to the swarm: publish typed messages, subscribe to inboxes; what it
+    declared is kept with the link's state, as a renewal declares it all again."""
 
     def __init__(
         self,
@@ -375,19 +348,14 @@ class Bus:
         name: str = "",
         hears_itself: bool = True,
     ) -> None:
-        """``hears_itself``: what this session puts reaches its own matching subscriptions too. A
-        process that keeps what it says itself (a robot alone) turns it off: zenoh would hand each of
-        its states and claims back to its own callbacks, only to be dropped there."""
+        """``hears_itself``: what this session puts reaches its own subscriptions too (off for a robot alone)."""
         self.keys = Keys(display)
         self._destination = zenoh.Locality.ANY if hears_itself else zenoh.Locality.REMOTE
         self.settings = settings
         self.faults = dict(faults or {})
-        self._seed = seed
-        self._name = name
-        self._n_subs = 0
+        self._seeds = (f"{seed}/{name}/{n}" for n in itertools.count(1))  # an inbox's faults draw from its own
         self._last_put = -math.inf  # time.monotonic() of the last put (Bus.linger)
-        self.sent: Counter[str] = Counter()
-        self.sent_bytes: Counter[str] = Counter()
+        self.sent, self.sent_bytes = Counter[str](), Counter[str]()
         self._tokens: list[Any] = []
         self.incarnation = os.urandom(4).hex()  # this process's life: a token back under another is a restart
         self._subscriptions: list[Feed] = []
@@ -400,13 +368,11 @@ class Bus:
             # held: the listener lives as long as this object
             self._link = self.session.info.declare_transport_events_listener(self._on_link, history=False)
 
-    # --- publishing -----------------------------------------------------------------------
     def publish(self, key: str, msg: Message) -> None:
         self.put(key, msg.encode(), msg.NAME)
 
     def publish_poses(self, tick: int, stamp: float, robots: np.ndarray, poses: np.ndarray, frame: bool) -> None:
-        """The tracker's poses (x, y, theta rows) of these robots at a tick: one frame of them all on
-        ``pose`` for agent hosts (``frame``), else each robot's frame of one on its own key."""
+        """A tick's poses (x, y, theta rows): one frame for agent hosts (``frame``), else one per robot's key."""
         records = np.zeros(len(robots), Poses.RECORD)
         records["robot"] = robots
         records["x"], records["y"], records["theta"] = np.asarray(poses, float).reshape(-1, 3).T
@@ -434,18 +400,11 @@ class Bus:
         self.sent[kind] += 1
         self.sent_bytes[kind] += len(payload)
 
-    # --- subscribing ----------------------------------------------------------------------
     def inbox(self, expected: type[T], only: np.ndarray | None = None, *, pulled: bool = False) -> Inbox[T]:
-        """An empty inbox of ``expected`` (see Inbox), with the faults for that kind; feed it with
-        ``subscribe_into``.
-
-        ``pulled``: for an inbox its owner reads once a tick (an agent's neighbour states). Samples wait
-        in zenoh's channels and the owner decodes them when it reads, so no Python thread wakes per
-        sample to contend for the GIL. Nothing rings a bell on arrival: the owner polls."""
+        """An empty inbox of ``expected`` with its kind's faults, for ``subscribe_into``. ``pulled``: decoded
+        when read (once a tick), so no thread wakes per sample to contend for the GIL; the owner polls."""
         fault = self.faults.get(getattr(expected, "NAME", ""), FaultSpec())  # a kind's or a view's (its frame's)
-        self._n_subs += 1
-        seed = f"{self._seed}/{self._name}/{self._n_subs}"
-        inbox = Inbox(expected, fault, seed, only, pulled)
+        inbox = Inbox(expected, fault, next(self._seeds), only, pulled)
         if pulled:
             self._pulled.append(inbox)
         return inbox
@@ -457,21 +416,17 @@ class Bus:
     def subscribe(
         self, keyexpr: str, expected: type[T], only: np.ndarray | None = None, *, pulled: bool = False
     ) -> Inbox[T]:
-        """An inbox of decoded messages (or frames' records, of robots ``only`` if given) from one
-        key expression (``pulled``: see inbox)."""
+        """An inbox of decoded messages (or frames' records, robots ``only``'s) from one key expression."""
         inbox = self.inbox(expected, only, pulled=pulled)
         self.subscribe_into(keyexpr, inbox)
         return inbox
 
     def subscribe_into(self, keyexpr: str, inbox: Inbox[Any]) -> Feed:
         """Add another key expression feeding an existing inbox; returns the feed to unsubscribe."""
-        if inbox.pulled:
-            feed = self._feed(
-                lambda: self.session.declare_subscriber(keyexpr, zenoh.handlers.FifoChannel(PULL_CAPACITY))
-            )
-            inbox.channels.append(feed)
-        else:
-            feed = self._feed(lambda: self.session.declare_subscriber(keyexpr, inbox._on_sample))
+        if not inbox.pulled:
+            return self._feed(lambda: self.session.declare_subscriber(keyexpr, inbox._on_sample))
+        feed = self._feed(lambda: self.session.declare_subscriber(keyexpr, zenoh.handlers.FifoChannel(PULL_CAPACITY)))
+        inbox.channels.append(feed)
         return feed
 
     def _feed(self, declare: Callable[[], Any]) -> Feed:
@@ -493,7 +448,6 @@ class Bus:
         self._feed(lambda: self.session.declare_subscriber(keyexpr, inbox._on_sample))
         return inbox
 
-    # --- liveliness -----------------------------------------------------------------------
     def declare_alive(self, role: str, ident: int | str) -> Any:
         token = self.session.liveliness().declare_token(self.keys.alive(role, ident, self.incarnation))
         self._tokens.append(token)
@@ -507,7 +461,6 @@ class Bus:
         )
         return watch
 
-    # --- queries (late joiners fetch the current goal set) ------------------------------------
     def serve(self, keyexpr: str, answer: Callable[[], list[tuple[str, bytes]]]) -> Any:
         def handler(query: zenoh.Query) -> None:
             for key, payload in answer():
@@ -525,7 +478,6 @@ class Bus:
         answers = (getattr(reply, "ok", None) for replies in pending for reply in replies)
         return [(str(ok.key_expr), ok.payload.to_bytes()) for ok in answers if ok is not None]
 
-    # --- the link to the router -----------------------------------------------------------------
     def _on_link(self, event: Any) -> None:
         """zenoh's thread: the client's link to its router went (DELETE) or came (PUT). Only notes it."""
         if event.kind == zenoh.SampleKind.DELETE:
@@ -540,8 +492,7 @@ class Bus:
         return RENEW_AFTER_LEASES * self.settings.lease_ms / 1000
 
     def renew_if_due(self) -> bool:
-        """On the owner's thread, a while after the link to the router came back: declare every feed
-        again, as subscriptions made before the link dropped may deliver nothing more."""
+        """Declare every feed again a while after the link to the router came back (old ones may go quiet)."""
         if self._renew_at is None or time.monotonic() < self._renew_at:
             return False
         self.renew()
@@ -557,8 +508,7 @@ class Bus:
         self.renewals += 1
 
     def linger(self) -> None:
-        """Before a process closes its session: give zenoh's sending thread CLOSE_LINGER since the
-        last put to send what it holds (a process's last report)."""
+        """Before closing: give zenoh's sending thread CLOSE_LINGER since the last put to send what it holds."""
         time.sleep(max(0.0, self._last_put + CLOSE_LINGER - time.monotonic()))
 
     def close(self) -> None:

@@ -13,15 +13,12 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 VALID_DAYS = 365  # certificates are renewed by making a new folder, once a deployment season
+Key = ec.EllipticCurvePrivateKey
 
 
 def _name(common_name: str) -> x509.Name:
-    return x509.Name(
-        [
-            x509.NameAttribute(NameOID.ORGANIZATION_NAME, "pixelswarm"),
-            x509.NameAttribute(NameOID.COMMON_NAME, common_name),
-        ]
-    )
+    organization = x509.NameAttribute(NameOID.ORGANIZATION_NAME, "pixelswarm")
+    return x509.Name([organization, x509.NameAttribute(NameOID.COMMON_NAME, common_name)])
 
 
 def _san(hosts: Iterable[str]) -> x509.SubjectAlternativeName:
@@ -34,18 +31,14 @@ def _san(hosts: Iterable[str]) -> x509.SubjectAlternativeName:
     return x509.SubjectAlternativeName(names)
 
 
-def pem_key(key: ec.EllipticCurvePrivateKey) -> bytes:
+def pem_key(key: Key) -> bytes:
     return key.private_bytes(
         serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
     )
 
 
 def _sign(
-    subject: str,
-    key: ec.EllipticCurvePrivateKey,
-    issuer: x509.Name,
-    issuer_key: ec.EllipticCurvePrivateKey,
-    now: datetime.datetime,
+    subject: str, key: Key, issuer: x509.Name, issuer_key: Key, now: datetime.datetime
 ) -> x509.CertificateBuilder:
     # Back-dated an hour so that a robot whose clock lags a little still accepts the certificate.
     return (
@@ -61,40 +54,29 @@ def _sign(
     )
 
 
-def authority(now: datetime.datetime) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
+def authority(now: datetime.datetime) -> tuple[Key, x509.Certificate]:
     key = ec.generate_private_key(ec.SECP256R1())
+    signs = x509.KeyUsage(False, False, False, False, False, True, True, False, False)  # cert and CRL signing
     cert = (
         _sign("pixelswarm CA", key, _name("pixelswarm CA"), key, now)
         .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
-        .add_extension(
-            x509.KeyUsage(False, False, False, False, False, True, True, False, False),  # cert and CRL signing
-            critical=True,
-        )
+        .add_extension(signs, critical=True)
         .sign(key, hashes.SHA256())
     )
     return key, cert
 
 
 def role_certificate(
-    role: str,
-    names: Iterable[str],
-    server: bool,
-    ca_key: ec.EllipticCurvePrivateKey,
-    ca: x509.Certificate,
-    now: datetime.datetime,
-) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
+    role: str, names: Iterable[str], server: bool, ca_key: Key, ca: x509.Certificate, now: datetime.datetime
+) -> tuple[Key, x509.Certificate]:
     """A certificate for the role, its subject alternative ``names``; ``server``: it also serves TLS."""
     key = ec.generate_private_key(ec.SECP256R1())
-    usage = [ExtendedKeyUsageOID.CLIENT_AUTH]
-    if server:
-        usage.append(ExtendedKeyUsageOID.SERVER_AUTH)
+    usage = [ExtendedKeyUsageOID.CLIENT_AUTH, *([ExtendedKeyUsageOID.SERVER_AUTH] if server else [])]
+    signs = x509.KeyUsage(True, False, False, False, False, False, False, False, False)  # digital signature
     cert = (
         _sign(role, key, ca.subject, ca_key, now)
         .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-        .add_extension(
-            x509.KeyUsage(True, False, False, False, False, False, False, False, False),  # digital signature
-            critical=True,
-        )
+        .add_extension(signs, critical=True)
         .add_extension(x509.ExtendedKeyUsage(usage), critical=False)
         .add_extension(_san(names), critical=False)
         .sign(ca_key, hashes.SHA256())

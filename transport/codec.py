@@ -1,11 +1,9 @@
 """Versioned, compact binary codecs for every message kind, with validating decoders.
 
-Every message starts with a (kind, version) header; poses, states and commands travel as frames (a robot
-alone sends a frame of one), and a goal set is a sequence of parts with their own headers. ``decode`` never
-raises: anything malformed returns None and is counted in the ``DropCounter``, so nothing a peer sends can
-break a control loop. Goal sets, the auction's messages and states end in a CRC-32 (every host must hold them
-to the bit); poses and commands do not: a jumping pose is the pose trust's to judge (agent.pose_trust), a
-command is checked against its tick. The layouts: docs/protocol.md.
+Every message starts with a (kind, version) header; poses, states and commands travel as frames, a goal set
+as parts with their own headers. ``decode`` never raises: anything malformed is None, counted in a
+``DropCounter``, so no peer can break a control loop. Kinds every host must hold to the bit end in a CRC-32;
+poses (judged by agent.pose_trust) and commands (checked against their tick) do not. See docs/protocol.md.
 """
 
 from __future__ import annotations
@@ -45,9 +43,7 @@ def intact(data: bytes | memoryview) -> bool:
 
 
 def as_sent(values: Any) -> np.ndarray:
-    """Poses, states and commands as a receiver decodes them: their coordinates, velocities, radii and
-    wheel speeds cross the wire as float32. An in-process link rounds through this, so a robot there
-    knows exactly what it would have heard over the bus."""
+    """Values as a receiver decodes them (float32 on the wire): an in-process link rounds through this."""
     return np.asarray(values, np.float32).astype(np.float64)
 
 
@@ -124,8 +120,7 @@ class Message:
         return msg
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-friendly view (for logs): a record array as columns, one array per field (a dict per
-        record costs too much for a host's K records), any other array as a list."""
+        """JSON-friendly view (for logs): a record array as columns (one array per field), others as lists."""
         out = {}
         for name in self.field_names():
             v = getattr(self, name)
@@ -136,10 +131,6 @@ class Message:
 
 
 BEFORE_START = 0xFFFFFFFF  # tick of a frame sent before the robots' agents are live (poses, hellos)
-
-
-# One robot's record of a frame as a Python object: its robot, the frame's tick and stamp, then the
-# record's fields in order. The wire knows only frames; views are for readers that take robots one at a time.
 
 
 @dataclass
@@ -157,15 +148,9 @@ class Pose:
 
 @dataclass
 class State:
-    """A record of a ``States`` frame: what neighbours need for ORCA and the auction.
-
-    ``velocity`` is the robot's current collision-free velocity (v_opt of eq. 11), ``radius`` the
-    radius it asks others to avoid (r + tracking error for differential drive), ``goal_index`` the
-    goal it holds (-1 for none): in image scenes, its goal in the agreed assignment of auction
-    instance ``assign_instance`` of goal set ``assign_epoch``, or (instance CARRIED) the goal its
-    goal in the previous keyframe carried over to while the new keyframe's auction runs. Its
-    attributes are the wire record's fields, one each (docs/protocol.md).
-    """
+    """A record of a ``States`` frame: what neighbours need for ORCA and the auction. (vx, vy) is v_opt of
+    eq. 11, ``radius`` what others avoid; ``goal_index`` (-1: none) is from the agreed assignment of auction
+    ``assign_instance`` of goal set ``assign_epoch``, or (CARRIED) carried over from the last keyframe."""
 
     NAME: ClassVar[str] = "state"
     CARRIED: ClassVar[int] = 0xFFFFFFFF  # assign_instance of a carried goal: not an agreed instance
@@ -210,10 +195,8 @@ class Command:
 
 @dataclass
 class Tick(Message):
-    """Clock: tick k starts at ``stamp`` seconds of display time; ``dt`` is the control period.
-    ``goal_epoch`` is the newest goal set the world had heard when it published the tick: in
-    lock-step every agent takes up the goal sets up to it at this tick, so that a goal set no scene
-    step announced (an agent died or joined) takes effect at one tick for everyone."""
+    """Clock: tick k starts at ``stamp`` s of display time, ``dt`` the control period. ``goal_epoch``: the
+    newest goal set the world had heard; in lock-step every agent takes it up at this tick, all at once."""
 
     KIND: ClassVar[int] = 4
     NAME: ClassVar[str] = "clock"
@@ -249,9 +232,8 @@ class _FixedPart:
 
 @dataclass
 class Timing(_FixedPart):
-    """Part 2 of a goal set: when it was published (``stamp``), the scene step (image) it shows and
-    how long (``hold``, s), the display time the step began (t = 0 of eq. 28, the keyframe's start)
-    and the K_f dt of an animation keyframe (paper 6.2, eq. 27; 0: not a keyframe)."""
+    """Part 2 of a goal set: when published (``stamp``), the scene step shown, for how long (``hold``, s),
+    the display time it began (t = 0 of eq. 28) and an animation keyframe's K_f dt (eq. 27; 0: none)."""
 
     PART: ClassVar[int] = 2
     VERSION: ClassVar[int] = 1
@@ -270,9 +252,8 @@ class Timing(_FixedPart):
 
 @dataclass
 class Motion(_FixedPart):
-    """Part 3 of a goal set: its motion as a dynamic image (paper 7.4.1, eq. 28, with t = display
-    time - t_start): v_G, omega_G, p_OG, K_eG, and whether the scaling is geometric. Absent: the
-    goal set stands still."""
+    """Part 3 of a goal set: its motion as a dynamic image (paper 7.4.1, eq. 28, t = display time - t_start):
+    v_G, omega_G, p_OG, K_eG, and whether the scaling is geometric. Absent: the goal set stands still."""
 
     PART: ClassVar[int] = 3
     VERSION: ClassVar[int] = 1
@@ -324,11 +305,9 @@ class Correspondence:
 
 @dataclass
 class WarmStart:
-    """Part 5 of a goal set: where its auction starts, after an image or keyframe: per goal, the goal
-    of set ``matched_from`` matched to it and prices in equilibrium for that matching (computed once by
-    the coordinator, coordinator.warm_start.goal_matching, not by every host). ``matched_from`` 0: the
-    run's first set, matched to where the robots start (per goal, its robot's index in the set's robots).
-    Absent: a cold start."""
+    """Part 5 of a goal set: where its auction starts: per goal, the goal of set ``matched_from`` matched to
+    it and prices in equilibrium for it (coordinator.warm_start.goal_matching); ``matched_from`` 0: matched
+    to the robots' start (per goal, its robot's index in the set's robots). Absent: a cold start."""
 
     PART: ClassVar[int] = 5
     VERSION: ClassVar[int] = 1
@@ -358,15 +337,9 @@ class WarmStart:
 
 @dataclass
 class Goals(Message):
-    """Coordinator -> all: a goal set with colours, and its parts.
-
-    ``per_robot`` set means goals[i] is robot i's own goal (scenes with fixed goals, as in RVO2's
-    Circle); otherwise the robots in ``robots`` assign themselves to the goals by auction. The goal
-    set is part 1 of the message; ``timing`` (part 2) always follows it, the other parts only when
-    they apply: ``motion`` (a dynamic image), ``correspondence`` (a keyframe after a keyframe) and
-    ``warm_start`` (the auction's start after an image or keyframe). Each part has its own version.
-    A record: one attribute per field of the message (docs/protocol.md).
-    """
+    """Coordinator -> all: a goal set with colours (part 1), then its parts, each of its own version:
+    ``timing`` always, ``motion``, ``correspondence`` and ``warm_start`` when they apply. ``per_robot``:
+    goals[i] is robot i's own goal; otherwise the robots in ``robots`` assign themselves by auction."""
 
     KIND: ClassVar[int] = 5
     NAME: ClassVar[str] = "goals"
@@ -406,16 +379,13 @@ class Goals(Message):
     def _tail(self) -> bytes:
         count = len(self.positions)
         items = np.empty(count, self.RECORD)
-        items["x"], items["y"] = self.positions[:, 0], self.positions[:, 1]
-        items["rgb"] = self.colors
-        robots = np.asarray(self.robots, "<u2").tobytes()
-        goal_set = self._set.pack(self.epoch, self.per_robot, count) + items.tobytes() + robots
-        out = [_part(self.PART, self.PART_VERSION, goal_set)]
-        for _, name in self._PARTS.values():
-            part = getattr(self, name)
+        items["x"], items["y"], items["rgb"] = self.positions[:, 0], self.positions[:, 1], self.colors
+        goal_set = self._set.pack(self.epoch, self.per_robot, count) + items.tobytes()
+        parts = [(self.PART, self.PART_VERSION, goal_set + np.asarray(self.robots, "<u2").tobytes())]
+        for part in (getattr(self, name) for _, name in self._PARTS.values()):
             if part is not None:
-                out.append(_part(part.PART, part.VERSION, part.pack(count)))
-        return b"".join(out)
+                parts.append((part.PART, part.VERSION, part.pack(count)))
+        return b"".join(_PART.pack(kind, version, len(body)) + body for kind, version, body in parts)
 
     @classmethod
     def _from(cls, body: memoryview) -> Goals:
@@ -459,10 +429,6 @@ class Goals(Message):
         return out
 
 
-def _part(kind: int, version: int, body: bytes) -> bytes:
-    return _PART.pack(kind, version, len(body)) + body
-
-
 def _split_parts(body: memoryview) -> list[tuple[int, int, memoryview]]:
     """A message's parts as (part kind, part version, body); their lengths must fill it exactly."""
     out, at = [], 0
@@ -479,10 +445,8 @@ def _split_parts(body: memoryview) -> list[tuple[int, int, memoryview]]:
 
 
 class AuctionRecord:
-    """The auction record (paper 5.1.1): one robot's word on one goal at a price. A ``Bid`` carries
-    one per robot and per goal it released (with where the robot bid from), a ``Boards`` word the
-    owned goals of its board as them (``robot``: the owner), and the bidder (agent.core.bidder)
-    keeps and merges them: one layout and one set of flags for all."""
+    """The auction record (paper 5.1.1): one robot's word on one goal at a price; one layout and set of
+    flags for a ``Bid``, a ``Boards`` word (``robot``: the owner) and the bidder (agent.core.bidder)."""
 
     FIELDS: ClassVar[list[tuple[str, str]]] = [("robot", "<u2"), ("goal", "<i4"), ("price", "<f8"), ("flags", "u1")]
     DTYPE: ClassVar[np.dtype] = np.dtype(FIELDS)
@@ -521,8 +485,7 @@ class Bid(Message):
 
     @classmethod
     def _from(cls, body: memoryview) -> Bid:
-        """A bid usually holds a record or two: a few records' floats are checked by struct, and the
-        records read from a writable copy of the bytes, both cheaper than numpy for so few."""
+        """A bid usually holds a record or two: struct checks a few records' floats, cheaper than numpy."""
         epoch, instance, sender, serial, digest, count = _leading(cls._fixed, body)
         tail = body[cls._fixed.size :]
         if len(tail) != count * cls.RECORD.itemsize:
@@ -539,13 +502,10 @@ class Bid(Message):
 
 @dataclass
 class Boards(Message):
-    """Agent host -> all: its robots' words in one round of the goal auction over a limited
-    communication range (agent.core.local_auction). Per robot (``words``): where it is, its phase,
-    whether it ended the block, the newest round of change it knows of; the robots it has heard of
-    (``known``: a bit per robot of the goal set, only from words flagged GROWN) and its board's owned
-    records (``records``: auction records, the owner as ``robot``, RELEASED for a goal released at
-    that price; the word's ``records`` of them, only from words flagged FRESH). A record: one
-    attribute per field of the message (docs/protocol.md)."""
+    """Agent host -> all: its robots' words in one round of the range-limited auction (agent.core.local_auction):
+    per robot (``words``) its position, phase, end of block and newest round of change known; the robots it
+    has heard of (``known``: bits, for words flagged GROWN) and its board's owned records (``records``, the
+    owner as ``robot``; for words flagged FRESH). See docs/protocol.md."""
 
     KIND: ClassVar[int] = 13
     NAME: ClassVar[str] = "boards"
@@ -606,9 +566,8 @@ class Boards(Message):
 
 @dataclass
 class Frame(Message):
-    """A tick's records of one or many robots: the fixed part (tick, stamp), then one record per
-    robot to the end of the message. A host of K robots sends one frame of each kind a tick, since a
-    message per robot would cost each process it crosses as much as a whole frame. The key says who sent it."""
+    """A tick's records of one or many robots: (tick, stamp), then one record per robot to the end. A host
+    sends one frame of each kind a tick: a message per robot would cost each process as much as a frame."""
 
     _fixed: ClassVar[struct.Struct] = struct.Struct("<Id")
     VIEW: ClassVar[type]  # the record as a Python object (Pose, State, Command)
@@ -630,8 +589,7 @@ class Frame(Message):
 
     @classmethod
     def encode_one(cls, view: Any) -> bytes:
-        """``one(view).encode()``, the same bytes, packed in one struct call (a robot alone sends
-        two a tick)."""
+        """``one(view).encode()``, the same bytes, packed in one struct call (a robot alone sends two a tick)."""
         data = cls._alone.pack(cls.KIND, VERSION, view.tick, view.stamp, *cls._record_of(view))
         return with_checksum(data) if cls.CHECKED else data
 
@@ -640,8 +598,7 @@ class Frame(Message):
         return len(self.records)
 
     def messages(self, keep: RecordFilter | None = None) -> list:
-        """One view per record (those ``keep`` keeps, if given): the robot, the frame's tick and
-        stamp, the record. The kept rows are picked out first, so no view is made only to be thrown away."""
+        """One view per record ``keep`` keeps (all without it): the robot, the frame's tick and stamp, the record."""
         tick, stamp = self.tick, self.stamp
         view: Callable[..., Any] = self.VIEW
         records = self.records if keep is None else self.records[keep.mask(self.records)]
@@ -675,16 +632,13 @@ class Frame(Message):
 
     @classmethod
     def _unsound_one(cls, v: tuple) -> str | None:
-        """Why a frame of one record, read whole into ``v`` (tick, stamp, the record's fields), is
-        malformed (the reason ``_from`` counts), or None: the same checks as ``_from``'s on a column."""
-        # The record's floats are float32 (__init_subclass__): their sum cannot overflow, so it is
-        # finite exactly when each of them is.
+        """Why a frame of one record, read into ``v`` (tick, stamp, the record), is malformed, or None:
+        ``_from``'s checks. The floats are float32, so their sum is finite exactly when each is."""
         if not math.isfinite(v[1]) or not math.isfinite(sum(v[cls._one_floats])):
             return "non-finite"
         return None if all(test(v[i]) for i, test in cls._one_rules) else "invalid"
 
-    # Rules of a kind's records beyond finite numbers: (field, test), each test taking a value or a
-    # column of values, so that frames (numpy) and views (struct) are checked by the same rules.
+    # Rules of a kind's records beyond finite numbers: (field, test), a test taking a value or a column.
     _rules: ClassVar[tuple[tuple[str, Callable[[Any], Any]], ...]] = ()
     # Derived from RECORD once per kind (__init_subclass__):
     _float_block: ClassVar[tuple[int, int]]  # (byte offset in a record, count) of the float fields
@@ -714,14 +668,11 @@ class Frame(Message):
 
     @classmethod
     def views_alone(cls, data: bytes) -> tuple[int, list] | None:
-        """(tick, [view]) of a well-formed message of one record (what a robot alone sends each tick),
-        read in one struct call rather than through numpy. None for anything else (a longer frame, or
-        anything wrong), for decode to read and count. The same checks as ``_from``."""
+        """(tick, [view]) of a well-formed message of one record, in one struct call (``_from``'s checks);
+        None for anything else (a longer frame, or anything wrong), for decode to read and count."""
         if len(data) != cls._alone.size + (_CHECKSUM.size if cls.CHECKED else 0):
             return None
-        if cls.CHECKED and not intact(data):
-            return None
-        if data[0] != cls.KIND or data[1] != VERSION:
+        if (cls.CHECKED and not intact(data)) or data[0] != cls.KIND or data[1] != VERSION:
             return None
         v = cls._one.unpack_from(data, _HEADER.size)
         if cls._unsound_one(v) is not None:
@@ -731,8 +682,7 @@ class Frame(Message):
 
 @dataclass
 class Poses(Frame):
-    """Tracker -> agents: tracked poses of a tick (what a motion capture frame holds): every robot's
-    in one frame for agent hosts, or a frame of one per robot for robots alone in their process."""
+    """Tracker -> agents: a tick's tracked poses, every robot's (agent hosts) or one's (a robot alone)."""
 
     KIND: ClassVar[int] = 10
     VIEW: ClassVar[type] = Pose
@@ -757,13 +707,11 @@ class Commands(Frame):
 
 @dataclass
 class States(Frame):
-    """Agent host -> agent hosts: the states of its robots at one tick (a host's hellos before its
-    first tick too, tick BEFORE_START). A robot alone files its frame of one under its spatial cell; a
-    host's frame goes to every host, since a host of many robots listens to most cells anyway."""
+    """Agent host -> agent hosts: its robots' states at a tick (hellos: BEFORE_START). A robot alone files its
+    frame under its spatial cell; a host's goes to every host, which listens to most cells anyway."""
 
     KIND: ClassVar[int] = 12
-    # checked: a damaged copy that still decodes would be believed by the neighbours' ORCA and, as the
-    # goal a robot says it holds, by the run's record of the display
+    # checked: a damaged copy that still decodes would be believed by neighbours' ORCA and the run's record
     CHECKED: ClassVar[bool] = True
     VIEW: ClassVar[type] = State
     NAME: ClassVar[str] = State.NAME
@@ -784,8 +732,7 @@ class Truth(Message):
 
     KIND: ClassVar[int] = 6
     NAME: ClassVar[str] = "sim/truth"
-    # checked, as Contact and Event are: the recorder believes them as they come, and a damaged copy
-    # that still decodes (a stamp from the future, a count, a number) would rewrite the run's record
+    # checked, as Contact and Event are: the recorder believes them, and a damaged copy would rewrite the record
     CHECKED: ClassVar[bool] = True
     _fixed: ClassVar[struct.Struct] = struct.Struct("<IdfI")
     RECORD: ClassVar[np.dtype] = np.dtype(
@@ -851,12 +798,8 @@ class Event(Message):
 
     @classmethod
     def _from(cls, body: memoryview) -> Event:
-        try:
-            data = json.loads(bytes(body), parse_constant=_finite_float, parse_float=_finite_float)
-        except Malformed:
-            raise
-        except ValueError as err:  # UnicodeDecodeError too
-            raise Malformed("invalid") from err
+        # bad JSON or UTF-8 raises ValueError, which decode counts as invalid
+        data = json.loads(bytes(body), parse_constant=_finite_float, parse_float=_finite_float)
         if not isinstance(data, dict):
             raise Malformed("invalid")
         return cls(data)
@@ -866,8 +809,7 @@ class Event(Message):
 
 
 def _finite_float(text: str) -> float:
-    """A JSON number (or constant: NaN, Infinity) as a float; one too large for a float (1e999) is
-    an infinity, dropped as NaN is."""
+    """A JSON number (or NaN, Infinity) as a float; non-finite (1e999 too) is Malformed."""
     value = float(text)
     if not math.isfinite(value):
         raise Malformed("non-finite")
@@ -888,9 +830,7 @@ def decode(data: bytes | memoryview, expected: type[MessageT], drops: DropCounte
 
 
 @overload
-def decode(
-    data: bytes | memoryview, expected: type[Message] | None = None, drops: DropCounter | None = None
-) -> Message | None: ...
+def decode(data: bytes | memoryview, expected: None = None, drops: DropCounter | None = None) -> Message | None: ...
 
 
 def decode(
@@ -924,19 +864,16 @@ class RecordFilter(Protocol):
 
     def mask(self, records: np.ndarray) -> np.ndarray:
         """The records kept, of a frame's structured array."""
-        ...
 
     def keeps(self, view: Any) -> bool:
         """Whether the view of one record is kept."""
-        ...
 
 
 def decode_views(
     data: bytes | memoryview, frame: type[Frame], drops: DropCounter | None = None, keep: RecordFilter | None = None
 ) -> tuple[int, list] | None:
-    """A frame of this kind as (tick, one view per record it keeps), what an inbox of views hands
-    over: a frame of one in one struct call (Frame.views_alone), anything else through the frame;
-    None (and a counted drop) for anything malformed. Never raises."""
+    """A frame of this kind as (tick, one view per record it keeps); a frame of one in one struct call
+    (Frame.views_alone). None (and a counted drop) for anything malformed. Never raises."""
     if isinstance(data, bytes) and (alone := frame.views_alone(data)) is not None:
         return alone if keep is None or keep.keeps(alone[1][0]) else (alone[0], [])
     got = decode(data, frame, drops)

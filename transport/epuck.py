@@ -1,8 +1,5 @@
-"""The paper's robot, the e-puck (Table 1): the body every package assumes unless a scene says otherwise.
-
-It lives in transport because every other package may import transport (pyproject's import-linter
-contracts): the agent's RobotParams, the coordinator's scenes and goal generation and the simulated
-world's bodies read these values from here. SI units.
+"""The paper's robot, the e-puck (Table 1), in SI units: the body every package assumes unless a scene
+says otherwise. It lives in transport because every other package may import transport (import-linter).
 """
 
 RADIUS = 0.045  # r_A = d_A / 2 (Table 1: d_A = 0.09 m)

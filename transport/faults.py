@@ -1,10 +1,8 @@
 """Fault injection for studies and tests: per message kind, drop probability and added delay.
 
-Faults act where a message is received (as a lossy, slow link would), so each receiver loses and
-delays its own copies independently. An inbox of a lock-step owner counts delays on its tick clock
-(transport.bus.Inbox.sim_time). A plan reads like ``state:drop=0.1,delay=0.05,jitter=0.01``;
-several kinds are separated by ';'. KIND is a message kind that some process receives through a
-faulted inbox (``fault_kinds()``); anything else is refused, as a plan that would inject nothing.
+Faults act where a message is received (as a lossy link would): each receiver loses and delays its own
+copies. A plan reads ``state:drop=0.1,delay=0.05,jitter=0.01``, kinds separated by ';'; a kind no process
+receives through a faulted inbox (``fault_kinds()``) is refused, as a plan that would inject nothing.
 """
 
 from __future__ import annotations
@@ -38,14 +36,12 @@ FaultPlan = dict[str, FaultSpec]  # message kind name ('state', 'cmd', ...) -> s
 
 
 def fault_kinds() -> list[str]:
-    """The message kinds a plan can act on: the codec's names (transport.codec.BY_NAME; Bus.inbox
-    looks a fault up by its kind's name) of what the agents and the world receive."""
+    """The message kinds a plan can act on: the codec's names of what the agents and the world receive."""
     return sorted(name for name in BY_NAME if name not in RECORDED_ONLY)
 
 
 def parse_faults(text: str) -> FaultPlan:
-    """Parse 'KIND:drop=P,delay=S,jitter=S[;KIND:...]' into a plan; ValueError with a clear message
-    (an unknown KIND too, with the kinds there are)."""
+    """Parse 'KIND:drop=P,delay=S,jitter=S[;KIND:...]' into a plan; ValueError with a clear message."""
     plan: FaultPlan = {}
     kinds = fault_kinds()
     for part in filter(None, (p.strip() for p in text.split(";"))):

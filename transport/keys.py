@@ -1,13 +1,13 @@
 """The key-expression schema: every key the system uses is built here and nowhere else.
 
-Every key of a display starts with ``px/<display>/``, then its kind (pose, state, cmd, goals, auction, boards,
-alive, clock, config, run, sim, event); each method says what its key carries. The table of keys, who sends
+Every key of a display is ``px/<display>/<kind>/...``; each method says what its key carries. Who sends
 what to whom: docs/protocol.md ("Key expressions").
 """
 
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 import re
 
@@ -20,16 +20,11 @@ _RUN = re.compile(r"^(\d+)(?:-(\d+))?$")  # a run of robot ids in a liveliness i
 
 
 def robots_ident(robots: list[int]) -> str:
-    """An agent host's liveliness ident: its robots as runs of consecutive ids, "0-999" or "3_5-7".
-    One token per host: zenoh's propagation of tokens slows faster than their number grows, and a
-    host lives and dies as a whole."""
-    runs: list[list[int]] = []
-    for r in sorted(set(robots)):
-        if runs and r == runs[-1][1] + 1:
-            runs[-1][1] = r
-        else:
-            runs.append([r, r])
-    return "_".join(str(a) if a == b else f"{a}-{b}" for a, b in runs)
+    """An agent host's liveliness ident: its robots as runs of consecutive ids, "0-999" or "3_5-7". One
+    token per host: zenoh's propagation of tokens slows faster than their number grows."""
+    ids = sorted(set(robots))
+    runs = [[r for _, r in run] for _, run in itertools.groupby(enumerate(ids), lambda at: at[1] - at[0])]
+    return "_".join(str(run[0]) if len(run) == 1 else f"{run[0]}-{run[-1]}" for run in runs)
 
 
 def robots_of_ident(ident: str) -> list[int] | None:
@@ -60,17 +55,19 @@ class Keys:
         if not _NAME.match(display):
             raise ValueError(f"display name {display!r} may hold only letters, digits, '_' and '-'")
         self.display = display
-        self.root = f"{PREFIX}/{display}"
+        self.root = root = f"{PREFIX}/{display}"
+        self.poses = f"{root}/pose"  # the Poses frame of every tracked robot (agent hosts of several robots)
+        self.states_all = f"{root}/state/*"  # every host's States frames (not the cells: one chunk after 'state')
+        self.states_in_cells = f"{root}/state/*/*/*"  # every robot alone's state, whatever its cell
+        # the newest goal set the run recorded, served by the launcher: a restarted coordinator goes on from it
+        self.run_goals = f"{root}/run/goals"
+        self.clock, self.event, self.everything = f"{root}/clock", f"{root}/event", f"{root}/**"
+        self.truth, self.contact = f"{root}/sim/truth", f"{root}/sim/contact"
 
     # tracker -> agent: every key of kind 'pose' carries a Poses frame
     def pose(self, robot: int) -> str:
         """One robot's frame of one (a robot alone in its process hears only its own)."""
         return f"{self.root}/pose/{robot}"
-
-    @property
-    def poses(self) -> str:
-        """The frame of every tracked robot (agent hosts of several robots)."""
-        return f"{self.root}/pose"
 
     # agent broadcasts: every key of kind 'state' carries a States frame
     def state(self, cell: tuple[int, int], robot: int) -> str:
@@ -80,16 +77,6 @@ class Keys:
     def states(self, host: int) -> str:
         """A host's frame of its robots' states (<host>: its first robot), heard by every host."""
         return f"{self.root}/state/{host}"
-
-    @property
-    def states_all(self) -> str:
-        """Every host's frames (not the cells: one chunk after 'state')."""
-        return f"{self.root}/state/*"
-
-    @property
-    def states_in_cells(self) -> str:
-        """Every robot alone's state, whatever its cell."""
-        return f"{self.root}/state/*/*/*"
 
     def state_of(self, robot: int) -> str:
         """One robot's broadcasts, whatever cell it is in."""
@@ -123,31 +110,9 @@ class Keys:
         """A robot's host configuration, served by a run whose agents join from elsewhere ('*': every robot's)."""
         return f"{self.root}/config/{robot}"
 
-    @property
-    def run_goals(self) -> str:
-        """The newest goal set the run recorded, served by the launcher: a restarted coordinator
-        goes on from it (its epoch and step) instead of starting the show over."""
-        return f"{self.root}/run/goals"
-
     def alive(self, role: str, ident: int | str, incarnation: str = "*") -> str:
         """A process's liveliness token (incarnation: its life, transport.bus.LivelinessWatch)."""
         return f"{self.root}/alive/{role}/{ident}/{incarnation}"
-
-    @property
-    def clock(self) -> str:
-        return f"{self.root}/clock"
-
-    @property
-    def truth(self) -> str:
-        return f"{self.root}/sim/truth"
-
-    @property
-    def contact(self) -> str:
-        return f"{self.root}/sim/contact"
-
-    @property
-    def event(self) -> str:
-        return f"{self.root}/event"
 
     # wildcards for subscribers
     def all_of(self, kind: str) -> str:
@@ -156,10 +121,6 @@ class Keys:
 
     def alive_all(self, role: str | None = None) -> str:
         return f"{self.root}/alive/{role}/*/*" if role else f"{self.root}/alive/**"
-
-    @property
-    def everything(self) -> str:
-        return f"{self.root}/**"
 
     def kind_of(self, key: str) -> str:
         """The message kind a key carries ('pose', 'state', 'sim/truth', ...), '' if not ours."""

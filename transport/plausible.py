@@ -1,12 +1,10 @@
 """What a well-formed message may claim, bounded by what its receiver already knows.
 
-A decoder checks that a message is well formed; this checks that its tick is believable. A frame's
-stamp is the start of its tick (tick x dt), so a frame whose two disagree was damaged. A tick may not
-lie more than ``AHEAD`` ticks ahead of the receiver's clock, nor be older than the newest the receiver
-holds from that sender: the newest tick wins, so one frame from the future would otherwise make every
-honest frame after it look old. A sender that really went back (restarted, counting from 0 again) is
-heard again once its new line has gone on for ``RESYNC`` s (TickLine). Each refusal names its reason,
-counted by the receiver with the decoder's drops.
+A frame's stamp is the start of its tick (tick x dt): if the two disagree it was damaged. A tick may lie
+at most ``AHEAD`` ticks ahead of the receiver's clock and not be older than the newest held from that
+sender (else one frame from the future would make every honest one after it look old); a sender that
+really went back (restarted) is heard again once its new line has gone on for ``RESYNC`` s (TickLine).
+Each refusal names its reason, counted by the receiver with the decoder's drops.
 """
 
 from __future__ import annotations
@@ -41,16 +39,13 @@ class Clock:
 
 
 class GoalSets:
-    """Which goal sets a receiver believes are the coordinator's. The coordinator counts epochs
-    one by one and publishes a new epoch only for a change (a step, the robots alive), so:
-    an epoch may skip at most ``AHEAD`` of the newest heard; a goal set is not stamped ``RESYNC``
-    beyond the display time the receiver knows; its goals lie in the arena; an epoch heard again
-    holds the same goal set (the coordinator repeats its newest for late joiners); and a new epoch
-    holds a goal set of its own, not one already heard under another epoch.
+    """Which goal sets a receiver believes are the coordinator's, which counts epochs one by one, a new
+    one only for a change: an epoch skips at most ``AHEAD`` past the newest heard; a goal set is stamped
+    at most ``RESYNC`` beyond the receiver's display time; its goals lie in the arena; an epoch heard again
+    holds the same goal set; a new epoch holds a goal set not already heard under another epoch.
 
-    ``newest``: the newest epoch the receiver knows of when it starts, 0 for one that starts with the
-    run (epochs count from 1), so that it takes no forged first epoch; None for one that may join a
-    run under way, which takes the first epoch it hears."""
+    ``newest``: the newest epoch known at the start, 0 for a receiver that starts with the run (so it takes
+    no forged first epoch), None for one that may join a run under way (it takes the first it hears)."""
 
     KEPT = 8  # epochs remembered
 
@@ -93,15 +88,12 @@ def stamp_agrees(tick: int, stamp: float, dt: float) -> bool:
 class TickLine:
     """One sender's ticks as one receiver believes them: the newest accepted, and when.
 
-    ``admit`` takes a tick and the receiver's clock (``now``: the tick it believes current, None
-    where it has no clock of its own) and returns None to take the message, or why not. With
-    ``period`` set and no ``now`` given, the receiver's clock is the wall clock since the line
-    began, ``period`` seconds a tick: a real-time sender cannot run ahead of it.
-
-    A refused tick may begin a new line (a sender restarted, counting from 0 again; a clock that
-    jumped; a first tick that was itself wrong): the new line is taken once it has gone on, tick
-    after tick, for ``RESYNC`` seconds, and either runs ahead of the old line or the old line has
-    been silent as long. Copies of old frames or forged ones in no order never make such a line.
+    ``admit`` takes a tick and the receiver's clock (``now``: the tick it believes current, None: none)
+    and returns None to take the message, or why not. With ``period`` and no ``now``, the clock is the
+    wall clock since the line began, ``period`` s a tick, so a real-time sender cannot run ahead of it.
+    A refused tick may begin a new line (a restart, a jumped clock, a wrong first tick), taken once it has
+    gone on tick after tick for ``RESYNC`` s and runs ahead of the old line or the old one was as silent.
+    Copies of old frames, or forged ones in no order, never make such a line.
     """
 
     def __init__(self, period: float | None = None) -> None:

@@ -1,9 +1,8 @@
 """ROS 2 over Zenoh as rmw_zenoh_cpp puts it on the wire: keys, attachments, liveliness tokens.
 
-A ROS 2 node running rmw_zenoh publishes a message as a Zenoh put of its CDR bytes on a topic key, with an
-attachment (sequence number, source timestamp, gid); every node, publisher and subscription holds a liveliness
-token that ROS graph tools read. The layouts, from ros2/rmw_zenoh's docs/design.md: docs/ros2.md ("On the
-wire"). This module knows only bytes; message semantics (CDR through rosbags) live with the caller.
+A message is a put of its CDR bytes on a topic key, with an attachment (sequence number, source timestamp,
+gid); every node, publisher and subscription holds a liveliness token that ROS graph tools read. Layouts:
+docs/ros2.md ("On the wire"). Only bytes here: CDR (through rosbags) is the caller's.
 """
 
 from __future__ import annotations
@@ -16,6 +15,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass
+from typing import Any
 
 import xxhash
 import zenoh
@@ -134,8 +134,7 @@ class Attachment:
 
 @dataclass(frozen=True)
 class RosSample:
-    """One message as it arrived: the CDR bytes, where from, and its attachment (None if it had none
-    or it was malformed: some bridges send none, and a reader may still want the message)."""
+    """One message as it arrived: CDR bytes, where from, its attachment (None: none, or malformed)."""
 
     domain: int
     topic: str  # fully qualified
@@ -145,7 +144,18 @@ class RosSample:
     arrival: float  # time.monotonic() when it arrived
 
 
-class RosNode:
+class _Declares:
+    """A node, publisher or subscription: what it declared on its session, undeclared in order on close."""
+
+    _declared: list[Any]
+
+    def close(self) -> None:
+        declared, self._declared = self._declared, []
+        for thing in declared:
+            thing.undeclare()
+
+
+class RosNode(_Declares):
     """A ROS 2 node on a Zenoh session: its token, and the publishers and subscriptions it declares."""
 
     def __init__(
@@ -162,9 +172,8 @@ class RosNode:
         self._entity_ids = itertools.count(node_id + 1)
         self.names = NodeName(domain, self.zid, node_id, self.namespace, name)
         self.token = node_token(self.names)
-        self._liveliness = session.liveliness().declare_token(self.token)
+        self._declared = [session.liveliness().declare_token(self.token)]
         self._entities: list[RosPublisher | RosSubscriber] = []
-        self._closed = False
 
     def next_entity_id(self) -> int:
         """A fresh id for a publisher or subscription of this node."""
@@ -184,16 +193,13 @@ class RosNode:
 
     def close(self) -> None:
         """Undeclare every entity, then the node: ROS graph tools see them go."""
-        if self._closed:
-            return
-        self._closed = True
         for entity in self._entities:
             entity.close()
         self._entities.clear()
-        self._liveliness.undeclare()
+        super().close()
 
 
-class RosPublisher:
+class RosPublisher(_Declares):
     """Puts CDR bytes on a topic's key with rmw_zenoh's attachment; holds an MP token meanwhile."""
 
     def __init__(self, node: RosNode, topic: str, ros_type: str, type_hash: str, qos: str = DEFAULT_QOS) -> None:
@@ -204,8 +210,7 @@ class RosPublisher:
         self.sequence_number = 0
         self._lock = threading.Lock()  # the watchdog and the control loop may publish at once
         self._publisher = node.session.declare_publisher(self.key, encoding=CDR)
-        self._liveliness = node.session.liveliness().declare_token(self.token)
-        self._closed = False
+        self._declared = [node.session.liveliness().declare_token(self.token), self._publisher]
 
     def publish(self, cdr: bytes) -> Attachment:
         """Send one message (CDR bytes with their 4-byte header); returns the attachment sent with it."""
@@ -215,19 +220,11 @@ class RosPublisher:
             self._publisher.put(bytes(cdr), attachment=attachment.encode())
         return attachment
 
-    def close(self) -> None:
-        if not self._closed:
-            self._closed = True
-            self._liveliness.undeclare()
-            self._publisher.undeclare()
 
-
-class RosSubscriber:
-    """Receives a topic from any type hash (Humble's `TypeHashNotSupported` too) and, with
-    ``any_domain``, from any domain. ``topic`` may hold Zenoh wildcards (`*` for a whole name,
-    `$*` inside one, e.g. `/robot$*/pose`). Samples wait in a ring of ``capacity`` (the oldest go
-    first) until drained. When the topic and domain are exact it holds an MS token naming
-    ``type_hash``, so that ROS graph tools list it."""
+class RosSubscriber(_Declares):
+    """Receives a topic of any type hash (Humble's too) and, with ``any_domain``, of any domain; ``topic``
+    may hold Zenoh wildcards (`*`, or `$*` inside a name). Samples wait in a ring of ``capacity`` until
+    drained. An exact topic and domain hold an MS token naming ``type_hash``, for ROS graph tools."""
 
     def __init__(
         self, node: RosNode, topic: str, ros_type: str, type_hash: str, any_domain: bool, capacity: int
@@ -236,14 +233,13 @@ class RosSubscriber:
         domain = "*" if any_domain else str(node.domain)
         self.key = f"{domain}/{self.topic.strip('/')}/{dds_type_name(ros_type)}/*"
         self.token: str | None = None
-        self._liveliness = None
+        self._declared = []
         if not any_domain and "*" not in self.topic:
             check_name(self.topic)
             self.token = entity_token(node.names, node.next_entity_id(), SUBSCRIPTION, self.topic, ros_type, type_hash)
-            self._liveliness = node.session.liveliness().declare_token(self.token)
+            self._declared.append(node.session.liveliness().declare_token(self.token))
         self._ring: deque[tuple[float, str, bytes, bytes | None]] = deque(maxlen=capacity)
-        self._subscriber = node.session.declare_subscriber(self.key, self._on_sample)
-        self._closed = False
+        self._declared.append(node.session.declare_subscriber(self.key, self._on_sample))
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         # Runs on a zenoh thread: only copy out and keep (a deque's append is thread-safe).
@@ -265,10 +261,3 @@ class RosSubscriber:
             topic = "/" + "/".join(parts[1:-2])
             out.append(RosSample(int(parts[0]), topic, parts[-1], payload, attachment, arrival))
         return out
-
-    def close(self) -> None:
-        if not self._closed:
-            self._closed = True
-            if self._liveliness is not None:
-                self._liveliness.undeclare()
-            self._subscriber.undeclare()

@@ -1,10 +1,7 @@
 """A secured bus: one certificate authority per deployment, a certificate per role, and access control.
 
-`make_certificates(dir, robots)` writes the folder docs/security.md describes (certificates, client and
-router configurations for mutual TLS or user/password, roles.json). The access rules follow the key
-schema (transport/keys.py) and deny by default; the router enforces them, so every session goes through
-it. `client_config` / `router_config` give a role's ZenohSettings, `check_folder` says, before anything
-starts, whether a run can use a folder."""
+`make_certificates(dir, robots)` writes the folder of docs/security.md. The access rules follow the key
+schema (transport/keys.py) and deny by default; the router enforces them, so every session goes through it."""
 
 from __future__ import annotations
 
@@ -41,11 +38,8 @@ def roles(robots: int) -> list[str]:
     return [*SERVICES, *(robot_role(i) for i in range(robots)), ROUTER]
 
 
-# --- access control ---------------------------------------------------------------------------
-
-
-# What each grant of _grants lets a subject do, as the router's rules: (what, messages, flow). Every
-# flow is seen from the router: what a client sends comes in (ingress), what it receives goes out (egress).
+# What each grant of _grants lets a subject do, as the router's rules: (what, messages, flow); flows are
+# seen from the router: what a client sends is ingress, what it receives egress.
 _GRANT_RULES: dict[str, tuple[tuple[str, list[str], str], ...]] = {
     "put": (("publishes", ["put"], "ingress"),),
     # a subscription is declared in, and its samples go out
@@ -71,8 +65,7 @@ def _grants(prefix: str, **grants: list[str]) -> list[dict]:
 
 
 def _service_grants(keys: Keys) -> dict[str, list[dict]]:
-    """What each service may do; every one watches who is alive, and those that run the show (the
-    coordinator, the tracker, the world) declare themselves alive."""
+    """What each service may do; all watch who is alive, and those that run the show declare themselves alive."""
     grants: dict[str, dict[str, list[str]]] = {
         "coordinator": {
             "put": [keys.all_of("goals")],
@@ -81,15 +74,13 @@ def _service_grants(keys: Keys) -> dict[str, list[dict]]:
             "read": [keys.clock, keys.all_of("pose"), keys.poses],
         },
         "tracker": {"put": [keys.all_of("pose"), keys.poses], "read": [keys.clock]},
-        # The simulated world is the tracker of a simulation, and also drives its scripted obstacles,
-        # which broadcast states like robots.
+        # the simulated world is a simulation's tracker, and its scripted obstacles broadcast states like robots
         "world": {
             "put": [keys.clock, keys.all_of("pose"), keys.poses, keys.all_of("state"), keys.all_of("sim"), keys.event],
             "read": [keys.all_of("cmd"), keys.event, keys.all_of("goals")],  # goals: each tick names the newest
         },
         "recorder": {"read": [keys.everything]},
-        # A viewer: the truth of each tick, the robots' states (goals, sizes), goal sets, the clock and
-        # events; no put, token, query or queryable, so joining costs the run's processes nothing.
+        # a viewer only reads, so joining costs the run's processes nothing
         OBSERVER: {"read": [keys.all_of("sim"), keys.all_of("state"), keys.all_of("goals"), keys.clock, keys.event]},
     }
     for role in ("coordinator", "tracker", "world"):
@@ -98,8 +89,8 @@ def _service_grants(keys: Keys) -> dict[str, list[dict]]:
 
 
 def access_control(robots: int, *, by: str = "cert_common_names", display: str = "default") -> dict:
-    """Zenoh `access_control` for a router: default deny, and the grants of every role. ``by`` names
-    how the router knows a role: "cert_common_names" (mutual TLS) or "usernames" (user/password)."""
+    """Zenoh `access_control` for a router: default deny, and every role's grants; ``by``: how the router
+    knows a role, "cert_common_names" (mutual TLS) or "usernames" (user/password)."""
     if robots < 1:
         raise SecurityError(f"robots must be at least 1, not {robots}")
     keys = Keys(display)
@@ -125,12 +116,8 @@ def access_control(robots: int, *, by: str = "cert_common_names", display: str =
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
 
-# --- configurations ---------------------------------------------------------------------------
-
-
 def _common(mode: str, connect: list[str], listen: list[str]) -> dict:
-    # Listen is always explicit (zenoh's default listens on every interface), and no multicast
-    # scouting: a secured session goes to the router it was given and nowhere else.
+    # Listen always explicit (zenoh's default is every interface), no scouting: only the router given.
     conf: dict = {"mode": mode, "listen": {"endpoints": listen}, "scouting": {"multicast": {"enabled": False}}}
     if connect:
         conf["connect"] = {"endpoints": connect}
@@ -210,16 +197,15 @@ def _role_file(directory: str | Path, role: str, auth: str) -> str:
     return str(directory / (USRPWD if auth == "usrpwd" else "") / f"{role}.json5")
 
 
-def _files(role: str) -> list[str]:
-    """The files a TLS session of this role reads, relative to the folder (a run checks its folder
-    before it starts, and runs with client certificates)."""
-    return ["ca.pem", f"{role}.json5", f"{role}.pem", f"{role}-key.pem"]
+def _unreadable(directory: Path, role: str) -> str | None:
+    """The first file a TLS session of this role reads that cannot be read, if any."""
+    files = ["ca.pem", f"{role}.json5", f"{role}.pem", f"{role}-key.pem"]
+    return next((name for name in files if not os.access(directory / name, os.R_OK)), None)
 
 
 def check_folder(directory: str | Path, robots: int, *, display: str = "default") -> Path:
-    """The folder, resolved, if a run of robots 0..robots-1 on ``display`` can use it: its access rules
-    cover those robots and that display, and the files of the router, the coordinator, the world and
-    every robot are there and readable. Otherwise SecurityError, with one line saying what is wrong."""
+    """The folder, resolved, if a run of robots 0..robots-1 on ``display`` can use it (its rules cover
+    them, and the files of the router, coordinator, world and robots are readable); else SecurityError."""
     directory, manifest = _folder(directory, display)
     if manifest["robots"] < robots:
         raise SecurityError(
@@ -227,26 +213,23 @@ def check_folder(directory: str | Path, robots: int, *, display: str = "default"
             f"make a folder for them with `pixelswarm certs DIR --robots {robots}`"
         )
     for role in [ROUTER, "coordinator", "world", *(robot_role(i) for i in range(robots))]:
-        for name in _files(role):
-            if not os.access(directory / name, os.R_OK):
-                raise SecurityError(f"cannot read {directory / name} (the {role}'s)")
+        if (name := _unreadable(directory, role)) is not None:
+            raise SecurityError(f"cannot read {directory / name} (the {role}'s)")
     return directory
 
 
 def check_role(directory: str | Path, role: str, *, display: str = "default") -> Path:
     """The folder, resolved, if a session of ``role`` on ``display`` can open from it (its files are
-    there and readable: a viewer's machine needs only ``ca.pem`` and the observer's files), else
-    SecurityError in one line; a folder made before the role existed says so."""
+    readable), else SecurityError in one line; a folder made before the role existed says so."""
     directory, _ = _folder(directory, display)
-    for name in _files(role):
-        if not os.access(directory / name, os.R_OK):
-            if not (directory / name).exists() and role in SERVICES:
-                raise SecurityError(
-                    f"{directory} has no {role} role ({name} missing): it was made before the role existed; "
-                    "make the folder again with `pixelswarm certs`"
-                )
-            raise SecurityError(f"cannot read {directory / name} (the {role}'s)")
-    return directory
+    if (name := _unreadable(directory, role)) is None:
+        return directory
+    if not (directory / name).exists() and role in SERVICES:
+        raise SecurityError(
+            f"{directory} has no {role} role ({name} missing): it was made before the role existed; "
+            "make the folder again with `pixelswarm certs`"
+        )
+    raise SecurityError(f"cannot read {directory / name} (the {role}'s)")
 
 
 def _endpoints(endpoints: str | list[str] | None) -> list[str]:
@@ -254,22 +237,17 @@ def _endpoints(endpoints: str | list[str] | None) -> list[str]:
 
 
 def router_config(directory: str | Path, listen: str | list[str] | None = None, *, auth: str = "tls") -> ZenohSettings:
-    """A router enforcing the folder's access rules, listening on ``listen`` (tls/HOST:PORT; default:
-    the endpoint the folder was made with)."""
+    """A router enforcing the folder's access rules, on ``listen`` (tls/HOST:PORT; default: the folder's)."""
     return ZenohSettings(mode="router", listen=_endpoints(listen), config_file=_role_file(directory, ROUTER, auth))
 
 
 def client_config(
     directory: str | Path, role: str, connect: str | list[str] | None = None, *, auth: str = "tls"
 ) -> ZenohSettings:
-    """A client session as ``role``, connecting to the router at ``connect`` (tls/HOST:PORT; default:
-    the endpoint the folder was made with)."""
+    """A client session as ``role``, to the router at ``connect`` (tls/HOST:PORT; default: the folder's)."""
     if role == ROUTER:
         raise SecurityError("the router is not a client role")
     return ZenohSettings(mode="client", connect=_endpoints(connect), config_file=_role_file(directory, role, auth))
-
-
-# --- the folder -------------------------------------------------------------------------------
 
 
 def _write(path: Path, data: bytes | str, secret: bool = False) -> None:
@@ -294,12 +272,10 @@ def _tls_host(endpoint: str) -> str:
 def make_certificates(
     directory: str | Path, robots: int, *, connect: str | None = None, display: str = "default", overwrite: bool = False
 ) -> Path:
-    """Write the folder described at the top of this module; return its absolute path.
+    """Write the folder (whole or not at all; a non-empty one replaced only with ``overwrite``); its path.
 
-    ``connect``: the router endpoint (tls/HOST:PORT) written into every configuration; HOST is also
-    named by the router certificate. Without it the configurations hold no endpoint and the router
-    certificate names only 127.0.0.1 and localhost. The folder appears whole or not at all; an
-    existing non-empty one is replaced only with ``overwrite``.
+    ``connect``: the router endpoint (tls/HOST:PORT) in every configuration, HOST also named by the router
+    certificate; without it, no endpoint, and the certificate names only 127.0.0.1 and localhost.
     """
     final = _folder_to_write(directory, robots, display, overwrite)
     hosts = [*LOOPBACK_NAMES, *([_tls_host(connect)] if connect else [])]
@@ -342,8 +318,7 @@ def _write_folder(
     (staging / USRPWD).mkdir()
     passwords = {}
     for role in roles(robots):
-        # The router's certificate also names its hosts (clients check the name they dialled)
-        # and serves TLS; the others only prove who is connecting.
+        # the router's certificate also names its hosts and serves TLS; the others only prove who connects
         router = role == ROUTER
         key, cert = certificates.role_certificate(role, [*hosts, role] if router else [role], router, ca_key, ca, now)
         _write(staging / f"{role}.pem", certificates.pem(cert))
@@ -351,12 +326,9 @@ def _write_folder(
         if router:
             continue
         passwords[role] = secrets.token_urlsafe(24)
-        _write(staging / f"{role}.json5", _json5(_client_dict(final, role, connect_list, "tls"), f"client {role}"))
-        _write(
-            staging / USRPWD / f"{role}.json5",
-            _json5(_client_dict(final, role, connect_list, "usrpwd", passwords[role]), f"client {role}"),
-            secret=True,
-        )
+        for auth, where, password in (("tls", staging, None), ("usrpwd", staging / USRPWD, passwords[role])):
+            conf = _client_dict(final, role, connect_list, auth, password)
+            _write(where / f"{role}.json5", _json5(conf, f"client {role}"), secret=password is not None)
     _write(staging / USRPWD / "credentials.txt", "".join(f"{r}:{p}\n" for r, p in passwords.items()), secret=True)
     for auth, where in (("tls", staging), ("usrpwd", staging / USRPWD)):
         conf = _router_dict(final, connect_list, auth, robots, display)

@@ -41,18 +41,15 @@ class ZenohSettings:
         conf.insert_json5("mode", json.dumps(self.mode))
         if self.connect:
             conf.insert_json5("connect/endpoints", json.dumps(self.connect))
-        # Always set listen explicitly (zenoh's default would listen on every interface), unless
-        # a configuration file sets it.
+        # listen always explicit (zenoh's default is every interface), unless a configuration file sets it
         if self.listen or not self.config_file:
             conf.insert_json5("listen/endpoints", json.dumps(self.listen))
         conf.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast_scouting))
         conf.insert_json5("transport/link/tx/lease", str(self.lease_ms))
-        if self.mode != "client" and not (self.multicast_scouting or self.connect or self.config_file):
-            # nobody to scout for: zenoh's open would otherwise wait out its scouting delay
-            conf.insert_json5("scouting/delay", "0")
-        if self.mode == "client":
-            # A client that loses its router should fail loudly, not wait forever.
+        if self.mode == "client":  # a client that loses its router should fail loudly, not wait forever
             conf.insert_json5("connect/timeout_ms", str(self.connect_timeout_ms))
+        elif not (self.multicast_scouting or self.connect or self.config_file):
+            conf.insert_json5("scouting/delay", "0")  # nobody to scout for: open would wait out the delay
         return conf
 
     def to_args(self) -> list[str]:
@@ -145,12 +142,8 @@ def zenoh_reason(text: str, mode: str) -> tuple[str, str]:
 
 
 def one_malloc_arena() -> bool:
-    """Have every thread of this process allocate from one malloc arena, before its session opens.
-
-    glibc gives each allocating thread (zenoh runs several) an arena whose part-used pages count in RSS;
-    a robot's process allocates little, so its threads share one (as MALLOC_ARENA_MAX=1 would). Not for a
-    host of many robots, whose threads would wait on the arena's lock. False where the C library has no
-    mallopt (not glibc): nothing changes there."""
+    """Have every thread of this process share one malloc arena (glibc's per-thread arenas' part-used pages
+    count in RSS), for a robot's process, which allocates little; False without glibc's mallopt."""
     import ctypes  # here, not above: numpy loads it anyway, a process without numpy only if it asks
 
     m_arena_max = -8  # glibc's malloc.h
@@ -160,9 +153,8 @@ def one_malloc_arena() -> bool:
         return False
 
 
-# The zenoh flags' help, written once: add_zenoh_args gives it to argparse, and zenoh_usage lists it
-# for a robot's process, which parses its command line with getopt (ZENOH_SHORT, ZENOH_LONG) because
-# argparse and what it loads would stay in its memory.
+# The zenoh flags' help, for argparse (add_zenoh_args) and for a robot's process, which parses with getopt
+# (ZENOH_SHORT, ZENOH_LONG, zenoh_usage) as argparse would stay in its memory.
 ZENOH_HELP = {
     "--mode": "session mode (default {default_mode})",
     "--connect": "endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)",
@@ -174,12 +166,10 @@ ZENOH_HELP = {
 }
 ZENOH_SHORT = "m:e:l:"
 ZENOH_LONG = ["mode=", "connect=", "listen=", "multicast-scouting", "no-multicast-scouting", "zenoh-config="]
-_ZENOH_SHOWN = {  # how the help shows each flag and its argument
+_ZENOH_SHOWN = {  # how the help shows a flag with a short form or an argument
     "--mode": "-m, --mode {" + ",".join(MODES) + "}",
     "--connect": "-e, --connect ENDPOINT",
     "--listen": "-l, --listen ENDPOINT",
-    "--no-multicast-scouting": "--no-multicast-scouting",
-    "--multicast-scouting": "--multicast-scouting",
     "--zenoh-config": "--zenoh-config FILE",
 }
 
@@ -200,15 +190,14 @@ def add_zenoh_args(parser: argparse.ArgumentParser, default_mode: str = "client"
 def zenoh_usage() -> str:
     """The zenoh flags' part of a help text, laid out as argparse lays out add_zenoh_args's."""
     lines = ["zenoh:"]
-    for flag, shown in _ZENOH_SHOWN.items():
+    for flag, shown in ((flag, _ZENOH_SHOWN.get(flag, flag)) for flag in ZENOH_HELP):
         text = textwrap.fill(ZENOH_HELP[flag].format(default_mode="client"), 76, subsequent_indent=" " * 24)
         lines.append(f"  {shown:<22}{text}" if len(shown) < 21 else f"  {shown}\n{'':24}{text}")
     return "\n".join(lines)
 
 
 def settings_from_options(options: list[tuple[str, str]]) -> ZenohSettings:
-    """The settings of the zenoh flags among getopt's (flag, value) pairs, as settings_from_args
-    reads them from add_zenoh_args; other flags are left to the caller."""
+    """The settings of the zenoh flags among getopt's (flag, value) pairs; other flags are the caller's."""
     settings = ZenohSettings()
     for flag, value in options:
         if flag in ("-m", "--mode"):
@@ -225,10 +214,6 @@ def settings_from_options(options: list[tuple[str, str]]) -> ZenohSettings:
 
 
 def settings_from_args(args: argparse.Namespace) -> ZenohSettings:
-    return ZenohSettings(
-        mode=args.mode,
-        connect=list(args.connect),
-        listen=list(args.listen),
-        multicast_scouting=args.multicast_scouting,
-        config_file=args.zenoh_config,
-    )
+    """The settings of add_zenoh_args's flags."""
+    connect, listen = list(args.connect), list(args.listen)
+    return ZenohSettings(args.mode, connect, listen, args.multicast_scouting, config_file=args.zenoh_config)
