@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 import sys
 import typing
 
-# s each start-up stage of a run (the coordinator, then every agent) has to come alive by default
-# (sim.run.launcher): generous, since many processes start at once on a loaded machine
-STARTUP_TIMEOUT = 300.0
+STARTUP_TIMEOUT = 300.0  # s per start-up stage of a run: generous, many processes start at once
 AGENTS_TIMEOUT = 60.0  # s a run with remote agents waits for every robot's agent to come alive by default
 
 
@@ -30,7 +29,14 @@ def refuse(prog: str, message: object) -> int:
     return 2
 
 
+def refuse_if(when: object, message: str) -> None:
+    """UsageError(message) if ``when`` holds: input the command cannot honour."""
+    if when:
+        raise UsageError(message)
+
+
 def positive_int(text: str) -> int:
+    """A whole number of at least 1."""
     try:
         value = int(text)
     except ValueError:
@@ -93,10 +99,5 @@ def parse_ids(text: str) -> list[int]:
 
 def format_ids(ids: list[int]) -> str:
     """The reverse of parse_ids, for messages: [0, 1, 2, 3, 7] -> '0-3, 7'."""
-    runs: list[list[int]] = []
-    for i in sorted(ids):
-        if runs and i == runs[-1][1] + 1:
-            runs[-1][1] = i
-        else:
-            runs.append([i, i])
-    return ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in runs)
+    runs = [[i for _, i in run] for _, run in itertools.groupby(enumerate(sorted(ids)), lambda k_i: k_i[1] - k_i[0])]
+    return ", ".join(str(r[0]) if len(r) == 1 else f"{r[0]}-{r[-1]}" for r in runs)

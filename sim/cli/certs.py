@@ -1,9 +1,5 @@
-"""`pixelswarm certs DIR --robots N`: certificates, configurations and access rules for a secured bus.
-
-A certificate authority, a certificate and a Zenoh configuration per role, and the router's access rules
-(transport/security.py, docs/security.md). Bad input is one line on stderr and exit code 2, with nothing
-written.
-"""
+"""`pixelswarm certs DIR --robots N`: certificates, configurations and access rules for a secured bus
+(transport/security.py, docs/security.md)."""
 
 from __future__ import annotations
 

@@ -27,7 +27,16 @@ from coordinator.scene import (
     resolve_scene_path,
     shipped_scenes,
 )
-from sim.args import AGENTS_TIMEOUT, STARTUP_TIMEOUT, OneLineParser, UsageError, add_seconds, positive_int, refuse
+from sim.args import (
+    AGENTS_TIMEOUT,
+    STARTUP_TIMEOUT,
+    OneLineParser,
+    UsageError,
+    add_seconds,
+    positive_int,
+    refuse,
+    refuse_if,
+)
 from sim.cli.certs import add_certs_parser
 from sim.cli.track import add_track_parser
 from sim.outputs.rundir import PARTIAL_SUFFIX, default_run_path
@@ -98,7 +107,6 @@ def _add_run_engine(run: argparse.ArgumentParser) -> None:
         "--range",
         dest="reach",
         type=float,
-        default=None,
         metavar="R",
         help="communication range in metres: a robot hears the states and auction words only of robots "
         "within R (lock-step only; default: everyone hears everyone)",
@@ -106,7 +114,6 @@ def _add_run_engine(run: argparse.ArgumentParser) -> None:
     group.add_argument(
         "--rounds-per-tick",
         type=int,
-        default=None,
         metavar="N",
         help="lock-step: at most N auction message rounds a tick, a block of phases spanning ticks "
         "(default: the scene's [robot] rounds_per_tick; if it sets none, 1 for a scene made for agent "
@@ -115,7 +122,6 @@ def _add_run_engine(run: argparse.ArgumentParser) -> None:
     group.add_argument(
         "--deadline",
         type=float,
-        default=None,
         help="lock-step: seconds to wait for a late agent's command (default: the scene's, 2 s)",
     )
 
@@ -219,8 +225,7 @@ def build_parser() -> argparse.ArgumentParser:
     stop.set_defaults(func=cmd_stop)
 
     _add_view_parser(sub)
-    scenes = sub.add_parser("scenes", help="list the shipped scenes")
-    scenes.set_defaults(func=cmd_scenes)
+    sub.add_parser("scenes", help="list the shipped scenes").set_defaults(func=cmd_scenes)
 
     add_goals_parser(sub)
     add_agents_parser(sub)
@@ -270,12 +275,9 @@ def _hardware_scene(args: argparse.Namespace) -> Scene:
     """The scene as a hardware run plays it: the hardware file's robots, on the wall clock."""
     from sim.node.hardware import HardwareError, load_run
 
-    if (args.engine or "distributed") != "distributed":
-        raise UsageError("--hardware runs the distributed engine: drop --engine central")
-    if args.clock == "lockstep":
-        raise UsageError("--hardware runs on the wall clock: drop --clock lockstep")
-    if args.robots is not None:
-        raise UsageError("--hardware takes the number of robots from the hardware file: drop --robots")
+    refuse_if(args.engine == "central", "--hardware runs the distributed engine: drop --engine central")
+    refuse_if(args.clock == "lockstep", "--hardware runs on the wall clock: drop --clock lockstep")
+    refuse_if(args.robots is not None, "--hardware takes the number of robots from the hardware file: drop --robots")
     if args.secure is not None:
         raise UsageError(
             "--hardware cannot be combined with --secure yet: its pose source joins outside the access rules"
@@ -287,8 +289,7 @@ def _hardware_scene(args: argparse.Namespace) -> Scene:
 
 
 def _make_goal_sets(scene: Scene, progress: typing.TextIO | None) -> Scene:
-    """The scene's goal sets (make_goal_sets); once they take longer than GOALS_SAID_AFTER, progress
-    hears what is being made and when it is done."""
+    """The scene's goal sets; past GOALS_SAID_AFTER, progress hears what is being made and when it is done."""
     if scene.goal_plan is None or progress is None:
         return make_goal_sets(scene)
     images = len(scene.steps)
@@ -297,11 +298,8 @@ def _make_goal_sets(scene: Scene, progress: typing.TextIO | None) -> Scene:
 
     def say() -> None:
         said.set()
-        print(
-            f"[{scene.name}] {scene.robots} robots: making the goals of {what} (segmentation, CVT)",
-            file=progress,
-            flush=True,
-        )
+        line = f"[{scene.name}] {scene.robots} robots: making the goals of {what} (segmentation, CVT)"
+        print(line, file=progress, flush=True)
 
     start = time.monotonic()
     timer = threading.Timer(GOALS_SAID_AFTER, say)
@@ -324,7 +322,12 @@ def cmd_run(args: argparse.Namespace) -> int:
         RobotParams.from_dict(scene.robot)
     except ValueError as err:
         raise UsageError(f"{args.scene}: {err}") from None
-    _check_remote_agents(args, scene)
+    # what a run whose agents join from elsewhere cannot do
+    refuse_if(args.agents_timeout is not None and not args.remote_agents, "--agents-timeout goes with --remote-agents")
+    if args.remote_agents and (args.secure is not None or args.agents_connect):
+        raise UsageError("--remote-agents: the agents join by themselves; drop --secure and --agents-connect")
+    if args.remote_agents and any(e["kind"] == "fail" for e in scene.events):
+        raise UsageError("--remote-agents: the scene's fail events kill agent processes, which the run has none of")
     out = args.out or default_run_path(scene.name)
     _check_out(out)
     if args.hardware is None and (args.engine or scene.engine) == "central":
@@ -333,11 +336,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def _with_rounds_per_tick(args: argparse.Namespace, scene: Scene, reach: float) -> Scene:
-    """--rounds-per-tick, or the scene's, written into the scene so the run directory says which.
-
-    A lock-step scene made for agent processes that sets none gets BUS_ROUNDS_PER_TICK whichever engine
-    runs it, so every engine runs it the same; scenes made for the central engine agree every block
-    within its tick (paper 5.1)."""
+    """--rounds-per-tick, or the scene's, written into the scene; a lock-step scene made for agent processes
+    that sets none gets BUS_ROUNDS_PER_TICK whichever engine runs it, so every engine runs it the same."""
     rounds = args.rounds_per_tick
     if rounds is None and "rounds_per_tick" not in scene.robot and args.hardware is None:
         bus = scene.engine == "distributed" and scene.clock == "lockstep" and not math.isfinite(reach)
@@ -349,7 +349,12 @@ def _scene_to_run(args: argparse.Namespace) -> Scene:
     """The scene `pixelswarm run` names, with its goal sets, or the hardware file's; UsageError if none."""
     from hardware.config import load_hardware
 
-    _check_numbers(args)  # before the scene: a bad flag is the flag's fault, not the scene file's
+    # numbers before the scene: a bad flag is the flag's fault, not the scene file's
+    refuse_if(args.seed is not None and args.seed < 0, f"--seed must be a whole number >= 0, not {args.seed}")
+    for flag in ("--duration", "--deadline", "--agents-timeout", "--startup-timeout"):
+        value = getattr(args, flag[2:].replace("-", "_"))
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise UsageError(f"{flag} must be a positive number of seconds, not {value:g}")
     try:  # SceneError and hardware.config's HardwareConfigError are ValueErrors
         if args.hardware is not None and load_hardware(args.hardware).backend_kind == "sim":
             args.hardware = None  # the simulated world, as without a hardware file
@@ -368,19 +373,15 @@ def _faults_and_reach(args: argparse.Namespace, scene: Scene) -> tuple[Any, floa
     except ValueError as err:
         raise UsageError(f"--faults: {err}") from None
     reach = math.inf if args.reach is None else args.reach
-    if not reach > 0:
-        raise UsageError(f"--range must be a positive distance in metres, not {args.reach}")
-    if math.isfinite(reach) and scene.clock != "lockstep":
-        raise UsageError("--range needs the lock-step clock: its auction runs in rounds of ticks")
-    if math.isfinite(reach) and args.hardware is not None:
-        raise UsageError("--range simulates a radio's reach; real robots have their own")
+    lockstep, limited = scene.clock == "lockstep", math.isfinite(reach)
+    refuse_if(not reach > 0, f"--range must be a positive distance in metres, not {args.reach}")
+    refuse_if(limited and not lockstep, "--range needs the lock-step clock: its auction runs in rounds of ticks")
+    refuse_if(limited and args.hardware is not None, "--range simulates a radio's reach; real robots have their own")
     if args.rounds_per_tick is not None:
-        if args.rounds_per_tick < 0:
-            raise UsageError(f"--rounds-per-tick must be a whole number >= 0, not {args.rounds_per_tick}")
-        if scene.clock != "lockstep":
-            raise UsageError("--rounds-per-tick needs the lock-step clock: real time has no rounds of ticks")
-        if math.isfinite(reach):
-            raise UsageError("--rounds-per-tick is not supported with --range: its auction ends blocks by hops")
+        rounds = args.rounds_per_tick
+        refuse_if(rounds < 0, f"--rounds-per-tick must be a whole number >= 0, not {rounds}")
+        refuse_if(not lockstep, "--rounds-per-tick needs the lock-step clock: real time has no rounds of ticks")
+        refuse_if(limited, "--rounds-per-tick is not supported with --range: its auction ends blocks by hops")
     return faults, reach
 
 
@@ -388,19 +389,16 @@ def _run_central(args: argparse.Namespace, scene: Scene, out: Path, faults: Any,
     """The run with every robot in this process (--engine central)."""
     from sim.central.engine import run_central
 
-    if args.secure is not None:
-        raise UsageError("--secure secures the bus between processes; the central engine has none")
-    if args.remote_agents:
-        raise UsageError("--remote-agents needs the distributed engine: the central engine has no agents")
-    if args.foxglove is not None:
-        raise UsageError("--foxglove streams the bus's messages; the central engine has none (use --view)")
-    if faults:
-        raise UsageError("--faults acts on messages; the central engine sends none (use --engine distributed)")
-    if any(e["kind"] in ("fail", "tracker-outage", "tracker-glitch") for e in scene.events):
-        raise UsageError(
-            "fail and tracker-outage events, and tracker-glitch ones (faults of processes and messages), need the distributed engine"
-        )
-
+    none = "the central engine has none"
+    refuse_if(args.secure is not None, f"--secure secures the bus between processes; {none}")
+    refuse_if(args.remote_agents, "--remote-agents needs the distributed engine: the central engine has no agents")
+    refuse_if(args.foxglove is not None, f"--foxglove streams the bus's messages; {none} (use --view)")
+    refuse_if(faults, "--faults acts on messages; the central engine sends none (use --engine distributed)")
+    refuse_if(
+        any(e["kind"] in ("fail", "tracker-outage", "tracker-glitch") for e in scene.events),
+        "fail and tracker-outage events, and tracker-glitch ones (faults of processes and messages), need the "
+        "distributed engine",
+    )
     progress = None if args.quiet else sys.stderr
     with _open_view(args.view, scene) as view:
         if progress is not None:  # the engine's own first line comes with its first tick
@@ -416,43 +414,35 @@ def _run_agents(args: argparse.Namespace, scene: Scene, out: Path, faults: Any, 
     # heavy imports only for the distributed engine (after the goal sets: progress first)
     from sim.run.launcher import Launcher, RunOptions
 
-    router = None
     if args.zenoh_config:
         raise UsageError("--zenoh-config is not supported here: each process of a run needs its own role's file")
-    if args.mode != "router":
-        raise UsageError("pixelswarm run embeds a router; to join an existing one use -e tcp/HOST:PORT")
+    refuse_if(args.mode != "router", "pixelswarm run embeds a router; to join an existing one use -e tcp/HOST:PORT")
     k = args.agents_per_process or scene.agents_per_process
+    router = None
     if args.secure is not None:
         router = _secured_router(args, scene.robots, k)
     elif args.listen:
         router = ZenohSettings(mode="router", listen=list(args.listen), connect=list(args.connect))
+    same = ("video", "plots", "display", "secure", "hardware", "remote_agents", "startup_timeout", "foxglove")
     options = RunOptions(
         out=out,
-        video=args.video,
-        plots=args.plots,
         agents_per_process=k,
-        display=args.display,
         router=router,
         connect=[] if args.listen else list(args.connect),
         faults=faults,
         agent_routers=list(args.agents_connect),
         deadline=scene.deadline if args.deadline is None else args.deadline,
         progress=None if args.quiet else sys.stderr,
-        secure=args.secure,
-        hardware=args.hardware,
-        remote_agents=args.remote_agents,
         agents_timeout=AGENTS_TIMEOUT if args.agents_timeout is None else args.agents_timeout,
-        startup_timeout=args.startup_timeout,
         reach=reach,
-        foxglove=args.foxglove,
+        **{name: getattr(args, name) for name in same},
     )
     with _open_view(args.view, scene) as options.view:
         return _run_distributed(Launcher(scene, options))
 
 
 def _open_view(mode: str | None, scene: Scene) -> Any:
-    """The live view ``--view`` asks for (sim.outputs.view.SwarmView), or None, as a context that closes
-    it; one line if it cannot start."""
+    """The live view ``--view`` asks for (a SwarmView), or None, as a context that closes it."""
     if mode is None:
         return contextlib.nullcontext()
     from sim.outputs.view import SwarmView, ViewUnavailable
@@ -483,11 +473,12 @@ def _keep_viewing(view: Any) -> None:
 
 
 def _run_distributed(launcher: Any) -> int:
-    from sim.run.launcher import AgentsMissing, HardwareStartError, Interrupted
+    """Run the launcher; its end as an exit code and at most one line on stderr."""
+    from sim.run.launcher import Interrupted
 
     try:
         path = launcher.run()
-    except (TransportError, HardwareStartError, AgentsMissing) as err:
+    except TransportError as err:  # a RuntimeError, but bad input: one line, exit code 2
         raise UsageError(str(err)) from None
     except Interrupted:
         print("pixelswarm: interrupted; no run directory written", file=sys.stderr)
@@ -502,11 +493,10 @@ def _run_distributed(launcher: Any) -> int:
     if launcher.stop_signal is not None:  # the user said stop: `pixelswarm run ... && next` goes no further
         name = signal.Signals(launcher.stop_signal).name
         if launcher.interrupted:
-            print(
-                f"pixelswarm run: stopped by {name}; what was recorded is in {path}, marked incomplete", file=sys.stderr
-            )
+            said = f"stopped by {name}; what was recorded is in {path}, marked incomplete"
         else:
-            print(f"pixelswarm run: {name} came as the run ended; {path} is complete", file=sys.stderr)
+            said = f"{name} came as the run ended; {path} is complete"
+        print(f"pixelswarm run: {said}", file=sys.stderr)
         return 128 + launcher.stop_signal
     _keep_viewing(launcher.opt.view)
     return 0
@@ -543,42 +533,28 @@ def _watch(args: argparse.Namespace) -> int:
     from sim.outputs.view import ViewUnavailable
     from sim.outputs.watch import observer_settings, print_line, watch
 
-    if args.connect is None:
-        raise UsageError("give a RUN_DIR to replay, or --connect ENDPOINT to watch a running swarm")
-    if args.run_dir is not None:
-        raise UsageError(f"either a RUN_DIR to replay or --connect ENDPOINT, not both ({args.run_dir})")
-    if args.save is not None and args.web:
-        raise UsageError("--web serves the view, --save writes it to a file: choose one")
-    if args.save is not None and not args.save.parent.is_dir():
-        raise UsageError(f"--save: no directory {args.save.parent} to write {args.save.name} in")
+    save = args.save
+    refuse_if(args.connect is None, "give a RUN_DIR to replay, or --connect ENDPOINT to watch a running swarm")
+    refuse_if(args.run_dir is not None, f"either a RUN_DIR to replay or --connect ENDPOINT, not both ({args.run_dir})")
+    refuse_if(save is not None and args.web, "--web serves the view, --save writes it to a file: choose one")
+    if save is not None and not save.parent.is_dir():
+        raise UsageError(f"--save: no directory {save.parent} to write {save.name} in")
     display = args.display or "default"
     try:
         settings = observer_settings(args.connect, args.secure, display)
-        sink = args.save if args.save is not None else "web" if args.web else "native"
+        sink = save if save is not None else "web" if args.web else "native"
         code = watch(settings, display, sink, timeout=args.timeout, say=print_line("pixelswarm view", args.quiet))
     except ViewUnavailable as err:
         raise UsageError(str(err)) from None
-    if code == 0 and args.save is not None:
-        print(args.save, flush=True)
+    if code == 0 and save is not None:
+        print(save, flush=True)
     return code
 
 
-def _check_numbers(args: argparse.Namespace) -> None:
-    """UsageError naming the flag of a number out of its range."""
-    if args.seed is not None and args.seed < 0:
-        raise UsageError(f"--seed must be a whole number >= 0, not {args.seed}")
-    for flag in ("--duration", "--deadline", "--agents-timeout", "--startup-timeout"):
-        value = getattr(args, flag[2:].replace("-", "_"))
-        if value is not None and not (math.isfinite(value) and value > 0):
-            raise UsageError(f"{flag} must be a positive number of seconds, not {value:g}")
-
-
 def _check_out(out: Path) -> None:
-    """UsageError unless a run directory can be made at ``out``: neither it nor its partial directory
-    exists, and its parents are made as the run's would be (the trial directory is removed)."""
+    """UsageError unless a run directory can be made at ``out`` (made and removed again, as a trial)."""
     trial = out.with_name(out.name + PARTIAL_SUFFIX)
-    if out.exists() or trial.exists():
-        raise UsageError(f"run directory {out} already exists; choose another --out")
+    refuse_if(out.exists() or trial.exists(), f"run directory {out} already exists; choose another --out")
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         trial.mkdir()
@@ -587,28 +563,18 @@ def _check_out(out: Path) -> None:
     trial.rmdir()
 
 
-def _check_remote_agents(args: argparse.Namespace, scene: Scene) -> None:
-    """UsageError for what a run whose agents join from elsewhere cannot do."""
-    if args.agents_timeout is not None and not args.remote_agents:
-        raise UsageError("--agents-timeout goes with --remote-agents")
-    if args.remote_agents and (args.secure is not None or args.agents_connect):
-        raise UsageError("--remote-agents: the agents join by themselves; drop --secure and --agents-connect")
-    if args.remote_agents and any(e["kind"] == "fail" for e in scene.events):
-        raise UsageError("--remote-agents: the scene's fail events kill agent processes, which the run has none of")
-
-
 def _secured_router(args: argparse.Namespace, robots: int, k: int) -> ZenohSettings | None:
     """`run --secure DIR`: the embedded router's settings if --listen names its endpoint (None: the
     launcher picks a free loopback port); UsageError for anything a secured run cannot do."""
-    if k > 1:
-        raise UsageError(
-            f"--secure runs one robot per agent process, not {k} (-k or the scene's agents_per_process): "
-            "the access rules let a process speak for its own robot only"
-        )
-    if args.connect or args.agents_connect:
-        raise UsageError(
-            "--secure embeds its router and every process joins it; it cannot be used with -e or --agents-connect"
-        )
+    refuse_if(
+        k > 1,
+        f"--secure runs one robot per agent process, not {k} (-k or the scene's agents_per_process): "
+        "the access rules let a process speak for its own robot only",
+    )
+    refuse_if(
+        args.connect or args.agents_connect,
+        "--secure embeds its router and every process joins it; it cannot be used with -e or --agents-connect",
+    )
     plain = [e for e in args.listen if not e.startswith("tls/")]
     if plain:
         raise UsageError(f"--secure listens with TLS only: --listen tls/HOST:PORT, not {plain[0]}")
@@ -621,8 +587,7 @@ def _secured_router(args: argparse.Namespace, robots: int, k: int) -> ZenohSetti
 
 def cmd_router(args: argparse.Namespace) -> int:
     settings = settings_from_args(args)
-    if settings.mode != "router":
-        raise UsageError("pixelswarm router runs in router mode; drop -m")
+    refuse_if(settings.mode != "router", "pixelswarm router runs in router mode; drop -m")
     if not settings.listen and not settings.config_file:
         settings.listen = ["tcp/127.0.0.1:7447"]
     session = open_session(settings)
@@ -644,8 +609,7 @@ def cmd_stop(args: argparse.Namespace) -> int:
         config = load_hardware(args.hardware)
         settings = None
         if config.backend_kind == "ros2":
-            if not args.connect:
-                raise UsageError(f"{args.hardware}: ROS 2 robots are reached through a router: give -e ENDPOINT")
+            refuse_if(not args.connect, f"{args.hardware}: ROS 2 robots are reached through a router: give -e ENDPOINT")
             settings = ZenohSettings(mode="client", connect=[args.connect])
         unreached = stop_all(config, settings)
     except (HardwareConfigError, TransportError) as err:

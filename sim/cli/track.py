@@ -1,23 +1,20 @@
 """`pixelswarm track SOURCE --hardware FILE --out poses.csv`: the overhead-camera tracker, offline.
 
-Runs hardware.camera's ArucoTracker, set up by a hardware file's `[poses]` table (kind "camera"), over
-every frame and writes one CSV row per robot seen per frame: `t,id,x,y,theta,frame` (t in s from the
-video's frame rate, x and y in m on the floor, theta in rad). Bad input is one line on stderr and exit
-code 2; the CSV takes its name only when complete. See docs/camera.md.
-"""
+hardware.camera's ArucoTracker over every frame, one CSV row per robot seen per frame: `t,id,x,y,theta,frame`
+(t in s from the video's frame rate, x and y in m, theta in rad). See docs/camera.md."""
 
 from __future__ import annotations
 
 import argparse
 import csv
-import os
+import io
 import sys
-import tempfile
 import tomllib
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TextIO
+from typing import TYPE_CHECKING, Any, BinaryIO, TextIO
 
-from sim.args import UsageError
+from sim.args import UsageError, refuse_if
+from sim.outputs.rundir import atomic_write
 
 if TYPE_CHECKING:
     from hardware.camera import CameraConfig
@@ -59,8 +56,7 @@ def load_camera_config(path: Path) -> CameraConfig:
         raise UsageError(f"cannot read hardware file {path}: {err.strerror or err}") from None
     except tomllib.TOMLDecodeError as err:
         raise UsageError(f"hardware file {path} is not valid TOML: {err}") from None
-    if "poses" not in data:
-        raise UsageError(f"hardware file {path} has no [poses] table")
+    refuse_if("poses" not in data, f"hardware file {path} has no [poses] table")
     try:
         return CameraConfig.from_table(data["poses"], f"{path} [poses]")
     except HardwareConfigError as err:
@@ -73,8 +69,7 @@ def track_video(video: Path, config: CameraConfig, out: TextIO, progress: TextIO
 
     from hardware.camera import MIN_REFERENCES, ArucoTracker, CameraError, open_capture
 
-    if not video.is_file():
-        raise UsageError(f"no such video file {video}")
+    refuse_if(not video.is_file(), f"no such video file {video}")
     try:
         capture = open_capture(str(video))
     except CameraError as err:
@@ -102,8 +97,7 @@ def track_video(video: Path, config: CameraConfig, out: TextIO, progress: TextIO
                 print(f"{PROG}: frame {frames}/{total}, {len(result.poses)} robots seen", file=progress, flush=True)
     finally:
         capture.release()
-    if frames == 0:
-        raise UsageError(f"no frames could be read from {video}")
+    refuse_if(frames == 0, f"no frames could be read from {video}")
     if not tracker.calibrated:
         raise UsageError(
             f"fewer than {MIN_REFERENCES} of the reference markers {sorted(config.reference)} were ever seen in {video}"
@@ -112,32 +106,24 @@ def track_video(video: Path, config: CameraConfig, out: TextIO, progress: TextIO
 
 
 def run_track(args: argparse.Namespace) -> int:
-    """Run the track command; bad input, or a CSV that cannot be written, is a UsageError, which
-    `pixelswarm` says as one line (exit code 2)."""
+    """The command; bad input, or a CSV that cannot be written, is a UsageError (one line, exit code 2).
+    The CSV takes its name only when complete."""
     out: Path = args.out
-    temp: Path | None = None
+    config = load_camera_config(args.hardware)
+    if out.is_dir() or not out.parent.is_dir():
+        raise UsageError(f"cannot write {out}: {'a directory' if out.is_dir() else f'no such directory {out.parent}'}")
+    counts: list[int] = []
+
+    def write(fh: BinaryIO) -> None:
+        text = io.TextIOWrapper(fh, newline="")
+        counts.extend(track_video(args.video, config, text, None if args.quiet else sys.stderr))
+        text.detach()  # flushed; atomic_write closes the file
+
     try:
-        config = load_camera_config(args.hardware)
-        parent = out.parent if str(out.parent) else Path(".")
-        if out.is_dir() or not parent.is_dir():
-            raise UsageError(
-                f"cannot write {out}: {'a directory' if out.is_dir() else 'no such directory ' + str(parent)}"
-            )
-        fd, name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".partial", dir=parent)
-        temp = Path(name)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(temp, 0o666 & ~umask)  # mkstemp's 0600 would outlive the rename
-        with os.fdopen(fd, "w", newline="") as f:
-            frames, rows = track_video(args.video, config, f, None if args.quiet else sys.stderr)
-        os.replace(temp, out)
-        temp = None
+        atomic_write(out, write)
     except OSError as err:
         raise UsageError(f"cannot write {out}: {err.strerror or err}") from None
-    finally:
-        if temp is not None:
-            temp.unlink(missing_ok=True)
     if not args.quiet:
-        print(f"{PROG}: {frames} frames, {rows} robot poses -> {out}", file=sys.stderr)
+        print(f"{PROG}: {counts[0]} frames, {counts[1]} robot poses -> {out}", file=sys.stderr)
     print(out)
     return 0

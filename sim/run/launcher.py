@@ -1,9 +1,7 @@
 """The launcher: embeds a router, starts coordinator, world and agent processes, records the run.
 
-Every participant is a real OS process talking over a real zenoh router on loopback. Children run
-in their own process group (a terminal's Ctrl-C reaches only the launcher, which then shuts them
-down in order) and exit by themselves if the launcher disappears.
-"""
+Children run in their own process group (a terminal's Ctrl-C reaches only the launcher, which then
+stops them in order) and exit by themselves if the launcher disappears."""
 
 from __future__ import annotations
 
@@ -25,7 +23,7 @@ from agent.core.params import HOLONOMIC, RobotParams
 from agent.runtime import HostConfig, interpreter
 from coordinator.resolved import save_resolved
 from coordinator.scene import Scene, count_due, events_of, take_due
-from sim.args import AGENTS_TIMEOUT, STARTUP_TIMEOUT, format_ids
+from sim.args import AGENTS_TIMEOUT, STARTUP_TIMEOUT, UsageError, format_ids
 from sim.node.hardware import ERROR as HARDWARE_ERROR
 from sim.outputs.metrics import Traffic
 from sim.outputs.recorder import Recorder
@@ -77,10 +75,6 @@ class RunOptions:
     view: Any = None
 
 
-class HardwareStartError(Exception):
-    """The hardware node refused to start (robot out of reach, no poses): its one line for the user."""
-
-
 @dataclass
 class Child:
     name: str
@@ -113,11 +107,7 @@ class WorldEnd:
 
 
 class Interrupted(Exception):
-    pass
-
-
-class AgentsMissing(Exception):
-    """Remote agents that did not come within the timeout: one line naming their robots."""
+    """A second stop signal, or one before the run started: nothing is written."""
 
 
 class StartupFailed(Exception):
@@ -130,6 +120,11 @@ def _robots(ids: list[int]) -> str:
     return f"robot{'s' if len(ids) > 1 else ''} {format_ids(ids)}"
 
 
+def _warn(text: str) -> None:
+    """A line on stderr even with --quiet: what befalls the run's processes is not progress."""
+    print(text, file=sys.stderr, flush=True)
+
+
 def _last_said(log: Path, prefix: str) -> str | None:
     """The rest of the last line of a child's log that starts with ``prefix`` (None: none, or no log)."""
     lines = log.read_text().splitlines() if log.exists() else []
@@ -137,9 +132,8 @@ def _last_said(log: Path, prefix: str) -> str | None:
 
 
 class Launcher:
-    """Runs a scene's processes (router, coordinator, agents, world) and records the run.
-
-    The CLI reads the run's end from stop_signal, interrupted and startup_failure."""
+    """Runs a scene's processes (router, coordinator, agents, world) and records the run; the CLI reads
+    the run's end from stop_signal, interrupted and startup_failure."""
 
     def __init__(self, scene: Scene, options: RunOptions) -> None:
         self.world = WorldEnd()
@@ -186,10 +180,8 @@ class Launcher:
         self.incidents.restarts.append(
             {"process": child.name, "returncode": code, "pid": again.proc.pid, "sim_time_s": recorder.sim_time}
         )
-        print(
-            f"pixelswarm: {child.name} (pid {child.proc.pid}) exited with code {code}; restarted (pid {again.proc.pid})",
-            file=sys.stderr,
-            flush=True,
+        _warn(
+            f"pixelswarm: {child.name} (pid {child.proc.pid}) exited with code {code}; restarted (pid {again.proc.pid})"
         )
 
     def _scene_args(self) -> list[str]:
@@ -227,24 +219,21 @@ class Launcher:
         # an agent gives up on its poses no sooner than the launcher gives up on it (_await_agents)
         extra = ["--start-timeout", str(self.opt.startup_timeout)]
         extra += ["--faults", format_faults(self.opt.faults)] if self.opt.faults else []
+        routers = self.opt.agent_routers
         for h in range(math.ceil(len(ids) / k)):
             robots = ids[h * k : (h + 1) * k]
-            config = self._host_config(robots)
             path = cfg_dir / f"agents-{h:04d}.json"
-            path.write_text(config.to_json())
-            routers = self.opt.agent_routers
-            client = (
-                ZenohSettings(mode="client", connect=[routers[h % len(routers)]])
-                if routers
-                else self._as(robot_role(robots[0]))
-            )
+            path.write_text(self._host_config(robots).to_json())
+            if routers:
+                client: ZenohSettings | None = ZenohSettings(mode="client", connect=[routers[h % len(routers)]])
+            else:
+                client = self._as(robot_role(robots[0]))
             self._spawn(f"agent-{h:04d}", "agent", ["--config", str(path), *extra], robots, client)
 
     # --- remote agents (`pixelswarm agents` on other machines) -----------------------------------
     def _serve_configs(self, bus: Bus) -> None:
-        """Serve each agent robot's host config (as for a robot alone in its process) on
-        px/<display>/config/<robot>; `pixelswarm agents` merges K of them into one host. The 'run'
-        token tells those agents when the run is over."""
+        """Serve each agent robot's host config (as for a robot alone in its process) for `pixelswarm agents`;
+        the 'run' token tells those agents when the run is over."""
         self.fetched: set[int] = set()  # robots whose config was asked for (zenoh's threads add to it)
         faults = format_faults(self.opt.faults)
         for r in self._agent_robots:
@@ -274,7 +263,7 @@ class Launcher:
                 raise RuntimeError("the world process exited while waiting for agents: see logs/world.log")
             if time.monotonic() - started > self.opt.agents_timeout:
                 absent = [i for i in ids if not rec.progress.agent_alive[i]]
-                raise AgentsMissing(
+                raise UsageError(  # remote agents that did not come: one line naming their robots
                     f"no agent came for robots {format_ids(absent)} within {self.opt.agents_timeout:g} s "
                     f"(start them with `pixelswarm agents --connect {endpoint}`)"
                 )
@@ -312,13 +301,10 @@ class Launcher:
                         "noticed_wall_time": time.time(),
                     }
                 )
-                # said even with --quiet: a crash is not progress (at start-up, StartupFailed names it)
-                if self.startup_failure is None:
-                    print(
+                if self.startup_failure is None:  # at start-up, StartupFailed names it
+                    _warn(
                         f"pixelswarm: agent process {child.name} (pid {child.proc.pid}, robots {child.robots}) "
-                        f"exited with code {code}; its robots stay in the world, stopped",
-                        file=sys.stderr,
-                        flush=True,
+                        f"exited with code {code}; its robots stay in the world, stopped"
                     )
             elif child.name == "world":
                 self.world.exit = code
@@ -331,13 +317,11 @@ class Launcher:
 
     # --- progress -----------------------------------------------------------------------------
     def _say(self, text: str, force: bool = False) -> None:
-        out = self.opt.progress
-        if out is None:
-            return
+        """A progress line, at most one a second unless ``force``."""
         now = time.monotonic()
-        if force or now - self._last_say >= 1.0:
+        if self.opt.progress is not None and (force or now - self._last_say >= 1.0):
             self._last_say = now
-            print(text, file=out, flush=True)
+            print(text, file=self.opt.progress, flush=True)
 
     def _progress(self, rec: Recorder) -> None:
         if not rec.traj.t:
@@ -428,8 +412,8 @@ class Launcher:
         recorder.out.heading = self.params.kinematics != HOLONOMIC
         recorder.view = self.opt.view
         if self.opt.foxglove is not None and recorder.out.log is not None:
-            port = recorder.out.log.serve(self.opt.foxglove)  # said even with -q: it is asked for, not progress
-            print(f"[{self.scene.name}] Foxglove live: ws://127.0.0.1:{port}", file=sys.stderr, flush=True)
+            port = recorder.out.log.serve(self.opt.foxglove)
+            _warn(f"[{self.scene.name}] Foxglove live: ws://127.0.0.1:{port}")  # asked for, not progress
 
         def newest_goals() -> list[tuple[str, bytes]]:
             newest = recorder.sets.newest
@@ -461,10 +445,8 @@ class Launcher:
             time.sleep(0.05)
 
     def _await_agents(self, rec: Recorder) -> None:
-        """Wait until every agent robot's agent is alive; a stop signal ends the wait.
-
-        Raises StartupFailed naming the robots whose agent process exited, or that were not alive
-        within the start-up timeout or when the world ended."""
+        """Until every agent robot's agent is alive, or a stop signal; StartupFailed naming the robots
+        whose agent process exited, or not alive within the start-up timeout or when the world ended."""
         ids = self._agent_robots
         started = time.monotonic()
         while True:
@@ -474,25 +456,19 @@ class Launcher:
             missing = [i for i in ids if i not in alive]
             if not missing or self.stop_signal is not None:
                 return
-            logs = self.opt.out / "logs"
             exited = [c for c in self.children if c.name.startswith("agent") and c.proc.poll() is not None]
             gone = sorted({r for c in exited for r in c.robots} & set(missing))
-            if gone:
-                codes = sorted({c.proc.returncode for c in exited if set(c.robots) & set(gone)})
-                raise StartupFailed(
-                    f"{_robots(missing)}: no agent came alive (the agent process of {_robots(gone)} exited "
-                    f"with code {', '.join(map(str, codes))}); see {logs}"
-                )
             world_gone = any(c.name == "world" and c.proc.poll() is not None for c in self.children)
-            if world_gone or self._world_done(rec) is not None:
-                raise StartupFailed(
-                    f"{_robots(missing)}: no agent came alive before the world process ended; see {logs}"
-                )
-            if time.monotonic() - started > self.opt.startup_timeout:
-                raise StartupFailed(
-                    f"{_robots(missing)}: no agent came alive within {self.opt.startup_timeout:g} s "
-                    f"(--startup-timeout); see {logs}"
-                )
+            why = None
+            if gone:
+                codes = ", ".join(map(str, sorted({c.proc.returncode for c in exited if set(c.robots) & set(gone)})))
+                why = f" (the agent process of {_robots(gone)} exited with code {codes})"
+            elif world_gone or self._world_done(rec) is not None:
+                why = " before the world process ended"
+            elif time.monotonic() - started > self.opt.startup_timeout:
+                why = f" within {self.opt.startup_timeout:g} s (--startup-timeout)"
+            if why is not None:
+                raise StartupFailed(f"{_robots(missing)}: no agent came alive{why}; see {self.opt.out / 'logs'}")
             self._say(f"[{self.scene.name}] waiting for {len(missing)}/{len(ids)} agents to come alive")
             time.sleep(0.05)
 
@@ -520,7 +496,7 @@ class Launcher:
         except RuntimeError:
             said = _last_said(child.log, HARDWARE_ERROR)
             if said is not None:
-                raise HardwareStartError(said) from None
+                raise UsageError(said) from None  # the hardware node refused to start: its one line
             raise
 
     def _embedded_router(self) -> ZenohSettings:
@@ -539,8 +515,7 @@ class Launcher:
     ) -> None:
         """Until a process of ``role`` is alive; RuntimeError if ``child`` exits first or (``gave_up``,
         checked every 0.2 s) says why it will not come."""
-        start = time.monotonic()
-        checked = start
+        start = checked = time.monotonic()
         alive = False
         while not alive:
             rec.poll()
@@ -570,11 +545,9 @@ class Launcher:
             if self.world.exit is not None:
                 # the world is the bodies and the tracker: the run ends, written marked incomplete
                 self.world.stats, self.world.died = {}, True
-                print(
+                _warn(
                     f"pixelswarm: the world process exited with code {self.world.exit} (see logs/world.log); "
-                    "the run ends, incomplete",
-                    file=sys.stderr,
-                    flush=True,
+                    "the run ends, incomplete"
                 )
                 return f"world exited with code {self.world.exit}"
             if self.stop_signal is not None and not end_sent:
@@ -671,10 +644,10 @@ class Launcher:
             min_clearance_substep_m=stats.get("min_clearance"),
             commands_applied=int(sum(stats.get("commands_applied", []))),
             commands_sent=rec.tally.commands,
-            late_commands=int(stats.get("late_commands", 0)),
-            expired_commands=int(stats.get("expired_commands", 0)),
-            stopped_ticks=int(stats.get("stopped_ticks", 0)),
-            withheld_ticks=int(stats.get("withheld_ticks", 0)),
+            **{
+                k: int(stats.get(k, 0))
+                for k in ("late_commands", "expired_commands", "stopped_ticks", "withheld_ticks")
+            },
             orca_fallbacks=int(sum(s.get("fallbacks", 0) for s in agent_stats)),
             poses_held=int(sum(s.get("poses_held", 0) for s in agent_stats)),
             subscriptions_renewed=int(sum(s.get("subscriptions_renewed", 0) for s in agent_stats)),

@@ -1,12 +1,7 @@
 """`pixelswarm agents --connect ENDPOINT [--robots IDS] [-k K]`: agent processes for a run going elsewhere.
 
-The run (`pixelswarm run SCENE --listen ENDPOINT --remote-agents`) starts no agents: it serves each agent
-robot's host configuration on px/<display>/config/<robot>. This command, on any machine that reaches the
-router, fetches the configurations it is asked for, joins them K robots to a process and passes each on
-stdin, so no file system is shared with the run. Its agents stop when the run's world ends or the run goes
-away (liveliness tokens), on Ctrl-C or SIGTERM, and by themselves if this command dies; bad input is one
-line on stderr and exit code 2, with nothing started.
-"""
+The run (`pixelswarm run ... --remote-agents`) serves each agent robot's host configuration on the bus; this
+command fetches them, joins them K robots to a process and passes each on stdin (no shared file system)."""
 
 from __future__ import annotations
 
@@ -23,7 +18,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from agent.runtime import HostConfig, interpreter
-from sim.args import UsageError, add_seconds, check_endpoint, format_ids, parse_ids, positive_int
+from sim.args import UsageError, add_seconds, check_endpoint, format_ids, parse_ids, positive_int, refuse_if
 from sim.processes import handling_signals, stop_processes
 from transport.bus import Bus, LivelinessWatch
 from transport.keys import Keys
@@ -48,11 +43,6 @@ def encode_remote_config(config: HostConfig, faults: str) -> bytes:
     return json.dumps({"host": json.loads(config.to_json()), "faults": faults}).encode()
 
 
-def decode_remote_config(payload: bytes) -> tuple[HostConfig, str]:
-    data = json.loads(payload)
-    return HostConfig.from_json(json.dumps(data["host"])), str(data.get("faults", ""))
-
-
 def merge_configs(configs: list[HostConfig]) -> HostConfig:
     """One host for several robots' configurations: their robots and pursuits together, and the
     greetings of robots of other hosts only; the rest is the run's, the same in each."""
@@ -71,9 +61,9 @@ def fetch_configs(bus: Bus, robots: list[int] | None) -> dict[int, tuple[HostCon
     keys = [bus.keys.config("*")] if robots is None else [bus.keys.config(r) for r in robots]
     found: dict[int, tuple[HostConfig, str]] = {}
     for key, payload in bus.query_raw(keys, QUERY_TIMEOUT):
-        robot = Keys.last_id(key)
-        if robot is not None:
-            found[robot] = decode_remote_config(payload)
+        if (robot := Keys.last_id(key)) is not None:
+            data = json.loads(payload)  # as encode_remote_config wrote it
+            found[robot] = HostConfig.from_json(json.dumps(data["host"])), str(data.get("faults", ""))
     return found
 
 
@@ -128,8 +118,7 @@ def run_agents(args: argparse.Namespace) -> int:
                 f"robots {format_ids(unknown)} are not agent robots of the run on {args.connect} "
                 f"(display {args.display})"
             )
-        if not configs:
-            raise UsageError(f"the run on {args.connect} (display {args.display}) has no agent robots to start")
+        refuse_if(not configs, f"the run on {args.connect} (display {args.display}) has no agent robots to start")
         hosts = _hosts(configs, args.agents_per_process)
         supervisor = Supervisor(settings)
         with supervisor.forwarding_signals():
@@ -165,7 +154,6 @@ class Supervisor:
         self.settings = settings
         self.procs: list[tuple[subprocess.Popen, list[int]]] = []
         self.stop_signal: int | None = None
-        self.failed = False
 
     def start(self, config: HostConfig, faults: str) -> None:
         cmd = [*interpreter(len(config.robots)), "-m", "agent", "--config", "-", "--exit-with-parent"]
@@ -195,7 +183,7 @@ class Supervisor:
         """Until every agent has exited: stop them all once the run's world has ended (or the run is
         gone, or a signal came). 0 when the run ended them, 128 + signal, or 1 if one failed."""
         world_seen, over = False, False
-        reported: set[int] = set()
+        reported: set[int] = set()  # agents that exited on their own with an error
         while any(p.poll() is None for p, _ in self.procs):
             bus.renew_if_due()  # its link to the router came back a while ago
             over = over or any(not alive for _, _, alive, _, _ in runs.drain())
@@ -208,7 +196,6 @@ class Supervisor:
             for proc, robots in self.procs:
                 if proc.poll() not in (None, 0) and proc.pid not in reported:
                     reported.add(proc.pid)
-                    self.failed = True
                     print(
                         f"{PROG}: agent process {proc.pid} (robots {format_ids(robots)}) exited with code "
                         f"{proc.returncode}; its robots stay in the world, stopped",
@@ -218,7 +205,7 @@ class Supervisor:
             time.sleep(0.05)
         if self.stop_signal is not None:
             return 128 + self.stop_signal
-        return 1 if self.failed else 0
+        return 1 if reported else 0
 
     def stop(self) -> None:
         """SIGTERM to every agent still running; those not gone within the grace are killed."""

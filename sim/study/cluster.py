@@ -1,14 +1,8 @@
-"""A study's runs on a Dask cluster (``dask.distributed``): this machine's, or one with workers elsewhere.
+"""A study's runs on a Dask cluster: this machine's (in-process, no port opened), or one with workers elsewhere.
 
-Every run is one task, :func:`run_task`, which starts ``pixelswarm run`` on the worker that took it and waits
-for it. Without ``--scheduler`` a local cluster runs in the study's process (Dask's in-process transport: no
-port opened) and each task writes its run straight into the study directory; with ``--scheduler`` a task runs
-into its worker's own directory and sends the run back as a tar archive, unpacked into ``DIR/runs/<id>``. A
-worker that dies takes its runs with it (each is its worker's child) and the scheduler gives the task to
-another; the study records a run once, when its task's result comes back. Ctrl-C or SIGTERM sets a
-cluster-wide event every task polls: each stops its run (SIGTERM, then SIGKILL after
-:data:`sim.study.runner.STOP_GRACE_S`).
-"""
+Each run is one task, :func:`run_task`: ``pixelswarm run`` on the worker that took it, its run sent back as a
+tar archive unless the worker shares the study directory. A worker that dies takes its runs with it and the
+scheduler gives the task to another; a cluster-wide event stops every task's run on Ctrl-C or SIGTERM."""
 
 from __future__ import annotations
 
@@ -27,15 +21,16 @@ import time
 from pathlib import Path
 from typing import Any
 
+from sim.args import UsageError
+
 CONNECT_TIMEOUT_S = 10
 STOP_POLL_S = 0.5
 _PR_SET_PDEATHSIG = 1
 ADDRESS = re.compile(r"^(tcp|tls)://[^\s/:]+:\d{1,5}$")
 
 
-# Dask's own periodic work (profiler, event-loop watchdog, system monitor), slowed for tasks that only wait on
-# a subprocess: its CPU is the runs' on a small machine. docs/study.md gives these as environment variables
-# (quiet_env) for `dask scheduler` and `dask worker`.
+# Dask's own periodic work, slowed for tasks that only wait on a subprocess: its CPU is the runs' on a small
+# machine. docs/study.md gives these as environment variables (quiet_env) for `dask scheduler` and `dask worker`.
 QUIET = {
     "distributed.worker.profile.enabled": False,
     "distributed.admin.tick.interval": "1s",
@@ -48,13 +43,9 @@ def quiet_env() -> dict[str, str]:
     return {"DASK_" + key.upper().replace(".", "__").replace("-", "_"): str(v) for key, v in QUIET.items()}
 
 
-class ClusterError(Exception):
-    """The scheduler cannot be reached or its address is not one: one line, nothing started."""
-
-
 def check_address(address: str) -> None:
     if not ADDRESS.match(address):
-        raise ClusterError(f"--scheduler must be tcp://HOST:PORT, not {address!r} (a Dask scheduler's address)")
+        raise UsageError(f"--scheduler must be tcp://HOST:PORT, not {address!r} (a Dask scheduler's address)")
 
 
 def connect(address: str | None, jobs: int) -> tuple[Any, Any]:
@@ -64,7 +55,7 @@ def connect(address: str | None, jobs: int) -> tuple[Any, Any]:
         import dask
         from distributed import Client, LocalCluster
     except ImportError:
-        raise ClusterError("studies run through dask.distributed: pip install 'dask[distributed]'") from None
+        raise UsageError("studies run through dask.distributed: pip install 'dask[distributed]'") from None
     if address is None:
         # in this process, over Dask's in-process transport: no port is opened at all
         with dask.config.set(QUIET):  # read as the scheduler and worker are made
@@ -75,7 +66,7 @@ def connect(address: str | None, jobs: int) -> tuple[Any, Any]:
         return Client(address, timeout=CONNECT_TIMEOUT_S), None
     except (OSError, TimeoutError) as err:
         first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-        raise ClusterError(f"cannot reach the Dask scheduler at {address}: {first}") from None
+        raise UsageError(f"cannot reach the Dask scheduler at {address}: {first}") from None
 
 
 def _die_with_parent() -> None:
@@ -119,9 +110,8 @@ def clear_run_dir(final: Path) -> None:
 
 
 def run_task(run_id: str, args: list[str], out: str | None, stop_event: str, grace: float) -> dict[str, Any]:
-    """One run on this worker: ``pixelswarm run ARGS --out DIR``. ``out``: the run directory the
-    study reads (its filesystem is this worker's), or None: a directory of this worker's, sent back
-    as ``archive`` (tar of the run directory, under its final or ``.partial`` name)."""
+    """One run on this worker: ``pixelswarm run ARGS --out DIR``; ``out`` None: into a directory of the
+    worker's, sent back as ``archive`` (tar of the run directory, under its final or ``.partial`` name)."""
     from distributed import get_worker
 
     try:

@@ -1,14 +1,10 @@
-"""The report of a study (sim/study/runner.py): runs.csv, summary.csv, one PNG per axis, report.html.
-
-runs.csv holds one row per run: its condition's settings, seed, status, wall time and every scalar
-of metrics.json (nested tables flattened as `table.key`, lists of numbers as `key.mean`; true/false
-as 1/0). summary.csv holds one row per condition: mean, sample standard deviation and n of each
-numeric column over the seeds whose run finished. report.html is one self-contained page.
-"""
+"""The report of a study: runs.csv (a row per run: settings, seed, status and metrics.json's scalars),
+summary.csv (a row per condition: mean, std and n over its finished runs), one PNG per axis, report.html."""
 
 from __future__ import annotations
 
 import base64
+import contextlib
 import csv
 import html
 import importlib.metadata
@@ -33,8 +29,6 @@ NOT_SUMMARISED = {"seed"}  # numbers that name a run rather than measure it
 
 
 # --- Rows -----------------------------------------------------------------------------------------
-
-
 def flatten(metrics: dict[str, Any]) -> dict[str, Any]:
     """The scalars of metrics.json: nested tables one level down as `table.key`, number lists as `key.mean`."""
     out: dict[str, Any] = {}
@@ -88,19 +82,15 @@ def summarise(spec: Spec, columns: list[str], rows: list[dict[str, Any]]) -> tup
     numeric = [
         c for c in columns if c not in settings and c not in NOT_SUMMARISED and any(_is_number(r.get(c)) for r in rows)
     ]
-    head = ["condition", *settings, "runs", "failed"]
-    for c in numeric:
-        head += [f"{c}.mean", f"{c}.std", f"{c}.n"]
+    head = ["condition", *settings, "runs", "failed", *(f"{c}.{s}" for c in numeric for s in ("mean", "std", "n"))]
     out = []
     for condition, _ in spec.conditions():
         mine = [r for r in rows if r["condition"] == condition]
         done = [r for r in mine if r["status"] == "done"]
-        row: dict[str, Any] = {"condition": condition, "runs": len(done)}
-        row["failed"] = sum(r["status"] == "failed" for r in mine)
+        row = {"condition": condition, "runs": len(done), "failed": sum(r["status"] == "failed" for r in mine)}
         row.update({k: mine[0][k] for k in settings})
         for c in numeric:
-            mean, std, n = stats([r.get(c) for r in done])
-            row.update({f"{c}.mean": mean, f"{c}.std": std, f"{c}.n": n})
+            row.update(zip((f"{c}.mean", f"{c}.std", f"{c}.n"), stats([r.get(c) for r in done])))
         out.append(row)
     return head, out
 
@@ -117,8 +107,7 @@ def to_csv(head: list[str], rows: list[dict[str, Any]]) -> str:
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=head, lineterminator="\n")
     writer.writeheader()
-    for row in rows:
-        writer.writerow({k: _cell(row.get(k)) for k in head})
+    writer.writerows({k: _cell(row.get(k)) for k in head} for row in rows)
     return buffer.getvalue()
 
 
@@ -129,8 +118,6 @@ def _cell(value: Any) -> Any:
 
 
 # --- Plots: each key metric against each axis, seeds' spread, the baseline beside -----------------
-
-
 def plot_axis(spec: Spec, axis: str, rows: list[dict[str, Any]], metrics: list[str]) -> bytes:
     """A PNG: one panel per metric against `axis`; a series per value of the other axes (mean, std
     bars, each seed a dot); a baseline that fixes `axis` is a band (mean +- std) across the panel."""
@@ -221,8 +208,6 @@ def _baseline_words(spec: Spec) -> str:
 
 
 # --- report.html and the files --------------------------------------------------------------------
-
-
 def machine_and_software() -> dict[str, str]:
     out = {
         "platform": platform.platform(),
@@ -235,20 +220,13 @@ def machine_and_software() -> dict[str, str]:
             out[name] = importlib.metadata.version(dist)
         except importlib.metadata.PackageNotFoundError:
             out[name] = "not installed"
-    if commit := _git_commit():
-        out["pixelswarm source"] = commit
-    return out
-
-
-def _git_commit() -> str:
     root = Path(__file__).resolve().parents[1]
-    try:
-        result = subprocess.run(
-            ["git", "-C", str(root), "describe", "--always", "--dirty"], capture_output=True, text=True, timeout=10
-        )
-    except (OSError, subprocess.SubprocessError):
-        return ""
-    return result.stdout.strip() if result.returncode == 0 else ""
+    git = ["git", "-C", str(root), "describe", "--always", "--dirty"]
+    with contextlib.suppress(OSError, subprocess.SubprocessError):
+        result = subprocess.run(git, capture_output=True, text=True, timeout=10)
+        if result.returncode == 0 and result.stdout.strip():
+            out["pixelswarm source"] = result.stdout.strip()
+    return out
 
 
 def _table(head: list[str], rows: list[list[Any]], css_class: str = "") -> str:
@@ -270,12 +248,8 @@ def constant_metrics(rows: list[dict[str, Any]], metrics: list[str]) -> dict[str
     """The metrics that have one value in every finished run (e.g. contacts 0 throughout), by name:
     a plot of them shows nothing, so the report says them in one line instead."""
     done = [r for r in rows if r["status"] == "done"]
-    out = {}
-    for m in metrics:
-        values = {r.get(m) for r in done}
-        if len(values) == 1 and _is_number(value := next(iter(values))):
-            out[m] = value
-    return out
+    values = {m: {r.get(m) for r in done} for m in metrics}
+    return {m: next(iter(v)) for m, v in values.items() if len(v) == 1 and _is_number(next(iter(v)))}
 
 
 def render_html(
@@ -330,9 +304,8 @@ def render_html(
 
 
 def summary_table(spec: Spec, summary: list[dict[str, Any]], metrics: list[str]) -> str:
-    """A row per condition: its settings (they name it; its id, in summary.csv, would widen the table),
-    then each metric's mean and std. A study with a baseline gets a first column saying which rows are
-    the baseline's; a column of failed runs only if some failed."""
+    """A row per condition: its settings (not its id: too wide), then each metric's mean and std; first
+    a column marking the baseline's rows if there is one, and one of failed runs only if some failed."""
     settings = spec.columns()
     marked = spec.baseline is not None
     failed = any(s["failed"] for s in summary)  # else no column: the page says none failed

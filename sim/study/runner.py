@@ -1,10 +1,7 @@
 """`pixelswarm study SPEC.toml`: run a grid of conditions x seeds as `pixelswarm run` processes (docs/study.md).
 
-The spec (sim/study/spec.py) is checked in full before any run starts. Each run is a `pixelswarm run` subprocess
-writing DIR/runs/<id>; a run directory appears under its final name only when written (sim/outputs/rundir.py),
-so a study resumes by skipping the runs whose directory says `"complete": true`. The report is
-sim/study/report.py.
-"""
+A run directory appears under its final name only when written, so a study resumes by skipping the runs whose
+directory says `"complete": true`."""
 
 from __future__ import annotations
 
@@ -15,21 +12,12 @@ import signal
 import sys
 import time
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any
 
-from sim.args import UsageError
+from sim.args import refuse_if
 from sim.processes import stop_on_sigterm
-from sim.study.cluster import ClusterError, check_address, clear_run_dir, connect, run_task, unpack
-from sim.study.spec import (
-    Run,
-    Spec,
-    StudyDir,
-    StudyError,
-    load_spec,
-    lock_study,
-    run_args,
-    write_text,
-)
+from sim.study.cluster import check_address, clear_run_dir, connect, run_task, unpack
+from sim.study.spec import Run, Spec, StudyDir, load_spec, lock_study, run_args, write_text
 
 # `pixelswarm --help` and `pixelswarm study --help`
 HELP = "run a grid of conditions x seeds (pixelswarm run each) and write a report"
@@ -47,35 +35,25 @@ class Interrupted(Exception):
 
 
 # --- Running: up to `jobs` children at once, progress on stderr, Ctrl-C stops the children --------
-
-
 class Progress:
-    """One line per event: a bar, runs done / failed / total, and the time left at the pace so far."""
+    """One line per event on stderr: a bar, runs done / failed / total, and the time left at the pace so far."""
 
-    def __init__(self, total: int, jobs: int, stream: TextIO | None):
-        self.total, self.jobs, self.stream = total, jobs, stream
-        self.done = self.failed = 0
+    def __init__(self, total: int, jobs: int, done: int):
+        self.total, self.jobs, self.done, self.failed = total, jobs, done, 0
         self.walls: list[float] = []
 
     def line(self, running: int, note: str) -> None:
-        if self.stream is None:
-            return
         finished = self.done + self.failed
-        width = 20
+        left, width = self.total - finished, 20
         filled = round(width * finished / self.total) if self.total else width
-        left = self.total - finished
         if not left:
             eta = "finished"
         elif self.walls:
             eta = f"~{_duration(sum(self.walls) / len(self.walls) * left / min(self.jobs, left))} left"
         else:
             eta = "time left: after the first run"
-        bar = "#" * filled + "-" * (width - filled)
-        print(
-            f"[{bar}] {self.done} done, {self.failed} failed of {self.total}, {running} running, {eta}  {note}",
-            file=self.stream,
-            flush=True,
-        )
+        counts = f"{self.done} done, {self.failed} failed of {self.total}, {running} running"
+        print(f"[{'#' * filled}{'-' * (width - filled)}] {counts}, {eta}  {note}", file=sys.stderr, flush=True)
 
 
 def _duration(seconds: float) -> str:
@@ -85,7 +63,7 @@ def _duration(seconds: float) -> str:
     return f"{h}h{m:02d}m" if h else f"{m}m{s:02d}s" if m else f"{s}s"
 
 
-def execute(spec: Spec, study: StudyDir, jobs: int, stream: TextIO | None, scheduler: str | None = None) -> Progress:
+def execute(spec: Spec, study: StudyDir, jobs: int, scheduler: str | None) -> Progress:
     """Run every run not finished yet on a Dask cluster: the scheduler's at ``scheduler``, or a local
     one of ``jobs`` threads (sim.study.cluster); record each one's outcome as it comes back."""
     from distributed import Event, as_completed, wait
@@ -95,16 +73,14 @@ def execute(spec: Spec, study: StudyDir, jobs: int, stream: TextIO | None, sched
     client, cluster = connect(scheduler, jobs)
     try:
         slots = sum(client.nthreads().values()) or jobs if scheduler else jobs
-        progress = Progress(len(runs), max(1, slots), stream)
-        progress.done = len(runs) - len(todo)
-        if stream is not None:
-            where = f"on the cluster at {scheduler} ({slots} worker threads)" if scheduler else f"{jobs} at a time"
-            print(
-                f"study {spec.name}: {len(runs)} runs, {progress.done} already done, {len(todo)} to run, "
-                f"{where}, in {study.root}",
-                file=stream,
-                flush=True,
-            )
+        progress = Progress(len(runs), max(1, slots), len(runs) - len(todo))
+        where = f"on the cluster at {scheduler} ({slots} worker threads)" if scheduler else f"{jobs} at a time"
+        print(
+            f"study {spec.name}: {len(runs)} runs, {progress.done} already done, {len(todo)} to run, "
+            f"{where}, in {study.root}",
+            file=sys.stderr,
+            flush=True,
+        )
         study.logs.mkdir(parents=True, exist_ok=True)
         study.runs.mkdir(parents=True, exist_ok=True)
         stop = Event(f"pixelswarm-study-stop-{os.getpid()}-{time.time_ns()}", client=client)
@@ -127,8 +103,7 @@ def execute(spec: Spec, study: StudyDir, jobs: int, stream: TextIO | None, sched
                 progress.line(running, f"{run.id}: {'done' if study.metrics(run) else 'FAILED'}")
         except KeyboardInterrupt:
             stop.set()  # every task stops its run (SIGTERM, then SIGKILL after the grace)
-            # given the grace to stop their runs (a second Ctrl-C stops waiting; a task that failed
-            # while stopping: nothing more to wait for)
+            # the grace to stop their runs (a second Ctrl-C, or a task failing as it stops, ends the wait)
             with contextlib.suppress(KeyboardInterrupt, Exception):
                 wait(list(pending), timeout=STOP_GRACE_S + 15)
             raise Interrupted from None
@@ -167,8 +142,6 @@ def _finish(run: Run, future: Any, study: StudyDir, progress: Progress) -> None:
 
 
 # --- The command ----------------------------------------------------------------------------------
-
-
 def default_jobs() -> int:
     # a distributed run is several processes (router, world, agents): half the cores each
     return max(1, (os.cpu_count() or 1) // 2)
@@ -191,49 +164,34 @@ def add_study_parser(subparsers: Any) -> None:
 
 
 def cmd_study(args: argparse.Namespace) -> int:
-    """The command; a spec, flag or scheduler that cannot be used is a UsageError, which `pixelswarm`
-    says as one line (exit code 2)."""
-    try:
-        if args.jobs is not None and args.jobs < 1:
-            raise StudyError(f"--jobs must be at least 1, not {args.jobs}")
-        if args.scheduler is not None:
-            check_address(args.scheduler)
-        spec = load_spec(args.spec)
-        if args.scheduler is not None:  # reached before anything is written or started
-            connect(args.scheduler, 1)[0].close()
-        study = StudyDir(args.out or Path("runs") / f"study-{spec.name}")
-        if study.root.exists() and not study.root.is_dir():
-            raise StudyError(f"--out {study.root} is a file, not a directory")
-        study.check_same(spec)
-        lock = lock_study(study.root)
-    except (StudyError, ClusterError) as err:
-        raise UsageError(str(err)) from None
-    try:
-        return _study(spec, study, args.jobs or default_jobs(), args)
-    finally:
-        lock.close()
-
-
-def _study(spec: Spec, study: StudyDir, jobs: int, args: argparse.Namespace) -> int:
+    """The command; a spec, flag or scheduler that cannot be used is a UsageError (one line, exit code 2)."""
     from sim.study.report import write_report  # matplotlib only once runs are done
 
-    study.hold(spec)
-    previous = stop_on_sigterm()
-    try:
-        progress = execute(spec, study, jobs, sys.stderr, args.scheduler)
-    except ClusterError as err:
-        raise UsageError(str(err)) from None
-    except Interrupted:
-        done = sum(study.metrics(r) is not None for r in spec.runs())
-        print(
-            f"pixelswarm study: interrupted; {done} of {len(spec.runs())} runs done and kept. "
-            f"Run the same command again to resume.",
-            file=sys.stderr,
-        )
-        return 130
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-    command = f"pixelswarm study {study.root / 'spec.toml'} --out NEW_DIR --jobs {jobs}"
-    report = write_report(spec, study, command)
-    print(report)
+    refuse_if(args.jobs is not None and args.jobs < 1, f"--jobs must be at least 1, not {args.jobs}")
+    if args.scheduler is not None:
+        check_address(args.scheduler)
+    spec = load_spec(args.spec)
+    if args.scheduler is not None:  # reached before anything is written or started
+        connect(args.scheduler, 1)[0].close()
+    study = StudyDir(args.out or Path("runs") / f"study-{spec.name}")
+    refuse_if(study.root.exists() and not study.root.is_dir(), f"--out {study.root} is a file, not a directory")
+    study.check_same(spec)
+    jobs = args.jobs or default_jobs()
+    with lock_study(study.root):
+        study.hold(spec)
+        previous = stop_on_sigterm()
+        try:
+            progress = execute(spec, study, jobs, args.scheduler)
+        except Interrupted:
+            done = sum(study.metrics(r) is not None for r in spec.runs())
+            print(
+                f"pixelswarm study: interrupted; {done} of {len(spec.runs())} runs done and kept. "
+                f"Run the same command again to resume.",
+                file=sys.stderr,
+            )
+            return 130
+        finally:
+            signal.signal(signal.SIGTERM, previous)
+        command = f"pixelswarm study {study.root / 'spec.toml'} --out NEW_DIR --jobs {jobs}"
+        print(write_report(spec, study, command))
     return 1 if progress.failed else 0

@@ -13,37 +13,31 @@ from pathlib import Path
 from typing import Any
 
 from coordinator.scene import CLOCKS, ENGINES, SceneError, load_scene
+from sim.args import UsageError, refuse_if
 from sim.outputs.rundir import atomic_write
 
 FAULT_SETTINGS = ("loss", "delay", "jitter")  # the state messages' fault plan (transport/faults.py)
 
 
-class StudyError(Exception):
-    """A spec or command line that cannot be run: one line for the user, exit code 2."""
-
-
 # --- The spec: settings, their checks, and the grid of runs they make -----------------------------
-
-
 def _number(key: str, value: Any, *, minimum: float = 0.0, maximum: float = math.inf, positive=False) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise StudyError(f"{key}: {value!r} is not a number")
+        raise UsageError(f"{key}: {value!r} is not a number")
     if value < minimum or value > maximum or (positive and value <= 0):
         bound = "> 0" if positive else f"in [{minimum:g}, {maximum:g}]"
-        raise StudyError(f"{key}: {value!r} must be {bound}")
+        raise UsageError(f"{key}: {value!r} must be {bound}")
     return float(value)
 
 
 def _whole(key: str, value: Any) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise StudyError(f"{key}: {value!r} is not a whole number >= 1")
+        raise UsageError(f"{key}: {value!r} is not a whole number >= 1")
     return value
 
 
 def _choice(choices: tuple[str, ...]):
     def check(key: str, value: Any) -> str:
-        if value not in choices:
-            raise StudyError(f"{key}: {value!r} is not one of {', '.join(choices)}")
+        refuse_if(value not in choices, f"{key}: {value!r} is not one of {', '.join(choices)}")
         return value
 
     return check
@@ -65,10 +59,8 @@ SETTINGS = {
 
 
 def _check_setting(where: str, key: str, value: Any) -> Any:
-    if key in ("seed", "seeds"):
-        raise StudyError(f"{where}: seeds are not a setting; list them in seeds = [...]")
-    if key not in SETTINGS:
-        raise StudyError(f"{where}: unknown setting {key!r} (known: {', '.join(SETTINGS)})")
+    refuse_if(key in ("seed", "seeds"), f"{where}: seeds are not a setting; list them in seeds = [...]")
+    refuse_if(key not in SETTINGS, f"{where}: unknown setting {key!r} (known: {', '.join(SETTINGS)})")
     return SETTINGS[key](f"{where}.{key}", value)
 
 
@@ -128,33 +120,30 @@ def _name(values: dict[str, Any], prefix: str = "") -> str:
 
 
 def load_spec(path: Path) -> Spec:
-    """Read and check a study spec; StudyError (one line) on anything that cannot be run."""
+    """Read and check a study spec; UsageError (one line) on anything that cannot be run."""
     try:
         text = path.read_text()
         data = tomllib.loads(text)
     except OSError as err:
-        raise StudyError(f"cannot read {path}: {err.strerror}") from None
+        raise UsageError(f"cannot read {path}: {err.strerror}") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
-        raise StudyError(f"{path}: not valid TOML: {err}") from None
+        raise UsageError(f"{path}: not valid TOML: {err}") from None
     unknown = set(data) - {"name", "seeds", "base", "axes", "baseline"}
     if unknown:
-        raise StudyError(f"{path}: unknown key {sorted(unknown)[0]!r} (known: name, seeds, base, axes, baseline)")
+        raise UsageError(f"{path}: unknown key {sorted(unknown)[0]!r} (known: name, seeds, base, axes, baseline)")
     name = data.get("name", path.stem)
     if not isinstance(name, str) or not name.strip() or "/" in name:
-        raise StudyError(f"name: {name!r} must be a non-empty string without '/'")
+        raise UsageError(f"name: {name!r} must be a non-empty string without '/'")
     seeds = data.get("seeds")
     if not isinstance(seeds, list) or not seeds:
-        raise StudyError("seeds: give a non-empty list of whole numbers, e.g. seeds = [1, 2, 3]")
+        raise UsageError("seeds: give a non-empty list of whole numbers, e.g. seeds = [1, 2, 3]")
     for s in seeds:
-        if isinstance(s, bool) or not isinstance(s, int) or s < 0:
-            raise StudyError(f"seeds: {s!r} is not a whole number >= 0")
-    if len(set(seeds)) != len(seeds):
-        raise StudyError("seeds: a seed is listed twice")
+        refuse_if(isinstance(s, bool) or not isinstance(s, int) or s < 0, f"seeds: {s!r} is not a whole number >= 0")
+    refuse_if(len(set(seeds)) != len(seeds), "seeds: a seed is listed twice")
 
     base = _table(data, "base")
     scene = base.pop("scene", None)
-    if not isinstance(scene, str):
-        raise StudyError('base.scene: give the scene to run, e.g. scene = "circle"')
+    refuse_if(not isinstance(scene, str), 'base.scene: give the scene to run, e.g. scene = "circle"')
     # a file or folder beside the spec (else where the command runs), made absolute for the children
     for candidate in (path.parent / scene, Path(scene)):
         if candidate.exists():
@@ -164,20 +153,16 @@ def load_spec(path: Path) -> Spec:
 
     axes: dict[str, list[Any]] = {}
     for key, values in _table(data, "axes").items():
-        if key == "scene":
-            raise StudyError("axes: scene is not an axis; write one spec per scene")
-        if not isinstance(values, list) or not values:
-            raise StudyError(f"axes.{key}: give a non-empty list of values")
+        refuse_if(key == "scene", "axes: scene is not an axis; write one spec per scene")
+        refuse_if(not isinstance(values, list) or not values, f"axes.{key}: give a non-empty list of values")
         checked = [_check_setting("axes", key, v) for v in values]
-        if len(set(checked)) != len(checked):
-            raise StudyError(f"axes.{key}: a value is listed twice")
+        refuse_if(len(set(checked)) != len(checked), f"axes.{key}: a value is listed twice")
         axes[key] = checked
 
     baseline = None
     if "baseline" in data:
         baseline = {k: _check_setting("baseline", k, v) for k, v in _table(data, "baseline").items()}
-        if not baseline:
-            raise StudyError('baseline: give the settings it changes, e.g. engine = "central"')
+        refuse_if(not baseline, 'baseline: give the settings it changes, e.g. engine = "central"')
 
     spec = Spec(name.strip(), scene, list(seeds), base, axes, baseline, text)
     _check_conditions(spec)
@@ -186,8 +171,7 @@ def load_spec(path: Path) -> Spec:
 
 def _table(data: dict[str, Any], key: str) -> dict[str, Any]:
     table = data.get(key, {})
-    if not isinstance(table, dict):
-        raise StudyError(f"{key}: must be a table ([{key}])")
+    refuse_if(not isinstance(table, dict), f"{key}: must be a table ([{key}])")
     return dict(table)
 
 
@@ -200,19 +184,19 @@ def _check_conditions(spec: Spec) -> None:
             try:
                 scenes[key] = load_scene(spec.scene, robots=key[0], clock=key[1], duration=key[2])
             except SceneError as err:
-                raise StudyError(str(err)) from None
+                raise UsageError(str(err)) from None
         scene = scenes[key]
         if settings.get("engine", scene.engine) == "central":
             faulty = [k for k in FAULT_SETTINGS if settings.get(k, 0.0) != 0.0]
             if faulty:
-                raise StudyError(
+                raise UsageError(
                     f"condition {condition}: engine central has no messages to lose or delay "
                     f'({faulty[0]} = {settings[faulty[0]]:g}); use a [baseline] with engine = "central" and {faulty[0]} = 0'
                 )
             if settings.get("clock", scene.clock) == "realtime":
-                raise StudyError(f"condition {condition}: engine central steps without a real-time clock")
+                raise UsageError(f"condition {condition}: engine central steps without a real-time clock")
         if math.isfinite(settings.get("range", math.inf)) and settings.get("clock", scene.clock) != "lockstep":
-            raise StudyError(f'condition {condition}: range = {settings["range"]:g} needs clock = "lockstep"')
+            raise UsageError(f'condition {condition}: range = {settings["range"]:g} needs clock = "lockstep"')
 
 
 def run_args(spec: Spec, run: Run) -> list[str]:
@@ -234,8 +218,6 @@ def run_args(spec: Spec, run: Run) -> list[str]:
 
 
 # --- The study directory: run directories, a record per run, the lock -----------------------------
-
-
 class StudyDir:
     """DIR/runs/<id> (run directories), DIR/records/<id>.json (status, wall time, error),
     DIR/logs/<id>.log (the run's output), DIR/spec.toml and study.json (hold), and the report."""
@@ -274,7 +256,7 @@ class StudyDir:
         except (OSError, ValueError):
             return
         if held != json.loads(json.dumps(_held(spec))):
-            raise StudyError(
+            raise UsageError(
                 f"{self.root} holds another study (its scene, [base] or [baseline] differ); choose another --out"
             )
 
@@ -303,5 +285,5 @@ def lock_study(root: Path) -> Any:
         fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:
         handle.close()
-        raise StudyError(f"another study is running in {root}") from None
+        raise UsageError(f"another study is running in {root}") from None
     return handle
