@@ -1,15 +1,14 @@
-"""The overhead-camera pose source: one ArUco marker on top of each robot, seen by a fixed camera.
+"""The overhead-camera pose source: one ArUco marker (id = robot id) on top of each robot, seen by a fixed camera.
 
-Each robot's marker id is its robot id; a homography (image -> floor metres), fitted to reference
-markers or given, places the marker's centre on the floor, and the middle of its top edge gives the
-heading. A robot not seen in a frame is reported lost, never invented. The `[poses]` table and how to
-set a camera up: docs/camera.md."""
+A homography (image -> floor metres), fitted to reference markers or given, places each marker on the floor,
+its top edge ahead. A robot not seen in a frame is reported lost, never invented. Set-up: docs/camera.md."""
 
 from __future__ import annotations
 
 import math
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -20,16 +19,13 @@ import numpy as np
 from .config import HardwareConfigError, Started, check_table, is_number
 from .poses import PoseSample, StampGate
 
-# A detection whose side on the floor is off by more than this fraction is not a robot's marker
-# (a false detection, or a marker far from the calibrated plane): dropped rather than believed.
+# A detection whose side on the floor is off by more than this fraction is not a robot's marker: dropped.
 SIDE_TOLERANCE = 0.25
 # Reference markers that move by more than this many pixels mean the camera moved: calibrate anew.
 CAMERA_MOVED_PX = 3.0
-# Fits lines to the marker's edges: more precise on blurred, noisy frames than CORNER_REFINE_SUBPIX,
-# whose saddle-point model does not fit a square's outer corners.
+# Fits lines to the marker's edges: on blurred, noisy frames more precise than CORNER_REFINE_SUBPIX.
 CORNER_REFINEMENT = cv2.aruco.CORNER_REFINE_CONTOUR
-# Fewer floor points than this do not determine a homography.
-MIN_REFERENCES = 4
+MIN_REFERENCES = 4  # fewer floor points do not determine a homography
 
 
 class CameraError(RuntimeError):
@@ -58,7 +54,8 @@ class CameraConfig:
         for key in ("marker_size", "rate"):
             if key in table:
                 values[key] = _positive(table[key], f"{where}: {key}")
-        size = _dictionary_size(values.get("dictionary", cls.dictionary))
+        dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, values.get("dictionary", cls.dictionary)))
+        size = len(dictionary.bytesList)
         if "reference" in table:
             values["reference"] = _reference(table["reference"], size, f"{where}: reference")
         if "homography" in table:
@@ -80,10 +77,6 @@ def _dictionary_name(value: Any, where: str) -> str:
     if not (isinstance(value, str) and value.startswith("DICT_") and hasattr(cv2.aruco, value)):
         raise HardwareConfigError(f"{where}: dictionary {value!r} is not a cv2.aruco dictionary (e.g. 'DICT_4X4_50')")
     return value
-
-
-def _dictionary_size(name: str) -> int:
-    return len(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name)).bytesList)
 
 
 def _number(value: Any, what: str) -> float:
@@ -172,9 +165,8 @@ class ArucoTracker:
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, config.dictionary))
         self.detector = cv2.aruco.ArucoDetector(dictionary, parameters)
         self.homography: np.ndarray | None = None if config.homography is None else np.array(config.homography)
-        # the running mean of each reference marker's image centre: a fixed camera's calibration
-        # grows more precise with every frame
-        self._reference_sum: dict[int, np.ndarray] = {}  # marker -> (sum of x, of y, count)
+        # each reference marker's image centre: (sum of x, of y, count), a running mean for a fixed camera
+        self._reference_sum: dict[int, np.ndarray] = {}
         self._last: dict[int, MarkerPose] = {}
 
     @property
@@ -187,13 +179,9 @@ class ArucoTracker:
         corners, ids, _ = self.detector.detectMarkers(grey)
         if ids is None:
             return {}
-        found: dict[int, np.ndarray] = {}
-        twice: set[int] = set()
-        for marker, c in zip((int(i) for i in ids.ravel()), corners):
-            if marker in found:
-                twice.add(marker)
-            found[marker] = c.reshape(4, 2).astype(float)
-        return {m: c for m, c in found.items() if m not in twice}
+        markers = [int(i) for i in ids.ravel()]
+        seen = Counter(markers)
+        return {m: c.reshape(4, 2).astype(float) for m, c in zip(markers, corners) if seen[m] == 1}
 
     def update(self, image: np.ndarray, t: float, index: int = 0) -> TrackedFrame:
         """Track one frame taken at time `t` (seconds)."""
@@ -254,13 +242,9 @@ def is_file(source: int | str) -> bool:
 
 
 class CameraPoseSource(Started):
-    """Reads frames in a thread and hands out each robot's latest pose with its frame's time.
-
-    A file's frames are timed by its frame rate from 0 and, with `realtime`, played at that rate like
-    a camera; a device's or stream's frames are timed by the wall clock (`time.time()`) when read.
-    A pose is taken as `gate` says, its stamp judged against that frame clock: a wall clock set back
-    makes the poses after it look old until the gate takes them as a restart.
-    """
+    """Reads frames in a thread and hands out each robot's latest pose with its frame's time: a file's
+    frame rate from 0 (with `realtime`, played at that rate), or a device's or stream's `time.time()`
+    when read. `gate` judges a pose's stamp against that frame clock."""
 
     def __init__(
         self,
@@ -294,8 +278,7 @@ class CameraPoseSource(Started):
         return self
 
     def latest(self) -> dict[int, PoseSample]:
-        """Every robot seen so far, by id, with its newest pose: stamped with its frame's time, aged
-        since it was tracked (`time.monotonic()`)."""
+        """Every robot seen so far, by id, with its newest pose (stamped with its frame's time)."""
         with self._lock:
             latest = dict(self._latest)
         now = time.monotonic()

@@ -37,11 +37,6 @@ WHEEL_DIAMETER = 0.041  # m
 FIRMWARE_SPEED_LIMIT = 1100  # steps/s: the firmware clamps wheel speeds here
 
 
-def steps_per_second(speed: float) -> float:
-    """Wheel rim speed (m/s) -> motor steps/s."""
-    return speed / (math.pi * WHEEL_DIAMETER) * STEPS_PER_REVOLUTION
-
-
 def metres_per_second(steps: float) -> float:
     """Motor steps/s -> wheel rim speed (m/s)."""
     return steps / STEPS_PER_REVOLUTION * math.pi * WHEEL_DIAMETER
@@ -82,7 +77,7 @@ def wheel_steps(speed: float, limit: float) -> int:
     A speed that is not a number becomes 0: a controller's fault must not drive a robot."""
     if not math.isfinite(speed):
         return 0
-    steps = round(steps_per_second(max(-limit, min(limit, speed))))
+    steps = round(max(-limit, min(limit, speed)) / (math.pi * WHEEL_DIAMETER) * STEPS_PER_REVOLUTION)
     return max(-FIRMWARE_SPEED_LIMIT, min(FIRMWARE_SPEED_LIMIT, steps))
 
 
@@ -185,11 +180,6 @@ class Epuck2Config:
     @property
     def endpoints(self) -> list[tuple[str, int]]:
         return [parse_address(a, "address") for a in self.addresses]
-
-    @property
-    def stop_wait(self) -> float:
-        """How long stop_all() waits for the stops to leave: a connection attempt, then the send."""
-        return 2 * self.connect_timeout
 
 
 @dataclass
@@ -401,9 +391,8 @@ class Epuck2Backend(Started):
     async def _stop_all(self) -> list[int]:
         now = time.monotonic()
         seqs = [link.submit(link.wanted.stopped(), now, urgent=True) for link in self.links]
-        sent = await asyncio.gather(
-            *(link.wait_sent(seq, self.config.stop_wait) for link, seq in zip(self.links, seqs))
-        )
+        wait = 2 * self.config.connect_timeout  # a connection attempt, then the send
+        sent = await asyncio.gather(*(link.wait_sent(seq, wait) for link, seq in zip(self.links, seqs)))
         return [link.robot_id for link, ok in zip(self.links, sent) if not ok]
 
     def close(self) -> list[int]:

@@ -94,10 +94,6 @@ class Ros2Messages:
         return p.x, p.y, yaw, stamp
 
 
-# ---------------------------------------------------------------------------------------------------
-# Configuration: a table of a robots file; defaults live in the dataclasses, checks in __post_init__.
-
-
 class _Ros2Table:
     """A config dataclass read from its table (``kind = "ros2"``), its key's errors named ``where``."""
 
@@ -202,12 +198,9 @@ class Ros2PosesConfig(_Ros2Table):
         return qualified(self.topic.replace(ROBOT_ID, "$*"))
 
 
-# ---------------------------------------------------------------------------------------------------
-
-
 class Ros2Node(Started):
-    """A ROS 2 node on a Zenoh session of its own, opened by start(), with a thread of its own if it
-    starts one (it ends when ``_halt`` is set), all closed by close() (safe to call twice)."""
+    """A ROS 2 node on a Zenoh session of its own, opened by start(), with maybe a thread (ended by
+    ``_halt``); close() closes all (safe to call twice)."""
 
     NODE_NAME = ""
 
@@ -240,10 +233,7 @@ class Ros2Node(Started):
 
 
 class Ros2Backend(Ros2Node):
-    """Robots that take Twist and ColorRGBA over rmw_zenoh; a watchdog stops a robot left without commands.
-
-    Shaped like the other hardware backends: start(), set_commands(...), stop_all(), close(), stats().
-    """
+    """Robots that take Twist and ColorRGBA over rmw_zenoh; a watchdog stops a robot left without commands."""
 
     NODE_NAME = "pixelswarm_backend"
 

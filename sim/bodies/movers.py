@@ -1,11 +1,7 @@
 """The uncontrolled robots of a scene (paper 7.4.2, Fig. 19), as the simulation drives them.
 
-A scripted mover (``[[scripted]]``) has no agent: it follows its waypoints at the scripted speed and
-avoids nobody, a dynamic obstacle the robot pixels take full responsibility for. A pursuer
-(``[[pursuers]]``) is an agent whose goal is wherever its target is. Neither is a robot pixel
-(``Scene.pixel_robots``): neither takes a goal of the image's goal set. The world process drives the
-scripted movers over the bus (sim.node.world); the central engine drives both kinds in one call with
-``Movers``.
+A scripted mover (``[[scripted]]``) has no agent: it follows its waypoints and avoids nobody. A pursuer
+(``[[pursuers]]``) is an agent whose goal is its target. Neither takes a goal of the image's goal set.
 """
 
 from __future__ import annotations
@@ -14,8 +10,7 @@ import numpy as np
 
 from coordinator.scene import Scene, scripted_position
 
-# A mover's body allows this much more than its script's top speed, so that it makes up the drift of
-# the actuation noise within a control period or two instead of falling behind for good.
+# A mover's body allows this much more than its script's top speed, to make up the actuation noise's drift.
 CATCH_UP = 1.25
 
 
@@ -26,10 +21,8 @@ def scripted_velocity(waypoints: np.ndarray, position: np.ndarray, t: float, dt:
 
 
 def scripted_speed_limit(waypoints: np.ndarray, floor: float) -> float:
-    """The top speed of a scripted mover's body: its script's fastest segment with CATCH_UP room, and
-    at least `floor` (the robots' v_max). The script, not the robot pixels' v_max, says how fast a
-    dynamic obstacle goes; a body capped below it would lag its script while its broadcast state
-    claims the scripted velocity."""
+    """The top speed of a scripted mover's body: its script's fastest segment with CATCH_UP room, and at
+    least `floor` (the robots' v_max); a body capped below its script would lag behind its broadcast state."""
     segment = np.diff(np.asarray(waypoints, float), axis=0)
     speed = np.hypot(segment[:, 1], segment[:, 2]) / segment[:, 0]
     return max(float(floor), CATCH_UP * float(speed.max(initial=0.0)))
@@ -37,7 +30,7 @@ def scripted_speed_limit(waypoints: np.ndarray, floor: float) -> float:
 
 class Movers:
     """A scene's scripted movers and pursuers for the central engine, which steps every robot with the
-    same control core: which robots are pixels, the pursuers' goals, and the scripted movers' commands."""
+    same control core."""
 
     def __init__(self, scene: Scene) -> None:
         self.scripted = dict(scene.scripted)
@@ -53,9 +46,8 @@ class Movers:
         return out
 
     def goals(self, goal: np.ndarray, color: np.ndarray, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Goals and LED colours with each pursuer's goal set to its target's tracked position (what
-        the agent takes from its target's broadcasts, agent.runtime), no goal for the scripted movers,
-        and the scripted movers white (as the world process shows them)."""
+        """Goals and LED colours: each pursuer's goal its target's tracked position, no goal for the
+        scripted movers, and the scripted movers white (as the world process shows them)."""
         goal, color = np.array(goal, float), np.array(color, np.uint8)
         for robot, target in self.pursuers.items():
             goal[robot] = position[target, :2]
@@ -66,10 +58,8 @@ class Movers:
     def commands(
         self, command: np.ndarray, velocity: np.ndarray, poses: np.ndarray, t: float, dt: float
     ) -> tuple[np.ndarray, np.ndarray]:
-        """The robots' commands and collision-free velocities, with each scripted mover's replaced by
-        its scripted velocity for the period from t (a holonomic body's command; whatever the control
-        step computed for it is dropped). The velocity is also what its neighbours hear, as the world
-        process broadcasts it."""
+        """The robots' commands and collision-free velocities, each scripted mover's replaced by its
+        scripted velocity for the period from t (what its neighbours hear, as in the world process)."""
         command, velocity = np.array(command, float), np.array(velocity, float)
         for robot, waypoints in self.scripted.items():
             command[robot] = velocity[robot] = scripted_velocity(waypoints, poses[robot], t, dt)

@@ -17,23 +17,16 @@ def bodies_of(scene: Scene) -> tuple[RobotParams, list[Body]]:
     """Every robot's body; scripted robots (dynamic obstacles) move holonomically along their path, as
     fast as their script says (not capped at the robot pixels' v_max)."""
     params = RobotParams.from_dict(scene.robot)
-    body = Body.from_params(params)
-
-    def scripted(i: int) -> Body:
-        return Body(HOLONOMIC, params.radius, scripted_speed_limit(scene.scripted[i], params.v_max))
-
-    return params, [scripted(i) if i in scene.scripted else body for i in range(scene.robots)]
+    bodies = [Body.from_params(params)] * scene.robots
+    for i, waypoints in scene.scripted.items():
+        bodies[i] = Body(HOLONOMIC, params.radius, scripted_speed_limit(waypoints, params.v_max))
+    return params, bodies
 
 
 def world_of(scene: Scene) -> tuple[RobotParams, World]:
     params, bodies = bodies_of(scene)
-    return params, World(
-        bodies,
-        scene.poses,
-        arena=scene.arena,
-        obstacles=scene.obstacles,
-        noise=ActuationNoise(relative=scene.noise.actuation, seed=scene.seed),
-    )
+    noise = ActuationNoise(relative=scene.noise.actuation, seed=scene.seed)
+    return params, World(bodies, scene.poses, arena=scene.arena, obstacles=scene.obstacles, noise=noise)
 
 
 def tracker_of(scene: Scene) -> Tracker:

@@ -1,9 +1,7 @@
 """The simulated world: N disc robots, their kinematics, actuation noise, arena and obstacles, contacts.
 
-A pure, deterministic physics object (no I/O, no clock, no zenoh) that the world process drives:
-``set_command`` / ``stop`` / ``teleport`` between calls to ``step(dt)``; the same sequence of calls gives
-bit-identical poses. Contacts are RECORDED, NEVER RESOLVED: bodies may overlap, since collision avoidance
-is the controller's job and this world measures how well it does.
+Pure and deterministic (the same calls give bit-identical poses). Contacts are recorded, never resolved:
+collision avoidance is the controller's job, and this world measures how well it does.
 """
 
 from __future__ import annotations
@@ -68,14 +66,9 @@ class Body:
 
 @dataclass
 class Contact:
-    """One contact event. ``j`` is the other robot (robot), the obstacle index (obstacle), or -1 (wall).
-
-    Overlap: centre distance < r_i + r_j (i < j), or signed distance from the centre to the obstacle or
-    arena boundary < r (negative inside an obstacle or outside the arena); touching is not contact. An
-    event starts at the first substep with overlap (robots overlapping at the start: t = 0) and ends
-    (``t_end``, None while ongoing) at the first without; ``max_depth`` is the deepest overlap seen. The
-    object ``World.step`` returns is the one the world updates, so it later shows both.
-    """
+    """One contact event (touching is not contact). ``j``: the other robot, the obstacle index, or -1
+    (wall). It spans the substeps with overlap (``t_end`` None while ongoing); ``max_depth`` is the deepest
+    seen. ``World.step`` returns the live object, so it later shows both."""
 
     kind: str
     i: int
@@ -87,10 +80,9 @@ class Contact:
 
 @dataclass(frozen=True)
 class ActuationNoise:
-    """The world's actuation noise: ``relative`` to the command, ``absolute`` (m/s) for a moving robot,
-    drawn from ``seed`` and held for ``period`` s of world time on a fixed grid, whatever the commands, so
-    it depends neither on the order commands arrive in nor on how time is chunked into ``step`` calls.
-    The noisy command is clipped to the limits again."""
+    """Actuation noise: ``relative`` to the command, ``absolute`` (m/s) for a moving robot, drawn from
+    ``seed`` and held for ``period`` s on a fixed grid of world time, so no call order or chunking of
+    ``step`` changes it. The noisy command is clipped to the limits again."""
 
     relative: float = 0.02
     absolute: float = 0.0
@@ -98,7 +90,12 @@ class ActuationNoise:
     seed: int = 0
 
 
-DEFAULT_NOISE = ActuationNoise()  # the default: 2 % relative noise, seed 0
+DEFAULT_NOISE = ActuationNoise()
+
+
+def _copy_of(name: str, doc: str) -> Any:
+    """A read-only World property: a copy of its motion's array ``name``."""
+    return property(lambda world: getattr(world._m, name).copy(), doc=doc + " A copy.")
 
 
 def _checked_bodies(bodies: Sequence[Body], poses: np.ndarray) -> tuple[list[Body], np.ndarray]:
@@ -121,10 +118,8 @@ def _checked_bodies(bodies: Sequence[Body], poses: np.ndarray) -> tuple[list[Bod
 
 
 class World:
-    """N disc robots (a mixed swarm allowed) in a plane with optional arena walls and polygon obstacles.
-
-    Its parts: the held actuation noise (_HeldNoise), what steps change (_Motion) and the contacts and
-    clearance (_ContactWatch); limits, noise and exact arcs are sim.bodies.kinematics's."""
+    """N disc robots (a mixed swarm allowed) in a plane with optional arena walls and polygon obstacles;
+    limits, noise and exact arcs are sim.bodies.kinematics's."""
 
     def __init__(
         self,
@@ -139,7 +134,7 @@ class World:
         bodies, p = _checked_bodies(bodies, poses)
         noise_rel = _number("actuation noise", noise.relative, zero=True)
         noise_abs = _number("absolute actuation noise", noise.absolute, zero=True)
-        self._substep = _number("substep", substep)
+        self.substep = _number("substep", substep)  # the longest integration and contact-check interval (s)
         noise_period = _number("noise period", noise.period)
         seed = noise.seed
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
@@ -147,13 +142,13 @@ class World:
         arena = make_arena(arena)
         polygons = [make_polygon(v, k) for k, v in enumerate(obstacles)]
 
-        self._bodies = tuple(bodies)
+        self.bodies = tuple(bodies)
         self._n = n = len(bodies)
         self._is_diff = np.array([b.kinematics == DIFFDRIVE for b in bodies])
-        radius = np.array([b.radius for b in bodies], dtype=float)
-        self._v_max = np.array([b.v_max for b in bodies], dtype=float)
-        wheel_base = np.array([b.wheel_base for b in bodies], dtype=float)
-        omega_max = np.array([b.omega_max for b in bodies], dtype=float)
+        radius, self._v_max, wheel_base, omega_max = (
+            np.array([getattr(b, name) for b in bodies], dtype=float)
+            for name in ("radius", "v_max", "wheel_base", "omega_max")
+        )
         self._bodies_c = Bodies(self._v_max, self._is_diff, wheel_base, omega_max, noise_rel, noise_abs)
 
         self._noise = _HeldNoise(n, noise_period, int(seed))
@@ -162,11 +157,7 @@ class World:
         self._check_start = False
         self.last_substeps = 0  # number of substeps the last step() ran
         self._unchecked: tuple | None = None  # a step whose contacts are not yet detected (step(check=False))
-
-        # the initial state: contacts at t = 0 and the initial clearance
         self._step_min_clearance = self._watch.detect(self._m.pos[None], np.zeros(1), 0.0, first_row=0)[1]
-
-    # ---------------------------------------------------------------- construction helpers
 
     @classmethod
     def from_params(cls, params: Any, poses: np.ndarray, **kwargs: Any) -> World:
@@ -175,53 +166,19 @@ class World:
             return cls([Body.from_params(p) for p in params], poses, **kwargs)
         return cls([Body.from_params(params)] * len(np.asarray(poses)), poses, **kwargs)
 
-    # ---------------------------------------------------------------- state
-
-    @property
-    def bodies(self) -> tuple[Body, ...]:
-        return self._bodies
-
-    @property
-    def arena(self) -> tuple[float, float, float, float] | None:
-        return self._watch.arena
-
-    @property
-    def obstacles(self) -> list[Polygon]:
-        return list(self._watch.obstacles)
-
-    @property
-    def substep(self) -> float:
-        """Longest integration and contact-check interval (s)."""
-        return self._substep
-
     @property
     def poses(self) -> np.ndarray:
         """(N, 3) x, y, theta (theta in [-pi, pi)); a copy."""
         return np.column_stack((self._m.pos, self._m.theta))
 
-    @property
-    def velocities(self) -> np.ndarray:
-        """(N, 2) world-frame velocity achieved over the last substep (displacement / substep); a copy."""
-        return self._m.vel.copy()
-
-    @property
-    def commands(self) -> np.ndarray:
-        """(N, 2) current commands after clipping to the limits; a copy."""
-        return self._m.cmd.copy()
+    velocities = _copy_of("vel", "(N, 2) world-frame velocity over the last substep (displacement / substep).")
+    commands = _copy_of("cmd", "(N, 2) current commands after clipping to the limits.")
+    path_length = _copy_of("path", "(N,) distance travelled along the path (arc length), teleports excluded.")
+    commands_applied = _copy_of("n_cmd", "(N,) number of set_command calls per robot.")
 
     @property
     def time(self) -> float:
         return self._m.time
-
-    @property
-    def path_length(self) -> np.ndarray:
-        """(N,) distance travelled along the path (arc length), teleports excluded; a copy."""
-        return self._m.path.copy()
-
-    @property
-    def commands_applied(self) -> np.ndarray:
-        """(N,) number of set_command calls per robot; a copy."""
-        return self._m.n_cmd.copy()
 
     @property
     def min_clearance(self) -> float:
@@ -246,8 +203,6 @@ class World:
         """The ongoing contact events."""
         self.check()
         return sorted(self._watch.active.values(), key=_contact_order)
-
-    # ---------------------------------------------------------------- inputs
 
     def _index(self, i: Any) -> int:
         if isinstance(i, bool) or not isinstance(i, (int, np.integer)) or not 0 <= i < self._n:
@@ -306,20 +261,14 @@ class World:
         for event in take_due(events, t):
             self.teleport(event["robot"], tuple(event["pose"]))
 
-    # ---------------------------------------------------------------- dynamics
-
     def step(self, dt: float, *, check: bool = True) -> list[Contact]:
-        """Advance by dt seconds; return the contact events that started during this step.
-
-        dt is split into ceil(dt / substep) equal substeps, each checked for contacts, so a robot crossing
-        another within one control period is still seen (a pair slips by only if it overlaps by less than
-        about s^2 / (8 (r_i + r_j)), s its relative displacement in a substep). Within a noise period the
-        motion is an exact arc. ``check=False`` leaves this step's contacts to `check()` (or to whatever
-        reads contacts or clearance next), so the central engine can detect them while the next auction runs.
+        """Advance by dt s in ceil(dt / substep) equal substeps, each checked for contacts (exact arcs
+        within a noise period); the contact events that started. ``check=False`` leaves the contacts to
+        `check()` (or the next read of contacts or clearance), for the engine to overlap with its auction.
         """
         dt = _number("dt", dt)
         before = self.check()
-        k = max(1, math.ceil(dt / self._substep - 1e-9))
+        k = max(1, math.ceil(dt / self.substep - 1e-9))
         h = dt / k
         tk = np.linspace(0.0, dt, k + 1)  # substep times relative to the start of the step
         m = self._m
@@ -354,8 +303,7 @@ class World:
         times[-1] = m.time
         self._unchecked = (traj, times, motion * (1.0 + 1e-9), 0 if self._check_start else 1)
 
-        # velocity: the chord of the last substep, computed directly (no cancellation) if it lies in
-        # the last segment
+        # velocity: the last substep's chord, computed directly (no cancellation) within the last segment
         if dt - h >= bounds[-2] - eps:
             drive(moving, dt - h - bounds[-2], np.array([h]), np.zeros((self._n, 2)), ends)
             m.vel = ends[0] / h
@@ -410,8 +358,7 @@ class _HeldNoise:
 
 @dataclass
 class _Motion:
-    """What steps, commands and teleports change: positions, headings, the commands and how many
-    were applied, the last substep's velocities, path lengths, and the time."""
+    """What steps, commands and teleports change."""
 
     pos: np.ndarray  # (N, 2)
     theta: np.ndarray  # (N,) in [-pi, pi)
@@ -445,9 +392,8 @@ class _Motion:
 
 
 class _ContactWatch:
-    """Contacts, recorded and never resolved, of the robots' discs against each other, the arena's walls
-    and the obstacles over a step's substep states; ``closest`` (the pair closest in the last step) is
-    where the next step's search starts."""
+    """The robots' contacts with each other, the walls and the obstacles over a step's substep states;
+    the next step's search starts from ``closest``, the pair closest in the last step."""
 
     def __init__(
         self, radius: np.ndarray, arena: tuple[float, float, float, float] | None, obstacles: list[Polygon]
@@ -461,11 +407,9 @@ class _ContactWatch:
         self.closest: tuple[int, int] | None = None  # the pair closest during the last step
 
     def detect(self, traj: np.ndarray, times: np.ndarray, motion: float, first_row: int) -> tuple[list[Contact], float]:
-        """Contacts and clearance over the states traj (rows, N, 2) at times (rows,).
-
-        ``motion`` bounds how far any robot is from traj[0] in any row. Rows before ``first_row`` count
-        for the clearance but not for contact events (they were checked at the end of the last step).
-        """
+        """Contacts and clearance over the states traj (rows, N, 2) at times (rows,); ``motion`` bounds
+        any robot's distance from traj[0]. Rows before ``first_row`` (checked last step) count only for
+        the clearance."""
         groups: _Overlaps = []
         step_min = math.inf
 
@@ -517,16 +461,14 @@ class _ContactWatch:
     def _robot_pairs(
         self, traj: np.ndarray, motion: float, first_row: int
     ) -> tuple[float, tuple[int, int], np.ndarray, np.ndarray, np.ndarray]:
-        """The smallest robot-robot clearance over the rows, a pair that has it, and the overlapping
-        pairs (i, j, depth (rows - first_row, H)), exactly: every pair that can overlap or be the
-        closest is searched (sim.bodies.proximity.close_pairs)."""
+        """The exact smallest robot-robot clearance over the rows, a pair that has it, and the overlapping
+        pairs (i, j, depth (rows - first_row, H))."""
         r = self.radius
         base = 2.0 * self.r_max + 2.0 * motion  # any pair that can overlap is within this
         base += 1e-9 * (1.0 + base)
         found = None
         if self.closest is not None:
-            # the last step's closest pair bounds this step's minimum: no pair farther than that + base
-            # can beat it (the budget gives up if that pair has drifted apart, e.g. a teleport)
+            # the last step's closest pair bounds this step's minimum (the budget gives up after a teleport)
             a, b = self.closest
             upper = math.hypot(*(traj[0, a] - traj[0, b])) - r[a] - r[b]
             found = close_pairs(traj, r, max(upper, 0.0) + base, motion, first_row, bound=upper, budget=64 * self.n)
@@ -544,8 +486,8 @@ class _ContactWatch:
         return step_min, (a, b), pairs[:, 0], pairs[:, 1], depth
 
     def _nearest_clearance(self, xy: np.ndarray, reach: float) -> float:
-        """The least clearance (at least 0) of a robot and its nearest neighbour: the closest pair's
-        or more, found within a reach that grows until some robot has a neighbour in it."""
+        """The least clearance (at least 0) of a robot and its nearest neighbour, an upper bound on the
+        closest pair's; the reach grows until some robot has a neighbour in it."""
         while True:
             other, apart = nearest_other(xy, reach)
             has = other >= 0

@@ -1,16 +1,12 @@
 """An overhead-camera emulator: ArUco markers on robots, seen by a tilted camera over the floor.
 
-A floor of `floor` metres (x right, y away from the camera) is seen through a perspective camera:
-a homography floor -> image that draws the far edge narrower than the near one. Each robot is a white
-plate carrying its marker (id = robot id, top edge ahead); reference markers lie at known floor
-positions. Markers are drawn supersampled and area-averaged (sub-pixel edges), then the frame is
-blurred and given Gaussian pixel noise from a seeded generator.
+Each robot is a white plate carrying its marker (id = robot id, top edge ahead), reference markers lie at
+known floor positions; markers are drawn supersampled (sub-pixel edges), then blurred and given seeded noise.
 
     python -m sim.emulators.camera OUT_DIR --robots 14 --frames 60
 
-writes OUT_DIR/video.avi (lossless FFV1), OUT_DIR/truth.csv (t,id,x,y,theta,frame) and
-OUT_DIR/hardware.toml (its `[poses]` table) for `pixelswarm track`. Live, `CameraStream` serves the
-frames of moving robots as a network camera does (MJPEG over HTTP), for a run's pose source.
+writes OUT_DIR/video.avi (lossless FFV1), truth.csv (t,id,x,y,theta,frame) and hardware.toml for
+`pixelswarm track`. Live, `CameraStream` serves frames as a network camera does (MJPEG over HTTP).
 """
 
 from __future__ import annotations
@@ -235,8 +231,8 @@ _SEND_BUFFER = 65536  # bytes the kernel holds for a reader: less than a frame, 
 
 
 class _Reader:
-    """One client of the stream: it is sent the newest frame whenever it has taken the last, so a
-    slow reader skips frames rather than falling behind (as a network camera's server does)."""
+    """One client of the stream, sent the newest frame whenever it has taken the last: a slow reader
+    skips frames rather than falling behind."""
 
     def __init__(self, conn: socket.socket, halt: threading.Event) -> None:
         self.conn, self.halt = conn, halt
@@ -267,8 +263,7 @@ class _Reader:
 
 
 class _Glitches:
-    """Frames to spoil as a misread marker would (two robots' markers swapped, one shifted), and
-    when each spoiled frame was rendered."""
+    """Frames to spoil as a misread marker would, and when each spoiled frame was rendered."""
 
     def __init__(self) -> None:
         self.rendered: list[float] = []  # time.monotonic() at which each spoiled frame was rendered
@@ -298,10 +293,8 @@ class _Glitches:
 
 
 class CameraStream(Started):
-    """The overhead camera as a network camera: frames of ``poses(t)`` (row i: robot i, t in s since
-    start) rendered at STREAM_RATE Hz and served as MJPEG over HTTP on 127.0.0.1 (as many IP cameras serve
-    them) to every client, for a CameraPoseSource reading `url`. `swap` and `shift` spoil one frame,
-    as a misread marker would."""
+    """The overhead camera as a network camera: frames of ``poses(t)`` (row i: robot i, t in s since start)
+    at STREAM_RATE Hz, served as MJPEG over HTTP on 127.0.0.1 at `url`. `swap` and `shift` spoil a frame."""
 
     def __init__(self, poses: PoseFunction, camera: OverheadCamera) -> None:
         self.poses = poses
@@ -425,8 +418,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"{args.out} already exists; choose a new folder")
     camera = OverheadCamera()
     poses = wandering_robots(args.robots, args.frames, args.fps, args.seed)
-    # everything is written into a temporary folder beside OUT, renamed when complete
-    temp = None
+    temp = None  # everything is written into a temporary folder beside OUT, renamed when complete
     try:
         temp = Path(tempfile.mkdtemp(prefix=f".{args.out.name}.", dir=args.out.parent))
         write_video(temp / "video.avi", render_frames(camera, poses, args.seed), args.fps)

@@ -1,10 +1,8 @@
 """Emulated e-puck2 robots on Wi-Fi: one TCP server per robot on 127.0.0.1, speaking the robot's protocol.
 
-Written from GCtronic's documentation ("e-puck2 PC side development", "Communication protocol: WiFi"),
-independently of hardware/epuck2.py so that each checks the other. Each robot parses the 21-byte command
-packets byte for byte, answers as the robot does (0x03, or the sensors / image it was asked for), keeps its
-last wheel speeds until told otherwise, and moves as a differential-drive body with the paper's e-puck
-parameters. Tests read its true poses and the log of (receive time, left, right) commands.
+Written from GCtronic's documentation, independently of hardware/epuck2.py so that each checks the other.
+Each robot parses the 21-byte command packets, answers as the robot does, keeps its last wheel speeds until
+told otherwise and moves as a differential-drive body. Tests read its true poses and received commands.
 
     python -m sim.emulators.epuck2 --robots 4 --write-hardware hw.toml
 """
@@ -123,15 +121,9 @@ class EmulatedRobot:
         return b"".join(parts) or bytes([ANSWER_EMPTY])
 
 
-def default_poses(count: int, params: RobotParams = EPUCK) -> list[Pose]:
-    """Robots in a row along x, two diameters apart, facing +x."""
-    return [(i * 4 * params.radius, 0.0, 0.0) for i in range(count)]
-
-
 class Epuck2Emulator(Started):
-    """N emulated e-puck2 robots, each its own TCP server on 127.0.0.1, served by one thread.
-
-    A robot serves one connection at a time: a new connection replaces the old one."""
+    """N emulated e-puck2 robots, each its own TCP server on 127.0.0.1, served by one thread; a new
+    connection to a robot replaces the old one."""
 
     def __init__(
         self,
@@ -140,7 +132,8 @@ class Epuck2Emulator(Started):
         ports: Sequence[int] | None = None,
         params: RobotParams = EPUCK,
     ) -> None:
-        poses = list(poses) if poses is not None else default_poses(count, params)
+        # by default in a row along x, two diameters apart, facing +x
+        poses = list(poses) if poses is not None else [(i * 4 * params.radius, 0.0, 0.0) for i in range(count)]
         ports = list(ports) if ports is not None else [0] * count
         if count < 1 or len(poses) != count or len(ports) != count:
             raise ValueError(f"need one pose and one port for each of {count} robots")
@@ -169,7 +162,6 @@ class Epuck2Emulator(Started):
         self._closing = False
         self._thread = threading.Thread(target=self._serve, name="epuck2-emulator", daemon=True)
 
-    # --- for tests and the CLI ---
     @property
     def addresses(self) -> list[str]:
         return list(self._addresses)
@@ -222,8 +214,8 @@ class Epuck2Emulator(Started):
         return self
 
     def close(self) -> None:
-        """Stop serving, once every command already received is applied (a client's last stop
-        may still be in the socket when it asks us to close)."""
+        """Stop serving, once every command already received is applied (a client's last stop may still
+        be in the socket)."""
         if self._closing:
             return
         self._closing = True
@@ -232,7 +224,6 @@ class Epuck2Emulator(Started):
             self._thread.join()
         self._close_sockets()
 
-    # --- the server thread ---
     def _serve(self) -> None:
         while not self._closing:
             self._serve_ready(self._selector.select())
@@ -314,7 +305,6 @@ class Epuck2Emulator(Started):
         self._wake_w.close()
 
 
-# --- command line ---
 def read_poses(path: Path, count: int) -> list[Pose]:
     """A JSON list of [x, y, theta], one per robot."""
     try:

@@ -4,28 +4,18 @@
     python -m sim.emulators.faulty_peer -e tcp/127.0.0.1:PORT [--display NAME] --mode MODE
         [--rate R] [--duration S] [--start-after S] [--seed N]
 
-A zenoh client of its own; it ignores its own copies heard back, starts ``--start-after`` s after the run's
-first clock tick, damages for ``--duration`` s (default: until SIGTERM or SIGINT) and ends with one line on
-stdout: the copies it sent, per key kind and per damage.
+It starts ``--start-after`` s after the run's first clock tick, damages for ``--duration`` s (default: until
+stopped) and ends with one line on stdout: the copies it sent, per key kind and per damage. Modes (each
+mutates only what it says; the layouts: docs/protocol.md):
 
-Modes (each mutates only what it says; the layouts: docs/protocol.md):
-
-- ``future-pose``, ``future-state``, ``future-cmd``: frames with their tick moved 1..FUTURE_MAX ticks into
-  the future, the rest intact (frames of tick BEFORE_START are left alone).
+- ``future-pose``, ``future-state``, ``future-cmd``: frames with their tick moved 1..FUTURE_MAX ticks ahead.
 - ``malformed-pose``: pose frames truncated, extended, or with a header byte, the count or random bytes
-  overwritten (``--damage`` picks among these). Some copies still decode: a frame cut to its fixed part,
-  extended by whole records, or with a forged record.
-- ``malformed-all``: every key kind of the bus (with ``--include-sim`` also sim/truth and sim/contact)
-  damaged the same ways, a count field overwritten where the kind has one.
+  overwritten (``--damage`` picks among these); some copies still decode.
+- ``malformed-all``: every key kind of the bus (``--include-sim``: also sim/truth, sim/contact) likewise.
 - ``stale-cmd``: commands re-sent unchanged STALE_AFTER s or more after they were first heard.
-- ``misc``: clock ticks, goal sets, bids and boards, malformed or with a tick, stamp, epoch or serial
-  (round) moved forward.
-- ``restart``: frames with the tick of a sender restarted every RESTART_EVERY s (counting from 0 at
-  RESTART_RATE a second), only when that is behind the tick it replaces.
-- ``all``: each copy from one of the modes in ALL_OF, drawn among those with something to send.
-
-Importable: ``FaultyPeer(settings, display, PeerPlan(mode, ...))``; ``run(stop)`` blocks, ``summary()`` is
-the last line.
+- ``misc``: clock ticks, goal sets, bids and boards, malformed or with a time-like field moved forward.
+- ``restart``: frames with the (smaller) tick of a sender restarted every RESTART_EVERY s.
+- ``all``: each copy from one of the modes in ALL_OF that has something to send.
 """
 
 from __future__ import annotations
@@ -51,9 +41,7 @@ FRAME_KINDS = ("pose", "state", "cmd")
 MISC_KINDS = ("clock", "goals", "auction", "boards")
 BUS_KINDS = ("pose", "state", "cmd", "goals", "auction", "boards", "clock", "event")
 SIM_KINDS = ("sim/truth", "sim/contact")
-# the sub-modes ``all`` draws from (malformed-all covers malformed-pose)
 ALL_OF = ("future-pose", "future-state", "future-cmd", "malformed-all", "stale-cmd", "misc", "restart")
-# each mode and the key kinds it damages
 _MODE_KINDS = {
     "future-pose": ("pose",),
     "future-state": ("state",),
@@ -80,7 +68,6 @@ _TICK_AT = 2  # frames and clock ticks: the u32 tick right after the header
 _FRAME_FIXED = 14  # header, tick, stamp
 _RECORD_SIZE = {"pose": 16, "cmd": 16, "state": 45}
 _CHECKED_FRAMES = {f.NAME for f in FRAME_OF.values() if f.CHECKED}  # frames that end in a checksum
-# where a kind's count fields lie (byte offsets of u32s in the message)
 _COUNT_AT = {"auction": (26,), "boards": (18, 22, 26), "sim/truth": (18,)}
 _GOALS_SET_AT = 8  # goal set part body: epoch u32, per_robot u8, count u32
 _PART_HEADER = struct.Struct("<BBI")
@@ -91,9 +78,6 @@ def kinds_of(mode: str, include_sim: bool = False) -> tuple[str, ...]:
     if mode not in _MODE_KINDS:
         raise ValueError(f"unknown mode {mode!r}: one of {', '.join(MODES_AND_ALL)}")
     return _MODE_KINDS[mode] + (SIM_KINDS if include_sim and mode in ("malformed-all", "all") else ())
-
-
-# --- damage: each takes a message and returns its damaged copy, or None where it does not apply ---
 
 
 def _get_u32(data: bytes, at: int) -> int:
@@ -115,9 +99,8 @@ def _forward_u32(data: bytes, at: int, rng: random.Random, skip_before_start: bo
 
 
 def _sealed(kind: str, forged: bytes | None) -> bytes | None:
-    """A forged frame of a kind that ends in a checksum, with the checksum of its new bytes: the
-    future and restart modes imitate a sender whose frames are intact, so what they test is the
-    receiver's judgement of the tick, not the checksum."""
+    """A forged frame resealed with the checksum of its new bytes (if its kind has one): what the future
+    and restart modes test is the receiver's judgement of the tick, not the checksum."""
     if forged is None or kind not in _CHECKED_FRAMES:
         return forged
     return with_checksum(forged[:-CHECKSUM_SIZE])
@@ -149,8 +132,7 @@ def overwrite_header(data: bytes, rng: random.Random, kind: str = "") -> bytes |
 
 
 def overwrite_count(data: bytes, rng: random.Random, kind: str = "") -> bytes | None:
-    """A count field overwritten; a frame (whose count is its length) a part of a record short or
-    long; a kind without one, random bytes (overwrite_random)."""
+    """A count field overwritten; a frame a part of a record short or long; else overwrite_random."""
     places: tuple[int, ...] = _COUNT_AT.get(kind, ())
     if kind == "goals" and len(data) >= _GOALS_SET_AT + 9:
         places = (4, _GOALS_SET_AT + 5)  # the goal set part's length, its count of goals
@@ -206,8 +188,7 @@ def _goals_timing_stamp_at(data: bytes) -> int | None:
 
 
 def future_stamp(data: bytes, rng: random.Random, kind: str) -> tuple[str, bytes | None]:
-    """A clock tick, goal set, bid or board with one of its time-like fields moved forward: the
-    field's name and the copy."""
+    """A clock tick, goal set, bid or board with one of its time-like fields moved forward: its name, the copy."""
     if kind == "clock":
         field = rng.choice(("tick", "stamp", "goal_epoch"))
         if len(data) < 22:
@@ -233,9 +214,8 @@ def future_stamp(data: bytes, rng: random.Random, kind: str) -> tuple[str, bytes
 
 @dataclass(frozen=True)
 class PeerPlan:
-    """What the faulty peer does: the kinds it damages (``mode``, with the simulation's own if
-    ``include_sim``), the damages it does, copies a second (``rate``), from ``start_after`` s for
-    ``duration`` s (None: until stopped), and the seed of its choices."""
+    """What the faulty peer does: which kinds (``mode``), which damages, copies a second, from
+    ``start_after`` s for ``duration`` s (None: until stopped), and the seed of its choices."""
 
     mode: str = "all"
     rate: float = 350.0
@@ -285,7 +265,6 @@ class FaultyPeer:
         self._own: set[bytes] = set()  # copies sent lately (the subscriptions hear them back)
         self._own_order: deque[bytes] = deque(maxlen=8192)
 
-    # --- hearing ----------------------------------------------------------------------------
     def hear(self, inboxes: list[RawInbox]) -> None:
         """Keep what the subscriptions brought (not the peer's own copies, which it hears too)."""
         for inbox in inboxes:
@@ -316,7 +295,6 @@ class FaultyPeer:
         self._own_order.append(payload)
         self._own.add(payload)
 
-    # --- one damaged copy -------------------------------------------------------------------
     def _heard_kinds(self, sub: str) -> list[str]:
         """The key kinds a sub-mode damages that something was heard on."""
         return [k for k in (self.kinds if sub == "malformed-all" else kinds_of(sub)) if self.heard.get(k)]
@@ -373,7 +351,6 @@ class FaultyPeer:
             return None
         return _put(data, _TICK_AT, _U32.pack(tick))
 
-    # --- running ----------------------------------------------------------------------------
     def _open(self, stop: threading.Event) -> Bus:
         end = time.monotonic() + self.connect_wait
         while True:
@@ -385,9 +362,8 @@ class FaultyPeer:
                 stop.wait(0.5)
 
     def run(self, stop: threading.Event | None = None, report: TextIO | None = None) -> Counter[str]:
-        """Hear, wait for the first tick (and start_after), damage until duration or ``stop``;
-        ``report``: where the summary line goes once the damage ends, before the session closes
-        (closing can wait long on a stalled or gone router)."""
+        """Hear, wait for the first tick (and start_after), damage until duration or ``stop``; the summary
+        goes to ``report`` before the session closes (which can wait long on a gone router)."""
         stop = stop or threading.Event()
         bus = self._open(stop)
         try:

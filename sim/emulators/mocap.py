@@ -1,12 +1,6 @@
 """A motion-capture system as ROS 2 sees it: PoseStamped per robot over rmw_zenoh, at a fixed rate.
 
-Real systems (OptiTrack, Vicon, Qualisys) reach ROS 2 through a driver node that publishes one
-PoseStamped per rigid body; this stands in for that node. In Python:
-
-    with MocapEmulator(lambda t: poses_at(t), client_of(router), rate=100.0):
-        ...  # /robot0/pose, /robot1/pose, ... at 100 Hz
-
-From a shell (robots on a circle, turning; Ctrl-C stops):
+It stands in for the driver node of OptiTrack, Vicon or Qualisys. From a shell (robots on a circle):
 
     python -m sim.emulators.mocap --robots 4 --rate 100 -e tcp/127.0.0.1:7447
 """
@@ -95,8 +89,7 @@ class MocapEmulator(Ros2Node):
 
 
 def circle(robots: int, radius: float, speed: float) -> PoseFunction:
-    """Robots evenly spaced on a circle about the origin, driving round it at ``speed`` m/s (anticlockwise
-    if positive), each heading along its direction of travel."""
+    """Robots evenly spaced on a circle about the origin, driving round it at ``speed`` m/s (> 0: anticlockwise)."""
     phase = 2 * math.pi * np.arange(robots) / robots
     travel = math.copysign(math.pi / 2, speed)  # heading relative to the robot's bearing from the centre
 
@@ -128,22 +121,17 @@ def main(argv: list[str] | None = None) -> int:
     settings = settings_from_args(args)
     if not settings.connect and settings.mode != "router":
         settings.connect = [RMW_ZENOHD]
-    prog = parser.prog
+    poses = circle(args.robots, args.radius, args.speed)
     try:
-        emulator = MocapEmulator(
-            circle(args.robots, args.radius, args.speed), settings, args.topic, args.domain, args.rate, args.frame
-        )
-    except HardwareConfigError as err:
-        return refuse(prog, err)
-    try:
+        emulator = MocapEmulator(poses, settings, args.topic, args.domain, args.rate, args.frame)
         with stopped_by_signals() as stop, emulator:
             print(f"mocap: {args.robots} robots on {emulator.config.topic} at {args.rate:g} Hz", flush=True)
             stop.wait(args.duration)
             if emulator.error is not None:
-                print(f"{prog}: error: the pose function failed: {emulator.error}", file=sys.stderr)
+                print(f"{parser.prog}: error: the pose function failed: {emulator.error}", file=sys.stderr)
                 return 1
-    except TransportError as err:
-        return refuse(prog, err)
+    except (HardwareConfigError, TransportError) as err:
+        return refuse(parser.prog, err)
     return 0
 
 

@@ -1,12 +1,9 @@
-"""The body node: one process between the robots' agents and their bodies, whatever the bodies are.
+"""The body node: one process between the robots' agents and their bodies (a ``Backend``), whatever they are.
 
-Every control period (``BodyNode.step_tick``) it publishes the clock, the truth and the tracker's poses,
-takes each robot's newest command to its body, stops what it cannot trust (the watchdog) and lets the
-bodies (a ``Backend``: sim/node/world.py or sim/node/hardware.py) move; the clock is ``LockStep``
-(reproducible) or ``WallClock``. A command holds only for a time the backend gives: a robot whose agent
-is late or gone, or whose pose is lost, stops, since ORCA's guarantee holds only for commands computed
-from the current poses. Commands no honest agent sends (for a tick not yet published, or stamped other
-than at its tick's start) are dropped and counted.
+Every control period it publishes the clock, the truth and the poses, takes each robot's newest command to
+its body and lets the bodies move, on a ``LockStep`` (reproducible) or ``WallClock``. A robot whose agent is
+late or gone, or whose pose is lost, stops (the watchdog): ORCA's guarantee holds only for commands computed
+from the current poses. Commands no honest agent sends (from the future, or mis-stamped) are dropped.
 """
 
 from __future__ import annotations
@@ -33,18 +30,12 @@ from transport.plausible import FUTURE, INCONSISTENT, GoalSets, stamp_agrees
 
 STARTUP_TIMEOUT = 60.0  # s the node waits for every agent by default (`pixelswarm run` says how long)
 BEFORE_START_EVERY = 0.2  # s: poses to robots whose agent is not live yet
-# s a lock-step tick waits at most while auction messages keep coming (twice agent.assignment.ROUND_CAP),
-# so a peer that repeats auction messages cannot hold the world for ever
-AUCTION_PATIENCE = 60.0
-# s a lock-step tick that begins a scene step waits at most for its goal set: as an agent does
-# (agent.clocks.GOAL_SET_WAIT), with the deadline after, so an agent that gave up still answers
-GOAL_SET_PATIENCE = 10.0
-# s the first lock-step tick waits at most for every agent's command: every agent process pages in its
-# code for its first step at the same moment, and a missed first tick makes a different run
-FIRST_TICK_PATIENCE = 10.0
-# s a lock-step tick at which the scene kills robots (a 'fail' event) waits at most for their agents to be
-# gone: the launcher kills them only once its recorder, which may lag, has seen the tick
-FAIL_PATIENCE = 10.0
+# Lock-step's longest waits (s): while auction messages keep coming (twice agent.assignment.ROUND_CAP: a
+# peer repeating them cannot hold the world for ever); for a starting scene step's goal set (as an agent
+# waits, agent.clocks.GOAL_SET_WAIT); for the first tick's commands (every agent pages in its code at once,
+# and a missed first tick makes a different run); for the agents a 'fail' event kills to be gone (the
+# launcher kills them once its recorder, which may lag, has seen the tick).
+AUCTION_PATIENCE, GOAL_SET_PATIENCE, FIRST_TICK_PATIENCE, FAIL_PATIENCE = 60.0, 10.0, 10.0, 10.0
 STOP_REASONS = ("agent_lost", "pose_lost", "command_timeout")  # the watchdog's, in the order it asks
 COMMAND_DROPS = (FUTURE, INCONSISTENT)
 CONTACT_KINDS = {"robot": 0, "obstacle": 1, "wall": 2}
@@ -96,19 +87,17 @@ class Tally:
 
 
 class LockStep:
-    """Publish tick k, wait until every live agent answered it or a deadline passes (a missed tick),
-    then advance one period. The deadline runs from the last auction message heard (agents still
-    trading rounds are at work) or, within GOAL_SET_PATIENCE, while a starting step's goal set is
-    unheard; a tick at which the scene kills robots waits (FAIL_PATIENCE) until their agents are gone."""
+    """Publish tick k, wait until every live agent answered it or a deadline passes (a missed tick), then
+    advance one period. The deadline runs from the last auction message heard, or while a starting step's
+    goal set is unheard; a tick at which the scene kills robots waits until their agents are gone."""
 
     def __init__(self, bus: Bus, deadline: float) -> None:
         self.deadline = deadline
         self.auction_traffic = [bus.subscribe_raw(bus.keys.all_of(kind)) for kind in ("auction", "boards")]
 
     def publishing(self, node: BodyNode) -> None:
-        """Tick ``node.tick`` is about to go out. Under command faults (``--faults cmd:...``) delays count
-        on the run's clock and the inbox notes each robot's commands as they come, so ``spans`` waits
-        for none that came and was lost."""
+        """Tick ``node.tick`` is about to go out. Under command faults delays count on the run's clock and
+        the inbox notes each robot's commands as they come, so ``spans`` waits for none that came and was lost."""
         inbox = node.cmd_inbox
         if inbox.fault is not None:
             inbox.sim_time = node.tick * node.dt
@@ -122,7 +111,9 @@ class LockStep:
         fail_patience = time.monotonic() + FAIL_PATIENCE
         dies = node.killed_now()
         while True:
-            arrived = _came(node)  # read before the commands are taken: one seen by then is queued, held or lost
+            # read before the commands are taken: one seen by then is queued, held or lost
+            seen, n = node.cmd_inbox.seen, len(node.live)
+            arrived = np.array([seen is not None and seen.get(i) == node.tick for i in range(n)], bool)
             node.take_commands(node.cmd_inbox.get(timeout=max(0.0, min(0.05, deadline - time.monotonic()))))
             heard = [data for inbox in self.auction_traffic for _, data, _ in inbox.drain()]
             node.hear_goals()
@@ -138,18 +129,10 @@ class LockStep:
         yield node.dt
 
 
-def _came(node: BodyNode) -> np.ndarray:
-    """Per robot, whether its command for this tick came (LockStep.publishing: under command faults)."""
-    seen = node.cmd_inbox.seen
-    if seen is None:
-        return np.zeros(len(node.live), bool)
-    return np.array([seen.get(i) == node.tick for i in range(len(node.live))])
-
-
 class WallClock:
-    """Real time: the period passes in slices of the wall clock, each command taken as it arrives.
-    ``catch_up``: after a stall, run the missed slices at once (simulated time keeps to the wall);
-    real robots instead start the next period now rather than rush."""
+    """Real time: the period passes in slices of the wall clock, each command taken as it arrives. After a
+    stall, ``catch_up`` runs the missed slices at once (simulated time keeps to the wall); else (real
+    robots) the next period starts now."""
 
     def __init__(self, slice_s: float, catch_up: bool) -> None:
         self.slice, self.catch_up = slice_s, catch_up
@@ -174,8 +157,7 @@ class WallClock:
 
 
 class BodyNode:
-    """The body node. Its attributes are the shared state of the loop's few steps (inputs, the
-    watchdog's, outputs); the statistics are grouped in ``tally``."""
+    """The body node: its attributes are the state the loop's steps share; the statistics are in ``tally``."""
 
     def __init__(
         self,
@@ -187,8 +169,7 @@ class BodyNode:
         startup_timeout: float = STARTUP_TIMEOUT,
         pose_frames: bool = False,
     ) -> None:
-        """``pose_frames``: each tick's poses as one frame of every robot, for agent hosts of several
-        robots, instead of a frame of one per robot."""
+        """``pose_frames``: each tick's poses as one frame of every robot (for agent hosts)."""
         self.bus, self.scene, self.backend, self.clock = bus, scene, backend, clock
         self.params, self.dt, n = backend.params, backend.params.dt, scene.robots
         self.startup_timeout, self.pose_frames = startup_timeout, pose_frames
@@ -231,8 +212,7 @@ class BodyNode:
         self.end_reason = self.end_reason or "duration"
 
     def step_tick(self) -> None:
-        """One control period: poses and the clock out, commands in as the clock lets them arrive,
-        the watchdog, the bodies moved."""
+        """One control period: poses and the clock out, commands in, the watchdog, the bodies moved."""
         self.bus.renew_if_due()  # its link to the router came back a while ago
         self.backend.sense(self.tick * self.dt)
         self.update_liveness()
@@ -249,9 +229,8 @@ class BodyNode:
         self.check_control()
 
     def wait_for_agents(self) -> bool:
-        """Start when every robot's agent is alive, telling the robots still waiting where they are.
-        False if the start-up timeout passes first (or the run is ended): a swarm that lacks robots
-        is not shown in silence, as if it were the scene (``run`` names them)."""
+        """Start when every robot's agent is alive, telling the robots still waiting where they are; False
+        if the start-up timeout passes first (or the run is ended): a swarm that lacks robots is not shown."""
         start, last_sent = time.monotonic(), -math.inf
         while self.running and time.monotonic() - start < self.startup_timeout:
             self.bus.renew_if_due()
@@ -279,8 +258,7 @@ class BodyNode:
                 self._watchdog(0.0)  # a dead agent's body stays, stopped
 
     def killed_now(self) -> list[int]:
-        """The robots the scene kills at this tick: the launcher kills them once it has seen the tick,
-        by the same rule (sim.run.launcher)."""
+        """The robots the scene kills at this tick (the launcher kills them by the same rule)."""
         return [int(e["robot"]) for e in take_due(self.failures, self.tick * self.dt)]
 
     def hear_goals(self) -> None:
@@ -377,16 +355,14 @@ class BodyNode:
             shown = np.flatnonzero(self.ever_live & self.backend.tracked)
             self.bus.publish_poses(self.tick, t, shown, measured[shown], self.pose_frames)
             self._publish_before_start()
-        # the movers' states, as agents broadcast theirs: a frame that every agent host hears, or each
-        # under its spatial cell for robots alone (HostConfig.frames)
+        # the movers' states, as agents broadcast theirs: one frame for agent hosts, or each under its cell
         states = self.backend.own_movers(self.tick, t)
         first = states[0].robot if self.pose_frames and states else None
         self.bus.publish_states(self.tick, t, states, self.params.cell_size, first)
 
     def _publish_before_start(self) -> None:
-        """Robots whose agent is not live yet hear where they are (no tracker noise drawn, so start-up
-        timing cannot change the noise sequence): they subscribe to their cells and join. Agent hosts
-        hear them in a frame, as they hear the tracker."""
+        """Robots whose agent is not live yet hear where they are, without tracker noise (so start-up
+        timing cannot change the noise sequence)."""
         waiting = np.flatnonzero(~self.live & self.agent_robot & self.backend.tracked)
         if not len(waiting):
             return
@@ -415,8 +391,7 @@ class BodyNode:
             signal.signal(signum, stop)
 
     def report(self) -> None:
-        """The run's report as an event, and the same on stdout (the launcher's log file): a loaded
-        router may not deliver the message before this session closes."""
+        """The run's report as an event, and on stdout (a loaded router may not deliver the event in time)."""
         stats = self.stats()
         self.bus.publish(self.bus.keys.event, Event(stats))
         print("WORLD-DONE " + json.dumps(stats), flush=True)

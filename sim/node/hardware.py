@@ -1,9 +1,7 @@
 """The hardware process: real robots as the body node's bodies (sim/node/body.py), on the wall clock.
 
-It publishes Tick, the poses and Truth exactly as the simulated world does, so agents cannot tell the
-difference; commands go to the drive as they arrive, wheel speeds clipped to v_max. A robot whose pose
-has been lost longer than the command timeout is not published (its agent waits) and is stopped; every
-robot is stopped however the run ends (SIGTERM, SIGINT, an error, the launcher gone). See docs/hardware.md.
+Agents cannot tell it from the simulated world. A robot whose pose has been lost longer than the command
+timeout is not published and is stopped; every robot is stopped however the run ends. See docs/hardware.md.
 
     python -m sim.node.hardware --hardware hw.toml --scene paper-sequence -e tcp/127.0.0.1:7447
 """
@@ -42,10 +40,8 @@ class HardwareError(Exception):
     """The hardware cannot be used for a run: one line for the user."""
 
 
-# --- the hardware file, for a run ------------------------------------------------------------------
 def check_runnable(config: HardwareConfig) -> int:
-    """A hardware file a run can use (a backend with robots and a pose source); returns the robot count
-    (robot ids are positions in the backend's list)."""
+    """A hardware file a run can use (a backend with robots and a pose source); returns the robot count."""
     kind = config.backend_kind
     if kind not in RUNNABLE_BACKENDS:
         raise HardwareError(
@@ -57,7 +53,6 @@ def check_runnable(config: HardwareConfig) -> int:
     return len(config.backend.addresses if kind == "epuck2" else config.backend.namespaces)
 
 
-# --- drives: the backends behind one small interface ---------------------------------------------
 class BackendDrive:
     """What the drives share: the backend starts itself; a drive without connections reaches every robot."""
 
@@ -155,10 +150,9 @@ def open_pose_source(config: HardwareConfig, settings: ZenohSettings) -> tuple[P
     return CameraPoseSource(config.poses), f"camera {config.poses.source!r}"
 
 
-# --- the bodies ----------------------------------------------------------------------------------
 class HardwareBodies:
-    """Real robots as the node's bodies: a drive takes their commands, a pose source tells where they
-    are. A command holds for the hardware's command timeout of wall time; a pose older than it is lost."""
+    """Real robots as the node's bodies: a drive takes their commands, a pose source tells where they are.
+    A command holds for the hardware's command timeout of wall time; a pose older than it is lost."""
 
     def __init__(self, drive: Drive, poses: PoseSource, params: RobotParams, n: int, timeout: float) -> None:
         self.drive, self.poses, self.params, self.timeout, self.n = drive, poses, params, timeout, n
@@ -269,15 +263,13 @@ def hardware_node(
     timeout: float,
     pose_frames: bool = False,
 ) -> BodyNode:
-    """The body node on real robots, on the wall clock (``timeout``: a robot whose command is older, or
-    whose pose was lost longer, is stopped)."""
+    """The body node on real robots, on the wall clock (``timeout``: see HardwareBodies)."""
     bodies = HardwareBodies(drive, poses, RobotParams.from_dict(scene.robot), scene.robots, timeout)
     return BodyNode(bus, scene, bodies, WallClock(POLL, catch_up=False), pose_frames=pose_frames)
 
 
 def wait_for_hardware(node: BodyNode, startup_timeout: float, poses_name: str = "the pose source") -> str | None:
-    """Until every robot is reached and tracked; None, or what is missing as one line (``poses_name``
-    names the pose source)."""
+    """Until every robot is reached and tracked; None, or what is missing as one line."""
     bodies = node.backend
     assert isinstance(bodies, HardwareBodies)
     end = time.monotonic() + startup_timeout
@@ -299,7 +291,6 @@ def wait_for_hardware(node: BodyNode, startup_timeout: float, poses_name: str = 
     return "stopped during start-up"
 
 
-# --- the process ---------------------------------------------------------------------------------
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m sim.node.hardware")
     parser.add_argument("--hardware", required=True, help="the hardware file (needs [backend] and [poses])")
@@ -312,8 +303,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def load_run(args: argparse.Namespace) -> tuple[HardwareConfig, Scene]:
-    """The hardware file and the scene it runs (add_scene_args), checked: HardwareError,
-    HardwareConfigError or SceneError."""
+    """The hardware file and the scene it runs, checked: HardwareError, HardwareConfigError or SceneError."""
     config = load_hardware(args.hardware)
     robots = check_runnable(config)
     scene = scene_of_args(args, robots=robots, clock="realtime")
