@@ -262,10 +262,8 @@ class World:
             self.teleport(event["robot"], tuple(event["pose"]))
 
     def step(self, dt: float, *, check: bool = True) -> list[Contact]:
-        """Advance by dt s in ceil(dt / substep) equal substeps, each checked for contacts (exact arcs
-        within a noise period); the contact events that started. ``check=False`` leaves the contacts to
-        `check()` (or the next read of contacts or clearance), for the engine to overlap with its auction.
-        """
+        """Advance by dt s in ceil(dt / substep) equal substeps, each checked for contacts; the contact events
+        that started. ``check=False`` defers that to `check()`, for the engine to overlap with its auction."""
         dt = _number("dt", dt)
         before = self.check()
         k = max(1, math.ceil(dt / self.substep - 1e-9))
@@ -316,8 +314,7 @@ class World:
         return before + (self.check() if check else [])
 
     def check(self) -> list[Contact]:
-        """Detect the contacts of a step run with ``check=False``; the contact events that started
-        during it (none if every step is checked)."""
+        """Detect the contacts of a step run with ``check=False``; the contact events that started in it."""
         if self._unchecked is None:
             return []
         traj, times, motion, first_row = self._unchecked

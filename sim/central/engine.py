@@ -1,12 +1,9 @@
 """The central engine: every robot of a scene in this process, each deciding by the robot policy.
 
-Robots hear each other through an in-process link (sim.central.link): a robot's state of a tick reaches
-its neighbours at the next, rounded as the wire rounds it, so without impairment a central run and a
-lock-step distributed run of one seed are the same run where no auction is involved; with a seeded loss
-it is the loss study (sim.central.lossy). Image scenes are auctioned (paper 5.1) by the agents' own
-auction with one participant holding every robot; a warm block settles on a thread of its own while
-every robot decides on the goal it holds, and only the robots whose goal changed decide again, so the
-run is the one waiting for the auction would give, to the bit.
+States reach neighbours a tick later, rounded as on the wire, so an unimpaired central run equals a
+lock-step distributed run of the same seed where no auction is involved. Image scenes use the agents'
+own auction (one participant holding every robot); a warm block may settle on a second thread, and
+only robots whose goal it changed decide again, so the run is the same to the bit.
 """
 
 from __future__ import annotations
@@ -50,9 +47,8 @@ from transport.codec import Goals, as_sent, decode
 def optimal_assignment(
     position: np.ndarray, goals: np.ndarray, previous: np.ndarray | None, hysteresis: float
 ) -> np.ndarray:
-    """Goal index per robot: the assignment of least total squared distance (eq. 5-7, scipy's
-    linear_sum_assignment), kept only if it lowers the cost of the previous iteration's assignment by
-    at least Delta C (paper 5.1's hysteresis for noisy positions). Scene `assignment = "optimal"`."""
+    """Goal index per robot of least total squared distance (eq. 5-7), adopted only if it beats the
+    previous assignment by at least Delta C (paper 5.1's hysteresis). Scene `assignment = "optimal"`."""
     cost = ((position[:, None, :] - goals[None, :, :]) ** 2).sum(-1)
     rows, cols = linear_sum_assignment(cost)
     if previous is not None and (previous >= 0).all():
@@ -63,8 +59,7 @@ def optimal_assignment(
 
 
 def settle_in_process(auction: LocalAuction, positions: np.ndarray, max_rounds: int = 1_000_000) -> int:
-    """One block with every robot in this process (the central engine): the rounds the agents run
-    over the bus, word for word. Returns the rounds taken."""
+    """One block with every robot in this process, word for word the agents' rounds; the rounds taken."""
     auction.begin_block(positions)
     while not auction.done:
         auction.hear(auction.say())
@@ -74,9 +69,8 @@ def settle_in_process(auction: LocalAuction, positions: np.ndarray, max_rounds: 
 
 
 def play(block: BlockRounds, rounds: int) -> bool:
-    """``rounds`` rounds of a block whose every robot this process holds (no messages), the last
-    left open, to be heard at the next tick as the agents hear theirs (AuctionLink.settle_block);
-    True once it is agreed."""
+    """``rounds`` rounds of a block held here, the last left open to be heard next tick as the agents
+    do (AuctionLink.settle_block); True once it is agreed."""
     for played in range(1, rounds + 1):
         block.say()
         if played < rounds and block.hear({}):
@@ -85,10 +79,8 @@ def play(block: BlockRounds, rounds: int) -> bool:
 
 
 def auction_assignment(auction: Participant | LocalAuction, position: np.ndarray) -> np.ndarray:
-    """Goal index per robot (-1: none): the auction's next block of phases (paper 5.1.1) settled on
-    these positions (rows by robot id), warm from the last prices, as the agents settle theirs; a robot
-    keeps its goal unless another is better by epsilon_A + Delta C. Over a limited range the rounds are
-    the agents' (agent.core.local_auction). A block begun beside (Participant.settle_beside) is waited for."""
+    """Goal index per robot (-1: none): the auction's next block (paper 5.1.1) settled on these positions,
+    warm from the last prices, as the agents settle it; a block begun beside is waited for."""
     if isinstance(auction, LocalAuction):
         settle_in_process(auction, position)
         return _goal_index(len(position), auction.own_ids, [auction.agreed[r] for r in auction.own])
@@ -99,10 +91,8 @@ def auction_assignment(auction: Participant | LocalAuction, position: np.ndarray
 def warm_start(
     auction: Participant, before: Participant, previous: np.ndarray, goals: np.ndarray, assignment: np.ndarray
 ) -> np.ndarray:
-    """The next image's auction begun from the coordinator's warm start (the goal sets' matching and
-    its prices, coordinator.warm_start.goal_matching), as the agents begin it with rounds per tick
-    bounded: each robot drives at once to the goal its last one is matched to (agent.assignment).
-    ``previous``: the last image's goals, which ``assignment`` indexes. Returns the carried assignment."""
+    """The next image's auction begun from the coordinator's warm start, as bounded-rounds agents begin
+    it; ``previous``: the last image's goals, which ``assignment`` indexes. Returns the carried assignment."""
     matched, prices = goal_matching(previous, goals, auction.schedule[-1])
     current = {r: int(g) for r, g in enumerate(assignment.tolist()) if g >= 0}
     carried = auction.carry(before, matched, current=current, prices=prices)
@@ -110,9 +100,8 @@ def warm_start(
 
 
 def start_warm(auction: Participant, poses: np.ndarray, goals: np.ndarray, robots: int) -> np.ndarray:
-    """The first image's auction begun from where its robots start, as the coordinator's first goal
-    set begins it when rounds per tick are bounded (WarmStart.matched_from 0): each robot drives at
-    once to the goal matched to its start. Returns the carried assignment of ``robots`` robots."""
+    """The first image's auction begun from the robots' starts (WarmStart.matched_from 0); returns the
+    carried assignment of ``robots`` robots."""
     matched, prices = goal_matching(np.asarray(poses, float)[auction.robots, :2], goals, auction.schedule[-1])
     carried = auction.start_from(auction.robots[matched], prices)
     return _goal_index(robots, list(carried), list(carried.values()))
@@ -139,8 +128,7 @@ class Outcome(NamedTuple):
 
 @dataclass
 class Shown:
-    """The image step the auction works on (-1: none yet): its goal set and colours as the agents
-    decode them, and how its goals move from when it started (None: a still image)."""
+    """The image step the auction works on (-1: none yet), as the agents decode it (motion None: still)."""
 
     k: int
     goal_set: np.ndarray
@@ -150,10 +138,8 @@ class Shown:
 
 
 class CentralAuction:
-    """The auction step of the central engine (agent.loop.Auction): the shown image's goal set and
-    the auction that assigns it, settled in this process, beside the policy when ``overlap``; ``clock``
-    times the engine's parts (sim.central.stepclock). Its attributes are the seams it was given, the
-    shown image and its auction, and the assignment with when and from which block it was made."""
+    """The central engine's auction step (agent.loop.Auction): the shown image's goal set and its auction,
+    settled beside the policy when ``overlap``; ``clock`` times the engine's parts."""
 
     def __init__(
         self, scene: Scene, params: RobotParams, movers: Movers, reach: float, clock: StepClock, overlap: bool
@@ -199,8 +185,7 @@ class CentralAuction:
         return self.auction is not None
 
     def step(self, sensed: Sensed) -> None:
-        """Paper 5.1: re-assign every iteration (every assign_period, as the agents do), warm-started
-        from the previous prices, with the hysteresis Delta C against flip-flops from tracking noise."""
+        """Paper 5.1: re-assign every assign_period, warm from the previous prices, with hysteresis Delta C."""
         t, p, movers = sensed.stamp, self.params, self.movers
         # a moving goal set is auctioned with the positions mapped back to t = 0 (GoalMotion.to_initial_frame)
         motion = self.image.motion
@@ -214,9 +199,7 @@ class CentralAuction:
         if not self.scene.steps or not (due or self.block is not None):
             pass
         elif self.budget and not last and isinstance(auction, Participant):
-            # The agents' lock-step rounds, at most `budget` a tick (agent.core.rounds): a tick's last
-            # round is heard first at the next, and the agreement takes effect when it is heard. A cold
-            # start (no auction yet) runs to its agreement below: no goal to drive to meanwhile.
+            # the agents' lock-step rounds, at most `budget` a tick; a cold start settles at once below
             if self.block is not None and self.block.open and self.block.hear({}):
                 self._adopt(auction)
             if self.block is not None and self.assigned_at is not None and p.stale_block(t - self.assigned_at):
@@ -334,13 +317,12 @@ class Central:
         """The world applies the commands between ticks (simulate)."""
 
 
+@dataclass
 class Convergence:
-    """Whether every robot has held its goal for ``hold`` s (None: the run does not end on it);
-    judged only once the last image is up, as earlier images keep their hold."""
+    """Whether every robot has held its goal for ``hold`` s (None: the run does not end on it)."""
 
-    def __init__(self, hold: float | None) -> None:
-        self.hold = hold
-        self.since: float | None = None  # when the robots last arrived, all of them
+    hold: float | None
+    since: float | None = None  # when the robots last arrived, all of them
 
     def held(self, t: float, at_goals: bool) -> bool:
         if self.hold is None or not at_goals:
@@ -360,11 +342,8 @@ def simulate(
     view: Any = None,
     record_to: Path | None = None,
 ) -> Outcome:
-    """Every robot of the scene through the one tick loop (agent.loop.tick), in this process, the
-    world moving between ticks, until the scene's duration or convergence. ``clock``: the wall and
-    CPU time of each part of a step. ``overlap``: a warm auction settles on a second thread beside the
-    neighbour search and the control core (the same run to the bit). ``record_to``: the recording
-    streamed to files in this directory (sim.outputs.stream)."""
+    """Every robot through agent.loop.tick, the world moving between ticks, until the duration or
+    convergence. ``overlap``: warm auctions on a second thread; ``record_to``: stream the recording there."""
     _refuse_process_faults(scene)
     _keep_freed_memory()
     params, world = world_of(scene)
@@ -411,8 +390,7 @@ def simulate(
 
 
 def _keep_freed_memory() -> None:
-    """Let the C heap keep what a tick frees for the next (glibc's mallopt; elsewhere nothing), rather
-    than hand a tick's large arrays back to the system and fault them in anew the next tick."""
+    """Let glibc's heap keep what a tick frees for the next, rather than fault large arrays in anew."""
     try:
         mallopt = ctypes.CDLL(None).mallopt
     except (OSError, AttributeError):
@@ -447,8 +425,7 @@ def _refuse_process_faults(scene: Scene) -> None:
 def _say_progress(
     out: TextIO, name: str, when: tuple[float, int], at_goal: np.ndarray, has_goal: np.ndarray, world
 ) -> float:
-    """One line of progress: the display time and step, the robots at their goals, the contacts;
-    returns the wall time it was said."""
+    """One line of progress; returns the wall time it was said."""
     (t, k), held = when, f"at goal {int(at_goal.sum())}/{int(has_goal.sum())}"
     held = held if has_goal.any() else "waiting for the goal set"
     print(f"[{name}] central t={t:6.1f} s  step {k}  {held}  contacts {len(world.contacts)}", file=out, flush=True)
@@ -497,8 +474,7 @@ def run_central(
 
 
 def _scene_goals(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
-    """The scene's own goals, one per robot, as the agents decode them from the coordinator's message
-    (NaN rows and grey: no goal of its own)."""
+    """The scene's own goals as the agents decode them (NaN rows and grey: no goal of its own)."""
     goals = scene.goal_positions
     message = scene_goal_message(scene)
     if message is None:
@@ -525,8 +501,8 @@ def _as_heard(message: Goals) -> Goals:
 
 
 def _states(params, measured: np.ndarray, pose: np.ndarray, velocity: np.ndarray, t: float, movers: Movers) -> Heard:
-    """What every robot broadcasts this tick: its tracked position and its collision-free velocity (a
-    scripted mover: its true position and scripted velocity, as the world process broadcasts them)."""
+    """What every robot broadcasts this tick: tracked position and collision-free velocity (a scripted
+    mover: its true position and scripted velocity, as the world process sends them)."""
     n = len(measured)
     position = np.where(movers.cooperative[:, None], measured[:, :2], pose[:, :2])
     return Heard(
@@ -545,9 +521,8 @@ def _at_goal(pose: np.ndarray, goal: np.ndarray, params: RobotParams) -> np.ndar
 
 
 def _move(world, movers: Movers, res, pose: np.ndarray, t: float, dt: float) -> np.ndarray:
-    """Command the robots (scripted movers along their script) and step the world; returns the
-    collision-free velocities their neighbours hear next tick. The step's contacts are looked for
-    while the next auction runs (World.check)."""
+    """Command the robots and step the world (contacts checked later, beside the auction); returns the
+    velocities their neighbours hear next tick."""
     command, velocity = movers.commands(res.command, res.velocity, pose, t, dt)
     world.set_commands(as_sent(command))
     world.step(dt, check=False)

@@ -1,11 +1,8 @@
 """How robots hear each other inside one process: the central engine's and the loss study's link.
 
-A robot's state of tick k (tracked position, collision-free velocity) reaches the others at tick k + 1,
-as over the bus in lock-step. Impairment: a seeded draw per (receiver, sender) and tick loses a state
-(``drop``) or makes it a tick late (``late``), as under ``--faults state:drop=P,delay=S``; each receiver
-steers by the age of the newest state it heard (agent.core.control). A communication range (``reach``)
-limits whom a robot hears, states as the agents' neighbour query does and the auction as
-agent.core.local_auction does.
+A state of tick k reaches the others at tick k + 1, as over the bus in lock-step. A seeded draw per
+(receiver, sender) and tick may lose it (``drop``) or make it a tick late (``late``), as under
+``--faults state:drop=P,delay=S``; ``reach`` limits whom a robot hears.
 """
 
 from __future__ import annotations
@@ -60,8 +57,7 @@ class InProcessLink:
     def neighbours(
         self, robot_ids: np.ndarray, position: np.ndarray, stamp: float, neighbour_dist: float, max_neighbours: int
     ) -> NeighbourStates:
-        """Each robot's nearest neighbours as it last heard them, by the agents' own rule
-        (agent.neighbour_table.nearest_heard), all at once when every robot heard the same states."""
+        """Each robot's nearest neighbours as it last heard them, by the agents' rule (nearest_heard)."""
         neighbour_dist = min(neighbour_dist, self.reach)
         if not self.impaired:
             if self.last is None:

@@ -1,8 +1,6 @@
 """Lost and late neighbour states without the bus: a study tool for what message loss does to ORCA.
 
-The central engine's loop and robot policy (sim.central.engine.simulate) with an impaired in-process link
-(sim.central.link): what an agent under ``--faults state:drop=P,delay=S`` lives with, made deterministic
-and cheap enough to sweep loss rates and seeds.
+The central engine with an impaired in-process link: deterministic and cheap enough to sweep loss rates.
 """
 
 from __future__ import annotations
@@ -24,8 +22,7 @@ class LossyResult:
 
 
 def circle_crossing(robots: int, kinematics: str, seed: int, duration: float = 25.0) -> Scene:
-    """The study's case: robots on a circle (0.2 m apart) crossing to the antipodal point, through
-    the crowd at the centre, where lost states matter most; 25 s takes them past it."""
+    """Robots on a circle (0.2 m apart) crossing to the antipodes, through the crowd where loss matters."""
     return scene_from_dict(
         {
             "robots": robots,

@@ -1,7 +1,6 @@
-"""A central, synchronous ORCA stepper over all robots with perfect information, in RVO2's API shape.
+"""A central, synchronous ORCA stepper in RVO2's API shape, on the robots' own compiled core.
 
-Like RVO2's doStep: one snapshot, every robot's new velocity, then all move. Neighbours come from
-agent.core.grid and velocities from agent.core.control: the same compiled code as every robot's.
+Like RVO2's doStep: one snapshot, every robot's new velocity, then all move.
 """
 
 from __future__ import annotations
@@ -18,10 +17,8 @@ from agent.core.step import polygon_segments
 
 @dataclass(frozen=True)
 class Options:
-    """What pixelswarm's control core adds to RVO2's step: ``safety_margin`` is added to every radius
-    in the robots' ORCA lines (not to the bodies, nor to the safety lines), ``safety=False`` gives
-    RVO2's semantics; ``perturbation`` > 0 adds the seeded symmetry breaking of `perturbation`
-    (robot id = agent index, tick = step)."""
+    """What pixelswarm's core adds to RVO2's step: ``safety_margin`` on every radius in the ORCA lines,
+    the safety lines (``safety=False``: RVO2's semantics), seeded ``perturbation`` (id = index, tick = step)."""
 
     safety_margin: float = 0.0
     safety: bool = True
@@ -32,10 +29,8 @@ class Options:
 class CentralOrca:
     """RVO2-like simulator: ``add_agent``, ``add_obstacle``, ``set_pref_velocity``, ``do_step``.
 
-    Agent defaults mirror RVO2's ``setAgentDefaults``; the ``Options`` go to the control core
-    (agent.core.control). After the first step ``position`` and ``velocity`` are the engine's own
-    arrays, written in place by later steps: copy them to keep a state. Its attributes are RVO2's
-    simulator's (defaults, then one array per agent field) and the buffers the steps reuse.
+    Defaults mirror RVO2's ``setAgentDefaults``. After the first step ``position`` and ``velocity`` are
+    the engine's own arrays, written in place by later steps: copy them to keep a state.
     """
 
     def __init__(
@@ -67,8 +62,7 @@ class CentralOrca:
         self.segments = np.zeros((0, 2, 2))
         self.steps = 0
         self.fallback_count = 0  # robot-steps where the linear program was infeasible
-        # kept between steps: agent indices, the core's views of the rows (into the arrays a step
-        # updates in place) and the buffers this engine owns
+        # kept between steps: agent indices, the core's views of the rows and the buffers this engine owns
         self._index = np.zeros(0, dtype=np.int64)
         self._ids = np.zeros(0, dtype=np.uint64)
         self._batches: list[tuple[tuple[np.ndarray, ...], Batch]] = []
@@ -125,8 +119,7 @@ class CentralOrca:
         return buf
 
     def preferred(self) -> np.ndarray:
-        """The preferred velocities of this step, perturbed if asked for (then in the engine's own
-        buffer, rewritten each step)."""
+        """The preferred velocities of this step, perturbed if asked for (in a buffer rewritten each step)."""
         if not self.options.perturbation:
             self.pref_velocity = np.ascontiguousarray(self.pref_velocity, dtype=float)
             return self.pref_velocity
@@ -135,9 +128,7 @@ class CentralOrca:
         return np.add(self.pref_velocity, shift, out=self._buffer("pref", shift))
 
     def _rows(self, pref: np.ndarray) -> Batch:
-        """The core's view of the rows, made once per set of arrays: a step writes the engine's own
-        arrays in place, so the view stays current (its arrays are C-ordered float64: it does not
-        copy them)."""
+        """The core's view of the rows, made once per set of arrays (steps write them in place)."""
         for (p, v, w, r, s), rows in self._batches:
             if p is self.position and v is self.velocity and w is pref and r is self.radius and s is self.max_speed:
                 return rows
@@ -151,8 +142,7 @@ class CentralOrca:
         return rows
 
     def _step_core(self) -> tuple[np.ndarray, np.ndarray]:
-        """The new velocities (N,2), in the engine's spare velocity buffer (not the current one), and
-        fallback flags (N,): infeasible at the full horizon."""
+        """The new velocities (N,2) in the spare velocity buffer, and fallback flags (N,)."""
         horizons = (self.time_horizon, self.time_horizon_obst, self.time_step)
         o = self.options
         if self._settings is None or self._settings[0] != (horizons, o):

@@ -1,10 +1,7 @@
 """Wall and CPU time per part of each control step of the central engine.
 
-The engine calls ``start()`` at the top of every tick and ``lap(part)`` after each part, which charges the
-time since the last lap to that part. Laps are the engine's own thread: the "assignment" part is the time
-spent waiting for the warm auction on the second thread, whose own time is kept in ``beside``. CPU time
-(this process's, both threads), which unlike wall time ignores whatever else runs on a shared machine, is
-read only when asked (``cpu``): it is a system call far dearer than the wall clock.
+``start()`` opens a tick, ``lap(part)`` charges the time since the last lap to ``part``; the auction's
+own time on the second thread is kept in ``beside``. CPU time is read only when asked: it is dearer.
 """
 
 from __future__ import annotations
@@ -46,8 +43,7 @@ class StepClock:
         self._last = now
 
     def add_beside(self, seconds: float, bids: int, reassigned: int) -> None:
-        """The wall seconds a warm auction took on its own thread this tick, its bids and the robots
-        whose goal it changed (the engine reads them when it collects the auction's result)."""
+        """A warm auction's wall seconds on its own thread this tick, its bids and the goals it changed."""
         self.beside[-1] += seconds
         self.bids[-1] += bids
         self.reassigned[-1] += reassigned

@@ -30,11 +30,9 @@ from transport.plausible import FUTURE, INCONSISTENT, GoalSets, stamp_agrees
 
 STARTUP_TIMEOUT = 60.0  # s the node waits for every agent by default (`pixelswarm run` says how long)
 BEFORE_START_EVERY = 0.2  # s: poses to robots whose agent is not live yet
-# Lock-step's longest waits (s): while auction messages keep coming (twice agent.assignment.ROUND_CAP: a
-# peer repeating them cannot hold the world for ever); for a starting scene step's goal set (as an agent
-# waits, agent.clocks.GOAL_SET_WAIT); for the first tick's commands (every agent pages in its code at once,
-# and a missed first tick makes a different run); for the agents a 'fail' event kills to be gone (the
-# launcher kills them once its recorder, which may lag, has seen the tick).
+# Lock-step's longest waits (s): while auction messages keep coming (a repeating peer cannot hold the world
+# for ever), for a new step's goal set (agent.clocks.GOAL_SET_WAIT), for the first tick's commands (a missed
+# first tick makes a different run), for the agents a 'fail' event kills to be gone (the launcher may lag).
 AUCTION_PATIENCE, GOAL_SET_PATIENCE, FIRST_TICK_PATIENCE, FAIL_PATIENCE = 60.0, 10.0, 10.0, 10.0
 STOP_REASONS = ("agent_lost", "pose_lost", "command_timeout")  # the watchdog's, in the order it asks
 COMMAND_DROPS = (FUTURE, INCONSISTENT)
@@ -192,7 +190,7 @@ class BodyNode:
         self.goal_inbox = bus.subscribe(bus.keys.all_of("goals"), Goals)
         self.alive = bus.watch_alive("agent")
         self.running, self.end_reason = True, ""
-        self.parent_pid: int | None = None
+        self.parent_pid: int | None = None  # set by end_on
         self.failures = events_of(scene, "fail")  # the scene's kills to come
 
     # --- the loop -----------------------------------------------------------------------------
@@ -380,8 +378,9 @@ class BodyNode:
         for c in contacts:
             self.bus.publish(self.bus.keys.contact, ContactMsg(CONTACT_KINDS[c.kind], c.i, c.j, c.t_start, c.max_depth))
 
-    def end_on(self, *signums: int) -> None:
-        """These signals end the run, as an end event does."""
+    def end_on(self, exit_with_parent: bool, *signums: int) -> None:
+        """These signals end the run, as an end event does; so does the launcher's end if ``exit_with_parent``."""
+        self.parent_pid = os.getppid() if exit_with_parent else None
 
         def stop(signum: int, frame: object) -> None:
             self.running = False

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import signal
 import sys
 import time
@@ -331,8 +330,7 @@ def main(argv: list[str] | None = None) -> int:
         drive, timeout = open_drive(config, settings, RobotParams.from_dict(scene.robot))
         poses, poses_name = open_pose_source(config, settings)
         node = hardware_node(bus, scene, drive, poses, timeout=timeout, pose_frames=args.pose_frames)
-        node.parent_pid = os.getppid() if args.exit_with_parent else None
-        node.end_on(signal.SIGTERM, signal.SIGINT)
+        node.end_on(args.exit_with_parent, signal.SIGTERM, signal.SIGINT)
         try:
             try:
                 drive.start()

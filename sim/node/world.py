@@ -10,7 +10,6 @@ runs are reproducible from the seed. A command holds for its control period and 
 from __future__ import annotations
 
 import argparse
-import os
 import signal
 import sys
 from typing import Any
@@ -153,8 +152,7 @@ def main(argv: list[str] | None = None) -> int:
         node = world_node(
             bus, scene, deadline=args.deadline, startup_timeout=args.startup_timeout, pose_frames=args.pose_frames
         )
-        node.parent_pid = os.getppid() if args.exit_with_parent else None
-        node.end_on(signal.SIGTERM)
+        node.end_on(args.exit_with_parent, signal.SIGTERM)
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # the launcher decides; Ctrl-C reaches it too
         node.run()
         node.report()
