@@ -1,15 +1,7 @@
 """Real-time control of animations (paper 6.2, eq. 27), over a batch of robots: pure, no clock.
 
-Keyframes follow one another K_f control periods apart. When a robot's goal changes to the next
-frame's, its preferred velocity becomes
-
-    v_pref = min(v_max, |g - p| / (K_f dt)) (g - p) / |g - p|          (eq. 27)
-
-and is held for K_f iterations, so that every robot arrives when the next keyframe begins; then eq. 9
-takes over. A robot that learns its goal late (the auction needs a few iterations) uses the iterations
-left of the frame instead (``iterations_left``). What is held is the arrival time rather than the
-velocity: each iteration takes eq. 27 from where the robot is over the iterations left, so a robot
-that collision avoidance slowed down catches up, up to v_max, instead of arriving late.
+v_pref = min(v_max, |g - p| / (K_f dt)) toward a new keyframe's goal, held for the K_f iterations left: the
+arrival time is held, not the velocity, so a slowed robot catches up (docs/scenes.md, "Frame timing").
 """
 
 from __future__ import annotations
@@ -46,14 +38,8 @@ def frame_hold(
     v_max: float,
     dt: float,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """One control iteration of eq. 27's hold for a batch.
-
-    restart (B,) bool: the robot's goal changed (a new frame, or reassigned within one): it takes
-    eq. 27 toward the new goal over ``iterations`` (B,) periods (K_f, or what is left of the frame),
-    and each later iteration of the hold eq. 27 over the periods left. left (B,): the iterations the
-    hold still lasts. Returns (preferred velocity (B,2), NaN rows where no hold applies and eq. 9 is
-    used, the new left).
-    """
+    """One iteration of eq. 27's hold: a ``restart`` (new goal) holds over ``iterations`` (K_f, or what is
+    left of the frame), else over the ``left``. Returns (preferred velocity, NaN rows: eq. 9; new left)."""
     p = np.asarray(position, float)
     restart = np.asarray(restart, bool)
     k = np.maximum(np.asarray(iterations, np.int64), 0)

@@ -1,12 +1,7 @@
 """The distributed goal auction (paper 5.1.1) as seen by the robots of one agent host: pure logic, no zenoh, no clock.
 
-Instances, blocks of epsilon-scaling phases, snapshots, deadlock penalties and max-consensus are as
-docs/architecture.md ("Goal assignment") says. The Jacobi rounds are compiled in agent.core.bidding: an agent host
-bids a round at a time between messages (``bid``); a host that owns every robot (the central engine) settles a
-block in-process (``settle_alone``) through the same rounds, to the same board. A penalty counts from the next
-instance, as a cost that changed after a robot said it was content would break quiescence. Scaling pays off on
-warm starts too: once robots have moved, the last prices are far from equilibrium, and at epsilon_A alone they
-settle in a price war.
+As docs/architecture.md ("Goal assignment") says; the Jacobi rounds are compiled (agent.core.bidding): an agent
+host bids a round at a time between messages (``bid``), the central engine settles a block alone (``settle_alone``).
 """
 
 from __future__ import annotations
@@ -30,8 +25,8 @@ RECORD = Bid.RECORD  # one robot's word on one goal (goal -1: it holds none yet)
 
 
 def epsilon_schedule(goals: np.ndarray, eps_final: float) -> list[float]:
-    """Decreasing epsilons (Bertsekas' epsilon scaling): from a tenth of the squared extent of the goal
-    set down to eps_final, by a factor of 10 (few phases: each costs a global snapshot)."""
+    """Decreasing epsilons (epsilon scaling, which warm starts need too against price wars): from a tenth
+    of the goal set's squared extent down to eps_final, by 10 (few phases: each costs a snapshot)."""
     extent = float(np.max(np.ptp(goals, axis=0))) if len(goals) > 1 else 0.0
     eps = max(eps_final, extent * extent / 10.0)
     out = []
@@ -43,10 +38,8 @@ def epsilon_schedule(goals: np.ndarray, eps_final: float) -> list[float]:
 
 
 def _hull_vertices(goals: np.ndarray, exact: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """(x, y) of points whose support function bounds the goal set's (agent.core.bidding carries
-    candidate lists by it): its convex hull's vertices, or its bounding box's corners when the hull
-    is degenerate (goals on a line, fewer than three) or not ``exact`` (an agent process need not
-    load scipy.spatial)."""
+    """(x, y) of points whose support function bounds the goal set's: its hull's vertices, or its box's
+    corners if the hull is degenerate or not ``exact`` (an agent process need not load scipy.spatial)."""
     if len(goals) == 0:
         return np.zeros(0), np.zeros(0)
     lo, hi = goals.min(axis=0), goals.max(axis=0)
@@ -69,8 +62,7 @@ def frozen_positions(positions: Mapping[int, np.ndarray] | np.ndarray, own: list
 
 
 class Board:
-    """Per goal: the greatest (price, lower robot id, released) record seen (records merge by
-    agent.core.bidding: Participant.absorb, the compiled rounds)."""
+    """Per goal: the greatest (price, lower robot id, released) record seen."""
 
     def __init__(self, goals: int) -> None:
         self.price = np.zeros(goals)
@@ -93,9 +85,8 @@ class Board:
 
 
 class Auction:
-    """What the auctions of one goal set (epoch) share: its goals and robots, this host's own robots
-    among them, and the epsilon-scaling schedule (Participant: one board for all; LocalAuction: a
-    board per robot, agent.core.local_auction)."""
+    """What the auctions of one goal set (epoch) share: goals, robots, this host's own robots, the
+    epsilon schedule (Participant: one board for all; LocalAuction: a board per robot)."""
 
     pending: defaultdict[tuple[int, int], float] | np.ndarray  # C_d per (own row, goal) declared, not in force yet
 
@@ -110,8 +101,7 @@ class Auction:
         self.own_ids = np.array(self.own, np.int64)
         self.own_rows = np.searchsorted(self.robots, self.own_ids)  # own robots' rows among all robots
         self.schedule = epsilon_schedule(self.goals, eps)
-        # per phase, how much better another goal must be before a robot bids: the phase's epsilon, never less
-        # than the final epsilon_A + Delta C (paper 5.1's hysteresis, in every phase: docs/architecture.md)
+        # per phase, how much better another goal must be before a robot bids: >= epsilon_A + Delta C (5.1)
         self.slacks = np.maximum(self.schedule, self.schedule[-1] + hysteresis)
         self.agreed_instance = -1
         self.bids = 0
@@ -129,9 +119,8 @@ class Auction:
 
 
 class Participant(Auction):
-    """The own robots of one host in the auction of one goal set (epoch), on one board. Its attributes
-    stay flat: the compiled rounds (agent.core.bidding.Heard, Bidders) and the lock-step rounds
-    (agent.core.rounds) read and write the board, claims and heard records by name."""
+    """The own robots of one host in the auction of one goal set (epoch), on one board (attributes flat:
+    the compiled and lock-step rounds use them by name)."""
 
     def __init__(
         self, epoch: int, goals: np.ndarray, robots: list[int], own: list[int], eps: float, hysteresis: float = 0.0
@@ -145,13 +134,11 @@ class Participant(Auction):
         self.instance = -1  # not started: waits for the robots' positions
         k = len(self.own)
         self.position = np.zeros((k, 2))  # frozen per block of instances
-        # C_d per (own row, goal) in force this instance (deadlocks: few, so no K x G array), and those
-        # declared during it, in force from the next
+        # C_d per (own row, goal) in force this instance (few: no K x G array), and declared, from the next
         self.penalty: dict[tuple[int, int], float] = {}
         self.pending: defaultdict[tuple[int, int], float] = defaultdict(float)
         self.goal = np.full(k, -1, np.int64)  # what each own robot claims
-        # the newest record of every other robot in the current instance, and the board it was written on
-        # (lock-step rounds note the own robots' claims here too: agent.core.rounds)
+        # the newest record of every robot in the current instance, and the board it was written on
         r = len(self.robots)
         self.heard_instance = np.full(r, -1, np.int64)
         self.heard_serial = np.zeros(r, np.int64)
@@ -197,9 +184,8 @@ class Participant(Auction):
 
     @property
     def common_owner(self) -> np.ndarray | None:
-        """Per goal its robot on the last board every host holds alike: the agreed one, else the one
-        a warm start began from, whose goals the robots drive to until the first agreement (in a large
-        swarm a warm block may outlast an image). None: neither."""
+        """Per goal its robot on the last board every host holds alike: the agreed one, else the warm
+        start's (driven to until the first agreement). None: neither."""
         return self.agreed_owner if self.agreed_owner is not None else self.start_owner
 
     @property
@@ -227,9 +213,8 @@ class Participant(Auction):
         return rows, goals, np.array([self.penalty[key] for key in keys], float)
 
     def _freeze(self, instance: int, positions: Mapping[int, np.ndarray] | np.ndarray, rank: bool = True) -> None:
-        """begin() up to its first round: the first instance of a block freezes the positions (the
-        block's other phases share them); penalties declared meanwhile come into force. Without
-        ``rank`` the robots' first ranking is left to the caller (the compiled settle_block)."""
+        """begin() up to its first round: a block's first instance freezes the positions, declared
+        penalties come into force (from the next instance: quiescence). ``rank=False``: the caller ranks."""
         if self.started and not self.is_agreed and instance > self.instance:
             self.adopt_if_settled()  # someone reached a later instance: ours was agreed
         new_block = not self.started or instance // self.phases != self.instance // self.phases
@@ -241,8 +226,7 @@ class Participant(Auction):
                 self.penalty[key] = self.penalty.get(key, 0.0) + cost
             self._bidders.set_penalties(*self._penalties())
         self.pending = defaultdict(float)
-        # Costs change only with the positions (a new block) or a penalty: the other phases of a
-        # block keep them, and the rankings too (prices only rise, the compiled rounds follow them).
+        # costs (and so rankings) change only with a new block or a penalty
         if new_block or penalised:
             self._bidders.freeze(self.position)
             if rank:
@@ -258,11 +242,9 @@ class Participant(Auction):
         current: Mapping[int, int] | None = None,
         prices: np.ndarray | None = None,
     ) -> dict[int, int]:
-        """The previous goal set's assignment carried over by the goals' correspondence (paper 6.1;
-        ``previous[j]``: the goal of ``before`` that goal j continues, -1 none). ``current``: each own
-        robot's goal in ``before`` (default: its agreed goal, else its claim). With ``claim`` the auction
-        starts from it, at ``prices`` if given (docs/architecture.md, "Consecutive goal sets"). Returns
-        robot -> goal. Call before the first instance."""
+        """The previous goal set's assignment carried over (paper 6.1; ``previous[j]``: the goal of
+        ``before`` that goal j continues, -1 none; ``current``: own robots' goals there, default agreed
+        else claimed); ``claim``: the auction starts from it, at ``prices``. Returns robot -> goal."""
         previous = np.asarray(previous, np.int64)
         if self.started or not before.started or len(previous) != len(self.goals):
             return {}
@@ -295,9 +277,8 @@ class Participant(Auction):
         return carried
 
     def start_from(self, owner: np.ndarray, prices: np.ndarray) -> dict[int, int]:
-        """The first goal set's warm start (Goals.warm_start from the start positions): goal j claimed
-        by robot ``owner[j]`` at ``prices[j]``, on every host alike. Returns robot -> goal. Call before
-        the first instance."""
+        """The first goal set's warm start: goal j claimed by ``owner[j]`` at ``prices[j]``, on every
+        host alike. Returns robot -> goal."""
         owner = np.asarray(owner, np.int64)
         if self.started or len(owner) != len(self.goals) or len(prices) != len(self.goals):
             return {}
@@ -324,8 +305,7 @@ class Participant(Auction):
         return self._bidders.contentment(self.slack)
 
     def bid(self) -> bool:
-        """One Jacobi round: every own robot that is not content bids on its best goal at once; per goal
-        the greatest bid wins, by the same max-consensus as messages. True if any robot bid."""
+        """One Jacobi round of the own robots not content (max-consensus per goal); True if any bid."""
         if not self.started:
             return False
         bidders = self._bidders.bid(self.eps, self.slack)
@@ -347,17 +327,14 @@ class Participant(Auction):
     def settle_alone(
         self, positions: Mapping[int, np.ndarray] | np.ndarray, candidates: int = CANDIDATES
     ) -> np.ndarray:
-        """For a host that owns every robot of the goal set (the central engine): the next block of
-        phases on these positions, warm from the board, bid to agreement by the same rounds as bid()
-        (compiled: Bidders.settle_block). Returns each own robot's agreed goal, in the order of ``own``;
-        a phase of over ROUNDS_PER_ROBOT rounds per robot (at least 100,000) raises RuntimeError."""
+        """A host that owns every robot (the central engine): the next block on these positions, warm,
+        bid to agreement by bid()'s rounds. Returns each own robot's goal; RuntimeError past
+        ROUNDS_PER_ROBOT rounds a robot in a phase."""
         block = self._block_to_settle(positions, candidates)  # first: it may make new bidders
         return self._adopt_settled(self._bidders.settle_block(*block))
 
     def settle_beside(self, positions: Mapping[int, np.ndarray] | np.ndarray, candidates: int = CANDIDATES) -> None:
-        """settle_alone's block, begun on a thread of its own that never takes the interpreter's
-        lock (Bidders.settle_beside): the caller works on meanwhile, touching nothing of this
-        auction but ``penalise`` (it counts from the next block), until ``settled``."""
+        """settle_alone's block on a thread without the GIL; touch nothing but ``penalise`` until ``settled``."""
         block = self._block_to_settle(positions, candidates)  # first: it may make new bidders
         self._bidders.settle_beside(*block)
 
@@ -368,8 +345,7 @@ class Participant(Auction):
     def _block_to_settle(
         self, positions: Mapping[int, np.ndarray] | np.ndarray, candidates: int
     ) -> tuple[np.ndarray, np.ndarray, int]:
-        """The next block begun for the compiled rounds (its first ranking is theirs): its phases'
-        epsilons and slacks, and the rounds a phase may take."""
+        """The next block begun for the compiled rounds: its epsilons, slacks and rounds a phase may take."""
         if len(self.own) != len(self.robots):
             raise ValueError("settle_alone needs a host that owns every robot of the goal set")
         if candidates < 3:
@@ -402,21 +378,18 @@ class Participant(Auction):
 
     # --- lock-step rounds ----------------------------------------------------------------------------
     def begin_block(self, positions: Mapping[int, np.ndarray] | np.ndarray, rank: bool = True) -> None:
-        """Begin the next block of phases on these positions, warm from the board, bidding nothing
-        yet (lock-step: every host bids in round 1 against the same board); ``rank``: as _freeze."""
+        """Begin the next block on these positions, warm, bidding nothing yet (lock-step: every host bids
+        in round 1 against the same board)."""
         first = (self.instance // self.phases + 1) * self.phases if self.started else 0
         self._freeze(first, positions, rank)
 
     def round_records(self) -> np.ndarray:
-        """Lock-step: records(), each claim flagged SETTLED when its robot is content at the final
-        phase's slack (the least: no later phase would have it bid)."""
+        """Lock-step: records(), SETTLED where content at the final (least) slack."""
         return self._bidders.records(self.position, self.slack, True, float(self.slacks[-1]))
 
     def close_round(self, unchanged: bool, settled: Callable[[], bool]) -> bool:
-        """Lock-step: every host merged the same records of a round onto the same board, so all
-        decide alike. A round that changed nothing ends its phase: the next begins, or the block is
-        agreed (True) in the final phase or when every robot said it is ``settled()`` (the phases
-        left would pass without a bid, as settle_alone passes them; asked only then)."""
+        """Lock-step (every host decides alike): a round that changed nothing ends its phase; the block
+        is agreed (True) in the final phase or when all are ``settled()`` (the phases left pass)."""
         if not unchanged:
             return False
         if not (self.final_phase or settled()):
@@ -439,14 +412,11 @@ class Participant(Auction):
         return self.published_digest, self.records()
 
     def records(self) -> np.ndarray:
-        """What the own robots say now: a claim each, and the goals they released that still carry
-        their release on the board (so that others learn the price even if a message was lost);
-        compiled (agent.core.bidding: Bidders.records)."""
+        """A claim per own robot, and the releases still on the board (a lost message's price is learnt)."""
         return self._bidders.records(self.position, self.slack, False, 0.0)
 
     def members_only(self, recs: np.ndarray) -> np.ndarray:
-        """Another host's records of robots of this goal set only: a damaged or forged robot id is
-        no robot's word (and must not index a robot's row)."""
+        """Another host's records of this goal set's robots only (a damaged id must not index a row)."""
         recs = np.asarray(recs, RECORD)
         if len(recs) <= SMALL:  # a robot per host: a set lookup costs less than np.isin
             ids = recs["robot"].tolist()
@@ -454,9 +424,8 @@ class Participant(Auction):
         return recs[self._member[recs["robot"]]]
 
     def absorb(self, instance: int, serial: int, digest: int, recs: np.ndarray) -> bool:
-        """Merge another host's records, of robots of this goal set only (members_only: what came
-        over the bus passes through it first); True when the board changed. Records of the current
-        instance are remembered per robot (the newest by serial) for the agreement check."""
+        """Merge another host's records (members_only first); True when the board changed. The current
+        instance's newest record per robot is kept for the agreement check."""
         recs = np.ascontiguousarray(recs, RECORD)
         changed, heard = self._heard.absorb(recs, instance, instance == self.instance, serial, digest)
         self.board.version += changed
@@ -464,9 +433,8 @@ class Participant(Auction):
         return changed
 
     def _settled_view(self, same_board: bool) -> bool:
-        """Every robot content on a distinct goal, as far as this host knows: own robots now, the
-        others by their newest records of this instance, which still hold on our board (and, with
-        ``same_board``, were written against a board with our digest)."""
+        """Every robot content on a distinct goal as far as we know: others by their newest records still
+        holding on our board (``same_board``: written against our digest)."""
         if not self.started:
             return False
         key = (self.board.version, self.heard_version, self.instance, self.goal.tobytes())
@@ -494,11 +462,8 @@ class Participant(Auction):
         return self._settled_view(same_board=False)
 
     def check_agreement(self) -> bool:
-        """True (once per instance) when this host sees instance k agreed; sets ``agreed``.
-
-        A phase before the final one moves on to the next, smaller epsilon as soon as this host sees
-        nobody bidding (no common snapshot: the phases only speed the auction up, the guarantee comes
-        from the final phase's snapshot), and others follow when they hear of the later instance."""
+        """True (once per instance) when this host sees it agreed; sets ``agreed``. Earlier phases move
+        on as soon as nobody bids (no snapshot: only the final phase's guarantees)."""
         if self.started and not self.final_phase:
             if self._settled_view(same_board=False):
                 self.begin(self.instance + 1, {})
@@ -510,8 +475,7 @@ class Participant(Auction):
 
     @property
     def agreed(self) -> dict[int, int]:
-        """Own robot -> its goal in the agreed instance (made when first asked for: the central
-        engine settles every control step and never asks)."""
+        """Own robot -> its goal in the agreed instance (made when first asked for)."""
         goal, made = self._agreed
         if made is None:
             made = dict(zip(self.own, goal.tolist()))

@@ -1,43 +1,7 @@
-"""The goal auction's bidding and assignment rounds (paper 5.1.1), written once and compiled
-(setup.py): an agent host runs them for its own robots between messages (agent.core.bidder, one
-Jacobi round at a time), the central engine for every robot, a block of epsilon-scaling phases at a
-time (`Bidders.settle_block`), and the range-limited auction on each robot's own board
-(agent.core.local_auction). A robot's bid depends only on its costs and the board it bids against,
-so every engine reaches the same board, bit for bit.
-
-The paper's terms (Bertsekas' forward auction with epsilon scaling):
-
-- **Net value** of goal j to robot i: -c_ij - b_j, the cost c_ij = |g_j - p_i|^2 (eq. 7, computed as
-  dx * dx + dy * dy in float64) plus the robot's own deadlock penalties C_d (5.5.5), b_j the price.
-- **Board.** Per goal the greatest record: (price, then the lower robot id, then "released" after
-  "claimed"). Records merge by this maximum (max-consensus, `greater`), in any order; no two tie.
-- **Content.** A robot holds its goal on the board and no goal is better by more than the slack (the
-  phase's epsilon, never less than epsilon_A + Delta C): epsilon-complementary slackness, up to
-  ``ROUNDING`` of the bid that set the price.
-- **Bid.** A robot that is not content bids on its best goal: the price rises by the best minus the
-  second-best net value plus epsilon (one goal: by epsilon twice), and it releases the goal it held.
-- **Jacobi round.** Every robot not content bids at once against the board as the round found it.
-
-What keeps a round cheap (while 1000 robots cross the arena a warm block runs chains of 10,000 and
-more rounds of one or two bidders):
-
-- **Cached best goal.** Each robot keeps its best goal, its net value (exact while that goal's price
-  is ``seen``) and an upper bound of its second-best value; prices only rise, so it is ranked again
-  only when its best goal's price rose past that bound.
-- **Candidate goals.** A ranking also keeps the robot's K best goals and ``bound``, the value of
-  the next best (an upper bound of every other goal's). While the three best candidates beat it,
-  they are the three best goals (ties included) and a ranking costs K goals, not all of them.
-- **The goal tree.** A ranking anew (the list is spent: widened) searches a k-d tree of the goals
-  with, per node, a lower bound of its prices: a node none of whose goals can rank among the K + 1
-  best is passed over, so a robot looks at the goals near it and those whose price makes them
-  competitive, not at every goal (no N x N work at ten thousand robots). Prices only rise, so a
-  node's stale bound still holds; a search renews the nodes it visits. The search is exact (value,
-  then the lower index, as a scan of every goal), so the board does not depend on the tree.
-- **Carried across blocks** (`moved_bound`), by the support function of the goal set's ``hull``
-  points; without them the lists start anew each block.
-- **After a round** only the bidders and the robots they outbid are looked at again: a content
-  robot holds its goal, so only a bid on that goal changes its contentment. Phases with nothing to do
-  are passed over: a robot content at the least slack left is content at every larger one.
+"""The goal auction's bidding and assignment rounds (paper 5.1.1: Bertsekas' forward auction with
+epsilon scaling), compiled once for every engine: a robot's bid depends only on its costs and the
+board it bids against, so every engine reaches the same board, bit for bit. Terms and what keeps a
+round cheap (cached rankings, candidate goals, the goal tree): docs/architecture.md, "Goal assignment".
 """
 
 # cython: language_level=3
@@ -73,10 +37,8 @@ NO_OWNER = -1  # a goal nobody claimed
 cdef int64_t NOBODY = -1
 cdef uint8_t RELEASED = AuctionRecord.RELEASED  # a record's flags
 cdef uint8_t CONTENT = AuctionRecord.CONTENT, SETTLED = AuctionRecord.SETTLED
-# Relative slack for the rounding of a bid. A bid leaves its robot's value of the goal exactly epsilon
-# below its next-best value in real numbers; in floats, price + (v1 - v2) + eps then -cost - price can
-# land an ulp short, the robot is not content with the goal it just won, gives it up and bids again.
-# Each such bid releases a goal, and at large warm prices the releases feed a price war that never ends.
+# relative slack for a bid's rounding: a robot an ulp short of content with the goal it just won would
+# release it and bid again, feeding a price war at large warm prices
 cdef double ROUNDING = 1e-12
 
 
@@ -156,10 +118,8 @@ cdef inline Py_ssize_t row_among(const int64_t[::1] robots, int64_t robot) noexc
 
 
 cdef class Heard:
-    """Other hosts' records merged into a board (max-consensus; records of goals off the board are
-    ignored) and, of the current instance, each other robot's newest claim (by serial) noted for the
-    agreement check. The arrays are a Participant's (agent.core.bidder), shared: held here so that a
-    message of one record costs no more than its merge."""
+    """Other hosts' records merged into a Participant's board (max-consensus), each other robot's
+    newest claim of the current instance noted for the agreement check (the arrays are shared)."""
 
     cdef double[::1] price, heard_price
     cdef int64_t[::1] owner, robots, heard_instance, heard_serial, heard_goal
@@ -200,15 +160,10 @@ cdef class Heard:
 
 cpdef double moved_bound(double made, double x0, double y0, double dx, double dy, const double[::1] hull_x,
                          const double[::1] hull_y, double lowest) noexcept nogil:
-    """An upper bound, now, of the value of every goal off a robot's list, made where it stood at
-    (x0, y0) with the bound ``made``, after it moved by D = (dx, dy); ``lowest``: the lowest price.
-    Prices and penalties only rose since, and two bounds hold; the lesser is returned:
-    - a goal's value changed by 2 (g - p).D - |D|^2 <= 2 (h(D) - p.D) - |D|^2, h the support function
-      of the goal set over its hull's vertices (hull_x, hull_y);
-    - no goal is worth more than -(its distance)^2 - lowest (penalties are costs, never negative), so
-      with u = value + lowest, a goal that had u <= U there has u <= -(sqrt(-U) - |D|)^2 now (0 if
-      |D| >= sqrt(-U)): only the goals near the robot count, not the goal set's extent.
-    +inf for a robot with no list (made = +inf) or no hull points."""
+    """An upper bound now of every goal's value off a robot's list, made at (x0, y0) with bound
+    ``made``, after it moved by D = (dx, dy) (prices only rose; ``lowest``: the lowest price): the
+    lesser of made + 2 (h(D) - p.D) - |D|^2, h the hull's support function, and -(sqrt(-u) - |D|)^2 -
+    lowest with u = made + lowest < 0 (only near goals count). +inf without a list or hull points."""
     cdef double h = -INFINITY, grow, moved, u, near
     cdef Py_ssize_t a
     if hull_x.shape[0] == 0:
@@ -228,9 +183,8 @@ LEAF = 8  # goals per leaf of the goal tree
 
 
 def goal_tree(goals, int leaf=LEAF):
-    """A k-d tree of the goals (G, 2), nodes in preorder: each splits its goals at the median of its
-    wider side. Returns (order, left, right, start, end, box): a node's goals are
-    order[start:end], its children left and right (-1: a leaf), box (M, 4) x0, x1, y0, y1."""
+    """A k-d tree of the goals (G, 2) in preorder, split at the median of the wider side: (order,
+    left, right, start, end, box); a node's goals are order[start:end], -1 children: a leaf."""
     goals = np.asarray(goals, float).reshape(-1, 2)
     order = np.arange(len(goals), dtype=np.int64)
     left, right, start, end, box = [], [], [], [], []
@@ -257,8 +211,8 @@ def goal_tree(goals, int leaf=LEAF):
 
 
 cdef class Bidders:
-    """The own robots of a host (rows) bidding on one goal set's board, with their cached rankings
-    and candidates, and the scratch of a round (made once: nothing in the rounds allocates)."""
+    """A host's own robots (rows) bidding on one goal set's board, with their cached rankings and
+    candidates, and the scratch of a round (made once: nothing in the rounds allocates)."""
 
     cdef Py_ssize_t k, g
     cdef double[::1] px, py, gx, gy, hull_x, hull_y
@@ -275,25 +229,21 @@ cdef class Bidders:
     # the cached ranking: best goal, its value (exact while its price is ``seen``), second-best bound
     cdef int64_t[::1] best
     cdef double[::1] value, second, seen
-    # candidate lists: K goals per robot (-1: none), a bound of every other goal's value (+inf: no
-    # list), where the list was made and its bound there
+    # K candidate goals per robot (-1: none), a bound of every other goal (+inf: no list), where made
     cdef int64_t[:, ::1] cand
     cdef double[::1] bound, made_x, made_y, made_bound
-    # the goal tree (goal_tree), per node a lower bound of its goals' prices, a plane under them
-    # (fit_price_planes), and the least penalty (none is negative: 0) that the nodes' bounds allow for
+    # the goal tree, per node a lower bound of its prices and a plane under them, and the least penalty
     cdef int64_t[::1] order, node_left, node_right, node_start, node_end, node_parent, leaf_of
     cdef double[::1] node_x0, node_x1, node_y0, node_y1, node_price, plane_a, plane_bx, plane_by
     cdef double least_penalty
     # scratch of a ranking anew: its K + 1 best goals so far
     cdef double[::1] top_value
     cdef int64_t[::1] top_goal
-    # scratch of a block: who may bid, who waits, the queue, who was looked at, and per bid its goal,
-    # price, the goal's owner before, the bidder's runner-up and third value, what it releases
+    # scratch of a block: who may bid, waits, is queued, was looked at, and per bid what it bid and released
     cdef int64_t[::1] may_bid, waiting, queue, look, bidders, bid_goal, owner_before, runner_up, held
     cdef double[::1] offer, third, held_price
     cdef uint8_t[::1] touched, unhappy
-    # a block settling on a thread of its own (settle_beside): its phases, and what it came to; the
-    # thread, made at the first block, sleeps on ``job_wake`` between blocks
+    # settle_beside's block and outcome; its thread, made at the first block, sleeps on job_wake between
     cdef const double[::1] job_eps, job_slack
     cdef int64_t job_max_rounds, job_rounds, job_bids
     cdef Py_ssize_t job_settled, job_without
@@ -306,8 +256,8 @@ cdef class Bidders:
     cdef readonly bint settling
 
     def __init__(self, board, goals, robot, goal, hull, int candidates):
-        """``board``: price, owner and released (bool) of the goal set; ``goals`` (G, 2); ``robot``:
-        each row's id; ``goal`` (claims) is shared, changed in place."""
+        """``board``: price, owner, released of the goals (G, 2); ``robot``: each row's id; ``goal``:
+        the claims, shared and changed in place."""
         goals = np.asarray(goals, float).reshape(-1, 2)
         self.k, self.g = len(robot), len(goals)
         k, g = self.k, self.g
@@ -352,8 +302,7 @@ cdef class Bidders:
         return self.cand.shape[1]
 
     def set_penalties(self, rows, goals, costs) -> None:
-        """The penalties in force: robot rows[a] pays costs[a] more for goals[a], one entry per
-        (row, goal), sorted by row."""
+        """The penalties in force: row rows[a] pays costs[a] more for goals[a] (sorted by row)."""
         rows = np.ascontiguousarray(rows, np.int64)
         self.penalty_start = np.searchsorted(rows, np.arange(self.k + 1)).astype(np.int64)
         self.penalty_goal = np.ascontiguousarray(goals, np.int64)
@@ -389,12 +338,9 @@ cdef class Bidders:
         return dx * dx + dy * dy
 
     cdef inline double node_bound(self, int64_t node, double x, double y) noexcept nogil:
-        """An upper bound of the value to a robot at (x, y) of every goal of the node, the lesser of two:
-        the nearest point of its box at its least price (rounding is monotone, so it holds in floats
-        too); and the same for the plane under its prices, b_j >= a + beta . g_j, which gives
-        -|g_j - p|^2 - b_j <= -|g_j - q|^2 - a - beta . p + |beta|^2 / 4 with q = p - beta / 2 (less
-        loose where prices climb across the node, as they do across a picture the robots approach
-        from one side; with room for rounding)."""
+        """An upper bound of every node goal's value to a robot at p = (x, y): the lesser of the box's
+        nearest point at its least price, and by the plane b_j >= a + beta . g_j under its prices,
+        -|g_j - q|^2 - a - beta . p + |beta|^2 / 4 with q = p - beta / 2 (tighter where prices climb)."""
         cdef double flat = (-self.box_distance2(node, x, y) - self.node_price[node]) - self.least_penalty
         cdef double bx = self.plane_bx[node], by = self.plane_by[node], d2, lift, tilted
         if (bx == 0.0 and by == 0.0) or not flat > -INFINITY:  # no slope, or no goal
@@ -406,8 +352,8 @@ cdef class Bidders:
         return min(flat, tilted)
 
     cdef void search(self, Py_ssize_t i, int64_t node, double bound) noexcept nogil:
-        """Robot i's K + 1 best goals of the node into ``top`` (by value, then the lower index),
-        passing over the nodes that cannot hold one; renews the least prices it looks at."""
+        """Robot i's K + 1 best goals of the node into ``top``, passing over nodes that cannot hold one;
+        renews the least prices it looks at."""
         cdef Py_ssize_t kk = self.cand.shape[1], a, s
         cdef int64_t j, near, far
         cdef double v, least = INFINITY, b_near, b_far
@@ -435,8 +381,8 @@ cdef class Bidders:
         self.node_price[node] = min(self.node_price[near], self.node_price[far])
 
     cdef Ranking rank_all(self, Py_ssize_t i) noexcept nogil:
-        """Robot i's three best goals over every goal, by a search of the goal tree. Renews its
-        candidates: its K best goals, ``bound`` the value of the next (it bounds every other goal)."""
+        """Robot i's three best goals by a search of the goal tree; renews its K candidates and
+        ``bound``, the next one's value."""
         cdef Py_ssize_t s, kk = self.cand.shape[1]
         cdef Ranking r = unranked()
         for s in range(kk + 1):
@@ -452,8 +398,7 @@ cdef class Bidders:
         return r
 
     cdef void price_rose(self, int64_t j) noexcept nogil:
-        """Goal j's price rose: its leaf's least price, and its ancestors' while theirs rise too
-        (tighter bounds, fewer nodes searched)."""
+        """Goal j's price rose: renew its leaf's least price, and its ancestors' while theirs rise."""
         cdef int64_t node = self.leaf_of[j], up
         cdef Py_ssize_t a
         cdef double least = INFINITY
@@ -468,9 +413,8 @@ cdef class Bidders:
             node = up
 
     cdef void fit_price_planes(self) noexcept nogil:
-        """Per node, a plane under its goals' prices: the least-squares slope beta over its goals,
-        lowered onto the lowest, b_j >= a + beta . g_j (with room for rounding). Prices only rise
-        until the next fit (at a block's start), so the plane stays under them."""
+        """Per node a plane under its prices, b_j >= a + beta . g_j: the least-squares slope lowered
+        onto the lowest (prices only rise until the next fit, at a block's start)."""
         cdef Py_ssize_t node, a, lo, hi
         cdef int64_t j
         cdef double n, mx, my, mb, sxx, sxy, syy, sxb, syb, det, bx, by, least, u, ux, uy
@@ -543,8 +487,7 @@ cdef class Bidders:
                 self.remember(i, self.rank(i))
 
     cdef bint content(self, Py_ssize_t i, double slack) noexcept nogil:
-        """Does robot i hold its goal within ``slack`` of its best? One that holds none bids next,
-        which ranks it anyway: its best value is left stale rather than ranked twice."""
+        """Does robot i hold its goal within ``slack`` of its best? (One holding none is not ranked.)"""
         cdef int64_t g = self.goal[i]
         if g < 0 or self.owner[g] != self.robot[i] or self.released[g]:
             return False
@@ -553,7 +496,7 @@ cdef class Bidders:
 
     def first_ranking(self) -> int:
         """Every robot's ranking at a block's start (or once penalties rose), from its candidates where
-        moved_bound still proves them. Returns how many robots had no list to start from."""
+        moved_bound proves them; returns how many had no list."""
         cdef Py_ssize_t none
         with nogil:
             none = self.rank_first()
@@ -598,10 +541,8 @@ cdef class Bidders:
         return out
 
     def records(self, const double[:, ::1] position, double slack, bint settled, double final_slack) -> np.ndarray:
-        """What the robots say now (agent.core.bidder.Participant.records): a claim each, of the goal
-        it holds on the board (else -1, price 0), CONTENT when content at ``slack`` and, if
-        ``settled``, SETTLED when content at ``final_slack``, with its penalties' sum and its
-        ``position``; then, in goal order, the goals they released that still carry the release."""
+        """Participant.records: a claim each (goal held, else -1), CONTENT at ``slack``, SETTLED (if
+        ``settled``) at ``final_slack``, penalties' sum and position; then the releases, by goal."""
         cdef Py_ssize_t i, j, a, k = self.k, released = 0, n
         cdef int64_t g
         cdef double penalty
@@ -639,9 +580,8 @@ cdef class Bidders:
 
     # --- rounds -------------------------------------------------------------------------------------
     cdef Py_ssize_t jacobi_round(self, Py_ssize_t n, double eps) noexcept nogil:
-        """The first ``n`` rows of ``bidders`` (ascending, none content) bid at once; their cached
-        rankings follow from the ranking they bid on. Fills ``look`` with the bidders and the robots
-        they outbid; returns how many."""
+        """The first ``n`` rows of ``bidders`` (ascending) bid at once; fills ``look`` with the bidders
+        and the robots they outbid, returns how many."""
         cdef Py_ssize_t a, m = 0
         cdef int64_t i, h, j, o, r2
         cdef Ranking r
@@ -670,8 +610,7 @@ cdef class Bidders:
                 self.price_rose(j)
         for a in range(n):
             i = self.bidders[a]
-            # the goal bid on rose in price: the runner-up is the best now if it beats that goal's
-            # value now and the third-best value (an upper bound) outright, else ranked anew
+            # the runner-up is the best now if it beats the dearer goal bid on and the third's bound, else rank anew
             j, r2 = self.bid_goal[a], self.runner_up[a]
             v_bid = self.net_value(i, j)
             v_run = self.net_value(i, r2) if r2 >= 0 else -INFINITY
@@ -707,9 +646,8 @@ cdef class Bidders:
 
     cdef (int64_t, int64_t, Py_ssize_t) rounds(self, Py_ssize_t n, double eps, double slack,
                                               int64_t max_rounds) noexcept nogil:
-        """Bid the first ``n`` robots of ``waiting`` and those they outbid until every robot is
-        content at ``slack``; marks ``touched`` every robot looked at. Returns (rounds, bids,
-        robots still waiting)."""
+        """Bid ``waiting``'s first ``n`` and those they outbid until all are content at ``slack``,
+        marking ``touched``; returns (rounds, bids, robots still waiting)."""
         cdef Py_ssize_t a, s, m
         cdef int64_t q, rounds = 0, bids = 0, r
         for a in range(n):
@@ -738,21 +676,16 @@ cdef class Bidders:
         return rounds, bids, n
 
     def settle_block(self, eps, slack, int64_t max_rounds) -> tuple[int, int, int, int, float]:
-        """A block of epsilon-scaling phases (``eps``, ``slack``): its first ranking (first_ranking),
-        then per phase the Jacobi rounds until every robot is content. Leaves every cached best value
-        exact. Returns (rounds, bids, phases settled: fewer than len(eps) when a phase ran out of
-        rounds, robots without a list at its start, wall seconds it took)."""
+        """A block of epsilon-scaling phases: its first ranking, then per phase Jacobi rounds until all
+        are content. Returns (rounds, bids, phases settled, robots without a list, wall seconds)."""
         self.ask(eps, slack, max_rounds)
         with nogil:
             self.settle_timed()
         return self.outcome()
 
     def settle_beside(self, eps, slack, int64_t max_rounds) -> None:
-        """settle_block on a thread of this module's own, which never takes the interpreter's lock:
-        the central engine steps its robots meanwhile, and neither waits for the other to hand the
-        lock over. The thread stays for the next block, asleep (a thread woken is run sooner than
-        one made anew on a busy machine). Nothing may touch these bidders, their board or claims
-        until ``settled`` has returned."""
+        """settle_block on a thread that never takes the GIL, so the central engine steps meanwhile; it
+        sleeps for the next block. Touch nothing of these bidders until ``settled`` has returned."""
         if self.settling:
             raise RuntimeError("a block is settling already")
         self.ask(eps, slack, max_rounds)
@@ -826,8 +759,7 @@ cdef class Bidders:
         pthread_mutex_unlock(&self.job_lock)
 
     cdef void settle_job(self) noexcept nogil:
-        """The phases of ``job_eps``, ``job_slack`` after the first ranking, into job_rounds, job_bids
-        and job_settled."""
+        """The phases of ``job_eps``, ``job_slack`` after the first ranking, into job_*."""
         cdef const double[::1] eps = self.job_eps
         cdef const double[::1] slack = self.job_slack
         cdef Py_ssize_t i, a, phase, later, n, n_may = 0, k = self.k
@@ -886,9 +818,8 @@ cdef void* settle_thread(void* bidders) noexcept nogil:
 
 def bid_on_own_boards(boards, const int64_t[::1] rows, const double[::1] slack, const double[::1] eps,
                       const uint8_t[:, ::1] taken) -> np.ndarray:
-    """The range-limited auction's bids (agent.core.local_auction.LocalAuction: ``boards``): each
-    robot of ``rows`` not content at its ``slack`` bids at its ``eps`` against its own board, goals
-    ``taken`` by a robot it has not heard of costing ``taken_cost`` more. Returns the rows that bid."""
+    """LocalAuction's bids: each robot of ``rows`` not content at its ``slack`` bids at its ``eps`` on
+    its own board (goals ``taken`` by unknown robots cost more); returns the rows that bid."""
     cdef double[:, ::1] cost = boards.cost, price = boards.price
     cdef double[::1] taken_cost = boards.taken_cost
     cdef int64_t[:, ::1] owner = boards.owner
@@ -928,12 +859,9 @@ def bid_on_own_boards(boards, const int64_t[::1] rows, const double[::1] slack, 
 
 
 def hear_words(boards, const int64_t[::1] rows, words, int64_t r) -> tuple[np.ndarray, np.ndarray]:
-    """The range-limited auction's hearing (agent.core.local_auction.LocalAuction.hear, ``boards``):
-    each robot of ``rows`` hears the ``words`` said within its reach by robots other than itself,
-    and takes from them that the block ended, the latest phase, the robots they have heard of (the
-    rows whose known set grows note round ``r``) and the latest round of change. Returns, per row,
-    whether its phase moved on or its known set grew, and which of the words it was told a board by
-    (len(rows), M), for merge_boards."""
+    """LocalAuction.hear: each robot of ``rows`` hears the other robots' ``words`` within reach (block
+    ended, latest phase, known robots, latest change). Returns per row whether its phase moved on or
+    its known set grew, and which words told it a board (len(rows), M)."""
     cdef const double[:, ::1] xy = boards.xy
     cdef const int64_t[::1] robot = boards.own_ids
     cdef int64_t[::1] phase = boards.phase, last = boards.last, grew = boards.grew
@@ -978,9 +906,8 @@ def hear_words(boards, const int64_t[::1] rows, words, int64_t r) -> tuple[np.nd
 
 
 def merge_boards(boards, const int64_t[::1] rows, const uint8_t[:, ::1] told, words) -> np.ndarray:
-    """The range-limited auction's max-consensus: into each robot of ``rows``, the boards (``words``:
-    price, owner, released, (M, G)) of the robots it was ``told`` (len(rows), M). Returns where each
-    row's board changed."""
+    """LocalAuction's max-consensus: the boards in ``words`` each row was ``told`` merged into its own;
+    returns where a row's board changed."""
     out = np.zeros(rows.shape[0], bool)
     cdef uint8_t[::1] changed = out.view(np.uint8)
     cdef double[:, ::1] price = boards.price
@@ -1005,8 +932,8 @@ def merge_boards(boards, const int64_t[::1] rows, const uint8_t[:, ::1] told, wo
 
 
 def board_digest(const double[::1] price, const int64_t[::1] owner, const uint8_t[::1] released) -> int:
-    """64 bits that tell boards apart: each word of (price, owner, released) hashed with its place,
-    XOR-folded (hashlib would load OpenSSL into every agent process)."""
+    """64 bits that tell boards apart: each word hashed with its place, XOR-folded (hashlib would load
+    OpenSSL into every agent process)."""
     cdef uint64_t folded = 0, bits
     cdef Py_ssize_t j, g = price.shape[0]
     cdef double p

@@ -1,11 +1,8 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
-"""A robot's control step (paper 5.2-5.4), written once and compiled: the same code steps one robot
-in its own process, K robots in an agent host and every robot in the central engine. What each part
-does, with the paper's section and this file's function, is in docs/control_step.md.
+"""A robot's control step (paper 5.2-5.4), compiled once for every engine (docs/control_step.md).
 
-A robot's result depends on its own row alone (no reduction across robots), so a robot steps the
-same, bit for bit, alone or in any batch. Lines are a point and a unit direction, the permissible
-side on the left: det(d, v - p) >= 0.
+A robot's result reads its own row alone, so it is the same, bit for bit, alone or in any batch.
+Lines are a point and a unit direction, permissible on the left: det(d, v - p) >= 0.
 """
 
 from libc.math cimport INFINITY, atan2, copysign, cos, fabs, hypot, isfinite, sin, sqrt, tan
@@ -27,8 +24,7 @@ cdef double EPSILON = 1e-5  # two unit directions are parallel below this |det| 
 cdef Py_ssize_t ROWS_PER_CHUNK = 16  # rows a thread of the central engine's crew claims at a time
 cdef int N_VERTICES = 24  # P_AHV's vertices, denser ahead where its boundary turns fastest
 
-# radii 1 ppm larger in the safety and obstacle lines: gaps may close completely, rounding must not
-# turn that into an overlap
+# radii 1 ppm larger in the safety and obstacle lines: rounding must not turn a closed gap into overlap
 cdef double BUFFER = 1.0 + 1e-6
 cdef double SHRINK = 4.0  # where infeasible the robot horizon is divided by this, down to dt
 cdef double COS_RIGHT = cos(-math.pi / 4)
@@ -36,24 +32,17 @@ cdef double SIN_RIGHT = sin(-math.pi / 4)
 DEF MAX_VERTICES = 32
 
 
-cdef struct Lines:
-    # half-planes, structure of arrays; ``use`` flags which lines a 1-D problem is clipped by
-    double *px
-    double *py
-    double *dx
-    double *dy
+cdef struct Lines:  # half-planes, structure of arrays; ``use`` flags the lines a 1-D problem is clipped by
+    double *px, *py, *dx, *dy
     unsigned char *use
 
 
-cdef struct Target:
-    # what a linear program optimises: the point closest to (tx, ty), or with ``directional`` the
-    # point furthest along the unit direction (tx, ty); within the speed disk of ``radius``
+cdef struct Target:  # the point closest to (tx, ty), or ``directional``: furthest along it; within the disk
     double tx, ty, radius
     bint directional
 
 
-cdef struct Other:
-    # a neighbour as the ORCA line sees it: position, velocity, radius, responsibility
+cdef struct Other:  # a neighbour as the ORCA line sees it: position, velocity, radius, responsibility
     double x, y, vx, vy, radius, c
 
 
@@ -65,8 +54,7 @@ cdef struct Robot:
     double vmax
 
 
-cdef struct Angle:
-    # the parts of V_H^max(theta) that depend on the angle only (NH-ORCA's closed forms)
+cdef struct Angle:  # the parts of V_H^max(theta) that depend on the angle only (NH-ORCA's closed forms)
     bint turning
     double t_eff, t_eff_s_half, k, v_s, v_s_sinc, v_s_omc2
 
@@ -82,19 +70,14 @@ cdef struct Config:
 
 
 cdef class Settings:
-    """What every robot of a batch shares: the horizons, how neighbours heard late are grown, and
-    (differential drive) the shape of P_AHV. ``margin`` is added to every radius in the robot
-    lines; ``safety=False`` gives RVO2's program (no safety lines, least violation at the full
-    horizon)."""
+    """What a batch shares: horizons, how late neighbours are grown, P_AHV's shape; ``margin`` is added
+    to every radius in the robot lines; ``safety=False``: RVO2's program."""
 
     cdef Config c
 
     def __init__(self, params, *, safety=True, margin=None, timeout=None, noise=None, committed=None, horizons=None):
-        """From a RobotParams. Defaults as an agent steers: the holonomic robot lines keep the
-        tracking noise bound as margin (NH-ORCA's radii grow by the tracking error instead),
-        neighbours are stale after params.stale_after, grown by the noise bound, and a broadcast
-        velocity is committed for one period. ``horizons``: (tau, tau_obst, dt) other than the
-        params' (RVO2's simulator, sim.central.rvo)."""
+        """From a RobotParams, defaults as an agent steers (holonomic margin: the noise bound; a
+        broadcast velocity committed for dt). ``horizons``: other (tau, tau_obst, dt) (RVO2's)."""
         cdef Config c
         c.diffdrive = params.kinematics == "diffdrive"
         c.v_pref, c.k_a, c.v_max = params.v_pref, params.k_a, params.v_max
@@ -121,10 +104,8 @@ cdef class Settings:
 
 
 def vertex_angles(double dent):
-    """Angles (to the heading) of P_AHV's vertices, increasing in (-pi, pi], denser ahead.
-
-    S_AHV is convex except for a dent where case C begins (|theta| = T omega_cap, ``dent``); that
-    angle is a vertex, so every edge is a chord of a convex arc of the boundary and lies in S_AHV."""
+    """Angles to the heading of P_AHV's vertices in (-pi, pi], denser ahead; S_AHV's dent (case C,
+    ``dent`` = T omega_cap) is one, so every edge is a chord of a convex arc and lies in S_AHV."""
     u = [-1.0 + 2.0 * k / N_VERTICES for k in range(1, N_VERTICES)]
     angles = {math.pi * math.copysign(abs(x) ** 1.5, x) for x in u} | {math.pi}
     if dent < math.pi:
@@ -144,8 +125,7 @@ cdef inline void _perturbation(uint64_t robot, uint64_t seed, uint64_t tick, dou
 
 
 cdef inline void _eq9(double ex, double ey, double v_pref, double k_a, double *out) noexcept nogil:
-    # speed V_p toward the goal, falling linearly within K_a of it (V_p / K_a exactly there); zero
-    # without a goal (NaN) or on it
+    # speed V_p toward the goal, falling linearly within K_a of it; zero without a goal (NaN) or on it
     cdef double dist = sqrt(ex * ex + ey * ey)
     cdef double gain
     if isfinite(dist) and dist > 0.0:
@@ -156,8 +136,7 @@ cdef inline void _eq9(double ex, double ey, double v_pref, double k_a, double *o
 
 
 def preferred_velocity(position, goal, double v_pref, double k_a):
-    """Paper eq. 9 for points (..., 2) toward goals (..., 2): speed V_p toward the goal, falling
-    linearly within K_a of it; zero without a goal (NaN)."""
+    """Paper eq. 9 for points (..., 2) toward goals (..., 2) (NaN: no goal, zero)."""
     p = np.ascontiguousarray(position, dtype=float)
     g = np.ascontiguousarray(np.broadcast_to(np.asarray(goal, dtype=float), p.shape))
     cdef const double[:, ::1] pv = p.reshape(-1, 2)
@@ -171,9 +150,8 @@ def preferred_velocity(position, goal, double v_pref, double k_a):
 
 
 def perturbation(robot_ids, seed, tick=0, double magnitude=PERTURBATION):
-    """The tiny vectors (B,2) added to non-zero preferred velocities: each component in
-    [-magnitude, magnitude], a function of (robot id, seed, tick) only, so that symmetric
-    configurations (head-on pairs, rings) stop being symmetric and every process agrees."""
+    """The tiny vectors (B,2) added to non-zero preferred velocities to break symmetric standoffs: a
+    function of (robot id, seed, tick) only, so every process agrees."""
     ids = np.ascontiguousarray(np.asarray(robot_ids).reshape(-1).astype(np.uint64, copy=False))
     cdef const uint64_t[::1] iv = ids
     cdef uint64_t s = seed % 2**64, t = tick % 2**64
@@ -186,11 +164,8 @@ def perturbation(robot_ids, seed, tick=0, double magnitude=PERTURBATION):
 
 
 def preferred_velocities(Settings settings, robot_ids, position, velocity, goal, given, seed, tick, cap=None):
-    """A batch's preferred velocities (B,2): eq. 9 toward ``goal``, or the finite rows of ``given``
-    (an animation's eq. 27, a moving goal's feed-forward); scaled down to the robot's speed ``cap``
-    (B,; NaN or None: none; Batch's); turned 45 degrees right where the robot wants to move but
-    barely does (every robot applying the rule turns a standoff into a roundabout); then the
-    perturbation where not zero."""
+    """A batch's preferred velocities (B,2): eq. 9, or the finite rows of ``given``; within ``cap``;
+    turned 45 degrees right where the robot barely moves (a standoff becomes a roundabout); perturbed."""
     cdef const double[:, ::1] p = np.ascontiguousarray(position, dtype=float)
     cdef const double[:, ::1] v = np.ascontiguousarray(velocity, dtype=float)
     cdef const double[:, ::1] g = np.ascontiguousarray(goal, dtype=float)
@@ -227,14 +202,13 @@ def preferred_velocities(Settings settings, robot_ids, position, velocity, goal,
 
 
 cdef inline bint _violates(Lines *L, int i, double x, double y, double by) noexcept nogil:
-    # does (x, y) lie more than ``by`` on the forbidden side of line i?
+    # (x, y) lies more than ``by`` on line i's forbidden side
     return L.dx[i] * (L.py[i] - y) - L.dy[i] * (L.px[i] - x) > by
 
 
 cdef bint _on_line(Lines *L, int i, int n, bint all_lines, Target *g, double *out) noexcept nogil:
-    """The optimum on line i within the disk and the lines j < n (those with ``use`` unless
-    ``all_lines``). False if line i holds no such point (``out`` is then left as it was: no caller
-    reads it, so the search stops at the first line that empties line i)."""
+    """The optimum on line i within the disk and lines j < n (with ``use`` unless ``all_lines``);
+    False if there is none (``out`` unread then: the search stops at the first line that empties i)."""
     cdef double pix = L.px[i], piy = L.py[i], dix = L.dx[i], diy = L.dy[i]
     cdef double dot = pix * dix + piy * diy
     cdef double disc = dot * dot + g.radius * g.radius - (pix * pix + piy * piy)
@@ -271,8 +245,7 @@ cdef bint _on_line(Lines *L, int i, int n, bint all_lines, Target *g, double *ou
     return True
 
 
-cdef inline void _disk_optimum(Target *g, double *out) noexcept nogil:
-    # the optimum over the speed disk alone: the target clipped to it, or its furthest point along it
+cdef inline void _disk_optimum(Target *g, double *out) noexcept nogil:  # over the speed disk alone
     cdef double n2 = g.tx * g.tx + g.ty * g.ty, scale
     if g.directional:
         out[0], out[1] = g.tx * g.radius, g.ty * g.radius
@@ -284,10 +257,8 @@ cdef inline void _disk_optimum(Target *g, double *out) noexcept nogil:
 
 
 cdef bint _optimise(Lines *L, int n, bint all_lines, Target *g, double *out) noexcept nogil:
-    """RVO2's linearProgram2 over lines 0..n-1 (those with ``use`` unless ``all_lines``),
-    incrementally: where the optimum so far violates a line, the new one lies on it, clipped by the
-    lines before. False at the first line that cannot be met (``out`` then holds the optimum over
-    the lines before it)."""
+    """RVO2's linearProgram2 over lines 0..n-1 (with ``use`` unless ``all_lines``), incrementally;
+    False at the first line that cannot be met (``out``: the optimum over those before)."""
     cdef double at[2]
     cdef int i
     _disk_optimum(g, out)
@@ -300,10 +271,8 @@ cdef bint _optimise(Lines *L, int n, bint all_lines, Target *g, double *out) noe
 
 
 cdef bint _optimise_few(Lines *L, int n, Target *g, double *out) noexcept nogil:
-    """The optimum over the lines 0..n-1 with ``use`` and the disk, where it is known to lie on one
-    of the lines the disk's optimum violates: the best of their 1-D optima (ties to the first).
-    The shrinking horizon's programs take this one: on bench_orca's Blocks its optimum moves crowds
-    on sooner than the incremental program's, whose rounding differs."""
+    """The optimum over lines 0..n-1 with ``use`` and the disk as the best 1-D optimum on the lines the
+    disk's optimum violates (ties to the first): the shrinking horizon's (it moves crowds on sooner)."""
     cdef double at[2]
     cdef double best_cost = INFINITY, cost, ex, ey, cx, cy, near
     cdef bint violated = False, good = False
@@ -315,8 +284,7 @@ cdef bint _optimise_few(Lines *L, int n, Target *g, double *out) noexcept nogil:
             continue
         violated = True
         if good and not g.directional:
-            # no point of line c is nearer the target than the line itself: a line that cannot
-            # beat the best so far is not solved (less a slack far above any rounding of either)
+            # a line farther from the target than the best so far (less a slack for rounding) cannot beat it
             near = fabs(L.dx[c] * (g.ty - L.py[c]) - L.dy[c] * (g.tx - L.px[c])) - 1e-9 * (
                 fabs(L.px[c]) + fabs(L.py[c]) + fabs(g.tx) + fabs(g.ty) + g.radius)
             if near > 0.0 and near * near > best_cost:
@@ -338,10 +306,8 @@ cdef bint _optimise_few(Lines *L, int n, Target *g, double *out) noexcept nogil:
 
 
 cdef void _least_violation(Lines *L, Lines *Q, int n, int n_hard, Target *g, double *out) noexcept nogil:
-    """RVO2's linearProgram3: keep the first n_hard lines (all soft if they leave nothing of the
-    disk), minimise the largest violation of the others. Each violated soft line gives a 2-D
-    program over the hard lines and the bisectors with the earlier soft lines, maximising the
-    distance into it. ``Q``: scratch for those lines; L.use marks the hard lines."""
+    """RVO2's linearProgram3: keep the first n_hard lines (all soft if they leave nothing), minimise
+    the largest violation of the others. ``Q``: scratch for the bisectors; L.use marks the hard lines."""
     cdef int i, j
     cdef double distance = 0.0, pix, piy, dix, diy, den, t, ex, ey, norm
     cdef double at[2]
@@ -382,9 +348,7 @@ cdef void _least_violation(Lines *L, Lines *Q, int n, int n_hard, Target *g, dou
 # ---------------------------------------------------------------- ORCA lines (eq. 10-12)
 
 
-cdef struct Pair:
-    # what an ORCA line toward a neighbour takes from the pair whatever the horizon, and the lines
-    # along the cone's legs (which do not depend on it either), made when first needed
+cdef struct Pair:  # what an ORCA line takes from the pair whatever the horizon, and its legs' lines
     double rpx, rpy, rvx, rvy, dist2, big_r, big_r2, vx, vy, c
     bint apart
     bint made[2]  # leg[0]: the left leg's line, leg[1]: the right's
@@ -402,10 +366,8 @@ cdef inline void _pair(Robot *me, Other *o, Pair *p) noexcept nogil:
 
 
 cdef inline void _pair_line(Pair *p, double inv_tau, double inv_dt, double *line) noexcept nogil:
-    """The ORCA half-plane toward one neighbour: u is the smallest change of the relative velocity
-    that leaves the velocity obstacle of horizon tau (truncated cone, eq. 10), the line passes
-    through v_opt + c u, normal to the obstacle's boundary. An overlapping pair takes the cut-off
-    circle of horizon dt: it separates within one control period. Horizons as 1 / tau, 1 / dt."""
+    """The ORCA half-plane (eq. 10-12) through v_opt + c u, u the smallest change leaving the velocity
+    obstacle of horizon tau (an overlapping pair: dt, to separate within a period); as 1/tau, 1/dt."""
     cdef double rpx = p.rpx, rpy = p.rpy, rvx = p.rvx, rvy = p.rvy
     cdef double inv_h = inv_tau if p.apart else inv_dt
     cdef double wx = rvx - inv_h * rpx, wy = rvy - inv_h * rpy
@@ -447,9 +409,8 @@ cdef inline void _orca_line(Robot *me, Other *o, double tau, double dt, double *
 
 cdef inline double _obstacle_line(Robot *me, double radius, const double *seg, double tau_obst,
                                   double *line) noexcept nogil:
-    """Keep ``radius`` from the edge for tau_obst: with q the edge's point closest to the robot, n
-    the unit vector from q to it and d their distance, v.n >= -(d - r)/tau_obst (an overlapping
-    robot may only move away). Returns that bound's size, (d - r)/tau_obst (0 if overlapping)."""
+    """Keep ``radius`` from the edge for tau_obst: v.n >= -(d - r)/tau_obst, n and d from the edge's
+    nearest point (overlapping: only away). Returns (d - r)/tau_obst (0 if overlapping)."""
     cdef double ax = seg[0], ay = seg[1], ex = seg[2] - seg[0], ey = seg[3] - seg[1]
     cdef double len2 = ex * ex + ey * ey
     cdef double t = ((me.x - ax) * ex + (me.y - ay) * ey) / (len2 if len2 > 0.0 else 1.0)
@@ -468,8 +429,7 @@ cdef inline double _obstacle_line(Robot *me, double radius, const double *seg, d
 
 
 cdef inline bint _needed(double *line, double vmax) noexcept nogil:
-    # a line the whole speed disk satisfies changes nothing: min over the disk of det(d, v - p) is
-    # -vmax - det(d, p)
+    # a line the whole speed disk satisfies changes nothing (min over the disk: -vmax - det(d, p))
     return line[2] * line[1] - line[3] * line[0] > -vmax
 
 
@@ -483,14 +443,10 @@ cdef inline int _push(Lines *L, int n, double *line, double vmax) noexcept nogil
 # ---------------------------------------------------------------- one robot
 
 
-cdef struct Scratch:
-    # one robot's neighbours as prepared, and its lines: reused robot after robot
+cdef struct Scratch:  # one robot's neighbours as prepared, and its lines: reused robot after robot
     int m
     int used  # slots up to the last valid one (the rest are padding, skipped)
-    double *nx
-    double *ny
-    double *nvx
-    double *nvy
+    double *nx, *ny, *nvx, *nvy
     double *nr  # radius as grown (body, noise, growth; NH-ORCA: and the neighbour's error)
     double *ng  # growth: how far it may have strayed since its state
     double *nc  # responsibility
@@ -577,12 +533,9 @@ cdef class Obstacles:
 
 
 cdef void _prepare(Config *s, Heard h, Py_ssize_t i, Scratch *w, double vmax) noexcept nogil:
-    """Neighbour states as of now from states stamped ``age`` ago. Fresh: a broadcast velocity is
-    executed for ``committed`` s; after that the neighbour may have turned to anything up to vmax, so
-    its position is extrapolated by min(age, committed) and its radius grown by noise + h vmax, h the
-    rest of the age; most likely it kept going (``lead`` = h, for the robot lines). Stale (older
-    than ``timeout``): not extrapolated, grown by twice the reach, responsibility 1: we avoid it
-    alone. Invalid where flagged or not finite (a negative age, from clock skew, is 0)."""
+    """Neighbours now from states ``age`` old: extrapolated by min(age, committed), grown by noise +
+    h vmax for the rest h (``lead`` h: it most likely kept going); stale ones not extrapolated, grown
+    twice as much, avoided alone (c = 1). Invalid where flagged or not finite."""
     cdef Py_ssize_t k, j
     cdef double x, y, u, v, r, age, horizon, shift
     cdef bint ok, stale
@@ -612,10 +565,8 @@ cdef void _prepare(Config *s, Heard h, Py_ssize_t i, Scratch *w, double vmax) no
 
 
 cdef int _hard_lines(Config *s, Scratch *w, Robot *me, Obstacles edges, Lines *extra, int n_extra) noexcept nogil:
-    """The lines kept in every fallback: obstacle edges (own radius and margin), ``extra`` (P_AHV),
-    then the safety lines: horizon dt around zero velocities with the true radii, a neighbour grown
-    only up to our surface (grown over us, several such lines would have no common solution).
-    Returns how many."""
+    """The lines every fallback keeps: obstacle edges, ``extra`` (P_AHV), the safety lines (horizon dt,
+    zero velocities, neighbours grown only up to our surface, else no common solution). Returns how many."""
     cdef Lines *L = &w.L
     cdef double line[4]
     cdef double own = me.radius * BUFFER, r_obst = (me.radius + s.margin) * BUFFER
@@ -623,9 +574,7 @@ cdef int _hard_lines(Config *s, Scratch *w, Robot *me, Obstacles edges, Lines *e
     cdef int n = 0, k
     cdef Robot still = me[0]
     cdef Other o
-    # an edge gets a line only within r_obst + vmax tau_obst of the robot; its bounding box is no
-    # farther than the edge, so an edge whose box lies well beyond that (far above any rounding of
-    # the distance) is passed over without computing it
+    # an edge gets a line only within r_obst + vmax tau_obst: one whose box lies well beyond is passed over
     cdef double reach = (r_obst + me.vmax * s.tau_obst) * (1.0 + 1e-6) + 1e-9, bx, by
     cdef const double *box
     for k in range(edges.n):
@@ -661,10 +610,8 @@ cdef int _hard_lines(Config *s, Scratch *w, Robot *me, Obstacles edges, Lines *e
 
 
 cdef int _robot_lines(Config *s, Scratch *w, Robot *me, double horizon, int start, bint again) noexcept nogil:
-    """The ORCA lines toward the neighbours at ``horizon``, after the hard ones: a neighbour heard
-    late where it most likely is, its body not grown (the safety lines keep us off where it may
-    have strayed); ``margin`` on both radii. ``again``: the same robot and neighbours as the last
-    call, at another horizon (what does not depend on it is kept). Returns the new count."""
+    """The ORCA lines at ``horizon`` after the hard ones: late neighbours where they most likely are,
+    not grown (the safety lines cover that). ``again``: same robot, another horizon. Returns the count."""
     cdef Robot grown = me[0]
     cdef double line[4]
     cdef double lead, left, inv_tau = 1.0 / horizon, inv_dt = 1.0 / s.dt
@@ -687,11 +634,8 @@ cdef int _robot_lines(Config *s, Scratch *w, Robot *me, double horizon, int star
 
 cdef bint _orca(Config *s, Scratch *w, Robot *me, Obstacles edges, Lines *extra, int n_extra, bint full_only,
                 double *out) noexcept nogil:
-    """Eq. 14 for one robot: the velocity closest to its preferred one in every half-plane. Where
-    infeasible (returns True: a fallback) the horizon shrinks by SHRINK down to dt (paper 5.3),
-    then the largest violation of the robot lines is minimised keeping the hard ones; without
-    safety, RVO2's: least violation at the full horizon. ``full_only``: stop after the full
-    horizon (``out`` is then meaningful only where it returns False)."""
+    """Eq. 14 for one robot. Infeasible (True: a fallback): the horizon shrinks to dt (paper 5.3), then
+    least violation keeping the hard lines. ``full_only``: stop after the full horizon."""
     cdef Target g = Target(me.tx, me.ty, me.vmax, False)
     cdef int n_hard = _hard_lines(s, w, me, edges, extra, n_extra)
     cdef int n = _robot_lines(s, w, me, s.tau, n_hard, False)
@@ -732,9 +676,8 @@ cdef Angle _angle(Config *s, double theta) noexcept nogil:
 
 
 cdef double _speed_bound(Angle *t, double error, double v_max) noexcept nogil:
-    """V_H^max: the largest holonomic speed at this angle trackable within ``error``. Case A (the
-    error-minimising speed reachable): E / (T |sin(th/2)|); case B (the speed saturated at v_s): the
-    larger root of E(v_s)^2 = E^2; case C (|th|/T beyond omega_cap): T = |th|/omega_cap. Then v_max."""
+    """V_H^max within ``error``: case A E / (T |sin(th/2)|); B (saturated at v_s) the larger root of
+    E(v_s)^2 = E^2; C (|th|/T beyond omega_cap) T = |th|/omega_cap; at most v_max."""
     cdef double v_a = error / t.t_eff_s_half if t.turning else INFINITY
     cdef double q, root, v
     if v_a * t.k > t.v_s:
@@ -747,8 +690,7 @@ cdef double _speed_bound(Angle *t, double error, double v_max) noexcept nogil:
 
 
 cdef int _polygon(Config *s, double c, double si, double error, double mirror, Lines *P) noexcept nogil:
-    """P_AHV's edges as lines (``mirror`` -1: the mirrored polygon, driving backwards): V_H^max at
-    each vertex angle to the heading (cos c, sin si), counter-clockwise. Returns how many."""
+    """P_AHV's edges as lines, counter-clockwise (``mirror`` -1: driving backwards); returns how many."""
     cdef double vx[MAX_VERTICES]
     cdef double vy[MAX_VERTICES]
     cdef double r, lx, ly, ex, ey, norm
@@ -768,9 +710,8 @@ cdef int _polygon(Config *s, double c, double si, double error, double mirror, L
 
 
 cdef double _tracking_error(Config *s, Scratch *w, Robot *me) noexcept nogil:
-    """E: half the free gap to the nearest neighbour, within [error_min, error_max]; each neighbour's
-    radius grows by its own bound from our side (both robots of a pair follow the rule, so the
-    inflated disks stay apart whenever the gap is at least 2 error_min)."""
+    """E: half the free gap to the nearest neighbour, in [error_min, error_max]; each neighbour grows
+    by its own bound from our side (both do, so the inflated disks stay apart)."""
     cdef double error = s.error_max, ex, ey, half
     cdef int k
     for k in range(w.used):
@@ -784,15 +725,13 @@ cdef double _tracking_error(Config *s, Scratch *w, Robot *me) noexcept nogil:
 
 
 cdef inline double _min_error_speed(double v_h, double theta) noexcept nogil:
-    # v*_E = v_H (th/2) cot(th/2), the linear speed that minimises the tracking error (-> v_H at 0)
     cdef double half = 0.5 * fabs(theta)
     return v_h * (half / tan(half)) if half > 1e-8 else v_h
 
 
 cdef void _controls(Config *s, double vx, double vy, double c, double si, bint reverse, double *out) noexcept nogil:
-    """(v, omega) tracking the holonomic velocity: omega = sign(th) min(|th|/T, omega_cap), v the
-    error-minimising speed v*_E = v_H (th/2) cot(th/2) within v_max - |omega| l_w/2; th the angle
-    from the heading (from the reversed heading, and v negated, where ``reverse``)."""
+    """(v, omega) tracking a holonomic velocity: omega = sign(th) min(|th|/T, omega_cap), v = v*_E
+    within v_max - |omega| l_w/2 (``reverse``: from the reversed heading, v negated)."""
     cdef double hx = -c if reverse else c, hy = -si if reverse else si
     cdef double speed = sqrt(vx * vx + vy * vy)
     cdef double theta = atan2(hx * vy - hy * vx, hx * vx + hy * vy) if speed > 0.0 else 0.0
@@ -810,8 +749,8 @@ cdef struct Result:
 
 
 cdef Result _nh_orca(Config *s, Scratch *w, Robot *me, double heading, Obstacles edges) noexcept nogil:
-    """NH-ORCA: radii grown by the tracking error, P_AHV hard; where infeasible at the full horizon
-    the mirrored polygon (driving backwards) at the full horizon, else the forward fallback."""
+    """NH-ORCA: radii grown by the tracking error, P_AHV hard; infeasible: the mirrored polygon at the
+    full horizon, else the forward fallback."""
     cdef Result r
     cdef Lines P = Lines(w.Q.px, w.Q.py, w.Q.dx, w.Q.dy, w.Q.use)  # the polygon, copied into L first
     cdef double c = cos(heading), si = sin(heading)
@@ -838,10 +777,8 @@ cdef Result _nh_orca(Config *s, Scratch *w, Robot *me, double heading, Obstacles
 
 
 cdef class Batch:
-    """A batch's own rows: position, optimisation velocity, preferred velocity (B,2), and per
-    robot its heading, radius and maximum speed (B,; a scalar for all; None: the settings' v_max),
-    and a cap on the speed of its own new velocity (``cap``, NaN or None: none), which unlike
-    ``vmax`` leaves what it assumes of its neighbours' speeds as it is."""
+    """A batch's rows: position, v_opt, preferred velocity (B,2); heading, radius, vmax and ``cap``
+    (B, or scalar; cap, unlike vmax, leaves what it assumes of neighbours' speeds as it is)."""
 
     cdef Py_ssize_t b
     cdef const double[::1] position, velocity, pref, heading, radius, vmax, cap
@@ -901,13 +838,9 @@ cdef void _step_rows(void *job, int hand, Py_ssize_t start, Py_ssize_t stop) noe
 
 
 def step(Settings settings, Batch robots, heard, segments=None, int threads=1):
-    """One control step of a batch: each robot's collision-free velocity from what it heard
-    (agent.core.step.NeighbourStates (B,M), or a Heard of it) and the obstacle edges (S,2,2, or
-    Obstacles), shared by the batch. Returns (v_cf (B,2), command (B,2): v_cf, or a
-    differential-drive robot's wheel speeds (left, right), fallback (B,), reverse (B,), tracking
-    error (B,)). Without the GIL: the central engine's auction runs on another thread meanwhile.
-    ``threads`` > 1 shares the rows among that many threads (agent.core.crew; each robot's row is its
-    own, so the result is the same to the bit)."""
+    """One control step from what each robot heard (NeighbourStates (B,M) or Heard) and the edges
+    (S,2,2): (v_cf, command (v_cf or wheel speeds), fallback, reverse, tracking error). Without the
+    GIL; ``threads`` share the rows (the same bits)."""
     cdef Heard nb = heard if isinstance(heard, Heard) else Heard(heard)
     cdef Obstacles obstacles = segments if isinstance(segments, Obstacles) else Obstacles(segments)
     cdef Py_ssize_t b = robots.b
@@ -929,9 +862,8 @@ def step(Settings settings, Batch robots, heard, segments=None, int threads=1):
 
 
 def blocked(params, to_goal, pref_velocity, velocity):
-    """Paper 5.5.5 for a batch, (B,) bool: each robot near its goal but not on it, its v_cf far from
-    its v_pref, and no headway toward the goal (agent.core.deadlock). ``to_goal`` (B,2): goal minus
-    position (NaN: no goal)."""
+    """Paper 5.5.5, (B,) bool: near its goal ``to_goal`` (NaN: none) but not on it (penalised there it
+    would leave a formed image), v_cf far from v_pref, and no headway (unlike a slowed crowd)."""
     cdef const double[:, ::1] g = np.ascontiguousarray(to_goal, dtype=float).reshape(-1, 2)
     cdef const double[:, ::1] p = np.ascontiguousarray(pref_velocity, dtype=float).reshape(-1, 2)
     cdef const double[:, ::1] v = np.ascontiguousarray(velocity, dtype=float).reshape(-1, 2)
@@ -953,10 +885,8 @@ def blocked(params, to_goal, pref_velocity, velocity):
 
 
 def step_known(Settings settings, Batch robots, index, segments=None, out=None):
-    """RVO2's step (sim.central.rvo): robots that know each other perfectly. Each robot's neighbours
-    are the rows ``index`` (B,M) of the batch itself (-1: none), as they are now, cooperating, of
-    their own radius. Returns (v_cf (B,2), fallback (B,)); v_cf is written into ``out`` (B,2) if
-    given (an engine's spare buffer: not the batch's own velocities, which the neighbours read)."""
+    """RVO2's step: neighbours are the batch's rows ``index`` (B,M) (-1: none), known perfectly.
+    Returns (v_cf, fallback); v_cf into ``out`` if given (not the batch's velocities)."""
     cdef const int64_t[:, ::1] idx = np.ascontiguousarray(index, dtype=np.int64).reshape(robots.b, -1)
     cdef Obstacles obstacles = segments if isinstance(segments, Obstacles) else Obstacles(segments)
     cdef Py_ssize_t b = robots.b, i, j
@@ -995,8 +925,8 @@ def step_known(Settings settings, Batch robots, index, segments=None, out=None):
 
 
 def prepare_neighbours(Settings settings, heard, vmax=None):
-    """What ``step`` assumes about the neighbours it heard (B,M): (position (B,M,2), velocity
-    (B,M,2), radius (B,M) grown, growth (B,M), responsibility (B,M), lead (B,M), valid (B,M))."""
+    """What ``step`` assumes of the neighbours heard: (position, velocity, radius grown, growth,
+    responsibility, lead, valid)."""
     cdef Heard nb = heard if isinstance(heard, Heard) else Heard(heard)
     cdef Py_ssize_t b = max(nb.batch, 0), i
     cdef int m = nb.m, k
@@ -1016,8 +946,7 @@ def prepare_neighbours(Settings settings, heard, vmax=None):
 
 
 def orca_line(robot, neighbour, double tau, double dt):
-    """The ORCA line of a robot (x, y, vx, vy, radius) toward a neighbour (x, y, vx, vy, radius,
-    responsibility): (point x, point y, direction x, direction y)."""
+    """The ORCA line (px, py, dx, dy) of a robot (x, y, vx, vy, r) toward a neighbour (..., r, c)."""
     cdef Robot me = Robot(robot[0], robot[1], robot[2], robot[3], 0.0, 0.0, robot[4], INFINITY)
     cdef Other o = Other(neighbour[0], neighbour[1], neighbour[2], neighbour[3], neighbour[4], neighbour[5])
     cdef double line[4]
@@ -1026,8 +955,7 @@ def orca_line(robot, neighbour, double tau, double dt):
 
 
 def obstacle_line(position, double radius, segment, double tau_obst):
-    """The half-plane keeping a robot ``radius`` from an obstacle edge ((ax, ay), (bx, by)) for
-    tau_obst: (point x, point y, direction x, direction y)."""
+    """The line (px, py, dx, dy) keeping a robot ``radius`` from an edge for tau_obst."""
     cdef Robot me = Robot(position[0], position[1], 0.0, 0.0, 0.0, 0.0, radius, INFINITY)
     cdef const double[::1] seg = np.ascontiguousarray(segment, dtype=float).reshape(4)
     cdef double line[4]
@@ -1036,10 +964,8 @@ def obstacle_line(position, double radius, segment, double tau_obst):
 
 
 def linear_program(lines, double vmax, target, int n_hard=0):
-    """Eq. 14 over lines (L,4) (point, unit direction; permissible on the left) and the speed disk:
-    (velocity (2,), fallback). Where infeasible, RVO2's fallback: the first ``n_hard`` lines stay
-    hard (all soft if they leave nothing of the disk), the largest violation of the others is
-    minimised."""
+    """Eq. 14 over lines (L,4) and the speed disk: (velocity, fallback); infeasible: least violation
+    keeping the first ``n_hard``."""
     cdef const double[:, ::1] ln = np.ascontiguousarray(lines, dtype=float).reshape(-1, 4)
     cdef int n = ln.shape[0], k
     cdef Work work = Work(0, n + 1)
@@ -1055,8 +981,7 @@ def linear_program(lines, double vmax, target, int n_hard=0):
 
 
 def max_trackable_speed(Settings settings, theta, error):
-    """V_H^max(theta): the largest holonomic speed at angle theta to the heading that a
-    differential-drive robot tracks within ``error`` (the boundary of S_AHV), elementwise."""
+    """V_H^max(theta) within ``error`` (the boundary of S_AHV), elementwise."""
     th, er = np.broadcast_arrays(np.asarray(theta, dtype=float), np.asarray(error, dtype=float))
     out = np.empty(th.shape)
     cdef Angle a
@@ -1067,14 +992,12 @@ def max_trackable_speed(Settings settings, theta, error):
 
 
 def min_error_speed(double v_h, double theta):
-    """v*_E = v_H (th/2) cot(th/2): the linear speed that minimises the tracking error of v_H at
-    angle theta to the heading (-> v_H as theta -> 0)."""
+    """v*_E = v_H (th/2) cot(th/2): the speed that minimises the tracking error (v_H at 0)."""
     return _min_error_speed(v_h, theta)
 
 
 def tracking_error(Settings settings, robot, neighbours):
-    """NH-ORCA's tracking error E of a robot (x, y, radius) among neighbours (M,3) (x, y, radius),
-    and the bound of each neighbour's E from its side (M,)."""
+    """NH-ORCA's E of a robot (x, y, r) among neighbours (M,3), and each neighbour's bound (M,)."""
     table = np.ascontiguousarray(neighbours, dtype=float).reshape(-1, 3)
     cdef int m = table.shape[0], k
     cdef Work work = Work(m, 1)
@@ -1087,8 +1010,7 @@ def tracking_error(Settings settings, robot, neighbours):
 
 
 def ahv_polygon(Settings settings, double heading, double error, bint mirrored=False):
-    """P_AHV's edges as lines (K,4) in the world frame, counter-clockwise: V_H^max sampled at
-    vertex_angles to the heading."""
+    """P_AHV's edges as lines (K,4), counter-clockwise."""
     cdef Work work = Work(0, MAX_VERTICES)
     cdef Lines *P = &work.s.L
     cdef int n = _polygon(&settings.c, cos(heading), sin(heading), error, -1.0 if mirrored else 1.0, P), k

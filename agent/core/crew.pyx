@@ -1,12 +1,7 @@
-"""A crew of threads that share a batch's rows: the central engine steps every robot on every core.
+"""A crew of threads that share a batch's rows in chunks claimed under a lock (the same bits on any number).
 
-Rows go out in chunks, claimed under a lock as hands come free, and each row is worked by the same
-code whoever claims it, so the result is the same to the bit on any number of threads. The caller
-works too and waits only for chunks already claimed: on a busy machine, a helper the OS has not
-woken in time claims nothing, and the batch costs what it costs on one thread. The helpers are
-started at the first batch that asks for them and sleep between batches. A thread of the process
-that works beside the crew on a core of its own (the central engine's auction) says so
-(`working_beside`), and a batch is shared among that many hands fewer.
+The caller works too and waits only for chunks already claimed (a helper woken late claims nothing); helpers
+start at the first batch and sleep between; a thread working beside (the auction) takes a hand (`working_beside`).
 """
 
 cdef struct Crew:

@@ -1,19 +1,9 @@
-"""Dynamic image display (paper 7.4.1): a goal set that translates, rotates and scales, eq. 28.
+"""Dynamic image display (paper 7.4.1, docs/scenes.md): each robot computes its moving goal from G^0 (eq. 28),
 
-The coordinator publishes the goal set G^0 once, with its motion; each robot computes its own moving
-goal g_j(t) and the goal's velocity from the clock of its ticks, so nothing is re-sent while the image
-moves. With t the display time since the goal set's step began,
-
-    g_j(t) = p_OG + t v_G + s(t) R(omega_G t) (g_j^0 - p_OG),
-    s(t)   = (1 + K_peG)^t (1 + K_leG t)            (K_peG = K_eG, geometric; K_leG = K_eG, linear)
-
-which is eq. 28 written with the polar form (r_j^0, theta_j^0 + omega_G t) as a rotation matrix. Its
-derivative (the goal's velocity, the feed-forward term of the preferred velocity) is
-
+    g_j(t) = p_OG + t v_G + s(t) R(omega_G t) (g_j^0 - p_OG),   s(t) = (1 + K_eG)^t or 1 + K_eG t,
     v_j(t) = v_G + (s'(t) / s(t) + omega_G J) (g_j(t) - p_OG - t v_G),   J = [[0, -1], [1, 0]],
-    s'(t)  = (1 + K_peG)^t (ln(1 + K_peG) (1 + K_leG t) + K_leG).
 
-Pure: arrays in, arrays out; t is a scalar or one time per row.
+t the display time since the step began (a scalar or one per row). Pure: arrays in, arrays out.
 """
 
 from __future__ import annotations
@@ -78,14 +68,8 @@ class GoalMotion:
         return v_g + growth * d + self.omega_g * np.stack([-d[..., 1], d[..., 0]], axis=-1)
 
     def to_initial_frame(self, points: ArrayLike, t: ArrayLike) -> np.ndarray:
-        """The inverse of eq. 28's map at time t: where points (B,2) sit relative to G^0.
-
-        The map is a similarity (rotation, uniform scale s(t), translation), so for every robot i and
-        goal j |g_j(t) - p_i|^2 = s(t)^2 |g_j^0 - p_i'|^2 with p_i' the robot mapped back: the
-        assignment of least total squared distance (eq. 7) of the robots to G^t is the one of the
-        mapped-back robots to G^0. The auction therefore runs on G^0 unchanged, with mapped-back
-        positions, and assigns as if it ran on the moving goals of the instance's time.
-        """
+        """The inverse of eq. 28's map at time t (points (B,2) relative to G^0): a similarity, so the
+        auction on G^0 with mapped-back robots assigns as on the moving goals."""
         p = np.asarray(points, float)
         t = np.broadcast_to(np.asarray(t, float), p.shape[:-1])
         centre = np.asarray(self.p_og, float)
@@ -96,13 +80,8 @@ class GoalMotion:
 def tracking_velocity(
     position: ArrayLike, goal: ArrayLike, goal_velocity: ArrayLike, v_pref: float, k_a: float, v_max: float
 ) -> np.ndarray:
-    """Preferred velocity toward a moving goal: v_goal + eq. 9's correction, clipped to v_max.
-
-    The feed-forward term v_goal lets a robot that stands on its goal move with it (eq. 9 alone
-    would only follow behind, |lag| = |v_goal| K_a / V_p); the eq. 9 term pulls it onto the goal.
-    Clipping keeps the direction: if the image moves faster than a robot can, the robot falls behind
-    (and the auction may reassign, as the paper observes). Rows without a goal (NaN) get zero.
-    """
+    """Preferred velocity toward a moving goal: v_goal (no lag) + eq. 9's correction, clipped to v_max
+    keeping the direction. Rows without a goal (NaN) get zero."""
     correction = preferred_velocity(position, goal, v_pref, k_a)
     gv = np.asarray(goal_velocity, float)
     has = np.isfinite(np.asarray(goal, float)).all(axis=-1) & np.isfinite(gv).all(axis=-1)

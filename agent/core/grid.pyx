@@ -1,20 +1,9 @@
-"""Who is near whom, on a uniform grid of cells: the one neighbour search of every engine, compiled.
+"""Who is near whom on a uniform grid of cells, compiled: every engine's neighbour search (`nearest`,
+so a robot's neighbours never depend on its batch) and the world's contact detection (`close_pairs`).
 
-- `nearest`: each query point's up to ``m`` nearest points within ``reach``. An agent calls it for its
-  one robot, a host for its K robots, the central engines for all of them (agent.neighbour_table,
-  sim.central.rvo, sim.central.link), so a robot's neighbours depend only on its own position and the points,
-  never on the batch it is computed in. `nearest_other`: each point's nearest other point.
-- `close_pairs`: every pair of discs within reach of each other over a few states, with the closest
-  pair and the overlaps: the simulated world's contact detection (sim.bodies.proximity, sim.bodies.world).
-
-The ranking, the same everywhere: a point j is nearer to a query q than a point l when
-(d2(q, j), key[j], j) < (d2(q, l), key[l], l) lexicographically, with d2 = dx * dx + dy * dy,
-dx = x[j] - qx, dy = y[j] - qy, computed in that order in float64 (setup.py compiles without
-fast-math or fused multiply-adds, so d2 is the same number on every machine and in every batch).
-Equal distances go to the lower key (a robot id), then to the lower index; nothing depends on the
-order in which the grid meets the points.
-
-Positions must be finite.
+The ranking, the same everywhere: j is nearer to q than l when (d2(q, j), key[j], j) < (d2(q, l),
+key[l], l), d2 = dx * dx + dy * dy with dx = x[j] - qx, dy = y[j] - qy in float64 (no fast-math or
+FMA), whatever order the grid meets the points in. Positions must be finite.
 """
 
 # cython: language_level=3
@@ -38,12 +27,10 @@ cdef struct Grid:
     Py_ssize_t nx, ny  # columns, rows: cell c = gx * ny + gy
     double x0, y0, cell  # origin and cell size
     double per  # 1 / cell: cells per metre
-    Py_ssize_t *cx  # (n,) each point's column
-    Py_ssize_t *cy  # (n,) and row
+    Py_ssize_t *cx, *cy  # (n,) each point's column and row
     Py_ssize_t *start  # (nx * ny + 1,) the points of cell c are order[start[c]:start[c + 1]]
     Py_ssize_t *order  # (n,) the points, sorted by cell (by index within a cell)
-    double *sx  # (n,) x of order's points
-    double *sy  # (n,) y of order's points
+    double *sx, *sy  # (n,) order's points' x and y
 
 
 cdef void grid_free(Grid *g) noexcept:
@@ -74,8 +61,8 @@ cdef Box bounds(const double[:, ::1] points) noexcept:
 
 
 cdef int grid_build(Grid *g, const double[:, ::1] points, double width) except -1:
-    """The cells of the points, at least ``width`` wide (wider where there would be too many, so a
-    far outlier cannot ask for billions of cells). At least one point."""
+    """The cells of the (at least one) points, ``width`` wide or wider (a far outlier cannot ask for
+    billions of cells)."""
     cdef Py_ssize_t n = points.shape[0], i, c, cells
     cdef Box box = bounds(points)
     cdef double x0 = box.x0, x1 = box.x1, y0 = box.y0, y1 = box.y1
@@ -123,10 +110,8 @@ cdef int grid_build(Grid *g, const double[:, ::1] points, double width) except -
 
 
 cdef inline Py_ssize_t cell_index(double v, Py_ssize_t low, Py_ssize_t high) noexcept nogil:
-    """floor(v) clamped to [low, high], clamped as a double first (v may be far beyond any int).
-    low and high are integers, so floor(v) < low exactly when v < low, and floor(v) > high exactly
-    when v >= high + 1; in between, floor is the truncation, one less where that rounded a negative
-    v up (no call to floor: the columns of a query take two of these each)."""
+    """floor(v) clamped to [low, high], clamped as a double first (v may be beyond any int); between,
+    the truncation, one less where it rounded a negative v up (cheaper than floor)."""
     if not v >= low:  # NaN too
         return low
     if v >= high + 1.0:
@@ -157,8 +142,7 @@ cdef struct Query:
 
 
 cdef inline void scan(Grid *g, Query *q, const int64_t *key, Py_ssize_t first, Py_ssize_t last) noexcept nogil:
-    """The points of cells first..last - 1 (consecutive in the grid's order) into q's neighbours,
-    sorted by (d2, key, index), kept to m."""
+    """The points of cells first..last - 1 into q's m nearest, by (d2, key, index)."""
     cdef Py_ssize_t a, j, p, m = q.m
     cdef int64_t kj
     cdef double dx, dy, d2
@@ -194,39 +178,20 @@ cdef inline void scan(Grid *g, Query *q, const int64_t *key, Py_ssize_t first, P
 
 
 cdef double cell_width(const double[:, ::1] points, double reach, Py_ssize_t m) noexcept:
-    """nearest's cells: reach / PARTS wide where a disc of ``reach`` holds m points or more on the
-    points' mean density (the m nearest are then much nearer than reach, and narrow cells pass over
-    the rest), else reach wide: the 3 x 3 cells around a query hold its whole disc, read in three
-    runs, not a run per narrow column. The cells change which points are read, never the neighbours."""
+    """nearest's cells: reach / PARTS wide where a disc of ``reach`` holds m points or more at the
+    mean density (narrow cells pass over the rest), else reach wide (the 3 x 3 cells hold the disc)."""
     cdef Box b = bounds(points)
     if points.shape[0] * 3.141592653589793 * reach * reach >= m * (b.x1 - b.x0 + reach) * (b.y1 - b.y0 + reach):
         return reach / PARTS
     return reach
 
 
-def nearest(
-    const double[:, ::1] query,
-    const int64_t[::1] query_key,
-    const double[:, ::1] points,
-    const int64_t[::1] key,
-    double reach,
-    Py_ssize_t m,
-    bint inclusive=True,
-    int threads=1,
-):
-    """(Q, m) int64: for each query point (Q, 2), the indices of its up to ``m`` nearest points
-    (N, 2) within ``reach`` (d2 <= reach^2 if ``inclusive``, else d2 < reach^2, as RVO2 and scipy's
-    kd-tree), nearest first by (d2, key, index), -1 past the last. A point whose key is the query's
-    own (query_key) is never its neighbour: a robot is not its own neighbour.
-
-    Cells are reach / PARTS wide among crowded points (cell_width). Each query looks first at the 3 x 3 cells around its own (in a
-    crowd the m nearest are there, much nearer than reach, and the disc searched shrinks to the
-    m-th distance at once, as RVO2's k-d tree shrinks its range), then at each column near it,
-    outward: a column's cells are consecutive in the grid's order, so it is read as one run of
-    points over the cells the disc covers there (where fewer than m are in reach, the whole disc
-    is read in a few runs). The ranking is a total order, so the points met and their order do not
-    matter, and ``threads`` > 1 (queries shared among them) gives the same result.
-    """
+def nearest(const double[:, ::1] query, const int64_t[::1] query_key, const double[:, ::1] points,
+            const int64_t[::1] key, double reach, Py_ssize_t m, bint inclusive=True, int threads=1):
+    """(Q, m) int64: each query's up to ``m`` nearest points within ``reach`` (``inclusive``: d2 <=
+    reach^2, else <, as RVO2), by (d2, key, index), -1 past the last; never a point of its own key.
+    A query reads its 3 x 3 cells first (the disc shrinks to the m-th distance at once), then the
+    columns outward, each as one run; ``threads`` share the queries (the same result)."""
     cdef Py_ssize_t q = query.shape[0], n = points.shape[0]
     if query_key.shape[0] != q or key.shape[0] != n or (q and query.shape[1] != 2) or (n and points.shape[1] != 2):
         raise ValueError("nearest: query (Q, 2) with query_key (Q,), points (N, 2) with key (N,)")
@@ -293,7 +258,7 @@ cdef void _queries(void *job, int hand, Py_ssize_t start, Py_ssize_t stop) noexc
 
 cdef void _query(Grid *g, Query *nb, double px, double py, int64_t own, const int64_t *key, int64_t *chosen,
                  double slack, Py_ssize_t spread) noexcept nogil:
-    """nearest's search for one query point (see its docstring): its neighbours into ``chosen``."""
+    """nearest's search for one query point: its neighbours into ``chosen``."""
     cdef Py_ssize_t c, s, gx, qx, qy, low, high, missed
     cdef double left, away, half
     qx = cell_index((px - g.x0) * g.per, -1, g.nx)  # outside the grid: the cell just outside
@@ -314,8 +279,7 @@ cdef void _query(Grid *g, Query *nb, double px, double py, int64_t own, const in
         left = g.x0 + gx * g.cell - slack
         away = max(max(left - px, px - (left + g.cell + 2.0 * slack)), 0.0)  # to the column, across
         if away * away > nb.bound:
-            # the disc only shrinks and columns only get farther: when neither column of a
-            # pair reaches it, none beyond does
+            # the disc only shrinks and columns get farther: when neither of a pair reaches it, none beyond does
             missed += 1
             if missed == 2:
                 break
@@ -333,9 +297,7 @@ cdef void _query(Grid *g, Query *nb, double px, double py, int64_t own, const in
 
 
 def nearest_other(points, double reach):
-    """Each point's nearest other point within ``reach`` (N, 2): its index (-1: none) and the
-    distance between their centres (inf: none). A scene's robots that start overlapping, the
-    world's bound on its closest pair."""
+    """Each point's nearest other point within ``reach`` (N, 2): its index (-1: none) and distance."""
     xy = np.ascontiguousarray(points, dtype=float).reshape(-1, 2)
     ids = np.arange(len(xy), dtype=np.int64)
     other = nearest(xy, ids, xy, ids, reach, 1)[:, 0]
@@ -345,29 +307,13 @@ def nearest_other(points, double reach):
     return other, distance
 
 
-def close_pairs(
-    const double[:, :, ::1] traj,
-    const double[::1] radius,
-    double reach,
-    double motion,
-    double bound,
-    Py_ssize_t first_row,
-    int64_t budget,
-):
-    """The discs of radius (N,) over the states traj (rows, N, 2): every pair whose centres are
-    within ``reach`` in traj[0] (and maybe some farther ones) is checked in every row.
-
-    Returns (done, clearance, i, j, pairs, depth): the smallest clearance sqrt(min over rows of
-    d^2) - r_i - r_j over those pairs (+inf if none) and a pair that has it (-1, -1 if none); the
-    pairs (H, 2), i < j, that overlap (d < r_i + r_j) in a row from ``first_row`` on, with their
-    depths r_i + r_j - d (H, rows - first_row). ``motion`` bounds how far any disc is from its place
-    in traj[0]; the rows of a pair are skipped when it can neither overlap nor come closer than
-    ``bound`` (nor than the smallest clearance found so far). done is False, and the rest empty,
-    when more than ``budget`` pairs would be looked at.
-
-    The pairs are met robot by robot (i ascending), then by the 3 x 3 cells (reach wide) around i's.
-    Only +, -, * and sqrt touch the coordinates: d2 = (xa - xb)^2 + (ya - yb)^2, a < b, then sqrt.
-    """
+def close_pairs(const double[:, :, ::1] traj, const double[::1] radius, double reach, double motion, double bound,
+                Py_ssize_t first_row, int64_t budget):
+    """Discs of radius (N,) over states traj (rows, N, 2): the pairs within ``reach`` in traj[0],
+    checked in every row. Returns (done, clearance, i, j, pairs, depth): the smallest clearance and a
+    pair with it (-1, -1: none), the pairs (H, 2) that overlap from ``first_row`` on and their depths.
+    A pair's rows are skipped when, its discs within ``motion`` of traj[0], it can neither overlap nor
+    come closer than ``bound``; done is False (the rest empty) past ``budget`` pairs."""
     cdef Py_ssize_t rows = traj.shape[0], n = traj.shape[1] if traj.shape[0] else 0
     if radius.shape[0] != n or (rows and traj.shape[2] != 2) or not 0 <= first_row <= rows:
         raise ValueError("close_pairs: traj (rows, N, 2), radius (N,), 0 <= first_row <= rows")
@@ -409,7 +355,6 @@ def close_pairs(
                         if d2[0] > reach2:
                             continue
                         s = radius[i] + radius[j]
-                        # the rows can neither overlap nor beat the smallest clearance known: skip them
                         gap = sqrt(d2[0]) - s - slack
                         if gap > 0.0 and gap > min(best, bound):
                             continue
@@ -444,10 +389,8 @@ def close_pairs(
 
 
 def neighbour_rows(const int64_t[:, ::1] idx, const double[:, ::1] table):
-    """The chosen points' states as padded neighbour arrays: table (N, 7) holds per point x, y, vx,
-    vy, radius, age and cooperative (0 or 1); idx (Q, m) is `nearest`'s. Returns position and
-    velocity (Q, m, 2), radius, age, valid and cooperative (Q, m); a slot past the last neighbour
-    holds zeros, radius 1, not valid, cooperative."""
+    """`nearest`'s idx (Q, m) as padded neighbour arrays from table (N, 7: x, y, vx, vy, radius, age,
+    cooperative): position, velocity, radius, age, valid, cooperative (padding: radius 1, invalid)."""
     cdef Py_ssize_t q = idx.shape[0], m = idx.shape[1], i, k, j, n = table.shape[0]
     if table.shape[1] != 7:
         raise ValueError("neighbour_rows: table (N, 7): x, y, vx, vy, radius, age, cooperative")

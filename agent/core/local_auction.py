@@ -1,12 +1,8 @@
 """The goal auction over a limited communication range (paper 5.1.1): pure logic, no zenoh and no clock.
 
-The decentralised auction the paper points to (Bertsekas and Castanon 1991; Zavlanos, Spesivtsev and Pappas 2008):
-a robot hears only the robots within ``reach`` of it. Each bids (Jacobi) against a board of its own, merged every
-round with the boards it hears (max-consensus), and ends a phase once the newest change it knows of is older than
-its eccentricity in rounds; why that ends the auction everywhere in its part of the graph, one-to-one even when
-the graph splits, is in docs/lockstep_auction.md ("Over a limited communication range"). One host runs any subset
-of the robots (``own``); the central engine runs them all through the same rounds
-(sim.central.engine.settle_in_process), so it and the agents agree bit for bit.
+Each robot bids against a board of its own, merged every round with those it hears within ``reach``, and ends a
+phase once the newest change it knows of is older than its eccentricity in rounds (docs/lockstep_auction.md,
+"Over a limited communication range"). Hosts and the central engine run the same rounds, bit for bit.
 """
 
 from __future__ import annotations
@@ -42,9 +38,8 @@ class Words(NamedTuple):
 
 
 class LocalAuction(Auction):
-    """The own robots of one host in the range-limited auction of one goal set (epoch). Its
-    attributes are each own robot's board and block state, kept flat: the compiled rounds
-    (agent.core.bidding.bid_on_own_boards) read them by name."""
+    """A host's own robots in the range-limited auction of one goal set (epoch): each one's board and block
+    state, flat (the compiled rounds read them by name)."""
 
     def __init__(
         self,
@@ -86,8 +81,7 @@ class LocalAuction(Auction):
         return bool(self.said_end.all())
 
     def begin_block(self, positions: Mapping[int, np.ndarray] | np.ndarray) -> None:
-        """Freeze the own robots' positions (a mapping robot -> (x, y), or rows by robot id), bring
-        the declared penalties into force and start at the first phase, warm from the boards."""
+        """Freeze the own robots' positions, bring declared penalties into force and start, warm."""
         xy = frozen_positions(positions, self.own)
         self.block += 1
         self.penalty += self.pending
@@ -98,8 +92,7 @@ class LocalAuction(Auction):
         self.taken_cost = 2.0 * self.cost.max(axis=1, initial=0.0) + 1.0
         # the graph is judged on positions as the wire carries them, the same in every engine
         self.xy = xy.astype(np.float32).astype(float)
-        # A cold start scales epsilon down; a warm block starts at the final phase: each phase's end
-        # costs its eccentricity in rounds, and from one tick to the next few robots bid at all.
+        # a warm block starts at the final phase: a phase's end costs its eccentricity, and few robots bid
         k = len(self.own)
         self.phase = np.full(k, 0 if self.block == 0 else self.phases - 1, np.int64)
         self.last = np.zeros(k, np.int64)  # the latest round of change it knows of
@@ -113,8 +106,7 @@ class LocalAuction(Auction):
 
     # --- a round -------------------------------------------------------------------------------------
     def say(self) -> Words:
-        """Round r: every own robot still in the block bids if it must, then says its word (a robot
-        that ended the block says so once, and then nothing)."""
+        """Round r: every own robot still in the block bids if it must, then says its word (the end once)."""
         self.round += 1
         r = self.round
         active = np.flatnonzero(~self.ended)
@@ -130,10 +122,8 @@ class LocalAuction(Auction):
         return Words(*(column[speaking] for column in (*said, *board)))  # Words' fields, in order
 
     def hear(self, words: Words) -> None:
-        """Round r: what the robots said this round (own robots' words too; the reach decides who
-        hears whom), merged into each own robot's board; then each checks whether its phase ended.
-        Only boards and known sets that changed since their robot's last word are merged: the
-        others were merged then (the graph holds still through a block)."""
+        """Round r: the words said (own robots' too) merged into each own robot's board within reach (only
+        what changed since the speaker's last word); then each checks whether its phase ended."""
         r = self.round
         active = np.flatnonzero(~self.ended)
         if len(active) == 0:
@@ -150,10 +140,8 @@ class LocalAuction(Auction):
             self.agreed = dict(zip(self.own, self.goal.tolist(), strict=True))
 
     def _check_end(self, rows: np.ndarray, r: int) -> None:
-        """A robot's phase is over everywhere in its part once the newest change it knows of is
-        older than its eccentricity (its known set stopped growing: every robot of its part is
-        within ``grew`` hops). The final phase's end ends the block; another's starts the next
-        phase, a change from which that one's end is judged."""
+        """A phase is over in a robot's part once its newest change is older than its eccentricity (its
+        known set stopped growing: ``grew`` hops). The final phase's end ends the block."""
         rows = rows[~self.ended[rows] & (self.grew[rows] < r)]
         over = rows[self.last[rows] < r - self.grew[rows]]
         final = self.phase[over] == self.phases - 1
@@ -163,12 +151,9 @@ class LocalAuction(Auction):
         self.last[going_on] = r
 
     def _bid(self, rows: np.ndarray) -> np.ndarray:
-        """Own robots (rows) not content at their phase's slack bid (bidding.bid_on_own_boards);
-        returns the rows that bid."""
+        """Own robots (rows) not content at their phase's slack bid; returns the rows that bid."""
         eps, slack = np.asarray(self.schedule)[self.phase[rows]], self.slacks[self.phase[rows]]
-        # A goal whose holder is not among the robots heard of (out of reach) costs more than any
-        # other: a part trades its own goals and takes another's only when it has too few, so a
-        # graph that splits stays one-to-one (the holder could not learn that it lost its goal).
+        # a goal held by a robot out of reach costs more than any other, so a split graph stays one-to-one
         owner = self.owner[rows]
         col = np.minimum(np.searchsorted(self.robots, np.maximum(owner, 0)), len(self.robots) - 1)
         known = np.take_along_axis(self.known[rows], col, axis=1)
@@ -181,8 +166,7 @@ class LocalAuction(Auction):
 def new_auction(
     epoch: int, goals: np.ndarray, robots: list[int], own: list[int], params: RobotParams, reach: float
 ) -> Participant | LocalAuction:
-    """The auction of a goal set for the ``own`` robots: over a limited range (``reach`` finite),
-    each robot's own board; else the one board every robot shares (agent.core.bidder)."""
+    """The auction of a goal set for the ``own`` robots: a board each over a finite ``reach``, else one."""
     if np.isfinite(reach):
         return LocalAuction(epoch, goals, robots, own, params.assign_eps, params.assign_hysteresis, reach)
     return Participant(epoch, goals, robots, own, params.assign_eps, params.assign_hysteresis)

@@ -22,9 +22,7 @@ BUS_ROUNDS_PER_TICK = 1
 
 @dataclass(frozen=True)
 class RobotParams:
-    """What one robot knows about itself: its body and its controller settings.
-
-    A record: one attribute per setting (the paper's symbols in the comments), read as a table."""
+    """What one robot knows about itself: its body and controller settings (the paper's symbols in comments)."""
 
     kinematics: str = DIFFDRIVE
     radius: float = epuck.RADIUS  # r_A
@@ -51,8 +49,7 @@ class RobotParams:
     assign_hysteresis: float = 5e-3  # Delta C: keep the goal unless another is better by this much
     assign_period: float = 0.1  # s between auction instances (paper 5.1: every control iteration)
     rounds_per_tick: int = 0  # lock-step: most message rounds a tick gives the auction (0: until agreed)
-    # lock-step, rounds per tick bounded: a block not agreed this long after it began is dropped (its
-    # positions are stale: adopted late, its agreement would move robots off their goals); 0: never
+    # lock-step, rounds per tick bounded: a block not agreed this long after it began is dropped (stale); 0: never
     block_max_age: float = 10.0
     deadlock_cost: float = 0.1  # C_d, added for good to the cost of the goal a robot is stuck before
     deadlock_iterations: int = 50  # N_d, iterations blocked before a deadlock is declared (5 s: outlasts a crowd)
@@ -84,8 +81,7 @@ class RobotParams:
 
     @property
     def cell_size(self) -> float:
-        """Spatial cell of state broadcasts: half of the neighbour distance plus what two robots close
-        in three ticks plus the tracking noise (see agent.runtime.CellSubscriptions)."""
+        """Spatial cell of state broadcasts (agent.runtime.CellSubscriptions): half the reach of three ticks."""
         return (self.neighbour_dist + 3 * self.v_max * self.dt + 0.02) / 2
 
     def to_dict(self) -> dict[str, Any]:
@@ -102,13 +98,11 @@ class RobotParams:
         return replace(self, **changes)
 
     def stale_block(self, age: float) -> bool:
-        """Whether a block begun ``age`` seconds of display time ago and not agreed is dropped
-        (block_max_age), alike in every engine: ticks' stamps, not a wall clock."""
+        """Whether a block begun ``age`` s of display time ago and not agreed is dropped (block_max_age)."""
         return self.block_max_age > 0 and age > self.block_max_age - 1e-9
 
     def grown(self, by: float) -> RobotParams:
-        """A copy with the radius larger by ``by`` >= 0. Without with_'s checks, which a larger radius
-        passes: a late real-time agent grows its radius every tick (agent.lateness)."""
+        """A copy with the radius larger by ``by`` >= 0, unchecked: a late agent grows it every tick."""
         out = object.__new__(RobotParams)
         out.__dict__.update(self.__dict__, radius=self.radius + by)
         return out

@@ -1,11 +1,7 @@
-"""The robot policy: what a batch of robots decides in one tick from what each of them knows.
+"""The robot policy: what a batch of robots decides in one tick, through ``intend`` then ``act`` in every engine.
 
-Every engine (an agent process, the central engine, the loss study) decides through ``intend`` then ``act`` only,
-and per robot the result depends only on its row, so a robot decides the same whatever batch it is stepped in.
-The stages are kept apart so the central engine can redo the second for the robots whose goal an auction changed
-while the first ran. ``intend``: where each robot heads and its preferred velocity where eq. 9 does not apply
-(a keyframe's eq. 27, agent.core.animation; a moving goal's velocity fed forward, eq. 28, agent.core.goal_motion).
-``act``: ORCA or NH-ORCA with symmetry breaking (agent.core.step), then deadlock detection (paper 5.5.5).
+Per robot the result depends only on its row. The stages are apart so the central engine can redo ``act`` for
+the robots whose goal an auction changed while ``intend`` ran.
 """
 
 from __future__ import annotations
@@ -17,7 +13,6 @@ import numpy as np
 
 from .animation import frame_hold, iterations_left
 from .control import blocked
-from .deadlock import count_blocked
 from .goal_motion import GoalMotion, tracking_velocity
 from .params import RobotParams
 from .step import NeighbourStates, OwnStates, Rows, StepResult, Surroundings, control_step
@@ -88,9 +83,9 @@ def intend(
     timing: Mapping[int, GoalTiming],
     memory: Memory,
 ) -> Intent:
-    """Stage one for a batch at display time ``stamp``. ``goal0`` (B,2): each robot's goal as its goal
-    set was published (NaN: none); ``key`` (B,2): (epoch, goal index) of that goal; ``timing``: the
-    goal sets' timing by epoch (a robot whose goal set is not in it drives to goal0 by eq. 9)."""
+    """Stage one at display time ``stamp``: where each robot heads, and its preferred velocity where eq. 9
+    does not apply (eq. 27, eq. 28). ``goal0`` (B,2): goals as published (NaN: none); ``key`` (B,2):
+    their (epoch, goal index); ``timing``: by epoch (a goal set not in it: eq. 9 toward goal0)."""
     b = len(position)
     key = np.asarray(key, np.int64).reshape(b, 2)
     goal = np.array(goal0, float).reshape(b, 2)
@@ -136,14 +131,13 @@ def act(
     neighbours: NeighbourStates,
     around: Surroundings,
 ) -> Decision:
-    """Stage two: collision-free velocity and command, and deadlock detection."""
+    """Stage two: collision-free velocity and command (agent.core.step), and deadlock detection (5.5.5)."""
     latency, reach, cap = memory.latency, around.reach, None
     if np.isfinite(reach):
         ages = np.where(neighbours.valid, neighbours.age, np.inf)
         freshest = ages.min(axis=1, initial=np.inf)
         latency = np.where(np.isfinite(freshest), np.maximum(freshest, 0.0), memory.latency)
-        # the limit holds for the preferred velocity and for the one ORCA chooses: avoiding, it may
-        # choose one faster than the preferred, and two robots so fast could meet before either heard the other
+        # for the preferred velocity and ORCA's (avoiding, it may choose one faster than the preferred)
         cap = heard_speed_limit(params, reach, latency)
     own = OwnStates(robot_ids, position, heading, memory.velocity, intent.goal, intent.preferred, cap)
     res = control_step(params, own, neighbours, around)
@@ -157,9 +151,15 @@ def act(
 
 
 def heard_speed_limit(params: RobotParams, reach: float, latency: np.ndarray) -> np.ndarray:
-    """The fastest a robot may drive when it hears others only within ``reach`` and ``latency``
-    seconds after they spoke: two such robots meeting head-on, each at this speed, still have the
-    gap between their bodies left after one hears of the other and a tick passes (overload degrades
-    to slow, never to contact). No gap at all (a range shorter than two bodies): standing still."""
+    """The fastest a robot may drive hearing others only within ``reach``, ``latency`` s late: two meeting
+    head-on keep a gap after one hears the other and a tick passes (overload degrades to slow)."""
     gap = max(reach - 2.0 * params.radius - params.noise_bound, 0.0)
     return gap / (2.0 * (np.asarray(latency, float) + 2.0 * params.dt))
+
+
+def count_blocked(counts: np.ndarray, now_blocked: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray]:
+    """Paper 5.5.5: consecutive blocked iterations (control.blocked) per robot; returns (new counts, deadlocked
+    now). A declared deadlock restarts the count, so a robot still stuck is penalised again N_d later."""
+    counts = np.where(now_blocked, counts + 1, 0)
+    deadlocked = counts >= iterations
+    return np.where(deadlocked, 0, counts), deadlocked

@@ -1,7 +1,5 @@
-"""Lock-step: one block of epsilon-scaling phases (paper 5.1.1) bid in numbered message rounds, as
-docs/lockstep_auction.md says. Pure: the caller carries each round's records to the other hosts and
-back (agent.assignment over the bus; sim.central.engine with no other host) and decides how many
-rounds a tick gets (``RobotParams.rounds_per_tick``).
+"""Lock-step: one block of epsilon-scaling phases (paper 5.1.1) bid in numbered message rounds
+(docs/lockstep_auction.md). Pure: the caller carries the records and decides the rounds a tick gets.
 """
 
 from __future__ import annotations
@@ -32,9 +30,7 @@ class BlockRounds:
         self.open = False  # a round said and not yet heard (the tick's last, heard at the next tick)
 
     def say(self) -> np.ndarray:
-        """Bid the next round; returns our records of it. After the first round only the claims that
-        changed and the releases: everyone merged the rest already, and merging a record twice
-        changes no board (max-consensus)."""
+        """Bid the next round; returns our records (after the first, only changed claims and releases)."""
         part = self.part
         self.round += 1
         self.open = True
@@ -56,8 +52,7 @@ class BlockRounds:
         return news
 
     def _newest(self, robots: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Each robot's newest claim this block (flags, goal, price): ours as last said, the others' as
-        the participant heard them (Participant.absorb: the newest by round, releases are no claim)."""
+        """Each robot's newest claim this block (flags, goal, price): ours as said, others' as heard."""
         part = self.part
         row = np.searchsorted(part.robots, robots)
         flags = np.where(part.heard_instance[row] > self.final - part.phases, part.heard_flags[row], 0)  # this block's
@@ -69,13 +64,8 @@ class BlockRounds:
         return bool(((self._newest(np.concatenate([self.part.own_ids, theirs]))[0] & SETTLED) != 0).all())
 
     def quiet(self, robots: np.ndarray) -> np.ndarray:
-        """Per robot of ``robots``: whether it has nothing to say in the next round, the same on
-        every host (they merged the same records onto the same board). Its newest claim said it is
-        content at the final phase's slack (SETTLED), the board still holds that claim (goal, owner,
-        price, not released) and the phase has not changed since the last round (costs and slack are
-        those it judged by, as penalties come into force only with a new phase). Prices only rise,
-        so no other goal became better for it: it bids nothing and its claim stays as said; its
-        releases are on every board already. Nobody waits for such a robot's word."""
+        """Per robot: nothing to say next round, alike on every host: its newest claim was SETTLED, the
+        board still holds it and the phase (so costs) held; prices only rise, so it bids nothing."""
         robots = np.asarray(robots, np.int64)
         if not self._steady or self._last is None:
             return np.zeros(len(robots), bool)
@@ -85,8 +75,7 @@ class BlockRounds:
         return ((flags & SETTLED) != 0) & held
 
     def robots_of(self, sender: int, records: np.ndarray) -> np.ndarray:
-        """The robots a host speaks for: those of its first round's claims, of robots of this goal set
-        only (a damaged copy's robot id must not index a robot's flags in hear)."""
+        """The robots a host speaks for: its first round's claims, of this goal set's robots only."""
         if sender not in self._robots_of:
             recs = self.part.members_only(records)
             self._robots_of[sender] = recs[(recs["flags"] & RELEASED) == 0]["robot"]  # claims, not releases
@@ -104,8 +93,7 @@ class BlockRounds:
             joined = b"".join([np.asarray(records, RECORD).tobytes() for records in heard.values()])
             records = part.members_only(np.frombuffer(joined, RECORD))
             part.absorb(part.instance, self.round, 0, records)
-        # settled: every robot's claim says so this round, ours as just said, the others by their
-        # newest (a host that was quiet() said nothing: its robots are settled)
+        # settled: every robot's newest claim says so (a quiet() host said nothing: settled)
         phase = part.instance
         agreed = part.close_round(part.board.digest() == self._before, lambda: self._settled(heard))
         self._steady = part.instance == phase

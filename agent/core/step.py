@@ -1,9 +1,6 @@
 """One control step for a batch of robots: preferred velocity, collision avoidance, wheel commands.
 
-Pure: arrays in, arrays out. The same function serves one robot in its own process, K robots in an
-agent host, and the central engine that steps every robot with perfect information. The arithmetic
-is agent.core.control's, compiled; per robot it reads its own row only, so a host of K robots
-drives exactly as K separate processes would.
+Pure, and per robot it reads its own row only (agent.core.control), so K robots in a host drive as K processes.
 """
 
 from __future__ import annotations
@@ -18,8 +15,7 @@ from .params import RobotParams
 
 
 class Rows:
-    """A dataclass of per-robot arrays (rows = robots; a field may itself be Rows), so that a smaller
-    batch can be cut out and its results put back, field by field."""
+    """A dataclass of per-robot arrays (a field may itself be Rows): a smaller batch cut out, put back."""
 
     def rows(self, index: np.ndarray | slice) -> Self:
         """The robots at rows ``index`` (a smaller batch)."""
@@ -67,7 +63,7 @@ class StepResult(Rows):
 
 def polygon_segments(vertices) -> np.ndarray:
     """Edges (S,2,2) of a closed polygon: counter-clockwise for an obstacle, clockwise for an enclosing
-    wall (RVO2's convention; the free side is then on the right of every edge)."""
+    wall (RVO2's convention: the free side on the right)."""
     vert = np.asarray(vertices, dtype=float)
     return np.stack([vert, np.roll(vert, -1, axis=0)], axis=1)
 
@@ -91,8 +87,7 @@ _SETTINGS: dict[tuple, Settings] = {}
 
 
 def settings_of(params: RobotParams) -> Settings:
-    """The compiled core's settings of ``params`` (all but the radius, which a late real-time agent
-    grows every tick: made once per shape)."""
+    """The compiled core's settings of ``params``, made once per all but the radius (a late agent grows it)."""
     key = tuple(value for name, value in vars(params).items() if name != "radius")
     found = _SETTINGS.get(key)
     if found is None:
@@ -102,11 +97,9 @@ def settings_of(params: RobotParams) -> Settings:
 
 @dataclass(frozen=True)
 class Surroundings:
-    """What a batch's robots decide within beside their own state and what they heard: the static
-    obstacles' segments, the seed and tick of the symmetry-breaking perturbation, whether an auction
-    can act on a deadlock (``watch_deadlocks``; otherwise the blocked counts wait as they are), and
-    the range they hear states within (m: they drive no faster than heard_speed_limit), and how
-    many threads share the batch's rows (the central engine: one a core; the same result to the bit)."""
+    """What a batch decides within besides its own and heard states: static segments, the perturbation's
+    seed and tick, whether an auction acts on deadlocks (else the counts wait), the hearing range (speeds
+    within heard_speed_limit), and the threads sharing the rows (the same bits)."""
 
     segments: np.ndarray | None = None
     seed: int = 0
@@ -125,8 +118,7 @@ class OwnStates:
     heading: np.ndarray  # (B,)
     velocity: np.ndarray  # (B,2) the last tick's v_cf: ORCA's v_opt
     goal: np.ndarray  # (B,2) NaN: none
-    # (B,2): finite rows replace eq. 9 (eq. 27's hold, agent.core.animation; a moving goal's feed-forward,
-    # agent.core.goal_motion); NaN rows, or None, use eq. 9
+    # (B,2): finite rows replace eq. 9 (eq. 27's hold; a moving goal's feed-forward, eq. 28)
     preferred: np.ndarray | None = None
     speed_cap: np.ndarray | None = None  # (B,) m/s its preferred and new velocities keep within (None: v_max)
 

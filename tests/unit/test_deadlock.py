@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from agent.core.control import blocked
-from agent.core.deadlock import count_blocked
 from agent.core.params import RobotParams
+from agent.core.policy import count_blocked
 
 P = RobotParams()
 
