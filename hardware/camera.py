@@ -48,12 +48,10 @@ class CameraConfig:
         """Validate a parsed `[poses]` table; `where` names it in errors (e.g. "robots.toml [poses]")."""
         check_table(table, cls, "camera", where)
         values: dict[str, Any] = {}
-        for key, check in (("source", _source), ("dictionary", _dictionary_name)):
+        checks = {"source": _source, "dictionary": _dictionary_name, "marker_size": _positive, "rate": _positive}
+        for key, check in checks.items():
             if key in table:
-                values[key] = check(table[key], where)
-        for key in ("marker_size", "rate"):
-            if key in table:
-                values[key] = _positive(table[key], f"{where}: {key}")
+                values[key] = check(table[key], f"{where}: {key}")
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, values.get("dictionary", cls.dictionary)))
         size = len(dictionary.bytesList)
         if "reference" in table:
@@ -65,17 +63,17 @@ class CameraConfig:
         return cls(**values)
 
 
-def _source(value: Any, where: str) -> int | str:
+def _source(value: Any, what: str) -> int | str:
     if isinstance(value, int) and not isinstance(value, bool) and value >= 0:
         return value
     if isinstance(value, str) and value.strip():
         return value
-    raise HardwareConfigError(f"{where}: source must be a device number, a video file or a stream URL, not {value!r}")
+    raise HardwareConfigError(f"{what} must be a device number, a video file or a stream URL, not {value!r}")
 
 
-def _dictionary_name(value: Any, where: str) -> str:
+def _dictionary_name(value: Any, what: str) -> str:
     if not (isinstance(value, str) and value.startswith("DICT_") and hasattr(cv2.aruco, value)):
-        raise HardwareConfigError(f"{where}: dictionary {value!r} is not a cv2.aruco dictionary (e.g. 'DICT_4X4_50')")
+        raise HardwareConfigError(f"{what} {value!r} is not a cv2.aruco dictionary (e.g. 'DICT_4X4_50')")
     return value
 
 

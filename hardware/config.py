@@ -124,8 +124,17 @@ def parse_table(table: Any, kinds: Mapping[str, str], where: str) -> Any:
     return load_object(kinds[kind], kind, where).from_table(table, where)
 
 
-def parse_hardware(data: Mapping[str, Any], path: Path) -> HardwareConfig:
-    """A parsed hardware document -> HardwareConfig; `path` only names the file in messages."""
+def load_hardware(path: str | Path) -> HardwareConfig:
+    """Read and validate a hardware TOML file; every problem is a one-line HardwareConfigError."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise HardwareConfigError(f"{path}: no such hardware file") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise HardwareConfigError(f"{path}: cannot read: {err}") from None
+    except tomllib.TOMLDecodeError as err:
+        raise HardwareConfigError(f"{path}: not valid TOML: {err}") from None
     unknown = sorted(set(data) - set(TABLES))
     if unknown:
         raise HardwareConfigError(f"{path}: unknown table [{unknown[0]}] (known: {', '.join(TABLES)})")
@@ -135,19 +144,3 @@ def parse_hardware(data: Mapping[str, Any], path: Path) -> HardwareConfig:
     poses = parse_table(data["poses"], POSE_KINDS, f"{path} [poses]") if "poses" in data else None
     poses_kind = data["poses"]["kind"] if poses is not None else None
     return HardwareConfig(path, backend, poses, data["backend"]["kind"], poses_kind)
-
-
-def load_hardware(path: str | Path) -> HardwareConfig:
-    """Read and validate a hardware TOML file; every problem is a one-line HardwareConfigError."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise HardwareConfigError(f"{path}: no such hardware file") from None
-    except (OSError, UnicodeDecodeError) as err:
-        raise HardwareConfigError(f"{path}: cannot read: {err}") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
-        raise HardwareConfigError(f"{path}: not valid TOML: {err}") from None
-    return parse_hardware(data, path)

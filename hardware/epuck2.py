@@ -27,7 +27,7 @@ COMMAND_ID = 0x80
 COMMAND_FORMAT = "<BBBhhB12BB"  # id, request, settings, left, right, LEDs, 4 x RGB, speaker
 IMAGE_ID, SENSORS_ID, EMPTY_ID = 0x01, 0x02, 0x03
 ANSWER_SIZES = {IMAGE_ID: 160 * 120 * 2, SENSORS_ID: 104, EMPTY_ID: 0}
-REQUEST_IMAGE, REQUEST_SENSORS = 0x01, 0x02
+REQUEST_SENSORS = 0x02  # the request byte's bit for the sensors answer
 STEPS_OFFSET = 79  # in the sensors answer
 RGB_LEDS = 4  # LED2, LED4, LED6, LED8
 RGB_LEVEL_MAX = 100
@@ -56,10 +56,6 @@ class Command:
     request: int = 0
     settings: int = 0
     speaker: int = 0
-
-    @property
-    def moving(self) -> bool:
-        return self.left != 0 or self.right != 0
 
     def stopped(self) -> Command:
         """The same LEDs, wheels at rest."""
@@ -98,8 +94,7 @@ def make_command(left: float, right: float, colour_rgb255: Sequence[float], limi
 
 def motor_steps(sensors: bytes) -> tuple[int, int]:
     """Left and right motor step counters from a sensors answer (bytes 79-82, int16 little-endian)."""
-    left, right = struct.unpack_from("<hh", sensors, STEPS_OFFSET)
-    return left, right
+    return struct.unpack_from("<hh", sensors, STEPS_OFFSET)
 
 
 class AnswerReader:
@@ -315,7 +310,7 @@ class RobotLink:
 
     def _watchdog_due(self) -> float | None:
         """Seconds until a moving robot's commands are stale (None: nothing to watch)."""
-        if self.last_command_time is None or not self.wanted.moving:
+        if self.last_command_time is None or self.wanted.left == self.wanted.right == 0:
             return None
         return self.last_command_time + self.config.command_timeout - time.monotonic()
 

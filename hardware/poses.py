@@ -4,13 +4,11 @@ and which poses it takes, by their stamps (StampGate)."""
 from collections import Counter
 from typing import NamedTuple
 
-# s a pose's stamp may lie ahead of the clock it is judged by (this machine's, or the camera's frame
-# clock): clocks of one lab kept by NTP differ by milliseconds; a stamp further ahead is a bad clock or
-# a forged message, and taken it would make every true pose after it look old.
+# s a stamp may lie ahead of the clock judging it (NTP keeps a lab's clocks within ms): further ahead is a
+# bad clock or a forged message, and taken it would make every true pose after it look old
 FUTURE_MARGIN = 1.0
-# s with no pose taken for a robot after which a pose not newer than the last taken is taken anyway:
-# its source restarted (stamps from a new start, a clock set back). A replay beside a live source is
-# never taken, since the live source's poses keep being taken.
+# s with none taken for a robot after which an older stamp is taken anyway (its source restarted); a replay
+# beside a live source is never taken, as the live source's poses keep being taken
 RESTART_AFTER = 0.5
 STAMP_DROPS = ("stale", "future")  # the reasons a pose is dropped for its stamp
 

@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 
 from hardware.config import Started
-from sim.args import refuse
+from sim.args import OneLineParser, refuse
 
 if TYPE_CHECKING:
     from .mocap import PoseFunction
@@ -262,36 +262,6 @@ class _Reader:
             self.conn.close()
 
 
-class _Glitches:
-    """Frames to spoil as a misread marker would, and when each spoiled frame was rendered."""
-
-    def __init__(self) -> None:
-        self.rendered: list[float] = []  # time.monotonic() at which each spoiled frame was rendered
-        self._due: list[tuple[float, str, tuple]] = []  # (not before, "swap" or "shift", arguments)
-        self._lock = threading.Lock()
-
-    def add(self, at: float | None, kind: str, args: tuple) -> None:
-        with self._lock:
-            self._due.append((at or 0.0, kind, args))
-
-    def spoil(self, robots: dict[int, Pose], now: float) -> dict[int, Pose]:
-        with self._lock:
-            due = [g for g in self._due if g[0] <= now]
-            self._due = [g for g in self._due if g[0] > now]
-        spoiled = dict(robots)
-        for _, kind, args in due:
-            if kind == "swap":
-                a, b = args
-                spoiled[a], spoiled[b] = robots[b], robots[a]
-            else:
-                robot, dx, dy = args
-                x, y, theta = robots[robot]
-                spoiled[robot] = (x + dx, y + dy, theta)
-        if due:
-            self.rendered.append(now)
-        return spoiled
-
-
 class CameraStream(Started):
     """The overhead camera as a network camera: frames of ``poses(t)`` (row i: robot i, t in s since start)
     at STREAM_RATE Hz, served as MJPEG over HTTP on 127.0.0.1 at `url`. `swap` and `shift` spoil a frame."""
@@ -299,10 +269,10 @@ class CameraStream(Started):
     def __init__(self, poses: PoseFunction, camera: OverheadCamera) -> None:
         self.poses = poses
         self.camera = camera
-        self.frames = 0  # rendered
         self.error: Exception | None = None  # what stopped the rendering thread, if anything did
         self._rng = np.random.default_rng(0)  # the pixel noise's
-        self._glitches = _Glitches()
+        self.glitched: list[float] = []  # time.monotonic() at which each spoiled frame was rendered
+        self._glitches: list[tuple[float, str, tuple]] = []  # (not before, "swap" or "shift", arguments)
         self._clients: list[_Reader] = []
         self._lock = threading.Lock()
         self._halt = threading.Event()
@@ -331,11 +301,6 @@ class CameraStream(Started):
         for client in clients:
             client.thread.join()
 
-    @property
-    def glitched(self) -> list[float]:
-        """time.monotonic() at which each spoiled frame was rendered."""
-        return self._glitches.rendered
-
     def poses_toml(self) -> str:
         """The hardware file's `[poses]` table that tracks this stream."""
         return poses_toml(self.camera, self.url)
@@ -343,11 +308,31 @@ class CameraStream(Started):
     def swap(self, a: int, b: int, at: float | None = None) -> None:
         """Draw robot a's marker at b's pose and b's at a's in one frame, the first rendered at or
         after ``at`` (time.monotonic(); None: the next)."""
-        self._glitches.add(at, "swap", (a, b))
+        with self._lock:
+            self._glitches.append((at or 0.0, "swap", (a, b)))
 
     def shift(self, robot: int, dx: float, dy: float, at: float | None = None) -> None:
         """Draw a robot's marker (dx, dy) metres off its pose in one frame, as `swap` says which."""
-        self._glitches.add(at, "shift", (robot, dx, dy))
+        with self._lock:
+            self._glitches.append((at or 0.0, "shift", (robot, dx, dy)))
+
+    def _spoil(self, robots: dict[int, Pose], now: float) -> dict[int, Pose]:
+        """The poses to draw: those of the glitches due by ``now`` spoiled."""
+        with self._lock:
+            due = [g for g in self._glitches if g[0] <= now]
+            self._glitches = [g for g in self._glitches if g[0] > now]
+        spoiled = dict(robots)
+        for _, kind, args in due:
+            if kind == "swap":
+                a, b = args
+                spoiled[a], spoiled[b] = robots[b], robots[a]
+            else:
+                robot, dx, dy = args
+                x, y, theta = robots[robot]
+                spoiled[robot] = (x + dx, y + dy, theta)
+        if due:
+            self.glitched.append(now)
+        return spoiled
 
     def _render(self) -> None:
         period = 1.0 / STREAM_RATE
@@ -356,9 +341,7 @@ class CameraStream(Started):
             while not self._halt.wait(max(0.0, deadline - time.monotonic())):
                 now = time.monotonic()
                 rows = np.asarray(self.poses(now - self._started), float).reshape(-1, 3)
-                robots = self._glitches.spoil(
-                    {i: (float(x), float(y), float(t)) for i, (x, y, t) in enumerate(rows)}, now
-                )
+                robots = self._spoil({i: (float(x), float(y), float(t)) for i, (x, y, t) in enumerate(rows)}, now)
                 ok, jpeg = cv2.imencode(
                     ".jpg", self.camera.render(robots, self._rng), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY]
                 )
@@ -371,7 +354,6 @@ class CameraStream(Started):
                     self._clients = [client for client in self._clients if not client.gone]
                     for client in self._clients:
                         client.offer(part)
-                self.frames += 1
                 deadline = max(deadline + period, time.monotonic() - period)
         except Exception as err:  # a bad pose function: keep the reason for the owner
             self.error = err
@@ -403,8 +385,6 @@ class CameraStream(Started):
 
 
 def main(argv: list[str] | None = None) -> int:
-    from sim.args import OneLineParser  # usage errors as one line, like pixelswarm's
-
     parser = OneLineParser(prog="python -m sim.emulators.camera", description=__doc__.split("\n\n")[0])
     parser.add_argument("out", type=Path, help="new folder to write video.avi, truth.csv and hardware.toml into")
     parser.add_argument("--robots", type=int, default=14, help=f"robots, ids 0..N-1, 1 to {MAX_WANDERING} (default 14)")

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from agent.core.params import EPUCK, RobotParams
-from hardware.config import Started
+from hardware.config import Started, is_number
 from sim.args import OneLineParser, UsageError, positive_int, refuse
 from sim.processes import stopped_by_signals
 
@@ -313,8 +313,7 @@ def read_poses(path: Path, count: int) -> list[Pose]:
         raise UsageError(f"{path}: no such poses file") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
         raise UsageError(f"{path}: not a JSON list of poses: {err}") from None
-    number = lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-    ok = isinstance(data, list) and all(isinstance(p, list) and len(p) == 3 and all(map(number, p)) for p in data)
+    ok = isinstance(data, list) and all(isinstance(p, list) and len(p) == 3 and all(map(is_number, p)) for p in data)
     if not ok:
         raise UsageError(f"{path}: poses must be a JSON list of [x, y, theta] numbers")
     if len(data) != count:
@@ -333,9 +332,9 @@ def write_atomically(path: Path, text: str) -> None:
         raise UsageError(f"{path}: cannot write: {err.strerror or err}") from None
 
 
-def say_final(poses: list[tuple[float, float, float]], report: dict, log: Path | None) -> None:
-    """Each robot's final pose on stdout, and the report in ``log`` if asked for."""
-    for rid, (x, y, theta) in enumerate(poses):
+def say_final(report: dict, log: Path | None) -> None:
+    """Each robot's final pose (from the report) on stdout, and the report in ``log`` if asked for."""
+    for rid, (x, y, theta) in enumerate(robot["pose"] for robot in report["robots"]):
         print(f"robot {rid}: x={x:.4f} m y={y:.4f} m theta={theta:.4f} rad", flush=True)
     if log:
         write_atomically(log, json.dumps(report))
@@ -362,7 +361,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"{args.robots} emulated e-puck2 robots at {' '.join(emulator.addresses)}", flush=True)
                 stop.wait()
                 emulator.close()
-                say_final([emulator.pose(rid) for rid in range(args.robots)], emulator.report(), args.log)
+                say_final(emulator.report(), args.log)
         except (UsageError, OSError) as err:
             return refuse(parser.prog, err)
     return 0

@@ -266,7 +266,8 @@ class FaultyPeer:
         self._own_order: deque[bytes] = deque(maxlen=8192)
 
     def hear(self, inboxes: list[RawInbox]) -> None:
-        """Keep what the subscriptions brought (not the peer's own copies, which it hears too)."""
+        """Keep what the subscriptions brought (not the peer's own copies, which it hears too); commands
+        heard STALE_AFTER s ago or more become old enough to re-send."""
         for inbox in inboxes:
             for key, data, wall in inbox.drain():
                 if data in self._own:
@@ -281,8 +282,6 @@ class FaultyPeer:
                 buffer.append((key, data))
                 if kind == "cmd" and self.plan.mode in ("stale-cmd", "all"):
                     self.cmd_fresh.append((wall, key, data))
-
-    def _age_commands(self) -> None:
         now = time.time()  # the subscriptions' clock
         while self.cmd_fresh and now - self.cmd_fresh[0][0] >= STALE_AFTER:
             _, key, data = self.cmd_fresh.popleft()
@@ -383,7 +382,6 @@ class FaultyPeer:
                 if self.plan.duration is not None and now >= started + self.plan.duration:
                     break
                 self.hear(inboxes)
-                self._age_commands()
                 due = int((now - started) * rate)
                 slots = max(slots, due - int(rate))  # at most a second's worth behind: no burst after a stall
                 while slots < due:

@@ -192,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
                 stop.wait()
             finally:
                 report = lab.close()
-            say_final([tuple(robot["pose"]) for robot in report["robots"]], report, args.log)
+            say_final(report, args.log)
             print(f"contacts: {len(report['contacts'])}", flush=True)
         except (UsageError, SceneError, TransportError, OSError, ValueError) as err:
             return refuse(parser.prog, err)

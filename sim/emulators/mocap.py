@@ -63,8 +63,8 @@ class MocapEmulator(Ros2Node):
         self._thread = threading.Thread(target=self._run, name="mocap", daemon=True)
         self._thread.start()
 
-    def publish_once(self, t: float) -> int:
-        """Publish the poses of time ``t``; returns how many robots."""
+    def publish_once(self, t: float) -> None:
+        """Publish the poses of time ``t``."""
         rows = np.asarray(self.poses(t), float).reshape(-1, 3)
         stamp = self.clock()
         pose_hash = self.messages.type_hash(POSE_STAMPED)
@@ -75,7 +75,6 @@ class MocapEmulator(Ros2Node):
             pub.publish(self.messages.pose_stamped(x, y, theta, stamp, self.frame_id))
         self.published += len(rows)
         self.last_sent = time.monotonic()
-        return len(rows)
 
     def _run(self) -> None:
         period = 1.0 / self.config.rate
