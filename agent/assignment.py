@@ -420,7 +420,9 @@ class AuctionLink:
                 return
             self.blocks.stamp = stamp
             self.blocks.block = BlockRounds(part, positions)
-        budget = rounds_in_tick(self.params, cold=part.agreed_instance < 0 and not self.blocks.warm)
+        # the most rounds a tick gives a block: ``rounds_per_tick``, or all it needs (a cold start too)
+        cold = part.agreed_instance < 0 and not self.blocks.warm
+        budget = self.params.rounds_per_tick if self.params.rounds_per_tick and not cold else sys.maxsize
         for played in range(1, budget + 1):
             opened = self._open_round(self.blocks.block)
             if played == budget:  # heard at the next tick (budget is bounded)
@@ -574,11 +576,6 @@ class AuctionLink:
             "dropped_blocks": self.counts.dropped,
             "first_agreement_s": [round(x, 4) for x in self.counts.first_agreement_s],
         }
-
-
-def rounds_in_tick(params: RobotParams, cold: bool) -> int:
-    """The most rounds a tick gives a block: ``rounds_per_tick``, or all it needs (also for a ``cold`` start)."""
-    return params.rounds_per_tick if params.rounds_per_tick and not cold else sys.maxsize
 
 
 def frames_close(before: np.ndarray, goals: np.ndarray, previous: np.ndarray) -> bool:

@@ -10,6 +10,7 @@ import signal
 import sys
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, fields
 from typing import Any
@@ -237,14 +238,14 @@ class PoseIntake:
         return pose_of[:, :2].copy(), pose_of[:, 2].copy(), np.array([j is None for j in judged], bool)
 
 
+@dataclass
 class GoalSetsHeard:
     """The goal sets a host took up, by epoch, the newest epoch heard, and the first its robots may bid in."""
 
-    def __init__(self, arena: tuple[float, float, float, float] | None) -> None:
-        self.by_epoch: dict[int, Goals] = {}
-        self.newest_heard = 0
-        self.believed = GoalSets(arena)
-        self.bid_from = 0
+    believed: GoalSets
+    by_epoch: dict[int, Goals] = field(default_factory=dict)
+    newest_heard: int = 0
+    bid_from: int = 0
 
 
 class Departures:
@@ -288,7 +289,7 @@ class AgentHost:
         self.policy_memory = Memory.new(len(self.robots), latency=p.stale_after)
         self.held_goals = HeldGoals.new(len(self.robots))  # rows as policy_memory's
         self.inbox = Inboxes.of(bus, config, self.robots.ids)
-        self.goal_sets = GoalSetsHeard(config.arena)
+        self.goal_sets = GoalSetsHeard(GoalSets(config.arena))
         self.clock: HostClock = LockStep(self) if config.lockstep else WallClock(self)
         self.poses = PoseIntake(config, self.clock.pose_period)
         if math.isfinite(config.reach) and not config.lockstep:
@@ -337,15 +338,6 @@ class AgentHost:
         """A host's frame of its robots' states; a robot alone its frame of one under its cell (HostConfig.frames)."""
         first = int(self.robots.ids[0]) if self.config.frames else None
         self.bus.publish_states(tick, stamp, states, self.params.cell_size, first)
-
-    def _publish_commands(self, tick: int, stamp: float, commands: list[Command]) -> None:
-        """A host's frame of its robots' commands; a robot alone its frame of one (HostConfig.frames)."""
-        keys = self.bus.keys
-        if self.config.frames:
-            self.bus.publish(keys.cmd(int(self.robots.ids[0])), Commands.of(tick, stamp, commands))
-            return
-        for c in commands:
-            self.bus.put(keys.cmd(c.robot), Commands.encode_one(c), Commands.NAME)
 
     def hear_goals(self, goals: Goals) -> None:
         """A goal set heard (lock-step holds it until its tick: HostClock.holds). One whose epoch or stamp lies
@@ -592,7 +584,9 @@ class AgentHost:
             commands.append(Command(robot, tick, stamp, mode, cx, cy, *color))
         # States before commands: by the time the world moves on, neighbours have our states.
         self.publish_states(tick, stamp, states)
-        self._publish_commands(tick, stamp, commands)
+        cmd = self.bus.keys.cmd  # a host's frame of its robots' commands; a robot alone its frame of one
+        to = cmd(int(self.robots.ids[0])) if self.config.frames else lambda c: cmd(c.robot)
+        self.bus.publish_frame(Commands, tick, stamp, commands, to)
         # the cells around EVERY own robot, not only this batch: a tick's poses can arrive split (forget_outside)
         self.inbox.cells.update(np.array([m.position for m in self.robots.known()]))
         dead = self.departed.dead
@@ -601,11 +595,10 @@ class AgentHost:
         self._bid_from = None  # the robots' velocities changed: they move where they bid from
 
     def stats(self) -> dict[str, Any]:
-        drops: dict[str, int] = {}
+        drops: Counter[str] = Counter()
         inboxes: list[Any] = [self.inbox.pose, self.inbox.state, self.inbox.goals, self.auction.inbox, self.clock.inbox]
         for inbox in filter(None, inboxes):
-            for reason, n in inbox.drops.items():
-                drops[reason] = drops.get(reason, 0) + n
+            drops.update(inbox.drops)
         return {
             "role": "agent",
             "robots": self.config.robots,

@@ -215,7 +215,9 @@ class Inbox(Generic[T]):
         if self.bell is not None and not self.pulled:
             self.bell.set()
 
-    def _release_delayed(self) -> None:
+    def _collect(self) -> None:
+        """Take in what waits in the channels (pulled) and the held messages now due."""
+        self._pull()
         if self.fault is not None:
             self.fault.release(self.sim_time, self._queue)
 
@@ -226,8 +228,7 @@ class Inbox(Generic[T]):
 
     def drain(self) -> list[tuple[str, T]]:
         """Every message that has arrived (and whose injected delay has passed), oldest first."""
-        self._pull()
-        self._release_delayed()
+        self._collect()
         return _drain(self._queue)
 
     def take(self) -> list[T]:
@@ -248,8 +249,7 @@ class Inbox(Generic[T]):
         """Wait up to ``timeout`` s for one message (None if none came)."""
         deadline = time.monotonic() + timeout
         while True:
-            self._pull()
-            self._release_delayed()
+            self._collect()
             with contextlib.suppress(queue.Empty):
                 return self._queue.get_nowait()
             remaining = deadline - time.monotonic()
@@ -385,11 +385,18 @@ class Bus:
     def publish_states(self, tick: int, stamp: float, states: list[State], cell_size: float, first: int | None) -> None:
         """Broadcast states of a tick: one frame on ``state/<first>`` that every agent host hears
         (``first``: the sender's first robot), else each robot's frame of one under its spatial cell."""
-        if first is not None:
-            self.publish(self.keys.states(first), States.of(tick, stamp, states))
+        cell_key = lambda s: self.keys.state(cell_of(s.x, s.y, cell_size), s.robot)
+        self.publish_frame(States, tick, stamp, states, cell_key if first is None else self.keys.states(first))
+
+    def publish_frame(
+        self, frame: type[Frame], tick: int, stamp: float, views: list, key: str | Callable[[Any], str]
+    ) -> None:
+        """A tick's records as one frame on ``key``, or (``key`` a function of a record) each its frame of one."""
+        if isinstance(key, str):
+            self.publish(key, frame.of(tick, stamp, views))
             return
-        for s in states:
-            self.put(self.keys.state(cell_of(s.x, s.y, cell_size), s.robot), States.encode_one(s), States.NAME)
+        for v in views:
+            self.put(key(v), frame.encode_one(v), frame.NAME)
 
     def put(self, key: str, payload: bytes, kind: str = "raw") -> None:
         # BLOCK, not DROP: in lock-step runs a silently dropped message would break reproducibility.

@@ -106,8 +106,11 @@ class Message:
         """The fields the fixed part packs: the first ones, one per field of ``_fixed``."""
         return cls.field_names()[: len(cls._fixed.unpack(bytes(cls._fixed.size)))]
 
-    def _fixed_values(self) -> tuple:  # overridden where a count is the length of a table
-        return tuple(getattr(self, name) for name in self._fixed_names())
+    _counts: ClassVar[str] = ""  # a table whose length the fixed part's last field (``count``) packs
+
+    def _fixed_values(self) -> tuple:
+        values = tuple(getattr(self, name) for name in self._fixed_names())
+        return (*values[:-1], len(getattr(self, self._counts))) if self._counts else values
 
     def _tail(self) -> bytes:
         return b""
@@ -476,9 +479,7 @@ class Bid(Message):
     digest: int  # hash of the sender's board (prices, owners, releases) when it wrote the records
     count: int
     records: np.ndarray = field(default_factory=lambda: np.zeros(0, Bid.RECORD))
-
-    def _fixed_values(self) -> tuple:
-        return (self.epoch, self.instance, self.sender, self.serial, self.digest, len(self.records))
+    _counts: ClassVar[str] = "records"
 
     def _tail(self) -> bytes:
         return np.asarray(self.records, self.RECORD).tobytes()
@@ -529,9 +530,7 @@ class Boards(Message):
     words: np.ndarray = field(default_factory=lambda: np.zeros(0, Boards.WORD))
     known: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.uint8))  # packed bits, a row per GROWN word
     records: np.ndarray = field(default_factory=lambda: np.zeros(0, Boards.RECORD))
-
-    def _fixed_values(self) -> tuple:
-        return (self.epoch, self.instance, self.sender, self.serial, self.goals, self.robots, len(self.words))
+    _counts: ClassVar[str] = "words"
 
     def _tail(self) -> bytes:
         row = (self.robots + 7) // 8
@@ -746,9 +745,7 @@ class Truth(Message):
     velocity: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     color: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.uint8))
     applied: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint32))  # commands applied per robot
-
-    def _fixed_values(self) -> tuple:
-        return (self.tick, self.stamp, self.min_clearance, len(self.pose))
+    _counts: ClassVar[str] = "pose"
 
     def _tail(self) -> bytes:
         items = np.empty(len(self.pose), self.RECORD)
