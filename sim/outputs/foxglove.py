@@ -149,20 +149,13 @@ ENTITIES = 2
 ARROWS, SPHERES, CYLINDERS = 7, 9, 10
 
 
-def _places(record: bytes, value: float) -> list[int]:
-    """Where a double ``value`` is in ``record``."""
-    packed, places = struct.pack("<d", value), list[int]()
-    while (k := record.find(packed, places[-1] + 1 if places else 0)) >= 0:
-        places.append(k)
-    return places
-
-
 @functools.lru_cache(maxsize=16)  # the per-robot primitives' templates, the same every tick
 def _template(number: int, one: Callable[..., Any], values: int) -> tuple[bytes, list[list[int]]]:
     """The field ``number`` holding ``one`` primitive of stand-in values, and where each value is."""
     stand_ins = [1000.0 + j + 2.0**-30 for j in range(values)]  # a value no primitive holds
     record = length_delimited(number, one(*stand_ins).encode())
-    places = [_places(record, v) for v in stand_ins]
+    doubles = [struct.pack("<d", v) for v in stand_ins]
+    places = [[k for k in range(len(record)) if record[k : k + 8] == d] for d in doubles]  # where each value is
     if not all(places):
         raise ValueError("a primitive holds each of its values as a double")
     return record, places

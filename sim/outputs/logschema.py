@@ -73,10 +73,6 @@ def length_delimited(number: int, body: bytes) -> bytes:
     return varint(number << 3 | LENGTH_DELIMITED) + varint(len(body)) + body
 
 
-def _column(values: np.ndarray, packed: str) -> bytes:
-    return _varints(values) if packed == VARINT else values.astype(packed).tobytes()
-
-
 FEW_ROWS = 16  # a table of at most this many rows goes through protobuf's setters: a column's
 # numpy bytes cost more than setting a few values, and less than setting many
 
@@ -93,9 +89,11 @@ class Table:
 
     def packed(self, rows: np.ndarray) -> bytes:
         """The table as its field's bytes, each column written whole."""
-        return length_delimited(
-            self.number, b"".join([length_delimited(k, _column(rows[name], t)) for name, k, t in self.columns])
+        fields = b"".join(
+            length_delimited(k, _varints(rows[name]) if t == VARINT else rows[name].astype(t).tobytes())
+            for name, k, t in self.columns
         )
+        return length_delimited(self.number, fields)
 
 
 @dataclass(frozen=True)

@@ -184,19 +184,24 @@ def time_to_converge(t: np.ndarray, pose: np.ndarray, goal: np.ndarray, toleranc
     T, N = _pose_shape(pose)
     if np.shape(goal) != (T, N, 2) or t.shape != (T,):
         raise ValueError(f"shapes: t {t.shape}, pose {np.shape(pose)}, goal {np.shape(goal)}")
-    if T == 0:
-        return None
-    ok = np.zeros(T, bool)  # (T,)
-    any_goal = False
-    for ticks in _chunks(T, N):
-        err, has_goal = _goal_errors(pose, goal, None, ticks)
-        any_goal = any_goal or bool(has_goal.any())
-        ok[ticks] = np.where(has_goal, err <= tolerance, True).all(axis=1)  # NaN pose -> err NaN -> False
-    if not any_goal or not ok[-1]:
+    ok, some = _arrived(pose, goal, tolerance)
+    if not some.any() or not ok[-1]:
         return None
     bad = np.flatnonzero(~ok)
     k = 0 if len(bad) == 0 else int(bad[-1]) + 1
     return float(t[k])
+
+
+def _arrived(pose: Any, goal: Any, tolerance: float, members: Any = None, current: Any = None) -> tuple[Any, Any]:
+    """Per tick: every robot with a goal that counts (from ``current``'s set) at it, and whether any has one."""
+    T, N = _pose_shape(pose)
+    every, some = np.zeros(T, bool), np.zeros(T, bool)
+    for ticks in _chunks(T, N):
+        err, has_goal = _goal_errors(pose, goal, members, ticks)
+        arrived = err <= tolerance if current is None else (err <= tolerance) & current[ticks]
+        every[ticks] = np.where(has_goal, arrived, True).all(axis=1)
+        some[ticks] = has_goal.any(axis=1)
+    return every, some
 
 
 def _goal_errors(pose: Any, goal: Any, members: np.ndarray | None, ticks: slice) -> tuple[np.ndarray, np.ndarray]:
@@ -229,11 +234,7 @@ def step_metrics(
     if step.shape != t.shape or np.shape(goal) != (T, N, 2):
         raise ValueError(f"shapes: t {t.shape}, step {step.shape}, pose {np.shape(pose)}, goal {np.shape(goal)}")
 
-    within = np.zeros(T, bool)
-    for ticks in _chunks(T, N):
-        err, has_goal = _goal_errors(pose, goal, members, ticks)
-        arrived = err <= tolerance if current is None else (err <= tolerance) & current[ticks]
-        within[ticks] = np.where(has_goal, arrived, True).all(axis=1) & has_goal.any(axis=1)
+    within = np.logical_and(*_arrived(pose, goal, tolerance, members, current))  # and some robot has a goal
     out = []
     for k in sorted(set(step[step >= 0].tolist()), key=lambda s: int(np.argmax(step == s))):
         idx = np.flatnonzero(step == k)

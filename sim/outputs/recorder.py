@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import orjson
 
-from sim.outputs.foxglove import SceneUpdate, goal_markers, scene_update, swarm_scene
+from sim.outputs.foxglove import GOAL_SIZE, SceneUpdate, goal_markers, scene_update, swarm_scene
 from sim.outputs.logschema import LoggedKind, kind_of
 from sim.outputs.mcaplog import McapLog
 from sim.outputs.rundir import json_safe
@@ -44,7 +44,6 @@ GOALS_TOPIC = "/display/goals"  # above LOG_ROBOTS: the goal sets, apart from th
 LOG_ROBOTS = 1000
 # s of display time between scene messages above LOG_ROBOTS robots; none while nothing moved or changed colour
 SCENE_PERIOD = 1.0
-GOAL_DIAMETER = 0.4  # goal marker, as a fraction of the robots' diameter
 
 FLUSH_EVERY = 1.0  # s of wall time between flushes of the MCAP log (a killed run keeps all but the last)
 
@@ -227,9 +226,9 @@ class DisplayLog:
             return
 
         def add() -> int:
-            if kind not in BY_NAME:
-                return log.add_channel("/" + kind, f"pixelswarm.{kind}", {"type": "object"})
-            return log.add_channel("/" + kind, f"pixelswarm.{BY_NAME[kind].__name__}", json_schema_of(BY_NAME[kind]))
+            cls = BY_NAME.get(kind)
+            name, schema = (cls.__name__, json_schema_of(cls)) if cls else (kind, {"type": "object"})
+            return log.add_channel("/" + kind, f"pixelswarm.{name}", schema)
 
         # what orjson leaves to json_safe: numpy arrays that are views with strides (e.g. a column of records)
         payload_bytes = orjson.dumps(payload, default=json_safe, option=orjson.OPT_SERIALIZE_NUMPY)
@@ -274,7 +273,7 @@ class DisplayLog:
             return
         known = radius[np.isfinite(radius)]
         r = float(np.median(known)) if len(known) else 0.05  # before any state: a typical robot's
-        update = goal_markers(int(wall * 1e9), g.positions, g.colors, GOAL_DIAMETER * 2 * r)
+        update = goal_markers(int(wall * 1e9), g.positions, g.colors, GOAL_SIZE * 2 * r)
         channel = self._channel(GOALS_TOPIC, lambda: log.add_foxglove_channel(GOALS_TOPIC, SceneUpdate))
         log.write_bytes(channel, int(wall * 1e9), update)
 

@@ -86,22 +86,17 @@ def video_size(arena: Sequence[float], radius: np.ndarray | float, size_px: int 
     return min(size_px, MAX_VIDEO_PX)
 
 
-def _offsets(r_px: float, ring: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Row and column offsets of the pixels of a disc (or its one-pixel rim) of radius ``r_px``."""
-    k = int(np.ceil(r_px + 0.5))
-    dy, dx = np.mgrid[-k : k + 1, -k : k + 1]
-    d = np.hypot(dx, dy)
-    keep = np.abs(d - r_px) <= 0.5 if ring else d <= r_px + 0.25
-    return dy[keep], dx[keep]
-
-
 def _stamp(img: np.ndarray, centre: np.ndarray, r_px: np.ndarray, bgr: np.ndarray, ring: bool = False) -> None:
     """Discs of radius ``r_px`` (N,) at pixel ``centre`` (N, 2) in ``bgr`` (N, 3), an assignment per radius."""
     h, w = img.shape[:2]
     rounded = np.maximum(np.round(r_px * 2) / 2, 0.5)
     for r in np.unique(rounded).tolist():
         which = np.flatnonzero(rounded == r)
-        dy, dx = _offsets(r, ring)
+        k = int(np.ceil(r + 0.5))  # the offsets of the pixels of a disc (or its one-pixel rim) of radius r
+        dy, dx = np.mgrid[-k : k + 1, -k : k + 1]
+        d = np.hypot(dx, dy)
+        keep = np.abs(d - r) <= 0.5 if ring else d <= r + 0.25
+        dy, dx = dy[keep], dx[keep]
         rows = np.rint(centre[which, 1]).astype(np.int64)[:, None] + dy
         cols = np.rint(centre[which, 0]).astype(np.int64)[:, None] + dx
         inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
@@ -343,12 +338,10 @@ def _encode_opencv(path: Path, frames: Iterable[np.ndarray], fps: float, width: 
 
 
 def _figure(w_in: float, h_in: float) -> tuple[Any, Any]:
-    """A figure on its own Agg canvas, and its one axes."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    """A figure (its own Agg canvas at savefig: no pyplot state), and its one axes."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(w_in, h_in), dpi=PLOT_DPI)
-    FigureCanvasAgg(fig)
     return fig, fig.add_subplot(1, 1, 1)
 
 

@@ -198,21 +198,12 @@ class SwarmView:
 
     def _serve(self, web: bool) -> None:
         """Rerun's viewer (its own process) listening on 127.0.0.1; this recording streams to it."""
-        grpc = free_port(LOOPBACK)
-        command = [*_viewer(), "--bind", LOOPBACK, "--port", str(grpc), "--expect-data-soon"]
-        if web:
-            page = free_port(LOOPBACK)
-            command += ["--serve-web", "--web-viewer-port", str(page)]
-        # the native window is the user's: it outlives the run (its own session); the web server is ours
-        self.process = subprocess.Popen(
-            command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=not web
-        )
+        self.process, grpc, page, proxy = _start_viewer(web, "--expect-data-soon")
         _wait_listening(grpc, self.process)
-        proxy = f"rerun+http://{LOOPBACK}:{grpc}/proxy"
         self.rec.connect_grpc(proxy, default_blueprint=_layout())
-        if web:
+        if page is not None:
             _wait_listening(page, self.process)
-            self.url = f"http://{LOOPBACK}:{page}/?url={urllib.parse.quote(proxy, safe='')}"
+            self.url = _page_url(proxy, page)
         else:
             self.process = None  # not ours to stop
 
@@ -417,21 +408,29 @@ def replay(run_dir: Path, sink: str | os.PathLike, scene: dict[str, Any] | None 
     return view
 
 
+def _start_viewer(web: bool, *extra: str) -> tuple[subprocess.Popen, int, int | None, str]:
+    """Rerun's viewer on 127.0.0.1: its process, gRPC port, page's port (``web``) and the proxy a recording
+    streams to. The native window is the user's: it outlives us (its own session); the web server is ours."""
+    grpc, page = free_port(LOOPBACK), free_port(LOOPBACK) if web else None
+    command = [*_viewer(), "--bind", LOOPBACK, "--port", str(grpc)]
+    command += [*(["--serve-web", "--web-viewer-port", str(page)] if web else []), *extra]
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=not web)
+    return process, grpc, page, f"rerun+http://{LOOPBACK}:{grpc}/proxy"
+
+
+def _page_url(proxy: str, page: int) -> str:
+    return f"http://{LOOPBACK}:{page}/?url={urllib.parse.quote(proxy, safe='')}"
+
+
 def view_recording(rrd: Path, *, web: bool = False) -> None:
     """Open a recording in Rerun's window (the user's: returns at once), or its web viewer until Ctrl-C."""
-    if not web:
-        command = [*_viewer(), "--bind", LOOPBACK, "--port", str(free_port(LOOPBACK)), str(rrd)]
-        subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    process, _, page, proxy = _start_viewer(web, str(rrd))
+    if page is None:
         return
-    grpc, page = free_port(LOOPBACK), free_port(LOOPBACK)
-    command = [*_viewer(), "--bind", LOOPBACK, "--port", str(grpc), "--serve-web"]
-    command += ["--web-viewer-port", str(page), str(rrd)]
-    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     stop_on_sigterm()
     try:
         _wait_listening(page, process)
-        proxy = f"rerun+http://{LOOPBACK}:{grpc}/proxy"
-        print(f"view: http://{LOOPBACK}:{page}/?url={urllib.parse.quote(proxy, safe='')} (Ctrl-C to stop)", flush=True)
+        print(f"view: {_page_url(proxy, page)} (Ctrl-C to stop)", flush=True)
         process.wait()
     finally:
         stop_processes([process], 10)

@@ -126,8 +126,9 @@ def write_run(
         clearance = clearance_over_time(arrays["pose"], radius) if len(t) else np.zeros(0)
         metrics = _run_metrics(scene, params, arrays, outcome, radius, clearance)
         write_json(run_dir / "metrics.json", metrics)
-        if outcome.extra.get("complete") is False:
-            _mark_incomplete(run_dir, outcome.extra)
+        if outcome.extra.get("complete") is False:  # the INCOMPLETE marker: why it ended early (or failed to start)
+            why = [outcome.extra.get("end_reason") or "incomplete", outcome.extra.get("startup_failure")]
+            (run_dir / INCOMPLETE).write_text("".join(f"{line}\n" for line in why if line))
         if len(t) and plots:
             from sim.outputs.render import write_plots
 
@@ -164,12 +165,6 @@ def _run_metrics(
         for entry, value in zip(metrics["steps"], over):
             entry["assignment_over_optimum_m2"] = value
     return metrics
-
-
-def _mark_incomplete(run_dir: RunDir, extra: dict[str, Any]) -> None:
-    """The INCOMPLETE marker, holding why the run ended early (or failed to start): no one takes it for finished."""
-    why = [extra.get("end_reason") or "incomplete", extra.get("startup_failure")]
-    (run_dir / INCOMPLETE).write_text("".join(f"{line}\n" for line in why if line))
 
 
 def _write_display_video(

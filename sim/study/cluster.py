@@ -1,8 +1,5 @@
-"""A study's runs on a Dask cluster: this machine's (in-process, no port opened), or one with workers elsewhere.
-
-Each run is one task, :func:`run_task`: ``pixelswarm run`` on the worker that took it, its run sent back as a
-tar archive unless the worker shares the study directory. A worker that dies takes its runs with it and the
-scheduler gives the task to another; a cluster-wide event stops every task's run on Ctrl-C or SIGTERM."""
+"""A study's runs on a Dask cluster (this machine's, in-process, or one with workers elsewhere), a task a run
+(:func:`run_task`): a dead worker's tasks go to another; a cluster-wide event stops every run on Ctrl-C or SIGTERM."""
 
 from __future__ import annotations
 

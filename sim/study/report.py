@@ -33,20 +33,20 @@ def flatten(metrics: dict[str, Any]) -> dict[str, Any]:
     """The scalars of metrics.json: nested tables one level down as `table.key`, number lists as `key.mean`."""
     out: dict[str, Any] = {}
     for key, value in metrics.items():
-        if isinstance(value, bool | int | float | str) or value is None:
-            out[key] = int(value) if isinstance(value, bool) else value
-        elif isinstance(value, dict):
-            for sub, v in value.items():
-                if isinstance(v, bool | int | float | str):
-                    out[f"{key}.{sub}"] = int(v) if isinstance(v, bool) else v
+        if isinstance(value, dict):
+            out.update({f"{key}.{sub}": v for sub, v in value.items() if isinstance(v, bool | int | float | str)})
         elif isinstance(value, list) and value and all(_is_number(v) for v in value):
             out[f"{key}.mean"] = float(np.mean(value))
         elif isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
             for k, entry in enumerate(value):  # a table per image step: steps.<k>.converged_at, ...
-                for sub, v in entry.items():
-                    if isinstance(v, bool | int | float | str) or v is None:
-                        out[f"{key}.{k}.{sub}"] = int(v) if isinstance(v, bool) else v
-    return out
+                out.update({f"{key}.{k}.{sub}": v for sub, v in entry.items() if _is_scalar(v)})
+        elif _is_scalar(value):
+            out[key] = value
+    return {k: int(v) if isinstance(v, bool) else v for k, v in out.items()}
+
+
+def _is_scalar(value: Any) -> bool:
+    return value is None or isinstance(value, bool | int | float | str)
 
 
 def _is_number(value: Any) -> bool:
@@ -121,8 +121,7 @@ def _cell(value: Any) -> Any:
 def plot_axis(spec: Spec, axis: str, rows: list[dict[str, Any]], metrics: list[str]) -> bytes:
     """A PNG: one panel per metric against `axis`; a series per value of the other axes (mean, std
     bars, each seed a dot); a baseline that fixes `axis` is a band (mean +- std) across the panel."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from matplotlib.figure import Figure  # its own Agg canvas at savefig: no pyplot state
 
     values = spec.axes[axis]
     numeric = all(_is_number(v) and math.isfinite(v) for v in values)  # inf (a range): evenly spaced
@@ -137,7 +136,6 @@ def plot_axis(spec: Spec, axis: str, rows: list[dict[str, Any]], metrics: list[s
     ncols = min(3, len(metrics))
     nrows = math.ceil(len(metrics) / ncols)
     fig = Figure(figsize=(4.2 * ncols, 3.2 * nrows), dpi=90)
-    FigureCanvasAgg(fig)
     for k, metric in enumerate(metrics):
         ax = fig.add_subplot(nrows, ncols, k + 1)
         _plot_grid(ax, spec, axis, series, metric, position)
@@ -188,7 +186,8 @@ def _plot_baselines(
         m, s, n = stats([r.get(metric) for r in mine])
         if not n:
             continue
-        label = f"{condition} ({_baseline_words(spec)}, n={n})"
+        words = ", ".join(f"{k}={_short(v)}" for k, v in (spec.baseline or {}).items())
+        label = f"{condition} ({words}, n={n})"
         if axis in (spec.baseline or {}):
             ax.axhline(m, color="0.3", linestyle="--", label=label)
             if not math.isnan(s):
@@ -201,10 +200,6 @@ def _plot_baselines(
 
 def _short(value: Any) -> str:
     return format(value, ".6g") if isinstance(value, float) else str(value)
-
-
-def _baseline_words(spec: Spec) -> str:
-    return ", ".join(f"{k}={_short(v)}" for k, v in (spec.baseline or {}).items())
 
 
 # --- report.html and the files --------------------------------------------------------------------

@@ -1,7 +1,5 @@
-"""`pixelswarm study SPEC.toml`: run a grid of conditions x seeds as `pixelswarm run` processes (docs/study.md).
-
-A run directory appears under its final name only when written, so a study resumes by skipping the runs whose
-directory says `"complete": true`."""
+"""`pixelswarm study SPEC.toml`: run a grid of conditions x seeds as `pixelswarm run` processes (docs/study.md);
+it resumes by skipping the runs whose directory says `"complete": true`."""
 
 from __future__ import annotations
 

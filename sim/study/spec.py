@@ -20,11 +20,11 @@ FAULT_SETTINGS = ("loss", "delay", "jitter")  # the state messages' fault plan (
 
 
 # --- The spec: settings, their checks, and the grid of runs they make -----------------------------
-def _number(key: str, value: Any, *, minimum: float = 0.0, maximum: float = math.inf, positive=False) -> float:
+def _number(key: str, value: Any, *, maximum: float = math.inf, positive: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
         raise UsageError(f"{key}: {value!r} is not a number")
-    if value < minimum or value > maximum or (positive and value <= 0):
-        bound = "> 0" if positive else f"in [{minimum:g}, {maximum:g}]"
+    if value < 0 or value > maximum or (positive and value <= 0):
+        bound = "> 0" if positive else f"in [0, {maximum:g}]"
         raise UsageError(f"{key}: {value!r} must be {bound}")
     return float(value)
 
@@ -52,8 +52,8 @@ SETTINGS = {
     "duration": lambda k, v: _number(k, v, positive=True),
     "deadline": lambda k, v: _number(k, v, positive=True),
     "loss": lambda k, v: _number(k, v, maximum=1.0),
-    "delay": lambda k, v: _number(k, v),
-    "jitter": lambda k, v: _number(k, v),
+    "delay": _number,
+    "jitter": _number,
     "range": lambda k, v: math.inf if v == math.inf else _number(k, v, positive=True),  # inf: everyone hears everyone
 }
 
@@ -110,12 +110,9 @@ def _grid(axes: dict[str, list[Any]]) -> list[dict[str, Any]]:
     return [dict(zip(axes, combo)) for combo in itertools.product(*axes.values())]
 
 
-def _format(value: Any) -> str:
-    return format(value, ".12g") if isinstance(value, float) else str(value)
-
-
 def _name(values: dict[str, Any], prefix: str = "") -> str:
-    parts = ([prefix] if prefix else []) + [f"{k}-{_format(v)}" for k, v in values.items()]
+    parts = [prefix] if prefix else []
+    parts += [f"{k}-{format(v, '.12g') if isinstance(v, float) else v}" for k, v in values.items()]
     return "_".join(parts) or "base"
 
 
@@ -233,17 +230,11 @@ class StudyDir:
 
     def metrics(self, run: Run) -> dict[str, Any] | None:
         """metrics.json of a finished run, or None if the run is missing or incomplete."""
-        try:
-            metrics = json.loads((self.run_dir(run) / "metrics.json").read_text())
-        except (OSError, ValueError):
-            return None
+        metrics = _read_json(self.run_dir(run) / "metrics.json")
         return metrics if isinstance(metrics, dict) and metrics.get("complete") is True else None
 
     def record(self, run: Run) -> dict[str, Any]:
-        try:
-            return json.loads((self.records / f"{run.id}.json").read_text())
-        except (OSError, ValueError):
-            return {}
+        return _read_json(self.records / f"{run.id}.json") or {}
 
     def write_record(self, run: Run, record: dict[str, Any]) -> None:
         write_text(self.records / f"{run.id}.json", json.dumps(record, indent=2) + "\n")
@@ -251,11 +242,8 @@ class StudyDir:
     def check_same(self, spec: Spec) -> None:
         """A directory resumes only the study it holds (hold): runs are named by what varies, so the base
         must match."""
-        try:
-            held = json.loads((self.root / "study.json").read_text())
-        except (OSError, ValueError):
-            return
-        if held != json.loads(json.dumps(_held(spec))):
+        held = _read_json(self.root / "study.json")
+        if held is not None and held != json.loads(json.dumps(_held(spec))):
             raise UsageError(
                 f"{self.root} holds another study (its scene, [base] or [baseline] differ); choose another --out"
             )
@@ -264,6 +252,14 @@ class StudyDir:
         """DIR/spec.toml, the spec as written, and DIR/study.json, what check_same compares."""
         write_text(self.root / "spec.toml", spec.text)
         write_text(self.root / "study.json", json.dumps(_held(spec), indent=2) + "\n")
+
+
+def _read_json(path: Path) -> Any:
+    """A JSON file's value, or None if it cannot be read."""
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
 
 
 def _held(spec: Spec) -> dict[str, Any]:
