@@ -1,11 +1,6 @@
-"""Keyframe drawings for the animations pixelswarm ships (paper 6 and 7.3), drawn procedurally.
-
-"leaf" (the paper's 1000-robot leaf: grows, withers, is blown off), "story" (the paper's 14-robot story,
-Fig. 16), "triangle" (rotates and grows) and "history" (the History of the Universe of the 50-robot show,
-7.5.2, Fig. 21). As in coordinator.shapes, drawings live in the unit square (x right, y down), parts are
-painted in order with crisp pixel-centre edges on white, and each keyframe is an (H, W, 3) uint8 RGB
-array. Touching parts differ in colour by far more than the segmentation's tolerance, so each part is
-its own region R_i.
+"""Keyframe drawings of the shipped animations (paper 6 and 7.3): "leaf", "story" (Fig. 16), "triangle"
+and "history" (7.5.2, Fig. 21). As in coordinator.shapes, parts in the unit square are painted in order;
+touching parts differ in colour far beyond the segmentation's tolerance, so each is its own region R_i.
 """
 
 from __future__ import annotations
@@ -23,24 +18,12 @@ SIZE = 256  # default canvas side in pixels
 BRANCH: RGB = (75, 78, 90)
 LEAF_GREENS: tuple[RGB, ...] = ((110, 190, 70), (70, 170, 60), (50, 150, 50), (40, 140, 45))
 LEAF_FALL: tuple[RGB, ...] = ((150, 175, 50), (220, 190, 45), (215, 135, 40), (160, 90, 40))
-HUMAN: RGB = (30, 80, 200)
-STEM: RGB = (40, 150, 60)
-PETAL: RGB = RED
-FLOWER_CENTRE: RGB = (245, 215, 50)
+HUMAN, STEM, PETAL, FLOWER_CENTRE = (30, 80, 200), (40, 150, 60), RED, (245, 215, 50)
 BEE: RGB = (120, 60, 170)  # violet: far from the petals, the centre and the stem
-# the History of the Universe: parts that share a keyframe differ in colour by far more than the
-# segmentation's tolerance, and none is near the white background
-BANG_CORE: RGB = (250, 215, 40)
-BANG_FIRE: RGB = (230, 70, 30)
-SUN: RGB = (245, 165, 30)
-EARTH: RGB = (40, 100, 220)
-MOON: RGB = (140, 140, 150)
-LAND: RGB = (60, 165, 60)
-SEA: RGB = (30, 90, 190)
-MICROBE: RGB = (150, 215, 60)
-FISH: RGB = (245, 120, 30)
-DINOSAUR: RGB = (80, 140, 50)
-PERSON: RGB = (215, 60, 120)
+# the History of the Universe (none near the white background)
+BANG_CORE, BANG_FIRE, SUN, EARTH, MOON = (250, 215, 40), (230, 70, 30), (245, 165, 30), (40, 100, 220), (140, 140, 150)
+LAND, SEA, MICROBE, FISH = (60, 165, 60), (30, 90, 190), (150, 215, 60), (245, 120, 30)
+DINOSAUR, PERSON = (80, 140, 50), (215, 60, 120)
 
 Part = tuple[Inside, RGB]
 
@@ -79,10 +62,8 @@ def ellipse(cx: float, cy: float, a: float, b: float, angle: float = 0.0) -> Ins
 
 
 def leaf(anchor: tuple[float, float], angle: float, length: float, *, bend: float = 0.0, wilt: float = 0.0) -> Inside:
-    """A leaf whose stalk (petiole) starts at `anchor` and whose midrib points along `angle` (radians,
-    y down). The blade is widest near its base and pointed at the tip, so its outline has no symmetry
-    that would make its rotation ambiguous. bend curls the midrib sideways (fall), wilt narrows one
-    half of the blade (0: fresh, 1: gone)."""
+    """A leaf from its stalk at `anchor` along `angle` (radians, y down), asymmetric so its rotation is
+    unambiguous; bend curls the midrib, wilt narrows one half of the blade (0: fresh, 1: gone)."""
     c, s = math.cos(angle), math.sin(angle)
     stalk = 0.16  # petiole length, in leaf lengths
 
@@ -101,8 +82,7 @@ def leaf(anchor: tuple[float, float], angle: float, length: float, *, bend: floa
     return inside
 
 
-# the leaf animation, per keyframe: (size, colour, bend, wilt, None while on the branch, else the blade
-# centre (x, y) and the turn (degrees) since it was blown off)
+# per keyframe: (size, colour, bend, wilt, None on the branch, else the blade centre (x, y) and its turn in degrees)
 _LeafFrame = tuple[float, RGB, float, float, "tuple[float, float, float] | None"]
 _LEAF_FRAMES: tuple[_LeafFrame, ...] = (
     (0.50, LEAF_GREENS[0], 0.0, 0.0, None),  # spring: a young leaf grows
@@ -160,8 +140,7 @@ def heap() -> list[Part]:
 
 
 def flower(bee_angle: float | None) -> list[Part]:
-    """A flower (stem with a leaf, petals, centre) and a bee at `bee_angle` (radians, y down) on a
-    circle round the flower head, its body along the circle as if flying round it."""
+    """A flower and a bee flying round its head at `bee_angle` (radians, y down)."""
     cx, cy = 0.5, 0.40
     stem = union(capsule((cx, 0.88), (cx, cy), 0.022), ellipse(0.59, 0.70, 0.09, 0.035, math.radians(-30)))
     around = np.linspace(0, 2 * math.pi, 6, endpoint=False) + math.pi / 2
@@ -179,9 +158,7 @@ def triangle(angle: float, radius: float) -> list[Part]:
     return [(polygon([_on_circle(_CENTRE, radius, -(angle + a)) for a in corners]), RED)]
 
 
-# --- the History of the Universe (paper 7.5.2, Fig. 21) ----------------------------------------------
-# Everything is drawn within 0.47 of the canvas centre, so that on the paper's circular table (2 m
-# across) the picture, centred and K_r = 2 m wide, keeps the robots 3.5 cm inside the rim.
+# the History of the Universe (paper 7.5.2): within 0.47 of the centre, inside the round table's rim
 _CENTRE = (0.5, 0.5)
 
 
@@ -202,9 +179,7 @@ def big_bang(burst: float) -> list[Part]:
 
 
 def solar_system(earth_angle: float) -> list[Part]:
-    """The Sun, the Earth at `earth_angle` on its orbit and the Moon on its own orbit round the Earth,
-    twice as fast (so that a few keyframes show both orbits)."""
-    # as large as fits (the robots' spacing grows with the area) with the Moon clear of the Sun
+    """The Sun, the Earth at `earth_angle` on its orbit and the Moon round the Earth, twice as fast."""
     earth = _on_circle(_CENTRE, 0.314, earth_angle)
     moon = _on_circle(earth, 0.118, 2.0 * earth_angle + math.pi / 2)
     return [(circle(*_CENTRE, 0.135), SUN), (circle(*earth, 0.065), EARTH), (circle(*moon, 0.038), MOON)]
@@ -215,7 +190,6 @@ _CONTINENTS = (((-0.38, -0.28), 0.36, 0.22, 0.35), ((0.34, 0.05), 0.22, 0.42, -0
 
 
 def _both(a: Inside, b: Inside) -> Inside:
-    """Inside both shapes."""
     return lambda x, y: a(x, y) & b(x, y)
 
 
@@ -264,8 +238,7 @@ def dinosaur(stretch: float) -> list[Part]:
 
 
 def person(arms_up: bool) -> list[Part]:
-    """A human (limbs thicker than the story's walker, so that the robots on them stay apart): walking
-    in from the left, or standing in the middle and waving both arms."""
+    """A human (thicker than the walker, so its robots stay apart) walking in, or waving both arms."""
     x = 0.4 if not arms_up else 0.5
     hip, neck, shoulder = (x, 0.56), (x, 0.27), (x, 0.32)
     feet = [(x - 0.14, 0.86), (x + 0.14, 0.86)] if not arms_up else [(x - 0.07, 0.86), (x + 0.07, 0.86)]
@@ -279,10 +252,8 @@ def person(arms_up: bool) -> list[Part]:
 
 
 def history_frames() -> list[list[Part]]:
-    """The parts of the History of the Universe's keyframes, in play order: the big bang, an orbit of
-    the Earth in eighths, the zoom onto the Earth, the sea, the dinosaur and the human. The robots reach
-    a keyframe's goals just as the next begins (eq. 27), so the picture ending each of the first four
-    chapters is given twice, to be held still."""
+    """The History of the Universe's keyframes' parts, in play order; each of the first four chapters' last
+    picture is given twice, to be held still (robots reach a keyframe as the next begins, eq. 27)."""
     bang, earth = [big_bang(0.0), big_bang(1.0)], [planet_earth(0.22), planet_earth(0.44)]
     life = [sea((0.45, 0.7), None), sea((0.32, 0.72), (0.55, 0.62))]
     dino = [dinosaur(0.0), dinosaur(1.0)]

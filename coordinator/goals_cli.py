@@ -1,8 +1,5 @@
-"""`pixelswarm goals IMAGE -n N ...`: an image to goal positions and colours (goals.json).
-
-Bad input (missing or unreadable file, no foreground, N too small or too large for the arena) prints
-one line `pixelswarm goals: error: ...` on stderr and returns exit code 2, writing no output file.
-"""
+"""`pixelswarm goals IMAGE -n N ...`: an image to goal positions and colours (goals.json). Bad input prints
+one line `pixelswarm goals: error: ...` and returns 2, writing no file."""
 
 from __future__ import annotations
 
@@ -66,7 +63,6 @@ def add_goals_parser(subparsers: Any) -> None:
 
 
 def _add_arena_flags(g: argparse._ArgumentGroup) -> None:
-    """The arena K_r and the robot size it is checked against."""
     g.add_argument(
         "--arena",
         type=float,
@@ -88,7 +84,6 @@ def _add_arena_flags(g: argparse._ArgumentGroup) -> None:
 
 
 def _add_placement_flags(g: argparse._ArgumentGroup) -> None:
-    """N_i per region, the initial samples' seed and Lloyd's iterations."""
     g.add_argument(
         "--method",
         choices=METHODS,
@@ -118,8 +113,7 @@ def _add_placement_flags(g: argparse._ArgumentGroup) -> None:
 
 
 def _write_all(jobs: list[tuple[Path, Callable[[Path], object]]]) -> None:
-    """Write every file to a temporary file beside it, then rename them all: on any failure no
-    output file (partial or not) is left behind."""
+    """Write every file to a temporary one beside it, then rename them all: a failure leaves no output file."""
     temps: list[Path] = []
     umask = os.umask(0)
     os.umask(umask)
@@ -146,8 +140,7 @@ def _check_output(path: Path, what: str) -> None:
 
 def run_goals(args: argparse.Namespace) -> int:
     """Run the goals command; returns the exit code (2 on bad input, with one line on stderr)."""
-    # here only: the image pipeline loads OpenCV and SciPy, which every other command would load for nothing
-    from .goals import GoalOptions, goals_from_prepared, prepare_image
+    from .goals import GoalOptions, goals_from_prepared, prepare_image  # here only: OpenCV, SciPy
 
     try:
         out = Path(args.output)
@@ -157,8 +150,7 @@ def run_goals(args: argparse.Namespace) -> int:
             _check_output(preview, "preview")
         counts = _region_counts(args.region_counts) if args.region_counts else None
         prep = prepare_image(args.image, background=args.background)
-        # every option is a flag of the same name; region counts come parsed
-        options = GoalOptions(
+        options = GoalOptions(  # each option is the flag of its name
             **{f.name: getattr(args, f.name) for f in fields(GoalOptions)} | {"region_counts": counts}
         )
         gs = goals_from_prepared(prep, args.n, options)

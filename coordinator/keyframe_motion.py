@@ -1,12 +1,6 @@
-"""Motion of a region R_i between two keyframes (paper 6.1) and the initial samples it yields.
-
-The translation T_i^f is the centroid shift. The rotation M_i^f is found on the Canny edge points of the
-region's border, centred on the centroid and divided by sqrt(area) so that a growing region keeps its
-features: the border signatures r(phi) are cross-correlated circularly (by FFT), and as a rotation
-shifts the signature, the best shift is the rotation, whatever its size; the normalised correlation
-there (-1..1) is the paper's "sufficient correlation" test. Among near-equal shifts (a symmetric shape)
-the smallest rotation wins, as keyframes are close in time. ICP about the centroid then refines it,
-kept only within ICP_REACH. Angles are counter-clockwise as seen, in the arena frame (y up).
+"""Motion of a region R_i between two keyframes (paper 6.1): T_i^f is the centroid shift; M_i^f the best
+circular shift of the border signatures r(phi) (FFT cross-correlation, smallest turn on ties, refined by
+ICP), whose normalised correlation is the paper's "sufficient correlation". Angles: counter-clockwise, y up.
 """
 
 from __future__ import annotations
@@ -29,8 +23,7 @@ ICP_REACH = np.radians(5.0)  # how far ICP may move the rotation of the signatur
 
 @dataclass
 class RegionShape:
-    """What frame-to-frame matching needs of a region R_i, in the normalised arena frame
-    (image's longer side = 1, origin at the image centre, y up)."""
+    """What frame-to-frame matching needs of R_i, in the normalised arena frame (longer side 1, y up)."""
 
     centroid: np.ndarray  # (2,) centroid of R_i
     area: float  # A_i in the normalised square
@@ -57,8 +50,7 @@ def region_shape(seg: Segmentation, region_id: int, lab: np.ndarray) -> RegionSh
 
 
 def signature(border: np.ndarray) -> np.ndarray:
-    """r(phi): the largest radius of the border points in each polar-angle bin; empty bins (a border
-    that crosses a bin without a pixel in it) are filled by interpolation round the circle."""
+    """r(phi): the largest radius of the border points in each polar-angle bin; empty bins interpolated."""
     phi = np.arctan2(border[:, 1], border[:, 0])
     idx = np.floor((phi + np.pi) / (2 * np.pi) * BINS).astype(int) % BINS
     sig = np.full(BINS, -1.0)
@@ -68,8 +60,7 @@ def signature(border: np.ndarray) -> np.ndarray:
 
 
 def _icp_rotation(a: np.ndarray, b: np.ndarray, theta: float, iters: int = 30) -> float:
-    """Refine the rotation of point set a onto b (both centred) by ICP about the origin; pairs more than
-    three times the median distance apart (parts of the border that changed shape) are left out."""
+    """Refine the rotation of a onto b (both centred) by ICP, leaving out pairs over 3 x the median apart."""
     tree = cKDTree(b)
     for _ in range(iters):
         c, s = np.cos(theta), np.sin(theta)
@@ -85,13 +76,8 @@ def _icp_rotation(a: np.ndarray, b: np.ndarray, theta: float, iters: int = 30) -
 
 
 def estimate_motion(prev: RegionShape, cur: RegionShape) -> tuple[float, float, float]:
-    """(rotation M_i^f in radians, scale sqrt(A_f / A_{f-1}), border correlation -1..1) of a region
-    from frame f-1 to frame f; its translation T_i^f is cur.centroid - prev.centroid.
-
-    The signatures are known to half a pixel, 0.5 / sqrt(pixels) in their units: a signature varying
-    less is round (a disk), with no rotation to find, and two round regions match perfectly. Otherwise
-    that noise is added to each signature's variance, so that rasterisation noise on an almost round
-    region cannot pass for a good match."""
+    """(rotation M_i^f, scale sqrt(A_f / A_{f-1}), border correlation -1..1) from frame f-1 to f. The half
+    pixel a signature is known to counts in its variance: rasterisation noise on a round region is no match."""
     scale = float(np.sqrt(cur.area / prev.area))
     sa, sb = signature(prev.border), signature(cur.border)
     noise_a, noise_b = 0.5 / np.sqrt(prev.pixels), 0.5 / np.sqrt(cur.pixels)  # half a pixel
@@ -115,12 +101,8 @@ def estimate_motion(prev: RegionShape, cur: RegionShape) -> tuple[float, float, 
 
 
 def fit_count(px: np.ndarray, n: int, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """The N_i initial samples of region R_i (pixels rows, cols) from its moved goals (pixel units).
-
-    Moved goals outside R_i (it changed shape, or the motion estimate is off) are dropped rather than
-    pushed onto the border, where they would crowd and slow Lloyd or leave it in a worse local minimum.
-    Surplus goals go one of the closest pair at a time, so the rest stay evenly spread; missing ones go
-    where R_i is farthest from every sample (farthest-point insertion on the pixel centres)."""
+    """R_i's N_i initial samples from its moved goals (pixels): those outside R_i dropped (on its border they
+    would crowd), surplus ones one of the closest pair at a time, missing ones by farthest-point insertion."""
     pts = np.asarray(px, float).reshape(-1, 2)
     pts = pts[in_region(pts, rows, cols)] if len(pts) else pts
     while len(pts) > n:

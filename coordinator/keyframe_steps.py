@@ -1,11 +1,6 @@
-"""Animations in scenes (paper 6): the ``[animation]`` table, keyframe timing, and the goal sets.
-
-The table's keys and defaults: docs/scenes.md. Each keyframe becomes one scene step. Keyframe f begins
-at its start time and its robots reach its goals when keyframe f+1 begins (eq. 27 over K_f dt = the time
-between the two starts); the first keyframe's K_f dt is `first_hold` (the robots come from the start
-layout), the last's is `frame_time`, after which it is shown for `last_hold`. The goal sets come from
-coordinator.keyframes.keyframe_goals, all in one arena K_r.
-"""
+"""Animations in scenes (paper 6): the ``[animation]`` table (docs/scenes.md), one scene step per keyframe.
+Keyframe f's robots reach its goals when f+1 begins (eq. 27); the first's K_f dt is `first_hold`, the
+last's `frame_time`, then it is shown for `last_hold`."""
 
 from __future__ import annotations
 
@@ -43,8 +38,7 @@ class Animation:
 
 
 def parse_animation(data: Any, source: str = "") -> Animation:
-    """An Animation from the [animation] table; paths are relative to the scene file. GoalError on
-    bad input (one line)."""
+    """An Animation from the [animation] table (paths relative to the scene file). GoalError (one line)."""
     if not isinstance(data, dict):
         raise GoalError('animation must be a table with keyframes = "name", "folder/" or ["a.png", ...]')
     check_keys(data, ANIMATION_KEYS, "animation")
@@ -78,7 +72,6 @@ def parse_animation(data: Any, source: str = "") -> Animation:
 
 
 def _keyframes(value: Any, source: str, size: Any) -> tuple[str, list[Any]]:
-    """(name, images) of a drawn animation, a folder or a list of image files."""
     if isinstance(value, str) and value in KEYFRAME_ANIMATIONS:
         if not (isinstance(size, int) and not isinstance(size, bool) and 32 <= size <= 2048):
             raise GoalError(f"animation: size must be a whole number of pixels in 32..2048, not {size!r}")

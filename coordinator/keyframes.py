@@ -1,11 +1,8 @@
-"""Goal generation for animations (paper 6.1): one goal set G_f per keyframe I_f, f = 1..N_F.
+"""Goal generation for animations (paper 6.1): one goal set G_f per keyframe I_f, all in one arena K_r.
 
-The regions of I_f and I_{f-1} are paired by an optimal assignment on colour (Delta E in Lab), centroid
-shift and area ratio together: colour alone fails for a leaf turning brown, position alone for shapes
-that cross. G_{f-1} of R_i, moved by T_i^f (the centroid shift) and M_i^f (keyframe_motion.estimate_motion),
-scaled with the area per goal and thinned or filled to N_i, starts the Lloyd iterations (4.3); a region
-below `min_correlation`, and every region of a frame whose region count changed, starts from fresh
-random samples (4.2). All frames share one arena K_r, so one metre is the same number of pixels in each.
+Regions of consecutive frames are paired on colour, centroid shift and area ratio together; G_{f-1} of a
+region, moved by its T_i^f and M_i^f and scaled with the area per goal, starts frame f's Lloyd iterations,
+unless it matches poorly or the region count changed (then fresh random samples, 4.2).
 """
 
 from __future__ import annotations
@@ -27,8 +24,7 @@ from .goals.pipeline import PAPER_OPTIONS
 from .goals.resize import from_arena
 from .keyframe_motion import MIN_CORRELATION, RegionShape, estimate_motion, fit_count, region_shape
 
-# scales of the correspondence cost: a Delta E of 25, a shift of a quarter of the image and an area
-# ratio of 2 each cost 1
+# a Delta E of 25, a shift of a quarter of the image and an area ratio of 2 each cost 1
 COLOR_SCALE, SHIFT_SCALE, AREA_SCALE = 25.0, 0.25, float(np.log(2.0))
 
 ImageLike = np.ndarray | str | os.PathLike[str]
@@ -49,8 +45,7 @@ class RegionMotion:
 
 @dataclass
 class FrameReport:
-    """How frame f's goals were found: mode "first", "previous" (every region from G_{f-1}),
-    "partial" (some) or "fresh" (none, with the reason)."""
+    """How frame f's goals were found: mode "first", "previous" (every region from G_{f-1}), "partial" or "fresh"."""
 
     frame: int
     mode: str
@@ -99,19 +94,14 @@ class KeyframeGoals:
 
 
 def goal_disparity(a: np.ndarray, b: np.ndarray) -> float:
-    """Mean distance between corresponding goals of two goal sets, the correspondence being the
-    assignment of least total squared distance, eq. 7 (how far robots standing on G_{f-1} move to
-    G_f when the real-time control assigns them optimally, paper 5.1)."""
+    """Mean distance between the goals of two sets matched by goal_correspondence (eq. 7)."""
     a, b = np.asarray(a, float).reshape(-1, 2), np.asarray(b, float).reshape(-1, 2)
     previous = goal_correspondence(a, b)
     return float(np.hypot(*(b - a[previous]).T).mean())
 
 
 def goal_correspondence(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """For each goal of G_f (``b``), the index of its corresponding goal in G_{f-1} (``a``): the
-    one-to-one matching of least total squared distance (eq. 7), scipy's linear_sum_assignment on
-    every pair (a measure of a frame's change; the robots carry their goals over by the auction's
-    matching, coordinator.warm_start). Raises GoalError unless both sets have one size."""
+    """For each goal of ``b``, its goal in ``a`` by the matching of least total squared distance (eq. 7)."""
     a, b = np.asarray(a, float).reshape(-1, 2), np.asarray(b, float).reshape(-1, 2)
     if len(a) != len(b) or len(a) == 0:
         raise GoalError(f"goal correspondence needs two non-empty goal sets of one size, not {len(a)} and {len(b)}")
@@ -133,8 +123,7 @@ def keyframe_paths(folder: str | os.PathLike[str]) -> list[Path]:
 
 
 def match_regions(prev: Sequence[RegionShape], cur: Sequence[RegionShape]) -> list[int]:
-    """For each region of the current frame, the index of its region in the previous frame (same
-    counts): the assignment of least total cost of colour, centroid shift and area ratio."""
+    """For each region of the current frame, its region in the previous one (least cost of colour, shift, area)."""
     if len(prev) != len(cur):
         raise ValueError("match_regions needs two frames with the same number of regions")
     cost = np.zeros((len(cur), len(prev)))
@@ -158,8 +147,7 @@ def _initial_samples(
     counts: np.ndarray,
     min_correlation: float,
 ) -> tuple[dict[int, np.ndarray], list[RegionMotion], str]:
-    """Initial samples (pixel units) per region of frame f: the goals of its region in frame f-1
-    (G_{f-1}) moved by T_i^f and M_i^f; also the regions' motions and which regions match poorly."""
+    """Initial samples (pixels) per region of frame f, G_{f-1} moved by T_i^f and M_i^f; the motions; poor matches."""
     prev_goals = prev_set.goals / prev_set.arena  # normalised arena frame, like the region shapes
     init: dict[int, np.ndarray] = {}
     motions, poor = [], []
@@ -222,21 +210,8 @@ def keyframe_goals(
     keep_counts: bool = False,
     min_correlation: float = MIN_CORRELATION,
 ) -> KeyframeGoals:
-    """N goals per keyframe I_1..I_F (paper 6.1), all in one arena.
-
-    images: RGB/RGBA/gray arrays or image paths, or a folder of images (played in file-name order);
-      all keyframes must have the same size in pixels, so that one pixel is one length in every frame.
-    init_from_previous: start each frame's Lloyd iterations from the previous frame's goals moved by
-      T_i^f and M_i^f (else every frame starts from random samples, section 4.2).
-    keep_counts: a region keeps the N_i of its region in the previous frame (when the regions
-      correspond and it has room), instead of N_i proportional to its area in every frame; robots then
-      stay in their region rather than stream between regions whose areas change.
-    options: as in generate_goals; region_counts are the artist's N_i for the first frame (and frames
-      that do not correspond), arena None the largest conservative arena any frame needs, and frame f
-      uses seed + f for its random samples.
-    min_correlation: the "sufficient correlation" of the region borders below which a region starts
-      from fresh samples. The moved goals are also scaled about the centroid so that their spacing
-      follows the area per goal, sqrt((A_f / N_f) / (A_{f-1} / N_{f-1})) (a growing leaf).
+    """N goals per keyframe I_1..I_F (paper 6.1) of one size in pixels (arrays, paths or a folder), in one
+    arena. keep_counts: a region keeps its previous N_i (robots stay in their region); frame f uses seed + f.
     Raises GoalError on bad input."""
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
         raise GoalError(f"N must be a whole number of robots, at least 1, not {n!r}")
@@ -269,24 +244,15 @@ def keyframe_goals(
             raise GoalError(f"keyframe {f}: {err}") from None
         reports.append(_frame_report(f, gs, motions, reason, time.perf_counter() - t0))
         sets.append(gs)
-    return KeyframeGoals(*_in_one_arena(sets, reports, options.arena), (preps[0].shape[1], preps[0].shape[0]))
+    shared = float(options.arena) if options.arena is not None else max(s.arena for s in sets)
+    for r in reports:  # the translations in metres of the shared arena
+        r.regions = [replace(m, translation=(m.translation[0] * shared, m.translation[1] * shared)) for m in r.regions]
+    return KeyframeGoals([rescale(s, shared) for s in sets], reports, (preps[0].shape[1], preps[0].shape[0]))
 
 
 def _frame_report(f: int, gs: GoalSet, motions: list[RegionMotion], reason: str, seconds: float) -> FrameReport:
-    """Whether frame f's regions started from G_{f-1} moved (all: "previous", some: "partial") or
-    from fresh samples ("fresh", or "first" for the first frame)."""
+    """Frame f's report: its mode says whether its regions started from G_{f-1} moved."""
     done = {m.region for m in motions if m.initialised}
     used = {int(r) for r in np.unique(gs.regions)}
     mode = "first" if f == 0 else "fresh" if not done else "previous" if done >= used else "partial"
     return FrameReport(f, mode, reason, motions, int(gs.params["iterations"]), seconds)
-
-
-def _in_one_arena(
-    sets: list[GoalSet], reports: list[FrameReport], arena: float | None
-) -> tuple[list[GoalSet], list[FrameReport]]:
-    """Every frame's goal set in one arena K_r (None: the largest any frame needs), and the regions'
-    translations in metres of it."""
-    shared = float(arena) if arena is not None else max(s.arena for s in sets)
-    for r in reports:
-        r.regions = [replace(m, translation=(m.translation[0] * shared, m.translation[1] * shared)) for m in r.regions]
-    return [rescale(s, shared) for s in sets], reports

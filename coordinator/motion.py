@@ -1,11 +1,5 @@
-"""Dynamic images (paper 7.4.1): the ``[steps.motion]`` table of an image step.
-
-Keys: docs/scenes.md. The coordinator publishes the goal set once with these numbers
-(transport.codec.Goals); the robots compute their moving goals themselves (agent.core.goal_motion,
-eq. 28). This module only parses and bounds the motion: the arena must hold the pattern wherever it goes.
-It also holds the checks of scene values that steps, animations and scenes share (check_keys, is_number,
-positive, one_of): the lowest module that scene parsing imports.
-"""
+"""Dynamic images (paper 7.4.1): the ``[steps.motion]`` table, parsed and bounded (the robots move their
+goals themselves, eq. 28); also the checks of scene values that steps, animations and scenes share."""
 
 from __future__ import annotations
 
@@ -36,15 +30,13 @@ class StepMotion:
         return self.expansion_kind == "geometric"
 
     def scale(self, t: float) -> float:
-        """s(t) of eq. 28 (the one formula the coordinator needs: for the arena's size)."""
+        """s(t) of eq. 28."""
         if self.geometric:
             return (1.0 + self.expansion) ** t
         return 1.0 + self.expansion * t
 
     def swept_box(self, goals: np.ndarray, duration: float) -> np.ndarray:
-        """Corners (2,2) [[xmin, ymin], [xmax, ymax]] of a box that holds the goal set at every t in
-        [0, duration]: s(t) is monotonic, so the farthest a goal gets from the centre is at an end;
-        the centre moves on a straight line; the rotation can point any way."""
+        """Corners (2,2) of a box holding the goal set for t in [0, duration] (s(t) is monotonic, any rotation)."""
         centre = np.asarray(self.center, float)
         reach = float(np.max(np.hypot(*(np.asarray(goals, float) - centre).T), initial=0.0))
         reach *= max(self.scale(0.0), self.scale(duration))
@@ -68,8 +60,7 @@ def parse_motion(data: Any, label: str) -> StepMotion:
 
 
 def check_window(motion: StepMotion, label: str, duration: float) -> None:
-    """A linear contraction must not shrink the pattern to nothing while the step is shown
-    (`duration` seconds). Raises GoalError."""
+    """GoalError if a linear contraction shrinks the pattern to nothing within `duration` seconds."""
     if not motion.geometric and motion.expansion < 0 and motion.scale(duration) <= 0.0:
         raise GoalError(
             f"{label}.motion: a linear contraction of {motion.expansion}/s shrinks the pattern to "
@@ -94,16 +85,14 @@ def is_positive(value: Any) -> TypeGuard[float]:
 
 
 def positive(value: Any, label: str, unit: str = "seconds", error: type[ValueError] = GoalError) -> float:
-    """``value`` as a float if it is a positive number; else ``error`` (a scene's: SceneError) saying that
-    ``label`` must be a positive number of ``unit``."""
+    """``value`` as a float if it is a positive number, else ``error`` (a scene's: SceneError)."""
     if not is_positive(value):
         raise error(f"{label} must be a positive number of {unit}, not {value!r}")
     return float(value)
 
 
 def one_of(value: Any, choices: tuple[str, ...], label: str, error: type[ValueError] = GoalError) -> Any:
-    """``value`` if it is one of ``choices``; else ``error`` (a scene's: SceneError) saying that ``label``
-    must be one of them."""
+    """``value`` if it is one of ``choices``, else ``error`` (a scene's: SceneError)."""
     if value not in choices:
         raise error(f"{label} must be one of {', '.join(choices)}, not {value!r}")
     return value

@@ -1,11 +1,5 @@
-"""A resolved scene: a scene with its goal sets made, saved in a run directory and read back.
-
-The launcher makes the goal sets once and saves them with the scene as scene.json and goal_sets.npz
-(docs/outputs.md). The coordinator and the world read the scene from there (``load_resolved``), parsing
-no TOML and reading no image, so the world never loads the image pipeline. Goal sets for a robot count
-not saved (robots lost, paper 5.1.2) are made when first asked for, in the same arena K_r; only the
-coordinator asks for those.
-"""
+"""A resolved scene: a scene with its goal sets, saved in a run directory as scene.json and goal_sets.npz
+(docs/outputs.md), so the world and coordinator read it without TOML or the image pipeline."""
 
 from __future__ import annotations
 
@@ -13,7 +7,6 @@ import argparse
 import dataclasses
 import json
 import math
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Unpack
 
@@ -29,23 +22,20 @@ FORMAT = "pixelswarm.scene/1"
 
 
 class StoredGoals(GoalSets):
-    """Goal sets read from a run directory (the image_goals of a resolved scene). A count not stored is
-    made by ``make`` (the image pipeline in arena K_r) when first asked for."""
+    """Goal sets read from a run directory; a count not stored is made by the image pipeline when asked for."""
 
-    def __init__(
-        self,
-        arena: float,
-        sets: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]],
-        steps: int,
-        robots: int,
-        make: Callable[[], GoalSets],
-    ) -> None:
-        super().__init__(steps, robots)
-        self.arena = arena
-        for (k, n), (goals, colors) in sets.items():
-            self._keep(k, n, goals, colors)
-        self._make = make
+    def __init__(self, path: Path, scene: Scene, arena: float) -> None:
+        super().__init__(len(scene.steps), scene.robots)
+        self.arena, self.scene = arena, scene
         self._pipeline: GoalSets | None = None
+        try:
+            with np.load(path) as npz:
+                for name in npz.files:
+                    if name.startswith("goals_"):
+                        k, n = (int(v) for v in name.removeprefix("goals_").split("_"))
+                        self._keep(k, n, npz[name], npz[f"colors_{k}_{n}"])
+        except (OSError, ValueError, KeyError) as err:
+            raise SceneError(f"{path}: cannot read the run's goal sets: {err}") from None
 
     @property
     def counts(self) -> list[int]:
@@ -53,14 +43,16 @@ class StoredGoals(GoalSets):
         return sorted({n for _, n in self._sets})
 
     def _made(self, step: int, n: int) -> tuple[np.ndarray, np.ndarray]:
-        if self._pipeline is None:
-            self._pipeline = self._make()
+        if self._pipeline is None:  # the scene as the run parsed it, in the run's arena K_r
+            s = self.scene
+            self._pipeline = goal_pipeline(
+                parse_scene(s.source, robots=s.robots, seed=s.seed, duration=s.duration), self.arena
+            )
         return self._pipeline.goal_set(step, n)
 
 
 def stored_counts(scene: Scene) -> list[int]:
-    """The robot counts a run saves goal sets for: every robot (the arena holds these) and the robot
-    pixels (the count the coordinator shows while none is lost)."""
+    """The robot counts a run saves goal sets for: every robot (the arena's) and the robot pixels."""
     return sorted({scene.robots, len(scene.pixel_robots)} - {0})
 
 
@@ -70,8 +62,7 @@ _AS_IS |= {"agents_per_process": int, "deadline": float, "duration": float, "con
 
 
 def save_resolved(scene: Scene, folder: Path, robot: dict[str, Any] | None = None) -> None:
-    """Write scene.json and, for an image scene, goal_sets.npz into ``folder``. ``robot``: the robot
-    parameters to record (default: the scene's own [robot] table)."""
+    """Write scene.json and, for an image scene, goal_sets.npz into ``folder`` (``robot``: else the scene's)."""
     folder = Path(folder)
     image = None
     if scene.image_goals is not None:
@@ -104,8 +95,7 @@ def save_resolved(scene: Scene, folder: Path, robot: dict[str, Any] | None = Non
 
 
 def load_resolved(folder: Path | str, *, clock: str | None = None, duration: float | None = None) -> Scene:
-    """The scene a run directory holds, with its goal sets; ``clock`` and ``duration`` override it
-    (a hardware run keeps to the wall clock). SceneError (one line) if the folder holds none."""
+    """The scene a run directory holds, with its goal sets and overrides. SceneError (one line) if none."""
     path = Path(folder) / SCENE_FILE
     try:
         data = json.loads(path.read_text())
@@ -123,7 +113,7 @@ def load_resolved(folder: Path | str, *, clock: str | None = None, duration: flo
     scene.duration = float(duration) if duration is not None else scene.duration
     image = data.get("image_goals")
     if image is not None:
-        scene.image_goals = _stored_goals(Path(folder) / image["file"], scene, float(image["arena"]))
+        scene.image_goals = StoredGoals(Path(folder) / image["file"], scene, float(image["arena"]))
         scene.goal_set, scene.goal_colors = scene.image_goals.goal_set(0, scene.robots)
     return scene
 
@@ -150,25 +140,6 @@ def _scene_of(data: dict[str, Any]) -> Scene:
     )
 
 
-def _stored_goals(path: Path, scene: Scene, arena: float) -> StoredGoals:
-    sets: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
-    try:
-        with np.load(path) as npz:
-            for name in npz.files:
-                if name.startswith("goals_"):
-                    k, n = (int(v) for v in name.removeprefix("goals_").split("_"))
-                    sets[(k, n)] = (npz[name], npz[f"colors_{k}_{n}"])
-    except (OSError, ValueError, KeyError) as err:
-        raise SceneError(f"{path}: cannot read the run's goal sets: {err}") from None
-
-    def make() -> GoalSets:
-        """The image pipeline for the scene as the run parsed it, in the run's arena K_r."""
-        parsed = parse_scene(scene.source, robots=scene.robots, seed=scene.seed, duration=scene.duration)
-        return goal_pipeline(parsed, arena)
-
-    return StoredGoals(arena, sets, len(scene.steps), scene.robots, make)
-
-
 def _step_record(step: ImageStep) -> dict[str, Any]:
     record = dataclasses.asdict(step)
     record["image"] = None if step.image is None else str(step.image)
@@ -192,8 +163,7 @@ def _step_of(data: dict[str, Any]) -> ImageStep:
 
 
 def add_scene_args(parser: argparse.ArgumentParser) -> None:
-    """A run's child process is given its scene resolved in the run directory (no image pipeline),
-    or by name, with the command line's overrides."""
+    """A run's child process's scene: resolved in the run directory, or by name, with overrides."""
     where = parser.add_mutually_exclusive_group(required=True)
     where.add_argument("--run-dir", help="a run directory holding the resolved scene (no image pipeline)")
     where.add_argument("--scene", help="a scene to load (with its goal sets: the image pipeline)")
@@ -205,9 +175,7 @@ def add_scene_args(parser: argparse.ArgumentParser) -> None:
 
 
 def scene_of_args(args: argparse.Namespace, **fixed: Unpack[Overrides]) -> Scene:
-    """The scene add_scene_args's arguments name; ``fixed`` wins over them (e.g. hardware: its robots,
-    the wall clock). ``args`` may also be `pixelswarm run`'s, which has no --run-dir. SceneError (one
-    line) if there is none."""
+    """The scene add_scene_args's arguments name, ``fixed`` winning (hardware: its robots, the wall clock)."""
     given: Overrides = {"robots": args.robots, "seed": args.seed, "clock": args.clock, "duration": args.duration}
     given.update(fixed)
     if getattr(args, "run_dir", None) is not None:

@@ -1,10 +1,5 @@
 """Scenes: TOML files naming the robots, their layout and goals, the arena, obstacles, events and clock
-(every key: docs/scenes.md).
-
-``parse_scene`` reads and validates a scene without image work; ``make_goal_sets`` runs the image
-pipeline for its goal sets and the "auto" arena; ``load_scene`` does both and raises ``SceneError`` with
-one line saying what is wrong and how to fix it. The launcher saves the result in the run directory
-(coordinator.resolved), where every process of the run reads it."""
+(every key: docs/scenes.md). Errors are SceneError, one line saying what is wrong and how to fix it."""
 
 from __future__ import annotations
 
@@ -60,8 +55,7 @@ class GoalPlan:
 
 @dataclass
 class Scene:
-    """A parsed scene: one attribute per scene-file key, plus what parsing derives from them (poses,
-    goal positions, steps and their goal sets)."""
+    """A parsed scene: one attribute per scene-file key, plus what parsing derives (poses, goals, steps)."""
 
     name: str
     robots: int
@@ -97,9 +91,7 @@ class Scene:
 
     @property
     def pixel_robots(self) -> list[int]:
-        """The robot pixels, which show the image: every robot but the scripted movers and the pursuers
-        (paper Fig. 19's uncontrolled objects), which move on their own account and take no goal of
-        the goal set."""
+        """The robots that show the image: all but the scripted movers and pursuers (paper Fig. 19)."""
         return [i for i in range(self.robots) if i not in self.scripted and i not in self.pursuers]
 
     @property
@@ -113,8 +105,7 @@ class Scene:
 
     @property
     def ends_on_convergence(self) -> bool:
-        """A run ends early once the robots hold the last image; not while it moves (a dynamic image
-        has no final position to hold)."""
+        """A run ends early once the robots hold the last image, unless it moves (no final position)."""
         return not (self.steps and self.steps[-1].motion is not None)
 
     def step_window(self, k: int) -> float:
@@ -141,7 +132,7 @@ def resolve_scene_path(name_or_path: str) -> Path:
 
 
 class Overrides(TypedDict, total=False):
-    """What the command line may set over a scene's file (None: the file's, or the default)."""
+    """What the command line may set over a scene's file (None: the file's)."""
 
     robots: int | None
     seed: int | None
@@ -150,14 +141,12 @@ class Overrides(TypedDict, total=False):
 
 
 def load_scene(name_or_path: str, **overrides: Unpack[Overrides]) -> Scene:
-    """Read, complete and validate a scene, with its goal sets; command-line overrides win over the
-    file. An image file is a scene too: its goals, a grid of robots."""
+    """Read and validate a scene (or an image: its goals, a grid of robots) with its goal sets."""
     return make_goal_sets(parse_scene(name_or_path, **overrides))
 
 
 def parse_scene(name_or_path: str, **overrides: Unpack[Overrides]) -> Scene:
-    """Read and validate a scene without making its goal sets: an image scene's goal sets, and the
-    arena that holds them, come from make_goal_sets."""
+    """Read and validate a scene without making its goal sets (make_goal_sets does, and their arena)."""
     is_image = Path(name_or_path).suffix.lower() in IMAGE_SUFFIXES
     if is_image and not Path(name_or_path).is_file():
         raise SceneError(f"image {name_or_path} not found")
@@ -187,8 +176,7 @@ SCENE_KEYS = frozenset(
 
 
 def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: Unpack[Overrides]) -> Scene:
-    """A scene from its table, validated, without its goal sets: no image is read or drawn but a
-    drawn animation's keyframes (make_goal_sets makes the goal sets and the arena that holds them)."""
+    """A scene from its table, validated, without its goal sets (no image is read)."""
     robots, seed, duration = overrides.get("robots"), overrides.get("seed"), overrides.get("duration")
     if unknown := set(data) - SCENE_KEYS:
         raise SceneError(f"{source}: unknown key(s) {', '.join(sorted(unknown))}")
@@ -197,7 +185,11 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
         raise SceneError(f"{source}: robots must be a whole number >= 1, not {n!r}")
     robot = _table(data, "robot", {}, source)
     radius = positive(robot.get("radius", epuck.RADIUS), f"{source}: robot radius", "metres", SceneError)
-    animation = _parse_animation(data["animation"], source) if "animation" in data else None
+    animation: Animation | None = None
+    if "animation" in data:
+        from .keyframe_steps import parse_animation  # draws a drawn animation's keyframes (OpenCV)
+
+        animation = _wrap(lambda: parse_animation(data["animation"], source), source)
     steps = list(animation.steps) if animation is not None else _steps(data, source)
     if animation is not None and ("steps" in data or "goals" in data):
         raise SceneError(f"{source}: give one of [animation], [[steps]] or [goals], not several")
@@ -225,8 +217,7 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
     _check_settings(scene, source)
     scene.obstacles = [_polygon(o, source) for o in data.get("obstacles", [])]
     scene.poses = initial_poses(scene.layout, n, radius, scene.seed, source)
-    if scene.goals.get("kind") == "image":
-        # One image is a sequence of one step, shown for the whole run.
+    if scene.goals.get("kind") == "image":  # one image: a sequence of one step, shown for the whole run
         steps = [_wrap(lambda: parse_step(_image_step(scene.goals, scene.duration), "goals", source), source)]
     if steps:
         _plan_steps(scene, data, steps, animation, source)
@@ -241,8 +232,6 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
 def _duration_and_seed(
     data: dict[str, Any], steps: list[ImageStep], duration: float | None, seed: int | None, where: str
 ) -> tuple[float, int]:
-    """The run's duration (by default the steps' hold times, summed) and seed: the overrides', else
-    the scene's, checked."""
     if duration is None:
         duration = data.get("duration", sum(s.hold for s in steps) if steps else Scene.duration)
     if not is_positive(duration):
@@ -254,8 +243,7 @@ def _duration_and_seed(
 
 
 def _add_uncontrolled(scene: Scene, data: dict[str, Any], where: str) -> None:
-    """The scene's events, checked, and its scripted movers and pursuers (paper Fig. 19's uncontrolled
-    objects), which take no goal."""
+    """The scene's events, checked, and its scripted movers and pursuers (paper Fig. 19), which take no goal."""
     for event in scene.events:
         _check_event(event, scene, where)
     scene.scripted = {_robot_index(e, scene, where): _waypoints(e, where) for e in _tables(data, "scripted", where)}
@@ -267,7 +255,6 @@ def _add_uncontrolled(scene: Scene, data: dict[str, Any], where: str) -> None:
 
 
 def _check_settings(scene: Scene, where: str) -> None:
-    """The run settings a scene may carry: SceneError (one line) unless each is one of its kind."""
     for key, choices in (("clock", CLOCKS), ("engine", ENGINES), ("assignment", ASSIGNMENTS)):
         one_of(getattr(scene, key), choices, f"{where}: {key}", SceneError)
     k = scene.agents_per_process
@@ -298,8 +285,7 @@ def _plan_steps(
 
 
 def make_goal_sets(scene: Scene) -> Scene:
-    """An image scene's goal sets (the image pipeline: step 0's set for every robot, then the others
-    as asked) and the arena that holds them all, checked; other scenes are returned as they are."""
+    """An image scene's goal sets and the arena holding them, checked; other scenes are returned as they are."""
     if scene.goal_plan is None or scene.image_goals is not None:
         return scene
     scene.image_goals = goal_pipeline(scene)
@@ -310,33 +296,21 @@ def make_goal_sets(scene: Scene) -> Scene:
 
 
 def goal_pipeline(scene: Scene, arena: float | None = None) -> StepGoals | FrameGoals:
-    """The image pipeline for a parsed image scene's goal sets, in arena K_r = ``arena`` (None: the
-    scene's own, or the largest any step needs)."""
+    """The image pipeline for a parsed image scene's goal sets, in arena K_r (None: the scene's, or the largest)."""
     plan = scene.goal_plan
     if plan is None:
         raise SceneError(f'{scene.name}: the scene shows no image (no [[steps]] or [goals] kind = "image")')
-    radius, where = scene.radius, scene.source
-    if plan.animation is not None:
-        from .keyframe_steps import FrameGoals
+    try:
+        if plan.animation is not None:
+            from .keyframe_steps import FrameGoals
 
-        animation = plan.animation
-        return _wrap(
-            lambda: FrameGoals(animation, scene.robots, scene.seed, radius, arena, counts_for=plan.counts_for), where
-        )
-    k_r = arena if arena is not None else plan.arena
-    return _wrap(
-        lambda: StepGoals(scene.steps, scene.robots, scene.seed, radius, k_r, plan.labels, plan.counts_for), where
-    )
+            return FrameGoals(plan.animation, scene.robots, scene.seed, scene.radius, arena, counts_for=plan.counts_for)
+        k_r = arena if arena is not None else plan.arena
+        return StepGoals(scene.steps, scene.robots, scene.seed, scene.radius, k_r, plan.labels, plan.counts_for)
+    except GoalError as err:
+        raise SceneError(f"{scene.source}: {err}") from None
 
 
-def _parse_animation(table: Any, source: str) -> Animation:
-    from .keyframe_steps import parse_animation  # draws a drawn animation's keyframes (OpenCV)
-
-    animation: Animation = _wrap(lambda: parse_animation(table, source), source)
-    return animation
-
-
-# --- layouts -------------------------------------------------------------------------------------
 def initial_poses(layout: dict[str, Any], n: int, radius: float, seed: int, where: str = "scene") -> np.ndarray:
     """Initial poses (N,3) of a layout; headings face the arena centre for circle and rows."""
     kind = layout.get("kind", "grid")
@@ -440,7 +414,6 @@ def scene_goals(goals: dict[str, Any], poses: np.ndarray, where: str = "scene") 
     raise SceneError(f"{where}: goals kind must be one of {', '.join(GOAL_KINDS)}, not {kind!r}")
 
 
-# --- checks --------------------------------------------------------------------------------------
 def _steps(data: dict[str, Any], source: str) -> list[ImageStep]:
     if "steps" not in data:
         return []
@@ -469,9 +442,7 @@ def _wrap(make: Any, where: str) -> Any:
 
 
 def scene_goal_set(scene: Scene, step: int, robots: int) -> tuple[np.ndarray, np.ndarray]:
-    """Goals (n,2) and colours (n,3) uint8 of image step `step` for n = robots <= scene.robots, e.g.
-    the live count when robots drop out (paper 5.1.2). Seeded with scene.seed and cached; every step
-    and count shares one arena K_r, so the picture keeps its size. Arrays are read-only."""
+    """Goals (n,2) and colours (n,3) uint8 of image step `step` for n robots (paper 5.1.2), cached, read-only."""
     source = scene.image_goals
     if source is None:
         raise SceneError(f'{scene.name}: the scene shows no image (no [[steps]] or [goals] kind = "image")')
@@ -479,8 +450,7 @@ def scene_goal_set(scene: Scene, step: int, robots: int) -> tuple[np.ndarray, np
 
 
 def _file_scene(path: str, robots: int, image: bool) -> dict[str, Any]:
-    """The scene for `pixelswarm run picture.png --robots N` (the picture's goals) or `pixelswarm run
-    folder/ --robots N` (the folder's images as keyframes in file-name order, default timing): a grid of e-pucks."""
+    """The scene of `pixelswarm run picture.png` or `run folder/` (its keyframes): a grid of e-pucks."""
     full = Path(path).resolve()
     name = Path(path).stem if image else full.name
     table = {"name": name, "robots": robots, "layout": {"kind": "grid", "spacing": 0.2}}
@@ -565,10 +535,6 @@ def take_due(events: list[dict[str, Any]], t: float) -> list[dict[str, Any]]:
 
 
 def _check_event(event: dict[str, Any], scene: Scene, where: str) -> None:
-    """teleport: the world moves a robot (picked up by hand, paper 7.4.3); fail: the launcher kills the
-    agent process of a robot (SIGKILL) at display time t, its body stays in the world, stopped;
-    tracker-outage: the tracker sends no pose from t for `duration` seconds; tracker-glitch: at t the
-    tracker reports the robot `offset` = [dx, dy] off for one tick (a swapped marker; docs/faults.md)."""
     kind = one_of(event.get("kind"), EVENT_KINDS, f"{where}: event kind", SceneError)
     if kind == "tracker-outage":
         if not (is_positive(event.get("t")) and is_positive(event.get("duration"))):
@@ -610,7 +576,6 @@ def scripted_position(waypoints: np.ndarray, t: float) -> np.ndarray:
 
 
 def _table(data: dict[str, Any], key: str, default: dict[str, Any], where: str) -> dict[str, Any]:
-    """The scene's table ``key`` (a copy), or ``default`` when it has none."""
     value = data.get(key, default)
     if not isinstance(value, dict):
         raise SceneError(f"{where}: {key} must be a table ([{key}] with key = value lines), not {value!r}")
@@ -618,7 +583,6 @@ def _table(data: dict[str, Any], key: str, default: dict[str, Any], where: str) 
 
 
 def _tables(data: dict[str, Any], key: str, where: str) -> list[dict[str, Any]]:
-    """The scene's array of tables ``key`` ([[key]] blocks), or none."""
     value = data.get(key, [])
     if not (isinstance(value, list) and all(isinstance(v, dict) for v in value)):
         raise SceneError(f"{where}: {key} must be [[{key}]] tables, not {value!r}")

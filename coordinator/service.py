@@ -1,12 +1,5 @@
-"""The coordinator service: publishes what the display should show (goal sets, with an epoch).
-
-Each scene step (an image, or an animation keyframe with its K_f dt for eq. 27) is shown with the goal
-set for the robots alive (paper 5.1.2: eq. 8's set for the current count); a new step, or an agent dying
-or joining, starts a new epoch and the robots re-auction. Display time comes from the world's clock
-ticks. The current set answers queries and is re-published every second, so a lost message costs at
-most a second; a restarted coordinator goes on from the run's newest recorded set, so the show does not
-start over. A dynamic image's motion (eq. 28) is published once with its goal set.
-"""
+"""The coordinator service: publishes the goal set of each step for the robots alive (paper 5.1.2), with an
+epoch, re-published every second; a restarted coordinator goes on from the run's newest recorded set."""
 
 from __future__ import annotations
 
@@ -32,13 +25,11 @@ from .warm_start import goal_matching
 
 SETTLE_S = 0.5  # a change in the live robots must hold this long before a new goal set (debounce)
 FIRST_SET_PATIENCE = 5.0  # s after the world's first tick that the first goal set waits for every robot's agent
-BODY_WAIT_S = 1.0  # display s to wait for a dead robot's tracked body; display time, not wall time: a
-# lock-step world may wait out its deadline for the dead robot's command before its next tick
+BODY_WAIT_S = 1.0  # display (not wall) s to wait for a dead robot's body: a lock-step tick may wait for it
 
 
 def clear_of_bodies(goals: np.ndarray, bodies: np.ndarray, clearance: float) -> np.ndarray:
-    """Goals pushed radially out of the disks around dead robots' bodies (which stay where they
-    stopped, obstacles the others cannot take the place of)."""
+    """Goals pushed radially out of the disks around dead robots' bodies (which stay where they stopped)."""
     out = np.array(goals, float)
     for b in bodies:
         d = out - b
@@ -60,23 +51,19 @@ def scene_goal_message(scene: Scene) -> Goals | None:
     goals = scene.goal_positions
     if np.isnan(goals).all():
         return None
-    # Robots without a goal of their own (scripted obstacles, pursuers) are told to stay put: a goal
-    # message carries finite numbers only.
     none = np.isnan(goals).any(axis=1)
-    goals = np.where(none[:, None], scene.poses[:, :2], goals)
+    goals = np.where(none[:, None], scene.poses[:, :2], goals)  # robots without a goal stay put
     return Goals(1, 1, goals, palette(len(goals)))
 
 
 def step_timing(scene: Scene, step: int, stamp: float = 0.0) -> Timing:
-    """A step's goal set's timing part, published at ``stamp``: the step, how long it is held, when
-    it began (t = 0 of eq. 28, and the start of an animation keyframe) and its K_f dt (eq. 27)."""
+    """A step's goal set's timing part, published at ``stamp`` (its start is t = 0 of eq. 28; K_f dt, eq. 27)."""
     s = scene.steps[step]
     return Timing(stamp, step, float(s.hold), scene.step_starts[step], s.frame_period)
 
 
 def step_motion(scene: Scene, step: int) -> Motion | None:
-    """A step's goal set's motion part: the motion of a dynamic image (eq. 28), None for a still one.
-    The robots compute their moving goals and synchronised velocities from it themselves."""
+    """A step's goal set's motion part: a dynamic image's (eq. 28), None for a still one."""
     m = scene.steps[step].motion
     return None if m is None else Motion(*m.velocity, m.angular_velocity, *m.center, m.expansion, int(m.geometric))
 
@@ -87,8 +74,7 @@ PREPARE_AHEAD = 5.0  # s of display before an image change that the coordinator 
 
 
 def follows_keyframe(before: Goals | None, goals: Goals) -> bool:
-    """Consecutive keyframes of an animation (paper 6.1-6.2) for the same robots: the robots carry
-    their goals over by the goals' correspondence while they auction the new frame."""
+    """Consecutive keyframes (paper 6.1-6.2) for the same robots, which carry their goals over."""
     return (
         before is not None
         and not before.per_robot
@@ -115,8 +101,7 @@ class Roster:
     def hear(self, r: int, alive: bool, life: str) -> None:
         changed = (r in self.live) != alive  # not a copy of the set: thousands of agents say so at start
         (self.live.add if alive else self.live.discard)(r)
-        # A restarted agent bids only in goal sets published after it joined (agent.runtime): back
-        # within SETTLE_S, the live robots look unchanged, yet it needs a new set.
+        # a restarted agent bids only in sets published after it joined: it needs one, the live robots unchanged
         if alive and self.lives.setdefault(r, life) != life:
             self.lives[r] = life
             self.restarted.add(r)
@@ -127,9 +112,7 @@ class Roster:
 
 
 class Coordinator:
-    """The goal sets of a run (paper 5): each step's image for the robots whose agent is alive, clear
-    of dead robots' bodies, warm-started from the last set. Its attributes stay flat: each group (the
-    roster, current set, clock heard, dead bodies, work done ahead) is read by one handler of the bus."""
+    """The goal sets of a run (paper 5): each step's image for the robots alive, clear of dead bodies."""
 
     def __init__(self, bus: Bus, scene: Scene) -> None:
         self.bus, self.scene = bus, scene
@@ -156,9 +139,7 @@ class Coordinator:
         self.parent_pid: int | None = None
 
     def resume(self) -> Goals | None:
-        """Go on from the newest goal set the run recorded, if there is one (a restart mid-run): its
-        epoch, step and robots become the current ones, so the next goal set is published only when
-        the step or the live robots change, with the next epoch. The goal set gone on from, if any."""
+        """Go on from the newest goal set the run recorded (a restart mid-run), returned if there is one."""
         found = [g for _, g in self.bus.query(self.bus.keys.run_goals, Goals, timeout=RESUME_WAIT_S) if not g.per_robot]
         if not self.images or not found:
             return None
@@ -177,8 +158,6 @@ class Coordinator:
     def _follow_show(self) -> bool:
         """Image scenes: a new goal set when the step or the live robots change; True if published."""
         self._hear()
-        # Only robot pixels take goals: a pursuer is a live agent but chases its target, and a scripted
-        # mover has no agent at all (paper Fig. 19's uncontrolled objects).
         robots = frozenset(self.roster.live) & self.pixels
         if self.t is None or not robots:
             return False  # the show starts with the world's first tick
@@ -219,8 +198,7 @@ class Coordinator:
             self.bodies[pose.robot] = np.array([pose.x, pose.y])
 
     def _watch_body(self, r: int) -> None:
-        """Hear where dead robots' bodies stay: one subscription to every pose, keeping the dead robots'
-        poses only (not one per robot: zenoh-python gives each subscription its own thread)."""
+        """Hear where dead robots' bodies stay: one subscription (zenoh-python gives each its own thread)."""
         dead = np.array(sorted((self.roster.ever - self.roster.live) | {r}))
         if self.body_poses is None:
             self.body_poses = self.bus.subscribe(self.bus.keys.all_of("pose"), Pose, only=dead)
@@ -228,28 +206,21 @@ class Coordinator:
             self.body_poses.keep = KeepRobots(dead)
 
     def _publish(self, step: int, robots: frozenset[int], dead: list[int]) -> None:
-        """The next epoch's goal set: step's goals for these robots, clear of dead robots' bodies,
-        warm-started from the last set (and its keyframe correspondence, paper 6.1)."""
+        """The next epoch's goal set, clear of dead robots' bodies, warm-started from the last set."""
         assert self.t is not None
         goals, colors = scene_goal_set(self.scene, step, len(robots))
         bodies = np.array([self.bodies[r] for r in dead if r in self.bodies]).reshape(-1, 2)
         if len(bodies):
             goals = clear_of_bodies(goals, bodies, 2 * self.scene.radius + 0.05)  # room for its inflated radius
         before = self.current
-        # Lock-step: every host starts the set's auction from the same board, within the same bound of
-        # rounds a tick; an agent started again has no last agreement to warm-start from, so nobody does.
+        # lock-step: a restarted agent has no last agreement to warm-start from, so nobody does
         cold = self.scene.clock == "lockstep" and bool(self.roster.restarted & robots)
         self.epoch += 1
         self.shown = (step, robots)
         self.roster.restarted.clear()
+        timing, motion = step_timing(self.scene, step, self.t), step_motion(self.scene, step)
         self.current = Goals(
-            self.epoch,
-            0,
-            np.asarray(goals),
-            np.asarray(colors),
-            np.array(sorted(robots)),
-            step_timing(self.scene, step, self.t),
-            step_motion(self.scene, step),
+            self.epoch, 0, np.asarray(goals), np.asarray(colors), np.array(sorted(robots)), timing, motion
         )
         if before is not None and not before.per_robot and len(before.positions) == len(goals):
             matched, prices = self._warm_start(as_sent(before.positions), goals)
@@ -262,14 +233,11 @@ class Coordinator:
         self.bus.publish(self.bus.keys.goals(self.epoch), self.current)
 
     def _rounds_bounded(self) -> bool:
-        """Lock-step with the auction's rounds per tick bounded: a block spans ticks
-        (docs/lockstep_auction.md), so the robots need goals to drive to meanwhile."""
+        """Lock-step with rounds per tick bounded: an auction spans ticks, the robots need goals meanwhile."""
         return self.scene.clock == "lockstep" and bool(self.scene.robot.get("rounds_per_tick", 0))
 
     def _warm_start(self, start: np.ndarray, goals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The auction's warm start from robots standing on ``start`` (the last set's goals as the
-        agents decode them, or where the robots start) to these goals (goal_matching), computed once
-        per pair and kept: _prepare_next makes it ahead of time."""
+        """goal_matching from robots standing on ``start`` to these goals, kept for _prepare_next's reuse."""
         start, goals = np.asarray(start, float), as_sent(goals)
         key = (start.tobytes(), goals.tobytes())
         if self._matching is None or self._matching[0] != key:
@@ -278,13 +246,11 @@ class Coordinator:
         return self._matching[1]
 
     def _starts(self, robots: np.ndarray) -> np.ndarray:
-        """Where these robots start: the first set's warm start matches them from there."""
         return np.asarray(self.scene.poses, float)[robots, :2]
 
     def _prepare_next(self) -> None:
-        """The next image's warm start ahead of time: the matching of a large goal set would otherwise
-        delay the change, and the agents wait for it (agent.clocks.GOAL_SET_WAIT). The first set's
-        while the agents start; each next one's PREPARE_AHEAD s before it is due, while an image is held."""
+        """The next set's warm start ahead of time (a large matching would delay the change): the first set's
+        while the agents start, each next one's PREPARE_AHEAD s before it is due."""
         if self.current is None and self._matching is None and self.scene.steps and self._rounds_bounded():
             first = np.array(sorted(self.pixels), np.int64)  # the first set's robots once all are alive
             self._warm_start(self._starts(first), scene_goal_set(self.scene, 0, len(first))[0])
@@ -298,8 +264,7 @@ class Coordinator:
             self._warm_start(as_sent(self.current.positions), goals)
 
     def _prepare_for_a_loss(self) -> None:
-        """Once, after the first goal set: the current image's set for one robot fewer, so that loading
-        the image pipeline (OpenCV, SciPy) does not hold up the survivors' set when a robot dies."""
+        """Once: the current set for one robot fewer, so the image pipeline is loaded before a robot dies."""
         if self.ready_for_a_loss or self.shown is None:
             return
         self.ready_for_a_loss = True

@@ -1,9 +1,5 @@
-"""Test shapes drawn as RGB images: the paper's Fig. 4 patterns (disk, disk and line, line, L, T) and
-a few more (ring, two touching squares of different colour, the triangle of Fig. 18, a photo-like scene).
-
-Shapes live in the unit square (x right, y down) and are drawn on a size x size canvas; proportions
-follow the paper's figures. Every drawing function returns an (H, W, 3) uint8 RGB array, or (H, W, 4)
-RGBA with transparent background when alpha=True.
+"""Test shapes drawn as RGB images in the unit square (x right, y down): the paper's Fig. 4 patterns (disk,
+disk and line, line, L, T), a ring, two touching squares, the triangle of Fig. 18 and a photo-like scene.
 """
 
 from __future__ import annotations
@@ -63,8 +59,7 @@ def polygon(points: list[tuple[float, float]]) -> Inside:
 
 
 def _triangle(cx: float, cy: float, r: float) -> Inside:
-    """An equilateral triangle, apex up, centroid (cx, cy), circumradius r (the rotating and growing
-    triangle of the paper's Fig. 18 turns about its centroid)."""
+    """An equilateral triangle, apex up, centroid (cx, cy), circumradius r (paper Fig. 18)."""
     return polygon([(cx + r * math.cos(a), cy - r * math.sin(a)) for a in (math.pi / 2, math.pi * 7 / 6, -math.pi / 6)])
 
 
@@ -108,17 +103,9 @@ def shape_mask(name: str, size: int = 256) -> np.ndarray:
 
 
 def draw(
-    name: str,
-    size: int = 256,
-    *,
-    background: RGB = WHITE,
-    antialias: bool = False,
-    alpha: bool = False,
+    name: str, size: int = 256, *, background: RGB = WHITE, antialias: bool = False, alpha: bool = False
 ) -> np.ndarray:
-    """Draw shape `name` (one of SHAPES) on a size x size canvas.
-
-    antialias: 4 x 4 supersampled edges (mixed colours along the boundary), else crisp pixels.
-    alpha: RGBA with alpha = coverage; the RGB of transparent pixels is then the background."""
+    """Draw shape `name` on a size x size canvas (antialias: 4 x 4 supersampled; alpha: RGBA of coverage)."""
     if name not in _SHAPES:
         raise ValueError(f"unknown shape {name!r}; choose from {', '.join(SHAPES)}")
     img = np.empty((size, size, 3), float)
@@ -136,8 +123,7 @@ def draw(
 
 
 def photo_like(size: int = 256, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """A photo-like scene: a shaded orange subject with a green leaf on an uneven, noisy, vignetted
-    grey-beige background, slightly blurred. Returns (RGB, ground-truth subject mask)."""
+    """A photo-like scene (a shaded subject on an uneven, noisy, blurred background) and its subject mask."""
     rng = np.random.default_rng(seed)
     g = (np.arange(size) + 0.5) / size
     y, x = np.meshgrid(g, g, indexing="ij")

@@ -1,11 +1,5 @@
-"""Image sequences (paper 7.2, Fig. 12): a scene's ``[[steps]]``, each an image shown for ``hold`` seconds.
-
-Keys: docs/scenes.md. region_counts are for the scene's `robots`; other counts (--robots, robots lost)
-get them scaled. Every step's goal set, for every robot count the swarm may have (paper 5.1.2), lives
-in one arena K_r, the largest conservative arena any step needs with all N robots, so the picture keeps
-its size across steps and robot losses. Errors are GoalError (one line); the scene loader prefixes them
-with the scene's name.
-"""
+"""Image sequences (paper 7.2, Fig. 12): a scene's ``[[steps]]`` (docs/scenes.md), each an image shown for
+``hold`` seconds; every step's goal sets, for every robot count, share one arena K_r. Errors: GoalError."""
 
 from __future__ import annotations
 
@@ -31,9 +25,7 @@ SHAPE_ROBOTS = 1000  # robots a SHAPE_PIXELS canvas serves; more get a canvas wi
 
 
 def shape_pixels(robots: int) -> int:
-    """Canvas side of a drawn shape for a goal set of `robots`: SHAPE_PIXELS, grown beyond SHAPE_ROBOTS
-    robots so that each robot keeps the pixels it has there (else a thin shape, such as the line of
-    paper Fig. 4, would have fewer pixels than robots)."""
+    """Canvas side of a drawn shape for `robots`: beyond SHAPE_ROBOTS it grows, keeping the pixels per robot."""
     return max(SHAPE_PIXELS, math.ceil(SHAPE_PIXELS * math.sqrt(robots / SHAPE_ROBOTS)))
 
 
@@ -95,9 +87,7 @@ def parse_region_counts(value: Any, label: str) -> dict[int, int] | None:
 
 
 def scale_region_counts(counts: Mapping[int, int] | None, full: int, n: int) -> dict[int, int] | None:
-    """The artist's N_i for `full` robots scaled to n robots: largest remainder, so the counts plus
-    the share of the regions left to the allocator sum to exactly n, keeping every region shown
-    (>= 1 robot) while n allows it. Regions the artist left empty stay empty."""
+    """The artist's N_i for `full` robots scaled to n by largest remainder, keeping every region shown."""
     if counts is None or n == full:
         return None if counts is None else dict(counts)
     ids = sorted(counts)
@@ -117,9 +107,7 @@ def scale_region_counts(counts: Mapping[int, int] | None, full: int, n: int) -> 
 
 
 class GoalSets:
-    """Goal sets (goals, colours) of a scene's steps for any robot count 1..robots, all in one arena K_r:
-    made on demand by a subclass's _made (the image pipeline: StepGoals, FrameGoals) or stored
-    (coordinator.resolved.StoredGoals), cached, and handed out read-only."""
+    """Goal sets of a scene's steps for 1..robots robots in one arena K_r: made by _made, cached, read-only."""
 
     STEP = "step"  # how errors name a step
     arena: float  # K_r, metres: set by each subclass
@@ -149,7 +137,7 @@ class GoalSets:
 
 
 class StepGoals(GoalSets):
-    """The image steps' goal sets, deterministic (seeded), and all in the shared arena K_r."""
+    """The image steps' goal sets, seeded, in the shared arena K_r."""
 
     def __init__(
         self,
@@ -178,8 +166,7 @@ class StepGoals(GoalSets):
         own = {k: self._generate(k, self.robots, None) for k in range(len(self.steps))}
         shared = max(gs.arena for gs in own.values())
         for k, gs in own.items():
-            # Goals scale linearly with K_r, so rescaling equals regenerating with arena=shared.
-            self._keep(k, self.robots, gs.goals * (shared / gs.arena), gs.colors)
+            self._keep(k, self.robots, gs.goals * (shared / gs.arena), gs.colors)  # goals scale linearly with K_r
         return shared
 
     def _generate(self, k: int, n: int, arena: float | None) -> GoalSet:

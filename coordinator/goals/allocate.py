@@ -1,14 +1,8 @@
-"""Robots per region, N_i proportional to the area A_i (paper 4.2), with an exact total of N.
+"""Robots per region, N_i proportional to the area A_i (paper 4.2), summing to exactly N.
 
-Rules, in order:
-1. An artist's override {region id: N_i} is taken as given (0 leaves a region empty); the remaining
-   robots go to the other regions by rules 2-4. Overrides that exceed N, or that cover every region
-   without summing to N, are errors.
-2. Largest-remainder rounding of the quotas N A_i / sum A (ties: larger area, then lower id).
-3. When there are at least as many robots as regions, every region is shown: a region whose share
-   rounds to zero gets one robot, taken from the region whose count most exceeds its quota.
-4. When N is smaller than the number of regions, the N largest regions get one robot each and the
-   others are left empty (with a note).
+An artist's override {region id: N_i} is taken as given; the rest go by largest remainder (ties: larger
+area, then lower id). With N >= the region count every region gets a robot (taken from the region most
+over its quota); with fewer, the N largest regions get one each.
 """
 
 from __future__ import annotations
@@ -31,14 +25,11 @@ def _proportional(areas: np.ndarray, total: int) -> np.ndarray:
         return counts
     quota = total * areas / areas.sum()
     counts = np.floor(quota).astype(np.int64)
-    frac = quota - counts
-    rest = total - int(counts.sum())
-    order = np.lexsort((np.arange(m), -areas, -frac))
-    counts[order[:rest]] += 1
+    order = np.lexsort((np.arange(m), -areas, -(quota - counts)))
+    counts[order[: total - int(counts.sum())]] += 1
     for i in by_area:
         if counts[i] == 0:
-            surplus = np.where(counts >= 2, counts - quota, -np.inf)
-            donor = int(np.argmax(surplus))
+            donor = int(np.argmax(np.where(counts >= 2, counts - quota, -np.inf)))
             counts[donor] -= 1
             counts[i] = 1
     return counts
@@ -47,12 +38,11 @@ def _proportional(areas: np.ndarray, total: int) -> np.ndarray:
 def allocate_robots(
     areas: Sequence[float], n: int, overrides: Mapping[int, int] | None = None
 ) -> tuple[np.ndarray, list[str]]:
-    """N_i per region R_i (see the module docstring); returns (counts, notes). Raises GoalError."""
+    """N_i per region R_i (see the module docstring) and notes. Raises GoalError."""
     a = np.asarray(areas, dtype=float)
     m = len(a)
     if n < 1:
         raise GoalError(f"N must be at least 1, not {n}")
-    notes: list[str] = []
     fixed = np.zeros(m, bool)
     counts = np.zeros(m, np.int64)
     for rid, c in (overrides or {}).items():
@@ -69,9 +59,5 @@ def allocate_robots(
     if len(free) == 0 and rest != 0:
         raise GoalError(f"region count overrides cover every region but sum to {int(counts.sum())}, not N={n}")
     counts[free] = _proportional(a[free], rest)
-    empty = [int(i) for i in free if counts[i] == 0]
-    if empty:
-        notes.append(
-            f"N={n} is smaller than the number of regions: region(s) {', '.join(map(str, empty))} get no robot"
-        )
-    return counts, notes
+    empty = ", ".join(str(i) for i in free if counts[i] == 0)
+    return counts, [f"N={n} is smaller than the number of regions: region(s) {empty} get no robot"] if empty else []

@@ -12,8 +12,7 @@ from .segment import Segmentation
 
 
 def voronoi_cells(seg: Segmentation, goals_px: np.ndarray, goal_regions: np.ndarray) -> np.ndarray:
-    """(H, W) index of the goal whose Voronoi cell (among the goals of the same region) holds each
-    foreground pixel; -1 on background. goals_px are (x, y) in pixel units."""
+    """(H, W) index of the goal whose Voronoi cell within its region holds each pixel; -1 on background."""
     cells = np.full(seg.labels.shape, -1, np.int64)
     for region in seg.regions:
         mine = np.nonzero(goal_regions == region.id)[0]
@@ -44,9 +43,7 @@ def _means(lab: np.ndarray, cells: np.ndarray, n: int) -> tuple[np.ndarray, np.n
 def cell_colors(
     rgb: np.ndarray, cells: np.ndarray, n: int, fallback_px: np.ndarray, labels: np.ndarray | None = None
 ) -> np.ndarray:
-    """(n, 3) uint8: the Lab mean of the pixels of each cell (away from region edges when `labels`,
-    the region map, is given); a cell without pixels takes the colour of the pixel under its goal
-    (fallback_px, (x, y) in pixel units)."""
+    """(n, 3) uint8 Lab mean of each cell's pixels (off region edges, given `labels`), else of fallback_px's."""
     flat = cells.ravel()
     fg = flat >= 0
     lab = to_lab(np.asarray(rgb).reshape(-1, 3)[fg], precise=True).astype(np.float64)

@@ -1,16 +1,8 @@
-"""Centroidal Voronoi tessellation of a region R_i by Lloyd iterations (paper 4.3).
+"""Centroidal Voronoi tessellation of a region R_i by Lloyd iterations (paper 4.3), on the pixel grid.
 
-The plane is the pixel grid. A domain is a set of pixel centres with a mass density rho:
-- `density_domain`: eq. 2 over the convex region R^_i enclosing R_i: rho = K_m on pixels of R_i and
-  K_d times the largest 8-neighbour density outside, i.e. K_m K_d^d at chessboard distance d from R_i.
-  Pixels with rho < K_m 1e-16 (d > 16 for K_d = 0.1) cannot move a centroid at double precision and are
-  left out.
-- `binary_domain`: the fast variant, rho = 1 on R_i and 0 elsewhere (k-means on the pixels of R_i).
-
-Each Lloyd iteration assigns every pixel to its nearest generator (its Voronoi cell V_j, eq. 3) and
-moves each generator towards the mass centroid of its cell (eq. 4), over-relaxed when that lowers the
-cost (see `lloyd`). The reported cost is eq. 1 divided by K_m in the normalised square Q (longer image
-side = 1), each pixel weighing its area, so it does not depend on the image resolution. It never rises.
+A domain is pixel centres with a mass density: eq. 2's over the convex hull of R_i (K_m on R_i, times
+K_d per chessboard step outside, cut where it falls below 1e-16 K_m and cannot move a centroid), or the
+binary k-means one. The cost is eq. 1 / K_m in the normalised square Q, each pixel weighing its area.
 """
 
 from __future__ import annotations
@@ -42,8 +34,7 @@ class Domain:
     weights: np.ndarray
     inside: np.ndarray  # pixel belongs to R_i
 
-    def __post_init__(self) -> None:
-        # contiguous copies for the hot loop of the Lloyd iterations
+    def __post_init__(self) -> None:  # contiguous copies for the Lloyd iterations' hot loop
         self.x = np.ascontiguousarray(self.points[:, 0])
         self.y = np.ascontiguousarray(self.points[:, 1])
         self.wx = self.weights * self.x
@@ -61,7 +52,7 @@ def binary_domain(rows: np.ndarray, cols: np.ndarray) -> Domain:
 
 
 def density_domain(rows: np.ndarray, cols: np.ndarray) -> Domain:
-    """Eq. 2 density over the convex hull R^_i of R_i (see the module docstring)."""
+    """Eq. 2 density over the convex hull R^_i of R_i."""
     inside, r0, c0 = region_box(rows, cols)
     hull = np.zeros(inside.shape, np.uint8)
     pts = np.stack([cols - c0, rows - r0], axis=1).astype(np.int32)
@@ -74,11 +65,8 @@ def density_domain(rows: np.ndarray, cols: np.ndarray) -> Domain:
 
 
 class _Assigner:
-    """Nearest generator of every pixel, exact and incremental (Hamerly's bounds, made local): a pixel
-    keeps its generator while its distance to it is below a lower bound on the distance to any other.
-    The bound is the second-nearest distance at its last query, less the largest move of a generator
-    within _BLOCK cells of a coarse grid (farther ones are at least _BLOCK cells less the largest move
-    of all away), so a few generators that jump re-query only the pixels round them."""
+    """Nearest generator of every pixel, exact and incremental (Hamerly's bounds, localised on a coarse
+    grid): only pixels near generators that moved far are queried again."""
 
     def __init__(self, domain: Domain) -> None:
         self.domain = domain
@@ -87,9 +75,6 @@ class _Assigner:
         self.idx = np.zeros(n, np.int64)
         self.lower = np.zeros(n)
         self.origin = domain.points.min(axis=0) if n else np.zeros(2)
-        self.cell = 1.0
-        self.shape = (1, 1)
-        self.pixel_cell = np.zeros(n, np.int64)
 
     def _grid(self, k: int) -> None:
         self.cell = max(_CELL * float(np.sqrt(len(self.domain.points) / max(k, 1))), 2.0)
@@ -97,8 +82,7 @@ class _Assigner:
         self.shape = (int(ij[:, 0].max()) + 1, int(ij[:, 1].max()) + 1) if len(ij) else (1, 1)
         self.pixel_cell = ij[:, 0] * self.shape[1] + ij[:, 1]
 
-    def _cells_of(self, gen: np.ndarray) -> np.ndarray:
-        # generators off the grid count in its border cells, which are no farther from any pixel
+    def _cells_of(self, gen: np.ndarray) -> np.ndarray:  # off the grid: its border cells
         ij = np.floor((gen - self.origin) / self.cell).astype(np.int64)
         i = np.clip(ij[:, 0], 0, self.shape[0] - 1)
         j = np.clip(ij[:, 1], 0, self.shape[1] - 1)
@@ -135,8 +119,7 @@ class _Assigner:
             check = np.sqrt(dx * dx + dy * dy) >= self.lower
             if check.any():
                 self._query(gen, np.nonzero(check)[0])
-        # the same arithmetic for every pixel, however it was assigned: the cost does not depend on
-        # which pixels were queried again
+        # the same arithmetic for every pixel: the cost does not depend on which were queried again
         dx, dy = x - gen[:, 0][self.idx], y - gen[:, 1][self.idx]
         self.prev = gen.copy()
         return self.idx, dx * dx + dy * dy
@@ -170,16 +153,9 @@ def lloyd(
     max_iter: int = MAX_ITER,
     relax: float = RELAX,
 ) -> tuple[np.ndarray, list[float]]:
-    """Lloyd iterations from `init` until the cost of eq. 1 falls by less than `tol` (relative).
-
-    Each iteration moves the generators to their cells' mass centroids C_j (eq. 4). With relax > 1 they
-    first try the over-relaxed step q + w (C - q) (w starts at `relax`, grows by _GROW after each
-    accepted step up to _MAX_RELAX, and resets when one is refused) and keep it only if it lowers the
-    cost. Either way the cost never rises; over-relaxation shortens Lloyd's slow tails (a generator
-    creeping round a corner).
-
-    Returns (generators in pixel units, cost of eq. 1 per iteration: history[0] is the cost of `init`,
-    history[-1] the cost of the returned generators)."""
+    """Lloyd iterations (eq. 4) from `init` until the cost of eq. 1 falls by less than `tol` (relative):
+    (generators in pixels, cost per iteration from init's). An over-relaxed step q + w (C - q), kept only
+    if it lowers the cost, shortens Lloyd's slow tails; the cost never rises."""
     gen = np.asarray(init, dtype=float).copy()
     if len(gen) == 0:
         return gen, []

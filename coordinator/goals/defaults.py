@@ -1,6 +1,4 @@
-"""The goal pipeline's defaults that `pixelswarm goals` offers on its command line, in a module of their
-own: every `pixelswarm` command builds that command line, and the pipeline's modules load OpenCV and
-SciPy, which most commands never use."""
+"""The goal pipeline's defaults for `pixelswarm goals`'s command line, apart from the OpenCV pipeline."""
 
 from __future__ import annotations
 

@@ -1,6 +1,5 @@
-"""Goal-set families (paper 5.1.2, eq. 8): independent goal sets G_r for a range of robot counts r,
-so the display adapts when robots drop out or join. All sets share one arena, the largest any of
-them needs, so the picture keeps its size when the number of robots changes."""
+"""Goal-set families (paper 5.1.2, eq. 8): goal sets G_r for a range of robot counts r in one arena, so the
+picture keeps its size when robots drop out or join."""
 
 from __future__ import annotations
 
@@ -59,14 +58,9 @@ def rescale(gs: GoalSet, arena: float) -> GoalSet:
 
 
 def goal_family(
-    image_or_path: str | os.PathLike[str] | np.ndarray,
-    counts: Iterable[int],
-    options: GoalOptions = PAPER_OPTIONS,
+    image_or_path: str | os.PathLike[str] | np.ndarray, counts: Iterable[int], options: GoalOptions = PAPER_OPTIONS
 ) -> GoalFamily:
-    """Goal sets for every robot count in `counts` (the image is segmented once).
-
-    With options.arena None every set gets the conservative arena of the most demanding set; with an
-    explicit arena every set must fit it (GoalError otherwise). The rest as in generate_goals."""
+    """Goal sets for every robot count in `counts` in one arena (default: the most demanding set's)."""
     wanted = sorted({int(c) for c in counts})
     if not wanted:
         raise GoalError("a goal family needs at least one robot count")

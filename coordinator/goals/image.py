@@ -1,8 +1,5 @@
-"""Input image and background subtraction (paper 4.1).
-
-Images are RGB uint8 arrays (H, W, 3), row 0 at the top; an optional alpha channel (H, W) marks
-transparent pixels as background. Colour distances are CIE76 Delta E in Lab.
-"""
+"""Input image and background subtraction (paper 4.1): RGB uint8 (H, W, 3), row 0 at the top, and an
+optional alpha (H, W) marking transparent background. Colour distances are CIE76 Delta E in Lab."""
 
 from __future__ import annotations
 
@@ -15,16 +12,8 @@ import numpy as np
 
 from .model import GoalError
 
-# Named colours accepted by --background.
-NAMED_COLORS = {
-    "white": (255, 255, 255),
-    "black": (0, 0, 0),
-    "red": (255, 0, 0),
-    "green": (0, 255, 0),
-    "blue": (0, 0, 255),
-    "gray": (128, 128, 128),
-    "grey": (128, 128, 128),
-}
+NAMED_COLORS = {"white": (255, 255, 255), "black": (0, 0, 0), "red": (255, 0, 0), "green": (0, 255, 0)}
+NAMED_COLORS |= {"blue": (0, 0, 255), "gray": (128, 128, 128), "grey": (128, 128, 128)}
 _MAGIC = (b"\x89PNG", b"\xff\xd8", b"BM", b"II*\x00", b"MM\x00*")
 BG_TOLERANCE = 12.0  # Delta E: colours closer than this to the background are background
 
@@ -111,9 +100,8 @@ def parse_color(text: str | tuple[int, int, int] | list[int]) -> tuple[int, int,
 
 
 def to_lab(rgb: np.ndarray, *, precise: bool = False) -> np.ndarray:
-    """RGB uint8 (..., 3) to float32 CIE Lab (L in 0-100, a and b centred on 0). The fast default goes
-    through OpenCV's 8-bit conversion (resolution about 0.4 units, far below the tolerances used for
-    segmentation); precise=True converts in floating point (for goal colours)."""
+    """RGB uint8 (..., 3) to float32 CIE Lab: by default OpenCV's 8-bit conversion (0.4 units, far below the
+    segmentation's tolerances), precise=True in floating point (for goal colours)."""
     if precise:
         f = np.asarray(rgb, dtype=np.float32).reshape(-1, 1, 3) / 255.0
         return cv2.cvtColor(f, cv2.COLOR_RGB2Lab).reshape(np.shape(rgb))
@@ -132,9 +120,7 @@ def lab_to_rgb(lab: np.ndarray) -> np.ndarray:
 
 
 def _border_model(lab: np.ndarray, tol: float) -> tuple[np.ndarray, float, np.ndarray]:
-    """Fit a smooth (quadratic) Lab background to the border pixels that share the dominant colour.
-
-    Returns (background Lab per pixel, robust noise sigma in Delta E, dominant colour)."""
+    """A quadratic Lab background fitted to the border's dominant colour: (Lab per pixel, noise sigma, colour)."""
     h, w = lab.shape[:2]
     band = max(1, round(0.01 * min(h, w)))  # the border: a band of 1 % of the shorter side
     border = np.zeros((h, w), bool)
@@ -169,10 +155,8 @@ def _border_model(lab: np.ndarray, tol: float) -> tuple[np.ndarray, float, np.nd
 def foreground_mask(
     rgb: np.ndarray, alpha: np.ndarray | None = None, *, background: str | tuple[int, int, int] | None = None
 ) -> Foreground:
-    """Background subtraction. Transparent pixels (alpha < 128) are always background; an explicit
-    background colour removes the pixels within BG_TOLERANCE of it as well; without either, the dominant
-    border colour is the background (fitted as a smooth gradient, with a tolerance raised to 4 sigma of
-    the border's noise; noisy images are median-filtered first)."""
+    """Background subtraction: transparent pixels, those within BG_TOLERANCE of an explicit background
+    colour, or else of the dominant border colour (a smooth gradient, tolerance >= 4 sigma of its noise)."""
     rgb = np.asarray(rgb, dtype=np.uint8)
     opaque = alpha >= 128 if alpha is not None and int(alpha.min()) < 255 else None
     if background is not None:

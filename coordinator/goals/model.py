@@ -18,20 +18,13 @@ class GoalError(ValueError):
 
 @dataclass
 class GoalSet:
-    """N goal positions and colours representing an image.
+    """N goal positions and colours representing an image."""
 
-    goals: (N, 2) metres in the arena frame (origin at the arena's centre, x right, y up).
-    colors: (N, 3) uint8 RGB, the representative colour of each goal's Voronoi cell.
-    regions: (N,) region id R_i of each goal (0 is the largest region).
-    cost_history: total cost of eq. 1 (divided by K_m, in normalised units) after each Lloyd iteration.
-    params: the parameters used (n, arena, method, seed, robot_radius, ...) and notes.
-    """
-
-    goals: np.ndarray
-    colors: np.ndarray
-    regions: np.ndarray
-    cost_history: list[float] = field(default_factory=list)
-    params: dict[str, Any] = field(default_factory=dict)
+    goals: np.ndarray  # (N, 2) metres in the arena frame (origin at its centre, x right, y up)
+    colors: np.ndarray  # (N, 3) uint8 RGB, the colour of each goal's Voronoi cell
+    regions: np.ndarray  # (N,) region id R_i of each goal (0: the largest)
+    cost_history: list[float] = field(default_factory=list)  # eq. 1 / K_m after each Lloyd iteration
+    params: dict[str, Any] = field(default_factory=dict)  # the parameters used (n, arena, method, ...) and notes
 
     def __post_init__(self) -> None:
         self.goals = np.asarray(self.goals, dtype=float).reshape(-1, 2)
@@ -54,8 +47,7 @@ class GoalSet:
         """Smallest distance between two goals, in metres (inf for fewer than two goals)."""
         if len(self.goals) < 2:
             return float("inf")
-        # here only: every process that reads a goal set (a run's coordinator) would load SciPy for it
-        from scipy.spatial import cKDTree
+        from scipy.spatial import cKDTree  # here only: a run's coordinator reads goal sets without SciPy
 
         d, _ = cKDTree(self.goals).query(self.goals, k=2)
         return float(d[:, 1].min())
@@ -91,8 +83,7 @@ class GoalSet:
     def from_dict(cls, data: dict[str, Any]) -> GoalSet:
         if data.get("format", FORMAT) != FORMAT:
             raise ValueError(f"unsupported goal-set format {data.get('format')!r}")
-        # __post_init__ makes the arrays
-        return cls(
+        return cls(  # __post_init__ makes the arrays
             data["goals"], data["colors"], data["regions"], data.get("cost_history", []), dict(data.get("params", {}))
         )
 

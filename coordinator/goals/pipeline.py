@@ -26,12 +26,8 @@ from .sampling import KS_FACTOR, in_region, ks_distance, lattice_samples, poisso
 from .segment import Segmentation, segment
 
 MAX_SIDE = 1024  # longer image side (pixels) used for goal generation; larger images are scaled down
-# Regions of up to this many goals start from the paper's random samples (4.2); larger ones from a
-# hexagonal lattice, which Lloyd settles in fewer iterations to a lower cost (sampling.lattice_samples).
-PAPER_SAMPLES_MAX = 1000
-# Below this many pixels a goal, goals snap to pixel centres and their spacing goes uneven: smaller
-# pictures are scaled up (each pixel k x k), to at most MAX_UPSCALED_SIDE pixels a side.
-MIN_PIXELS_PER_GOAL = 3
+PAPER_SAMPLES_MAX = 1000  # larger regions start from a hexagonal lattice, not the paper's random samples
+MIN_PIXELS_PER_GOAL = 3  # below it goals snap to pixel centres: the picture is scaled up (each pixel k x k)
 MAX_UPSCALED_SIDE = 2 * MAX_SIDE
 
 
@@ -57,24 +53,15 @@ class PreparedImage:
 
 @dataclass(frozen=True)
 class GoalOptions:
-    """How goals are made from an image (paper section 4).
+    """How goals are made from an image (paper section 4)."""
 
-    arena: K_r in metres; None picks the conservative 2 K_r for robots of radius robot_radius
-      (default: the e-puck's, transport.epuck.RADIUS), rounded up to a centimetre.
-    method: 'cvt' (Lloyd with the mass density of eq. 2) or 'kmeans' (binary density).
-    seed: the random initial samples' (4.2).
-    region_counts: the artist's N_i per region id (ids: regions by area, largest first).
-    conservative: with an explicit arena, require 2 K_r rather than K_r.
-    tol, max_iter, relax: Lloyd stopping rule and over-relaxation (relax=1: plain Lloyd), see cvt.lloyd.
-    """
-
-    arena: float | None = None
-    method: str = "cvt"
-    seed: int = 0
+    arena: float | None = None  # K_r in metres; None: the conservative 2 K_r, rounded up to a centimetre
+    method: str = "cvt"  # Lloyd with the mass density of eq. 2, or "kmeans" (binary density)
+    seed: int = 0  # of the random initial samples (4.2)
     robot_radius: float = epuck.RADIUS
-    region_counts: Mapping[int, int] | None = None
-    conservative: bool = False
-    tol: float = TOLERANCE
+    region_counts: Mapping[int, int] | None = None  # the artist's N_i per region id (largest region first)
+    conservative: bool = False  # with an explicit arena, require 2 K_r rather than K_r
+    tol: float = TOLERANCE  # tol, max_iter, relax: see cvt.lloyd
     max_iter: int = MAX_ITER
     relax: float = RELAX
 
@@ -113,16 +100,12 @@ def _shrink(rgb: np.ndarray, alpha: np.ndarray | None) -> tuple[np.ndarray, np.n
 def prepare_image(
     image: str | os.PathLike[str] | np.ndarray, *, background: Any = None, min_area: int | None = None
 ) -> PreparedImage:
-    """Load (path, or an RGB/RGBA/gray array), subtract the background and segment into regions R_i.
-
-    Images whose longer side exceeds MAX_SIDE pixels are scaled down first (goals live in the
-    normalised square, so only their precision, a fraction of a MAX_SIDE pixel, depends on it)."""
+    """Load (path, or an RGB/RGBA/gray array), subtract the background and segment into regions R_i; an
+    image larger than MAX_SIDE is scaled down first (goals live in the normalised square)."""
     if isinstance(image, np.ndarray):
-        rgb, alpha = split_channels(image)
-        source = "<array>"
+        (rgb, alpha), source = split_channels(image), "<array>"
     else:
-        rgb, alpha = load_image(image)
-        source = os.fspath(image)
+        (rgb, alpha), source = load_image(image), os.fspath(image)
     rgb, alpha, scaled = _shrink(rgb, alpha)
     fg = foreground_mask(rgb, alpha, background=background)
     seg = segment(fg.work, fg.mask, min_area=min_area)
@@ -138,8 +121,7 @@ def prepare_image(
 
 
 def _snap_inside(gen: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, int]:
-    """Move generators that ended outside R_i (in a concavity or hole) to the nearest point of the
-    nearest pixel of R_i that no other generator lies within a pixel of."""
+    """Move generators outside R_i (a concavity or hole) into its nearest pixel with no other generator near."""
     out_idx = np.nonzero(~in_region(gen, rows, cols))[0]
     if len(out_idx) == 0:
         return gen, 0
@@ -148,8 +130,7 @@ def _snap_inside(gen: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple[n
     tree = cKDTree(centres)
     for j in out_idx:
         others = np.delete(out, j, axis=0)
-        k = min(len(centres), 64)
-        _, near = tree.query(out[j], k=k)
+        _, near = tree.query(out[j], k=min(len(centres), 64))
         for i in np.atleast_1d(near):
             cand = np.clip(out[j], centres[i] - 0.49, centres[i] + 0.49)
             if len(others) == 0 or np.min(np.hypot(*(others - cand).T)) >= 1.0:
@@ -159,8 +140,7 @@ def _snap_inside(gen: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple[n
 
 
 def _enlarged(prep: PreparedImage, counts: np.ndarray) -> tuple[PreparedImage, int]:
-    """prep, or prep with each pixel made k x k (and k) where a region has under MIN_PIXELS_PER_GOAL
-    pixels a goal: regions, colours and the normalised square stay as they are."""
+    """prep, or prep with each pixel made k x k (and k) if a region has under MIN_PIXELS_PER_GOAL pixels a goal."""
     tight = min((r.area / c for r, c in zip(prep.seg.regions, counts) if c > 0), default=math.inf)
     if tight >= MIN_PIXELS_PER_GOAL:
         return prep, 1
@@ -202,10 +182,7 @@ def _sum_histories(histories: list[list[float]]) -> list[float]:
 
 
 def goals_from_prepared(
-    prep: PreparedImage,
-    n: int,
-    options: GoalOptions = PAPER_OPTIONS,
-    init: Mapping[int, np.ndarray] | None = None,
+    prep: PreparedImage, n: int, options: GoalOptions = PAPER_OPTIONS, init: Mapping[int, np.ndarray] | None = None
 ) -> GoalSet:
     """N goals for a prepared image; see generate_goals."""
     options.check(n)
@@ -255,9 +232,7 @@ def goals_from_prepared(
 def _lloyd_regions(
     prep: PreparedImage, counts: np.ndarray, given: dict[int, np.ndarray], options: GoalOptions, notes: list[str]
 ) -> tuple[np.ndarray, np.ndarray, list[float], dict[int, float]]:
-    """Each region R_i's N_i goals (pixels), from its initial samples through Lloyd's iterations
-    (4.2-4.3): the goals, their region ids, the summed cost per iteration and the K_s (normalised)
-    each region's samples kept; what the user should know is added to notes."""
+    """Each region's N_i goals in pixels (4.2-4.3), region ids, summed cost per iteration, K_s per region."""
     seg, scale = prep.seg, prep.scale
     goals, regions, histories, ks_used = [], [], [], {}
     lattice: list[int] = []  # regions whose initial samples are a lattice
@@ -302,9 +277,7 @@ def _lloyd_regions(
 def _initial_samples(
     region: Any, n_i: int, rows: np.ndarray, cols: np.ndarray, given: dict[int, np.ndarray], seed: int
 ) -> tuple[np.ndarray, float, str, int]:
-    """R_i's initial samples and the K_s (pixels) they keep: the caller's ('given', e.g. the previous
-    keyframe's goals, paper 6.1), a hexagonal lattice above PAPER_SAMPLES_MAX goals ('lattice'), else
-    the paper's random samples (4.2, 'paper'); and how many given samples were moved inside R_i."""
+    """R_i's initial samples, their K_s (pixels), their kind and how many given ones were moved inside R_i."""
     paper_ks = ks_distance(region.area, n_i)
     if region.id in given:
         # generators outside R_i could sit outside the Lloyd domain with an empty cell for ever
@@ -354,14 +327,6 @@ def generate_goals(
     *,
     init: Mapping[int, np.ndarray] | None = None,
 ) -> GoalSet:
-    """N goal positions and colours that represent an image (paper section 4).
-
-    image_or_path: a PNG/JPEG/BMP/TIFF path, or an RGB, RGBA or gray array (row 0 at the top).
-    options: GoalOptions. The background is the alpha channel, else the dominant border colour
-      (prepare_image takes another).
-    init: initial samples {region id: (N_i, 2) pixel positions (x, y)} that replace the random ones of
-      section 4.2 for those regions (paper 6.1: the previous keyframe's goals, moved); samples outside
-      R_i are first moved to its nearest free pixel.
-    Raises GoalError (a ValueError with a one-line message) on bad input.
-    """
+    """N goal positions and colours that represent an image (paper section 4). init: {region id: (N_i, 2)
+    pixel positions} replacing the random samples of 4.2 (paper 6.1: the previous keyframe's). GoalError."""
     return goals_from_prepared(prepare_image(image_or_path), n, options, init)

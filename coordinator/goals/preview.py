@@ -40,11 +40,7 @@ def render_preview(prep: PreparedImage, gs: GoalSet, path: str | os.PathLike[str
     patches = [Circle((x, y), radius) for x, y in gs.goals]
     pc = PatchCollection(patches, facecolors=gs.colors / 255.0, edgecolors="black", linewidths=0.6)
     ax.add_collection(pc)
-    ax.set_xlim(-arena / 2, arena / 2)
-    ax.set_ylim(-arena / 2, arena / 2)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
+    ax.set(xlim=(-arena / 2, arena / 2), ylim=(-arena / 2, arena / 2), aspect="equal", xlabel="x (m)", ylabel="y (m)")
     p = gs.params
     ax.set_title(
         f"{len(gs)} goals, {p.get('method', '?')}, arena {arena:g} m, {len(p.get('regions', []))} region(s)",

@@ -1,14 +1,6 @@
-"""Resizing of goal positions to the display arena (paper 4.4).
-
-Goals are computed in the normalised square Q (the image's longer side has length 1) and scaled by the
-arena size K_r (metres): G = {K_r q}. The arena frame has its origin at the arena's centre, x right and
-y up (image rows point down, so y is flipped); the image is centred in the arena.
-
-Feasibility (paper 4.4): robots of radius r_A fit on the goals if K_r >= 2 r_A / d_min, d_min being
-the smallest distance between two goals in Q. The conservative option asks for twice that (2 K_r),
-which also keeps every goal accessible. The default arena (`arena=None`) is that conservative size,
-rounded up to the next centimetre.
-"""
+"""Goals from the normalised square Q (the image's longer side = 1) to the arena of side K_r (paper 4.4):
+origin at the arena's centre, x right, y up. Robots of radius r_A fit if K_r >= 2 r_A / d_min; the default
+arena is the conservative twice that, rounded up to a centimetre."""
 
 from __future__ import annotations
 

@@ -1,8 +1,5 @@
-"""Initial samples inside a region R_i (paper 4.2): uniform darts accepted only if they keep a
-distance of at least K_s = 1.2 sqrt(A_i / (pi N_i)) from every accepted sample (Poisson-disk-like);
-or, for regions of many goals, the points of a hexagonal lattice that fall in R_i.
-
-Coordinates are in pixel units: pixel (row r, column c) is the square [c, c+1) x [r, r+1).
+"""Initial samples inside a region R_i (paper 4.2): darts at least K_s = 1.2 sqrt(A_i / (pi N_i)) apart,
+or for regions of many goals a hexagonal lattice. Pixel (row r, column c) is the square [c, c+1) x [r, r+1).
 """
 
 from __future__ import annotations
@@ -43,11 +40,7 @@ def ks_distance(area: float, n: int) -> float:
 def poisson_samples(
     rows: np.ndarray, cols: np.ndarray, n: int, rng: np.random.Generator, ks: float | None = None
 ) -> tuple[np.ndarray, float]:
-    """n samples (x, y) in pixel units inside the pixels (rows, cols) of R_i, pairwise >= K_s apart.
-
-    Darts come in batches and are taken in order, each unless it lies closer than K_s to one taken
-    before. If n samples cannot be placed within _TRIES_PER_SAMPLE n darts (a thin or fragmented
-    region), K_s shrinks by _RELAX and the darts continue; returns (samples, K_s actually used)."""
+    """n samples (x, y) in pixels inside R_i, pairwise >= K_s apart (shrunk if too thin), and the K_s used."""
     if n <= 0:
         return np.zeros((0, 2)), 0.0
     npx = len(rows)
@@ -76,8 +69,7 @@ def poisson_samples(
 
 
 class _Grid:
-    """The samples taken, in a grid of cells of K_s / sqrt(2) (one sample a cell at most): a dart
-    closer than K_s to one lies within two cells of it."""
+    """The samples taken, in cells of K_s / sqrt(2) (one a cell at most): a close dart is within two cells."""
 
     def __init__(self, ks: float, xs: np.ndarray, ys: np.ndarray, taken: np.ndarray) -> None:
         self.ks2 = ks * ks
@@ -133,13 +125,9 @@ def _first_apart(darts: np.ndarray, ks: float) -> np.ndarray:
 
 
 def lattice_samples(rows: np.ndarray, cols: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
-    """n samples (x, y) in pixel units inside the pixels (rows, cols) of R_i, on a hexagonal lattice
-    (its rows along the long axis of R_i, a seeded offset) whose spacing puts n of its points in R_i.
-
-    The CVT of a region of many generators is a hexagonal lattice but near its border, so Lloyd's
-    method from one only settles the border, where from random samples it stops in a worse local
-    minimum. Where no spacing gives exactly n points (a lattice row crossing the border at once), the
-    spacing is bisected down to that crossing and the missing points are taken evenly from that row."""
+    """n samples (x, y) in pixels inside R_i on a hexagonal lattice (rows along R_i's long axis, seeded
+    offset), the spacing bisected to hold n points: a large CVT is a lattice but near its border, so Lloyd
+    settles in fewer iterations to a lower cost than from random samples."""
     if n <= 0:
         return np.zeros((0, 2))
     npx = len(rows)

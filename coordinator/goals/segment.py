@@ -1,11 +1,8 @@
 """Segmentation of the foreground into regions R_i by colour and connectivity (paper 4.1).
 
-Foreground colours are grouped into a palette (colours closer than COLOR_TOLERANCE Delta E merge); each
-8-connected set of pixels of one palette colour is a candidate region, so touching shapes of different
-colour stay apart unless their colours meet in a smooth gradient (shading) rather than at an edge. Weak
-candidates (under `min_area` pixels, or thin: anti-aliased edges, hairlines) join the neighbour they
-share the longest border with; weak pieces touching no region are merged and kept if together they
-reach `min_area`, else dropped with a note. Region ids are ordered by area, largest first.
+Each 8-connected set of one palette colour is a candidate region; weak ones (small or thin) join the
+neighbour they share the longest border with, and touching regions meeting in a smooth gradient
+(shading) merge. Region ids are ordered by area, largest first.
 """
 
 from __future__ import annotations
@@ -78,7 +75,6 @@ def _palette(lab: np.ndarray, tol: float) -> np.ndarray:
 
 
 def _components(pal_img: np.ndarray) -> np.ndarray:
-    """Connected components (8-neighbour) of each palette colour; -1 where pal_img is -1."""
     comp = np.full(pal_img.shape, -1, np.int64)
     offset = 0
     for k in np.unique(pal_img[pal_img >= 0]):
@@ -91,8 +87,7 @@ def _components(pal_img: np.ndarray) -> np.ndarray:
 def _neighbour_pairs(
     comp: np.ndarray, lab: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """(a, b, colour step) for every pair of 8-adjacent pixels in different components, both
-    directions; the colour step (Delta E between the two pixels) only if lab is given."""
+    """(a, b, Delta E if lab is given) for every pair of 8-adjacent pixels in different components, both ways."""
     h, w = comp.shape
     aa, bb, dd = [], [], []
     for dy, dx in _HALF_NEIGHBOURS:
@@ -109,8 +104,7 @@ def _neighbour_pairs(
 
 
 def _merge_smooth(comp: np.ndarray, lab: np.ndarray, step: float) -> tuple[np.ndarray, int]:
-    """Merge touching regions whose colours meet in a smooth gradient (mean colour step across their
-    border below `step`), e.g. the shading of one object, as opposed to an edge between two colours."""
+    """Merge touching regions whose mean colour step across their border is below `step` (shading)."""
     a, b, d = _neighbour_pairs(comp, lab)
     if len(a) == 0:
         return comp, 0
@@ -128,8 +122,7 @@ def _merge_smooth(comp: np.ndarray, lab: np.ndarray, step: float) -> tuple[np.nd
 
 
 def _interior_counts(comp: np.ndarray, n: int) -> np.ndarray:
-    """Per component, the number of pixels whose 8 neighbours all belong to it (the least and the
-    greatest label round them are their own; off the image counts as none)."""
+    """Per component, the number of pixels whose 8 neighbours all belong to it (off the image: none)."""
     low = ndimage.minimum_filter(comp, size=3, mode="constant", cval=-2)
     high = ndimage.maximum_filter(comp, size=3, mode="constant", cval=-2)
     inside = (comp >= 0) & (low == comp) & (high == comp)
@@ -162,9 +155,8 @@ def _absorb_weak(comp: np.ndarray, weak: np.ndarray) -> tuple[np.ndarray, int]:
 
 
 def segment(rgb: np.ndarray, mask: np.ndarray, *, min_area: int | None = None) -> Segmentation:
-    """Split the foreground `mask` of `rgb` into regions R_i (see the module docstring)."""
+    """Split the foreground `mask` of `rgb` into regions R_i; specks under min_area pixels are none."""
     h, w = mask.shape
-    # specks below min_area pixels are not regions: by default 0.02 % of the image, at least 16 pixels
     min_area = max(16, int(round(2e-4 * h * w))) if min_area is None else int(min_area)
     notes: list[str] = []
     if not mask.any():
