@@ -125,9 +125,8 @@ class FrameGoals(GoalSets):
         arena: float | None = None,
         counts_for: int | None = None,
     ) -> None:
-        super().__init__(len(animation.steps), robots)
-        self.animation, self.seed, self.radius = animation, seed, radius
-        self.counts_for = counts_for or robots
+        super().__init__(len(animation.steps), robots, seed, radius, counts_for)
+        self.animation = animation
         self._keyframes: dict[int, KeyframeGoals] = {}
         arena = arena if arena is not None else animation.arena
         self.arena = float(arena) if arena is not None else self._generate(robots, None).arena

@@ -25,7 +25,7 @@ class StoredGoals(GoalSets):
     """Goal sets read from a run directory; a count not stored is made by the image pipeline when asked for."""
 
     def __init__(self, path: Path, scene: Scene, arena: float) -> None:
-        super().__init__(len(scene.steps), scene.robots)
+        super().__init__(len(scene.steps), scene.robots, scene.seed, scene.radius, None)
         self.arena, self.scene = arena, scene
         self._pipeline: GoalSets | None = None
         try:

@@ -180,9 +180,7 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
     robots, seed, duration = overrides.get("robots"), overrides.get("seed"), overrides.get("duration")
     if unknown := set(data) - SCENE_KEYS:
         raise SceneError(f"{source}: unknown key(s) {', '.join(sorted(unknown))}")
-    n = robots if robots is not None else data.get("robots", 14)
-    if not isinstance(n, int) or isinstance(n, bool) or n < 1:
-        raise SceneError(f"{source}: robots must be a whole number >= 1, not {n!r}")
+    n = _whole(robots if robots is not None else data.get("robots", 14), "robots", 1, source)
     robot = _table(data, "robot", {}, source)
     radius = positive(robot.get("radius", epuck.RADIUS), f"{source}: robot radius", "metres", SceneError)
     animation: Animation | None = None
@@ -193,7 +191,11 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
     steps = list(animation.steps) if animation is not None else _steps(data, source)
     if animation is not None and ("steps" in data or "goals" in data):
         raise SceneError(f"{source}: give one of [animation], [[steps]] or [goals], not several")
-    duration, seed = _duration_and_seed(data, steps, duration, seed, source)
+    if duration is None:
+        duration = data.get("duration", sum(s.hold for s in steps) if steps else Scene.duration)
+    if not is_positive(duration):
+        raise SceneError(f"{source}: duration must be a positive number of seconds")
+    seed = _whole(seed if seed is not None else data.get("seed", Scene.seed), "seed", 0, source)
     scene = Scene(
         name=str(data.get("name", Path(source).stem)),
         robots=n,
@@ -208,13 +210,16 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
         assignment=data.get("assignment", Scene.assignment),
         agents_per_process=data.get("agents_per_process", Scene.agents_per_process),
         deadline=data.get("deadline", Scene.deadline),
-        duration=duration,
+        duration=float(duration),
         seed=seed,
         noise=_noise(_table(data, "noise", {}, source), source),
         converge_hold=_converge_hold(_table(data, "end", {}, source), source),
         source=source,
     )
-    _check_settings(scene, source)
+    for key, choices in (("clock", CLOCKS), ("engine", ENGINES), ("assignment", ASSIGNMENTS)):
+        one_of(getattr(scene, key), choices, f"{source}: {key}", SceneError)
+    scene.agents_per_process = _whole(scene.agents_per_process, "agents_per_process", 1, source)
+    scene.deadline = positive(scene.deadline, f"{source}: deadline", error=SceneError)
     scene.obstacles = [_polygon(o, source) for o in data.get("obstacles", [])]
     scene.poses = initial_poses(scene.layout, n, radius, scene.seed, source)
     if scene.goals.get("kind") == "image":  # one image: a sequence of one step, shown for the whole run
@@ -229,19 +234,6 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
     return scene
 
 
-def _duration_and_seed(
-    data: dict[str, Any], steps: list[ImageStep], duration: float | None, seed: int | None, where: str
-) -> tuple[float, int]:
-    if duration is None:
-        duration = data.get("duration", sum(s.hold for s in steps) if steps else Scene.duration)
-    if not is_positive(duration):
-        raise SceneError(f"{where}: duration must be a positive number of seconds")
-    seed = seed if seed is not None else data.get("seed", Scene.seed)
-    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
-        raise SceneError(f"{where}: seed must be a whole number >= 0, not {seed!r}")
-    return float(duration), int(seed)
-
-
 def _add_uncontrolled(scene: Scene, data: dict[str, Any], where: str) -> None:
     """The scene's events, checked, and its scripted movers and pursuers (paper Fig. 19), which take no goal."""
     for event in scene.events:
@@ -254,13 +246,10 @@ def _add_uncontrolled(scene: Scene, data: dict[str, Any], where: str) -> None:
         scene.goal_positions[r] = np.nan  # a scripted robot follows its path, not a goal
 
 
-def _check_settings(scene: Scene, where: str) -> None:
-    for key, choices in (("clock", CLOCKS), ("engine", ENGINES), ("assignment", ASSIGNMENTS)):
-        one_of(getattr(scene, key), choices, f"{where}: {key}", SceneError)
-    k = scene.agents_per_process
-    if not isinstance(k, int) or isinstance(k, bool) or k < 1:
-        raise SceneError(f"{where}: agents_per_process must be a whole number >= 1, not {k!r}")
-    scene.deadline = positive(scene.deadline, f"{where}: deadline", error=SceneError)
+def _whole(value: Any, key: str, least: int, where: str) -> int:
+    if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < least:
+        raise SceneError(f"{where}: {key} must be a whole number >= {least}, not {value!r}")
+    return int(value)
 
 
 def _plan_steps(

@@ -112,8 +112,9 @@ class GoalSets:
     STEP = "step"  # how errors name a step
     arena: float  # K_r, metres: set by each subclass
 
-    def __init__(self, steps: int, robots: int) -> None:
-        self.step_count, self.robots = steps, robots
+    def __init__(self, steps: int, robots: int, seed: int, radius: float, counts_for: int | None) -> None:
+        self.step_count, self.robots, self.seed, self.radius = steps, robots, seed, radius
+        self.counts_for = counts_for or robots  # the robot count the artist's region_counts were written for
         self._sets: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
 
     def goal_set(self, step: int, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -149,11 +150,9 @@ class StepGoals(GoalSets):
         labels: list[str] | None = None,
         counts_for: int | None = None,
     ) -> None:
-        super().__init__(len(steps), robots)
+        super().__init__(len(steps), robots, seed, radius, counts_for)
         self.steps = steps
-        self.counts_for = counts_for or robots  # the robot count the artist's region_counts were written for
         self.labels = labels or [f"steps[{k}]" for k in range(len(steps))]  # how errors name each step
-        self.seed, self.radius = seed, radius
         self._prepared: dict[int, PreparedImage] = {}
         self.arena = float(arena) if arena is not None else self._shared_arena()
 
