@@ -7,6 +7,8 @@ import itertools
 import math
 import sys
 import typing
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 STARTUP_TIMEOUT = 300.0  # s per start-up stage of a run: generous, many processes start at once
 AGENTS_TIMEOUT = 60.0  # s a run with remote agents waits for every robot's agent to come alive by default
@@ -27,6 +29,15 @@ def refuse(prog: str, message: object) -> int:
     """A command's bad input as one line `PROG: error: ...` on stderr; returns its exit code, 2."""
     print(f"{prog}: error: {message}", file=sys.stderr)
     return 2
+
+
+@contextmanager
+def usage_errors(*kinds: type[Exception], prefix: str = "") -> Iterator[None]:
+    """Exceptions of ``kinds`` raised inside as a UsageError (``prefix`` and their text): the input's fault."""
+    try:
+        yield
+    except kinds as err:
+        raise UsageError(f"{prefix}{err}") from None
 
 
 def refuse_if(when: object, message: str) -> None:

@@ -21,7 +21,6 @@ from coordinator.scene import (
     CLOCKS,
     ENGINES,
     Scene,
-    SceneError,
     make_goal_sets,
     parse_scene,
     resolve_scene_path,
@@ -36,6 +35,7 @@ from sim.args import (
     positive_int,
     refuse,
     refuse_if,
+    usage_errors,
 )
 from sim.cli.certs import add_certs_parser
 from sim.cli.track import add_track_parser
@@ -278,14 +278,12 @@ def _hardware_scene(args: argparse.Namespace) -> Scene:
     refuse_if(args.engine == "central", "--hardware runs the distributed engine: drop --engine central")
     refuse_if(args.clock == "lockstep", "--hardware runs on the wall clock: drop --clock lockstep")
     refuse_if(args.robots is not None, "--hardware takes the number of robots from the hardware file: drop --robots")
-    if args.secure is not None:
-        raise UsageError(
-            "--hardware cannot be combined with --secure yet: its pose source joins outside the access rules"
-        )
-    try:
+    refuse_if(
+        args.secure is not None,
+        "--hardware cannot be combined with --secure yet: its pose source joins outside the access rules",
+    )
+    with usage_errors(HardwareError):  # its ValueErrors: _scene_to_run's
         return load_run(args)[1]
-    except HardwareError as err:  # SceneError and HardwareConfigError are ValueErrors, which _scene_to_run catches
-        raise UsageError(str(err)) from None
 
 
 def _make_goal_sets(scene: Scene, progress: typing.TextIO | None) -> Scene:
@@ -318,10 +316,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     scene = _scene_to_run(args)
     faults, reach = _faults_and_reach(args, scene)
     scene = _with_rounds_per_tick(args, scene, reach)
-    try:
+    with usage_errors(ValueError, prefix=f"{args.scene}: "):
         RobotParams.from_dict(scene.robot)
-    except ValueError as err:
-        raise UsageError(f"{args.scene}: {err}") from None
     # what a run whose agents join from elsewhere cannot do
     refuse_if(args.agents_timeout is not None and not args.remote_agents, "--agents-timeout goes with --remote-agents")
     if args.remote_agents and (args.secure is not None or args.agents_connect):
@@ -355,23 +351,19 @@ def _scene_to_run(args: argparse.Namespace) -> Scene:
         value = getattr(args, flag[2:].replace("-", "_"))
         if value is not None and not (math.isfinite(value) and value > 0):
             raise UsageError(f"{flag} must be a positive number of seconds, not {value:g}")
-    try:  # SceneError and hardware.config's HardwareConfigError are ValueErrors
+    with usage_errors(ValueError):  # SceneError and hardware.config's HardwareConfigError are ValueErrors
         if args.hardware is not None and load_hardware(args.hardware).backend_kind == "sim":
             args.hardware = None  # the simulated world, as without a hardware file
         if args.hardware is not None:
             return _hardware_scene(args)
         scene = parse_scene(args.scene, robots=args.robots, seed=args.seed, clock=args.clock, duration=args.duration)
         return _make_goal_sets(scene, None if args.quiet else sys.stderr)
-    except (SceneError, ValueError) as err:
-        raise UsageError(str(err)) from None
 
 
 def _faults_and_reach(args: argparse.Namespace, scene: Scene) -> tuple[Any, float]:
     """--faults and --range, checked against the scene and each other (and --rounds-per-tick)."""
-    try:
+    with usage_errors(ValueError, prefix="--faults: "):
         faults = parse_faults(args.faults)
-    except ValueError as err:
-        raise UsageError(f"--faults: {err}") from None
     reach = math.inf if args.reach is None else args.reach
     lockstep, limited = scene.clock == "lockstep", math.isfinite(reach)
     refuse_if(not reach > 0, f"--range must be a positive distance in metres, not {args.reach}")
@@ -452,11 +444,9 @@ def _open_view(mode: str | None, scene: Scene) -> Any:
     if mode.endswith(".rrd") and not Path(mode).parent.is_dir():
         raise UsageError(f"--view: no directory {Path(mode).parent} to write {Path(mode).name} in")
     params = RobotParams.from_dict(scene.robot)
-    try:
+    with usage_errors(ViewUnavailable, prefix="--view: "):
         display = (scene.name, scene.arena, scene.obstacles, params.radius)
         view = SwarmView(*display, robots=scene.robots, sink=mode, tolerance=params.goal_tolerance)
-    except ViewUnavailable as err:
-        raise UsageError(f"--view: {err}") from None
     if view.url is not None:
         print(f"[{scene.name}] view: {view.url}", file=sys.stderr, flush=True)
     return contextlib.closing(view)
@@ -540,12 +530,10 @@ def _watch(args: argparse.Namespace) -> int:
     if save is not None and not save.parent.is_dir():
         raise UsageError(f"--save: no directory {save.parent} to write {save.name} in")
     display = args.display or "default"
-    try:
+    with usage_errors(ViewUnavailable):
         settings = observer_settings(args.connect, args.secure, display)
         sink = save if save is not None else "web" if args.web else "native"
         code = watch(settings, display, sink, timeout=args.timeout, say=print_line("pixelswarm view", args.quiet))
-    except ViewUnavailable as err:
-        raise UsageError(str(err)) from None
     if code == 0 and save is not None:
         print(save, flush=True)
     return code
@@ -578,11 +566,9 @@ def _secured_router(args: argparse.Namespace, robots: int, k: int) -> ZenohSetti
     plain = [e for e in args.listen if not e.startswith("tls/")]
     if plain:
         raise UsageError(f"--secure listens with TLS only: --listen tls/HOST:PORT, not {plain[0]}")
-    try:
+    with usage_errors(SecurityError, prefix="--secure: "):
         args.secure = check_folder(args.secure, robots, display=args.display)
         return router_config(args.secure, args.listen) if args.listen else None
-    except SecurityError as err:
-        raise UsageError(f"--secure: {err}") from None
 
 
 def cmd_router(args: argparse.Namespace) -> int:
@@ -605,15 +591,13 @@ def cmd_stop(args: argparse.Namespace) -> int:
     from hardware.config import HardwareConfigError, load_hardware
     from hardware.stop import stop_all
 
-    try:
+    with usage_errors(HardwareConfigError):  # a TransportError main says as one line too
         config = load_hardware(args.hardware)
         settings = None
         if config.backend_kind == "ros2":
             refuse_if(not args.connect, f"{args.hardware}: ROS 2 robots are reached through a router: give -e ENDPOINT")
             settings = ZenohSettings(mode="client", connect=[args.connect])
         unreached = stop_all(config, settings)
-    except (HardwareConfigError, TransportError) as err:
-        raise UsageError(str(err)) from None
     if unreached:
         print(f"pixelswarm stop: error: robots {', '.join(map(str, unreached))} were not reached", file=sys.stderr)
         return 1

@@ -13,7 +13,7 @@ import tomllib
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, BinaryIO, TextIO
 
-from sim.args import UsageError, refuse_if
+from sim.args import UsageError, refuse_if, usage_errors
 from sim.outputs.rundir import atomic_write
 
 if TYPE_CHECKING:
@@ -57,10 +57,8 @@ def load_camera_config(path: Path) -> CameraConfig:
     except tomllib.TOMLDecodeError as err:
         raise UsageError(f"hardware file {path} is not valid TOML: {err}") from None
     refuse_if("poses" not in data, f"hardware file {path} has no [poses] table")
-    try:
+    with usage_errors(HardwareConfigError):
         return CameraConfig.from_table(data["poses"], f"{path} [poses]")
-    except HardwareConfigError as err:
-        raise UsageError(str(err)) from None
 
 
 def track_video(video: Path, config: CameraConfig, out: TextIO, progress: TextIO | None) -> tuple[int, int]:
@@ -70,10 +68,8 @@ def track_video(video: Path, config: CameraConfig, out: TextIO, progress: TextIO
     from hardware.camera import MIN_REFERENCES, ArucoTracker, CameraError, open_capture
 
     refuse_if(not video.is_file(), f"no such video file {video}")
-    try:
+    with usage_errors(CameraError):
         capture = open_capture(str(video))
-    except CameraError as err:
-        raise UsageError(str(err)) from None
     try:
         fps = capture.get(cv2.CAP_PROP_FPS)
         fps = fps if fps > 0 else config.rate  # a video without a frame rate: the configured one

@@ -291,15 +291,9 @@ class Launcher:
                 continue
             child.reported = True
             if child.name.startswith("agent"):
+                crash = {"process": child.name, "pid": child.proc.pid, "robots": child.robots, "returncode": code}
                 self.incidents.crashes.append(
-                    {
-                        "process": child.name,
-                        "pid": child.proc.pid,
-                        "robots": child.robots,
-                        "returncode": code,
-                        "sim_time_s": recorder.sim_time,
-                        "noticed_wall_time": time.time(),
-                    }
+                    crash | {"sim_time_s": recorder.sim_time, "noticed_wall_time": time.time()}
                 )
                 if self.startup_failure is None:  # at start-up, StartupFailed names it
                     _warn(

@@ -18,11 +18,11 @@ from collections.abc import Iterator
 from typing import Any
 
 from agent.runtime import HostConfig, interpreter
-from sim.args import UsageError, add_seconds, check_endpoint, format_ids, parse_ids, positive_int, refuse_if
+from sim.args import add_seconds, check_endpoint, format_ids, parse_ids, positive_int, refuse_if, usage_errors
 from sim.processes import handling_signals, stop_processes
 from transport.bus import Bus, LivelinessWatch
 from transport.keys import Keys
-from transport.session import TransportError, ZenohSettings
+from transport.session import ZenohSettings
 
 # `pixelswarm --help` and `pixelswarm agents --help`
 HELP = "start agent processes that join a run going elsewhere (`pixelswarm run --remote-agents`)"
@@ -90,19 +90,13 @@ def add_agents_parser(subparsers: Any) -> None:
 
 def run_agents(args: argparse.Namespace) -> int:
     """The command; bad input is a UsageError, which `pixelswarm` says as one line (exit code 2)."""
-    try:
+    with usage_errors(ValueError):
         robots = parse_ids(args.robots) if args.robots is not None else None
         Keys(args.display)
-    except ValueError as err:
-        raise UsageError(str(err)) from None
     settings = ZenohSettings(mode="client", connect=[args.connect])
     check_endpoint(settings, args.connect)
     say = (lambda text: None) if args.quiet else (lambda text: print(f"{PROG}: {text}", file=sys.stderr, flush=True))
-    try:
-        bus = Bus(settings, args.display, name="agents")
-    except TransportError as err:
-        raise UsageError(str(err)) from None
-    with bus:
+    with Bus(settings, args.display, name="agents") as bus:  # a TransportError: main says it as one line
         runs, worlds = bus.watch_alive("run"), bus.watch_alive("world")
         if not _wait_for_run(runs, args.timeout):
             print(
@@ -113,12 +107,9 @@ def run_agents(args: argparse.Namespace) -> int:
             return 1
         configs = fetch_configs(bus, robots)
         unknown = [r for r in robots or [] if r not in configs]
-        if unknown:
-            raise UsageError(
-                f"robots {format_ids(unknown)} are not agent robots of the run on {args.connect} "
-                f"(display {args.display})"
-            )
-        refuse_if(not configs, f"the run on {args.connect} (display {args.display}) has no agent robots to start")
+        where = f"the run on {args.connect} (display {args.display})"
+        refuse_if(unknown, f"robots {format_ids(unknown)} are not agent robots of {where}")
+        refuse_if(not configs, f"{where} has no agent robots to start")
         hosts = _hosts(configs, args.agents_per_process)
         supervisor = Supervisor(settings)
         with supervisor.forwarding_signals():
