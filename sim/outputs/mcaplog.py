@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import struct
 import threading
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -239,8 +240,8 @@ def _read_unfinished(path: str | os.PathLike, wanted: set[str] | None) -> dict[s
         try:
             for _, channel, message, decoded in reader.iter_decoded_messages(topics=wanted, log_time_order=False):
                 out.setdefault(channel.topic, []).append((message.log_time, decoded))
-        except McapError:
-            pass  # the chunk in progress when the writer died
+        except (McapError, struct.error):
+            pass  # the record in progress when the writer died (cut inside a length: struct.error)
     return {topic: [m for _, m in sorted(rows, key=lambda r: r[0])] for topic, rows in out.items()}
 
 

@@ -100,6 +100,22 @@ def test_mcap_round_trip(tmp_path):
     assert meta[0].name == "run" and meta[0].metadata == {"scene": "circle", "seed": "7"}
 
 
+def test_mcap_cut_anywhere_reads_a_prefix(tmp_path):
+    """A run whose writer died leaves a log cut at any byte: it reads up to there, never raises."""
+    path = tmp_path / "log.mcap"
+    with McapLog(path, compression=None) as log:
+        ch = log.add_channel("swarm/robot/0/pose", "pixelswarm.Pose", POSE_SCHEMA)
+        for k in range(40):
+            log.write(ch, (k + 1) * 100_000_000, {"id": 0, "pose": [k * 0.1, 0.0, 0.0], "stamp": k * 0.1})
+    whole = path.read_bytes()
+    full = read_mcap(path)["swarm/robot/0/pose"]
+    cut = tmp_path / "cut.mcap"
+    for end in range(len(whole)):  # a cut inside a record's length field raised struct.error once
+        cut.write_bytes(whole[:end])
+        got = read_mcap(cut).get("swarm/robot/0/pose", [])
+        assert got == full[: len(got)]
+
+
 def test_mcap_scene_update(tmp_path):
     path = tmp_path / "scene.mcap"
     pose = np.array([[0.0, 0.0, 0.0], [1.0, 2.0, math.pi / 2], [np.nan, np.nan, np.nan]])
