@@ -37,14 +37,13 @@ from sim.args import (
     refuse_if,
     usage_errors,
 )
-from sim.cli.certs import add_certs_parser
 from sim.cli.track import add_track_parser
 from sim.outputs.rundir import PARTIAL_SUFFIX, default_run_path
 from sim.processes import stopped_by_signals
 from sim.run.remote_agents import add_agents_parser
 from sim.study.runner import add_study_parser
 from transport.faults import parse_faults
-from transport.security import SecurityError, check_folder, router_config
+from transport.security import SecurityError, check_folder, make_certificates, router_config
 from transport.session import TransportError, ZenohSettings, add_zenoh_args, open_session, settings_from_args
 
 STARTUP_FAILED = 3  # exit code of a run whose agents did not all come alive (docs/cli.md)
@@ -229,7 +228,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_goals_parser(sub)
     add_agents_parser(sub)
-    add_certs_parser(sub)
+    _add_certs_parser(sub)
     add_track_parser(sub)
     add_study_parser(sub)
     return parser
@@ -584,6 +583,39 @@ def cmd_router(args: argparse.Namespace) -> int:
             stop.wait()
     finally:
         session.close()
+    return 0
+
+
+def _add_certs_parser(sub: Any) -> None:
+    """`pixelswarm certs DIR --robots N`: certificates, configurations and access rules for a secured bus
+    (transport/security.py, docs/security.md)."""
+    p = sub.add_parser(
+        "certs",
+        help="make certificates, client configurations and access rules for a secured bus",
+        description="Make a certificate authority, a certificate and a Zenoh configuration for each role "
+        "(coordinator, tracker, world, recorder, observer, router, robot-<id>), and the router's access rules.",
+    )
+    p.add_argument("dir", help="folder to create (must not exist or be empty)")
+    p.add_argument("-n", "--robots", type=positive_int, required=True, help="number of robots (ids 0..N-1)")
+    p.add_argument(
+        "--listen",
+        metavar="tls/HOST:PORT",
+        help="the router's endpoint, written into every configuration and named by the router "
+        "certificate (default: none written; give it when a session opens)",
+    )
+    p.add_argument("--display", default="default", help="display name (key prefix) the access rules cover")
+    p.add_argument("--force", action="store_true", help="replace an existing non-empty folder")
+    p.set_defaults(func=cmd_certs)
+
+
+def cmd_certs(args: argparse.Namespace) -> int:
+    try:
+        path = make_certificates(args.dir, args.robots, connect=args.listen, display=args.display, overwrite=args.force)
+    except (SecurityError, ValueError) as err:
+        raise UsageError(str(err)) from None
+    except OSError as err:
+        raise UsageError(f"cannot write {args.dir}: {err.strerror or err}") from None
+    print(path)
     return 0
 
 

@@ -12,7 +12,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
@@ -86,33 +86,8 @@ class Child:
     reported: bool = False  # its exit was seen (a crash said once, or a kill on purpose)
 
 
-@dataclass
-class Incidents:
-    """What befell the run's processes, for metrics.json: agent processes that crashed, central
-    services that died and were started again, and agents the scene killed ('fail' events)."""
-
-    crashes: list[dict[str, Any]] = field(default_factory=list)
-    restarts: list[dict[str, Any]] = field(default_factory=list)
-    failed: list[dict[str, Any]] = field(default_factory=list)
-
-
-@dataclass
-class WorldEnd:
-    """How the world process ended, as the launcher knows it: its exit code once it exited, the
-    statistics of its final report, and whether it died before the run ended."""
-
-    exit: int | None = None
-    stats: dict[str, Any] = field(default_factory=dict)
-    died: bool = False
-
-
 class Interrupted(Exception):
     """A second stop signal, or one before the run started: nothing is written."""
-
-
-class StartupFailed(Exception):
-    """Agents of the run's own that did not come alive (their process exited, the start-up timeout
-    passed, the world ended): one line naming their robots."""
 
 
 def _robots(ids: list[int]) -> str:
@@ -136,13 +111,19 @@ class Launcher:
     the run's end from stop_signal, interrupted and startup_failure."""
 
     def __init__(self, scene: Scene, options: RunOptions) -> None:
-        self.world = WorldEnd()
         self.scene, self.opt = scene, options
         self.params = RobotParams.from_dict(scene.robot)
         self.children: list[Child] = []
-        self.incidents = Incidents()
+        # how the world process ended: its exit code, its final report's statistics, whether it died mid-run
+        self.world_exit: int | None = None
+        self.world_stats: dict[str, Any] = {}
+        self.world_died = False
+        # for metrics.json: agent processes that crashed, central services restarted, agents the scene killed
+        self.crashes: list[dict[str, Any]] = []
+        self.restarts: list[dict[str, Any]] = []
+        self.killed: list[dict[str, Any]] = []
         self.stop_signal: int | None = None
-        self.startup_failure: str | None = None  # why the run ended before it started (StartupFailed)
+        self.startup_failure: str | None = None  # why the run ended before it started (_await_agents)
         self.interrupted = False  # a stop signal ended the run (written marked incomplete)
         self.run_dir = RunDir(options.out)
         self.failures = events_of(scene, "fail")
@@ -172,12 +153,12 @@ class Launcher:
 
     def _restart(self, child: Child, code: int, recorder: Recorder) -> None:
         """A central service died mid-run: start it again (it learns where the show is from the bus)."""
-        done = [r for r in self.incidents.restarts if r["process"] == child.name]
+        done = [r for r in self.restarts if r["process"] == child.name]
         if len(done) >= RESTARTS or self.stop_signal is not None:
             return
         module, *args = child.command
         again = self._spawn(child.name, module, args, child.robots, child.client)
-        self.incidents.restarts.append(
+        self.restarts.append(
             {"process": child.name, "returncode": code, "pid": again.proc.pid, "sim_time_s": recorder.sim_time}
         )
         _warn(
@@ -246,30 +227,41 @@ class Launcher:
             bus.serve(key, answer)
         bus.declare_alive("run", 0)
 
-    def _await_remote(self, rec: Recorder, stage: str, started: float) -> None:
+    def _await_remote(self, rec: Recorder, stage: str, since: float) -> None:
         """Wait until every agent robot's config was fetched (stage 'fetched': the world starts only
         then, as its own wait for agents is bounded) or its agent is alive (stage 'alive')."""
         ids = self._agent_robots
         endpoint = ", ".join((self.opt.router.listen if self.opt.router else []) or self.client.connect)
-        while True:
-            rec.poll()
+        what = "configurations fetched" if stage == "fetched" else "agents alive"
+        for waited in self._polling(rec, since):
             done = set(self.fetched) if stage == "fetched" else {i for i in ids if rec.progress.agent_alive[i]}
             missing = [i for i in ids if i not in done]
             if not missing:
                 return
-            if self.stop_signal is not None:
-                raise Interrupted()
-            if any(c.name == "world" and c.proc.poll() is not None for c in self.children):
+            if self._world_gone:
                 raise RuntimeError("the world process exited while waiting for agents: see logs/world.log")
-            if time.monotonic() - started > self.opt.agents_timeout:
+            if waited > self.opt.agents_timeout:
                 absent = [i for i in ids if not rec.progress.agent_alive[i]]
                 raise UsageError(  # remote agents that did not come: one line naming their robots
                     f"no agent came for robots {format_ids(absent)} within {self.opt.agents_timeout:g} s "
                     f"(start them with `pixelswarm agents --connect {endpoint}`)"
                 )
-            what = "configurations fetched" if stage == "fetched" else "agents alive"
             self._say(f"[{self.scene.name}] waiting for agents: {len(ids) - len(missing)}/{len(ids)} robots' {what}")
-            time.sleep(0.05)
+
+    def _polling(self, rec: Recorder, since: float | None = None, pause: float = 0.05) -> Iterator[float]:
+        """The start-up waits' loop: poll the bus every ``pause`` s, yielding the seconds since ``since``
+        (default: now); a stop signal raises Interrupted, unless the wait has returned first."""
+        since = time.monotonic() if since is None else since
+        while True:
+            rec.poll()
+            yield time.monotonic() - since
+            if self.stop_signal is not None:
+                raise Interrupted()
+            time.sleep(pause)
+
+    @property
+    def _world_gone(self) -> bool:
+        return any(c.name == "world" and c.proc.poll() is not None for c in self.children)
 
     @property
     def _frames(self) -> bool:
@@ -292,16 +284,14 @@ class Launcher:
             child.reported = True
             if child.name.startswith("agent"):
                 crash = {"process": child.name, "pid": child.proc.pid, "robots": child.robots, "returncode": code}
-                self.incidents.crashes.append(
-                    crash | {"sim_time_s": recorder.sim_time, "noticed_wall_time": time.time()}
-                )
-                if self.startup_failure is None:  # at start-up, StartupFailed names it
+                self.crashes.append(crash | {"sim_time_s": recorder.sim_time, "noticed_wall_time": time.time()})
+                if self.startup_failure is None:  # at start-up, startup_failure names it
                     _warn(
                         f"pixelswarm: agent process {child.name} (pid {child.proc.pid}, robots {child.robots}) "
                         f"exited with code {code}; its robots stay in the world, stopped"
                     )
             elif child.name == "world":
-                self.world.exit = code
+                self.world_exit = code
             elif child.name in RESTARTED:
                 self._restart(child, code, recorder)
 
@@ -375,13 +365,8 @@ class Launcher:
                 self._spawn("world", "sim.node.world", self._world_args(), [], self._as("world"))
             if self.opt.remote_agents:
                 self._await_remote(recorder, "alive", waiting_since)
-            try:
-                self._await_agents(recorder)
-            except StartupFailed as failure:
-                self.startup_failure = str(failure)
-                end_reason = "start-up failed"
-            else:
-                end_reason = self._loop(bus, recorder)
+            self.startup_failure = self._await_agents(recorder)
+            end_reason = "start-up failed" if self.startup_failure else self._loop(bus, recorder)
             self._check_children(recorder)  # an agent that died as the world finished is still a crash
             self._stop_children()
             self._record_the_last_ticks(recorder)
@@ -429,7 +414,7 @@ class Launcher:
     def _record_the_last_ticks(self, recorder: Recorder) -> None:
         """Wait (bounded) for the agents' final statistics and the world's last ticks still in flight
         (a run that ended on convergence records nothing after its end, so there is nothing to wait for)."""
-        last_t = float(self.world.stats.get("ticks", 0)) * self.params.dt
+        last_t = float(self.world_stats.get("ticks", 0)) * self.params.dt
         settle, patience = time.monotonic() + 0.5, time.monotonic() + 10.0
         while time.monotonic() < patience:
             ticks_due = recorder.progress.ended_at is None and recorder.sim_time < last_t - 1e-6
@@ -438,33 +423,30 @@ class Launcher:
             recorder.poll()
             time.sleep(0.05)
 
-    def _await_agents(self, rec: Recorder) -> None:
-        """Until every agent robot's agent is alive, or a stop signal; StartupFailed naming the robots
-        whose agent process exited, or not alive within the start-up timeout or when the world ended."""
+    def _await_agents(self, rec: Recorder) -> str | None:
+        """Until every agent robot's agent is alive, or a stop signal; else one line naming the robots whose
+        agent process exited, or not alive within the start-up timeout or when the world ended."""
         ids = self._agent_robots
-        started = time.monotonic()
-        while True:
-            rec.poll()
+        for waited in self._polling(rec):
             events = rec.happened.liveliness
             alive = {int(e["id"]) for e in events if e["role"] == "agent" and e["alive"] and str(e["id"]).isdigit()}
             missing = [i for i in ids if i not in alive]
             if not missing or self.stop_signal is not None:
-                return
+                break
             exited = [c for c in self.children if c.name.startswith("agent") and c.proc.poll() is not None]
             gone = sorted({r for c in exited for r in c.robots} & set(missing))
-            world_gone = any(c.name == "world" and c.proc.poll() is not None for c in self.children)
             why = None
             if gone:
                 codes = ", ".join(map(str, sorted({c.proc.returncode for c in exited if set(c.robots) & set(gone)})))
                 why = f" (the agent process of {_robots(gone)} exited with code {codes})"
-            elif world_gone or self._world_done(rec) is not None:
+            elif self._world_gone or self._world_done(rec) is not None:
                 why = " before the world process ended"
-            elif time.monotonic() - started > self.opt.startup_timeout:
+            elif waited > self.opt.startup_timeout:
                 why = f" within {self.opt.startup_timeout:g} s (--startup-timeout)"
             if why is not None:
-                raise StartupFailed(f"{_robots(missing)}: no agent came alive{why}; see {self.opt.out / 'logs'}")
+                return f"{_robots(missing)}: no agent came alive{why}; see {self.opt.out / 'logs'}"
             self._say(f"[{self.scene.name}] waiting for {len(missing)}/{len(ids)} agents to come alive")
-            time.sleep(0.05)
+        return None
 
     def _stats_missing(self, rec: Recorder) -> bool:
         """Whether statistics are still due from an agent that stopped cleanly (remote agents report
@@ -484,14 +466,8 @@ class Launcher:
         args = self._scene_args() + ["--hardware", str(self.opt.hardware), "--duration", str(self.scene.duration)]
         args += ["--pose-frames"] if self._frames else []
         child = self._spawn("world", "sim.node.hardware", args, [], self._as("world"))
-        try:
-            # The refusal counts once written: the node may take a while to close its robot links.
-            self._wait_alive(rec, "world", child, gave_up=lambda: _last_said(child.log, HARDWARE_ERROR))
-        except RuntimeError:
-            said = _last_said(child.log, HARDWARE_ERROR)
-            if said is not None:
-                raise UsageError(said) from None  # the hardware node refused to start: its one line
-            raise
+        # its refusal counts once written: the node may take a while to close its robot links
+        self._wait_alive(rec, "world", child, refusal=HARDWARE_ERROR)
 
     def _embedded_router(self) -> ZenohSettings:
         """A router on a free loopback port; in a secured run, with mutual TLS and the folder's rules."""
@@ -504,27 +480,22 @@ class Launcher:
         launcher's own session, the router's, is outside the rules: it records and ends the run."""
         return None if self.opt.secure is None else client_config(self.opt.secure, role, self.client.connect)
 
-    def _wait_alive(
-        self, rec: Recorder, role: str, child: Child, gave_up: Callable[[], str | None] | None = None
-    ) -> None:
-        """Until a process of ``role`` is alive; RuntimeError if ``child`` exits first or (``gave_up``,
-        checked every 0.2 s) says why it will not come."""
-        start = checked = time.monotonic()
-        alive = False
-        while not alive:
-            rec.poll()
-            alive = any(e["role"] == role and e["alive"] for e in rec.happened.liveliness)
-            if child.proc.poll() is not None:
+    def _wait_alive(self, rec: Recorder, role: str, child: Child, refusal: str | None = None) -> None:
+        """Until a process of ``role`` is alive; RuntimeError if ``child`` exits first or the start-up timeout
+        passes, UsageError with the rest of its log's line starting with ``refusal`` once it says one."""
+        for waited in self._polling(rec, pause=0.02):
+            exited = child.proc.poll() is not None  # before its log is read: its last words are in
+            said = None if refusal is None else _last_said(child.log, refusal)
+            if said is not None:
+                raise UsageError(said)  # e.g. the hardware node refused to start: its one line
+            if exited:
                 raise RuntimeError(f"{child.name} exited with code {child.proc.returncode}: see {child.log}")
-            if gave_up is not None and time.monotonic() - checked >= 0.2:
-                checked = time.monotonic()
-                if gave_up() is not None:
-                    raise RuntimeError(f"{child.name} gave up: see {child.log}")
             if self.stop_signal is not None:
-                raise Interrupted()
-            if time.monotonic() - start > self.opt.startup_timeout:
+                raise Interrupted()  # before the run started, even if it came alive: nothing is written
+            if any(e["role"] == role and e["alive"] for e in rec.happened.liveliness):
+                return
+            if waited > self.opt.startup_timeout:
                 raise RuntimeError(f"{role} did not come alive within {self.opt.startup_timeout:g} s")
-            time.sleep(0.02)
 
     def _loop(self, bus: Bus, rec: Recorder) -> str:
         end_sent: str | None = None  # the reason of the end event published, if any
@@ -534,16 +505,16 @@ class Launcher:
             self._check_children(rec)
             done = self._world_done(rec)
             if done is not None:
-                self.world.stats = done
+                self.world_stats = done
                 return end_sent or str(done.get("reason", "duration"))
-            if self.world.exit is not None:
+            if self.world_exit is not None:
                 # the world is the bodies and the tracker: the run ends, written marked incomplete
-                self.world.stats, self.world.died = {}, True
+                self.world_stats, self.world_died = {}, True
                 _warn(
-                    f"pixelswarm: the world process exited with code {self.world.exit} (see logs/world.log); "
+                    f"pixelswarm: the world process exited with code {self.world_exit} (see logs/world.log); "
                     "the run ends, incomplete"
                 )
-                return f"world exited with code {self.world.exit}"
+                return f"world exited with code {self.world_exit}"
             if self.stop_signal is not None and not end_sent:
                 end_sent = "interrupted"
                 self.interrupted = True
@@ -575,7 +546,7 @@ class Launcher:
                     child.proc.send_signal(signal.SIGKILL)
                     child.reported = True  # killed on purpose, not a crash
                     rec.robots_died(child.robots)
-                    self.incidents.failed.append({"robots": child.robots, "sim_time_s": t, "wall_time": time.time()})
+                    self.killed.append({"robots": child.robots, "sim_time_s": t, "wall_time": time.time()})
                     self._say(
                         f"[{self.scene.name}] t={t:.1f} s: killed agent process {child.name} "
                         f"(robots {child.robots}) as the scene says",
@@ -589,12 +560,12 @@ class Launcher:
         def on_bus() -> dict | None:
             return next((e for e in rec.happened.events if e.get("kind") == "world-done"), None)
 
-        if self.world.exit == 0:
+        if self.world_exit == 0:
             end = time.monotonic() + 5.0
             while on_bus() is None and time.monotonic() < end:
                 rec.poll()
                 time.sleep(0.02)
-        if on_bus() is not None or self.world.exit != 0:
+        if on_bus() is not None or self.world_exit != 0:
             return on_bus()
         log = next((c.log for c in self.children if c.name == "world"), None)
         report = None if log is None else _last_said(log, "WORLD-DONE ")
@@ -607,7 +578,7 @@ class Launcher:
             end_reason = "interrupted"
         started = self.startup_failure is None
         arrays = rec.arrays()
-        stats = self.world.stats
+        stats = self.world_stats
         agent_stats = [e for e in rec.happened.events if e.get("kind") == "stats" and e.get("role") == "agent"]
         dropped: dict[str, int] = dict(rec.tally.drops)
         for s in agent_stats + [stats]:
@@ -621,14 +592,12 @@ class Launcher:
             if e["role"] == "agent" and not e["alive"] and e["wall_time"] < self.shutdown_wall
         ]
         self._say(f"[{self.scene.name}] run ended ({end_reason}); writing {self.run_dir.path.name}", force=True)
-        traffic = Traffic(
-            rec.tally.counts, rec.tally.bytes, int(stats.get("missed_ticks", 0)), len(self.incidents.crashes)
-        )
+        traffic = Traffic(rec.tally.counts, rec.tally.bytes, int(stats.get("missed_ticks", 0)), len(self.crashes))
         extra = dict(
-            agents_failed_by_scene=self.incidents.failed,
+            agents_failed_by_scene=self.killed,
             end_reason=end_reason,
             **({} if started else {"startup_failure": self.startup_failure}),
-            complete=not interrupted and not self.world.died and started,
+            complete=not interrupted and not self.world_died and started,
             engine="distributed",
             agents_per_process=self.opt.agents_per_process,
             # remote agents: the hosts that reported, one stats event each
@@ -647,8 +616,8 @@ class Launcher:
             subscriptions_renewed=int(sum(s.get("subscriptions_renewed", 0) for s in agent_stats)),
             deadlock_penalties=int(sum((s.get("auction") or {}).get("deadlock_penalties", 0) for s in agent_stats)),
             dropped_messages=dropped,
-            crashes=self.incidents.crashes,
-            restarts=self.incidents.restarts,
+            crashes=self.crashes,
+            restarts=self.restarts,
             liveliness_lost=[{"robot": e["id"], "wall_time": e["wall_time"]} for e in lost],
             faults=format_faults(self.opt.faults),
             stepping_wall_s=stepping_wall,
