@@ -10,7 +10,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .shapes import RED, RGB, WHITE, Inside, circle, coverage, polygon, union
+from .shapes import RED, RGB, Inside, Part, circle, paint, polygon, union
 
 SIZE = 256  # default canvas side in pixels
 
@@ -24,17 +24,6 @@ BEE: RGB = (120, 60, 170)  # violet: far from the petals, the centre and the ste
 BANG_CORE, BANG_FIRE, SUN, EARTH, MOON = (250, 215, 40), (230, 70, 30), (245, 165, 30), (40, 100, 220), (140, 140, 150)
 LAND, SEA, MICROBE, FISH = (60, 165, 60), (30, 90, 190), (150, 215, 60), (245, 120, 30)
 DINOSAUR, PERSON = (80, 140, 50), (215, 60, 120)
-
-Part = tuple[Inside, RGB]
-
-
-def paint(parts: list[Part], size: int = SIZE, background: RGB = WHITE) -> np.ndarray:
-    """Paint the parts in order (later ones on top) on a size x size canvas; crisp pixel edges."""
-    img = np.empty((size, size, 3), np.uint8)
-    img[:] = background
-    for inside, colour in parts:
-        img[coverage(inside, size, 1) > 0.5] = colour
-    return img
 
 
 def capsule(a: tuple[float, float], b: tuple[float, float], r: float) -> Inside:

@@ -10,12 +10,17 @@ import tempfile
 from collections.abc import Callable
 from dataclasses import fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from transport import epuck
 
-from .goals import GoalError
+from .goals import GoalError, GoalSet
 from .goals.defaults import MAX_ITER, METHODS, RELAX, TOLERANCE
+
+if TYPE_CHECKING:
+    from .goals import PreparedImage
 
 PROG = "pixelswarm goals"
 
@@ -157,8 +162,6 @@ def run_goals(args: argparse.Namespace) -> int:
         text = gs.to_json(indent=1) + "\n"
         jobs: list[tuple[Path, Callable[[Path], object]]] = [(out, lambda p: p.write_text(text))]
         if preview is not None:
-            from .goals.preview import render_preview
-
             jobs.append((preview, lambda p: render_preview(prep, gs, p)))
         _write_all(jobs)
     except GoalError as exc:
@@ -176,3 +179,44 @@ def run_goals(args: argparse.Namespace) -> int:
         f"{p['iterations']} Lloyd iterations -> {out}" + (f", preview {preview}" if preview else "")
     )
     return 0
+
+
+def render_preview(prep: PreparedImage, gs: GoalSet, path: str | os.PathLike[str], *, dpi: int = 120) -> None:
+    """Write a PNG preview of goal set gs computed from prep: the image in the arena frame, the Voronoi cells of
+    the goals within their regions, and each goal drawn as a robot footprint (radius r_A) in its colour."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.collections import PatchCollection
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Circle
+
+    from .goals.colors import voronoi_cells
+    from .goals.resize import from_arena
+
+    h, w = prep.shape
+    s = prep.scale
+    arena = gs.arena
+    goals_px = from_arena(gs.goals, prep.shape, arena)
+    cells = voronoi_cells(prep.seg, goals_px, gs.regions)
+    edge = np.zeros((h, w), bool)
+    edge[:, 1:] |= cells[:, 1:] != cells[:, :-1]
+    edge[1:, :] |= cells[1:, :] != cells[:-1, :]
+    img = prep.rgb.astype(float) / 255.0
+    img = 0.55 * img + 0.45  # faded so the goals stand out
+    img[edge] = (0.15, 0.15, 0.15)
+    half_w, half_h = arena * w / (2 * s), arena * h / (2 * s)
+    fig = Figure(figsize=(7, 7))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    ax.imshow(img, extent=(-half_w, half_w, -half_h, half_h), origin="upper", interpolation="nearest")
+    radius = float(gs.params.get("robot_radius", 0.0)) or 0.3 * (gs.min_spacing() if len(gs) > 1 else arena)
+    patches = [Circle((x, y), radius) for x, y in gs.goals]
+    pc = PatchCollection(patches, facecolors=gs.colors / 255.0, edgecolors="black", linewidths=0.6)
+    ax.add_collection(pc)
+    ax.set(xlim=(-arena / 2, arena / 2), ylim=(-arena / 2, arena / 2), aspect="equal", xlabel="x (m)", ylabel="y (m)")
+    p = gs.params
+    ax.set_title(
+        f"{len(gs)} goals, {p.get('method', '?')}, arena {arena:g} m, {len(p.get('regions', []))} region(s)",
+        fontsize=10,
+    )
+    fig.tight_layout()
+    fig.savefig(os.fspath(path), dpi=dpi, format="png")

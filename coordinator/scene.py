@@ -9,7 +9,7 @@ import tomllib
 from dataclasses import dataclass, field
 from itertools import accumulate
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypedDict, Unpack
+from typing import Any, TypedDict, Unpack
 
 import numpy as np
 
@@ -18,10 +18,7 @@ from transport import epuck
 
 from .goals import IMAGE_SUFFIXES, GoalError
 from .motion import check_window, is_number, is_positive, one_of, positive
-from .steps import GoalSets, ImageStep, StepGoals, parse_step
-
-if TYPE_CHECKING:
-    from .keyframe_steps import Animation, FrameGoals
+from .steps import Animation, FrameGoals, GoalSets, ImageStep, StepGoals, parse_animation, parse_step
 
 SCENE_DIR = Path(__file__).parent / "scenes"
 LAYOUTS = ("circle", "grid", "random", "rows", "blocks", "file", "list")
@@ -46,7 +43,7 @@ class Noise:
 class GoalPlan:
     """How an image scene's goal sets are made, as parsing found it (make_goal_sets follows it)."""
 
-    animation: Animation | None  # keyframes (coordinator.keyframe_steps), or None for [[steps]] / [goals]
+    animation: Animation | None  # the [animation]'s keyframes, or None for [[steps]] / [goals]
     labels: list[str] | None  # how errors name each step
     counts_for: int  # the robot count the artist's region_counts were written for
     arena: float | None  # K_r as the scene gives it ([goals] arena), None: the largest any step needs
@@ -185,8 +182,6 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
     radius = positive(robot.get("radius", epuck.RADIUS), f"{source}: robot radius", "metres", SceneError)
     animation: Animation | None = None
     if "animation" in data:
-        from .keyframe_steps import parse_animation  # draws a drawn animation's keyframes (OpenCV)
-
         animation = _wrap(lambda: parse_animation(data["animation"], source), source)
     steps = list(animation.steps) if animation is not None else _steps(data, source)
     if animation is not None and ("steps" in data or "goals" in data):
@@ -291,8 +286,6 @@ def goal_pipeline(scene: Scene, arena: float | None = None) -> StepGoals | Frame
         raise SceneError(f'{scene.name}: the scene shows no image (no [[steps]] or [goals] kind = "image")')
     try:
         if plan.animation is not None:
-            from .keyframe_steps import FrameGoals
-
             return FrameGoals(plan.animation, scene.robots, scene.seed, scene.radius, arena, counts_for=plan.counts_for)
         k_r = arena if arena is not None else plan.arena
         return StepGoals(scene.steps, scene.robots, scene.seed, scene.radius, k_r, plan.labels, plan.counts_for)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -15,6 +16,7 @@ BLUE: RGB = (30, 80, 200)
 WHITE: RGB = (255, 255, 255)
 
 Inside = Callable[[np.ndarray, np.ndarray], np.ndarray]
+Part = tuple[Inside, RGB]
 
 
 def _rect(x0: float, x1: float, y0: float, y1: float) -> Inside:
@@ -69,7 +71,7 @@ def _fig4_rect(x0: float, x1: float, y0: float, y1: float) -> Inside:
 
 
 # name -> list of (part, default colour); proportions measured on the paper's Fig. 4 (512 px canvas)
-_SHAPES: dict[str, list[tuple[Inside, RGB]]] = {
+_SHAPES: dict[str, list[Part]] = {
     "disk": [(circle(0.5, 0.5, 150 / 512), RED)],
     "disk_and_line": [(circle(190 / 512, 0.5, 120 / 512), RED), (_fig4_rect(380, 420, 80, 430), BLUE)],
     "line": [(_fig4_rect(236, 276, 60, 452), BLUE)],
@@ -102,16 +104,15 @@ def shape_mask(name: str, size: int = 256) -> np.ndarray:
     return np.logical_or.reduce(part_masks(name, size))
 
 
-def draw(
-    name: str, size: int = 256, *, background: RGB = WHITE, antialias: bool = False, alpha: bool = False
+def paint(
+    parts: list[Part], size: int = 256, *, background: RGB = WHITE, antialias: bool = False, alpha: bool = False
 ) -> np.ndarray:
-    """Draw shape `name` on a size x size canvas (antialias: 4 x 4 supersampled; alpha: RGBA of coverage)."""
-    if name not in _SHAPES:
-        raise ValueError(f"unknown shape {name!r}; choose from {', '.join(SHAPES)}")
+    """Paint the parts in order (later ones on top) on a size x size canvas (antialias: 4 x 4 supersampled;
+    alpha: RGBA of coverage); crisp pixel edges without antialias."""
     img = np.empty((size, size, 3), float)
     img[:] = background
     total = np.zeros((size, size))
-    for inside, col in _SHAPES[name]:
+    for inside, col in parts:
         cov = coverage(inside, size, 4 if antialias else 1)
         img = img * (1 - cov[..., None]) + np.asarray(col, float) * cov[..., None]
         total = np.maximum(total, cov)
@@ -120,6 +121,13 @@ def draw(
         a = np.clip(np.round(total * 255), 0, 255).astype(np.uint8)
         return np.dstack([out, a])
     return out
+
+
+def draw(name: str, size: int = 256, **options: Any) -> np.ndarray:
+    """Draw shape `name` on a size x size canvas (options: paint's)."""
+    if name not in _SHAPES:
+        raise ValueError(f"unknown shape {name!r}; choose from {', '.join(SHAPES)}")
+    return paint(_SHAPES[name], size, **options)
 
 
 def photo_like(size: int = 256, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:

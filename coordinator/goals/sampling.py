@@ -149,9 +149,7 @@ def lattice_samples(rows: np.ndarray, cols: np.ndarray, n: int, rng: np.random.G
         i, j = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1))
         p = (np.stack([i.ravel(), j.ravel()], axis=1) + offset) @ (basis * h)
         keys = i.ravel().astype(np.int64) * (1 << 32) + j.ravel().astype(np.int64)  # one number a point
-        px = np.floor(p - [c0, r0]).astype(np.int64)
-        ok = (px[:, 0] >= 0) & (px[:, 0] < inside.shape[1]) & (px[:, 1] >= 0) & (px[:, 1] < inside.shape[0])
-        ok[ok] = inside[px[ok, 1], px[ok, 0]]
+        ok = in_region(p, rows, cols)
         return keys[ok], p[ok]
 
     h0 = math.sqrt(2 * npx / (math.sqrt(3) * n))  # n hexagons of this spacing cover A_i

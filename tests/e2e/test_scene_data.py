@@ -37,7 +37,7 @@ ANIMATION = {
     "animation": {"keyframes": "triangle", "frame_time": 4.0, "first_hold": 8.0, "size": 96},
     "layout": {"kind": "grid", "spacing": 0.2},
 }
-IMAGE_CODE = ("cv2", "sklearn", "coordinator.goals.pipeline", "coordinator.goals.image", "coordinator.keyframe_steps")
+IMAGE_CODE = ("cv2", "sklearn", "coordinator.goals.pipeline", "coordinator.goals.image", "coordinator.keyframes")
 
 
 def _same_goal_sets(a, b, counts) -> None:

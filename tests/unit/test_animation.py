@@ -17,10 +17,10 @@ from agent.core.params import EPUCK
 from agent.core.step import NeighbourStates, OwnStates, control_step
 from coordinator.drawings import keyframes
 from coordinator.goals import GoalOptions
-from coordinator.keyframe_steps import DEFAULT_FIRST_HOLD, DEFAULT_FRAME_TIME
 from coordinator.keyframes import keyframe_goals
 from coordinator.scene import SceneError, load_scene, scene_from_dict, scene_goal_set
 from coordinator.service import step_motion, step_timing
+from coordinator.steps import DEFAULT_FIRST_HOLD, DEFAULT_FRAME_TIME
 from sim.central.engine import run_central
 from sim.outputs.metrics import keyframe_errors
 from tests.conftest import run_pixelswarm

@@ -14,8 +14,14 @@ from coordinator import drawings, shapes
 from coordinator.drawings import KEYFRAME_ANIMATIONS, capsule, ellipse, keyframes, paint, polygon
 from coordinator.goals import GoalError, GoalOptions, generate_goals, prepare_image
 from coordinator.goals.resize import from_arena
-from coordinator.keyframe_motion import estimate_motion, fit_count, region_shape
-from coordinator.keyframes import goal_disparity, keyframe_goals, match_regions
+from coordinator.keyframes import (
+    estimate_motion,
+    fit_count,
+    goal_disparity,
+    keyframe_goals,
+    match_regions,
+    region_shape,
+)
 from coordinator.shapes import BLUE, RED, union
 
 # --dist loadgroup gives the module one xdist worker: its module fixture (the leaf's keyframe goals) is made
