@@ -5,6 +5,7 @@ from __future__ import annotations
 import bisect
 import math
 import time
+from collections import deque
 from typing import Any
 
 import numpy as np
@@ -14,12 +15,44 @@ from transport.codec import BEFORE_START, Goals, Pose, State, Tick
 from transport.plausible import Clock
 
 from .core.params import RobotParams
-from .lateness import Lateness, strayed
 
 GOAL_SET_WAIT = 10.0  # s a lock-step tick waits for its clock message and the goal sets it names
 HELLO_EVERY = 0.1  # s between a lock-step host's hellos before the first tick, up to HELLO_SWARM robots
 HELLO_SWARM = 1000  # larger swarms say hello proportionally less often: every host hears every hello
 HELLO_TIMEOUT = 30.0  # s a host waits for its neighbours' hellos before it says it is alive anyway
+LATENESS_WINDOW = 50  # ticks over which the quickest pose is remembered, so that a loaded spell ages out
+
+
+class Lateness:
+    """Real time: the age of a tick's pose when the agent acts on it, beyond the quickest seen lately."""
+
+    def __init__(self, dt: float, command_margin: float, window: int = LATENESS_WINDOW) -> None:
+        self.most = dt + command_margin  # a later command never drives: its body stands
+        self._quickest: deque[float] = deque(maxlen=window)  # wall time minus stamp, per tick
+        self.worst = 0.0  # the worst lateness acted on (s), for the host's statistics
+        self.total, self.count = 0.0, 0  # ... and their sum over the ticks acted on
+
+    def arrived(self, stamp: float, wall: float) -> None:
+        """A tick's first pose, stamped ``stamp`` (display time), taken at ``wall`` (monotonic)."""
+        self._quickest.append(wall - stamp)
+
+    def at(self, stamp: float, wall: float) -> float:
+        """How late acting at ``wall`` on a pose stamped ``stamp`` is, in seconds (0 on time)."""
+        if not self._quickest:
+            return 0.0
+        late = min(max(wall - stamp - min(self._quickest), 0.0), self.most)
+        self.worst = max(self.worst, late)
+        self.total, self.count = self.total + late, self.count + 1
+        return late
+
+    @property
+    def mean(self) -> float:
+        return self.total / self.count if self.count else 0.0
+
+
+def strayed(late: float, v_max: float) -> float:
+    """How far a body may be from where its plan starts when a command late by ``late`` takes over (a reversal)."""
+    return 2.0 * v_max * late
 
 
 class HostClock:
@@ -79,7 +112,7 @@ class WallClock(HostClock):
             self.lateness.arrived(max(q.stamp for q in poses), wall)
 
     def params_at(self, stamp: float, began: float) -> RobotParams:
-        """Late: the body may have strayed from the pose (agent.lateness)."""
+        """Late: the body may have strayed from the pose (Lateness)."""
         p = self.host.params
         late = self.lateness.at(stamp, began + self.compute)
         return p.grown(strayed(late, p.v_max)) if late > 0 else p

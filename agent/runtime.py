@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from transport.bus import Bus, Inbox, LivelinessWatch
+from transport.bus import Bus, Inbox, KeepRobots, LivelinessWatch
 from transport.codec import BEFORE_START, Command, Commands, Event, Goals, Pose, State
 from transport.keys import cell_of, cells_of, robots_ident
 from transport.plausible import INCONSISTENT, GoalSets, TickLine, stamp_agrees
@@ -97,13 +97,13 @@ AUCTION_SHARE = 0.2  # of a control period, spent on auction rounds after a tick
 AUCTION_SHARE_COLD = 0.8  # ... until the newest goal set's first agreement: robots wait for it
 
 
-class KeepCells:
+class KeepCells(KeepRobots):
     """The records in these spatial cells (a host's neighbourhood), and those of ``robots`` (its pursuers' targets)."""
 
     def __init__(self, cells: set[tuple[int, int]], cell_size: float, robots: frozenset[int]) -> None:
-        self.cells, self.cell_size, self.robots = cells, cell_size, robots
+        super().__init__(robots)
+        self.cells, self.cell_size = cells, cell_size
         self._keys = np.array(sorted(self._key(c) for c in cells), np.int64)  # a set's: unique already
-        self._ids = np.array(sorted(robots), np.int64)
 
     @staticmethod
     def _key(cell: Any) -> Any:
@@ -111,10 +111,10 @@ class KeepCells:
 
     def mask(self, records: np.ndarray) -> np.ndarray:
         cells = cells_of(np.column_stack([records["x"], records["y"]]), self.cell_size)
-        return np.isin(self._key(cells.T), self._keys) | np.isin(records["robot"], self._ids)
+        return np.isin(self._key(cells.T), self._keys) | super().mask(records)
 
     def keeps(self, view: Any) -> bool:
-        return cell_of(view.x, view.y, self.cell_size) in self.cells or view.robot in self.robots
+        return cell_of(view.x, view.y, self.cell_size) in self.cells or super().keeps(view)
 
 
 class CellSubscriptions:

@@ -485,7 +485,7 @@ def main() -> None:
             "over that of the floor (one thread) run right after it, hearing as many states per tick. RTF: "
             "simulated seconds per wall second while the world "
             "was stepping. Missed ticks: a live agent's command for tick k had not reached the world when tick k+1 "
-            "began (a body without a valid command stops: agent.lateness, docs/overload.md). Start + stop: "
+            "began (a body without a valid command stops: agent.clocks.Lateness, docs/overload.md). Start + stop: "
             "the run's wall time less its stepping time (start-up to the first tick, and the shutdown). "
             "USS: memory unique to one process. States heard per tick: messages of neighbours' states a process "
             "took in per tick, its own included (median over processes). Busy before: the share of the machine's CPU "

@@ -15,7 +15,7 @@ import struct
 import zlib
 from collections import Counter
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, is_dataclass
 from operator import attrgetter
 from typing import Any, ClassVar, Protocol, TypeVar, overload
 
@@ -123,12 +123,14 @@ class Message:
         return msg
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-friendly view (for logs): a record array as columns (one array per field), others as lists."""
+        """JSON-friendly view (for logs): a record array as columns (one array per field), others and parts as lists."""
         out = {}
         for name in self.field_names():
             v = getattr(self, name)
             if isinstance(v, np.ndarray):
                 v = {k: v[k] for k in v.dtype.names} if v.dtype.names else v.tolist()
+            elif is_dataclass(v):  # a goal set's part
+                v = {f.name: np.asarray(getattr(v, f.name)).tolist() for f in fields(v)}
             out[name] = v
         return out
 
@@ -421,15 +423,6 @@ class Goals(Message):
         if Timing.PART not in seen:
             raise Malformed("invalid")  # every goal set says when it was published
         return msg
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-friendly view (for logs): each part as an object, absent ones None."""
-        plain = lambda obj, names: {k: np.asarray(getattr(obj, k)).tolist() for k in names}
-        out = plain(self, ("epoch", "per_robot", "positions", "colors", "robots"))
-        for _, name in self._PARTS.values():
-            part = getattr(self, name)
-            out[name] = None if part is None else plain(part, [f.name for f in fields(part)])
-        return out
 
 
 def _split_parts(body: memoryview) -> list[tuple[int, int, memoryview]]:

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
+from agent.clocks import Lateness, strayed
 from agent.core.params import EPUCK
-from agent.lateness import Lateness, strayed
 from tests.conftest import run_scene
 
 
