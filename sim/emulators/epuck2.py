@@ -19,7 +19,7 @@ import socket
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -145,7 +145,7 @@ class Epuck2Emulator(Started):
         self._selector = selectors.DefaultSelector()
         self._listeners: list[socket.socket] = []
         self._clients: dict[int, tuple[socket.socket, bytearray]] = {}
-        self._requests: queue.Queue[Callable[[], None]] = queue.Queue()
+        self._requests: queue.Queue[tuple[int, threading.Event]] = queue.Queue()  # connections to drop
         self._wake_r, self._wake_w = socket.socketpair()
         self._wake_r.setblocking(False)
         self._selector.register(self._wake_r, selectors.EVENT_READ, ("wake", -1))
@@ -185,12 +185,7 @@ class Epuck2Emulator(Started):
     def drop_connection(self, robot_id: int) -> None:
         """Close the robot's connection from its side (as a Wi-Fi drop does); it keeps its wheel speeds."""
         done = threading.Event()
-
-        def drop() -> None:  # in the server thread, which owns the sockets
-            self._drop(robot_id)
-            done.set()
-
-        self._requests.put(drop)
+        self._requests.put((robot_id, done))  # for the server thread, which owns the sockets
         self._wake_w.send(b"\0")
         done.wait()
 
@@ -245,7 +240,9 @@ class Epuck2Emulator(Started):
             while self._wake_r.recv(4096):
                 pass
         while not self._requests.empty():
-            self._requests.get()()
+            rid, done = self._requests.get()
+            self._drop(rid)
+            done.set()
 
     def _accept(self, rid: int) -> None:
         try:

@@ -66,6 +66,10 @@ class BackendDrive:
     def robot_stats(self, robot: int) -> dict[str, int]:
         return {"reconnects": 0}
 
+    def close(self) -> list[int]:
+        """Stop every robot; the robots the stop did not reach (a topic has no answer: none)."""
+        return self.backend.close() or []
+
 
 class WheelDrive(BackendDrive):
     """e-puck2 robots take wheel speeds; the backend clips them to `max_wheel_speed`, set here to v_max."""
@@ -94,9 +98,6 @@ class WheelDrive(BackendDrive):
             "backend_watchdog_stops": s.watchdog_stops,
         }
 
-    def close(self) -> list[int]:
-        return self.backend.close()
-
 
 class TwistDrive(BackendDrive):
     """ROS 2 robots take a body velocity: wheel speeds become v = (l + r) / 2, omega = (r - l) / wheel base."""
@@ -112,10 +113,6 @@ class TwistDrive(BackendDrive):
 
     def where(self, robot: int) -> str:
         return self.backend.config.topic(robot, self.backend.config.cmd_topic)
-
-    def close(self) -> list[int]:
-        self.backend.close()
-        return []
 
 
 Drive = WheelDrive | TwistDrive  # start, send, unreached, where, robot_stats, close
