@@ -212,9 +212,13 @@ def summary_table(runs: list[Run]) -> list[str]:
         ],
     )
     row(
-        f"warm steps of over {WAR_BIDS} bids: share; bids and robots given another goal, per step (mean)",
+        f"warm steps of over {WAR_BIDS} bids: share; bids and robots given another goal, per step (mean); "
+        "share of them that gave none another",
         [
-            f"{100 * w.mean():.0f} %; {r.bids[w].mean():.0f} and {r.reassigned[w].mean():.1f}" if w.any() else "-"
+            f"{100 * w.mean():.0f} %; {r.bids[w].mean():.0f} and {r.reassigned[w].mean():.1f}; "
+            f"{100 * (r.reassigned[w] == 0).mean():.0f} %"
+            if w.any()
+            else "-"
             for r, w in ((r, (r.bids > WAR_BIDS) & ~r.cold) for r in runs)
         ],
     )
