@@ -6,6 +6,7 @@ host bids a round at a time between messages (``bid``), the central engine settl
 
 from __future__ import annotations
 
+import math
 from collections import defaultdict
 from collections.abc import Callable, Mapping
 
@@ -157,6 +158,9 @@ class Participant(Auction):
         # the compiled rounds (agent.core.bidding) over the board, the claims and the penalties
         self._bidders = self._new_bidders(CANDIDATES, exact_hull=False)
         self._exact_hull = False
+        # the last two blocks' positions of every robot as its first round's records carry them (float32;
+        # NaN: not heard): the tilt the next block's prices start from (``begin_block``)
+        self.block_positions: list[np.ndarray] = []
         self.without_list = 0  # robots that had no candidate list at the start of the last block
         self._view_cache: dict[bool, tuple[tuple, bool]] = {}
 
@@ -194,8 +198,13 @@ class Participant(Auction):
 
     # --- instances --------------------------------------------------------------------------------
     def begin(self, instance: int, positions: Mapping[int, np.ndarray] | np.ndarray) -> None:
-        """Start an instance, warm from the current board, and bid its first round (see _freeze)."""
-        self._freeze(instance, positions)
+        """Start an instance, warm from the current board, and bid its first round (see _freeze). A host
+        that holds every robot knows every position: its blocks start tilted as lock-step ones do."""
+        alone = len(self.own) == len(self.robots)
+        new_block = not self.started or instance // self.phases != self.instance // self.phases
+        self._freeze(instance, positions, tilt=alone)
+        if alone and new_block:
+            self.note_block_positions(self.own_ids, self.position)
         self.bid()
 
     def _new_bidders(self, candidates: int, exact_hull: bool) -> Bidders:
@@ -212,12 +221,17 @@ class Participant(Auction):
         goals = np.array([g for _, g in keys], np.int64)
         return rows, goals, np.array([self.penalty[key] for key in keys], float)
 
-    def _freeze(self, instance: int, positions: Mapping[int, np.ndarray] | np.ndarray, rank: bool = True) -> None:
-        """begin() up to its first round: a block's first instance freezes the positions, declared
-        penalties come into force (from the next instance: quiescence). ``rank=False``: the caller ranks."""
+    def _freeze(
+        self, instance: int, positions: Mapping[int, np.ndarray] | np.ndarray, rank: bool = True, tilt: bool = False
+    ) -> None:
+        """begin() up to its first round: a block's first instance freezes the positions (``tilt``: the
+        prices first, _tilt_prices), declared penalties come into force (from the next instance:
+        quiescence). ``rank=False``: the caller ranks."""
         if self.started and not self.is_agreed and instance > self.instance:
             self.adopt_if_settled()  # someone reached a later instance: ours was agreed
         new_block = not self.started or instance // self.phases != self.instance // self.phases
+        if new_block and tilt:
+            self._tilt_prices()
         if new_block and self.own:
             self.position = frozen_positions(positions, self.own_ids if isinstance(positions, np.ndarray) else self.own)
         penalised = any(cost != 0.0 for cost in self.pending.values())
@@ -353,6 +367,7 @@ class Participant(Auction):
         if not self._exact_hull or self._bidders.candidates != candidates:
             self._bidders, self._exact_hull = self._new_bidders(candidates, exact_hull=True), True
         self.begin_block(positions, rank=False)
+        self.note_block_positions(self.own_ids, self.position)  # every robot's own: its round 1, heard at once
         return np.array(self.schedule), self.slacks, max(100_000, ROUNDS_PER_ROBOT * len(self.robots))
 
     def _adopt_settled(self, outcome: tuple[int, int, int, int, float]) -> np.ndarray:
@@ -381,7 +396,33 @@ class Participant(Auction):
         """Begin the next block on these positions, warm, bidding nothing yet (lock-step: every host bids
         in round 1 against the same board)."""
         first = (self.instance // self.phases + 1) * self.phases if self.started else 0
-        self._freeze(first, positions, rank)
+        self._freeze(first, positions, rank, tilt=True)
+
+    def note_block_positions(self, robots: np.ndarray, position: np.ndarray) -> None:
+        """The current block's first round heard: these robots' frozen positions, rounded as records carry them."""
+        rows = np.searchsorted(self.robots, robots)
+        block = np.full((len(self.robots), 2), np.nan)
+        block[rows] = np.asarray(position, np.float32)
+        self.block_positions = [*self.block_positions[-1:], block]
+
+    def _tilt_prices(self) -> None:
+        """Raise the prices by 2 d . g_j (less their least), d the robots' mean move between the last two
+        blocks: a swarm that moves on as it moved shifts every robot's values so, and prices that follow
+        spare the auction re-pricing goal by goal (docs/architecture.md, "Goal assignment"). Every host
+        computes it alike: from the records' positions, summed exactly, with no fused arithmetic."""
+        if len(self.block_positions) < 2:
+            return
+        before, last = self.block_positions
+        both = np.isfinite(before).all(axis=1) & np.isfinite(last).all(axis=1)
+        if not both.any():
+            return
+        move = last[both] - before[both]
+        dx, dy = (math.fsum(move[:, k].tolist()) / int(both.sum()) for k in (0, 1))
+        tilt = 2.0 * (self.goals[:, 0] * dx + self.goals[:, 1] * dy)
+        tilt -= tilt.min()
+        if tilt.any():
+            self.board.price += tilt  # in place: the compiled rounds hold the board's arrays
+            self.board.version += 1
 
     def round_records(self) -> np.ndarray:
         """Lock-step: records(), SETTLED where content at the final (least) slack."""

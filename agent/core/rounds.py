@@ -88,11 +88,17 @@ class BlockRounds:
         self.open = False
         for sender, records in heard.items():
             self.robots_of(sender, records)
+        records = np.zeros(0, RECORD)
         if heard:  # one merge of every host's records: a robot per host sends a record or two each
             # (joined as bytes: numpy concatenates structured arrays field by field, slowly)
             joined = b"".join([np.asarray(records, RECORD).tobytes() for records in heard.values()])
             records = part.members_only(np.frombuffer(joined, RECORD))
             part.absorb(part.instance, self.round, 0, records)
+        if self.round == 1:  # every robot's claim, and so its frozen position, is in: the next block's tilt
+            claims = records[(records["flags"] & RELEASED) == 0]
+            robots = np.concatenate([part.own_ids, claims["robot"].astype(np.int64)])
+            position = np.concatenate([part.position, np.column_stack([claims["x"], claims["y"]])])
+            part.note_block_positions(robots, position)
         # settled: every robot's newest claim says so (a quiet() host said nothing: settled)
         phase = part.instance
         agreed = part.close_round(part.board.digest() == self._before, lambda: self._settled(heard))

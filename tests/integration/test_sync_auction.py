@@ -11,6 +11,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -153,19 +154,26 @@ def test_a_block_with_one_round_a_tick_spans_ticks_and_is_agreed_at_one_tick_by_
     heard_or_played = lambda: (block.open and block.hear({})) or play(block, params.rounds_per_tick)  # noqa: E731
     warm_tick = next(tick for tick in range(1, 1000) if heard_or_played())
     assert warm_tick >= 3  # the block spans ticks
+    agreed_board = central.board.price.copy()  # the hosts begin the next block in that tick: its prices tilt
     assert central.agreed != cold
     router = loopback_router()
     session = open_session(router)
     told: dict[int, list[tuple[int, dict[int, int]]]] = {0: [], 3: []}  # host's first robot -> (tick, goals)
+    boards: dict[int, np.ndarray] = {}  # host's first robot -> its board when it adopted the last agreement
     tick = 0
+
+    def adopted(links: list[AuctionLink], k: int) -> Callable[..., None]:
+        def note(epoch: int, instance: int, goals: dict[int, int], *_: object) -> None:
+            told[min(goals)].append((tick, goals))
+            boards[min(goals)] = links[k].part.board.price.copy()
+
+        return note
+
     try:
         with Bus(client_of(router), "sync") as bus_a, Bus(client_of(router), "sync") as bus_b:
-            links = [
-                AuctionLink(
-                    bus, own, params, lambda e, i, g, p, c: told[min(g)].append((tick, g)), lockstep=LockStepRounds()
-                )
-                for bus, own in ((bus_a, [0, 1, 2]), (bus_b, [3, 4, 5]))
-            ]
+            links: list[AuctionLink] = []
+            for k, (bus, own) in enumerate(((bus_a, [0, 1, 2]), (bus_b, [3, 4, 5]))):
+                links.append(AuctionLink(bus, own, params, adopted(links, k), lockstep=LockStepRounds()))
             time.sleep(0.5)  # every subscription declared before the first round
             for link in links:
                 link.on_goals(message, {})
@@ -180,10 +188,10 @@ def test_a_block_with_one_round_a_tick_spans_ticks_and_is_agreed_at_one_tick_by_
             for link in links:
                 assert link.counts.abandoned == 0
                 assert link.part is not None and link.part.agreed_instance == central.agreed_instance
-                np.testing.assert_array_equal(link.part.board.price, central.board.price)
     finally:
         session.close()
     for first, own in ((0, [0, 1, 2]), (3, [3, 4, 5])):
+        np.testing.assert_array_equal(boards[first], agreed_board)
         assert told[first] == [
             (0, {r: cold[r] for r in own}),
             (warm_tick, {r: central.agreed[r] for r in own}),

@@ -561,3 +561,29 @@ def test_boards_of_robots_or_goals_outside_the_goal_set_are_not_read():
         assert len(target)
         target[field] = value
         assert len(_words(bad, local).robot) == 0
+
+
+def test_a_swarm_that_moves_on_as_it_moved_needs_no_bid_to_re_price():
+    """Prices tilt by 2 d . g_j at a block's start, d the robots' mean move between the last two blocks
+    (eq. 7's squared distances: a common move d shifts every robot's value of goal j by 2 d . g_j):
+    robots that move on by d again stay content, where the same block from the same board without
+    the tilt re-prices goal by goal."""
+    rng = np.random.default_rng(5)
+    n = 30
+    goals = rng.uniform(-2.0, 2.0, (n, 2))
+    position, d = rng.uniform(-3.0, 3.0, (n, 2)), np.array([0.3, -0.2])
+    part = Participant(1, goals, range(n), range(n), 1e-3, 5e-3)
+    part.settle_alone(position)
+    agreed = part.settle_alone(position + d)
+    price, bids = part.board.price.copy(), part.bids
+    untilted = Participant(1, goals, range(n), range(n), 1e-3, 5e-3)  # the same board, no blocks behind it
+    untilted.board.price[:], untilted.board.owner[:] = part.board.price, part.board.owner
+    untilted.goal[:] = part.goal
+    untilted.instance = part.instance
+    assert (part.settle_alone(position + 2 * d) == agreed).all()
+    assert part.bids == bids  # not one bid
+    moved = (position + d).astype(np.float32).astype(float) - position.astype(np.float32)  # as records carry them
+    tilt = 2.0 * (goals @ moved.mean(axis=0))
+    np.testing.assert_allclose(part.board.price - price, tilt - tilt.min(), atol=1e-9)
+    untilted.settle_alone(position + 2 * d)
+    assert untilted.bids > 0
