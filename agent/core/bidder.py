@@ -201,9 +201,7 @@ class Participant(Auction):
         """Start an instance, warm from the current board, and bid its first round (see _freeze). A host
         that holds every robot knows every position: its blocks start tilted as lock-step ones do."""
         alone = len(self.own) == len(self.robots)
-        new_block = not self.started or instance // self.phases != self.instance // self.phases
-        self._freeze(instance, positions, tilt=alone)
-        if alone and new_block:
+        if self._freeze(instance, positions, tilt=alone) and alone:
             self.note_block_positions(self.own_ids, self.position)
         self.bid()
 
@@ -223,10 +221,10 @@ class Participant(Auction):
 
     def _freeze(
         self, instance: int, positions: Mapping[int, np.ndarray] | np.ndarray, rank: bool = True, tilt: bool = False
-    ) -> None:
+    ) -> bool:
         """begin() up to its first round: a block's first instance freezes the positions (``tilt``: the
         prices first, _tilt_prices), declared penalties come into force (from the next instance:
-        quiescence). ``rank=False``: the caller ranks."""
+        quiescence). ``rank=False``: the caller ranks. True: a new block began."""
         if self.started and not self.is_agreed and instance > self.instance:
             self.adopt_if_settled()  # someone reached a later instance: ours was agreed
         new_block = not self.started or instance // self.phases != self.instance // self.phases
@@ -247,6 +245,7 @@ class Participant(Auction):
                 self.without_list = self._bidders.first_ranking()
         self.instance = instance
         self.claims_changed = True  # the new instance's records are news
+        return new_block
 
     def carry(
         self,
