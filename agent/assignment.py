@@ -201,12 +201,12 @@ class AuctionLink:
     ) -> None:
         rounds = lockstep if lockstep is not None else LockStepRounds()
         self.bus, self.robots, self.params, self.on_agreed = bus, sorted(robots), params, on_agreed
-        self.where, self.rounds, self.lockstep = where, rounds, lockstep is not None
+        self.where, self.rounds = where, lockstep
         self.counts = AuctionCounts()
         # Lock-step reads the others' messages only within its rounds: they wait in zenoh's channel (pulled)
         kind, key = (Boards, "boards") if math.isfinite(rounds.reach) else (Bid, "auction")
-        self.inbox: Inbox[Any] = bus.subscribe(bus.keys.all_of(key), kind, pulled=self.lockstep)
-        self.exchange = RoundExchange(bus, self.robots, self.inbox, self.counts, self._keeps)
+        inbox: Inbox[Any] = bus.subscribe(bus.keys.all_of(key), kind, pulled=self.lockstep)
+        self.exchange = RoundExchange(bus, self.robots, inbox, self.counts, self._keeps)
         self.exchange.dead = rounds.dead
         self.part: Participant | None = None
         self.local: LocalAuction | None = None  # the range-limited auction, in place of part
@@ -215,9 +215,24 @@ class AuctionLink:
         self.publishing, self.blocks, self.times = Publishing(), Blocks(), AuctionTimes()
 
     @property
+    def lockstep(self) -> bool:
+        """The rounds are tick-synchronous (False: real time)."""
+        return self.rounds is not None
+
+    @property
     def sender(self) -> int:
         """The host's name in the auction: its first robot."""
         return self.robots[0]
+
+    @property
+    def inbox(self) -> Inbox[Any]:
+        """The others' auction messages (the exchange files them in lock-step)."""
+        return self.exchange.inbox
+
+    @property
+    def reach(self) -> float:
+        """m: a robot hears the auction only from robots this close (inf: from all)."""
+        return self.rounds.reach if self.rounds is not None else math.inf
 
     @property
     def active(self) -> bool:
@@ -254,9 +269,7 @@ class AuctionLink:
         to until it agrees: by the sets' matching (_warm_start), else a keyframe's correspondence."""
         if self.active and goals.epoch <= self.epoch:
             return {}
-        auction = new_auction(
-            goals.epoch, goals.positions, goals.robots.tolist(), self.robots, self.params, self.rounds.reach
-        )
+        auction = new_auction(goals.epoch, goals.positions, goals.robots.tolist(), self.robots, self.params, self.reach)
         self.goal_set, self.times.epoch_wall, self.reported = goals, time.monotonic(), -1
         self.blocks.block = self.blocks.open_round = None  # a block of the last goal set is given up
         if isinstance(auction, LocalAuction):  # lock-step only: a cold start at the next tick
@@ -513,7 +526,7 @@ class AuctionLink:
         self.counts.abandoned += 1
         self.blocks.block = None
         own = self._auction.own if self._auction is not None else []
-        if self.rounds.on_abandoned is not None and own:
+        if self.rounds is not None and self.rounds.on_abandoned is not None and own:
             self.rounds.on_abandoned(list(own))
 
     def _under_way(self) -> tuple[Participant, Goals]:

@@ -65,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
             link.poll(positions)
             bell.wait(min(0.2, link.next_due()))
         first = agreed_at[0] - t0 if agreed_at else None
-        sent0, bytes0 = bus.sent["auction"], bus.sent_bytes["auction"]
+        sent0, bytes0 = bus.sent.messages["auction"], bus.sent.bytes["auction"]
         steady_end = time.monotonic() + args.steady
         stamp = 0.0
         next_tick = time.monotonic()
@@ -90,8 +90,8 @@ def main(argv: list[str] | None = None) -> int:
                     "agreements": link.counts.agreements,
                     "cold_messages": sent0,
                     "cold_bytes": bytes0,
-                    "steady_messages": bus.sent["auction"] - sent0,
-                    "steady_bytes": bus.sent_bytes["auction"] - bytes0,
+                    "steady_messages": bus.sent.messages["auction"] - sent0,
+                    "steady_bytes": bus.sent.bytes["auction"] - bytes0,
                     "steady_s": args.steady,
                     "received": link.counts.received,
                 }

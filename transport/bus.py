@@ -18,6 +18,7 @@ import time
 import zlib
 from collections import Counter
 from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
 from typing import Any, Generic, TypeVar, cast
 
 import numpy as np
@@ -334,6 +335,15 @@ class LivelinessWatch:
         return _drain(self._queue)
 
 
+@dataclass
+class Sent:
+    """What a bus has put: messages and bytes per kind, and when it last put (Bus.linger)."""
+
+    messages: Counter[str] = field(default_factory=Counter)
+    bytes: Counter[str] = field(default_factory=Counter)
+    last: float = -math.inf  # time.monotonic() of the last put
+
+
 class Bus:
     """One participant's connection to the swarm: publish typed messages, subscribe to inboxes; what it
     declared is kept with the link's state, as a renewal declares it all again."""
@@ -354,8 +364,7 @@ class Bus:
         self.settings = settings
         self.faults = dict(faults or {})
         self._seeds = (f"{seed}/{name}/{n}" for n in itertools.count(1))  # an inbox's faults draw from its own
-        self._last_put = -math.inf  # time.monotonic() of the last put (Bus.linger)
-        self.sent, self.sent_bytes = Counter[str](), Counter[str]()
+        self.sent = Sent()
         self._tokens: list[Any] = []
         self.incarnation = os.urandom(4).hex()  # this process's life: a token back under another is a restart
         self._subscriptions: list[Feed] = []
@@ -403,9 +412,9 @@ class Bus:
         self.session.put(
             key, payload, congestion_control=zenoh.CongestionControl.BLOCK, allowed_destination=self._destination
         )
-        self._last_put = time.monotonic()
-        self.sent[kind] += 1
-        self.sent_bytes[kind] += len(payload)
+        self.sent.last = time.monotonic()
+        self.sent.messages[kind] += 1
+        self.sent.bytes[kind] += len(payload)
 
     def inbox(self, expected: type[T], only: np.ndarray | None = None, *, pulled: bool = False) -> Inbox[T]:
         """An empty inbox of ``expected`` with its kind's faults, for ``subscribe_into``. ``pulled``: decoded
@@ -516,7 +525,7 @@ class Bus:
 
     def linger(self) -> None:
         """Before closing: give zenoh's sending thread CLOSE_LINGER since the last put to send what it holds."""
-        time.sleep(max(0.0, self._last_put + CLOSE_LINGER - time.monotonic()))
+        time.sleep(max(0.0, self.sent.last + CLOSE_LINGER - time.monotonic()))
 
     def close(self) -> None:
         for token in self._tokens:

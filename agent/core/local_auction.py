@@ -39,7 +39,7 @@ class Words(NamedTuple):
 
 class LocalAuction(Auction):
     """A host's own robots in the range-limited auction of one goal set (epoch): each one's board and block
-    state, flat (the compiled rounds read them by name)."""
+    state as flat attributes (the compiled rounds read them by name)."""
 
     def __init__(
         self,

@@ -22,7 +22,8 @@ BUS_ROUNDS_PER_TICK = 1
 
 @dataclass(frozen=True)
 class RobotParams:
-    """What one robot knows about itself: its body and controller settings (the paper's symbols in comments)."""
+    """What one robot knows about itself: its body and controller settings, an attribute each (the paper's
+    symbols in comments)."""
 
     kinematics: str = DIFFDRIVE
     radius: float = epuck.RADIUS  # r_A

@@ -154,7 +154,6 @@ class CentralAuction:
         # agreement when the auction's rounds per tick are bounded (the agents drive on as well)
         self.assigned = (-1, self.image.goal_set, self.image.goal_colors)  # (image, goal set, colours)
         self.block: BlockRounds | None = None  # lock-step rounds per tick bounded: the block under way
-        self.budget = params.rounds_per_tick if scene.assignment != "optimal" and not np.isfinite(reach) else 0
         self.timing: dict[int, GoalTiming] = {}
         self.assigned_at: float | None = None  # when the shown goal set was last assigned
         self.pending: tuple[Participant, np.ndarray] | None = None  # a block settling beside, and its positions
@@ -179,6 +178,12 @@ class CentralAuction:
             else:
                 self.assignment = start_warm(self.auction, self.scene.poses, self.image.goal_set, len(self.assignment))
             self.assigned = (k, self.image.goal_set, self.image.goal_colors)
+
+    @property
+    def budget(self) -> int:
+        """The auction's lock-step rounds a tick (0: every block settles within its tick)."""
+        unbounded = self.scene.assignment == "optimal" or np.isfinite(self.reach)
+        return 0 if unbounded else self.params.rounds_per_tick
 
     @property
     def active(self) -> bool:
