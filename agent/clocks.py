@@ -165,7 +165,7 @@ class LockStep(HostClock):
             self.last_hello = time.monotonic()
 
     def hear_hello(self, hello: State) -> None:
-        if self.host.ticks < 2:
+        if self.host.counts.ticks < 2:
             self.greeted[hello.robot] = hello
 
     def newest_tick(self) -> int | None:
@@ -196,7 +196,7 @@ class LockStep(HostClock):
         near = lambda s: np.min(np.hypot(position[:, 0] - s.x, position[:, 1] - s.y)) <= reach
         while True:
             behind = [s for s in host.table.latest_before(tick) if heard(s) < tick - 1]
-            if tick > 0 and host.ticks < 2:  # the first tick after tick 0: robots that greeted us
+            if tick > 0 and host.counts.ticks < 2:  # the first tick after tick 0: robots that greeted us
                 behind += [
                     h for r, h in self.greeted.items() if r not in host.table and r not in seen and r not in host.robots
                 ]

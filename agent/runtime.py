@@ -153,13 +153,13 @@ class CellSubscriptions:
 
 @dataclass
 class Inboxes:
-    """What a host hears: its robots' poses, its neighbours' states (by cell), the goal sets, which agents live."""
+    """What a host hears: its robots' poses, its neighbours' states (by cell), the goal sets, whose agents died."""
 
     pose: Inbox[Pose]
     state: Inbox[State]
     cells: CellSubscriptions
     goals: Inbox[Goals]
-    alive: LivelinessWatch
+    departed: Departures
 
     @classmethod
     def of(cls, bus: Bus, config: HostConfig, own: np.ndarray) -> Inboxes:
@@ -178,7 +178,8 @@ class Inboxes:
         cells.targets = frozenset(config.pursue.values())  # a pursuer hears its target wherever it is
         for target in () if everyone else cells.targets:
             bus.subscribe_into(keys.state_of(target), state)
-        return cls(pose, state, cells, bus.subscribe(keys.all_of("goals"), Goals), bus.watch_alive("agent"))
+        goals = bus.subscribe(keys.all_of("goals"), Goals)
+        return cls(pose, state, cells, goals, Departures(bus.watch_alive("agent")))
 
 
 def window_covers_a_third(arena: tuple[float, float, float, float] | None, cell_size: float, reach: int) -> bool:
@@ -190,12 +191,14 @@ def window_covers_a_third(arena: tuple[float, float, float, float] | None, cell_
 
 
 class OwnRobots:
-    """The robots a host steps: their rows in its batches (in id order) and where each was last tracked."""
+    """The robots a host steps: their rows in its batches (in id order), where each was last tracked and where
+    they bid from in the auction."""
 
     def __init__(self, robots: list[int]) -> None:
         self.ids = np.array(sorted(robots))
         self.row_of = {r: b for b, r in enumerate(self.ids.tolist())}  # robot -> its row in the batches
         self.tracked = {r: RobotMemory(r) for r in robots}  # in the configuration's order
+        self.bid_from: dict[int, np.ndarray] | None = None  # AgentHost._positions(), until positions or goals change
 
     def __contains__(self, robot: object) -> bool:
         return robot in self.tracked
@@ -276,6 +279,34 @@ class Departures:
             self.gone, self.gone_since = set(self.dead), epoch
 
 
+@dataclass
+class TickCounts:
+    """How far a host has run: for its statistics, and its start-up (hellos until the first tick)."""
+
+    ticks: int = 0  # ticks stepped
+    fallbacks: int = 0  # robot-ticks whose program was infeasible (the fallback ran)
+
+
+class SubscriptionRenewal:
+    """After the router link came back: the subscriptions declared again (Bus.renew_if_due), and again each
+    ``renew_delay`` until a pose comes."""
+
+    def __init__(self, bus: Bus) -> None:
+        self.bus = bus
+        self.deaf_since: float | None = None  # when the subscriptions were last renewed and no pose came since
+
+    def keep(self) -> None:
+        now = time.monotonic()
+        if self.bus.renew_if_due():
+            self.deaf_since = now
+        elif self.deaf_since is not None and now - self.deaf_since >= self.bus.renew_delay:
+            self.bus.renew()
+            self.deaf_since = now
+
+    def pose_came(self) -> None:
+        self.deaf_since = None
+
+
 class AgentHost:
     """K robots in one process, each deciding for itself from its own messages."""
 
@@ -284,7 +315,7 @@ class AgentHost:
         p = config.params
         self.robots = OwnRobots(config.robots)
         self.table = NeighbourTable(p.dt)
-        self.ticks = self.fallbacks = 0  # ticks stepped; robot-ticks whose program was infeasible (fallback ran)
+        self.counts = TickCounts()
         # rows: the own robots in id order; until a neighbour is heard, its states may be as old as stale_after
         self.policy_memory = Memory.new(len(self.robots), latency=p.stale_after)
         self.held_goals = HeldGoals.new(len(self.robots))  # rows as policy_memory's
@@ -294,12 +325,10 @@ class AgentHost:
         self.poses = PoseIntake(config, self.clock.pose_period)
         if math.isfinite(config.reach) and not config.lockstep:
             raise ValueError("a communication range needs the lock-step clock")
-        self.departed = Departures(self.inbox.alive)
-        rounds = LockStepRounds(self._hold, self.departed.not_bidding, config.reach) if config.lockstep else None
+        rounds = LockStepRounds(self._hold, self.inbox.departed.not_bidding, config.reach) if config.lockstep else None
         self.auction = AuctionLink(bus, config.robots, p, self._on_agreed, self._positions, rounds)
         self.running = True
-        self._deaf_since: float | None = None  # when the subscriptions were last renewed and no pose came since
-        self._bid_from: dict[int, np.ndarray] | None = None  # _positions(), until positions or goals change
+        self._renewal = SubscriptionRenewal(bus)
         segments = static_segments(config.arena, config.obstacles)
         self.seams = loop.Seams(self, self.auction, segments, config.seed, config.reach)
 
@@ -315,10 +344,10 @@ class AgentHost:
         ticking: list[Pose] = []  # poses of ticks under way (a robot whose body is tracked already)
         end = time.monotonic() + timeout
         while len(where) < len(self.robots) and self.running and time.monotonic() < end:
-            self._keep_subscriptions()
+            self._renewal.keep()
             got = self.inbox.pose.get(timeout=0.2)
             if got is not None:
-                self._deaf_since = None
+                self._renewal.pose_came()
                 where[got[1].robot] = got[1]
                 if got[1].tick != BEFORE_START:
                     ticking.append(got[1])
@@ -355,11 +384,11 @@ class AgentHost:
 
     def on_goals(self, goals: Goals) -> None:
         if not goals.per_robot:
-            self._bid_from = None
+            self.robots.bid_from = None
             self.goal_sets.by_epoch[goals.epoch] = goals
             if goals.epoch < self.goal_sets.bid_from:
                 return  # its auction began before this agent joined: the robots wait for the next
-            self.departed.new_goal_set(goals.epoch)
+            self.inbox.departed.new_goal_set(goals.epoch)
             for old in sorted(self.goal_sets.by_epoch)[:-GOAL_SETS_KEPT]:
                 del self.goal_sets.by_epoch[old]
             # a keyframe names its predecessor; an image follows the last
@@ -386,8 +415,8 @@ class AgentHost:
     def _positions(self) -> dict[int, np.ndarray]:
         """The own robots' positions as the auction takes them (cached): for a moving goal set (7.4.1) mapped back
         through eq. 28, for a robot on its way to a goal where it will be when the instance is adopted."""
-        if self._bid_from is not None:
-            return self._bid_from
+        if self.robots.bid_from is not None:
+            return self.robots.bid_from
         by_epoch = self.goal_sets.by_epoch
         newest = by_epoch[max(by_epoch)] if by_epoch else None
         motion = motion_of(newest) if newest is not None else None
@@ -408,20 +437,20 @@ class AgentHost:
             lead = bid_position(np.array([m.position for m in on_way]), goal, velocity, self.auction.times.latency)
             out.update(zip([m.robot for m in on_way], lead))
             out = {r: out[r] for r in self.robots.tracked if r in out}  # back in the robots' order
-        self._bid_from = out
+        self.robots.bid_from = out
         return out
 
     def _on_agreed(
         self, epoch: int, instance: int, goals: dict[int, int], positions: np.ndarray, colors: np.ndarray
     ) -> None:
         """An auction instance is agreed: each own robot drives to its goal and lights its colour."""
-        self._bid_from = None
+        self.robots.bid_from = None
         index = np.fromiter(goals.values(), np.int64, len(goals))
         self.held_goals.drive_to(self.robots.rows(goals), epoch, instance, index, positions, colors)
 
     def _hold(self, robots: list[int]) -> None:
         """These robots' auction block was abandoned: they hold (another may have been agreed their goals)."""
-        self._bid_from = None
+        self.robots.bid_from = None
         self.held_goals.hold(self.robots.rows(robots))
 
     def on_state(self, msg: State) -> None:
@@ -445,21 +474,21 @@ class AgentHost:
             inbox.bell = bell
         while self.running:
             bell.clear()
-            self._keep_subscriptions()
+            self._renewal.keep()
             got = self.inbox.pose.get(timeout=0)
             if self.auction.active or self.inbox.goals.has_delayed:
                 for _, msg in self.inbox.goals.drain():
                     self.hear_goals(msg)
                 self.auction.poll(self._positions())
             if got is None:
-                if not self.ticks:
+                if not self.counts.ticks:
                     self.clock.say_hello()  # until the first tick: a neighbour may still wait for it
                 if parent_pid is not None and os.getppid() != parent_pid:
                     self.running = False  # orphaned: the launcher died without stopping us
                 bell.wait(self._idle_wait())
                 continue
             tick_start = time.monotonic()
-            self._deaf_since = None
+            self._renewal.pose_came()
             self._take_pose(got[1])
             # Behind (poses of later ticks queued): act on the newest only (docs/overload.md, rule 2).
             for _, pose in self.inbox.pose.drain():
@@ -475,19 +504,10 @@ class AgentHost:
             self.step()
             self._auction_rounds(bell, tick_start)
 
-    def _keep_subscriptions(self) -> None:
-        """Declare the subscriptions again after the router link came back, until a pose comes (Bus.renew_if_due)."""
-        now = time.monotonic()
-        if self.bus.renew_if_due():
-            self._deaf_since = now
-        elif self._deaf_since is not None and now - self._deaf_since >= self.bus.renew_delay:
-            self.bus.renew()
-            self._deaf_since = now
-
     def _idle_wait(self) -> float:
         """How long the loop may sleep with no pose: until an auction round or a hello is due."""
         wait = min(0.2, self.auction.next_due()) if self.auction.active else 0.2
-        if not self.ticks:
+        if not self.counts.ticks:
             wait = min(wait, self.clock.hello_every)
         if self.inbox.pose.has_delayed:
             wait = min(wait, 0.005)
@@ -538,13 +558,13 @@ class AgentHost:
         self.clock.await_neighbours(tick, position)
         for q, xy in zip(poses, position):
             self.robots.tracked[q.robot].position, self.robots.tracked[q.robot].stamp = xy.copy(), stamp
-        self._bid_from = None
+        self.robots.bid_from = None
         self.clock.take_up_goal_sets(tick, stamp)
-        self.departed.now()
+        self.inbox.departed.now()
         sensed = Sensed(np.array([q.robot for q in poses]), position, heading, tick, stamp, p, braking)
         decision = loop.tick(self, sensed, self.seams)
-        self.fallbacks += int(np.count_nonzero(decision.step.fallback))
-        self.ticks += 1
+        self.counts.fallbacks += int(np.count_nonzero(decision.step.fallback))
+        self.counts.ticks += 1
         self.clock.stepped(began)
 
     def rows(self, ids: np.ndarray) -> np.ndarray:
@@ -556,7 +576,8 @@ class AgentHost:
 
     def neighbours(self, sensed: Sensed) -> NeighbourStates:
         p = sensed.params
-        stopped = {r: p.v_max * p.dt for r in self.departed.dead}  # it may have moved one period after its last state
+        # a dead robot may have moved one period after its last state
+        stopped = {r: p.v_max * p.dt for r in self.inbox.departed.dead}
         heard_within = min(p.neighbour_dist, self.config.reach)  # a robot hears states only within its range
         ids = sensed.ids.tolist()
         return self.table.gather(
@@ -589,10 +610,10 @@ class AgentHost:
         self.bus.publish_frame(Commands, tick, stamp, commands, to)
         # the cells around EVERY own robot, not only this batch: a tick's poses can arrive split (forget_outside)
         self.inbox.cells.update(np.array([m.position for m in self.robots.known()]))
-        dead = self.departed.dead
+        dead = self.inbox.departed.dead
         self.table.forget_outside(self.inbox.cells.cells, self.params.cell_size, keep=dead)
         self.table.forget_silent(stamp - p.forget_after, keep=dead)
-        self._bid_from = None  # the robots' velocities changed: they move where they bid from
+        self.robots.bid_from = None  # the robots' velocities changed: they move where they bid from
 
     def stats(self) -> dict[str, Any]:
         drops: Counter[str] = Counter()
@@ -602,8 +623,8 @@ class AgentHost:
         return {
             "role": "agent",
             "robots": self.config.robots,
-            "ticks": self.ticks,
-            "fallbacks": self.fallbacks,
+            "ticks": self.counts.ticks,
+            "fallbacks": self.counts.fallbacks,
             "subscriptions_renewed": self.bus.renewals,
             "poses_held": self.poses.trust.held,
             "dropped": drops,

@@ -43,7 +43,7 @@ def test_a_neighbour_silent_for_seconds_is_forgotten_not_a_phantom_obstacle() ->
         dead = State(6, 1, 0.1, -0.5, 0.0, 0.0, 0.0, params.radius, 0.0, 0.0, -1, 0, 0, 0)
         host.table.update(gone)
         host.table.update(dead)
-        host.departed.dead.add(6)
+        host.inbox.departed.dead.add(6)
         host._step_tick([Pose(0, 2, 0.2, 0.0, 0.0, 0.0)])
         assert 5 in host.table  # silent for 0.1 s: a neighbour (stale after 0.5 s, still avoided)
         ticks = round((params.forget_after + 0.2) / params.dt)
