@@ -111,6 +111,71 @@ class Roster:
             self.ever.add(r)
 
 
+@dataclass
+class ShowClock:
+    """What the coordinator heard of the run's clock: the world's ticks it believed, and those it refused."""
+
+    ticks: Inbox[Tick] | None = None  # the world's clock, subscribed to in image scenes
+    t: float | None = None  # display time of the last tick
+    first_tick_at: float = 0.0  # wall time the world's first tick was heard (0: none yet)
+    plausible: Clock = field(default_factory=Clock)
+    refused: Counter[str] = field(default_factory=Counter)  # clock messages not believed, by reason
+
+    def hear(self) -> None:
+        for _, tick in self.ticks.drain() if self.ticks is not None else []:
+            why = self.plausible.admit(tick, time.monotonic())  # a forged stamp could jump the show to its end
+            if why is not None:
+                self.refused[why] += 1
+                continue
+            self.t = tick.stamp if self.t is None else max(self.t, tick.stamp)
+            self.first_tick_at = self.first_tick_at or time.monotonic()
+
+
+@dataclass
+class DeadBodies:
+    """Where dead robots' bodies stand (they stay where they stopped), which the goals are kept clear of."""
+
+    positions: dict[int, np.ndarray] = field(default_factory=dict)  # dead robots' tracked positions
+    poses: Inbox[Pose] | None = None  # the tracker's poses of dead robots, from the first death
+    wait_since: float | None = None  # display time a goal set began to wait for a body not tracked yet
+
+    def watch(self, bus: Bus, dead: np.ndarray) -> None:
+        """Hear where these dead robots' bodies stay: one subscription (zenoh-python gives each its own thread)."""
+        if self.poses is None:
+            self.poses = bus.subscribe(bus.keys.all_of("pose"), Pose, only=dead)
+        else:
+            self.poses.keep = KeepRobots(dead)
+
+    def hear(self) -> None:
+        for _, pose in self.poses.drain() if self.poses is not None else []:
+            self.positions[pose.robot] = np.array([pose.x, pose.y])
+
+    def waited_for(self, dead: list[int], t: float) -> bool:
+        """Whether a goal set may go out at display time ``t``: every dead robot's body is tracked, or
+        BODY_WAIT_S has passed waiting for the rest."""
+        if any(r not in self.positions for r in dead):
+            self.wait_since = t if self.wait_since is None else self.wait_since
+            if t - self.wait_since < BODY_WAIT_S:
+                return False
+        self.wait_since = None
+        return True
+
+    def of(self, dead: list[int]) -> np.ndarray:
+        """The tracked positions of these dead robots' bodies, one row each."""
+        return np.array([self.positions[r] for r in dead if r in self.positions]).reshape(-1, 2)
+
+
+@dataclass
+class Life:
+    """The service process's life: it runs until stopped, or until its parent, the launcher, is gone."""
+
+    running: bool = True
+    parent_pid: int | None = None  # --exit-with-parent: the launcher's pid
+
+    def orphaned(self) -> bool:
+        return self.parent_pid is not None and os.getppid() != self.parent_pid
+
+
 class Coordinator:
     """The goal sets of a run (paper 5): each step's image for the robots alive, clear of dead bodies."""
 
@@ -119,24 +184,18 @@ class Coordinator:
         self.current = scene_goal_message(scene)
         self.images = bool(scene.steps)
         self.epoch = 0
-        self.t: float | None = None  # display time of the last tick
-        self.first_tick_at = 0.0  # wall time the world's first tick was heard (0: none yet)
+        self.clock = ShowClock()
         self.roster = Roster()
         self.shown: tuple[int, frozenset[int]] | None = None  # (step, robots) of the current epoch
         self.pixels = frozenset(scene.pixel_robots)  # the robots that show the image
-        self.bodies: dict[int, np.ndarray] = {}  # dead robots' tracked positions
-        self.body_poses: Inbox[Pose] | None = None  # the tracker's poses of dead robots, from the first death
-        self.body_wait_since: float | None = None
+        self.bodies = DeadBodies()
         self._matching: tuple[tuple[bytes, bytes], tuple[np.ndarray, np.ndarray]] | None = None  # goal_matching's last
         self.ready_for_a_loss = False  # _prepare_for_a_loss has run
-        self.clock_heard = Clock()
-        self.clock_refused: Counter[str] = Counter()  # clock messages not believed, by reason
         if self.images:
-            self.clock = bus.subscribe(bus.keys.clock, Tick)
+            self.clock.ticks = bus.subscribe(bus.keys.clock, Tick)
             self.alive = bus.watch_alive("agent")
         bus.serve(bus.keys.all_of("goals"), self._answer)
-        self.running = True
-        self.parent_pid: int | None = None
+        self.life = Life()
 
     def resume(self) -> Goals | None:
         """Go on from the newest goal set the run recorded (a restart mid-run), returned if there is one."""
@@ -159,12 +218,13 @@ class Coordinator:
         """Image scenes: a new goal set when the step or the live robots change; True if published."""
         self._hear()
         robots = frozenset(self.roster.live) & self.pixels
-        if self.t is None or not robots:
+        t = self.clock.t
+        if t is None or not robots:
             return False  # the show starts with the world's first tick
-        patient = time.monotonic() - self.first_tick_at < FIRST_SET_PATIENCE
+        patient = time.monotonic() - self.clock.first_tick_at < FIRST_SET_PATIENCE
         if self.shown is None and robots != self.pixels and patient:
             return False  # agents not heard yet would join in a second epoch, at a tick load decides
-        step = self.scene.step_at(self.t)
+        step = self.scene.step_at(t)
         restarted = bool(self.roster.restarted & robots)
         if self.shown is not None:
             if (step, robots) == self.shown and not restarted:
@@ -172,44 +232,30 @@ class Coordinator:
             if (robots != self.shown[1] or restarted) and time.monotonic() - self.roster.changed < SETTLE_S:
                 return False
         dead = list(self.roster.ever - self.roster.live)
-        if any(r not in self.bodies for r in dead):
-            self.body_wait_since = self.t if self.body_wait_since is None else self.body_wait_since
-            if self.t - self.body_wait_since < BODY_WAIT_S:
-                return False
-        self.body_wait_since = None
+        if not self.bodies.waited_for(dead, t):
+            return False
         self._publish(step, robots, dead)
         return True
 
     def _hear(self) -> None:
         """The world's clock, the agents' liveliness, and where dead robots' bodies stand."""
-        for _, tick in self.clock.drain():
-            why = self.clock_heard.admit(tick, time.monotonic())  # a forged stamp could jump the show to its end
-            if why is not None:
-                self.clock_refused[why] += 1
-                continue
-            self.t = tick.stamp if self.t is None else max(self.t, tick.stamp)
-            self.first_tick_at = self.first_tick_at or time.monotonic()
+        self.clock.hear()
         for _, ident, alive, _, life in self.alive.drain():
             if ident.isdigit() and int(ident) < self.scene.robots:
                 self.roster.hear(int(ident), alive, life)
                 if not alive:
                     self._watch_body(int(ident))
-        for _, pose in self.body_poses.drain() if self.body_poses is not None else []:
-            self.bodies[pose.robot] = np.array([pose.x, pose.y])
+        self.bodies.hear()
 
     def _watch_body(self, r: int) -> None:
-        """Hear where dead robots' bodies stay: one subscription (zenoh-python gives each its own thread)."""
-        dead = np.array(sorted((self.roster.ever - self.roster.live) | {r}))
-        if self.body_poses is None:
-            self.body_poses = self.bus.subscribe(self.bus.keys.all_of("pose"), Pose, only=dead)
-        else:
-            self.body_poses.keep = KeepRobots(dead)
+        """Hear where robot ``r``'s body stays, with every other dead robot's."""
+        self.bodies.watch(self.bus, np.array(sorted((self.roster.ever - self.roster.live) | {r})))
 
     def _publish(self, step: int, robots: frozenset[int], dead: list[int]) -> None:
         """The next epoch's goal set, clear of dead robots' bodies, warm-started from the last set."""
-        assert self.t is not None
+        assert self.clock.t is not None
         goals, colors = scene_goal_set(self.scene, step, len(robots))
-        bodies = np.array([self.bodies[r] for r in dead if r in self.bodies]).reshape(-1, 2)
+        bodies = self.bodies.of(dead)
         if len(bodies):
             goals = clear_of_bodies(goals, bodies, 2 * self.scene.radius + 0.05)  # room for its inflated radius
         before = self.current
@@ -218,7 +264,7 @@ class Coordinator:
         self.epoch += 1
         self.shown = (step, robots)
         self.roster.restarted.clear()
-        timing, motion = step_timing(self.scene, step, self.t), step_motion(self.scene, step)
+        timing, motion = step_timing(self.scene, step, self.clock.t), step_motion(self.scene, step)
         self.current = Goals(
             self.epoch, 0, np.asarray(goals), np.asarray(colors), np.array(sorted(robots)), timing, motion
         )
@@ -254,13 +300,13 @@ class Coordinator:
         if self.current is None and self._matching is None and self.scene.steps and self._rounds_bounded():
             first = np.array(sorted(self.pixels), np.int64)  # the first set's robots once all are alive
             self._warm_start(self._starts(first), scene_goal_set(self.scene, 0, len(first))[0])
-        if self.shown is None or self.t is None or self.current is None:
+        if self.shown is None or self.clock.t is None or self.current is None:
             return
         step, robots = self.shown[0] + 1, self.shown[1]
-        if step >= len(self.scene.steps) or self.scene.step_starts[step] - self.t > PREPARE_AHEAD:
+        if step >= len(self.scene.steps) or self.scene.step_starts[step] - self.clock.t > PREPARE_AHEAD:
             return
         goals, _ = scene_goal_set(self.scene, step, len(robots))
-        if len(goals) == len(self.current.positions) and not self.bodies:
+        if len(goals) == len(self.current.positions) and not self.bodies.positions:
             self._warm_start(as_sent(self.current.positions), goals)
 
     def _prepare_for_a_loss(self) -> None:
@@ -275,7 +321,7 @@ class Coordinator:
     def run(self, period: float = 1.0) -> None:
         self.bus.declare_alive("coordinator", 0)
         next_publish = 0.0
-        while self.running:
+        while self.life.running:
             self.bus.renew_if_due()  # its link to the router came back a while ago
             if self.images and self._follow_show():
                 next_publish = time.monotonic() + period
@@ -286,8 +332,8 @@ class Coordinator:
                 self.bus.publish(self.bus.keys.goals(self.current.epoch), self.current)
                 next_publish = time.monotonic() + period
             time.sleep(0.02)
-            if self.parent_pid is not None and os.getppid() != self.parent_pid:
-                self.running = False  # orphaned: the launcher died without stopping us
+            if self.life.orphaned():
+                self.life.running = False  # orphaned: the launcher died without stopping us
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -308,10 +354,10 @@ def main(argv: list[str] | None = None) -> int:
         if resumed is not None:
             print(f"coordinator: going on from goal set {resumed.epoch} (step {resumed.timing.step})", flush=True)
         if args.exit_with_parent:
-            coordinator.parent_pid = os.getppid()
+            coordinator.life.parent_pid = os.getppid()
 
         def stop(signum: int, frame: object) -> None:
-            coordinator.running = False
+            coordinator.life.running = False
 
         signal.signal(signal.SIGTERM, stop)
         signal.signal(signal.SIGINT, signal.SIG_IGN)

@@ -476,17 +476,18 @@ def _run_distributed(launcher: Any) -> int:
         print(f"pixelswarm run: error: {err}", file=sys.stderr)
         return 1
     print(path, flush=True)
-    if launcher.startup_failure is not None:  # written, marked incomplete, for its logs
-        print(f"pixelswarm run: error: start-up failed: {launcher.startup_failure}", file=sys.stderr)
+    end = launcher.end  # how the run ended (sim.run.launcher.RunEnd)
+    if end.startup_failure is not None:  # written, marked incomplete, for its logs
+        print(f"pixelswarm run: error: start-up failed: {end.startup_failure}", file=sys.stderr)
         return STARTUP_FAILED
-    if launcher.stop_signal is not None:  # the user said stop: `pixelswarm run ... && next` goes no further
-        name = signal.Signals(launcher.stop_signal).name
-        if launcher.interrupted:
+    if end.stop_signal is not None:  # the user said stop: `pixelswarm run ... && next` goes no further
+        name = signal.Signals(end.stop_signal).name
+        if end.interrupted:
             said = f"stopped by {name}; what was recorded is in {path}, marked incomplete"
         else:
             said = f"{name} came as the run ended; {path} is complete"
         print(f"pixelswarm run: {said}", file=sys.stderr)
-        return 128 + launcher.stop_signal
+        return 128 + end.stop_signal
     _keep_viewing(launcher.opt.view)
     return 0
 

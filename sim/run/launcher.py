@@ -106,28 +106,48 @@ def _last_said(log: Path, prefix: str) -> str | None:
     return next((ln.removeprefix(prefix) for ln in reversed(lines) if ln.startswith(prefix)), None)
 
 
+@dataclass
+class WorldOutcome:
+    """What became of the world process: its exit code, its final report's statistics, whether it died mid-run."""
+
+    exit_code: int | None = None
+    stats: dict[str, Any] = field(default_factory=dict)
+    died: bool = False
+
+
+@dataclass
+class Incidents:
+    """What befell the run's processes, for metrics.json: agent processes that crashed, central services
+    restarted, agents the scene killed; and the kills the scene has still to come."""
+
+    failures: list[dict[str, Any]]  # the scene's 'fail' events not yet due (take_due takes them off)
+    crashes: list[dict[str, Any]] = field(default_factory=list)
+    restarts: list[dict[str, Any]] = field(default_factory=list)
+    killed: list[dict[str, Any]] = field(default_factory=list)
+
+
+@dataclass
+class RunEnd:
+    """How the run ended, which the CLI reads: by a stop signal, by a start-up that failed, or by itself."""
+
+    stop_signal: int | None = None  # the first stop signal received
+    startup_failure: str | None = None  # why the run ended before it started (_await_agents)
+    interrupted: bool = False  # a stop signal ended the run (written marked incomplete)
+    shutdown_wall: float = math.inf  # when the launcher first stopped its children (wall clock)
+
+
 class Launcher:
     """Runs a scene's processes (router, coordinator, agents, world) and records the run; the CLI reads
-    the run's end from stop_signal, interrupted and startup_failure."""
+    the run's end from ``end``."""
 
     def __init__(self, scene: Scene, options: RunOptions) -> None:
         self.scene, self.opt = scene, options
         self.params = RobotParams.from_dict(scene.robot)
         self.children: list[Child] = []
-        # how the world process ended: its exit code, its final report's statistics, whether it died mid-run
-        self.world_exit: int | None = None
-        self.world_stats: dict[str, Any] = {}
-        self.world_died = False
-        # for metrics.json: agent processes that crashed, central services restarted, agents the scene killed
-        self.crashes: list[dict[str, Any]] = []
-        self.restarts: list[dict[str, Any]] = []
-        self.killed: list[dict[str, Any]] = []
-        self.stop_signal: int | None = None
-        self.startup_failure: str | None = None  # why the run ended before it started (_await_agents)
-        self.interrupted = False  # a stop signal ended the run (written marked incomplete)
+        self.world = WorldOutcome()
+        self.incidents = Incidents(events_of(scene, "fail"))
+        self.end = RunEnd()
         self.run_dir = RunDir(options.out)
-        self.failures = events_of(scene, "fail")
-        self.shutdown_wall = math.inf  # when the launcher first stopped its children (wall clock)
         self._last_say = 0.0  # when progress was last said (monotonic)
 
     # --- processes ----------------------------------------------------------------------------
@@ -153,12 +173,12 @@ class Launcher:
 
     def _restart(self, child: Child, code: int, recorder: Recorder) -> None:
         """A central service died mid-run: start it again (it learns where the show is from the bus)."""
-        done = [r for r in self.restarts if r["process"] == child.name]
-        if len(done) >= RESTARTS or self.stop_signal is not None:
+        done = [r for r in self.incidents.restarts if r["process"] == child.name]
+        if len(done) >= RESTARTS or self.end.stop_signal is not None:
             return
         module, *args = child.command
         again = self._spawn(child.name, module, args, child.robots, child.client)
-        self.restarts.append(
+        self.incidents.restarts.append(
             {"process": child.name, "returncode": code, "pid": again.proc.pid, "sim_time_s": recorder.sim_time}
         )
         _warn(
@@ -255,7 +275,7 @@ class Launcher:
         while True:
             rec.poll()
             yield time.monotonic() - since
-            if self.stop_signal is not None:
+            if self.end.stop_signal is not None:
                 raise Interrupted()
             time.sleep(pause)
 
@@ -284,19 +304,21 @@ class Launcher:
             child.reported = True
             if child.name.startswith("agent"):
                 crash = {"process": child.name, "pid": child.proc.pid, "robots": child.robots, "returncode": code}
-                self.crashes.append(crash | {"sim_time_s": recorder.sim_time, "noticed_wall_time": time.time()})
-                if self.startup_failure is None:  # at start-up, startup_failure names it
+                self.incidents.crashes.append(
+                    crash | {"sim_time_s": recorder.sim_time, "noticed_wall_time": time.time()}
+                )
+                if self.end.startup_failure is None:  # at start-up, startup_failure names it
                     _warn(
                         f"pixelswarm: agent process {child.name} (pid {child.proc.pid}, robots {child.robots}) "
                         f"exited with code {code}; its robots stay in the world, stopped"
                     )
             elif child.name == "world":
-                self.world_exit = code
+                self.world.exit_code = code
             elif child.name in RESTARTED:
                 self._restart(child, code, recorder)
 
     def _stop_children(self) -> None:
-        self.shutdown_wall = min(time.time(), self.shutdown_wall)
+        self.end.shutdown_wall = min(time.time(), self.end.shutdown_wall)
         stop_processes([child.proc for child in self.children], 5.0)
 
     # --- progress -----------------------------------------------------------------------------
@@ -322,9 +344,9 @@ class Launcher:
 
     # --- the run ------------------------------------------------------------------------------
     def _on_signal(self, signum: int, frame: object) -> None:
-        if self.stop_signal is not None:
+        if self.end.stop_signal is not None:
             raise Interrupted()  # a second Ctrl-C: stop writing too
-        self.stop_signal = signum
+        self.end.stop_signal = signum
 
     def run(self) -> Path:
         with handling_signals(self._on_signal):
@@ -365,8 +387,8 @@ class Launcher:
                 self._spawn("world", "sim.node.world", self._world_args(), [], self._as("world"))
             if self.opt.remote_agents:
                 self._await_remote(recorder, "alive", waiting_since)
-            self.startup_failure = self._await_agents(recorder)
-            end_reason = "start-up failed" if self.startup_failure else self._loop(bus, recorder)
+            self.end.startup_failure = self._await_agents(recorder)
+            end_reason = "start-up failed" if self.end.startup_failure else self._loop(bus, recorder)
             self._check_children(recorder)  # an agent that died as the world finished is still a crash
             self._stop_children()
             self._record_the_last_ticks(recorder)
@@ -414,7 +436,7 @@ class Launcher:
     def _record_the_last_ticks(self, recorder: Recorder) -> None:
         """Wait (bounded) for the agents' final statistics and the world's last ticks still in flight
         (a run that ended on convergence records nothing after its end, so there is nothing to wait for)."""
-        last_t = float(self.world_stats.get("ticks", 0)) * self.params.dt
+        last_t = float(self.world.stats.get("ticks", 0)) * self.params.dt
         settle, patience = time.monotonic() + 0.5, time.monotonic() + 10.0
         while time.monotonic() < patience:
             ticks_due = recorder.progress.ended_at is None and recorder.sim_time < last_t - 1e-6
@@ -431,7 +453,7 @@ class Launcher:
             events = rec.happened.liveliness
             alive = {int(e["id"]) for e in events if e["role"] == "agent" and e["alive"] and str(e["id"]).isdigit()}
             missing = [i for i in ids if i not in alive]
-            if not missing or self.stop_signal is not None:
+            if not missing or self.end.stop_signal is not None:
                 break
             exited = [c for c in self.children if c.name.startswith("agent") and c.proc.poll() is not None]
             gone = sorted({r for c in exited for r in c.robots} & set(missing))
@@ -490,7 +512,7 @@ class Launcher:
                 raise UsageError(said)  # e.g. the hardware node refused to start: its one line
             if exited:
                 raise RuntimeError(f"{child.name} exited with code {child.proc.returncode}: see {child.log}")
-            if self.stop_signal is not None:
+            if self.end.stop_signal is not None:
                 raise Interrupted()  # before the run started, even if it came alive: nothing is written
             if any(e["role"] == role and e["alive"] for e in rec.happened.liveliness):
                 return
@@ -505,19 +527,19 @@ class Launcher:
             self._check_children(rec)
             done = self._world_done(rec)
             if done is not None:
-                self.world_stats = done
+                self.world.stats = done
                 return end_sent or str(done.get("reason", "duration"))
-            if self.world_exit is not None:
+            if self.world.exit_code is not None:
                 # the world is the bodies and the tracker: the run ends, written marked incomplete
-                self.world_stats, self.world_died = {}, True
+                self.world.stats, self.world.died = {}, True
                 _warn(
-                    f"pixelswarm: the world process exited with code {self.world_exit} (see logs/world.log); "
+                    f"pixelswarm: the world process exited with code {self.world.exit_code} (see logs/world.log); "
                     "the run ends, incomplete"
                 )
-                return f"world exited with code {self.world_exit}"
-            if self.stop_signal is not None and not end_sent:
+                return f"world exited with code {self.world.exit_code}"
+            if self.end.stop_signal is not None and not end_sent:
                 end_sent = "interrupted"
-                self.interrupted = True
+                self.end.interrupted = True
             if not end_sent and rec.progress.ended_at is not None:
                 end_sent = "converged"
             if end_sent and time.monotonic() - end_at >= 0.5:
@@ -532,7 +554,7 @@ class Launcher:
         """The run ends at the tick where the display has held converged for the scene's hold; with
         image steps, only convergence that began within the last step counts (as sim.central.engine ends)."""
         last_start = self.scene.step_starts[-1] if self.scene.steps else 0.0
-        if count_due(self.failures, now):
+        if count_due(self.incidents.failures, now):
             return False  # a robot the scene kills by now is not killed yet: it is not the display for the rest
         return self.scene.ends_on_convergence and since >= last_start - 1e-9 and now - since >= self.scene.converge_hold
 
@@ -540,13 +562,13 @@ class Launcher:
         """Scene 'fail' events: SIGKILL the process hosting the robot (a robot that dies, paper 5.1.2).
         The recorder is told at once, so a dead robot on its goal never counts toward convergence."""
         t = rec.sim_time
-        for event in take_due(self.failures, t):
+        for event in take_due(self.incidents.failures, t):
             for child in self.children:
                 if child.name.startswith("agent") and event["robot"] in child.robots and child.proc.poll() is None:
                     child.proc.send_signal(signal.SIGKILL)
                     child.reported = True  # killed on purpose, not a crash
                     rec.robots_died(child.robots)
-                    self.killed.append({"robots": child.robots, "sim_time_s": t, "wall_time": time.time()})
+                    self.incidents.killed.append({"robots": child.robots, "sim_time_s": t, "wall_time": time.time()})
                     self._say(
                         f"[{self.scene.name}] t={t:.1f} s: killed agent process {child.name} "
                         f"(robots {child.robots}) as the scene says",
@@ -560,12 +582,12 @@ class Launcher:
         def on_bus() -> dict | None:
             return next((e for e in rec.happened.events if e.get("kind") == "world-done"), None)
 
-        if self.world_exit == 0:
+        if self.world.exit_code == 0:
             end = time.monotonic() + 5.0
             while on_bus() is None and time.monotonic() < end:
                 rec.poll()
                 time.sleep(0.02)
-        if on_bus() is not None or self.world_exit != 0:
+        if on_bus() is not None or self.world.exit_code != 0:
             return on_bus()
         log = next((c.log for c in self.children if c.name == "world"), None)
         report = None if log is None else _last_said(log, "WORLD-DONE ")
@@ -573,12 +595,12 @@ class Launcher:
 
     # --- outputs ------------------------------------------------------------------------------
     def _write(self, rec: Recorder, end_reason: str, wall_s: float) -> Path:
-        interrupted = self.interrupted
+        interrupted = self.end.interrupted
         if interrupted:
             end_reason = "interrupted"
-        started = self.startup_failure is None
+        started = self.end.startup_failure is None
         arrays = rec.arrays()
-        stats = self.world_stats
+        stats = self.world.stats
         agent_stats = [e for e in rec.happened.events if e.get("kind") == "stats" and e.get("role") == "agent"]
         dropped: dict[str, int] = dict(rec.tally.drops)
         for s in agent_stats + [stats]:
@@ -589,15 +611,17 @@ class Launcher:
         lost = [
             e
             for e in rec.happened.liveliness
-            if e["role"] == "agent" and not e["alive"] and e["wall_time"] < self.shutdown_wall
+            if e["role"] == "agent" and not e["alive"] and e["wall_time"] < self.end.shutdown_wall
         ]
         self._say(f"[{self.scene.name}] run ended ({end_reason}); writing {self.run_dir.path.name}", force=True)
-        traffic = Traffic(rec.tally.counts, rec.tally.bytes, int(stats.get("missed_ticks", 0)), len(self.crashes))
+        traffic = Traffic(
+            rec.tally.counts, rec.tally.bytes, int(stats.get("missed_ticks", 0)), len(self.incidents.crashes)
+        )
         extra = dict(
-            agents_failed_by_scene=self.killed,
+            agents_failed_by_scene=self.incidents.killed,
             end_reason=end_reason,
-            **({} if started else {"startup_failure": self.startup_failure}),
-            complete=not interrupted and not self.world_died and started,
+            **({} if started else {"startup_failure": self.end.startup_failure}),
+            complete=not interrupted and not self.world.died and started,
             engine="distributed",
             agents_per_process=self.opt.agents_per_process,
             # remote agents: the hosts that reported, one stats event each
@@ -616,8 +640,8 @@ class Launcher:
             subscriptions_renewed=int(sum(s.get("subscriptions_renewed", 0) for s in agent_stats)),
             deadlock_penalties=int(sum((s.get("auction") or {}).get("deadlock_penalties", 0) for s in agent_stats)),
             dropped_messages=dropped,
-            crashes=self.crashes,
-            restarts=self.restarts,
+            crashes=self.incidents.crashes,
+            restarts=self.incidents.restarts,
             liveliness_lost=[{"robot": e["id"], "wall_time": e["wall_time"]} for e in lost],
             faults=format_faults(self.opt.faults),
             stepping_wall_s=stepping_wall,

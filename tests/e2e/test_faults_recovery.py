@@ -368,7 +368,7 @@ def test_the_coordinator_has_the_set_for_one_robot_fewer_ready_before_any_dies(m
     assert made[-1:] == [5]
     before = len(made)
     bus.alive.items = [("agent", "2", False, 0.0, "a")]
-    coordinator.bodies[2] = np.array([0.0, 0.0])  # its body's tracked position has come
+    coordinator.bodies.positions[2] = np.array([0.0, 0.0])  # its body's tracked position has come
     bus.clock.items = [("clock", Tick(10, 1.0, 0.1))]
     assert coordinator._follow_show()
     assert bus.published[-1].robots.tolist() == [0, 1, 3, 4, 5]

@@ -749,10 +749,10 @@ def test_the_coordinator_hears_where_a_dead_robots_body_stays_in_the_trackers_fr
         def heard() -> bool:
             world.publish_poses(8, 0.8, np.arange(4), poses, frame=True)
             coordinator._hear()
-            return 3 in coordinator.bodies
+            return 3 in coordinator.bodies.positions
 
         assert wait_for(heard, timeout=5.0)
-        assert list(coordinator.bodies) == [3] and coordinator.bodies[3].tolist() == [9.0, 10.0]
+        assert list(coordinator.bodies.positions) == [3] and coordinator.bodies.positions[3].tolist() == [9.0, 10.0]
 
 
 @pytest.mark.slow
