@@ -364,9 +364,10 @@ class BodyNode:
         if measured is None:
             return []
         r = self.params.radius
-        dead = np.flatnonzero(self.ever_live & ~self.live & self.backend.tracked).tolist()
+        dead = np.flatnonzero(self.ever_live & ~self.live & self.backend.tracked)
         return [
-            State(i, self.tick, t, *measured[i, :2].tolist(), 0.0, 0.0, r, 0.0, 0.0, -1, State.DYNAMIC) for i in dead
+            State(int(i), self.tick, t, float(x), float(y), 0.0, 0.0, r, 0.0, 0.0, -1, State.DYNAMIC)
+            for i, (x, y) in zip(dead, measured[dead, :2])
         ]
 
     def _publish_before_start(self) -> None:
