@@ -60,6 +60,9 @@ class LockStepRounds:
     reach: float = math.inf  # m: a robot hears the auction only from robots this close (core.local_auction)
 
 
+REAL_TIME = LockStepRounds()  # what a real-time auction takes of the rounds' settings: their defaults
+
+
 class RoundExchange:
     """Lock-step: a host's side of the auction's rounds: ours kept to resend, the others' filed by round (``keeps``)."""
 
@@ -199,15 +202,14 @@ class AuctionLink:
         where: Where | None = None,
         lockstep: LockStepRounds | None = None,
     ) -> None:
-        rounds = lockstep if lockstep is not None else LockStepRounds()
         self.bus, self.robots, self.params, self.on_agreed = bus, sorted(robots), params, on_agreed
         self.where, self.rounds = where, lockstep
         self.counts = AuctionCounts()
         # Lock-step reads the others' messages only within its rounds: they wait in zenoh's channel (pulled)
-        kind, key = (Boards, "boards") if math.isfinite(rounds.reach) else (Bid, "auction")
+        kind, key = (Boards, "boards") if math.isfinite(self.reach) else (Bid, "auction")
         inbox: Inbox[Any] = bus.subscribe(bus.keys.all_of(key), kind, pulled=self.lockstep)
         self.exchange = RoundExchange(bus, self.robots, inbox, self.counts, self._keeps)
-        self.exchange.dead = rounds.dead
+        self.exchange.dead = (lockstep or REAL_TIME).dead
         self.part: Participant | None = None
         self.local: LocalAuction | None = None  # the range-limited auction, in place of part
         self.goal_set: Goals | None = None
@@ -232,7 +234,7 @@ class AuctionLink:
     @property
     def reach(self) -> float:
         """m: a robot hears the auction only from robots this close (inf: from all)."""
-        return self.rounds.reach if self.rounds is not None else math.inf
+        return (self.rounds or REAL_TIME).reach
 
     @property
     def active(self) -> bool:
