@@ -56,7 +56,7 @@ class LockStepRounds:
     """What the tick-synchronous rounds need of a host beside the auction itself."""
 
     on_abandoned: OnAbandoned | None = None  # own robots whose block could not finish: they hold their positions
-    dead: Callable[[], set[int]] = set  # the robots whose agent is known dead now: not waited for
+    dead: Callable[[], set[int]] = set  # robots not waited for: dead now, or not in the goal set's life (Departures)
     reach: float = math.inf  # m: a robot hears the auction only from robots this close (core.local_auction)
 
 
@@ -71,7 +71,7 @@ class RoundExchange:
     ) -> None:
         self.bus, self.robots, self.sender, self.inbox, self.counts = bus, robots, robots[0], inbox, counts
         self.keeps = keeps
-        self.dead: Callable[[], set[int]] = set  # robots whose agent is known dead now: not waited for
+        self.dead: Callable[[], set[int]] = set  # robots not waited for (LockStepRounds.dead)
         self.records: dict[tuple[int, int, int], dict[int, Any]] = {}  # round -> sender -> its message
         self.said: dict[tuple[int, int, int], tuple[Bid | Boards, float]] = {}  # our rounds' messages, when last sent
         self.said_block: tuple[int, int] | None = None  # (epoch, block) of the newest round in ``said``

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from transport.bus import Bus, Inbox, KeepRobots, LivelinessWatch
-from transport.codec import BEFORE_START, Command, Commands, Event, Goals, Pose, State
+from transport.codec import BEFORE_START, Command, Commands, Event, Goals, Pose, State, life_number
 from transport.keys import cell_of, cells_of, robots_ident
 from transport.plausible import INCONSISTENT, GoalSets, TickLine, stamp_agrees
 
@@ -252,31 +252,45 @@ class GoalSetsHeard:
 
 
 class Departures:
-    """Robots whose agent died: their bodies stand still (5.1.2); those ``gone`` during the goal set in force cannot
-    rejoin its auction, so lock-step does not wait for them until the next."""
+    """Robots whose agent died: their bodies stand still (5.1.2). Who lock-step rounds wait for: a goal set that
+    lists its robots' lives (transport.codec.Lives) says, the same for every host; of one that lists none, not
+    those ``gone`` during it (they cannot rejoin its auction until the next)."""
 
     def __init__(self, alive: LivelinessWatch) -> None:
         self.alive = alive
         self.dead: set[int] = set()
+        self.life: dict[int, int] = {}  # each live robot's agent's life, as heard
         self.gone: set[int] = set()
         self.gone_since = 0  # the goal set ``gone`` is of
+        self.listed: dict[int, int] | None = None  # that goal set's robots' lives (None: it lists none)
 
     def now(self) -> set[int]:
         """The robots whose agent is dead, as liveliness says now."""
-        for _, ident, alive, _, _ in self.alive.drain():
+        for _, ident, alive, _, incarnation in self.alive.drain():
             if ident.isdigit():
-                (self.dead.discard if alive else self.dead.add)(int(ident))
-                if not alive:
-                    self.gone.add(int(ident))
+                robot = int(ident)
+                (self.dead.discard if alive else self.dead.add)(robot)
+                if alive:
+                    self.life[robot] = life_number(incarnation)
+                else:
+                    self.life.pop(robot, None)
+                    self.gone.add(robot)
         return self.dead
 
     def not_bidding(self) -> set[int]:
-        """The robots the auction does not wait for: dead, or gone during the goal set in force."""
-        return self.now() | self.gone
+        """The robots the auction does not wait for: dead, or in another life than the goal set in force lists
+        (one that lists none: gone during it)."""
+        dead = self.now()
+        if self.listed is None:
+            return dead | self.gone
+        return dead | {r for r, life in self.listed.items() if life and self.life.get(r, life) != life}
 
-    def new_goal_set(self, epoch: int) -> None:
-        if epoch != self.gone_since:  # a new goal set (the coordinator repeats the newest)
-            self.gone, self.gone_since = set(self.dead), epoch
+    def new_goal_set(self, goals: Goals) -> None:
+        if goals.epoch != self.gone_since:  # a new goal set (the coordinator repeats the newest)
+            # liveliness taken in first: an agent back before the set came is no departure from it
+            self.gone, self.gone_since = set(self.now()), goals.epoch
+            lives = goals.lives
+            self.listed = None if lives is None else dict(zip(goals.robots.tolist(), lives.life.tolist()))
 
 
 @dataclass
@@ -386,9 +400,9 @@ class AgentHost:
         if not goals.per_robot:
             self.robots.bid_from = None
             self.goal_sets.by_epoch[goals.epoch] = goals
-            if goals.epoch < self.goal_sets.bid_from:
+            if not self._takes_part(goals):
                 return  # its auction began before this agent joined: the robots wait for the next
-            self.inbox.departed.new_goal_set(goals.epoch)
+            self.inbox.departed.new_goal_set(goals)
             for old in sorted(self.goal_sets.by_epoch)[:-GOAL_SETS_KEPT]:
                 del self.goal_sets.by_epoch[old]
             # a keyframe names its predecessor; an image follows the last
@@ -407,6 +421,14 @@ class AgentHost:
         self.held_goals.color[self.robots.rows(own)] = goals.colors[own]
         sent = [r for r in own if r not in self.config.pursue]  # a pursuer's goal comes from its target's broadcasts
         self.held_goals.goal[self.robots.rows(sent)] = goals.positions[sent]
+
+    def _takes_part(self, goals: Goals) -> bool:
+        """Whether our robots bid in this set's auction: it lists them in this life (an agent started again waits
+        for the set that does); a set that lists no lives, if published after this agent joined."""
+        if goals.lives is None:
+            return goals.epoch >= self.goal_sets.bid_from
+        listed = dict(zip(goals.robots.tolist(), goals.lives.life.tolist()))
+        return all(listed.get(r, 0) in (0, life_number(self.bus.incarnation)) for r in self.robots.ids.tolist())
 
     @property
     def timing(self) -> dict[int, GoalTiming]:

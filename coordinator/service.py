@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from transport.bus import Bus, Inbox, KeepRobots
-from transport.codec import Correspondence, Goals, Motion, Pose, Tick, Timing, WarmStart, as_sent
+from transport.codec import Correspondence, Goals, Lives, Motion, Pose, Tick, Timing, WarmStart, as_sent, life_number
 from transport.plausible import Clock
 from transport.session import TransportError, add_zenoh_args, settings_from_args
 
@@ -268,6 +268,8 @@ class Coordinator:
         self.current = Goals(
             self.epoch, 0, np.asarray(goals), np.asarray(colors), np.array(sorted(robots)), timing, motion
         )
+        # who takes part, in which life: every host reads the same, however its liveliness events come
+        self.current.lives = Lives(np.array([life_number(self.roster.lives.get(r, "")) for r in sorted(robots)]))
         if before is not None and not before.per_robot and len(before.positions) == len(goals):
             matched, prices = self._warm_start(as_sent(before.positions), goals)
             self.current.warm_start = None if cold else WarmStart(before.epoch, matched, prices)

@@ -341,6 +341,33 @@ class WarmStart:
 
 
 @dataclass
+class Lives:
+    """Part 6 of a goal set: per robot of its ``robots``, the life of its agent (Bus.incarnation as a number,
+    ``life_number``) that the coordinator heard when it published the set. A robot takes part in the set's
+    auction in that life only: an agent started again waits for the next set, and the others do not wait for
+    it (agent.runtime.Departures). 0: any life. Absent: every robot in any life."""
+
+    PART: ClassVar[int] = 6
+    VERSION: ClassVar[int] = 1
+    life: np.ndarray  # per robot of the set's robots
+
+    def pack(self, count: int) -> bytes:
+        return np.asarray(self.life, "<u4").tobytes()
+
+    @classmethod
+    def unpack(cls, body: memoryview, count: int) -> Lives:
+        if len(body) % 4:
+            raise Malformed("truncated")
+        return cls(np.frombuffer(body, "<u4").astype(np.int64))
+
+
+def life_number(incarnation: str) -> int:
+    """An incarnation (Bus.incarnation: 8 hex digits) as Lives carries it; 0 for anything else."""
+    hex_digits = len(incarnation) == 8 and all(c in "0123456789abcdef" for c in incarnation)
+    return int(incarnation, 16) if hex_digits else 0
+
+
+@dataclass
 class Goals(Message):
     """Coordinator -> all: a goal set with colours (part 1), then its parts, each of its own version:
     ``timing`` always, ``motion``, ``correspondence`` and ``warm_start`` when they apply. ``per_robot``:
@@ -363,6 +390,7 @@ class Goals(Message):
     motion: Motion | None = None
     correspondence: Correspondence | None = None
     warm_start: WarmStart | None = None
+    lives: Lives | None = None
 
     # the parts after the goal set: part kind -> (its class, its field)
     _PARTS: ClassVar[dict[int, tuple[Any, str]]] = {
@@ -370,6 +398,7 @@ class Goals(Message):
         Motion.PART: (Motion, "motion"),
         Correspondence.PART: (Correspondence, "correspondence"),
         WarmStart.PART: (WarmStart, "warm_start"),
+        Lives.PART: (Lives, "lives"),
     }
 
     @property
@@ -386,6 +415,8 @@ class Goals(Message):
         items = np.empty(count, self.RECORD)
         items["x"], items["y"], items["rgb"] = self.positions[:, 0], self.positions[:, 1], self.colors
         goal_set = self._set.pack(self.epoch, self.per_robot, count) + items.tobytes()
+        if self.lives is not None and len(self.lives.life) != len(self.robots):
+            raise ValueError("lives needs one life per robot")
         parts = [(self.PART, self.PART_VERSION, goal_set + np.asarray(self.robots, "<u2").tobytes())]
         for part in (getattr(self, name) for _, name in self._PARTS.values()):
             if part is not None:
@@ -422,6 +453,8 @@ class Goals(Message):
             setattr(msg, name, part_type.unpack(part_body, count))
         if Timing.PART not in seen:
             raise Malformed("invalid")  # every goal set says when it was published
+        if msg.lives is not None and len(msg.lives.life) != len(robots):
+            raise Malformed("invalid")  # a life per robot
         return msg
 
 

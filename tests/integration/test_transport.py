@@ -34,6 +34,7 @@ from transport.codec import (
     DropCounter,
     Event,
     Goals,
+    Lives,
     Motion,
     Pose,
     Poses,
@@ -45,6 +46,7 @@ from transport.codec import (
     WarmStart,
     decode,
     decode_views,
+    life_number,
     with_checksum,
 )
 from transport.faults import FaultSpec, parse_faults
@@ -75,6 +77,7 @@ SAMPLES = [
         Timing(36.1, 5, 6.0, t_start=36.0, frame_period=6.0),
         correspondence=Correspondence(3, np.array([1, 0])),
         warm_start=WarmStart(3, np.array([1, 0]), np.array([0.0, 0.125])),
+        lives=Lives(np.array([0xDEADBEEF, 0])),
     ),
     Truth(7, 0.7, 0.01, 2, np.zeros((2, 3)), np.ones((2, 2)), np.zeros((2, 3), np.uint8), np.array([1, 2], np.uint32)),
     Contact(0, 1, 2, 0.5, 0.003),
@@ -298,6 +301,7 @@ def test_a_goal_set_is_its_parts_each_with_its_own_header_and_absent_parts_are_a
         Timing.PART,
         Correspondence.PART,
         WarmStart.PART,
+        Lives.PART,
     ]
     back = decode(still.encode())
     assert back.motion is None and not back.moves and back.correspondence is None and back.warm_start is None
@@ -307,6 +311,7 @@ def test_a_goal_set_is_its_parts_each_with_its_own_header_and_absent_parts_are_a
     assert back.correspondence.follows == 3 and back.correspondence.previous.tolist() == [1, 0]
     assert back.warm_start.matched_from == 3 and back.warm_start.matched.tolist() == [1, 0]
     assert back.warm_start.prices.tolist() == [0.0, 0.125] and back.robots.tolist() == [0, 5]
+    assert back.lives.life.tolist() == [0xDEADBEEF, 0]  # robot 0's agent in that life, robot 5's in any
     # the goal set part by hand: epoch, per_robot, count, then the goals and the robots to its end
     body = _parts(keyframe.encode())[0][2]
     assert struct.unpack_from("<IBI", body) == (4, 0, 2) and len(body) == 9 + 2 * 11 + 2 * 2
@@ -336,13 +341,17 @@ def test_a_goal_set_with_torn_missing_repeated_or_misplaced_parts_is_dropped():
     assert decode(_sealed(body + b"\x05"), drops=drops) is None  # a torn part header
     short = [(k, v, b[:-1]) if k == Correspondence.PART else (k, v, b) for k, v, b in parts]
     assert decode(_join(short), drops=drops) is None  # a part that is not the length its goal count needs
-    assert drops == {"truncated": 3}
+    torn = [(k, v, b[:-1]) if k == Lives.PART else (k, v, b) for k, v, b in parts]
+    assert decode(_join(torn), drops=drops) is None  # a life cut short
+    assert drops == {"truncated": 4}
     assert decode(_join([p for p in parts if p[0] != Timing.PART]), drops=drops) is None  # no timing
     assert decode(_join(parts[1:2] + parts[:1] + parts[2:]), drops=drops) is None  # the goal set not first
     assert decode(_join(parts + parts[-1:]), drops=drops) is None  # a part twice
     assert decode(_join(parts + parts[:1]), drops=drops) is None  # the goal set twice
     assert decode(_join([]), drops=drops) is None  # no part at all
-    assert drops["invalid"] == 5
+    three = [(k, v, b + b[:4]) if k == Lives.PART else (k, v, b) for k, v, b in parts]
+    assert decode(_join(three), drops=drops) is None  # three lives for two robots
+    assert drops["invalid"] == 6
 
 
 def test_goal_set_parts_refuse_bad_values():
@@ -365,6 +374,13 @@ def test_goal_set_parts_refuse_bad_values():
     assert drops == {"invalid": 6, "non-finite": 3}
     with pytest.raises(ValueError):  # an encoder never sends a part that does not fit its goal set
         dataclasses.replace(keyframe, correspondence=Correspondence(3, np.array([0]))).encode()
+    with pytest.raises(ValueError):
+        dataclasses.replace(keyframe, lives=Lives(np.array([1]))).encode()
+
+
+def test_a_life_is_an_incarnation_as_a_number_and_anything_else_is_any_life():
+    assert life_number("0a1b2c3d") == 0x0A1B2C3D and life_number("ffffffff") == 2**32 - 1
+    assert [life_number(x) for x in ("first", "", "0a1b2c3", "-a1b2c3d", "0A1B2C3D", " a1b2c3d")] == [0] * 6
 
 
 def test_retired_single_robot_kinds_are_dropped_as_unknown():

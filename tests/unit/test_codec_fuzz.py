@@ -51,6 +51,7 @@ from transport.codec import (
     Event,
     Frame,
     Goals,
+    Lives,
     Message,
     Motion,
     Poses,
@@ -233,7 +234,7 @@ def _goals(c: Choices) -> tuple[Message, Message]:
     stamp, step, hold, t_start, period = c.f64(), c.integer(0, U16), c.f32(), c.f64(), abs(c.f32())
     timing = Timing(stamp, step, hold, t_start, period)
     timing32 = Timing(stamp, step, _r32(hold), t_start, _r32(period))
-    motion = motion32 = correspondence = warm_start = None
+    motion = motion32 = correspondence = warm_start = lives = None
     if c.below(2):
         floats, geometric = [c.f32() for _ in range(6)], c.below(2)
         if geometric and _r32(floats[5]) <= -1:
@@ -245,7 +246,9 @@ def _goals(c: Choices) -> tuple[Message, Message]:
     if c.below(2):
         matched = np.array([c.integer(0, count - 1) for _ in range(count)], np.int64)
         warm_start = WarmStart(c.integer(1, U32), matched, np.array([c.f64() for _ in range(count)], float))
-    parts = (correspondence, warm_start)
+    if c.below(2):
+        lives = Lives(np.array([c.integer(0, U32) for _ in range(len(robots))], np.int64))
+    parts = (correspondence, warm_start, lives)
     return (
         Goals(epoch, per_robot, positions, colors, robots, timing, motion, *parts),
         Goals(epoch, per_robot, positions32, colors.copy(), robots.copy(), timing32, motion32, *parts),
@@ -309,7 +312,7 @@ def _layout(msg: Message) -> tuple[tuple[int, str, str], ...]:
     """Every field of an encoded message: (byte offset, struct code, name)."""
     shape: tuple = ()
     if isinstance(msg, Goals):
-        parts = (msg.motion, msg.correspondence, msg.warm_start)
+        parts = (msg.motion, msg.correspondence, msg.warm_start, msg.lives)
         shape = (msg.count, len(msg.robots), *(part is not None for part in parts))
     elif isinstance(msg, Boards):
         shape = (len(msg.words), msg.known.size, len(msg.records))
@@ -338,7 +341,7 @@ def _layout_of(kind: type[Message], shape: tuple) -> tuple[tuple[int, str, str],
         groups = [("", BOARDS), *[("word.", WORD)] * words, ("", [("known", "B")] * known)]
         groups += [("record.", AUCTION)] * records
     elif kind is Goals:
-        count, robots, motion, correspondence, warm_start = shape
+        count, robots, motion, correspondence, warm_start, lives = shape
         groups = [("set.", PART), ("set.", GOAL_SET), *[("goal.", GOAL)] * count, ("set.", [("robot", "H")] * robots)]
         groups += [("timing.", PART), ("timing.", TIMING)]
         if motion:
@@ -348,6 +351,8 @@ def _layout_of(kind: type[Message], shape: tuple) -> tuple[tuple[int, str, str],
         if warm_start:
             matched = [("matched", "i")] * count + [("prices", "d")] * count
             groups += [("warm_start.", PART + [("matched_from", "I")] + matched)]
+        if lives:
+            groups += [("lives.", PART + [("life", "I")] * robots)]
     out, at = [], 2
     for prefix, layout in groups:
         for name, codes in layout:
