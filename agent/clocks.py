@@ -134,6 +134,7 @@ class LockStep(HostClock):
         self.unnamed: dict[int, Goals] = {}  # goal sets heard that no tick has named yet
         self.greeted: dict[int, State] = {}  # hellos heard before the first tick, by robot
         self.hellos: list[State] = []  # our own, sent until the first tick
+        self.joined_in = -1  # started again (or late) in a run under way: the newest tick greet heard poses of
         self.last_hello = -math.inf
         self.hello_every = HELLO_EVERY * max(1.0, host.config.swarm / HELLO_SWARM)
         # injected state delays count in ticks (reproducible); see Inbox.sim_time
@@ -149,6 +150,7 @@ class LockStep(HostClock):
         ]
         if max(q.stamp for q in where.values()) > 0.0:  # under way: its auction waits for the next goal set
             host.goal_sets.bid_from = host.goal_sets.newest_heard + 1
+            self.joined_in = max((q.tick for q in where.values() if q.tick != BEFORE_START), default=-1)
             return
         expected = set(host.config.greet) - set(host.config.robots)
         end = time.monotonic() + min(HELLO_TIMEOUT, timeout)
@@ -220,6 +222,11 @@ class LockStep(HostClock):
         host = self.host
         due = bisect.bisect_right(host.config.steps, stamp + 1e-9) - 1  # numpy's would make an array a tick
         deadline = time.monotonic() + GOAL_SET_WAIT
+        if tick <= self.joined_in:
+            # a tick we joined in: its clock message may have gone out before we subscribed, and the world
+            # waits for our command; a set it names began without us anyway (Lives, bid_from)
+            self.hear()
+            deadline = 0.0
         while host.running and time.monotonic() < deadline:
             self.hear()
             has_step = due < 0 or any(
