@@ -23,7 +23,7 @@ from sim.node.world import world_node
 from tests.conftest import wait_for
 from tests.support.hardware import moving_commands, scene_file
 from transport.bus import Bus
-from transport.codec import Command, Commands, Tick
+from transport.codec import Command, Commands, State, Tick
 from transport.session import client_of, loopback_router
 
 SPEED = 0.05  # m/s on both wheels: straight ahead
@@ -230,3 +230,49 @@ def test_a_lockstep_tick_at_which_the_scene_kills_a_robot_waits_until_its_agent_
         node = _KilledLate(tick, after=1.0)
         next(clock.spans(node))  # type: ignore[arg-type]
         assert node.live[1] == (not dead)
+
+
+def test_a_dead_agents_body_is_broadcast_as_a_standing_obstacle_where_the_tracker_sees_it():
+    """A robot whose agent died before it ever broadcast a state is otherwise unknown to its neighbours,
+    which would drive into its body: the node broadcasts the body each tick as a state that stands and
+    avoids nobody, at its tracked position, and stops once the agent is alive again."""
+    scene = load_scene("circle", robots=3, seed=3, clock="lockstep", duration=2.0)
+    router = loopback_router()
+    with Bus(router, name="world") as world_bus, Bus(client_of(router), name="agents") as agent_bus:
+        node = world_node(world_bus, scene, deadline=2.0, startup_timeout=10.0)
+        states = agent_bus.subscribe(agent_bus.keys.all_of("state"), State)
+        clock = agent_bus.subscribe(agent_bus.keys.clock, Tick)
+        tokens = {robot: agent_bus.declare_alive("agent", robot) for robot in range(scene.robots)}
+        done = threading.Event()
+
+        def answer() -> None:  # robot 1's agent dies at tick 5 and comes back at tick 12
+            while not done.is_set():
+                got = clock.get(timeout=0.05)
+                if got is None:
+                    continue
+                tick = got[1]
+                if tick.tick == 5:
+                    tokens.pop(1).undeclare()
+                if tick.tick == 12:
+                    tokens[1] = agent_bus.declare_alive("agent", 1)
+                for robot in tokens:
+                    cmd = Command(robot, tick.tick, tick.stamp, Command.HOLONOMIC, 0.0, 0.0, 0, 0, 0)
+                    agent_bus.publish(agent_bus.keys.cmd(robot), Commands.one(cmd))
+
+        thread = threading.Thread(target=answer, daemon=True)
+        thread.start()
+        try:
+            run_bounded(node, 60.0)
+        finally:
+            done.set()
+            thread.join(5.0)
+        body = node.backend.true_poses()[1, :2]
+        heard = [s for _, s in states.drain()]
+    assert {s.robot for s in heard} == {1}  # live robots speak for themselves (here: nobody does)
+    ticks = sorted(s.tick for s in heard)
+    assert ticks == list(range(ticks[0], ticks[-1] + 1)) and 5 <= ticks[0] <= 7 and 12 <= ticks[-1] <= 14
+    for s in heard:
+        assert (
+            s.flags == State.DYNAMIC and s.vx == s.vy == 0.0 and s.radius == np.float32(node.params.radius)
+        )  # as the wire carries it
+        assert np.hypot(s.x - body[0], s.y - body[1]) < 0.02  # the tracker's measurement of the body
