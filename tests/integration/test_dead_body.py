@@ -1,0 +1,91 @@
+"""A robot whose agent died before it ever spoke is avoided, over a real zenoh router on loopback: the world
+node, a lock-step agent host for robot 0, and robot 1's agent, which says it is alive, answers two ticks with
+a standing command and dies without one state. Robot 0's goal is where robot 1's body stands (a swap).
+
+The agents knew only that robot 1's agent died, not where its body was: robot 0 drove into it. The body
+node now sends the body as a standing obstacle where the tracker sees it (sim.node.body)."""
+
+from __future__ import annotations
+
+import threading
+
+import pytest
+
+from agent.runtime import AgentHost, HostConfig
+from coordinator.scene import load_scene
+from coordinator.service import scene_goal_message
+from sim.node.body import BodyNode
+from sim.node.world import world_node
+from transport.bus import Bus
+from transport.codec import Command, Commands, Tick
+from transport.session import client_of, loopback_router
+
+DIES_AT = 2  # the tick robot 1's agent dies at, never having sent a state
+
+
+def robot_one(bus: Bus, done: threading.Event) -> None:
+    """Robot 1's agent: alive, a standing command for each tick before DIES_AT, then gone."""
+    clock = bus.subscribe(bus.keys.clock, Tick)
+    token = bus.declare_alive("agent", 1)
+    while not done.is_set():
+        got = clock.get(timeout=0.05)
+        if got is None:
+            continue
+        tick = got[1]
+        if tick.tick >= DIES_AT:
+            token.undeclare()
+            return
+        cmd = Command(1, tick.tick, tick.stamp, Command.WHEELS, 0.0, 0.0, 0, 0, 0)
+        bus.publish(bus.keys.cmd(1), Commands.one(cmd))
+
+
+def swap_past_a_dead_body(monkeypatch: pytest.MonkeyPatch, broadcast: bool) -> dict:
+    """The world's statistics of the run (``min_clearance``: robot 0's closest approach to robot 1's body)."""
+    if not broadcast:
+        monkeypatch.setattr(BodyNode, "_dead_bodies", lambda self, measured, t: [])
+    scene = load_scene("swap", robots=2, seed=0, clock="lockstep", duration=12.0)
+    router = loopback_router()
+    with (
+        Bus(router, name="world") as world_bus,
+        Bus(client_of(router), name="robot-0") as bus_0,
+        Bus(client_of(router), name="robot-1") as bus_1,
+        Bus(client_of(router), name="coordinator") as coordinator_bus,
+    ):
+        goals = scene_goal_message(scene)  # the scene's own goals, as the coordinator answers an agent's query
+        assert goals is not None
+        coordinator_bus.serve(
+            coordinator_bus.keys.all_of("goals"), lambda: [(coordinator_bus.keys.goals(1), goals.encode())]
+        )
+        node = world_node(world_bus, scene, deadline=2.0, startup_timeout=20.0)
+        config = HostConfig(robots=[0], params=node.params, seed=scene.seed, arena=scene.arena, lockstep=True)
+        host = AgentHost(bus_0, config)
+        done = threading.Event()
+        threads = [
+            threading.Thread(target=robot_one, args=(bus_1, done), daemon=True),
+            threading.Thread(target=lambda: host.start(timeout=20.0) and host.run(), daemon=True),
+        ]
+        for thread in threads:
+            thread.start()
+        try:
+            node.run()  # until the scene's duration
+        finally:
+            done.set()
+            host.running = False
+            host.auction.stop()
+            for thread in threads:
+                thread.join(timeout=15.0)
+        assert not any(thread.is_alive() for thread in threads)
+        stats = node.stats()
+    return stats
+
+
+def test_a_robot_drives_around_the_body_of_an_agent_that_died_before_it_spoke(monkeypatch):
+    stats = swap_past_a_dead_body(monkeypatch, broadcast=True)
+    assert stats["reason"] == "duration" and stats["contacts"] == [], stats
+    assert 0 < stats["min_clearance"] < 0.05, stats  # it came to the body (its goal is there), and kept clear
+
+
+def test_without_the_broadcast_it_drives_into_the_body(monkeypatch):
+    """The check above can fail: the same run without the body node's broadcast has a contact."""
+    stats = swap_past_a_dead_body(monkeypatch, broadcast=False)
+    assert stats["contacts"], stats
