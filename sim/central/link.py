@@ -85,5 +85,5 @@ class InProcessLink:
 
     @property
     def heard_on_time(self) -> float:
-        """Share of (receiver, sender) states heard at the next tick."""
-        return self.on_time / max(self.draws, 1)
+        """Share of (receiver, sender) states heard at the next tick (every one on a link without impairment)."""
+        return self.on_time / self.draws if self.draws else 1.0
