@@ -263,12 +263,13 @@ class Departures:
         self.gone: set[int] = set()
         self.gone_since = 0  # the goal set ``gone`` is of
         self.listed: dict[int, int] | None = None  # that goal set's robots' lives (None: it lists none)
+        self._other_life: set[int] | None = None  # those listed robots heard in another life (None: to renew)
 
     def now(self) -> set[int]:
         """The robots whose agent is dead, as liveliness says now."""
         for _, ident, alive, _, incarnation in self.alive.drain():
             if ident.isdigit():
-                robot = int(ident)
+                robot, self._other_life = int(ident), None
                 (self.dead.discard if alive else self.dead.add)(robot)
                 if alive:
                     self.life[robot] = life_number(incarnation)
@@ -283,13 +284,15 @@ class Departures:
         dead = self.now()
         if self.listed is None:
             return dead | self.gone
-        return dead | {r for r, life in self.listed.items() if life and self.life.get(r, life) != life}
+        if self._other_life is None:  # rounds ask often: renewed only when liveliness or the set changed
+            self._other_life = {r for r, life in self.listed.items() if life and self.life.get(r, life) != life}
+        return dead | self._other_life
 
     def new_goal_set(self, goals: Goals) -> None:
         if goals.epoch != self.gone_since:  # a new goal set (the coordinator repeats the newest)
             # liveliness taken in first: an agent back before the set came is no departure from it
             self.gone, self.gone_since = set(self.now()), goals.epoch
-            lives = goals.lives
+            lives, self._other_life = goals.lives, None
             self.listed = None if lives is None else dict(zip(goals.robots.tolist(), lives.life.tolist()))
 
 
