@@ -292,8 +292,7 @@ class Departures:
         if goals.epoch != self.gone_since:  # a new goal set (the coordinator repeats the newest)
             # liveliness taken in first: an agent back before the set came is no departure from it
             self.gone, self.gone_since = set(self.now()), goals.epoch
-            lives, self._other_life = goals.lives, None
-            self.listed = None if lives is None else dict(zip(goals.robots.tolist(), lives.life.tolist()))
+            self.listed, self._other_life = goals.listed_lives(), None
 
 
 @dataclass
@@ -428,9 +427,9 @@ class AgentHost:
     def _takes_part(self, goals: Goals) -> bool:
         """Whether our robots bid in this set's auction: it lists them in this life (an agent started again waits
         for the set that does); a set that lists no lives, if published after this agent joined."""
-        if goals.lives is None:
+        listed = goals.listed_lives()
+        if listed is None:
             return goals.epoch >= self.goal_sets.bid_from
-        listed = dict(zip(goals.robots.tolist(), goals.lives.life.tolist()))
         return all(listed.get(r, 0) in (0, life_number(self.bus.incarnation)) for r in self.robots.ids.tolist())
 
     @property

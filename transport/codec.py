@@ -345,7 +345,8 @@ class Lives:
     """Part 6 of a goal set: per robot of its ``robots``, the life of its agent (Bus.incarnation as a number,
     ``life_number``) that the coordinator heard when it published the set. A robot takes part in the set's
     auction in that life only: an agent started again waits for the next set, and the others do not wait for
-    it (agent.runtime.Departures). 0: any life. Absent: every robot in any life."""
+    it (agent.runtime.Departures). 0: any life. Absent: a host takes part in a set published after it joined,
+    and waits for every robot that did not die during the set."""
 
     PART: ClassVar[int] = 6
     VERSION: ClassVar[int] = 1
@@ -404,6 +405,10 @@ class Goals(Message):
     @property
     def count(self) -> int:
         return len(self.positions)
+
+    def listed_lives(self) -> dict[int, int] | None:
+        """Each robot's life as the set lists it (Lives), by robot; None when it lists none."""
+        return None if self.lives is None else dict(zip(self.robots.tolist(), self.lives.life.tolist()))
 
     @property
     def moves(self) -> bool:
