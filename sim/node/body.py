@@ -85,8 +85,9 @@ class Tally:
 
 
 class LockStep:
-    """Publish tick k, wait until every live agent answered it or a deadline passes (a missed tick), then
-    advance one period. The deadline runs from the last auction message heard, or while a starting step's
+    """Publish tick k, wait until every agent live when it went out answered it or a deadline passes (a missed
+    tick), then advance one period. An agent heard alive meanwhile is waited for from the next tick: it may
+    have missed this tick's pose (a restarted one subscribes as the world goes on). The deadline runs from the last auction message heard, or while a starting step's
     goal set is unheard; a tick at which the scene kills robots waits until their agents are gone."""
 
     def __init__(self, bus: Bus, deadline: float) -> None:
@@ -108,6 +109,7 @@ class LockStep:
         goal_set_patience = time.monotonic() + GOAL_SET_PATIENCE
         fail_patience = time.monotonic() + FAIL_PATIENCE
         dies = node.killed_now()
+        expected = node.live.copy()
         while True:
             # read before the commands are taken: one seen by then is queued, held or lost
             seen, n = node.cmd_inbox.seen, len(node.live)
@@ -120,7 +122,7 @@ class LockStep:
             if any(map(intact, heard)) or at_work:  # a damaged copy is no agent at work
                 deadline = min(time.monotonic() + self.deadline, patience)
             node.update_liveness()
-            waiting = node.live & (node.last_cmd_tick < node.tick) & ~arrived
+            waiting = node.live & expected & (node.last_cmd_tick < node.tick) & ~arrived
             dying = node.live[dies].any() and time.monotonic() < fail_patience
             if (not waiting.any() or time.monotonic() >= deadline or node.withheld) and not dying:
                 break

@@ -219,6 +219,35 @@ class _KilledLate(_SlowFirstAnswers):
         return [1] if self.tick == 5 else []
 
 
+class _CameAliveDuring(_SlowFirstAnswers):
+    """Robot 0's agent answers at once; robot 1's is heard alive only while the world waits (an agent started
+    again) and never answers this tick, whose pose it may not have had. Counts the world's waits."""
+
+    def __init__(self, tick: int) -> None:
+        super().__init__(tick, after=0.0)
+        self.live[1], self.last_cmd_tick[1], self.waits = False, -1, 0
+
+    def get(self, timeout: float) -> None:
+        self.waits += 1
+
+    def take_commands(self, first: object) -> None:
+        self.last_cmd_tick[0] = self.tick
+
+    def update_liveness(self) -> None:
+        self.live[1] = True
+
+
+def test_a_lockstep_tick_does_not_wait_for_an_agent_heard_alive_after_it_went_out():
+    """Waiting for it held the whole run for the deadline (2 s) at the tick an agent was started again in."""
+    from sim.node import body
+    from tests.support.fake_bus import RecorderBus
+
+    clock = body.LockStep(RecorderBus(), deadline=30.0)  # type: ignore[arg-type]
+    node = _CameAliveDuring(7)
+    next(clock.spans(node))  # type: ignore[arg-type]
+    assert node.waits == 1 and node.live[1]  # one look at the commands: robot 0's was in
+
+
 def test_a_lockstep_tick_at_which_the_scene_kills_a_robot_waits_until_its_agent_is_gone():
     """A loaded launcher kills a robot seconds of display after the scene's time, unless the world
     waits for it at that tick; no other tick waits for a death."""
