@@ -564,6 +564,23 @@ cdef void _prepare(Config *s, Heard h, Py_ssize_t i, Scratch *w, double vmax) no
         w.nok[k] = ok
 
 
+cdef bint _unsure(Config *s, Heard h, Py_ssize_t i, Scratch *w, Robot *me) noexcept nogil:
+    """Whether a neighbour stale (not heard for longer than the timeout) may be, by now or within the
+    step, where it touches us: anywhere its speed took it from where it was last heard. Steering around
+    a guess no longer keeps clear then, so the robot stops (docs/faults.md)."""
+    cdef Py_ssize_t k
+    cdef double ex, ey, age, reach
+    for k in range(w.used):
+        age = h.age[i * h.m + k]
+        if not (w.nok[k] and age > s.timeout):
+            continue
+        ex, ey = w.nx[k] - me.x, w.ny[k] - me.y
+        reach = me.radius + h.radius[i * h.m + k] + s.noise + (age + 2.0 * s.dt) * me.vmax
+        if ex * ex + ey * ey < reach * reach:
+            return True
+    return False
+
+
 cdef int _hard_lines(Config *s, Scratch *w, Robot *me, Obstacles edges, Lines *extra, int n_extra) noexcept nogil:
     """The lines every fallback keeps: obstacle edges, ``extra`` (P_AHV), the safety lines (horizon dt,
     zero velocities, neighbours grown only up to our surface, else no common solution). Returns how many."""
@@ -811,6 +828,9 @@ cdef void _step_one(Config *s, Batch robots, Heard nb, Obstacles obstacles, Scra
     cdef Robot me = _robot(robots, i, s)
     cdef Result r
     _prepare(s, nb, i, w, me.vmax)
+    if s.safety and _unsure(s, nb, i, w, &me):
+        o[0], o[1], o[2], o[3], o[4], o[5], o[6] = 0.0, 0.0, 0.0, 0.0, False, False, 0.0
+        return
     if robots.cap[i] < me.vmax:  # NaN: no cap
         me.vmax = robots.cap[i]
     if s.diffdrive:

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from coordinator.scene import Scene, scene_from_dict
 from sim.central.engine import simulate
 from sim.central.link import InProcessLink
@@ -19,6 +21,7 @@ class LossyResult:
     fallbacks: int  # robot-ticks where ORCA's program was infeasible
     robot_ticks: int
     heard_on_time: float  # share of (receiver, sender) states heard at the next tick
+    progress: float  # share of the way to their goals the robots covered (1 - remaining / initial distance)
 
 
 def circle_crossing(robots: int, kinematics: str, seed: int, duration: float = 25.0) -> Scene:
@@ -41,5 +44,9 @@ def run_lossy(scene: Scene, drop: float, late: float, seed: int = 0) -> LossyRes
     a tick late with probability ``late`` (per sender and receiver)."""
     link = InProcessLink(scene.robots, drop=drop, late=late, seed=seed)
     out = simulate(scene, link=link, progress=None)
-    ticks = len(out.arrays["t"])
-    return LossyResult(len(out.contacts), out.min_clearance, out.fallbacks, ticks * scene.robots, link.heard_on_time)
+    t, pose, goal = out.arrays["t"], out.arrays["pose"], out.arrays["goal"]
+    remaining = np.hypot(*(pose[[0, -1], :, :2] - goal[[0, -1]]).transpose(2, 0, 1)).sum(axis=1)
+    progress = float(1.0 - remaining[1] / remaining[0])
+    return LossyResult(
+        len(out.contacts), out.min_clearance, out.fallbacks, len(t) * scene.robots, link.heard_on_time, progress
+    )

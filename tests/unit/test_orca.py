@@ -4,6 +4,7 @@ the neighbour preparation for real communication."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
@@ -192,6 +193,30 @@ def test_neighbour_states_are_extrapolated_by_age_and_stale_ones_become_obstacle
     )
     position, *_, valid = control.prepare_neighbours(core, nan)
     assert not valid.any() and np.isfinite(position).all()
+
+
+@pytest.mark.parametrize("kinematics", ["holonomic", "diffdrive"])
+def test_a_robot_stops_while_a_stale_neighbour_may_be_where_it_touches_it(kinematics):
+    """Not heard for 2 s, a neighbour 0.3 m ahead may be anywhere within 2 s x v_max (0.26 m) of where
+    it was: steering around that old place keeps nothing clear, so the robot stands (both v_cf and the
+    command), where it drives on with the same neighbour heard lately or a stale one out of reach."""
+    params = EPUCK.with_(kinematics=kinematics, v_max=0.13, stale_after=0.5)
+    core = Settings(params)
+
+    def step(neighbour_x, age):
+        heard = NeighbourStates(
+            np.array([[[neighbour_x, 0.1]]]), np.zeros((1, 1, 2)), np.full((1, 1), params.radius),
+            np.array([[age]]), np.ones((1, 1), bool), np.ones((1, 1), bool),
+        )  # fmt: skip
+        pref = np.array([[0.12, 0.0]])
+        v, command, *_ = control.step(core, Batch(np.zeros((1, 2)), pref, pref, 0.0, params.radius), heard)
+        return np.linalg.norm(v[0]), np.abs(command[0]).max()
+
+    assert step(0.3, age=2.0) == (0.0, 0.0)
+    speed, command = step(0.3, age=0.2)  # heard lately: passed by, not stopped for
+    assert speed > 0.05 and command > 0.0
+    speed, command = step(0.7, age=2.0)  # stale but out of reach (0.26 + 2 dt x v_max + the bodies)
+    assert speed > 0.1 and command > 0.0
 
 
 def test_symmetry_breaking_is_tiny_distinct_and_reproducible():
