@@ -356,17 +356,20 @@ class BodyNode:
             self.bus.publish_poses(self.tick, t, shown, measured[shown], self.pose_frames)
             self._publish_before_start()
         # the movers' states, as agents broadcast theirs (one frame for agent hosts, or each under its
-        # cell), and dead agents' bodies as obstacles: one that died before it spoke is otherwise unseen
-        states = self.backend.own_movers(self.tick, t) + self._dead_bodies(measured, t)
+        # cell), and the bodies of dead or silent agents as obstacles (_standing_bodies)
+        states = self.backend.own_movers(self.tick, t) + self._standing_bodies(measured, t)
         first = states[0].robot if self.pose_frames and states else None
         self.bus.publish_states(self.tick, t, states, self.params.cell_size, first)
 
-    def _dead_bodies(self, measured: np.ndarray | None, t: float) -> list[State]:
-        """A state per robot whose agent died: its body where the tracker sees it, standing, avoiding nobody."""
+    def _standing_bodies(self, measured: np.ndarray | None, t: float) -> list[State]:
+        """A state per robot whose agent died, or lives but sent no command for ``stale_after`` (hung): its
+        body where the tracker sees it, standing, avoiding nobody. Neighbours that never heard the agent,
+        or have forgotten it, would otherwise drive into the body the watchdog stopped."""
         if measured is None:
             return []
         r = self.params.radius
-        dead = np.flatnonzero(self.ever_live & ~self.live & self.backend.tracked)
+        silent = (self.last_cmd_tick >= 0) & ((self.tick - self.last_cmd_tick) * self.dt > self.params.stale_after)
+        dead = np.flatnonzero(self.ever_live & (~self.live | silent) & self.backend.tracked)
         return [
             State(int(i), self.tick, t, float(x), float(y), 0.0, 0.0, r, 0.0, 0.0, -1, State.DYNAMIC)
             for i, (x, y) in zip(dead, measured[dead, :2])

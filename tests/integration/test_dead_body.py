@@ -3,7 +3,8 @@ node, a lock-step agent host for robot 0, and robot 1's agent, which says it is 
 a standing command and dies without one state. Robot 0's goal is where robot 1's body stands (a swap).
 
 The agents knew only that robot 1's agent died, not where its body was: robot 0 drove into it. The body
-node now sends the body as a standing obstacle where the tracker sees it (sim.node.body)."""
+node now sends the body as a standing obstacle where the tracker sees it (sim.node.body); so it does for an
+agent that lives on but hangs, whose body the watchdog stopped."""
 
 from __future__ import annotations
 
@@ -23,8 +24,9 @@ from transport.session import client_of, loopback_router
 DIES_AT = 2  # the tick robot 1's agent dies at, never having sent a state
 
 
-def robot_one(bus: Bus, done: threading.Event) -> None:
-    """Robot 1's agent: alive, a standing command for each tick before DIES_AT, then gone."""
+def robot_one(bus: Bus, done: threading.Event, hangs: bool) -> None:
+    """Robot 1's agent: alive, a standing command for each tick before DIES_AT, then gone (or, if it
+    ``hangs``, alive and silent until the end)."""
     clock = bus.subscribe(bus.keys.clock, Tick)
     token = bus.declare_alive("agent", 1)
     while not done.is_set():
@@ -33,16 +35,18 @@ def robot_one(bus: Bus, done: threading.Event) -> None:
             continue
         tick = got[1]
         if tick.tick >= DIES_AT:
+            if hangs:
+                done.wait()
             token.undeclare()
             return
         cmd = Command(1, tick.tick, tick.stamp, Command.WHEELS, 0.0, 0.0, 0, 0, 0)
         bus.publish(bus.keys.cmd(1), Commands.one(cmd))
 
 
-def swap_past_a_dead_body(monkeypatch: pytest.MonkeyPatch, broadcast: bool) -> dict:
+def swap_past_a_dead_body(monkeypatch: pytest.MonkeyPatch, broadcast: bool, hangs: bool = False) -> dict:
     """The world's statistics of the run (``min_clearance``: robot 0's closest approach to robot 1's body)."""
     if not broadcast:
-        monkeypatch.setattr(BodyNode, "_dead_bodies", lambda self, measured, t: [])
+        monkeypatch.setattr(BodyNode, "_standing_bodies", lambda self, measured, t: [])
     scene = load_scene("swap", robots=2, seed=0, clock="lockstep", duration=12.0)
     router = loopback_router()
     with (
@@ -56,12 +60,13 @@ def swap_past_a_dead_body(monkeypatch: pytest.MonkeyPatch, broadcast: bool) -> d
         coordinator_bus.serve(
             coordinator_bus.keys.all_of("goals"), lambda: [(coordinator_bus.keys.goals(1), goals.encode())]
         )
-        node = world_node(world_bus, scene, deadline=2.0, startup_timeout=20.0)
+        # a hung agent lives: the lock-step world waits for its command each tick until the deadline
+        node = world_node(world_bus, scene, deadline=0.1 if hangs else 2.0, startup_timeout=20.0)
         config = HostConfig(robots=[0], params=node.params, seed=scene.seed, arena=scene.arena, lockstep=True)
         host = AgentHost(bus_0, config)
         done = threading.Event()
         threads = [
-            threading.Thread(target=robot_one, args=(bus_1, done), daemon=True),
+            threading.Thread(target=robot_one, args=(bus_1, done, hangs), daemon=True),
             threading.Thread(target=lambda: host.start(timeout=20.0) and host.run(), daemon=True),
         ]
         for thread in threads:
@@ -89,3 +94,11 @@ def test_without_the_broadcast_it_drives_into_the_body(monkeypatch):
     """The check above can fail: the same run without the body node's broadcast has a contact."""
     stats = swap_past_a_dead_body(monkeypatch, broadcast=False)
     assert stats["contacts"], stats
+
+
+@pytest.mark.slow  # 120 ticks, each waiting its deadline for the hung agent's command
+def test_a_robot_drives_around_the_body_of_an_agent_that_hung_before_it_spoke(monkeypatch):
+    """Alive but silent, robot 1's agent is never heard; its body, which the watchdog stopped, is."""
+    stats = swap_past_a_dead_body(monkeypatch, broadcast=True, hangs=True)
+    assert stats["reason"] == "duration" and stats["contacts"] == [], stats
+    assert 0 < stats["min_clearance"] < 0.05, stats
