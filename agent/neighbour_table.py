@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from operator import attrgetter
 
@@ -58,9 +59,20 @@ class NeighbourTable:
         at = cells_of([(kept[-1].x, kept[-1].y) for kept in self._states.values()], cell_size).tolist()
         return self._forget([r for r, (cx, cy) in zip(self._states, at) if (cx, cy) not in cells and r not in keep])
 
-    def forget_silent(self, before: float, keep: set[int] | frozenset[int] = frozenset()) -> int:
-        """Drop (and count) robots silent since before ``before`` (gone: phantom obstacles), except ``keep``."""
-        return self._forget([r for r, kept in self._states.items() if kept[-1].stamp < before and r not in keep])
+    def forget_silent(
+        self, now: float, after: float, around: np.ndarray, reach: Callable[[np.ndarray, np.ndarray], np.ndarray],
+        keep: set[int] | frozenset[int] = frozenset(),
+    ) -> int:  # fmt: skip
+        """Drop (and count) robots silent for longer than ``after`` at ``now`` (gone: phantom obstacles), except
+        ``keep`` and those that may touch a robot at ``around`` (K,2): last heard within ``reach(radius, age)`` of
+        one (robots stand for such a one, agent.core.control.touch_reach), however long their states are lost."""
+        silent = [(r, kept[-1]) for r, kept in self._states.items() if kept[-1].stamp < now - after and r not in keep]
+        if not silent or not len(around):
+            return self._forget([r for r, _ in silent])
+        last = np.array([(s.x, s.y, s.radius, s.stamp) for _, s in silent])
+        gap = np.hypot(*(last[:, None, :2] - np.asarray(around)[None, :, :]).transpose(2, 0, 1)).min(axis=1)
+        near = gap < reach(last[:, 2], now - last[:, 3])
+        return self._forget([r for (r, _), n in zip(silent, near.tolist()) if not n])
 
     def _forget(self, robots: list[int]) -> int:
         for r in robots:

@@ -13,6 +13,7 @@ import time
 from collections import Counter
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, fields
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -25,9 +26,10 @@ from transport.plausible import INCONSISTENT, GoalSets, TickLine, stamp_agrees
 from . import loop
 from .assignment import AuctionLink, LockStepRounds
 from .clocks import HostClock, LockStep, WallClock
+from .core.control import touch_reach
 from .core.params import DIFFDRIVE, RobotParams
 from .core.policy import Decision, GoalTiming, Memory
-from .core.step import NeighbourStates, static_segments
+from .core.step import NeighbourStates, settings_of, static_segments
 from .goal_sets import motion_of, timing_of
 from .held_goals import HeldGoals
 from .loop import Sensed
@@ -633,10 +635,12 @@ class AgentHost:
         to = cmd(int(self.robots.ids[0])) if self.config.frames else lambda c: cmd(c.robot)
         self.bus.publish_frame(Commands, tick, stamp, commands, to)
         # the cells around EVERY own robot, not only this batch: a tick's poses can arrive split (forget_outside)
-        self.inbox.cells.update(np.array([m.position for m in self.robots.known()]))
+        around = np.array([m.position for m in self.robots.known()])
+        self.inbox.cells.update(around)
         dead = self.inbox.departed.dead
         self.table.forget_outside(self.inbox.cells.cells, self.params.cell_size, keep=dead)
-        self.table.forget_silent(stamp - p.forget_after, keep=dead)
+        reach = partial(touch_reach, settings_of(p), p.radius)
+        self.table.forget_silent(stamp, p.forget_after, around.reshape(-1, 2), reach, keep=dead)
         self.robots.bid_from = None  # the robots' velocities changed: they move where they bid from
 
     def stats(self) -> dict[str, Any]:

@@ -564,10 +564,15 @@ cdef void _prepare(Config *s, Heard h, Py_ssize_t i, Scratch *w, double vmax) no
         w.nok[k] = ok
 
 
+cdef inline double _touch(Config *s, double radius, double other, double age, double vmax) noexcept nogil:
+    """How near to a robot of ``radius`` a neighbour heard ``age`` ago may have been heard and touch it by
+    the end of the step: since, it may have gone anywhere at vmax, and both move for a step more."""
+    return radius + other + s.noise + (age + 2.0 * s.dt) * vmax
+
+
 cdef bint _unsure(Config *s, Heard h, Py_ssize_t i, Scratch *w, Robot *me) noexcept nogil:
-    """Whether a neighbour stale (not heard for longer than the timeout) may be, by now or within the
-    step, where it touches us: anywhere its speed took it from where it was last heard. Steering around
-    a guess no longer keeps clear then, so the robot stops (docs/faults.md)."""
+    """Whether a neighbour stale (not heard for longer than the timeout) may touch us within the step.
+    Steering around a guess no longer keeps clear then, so the robot stops (docs/faults.md)."""
     cdef Py_ssize_t k
     cdef double ex, ey, age, reach
     for k in range(w.used):
@@ -575,10 +580,20 @@ cdef bint _unsure(Config *s, Heard h, Py_ssize_t i, Scratch *w, Robot *me) noexc
         if not (w.nok[k] and age > s.timeout):
             continue
         ex, ey = w.nx[k] - me.x, w.ny[k] - me.y
-        reach = me.radius + h.radius[i * h.m + k] + s.noise + (age + 2.0 * s.dt) * me.vmax
+        reach = _touch(s, me.radius, h.radius[i * h.m + k], age, me.vmax)
         if ex * ex + ey * ey < reach * reach:
             return True
     return False
+
+
+def touch_reach(Settings settings, double radius, other, age):
+    """Elementwise: within what distance of where a neighbour (radius ``other``) was heard ``age`` s ago
+    it may touch a robot of ``radius`` by the end of the step (where the robot stands for a stale one)."""
+    o, a = np.broadcast_arrays(np.asarray(other, dtype=float), np.asarray(age, dtype=float))
+    out = np.empty(o.shape)
+    for k, (x, y) in enumerate(zip(o.reshape(-1).tolist(), a.reshape(-1).tolist())):
+        out.reshape(-1)[k] = _touch(&settings.c, radius, x, y, settings.c.v_max)
+    return out
 
 
 cdef int _hard_lines(Config *s, Scratch *w, Robot *me, Obstacles edges, Lines *extra, int n_extra) noexcept nogil:

@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+from functools import partial
 from types import SimpleNamespace
 
 import numpy as np
 
+from agent.core.control import touch_reach
+from agent.core.params import EPUCK
+from agent.core.step import settings_of
 from agent.neighbour_table import NeighbourTable
 from agent.runtime import bid_position
 from transport.codec import State
@@ -129,6 +133,25 @@ def test_a_robot_whose_agent_died_is_not_forgotten_outside_the_cells_heard():
         table.update(_state(robot, x, 0.2))
     assert table.forget_outside({(0, 0)}, cell_size=1.0, keep={2}) == 1  # robot 1 only
     assert sorted(s.robot for s in table.latest_before(3)) == [0, 2]
+
+
+def test_a_silent_robot_is_forgotten_only_where_it_can_no_longer_touch_ours():
+    """Silent for 2 s, a neighbour may have come 0.26 m (v_max 0.13): one last heard that near a robot of
+    ours is kept, so ORCA goes on seeing it (its robot stands), however long its states are lost; one
+    farther, or silent briefly, is not; a dead robot's body is never forgotten."""
+    params = EPUCK.with_(v_max=0.13)
+    reach = partial(touch_reach, settings_of(params), 0.05)
+    assert np.allclose(reach(0.05, 2.0), 0.05 + 0.05 + params.noise_bound + 2.2 * 0.13)  # 0.396 m
+    table = NeighbourTable(0.1)
+    for robot, x in enumerate([0.3, 0.5, 0.5, 2.0]):
+        table.update(_state(robot, x, 0.0))
+    table.update(_state(4, 0.5, 0.0, tick=20))  # heard 0.1 s ago
+    around = np.array([[0.0, 0.0], [5.0, 5.0]])
+    assert table.forget_silent(2.1, 2.0, around, reach, keep={2}) == 2  # robots 1 and 3
+    assert sorted(s.robot for s in table.latest_before(30)) == [0, 2, 4]
+    assert (
+        table.forget_silent(2.1, 2.0, np.zeros((0, 2)), reach) == 2
+    )  # none of ours near: 0 and 2 (kept no more), not 4
 
 
 class _Cells:
