@@ -95,3 +95,20 @@ def test_a_robot_alone_in_a_small_arena_hears_every_state_on_one_subscription_an
     arena it listens to its cells only, and the far state never arrives."""
     assert _heard_far((-1.0, -1.0, 1.0, 1.0)) == (2, [7])
     assert _heard_far((-10.0, -10.0, 10.0, 10.0)) == (1, [7])
+
+
+def test_a_robot_alone_keeps_no_state_of_itself_and_a_host_keeps_its_robots_standing_bodies() -> None:
+    """The body node sends a silent robot's body standing (sim.node.body). A robot alone does not hear its
+    own states: kept, that body's state grew old, and each lock-step tick waited out its deadline for a
+    newer one of itself (a run with most commands lost took four times as long). A host hears its
+    robots' states, and one robot's standing body is what another of them must avoid."""
+    params = RobotParams(kinematics="holonomic")
+    body = State(0, 1, 0.1, 0.0, 0.0, 0.0, 0.0, params.radius, 0.0, 0.0, -1, State.DYNAMIC)
+    with Bus(loopback_router(), "self") as bus:
+        alone, host = (
+            AgentHost(bus, HostConfig(robots=[0], params=params)),
+            AgentHost(bus, HostConfig(robots=[0, 1], params=params)),
+        )
+        alone.on_state(body)
+        host.on_state(body)
+        assert 0 not in alone.table and 0 in host.table
