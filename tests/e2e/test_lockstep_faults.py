@@ -40,6 +40,18 @@ def test_two_lockstep_runs_with_lost_and_delayed_states_are_the_same_run(tmp_pat
 
 
 @pytest.mark.slow
+def test_two_lockstep_runs_with_most_commands_lost_are_the_same_run(tmp_path, spawned):
+    """Robots go half a second without a command here, and the body node sends their bodies standing
+    beside their agents' states of the same ticks; neighbours take the body's whichever comes first
+    (agent.neighbour_table), or the two runs part (they did, seeds 3 and 4, before they did)."""
+    args = ("--robots", "8", "--clock", "lockstep", "--seed", "3", "--faults", "cmd:drop=0.6", "--duration", "8")
+    metrics, first, second = two_runs_at_once(spawned, tmp_path, *args)
+    assert metrics["contacts"] == 0 and metrics["missed_ticks"] > 0
+    assert len(first["t"]) == len(second["t"])
+    assert np.array_equal(first["pose"], second["pose"])
+
+
+@pytest.mark.slow
 def test_two_lockstep_runs_with_lost_commands_are_the_same_run(tmp_path, spawned):
     """The world draws a command's fate from the command itself, and does not wait out its deadline
     for one that came and was lost (a robot without its command stands for the tick)."""

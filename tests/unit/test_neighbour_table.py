@@ -117,6 +117,20 @@ def test_the_table_keeps_each_robots_two_newest_states_whatever_the_arrival_orde
     assert [s.tick for s in table.latest_before(7)] == [6] * 5
 
 
+def test_the_body_nodes_standing_body_wins_over_its_agents_state_of_the_tick_in_either_order():
+    """A silent agent's body is sent standing by the body node (sim.node.body); a command lost after all
+    may leave its agent's state of the same tick too. Kept by arrival, a lock-step run would depend on
+    which came first; the body's is kept, as the body is what stands there."""
+    agent = _state(1, 0.5, 0.0, tick=3)
+    body = State(1, 3, 0.3, 0.5, 0.0, 0.0, 0.0, 0.05, 0.0, 0.0, -1, State.DYNAMIC)
+    for first, second in [(agent, body), (body, agent)]:
+        table = NeighbourTable(0.1)
+        table.update(_state(1, 0.4, 0.0, tick=2))
+        table.update(first)
+        table.update(second)
+        assert [s.tick for s in table._states[1]] == [2, 3] and table.latest_before(4) == [body]
+
+
 def test_robots_whose_newest_state_left_the_cells_heard_are_forgotten():
     table = NeighbourTable(0.1)
     for robot, x in enumerate([0.1, 0.9, 1.1, -0.1, 2.5]):
