@@ -44,7 +44,7 @@ class RobotParams:
     goal_tolerance: float = 0.01  # a robot within this distance of its goal has arrived
     noise_bound: float = 0.01  # bound on the relative tracking error of two robots (3.5 sigma of 2 x 2 mm)
     stale_after: float = 0.5  # a neighbour not heard from this long is an obstacle; near, we stop (control._unsure)
-    forget_after: float = 2.0  # ... this long, and beyond neighbour_dist: forgotten (agent.neighbour_table)
+    forget_after: float = 2.0  # ... this long, and out of touch of our robots: forgotten (agent.neighbour_table)
     # Goal assignment (paper 5.1) and deadlocks (5.5.5); costs in m^2 (squared distance, eq. 7)
     assign_eps: float = 1e-3  # epsilon_A: the agreed assignment costs at most N epsilon_A over the optimum
     assign_hysteresis: float = 5e-3  # Delta C: keep the goal unless another is better by this much

@@ -369,10 +369,10 @@ class BodyNode:
             return []
         r = self.params.radius
         silent = (self.last_cmd_tick >= 0) & ((self.tick - self.last_cmd_tick) * self.dt > self.params.stale_after)
-        dead = np.flatnonzero(self.ever_live & (~self.live | silent) & self.backend.tracked)
+        standing = np.flatnonzero(self.ever_live & (~self.live | silent) & self.backend.tracked)
         return [
             State(int(i), self.tick, t, float(x), float(y), 0.0, 0.0, r, 0.0, 0.0, -1, State.DYNAMIC)
-            for i, (x, y) in zip(dead, measured[dead, :2])
+            for i, (x, y) in zip(standing, measured[standing, :2])
         ]
 
     def _publish_before_start(self) -> None:
