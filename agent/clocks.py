@@ -6,12 +6,13 @@ import bisect
 import math
 import time
 from collections import deque
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from transport.bus import Inbox
-from transport.codec import BEFORE_START, Goals, Pose, State, Tick
+from transport.codec import BEFORE_START, START_TICK, Goals, Pose, State, Tick, as_sent
 from transport.plausible import Clock
 
 from .core.params import RobotParams
@@ -160,6 +161,14 @@ class LockStep(HostClock):
             time.sleep(self.hello_every / 2)
             for _, state in host.inbox.state.drain():
                 host.on_state(state)
+        # where each stands at tick 0, as a state of the tick before: one heard no more goes stale and ours
+        # stand for it (agent.core.control). Ours and those expected only, whatever else came by when: every
+        # run the same, and as the central engine's link starts (InProcessLink.start)
+        mine = [] if len(host.config.robots) == 1 else self.hellos  # a robot alone keeps no state of itself
+        for hello in [*mine, *(self.greeted[r] for r in sorted(expected) if r in self.greeted)]:
+            x, y, radius = as_sent([hello.x, hello.y, hello.radius]).tolist()  # ours as the others hear them
+            start = replace(hello, tick=START_TICK, stamp=START_TICK * host.params.dt, x=x, y=y, radius=radius)
+            host.table.update(start)
 
     def say_hello(self) -> None:
         if self.hellos and time.monotonic() - self.last_hello >= self.hello_every:

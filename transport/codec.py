@@ -136,6 +136,7 @@ class Message:
 
 
 BEFORE_START = 0xFFFFFFFF  # tick of a frame sent before the robots' agents are live (poses, hellos)
+START_TICK = -1  # a hello as a neighbour's state: where it stands before tick 0 (never on the wire)
 
 
 @dataclass

@@ -41,7 +41,7 @@ from sim.central.stepclock import StepClock
 from sim.outputs.rundir import RunDir
 from sim.outputs.stream import SCRATCH, TickRecorder
 from sim.outputs.write import RunOutcome, write_run
-from transport.codec import Goals, as_sent, decode
+from transport.codec import START_TICK, Goals, as_sent, decode
 
 
 def optimal_assignment(
@@ -364,6 +364,10 @@ def simulate(
     converged = Convergence(scene.converge_hold if scene.ends_on_convergence else None)
     fallbacks, end_reason = 0, "duration"
     wall0 = last_say = time.time()
+    standing = _states(
+        params, world.poses, world.poses, np.zeros((scene.robots, 2)), START_TICK * params.dt, robots.movers
+    )
+    link.start(standing, robots.movers.cooperative)  # every robot but the scripted movers says hello
     for tick in range(steps + 1):
         clock.start()
         t = tick * params.dt

@@ -32,7 +32,18 @@ class InProcessLink:
         self.heard_stamp = np.full((n, n), -np.inf)  # [receiver, sender]: stamp of the newest state heard (-inf: none)
         self.heard_pos, self.heard_vel = np.zeros((n, n, 2)), np.zeros((n, n, 2))
         self.delayed: tuple[np.ndarray, Heard] | None = None  # states of the last tick that arrive a tick late
+        self._template: Heard | None = None  # every robot's ids, radii and kinds (impaired)
         self.on_time = self.draws = 0
+
+    def start(self, states: Heard, greeted: np.ndarray) -> None:
+        """Before tick 0: every robot (rows by id) where it stands; those ``greeted`` are heard by all, as
+        lock-step agents hear their neighbours' hellos before they start (agent.clocks.LockStep.hear_hello)."""
+        if not self.impaired:
+            self.last = Heard(*(np.asarray(x)[greeted] for x in vars(states).values()))
+            return
+        self._template = states
+        self.heard_stamp[:, greeted] = states.stamp[greeted]
+        self.heard_pos[:, greeted], self.heard_vel[:, greeted] = states.position[greeted], states.velocity[greeted]
 
     def broadcast(self, states: Heard) -> None:
         """Every robot's state of this tick (rows by robot id)."""
@@ -64,7 +75,7 @@ class InProcessLink:
                 return NeighbourStates.empty(len(robot_ids))
             return nearest_heard(robot_ids, position, stamp, self.last, neighbour_dist, max_neighbours, self.threads)
         out = NeighbourStates.empty(len(robot_ids), max_neighbours)
-        if self.delayed is None:
+        if self._template is None:
             return out
         t = self._template
         for b, i in enumerate(np.asarray(robot_ids).tolist()):

@@ -141,7 +141,7 @@ region_counts = { 0 = 10, 1 = 4 }
 hold = 0.5
 [[steps]]
 shape = "disk_and_line"
-region_counts = { 0 = 6, 1 = 8 }
+region_counts = { 0 = 4, 1 = 10 }
 hold = 3.0
 """
 )

@@ -15,7 +15,7 @@ import time
 from agent.core.params import RobotParams
 from agent.runtime import AgentHost, HostConfig
 from transport.bus import Bus
-from transport.codec import BEFORE_START, Pose, Poses
+from transport.codec import BEFORE_START, START_TICK, Pose, Poses, as_sent
 from transport.session import client_of, loopback_router, open_session
 
 WHERE = {0: (0.0, 0.0), 1: (0.3, 0.0)}  # within state reach of each other
@@ -44,10 +44,11 @@ def test_a_host_is_alive_only_after_its_neighbours_hello_and_greets_until_its_fi
             threading.Thread(target=tracker, args=(world, stop), daemon=True).start()
             a = AgentHost(bus_a, HostConfig(robots=[0], params=params, lockstep=True, greet=[1]))
             b = AgentHost(bus_b, HostConfig(robots=[1], params=params, lockstep=True, greet=[0]))
-            started = {}
+            started, at_start = {}, {}
 
             def host(name: str, h: AgentHost) -> None:  # as agent/__main__.py: start, then run
                 started[name] = h.start(timeout=20.0)
+                at_start[name] = [(s.robot, s.tick, s.x, s.y, s.vx, s.vy) for s in h.table.latest_before(0)]
                 if started[name]:
                     h.run()
 
@@ -67,6 +68,10 @@ def test_a_host_is_alive_only_after_its_neighbours_hello_and_greets_until_its_fi
             thread_b.join(timeout=5.0)
             assert came == {"0", "1"}, f"alive: {sorted(came)}"
             assert 1 in a.clock.greeted and 0 in b.clock.greeted
+            # each hello is the neighbour's state from before tick 0, standing where it starts: unheard
+            # after, it goes stale and the robot stands for it, as the central engine's link starts
+            for name, other in (("a", 1), ("b", 0)):
+                assert at_start[name] == [(other, START_TICK, *as_sent(WHERE[other]), 0.0, 0.0)], at_start
     finally:
         stop.set()
         session.close()

@@ -10,9 +10,13 @@ holonomic cases below (5 of 8 seeds at 30% loss, 50% late).
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
+from agent.neighbour_table import Heard
+from sim.central.link import InProcessLink
 from sim.central.lossy import circle_crossing, run_lossy
+from transport.codec import START_TICK
 
 
 @pytest.mark.parametrize(
@@ -45,3 +49,19 @@ def test_with_nine_states_in_ten_lost_robots_stop_rather_than_touch(kinematics, 
 def test_bad_probabilities_are_refused():
     with pytest.raises(ValueError, match="probabilities"):
         run_lossy(circle_crossing(3, "holonomic", 0), drop=0.6, late=0.5)
+
+
+@pytest.mark.parametrize("drop", [0.0, 0.9])
+def test_at_tick_0_every_robot_knows_where_the_others_greeted_from_as_agents_do(drop):
+    """Lock-step agents hear their neighbours' hellos before tick 0 and keep them as states of the tick
+    before (agent.clocks.LockStep.greet); the in-process link starts the same, lossy or not, so a
+    neighbour never heard again goes stale, and a scripted mover, which says no hello, is unknown."""
+    positions = np.array([[0.0, 0.0], [0.3, 0.0], [0.0, 0.3]])
+    start = Heard(
+        np.arange(3), positions, np.zeros((3, 2)), np.full(3, 0.05), np.full(3, START_TICK * 0.1), np.ones(3, bool)
+    )
+    link = InProcessLink(3, drop=drop, late=0.0, seed=1)
+    link.start(start, greeted=np.array([True, True, False]))  # robot 2: a mover
+    heard = link.neighbours(np.arange(3), positions, 0.0, 0.6, 10)
+    assert heard.valid.sum(axis=1).tolist() == [1, 1, 2]  # 0 and 1 know each other; the mover knows both
+    assert np.allclose(heard.age[heard.valid], 0.1) and np.allclose(heard.velocity[heard.valid], 0.0)
