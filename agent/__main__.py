@@ -71,8 +71,9 @@ def main(argv: list[str] | None = None) -> int:
         one_malloc_arena()  # before zenoh's threads start
     try:
         settings, name = session.settings_from_options(options), f"agent{config.robots[0]}"
-        hears_itself = len(config.robots) > 1  # a host's robots hear each other through the bus
-        bus = Bus(settings, config.display, faults=faults, seed=config.seed, name=name, hears_itself=hears_itself)
+        bus = Bus(
+            settings, config.display, faults=faults, seed=config.seed, name=name, hears_itself=config.hears_itself
+        )
     except TransportError as err:
         print(f"agent: error: {err}", file=sys.stderr)
         return 2

@@ -164,7 +164,7 @@ class LockStep(HostClock):
         # where each stands at tick 0, as a state of the tick before: one heard no more goes stale and ours
         # stand for it (agent.core.control). Ours and those expected only, whatever else came by when: every
         # run the same, and as the central engine's link starts (InProcessLink.start)
-        mine = [] if len(host.config.robots) == 1 else self.hellos  # a robot alone keeps no state of itself
+        mine = self.hellos if host.config.hears_itself else []  # a robot alone keeps no state of itself
         for hello in [*mine, *(self.greeted[r] for r in sorted(expected) if r in self.greeted)]:
             x, y, radius = as_sent([hello.x, hello.y, hello.radius]).tolist()  # ours as the others hear them
             start = replace(hello, tick=START_TICK, stamp=START_TICK * host.params.dt, x=x, y=y, radius=radius)

@@ -41,13 +41,13 @@ class NeighbourTable:
         if not stamp_agrees(state.tick, state.stamp, self.dt):
             return INCONSISTENT
         kept = self._states.setdefault(state.robot, [])
-        same = [k for k, s in enumerate(kept) if s.tick == state.tick]
-        if same:
-            # a duplicate; or the body node's standing body (its agent silent) beside its agent's state of the
-            # tick: the body's wins whichever came first, as the body stands, and a lock-step run stays one run
-            if state.flags & State.DYNAMIC and not kept[same[0]].flags & State.DYNAMIC:
-                kept[same[0]] = state
-            return None
+        for k, known in enumerate(kept):
+            if known.tick == state.tick:
+                # a duplicate; or the body node's standing body (its agent silent) beside its agent's state of
+                # the tick: the body's wins whichever came first, as the body stands, and a run stays one run
+                if state.flags & State.DYNAMIC and not known.flags & State.DYNAMIC:
+                    kept[k] = state
+                return None
         kept.append(state)
         if len(kept) > 1 and state.tick < kept[-2].tick:  # out of order (rare): sort only then
             kept.sort(key=attrgetter("tick"))

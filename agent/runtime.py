@@ -79,6 +79,11 @@ class HostConfig:
         data["reach"] = math.inf if data.get("reach") is None else float(data["reach"])
         return cls(**{f.name: data[f.name] for f in fields(cls) if f.name in data})
 
+    @property
+    def hears_itself(self) -> bool:
+        """A host's robots hear each other through the bus; a robot alone does not hear its own states."""
+        return len(self.robots) > 1
+
     def to_json(self) -> str:
         data = {f.name: getattr(self, f.name) for f in fields(self)}
         data["params"] = self.params.to_dict()
@@ -483,9 +488,9 @@ class AgentHost:
         if msg.tick == BEFORE_START:  # a hello (lock-step start-up), not a state to steer by
             self.clock.hear_hello(msg)
             return
-        if len(self.config.robots) == 1 and msg.robot in self.robots:
-            # the body node's standing body of our robot alone, which does not hear its own states: kept, it
-            # would make a lock-step tick wait for our state of the last tick, as for a neighbour's
+        if not self.config.hears_itself and msg.robot in self.robots:
+            # the body node's standing body of our robot alone: kept, it would make a lock-step tick wait
+            # for our state of the last tick, which never comes, as for a neighbour's
             return
         why = self.table.update(msg)
         if why is not None:

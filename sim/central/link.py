@@ -37,7 +37,7 @@ class InProcessLink:
 
     def start(self, states: Heard, greeted: np.ndarray) -> None:
         """Before tick 0: every robot (rows by id) where it stands; those ``greeted`` are heard by all, as
-        lock-step agents hear their neighbours' hellos before they start (agent.clocks.LockStep.hear_hello)."""
+        lock-step agents keep their neighbours' hellos before they start (agent.clocks.LockStep.greet)."""
         if not self.impaired:
             self.last = Heard(*(np.asarray(x)[greeted] for x in vars(states).values()))
             return

@@ -87,8 +87,9 @@ class Tally:
 class LockStep:
     """Publish tick k, wait until every agent live when it went out answered it or a deadline passes (a missed
     tick), then advance one period. An agent heard alive meanwhile is waited for from the next tick: it may
-    have missed this tick's pose (a restarted one subscribes as the world goes on). The deadline runs from the last auction message heard, or while a starting step's
-    goal set is unheard; a tick at which the scene kills robots waits until their agents are gone."""
+    have missed this tick's pose (a restarted one subscribes as the world goes on). The deadline runs from
+    the last auction message heard, or while a starting step's goal set is unheard; a tick at which the
+    scene kills robots waits until their agents are gone."""
 
     def __init__(self, bus: Bus, deadline: float) -> None:
         self.deadline = deadline
