@@ -8,12 +8,14 @@ from operator import attrgetter
 
 import numpy as np
 
-from transport.codec import State
+from transport.codec import BEFORE_START, State
 from transport.keys import cells_of
 from transport.plausible import AHEAD, FUTURE, INCONSISTENT, stamp_agrees
 
 from .core.grid import nearest, neighbour_rows
+from .core.params import RobotParams
 from .core.step import NeighbourStates
+from .loop import Sensed
 
 
 class NeighbourTable:
@@ -95,31 +97,70 @@ class NeighbourTable:
         return [kept[-1] if kept[-1].tick < tick else kept[0] for kept in self._states.values() if kept[0].tick < tick]
 
     def gather(
-        self,
-        robot_ids: list[int],
-        positions: np.ndarray,
-        stamp: float,
-        tick: int,
-        neighbour_dist: float,
-        max_neighbours: int,
-        stopped: dict[int, float] | None = None,
+        self, sensed: Sensed, heard_within: float, stopped: dict[int, float], bodies: np.ndarray | None
     ) -> NeighbourStates:
-        """Padded neighbour arrays for a batch; ``stopped``: dead agents' robots (static, grown by a last move)."""
-        states = self.latest_before(tick)
-        if not states:
-            return NeighbourStates.empty(len(robot_ids))
+        """Padded neighbour arrays for a batch: the states heard within ``heard_within``; ``stopped``: dead
+        agents' robots (static, grown by a last move); ``bodies``: where the tracker saw robots this tick."""
+        states = self.latest_before(sensed.tick)
         rows = np.array(
             [(s.robot, s.x, s.y, s.vx, s.vy, s.radius, s.stamp, s.flags & State.DYNAMIC) for s in states], float
-        )  # one pass over the states, one array
+        ).reshape(-1, 8)  # one pass over the states, one array
         heard = Heard(
             rows[:, 0].astype(np.int64), rows[:, 1:3], rows[:, 3:5], rows[:, 5].copy(), rows[:, 6], rows[:, 7] == 0
         )
-        if stopped:
-            for i, s in enumerate(states):
-                if s.robot in stopped:
-                    heard.velocity[i], heard.stamp[i], heard.cooperative[i] = 0.0, stamp, False
-                    heard.radius[i] += stopped[s.robot]
-        return nearest_heard(robot_ids, positions, stamp, heard, neighbour_dist, max_neighbours)
+        for i, s in enumerate(states):
+            if s.robot in stopped:
+                heard.velocity[i], heard.stamp[i], heard.cooperative[i] = 0.0, sensed.stamp, False
+                heard.radius[i] += stopped[s.robot]
+        if bodies is not None:
+            heard = with_bodies(heard, bodies, sensed.stamp, sensed.params)
+        p = sensed.params
+        return nearest_heard(sensed.ids, sensed.position, sensed.stamp, heard, heard_within, p.max_neighbours)
+
+
+class TrackedBodies:
+    """Where the tracker saw other robots at the last few ticks: a host hears every robot's pose in its
+    frames, a robot alone a frame of the bodies near it (transport.keys.Keys.near). A neighbour whose
+    states are all lost is then still seen, and not driven into (with_bodies)."""
+
+    KEPT = 8  # ticks heard last: a step may act on a tick after later poses arrived
+
+    def __init__(self) -> None:
+        self._by_tick: dict[int, np.ndarray] = {}
+
+    def hear(self, tick: int, records: np.ndarray) -> None:
+        """A Poses frame's records of a tick (on zenoh's thread: the dict is replaced whole)."""
+        if tick == BEFORE_START:
+            return
+        by_tick = {t: r for t, r in self._by_tick.items() if t != tick}
+        by_tick[tick] = records
+        self._by_tick = dict(list(by_tick.items())[-self.KEPT :])
+
+    def at(self, tick: int) -> np.ndarray | None:
+        """The Poses records the tracker sent of ``tick`` (None: none heard)."""
+        return self._by_tick.get(tick)
+
+
+def with_bodies(heard: Heard, bodies: np.ndarray, stamp: float, params: RobotParams) -> Heard:
+    """``heard``, and each body the tracker saw (``bodies``: Poses records) of a robot with no state newer
+    than ``stale_after``, in place of any older state: where it was seen, standing, not cooperating, and
+    stale by one tick. Its velocity unknown, robots steer around it as around a stale neighbour, and stand
+    where it may touch them (agent.core.control), rather than drive into a robot whose states were lost."""
+    fresh = heard.ids[stamp - heard.stamp <= params.stale_after]
+    seen = bodies[~np.isin(bodies["robot"], fresh)]
+    if not len(seen):
+        return heard
+    ids = seen["robot"].astype(np.int64)
+    kept = ~np.isin(heard.ids, ids)
+    n = len(ids)
+    return Heard(
+        np.concatenate([heard.ids[kept], ids]),
+        np.concatenate([heard.position[kept], np.stack([seen["x"], seen["y"]], axis=1).astype(float)]),
+        np.concatenate([heard.velocity[kept], np.zeros((n, 2))]),
+        np.concatenate([heard.radius[kept], np.full(n, params.radius)]),
+        np.concatenate([heard.stamp[kept], np.full(n, stamp - params.stale_after - params.dt)]),
+        np.concatenate([heard.cooperative[kept], np.zeros(n, bool)]),
+    )
 
 
 @dataclass

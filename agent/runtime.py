@@ -33,7 +33,7 @@ from .core.step import NeighbourStates, settings_of, static_segments
 from .goal_sets import motion_of, timing_of
 from .held_goals import HeldGoals
 from .loop import Sensed
-from .neighbour_table import NeighbourTable
+from .neighbour_table import NeighbourTable, TrackedBodies
 from .pose_trust import PoseTrust
 
 GOAL_SETS_KEPT = 4  # goal sets remembered (an agreed assignment may still be of an older epoch)
@@ -163,6 +163,7 @@ class Inboxes:
     """What a host hears: its robots' poses, its neighbours' states (by cell), the goal sets, whose agents died."""
 
     pose: Inbox[Pose]
+    bodies: TrackedBodies  # where the tracker saw the others, from the pose frames
     state: Inbox[State]
     cells: CellSubscriptions
     goals: Inbox[Goals]
@@ -172,8 +173,10 @@ class Inboxes:
     def of(cls, bus: Bus, config: HostConfig, own: np.ndarray) -> Inboxes:
         # a host keeps its rows of the tracker's frames (a subscription per robot is a thread in zenoh-python)
         keys = bus.keys
-        pose = bus.inbox(Pose, only=own)
-        for key in [keys.poses] if config.frames else [keys.pose(r) for r in config.robots]:
+        pose, bodies = bus.inbox(Pose, only=own), TrackedBodies()
+        pose.bodies = bodies.hear
+        alone = [key(r) for r in config.robots for key in (keys.near, keys.pose)]  # near first: sent first
+        for key in [keys.poses] if config.frames else alone:
             bus.subscribe_into(key, pose)
         state = bus.inbox(State, pulled=True)  # fed by the spatial cells around the robots ...
         reach = 3 if config.lockstep else 2
@@ -186,7 +189,7 @@ class Inboxes:
         for target in () if everyone else cells.targets:
             bus.subscribe_into(keys.state_of(target), state)
         goals = bus.subscribe(keys.all_of("goals"), Goals)
-        return cls(pose, state, cells, goals, Departures(bus.watch_alive("agent")))
+        return cls(pose, bodies, state, cells, goals, Departures(bus.watch_alive("agent")))
 
 
 def window_covers_a_third(arena: tuple[float, float, float, float] | None, cell_size: float, reach: int) -> bool:
@@ -614,10 +617,7 @@ class AgentHost:
         # a dead robot may have moved one period after its last state
         stopped = {r: p.v_max * p.dt for r in self.inbox.departed.dead}
         heard_within = min(p.neighbour_dist, self.config.reach)  # a robot hears states only within its range
-        ids = sensed.ids.tolist()
-        return self.table.gather(
-            ids, sensed.position, sensed.stamp, sensed.tick, heard_within, p.max_neighbours, stopped
-        )
+        return self.table.gather(sensed, heard_within, stopped, self.inbox.bodies.at(sensed.tick))
 
     def send(self, sensed: Sensed, decision: Decision) -> None:
         """Each robot's state and command on the bus, then the cells around the robots."""

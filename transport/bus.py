@@ -163,6 +163,9 @@ class Inbox(Generic[T]):
         self.seen: dict[int, int] | None = None
         self.pulled = pulled
         self.channels: list[Any] = []  # pulled: the subscribers whose channels feed this inbox
+        # told every record of a frame that names no one robot (tick, records), before ``keep`` picks: a
+        # host hears where the tracker sees every body (agent.neighbour_table.TrackedBodies)
+        self.bodies: Callable[[int, np.ndarray], None] | None = None
 
     def _pull(self) -> None:
         """Pulled: take in every sample waiting in the channels, on the caller's thread."""
@@ -181,6 +184,12 @@ class Inbox(Generic[T]):
         """A frame's (tick, records ``keep`` keeps); None if malformed, or if the key names one robot and
         the frame holds anything but its record (a damaged robot id would make it another robot's)."""
         keep, alone = self.keep, Keys.robot_alone(key)
+        if self.bodies is not None and alone is None:
+            frame = decode(payload, cast("type[Frame]", self.frame), self.drops)
+            if frame is None:
+                return None
+            self.bodies(frame.tick, frame.records)
+            return frame.tick, frame.messages(keep)
         got = decode_views(payload, cast("type[Frame]", self.frame), self.drops, keep if alone is None else None)
         if got is None or alone is None:
             return got
@@ -380,8 +389,12 @@ class Bus:
     def publish(self, key: str, msg: Message) -> None:
         self.put(key, msg.encode(), msg.NAME)
 
-    def publish_poses(self, tick: int, stamp: float, robots: np.ndarray, poses: np.ndarray, frame: bool) -> None:
-        """A tick's poses (x, y, theta rows): one frame for agent hosts (``frame``), else one per robot's key."""
+    def publish_poses(
+        self, tick: int, stamp: float, robots: np.ndarray, poses: np.ndarray, frame: bool,
+        near: list[np.ndarray] | None = None,
+    ) -> None:  # fmt: skip
+        """A tick's poses (x, y, theta rows): one frame for agent hosts (``frame``), else one per robot's key,
+        each after a frame of the bodies near it (``near[i]``: their rows), so that it has them when it steps."""
         records = np.zeros(len(robots), Poses.RECORD)
         records["robot"] = robots
         records["x"], records["y"], records["theta"] = np.asarray(poses, float).reshape(-1, 3).T
@@ -389,7 +402,10 @@ class Bus:
             self.publish(self.keys.poses, Poses(tick, stamp, records))
             return
         for i in range(len(records)):
-            self.publish(self.keys.pose(int(records["robot"][i])), Poses(tick, stamp, records[i : i + 1]))
+            robot = int(records["robot"][i])
+            if near is not None and len(near[i]):
+                self.publish(self.keys.near(robot), Poses(tick, stamp, records[near[i]]))
+            self.publish(self.keys.pose(robot), Poses(tick, stamp, records[i : i + 1]))
 
     def publish_states(self, tick: int, stamp: float, states: list[State], cell_size: float, first: int | None) -> None:
         """Broadcast states of a tick: one frame on ``state/<first>`` that every agent host hears

@@ -69,6 +69,11 @@ class Keys:
         """One robot's frame of one (a robot alone in its process hears only its own)."""
         return f"{self.root}/pose/{robot}"
 
+    def near(self, robot: int) -> str:
+        """A Poses frame of the bodies the tracker sees near a robot alone (it hears no other pose): what it
+        falls back on for a neighbour whose states it has not heard (agent.neighbour_table.TrackedBodies)."""
+        return f"{self.root}/near/{robot}"
+
     # agent broadcasts: every key of kind 'state' carries a States frame
     def state(self, cell: tuple[int, int], robot: int) -> str:
         """A robot alone: its frame of one, under its spatial cell (neighbours subscribe to cells)."""

@@ -289,8 +289,7 @@ class Central:
         lap = self.auction.clock.lap
         self.world.check()  # the contacts of the last step, while the auction runs beside
         lap("world")
-        p = self.params
-        heard = self.link.neighbours(sensed.ids, sensed.position, sensed.stamp, p.neighbour_dist, p.max_neighbours)
+        heard = self.link.neighbours(sensed)
         lap("neighbours")
         return heard
 

@@ -2,15 +2,20 @@
 
 A state of tick k reaches the others at tick k + 1, as over the bus in lock-step. A seeded draw per
 (receiver, sender) and tick may lose it (``drop``) or make it a tick late (``late``), as under
-``--faults state:drop=P,delay=S``; ``reach`` limits whom a robot hears.
+``--faults state:drop=P,delay=S``; ``reach`` limits whom a robot hears. A robot not heard for long
+is seen where the tracker sees it, as agents see it in the tracker's frames (with_bodies).
 """
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 from agent.core.step import NeighbourStates
-from agent.neighbour_table import Heard, nearest_heard
+from agent.loop import Sensed
+from agent.neighbour_table import Heard, nearest_heard, with_bodies
+from transport.codec import Poses
 
 
 class InProcessLink:
@@ -38,15 +43,16 @@ class InProcessLink:
     def start(self, states: Heard, greeted: np.ndarray) -> None:
         """Before tick 0: every robot (rows by id) where it stands; those ``greeted`` are heard by all, as
         lock-step agents keep their neighbours' hellos before they start (agent.clocks.LockStep.greet)."""
+        self._template = states
         if not self.impaired:
             self.last = Heard(*(np.asarray(x)[greeted] for x in vars(states).values()))
             return
-        self._template = states
         self.heard_stamp[:, greeted] = states.stamp[greeted]
         self.heard_pos[:, greeted], self.heard_vel[:, greeted] = states.position[greeted], states.velocity[greeted]
 
     def broadcast(self, states: Heard) -> None:
         """Every robot's state of this tick (rows by robot id)."""
+        self._template = states
         if not self.impaired:
             self.last = states
             return
@@ -65,20 +71,20 @@ class InProcessLink:
         self.heard_pos = np.where(arrive[..., None], states.position[None], self.heard_pos)
         self.heard_vel = np.where(arrive[..., None], states.velocity[None], self.heard_vel)
 
-    def neighbours(
-        self, robot_ids: np.ndarray, position: np.ndarray, stamp: float, neighbour_dist: float, max_neighbours: int
-    ) -> NeighbourStates:
-        """Each robot's nearest neighbours as it last heard them, by the agents' rule (nearest_heard)."""
-        neighbour_dist = min(neighbour_dist, self.reach)
-        if not self.impaired:
-            if self.last is None:
-                return NeighbourStates.empty(len(robot_ids))
-            return nearest_heard(robot_ids, position, stamp, self.last, neighbour_dist, max_neighbours, self.threads)
-        out = NeighbourStates.empty(len(robot_ids), max_neighbours)
+    def neighbours(self, sensed: Sensed) -> NeighbourStates:
+        """Each robot's nearest neighbours as it last heard them, by the agents' rule (nearest_heard), and
+        where the tracker sees those it has not heard for long (with_bodies)."""
+        p, stamp = sensed.params, sensed.stamp
+        within = min(p.neighbour_dist, self.reach)
         if self._template is None:
-            return out
+            return NeighbourStates.empty(len(sensed.ids), p.max_neighbours)
+        bodies = self._bodies(sensed)
+        if not self.impaired:
+            heard = with_bodies(cast(Heard, self.last), bodies, stamp, p)
+            return nearest_heard(sensed.ids, sensed.position, stamp, heard, within, p.max_neighbours, self.threads)
+        out = NeighbourStates.empty(len(sensed.ids), p.max_neighbours)
         t = self._template
-        for b, i in enumerate(np.asarray(robot_ids).tolist()):
+        for b, i in enumerate(np.asarray(sensed.ids).tolist()):
             known = np.isfinite(self.heard_stamp[i])
             heard = Heard(
                 t.ids[known],
@@ -88,11 +94,23 @@ class InProcessLink:
                 self.heard_stamp[i, known],
                 t.cooperative[known],
             )
-            one = nearest_heard([i], position[b : b + 1], stamp, heard, neighbour_dist, max_neighbours)
+            heard = with_bodies(heard, bodies, stamp, p)
+            one = nearest_heard([i], sensed.position[b : b + 1], stamp, heard, within, p.max_neighbours)
             k = one.position.shape[1]
             for name in ("position", "velocity", "radius", "age", "valid", "cooperative"):
                 getattr(out, name)[b, :k] = getattr(one, name)[0]
         return out
+
+    def _bodies(self, sensed: Sensed) -> np.ndarray:
+        """Where the tracker sees the agents' robots (not the scripted movers), as the Poses records of its
+        frames: ``sensed`` holds every robot, rows by id."""
+        t = cast(Heard, self._template)
+        robots = t.ids[t.cooperative]
+        records = np.zeros(len(robots), Poses.RECORD)
+        records["robot"] = robots
+        at = sensed.position[np.searchsorted(sensed.ids, robots)]
+        records["x"], records["y"] = at[:, 0], at[:, 1]
+        return records
 
     @property
     def heard_on_time(self) -> float:

@@ -20,6 +20,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from agent.core.grid import nearest
 from agent.core.params import RobotParams
 from coordinator.scene import Scene, events_of, take_due
 from sim.args import format_ids
@@ -354,13 +355,23 @@ class BodyNode:
             # The tracker sees bodies, not agents: a robot whose agent died is still tracked, so the
             # coordinator learns where its body stays and keeps the goals clear of it (5.1.2).
             shown = np.flatnonzero(self.ever_live & self.backend.tracked)
-            self.bus.publish_poses(self.tick, t, shown, measured[shown], self.pose_frames)
+            near = None if self.pose_frames else self._near(shown, measured[shown])
+            self.bus.publish_poses(self.tick, t, shown, measured[shown], self.pose_frames, near)
             self._publish_before_start()
         # the movers' states, as agents broadcast theirs (one frame for agent hosts, or each under its
         # cell), and the bodies of dead or silent agents as obstacles (_standing_bodies)
         states = self.backend.own_movers(self.tick, t) + self._standing_bodies(measured, t)
         first = states[0].robot if self.pose_frames and states else None
         self.bus.publish_states(self.tick, t, states, self.params.cell_size, first)
+
+    def _near(self, robots: np.ndarray, poses: np.ndarray) -> list[np.ndarray]:
+        """For robots alone, who hear no other pose: the rows of the bodies each picks its neighbours
+        from (the nearest max_neighbours within neighbour_dist, positions as the wire rounds them), which
+        it falls back on for neighbours whose states it has lost (agent.neighbour_table.with_bodies)."""
+        p, ids = self.params, robots.astype(np.int64)
+        xy = np.ascontiguousarray(poses[:, :2], np.float32).astype(float)
+        rows = nearest(xy, ids, xy, ids, p.neighbour_dist, p.max_neighbours)
+        return [row[row >= 0] for row in rows]
 
     def _standing_bodies(self, measured: np.ndarray | None, t: float) -> list[State]:
         """A state per robot whose agent died, or lives but sent no command for ``stale_after`` (hung): its

@@ -79,20 +79,22 @@ def test_fifty_holonomic(tmp_path, layout, goals):
 
 @pytest.mark.slow
 @pytest.mark.parametrize(
-    "kinematics, robots, k, faults",
+    "kinematics, robots, k, faults, clock",
     [
-        ("diffdrive", 14, "1", "state:drop=0.1,delay=0.05"),
-        ("holonomic", 50, "5", "state:drop=0.1,delay=0.05"),
+        ("diffdrive", 14, "1", "state:drop=0.1,delay=0.05", "lockstep"),
+        ("holonomic", 50, "5", "state:drop=0.1,delay=0.05", "lockstep"),
         # most neighbours stale, some never heard since their hellos: robots stand for them (3 contacts
         # with 70 % lost before they did; 4 with 90 % before the hellos counted as states)
-        ("holonomic", 20, "5", "state:drop=0.9"),
+        ("holonomic", 20, "5", "state:drop=0.9", "lockstep"),
+        # real time, no hellos: neighbours never heard are seen where the tracker sees them (contacts
+        # before they were)
+        ("holonomic", 20, "1", "state:drop=0.99", "realtime"),
     ],
 )
-def test_loss_and_delay_on_states_cause_no_contact(tmp_path, kinematics, robots, k, faults):
+def test_loss_and_delay_on_states_cause_no_contact(tmp_path, kinematics, robots, k, faults, clock):
     # 25 s: past the crowd in the circle's centre, where the states lost and late matter
-    m, _ = run_scene(
-        tmp_path, scene(robots, kinematics, CIRCLE, "antipodal", 25), "--faults", faults, "--agents-per-process", k
-    )
+    flags = ("--faults", faults, "--agents-per-process", k, "--clock", clock)
+    m, _ = run_scene(tmp_path, scene(robots, kinematics, CIRCLE, "antipodal", 25), *flags)
     assert m["dropped_messages"].get("fault", 0) > 0  # the faults really happened
     assert m["contacts"] == 0, m["contact_events"][:5]
     assert m["min_clearance_m"] > 0

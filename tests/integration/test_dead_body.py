@@ -4,7 +4,8 @@ a standing command and dies without one state. Robot 0's goal is where robot 1's
 
 The agents knew only that robot 1's agent died, not where its body was: robot 0 drove into it. The body
 node now sends the body as a standing obstacle where the tracker sees it (sim.node.body); so it does for an
-agent that lives on but hangs, whose body the watchdog stopped."""
+agent that lives on but hangs, whose body the watchdog stopped. And the tracker's frame of the bodies near
+robot 0 shows it too (agent.neighbour_table.with_bodies): each way keeps robot 0 clear on its own."""
 
 from __future__ import annotations
 
@@ -43,10 +44,13 @@ def robot_one(bus: Bus, done: threading.Event, hangs: bool) -> None:
         bus.publish(bus.keys.cmd(1), Commands.one(cmd))
 
 
-def swap_past_a_dead_body(monkeypatch: pytest.MonkeyPatch, broadcast: bool, hangs: bool = False) -> dict:
-    """The world's statistics of the run (``min_clearance``: robot 0's closest approach to robot 1's body)."""
+def swap_past_a_dead_body(monkeypatch: pytest.MonkeyPatch, broadcast: bool, near: bool, hangs: bool = False) -> dict:
+    """The world's statistics of the run (``min_clearance``: robot 0's closest approach to robot 1's body);
+    without the ``broadcast`` of standing bodies, or without the tracker's frames of the bodies ``near``."""
     if not broadcast:
         monkeypatch.setattr(BodyNode, "_standing_bodies", lambda self, measured, t: [])
+    if not near:
+        monkeypatch.setattr(BodyNode, "_near", lambda self, robots, poses: [robots[:0]] * len(robots))
     scene = load_scene("swap", robots=2, seed=0, clock="lockstep", duration=12.0)
     router = loopback_router()
     with (
@@ -84,21 +88,26 @@ def swap_past_a_dead_body(monkeypatch: pytest.MonkeyPatch, broadcast: bool, hang
     return stats
 
 
-def test_a_robot_drives_around_the_body_of_an_agent_that_died_before_it_spoke(monkeypatch):
-    stats = swap_past_a_dead_body(monkeypatch, broadcast=True)
+@pytest.mark.parametrize("broadcast, near, came", [(True, False, 0.05), (False, True, 0.1)], ids=["broadcast", "near"])
+def test_a_robot_drives_around_the_body_of_an_agent_that_died_before_it_spoke(monkeypatch, broadcast, near, came):
+    """Either way of knowing the body keeps the robot clear: the body node's broadcast of it (a standing
+    obstacle), or the tracker's frame of the bodies near the robot (seen, its motion unknown, so the
+    robot keeps further off)."""
+    stats = swap_past_a_dead_body(monkeypatch, broadcast, near)
     assert stats["reason"] == "duration" and stats["contacts"] == [], stats
-    assert 0 < stats["min_clearance"] < 0.05, stats  # it came to the body (its goal is there), and kept clear
+    assert 0 < stats["min_clearance"] < came, stats  # it came to the body (its goal is there), and kept clear
 
 
-def test_without_the_broadcast_it_drives_into_the_body(monkeypatch):
-    """The check above can fail: the same run without the body node's broadcast has a contact."""
-    stats = swap_past_a_dead_body(monkeypatch, broadcast=False)
+def test_without_either_it_drives_into_the_body(monkeypatch):
+    """The check above can fail: the same run without the broadcast and the tracker's frame has a contact."""
+    stats = swap_past_a_dead_body(monkeypatch, broadcast=False, near=False)
     assert stats["contacts"], stats
 
 
 @pytest.mark.slow  # 120 ticks, each waiting its deadline for the hung agent's command
 def test_a_robot_drives_around_the_body_of_an_agent_that_hung_before_it_spoke(monkeypatch):
-    """Alive but silent, robot 1's agent is never heard; its body, which the watchdog stopped, is."""
-    stats = swap_past_a_dead_body(monkeypatch, broadcast=True, hangs=True)
+    """Alive but silent, robot 1's agent is never heard; its body, which the watchdog stopped, is (the
+    broadcast alone: the tracker's frame of the bodies near robot 0 would show it too)."""
+    stats = swap_past_a_dead_body(monkeypatch, broadcast=True, near=False, hangs=True)
     assert stats["reason"] == "duration" and stats["contacts"] == [], stats
     assert 0 < stats["min_clearance"] < 0.05, stats

@@ -13,6 +13,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from agent.core.params import EPUCK
+from agent.loop import Sensed
 from agent.neighbour_table import Heard
 from sim.central.link import InProcessLink
 from sim.central.lossy import circle_crossing, run_lossy
@@ -58,10 +60,12 @@ def test_at_tick_0_every_robot_knows_where_the_others_greeted_from_as_agents_do(
     neighbour never heard again goes stale, and a scripted mover, which says no hello, is unknown."""
     positions = np.array([[0.0, 0.0], [0.3, 0.0], [0.0, 0.3]])
     start = Heard(
-        np.arange(3), positions, np.zeros((3, 2)), np.full(3, 0.05), np.full(3, START_TICK * 0.1), np.ones(3, bool)
+        np.arange(3), positions, np.zeros((3, 2)), np.full(3, 0.05), np.full(3, START_TICK * 0.1), np.arange(3) < 2
     )
     link = InProcessLink(3, drop=drop, late=0.0, seed=1)
     link.start(start, greeted=np.array([True, True, False]))  # robot 2: a mover
-    heard = link.neighbours(np.arange(3), positions, 0.0, 0.6, 10)
+    params = EPUCK.with_(neighbour_dist=0.6, max_neighbours=10)
+    sensed = Sensed(np.arange(3), positions, np.zeros(3), 0, 0.0, params, np.zeros(3, bool))
+    heard = link.neighbours(sensed)
     assert heard.valid.sum(axis=1).tolist() == [1, 1, 2]  # 0 and 1 know each other; the mover knows both
     assert np.allclose(heard.age[heard.valid], 0.1) and np.allclose(heard.velocity[heard.valid], 0.0)

@@ -10,9 +10,20 @@ import numpy as np
 from agent.core.control import touch_reach
 from agent.core.params import EPUCK
 from agent.core.step import settings_of
-from agent.neighbour_table import NeighbourTable
+from agent.loop import Sensed
+from agent.neighbour_table import NeighbourTable, TrackedBodies
 from agent.runtime import bid_position
-from transport.codec import State
+from transport.codec import BEFORE_START, Poses, State
+
+
+def _sensed(ids, position, stamp: float, tick: int, max_neighbours: int = 10) -> Sensed:
+    n, p = len(ids), EPUCK.with_(max_neighbours=max_neighbours)
+    return Sensed(np.array(ids), np.asarray(position, float), np.zeros(n), tick, stamp, p, np.zeros(n, bool))
+
+
+def _gather(table, ids, position, stamp, tick, neighbour_dist, max_neighbours, stopped=None):
+    """NeighbourTable.gather for a batch of ``ids`` at ``position`` stepping ``tick`` at ``stamp``."""
+    return table.gather(_sensed(ids, position, stamp, tick, max_neighbours), neighbour_dist, stopped or {}, None)
 
 
 def _state(robot: int, x: float, y: float, tick: int = 1) -> State:
@@ -32,7 +43,7 @@ def test_each_robot_gets_its_nearest_neighbours_in_reach_ties_broken_by_id():
     own = [int(r) for r in ids[:30]] + [999]
     here = np.vstack([points[:30], [[0.05, 0.05]]])
     reach, m = 0.7, 6
-    got = table.gather(own, here, stamp=0.2, tick=2, neighbour_dist=reach, max_neighbours=m)
+    got = _gather(table, own, here, 0.2, 2, reach, m)
     by_id = dict(zip(ids.tolist(), points))
     for b, (rid, p) in enumerate(zip(own, here)):
         others = sorted((float(((q - p) ** 2).sum()), int(r)) for r, q in by_id.items() if r != rid)
@@ -56,12 +67,12 @@ def test_a_large_batch_finds_the_neighbours_each_robot_finds_alone():
         table.update(_state(int(robot), float(x), float(y)))
     own, here = [int(r) for r in ids[:90]], points[:90]
     names = ("position", "velocity", "radius", "age", "valid", "cooperative")
-    got = table.gather(own, here, stamp=0.2, tick=2, neighbour_dist=0.5, max_neighbours=8)
+    got = _gather(table, own, here, 0.2, 2, 0.5, 8)
     assert got.valid.sum() > 500  # many neighbours, many of them at equal distances
     d2 = ((points[:, None, :] - here[None]) ** 2).sum(axis=2)
     assert (np.abs(d2 - 0.25) < 1e-12).any()  # some exactly at the neighbour distance
     for b, (rid, p) in enumerate(zip(own, here)):
-        alone = table.gather([rid], p[None, :], stamp=0.2, tick=2, neighbour_dist=0.5, max_neighbours=8)
+        alone = _gather(table, [rid], p[None, :], 0.2, 2, 0.5, 8)
         for name in names:
             np.testing.assert_array_equal(getattr(alone, name), getattr(got, name)[b : b + 1], err_msg=name)
 
@@ -82,15 +93,48 @@ def test_one_robot_gathers_bit_for_bit_what_it_gets_in_a_batch():
     stopped = {int(r): 0.012 for r in ids[::9]}
     own, here = [int(r) for r in ids[:20]], points[:20] + 0.01
     for reach, m in [(0.7, 6), (0.25, 10), (0.01, 4)]:
-        batch = table.gather(own + [999], np.vstack([here, [[9.0, 9.0]]]), 0.2, 2, reach, m, stopped)
+        batch = _gather(table, own + [999], np.vstack([here, [[9.0, 9.0]]]), 0.2, 2, reach, m, stopped)
         if reach == 0.7:  # many neighbours, dynamic ones among them
             assert batch.valid.sum() > 50 and not batch.cooperative[batch.valid].all()
         for b, (rid, p) in enumerate(zip(own, here)):
-            one = table.gather([rid], p[None, :], 0.2, 2, reach, m, stopped)
+            one = _gather(table, [rid], p[None, :], 0.2, 2, reach, m, stopped)
             for name in ("position", "velocity", "radius", "age", "valid", "cooperative"):
                 got, expect = getattr(one, name), getattr(batch, name)[b : b + 1]
                 assert got.dtype == expect.dtype and got.shape == expect.shape
                 np.testing.assert_array_equal(got, expect)
+
+
+def test_a_robot_whose_states_are_lost_is_seen_where_the_tracker_sees_it():
+    """A neighbour never heard, or not heard for longer than stale_after, is taken from the tracker's
+    frame (with_bodies): where it was seen, standing, not cooperating and stale by one tick, so robots
+    steer around it and stand where it may touch them (agent.core.control); one heard lately keeps
+    its state, and a body beyond the neighbour distance is not a neighbour."""
+    table = NeighbourTable(0.1)
+    table.update(_state(1, 0.3, 0.0, tick=10))  # heard at the tick before: fresh
+    table.update(_state(2, 0.0, 0.3, tick=2))  # 0.9 s ago: stale, and since moved
+    bodies = np.zeros(5, Poses.RECORD)  # robot 0's own body, 3 never heard, 4 too far
+    bodies["robot"] = [0, 1, 2, 3, 4]
+    bodies["x"], bodies["y"] = [0.0, 0.31, 0.0, -0.2, 3.0], [0.0, 0.0, 0.2, 0.0, 0.0]
+    got = table.gather(_sensed([0], [[0.0, 0.0]], 1.1, 11), 1.0, {}, bodies)
+    valid = got.valid[0]
+    order = np.lexsort(got.position[0, valid].T[::-1])  # by x
+    stale = EPUCK.stale_after + EPUCK.dt
+    np.testing.assert_allclose(got.position[0, valid][order], [[-0.2, 0.0], [0.0, 0.2], [0.3, 0.0]], atol=1e-7)
+    np.testing.assert_allclose(got.velocity[0, valid][order], [[0.0, 0.0], [0.0, 0.0], [0.01, 0.0]])
+    np.testing.assert_allclose(got.age[0, valid][order], [stale, stale, 0.1])
+    assert got.cooperative[0, valid][order].tolist() == [False, False, True]
+    assert got.age[0, valid].min() <= EPUCK.stale_after < got.age[0, valid].max()  # the core's own rule of stale
+
+
+def test_a_host_keeps_the_trackers_frames_of_the_last_ticks_and_none_from_before_the_start():
+    bodies, frame = TrackedBodies(), np.zeros(3, Poses.RECORD)
+    bodies.hear(BEFORE_START, frame)
+    assert bodies.at(BEFORE_START) is None
+    for tick in range(1, 11):
+        bodies.hear(tick, frame[: tick % 3])
+    assert bodies.at(2) is None and bodies.at(3) is not None and len(bodies.at(10)) == 1
+    bodies.hear(10, frame)  # the tick's frame again (a replay, a renewed subscription): the newest stands
+    assert len(bodies.at(10)) == 3 and bodies.at(3) is not None
 
 
 def test_bid_positions_of_a_batch_are_those_of_each_robot():
