@@ -120,8 +120,8 @@ class NeighbourTable:
 
 class TrackedBodies:
     """Where the tracker saw other robots at the last few ticks: a host hears every robot's pose in its
-    frames, a robot alone a frame of the bodies near it (transport.keys.Keys.near). A neighbour whose
-    states are all lost is then still seen, and not driven into (with_bodies)."""
+    frames, a robot alone the bodies near it after its own pose (transport.bus.Bus.publish_poses). A
+    neighbour whose states are all lost is then still seen, and not driven into (with_bodies)."""
 
     KEPT = 8  # ticks heard last: a step may act on a tick after later poses arrived
 
@@ -146,10 +146,11 @@ def with_bodies(heard: Heard, bodies: np.ndarray, stamp: float, params: RobotPar
     than ``stale_after``, in place of any older state: where it was seen, standing, not cooperating, and
     stale by one tick. Its velocity unknown, robots steer around it as around a stale neighbour, and stand
     where it may touch them (agent.core.control), rather than drive into a robot whose states were lost."""
-    fresh = heard.ids[stamp - heard.stamp <= params.stale_after]
-    seen = bodies[~np.isin(bodies["robot"], fresh)]
-    if not len(seen):
+    fresh = set(heard.ids[stamp - heard.stamp <= params.stale_after].tolist())
+    unheard = [k for k, r in enumerate(bodies["robot"].tolist()) if r not in fresh]  # none, mostly: no numpy
+    if not unheard:
         return heard
+    seen = bodies[unheard]
     ids = seen["robot"].astype(np.int64)
     kept = ~np.isin(heard.ids, ids)
     n = len(ids)

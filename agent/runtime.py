@@ -175,8 +175,7 @@ class Inboxes:
         keys = bus.keys
         pose, bodies = bus.inbox(Pose, only=own), TrackedBodies()
         pose.bodies = bodies.hear
-        alone = [key(r) for r in config.robots for key in (keys.near, keys.pose)]  # near first: sent first
-        for key in [keys.poses] if config.frames else alone:
+        for key in [keys.poses] if config.frames else [keys.pose(r) for r in config.robots]:
             bus.subscribe_into(key, pose)
         state = bus.inbox(State, pulled=True)  # fed by the spatial cells around the robots ...
         reach = 3 if config.lockstep else 2

@@ -124,6 +124,9 @@ class InjectedFault(Generic[T]):
         return bool(self._delayed or self._held)
 
 
+SMALL_FRAME = 32  # records: KeepRobots looks each up in a set up to this many
+
+
 class KeepRobots:
     """These robots' records (a host's own poses; dead robots' bodies for the coordinator)."""
 
@@ -133,6 +136,8 @@ class KeepRobots:
         self.ids = np.array(sorted(self.robots), np.int64)
 
     def mask(self, records: np.ndarray) -> np.ndarray:
+        if len(records) <= SMALL_FRAME:  # numpy's isin costs more than a look-up per record here
+            return np.array([r in self.robots for r in records["robot"].tolist()], bool)
         return np.isin(records["robot"], self.ids)
 
     def keeps(self, view: Any) -> bool:
@@ -163,8 +168,8 @@ class Inbox(Generic[T]):
         self.seen: dict[int, int] | None = None
         self.pulled = pulled
         self.channels: list[Any] = []  # pulled: the subscribers whose channels feed this inbox
-        # told every record of a frame that names no one robot (tick, records), before ``keep`` picks: a
-        # host hears where the tracker sees every body (agent.neighbour_table.TrackedBodies)
+        # told the tracker's records of other robots (tick, records), before ``keep`` picks (_records): where
+        # the tracker sees the bodies (agent.neighbour_table.TrackedBodies)
         self.bodies: Callable[[int, np.ndarray], None] | None = None
 
     def _pull(self) -> None:
@@ -181,22 +186,36 @@ class Inbox(Generic[T]):
         return payload
 
     def _records(self, payload: bytes, key: str) -> tuple[int, list] | None:
-        """A frame's (tick, records ``keep`` keeps); None if malformed, or if the key names one robot and
-        the frame holds anything but its record (a damaged robot id would make it another robot's)."""
+        """A frame's (tick, records ``keep`` keeps); None if malformed. ``bodies`` is told every record of
+        a frame of several robots, and of a robot's own key the records after its own."""
         keep, alone = self.keep, Keys.robot_alone(key)
-        if self.bodies is not None and alone is None:
-            frame = decode(payload, cast("type[Frame]", self.frame), self.drops)
-            if frame is None:
-                return None
-            self.bodies(frame.tick, frame.records)
-            return frame.tick, frame.messages(keep)
-        got = decode_views(payload, cast("type[Frame]", self.frame), self.drops, keep if alone is None else None)
-        if got is None or alone is None:
-            return got
-        if len(got[1]) != 1 or got[1][0].robot != alone:
+        frame = cast("type[Frame]", self.frame)
+        if alone is not None:
+            return self._alone(payload, frame, alone)
+        if self.bodies is None:
+            return decode_views(payload, frame, self.drops, keep)
+        got = decode(payload, frame, self.drops)
+        if got is None:
+            return None
+        self.bodies(got.tick, got.records)
+        return got.tick, got.messages(keep)
+
+    def _alone(self, payload: bytes, frame: type[Frame], robot: int) -> tuple[int, list] | None:
+        """A frame on a key naming one robot: that robot's record first, or refused as misaddressed (a
+        damaged robot id would make it another robot's); those after it are the bodies the tracker sees
+        near the robot (Bus.publish_poses), for ``bodies`` only."""
+        if (one := frame.views_alone(payload)) is not None:  # its record alone, in one struct call
+            tick, views, rest = *one, None
+        elif (got := decode(payload, frame, self.drops)) is not None:
+            tick, views, rest = got.tick, got.messages()[:1], got.records[1:]
+        else:
+            return None
+        if not views or views[0].robot != robot:
             self.drops["misaddressed"] += 1
             return None
-        return got if keep is None or keep.keeps(got[1][0]) else (got[0], [])
+        if rest is not None and len(rest) and self.bodies is not None:
+            self.bodies(tick, rest)
+        return tick, views if self.keep is None or self.keep.keeps(views[0]) else []
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         payload, key = self._payload(sample), str(sample.key_expr)
@@ -205,7 +224,8 @@ class Inbox(Generic[T]):
                 self._deliver(key, [cast(T, msg)])
         elif (got := self._records(payload, key)) is not None:
             try:
-                self._deliver(key, got[1])
+                if got[1]:  # none of ours (a frame of others' records): nothing to queue or wake the owner for
+                    self._deliver(key, got[1])
             finally:  # after the records are queued, held or dropped: whoever waits on seen finds them
                 self._saw(*got)
 
@@ -394,7 +414,7 @@ class Bus:
         near: list[np.ndarray] | None = None,
     ) -> None:  # fmt: skip
         """A tick's poses (x, y, theta rows): one frame for agent hosts (``frame``), else one per robot's key,
-        each after a frame of the bodies near it (``near[i]``: their rows), so that it has them when it steps."""
+        its record first, then those of the bodies near it (``near[i]``: their rows), for its agent's safety."""
         records = np.zeros(len(robots), Poses.RECORD)
         records["robot"] = robots
         records["x"], records["y"], records["theta"] = np.asarray(poses, float).reshape(-1, 3).T
@@ -402,10 +422,8 @@ class Bus:
             self.publish(self.keys.poses, Poses(tick, stamp, records))
             return
         for i in range(len(records)):
-            robot = int(records["robot"][i])
-            if near is not None and len(near[i]):
-                self.publish(self.keys.near(robot), Poses(tick, stamp, records[near[i]]))
-            self.publish(self.keys.pose(robot), Poses(tick, stamp, records[i : i + 1]))
+            rows = [i] if near is None else [i, *near[i].tolist()]
+            self.publish(self.keys.pose(int(records["robot"][i])), Poses(tick, stamp, records[rows]))
 
     def publish_states(self, tick: int, stamp: float, states: list[State], cell_size: float, first: int | None) -> None:
         """Broadcast states of a tick: one frame on ``state/<first>`` that every agent host hears

@@ -66,13 +66,8 @@ class Keys:
 
     # tracker -> agent: every key of kind 'pose' carries a Poses frame
     def pose(self, robot: int) -> str:
-        """One robot's frame of one (a robot alone in its process hears only its own)."""
+        """One robot's frame: its pose first, then the bodies near it (a robot alone hears no other pose)."""
         return f"{self.root}/pose/{robot}"
-
-    def near(self, robot: int) -> str:
-        """A Poses frame of the bodies the tracker sees near a robot alone (it hears no other pose): what it
-        falls back on for a neighbour whose states it has not heard (agent.neighbour_table.TrackedBodies)."""
-        return f"{self.root}/near/{robot}"
 
     # agent broadcasts: every key of kind 'state' carries a States frame
     def state(self, cell: tuple[int, int], robot: int) -> str:

@@ -73,10 +73,10 @@ def _service_grants(keys: Keys) -> dict[str, list[dict]]:
             "query": [keys.run_goals],  # restarted mid-run: the newest goal set, from the launcher
             "read": [keys.clock, keys.all_of("pose"), keys.poses],
         },
-        "tracker": {"put": [keys.all_of("pose"), keys.poses, keys.all_of("near")], "read": [keys.clock]},
+        "tracker": {"put": [keys.all_of("pose"), keys.poses], "read": [keys.clock]},
         # the simulated world is a simulation's tracker, and its scripted obstacles broadcast states like robots
         "world": {
-            "put": [keys.clock, *(keys.all_of(k) for k in ("pose", "near", "state", "sim")), keys.poses, keys.event],
+            "put": [keys.clock, keys.all_of("pose"), keys.poses, keys.all_of("state"), keys.all_of("sim"), keys.event],
             "read": [keys.all_of("cmd"), keys.event, keys.all_of("goals")],  # goals: each tick names the newest
         },
         "recorder": {"read": [keys.everything]},
@@ -108,8 +108,7 @@ def access_control(robots: int, *, by: str = "cert_common_names", display: str =
     for i in range(robots):  # what only robot i may do: publish its own keys, hear its own pose and command
         role = robot_role(i)
         put = [keys.state_of(i), keys.states(i), keys.cmd(i), keys.auction_of(i), keys.boards_of(i), keys.event]
-        read = [keys.pose(i), keys.near(i), keys.cmd(i)]
-        grant(role, [role], _grants(role, put=put, read=read, token=[keys.alive("agent", i)]))
+        grant(role, [role], _grants(role, put=put, read=[keys.pose(i), keys.cmd(i)], token=[keys.alive("agent", i)]))
     # what every robot may read: neighbours' states, poses frames, goals, bids, the clock
     heard = [keys.poses, *(keys.all_of(kind) for kind in ("state", "goals", "auction", "boards")), keys.clock]
     every = _grants("robots", read=heard, query=[keys.all_of("goals")], watch=[keys.alive_all()])

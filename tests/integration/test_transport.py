@@ -722,21 +722,22 @@ def test_a_frame_on_a_key_naming_one_robot_holds_that_robots_record_alone(router
         assert poses.drops["misaddressed"] == 1 and states.drops["misaddressed"] == 1
 
 
-def test_a_robot_alone_hears_the_bodies_near_it_before_its_pose_and_only_its_own_pose_as_one(router):
-    """The tracker sends a robot alone the bodies near it on near/<id>, before its pose: its agent sees
-    them (Inbox.bodies) when it steps, while its pose inbox still yields its own pose alone."""
+def test_a_robot_alone_hears_the_bodies_near_it_after_its_pose_in_one_frame(router):
+    """The tracker's frame on pose/<id> holds the robot's pose first, then the bodies near it: its agent
+    sees those (Inbox.bodies) and its pose inbox yields its own pose alone, and one subscription to
+    every pose (the coordinator's) takes a robot's record from its own key only."""
     with Bus(client_of(router), "t") as a, Bus(client_of(router), "t") as b:
         seen: list[tuple[int, list[int]]] = []
-        poses = b.inbox(Pose, only=np.array([3]))
+        poses = b.subscribe(b.keys.pose(3), Pose, only=np.array([3]))
         poses.bodies = lambda tick, records: seen.append((tick, records["robot"].tolist()))
-        for key in (b.keys.near(3), b.keys.pose(3)):
-            b.subscribe_into(key, poses)
+        every = b.subscribe(b.keys.all_of("pose"), Pose, only=np.array([5]))
         time.sleep(0.3)
         near = [np.array([1, 2]), np.array([0]), np.array([], np.int64)]
         a.publish_poses(1, 0.1, np.array([3, 5, 6]), np.arange(9.0).reshape(3, 3), frame=False, near=near)
         time.sleep(0.3)
         assert [(p.robot, p.x) for _, p in poses.drain()] == [(3, 0.0)]
         assert seen == [(1, [5, 6])]
+        assert [(p.robot, p.x) for _, p in every.drain()] == [(5, 3.0)]
 
 
 def test_one_subscription_to_every_pose_keeps_the_robots_it_names_from_frames_and_single_keys(router):
