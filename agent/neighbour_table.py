@@ -123,21 +123,28 @@ class TrackedBodies:
     frames, a robot alone the bodies near it after its own pose (transport.bus.Bus.publish_poses). A
     neighbour whose states are all lost is then still seen, and not driven into (with_bodies)."""
 
-    KEPT = 8  # ticks heard last: a step may act on a tick after later poses arrived
+    KEPT = 8  # ticks: a step may act on a tick after later poses arrived
 
     def __init__(self) -> None:
         self._by_tick: dict[int, np.ndarray] = {}
+        self._stepped: int | None = None  # the tick asked for last: the one the robots step
 
     def hear(self, tick: int, records: np.ndarray) -> None:
-        """A Poses frame's records of a tick (on zenoh's thread: the dict is replaced whole)."""
+        """A Poses frame's records of a tick (on zenoh's thread: the dict is replaced whole). Beyond KEPT
+        ticks, those furthest from the tick stepped go: a flood of copies from the future or the past
+        (damaged, forged, replayed) cannot push out the frames of the ticks the robots step."""
         if tick == BEFORE_START:
             return
-        by_tick = {t: r for t, r in self._by_tick.items() if t != tick}
-        by_tick[tick] = records
-        self._by_tick = dict(list(by_tick.items())[-self.KEPT :])
+        by_tick = {**self._by_tick, tick: records}
+        if len(by_tick) > self.KEPT:
+            near = tick if self._stepped is None else self._stepped
+            by_tick = {t: by_tick[t] for t in sorted(by_tick, key=lambda t: (abs(t - near), t))[: self.KEPT]}
+        self._by_tick = by_tick
 
     def at(self, tick: int) -> np.ndarray | None:
-        """The Poses records the tracker sent of ``tick`` (None: none heard)."""
+        """The Poses records the tracker sent of ``tick``, the tick the robots step (None: none heard)."""
+        if tick != BEFORE_START:
+            self._stepped = tick
         return self._by_tick.get(tick)
 
 

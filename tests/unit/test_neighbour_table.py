@@ -126,7 +126,9 @@ def test_a_robot_whose_states_are_lost_is_seen_where_the_tracker_sees_it():
     assert got.age[0, valid].min() <= EPUCK.stale_after < got.age[0, valid].max()  # the core's own rule of stale
 
 
-def test_a_host_keeps_the_trackers_frames_of_the_last_ticks_and_none_from_before_the_start():
+def test_a_host_keeps_the_trackers_frames_near_the_tick_it_steps_whatever_else_comes():
+    """The frames of the last few ticks, none from before the start; copies from far in the future or
+    the past (a faulty peer's) cannot push out those of the ticks the robots step."""
     bodies, frame = TrackedBodies(), np.zeros(3, Poses.RECORD)
     bodies.hear(BEFORE_START, frame)
     assert bodies.at(BEFORE_START) is None
@@ -134,7 +136,11 @@ def test_a_host_keeps_the_trackers_frames_of_the_last_ticks_and_none_from_before
         bodies.hear(tick, frame[: tick % 3])
     assert bodies.at(2) is None and bodies.at(3) is not None and len(bodies.at(10)) == 1
     bodies.hear(10, frame)  # the tick's frame again (a replay, a renewed subscription): the newest stands
-    assert len(bodies.at(10)) == 3 and bodies.at(3) is not None
+    assert len(bodies.at(10)) == 3
+    for forged in [10**6 + k for k in range(20)] + list(range(-20, 0)):
+        bodies.hear(forged, frame)
+    bodies.hear(11, frame[:2])
+    assert len(bodies.at(11)) == 2 and len(bodies.at(10)) == 3 and bodies.at(10**6) is None
 
 
 def test_bid_positions_of_a_batch_are_those_of_each_robot():
