@@ -69,3 +69,22 @@ def test_at_tick_0_every_robot_knows_where_the_others_greeted_from_as_agents_do(
     heard = link.neighbours(sensed)
     assert heard.valid.sum(axis=1).tolist() == [1, 1, 2]  # 0 and 1 know each other; the mover knows both
     assert np.allclose(heard.age[heard.valid], 0.1) and np.allclose(heard.velocity[heard.valid], 0.0)
+
+
+@pytest.mark.parametrize("drop", [0.0, 0.9])
+def test_a_robot_never_heard_is_seen_where_the_tracker_sees_it_as_agents_see_it(drop):
+    """A robot (not a scripted mover) whose hello and states never came is taken where the tracker sees
+    it, standing, not cooperating and stale by one tick, as agents take it from the tracker's frames
+    (agent.neighbour_table.with_bodies); a robot heard keeps its state."""
+    positions = np.array([[0.0, 0.0], [0.3, 0.0], [0.0, 0.3]])
+    start = Heard(np.arange(3), positions, np.ones((3, 2)), np.full(3, 0.05), np.full(3, -0.1), np.ones(3, bool))
+    link = InProcessLink(3, drop=drop, late=0.0, seed=1)
+    link.start(start, greeted=np.array([True, True, False]))  # robot 2: a robot never heard
+    params = EPUCK.with_(neighbour_dist=0.6, max_neighbours=10)
+    now = positions + 0.01  # where the tracker sees them at tick 0
+    heard = link.neighbours(Sensed(np.arange(3), now, np.zeros(3), 0, 0.0, params, np.zeros(3, bool)))
+    assert heard.valid.sum(axis=1).tolist() == [2, 2, 2]
+    body = heard.valid[:2] & np.isclose(heard.position[:2], now[2]).all(axis=2)  # robot 2, seen by 0 and 1
+    assert body.sum(axis=1).tolist() == [1, 1]
+    assert np.allclose(heard.age[:2][body], params.stale_after + params.dt) and not heard.cooperative[:2][body].any()
+    assert np.allclose(heard.velocity[:2][body], 0.0) and np.allclose(heard.velocity[2][heard.valid[2]], 1.0)
