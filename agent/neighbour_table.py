@@ -101,7 +101,7 @@ class NeighbourTable:
     ) -> NeighbourStates:
         """Padded neighbour arrays for a batch: the states heard within ``heard_within``; ``stopped``: dead
         agents' robots (static, grown by a last move); ``bodies``: where the tracker saw robots this tick."""
-        states = self.latest_before(sensed.tick)
+        p, states = sensed.params, self.latest_before(sensed.tick)
         rows = np.array(
             [(s.robot, s.x, s.y, s.vx, s.vy, s.radius, s.stamp, s.flags & State.DYNAMIC) for s in states], float
         ).reshape(-1, 8)  # one pass over the states, one array
@@ -113,8 +113,7 @@ class NeighbourTable:
                 heard.velocity[i], heard.stamp[i], heard.cooperative[i] = 0.0, sensed.stamp, False
                 heard.radius[i] += stopped[s.robot]
         if bodies is not None:
-            heard = with_bodies(heard, bodies, sensed.stamp, sensed.params)
-        p = sensed.params
+            heard = with_bodies(heard, bodies, sensed.stamp, p)
         return nearest_heard(sensed.ids, sensed.position, sensed.stamp, heard, heard_within, p.max_neighbours)
 
 

@@ -124,9 +124,6 @@ class InjectedFault(Generic[T]):
         return bool(self._delayed or self._held)
 
 
-SMALL_FRAME = 32  # records: KeepRobots looks each up in a set up to this many
-
-
 class KeepRobots:
     """These robots' records (a host's own poses; dead robots' bodies for the coordinator)."""
 
@@ -136,8 +133,6 @@ class KeepRobots:
         self.ids = np.array(sorted(self.robots), np.int64)
 
     def mask(self, records: np.ndarray) -> np.ndarray:
-        if len(records) <= SMALL_FRAME:  # numpy's isin costs more than a look-up per record here
-            return np.array([r in self.robots for r in records["robot"].tolist()], bool)
         return np.isin(records["robot"], self.ids)
 
     def keeps(self, view: Any) -> bool:
