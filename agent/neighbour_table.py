@@ -152,9 +152,8 @@ def with_bodies(heard: Heard, bodies: np.ndarray, stamp: float, params: RobotPar
     than ``stale_after``, in place of any older state: where it was seen, standing, not cooperating, and
     stale by one tick. Its velocity unknown, robots steer around it as around a stale neighbour, and stand
     where it may touch them (agent.core.control), rather than drive into a robot whose states were lost."""
-    fresh = set(heard.ids[stamp - heard.stamp <= params.stale_after].tolist())
-    unheard = [k for k, r in enumerate(bodies["robot"].tolist()) if r not in fresh]  # none, mostly: no numpy
-    if not unheard:
+    unheard = ~np.isin(bodies["robot"], heard.ids[stamp - heard.stamp <= params.stale_after])
+    if not unheard.any():
         return heard
     seen = bodies[unheard]
     ids = seen["robot"].astype(np.int64)
