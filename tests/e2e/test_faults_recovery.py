@@ -221,35 +221,6 @@ def test_robots_stop_during_a_tracker_outage_and_resume(tmp_path, spawned):
     assert_show_completed(traj)
 
 
-@pytest.mark.slow
-@pytest.mark.serial
-def test_an_agent_killed_and_started_again_rejoins_the_auction_and_the_show(tmp_path, spawned):
-    # real time: a lock-step agent greets its first neighbours before it says it is alive (start-up only)
-    # held to the end (the nine form before it is back), 18 s: killed about 3 s in and started again
-    # 3 s later, the ten hold the disk again about 10 s in (10.3 s at a load average of 16 on 2 cores)
-    scene = write_disk(tmp_path, clock="realtime", hold=18.0)
-    out = tmp_path / "run"
-    proc = start_run(spawned, scene, out)
-    assert wait_for(lambda: ticks_so_far(out) >= 30, timeout=120)
-    victim = next(p for p in descendants(proc.pid) if "agent" in p.cmdline() and "agents-0004.json" in str(p.cmdline()))
-    command = victim.cmdline()
-    victim.send_signal(signal.SIGKILL)
-    victim.wait(timeout=10)
-    time.sleep(3.0)  # the others re-form for nine meanwhile
-    again = subprocess.Popen(command, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    spawned.append(again)  # the robot's computer started its agent again, by hand
-    try:
-        m, traj = finish(proc, out)
-    finally:
-        again.send_signal(signal.SIGTERM)
-        again.wait(timeout=20)
-    assert m["contacts"] == 0 and m["agents_crashed"] == 1 and m["crashes"][0]["robots"] == [4]
-    members = traj["goal_set_robots"]
-    assert members[:, 4].any() and not members[:, 4].all()  # dropped from a goal set ...
-    assert members[-1].all()  # ... and in the newest again: it rejoined the auction
-    assert_show_completed(traj)
-
-
 KILL_AT = 6.0  # s: the disk of ten forms in about 4 s (converged_at 3.7 s in this seed's run)
 
 

@@ -156,7 +156,9 @@ def test_a_realtime_agent_killed_and_started_again_is_heard_within_a_second(tmp_
     m, traj, times = restart_run(tmp_path, spawned, "realtime", hold=25.0, converge_hold=6.0, kill_after=30, down=2.0)
     assert_heard_again("realtime", times)
     assert m["contacts"] == 0 and m["agents_crashed"] == 1 and m["crashes"][0]["robots"] == [VICTIM]
-    assert traj["goal_set_robots"][-1].all()
+    members = traj["goal_set_robots"]
+    assert members[:, VICTIM].any() and not members[:, VICTIM].all()  # dropped from a goal set while down ...
+    assert members[-1].all()  # ... and in the newest again: it rejoined the auction
     assert m["end_reason"] == "converged"
     assert_show_completed(traj)
 
