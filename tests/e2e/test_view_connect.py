@@ -33,7 +33,6 @@ from transport.session import free_port, listening, loopback_router, open_sessio
 
 KEYS = Keys("default")
 RUN_TIMEOUT_S = 240.0  # a bound for a hung run, not a speed target
-FORGED_EPOCH = 1_000_000  # newer than any goal set the coordinator sends
 
 
 def _start(args: list[str], spawned: list, log: Path) -> subprocess.Popen:
@@ -217,22 +216,35 @@ def test_the_observer_reads_the_display_and_publishes_nothing(certs, auth):
         router.close()
 
 
-def _forge_as_observer(folder: Path, endpoint: str, starts: np.ndarray, stop: threading.Event, report: dict) -> None:
-    """Join the secured run as the observer and, once its clock ticks, publish a goal set for every robot."""
+def _forge(folder: Path, endpoint: str, role: str, forged: np.ndarray, stop: threading.Event, report: dict) -> None:
+    """Join the secured run as ``role`` and, once its clock ticks and a goal set of the coordinator's came,
+    publish a goal set for every robot under the next epoch, as the coordinator would, all along."""
     import dataclasses
 
-    settings = dataclasses.replace(client_config(folder, OBSERVER, endpoint), connect_timeout_ms=1000)
+    settings = dataclasses.replace(client_config(folder, role, endpoint), connect_timeout_ms=1000)
     try:
         bus = bus_when_listening(settings, stop)
         if bus is None:
             return
         with bus:
             clock = bus.subscribe(KEYS.clock, Tick)
-            message = Goals(FORGED_EPOCH, 1, starts.astype(np.float32), np.zeros((len(starts), 3), np.uint8))
+            goals = bus.subscribe(KEYS.all_of("goals"), Goals)
+            newest = 0
             while not stop.wait(0.1):
-                if clock.drain():
-                    bus.publish(KEYS.goals(FORGED_EPOCH), message)
+                ticks = [msg.tick for _, msg in clock.drain()]
+                own = lambda g: g.positions.shape == forged.shape and np.allclose(g.positions, forged, atol=1e-3)
+                genuine = [msg for _, msg in goals.drain() if not own(msg)]
+                report["genuine_goal_sets"] += len(genuine)
+                newest = max([newest, *(g.epoch for g in genuine)])
+                if ticks:
+                    report["last_tick"] = max(ticks)
+                if report["genuine_goal_sets"] and report["last_tick"] is not None:
+                    # the next epoch, each robot's own goal: what a receiver takes from the coordinator
+                    message = Goals(newest + 1, 1, forged.astype(np.float32), np.zeros((len(forged), 3), np.uint8))
+                    bus.publish(KEYS.goals(newest + 1), message)
                     report["forged"] += 1
+                    if report["first_forged_tick"] is None:
+                        report["first_forged_tick"] = report["last_tick"]
     except Exception as err:  # reported to the test, which fails on it
         report["error"] = repr(err)
 
@@ -240,47 +252,67 @@ def _forge_as_observer(folder: Path, endpoint: str, starts: np.ndarray, stop: th
 @pytest.mark.slow
 @pytest.mark.serial
 @pytest.mark.timeout(360)
-def test_a_viewer_watches_a_secured_run_as_the_observer_which_cannot_publish(tmp_path, spawned):
-    """`pixelswarm view --connect tls/... --secure DIR` on a secured run sees every robot move; a session
-    with the observer's credentials forges a goal set (the robots' own starts) all along, and no robot
-    ever announces a goal of it."""
-    robots = 3
+def test_a_secured_run_refuses_a_robots_and_the_observers_forged_goal_sets_while_a_viewer_watches(tmp_path, spawned):
+    """`pixelswarm run --secure DIR` converges, every robot on its antipode, while two sessions forge a goal
+    set for every robot all along: one with robot 3's credentials (a rogue robot), one with the observer's
+    (the role a viewer joins as). The router drops both: no robot ever announces a forged goal. Meanwhile
+    `pixelswarm view --connect tls/... --secure DIR` sees every robot move as the run recorded it."""
+    robots = 6
     made = run_pixelswarm("certs", str(tmp_path / "certs"), "--robots", str(robots), timeout=60)
     assert made.returncode == 0, made.stderr
     folder = Path(made.stdout.strip())
     port = free_port()
     endpoint = f"tls/127.0.0.1:{port}"
     out = tmp_path / "run"
-    # In real time the robots move for seconds of wall time: the viewer and the forger, which join only
-    # once the run's router listens (and open TLS sessions), see them on their way (a lock-step run of
-    # three robots is over in about as long as those sessions take to open).
-    args = ["run", "circle", "--robots", str(robots), "--secure", str(folder), "--clock", "realtime", "--seed", "1"]
+    # In real time the robots move for seconds of wall time: the viewer and the forgers, which join only
+    # once the run's router listens (and open TLS sessions), see them on their way (a lock-step run is
+    # over in about as long as those sessions take to open).
+    args = ["run", "circle", "--robots", str(robots), "--secure", str(folder), "--clock", "realtime"]
     args += ["--no-video", "--no-plots", "-q", "--duration", "30", "--listen", endpoint, "--out", str(out)]
     starts = np.asarray(load_scene("circle", robots=robots).poses, float)[:, :2]
-    report: dict = {"forged": 0}
+    quarter = np.array([[0.0, 1.0], [-1.0, 0.0]])  # the starts turned a quarter: goals no robot has
+    forgeries = {"robot-3": starts @ quarter, OBSERVER: starts}
+    reports = {
+        role: {"genuine_goal_sets": 0, "last_tick": None, "forged": 0, "first_forged_tick": None} for role in forgeries
+    }
     stop = threading.Event()
-    forger = threading.Thread(target=_forge_as_observer, args=(folder, endpoint, starts, stop, report))
+    forgers = [
+        threading.Thread(target=_forge, args=(folder, endpoint, role, forged, stop, reports[role]))
+        for role, forged in forgeries.items()
+    ]
     run = _start(args, spawned, tmp_path / "run.err")
-    forger.start()
+    for forger in forgers:
+        forger.start()
     try:
         _await_router(port, run)
         viewer = _viewer(endpoint, tmp_path / "view.rrd", spawned, "--secure", str(folder))
-        run.communicate(timeout=RUN_TIMEOUT_S)
+        stdout, _ = run.communicate(timeout=RUN_TIMEOUT_S)
     finally:
         stop.set()
-        forger.join(timeout=10)
+        for forger in forgers:
+            forger.join(timeout=10)
+    assert not any(forger.is_alive() for forger in forgers)
     assert run.returncode == 0, (tmp_path / "run.err").read_text()[-3000:]
-    viewed, _ = viewer.communicate(timeout=60)
+    assert Path(stdout.strip()) == out
+    viewer.communicate(timeout=60)
     assert viewer.returncode == 0, (tmp_path / "view.err").read_text()[-3000:]
     _seen_as_run(tmp_path / "view.rrd", out)
-    assert "error" not in report and report["forged"] > 0, report
+
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["converged"] and metrics["contacts"] == 0, metrics
+    # Both got in, heard the coordinator's goal sets and forged theirs while the robots were on their way
+    dt = float(json.loads((out / "scene.json").read_text())["robot"]["dt"])
+    for report in reports.values():
+        assert "error" not in report and report["forged"] > 0 and report["genuine_goal_sets"] > 0, reports
+        assert report["first_forged_tick"] * dt < metrics["time_to_converge_s"], reports
+    # Every goal any robot announced is its antipode, never a forged one, and every robot reached it
     trajectory = np.load(out / "trajectory.npz")
-    announced = np.isfinite(trajectory["goal"][..., 0])
+    goals, antipodes = trajectory["goal"], -starts
+    announced = np.isfinite(goals[..., 0])
     assert announced[-1].all()
-    antipodes = np.broadcast_to(-starts, trajectory["goal"].shape)
-    assert np.allclose(trajectory["goal"][announced], antipodes[announced], atol=1e-3)  # never the forged starts
+    assert np.allclose(goals[announced], np.broadcast_to(antipodes, goals.shape)[announced], atol=1e-3)
+    tolerance = metrics["convergence_tolerance_m"]
+    assert np.all(np.hypot(*(trajectory["pose"][-1, :, :2] - antipodes).T) <= tolerance + 1e-9)
 
 
 def test_bad_input_to_view_connect_is_one_line_and_exit_2(tmp_path, capsys, certs):
