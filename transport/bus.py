@@ -410,9 +410,7 @@ class Bus:
     ) -> None:  # fmt: skip
         """A tick's poses (x, y, theta rows): one frame for agent hosts (``frame``), else one per robot's key,
         its record first, then those of the bodies near it (``near[i]``: their rows), for its agent's safety."""
-        records = np.zeros(len(robots), Poses.RECORD)
-        records["robot"] = robots
-        records["x"], records["y"], records["theta"] = np.asarray(poses, float).reshape(-1, 3).T
+        records = Poses.records_of(robots, np.asarray(poses, float).reshape(-1, 3))
         if frame:
             self.publish(self.keys.poses, Poses(tick, stamp, records))
             return

@@ -721,6 +721,15 @@ class Poses(Frame):
     RECORD: ClassVar[np.dtype] = np.dtype([("robot", "<u4"), ("x", "<f4"), ("y", "<f4"), ("theta", "<f4")])
     _floats: ClassVar[tuple[str, ...]] = ("x", "y", "theta")
 
+    @classmethod
+    def records_of(cls, robots: np.ndarray, poses: np.ndarray) -> np.ndarray:
+        """The records of these robots at these poses ((N, 2) or (N, 3): x, y, and theta if given, else 0)."""
+        records = np.zeros(len(robots), cls.RECORD)
+        records["robot"] = robots
+        for name, column in zip(cls._floats, np.asarray(poses, float).T):
+            records[name] = column
+        return records
+
 
 @dataclass
 class Commands(Frame):

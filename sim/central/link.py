@@ -106,11 +106,7 @@ class InProcessLink:
         frames: ``sensed`` holds every robot, rows by id."""
         t = cast(Heard, self._template)
         robots = t.ids[t.cooperative]
-        records = np.zeros(len(robots), Poses.RECORD)
-        records["robot"] = robots
-        at = sensed.position[np.searchsorted(sensed.ids, robots)]
-        records["x"], records["y"] = at[:, 0], at[:, 1]
-        return records
+        return Poses.records_of(robots, sensed.position[np.searchsorted(sensed.ids, robots)])
 
     @property
     def heard_on_time(self) -> float:

@@ -8,6 +8,7 @@ security tests check a rogue robot: at the router, and in a run whose goal set a
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import signal
 import socket
@@ -219,8 +220,6 @@ def test_the_observer_reads_the_display_and_publishes_nothing(certs, auth):
 def _forge(folder: Path, endpoint: str, role: str, forged: np.ndarray, stop: threading.Event, report: dict) -> None:
     """Join the secured run as ``role`` and, once its clock ticks and a goal set of the coordinator's came,
     publish a goal set for every robot under the next epoch, as the coordinator would, all along."""
-    import dataclasses
-
     settings = dataclasses.replace(client_config(folder, role, endpoint), connect_timeout_ms=1000)
     try:
         bus = bus_when_listening(settings, stop)
@@ -229,10 +228,10 @@ def _forge(folder: Path, endpoint: str, role: str, forged: np.ndarray, stop: thr
         with bus:
             clock = bus.subscribe(KEYS.clock, Tick)
             goals = bus.subscribe(KEYS.all_of("goals"), Goals)
+            own = lambda g: g.positions.shape == forged.shape and np.allclose(g.positions, forged, atol=1e-3)
             newest = 0
             while not stop.wait(0.1):
                 ticks = [msg.tick for _, msg in clock.drain()]
-                own = lambda g: g.positions.shape == forged.shape and np.allclose(g.positions, forged, atol=1e-3)
                 genuine = [msg for _, msg in goals.drain() if not own(msg)]
                 report["genuine_goal_sets"] += len(genuine)
                 newest = max([newest, *(g.epoch for g in genuine)])
