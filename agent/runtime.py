@@ -168,6 +168,7 @@ class Inboxes:
     cells: CellSubscriptions
     goals: Inbox[Goals]
     departed: Departures
+    bell: threading.Event  # rung by poses, goal sets, auction messages and a stop: the loop sleeps until one comes
 
     @classmethod
     def of(cls, bus: Bus, config: HostConfig, own: np.ndarray) -> Inboxes:
@@ -188,7 +189,8 @@ class Inboxes:
         for target in () if everyone else cells.targets:
             bus.subscribe_into(keys.state_of(target), state)
         goals = bus.subscribe(keys.all_of("goals"), Goals)
-        return cls(pose, bodies, state, cells, goals, Departures(bus.watch_alive("agent")))
+        pose.bell = goals.bell = bell = threading.Event()
+        return cls(pose, bodies, state, cells, goals, Departures(bus.watch_alive("agent")), bell)
 
 
 def window_covers_a_third(arena: tuple[float, float, float, float] | None, cell_size: float, reach: int) -> bool:
@@ -505,10 +507,7 @@ class AgentHost:
 
     def run(self, parent_pid: int | None = None) -> None:
         """Step every tick until stopped, or (``parent_pid``) until that process, the launcher, is gone."""
-        # one bell rung by poses, goal sets and auction messages: the loop sleeps until any arrives or one is due
-        bell = threading.Event()
-        for inbox in (self.inbox.pose, self.inbox.goals, self.auction.inbox):
-            inbox.bell = bell
+        bell = self.auction.inbox.bell = self.inbox.bell
         while self.running:
             bell.clear()
             self._renewal.keep()
@@ -693,6 +692,8 @@ def install_stop_handlers(host: AgentHost) -> None:
     def stop(signum: int, frame: object) -> None:
         host.running = False
         host.auction.stop()
+        # wake the loop now, from a thread: this handler may have interrupted the main thread inside the bell's lock
+        threading.Thread(target=host.inbox.bell.set, daemon=True).start()
 
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)

@@ -437,12 +437,12 @@ class Launcher:
         """Wait (bounded) for the agents' final statistics and the world's last ticks still in flight
         (a run that ended on convergence records nothing after its end, so there is nothing to wait for)."""
         last_t = float(self.world.stats.get("ticks", 0)) * self.params.dt
-        settle, patience = time.monotonic() + 0.5, time.monotonic() + 10.0
+        patience = time.monotonic() + 10.0
         while time.monotonic() < patience:
-            ticks_due = recorder.progress.ended_at is None and recorder.sim_time < last_t - 1e-6
-            if time.monotonic() >= settle and not (ticks_due or self._stats_missing(recorder)):
-                return
             recorder.poll()
+            ticks_due = recorder.progress.ended_at is None and recorder.sim_time < last_t - 1e-6
+            if not (ticks_due or self._stats_missing(recorder)):
+                return
             time.sleep(0.05)
 
     def _await_agents(self, rec: Recorder) -> str | None:
