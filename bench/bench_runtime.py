@@ -44,7 +44,7 @@ from transport.codec import Command, Commands, State, States
 from transport.keys import Keys, cell_of, cells_of
 from transport.session import client_of, loopback_router
 
-from .common import REPO, RESULTS, first_tick, machine, run_and_sample, stepping_cpu, write_results
+from .common import REPO, RESULTS, first_tick, last_tick, machine, run_and_sample, stepping_cpu, write_results
 
 REACH = 2  # cells on each side of a robot's own it hears: the agent's 5 x 5 in real time
 WARM_UP = 3.0  # s of ticks before the floor is measured (subscriptions travel, processes settle)
@@ -237,7 +237,7 @@ def agent_row(n: int, duration: float, clock: str = "realtime", faults: str = ""
 
 def startup_run(tree: Path, robots: int) -> dict:
     """`sim.cli run circle` from ``tree``: wall seconds from its launch to the coordinator alive,
-    the world alive, the last agent alive and the world's first tick."""
+    the world alive, the last agent alive and the world's first tick; and from its last tick to its exit."""
     args = ["circle", "--robots", str(robots), "--clock", "realtime", "--duration", "5", "--seed", "3"]
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "run"
@@ -249,11 +249,13 @@ def startup_run(tree: Path, robots: int) -> dict:
             capture_output=True,
             text=True,
         )
+        exited = time.time()
         if proc.returncode != 0:
             raise RuntimeError(f"run from {tree} failed: {proc.stderr[-2000:]}")
         walls = first_tick(out / "log.mcap")
+        shutdown = exited - last_tick(out / "log.mcap")
         end = json.loads((out / "metrics.json").read_text())["end_reason"]
-    return {"load": load_before, "end": end} | {k: wall - launched for k, wall in walls.items()}
+    return {"load": load_before, "end": end, "shutdown": shutdown} | {k: wall - launched for k, wall in walls.items()}
 
 
 def clear_caches(tree: Path, suffixes: set[str]) -> None:
@@ -308,11 +310,13 @@ def startup(before: str, after: str, pairs: int, robots: int) -> list[str]:
     the first run of each fresh worktree, ``pairs`` runs each alternating, then a run without each
     of the on-disk caches."""
     warm: dict[str, list[float]] = {"before": [], "after": []}
+    shutdown: dict[str, list[float]] = {"before": [], "after": []}
     first: dict[str, float] = {}
     commits: dict[str, str] = {}
     rows = [
-        "| run | code | load avg | coordinator alive s | world alive s | last agent alive s | first tick s | end |",
-        "|---|---|---|---|---|---|---|---|",
+        "| run | code | load avg | coordinator alive s | world alive s | last agent alive s | first tick s "
+        "| last tick to exit s | end |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     schedule = [("first in a fresh tree", set())] + [(str(k), set()) for k in range(1, pairs + 1)] + NO_CACHE
     with contextlib.ExitStack() as stack:
@@ -325,27 +329,34 @@ def startup(before: str, after: str, pairs: int, robots: int) -> list[str]:
                 r = startup_run(tree, robots)
                 if name.isdigit():
                     warm[what].append(r["tick"])
+                    shutdown[what].append(r["shutdown"])
                 elif not cleared:
                     first[what] = r["tick"]
-                shown = {k: "-" if r[k] != r[k] else f"{r[k]:.1f}" for k in ("coordinator", "world", "agent", "tick")}
+                shown = {
+                    k: "-" if r[k] != r[k] else f"{r[k]:.{2 if k == 'shutdown' else 1}f}"
+                    for k in ("coordinator", "world", "agent", "tick", "shutdown")
+                }
                 rows.append(
                     f"| {name} | {commits[what]} ({what}) | {r['load']} | {shown['coordinator']} | {shown['world']} | "
-                    f"{shown['agent']} | {shown['tick']} | {r['end']} |"
+                    f"{shown['agent']} | {shown['tick']} | {shown['shutdown']} | {r['end']} |"
                 )
                 print(rows[-1], flush=True)
     median = {what: float(np.nanmedian(ticks)) for what, ticks in warm.items()}  # nan: a run that never ticked
+    ending = {what: float(np.nanmedian(seconds)) for what, seconds in shutdown.items()}
     return rows + [
         "",
         f"Median to the first tick over runs 1-{pairs}: {median['before']:.1f} s before ({commits['before']}), "
         f"{median['after']:.1f} s after ({commits['after']}); the first run in a fresh tree: "
-        f"{first['before']:.1f} s before, {first['after']:.1f} s after.",
+        f"{first['before']:.1f} s before, {first['after']:.1f} s after. Median from the last tick to the "
+        f"command's exit: {ending['before']:.2f} s before, {ending['after']:.2f} s after.",
         "",
         f"Scene: `pixelswarm run circle --robots {robots} --clock realtime --duration 5 --seed 3 --no-video -q`, "
         "a robot per agent process, run from a fresh git worktree of each revision (the same Python), before and "
         "after alternating. Seconds from launching the command to what the run's log (log.mcap, the launcher's "
         "recorder) heard: the coordinator alive, the world alive, the last agent alive, the world's first tick "
         "(its first truth message: the world ticks once every agent is alive, and an agent comes alive once it "
-        "heard the world). A fresh tree's first run also writes the project's bytecode (__pycache__/*.pyc) and, "
+        "heard the world); and from the last tick it heard to the command's exit (stopping the processes and "
+        "writing the run directory). A fresh tree's first run also writes the project's bytecode (__pycache__/*.pyc) and, "
         "in revisions before the compiled core, the world's numba cache (*.nbi, *.nbc); later runs read both. The last two runs "
         "of each tree go without one of them. '-': never reached (end: the run's end_reason). Load avg: the "
         "machine's 1-minute load before the run (a shared machine; it still counts the previous run's processes).",
@@ -389,7 +400,11 @@ def main() -> None:
     parser.add_argument("--sizes", default="", help="comma-separated N (default 20,50,100; --quick: 20)")
     parser.add_argument("--duration", type=float, default=20.0, help="s of display per run")
     parser.add_argument("--repeat", type=int, default=1, help="agent runs at each N (missed ticks vary run to run)")
-    parser.add_argument("--startup", action="store_true", help="only the start-up to the first tick, before/after")
+    parser.add_argument(
+        "--startup",
+        action="store_true",
+        help="only the start-up to the first tick and the shutdown after the last, before/after",
+    )
     parser.add_argument("--before", default=STARTUP_BEFORE, help="--startup: the git revision before")
     parser.add_argument("--after", default="HEAD", help="--startup: the git revision after")
     parser.add_argument("--pairs", type=int, default=3, help="--startup: before/after runs, alternating")

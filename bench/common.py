@@ -134,6 +134,18 @@ def first_tick(log: Path) -> dict[str, float]:
     return seen | {"tick": float("nan")}  # the world never ticked
 
 
+def last_tick(log: Path) -> float:
+    """The wall time of the world's last tick in a run's log (its last truth message), as the launcher's
+    recorder heard it (nan: it never ticked)."""
+    from mcap.reader import make_reader
+
+    last = float("nan")
+    with open(log, "rb") as fh:
+        for _, _, message in make_reader(fh).iter_messages(topics=[TRUTH]):
+            last = message.log_time / 1e9 if last != last else max(last, message.log_time / 1e9)
+    return last
+
+
 def write_results(name: str, title: str, command: str, lines: list[str]) -> Path:
     RESULTS.mkdir(parents=True, exist_ok=True)
     path = RESULTS / f"{name}.md"
