@@ -16,7 +16,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .config import HardwareConfigError, Started, check_table, is_number
+from .config import HardwareConfigError, Started, check_table, is_number, need
 from .poses import PoseSample, StampGate
 
 # A detection whose side on the floor is off by more than this fraction is not a robot's marker: dropped.
@@ -78,21 +78,18 @@ def _dictionary_name(value: Any, what: str) -> str:
 
 
 def _number(value: Any, what: str) -> float:
-    if not is_number(value):
-        raise HardwareConfigError(f"{what} must be a finite number, not {value!r}")
+    need(is_number(value), f"{what} must be a finite number, not {value!r}")
     return float(value)
 
 
 def _positive(value: Any, what: str) -> float:
     number = _number(value, what)
-    if number <= 0:
-        raise HardwareConfigError(f"{what} must be positive, not {value!r}")
+    need(number > 0, f"{what} must be positive, not {value!r}")
     return number
 
 
 def _reference(value: Any, dictionary_size: int, where: str) -> dict[int, tuple[float, float]]:
-    if not isinstance(value, Mapping):
-        raise HardwareConfigError(f"{where}: must be a table of marker id -> [x, y]")
+    need(isinstance(value, Mapping), f"{where}: must be a table of marker id -> [x, y]")
     out: dict[int, tuple[float, float]] = {}
     for key, xy in value.items():
         try:
@@ -107,11 +104,9 @@ def _reference(value: Any, dictionary_size: int, where: str) -> dict[int, tuple[
             raise HardwareConfigError(f"{where}: marker {marker} must be at [x, y] metres, not {xy!r}")
         out[marker] = (_number(xy[0], f"{where}: {marker} x"), _number(xy[1], f"{where}: {marker} y"))
     points = np.array(list(out.values()), dtype=float).reshape(-1, 2)
-    if len(out) < MIN_REFERENCES:
-        raise HardwareConfigError(f"{where}: needs at least {MIN_REFERENCES} markers, not {len(out)}")
-    # a homography needs the points to span the plane: not all on one line
-    if np.linalg.matrix_rank(points - points.mean(axis=0), tol=1e-3) < 2:
-        raise HardwareConfigError(f"{where}: the markers lie on one line; spread them over the floor")
+    need(len(out) >= MIN_REFERENCES, f"{where}: needs at least {MIN_REFERENCES} markers, not {len(out)}")
+    spread = np.linalg.matrix_rank(points - points.mean(axis=0), tol=1e-3) >= 2  # not all on one line
+    need(spread, f"{where}: the markers lie on one line; spread them over the floor")
     return out
 
 
@@ -120,8 +115,7 @@ def _homography(value: Any, where: str) -> tuple[tuple[float, ...], ...]:
     if len(rows) != 3 or not all(isinstance(r, list) and len(r) == 3 for r in rows):
         raise HardwareConfigError(f"{where}: must be a 3x3 list of numbers (image pixels -> floor metres)")
     matrix = tuple(tuple(_number(v, where) for v in row) for row in rows)
-    if abs(np.linalg.det(np.array(matrix))) < 1e-12:
-        raise HardwareConfigError(f"{where}: the matrix is singular")
+    need(not abs(np.linalg.det(np.array(matrix))) < 1e-12, f"{where}: the matrix is singular")
     return matrix
 
 

@@ -27,6 +27,12 @@ class HardwareConfigError(ValueError):
     """A hardware file that cannot be used: one line naming the file, the table and what is wrong."""
 
 
+def need(ok: object, message: str) -> None:
+    """HardwareConfigError(message) unless ``ok``."""
+    if not ok:
+        raise HardwareConfigError(message)
+
+
 def check_keys(table: Mapping[str, Any], known: Iterable[str], where: str) -> None:
     """Refuse keys a table does not know (a typo would otherwise silently fall back to a default)."""
     known = set(known)
@@ -37,8 +43,7 @@ def check_keys(table: Mapping[str, Any], known: Iterable[str], where: str) -> No
 
 def check_table(table: Any, config: type, kind: str, where: str) -> None:
     """A table of ``kind`` with no key its config class (a dataclass) does not know."""
-    if not isinstance(table, Mapping):
-        raise HardwareConfigError(f"{where}: must be a table")
+    need(isinstance(table, Mapping), f"{where}: must be a table")
     check_keys(table, ["kind", *(f.name for f in fields(config))], where)
     if table.get("kind", kind) != kind:
         raise HardwareConfigError(f"{where}: kind must be {kind!r}, not {table['kind']!r}")
@@ -52,8 +57,7 @@ def is_number(value: Any) -> bool:
 def positive_number(table: Mapping[str, Any], key: str, default: float, where: str) -> float:
     """A key holding a finite number > 0, or the default when the key is absent."""
     value = table.get(key, default)
-    if not (is_number(value) and value > 0):
-        raise HardwareConfigError(f"{where}: {key} must be a positive number, not {value!r}")
+    need(is_number(value) and value > 0, f"{where}: {key} must be a positive number, not {value!r}")
     return float(value)
 
 
@@ -107,17 +111,14 @@ def load_object(target: str, kind: str, where: str) -> Any:
         if err.name is not None and module_name.startswith(err.name):
             raise HardwareConfigError(f"{where}: kind {kind!r} is not available in this installation") from None
         raise
-    if not hasattr(module, name):
-        raise HardwareConfigError(f"{where}: kind {kind!r} is not available in this installation ({target} missing)")
+    need(hasattr(module, name), f"{where}: kind {kind!r} is not available in this installation ({target} missing)")
     return getattr(module, name)
 
 
 def parse_table(table: Any, kinds: Mapping[str, str], where: str) -> Any:
     """One `[backend]` or `[poses]` table -> its kind's config object."""
-    if not isinstance(table, dict):
-        raise HardwareConfigError(f"{where}: must be a table")
-    if "kind" not in table:
-        raise HardwareConfigError(f"{where}: missing key 'kind' (one of: {', '.join(sorted(kinds))})")
+    need(isinstance(table, dict), f"{where}: must be a table")
+    need("kind" in table, f"{where}: missing key 'kind' (one of: {', '.join(sorted(kinds))})")
     kind = table["kind"]
     if not isinstance(kind, str) or kind not in kinds:
         raise HardwareConfigError(f"{where}: unknown kind {kind!r} (known: {', '.join(sorted(kinds))})")
@@ -138,8 +139,7 @@ def load_hardware(path: str | Path) -> HardwareConfig:
     unknown = sorted(set(data) - set(TABLES))
     if unknown:
         raise HardwareConfigError(f"{path}: unknown table [{unknown[0]}] (known: {', '.join(TABLES)})")
-    if "backend" not in data:
-        raise HardwareConfigError(f"{path}: missing table [backend]")
+    need("backend" in data, f"{path}: missing table [backend]")
     backend = parse_table(data["backend"], BACKEND_KINDS, f"{path} [backend]")
     poses = parse_table(data["poses"], POSE_KINDS, f"{path} [poses]") if "poses" in data else None
     poses_kind = data["poses"]["kind"] if poses is not None else None

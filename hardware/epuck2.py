@@ -18,7 +18,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields, replace
 from typing import Any
 
-from .config import HardwareConfigError, Started, check_keys, positive_number
+from .config import HardwareConfigError, Started, check_keys, need, positive_number
 
 log = logging.getLogger(__name__)
 
@@ -151,8 +151,7 @@ class Epuck2Config:
         if not isinstance(addresses, list) or not addresses:
             raise HardwareConfigError(f"{where}: addresses must be a non-empty list of 'host:port' strings")
         endpoints = [parse_address(a, where) for a in addresses]
-        if len(set(endpoints)) != len(endpoints):
-            raise HardwareConfigError(f"{where}: addresses must not repeat a robot")
+        need(len(set(endpoints)) == len(endpoints), f"{where}: addresses must not repeat a robot")
         flags = {"kind", "request_sensors"}
         numbers: dict[str, Any] = {
             key: positive_number(table, key, defaults[key], where) for key in defaults if key not in flags
@@ -164,8 +163,8 @@ class Epuck2Config:
             raise HardwareConfigError(
                 f"{where}: max_wheel_speed must be at most {FIRMWARE_MAX_WHEEL_SPEED:.4f} m/s (the firmware's limit)"
             )
-        if numbers["reconnect_backoff_max"] < numbers["reconnect_backoff"]:
-            raise HardwareConfigError(f"{where}: reconnect_backoff_max must be at least reconnect_backoff")
+        ordered = numbers["reconnect_backoff_max"] >= numbers["reconnect_backoff"]
+        need(ordered, f"{where}: reconnect_backoff_max must be at least reconnect_backoff")
         return cls(addresses=tuple(a.strip() for a in addresses), request_sensors=request_sensors, **numbers)
 
     @property

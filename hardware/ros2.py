@@ -30,7 +30,7 @@ from transport.rmw_zenoh import (
 )
 from transport.session import ZenohSettings, open_session
 
-from .config import HardwareConfigError, Started, check_table, is_number
+from .config import HardwareConfigError, Started, check_table, is_number, need
 from .poses import PoseSample, StampGate
 
 TWIST = "geometry_msgs/msg/Twist"
@@ -110,21 +110,16 @@ class _Ros2Table:
             raise HardwareConfigError(f"{where}: {err}") from None
 
 
-def _need(ok: bool, message: str) -> None:
-    if not ok:
-        raise HardwareConfigError(message)
-
-
 def _check_domain(value: Any) -> None:
     # ROS_DOMAIN_ID spans 0-232 (the DDS port arithmetic's limit; rmw_zenoh keeps it).
-    _need(
+    need(
         isinstance(value, int) and not isinstance(value, bool) and 0 <= value <= 232,
         f"domain must be a whole number 0-232, not {value!r}",
     )
 
 
 def _check_name(value: Any, key: str, what: str = "topic") -> None:
-    _need(isinstance(value, str), f"{key} must be a string, not {value!r}")
+    need(isinstance(value, str), f"{key} must be a string, not {value!r}")
     try:
         check_name(value, what)
     except RosNameError as err:
@@ -143,18 +138,18 @@ class Ros2BackendConfig(_Ros2Table):
     watchdog: float = 0.3  # s: a robot left this long without a command is sent a zero Twist
 
     def __post_init__(self) -> None:
-        _need(isinstance(self.namespaces, list) and len(self.namespaces) > 0, "namespaces must be a non-empty list")
+        need(isinstance(self.namespaces, list) and len(self.namespaces) > 0, "namespaces must be a non-empty list")
         for ns in self.namespaces:
-            _need(isinstance(ns, str) and ns.strip("/") != "", f"namespace {ns!r} must be a non-empty string")
+            need(isinstance(ns, str) and ns.strip("/") != "", f"namespace {ns!r} must be a non-empty string")
             _check_name(ns, "namespaces", "namespace")
         cleaned = [ns.strip("/") for ns in self.namespaces]
-        _need(len(set(cleaned)) == len(cleaned), "namespaces must differ from each other")
+        need(len(set(cleaned)) == len(cleaned), "namespaces must differ from each other")
         for key, topic in (("cmd_topic", self.cmd_topic), ("led_topic", self.led_topic)):
             _check_name(topic, key)
-            _need(not topic.startswith("/"), f"{key} is relative to each robot's namespace: no leading '/'")
+            need(not topic.startswith("/"), f"{key} is relative to each robot's namespace: no leading '/'")
         _check_domain(self.domain)
-        _need(self.distro in DISTROS, f"distro must be one of {', '.join(DISTROS)}, not {self.distro!r}")
-        _need(
+        need(self.distro in DISTROS, f"distro must be one of {', '.join(DISTROS)}, not {self.distro!r}")
+        need(
             is_number(self.watchdog) and self.watchdog > 0,
             f"watchdog must be a positive time in s, not {self.watchdog!r}",
         )
@@ -173,14 +168,14 @@ class Ros2PosesConfig(_Ros2Table):
     rate: float = 10.0  # Hz: the control rate that ticks() resamples to
 
     def __post_init__(self) -> None:
-        _need(
+        need(
             isinstance(self.topic, str) and self.topic.count(ROBOT_ID) == 1,
             f"topic must name the robot once as {ROBOT_ID}, e.g. /robot{{id}}/pose, not {self.topic!r}",
         )
         _check_name(self.topic.replace(ROBOT_ID, "0"), "topic")
         if self.domain is not None:
             _check_domain(self.domain)
-        _need(is_number(self.rate) and self.rate > 0, f"rate must be a positive number of Hz, not {self.rate!r}")
+        need(is_number(self.rate) and self.rate > 0, f"rate must be a positive number of Hz, not {self.rate!r}")
 
     def topic_of(self, robot: int) -> str:
         """The fully qualified pose topic of one robot, e.g. /robot3/pose."""

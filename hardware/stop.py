@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from transport.session import ZenohSettings
 
-from .config import HardwareConfig, HardwareConfigError, load_object
+from .config import HardwareConfig, load_object, need
 
 # kind -> "module:function" taking the backend's config and returning the robot ids the stop did not reach
 STOPPERS = {
@@ -19,8 +19,7 @@ def stop_all(config: HardwareConfig, settings: ZenohSettings | None = None) -> l
     """Connect to every robot of the file and send it a stop; returns the robot ids that were not reached.
     ``settings``: the session to a router, for robots reached through one (ROS 2)."""
     kind = config.backend_kind
-    if kind not in STOPPERS:
-        raise HardwareConfigError(f"{config.path} [backend]: kind {kind!r} has no stop")
+    need(kind in STOPPERS, f"{config.path} [backend]: kind {kind!r} has no stop")
     target = STOPPERS[kind]
     if target is None:
         return []

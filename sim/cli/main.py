@@ -499,22 +499,17 @@ def cmd_view(args: argparse.Namespace) -> int:
         return _watch(args)
     if args.secure is not None or args.display is not None:
         raise UsageError("--secure and --display go with --connect ENDPOINT (watching a running swarm)")
-    run_dir = args.run_dir
+    run_dir, rrd = args.run_dir, args.run_dir / VIEW_FILE
     if not (run_dir / "trajectory.npz").is_file() or not (run_dir / "scene.json").is_file():
         raise UsageError(f"{run_dir} is not a run directory (no trajectory.npz and scene.json)")
-    try:
+    with usage_errors(ViewUnavailable):  # Ctrl-C is main's: exit code 130
         if args.save is not None:
             replay(run_dir, args.save).close()
             print(args.save)
             return 0
-        rrd = run_dir / VIEW_FILE
         if not rrd.is_file():
             replay(run_dir, rrd).close()
         view_recording(rrd, web=args.web)
-    except ViewUnavailable as err:
-        raise UsageError(str(err)) from None
-    except KeyboardInterrupt:
-        return 130
     return 0
 
 
