@@ -47,11 +47,10 @@ class CameraConfig:
     def from_table(cls, table: Mapping[str, Any], where: str) -> CameraConfig:
         """Validate a parsed `[poses]` table; `where` names it in errors (e.g. "robots.toml [poses]")."""
         check_table(table, cls, "camera", where)
-        values: dict[str, Any] = {}
         checks = {"source": _source, "dictionary": _dictionary_name, "marker_size": _positive, "rate": _positive}
-        for key, check in checks.items():
-            if key in table:
-                values[key] = check(table[key], f"{where}: {key}")
+        values: dict[str, Any] = {
+            key: check(table[key], f"{where}: {key}") for key, check in checks.items() if key in table
+        }
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, values.get("dictionary", cls.dictionary)))
         size = len(dictionary.bytesList)
         if "reference" in table:

@@ -21,7 +21,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -272,7 +272,7 @@ class CameraStream(Started):
         self.error: Exception | None = None  # what stopped the rendering thread, if anything did
         self._rng = np.random.default_rng(0)  # the pixel noise's
         self.glitched: list[float] = []  # time.monotonic() at which each spoiled frame was rendered
-        self._glitches: list[tuple[float, str, tuple]] = []  # (not before, "swap" or "shift", arguments)
+        self._glitches: list[tuple[float, Callable]] = []  # (not before, the poses it changes)
         self._clients: list[_Reader] = []
         self._lock = threading.Lock()
         self._halt = threading.Event()
@@ -308,28 +308,24 @@ class CameraStream(Started):
     def swap(self, a: int, b: int, at: float | None = None) -> None:
         """Draw robot a's marker at b's pose and b's at a's in one frame, the first rendered at or
         after ``at`` (time.monotonic(); None: the next)."""
-        with self._lock:
-            self._glitches.append((at or 0.0, "swap", (a, b)))
+        self._glitch(at, lambda robots: {a: robots[b], b: robots[a]})
 
     def shift(self, robot: int, dx: float, dy: float, at: float | None = None) -> None:
         """Draw a robot's marker (dx, dy) metres off its pose in one frame, as `swap` says which."""
+        self._glitch(at, lambda robots: {robot: (robots[robot][0] + dx, robots[robot][1] + dy, robots[robot][2])})
+
+    def _glitch(self, at: float | None, change: Callable[[dict[int, Pose]], dict[int, Pose]]) -> None:
         with self._lock:
-            self._glitches.append((at or 0.0, "shift", (robot, dx, dy)))
+            self._glitches.append((at or 0.0, change))
 
     def _spoil(self, robots: dict[int, Pose], now: float) -> dict[int, Pose]:
         """The poses to draw: those of the glitches due by ``now`` spoiled."""
         with self._lock:
-            due = [g for g in self._glitches if g[0] <= now]
+            due = [change for at, change in self._glitches if at <= now]
             self._glitches = [g for g in self._glitches if g[0] > now]
         spoiled = dict(robots)
-        for _, kind, args in due:
-            if kind == "swap":
-                a, b = args
-                spoiled[a], spoiled[b] = robots[b], robots[a]
-            else:
-                robot, dx, dy = args
-                x, y, theta = robots[robot]
-                spoiled[robot] = (x + dx, y + dy, theta)
+        for change in due:
+            spoiled.update(change(robots))  # each from the true poses
         if due:
             self.glitched.append(now)
         return spoiled

@@ -225,10 +225,8 @@ class Launcher:
             robots = ids[h * k : (h + 1) * k]
             path = cfg_dir / f"agents-{h:04d}.json"
             path.write_text(self._host_config(robots).to_json())
-            if routers:
-                client: ZenohSettings | None = ZenohSettings(mode="client", connect=[routers[h % len(routers)]])
-            else:
-                client = self._as(robot_role(robots[0]))
+            router = [routers[h % len(routers)]] if routers else []
+            client = ZenohSettings(mode="client", connect=router) if router else self._as(robot_role(robots[0]))
             self._spawn(f"agent-{h:04d}", "agent", ["--config", str(path), *extra], robots, client)
 
     # --- remote agents (`pixelswarm agents` on other machines) -----------------------------------
@@ -402,13 +400,8 @@ class Launcher:
     def _recorder(self, bus: Bus) -> Recorder:
         """The recorder of the world's truth (log.mcap, the ticks file, the live view and Foxglove),
         which also answers a late joiner's question for the newest goal set."""
-        recorder = Recorder(
-            bus,
-            self.scene.robots,
-            self.params.goal_tolerance,
-            str(self.run_dir / "log.mcap"),
-            str(self.run_dir / TICKS_FILE),
-        )
+        files = str(self.run_dir / "log.mcap"), str(self.run_dir / TICKS_FILE)
+        recorder = Recorder(bus, self.scene.robots, self.params.goal_tolerance, *files)
         recorder.progress.ends = self._ends_on_convergence
         recorder.out.heading = self.params.kinematics != HOLONOMIC
         recorder.view = self.opt.view
