@@ -1,11 +1,8 @@
 """The world process: the simulated bodies, the central tracker and the clock, on the bus.
 
-The simulated world is one backend of the body node (sim/node/body.py). Real time: physics in substeps
-on the wall clock, the tracker's poses (seeded noise, paper 7.1) every control period, and commands
-applied as they arrive, as on hardware. Lock-step: each tick waits for every live agent's command, so
-runs are reproducible from the seed. A command holds for its control period and a margin
-(RobotParams.command_margin) of simulated time.
-"""
+The simulated world is one backend of the body node (sim/node/body.py, whose clocks say how ticks pass):
+physics in substeps, the tracker's poses with seeded noise (paper 7.1), and a command holding for its
+control period and a margin (RobotParams.command_margin) of simulated time."""
 
 from __future__ import annotations
 
