@@ -25,7 +25,7 @@ from pathlib import Path
 
 from agent.core.params import EPUCK, RobotParams
 from hardware.config import Started, is_number
-from sim.args import OneLineParser, UsageError, positive_int, refuse
+from sim.args import OneLineParser, UsageError, positive_int, refuse, refuse_if
 from sim.processes import stopped_by_signals
 
 COMMAND_PACKET = 0x80
@@ -311,10 +311,8 @@ def read_poses(path: Path, count: int) -> list[Pose]:
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
         raise UsageError(f"{path}: not a JSON list of poses: {err}") from None
     ok = isinstance(data, list) and all(isinstance(p, list) and len(p) == 3 and all(map(is_number, p)) for p in data)
-    if not ok:
-        raise UsageError(f"{path}: poses must be a JSON list of [x, y, theta] numbers")
-    if len(data) != count:
-        raise UsageError(f"{path}: {len(data)} poses for {count} robots")
+    refuse_if(not ok, f"{path}: poses must be a JSON list of [x, y, theta] numbers")
+    refuse_if(len(data) != count, f"{path}: {len(data)} poses for {count} robots")
     return [(float(x), float(y), float(t)) for x, y, t in data]
 
 
