@@ -23,6 +23,7 @@ from coordinator.resolved import add_scene_args, scene_of_args
 from coordinator.scene import Scene, SceneError
 from hardware.config import HardwareConfig, HardwareConfigError, load_hardware
 from hardware.poses import STAMP_DROPS, PoseSample
+from sim.args import refuse
 from sim.node.body import COMMAND_DROPS, STOP_REASONS, BodyNode, WallClock
 from sim.outputs.metrics import clearance_at
 from transport.bus import Bus
@@ -31,7 +32,8 @@ from transport.session import TransportError, ZenohSettings, add_zenoh_args, set
 
 STARTUP_TIMEOUT = 5.0  # s: every robot reached and every robot's pose seen, or the run is refused
 POLL = 0.02  # s: how often, within a period, commands, liveliness and safety are looked at
-ERROR = "hardware: error: "  # the one line the launcher shows when the node refuses to start
+PROG = "hardware"
+ERROR = f"{PROG}: error: "  # how refuse's one line starts, which the launcher shows when the node refuses to start
 RUNNABLE_BACKENDS = ("epuck2", "ros2")
 
 
@@ -310,11 +312,6 @@ def load_run(args: argparse.Namespace) -> tuple[HardwareConfig, Scene]:
     return config, scene
 
 
-def _fail(message: str) -> int:
-    print(ERROR + message, file=sys.stderr, flush=True)
-    return 2
-
-
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
@@ -322,7 +319,7 @@ def main(argv: list[str] | None = None) -> int:
         settings = settings_from_args(args)
         bus = Bus(settings, args.display, seed=scene.seed, name="hardware")
     except (HardwareError, HardwareConfigError, SceneError, TransportError) as err:
-        return _fail(str(err))
+        return refuse(PROG, err)
     with bus:
         drive, timeout = open_drive(config, settings, RobotParams.from_dict(scene.robot))
         poses, poses_name = open_pose_source(config, settings)
@@ -333,10 +330,10 @@ def main(argv: list[str] | None = None) -> int:
                 drive.start()
                 poses.start()
             except (HardwareConfigError, TransportError, OSError, RuntimeError) as err:
-                return _fail(f"{config.path}: cannot start: {err}")
+                return refuse(PROG, f"{config.path}: cannot start: {err}")
             problem = wait_for_hardware(node, args.startup_timeout, poses_name)
             if problem is not None:
-                return _fail(f"{config.path}: {problem}")
+                return refuse(PROG, f"{config.path}: {problem}")
             node.run()  # it declares itself alive: the launcher starts the agents now
         finally:
             assert isinstance(node.backend, HardwareBodies)

@@ -62,7 +62,7 @@ class RunOptions:
     connect: list[str] = field(default_factory=list)  # an external router to join instead of embedding
     faults: FaultPlan = field(default_factory=dict)
     agent_routers: list[str] = field(default_factory=list)  # spread agents over these routers (round robin)
-    deadline: float = 2.0
+    deadline: float = Scene.deadline
     progress: TextIO | None = sys.stderr
     startup_timeout: float = STARTUP_TIMEOUT
     secure: Path | None = None  # a folder from `pixelswarm certs`: each process joins as its role (docs/security.md)
