@@ -99,32 +99,6 @@ def clearance_over_time(pose: np.ndarray, radius: np.ndarray) -> np.ndarray:
     return out
 
 
-def contact_events(pose: np.ndarray, radius: np.ndarray) -> int:
-    """Pair-contact events: pairs overlapping at a sample (the first too) but not at the one before."""
-    T, N = _pose_shape(pose)
-    pose = np.asarray(pose, dtype=float)
-    r = _radius(radius, N)
-    if N < 2:
-        return 0
-    from scipy.spatial import cKDTree  # here: the launcher imports this module, and most runs never call this
-
-    rmax = float(r.max())
-    prev: set[tuple[int, int]] = set()
-    events = 0
-    for k in range(T):
-        xy = pose[k, :, :2]
-        ok = np.flatnonzero(np.isfinite(xy).all(axis=1))
-        cur: set[tuple[int, int]] = set()
-        if len(ok) >= 2:
-            pairs = cKDTree(xy[ok]).query_pairs(2 * rmax, output_type="ndarray")
-            i, j = ok[pairs[:, 0]], ok[pairs[:, 1]]
-            hit = np.sqrt(((xy[i] - xy[j]) ** 2).sum(-1)) - r[i] - r[j] < 0
-            cur = set(zip(i[hit].tolist(), j[hit].tolist()))
-        events += len(cur - prev)
-        prev = cur
-    return events
-
-
 def communication_parts(pose: np.ndarray, reach: float) -> np.ndarray:
     """Per tick: the parts of the graph of robots within ``reach`` (positions as the wire carries them)."""
     from scipy.sparse import coo_matrix
@@ -350,34 +324,3 @@ def _closeness(record: TrueRecord, t: np.ndarray, pose: Any, robots: int, contac
         "contacts": int(contacts),
         "max_overlap_m": 0.0 if k is None else float(max(0.0, -min_clear)),
     }
-
-
-def keyframe_errors(
-    traj: Mapping[str, np.ndarray], step_starts: list[float], frame_periods: list[float], v_max: float
-) -> list[np.ndarray]:
-    """Per keyframe of a distributed animation (paper 6.2), from trajectory.npz's arrays: each robot's distance
-    to its goal when K_f dt is over, if v_max allowed the move from where it got that goal (else NaN)."""
-    t, pose = traj["t"], traj["pose"][:, :, :2]
-    epochs = [int(e) for e in traj["goal_set_epochs"]]
-    steps = [int(s) for s in traj["goal_set_steps"]]
-    assignment, epoch = traj["assignment"], traj["assignment_epoch"]
-    out = []
-    for f, (start, period) in enumerate(zip(step_starts, frame_periods)):
-        errors = np.full(pose.shape[1], np.nan)
-        sets = [e for e, s in zip(epochs, steps) if s == f]
-        end = int(np.argmin(np.abs(t - (start + period))))
-        if sets:
-            e = sets[-1]
-            goals = traj["goal_sets"][epochs.index(e)]
-            for i in range(pose.shape[1]):
-                # its goal of this keyframe as last announced by K_f dt (the next keyframe's goal set
-                # may already have reached it in the sample at K_f dt)
-                rows = np.flatnonzero((epoch[:, i] == e) & (t >= start - 1e-9) & (t <= t[end] + 1e-9))
-                if not len(rows):
-                    continue
-                got, goal = int(rows[0]), goals[assignment[rows[-1], i]]
-                left = t[end] - t[got]
-                if left > 0 and np.hypot(*(pose[got, i] - goal)) / left <= v_max:
-                    errors[i] = np.hypot(*(pose[end, i] - goal))
-        out.append(errors)
-    return out

@@ -217,23 +217,6 @@ def _draw_discs(
             cv2.line(img, centre, tuple(tl[i]), tick, int(tick_thick[i]), cv2.LINE_AA, _SHIFT)
 
 
-def render_frame(
-    time_s: float | None,
-    pose: np.ndarray,
-    radius: np.ndarray,
-    color: np.ndarray | None,
-    arena: Sequence[float],
-    obstacles: Sequence[Sequence[Sequence[float]]] | None = (),
-    goal: np.ndarray | None = None,
-    size_px: int = 720,
-) -> np.ndarray:
-    """One BGR frame whose longer arena side spans ``size_px`` pixels with a margin (``color`` None: white)."""
-    pose = np.asarray(pose, dtype=float).reshape(-1, 3)
-    radius = np.broadcast_to(np.asarray(radius, dtype=float), (len(pose),))
-    view = _View(arena, size_px)
-    return _draw(view.background(obstacles), view, time_s, pose, radius, color, goal)
-
-
 def frame_indices(t: np.ndarray, fps: float, speed: float | None = 1.0, max_frames: int = 3000) -> np.ndarray:
     """The samples :func:`write_video` shows: the latest at each frame time at ``speed`` x real time (None: every
     sample), subsampled evenly to at most ``max_frames`` (0: no limit)."""

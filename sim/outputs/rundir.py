@@ -103,14 +103,9 @@ def write_json(path: str | os.PathLike, obj: Any, *, indent: int = 2) -> Path:
     return path
 
 
-def write_npz(path: str | os.PathLike, **arrays: Any) -> Path:
-    """Write arrays to a compressed ``.npz`` exactly at ``path``, atomically; object arrays are refused."""
-    return write_npz_streamed(path, arrays.items())
-
-
 def write_npz_streamed(path: str | os.PathLike, arrays: Iterable[tuple[str, Any]]) -> Path:
-    """As :func:`write_npz`, the arrays taken one at a time (a generator makes each only while it is written);
-    a value with a ``write(file)`` method writes its own .npy member."""
+    """Write arrays to a compressed ``.npz`` exactly at ``path``, atomically (object arrays refused), taken one
+    at a time (a generator makes each only while it is written); a value with ``write(file)`` writes its own."""
 
     def _w(fh: io.BufferedWriter) -> None:
         with zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED, allowZip64=True, compresslevel=6) as z:

@@ -13,7 +13,6 @@ import sys
 import threading
 import time
 import urllib.parse
-import urllib.request
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
@@ -434,9 +433,3 @@ def view_recording(rrd: Path, *, web: bool = False) -> None:
         process.wait()
     finally:
         stop_processes([process], 10)
-
-
-def url_serves(url: str) -> bool:
-    """Whether the page answers (the web viewer is up)."""
-    with urllib.request.urlopen(url, timeout=10) as response:
-        return bool(response.status == 200)

@@ -18,8 +18,9 @@ pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
 
 from sim.cli.main import main  # noqa: E402
-from sim.outputs.view import SwarmView, replay, url_serves  # noqa: E402
+from sim.outputs.view import SwarmView, replay  # noqa: E402
 from tests.conftest import run_pixelswarm  # noqa: E402
+from tests.support.outputs import url_serves  # noqa: E402
 from tests.support.recording import recorded_swarm  # noqa: E402
 
 ARENA = (-2.0, -1.5, 2.0, 1.5)

@@ -22,8 +22,8 @@ from coordinator.scene import SceneError, load_scene, scene_from_dict, scene_goa
 from coordinator.service import step_motion, step_timing
 from coordinator.steps import DEFAULT_FIRST_HOLD, DEFAULT_FRAME_TIME
 from sim.central.engine import run_central
-from sim.outputs.metrics import keyframe_errors
 from tests.conftest import run_pixelswarm
+from tests.support.outputs import keyframe_errors
 from transport.codec import Goals, decode
 
 DT = 0.1

@@ -9,8 +9,9 @@ import pytest
 from scipy.spatial.distance import pdist
 
 from sim.outputs.metrics import clearance_at
-from sim.outputs.render import MIN_DISC_PX, _View, render_frame, video_size
+from sim.outputs.render import MIN_DISC_PX, _View, video_size
 from sim.outputs.write import FLOAT32_FROM, write_trajectory
+from tests.support.outputs import render_frame
 
 ARENA = (-39.88, -41.74, 39.88, 41.71)  # paper-sequence-10000's
 RADIUS = 0.037  # the e-puck's

@@ -15,9 +15,10 @@ from mcap.reader import make_reader
 from sim.outputs import metrics
 from sim.outputs.foxglove import QUANTUM, SceneUpdate, scene_update
 from sim.outputs.mcaplog import McapLog, mcap_channels, read_mcap
-from sim.outputs.render import Recording, _View, frame_indices, render_frame, write_plots, write_video
-from sim.outputs.rundir import RunDir, default_run_path, dumps_json, json_safe, write_json, write_npz
+from sim.outputs.render import Recording, _View, frame_indices, write_plots, write_video
+from sim.outputs.rundir import RunDir, default_run_path, dumps_json, json_safe, write_json
 from tests.conftest import METRIC_KEYS, run_pixelswarm
+from tests.support.outputs import contact_events, render_frame, write_npz
 
 POSE_SCHEMA = {
     "type": "object",
@@ -193,8 +194,8 @@ def test_contact_events():
     gap[10:15] = 0.1  # first contact
     gap[30:40] = 0.15  # second contact
     pose[:, 1, 0] = gap
-    assert metrics.contact_events(pose, np.array([0.1, 0.1, 0.1])) == 2
-    assert metrics.contact_events(pose[:, :1], np.array([0.1])) == 0
+    assert contact_events(pose, np.array([0.1, 0.1, 0.1])) == 2
+    assert contact_events(pose[:, :1], np.array([0.1])) == 0
 
 
 def test_path_lengths():
