@@ -15,6 +15,7 @@ from typing import Any
 import foxglove
 from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 from google.protobuf.descriptor import FieldDescriptor
+from google.protobuf.descriptor_pb2 import FileDescriptorSet
 from google.protobuf.message import Message
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
@@ -86,15 +87,6 @@ class McapLog:
             self._channels[topic] = (cid, key)
             self._by_id[cid] = channel
             return cid
-
-    def write(self, channel_id: int, log_time_ns: int, payload: Any) -> None:
-        """Write a dict on a JSON channel (NaN -> null), a protobuf or :mod:`foxglove.messages` one on others."""
-        channel = self._by_id.get(channel_id)  # None: write_bytes says so
-        if channel is None or channel.message_encoding == MESSAGE_ENCODING:
-            data = dumps_json(payload).encode("utf-8")
-        else:  # a google.protobuf message (sim.outputs.logschema's), or a foxglove.messages one
-            data = payload.SerializeToString() if isinstance(payload, Message) else payload.encode()
-        self.write_bytes(channel_id, log_time_ns, data)
 
     def write_bytes(self, channel_id: int, log_time_ns: int, data: bytes) -> None:
         """Write an already encoded message unchanged (JSON: UTF-8, without NaN/Infinity literals)."""
@@ -207,16 +199,13 @@ def read_mcap(path: str | os.PathLike, topics: Iterable[str] | None = None) -> d
     """All messages (of ``topics``) by topic, decoded, in log-time order; empty channels too. A file never
     closed (its writer was killed) is read up to its last flushed chunk."""
     wanted = None if topics is None else set(topics)
-    out: dict[str, list[dict]] = {}
     if not is_closed_mcap(path):
         return _read_unfinished(path, wanted)
     with open(path, "rb") as fh:
         reader = make_reader(fh, decoder_factories=[_Decoders()])
         summary = reader.get_summary()
-        if summary is not None:
-            for ch in summary.channels.values():
-                if wanted is None or ch.topic in wanted:
-                    out.setdefault(ch.topic, [])
+        channels = summary.channels.values() if summary is not None else ()
+        out: dict[str, list[dict]] = {ch.topic: [] for ch in channels if wanted is None or ch.topic in wanted}
         for _, channel, _, decoded in reader.iter_decoded_messages(topics=wanted):
             out.setdefault(channel.topic, []).append(decoded)
     return out
@@ -272,8 +261,4 @@ def _schema_of(schema: Any) -> Any:
     """A JSON schema parsed; a protobuf schema as its ``FileDescriptorSet``."""
     if schema is None or not schema.data:
         return None
-    if schema.encoding == PROTOBUF:
-        from google.protobuf.descriptor_pb2 import FileDescriptorSet
-
-        return FileDescriptorSet.FromString(schema.data)
-    return json.loads(schema.data)
+    return FileDescriptorSet.FromString(schema.data) if schema.encoding == PROTOBUF else json.loads(schema.data)

@@ -17,6 +17,7 @@ from mcap.exceptions import McapError
 from sim.outputs.mcaplog import McapLog, read_mcap
 from sim.outputs.ticklog import TICKS_FILE, TickLog, read_ticks
 from tests.conftest import REPO, descendants, pixelswarm_cmd, reap, start_run, ticks_so_far, wait_for, write_disk
+from tests.support.outputs import log_json
 from transport.session import free_port
 
 TOLERANCE = 0.01  # m: the show completes when every robot is this close to its goal at the end
@@ -76,10 +77,10 @@ def test_an_mcap_log_never_closed_reads_up_to_its_last_flush(tmp_path):
     log = McapLog(tmp_path / "log.mcap")
     channel = log.add_channel("/n", "N", {"type": "object"})
     for k in range(10):
-        log.write(channel, k, {"k": k})
+        log_json(log, channel, k, {"k": k})
     log.flush()
     for k in range(10, 15):
-        log.write(channel, k, {"k": k})  # the chunk in progress when the writer dies
+        log_json(log, channel, k, {"k": k})  # the chunk in progress when the writer dies
     # no close: as a process killed outright leaves it
     assert [m["k"] for m in read_mcap(tmp_path / "log.mcap")["/n"]] == list(range(10))
     log.close()

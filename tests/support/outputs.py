@@ -1,5 +1,6 @@
 """Measures and writers of a run's outputs that only tests and benchmarks use (the runs themselves do not):
-contact events, keyframe errors, one frame of the video, a compressed .npz, whether the web view serves."""
+contact events, keyframe errors, one frame of the video, a compressed .npz, a JSON message in an MCAP log,
+whether the web view serves."""
 
 from __future__ import annotations
 
@@ -11,9 +12,10 @@ from typing import Any
 
 import numpy as np
 
+from sim.outputs.mcaplog import McapLog
 from sim.outputs.metrics import _pose_shape, _radius
 from sim.outputs.render import _draw, _View
-from sim.outputs.rundir import write_npz_streamed
+from sim.outputs.rundir import dumps_json, write_npz_streamed
 
 
 def contact_events(pose: np.ndarray, radius: np.ndarray) -> int:
@@ -93,6 +95,11 @@ def render_frame(
 def write_npz(path: str | os.PathLike, **arrays: Any) -> Path:
     """Write arrays to a compressed ``.npz`` exactly at ``path``, atomically; object arrays are refused."""
     return write_npz_streamed(path, arrays.items())
+
+
+def log_json(log: McapLog, channel_id: int, log_time_ns: int, payload: Any) -> None:
+    """Write a dict on a JSON channel of ``log`` (NaN -> null)."""
+    log.write_bytes(channel_id, log_time_ns, dumps_json(payload).encode("utf-8"))
 
 
 def url_serves(url: str) -> bool:

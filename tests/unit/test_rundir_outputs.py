@@ -18,7 +18,7 @@ from sim.outputs.mcaplog import McapLog, mcap_channels, read_mcap
 from sim.outputs.render import Recording, _View, frame_indices, write_plots, write_video
 from sim.outputs.rundir import RunDir, default_run_path, dumps_json, json_safe, write_json
 from tests.conftest import METRIC_KEYS, run_pixelswarm
-from tests.support.outputs import contact_events, render_frame, write_npz
+from tests.support.outputs import contact_events, log_json, render_frame, write_npz
 
 POSE_SCHEMA = {
     "type": "object",
@@ -49,19 +49,22 @@ def test_mcap_round_trip(tmp_path):
         log.add_channel("swarm/empty", "pixelswarm.Status", STATUS_SCHEMA)
         assert len({pose_ch, pose1_ch, status_ch}) == 3
         # written out of log-time order on purpose
-        log.write(
-            pose_ch, 2_000_000_000, {"id": np.int64(0), "pose": np.array([1.0, np.nan, 0.5]), "stamp": np.float32(2.0)}
+        log_json(
+            log,
+            pose_ch,
+            2_000_000_000,
+            {"id": np.int64(0), "pose": np.array([1.0, np.nan, 0.5]), "stamp": np.float32(2.0)},
         )
-        log.write(pose_ch, 1_000_000_000, {"id": 0, "pose": [0.0, 0.0, np.inf], "stamp": 1.0})
-        log.write(pose1_ch, 1_500_000_000, {"id": 1, "pose": np.arange(3, dtype=np.float32)})
+        log_json(log, pose_ch, 1_000_000_000, {"id": 0, "pose": [0.0, 0.0, np.inf], "stamp": 1.0})
+        log_json(log, pose1_ch, 1_500_000_000, {"id": 1, "pose": np.arange(3, dtype=np.float32)})
         log.write_bytes(status_ch, 1_200_000_000, b'{"ok":true,"note":"raw"}')
-        log.write(status_ch, 1_300_000_000, {"ok": np.bool_(False), "note": "x", "extra": {1: (np.nan,)}})
+        log_json(log, status_ch, 1_300_000_000, {"ok": np.bool_(False), "note": "x", "extra": {1: (np.nan,)}})
         log.add_metadata("run", {"scene": "circle", "seed": 7})
         assert log.message_count == 5
     assert log.closed
     log.close()  # idempotent
     with pytest.raises(ValueError):
-        log.write(pose_ch, 3, {"id": 0, "pose": []})
+        log_json(log, pose_ch, 3, {"id": 0, "pose": []})
 
     msgs = read_mcap(path)
     # Foxglove's writer puts a channel in the file with its first message: one never used is not there
@@ -107,7 +110,7 @@ def test_mcap_cut_anywhere_reads_a_prefix(tmp_path):
     with McapLog(path, compression=None) as log:
         ch = log.add_channel("swarm/robot/0/pose", "pixelswarm.Pose", POSE_SCHEMA)
         for k in range(40):
-            log.write(ch, (k + 1) * 100_000_000, {"id": 0, "pose": [k * 0.1, 0.0, 0.0], "stamp": k * 0.1})
+            log_json(log, ch, (k + 1) * 100_000_000, {"id": 0, "pose": [k * 0.1, 0.0, 0.0], "stamp": k * 0.1})
     whole = path.read_bytes()
     full = read_mcap(path)["swarm/robot/0/pose"]
     cut = tmp_path / "cut.mcap"
