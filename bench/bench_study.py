@@ -31,9 +31,14 @@ from pathlib import Path
 import psutil
 
 from sim.processes import stop_processes
-from sim.study.cluster import quiet_env
+from sim.study.cluster import QUIET
 
 from .common import REPO, write_results
+
+
+def quiet_env() -> dict[str, str]:
+    """:data:`sim.study.cluster.QUIET` as the environment variables Dask reads its configuration from."""
+    return {"DASK_" + key.upper().replace(".", "__").replace("-", "_"): str(v) for key, v in QUIET.items()}
 
 
 def run_study(spec: Path, jobs: int, cluster: bool = False) -> tuple[float, float, list[dict[str, str]]]:

@@ -27,17 +27,12 @@ ADDRESS = re.compile(r"^(tcp|tls)://[^\s/:]+:\d{1,5}$")
 
 
 # Dask's own periodic work, slowed for tasks that only wait on a subprocess: its CPU is the runs' on a small
-# machine. docs/study.md gives these as environment variables (quiet_env) for `dask scheduler` and `dask worker`.
+# machine. docs/study.md gives these as environment variables for `dask scheduler` and `dask worker`.
 QUIET = {
     "distributed.worker.profile.enabled": False,
     "distributed.admin.tick.interval": "1s",
     "distributed.admin.system-monitor.interval": "5s",
 }
-
-
-def quiet_env() -> dict[str, str]:
-    """:data:`QUIET` as the environment variables Dask reads its configuration from."""
-    return {"DASK_" + key.upper().replace(".", "__").replace("-", "_"): str(v) for key, v in QUIET.items()}
 
 
 def check_address(address: str) -> None:
