@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.args import UsageError, check_endpoint
+from sim.args import check_endpoint, usage_errors
 from sim.outputs.view import SwarmView
 from sim.processes import stop_on_sigterm
 from transport.bus import Bus, Inbox, LivelinessWatch, RawInbox
@@ -31,15 +31,13 @@ NO_RUN = 1  # exit code: no tick came within the timeout
 def observer_settings(endpoint: str, secure: Path | None, display: str) -> ZenohSettings:
     """A client session of the run's router at ``endpoint``, plain or as the observer of a `pixelswarm certs`
     folder; UsageError for bad input."""
-    try:
+    with usage_errors(SecurityError, ValueError):
         Keys(display)
         if secure is not None:
             check_role(secure, OBSERVER, display=display)
             settings = client_config(secure, OBSERVER, endpoint)
         else:
             settings = ZenohSettings(mode="client", connect=[endpoint])
-    except (SecurityError, ValueError) as err:
-        raise UsageError(str(err)) from None
     check_endpoint(settings, endpoint)
     return settings
 

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from coordinator.scene import CLOCKS, ENGINES, SceneError, load_scene
-from sim.args import UsageError, refuse_if
+from sim.args import UsageError, refuse_if, usage_errors
 from sim.outputs.rundir import atomic_write
 
 FAULT_SETTINGS = ("loss", "delay", "jitter")  # the state messages' fault plan (transport/faults.py)
@@ -178,10 +178,8 @@ def _check_conditions(spec: Spec) -> None:
     for condition, settings in spec.conditions():
         key = (settings.get("robots"), settings.get("clock"), settings.get("duration"))
         if key not in scenes:
-            try:
+            with usage_errors(SceneError):
                 scenes[key] = load_scene(spec.scene, robots=key[0], clock=key[1], duration=key[2])
-            except SceneError as err:
-                raise UsageError(str(err)) from None
         scene = scenes[key]
         if settings.get("engine", scene.engine) == "central":
             faulty = [k for k in FAULT_SETTINGS if settings.get(k, 0.0) != 0.0]
