@@ -143,8 +143,7 @@ def scene_update(
     return SceneUpdate(deletions=deletions, entities=[]).encode() + b"".join(entities)
 
 
-# SceneUpdate's and SceneEntity's field numbers in Foxglove's schema (foxglove/SceneUpdate.proto,
-# foxglove/SceneEntity.proto)
+# field numbers in Foxglove's schemas (foxglove/SceneUpdate.proto, foxglove/SceneEntity.proto)
 ENTITIES = 2
 ARROWS, SPHERES, CYLINDERS = 7, 9, 10
 

@@ -27,9 +27,8 @@ class TickLog:
     def __init__(self, path: str | os.PathLike, robots: int) -> None:
         self.path, self.robots = Path(path), robots
         self.dtype = tick_dtype(robots)
-        header = {"format": FORMAT, "robots": robots}
         self._fd: int | None = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-        os.write(self._fd, (json.dumps(header) + "\n").encode())
+        os.write(self._fd, (json.dumps({"format": FORMAT, "robots": robots}) + "\n").encode())
 
     def append(self, t: float, wall: float, rows: tuple[np.ndarray, ...]) -> None:
         """A tick's record: its time, wall time and rows in the order of sim.outputs.stream.ROWS."""
