@@ -40,7 +40,7 @@ from hardware.epuck2 import (
 from hardware.ros2 import Ros2Backend, Ros2BackendConfig, Ros2PosesConfig, Ros2PoseSource
 from sim.emulators.camera import OverheadCamera, render_frames, wandering_robots
 from sim.emulators.mocap import MocapEmulator
-from sim.outputs.mcaplog import logged
+from tests.support.outputs import logged
 from transport.session import client_of, free_port, loopback_router, open_session
 
 from .common import REPO, parser_for, run_subcommand, write_results

@@ -28,9 +28,8 @@ import orjson
 
 from agent.core.params import RobotParams
 from coordinator.scene import load_scene
-from sim.outputs.mcaplog import logged
 from tests.support.assignment_quality import agreements
-from tests.support.outputs import keyframe_errors
+from tests.support.outputs import keyframe_errors, logged
 from transport.codec import State
 
 from .common import REPO, load_run, parser_for, run_cli_scene, run_subcommand, steps_table, write_results

@@ -188,13 +188,6 @@ class _Decoders(DecoderFactory):
         return None if decode is None else lambda data: proto_to_dict(decode(data))
 
 
-def logged(path: str | os.PathLike, topics: Iterable[str]) -> list[tuple[int, str, Any]]:
-    """(log time ns, topic, decoded message) of these topics of a closed file, in log-time order."""
-    with open(path, "rb") as fh:
-        messages = make_reader(fh, decoder_factories=[_Decoders()]).iter_decoded_messages(topics=sorted(topics))
-        return [(m.log_time, c.topic, decoded) for _, c, m, decoded in messages]
-
-
 def read_mcap(path: str | os.PathLike, topics: Iterable[str] | None = None) -> dict[str, list[dict]]:
     """All messages (of ``topics``) by topic, decoded, in log-time order; empty channels too. A file never
     closed (its writer was killed) is read up to its last flushed chunk."""

@@ -28,9 +28,9 @@ import numpy as np
 import psutil
 import pytest
 
-from sim.outputs.mcaplog import logged as mcap_logged
 from sim.outputs.ticklog import TICKS_FILE, read_ticks
 from tests.conftest import REPO, descendants, start_run, wait_for, write_disk
+from tests.support.outputs import logged as mcap_logged
 
 ROBOTS = 10
 VICTIM = 4

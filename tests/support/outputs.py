@@ -1,18 +1,19 @@
 """Measures and writers of a run's outputs that only tests and benchmarks use (the runs themselves do not):
-contact events, keyframe errors, one frame of the video, a compressed .npz, a JSON message in an MCAP log,
-whether the web view serves."""
+contact events, keyframe errors, one frame of the video, a compressed .npz, a JSON message in an MCAP log and
+a closed log's messages in log-time order, whether the web view serves."""
 
 from __future__ import annotations
 
 import os
 import urllib.request
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from mcap.reader import make_reader
 
-from sim.outputs.mcaplog import McapLog
+from sim.outputs.mcaplog import McapLog, _Decoders
 from sim.outputs.metrics import _pose_shape, _radius
 from sim.outputs.render import _draw, _View
 from sim.outputs.rundir import dumps_json, write_npz_streamed
@@ -100,6 +101,13 @@ def write_npz(path: str | os.PathLike, **arrays: Any) -> Path:
 def log_json(log: McapLog, channel_id: int, log_time_ns: int, payload: Any) -> None:
     """Write a dict on a JSON channel of ``log`` (NaN -> null)."""
     log.write_bytes(channel_id, log_time_ns, dumps_json(payload).encode("utf-8"))
+
+
+def logged(path: str | os.PathLike, topics: Iterable[str]) -> list[tuple[int, str, Any]]:
+    """(log time ns, topic, decoded message) of these topics of a closed file, in log-time order."""
+    with open(path, "rb") as fh:
+        messages = make_reader(fh, decoder_factories=[_Decoders()]).iter_decoded_messages(topics=sorted(topics))
+        return [(m.log_time, c.topic, decoded) for _, c, m, decoded in messages]
 
 
 def url_serves(url: str) -> bool:
