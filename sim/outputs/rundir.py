@@ -23,10 +23,6 @@ import numpy as np
 PARTIAL_SUFFIX = ".partial"
 
 
-def _float_or_none(x: float) -> float | None:
-    return x if math.isfinite(x) else None
-
-
 def _array_safe(a: np.ndarray) -> Any:
     if a.dtype.kind == "f" and not (finite := np.isfinite(a)).all():
         obj = a.astype(object)
@@ -47,16 +43,14 @@ def json_safe(obj: Any) -> Any:
     as lists, keys and paths as strings, enums as their value, bytes decoded as UTF-8."""
     if obj is None or isinstance(obj, (bool, str, int)):
         return obj
-    if isinstance(obj, float):
-        return _float_or_none(obj)
+    if isinstance(obj, (float, np.floating)):  # float(), not item(): a long double's item() is one again
+        return float(obj) if math.isfinite(obj) else None
     if isinstance(obj, dict):
         return {(k if isinstance(k, str) else str(json_safe(k))): json_safe(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
         return [json_safe(v) for v in obj]
     if isinstance(obj, np.ndarray):
         return _array_safe(obj)
-    if isinstance(obj, np.floating):  # float(), not item(): a long double's item() is one again
-        return _float_or_none(float(obj))
     if isinstance(obj, np.generic):  # numpy's bools and integers as Python's
         return json_safe(obj.item())
     if isinstance(obj, (set, frozenset)):
