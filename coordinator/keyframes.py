@@ -24,7 +24,7 @@ from scipy.spatial.distance import cdist
 
 from .goals import IMAGE_SUFFIXES, GoalError, GoalOptions, GoalSet, PreparedImage, goals_from_prepared, prepare_image
 from .goals.allocate import allocate_robots
-from .goals.family import rescale
+from .goals.model import rescale
 from .goals.pipeline import PAPER_OPTIONS
 from .goals.resize import from_arena, to_arena
 from .goals.sampling import in_region

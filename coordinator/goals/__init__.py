@@ -11,16 +11,13 @@ from typing import TYPE_CHECKING, Any
 from .model import IMAGE_SUFFIXES, GoalError, GoalSet
 
 if TYPE_CHECKING:  # the names __getattr__ imports on first use, for type checkers
-    from .family import GoalFamily, goal_family  # noqa: F401
     from .pipeline import GoalOptions, PreparedImage, generate_goals, goals_from_prepared, prepare_image  # noqa: F401
 
-_PIPELINE = dict.fromkeys(("GoalFamily", "goal_family"), "family") | dict.fromkeys(
-    ("GoalOptions", "PreparedImage", "generate_goals", "goals_from_prepared", "prepare_image"), "pipeline"
-)
+_PIPELINE = ("GoalOptions", "PreparedImage", "generate_goals", "goals_from_prepared", "prepare_image")
 __all__ = ["IMAGE_SUFFIXES", "GoalError", "GoalSet", *_PIPELINE]
 
 
 def __getattr__(name: str) -> Any:
     if name in _PIPELINE:
-        return getattr(importlib.import_module(f".{_PIPELINE[name]}", __name__), name)
+        return getattr(importlib.import_module(".pipeline", __name__), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

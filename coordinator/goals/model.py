@@ -90,3 +90,13 @@ class GoalSet:
     @classmethod
     def from_json(cls, text: str) -> GoalSet:
         return cls.from_dict(json.loads(text))
+
+
+def rescale(gs: GoalSet, arena: float) -> GoalSet:
+    """The same goals in an arena of another size (goals scale linearly with K_r)."""
+    k = arena / gs.arena
+    params = dict(gs.params, arena=float(arena))
+    if params.get("min_spacing") is not None:
+        params["min_spacing"] = params["min_spacing"] * k
+    params["regions"] = [dict(r, k_s=r["k_s"] * k) for r in params.get("regions", [])]
+    return GoalSet(gs.goals * k, gs.colors, gs.regions, gs.cost_history, params)

@@ -13,6 +13,7 @@ import numpy as np
 
 from coordinator import shapes
 from coordinator.goals_cli import add_goals_parser
+from tests.support import shape_truth
 
 REPO = Path(__file__).resolve().parents[2]
 HELPER = (
@@ -122,7 +123,7 @@ def test_the_command_line_of_every_command_loads_no_image_pipeline_nor_scipy():
 
 
 def test_notes_go_to_stderr_without_failing(tmp_path, capsys):
-    img, _ = shapes.photo_like(128, seed=2)
+    img, _ = shape_truth.photo_like(128, seed=2)
     path = tmp_path / "photo.jpg"
     cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
     args = _parse(path, "-n", 30, "-o", tmp_path / "g.json")

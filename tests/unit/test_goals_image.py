@@ -9,6 +9,7 @@ import pytest
 from coordinator import shapes
 from coordinator.goals import GoalError, GoalOptions, generate_goals
 from coordinator.goals.image import foreground_mask, load_image, parse_color
+from tests.support import shape_truth
 
 SIZE = 96
 
@@ -33,7 +34,7 @@ def test_formats_load_as_rgb(tmp_path, ext):
 
 
 def test_gray_and_16_bit_images_load(tmp_path):
-    gray = (shapes.shape_mask("disk", SIZE) * 255).astype(np.uint8)
+    gray = (shape_truth.shape_mask("disk", SIZE) * 255).astype(np.uint8)
     cv2.imwrite(str(tmp_path / "g.png"), 255 - gray)
     rgb, _ = load_image(tmp_path / "g.png")
     assert rgb.shape == (SIZE, SIZE, 3) and (rgb[SIZE // 2, SIZE // 2] == 0).all()
@@ -50,7 +51,7 @@ def test_transparent_pixels_are_background_whatever_their_colour(tmp_path):
     rgb, alpha = load_image(tmp_path / "t.png")
     fg = foreground_mask(rgb, alpha)
     assert fg.source == "alpha"
-    assert np.array_equal(fg.mask, shapes.shape_mask("L", SIZE))
+    assert np.array_equal(fg.mask, shape_truth.shape_mask("L", SIZE))
 
 
 def test_explicit_background_keeps_transparent_pixels_out():
@@ -58,7 +59,7 @@ def test_explicit_background_keeps_transparent_pixels_out():
     rgba[rgba[..., 3] == 0, :3] = 0  # black under the transparent pixels
     rgba[40:56, 40:56, :3] = 255  # an opaque white patch inside the disk
     fg = foreground_mask(rgba[..., :3], rgba[..., 3], background="white")
-    expected = shapes.shape_mask("disk", SIZE)
+    expected = shape_truth.shape_mask("disk", SIZE)
     expected[40:56, 40:56] = False
     assert np.array_equal(fg.mask, expected)
 
@@ -67,14 +68,14 @@ def test_opaque_alpha_falls_back_to_the_border_colour():
     rgba = np.dstack([shapes.draw("disk", SIZE), np.full((SIZE, SIZE), 255, np.uint8)])
     fg = foreground_mask(rgba[..., :3], rgba[..., 3])
     assert fg.source == "border"
-    assert np.array_equal(fg.mask, shapes.shape_mask("disk", SIZE))
+    assert np.array_equal(fg.mask, shape_truth.shape_mask("disk", SIZE))
 
 
 @pytest.mark.parametrize("bg", [(255, 255, 255), (0, 0, 0), (40, 160, 60)])
 def test_dominant_border_colour_is_background(bg):
     img = shapes.draw("T", SIZE, background=bg)
     fg = foreground_mask(img)
-    assert np.array_equal(fg.mask, shapes.shape_mask("T", SIZE))
+    assert np.array_equal(fg.mask, shape_truth.shape_mask("T", SIZE))
     assert np.abs(np.array(fg.background) - bg).max() <= 2
 
 
@@ -90,7 +91,7 @@ def test_explicit_background_colour_wins_over_the_border():
 
 
 def test_uneven_noisy_background_leaves_only_the_subject():
-    img, subject = shapes.photo_like(160, seed=3)
+    img, subject = shape_truth.photo_like(160, seed=3)
     mask = foreground_mask(img).mask
     near = cv2.dilate(subject.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
     assert not (mask & ~near).any()  # nothing away from the subject

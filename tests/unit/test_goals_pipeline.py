@@ -9,9 +9,11 @@ import pytest
 from scipy.spatial import cKDTree
 
 from coordinator import shapes
-from coordinator.goals import GoalError, GoalFamily, GoalOptions, GoalSet, generate_goals, goal_family, prepare_image
+from coordinator.goals import GoalError, GoalOptions, GoalSet, generate_goals, prepare_image
 from coordinator.goals.image import to_lab
 from coordinator.goals.resize import from_arena
+from tests.support import shape_truth
+from tests.support.goal_family import GoalFamily, goal_family
 
 SIZE = 160
 
@@ -31,7 +33,7 @@ def _in_own_region(gs: GoalSet, labels: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize("method", ["cvt", "kmeans"])
 def test_exactly_n_goals_each_inside_its_own_region(name, method):
     prep = prepare_image(shapes.draw(name, SIZE))
-    truth = shapes.shape_mask(name, SIZE)
+    truth = shape_truth.shape_mask(name, SIZE)
     for n, seed in ((14, 0), (60, 1)):
         gs = generate_goals(shapes.draw(name, SIZE), n, GoalOptions(method=method, seed=seed))
         assert len(gs) == n and gs.colors.shape == (n, 3) and gs.regions.shape == (n,)
@@ -75,7 +77,7 @@ def _delta_e(colors: np.ndarray, rgb) -> np.ndarray:
 def test_goal_colours_are_their_region_colours(antialias):
     img = shapes.draw("two_squares", SIZE, antialias=antialias)
     gs = generate_goals(img, 20, GoalOptions(seed=0))
-    red, blue = shapes.part_masks("two_squares", SIZE)
+    red, blue = shape_truth.part_masks("two_squares", SIZE)
     px = np.floor(_pixels(gs)).astype(int)
     on_red = red[px[:, 1], px[:, 0]]
     assert on_red.sum() == 10 and (~on_red).sum() == 10  # equal areas, separate goals
@@ -101,12 +103,12 @@ def test_transparent_png_works(tmp_path):
     cv2.imwrite(str(tmp_path / "t.png"), cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGRA))
     gs = generate_goals(tmp_path / "t.png", 25, GoalOptions(seed=0))
     px = np.floor(_pixels(gs)).astype(int)
-    assert shapes.shape_mask("T", SIZE)[px[:, 1], px[:, 0]].all()
+    assert shape_truth.shape_mask("T", SIZE)[px[:, 1], px[:, 0]].all()
     assert gs.params["background"]["source"] == "alpha"
 
 
 def test_photo_like_image_gives_goals_only_on_the_subject():
-    img, subject = shapes.photo_like(SIZE, seed=1)
+    img, subject = shape_truth.photo_like(SIZE, seed=1)
     gs = generate_goals(img, 60, GoalOptions(seed=0))
     px = np.floor(_pixels(gs)).astype(int)
     assert subject[px[:, 1], px[:, 0]].all()

@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 from coordinator import shapes
 from coordinator.goals import GoalError, prepare_image
 from coordinator.goals.allocate import allocate_robots
+from tests.support import shape_truth
 
 SIZE = 128
 
@@ -21,7 +22,7 @@ def _regions(img, **kw):
 def test_touching_regions_of_different_colour_stay_apart():
     seg = _regions(shapes.draw("two_squares", SIZE))
     assert [r.color for r in seg.regions] == [shapes.RED, shapes.BLUE]
-    red, blue = shapes.part_masks("two_squares", SIZE)
+    red, blue = shape_truth.part_masks("two_squares", SIZE)
     assert np.array_equal(seg.labels == 0, red) and np.array_equal(seg.labels == 1, blue)
 
 
@@ -39,7 +40,7 @@ def test_antialiased_edges_do_not_become_regions():
     seg = _regions(shapes.draw("disk_and_line", SIZE, antialias=True))
     assert len(seg.regions) == 2
     assert any("merged" in note for note in seg.notes)
-    disk, line = shapes.part_masks("disk_and_line", SIZE)
+    disk, line = shape_truth.part_masks("disk_and_line", SIZE)
     assert (seg.labels[disk] == 0).mean() > 0.99 and (seg.labels[line] == 1).mean() > 0.99
 
 

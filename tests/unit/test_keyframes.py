@@ -23,6 +23,7 @@ from coordinator.keyframes import (
     region_shape,
 )
 from coordinator.shapes import BLUE, RED, union
+from tests.support import shape_truth
 
 # --dist loadgroup gives the module one xdist worker: its module fixture (the leaf's keyframe goals) is made
 # once, not once on each worker
@@ -195,7 +196,7 @@ def test_fallback_to_fresh_sampling_when_regions_do_not_correspond():
 
 
 def test_fit_count_thins_and_fills_inside_the_region():
-    mask = shapes.shape_mask("T", 128)
+    mask = shape_truth.shape_mask("T", 128)
     rows, cols = np.nonzero(mask)
     inside = np.stack([cols + 0.5, rows + 0.5], axis=1)[::97]
     outside = np.array([[1.0, 1.0], [127.0, 127.0]])

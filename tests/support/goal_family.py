@@ -1,5 +1,5 @@
 """Goal-set families (paper 5.1.2, eq. 8): goal sets G_r for a range of robot counts r in one arena, so the
-picture keeps its size when robots drop out or join."""
+picture keeps its size when robots drop out or join. A run makes these through coordinator.steps.GoalSets."""
 
 from __future__ import annotations
 
@@ -10,8 +10,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .model import GoalError, GoalSet
-from .pipeline import PAPER_OPTIONS, GoalOptions, goals_from_prepared, prepare_image
+from coordinator.goals import GoalError, GoalSet
+from coordinator.goals.model import rescale
+from coordinator.goals.pipeline import PAPER_OPTIONS, GoalOptions, goals_from_prepared, prepare_image
 
 FAMILY_FORMAT = "pixelswarm.goal-family/1"
 
@@ -45,16 +46,6 @@ class GoalFamily:
             raise ValueError(f"unsupported goal-family format {data.get('format')!r}")
         sets = [GoalSet.from_dict(d) for d in data["sets"]]
         return cls({len(s): s for s in sets})
-
-
-def rescale(gs: GoalSet, arena: float) -> GoalSet:
-    """The same goals in an arena of another size (goals scale linearly with K_r)."""
-    k = arena / gs.arena
-    params = dict(gs.params, arena=float(arena))
-    if params.get("min_spacing") is not None:
-        params["min_spacing"] = params["min_spacing"] * k
-    params["regions"] = [dict(r, k_s=r["k_s"] * k) for r in params.get("regions", [])]
-    return GoalSet(gs.goals * k, gs.colors, gs.regions, gs.cost_history, params)
 
 
 def goal_family(
