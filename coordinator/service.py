@@ -165,17 +165,6 @@ class DeadBodies:
         return np.array([self.positions[r] for r in dead if r in self.positions]).reshape(-1, 2)
 
 
-@dataclass
-class Life:
-    """The service process's life: it runs until stopped, or until its parent, the launcher, is gone."""
-
-    running: bool = True
-    parent_pid: int | None = None  # --exit-with-parent: the launcher's pid
-
-    def orphaned(self) -> bool:
-        return self.parent_pid is not None and os.getppid() != self.parent_pid
-
-
 class Coordinator:
     """The goal sets of a run (paper 5): each step's image for the robots alive, clear of dead bodies."""
 
@@ -195,7 +184,7 @@ class Coordinator:
             self.clock.ticks = bus.subscribe(bus.keys.clock, Tick)
             self.alive = bus.watch_alive("agent")
         bus.serve(bus.keys.all_of("goals"), self._answer)
-        self.life = Life()
+        self.running = True
 
     def resume(self) -> Goals | None:
         """Go on from the newest goal set the run recorded (a restart mid-run), returned if there is one."""
@@ -243,13 +232,9 @@ class Coordinator:
         for _, ident, alive, _, life in self.alive.drain():
             if ident.isdigit() and int(ident) < self.scene.robots:
                 self.roster.hear(int(ident), alive, life)
-                if not alive:
-                    self._watch_body(int(ident))
+                if not alive:  # hear where its body stays, with every other dead robot's
+                    self.bodies.watch(self.bus, np.array(sorted((self.roster.ever - self.roster.live) | {int(ident)})))
         self.bodies.hear()
-
-    def _watch_body(self, r: int) -> None:
-        """Hear where robot ``r``'s body stays, with every other dead robot's."""
-        self.bodies.watch(self.bus, np.array(sorted((self.roster.ever - self.roster.live) | {r})))
 
     def _publish(self, step: int, robots: frozenset[int], dead: list[int]) -> None:
         """The next epoch's goal set, clear of dead robots' bodies, warm-started from the last set."""
@@ -320,10 +305,11 @@ class Coordinator:
         if len(robots) > 1:
             scene_goal_set(self.scene, step, len(robots) - 1)
 
-    def run(self, period: float = 1.0) -> None:
+    def run(self, period: float = 1.0, parent_pid: int | None = None) -> None:
+        """Until stopped, or until the launcher ``parent_pid`` (--exit-with-parent) is gone."""
         self.bus.declare_alive("coordinator", 0)
         next_publish = 0.0
-        while self.life.running:
+        while self.running:
             self.bus.renew_if_due()  # its link to the router came back a while ago
             if self.images and self._follow_show():
                 next_publish = time.monotonic() + period
@@ -334,8 +320,8 @@ class Coordinator:
                 self.bus.publish(self.bus.keys.goals(self.current.epoch), self.current)
                 next_publish = time.monotonic() + period
             time.sleep(0.02)
-            if self.life.orphaned():
-                self.life.running = False  # orphaned: the launcher died without stopping us
+            if parent_pid is not None and os.getppid() != parent_pid:
+                self.running = False  # orphaned: the launcher died without stopping us
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -355,15 +341,13 @@ def main(argv: list[str] | None = None) -> int:
         resumed = coordinator.resume()
         if resumed is not None:
             print(f"coordinator: going on from goal set {resumed.epoch} (step {resumed.timing.step})", flush=True)
-        if args.exit_with_parent:
-            coordinator.life.parent_pid = os.getppid()
 
         def stop(signum: int, frame: object) -> None:
-            coordinator.life.running = False
+            coordinator.running = False
 
         signal.signal(signal.SIGTERM, stop)
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-        coordinator.run()
+        coordinator.run(parent_pid=os.getppid() if args.exit_with_parent else None)
     return 0
 
 
