@@ -28,11 +28,6 @@ SHAPE_PIXELS = 256  # canvas side of the drawn shapes (goals live in the normali
 SHAPE_ROBOTS = 1000  # robots a SHAPE_PIXELS canvas serves; more get a canvas with as many pixels per robot
 
 
-def shape_pixels(robots: int) -> int:
-    """Canvas side of a drawn shape for `robots`: beyond SHAPE_ROBOTS it grows, keeping the pixels per robot."""
-    return max(SHAPE_PIXELS, math.ceil(SHAPE_PIXELS * math.sqrt(robots / SHAPE_ROBOTS)))
-
-
 @dataclass(frozen=True)
 class ImageStep:
     """One image of a sequence and how long it is shown."""
@@ -178,7 +173,8 @@ class StepGoals(GoalSets):
         step = self.steps[k]
         try:
             if k not in self._prepared:  # background and regions once per image, for every count
-                source: Any = draw(step.shape, shape_pixels(self.robots)) if step.shape is not None else step.image
+                side = max(SHAPE_PIXELS, math.ceil(SHAPE_PIXELS * math.sqrt(self.robots / SHAPE_ROBOTS)))
+                source: Any = draw(step.shape, side) if step.shape is not None else step.image
                 self._prepared[k] = prepare_image(source)
             counts = scale_region_counts(step.region_counts, self.counts_for, n)
             options = GoalOptions(arena, step.method, self.seed, self.radius, counts)
