@@ -119,9 +119,7 @@ def load_resolved(folder: Path | str, *, clock: str | None = None, duration: flo
 
 
 def _scene_of(data: dict[str, Any]) -> Scene:
-    goal_positions = np.array(
-        [[np.nan if v is None else v for v in row] for row in data["goal_positions"]], float
-    ).reshape(-1, 2)
+    goal_positions = np.array(data["goal_positions"], float).reshape(-1, 2)  # JSON's null: NaN, no goal
     xmin, ymin, xmax, ymax = (float(v) for v in data["arena"])
     return Scene(
         **{key: kind(data[key]) for key, kind in _AS_IS.items()},

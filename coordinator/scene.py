@@ -180,9 +180,7 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
     n = _whole(robots if robots is not None else data.get("robots", 14), "robots", 1, source)
     robot = _table(data, "robot", {}, source)
     radius = positive(robot.get("radius", epuck.RADIUS), f"{source}: robot radius", "metres", SceneError)
-    animation: Animation | None = None
-    if "animation" in data:
-        animation = _wrap(lambda: parse_animation(data["animation"], source), source)
+    animation = _wrap(lambda: parse_animation(data["animation"], source), source) if "animation" in data else None
     steps = list(animation.steps) if animation is not None else _steps(data, source)
     if animation is not None and ("steps" in data or "goals" in data):
         raise SceneError(f"{source}: give one of [animation], [[steps]] or [goals], not several")
