@@ -32,8 +32,9 @@ from scipy.spatial import cKDTree
 
 from coordinator import shapes
 from coordinator.goals import GoalOptions, goals_from_prepared, prepare_image
-from coordinator.goals.cvt import binary_domain, cvt_cost, density_domain
+from coordinator.goals.cvt import binary_domain, density_domain
 from coordinator.goals.resize import from_arena
+from tests.support.goal_sets import cvt_cost
 
 from .bench_runtime import worktree_at
 from .common import write_results

@@ -138,12 +138,6 @@ def cell_centroids(domain: Domain, idx: np.ndarray, gen: np.ndarray) -> np.ndarr
     return out
 
 
-def cvt_cost(domain: Domain, gen: np.ndarray, scale: float) -> float:
-    """Cost of eq. 1 (divided by K_m, in units of Q whose side is `scale` pixels) of generators gen."""
-    _, d2 = _Assigner(domain).assign(gen)
-    return float(np.dot(domain.weights, d2)) / scale**4
-
-
 def lloyd(
     domain: Domain,
     init: np.ndarray,

@@ -63,14 +63,11 @@ class GoalSet:
             "params": self.params,
         }
 
-    def to_json(self, indent: int | None = None) -> str:
-        """JSON text; with indent, one goal (colour, ...) per line."""
-        data = self.to_dict()
-        if indent is None:
-            return json.dumps(data)
+    def to_json(self, indent: int = 1) -> str:
+        """JSON text (goals.json), one goal (colour, ...) per line."""
         pad = " " * indent
         lines = []
-        for key, value in data.items():
+        for key, value in self.to_dict().items():
             if isinstance(value, list) and value and isinstance(value[0], list):
                 rows = (",\n" + pad * 2).join(json.dumps(v) for v in value)
                 text = f"[\n{pad * 2}{rows}\n{pad}]"
@@ -78,18 +75,6 @@ class GoalSet:
                 text = json.dumps(value, indent=indent).replace("\n", "\n" + pad)
             lines.append(f"{pad}{json.dumps(key)}: {text}")
         return "{\n" + ",\n".join(lines) + "\n}"
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> GoalSet:
-        if data.get("format", FORMAT) != FORMAT:
-            raise ValueError(f"unsupported goal-set format {data.get('format')!r}")
-        return cls(  # __post_init__ makes the arrays
-            data["goals"], data["colors"], data["regions"], data.get("cost_history", []), dict(data.get("params", {}))
-        )
-
-    @classmethod
-    def from_json(cls, text: str) -> GoalSet:
-        return cls.from_dict(json.loads(text))
 
 
 def rescale(gs: GoalSet, arena: float) -> GoalSet:

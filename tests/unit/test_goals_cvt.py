@@ -9,10 +9,11 @@ from scipy.spatial import cKDTree
 
 from coordinator import shapes
 from coordinator.goals import GoalOptions, goals_from_prepared, prepare_image
-from coordinator.goals.cvt import _Assigner, binary_domain, cell_centroids, cvt_cost, density_domain, lloyd
+from coordinator.goals.cvt import _Assigner, binary_domain, cell_centroids, density_domain, lloyd
 from coordinator.goals.pipeline import PAPER_SAMPLES_MAX
 from coordinator.goals.resize import from_arena
 from coordinator.goals.sampling import lattice_samples, poisson_samples
+from tests.support.goal_sets import cvt_cost
 
 FIG4 = [
     ("disk", None),

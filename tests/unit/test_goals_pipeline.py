@@ -13,7 +13,7 @@ from coordinator.goals import GoalError, GoalOptions, GoalSet, generate_goals, p
 from coordinator.goals.image import to_lab
 from coordinator.goals.resize import from_arena
 from tests.support import shape_truth
-from tests.support.goal_family import GoalFamily, goal_family
+from tests.support.goal_sets import GoalFamily, goal_family, goal_set_from_json
 
 SIZE = 160
 
@@ -182,7 +182,7 @@ def test_goal_set_json_round_trip():
         assert key in data
     for key in ("n", "arena", "method", "seed", "robot_radius"):
         assert key in data["params"]
-    back = GoalSet.from_json(gs.to_json(indent=1))
+    back = goal_set_from_json(gs.to_json(indent=1))
     assert np.allclose(back.goals, gs.goals, atol=1e-6)
     assert np.array_equal(back.colors, gs.colors) and np.array_equal(back.regions, gs.regions)
     assert back.cost_history == gs.cost_history and back.params == gs.params

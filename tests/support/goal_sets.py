@@ -1,5 +1,6 @@
-"""Goal-set families (paper 5.1.2, eq. 8): goal sets G_r for a range of robot counts r in one arena, so the
-picture keeps its size when robots drop out or join. A run makes these through coordinator.steps.GoalSets."""
+"""Goal sets as tests and benchmarks read and weigh them: a goals.json read back, the cost of eq. 1 of any
+generators, and goal-set families (paper 5.1.2, eq. 8: G_r for a range of robot counts r in one arena, so
+the picture keeps its size when robots drop out or join; a run makes these through coordinator.steps.GoalSets)."""
 
 from __future__ import annotations
 
@@ -7,14 +8,35 @@ import json
 import os
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from coordinator.goals import GoalError, GoalSet
-from coordinator.goals.model import rescale
+from coordinator.goals.cvt import Domain, _Assigner
+from coordinator.goals.model import FORMAT, rescale
 from coordinator.goals.pipeline import PAPER_OPTIONS, GoalOptions, goals_from_prepared, prepare_image
 
 FAMILY_FORMAT = "pixelswarm.goal-family/1"
+
+
+def goal_set_from_dict(data: dict[str, Any]) -> GoalSet:
+    """A GoalSet from its to_dict() (a goals.json)."""
+    if data.get("format", FORMAT) != FORMAT:
+        raise ValueError(f"unsupported goal-set format {data.get('format')!r}")
+    return GoalSet(  # __post_init__ makes the arrays
+        data["goals"], data["colors"], data["regions"], data.get("cost_history", []), dict(data.get("params", {}))
+    )
+
+
+def goal_set_from_json(text: str) -> GoalSet:
+    return goal_set_from_dict(json.loads(text))
+
+
+def cvt_cost(domain: Domain, gen: np.ndarray, scale: float) -> float:
+    """Cost of eq. 1 (divided by K_m, in units of Q whose side is `scale` pixels) of generators gen."""
+    _, d2 = _Assigner(domain).assign(gen)
+    return float(np.dot(domain.weights, d2)) / scale**4
 
 
 @dataclass
@@ -44,7 +66,7 @@ class GoalFamily:
         data = json.loads(text)
         if data.get("format") != FAMILY_FORMAT:
             raise ValueError(f"unsupported goal-family format {data.get('format')!r}")
-        sets = [GoalSet.from_dict(d) for d in data["sets"]]
+        sets = [goal_set_from_dict(d) for d in data["sets"]]
         return cls({len(s): s for s in sets})
 
 
