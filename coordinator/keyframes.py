@@ -282,12 +282,6 @@ def _initial_samples(
     return init, motions, ("poor match of " + ", ".join(poor)) if poor else ""
 
 
-def _carried_counts(prep: PreparedImage, match: list[int], prev_set: GoalSet) -> dict[int, int] | None:
-    """N_i of each region's corresponding region in frame f-1, if every region has room for them."""
-    carried = {rid: int(np.sum(prev_set.regions == pid)) for rid, pid in enumerate(match)}
-    return carried if all(carried[r.id] <= r.area for r in prep.seg.regions) else None
-
-
 def _load(images: Sequence[ImageLike] | str | os.PathLike[str]) -> list[PreparedImage]:
     if isinstance(images, (str, os.PathLike)):
         images = keyframe_paths(images)
@@ -340,8 +334,9 @@ def keyframe_goals(
             shapes.append([region_shape(prep.seg, r.id, r.lab) for r in prep.seg.regions])
             match, reason = _match_previous(shapes, reason)
         counts = options.region_counts
-        if keep_counts and match is not None:
-            counts = _carried_counts(prep, match, sets[-1]) or options.region_counts
+        if keep_counts and match is not None:  # N_i of each region's match in frame f-1, if every region has room
+            carried = {rid: int(np.sum(sets[-1].regions == pid)) for rid, pid in enumerate(match)}
+            counts = carried if all(carried[r.id] <= r.area for r in prep.seg.regions) else counts
         init: dict[int, np.ndarray] = {}
         motions: list[RegionMotion] = []
         if f > 0 and not init_from_previous:

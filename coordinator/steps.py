@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .drawings import KEYFRAME_ANIMATIONS, keyframes
+from .drawings import KEYFRAME_ANIMATIONS, SIZE, keyframes
 from .goals import IMAGE_SUFFIXES, GoalError
 from .goals.defaults import METHODS
 from .motion import StepMotion, check_keys, is_number, one_of, parse_motion, positive
@@ -211,7 +211,7 @@ def parse_animation(data: Any, source: str = "") -> Animation:
     if not isinstance(data, dict):
         raise GoalError('animation must be a table with keyframes = "name", "folder/" or ["a.png", ...]')
     check_keys(data, ANIMATION_KEYS, "animation")
-    name, images = _keyframes(data.get("keyframes"), source, data.get("size", 256))
+    name, images = _keyframes(data.get("keyframes"), source, data.get("size", SIZE))
     frame_time = positive(data.get("frame_time", DEFAULT_FRAME_TIME), "animation: frame_time")
     last_hold = positive(data.get("last_hold", frame_time), "animation: last_hold")
     if "times" in data:

@@ -174,13 +174,6 @@ def _check_init(init: Mapping[int, np.ndarray] | None, counts: np.ndarray) -> di
     return out
 
 
-def _sum_histories(histories: list[list[float]]) -> list[float]:
-    """Total cost per iteration; a region that has converged keeps its last cost."""
-    length = max(len(h) for h in histories)
-    padded = np.array([h + [h[-1]] * (length - len(h)) for h in histories])
-    return padded.sum(axis=0).tolist()
-
-
 def goals_from_prepared(
     prep: PreparedImage, n: int, options: GoalOptions = PAPER_OPTIONS, init: Mapping[int, np.ndarray] | None = None
 ) -> GoalSet:
@@ -271,7 +264,9 @@ def _lloyd_regions(
         notes.append(f"{snapped_init} given initial sample(s) lay outside their region and were moved into it")
     if snapped:
         notes.append(f"{snapped} goal(s) ended in a concavity or hole and were moved into their region")
-    return np.concatenate(goals), np.concatenate(regions), _sum_histories(histories), ks_used
+    length = max(len(h) for h in histories)  # the total cost per iteration: a converged region keeps its last
+    total = np.array([h + [h[-1]] * (length - len(h)) for h in histories]).sum(axis=0).tolist()
+    return np.concatenate(goals), np.concatenate(regions), total, ks_used
 
 
 def _initial_samples(
