@@ -26,6 +26,8 @@ from .warm_start import goal_matching
 SETTLE_S = 0.5  # a change in the live robots must hold this long before a new goal set (debounce)
 FIRST_SET_PATIENCE = 5.0  # s after the world's first tick that the first goal set waits for every robot's agent
 BODY_WAIT_S = 1.0  # display (not wall) s to wait for a dead robot's body: a lock-step tick may wait for it
+RESUME_WAIT_S = 2.0  # s a starting coordinator waits for the run's newest goal set (none: a new run)
+PREPARE_AHEAD = 5.0  # s of display before an image change that the coordinator prepares its warm start
 
 
 def clear_of_bodies(goals: np.ndarray, bodies: np.ndarray, clearance: float) -> np.ndarray:
@@ -68,20 +70,13 @@ def step_motion(scene: Scene, step: int) -> Motion | None:
     return None if m is None else Motion(*m.velocity, m.angular_velocity, *m.center, m.expansion, int(m.geometric))
 
 
-RESUME_WAIT_S = 2.0  # s a starting coordinator waits for the run's newest goal set (none: a new run)
-
-PREPARE_AHEAD = 5.0  # s of display before an image change that the coordinator prepares its warm start
-
-
-def follows_keyframe(before: Goals | None, goals: Goals) -> bool:
-    """Consecutive keyframes (paper 6.1-6.2) for the same robots, which carry their goals over."""
+def follows_keyframe(before: Goals, goals: Goals) -> bool:
+    """Whether two image sets are consecutive keyframes (paper 6.1-6.2) for the same robots, which carry
+    their goals over."""
     return (
-        before is not None
-        and not before.per_robot
-        and before.timing.frame_period > 0
+        before.timing.frame_period > 0
         and goals.timing.frame_period > 0
         and goals.timing.step == before.timing.step + 1
-        and len(before.positions) == len(goals.positions)
         and np.array_equal(before.robots, goals.robots)
         and not before.moves
         and not goals.moves
