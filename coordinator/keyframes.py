@@ -299,15 +299,6 @@ def _load(images: Sequence[ImageLike] | str | os.PathLike[str]) -> list[Prepared
     return preps
 
 
-def _match_previous(shapes: list[list[RegionShape]], reason: str) -> tuple[list[int] | None, str]:
-    """The newest keyframe's regions matched to the previous one's (None and why not, if they cannot be)."""
-    if len(shapes) < 2:
-        return None, reason
-    if len(shapes[-1]) != len(shapes[-2]):
-        return None, f"the number of regions changed from {len(shapes[-2])} to {len(shapes[-1])}"
-    return match_regions(shapes[-2], shapes[-1]), reason
-
-
 def keyframe_goals(
     images: Sequence[ImageLike] | str | os.PathLike[str],
     n: int,
@@ -332,7 +323,10 @@ def keyframe_goals(
         match, reason = None, "first keyframe"
         if matching:
             shapes.append([region_shape(prep.seg, r.id, r.lab) for r in prep.seg.regions])
-            match, reason = _match_previous(shapes, reason)
+            if f > 0 and len(shapes[f]) != len(shapes[f - 1]):
+                reason = f"the number of regions changed from {len(shapes[f - 1])} to {len(shapes[f])}"
+            elif f > 0:
+                match = match_regions(shapes[f - 1], shapes[f])
         counts = options.region_counts
         if keep_counts and match is not None:  # N_i of each region's match in frame f-1, if every region has room
             carried = {rid: int(np.sum(sets[-1].regions == pid)) for rid, pid in enumerate(match)}
