@@ -88,7 +88,7 @@ def save_resolved(scene: Scene, folder: Path, robot: dict[str, Any] | None = Non
         "pursuers": {str(r): t for r, t in scene.pursuers.items()},
         "poses": scene.poses.tolist(),
         "goal_positions": [[None if math.isnan(v) else float(v) for v in row] for row in scene.goal_positions],
-        "steps": [_step_record(s) for s in scene.steps],
+        "steps": [dataclasses.asdict(s) for s in scene.steps],  # json writes region ids and paths as strings
         "image_goals": image,
     }
     (folder / SCENE_FILE).write_text(json.dumps(record, indent=1, default=str) + "\n")
@@ -138,15 +138,8 @@ def _scene_of(data: dict[str, Any]) -> Scene:
     )
 
 
-def _step_record(step: ImageStep) -> dict[str, Any]:
-    record = dataclasses.asdict(step)
-    record["image"] = None if step.image is None else str(step.image)
-    record["region_counts"] = None if step.region_counts is None else {str(k): v for k, v in step.region_counts.items()}
-    return record
-
-
 def _step_of(data: dict[str, Any]) -> ImageStep:
-    """An ImageStep as _step_record wrote it (its fields by name, JSON's lists and strings made over)."""
+    """An ImageStep as save_resolved wrote it (its fields by name, JSON's lists and strings made over)."""
     image, counts, motion = data["image"], data.get("region_counts"), data.get("motion")
     if motion is not None:
         motion = StepMotion(**motion | {"velocity": tuple(motion["velocity"]), "center": tuple(motion["center"])})
