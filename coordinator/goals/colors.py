@@ -40,19 +40,16 @@ def _means(lab: np.ndarray, cells: np.ndarray, n: int) -> tuple[np.ndarray, np.n
     return sums, cnt
 
 
-def cell_colors(
-    rgb: np.ndarray, cells: np.ndarray, n: int, fallback_px: np.ndarray, labels: np.ndarray | None = None
-) -> np.ndarray:
-    """(n, 3) uint8 Lab mean of each cell's pixels (off region edges, given `labels`), else of fallback_px's."""
+def cell_colors(rgb: np.ndarray, cells: np.ndarray, n: int, fallback_px: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """(n, 3) uint8 Lab mean of each cell's pixels off the edges of the regions `labels` (else of all its
+    pixels, else of fallback_px's)."""
     flat = cells.ravel()
     fg = flat >= 0
     lab = to_lab(np.asarray(rgb).reshape(-1, 3)[fg], precise=True).astype(np.float64)
     sums, cnt = _means(lab, flat[fg], n)
-    if labels is not None:
-        inner = np.where(_edge(labels).ravel()[fg], -1, flat[fg])
-        isums, icnt = _means(lab, inner, n)
-        use = icnt > 0
-        sums[use], cnt[use] = isums[use], icnt[use]
+    isums, icnt = _means(lab, np.where(_edge(labels).ravel()[fg], -1, flat[fg]), n)
+    use = icnt > 0
+    sums[use], cnt[use] = isums[use], icnt[use]
     means = sums.astype(np.float64)
     empty = cnt == 0
     means[~empty] /= cnt[~empty, None]
