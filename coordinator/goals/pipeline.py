@@ -36,8 +36,7 @@ class PreparedImage:
     """An image after background subtraction and segmentation; reusable for several N."""
 
     rgb: np.ndarray
-    alpha: np.ndarray | None
-    foreground: Foreground
+    foreground: Foreground  # the background subtraction: where an alpha channel counts
     seg: Segmentation
     source: str
 
@@ -117,7 +116,7 @@ def prepare_image(
             "color": f"every pixel is within {BG_TOLERANCE:g} of the background colour",
         }.get(fg.source, "the image is a single background colour")
         raise GoalError(f"no foreground in {source}: {how}")
-    return PreparedImage(rgb, alpha, fg, seg, source)
+    return PreparedImage(rgb, fg, seg, source)
 
 
 def _snap_inside(gen: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, int]:
@@ -153,7 +152,7 @@ def _enlarged(prep: PreparedImage, counts: np.ndarray) -> tuple[PreparedImage, i
 
     regions = [replace(r, area=r.area * k * k) for r in prep.seg.regions]
     seg = Segmentation(up(prep.seg.labels), regions, list(prep.seg.notes))
-    return replace(prep, rgb=up(prep.rgb), alpha=None if prep.alpha is None else up(prep.alpha), seg=seg), k
+    return replace(prep, rgb=up(prep.rgb), seg=seg), k
 
 
 def _check_init(init: Mapping[int, np.ndarray] | None, counts: np.ndarray) -> dict[int, np.ndarray]:
