@@ -444,7 +444,7 @@ def _arena(spec: Any, scene: Scene, where: str) -> tuple[float, float, float, fl
         pts = [scene.poses[:, :2]]
         if scene.image_goals is not None:  # every step's picture, all robots (fewer robots: inside it)
             pts += [scene_goal_set(scene, k, scene.robots)[0] for k in range(len(scene.steps))]
-            pts += _swept(scene)  # a moving picture: wherever it goes
+            pts += list(_swept(scene).values())  # a moving picture: wherever it goes
         pts.append(scene.goal_positions[~np.isnan(scene.goal_positions).any(axis=1)])
         allp = np.vstack(pts + [np.asarray(o) for o in scene.obstacles])
         margin = 4 * scene.radius + 0.1
@@ -454,24 +454,24 @@ def _arena(spec: Any, scene: Scene, where: str) -> tuple[float, float, float, fl
     if not (isinstance(size, list) and len(size) == 2 and all(is_positive(s) for s in size)):
         raise SceneError(f'{where}: arena must be "auto" or have size = [width, height] in metres')
     w, h = float(size[0]), float(size[1])
-    for k, box in enumerate(_swept(scene)):
+    for k, box in _swept(scene).items():
         box = box + np.array([[-scene.radius], [scene.radius]])  # the robots on the goals, too
         if box[0, 0] < -w / 2 or box[0, 1] < -h / 2 or box[1, 0] > w / 2 or box[1, 1] > h / 2:
             raise SceneError(
-                f"{where}: the moving image of step {k} leaves the {w:g} x {h:g} m arena "
+                f"{where}: the moving image of steps[{k}] leaves the {w:g} x {h:g} m arena "
                 f"(it reaches [{box[0, 0]:.2f}, {box[0, 1]:.2f}] to [{box[1, 0]:.2f}, {box[1, 1]:.2f}]); "
                 "enlarge [arena] size or slow the [steps.motion]"
             )
     return (-w / 2, -h / 2, w / 2, h / 2)
 
 
-def _swept(scene: Scene) -> list[np.ndarray]:
-    """Boxes (2,2) holding each moving step's goal set for as long as the step is shown."""
-    return [
-        s.motion.swept_box(scene_goal_set(scene, k, scene.robots)[0], scene.step_window(k))
+def _swept(scene: Scene) -> dict[int, np.ndarray]:
+    """Per moving step (by its index in steps), a box (2,2) holding its goal set for as long as it is shown."""
+    return {
+        k: s.motion.swept_box(scene_goal_set(scene, k, scene.robots)[0], scene.step_window(k))
         for k, s in enumerate(scene.steps)
         if s.motion is not None
-    ]
+    }
 
 
 def _check_fit(scene: Scene, where: str) -> None:

@@ -211,9 +211,14 @@ def test_bad_motion_says_what_is_wrong_in_one_line(motion, message):
 
 
 def test_a_moving_image_must_stay_in_a_given_arena():
-    with pytest.raises(SceneError, match="leaves the"):
+    with pytest.raises(SceneError, match=r"moving image of steps\[0\] leaves the"):
         scene_from_dict(triangle({"velocity": [0.05, 0.0]}, arena={"size": [2.5, 2.5]}))
     scene_from_dict(triangle({"velocity": [0.001, 0.0]}, arena={"size": [2.5, 2.5]}))  # fits
+    # after a still step, the message names the moving one by its place among all the steps
+    spec = triangle({"velocity": [0.05, 0.0]}, arena={"size": [2.5, 2.5]})
+    spec["steps"].insert(0, {"shape": "disk", "hold": 10.0})
+    with pytest.raises(SceneError, match=r"moving image of steps\[1\] leaves the"):
+        scene_from_dict(spec)
 
 
 # --- end to end ---------------------------------------------------------------------------------
