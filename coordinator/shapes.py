@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
 RGB = tuple[int, int, int]
 RED: RGB = (220, 40, 40)
 BLUE: RGB = (30, 80, 200)
+WHITE: RGB = (255, 255, 255)
 
 Inside = Callable[[np.ndarray, np.ndarray], np.ndarray]
 Part = tuple[Inside, RGB]
@@ -89,17 +91,27 @@ def coverage(inside: Inside, size: int, ss: int) -> np.ndarray:
     return inside(x, y).reshape(size, ss, size, ss).mean(axis=(1, 3))
 
 
-def paint(parts: list[Part], size: int = 256) -> np.ndarray:
-    """Paint the parts in order (later ones on top) on a white size x size canvas, with crisp pixel edges."""
-    img = np.full((size, size, 3), 255.0)
+def paint(
+    parts: list[Part], size: int = 256, *, background: RGB = WHITE, antialias: bool = False, alpha: bool = False
+) -> np.ndarray:
+    """Paint the parts in order (later ones on top) on a size x size canvas (antialias: 4 x 4 supersampled;
+    alpha: RGBA of coverage); crisp pixel edges without antialias."""
+    img = np.empty((size, size, 3), float)
+    img[:] = background
+    total = np.zeros((size, size))
     for inside, col in parts:
-        cov = coverage(inside, size, 1)
+        cov = coverage(inside, size, 4 if antialias else 1)
         img = img * (1 - cov[..., None]) + np.asarray(col, float) * cov[..., None]
-    return np.clip(np.round(img), 0, 255).astype(np.uint8)
+        total = np.maximum(total, cov)
+    out = np.clip(np.round(img), 0, 255).astype(np.uint8)
+    if alpha:
+        a = np.clip(np.round(total * 255), 0, 255).astype(np.uint8)
+        return np.dstack([out, a])
+    return out
 
 
-def draw(name: str, size: int = 256) -> np.ndarray:
-    """Draw shape `name` on a size x size canvas."""
+def draw(name: str, size: int = 256, **options: Any) -> np.ndarray:
+    """Draw shape `name` on a size x size canvas (options: paint's)."""
     if name not in _SHAPES:
         raise ValueError(f"unknown shape {name!r}; choose from {', '.join(SHAPES)}")
-    return paint(_SHAPES[name], size)
+    return paint(_SHAPES[name], size, **options)

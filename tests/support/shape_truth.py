@@ -1,14 +1,12 @@
 """What the goal pipeline should find in coordinator.shapes' drawings: each shape's parts as pixel masks,
-and a photo-like picture with its subject's mask; and the shapes drawn as other inputs than a scene's."""
+and a photo-like picture with its subject's mask."""
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
 
-from coordinator.shapes import _SHAPES, RGB, SHAPES, circle, coverage
-
-WHITE: RGB = (255, 255, 255)
+from coordinator.shapes import _SHAPES, SHAPES, circle, coverage
 
 
 def part_masks(name: str, size: int = 256) -> list[np.ndarray]:
@@ -40,22 +38,3 @@ def photo_like(size: int = 256, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     img = cv2.GaussianBlur(img, (0, 0), 0.8)
     img = img + rng.normal(0.0, 9.0, img.shape)
     return np.clip(np.round(img), 0, 255).astype(np.uint8), body | leaf
-
-
-def draw(
-    name: str, size: int = 256, *, background: RGB = WHITE, antialias: bool = False, alpha: bool = False
-) -> np.ndarray:
-    """Shape `name` as coordinator.shapes.draw paints it, but on `background`, antialiased (4 x 4
-    supersampled) or as RGBA of coverage (alpha)."""
-    img = np.empty((size, size, 3), float)
-    img[:] = background
-    total = np.zeros((size, size))
-    for inside, col in _SHAPES[name]:
-        cov = coverage(inside, size, 4 if antialias else 1)
-        img = img * (1 - cov[..., None]) + np.asarray(col, float) * cov[..., None]
-        total = np.maximum(total, cov)
-    out = np.clip(np.round(img), 0, 255).astype(np.uint8)
-    if alpha:
-        a = np.clip(np.round(total * 255), 0, 255).astype(np.uint8)
-        return np.dstack([out, a])
-    return out

@@ -45,7 +45,7 @@ def test_gray_and_16_bit_images_load(tmp_path):
 
 
 def test_transparent_pixels_are_background_whatever_their_colour(tmp_path):
-    rgba = shape_truth.draw("L", SIZE, alpha=True)
+    rgba = shapes.draw("L", SIZE, alpha=True)
     rgba[..., :3] = shapes.RED  # the RGB alone shows no shape at all
     _write(tmp_path / "t.png", rgba)
     rgb, alpha = load_image(tmp_path / "t.png")
@@ -55,7 +55,7 @@ def test_transparent_pixels_are_background_whatever_their_colour(tmp_path):
 
 
 def test_explicit_background_keeps_transparent_pixels_out():
-    rgba = shape_truth.draw("disk", SIZE, alpha=True)
+    rgba = shapes.draw("disk", SIZE, alpha=True)
     rgba[rgba[..., 3] == 0, :3] = 0  # black under the transparent pixels
     rgba[40:56, 40:56, :3] = 255  # an opaque white patch inside the disk
     fg = foreground_mask(rgba[..., :3], rgba[..., 3], background="white")
@@ -73,7 +73,7 @@ def test_opaque_alpha_falls_back_to_the_border_colour():
 
 @pytest.mark.parametrize("bg", [(255, 255, 255), (0, 0, 0), (40, 160, 60)])
 def test_dominant_border_colour_is_background(bg):
-    img = shape_truth.draw("T", SIZE, background=bg)
+    img = shapes.draw("T", SIZE, background=bg)
     fg = foreground_mask(img)
     assert np.array_equal(fg.mask, shape_truth.shape_mask("T", SIZE))
     assert np.abs(np.array(fg.background) - bg).max() <= 2

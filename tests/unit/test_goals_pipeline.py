@@ -75,7 +75,7 @@ def _delta_e(colors: np.ndarray, rgb) -> np.ndarray:
 
 @pytest.mark.parametrize("antialias", [False, True])
 def test_goal_colours_are_their_region_colours(antialias):
-    img = shape_truth.draw("two_squares", SIZE, antialias=antialias)
+    img = shapes.draw("two_squares", SIZE, antialias=antialias)
     gs = generate_goals(img, 20, GoalOptions(seed=0))
     red, blue = shape_truth.part_masks("two_squares", SIZE)
     px = np.floor(_pixels(gs)).astype(int)
@@ -97,7 +97,7 @@ def test_goal_colour_is_the_mean_of_its_cell_in_lab():
 
 
 def test_transparent_png_works(tmp_path):
-    rgba = shape_truth.draw("T", SIZE, alpha=True)
+    rgba = shapes.draw("T", SIZE, alpha=True)
     rgba[..., :3] = 0  # black everywhere: only alpha tells shape from background
     rgba[rgba[..., 3] > 0, :3] = shapes.BLUE
     cv2.imwrite(str(tmp_path / "t.png"), cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGRA))
