@@ -114,7 +114,8 @@ def _homography(value: Any, where: str) -> tuple[tuple[float, ...], ...]:
     if len(rows) != 3 or not all(isinstance(r, list) and len(r) == 3 for r in rows):
         raise HardwareConfigError(f"{where}: must be a 3x3 list of numbers (image pixels -> floor metres)")
     matrix = tuple(tuple(_number(v, where) for v in row) for row in rows)
-    need(not abs(np.linalg.det(np.array(matrix))) < 1e-12, f"{where}: the matrix is singular")
+    singular = abs(np.linalg.det(np.array(matrix))) < 1e-12
+    need(not singular, f"{where}: the matrix is singular")
     return matrix
 
 
