@@ -37,7 +37,7 @@ def test_same_colour_splits_by_connectivity_and_joins_when_touching():
 
 
 def test_antialiased_edges_do_not_become_regions():
-    seg = _regions(shape_truth.draw("disk_and_line", SIZE, antialias=True))
+    seg = _regions(shapes.draw("disk_and_line", SIZE, antialias=True))
     assert len(seg.regions) == 2
     assert any("merged" in note for note in seg.notes)
     disk, line = shape_truth.part_masks("disk_and_line", SIZE)
