@@ -31,6 +31,7 @@ REQUEST_SENSORS = 0x02  # the request byte's bit for the sensors answer
 STEPS_OFFSET = 79  # in the sensors answer
 RGB_LEDS = 4  # LED2, LED4, LED6, LED8
 RGB_LEVEL_MAX = 100
+CANCEL_AGAIN = 0.1  # s: close asks a robot's task again to end if it has not after this long
 
 STEPS_PER_REVOLUTION = 1000
 WHEEL_DIAMETER = 0.041  # m
@@ -219,7 +220,8 @@ class RobotLink:
     async def wait_sent(self, seq: int, timeout: float) -> bool:
         async with self._sent:
             try:
-                await asyncio.wait_for(self._sent.wait_for(lambda: self.sent_seq >= seq), timeout)
+                async with asyncio.timeout(timeout):
+                    await self._sent.wait_for(lambda: self.sent_seq >= seq)
             except TimeoutError:
                 return False
         return True
@@ -229,8 +231,8 @@ class RobotLink:
         backoff = 0.0  # the first attempt, and the first after a drop, is immediate
         while True:
             try:
-                connecting = asyncio.open_connection(self.host, self.port)
-                reader, writer = await asyncio.wait_for(connecting, self.config.connect_timeout)
+                async with asyncio.timeout(self.config.connect_timeout):
+                    reader, writer = await asyncio.open_connection(self.host, self.port)
             except (OSError, TimeoutError):
                 self.urgent = False  # the immediate attempt was made: back to the backoff
                 backoff = min(self.config.reconnect_backoff_max, max(self.config.reconnect_backoff, 2 * backoff))
@@ -270,7 +272,8 @@ class RobotLink:
                     await self._send(writer)
                     continue
                 with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(self._changed.wait(), self._watchdog_due())
+                    async with asyncio.timeout(self._watchdog_due()):
+                        await self._changed.wait()
         finally:
             reading.cancel()
 
@@ -278,7 +281,8 @@ class RobotLink:
         command, seq = self.pending, self.pending_seq
         assert command is not None
         writer.write(encode_command(command))
-        await asyncio.wait_for(writer.drain(), self.config.connect_timeout)
+        async with asyncio.timeout(self.config.connect_timeout):
+            await writer.drain()
         if self.pending_seq == seq:
             self.pending = None
             self.urgent = False
@@ -318,7 +322,8 @@ class RobotLink:
         while not self.urgent and (left := deadline - time.monotonic()) > 0:
             self._changed.clear()
             try:
-                await asyncio.wait_for(self._changed.wait(), left)
+                async with asyncio.timeout(left):
+                    await self._changed.wait()
             except TimeoutError:
                 return
 
@@ -404,9 +409,12 @@ class Epuck2Backend(Started):
         return unreached
 
     async def _cancel_links(self) -> None:
-        for task in self._tasks:
-            task.cancel()
-        await asyncio.gather(*self._tasks, return_exceptions=True)
+        pending = set(self._tasks)
+        # until each has ended: a cancel that meets what a task awaits can be lost (Python 3.11's wait_for loses it)
+        while pending:
+            for task in pending:
+                task.cancel()
+            _, pending = await asyncio.wait(pending, timeout=CANCEL_AGAIN)
         await asyncio.sleep(0)  # let the transports finish closing
         await self._loop.shutdown_default_executor()  # the threads that resolved host names
 

@@ -3,6 +3,8 @@ motion, reconnection, the safety stops, and the hardware file."""
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import json
 import math
 import signal
@@ -22,6 +24,7 @@ from hardware.epuck2 import (
     Command,
     Epuck2Backend,
     Epuck2Config,
+    RobotLink,
     encode_command,
     make_command,
     motor_steps,
@@ -245,6 +248,29 @@ def test_stop_all_waits_until_the_stops_are_sent_and_names_robots_out_of_reach(t
         assert backend.stop_all() == [1]
         assert wait_for(lambda: emu.log(0)[-1][1:] == (0, 0), timeout=3)
         assert backend.close() == [1]
+
+
+def test_close_ends_a_robots_task_that_outlives_its_first_cancel(monkeypatch):
+    """Python 3.11's asyncio.wait_for swallows a cancel that meets the result it waits for: a robot out of
+    reach then went on trying to connect for ever, and close (the node's exit, `pixelswarm stop`) hung on it.
+    Close asks such a task again until it ends."""
+
+    async def swallows_one_cancel(link: RobotLink) -> None:
+        with contextlib.suppress(asyncio.CancelledError):
+            await asyncio.sleep(3600)
+        await asyncio.sleep(3600)
+
+    monkeypatch.setattr(RobotLink, "run", swallows_one_cancel)
+    with socket.socket() as placeholder:  # a port on 127.0.0.1 where no robot listens
+        placeholder.bind(("127.0.0.1", 0))
+        absent = f"127.0.0.1:{placeholder.getsockname()[1]}"
+    backend = Epuck2Backend(Epuck2Config.from_table({"addresses": [absent], "connect_timeout": 0.2}, "test"))
+    backend.start()
+    unreached: list[list[int]] = []
+    closing = threading.Thread(target=lambda: unreached.append(backend.close()), daemon=True)
+    closing.start()
+    closing.join(timeout=10)
+    assert unreached == [[0]]
 
 
 def test_stop_from_the_hardware_file_stops_robots_left_moving(tmp_path):
