@@ -7,6 +7,7 @@ receives through a faulted inbox (``fault_kinds()``) is refused, as a plan that 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from .codec import BY_NAME
@@ -24,8 +25,8 @@ class FaultSpec:
     def __post_init__(self) -> None:
         if not 0.0 <= self.drop <= 1.0:
             raise ValueError(f"drop probability must be in [0, 1], not {self.drop}")
-        if self.delay < 0 or self.jitter < 0:
-            raise ValueError("delay and jitter must be >= 0")
+        if not (0 <= self.delay < math.inf and 0 <= self.jitter < math.inf):  # NaN fails both
+            raise ValueError(f"delay and jitter must be finite seconds >= 0, not {self.delay} and {self.jitter}")
 
     @property
     def active(self) -> bool:
@@ -60,10 +61,14 @@ def parse_faults(text: str) -> FaultPlan:
             name, eq, value = item.partition("=")
             if not eq or name.strip() not in ("drop", "delay", "jitter"):
                 raise ValueError(f"fault {part!r}: unknown setting {item!r} (use drop, delay, jitter)")
+            if name.strip() in values:
+                raise ValueError(f"fault {part!r}: {name.strip()} given twice")
             try:
                 values[name.strip()] = float(value)
             except ValueError:
                 raise ValueError(f"fault {part!r}: {value!r} is not a number") from None
+        if kind in plan:  # a second entry would silently replace the first
+            raise ValueError(f"fault {part!r}: kind {kind!r} given twice (put its settings in one entry)")
         plan[kind] = FaultSpec(**values)
     return plan
 

@@ -106,6 +106,8 @@ def run_track(args: argparse.Namespace) -> int:
     The CSV takes its name only when complete."""
     out: Path = args.out
     config = load_camera_config(args.hardware)
+    if out.exists() and any(out.samefile(p) for p in (args.video, args.hardware) if Path(p).exists()):
+        raise UsageError(f"cannot write {out}: it is the command's own input")
     if out.is_dir() or not out.parent.is_dir():
         raise UsageError(f"cannot write {out}: {'a directory' if out.is_dir() else f'no such directory {out.parent}'}")
     counts: list[int] = []

@@ -273,8 +273,11 @@ def write_text(path: Path, text: str | bytes) -> None:
 
 def lock_study(root: Path) -> Any:
     """Hold DIR/.lock for the study's life: two studies on one directory would run the same runs."""
-    root.mkdir(parents=True, exist_ok=True)
-    handle = open(root / ".lock", "w")  # noqa: SIM115 - held open until the study ends
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        handle = open(root / ".lock", "w")  # noqa: SIM115 - held open until the study ends
+    except OSError as err:
+        raise UsageError(f"cannot make the study directory {root}: {err.strerror}") from None
     try:
         fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:

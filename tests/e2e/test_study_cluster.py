@@ -171,6 +171,15 @@ def test_a_bad_scheduler_address_is_one_line_exit_2_and_starts_nothing(tmp_path,
     assert {p.pid for p in psutil.Process().children(recursive=True)} <= before  # no run, no local cluster
 
 
+def test_a_study_directory_that_cannot_be_made_is_one_line_exit_2(tmp_path, capsys):
+    spec, blocker = tmp_path / "spec.toml", tmp_path / "a-file"
+    spec.write_text(GRID)
+    blocker.write_text("")
+    assert main(["study", str(spec), "--out", str(blocker / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.strip().count("\n") == 0 and "cannot make the study directory" in err and "Traceback" not in err
+
+
 @pytest.mark.slow
 def test_a_scheduler_that_does_not_answer_is_one_line_exit_2_and_starts_nothing(tmp_path):
     spec = tmp_path / "spec.toml"

@@ -452,7 +452,10 @@ def test_keys_and_cells():
 def test_fault_plan_parsing():
     plan = parse_faults("state:drop=0.1,delay=0.05,jitter=0.01; cmd:drop=0.5")
     assert plan["state"] == FaultSpec(0.1, 0.05, 0.01) and plan["cmd"].drop == 0.5
-    for bad in ["state", "state:drop=2", "state:loss=0.1", "state:drop=x"]:
+    bad_plans = ["state", "state:drop=2", "state:loss=0.1", "state:drop=x", "pose:delay=inf", "state:delay=nan"]
+    # an entry repeated would silently replace the first (the 50 % loss lost)
+    bad_plans += ["state:jitter=inf", "state:drop=0.5;state:delay=0.1", "state:drop=0.5,drop=0.1"]
+    for bad in bad_plans:
         with pytest.raises(ValueError):
             parse_faults(bad)
 

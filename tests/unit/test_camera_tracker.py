@@ -229,6 +229,7 @@ def bad_hardware(tmp_path: Path, text: str) -> Path:
         ("no [poses]", "no [poses] table"),
         ("bad [poses]", "unknown key 'zoom'"),
         ("no output folder", "no such directory"),
+        ("output onto its video", "the command's own input"),  # the recording would be lost
     ],
 )
 def test_track_bad_input_is_one_line_and_exit_2_with_no_csv(tmp_path, footage, capsys, case, words):
@@ -252,12 +253,16 @@ def test_track_bad_input_is_one_line_and_exit_2_with_no_csv(tmp_path, footage, c
         hardware = bad_hardware(tmp_path, poses_toml(camera).replace("[poses]\n", "[poses]\nzoom = 2\n"))
     elif case == "no output folder":
         out = tmp_path / "absent" / "poses.csv"
+    elif case == "output onto its video":
+        out = video
+    recording = video.read_bytes() if video.exists() else None
     before = set(tmp_path.iterdir())
     code = main(["track", str(video), "--hardware", str(hardware), "--out", str(out), "-q"])
     err = capsys.readouterr().err
     assert code == 2
     assert err.count("\n") == 1 and err.startswith("pixelswarm track: error: ") and words in err, err
     assert set(tmp_path.iterdir()) == before, "a file was left behind"
+    assert recording is None or video.read_bytes() == recording
 
 
 def emulator_exit_code(argv: list[str]) -> int | str | None:
