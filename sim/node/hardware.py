@@ -307,6 +307,10 @@ def load_run(args: argparse.Namespace) -> tuple[HardwareConfig, Scene]:
     scene = scene_of_args(args, robots=robots, clock="realtime")
     if scene.robots != robots:  # a run directory's scene
         raise HardwareError(f"the run's scene has {scene.robots} robots, the hardware file {robots}")
+    # a scripted or pursuing robot has no agent, so its real body would be on nobody's bus: others would drive into it
+    if scene.scripted or scene.pursuers or scene.events:
+        what = "scripted or pursuing robots" if scene.scripted or scene.pursuers else "events (the simulator's)"
+        raise HardwareError(f"scene {scene.name!r} has {what}, which real robots cannot run")
     if RobotParams.from_dict(scene.robot).kinematics != DIFFDRIVE:
         raise HardwareError(f"scene {scene.name!r} is for holonomic robots; real robots need kinematics = 'diffdrive'")
     return config, scene

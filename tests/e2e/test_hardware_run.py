@@ -342,6 +342,18 @@ def test_a_bad_hardware_file_is_refused_by_the_real_command(tmp_path):
     assert not out.exists() and not out.with_name("run.partial").exists()
 
 
+def test_a_scene_with_a_scripted_robot_is_refused_on_hardware(tmp_path):
+    """A scripted robot has no agent: its real body would be on nobody's bus and the others would drive into it."""
+    scene = scene_file(tmp_path, robots=2)
+    scene.write_text(scene.read_text() + "\n[[scripted]]\nrobot = 1\nwaypoints = [[0.0, 0.0, 0.0], [5.0, 0.1, 0.0]]\n")
+    hw = tmp_path / "hw.toml"
+    hw.write_text('[backend]\nkind = "epuck2"\naddresses = ["127.0.0.1:9", "127.0.0.1:10"]\n' + POSES)
+    out = tmp_path / "run"
+    result = run_pixelswarm("run", str(scene), "--hardware", str(hw), "--out", str(out), timeout=60)
+    assert_one_line_error(result, "has scripted or pursuing robots, which real robots cannot run")
+    assert not out.exists() and not out.with_name("run.partial").exists()
+
+
 # Not serial: what it checks does not depend on the wall clock. The run is refused whatever the load
 # (no motion capture, and nobody on the port); the reachable robot is an emulator on loopback, reached
 # well within the start-up timeout (passed at a load average of 19 on 2 cores).
