@@ -6,7 +6,7 @@ from __future__ import annotations
 import bisect
 import math
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from itertools import accumulate
 from pathlib import Path
 from typing import Any, TypedDict, Unpack
@@ -17,12 +17,30 @@ from agent.core.grid import nearest_other
 from transport import epuck
 
 from .goals import IMAGE_SUFFIXES, GoalError
-from .motion import check_window, is_number, is_positive, one_of, positive
+from .motion import check_keys, check_window, is_number, is_positive, one_of, positive
 from .steps import Animation, FrameGoals, GoalSets, ImageStep, StepGoals, parse_animation, parse_step
 
 SCENE_DIR = Path(__file__).parent / "scenes"
-LAYOUTS = ("circle", "grid", "random", "rows", "blocks", "file", "list")
-GOAL_KINDS = ("antipodal", "swap", "list", "stay", "none", "image")
+# each kind of [layout], [goals] and [[events]] table and the keys it takes besides kind: any other is a mistake
+LAYOUT_KEYS = {
+    "circle": ("spacing", "radius"),
+    "grid": ("spacing", "cols", "heading"),
+    "random": ("spacing", "size"),
+    "rows": ("spacing", "gap"),
+    "blocks": ("spacing", "offset"),
+    "file": ("path",),
+    "list": ("poses",),
+}
+GOAL_KEYS = {
+    "antipodal": (),
+    "swap": (),
+    "list": ("positions",),
+    "stay": (),
+    "none": (),
+    "image": ("image", "shape", "region_counts", "method", "name", "arena"),
+}
+LAYOUTS = tuple(LAYOUT_KEYS)
+GOAL_KINDS = tuple(GOAL_KEYS)
 CLOCKS = ("lockstep", "realtime")
 ENGINES = ("distributed", "central")
 ASSIGNMENTS = ("auction", "optimal")
@@ -213,7 +231,9 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
         one_of(getattr(scene, key), choices, f"{source}: {key}", SceneError)
     scene.agents_per_process = _whole(scene.agents_per_process, "agents_per_process", 1, source)
     scene.deadline = positive(scene.deadline, f"{source}: deadline", error=SceneError)
-    scene.obstacles = [_polygon(o, source) for o in data.get("obstacles", [])]
+    _kind_keys(scene.goals, GOAL_KEYS, "none", "goals", source)
+    obstacles = _tables(data, "obstacles", source, ("vertices",))
+    scene.obstacles = [_polygon(o, f"obstacles[{k}]", source) for k, o in enumerate(obstacles)]
     scene.poses = initial_poses(scene.layout, n, radius, scene.seed, source)
     if scene.goals.get("kind") == "image":  # one image: a sequence of one step, shown for the whole run
         steps = [_wrap(lambda: parse_step(_image_step(scene.goals, scene.duration), "goals", source), source)]
@@ -229,11 +249,16 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
 
 def _add_uncontrolled(scene: Scene, data: dict[str, Any], where: str) -> None:
     """The scene's events, checked, and its scripted movers and pursuers (paper Fig. 19), which take no goal."""
-    for event in scene.events:
-        _check_event(event, scene, where)
-    scene.scripted = {_robot_index(e, scene, where): _waypoints(e, where) for e in _tables(data, "scripted", where)}
+    for k, event in enumerate(scene.events):
+        _check_event(event, f"events[{k}]", scene, where)
+    scripted, pursuers = _tables(data, "scripted", where, MOVER_KEYS), _tables(data, "pursuers", where, PURSUER_KEYS)
+    scene.scripted = {
+        _robot_index(e, scene, f"{where}: scripted[{k}]"): _waypoints(e, f"scripted[{k}]", where)
+        for k, e in enumerate(scripted)
+    }
     scene.pursuers = {
-        _robot_index(e, scene, where): _robot_index(e, scene, where, "target") for e in _tables(data, "pursuers", where)
+        _robot_index(e, scene, f"{where}: pursuers[{k}]"): _robot_index(e, scene, f"{where}: pursuers[{k}]", "target")
+        for k, e in enumerate(pursuers)
     }
     for r in scene.scripted:
         scene.goal_positions[r] = np.nan  # a scripted robot follows its path, not a goal
@@ -243,6 +268,42 @@ def _whole(value: Any, key: str, least: int, where: str) -> int:
     if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < least:
         raise SceneError(f"{where}: {key} must be a whole number >= {least}, not {value!r}")
     return int(value)
+
+
+def _finite(value: Any, label: str, unit: str, where: str) -> float:
+    """A number the scene gives, any sign; TOML's nan and inf would reach the robots and stop the run mid-way."""
+    if not is_number(value):
+        raise SceneError(f"{where}: {label} must be a finite number of {unit}, not {value!r}")
+    return float(value)
+
+
+def _row(value: Any, names: str, label: str, where: str) -> np.ndarray:
+    """A list of finite numbers, one per name in ``names`` (e.g. "x, y, theta"), as floats."""
+    if not (isinstance(value, list) and len(value) == len(names.split(", ")) and all(is_number(v) for v in value)):
+        raise SceneError(f"{where}: {label} must be [{names}] (finite numbers), not {value!r}")
+    return np.array(value, float)
+
+
+def _rows(value: Any, names: str, least: int, label: str, where: str) -> np.ndarray:
+    """At least ``least`` rows of _row's, as an array (K, len(names))."""
+    if not (isinstance(value, list) and len(value) >= least):
+        given = f"{len(value)}" if isinstance(value, list) else repr(value)
+        raise SceneError(f"{where}: {label} needs {least} [{names}] rows, not {given}")
+    return np.array([_row(v, names, f"{label}[{k}]", where) for k, v in enumerate(value)])
+
+
+def _keys(table: dict[str, Any], allowed: tuple[str, ...], label: str, where: str) -> None:
+    """SceneError naming a key of ``table`` that is not ``allowed`` (a typo would be silently ignored)."""
+    _wrap(lambda: check_keys(table, allowed, label), where)
+
+
+def _kind_keys(
+    table: dict[str, Any], kinds: dict[str, tuple[str, ...]], default: str | None, label: str, where: str
+) -> str:
+    """A table's kind, one of ``kinds``, whose keys are checked against that kind's."""
+    kind: str = one_of(table.get("kind", default), tuple(kinds), f"{where}: {label} kind", SceneError)
+    _keys(table, ("kind", *kinds[kind]), f'{label} of kind "{kind}"', where)
+    return kind
 
 
 def _plan_steps(
@@ -257,7 +318,7 @@ def _plan_steps(
         animation,
         ["goals"] if "steps" not in data else None,
         written_for if isinstance(written_for, int) and written_for >= 1 else n,
-        float(k_r) if k_r is not None else None,
+        positive(k_r, f"{where}: goals arena", "metres", SceneError) if k_r is not None else None,
         data.get("arena", "auto"),
     )
     for k, step in enumerate(steps):
@@ -293,8 +354,8 @@ def goal_pipeline(scene: Scene, arena: float | None = None) -> StepGoals | Frame
 
 def initial_poses(layout: dict[str, Any], n: int, radius: float, seed: int, where: str = "scene") -> np.ndarray:
     """Initial poses (N,3) of a layout; headings face the arena centre for circle and rows."""
-    kind = layout.get("kind", "grid")
-    for key in ("spacing", "radius", "offset"):
+    kind = _kind_keys(layout, LAYOUT_KEYS, "grid", "layout", where)
+    for key in ("spacing", "radius", "offset", "gap"):
         if key in layout:
             positive(layout[key], f"{where}: layout {key}", "metres", SceneError)
     spacing = float(layout.get("spacing", 4.0 * radius))
@@ -304,12 +365,13 @@ def initial_poses(layout: dict[str, Any], n: int, radius: float, seed: int, wher
         a = 2 * math.pi * np.arange(n) / n
         return np.stack([r * np.cos(a), r * np.sin(a), a + math.pi], axis=1)
     if kind == "grid":
-        cols = int(layout.get("cols", math.ceil(math.sqrt(n))))
+        cols = _whole(layout.get("cols", math.ceil(math.sqrt(n))), "layout cols", 1, where)
+        heading = _finite(layout.get("heading", math.pi / 2), "layout heading", "radians", where)
         rows = math.ceil(n / cols)
         i = np.arange(n)
         x = (i % cols - (cols - 1) / 2) * spacing
         y = ((rows - 1) / 2 - i // cols) * spacing
-        return np.stack([x, y, np.full(n, float(layout.get("heading", math.pi / 2)))], axis=1)
+        return np.stack([x, y, np.full(n, heading)], axis=1)
     if kind == "rows":
         # Two facing rows: robots 0..n/2-1 at the bottom facing up, the rest at the top facing down.
         gap = float(layout.get("gap", 1.0))
@@ -323,9 +385,7 @@ def initial_poses(layout: dict[str, Any], n: int, radius: float, seed: int, wher
         return _blocks(n, spacing, float(layout.get("offset", 1.7)))
     if kind == "random":
         return _scattered(layout, n, spacing, seed, where)
-    if kind in ("list", "file"):
-        return _listed(layout, n, where)
-    raise SceneError(f"{where}: layout kind must be one of {', '.join(LAYOUTS)}, not {kind!r}")
+    return _listed(layout, n, where)  # kind "list" or "file"
 
 
 def _blocks(n: int, spacing: float, offset: float) -> np.ndarray:
@@ -340,7 +400,10 @@ def _blocks(n: int, spacing: float, offset: float) -> np.ndarray:
 
 def _scattered(layout: dict[str, Any], n: int, spacing: float, seed: int, where: str) -> np.ndarray:
     """Random positions at least `spacing` apart in the layout's area, random headings."""
-    width, height = layout.get("size", [max(1.0, spacing * math.sqrt(n) * 1.5)] * 2)
+    side = max(1.0, spacing * math.sqrt(n) * 1.5)
+    width, height = _row(layout["size"], "width, height", "layout size", where) if "size" in layout else (side, side)
+    if min(width, height) <= 0:
+        raise SceneError(f"{where}: layout size must be [width, height] in metres, above 0, not {layout['size']!r}")
     rng = np.random.default_rng(seed)
     pts: list[tuple[float, float]] = []
     tries = 0
@@ -358,19 +421,18 @@ def _scattered(layout: dict[str, Any], n: int, spacing: float, seed: int, where:
 def _listed(layout: dict[str, Any], n: int, where: str) -> np.ndarray:
     """The first N poses the layout lists (kind 'list') or a CSV file of x,y[,theta] holds ('file')."""
     if layout.get("kind") == "list":
-        arr = np.asarray(layout.get("poses", []), float)
-        if arr.ndim != 2 or arr.shape[1] != 3 or len(arr) < n:
-            raise SceneError(f"{where}: layout.poses needs {n} [x, y, theta] rows")
-        return arr[:n].copy()
-    path = Path(layout.get("path", ""))
+        return _rows(layout.get("poses"), "x, y, theta", n, "layout poses", where)[:n]
+    path = layout.get("path")
+    if not isinstance(path, str):
+        raise SceneError(f'{where}: layout of kind "file" needs path = "a CSV file of x,y[,theta] rows", not {path!r}')
     try:
         arr = np.loadtxt(path, delimiter=",", ndmin=2)
     except (OSError, ValueError) as err:
         raise SceneError(f"{where}: layout file {path}: {err}") from None
     if arr.shape[1] == 2:
         arr = np.column_stack([arr, np.zeros(len(arr))])
-    if arr.shape[1] != 3 or len(arr) < n:
-        raise SceneError(f"{where}: layout file {path} needs {n} rows of x,y[,theta]")
+    if arr.shape[1] != 3 or len(arr) < n or not np.isfinite(arr[:n]).all():
+        raise SceneError(f"{where}: layout file {path} needs {n} rows of x,y[,theta] (finite numbers)")
     return arr[:n].astype(float)
 
 
@@ -387,10 +449,7 @@ def scene_goals(goals: dict[str, Any], poses: np.ndarray, where: str = "scene") 
     if kind == "none":
         return np.full_like(xy, np.nan)
     if kind == "list":
-        pts = np.asarray(goals.get("positions", []), float)
-        if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < len(xy):
-            raise SceneError(f"{where}: goals.positions needs {len(xy)} [x, y] pairs")
-        return pts[: len(xy)].copy()
+        return _rows(goals.get("positions"), "x, y", len(xy), "goals positions", where)[: len(xy)]
     raise SceneError(f"{where}: goals kind must be one of {', '.join(GOAL_KINDS)}, not {kind!r}")
 
 
@@ -450,6 +509,8 @@ def _arena(spec: Any, scene: Scene, where: str) -> tuple[float, float, float, fl
         margin = 4 * scene.radius + 0.1
         lo, hi = allp.min(axis=0) - margin, allp.max(axis=0) + margin
         return (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+    if isinstance(spec, dict):
+        _keys(spec, ("size",), "arena", where)
     size = spec.get("size") if isinstance(spec, dict) else None
     if not (isinstance(size, list) and len(size) == 2 and all(is_positive(s) for s in size)):
         raise SceneError(f'{where}: arena must be "auto" or have size = [width, height] in metres')
@@ -493,7 +554,16 @@ def _check_fit(scene: Scene, where: str) -> None:
         )
 
 
-EVENT_KINDS = ("teleport", "fail", "tracker-outage", "tracker-glitch")
+# each kind of [[events]] and the keys it takes besides kind; [[scripted]] movers' and [[pursuers]]' keys
+EVENT_KEYS = {
+    "teleport": ("t", "robot", "pose"),
+    "fail": ("t", "robot"),
+    "tracker-outage": ("t", "duration"),
+    "tracker-glitch": ("t", "robot", "offset"),
+}
+EVENT_KINDS = tuple(EVENT_KEYS)
+MOVER_KEYS = ("robot", "waypoints")
+PURSUER_KEYS = ("robot", "target")
 EVENT_SLACK = 1e-9  # s: an event at t is due at the tick stamped t, however tick x dt rounds
 
 
@@ -514,39 +584,32 @@ def take_due(events: list[dict[str, Any]], t: float) -> list[dict[str, Any]]:
     return taken
 
 
-def _check_event(event: dict[str, Any], scene: Scene, where: str) -> None:
-    kind = one_of(event.get("kind"), EVENT_KINDS, f"{where}: event kind", SceneError)
+def _check_event(event: dict[str, Any], label: str, scene: Scene, where: str) -> None:
+    kind = _kind_keys(event, EVENT_KEYS, None, label, where)
+    positive(event.get("t"), f"{where}: {label} ({kind}) t", error=SceneError)
     if kind == "tracker-outage":
-        if not (is_positive(event.get("t")) and is_positive(event.get("duration"))):
-            raise SceneError(f"{where}: tracker-outage event needs a time t > 0 and a duration > 0 (s)")
+        positive(event.get("duration"), f"{where}: {label} ({kind}) duration", error=SceneError)
         return
-    _robot_index(event, scene, f"{where}: {kind} event")
-    if not is_positive(event.get("t")):
-        raise SceneError(f"{where}: {kind} event needs a time t > 0")
-    pose = event.get("pose")
-    if kind == "teleport" and not (isinstance(pose, list) and len(pose) == 3):
-        raise SceneError(f"{where}: teleport event needs t > 0 and pose = [x, y, theta]")
-    offset = event.get("offset")
-    if kind == "tracker-glitch" and not (
-        isinstance(offset, list) and len(offset) == 2 and all(isinstance(v, int | float) for v in offset)
-    ):
-        raise SceneError(f"{where}: tracker-glitch event needs t > 0 and offset = [dx, dy] (m)")
+    _robot_index(event, scene, f"{where}: {label} ({kind})")
+    if kind == "teleport":
+        _row(event.get("pose"), "x, y, theta", f"{label} ({kind}) pose", where)
+    if kind == "tracker-glitch":
+        _row(event.get("offset"), "dx, dy", f"{label} ({kind}) offset", where)
 
 
 def _robot_index(entry: dict[str, Any], scene: Scene, where: str, key: str = "robot") -> int:
     value = entry.get(key)
-    if not (isinstance(value, int) and 0 <= value < scene.robots):
+    if not (isinstance(value, int) and not isinstance(value, bool) and 0 <= value < scene.robots):
         raise SceneError(f"{where}: {key} must be a robot index in 0..{scene.robots - 1}, not {value!r}")
     return value
 
 
-def _waypoints(entry: dict[str, Any], where: str) -> np.ndarray:
-    try:
-        pts = np.asarray(entry.get("waypoints"), float)
-    except (TypeError, ValueError):
-        pts = np.zeros((0, 0))
-    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 2 or np.any(np.diff(pts[:, 0]) <= 0):
-        raise SceneError(f"{where}: scripted waypoints must be [[t, x, y], ...] with increasing t (at least 2)")
+def _waypoints(entry: dict[str, Any], label: str, where: str) -> np.ndarray:
+    pts = _rows(entry.get("waypoints"), "t, x, y", 2, f"{label} waypoints", where)
+    if np.any(np.diff(pts[:, 0]) <= 0):
+        raise SceneError(
+            f"{where}: {label} waypoints must be [[t, x, y], ...] with increasing t, not {pts[:, 0].tolist()}"
+        )
     return pts
 
 
@@ -562,14 +625,19 @@ def _table(data: dict[str, Any], key: str, default: dict[str, Any], where: str) 
     return dict(value)
 
 
-def _tables(data: dict[str, Any], key: str, where: str) -> list[dict[str, Any]]:
+def _tables(data: dict[str, Any], key: str, where: str, keys: tuple[str, ...] | None = None) -> list[dict[str, Any]]:
+    """The [[key]] tables of a scene, each with only ``keys`` (None: checked by kind, later)."""
     value = data.get(key, [])
     if not (isinstance(value, list) and all(isinstance(v, dict) for v in value)):
         raise SceneError(f"{where}: {key} must be [[{key}]] tables, not {value!r}")
+    for k, table in enumerate(value):
+        if keys is not None:
+            _keys(table, keys, f"{key}[{k}]", where)
     return list(value)
 
 
 def _converge_hold(end: dict[str, Any], where: str) -> float:
+    _keys(end, ("converge_hold",), "[end]", where)
     hold = end.get("converge_hold", Scene.converge_hold)
     if not (is_number(hold) and hold >= 0):
         raise SceneError(f"{where}: [end] converge_hold must be a number of seconds >= 0, not {hold!r}")
@@ -577,19 +645,29 @@ def _converge_hold(end: dict[str, Any], where: str) -> float:
 
 
 def _noise(data: dict[str, Any], where: str) -> Noise:
-    try:
-        noise = Noise(**{k: float(v) for k, v in data.items()})
-    except (TypeError, ValueError):
-        raise SceneError(f"{where}: [noise] takes tracking_xy, tracking_theta_deg and actuation (numbers)") from None
-    if min(noise.tracking_xy, noise.tracking_theta_deg, noise.actuation) < 0:
-        raise SceneError(f"{where}: noise levels must be >= 0")
-    return noise
+    _keys(data, tuple(f.name for f in fields(Noise)), "[noise]", where)
+    for key, level in data.items():
+        if not (is_number(level) and level >= 0):
+            raise SceneError(f"{where}: [noise] {key} must be a number >= 0, not {level!r}")
+    return Noise(**{k: float(v) for k, v in data.items()})
 
 
-def _polygon(obstacle: Any, where: str) -> list[tuple[float, float]]:
-    verts = obstacle.get("vertices") if isinstance(obstacle, dict) else None
-    if not (isinstance(verts, list) and len(verts) >= 3 and all(isinstance(v, list) and len(v) == 2 for v in verts)):
-        raise SceneError(f"{where}: each obstacle needs vertices = [[x, y], ...] with at least 3 points")
-    pts = [(float(x), float(y)) for x, y in verts]
+def _polygon(obstacle: dict[str, Any], label: str, where: str) -> list[tuple[float, float]]:
+    verts = obstacle.get("vertices")
+    pts = [(float(x), float(y)) for x, y in _rows(verts, "x, y", 3, f"{label} vertices", where)]
+    if fault := _polygon_fault(pts):  # the world would refuse it once the run has begun
+        raise SceneError(f"{where}: {label} vertices must outline a simple polygon ({fault}), not {verts!r}")
     area2 = sum(x0 * y1 - x1 * y0 for (x0, y0), (x1, y1) in zip(pts, pts[1:] + pts[:1]))
     return pts if area2 > 0 else pts[::-1]  # counter-clockwise, as ORCA's obstacle lines expect
+
+
+def _polygon_fault(pts: list[tuple[float, float]]) -> str | None:
+    """What makes a vertex list no simple polygon (a repeated vertex, no area, crossing edges), or None."""
+    from shapely import Polygon, is_valid_reason  # here only: scenes without obstacles need no shapely
+
+    polygon = Polygon(pts)
+    if len(set(pts)) < len(pts):
+        return "a vertex repeats"
+    if polygon.area <= 0:
+        return "it has no area"
+    return None if polygon.is_valid else is_valid_reason(polygon).split("[")[0].lower()

@@ -5,6 +5,8 @@ SI units throughout: metres, seconds, radians.
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
@@ -61,13 +63,8 @@ class RobotParams:
         if self.kinematics not in KINEMATICS:
             raise ValueError(f"kinematics must be one of {KINEMATICS}, not {self.kinematics!r}")
         for f in fields(self):
-            value = getattr(self, f.name)
-            if f.name == "kinematics" or (f.name in _MAY_BE_ZERO and value == 0):
-                continue
-            if not (isinstance(value, (int, float)) and value == value and value > 0):
-                raise ValueError(f"robot parameter {f.name} must be a positive number, not {value!r}")
-        if not isinstance(self.rounds_per_tick, int) or isinstance(self.rounds_per_tick, bool):
-            raise ValueError(f"robot parameter rounds_per_tick must be a whole number, not {self.rounds_per_tick!r}")
+            if f.name != "kinematics":
+                _check_parameter(f.name, getattr(self, f.name), whole=f.type == "int")
         if self.forget_after <= self.stale_after:
             raise ValueError(f"forget_after ({self.forget_after}) must be longer than stale_after ({self.stale_after})")
         if self.k_a < self.v_pref * self.dt:
@@ -107,6 +104,18 @@ class RobotParams:
         out = object.__new__(RobotParams)
         out.__dict__.update(self.__dict__, radius=self.radius + by)
         return out
+
+
+def _check_parameter(name: str, value: Any, whole: bool) -> None:
+    """ValueError unless ``value`` is a finite number > 0 (or 0 where that turns it off), whole if its field is
+    an int: inf, nan, true or 2.5 neighbours pass the controller's comparisons and break the robot mid-run."""
+    may_be_zero = name in _MAY_BE_ZERO
+    number = isinstance(value, numbers.Integral if whole else numbers.Real) and not isinstance(value, bool)
+    if number and math.isfinite(value) and (value > 0 or (may_be_zero and value == 0)):
+        return
+    what = "whole number" if whole else "number"
+    what = f"a {what} >= 0" if may_be_zero else f"a positive {what}"
+    raise ValueError(f"robot parameter {name} must be {what}, not {value!r}")
 
 
 EPUCK = RobotParams()

@@ -23,7 +23,7 @@ from .image import BG_TOLERANCE, Foreground, foreground_mask, load_image, split_
 from .model import GoalError, GoalSet
 from .resize import auto_arena, check_feasible, normalised_spacing, to_arena
 from .sampling import KS_FACTOR, in_region, ks_distance, lattice_samples, poisson_samples
-from .segment import Segmentation, segment
+from .segment import Segmentation, segment, speck_area
 
 MAX_SIDE = 1024  # longer image side (pixels) used for goal generation; larger images are scaled down
 PAPER_SAMPLES_MAX = 1000  # larger regions start from a hexagonal lattice, not the paper's random samples
@@ -115,6 +115,8 @@ def prepare_image(
             "alpha": "every pixel is transparent",
             "color": f"every pixel is within {BG_TOLERANCE:g} of the background colour",
         }.get(fg.source, "the image is a single background colour")
+        if fg.mask.any():
+            how = f"its only foreground is specks smaller than {speck_area(fg.mask.shape, min_area)} pixels"
         raise GoalError(f"no foreground in {source}: {how}")
     return PreparedImage(rgb, fg, seg, source)
 

@@ -154,10 +154,15 @@ def _absorb_weak(comp: np.ndarray, weak: np.ndarray) -> tuple[np.ndarray, int]:
     return comp, absorbed
 
 
+def speck_area(shape: tuple[int, ...], min_area: int | None = None) -> int:
+    """Pixels a region needs in an image of ``shape`` (H, W, ...): fewer make a speck, dropped (or min_area)."""
+    return max(16, int(round(2e-4 * shape[0] * shape[1]))) if min_area is None else int(min_area)
+
+
 def segment(rgb: np.ndarray, mask: np.ndarray, *, min_area: int | None = None) -> Segmentation:
     """Split the foreground `mask` of `rgb` into regions R_i; specks under min_area pixels are none."""
     h, w = mask.shape
-    min_area = max(16, int(round(2e-4 * h * w))) if min_area is None else int(min_area)
+    min_area = speck_area(mask.shape, min_area)
     notes: list[str] = []
     if not mask.any():
         return Segmentation(np.full((h, w), -1, np.int64), [], notes)
@@ -197,6 +202,8 @@ def segment(rgb: np.ndarray, mask: np.ndarray, *, min_area: int | None = None) -
     labels = np.where(comp >= 0, remap[np.maximum(comp, 0)], -1)
     lflat = labels.ravel()
     sel = lflat >= 0
+    if not sel.any():  # the foreground was specks alone: no region (the caller says so)
+        return Segmentation(labels, [], notes)
     lf = to_lab(np.asarray(rgb).reshape(-1, 3)[sel], precise=True).astype(np.float64)
     cnt = np.bincount(lflat[sel], minlength=len(ids))
     means: np.ndarray = np.stack([np.bincount(lflat[sel], lf[:, c], len(ids)) for c in range(3)], axis=1)

@@ -54,6 +54,22 @@ def test_specks_are_dropped_with_a_note():
     assert len(seg.regions) == 2
 
 
+@pytest.mark.parametrize("min_area", [None, 50])
+def test_an_image_of_specks_alone_has_no_foreground(min_area):
+    """Every foreground part under the speck size: the one-line error of an empty image, naming the size
+    (it was an OpenCV assertion traceback)."""
+    img = np.full((SIZE, SIZE, 3), 255, np.uint8)
+    img[5:7, 5:7], img[60:64, 60:64] = shapes.BLUE, shapes.RED  # 4 and 16 pixels: specks under 50
+    if min_area is None:
+        img[60:64, 60:64] = 255  # the default size (16 pixels at 128 px) leaves the 4-pixel one alone
+    with pytest.raises(GoalError) as err:
+        prepare_image(img, min_area=min_area)
+    assert (
+        str(err.value)
+        == f"no foreground in <array>: its only foreground is specks smaller than {min_area or 16} pixels"
+    )
+
+
 def test_shading_is_one_region_but_an_edge_between_colours_is_two():
     img = np.full((SIZE, SIZE, 3), 255, np.uint8)
     ramp = np.linspace(1.0, 0.45, 80)[None, :, None]
