@@ -34,6 +34,9 @@ class FaultSpec:
 
 
 FaultPlan = dict[str, FaultSpec]  # message kind name ('state', 'cmd', ...) -> spec
+SETTINGS = ("drop", "delay", "jitter")  # FaultSpec's fields, as a plan names them
+SHAPE = "KIND:drop=P,delay=S,jitter=S"
+ALIASES = {"loss": "drop", "lost": "drop", "latency": "delay"}  # what a user may call a setting (a study's `loss`)
 
 
 def fault_kinds() -> list[str]:
@@ -49,7 +52,7 @@ def parse_faults(text: str) -> FaultPlan:
         kind, sep, body = part.partition(":")
         kind = kind.strip()
         if not sep or not kind:
-            raise ValueError(f"fault {part!r}: expected KIND:drop=P,delay=S,jitter=S")
+            raise ValueError(f"fault {part!r}: expected {SHAPE}")
         if kind not in kinds:
             import difflib  # here: a robot's process loads it only to refuse a plan
 
@@ -58,19 +61,33 @@ def parse_faults(text: str) -> FaultPlan:
             raise ValueError(f"fault {part!r}: no message kind {kind!r} ({maybe}kinds: {', '.join(kinds)})")
         values: dict[str, float] = {}
         for item in filter(None, (i.strip() for i in body.split(","))):
-            name, eq, value = item.partition("=")
-            if not eq or name.strip() not in ("drop", "delay", "jitter"):
-                raise ValueError(f"fault {part!r}: unknown setting {item!r} (use drop, delay, jitter)")
-            if name.strip() in values:
-                raise ValueError(f"fault {part!r}: {name.strip()} given twice")
+            name, eq, value = (piece.strip() for piece in item.partition("="))
+            _check_setting(part, kind, name, bool(eq))
+            if name in values:
+                raise ValueError(f"fault {part!r}: {name} given twice")
             try:
-                values[name.strip()] = float(value)
+                values[name] = float(value)
             except ValueError:
                 raise ValueError(f"fault {part!r}: {value!r} is not a number") from None
         if kind in plan:  # a second entry would silently replace the first
             raise ValueError(f"fault {part!r}: kind {kind!r} given twice (put its settings in one entry)")
         plan[kind] = FaultSpec(**values)
     return plan
+
+
+def _check_setting(part: str, kind: str, name: str, has_value: bool) -> None:
+    """A setting of a plan's entry: one of SETTINGS, with a value; else a ValueError naming the settings."""
+    if name in SETTINGS and has_value:
+        return
+    if name in SETTINGS:
+        raise ValueError(f"fault {part!r}: {name} needs a value, e.g. {kind}:{name}=0.1 (a plan reads {SHAPE})")
+    import difflib  # here: a robot's process loads it only to refuse a plan
+
+    close = ALIASES.get(name) or next(iter(difflib.get_close_matches(name, SETTINGS, n=1)), None)
+    maybe = f"did you mean {close!r}? " if close else ""
+    raise ValueError(
+        f"fault {part!r}: no setting {name!r} ({maybe}settings: {', '.join(SETTINGS)}; a plan reads {SHAPE})"
+    )
 
 
 def format_faults(plan: FaultPlan) -> str:

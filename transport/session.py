@@ -37,7 +37,7 @@ class ZenohSettings:
     def to_config(self) -> zenoh.Config:
         if self.mode not in MODES:
             raise TransportError(f"zenoh mode must be one of {', '.join(MODES)}, not {self.mode!r}")
-        conf = zenoh.Config.from_file(self.config_file) if self.config_file else zenoh.Config()
+        conf = _config_file(self.config_file) if self.config_file else zenoh.Config()
         conf.insert_json5("mode", json.dumps(self.mode))
         if self.connect:
             conf.insert_json5("connect/endpoints", json.dumps(self.connect))
@@ -94,21 +94,64 @@ def client_of(router: ZenohSettings) -> ZenohSettings:
     return ZenohSettings(mode="client", connect=list(router.listen))
 
 
+def _config_file(path: str) -> zenoh.Config:
+    """A --zenoh-config file as zenoh reads it; a TransportError naming the file if it cannot be read."""
+    try:
+        return zenoh.Config.from_file(path)
+    except Exception as err:  # zenoh's ZError, its text multi-line
+        text = _plain(str(err))
+        os_error = _OS_ERROR.search(text)
+        said = re.search(r'msg: "(.+?)"|= (.+)$', text)  # the JSON5 parser's or the configuration's complaint
+        if os_error:
+            reason = os_error.group(1).strip().lower()
+        else:
+            reason = "not a zenoh JSON5 configuration" + (
+                f": {_shortened(said.group(1) or said.group(2))}" if said else ""
+            )
+        raise TransportError(f"--zenoh-config {path}: {reason}") from None
+
+
+def _shortened(text: str, most: int = 100) -> str:
+    """At most ``most`` characters, cut after a whole clause (zenoh's may list every field it knows)."""
+    cut = text.rfind(",", 0, most)
+    return text if len(text) <= most else f"{text[: cut if cut > 0 else most]}, ..."
+
+
+def _endpoints(settings: ZenohSettings, conf: zenoh.Config | None) -> list[str]:
+    """Where a session listens (or connects, if it does not listen): its flags', else its configuration file's."""
+    ours = settings.listen or settings.connect
+    if ours or conf is None:
+        return ours
+    for key in ("listen/endpoints", "connect/endpoints"):
+        endpoints = json.loads(conf.get_json(key))
+        if isinstance(endpoints, dict):  # zenoh's per-mode default
+            endpoints = endpoints.get(settings.mode, [])
+        if endpoints:
+            return [str(e) for e in endpoints]
+    return []
+
+
 def open_session(settings: ZenohSettings) -> zenoh.Session:
     """Open a session; any failure becomes a TransportError with a one-line reason."""
+    conf = None
     try:
-        return zenoh.open(settings.to_config())
+        conf = settings.to_config()
+        return zenoh.open(conf)
+    except TransportError:  # said already (a bad mode, a configuration file that cannot be read)
+        raise
     except Exception as err:  # zenoh raises ZError with multi-line text
-        where = ", ".join(settings.listen or settings.connect) or "(no endpoint)"
-        reason, hint = zenoh_reason(str(err) or type(err).__name__, settings.mode)
+        endpoints = _endpoints(settings, conf)
+        where = ", ".join(endpoints) or "(no endpoint)"
+        reason, hint = zenoh_reason(str(err) or type(err).__name__, settings.mode, endpoints)
         raise TransportError(f"cannot open zenoh {settings.mode} session on {where}: {reason}; {hint}") from None
 
 
 # zenoh's errors end each cause with the Rust source it came from: "... at /root/.cargo/git/.../tcp.rs:61."
 _SOURCE = re.compile(r"\s+at\s+\S+\.rs:\d+\.?")
+_OS_ERROR = re.compile(r"([^\[\]:]+?) \(os error \d+\)")  # the innermost cause: "Address already in use (os error 98)"
 _ENDPOINT_FORM = "an endpoint reads PROTOCOL/HOST:PORT, e.g. tcp/127.0.0.1:7447"
-_HINTS = (  # (what zenoh's text says, lower case; the hint for the user)
-    ("address already in use", "another process holds that port: choose another with -l tcp/127.0.0.1:PORT"),
+_HINTS = (  # (what zenoh's text says, lower case; the hint for the user: {listen} the endpoint with another port)
+    ("address already in use", "another process holds that port: choose another with -l {listen}"),
     ("cannot assign requested address", "no network interface of this machine has that address"),
     ("permission denied", "ports below 1024 need privileges: choose a port above"),
     ("invalid", _ENDPOINT_FORM),
@@ -118,12 +161,13 @@ _HINTS = (  # (what zenoh's text says, lower case; the hint for the user)
 )
 
 
-def zenoh_reason(text: str, mode: str) -> tuple[str, str]:
+def zenoh_reason(text: str, mode: str, endpoints: list[str] | None = None) -> tuple[str, str]:
     """zenoh's error text as (the reason in a few words, a hint for the user): without the Rust
-    source paths it carries, the innermost operating-system error if there is one."""
-    text = " ".join(_SOURCE.sub("", text).split())
+    source paths it carries, the innermost operating-system error if there is one. A hint to listen
+    elsewhere keeps the protocol and host of the endpoint the text names (a tls one stays tls)."""
+    text = _plain(text)
     lower = text.lower()
-    os_error = re.search(r"([^\[\]:]+?) \(os error \d+\)", text)
+    os_error = _OS_ERROR.search(text)
     if os_error:
         reason = os_error.group(1).strip()
     elif "must be of the form" in lower:  # the endpoint did not parse: zenoh's text repeats the form
@@ -133,12 +177,30 @@ def zenoh_reason(text: str, mode: str) -> tuple[str, str]:
     else:
         reason = text.strip(" .")
     default = (
-        "is the port already in use? choose another with -l tcp/127.0.0.1:PORT"
+        "is the port already in use? choose another with -l {listen}"
         if mode == "router"
         else "is a router running there? start one with `pixelswarm router`"
     )
     hint = next((h for pattern, h in _HINTS if pattern in lower), default)
-    return reason[:1].lower() + reason[1:], hint
+    return reason[:1].lower() + reason[1:], hint.format(listen=_another_port(text, endpoints or []))
+
+
+def _plain(text: str) -> str:
+    """zenoh's error text on one line, without the Rust source paths it carries."""
+    return " ".join(_SOURCE.sub("", text).split())
+
+
+def _another_port(text: str, endpoints: list[str]) -> str:
+    """The endpoint zenoh's text names (else the first), its port as PORT: tls/127.0.0.1:PORT."""
+    named: list[str] = []
+    others: list[str] = []
+    for endpoint in endpoints:
+        locator = endpoint.split("#")[0].split("?")[0]  # without zenoh's metadata and configuration
+        proto, slash, address = locator.partition("/")
+        host, colon, _ = address.rpartition(":")
+        if slash and colon:
+            (named if address in text else others).append(f"{proto}/{host}:PORT")
+    return next(iter(named + others), "tcp/127.0.0.1:PORT")
 
 
 def one_malloc_arena() -> bool:

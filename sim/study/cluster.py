@@ -103,9 +103,12 @@ def clear_run_dir(final: Path) -> None:
 
 def run_task(run_id: str, args: list[str], out: str | None, stop_event: str, grace: float) -> dict[str, Any]:
     """One run on this worker: ``pixelswarm run ARGS --out DIR``; ``out`` None: into a directory of the
-    worker's, sent back as ``archive`` (tar of the run directory, under its final or ``.partial`` name)."""
+    worker's, sent back as ``archive`` (tar of the run directory, under its final or ``.partial`` name).
+    A task the study's stop reaches before its run starts returns ``not_started``: a stopped study starts nothing."""
     from distributed import get_worker
 
+    if _stopped(stop_event):
+        return {"not_started": True}
     try:
         worker = get_worker()
     except ValueError:  # not on a worker

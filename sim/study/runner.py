@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from sim.args import refuse_if
-from sim.processes import stop_on_sigterm
+from sim.processes import handling_signals
 from sim.study.cluster import check_address, clear_run_dir, connect, run_task, unpack
 from sim.study.spec import Run, Spec, StudyDir, load_spec, lock_study, run_args, write_text
 
@@ -30,6 +30,18 @@ STDERR_TAIL_CHARS = 2000
 
 class Interrupted(Exception):
     """Ctrl-C or SIGTERM: the running children were stopped, finished runs kept."""
+
+
+class Signals:
+    """SIGINT and SIGTERM as a KeyboardInterrupt in the main thread, remembering the first that came
+    (the study exits with 128 + its number, as `pixelswarm run` does)."""
+
+    def __init__(self) -> None:
+        self.first: int | None = None
+
+    def __call__(self, signum: int, frame: Any) -> None:
+        self.first = self.first or signum
+        raise KeyboardInterrupt
 
 
 # --- Running: up to `jobs` children at once, progress on stderr, Ctrl-C stops the children --------
@@ -64,7 +76,7 @@ def _duration(seconds: float) -> str:
 def execute(spec: Spec, study: StudyDir, jobs: int, scheduler: str | None) -> Progress:
     """Run every run not finished yet on a Dask cluster: the scheduler's at ``scheduler``, or a local
     one of ``jobs`` threads (sim.study.cluster); record each one's outcome as it comes back."""
-    from distributed import Event, as_completed, wait
+    from distributed import Event, as_completed
 
     runs = spec.runs()
     todo = [r for r in runs if study.metrics(r) is None]
@@ -83,27 +95,21 @@ def execute(spec: Spec, study: StudyDir, jobs: int, scheduler: str | None) -> Pr
         study.runs.mkdir(parents=True, exist_ok=True)
         stop = Event(f"pixelswarm-study-stop-{os.getpid()}-{time.time_ns()}", client=client)
         shared = scheduler is None  # a local worker writes into the study directory itself
-        futures = {}
-        for run in todo:
-            clear_run_dir(study.run_dir(run))  # before running it again
-            out = str(study.run_dir(run)) if shared else None
-            future = client.submit(
-                run_task, run.id, run_args(spec, run), out, stop.name, STOP_GRACE_S, key=f"run-{run.id}", pure=False
-            )
-            futures[future] = run
-        pending = set(futures)
+        pending: dict[Any, Run] = {}
         try:
-            for future in as_completed(list(futures)):
-                pending.discard(future)
-                run = futures[future]
+            for run in todo:
+                clear_run_dir(study.run_dir(run))  # before running it again
+                out = str(study.run_dir(run)) if shared else None
+                args = (run.id, run_args(spec, run), out, stop.name, STOP_GRACE_S)
+                pending[client.submit(run_task, *args, key=f"run-{run.id}", pure=False)] = run
+            for future in as_completed(list(pending)):
+                run = pending.pop(future)
                 _finish(run, future, study, progress)
                 running = min(len(pending), progress.jobs)
                 progress.line(running, f"{run.id}: {'done' if study.metrics(run) else 'FAILED'}")
         except KeyboardInterrupt:
-            stop.set()  # every task stops its run (SIGTERM, then SIGKILL after the grace)
-            # the grace to stop their runs (a second Ctrl-C, or a task failing as it stops, ends the wait)
-            with contextlib.suppress(KeyboardInterrupt, Exception):
-                wait(list(pending), timeout=STOP_GRACE_S + 15)
+            stop.set()  # a queued task starts no run, a running one stops its run (SIGTERM, SIGKILL after the grace)
+            _wind_down(pending, study, progress)
             raise Interrupted from None
         return progress
     finally:
@@ -112,11 +118,25 @@ def execute(spec: Spec, study: StudyDir, jobs: int, scheduler: str | None) -> Pr
             cluster.close()
 
 
-def _finish(run: Run, future: Any, study: StudyDir, progress: Progress) -> None:
+def _wind_down(pending: dict[Any, Run], study: StudyDir, progress: Progress) -> None:
+    """After the stop: wait the grace for the tasks to end (a queued one at once), and record what the
+    stopped runs bring back (a run that finished meanwhile is done); a second Ctrl-C ends the wait."""
+    from distributed import as_completed
+
+    with contextlib.suppress(KeyboardInterrupt, Exception):  # also the grace over (a TimeoutError)
+        for future in as_completed(list(pending), timeout=STOP_GRACE_S + 15):
+            _finish(pending[future], future, study, progress, stopping=True)
+
+
+def _finish(run: Run, future: Any, study: StudyDir, progress: Progress, stopping: bool = False) -> None:
+    """Record a task's outcome: its run done or failed, or ``stopping``, interrupted; a task that started
+    no run (the study stopped first) leaves nothing."""
     try:
         result = future.result()
     except Exception as err:  # the task itself failed (not the run): e.g. a worker died too often
         result = {"returncode": None, "process_wall_s": 0.0, "command": [], "log": f"task failed: {err!r}"}
+    if result.get("not_started"):
+        return
     if result.get("archive"):
         unpack(result["archive"], study.runs)
     write_text(study.logs / f"{run.id}.log", result.get("log", ""))
@@ -132,6 +152,8 @@ def _finish(run: Run, future: Any, study: StudyDir, progress: Progress) -> None:
         progress.done += 1
         progress.walls.append(wall)
         record.update(status="done", error="")
+    elif stopping:  # marked incomplete by its own stop: run again on resuming, not a failure
+        record.update(status="interrupted", error="")
     else:
         progress.failed += 1
         tail = result.get("log", "")[-STDERR_TAIL_CHARS:]
@@ -177,19 +199,19 @@ def cmd_study(args: argparse.Namespace) -> int:
     jobs = args.jobs or default_jobs()
     with lock_study(study.root):
         study.hold(spec)
-        previous = stop_on_sigterm()
+        signals = Signals()
         try:
-            progress = execute(spec, study, jobs, args.scheduler)
-        except Interrupted:
+            with handling_signals(signals):
+                progress = execute(spec, study, jobs, args.scheduler)
+        except (Interrupted, KeyboardInterrupt):  # also one that came before the runs were queued
             done = sum(study.metrics(r) is not None for r in spec.runs())
+            name = signal.Signals(signals.first or signal.SIGINT).name
             print(
-                f"pixelswarm study: interrupted; {done} of {len(spec.runs())} runs done and kept. "
-                f"Run the same command again to resume.",
+                f"pixelswarm study: stopped by {name}; {done} of {len(spec.runs())} runs done and kept, "
+                "the stopped ones marked incomplete. Run the same command again to resume.",
                 file=sys.stderr,
             )
-            return 130
-        finally:
-            signal.signal(signal.SIGTERM, previous)
+            return 128 + (signals.first or signal.SIGINT)
         command = f"pixelswarm study {study.root / 'spec.toml'} --out NEW_DIR --jobs {jobs}"
         print(write_report(spec, study, command))
     return 1 if progress.failed else 0

@@ -112,8 +112,26 @@ def _grid(axes: dict[str, list[Any]]) -> list[dict[str, Any]]:
 
 def _name(values: dict[str, Any], prefix: str = "") -> str:
     parts = [prefix] if prefix else []
-    parts += [f"{k}-{format(v, '.12g') if isinstance(v, float) else v}" for k, v in values.items()]
+    parts += [f"{k}-{_label(v)}" for k, v in values.items()]
     return "_".join(parts) or "base"
+
+
+def _label(value: Any) -> str:
+    """An axis value as a run's id names it: a float by 12 significant digits (0.1 + 0.2 as 0.3, not 0.30000000000000004)."""
+    return format(value, ".12g") if isinstance(value, float) else str(value)
+
+
+def _check_labels(key: str, values: list[Any]) -> None:
+    """Two values of an axis that one id would name would share a run directory: the second run would
+    overwrite the first, or be skipped as done."""
+    seen: dict[str, Any] = {}
+    for value in values:
+        other = seen.setdefault(_label(value), value)
+        if other != value:
+            raise UsageError(
+                f"axes.{key}: {other!r} and {value!r} both name their runs {key}-{_label(value)}; "
+                "give values that differ within 12 significant digits"
+            )
 
 
 def load_spec(path: Path) -> Spec:
@@ -154,6 +172,7 @@ def load_spec(path: Path) -> Spec:
         refuse_if(not isinstance(values, list) or not values, f"axes.{key}: give a non-empty list of values")
         checked = [_check_setting("axes", key, v) for v in values]
         refuse_if(len(set(checked)) != len(checked), f"axes.{key}: a value is listed twice")
+        _check_labels(key, checked)
         axes[key] = checked
 
     baseline = None

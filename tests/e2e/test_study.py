@@ -16,13 +16,16 @@ import psutil
 import pytest
 
 from sim.cli.main import main
+from sim.study.runner import STOP_GRACE_S
 from tests.conftest import REPO, descendants, wait_for
 from tests.support.study import GRID, read_csv, study
 
-# metrics of the processes and messages of a run, which the central engine has no counterpart for
+# metrics of the processes and messages of a run, which the central engine has no counterpart for (its
+# commands: a distributed world steps on until it hears the end), and of its wall time
 PROCESS_ONLY = {
-    *("engine", "wall_s", "realtime_factor", "end_reason"),
+    *("engine", "wall_s", "realtime_factor", "stepping_wall_s", "stepping_realtime_factor", "end_reason"),
     *("messages_per_robot_s", "bytes_per_robot_s", "messages_total", "bytes_total"),
+    *("agent_processes", "commands_sent", "commands_applied"),
 }
 
 
@@ -211,6 +214,11 @@ BAD_SPECS = {
     "no seeds": ('[base]\nscene = "swap"\n', "seeds"),
     "not toml": ("seeds = [1\n", "not valid TOML"),
     "seed axis": ('seeds = [1]\n[base]\nscene = "swap"\n[axes]\nseed = [1, 2]\n', "seeds are not a setting"),
+    # one id for both: the second run would overwrite the first, or be skipped as done
+    "values one id names": (
+        'seeds = [1]\n[base]\nscene = "swap"\n[axes]\nloss = [0.1, 0.1000000000001]\n',
+        "axes.loss: 0.1 and 0.1000000000001 both name their runs loss-0.1",
+    ),
 }
 
 
@@ -268,11 +276,53 @@ def test_ctrl_c_stops_the_runs_it_started_and_keeps_the_finished_ones(tmp_path):
             study_process.kill()
             study_process.wait()
     assert study_process.returncode == 130, err[-3000:]
-    assert "interrupted; 1 of 2 runs done" in err
+    assert "stopped by SIGINT; 1 of 2 runs done" in err
     assert not [p.pid for p in started if p.is_running() and p.status() != psutil.STATUS_ZOMBIE]
     assert json.loads((out / "runs" / "base_seed-1" / "metrics.json").read_text())["complete"] is True
     interrupted = out / "runs" / "baseline_seed-1" / "metrics.json"
     assert not interrupted.exists() or json.loads(interrupted.read_text())["complete"] is False
+    assert not (out / "report.html").exists()
+
+
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_stopped_study_starts_none_of_its_queued_runs(stop, tmp_path):
+    """Ctrl-C or SIGTERM with runs queued: the running one stops at once, marked incomplete, and no queued
+    one starts (they did, one after another, until a 45 s grace ran out); one line, exit 128 + the signal."""
+    spec = tmp_path / "spec.toml"  # runs far longer than the test: each one runs until it is stopped
+    spec.write_text(
+        'seeds = [1, 2, 3, 4]\n[base]\nscene = "swap"\nrobots = 2\nengine = "distributed"\n'
+        'agents_per_process = 2\nduration = 90.0\nclock = "realtime"\n'
+    )
+    out = tmp_path / "out"
+    command = [sys.executable, "-m", "sim.cli", "study", str(spec), "--out", str(out), "--jobs", "1"]
+    study_process = subprocess.Popen(
+        command,
+        cwd=REPO,
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    try:
+        assert wait_for(lambda: (out / "runs" / "base_seed-1.partial").exists(), timeout=120)
+        started = descendants(study_process.pid)
+        study_process.send_signal(stop)
+        _, err = study_process.communicate(timeout=STOP_GRACE_S)  # a run stops in a second or two
+    finally:
+        if study_process.poll() is None:
+            study_process.kill()
+            study_process.wait()
+    assert study_process.returncode == 128 + stop, err[-3000:]
+    last = err.strip().splitlines()[-1]
+    assert last.startswith(f"pixelswarm study: stopped by {stop.name}; 0 of 4 runs done") and "Traceback" not in err
+    # the queued ones never started; the running one wrote what it recorded, marked incomplete (nothing if
+    # the stop came before its processes were up, as `pixelswarm run` does)
+    assert {p.name for p in (out / "runs").iterdir()} <= {"base_seed-1"}
+    assert [p.name for p in (out / "records").iterdir()] == ["base_seed-1.json"]
+    assert json.loads((out / "records" / "base_seed-1.json").read_text())["status"] == "interrupted"
+    stopped = out / "runs" / "base_seed-1" / "metrics.json"
+    assert not stopped.exists() or json.loads(stopped.read_text())["complete"] is False
+    assert not [p.pid for p in started if p.is_running() and p.status() != psutil.STATUS_ZOMBIE]
     assert not (out / "report.html").exists()
 
 

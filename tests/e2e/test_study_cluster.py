@@ -26,7 +26,7 @@ pytest.importorskip("distributed")
 DASK = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
 WORKER = [sys.executable, "-m", "distributed.cli.dask_worker"]
 # what a run's wall clock decides, not its seed: left out where two studies are compared
-TIMED = {"process_wall_s", "wall_s", "realtime_factor"}
+TIMED = {"process_wall_s", "wall_s", "realtime_factor", "stepping_wall_s", "stepping_realtime_factor"}
 
 
 class Cluster:

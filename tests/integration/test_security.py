@@ -247,3 +247,12 @@ def test_only_the_coordinator_answers_a_robots_question_for_the_goal_set(secured
         answers: list = []
         assert _wait_until(lambda: answers.extend(robot.query(KEYS.all_of("goals"), Goals, timeout=0.5)) or answers)
         assert {msg.epoch for _, msg in answers} == {4}
+
+
+def test_a_busy_tls_port_is_said_with_a_tls_endpoint_to_try_instead(tls_router, certs):
+    """The hint keeps the endpoint's protocol: a secured router listens on tls (it said -l tcp/...)."""
+    result = run_pixelswarm("router", "--zenoh-config", str(certs / "router.json5"), "-l", tls_router, timeout=60)
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    line = result.stderr.strip()
+    assert "\n" not in line and f"on {tls_router}: address already in use" in line, line
+    assert line.endswith("choose another with -l tls/127.0.0.1:PORT"), line

@@ -821,3 +821,41 @@ def test_a_client_whose_link_to_its_router_came_back_declares_its_subscriptions_
         router.send_signal(signal.SIGCONT)
         assert wait_for(lambda: heard(2), timeout=20.0), "the subscription was not declared again"
         assert b.renewals == 1
+
+
+@pytest.mark.parametrize(
+    "plan, said",
+    [
+        ("state:drop", "drop needs a value, e.g. state:drop=0.1"),  # the value left out
+        ("cmd:delay", "delay needs a value, e.g. cmd:delay=0.1"),
+        ("state:loss=0.2", "no setting 'loss' (did you mean 'drop'? "),  # what a study calls it
+        ("state:dorp=0.2", "no setting 'dorp' (did you mean 'drop'? "),
+        ("state:speed=1", "no setting 'speed' (settings: "),
+    ],
+)
+def test_a_fault_setting_it_cannot_read_is_said_with_the_settings_there_are_and_the_plans_shape(plan, said):
+    with pytest.raises(ValueError) as refused:
+        parse_faults(plan)
+    message = str(refused.value)
+    assert message.startswith(f"fault {plan!r}: {said}"), message
+    assert "KIND:drop=P,delay=S,jitter=S" in message and "unknown setting" not in message
+    if "no setting" in message:
+        assert "settings: drop, delay, jitter" in message
+
+
+@pytest.mark.parametrize("problem, said", [("missing", "no such file or directory"), ("folder", "is a directory")])
+def test_a_zenoh_config_file_it_cannot_read_is_named_not_taken_for_a_busy_port(tmp_path, problem, said):
+    path = tmp_path / "router.json5"
+    if problem == "folder":
+        path.mkdir()
+    with pytest.raises(TransportError) as refused:
+        open_session(ZenohSettings(mode="router", config_file=str(path)))
+    assert str(refused.value) == f"--zenoh-config {path}: {said}"
+
+
+def test_a_zenoh_config_file_that_is_not_a_configuration_says_what_zenoh_found(tmp_path):
+    for text, found in [("{ mode: ", "expected array"), ("{ banana: 1 }", "unknown field `banana`")]:
+        path = tmp_path / "router.json5"
+        path.write_text(text)
+        with pytest.raises(TransportError, match=f"^--zenoh-config {path}: not a zenoh JSON5 configuration: {found}"):
+            open_session(ZenohSettings(mode="router", config_file=str(path)))
