@@ -8,11 +8,12 @@ only robots whose goal it changed decide again, so the run is the same to the bi
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import os
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple, TextIO, TypedDict, Unpack
 
@@ -39,9 +40,10 @@ from sim.bodies.tracker import tracker_of, world_of
 from sim.central.link import InProcessLink
 from sim.central.stepclock import StepClock
 from sim.outputs.rundir import RunDir
-from sim.outputs.stream import SCRATCH, TickRecorder
-from sim.outputs.write import RunOutcome, write_run
-from transport.codec import START_TICK, Goals, as_sent, decode
+from sim.outputs.stream import ROWS, SCRATCH, TickRecorder
+from sim.outputs.write import RunOutcome, goal_set_arrays, write_run
+from sim.processes import handling_signals
+from transport.codec import START_TICK, Goals, State, as_sent, decode
 
 
 def optimal_assignment(
@@ -107,6 +109,16 @@ def start_warm(auction: Participant, poses: np.ndarray, goals: np.ndarray, robot
     return _goal_index(robots, list(carried), list(carried.values()))
 
 
+def _bid_in(auction: Participant | LocalAuction, goals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The positions the own robots bid from in the auction's last block, and the C_d in force on each one's
+    ``goals`` (-1: none), as their bids carry them."""
+    if isinstance(auction, LocalAuction):
+        return auction.xy, np.where(goals >= 0, auction.penalty[np.arange(len(goals)), np.maximum(goals, 0)], 0.0)
+    if not auction.penalty:  # deadlocks are rare: most agreements have none in force
+        return auction.position, np.zeros(len(goals))
+    return auction.position, np.array([auction.penalty.get((r, g), 0.0) for r, g in enumerate(goals.tolist())])
+
+
 def _goal_index(robots: int, ids: Any, goals: Any) -> np.ndarray:
     """Goal index per robot (-1: none), ``goals`` being those of the robots ``ids``."""
     out = np.full(robots, -1)
@@ -124,6 +136,47 @@ class Outcome(NamedTuple):
     penalties: int  # deadlocks declared (paper 5.5.5)
     end_reason: str
     wall_s: float
+    stepping_wall_s: float  # from the first tick to the last (start-up excluded), as the distributed engine counts it
+    commands: tuple[int, int]  # commands the robots' policy sent, and those the world applied
+
+
+# an image scene's recording also holds, per tick and robot, which agreement each robot's goal is from
+AGREEMENT_ROWS = {"assignment_epoch": ((), np.int64), "assignment_instance": ((), np.int64)}
+
+
+@dataclass
+class Agreements:
+    """What trajectory.npz keeps of an image scene's auction, as the recorder keeps the agents': every goal set
+    shown (by epoch: step + 1), and every agreement with the positions bid from and the penalties in force;
+    and the deadlock penalties charged, for metrics.json."""
+
+    robots: int
+    goal_sets: dict[int, Goals] = field(default_factory=dict)
+    # (epoch, instance) -> the positions each robot bid from (N,2) and the C_d in force on its goal (N,), NaN: none
+    agreed: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    solves: int = 0  # the optimal assignment's solves (its instances)
+    instance: int = 0  # the agreement the robots' goals are from now (State.CARRIED: the warm start's, never agreed)
+    penalties: int = 0  # deadlock penalties charged in the auction (paper 5.5.5)
+
+    def agree(self, epoch: int, instance: int, robots: np.ndarray, position: np.ndarray, penalty: np.ndarray) -> None:
+        """Agreement ``instance`` of goal set ``epoch``, the robots' goals from now: ``robots`` bid from
+        ``position`` with ``penalty`` in force."""
+        positions, penalties = np.full((self.robots, 2), np.nan), np.full(self.robots, np.nan)
+        positions[robots], penalties[robots] = position, penalty
+        self.agreed[(epoch, instance)] = (positions, penalties)
+        self.instance = instance
+
+    def arrays(self, step: np.ndarray) -> dict[str, np.ndarray]:
+        """trajectory.npz's goal-set and agreement arrays (sim.outputs.recorder makes the same of the bus)."""
+        if not self.goal_sets:
+            return {}
+        keys, n = sorted(self.agreed), self.robots
+        return {
+            "goal_set_epoch": np.asarray(step) + 1,  # the newest goal set: the step shown
+            "agreements": np.array(keys, np.int64).reshape(-1, 2),
+            "agreement_positions": np.array([self.agreed[k][0] for k in keys]).reshape(-1, n, 2),
+            "agreement_penalties": np.array([self.agreed[k][1] for k in keys]).reshape(-1, n),
+        } | goal_set_arrays(self.goal_sets, n)
 
 
 @dataclass
@@ -157,7 +210,7 @@ class CentralAuction:
         self.timing: dict[int, GoalTiming] = {}
         self.assigned_at: float | None = None  # when the shown goal set was last assigned
         self.pending: tuple[Participant, np.ndarray] | None = None  # a block settling beside, and its positions
-        self.penalties = 0
+        self.agreements = Agreements(scene.robots)  # and which the assignment is from
 
     def show(self, k: int) -> None:
         """A new image: its goal set, and a fresh auction (the old prices mean nothing)."""
@@ -167,8 +220,9 @@ class CentralAuction:
         if not self.scene.steps:
             return
         previous, image = self.image.goal_set, self.assigned[0]
-        goal_set, colors, timing = _step_goals(self.scene, k, self.movers.pixels)
-        self.image = Shown(k, goal_set, colors, timing.motion, timing.t_start)
+        heard, timing = _step_goals(self.scene, k, self.movers.pixels)
+        self.agreements.goal_sets[k + 1] = heard
+        self.image = Shown(k, heard.positions, heard.colors, timing.motion, timing.t_start)
         self.timing = {e: v for e, v in self.timing.items() if e == image + 1} | {k + 1: timing}
         if self.budget and (last is not None or first):  # as the agents with bounded rounds: the warm start
             pixels, p = self.movers.pixels.tolist(), self.params
@@ -177,7 +231,7 @@ class CentralAuction:
                 self.assignment = warm_start(self.auction, last, previous, self.image.goal_set, self.assignment)
             else:
                 self.assignment = start_warm(self.auction, self.scene.poses, self.image.goal_set, len(self.assignment))
-            self.assigned = (k, self.image.goal_set, self.image.goal_colors)
+            self.assigned, self.agreements.instance = (k, self.image.goal_set, self.image.goal_colors), State.CARRIED
 
     @property
     def budget(self) -> int:
@@ -218,6 +272,8 @@ class CentralAuction:
                 before = None if self.assigned_at is None else self.assignment[movers.pixels]
                 best = optimal_assignment(bid_from[movers.pixels], self.image.goal_set, before, p.assign_hysteresis)
                 self.assignment = movers.pixel_assignment(best)
+                if best is not before:  # kept by the hysteresis: the last solve's agreement stands
+                    self._agreed(None, bid_from)
             elif isinstance(auction, Participant) and self.overlap:
                 auction.settle_beside(bid_from)
                 self.pending = (auction, bid_from)
@@ -228,6 +284,7 @@ class CentralAuction:
                         self.image.k, self.image.goal_set, pixels, pixels, p, self.reach
                     )
                 self.assignment = auction_assignment(auction, bid_from)
+                self._agreed(auction, bid_from)
             self.assigned_at = t
             self.assigned = (self.image.k, self.image.goal_set, self.image.goal_colors)
         self.clock.lap("assignment")
@@ -238,6 +295,19 @@ class CentralAuction:
         agreed = [auction.agreed.get(r, -1) for r in auction.own]
         self.assignment = _goal_index(len(self.assignment), auction.own_ids, agreed)
         self.assigned = (self.image.k, self.image.goal_set, self.image.goal_colors)
+        self._agreed(auction, None)
+
+    def _agreed(self, auction: Participant | LocalAuction | None, bid_from: np.ndarray | None) -> None:
+        """The assignment just made is an agreement of the shown goal set (``auction`` None: an optimal solve
+        on ``bid_from``): its instance, which the robots hold their goals from, kept for trajectory.npz."""
+        epoch, pixels, kept = self.image.k + 1, self.movers.pixels, self.agreements
+        if auction is None:
+            assert bid_from is not None
+            kept.solves += 1
+            kept.agree(epoch, kept.solves - 1, pixels, bid_from[pixels], np.zeros(len(pixels)))
+            return
+        position, penalty = _bid_in(auction, self.assignment[auction.own_ids])
+        kept.agree(epoch, auction.agreed_instance, auction.own_ids, position, penalty)
 
     def settled_beside(self) -> bool:
         """The auction beside is settled: True when it changed the assignment."""
@@ -250,13 +320,14 @@ class CentralAuction:
         self.clock.add_beside(auction.beside_seconds, auction.bids - bids, reassigned)
         self.clock.lap("assignment")
         self.assignment = settled
+        self._agreed(auction, None)
         return reassigned > 0
 
     def penalise(self, robot: int, epoch: int, goal: int) -> None:
         # a goal of an earlier set is no goal of this auction
         if self.auction is not None and epoch == self.image.k + 1:
             self.auction.penalise(robot, goal, self.params.deadlock_cost)
-            self.penalties += 1
+            self.agreements.penalties += 1
 
 
 class Central:
@@ -269,7 +340,8 @@ class Central:
         self.policy_memory = Memory.new(scene.robots, latency=self.params.stale_after)  # until a neighbour is heard
         self.measured = np.zeros((scene.robots, 3))
         self.held_goals = HeldGoals.new(scene.robots)
-        self.made: tuple[int, np.ndarray] | None = None  # what the held goals were taken from: (image, assignment)
+        # what the held goals were taken from: ((image, agreed instance), assignment)
+        self.made: tuple[tuple[int, int], np.ndarray] | None = None
 
     @property
     def timing(self) -> dict[int, GoalTiming]:
@@ -298,18 +370,27 @@ class Central:
         a, held, rows = self.auction, self.held_goals, self.rows(sensed.ids)
         image, goal_set, colors = a.assigned
         # most ticks the auction keeps every goal: the goals are the last ones (unless a pursuer's moved)
-        if self.made is None or self.made[0] != image or not np.array_equal(self.made[1], a.assignment):
+        made = (image, a.agreements.instance)
+        if self.made is None or self.made[0] != made or not np.array_equal(self.made[1], a.assignment):
             if self.scene.steps:
                 has_goal = a.assignment >= 0
-                held.drive_to(np.flatnonzero(has_goal), image + 1, 0, a.assignment[has_goal], goal_set, colors)
+                held.drive_to(np.flatnonzero(has_goal), image + 1, made[1], a.assignment[has_goal], goal_set, colors)
                 held.idle(np.flatnonzero(~has_goal))
             else:  # the scene's own goals, one per robot, as the agents hold them: no goal set, no auction
                 held.goal[:], held.color[:] = goal_set, colors
-            self.made = (image, a.assignment.copy())
+            self.made = (made, a.assignment.copy())
         elif not self.movers.pursuers:
             return held.targets(rows)
         held.goal[:], held.color[:] = self.movers.goals(held.goal, held.color, self.measured)  # a pursuer's target
         return held.targets(rows)
+
+    def hold_newest_agreement(self) -> None:
+        """The robots hold their goals from the newest agreement, which an auction settled beside the policy
+        may have made after they took them, changing none (the agents take every agreement as it comes)."""
+        a, made = self.auction, self.made
+        if made is not None and made[0][1] != a.agreements.instance and np.array_equal(made[1], a.assignment):
+            self.held_goals.instance[a.assignment >= 0] = a.agreements.instance
+            self.made = ((made[0][0], a.agreements.instance), made[1])
 
     def has_goal(self) -> np.ndarray:
         """The robots whose goal convergence is judged on: a pixel of the image with a goal."""
@@ -336,6 +417,29 @@ class Convergence:
         return t - self.since >= self.hold
 
 
+@dataclass
+class Stop:
+    """The stop signals a central run heeds while it runs (SIGINT, SIGTERM), as the distributed engine's
+    launcher does: the first ends the run at its tick, written marked incomplete; a second abandons the
+    writing (KeyboardInterrupt: nothing is written)."""
+
+    signal: int | None = None  # the first stop signal received
+    interrupted: bool = False  # it ended the run (one that came as the run ended: the run is complete)
+
+    def on_signal(self, signum: int, frame: object) -> None:
+        if self.signal is not None:
+            raise KeyboardInterrupt
+        self.signal = signum
+
+
+@dataclass
+class Written:
+    """A run run_central writes to a directory: its recording streamed to ``scratch``, ended early by ``stop``."""
+
+    scratch: Path
+    stop: Stop = field(default_factory=Stop)
+
+
 def simulate(
     scene: Scene,
     *,
@@ -344,34 +448,31 @@ def simulate(
     clock: StepClock | None = None,
     overlap: bool = True,
     view: Any = None,
-    record_to: Path | None = None,
+    written: Written | None = None,
 ) -> Outcome:
-    """Every robot through agent.loop.tick, the world moving between ticks, until the duration or
-    convergence. ``overlap``: warm auctions on a second thread; ``record_to``: stream the recording there."""
+    """Every robot through agent.loop.tick, the world moving between ticks, until the duration, convergence or
+    a stop signal. ``overlap``: warm auctions on a second thread; ``written``: a run written to a directory."""
     _refuse_process_faults(scene)
     _keep_freed_memory()
-    params, world = world_of(scene)
     link, clock = link or InProcessLink(scene.robots), clock or StepClock()
-    auction = CentralAuction(scene, params, Movers(scene), link.reach, clock, overlap)
-    robots = Central(scene, link, auction, world)
-    link.threads = threads = len(os.sched_getaffinity(0))  # the batch's rows shared among the cores
-    segments = static_segments(scene.arena, scene.obstacles)
-    seams = Seams(robots, auction, segments, scene.seed, link.reach, clock.lap, threads)
+    robots, seams = _swarm(scene, link, clock, overlap)
+    params, world, auction = robots.params, robots.world, robots.auction
     events = sorted(scene.events, key=lambda e: e["t"])
     steps, last_step = round(scene.duration / params.dt), max(len(scene.steps) - 1, 0)
-    rec = TickRecorder(steps + 1, scene.robots, record_to)
+    layout = ROWS | AGREEMENT_ROWS if scene.steps else ROWS
+    rec = TickRecorder(steps + 1, scene.robots, None if written is None else written.scratch, layout)
     converged = Convergence(scene.converge_hold if scene.ends_on_convergence else None)
     fallbacks, end_reason = 0, "duration"
     wall0 = last_say = time.time()
-    standing = _states(
-        params, world.poses, world.poses, np.zeros((scene.robots, 2)), START_TICK * params.dt, robots.movers
-    )
-    link.start(standing, robots.movers.cooperative)  # every robot but the scripted movers says hello
+    _say_hello(link, robots)
+    stepping0 = time.time()
     for tick in range(steps + 1):
         clock.start()
         t = tick * params.dt
         world.teleport_due(events, t)
-        if (k := scene.step_at(t)) != auction.image.k:
+        # the last tick is the poses after the last step, as the world reports them: no image begins in it
+        k = scene.step_at(t) if tick < steps or auction.image.k < 0 else auction.image.k
+        if k != auction.image.k:
             auction.show(k)
         clock.lap("other")
         decision = loop.tick(robots, robots.sense(tick), seams)
@@ -381,7 +482,8 @@ def simulate(
         if converged.held(t, _all_at_goals(robots, k == last_step, pose, goal)):
             end_reason = "converged"
             break  # the run ends here: no last step
-        if tick == steps:
+        if tick == steps or _stopped(written):
+            end_reason = end_reason if tick == steps else "interrupted"
             break
         velocity_next = _move(world, robots.movers, decision.step, pose, t, params.dt)
         clock.lap("world")
@@ -392,9 +494,32 @@ def simulate(
             at_goal = _at_goal(pose, goal, params)
             last_say = _say_progress(progress, scene.name, (t, k), at_goal, robots.has_goal(), world)
         clock.lap("other")
-    arrays = rec.arrays(tick + 1)  # a converged run ends early
-    how = (list(world.contacts), float(world.min_clearance), fallbacks, auction.penalties)
-    return Outcome(arrays, *how, end_reason, time.time() - wall0)
+    stepping, arrays = time.time() - stepping0, rec.arrays(tick + 1)  # a converged run ends early
+    arrays |= auction.agreements.arrays(arrays["step"])
+    how = (list(world.contacts), float(world.min_clearance), fallbacks, auction.agreements.penalties)
+    commands = (tick * int(robots.movers.cooperative.sum()), int(world.commands_applied.sum()))
+    return Outcome(arrays, *how, end_reason, time.time() - wall0, stepping, commands)
+
+
+def _swarm(scene: Scene, link: InProcessLink, clock: StepClock, overlap: bool) -> tuple[Central, Seams]:
+    """Every robot of the scene in one batch over ``link``, and the seams agent.loop.tick steps it through."""
+    params, world = world_of(scene)
+    auction = CentralAuction(scene, params, Movers(scene), link.reach, clock, overlap)
+    robots = Central(scene, link, auction, world)
+    link.threads = threads = len(os.sched_getaffinity(0))  # the batch's rows shared among the cores
+    segments = static_segments(scene.arena, scene.obstacles)
+    return robots, Seams(robots, auction, segments, scene.seed, link.reach, clock.lap, threads)
+
+
+def _say_hello(link: InProcessLink, robots: Central) -> None:
+    """Every robot but the scripted movers says hello: where it stands, before the first tick."""
+    params, world, n = robots.params, robots.world, robots.scene.robots
+    standing = _states(params, world.poses, world.poses, np.zeros((n, 2)), START_TICK * params.dt, robots.movers)
+    link.start(standing, robots.movers.cooperative)
+
+
+def _stopped(written: Written | None) -> bool:
+    return written is not None and written.stop.signal is not None
 
 
 def _keep_freed_memory() -> None:
@@ -410,8 +535,11 @@ def _keep_freed_memory() -> None:
 
 def _record_tick(rec: TickRecorder, view: Any, when: tuple[int, float, int], robots: Central, goal: np.ndarray) -> None:
     """This tick's row of the recording, and the live view's batch (sim.outputs.view.SwarmView)."""
-    (tick, t, k), world = when, robots.world
-    rows = (world.poses, world.velocities, robots.held_goals.color, goal, robots.auction.assignment)
+    (tick, t, k), world, held = when, robots.world, robots.held_goals
+    rows: tuple[np.ndarray, ...] = (world.poses, world.velocities, held.color, goal, robots.auction.assignment)
+    if robots.scene.steps:  # which agreement each robot's goal is from (AGREEMENT_ROWS)
+        robots.hold_newest_agreement()
+        rows += (held.key[:, 0], held.instance)
     color = rec.record(tick, t, k, rows)["color"]  # this tick's colours, as recorded
     if view is not None:
         view.tick(tick, t, world.poses, color, goal)
@@ -456,29 +584,62 @@ def run_central(
     progress: TextIO | None = sys.stderr,
     reach: float = np.inf,
     view: Any = None,
+    stop: Stop | None = None,
     **timing: Unpack[Timing],
 ) -> Path:
     """Run the scene with every robot in this process (``simulate``); returns the run directory.
-    ``reach``: the robots' communication range (m); ``timing``: simulate's clock and overlap."""
+    ``reach``: the robots' communication range (m); ``stop``: heed SIGINT and SIGTERM meanwhile (the first
+    signal, and whether it ended the run, are kept there); ``timing``: simulate's clock and overlap."""
     run_dir = RunDir(out)
+    written = Written(run_dir / SCRATCH, stop or Stop())
     try:
-        link = InProcessLink(scene.robots, reach=reach)
-        outcome = simulate(scene, link=link, progress=progress, view=view, record_to=run_dir / SCRATCH, **timing)
-        params, _ = world_of(scene)
-        contacts = [asdict(c) for c in outcome.contacts]
-        extra = dict(
-            engine="central",
-            end_reason=outcome.end_reason,
-            complete=True,
-            orca_fallbacks=outcome.fallbacks,
-            deadlock_penalties=outcome.penalties,
-            min_clearance_substep_m=outcome.min_clearance if np.isfinite(outcome.min_clearance) else None,
-        )
-        how = RunOutcome(outcome.wall_s, contacts, reach=reach, extra=extra)
-        return write_run(run_dir, scene, params, outcome.arrays, how, video=video, plots=plots)
+        with handling_signals(written.stop.on_signal) if stop is not None else contextlib.nullcontext():
+            link = InProcessLink(scene.robots, reach=reach)
+            outcome = simulate(scene, link=link, progress=progress, view=view, written=written, **timing)
+            written.stop.interrupted = outcome.end_reason == "interrupted"
+            params, _ = world_of(scene)
+            how = RunOutcome(
+                outcome.wall_s, [asdict(c) for c in outcome.contacts], reach=reach, extra=_metrics(outcome)
+            )
+            # as the distributed engine: an interrupted run's video is left out, what was recorded is written
+            video = video and not written.stop.interrupted
+            return write_run(run_dir, scene, params, outcome.arrays, how, video=video, plots=plots)
     except BaseException:
         run_dir.abort()
         raise
+
+
+def _metrics(outcome: Outcome) -> dict[str, Any]:
+    """metrics.json's keys beside the true record, as the distributed engine's launcher writes them, for a run
+    in one process: no agent process or router, no message to drop or be late, each command applied at once."""
+    t = outcome.arrays["t"]
+    stepped = float(t[-1] - t[0]) if len(t) else 0.0
+    sent, applied = outcome.commands
+    return dict(
+        agents_failed_by_scene=[],  # fail events need the distributed engine
+        end_reason=outcome.end_reason,
+        complete=outcome.end_reason != "interrupted",
+        engine="central",
+        agent_processes=0,
+        min_clearance_substep_m=outcome.min_clearance if np.isfinite(outcome.min_clearance) else None,
+        commands_applied=applied,
+        commands_sent=sent,  # what the robots' policy gave the world: no router sees them
+        late_commands=0,
+        expired_commands=0,
+        stopped_ticks=0,
+        withheld_ticks=0,  # tracker outages need the distributed engine
+        orca_fallbacks=outcome.fallbacks,
+        poses_held=0,  # the tracker's poses are trusted: tracker glitches need the distributed engine
+        subscriptions_renewed=0,
+        deadlock_penalties=outcome.penalties,
+        dropped_messages={},
+        crashes=[],
+        restarts=[],
+        liveliness_lost=[],
+        faults="",  # --faults needs the distributed engine
+        stepping_wall_s=outcome.stepping_wall_s,
+        stepping_realtime_factor=stepped / outcome.stepping_wall_s if outcome.stepping_wall_s else None,
+    )
 
 
 def _scene_goals(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
@@ -492,12 +653,12 @@ def _scene_goals(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     return np.where(has_goal, heard.positions, np.nan), np.where(has_goal, heard.colors, 40).astype(np.uint8)
 
 
-def _step_goals(scene: Scene, k: int, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray, GoalTiming]:
-    """Step k's goal set, colours and timing as the agents decode them from the coordinator's message."""
+def _step_goals(scene: Scene, k: int, pixels: np.ndarray) -> tuple[Goals, GoalTiming]:
+    """Step k's goal set (positions, colours, robots) and timing as the agents decode the coordinator's message."""
     goals, colors = scene_goal_set(scene, k, len(pixels))
-    message = Goals(1, 0, goals, colors, pixels, step_timing(scene, k), step_motion(scene, k))
+    message = Goals(k + 1, 0, goals, colors, pixels, step_timing(scene, k), step_motion(scene, k))
     heard = _as_heard(message)
-    return heard.positions, heard.colors, timing_of(heard)
+    return heard, timing_of(heard)
 
 
 def _as_heard(message: Goals) -> Goals:

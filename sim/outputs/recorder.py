@@ -19,6 +19,7 @@ from sim.outputs.mcaplog import McapLog
 from sim.outputs.rundir import json_safe
 from sim.outputs.stream import ROWS
 from sim.outputs.ticklog import TickLog
+from sim.outputs.write import goal_set_arrays
 from transport.bus import Bus
 from transport.codec import (
     BEFORE_START,
@@ -475,16 +476,6 @@ class Recorder:
         for a, key in enumerate(announced):
             for r, (x, y, penalty) in self.bid_positions.get(key, {}).items():
                 positions[a, r], penalties[a, r] = (x, y), penalty
-        epochs = sorted(self.sets.by_epoch)
-        g_max = max(len(self.sets.by_epoch[e].positions) for e in epochs)
-        goal_sets = np.full((len(epochs), g_max, 2), np.nan)
-        colors = np.zeros((len(epochs), g_max, 3), np.uint8)
-        members = np.zeros((len(epochs), n), bool)
-        for i, e in enumerate(epochs):
-            gs = self.sets.by_epoch[e]
-            goal_sets[i, : len(gs.positions)] = gs.positions
-            colors[i, : len(gs.colors)] = gs.colors
-            members[i, gs.robots[gs.robots < n]] = True
         return {
             "goal_set_epoch": np.array(tr.goal_set_epoch),
             "assignment_epoch": epoch,
@@ -492,9 +483,4 @@ class Recorder:
             "agreements": np.array(announced, np.int64).reshape(-1, 2),
             "agreement_positions": positions,
             "agreement_penalties": penalties,
-            "goal_set_epochs": np.array(epochs),
-            "goal_sets": goal_sets,
-            "goal_set_colors": colors,
-            "goal_set_robots": members,
-            "goal_set_steps": np.array([self.sets.by_epoch[e].timing.step for e in epochs]),
-        }
+        } | goal_set_arrays(self.sets.by_epoch, n)

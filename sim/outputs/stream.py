@@ -51,17 +51,17 @@ class OnDisk:
 
 
 class TickRecorder:
-    """The recorded ticks' rows: streamed to raw files in ``directory`` (created), a thread writing a chunk while
-    the next fills, or (None) held in arrays for ``ticks`` ticks."""
+    """The recorded ticks' rows (``layout``: :data:`ROWS`, or more): streamed to raw files in ``directory`` (created),
+    a thread writing a chunk while the next fills, or (None) held in arrays for ``ticks`` ticks."""
 
-    def __init__(self, ticks: int, robots: int, directory: Path | None = None) -> None:
-        self.robots, self.directory = robots, directory
+    def __init__(self, ticks: int, robots: int, directory: Path | None = None, layout: dict = ROWS) -> None:
+        self.robots, self.directory, self.layout = robots, directory, layout
         self.t, self.step = np.empty(ticks), np.empty(ticks, np.int64)
         single = directory is not None and robots >= FLOAT32_FROM
-        self.types = {name: np.float32 if single and name in PER_TICK else kind for name, (_, kind) in ROWS.items()}
-        tick_bytes = sum(np.dtype(self.types[n]).itemsize * robots * int(np.prod(s)) for n, (s, _) in ROWS.items())
+        self.types = {name: np.float32 if single and name in PER_TICK else kind for name, (_, kind) in layout.items()}
+        tick_bytes = sum(np.dtype(self.types[n]).itemsize * robots * int(np.prod(s)) for n, (s, _) in layout.items())
         held = ticks if directory is None else max(1, min(ticks, CHUNK_BYTES // max(tick_bytes, 1)))
-        self.rows = {name: np.empty((held, robots, *shape), self.types[name]) for name, (shape, _) in ROWS.items()}
+        self.rows = {name: np.empty((held, robots, *shape), self.types[name]) for name, (shape, _) in layout.items()}
         self.filled = 0  # ticks in self.rows not yet appended to the files
         self.written = 0  # ticks in the files, or on their way (``pending``)
         self.spare: dict[str, np.ndarray] | None = None  # the other chunk's rows, once a chunk is on its way
@@ -69,7 +69,7 @@ class TickRecorder:
         self.writer = ThreadPoolExecutor(1, thread_name_prefix="recording") if directory is not None else None
         if directory is not None:
             directory.mkdir(parents=True, exist_ok=True)
-            for name in ROWS:
+            for name in layout:
                 self._path(name).write_bytes(b"")
 
     def _path(self, name: str) -> Path:
@@ -77,7 +77,7 @@ class TickRecorder:
         return self.directory / f"{name}.raw"
 
     def record(self, tick: int, t: float, step: int, rows: tuple[np.ndarray, ...]) -> dict[str, np.ndarray]:
-        """Records a tick (in order from 0), its rows in the order of :data:`ROWS`; returns them as recorded."""
+        """Records a tick (in order from 0), its rows in the order of ``layout``; returns them as recorded."""
         if self.directory is not None and self.filled == len(self.rows["pose"]):
             self._append()
         self.t[tick], self.step[tick] = t, step
@@ -118,7 +118,7 @@ class TickRecorder:
             self._wait()
             self.writer.shutdown()
             assert self.written == ticks, f"{self.written} ticks recorded, {ticks} asked for"
-            for name, (shape, _) in ROWS.items():
+            for name, (shape, _) in self.layout.items():
                 out[name] = OnDisk(self._path(name), self.types[name], (ticks, self.robots, *shape))
             self.rows, self.spare = {}, None  # the chunks' memory goes; the files hold the run
         return out | {"step": self.step[:ticks]}

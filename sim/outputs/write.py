@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import shutil
 import sys
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -83,6 +83,28 @@ def newest_goal_set(arrays: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarr
     members = np.where(rows[:, None] >= 0, arrays["goal_set_robots"][np.maximum(rows, 0)], False)
     current = arrays["assignment_epoch"] == newest[:, None]
     return members, current
+
+
+def goal_set_arrays(by_epoch: Mapping[int, Any], robots: int) -> dict[str, np.ndarray]:
+    """The goal sets by epoch as trajectory.npz keeps them (every engine): positions padded with NaN to the
+    largest set, colours, who takes part, and the scene step each shows."""
+    epochs = sorted(by_epoch)
+    g_max = max(len(by_epoch[e].positions) for e in epochs)
+    goal_sets = np.full((len(epochs), g_max, 2), np.nan)
+    colors = np.zeros((len(epochs), g_max, 3), np.uint8)
+    members = np.zeros((len(epochs), robots), bool)
+    for i, e in enumerate(epochs):
+        gs = by_epoch[e]
+        goal_sets[i, : len(gs.positions)] = gs.positions
+        colors[i, : len(gs.colors)] = gs.colors
+        members[i, gs.robots[gs.robots < robots]] = True
+    return {
+        "goal_set_epochs": np.array(epochs),
+        "goal_sets": goal_sets,
+        "goal_set_colors": colors,
+        "goal_set_robots": members,
+        "goal_set_steps": np.array([by_epoch[e].timing.step for e in epochs]),
+    }
 
 
 @dataclass
