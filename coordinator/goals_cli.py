@@ -153,6 +153,8 @@ def run_goals(args: argparse.Namespace) -> int:
         _check_output(out, "output")
         if preview is not None:
             _check_output(preview, "preview")
+            if preview.resolve() == out.resolve():  # the preview would be written over the goals
+                raise GoalError(f"--preview {preview} is the goals file -o {out}: give them different names")
         counts = _region_counts(args.region_counts) if args.region_counts else None
         prep = prepare_image(args.image, background=args.background)
         options = GoalOptions(  # each option is the flag of its name

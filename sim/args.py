@@ -9,9 +9,12 @@ import sys
 import typing
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 
 STARTUP_TIMEOUT = 300.0  # s per start-up stage of a run: generous, many processes start at once
 AGENTS_TIMEOUT = 60.0  # s a run with remote agents waits for every robot's agent to come alive by default
+MAX_ROBOTS = 100_000  # ten times the 10 000 of tests/integration/test_ten_thousand.py: above what either engine runs
+ENDPOINT_FORM = "expected PROTOCOL/ADDRESS, e.g. tcp/127.0.0.1:7447"
 
 
 class UsageError(Exception):
@@ -57,6 +60,44 @@ def positive_int(text: str) -> int:
     return value
 
 
+def robot_count(text: str) -> int:
+    """A number of robots: a whole number from 1 to MAX_ROBOTS."""
+    value = positive_int(text)
+    if value > MAX_ROBOTS:
+        raise argparse.ArgumentTypeError(f"at most {MAX_ROBOTS} robots (ten times the scale target), not {value}")
+    return value
+
+
+def display_name(text: str) -> str:
+    """A display name (the key prefix px/<name>/...), as transport.keys.Keys takes one."""
+    from transport.keys import Keys  # here, as zenoh below: the emulators import this module and need neither
+
+    try:
+        Keys(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+    return text
+
+
+def zenoh_endpoint(text: str) -> str:
+    """A zenoh endpoint, as zenoh itself reads one (PROTOCOL/ADDRESS)."""
+    from transport.session import ZenohSettings
+
+    try:
+        ZenohSettings(mode="client", connect=[text]).to_config()  # zenoh's own check of the endpoint's form
+    except Exception:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an endpoint: {ENDPOINT_FORM}") from None
+    return text
+
+
+def new_directory(text: str) -> Path:
+    """A directory to make: not '', '.', '/' nor a path ending in '..', which name one there already is."""
+    path = Path(text)
+    if not text.strip() or path.name in ("", ".."):
+        raise argparse.ArgumentTypeError(f"{text!r} names no new directory: give one to make, e.g. runs/mine")
+    return path
+
+
 def positive_number(text: str) -> float:
     """A finite number above 0."""
     return _positive(text, "number")
@@ -89,9 +130,7 @@ def check_endpoint(settings: typing.Any, endpoint: str) -> None:
     try:
         settings.to_config()  # zenoh's own check of the endpoint's form
     except Exception:
-        raise UsageError(
-            f"--connect {endpoint!r} is not an endpoint: expected PROTOCOL/ADDRESS, e.g. tcp/127.0.0.1:7447"
-        ) from None
+        raise UsageError(f"--connect {endpoint!r} is not an endpoint: {ENDPOINT_FORM}") from None
 
 
 def parse_ids(text: str) -> list[int]:

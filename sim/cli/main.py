@@ -28,14 +28,19 @@ from coordinator.scene import (
 )
 from sim.args import (
     AGENTS_TIMEOUT,
+    MAX_ROBOTS,
     STARTUP_TIMEOUT,
     OneLineParser,
     UsageError,
     add_seconds,
+    display_name,
+    new_directory,
     positive_int,
     refuse,
     refuse_if,
+    robot_count,
     usage_errors,
+    zenoh_endpoint,
 )
 from sim.cli.track import add_track_parser
 from sim.outputs.rundir import PARTIAL_SUFFIX, default_run_path
@@ -72,7 +77,9 @@ def _add_run_scene(run: argparse.ArgumentParser) -> None:
         "an image (PNG, JPEG, BMP, TIFF) to display, or a folder of keyframe images "
         "to play as an animation (file-name order)",
     )
-    group.add_argument("--robots", "-n", type=positive_int, help="number of robots (overrides the scene)")
+    group.add_argument(
+        "--robots", "-n", type=robot_count, help=f"number of robots, at most {MAX_ROBOTS} (overrides the scene)"
+    )
     group.add_argument("--seed", type=int, help="random seed, a whole number >= 0 (overrides the scene)")
     group.add_argument("--clock", choices=CLOCKS, help="clock (overrides the scene)")
     group.add_argument("--duration", type=float, help="seconds of display time at most (overrides the scene)")
@@ -132,10 +139,13 @@ def _add_run_processes(run: argparse.ArgumentParser) -> None:
         "--agents-connect",
         action="append",
         default=[],
+        type=zenoh_endpoint,
         metavar="ENDPOINT",
         help="spread agent processes over these routers, round robin (repeatable; default: ours)",
     )
-    group.add_argument("--display", default="default", help="display name (key prefix), for several swarms")
+    group.add_argument(
+        "--display", default="default", type=display_name, help="display name (key prefix), for several swarms"
+    )
     group.add_argument(
         "--remote-agents",
         action="store_true",
@@ -176,7 +186,7 @@ def _add_run_processes(run: argparse.ArgumentParser) -> None:
 def _add_run_outputs(run: argparse.ArgumentParser) -> None:
     """What the run leaves behind and shows while it runs."""
     group = run.add_argument_group("outputs")
-    group.add_argument("--out", type=Path, help="run directory (default runs/<UTC time>-<scene>)")
+    group.add_argument("--out", type=new_directory, help="run directory (default runs/<UTC time>-<scene>)")
     group.add_argument("--no-video", dest="video", action="store_false", help="skip display.mp4")
     group.add_argument("--no-plots", dest="plots", action="store_false", help="skip clearance.png and trajectories.png")
     group.add_argument(
@@ -377,10 +387,16 @@ def _faults_and_reach(args: argparse.Namespace, scene: Scene) -> tuple[Any, floa
 
 
 def _run_central(args: argparse.Namespace, scene: Scene, out: Path, faults: Any, reach: float) -> int:
-    """The run with every robot in this process (--engine central)."""
-    from sim.central.engine import run_central
+    """The run with every robot in this process (--engine central); a stop signal ends it as it ends the
+    distributed engine's (_run_distributed): what was recorded written, marked incomplete."""
+    from sim.central.engine import Stop, run_central
 
     none = "the central engine has none"
+    # its ticks are lock-step, as fast as it computes: real time's late commands and missed ticks need agents
+    realtime = "--clock realtime" if args.clock == "realtime" else f'{args.scene}: clock = "realtime"'
+    refuse_if(
+        scene.clock == "realtime", f"{realtime} needs the distributed engine: the central engine has no wall clock"
+    )
     refuse_if(args.secure is not None, f"--secure secures the bus between processes; {none}")
     refuse_if(args.remote_agents, "--remote-agents needs the distributed engine: the central engine has no agents")
     refuse_if(args.foxglove is not None, f"--foxglove streams the bus's messages; {none} (use --view)")
@@ -394,8 +410,19 @@ def _run_central(args: argparse.Namespace, scene: Scene, out: Path, faults: Any,
     with _open_view(args.view, scene) as view:
         if progress is not None:  # the engine's own first line comes with its first tick
             print(f"[{scene.name}] {scene.robots} robots: starting the central engine", file=progress, flush=True)
-        path = run_central(scene, out, video=args.video, plots=args.plots, progress=progress, reach=reach, view=view)
+        stop = Stop()
+        path = run_central(
+            scene, out, video=args.video, plots=args.plots, progress=progress, reach=reach, view=view, stop=stop
+        )
         print(path, flush=True)
+        if stop.signal is not None:  # the user said stop: `pixelswarm run ... && next` goes no further
+            name = signal.Signals(stop.signal).name
+            if stop.interrupted:
+                said = f"stopped by {name}; what was recorded is in {path}, marked incomplete"
+            else:
+                said = f"{name} came as the run ended; {path} is complete"
+            print(f"pixelswarm run: {said}", file=sys.stderr)
+            return 128 + stop.signal
         _keep_viewing(view)
     return 0
 
@@ -436,12 +463,14 @@ def _open_view(mode: str | None, scene: Scene) -> Any:
     """The live view ``--view`` asks for (a SwarmView), or None, as a context that closes it."""
     if mode is None:
         return contextlib.nullcontext()
-    from sim.outputs.view import SwarmView, ViewUnavailable
+    from sim.outputs.view import SwarmView, ViewUnavailable, no_window
 
     if mode not in ("native", "web") and not mode.endswith(".rrd"):
         raise UsageError(f"--view takes native, web or a FILE.rrd to write, not {mode!r}")
-    if mode.endswith(".rrd") and not Path(mode).parent.is_dir():
-        raise UsageError(f"--view: no directory {Path(mode).parent} to write {Path(mode).name} in")
+    if mode.endswith(".rrd"):
+        _check_save(Path(mode), "--view")
+    if mode == "native" and (why := no_window()):
+        raise UsageError(f"--view: {why}: use --view web or --view FILE.rrd")
     params = RobotParams.from_dict(scene.robot)
     with usage_errors(ViewUnavailable, prefix="--view: "):
         display = (scene.name, scene.arena, scene.obstacles, params.radius)
@@ -493,24 +522,54 @@ def _run_distributed(launcher: Any) -> int:
 
 
 def cmd_view(args: argparse.Namespace) -> int:
-    from sim.outputs.view import VIEW_FILE, ViewUnavailable, replay, view_recording
+    from sim.outputs.view import VIEW_FILE, ViewUnavailable, view_recording
 
+    refuse_if(args.save is not None and args.web, "--web serves the view, --save writes it to a file: choose one")
+    if args.save is not None:
+        _check_save(args.save, "--save")
     if args.connect is not None or args.run_dir is None:
         return _watch(args)
     if args.secure is not None or args.display is not None:
         raise UsageError("--secure and --display go with --connect ENDPOINT (watching a running swarm)")
-    run_dir, rrd = args.run_dir, args.run_dir / VIEW_FILE
+    run_dir, rrd = args.run_dir, args.save or args.run_dir / VIEW_FILE
     if not (run_dir / "trajectory.npz").is_file() or not (run_dir / "scene.json").is_file():
         raise UsageError(f"{run_dir} is not a run directory (no trajectory.npz and scene.json)")
-    with usage_errors(ViewUnavailable):  # Ctrl-C is main's: exit code 130
+    _refuse_no_window(args)
+    with usage_errors(ViewUnavailable, ValueError):  # ValueError: a run directory that does not read
+        if args.save is not None or not rrd.is_file():
+            _replay_whole(run_dir, rrd)
         if args.save is not None:
-            replay(run_dir, args.save).close()
             print(args.save)
             return 0
-        if not rrd.is_file():
-            replay(run_dir, rrd).close()
         view_recording(rrd, web=args.web)
     return 0
+
+
+def _check_save(path: Path, flag: str) -> None:
+    """UsageError unless a recording can be written at ``path`` (its folder there, itself not a folder)."""
+    refuse_if(path.is_dir(), f"{flag} {path} is a directory: give a FILE.rrd to write")
+    refuse_if(not path.parent.is_dir(), f"{flag}: no directory {path.parent} to write {path.name} in")
+
+
+def _refuse_no_window(args: argparse.Namespace) -> None:
+    """UsageError for `pixelswarm view` into Rerun's window where none can open (it would exit unseen)."""
+    from sim.outputs.view import no_window
+
+    why = None if args.save is not None or args.web else no_window()
+    refuse_if(why, f"{why}: use --web to serve the view, or --save FILE.rrd to write it")
+
+
+def _replay_whole(run_dir: Path, rrd: Path) -> None:
+    """The recording of a run, written beside ``rrd`` and renamed to it once whole: a replay stopped half-way
+    (Ctrl-C) leaves no half recording, in RUN_DIR to be reused or in place of the user's file."""
+    from sim.outputs.view import replay
+
+    part = rrd.with_name(rrd.name + PARTIAL_SUFFIX)
+    try:
+        replay(run_dir, part).close()
+        part.replace(rrd)
+    finally:
+        part.unlink(missing_ok=True)
 
 
 def _watch(args: argparse.Namespace) -> int:
@@ -521,12 +580,10 @@ def _watch(args: argparse.Namespace) -> int:
     save = args.save
     refuse_if(args.connect is None, "give a RUN_DIR to replay, or --connect ENDPOINT to watch a running swarm")
     refuse_if(args.run_dir is not None, f"either a RUN_DIR to replay or --connect ENDPOINT, not both ({args.run_dir})")
-    refuse_if(save is not None and args.web, "--web serves the view, --save writes it to a file: choose one")
-    if save is not None and not save.parent.is_dir():
-        raise UsageError(f"--save: no directory {save.parent} to write {save.name} in")
     display = args.display or "default"
     with usage_errors(ViewUnavailable):
         settings = observer_settings(args.connect, args.secure, display)
+        _refuse_no_window(args)
         sink = save if save is not None else "web" if args.web else "native"
         code = watch(settings, display, sink, timeout=args.timeout, say=print_line("pixelswarm view", args.quiet))
     if code == 0 and save is not None:
@@ -535,15 +592,21 @@ def _watch(args: argparse.Namespace) -> int:
 
 
 def _check_out(out: Path) -> None:
-    """UsageError unless a run directory can be made at ``out`` (made and removed again, as a trial)."""
+    """UsageError unless a run directory can be made at ``out`` (made and removed again, as a trial, with the
+    folders above it that were missing: the run makes them again, and a run refused later leaves nothing)."""
     trial = out.with_name(out.name + PARTIAL_SUFFIX)
     refuse_if(out.exists() or trial.exists(), f"run directory {out} already exists; choose another --out")
+    missing = [folder for folder in out.parents if not folder.exists() and folder.name != ".."]
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         trial.mkdir()
+        trial.rmdir()
     except OSError as err:
         raise UsageError(f"--out {out}: cannot make a run directory there ({err.strerror or err})") from None
-    trial.rmdir()
+    finally:
+        for folder in missing:  # the deepest first
+            with contextlib.suppress(OSError):
+                folder.rmdir()
 
 
 def _secured_router(args: argparse.Namespace, robots: int, k: int) -> ZenohSettings | None:
@@ -592,7 +655,7 @@ def _add_certs_parser(sub: Any) -> None:
         "(coordinator, tracker, world, recorder, observer, router, robot-<id>), and the router's access rules.",
     )
     p.add_argument("dir", help="folder to create (must not exist or be empty)")
-    p.add_argument("-n", "--robots", type=positive_int, required=True, help="number of robots (ids 0..N-1)")
+    p.add_argument("-n", "--robots", type=robot_count, required=True, help="number of robots (ids 0..N-1)")
     p.add_argument(
         "--listen",
         metavar="tls/HOST:PORT",
@@ -655,7 +718,9 @@ def main(argv: list[str] | None = None) -> int:
         return args.func(args)
     except (UsageError, TransportError) as err:
         return refuse(f"pixelswarm {args.command}", err)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # before a run began, or a second stop signal while it was written
+        if args.command == "run":
+            print("pixelswarm: interrupted; no run directory written", file=sys.stderr)
         return 130
 
 

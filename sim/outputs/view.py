@@ -13,6 +13,7 @@ import sys
 import threading
 import time
 import urllib.parse
+import zipfile
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
@@ -47,6 +48,8 @@ GOAL_ALPHA = 70  # the goals are faint: the picture beneath the robots
 LOOPBACK = "127.0.0.1"
 DISPLAY = ("arena", "obstacles", "swarm")  # the entities drawn on the display (the rest are time series)
 START_TIMEOUT = 30.0  # s for Rerun's server to listen
+# trajectory.npz's arrays a replay draws, and their dimensions: T ticks, N robots
+RUN_ARRAYS = {"t": ("T",), "pose": ("T", "N", 3), "color": ("T", "N", 3), "goal": ("T", "N", 2), "radius": ("N",)}
 
 
 class ViewUnavailable(Exception):
@@ -189,11 +192,22 @@ class SwarmView:
         # ticks are logged on a thread of the view's own: the run hands over copies and goes on
         self._handover = _TickHandover(self._log)
         self.rec = rr.RecordingStream("pixelswarm", recording_id=f"{name}-{os.getpid()}-{time.time_ns()}")
+        try:
+            self._open(sink)
+        except BaseException:
+            self._handover.close()
+            raise
+        self._static(arena, obstacles)
+
+    def _open(self, sink: str | os.PathLike) -> None:
         if sink in ("native", "web"):
             self._serve(web=sink == "web")
-        else:
-            self.rec.save(str(sink), default_blueprint=_layout())
-        self._static(arena, obstacles)
+            return
+        try:  # made here first: rerun's own failure is a traceback, and a warning on stderr besides
+            open(sink, "wb").close()
+        except OSError as err:
+            raise ViewUnavailable(f"cannot write {sink}: {err.strerror or err}") from None
+        self.rec.save(str(sink), default_blueprint=_layout())
 
     def _serve(self, web: bool) -> None:
         """Rerun's viewer (its own process) listening on 127.0.0.1; this recording streams to it."""
@@ -393,18 +407,43 @@ def _layout() -> Any:
 
 
 def replay(run_dir: Path, sink: str | os.PathLike, scene: dict[str, Any] | None = None) -> SwarmView:
-    """A finished run's ``trajectory.npz`` (and ``scene.json``) logged tick by tick to ``sink``."""
-    data = np.load(run_dir / "trajectory.npz")
-    if scene is None:
-        scene = json.loads((run_dir / "scene.json").read_text())
-    arena = tuple(scene["arena"])
-    obstacles = [[tuple(v) for v in o] for o in scene.get("obstacles", [])]
+    """A finished run's ``trajectory.npz`` (and ``scene.json``) logged tick by tick to ``sink``; ValueError,
+    before anything is written, for a run directory that does not read."""
+    data = _trajectory(run_dir)
+    try:
+        scene = json.loads((run_dir / "scene.json").read_text()) if scene is None else scene
+        x0, y0, x1, y1 = (float(v) for v in scene["arena"])
+        obstacles = [[(float(x), float(y)) for x, y in o] for o in scene.get("obstacles", [])]
+        name = str(scene.get("name", run_dir.name))
+        tolerance = float(scene.get("robot", {}).get("goal_tolerance", 0.02))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
+        raise ValueError(f"{run_dir / 'scene.json'} does not read as a run's scene ({err})") from None
     pose, color, goal, radius = data["pose"], data["color"], data["goal"], data["radius"]
-    name, tolerance = scene.get("name", run_dir.name), float(scene.get("robot", {}).get("goal_tolerance", 0.02))
-    view = SwarmView(name, arena, obstacles, radius, robots=pose.shape[1], sink=sink, tolerance=tolerance)
+    view = SwarmView(name, (x0, y0, x1, y1), obstacles, radius, robots=pose.shape[1], sink=sink, tolerance=tolerance)
     for k, t in enumerate(data["t"].tolist()):
         view.tick(k, t, pose[k], color[k], goal[k])
     return view
+
+
+def _trajectory(run_dir: Path) -> dict[str, np.ndarray]:
+    """trajectory.npz's RUN_ARRAYS, their shapes checked; ValueError in one line if it does not read."""
+    path = run_dir / "trajectory.npz"
+    try:
+        with np.load(path) as npz:
+            data = {key: npz[key] for key in RUN_ARRAYS if key in npz.files}
+    except OSError as err:
+        raise ValueError(f"cannot read {path}: {err.strerror or err}") from None
+    except (ValueError, EOFError, zipfile.BadZipFile, TypeError):  # no .npz archive (a .npy: TypeError)
+        raise ValueError(f"{path} is not a NumPy .npz archive (empty or damaged)") from None
+    if missing := [key for key in RUN_ARRAYS if key not in data]:
+        raise ValueError(f"{path} has no {', '.join(missing)}: not a run's trajectory")
+    sizes: dict[str, int] = {}  # T and N as the first array to have them says
+    for key, dims in RUN_ARRAYS.items():
+        shape = data[key].shape
+        wanted = [sizes.setdefault(d, n) if isinstance(d, str) else d for d, n in zip(dims, shape)]
+        if len(shape) != len(dims) or tuple(wanted) != shape:
+            raise ValueError(f"{path}: {key} has shape {shape}, not ({', '.join(map(str, dims))}) of the others")
+    return data
 
 
 def _start_viewer(web: bool, *extra: str) -> tuple[subprocess.Popen, int, int | None, str]:
@@ -419,6 +458,13 @@ def _start_viewer(web: bool, *extra: str) -> tuple[subprocess.Popen, int, int | 
 
 def _page_url(proxy: str, page: int) -> str:
     return f"http://{LOOPBACK}:{page}/?url={urllib.parse.quote(proxy, safe='')}"
+
+
+def no_window() -> str | None:
+    """Why Rerun's native window cannot open here (a Linux session without a display), None if it can."""
+    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        return "no display to open Rerun's window on (neither $DISPLAY nor $WAYLAND_DISPLAY is set)"
+    return None
 
 
 def view_recording(rrd: Path, *, web: bool = False) -> None:

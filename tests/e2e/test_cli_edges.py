@@ -16,6 +16,7 @@ import psutil
 import pytest
 
 from coordinator.scene import load_scene
+from sim.args import MAX_ROBOTS
 from sim.cli import main as cli
 from sim.node.world import world_node
 from tests.conftest import REPO, descendants, pixelswarm_cmd, reap, run_pixelswarm, start_run, ticks_so_far, wait_for
@@ -128,6 +129,55 @@ def test_every_bad_number_names_its_flag(tmp_path, capsys, flag, value):
     line = one_error_line(capsys.readouterr().err)
     assert code == 2 and flag in line and ".toml" not in line, line
     assert not list(tmp_path.iterdir())
+
+
+def refused_in_process(capsys, *argv: str) -> str:
+    """`pixelswarm ARGV` (in this process) refuses: exit 2 and one line on stderr, nothing on stdout."""
+    try:
+        code = cli.main(list(argv))
+    except SystemExit as stopped:  # argparse's own refusals
+        code = stopped.code
+    captured = capsys.readouterr()
+    assert code == 2 and captured.out == "", captured
+    return one_error_line(captured.err)
+
+
+@pytest.mark.parametrize("engine", ["distributed", "central"])
+@pytest.mark.parametrize(
+    ("flag", "value", "said"),
+    [
+        ("--display", "a b", "display name 'a b' may hold only"),
+        ("--display", "", "display name '' may hold only"),
+        ("--out", "", "'' names no new directory"),
+        ("--out", ".", "'.' names no new directory"),
+        ("--out", "/", "'/' names no new directory"),
+        ("--out", "{tmp}/missing/..", "missing/..' names no new directory"),
+        ("--agents-connect", "garbage", "'garbage' is not an endpoint: expected PROTOCOL/ADDRESS"),
+        ("--robots", str(MAX_ROBOTS + 1), f"at most {MAX_ROBOTS} robots"),
+    ],
+)
+def test_a_flag_no_run_can_use_is_refused_as_it_is_read(tmp_path, capsys, monkeypatch, engine, flag, value, said):
+    """Before anything is made, on either engine (the display once crashed the distributed engine's launcher and
+    passed the central engine; --agents-connect garbage ran the scene and exited 3)."""
+    monkeypatch.chdir(tmp_path)  # '' and '.' are the working directory
+    value = value.format(tmp=tmp_path)
+    out = [] if flag == "--out" else ["--out", str(tmp_path / "r")]
+    line = refused_in_process(capsys, "run", "circle", "--engine", engine, *out, *FAST, flag, value)
+    assert line.startswith(f"pixelswarm run: error: argument {flag}") and said in line, line
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_run_refused_after_its_out_was_tried_leaves_no_folder_it_made(tmp_path, capsys):
+    """--out's missing parent folders are made to try it, and removed again when the run is refused later."""
+    out = tmp_path / "new" / "deeper" / "r"
+    line = refused_in_process(capsys, "run", "circle", "--out", str(out), *FAST, "--view", "banana")
+    assert "--view takes native, web or a FILE.rrd" in line
+    assert not list(tmp_path.iterdir())
+
+
+def test_certs_refuse_more_robots_than_the_maximum(tmp_path, capsys):
+    line = refused_in_process(capsys, "certs", str(tmp_path / "c"), "-n", str(MAX_ROBOTS + 1))
+    assert f"at most {MAX_ROBOTS} robots" in line and not list(tmp_path.iterdir())
 
 
 def test_a_scene_file_with_a_negative_seed_is_refused(tmp_path):

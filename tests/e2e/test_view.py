@@ -137,3 +137,108 @@ def test_a_distributed_run_is_viewed_from_the_recorder(tmp_path):
     for k, (xy, rgb) in zip(range(len(traj["t"])), recorded.values()):
         np.testing.assert_allclose(xy, traj["pose"][k, :, :2], rtol=1e-6, atol=1e-6)
         np.testing.assert_array_equal(rgb, traj["color"][k])
+
+
+def _run_dir(path: Path) -> Path:
+    """A small finished run's trajectory.npz and scene.json."""
+    path.mkdir()
+    np.savez(path / "trajectory.npz", **_swarm(T=6, N=4, seed=1))
+    (path / "scene.json").write_text(json.dumps({"name": "demo", "arena": list(ARENA), "obstacles": []}))
+    return path
+
+
+def _spoil(run: Path, how: str) -> None:
+    """A run directory whose files are there but do not read as a run's."""
+    if how == "empty trajectory":
+        (run / "trajectory.npz").write_bytes(b"")
+    elif how == "trajectory without pose":
+        np.savez(run / "trajectory.npz", t=np.zeros(3))
+    elif how == "poses of two numbers":
+        s = _swarm(T=6, N=4, seed=1)
+        np.savez(run / "trajectory.npz", **(s | {"pose": s["pose"][..., :2]}))
+    elif how == "scene not JSON":
+        (run / "scene.json").write_text("garbage")
+    elif how == "arena a number":
+        (run / "scene.json").write_text('{"arena": 5}')
+
+
+@pytest.mark.parametrize(
+    ("argv", "said"),
+    [
+        (["--save", "{tmp}/missing/v.rrd"], "--save: no directory {tmp}/missing to write v.rrd in"),
+        (["--save", "{tmp}"], "--save {tmp} is a directory"),
+        (["--save", "{tmp}/v.rrd", "--web"], "--web serves the view, --save writes it to a file: choose one"),
+        ([], "no display to open Rerun's window on"),
+        (["--save", "/proc/v.rrd"], "cannot write /proc/v.rrd.partial"),
+        (["--connect", "tcp/127.0.0.1:7447", "--save", "{tmp}"], "--save {tmp} is a directory"),
+        (["--connect", "tcp/127.0.0.1:7447"], "no display to open Rerun's window on"),
+    ],
+)
+def test_a_view_that_cannot_be_shown_or_saved_is_one_line_and_exit_2(tmp_path, capsys, monkeypatch, argv, said):
+    """`pixelswarm view`: nothing written (RUN_DIR/view.rrd neither), and a viewer's window where no display is
+    (it used to exit 0 having shown nothing) says what to use instead."""
+    monkeypatch.setattr(sys, "platform", "linux")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    run = _run_dir(tmp_path / "run")
+    argv = [a.format(tmp=tmp_path) for a in argv]
+    where = [] if "--connect" in argv else [str(run)]
+    assert main(["view", *where, *argv]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and said.format(tmp=tmp_path) in err and "Traceback" not in err, err
+    if not argv:
+        assert "use --web to serve the view, or --save FILE.rrd" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+    assert sorted(p.name for p in run.iterdir()) == ["scene.json", "trajectory.npz"]
+
+
+@pytest.mark.parametrize(
+    ("how", "said"),
+    [
+        ("empty trajectory", "trajectory.npz is not a NumPy .npz archive"),
+        ("trajectory without pose", "trajectory.npz has no pose, color, goal, radius"),
+        ("poses of two numbers", "trajectory.npz: pose has shape (6, 4, 2), not (T, N, 3)"),
+        ("scene not JSON", "scene.json does not read as a run's scene"),
+        ("arena a number", "scene.json does not read as a run's scene"),
+    ],
+)
+def test_a_run_directory_that_does_not_read_is_one_line_and_leaves_the_saved_file(tmp_path, capsys, how, said):
+    run = _run_dir(tmp_path / "run")
+    _spoil(run, how)
+    saved = tmp_path / "v.rrd"
+    saved.write_text("an earlier recording")
+    assert main(["view", str(run), "--save", str(saved)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and said in err and "Traceback" not in err, err
+    assert saved.read_text() == "an earlier recording"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "v.rrd"]
+
+
+def test_a_saved_replay_takes_its_name_only_when_whole(tmp_path, capsys):
+    run = _run_dir(tmp_path / "run")
+    saved = tmp_path / "v.rrd"
+    assert main(["view", str(run), "--save", str(saved)]) == 0
+    assert capsys.readouterr().out.strip() == str(saved)
+    assert len(recorded_swarm(saved)) == 6
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "v.rrd"]
+
+
+def test_a_live_view_into_a_file_that_cannot_be_made_is_one_line_and_no_run(tmp_path, capsys):
+    """--view FILE.rrd in a folder there is but no file can be made in (rerun's error was a traceback)."""
+    out = tmp_path / "r"
+    code = main(["run", "circle", "--engine", "central", "--out", str(out), "--no-video", "--no-plots", "-q",
+                 "--view", "/proc/v.rrd"])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "Traceback" not in err, err
+    assert "pixelswarm run: error: --view: cannot write /proc/v.rrd" in err
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_live_view_in_a_window_without_a_display_is_refused(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(sys, "platform", "linux")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    assert main(["run", "circle", "--engine", "central", "--out", str(tmp_path / "r"), "-q", "--view"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no display" in err and "use --view web or --view FILE.rrd" in err, err
+    assert not list(tmp_path.iterdir())

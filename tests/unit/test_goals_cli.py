@@ -130,3 +130,18 @@ def test_notes_go_to_stderr_without_failing(tmp_path, capsys):
     assert args.func(args) == 0
     lines = capsys.readouterr().err.splitlines()
     assert lines and all(line.startswith("pixelswarm goals: note: ") for line in lines)
+
+
+def test_a_preview_named_as_the_goals_file_is_refused_and_overwrites_nothing(tmp_path, capsys):
+    """-o X --preview X (however X is spelt) wrote the preview over the goals: refused, X kept."""
+    img = _image(tmp_path / "in.png")
+    goals = tmp_path / "g.json"
+    goals.write_text("the goals of yesterday")
+    for preview in (goals, tmp_path / "." / "g.json"):
+        args = _parse(img, "-n", 10, "-o", goals, "--preview", preview)
+        assert args.func(args) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.startswith("pixelswarm goals: error: --preview "), err
+        assert "is the goals file" in err
+        assert goals.read_text() == "the goals of yesterday"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["g.json", "in.png"]
