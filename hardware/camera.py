@@ -26,6 +26,11 @@ CAMERA_MOVED_PX = 3.0
 # Fits lines to the marker's edges: on blurred, noisy frames more precise than CORNER_REFINE_SUBPIX.
 CORNER_REFINEMENT = cv2.aruco.CORNER_REFINE_CONTOUR
 MIN_REFERENCES = 4  # fewer floor points do not determine a homography
+# A stream that delivers no frame (or does not open) within this long has stalled and is opened again:
+# FFmpeg's own limit, 30 s, would hold the reading thread, and so close(), that long. At 10 Hz it is ten
+# frames missed; the robots stopped long before (their poses aged past the command timeout).
+STREAM_TIMEOUT = 1.0  # s
+CLOSE_WAIT = 2 * STREAM_TIMEOUT  # s: close() waits this long for the reading thread, at most
 
 
 class CameraError(RuntimeError):
@@ -51,8 +56,7 @@ class CameraConfig:
         values: dict[str, Any] = {
             key: check(table[key], f"{where}: {key}") for key, check in checks.items() if key in table
         }
-        dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, values.get("dictionary", cls.dictionary)))
-        size = len(dictionary.bytesList)
+        size = dictionary_size(values.get("dictionary", cls.dictionary))
         if "reference" in table:
             values["reference"] = _reference(table["reference"], size, f"{where}: reference")
         if "homography" in table:
@@ -60,6 +64,25 @@ class CameraConfig:
         if ("reference" in values) == ("homography" in values):
             raise HardwareConfigError(f"{where}: give exactly one of [poses.reference] markers and a homography")
         return cls(**values)
+
+    def check_robots(self, robot_ids: list[int], where: str) -> None:
+        """The backend's robots carry markers ``robot_ids``: each must be in the dictionary and be no
+        reference marker (a robot taken for a fixed floor point would bend the calibration)."""
+        if not robot_ids:
+            return
+        size, last = dictionary_size(self.dictionary), max(robot_ids)
+        need(last < size, f"{where}: {self.dictionary} has marker ids 0-{size - 1}, too few for robots 0-{last}")
+        shared = sorted(set(robot_ids) & set(self.reference))
+        need(
+            not shared,
+            f"{where}: reference marker ids {', '.join(map(str, shared))} are robot ids (the robots are 0-{last}): "
+            "give the reference markers ids no robot has",
+        )
+
+
+def dictionary_size(name: str) -> int:
+    """How many markers a cv2.aruco predefined dictionary holds (ids 0 to size - 1)."""
+    return len(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name)).bytesList)
 
 
 def _source(value: Any, what: str) -> int | str:
@@ -90,11 +113,15 @@ def _positive(value: Any, what: str) -> float:
 def _reference(value: Any, dictionary_size: int, where: str) -> dict[int, tuple[float, float]]:
     need(isinstance(value, Mapping), f"{where}: must be a table of marker id -> [x, y]")
     out: dict[int, tuple[float, float]] = {}
+    written: dict[int, str] = {}  # marker id -> its key as written, to name both of two that collide
     for key, xy in value.items():
-        try:
-            marker = int(key)
-        except ValueError:
-            raise HardwareConfigError(f"{where}: marker id {key!r} is not a whole number") from None
+        text = str(key).strip()
+        if not (text.isascii() and text.isdigit()):
+            raise HardwareConfigError(f"{where}: marker id {key!r} is not a whole number")
+        marker = int(text)
+        if marker in written:  # "46" and "046": one marker placed twice
+            raise HardwareConfigError(f"{where}: marker ids {written[marker]!r} and {key!r} are both marker {marker}")
+        written[marker] = str(key)
         if not 0 <= marker < dictionary_size:
             raise HardwareConfigError(
                 f"{where}: marker id {marker} is outside the dictionary (0..{dictionary_size - 1})"
@@ -221,16 +248,26 @@ class ArucoTracker:
 
 
 def open_capture(source: int | str) -> cv2.VideoCapture:
-    """Open a camera device, video file or stream, or raise CameraError."""
-    capture = cv2.VideoCapture(source)
+    """Open a camera device, video file or stream, or raise CameraError. A stream's opening and reads
+    give up after STREAM_TIMEOUT."""
+    if is_stream(source):
+        ms = round(STREAM_TIMEOUT * 1000)
+        timeouts = [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, ms, cv2.CAP_PROP_READ_TIMEOUT_MSEC, ms]
+        capture = cv2.VideoCapture(source, cv2.CAP_ANY, timeouts)
+    else:
+        capture = cv2.VideoCapture(source)
     if not capture.isOpened():
         capture.release()
         raise CameraError(f"cannot open video source {source!r}")
     return capture
 
 
+def is_stream(source: int | str) -> bool:
+    return isinstance(source, str) and "://" in source
+
+
 def is_file(source: int | str) -> bool:
-    return isinstance(source, str) and "://" not in source
+    return isinstance(source, str) and not is_stream(source)
 
 
 class CameraPoseSource(Started):
@@ -257,7 +294,7 @@ class CameraPoseSource(Started):
         self._frames = 0
         self._stop = threading.Event()
         self.finished = threading.Event()  # set when the source ends or fails
-        self.error: str | None = None
+        self.error: str | None = None  # why no frames come (a stream: while it is being opened again)
         self._thread: threading.Thread | None = None
         self._capture: cv2.VideoCapture | None = None
 
@@ -292,10 +329,12 @@ class CameraPoseSource(Started):
             return self._frame
 
     def close(self) -> None:
+        """Stop reading; waits for a read under way at most CLOSE_WAIT (a device's driver may hold it
+        longer: the thread, left behind, releases the capture itself once its read returns)."""
         self._stop.set()
         if self._thread is not None:
-            self._thread.join()
-        if self._capture is not None:
+            self._thread.join(CLOSE_WAIT)
+        elif self._capture is not None:  # never read from
             self._capture.release()
 
     def _run(self) -> None:
@@ -310,6 +349,8 @@ class CameraPoseSource(Started):
                 if not ok:
                     if not from_file:
                         self.error = f"video source {self.config.source!r} stopped delivering frames"
+                    if is_stream(self.config.source) and self._reopen():
+                        continue
                     break
                 t = index / fps if from_file else self.clock()
                 frame = self.tracker.update(image, t, index)
@@ -325,4 +366,18 @@ class CameraPoseSource(Started):
                 if from_file and self.realtime:
                     self._stop.wait(max(0.0, started + index / fps - time.monotonic()))
         finally:
+            self._capture.release()  # here, not in close(): releasing it under a read under way would crash
             self.finished.set()
+
+    def _reopen(self) -> bool:
+        """A stalled stream, opened again until it opens (True) or close() is called (False)."""
+        assert self._capture is not None
+        self._capture.release()
+        while not self._stop.is_set():
+            try:
+                self._capture = open_capture(self.config.source)
+                self.error = None  # frames come again
+                return True
+            except CameraError:
+                self._stop.wait(STREAM_TIMEOUT)
+        return False

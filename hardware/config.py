@@ -142,5 +142,7 @@ def load_hardware(path: str | Path) -> HardwareConfig:
     need("backend" in data, f"{path}: missing table [backend]")
     backend = parse_table(data["backend"], BACKEND_KINDS, f"{path} [backend]")
     poses = parse_table(data["poses"], POSE_KINDS, f"{path} [poses]") if "poses" in data else None
+    if poses is not None and hasattr(poses, "check_robots"):  # e.g. a camera: no robot's marker a reference one
+        poses.check_robots(getattr(backend, "robot_ids", []), f"{path} [poses]")
     poses_kind = data["poses"]["kind"] if poses is not None else None
     return HardwareConfig(path, backend, poses, data["backend"]["kind"], poses_kind)

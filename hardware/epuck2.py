@@ -14,6 +14,7 @@ import socket
 import struct
 import threading
 import time
+from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields, replace
 from typing import Any
@@ -32,6 +33,7 @@ STEPS_OFFSET = 79  # in the sensors answer
 RGB_LEDS = 4  # LED2, LED4, LED6, LED8
 RGB_LEVEL_MAX = 100
 CANCEL_AGAIN = 0.1  # s: close asks a robot's task again to end if it has not after this long
+UNANSWERED_KEPT = 64  # commands awaiting their answer: a peer that answers none is no robot anyway
 
 STEPS_PER_REVOLUTION = 1000
 WHEEL_DIAMETER = 0.041  # m
@@ -185,11 +187,13 @@ class RobotStats:
     reconnects: int = 0  # connections made again after one was lost
     watchdog_stops: int = 0  # stops sent because commands ceased for command_timeout
     connected: bool = False
+    answered: bool = False  # the robot answered in protocol on this connection (not merely something listening)
 
 
 class RobotLink:
     """One robot's TCP connection: a task on the backend's event loop, so a slow or lost robot delays no other.
-    Everything here runs on the loop's thread."""
+    Everything here runs on the loop's thread. Its 16 attributes are one link's state (address, command
+    sequence, answers, backoff) that the task and the backend share; splitting them would split one protocol."""
 
     def __init__(self, robot_id: int, host: str, port: int, config: Epuck2Config) -> None:
         self.robot_id, self.host, self.port, self.config = robot_id, host, port, config
@@ -197,11 +201,13 @@ class RobotLink:
         self.sensors: bytes | None = None  # the last sensors answer, when they were requested
         self.wanted = Command()  # what the robot should be doing now
         self.pending: Command | None = None  # not yet sent
-        self.pending_seq = self.sent_seq = 0
+        self.pending_seq = 0
+        self.answered_seq = 0  # the newest command the robot answered: it arrived
+        self._unanswered: deque[int] = deque(maxlen=UNANSWERED_KEPT)  # sent on this connection, oldest first
         self.last_command_time: float | None = None  # time.monotonic() of the last set_commands for this robot
         self.urgent = False  # a stop waits: connect without waiting out the backoff
         self._changed = asyncio.Event()  # a command came, or the connection was lost
-        self._sent = asyncio.Condition()
+        self._answered = asyncio.Condition()
         self._lost: Exception | None = None
 
     def submit(self, command: Command, now: float, *, urgent: bool = False) -> int:
@@ -217,11 +223,12 @@ class RobotLink:
         self._changed.set()
         return self.pending_seq
 
-    async def wait_sent(self, seq: int, timeout: float) -> bool:
-        async with self._sent:
+    async def wait_answered(self, seq: int, timeout: float) -> bool:
+        """Until the robot has answered command ``seq`` (or a newer one); False after ``timeout`` s."""
+        async with self._answered:
             try:
                 async with asyncio.timeout(timeout):
-                    await self._sent.wait_for(lambda: self.sent_seq >= seq)
+                    await self._answered.wait_for(lambda: self.answered_seq >= seq)
             except TimeoutError:
                 return False
         return True
@@ -235,10 +242,9 @@ class RobotLink:
                     reader, writer = await asyncio.open_connection(self.host, self.port)
             except (OSError, TimeoutError):
                 self.urgent = False  # the immediate attempt was made: back to the backoff
-                backoff = min(self.config.reconnect_backoff_max, max(self.config.reconnect_backoff, 2 * backoff))
+                backoff = self._next_backoff(backoff)
                 await self._sleep_unless_urgent(backoff)
                 continue
-            backoff = 0.0
             try:
                 await self._serve(reader, writer)
             except OSError as err:
@@ -247,8 +253,16 @@ class RobotLink:
                 log.exception("e-puck2 %d: link failed", self.robot_id)
                 await asyncio.sleep(self.config.reconnect_backoff_max)
             finally:
-                self.stats.connected = False
+                answered = self.stats.answered
+                self.stats.connected = self.stats.answered = False
                 writer.close()
+            if answered:  # a robot that dropped: connect again at once
+                backoff = 0.0
+                continue
+            # something listens there but is no e-puck2 (it closed or spoke another protocol): not at once,
+            # or the link would reconnect to it in a tight loop
+            backoff = self._next_backoff(backoff)
+            await self._sleep_unless_urgent(backoff)
 
     async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         writer.get_extra_info("socket").setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # no batching
@@ -257,6 +271,7 @@ class RobotLink:
             log.warning("e-puck2 %d (%s:%d): connected again", self.robot_id, self.host, self.port)
         self.stats.connections += 1
         self.stats.connected = True
+        self._unanswered.clear()
         if self.pending is None:  # the robot gets what it should be doing now (a stop once commands are stale)
             self.pending = self.wanted
             self.pending_seq += 1
@@ -281,15 +296,13 @@ class RobotLink:
         command, seq = self.pending, self.pending_seq
         assert command is not None
         writer.write(encode_command(command))
+        self._unanswered.append(seq)  # before the drain: its answer may be read while the drain waits
         async with asyncio.timeout(self.config.connect_timeout):
             await writer.drain()
         if self.pending_seq == seq:
             self.pending = None
             self.urgent = False
-        self.sent_seq = max(self.sent_seq, seq)
         self.stats.commands_sent += 1
-        async with self._sent:
-            self._sent.notify_all()
 
     async def _read(self, reader: asyncio.StreamReader) -> None:
         answers = AnswerReader()
@@ -298,10 +311,19 @@ class RobotLink:
                 for answer_id, payload in answers.feed(data):
                     if answer_id == SENSORS_ID:
                         self.sensors = payload
+                    self._took_answer()
+                async with self._answered:
+                    self._answered.notify_all()
             raise ConnectionError("closed by the robot")
         except OSError as err:
             self._lost = err
             self._changed.set()
+
+    def _took_answer(self) -> None:
+        """The robot answers each command in turn: the oldest unanswered one has arrived."""
+        self.stats.answered = True
+        if self._unanswered:
+            self.answered_seq = max(self.answered_seq, self._unanswered.popleft())
 
     def _watchdog(self) -> None:
         due = self._watchdog_due()
@@ -316,6 +338,10 @@ class RobotLink:
         if self.last_command_time is None or self.wanted.left == self.wanted.right == 0:
             return None
         return self.last_command_time + self.config.command_timeout - time.monotonic()
+
+    def _next_backoff(self, backoff: float) -> float:
+        """The wait after another failure: reconnect_backoff, doubling up to reconnect_backoff_max."""
+        return min(self.config.reconnect_backoff_max, max(self.config.reconnect_backoff, 2 * backoff))
 
     async def _sleep_unless_urgent(self, duration: float) -> None:
         deadline = time.monotonic() + duration
@@ -390,9 +416,9 @@ class Epuck2Backend(Started):
     async def _stop_all(self) -> list[int]:
         now = time.monotonic()
         seqs = [link.submit(link.wanted.stopped(), now, urgent=True) for link in self.links]
-        wait = 2 * self.config.connect_timeout  # a connection attempt, then the send
-        sent = await asyncio.gather(*(link.wait_sent(seq, wait) for link, seq in zip(self.links, seqs)))
-        return [link.robot_id for link, ok in zip(self.links, sent) if not ok]
+        wait = 2 * self.config.connect_timeout  # a connection attempt, then the send and the robot's answer
+        answered = await asyncio.gather(*(link.wait_answered(seq, wait) for link, seq in zip(self.links, seqs)))
+        return [link.robot_id for link, ok in zip(self.links, answered) if not ok]
 
     def close(self) -> list[int]:
         """Stop every robot, then close the connections; returns the robots the stop did not reach."""
@@ -404,9 +430,7 @@ class Epuck2Backend(Started):
         self._thread.join()
         self._loop.close()
         self._closed = True
-        if unreached:
-            log.error("e-puck2 robots %s were not reached by the stop", unreached)
-        return unreached
+        return unreached  # the caller says it, once
 
     async def _cancel_links(self) -> None:
         pending = set(self._tasks)

@@ -8,6 +8,7 @@ definitions of the chosen ROS 2 distribution; the Zenoh side is transport.rmw_ze
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 import re
 import threading
@@ -154,6 +155,10 @@ class Ros2BackendConfig(_Ros2Table):
             f"watchdog must be a positive time in s, not {self.watchdog!r}",
         )
 
+    @property
+    def robot_ids(self) -> list[int]:
+        return list(range(len(self.namespaces)))
+
     def topic(self, robot: int, relative: str) -> str:
         """The fully qualified topic of one robot, e.g. /robot0/cmd_vel."""
         return qualified(relative, "/" + self.namespaces[robot].strip("/"))
@@ -290,6 +295,22 @@ class Ros2Backend(Ros2Node):
             for robot in range(len(self._cmd)):
                 self._send_zero(robot)
 
+    def stop_heard(self, repeats: int, within: float) -> list[int]:
+        """Zero Twists to every robot, ``repeats`` times a watchdog quarter apart, and on until each robot's
+        went out while a subscription on its cmd_vel topic was known, or ``within`` s passed; returns the
+        robots whose stop nobody was known to hear."""
+        heard = np.zeros(len(self._cmd), bool)
+        end = time.monotonic() + within
+        for rounds in itertools.count(1):
+            with self._lock:
+                for robot, publisher in enumerate(self._cmd):
+                    heard[robot] |= publisher.heard  # before the put: it then reaches that subscriber
+                    self._send_zero(robot)
+            if (rounds >= repeats and heard.all()) or time.monotonic() >= end:
+                break
+            time.sleep(self.config.watchdog / 4)
+        return np.flatnonzero(~heard).tolist()
+
     def _send_zero(self, robot: int) -> None:
         self._cmd[robot].publish(self._zero)
         self._stopped[robot] = True
@@ -379,15 +400,14 @@ class Ros2PoseSource(Ros2Node):
 
 STOP_REPEATS = 3  # `pixelswarm stop` sends its stop this many times, a watchdog quarter apart: a fresh
 # session's first puts may leave before the router has told it who subscribes
+STOP_HEARD_WITHIN = 2.0  # s: ... and on, until each robot's stop went out to a subscriber, for at most this long
 
 
 def stop_robots(config: Ros2BackendConfig, settings: ZenohSettings | None = None) -> list[int]:
     """A zero Twist to every robot of a config through the router ``settings`` reaches (`pixelswarm
-    stop`). A put has no answer, so no robot can be reported as not reached."""
+    stop`); returns the robots whose cmd_vel nobody subscribed to (a put has no answer: a subscriber,
+    the robot's driver, is the most that can be confirmed)."""
     if settings is None:
         raise HardwareConfigError("ROS 2 robots are reached through a router: give its endpoint (-e ENDPOINT)")
     with Ros2Backend(config, settings) as backend:
-        for _ in range(STOP_REPEATS):
-            backend.stop_all()
-            time.sleep(config.watchdog / 4)
-    return []
+        return backend.stop_heard(STOP_REPEATS, STOP_HEARD_WITHIN)

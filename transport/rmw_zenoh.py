@@ -212,6 +212,12 @@ class RosPublisher(_Declares):
         self._publisher = node.session.declare_publisher(self.key, encoding=CDR)
         self._declared = [node.session.liveliness().declare_token(self.token), self._publisher]
 
+    @property
+    def heard(self) -> bool:
+        """Whether a subscription on the topic is known to this session now (a put then reaches someone)."""
+        status = self._publisher.matching_status  # a MatchingStatus (zenoh's stub says bool)
+        return bool(status.matching)  # type: ignore[attr-defined]
+
     def publish(self, cdr: bytes) -> Attachment:
         """Send one message (CDR bytes with their 4-byte header); returns the attachment sent with it."""
         with self._lock:

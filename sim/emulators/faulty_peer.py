@@ -21,6 +21,7 @@ mutates only what it says; the layouts: docs/protocol.md):
 from __future__ import annotations
 
 import argparse
+import math
 import random
 import struct
 import sys
@@ -31,6 +32,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import TextIO
 
+from sim.args import OneLineParser, add_seconds, display_name, positive_number, positive_seconds, zenoh_endpoint
 from sim.processes import stopped_by_signals
 from transport.bus import Bus, RawInbox
 from transport.codec import BEFORE_START, CHECKSUM_SIZE, FRAME_OF, with_checksum
@@ -60,6 +62,7 @@ FUTURE_MAX = 10_000  # ticks: how far a future tick (epoch, serial) goes at most
 RESTART_EVERY = 10.0  # s of wall time between the imitated sender's restarts
 RESTART_RATE = 10.0  # ticks a second the restarted sender counts
 BUFFER = 256  # recent messages kept per key kind
+CONNECT_WAIT = 60.0  # s the peer keeps trying to reach the run's router (it may start first)
 
 _U32 = struct.Struct("<I")
 _F32 = struct.Struct("<f")
@@ -242,14 +245,18 @@ class FaultyPeer:
     """Hears a display's messages and re-publishes damaged copies of them (see the module's text)."""
 
     def __init__(
-        self, settings: ZenohSettings, display: str = "default", plan: PeerPlan = PeerPlan(), connect_wait: float = 60.0
+        self,
+        settings: ZenohSettings,
+        display: str = "default",
+        plan: PeerPlan = PeerPlan(),
+        connect_wait: float = CONNECT_WAIT,
     ) -> None:
         self.kinds = kinds_of(plan.mode, plan.include_sim)
         unknown = set(plan.damages) - set(MALFORM)
         if unknown or not plan.damages:
             raise ValueError(f"damages must be some of {', '.join(MALFORM)}, not {sorted(unknown) or 'none'}")
-        if plan.rate <= 0:
-            raise ValueError("rate must be positive")
+        if not (math.isfinite(plan.rate) and plan.rate > 0):
+            raise ValueError(f"rate must be a positive number, not {plan.rate}")
         self.settings = replace(settings, mode="client" if settings.mode == "router" else settings.mode)
         self.keys = Keys(display)
         self.plan = plan
@@ -417,16 +424,48 @@ class FaultyPeer:
         )
 
 
+def damage_names(text: str) -> tuple[str, ...]:
+    """--damage: comma-separated names of MALFORM's damages, at least one."""
+    names = tuple(d.strip() for d in text.split(",") if d.strip())
+    unknown = [d for d in names if d not in MALFORM]
+    if unknown:
+        raise argparse.ArgumentTypeError(f"unknown damage {unknown[0]!r} (known: {', '.join(MALFORM)})")
+    if not names:
+        raise argparse.ArgumentTypeError(f"give one or more of {', '.join(MALFORM)}")
+    return names
+
+
+def non_negative_seconds(text: str) -> float:
+    """A finite number of seconds, 0 or more."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"must be 0 or more seconds, not {text}")
+    return value
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="python -m sim.emulators.faulty_peer", description="A faulty peer: re-publishes damaged copies."
     )
-    parser.add_argument("--display", default="default", help="display name (key prefix)")
+    parser.add_argument("--display", type=display_name, default="default", help="display name (key prefix)")
     parser.add_argument("--mode", choices=MODES_AND_ALL, required=True, help="what to damage and how")
-    parser.add_argument("--rate", type=float, default=PeerPlan.rate, help="damaged copies a second (default 350)")
-    parser.add_argument("--duration", type=float, default=None, help="seconds of damage (default: until stopped)")
     parser.add_argument(
-        "--start-after", type=float, default=0.0, help="seconds after the run's first clock tick before damage begins"
+        "--rate",
+        type=positive_number,
+        default=PeerPlan.rate,
+        help=f"damaged copies a second (default {PeerPlan.rate:g})",
+    )
+    parser.add_argument(
+        "--duration", type=positive_seconds, default=None, help="seconds of damage (default: until stopped)"
+    )
+    parser.add_argument(
+        "--start-after",
+        type=non_negative_seconds,
+        default=PeerPlan.start_after,
+        help="seconds after the run's first clock tick before damage begins",
     )
     parser.add_argument("--seed", type=int, default=0, help="random seed")
     parser.add_argument(
@@ -434,15 +473,20 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument(
         "--damage",
-        default=",".join(MALFORM),
+        type=damage_names,
+        default=PeerPlan.damages,
         help=f"the malformed modes' damages, comma-separated (default {','.join(MALFORM)})",
     )
-    parser.add_argument(
-        "--connect-wait", type=float, default=60.0, help="seconds to keep trying to reach the router (default 60)"
-    )
+    add_seconds(parser, "--connect-wait", CONNECT_WAIT, "seconds to keep trying to reach the router")
     # zenoh: a client of the run's router (-m is not offered: --mode is the peer's)
     parser.add_argument(
-        "-e", "--connect", action="append", required=True, metavar="ENDPOINT", help=ZENOH_HELP["--connect"]
+        "-e",
+        "--connect",
+        type=zenoh_endpoint,
+        action="append",
+        required=True,
+        metavar="ENDPOINT",
+        help=ZENOH_HELP["--connect"],
     )
     parser.add_argument("--zenoh-config", metavar="FILE", help=ZENOH_HELP["--zenoh-config"])
     parser.add_argument(
@@ -451,8 +495,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     zenoh = {"multicast_scouting": args.multicast_scouting, "config_file": args.zenoh_config}
     settings = ZenohSettings(mode="client", connect=list(args.connect), **zenoh)
-    damages = tuple(d for d in args.damage.split(",") if d)
-    plan = PeerPlan(args.mode, args.rate, args.duration, args.start_after, args.seed, args.include_sim, damages)
+    plan = PeerPlan(args.mode, args.rate, args.duration, args.start_after, args.seed, args.include_sim, args.damage)
     peer = FaultyPeer(settings, args.display, plan, args.connect_wait)
     try:
         with stopped_by_signals() as stop:

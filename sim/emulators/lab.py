@@ -35,6 +35,7 @@ from .mocap import MocapEmulator
 MOCAP_RATE = 50.0  # Hz: PoseStamped per robot
 RECORD_RATE = 50.0  # Hz: true poses kept for the trajectory and the contact watch
 RETRY_EVERY = 0.5  # s: a client lab waits for its router to come up
+HIGHEST_PORT = 65535
 
 
 @dataclass
@@ -142,6 +143,12 @@ class Lab(Started):
 def open_lab(args: argparse.Namespace, settings: ZenohSettings, stop: threading.Event) -> Lab | None:
     """The lab, started; a client lab waits for its router (None if stopped while waiting)."""
     scene = load_scene(args.scene, robots=args.robots, seed=args.seed)
+    n = scene.robots
+    if args.port is not None and args.port + n - 1 > HIGHEST_PORT:  # robot i listens on PORT + i
+        raise UsageError(
+            f"--port {args.port}: robots 0-{n - 1} would listen on ports {args.port}-{args.port + n - 1}, "
+            f"beyond {HIGHEST_PORT}; give --port at most {HIGHEST_PORT - n + 1}"
+        )
     said = False
     while not stop.is_set():
         lab = Lab(scene, settings, rate=args.rate, first_port=args.port)

@@ -23,7 +23,7 @@ from coordinator.resolved import add_scene_args, scene_of_args
 from coordinator.scene import Scene, SceneError
 from hardware.config import HardwareConfig, HardwareConfigError, load_hardware
 from hardware.poses import STAMP_DROPS, PoseSample
-from sim.args import refuse
+from sim.args import format_ids, refuse
 from sim.node.body import COMMAND_DROPS, STOP_REASONS, BodyNode, WallClock
 from sim.outputs.metrics import clearance_at
 from transport.bus import Bus
@@ -51,7 +51,7 @@ def check_runnable(config: HardwareConfig) -> int:
         )
     if config.poses is None:
         raise HardwareError(f"{config.path}: a run needs a [poses] table (where the robots' poses come from)")
-    return len(config.backend.addresses if kind == "epuck2" else config.backend.namespaces)
+    return len(config.backend.robot_ids)
 
 
 class BackendDrive:
@@ -64,6 +64,14 @@ class BackendDrive:
 
     def unreached(self) -> list[int]:
         return []  # a topic has no connection to check
+
+    def where(self, robot: int) -> str:
+        """Where a robot is reached (an address, a topic)."""
+        raise NotImplementedError
+
+    def why_unreached(self, robot: int) -> str:
+        """An unreached robot, for the user: where it was looked for."""
+        return self.where(robot)
 
     def robot_stats(self, robot: int) -> dict[str, int]:
         return {"reconnects": 0}
@@ -86,10 +94,16 @@ class WheelDrive(BackendDrive):
         self.backend.set_commands(ids, left.tolist(), right.tolist(), colors.tolist())
 
     def unreached(self) -> list[int]:
-        return [rid for rid, s in self.backend.stats().items() if not s.connected]
+        # connected is not enough: whatever listens at the address must answer as an e-puck2
+        return [rid for rid, s in self.backend.stats().items() if not s.answered]
 
     def where(self, robot: int) -> str:
         return self.backend.config.addresses[robot]
+
+    def why_unreached(self, robot: int) -> str:
+        if self.backend.stats()[robot].connections:  # e.g. a web server at a mistyped port
+            return f"{self.where(robot)}: something listens there but does not answer as an e-puck2"
+        return self.where(robot)
 
     def robot_stats(self, robot: int) -> dict[str, int]:
         s = self.backend.stats()[robot]
@@ -117,7 +131,7 @@ class TwistDrive(BackendDrive):
         return self.backend.config.topic(robot, self.backend.config.cmd_topic)
 
 
-Drive = WheelDrive | TwistDrive  # start, send, unreached, where, robot_stats, close
+Drive = WheelDrive | TwistDrive  # start, send, unreached, why_unreached, where, robot_stats, close
 
 
 def open_drive(config: HardwareConfig, settings: ZenohSettings, params: RobotParams) -> tuple[Drive, float]:
@@ -221,6 +235,8 @@ class HardwareBodies:
     def close(self) -> None:
         """Stop every robot, whatever ended the run."""
         self.unreached = self.drive.close()
+        if self.unreached:
+            print(f"{PROG}: robots {format_ids(self.unreached)} were not reached by the final stop", file=sys.stderr)
         self.poses.close()
 
     def report(self, node: BodyNode) -> dict[str, Any]:
@@ -278,7 +294,7 @@ def wait_for_hardware(node: BodyNode, startup_timeout: float, poses_name: str = 
         if not unreached and not lost:
             return None
         if time.monotonic() >= end:
-            where = ", ".join(f"{r} ({bodies.drive.where(r)})" for r in unreached)
+            where = ", ".join(f"{r} ({bodies.drive.why_unreached(r)})" for r in unreached)
             problems = [f"robots not reachable: {where}"] if unreached else []
             if lost:
                 future = bodies.poses.stats().get("future", 0)
@@ -304,6 +320,11 @@ def load_run(args: argparse.Namespace) -> tuple[HardwareConfig, Scene]:
     """The hardware file and the scene it runs, checked: HardwareError, HardwareConfigError or SceneError."""
     config = load_hardware(args.hardware)
     robots = check_runnable(config)
+    # as `pixelswarm run --hardware` refuses them: given by hand, they would be silently overridden
+    if args.robots is not None:
+        raise HardwareError(f"--hardware takes the number of robots from the hardware file ({robots}): drop --robots")
+    if args.clock not in (None, "realtime"):
+        raise HardwareError(f"--hardware runs on the wall clock: drop --clock {args.clock}")
     scene = scene_of_args(args, robots=robots, clock="realtime")
     if scene.robots != robots:  # a run directory's scene
         raise HardwareError(f"the run's scene has {scene.robots} robots, the hardware file {robots}")

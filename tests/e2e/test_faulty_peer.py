@@ -25,6 +25,7 @@ from pathlib import Path
 
 import pytest
 
+from sim.emulators.faulty_peer import main as peer_main
 from tests.conftest import REPO, descendants, pixelswarm_cmd, ticks_so_far, wait_for
 from transport.plausible import FUTURE, INCONSISTENT, STALE
 from transport.session import free_port, listening
@@ -254,3 +255,23 @@ def test_a_peer_stopped_while_its_router_stalls_says_what_it_sent_at_once(tmp_pa
             peer.kill()
             peer.wait()
         _stop(run)
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["--rate", "-5"], "argument --rate: must be a positive number, not -5"),
+        (["--rate", "0"], "argument --rate: must be a positive number, not 0"),
+        (["--damage", "banana"], "unknown damage 'banana'"),
+        (["--start-after", "-1"], "argument --start-after"),
+        (["--duration", "0"], "argument --duration"),
+        (["-e", "nonsense"], "'nonsense' is not an endpoint"),  # refused at once, not after --connect-wait
+    ],
+)
+def test_the_peers_bad_input_is_one_line_and_exit_2_at_once(capsys, args, words):
+    began = time.monotonic()
+    with pytest.raises(SystemExit) as exit:
+        peer_main(["--mode", "all", "-e", "tcp/127.0.0.1:9", *args])
+    err = capsys.readouterr().err
+    assert exit.value.code == 2 and time.monotonic() - began < 5
+    assert len(err.strip().splitlines()) == 1 and words in err and "Traceback" not in err

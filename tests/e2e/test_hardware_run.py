@@ -34,6 +34,7 @@ from sim.emulators.lab import MOCAP_RATE, Lab
 from sim.emulators.lab import main as lab_main
 from sim.emulators.mocap import MocapEmulator
 from sim.node.hardware import POLL, STARTUP_TIMEOUT, TwistDrive, WheelDrive, hardware_node, wait_for_hardware
+from sim.node.hardware import main as hardware_main
 from tests.conftest import REPO, descendants, pixelswarm_cmd, reap, run_pixelswarm, wait_for
 from tests.support.hardware import GOALS, all_moving, moving_commands, scene_file, start_run
 from transport.bus import Bus
@@ -331,8 +332,36 @@ def test_the_lab_refuses_bad_input(capsys):
         (["--scene", "no-such-scene", "-m", "router", "-l", f"tcp/127.0.0.1:{free_port()}"], "no-such-scene"),
         (["--scene", "paper-sequence"], "-e ENDPOINT"),
         (["--scene", "paper-sequence", "-e", "tcp/127.0.0.1:7447", "--rate", "0"], "--rate"),
+        # the robots' ports PORT + i would pass 65535: refused before any is opened
+        (["--scene", "paper-sequence", "--port", "65530", "-e", "tcp/127.0.0.1:7447"], "--port at most 65522"),
     ]:
         assert_one_line_error(in_process(lab_main, args, capsys), words)
+
+
+@pytest.mark.parametrize(
+    "flags, words",
+    [
+        (["--robots", "3"], "takes the number of robots from the hardware file (1): drop --robots"),
+        (["--clock", "lockstep"], "wall clock: drop --clock lockstep"),
+    ],
+)
+def test_the_hardware_node_run_by_hand_refuses_what_the_hardware_file_decides(tmp_path, capsys, flags, words):
+    hw = tmp_path / "hw.toml"
+    hw.write_text(BACKEND.replace("{port}", "9") + POSES)
+    scene = str(scene_file(tmp_path, robots=1))
+    args = ["--hardware", str(hw), "--scene", scene, *flags, "-e", "tcp/127.0.0.1:9"]
+    assert_one_line_error(in_process(hardware_main, args, capsys), words)
+
+
+def test_pixelswarm_stop_names_a_robot_it_did_not_reach_once(tmp_path):
+    with socket.socket() as sock:  # a port nobody listens on
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    hw = tmp_path / "hw.toml"
+    hw.write_text(BACKEND.replace("{port}", str(port)) + "connect_timeout = 0.2\n")
+    result = run_pixelswarm("stop", "--hardware", str(hw), timeout=60)  # its own process: its logging as a user sees it
+    assert result.returncode == 1
+    assert result.stderr.strip().splitlines() == ["pixelswarm stop: error: robots 0 were not reached"]
 
 
 def test_a_bad_hardware_file_is_refused_by_the_real_command(tmp_path):

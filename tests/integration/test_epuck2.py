@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pytest
 
+from agent.core.params import EPUCK
 from hardware import config as hwconfig
 from hardware.config import HardwareConfigError, SimBackendConfig, load_hardware
 from hardware.epuck2 import (
@@ -32,6 +33,7 @@ from hardware.epuck2 import (
 from hardware.stop import stop_all
 from sim.emulators.epuck2 import Epuck2Emulator, parse_command
 from sim.emulators.epuck2 import main as emulator_main
+from sim.node.hardware import WheelDrive
 from tests.conftest import REPO, wait_for
 
 WHEEL_BASE = 0.0525  # the paper's e-puck (Table 1), as the emulator drives it
@@ -248,6 +250,70 @@ def test_stop_all_waits_until_the_stops_are_sent_and_names_robots_out_of_reach(t
         assert backend.stop_all() == [1]
         assert wait_for(lambda: emu.log(0)[-1][1:] == (0, 0), timeout=3)
         assert backend.close() == [1]
+
+
+class WrongProtocol:
+    """A TCP server on 127.0.0.1 that is no e-puck2: per connection it answers as ``speak`` says (an HTTP
+    error, an echo, or nothing) and then closes, or keeps silent with the connection open."""
+
+    def __init__(self, speak: str) -> None:
+        self.speak, self.accepted = speak, 0
+        self.server = socket.create_server(("127.0.0.1", 0))
+        self.address = f"127.0.0.1:{self.server.getsockname()[1]}"
+        self.open: list[socket.socket] = []
+        self.thread = threading.Thread(target=self._serve, name="wrong-protocol", daemon=True)
+        self.thread.start()
+
+    def _serve(self) -> None:
+        with contextlib.suppress(OSError):
+            while True:
+                conn, _ = self.server.accept()
+                self.accepted += 1
+                self.open.append(conn)
+                if self.speak == "silent":
+                    continue
+                with contextlib.suppress(OSError):
+                    data = conn.recv(64)
+                    conn.sendall(b"HTTP/1.1 400 Bad Request\r\n\r\n" if self.speak == "http" else data)
+                conn.close()
+
+    def close(self) -> None:
+        self.server.shutdown(socket.SHUT_RDWR)
+        self.server.close()
+        self.thread.join(timeout=5)
+        for conn in self.open:
+            conn.close()
+
+
+@pytest.mark.parametrize("speak", ["http", "echo", "silent"])
+def test_an_address_that_does_not_answer_as_an_e_puck2_is_no_robot_and_is_not_hammered(speak):
+    """Something listening at a robot's address (a web server at a mistyped port) is not a robot: the
+    link waits out its backoff between attempts, start-up counts the robot unreached, and a stop
+    it was sent is not counted as having reached a robot."""
+    impostor = WrongProtocol(speak)
+    config = Epuck2Config.from_table({"addresses": [impostor.address], "connect_timeout": 0.2}, "test")
+    drive = WheelDrive(config, EPUCK)
+    try:
+        drive.start()
+        time.sleep(1.0)
+        # backoff 0.1 s doubling to 2 s: a handful of attempts a second, not thousands
+        assert 1 <= impostor.accepted <= 6
+        assert drive.unreached() == [0]
+        assert "does not answer as an e-puck2" in drive.why_unreached(0)
+        assert drive.backend.stop_all() == [0]
+    finally:
+        assert drive.close() == [0]
+        impostor.close()
+
+
+def test_a_robot_that_answers_is_reached_and_its_stop_confirmed():
+    with Epuck2Emulator(1) as emu:
+        drive = WheelDrive(Epuck2Config.from_table({"addresses": emu.addresses}, "test"), EPUCK)
+        drive.start()
+        assert wait_for(lambda: drive.unreached() == [], timeout=3)
+        assert drive.backend.stats()[0].answered
+        assert drive.close() == []
+        assert emu.log(0)[-1][1:] == (0, 0)
 
 
 def test_close_ends_a_robots_task_that_outlives_its_first_cancel(monkeypatch):

@@ -249,6 +249,24 @@ def test_pixelswarm_stop_sends_every_robot_a_zero_twist(router, tmp_path):
         assert (stop.linear.x, stop.linear.y, stop.angular.z) == (0.0, 0.0, 0.0)
 
 
+def test_pixelswarm_stop_names_the_robots_whose_stop_nobody_heard(router, tmp_path):
+    """A put has no answer: a robot whose cmd_vel has no subscriber (its driver down, a wrong namespace)
+    is not reported stopped."""
+    hw = tmp_path / "ros2.toml"
+    hw.write_text('[backend]\nkind = "ros2"\nnamespaces = ["robot0", "robot1"]\n')
+    with raw_session(router) as session, session.declare_subscriber("0/robot0/cmd_vel/**"):  # robot 0's driver only
+        time.sleep(0.2)  # let the subscription reach the router
+        result = subprocess.run(
+            [sys.executable, "-m", "sim.cli", "stop", "--hardware", str(hw), "-e", client_of(router).connect[0]],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            cwd=REPO,
+        )
+    assert result.returncode == 1
+    assert result.stderr.strip().splitlines() == ["pixelswarm stop: error: robots 1 were not reached"]
+
+
 def test_bad_commands_are_refused_whole(router):
     backend = Ros2Backend(Ros2BackendConfig(namespaces=["robot0", "robot1"]), client_of(router))
     with pytest.raises(RuntimeError):

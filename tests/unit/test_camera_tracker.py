@@ -4,22 +4,33 @@ table's validation; the threaded pose source on a video file; `pixelswarm track`
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import math
+import socket
 import threading
+import time
 from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
-from hardware.camera import ArucoTracker, CameraConfig, CameraError, CameraPoseSource
-from hardware.config import HardwareConfigError
+from hardware.camera import (
+    CLOSE_WAIT,
+    STREAM_TIMEOUT,
+    ArucoTracker,
+    CameraConfig,
+    CameraError,
+    CameraPoseSource,
+)
+from hardware.config import HardwareConfigError, load_hardware
 from sim.cli.main import main
 from sim.cli.track import load_camera_config
 from sim.emulators.camera import OverheadCamera, poses_toml, render_frames, wandering_robots, write_video
 from sim.emulators.camera import main as emulator_main
-from tests.conftest import run_pixelswarm
+from tests.conftest import run_pixelswarm, wait_for
 
 # --dist loadgroup gives the module one xdist worker: its module fixture (the rendered footage) is made
 # once, not once on each worker
@@ -144,6 +155,11 @@ def test_poses_table_defaults_are_the_papers_camera():
         ({"reference": {"46": [0, 0], "47": [1, 0], "48": [1, 1]}}, "at least 4"),
         ({"reference": {"1": [0, 0], "2": [1, 0], "3": [2, 0], "4": [3, 0]}}, "on one line"),
         ({"reference": {"one": [0, 0]}}, "not a whole number"),
+        ({"reference": {"+7": [0, 0]}}, "not a whole number"),
+        (
+            {"reference": {"46": [0, 0], "046": [1, 0], "47": [1, 1], "48": [0, 1], "49": [2, 2]}},
+            "marker ids '46' and '046' are both marker 46",
+        ),
         ({"reference": {"50": [0, 0], "2": [1, 0], "3": [1, 1], "4": [0, 1]}}, "outside the dictionary"),
         ({"reference": {"1": [0, 0, 0], "2": [1, 0], "3": [1, 1], "4": [0, 1]}}, "[x, y]"),
         ({"reference": None}, "exactly one of"),
@@ -156,6 +172,31 @@ def test_bad_poses_tables_are_refused_with_where_and_why(changes, words):
     with pytest.raises(HardwareConfigError) as err:
         CameraConfig.from_table(camera_table(**changes), "robots.toml [poses]")
     assert str(err.value).startswith("robots.toml [poses]") and words in str(err.value)
+
+
+@pytest.mark.parametrize(
+    "reference, robots, words",
+    [
+        ({"1": [0.1, 0.1]}, 2, "reference marker ids 1 are robot ids (the robots are 0-1)"),
+        ({}, 51, "DICT_4X4_50 has marker ids 0-49, too few for robots 0-50"),
+    ],
+)
+def test_a_hardware_file_whose_robots_are_reference_markers_is_refused(tmp_path, reference, robots, words):
+    """Robot ids are marker ids: a robot whose marker is also a reference marker would be taken for a fixed
+    point of the floor (and bend the calibration as it drives)."""
+    table = camera_table()
+    table["reference"] = {**table["reference"], **reference}
+    lines = [f'"{marker}" = {list(xy)}' for marker, xy in table["reference"].items()]
+    addresses = ", ".join(f'"127.0.0.1:{41000 + i}"' for i in range(robots))
+    hw = tmp_path / "hw.toml"
+    hw.write_text(
+        f'[backend]\nkind = "epuck2"\naddresses = [{addresses}]\n[poses]\nkind = "camera"\n'
+        f'dictionary = "{table["dictionary"]}"\nmarker_size = {table["marker_size"]}\n'
+        "[poses.reference]\n" + "\n".join(lines) + "\n"
+    )
+    with pytest.raises(HardwareConfigError) as err:
+        load_hardware(hw)
+    assert str(err.value).startswith(f"{hw} [poses]: ") and words in str(err.value)
 
 
 def write_footage(tmp_path: Path, footage, frames: int, camera: OverheadCamera | None = None) -> tuple[Path, Path]:
@@ -187,6 +228,58 @@ def test_pose_source_reads_a_video_in_a_thread(tmp_path, footage):
     for i, robot in drawn[9].items():
         assert latest[i].stamp == pytest.approx(0.9)
         assert math.hypot(latest[i].x - robot[0], latest[i].y - robot[1]) <= 0.002
+
+
+class StallingStream:
+    """An MJPEG stream on 127.0.0.1 that sends a few frames on each connection, then stalls with the
+    connection open (a network camera that hangs)."""
+
+    FRAMES = 5
+
+    def __init__(self) -> None:
+        self.server = socket.create_server(("127.0.0.1", 0))
+        self.url = f"http://127.0.0.1:{self.server.getsockname()[1]}/video.mjpg"
+        self.connections: list[socket.socket] = []
+        ok, jpeg = cv2.imencode(".jpg", np.zeros((120, 160, 3), np.uint8))
+        self.part = b"--frame\r\nContent-Type: image/jpeg\r\nContent-Length: %d\r\n\r\n" % jpeg.size
+        self.part += jpeg.tobytes() + b"\r\n"
+        self.thread = threading.Thread(target=self._serve, daemon=True)
+        self.thread.start()
+
+    def _serve(self) -> None:
+        with contextlib.suppress(OSError):
+            while True:
+                conn, _ = self.server.accept()
+                self.connections.append(conn)
+                conn.recv(65536)
+                conn.sendall(b"HTTP/1.0 200 OK\r\nContent-Type: multipart/x-mixed-replace; boundary=frame\r\n\r\n")
+                conn.sendall(self.part * self.FRAMES)
+
+    def close(self) -> None:
+        self.server.shutdown(socket.SHUT_RDWR)
+        self.server.close()
+        self.thread.join(5)
+        for conn in self.connections:
+            conn.close()
+
+
+def test_a_stalled_stream_is_opened_again_and_holds_close_only_briefly():
+    """A network camera that stops sending (its connection open) held the reading thread, and with it
+    the hardware node's exit, for FFmpeg's 30 s; now the stream is opened again after STREAM_TIMEOUT,
+    and close() returns within CLOSE_WAIT."""
+    stream = StallingStream()
+    config = replace(CameraConfig.from_table(camera_table(), "test"), source=stream.url)
+    source = CameraPoseSource(config).start()
+    try:
+        assert wait_for(lambda: len(stream.connections) >= 2, timeout=4 * STREAM_TIMEOUT + 2)
+        assert wait_for(lambda: source.stats()["frames"] > StallingStream.FRAMES, timeout=3)
+    finally:
+        began = time.monotonic()
+        source.close()
+        took = time.monotonic() - began
+        stream.close()
+    assert took <= CLOSE_WAIT
+    assert source.finished.wait(CLOSE_WAIT)
 
 
 def test_pose_source_refuses_a_missing_video(tmp_path):
