@@ -60,7 +60,7 @@ cdef struct Angle:  # the parts of V_H^max(theta) that depend on the angle only 
 
 
 cdef struct Config:
-    double v_pref, k_a, v_max, tau, tau_obst, dt, margin, timeout, noise, committed
+    double v_pref, k_a, arrived, v_max, tau, tau_obst, dt, margin, timeout, noise, committed
     bint safety, diffdrive
     double wheel_base, omega_cap, t_orient, error_min, error_max
     int n_vertices
@@ -81,6 +81,8 @@ cdef class Settings:
         cdef Config c
         c.diffdrive = params.kinematics == "diffdrive"
         c.v_pref, c.k_a, c.v_max = params.v_pref, params.k_a, params.v_max
+        # a differential-drive robot cannot close on a point (it turns on the spot for ever): at its goal it stops
+        c.arrived = params.goal_tolerance if c.diffdrive else 0.0
         c.tau, c.tau_obst, c.dt = (params.tau, params.tau_obst, params.dt) if horizons is None else horizons
         c.margin = (0.0 if c.diffdrive else params.noise_bound) if margin is None else margin
         c.timeout = params.stale_after if timeout is None else timeout
@@ -124,11 +126,12 @@ cdef inline void _perturbation(uint64_t robot, uint64_t seed, uint64_t tick, dou
     out[1] = (2.0 * b - 1.0) * magnitude
 
 
-cdef inline void _eq9(double ex, double ey, double v_pref, double k_a, double *out) noexcept nogil:
-    # speed V_p toward the goal, falling linearly within K_a of it; zero without a goal (NaN) or on it
+cdef inline void _eq9(double ex, double ey, double v_pref, double k_a, double arrived, double *out) noexcept nogil:
+    # speed V_p toward the goal, falling linearly within K_a of it; zero without a goal (NaN) or within
+    # ``arrived`` of it
     cdef double dist = sqrt(ex * ex + ey * ey)
     cdef double gain
-    if isfinite(dist) and dist > 0.0:
+    if isfinite(dist) and dist > arrived:
         gain = v_pref / dist if dist > k_a else v_pref / k_a
         out[0], out[1] = ex * gain, ey * gain
     else:
@@ -145,7 +148,7 @@ def preferred_velocity(position, goal, double v_pref, double k_a):
     cdef double[:, ::1] ov = out
     cdef Py_ssize_t i
     for i in range(pv.shape[0]):
-        _eq9(gv[i, 0] - pv[i, 0], gv[i, 1] - pv[i, 1], v_pref, k_a, &ov[i, 0])
+        _eq9(gv[i, 0] - pv[i, 0], gv[i, 1] - pv[i, 1], v_pref, k_a, 0.0, &ov[i, 0])
     return out.reshape(p.shape)
 
 
@@ -181,7 +184,7 @@ def preferred_velocities(Settings settings, robot_ids, position, velocity, goal,
     cdef Py_ssize_t i
     cdef Config *s = &settings.c
     for i in range(b):
-        _eq9(g[i, 0] - p[i, 0], g[i, 1] - p[i, 1], s.v_pref, s.k_a, &o[i, 0])
+        _eq9(g[i, 0] - p[i, 0], g[i, 1] - p[i, 1], s.v_pref, s.k_a, s.arrived, &o[i, 0])
         if isfinite(w[i, 0]) and isfinite(w[i, 1]):
             o[i, 0], o[i, 1] = w[i, 0], w[i, 1]
         x, y = o[i, 0], o[i, 1]

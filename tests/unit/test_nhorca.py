@@ -151,17 +151,24 @@ def run_diffdrive(pos, heading, goal, steps, params=EPUCK):
         left, right = wheels[:, 0], wheels[:, 1]
         assert np.all(np.abs(left) <= params.v_max + 1e-12)
         assert np.all(np.abs(right) <= params.v_max + 1e-12)
-        v = 0.5 * (left + right)
-        w = (right - left) / params.wheel_base
-        sub = 20  # integrate the arc finely over the control period
-        for _ in range(sub):
-            h = params.dt / sub
-            pos = pos + h * v[:, None] * np.stack([np.cos(heading + 0.5 * w * h), np.sin(heading + 0.5 * w * h)], -1)
-            heading = heading + w * h
-            d = np.linalg.norm(pos[:, None] - pos[None], axis=-1) + np.eye(n) * 1e9
+        poses = list(unicycle(pos, heading, wheels, params))
+        for at, _ in poses:
+            d = np.linalg.norm(at[:, None] - at[None], axis=-1) + np.eye(n) * 1e9
             min_dist = min(min_dist, d.min())
+        pos, heading = poses[-1]
         vel = velocity
     return pos, min_dist
+
+
+def unicycle(pos, heading, wheels, params, sub=20):
+    """The poses over one control period on the wheel speeds (left, right), integrated finely."""
+    v = 0.5 * (wheels[:, 0] + wheels[:, 1])
+    w = (wheels[:, 1] - wheels[:, 0]) / params.wheel_base
+    h = params.dt / sub
+    for _ in range(sub):
+        pos = pos + h * v[:, None] * np.stack([np.cos(heading + 0.5 * w * h), np.sin(heading + 0.5 * w * h)], -1)
+        heading = heading + w * h
+        yield pos, heading
 
 
 def test_differential_drive_robots_swap_places_without_contact():
@@ -174,6 +181,22 @@ def test_differential_drive_robots_swap_places_without_contact():
     final, min_dist = run_diffdrive(pos, heading, goal, steps=150)
     assert min_dist >= 2 * EPUCK.radius
     assert np.all(np.linalg.norm(final - goal, axis=1) < 0.05)
+
+
+def test_a_differential_drive_robot_at_its_goal_stands_still():
+    """A unicycle cannot close on a point: chasing a goal millimetres away, the paper's control turned
+    it on the spot at up to omega_cap for as long as it was shown (3.5 rad/s on average, seen in the
+    paper sequence). Within goal_tolerance its preferred velocity is zero, so it stops, and stays."""
+    pos, heading, vel, goal = np.array([[0.0, 0.0]]), np.array([np.pi / 2]), np.zeros((1, 2)), np.array([[0.3, 0.05]])
+    headings, commands = [], []
+    for tick in range(300):
+        pref = control.preferred_velocities(CORE, [0], pos, vel, goal, None, seed=3, tick=tick)
+        vel, wheels, *_ = nh_orca(pos, heading, vel, pref, NeighbourStates.empty(1))
+        *_, (pos, heading) = unicycle(pos, heading, wheels, DIFFDRIVE)
+        headings.append(heading[0])
+        commands.append(np.abs(wheels).max())
+    assert np.linalg.norm(pos[0] - goal[0]) <= DIFFDRIVE.goal_tolerance
+    assert np.ptp(headings[150:]) == 0.0 and max(commands[150:]) == 0.0, (np.ptp(headings[150:]), max(commands[150:]))
 
 
 def test_mirrored_polygon_drives_backwards_when_forward_is_infeasible():
