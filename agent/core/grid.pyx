@@ -8,7 +8,7 @@ FMA), whatever order the grid meets the points in. Positions must be finite.
 
 # cython: language_level=3
 
-from libc.math cimport fabs, sqrt
+from libc.math cimport INFINITY, fabs, isfinite, sqrt
 from libc.stdint cimport int64_t
 from libc.stdlib cimport calloc, free, malloc
 
@@ -49,14 +49,18 @@ cdef struct Box:
 
 
 cdef Box bounds(const double[:, ::1] points) noexcept:
-    """The points' bounding box (at least one point)."""
-    cdef Box b = Box(points[0, 0], points[0, 0], points[0, 1], points[0, 1])
+    """The finite points' bounding box (none: the origin). A point with an infinite or NaN coordinate
+    is within no distance of any other, so its cell does not matter (the box's edge)."""
+    cdef Box b = Box(INFINITY, -INFINITY, INFINITY, -INFINITY)
     cdef Py_ssize_t i
-    for i in range(1, points.shape[0]):
-        b.x0 = min(b.x0, points[i, 0])
-        b.x1 = max(b.x1, points[i, 0])
-        b.y0 = min(b.y0, points[i, 1])
-        b.y1 = max(b.y1, points[i, 1])
+    for i in range(points.shape[0]):
+        if isfinite(points[i, 0]) and isfinite(points[i, 1]):
+            b.x0 = min(b.x0, points[i, 0])
+            b.x1 = max(b.x1, points[i, 0])
+            b.y0 = min(b.y0, points[i, 1])
+            b.y1 = max(b.y1, points[i, 1])
+    if b.x0 > b.x1:
+        return Box(0.0, 0.0, 0.0, 0.0)
     return b
 
 
@@ -89,8 +93,8 @@ cdef int grid_build(Grid *g, const double[:, ::1] points, double width) except -
     for c in range(cells + 1):
         g.start[c] = 0
     for i in range(n):
-        g.cx[i] = min(<Py_ssize_t>((points[i, 0] - x0) / cell), g.nx - 1)
-        g.cy[i] = min(<Py_ssize_t>((points[i, 1] - y0) / cell), g.ny - 1)
+        g.cx[i] = cell_index((points[i, 0] - x0) / cell, 0, g.nx - 1)
+        g.cy[i] = cell_index((points[i, 1] - y0) / cell, 0, g.ny - 1)
         g.start[g.cx[i] * g.ny + g.cy[i] + 1] += 1
     for c in range(cells):
         g.start[c + 1] += g.start[c]
@@ -207,8 +211,9 @@ def nearest(const double[:, ::1] query, const int64_t[::1] query_key, const doub
     threads = most_hands(q, QUERIES_PER_CHUNK, threads)
     cdef Query *each = <Query *>calloc(threads, sizeof(Query))  # a thread's own query and its best
     cdef Queries job
-    cdef Py_ssize_t i, spread
-    cdef double slack, far = 0.0
+    cdef Py_ssize_t spread
+    cdef Box box
+    cdef double slack, far
     try:
         if each == NULL:
             raise MemoryError()
@@ -218,10 +223,10 @@ def nearest(const double[:, ::1] query, const int64_t[::1] query_key, const doub
             each[t].best_key = <int64_t *>malloc(m * sizeof(int64_t))
             if each[t].best == NULL or each[t].best_key == NULL:
                 raise MemoryError()
-        for i in range(n):
-            far = max(far, fabs(points[i, 0]), fabs(points[i, 1]))
-        for i in range(q):
-            far = max(far, fabs(query[i, 0]), fabs(query[i, 1]))
+        box = bounds(points)
+        far = max(fabs(box.x0), fabs(box.x1), fabs(box.y0), fabs(box.y1))
+        box = bounds(query)
+        far = max(far, fabs(box.x0), fabs(box.x1), fabs(box.y0), fabs(box.y1))
         # how far rounding may move a point across a cell border: far below a cell, above any ulp
         slack = 1e-9 * (g.cell + far)
         # columns either side of the query's that can hold a point within reach

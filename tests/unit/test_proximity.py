@@ -68,6 +68,18 @@ def test_a_robot_far_away():
     assert got[2].tolist() == [-1, -1]  # alone, 10^7 m away (the grid widens its cells)
 
 
+@pytest.mark.parametrize("bad", [np.inf, -np.inf, np.nan])
+def test_a_point_off_the_map_is_nobody_s_neighbour(bad):
+    """An infinite coordinate sized the grid to no number and wrote outside it (a segfault); such a
+    point is within no distance of any other, and the rest keep their neighbours."""
+    position = np.array([[0.0, 0.0], [0.5, 0.0], [bad, 0.0], [0.2, bad], [0.2, 0.0]])
+    got = nearest_within(position, 1.0, 3)
+    assert got[0].tolist() == [4, 1, -1] and got[1].tolist() == [4, 0, -1]
+    assert got[2].tolist() == got[3].tolist() == [-1, -1, -1]
+    other, apart = nearest_other(np.full((3, 2), bad), 1.0)
+    assert other.tolist() == [-1, -1, -1] and np.isinf(apart).all()
+
+
 @pytest.mark.parametrize("seed", range(40))
 def test_the_documented_ranking_on_a_kd_tree_s_candidates(seed):
     """Random seeded sets, half of them on a lattice (ties everywhere, points exactly at reach),
