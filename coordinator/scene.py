@@ -13,8 +13,8 @@ from typing import Any, TypedDict, Unpack
 
 import numpy as np
 
-from agent.core.grid import nearest_other
 from transport import epuck
+from transport.codec import MAX_ROBOTS
 
 from .goals import IMAGE_SUFFIXES, GoalError
 from .motion import check_keys, check_window, is_number, is_positive, one_of, positive
@@ -196,6 +196,8 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
     if unknown := set(data) - SCENE_KEYS:
         raise SceneError(f"{source}: unknown key(s) {', '.join(sorted(unknown))}")
     n = _whole(robots if robots is not None else data.get("robots", 14), "robots", 1, source)
+    if n > MAX_ROBOTS:
+        raise SceneError(f"{source}: robots must be at most {MAX_ROBOTS} (robot ids are 16-bit on the bus), not {n}")
     robot = _table(data, "robot", {}, source)
     radius = positive(robot.get("radius", epuck.RADIUS), f"{source}: robot radius", "metres", SceneError)
     animation = _wrap(lambda: parse_animation(data["animation"], source), source) if "animation" in data else None
@@ -545,7 +547,10 @@ def _check_fit(scene: Scene, where: str) -> None:
             f"{where}: {int(outside.sum())} of {scene.robots} robots do not fit in the "
             f"{xmax - xmin:.2f} x {ymax - ymin:.2f} m arena; enlarge [arena] size or use fewer robots"
         )
-    _, apart = nearest_other(xy, 2 * r)
+    from scipy.spatial import cKDTree  # here only: the command line starts without SciPy
+
+    pairs = cKDTree(xy).query_pairs(2 * r, output_type="ndarray")
+    apart = np.hypot(*(xy[pairs[:, 0]] - xy[pairs[:, 1]]).T)
     if (apart < 2 * r).any():
         closest = float(apart.min())
         raise SceneError(

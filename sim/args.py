@@ -11,9 +11,10 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from transport.codec import MAX_ROBOTS
+
 STARTUP_TIMEOUT = 300.0  # s per start-up stage of a run: generous, many processes start at once
 AGENTS_TIMEOUT = 60.0  # s a run with remote agents waits for every robot's agent to come alive by default
-MAX_ROBOTS = 100_000  # ten times the 10 000 of tests/integration/test_ten_thousand.py: above what either engine runs
 ENDPOINT_FORM = "expected PROTOCOL/ADDRESS, e.g. tcp/127.0.0.1:7447"
 
 
@@ -64,7 +65,7 @@ def robot_count(text: str) -> int:
     """A number of robots: a whole number from 1 to MAX_ROBOTS."""
     value = positive_int(text)
     if value > MAX_ROBOTS:
-        raise argparse.ArgumentTypeError(f"at most {MAX_ROBOTS} robots (ten times the scale target), not {value}")
+        raise argparse.ArgumentTypeError(f"at most {MAX_ROBOTS} robots (robot ids are 16-bit on the bus), not {value}")
     return value
 
 

@@ -135,6 +135,7 @@ class Message:
         return out
 
 
+MAX_ROBOTS = 2**16  # robot ids travel as u16 in goal sets and auction words: a display has at most this many
 BEFORE_START = 0xFFFFFFFF  # tick of a frame sent before the robots' agents are live (poses, hellos)
 START_TICK = -1  # a hello as a neighbour's state: where it stands before tick 0 (never on the wire)
 

@@ -14,6 +14,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from transport import epuck
+from transport.codec import MAX_ROBOTS
 
 from .allocate import allocate_robots
 from .colors import cell_colors, voronoi_cells
@@ -68,8 +69,8 @@ class GoalOptions:
         """GoalError (one line) unless these options can make n goals."""
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)):
             raise GoalError(f"N must be an integer, not {n!r}")
-        if n < 1:
-            raise GoalError(f"N must be at least 1, not {n}")
+        if not 1 <= n <= MAX_ROBOTS:
+            raise GoalError(f"N must be from 1 to {MAX_ROBOTS} (robot ids are 16-bit on the bus), not {n}")
         if self.method not in METHODS:
             raise GoalError(f"method must be one of {', '.join(METHODS)}, not {self.method!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:

@@ -78,6 +78,7 @@ def _bad_inputs(tmp_path: Path) -> dict[str, list]:
         "unreadable file": [tmp_path / "text.png", "-n", 10],
         "no foreground": [blank, "-n", 10],
         "N too small": [good, "-n", 0],
+        "more robots than a display has ids": [good, "-n", 2**16 + 1],
         "N too large for the arena": [good, "-n", 400, "--arena", 1.0],
         "bad background": [good, "-n", 10, "--background", "mauve-ish"],
         "bad region counts": [good, "-n", 10, "--region-counts", "0=20"],

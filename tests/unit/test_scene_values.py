@@ -49,6 +49,7 @@ def test_whole_numbers_and_zero_where_it_turns_a_feature_off_are_taken(key, valu
 @pytest.mark.parametrize(
     "data, message",
     [
+        ({"robots": 2**16 + 1}, "robots must be at most 65536 (robot ids are 16-bit on the bus), not 65537"),
         # non-finite or malformed geometry
         ({"layout": {**GRID, "heading": NAN}}, "layout heading must be a finite number of radians, not nan"),
         ({"layout": {**GRID, "heading": "up"}}, "layout heading must be a finite number of radians, not 'up'"),
