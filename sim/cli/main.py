@@ -281,12 +281,11 @@ def _add_view_parser(sub: Any) -> None:
 
 
 def _hardware_scene(args: argparse.Namespace) -> Scene:
-    """The scene as a hardware run plays it: the hardware file's robots, on the wall clock."""
+    """The scene as a hardware run plays it: the hardware file's robots, on the wall clock (load_run
+    refuses --robots and --clock lockstep)."""
     from sim.node.hardware import HardwareError, load_run
 
     refuse_if(args.engine == "central", "--hardware runs the distributed engine: drop --engine central")
-    refuse_if(args.clock == "lockstep", "--hardware runs on the wall clock: drop --clock lockstep")
-    refuse_if(args.robots is not None, "--hardware takes the number of robots from the hardware file: drop --robots")
     refuse_if(
         args.secure is not None,
         "--hardware cannot be combined with --secure yet: its pose source joins outside the access rules",
@@ -415,14 +414,8 @@ def _run_central(args: argparse.Namespace, scene: Scene, out: Path, faults: Any,
             scene, out, video=args.video, plots=args.plots, progress=progress, reach=reach, view=view, stop=stop
         )
         print(path, flush=True)
-        if stop.signal is not None:  # the user said stop: `pixelswarm run ... && next` goes no further
-            name = signal.Signals(stop.signal).name
-            if stop.interrupted:
-                said = f"stopped by {name}; what was recorded is in {path}, marked incomplete"
-            else:
-                said = f"{name} came as the run ended; {path} is complete"
-            print(f"pixelswarm run: {said}", file=sys.stderr)
-            return 128 + stop.signal
+        if stop.signal is not None:
+            return _stopped(stop.signal, stop.interrupted, path)
         _keep_viewing(view)
     return 0
 
@@ -509,16 +502,21 @@ def _run_distributed(launcher: Any) -> int:
     if end.startup_failure is not None:  # written, marked incomplete, for its logs
         print(f"pixelswarm run: error: start-up failed: {end.startup_failure}", file=sys.stderr)
         return STARTUP_FAILED
-    if end.stop_signal is not None:  # the user said stop: `pixelswarm run ... && next` goes no further
-        name = signal.Signals(end.stop_signal).name
-        if end.interrupted:
-            said = f"stopped by {name}; what was recorded is in {path}, marked incomplete"
-        else:
-            said = f"{name} came as the run ended; {path} is complete"
-        print(f"pixelswarm run: {said}", file=sys.stderr)
-        return 128 + end.stop_signal
+    if end.stop_signal is not None:
+        return _stopped(end.stop_signal, end.interrupted, path)
     _keep_viewing(launcher.opt.view)
     return 0
+
+
+def _stopped(signum: int, interrupted: bool, path: Path) -> int:
+    """The user said stop: one line, and 128 + the signal, so `pixelswarm run ... && next` goes no further."""
+    name = signal.Signals(signum).name
+    if interrupted:
+        said = f"stopped by {name}; what was recorded is in {path}, marked incomplete"
+    else:
+        said = f"{name} came as the run ended; {path} is complete"
+    print(f"pixelswarm run: {said}", file=sys.stderr)
+    return 128 + signum
 
 
 def cmd_view(args: argparse.Namespace) -> int:

@@ -2,7 +2,7 @@
 ``rate`` a second, on the keys it heard them on (docs/faults.md).
 
     python -m sim.emulators.faulty_peer -e tcp/127.0.0.1:PORT [--display NAME] --mode MODE
-        [--rate R] [--duration S] [--start-after S] [--seed N]
+        [--rate R] [--duration S] [--start-after S] [--stale-after S] [--seed N]
 
 It starts ``--start-after`` s after the run's first clock tick, damages for ``--duration`` s (default: until
 stopped) and ends with one line on stdout: the copies it sent, per key kind and per damage. Modes (each
@@ -12,7 +12,7 @@ mutates only what it says; the layouts: docs/protocol.md):
 - ``malformed-pose``: pose frames truncated, extended, or with a header byte, the count or random bytes
   overwritten (``--damage`` picks among these); some copies still decode.
 - ``malformed-all``: every key kind of the bus (``--include-sim``: also sim/truth, sim/contact) likewise.
-- ``stale-cmd``: commands re-sent unchanged STALE_AFTER s or more after they were first heard.
+- ``stale-cmd``: commands re-sent unchanged ``--stale-after`` s or more after they were first heard.
 - ``misc``: clock ticks, goal sets, bids and boards, malformed or with a time-like field moved forward.
 - ``restart``: frames with the (smaller) tick of a sender restarted every RESTART_EVERY s.
 - ``all``: each copy from one of the modes in ALL_OF that has something to send.
@@ -57,7 +57,6 @@ _MODE_KINDS = {
 }
 MODES_AND_ALL = tuple(_MODE_KINDS)
 
-STALE_AFTER = 2.0  # s: a command is re-sent unchanged only this long after it was first heard
 FUTURE_MAX = 10_000  # ticks: how far a future tick (epoch, serial) goes at most
 RESTART_EVERY = 10.0  # s of wall time between the imitated sender's restarts
 RESTART_RATE = 10.0  # ticks a second the restarted sender counts
@@ -218,7 +217,8 @@ def future_stamp(data: bytes, rng: random.Random, kind: str) -> tuple[str, bytes
 @dataclass(frozen=True)
 class PeerPlan:
     """What the faulty peer does: which kinds (``mode``), which damages, copies a second, from
-    ``start_after`` s for ``duration`` s (None: until stopped), and the seed of its choices."""
+    ``start_after`` s for ``duration`` s (None: until stopped), the seed of its choices, and how long
+    after a command was first heard it may be re-sent unchanged (``stale_after``)."""
 
     mode: str = "all"
     rate: float = 350.0
@@ -227,6 +227,7 @@ class PeerPlan:
     seed: int = 0
     include_sim: bool = False
     damages: tuple[str, ...] = tuple(MALFORM)
+    stale_after: float = 2.0
 
 
 @dataclass
@@ -263,7 +264,7 @@ class FaultyPeer:
         self.rng = random.Random(plan.seed)
         self.connect_wait = connect_wait
         self.heard: dict[str, deque[tuple[str, bytes]]] = {k: deque(maxlen=BUFFER) for k in self.kinds}
-        # stale-cmd: commands heard less than STALE_AFTER ago, and those old enough to re-send
+        # stale-cmd: commands heard less than stale_after ago, and those old enough to re-send
         self.cmd_fresh: deque[tuple[float, str, bytes]] = deque(maxlen=100_000)
         self.cmd_old: deque[tuple[str, bytes]] = deque(maxlen=2000)
         self.first_tick_wall: float | None = None
@@ -274,7 +275,7 @@ class FaultyPeer:
 
     def hear(self, inboxes: list[RawInbox]) -> None:
         """Keep what the subscriptions brought (not the peer's own copies, which it hears too); commands
-        heard STALE_AFTER s ago or more become old enough to re-send."""
+        heard stale_after s ago or more become old enough to re-send."""
         for inbox in inboxes:
             for key, data, wall in inbox.drain():
                 if data in self._own:
@@ -290,7 +291,7 @@ class FaultyPeer:
                 if kind == "cmd" and self.plan.mode in ("stale-cmd", "all"):
                     self.cmd_fresh.append((wall, key, data))
         now = time.time()  # the subscriptions' clock
-        while self.cmd_fresh and now - self.cmd_fresh[0][0] >= STALE_AFTER:
+        while self.cmd_fresh and now - self.cmd_fresh[0][0] >= self.plan.stale_after:
             _, key, data = self.cmd_fresh.popleft()
             self.cmd_old.append((key, data))
 
@@ -446,7 +447,7 @@ def non_negative_seconds(text: str) -> float:
     return value
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> OneLineParser:
     parser = OneLineParser(
         prog="python -m sim.emulators.faulty_peer", description="A faulty peer: re-publishes damaged copies."
     )
@@ -466,6 +467,13 @@ def main(argv: list[str] | None = None) -> int:
         type=non_negative_seconds,
         default=PeerPlan.start_after,
         help="seconds after the run's first clock tick before damage begins",
+    )
+    parser.add_argument(
+        "--stale-after",
+        type=non_negative_seconds,
+        default=PeerPlan.stale_after,
+        help=f"stale-cmd: seconds after a command is first heard before it may be re-sent "
+        f"(default {PeerPlan.stale_after:g})",
     )
     parser.add_argument("--seed", type=int, default=0, help="random seed")
     parser.add_argument(
@@ -492,10 +500,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--multicast-scouting", action="store_true", default=False, help=ZENOH_HELP["--multicast-scouting"]
     )
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
     zenoh = {"multicast_scouting": args.multicast_scouting, "config_file": args.zenoh_config}
     settings = ZenohSettings(mode="client", connect=list(args.connect), **zenoh)
-    plan = PeerPlan(args.mode, args.rate, args.duration, args.start_after, args.seed, args.include_sim, args.damage)
+    chosen = ("mode", "rate", "duration", "start_after", "seed", "include_sim", "stale_after")
+    plan = PeerPlan(**{name: getattr(args, name) for name in chosen}, damages=args.damage)
     peer = FaultyPeer(settings, args.display, plan, args.connect_wait)
     try:
         with stopped_by_signals() as stop:

@@ -5,8 +5,8 @@ A lock-step run with sim.emulators.faulty_peer attached to its router after star
 ``all``: at about 350 a second it re-publishes damaged copies of what it hears on every key kind
 (poses, states, commands, clock ticks, goal sets, bids, events): malformed (truncated, extended,
 header, count or random bytes overwritten), future ticks (epochs, serials, stamps), commands
-re-sent unchanged 2 s or more later, and frames whose tick counts from 0 again as a restarted
-sender's would. Two runs, each shared by the tests that read it: the 20-robot circle of the issue
+re-sent unchanged 0.5 s or more later (many ticks later in lock-step), and frames whose tick counts
+from 0 again as a restarted sender's would. Two runs, each shared by the tests that read it: the 20-robot circle of the issue
 (one robot per process) and the 14 e-puck paper sequence with agent hosts (-k 7) over its first two
 images, each held 15 s. `python -m bench.bench_faults faulty-peer` runs the issue's table, one mode per row.
 """
@@ -61,7 +61,7 @@ def _stop(proc: subprocess.Popen, timeout: float = 15) -> None:
 
 def peer_command(port: int, mode: str = "all") -> list[str]:
     return [sys.executable, "-m", "sim.emulators.faulty_peer", "-e", f"tcp/127.0.0.1:{port}", "--mode", mode] + [
-        *("--rate", "350", "--start-after", "0.5", "--seed", "1")
+        *("--rate", "350", "--start-after", "0.5", "--stale-after", "0.5", "--seed", "1")
     ]
 
 
