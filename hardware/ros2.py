@@ -295,6 +295,10 @@ class Ros2Backend(Ros2Node):
             for robot in range(len(self._cmd)):
                 self._send_zero(robot)
 
+    def unheard(self) -> list[int]:
+        """The robots whose cmd_vel topic has no subscription known now (their driver down, a wrong namespace)."""
+        return [robot for robot, publisher in enumerate(self._cmd) if not publisher.heard]
+
     def stop_heard(self, repeats: int, within: float) -> list[int]:
         """Zero Twists to every robot, ``repeats`` times a watchdog quarter apart, and on until each robot's
         went out while a subscription on its cmd_vel topic was known, or ``within`` s passed; returns the

@@ -55,23 +55,16 @@ def check_runnable(config: HardwareConfig) -> int:
 
 
 class BackendDrive:
-    """What the drives share: the backend starts itself; a drive without connections reaches every robot."""
+    """What the drives share: the backend starts and closes itself."""
 
     backend: Any
 
     def start(self) -> None:
         self.backend.start()
 
-    def unreached(self) -> list[int]:
-        return []  # a topic has no connection to check
-
     def where(self, robot: int) -> str:
         """Where a robot is reached (an address, a topic)."""
         raise NotImplementedError
-
-    def why_unreached(self, robot: int) -> str:
-        """An unreached robot, for the user: where it was looked for."""
-        return self.where(robot)
 
     def robot_stats(self, robot: int) -> dict[str, int]:
         return {"reconnects": 0}
@@ -127,8 +120,14 @@ class TwistDrive(BackendDrive):
     def send(self, ids: list[int], left: np.ndarray, right: np.ndarray, colors: np.ndarray) -> None:
         self.backend.set_commands(ids, (left + right) / 2, (right - left) / self.wheel_base, colors)
 
+    def unreached(self) -> list[int]:
+        return self.backend.unheard()  # a put has no answer: a subscription on the topic is what reaches a robot
+
     def where(self, robot: int) -> str:
         return self.backend.config.topic(robot, self.backend.config.cmd_topic)
+
+    def why_unreached(self, robot: int) -> str:
+        return f"nobody subscribes to {self.where(robot)}"
 
 
 Drive = WheelDrive | TwistDrive  # start, send, unreached, why_unreached, where, robot_stats, close

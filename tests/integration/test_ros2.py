@@ -16,6 +16,7 @@ from mcap.records import Schema
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.typesys import Stores, get_typestore
 
+from agent.core.params import EPUCK
 from hardware.config import HardwareConfigError
 from hardware.ros2 import (
     COLOR_RGBA,
@@ -28,6 +29,7 @@ from hardware.ros2 import (
     Ros2PoseSource,
 )
 from sim.emulators.mocap import MocapEmulator, circle
+from sim.node.hardware import TwistDrive
 from tests.conftest import REPO, wait_for
 from transport.rmw_zenoh import (
     Attachment,
@@ -265,6 +267,20 @@ def test_pixelswarm_stop_names_the_robots_whose_stop_nobody_heard(router, tmp_pa
         )
     assert result.returncode == 1
     assert result.stderr.strip().splitlines() == ["pixelswarm stop: error: robots 1 were not reached"]
+
+
+def test_a_robot_is_reached_once_a_driver_subscribes_to_its_cmd_vel(router):
+    """What the hardware node waits for at start-up: a put has no answer, so a ROS 2 robot counts as
+    reached when a subscription on its cmd_vel is known (a robot whose driver is down was taken as
+    reached, and the run started without it)."""
+    config = Ros2BackendConfig(namespaces=["robot0", "robot1"])
+    drive = TwistDrive(config, client_of(router), EPUCK)
+    with raw_session(router) as session, drive.backend:
+        drive.start()
+        assert drive.unreached() == [0, 1]
+        assert drive.why_unreached(1) == "nobody subscribes to /robot1/cmd_vel"
+        with session.declare_subscriber("0/robot1/cmd_vel/**"):  # robot 1's driver comes up
+            assert wait_for(lambda: drive.unreached() == [0], timeout=5)
 
 
 def test_bad_commands_are_refused_whole(router):
