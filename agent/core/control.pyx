@@ -646,10 +646,12 @@ cdef int _hard_lines(Config *s, Scratch *w, Robot *me, Obstacles edges, Lines *e
 
 cdef int _robot_lines(Config *s, Scratch *w, Robot *me, double horizon, int start, bint again) noexcept nogil:
     """The ORCA lines at ``horizon`` after the hard ones: late neighbours where they most likely are,
-    not grown (the safety lines cover that). ``again``: same robot, another horizon. Returns the count."""
+    not grown (the safety lines cover that). ``again``: same robot, another horizon. Returns the count.
+    A dynamic obstacle's line keeps the full horizon: it will not make way, so a horizon shrunk past it
+    plans to meet it (a robot in a crowd drove back into a mover's path)."""
     cdef Robot grown = me[0]
     cdef double line[4]
-    cdef double lead, left, inv_tau = 1.0 / horizon, inv_dt = 1.0 / s.dt
+    cdef double lead, left, inv_tau = 1.0 / horizon, inv_dt = 1.0 / s.dt, inv_full = 1.0 / s.tau
     cdef int n = start, k
     cdef Other o
     grown.radius = me.radius + s.margin
@@ -662,7 +664,7 @@ cdef int _robot_lines(Config *s, Scratch *w, Robot *me, double horizon, int star
             o = Other(w.nx[k] + lead * w.nvx[k], w.ny[k] + lead * w.nvy[k], w.nvx[k], w.nvy[k],
                       w.nr[k] - left + s.margin, w.nc[k])
             _pair(&grown, &o, &w.pairs[k])
-        _pair_line(&w.pairs[k], inv_tau, inv_dt, line)
+        _pair_line(&w.pairs[k], inv_full if w.nc[k] == NON_COOPERATING else inv_tau, inv_dt, line)
         n = _push(&w.L, n, line, me.vmax)
     return n
 

@@ -199,6 +199,37 @@ def test_a_differential_drive_robot_at_its_goal_stands_still():
     assert np.ptp(headings[150:]) == 0.0 and max(commands[150:]) == 0.0, (np.ptp(headings[150:]), max(commands[150:]))
 
 
+def test_in_a_crowd_a_robot_makes_way_for_a_mover_that_will_not():
+    """Paper 7.4.2's scene, tick 15.1 s: a robot of the disk, its neighbours 0.2-0.4 m around, and a
+    mover (no ORCA: it avoids nobody) 0.25 m to its left closing at 0.1 m/s. No velocity keeps every
+    line at the full horizon. Shrinking the mover's horizon with the rest (paper 5.3) let the robot
+    drive back toward its goal, into the mover's path, until it was too late (a contact 1.6 s later);
+    the mover's line keeps the full horizon, so the robot makes way now."""
+    params = DIFFDRIVE.with_(radius=0.045)
+    others = np.array(
+        [[0.206, 0.001], [-0.012, -0.223], [-0.194, -0.111], [-0.145, 0.173], [0.067, 0.239],
+         [-0.254, -0.01], [0.198, -0.212], [-0.244, -0.251], [0.291, 0.195], [0.433, 0.016]]
+    )  # fmt: skip
+    velocity = np.zeros_like(others)
+    velocity[2], velocity[5], velocity[7] = [0.01, -0.052], [0.1, -0.004], [-0.002, -0.002]
+    mover = np.arange(len(others)) == 5
+    shape = (1, len(others))
+    heard = NeighbourStates(
+        others[None],
+        velocity[None],
+        np.full(shape, params.radius),
+        np.full(shape, 0.1),
+        np.ones(shape, bool),
+        ~mover[None],
+    )
+    robot = Batch(np.zeros((1, 2)), [[0.0305, -0.0048]], [[-0.0141, -0.0116]], 0.206, params.radius)
+    v_cf, _, fallback, *_ = control.step(Settings(params), robot, heard)
+    assert fallback[0]  # nothing keeps every line at the full horizon
+    gap = np.linalg.norm(others[5]) - 2 * params.radius
+    # away from the mover (it comes from the left), fast enough that it cannot close the gap within tau
+    assert v_cf[0, 0] > 0.1 - gap / params.tau, v_cf[0]
+
+
 def test_mirrored_polygon_drives_backwards_when_forward_is_infeasible():
     # a dynamic obstacle (c = 1) right ahead closing at 0.1 m/s: backing off faster than P_AHV allows
     obstacle = NeighbourStates(
