@@ -203,7 +203,9 @@ def cmd_study(args: argparse.Namespace) -> int:
         try:
             with handling_signals(signals):
                 progress = execute(spec, study, jobs, args.scheduler)
-        except (Interrupted, KeyboardInterrupt):  # also one that came before the runs were queued
+                command = f"pixelswarm study {study.root / 'spec.toml'} --out NEW_DIR --jobs {jobs}"
+                report = write_report(spec, study, command)  # each file whole or not at all
+        except (Interrupted, KeyboardInterrupt):  # also one that came before the runs were queued or after
             done = sum(study.metrics(r) is not None for r in spec.runs())
             name = signal.Signals(signals.first or signal.SIGINT).name
             print(
@@ -212,6 +214,5 @@ def cmd_study(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
             return 128 + (signals.first or signal.SIGINT)
-        command = f"pixelswarm study {study.root / 'spec.toml'} --out NEW_DIR --jobs {jobs}"
-        print(write_report(spec, study, command))
+        print(report)
     return 1 if progress.failed else 0

@@ -137,6 +137,28 @@ def test_resume_runs_only_what_is_missing_or_incomplete(grid, tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("study-grid")
+def test_ctrl_c_while_the_report_is_written_is_one_line_and_resumes(grid, tmp_path, capsys, monkeypatch):
+    """Every run done, the user presses Ctrl-C as the report is written: a one-line stop (it was a
+    traceback), and the same command again writes the report."""
+    out = tmp_path / "out"
+    shutil.copytree(grid / "out", out)
+    (out / "report.html").unlink()
+
+    def interrupted(*_):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("sim.study.report.write_report", interrupted)
+    assert main(["study", str(grid / "grid.toml"), "--out", str(out), "--jobs", "1"]) == 130
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith("pixelswarm study: stopped by SIGINT; 8 of 8 runs done and kept"), err
+    assert not (out / "report.html").exists()
+    monkeypatch.undo()
+    assert main(["study", str(grid / "grid.toml"), "--out", str(out), "--jobs", "1"]) == 0
+    assert (out / "report.html").exists()
+
+
+@pytest.mark.slow
 def test_a_failed_run_is_recorded_and_the_study_goes_on(tmp_path):
     scene = tmp_path / "dies.toml"  # the central engine refuses fail events: each run exits with an error
     scene.write_text(
