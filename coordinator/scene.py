@@ -18,7 +18,7 @@ from transport.codec import MAX_ROBOTS
 
 from .goals import IMAGE_SUFFIXES, GoalError
 from .motion import check_keys, check_window, is_number, is_positive, one_of, positive
-from .steps import Animation, FrameGoals, GoalSets, ImageStep, StepGoals, parse_animation, parse_step
+from .steps import Animation, FrameGoals, GoalSets, ImageStep, StepGoals, parse_animation, parse_step, scene_relative
 
 SCENE_DIR = Path(__file__).parent / "scenes"
 # each kind of [layout], [goals] and [[events]] table and the keys it takes besides kind: any other is a mistake
@@ -421,14 +421,15 @@ def _scattered(layout: dict[str, Any], n: int, spacing: float, seed: int, where:
 
 
 def _listed(layout: dict[str, Any], n: int, where: str) -> np.ndarray:
-    """The first N poses the layout lists (kind 'list') or a CSV file of x,y[,theta] holds ('file')."""
+    """The first N poses the layout lists (kind 'list') or a CSV file of x,y[,theta] holds ('file', its
+    path relative to the scene file, as images are)."""
     if layout.get("kind") == "list":
         return _rows(layout.get("poses"), "x, y, theta", n, "layout poses", where)[:n]
     path = layout.get("path")
     if not isinstance(path, str):
         raise SceneError(f'{where}: layout of kind "file" needs path = "a CSV file of x,y[,theta] rows", not {path!r}')
     try:
-        arr = np.loadtxt(path, delimiter=",", ndmin=2)
+        arr = np.loadtxt(scene_relative(path, where), delimiter=",", ndmin=2)
     except (OSError, ValueError) as err:
         raise SceneError(f"{where}: layout file {path}: {err}") from None
     if arr.shape[1] == 2:

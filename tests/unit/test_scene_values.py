@@ -200,3 +200,17 @@ def test_pixelswarm_run_of_an_image_of_specks_alone_says_it_has_no_foreground(tm
     err = capsys.readouterr().err
     assert "no foreground in" in err and "specks smaller than 16 pixels" in err and "Traceback" not in err, err
     assert len(err.strip().splitlines()) == 1 and not out.exists()
+
+
+def test_a_layout_file_is_read_beside_its_scene_from_any_directory(tmp_path, monkeypatch):
+    """As a scene's images are: a run started elsewhere found no file (it was read from the working directory)."""
+    from coordinator.scene import parse_scene
+
+    folder = tmp_path / "show"
+    folder.mkdir()
+    (folder / "start.csv").write_text("0,0,0\n0.5,0,1.5\n1,0,3\n")
+    scene = folder / "scene.toml"
+    scene.write_text('robots = 3\n[layout]\nkind = "file"\npath = "start.csv"\n[goals]\nkind = "stay"\n')
+    monkeypatch.chdir(tmp_path)
+    poses = parse_scene(str(scene)).poses
+    np.testing.assert_allclose(poses, [[0, 0, 0], [0.5, 0, 1.5], [1, 0, 3]])
