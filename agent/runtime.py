@@ -100,6 +100,7 @@ def interpreter(robots: int) -> list[str]:
     return [sys.executable, *(["-OO", "-X", "no_debug_ranges"] if compiled and robots == 1 else [])]
 
 
+ARENA_SLACK = 1.0  # m beyond the arena's edges where a pose is still believed (a robot carried off it)
 AUCTION_SHARE = 0.2  # of a control period, spent on auction rounds after a tick (AgentHost._auction_rounds)
 AUCTION_SHARE_COLD = 0.8  # ... until the newest goal set's first agreement: robots wait for it
 
@@ -234,11 +235,21 @@ class PoseIntake:
         self.pending: dict[int, Pose] = {}
         self.trust = PoseTrust(p.v_max, p.dt, 2 * p.noise_bound)
         self.lines = {r: TickLine(pose_period) for r in config.robots}
+        self.arena = config.arena
+
+    def off_arena(self, pose: Pose) -> bool:
+        """A pose farther than ARENA_SLACK outside the arena: no tracker sees a robot there (a forged pose)."""
+        if self.arena is None:
+            return False
+        x0, y0, x1, y1 = self.arena
+        return not (x0 - ARENA_SLACK <= pose.x <= x1 + ARENA_SLACK and y0 - ARENA_SLACK <= pose.y <= y1 + ARENA_SLACK)
 
     def take(self, pose: Pose, newest_tick: Callable[[], int | None]) -> str | None:
         """Hold a robot's pose for the next step (the newest tick wins), or say why it is refused."""
         if not stamp_agrees(pose.tick, pose.stamp, self.dt):
             return INCONSISTENT
+        if self.off_arena(pose):
+            return "invalid"
         why = self.lines[pose.robot].admit(pose.tick, time.monotonic(), newest_tick())
         held = self.pending.get(pose.robot)
         if why is None and (held is None or pose.tick > held.tick):
@@ -373,7 +384,9 @@ class AgentHost:
         while len(where) < len(self.robots) and self.running and time.monotonic() < end:
             self._renewal.keep()
             got = self.inbox.pose.get(timeout=0.2)
-            if got is not None:
+            if got is not None and self.poses.off_arena(got[1]):
+                self.inbox.pose.drops["invalid"] += 1
+            elif got is not None:
                 self._renewal.pose_came()
                 where[got[1].robot] = got[1]
                 if got[1].tick != BEFORE_START:
@@ -639,7 +652,7 @@ class AgentHost:
         # States before commands: by the time the world moves on, neighbours have our states.
         self.publish_states(tick, stamp, states)
         cmd = self.bus.keys.cmd  # a host's frame of its robots' commands; a robot alone its frame of one
-        to = cmd(int(self.robots.ids[0])) if self.config.frames else lambda c: cmd(c.robot)
+        to = cmd(int(self.robots.ids.min())) if self.config.frames else lambda c: cmd(c.robot)  # as its token names
         self.bus.publish_frame(Commands, tick, stamp, commands, to)
         # the cells around EVERY own robot, not only this batch: a tick's poses can arrive split (forget_outside)
         around = np.array([m.position for m in self.robots.known()])

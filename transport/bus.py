@@ -41,6 +41,7 @@ from .codec import (
 )
 from .faults import FaultPlan, FaultSpec
 from .keys import Keys, cell_of, robots_of_ident
+from .plausible import MISADDRESSED
 from .session import ZenohSettings, open_session
 
 PULL_CAPACITY = 100_000  # samples a pulled subscription holds before zenoh's thread waits for the owner
@@ -206,7 +207,7 @@ class Inbox(Generic[T]):
         else:
             return None
         if not views or views[0].robot != robot:
-            self.drops["misaddressed"] += 1
+            self.drops[MISADDRESSED] += 1
             return None
         if rest is not None and len(rest) and self.bodies is not None:
             self.bodies(tick, rest)
@@ -330,6 +331,8 @@ class LivelinessWatch:
         self._queue: queue.SimpleQueue[tuple[str, str, bool, float, str]] = queue.SimpleQueue()
         self._live: dict[tuple[str, str], str] = {}  # (role, ident) -> its live incarnation
         self._lock = threading.Lock()
+        # robot -> the first robot of the agent whose token names it newest: the id its command frames are keyed by
+        self.sender: dict[int, int] = {}
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         parts = str(sample.key_expr).split("/alive/", 1)[-1].split("/")
@@ -340,6 +343,8 @@ class LivelinessWatch:
         idents = [parts[1]] if robots is None else [str(r) for r in robots]  # a host's token: each robot's event
         now = time.time()
         with self._lock:
+            if robots and alive:
+                self.sender.update(dict.fromkeys(robots, min(robots)))
             for ident in idents:
                 self._take((role, ident), incarnation, alive, now)
 

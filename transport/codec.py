@@ -891,7 +891,7 @@ def decode(
         return message_type._from(view[_HEADER.size : len(view) - _CHECKSUM.size])
     except Malformed as err:
         reason = str(err)
-    except (struct.error, ValueError, TypeError, OverflowError):
+    except (struct.error, ValueError, TypeError, OverflowError, RecursionError):  # JSON nested past Python's stack
         reason = "invalid"
     if drops is not None:
         drops[reason] += 1

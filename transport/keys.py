@@ -38,14 +38,21 @@ def robots_of_ident(ident: str) -> list[int] | None:
     return robots
 
 
+CELLS = 2**30  # cells either side of 0 at most: a position beyond (a forged pose) is in the outermost
+
+
 def cell_of(x: float, y: float, cell_size: float) -> tuple[int, int]:
     """The spatial cell of a position: robots subscribe to the 3x3 cells around their own."""
-    return math.floor(x / cell_size), math.floor(y / cell_size)
+    return _cell(x / cell_size), _cell(y / cell_size)
+
+
+def _cell(v: float) -> int:
+    return math.floor(v) if -CELLS <= v < CELLS else (-CELLS if v < 0 else CELLS - 1)
 
 
 def cells_of(xy: ArrayLike, cell_size: float) -> np.ndarray:
     """cell_of for rows of positions at once: (N, 2) int64 (a host places all its robots each tick)."""
-    return np.floor(np.asarray(xy, float).reshape(-1, 2) / cell_size).astype(np.int64)
+    return np.clip(np.floor(np.asarray(xy, float).reshape(-1, 2) / cell_size), -CELLS, CELLS - 1).astype(np.int64)
 
 
 class Keys:

@@ -19,6 +19,7 @@ RESYNC = 1.0  # s a new line of ticks goes on (and the old one is silent, or beh
 STAMP_SLACK = 1e-6  # s: tick x dt against the stamp, for the rounding of two float products
 
 FUTURE, STALE, INCONSISTENT = "future", "stale", "inconsistent"
+MISADDRESSED = "misaddressed"  # a record for another robot than its key (or its sender) names
 
 
 class Clock:

@@ -27,7 +27,8 @@ from sim.args import format_ids
 from transport.bus import Bus
 from transport.codec import BEFORE_START, Command, Event, Goals, State, Tick, Truth, intact
 from transport.codec import Contact as ContactMsg
-from transport.plausible import FUTURE, INCONSISTENT, GoalSets, stamp_agrees
+from transport.keys import Keys
+from transport.plausible import FUTURE, INCONSISTENT, MISADDRESSED, GoalSets, stamp_agrees
 
 STARTUP_TIMEOUT = 60.0  # s the node waits for every agent by default (`pixelswarm run` says how long)
 BEFORE_START_EVERY = 0.2  # s: poses to robots whose agent is not live yet
@@ -36,7 +37,7 @@ BEFORE_START_EVERY = 0.2  # s: poses to robots whose agent is not live yet
 # first tick makes a different run), for the agents a 'fail' event kills to be gone (the launcher may lag).
 AUCTION_PATIENCE, GOAL_SET_PATIENCE, FIRST_TICK_PATIENCE, FAIL_PATIENCE = 60.0, 10.0, 10.0, 10.0
 STOP_REASONS = ("agent_lost", "pose_lost", "command_timeout")  # the watchdog's, in the order it asks
-COMMAND_DROPS = (FUTURE, INCONSISTENT)
+COMMAND_DROPS = (FUTURE, INCONSISTENT, MISADDRESSED)
 CONTACT_KINDS = {"robot": 0, "obstacle": 1, "wall": 2}
 
 
@@ -289,13 +290,15 @@ class BodyNode:
             self.update_liveness()  # an agent's first command may overtake the news that it is alive
         self.early = [(k, cmd) for k, cmd in arrived if cmd.robot < self.scene.robots and not self.live[cmd.robot]]
         newest: dict[int, Command] = {}
-        for _, cmd in arrived:
+        for key, cmd in arrived:
             i = cmd.robot
             if i >= self.scene.robots or not self.live[i]:
                 continue
             why = (
                 FUTURE if cmd.tick > self.tick else None if stamp_agrees(cmd.tick, cmd.stamp, self.dt) else INCONSISTENT
             )
+            if Keys.last_id(key) not in (i, self.alive.sender.get(i)):  # its own key, or its host's frame
+                why = MISADDRESSED
             if why is not None:
                 self.tally.dropped[why][i] += 1
                 self.cmd_inbox.drops[why] += 1  # with the decoder's drops: the run's dropped messages

@@ -214,10 +214,11 @@ def test_a_command_for_a_tick_not_yet_published_or_stamped_off_its_tick_is_dropp
         node.tick = 50
         dt = node.dt
 
-        def command(tick: int, speed: float, stamp: float | None = None) -> None:
+        def command(tick: int, speed: float, stamp: float | None = None, key: str = bus.keys.cmd(0)) -> None:
             stamp = tick * dt if stamp is None else stamp
-            node.take_commands(("cmd", Command(0, tick, stamp, Command.WHEELS, speed, speed, 0, 0, 0)))
+            node.take_commands((key, Command(0, tick, stamp, Command.WHEELS, speed, speed, 0, 0, 0)))
 
+        command(50, 0.1, key=bus.keys.cmd(1))  # robot 1's key (or a stranger's) carrying robot 0's command
         command(51, 0.09)  # for a tick the node has not published: no agent can answer it
         command(50, 0.08, stamp=0.0)  # its stamp is not its tick's
         command(2**32 - 1, 0.07)  # forged at the largest tick: taken, it would shut out all for good
@@ -226,10 +227,10 @@ def test_a_command_for_a_tick_not_yet_published_or_stamped_off_its_tick_is_dropp
         stats = node.stats()
     assert drive.sent == [([0], [0.05], [0.05])]
     robot = stats["hardware"]["robots"][0]
-    assert robot["dropped_commands"] == {"future": 2, "inconsistent": 1}
+    assert robot["dropped_commands"] == {"future": 2, "inconsistent": 1, "misaddressed": 1}
     assert robot["late_commands"] == 1 and robot["commands_sent"] == 1
-    assert stats["dropped"] == {"future": 2, "inconsistent": 1}  # the run's dropped_messages
-    assert stats["hardware"]["robots"][1]["dropped_commands"] == {"future": 0, "inconsistent": 0}
+    assert stats["dropped"] == {"future": 2, "inconsistent": 1, "misaddressed": 1}  # the run's dropped_messages
+    assert stats["hardware"]["robots"][1]["dropped_commands"] == {"future": 0, "inconsistent": 0, "misaddressed": 0}
 
 
 # --- end to end: the restarted tracker -----------------------------------------------------------

@@ -399,6 +399,7 @@ LITERALS = [
     ("Infinity", "non-finite"),
     ("-Infinity", "non-finite"),
     ("1" * 5000, "invalid" if 0 < sys.get_int_max_str_digits() < 5000 else None),
+    ("[" * 5000 + "]" * 5000, "invalid"),  # deeper than Python's stack: a RecursionError killed the recorder's process
 ]
 OTHER_KINDS = (0, 1, 2, 3, 200, 255)  # unknown, or retired (1-3)
 
@@ -625,3 +626,11 @@ def test_every_kind_decodes_what_was_encoded_or_drops_it_with_one_reason(example
     fuzz()
     runs = len(seeds) * INPUTS_PER_EXAMPLE
     assert runs >= examples and min(inputs.values()) >= examples, (len(seeds), inputs)
+
+
+def test_an_event_nested_past_the_stack_is_dropped_as_invalid():
+    """One such event, sealed, on the event key killed the launcher (its recorder decodes every event)."""
+    drops: Counter = Counter()
+    body = ("[" * 5000 + "]" * 5000).encode()
+    assert decode(with_checksum(bytes([Event.KIND, VERSION]) + body), Event, drops) is None
+    assert drops == Counter({"invalid": 1})

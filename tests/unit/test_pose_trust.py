@@ -186,3 +186,24 @@ def test_a_swapped_marker_on_the_simulated_tracker_brakes_the_robot_without_cont
     reference = clean["pose"][:, GLITCH_ROBOT, :2]
     off_path = np.min(np.hypot(*(path[:, None, :] - reference[None, :, :]).transpose(2, 0, 1)), axis=1)
     assert off_path.max() < 0.02, f"a detour of {off_path.max():.3f} m"
+
+
+def test_a_pose_off_the_arena_is_refused_and_a_far_position_has_a_cell():
+    """A forged pose at 1e9 m was taken (at start-up with no check at all) and its cell overflowed the
+    int64 key of the cells a host keeps: the agent died. A pose beyond ARENA_SLACK off the arena is
+    refused; a position beyond any arena still has a cell (the outermost)."""
+    from agent.core.params import EPUCK
+    from agent.runtime import ARENA_SLACK, HostConfig, KeepCells, PoseIntake
+    from transport.codec import Pose, Poses
+    from transport.keys import cell_of, cells_of
+
+    intake = PoseIntake(HostConfig([0], EPUCK, arena=(-1.0, -1.0, 1.0, 1.0)), None)
+    at = lambda x, y: Pose(0, 5, 0.5, x, y, 0.0)  # noqa: E731
+    assert intake.take(at(1e9, 1e9), lambda: 5) == "invalid"
+    assert intake.take(at(1.0 + ARENA_SLACK + 0.01, 0.0), lambda: 5) == "invalid"
+    assert intake.take(at(1.0 + ARENA_SLACK - 0.01, 0.0), lambda: 5) is None
+    far = cell_of(1e300, -1e300, 0.6)
+    assert far == tuple(cells_of([[1e300, -1e300]], 0.6)[0]) and far[0] > 0 > far[1]
+    records = np.zeros(1, Poses.RECORD)
+    records["x"], records["y"] = 1e30, 1e30
+    assert not KeepCells({(0, 0)}, 0.6, frozenset()).mask(records).any()
