@@ -105,9 +105,9 @@ class NeighbourTable:
         rows = np.array(
             [(s.robot, s.x, s.y, s.vx, s.vy, s.radius, s.stamp, s.flags & State.DYNAMIC) for s in states], float
         ).reshape(-1, 8)  # one pass over the states, one array
-        heard = Heard(
-            rows[:, 0].astype(np.int64), rows[:, 1:3], rows[:, 3:5], rows[:, 5].copy(), rows[:, 6], rows[:, 7] == 0
-        )
+        # no robot of the display is smaller than its robots (a forged state's tiny radius is not believed)
+        radius = np.maximum(rows[:, 5], p.radius)
+        heard = Heard(rows[:, 0].astype(np.int64), rows[:, 1:3], rows[:, 3:5], radius, rows[:, 6], rows[:, 7] == 0)
         for i, s in enumerate(states):
             if s.robot in stopped:
                 heard.velocity[i], heard.stamp[i], heard.cooperative[i] = 0.0, sensed.stamp, False
@@ -149,10 +149,20 @@ class TrackedBodies:
 
 def with_bodies(heard: Heard, bodies: np.ndarray, stamp: float, params: RobotParams) -> Heard:
     """``heard``, and each body the tracker saw (``bodies``: Poses records) of a robot with no state newer
-    than ``stale_after``, in place of any older state: where it was seen, standing, not cooperating, and
-    stale by one tick. Its velocity unknown, robots steer around it as around a stale neighbour, and stand
-    where it may touch them (agent.core.control), rather than drive into a robot whose states were lost."""
-    unheard = ~np.isin(bodies["robot"], heard.ids[stamp - heard.stamp <= params.stale_after])
+    than ``stale_after``, or whose state puts it farther from that body than it could have driven since
+    (v_max) and a radius, in place of that state: where it was seen, standing, not cooperating, and stale
+    by one tick. Its velocity unknown, robots steer around it as around a stale neighbour, and stand where
+    it may touch them (agent.core.control), rather than drive into a robot whose states were lost, or whose
+    body is not where it says (driven by someone else, a forged state)."""
+    order = np.argsort(heard.ids, kind="stable")
+    if len(order):
+        at = order[np.minimum(np.searchsorted(heard.ids[order], bodies["robot"]), len(order) - 1)]
+        age = stamp - heard.stamp[at]
+        off = np.hypot(bodies["x"] - heard.position[at, 0], bodies["y"] - heard.position[at, 1])
+        said = (heard.ids[at] == bodies["robot"]) & (age <= params.stale_after)
+        unheard = ~(said & (off <= params.v_max * np.maximum(age, 0.0) + params.radius))
+    else:
+        unheard = np.ones(len(bodies), bool)
     if not unheard.any():
         return heard
     seen = bodies[unheard]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from functools import partial
 from types import SimpleNamespace
 
@@ -124,6 +125,28 @@ def test_a_robot_whose_states_are_lost_is_seen_where_the_tracker_sees_it():
     np.testing.assert_allclose(got.age[0, valid][order], [stale, stale, 0.1])
     assert got.cooperative[0, valid][order].tolist() == [False, False, True]
     assert got.age[0, valid].min() <= EPUCK.stale_after < got.age[0, valid].max()  # the core's own rule of stale
+
+
+def test_a_state_the_tracker_contradicts_or_a_robot_smaller_than_the_display_s_is_not_believed():
+    """A robot driven by someone else than its agent, or a forged state, is not where its state says: a
+    body farther from its state than it could have driven since (v_max) and a radius is taken from the
+    tracker's frame as one whose states were lost; and no state makes a robot smaller than the display's
+    robots (a forged radius of 0.1 mm let robots drive into it)."""
+    table = NeighbourTable(0.1)
+    table.update(_state(1, 0.3, 0.0, tick=10))  # honest: its body 1 cm on (0.1 s at most v_max, and noise)
+    table.update(_state(2, 0.0, 0.3, tick=10))  # its body 0.1 m away after 0.1 s: not where it says
+    table.update(dataclasses.replace(_state(3, -0.3, 0.0, tick=10), radius=1e-4))  # where it is, but tiny
+    bodies = np.zeros(3, Poses.RECORD)
+    bodies["robot"] = [1, 2, 3]
+    bodies["x"], bodies["y"] = [0.31, 0.0, -0.3], [0.0, 0.3 - EPUCK.radius - 0.02, 0.0]
+    got = table.gather(_sensed([0], [[0.0, 0.0]], 1.1, 11), 1.0, {}, bodies)
+    valid = got.valid[0]
+    order = np.lexsort(got.position[0, valid].T[::-1])  # by x
+    np.testing.assert_allclose(
+        got.position[0, valid][order], [[-0.3, 0.0], [0.0, 0.3 - EPUCK.radius - 0.02], [0.3, 0.0]], atol=1e-7
+    )
+    assert got.cooperative[0, valid][order].tolist() == [True, False, True]
+    assert got.radius[0, valid].min() >= EPUCK.radius
 
 
 def test_a_host_keeps_the_trackers_frames_near_the_tick_it_steps_whatever_else_comes():
