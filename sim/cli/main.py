@@ -330,6 +330,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     refuse_if(args.agents_timeout is not None and not args.remote_agents, "--agents-timeout goes with --remote-agents")
     if args.remote_agents and (args.secure is not None or args.agents_connect):
         raise UsageError("--remote-agents: the agents join by themselves; drop --secure and --agents-connect")
+    refuse_if(
+        bool(args.agents_connect) and not (args.connect or args.listen),
+        "--agents-connect: the run's own router must reach those routers: join one with -e ENDPOINT "
+        "(or listen where they connect with -l)",
+    )
     if args.remote_agents and any(e["kind"] == "fail" for e in scene.events):
         raise UsageError("--remote-agents: the scene's fail events kill agent processes, which the run has none of")
     out = args.out or default_run_path(scene.name)
@@ -593,7 +598,8 @@ def _check_out(out: Path) -> None:
     """UsageError unless a run directory can be made at ``out`` (made and removed again, as a trial, with the
     folders above it that were missing: the run makes them again, and a run refused later leaves nothing)."""
     trial = out.with_name(out.name + PARTIAL_SUFFIX)
-    refuse_if(out.exists() or trial.exists(), f"run directory {out} already exists; choose another --out")
+    refuse_if(out.exists(), f"run directory {out} already exists; choose another --out")
+    refuse_if(trial.exists(), f"{trial} exists (a run that was killed); remove it or choose another --out")
     missing = [folder for folder in out.parents if not folder.exists() and folder.name != ".."]
     try:
         out.parent.mkdir(parents=True, exist_ok=True)

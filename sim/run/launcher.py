@@ -106,6 +106,12 @@ def _last_said(log: Path, prefix: str) -> str | None:
     return next((ln.removeprefix(prefix) for ln in reversed(lines) if ln.startswith(prefix)), None)
 
 
+def _last_line(log: Path) -> str:
+    """A child's last words: the last line of its log (which goes with a run directory a failed start removes)."""
+    lines = [ln.strip() for ln in (log.read_text(errors="replace").splitlines() if log.exists() else []) if ln.strip()]
+    return lines[-1][-300:] if lines else "its log is empty"
+
+
 @dataclass
 class WorldOutcome:
     """What became of the world process: its exit code, its final report's statistics, whether it died mid-run."""
@@ -257,11 +263,11 @@ class Launcher:
             if not missing:
                 return
             if self._world_gone:
-                raise RuntimeError("the world process exited while waiting for agents: see logs/world.log")
+                world_log = self.run_dir / "logs" / "world.log"
+                raise RuntimeError(f"the world process exited while waiting for agents: {_last_line(world_log)}")
             if waited > self.opt.agents_timeout:
-                absent = [i for i in ids if not rec.progress.agent_alive[i]]
                 raise UsageError(  # remote agents that did not come: one line naming their robots
-                    f"no agent came for robots {format_ids(absent)} within {self.opt.agents_timeout:g} s "
+                    f"no agent came for robots {format_ids(missing)} within {self.opt.agents_timeout:g} s "
                     f"(start them with `pixelswarm agents --connect {endpoint}`)"
                 )
             self._say(f"[{self.scene.name}] waiting for agents: {len(ids) - len(missing)}/{len(ids)} robots' {what}")
@@ -503,8 +509,8 @@ class Launcher:
             said = None if refusal is None else _last_said(child.log, refusal)
             if said is not None:
                 raise UsageError(said)  # e.g. the hardware node refused to start: its one line
-            if exited:
-                raise RuntimeError(f"{child.name} exited with code {child.proc.returncode}: see {child.log}")
+            if exited:  # its log goes with the run directory the failed start removes: its last line here
+                raise RuntimeError(f"{child.name} exited with code {child.proc.returncode}: {_last_line(child.log)}")
             if self.end.stop_signal is not None:
                 raise Interrupted()  # before the run started, even if it came alive: nothing is written
             if any(e["role"] == role and e["alive"] for e in rec.happened.liveliness):

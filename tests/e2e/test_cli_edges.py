@@ -167,6 +167,21 @@ def test_a_flag_no_run_can_use_is_refused_as_it_is_read(tmp_path, capsys, monkey
     assert not list(tmp_path.iterdir())
 
 
+def test_agents_sent_to_routers_the_run_does_not_reach_are_refused(tmp_path, capsys):
+    """The documented --agents-connect example lacked -e: its agents never heard the run, which waited 300 s."""
+    line = refused_in_process(
+        capsys, "run", "circle", "--out", str(tmp_path / "r"), *FAST, "--agents-connect", "tcp/127.0.0.1:9"
+    )
+    assert "--agents-connect: the run's own router must reach those routers: join one with -e" in line, line
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_killed_run_s_partial_folder_is_named_when_out_is_refused(tmp_path, capsys):
+    (tmp_path / "r.partial").mkdir()
+    line = refused_in_process(capsys, "run", "circle", "--out", str(tmp_path / "r"), *FAST)
+    assert f"{tmp_path / 'r.partial'} exists (a run that was killed); remove it or choose another --out" in line, line
+
+
 def test_a_run_refused_after_its_out_was_tried_leaves_no_folder_it_made(tmp_path, capsys):
     """--out's missing parent folders are made to try it, and removed again when the run is refused later."""
     out = tmp_path / "new" / "deeper" / "r"
@@ -261,8 +276,9 @@ def test_a_run_whose_agent_processes_exit_at_start_up_names_the_robots_and_exits
     """The agents' router is not there: each agent process gives up on its session (exit 2)."""
     out = tmp_path / "r"
     nowhere = f"tcp/127.0.0.1:{free_port()}"
+    ours = ("-l", f"tcp/127.0.0.1:{free_port()}")  # the run's router, which the agents do not reach
     result = run_pixelswarm(
-        "run", "circle", "--robots", "3", "--out", str(out), *FAST, "--agents-connect", nowhere, timeout=180
+        "run", "circle", "--robots", "3", "--out", str(out), *FAST, *ours, "--agents-connect", nowhere, timeout=180
     )
     assert result.returncode == 3, result.stderr
     line = one_error_line(result.stderr)
