@@ -117,6 +117,16 @@ def _shortened(text: str, most: int = 100) -> str:
     return text if len(text) <= most else f"{text[: cut if cut > 0 else most]}, ..."
 
 
+def listen_endpoints(settings: ZenohSettings) -> list[str]:
+    """Where a session listens: its flags', else its configuration file's (TransportError: a file that cannot be read)."""
+    if settings.listen or not settings.config_file:
+        return list(settings.listen)
+    endpoints = json.loads(_config_file(settings.config_file).get_json("listen/endpoints"))
+    if isinstance(endpoints, dict):  # zenoh's per-mode default
+        endpoints = endpoints.get(settings.mode, [])
+    return [str(e) for e in endpoints]
+
+
 def _endpoints(settings: ZenohSettings, conf: zenoh.Config | None) -> list[str]:
     """Where a session listens (or connects, if it does not listen): its flags', else its configuration file's."""
     ours = settings.listen or settings.connect
@@ -182,6 +192,16 @@ def zenoh_reason(text: str, mode: str, endpoints: list[str] | None = None) -> tu
         else "is a router running there? start one with `pixelswarm router`"
     )
     hint = next((h for pattern, h in _HINTS if pattern in lower), default)
+    tls = any(e.startswith("tls/") for e in endpoints or [])
+    refused = any(w in lower for w in ("certificate", "trust anchor", "private key", "tls listener"))
+    if (
+        tls
+        and "address already in use" not in lower
+        and (refused or (mode != "router" and "unable to connect" in lower))
+    ):
+        # over TLS a refused certificate (expired, another authority's, damaged) looks like silence
+        hint = "are the certificates of one folder, readable and not expired?"
+        hint = hint if mode == "router" else f"is a router running there, and {hint}"
     return reason[:1].lower() + reason[1:], hint.format(listen=_another_port(text, endpoints or []))
 
 

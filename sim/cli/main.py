@@ -49,7 +49,14 @@ from sim.run.remote_agents import add_agents_parser
 from sim.study.runner import add_study_parser
 from transport.faults import parse_faults
 from transport.security import SecurityError, check_folder, make_certificates, router_config
-from transport.session import TransportError, ZenohSettings, add_zenoh_args, open_session, settings_from_args
+from transport.session import (
+    TransportError,
+    ZenohSettings,
+    add_zenoh_args,
+    listen_endpoints,
+    open_session,
+    settings_from_args,
+)
 
 STARTUP_FAILED = 3  # exit code of a run whose agents did not all come alive (docs/cli.md)
 GOALS_SAID_AFTER = 0.5  # s: goal sets that take longer are said on stderr, so a long start-up is not silent
@@ -638,8 +645,10 @@ def cmd_router(args: argparse.Namespace) -> int:
     refuse_if(settings.mode != "router", "pixelswarm router runs in router mode; drop -m")
     if not settings.listen and not settings.config_file:
         settings.listen = ["tcp/127.0.0.1:7447"]
+    with usage_errors(TransportError):
+        where = ", ".join(listen_endpoints(settings))
+    refuse_if(not where, f"--zenoh-config {settings.config_file} names no endpoint to listen on: give -l tls/HOST:PORT")
     session = open_session(settings)
-    where = ", ".join(settings.listen) or f"the endpoints of {settings.config_file}"
     try:
         with stopped_by_signals() as stop:
             print(f"router listening on {where} (Ctrl-C to stop)", flush=True)

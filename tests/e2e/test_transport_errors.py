@@ -35,3 +35,24 @@ def test_a_missing_zenoh_config_file_is_said_as_missing_not_as_a_busy_port(tmp_p
     missing = tmp_path / "router.json5"
     line = refused("router", "--zenoh-config", str(missing))
     assert line == f"pixelswarm router: error: --zenoh-config {missing}: no such file or directory"
+
+
+@pytest.mark.parametrize(
+    "text, mode, hint",
+    [
+        ("Unable to connect to any of [tls/127.0.0.1:5]! timeout", "client", "is a router running there, and are the"),
+        ("Cannot create a new TLS listener: no root trust anchors were provided", "router", "are the certificates of"),
+        ("Invalid TLS private key file: No such file or directory (os error 2)", "client", "readable and not expired"),
+        (
+            "TLS listener on tls/127.0.0.1:5: Address already in use (os error 98)",
+            "router",
+            "choose another with -l tls",
+        ),
+    ],
+)
+def test_over_tls_a_refused_certificate_is_hinted_as_such(text, mode, hint):
+    """A session with a wrong, expired or missing certificate was told to start a router, or that its
+    port was busy, or how an endpoint is written: over TLS the certificates are what to check."""
+    from transport.session import zenoh_reason
+
+    assert hint in zenoh_reason(text, mode, ["tls/127.0.0.1:5"])[1]

@@ -256,3 +256,13 @@ def test_a_busy_tls_port_is_said_with_a_tls_endpoint_to_try_instead(tls_router, 
     line = result.stderr.strip()
     assert "\n" not in line and f"on {tls_router}: address already in use" in line, line
     assert line.endswith("choose another with -l tls/127.0.0.1:PORT"), line
+
+
+def test_a_router_whose_configuration_listens_nowhere_is_refused(tmp_path):
+    """Certificates made without --listen give the router no endpoint: `pixelswarm router --zenoh-config
+    router.json5` said it was listening and listened nowhere."""
+    made = run_pixelswarm("certs", str(tmp_path / "c"), "--robots", "1", timeout=120)
+    assert made.returncode == 0, made.stderr
+    result = run_pixelswarm("router", "--zenoh-config", str(tmp_path / "c" / "router.json5"), timeout=60)
+    assert result.returncode == 2 and result.stdout == "", (result.stdout, result.stderr)
+    assert result.stderr.strip().endswith("names no endpoint to listen on: give -l tls/HOST:PORT"), result.stderr
