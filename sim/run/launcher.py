@@ -287,6 +287,10 @@ class Launcher:
     def _world_gone(self) -> bool:
         return any(c.name == "world" and c.proc.poll() is not None for c in self.children)
 
+    def _crashed_world(self) -> Child | None:
+        """The world process, if it exited with an error code."""
+        return next((c for c in self.children if c.name == "world" and c.proc.poll() not in (None, 0)), None)
+
     @property
     def _frames(self) -> bool:
         """Agent hosts of several robots trade one pose frame of every robot and one command frame a
@@ -460,6 +464,10 @@ class Launcher:
             if gone:
                 codes = ", ".join(map(str, sorted({c.proc.returncode for c in exited if set(c.robots) & set(gone)})))
                 why = f" (the agent process of {_robots(gone)} exited with code {codes})"
+            elif (world := self._crashed_world()) is not None:  # the world's failure, not the agents'
+                raise RuntimeError(
+                    f"the world process exited with code {world.proc.returncode}: {_last_line(world.log)}"
+                )
             elif self._world_gone or self._world_done(rec) is not None:
                 why = " before the world process ended"
             elif waited > self.opt.startup_timeout:

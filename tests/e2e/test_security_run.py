@@ -81,3 +81,21 @@ def test_an_unreadable_folder_is_refused(tmp_path):
             check_folder(folder, 2)
     finally:
         folder.chmod(0o700)
+
+
+@pytest.mark.slow
+def test_a_world_that_cannot_join_is_said_in_its_own_words_and_nothing_is_written(tmp_path):
+    """The world's certificate damaged: it dies at start-up. That was blamed on the agents (exit 3, 'no
+    agent came alive before the world process ended'), and start-up failures pointed at a log inside the
+    run directory they had just removed. Exit 1, the world's own last line, nothing written."""
+    certs = make_certificates(tmp_path / "certs", 2)  # its files named by absolute path: damaged where made
+    (certs / "world.pem").write_text("not a certificate\n")
+    out = tmp_path / "r"
+    result = run_pixelswarm(
+        "run", "circle", "--robots", "2", "--secure", str(certs), "--out", str(out), "--no-video", "--no-plots",
+        "--startup-timeout", "30", timeout=180,
+    )  # fmt: skip
+    assert result.returncode == 1, result.stderr
+    line = result.stderr.strip().splitlines()[-1]
+    assert line.startswith("pixelswarm run: error: the world process exited with code "), line
+    assert "see " not in line and not out.exists() and not out.with_name("r.partial").exists()
