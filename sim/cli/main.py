@@ -34,6 +34,7 @@ from sim.args import (
     UsageError,
     add_seconds,
     display_name,
+    format_ids,
     new_directory,
     positive_int,
     refuse,
@@ -703,9 +704,12 @@ def cmd_stop(args: argparse.Namespace) -> int:
             settings = ZenohSettings(mode="client", connect=[args.connect])
         unreached = stop_all(config, settings)
     if unreached:
-        print(f"pixelswarm stop: error: robots {', '.join(map(str, unreached))} were not reached", file=sys.stderr)
+        print(f"pixelswarm stop: error: robots {format_ids(unreached)} were not reached", file=sys.stderr)
         return 1
-    print(f"stopped every robot of {args.hardware}")
+    if config.backend_kind == "sim":
+        print(f"{args.hardware}: simulated robots: nothing to stop")
+    else:
+        print(f"stopped every robot of {args.hardware}")
     return 0
 
 

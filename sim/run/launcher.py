@@ -620,7 +620,7 @@ class Launcher:
             for e in rec.happened.liveliness
             if e["role"] == "agent" and not e["alive"] and e["wall_time"] < self.end.shutdown_wall
         ]
-        self._say(f"[{self.scene.name}] run ended ({end_reason}); writing {self.run_dir.path.name}", force=True)
+        self._say(f"[{self.scene.name}] run ended ({end_reason}); writing {self.opt.out.name}", force=True)
         traffic = Traffic(
             rec.tally.counts, rec.tally.bytes, int(stats.get("missed_ticks", 0)), len(self.incidents.crashes)
         )

@@ -542,3 +542,11 @@ def test_a_hardware_file_can_name_the_simulator(tmp_path):
     assert result.returncode == 0, result.stderr[-2000:]
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["engine"] == "distributed" and metrics["robots"] == 4 and "hardware" not in metrics
+
+
+def test_pixelswarm_stop_of_simulated_robots_says_there_is_nothing_to_stop(tmp_path):
+    """It said it had stopped every robot of a file whose robots are simulated."""
+    hw = tmp_path / "sim.toml"
+    hw.write_text('[backend]\nkind = "sim"\n')
+    result = run_pixelswarm("stop", "--hardware", str(hw), timeout=60)
+    assert result.returncode == 0 and result.stdout.strip() == f"{hw}: simulated robots: nothing to stop", result
