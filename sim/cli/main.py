@@ -609,6 +609,8 @@ def _check_out(out: Path) -> None:
     refuse_if(out.exists(), f"run directory {out} already exists; choose another --out")
     refuse_if(trial.exists(), f"{trial} exists (a run that was killed); remove it or choose another --out")
     missing = [folder for folder in out.parents if not folder.exists() and folder.name != ".."]
+    blocking = next((folder for folder in out.parents if folder.is_file()), None)
+    refuse_if(blocking is not None, f"--out {out}: {blocking} is a file, not a folder")
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         trial.mkdir()

@@ -176,6 +176,12 @@ def test_agents_sent_to_routers_the_run_does_not_reach_are_refused(tmp_path, cap
     assert not list(tmp_path.iterdir())
 
 
+def test_an_out_below_a_file_says_so(tmp_path, capsys):
+    (tmp_path / "afile").write_text("")
+    line = refused_in_process(capsys, "run", "circle", "--out", str(tmp_path / "afile" / "r"), *FAST)
+    assert line.endswith(f"{tmp_path / 'afile'} is a file, not a folder"), line  # it said (File exists)
+
+
 def test_a_killed_run_s_partial_folder_is_named_when_out_is_refused(tmp_path, capsys):
     (tmp_path / "r.partial").mkdir()
     line = refused_in_process(capsys, "run", "circle", "--out", str(tmp_path / "r"), *FAST)
