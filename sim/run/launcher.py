@@ -155,6 +155,7 @@ class Launcher:
         self.end = RunEnd()
         self.run_dir = RunDir(options.out)
         self._last_say = 0.0  # when progress was last said (monotonic)
+        self._liveliness_seen = 0  # remote agents: the liveliness events looked at for departures
 
     # --- processes ----------------------------------------------------------------------------
     def _spawn(
@@ -266,8 +267,15 @@ class Launcher:
                 world_log = self.run_dir / "logs" / "world.log"
                 raise RuntimeError(f"the world process exited while waiting for agents: {_last_line(world_log)}")
             if waited > self.opt.agents_timeout:
-                raise UsageError(  # remote agents that did not come: one line naming their robots
-                    f"no agent came for robots {format_ids(missing)} within {self.opt.agents_timeout:g} s "
+                # remote agents that did not come, or came and left: one line naming their robots
+                left = {
+                    int(e["id"])
+                    for e in rec.happened.liveliness
+                    if e["role"] == "agent" and not e["alive"] and str(e["id"]).isdigit()
+                }
+                absent = sorted(set(missing) | {i for i in left if not rec.progress.agent_alive[i]})
+                raise UsageError(
+                    f"no agent came for robots {format_ids(absent)} within {self.opt.agents_timeout:g} s "
                     f"(start them with `pixelswarm agents --connect {endpoint}`)"
                 )
             self._say(f"[{self.scene.name}] waiting for agents: {len(ids) - len(missing)}/{len(ids)} robots' {what}")
@@ -305,6 +313,18 @@ class Launcher:
         return [j for j in agents if j not in mine and np.min(np.hypot(*(own - xy[j]).T)) <= self.params.state_reach]
 
     def _check_children(self, recorder: Recorder) -> None:
+        if self.opt.remote_agents:  # no process of ours: their liveliness says when they leave
+            left = recorder.happened.liveliness[self._liveliness_seen :]
+            self._liveliness_seen += len(left)
+            gone = sorted(
+                int(e["id"]) for e in left if e["role"] == "agent" and not e["alive"] and str(e["id"]).isdigit()
+            )
+            ended = recorder.progress.ended_at is not None or self.end.stop_signal is not None
+            under_way = not ended and not any(e.get("kind") == "world-done" for e in recorder.happened.events)
+            if gone and under_way and self.end.startup_failure is None:
+                _warn(
+                    f"pixelswarm: the agents of robots {format_ids(gone)} left the run; their robots stay in the world, stopped"
+                )
         for child in self.children:
             code = child.proc.poll()
             if code is None or child.reported:

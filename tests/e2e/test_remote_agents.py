@@ -15,7 +15,7 @@ import psutil
 import pytest
 
 from sim.run.remote_agents import format_ids, merge_configs, parse_ids
-from tests.conftest import REPO, agent_processes, pixelswarm_cmd, run_pixelswarm, wait_for
+from tests.conftest import REPO, agent_processes, pixelswarm_cmd, run_pixelswarm, ticks_so_far, wait_for
 from transport.session import free_port, listening
 
 TIMEOUT = 90  # s for one end-to-end command on a loaded machine
@@ -185,3 +185,22 @@ def test_merged_host_greets_only_other_hosts_robots():
     merged = merge_configs([a, b])
     assert merged.robots == [0, 1] and merged.greet == [2, 3] and merged.pursue == {0: 5}
     assert merged.lockstep
+
+
+@pytest.mark.slow
+def test_remote_agents_that_leave_mid_run_are_said(tmp_path, spawned):
+    """Local agents that die are said on stderr; remote ones that left said nothing (only metrics.json's
+    liveliness_lost), and the progress line said it waited for a goal set."""
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    run = start_run(spawned, tmp_path, port, "--duration", "12", clock="realtime")
+    assert wait_for(lambda: run.poll() is not None or listening(port), 30), "the run's router never listened"
+    agents = start(spawned, tmp_path / "agents.err", "agents", "--connect", endpoint)
+    assert len(agents_of(agents, 6)) == 6
+    assert wait_for(lambda: ticks_so_far(tmp_path / "run") >= 20, 60), "the run never ticked"
+    agents.send_signal(signal.SIGINT)
+    finish(agents)
+    assert finish(run).strip() == str(tmp_path / "run") and run.returncode == 0
+    said = [ln for ln in (tmp_path / "run.err").read_text().splitlines() if "left the run" in ln]
+    robots = {r for ln in said for r in parse_ids(ln.split("robots ")[1].split(" left")[0].replace(" ", ""))}
+    assert robots == set(range(6)), said
