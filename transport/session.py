@@ -121,10 +121,7 @@ def listen_endpoints(settings: ZenohSettings) -> list[str]:
     """Where a session listens: its flags', else its configuration file's (TransportError: a file that cannot be read)."""
     if settings.listen or not settings.config_file:
         return list(settings.listen)
-    endpoints = json.loads(_config_file(settings.config_file).get_json("listen/endpoints"))
-    if isinstance(endpoints, dict):  # zenoh's per-mode default
-        endpoints = endpoints.get(settings.mode, [])
-    return [str(e) for e in endpoints]
+    return _configured(_config_file(settings.config_file), "listen/endpoints", settings.mode)
 
 
 def _endpoints(settings: ZenohSettings, conf: zenoh.Config | None) -> list[str]:
@@ -132,13 +129,15 @@ def _endpoints(settings: ZenohSettings, conf: zenoh.Config | None) -> list[str]:
     ours = settings.listen or settings.connect
     if ours or conf is None:
         return ours
-    for key in ("listen/endpoints", "connect/endpoints"):
-        endpoints = json.loads(conf.get_json(key))
-        if isinstance(endpoints, dict):  # zenoh's per-mode default
-            endpoints = endpoints.get(settings.mode, [])
-        if endpoints:
-            return [str(e) for e in endpoints]
-    return []
+    return _configured(conf, "listen/endpoints", settings.mode) or _configured(conf, "connect/endpoints", settings.mode)
+
+
+def _configured(conf: zenoh.Config, key: str, mode: str) -> list[str]:
+    """A configuration's endpoints under ``key`` for a session of ``mode``."""
+    endpoints = json.loads(conf.get_json(key))
+    if isinstance(endpoints, dict):  # zenoh's per-mode default
+        endpoints = endpoints.get(mode, [])
+    return [str(e) for e in endpoints]
 
 
 def open_session(settings: ZenohSettings) -> zenoh.Session:

@@ -106,6 +106,13 @@ def _last_said(log: Path, prefix: str) -> str | None:
     return next((ln.removeprefix(prefix) for ln in reversed(lines) if ln.startswith(prefix)), None)
 
 
+def _departed(liveliness: list[dict]) -> list[int]:
+    """The robots whose agent's liveliness ended, of these liveliness events (the recorder's)."""
+    return sorted(
+        {int(e["id"]) for e in liveliness if e["role"] == "agent" and not e["alive"] and str(e["id"]).isdigit()}
+    )
+
+
 def _last_line(log: Path) -> str:
     """A child's last words: the last line of its log (which goes with a run directory a failed start removes)."""
     lines = [ln.strip() for ln in (log.read_text(errors="replace").splitlines() if log.exists() else []) if ln.strip()]
@@ -268,12 +275,8 @@ class Launcher:
                 raise RuntimeError(f"the world process exited while waiting for agents: {_last_line(world_log)}")
             if waited > self.opt.agents_timeout:
                 # remote agents that did not come, or came and left: one line naming their robots
-                left = {
-                    int(e["id"])
-                    for e in rec.happened.liveliness
-                    if e["role"] == "agent" and not e["alive"] and str(e["id"]).isdigit()
-                }
-                absent = sorted(set(missing) | {i for i in left if not rec.progress.agent_alive[i]})
+                left = [i for i in _departed(rec.happened.liveliness) if not rec.progress.agent_alive[i]]
+                absent = sorted(set(missing) | set(left))
                 raise UsageError(
                     f"no agent came for robots {format_ids(absent)} within {self.opt.agents_timeout:g} s "
                     f"(start them with `pixelswarm agents --connect {endpoint}`)"
@@ -295,6 +298,16 @@ class Launcher:
     def _world_gone(self) -> bool:
         return any(c.name == "world" and c.proc.poll() is not None for c in self.children)
 
+    def _under_way(self, rec: Recorder) -> bool:
+        """Started and not ending: no stop said, no end recorded, no final report from the world."""
+        if (
+            self.end.startup_failure is not None
+            or self.end.stop_signal is not None
+            or rec.progress.ended_at is not None
+        ):
+            return False
+        return not any(e.get("kind") == "world-done" for e in rec.happened.events)
+
     def _crashed_world(self) -> Child | None:
         """The world process, if it exited with an error code."""
         return next((c for c in self.children if c.name == "world" and c.proc.poll() not in (None, 0)), None)
@@ -314,14 +327,9 @@ class Launcher:
 
     def _check_children(self, recorder: Recorder) -> None:
         if self.opt.remote_agents:  # no process of ours: their liveliness says when they leave
-            left = recorder.happened.liveliness[self._liveliness_seen :]
-            self._liveliness_seen += len(left)
-            gone = sorted(
-                int(e["id"]) for e in left if e["role"] == "agent" and not e["alive"] and str(e["id"]).isdigit()
-            )
-            ended = recorder.progress.ended_at is not None or self.end.stop_signal is not None
-            under_way = not ended and not any(e.get("kind") == "world-done" for e in recorder.happened.events)
-            if gone and under_way and self.end.startup_failure is None:
+            events = recorder.happened.liveliness[self._liveliness_seen :]
+            self._liveliness_seen += len(events)
+            if (gone := _departed(events)) and self._under_way(recorder):
                 _warn(
                     f"pixelswarm: the agents of robots {format_ids(gone)} left the run; their robots stay in the world, stopped"
                 )

@@ -11,6 +11,7 @@ import signal
 import subprocess
 import sys
 from html.parser import HTMLParser
+from pathlib import Path
 
 import psutil
 import pytest
@@ -267,16 +268,9 @@ def test_bad_command_lines_exit_2(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
-@pytest.mark.slow
-def test_ctrl_c_stops_the_runs_it_started_and_keeps_the_finished_ones(tmp_path):
-    # a short central run, then a long distributed one to interrupt: on the wall clock, as two robots in
-    # lock-step converge (and end the run) so soon that a loaded machine's Ctrl-C may come after
-    spec = tmp_path / "spec.toml"
-    spec.write_text(
-        'seeds = [1]\n[base]\nscene = "swap"\nrobots = 2\nengine = "central"\nduration = 1.0\n'
-        '[baseline]\nengine = "distributed"\nagents_per_process = 2\nduration = 90.0\nclock = "realtime"\n'
-    )
-    out = tmp_path / "out"
+def interrupt_study(spec: Path, out: Path, run: str, stop: signal.Signals, timeout: float) -> tuple[int, str, list]:
+    """`pixelswarm study SPEC --out OUT --jobs 1`, sent ``stop`` once ``run`` has begun (its .partial exists):
+    its exit code, its stderr and the processes it had started by then."""
     command = [sys.executable, "-m", "sim.cli", "study", str(spec), "--out", str(out), "--jobs", "1"]
     # Ctrl-C's SIGINT as a terminal delivers it, even if whoever started pytest ignores SIGINT
     study_process = subprocess.Popen(
@@ -288,16 +282,30 @@ def test_ctrl_c_stops_the_runs_it_started_and_keeps_the_finished_ones(tmp_path):
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     try:
-        assert wait_for(lambda: (out / "runs" / "baseline_seed-1.partial").exists(), timeout=120)
+        assert wait_for(lambda: (out / "runs" / f"{run}.partial").exists(), timeout=120)
         started = descendants(study_process.pid)
-        assert started  # the run and its processes
-        study_process.send_signal(signal.SIGINT)
-        _, err = study_process.communicate(timeout=120)
+        study_process.send_signal(stop)
+        _, err = study_process.communicate(timeout=timeout)
     finally:
         if study_process.poll() is None:
             study_process.kill()
             study_process.wait()
-    assert study_process.returncode == 130, err[-3000:]
+    return study_process.returncode, err, started
+
+
+@pytest.mark.slow
+def test_ctrl_c_stops_the_runs_it_started_and_keeps_the_finished_ones(tmp_path):
+    # a short central run, then a long distributed one to interrupt: on the wall clock, as two robots in
+    # lock-step converge (and end the run) so soon that a loaded machine's Ctrl-C may come after
+    spec = tmp_path / "spec.toml"
+    spec.write_text(
+        'seeds = [1]\n[base]\nscene = "swap"\nrobots = 2\nengine = "central"\nduration = 1.0\n'
+        '[baseline]\nengine = "distributed"\nagents_per_process = 2\nduration = 90.0\nclock = "realtime"\n'
+    )
+    out = tmp_path / "out"
+    returncode, err, started = interrupt_study(spec, out, "baseline_seed-1", signal.SIGINT, timeout=120)
+    assert started  # the run and its processes
+    assert returncode == 130, err[-3000:]
     assert "stopped by SIGINT; 1 of 2 runs done" in err
     assert not [p.pid for p in started if p.is_running() and p.status() != psutil.STATUS_ZOMBIE]
     assert json.loads((out / "runs" / "base_seed-1" / "metrics.json").read_text())["complete"] is True
@@ -316,25 +324,9 @@ def test_a_stopped_study_starts_none_of_its_queued_runs(stop, tmp_path):
         'agents_per_process = 2\nduration = 90.0\nclock = "realtime"\n'
     )
     out = tmp_path / "out"
-    command = [sys.executable, "-m", "sim.cli", "study", str(spec), "--out", str(out), "--jobs", "1"]
-    study_process = subprocess.Popen(
-        command,
-        cwd=REPO,
-        stderr=subprocess.PIPE,
-        stdout=subprocess.DEVNULL,
-        text=True,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-    )
-    try:
-        assert wait_for(lambda: (out / "runs" / "base_seed-1.partial").exists(), timeout=120)
-        started = descendants(study_process.pid)
-        study_process.send_signal(stop)
-        _, err = study_process.communicate(timeout=STOP_GRACE_S)  # a run stops in a second or two
-    finally:
-        if study_process.poll() is None:
-            study_process.kill()
-            study_process.wait()
-    assert study_process.returncode == 128 + stop, err[-3000:]
+    # a run stops in a second or two
+    returncode, err, started = interrupt_study(spec, out, "base_seed-1", stop, timeout=STOP_GRACE_S)
+    assert returncode == 128 + stop, err[-3000:]
     last = err.strip().splitlines()[-1]
     assert last.startswith(f"pixelswarm study: stopped by {stop.name}; 0 of 4 runs done") and "Traceback" not in err
     # the queued ones never started; the running one wrote what it recorded, marked incomplete (nothing if
