@@ -40,22 +40,30 @@ def check_address(address: str) -> None:
         raise UsageError(f"--scheduler must be tcp://HOST:PORT, not {address!r} (a Dask scheduler's address)")
 
 
-def connect(address: str | None, jobs: int) -> tuple[Any, Any]:
+def connect(address: str | None, jobs: int) -> tuple[Any, contextlib.ExitStack]:
     """A client of the scheduler at ``address``, or of a local cluster of ``jobs`` worker threads on
-    127.0.0.1 (returned second, to close after the client)."""
+    127.0.0.1; closing the stack returned second closes the client, then the cluster and its scratch folder."""
     try:
         import dask
         from distributed import Client, LocalCluster
     except ImportError:
         raise UsageError("studies run through dask.distributed: pip install 'dask[distributed]'") from None
+    closing = contextlib.ExitStack()
     if address is None:
-        # in this process, over Dask's in-process transport: no port is opened at all
-        with dask.config.set(QUIET):  # read as the scheduler and worker are made
+        # in this process, over Dask's in-process transport: no port is opened at all; the worker's
+        # scratch folder is ours, removed at the end (Dask's default outlives the study in /tmp)
+        scratch = closing.enter_context(tempfile.TemporaryDirectory(prefix="pixelswarm-study-"))
+        with dask.config.set({**QUIET, "temporary-directory": scratch}):  # read as the scheduler and worker are made
             cluster = LocalCluster(n_workers=1, threads_per_worker=jobs, processes=False, dashboard_address=None)
-        return Client(cluster), cluster
+        closing.callback(cluster.close)
+        client = Client(cluster)
+        closing.callback(client.close)
+        return client, closing
     check_address(address)
     try:
-        return Client(address, timeout=CONNECT_TIMEOUT_S), None
+        client = Client(address, timeout=CONNECT_TIMEOUT_S)
+        closing.callback(client.close)
+        return client, closing
     except (OSError, TimeoutError) as err:
         first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
         raise UsageError(f"cannot reach the Dask scheduler at {address}: {first}") from None

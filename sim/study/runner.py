@@ -80,8 +80,8 @@ def execute(spec: Spec, study: StudyDir, jobs: int, scheduler: str | None) -> Pr
 
     runs = spec.runs()
     todo = [r for r in runs if study.metrics(r) is None]
-    client, cluster = connect(scheduler, jobs)
-    try:
+    client, closing = connect(scheduler, jobs)
+    with closing:
         slots = sum(client.nthreads().values()) or jobs if scheduler else jobs
         progress = Progress(len(runs), max(1, slots), len(runs) - len(todo))
         where = f"on the cluster at {scheduler} ({slots} worker threads)" if scheduler else f"{jobs} at a time"
@@ -112,10 +112,6 @@ def execute(spec: Spec, study: StudyDir, jobs: int, scheduler: str | None) -> Pr
             _wind_down(pending, study, progress)
             raise Interrupted from None
         return progress
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
 
 
 def _wind_down(pending: dict[Any, Run], study: StudyDir, progress: Progress) -> None:
@@ -192,7 +188,7 @@ def cmd_study(args: argparse.Namespace) -> int:
         check_address(args.scheduler)
     spec = load_spec(args.spec)
     if args.scheduler is not None:  # reached before anything is written or started
-        connect(args.scheduler, 1)[0].close()
+        connect(args.scheduler, 1)[1].close()
     study = StudyDir(args.out or Path("runs") / f"study-{spec.name}")
     refuse_if(study.root.exists() and not study.root.is_dir(), f"--out {study.root} is a file, not a directory")
     study.check_same(spec)

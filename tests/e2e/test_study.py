@@ -167,8 +167,11 @@ def test_a_failed_run_is_recorded_and_the_study_goes_on(tmp_path):
     )
     spec = tmp_path / "spec.toml"
     spec.write_text('seeds = [1, 2]\n[base]\nscene = "dies.toml"\nengine = "central"\nduration = 1.0\n')
-    result = study(spec, tmp_path / "out", "--jobs", "1")
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    result = study(spec, tmp_path / "out", "--jobs", "1", tmpdir=scratch)
     assert result.returncode == 1, result.stderr[-3000:]
+    assert list(scratch.iterdir()) == []  # the local cluster's scratch space too
     rows = read_csv(tmp_path / "out" / "runs.csv")
     assert [(r["id"], r["status"]) for r in rows] == [("base_seed-1", "failed"), ("base_seed-2", "failed")]
     for row in rows:

@@ -35,6 +35,7 @@ class Cluster:
         self.address = f"tcp://127.0.0.1:{self.port}"
         self.logs = root / "dask-logs"
         self.logs.mkdir(parents=True)
+        self.env = dict(os.environ, DASK_TEMPORARY_DIRECTORY=str(root))  # Dask's scratch, not /tmp's
         self.scheduler = self._start(
             "scheduler", [*DASK, "--host", "127.0.0.1", "--port", str(self.port), "--no-dashboard"]
         )
@@ -43,7 +44,9 @@ class Cluster:
 
     def _start(self, name: str, command: list[str]) -> subprocess.Popen:
         log = open(self.logs / f"{name}.log", "w")  # noqa: SIM115 - closed with the process
-        return subprocess.Popen(command, cwd=REPO, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        return subprocess.Popen(
+            command, cwd=REPO, stdout=log, stderr=subprocess.STDOUT, start_new_session=True, env=self.env
+        )
 
     def add_worker(self, root: Path, name: str) -> subprocess.Popen:
         command = [*WORKER, self.address, "--host", "127.0.0.1", "--nthreads", "1", "--no-nanny"]
