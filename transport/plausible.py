@@ -20,6 +20,7 @@ STAMP_SLACK = 1e-6  # s: tick x dt against the stamp, for the rounding of two fl
 
 FUTURE, STALE, INCONSISTENT = "future", "stale", "inconsistent"
 MISADDRESSED = "misaddressed"  # a record for another robot than its key (or its sender) names
+CONFLICTING = "conflicting"  # a second, different command for a robot's tick: two controllers drive it
 
 
 class Clock:

@@ -628,6 +628,7 @@ def _metrics(outcome: Outcome) -> dict[str, Any]:
         expired_commands=0,
         stopped_ticks=0,
         withheld_ticks=0,  # tracker outages need the distributed engine
+        commanded_two_ways=[],  # no bus carries its commands
         orca_fallbacks=outcome.fallbacks,
         poses_held=0,  # the tracker's poses are trusted: tracker glitches need the distributed engine
         subscriptions_renewed=0,

@@ -3,7 +3,8 @@
 Every control period it publishes the clock, the truth and the poses, takes each robot's newest command to
 its body and lets the bodies move, on a ``LockStep`` (reproducible) or ``WallClock``. A robot whose agent is
 late or gone, or whose pose is lost, stops (the watchdog): ORCA's guarantee holds only for commands computed
-from the current poses. Commands no honest agent sends (from the future, or mis-stamped) are dropped.
+from the current poses. Commands no honest agent sends (from the future, or mis-stamped) are dropped, and a
+robot commanded two ways at one tick (its key's holder beside its agent) stands until its commands agree.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from transport.bus import Bus
 from transport.codec import BEFORE_START, Command, Event, Goals, State, Tick, Truth, intact
 from transport.codec import Contact as ContactMsg
 from transport.keys import Keys
-from transport.plausible import FUTURE, INCONSISTENT, MISADDRESSED, GoalSets, stamp_agrees
+from transport.plausible import CONFLICTING, FUTURE, INCONSISTENT, MISADDRESSED, GoalSets, stamp_agrees
 
 STARTUP_TIMEOUT = 60.0  # s the node waits for every agent by default (`pixelswarm run` says how long)
 BEFORE_START_EVERY = 0.2  # s: poses to robots whose agent is not live yet
@@ -37,7 +38,8 @@ BEFORE_START_EVERY = 0.2  # s: poses to robots whose agent is not live yet
 # first tick makes a different run), for the agents a 'fail' event kills to be gone (the launcher may lag).
 AUCTION_PATIENCE, GOAL_SET_PATIENCE, FIRST_TICK_PATIENCE, FAIL_PATIENCE = 60.0, 10.0, 10.0, 10.0
 STOP_REASONS = ("agent_lost", "pose_lost", "command_timeout")  # the watchdog's, in the order it asks
-COMMAND_DROPS = (FUTURE, INCONSISTENT, MISADDRESSED)
+COMMAND_DROPS = (FUTURE, INCONSISTENT, MISADDRESSED, CONFLICTING)
+COMMANDS_KEPT = 8  # ticks of each robot's first commands remembered, to see a second that differs
 CONTACT_KINDS = {"robot": 0, "obstacle": 1, "wall": 2}
 
 
@@ -182,6 +184,10 @@ class BodyNode:
         self.color[~self.agent_robot] = 255
         self.last_cmd_tick = np.full(n, -1)
         self.valid_until = np.full(n, -np.inf)  # when each robot's command runs out (-inf: stopped)
+        self.first_cmd: list[dict[int, Command]] = [{} for _ in range(n)]  # per robot: tick -> its first command
+        # a robot commanded two ways stands until this tick; each conflict puts it stale_after further
+        self.distrusted_until = np.full(n, -1)
+        self.distrust_ticks = max(1, math.ceil(self.params.stale_after / self.dt - 1e-9))
         self.live, self.ever_live = np.zeros(n, bool), np.zeros(n, bool)
         # this tick's commands of robots not yet heard alive: a restarted agent's first command may
         # overtake the news that it is alive by more than the one drain take_commands waits for
@@ -299,6 +305,9 @@ class BodyNode:
             )
             if Keys.last_id(key) not in (i, self.alive.sender.get(i)):  # its own key, or its host's frame
                 why = MISADDRESSED
+            if why is None and self._commanded_two_ways(cmd):
+                why = CONFLICTING
+                newest.pop(i, None)
             if why is not None:
                 self.tally.dropped[why][i] += 1
                 self.cmd_inbox.drops[why] += 1  # with the decoder's drops: the run's dropped messages
@@ -306,7 +315,9 @@ class BodyNode:
             if cmd.tick <= self.last_cmd_tick[i]:
                 self.tally.late[i] += 1
                 continue
-            self.last_cmd_tick[i] = cmd.tick
+            self.last_cmd_tick[i] = cmd.tick  # answered: lock-step waits no longer for it
+            if self.tick < self.distrusted_until[i]:
+                continue
             self.color[i] = (cmd.r, cmd.g, cmd.bl)
             until = self.backend.hold(cmd)
             if until <= self.backend.now():
@@ -317,6 +328,22 @@ class BodyNode:
         drive = [i for i in newest if self.backend.tracked[i]]
         if drive:
             self.backend.apply(drive, [newest[i] for i in drive], self.color[drive])
+
+    def _commanded_two_ways(self, cmd: Command) -> bool:
+        """Whether ``cmd`` differs from the robot's first command of its tick: one agent sends one command a
+        tick, so another controller holds its key (stolen, or a second agent). Which one to believe is
+        unknown: the robot stops, and stands until its commands have agreed for ``stale_after``."""
+        i, recent = cmd.robot, self.first_cmd[cmd.robot]
+        first = recent.setdefault(cmd.tick, cmd)
+        if len(recent) > COMMANDS_KEPT:
+            del recent[min(recent)]
+        if first == cmd:
+            return False
+        self.distrusted_until[i] = self.tick + self.distrust_ticks
+        if np.isfinite(self.valid_until[i]):
+            self.backend.stop([i])
+            self.valid_until[i] = -np.inf
+        return True
 
     def _watchdog(self, span: float) -> int:
         """Stop every body driven by a command whose agent is gone, whose pose is lost or whose command
@@ -377,14 +404,15 @@ class BodyNode:
         return [row[row >= 0] for row in rows]
 
     def _standing_bodies(self, measured: np.ndarray | None, t: float) -> list[State]:
-        """A state per robot whose agent died, or lives but sent no command for ``stale_after`` (hung): its
-        body where the tracker sees it, standing, avoiding nobody. Neighbours that never heard the agent,
+        """A state per robot whose agent died, or lives but sent no command for ``stale_after`` (hung), or
+        that was commanded two ways: its body where the tracker sees it, standing, avoiding nobody. Neighbours that never heard the agent,
         or have forgotten it, would otherwise drive into the body the watchdog stopped."""
         if measured is None:
             return []
         r = self.params.radius
         silent = (self.last_cmd_tick >= 0) & ((self.tick - self.last_cmd_tick) * self.dt > self.params.stale_after)
-        standing = np.flatnonzero(self.ever_live & (~self.live | silent) & self.backend.tracked)
+        distrusted = self.tick < self.distrusted_until
+        standing = np.flatnonzero(self.ever_live & (~self.live | silent | distrusted) & self.backend.tracked)
         return [
             State(int(i), self.tick, t, float(x), float(y), 0.0, 0.0, r, 0.0, 0.0, -1, State.DYNAMIC)
             for i, (x, y) in zip(standing, measured[standing, :2])
@@ -441,6 +469,7 @@ class BodyNode:
             "expired_commands": tally.expired_commands,
             "stopped_ticks": tally.stopped_ticks,
             "withheld_ticks": tally.withheld_ticks,
+            "commanded_two_ways": np.flatnonzero(tally.dropped[CONFLICTING]).tolist(),
             "commands_applied": backend.applied().astype(int).tolist(),
             "min_clearance": backend.min_clearance if math.isfinite(backend.min_clearance) else None,
             "dropped": dict(drops),

@@ -563,6 +563,11 @@ class Launcher:
             done = self._world_done(rec)
             if done is not None:
                 self.world.stats = done
+                if done.get("commanded_two_ways"):
+                    _warn(
+                        f"pixelswarm: {_robots(done['commanded_two_ways'])} got two different commands for one "
+                        "tick (a second controller on its key) and stood while they lasted"
+                    )
                 return end_sent or str(done.get("reason", "duration"))
             if self.world.exit_code is not None:
                 # the world is the bodies and the tracker: the run ends, written marked incomplete
@@ -670,6 +675,7 @@ class Launcher:
                 k: int(stats.get(k, 0))
                 for k in ("late_commands", "expired_commands", "stopped_ticks", "withheld_ticks")
             },
+            commanded_two_ways=stats.get("commanded_two_ways", []),
             orca_fallbacks=int(sum(s.get("fallbacks", 0) for s in agent_stats)),
             poses_held=int(sum(s.get("poses_held", 0) for s in agent_stats)),
             subscriptions_renewed=int(sum(s.get("subscriptions_renewed", 0) for s in agent_stats)),

@@ -25,9 +25,12 @@ from pathlib import Path
 
 import pytest
 
+from coordinator.scene import load_scene
+from sim.bodies.tracker import world_of
 from sim.emulators.faulty_peer import main as peer_main
 from tests.conftest import REPO, descendants, pixelswarm_cmd, ticks_so_far, wait_for
-from transport.plausible import FUTURE, INCONSISTENT, STALE
+from tests.support.rival import Rival
+from transport.plausible import CONFLICTING, FUTURE, INCONSISTENT, STALE
 from transport.session import free_port, listening
 
 # s of wall time a run may take: it catches a hang, not slowness (a paper run at a quarter of real time,
@@ -37,7 +40,7 @@ pytestmark = pytest.mark.timeout(RUN_TIMEOUT + 120)  # a test that makes a share
 # what the codec counts a malformed message as (docs/protocol.md); the rest are other reasons
 CODEC_REASONS = {"truncated", "version", "kind", "checksum", "non-finite", "invalid"}
 # and what a receiver refuses of the well formed (transport.plausible, transport.bus)
-REFUSED = {FUTURE, STALE, INCONSISTENT, "misaddressed"}
+REFUSED = {FUTURE, STALE, INCONSISTENT, "misaddressed", CONFLICTING}
 CIRCLE = ("circle", "--robots", "20", "--clock", "lockstep", "--seed", "3", "--duration", "30")
 # s each image of the paper sequence is held here, not the shipped 30: in this seed's run the first two
 # form 8.1 and 9.4 s after they are shown (the central engine's run of it, the same run), so each is
@@ -255,6 +258,34 @@ def test_a_peer_stopped_while_its_router_stalls_says_what_it_sent_at_once(tmp_pa
             peer.kill()
             peer.wait()
         _stop(run)
+
+
+@pytest.mark.slow
+def test_a_second_controller_on_a_robots_key_makes_it_stand_not_collide(tmp_path):
+    """Whoever holds robot 3's key drives it at full speed into the circle's crossing, a command for each tick
+    sent before its agent's (on the secured bus too: the key is its own). The world stops robot 3 at the
+    first tick commanded two ways and keeps it standing; nobody touches (robot 3 did before)."""
+    port, out = free_port(), tmp_path / "run"
+    flags = ("--robots", "8", "--clock", "lockstep", "--seed", "1", "--duration", "15")
+    command = pixelswarm_cmd("run", "circle", *flags, "-l", f"tcp/127.0.0.1:{port}", "--out", str(out))
+    run = subprocess.Popen(
+        [*command, "--no-video", "--no-plots", "-q"], cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+    )
+    rival = None
+    try:
+        assert wait_for(lambda: run.poll() is not None or listening(port), 60), "the run's router never listened"
+        rival = Rival(f"tcp/127.0.0.1:{port}", robot=3, speed=world_of(load_scene("circle"))[0].v_max)
+        _, err = run.communicate(timeout=RUN_TIMEOUT)
+    finally:
+        if rival is not None:
+            rival.close()
+        _stop(run)
+    assert run.returncode == 0, err[-3000:]
+    metrics = json.loads((out / "metrics.json").read_text())
+    check_no_contacts(metrics)
+    assert rival.sent > 100 and metrics["commanded_two_ways"] == [3]
+    assert metrics["dropped_messages"]["conflicting"] > 100  # every tick the rival won: robot 3 stood
+    assert b"robot 3 got two different commands for one tick" in err
 
 
 @pytest.mark.parametrize(

@@ -30,7 +30,7 @@ from sim.node.hardware import hardware_node
 from tests.conftest import wait_for
 from tests.support.hardware import all_moving, moving_commands, scene_file, start_run
 from transport.bus import Bus
-from transport.codec import BEFORE_START, Command, Pose
+from transport.codec import BEFORE_START, Command, Pose, State
 from transport.rmw_zenoh import RosNode
 from transport.session import client_of, loopback_router, open_session
 
@@ -227,10 +227,49 @@ def test_a_command_for_a_tick_not_yet_published_or_stamped_off_its_tick_is_dropp
         stats = node.stats()
     assert drive.sent == [([0], [0.05], [0.05])]
     robot = stats["hardware"]["robots"][0]
-    assert robot["dropped_commands"] == {"future": 2, "inconsistent": 1, "misaddressed": 1}
+    assert robot["dropped_commands"] == {"future": 2, "inconsistent": 1, "misaddressed": 1, "conflicting": 0}
     assert robot["late_commands"] == 1 and robot["commands_sent"] == 1
     assert stats["dropped"] == {"future": 2, "inconsistent": 1, "misaddressed": 1}  # the run's dropped_messages
-    assert stats["hardware"]["robots"][1]["dropped_commands"] == {"future": 0, "inconsistent": 0, "misaddressed": 0}
+    assert stats["hardware"]["robots"][1]["dropped_commands"] == dict.fromkeys(robot["dropped_commands"], 0)
+    assert stats["commanded_two_ways"] == []
+
+
+def test_a_robot_commanded_two_ways_at_one_tick_stops_and_stands_until_its_commands_agree(tmp_path):
+    """Whoever holds a robot's key (stolen, or a second agent) can send its commands beside its agent's: at
+    some tick the two differ, and which to believe is unknown. The robot stops, its body is published as a
+    standing obstacle, and commands move it again once they have agreed for stale_after."""
+    router = loopback_router()
+    scene = load_scene(str(scene_file(tmp_path, robots=2)), clock="realtime")
+    drive = StillDrive()
+    with open_session(router), Bus(client_of(router), name="hardware") as bus:
+        node = hardware_node(bus, scene, drive, StillPoses(2), timeout=0.3)
+        node.live[:] = node.ever_live[:] = True
+        node.backend.sense(0.0)
+        dt, poses = node.dt, np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]])
+
+        def command(tick: int, speed: float, robot: int = 0) -> None:
+            node.tick = max(node.tick, tick)
+            cmd = Command(robot, tick, tick * dt, Command.WHEELS, speed, speed, 0, 0, 0)
+            node.take_commands((bus.keys.cmd(robot), cmd))
+
+        command(50, 0.05)  # its agent's
+        command(50, 0.05)  # a copy of it: late, nothing more
+        command(50, 0.1)  # another controller's for the same tick
+        assert drive.sent == [([0], [0.05], [0.05]), ([0], [0.0], [0.0])]
+        standing = node._standing_bodies(poses, 50 * dt)
+        assert [s.robot for s in standing] == [0] and standing[0].flags & State.DYNAMIC
+        command(50, 0.05, robot=1)  # the other robot is driven as before
+        stand = round(node.params.stale_after / dt)
+        for tick in range(51, 50 + stand):  # agreeing again, but not for long enough
+            command(tick, 0.05)
+        assert drive.sent[2:] == [([1], [0.05], [0.05])]
+        command(50 + stand, 0.05)
+        assert drive.sent[3:] == [([0], [0.05], [0.05])] and node._standing_bodies(poses, node.tick * dt) == []
+        command(49, 0.2)  # a tick forgotten since: late, not a conflict
+        stats = node.stats()
+    robot = stats["hardware"]["robots"][0]
+    assert robot["dropped_commands"] == {"future": 0, "inconsistent": 0, "misaddressed": 0, "conflicting": 1}
+    assert stats["dropped"] == {"conflicting": 1} and stats["commanded_two_ways"] == [0]
 
 
 # --- end to end: the restarted tracker -----------------------------------------------------------
