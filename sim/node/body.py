@@ -39,6 +39,7 @@ BEFORE_START_EVERY = 0.2  # s: poses to robots whose agent is not live yet
 AUCTION_PATIENCE, GOAL_SET_PATIENCE, FIRST_TICK_PATIENCE, FAIL_PATIENCE = 60.0, 10.0, 10.0, 10.0
 STOP_REASONS = ("agent_lost", "pose_lost", "command_timeout")  # the watchdog's, in the order it asks
 COMMAND_DROPS = (FUTURE, INCONSISTENT, MISADDRESSED, CONFLICTING)
+TWO_WAYS = "commanded-two-ways"  # the event of a robot's first conflicting command after it was trusted
 COMMANDS_KEPT = 8  # ticks of each robot's first commands remembered, to see a second that differs
 CONTACT_KINDS = {"robot": 0, "obstacle": 1, "wall": 2}
 
@@ -339,6 +340,8 @@ class BodyNode:
             del recent[min(recent)]
         if first == cmd:
             return False
+        if self.tick >= self.distrusted_until[i]:  # the launcher says so as it happens
+            self.bus.publish(self.bus.keys.event, Event({"kind": TWO_WAYS, "robot": i, "t": self.tick * self.dt}))
         self.distrusted_until[i] = self.tick + self.distrust_ticks
         if np.isfinite(self.valid_until[i]):
             self.backend.stop([i])

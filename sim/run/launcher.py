@@ -24,6 +24,7 @@ from agent.runtime import HostConfig, interpreter
 from coordinator.resolved import save_resolved
 from coordinator.scene import Scene, count_due, events_of, take_due
 from sim.args import AGENTS_TIMEOUT, STARTUP_TIMEOUT, UsageError, format_ids
+from sim.node.body import TWO_WAYS
 from sim.node.hardware import ERROR as HARDWARE_ERROR
 from sim.outputs.metrics import Traffic
 from sim.outputs.recorder import Recorder
@@ -163,6 +164,7 @@ class Launcher:
         self.run_dir = RunDir(options.out)
         self._last_say = 0.0  # when progress was last said (monotonic)
         self._liveliness_seen = 0  # remote agents: the liveliness events looked at for departures
+        self._events_seen = 0  # the run's events looked at for robots commanded two ways
 
     # --- processes ----------------------------------------------------------------------------
     def _spawn(
@@ -563,11 +565,6 @@ class Launcher:
             done = self._world_done(rec)
             if done is not None:
                 self.world.stats = done
-                if done.get("commanded_two_ways"):
-                    _warn(
-                        f"pixelswarm: {_robots(done['commanded_two_ways'])} got two different commands for one "
-                        "tick (a second controller on its key) and stood while they lasted"
-                    )
                 return end_sent or str(done.get("reason", "duration"))
             if self.world.exit_code is not None:
                 # the world is the bodies and the tracker: the run ends, written marked incomplete
@@ -587,8 +584,22 @@ class Launcher:
                 bus.publish(bus.keys.event, Event({"kind": "end", "reason": end_sent}))
                 end_at = time.monotonic()
             self._fail_agents(rec)
+            self._commanded_two_ways(rec)
             self._progress(rec)
             time.sleep(0.01)
+
+    def _commanded_two_ways(self, rec: Recorder) -> None:
+        """Say each robot the world stopped for two different commands at one tick, as it happens."""
+        events = rec.happened.events[self._events_seen :]
+        self._events_seen += len(events)
+        for e in events:
+            robot, t = e.get("robot"), e.get("t")
+            # anyone may publish an event on an open bus: a forged one's fields may be anything
+            if e.get("kind") == TWO_WAYS and isinstance(robot, int) and isinstance(t, float) and math.isfinite(t):
+                _warn(
+                    f"pixelswarm: t={t:.1f} s: robot {robot} got two different commands for one tick "
+                    "(a second controller on its key): it stands until they agree"
+                )
 
     def _ends_on_convergence(self, since: float, now: float) -> bool:
         """The run ends at the tick where the display has held converged for the scene's hold; with
