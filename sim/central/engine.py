@@ -40,7 +40,7 @@ from sim.bodies.tracker import tracker_of, world_of
 from sim.central.link import InProcessLink
 from sim.central.stepclock import StepClock
 from sim.outputs.rundir import RunDir
-from sim.outputs.stream import ROWS, SCRATCH, TickRecorder
+from sim.outputs.stream import ROWS, SCRATCH, OnDisk, TickRecorder
 from sim.outputs.write import RunOutcome, goal_set_arrays, write_run
 from sim.processes import handling_signals
 from transport.codec import START_TICK, Goals, State, as_sent, decode
@@ -144,39 +144,73 @@ class Outcome(NamedTuple):
 AGREEMENT_ROWS = {"assignment_epoch": ((), np.int64), "assignment_instance": ((), np.int64)}
 
 
+AGREED = {"agreement_positions": (2,), "agreement_penalties": ()}  # per agreement and robot, float64
+
+
 @dataclass
 class Agreements:
     """What trajectory.npz keeps of an image scene's auction, as the recorder keeps the agents': every goal set
     shown (by epoch: step + 1), and every agreement with the positions bid from and the penalties in force;
-    and the deadlock penalties charged, for metrics.json."""
+    and the deadlock penalties charged, for metrics.json. A run written to a directory streams the agreements'
+    rows to raw files there (``stream_to``), as its ticks' (an agreement a tick is as large as a tick's poses)."""
 
     robots: int
     goal_sets: dict[int, Goals] = field(default_factory=dict)
-    # (epoch, instance) -> the positions each robot bid from (N,2) and the C_d in force on its goal (N,), NaN: none
-    agreed: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    keys: list[tuple[int, int]] = field(default_factory=list)  # (epoch, instance) of each agreement, as made
+    # per agreement the positions each robot bid from (N,2) and the C_d in force on its goal (N,), NaN: none;
+    # held here unless streamed to ``directory``
+    held: dict[str, list[np.ndarray]] = field(default_factory=lambda: {name: [] for name in AGREED})
+    directory: Path | None = None
+    last: tuple[tuple[int, int], dict[str, np.ndarray]] | None = None  # the newest, which one of its key may replace
     solves: int = 0  # the optimal assignment's solves (its instances)
     instance: int = 0  # the agreement the robots' goals are from now (State.CARRIED: the warm start's, never agreed)
     penalties: int = 0  # deadlock penalties charged in the auction (paper 5.5.5)
+
+    def stream_to(self, directory: Path) -> None:
+        self.directory = directory
+        for name in AGREED:
+            (directory / f"{name}.raw").write_bytes(b"")
 
     def agree(self, epoch: int, instance: int, robots: np.ndarray, position: np.ndarray, penalty: np.ndarray) -> None:
         """Agreement ``instance`` of goal set ``epoch``, the robots' goals from now: ``robots`` bid from
         ``position`` with ``penalty`` in force."""
         positions, penalties = np.full((self.robots, 2), np.nan), np.full(self.robots, np.nan)
         positions[robots], penalties[robots] = position, penalty
-        self.agreed[(epoch, instance)] = (positions, penalties)
+        key = (epoch, instance)
+        if self.last is not None and self.last[0] != key:
+            self._keep(*self.last)
+        self.last = (key, {"agreement_positions": positions, "agreement_penalties": penalties})
         self.instance = instance
 
-    def arrays(self, step: np.ndarray) -> dict[str, np.ndarray]:
-        """trajectory.npz's goal-set and agreement arrays (sim.outputs.recorder makes the same of the bus)."""
+    def _keep(self, key: tuple[int, int], rows: dict[str, np.ndarray]) -> None:
+        self.keys.append(key)
+        for name, row in rows.items():
+            if self.directory is None:
+                self.held[name].append(row)
+                continue
+            # appended, never created: a run aborted meanwhile has removed the files, and none comes back
+            with open(os.open(self.directory / f"{name}.raw", os.O_WRONLY | os.O_APPEND), "wb") as out:
+                out.write(row.data.cast("B"))
+
+    def arrays(self, step: np.ndarray) -> dict[str, Any]:
+        """trajectory.npz's goal-set and agreement arrays (sim.outputs.recorder makes the same of the bus), by
+        epoch and instance: the agreements as made, unless made out of that order (then read whole)."""
         if not self.goal_sets:
             return {}
-        keys, n = sorted(self.agreed), self.robots
-        return {
-            "goal_set_epoch": np.asarray(step) + 1,  # the newest goal set: the step shown
-            "agreements": np.array(keys, np.int64).reshape(-1, 2),
-            "agreement_positions": np.array([self.agreed[k][0] for k in keys]).reshape(-1, n, 2),
-            "agreement_penalties": np.array([self.agreed[k][1] for k in keys]).reshape(-1, n),
-        } | goal_set_arrays(self.goal_sets, n)
+        if self.last is not None:
+            self._keep(*self.last)
+            self.last = None
+        n, at = self.robots, {key: k for k, key in enumerate(self.keys)}  # the last of a key made twice
+        order = [at[key] for key in sorted(at)]
+        out = {"goal_set_epoch": np.asarray(step) + 1, "agreements": np.array(sorted(at), np.int64).reshape(-1, 2)}
+        for name, shape in AGREED.items():
+            made = (len(self.keys), n, *shape)
+            if self.directory is not None:
+                rows: Any = OnDisk(self.directory / f"{name}.raw", np.float64, made)
+            else:
+                rows = np.array(self.held[name], float).reshape(made)
+            out[name] = rows if order == list(range(len(self.keys))) else np.asarray(rows)[order]
+        return out | goal_set_arrays(self.goal_sets, n)
 
 
 @dataclass
@@ -461,6 +495,8 @@ def simulate(
     steps, last_step = round(scene.duration / params.dt), max(len(scene.steps) - 1, 0)
     layout = ROWS | AGREEMENT_ROWS if scene.steps else ROWS
     rec = TickRecorder(steps + 1, scene.robots, None if written is None else written.scratch, layout)
+    if written is not None:
+        auction.agreements.stream_to(written.scratch)
     converged = Convergence(scene.converge_hold if scene.ends_on_convergence else None)
     fallbacks, end_reason = 0, "duration"
     wall0 = last_say = time.time()

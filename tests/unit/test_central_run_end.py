@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from coordinator.scene import load_scene
-from sim.central.engine import Stop, run_central
+from sim.central.engine import Agreements, Stop, run_central
+from transport.codec import Goals
 
 
 def test_a_duration_on_an_image_step_boundary_begins_no_image_in_its_last_tick(tmp_path):
@@ -45,3 +46,24 @@ def test_a_second_stop_signal_abandons_the_writing():
     with pytest.raises(KeyboardInterrupt):  # run_central aborts its run directory: nothing is written
         stop.on_signal(signal.SIGINT, None)
     assert stop.signal == signal.SIGINT
+
+
+def test_agreements_streamed_to_a_directory_are_those_held_in_memory_by_epoch_and_instance(tmp_path):
+    """A run written to a directory streams its agreements' rows there: trajectory.npz gets the same arrays as
+    when they are held, sorted by (epoch, instance), and a key agreed again in a row keeps its last rows."""
+    made = [((1, 0), 0.1), ((1, 1), 0.2), ((1, 1), 0.3), ((2, 0), 0.4), ((1, 2), 0.5)]
+    kept = {}
+    for streamed in (False, True):
+        agreements = Agreements(3, goal_sets={1: Goals(1, 1, np.zeros((2, 2)), robots=np.array([0, 2]))})
+        if streamed:
+            agreements.stream_to(tmp_path)
+        for (epoch, instance), x in made:
+            agreements.agree(epoch, instance, np.array([0, 2]), np.full((2, 2), x), np.array([x, 0.0]))
+        arrays = agreements.arrays(np.zeros(4, np.int64))
+        kept[streamed] = {k: np.asarray(v) for k, v in arrays.items() if k.startswith("agreement")}
+    held = kept[False]
+    assert held["agreements"].tolist() == [[1, 0], [1, 1], [1, 2], [2, 0]]
+    assert held["agreement_positions"][:, 0, 0].tolist() == [0.1, 0.3, 0.5, 0.4]
+    assert np.isnan(held["agreement_positions"][:, 1]).all() and held["agreement_penalties"][1, 0] == 0.3
+    for name, value in held.items():
+        np.testing.assert_array_equal(kept[True][name], value)
