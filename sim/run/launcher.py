@@ -32,7 +32,7 @@ from sim.outputs.rundir import RunDir
 from sim.outputs.ticklog import TICKS_FILE
 from sim.outputs.write import RunOutcome, write_run
 from sim.processes import handling_signals, stop_processes
-from sim.run.remote_agents import encode_remote_config
+from sim.run.remote_agents import TAKEN, encode_remote_config
 from transport.bus import Bus
 from transport.codec import Event
 from transport.faults import FaultPlan, format_faults
@@ -246,15 +246,17 @@ class Launcher:
             self._spawn(f"agent-{h:04d}", "agent", ["--config", str(path), *extra], robots, client)
 
     # --- remote agents (`pixelswarm agents` on other machines) -----------------------------------
-    def _serve_configs(self, bus: Bus) -> None:
-        """Serve each agent robot's host config (as for a robot alone in its process) for `pixelswarm agents`;
-        the 'run' token tells those agents when the run is over."""
+    def _serve_configs(self, bus: Bus, rec: Recorder) -> None:
+        """Serve each agent robot's host config (as for a robot alone in its process) for `pixelswarm agents`,
+        TAKEN for one whose agent is alive; the 'run' token tells those agents when the run is over."""
         self.fetched: set[int] = set()  # robots whose config was asked for (zenoh's threads add to it)
         faults = format_faults(self.opt.faults)
         for r in self._agent_robots:
             key, payload = bus.keys.config(r), encode_remote_config(self._host_config([r]), faults)
 
             def answer(r: int = r, key: str = key, payload: bytes = payload) -> list[tuple[str, bytes]]:
+                if rec.progress.agent_alive[r]:
+                    return [(key, TAKEN)]
                 self.fetched.add(r)
                 return [(key, payload)]
 
@@ -416,7 +418,7 @@ class Launcher:
             coord = self._spawn("coordinator", "coordinator.service", self._scene_args(), [], self._as("coordinator"))
             self._wait_alive(recorder, "coordinator", coord)
             if self.opt.remote_agents:
-                self._serve_configs(bus)
+                self._serve_configs(bus, recorder)
                 waiting_since = time.monotonic()
                 self._await_remote(recorder, "fetched", waiting_since)
             else:

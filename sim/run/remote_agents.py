@@ -43,6 +43,10 @@ def encode_remote_config(config: HostConfig, faults: str) -> bytes:
     return json.dumps({"host": json.loads(config.to_json()), "faults": faults}).encode()
 
 
+# the run's answer for a robot whose agent is alive: a second one would make it stand (two commands a tick)
+TAKEN = json.dumps({"taken": True}).encode()
+
+
 def merge_configs(configs: list[HostConfig]) -> HostConfig:
     """One host for several robots' configurations: their robots and pursuits together, and the
     greetings of robots of other hosts only; the rest is the run's, the same in each."""
@@ -55,16 +59,21 @@ def merge_configs(configs: list[HostConfig]) -> HostConfig:
     )
 
 
-def fetch_configs(bus: Bus, robots: list[int] | None) -> dict[int, tuple[HostConfig, str]]:
-    """The configurations the run serves for ``robots`` (None: every agent robot of the run). One
-    query per named robot, all in flight at once: the run counts a robot as claimed when asked."""
+def fetch_configs(bus: Bus, robots: list[int] | None) -> tuple[dict[int, tuple[HostConfig, str]], list[int]]:
+    """The configurations the run serves for ``robots`` (None: every agent robot of the run), and the robots
+    whose agents are alive already (TAKEN). One query per named robot, all in flight at once: the run counts
+    a robot as claimed when asked."""
     keys = [bus.keys.config("*")] if robots is None else [bus.keys.config(r) for r in robots]
     found: dict[int, tuple[HostConfig, str]] = {}
+    taken: list[int] = []
     for key, payload in bus.query_raw(keys, QUERY_TIMEOUT):
         if (robot := Keys.last_id(key)) is not None:
             data = json.loads(payload)  # as encode_remote_config wrote it
-            found[robot] = HostConfig.from_json(json.dumps(data["host"])), str(data.get("faults", ""))
-    return found
+            if data.get("taken"):
+                taken.append(robot)
+            else:
+                found[robot] = HostConfig.from_json(json.dumps(data["host"])), str(data.get("faults", ""))
+    return found, sorted(taken)
 
 
 # --- the command -----------------------------------------------------------------------------------
@@ -105,11 +114,17 @@ def run_agents(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
             return 1
-        configs = fetch_configs(bus, robots)
-        unknown = [r for r in robots or [] if r not in configs]
+        configs, taken = fetch_configs(bus, robots)
+        unknown = [r for r in robots or [] if r not in configs and r not in taken]
         where = f"the run on {args.connect} (display {args.display})"
         refuse_if(unknown, f"robots {format_ids(unknown)} are not agent robots of {where}")
-        refuse_if(not configs, f"{where} has no agent robots to start")
+        # a second agent for a robot would make the world stop it: every tick it hears two commands
+        refuse_if(
+            taken and (robots is not None or not configs),
+            f"robots {format_ids(taken)} of {where} have agents alive already; stop those first",
+        )
+        if taken:
+            say(f"robots {format_ids(taken)} have agents alive already: starting those of the others")
         hosts = _hosts(configs, args.agents_per_process)
         supervisor = Supervisor(settings)
         with supervisor.forwarding_signals():

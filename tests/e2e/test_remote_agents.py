@@ -90,6 +90,26 @@ def test_agents_from_another_process_tree_form_the_picture(tmp_path, spawned):
 
 
 @pytest.mark.slow
+@pytest.mark.serial  # real time: the second commands must come while the run goes on
+def test_a_second_agents_command_for_robots_whose_agents_live_is_refused_and_the_run_goes_on(tmp_path, spawned):
+    """Two agents for one robot would send two commands a tick, and the world would stop the robot: the run
+    answers a robot's configuration query with 'taken' while its agent lives, and `pixelswarm agents` says so."""
+    port = free_port()
+    run = start_run(spawned, tmp_path, port, clock="realtime")
+    assert wait_for(lambda: "waiting for agents" in (tmp_path / "run.err").read_text(), timeout=30)
+    agents = start(spawned, tmp_path / "agents.err", "agents", "--connect", f"tcp/127.0.0.1:{port}")
+    started = agents_of(agents, 6)
+    assert wait_for(lambda: ticks_so_far(tmp_path / "run") >= 10, timeout=60), (tmp_path / "run.err").read_text()
+    for robots in ([], ["--robots", "1-2"]):
+        second = run_pixelswarm("agents", "--connect", f"tcp/127.0.0.1:{port}", *robots, timeout=TIMEOUT)
+        taken = "1-2" if robots else "0-5"
+        assert second.returncode == 2, second.stderr
+        assert f"robots {taken} of the run on tcp/127.0.0.1:{port} (display default) have agents alive" in second.stderr
+    check_picture(tmp_path, run, agents, started)
+    assert json.loads((tmp_path / "run" / "metrics.json").read_text())["commanded_two_ways"] == []
+
+
+@pytest.mark.slow
 def test_agents_through_a_second_router_form_the_picture(tmp_path, spawned):
     port, second = free_port(), free_port()
     run = start_run(spawned, tmp_path, port)
