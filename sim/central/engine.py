@@ -166,10 +166,12 @@ class Agreements:
     instance: int = 0  # the agreement the robots' goals are from now (State.CARRIED: the warm start's, never agreed)
     penalties: int = 0  # deadlock penalties charged in the auction (paper 5.5.5)
 
-    def stream_to(self, directory: Path) -> None:
+    def stream_to(self, directory: Path | None) -> None:
+        """Agreements from now on into raw files in ``directory`` (made by the run's TickRecorder); None: held."""
         self.directory = directory
-        for name in AGREED:
-            (directory / f"{name}.raw").write_bytes(b"")
+        if directory is not None:
+            for name in AGREED:
+                (directory / f"{name}.raw").write_bytes(b"")
 
     def agree(self, epoch: int, instance: int, robots: np.ndarray, position: np.ndarray, penalty: np.ndarray) -> None:
         """Agreement ``instance`` of goal set ``epoch``, the robots' goals from now: ``robots`` bid from
@@ -493,10 +495,9 @@ def simulate(
     params, world, auction = robots.params, robots.world, robots.auction
     events = sorted(scene.events, key=lambda e: e["t"])
     steps, last_step = round(scene.duration / params.dt), max(len(scene.steps) - 1, 0)
-    layout = ROWS | AGREEMENT_ROWS if scene.steps else ROWS
-    rec = TickRecorder(steps + 1, scene.robots, None if written is None else written.scratch, layout)
-    if written is not None:
-        auction.agreements.stream_to(written.scratch)
+    scratch = None if written is None else written.scratch
+    rec = TickRecorder(steps + 1, scene.robots, scratch, ROWS | AGREEMENT_ROWS if scene.steps else ROWS)
+    auction.agreements.stream_to(scratch)
     converged = Convergence(scene.converge_hold if scene.ends_on_convergence else None)
     fallbacks, end_reason = 0, "duration"
     wall0 = last_say = time.time()
