@@ -230,14 +230,17 @@ def test_malformed_messages_on_every_key_are_dropped(tmp_path, spawned):
         "event",
         "auction/1/2",
     ]
+    rounds = 0
     with Bus(ZenohSettings(mode="client", connect=[f"tcp/127.0.0.1:{port}"]), "default") as attacker:
-        time.sleep(1.0)
-        for _ in range(5):
+        # until the run ends: a lock-step run of 6 s may take a second or two of wall time
+        while proc.poll() is None and rounds < 200:
             for key in keys:
                 for payload in bad:
                     attacker.put(f"px/default/{key}", payload)
-            time.sleep(0.3)
+            rounds += 1
+            time.sleep(0.05)
     stdout, stderr = proc.communicate(timeout=120)
+    assert rounds >= 5, "the run ended before the damaged messages were sent"
     assert proc.returncode == 0, stderr
     m = metrics(out)
     assert m["complete"] and m["duration_s"] >= 5.9
