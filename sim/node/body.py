@@ -408,8 +408,9 @@ class BodyNode:
 
     def _standing_bodies(self, measured: np.ndarray | None, t: float) -> list[State]:
         """A state per robot whose agent died, or lives but sent no command for ``stale_after`` (hung), or
-        that was commanded two ways: its body where the tracker sees it, standing, avoiding nobody. Neighbours that never heard the agent,
-        or have forgotten it, would otherwise drive into the body the watchdog stopped."""
+        that was commanded two ways: its body where the tracker sees it, standing, avoiding nobody.
+        Neighbours that never heard the agent, or have forgotten it, would otherwise drive into the body
+        the watchdog stopped."""
         if measured is None:
             return []
         r = self.params.radius
