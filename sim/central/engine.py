@@ -40,7 +40,7 @@ from sim.bodies.tracker import tracker_of, world_of
 from sim.central.link import InProcessLink
 from sim.central.stepclock import StepClock
 from sim.outputs.rundir import RunDir
-from sim.outputs.stream import ROWS, SCRATCH, OnDisk, TickRecorder
+from sim.outputs.stream import ROWS, SCRATCH, OnDisk, TickRecorder, append_raw
 from sim.outputs.write import RunOutcome, goal_set_arrays, write_run
 from sim.processes import handling_signals
 from transport.codec import START_TICK, Goals, State, as_sent, decode
@@ -189,10 +189,8 @@ class Agreements:
         for name, row in rows.items():
             if self.directory is None:
                 self.held[name].append(row)
-                continue
-            # appended, never created: a run aborted meanwhile has removed the files, and none comes back
-            with open(os.open(self.directory / f"{name}.raw", os.O_WRONLY | os.O_APPEND), "wb") as out:
-                out.write(row.data.cast("B"))
+            else:
+                append_raw(self.directory / f"{name}.raw", row)
 
     def arrays(self, step: np.ndarray) -> dict[str, Any]:
         """trajectory.npz's goal-set and agreement arrays (sim.outputs.recorder makes the same of the bus), by

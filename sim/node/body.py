@@ -338,7 +338,7 @@ class BodyNode:
         first = recent.setdefault(cmd.tick, cmd)
         if len(recent) > COMMANDS_KEPT:
             del recent[min(recent)]
-        if first == cmd:
+        if first is cmd or first == cmd:  # the first of its tick (the common case), or a copy of it
             return False
         if self.tick >= self.distrusted_until[i]:  # the launcher says so as it happens
             self.bus.publish(self.bus.keys.event, Event({"kind": TWO_WAYS, "robot": i, "t": self.tick * self.dt}))

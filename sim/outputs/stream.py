@@ -50,6 +50,13 @@ class OnDisk:
         return whole if dtype is None else whole.astype(dtype, copy=False)
 
 
+def append_raw(path: Path, rows: np.ndarray) -> None:
+    """Rows appended to a raw file made before (``path.write_bytes(b"")``), as they lie: no copy. Appended,
+    never created: a run aborted meanwhile has removed the files, and none comes back."""
+    with open(os.open(path, os.O_WRONLY | os.O_APPEND), "wb") as out:
+        out.write(rows.data.cast("B"))
+
+
 class TickRecorder:
     """The recorded ticks' rows (``layout``: :data:`ROWS`, or more): streamed to raw files in ``directory`` (created),
     a thread writing a chunk while the next fills, or (None) held in arrays for ``ticks`` ticks."""
@@ -98,9 +105,7 @@ class TickRecorder:
 
     def _write(self, rows: dict[str, np.ndarray], filled: int) -> None:
         for name, held in rows.items():
-            # appended, never created: a run aborted meanwhile has removed the files, and none comes back
-            with open(os.open(self._path(name), os.O_WRONLY | os.O_APPEND), "wb") as out:
-                out.write(held[:filled].data.cast("B"))  # the rows as they lie: no copy
+            append_raw(self._path(name), held[:filled])
 
     def _wait(self) -> None:
         if self.pending is not None:
