@@ -143,6 +143,27 @@ class GoalSetsHeard:
     step: int = 0  # the scene step of the newest goal set
 
 
+class BidsFrom:
+    """Where each robot bid from in each auction instance, and its C_d in force: its newest claim's x, y
+    and penalty, float32 as records carry them (NaN: no claim heard). An array per instance: a host
+    repeats its robots' claims every round, and a run of 1000 robots agrees about once a tick."""
+
+    def __init__(self, robots: int) -> None:
+        self.robots = robots
+        self.by_instance: dict[tuple[int, int], np.ndarray] = {}  # (epoch, instance) -> (robots, 3)
+
+    def claimed(self, key: tuple[int, int], claims: np.ndarray) -> None:
+        """These claims (records of this run's robots) heard for that instance; a robot's latest stands."""
+        rows = self.by_instance.get(key)
+        if rows is None:
+            rows = self.by_instance[key] = np.full((self.robots, 3), np.nan, np.float32)
+        rows[claims["robot"]] = np.column_stack([claims["x"], claims["y"], claims["penalty"]])
+
+    def of(self, key: tuple[int, int]) -> np.ndarray:
+        """(robots, 3): x, y, penalty per robot in that instance."""
+        return self.by_instance.get(key, np.full((self.robots, 3), np.nan, np.float32))
+
+
 @dataclass
 class WorldHeard:
     """What the world's truth told beside the trajectory: newest tick, control period, rows, least clearance."""
@@ -304,8 +325,7 @@ class Recorder:
         self.said = RobotsSaid.nothing_yet(robots)  # as each robot announces it in its state
         self.sets = GoalSetsHeard()
         self.world = WorldHeard()
-        # (epoch, instance) -> robot -> x, y, penalty
-        self.bid_positions: dict[tuple[int, int], dict[int, tuple[float, float, float]]] = {}
+        self.bids_from = BidsFrom(robots)
         self.tally = BusTally()
         self.happened = RunEvents()
         self.progress = Convergence(tolerance, np.zeros(robots, bool))
@@ -401,9 +421,8 @@ class Recorder:
         """The positions each robot bid from in each instance, to check agreements against the optimum."""
         recs = m.records
         claims = recs[((recs["flags"] & AuctionRecord.RELEASED) == 0) & (recs["robot"] < self.n)]  # not releases
-        # lists zipped in C, not a loop over records: a host's every lock-step round repeats its robots' claims
-        where = zip(claims["x"].tolist(), claims["y"].tolist(), claims["penalty"].tolist())
-        self.bid_positions.setdefault((m.epoch, m.instance), {}).update(zip(claims["robot"].tolist(), where))
+        if len(claims):
+            self.bids_from.claimed((m.epoch, m.instance), claims)
 
     def _on_truth(self, m: Truth, wall: float) -> None:
         """A tick of the world's truth: its row, the tick log, convergence, the scene, the live view."""
@@ -471,11 +490,8 @@ class Recorder:
         announced = sorted(
             {(int(e), int(k)) for e, k in zip(epoch.ravel(), instance.ravel()) if e > 0 and k != State.CARRIED}
         )  # carried goals were never agreed
-        positions = np.full((len(announced), n, 2), np.nan)
-        penalties = np.full((len(announced), n), np.nan)
-        for a, key in enumerate(announced):
-            for r, (x, y, penalty) in self.bid_positions.get(key, {}).items():
-                positions[a, r], penalties[a, r] = (x, y), penalty
+        heard = np.array([self.bids_from.of(key) for key in announced], float).reshape(len(announced), n, 3)
+        positions, penalties = heard[..., :2], heard[..., 2]
         return {
             "goal_set_epoch": np.array(tr.goal_set_epoch),
             "assignment_epoch": epoch,

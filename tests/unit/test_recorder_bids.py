@@ -29,10 +29,15 @@ def test_the_recorder_keeps_each_claims_bid_position_per_instance():
         ),
         bid(2, 5, [(2, 1, 0.2, 0, 0.0, 1.1, -1.2), (7, 0, 0.1, 0, 0.0, 5.0, 5.0)]),  # robot 7: not of this run
         bid(0, 6, [(0, 2, 1.6, 0, 0.0, 0.15, 0.2)]),
+        bid(0, 5, [(1, 0, 0.6, 0, 0.5, -0.2, 0.6)]),  # a later round's claim of robot 1 in instance 5 stands
     ]
     bus.raw.items = [(bus.keys.auction(1, m.sender), m.encode(), 0.0) for m in said]
     rec.poll()
-    assert rec.bid_positions == {
-        (1, 5): {0: (f(0.1), f(0.2), 0.0), 1: (f(-0.3), f(0.7), 0.25), 2: (f(1.1), f(-1.2), 0.0)},
-        (1, 6): {0: (f(0.15), f(0.2), 0.0)},
+    nothing = [np.nan] * 3
+    expected = {
+        (1, 5): [[f(0.1), f(0.2), 0.0], [f(-0.2), f(0.6), 0.5], [f(1.1), f(-1.2), 0.0], nothing],
+        (1, 6): [[f(0.15), f(0.2), 0.0], nothing, nothing, nothing],
     }
+    assert sorted(rec.bids_from.by_instance) == sorted(expected)
+    for key, rows in expected.items():
+        np.testing.assert_array_equal(rec.bids_from.of(key), np.array(rows, np.float32))
