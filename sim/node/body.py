@@ -93,8 +93,8 @@ class LockStep:
     """Publish tick k, wait until every agent live when it went out answered it or a deadline passes (a missed
     tick), then advance one period. An agent heard alive meanwhile is waited for from the next tick: it may
     have missed this tick's pose (a restarted one subscribes as the world goes on). The deadline runs from
-    the last auction message heard, or while a starting step's goal set is unheard; a tick at which the
-    scene kills robots waits until their agents are gone."""
+    the last auction message heard; a tick at which the scene kills robots waits until their agents are
+    gone, and a tick whose goal set is due (a starting step's, or the survivors' of a kill) until it is heard."""
 
     def __init__(self, bus: Bus, deadline: float) -> None:
         self.deadline = deadline
@@ -116,6 +116,7 @@ class LockStep:
         fail_patience = time.monotonic() + FAIL_PATIENCE
         dies = node.killed_now()
         expected = node.live.copy()
+        told = -math.inf  # when the robots not alive last heard where they are
         while True:
             # read before the commands are taken: one seen by then is queued, held or lost
             seen, n = node.cmd_inbox.seen, len(node.live)
@@ -123,14 +124,18 @@ class LockStep:
             node.take_commands(node.cmd_inbox.get(timeout=max(0.0, min(0.05, deadline - time.monotonic()))))
             heard = [data for inbox in self.auction_traffic for _, data, _ in inbox.drain()]
             node.hear_goals()
-            # a step's goal set unheard at its first tick: the coordinator works it out, the agents wait for it
-            at_work = time.monotonic() < goal_set_patience and node.awaits_goal_set()
+            # a goal set due and unheard: the coordinator works it out, and the tick waits for it, so that every
+            # host takes it up at the same tick however slow the coordinator or the machine
+            at_work = time.monotonic() < goal_set_patience and node.awaits_goal_set(dies)
             if any(map(intact, heard)) or at_work:  # a damaged copy is no agent at work
                 deadline = min(time.monotonic() + self.deadline, patience)
             node.update_liveness()
             waiting = node.live & expected & (node.last_cmd_tick < node.tick) & ~arrived
             dying = node.live[dies].any() and time.monotonic() < fail_patience
-            if (not waiting.any() or time.monotonic() >= deadline or node.withheld) and not dying:
+            if at_work and time.monotonic() - told >= BEFORE_START_EVERY:
+                node.publish_before_start()  # as before the first tick: the coordinator hears the dead bodies
+                told = time.monotonic()
+            if (not waiting.any() or time.monotonic() >= deadline or node.withheld) and not dying and not at_work:
                 break
         yield node.dt
 
@@ -194,6 +199,7 @@ class BodyNode:
         # overtake the news that it is alive by more than the one drain take_commands waits for
         self.early: list[tuple] = []
         self.tick, self.withheld, self.goal_epoch = 0, False, 0
+        self.listed: frozenset[int] = frozenset()  # the robots of the newest goal set heard
         # which goal sets can be the coordinator's, as the agents judge them; the world starts with the run
         self.believed = GoalSets(scene.arena, newest=0)
         self.step_starts, self.step_heard = scene.step_starts, -1  # the newest scene step whose goal set came
@@ -250,7 +256,7 @@ class BodyNode:
                 return True
             if time.monotonic() - last_sent >= BEFORE_START_EVERY:
                 self.backend.sense(0.0)
-                self._publish_before_start()
+                self.publish_before_start()
                 last_sent = time.monotonic()
             time.sleep(0.02)
         return False
@@ -276,6 +282,8 @@ class BodyNode:
         for _, goals in self.goal_inbox.drain():
             why = self.believed.admit(goals, self.tick * self.dt)
             if why is None:
+                if goals.epoch > self.goal_epoch:  # an id beyond the scene's robots is nobody's
+                    self.listed = frozenset(r for r in goals.robots.tolist() if r < self.scene.robots)
                 self.goal_epoch = max(self.goal_epoch, goals.epoch)
                 self.step_heard = max(self.step_heard, goals.timing.step)
             else:
@@ -285,10 +293,13 @@ class BodyNode:
         """The scene step shown at ``tick`` (-1: none)."""
         return bisect.bisect_right(self.step_starts, tick * self.dt + 1e-9) - 1
 
-    def awaits_goal_set(self) -> bool:
-        """This tick begins a scene step whose goal set has not been heard."""
+    def awaits_goal_set(self, killed: list[int]) -> bool:
+        """This tick begins a scene step whose goal set has not been heard, or kills robots (``killed``) that
+        the newest goal set heard lists: the set for the survivors (5.1.2), if any live on, is due."""
         due = self.step_due(self.tick)
-        return due > self.step_heard and due > self.step_due(self.tick - 1)
+        step_unheard = due > self.step_heard and due > self.step_due(self.tick - 1)
+        survivors = sorted(self.listed.difference(killed))
+        return step_unheard or (len(survivors) < len(self.listed) and bool(self.live[survivors].any()))
 
     def take_commands(self, first: tuple | None = None) -> None:
         """Every robot's newest command, to its body at once (a robot out of sight is not driven blind)."""
@@ -390,7 +401,7 @@ class BodyNode:
             shown = np.flatnonzero(self.ever_live & self.backend.tracked)
             near = None if self.pose_frames else self._near(shown, measured[shown])
             self.bus.publish_poses(self.tick, t, shown, measured[shown], self.pose_frames, near)
-            self._publish_before_start()
+            self.publish_before_start()
         # the movers' states, as agents broadcast theirs (one frame for agent hosts, or each under its
         # cell), and the bodies of dead or silent agents as obstacles (_standing_bodies)
         states = self.backend.own_movers(self.tick, t) + self._standing_bodies(measured, t)
@@ -422,9 +433,10 @@ class BodyNode:
             for i, (x, y) in zip(standing, measured[standing, :2])
         ]
 
-    def _publish_before_start(self) -> None:
-        """Robots whose agent is not live yet hear where they are, without tracker noise (so start-up
-        timing cannot change the noise sequence)."""
+    def publish_before_start(self) -> None:
+        """Robots whose agent is not live (yet, or any more) hear where they are, without tracker noise (so
+        timing cannot change the noise sequence); so does the coordinator of the dead bodies it keeps goals
+        clear of."""
         waiting = np.flatnonzero(~self.live & self.agent_robot & self.backend.tracked)
         if not len(waiting):
             return

@@ -180,7 +180,7 @@ class _SlowFirstAnswers:
     def hear_goals(self) -> None:
         pass
 
-    def awaits_goal_set(self) -> bool:
+    def awaits_goal_set(self, killed: list[int]) -> bool:
         return False
 
     def update_liveness(self) -> None:
@@ -217,6 +217,25 @@ class _KilledLate(_SlowFirstAnswers):
 
     def killed_now(self) -> list[int]:
         return [1] if self.tick == 5 else []
+
+
+class _SurvivorsSetLate(_KilledLate):
+    """Robot 1's agent is gone at once when the scene kills it at tick 5; the coordinator's goal set for robot
+    0 alone is heard ``after`` seconds later. The node's own rule says whether a goal set is due."""
+
+    step_starts, step_heard = [0.0], 0
+    awaits_goal_set, step_due = BodyNode.awaits_goal_set, BodyNode.step_due
+
+    def __init__(self, tick: int, after: float) -> None:
+        super().__init__(tick, after=0.0)
+        self.heard_at, self.listed, self.told = time.monotonic() + after, frozenset({0, 1}), 0
+
+    def hear_goals(self) -> None:
+        if time.monotonic() >= self.heard_at:
+            self.listed = frozenset({0})
+
+    def publish_before_start(self) -> None:
+        self.told += 1
 
 
 class _CameAliveDuring(_SlowFirstAnswers):
@@ -259,6 +278,20 @@ def test_a_lockstep_tick_at_which_the_scene_kills_a_robot_waits_until_its_agent_
         node = _KilledLate(tick, after=1.0)
         next(clock.spans(node))  # type: ignore[arg-type]
         assert node.live[1] == (not dead)
+
+
+def test_a_lockstep_tick_at_which_the_scene_kills_a_robot_waits_for_the_survivors_goal_set():
+    """The coordinator hears of a death in wall time and takes its time over the survivors' goal set: the
+    tick after the kill names it however late it comes, so every run takes it up at that tick. Meanwhile the
+    dead robot's body is told where it stands, for the coordinator to keep the goals clear of it."""
+    from sim.node import body
+    from tests.support.fake_bus import RecorderBus
+
+    clock = body.LockStep(RecorderBus(), deadline=0.3)  # type: ignore[arg-type]
+    for tick, waited in [(5, True), (6, False)]:
+        node = _SurvivorsSetLate(tick, after=1.0)
+        next(clock.spans(node))  # type: ignore[arg-type]
+        assert (node.listed == {0}) == waited and (node.told > 0) == waited
 
 
 def test_a_dead_agents_body_is_broadcast_as_a_standing_obstacle_where_the_tracker_sees_it():
