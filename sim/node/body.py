@@ -298,8 +298,9 @@ class BodyNode:
         the newest goal set heard lists: the set for the survivors (5.1.2), if any live on, is due."""
         due = self.step_due(self.tick)
         step_unheard = due > self.step_heard and due > self.step_due(self.tick - 1)
-        survivors = sorted(self.listed.difference(killed))
-        return step_unheard or (len(survivors) < len(self.listed) and bool(self.live[survivors].any()))
+        if step_unheard or not self.listed.intersection(killed):  # most ticks kill nobody: asked every wait
+            return step_unheard
+        return bool(self.live[sorted(self.listed.difference(killed))].any())
 
     def take_commands(self, first: tuple | None = None) -> None:
         """Every robot's newest command, to its body at once (a robot out of sight is not driven blind)."""
