@@ -501,6 +501,13 @@ class Bus:
         self._tokens.append(token)
         return token
 
+    def alive_now(self, timeout: float = 2.0) -> list[tuple[str, str]]:
+        """(role, ident) of every process alive on this display now, by its liveliness token."""
+        replies = self.session.liveliness().get(self.keys.alive_all(), timeout=timeout)
+        found = (getattr(reply, "ok", None) for reply in replies)
+        parts = [str(ok.key_expr).split("/alive/", 1)[-1].split("/") for ok in found if ok is not None]
+        return sorted((p[0], p[1]) for p in parts if len(p) >= 2)
+
     def watch_alive(self, role: str | None = None) -> LivelinessWatch:
         watch = LivelinessWatch()
         keyexpr = self.keys.alive_all(role)

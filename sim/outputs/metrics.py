@@ -153,13 +153,13 @@ def path_lengths(pose: np.ndarray) -> np.ndarray:
 
 def time_to_converge(t: np.ndarray, pose: np.ndarray, goal: np.ndarray, tolerance: float) -> float | None:
     """First ``t[k]`` from which on every robot with a goal is within ``tolerance`` of it; None if not at
-    the end, or no robot ever has a goal."""
+    the end, or no robot has a goal at the end (robots that stand without one have reached nothing)."""
     t = np.asarray(t, dtype=float)
     T, N = _pose_shape(pose)
     if np.shape(goal) != (T, N, 2) or t.shape != (T,):
         raise ValueError(f"shapes: t {t.shape}, pose {np.shape(pose)}, goal {np.shape(goal)}")
     ok, some = _arrived(pose, goal, tolerance)
-    if not some.any() or not ok[-1]:
+    if not T or not some[-1] or not ok[-1]:
         return None
     bad = np.flatnonzero(~ok)
     k = 0 if len(bad) == 0 else int(bad[-1]) + 1

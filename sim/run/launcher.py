@@ -36,6 +36,7 @@ from sim.run.remote_agents import TAKEN, encode_remote_config
 from transport.bus import Bus
 from transport.codec import Event
 from transport.faults import FaultPlan, format_faults
+from transport.keys import robots_of_ident
 from transport.security import client_config, robot_role, router_config
 from transport.session import ZenohSettings, client_of, free_port, loopback_router
 
@@ -112,6 +113,15 @@ def _departed(liveliness: list[dict]) -> list[int]:
     return sorted(
         {int(e["id"]) for e in liveliness if e["role"] == "agent" and not e["alive"] and str(e["id"]).isdigit()}
     )
+
+
+def _in_use(alive: list[tuple[str, str]]) -> str:
+    """What another run has alive on a display, and how to go on."""
+    roles = [role for role, _ in alive]
+    robots = sum(len(robots_of_ident(ident) or []) for role, ident in alive if role == "agent")
+    what = [role for role in ("run", "world", "coordinator") if role in roles]
+    what += [f"agents of {robots} robots"] if robots else []
+    return f"another swarm is live on it ({', '.join(what) or 'its processes'}); end that run or pass --display NAME"
 
 
 def _last_line(log: Path) -> str:
@@ -406,11 +416,13 @@ class Launcher:
             settings = self.opt.router or self._embedded_router()
             self.client = client_of(settings)
         bus = Bus(settings, self.opt.display, name="launcher")
+        endpoint = ", ".join(settings.listen or settings.connect)
         try:
+            if others := bus.alive_now():  # its processes would take ours for theirs, and ours theirs
+                raise UsageError(f"display {self.opt.display!r} at {endpoint} is in use: {_in_use(others)}")
             recorder = self._recorder(bus)
             if self.opt.hardware is not None:  # refused at once (one line) if a robot or its pose is missing
                 self._start_hardware(recorder)
-            endpoint = ", ".join(settings.listen or settings.connect)
             self._say(
                 f"[{self.scene.name}] {self.scene.robots} robots, {self.scene.clock} clock, router {endpoint}",
                 force=True,

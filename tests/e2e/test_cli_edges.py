@@ -237,6 +237,29 @@ def test_a_world_that_waits_in_vain_names_the_robots_and_does_not_run():
     assert node.end_reason == "no agent came alive for robots 0-2 within 0.5 s"
 
 
+@pytest.mark.slow
+def test_a_run_on_a_display_another_swarm_is_live_on_is_refused(tmp_path):
+    """Two runs on one router and display would take each other's agents for their own, and their robots
+    stand for the rest of the run; the second is refused before it starts anything, naming what is live.
+    Another display on the same router is free."""
+    router = loopback_router()
+    endpoint, run = router.listen[0], ("run", "circle", "--robots", "3", "--duration", "2", *FAST)
+    with Bus(router, name="world") as other:
+        other.declare_alive("world", 0)
+        other.declare_alive("agent", "0-7")
+        refused = run_pixelswarm(*run, "-e", endpoint, "--out", str(tmp_path / "r"), timeout=60)
+        beside = run_pixelswarm(*run, "-e", endpoint, "--display", "beside", "--out", str(tmp_path / "b"), timeout=120)
+    assert refused.returncode == 2 and "Traceback" not in refused.stderr
+    assert refused.stderr.strip().splitlines() == [
+        f"pixelswarm run: error: display 'default' at {endpoint} is in use: another swarm is live on it "
+        "(world, agents of 8 robots); end that run or pass --display NAME"
+    ]
+    assert not (tmp_path / "r").exists()
+    assert beside.returncode == 0, beside.stderr
+    assert json.loads((tmp_path / "b" / "metrics.json").read_text())["contacts"] == 0
+    assert not leftovers(tmp_path)
+
+
 # --- runs ---------------------------------------------------------------------------------------
 def assert_incomplete(out: Path, reason: str) -> dict:
     assert out.is_dir() and not out.with_name(out.name + ".partial").exists()

@@ -239,6 +239,10 @@ def test_time_to_converge():
     assert metrics.time_to_converge(t, pose, g2, tol) == pytest.approx(t[30])
     # no goals at all
     assert metrics.time_to_converge(t, pose, np.full((T, N, 2), np.nan), tol) is None
+    # every goal gone at the end (robots that stand, waiting for a goal set): nothing is reached
+    g3 = goal.copy()
+    g3[-3:] = np.nan
+    assert metrics.time_to_converge(t, pose, g3, tol) is None
 
 
 def test_summarise_and_json(tmp_path):
