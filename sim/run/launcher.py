@@ -119,7 +119,7 @@ def _in_use(alive: list[tuple[str, str]]) -> str:
     """What another run has alive on a display, and how to go on."""
     roles = [role for role, _ in alive]
     robots = sum(len(robots_of_ident(ident) or []) for role, ident in alive if role == "agent")
-    what = [role for role in ("run", "world", "coordinator") if role in roles]
+    what: list[str] = [role for role in ("run", "world", "coordinator") if role in roles]
     what += [f"agents of {robots} robots"] if robots else []
     return f"another swarm is live on it ({', '.join(what) or 'its processes'}); end that run or pass --display NAME"
 
