@@ -13,7 +13,7 @@ import numpy as np
 
 from transport.bus import Inbox
 from transport.codec import BEFORE_START, START_TICK, Goals, Pose, State, Tick, as_sent
-from transport.plausible import Clock
+from transport.plausible import AHEAD, Clock
 
 from .core.params import RobotParams
 
@@ -75,8 +75,8 @@ class HostClock:
 
     def hear_hello(self, hello: State) -> None: ...
 
-    def newest_tick(self) -> int | None:
-        """The newest tick the world is known to have reached (None: not known)."""
+    def latest_pose_tick(self) -> int | None:
+        """The latest tick an honest pose can carry now (None: the clock does not say)."""
         return None
 
     def display_time(self) -> float | None:
@@ -179,9 +179,12 @@ class LockStep(HostClock):
         if self.host.counts.ticks < 2:
             self.greeted[hello.robot] = hello
 
-    def newest_tick(self) -> int | None:
+    def latest_pose_tick(self) -> int | None:
+        """The world sends a tick's clock message before its poses, on the same link and in order: a pose
+        beyond the newest tick heard was forged (a few ticks' slack only under injected clock faults)."""
         self.hear()
-        return self.clock.newest
+        newest = self.clock.newest
+        return newest if newest is None or self.ticks.fault is None else newest + AHEAD
 
     def display_time(self) -> float | None:
         return None if self.clock.newest is None else self.clock.newest * self.host.params.dt

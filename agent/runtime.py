@@ -21,7 +21,7 @@ import numpy as np
 from transport.bus import Bus, Inbox, KeepRobots, LivelinessWatch
 from transport.codec import BEFORE_START, Command, Commands, Event, Goals, Pose, State, life_number
 from transport.keys import cell_of, cells_of, robots_ident
-from transport.plausible import INCONSISTENT, GoalSets, TickLine, stamp_agrees
+from transport.plausible import FUTURE, INCONSISTENT, GoalSets, TickLine, stamp_agrees
 
 from . import loop
 from .assignment import AuctionLink, LockStepRounds
@@ -244,13 +244,16 @@ class PoseIntake:
         x0, y0, x1, y1 = self.arena
         return not (x0 - ARENA_SLACK <= pose.x <= x1 + ARENA_SLACK and y0 - ARENA_SLACK <= pose.y <= y1 + ARENA_SLACK)
 
-    def take(self, pose: Pose, newest_tick: Callable[[], int | None]) -> str | None:
+    def take(self, pose: Pose, latest_tick: Callable[[], int | None]) -> str | None:
         """Hold a robot's pose for the next step (the newest tick wins), or say why it is refused."""
         if not stamp_agrees(pose.tick, pose.stamp, self.dt):
             return INCONSISTENT
         if self.off_arena(pose):
             return "invalid"
-        why = self.lines[pose.robot].admit(pose.tick, time.monotonic(), newest_tick())
+        latest = latest_tick()
+        if latest is not None and pose.tick > latest:
+            return FUTURE  # taken, it would make the honest poses until its tick look old: the robot would skip them
+        why = self.lines[pose.robot].admit(pose.tick, time.monotonic(), latest)
         held = self.pending.get(pose.robot)
         if why is None and (held is None or pose.tick > held.tick):
             self.pending[pose.robot] = pose
@@ -578,7 +581,7 @@ class AgentHost:
     def _take_pose(self, pose: Pose) -> None:
         if pose.robot not in self.robots or pose.tick == BEFORE_START:
             return
-        why = self.poses.take(pose, self.clock.newest_tick)  # lock-step: the world's clock says which tick it is
+        why = self.poses.take(pose, self.clock.latest_pose_tick)  # lock-step: the world's clock says which tick it is
         if why is not None:
             self.inbox.pose.drops[why] += 1
 

@@ -8,13 +8,14 @@ It starts ``--start-after`` s after the run's first clock tick, damages for ``--
 stopped) and ends with one line on stdout: the copies it sent, per key kind and per damage. Modes (each
 mutates only what it says; the layouts: docs/protocol.md):
 
-- ``future-pose``, ``future-state``, ``future-cmd``: frames with their tick moved 1..FUTURE_MAX ticks ahead.
+- ``future-pose``, ``future-state``, ``future-cmd``: frames with their tick (and stamp) moved 1..FUTURE_MAX ticks
+  ahead, half the poses and states at most AHEAD ticks (what a receiver's clock allows).
 - ``malformed-pose``: pose frames truncated, extended, or with a header byte, the count or random bytes
   overwritten (``--damage`` picks among these); some copies still decode.
 - ``malformed-all``: every key kind of the bus (``--include-sim``: also sim/truth, sim/contact) likewise.
 - ``stale-cmd``: commands re-sent unchanged ``--stale-after`` s or more after they were first heard.
 - ``misc``: clock ticks, goal sets, bids and boards, malformed or with a time-like field moved forward.
-- ``restart``: frames with the (smaller) tick of a sender restarted every RESTART_EVERY s.
+- ``restart``: frames with the (smaller) tick and stamp of a sender restarted every RESTART_EVERY s.
 - ``all``: each copy from one of the modes in ALL_OF that has something to send.
 """
 
@@ -37,6 +38,7 @@ from sim.processes import stopped_by_signals
 from transport.bus import Bus, RawInbox
 from transport.codec import BEFORE_START, CHECKSUM_SIZE, FRAME_OF, with_checksum
 from transport.keys import Keys
+from transport.plausible import AHEAD
 from transport.session import ZENOH_HELP, TransportError, ZenohSettings
 
 FRAME_KINDS = ("pose", "state", "cmd")
@@ -108,11 +110,26 @@ def _sealed(kind: str, forged: bytes | None) -> bytes | None:
     return with_checksum(forged[:-CHECKSUM_SIZE])
 
 
-def future_tick(data: bytes, rng: random.Random) -> bytes | None:
-    """A frame (or clock tick) with its tick moved into the future, the rest intact."""
+def with_tick(data: bytes, tick: int) -> bytes | None:
+    """A frame's copy at another tick, its stamp (the start of its tick) moved along, so that only its
+    tick can give it away; None for a frame of tick 0 or before the start (no period to count by)."""
     if len(data) < _FRAME_FIXED:
         return None
-    return _forward_u32(data, _TICK_AT, rng, skip_before_start=True)
+    real, stamp = _get_u32(data, _TICK_AT), _F64.unpack_from(data, _TICK_AT + 4)[0]
+    if real in (0, BEFORE_START) or not 0 <= tick < BEFORE_START:
+        return None
+    return _put(data, _TICK_AT, _U32.pack(tick) + _F64.pack(stamp / real * tick))
+
+
+def future_tick(data: bytes, rng: random.Random, kind: str) -> bytes | None:
+    """A frame with its tick moved into the future, the rest intact: half the poses and states within the few
+    ticks a receiver's clock allows (transport.plausible.AHEAD), the rest up to FUTURE_MAX. A command a tick or
+    two ahead is a second controller's, which makes its robot stand (test_faulty_peer): none is sent."""
+    if len(data) < _FRAME_FIXED:
+        return None
+    near = kind != "cmd" and rng.random() < 0.5
+    ahead = rng.randint(1, AHEAD) if near else rng.randint(AHEAD + 1, FUTURE_MAX)
+    return with_tick(data, _get_u32(data, _TICK_AT) + ahead)
 
 
 def truncate(data: bytes, rng: random.Random, kind: str = "") -> bytes | None:
@@ -333,7 +350,7 @@ class FaultyPeer:
         kind = rng.choice(kinds)
         key, data = rng.choice(self.heard[kind])
         if sub.startswith("future-"):
-            out, what = _sealed(kind, future_tick(data, rng)), sub
+            out, what = _sealed(kind, future_tick(data, rng, kind)), sub
         elif sub == "misc" and rng.random() >= 0.5:  # else malformed, as below
             field, out = future_stamp(data, rng, kind)
             what = f"future:{field}"
@@ -353,10 +370,7 @@ class FaultyPeer:
         if now - self.restart_at >= RESTART_EVERY:
             self.restart_at = now
         tick = int((now - self.restart_at) * RESTART_RATE)
-        real = _get_u32(data, _TICK_AT)
-        if real == BEFORE_START or tick >= real:
-            return None
-        return _put(data, _TICK_AT, _U32.pack(tick))
+        return with_tick(data, tick) if tick < _get_u32(data, _TICK_AT) else None
 
     def _open(self, stop: threading.Event) -> Bus:
         end = time.monotonic() + self.connect_wait

@@ -207,3 +207,23 @@ def test_a_pose_off_the_arena_is_refused_and_a_far_position_has_a_cell():
     records = np.zeros(1, Poses.RECORD)
     records["x"], records["y"] = 1e30, 1e30
     assert not KeepCells({(0, 0)}, 0.6, frozenset()).mask(records).any()
+
+
+def test_a_lockstep_pose_past_the_newest_clock_is_refused_and_the_honest_one_taken():
+    """The world sends a tick's clock message before its poses, on the same link: a pose a tick or two past
+    the newest clock was forged. Taken (the receiver's clock allowed AHEAD ticks), it made the honest poses
+    until its tick look old: the robot answered no tick and the world waited for it, a minute a tick once
+    the auction's messages kept it waiting."""
+    from agent.core.params import EPUCK
+    from agent.runtime import HostConfig, PoseIntake
+    from transport.codec import Pose
+
+    intake = PoseIntake(HostConfig([0], EPUCK), None)
+    clock = lambda: 10  # noqa: E731: the lock-step clock's newest tick
+    at = lambda tick, x: Pose(0, tick, tick * EPUCK.dt, x, 0.0, 0.0)  # noqa: E731
+    assert intake.take(at(11, 0.9), clock) == FUTURE
+    assert intake.take(at(12, 0.9), clock) == FUTURE
+    assert intake.take(at(10, 0.1), clock) is None
+    assert intake.pending[0] == at(10, 0.1)
+    clock = lambda: 11  # noqa: E731
+    assert intake.take(at(11, 0.11), clock) is None and intake.pending[0] == at(11, 0.11)
