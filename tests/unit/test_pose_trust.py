@@ -219,7 +219,7 @@ def test_a_lockstep_pose_past_the_newest_clock_is_refused_and_the_honest_one_tak
     from transport.codec import Pose
 
     intake = PoseIntake(HostConfig([0], EPUCK), None)
-    clock = lambda: 10  # noqa: E731: the lock-step clock's newest tick
+    clock = lambda: 10  # noqa: E731 (the lock-step clock's newest tick)
     at = lambda tick, x: Pose(0, tick, tick * EPUCK.dt, x, 0.0, 0.0)  # noqa: E731
     assert intake.take(at(11, 0.9), clock) == FUTURE
     assert intake.take(at(12, 0.9), clock) == FUTURE
