@@ -8,6 +8,7 @@ import pytest
 from sim.emulators.faulty_peer import FaultyPeer, PeerPlan
 from transport.codec import DropCounter, State, States, decode
 from transport.keys import Keys
+from transport.plausible import AHEAD, stamp_agrees
 from transport.session import ZenohSettings
 
 HEARD = State(3, 40, 4.0, 1.0, 2.0, 0.1, -0.1, 0.045, 0.5, 0.5, 4, State.HAS_GOAL, 2, 9)
@@ -31,7 +32,11 @@ def test_a_state_forged_with_another_tick_is_intact_and_the_rest_of_it_is_what_w
         assert frame is not None  # sealed again: the receiver judges its tick, not its checksum
         (state,) = frame.messages()
         assert (state.tick > HEARD.tick) if mode == "future-state" else (state.tick < HEARD.tick)
-        assert {**vars(state), "tick": HEARD.tick} == vars(heard)
+        # its stamp moved with its tick (else the stamp check would stop it), the rest as heard
+        assert stamp_agrees(state.tick, state.stamp, HEARD.stamp / HEARD.tick)
+        assert {**vars(state), "tick": HEARD.tick, "stamp": HEARD.stamp} == vars(heard)
+    if mode == "future-state":  # half within the ticks a receiver's clock allows
+        assert any(decode(data, States).messages()[0].tick <= HEARD.tick + AHEAD for data in made)
 
 
 def test_a_state_damaged_at_random_is_dropped_by_the_codec():
