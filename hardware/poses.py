@@ -1,6 +1,7 @@
 """What every pose source hands out: each robot's newest pose, when it was measured and how old it is;
 and which poses it takes, by their stamps (StampGate)."""
 
+import math
 from collections import Counter
 from typing import NamedTuple
 
@@ -52,3 +53,32 @@ class StampGate:
     def stats(self) -> dict[str, int]:
         """The same, summed over every robot."""
         return {reason: counts.total() for reason, counts in self._counts.items()}
+
+
+class OneSource:
+    """Per robot, whether its poses come from one publisher. Two within RESTART_AFTER of each other (or one
+    whose sequence numbers go back: its id copied) cannot both be its tracker, and which is cannot be told:
+    its poses are doubted, none taken, until RESTART_AFTER after the last clash, so its drive stops it as
+    for a lost pose. A tracker that restarted under a new id, the old one silent that long, is taken at once."""
+
+    def __init__(self) -> None:
+        self._heard: dict[int, dict[object, tuple[float, int]]] = {}  # robot -> source -> (arrival, sequence)
+        self._doubt_until: dict[int, float] = {}
+        self.clashes = Counter[int]()  # per robot, poses dropped while its sources clashed
+
+    def admit(self, robot: int, source: object, sequence: int, arrival: float) -> bool:
+        """Whether to take a pose of ``robot`` from ``source`` (``sequence``: its count, -1 if it has none)."""
+        heard = {s: h for s, h in self._heard.get(robot, {}).items() if arrival - h[0] < RESTART_AFTER}
+        before = heard.get(source)
+        if len(heard) > (before is not None) or (before is not None and 0 <= sequence <= before[1]):
+            self._doubt_until[robot] = arrival + RESTART_AFTER
+        heard[source] = (arrival, sequence)
+        self._heard[robot] = heard
+        if arrival < self._doubt_until.get(robot, -math.inf):
+            self.clashes[robot] += 1
+            return False
+        return True
+
+    def doubted(self, robot: int, now: float) -> bool:
+        """The robot's poses are doubted at ``now`` (the arrivals' clock)."""
+        return now < self._doubt_until.get(robot, -math.inf)

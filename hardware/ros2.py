@@ -32,7 +32,7 @@ from transport.rmw_zenoh import (
 from transport.session import ZenohSettings, open_session
 
 from .config import HardwareConfigError, Started, check_table, is_number, need
-from .poses import PoseSample, StampGate
+from .poses import OneSource, PoseSample, StampGate
 
 TWIST = "geometry_msgs/msg/Twist"
 COLOR_RGBA = "std_msgs/msg/ColorRGBA"
@@ -352,6 +352,7 @@ class Ros2PoseSource(Ros2Node):
         self._latest: dict[int, tuple[float, float, float, float, float]] = {}  # robot -> pose, stamp, arrival
         self._counts = {"received": 0, "undecodable": 0, "foreign": 0, "without_attachment": 0}
         self.gate = StampGate()  # stamps judged against this machine's clock (time.time())
+        self.sources = OneSource()  # publishers told apart by the gid of rmw_zenoh's attachment
         self._sub: RosSubscriber | None = None
 
     def start(self) -> None:
@@ -378,11 +379,19 @@ class Ros2PoseSource(Ros2Node):
             except ValueError:
                 self._counts["undecodable"] += 1
                 continue
+            a = sample.attachment  # None: a bare put, a source of its own
+            gid, sequence = (None, -1) if a is None else (a.gid, a.sequence_number)
+            if not self.sources.admit(robot, gid, sequence, sample.arrival):
+                continue
             # judged by this machine's wall clock as it was when the sample arrived
             if self.gate.admit(robot, stamp, wall - (mono - sample.arrival), sample.arrival):
                 self._latest[robot] = (x, y, theta, stamp, sample.arrival)
         now = time.monotonic()
-        return {r: PoseSample(x, y, th, st, now - at) for r, (x, y, th, st, at) in sorted(self._latest.items())}
+        return {
+            r: PoseSample(x, y, th, st, now - at)
+            for r, (x, y, th, st, at) in sorted(self._latest.items())
+            if not self.sources.doubted(r, now)
+        }
 
     def ticks(self) -> Iterator[dict[int, PoseSample]]:
         """latest() at the configured rate, for ever: whatever arrived in between, the newest wins."""
@@ -395,11 +404,13 @@ class Ros2PoseSource(Ros2Node):
             yield self.latest()
 
     def stats(self) -> dict[str, int]:
-        return dict(self._counts, **self.gate.stats(), robots=len(self._latest))
+        return dict(
+            self._counts, **self.gate.stats(), two_sources=self.sources.clashes.total(), robots=len(self._latest)
+        )
 
     def robot_stats(self, robot: int) -> dict[str, int]:
-        """One robot's poses dropped for their stamps, and its source's restarts."""
-        return self.gate.robot_stats(robot)
+        """One robot's poses dropped for their stamps or while two publishers clashed, and its source's restarts."""
+        return dict(self.gate.robot_stats(robot), two_sources=self.sources.clashes[robot])
 
 
 STOP_REPEATS = 3  # `pixelswarm stop` sends its stop this many times, a watchdog quarter apart: a fresh

@@ -250,7 +250,7 @@ class HardwareBodies:
                     "commands_sent": int(self.sent[i]),
                     "late_commands": int(tally.late[i]),
                     "dropped_commands": {reason: int(tally.dropped[reason][i]) for reason in COMMAND_DROPS},
-                    "dropped_poses": {reason: poses[reason] for reason in STAMP_DROPS},
+                    "dropped_poses": {reason: poses.get(reason, 0) for reason in (*STAMP_DROPS, "two_sources")},
                     "pose_restarts": poses["restarts"],
                     "watchdog_stops": sum(stops.values()),
                     "stops": stops,
@@ -296,8 +296,10 @@ def wait_for_hardware(node: BodyNode, startup_timeout: float, poses_name: str = 
             where = ", ".join(f"{r} ({bodies.drive.why_unreached(r)})" for r in unreached)
             problems = [f"robots not reachable: {where}"] if unreached else []
             if lost:
-                future = bodies.poses.stats().get("future", 0)
+                stats = bodies.poses.stats()
+                future, two = stats.get("future", 0), stats.get("two_sources", 0)
                 ahead = f"; {future} poses dropped as stamped in the future: is its clock ahead?" if future else ""
+                ahead += f"; {two} poses dropped as two publishers sent them: is a second tracker on?" if two else ""
                 problems.append(f"no pose for robots {', '.join(map(str, lost))} ({poses_name}{ahead})")
             return f"within {startup_timeout:g} s, " + "; ".join(problems)
         time.sleep(POLL)

@@ -426,6 +426,50 @@ def test_humble_keys_and_any_domain_are_accepted(router):
         node.close()
 
 
+def test_a_robot_whose_pose_two_publishers_send_is_not_tracked_until_one_is_silent(router):
+    """A second publisher on a robot's pose topic (a forger, or a second tracker) cannot be told from its
+    tracker: while both are heard the robot has no pose, so its drive stops it as for a lost one; half a
+    second after the other is silent the one left is taken. A publisher whose gid is copied shows it by
+    its sequence numbers going back."""
+    messages, pose_hash = Ros2Messages(), Ros2Messages().type_hash(POSE_STAMPED)
+    with Ros2PoseSource(Ros2PosesConfig(), client_of(router)) as source, raw_session(router) as talker:
+        tracker = RosNode(talker, "mocap").publisher("/robot2/pose", POSE_STAMPED, pose_hash)
+        forger = RosNode(talker, "forger", node_id=50).publisher("/robot2/pose", POSE_STAMPED, pose_hash)
+        time.sleep(0.3)  # the subscription reaches the router
+        tracker.publish(messages.pose_stamped(1.0, 0.0, 0.0, time.time()))
+        assert wait_for(lambda: (p := source.latest().get(2)) is not None and p.x == 1.0, timeout=5)
+        # the forger's poses stamped ahead, beside which the true ones would look old: neither is taken
+        assert wait_for(
+            lambda: (
+                forger.publish(messages.pose_stamped(5.0, 0.0, 0.0, time.time() + 0.9))
+                and tracker.publish(messages.pose_stamped(1.0, 0.0, 0.0, time.time()))
+                and 2 not in source.latest()
+            ),
+            timeout=5,
+            interval=0.02,
+        )
+        assert source.robot_stats(2)["two_sources"] >= 1 and source.stats()["future"] == 0
+        # the forger silent: the tracker's next poses are taken once RESTART_AFTER has passed
+        assert wait_for(
+            lambda: (
+                tracker.publish(messages.pose_stamped(1.5, 0.0, 0.0, time.time()))
+                and (p := source.latest().get(2)) is not None
+                and p.x == 1.5
+            ),
+            timeout=5,
+            interval=0.05,
+        )
+        # its gid copied by another publisher, whose count starts again
+        copier = RosNode(talker, "copier", node_id=90).publisher("/robot2/pose", POSE_STAMPED, pose_hash)
+        copier.gid = tracker.gid
+        copier.publish(messages.pose_stamped(9.0, 0.0, 0.0, time.time()))
+        tracker.publish(messages.pose_stamped(1.6, 0.0, 0.0, time.time()))
+        clashes = source.robot_stats(2)["two_sources"]
+        assert wait_for(lambda: 2 not in source.latest(), timeout=5)
+        assert source.robot_stats(2)["two_sources"] > clashes
+        assert source.stats()["two_sources"] == source.robot_stats(2)["two_sources"]
+
+
 def test_undecodable_or_lost_pose_is_counted_not_raised(router):
     key = "0/robot1/pose/geometry_msgs::msg::dds_::PoseStamped_/TypeHashNotSupported"
     with Ros2PoseSource(Ros2PosesConfig(), client_of(router)) as source, raw_session(router) as talker:
