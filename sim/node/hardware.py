@@ -24,6 +24,7 @@ from coordinator.scene import Scene, SceneError
 from hardware.config import HardwareConfig, HardwareConfigError, load_hardware
 from hardware.poses import STAMP_DROPS, PoseSample
 from sim.args import format_ids, refuse
+from sim.bodies.world import Contact
 from sim.node.body import COMMAND_DROPS, STOP_REASONS, BodyNode, WallClock
 from sim.outputs.metrics import clearance_at
 from transport.bus import Bus
@@ -171,12 +172,15 @@ class HardwareBodies:
         self.tracked = np.zeros(n, bool)  # its pose is fresh (not older than the timeout)
         self.wheels = np.zeros((n, 2))  # what each robot was last told (m/s)
         self.sent = np.zeros(n, int)  # commands handed to the drive, stops included
-        self.contacts: list = []  # measured by the bodies themselves (sim/emulators/lab.py), not from the tracker
+        self.contacts: list[Contact] = []  # as the tracker sees them (the lab's emulated bodies also report theirs)
+        self._touching: dict[tuple[int, int], Contact] = {}  # the tracked contacts under way, by pair
+        self.t = 0.0  # the display time of the last poses sensed
         self.min_clearance = math.inf
         self.unreached: list[int] = []  # robots not told to stop when the run ended
 
     def sense(self, t: float) -> None:
         """Each robot's newest pose; a robot whose pose is older than the timeout is not tracked now."""
+        self.t = t
         self.tracked[:] = False
         for r, s in self.poses.latest().items():
             if 0 <= r < self.n and s.age <= self.timeout:
@@ -215,7 +219,25 @@ class HardwareBodies:
         self.drive.send(ids, wheels[:, 0], wheels[:, 1], colors)
 
     def step(self, span: float) -> list:
-        return []  # real bodies move by themselves
+        """Real bodies move by themselves. The contacts that began, as the tracker sees them: two tracked
+        discs overlapping by more than tracking noise explains (noise_bound), the best evidence a run has."""
+        ids = np.flatnonzero(self.tracked)
+        xy, reach = self.pose[ids, :2], 2.0 * self.params.radius - self.params.noise_bound
+        gap = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
+        now = {
+            (int(ids[a]), int(ids[b])): 2.0 * self.params.radius - gap[a, b] for a, b in zip(*np.nonzero(gap < reach))
+        }
+        began = []
+        for pair, depth in now.items():
+            if pair[0] < pair[1] and pair not in self._touching:
+                self._touching[pair] = Contact("robot", *pair, self.t, None, depth)
+                began.append(self._touching[pair])
+            elif pair in self._touching:
+                self._touching[pair].max_depth = max(self._touching[pair].max_depth, depth)
+        for pair in [p for p in self._touching if p not in now]:
+            self._touching.pop(pair).t_end = self.t
+        self.contacts += began
+        return began
 
     def own_movers(self, tick: int, t: float) -> list[State]:
         return []
