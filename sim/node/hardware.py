@@ -35,6 +35,9 @@ STARTUP_TIMEOUT = 5.0  # s: every robot reached and every robot's pose seen, or 
 POLL = 0.02  # s: how often, within a period, commands, liveliness and safety are looked at
 PROG = "hardware"
 ERROR = f"{PROG}: error: "  # how refuse's one line starts, which the launcher shows when the node refuses to start
+# a robot driven at this share of v_max or more moves, and its measurement jitters: FROZEN_AFTER new poses
+# the very same in a row are a stuck tracker (a held marker, a frozen stream), and the robot is stopped as lost
+FROZEN_SPEED, FROZEN_AFTER = 0.25, 5
 RUNNABLE_BACKENDS = ("epuck2", "ros2")
 
 
@@ -169,6 +172,8 @@ class HardwareBodies:
     def __init__(self, drive: Drive, poses: PoseSource, params: RobotParams, n: int, timeout: float) -> None:
         self.drive, self.poses, self.params, self.timeout, self.n = drive, poses, params, timeout, n
         self.pose = np.zeros((n, 3))  # the last tracked pose of each robot
+        self.stamp = np.full(n, -np.inf)  # and its stamp
+        self.repeats = np.zeros(n, int)  # new poses the same as the one before while the robot was driven
         self.tracked = np.zeros(n, bool)  # its pose is fresh (not older than the timeout)
         self.wheels = np.zeros((n, 2))  # what each robot was last told (m/s)
         self.sent = np.zeros(n, int)  # commands handed to the drive, stops included
@@ -179,13 +184,18 @@ class HardwareBodies:
         self.unreached: list[int] = []  # robots not told to stop when the run ended
 
     def sense(self, t: float) -> None:
-        """Each robot's newest pose; a robot whose pose is older than the timeout is not tracked now."""
+        """Each robot's newest pose; a robot whose pose is older than the timeout, or whose tracker repeats
+        the very same pose while the robot is driven (stuck), is not tracked now."""
         self.t = t
         self.tracked[:] = False
+        driven = np.abs(self.wheels).max(axis=1) >= FROZEN_SPEED * self.params.v_max
         for r, s in self.poses.latest().items():
             if 0 <= r < self.n and s.age <= self.timeout:
-                self.pose[r] = (s.x, s.y, s.theta)
-                self.tracked[r] = True
+                if s.stamp != self.stamp[r]:  # a new measurement: the same pose, bit for bit, only if it stands
+                    same = (s.x, s.y, s.theta) == tuple(self.pose[r])
+                    self.repeats[r] = self.repeats[r] + driven[r] if same else 0  # stopped, a stuck one stays so
+                self.pose[r], self.stamp[r] = (s.x, s.y, s.theta), s.stamp
+                self.tracked[r] = self.repeats[r] < FROZEN_AFTER
 
     def measure(self, t: float) -> np.ndarray:
         return self.pose
