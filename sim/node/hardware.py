@@ -165,6 +165,36 @@ def open_pose_source(config: HardwareConfig, settings: ZenohSettings) -> tuple[P
     return CameraPoseSource(config.poses), f"camera {config.poses.source!r}"
 
 
+class TrackedContacts:
+    """The contacts a tracker sees: two tracked discs overlapping by more than tracking noise explains
+    (noise_bound), the best evidence a run on real robots has; one event per pair while it lasts."""
+
+    def __init__(self, params: RobotParams) -> None:
+        self.diameter = 2.0 * params.radius
+        self.reach = self.diameter - params.noise_bound  # centres nearer than this: a contact
+        self.events: list[Contact] = []
+        self._under_way: dict[tuple[int, int], Contact] = {}
+
+    def update(self, pose: np.ndarray, tracked: np.ndarray, t: float) -> list[Contact]:
+        """The contacts that began at display time ``t``; those no longer seen end there."""
+        ids = np.flatnonzero(tracked)
+        xy = pose[ids, :2]
+        gap = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
+        pairs = zip(*np.nonzero(gap < self.reach))
+        now = {(int(ids[a]), int(ids[b])): self.diameter - gap[a, b] for a, b in pairs if a < b}
+        began = []
+        for pair, depth in now.items():
+            if pair not in self._under_way:
+                self._under_way[pair] = Contact("robot", *pair, t, None, depth)
+                began.append(self._under_way[pair])
+            else:
+                self._under_way[pair].max_depth = max(self._under_way[pair].max_depth, depth)
+        for pair in [p for p in self._under_way if p not in now]:
+            self._under_way.pop(pair).t_end = t
+        self.events += began
+        return began
+
+
 class HardwareBodies:
     """Real robots as the node's bodies: a drive takes their commands, a pose source tells where they are.
     A command holds for the hardware's command timeout of wall time; a pose older than it is lost."""
@@ -177,8 +207,7 @@ class HardwareBodies:
         self.tracked = np.zeros(n, bool)  # its pose is fresh (not older than the timeout)
         self.wheels = np.zeros((n, 2))  # what each robot was last told (m/s)
         self.sent = np.zeros(n, int)  # commands handed to the drive, stops included
-        self.contacts: list[Contact] = []  # as the tracker sees them (the lab's emulated bodies also report theirs)
-        self._touching: dict[tuple[int, int], Contact] = {}  # the tracked contacts under way, by pair
+        self.touching = TrackedContacts(params)  # real robots report none (the lab's emulated bodies do, apart)
         self.t = 0.0  # the display time of the last poses sensed
         self.min_clearance = math.inf
         self.unreached: list[int] = []  # robots not told to stop when the run ended
@@ -228,26 +257,13 @@ class HardwareBodies:
         self.sent[ids] += 1
         self.drive.send(ids, wheels[:, 0], wheels[:, 1], colors)
 
+    @property
+    def contacts(self) -> list[Contact]:
+        return self.touching.events
+
     def step(self, span: float) -> list:
-        """Real bodies move by themselves. The contacts that began, as the tracker sees them: two tracked
-        discs overlapping by more than tracking noise explains (noise_bound), the best evidence a run has."""
-        ids = np.flatnonzero(self.tracked)
-        xy, reach = self.pose[ids, :2], 2.0 * self.params.radius - self.params.noise_bound
-        gap = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
-        now = {
-            (int(ids[a]), int(ids[b])): 2.0 * self.params.radius - gap[a, b] for a, b in zip(*np.nonzero(gap < reach))
-        }
-        began = []
-        for pair, depth in now.items():
-            if pair[0] < pair[1] and pair not in self._touching:
-                self._touching[pair] = Contact("robot", *pair, self.t, None, depth)
-                began.append(self._touching[pair])
-            elif pair in self._touching:
-                self._touching[pair].max_depth = max(self._touching[pair].max_depth, depth)
-        for pair in [p for p in self._touching if p not in now]:
-            self._touching.pop(pair).t_end = self.t
-        self.contacts += began
-        return began
+        """Real bodies move by themselves: the contacts that began are those the tracker sees."""
+        return self.touching.update(self.pose, self.tracked, self.t)
 
     def own_movers(self, tick: int, t: float) -> list[State]:
         return []
