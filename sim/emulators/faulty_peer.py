@@ -9,7 +9,7 @@ stopped) and ends with one line on stdout: the copies it sent, per key kind and 
 mutates only what it says; the layouts: docs/protocol.md):
 
 - ``future-pose``, ``future-state``, ``future-cmd``: frames with their tick (and stamp) moved 1..FUTURE_MAX ticks
-  ahead, half the poses and states at most AHEAD ticks (what a receiver's clock allows).
+  ahead, half the poses at most AHEAD ticks past the newest heard (what a receiver's clock allows).
 - ``malformed-pose``: pose frames truncated, extended, or with a header byte, the count or random bytes
   overwritten (``--damage`` picks among these); some copies still decode.
 - ``malformed-all``: every key kind of the bus (``--include-sim``: also sim/truth, sim/contact) likewise.
@@ -121,13 +121,11 @@ def with_tick(data: bytes, tick: int) -> bytes | None:
     return _put(data, _TICK_AT, _U32.pack(tick) + _F64.pack(stamp / real * tick))
 
 
-def future_tick(data: bytes, rng: random.Random, kind: str) -> bytes | None:
-    """A frame with its tick moved into the future, the rest intact: half the poses and states within the few
-    ticks a receiver's clock allows (transport.plausible.AHEAD), the rest up to FUTURE_MAX. A command a tick or
-    two ahead is a second controller's, which makes its robot stand (test_faulty_peer): none is sent."""
+def future_tick(data: bytes, rng: random.Random, near: bool) -> bytes | None:
+    """A frame with its tick moved into the future, the rest intact: ``near``, within the few ticks a receiver's
+    clock allows (transport.plausible.AHEAD), else beyond them, up to FUTURE_MAX."""
     if len(data) < _FRAME_FIXED:
         return None
-    near = kind != "cmd" and rng.random() < 0.5
     ahead = rng.randint(1, AHEAD) if near else rng.randint(AHEAD + 1, FUTURE_MAX)
     return with_tick(data, _get_u32(data, _TICK_AT) + ahead)
 
@@ -350,7 +348,12 @@ class FaultyPeer:
         kind = rng.choice(kinds)
         key, data = rng.choice(self.heard[kind])
         if sub.startswith("future-"):
-            out, what = _sealed(kind, future_tick(data, rng, kind)), sub
+            # half the poses a tick or two past the newest heard (an older one moved so little is no future one).
+            # A command so near is a second controller's, which makes its robot stand; a state so near is taken
+            # when its tick comes, if it comes first (docs/faults.md): neither tests the judgement of a tick
+            near = kind == "pose" and rng.random() < 0.5
+            key, data = self.heard[kind][-1] if near else (key, data)
+            out, what = _sealed(kind, future_tick(data, rng, near)), sub
         elif sub == "misc" and rng.random() >= 0.5:  # else malformed, as below
             field, out = future_stamp(data, rng, kind)
             what = f"future:{field}"
