@@ -322,6 +322,11 @@ class RawInbox:
         return _drain(self._queue, limit)
 
 
+def alive_parts(key: str) -> list[str]:
+    """A liveliness token's role, ident and incarnation (Keys.alive), as the parts of its key."""
+    return key.split("/alive/", 1)[-1].split("/")
+
+
 class LivelinessWatch:
     """Liveliness tokens (those already there too) as (role, ident, alive, wall time, incarnation) events.
     An incarnation is one process's life (Bus.incarnation): a token back under a new one is a restart, under
@@ -335,7 +340,7 @@ class LivelinessWatch:
         self.sender: dict[int, int] = {}
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        parts = str(sample.key_expr).split("/alive/", 1)[-1].split("/")
+        parts = alive_parts(str(sample.key_expr))
         if len(parts) < 2:
             return
         role, incarnation, alive = parts[0], "/".join(parts[2:]), sample.kind == zenoh.SampleKind.PUT
@@ -505,7 +510,7 @@ class Bus:
         """(role, ident) of every process alive on this display now, by its liveliness token."""
         replies = self.session.liveliness().get(self.keys.alive_all(), timeout=timeout)
         found = (getattr(reply, "ok", None) for reply in replies)
-        parts = [str(ok.key_expr).split("/alive/", 1)[-1].split("/") for ok in found if ok is not None]
+        parts = [alive_parts(str(ok.key_expr)) for ok in found if ok is not None]
         return sorted((p[0], p[1]) for p in parts if len(p) >= 2)
 
     def watch_alive(self, role: str | None = None) -> LivelinessWatch:

@@ -92,12 +92,12 @@ def _put(data: bytes, at: int, packed: bytes) -> bytes:
     return data[:at] + packed + data[at + len(packed) :]
 
 
-def _forward_u32(data: bytes, at: int, rng: random.Random, skip_before_start: bool = False) -> bytes | None:
+def _forward_u32(data: bytes, at: int, rng: random.Random) -> bytes | None:
     """The u32 at ``at`` moved forward by 1..FUTURE_MAX (not past 0xFFFFFFFE)."""
     if len(data) < at + 4:
         return None
     value = _get_u32(data, at)
-    if value >= BEFORE_START - 1 or (skip_before_start and value == BEFORE_START):
+    if value >= BEFORE_START - 1:
         return None
     return _put(data, at, _U32.pack(min(value + rng.randint(1, FUTURE_MAX), BEFORE_START - 1)))
 

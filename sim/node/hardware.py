@@ -208,14 +208,13 @@ class HardwareBodies:
         self.wheels = np.zeros((n, 2))  # what each robot was last told (m/s)
         self.sent = np.zeros(n, int)  # commands handed to the drive, stops included
         self.touching = TrackedContacts(params)  # real robots report none (the lab's emulated bodies do, apart)
-        self.t = 0.0  # the display time of the last poses sensed
+        self.began: list[Contact] = []  # the contacts the last poses sensed began, for the next step
         self.min_clearance = math.inf
         self.unreached: list[int] = []  # robots not told to stop when the run ended
 
     def sense(self, t: float) -> None:
         """Each robot's newest pose; a robot whose pose is older than the timeout, or whose tracker repeats
         the very same pose while the robot is driven (stuck), is not tracked now."""
-        self.t = t
         self.tracked[:] = False
         driven = np.abs(self.wheels).max(axis=1) >= FROZEN_SPEED * self.params.v_max
         for r, s in self.poses.latest().items():
@@ -225,6 +224,7 @@ class HardwareBodies:
                     self.repeats[r] = self.repeats[r] + driven[r] if same else 0  # stopped, a stuck one stays so
                 self.pose[r], self.stamp[r] = (s.x, s.y, s.theta), s.stamp
                 self.tracked[r] = self.repeats[r] < FROZEN_AFTER
+        self.began += self.touching.update(self.pose, self.tracked, t)  # once a tick: the poses change only here
 
     def measure(self, t: float) -> np.ndarray:
         return self.pose
@@ -262,8 +262,9 @@ class HardwareBodies:
         return self.touching.events
 
     def step(self, span: float) -> list:
-        """Real bodies move by themselves: the contacts that began are those the tracker sees."""
-        return self.touching.update(self.pose, self.tracked, self.t)
+        """Real bodies move by themselves: the contacts that began are those the tracker saw last."""
+        began, self.began = self.began, []
+        return began
 
     def own_movers(self, tick: int, t: float) -> list[State]:
         return []
