@@ -97,12 +97,17 @@ def write_json(path: str | os.PathLike, obj: Any, *, indent: int = 2) -> Path:
     return path
 
 
+# zlib's level for a run's .npz files: the fastest, and a run's trajectories come out nearly as small as at
+# numpy's level 6 (BENCHMARKS.md, "Outputs")
+NPZ_LEVEL = 1
+
+
 def write_npz_streamed(path: str | os.PathLike, arrays: Iterable[tuple[str, Any]]) -> Path:
     """Write arrays to a compressed ``.npz`` exactly at ``path``, atomically (object arrays refused), taken one
     at a time (a generator makes each only while it is written); a value with ``write(file)`` writes its own."""
 
     def _w(fh: io.BufferedWriter) -> None:
-        with zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED, allowZip64=True, compresslevel=6) as z:
+        with zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED, allowZip64=True, compresslevel=NPZ_LEVEL) as z:
             for name, value in arrays:
                 with z.open(f"{name}.npy", "w", force_zip64=True) as member:
                     if hasattr(value, "write"):
