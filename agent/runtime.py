@@ -21,7 +21,7 @@ import numpy as np
 from transport.bus import Bus, Inbox, KeepRobots, LivelinessWatch
 from transport.codec import BEFORE_START, Command, Commands, Event, Goals, Pose, State, life_number
 from transport.keys import cell_of, cells_of, robots_ident
-from transport.plausible import FUTURE, INCONSISTENT, GoalSets, TickLine, stamp_agrees
+from transport.plausible import CONFLICTING, FUTURE, INCONSISTENT, GoalSets, TickLine, stamp_agrees
 
 from . import loop
 from .assignment import AuctionLink, LockStepRounds
@@ -37,6 +37,7 @@ from .neighbour_table import NeighbourTable, TrackedBodies
 from .pose_trust import PoseTrust
 
 GOAL_SETS_KEPT = 4  # goal sets remembered (an agreed assignment may still be of an older epoch)
+POSES_KEPT = 4  # ticks of each robot's poses remembered, to see a second pose of a tick that differs
 
 
 @dataclass
@@ -227,7 +228,10 @@ class OwnRobots:
 
 
 class PoseIntake:
-    """The poses the next step acts on, by robot, checked against the clock and where the robot could have driven."""
+    """The poses the next step acts on, by robot, checked against the clock and where the robot could have driven.
+    A second pose of a tick that differs from the first (a forged one came first, or a second tracker) leaves
+    which is true unknown: the robot brakes until its poses have agreed for ``stale_after``, as the body node
+    stops a robot commanded two ways."""
 
     def __init__(self, config: HostConfig, pose_period: float | None) -> None:
         p = config.params
@@ -236,6 +240,9 @@ class PoseIntake:
         self.trust = PoseTrust(p.v_max, p.dt, 2 * p.noise_bound)
         self.lines = {r: TickLine(pose_period) for r in config.robots}
         self.arena = config.arena
+        self.acted: dict[int, dict[int, tuple[float, float, float]]] = {r: {} for r in config.robots}
+        self.doubted_until: dict[int, int] = {}  # robot -> the tick from which its poses are believed again
+        self.doubt_ticks = max(1, math.ceil(p.stale_after / p.dt - 1e-9))
 
     def off_arena(self, pose: Pose) -> bool:
         """A pose farther than ARENA_SLACK outside the arena: no tracker sees a robot there (a forged pose)."""
@@ -253,17 +260,36 @@ class PoseIntake:
         latest = latest_tick()
         if latest is not None and pose.tick > latest:
             return FUTURE  # taken, it would make the honest poses until its tick look old: the robot would skip them
+        if self.second_pose(pose):
+            return CONFLICTING
         why = self.lines[pose.robot].admit(pose.tick, time.monotonic(), latest)
         held = self.pending.get(pose.robot)
         if why is None and (held is None or pose.tick > held.tick):
             self.pending[pose.robot] = pose
         return why
 
+    def second_pose(self, pose: Pose) -> bool:
+        """Is this a pose of a tick the robot holds or acted on, at another place? It then brakes a while."""
+        held = self.pending.get(pose.robot)
+        first = (held.x, held.y, held.theta) if held is not None and held.tick == pose.tick else None
+        first = first or self.acted[pose.robot].get(pose.tick)
+        if first is None or first == (pose.x, pose.y, pose.theta):
+            return False
+        self.doubted_until[pose.robot] = pose.tick + self.doubt_ticks
+        return True
+
     def judged(self, poses: list[Pose]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Each robot's position and heading to drive on, and whether it brakes on its last trusted pose."""
+        for q in poses:
+            acted = self.acted[q.robot]
+            acted[q.tick] = (q.x, q.y, q.theta)
+            if len(acted) > POSES_KEPT:
+                del acted[min(acted)]
         judged = [self.trust.judge(q.robot, q.tick, q.x, q.y, q.theta) for q in poses]
         pose_of = np.array([j if j is not None else self.trust.last(q.robot) for q, j in zip(poses, judged)], float)
-        return pose_of[:, :2].copy(), pose_of[:, 2].copy(), np.array([j is None for j in judged], bool)
+        doubted = [q.tick < self.doubted_until.get(q.robot, -1) for q in poses]
+        braking = np.array([j is None or d for j, d in zip(judged, doubted)], bool)
+        return pose_of[:, :2].copy(), pose_of[:, 2].copy(), braking
 
 
 @dataclass
@@ -584,6 +610,18 @@ class AgentHost:
         why = self.poses.take(pose, self.clock.latest_pose_tick)  # lock-step: the world's clock says which tick it is
         if why is not None:
             self.inbox.pose.drops[why] += 1
+        if why == CONFLICTING and pose.tick in self.poses.acted[pose.robot]:
+            self._brake_at(pose)
+
+    def _brake_at(self, pose: Pose) -> None:
+        """The robot's command of a tick it acted on another pose of, taken back: braking. If the body node
+        took the first, two commands of one tick stop the robot there; if it refused it (sent before that
+        tick went out, on a forged clock), the robot stands this tick."""
+        mode = Command.WHEELS if self.params.kinematics == DIFFDRIVE else Command.HOLONOMIC
+        color = self.held_goals.color[self.robots.row_of[pose.robot]].tolist()
+        brake = Command(pose.robot, pose.tick, pose.stamp, mode, 0.0, 0.0, *color)
+        to = self.bus.keys.cmd(int(self.robots.ids.min()) if self.config.frames else pose.robot)
+        self.bus.publish_frame(Commands, pose.tick, pose.stamp, [brake], to)
 
     def step(self) -> None:
         """Compute and publish one tick for every robot whose pose has arrived."""

@@ -1,6 +1,8 @@
-"""A second controller on one robot's key, as whoever holds its stolen credentials would be: at each tick of
-the world's clock, before the robot's agent has answered it, a command of its own for that tick driving the
-robot at full speed toward the arena's centre (where a circle's robots cross)."""
+"""Peers that lie to one robot. Rival: a second controller on its key, as whoever holds its stolen credentials
+would be: at each tick of the world's clock, before the robot's agent has answered it, a command of its own for
+that tick driving the robot at full speed toward the arena's centre (where a circle's robots cross).
+PoseForger: at each tick of the world's clock, the next tick's clock message and the robot's pose for it at its
+last place, before the world has moved it there: the robot would drive a tick behind itself."""
 
 from __future__ import annotations
 
@@ -8,7 +10,7 @@ import math
 import threading
 
 from transport.bus import Bus
-from transport.codec import Command, Commands, Pose, Tick
+from transport.codec import BEFORE_START, Command, Commands, Pose, Poses, Tick
 from transport.session import ZenohSettings
 
 
@@ -36,6 +38,49 @@ class Rival:
             vx, vy = -self.speed * where.x / away, -self.speed * where.y / away
             command = Command(self.robot, tick.tick, tick.stamp, Command.HOLONOMIC, vx, vy, 255, 0, 0)
             self.bus.publish_frame(Commands, tick.tick, tick.stamp, [command], self.bus.keys.cmd(self.robot))
+            self.sent += 1
+
+    def close(self) -> None:
+        self.stopping.set()
+        self.thread.join(5)
+        self.bus.close()
+
+
+class PoseForger:
+    def __init__(self, endpoint: str, robot: int) -> None:
+        self.robot, self.sent = robot, 0
+        self.bus = Bus(ZenohSettings(mode="client", connect=[endpoint]), name="forger")
+        self.clock = self.bus.subscribe(self.bus.keys.clock, Tick)
+        self.pose = self.bus.subscribe(self.bus.keys.pose(robot), Pose)
+        self.stopping = threading.Event()
+        self.thread = threading.Thread(target=self._forge, daemon=True)
+        self.thread.start()
+
+    def _forge(self) -> None:
+        where, forged = None, set()
+        echoed: dict[str, set[int]] = {"clock": set(), "pose": set()}
+
+        def honest(kind: str, tick: int) -> bool:  # the forger hears its own messages, and before the world's
+            if tick in forged and tick not in echoed[kind]:
+                echoed[kind].add(tick)
+                return False
+            return True
+
+        while not self.stopping.is_set():
+            got = self.clock.get(timeout=0.1)
+            for _, pose in self.pose.drain():
+                mine = pose.robot == self.robot and pose.tick != BEFORE_START and honest("pose", pose.tick)
+                if mine and (where is None or pose.tick > where.tick):
+                    where = pose
+            if got is None or where is None or not honest("clock", got[1].tick) or got[1].tick < where.tick:
+                continue
+            now = got[1]
+            dt = round(now.dt, 6)  # the period as the scene says it (the clock carries it as a float32)
+            tick, stamp = now.tick + 1, (now.tick + 1) * dt
+            forged.add(tick)
+            self.bus.publish(self.bus.keys.clock, Tick(tick, stamp, dt, now.goal_epoch))
+            forged_pose = Pose(self.robot, tick, stamp, where.x, where.y, where.theta)
+            self.bus.publish(self.bus.keys.pose(self.robot), Poses.one(forged_pose))
             self.sent += 1
 
     def close(self) -> None:

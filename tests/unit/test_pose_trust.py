@@ -227,3 +227,38 @@ def test_a_lockstep_pose_past_the_newest_clock_is_refused_and_the_honest_one_tak
     assert intake.pending[0] == at(10, 0.1)
     clock = lambda: 11  # noqa: E731
     assert intake.take(at(11, 0.11), clock) is None and intake.pending[0] == at(11, 0.11)
+
+
+def test_a_second_pose_of_a_tick_at_another_place_makes_the_robot_brake_until_its_poses_agree():
+    """A forged pose that came before the world's, for the same tick, was acted on and the honest one dropped as
+    stale: the robot drove a tick behind itself. Two poses of one tick at different places leave which is true
+    unknown: the second is refused as conflicting and the robot brakes for stale_after; a copy is no conflict."""
+    from agent.core.params import EPUCK
+    from agent.runtime import HostConfig, PoseIntake
+    from transport.codec import Pose
+    from transport.plausible import CONFLICTING
+
+    intake = PoseIntake(HostConfig([0], EPUCK), None)
+    clock = lambda: 11  # noqa: E731
+    at = lambda tick, x: Pose(0, tick, tick * EPUCK.dt, x, 0.0, 0.0)  # noqa: E731
+    assert intake.take(at(10, 0.10), clock) is None
+    _, _, braking = intake.judged([intake.pending.pop(0)])
+    assert not braking.any()
+    assert intake.take(at(10, 0.10), clock) == STALE  # the same pose again: a copy, no doubt
+    assert intake.take(at(11, 0.10), clock) is None  # the forged one, first: where the robot was
+    _, _, braking = intake.judged([intake.pending.pop(0)])
+    assert not braking.any()
+    assert intake.take(at(11, 0.14), clock) == CONFLICTING  # the world's, where it drove
+    doubt = intake.doubt_ticks
+    assert doubt == math.ceil(EPUCK.stale_after / EPUCK.dt - 1e-9)
+    for tick in range(12, 12 + doubt + 1):
+        clock = lambda tick=tick: tick  # noqa: E731
+        assert intake.take(at(tick, 0.14), clock) is None
+        _, _, braking = intake.judged([intake.pending.pop(0)])
+        assert braking.tolist() == [tick < 11 + doubt], tick
+    # both before the step: the robot brakes on the first
+    assert intake.take(at(30, 0.2), lambda: 30) is None  # within reach of the last trusted pose
+    assert intake.take(at(30, 0.25), lambda: 30) == CONFLICTING
+    assert intake.pending[0] == at(30, 0.2)
+    _, _, braking = intake.judged([intake.pending.pop(0)])
+    assert braking.tolist() == [True]
