@@ -330,11 +330,12 @@ def alive_parts(key: str) -> list[str]:
 class LivelinessWatch:
     """Liveliness tokens (those already there too) as (role, ident, alive, wall time, incarnation) events.
     An incarnation is one process's life (Bus.incarnation): a token back under a new one is a restart, under
-    the same one a blip. A new incarnation before the old token is gone counts as the old one's death."""
+    the same one a blip. A new incarnation before the old token is gone counts as the old one's death; if the
+    new one's token goes first (a forged one, or a restart that died), the old one that still stands lives again."""
 
     def __init__(self) -> None:
         self._queue: queue.SimpleQueue[tuple[str, str, bool, float, str]] = queue.SimpleQueue()
-        self._live: dict[tuple[str, str], str] = {}  # (role, ident) -> its live incarnation
+        self._live: dict[tuple[str, str], list[str]] = {}  # (role, ident) -> its standing incarnations, the live last
         self._lock = threading.Lock()
         # robot -> the first robot of the agent whose token names it newest: the id its command frames are keyed by
         self.sender: dict[int, int] = {}
@@ -354,16 +355,21 @@ class LivelinessWatch:
                 self._take((role, ident), incarnation, alive, now)
 
     def _take(self, who: tuple[str, str], incarnation: str, alive: bool, now: float) -> None:
-        live = self._live.get(who)
-        if alive and live is not None and live != incarnation:
-            self._queue.put((*who, False, now, live))
+        lives = self._live.pop(who, [])
+        live = lives[-1] if lives else None
+        if incarnation in lives:
+            lives.remove(incarnation)
         if alive:
-            self._live[who] = incarnation
-        elif live == incarnation:
-            del self._live[who]
-        else:
-            return  # a replaced incarnation's token ended
+            lives.append(incarnation)
+            if live is not None and live != incarnation:
+                self._queue.put((*who, False, now, live))
+        if lives:
+            self._live[who] = lives
+        if not alive and live != incarnation:
+            return  # a replaced incarnation's token ended (or one never heard)
         self._queue.put((*who, alive, now, incarnation))
+        if not alive and lives:
+            self._queue.put((*who, True, now, lives[-1]))
 
     def drain(self) -> list[tuple[str, str, bool, float, str]]:
         return _drain(self._queue)

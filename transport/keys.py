@@ -14,6 +14,8 @@ import re
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .codec import MAX_ROBOTS
+
 PREFIX = "px"
 _NAME = re.compile(r"^[A-Za-z0-9_\-]+$")
 _RUN = re.compile(r"^(\d+)(?:-(\d+))?$")  # a run of robot ids in a liveliness ident
@@ -28,13 +30,16 @@ def robots_ident(robots: list[int]) -> str:
 
 
 def robots_of_ident(ident: str) -> list[int] | None:
-    """The robots a liveliness ident of robots_ident names; None if it names none."""
+    """The robots a liveliness ident of robots_ident names; None if it names none, or an id no robot has
+    (a forged "0-4294967295" would have every process listing four billion robots)."""
     robots: list[int] = []
     for run in ident.split("_"):
         bounds = _RUN.match(run)
-        if bounds is None or int(bounds[2] or bounds[1]) < int(bounds[1]):
+        if bounds is None or not int(bounds[1]) <= int(bounds[2] or bounds[1]) < MAX_ROBOTS:
             return None
         robots.extend(range(int(bounds[1]), int(bounds[2] or bounds[1]) + 1))
+        if len(robots) > MAX_ROBOTS:  # runs that repeat each other
+            return None
     return robots
 
 

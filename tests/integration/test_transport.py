@@ -662,7 +662,9 @@ def test_robots_ident_names_a_hosts_robots_as_runs(robots, ident):
     assert robots_of_ident(ident) == sorted(robots)
 
 
-@pytest.mark.parametrize("ident", ["", "a", "3-", "5-3", "1_x", "-4", "2--3"])
+@pytest.mark.parametrize(
+    "ident", ["", "a", "3-", "5-3", "1_x", "-4", "2--3", "0-4294967295", "65536", "_".join(["0-65535"] * 2)]
+)
 def test_an_ident_that_names_no_robots_is_none(ident):
     assert robots_of_ident(ident) is None
 
@@ -676,12 +678,33 @@ def test_a_restarted_agent_heard_before_its_old_token_ends_is_a_death_then_a_lif
         old.declare_alive("agent", 4)
         assert wait_for(lambda: watch._live, timeout=5)
         new.declare_alive("agent", 4)
-        assert wait_for(lambda: watch._live.get(("agent", "4")) == new.incarnation, timeout=5)
+        assert wait_for(lambda: watch._live.get(("agent", "4"), [None])[-1] == new.incarnation, timeout=5)
         old.close()
         time.sleep(0.3)
         events = [(alive, life) for _, _, alive, _, life in watch.drain()]
         new.close()
         assert events == [(True, old.incarnation), (False, old.incarnation), (True, new.incarnation)]
+
+
+def test_a_forged_life_that_comes_and_goes_leaves_the_agent_that_still_stands_alive(router):
+    """A peer declared robot 4's token under another life for a moment: the agent's own life counted as dead (a
+    restart), and once the forged token went robot 4 was dead for good though its agent lived on (every robot of
+    a run froze for the rest of it under a forged host token). The life whose token still stands lives again."""
+    with Bus(client_of(router), "t") as watcher, Bus(client_of(router), "t") as real:
+        watch = watcher.watch_alive("agent")
+        real.declare_alive("agent", 4)
+        assert wait_for(lambda: watch._live, timeout=5)
+        with Bus(client_of(router), "t") as forged:
+            forged.declare_alive("agent", "3-5")
+            assert wait_for(lambda: watch._live.get(("agent", "4"), [None])[-1] == forged.incarnation, timeout=5)
+        assert wait_for(lambda: watch._live.get(("agent", "4"), [None])[-1] == real.incarnation, timeout=5)
+        time.sleep(0.3)
+        events = [(ident, alive, life) for _, ident, alive, _, life in watch.drain()]
+    lives = {real.incarnation: "real", forged.incarnation: "forged"}
+    assert [(i, a, lives[life]) for i, a, life in events if i == "4"] == [
+        ("4", True, "real"), ("4", False, "real"), ("4", True, "forged"), ("4", False, "forged"), ("4", True, "real")
+    ]  # fmt: skip
+    assert [(i, a) for i, a, _ in events if i != "4"] == [("3", True), ("5", True), ("3", False), ("5", False)]
 
 
 def test_occupied_port_is_a_clear_error(router):
