@@ -13,7 +13,7 @@ import numpy as np
 
 from transport.bus import Inbox
 from transport.codec import BEFORE_START, START_TICK, Goals, Pose, State, Tick, as_sent
-from transport.plausible import AHEAD, Clock
+from transport.plausible import AHEAD, STALE, Clock
 
 from .core.params import RobotParams
 
@@ -245,7 +245,9 @@ class LockStep(HostClock):
                 g.timing.step >= due for g in (*host.goal_sets.by_epoch.values(), *self.unnamed.values())
             )
             known = tick in self.named or self._missed(tick)
-            if known and has_step and host.goal_sets.newest_heard >= self.named.get(tick, 0):
+            # an epoch past AHEAD of the newest heard is taken only after those between: not worth a wait
+            named = self.named.get(tick, 0)
+            if known and has_step and not host.goal_sets.newest_heard < named <= host.goal_sets.newest_heard + AHEAD:
                 break
             wait = max(min(deadline - time.monotonic(), 0.05), 0.0)
             if not known:
@@ -277,8 +279,11 @@ class LockStep(HostClock):
             self._on_clock(clock)
 
     def _on_clock(self, clock: Tick) -> None:
-        """A clock message names the goal set of its tick; its tick bounds the poses' (it may not skip ahead)."""
+        """A clock message names the goal set of its tick; its tick bounds the poses' (it may not skip ahead). Two
+        of one tick naming different goal sets (one forged): the older is waited for, which the world has heard."""
         why = self.clock.admit(clock, time.monotonic())
+        if why == STALE and clock.tick in self.named:
+            self.named[clock.tick] = min(self.named[clock.tick], clock.goal_epoch)
         if why is not None:
             self.ticks.drops[why] += 1
             return

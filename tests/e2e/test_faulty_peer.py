@@ -21,7 +21,9 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -29,7 +31,7 @@ from coordinator.scene import load_scene
 from sim.bodies.tracker import world_of
 from sim.emulators.faulty_peer import main as peer_main
 from tests.conftest import REPO, descendants, pixelswarm_cmd, ticks_so_far, wait_for
-from tests.support.rival import PoseForger, Rival
+from tests.support.rival import NextTick, Rival
 from transport.plausible import CONFLICTING, FUTURE, INCONSISTENT, STALE
 from transport.session import free_port, listening
 
@@ -260,28 +262,35 @@ def test_a_peer_stopped_while_its_router_stalls_says_what_it_sent_at_once(tmp_pa
         _stop(run)
 
 
+def _circle_beside(out: Path, seed: int, duration: float, peer: Callable[[str], Any] | None) -> tuple[dict, Any, bytes]:
+    """A lock-step circle of 8 robots on its own router, ``peer(endpoint)`` joined once the router listens (None:
+    alone); the run's metrics, the peer (closed) and the run's stderr."""
+    port = free_port()
+    flags = ("--robots", "8", "--clock", "lockstep", "--seed", str(seed), "--duration", str(duration))
+    command = pixelswarm_cmd("run", "circle", *flags, "-l", f"tcp/127.0.0.1:{port}", "--out", str(out))
+    run = subprocess.Popen(
+        [*command, "--no-video", "--no-plots", "-q"], cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+    )
+    joined = None
+    try:
+        assert wait_for(lambda: run.poll() is not None or listening(port), 60), "the run's router never listened"
+        joined = peer(f"tcp/127.0.0.1:{port}") if peer is not None else None
+        _, err = run.communicate(timeout=RUN_TIMEOUT)
+    finally:
+        if joined is not None:
+            joined.close()
+        _stop(run)
+    assert run.returncode == 0, err[-3000:]
+    return json.loads((out / "metrics.json").read_text()), joined, err
+
+
 @pytest.mark.slow
 def test_a_second_controller_on_a_robots_key_makes_it_stand_not_collide(tmp_path):
     """Whoever holds robot 3's key drives it at full speed into the circle's crossing, a command for each tick
     sent before its agent's (on the secured bus too: the key is its own). The world stops robot 3 at the
     first tick commanded two ways and keeps it standing; nobody touches (robot 3 did before)."""
-    port, out = free_port(), tmp_path / "run"
-    flags = ("--robots", "8", "--clock", "lockstep", "--seed", "1", "--duration", "15")
-    command = pixelswarm_cmd("run", "circle", *flags, "-l", f"tcp/127.0.0.1:{port}", "--out", str(out))
-    run = subprocess.Popen(
-        [*command, "--no-video", "--no-plots", "-q"], cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
-    )
-    rival = None
-    try:
-        assert wait_for(lambda: run.poll() is not None or listening(port), 60), "the run's router never listened"
-        rival = Rival(f"tcp/127.0.0.1:{port}", robot=3, speed=world_of(load_scene("circle"))[0].v_max)
-        _, err = run.communicate(timeout=RUN_TIMEOUT)
-    finally:
-        if rival is not None:
-            rival.close()
-        _stop(run)
-    assert run.returncode == 0, err[-3000:]
-    metrics = json.loads((out / "metrics.json").read_text())
+    v_max = world_of(load_scene("circle"))[0].v_max
+    metrics, rival, err = _circle_beside(tmp_path / "run", 1, 15, lambda at: Rival(at, robot=3, speed=v_max))
     check_no_contacts(metrics)
     assert rival.sent > 100 and metrics["commanded_two_ways"] == [3]
     assert metrics["dropped_messages"]["conflicting"] > 100  # every tick the rival won: robot 3 stood
@@ -292,28 +301,28 @@ def test_a_second_controller_on_a_robots_key_makes_it_stand_not_collide(tmp_path
 def test_a_pose_forged_for_the_next_tick_makes_its_robot_stand_not_collide(tmp_path):
     """At each tick a forger sends the next tick's clock and robot 3's pose for it at its last place, before the
     world has moved it there. Robot 3 drove a tick behind itself: 3 and 7 contacts in two runs of an injector
-    doing the same, 61 and 91 missed ticks (2-3 minutes) with this one. Now the world's own pose of that tick differs from the first: the
-    agent takes its command back (the world stops robot 3 or never drives it) and robot 3 stands while in doubt."""
-    port, out = free_port(), tmp_path / "run"
-    flags = ("--robots", "8", "--clock", "lockstep", "--seed", "3", "--duration", "20")
-    command = pixelswarm_cmd("run", "circle", *flags, "-l", f"tcp/127.0.0.1:{port}", "--out", str(out))
-    run = subprocess.Popen(
-        [*command, "--no-video", "--no-plots", "-q"], cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
-    )
-    forger = None
-    try:
-        assert wait_for(lambda: run.poll() is not None or listening(port), 60), "the run's router never listened"
-        forger = PoseForger(f"tcp/127.0.0.1:{port}", robot=3)
-        _, err = run.communicate(timeout=RUN_TIMEOUT)
-    finally:
-        if forger is not None:
-            forger.close()
-        _stop(run)
-    assert run.returncode == 0, err[-3000:]
-    metrics = json.loads((out / "metrics.json").read_text())
+    doing the same, 61 and 91 missed ticks (2-3 minutes) with this one. Now the world's own pose of that tick
+    differs from the first: the agent takes its command back (the world stops robot 3 or never drives it) and
+    robot 3 stands while in doubt."""
+    metrics, forger, _ = _circle_beside(tmp_path / "run", 3, 20, lambda at: NextTick(at, robot=3))
     check_no_contacts(metrics)
     assert forger.sent > 100 and metrics["dropped_messages"]["conflicting"] > 100
     assert metrics["missed_ticks"] <= 5, "robot 3 answered the ticks it doubted (braking)"
+
+
+@pytest.mark.slow
+def test_a_clock_forged_for_the_next_tick_naming_an_unknown_goal_set_does_not_hold_the_swarm(tmp_path):
+    """At each tick a forger sends the next tick's clock, naming goal set 99, before the world's: the agents took
+    the forged one and dropped the world's as stale, then waited 10 s a tick for goal set 99 (4 minutes and
+    1160 missed ticks for a 20 s circle). A goal set far past the newest heard is not waited for, and of two
+    clocks of one tick the older goal set counts: the run is the run without the forger."""
+    alone, _, _ = _circle_beside(tmp_path / "alone", 3, 20, None)
+    forged, forger, _ = _circle_beside(tmp_path / "forged", 3, 20, lambda at: NextTick(at, None, goal_epoch=99))
+    assert forger.sent > 50
+    for metrics in (alone, forged):
+        check_no_contacts(metrics)
+        assert metrics["converged"] and metrics["missed_ticks"] == 0
+    assert forged["min_clearance_m"] == alone["min_clearance_m"]
 
 
 @pytest.mark.parametrize(

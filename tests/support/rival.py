@@ -1,8 +1,9 @@
 """Peers that lie to one robot. Rival: a second controller on its key, as whoever holds its stolen credentials
 would be: at each tick of the world's clock, before the robot's agent has answered it, a command of its own for
 that tick driving the robot at full speed toward the arena's centre (where a circle's robots cross).
-PoseForger: at each tick of the world's clock, the next tick's clock message and the robot's pose for it at its
-last place, before the world has moved it there: the robot would drive a tick behind itself."""
+NextTick: at each tick of the world's clock, the next tick's clock message (naming another goal set, if asked) and
+the robot's pose for it at its last place, before the world has moved it there: the robot would drive a tick
+behind itself."""
 
 from __future__ import annotations
 
@@ -46,12 +47,14 @@ class Rival:
         self.bus.close()
 
 
-class PoseForger:
-    def __init__(self, endpoint: str, robot: int) -> None:
-        self.robot, self.sent = robot, 0
+class NextTick:
+    def __init__(self, endpoint: str, robot: int | None, goal_epoch: int | None = None) -> None:
+        """``robot``: whose pose to forge (None: none); ``goal_epoch``: the goal set the forged clocks name."""
+        self.robot, self.goal_epoch, self.sent = robot, goal_epoch, 0
+        self.watched = 0 if robot is None else robot  # whose poses say which tick the world is at
         self.bus = Bus(ZenohSettings(mode="client", connect=[endpoint]), name="forger")
         self.clock = self.bus.subscribe(self.bus.keys.clock, Tick)
-        self.pose = self.bus.subscribe(self.bus.keys.pose(robot), Pose)
+        self.pose = self.bus.subscribe(self.bus.keys.pose(self.watched), Pose)
         self.stopping = threading.Event()
         self.thread = threading.Thread(target=self._forge, daemon=True)
         self.thread.start()
@@ -69,7 +72,7 @@ class PoseForger:
         while not self.stopping.is_set():
             got = self.clock.get(timeout=0.1)
             for _, pose in self.pose.drain():
-                mine = pose.robot == self.robot and pose.tick != BEFORE_START and honest("pose", pose.tick)
+                mine = pose.robot == self.watched and pose.tick != BEFORE_START and honest("pose", pose.tick)
                 if mine and (where is None or pose.tick > where.tick):
                     where = pose
             if got is None or where is None or not honest("clock", got[1].tick) or got[1].tick < where.tick:
@@ -78,9 +81,11 @@ class PoseForger:
             dt = round(now.dt, 6)  # the period as the scene says it (the clock carries it as a float32)
             tick, stamp = now.tick + 1, (now.tick + 1) * dt
             forged.add(tick)
-            self.bus.publish(self.bus.keys.clock, Tick(tick, stamp, dt, now.goal_epoch))
-            forged_pose = Pose(self.robot, tick, stamp, where.x, where.y, where.theta)
-            self.bus.publish(self.bus.keys.pose(self.robot), Poses.one(forged_pose))
+            epoch = now.goal_epoch if self.goal_epoch is None else self.goal_epoch
+            self.bus.publish(self.bus.keys.clock, Tick(tick, stamp, dt, epoch))
+            if self.robot is not None:
+                forged_pose = Pose(self.robot, tick, stamp, where.x, where.y, where.theta)
+                self.bus.publish(self.bus.keys.pose(self.robot), Poses.one(forged_pose))
             self.sent += 1
 
     def close(self) -> None:
