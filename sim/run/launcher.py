@@ -102,6 +102,20 @@ def _warn(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
 
+def _agent_stats(rec: Recorder) -> list[dict[str, Any]]:
+    """The agents' statistics events whose fields have their types (anyone may publish an event on an open bus)."""
+    return [
+        e
+        for e in rec.happened.events
+        if e.get("kind") == "stats"
+        and e.get("role") == "agent"
+        and isinstance(e.get("robots"), list)
+        and all(type(r) is int for r in e["robots"])
+        and isinstance(e.get("dropped") or {}, dict)
+        and all(type(k) is int for k in (e.get("dropped") or {}).values())
+    ]
+
+
 def _last_said(log: Path, prefix: str) -> str | None:
     """The rest of the last line of a child's log that starts with ``prefix`` (None: none, or no log)."""
     lines = log.read_text().splitlines() if log.exists() else []
@@ -530,7 +544,7 @@ class Launcher:
             expected = {
                 r for c in self.children if c.name.startswith("agent") and c.proc.returncode == 0 for r in c.robots
             }
-        reported = {r for e in rec.happened.events if e.get("kind") == "stats" for r in e.get("robots", [])}
+        reported = {r for e in _agent_stats(rec) for r in e["robots"]}
         return not expected <= reported
 
     def _start_hardware(self, rec: Recorder) -> None:
@@ -642,22 +656,22 @@ class Launcher:
                     )
 
     def _world_done(self, rec: Recorder) -> dict | None:
-        """The world's final report: from the bus, or once the world has exited cleanly and a busy
-        recorder still has not seen it (bounded wait), from the world's log."""
-
-        def on_bus() -> dict | None:
-            return next((e for e in rec.happened.events if e.get("kind") == "world-done"), None)
-
-        if self.world.exit_code == 0:
-            end = time.monotonic() + 5.0
-            while on_bus() is None and time.monotonic() < end:
-                rec.poll()
-                time.sleep(0.02)
-        if on_bus() is not None or self.world.exit_code != 0:
-            return on_bus()
+        """The world's final report, once the world process has exited cleanly: as it printed it in its log,
+        else as it published it (anyone may publish a report on an open bus, so it ends no run alone)."""
+        if self.world.exit_code != 0:
+            return None
         log = next((c.log for c in self.children if c.name == "world"), None)
         report = None if log is None else _last_said(log, "WORLD-DONE ")
-        return None if report is None else json.loads(report)
+        if report is not None:
+            return json.loads(report)
+        end = time.monotonic() + 5.0  # a busy recorder may not have seen it yet
+        while time.monotonic() < end:
+            rec.poll()
+            done = next((e for e in rec.happened.events if e.get("kind") == "world-done"), None)
+            if done is not None:
+                return done
+            time.sleep(0.02)
+        return None
 
     # --- outputs ------------------------------------------------------------------------------
     def _write(self, rec: Recorder, end_reason: str, wall_s: float) -> Path:
@@ -667,7 +681,7 @@ class Launcher:
         started = self.end.startup_failure is None
         arrays = rec.arrays()
         stats = self.world.stats
-        agent_stats = [e for e in rec.happened.events if e.get("kind") == "stats" and e.get("role") == "agent"]
+        agent_stats = _agent_stats(rec)
         dropped: dict[str, int] = dict(rec.tally.drops)
         for s in agent_stats + [stats]:
             for reason, k in (s.get("dropped") or {}).items():

@@ -31,7 +31,7 @@ from coordinator.scene import load_scene
 from sim.bodies.tracker import world_of
 from sim.emulators.faulty_peer import main as peer_main
 from tests.conftest import REPO, descendants, pixelswarm_cmd, ticks_so_far, wait_for
-from tests.support.rival import NextTick, Rival
+from tests.support.rival import FalseReports, NextTick, Rival
 from transport.plausible import CONFLICTING, FUTURE, INCONSISTENT, STALE
 from transport.session import free_port, listening
 
@@ -323,6 +323,21 @@ def test_a_clock_forged_for_the_next_tick_naming_an_unknown_goal_set_does_not_ho
         check_no_contacts(metrics)
         assert metrics["converged"] and metrics["missed_ticks"] == 0
     assert forged["min_clearance_m"] == alone["min_clearance_m"]
+
+
+@pytest.mark.slow
+def test_forged_and_malformed_reports_on_the_bus_neither_end_nor_break_a_run(tmp_path):
+    """A world-done event on the bus ended the run at once with its figures (1 command applied); one with a
+    field of the wrong type, or an agent's stats with robots 7, crashed the launcher with a traceback and no
+    metrics.json. The world's report is the one it printed as it exited; agents' stats of the wrong shape count
+    for nothing: the run is the run without the forger."""
+    alone, _, _ = _circle_beside(tmp_path / "alone", 3, 20, None)
+    forged, reports, err = _circle_beside(tmp_path / "forged", 3, 20, FalseReports)
+    assert reports.sent > 3 and b"Traceback" not in err
+    assert forged["converged"] and forged["time_to_converge_s"] == alone["time_to_converge_s"]
+    assert forged["commands_applied"] > 500  # the forged report said 1 (the count varies: the end waits on the wall)
+    assert forged["min_clearance_substep_m"] == alone["min_clearance_substep_m"] < 1.0
+    assert forged["dropped_messages"].get("stale", 0) < 10**9
 
 
 @pytest.mark.parametrize(

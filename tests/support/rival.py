@@ -3,7 +3,7 @@ would be: at each tick of the world's clock, before the robot's agent has answer
 that tick driving the robot at full speed toward the arena's centre (where a circle's robots cross).
 NextTick: at each tick of the world's clock, the next tick's clock message (naming another goal set, if asked) and
 the robot's pose for it at its last place, before the world has moved it there: the robot would drive a tick
-behind itself."""
+behind itself. FalseReports: the world's final report and agents' statistics, forged and malformed, every 0.2 s."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import math
 import threading
 
 from transport.bus import Bus
-from transport.codec import BEFORE_START, Command, Commands, Pose, Poses, Tick
+from transport.codec import BEFORE_START, Command, Commands, Event, Pose, Poses, Tick
 from transport.session import ZenohSettings
 
 
@@ -86,6 +86,40 @@ class NextTick:
             if self.robot is not None:
                 forged_pose = Pose(self.robot, tick, stamp, where.x, where.y, where.theta)
                 self.bus.publish(self.bus.keys.pose(self.robot), Poses.one(forged_pose))
+            self.sent += 1
+
+    def close(self) -> None:
+        self.stopping.set()
+        self.thread.join(5)
+        self.bus.close()
+
+
+class FalseReports:
+    REPORTS = (
+        {
+            "kind": "world-done",
+            "reason": "duration",
+            "ticks": 1,
+            "missed_ticks": 0,
+            "contacts": [],
+            "min_clearance": 1.0,
+        },
+        {"kind": "world-done", "reason": "x", "missed_ticks": "many", "contacts": 5, "commands_applied": "x"},
+        {"kind": "stats", "role": "agent", "robots": 7, "dropped": {"a": "b"}},
+        {"kind": "stats", "role": "agent", "robots": [0, "x"], "dropped": {"stale": 10**9}},
+    )
+
+    def __init__(self, endpoint: str) -> None:
+        self.sent = 0
+        self.bus = Bus(ZenohSettings(mode="client", connect=[endpoint]), name="reports")
+        self.stopping = threading.Event()
+        self.thread = threading.Thread(target=self._report, daemon=True)
+        self.thread.start()
+
+    def _report(self) -> None:
+        while not self.stopping.wait(0.2):
+            for report in self.REPORTS:
+                self.bus.publish(self.bus.keys.event, Event(report))
             self.sent += 1
 
     def close(self) -> None:
