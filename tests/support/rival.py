@@ -15,17 +15,33 @@ from transport.codec import BEFORE_START, Command, Commands, Event, Pose, Poses,
 from transport.session import ZenohSettings
 
 
-class Rival:
+class Peer:
+    """A session of its own on the run's router, its work (``_run``) on a thread until ``close``."""
+
+    def __init__(self, endpoint: str, name: str) -> None:
+        self.sent = 0
+        self.bus = Bus(ZenohSettings(mode="client", connect=[endpoint]), name=name)
+        self.stopping = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        self.stopping.set()
+        self.thread.join(5)
+        self.bus.close()
+
+
+class Rival(Peer):
     def __init__(self, endpoint: str, robot: int, speed: float) -> None:
-        self.robot, self.speed, self.sent = robot, speed, 0
-        self.bus = Bus(ZenohSettings(mode="client", connect=[endpoint]), name="rival")
+        super().__init__(endpoint, "rival")
+        self.robot, self.speed = robot, speed
         self.clock = self.bus.subscribe(self.bus.keys.clock, Tick)
         self.pose = self.bus.subscribe(self.bus.keys.pose(robot), Pose)
-        self.stopping = threading.Event()
-        self.thread = threading.Thread(target=self._drive, daemon=True)
         self.thread.start()
 
-    def _drive(self) -> None:
+    def _run(self) -> None:
         where = None
         while not self.stopping.is_set():
             got = self.clock.get(timeout=0.1)
@@ -41,25 +57,18 @@ class Rival:
             self.bus.publish_frame(Commands, tick.tick, tick.stamp, [command], self.bus.keys.cmd(self.robot))
             self.sent += 1
 
-    def close(self) -> None:
-        self.stopping.set()
-        self.thread.join(5)
-        self.bus.close()
 
-
-class NextTick:
+class NextTick(Peer):
     def __init__(self, endpoint: str, robot: int | None, goal_epoch: int | None = None) -> None:
         """``robot``: whose pose to forge (None: none); ``goal_epoch``: the goal set the forged clocks name."""
-        self.robot, self.goal_epoch, self.sent = robot, goal_epoch, 0
+        super().__init__(endpoint, "forger")
+        self.robot, self.goal_epoch = robot, goal_epoch
         self.watched = 0 if robot is None else robot  # whose poses say which tick the world is at
-        self.bus = Bus(ZenohSettings(mode="client", connect=[endpoint]), name="forger")
         self.clock = self.bus.subscribe(self.bus.keys.clock, Tick)
         self.pose = self.bus.subscribe(self.bus.keys.pose(self.watched), Pose)
-        self.stopping = threading.Event()
-        self.thread = threading.Thread(target=self._forge, daemon=True)
         self.thread.start()
 
-    def _forge(self) -> None:
+    def _run(self) -> None:
         where, forged = None, set()
         echoed: dict[str, set[int]] = {"clock": set(), "pose": set()}
 
@@ -88,13 +97,8 @@ class NextTick:
                 self.bus.publish(self.bus.keys.pose(self.robot), Poses.one(forged_pose))
             self.sent += 1
 
-    def close(self) -> None:
-        self.stopping.set()
-        self.thread.join(5)
-        self.bus.close()
 
-
-class FalseReports:
+class FalseReports(Peer):
     REPORTS = (
         {
             "kind": "world-done",
@@ -110,19 +114,11 @@ class FalseReports:
     )
 
     def __init__(self, endpoint: str) -> None:
-        self.sent = 0
-        self.bus = Bus(ZenohSettings(mode="client", connect=[endpoint]), name="reports")
-        self.stopping = threading.Event()
-        self.thread = threading.Thread(target=self._report, daemon=True)
+        super().__init__(endpoint, "reports")
         self.thread.start()
 
-    def _report(self) -> None:
+    def _run(self) -> None:
         while not self.stopping.wait(0.2):
             for report in self.REPORTS:
                 self.bus.publish(self.bus.keys.event, Event(report))
             self.sent += 1
-
-    def close(self) -> None:
-        self.stopping.set()
-        self.thread.join(5)
-        self.bus.close()
