@@ -727,7 +727,7 @@ class AgentHost:
         }
 
     def report(self) -> None:
-        self.bus.publish(self.bus.keys.event, Event({"kind": "stats", **self.stats()}))
+        self.bus.publish(self.bus.keys.stats(int(self.robots.ids.min())), Event({"kind": "stats", **self.stats()}))
 
 
 def bid_position(position: np.ndarray, goal: np.ndarray, velocity: np.ndarray, lead: float) -> np.ndarray:

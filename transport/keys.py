@@ -76,6 +76,11 @@ class Keys:
         self.clock, self.event, self.everything = f"{root}/clock", f"{root}/event", f"{root}/**"
         self.truth, self.contact = f"{root}/sim/truth", f"{root}/sim/contact"
 
+    def stats(self, robot: int) -> str:
+        """An agent host's statistics (an Event, kind 'event'), keyed by its first robot: the run's own events
+        (its end, the world's report) are the services', which a robot may not publish on a secured bus."""
+        return f"{self.event}/{robot}"
+
     # tracker -> agent: every key of kind 'pose' carries a Poses frame
     def pose(self, robot: int) -> str:
         """One robot's frame: its pose first, then the bodies near it (a robot alone hears no other pose)."""

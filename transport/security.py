@@ -107,7 +107,7 @@ def access_control(robots: int, *, by: str = "cert_common_names", display: str =
         grant(role, [role], grants)
     for i in range(robots):  # what only robot i may do: publish its own keys, hear its own pose and command
         role = robot_role(i)
-        put = [keys.state_of(i), keys.states(i), keys.cmd(i), keys.auction_of(i), keys.boards_of(i), keys.event]
+        put = [keys.state_of(i), keys.states(i), keys.cmd(i), keys.auction_of(i), keys.boards_of(i), keys.stats(i)]
         grant(role, [role], _grants(role, put=put, read=[keys.pose(i), keys.cmd(i)], token=[keys.alive("agent", i)]))
     # what every robot may read: neighbours' states, poses frames, goals, bids, the clock
     heard = [keys.poses, *(keys.all_of(kind) for kind in ("state", "goals", "auction", "boards")), keys.clock]

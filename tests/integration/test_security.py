@@ -150,16 +150,18 @@ def test_a_robot_cannot_publish_goals_or_command_another_robot(secured, certs):
 
         # Until both subscriptions are routed: robot 3's own command reaches the world and the recorder.
         assert _wait_until(probe)
-        forged = [KEYS.goals(9), KEYS.cmd(5), KEYS.states(5), KEYS.state((0, 0), 5), KEYS.poses, KEYS.clock]
+        # KEYS.event: the run's end and the world's report are the services' (a robot's statistics: KEYS.stats(3))
+        forged = [KEYS.goals(9), KEYS.cmd(5), KEYS.states(5), KEYS.state((0, 0), 5), KEYS.poses, KEYS.clock, KEYS.event]
         for key in forged:
             robot.put(key, b"forged")
         robot.declare_alive("agent", 5)
         # Robot 3's own state and token go after its forgeries on the same link: once they have
         # arrived, any forgery the router let through has arrived before them.
+        robot.put(KEYS.stats(3), b"own statistics")
         robot.put(KEYS.state((0, 0), 3), b"own")
         robot.declare_alive("agent", 3)
         coordinator.put(KEYS.goals(1), b"goal set")
-        assert _wait_until(lambda: {KEYS.state((0, 0), 3), KEYS.goals(1)} <= listen()["recorder"])
+        assert _wait_until(lambda: {KEYS.stats(3), KEYS.state((0, 0), 3), KEYS.goals(1)} <= listen()["recorder"])
         assert _wait_until(lambda: "3" in listen()["alive"])
         got = listen()
         assert not set(forged) & (got["recorder"] | got["world"]), got
