@@ -157,7 +157,8 @@ def test_the_camera_drops_a_future_frame_and_takes_frames_again_after_its_clock_
     assert error is None and stream.error is None
     # held while the poses looked old, then taken again; the stream's period and tracking on top
     assert held < RESTART_AFTER + 1.0, held
-    assert all(source.robot_stats(r)["restarts"] == 1 and source.robot_stats(r)["stale"] >= 1 for r in (0, 1))
+    stats = [source.robot_stats(r) for r in (0, 1)]
+    assert all(s["restarts"] == 1 and s["stale"] >= 1 for s in stats), stats
     for robot, (x, y, theta) in enumerate(truth):
         got = source.latest()[robot]
         assert math.hypot(got.x - x, got.y - y) < 0.002 and abs(math.remainder(got.theta - theta, math.tau)) < 0.05
