@@ -12,7 +12,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from functools import partial
 from typing import Any
 
@@ -229,9 +229,9 @@ class OwnRobots:
 
 class PoseIntake:
     """The poses the next step acts on, by robot, checked against the clock and where the robot could have driven.
-    A second pose of a tick that differs from the first (a forged one came first, or a second tracker) leaves
-    which is true unknown: the robot brakes until its poses have agreed for ``stale_after``, as the body node
-    stops a robot commanded two ways."""
+    A second pose of a tick that differs from the first, and lies nearer where the robot's last command took it
+    (a forged pose came first), makes the robot brake until its poses have agreed for ``stale_after``, as the
+    body node stops a robot commanded two ways; one farther off (a late copy of another tick's) is refused."""
 
     def __init__(self, config: HostConfig, pose_period: float | None) -> None:
         p = config.params
@@ -241,6 +241,8 @@ class PoseIntake:
         self.lines = {r: TickLine(pose_period) for r in config.robots}
         self.arena = config.arena
         self.acted: dict[int, dict[int, tuple[float, float, float]]] = {r: {} for r in config.robots}
+        self.commanded: dict[int, dict[int, tuple[float, float]]] = {r: {} for r in config.robots}  # tick -> velocity
+        self.sent: dict[int, dict[int, Command]] = {r: {} for r in config.robots}  # tick -> the command sent
         self.doubted_until: dict[int, int] = {}  # robot -> the tick from which its poses are believed again
         self.doubt_ticks = max(1, math.ceil(p.stale_after / p.dt - 1e-9))
 
@@ -269,14 +271,40 @@ class PoseIntake:
         return why
 
     def second_pose(self, pose: Pose) -> bool:
-        """Is this a pose of a tick the robot holds or acted on, at another place? It then brakes a while."""
+        """Is this a pose of a tick the robot holds or acted on, at another place? If it lies nearer where the
+        robot's last command took it than the first, the first was not the tracker's: the robot brakes a while."""
         held = self.pending.get(pose.robot)
         first = (held.x, held.y, held.theta) if held is not None and held.tick == pose.tick else None
         first = first or self.acted[pose.robot].get(pose.tick)
         if first is None or first == (pose.x, pose.y, pose.theta):
             return False
-        self.doubted_until[pose.robot] = pose.tick + self.doubt_ticks
+        expected = self.expected(pose.robot, pose.tick)
+        if expected is None or math.dist((pose.x, pose.y), expected) < math.dist(first[:2], expected):
+            self.doubted_until[pose.robot] = pose.tick + self.doubt_ticks
         return True
+
+    def drove(self, tick: int, velocity: list[list[float]], commands: list[Command]) -> None:
+        """The robots' commands of ``tick`` and the velocities they were sent to drive at (where their next
+        poses should be), in the same order."""
+        for (vx, vy), command in zip(velocity, commands):
+            for kept, value in ((self.commanded, (vx, vy)), (self.sent, command)):
+                mine: dict = kept[command.robot]
+                mine[tick] = value
+                if len(mine) > POSES_KEPT:
+                    del mine[min(mine)]
+
+    def doubts(self, pose: Pose) -> bool:
+        """Does the robot doubt its poses at this pose's tick?"""
+        return pose.tick < self.doubted_until.get(pose.robot, -1)
+
+    def expected(self, robot: int, tick: int) -> tuple[float, float] | None:
+        """Where the robot's last command, from its last pose acted on before ``tick``, took it by ``tick``."""
+        before = [t for t in self.commanded[robot] if t < tick and t in self.acted[robot]]
+        if not before:
+            return None
+        (x, y, _), (vx, vy) = self.acted[robot][max(before)], self.commanded[robot][max(before)]
+        span = (tick - max(before)) * self.dt
+        return x + vx * span, y + vy * span
 
     def judged(self, poses: list[Pose]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Each robot's position and heading to drive on, and whether it brakes on its last trusted pose."""
@@ -287,7 +315,7 @@ class PoseIntake:
                 del acted[min(acted)]
         judged = [self.trust.judge(q.robot, q.tick, q.x, q.y, q.theta) for q in poses]
         pose_of = np.array([j if j is not None else self.trust.last(q.robot) for q, j in zip(poses, judged)], float)
-        doubted = [q.tick < self.doubted_until.get(q.robot, -1) for q in poses]
+        doubted = [self.doubts(q) for q in poses]
         braking = np.array([j is None or d for j, d in zip(judged, doubted)], bool)
         return pose_of[:, :2].copy(), pose_of[:, 2].copy(), braking
 
@@ -611,17 +639,20 @@ class AgentHost:
         if why is not None:
             self.inbox.pose.drops[why] += 1
         if why == CONFLICTING and pose.tick in self.poses.acted[pose.robot]:
-            self._brake_at(pose)
+            self._answer_again(pose)
 
-    def _brake_at(self, pose: Pose) -> None:
-        """The robot's command of a tick it acted on another pose of, taken back: braking. If the body node
-        took the first, two commands of one tick stop the robot there; if it refused it (sent before that
-        tick went out, on a forged clock), the robot stands this tick."""
-        mode = Command.WHEELS if self.params.kinematics == DIFFDRIVE else Command.HOLONOMIC
-        color = self.held_goals.color[self.robots.row_of[pose.robot]].tolist()
-        brake = Command(pose.robot, pose.tick, pose.stamp, mode, 0.0, 0.0, *color)
+    def _answer_again(self, pose: Pose) -> None:
+        """A second pose of a tick the robot acted on: its command of that tick again, or (the robot doubts its
+        first pose) taken back, braking. The body node may have refused the first, sent before that tick went
+        out (on a forged clock): the robot then answers the tick. If it took it, a copy is no news, and a
+        braking command, a second of one tick, stops the robot there."""
+        sent = self.poses.sent[pose.robot].get(pose.tick)
+        if sent is None:
+            return
+        if self.poses.doubts(pose):
+            sent = replace(sent, a=0.0, b=0.0)
         to = self.bus.keys.cmd(int(self.robots.ids.min()) if self.config.frames else pose.robot)
-        self.bus.publish_frame(Commands, pose.tick, pose.stamp, [brake], to)
+        self.bus.publish_frame(Commands, pose.tick, pose.stamp, [sent], to)
 
     def step(self) -> None:
         """Compute and publish one tick for every robot whose pose has arrived."""
@@ -680,6 +711,7 @@ class AgentHost:
         mode = Command.WHEELS if p.kinematics == DIFFDRIVE else Command.HOLONOMIC
         velocity, command = decision.step.velocity.copy(), decision.step.command.copy()
         velocity[sensed.braking], command[sensed.braking] = 0.0, 0.0
+
         goal, has_goal = held.goal[rows], np.isfinite(held.goal[rows]).all(axis=1)
         at_goal = has_goal & (np.hypot(*(goal - position).T) <= p.goal_tolerance)
         flags = np.where(has_goal, State.HAS_GOAL, 0) | np.where(at_goal, State.AT_GOAL, 0)
@@ -690,6 +722,7 @@ class AgentHost:
             states.append(State(robot, tick, stamp, x, y, vx, vy, p.radius, gx, gy, index, f, epoch, instance))
         for robot, (cx, cy), color in zip(sensed.ids.tolist(), command.tolist(), held.color[rows].tolist()):
             commands.append(Command(robot, tick, stamp, mode, cx, cy, *color))
+        self.poses.drove(tick, velocity.tolist(), commands)
         # States before commands: by the time the world moves on, neighbours have our states.
         self.publish_states(tick, stamp, states)
         cmd = self.bus.keys.cmd  # a host's frame of its robots' commands; a robot alone its frame of one

@@ -256,9 +256,41 @@ def test_a_second_pose_of_a_tick_at_another_place_makes_the_robot_brake_until_it
         assert intake.take(at(tick, 0.14), clock) is None
         _, _, braking = intake.judged([intake.pending.pop(0)])
         assert braking.tolist() == [tick < 11 + doubt], tick
-    # both before the step: the robot brakes on the first
+    # both before the step, with no command to say which is true: the robot brakes on the first
     assert intake.take(at(30, 0.2), lambda: 30) is None  # within reach of the last trusted pose
     assert intake.take(at(30, 0.25), lambda: 30) == CONFLICTING
     assert intake.pending[0] == at(30, 0.2)
     _, _, braking = intake.judged([intake.pending.pop(0)])
     assert braking.tolist() == [True]
+
+
+def test_a_late_copy_of_a_pose_far_from_where_the_robot_drove_is_refused_without_braking():
+    """A faulty peer's late copy of an older pose under a tick already taken made its robot brake, so the paper
+    sequence under one missed an image. Of two poses of a tick, the one nearer where the robot's last command
+    took it is the tracker's: a second one farther off is refused alone; one nearer makes the robot brake."""
+    from agent.core.params import EPUCK
+    from agent.runtime import HostConfig, PoseIntake
+    from transport.codec import Command, Pose
+    from transport.plausible import CONFLICTING
+
+    intake = PoseIntake(HostConfig([0], EPUCK), None)
+    at = lambda tick, x: Pose(0, tick, tick * EPUCK.dt, x, 0.0, 0.0)  # noqa: E731
+    command = lambda tick: Command(0, tick, tick * EPUCK.dt, Command.WHEELS, 0.1, 0.1, 0, 0, 0)  # noqa: E731
+    step = 0.1 * EPUCK.dt  # driving at 0.1 m/s
+    assert intake.take(at(10, 0.0), lambda: 10) is None
+    intake.judged([intake.pending.pop(0)])
+    intake.drove(10, [[0.1, 0.0]], [command(10)])
+    assert intake.take(at(11, step), lambda: 11) is None  # the tracker's
+    _, _, braking = intake.judged([intake.pending.pop(0)])
+    intake.drove(11, [[0.1, 0.0]], [command(11)])
+    assert intake.take(at(11, 0.0), lambda: 11) == CONFLICTING  # a copy of tick 10's, late
+    assert not intake.doubts(at(11, 0.0))
+    assert intake.take(at(12, 2 * step), lambda: 12) is None
+    _, _, braking = intake.judged([intake.pending.pop(0)])
+    assert braking.tolist() == [False]
+    # the copy first (taken), then the tracker's, nearer where the robot drove: it brakes
+    intake.drove(12, [[0.1, 0.0]], [command(12)])
+    assert intake.take(at(13, 2 * step), lambda: 13) is None
+    intake.judged([intake.pending.pop(0)])
+    assert intake.take(at(13, 3 * step), lambda: 13) == CONFLICTING
+    assert intake.doubts(at(14, 3 * step))
