@@ -37,7 +37,7 @@ from .neighbour_table import NeighbourTable, TrackedBodies
 from .pose_trust import PoseTrust
 
 GOAL_SETS_KEPT = 4  # goal sets remembered (an agreed assignment may still be of an older epoch)
-POSES_KEPT = 4  # ticks of each robot's poses remembered, to see a second pose of a tick that differs
+POSES_KEPT = 8  # ticks of each robot's poses remembered, to see a second pose of a tick that differs, or a copy
 
 
 @dataclass
@@ -240,9 +240,9 @@ class PoseIntake:
         self.trust = PoseTrust(p.v_max, p.dt, 2 * p.noise_bound)
         self.lines = {r: TickLine(pose_period) for r in config.robots}
         self.arena = config.arena
+        # per robot, the last POSES_KEPT ticks': the pose acted on; the velocity it drove at and the command sent
         self.acted: dict[int, dict[int, tuple[float, float, float]]] = {r: {} for r in config.robots}
-        self.commanded: dict[int, dict[int, tuple[float, float]]] = {r: {} for r in config.robots}  # tick -> velocity
-        self.sent: dict[int, dict[int, Command]] = {r: {} for r in config.robots}  # tick -> the command sent
+        self.sent: dict[int, dict[int, tuple[tuple[float, float], Command]]] = {r: {} for r in config.robots}
         self.doubted_until: dict[int, int] = {}  # robot -> the tick from which its poses are believed again
         self.doubt_ticks = max(1, math.ceil(p.stale_after / p.dt - 1e-9))
 
@@ -271,15 +271,27 @@ class PoseIntake:
         return why
 
     def second_pose(self, pose: Pose) -> bool:
-        """Is this a pose of a tick the robot holds or acted on, at another place? If it lies nearer where the
-        robot's last command took it than the first, the first was not the tracker's: the robot brakes a while."""
+        """Is this a pose of a tick the robot holds or acted on, at another place? Which is the tracker's: not a
+        copy of another tick's pose (a tracker measures anew each tick), else the one nearer where the robot's
+        last command took it. If it is this one, held, the robot acts on it instead; acted on (or with nothing
+        to judge by), the robot brakes a while."""
         held = self.pending.get(pose.robot)
-        first = (held.x, held.y, held.theta) if held is not None and held.tick == pose.tick else None
-        first = first or self.acted[pose.robot].get(pose.tick)
-        if first is None or first == (pose.x, pose.y, pose.theta):
+        holds = held is not None and held.tick == pose.tick
+        first = (held.x, held.y, held.theta) if holds and held is not None else self.acted[pose.robot].get(pose.tick)
+        place = (pose.x, pose.y, pose.theta)
+        if first is None or first == place:
             return False
+        others = [v for t, v in self.acted[pose.robot].items() if t != pose.tick]
+        copied = (first in others, place in others)
         expected = self.expected(pose.robot, pose.tick)
-        if expected is None or math.dist((pose.x, pose.y), expected) < math.dist(first[:2], expected):
+        trackers: bool | None  # is this one the tracker's (None: nothing to tell by)
+        if copied in ((True, False), (False, True)):
+            trackers = copied[0]
+        else:
+            trackers = None if expected is None else math.dist(place[:2], expected) < math.dist(first[:2], expected)
+        if trackers and holds:
+            self.pending[pose.robot] = pose
+        elif trackers is not False:
             self.doubted_until[pose.robot] = pose.tick + self.doubt_ticks
         return True
 
@@ -287,11 +299,7 @@ class PoseIntake:
         """The robots' commands of ``tick`` and the velocities they were sent to drive at (where their next
         poses should be), in the same order."""
         for (vx, vy), command in zip(velocity, commands):
-            for kept, value in ((self.commanded, (vx, vy)), (self.sent, command)):
-                mine: dict = kept[command.robot]
-                mine[tick] = value
-                if len(mine) > POSES_KEPT:
-                    del mine[min(mine)]
+            _remember(self.sent[command.robot], tick, ((vx, vy), command))
 
     def doubts(self, pose: Pose) -> bool:
         """Does the robot doubt its poses at this pose's tick?"""
@@ -299,25 +307,28 @@ class PoseIntake:
 
     def expected(self, robot: int, tick: int) -> tuple[float, float] | None:
         """Where the robot's last command, from its last pose acted on before ``tick``, took it by ``tick``."""
-        before = [t for t in self.commanded[robot] if t < tick and t in self.acted[robot]]
-        if not before:
+        last = max((t for t in self.sent[robot] if t < tick and t in self.acted[robot]), default=None)
+        if last is None:
             return None
-        (x, y, _), (vx, vy) = self.acted[robot][max(before)], self.commanded[robot][max(before)]
-        span = (tick - max(before)) * self.dt
-        return x + vx * span, y + vy * span
+        (x, y, _), ((vx, vy), _) = self.acted[robot][last], self.sent[robot][last]
+        return x + vx * (tick - last) * self.dt, y + vy * (tick - last) * self.dt
 
     def judged(self, poses: list[Pose]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Each robot's position and heading to drive on, and whether it brakes on its last trusted pose."""
         for q in poses:
-            acted = self.acted[q.robot]
-            acted[q.tick] = (q.x, q.y, q.theta)
-            if len(acted) > POSES_KEPT:
-                del acted[min(acted)]
+            _remember(self.acted[q.robot], q.tick, (q.x, q.y, q.theta))
         judged = [self.trust.judge(q.robot, q.tick, q.x, q.y, q.theta) for q in poses]
         pose_of = np.array([j if j is not None else self.trust.last(q.robot) for q, j in zip(poses, judged)], float)
         doubted = [self.doubts(q) for q in poses]
         braking = np.array([j is None or d for j, d in zip(judged, doubted)], bool)
         return pose_of[:, :2].copy(), pose_of[:, 2].copy(), braking
+
+
+def _remember(kept: dict[int, Any], tick: int, value: Any) -> None:
+    """A robot's ``value`` of ``tick`` kept, with those of its POSES_KEPT newest ticks only."""
+    kept[tick] = value
+    if len(kept) > POSES_KEPT:
+        del kept[min(kept)]
 
 
 @dataclass
@@ -646,13 +657,16 @@ class AgentHost:
         first pose) taken back, braking. The body node may have refused the first, sent before that tick went
         out (on a forged clock): the robot then answers the tick. If it took it, a copy is no news, and a
         braking command, a second of one tick, stops the robot there."""
-        sent = self.poses.sent[pose.robot].get(pose.tick)
-        if sent is None:
+        if pose.tick not in self.poses.sent[pose.robot]:
             return
+        _, sent = self.poses.sent[pose.robot][pose.tick]
         if self.poses.doubts(pose):
             sent = replace(sent, a=0.0, b=0.0)
-        to = self.bus.keys.cmd(int(self.robots.ids.min()) if self.config.frames else pose.robot)
-        self.bus.publish_frame(Commands, pose.tick, pose.stamp, [sent], to)
+        self.bus.publish_frame(Commands, pose.tick, pose.stamp, [sent], self._command_key(pose.robot))
+
+    def _command_key(self, robot: int) -> str:
+        """Where a robot's commands go: its host's frame, keyed by its first robot, or (a robot alone) its own."""
+        return self.bus.keys.cmd(int(self.robots.ids.min()) if self.config.frames else robot)
 
     def step(self) -> None:
         """Compute and publish one tick for every robot whose pose has arrived."""
@@ -711,7 +725,6 @@ class AgentHost:
         mode = Command.WHEELS if p.kinematics == DIFFDRIVE else Command.HOLONOMIC
         velocity, command = decision.step.velocity.copy(), decision.step.command.copy()
         velocity[sensed.braking], command[sensed.braking] = 0.0, 0.0
-
         goal, has_goal = held.goal[rows], np.isfinite(held.goal[rows]).all(axis=1)
         at_goal = has_goal & (np.hypot(*(goal - position).T) <= p.goal_tolerance)
         flags = np.where(has_goal, State.HAS_GOAL, 0) | np.where(at_goal, State.AT_GOAL, 0)
@@ -725,8 +738,12 @@ class AgentHost:
         self.poses.drove(tick, velocity.tolist(), commands)
         # States before commands: by the time the world moves on, neighbours have our states.
         self.publish_states(tick, stamp, states)
-        cmd = self.bus.keys.cmd  # a host's frame of its robots' commands; a robot alone its frame of one
-        to = cmd(int(self.robots.ids.min())) if self.config.frames else lambda c: cmd(c.robot)  # as its token names
+        # a host's frame of its robots' commands, as its token names them; a robot alone its frame of one
+        to = (
+            self._command_key(int(self.robots.ids.min()))
+            if self.config.frames
+            else lambda c: self._command_key(c.robot)
+        )
         self.bus.publish_frame(Commands, tick, stamp, commands, to)
         # the cells around EVERY own robot, not only this batch: a tick's poses can arrive split (forget_outside)
         around = np.array([m.position for m in self.robots.known()])

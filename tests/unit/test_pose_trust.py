@@ -266,8 +266,9 @@ def test_a_second_pose_of_a_tick_at_another_place_makes_the_robot_brake_until_it
 
 def test_a_late_copy_of_a_pose_far_from_where_the_robot_drove_is_refused_without_braking():
     """A faulty peer's late copy of an older pose under a tick already taken made its robot brake, so the paper
-    sequence under one missed an image. Of two poses of a tick, the one nearer where the robot's last command
-    took it is the tracker's: a second one farther off is refused alone; one nearer makes the robot brake."""
+    sequence under one missed an image. Of two poses of a tick, the tracker's is the one that copies no other
+    tick's pose, else the one nearer where the robot's last command took it: a second that is not is refused
+    alone; one that is makes the robot brake."""
     from agent.core.params import EPUCK
     from agent.runtime import HostConfig, PoseIntake
     from transport.codec import Command, Pose
@@ -294,3 +295,11 @@ def test_a_late_copy_of_a_pose_far_from_where_the_robot_drove_is_refused_without
     intake.judged([intake.pending.pop(0)])
     assert intake.take(at(13, 3 * step), lambda: 13) == CONFLICTING
     assert intake.doubts(at(14, 3 * step))
+    # a standing robot: a copy of its last pose lies exactly where its command (none) took it, yet is a copy
+    intake = PoseIntake(HostConfig([0], EPUCK), None)
+    for tick, x in ((20, 0.5), (21, 0.5002)):  # the tracker's noise: no two measurements alike
+        assert intake.take(at(tick, x), lambda tick=tick: tick) is None
+        intake.judged([intake.pending.pop(0)])
+        intake.drove(tick, [[0.0, 0.0]], [command(tick)])
+    assert intake.take(at(21, 0.5), lambda: 21) == CONFLICTING  # tick 20's, again under tick 21
+    assert not intake.doubts(at(22, 0.5))
