@@ -239,6 +239,8 @@ cdef class Bidders:
     # scratch of a ranking anew: its K + 1 best goals so far
     cdef double[::1] top_value
     cdef int64_t[::1] top_goal
+    cdef int64_t[::1] seeded  # per goal, the rank_all that took it into ``top`` before its search
+    cdef int64_t seed_mark
     # scratch of a block: who may bid, waits, is queued, was looked at, and per bid what it bid and released
     cdef int64_t[::1] may_bid, waiting, queue, look, bidders, bid_goal, owner_before, runner_up, held
     cdef double[::1] offer, third, held_price
@@ -291,6 +293,7 @@ cdef class Bidders:
             leaf_of[self.order[self.node_start[node]:self.node_end[node]]] = node
         self.node_parent, self.leaf_of = parent, leaf_of
         self.top_value, self.top_goal = np.empty(candidates + 1), np.empty(candidates + 1, np.int64)
+        self.seeded, self.seed_mark = np.zeros(g, np.int64), 0
         self.may_bid, self.waiting, self.queue = np.zeros(k, np.int64), np.zeros(k, np.int64), np.zeros(k, np.int64)
         self.look, self.bidders, self.bid_goal = np.zeros(2 * k, np.int64), np.zeros(k, np.int64), np.zeros(k, np.int64)
         self.owner_before, self.runner_up, self.held = np.zeros(k, np.int64), np.zeros(k, np.int64), np.zeros(k, np.int64)
@@ -354,22 +357,17 @@ cdef class Bidders:
     cdef void search(self, Py_ssize_t i, int64_t node, double bound) noexcept nogil:
         """Robot i's K + 1 best goals of the node into ``top``, passing over nodes that cannot hold one;
         renews the least prices it looks at."""
-        cdef Py_ssize_t kk = self.cand.shape[1], a, s
+        cdef Py_ssize_t kk = self.cand.shape[1], a
         cdef int64_t j, near, far
-        cdef double v, least = INFINITY, b_near, b_far
+        cdef double least = INFINITY, b_near, b_far
         if bound < self.top_value[kk]:  # equal: a goal of the node may tie and rank first by index
             return
         if self.node_left[node] < 0:
             for a in range(self.node_start[node], self.node_end[node]):
                 j = self.order[a]
                 least = min(least, self.price[j])
-                v = self.net_value(i, j)
-                if before(v, j, self.top_value[kk], self.top_goal[kk]):
-                    s = kk
-                    while s > 0 and before(v, j, self.top_value[s - 1], self.top_goal[s - 1]):
-                        self.top_value[s], self.top_goal[s] = self.top_value[s - 1], self.top_goal[s - 1]
-                        s -= 1
-                    self.top_value[s], self.top_goal[s] = v, j
+                if self.seeded[j] != self.seed_mark:
+                    self.into_top(j, self.net_value(i, j))
             self.node_price[node] = least
             return
         near, far = self.node_left[node], self.node_right[node]
@@ -380,13 +378,29 @@ cdef class Bidders:
         self.search(i, far, b_far)
         self.node_price[node] = min(self.node_price[near], self.node_price[far])
 
+    cdef inline void into_top(self, int64_t j, double v) noexcept nogil:
+        """Goal j of value v into ``top``, if among its K + 1 best."""
+        cdef Py_ssize_t s = self.cand.shape[1]
+        if before(v, j, self.top_value[s], self.top_goal[s]):
+            while s > 0 and before(v, j, self.top_value[s - 1], self.top_goal[s - 1]):
+                self.top_value[s], self.top_goal[s] = self.top_value[s - 1], self.top_goal[s - 1]
+                s -= 1
+            self.top_value[s], self.top_goal[s] = v, j
+
     cdef Ranking rank_all(self, Py_ssize_t i) noexcept nogil:
         """Robot i's three best goals by a search of the goal tree; renews its K candidates and
         ``bound``, the next one's value."""
         cdef Py_ssize_t s, kk = self.cand.shape[1]
+        cdef int64_t j
         cdef Ranking r = unranked()
         for s in range(kk + 1):
             self.top_value[s], self.top_goal[s] = -INFINITY, -1
+        self.seed_mark += 1  # its last candidates first: the search then passes over more of the tree
+        for s in range(kk):
+            j = self.cand[i, s]
+            if j >= 0:
+                self.seeded[j] = self.seed_mark
+                self.into_top(j, self.net_value(i, j))
         self.search(i, 0, self.node_bound(0, self.px[i], self.py[i]))
         r.first, r.best = self.top_goal[0], self.top_value[0]
         r.runner_up, r.second = self.top_goal[1], self.top_value[1]
@@ -457,21 +471,27 @@ cdef class Bidders:
                     least = min(least, self.price[self.order[a]])
             self.node_price[node] = least
 
-    cdef Ranking rank(self, Py_ssize_t i) noexcept nogil:
-        """rank_all, from robot i's candidates when they provably hold its three best goals."""
+    cdef Ranking rank(self, Py_ssize_t i, bint runner_up) noexcept nogil:
+        """Robot i's best goal, and its ``runner_up`` (what a bid needs), exact; the values after them
+        only bounded (any goal's but those ranked is at most the third's): from its candidates when
+        they provably hold those goals, else rank_all."""
         cdef Ranking r = unranked()
         cdef Py_ssize_t s
         for s in range(self.cand.shape[1]):
             if self.cand[i, s] >= 0:
                 rank_in(&r, self.cand[i, s], self.net_value(i, self.cand[i, s]))
-        if r.third > self.bound[i]:  # ties at the bound: ranked over every goal
+        if (r.second if runner_up else r.best) > self.bound[i]:  # ties at the bound: ranked over every goal
+            r.third = max(r.third, self.bound[i])
+            if not runner_up:
+                r.second = max(r.second, self.bound[i])
             return r
         return self.rank_all(i)
 
     cdef inline void remember(self, Py_ssize_t i, Ranking r) noexcept nogil:
-        """Robot i's ranking into the cache, exact for the prices as they are."""
+        """Robot i's ranking into the cache: its best goal and value, exact for the prices as they are,
+        and a bound of every other goal's value."""
         self.best[i], self.value[i] = r.first, r.best
-        self.second[i] = r.second if r.runner_up >= 0 else -INFINITY
+        self.second[i] = r.second
         self.seen[i] = self.price[r.first]
 
     cdef inline void refresh(self, Py_ssize_t i) noexcept nogil:
@@ -484,7 +504,7 @@ cdef class Bidders:
             if now > self.second[i]:
                 self.seen[i] = self.price[b]
             else:
-                self.remember(i, self.rank(i))
+                self.remember(i, self.rank(i, False))
 
     cdef bint content(self, Py_ssize_t i, double slack) noexcept nogil:
         """Does robot i hold its goal within ``slack`` of its best? (One holding none is not ranked.)"""
@@ -519,7 +539,7 @@ cdef class Bidders:
             if self.bound[i] == INFINITY:
                 self.made_bound[i] = INFINITY  # no list: rank_all searches the goal tree
             none += self.made_bound[i] == INFINITY
-            self.remember(i, self.rank(i))
+            self.remember(i, self.rank(i, False))
         return none
 
     def ranking(self) -> tuple[np.ndarray, np.ndarray]:
@@ -588,7 +608,7 @@ cdef class Bidders:
         cdef double v_bid, v_run, others
         for a in range(n):  # every bid against the board as the round found it
             i = self.bidders[a]
-            r = self.rank(i)
+            r = self.rank(i, True)
             if r.runner_up < 0:  # one goal: the bid rises by epsilon twice
                 r.second = r.best - eps
             self.bid_goal[a], self.owner_before[a] = r.first, self.owner[r.first]
