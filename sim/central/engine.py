@@ -15,7 +15,7 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, NamedTuple, TextIO, TypedDict, Unpack
+from typing import Any, BinaryIO, NamedTuple, TextIO, TypedDict, Unpack
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -40,7 +40,7 @@ from sim.bodies.tracker import tracker_of, world_of
 from sim.central.link import InProcessLink
 from sim.central.stepclock import StepClock
 from sim.outputs.rundir import RunDir
-from sim.outputs.stream import ROWS, SCRATCH, OnDisk, TickRecorder, append_raw
+from sim.outputs.stream import ROWS, SCRATCH, OnDisk, TickRecorder
 from sim.outputs.write import RunOutcome, goal_set_arrays, write_run
 from sim.processes import handling_signals
 from transport.codec import START_TICK, Goals, State, as_sent, decode
@@ -145,6 +145,7 @@ AGREEMENT_ROWS = {"assignment_epoch": ((), np.int64), "assignment_instance": (()
 
 
 AGREED = {"agreement_positions": (2,), "agreement_penalties": ()}  # per agreement and robot, float64
+AGREEMENTS_BUFFER = 1 << 20  # bytes of agreements a raw file buffers before they are written
 
 
 @dataclass
@@ -152,7 +153,7 @@ class Agreements:
     """What trajectory.npz keeps of an image scene's auction, as the recorder keeps the agents': every goal set
     shown (by epoch: step + 1), and every agreement with the positions bid from and the penalties in force;
     and the deadlock penalties charged, for metrics.json. A run written to a directory streams the agreements'
-    rows to raw files there (``stream_to``), as its ticks' (an agreement a tick is as large as a tick's poses)."""
+    rows to raw files there (``stream_to``), as its ticks'."""
 
     robots: int
     goal_sets: dict[int, Goals] = field(default_factory=dict)
@@ -161,6 +162,7 @@ class Agreements:
     # held here unless streamed to ``directory``
     held: dict[str, list[np.ndarray]] = field(default_factory=lambda: {name: [] for name in AGREED})
     directory: Path | None = None
+    files: dict[str, BinaryIO] = field(default_factory=dict)  # streamed: the raw files, open until ``arrays``
     last: tuple[tuple[int, int], dict[str, np.ndarray]] | None = None  # the newest, which one of its key may replace
     solves: int = 0  # the optimal assignment's solves (its instances)
     instance: int = 0  # the agreement the robots' goals are from now (State.CARRIED: the warm start's, never agreed)
@@ -169,9 +171,8 @@ class Agreements:
     def stream_to(self, directory: Path | None) -> None:
         """Agreements from now on into raw files in ``directory`` (made by the run's TickRecorder); None: held."""
         self.directory = directory
-        if directory is not None:
-            for name in AGREED:
-                (directory / f"{name}.raw").write_bytes(b"")
+        if directory is not None:  # held open, buffered: an agreement a tick, as large as a tick's poses
+            self.files = {name: open(directory / f"{name}.raw", "wb", buffering=AGREEMENTS_BUFFER) for name in AGREED}
 
     def agree(self, epoch: int, instance: int, robots: np.ndarray, position: np.ndarray, penalty: np.ndarray) -> None:
         """Agreement ``instance`` of goal set ``epoch``, the robots' goals from now: ``robots`` bid from
@@ -187,10 +188,10 @@ class Agreements:
     def _keep(self, key: tuple[int, int], rows: dict[str, np.ndarray]) -> None:
         self.keys.append(key)
         for name, row in rows.items():
-            if self.directory is None:
-                self.held[name].append(row)
+            if self.files:
+                self.files[name].write(row.data.cast("B"))
             else:
-                append_raw(self.directory / f"{name}.raw", row)
+                self.held[name].append(row)
 
     def arrays(self, step: np.ndarray) -> dict[str, Any]:
         """trajectory.npz's goal-set and agreement arrays (sim.outputs.recorder makes the same of the bus), by
@@ -200,6 +201,8 @@ class Agreements:
         if self.last is not None:
             self._keep(*self.last)
             self.last = None
+        for f in self.files.values():
+            f.close()
         n, at = self.robots, {key: k for k, key in enumerate(self.keys)}  # the last of a key made twice
         order = [at[key] for key in sorted(at)]
         out = {"goal_set_epoch": np.asarray(step) + 1, "agreements": np.array(sorted(at), np.int64).reshape(-1, 2)}
