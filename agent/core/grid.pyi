@@ -13,16 +13,6 @@ def nearest(
     inclusive: bool = True,
     threads: int = 1,
 ) -> npt.NDArray[np.int64]: ...
-def nearest_other(points: npt.ArrayLike, reach: float) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]: ...
-def close_pairs(
-    traj: npt.NDArray[np.float64],
-    radius: npt.NDArray[np.float64],
-    reach: float,
-    motion: float,
-    bound: float,
-    first_row: int,
-    budget: int,
-) -> tuple[bool, float, int, int, npt.NDArray[np.int64], npt.NDArray[np.float64]]: ...
 def neighbour_rows(
     idx: npt.NDArray[np.int64], table: npt.NDArray[np.float64]
 ) -> tuple[

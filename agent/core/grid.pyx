@@ -1,5 +1,6 @@
 """Who is near whom on a uniform grid of cells, compiled: every engine's neighbour search (`nearest`,
-so a robot's neighbours never depend on its batch) and the world's contact detection (`close_pairs`).
+so a robot's neighbours never depend on its batch); the world's contact detection searches the same
+grid (sim/bodies/contacts.pyx).
 
 The ranking, the same everywhere: j is nearer to q than l when (d2(q, j), key[j], j) < (d2(q, l),
 key[l], l), d2 = dx * dx + dy * dy with dx = x[j] - qx, dy = y[j] - qy in float64 (no fast-math or
@@ -20,17 +21,6 @@ cdef enum:
     CELLS_PER_POINT = 16  # a grid has at most this many cells per point (coarser cells past it), or 1024
     PARTS = 3  # nearest's cells are reach / PARTS wide where the points are crowded (see cell_width)
     QUERIES_PER_CHUNK = 32  # queries a thread of the central engine's crew claims at a time
-
-
-cdef struct Grid:
-    Py_ssize_t n  # points
-    Py_ssize_t nx, ny  # columns, rows: cell c = gx * ny + gy
-    double x0, y0, cell  # origin and cell size
-    double per  # 1 / cell: cells per metre
-    Py_ssize_t *cx, *cy  # (n,) each point's column and row
-    Py_ssize_t *start  # (nx * ny + 1,) the points of cell c are order[start[c]:start[c + 1]]
-    Py_ssize_t *order  # (n,) the points, sorted by cell (by index within a cell)
-    double *sx, *sy  # (n,) order's points' x and y
 
 
 cdef void grid_free(Grid *g) noexcept:
@@ -299,98 +289,6 @@ cdef void _query(Grid *g, Query *nb, double px, double py, int64_t own, const in
             scan(g, nb, key, c + low, c + min(high, qy - 2) + 1)
             low = max(low, qy + 2)
         scan(g, nb, key, c + low, c + high + 1)
-
-
-def nearest_other(points, double reach):
-    """Each point's nearest other point within ``reach`` (N, 2): its index (-1: none) and distance."""
-    xy = np.ascontiguousarray(points, dtype=float).reshape(-1, 2)
-    ids = np.arange(len(xy), dtype=np.int64)
-    other = nearest(xy, ids, xy, ids, reach, 1)[:, 0]
-    has = other >= 0
-    distance = np.full(len(xy), np.inf)
-    distance[has] = np.hypot(*(xy[has] - xy[other[has]]).T)
-    return other, distance
-
-
-def close_pairs(const double[:, :, ::1] traj, const double[::1] radius, double reach, double motion, double bound,
-                Py_ssize_t first_row, int64_t budget):
-    """Discs of radius (N,) over states traj (rows, N, 2): the pairs within ``reach`` in traj[0],
-    checked in every row. Returns (done, clearance, i, j, pairs, depth): the smallest clearance and a
-    pair with it (-1, -1: none), the pairs (H, 2) that overlap from ``first_row`` on and their depths.
-    A pair's rows are skipped when, its discs within ``motion`` of traj[0], it can neither overlap nor
-    come closer than ``bound``; done is False (the rest empty) past ``budget`` pairs."""
-    cdef Py_ssize_t rows = traj.shape[0], n = traj.shape[1] if traj.shape[0] else 0
-    if radius.shape[0] != n or (rows and traj.shape[2] != 2) or not 0 <= first_row <= rows:
-        raise ValueError("close_pairs: traj (rows, N, 2), radius (N,), 0 <= first_row <= rows")
-    cdef Py_ssize_t width = rows - first_row, cap = 64, hits = 0
-    pairs_array = np.empty((cap, 2), dtype=np.int64)
-    depth_array = np.empty((cap, width))
-    cdef int64_t[:, ::1] pairs = pairs_array
-    cdef double[:, ::1] depth = depth_array
-    cdef double best = np.inf
-    cdef Py_ssize_t best_i = -1, best_j = -1
-    if rows == 0 or n == 0:
-        return True, best, best_i, best_j, pairs_array[:0], depth_array[:0]
-    cdef Grid g
-    grid_build(&g, traj[0], reach)  # frees what it took if it raises
-    cdef double *d2 = <double *>malloc(rows * sizeof(double))
-    cdef Py_ssize_t i, j, a, ax, ay, c, row
-    cdef int64_t scanned = 0
-    cdef double dx, dy, s, s2, low, gap, clear
-    cdef double reach2 = reach * reach
-    cdef double slack = 2.0 * motion + 1e-9  # no row brings a pair closer than its row-0 distance less this
-    cdef bint hit
-    try:
-        if d2 == NULL:
-            raise MemoryError()
-        for i in range(n):
-            for ax in range(max(g.cx[i] - 1, 0), min(g.cx[i] + 2, g.nx)):
-                for ay in range(max(g.cy[i] - 1, 0), min(g.cy[i] + 2, g.ny)):
-                    c = ax * g.ny + ay
-                    for a in range(g.start[c], g.start[c + 1]):
-                        j = g.order[a]
-                        if j <= i:
-                            continue
-                        scanned += 1
-                        if scanned > budget:
-                            return False, best, best_i, best_j, pairs_array[:0], depth_array[:0]
-                        dx = traj[0, i, 0] - traj[0, j, 0]
-                        dy = traj[0, i, 1] - traj[0, j, 1]
-                        d2[0] = dx * dx + dy * dy
-                        if d2[0] > reach2:
-                            continue
-                        s = radius[i] + radius[j]
-                        gap = sqrt(d2[0]) - s - slack
-                        if gap > 0.0 and gap > min(best, bound):
-                            continue
-                        s2 = s * s
-                        low = d2[0]
-                        hit = first_row == 0 and d2[0] < s2
-                        for row in range(1, rows):
-                            dx = traj[row, i, 0] - traj[row, j, 0]
-                            dy = traj[row, i, 1] - traj[row, j, 1]
-                            d2[row] = dx * dx + dy * dy
-                            low = min(low, d2[row])
-                            hit = hit or (row >= first_row and d2[row] < s2)
-                        clear = sqrt(low) - s
-                        if clear < best:
-                            best, best_i, best_j = clear, i, j
-                        if hit:
-                            if hits == cap:  # grow the outputs
-                                cap *= 2
-                                pairs_array = np.concatenate([pairs_array, np.empty_like(pairs_array)])
-                                depth_array = np.concatenate([depth_array, np.empty_like(depth_array)])
-                                pairs = pairs_array
-                                depth = depth_array
-                            pairs[hits, 0] = i
-                            pairs[hits, 1] = j
-                            for row in range(first_row, rows):
-                                depth[hits, row - first_row] = s - sqrt(d2[row])
-                            hits += 1
-    finally:
-        grid_free(&g)
-        free(d2)
-    return True, best, best_i, best_j, pairs_array[:hits], depth_array[:hits]
 
 
 def neighbour_rows(const int64_t[:, ::1] idx, const double[:, ::1] table):

@@ -1,6 +1,6 @@
 """How the simulated bodies move (sim.bodies.world), compiled: the command each robot realises under
 actuation noise, and the exact arc it then drives. The world calls it for every robot at every
-step, so it is the simulator's hot loop; the contact detection is agent.core.grid's.
+step, so it is the simulator's hot loop; the contact detection is sim.bodies.contacts.
 
 - holonomic: the realised velocity is c + noise_rel |c| n + noise_abs n' (n' only when the command
   is not zero: idle motors do not creep), its norm clipped to v_max; it turns at no rate.

@@ -1,4 +1,5 @@
-"""The world's robot-robot contact search (sim.bodies.world._ContactWatch) on agent.core.grid's grid.
+"""The world's robot-robot contact search (sim.bodies.world._ContactWatch, compiled in sim.bodies.contacts),
+and each robot's nearest other, on agent.core.grid's grid.
 
 Only +, -, * and sqrt touch the coordinates, (xa - xb)^2 + (ya - yb)^2 with a < b, so the distances equal
 numpy's to the bit. Positions must be finite.
@@ -8,7 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from agent.core import grid
+from agent.core.grid import nearest
+from sim.bodies import contacts
 
 
 def close_pairs(
@@ -32,7 +34,18 @@ def close_pairs(
     """
     budget = np.iinfo(np.int64).max if budget < 0 else budget
     xy, r = np.ascontiguousarray(traj, dtype=float), np.ascontiguousarray(radius, dtype=float)
-    done, best, i, j, hits, depth = grid.close_pairs(xy, r, reach, motion, bound, int(first_row), int(budget))
+    done, best, i, j, hits, depth = contacts.close_pairs(xy, r, reach, motion, bound, int(first_row), int(budget))
     if not done:
         return None
     return float(best), int(i), int(j), hits, depth.T
+
+
+def nearest_other(points: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's nearest other point within ``reach`` (N, 2): its index (-1: none) and distance."""
+    xy = np.ascontiguousarray(points, dtype=float).reshape(-1, 2)
+    ids = np.arange(len(xy), dtype=np.int64)
+    other = nearest(xy, ids, xy, ids, reach, 1)[:, 0]
+    has = other >= 0
+    distance = np.full(len(xy), np.inf)
+    distance[has] = np.hypot(*(xy[has] - xy[other[has]]).T)
+    return other, distance

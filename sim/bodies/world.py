@@ -14,7 +14,6 @@ from typing import Any
 import numpy as np
 from shapely.geometry import Polygon
 
-from agent.core.grid import nearest_other
 from agent.core.params import DIFFDRIVE, EPUCK, HOLONOMIC, KINEMATICS
 from coordinator.scene import take_due
 from sim.bodies.geometry import (
@@ -25,7 +24,7 @@ from sim.bodies.geometry import (
     wrap_angle,
 )
 from sim.bodies.kinematics import Bodies, actuate, drive, limit
-from sim.bodies.proximity import close_pairs
+from sim.bodies.proximity import close_pairs, nearest_other
 
 _KINDS = ("robot", "obstacle", "wall")
 _KIND_ORDER = {k: n for n, k in enumerate(_KINDS)}

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from agent.core.grid import nearest, nearest_other
+from agent.core.grid import nearest
 from agent.neighbour_table import Heard, nearest_heard
-from sim.bodies.proximity import close_pairs
+from sim.bodies.proximity import close_pairs, nearest_other
 
 
 def nearest_within(position: np.ndarray, reach: float, m: int, threads: int = 1) -> np.ndarray:
