@@ -244,7 +244,7 @@ class PoseIntake:
         self.acted: dict[int, dict[int, tuple[float, float, float]]] = {r: {} for r in config.robots}
         self.sent: dict[int, dict[int, tuple[tuple[float, float], Command]]] = {r: {} for r in config.robots}
         self.doubted_until: dict[int, int] = {}  # robot -> the tick from which its poses are believed again
-        self.doubt_ticks = max(1, math.ceil(p.stale_after / p.dt - 1e-9))
+        self.doubt_ticks = p.stale_ticks
 
     def off_arena(self, pose: Pose) -> bool:
         """A pose farther than ARENA_SLACK outside the arena: no tracker sees a robot there (a forged pose)."""

@@ -78,6 +78,12 @@ class RobotParams:
         return self.neighbour_dist + 3 * self.v_max * self.dt + self.noise_bound
 
     @property
+    def stale_ticks(self) -> int:
+        """stale_after in whole control periods, at least one: how long a robot that cannot tell which of two
+        poses (agent.runtime) or commands (sim.node.body) of a tick to believe stands."""
+        return max(1, math.ceil(self.stale_after / self.dt - 1e-9))
+
+    @property
     def cell_size(self) -> float:
         """Spatial cell of state broadcasts (agent.runtime.CellSubscriptions): half the reach of three ticks."""
         return (self.neighbour_dist + 3 * self.v_max * self.dt + 0.02) / 2

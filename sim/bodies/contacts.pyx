@@ -1,5 +1,5 @@
 """The world's robot-robot contact detection (sim.bodies.proximity), compiled, on the grid of the
-robots' neighbour search (agent.core.grid): only +, -, * and sqrt touch the coordinates."""
+robots' neighbour search (agent.core.grid)."""
 
 # cython: language_level=3
 

@@ -193,7 +193,7 @@ class BodyNode:
         self.first_cmd: list[dict[int, Command]] = [{} for _ in range(n)]  # per robot: tick -> its first command
         # a robot commanded two ways stands until this tick; each conflict puts it stale_after further
         self.distrusted_until = np.full(n, -1)
-        self.distrust_ticks = max(1, math.ceil(self.params.stale_after / self.dt - 1e-9))
+        self.distrust_ticks = self.params.stale_ticks
         self.live, self.ever_live = np.zeros(n, bool), np.zeros(n, bool)
         # this tick's commands of robots not yet heard alive: a restarted agent's first command may
         # overtake the news that it is alive by more than the one drain take_commands waits for
