@@ -11,6 +11,12 @@ the end of the stepping (psutil memory_maps, by part: the compiled core, numpy, 
 
     python -m bench.bench_agent_tick [--before 2f61ee4] [--robots 10] [--duration 20] [--pairs 2]
     python -m bench.bench_agent_tick --robots 250 --agents-per-process 125   # hosts of 125 robots
+    python -m bench.bench_agent_tick --tick-alone [--pairs 5]   # one robot's tick in-process, no other process
+
+``--tick-alone`` times AgentHost._step_tick alone, in a process of its own per tree and pair (a zenoh
+session on loopback with no peer; NEIGHBOURS neighbours' states heard each tick, and the tracker's
+bodies near the robot where the code has them): without the other processes' load, a few percent
+tell apart that a loaded machine's run hides.
 """
 
 from __future__ import annotations
@@ -135,6 +141,43 @@ def run_scene(cwd: Path, robots: int, duration: float, seed: int, per_process: i
     }
 
 
+NEIGHBOURS = 15  # --tick-alone: states heard a tick (a crowd: more than max_neighbours)
+TICK_ALONE = """
+import sys, time
+import numpy as np
+from agent.core.params import RobotParams
+from agent.runtime import AgentHost, HostConfig
+from transport.bus import Bus
+from transport.codec import Pose, Poses, State
+from transport.session import loopback_router
+
+ticks, n, p = int(sys.argv[1]), int(sys.argv[2]), RobotParams()
+near = np.random.default_rng(1).uniform(-0.5, 0.5, (n, 2))
+with Bus(loopback_router(), "tick") as bus:
+    host = AgentHost(bus, HostConfig(robots=[0], params=p, arena=(-3, -3, 3, 3)))
+    bodies = getattr(getattr(host, "inbox", None), "bodies", None)  # the tracker's bodies, where the code has them
+    cpu = []
+    for k in range(1, ticks + 1):
+        for r, (x, y) in enumerate(near.tolist(), 1):
+            host.table.update(State(r, k - 1, (k - 1) * p.dt, x, y, 0.05, 0.0, p.radius, 1.0, 1.0, r, State.HAS_GOAL, 1, 1))
+        if bodies is not None:
+            xy = np.vstack([np.zeros((1, 2)), near])
+            bodies.hear(k, Poses.records_of(np.arange(n + 1), np.column_stack([xy, np.zeros(n + 1)])))
+        began = time.process_time()
+        host.table.advance(k)
+        host._step_tick([Pose(0, k, k * p.dt, 0.0, 0.0, 0.0)])
+        cpu.append(time.process_time() - began)
+print(float(np.median(cpu[ticks // 10:])) * 1e6)
+"""
+
+
+def tick_alone(tree: Path, ticks: int = 1000) -> float:
+    """Median CPU us of one robot's AgentHost._step_tick with the code of ``tree`` (TICK_ALONE)."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(tree), os.environ.get("PYTHONPATH")]))}
+    cmd = [sys.executable, "-OO", "-c", TICK_ALONE, str(ticks), str(NEIGHBOURS)]
+    return float(subprocess.run(cmd, cwd=tree, env=env, capture_output=True, text=True, check=True).stdout)
+
+
 def _parts_row(label: str, agents: list[dict[str, float]]) -> str:
     if not agents:
         return f"| {label} |" + " - |" * (len(PARTS) + 1)
@@ -195,6 +238,7 @@ def main() -> None:
     parser.add_argument("--pairs", type=int, default=2, help="before/after pairs, alternating")
     parser.add_argument("--seed", type=int, default=3)
     parser.add_argument("--agents-per-process", "-k", type=int, default=1, help="robots per agent process")
+    parser.add_argument("--tick-alone", action="store_true", help="time one robot's tick in-process instead")
     args = parser.parse_args()
     if min(args.robots, args.pairs, args.agents_per_process) < 1 or args.duration <= 0:
         print(
@@ -217,6 +261,9 @@ def main() -> None:
         for tree in (old, REPO):  # what a robot's process imports, optimised too (-OO)
             compile_robot = [sys.executable, "-m", "compileall", "-q", "-o", "0", "-o", "2", "agent", "transport"]
             subprocess.run(compile_robot, cwd=tree, check=True, capture_output=True)
+        if args.tick_alone:
+            alone(old, before_rev, args.pairs)
+            return
         for pair in range(1, args.pairs + 1):
             for what, cwd in (("before", old), ("after", REPO)):
                 r = run_scene(cwd, args.robots, args.duration, args.seed, args.agents_per_process)
@@ -256,6 +303,28 @@ def main() -> None:
     ]
     command = " ".join(["python -m bench.bench_agent_tick", *sys.argv[1:]])
     write_results("agent_tick", "An agent process's CPU per tick, before and after (issue 25)", command, rows)
+
+
+def alone(old: Path, before_rev: str, pairs: int) -> None:
+    """--tick-alone: one robot's tick with each tree's code, alternating ``pairs`` times."""
+    times: dict[str, list[float]] = {"before": [], "after": []}
+    for pair in range(1, pairs + 1):
+        for what, tree in (("before", old), ("after", REPO)):
+            times[what].append(tick_alone(tree))
+        print(f"pair {pair}: {times['before'][-1]:.0f} us before, {times['after'][-1]:.0f} us now", flush=True)
+    b, a = np.median(times["before"]), np.median(times["after"])
+    rows = [
+        "| code | CPU us per tick (median of each run's median) | runs |",
+        "|---|---|---|",
+        f"| {before_rev} (before) | {b:.0f} | {', '.join(f'{t:.0f}' for t in times['before'])} |",
+        f"| current | {a:.0f} | {', '.join(f'{t:.0f}' for t in times['after'])} |",
+        "",
+        f"{a / b:.2f}x. One robot alone (RobotParams()), AgentHost._step_tick in a process of its own per run, "
+        f"{NEIGHBOURS} neighbours' states a tick, bodies near it where the code has them, process CPU time; "
+        "the first tenth of the ticks left out.",
+    ]
+    command = " ".join(["python -m bench.bench_agent_tick", *sys.argv[1:]])
+    write_results("agent_tick_alone", "One robot's tick in-process, before and after", command, rows)
 
 
 if __name__ == "__main__":

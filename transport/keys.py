@@ -57,7 +57,8 @@ def _cell(v: float) -> int:
 
 def cells_of(xy: ArrayLike, cell_size: float) -> np.ndarray:
     """cell_of for rows of positions at once: (N, 2) int64 (a host places all its robots each tick)."""
-    return np.clip(np.floor(np.asarray(xy, float).reshape(-1, 2) / cell_size), -CELLS, CELLS - 1).astype(np.int64)
+    cells = np.floor(np.asarray(xy, float).reshape(-1, 2) / cell_size)
+    return np.minimum(np.maximum(cells, -CELLS, out=cells), CELLS - 1, out=cells).astype(np.int64)
 
 
 class Keys:

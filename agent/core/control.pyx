@@ -507,7 +507,10 @@ cdef class Heard:
             raise ValueError("neighbour states must be (B,M,2), (B,M,2), (B,M) and (B,M) arrays")
         self.position, self.velocity, self.radius, self.age = floats
         self.valid = valid.reshape(-1).view(np.uint8)
-        self.cooperative = np.ascontiguousarray(np.broadcast_to(states.cooperative, valid.shape), dtype=bool).reshape(-1).view(np.uint8)
+        cooperative = np.asarray(states.cooperative, dtype=bool)
+        if cooperative.shape != valid.shape:  # one flag for all
+            cooperative = np.broadcast_to(cooperative, valid.shape)
+        self.cooperative = np.ascontiguousarray(cooperative).reshape(-1).view(np.uint8)
 
     @property
     def batch(self):

@@ -22,6 +22,9 @@ _MAY_BE_ZERO = {"assign_hysteresis", "deadlock_cost", "rounds_per_tick", "block_
 BUS_ROUNDS_PER_TICK = 1
 
 
+SETTINGS = "_settings"  # where agent.core.step.settings_of keeps a RobotParams' compiled settings
+
+
 @dataclass(frozen=True)
 class RobotParams:
     """What one robot knows about itself: its body and controller settings, an attribute each (the paper's
@@ -105,10 +108,14 @@ class RobotParams:
         """Whether a block begun ``age`` s of display time ago and not agreed is dropped (block_max_age)."""
         return self.block_max_age > 0 and age > self.block_max_age - 1e-9
 
+    def __getstate__(self) -> dict[str, Any]:
+        """The fields, not the compiled settings cached beside them (SETTINGS): those do not pickle."""
+        return {k: v for k, v in self.__dict__.items() if k != SETTINGS}
+
     def grown(self, by: float) -> RobotParams:
         """A copy with the radius larger by ``by`` >= 0, unchecked: a late agent grows it every tick."""
         out = object.__new__(RobotParams)
-        out.__dict__.update(self.__dict__, radius=self.radius + by)
+        out.__dict__.update(self.__dict__, radius=self.radius + by)  # the settings too: the radius is not in them
         return out
 
 

@@ -11,7 +11,7 @@ from typing import Self
 import numpy as np
 
 from .control import Batch, Settings, preferred_velocities, step
-from .params import RobotParams
+from .params import SETTINGS, RobotParams
 
 
 class Rows:
@@ -87,11 +87,15 @@ _SETTINGS: dict[tuple, Settings] = {}
 
 
 def settings_of(params: RobotParams) -> Settings:
-    """The compiled core's settings of ``params``, made once per all but the radius (a late agent grows it)."""
-    key = tuple(value for name, value in vars(params).items() if name != "radius")
-    found = _SETTINGS.get(key)
+    """The compiled core's settings of ``params``, made once per all but the radius (a late agent grows it
+    every tick: RobotParams.grown copies the settings found here along)."""
+    found = params.__dict__.get(SETTINGS)
     if found is None:
-        found = _SETTINGS[key] = Settings(params)
+        key = tuple(value for name, value in vars(params).items() if name != "radius")
+        found = _SETTINGS.get(key)
+        if found is None:
+            found = _SETTINGS[key] = Settings(params)
+        object.__setattr__(params, SETTINGS, found)  # a cache beside the fields: equality and to_dict ignore it
     return found
 
 

@@ -34,3 +34,21 @@ def test_keys_left_out_take_the_defaults():
     assert config.reach == math.inf and config.arena is None and config.pursue == {}
     bare = HostConfig.from_json(json.dumps({"robots": [2], "params": RobotParams().to_dict()}))
     assert bare == HostConfig(robots=[2], params=RobotParams())
+
+
+def test_params_a_step_used_still_compare_serialise_and_pickle_as_their_fields():
+    """The control step keeps its compiled settings beside a RobotParams' fields (and a late robot's grown
+    copy shares them); equality, to_json, copies and pickles see only the fields."""
+    import copy
+    import pickle
+
+    from agent.core.step import settings_of
+
+    params = RobotParams(v_pref=0.1)
+    late = params.grown(0.01)
+    assert settings_of(late) is settings_of(params)  # the radius is not in the settings
+    assert params == RobotParams(v_pref=0.1) and hash(params) == hash(RobotParams(v_pref=0.1))
+    for again in (pickle.loads(pickle.dumps(late)), copy.deepcopy(late)):
+        assert again == late and again.radius == params.radius + 0.01
+    config = HostConfig(robots=[1], params=late)
+    assert HostConfig.from_json(config.to_json()) == config
