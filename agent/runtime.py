@@ -295,7 +295,7 @@ class PoseIntake:
             self.doubted_until[pose.robot] = pose.tick + self.doubt_ticks
         return True
 
-    def drove(self, tick: int, velocity: list[list[float]], commands: list[Command]) -> None:
+    def drove(self, tick: int, velocity: list[tuple[float, float]], commands: list[Command]) -> None:
         """The robots' commands of ``tick`` and the velocities they were sent to drive at (where their next
         poses should be), in the same order."""
         for (vx, vy), command in zip(velocity, commands):
@@ -723,19 +723,23 @@ class AgentHost:
         moved = held.has_goal(rows)  # a moving goal set's goal moved (eq. 28): where it is now
         held.goal[rows[moved]] = decision.intent.goal[moved]
         mode = Command.WHEELS if p.kinematics == DIFFDRIVE else Command.HOLONOMIC
-        velocity, command = decision.step.velocity.copy(), decision.step.command.copy()
-        velocity[sensed.braking], command[sensed.braking] = 0.0, 0.0
-        goal, has_goal = held.goal[rows], np.isfinite(held.goal[rows]).all(axis=1)
-        at_goal = has_goal & (np.hypot(*(goal - position).T) <= p.goal_tolerance)
-        flags = np.where(has_goal, State.HAS_GOAL, 0) | np.where(at_goal, State.AT_GOAL, 0)
-        goal[~has_goal] = 0.0
-        states, commands = [], []
-        columns = (sensed.ids, position, velocity, goal, held.key[rows], flags, held.instance[rows])
-        for robot, (x, y), (vx, vy), (gx, gy), (epoch, index), f, instance in zip(*(c.tolist() for c in columns)):
-            states.append(State(robot, tick, stamp, x, y, vx, vy, p.radius, gx, gy, index, f, epoch, instance))
-        for robot, (cx, cy), color in zip(sensed.ids.tolist(), command.tolist(), held.color[rows].tolist()):
+        states, commands, velocity = [], [], []
+        # robot by robot in Python: a robot alone's rows are one, where numpy's calls would cost more than the sums
+        columns = (sensed.ids, position, decision.step.velocity, decision.step.command, sensed.braking)
+        held_columns = (held.goal[rows], held.key[rows], held.instance[rows], held.color[rows])
+        for (robot, (x, y), v, c, braking), ((gx, gy), (epoch, index), instance, color) in zip(
+            zip(*(a.tolist() for a in columns)), zip(*(a.tolist() for a in held_columns))
+        ):
+            (vx, vy), (cx, cy) = ((0.0, 0.0), (0.0, 0.0)) if braking else (v, c)
+            flags = 0
+            if math.isfinite(gx) and math.isfinite(gy):
+                flags = State.HAS_GOAL | (State.AT_GOAL if math.hypot(gx - x, gy - y) <= p.goal_tolerance else 0)
+            else:
+                gx = gy = 0.0
+            states.append(State(robot, tick, stamp, x, y, vx, vy, p.radius, gx, gy, index, flags, epoch, instance))
             commands.append(Command(robot, tick, stamp, mode, cx, cy, *color))
-        self.poses.drove(tick, velocity.tolist(), commands)
+            velocity.append((vx, vy))
+        self.poses.drove(tick, velocity, commands)
         # States before commands: by the time the world moves on, neighbours have our states.
         self.publish_states(tick, stamp, states)
         # a host's frame of its robots' commands, as its token names them; a robot alone its frame of one
