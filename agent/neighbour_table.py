@@ -137,9 +137,9 @@ class TrackedBodies:
         if tick == BEFORE_START:
             return
         by_tick = {**self._by_tick, tick: records}
-        if len(by_tick) > self.KEPT:
+        if len(by_tick) > self.KEPT:  # one more than kept: the furthest goes (of two as far, the later)
             near = tick if self._stepped is None else self._stepped
-            by_tick = {t: by_tick[t] for t in sorted(by_tick, key=lambda t: (abs(t - near), t))[: self.KEPT]}
+            del by_tick[max(by_tick, key=lambda t: (abs(t - near), t))]
         self._by_tick = by_tick
 
     def at(self, tick: int) -> np.ndarray | None:

@@ -203,7 +203,8 @@ class Inbox(Generic[T]):
         if (one := frame.views_alone(payload)) is not None:  # its record alone, in one struct call
             tick, views, rest = *one, None
         elif (got := decode(payload, frame, self.drops)) is not None:
-            tick, views, rest = got.tick, got.messages()[:1], got.records[1:]
+            tick, rest = got.tick, got.records[1:]
+            views = type(got)(tick, got.stamp, got.records[:1]).messages()  # the bodies need no view each
         else:
             return None
         if not views or views[0].robot != robot:
