@@ -13,6 +13,7 @@ from transport.keys import cells_of
 from transport.plausible import AHEAD, FUTURE, INCONSISTENT, stamp_agrees
 
 from .core.grid import nearest, neighbour_rows
+from .core.grid import unheard as bodies_unheard
 from .core.params import RobotParams
 from .core.step import NeighbourStates
 from .loop import Sensed
@@ -156,15 +157,10 @@ def with_bodies(heard: Heard, bodies: np.ndarray, stamp: float, params: RobotPar
     by one tick. Its velocity unknown, robots steer around it as around a stale neighbour, and stand where
     it may touch them (agent.core.control), rather than drive into a robot whose states were lost, or whose
     body is not where it says (driven by someone else, a forged state)."""
-    order = np.argsort(heard.ids, kind="stable")
-    if len(order):
-        at = order[np.minimum(np.searchsorted(heard.ids[order], bodies["robot"]), len(order) - 1)]
-        age = stamp - heard.stamp[at]
-        off = np.hypot(bodies["x"] - heard.position[at, 0], bodies["y"] - heard.position[at, 1])
-        said = (heard.ids[at] == bodies["robot"]) & (age <= params.stale_after)
-        unheard = ~(said & (off <= params.v_max * np.maximum(age, 0.0) + params.radius))
-    else:
-        unheard = np.ones(len(bodies), bool)
+    unheard = bodies_unheard(
+        np.asarray(heard.ids, np.int64), heard.position, heard.stamp, bodies, stamp, params.stale_after, params.v_max,
+        params.radius,
+    )  # fmt: skip
     if not unheard.any():
         return heard
     seen = bodies[unheard]

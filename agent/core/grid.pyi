@@ -23,3 +23,13 @@ def neighbour_rows(
     npt.NDArray[np.bool_],
     npt.NDArray[np.bool_],
 ]: ...
+def unheard(
+    robots: npt.NDArray[np.int64],
+    position: npt.NDArray[np.float64],
+    stamps: npt.NDArray[np.float64],
+    bodies: np.ndarray,
+    stamp: float,
+    stale_after: float,
+    v_max: float,
+    radius: float,
+) -> npt.NDArray[np.bool_]: ...

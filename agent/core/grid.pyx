@@ -9,9 +9,9 @@ FMA), whatever order the grid meets the points in. Positions must be finite.
 
 # cython: language_level=3
 
-from libc.math cimport INFINITY, fabs, isfinite, sqrt
+from libc.math cimport INFINITY, fabs, hypot, isfinite, sqrt
 from libc.stdint cimport int64_t
-from libc.stdlib cimport calloc, free, malloc
+from libc.stdlib cimport calloc, free, malloc, qsort
 
 from agent.core.crew cimport most_hands, share_rows
 
@@ -325,3 +325,56 @@ def neighbour_rows(const int64_t[:, ::1] idx, const double[:, ::1] table):
             position[i, k, 0] = position[i, k, 1] = velocity[i, k, 0] = velocity[i, k, 1] = 0.0
             radius[i, k], age[i, k], valid[i, k], cooperative[i, k] = 1.0, 0.0, 0, 1
     return position_array, velocity_array, radius_array, age_array, valid_array, cooperative_array
+
+
+# ---------------------------------------------------------------- the tracker's bodies against the states heard
+
+
+cdef struct Keyed:  # a heard state's robot and its row, ordered by (robot, row)
+    int64_t robot
+    Py_ssize_t row
+
+
+cdef int _by_robot(const void *a, const void *b) noexcept nogil:
+    cdef const Keyed *p = <const Keyed *>a
+    cdef const Keyed *q = <const Keyed *>b
+    if p.robot != q.robot:
+        return -1 if p.robot < q.robot else 1
+    return (p.row > q.row) - (p.row < q.row)
+
+
+def unheard(const int64_t[:] robots, const double[:, :] position, const double[:] stamps, bodies, double stamp,
+            double stale_after, double v_max, double radius):
+    """agent.neighbour_table.with_bodies' test, (B,) bool: which of the tracker's bodies (Poses records)
+    are of a robot with no heard state (rows: ``robots``, ``position``, ``stamps``) newer than
+    ``stale_after`` at ``stamp``, or whose state lies farther from its body than it could have driven
+    since (``v_max``) and ``radius``. A robot's first row counts."""
+    cdef const int64_t[::1] body = np.ascontiguousarray(bodies["robot"], np.int64)
+    cdef const double[::1] bx = np.ascontiguousarray(bodies["x"], float)
+    cdef const double[::1] by = np.ascontiguousarray(bodies["y"], float)
+    cdef Py_ssize_t s = robots.shape[0], b = body.shape[0], i, lo, hi, mid, k
+    out = np.ones(b, bool)
+    cdef unsigned char[::1] o = out.view(np.uint8)
+    cdef double age
+    cdef Keyed *rows = <Keyed *>malloc(max(s, 1) * sizeof(Keyed))
+    if rows == NULL:
+        raise MemoryError()
+    for i in range(s):
+        rows[i].robot, rows[i].row = robots[i], i
+    qsort(rows, s, sizeof(Keyed), _by_robot)
+    for i in range(b):
+        lo, hi = 0, s  # the first row of the body's robot
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if rows[mid].robot < body[i]:
+                lo = mid + 1
+            else:
+                hi = mid
+        if lo == s or rows[lo].robot != body[i]:
+            continue
+        k = rows[lo].row
+        age = stamp - stamps[k]
+        if age <= stale_after and hypot(bx[i] - position[k, 0], by[i] - position[k, 1]) <= v_max * max(age, 0.0) + radius:
+            o[i] = 0
+    free(rows)
+    return out

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from functools import partial
 from types import SimpleNamespace
 
 import numpy as np
 
 from agent.core.control import touch_reach
+from agent.core.grid import unheard
 from agent.core.params import EPUCK
 from agent.core.step import settings_of
 from agent.loop import Sensed
@@ -147,6 +149,40 @@ def test_a_state_the_tracker_contradicts_or_a_robot_smaller_than_the_display_s_i
     )
     assert got.cooperative[0, valid][order].tolist() == [True, False, True]
     assert got.radius[0, valid].min() >= EPUCK.radius
+
+
+def test_the_bodies_a_robot_has_not_heard_are_found_among_a_thousand_in_any_order():
+    """The tracker's test (agent.core.grid.unheard), by a robot's first state heard: a body is heard when
+    that state is at most stale_after old and the body at most v_max x its age + a radius from it (both
+    bounds included); unknown robots, stale or displaced states and a robot never heard are not."""
+    rng = np.random.default_rng(7)
+    robots = rng.permutation(1000).astype(np.int64)[:900]  # a host's frame: unsorted, some never heard
+    position, stamps = rng.uniform(-5, 5, (900, 2)), 2.0 - rng.uniform(0.0, 0.8, 900)
+    bodies = np.zeros(1000, Poses.RECORD)
+    bodies["robot"] = rng.permutation(1000)
+    at = {r: k for k, r in enumerate(robots.tolist())}
+    for i, r in enumerate(bodies["robot"].tolist()):  # near where its state says, or a little too far
+        k = at.get(r)
+        if k is not None:
+            drift = EPUCK.v_max * max(2.0 - stamps[k], 0.0) + EPUCK.radius
+            bodies["x"][i], bodies["y"][i] = position[k, 0] + rng.uniform(0.5, 1.5) * drift, position[k, 1]
+    expected = []
+    for r, x, y in zip(bodies["robot"].tolist(), bodies["x"].tolist(), bodies["y"].tolist()):
+        k = at.get(r)
+        age = None if k is None else 2.0 - stamps[k]
+        near = age is not None and age <= EPUCK.stale_after
+        near = near and math.hypot(x - position[k, 0], y - position[k, 1]) <= EPUCK.v_max * max(age, 0.0) + EPUCK.radius
+        expected.append(not near)
+    got = unheard(robots, position, stamps, bodies, 2.0, EPUCK.stale_after, EPUCK.v_max, EPUCK.radius)
+    assert got.tolist() == expected and 0 < sum(expected) < len(expected)
+    # the bounds: a state exactly stale_after old, a body exactly as far as it could have driven; a second
+    # state of robot 1 (the first row counts)
+    edge = np.zeros(2, Poses.RECORD)
+    edge["robot"], edge["x"] = [1, 2], [0.5, 0.0]
+    heard = np.array([1, 2, 1]), np.array([[0.0, 0.0], [0.0, 0.0], [9.0, 9.0]]), np.array([1.0, 0.5, 1.0])
+    assert unheard(*heard, edge, 1.0, 0.5, 1.0, 0.5).tolist() == [False, False]
+    nobody = np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(0)
+    assert unheard(*nobody, edge, 1.0, 0.5, 1.0, 0.5).tolist() == [True, True]
 
 
 def test_a_host_keeps_the_trackers_frames_near_the_tick_it_steps_whatever_else_comes():
