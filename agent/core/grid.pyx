@@ -1,6 +1,7 @@
 """Who is near whom on a uniform grid of cells, compiled: every engine's neighbour search (`nearest`,
 so a robot's neighbours never depend on its batch); the world's contact detection searches the same
-grid (sim/bodies/contacts.pyx).
+grid (sim/bodies/contacts.pyx). `unheard` tells which of the tracker's bodies a robot has not heard by
+their states (agent.neighbour_table.with_bodies).
 
 The ranking, the same everywhere: j is nearer to q than l when (d2(q, j), key[j], j) < (d2(q, l),
 key[l], l), d2 = dx * dx + dy * dy with dx = x[j] - qx, dy = y[j] - qy in float64 (no fast-math or
