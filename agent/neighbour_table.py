@@ -114,8 +114,6 @@ class NeighbourTable:
                 heard.velocity[i], heard.stamp[i], heard.cooperative[i] = 0.0, sensed.stamp, False
                 heard.radius[i] += stopped[s.robot]
         if bodies is not None:
-            if len(sensed.ids) == 1:  # a robot alone is not its own neighbour: its body need not be weighed
-                bodies = bodies[bodies["robot"] != sensed.ids[0]]
             heard = with_bodies(heard, bodies, sensed.stamp, p)
         return nearest_heard(sensed.ids, sensed.position, sensed.stamp, heard, heard_within, p.max_neighbours)
 

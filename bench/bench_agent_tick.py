@@ -160,9 +160,8 @@ with Bus(loopback_router(), "tick") as bus:
     for k in range(1, ticks + 1):
         for r, (x, y) in enumerate(near.tolist(), 1):
             host.table.update(State(r, k - 1, (k - 1) * p.dt, x, y, 0.05, 0.0, p.radius, 1.0, 1.0, r, State.HAS_GOAL, 1, 1))
-        if bodies is not None:
-            xy = np.vstack([np.zeros((1, 2)), near])
-            bodies.hear(k, Poses.records_of(np.arange(n + 1), np.column_stack([xy, np.zeros(n + 1)])))
+        if bodies is not None:  # the bodies after the robot's own record in its pose frame, as the bus gives them
+            bodies.hear(k, Poses.records_of(np.arange(1, n + 1), np.column_stack([near, np.zeros(n)])))
         began = time.process_time()
         host.table.advance(k)
         host._step_tick([Pose(0, k, k * p.dt, 0.0, 0.0, 0.0)])
