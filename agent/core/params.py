@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, fields
 from typing import Any
 
 from transport import epuck
@@ -100,9 +100,6 @@ class RobotParams:
         if unknown:
             raise ValueError(f"unknown robot parameter(s): {', '.join(sorted(unknown))}")
         return cls(**data)
-
-    def with_(self, **changes: Any) -> RobotParams:
-        return replace(self, **changes)
 
     def stale_block(self, age: float) -> bool:
         """Whether a block begun ``age`` s of display time ago and not agreed is dropped (block_max_age)."""

@@ -4,6 +4,8 @@ longer range or fresher states allow more speed, and impairment costs time, neve
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from agent.core.params import EPUCK, HOLONOMIC, RobotParams
@@ -13,7 +15,7 @@ from coordinator.scene import load_scene
 from sim.central.engine import simulate
 from sim.central.link import InProcessLink
 
-PARAMS = EPUCK.with_(kinematics=HOLONOMIC)
+PARAMS = replace(EPUCK, kinematics=HOLONOMIC)
 
 
 def test_two_robots_at_the_limit_still_have_their_gap_when_they_hear_each_other():

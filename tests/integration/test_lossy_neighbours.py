@@ -10,6 +10,8 @@ holonomic cases below (5 of 8 seeds at 30% loss, 50% late).
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -64,7 +66,7 @@ def test_at_tick_0_every_robot_knows_where_the_others_greeted_from_as_agents_do(
     )
     link = InProcessLink(3, drop=drop, late=0.0, seed=1)
     link.start(start, greeted=np.array([True, True, False]))  # robot 2: a mover
-    params = EPUCK.with_(neighbour_dist=0.6, max_neighbours=10)
+    params = replace(EPUCK, neighbour_dist=0.6, max_neighbours=10)
     sensed = Sensed(np.arange(3), positions, np.zeros(3), 0, 0.0, params, np.zeros(3, bool))
     heard = link.neighbours(sensed)
     assert heard.valid.sum(axis=1).tolist() == [1, 1, 2]  # 0 and 1 know each other; the mover knows both
@@ -80,7 +82,7 @@ def test_a_robot_never_heard_is_seen_where_the_tracker_sees_it_as_agents_see_it(
     start = Heard(np.arange(3), positions, np.ones((3, 2)), np.full(3, 0.05), np.full(3, -0.1), np.ones(3, bool))
     link = InProcessLink(3, drop=drop, late=0.0, seed=1)
     link.start(start, greeted=np.array([True, True, False]))  # robot 2: a robot never heard
-    params = EPUCK.with_(neighbour_dist=0.6, max_neighbours=10)
+    params = replace(EPUCK, neighbour_dist=0.6, max_neighbours=10)
     now = positions + 0.01  # where the tracker sees them at tick 0
     heard = link.neighbours(Sensed(np.arange(3), now, np.zeros(3), 0, 0.0, params, np.zeros(3, bool)))
     assert heard.valid.sum(axis=1).tolist() == [2, 2, 2]

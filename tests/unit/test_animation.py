@@ -5,6 +5,7 @@ K_f dt, and the story played by the central engine and by 14 agents over zenoh."
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -103,7 +104,7 @@ def test_a_robot_held_up_during_the_hold_still_arrives_when_the_frame_ends():
 
 
 def test_control_step_takes_the_preferred_velocity_given():
-    p = EPUCK.with_(kinematics="holonomic")
+    p = replace(EPUCK, kinematics="holonomic")
     position, goal = np.array([[0.0, 0.0], [1.0, 0.0]]), np.array([[0.5, 0.0], [1.5, 0.0]])
     given = np.array([[0.02, 0.01], [np.nan, np.nan]])
     moving = np.array([[0.02, 0.01], [p.v_pref, 0.0]])  # (a robot at rest that wants to move turns right)

@@ -20,7 +20,7 @@ from transport.codec import BEFORE_START, Poses, State
 
 
 def _sensed(ids, position, stamp: float, tick: int, max_neighbours: int = 10) -> Sensed:
-    n, p = len(ids), EPUCK.with_(max_neighbours=max_neighbours)
+    n, p = len(ids), dataclasses.replace(EPUCK, max_neighbours=max_neighbours)
     return Sensed(np.array(ids), np.asarray(position, float), np.zeros(n), tick, stamp, p, np.zeros(n, bool))
 
 
@@ -262,7 +262,7 @@ def test_a_silent_robot_is_forgotten_only_where_it_can_no_longer_touch_ours():
     """Silent for 2 s, a neighbour may have come 0.26 m (v_max 0.13): one last heard that near a robot of
     ours is kept, so ORCA goes on seeing it (its robot stands), however long its states are lost; one
     farther, or silent briefly, is not; a dead robot's body is never forgotten."""
-    params = EPUCK.with_(v_max=0.13)
+    params = dataclasses.replace(EPUCK, v_max=0.13)
     reach = partial(touch_reach, settings_of(params), 0.05)
     assert np.allclose(reach(0.05, 2.0), 0.05 + 0.05 + params.noise_bound + 2.2 * 0.13)  # 0.396 m
     table = NeighbourTable(0.1)

@@ -4,6 +4,7 @@ simulation of the tracking error, P_AHV, the controls, and a small closed-loop r
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -13,7 +14,7 @@ from agent.core.control import Batch, Settings, ahv_polygon, controls, min_error
 from agent.core.params import EPUCK
 from agent.core.step import NeighbourStates
 
-DIFFDRIVE = EPUCK.with_(kinematics="diffdrive")
+DIFFDRIVE = replace(EPUCK, kinematics="diffdrive")
 CORE = Settings(DIFFDRIVE, noise=0.0)  # neighbours as they are: no tracking noise to grow them by
 
 
@@ -205,7 +206,7 @@ def test_in_a_crowd_a_robot_makes_way_for_a_mover_that_will_not():
     line at the full horizon. Shrinking the mover's horizon with the rest (paper 5.3) let the robot
     drive back toward its goal, into the mover's path, until it was too late (a contact 1.6 s later);
     the mover's line keeps the full horizon, so the robot makes way now."""
-    params = DIFFDRIVE.with_(radius=0.045)
+    params = replace(DIFFDRIVE, radius=0.045)
     others = np.array(
         [[0.206, 0.001], [-0.012, -0.223], [-0.194, -0.111], [-0.145, 0.173], [0.067, 0.239],
          [-0.254, -0.01], [0.198, -0.212], [-0.244, -0.251], [0.291, 0.195], [0.433, 0.016]]

@@ -3,6 +3,8 @@ the neighbour preparation for real communication."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from hypothesis import assume, given, settings
@@ -179,7 +181,7 @@ def test_neighbour_states_are_extrapolated_by_age_and_stale_ones_become_obstacle
     vel = np.array([[[0.1, 0.0], [0.1, 0.0], [0.1, 0.0]]])
     radius = np.full((1, 3), 0.05)
     age = np.array([[0.0, 0.2, 5.0]])
-    core = Settings(EPUCK.with_(v_max=0.13), timeout=1.0, noise=0.002, committed=0.1)
+    core = Settings(replace(EPUCK, v_max=0.13), timeout=1.0, noise=0.002, committed=0.1)
     heard = NeighbourStates(pos, vel, radius, age, np.ones((1, 3), bool), np.ones((1, 3), bool))
     position, _, grown, _, responsibility, _, _ = control.prepare_neighbours(core, heard)
     # fresh: extrapolated by the committed time only (0.1 of its 0.2 s); stale: last known position
@@ -200,7 +202,7 @@ def test_a_robot_stops_while_a_stale_neighbour_may_be_where_it_touches_it(kinema
     """Not heard for 2 s, a neighbour 0.3 m ahead may be anywhere within 2 s x v_max (0.26 m) of where
     it was: steering around that old place keeps nothing clear, so the robot stands (both v_cf and the
     command), where it drives on with the same neighbour heard lately or a stale one out of reach."""
-    params = EPUCK.with_(kinematics=kinematics, v_max=0.13, stale_after=0.5)
+    params = replace(EPUCK, kinematics=kinematics, v_max=0.13, stale_after=0.5)
     core = Settings(params)
 
     def step(neighbour_x, age):
@@ -245,7 +247,7 @@ def test_a_robot_steps_bit_identically_alone_or_in_a_batch():
     walls = np.concatenate(
         [arena_segments(-2.2, -2.2, 2.2, 2.2), polygon_segments([(0, 0), (0.5, 0), (0.5, 0.5), (0, 0.5)])]
     )
-    core = Settings(EPUCK.with_(v_max=0.6, tau_obst=1.0))
+    core = Settings(replace(EPUCK, v_max=0.6, tau_obst=1.0))
     v, _, fb, _, _ = control.step(core, Batch(pos, vel, pref, None, 0.1), heard, walls)
     assert 10 < fb.sum() < b - 10
     for i in range(b):
