@@ -23,8 +23,7 @@ class HeldGoals:
 
     @classmethod
     def new(cls, n: int) -> HeldGoals:
-        key = np.zeros((n, 2), np.int64)
-        key[:, 1] = NO_GOAL
+        key = np.tile(np.array([0, NO_GOAL], np.int64), (n, 1))  # (epoch 0, no goal)
         color = np.tile(np.array(IDLE_COLOR, np.uint8), (n, 1))
         return cls(np.full((n, 2), np.nan), np.full((n, 2), np.nan), key, np.zeros(n, np.int64), color)
 

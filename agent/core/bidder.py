@@ -305,17 +305,13 @@ class Participant(Auction):
 
     def adopt_if_settled(self) -> None:
         """Adopt the current instance if every robot is content on one board (someone reached a later one)."""
-        if self.final_phase and self._content_all().all():
+        if self.final_phase and self._bidders.contentment(self.slack).all():
             self._adopt()
 
     # --- bidding ----------------------------------------------------------------------------------
     def ranking(self) -> tuple[np.ndarray, np.ndarray]:
         """Each own robot's best goal and net value max_j (-c_ij - b_j) on the board as it is."""
         return self._bidders.ranking()
-
-    def _content_all(self) -> np.ndarray:
-        """(K,) bool: each own robot holds its goal and no goal is better by more than the slack."""
-        return self._bidders.contentment(self.slack)
 
     def bid(self) -> bool:
         """One Jacobi round of the own robots not content (max-consensus per goal); True if any bid."""
@@ -482,7 +478,7 @@ class Participant(Auction):
         if cached is not None and cached[0] == key:
             return cached[1]
         self._view_cache[same_board] = (key, False)
-        if not self._content_all().all():
+        if not self._bidders.contentment(self.slack).all():
             return False
         others = ~self.is_own
         ok = (self.heard_instance[others] == self.instance) & ((self.heard_flags[others] & CONTENT) != 0)

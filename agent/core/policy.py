@@ -42,8 +42,7 @@ class Memory(Rows):
 
     @classmethod
     def new(cls, batch: int, latency: float = 0.0) -> Memory:
-        hold_for = np.zeros((batch, 2), np.int64)
-        hold_for[:, 1] = NO_GOAL
+        hold_for = np.tile(np.array([0, NO_GOAL], np.int64), (batch, 1))  # (epoch 0, no goal)
         return cls(
             np.zeros((batch, 2)),
             np.zeros(batch, np.int64),
