@@ -17,7 +17,7 @@ import threading
 import time
 import zlib
 from collections import Counter
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Any, Generic, TypeVar, cast
 
@@ -163,16 +163,21 @@ class Inbox(Generic[T]):
         # a lock-step owner. The last, not the greatest: a tick forged from the future would otherwise stand.
         self.seen: dict[int, int] | None = None
         self.pulled = pulled
-        self.channels: list[Any] = []  # pulled: the subscribers whose channels feed this inbox
+        self.channels: list[Feed] = []  # pulled: the subscriptions whose channels feed this inbox
         # told the tracker's records of other robots (tick, records), before ``keep`` picks (_records): where
         # the tracker sees the bodies (agent.neighbour_table.TrackedBodies)
         self.bodies: Callable[[int, np.ndarray], None] | None = None
 
+    def _samples(self) -> Iterator[zenoh.Sample]:
+        """Pulled: every sample waiting in the channels, taken on the caller's thread."""
+        for feed in self.channels:
+            while (sample := feed.declared.try_recv()) is not None:
+                yield sample
+
     def _pull(self) -> None:
-        """Pulled: take in every sample waiting in the channels, on the caller's thread."""
-        for sub in self.channels:
-            while (sample := sub.try_recv()) is not None:
-                self._on_sample(sample)
+        """Pulled: take in every sample waiting in the channels."""
+        for sample in self._samples():
+            self._on_sample(sample)
 
     def _payload(self, sample: zenoh.Sample) -> bytes:
         """A sample's bytes, counted as received."""
@@ -265,11 +270,10 @@ class Inbox(Generic[T]):
         if not direct or not self._queue.empty():
             return [m for _, m in self.drain()]
         out: list[T] = []
-        for sub in self.channels:
-            while (sample := sub.try_recv()) is not None:
-                if (got := self._records(self._payload(sample), str(sample.key_expr))) is not None:
-                    out += got[1]
-                    self._saw(*got)
+        for sample in self._samples():
+            if (got := self._records(self._payload(sample), str(sample.key_expr))) is not None:
+                out += got[1]
+                self._saw(*got)
         return out
 
     def get(self, timeout: float) -> tuple[str, T] | None:
@@ -284,11 +288,8 @@ class Inbox(Generic[T]):
                 return None
             # a pulled inbox or held messages: look again soon, as nothing rings the queue for them
             wait = min(PULL_EVERY if self.pulled else 0.005 if self.has_delayed else remaining, remaining)
-            try:
+            with contextlib.suppress(queue.Empty):
                 return self._queue.get(timeout=wait)
-            except queue.Empty:
-                if time.monotonic() >= deadline:
-                    return None
 
 
 class Feed:
@@ -297,9 +298,6 @@ class Feed:
     def __init__(self, declare: Callable[[], Any]) -> None:
         self._declare = declare
         self.declared = declare()
-
-    def try_recv(self) -> Any:
-        return self.declared.try_recv()
 
     def renew(self) -> None:
         """The new declaration first, so nothing is missed; what both deliver comes twice, as a replay."""
