@@ -164,20 +164,14 @@ class RosNode(_Declares):
         if not _NAME_CHUNK.match(name):
             raise RosNameError(f"node name {name!r} may hold only letters, digits and '_'")
         self.session = session
-        self.name = name
         self.domain = domain
         self.namespace = check_name(namespace, "namespace")
-        self.node_id = node_id
         self.zid = str(session.info.zid())
-        self._entity_ids = itertools.count(node_id + 1)
+        self.entity_ids = itertools.count(node_id + 1)  # a fresh id for each publisher or subscription
         self.names = NodeName(domain, self.zid, node_id, self.namespace, name)
         self.token = node_token(self.names)
         self._declared = [session.liveliness().declare_token(self.token)]
         self._entities: list[RosPublisher | RosSubscriber] = []
-
-    def next_entity_id(self) -> int:
-        """A fresh id for a publisher or subscription of this node."""
-        return next(self._entity_ids)
 
     def publisher(self, topic: str, ros_type: str, type_hash: str, qos: str = DEFAULT_QOS) -> RosPublisher:
         pub = RosPublisher(self, qualified(check_name(topic), self.namespace), ros_type, type_hash, qos)
@@ -205,7 +199,7 @@ class RosPublisher(_Declares):
     def __init__(self, node: RosNode, topic: str, ros_type: str, type_hash: str, qos: str = DEFAULT_QOS) -> None:
         self.topic = topic
         self.key = topic_key(node.domain, topic, ros_type, type_hash)
-        self.token = entity_token(node.names, node.next_entity_id(), PUBLISHER, topic, ros_type, type_hash, qos)
+        self.token = entity_token(node.names, next(node.entity_ids), PUBLISHER, topic, ros_type, type_hash, qos)
         self.gid = gid_of(self.token)
         self.sequence_number = 0
         self._lock = threading.Lock()  # the watchdog and the control loop may publish at once
@@ -242,7 +236,7 @@ class RosSubscriber(_Declares):
         self._declared = []
         if not any_domain and "*" not in self.topic:
             check_name(self.topic)
-            self.token = entity_token(node.names, node.next_entity_id(), SUBSCRIPTION, self.topic, ros_type, type_hash)
+            self.token = entity_token(node.names, next(node.entity_ids), SUBSCRIPTION, self.topic, ros_type, type_hash)
             self._declared.append(node.session.liveliness().declare_token(self.token))
         self._ring: deque[tuple[float, str, bytes, bytes | None]] = deque(maxlen=capacity)
         self._declared.append(node.session.declare_subscriber(self.key, self._on_sample))
