@@ -70,15 +70,13 @@ def _leading(layout: struct.Struct, body: memoryview, exact: bool = False) -> tu
 
 _FEW = 8  # records a message checks in Python rather than numpy, whose reductions cost more for a few
 _ONE_RECORD_AT = 2  # in the body of a frame of one: tick, stamp, then the record
-# a record field's numpy type as struct reads it
-_STRUCT_CODE = {"<u2": "H", "<u4": "I", "<i4": "i", "<f4": "f", "<f8": "d", "|u1": "B"}
 
 
 def _row_struct(item: np.dtype) -> struct.Struct:
-    """A packed record dtype as one struct."""
+    """A packed record dtype as one struct (numpy's type characters are struct's)."""
     fields: Mapping[str, tuple] = item.fields or {}
-    row = struct.Struct("<" + "".join(_STRUCT_CODE[fields[k][0].str] for k in item.names or ()))
-    assert row.size == item.itemsize, f"{item}: a record must be packed"
+    row = struct.Struct("<" + "".join(fields[k][0].char for k in item.names or ()))
+    assert row.size == item.itemsize, f"{item}: a record must be packed of standard-size fields"
     return row
 
 
