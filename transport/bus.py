@@ -304,9 +304,6 @@ class Feed:
         old, self.declared = self.declared, self._declare()
         old.undeclare()
 
-    def undeclare(self) -> None:
-        self.declared.undeclare()
-
 
 class RawInbox:
     """Raw samples (key, bytes, wall time) for the recorder, which logs what crossed the bus."""
@@ -497,7 +494,7 @@ class Bus:
             if subscriber in inbox.channels:
                 inbox._pull()  # what it already holds was received: keep it
                 inbox.channels.remove(subscriber)
-        subscriber.undeclare()
+        subscriber.declared.undeclare()
         if subscriber in self._subscriptions:
             self._subscriptions.remove(subscriber)
 
