@@ -469,14 +469,6 @@ class Stop:
         self.signal = signum
 
 
-@dataclass
-class Written:
-    """A run run_central writes to a directory: its recording streamed to ``scratch``, ended early by ``stop``."""
-
-    scratch: Path
-    stop: Stop = field(default_factory=Stop)
-
-
 def simulate(
     scene: Scene,
     *,
@@ -485,18 +477,19 @@ def simulate(
     clock: StepClock | None = None,
     overlap: bool = True,
     view: Any = None,
-    written: Written | None = None,
+    scratch: Path | None = None,
+    stop: Stop | None = None,
 ) -> Outcome:
     """Every robot through agent.loop.tick, the world moving between ticks, until the duration, convergence or
-    a stop signal. ``overlap``: warm auctions on a second thread; ``written``: a run written to a directory."""
-    _refuse_process_faults(scene)
+    a signal ``stop`` heeds. ``overlap``: warm auctions on a second thread; ``scratch``: the folder a run written
+    to a directory streams its recording to."""
+    refuse_process_faults(scene)
     _keep_freed_memory()
     link, clock = link or InProcessLink(scene.robots), clock or StepClock()
     robots, seams = _swarm(scene, link, clock, overlap)
     params, world, auction = robots.params, robots.world, robots.auction
     events = sorted(scene.events, key=lambda e: e["t"])
     steps, last_step = round(scene.duration / params.dt), max(len(scene.steps) - 1, 0)
-    scratch = None if written is None else written.scratch
     rec = TickRecorder(steps + 1, scene.robots, scratch, ROWS | AGREEMENT_ROWS if scene.steps else ROWS)
     auction.agreements.stream_to(scratch)
     converged = Convergence(scene.converge_hold if scene.ends_on_convergence else None)
@@ -520,7 +513,7 @@ def simulate(
         if converged.held(t, _all_at_goals(robots, k == last_step, pose, goal)):
             end_reason = "converged"
             break  # the run ends here: no last step
-        if tick == steps or _stopped(written):
+        if tick == steps or (stop is not None and stop.signal is not None):
             end_reason = end_reason if tick == steps else "interrupted"
             break
         velocity_next = _move(world, robots.movers, decision.step, pose, t, params.dt)
@@ -556,10 +549,6 @@ def _say_hello(link: InProcessLink, robots: Central) -> None:
     link.start(standing, robots.movers.cooperative)
 
 
-def _stopped(written: Written | None) -> bool:
-    return written is not None and written.stop.signal is not None
-
-
 def _keep_freed_memory() -> None:
     """Let glibc's heap keep what a tick frees for the next, rather than fault large arrays in anew."""
     try:
@@ -589,7 +578,8 @@ def _all_at_goals(robots: Central, last_image: bool, pose: np.ndarray, goal: np.
     return bool(last_image and has_goal.any() and _at_goal(pose, goal, robots.params)[has_goal].all())
 
 
-def _refuse_process_faults(scene: Scene) -> None:
+def refuse_process_faults(scene: Scene) -> None:
+    """ValueError for the scene's events that fault processes and messages, which this engine has none of."""
     if any(e["kind"] in ("fail", "tracker-outage", "tracker-glitch") for e in scene.events):
         raise ValueError(
             "fail and tracker-outage events, and tracker-glitch ones (faults of processes and messages), need the distributed engine"
@@ -629,18 +619,21 @@ def run_central(
     ``reach``: the robots' communication range (m); ``stop``: heed SIGINT and SIGTERM meanwhile (the first
     signal, and whether it ended the run, are kept there); ``timing``: simulate's clock and overlap."""
     run_dir = RunDir(out)
-    written = Written(run_dir / SCRATCH, stop or Stop())
     try:
-        with handling_signals(written.stop.on_signal) if stop is not None else contextlib.nullcontext():
+        with handling_signals(stop.on_signal) if stop is not None else contextlib.nullcontext():
             link = InProcessLink(scene.robots, reach=reach)
-            outcome = simulate(scene, link=link, progress=progress, view=view, written=written, **timing)
-            written.stop.interrupted = outcome.end_reason == "interrupted"
-            params, _ = world_of(scene)
+            outcome = simulate(
+                scene, link=link, progress=progress, view=view, scratch=run_dir / SCRATCH, stop=stop, **timing
+            )
+            interrupted = outcome.end_reason == "interrupted"
+            if stop is not None:
+                stop.interrupted = interrupted
+            params = RobotParams.from_dict(scene.robot)
             how = RunOutcome(
                 outcome.wall_s, [asdict(c) for c in outcome.contacts], reach=reach, extra=_metrics(outcome)
             )
             # as the distributed engine: an interrupted run's video is left out, what was recorded is written
-            video = video and not written.stop.interrupted
+            video = video and not interrupted
             return write_run(run_dir, scene, params, outcome.arrays, how, video=video, plots=plots)
     except BaseException:
         run_dir.abort()

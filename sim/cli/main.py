@@ -401,7 +401,7 @@ def _faults_and_reach(args: argparse.Namespace, scene: Scene) -> tuple[Any, floa
 def _run_central(args: argparse.Namespace, scene: Scene, out: Path, faults: Any, reach: float) -> int:
     """The run with every robot in this process (--engine central); a stop signal ends it as it ends the
     distributed engine's (_run_distributed): what was recorded written, marked incomplete."""
-    from sim.central.engine import Stop, run_central
+    from sim.central.engine import Stop, refuse_process_faults, run_central
 
     none = "the central engine has none"
     # its ticks are lock-step, as fast as it computes: real time's late commands and missed ticks need agents
@@ -413,11 +413,8 @@ def _run_central(args: argparse.Namespace, scene: Scene, out: Path, faults: Any,
     refuse_if(args.remote_agents, "--remote-agents needs the distributed engine: the central engine has no agents")
     refuse_if(args.foxglove is not None, f"--foxglove streams the bus's messages; {none} (use --view)")
     refuse_if(faults, "--faults acts on messages; the central engine sends none (use --engine distributed)")
-    refuse_if(
-        any(e["kind"] in ("fail", "tracker-outage", "tracker-glitch") for e in scene.events),
-        "fail and tracker-outage events, and tracker-glitch ones (faults of processes and messages), need the "
-        "distributed engine",
-    )
+    with usage_errors(ValueError):
+        refuse_process_faults(scene)
     progress = None if args.quiet else sys.stderr
     with _open_view(args.view, scene) as view:
         if progress is not None:  # the engine's own first line comes with its first tick
