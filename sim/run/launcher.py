@@ -122,10 +122,10 @@ def _last_said(log: Path, prefix: str) -> str | None:
     return next((ln.removeprefix(prefix) for ln in reversed(lines) if ln.startswith(prefix)), None)
 
 
-def _departed(liveliness: list[dict]) -> list[int]:
-    """The robots whose agent's liveliness ended, of these liveliness events (the recorder's)."""
+def _agents(liveliness: list[dict], alive: bool) -> list[int]:
+    """The robots whose agent's liveliness began (``alive``) or ended, of these liveliness events (the recorder's)."""
     return sorted(
-        {int(e["id"]) for e in liveliness if e["role"] == "agent" and not e["alive"] and str(e["id"]).isdigit()}
+        {int(e["id"]) for e in liveliness if e["role"] == "agent" and e["alive"] == alive and str(e["id"]).isdigit()}
     )
 
 
@@ -303,7 +303,7 @@ class Launcher:
                 raise RuntimeError(f"the world process exited while waiting for agents: {_last_line(world_log)}")
             if waited > self.opt.agents_timeout:
                 # remote agents that did not come, or came and left: one line naming their robots
-                left = [i for i in _departed(rec.happened.liveliness) if not rec.progress.agent_alive[i]]
+                left = [i for i in _agents(rec.happened.liveliness, alive=False) if not rec.progress.agent_alive[i]]
                 absent = sorted(set(missing) | set(left))
                 raise UsageError(
                     f"no agent came for robots {format_ids(absent)} within {self.opt.agents_timeout:g} s "
@@ -357,7 +357,7 @@ class Launcher:
         if self.opt.remote_agents:  # no process of ours: their liveliness says when they leave
             events = recorder.happened.liveliness[self._liveliness_seen :]
             self._liveliness_seen += len(events)
-            if (gone := _departed(events)) and self._under_way(recorder):
+            if (gone := _agents(events, alive=False)) and self._under_way(recorder):
                 _warn(
                     f"pixelswarm: the agents of robots {format_ids(gone)} left the run; their robots stay in the world, stopped"
                 )
@@ -511,8 +511,7 @@ class Launcher:
         agent process exited, or not alive within the start-up timeout or when the world ended."""
         ids = self._agent_robots
         for waited in self._polling(rec):
-            events = rec.happened.liveliness
-            alive = {int(e["id"]) for e in events if e["role"] == "agent" and e["alive"] and str(e["id"]).isdigit()}
+            alive = _agents(rec.happened.liveliness, alive=True)
             missing = [i for i in ids if i not in alive]
             if not missing or self.end.stop_signal is not None:
                 break
@@ -539,7 +538,7 @@ class Launcher:
         """Whether statistics are still due from an agent that stopped cleanly (remote agents report
         once their `pixelswarm agents` has seen the world end)."""
         if self.opt.remote_agents:
-            expected = {int(e["id"]) for e in rec.happened.liveliness if e["role"] == "agent" and e["alive"]}
+            expected = set(_agents(rec.happened.liveliness, alive=True))
         else:
             expected = {
                 r for c in self.children if c.name.startswith("agent") and c.proc.returncode == 0 for r in c.robots
