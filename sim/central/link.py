@@ -47,8 +47,7 @@ class InProcessLink:
         if not self.impaired:
             self.last = Heard(*(np.asarray(x)[greeted] for x in vars(states).values()))
             return
-        self.heard_stamp[:, greeted] = states.stamp[greeted]
-        self.heard_pos[:, greeted], self.heard_vel[:, greeted] = states.position[greeted], states.velocity[greeted]
+        self._arrive(np.broadcast_to(greeted, (self.robots, self.robots)), states)
 
     def broadcast(self, states: Heard) -> None:
         """Every robot's state of this tick (rows by robot id)."""
@@ -64,7 +63,6 @@ class InProcessLink:
         self.on_time, self.draws = self.on_time + int(arrive.sum()), self.draws + n * n
         self._arrive(arrive, states)
         self.delayed = (late, states)
-        self._template = states
 
     def _arrive(self, arrive: np.ndarray, states: Heard) -> None:
         self.heard_stamp = np.where(arrive, states.stamp[None, :], self.heard_stamp)
