@@ -9,6 +9,7 @@ import numpy as np
 
 from agent.core.params import HOLONOMIC, RobotParams
 from coordinator.scene import Scene
+from sim.bodies.geometry import wrap_angle
 from sim.bodies.movers import scripted_speed_limit
 from sim.bodies.world import ActuationNoise, Body, World
 
@@ -47,5 +48,5 @@ class Tracker:
         noise = self.rng.standard_normal(poses.shape)
         out = poses.copy()
         out[:, :2] += self.sigma_xy * noise[:, :2]
-        out[:, 2] = (out[:, 2] + self.sigma_theta * noise[:, 2] + math.pi) % (2 * math.pi) - math.pi
+        out[:, 2] = wrap_angle(out[:, 2] + self.sigma_theta * noise[:, 2])
         return out

@@ -28,10 +28,8 @@ class StepClock:
 
     def start(self) -> None:
         """A new tick: every part starts at zero."""
-        for part in PARTS:
-            self.wall[part].append(0.0)
-            self.cpu[part].append(0.0)
-        self.beside.append(0.0)
+        for seconds in (*self.wall.values(), *self.cpu.values(), self.beside):
+            seconds.append(0.0)
         self.bids.append(0)
         self.reassigned.append(0)
         self._last = (time.perf_counter(), self.read_cpu())
