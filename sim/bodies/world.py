@@ -433,9 +433,7 @@ class _ContactWatch:
         near = np.flatnonzero((x - xmin < reach) | (xmax - x < reach) | (y - ymin < reach) | (ymax - y < reach))
         if not near.size:
             return []
-        depth = r[near] - rect_signed_distance(rows[:, near], self.arena)  # (rows, near)
-        hit = np.flatnonzero(np.any(depth > 0.0, axis=0))
-        return [("wall", near[hit], np.full(hit.size, -1), depth[:, hit])] if hit.size else []
+        return _overlapping("wall", -1, near, r[near] - rect_signed_distance(rows[:, near], self.arena))
 
     def _obstacle_overlaps(self, start: np.ndarray, rows: np.ndarray, motion: float) -> _Overlaps:
         """The robots over an obstacle in any row: only robots whose swept disc may reach its bounding box."""
@@ -448,10 +446,7 @@ class _ContactWatch:
             if near.size == 0:
                 continue
             sd = polygon_signed_distance(poly, rows[:, near].reshape(-1, 2)).reshape(rows.shape[0], near.size)
-            depth = r[near] - sd
-            hit = np.flatnonzero(np.any(depth > 0.0, axis=0))
-            if hit.size:
-                out.append(("obstacle", near[hit], np.full(hit.size, o), depth[:, hit]))
+            out += _overlapping("obstacle", o, near, r[near] - sd)
         return out
 
     def _robot_pairs(
@@ -531,6 +526,12 @@ class _ContactWatch:
         started.sort(key=_contact_order)
         self.events.extend(started)
         return started
+
+
+def _overlapping(kind: str, j: int, near: np.ndarray, depth: np.ndarray) -> _Overlaps:
+    """The robots ``near`` whose depth (rows, near) over the wall or obstacle ``j`` is positive in some row."""
+    hit = np.flatnonzero(np.any(depth > 0.0, axis=0))
+    return [(kind, near[hit], np.full(hit.size, j), depth[:, hit])] if hit.size else []
 
 
 def _contact_order(c: Contact) -> tuple[float, int, int, int]:
