@@ -15,7 +15,7 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, BinaryIO, NamedTuple, TextIO, TypedDict, Unpack
+from typing import Any, NamedTuple, TextIO, TypedDict, Unpack
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -40,7 +40,7 @@ from sim.bodies.tracker import tracker_of, world_of
 from sim.central.link import InProcessLink
 from sim.central.stepclock import StepClock
 from sim.outputs.rundir import RunDir
-from sim.outputs.stream import ROWS, SCRATCH, OnDisk, TickRecorder
+from sim.outputs.stream import ROWS, SCRATCH, OnDisk, TickRecorder, append_raw
 from sim.outputs.write import RunOutcome, goal_set_arrays, write_run
 from sim.processes import handling_signals
 from transport.codec import START_TICK, Goals, State, as_sent, decode
@@ -145,7 +145,6 @@ AGREEMENT_ROWS = {"assignment_epoch": ((), np.int64), "assignment_instance": (()
 
 
 AGREED = {"agreement_positions": (2,), "agreement_penalties": ()}  # per agreement and robot, float64
-AGREEMENTS_BUFFER = 1 << 20  # bytes of agreements a raw file buffers before they are written
 
 
 @dataclass
@@ -162,7 +161,6 @@ class Agreements:
     # held here unless streamed to ``directory``
     held: dict[str, list[np.ndarray]] = field(default_factory=lambda: {name: [] for name in AGREED})
     directory: Path | None = None
-    files: dict[str, BinaryIO] = field(default_factory=dict)  # streamed: the raw files, open until ``arrays``
     last: tuple[tuple[int, int], dict[str, np.ndarray]] | None = None  # the newest, which one of its key may replace
     solves: int = 0  # the optimal assignment's solves (its instances)
     instance: int = 0  # the agreement the robots' goals are from now (State.CARRIED: the warm start's, never agreed)
@@ -171,8 +169,9 @@ class Agreements:
     def stream_to(self, directory: Path | None) -> None:
         """Agreements from now on into raw files in ``directory`` (made by the run's TickRecorder); None: held."""
         self.directory = directory
-        if directory is not None:  # held open, buffered: an agreement a tick, as large as a tick's poses
-            self.files = {name: open(directory / f"{name}.raw", "wb", buffering=AGREEMENTS_BUFFER) for name in AGREED}
+        if directory is not None:  # an agreement a tick, as large as a tick's poses
+            for name in AGREED:
+                (directory / f"{name}.raw").write_bytes(b"")
 
     def agree(self, epoch: int, instance: int, robots: np.ndarray, position: np.ndarray, penalty: np.ndarray) -> None:
         """Agreement ``instance`` of goal set ``epoch``, the robots' goals from now: ``robots`` bid from
@@ -188,8 +187,8 @@ class Agreements:
     def _keep(self, key: tuple[int, int], rows: dict[str, np.ndarray]) -> None:
         self.keys.append(key)
         for name, row in rows.items():
-            if self.files:
-                self.files[name].write(row.data.cast("B"))
+            if self.directory is not None:
+                append_raw(self.directory / f"{name}.raw", row)
             else:
                 self.held[name].append(row)
 
@@ -201,8 +200,6 @@ class Agreements:
         if self.last is not None:
             self._keep(*self.last)
             self.last = None
-        for f in self.files.values():
-            f.close()
         n, at = self.robots, {key: k for k, key in enumerate(self.keys)}  # the last of a key made twice
         order = [at[key] for key in sorted(at)]
         out = {"goal_set_epoch": np.asarray(step) + 1, "agreements": np.array(sorted(at), np.int64).reshape(-1, 2)}
