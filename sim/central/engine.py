@@ -478,8 +478,7 @@ def simulate(
     stop: Stop | None = None,
 ) -> Outcome:
     """Every robot through agent.loop.tick, the world moving between ticks, until the duration, convergence or
-    a signal ``stop`` heeds. ``overlap``: warm auctions on a second thread; ``scratch``: the folder a run written
-    to a directory streams its recording to."""
+    a signal ``stop`` heeds. ``overlap``: warm auctions on a second thread; ``scratch``: where a recording streams."""
     refuse_process_faults(scene)
     _keep_freed_memory()
     link, clock = link or InProcessLink(scene.robots), clock or StepClock()
