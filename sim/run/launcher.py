@@ -328,13 +328,9 @@ class Launcher:
 
     def _under_way(self, rec: Recorder) -> bool:
         """Started and not ending: no stop said, no end recorded, no final report from the world."""
-        if (
-            self.end.startup_failure is not None
-            or self.end.stop_signal is not None
-            or rec.progress.ended_at is not None
-        ):
-            return False
-        return not any(e.get("kind") == "world-done" for e in rec.happened.events)
+        ending = (self.end.startup_failure, self.end.stop_signal, rec.progress.ended_at)
+        reported = any(e.get("kind") == "world-done" for e in rec.happened.events)
+        return all(said is None for said in ending) and not reported
 
     def _crashed_world(self) -> Child | None:
         """The world process, if it exited with an error code."""
