@@ -15,6 +15,8 @@ import cv2
 import numpy as np
 from av.codec.codec import UnknownCodecError
 
+from sim.outputs.metrics import _chunks
+
 
 @dataclass(frozen=True)
 class Recording:
@@ -426,11 +428,10 @@ def _plot_trajectories(path: Path, rec: Recording) -> None:
 
 
 def _last_goals(goal: Any, T: int, N: int) -> np.ndarray:
-    """(N, 2) each robot's last goal (NaN: none), ``goal`` (T, N, 2) read a million values at a time."""
+    """(N, 2) each robot's last goal (NaN: none), ``goal`` (T, N, 2) read a piece at a time."""
     last = np.full((N, 2), np.nan)
-    ticks = max(1, (1 << 20) // max(N, 1))
-    for first in range(0, T, ticks):
-        g = np.asarray(goal[first : first + ticks], dtype=float)
+    for ticks in _chunks(T, N):
+        g = np.asarray(goal[ticks], dtype=float)
         known = np.isfinite(g).all(axis=2)  # (ticks, N)
         has = known.any(axis=0)
         at = len(g) - 1 - np.argmax(known[::-1], axis=0)  # each robot's last sample with a goal here

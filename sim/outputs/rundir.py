@@ -23,21 +23,6 @@ import numpy as np
 PARTIAL_SUFFIX = ".partial"
 
 
-def _array_safe(a: np.ndarray) -> Any:
-    if a.dtype.kind == "f" and not (finite := np.isfinite(a)).all():
-        obj = a.astype(object)
-        obj[~finite] = None
-        return obj.tolist()
-    if a.dtype.kind in "biuf":
-        return a.tolist()
-    if a.dtype.kind == "c":
-        return json_safe(np.stack([a.real, a.imag], axis=-1))
-    if a.dtype.kind in "US":
-        return a.astype(str).tolist()
-    # object or other dtypes: convert element by element
-    return [json_safe(x) for x in a.tolist()] if a.ndim else json_safe(a.item())
-
-
 def json_safe(obj: Any) -> Any:
     """A structure ``json.dumps(..., allow_nan=False)`` accepts: numpy values as Python's (NaN, inf: None), sets
     as lists, keys and paths as strings, enums as their value, bytes decoded as UTF-8."""
@@ -49,10 +34,6 @@ def json_safe(obj: Any) -> Any:
         return {(k if isinstance(k, str) else str(json_safe(k))): json_safe(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
         return [json_safe(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _array_safe(obj)
-    if isinstance(obj, np.generic):  # numpy's bools and integers as Python's
-        return json_safe(obj.item())
     if isinstance(obj, (set, frozenset)):
         return [json_safe(v) for v in sorted(obj, key=repr)]
     if isinstance(obj, enum.Enum):
@@ -61,7 +42,7 @@ def json_safe(obj: Any) -> Any:
         return str(obj)
     if isinstance(obj, (bytes, bytearray, memoryview)):
         return bytes(obj).decode("utf-8", errors="replace")
-    if hasattr(obj, "tolist"):  # other array-likes
+    if hasattr(obj, "tolist"):  # numpy's arrays, bools and integers (and other array-likes) as Python's
         return json_safe(obj.tolist())
     if hasattr(obj, "__dataclass_fields__"):
         return json_safe(dataclasses.asdict(obj))
