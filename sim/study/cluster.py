@@ -43,30 +43,25 @@ def check_address(address: str) -> None:
 def connect(address: str | None, jobs: int) -> tuple[Any, contextlib.ExitStack]:
     """A client of the scheduler at ``address``, or of a local cluster of ``jobs`` worker threads on
     127.0.0.1; closing the stack returned second closes the client, then the cluster and its scratch folder."""
-    try:
-        import dask
-        from distributed import Client, LocalCluster
-    except ImportError:
-        raise UsageError("studies run through dask.distributed: pip install 'dask[distributed]'") from None
+    import dask  # a dependency (pyproject.toml), imported only when a study runs: it takes a while
+    from distributed import Client, LocalCluster
+
     closing = contextlib.ExitStack()
+    scheduler: Any = address
     if address is None:
         # in this process, over Dask's in-process transport: no port is opened at all; the worker's
         # scratch folder is ours, removed at the end (Dask's default outlives the study in /tmp)
         scratch = closing.enter_context(tempfile.TemporaryDirectory(prefix="pixelswarm-study-"))
         with dask.config.set({**QUIET, "temporary-directory": scratch}):  # read as the scheduler and worker are made
-            cluster = LocalCluster(n_workers=1, threads_per_worker=jobs, processes=False, dashboard_address=None)
-        closing.callback(cluster.close)
-        client = Client(cluster)
-        closing.callback(client.close)
-        return client, closing
-    check_address(address)
+            scheduler = LocalCluster(n_workers=1, threads_per_worker=jobs, processes=False, dashboard_address=None)
+        closing.callback(scheduler.close)
     try:
-        client = Client(address, timeout=CONNECT_TIMEOUT_S)
-        closing.callback(client.close)
-        return client, closing
-    except (OSError, TimeoutError) as err:
+        client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
+    except (OSError, TimeoutError) as err:  # a scheduler elsewhere that does not answer
         first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
         raise UsageError(f"cannot reach the Dask scheduler at {address}: {first}") from None
+    closing.callback(client.close)
+    return client, closing
 
 
 def _die_with_parent() -> None:
