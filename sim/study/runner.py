@@ -28,22 +28,6 @@ STOP_GRACE_S = 30.0  # a child stopped by SIGTERM writes what it recorded; after
 STDERR_TAIL_CHARS = 2000
 
 
-class Interrupted(Exception):
-    """Ctrl-C or SIGTERM: the running children were stopped, finished runs kept."""
-
-
-class Signals:
-    """SIGINT and SIGTERM as a KeyboardInterrupt in the main thread, remembering the first that came
-    (the study exits with 128 + its number, as `pixelswarm run` does)."""
-
-    def __init__(self) -> None:
-        self.first: int | None = None
-
-    def __call__(self, signum: int, frame: Any) -> None:
-        self.first = self.first or signum
-        raise KeyboardInterrupt
-
-
 # --- Running: up to `jobs` children at once, progress on stderr, Ctrl-C stops the children --------
 class Progress:
     """One line per event on stderr: a bar, runs done / failed / total, and the time left at the pace so far."""
@@ -110,7 +94,7 @@ def execute(spec: Spec, study: StudyDir, jobs: int, scheduler: str | None) -> Pr
         except KeyboardInterrupt:
             stop.set()  # a queued task starts no run, a running one stops its run (SIGTERM, SIGKILL after the grace)
             _wind_down(pending, study, progress)
-            raise Interrupted from None
+            raise
         return progress
 
 
@@ -195,20 +179,25 @@ def cmd_study(args: argparse.Namespace) -> int:
     jobs = args.jobs or default_jobs()
     with lock_study(study.root):
         study.hold(spec)
-        signals = Signals()
+        stopped_by: list[int] = []  # the first signal's number: the study exits with 128 + it, as `pixelswarm run` does
+
+        def interrupt(signum: int, frame: Any) -> None:
+            stopped_by.append(signum)
+            raise KeyboardInterrupt
+
         try:
-            with handling_signals(signals):
+            with handling_signals(interrupt):
                 progress = execute(spec, study, jobs, args.scheduler)
                 command = f"pixelswarm study {study.root / 'spec.toml'} --out NEW_DIR --jobs {jobs}"
                 report = write_report(spec, study, command)  # each file whole or not at all
-        except (Interrupted, KeyboardInterrupt):  # also one that came before the runs were queued or after
+        except KeyboardInterrupt:  # Ctrl-C or SIGTERM, also one that came before the runs were queued or after
             done = sum(study.metrics(r) is not None for r in spec.runs())
-            name = signal.Signals(signals.first or signal.SIGINT).name
+            first = stopped_by[0] if stopped_by else signal.SIGINT
             print(
-                f"pixelswarm study: stopped by {name}; {done} of {len(spec.runs())} runs done and kept, "
-                "the stopped ones marked incomplete. Run the same command again to resume.",
+                f"pixelswarm study: stopped by {signal.Signals(first).name}; {done} of {len(spec.runs())} runs done "
+                "and kept, the stopped ones marked incomplete. Run the same command again to resume.",
                 file=sys.stderr,
             )
-            return 128 + (signals.first or signal.SIGINT)
+            return 128 + first
         print(report)
     return 1 if progress.failed else 0
