@@ -16,6 +16,7 @@ import numpy as np
 from av.codec.codec import UnknownCodecError
 
 from sim.outputs.metrics import _chunks
+from sim.outputs.stream import OnDisk
 
 
 @dataclass(frozen=True)
@@ -33,7 +34,7 @@ class Recording:
     def checked(self) -> Recording:
         """Arrays as floats, broadcast over time; arrays on disk (sim.outputs.stream) stay there."""
         t = np.asarray(self.t, dtype=float)
-        pose = self.pose if _on_disk(self.pose) else np.asarray(self.pose, dtype=float)
+        pose = self.pose if isinstance(self.pose, OnDisk) else np.asarray(self.pose, dtype=float)
         if pose.ndim != 3 or pose.shape[0] != len(t):
             raise ValueError(f"pose must be (T,N,3) with T = len(t); got {pose.shape}, T={len(t)}")
         T, N = pose.shape[:2]
@@ -43,14 +44,9 @@ class Recording:
         return Recording(t, pose, radius, self.arena, self.obstacles or (), goal, color)
 
 
-def _on_disk(a: Any) -> bool:
-    """An array read a piece at a time (sim.outputs.stream.OnDisk), not to be loaded whole."""
-    return hasattr(a, "shape") and not isinstance(a, np.ndarray)
-
-
 def _over_time(a: Any, shape: tuple[int, ...], dtype: Any) -> Any:
     """(T, N, k) values given per tick, or once for every tick."""
-    return a if _on_disk(a) else np.broadcast_to(np.asarray(a, dtype=dtype), shape)
+    return a if isinstance(a, OnDisk) else np.broadcast_to(np.asarray(a, dtype=dtype), shape)
 
 
 BACKGROUND = (18, 18, 18)  # BGR
