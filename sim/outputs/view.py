@@ -97,9 +97,7 @@ class _TickHandover:
         self._hurry = threading.Event()  # set by flush and close: log what there is without waiting for more
         self._logger = threading.Thread(target=self._drain, name="rerun-view", daemon=True)
         self._logger.start()
-
-    def put(self, item: tuple[Any, ...]) -> None:
-        self._queue.put(item)
+        self.put = self._queue.put  # a tick handed over
 
     def _drain(self) -> None:
         """Log batches of the ticks within FLUSH_PERIOD (FAST_FLUSH_PERIOD after a large batch), sleeping while
