@@ -112,11 +112,8 @@ def run_task(run_id: str, args: list[str], out: str | None, stop_event: str, gra
 
     if _stopped(stop_event):
         return {"not_started": True}
-    try:
-        worker = get_worker()
-    except ValueError:  # not on a worker
-        worker = None
-    base = Path(worker.local_directory if worker is not None else tempfile.gettempdir())
+    worker = get_worker()  # a task runs on a worker: the run's scratch folder goes in the worker's
+    base = Path(worker.local_directory)
     scratch = None if out is not None else Path(tempfile.mkdtemp(prefix=f"run-{run_id}-", dir=base))
     target = Path(out) if out is not None else scratch / run_id  # type: ignore[operator]  # scratch is set where out is not
     clear_run_dir(target)  # an earlier attempt's, on a worker that died
@@ -145,7 +142,7 @@ def run_task(run_id: str, args: list[str], out: str | None, stop_event: str, gra
             "process_wall_s": time.monotonic() - started,
             "command": command,
             "log": output,
-            "worker": str(worker.address) if worker is not None else "",
+            "worker": str(worker.address),
             "archive": None if scratch is None else _archive(scratch),
         }
     finally:
