@@ -46,10 +46,7 @@ def write_trajectory(path: Path, arrays: dict[str, Any], radius: np.ndarray) -> 
         for name, a in arrays.items():
             a = a if isinstance(a, OnDisk) else np.asarray(a)
             kind = np.float32 if single and name in PER_TICK else a.dtype
-            if isinstance(a, OnDisk):
-                yield name, ColumnMajor(a, kind)
-            else:
-                yield name, np.asarray(a, kind, order="F") if a.ndim >= 2 else a
+            yield name, ColumnMajor(a, kind) if isinstance(a, OnDisk) else np.asarray(a, kind, order="F")
 
     return write_npz_streamed(path, stored())
 
