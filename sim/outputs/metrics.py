@@ -29,7 +29,7 @@ def _pose_shape(pose: Any) -> tuple[int, int]:
     return shape[0], shape[1]
 
 
-def _chunks(ticks: int, robots: int) -> list[slice]:
+def tick_chunks(ticks: int, robots: int) -> list[slice]:
     """Ticks in slices of at most :data:`CHUNK` tick-robot elements (one tick at least)."""
     step = max(1, CHUNK // max(robots, 1))
     return [slice(a, min(a + step, ticks)) for a in range(0, ticks, step)]
@@ -93,7 +93,7 @@ def clearance_over_time(pose: np.ndarray, radius: np.ndarray) -> np.ndarray:
     out = np.full(T, np.inf)
     if N < 2:
         return out
-    for ticks in _chunks(T, 2 * N):  # a piece at a time: the poses may be on disk (sim.outputs.stream)
+    for ticks in tick_chunks(T, 2 * N):  # a piece at a time: the poses may be on disk (sim.outputs.stream)
         for k, xy in enumerate(_xy(pose, ticks), ticks.start):
             out[k] = clearance_at(xy, r)
     return out
@@ -144,7 +144,7 @@ def path_lengths(pose: np.ndarray) -> np.ndarray:
     """(N,) length of each robot's xy path (steps touching a non-finite sample are skipped)."""
     T, N = _pose_shape(pose)
     total = np.zeros(N)
-    for ticks in _chunks(T - 1, N):
+    for ticks in tick_chunks(T - 1, N):
         step = _moved(pose, np.arange(ticks.start, ticks.stop))
         # numpy adds the rows of an axis-0 sum in order: the running total first keeps that order
         total = np.nansum(np.concatenate([total[None], np.where(np.isfinite(step), step, np.nan)]), axis=0)
@@ -170,7 +170,7 @@ def _arrived(pose: Any, goal: Any, tolerance: float, members: Any = None, curren
     """Per tick: every robot with a goal that counts (from ``current``'s set) at it, and whether any has one."""
     T, N = _pose_shape(pose)
     every, some = np.zeros(T, bool), np.zeros(T, bool)
-    for ticks in _chunks(T, N):
+    for ticks in tick_chunks(T, N):
         err, has_goal = _goal_errors(pose, goal, members, ticks)
         arrived = err <= tolerance if current is None else (err <= tolerance) & current[ticks]
         every[ticks] = np.where(has_goal, arrived, True).all(axis=1)

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 from av.codec.codec import UnknownCodecError
 
-from sim.outputs.metrics import _chunks
+from sim.outputs.metrics import tick_chunks
 from sim.outputs.stream import OnDisk
 
 
@@ -426,7 +426,7 @@ def _plot_trajectories(path: Path, rec: Recording) -> None:
 def _last_goals(goal: Any, T: int, N: int) -> np.ndarray:
     """(N, 2) each robot's last goal (NaN: none), ``goal`` (T, N, 2) read a piece at a time."""
     last = np.full((N, 2), np.nan)
-    for ticks in _chunks(T, N):
+    for ticks in tick_chunks(T, N):
         g = np.asarray(goal[ticks], dtype=float)
         known = np.isfinite(g).all(axis=2)  # (ticks, N)
         has = known.any(axis=0)
