@@ -136,10 +136,8 @@ def _build(kind: type[Message], tables: dict[str, tuple[np.dtype | None, Callabl
     message = file.message_type.add(name=name)
     for number, (field, code) in enumerate(zip(scalars, codes), start=1):
         _field(message, field, number, _BY_STRUCT[code])
-    number = len(scalars)
     encoders = []
-    for table, (dtype, rows_of) in tables.items():
-        number += 1
+    for number, (table, (dtype, rows_of)) in enumerate(tables.items(), start=len(scalars) + 1):
         if dtype is None:
             _field(message, table, number, _F.TYPE_BYTES)
             encoders.append(Table(table, number, rows_of, ()))
