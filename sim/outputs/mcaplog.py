@@ -154,9 +154,7 @@ def proto_to_dict(message: Message) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for field in message.DESCRIPTOR.fields:
         value = getattr(message, field.name)
-        if field.type != FieldDescriptor.TYPE_MESSAGE:
-            out[field.name] = list(value) if _is_repeated(field) else value
-        elif field.message_type.GetOptions().map_entry:
+        if field.message_type is not None and field.message_type.GetOptions().map_entry:
             out[field.name] = {k: _proto_value(v) for k, v in value.items()}
         elif _is_repeated(field):
             out[field.name] = [_proto_value(v) for v in value]
@@ -171,7 +169,7 @@ def _is_repeated(field: FieldDescriptor) -> bool:
 
 
 def _proto_value(value: Any) -> Any:
-    if not isinstance(value, Message):
+    if not isinstance(value, Message):  # a number, string, bytes or enum
         return value
     if value.DESCRIPTOR.full_name in ("google.protobuf.Timestamp", "google.protobuf.Duration"):
         return {"sec": value.seconds, "nsec": value.nanos}
