@@ -132,11 +132,9 @@ def scene_update(
     robots = np.hstack(parts)  # a robot's disc (and arrow), a row each
     spheres = _records(SPHERES, _goal_sphere, np.column_stack([gx, gy, d / 2, d, red, green, blue]))
     stamp = _timestamp(t_ns)
-    entities, deletions = [], []
-    for i in range(n):
-        if not drawn[i]:
-            deletions.append(_deleted(stamp, f"robot/{i}"))
-            continue
+    deletions = [_deleted(stamp, f"robot/{i}") for i in np.flatnonzero(~drawn).tolist()]
+    entities = []
+    for i in np.flatnonzero(drawn).tolist():
         metadata = [KeyValuePair(key="goal", value=f"{gx[i]:.3f}, {gy[i]:.3f}")] if has_goal[i] else []
         body = robots[i].tobytes() + (spheres[i].tobytes() if has_goal[i] else b"")
         entities.append(length_delimited(ENTITIES, _head(stamp, f"robot/{i}", metadata) + body))
