@@ -58,6 +58,7 @@ def connect(address: str | None, jobs: int) -> tuple[Any, contextlib.ExitStack]:
     try:
         client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
     except (OSError, TimeoutError) as err:  # a scheduler elsewhere that does not answer
+        closing.close()
         first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
         raise UsageError(f"cannot reach the Dask scheduler at {address}: {first}") from None
     closing.callback(client.close)
