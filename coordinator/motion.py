@@ -84,17 +84,17 @@ def is_positive(value: Any) -> TypeGuard[float]:
     return is_number(value) and value > 0
 
 
-def positive(value: Any, label: str, unit: str = "seconds", error: type[ValueError] = GoalError) -> float:
-    """``value`` as a float if it is a positive number, else ``error`` (a scene's: SceneError)."""
+def positive(value: Any, label: str, unit: str = "seconds") -> float:
+    """``value`` as a float if it is a positive number, else GoalError."""
     if not is_positive(value):
-        raise error(f"{label} must be a positive number of {unit}, not {value!r}")
+        raise GoalError(f"{label} must be a positive number of {unit}, not {value!r}")
     return float(value)
 
 
-def one_of(value: Any, choices: tuple[str, ...], label: str, error: type[ValueError] = GoalError) -> Any:
-    """``value`` if it is one of ``choices``, else ``error`` (a scene's: SceneError)."""
+def one_of(value: Any, choices: tuple[str, ...], label: str) -> Any:
+    """``value`` if it is one of ``choices``, else GoalError."""
     if value not in choices:
-        raise error(f"{label} must be one of {', '.join(choices)}, not {value!r}")
+        raise GoalError(f"{label} must be one of {', '.join(choices)}, not {value!r}")
     return value
 
 

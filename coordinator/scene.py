@@ -192,32 +192,37 @@ SCENE_KEYS = frozenset(
 
 def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: Unpack[Overrides]) -> Scene:
     """A scene from its table, validated, without its goal sets (no image is read)."""
+    return _wrap(lambda: _parse(data, source, overrides), source)
+
+
+def _parse(data: dict[str, Any], source: str, overrides: Overrides) -> Scene:
+    """parse_scene_dict's scene; its errors are GoalErrors, which parse_scene_dict names the scene in."""
     robots, seed, duration = overrides.get("robots"), overrides.get("seed"), overrides.get("duration")
     if unknown := set(data) - SCENE_KEYS:
-        raise SceneError(f"{source}: unknown key(s) {', '.join(sorted(unknown))}")
-    n = _whole(robots if robots is not None else data.get("robots", 14), "robots", 1, source)
+        raise GoalError(f"unknown key(s) {', '.join(sorted(unknown))}")
+    n = _whole(robots if robots is not None else data.get("robots", 14), "robots", 1)
     if n > MAX_ROBOTS:
-        raise SceneError(f"{source}: robots must be at most {MAX_ROBOTS} (robot ids are 16-bit on the bus), not {n}")
-    robot = _table(data, "robot", {}, source)
-    radius = positive(robot.get("radius", epuck.RADIUS), f"{source}: robot radius", "metres", SceneError)
-    animation = _wrap(lambda: parse_animation(data["animation"], source), source) if "animation" in data else None
+        raise GoalError(f"robots must be at most {MAX_ROBOTS} (robot ids are 16-bit on the bus), not {n}")
+    robot = _table(data, "robot", {})
+    radius = positive(robot.get("radius", epuck.RADIUS), "robot radius", "metres")
+    animation = parse_animation(data["animation"], source) if "animation" in data else None
     steps = list(animation.steps) if animation is not None else _steps(data, source)
     if animation is not None and ("steps" in data or "goals" in data):
-        raise SceneError(f"{source}: give one of [animation], [[steps]] or [goals], not several")
+        raise GoalError("give one of [animation], [[steps]] or [goals], not several")
     if duration is None:
         duration = data.get("duration", sum(s.hold for s in steps) if steps else Scene.duration)
     if not is_positive(duration):
-        raise SceneError(f"{source}: duration must be a positive number of seconds")
-    seed = _whole(seed if seed is not None else data.get("seed", Scene.seed), "seed", 0, source)
+        raise GoalError("duration must be a positive number of seconds")
+    seed = _whole(seed if seed is not None else data.get("seed", Scene.seed), "seed", 0)
     scene = Scene(
         name=str(data.get("name", Path(source).stem)),
         robots=n,
         robot=robot,
-        layout=_table(data, "layout", {"kind": "grid"}, source),
-        goals=_table(data, "goals", {"kind": "none"}, source),
+        layout=_table(data, "layout", {"kind": "grid"}),
+        goals=_table(data, "goals", {"kind": "none"}),
         arena=(0.0, 0.0, 0.0, 0.0),
         obstacles=[],
-        events=_tables(data, "events", source),
+        events=_tables(data, "events"),
         clock=overrides.get("clock") or data.get("clock", Scene.clock),
         engine=data.get("engine", Scene.engine),
         assignment=data.get("assignment", Scene.assignment),
@@ -225,92 +230,81 @@ def parse_scene_dict(data: dict[str, Any], source: str = "<dict>", **overrides: 
         deadline=data.get("deadline", Scene.deadline),
         duration=float(duration),
         seed=seed,
-        noise=_noise(_table(data, "noise", {}, source), source),
-        converge_hold=_converge_hold(_table(data, "end", {}, source), source),
+        noise=_noise(_table(data, "noise", {})),
+        converge_hold=_converge_hold(_table(data, "end", {})),
         source=source,
     )
     for key, choices in (("clock", CLOCKS), ("engine", ENGINES), ("assignment", ASSIGNMENTS)):
-        one_of(getattr(scene, key), choices, f"{source}: {key}", SceneError)
-    scene.agents_per_process = _whole(scene.agents_per_process, "agents_per_process", 1, source)
-    scene.deadline = positive(scene.deadline, f"{source}: deadline", error=SceneError)
-    _kind_keys(scene.goals, GOAL_KEYS, "none", "goals", source)
-    obstacles = _tables(data, "obstacles", source, ("vertices",))
-    scene.obstacles = [_polygon(o, f"obstacles[{k}]", source) for k, o in enumerate(obstacles)]
+        one_of(getattr(scene, key), choices, key)
+    scene.agents_per_process = _whole(scene.agents_per_process, "agents_per_process", 1)
+    scene.deadline = positive(scene.deadline, "deadline")
+    _kind_keys(scene.goals, GOAL_KEYS, "none", "goals")
+    obstacles = _tables(data, "obstacles", ("vertices",))
+    scene.obstacles = [_polygon(o, f"obstacles[{k}]") for k, o in enumerate(obstacles)]
     scene.poses = initial_poses(scene.layout, n, radius, scene.seed, source)
     if scene.goals.get("kind") == "image":  # one image: a sequence of one step, shown for the whole run
-        steps = [_wrap(lambda: parse_step(_image_step(scene.goals, scene.duration), "goals", source), source)]
+        steps = [parse_step(_image_step(scene.goals, scene.duration), "goals", source)]
     if steps:
-        _plan_steps(scene, data, steps, animation, source)
+        _plan_steps(scene, data, steps, animation)
     else:
-        scene.goal_positions = scene_goals(scene.goals, scene.poses, source)
-        scene.arena = _arena(data.get("arena", "auto"), scene, source)  # image scenes: make_goal_sets
-        _check_fit(scene, source)
-    _add_uncontrolled(scene, data, source)
+        scene.goal_positions = scene_goals(scene.goals, scene.poses)
+        _fit_arena(scene, data.get("arena", "auto"))  # image scenes: make_goal_sets
+    _add_uncontrolled(scene, data)
     return scene
 
 
-def _add_uncontrolled(scene: Scene, data: dict[str, Any], where: str) -> None:
+def _add_uncontrolled(scene: Scene, data: dict[str, Any]) -> None:
     """The scene's events, checked, and its scripted movers and pursuers (paper Fig. 19), which take no goal."""
     for k, event in enumerate(scene.events):
-        _check_event(event, f"events[{k}]", scene, where)
-    scripted, pursuers = _tables(data, "scripted", where, MOVER_KEYS), _tables(data, "pursuers", where, PURSUER_KEYS)
+        _check_event(event, f"events[{k}]", scene)
+    scripted, pursuers = _tables(data, "scripted", MOVER_KEYS), _tables(data, "pursuers", PURSUER_KEYS)
     scene.scripted = {
-        _robot_index(e, scene, f"{where}: scripted[{k}]"): _waypoints(e, f"scripted[{k}]", where)
-        for k, e in enumerate(scripted)
+        _robot_index(e, scene, f"scripted[{k}]"): _waypoints(e, f"scripted[{k}]") for k, e in enumerate(scripted)
     }
     scene.pursuers = {
-        _robot_index(e, scene, f"{where}: pursuers[{k}]"): _robot_index(e, scene, f"{where}: pursuers[{k}]", "target")
+        _robot_index(e, scene, f"pursuers[{k}]"): _robot_index(e, scene, f"pursuers[{k}]", "target")
         for k, e in enumerate(pursuers)
     }
     for r in scene.scripted:
         scene.goal_positions[r] = np.nan  # a scripted robot follows its path, not a goal
 
 
-def _whole(value: Any, key: str, least: int, where: str) -> int:
+def _whole(value: Any, key: str, least: int) -> int:
     if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < least:
-        raise SceneError(f"{where}: {key} must be a whole number >= {least}, not {value!r}")
+        raise GoalError(f"{key} must be a whole number >= {least}, not {value!r}")
     return int(value)
 
 
-def _finite(value: Any, label: str, unit: str, where: str) -> float:
+def _finite(value: Any, label: str, unit: str) -> float:
     """A number the scene gives, any sign; TOML's nan and inf would reach the robots and stop the run mid-way."""
     if not is_number(value):
-        raise SceneError(f"{where}: {label} must be a finite number of {unit}, not {value!r}")
+        raise GoalError(f"{label} must be a finite number of {unit}, not {value!r}")
     return float(value)
 
 
-def _row(value: Any, names: str, label: str, where: str) -> np.ndarray:
+def _row(value: Any, names: str, label: str) -> np.ndarray:
     """A list of finite numbers, one per name in ``names`` (e.g. "x, y, theta"), as floats."""
     if not (isinstance(value, list) and len(value) == len(names.split(", ")) and all(is_number(v) for v in value)):
-        raise SceneError(f"{where}: {label} must be [{names}] (finite numbers), not {value!r}")
+        raise GoalError(f"{label} must be [{names}] (finite numbers), not {value!r}")
     return np.array(value, float)
 
 
-def _rows(value: Any, names: str, least: int, label: str, where: str) -> np.ndarray:
+def _rows(value: Any, names: str, least: int, label: str) -> np.ndarray:
     """At least ``least`` rows of _row's, as an array (K, len(names))."""
     if not (isinstance(value, list) and len(value) >= least):
         given = f"{len(value)}" if isinstance(value, list) else repr(value)
-        raise SceneError(f"{where}: {label} needs {least} [{names}] rows, not {given}")
-    return np.array([_row(v, names, f"{label}[{k}]", where) for k, v in enumerate(value)])
+        raise GoalError(f"{label} needs {least} [{names}] rows, not {given}")
+    return np.array([_row(v, names, f"{label}[{k}]") for k, v in enumerate(value)])
 
 
-def _keys(table: dict[str, Any], allowed: tuple[str, ...], label: str, where: str) -> None:
-    """SceneError naming a key of ``table`` that is not ``allowed`` (a typo would be silently ignored)."""
-    _wrap(lambda: check_keys(table, allowed, label), where)
-
-
-def _kind_keys(
-    table: dict[str, Any], kinds: dict[str, tuple[str, ...]], default: str | None, label: str, where: str
-) -> str:
-    """A table's kind, one of ``kinds``, whose keys are checked against that kind's."""
-    kind: str = one_of(table.get("kind", default), tuple(kinds), f"{where}: {label} kind", SceneError)
-    _keys(table, ("kind", *kinds[kind]), f'{label} of kind "{kind}"', where)
+def _kind_keys(table: dict[str, Any], kinds: dict[str, tuple[str, ...]], default: str | None, label: str) -> str:
+    """A table's kind, one of ``kinds``, whose keys are checked against that kind's (a typo would be ignored)."""
+    kind: str = one_of(table.get("kind", default), tuple(kinds), f"{label} kind")
+    check_keys(table, ("kind", *kinds[kind]), f'{label} of kind "{kind}"')
     return kind
 
 
-def _plan_steps(
-    scene: Scene, data: dict[str, Any], steps: list[ImageStep], animation: Animation | None, where: str
-) -> None:
+def _plan_steps(scene: Scene, data: dict[str, Any], steps: list[ImageStep], animation: Animation | None) -> None:
     """An image or animation scene's steps, and the plan make_goal_sets follows for their goal sets."""
     n = scene.robots
     scene.steps = steps
@@ -320,12 +314,12 @@ def _plan_steps(
         animation,
         ["goals"] if "steps" not in data else None,
         written_for if isinstance(written_for, int) and written_for >= 1 else n,
-        positive(k_r, f"{where}: goals arena", "metres", SceneError) if k_r is not None else None,
+        positive(k_r, "goals arena", "metres") if k_r is not None else None,
         data.get("arena", "auto"),
     )
     for k, step in enumerate(steps):
         if step.motion is not None:
-            _wrap(lambda: check_window(step.motion, f"steps[{k}]", scene.step_window(k)), where)  # noqa: B023 (called at once)
+            check_window(step.motion, f"steps[{k}]", scene.step_window(k))
     scene.goal_positions = np.full((n, 2), np.nan)
 
 
@@ -335,8 +329,8 @@ def make_goal_sets(scene: Scene) -> Scene:
         return scene
     scene.image_goals = goal_pipeline(scene)
     scene.goal_set, scene.goal_colors = scene_goal_set(scene, 0, scene.robots)
-    scene.arena = _arena(scene.goal_plan.arena_spec, scene, scene.source)
-    _check_fit(scene, scene.source)
+    spec = scene.goal_plan.arena_spec
+    _wrap(lambda: _fit_arena(scene, spec), scene.source)
     return scene
 
 
@@ -354,12 +348,13 @@ def goal_pipeline(scene: Scene, arena: float | None = None) -> StepGoals | Frame
         raise SceneError(f"{scene.source}: {err}") from None
 
 
-def initial_poses(layout: dict[str, Any], n: int, radius: float, seed: int, where: str = "scene") -> np.ndarray:
-    """Initial poses (N,3) of a layout; headings face the arena centre for circle and rows."""
-    kind = _kind_keys(layout, LAYOUT_KEYS, "grid", "layout", where)
+def initial_poses(layout: dict[str, Any], n: int, radius: float, seed: int, source: str = "scene") -> np.ndarray:
+    """Initial poses (N,3) of a layout; headings face the arena centre for circle and rows (``source``: the scene
+    file, which the path of a layout of kind "file" is relative to)."""
+    kind = _kind_keys(layout, LAYOUT_KEYS, "grid", "layout")
     for key in ("spacing", "radius", "offset", "gap"):
         if key in layout:
-            positive(layout[key], f"{where}: layout {key}", "metres", SceneError)
+            positive(layout[key], f"layout {key}", "metres")
     spacing = float(layout.get("spacing", 4.0 * radius))
     if kind == "circle":
         # Auto radius keeps neighbours on the circle `spacing` apart (RVO2's Circle, at display scale).
@@ -367,8 +362,8 @@ def initial_poses(layout: dict[str, Any], n: int, radius: float, seed: int, wher
         a = 2 * math.pi * np.arange(n) / n
         return np.stack([r * np.cos(a), r * np.sin(a), a + math.pi], axis=1)
     if kind == "grid":
-        cols = _whole(layout.get("cols", math.ceil(math.sqrt(n))), "layout cols", 1, where)
-        heading = _finite(layout.get("heading", math.pi / 2), "layout heading", "radians", where)
+        cols = _whole(layout.get("cols", math.ceil(math.sqrt(n))), "layout cols", 1)
+        heading = _finite(layout.get("heading", math.pi / 2), "layout heading", "radians")
         rows = math.ceil(n / cols)
         i = np.arange(n)
         x = (i % cols - (cols - 1) / 2) * spacing
@@ -386,8 +381,8 @@ def initial_poses(layout: dict[str, Any], n: int, radius: float, seed: int, wher
     if kind == "blocks":
         return _blocks(n, spacing, float(layout.get("offset", 1.7)))
     if kind == "random":
-        return _scattered(layout, n, spacing, seed, where)
-    return _listed(layout, n, where)  # kind "list" or "file"
+        return _scattered(layout, n, spacing, seed)
+    return _listed(layout, n, source)  # kind "list" or "file"
 
 
 def _blocks(n: int, spacing: float, offset: float) -> np.ndarray:
@@ -400,19 +395,19 @@ def _blocks(n: int, spacing: float, offset: float) -> np.ndarray:
     return np.array(poses[:n], float)
 
 
-def _scattered(layout: dict[str, Any], n: int, spacing: float, seed: int, where: str) -> np.ndarray:
+def _scattered(layout: dict[str, Any], n: int, spacing: float, seed: int) -> np.ndarray:
     """Random positions at least `spacing` apart in the layout's area, random headings."""
     side = max(1.0, spacing * math.sqrt(n) * 1.5)
-    width, height = _row(layout["size"], "width, height", "layout size", where) if "size" in layout else (side, side)
+    width, height = _row(layout["size"], "width, height", "layout size") if "size" in layout else (side, side)
     if min(width, height) <= 0:
-        raise SceneError(f"{where}: layout size must be [width, height] in metres, above 0, not {layout['size']!r}")
+        raise GoalError(f"layout size must be [width, height] in metres, above 0, not {layout['size']!r}")
     rng = np.random.default_rng(seed)
     pts: list[tuple[float, float]] = []
     tries = 0
     while len(pts) < n:
         tries += 1
         if tries > 200 * n:
-            raise SceneError(f"{where}: cannot place {n} robots {spacing} m apart in a {width} x {height} m area")
+            raise GoalError(f"cannot place {n} robots {spacing} m apart in a {width} x {height} m area")
         p = (rng.uniform(-width / 2, width / 2), rng.uniform(-height / 2, height / 2))
         if all((p[0] - q[0]) ** 2 + (p[1] - q[1]) ** 2 >= spacing**2 for q in pts):
             pts.append(p)
@@ -420,26 +415,26 @@ def _scattered(layout: dict[str, Any], n: int, spacing: float, seed: int, where:
     return np.column_stack([np.array(pts), th])
 
 
-def _listed(layout: dict[str, Any], n: int, where: str) -> np.ndarray:
+def _listed(layout: dict[str, Any], n: int, source: str) -> np.ndarray:
     """The first N poses the layout lists (kind 'list') or a CSV file of x,y[,theta] holds ('file', its
     path relative to the scene file, as images are)."""
     if layout.get("kind") == "list":
-        return _rows(layout.get("poses"), "x, y, theta", n, "layout poses", where)[:n]
+        return _rows(layout.get("poses"), "x, y, theta", n, "layout poses")[:n]
     path = layout.get("path")
     if not isinstance(path, str):
-        raise SceneError(f'{where}: layout of kind "file" needs path = "a CSV file of x,y[,theta] rows", not {path!r}')
+        raise GoalError(f'layout of kind "file" needs path = "a CSV file of x,y[,theta] rows", not {path!r}')
     try:
-        arr = np.loadtxt(scene_relative(path, where), delimiter=",", ndmin=2)
+        arr = np.loadtxt(scene_relative(path, source), delimiter=",", ndmin=2)
     except (OSError, ValueError) as err:
-        raise SceneError(f"{where}: layout file {path}: {err}") from None
+        raise GoalError(f"layout file {path}: {err}") from None
     if arr.shape[1] == 2:
         arr = np.column_stack([arr, np.zeros(len(arr))])
     if arr.shape[1] != 3 or len(arr) < n or not np.isfinite(arr[:n]).all():
-        raise SceneError(f"{where}: layout file {path} needs {n} rows of x,y[,theta] (finite numbers)")
+        raise GoalError(f"layout file {path} needs {n} rows of x,y[,theta] (finite numbers)")
     return arr[:n].astype(float)
 
 
-def scene_goals(goals: dict[str, Any], poses: np.ndarray, where: str = "scene") -> np.ndarray:
+def scene_goals(goals: dict[str, Any], poses: np.ndarray) -> np.ndarray:
     """Per-robot goals (N,2) of a scene; NaN rows where a robot has none."""
     kind = goals.get("kind", "none")
     xy = poses[:, :2]
@@ -452,19 +447,19 @@ def scene_goals(goals: dict[str, Any], poses: np.ndarray, where: str = "scene") 
     if kind == "none":
         return np.full_like(xy, np.nan)
     if kind == "list":
-        return _rows(goals.get("positions"), "x, y", len(xy), "goals positions", where)[: len(xy)]
-    raise SceneError(f"{where}: goals kind must be one of {', '.join(GOAL_KINDS)}, not {kind!r}")
+        return _rows(goals.get("positions"), "x, y", len(xy), "goals positions")[: len(xy)]
+    raise GoalError(f"goals kind must be one of {', '.join(GOAL_KINDS)}, not {kind!r}")
 
 
 def _steps(data: dict[str, Any], source: str) -> list[ImageStep]:
     if "steps" not in data:
         return []
     if "goals" in data:
-        raise SceneError(f"{source}: give either [[steps]] (an image sequence) or [goals], not both")
+        raise GoalError("give either [[steps]] (an image sequence) or [goals], not both")
     entries = data["steps"]
     if not (isinstance(entries, list) and entries):
-        raise SceneError(f"{source}: steps must be one or more [[steps]] tables")
-    return [_wrap(lambda: parse_step(e, f"steps[{k}]", source), source) for k, e in enumerate(entries)]  # noqa: B023
+        raise GoalError("steps must be one or more [[steps]] tables")
+    return [parse_step(e, f"steps[{k}]", source) for k, e in enumerate(entries)]
 
 
 def _image_step(goals: dict[str, Any], hold: float) -> dict[str, Any]:
@@ -476,7 +471,7 @@ def _image_step(goals: dict[str, Any], hold: float) -> dict[str, Any]:
 
 
 def _wrap(make: Any, where: str) -> Any:
-    """Run a goal-generation call, its GoalError becoming this scene's one-line SceneError."""
+    """Run a parsing or goal-generation call, its GoalError becoming the one-line SceneError of the scene ``where``."""
     try:
         return make()
     except GoalError as err:
@@ -501,7 +496,13 @@ def _file_scene(path: str, robots: int, image: bool) -> dict[str, Any]:
     return table | {"animation": {"keyframes": str(full)}}
 
 
-def _arena(spec: Any, scene: Scene, where: str) -> tuple[float, float, float, float]:
+def _fit_arena(scene: Scene, spec: Any) -> None:
+    """The scene's arena from its [arena] ("auto": round everything it shows), which its robots must fit."""
+    scene.arena = _arena(spec, scene)
+    _check_fit(scene)
+
+
+def _arena(spec: Any, scene: Scene) -> tuple[float, float, float, float]:
     if spec == "auto" or spec is None:
         pts = [scene.poses[:, :2]]
         if scene.image_goals is not None:  # every step's picture, all robots (fewer robots: inside it)
@@ -513,16 +514,16 @@ def _arena(spec: Any, scene: Scene, where: str) -> tuple[float, float, float, fl
         lo, hi = allp.min(axis=0) - margin, allp.max(axis=0) + margin
         return (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
     if isinstance(spec, dict):
-        _keys(spec, ("size",), "arena", where)
+        check_keys(spec, ("size",), "arena")
     size = spec.get("size") if isinstance(spec, dict) else None
     if not (isinstance(size, list) and len(size) == 2 and all(is_positive(s) for s in size)):
-        raise SceneError(f'{where}: arena must be "auto" or have size = [width, height] in metres')
+        raise GoalError('arena must be "auto" or have size = [width, height] in metres')
     w, h = float(size[0]), float(size[1])
     for k, box in _swept(scene).items():
         box = box + np.array([[-scene.radius], [scene.radius]])  # the robots on the goals, too
         if box[0, 0] < -w / 2 or box[0, 1] < -h / 2 or box[1, 0] > w / 2 or box[1, 1] > h / 2:
-            raise SceneError(
-                f"{where}: the moving image of steps[{k}] leaves the {w:g} x {h:g} m arena "
+            raise GoalError(
+                f"the moving image of steps[{k}] leaves the {w:g} x {h:g} m arena "
                 f"(it reaches [{box[0, 0]:.2f}, {box[0, 1]:.2f}] to [{box[1, 0]:.2f}, {box[1, 1]:.2f}]); "
                 "enlarge [arena] size or slow the [steps.motion]"
             )
@@ -538,14 +539,14 @@ def _swept(scene: Scene) -> dict[int, np.ndarray]:
     }
 
 
-def _check_fit(scene: Scene, where: str) -> None:
+def _check_fit(scene: Scene) -> None:
     xmin, ymin, xmax, ymax = scene.arena
     r = scene.radius
     xy = scene.poses[:, :2]
     outside = (xy[:, 0] - r < xmin) | (xy[:, 0] + r > xmax) | (xy[:, 1] - r < ymin) | (xy[:, 1] + r > ymax)
     if outside.any():
-        raise SceneError(
-            f"{where}: {int(outside.sum())} of {scene.robots} robots do not fit in the "
+        raise GoalError(
+            f"{int(outside.sum())} of {scene.robots} robots do not fit in the "
             f"{xmax - xmin:.2f} x {ymax - ymin:.2f} m arena; enlarge [arena] size or use fewer robots"
         )
     from scipy.spatial import cKDTree  # here only: the command line starts without SciPy
@@ -554,8 +555,8 @@ def _check_fit(scene: Scene, where: str) -> None:
     apart = np.hypot(*(xy[pairs[:, 0]] - xy[pairs[:, 1]]).T)
     if (apart < 2 * r).any():
         closest = float(apart.min())
-        raise SceneError(
-            f"{where}: robots start overlapping (closest centres {closest:.3f} m, "
+        raise GoalError(
+            f"robots start overlapping (closest centres {closest:.3f} m, "
             f"diameter {2 * r:.3f} m); increase layout spacing"
         )
 
@@ -590,32 +591,30 @@ def take_due(events: list[dict[str, Any]], t: float) -> list[dict[str, Any]]:
     return taken
 
 
-def _check_event(event: dict[str, Any], label: str, scene: Scene, where: str) -> None:
-    kind = _kind_keys(event, EVENT_KEYS, None, label, where)
-    positive(event.get("t"), f"{where}: {label} ({kind}) t", error=SceneError)
+def _check_event(event: dict[str, Any], label: str, scene: Scene) -> None:
+    kind = _kind_keys(event, EVENT_KEYS, None, label)
+    positive(event.get("t"), f"{label} ({kind}) t")
     if kind == "tracker-outage":
-        positive(event.get("duration"), f"{where}: {label} ({kind}) duration", error=SceneError)
+        positive(event.get("duration"), f"{label} ({kind}) duration")
         return
-    _robot_index(event, scene, f"{where}: {label} ({kind})")
+    _robot_index(event, scene, f"{label} ({kind})")
     if kind == "teleport":
-        _row(event.get("pose"), "x, y, theta", f"{label} ({kind}) pose", where)
+        _row(event.get("pose"), "x, y, theta", f"{label} ({kind}) pose")
     if kind == "tracker-glitch":
-        _row(event.get("offset"), "dx, dy", f"{label} ({kind}) offset", where)
+        _row(event.get("offset"), "dx, dy", f"{label} ({kind}) offset")
 
 
-def _robot_index(entry: dict[str, Any], scene: Scene, where: str, key: str = "robot") -> int:
+def _robot_index(entry: dict[str, Any], scene: Scene, label: str, key: str = "robot") -> int:
     value = entry.get(key)
     if not (isinstance(value, int) and not isinstance(value, bool) and 0 <= value < scene.robots):
-        raise SceneError(f"{where}: {key} must be a robot index in 0..{scene.robots - 1}, not {value!r}")
+        raise GoalError(f"{label}: {key} must be a robot index in 0..{scene.robots - 1}, not {value!r}")
     return value
 
 
-def _waypoints(entry: dict[str, Any], label: str, where: str) -> np.ndarray:
-    pts = _rows(entry.get("waypoints"), "t, x, y", 2, f"{label} waypoints", where)
+def _waypoints(entry: dict[str, Any], label: str) -> np.ndarray:
+    pts = _rows(entry.get("waypoints"), "t, x, y", 2, f"{label} waypoints")
     if np.any(np.diff(pts[:, 0]) <= 0):
-        raise SceneError(
-            f"{where}: {label} waypoints must be [[t, x, y], ...] with increasing t, not {pts[:, 0].tolist()}"
-        )
+        raise GoalError(f"{label} waypoints must be [[t, x, y], ...] with increasing t, not {pts[:, 0].tolist()}")
     return pts
 
 
@@ -624,45 +623,45 @@ def scripted_position(waypoints: np.ndarray, t: float) -> np.ndarray:
     return np.array([np.interp(t, waypoints[:, 0], waypoints[:, 1]), np.interp(t, waypoints[:, 0], waypoints[:, 2])])
 
 
-def _table(data: dict[str, Any], key: str, default: dict[str, Any], where: str) -> dict[str, Any]:
+def _table(data: dict[str, Any], key: str, default: dict[str, Any]) -> dict[str, Any]:
     value = data.get(key, default)
     if not isinstance(value, dict):
-        raise SceneError(f"{where}: {key} must be a table ([{key}] with key = value lines), not {value!r}")
+        raise GoalError(f"{key} must be a table ([{key}] with key = value lines), not {value!r}")
     return dict(value)
 
 
-def _tables(data: dict[str, Any], key: str, where: str, keys: tuple[str, ...] | None = None) -> list[dict[str, Any]]:
+def _tables(data: dict[str, Any], key: str, keys: tuple[str, ...] | None = None) -> list[dict[str, Any]]:
     """The [[key]] tables of a scene, each with only ``keys`` (None: checked by kind, later)."""
     value = data.get(key, [])
     if not (isinstance(value, list) and all(isinstance(v, dict) for v in value)):
-        raise SceneError(f"{where}: {key} must be [[{key}]] tables, not {value!r}")
+        raise GoalError(f"{key} must be [[{key}]] tables, not {value!r}")
     for k, table in enumerate(value):
         if keys is not None:
-            _keys(table, keys, f"{key}[{k}]", where)
+            check_keys(table, keys, f"{key}[{k}]")
     return list(value)
 
 
-def _converge_hold(end: dict[str, Any], where: str) -> float:
-    _keys(end, ("converge_hold",), "[end]", where)
+def _converge_hold(end: dict[str, Any]) -> float:
+    check_keys(end, ("converge_hold",), "[end]")
     hold = end.get("converge_hold", Scene.converge_hold)
     if not (is_number(hold) and hold >= 0):
-        raise SceneError(f"{where}: [end] converge_hold must be a number of seconds >= 0, not {hold!r}")
+        raise GoalError(f"[end] converge_hold must be a number of seconds >= 0, not {hold!r}")
     return float(hold)
 
 
-def _noise(data: dict[str, Any], where: str) -> Noise:
-    _keys(data, tuple(f.name for f in fields(Noise)), "[noise]", where)
+def _noise(data: dict[str, Any]) -> Noise:
+    check_keys(data, tuple(f.name for f in fields(Noise)), "[noise]")
     for key, level in data.items():
         if not (is_number(level) and level >= 0):
-            raise SceneError(f"{where}: [noise] {key} must be a number >= 0, not {level!r}")
+            raise GoalError(f"[noise] {key} must be a number >= 0, not {level!r}")
     return Noise(**{k: float(v) for k, v in data.items()})
 
 
-def _polygon(obstacle: dict[str, Any], label: str, where: str) -> list[tuple[float, float]]:
+def _polygon(obstacle: dict[str, Any], label: str) -> list[tuple[float, float]]:
     verts = obstacle.get("vertices")
-    pts = [(float(x), float(y)) for x, y in _rows(verts, "x, y", 3, f"{label} vertices", where)]
+    pts = [(float(x), float(y)) for x, y in _rows(verts, "x, y", 3, f"{label} vertices")]
     if fault := _polygon_fault(pts):  # the world would refuse it once the run has begun
-        raise SceneError(f"{where}: {label} vertices must outline a simple polygon ({fault}), not {verts!r}")
+        raise GoalError(f"{label} vertices must outline a simple polygon ({fault}), not {verts!r}")
     area2 = sum(x0 * y1 - x1 * y0 for (x0, y0), (x1, y1) in zip(pts, pts[1:] + pts[:1]))
     return pts if area2 > 0 else pts[::-1]  # counter-clockwise, as ORCA's obstacle lines expect
 
