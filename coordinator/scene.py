@@ -39,8 +39,6 @@ GOAL_KEYS = {
     "none": (),
     "image": ("image", "shape", "region_counts", "method", "name", "arena"),
 }
-LAYOUTS = tuple(LAYOUT_KEYS)
-GOAL_KINDS = tuple(GOAL_KEYS)
 CLOCKS = ("lockstep", "realtime")
 ENGINES = ("distributed", "central")
 ASSIGNMENTS = ("auction", "optimal")
@@ -435,7 +433,7 @@ def _listed(layout: dict[str, Any], n: int, source: str) -> np.ndarray:
 
 
 def scene_goals(goals: dict[str, Any], poses: np.ndarray) -> np.ndarray:
-    """Per-robot goals (N,2) of a scene; NaN rows where a robot has none."""
+    """Per-robot goals (N,2) of a scene whose [goals] kind is checked and no image; NaN rows where a robot has none."""
     kind = goals.get("kind", "none")
     xy = poses[:, :2]
     if kind == "antipodal":
@@ -446,9 +444,7 @@ def scene_goals(goals: dict[str, Any], poses: np.ndarray) -> np.ndarray:
         return xy.copy()
     if kind == "none":
         return np.full_like(xy, np.nan)
-    if kind == "list":
-        return _rows(goals.get("positions"), "x, y", len(xy), "goals positions")[: len(xy)]
-    raise GoalError(f"goals kind must be one of {', '.join(GOAL_KINDS)}, not {kind!r}")
+    return _rows(goals.get("positions"), "x, y", len(xy), "goals positions")[: len(xy)]  # kind "list"
 
 
 def _steps(data: dict[str, Any], source: str) -> list[ImageStep]:
@@ -568,7 +564,6 @@ EVENT_KEYS = {
     "tracker-outage": ("t", "duration"),
     "tracker-glitch": ("t", "robot", "offset"),
 }
-EVENT_KINDS = tuple(EVENT_KEYS)
 MOVER_KEYS = ("robot", "waypoints")
 PURSUER_KEYS = ("robot", "target")
 EVENT_SLACK = 1e-9  # s: an event at t is due at the tick stamped t, however tick x dt rounds
