@@ -52,13 +52,11 @@ def add_goals_parser(subparsers: Any) -> None:
     )
     p.add_argument(
         "--preview",
-        default=None,
         metavar="preview.png",
         help="also draw the image, the goals in their colours and their Voronoi cells",
     )
     p.add_argument(
         "--background",
-        default=None,
         metavar="COLOUR",
         help="background colour (#rrggbb, r,g,b or a name); default: alpha, else the border colour",
     )
@@ -71,7 +69,6 @@ def _add_arena_flags(g: argparse._ArgumentGroup) -> None:
     g.add_argument(
         "--arena",
         type=float,
-        default=None,
         metavar="METRES",
         help="side K_r of the square arena; default: the conservative 2 K_r for the robot radius "
         "(paper 4.4), rounded up to a centimetre",
@@ -98,7 +95,6 @@ def _add_placement_flags(g: argparse._ArgumentGroup) -> None:
     g.add_argument("--seed", type=int, default=0, help="seed of the initial samples (default 0)")
     g.add_argument(
         "--region-counts",
-        default=None,
         metavar="ID=N,...",
         help="the artist's robots per region, e.g. 0=10,1=4 (region 0 is the largest)",
     )
