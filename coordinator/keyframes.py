@@ -239,14 +239,11 @@ def match_regions(prev: Sequence[RegionShape], cur: Sequence[RegionShape]) -> li
     """For each region of the current frame, its region in the previous one (least cost of colour, shift, area)."""
     if len(prev) != len(cur):
         raise ValueError("match_regions needs two frames with the same number of regions")
-    cost = np.zeros((len(cur), len(prev)))
-    for i, c in enumerate(cur):
-        for j, p in enumerate(prev):
-            cost[i, j] = (
-                np.linalg.norm(c.lab - p.lab) / COLOR_SCALE
-                + np.linalg.norm(c.centroid - p.centroid) / SHIFT_SCALE
-                + abs(np.log(c.area / p.area)) / AREA_SCALE
-            )
+    cost = (
+        cdist([c.lab for c in cur], [p.lab for p in prev]) / COLOR_SCALE
+        + cdist([c.centroid for c in cur], [p.centroid for p in prev]) / SHIFT_SCALE
+        + np.abs(np.log(np.divide.outer([c.area for c in cur], [p.area for p in prev]))) / AREA_SCALE
+    )
     _, cols = linear_sum_assignment(cost)  # square: every row, in order
     return [int(c) for c in cols]
 
