@@ -27,7 +27,7 @@ from .goals.allocate import allocate_robots
 from .goals.model import rescale
 from .goals.pipeline import PAPER_OPTIONS
 from .goals.resize import from_arena, to_arena
-from .goals.sampling import in_region
+from .goals.sampling import in_region, pixel_centres
 from .goals.segment import Segmentation
 
 BINS = 360  # polar-angle bins of the border signature
@@ -52,7 +52,7 @@ def region_shape(seg: Segmentation, region_id: int, lab: np.ndarray) -> RegionSh
     shape = seg.labels.shape
     rows, cols = seg.pixels(region_id)
     side = float(max(shape))
-    pts = to_arena(np.stack([cols + 0.5, rows + 0.5], axis=1), shape, 1.0)
+    pts = to_arena(pixel_centres(rows, cols), shape, 1.0)
     centroid = pts.mean(axis=0)
     area = len(rows) / side**2
     r0, c0 = max(int(rows.min()) - 2, 0), max(int(cols.min()) - 2, 0)
@@ -60,7 +60,7 @@ def region_shape(seg: Segmentation, region_id: int, lab: np.ndarray) -> RegionSh
     er, ec = np.nonzero(cv2.Canny(crop, 50, 150))
     if len(er) == 0:  # a region of a pixel or two: its pixels are its border
         er, ec = rows - r0, cols - c0
-    edges = to_arena(np.stack([ec + c0 + 0.5, er + r0 + 0.5], axis=1), shape, 1.0)
+    edges = to_arena(pixel_centres(er + r0, ec + c0), shape, 1.0)
     return RegionShape(centroid, area, len(rows), np.asarray(lab, float), (edges - centroid) / np.sqrt(area))
 
 
@@ -124,7 +124,7 @@ def fit_count(px: np.ndarray, n: int, rows: np.ndarray, cols: np.ndarray) -> np.
         d, _ = cKDTree(pts).query(pts, k=2)
         pts = np.delete(pts, int(np.argmin(d[:, 1])), axis=0)
     if len(pts) < n:
-        centres = np.stack([cols + 0.5, rows + 0.5], axis=1)
+        centres = pixel_centres(rows, cols)
         if len(pts) == 0:  # start at the pixel nearest the centroid
             pts = centres[[int(np.argmin(np.hypot(*(centres - centres.mean(axis=0)).T)))]]
         gap, _ = cKDTree(pts).query(centres)

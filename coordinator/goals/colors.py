@@ -8,6 +8,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .image import lab_to_rgb, to_lab
+from .sampling import pixel_centres
 from .segment import Segmentation
 
 
@@ -19,8 +20,7 @@ def voronoi_cells(seg: Segmentation, goals_px: np.ndarray, goal_regions: np.ndar
         if len(mine) == 0:
             continue
         rows, cols = seg.pixels(region.id)
-        pts = np.stack([cols + 0.5, rows + 0.5], axis=1)
-        _, j = cKDTree(goals_px[mine]).query(pts, workers=-1)
+        _, j = cKDTree(goals_px[mine]).query(pixel_centres(rows, cols), workers=-1)
         cells[rows, cols] = mine[j]
     return cells
 

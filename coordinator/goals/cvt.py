@@ -15,7 +15,7 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from .defaults import MAX_ITER, RELAX, TOLERANCE
-from .sampling import region_box
+from .sampling import pixel_centres, region_box
 
 K_M = 1e15
 K_D = 0.1
@@ -41,14 +41,9 @@ class Domain:
         self.wy = self.weights * self.y
 
 
-def _domain(rr: np.ndarray, cc: np.ndarray, weights: np.ndarray, inside: np.ndarray) -> Domain:
-    pts = np.stack([cc + 0.5, rr + 0.5], axis=1).astype(float)
-    return Domain(pts, weights, inside)
-
-
 def binary_domain(rows: np.ndarray, cols: np.ndarray) -> Domain:
     """Binary density: the pixels of R_i with weight 1."""
-    return _domain(rows, cols, np.ones(len(rows)), np.ones(len(rows), bool))
+    return Domain(pixel_centres(rows, cols), np.ones(len(rows)), np.ones(len(rows), bool))
 
 
 def density_domain(rows: np.ndarray, cols: np.ndarray) -> Domain:
@@ -61,7 +56,7 @@ def density_domain(rows: np.ndarray, cols: np.ndarray) -> Domain:
     max_ring = int(np.floor(16.0 / -np.log10(K_D)))
     rr, cc = np.nonzero(inside | ((hull > 0) & (ring <= max_ring)))
     weights = np.power(K_D, ring[rr, cc].astype(float))
-    return _domain(rr + r0, cc + c0, weights, inside[rr, cc])
+    return Domain(pixel_centres(rr + r0, cc + c0), weights, inside[rr, cc])
 
 
 class _Assigner:

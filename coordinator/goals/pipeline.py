@@ -23,7 +23,7 @@ from .defaults import MAX_ITER, METHODS, RELAX, TOLERANCE
 from .image import BG_TOLERANCE, Foreground, foreground_mask, load_image, split_channels
 from .model import GoalError, GoalSet
 from .resize import auto_arena, check_feasible, normalised_spacing, to_arena
-from .sampling import KS_FACTOR, in_region, ks_distance, lattice_samples, poisson_samples
+from .sampling import KS_FACTOR, in_region, ks_distance, lattice_samples, pixel_centres, poisson_samples
 from .segment import Segmentation, segment, speck_area
 
 MAX_SIDE = 1024  # longer image side (pixels) used for goal generation; larger images are scaled down
@@ -128,7 +128,7 @@ def _snap_inside(gen: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple[n
     if len(out_idx) == 0:
         return gen, 0
     out = gen.copy()
-    centres = np.stack([cols + 0.5, rows + 0.5], axis=1)
+    centres = pixel_centres(rows, cols)
     tree = cKDTree(centres)
     for j in out_idx:
         others = np.delete(out, j, axis=0)

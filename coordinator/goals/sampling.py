@@ -23,6 +23,11 @@ def region_box(rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, int, int
     return mask, r0, c0
 
 
+def pixel_centres(rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """The centres (x, y) of the pixels (rows, cols)."""
+    return np.stack([cols + 0.5, rows + 0.5], axis=1)
+
+
 def in_region(pts: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     """Whether each point (x, y), pixel units, lies in a pixel of R_i (pixels rows, cols)."""
     mask, r0, c0 = region_box(rows, cols)
