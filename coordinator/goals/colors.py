@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .image import lab_to_rgb, to_lab
+from .image import lab_sums, lab_to_rgb, to_lab
 from .sampling import pixel_centres
 from .segment import Segmentation
 
@@ -32,22 +32,14 @@ def _edge(labels: np.ndarray) -> np.ndarray:
     return (c != p[:-2, 1:-1]) | (c != p[2:, 1:-1]) | (c != p[1:-1, :-2]) | (c != p[1:-1, 2:])
 
 
-def _means(lab: np.ndarray, cells: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per cell: sum of the Lab colours and number of pixels (cells: cell per pixel, -1 to skip)."""
-    sel = cells >= 0
-    cnt = np.bincount(cells[sel], minlength=n)
-    sums = np.stack([np.bincount(cells[sel], lab[sel, c], n) for c in range(3)], axis=1)
-    return sums, cnt
-
-
 def cell_colors(rgb: np.ndarray, cells: np.ndarray, n: int, fallback_px: np.ndarray, labels: np.ndarray) -> np.ndarray:
     """(n, 3) uint8 Lab mean of each cell's pixels off the edges of the regions `labels` (else of all its
     pixels, else of fallback_px's)."""
     flat = cells.ravel()
     fg = flat >= 0
     lab = to_lab(np.asarray(rgb).reshape(-1, 3)[fg], precise=True).astype(np.float64)
-    sums, cnt = _means(lab, flat[fg], n)
-    isums, icnt = _means(lab, np.where(_edge(labels).ravel()[fg], -1, flat[fg]), n)
+    sums, cnt = lab_sums(lab, flat[fg], n)
+    isums, icnt = lab_sums(lab, np.where(_edge(labels).ravel()[fg], -1, flat[fg]), n)
     use = icnt > 0
     sums[use], cnt[use] = isums[use], icnt[use]
     means = sums.astype(np.float64)

@@ -119,6 +119,14 @@ def lab_to_rgb(lab: np.ndarray) -> np.ndarray:
     return np.clip(np.round(rgb * 255.0), 0, 255).astype(np.uint8)
 
 
+def lab_sums(lab: np.ndarray, groups: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per group 0..n-1: the sum of the Lab colours (rows of lab) and their number (groups: per row, -1 to skip)."""
+    sel = groups >= 0
+    cnt = np.bincount(groups[sel], minlength=n)
+    sums = np.stack([np.bincount(groups[sel], lab[sel, c], n) for c in range(3)], axis=1)
+    return sums, cnt
+
+
 def _border_model(lab: np.ndarray, tol: float) -> tuple[np.ndarray, float, np.ndarray]:
     """A quadratic Lab background fitted to the border's dominant colour: (Lab per pixel, noise sigma, colour)."""
     h, w = lab.shape[:2]

@@ -13,7 +13,7 @@ import numpy as np
 from scipy import ndimage, sparse
 from scipy.sparse import csgraph
 
-from .image import lab_to_rgb, to_lab
+from .image import lab_sums, lab_to_rgb, to_lab
 
 COLOR_TOLERANCE = 20.0  # Delta E below which two foreground colours are one palette colour
 _EIGHT = np.ones((3, 3), bool)
@@ -58,7 +58,7 @@ def _palette(lab: np.ndarray, tol: float) -> np.ndarray:
     keys = (k[:, 0] * base + k[:, 1]) * base + k[:, 2]
     _, inv, counts = np.unique(keys, return_inverse=True, return_counts=True)
     inv = inv.reshape(-1)
-    means = np.stack([np.bincount(inv, lab[:, c]) for c in range(3)], axis=1) / counts[:, None]
+    means = lab_sums(lab, inv, len(counts))[0] / counts[:, None]
     centres: list[np.ndarray] = []
     for b in np.argsort(-counts, kind="stable"):
         if not centres or np.min(np.linalg.norm(np.asarray(centres) - means[b], axis=1)) >= tol:
@@ -68,7 +68,7 @@ def _palette(lab: np.ndarray, tol: float) -> np.ndarray:
         assign = np.argmin(np.linalg.norm(means[:, None, :] - cen[None], axis=2), axis=1)
         w = np.bincount(assign, counts, len(cen))
         keep = w > 0
-        sums = np.stack([np.bincount(assign, counts * means[:, c], len(cen)) for c in range(3)], axis=1)
+        sums = lab_sums(means * counts[:, None], assign, len(cen))[0]
         cen = sums[keep] / w[keep, None]
     assign = np.argmin(np.linalg.norm(means[:, None, :] - cen[None], axis=2), axis=1)
     return assign[inv]
@@ -205,9 +205,8 @@ def segment(rgb: np.ndarray, mask: np.ndarray, *, min_area: int | None = None) -
     if not sel.any():  # the foreground was specks alone: no region (the caller says so)
         return Segmentation(labels, [], notes)
     lf = to_lab(np.asarray(rgb).reshape(-1, 3)[sel], precise=True).astype(np.float64)
-    cnt = np.bincount(lflat[sel], minlength=len(ids))
-    means: np.ndarray = np.stack([np.bincount(lflat[sel], lf[:, c], len(ids)) for c in range(3)], axis=1)
-    means /= np.maximum(cnt, 1)[:, None]
+    sums, cnt = lab_sums(lf, lflat[sel], len(ids))
+    means = sums / np.maximum(cnt, 1)[:, None]
     rgbs = lab_to_rgb(means)
     regions = [
         Region(i, int(cnt[i]), (int(rgbs[i, 0]), int(rgbs[i, 1]), int(rgbs[i, 2])), means[i]) for i in range(len(ids))
