@@ -308,8 +308,7 @@ def keyframe_goals(
     """N goals per keyframe I_1..I_F (paper 6.1) of one size in pixels (arrays, paths or a folder), in one
     arena. keep_counts: a region keeps its previous N_i (robots stay in their region); frame f uses seed + f.
     Raises GoalError on bad input."""
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-        raise GoalError(f"N must be a whole number of robots, at least 1, not {n!r}")
+    options.check(n)  # before the keyframes are read
     preps = _load(images)
     matching = init_from_previous or keep_counts
     shapes: list[list[RegionShape]] = []
