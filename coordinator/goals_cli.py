@@ -179,7 +179,7 @@ def run_goals(args: argparse.Namespace) -> int:
     return 0
 
 
-def render_preview(prep: PreparedImage, gs: GoalSet, path: str | os.PathLike[str], *, dpi: int = 120) -> None:
+def render_preview(prep: PreparedImage, gs: GoalSet, path: str | os.PathLike[str]) -> None:
     """Write a PNG preview of goal set gs computed from prep: the image in the arena frame, the Voronoi cells of
     the goals within their regions, and each goal drawn as a robot footprint (radius r_A) in its colour."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -206,15 +206,14 @@ def render_preview(prep: PreparedImage, gs: GoalSet, path: str | os.PathLike[str
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
     ax.imshow(img, extent=(-half_w, half_w, -half_h, half_h), origin="upper", interpolation="nearest")
-    radius = float(gs.params.get("robot_radius", 0.0)) or 0.3 * (gs.min_spacing() if len(gs) > 1 else arena)
-    patches = [Circle((x, y), radius) for x, y in gs.goals]
+    patches = [Circle((x, y), gs.params["robot_radius"]) for x, y in gs.goals]
     pc = PatchCollection(patches, facecolors=gs.colors / 255.0, edgecolors="black", linewidths=0.6)
     ax.add_collection(pc)
     ax.set(xlim=(-arena / 2, arena / 2), ylim=(-arena / 2, arena / 2), aspect="equal", xlabel="x (m)", ylabel="y (m)")
     p = gs.params
     ax.set_title(
-        f"{len(gs)} goals, {p.get('method', '?')}, arena {arena:g} m, {len(p.get('regions', []))} region(s)",
+        f"{len(gs)} goals, {p['method']}, arena {arena:g} m, {len(p['regions'])} region(s)",
         fontsize=10,
     )
     fig.tight_layout()
-    fig.savefig(os.fspath(path), dpi=dpi, format="png")
+    fig.savefig(os.fspath(path), dpi=120, format="png")
