@@ -492,12 +492,6 @@ def _file_scene(path: str, robots: int, image: bool) -> dict[str, Any]:
     return table | {"animation": {"keyframes": str(full)}}
 
 
-def _fit_arena(scene: Scene, spec: Any) -> None:
-    """The scene's arena from its [arena] ("auto": round everything it shows), which its robots must fit."""
-    scene.arena = _arena(spec, scene)
-    _check_fit(scene)
-
-
 def _arena(spec: Any, scene: Scene) -> tuple[float, float, float, float]:
     if spec == "auto" or spec is None:
         pts = [scene.poses[:, :2]]
@@ -535,7 +529,9 @@ def _swept(scene: Scene) -> dict[int, np.ndarray]:
     }
 
 
-def _check_fit(scene: Scene) -> None:
+def _fit_arena(scene: Scene, spec: Any) -> None:
+    """The scene's arena from its [arena] ("auto": round everything it shows), which its robots must fit."""
+    scene.arena = _arena(spec, scene)
     xmin, ymin, xmax, ymax = scene.arena
     r = scene.radius
     xy = scene.poses[:, :2]
