@@ -29,14 +29,7 @@ def circle(cx: float, cy: float, r: float) -> Inside:
 
 def union(*parts: Inside) -> Inside:
     """Inside any of the parts."""
-
-    def inside(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        out = np.zeros(np.shape(x), bool)
-        for p in parts:
-            out |= p(x, y)
-        return out
-
-    return inside
+    return lambda x, y: np.logical_or.reduce([p(x, y) for p in parts])
 
 
 def _ring(cx: float, cy: float, r_out: float, r_in: float) -> Inside:
