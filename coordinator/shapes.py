@@ -42,14 +42,10 @@ def polygon(points: list[tuple[float, float]]) -> Inside:
     p = np.asarray(points, float)
     q = np.roll(p, -1, axis=0)
     sign = np.sign(np.sum(p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1]))
-
-    def inside(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        out = np.ones(np.shape(x), bool)
-        for (x0, y0), (x1, y1) in zip(p, q):
-            out &= sign * ((x1 - x0) * (y - y0) - (y1 - y0) * (x - x0)) > 0
-        return out
-
-    return inside
+    edges = list(zip(p, q))
+    return lambda x, y: np.logical_and.reduce(
+        [sign * ((x1 - x0) * (y - y0) - (y1 - y0) * (x - x0)) > 0 for (x0, y0), (x1, y1) in edges]
+    )
 
 
 def _triangle(cx: float, cy: float, r: float) -> Inside:
