@@ -124,12 +124,9 @@ def cell_centroids(domain: Domain, idx: np.ndarray, gen: np.ndarray) -> np.ndarr
     """Mass centroids C_j of the cells (eq. 4); a generator with an empty cell stays put."""
     k = len(gen)
     mass = np.bincount(idx, domain.weights, k)
-    cx = np.bincount(idx, domain.wx, k)
-    cy = np.bincount(idx, domain.wy, k)
-    out = gen.copy()
-    ok = mass > 0
-    out[ok, 0] = cx[ok] / mass[ok]
-    out[ok, 1] = cy[ok] / mass[ok]
+    moments = np.stack([np.bincount(idx, domain.wx, k), np.bincount(idx, domain.wy, k)], axis=1)
+    out, ok = gen.copy(), mass > 0
+    out[ok] = moments[ok] / mass[ok, None]
     return out
 
 
