@@ -15,6 +15,7 @@ import numpy as np
 
 from .drawings import KEYFRAME_ANIMATIONS, SIZE, keyframes
 from .goals import IMAGE_SUFFIXES, GoalError
+from .goals.allocate import largest_remainder
 from .goals.defaults import METHODS
 from .motion import StepMotion, check_keys, is_number, one_of, parse_motion, positive
 from .shapes import SHAPES, draw
@@ -92,16 +93,8 @@ def scale_region_counts(counts: Mapping[int, int] | None, full: int, n: int) -> 
     ids = sorted(counts)
     free = full - sum(counts.values())  # robots the allocator spreads over the regions not named
     wanted = np.array([counts[i] for i in ids] + [max(free, 0)], float)
-    quota = wanted * n / max(wanted.sum(), 1.0)
-    out = np.floor(quota).astype(int)
-    order = np.lexsort((np.arange(len(quota)), -(quota - out)))  # largest remainder, ties to lower id
-    out[order[: n - int(out.sum())]] += 1
-    shown = wanted > 0
-    if n >= int(shown.sum()):
-        for j in np.flatnonzero(shown & (out == 0)):  # a region rounded away: take one from the fullest
-            donor = int(np.argmax(np.where(out >= 2, out - quota, -np.inf)))
-            out[donor] -= 1
-            out[j] = 1
+    shown = np.flatnonzero(wanted > 0)  # every region shown keeps a robot, if there are robots enough
+    out = largest_remainder(wanted * n / max(wanted.sum(), 1.0), n, shown if n >= len(shown) else [])
     return {i: int(c) for i, c in zip(ids, out[:-1])}
 
 

@@ -7,11 +7,26 @@ over its quota); with fewer, the N largest regions get one each.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 
 import numpy as np
 
 from .model import GoalError
+
+
+def largest_remainder(quota: np.ndarray, total: int, shown: Iterable[int], *ties: np.ndarray) -> np.ndarray:
+    """Whole counts summing to ``total`` from the fractional ``quota``: each rounded down, then the largest
+    remainders up (ties: by ``ties``, then lower index); then each of ``shown``, in order, left with none takes
+    one from the count most over its quota."""
+    counts = np.floor(quota).astype(np.int64)
+    order = np.lexsort((np.arange(len(quota)), *ties, -(quota - counts)))
+    counts[order[: total - int(counts.sum())]] += 1
+    for i in shown:
+        if counts[i] == 0:
+            donor = int(np.argmax(np.where(counts >= 2, counts - quota, -np.inf)))
+            counts[donor] -= 1
+            counts[i] = 1
+    return counts
 
 
 def _proportional(areas: np.ndarray, total: int) -> np.ndarray:
@@ -23,16 +38,7 @@ def _proportional(areas: np.ndarray, total: int) -> np.ndarray:
     if total < m:
         counts[by_area[:total]] = 1
         return counts
-    quota = total * areas / areas.sum()
-    counts = np.floor(quota).astype(np.int64)
-    order = np.lexsort((np.arange(m), -areas, -(quota - counts)))
-    counts[order[: total - int(counts.sum())]] += 1
-    for i in by_area:
-        if counts[i] == 0:
-            donor = int(np.argmax(np.where(counts >= 2, counts - quota, -np.inf)))
-            counts[donor] -= 1
-            counts[i] = 1
-    return counts
+    return largest_remainder(total * areas / areas.sum(), total, by_area, -areas)
 
 
 def allocate_robots(
