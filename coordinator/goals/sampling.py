@@ -56,7 +56,6 @@ def poisson_samples(
     ys_c = rows.astype(float)
     accepted = np.zeros((0, 2))
     while True:
-        grid = _Grid(ks, xs_c, ys_c, accepted)
         budget = _TRIES_PER_SAMPLE * n
         while budget > 0 and len(accepted) < n:
             batch = min(budget, max(256, 4 * (n - len(accepted))))
@@ -64,48 +63,14 @@ def poisson_samples(
             pick = rng.integers(npx, size=batch)
             jit = rng.random((batch, 2))
             darts = np.stack([xs_c[pick] + jit[:, 0], ys_c[pick] + jit[:, 1]], axis=1)
-            darts = darts[~grid.too_close(darts)]
+            if len(accepted):  # no closer than K_s to a sample taken
+                gap, _ = cKDTree(accepted).query(darts, distance_upper_bound=ks)
+                darts = darts[gap >= ks]
             darts = _first_apart(darts, ks)[: n - len(accepted)]
-            grid.add(darts)
             accepted = np.concatenate([accepted, darts])
         if len(accepted) == n:
             return accepted, ks
         ks *= _RELAX
-
-
-class _Grid:
-    """The samples taken, in cells of K_s / sqrt(2) (one a cell at most): a close dart is within two cells."""
-
-    def __init__(self, ks: float, xs: np.ndarray, ys: np.ndarray, taken: np.ndarray) -> None:
-        self.ks2 = ks * ks
-        self.cell = ks / math.sqrt(2.0)
-        self.taken = np.zeros((0, 2))
-        self.lo = np.array([xs.min(), ys.min()]) - 3 * self.cell
-        span = np.array([xs.max() + 1, ys.max() + 1]) + 3 * self.cell - self.lo
-        self.slot = np.full(tuple((span // self.cell).astype(int) + 1), -1, np.int32)
-        self.add(taken)
-
-    def _cells(self, pts: np.ndarray) -> np.ndarray:
-        return ((pts - self.lo) // self.cell).astype(np.int64)
-
-    def add(self, pts: np.ndarray) -> None:
-        c = self._cells(pts)
-        self.slot[c[:, 0], c[:, 1]] = np.arange(len(self.taken), len(self.taken) + len(pts))
-        self.taken = np.concatenate([self.taken, pts])
-
-    def too_close(self, darts: np.ndarray) -> np.ndarray:
-        """Darts closer than K_s to a sample taken."""
-        out = np.zeros(len(darts), bool)
-        if len(self.taken) == 0:
-            return out
-        c = self._cells(darts)
-        for di in range(-2, 3):
-            for dj in range(-2, 3):
-                j = self.slot[c[:, 0] + di, c[:, 1] + dj]
-                has = j >= 0
-                d = darts[has] - self.taken[j[has]]
-                out[has] |= d[:, 0] ** 2 + d[:, 1] ** 2 < self.ks2
-        return out
 
 
 def _first_apart(darts: np.ndarray, ks: float) -> np.ndarray:
