@@ -52,15 +52,12 @@ def parse_step(data: Any, label: str, source: str = "") -> ImageStep:
     hold = positive(data.get("hold"), f"{label}: hold")
     if ("image" in data) == ("shape" in data):
         raise GoalError(f'{label} needs exactly one of image = "path" or shape = "name"')
-    image, shape = None, None
-    if "shape" in data:
-        shape = one_of(data["shape"], SHAPES, f"{label}: shape")
-    else:
-        image = scene_relative(str(data["image"]), source)
-        if not image.is_file():
-            raise GoalError(f"{label}: image {image} not found")
+    shape = one_of(data["shape"], SHAPES, f"{label}: shape") if "shape" in data else None
+    image = scene_relative(str(data["image"]), source) if "image" in data else None
+    if image is not None and not image.is_file():
+        raise GoalError(f"{label}: image {image} not found")
     method = one_of(data.get("method", "cvt"), METHODS, f"{label}: method")
-    name = str(data.get("name", shape if shape is not None else image.stem))  # type: ignore[union-attr]  # image is set where shape is not
+    name = str(data.get("name", shape if image is None else image.stem))
     motion = parse_motion(data["motion"], label) if "motion" in data else None
     return ImageStep(name, image, shape, hold, parse_region_counts(data.get("region_counts"), label), method, motion)
 
