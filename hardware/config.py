@@ -10,7 +10,7 @@ import importlib
 import math
 import tomllib
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, fields
+from dataclasses import MISSING, dataclass, fields
 from pathlib import Path
 from typing import Any, Self
 
@@ -54,11 +54,24 @@ def is_number(value: Any) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
 
 
-def positive_number(table: Mapping[str, Any], key: str, default: float, where: str) -> float:
-    """A key holding a finite number > 0, or the default when the key is absent."""
-    value = table.get(key, default)
-    need(is_number(value) and value > 0, f"{where}: {key} must be a positive number, not {value!r}")
-    return float(value)
+class FromTable:
+    """A config dataclass read from its table (``kind = KIND``): keys it does not know and keys without a
+    default that are missing are refused here, the values by its ``__post_init__``, whose
+    HardwareConfigError is given ``where`` in front."""
+
+    KIND = ""
+
+    @classmethod
+    def from_table(cls, table: Any, where: str) -> Self:
+        check_table(table, cls, cls.KIND, where)
+        fields_ = fields(cls)  # type: ignore[arg-type]  # the subclasses are dataclasses
+        missing = [f.name for f in fields_ if f.default is MISSING and f.name not in table]
+        if missing:
+            raise HardwareConfigError(f"{where}: missing key {missing[0]!r}")
+        try:
+            return cls(**{k: v for k, v in table.items() if k != "kind"})
+        except HardwareConfigError as err:
+            raise HardwareConfigError(f"{where}: {err}") from None
 
 
 class Started:
@@ -80,15 +93,11 @@ class Started:
 
 
 @dataclass(frozen=True)
-class SimBackendConfig:
+class SimBackendConfig(FromTable):
     """The simulated world stands in for the robots: nothing to configure besides the kind."""
 
+    KIND = "sim"
     kind: str = "sim"
-
-    @classmethod
-    def from_table(cls, table: Mapping[str, Any], where: str) -> SimBackendConfig:
-        check_keys(table, ["kind"], where)
-        return cls()
 
 
 @dataclass(frozen=True)

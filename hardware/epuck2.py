@@ -15,11 +15,11 @@ import struct
 import threading
 import time
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, fields, replace
 from typing import Any
 
-from .config import HardwareConfigError, Started, check_keys, need, positive_number
+from .config import FromTable, HardwareConfigError, Started, is_number, need
 
 log = logging.getLogger(__name__)
 
@@ -121,23 +121,24 @@ class AnswerReader:
         return answers
 
 
-def parse_address(address: Any, where: str) -> tuple[str, int]:
+def parse_address(address: Any) -> tuple[str, int]:
     """ "host:port" or "host" (port DEFAULT_PORT) -> (host, port)."""
     if not isinstance(address, str) or not address.strip():
-        raise HardwareConfigError(f"{where}: an address must be a non-empty string like 'host:port', not {address!r}")
+        raise HardwareConfigError(f"an address must be a non-empty string like 'host:port', not {address!r}")
     host, colon, port_text = address.strip().rpartition(":")
     if not colon:
         return port_text, DEFAULT_PORT
     if not host or not port_text.isdigit() or not 0 < int(port_text) < 65536:
-        raise HardwareConfigError(f"{where}: address {address!r} is not 'host:port' with a port 1-65535")
+        raise HardwareConfigError(f"address {address!r} is not 'host:port' with a port 1-65535")
     return host, int(port_text)
 
 
 @dataclass(frozen=True)
-class Epuck2Config:
+class Epuck2Config(FromTable):
     """The `[backend]` table of kind "epuck2". Times in s, speeds in m/s."""
 
-    addresses: tuple[str, ...]
+    KIND = "epuck2"
+    addresses: tuple[str, ...] = ()  # a robot's "host:port" or "host" (a list in the table)
     command_timeout: float = 0.3  # a robot whose last command is older than this is stopped
     connect_timeout: float = 1.0  # one attempt to connect, or to send a packet
     reconnect_backoff: float = 0.1  # wait after a failed attempt; doubles up to reconnect_backoff_max
@@ -146,29 +147,23 @@ class Epuck2Config:
     request_sensors: bool = False  # ask for the 104-byte sensors answer with every command
     kind: str = "epuck2"
 
-    @classmethod
-    def from_table(cls, table: Mapping[str, Any], where: str) -> Epuck2Config:
-        defaults: dict[str, Any] = {f.name: f.default for f in fields(cls) if f.name != "addresses"}
-        check_keys(table, ["addresses", *defaults], where)
-        addresses = table.get("addresses")
-        if not isinstance(addresses, list) or not addresses:
-            raise HardwareConfigError(f"{where}: addresses must be a non-empty list of 'host:port' strings")
-        endpoints = [parse_address(a, where) for a in addresses]
-        need(len(set(endpoints)) == len(endpoints), f"{where}: addresses must not repeat a robot")
-        flags = {"kind", "request_sensors"}
-        numbers: dict[str, Any] = {
-            key: positive_number(table, key, defaults[key], where) for key in defaults if key not in flags
-        }
-        request_sensors = table.get("request_sensors", defaults["request_sensors"])
-        if not isinstance(request_sensors, bool):
-            raise HardwareConfigError(f"{where}: request_sensors must be true or false, not {request_sensors!r}")
-        if numbers["max_wheel_speed"] > FIRMWARE_MAX_WHEEL_SPEED:
-            raise HardwareConfigError(
-                f"{where}: max_wheel_speed must be at most {FIRMWARE_MAX_WHEEL_SPEED:.4f} m/s (the firmware's limit)"
-            )
-        ordered = numbers["reconnect_backoff_max"] >= numbers["reconnect_backoff"]
-        need(ordered, f"{where}: reconnect_backoff_max must be at least reconnect_backoff")
-        return cls(addresses=tuple(a.strip() for a in addresses), request_sensors=request_sensors, **numbers)
+    def __post_init__(self) -> None:
+        addresses = self.addresses
+        listed = isinstance(addresses, list | tuple) and len(addresses) > 0
+        need(listed, "addresses must be a non-empty list of 'host:port' strings")
+        endpoints = [parse_address(a) for a in addresses]
+        need(len(set(endpoints)) == len(endpoints), "addresses must not repeat a robot")
+        object.__setattr__(self, "addresses", tuple(a.strip() for a in addresses))  # frozen: set once, here
+        for key in (f.name for f in fields(self) if f.type == "float"):  # the times and the speed
+            value = getattr(self, key)
+            need(is_number(value) and value > 0, f"{key} must be a positive number, not {value!r}")
+            object.__setattr__(self, key, float(value))
+        sensors = self.request_sensors
+        need(isinstance(sensors, bool), f"request_sensors must be true or false, not {sensors!r}")
+        limit = FIRMWARE_MAX_WHEEL_SPEED
+        need(self.max_wheel_speed <= limit, f"max_wheel_speed must be at most {limit:.4f} m/s (the firmware's limit)")
+        ordered = self.reconnect_backoff_max >= self.reconnect_backoff
+        need(ordered, "reconnect_backoff_max must be at least reconnect_backoff")
 
     @property
     def robot_ids(self) -> list[int]:
@@ -176,7 +171,12 @@ class Epuck2Config:
 
     @property
     def endpoints(self) -> list[tuple[str, int]]:
-        return [parse_address(a, "address") for a in self.addresses]
+        return [parse_address(a) for a in self.addresses]
+
+    def stop_robots(self, settings: object = None) -> list[int]:
+        """Connect to every robot and stop it (`pixelswarm stop`); returns the robots not reached. ``settings``
+        (a bus's, for backends reached through one) is not needed: each robot is its own TCP server."""
+        return Epuck2Backend(self).close()
 
 
 @dataclass
@@ -448,9 +448,3 @@ class Epuck2Backend(Started):
 
     def stats(self) -> dict[int, RobotStats]:
         return {link.robot_id: replace(link.stats) for link in self.links}
-
-
-def stop_robots(config: Epuck2Config, settings: object = None) -> list[int]:
-    """Connect to every robot of a config and stop it (`pixelswarm stop`); returns the robots not reached.
-    ``settings`` (a bus's, for backends reached through one) is not needed: each robot is its own TCP server."""
-    return Epuck2Backend(config).close()

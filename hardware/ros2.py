@@ -7,7 +7,6 @@ definitions of the chosen ROS 2 distribution; the Zenoh side is transport.rmw_ze
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 import math
 import re
@@ -15,7 +14,7 @@ import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any, Self
+from typing import Any
 
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
@@ -31,7 +30,7 @@ from transport.rmw_zenoh import (
 )
 from transport.session import ZenohSettings, open_session
 
-from .config import HardwareConfigError, Started, check_table, is_number, need
+from .config import FromTable, HardwareConfigError, Started, is_number, need
 from .poses import OneSource, PoseSample, StampGate
 
 TWIST = "geometry_msgs/msg/Twist"
@@ -39,6 +38,9 @@ COLOR_RGBA = "std_msgs/msg/ColorRGBA"
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 DISTROS = {"humble": Stores.ROS2_HUMBLE, "jazzy": Stores.ROS2_JAZZY, "kilted": Stores.ROS2_KILTED}
 ROBOT_ID = "{id}"  # where a pose topic names the robot
+STOP_REPEATS = 3  # `pixelswarm stop` sends its stop this many times, a watchdog quarter apart: a fresh
+# session's first puts may leave before the router has told it who subscribes
+STOP_HEARD_WITHIN = 2.0  # s: ... and on, until each robot's stop went out to a subscriber, for at most this long
 
 
 class Ros2Messages:
@@ -95,22 +97,6 @@ class Ros2Messages:
         return p.x, p.y, yaw, stamp
 
 
-class _Ros2Table:
-    """A config dataclass read from its table (``kind = "ros2"``), its key's errors named ``where``."""
-
-    @classmethod
-    def from_table(cls, table: Any, where: str) -> Self:
-        check_table(table, cls, "ros2", where)
-        fields = dataclasses.fields(cls)  # type: ignore[arg-type]  # the subclasses are dataclasses
-        missing = [f.name for f in fields if f.default is dataclasses.MISSING and f.name not in table]
-        if missing:
-            raise HardwareConfigError(f"{where}: missing key {missing[0]!r}")
-        try:
-            return cls(**{k: v for k, v in table.items() if k != "kind"})
-        except HardwareConfigError as err:
-            raise HardwareConfigError(f"{where}: {err}") from None
-
-
 def _check_domain(value: Any) -> None:
     # ROS_DOMAIN_ID spans 0-232 (the DDS port arithmetic's limit; rmw_zenoh keeps it).
     need(
@@ -128,8 +114,10 @@ def _check_name(value: Any, key: str, what: str = "topic") -> None:
 
 
 @dataclass(frozen=True)
-class Ros2BackendConfig(_Ros2Table):
+class Ros2BackendConfig(FromTable):
     """`[backend] kind = "ros2"`: which robots, on which topics, in which ROS domain."""
+
+    KIND = "ros2"
 
     namespaces: list[str]
     cmd_topic: str = "cmd_vel"
@@ -163,10 +151,21 @@ class Ros2BackendConfig(_Ros2Table):
         """The fully qualified topic of one robot, e.g. /robot0/cmd_vel."""
         return qualified(relative, "/" + self.namespaces[robot].strip("/"))
 
+    def stop_robots(self, settings: ZenohSettings | None = None) -> list[int]:
+        """A zero Twist to every robot through the router ``settings`` reaches (`pixelswarm stop`); returns the
+        robots whose cmd_vel nobody subscribed to (a put has no answer: a subscriber, the robot's driver, is
+        the most that can be confirmed)."""
+        if settings is None:
+            raise HardwareConfigError("ROS 2 robots are reached through a router: give its endpoint (-e ENDPOINT)")
+        with Ros2Backend(self, settings) as backend:
+            return backend.stop_heard(STOP_REPEATS, STOP_HEARD_WITHIN)
+
 
 @dataclass(frozen=True)
-class Ros2PosesConfig(_Ros2Table):
+class Ros2PosesConfig(FromTable):
     """`[poses] kind = "ros2"`: PoseStamped per robot, e.g. from a motion-capture system's ROS 2 driver."""
+
+    KIND = "ros2"
 
     topic: str = "/robot{id}/pose"
     domain: int | None = None  # None: any domain
@@ -411,18 +410,3 @@ class Ros2PoseSource(Ros2Node):
     def robot_stats(self, robot: int) -> dict[str, int]:
         """One robot's poses dropped for their stamps or while two publishers clashed, and its source's restarts."""
         return dict(self.gate.robot_stats(robot), two_sources=self.sources.clashes[robot])
-
-
-STOP_REPEATS = 3  # `pixelswarm stop` sends its stop this many times, a watchdog quarter apart: a fresh
-# session's first puts may leave before the router has told it who subscribes
-STOP_HEARD_WITHIN = 2.0  # s: ... and on, until each robot's stop went out to a subscriber, for at most this long
-
-
-def stop_robots(config: Ros2BackendConfig, settings: ZenohSettings | None = None) -> list[int]:
-    """A zero Twist to every robot of a config through the router ``settings`` reaches (`pixelswarm
-    stop`); returns the robots whose cmd_vel nobody subscribed to (a put has no answer: a subscriber,
-    the robot's driver, is the most that can be confirmed)."""
-    if settings is None:
-        raise HardwareConfigError("ROS 2 robots are reached through a router: give its endpoint (-e ENDPOINT)")
-    with Ros2Backend(config, settings) as backend:
-        return backend.stop_heard(STOP_REPEATS, STOP_HEARD_WITHIN)
