@@ -13,9 +13,8 @@ import contextlib
 import json
 import math
 import os
-import queue
-import selectors
 import socket
+import struct
 import sys
 import threading
 import time
@@ -122,7 +121,7 @@ class EmulatedRobot:
 
 
 class Epuck2Emulator(Started):
-    """N emulated e-puck2 robots, each its own TCP server on 127.0.0.1, served by one thread; a new
+    """N emulated e-puck2 robots, each its own TCP server on 127.0.0.1 with a thread of its own; a new
     connection to a robot replaces the old one."""
 
     def __init__(
@@ -142,25 +141,21 @@ class Epuck2Emulator(Started):
             EmulatedRobot(pose=(float(x), float(y), float(t)), params=params, since=now) for x, y, t in poses
         ]
         self._lock = threading.Lock()
-        self._selector = selectors.DefaultSelector()
         self._listeners: list[socket.socket] = []
-        self._clients: dict[int, tuple[socket.socket, bytearray]] = {}
-        self._requests: queue.Queue[tuple[int, threading.Event]] = queue.Queue()  # connections to drop
-        self._wake_r, self._wake_w = socket.socketpair()
-        self._wake_r.setblocking(False)
-        self._selector.register(self._wake_r, selectors.EVENT_READ, ("wake", -1))
         try:
-            for rid, port in enumerate(ports):
-                listener = socket.create_server((HOST, port))
-                listener.setblocking(False)
-                self._listeners.append(listener)
-                self._selector.register(listener, selectors.EVENT_READ, ("listen", rid))
+            for port in ports:
+                self._listeners.append(socket.create_server((HOST, port)))
         except OSError:
-            self._close_sockets()
+            for listener in self._listeners:
+                listener.close()
             raise
         self._addresses = [f"{HOST}:{listener.getsockname()[1]}" for listener in self._listeners]  # also once closed
+        self._clients: dict[int, tuple[socket.socket, threading.Thread]] = {}  # robot -> connection, its reader
         self._closing = False
-        self._thread = threading.Thread(target=self._serve, name="epuck2-emulator", daemon=True)
+        self._accepting = [
+            threading.Thread(target=self._accept, args=(rid,), name=f"epuck2-emulator-{rid}", daemon=True)
+            for rid in range(count)
+        ]
 
     @property
     def addresses(self) -> list[str]:
@@ -184,10 +179,13 @@ class Epuck2Emulator(Started):
 
     def drop_connection(self, robot_id: int) -> None:
         """Close the robot's connection from its side (as a Wi-Fi drop does); it keeps its wheel speeds."""
-        done = threading.Event()
-        self._requests.put((robot_id, done))  # for the server thread, which owns the sockets
-        self._wake_w.send(b"\0")
-        done.wait()
+        with self._lock:
+            client = self._clients.get(robot_id)
+        if client is not None:
+            conn, reader = client
+            with contextlib.suppress(OSError):
+                conn.shutdown(socket.SHUT_RDWR)  # its reader's recv returns: it closes the connection
+            reader.join()
 
     def report(self) -> dict:
         """Each robot's address, final pose and commands received (time.monotonic() seconds, steps/s)."""
@@ -205,7 +203,8 @@ class Epuck2Emulator(Started):
         )
 
     def start(self) -> Epuck2Emulator:
-        self._thread.start()
+        for thread in self._accepting:
+            thread.start()
         return self
 
     def close(self) -> None:
@@ -214,92 +213,66 @@ class Epuck2Emulator(Started):
         if self._closing:
             return
         self._closing = True
-        self._wake_w.send(b"\0")
-        if self._thread.is_alive():
-            self._thread.join()
-        self._close_sockets()
-
-    def _serve(self) -> None:
-        while not self._closing:
-            self._serve_ready(self._selector.select())
-        while ready := [e for e in self._selector.select(timeout=0) if e[0].data[0] == "client"]:
-            self._serve_ready(ready)  # closing: what the clients sent before is still applied
-
-    def _serve_ready(self, events: list) -> None:
-        for key, _ in events:
-            kind, rid = key.data
-            if kind == "wake":
-                self._drain_wake()
-            elif kind == "listen":
-                self._accept(rid)
-            elif kind == "client" and rid in self._clients:
-                self._receive(rid)
-
-    def _drain_wake(self) -> None:
-        with contextlib.suppress(BlockingIOError):
-            while self._wake_r.recv(4096):
-                pass
-        while not self._requests.empty():
-            rid, done = self._requests.get()
-            self._drop(rid)
-            done.set()
-
-    def _accept(self, rid: int) -> None:
-        try:
-            conn, _ = self._listeners[rid].accept()
-        except BlockingIOError:
-            return
-        self._drop(rid)
-        conn.setblocking(True)
-        conn.settimeout(1.0)  # answers are sent whole; a client that stops reading is dropped
-        conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        self._clients[rid] = (conn, bytearray())
-        self._selector.register(conn, selectors.EVENT_READ, ("client", rid))
+        for listener in self._listeners:
+            with contextlib.suppress(OSError):
+                listener.shutdown(socket.SHUT_RDWR)  # its accept returns
+        for thread in self._accepting:
+            if thread.is_alive():
+                thread.join()
         with self._lock:
-            self.robots[rid].connections += 1
-
-    def _drop(self, rid: int) -> None:
-        if rid in self._clients:
-            conn, _ = self._clients.pop(rid)
-            self._selector.unregister(conn)
-            conn.close()
-
-    def _receive(self, rid: int) -> None:
-        conn, buffer = self._clients[rid]
-        try:
-            data = conn.recv(4096)
-        except OSError:
-            data = b""
-        if not data:
-            self._drop(rid)
-            return
-        buffer += data
-        while buffer:
-            if buffer[0] != COMMAND_PACKET:
-                del buffer[0]  # not the start of a packet: the robot skips it
-                continue
-            if len(buffer) < COMMAND_LENGTH:
-                break
-            command = parse_command(bytes(buffer[:COMMAND_LENGTH]))
-            del buffer[:COMMAND_LENGTH]
-            with self._lock:
-                robot = self.robots[rid]
-                robot.apply(command, time.monotonic())
-                answer = robot.answer(command)
-            try:
-                conn.sendall(answer)
-            except OSError:
-                self._drop(rid)
-                return
-
-    def _close_sockets(self) -> None:
-        for rid in list(self._clients):
-            self._drop(rid)
+            clients = list(self._clients.values())
+        for conn, reader in clients:
+            with contextlib.suppress(OSError):
+                conn.shutdown(socket.SHUT_RD)  # what the client sent before is still read, then recv returns b""
+            reader.join()
         for listener in self._listeners:
             listener.close()
-        self._selector.close()
-        self._wake_r.close()
-        self._wake_w.close()
+
+    def _accept(self, rid: int) -> None:
+        """Robot ``rid``'s server: each connection read by a thread of its own, replacing the one before."""
+        while True:
+            try:
+                conn, _ = self._listeners[rid].accept()
+            except OSError:  # closing
+                return
+            if self._closing:
+                conn.close()
+                return
+            # answers are sent whole; a client that stops reading for 1 s is dropped
+            conn.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, struct.pack("ll", 1, 0))
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            self.drop_connection(rid)
+            reader = threading.Thread(target=self._receive, args=(rid, conn), name="epuck2-robot", daemon=True)
+            with self._lock:
+                self._clients[rid] = (conn, reader)
+                self.robots[rid].connections += 1
+                reader.start()  # under the lock: a drop_connection can join it at once
+
+    def _receive(self, rid: int, conn: socket.socket) -> None:
+        buffer = bytearray()
+        try:
+            while data := conn.recv(4096):
+                buffer += data
+                while buffer:
+                    if buffer[0] != COMMAND_PACKET:
+                        del buffer[0]  # not the start of a packet: the robot skips it
+                        continue
+                    if len(buffer) < COMMAND_LENGTH:
+                        break
+                    command = parse_command(bytes(buffer[:COMMAND_LENGTH]))
+                    del buffer[:COMMAND_LENGTH]
+                    with self._lock:
+                        robot = self.robots[rid]
+                        robot.apply(command, time.monotonic())
+                        answer = robot.answer(command)
+                    conn.sendall(answer)
+        except OSError:  # the client went, or stopped reading
+            pass
+        finally:
+            conn.close()
+            with self._lock:
+                if self._clients.get(rid, (None,))[0] is conn:
+                    del self._clients[rid]
 
 
 def read_poses(path: Path, count: int) -> list[Pose]:
