@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import importlib
 import math
+import threading
+import time
 import tomllib
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import MISSING, dataclass, fields
 from pathlib import Path
 from typing import Any, Self
@@ -90,6 +92,19 @@ class Started:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def every(period: float, start: float, halt: threading.Event, work: Callable[[float], object]) -> Exception | None:
+    """Call ``work(s since start)`` every ``period`` s from ``start`` (time.monotonic()) until ``halt`` is set,
+    not rushing to catch up after a stall; returns what ended it early (e.g. a bad pose function's error)."""
+    deadline = start
+    try:
+        while not halt.wait(max(0.0, deadline - time.monotonic())):
+            work(time.monotonic() - start)
+            deadline = max(deadline + period, time.monotonic() - period)
+    except Exception as err:  # for the owner to tell: the thread that ran it has ended
+        return err
+    return None
 
 
 @dataclass(frozen=True)

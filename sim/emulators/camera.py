@@ -11,8 +11,10 @@ writes OUT_DIR/video.avi (lossless FFV1), truth.csv (t,id,x,y,theta,frame) and h
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import functools
+import http.server
 import math
 import os
 import shutil
@@ -24,12 +26,12 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
 
-from hardware.config import Started
+from hardware.config import Started, every
 from sim.args import OneLineParser, refuse
 
 if TYPE_CHECKING:
@@ -226,40 +228,39 @@ def poses_toml(camera: OverheadCamera, source: str | None = None) -> str:
     return "\n".join(lines) + "\n"
 
 
-_BOUNDARY = b"frame"
+_BOUNDARY = "frame"
 _SEND_BUFFER = 65536  # bytes the kernel holds for a reader: less than a frame, so frames do not queue
 
 
-class _Reader:
+class _Reader(http.server.BaseHTTPRequestHandler):
     """One client of the stream, sent the newest frame whenever it has taken the last: a slow reader
     skips frames rather than falling behind."""
 
-    def __init__(self, conn: socket.socket, halt: threading.Event) -> None:
-        self.conn, self.halt = conn, halt
-        self.gone = False
-        self._part: bytes | None = None
-        self._ready = threading.Condition()
-        self.thread = threading.Thread(target=self._send, name="camera-reader", daemon=True)
-        self.thread.start()
+    timeout = 10.0  # s: a reader that stops reading is dropped, not waited for
 
-    def offer(self, part: bytes) -> None:
-        with self._ready:
-            self._part = part
-            self._ready.notify()
+    def __init__(self, *args: Any, stream: CameraStream) -> None:
+        self.stream = stream
+        super().__init__(*args)  # which serves the request
 
-    def _send(self) -> None:
-        try:
-            while not self.halt.is_set():
-                with self._ready:
-                    self._ready.wait_for(lambda: self._part is not None or self.halt.is_set(), timeout=0.2)
-                    part, self._part = self._part, None
-                if part is not None:
-                    self.conn.sendall(part)
-        except OSError:  # the reader went away, or stopped reading
-            pass
-        finally:
-            self.gone = True
-            self.conn.close()
+    def setup(self) -> None:
+        super().setup()
+        self.connection.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, _SEND_BUFFER)
+
+    def handle(self) -> None:
+        with contextlib.suppress(OSError):  # the reader went away, or stopped reading
+            super().handle()
+
+    def do_GET(self) -> None:
+        self.send_response(200)
+        self.send_header("Content-Type", f"multipart/x-mixed-replace; boundary={_BOUNDARY}")
+        self.end_headers()
+        sent = 0
+        while (newest := self.stream.next_part(sent)) is not None:
+            sent, part = newest
+            self.wfile.write(part)
+
+    def log_message(self, format: str, *args: Any) -> None:
+        """Nothing: a camera logs no requests."""
 
 
 class CameraStream(Started):
@@ -273,14 +274,14 @@ class CameraStream(Started):
         self._rng = np.random.default_rng(0)  # the pixel noise's
         self.glitched: list[float] = []  # time.monotonic() at which each spoiled frame was rendered
         self._glitches: list[tuple[float, Callable]] = []  # (not before, the poses it changes)
-        self._clients: list[_Reader] = []
         self._lock = threading.Lock()
+        self._part: tuple[int, bytes] = (0, b"")  # the newest frame's part of the stream, and its number
+        self._new_part = threading.Condition()
         self._halt = threading.Event()
-        self._server = socket.create_server(("127.0.0.1", 0))
-        self._server.settimeout(0.2)
-        self.url = f"http://127.0.0.1:{self._server.getsockname()[1]}/video.mjpg"
+        self._server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(_Reader, stream=self))
+        self.url = f"http://127.0.0.1:{self._server.server_address[1]}/video.mjpg"
         self._threads = [
-            threading.Thread(target=self._accept, name="camera-accept", daemon=True),
+            threading.Thread(target=self._server.serve_forever, args=(0.2,), name="camera-accept", daemon=True),
             threading.Thread(target=self._render, name="camera-render", daemon=True),
         ]
 
@@ -292,14 +293,20 @@ class CameraStream(Started):
 
     def close(self) -> None:
         self._halt.set()
+        with self._new_part:
+            self._new_part.notify_all()  # the readers end
+        if self._threads[0].is_alive():
+            self._server.shutdown()  # serve_forever returns
         for thread in self._threads:
             if thread.is_alive():
                 thread.join()
-        self._server.close()
-        with self._lock:
-            clients, self._clients = self._clients, []
-        for client in clients:
-            client.thread.join()
+        self._server.server_close()
+
+    def next_part(self, after: int) -> tuple[int, bytes] | None:
+        """The newest frame's part and its number, once newer than part ``after``; None once closing."""
+        with self._new_part:
+            self._new_part.wait_for(lambda: self._part[0] > after or self._halt.is_set())
+            return None if self._halt.is_set() else self._part
 
     def poses_toml(self) -> str:
         """The hardware file's `[poses]` table that tracks this stream."""
@@ -331,53 +338,20 @@ class CameraStream(Started):
         return spoiled
 
     def _render(self) -> None:
-        period = 1.0 / STREAM_RATE
-        deadline = self._started
-        try:
-            while not self._halt.wait(max(0.0, deadline - time.monotonic())):
-                now = time.monotonic()
-                rows = np.asarray(self.poses(now - self._started), float).reshape(-1, 3)
-                robots = self._spoil({i: (float(x), float(y), float(t)) for i, (x, y, t) in enumerate(rows)}, now)
-                ok, jpeg = cv2.imencode(
-                    ".jpg", self.camera.render(robots, self._rng), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY]
-                )
-                if not ok:
-                    raise RuntimeError("JPEG encoding failed")
-                data = jpeg.tobytes()
-                head = b"--%s\r\nContent-Type: image/jpeg\r\nContent-Length: %d\r\n\r\n" % (_BOUNDARY, len(data))
-                part = head + data + b"\r\n"
-                with self._lock:
-                    self._clients = [client for client in self._clients if not client.gone]
-                    for client in self._clients:
-                        client.offer(part)
-                deadline = max(deadline + period, time.monotonic() - period)
-        except Exception as err:  # a bad pose function: keep the reason for the owner
-            self.error = err
+        self.error = every(1.0 / STREAM_RATE, self._started, self._halt, self._render_frame)
 
-    def _accept(self) -> None:
-        header = b"HTTP/1.0 200 OK\r\nContent-Type: multipart/x-mixed-replace; boundary=%s\r\n\r\n" % _BOUNDARY
-        while not self._halt.is_set():
-            try:
-                conn, _ = self._server.accept()
-            except TimeoutError:
-                continue
-            except OSError:
-                return
-            try:
-                conn.settimeout(10.0)  # a reader that stops reading is dropped, not waited for
-                conn.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, _SEND_BUFFER)
-                request = b""
-                while b"\r\n\r\n" not in request and len(request) < 65536:
-                    chunk = conn.recv(4096)
-                    if not chunk:
-                        raise ConnectionError("closed before its request")
-                    request += chunk
-                conn.sendall(header)
-            except OSError:
-                conn.close()
-                continue
-            with self._lock:
-                self._clients.append(_Reader(conn, self._halt))
+    def _render_frame(self, t: float) -> None:
+        rows = np.asarray(self.poses(t), float).reshape(-1, 3)
+        robots = {i: (float(x), float(y), float(theta)) for i, (x, y, theta) in enumerate(rows)}
+        image = self.camera.render(self._spoil(robots, time.monotonic()), self._rng)
+        ok, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+        if not ok:
+            raise RuntimeError("JPEG encoding failed")
+        data = jpeg.tobytes()
+        head = f"--{_BOUNDARY}\r\nContent-Type: image/jpeg\r\nContent-Length: {len(data)}\r\n\r\n".encode()
+        with self._new_part:
+            self._part = (self._part[0] + 1, head + data + b"\r\n")
+            self._new_part.notify_all()
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -15,7 +15,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from hardware.config import HardwareConfigError
+from hardware.config import HardwareConfigError, every
 from hardware.ros2 import POSE_STAMPED, Ros2Messages, Ros2Node, Ros2PosesConfig
 from sim.args import OneLineParser, positive_int, positive_number, positive_seconds, refuse
 from sim.processes import stopped_by_signals
@@ -77,14 +77,7 @@ class MocapEmulator(Ros2Node):
         self.last_sent = time.monotonic()
 
     def _run(self) -> None:
-        period = 1.0 / self.config.rate
-        deadline = self._start
-        try:
-            while not self._halt.wait(max(0.0, deadline - time.monotonic())):
-                self.publish_once(time.monotonic() - self._start)
-                deadline = max(deadline + period, time.monotonic() - period)
-        except Exception as err:  # a bad pose function: keep the reason for the owner
-            self.error = err
+        self.error = every(1.0 / self.config.rate, self._start, self._halt, self.publish_once)
 
 
 def circle(robots: int, radius: float, speed: float) -> PoseFunction:
