@@ -57,8 +57,7 @@ class Backend(Protocol):
     def sense(self, t: float) -> None: ...  # take in the bodies at time t of the run
     def measure(self, t: float) -> np.ndarray | None: ...  # the tracker's poses; None: withheld
     def true_poses(self) -> np.ndarray: ...  # where the bodies are (told to robots before they start)
-    def now(self) -> float: ...  # the time commands hold in
-    def hold(self, cmd: Command) -> float: ...  # until when (in now()) a command holds
+    def hold(self, cmd: Command) -> float | None: ...  # until when a command holds; None: it ran out already
     def horizon(self, span: float) -> float: ...  # a command must hold past this to drive the next span
     def moving(self) -> np.ndarray: ...  # bodies a stop would change
     def apply(self, ids: list[int], cmds: list[Command], colors: np.ndarray) -> None: ...
@@ -333,7 +332,7 @@ class BodyNode:
                 continue
             self.color[i] = (cmd.r, cmd.g, cmd.bl)
             until = self.backend.hold(cmd)
-            if until <= self.backend.now():
+            if until is None:
                 self.tally.expired_commands += 1
                 continue
             self.valid_until[i] = until

@@ -232,10 +232,7 @@ class HardwareBodies:
     def true_poses(self) -> np.ndarray:
         return self.pose
 
-    def now(self) -> float:
-        return time.monotonic()
-
-    def hold(self, cmd: Command) -> float:
+    def hold(self, cmd: Command) -> float | None:
         return time.monotonic() + self.timeout
 
     def horizon(self, span: float) -> float:

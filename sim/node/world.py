@@ -64,11 +64,9 @@ class SimulatedBodies:
     def true_poses(self) -> np.ndarray:
         return self.world.poses
 
-    def now(self) -> float:
-        return self.world.time
-
-    def hold(self, cmd: Command) -> float:
-        return (cmd.tick + 1) * self.params.dt + self.params.command_margin
+    def hold(self, cmd: Command) -> float | None:
+        until = (cmd.tick + 1) * self.params.dt + self.params.command_margin
+        return until if until > self.world.time else None
 
     def horizon(self, span: float) -> float:
         """Physics counts a command from the start of each substep: lock-step steps a period at once."""
