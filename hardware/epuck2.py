@@ -242,26 +242,23 @@ class RobotLink:
                     reader, writer = await asyncio.open_connection(self.host, self.port)
             except (OSError, TimeoutError):
                 self.urgent = False  # the immediate attempt was made: back to the backoff
-                backoff = self._next_backoff(backoff)
-                await self._sleep_unless_urgent(backoff)
-                continue
-            try:
-                await self._serve(reader, writer)
-            except OSError as err:
-                log.warning("e-puck2 %d (%s:%d): connection lost (%s)", self.robot_id, self.host, self.port, err)
-            except Exception:  # a fault of ours must not leave the robot unattended: log it, connect again
-                log.exception("e-puck2 %d: link failed", self.robot_id)
-                await asyncio.sleep(self.config.reconnect_backoff_max)
-            finally:
-                answered = self.stats.answered
-                self.stats.connected = self.stats.answered = False
-                writer.close()
-            if answered:  # a robot that dropped: connect again at once
-                backoff = 0.0
-                continue
-            # something listens there but is no e-puck2 (it closed or spoke another protocol): not at once,
-            # or the link would reconnect to it in a tight loop
-            backoff = self._next_backoff(backoff)
+                answered = False
+            else:
+                try:
+                    await self._serve(reader, writer)
+                except OSError as err:
+                    log.warning("e-puck2 %d (%s:%d): connection lost (%s)", self.robot_id, self.host, self.port, err)
+                except Exception:  # a fault of ours must not leave the robot unattended: log it, connect again
+                    log.exception("e-puck2 %d: link failed", self.robot_id)
+                    await asyncio.sleep(self.config.reconnect_backoff_max)
+                finally:
+                    answered = self.stats.answered
+                    self.stats.connected = self.stats.answered = False
+                    writer.close()
+            # a robot that dropped: connect again at once; one out of reach, or something that listens there but
+            # is no e-puck2 (it closed or spoke another protocol), not at once, or the link would reconnect to it
+            # in a tight loop
+            backoff = 0.0 if answered else self._next_backoff(backoff)
             await self._sleep_unless_urgent(backoff)
 
     async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
