@@ -11,7 +11,7 @@ import math
 import threading
 import time
 import tomllib
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import MISSING, dataclass, fields
 from pathlib import Path
 from typing import Any, Self
@@ -35,18 +35,14 @@ def need(ok: object, message: str) -> None:
         raise HardwareConfigError(message)
 
 
-def check_keys(table: Mapping[str, Any], known: Iterable[str], where: str) -> None:
-    """Refuse keys a table does not know (a typo would otherwise silently fall back to a default)."""
-    known = set(known)
+def check_table(table: Any, config: type, kind: str, where: str) -> None:
+    """A table of ``kind`` with no key its config class (a dataclass) does not know (a typo would otherwise
+    silently fall back to a default)."""
+    need(isinstance(table, Mapping), f"{where}: must be a table")
+    known = {"kind", *(f.name for f in fields(config))}
     unknown = sorted(set(table) - known)
     if unknown:
         raise HardwareConfigError(f"{where}: unknown key {unknown[0]!r} (known: {', '.join(sorted(known))})")
-
-
-def check_table(table: Any, config: type, kind: str, where: str) -> None:
-    """A table of ``kind`` with no key its config class (a dataclass) does not know."""
-    need(isinstance(table, Mapping), f"{where}: must be a table")
-    check_keys(table, ["kind", *(f.name for f in fields(config))], where)
     if table.get("kind", kind) != kind:
         raise HardwareConfigError(f"{where}: kind must be {kind!r}, not {table['kind']!r}")
 
