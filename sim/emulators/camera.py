@@ -87,7 +87,7 @@ class OverheadCamera:
 
     def render(self, robots: dict[int, Pose], rng: np.random.Generator) -> np.ndarray:
         """A grey frame (uint8, height x width) with each robot's marker at its pose."""
-        frame = self._background().copy()
+        frame = self._background.copy()
         to_image = self.floor_to_image()
         plates = [(m, (x, y, 0.0)) for m, (x, y) in self.reference.items()] + list(robots.items())
         for marker, pose in plates:
@@ -101,14 +101,13 @@ class OverheadCamera:
         frame += noise
         return np.clip(frame + 0.5, 0, 255).astype(np.uint8)  # + 0.5 then truncation: rounding
 
+    @functools.cached_property
     def _background(self) -> np.ndarray:
-        key = (self.width, self.height, self.floor, self.margin, self.keystone, self.floor_grey)
-        if key not in _BACKGROUNDS:
-            frame = np.full((self.height, self.width), self.floor_grey / 2, np.float32)
-            corners = cv2.perspectiveTransform(self._outline()[None], self.floor_to_image())
-            cv2.fillConvexPoly(frame, np.rint(corners[0]).astype(np.int32), float(self.floor_grey), cv2.LINE_AA)
-            _BACKGROUNDS[key] = frame
-        return _BACKGROUNDS[key]
+        """The frame without markers, drawn once per camera."""
+        frame = np.full((self.height, self.width), self.floor_grey / 2, np.float32)
+        corners = cv2.perspectiveTransform(self._outline()[None], self.floor_to_image())
+        cv2.fillConvexPoly(frame, np.rint(corners[0]).astype(np.int32), float(self.floor_grey), cv2.LINE_AA)
+        return frame
 
     def _outline(self) -> np.ndarray:
         """The floor's corners in floor metres, near left first, counter-clockwise."""
@@ -146,9 +145,6 @@ class OverheadCamera:
         cover = cv2.resize(cover, (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA)
         roi = frame[y0:y1, x0:x1]
         roi[:] = roi * (1.0 - cover) + ink * self.plate_grey
-
-
-_BACKGROUNDS: dict[tuple, np.ndarray] = {}
 
 
 @functools.cache
