@@ -16,7 +16,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 from .config import FromTable, HardwareConfigError, Started, is_number, need
@@ -24,6 +24,7 @@ from .config import FromTable, HardwareConfigError, Started, is_number, need
 log = logging.getLogger(__name__)
 
 DEFAULT_PORT = 1000
+POSITIVE_KEYS = ("command_timeout", "connect_timeout", "reconnect_backoff", "reconnect_backoff_max", "max_wheel_speed")
 COMMAND_ID = 0x80
 COMMAND_FORMAT = "<BBBhhB12BB"  # id, request, settings, left, right, LEDs, 4 x RGB, speaker
 IMAGE_ID, SENSORS_ID, EMPTY_ID = 0x01, 0x02, 0x03
@@ -154,7 +155,7 @@ class Epuck2Config(FromTable):
         endpoints = [parse_address(a) for a in addresses]
         need(len(set(endpoints)) == len(endpoints), "addresses must not repeat a robot")
         object.__setattr__(self, "addresses", tuple(a.strip() for a in addresses))  # frozen: set once, here
-        for key in (f.name for f in fields(self) if f.type == "float"):  # the times and the speed
+        for key in POSITIVE_KEYS:
             value = getattr(self, key)
             need(is_number(value) and value > 0, f"{key} must be a positive number, not {value!r}")
             object.__setattr__(self, key, float(value))
