@@ -16,7 +16,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .config import HardwareConfigError, Started, check_table, is_number, need
+from .config import FromTable, HardwareConfigError, Started, is_number, need
 from .poses import PoseSample, StampGate
 
 # A detection whose side on the floor is off by more than this fraction is not a robot's marker: dropped.
@@ -38,9 +38,10 @@ class CameraError(RuntimeError):
 
 
 @dataclass(frozen=True)
-class CameraConfig:
+class CameraConfig(FromTable):
     """The `[poses]` table of kind "camera", validated. Every default is written here, once."""
 
+    KIND = "camera"
     source: int | str = 0
     dictionary: str = "DICT_4X4_50"
     marker_size: float = 0.05
@@ -48,22 +49,17 @@ class CameraConfig:
     homography: tuple[tuple[float, ...], ...] | None = None
     rate: float = 10.0
 
-    @classmethod
-    def from_table(cls, table: Mapping[str, Any], where: str) -> CameraConfig:
-        """Validate a parsed `[poses]` table; `where` names it in errors (e.g. "robots.toml [poses]")."""
-        check_table(table, cls, "camera", where)
+    def __post_init__(self) -> None:
         checks = {"source": _source, "dictionary": _dictionary_name, "marker_size": _positive, "rate": _positive}
-        values: dict[str, Any] = {
-            key: check(table[key], f"{where}: {key}") for key, check in checks.items() if key in table
-        }
-        size = dictionary_size(values.get("dictionary", cls.dictionary))
-        if "reference" in table:
-            values["reference"] = _reference(table["reference"], size, f"{where}: reference")
-        if "homography" in table:
-            values["homography"] = _homography(table["homography"], f"{where}: homography")
-        if ("reference" in values) == ("homography" in values):
-            raise HardwareConfigError(f"{where}: give exactly one of [poses.reference] markers and a homography")
-        return cls(**values)
+        for key, check in checks.items():
+            object.__setattr__(self, key, check(getattr(self, key), key))  # frozen: set once, here
+        if self.reference:
+            size = dictionary_size(self.dictionary)
+            object.__setattr__(self, "reference", _reference(self.reference, size, "reference"))
+        if self.homography is not None:
+            object.__setattr__(self, "homography", _homography(self.homography, "homography"))
+        given = bool(self.reference) != (self.homography is not None)
+        need(given, "give exactly one of [poses.reference] markers and a homography")
 
     def check_robots(self, robot_ids: list[int], where: str) -> None:
         """The backend's robots carry markers ``robot_ids``: each must be in the dictionary and be no
@@ -137,8 +133,8 @@ def _reference(value: Any, dictionary_size: int, where: str) -> dict[int, tuple[
 
 
 def _homography(value: Any, where: str) -> tuple[tuple[float, ...], ...]:
-    rows = value if isinstance(value, list) else []
-    if len(rows) != 3 or not all(isinstance(r, list) and len(r) == 3 for r in rows):
+    rows = value if isinstance(value, list | tuple) else []
+    if len(rows) != 3 or not all(isinstance(r, list | tuple) and len(r) == 3 for r in rows):
         raise HardwareConfigError(f"{where}: must be a 3x3 list of numbers (image pixels -> floor metres)")
     matrix = tuple(tuple(_number(v, where) for v in row) for row in rows)
     singular = abs(np.linalg.det(np.array(matrix))) < 1e-12

@@ -35,35 +35,29 @@ def need(ok: object, message: str) -> None:
         raise HardwareConfigError(message)
 
 
-def check_table(table: Any, config: type, kind: str, where: str) -> None:
-    """A table of ``kind`` with no key its config class (a dataclass) does not know (a typo would otherwise
-    silently fall back to a default)."""
-    need(isinstance(table, Mapping), f"{where}: must be a table")
-    known = {"kind", *(f.name for f in fields(config))}
-    unknown = sorted(set(table) - known)
-    if unknown:
-        raise HardwareConfigError(f"{where}: unknown key {unknown[0]!r} (known: {', '.join(sorted(known))})")
-    if table.get("kind", kind) != kind:
-        raise HardwareConfigError(f"{where}: kind must be {kind!r}, not {table['kind']!r}")
-
-
 def is_number(value: Any) -> bool:
     """A finite int or float (TOML's true and false are not numbers)."""
     return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
 
 
 class FromTable:
-    """A config dataclass read from its table (``kind = KIND``): keys it does not know and keys without a
-    default that are missing are refused here, the values by its ``__post_init__``, whose
-    HardwareConfigError is given ``where`` in front."""
+    """A config dataclass read from its table (``kind = KIND``): keys it does not know (a typo would otherwise
+    silently fall back to a default) and keys without a default that are missing are refused here, the values
+    by its ``__post_init__``, whose HardwareConfigError is given ``where`` in front."""
 
     KIND = ""
 
     @classmethod
     def from_table(cls, table: Any, where: str) -> Self:
-        check_table(table, cls, cls.KIND, where)
+        need(isinstance(table, Mapping), f"{where}: must be a table")
         fields_ = fields(cls)  # type: ignore[arg-type]  # the subclasses are dataclasses
-        missing = [f.name for f in fields_ if f.default is MISSING and f.name not in table]
+        known = {"kind", *(f.name for f in fields_)}
+        unknown = sorted(set(table) - known)
+        if unknown:
+            raise HardwareConfigError(f"{where}: unknown key {unknown[0]!r} (known: {', '.join(sorted(known))})")
+        if table.get("kind", cls.KIND) != cls.KIND:
+            raise HardwareConfigError(f"{where}: kind must be {cls.KIND!r}, not {table['kind']!r}")
+        missing = [f.name for f in fields_ if f.default is f.default_factory is MISSING and f.name not in table]
         if missing:
             raise HardwareConfigError(f"{where}: missing key {missing[0]!r}")
         try:
