@@ -45,30 +45,14 @@ class HardwareError(Exception):
     """The hardware cannot be used for a run: one line for the user."""
 
 
-def check_runnable(config: HardwareConfig) -> int:
-    """A hardware file a run can use (a backend with robots and a pose source); returns the robot count."""
-    kind = config.backend_kind
-    if kind not in RUNNABLE_BACKENDS:
-        raise HardwareError(
-            f"{config.path} [backend]: kind {kind!r} drives no robots; a run with --hardware needs one of: "
-            f"{', '.join(RUNNABLE_BACKENDS)}"
-        )
-    if config.poses is None:
-        raise HardwareError(f"{config.path}: a run needs a [poses] table (where the robots' poses come from)")
-    return len(config.backend.robot_ids)
-
-
 class BackendDrive:
-    """What the drives share: the backend starts and closes itself."""
+    """What the drives share: the backend starts and closes itself. A drive's where(robot) says where a robot
+    is reached (an address, a topic)."""
 
     backend: Any
 
     def start(self) -> None:
         self.backend.start()
-
-    def where(self, robot: int) -> str:
-        """Where a robot is reached (an address, a topic)."""
-        raise NotImplementedError
 
     def robot_stats(self, robot: int) -> dict[str, int]:
         return {"reconnects": 0}
@@ -155,7 +139,7 @@ class PoseSource(Protocol):
 
 def open_pose_source(config: HardwareConfig, settings: ZenohSettings) -> tuple[PoseSource, str]:
     """The pose source and its name in messages."""
-    assert config.poses is not None  # check_runnable() refuses a file without
+    assert config.poses is not None  # load_run() refuses a file without
     if config.poses_kind == "ros2":
         from hardware.ros2 import Ros2PoseSource
 
@@ -366,7 +350,14 @@ def build_parser() -> argparse.ArgumentParser:
 def load_run(args: argparse.Namespace) -> tuple[HardwareConfig, Scene]:
     """The hardware file and the scene it runs, checked: HardwareError, HardwareConfigError or SceneError."""
     config = load_hardware(args.hardware)
-    robots = check_runnable(config)
+    if config.backend_kind not in RUNNABLE_BACKENDS:
+        raise HardwareError(
+            f"{config.path} [backend]: kind {config.backend_kind!r} drives no robots; a run with --hardware needs "
+            f"one of: {', '.join(RUNNABLE_BACKENDS)}"
+        )
+    if config.poses is None:
+        raise HardwareError(f"{config.path}: a run needs a [poses] table (where the robots' poses come from)")
+    robots = len(config.backend.robot_ids)
     # as `pixelswarm run --hardware` refuses them: given by hand, they would be silently overridden
     if args.robots is not None:
         raise HardwareError(f"--hardware takes the number of robots from the hardware file ({robots}): drop --robots")
