@@ -104,6 +104,10 @@ class SimBackendConfig(FromTable):
     KIND = "sim"
     kind: str = "sim"
 
+    def stop_robots(self, settings: object = None) -> list[int]:
+        """Nothing real to stop: no robot unreached."""
+        return []
+
 
 @dataclass(frozen=True)
 class HardwareConfig:
