@@ -102,7 +102,6 @@ class SimBackendConfig(FromTable):
     """The simulated world stands in for the robots: nothing to configure besides the kind."""
 
     KIND = "sim"
-    kind: str = "sim"
 
     def stop_robots(self, settings: object = None) -> list[int]:
         """Nothing real to stop: no robot unreached."""

@@ -146,7 +146,6 @@ class Epuck2Config(FromTable):
     reconnect_backoff_max: float = 2.0
     max_wheel_speed: float = FIRMWARE_MAX_WHEEL_SPEED  # wheel speeds are clipped to this before they leave
     request_sensors: bool = False  # ask for the 104-byte sensors answer with every command
-    kind: str = "epuck2"
 
     def __post_init__(self) -> None:
         addresses = self.addresses
