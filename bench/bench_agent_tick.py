@@ -42,6 +42,7 @@ BEFORE = "2f61ee4"  # main before this branch: the code without its per-tick wor
 GOALS_EVERY = 1.0  # s between the coordinator's repeats of its goal set, each checked again
 SAMPLE_EVERY = 0.25  # s between CPU samples of the agent processes
 EDGE = 1.0  # s left out of each end of the stepping window (the first ticks, the shutdown)
+WORLD = {"sim.node.world", "sim.world_node"}  # the world's module, now and in older trees
 MAPS_EVERY = 2.0  # s between readings of the agents' memory maps (slower to read than a CPU sample)
 PARTS = ("compiled core", "numpy", "zenoh", "Python", "heap", "anonymous", "other")  # of an agent's RSS
 
@@ -84,7 +85,8 @@ def run_scene(cwd: Path, robots: int, duration: float, seed: int, per_process: i
         )
         series: dict[int, list[tuple[float, float, float]]] = {}  # agent pid -> (wall, CPU seconds, RSS bytes)
         maps: dict[int, list[tuple[float, dict[str, float], float]]] = {}  # agent pid -> (wall, memory_parts, USS)
-        watched: dict[int, psutil.Process] = {}
+        watched: dict[int, psutil.Process] = {}  # the agents' processes and the world's
+        world = -1
         maps_due = 0.0
         while proc.poll() is None:
             try:
@@ -93,8 +95,10 @@ def run_scene(cwd: Path, robots: int, duration: float, seed: int, per_process: i
                 break
             for child in children:
                 try:
-                    if child.pid not in watched and "agent" in child.cmdline():
+                    cmdline = child.cmdline()
+                    if child.pid not in watched and ("agent" in cmdline or WORLD & set(cmdline)):
                         watched[child.pid] = child
+                        world = child.pid if WORLD & set(cmdline) else world
                 except psutil.Error:
                     pass
             now = time.monotonic()
@@ -116,15 +120,15 @@ def run_scene(cwd: Path, robots: int, duration: float, seed: int, per_process: i
         m = json.loads((out / "metrics.json").read_text())
     # The stepping window: it ends when the first agent is stopped, and lasted stepping_wall_s.
     series = {pid: s for pid, s in series.items() if len(s) >= 4}  # not a process seen only in passing
+    world_series = series.pop(world, None)
     end = min(s[-1][0] for s in series.values()) - EDGE
     begin = end - float(m["stepping_wall_s"]) + 2 * EDGE
     cpu, rss = [], []
     for s in series.values():
-        t, c, r = np.array(s).T
-        i, j = np.searchsorted(t, begin), np.searchsorted(t, end, side="right") - 1
-        if j > i:
-            cpu.append(100 * (c[j] - c[i]) / (t[j] - t[i]))
-            rss.append(r[j])  # at the end of the stepping: a robot's process has its memory by then
+        if (window := _in_window(s, begin, end)) is not None:
+            cpu.append(window[0])
+            rss.append(window[1])  # at the end of the stepping: a robot's process has its memory by then
+    world_window = None if world_series is None else _in_window(world_series, begin, end)
     last = [[(parts, uss) for t, parts, uss in maps.get(pid, []) if t <= end][-1:] for pid in series]  # before the end
     ticks = max(int(m.get("samples", 1)) - 1, 1) * robots
     if not cpu:  # no two samples inside the window (a loaded machine sampled too seldom)
@@ -137,8 +141,16 @@ def run_scene(cwd: Path, robots: int, duration: float, seed: int, per_process: i
         "missed": int(m["missed_ticks"]),
         "missed_share": m["missed_ticks"] / ticks,
         "load": os.getloadavg()[0],
+        "world_cpu": float("nan") if world_window is None else world_window[0],
         "parts": [x[0][0] for x in last if x],  # per agent: its memory_parts at the end of the stepping
     }
+
+
+def _in_window(samples: list[tuple[float, float, float]], begin: float, end: float) -> tuple[float, float] | None:
+    """A process's CPU % of a core between ``begin`` and ``end``, and its RSS at the last sample in them."""
+    t, c, r = np.array(samples).T
+    i, j = np.searchsorted(t, begin), np.searchsorted(t, end, side="right") - 1
+    return (100 * (c[j] - c[i]) / (t[j] - t[i]), r[j]) if j > i else None
 
 
 NEIGHBOURS = 15  # --tick-alone: states heard a tick (a crowd: more than max_neighbours)
@@ -251,8 +263,8 @@ def main() -> None:
         sys.exit(2)
     before_rev = rev.stdout.strip()
     rows = [
-        "| pair | code | load avg | agent CPU % of a core (median) | (mean) | agent RSS MB (median) | USS MB (median) | missed ticks (share) |",
-        "|---|---|---|---|---|---|---|---|",
+        "| pair | code | load avg | agent CPU % of a core (median) | (mean) | agent RSS MB (median) | USS MB (median) | missed ticks (share) | world CPU % |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     figures: dict[str, list[float]] = {"before": [], "after": []}
     parts: dict[str, list[dict[str, float]]] = {"before": [], "after": []}
@@ -264,14 +276,16 @@ def main() -> None:
             alone(old, before_rev, args.pairs)
             return
         for pair in range(1, args.pairs + 1):
-            for what, cwd in (("before", old), ("after", REPO)):
+            order = (("before", old), ("after", REPO))
+            for what, cwd in order if pair % 2 else order[::-1]:  # each goes first as often: a run warms the next
                 r = run_scene(cwd, args.robots, args.duration, args.seed, args.agents_per_process)
                 figures[what].append(r["cpu_median"])
                 parts[what] += r["parts"]
                 label = f"{before_rev} (before)" if what == "before" else "current"
                 rows.append(
                     f"| {pair} | {label} | {r['load']:.1f} | {r['cpu_median']:.2f} | {r['cpu_mean']:.2f} | "
-                    f"{r['rss_mb']:.1f} | {r['uss_mb']:.1f} | {r['missed']} ({100 * r['missed_share']:.2f}%) |"
+                    f"{r['rss_mb']:.1f} | {r['uss_mb']:.1f} | {r['missed']} ({100 * r['missed_share']:.2f}%) | "
+                    f"{r['world_cpu']:.1f} |"
                 )
                 print(rows[-1], flush=True)
     b, a = np.nanmedian(figures["before"]), np.nanmedian(figures["after"])  # nan: a run without a window
@@ -293,12 +307,13 @@ def main() -> None:
         f"{checks:.1f} us a tick, {100 * checks / tick_us:.2f} % of the agent's {tick_us:.0f} us of CPU a tick.",
         "",
         f"Scene: `pixelswarm run circle --robots {args.robots} --clock realtime --duration {args.duration:g} "
-        f"--seed {args.seed} --agents-per-process {args.agents_per_process}`, before and after alternating. "
+        f"--seed {args.seed} --agents-per-process {args.agents_per_process}`, before and after alternating, each first in every other pair. "
         "CPU: each agent process's user + system CPU seconds (psutil cpu_times) over the world's stepping (less a second at each "
         "end) per wall second; RSS: each agent process's resident memory at the end of the stepping; USS: the part "
         "of it no other process maps (psutil memory_full_info: without the pages of code and libraries that "
         "every robot's process on the machine maps). Missed ticks: a live agent's command for tick k had not reached the world when "
-        "tick k+1 began. Load avg: the machine's 1-minute load after the run (a shared machine).",
+        "tick k+1 began. World CPU: the world process's, over the same window. Load avg: the machine's 1-minute load "
+        "after the run (a shared machine).",
     ]
     command = " ".join(["python -m bench.bench_agent_tick", *sys.argv[1:]])
     write_results("agent_tick", "An agent process's CPU per tick, before and after (issue 25)", command, rows)
