@@ -37,6 +37,9 @@ class CameraError(RuntimeError):
     """A camera or video that cannot be read: one line saying which and why."""
 
 
+NOT_GIVEN: dict[int, tuple[float, float]] = {}  # CameraConfig.reference when the table has none (never filled)
+
+
 @dataclass(frozen=True)
 class CameraConfig(FromTable):
     """The `[poses]` table of kind "camera", validated. Every default is written here, once."""
@@ -45,7 +48,7 @@ class CameraConfig(FromTable):
     source: int | str = 0
     dictionary: str = "DICT_4X4_50"
     marker_size: float = 0.05
-    reference: dict[int, tuple[float, float]] = field(default_factory=dict)
+    reference: dict[int, tuple[float, float]] = field(default_factory=lambda: NOT_GIVEN)
     homography: tuple[tuple[float, ...], ...] | None = None
     rate: float = 10.0
 
@@ -53,13 +56,16 @@ class CameraConfig(FromTable):
         checks = {"source": _source, "dictionary": _dictionary_name, "marker_size": _positive, "rate": _positive}
         for key, check in checks.items():
             object.__setattr__(self, key, check(getattr(self, key), key))  # frozen: set once, here
-        if self.reference:
+        referenced = self.reference is not NOT_GIVEN  # an empty table or a list is given, and refused
+        if referenced:
             size = dictionary_size(self.dictionary)
             object.__setattr__(self, "reference", _reference(self.reference, size, "reference"))
         if self.homography is not None:
             object.__setattr__(self, "homography", _homography(self.homography, "homography"))
-        given = bool(self.reference) != (self.homography is not None)
-        need(given, "give exactly one of [poses.reference] markers and a homography")
+        need(
+            referenced != (self.homography is not None),
+            "give exactly one of [poses.reference] markers and a homography",
+        )
 
     def check_robots(self, robot_ids: list[int], where: str) -> None:
         """The backend's robots carry markers ``robot_ids``: each must be in the dictionary and be no

@@ -162,6 +162,8 @@ def test_poses_table_defaults_are_the_papers_camera():
         ),
         ({"reference": {"50": [0, 0], "2": [1, 0], "3": [1, 1], "4": [0, 1]}}, "outside the dictionary"),
         ({"reference": {"1": [0, 0, 0], "2": [1, 0], "3": [1, 1], "4": [0, 1]}}, "[x, y]"),
+        ({"reference": {}}, "at least 4"),
+        ({"reference": []}, "must be a table"),
         ({"reference": None}, "exactly one of"),
         ({"homography": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}, "exactly one of"),
         ({"reference": None, "homography": [[1, 0], [0, 1]]}, "3x3"),
