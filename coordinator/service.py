@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from agent.core.params import RobotParams
 from transport.bus import Bus, Inbox, KeepRobots
 from transport.codec import Correspondence, Goals, Lives, Motion, Pose, Tick, Timing, WarmStart, as_sent, life_number
 from transport.plausible import Clock
@@ -164,7 +165,8 @@ class Coordinator:
         self.current = scene_goal_message(scene)
         self.images = bool(scene.steps)
         self.epoch = 0
-        self.clock = ShowClock()
+        period = RobotParams.from_dict(scene.robot).dt if scene.clock == "realtime" else None  # lock-step: no pace
+        self.clock = ShowClock(plausible=Clock(period))
         self.roster = Roster()
         self.shown: tuple[int, frozenset[int]] | None = None  # (step, robots) of the current epoch
         self.pixels = frozenset(scene.pixel_robots)  # the robots that show the image

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import cast
 
 from .codec import Goals, Tick
 
@@ -25,10 +26,12 @@ CONFLICTING = "conflicting"  # a second, different command for a robot's tick: t
 
 class Clock:
     """The world's clock as a receiver believes it: a tick's stamp is its start, and the world
-    publishes every tick, so a clock may not skip more than ``AHEAD`` past the newest."""
+    publishes every tick, so a clock may not skip more than ``AHEAD`` past the newest. With ``period``
+    (a world in real time) nor run ahead of the wall clock since its first tick: forged clocks, each
+    ``AHEAD`` past the last, would otherwise carry it to any tick."""
 
-    def __init__(self) -> None:
-        self.line = TickLine()
+    def __init__(self, period: float | None = None) -> None:
+        self.line = TickLine(period)
 
     @property
     def newest(self) -> int | None:
@@ -37,7 +40,7 @@ class Clock:
     def admit(self, clock: Tick, wall: float) -> str | None:
         if not stamp_agrees(clock.tick, clock.stamp, clock.dt):
             return INCONSISTENT
-        return self.line.admit(clock.tick, wall, self.line.newest)
+        return self.line.admit(clock.tick, wall, None if self.line.period else self.line.newest)
 
 
 class GoalSets:
@@ -94,8 +97,9 @@ class TickLine:
     and returns None to take the message, or why not. With ``period`` and no ``now``, the clock is the
     wall clock since the line began, ``period`` s a tick, so a real-time sender cannot run ahead of it.
     A refused tick may begin a new line (a restart, a jumped clock, a wrong first tick), taken once it has
-    gone on tick after tick for ``RESYNC`` s and runs ahead of the old line or the old one was as silent.
-    Copies of old frames, or forged ones in no order, never make such a line.
+    gone on tick after tick for ``RESYNC`` s (with ``period``, no faster than the wall clock) and runs ahead
+    of the old line or the old one was as silent. Copies of old frames, or forged ones in no order, never
+    make such a line.
     """
 
     def __init__(self, period: float | None = None) -> None:
@@ -103,7 +107,9 @@ class TickLine:
         self.newest: int | None = None
         self.heard_at = -math.inf  # wall time (monotonic) of the newest accepted tick
         self._began: tuple[int, float] = (0, -math.inf)  # (tick, wall time) the wall-clock bound counts from
-        self._new_line: tuple[float, int] | None = None  # (wall time it began, its newest tick)
+        self._first: tuple[int, float] = (0, -math.inf)  # (tick, wall time) the line's first: _began moves past it
+        # by at most RESYNC s, so that forged ticks, each a little sooner, cannot carry the bound along
+        self._new_line: tuple[float, int, int] | None = None  # (wall time it began, its newest tick, its first)
 
     def admit(self, tick: int, wall: float, now: float | None = None) -> str | None:
         walled = now is None and self.period is not None and self.newest is not None
@@ -111,20 +117,30 @@ class TickLine:
             now = self._began[0] + (wall - self._began[1]) / self.period
         in_line = self.newest is None or tick > self.newest
         if in_line and (now is None or tick <= now + AHEAD):
-            if self.newest is None or (walled and now is not None and tick > now):
-                self._began = (tick, wall)  # the first tick, or ticks sooner than the first (it was late)
+            if self.newest is None:
+                self._began = self._first = (tick, wall)
+            elif walled and now is not None and tick > now and self._sooner_than_first(tick, wall) <= RESYNC:
+                self._began = (tick, wall)  # ticks sooner than the first: it was late
             self._new_line = None
             self.newest, self.heard_at = tick, wall
             return None
         line = self._new_line
         if line is not None and line[1] < tick <= line[1] + AHEAD:
-            line = (line[0], tick)
+            line = (line[0], tick, line[2])
         else:
-            line = (wall, tick)
+            line = (wall, tick, tick)
         self._new_line = line
         ahead = self.newest is not None and tick > self.newest
-        if wall - line[0] >= RESYNC and (ahead or wall - self.heard_at >= RESYNC):
-            self._began, self._new_line = (tick, wall), None
+        # in real time a new line too keeps the wall clock's pace: forged ticks sent fast never make one
+        paced = self.period is None or line[1] - line[2] <= (wall - line[0]) / self.period + AHEAD
+        if wall - line[0] >= RESYNC and paced and (ahead or wall - self.heard_at >= RESYNC):
+            self._began = self._first = (tick, wall)
+            self._new_line = None
             self.newest, self.heard_at = tick, wall
             return None
         return FUTURE if ahead or self.newest is None else STALE
+
+    def _sooner_than_first(self, tick: int, wall: float) -> float:
+        """How many seconds sooner ``tick`` came than the line's first tick foretold (period s a tick)."""
+        period = cast(float, self.period)
+        return (tick - self._first[0]) * period - (wall - self._first[1])

@@ -11,8 +11,8 @@ import pytest
 from agent.neighbour_table import NeighbourTable
 from agent.pose_trust import CONFIRM, PoseTrust
 from tests.conftest import run_scenes
-from transport.codec import Goals, State
-from transport.plausible import AHEAD, FUTURE, INCONSISTENT, RESYNC, STALE, GoalSets, TickLine, stamp_agrees
+from transport.codec import Goals, State, Tick
+from transport.plausible import AHEAD, FUTURE, INCONSISTENT, RESYNC, STALE, Clock, GoalSets, TickLine, stamp_agrees
 
 DT = 0.1
 
@@ -78,6 +78,35 @@ def test_a_clock_that_jumped_ahead_is_followed_once_it_goes_on():
     assert line.admit(10, wall=0.0, now=None) is None
     jumped = [line.admit(1000 + k, wall=0.1 + k * DT, now=line.newest) for k in range(round(RESYNC / DT) + 1)]
     assert jumped[0] == FUTURE and jumped[-1] is None
+
+
+def test_real_time_forged_clocks_each_a_little_ahead_never_carry_the_clock_past_the_wall():
+    """The coordinator's clock picks the image a show is at: forged clocks, each AHEAD past the last
+    taken, carried it to the show's end within a second when only the newest bounded them."""
+    clock = Clock(period=DT)
+    forged_taken = []
+    for k in range(round(3 * RESYNC / DT)):  # 3 s: the world's tick k, and ten forged clocks between two ticks
+        wall = k * DT
+        assert clock.admit(Tick(k, k * DT, DT, 0), wall) is None or clock.newest > k
+        for j in range(10):
+            ahead = clock.newest + AHEAD
+            if clock.admit(Tick(ahead, ahead * DT, DT, 0), wall + j * DT / 10) is None:
+                forged_taken.append(ahead)
+        assert clock.newest <= k + 1 + RESYNC / DT + AHEAD  # the wall clock, less RESYNC for a late first tick
+    assert forged_taken  # each stays within AHEAD of the wall clock
+    lockstep = Clock()  # no pace to bound it by: only the newest does
+    lockstep.admit(Tick(0, 0.0, DT, 0), 0.0)
+    for _ in range(10):
+        lockstep.admit(Tick(lockstep.newest + AHEAD, (lockstep.newest + AHEAD) * DT, DT, 0), 0.0)
+    assert lockstep.newest == 10 * AHEAD
+
+
+def test_real_time_a_new_line_of_ticks_faster_than_the_wall_clock_is_never_believed():
+    line = TickLine(period=DT)
+    assert line.admit(0, wall=0.0) is None
+    fast = [line.admit(500 + 2 * k, wall=0.01 * k) for k in range(round(3 * RESYNC / 0.01))]  # 3 s, 20x the pace
+    assert set(fast) == {FUTURE} and line.newest == 0
+    assert line.admit(1, wall=3.0) is None  # the honest sender, late, is still heard
 
 
 def test_a_receiver_that_starts_with_the_run_refuses_a_forged_first_epoch():
