@@ -17,6 +17,7 @@ from .codec import Goals, Tick
 
 AHEAD = 2  # ticks a frame may lie ahead of the receiver's clock: keys travel apart, one period of jitter and a spare
 RESYNC = 1.0  # s a new line of ticks goes on (and the old one is silent, or behind it) before it is believed
+DRIFT = 0.01  # how much faster than the receiver's a sender's clock may run (two machines' clocks differ)
 STAMP_SLACK = 1e-6  # s: tick x dt against the stamp, for the rounding of two float products
 
 FUTURE, STALE, INCONSISTENT = "future", "stale", "inconsistent"
@@ -97,9 +98,9 @@ class TickLine:
     and returns None to take the message, or why not. With ``period`` and no ``now``, the clock is the
     wall clock since the line began, ``period`` s a tick, so a real-time sender cannot run ahead of it.
     A refused tick may begin a new line (a restart, a jumped clock, a wrong first tick), taken once it has
-    gone on tick after tick for ``RESYNC`` s (with ``period``, no faster than the wall clock) and runs ahead
-    of the old line or the old one was as silent. Copies of old frames, or forged ones in no order, never
-    make such a line.
+    gone on tick after tick for ``RESYNC`` s (with ``period``, no faster than the wall clock and DRIFT) and
+    runs ahead of the old line or the old one was as silent. Copies of old frames, or forged ones in no
+    order, never make such a line.
     """
 
     def __init__(self, period: float | None = None) -> None:
@@ -108,7 +109,7 @@ class TickLine:
         self.heard_at = -math.inf  # wall time (monotonic) of the newest accepted tick
         self._began: tuple[int, float] = (0, -math.inf)  # (tick, wall time) the wall-clock bound counts from
         self._first: tuple[int, float] = (0, -math.inf)  # (tick, wall time) the line's first: _began moves past it
-        # by at most RESYNC s, so that forged ticks, each a little sooner, cannot carry the bound along
+        # by at most _slack, so that forged ticks, each a little sooner, cannot carry the bound along
         self._new_line: tuple[float, int, int] | None = None  # (wall time it began, its newest tick, its first)
 
     def admit(self, tick: int, wall: float, now: float | None = None) -> str | None:
@@ -119,8 +120,8 @@ class TickLine:
         if in_line and (now is None or tick <= now + AHEAD):
             if self.newest is None:
                 self._began = self._first = (tick, wall)
-            elif walled and now is not None and tick > now and self._sooner_than_first(tick, wall) <= RESYNC:
-                self._began = (tick, wall)  # ticks sooner than the first: it was late
+            elif walled and now is not None and tick > now and self._sooner_than_first(tick, wall) <= self._slack(wall):
+                self._began = (tick, wall)  # ticks sooner than the first: it was late, or the sender's clock is faster
             self._new_line = None
             self.newest, self.heard_at = tick, wall
             return None
@@ -132,13 +133,18 @@ class TickLine:
         self._new_line = line
         ahead = self.newest is not None and tick > self.newest
         # in real time a new line too keeps the wall clock's pace: forged ticks sent fast never make one
-        paced = self.period is None or line[1] - line[2] <= (wall - line[0]) / self.period + AHEAD
+        paced = self.period is None or line[1] - line[2] <= (1.0 + DRIFT) * (wall - line[0]) / self.period + AHEAD
         if wall - line[0] >= RESYNC and paced and (ahead or wall - self.heard_at >= RESYNC):
             self._began = self._first = (tick, wall)
             self._new_line = None
             self.newest, self.heard_at = tick, wall
             return None
         return FUTURE if ahead or self.newest is None else STALE
+
+    def _slack(self, wall: float) -> float:
+        """How many seconds sooner than the line's first foretold a tick may come: RESYNC (the first came
+        late), and DRIFT of the time since (the sender's clock runs a little faster)."""
+        return RESYNC + DRIFT * (wall - self._first[1])
 
     def _sooner_than_first(self, tick: int, wall: float) -> float:
         """How many seconds sooner ``tick`` came than the line's first tick foretold (period s a tick)."""

@@ -12,7 +12,18 @@ from agent.neighbour_table import NeighbourTable
 from agent.pose_trust import CONFIRM, PoseTrust
 from tests.conftest import run_scenes
 from transport.codec import Goals, State, Tick
-from transport.plausible import AHEAD, FUTURE, INCONSISTENT, RESYNC, STALE, Clock, GoalSets, TickLine, stamp_agrees
+from transport.plausible import (
+    AHEAD,
+    DRIFT,
+    FUTURE,
+    INCONSISTENT,
+    RESYNC,
+    STALE,
+    Clock,
+    GoalSets,
+    TickLine,
+    stamp_agrees,
+)
 
 DT = 0.1
 
@@ -92,13 +103,20 @@ def test_real_time_forged_clocks_each_a_little_ahead_never_carry_the_clock_past_
             ahead = clock.newest + AHEAD
             if clock.admit(Tick(ahead, ahead * DT, DT, 0), wall + j * DT / 10) is None:
                 forged_taken.append(ahead)
-        assert clock.newest <= k + 1 + RESYNC / DT + AHEAD  # the wall clock, less RESYNC for a late first tick
+        # the wall clock, with RESYNC for a late first tick and DRIFT for a faster clock
+        assert clock.newest <= k + 1 + (RESYNC + DRIFT * wall) / DT + AHEAD
     assert forged_taken  # each stays within AHEAD of the wall clock
     lockstep = Clock()  # no pace to bound it by: only the newest does
     lockstep.admit(Tick(0, 0.0, DT, 0), 0.0)
     for _ in range(10):
         lockstep.admit(Tick(lockstep.newest + AHEAD, (lockstep.newest + AHEAD) * DT, DT, 0), 0.0)
     assert lockstep.newest == 10 * AHEAD
+
+
+def test_real_time_a_sender_whose_clock_runs_a_little_faster_is_heard_all_along():
+    """Two machines' clocks differ: a tracker a half per cent fast is ahead by a second after 200 s."""
+    line = TickLine(period=DT)
+    assert all(line.admit(k, wall=k * DT * 0.995) is None for k in range(6000))  # 10 minutes
 
 
 def test_real_time_a_new_line_of_ticks_faster_than_the_wall_clock_is_never_believed():
