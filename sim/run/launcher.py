@@ -683,8 +683,7 @@ class Launcher:
                 dropped[reason] = dropped.get(reason, 0) + int(k)
         walls = rec.traj.wall
         stepping_wall = walls[-1] - walls[0] if len(walls) > 1 else 0.0  # start-up excluded
-        # lost before the run's last tick recorded: agents that leave once the world ended (remote ones do,
-        # before a loaded launcher stops its children) were not lost
+        # lost before the run's last tick recorded: remote agents leave once the world ended, not lost
         until = min(self.end.shutdown_wall, walls[-1] if walls else math.inf)
         lost = [
             e for e in rec.happened.liveliness if e["role"] == "agent" and not e["alive"] and e["wall_time"] < until
