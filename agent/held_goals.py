@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .core.policy import NO_GOAL
+from .core.policy import NO_GOAL, no_goal_keys
 
 IDLE_COLOR = (40, 40, 40)
 
@@ -23,7 +23,7 @@ class HeldGoals:
 
     @classmethod
     def new(cls, n: int) -> HeldGoals:
-        key = np.tile(np.array([0, NO_GOAL], np.int64), (n, 1))  # (epoch 0, no goal)
+        key = no_goal_keys(n)
         color = np.tile(np.array(IDLE_COLOR, np.uint8), (n, 1))
         return cls(np.full((n, 2), np.nan), np.full((n, 2), np.nan), key, np.zeros(n, np.int64), color)
 

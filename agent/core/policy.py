@@ -20,6 +20,11 @@ from .step import NeighbourStates, OwnStates, Rows, StepResult, Surroundings, co
 NO_GOAL = -1  # goal index of a robot that holds no goal of a goal set
 
 
+def no_goal_keys(batch: int) -> np.ndarray:
+    """(batch, 2) int64 goal keys (epoch, goal) of robots that hold no goal yet: (0, NO_GOAL)."""
+    return np.tile(np.array([0, NO_GOAL], np.int64), (batch, 1))
+
+
 @dataclass(frozen=True)
 class GoalTiming:
     """What a goal set's message says about time: when its step began, an animation keyframe's
@@ -42,7 +47,7 @@ class Memory(Rows):
 
     @classmethod
     def new(cls, batch: int, latency: float = 0.0) -> Memory:
-        hold_for = np.tile(np.array([0, NO_GOAL], np.int64), (batch, 1))  # (epoch 0, no goal)
+        hold_for = no_goal_keys(batch)
         return cls(
             np.zeros((batch, 2)),
             np.zeros(batch, np.int64),

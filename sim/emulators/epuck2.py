@@ -37,6 +37,7 @@ STEPS_PER_TURN = 1000
 WHEEL_CIRCUMFERENCE = math.pi * 0.041  # m
 FIRMWARE_LIMIT = 1100  # steps/s
 HOST = "127.0.0.1"
+SEND_TIMEOUT = 1  # whole seconds (SO_SNDTIMEO's) an answer may wait for a client to read
 
 Pose = tuple[float, float, float]  # x (m), y (m), heading (rad)
 
@@ -238,8 +239,8 @@ class Epuck2Emulator(Started):
             if self._closing:
                 conn.close()
                 return
-            # answers are sent whole; a client that stops reading for 1 s is dropped
-            conn.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, struct.pack("ll", 1, 0))
+            # answers are sent whole; a client that stops reading for SEND_TIMEOUT is dropped
+            conn.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, struct.pack("ll", SEND_TIMEOUT, 0))
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             self.drop_connection(rid)
             reader = threading.Thread(target=self._receive, args=(rid, conn), name="epuck2-robot", daemon=True)
