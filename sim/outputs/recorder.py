@@ -172,6 +172,9 @@ class WorldHeard:
     dt: float = 0.0
     row_of_tick: dict[int, int] = field(default_factory=dict)
     least_clearance: float = np.inf
+    # states heard before their tick's truth, the first per (tick, robot): the world sends a tick's truth
+    # before its poses, so a robot's own state of that tick comes after it and is taken before these
+    early: dict[tuple[int, int], State] = field(default_factory=dict)
 
 
 @dataclass
@@ -385,6 +388,10 @@ class Recorder:
         row = world.row_of_tick.get(s.tick)
         if s.tick > world.latest_tick + RECORD_AHEAD or s.tick == said.state_tick[r]:
             return  # from the future, or a copy (the first heard is the robot's)
+        if s.tick > world.latest_tick:
+            # a forged copy of a later tick taken now would hide the robot's states until that tick
+            world.early.setdefault((s.tick, r), s)
+            return
         if world.dt and not stamp_agrees(s.tick, s.stamp, world.dt):
             return  # its stamp is not its tick's
         named = self.sets.by_epoch.get(s.assign_epoch)
@@ -436,6 +443,7 @@ class Recorder:
         world.latest_tick = max(world.latest_tick, m.tick)
         if m.tick > 0:
             world.dt = m.stamp / m.tick  # the control period, as the world's clock counts it
+        self._take_early(m.tick)
         self._append_row(m, wall)
         world.least_clearance = min(world.least_clearance, m.min_clearance)
         progress.check(m.stamp, m.pose, said, self.sets.newest)
@@ -446,6 +454,13 @@ class Recorder:
         since, ends = progress.converged_since, progress.ends
         if since is not None and ends is not None and ends(since, m.stamp):
             progress.ended_at = len(tr.t)  # the run ends with this tick, whenever the world hears of it
+
+    def _take_early(self, tick: int) -> None:
+        """States heard before the truth of their tick, once a later tick's truth has come: by then the
+        robot's own state of their tick was heard, if it was sent, and a copy of it is not taken."""
+        early = self.world.early
+        for key in sorted(k for k in early if k[0] < tick):
+            self._on_state(early.pop(key))
 
     def _append_row(self, m: Truth, wall: float) -> None:
         """A tick's row in the trajectory and the tick log: the truth, and a copy of what robots said."""
