@@ -389,7 +389,9 @@ class Recorder:
         if s.tick > world.latest_tick + RECORD_AHEAD or s.tick == said.state_tick[r]:
             return  # from the future, or a copy (the first heard is the robot's)
         if s.tick > world.latest_tick:
-            # a forged copy of a later tick taken now would hide the robot's states until that tick
+            # a forged copy of a later tick taken now would hide the robot's states until that tick; its
+            # size is taken as a hello's is
+            said.radius[r] = s.radius if np.isnan(said.radius[r]) else said.radius[r]
             world.early.setdefault((s.tick, r), s)
             return
         if world.dt and not stamp_agrees(s.tick, s.stamp, world.dt):
