@@ -64,7 +64,8 @@ class HostClock:
         self.pose_period: float | None = None  # a pose's tick may not run ahead of the wall clock by more
         self.collect = 0.0  # s to wait for the rest of a tick's poses
         self.lateness = Lateness(host.params.dt, host.params.command_margin)  # real time: a pose's age acted on
-        self.inbox: Inbox[Tick] | None = None  # the world's clock messages (lock-step)
+        self.inbox: Inbox[Tick] | None = None  # the world's clock messages
+        self.clock = Clock()  # the world's clock as heard
         self.silent: set[int] = set()  # lock-step: nearby robots that did not answer in time
         self.state_waits = 0
         self.hello_every = math.inf  # s between hellos (lock-step's start-up)
@@ -76,8 +77,26 @@ class HostClock:
     def hear_hello(self, hello: State) -> None: ...
 
     def latest_pose_tick(self) -> int | None:
-        """The latest tick an honest pose can carry now (None: the clock does not say)."""
-        return None
+        """The latest tick an honest pose can carry now (None: the clock does not say). The world sends a
+        tick's clock message before its poses, on the same link and in order: a pose beyond the newest tick
+        heard was forged (a few ticks' slack only under injected clock faults)."""
+        if self.inbox is None:
+            return None
+        self.hear()
+        newest = self.clock.newest
+        return newest if newest is None or self.inbox.fault is None else newest + AHEAD
+
+    def hear(self) -> None:
+        """The world's clock messages heard since."""
+        for _, clock in self.inbox.drain() if self.inbox is not None else ():
+            self.on_clock(clock)
+
+    def on_clock(self, clock: Tick) -> str | None:
+        """A clock message taken (None) or why not."""
+        why = self.clock.admit(clock, time.monotonic())
+        if why is not None and self.inbox is not None:
+            self.inbox.drops[why] += 1
+        return why
 
     def display_time(self) -> float | None:
         return None
@@ -107,6 +126,10 @@ class WallClock(HostClock):
         super().__init__(host)
         self.pose_period, self.collect = host.params.dt, host.config.batch_wait
         self.compute = 0.0  # wall seconds the last tick's step took (its command leaves that much later)
+        # the world's clock bounds the poses' ticks, as in lock-step: a forged pose of a tick or two ahead,
+        # taken first, would make the robot brake when the world's pose of that tick came
+        self.inbox = host.bus.subscribe(host.bus.keys.clock, Tick, pulled=True)
+        self.clock = Clock(host.params.dt)  # in real time it keeps the wall clock's pace
 
     def poses_arrived(self, poses: list[Pose], wall: float) -> None:
         if poses:
@@ -130,7 +153,6 @@ class LockStep(HostClock):
         self.collect = host.config.state_wait
         # read when a pose comes or a tick waits for its goal sets (the pose wakes the loop): pulled
         self.ticks = self.inbox = host.bus.subscribe(host.bus.keys.clock, Tick, pulled=True)
-        self.clock = Clock()  # the world's clock as heard
         self.named: dict[int, int] = {}  # tick -> the newest goal set the world named in it
         self.unnamed: dict[int, Goals] = {}  # goal sets heard that no tick has named yet
         self.greeted: dict[int, State] = {}  # hellos heard before the first tick, by robot
@@ -178,13 +200,6 @@ class LockStep(HostClock):
     def hear_hello(self, hello: State) -> None:
         if self.host.counts.ticks < 2:
             self.greeted[hello.robot] = hello
-
-    def latest_pose_tick(self) -> int | None:
-        """The world sends a tick's clock message before its poses, on the same link and in order: a pose
-        beyond the newest tick heard was forged (a few ticks' slack only under injected clock faults)."""
-        self.hear()
-        newest = self.clock.newest
-        return newest if newest is None or self.ticks.fault is None else newest + AHEAD
 
     def display_time(self) -> float | None:
         return None if self.clock.newest is None else self.clock.newest * self.host.params.dt
@@ -253,7 +268,7 @@ class LockStep(HostClock):
             if not known:
                 got_tick = self.ticks.get(timeout=wait)
                 if got_tick is not None:
-                    self._on_clock(got_tick[1])
+                    self.on_clock(got_tick[1])
                 continue
             got = host.inbox.goals.get(timeout=wait)
             if got is not None:
@@ -274,20 +289,15 @@ class LockStep(HostClock):
         once a later tick's came."""
         return self.ticks.fault is None or any(t > tick for t in self.named)
 
-    def hear(self) -> None:
-        for _, clock in self.ticks.drain():
-            self._on_clock(clock)
-
-    def _on_clock(self, clock: Tick) -> None:
+    def on_clock(self, clock: Tick) -> str | None:
         """A clock message names the goal set of its tick; its tick bounds the poses' (it may not skip ahead). Two
         of one tick naming different goal sets (one forged): the older is waited for, which the world has heard."""
-        why = self.clock.admit(clock, time.monotonic())
+        why = super().on_clock(clock)
         if why == STALE and clock.tick in self.named:
             self.named[clock.tick] = min(self.named[clock.tick], clock.goal_epoch)
-        if why is not None:
-            self.ticks.drops[why] += 1
-            return
-        self.named[clock.tick] = clock.goal_epoch
+        if why is None:
+            self.named[clock.tick] = clock.goal_epoch
+        return why
 
 
 def _at_most(tick: int, bound: int) -> int:

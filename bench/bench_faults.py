@@ -223,14 +223,14 @@ def speed_limit_main(argv: list[str] | None = None) -> int:
 
 
 # --- a faulty peer on the open bus (faulty-peer) ----------------------------------------------
-FAULTY_PEER_DOC = """A faulty peer on the open bus (issue 40): the same lock-step run once per damage mode, with
+FAULTY_PEER_DOC = """A faulty peer on the open bus (issue 40): the same run once per damage mode, with
 sim.emulators.faulty_peer attached to its router after start-up, and what it cost: contacts, the
 deepest overlap, whether (and when) the picture formed, and the messages dropped by reason.
 
     .venv/bin/python -m bench.bench_faults faulty-peer [--scene circle --robots 20 --seed 3 --duration 60]
-        [--modes none future-pose ...] [-k K] [--rate 350] [--start-after 0.5]
+        [--modes none future-pose ...] [-k K] [--rate 350] [--start-after 0.5] [--clock realtime]
 
-Each run is `pixelswarm run SCENE --clock lockstep -l tcp/127.0.0.1:PORT --no-video --no-plots`
+Each run is `pixelswarm run SCENE --clock CLOCK -l tcp/127.0.0.1:PORT --no-video --no-plots`
 on a free port; the peer connects to that port as a client once the router listens and damages
 from --start-after seconds after the run's first tick until the run ends. Runs go one after the
 other (never two at once). Progress on stderr, the markdown table on stdout.
@@ -245,7 +245,7 @@ def _say(text: str) -> None:
 
 
 def peer_run_command(args: argparse.Namespace, port: int, out: Path) -> list[str]:
-    cmd = [sys.executable, "-m", "sim.cli", "run", args.scene, "--clock", "lockstep", "--seed", str(args.seed)]
+    cmd = [sys.executable, "-m", "sim.cli", "run", args.scene, "--clock", args.clock, "--seed", str(args.seed)]
     if args.robots:
         cmd += ["--robots", str(args.robots)]
     if args.duration:
@@ -384,6 +384,7 @@ def faulty_peer_main(argv: list[str] | None = None) -> int:
     parser.add_argument("--modes", nargs="+", default=PEER_MODES, choices=PEER_MODES)
     parser.add_argument("-k", type=int, default=0, help="robots per agent process (0: the scene's)")
     parser.add_argument("--rate", type=float, default=350.0, help="the peer's damaged copies a second")
+    parser.add_argument("--clock", choices=("lockstep", "realtime"), default="lockstep", help="the runs' clock")
     parser.add_argument("--start-after", type=float, default=0.5, help="s after the first tick the damage begins")
     parser.add_argument("--peer-seed", type=int, default=0)
     parser.add_argument("--damage", help="the malformed modes' damages (the peer's --damage; default all)")
