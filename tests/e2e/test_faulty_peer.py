@@ -43,8 +43,8 @@ pytestmark = pytest.mark.timeout(RUN_TIMEOUT + 120)  # a test that makes a share
 CODEC_REASONS = {"truncated", "version", "kind", "checksum", "non-finite", "invalid"}
 # and what a receiver refuses of the well formed (transport.plausible, transport.bus)
 REFUSED = {FUTURE, STALE, INCONSISTENT, "misaddressed", CONFLICTING}
-# it forms in 21-25 s under the peer here, and ends a second later; more copies reach each tick of a slower
-# machine (the peer's rate is per wall second), so it is given the 40 s bench_faults faulty-peer gives it
+# a slower machine's ticks each take more of the peer's copies (its rate is per wall second), and the circle
+# forms later: 40 s, as bench_faults faulty-peer gives it (the run ends once it has formed)
 CIRCLE = ("circle", "--robots", "20", "--clock", "lockstep", "--seed", "3", "--duration", "40")
 # s each image of the paper sequence is held here, not the shipped 30: in this seed's run the first two
 # form 8.1 and 9.4 s after they are shown (the central engine's run of it, the same run), so each is
