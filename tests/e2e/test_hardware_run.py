@@ -477,9 +477,10 @@ def test_the_hardware_node_stops_a_robot_whose_pose_is_lost_or_whose_commands_ce
         shown_1 = [pose.tick for _, pose in seen_1.drain() if pose.tick != BEFORE_START]
     stats = node.stats()["hardware"]["robots"]
 
-    # Robot 1: stopped once its pose was older than the timeout (plus a period, plus a mocap frame) ...
+    # Robot 1: stopped once its pose was older than the timeout (plus a period, the node's next look at
+    # safety POLL later, and a mocap frame) ...
     log = logs[1]
-    by_then = log[log[:, 0] <= lost_at + TIMEOUT + PERIOD + 1 / MOCAP_RATE]
+    by_then = log[log[:, 0] <= lost_at + TIMEOUT + PERIOD + POLL + 1 / MOCAP_RATE]
     assert by_then[-1, 1:].tolist() == [0, 0] and len(moving_commands(by_then)) > 5
     assert not np.any(log[log[:, 0] > by_then[-1, 0], 1:])  # ... and never driven blind
     assert stats[1]["stops"]["pose_lost"] == 1
@@ -488,7 +489,7 @@ def test_the_hardware_node_stops_a_robot_whose_pose_is_lost_or_whose_commands_ce
     # Robot 0: stopped when its commands ceased for the timeout.
     log = logs[0]
     assert len(moving_commands(log[log[:, 0] > lost_at])) > 5  # it went on while robot 1 was lost
-    by_then = log[log[:, 0] <= quiet_at + TIMEOUT + PERIOD]
+    by_then = log[log[:, 0] <= quiet_at + TIMEOUT + PERIOD + POLL]
     assert by_then[-1, 1:].tolist() == [0, 0]
     assert stats[0]["stops"]["command_timeout"] == 1
     assert unreached == []
