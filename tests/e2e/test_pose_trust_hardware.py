@@ -14,10 +14,7 @@ import json
 import math
 import time
 import tomllib
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -214,29 +211,6 @@ class StillPoses:
     def close(self) -> None: ...
 
 
-STILL_POSES = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]])  # where StillPoses keeps the two robots
-
-
-@contextmanager
-def still_node(tmp_path: Path) -> Iterator[tuple[Any, StillDrive, Callable[..., None]]]:
-    """A hardware node of two still robots whose agents are live, and ``command(tick, speed, robot=0)``,
-    which hands it a robot's wheel command of that tick as its agent would send it."""
-    router = loopback_router()
-    scene = load_scene(str(scene_file(tmp_path, robots=2)), clock="realtime")
-    drive = StillDrive()
-    with open_session(router), Bus(client_of(router), name="hardware") as bus:
-        node = hardware_node(bus, scene, drive, StillPoses(2), timeout=0.3)
-        node.live[:] = node.ever_live[:] = True
-        node.backend.sense(0.0)
-
-        def command(tick: int, speed: float, robot: int = 0) -> None:
-            node.tick = max(node.tick, tick)
-            cmd = Command(robot, tick, tick * node.dt, Command.WHEELS, speed, speed, 0, 0, 0)
-            node.take_commands((bus.keys.cmd(robot), cmd))
-
-        yield node, drive, command
-
-
 def test_a_command_for_a_tick_not_yet_published_or_stamped_off_its_tick_is_dropped_and_locks_out_nothing(tmp_path):
     router = loopback_router()
     scene = load_scene(str(scene_file(tmp_path, robots=2)), clock="realtime")
@@ -272,8 +246,20 @@ def test_a_robot_commanded_two_ways_at_one_tick_stops_and_stands_until_its_comma
     """Whoever holds a robot's key (stolen, or a second agent) can send its commands beside its agent's: at
     some tick the two differ, and which to believe is unknown. The robot stops, its body is published as a
     standing obstacle, and commands move it again once they have agreed for stale_after."""
-    with still_node(tmp_path) as (node, drive, command):
-        dt, poses = node.dt, STILL_POSES
+    router = loopback_router()
+    scene = load_scene(str(scene_file(tmp_path, robots=2)), clock="realtime")
+    drive = StillDrive()
+    with open_session(router), Bus(client_of(router), name="hardware") as bus:
+        node = hardware_node(bus, scene, drive, StillPoses(2), timeout=0.3)
+        node.live[:] = node.ever_live[:] = True
+        node.backend.sense(0.0)
+        dt, poses = node.dt, np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]])
+
+        def command(tick: int, speed: float, robot: int = 0) -> None:
+            node.tick = max(node.tick, tick)
+            cmd = Command(robot, tick, tick * dt, Command.WHEELS, speed, speed, 0, 0, 0)
+            node.take_commands((bus.keys.cmd(robot), cmd))
+
         command(50, 0.05)  # its agent's
         command(50, 0.05)  # a copy of it: late, nothing more
         command(50, 0.1)  # another controller's for the same tick
@@ -300,8 +286,19 @@ def test_a_late_copy_of_a_robots_command_of_another_tick_is_no_second_controller
     command of another tick, so it is no second controller: the robot drives on (a lock-step circle under the
     peer had most robots stopped so once its world ran slower than the peer's restarted clock). A late
     command that copies none of the robot's is a second controller's: the robot stops."""
-    with still_node(tmp_path) as (node, drive, command):
-        dt, poses = node.dt, STILL_POSES
+    router = loopback_router()
+    scene = load_scene(str(scene_file(tmp_path, robots=2)), clock="realtime")
+    drive = StillDrive()
+    with open_session(router), Bus(client_of(router), name="hardware") as bus:
+        node = hardware_node(bus, scene, drive, StillPoses(2), timeout=0.3)
+        node.live[:] = node.ever_live[:] = True
+        node.backend.sense(0.0)
+        dt, poses = node.dt, np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]])
+
+        def command(tick: int, speed: float) -> None:
+            node.tick = max(node.tick, tick)
+            node.take_commands((bus.keys.cmd(0), Command(0, tick, tick * dt, Command.WHEELS, speed, speed, 0, 0, 0)))
+
         for tick, speed in ((50, 0.05), (51, 0.06), (52, 0.07)):
             command(tick, speed)
         command(51, 0.07)  # tick 52's command under tick 51
