@@ -131,6 +131,11 @@ class RobotsSaid:
             state_tick=np.full(robots, np.iinfo(np.int64).min),
         )
 
+    def size_once(self, robot: int, radius: float) -> None:
+        """A robot's size from a state that says nothing else yet (a hello, or one before its tick's truth)."""
+        if np.isnan(self.radius[robot]):
+            self.radius[robot] = radius
+
 
 @dataclass
 class GoalSetsHeard:
@@ -383,15 +388,14 @@ class Recorder:
         if r >= self.n:
             return
         if s.tick == BEFORE_START:  # a hello before the first tick: its size, no goal yet
-            said.radius[r] = s.radius if np.isnan(said.radius[r]) else said.radius[r]
+            said.size_once(r, s.radius)
             return
         row = world.row_of_tick.get(s.tick)
         if s.tick > world.latest_tick + RECORD_AHEAD or s.tick == said.state_tick[r]:
             return  # from the future, or a copy (the first heard is the robot's)
         if s.tick > world.latest_tick:
-            # a forged copy of a later tick taken now would hide the robot's states until that tick; its
-            # size is taken as a hello's is
-            said.radius[r] = s.radius if np.isnan(said.radius[r]) else said.radius[r]
+            # a forged copy of a later tick taken now would hide the robot's states until that tick
+            said.size_once(r, s.radius)
             world.early.setdefault((s.tick, r), s)
             return
         if world.dt and not stamp_agrees(s.tick, s.stamp, world.dt):
