@@ -40,7 +40,7 @@ AUCTION_PATIENCE, GOAL_SET_PATIENCE, FIRST_TICK_PATIENCE, FAIL_PATIENCE = 60.0, 
 STOP_REASONS = ("agent_lost", "pose_lost", "command_timeout")  # the watchdog's, in the order it asks
 COMMAND_DROPS = (FUTURE, INCONSISTENT, MISADDRESSED, CONFLICTING)
 TWO_WAYS = "commanded-two-ways"  # the event of a robot's first conflicting command after it was trusted
-COMMANDS_KEPT = 8  # ticks of each robot's first commands remembered, to see a second that differs
+COMMANDS_KEPT = 8  # ticks of each robot's first commands remembered, to see a second that differs (or copies one)
 CONTACT_KINDS = {"robot": 0, "obstacle": 1, "wall": 2}
 
 
@@ -344,19 +344,26 @@ class BodyNode:
     def _commanded_two_ways(self, cmd: Command) -> bool:
         """Whether ``cmd`` differs from the robot's first command of its tick: one agent sends one command a
         tick, so another controller holds its key (stolen, or a second agent). Which one to believe is
-        unknown: the robot stops, and stands until its commands have agreed for ``stale_after``."""
+        unknown: the robot stops, and stands until its commands have agreed for ``stale_after``. A braking
+        second only stops it (its agent taking back a command made from a doubted pose, agent.runtime), and a
+        late copy of the robot's own command of another tick is a replay, which drives nothing."""
         i, recent = cmd.robot, self.first_cmd[cmd.robot]
         first = recent.setdefault(cmd.tick, cmd)
         if len(recent) > COMMANDS_KEPT:
             del recent[min(recent)]
         if first is cmd or first == cmd:  # the first of its tick (the common case), or a copy of it
             return False
-        if self.tick >= self.distrusted_until[i]:  # the launcher says so as it happens
-            self.bus.publish(self.bus.keys.event, Event({"kind": TWO_WAYS, "robot": i, "t": self.tick * self.dt}))
-        self.distrusted_until[i] = self.tick + self.distrust_ticks
+        braking = (cmd.a, cmd.b) == (0.0, 0.0)
+        if not braking and cmd.tick <= self.last_cmd_tick[i] and _copies_another_tick(cmd, recent):
+            return False
         if np.isfinite(self.valid_until[i]):
             self.backend.stop([i])
             self.valid_until[i] = -np.inf
+        if braking:
+            return True
+        if self.tick >= self.distrusted_until[i]:  # the launcher says so as it happens
+            self.bus.publish(self.bus.keys.event, Event({"kind": TWO_WAYS, "robot": i, "t": self.tick * self.dt}))
+        self.distrusted_until[i] = self.tick + self.distrust_ticks
         return True
 
     def _watchdog(self, span: float) -> int:
@@ -492,3 +499,9 @@ class BodyNode:
             "contacts": [asdict(c) for c in backend.contacts],  # sim.bodies.world.Contact's fields
             **backend.report(self),
         }
+
+
+def _copies_another_tick(cmd: Command, firsts: dict[int, Command]) -> bool:
+    """Whether ``cmd`` says what the robot's first command of another tick said (a copy under a moved tick)."""
+    said = (cmd.mode, cmd.a, cmd.b, cmd.r, cmd.g, cmd.bl)
+    return any(t != cmd.tick and (c.mode, c.a, c.b, c.r, c.g, c.bl) == said for t, c in firsts.items())

@@ -280,6 +280,64 @@ def test_a_robot_commanded_two_ways_at_one_tick_stops_and_stands_until_its_comma
     assert stats["dropped"] == {"conflicting": 1} and stats["commanded_two_ways"] == [0]
 
 
+def test_a_late_copy_of_a_robots_command_of_another_tick_is_no_second_controller(tmp_path):
+    """A faulty peer re-sends a robot's command under the tick of a sender restarted a while ago: a tick the
+    robot's agent has answered, with another command. Late, it drives nothing, and it copies the agent's own
+    command of another tick, so it is no second controller: the robot drives on (a lock-step circle under the
+    peer had most robots stopped so once its world ran slower than the peer's restarted clock). A late
+    command that copies none of the robot's is a second controller's, and a late braking one its agent taking
+    back a command made from a doubted pose, though the robot stood at another tick: either way the robot stops."""
+    router = loopback_router()
+    scene = load_scene(str(scene_file(tmp_path, robots=2)), clock="realtime")
+    drive = StillDrive()
+    with open_session(router), Bus(client_of(router), name="hardware") as bus:
+        node = hardware_node(bus, scene, drive, StillPoses(2), timeout=0.3)
+        node.live[:] = node.ever_live[:] = True
+        node.backend.sense(0.0)
+        dt, poses = node.dt, np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]])
+
+        def command(tick: int, speed: float) -> None:
+            node.tick = max(node.tick, tick)
+            node.take_commands((bus.keys.cmd(0), Command(0, tick, tick * dt, Command.WHEELS, speed, speed, 0, 0, 0)))
+
+        for tick, speed in ((50, 0.05), (51, 0.06), (52, 0.07)):
+            command(tick, speed)
+        command(51, 0.07)  # tick 52's command under tick 51
+        assert node._standing_bodies(poses, 52 * dt) == [] and drive.sent[-1] == ([0], [0.07], [0.07])
+        command(51, 0.2)  # said by no command of the robot
+        assert drive.sent[-1] == ([0], [0.0], [0.0]) and [s.robot for s in node._standing_bodies(poses, 52 * dt)] == [0]
+        stats = node.stats()
+    assert stats["dropped"] == {"conflicting": 1} and stats["commanded_two_ways"] == [0]
+    assert stats["late_commands"] == 1
+
+
+def test_a_late_braking_command_stops_its_robot_without_standing_it(tmp_path):
+    """An agent takes back the command it made from a doubted pose with a braking one of the same tick. The
+    robot braked at an earlier tick, so the take-back says what that tick's command said; it is still no
+    replay to ignore: the robot stops. Stopping is what it asks, of whoever sent it, so its next command
+    drives it again (a faulty peer's replayed stops, under a restarted clock, held a circle still so)."""
+    router = loopback_router()
+    scene = load_scene(str(scene_file(tmp_path, robots=2)), clock="realtime")
+    drive = StillDrive()
+    with open_session(router), Bus(client_of(router), name="hardware") as bus:
+        node = hardware_node(bus, scene, drive, StillPoses(2), timeout=0.3)
+        node.live[:] = node.ever_live[:] = True
+        node.backend.sense(0.0)
+        dt, poses = node.dt, np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]])
+
+        def command(tick: int, speed: float) -> None:
+            node.tick = max(node.tick, tick)
+            node.take_commands((bus.keys.cmd(0), Command(0, tick, tick * dt, Command.WHEELS, speed, speed, 0, 0, 0)))
+
+        for tick, speed in ((50, 0.0), (51, 0.06), (51, 0.0)):
+            command(tick, speed)
+        assert drive.sent[-2:] == [([0], [0.06], [0.06]), ([0], [0.0], [0.0])]
+        command(52, 0.07)
+        assert drive.sent[-1] == ([0], [0.07], [0.07]) and node._standing_bodies(poses, 52 * dt) == []
+        stats = node.stats()
+    assert stats["dropped"] == {"conflicting": 1} and stats["commanded_two_ways"] == [0]
+
+
 # --- end to end: the restarted tracker -----------------------------------------------------------
 
 
