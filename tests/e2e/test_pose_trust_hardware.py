@@ -10,11 +10,14 @@ bodies' TRUE poses.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import time
 import tomllib
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -242,10 +245,13 @@ def test_a_command_for_a_tick_not_yet_published_or_stamped_off_its_tick_is_dropp
     assert stats["commanded_two_ways"] == []
 
 
-def test_a_robot_commanded_two_ways_at_one_tick_stops_and_stands_until_its_commands_agree(tmp_path):
-    """Whoever holds a robot's key (stolen, or a second agent) can send its commands beside its agent's: at
-    some tick the two differ, and which to believe is unknown. The robot stops, its body is published as a
-    standing obstacle, and commands move it again once they have agreed for stale_after."""
+POSES = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]])  # two robots standing apart, as the tracker sees them
+
+
+@contextlib.contextmanager
+def commanded(tmp_path) -> Iterator[tuple[Any, Callable[..., None], StillDrive]]:
+    """A hardware node of two live robots at POSES, and ``command(tick, speed, robot=0)``: the command of
+    that tick, wheels at ``speed``, on the robot's own key, taken with the node at that tick or later."""
     router = loopback_router()
     scene = load_scene(str(scene_file(tmp_path, robots=2)), clock="realtime")
     drive = StillDrive()
@@ -253,26 +259,37 @@ def test_a_robot_commanded_two_ways_at_one_tick_stops_and_stands_until_its_comma
         node = hardware_node(bus, scene, drive, StillPoses(2), timeout=0.3)
         node.live[:] = node.ever_live[:] = True
         node.backend.sense(0.0)
-        dt, poses = node.dt, np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]])
 
         def command(tick: int, speed: float, robot: int = 0) -> None:
             node.tick = max(node.tick, tick)
-            cmd = Command(robot, tick, tick * dt, Command.WHEELS, speed, speed, 0, 0, 0)
+            cmd = Command(robot, tick, tick * node.dt, Command.WHEELS, speed, speed, 0, 0, 0)
             node.take_commands((bus.keys.cmd(robot), cmd))
 
+        yield node, command, drive
+
+
+def standing(node) -> list[int]:
+    """The robots the node publishes as standing obstacles at its tick."""
+    return [s.robot for s in node._standing_bodies(POSES, node.tick * node.dt)]
+
+
+def test_a_robot_commanded_two_ways_at_one_tick_stops_and_stands_until_its_commands_agree(tmp_path):
+    """Whoever holds a robot's key (stolen, or a second agent) can send its commands beside its agent's: at
+    some tick the two differ, and which to believe is unknown. The robot stops, its body is published as a
+    standing obstacle, and commands move it again once they have agreed for stale_after."""
+    with commanded(tmp_path) as (node, command, drive):
         command(50, 0.05)  # its agent's
         command(50, 0.05)  # a copy of it: late, nothing more
         command(50, 0.1)  # another controller's for the same tick
         assert drive.sent == [([0], [0.05], [0.05]), ([0], [0.0], [0.0])]
-        standing = node._standing_bodies(poses, 50 * dt)
-        assert [s.robot for s in standing] == [0] and standing[0].flags & State.DYNAMIC
+        assert standing(node) == [0] and node._standing_bodies(POSES, 0.0)[0].flags & State.DYNAMIC
         command(50, 0.05, robot=1)  # the other robot is driven as before
-        stand = round(node.params.stale_after / dt)
+        stand = round(node.params.stale_after / node.dt)
         for tick in range(51, 50 + stand):  # agreeing again, but not for long enough
             command(tick, 0.05)
         assert drive.sent[2:] == [([1], [0.05], [0.05])]
         command(50 + stand, 0.05)
-        assert drive.sent[3:] == [([0], [0.05], [0.05])] and node._standing_bodies(poses, node.tick * dt) == []
+        assert drive.sent[3:] == [([0], [0.05], [0.05])] and standing(node) == []
         command(49, 0.2)  # a tick forgotten since: late, not a conflict
         stats = node.stats()
     robot = stats["hardware"]["robots"][0]
@@ -285,27 +302,14 @@ def test_a_late_copy_of_a_robots_command_of_another_tick_is_no_second_controller
     robot's agent has answered, with another command. Late, it drives nothing, and it copies the agent's own
     command of another tick, so it is no second controller: the robot drives on (a lock-step circle under the
     peer had most robots stopped so once its world ran slower than the peer's restarted clock). A late
-    command that copies none of the robot's is a second controller's, and a late braking one its agent taking
-    back a command made from a doubted pose, though the robot stood at another tick: either way the robot stops."""
-    router = loopback_router()
-    scene = load_scene(str(scene_file(tmp_path, robots=2)), clock="realtime")
-    drive = StillDrive()
-    with open_session(router), Bus(client_of(router), name="hardware") as bus:
-        node = hardware_node(bus, scene, drive, StillPoses(2), timeout=0.3)
-        node.live[:] = node.ever_live[:] = True
-        node.backend.sense(0.0)
-        dt, poses = node.dt, np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]])
-
-        def command(tick: int, speed: float) -> None:
-            node.tick = max(node.tick, tick)
-            node.take_commands((bus.keys.cmd(0), Command(0, tick, tick * dt, Command.WHEELS, speed, speed, 0, 0, 0)))
-
+    command that copies none of the robot's is a second controller's: the robot stops and stands."""
+    with commanded(tmp_path) as (node, command, drive):
         for tick, speed in ((50, 0.05), (51, 0.06), (52, 0.07)):
             command(tick, speed)
         command(51, 0.07)  # tick 52's command under tick 51
-        assert node._standing_bodies(poses, 52 * dt) == [] and drive.sent[-1] == ([0], [0.07], [0.07])
+        assert standing(node) == [] and drive.sent[-1] == ([0], [0.07], [0.07])
         command(51, 0.2)  # said by no command of the robot
-        assert drive.sent[-1] == ([0], [0.0], [0.0]) and [s.robot for s in node._standing_bodies(poses, 52 * dt)] == [0]
+        assert drive.sent[-1] == ([0], [0.0], [0.0]) and standing(node) == [0]
         stats = node.stats()
     assert stats["dropped"] == {"conflicting": 1} and stats["commanded_two_ways"] == [0]
     assert stats["late_commands"] == 1
@@ -316,24 +320,12 @@ def test_a_late_braking_command_stops_its_robot_without_standing_it(tmp_path):
     robot braked at an earlier tick, so the take-back says what that tick's command said; it is still no
     replay to ignore: the robot stops. Stopping is what it asks, of whoever sent it, so its next command
     drives it again (a faulty peer's replayed stops, under a restarted clock, held a circle still so)."""
-    router = loopback_router()
-    scene = load_scene(str(scene_file(tmp_path, robots=2)), clock="realtime")
-    drive = StillDrive()
-    with open_session(router), Bus(client_of(router), name="hardware") as bus:
-        node = hardware_node(bus, scene, drive, StillPoses(2), timeout=0.3)
-        node.live[:] = node.ever_live[:] = True
-        node.backend.sense(0.0)
-        dt, poses = node.dt, np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]])
-
-        def command(tick: int, speed: float) -> None:
-            node.tick = max(node.tick, tick)
-            node.take_commands((bus.keys.cmd(0), Command(0, tick, tick * dt, Command.WHEELS, speed, speed, 0, 0, 0)))
-
+    with commanded(tmp_path) as (node, command, drive):
         for tick, speed in ((50, 0.0), (51, 0.06), (51, 0.0)):
             command(tick, speed)
         assert drive.sent[-2:] == [([0], [0.06], [0.06]), ([0], [0.0], [0.0])]
         command(52, 0.07)
-        assert drive.sent[-1] == ([0], [0.07], [0.07]) and node._standing_bodies(poses, 52 * dt) == []
+        assert drive.sent[-1] == ([0], [0.07], [0.07]) and standing(node) == []
         stats = node.stats()
     assert stats["dropped"] == {"conflicting": 1} and stats["commanded_two_ways"] == [0]
 
