@@ -312,13 +312,21 @@ def test_a_pose_forged_for_the_next_tick_makes_its_robot_stand_not_collide(tmp_p
     assert metrics["missed_ticks"] <= 5, "robot 3 answered the ticks it doubted (braking)"
 
 
+@pytest.fixture(scope="module")
+def circle_alone(shared_runs) -> dict:
+    """The lock-step circle the forgers below join, run once without them: the run theirs must equal."""
+    where = shared_runs.once("faulty-peer-circle-alone", lambda w: _circle_beside(w / "run", 3, 20, None))
+    return json.loads((where / "run" / "metrics.json").read_text())
+
+
 @pytest.mark.slow
-def test_a_clock_forged_for_the_next_tick_naming_an_unknown_goal_set_does_not_hold_the_swarm(tmp_path):
+@pytest.mark.xdist_group("faulty-peer-circle-alone")
+def test_a_clock_forged_for_the_next_tick_naming_an_unknown_goal_set_does_not_hold_the_swarm(tmp_path, circle_alone):
     """At each tick a forger sends the next tick's clock, naming goal set 99, before the world's: the agents took
     the forged one and dropped the world's as stale, then waited 10 s a tick for goal set 99 (4 minutes and
     1160 missed ticks for a 20 s circle). A goal set far past the newest heard is not waited for, and of two
     clocks of one tick the older goal set counts: the run is the run without the forger."""
-    alone, _, _ = _circle_beside(tmp_path / "alone", 3, 20, None)
+    alone = circle_alone
     forged, forger, _ = _circle_beside(tmp_path / "forged", 3, 20, lambda at: NextTick(at, None, goal_epoch=99))
     assert forger.sent > 50
     for metrics in (alone, forged):
@@ -328,12 +336,13 @@ def test_a_clock_forged_for_the_next_tick_naming_an_unknown_goal_set_does_not_ho
 
 
 @pytest.mark.slow
-def test_forged_and_malformed_reports_on_the_bus_neither_end_nor_break_a_run(tmp_path):
+@pytest.mark.xdist_group("faulty-peer-circle-alone")
+def test_forged_and_malformed_reports_on_the_bus_neither_end_nor_break_a_run(tmp_path, circle_alone):
     """A world-done event on the bus ended the run at once with its figures (1 command applied); one with a
     field of the wrong type, or an agent's stats with robots 7, crashed the launcher with a traceback and no
     metrics.json. The world's report is the one it printed as it exited; agents' stats of the wrong shape count
     for nothing: the run is the run without the forger."""
-    alone, _, _ = _circle_beside(tmp_path / "alone", 3, 20, None)
+    alone = circle_alone
     forged, reports, err = _circle_beside(tmp_path / "forged", 3, 20, FalseReports)
     assert reports.sent > 3 and b"Traceback" not in err
     assert forged["converged"] and forged["time_to_converge_s"] == alone["time_to_converge_s"]
