@@ -621,8 +621,7 @@ class Launcher:
             if e.get("kind") == TWO_WAYS and isinstance(robot, int) and isinstance(t, float) and math.isfinite(t):
                 _warn(
                     f"pixelswarm: t={t:.1f} s: robot {robot} got two different commands for one tick "
-                    "(a second controller on its key, or its agent took back a command made on a forged pose): "
-                    "it stands until they agree"
+                    "(a second controller on its key): it stands until they agree"
                 )
 
     def _ends_on_convergence(self, since: float, now: float) -> bool:
