@@ -346,7 +346,8 @@ class BodyNode:
         tick, so another controller holds its key (stolen, or a second agent). Which one to believe is
         unknown: the robot stops, and stands until its commands have agreed for ``stale_after``. A braking
         second only stops it (its agent taking back a command made from a doubted pose, agent.runtime), and a
-        late copy of the robot's own command of another tick is a replay, which drives nothing."""
+        copy of the robot's own command of another tick, under a past tick it answered, is a replay, which drives
+        nothing."""
         i, recent = cmd.robot, self.first_cmd[cmd.robot]
         first = recent.setdefault(cmd.tick, cmd)
         if len(recent) > COMMANDS_KEPT:
@@ -354,7 +355,10 @@ class BodyNode:
         if first is cmd or first == cmd:  # the first of its tick (the common case), or a copy of it
             return False
         braking = (cmd.a, cmd.b) == (0.0, 0.0)
-        if not braking and cmd.tick <= self.last_cmd_tick[i] and _copies_another_tick(cmd, recent):
+        # a replay's tick is past and answered; at the tick under way a rival may have come first, and a robot
+        # driving straight repeats its command: that repeat is its agent's, caught, not a replay
+        late = self.last_cmd_tick[i] >= cmd.tick and cmd.tick < self.tick
+        if not braking and late and _copies_another_tick(cmd, recent):
             return False
         if np.isfinite(self.valid_until[i]):
             self.backend.stop([i])

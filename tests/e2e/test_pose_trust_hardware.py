@@ -315,6 +315,19 @@ def test_a_late_copy_of_a_robots_command_of_another_tick_is_no_second_controller
     assert stats["late_commands"] == 1
 
 
+def test_a_rival_first_at_the_tick_under_way_is_caught_though_the_agent_repeats_a_command(tmp_path):
+    """A rival sends its command for the tick under way before the agent does. The agent's command then comes
+    second, and a robot driving straight says what it said at the tick before: a copy of another tick, but of
+    the tick under way, so no replay (a replay's tick is past). The robot stops and stands."""
+    with commanded(tmp_path) as (node, command, drive):
+        command(50, 0.05)  # its agent's
+        command(51, 0.2)  # the rival's, first at tick 51
+        command(51, 0.05)  # its agent's, as at tick 50
+        assert drive.sent[-1] == ([0], [0.0], [0.0]) and standing(node) == [0]
+        stats = node.stats()
+    assert stats["dropped"] == {"conflicting": 1} and stats["commanded_two_ways"] == [0]
+
+
 def test_a_late_braking_command_stops_its_robot_without_standing_it(tmp_path):
     """An agent takes back the command it made from a doubted pose with a braking one of the same tick. The
     robot braked at an earlier tick, so the take-back says what that tick's command said; it is still no
