@@ -355,10 +355,9 @@ class BodyNode:
         if first is cmd or first == cmd:  # the first of its tick (the common case), or a copy of it
             return False
         braking = (cmd.a, cmd.b) == (0.0, 0.0)
-        # a replay's tick is past and answered; at the tick under way a rival may have come first, and a robot
-        # driving straight repeats its command: that repeat is its agent's, caught, not a replay
-        late = self.last_cmd_tick[i] >= cmd.tick and cmd.tick < self.tick
-        if not braking and late and _copies_another_tick(cmd, recent):
+        # a replay's tick is past (a second command's tick was answered by its first); at the tick under way a
+        # rival may have come first, and a robot driving straight repeats its command: its agent's, not a replay
+        if not braking and cmd.tick < self.tick and _copies_another_tick(cmd, recent):
             return False
         if np.isfinite(self.valid_until[i]):
             self.backend.stop([i])
