@@ -16,7 +16,7 @@ import os
 import signal
 import time
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Protocol
 
 import numpy as np
@@ -505,6 +505,6 @@ class BodyNode:
 
 
 def _copies_another_tick(cmd: Command, firsts: dict[int, Command]) -> bool:
-    """Whether ``cmd`` says what the robot's first command of another tick said (a copy under a moved tick)."""
-    said = (cmd.mode, cmd.a, cmd.b, cmd.r, cmd.g, cmd.bl)
-    return any(t != cmd.tick and (c.mode, c.a, c.b, c.r, c.g, c.bl) == said for t, c in firsts.items())
+    """Whether ``cmd`` says what the robot's first command of another tick said (a copy under a moved tick):
+    equal but for its tick and stamp, by the command's own equality, so a field added to it counts too."""
+    return any(t != cmd.tick and replace(c, tick=cmd.tick, stamp=cmd.stamp) == cmd for t, c in firsts.items())
