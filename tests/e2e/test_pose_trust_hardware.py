@@ -282,7 +282,7 @@ def test_a_robot_commanded_two_ways_at_one_tick_stops_and_stands_until_its_comma
         command(50, 0.05)  # a copy of it: late, nothing more
         command(50, 0.1)  # another controller's for the same tick
         assert drive.sent == [([0], [0.05], [0.05]), ([0], [0.0], [0.0])]
-        assert standing(node) == [0] and node._standing_bodies(POSES, 0.0)[0].flags & State.DYNAMIC
+        assert standing(node) == [0] and node._standing_bodies(POSES, node.tick * node.dt)[0].flags & State.DYNAMIC
         command(50, 0.05, robot=1)  # the other robot is driven as before
         stand = round(node.params.stale_after / node.dt)
         for tick in range(51, 50 + stand):  # agreeing again, but not for long enough
