@@ -1,12 +1,7 @@
 """Goal generation for animations (paper 6.1): one goal set G_f per keyframe I_f, all in one arena K_r.
-
-Regions of consecutive frames are paired on colour, centroid shift and area ratio together; G_{f-1} of a
-region, moved by its T_i^f and M_i^f and scaled with the area per goal, starts frame f's Lloyd iterations,
-unless it matches poorly or the region count changed (then fresh random samples, 4.2). T_i^f is the centroid
-shift; M_i^f the best circular shift of the border signatures r(phi) (FFT cross-correlation, smallest turn on
-ties, refined by ICP), whose normalised correlation is the paper's "sufficient correlation". Angles:
-counter-clockwise, y up.
-"""
+Regions of consecutive frames are paired (match_regions); G_{f-1} of a region, moved by T_i^f and M_i^f
+(estimate_motion), starts frame f's Lloyd iterations unless it matches poorly or the region count changed
+(then fresh random samples, 4.2). Angles: counter-clockwise, y up."""
 
 from __future__ import annotations
 
@@ -119,7 +114,7 @@ def fit_count(px: np.ndarray, n: int, rows: np.ndarray, cols: np.ndarray) -> np.
     """R_i's N_i initial samples from its moved goals (pixels): those outside R_i dropped (on its border they
     would crowd), surplus ones one of the closest pair at a time, missing ones by farthest-point insertion."""
     pts = np.asarray(px, float).reshape(-1, 2)
-    pts = pts[in_region(pts, rows, cols)] if len(pts) else pts
+    pts = pts[in_region(pts, rows, cols)]
     while len(pts) > n:
         d, _ = cKDTree(pts).query(pts, k=2)
         pts = np.delete(pts, int(np.argmin(d[:, 1])), axis=0)

@@ -70,8 +70,7 @@ def save_resolved(scene: Scene, folder: Path, robot: dict[str, Any] | None = Non
         arrays: dict[str, np.ndarray] = {"arena": np.array(scene.image_goals.arena)}
         for k in range(len(scene.steps)):
             for n in counts:
-                goals, colors = scene.image_goals.goal_set(k, n)
-                arrays[f"goals_{k}_{n}"], arrays[f"colors_{k}_{n}"] = np.asarray(goals), np.asarray(colors)
+                arrays[f"goals_{k}_{n}"], arrays[f"colors_{k}_{n}"] = scene.image_goals.goal_set(k, n)
         np.savez(folder / GOAL_SETS_FILE, **arrays)  # type: ignore[arg-type]  # numpy types **kwds as its allow_pickle
         image = {"arena": float(scene.image_goals.arena), "counts": counts, "file": GOAL_SETS_FILE}
     record = {

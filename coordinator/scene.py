@@ -347,8 +347,7 @@ def goal_pipeline(scene: Scene, arena: float | None = None) -> StepGoals | Frame
 
 
 def initial_poses(layout: dict[str, Any], n: int, radius: float, seed: int, source: str = "scene") -> np.ndarray:
-    """Initial poses (N,3) of a layout; headings face the arena centre for circle and rows (``source``: the scene
-    file, which the path of a layout of kind "file" is relative to)."""
+    """Initial poses (N,3) of a layout (``source``: the scene file); headings face the centre for circle and rows."""
     kind = _kind_keys(layout, LAYOUT_KEYS, "grid", "layout")
     for key in ("spacing", "radius", "offset", "gap"):
         if key in layout:
@@ -414,8 +413,7 @@ def _scattered(layout: dict[str, Any], n: int, spacing: float, seed: int) -> np.
 
 
 def _listed(layout: dict[str, Any], n: int, source: str) -> np.ndarray:
-    """The first N poses the layout lists (kind 'list') or a CSV file of x,y[,theta] holds ('file', its
-    path relative to the scene file, as images are)."""
+    """The first N poses the layout lists (kind 'list') or a CSV file (relative to the scene) of x,y[,theta] holds."""
     if layout.get("kind") == "list":
         return _rows(layout.get("poses"), "x, y, theta", n, "layout poses")[:n]
     path = layout.get("path")
@@ -546,9 +544,8 @@ def _fit_arena(scene: Scene, spec: Any) -> None:
     pairs = cKDTree(xy).query_pairs(2 * r, output_type="ndarray")
     apart = np.hypot(*(xy[pairs[:, 0]] - xy[pairs[:, 1]]).T)
     if (apart < 2 * r).any():
-        closest = float(apart.min())
         raise GoalError(
-            f"robots start overlapping (closest centres {closest:.3f} m, "
+            f"robots start overlapping (closest centres {float(apart.min()):.3f} m, "
             f"diameter {2 * r:.3f} m); increase layout spacing"
         )
 

@@ -243,9 +243,7 @@ class Coordinator:
         self.shown = (step, robots)
         self.roster.restarted.clear()
         timing, motion = step_timing(self.scene, step, self.clock.t), step_motion(self.scene, step)
-        self.current = Goals(
-            self.epoch, 0, np.asarray(goals), np.asarray(colors), np.array(sorted(robots)), timing, motion
-        )
+        self.current = Goals(self.epoch, 0, goals, colors, np.array(sorted(robots)), timing, motion)
         # who takes part, in which life: every host reads the same, however its liveliness events come
         self.current.lives = Lives(np.array([life_number(self.roster.lives.get(r, "")) for r in sorted(robots)]))
         if before is not None and not before.per_robot and len(before.positions) == len(goals):

@@ -69,12 +69,12 @@ class _Assigner:
         n = len(domain.points)
         self.idx = np.zeros(n, np.int64)
         self.lower = np.zeros(n)
-        self.origin = domain.points.min(axis=0) if n else np.zeros(2)
+        self.origin = domain.points.min(axis=0)  # a domain is never empty: R_i has pixels
 
     def _grid(self, k: int) -> None:
-        self.cell = max(_CELL * float(np.sqrt(len(self.domain.points) / max(k, 1))), 2.0)
+        self.cell = max(_CELL * float(np.sqrt(len(self.domain.points) / k)), 2.0)
         ij = np.floor((self.domain.points - self.origin) / self.cell).astype(np.int64)
-        self.shape = (int(ij[:, 0].max()) + 1, int(ij[:, 1].max()) + 1) if len(ij) else (1, 1)
+        self.shape = (int(ij[:, 0].max()) + 1, int(ij[:, 1].max()) + 1)
         self.pixel_cell = ij[:, 0] * self.shape[1] + ij[:, 1]
 
     def _cells_of(self, gen: np.ndarray) -> np.ndarray:  # off the grid: its border cells

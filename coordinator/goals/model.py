@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -45,12 +46,7 @@ class GoalSet:
 
     def min_spacing(self) -> float:
         """Smallest distance between two goals, in metres (inf for fewer than two goals)."""
-        if len(self.goals) < 2:
-            return float("inf")
-        from scipy.spatial import cKDTree  # here only: a run's coordinator reads goal sets without SciPy
-
-        d, _ = cKDTree(self.goals).query(self.goals, k=2)
-        return float(d[:, 1].min())
+        return min_distance(self.goals)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -75,6 +71,16 @@ class GoalSet:
                 text = json.dumps(value, indent=indent).replace("\n", "\n" + pad)
             lines.append(f"{pad}{json.dumps(key)}: {text}")
         return "{\n" + ",\n".join(lines) + "\n}"
+
+
+def min_distance(points: np.ndarray) -> float:
+    """Smallest distance between two of the points (inf for fewer than two)."""
+    if len(points) < 2:
+        return math.inf
+    from scipy.spatial import cKDTree  # here only: a run's coordinator reads goal sets without SciPy
+
+    d, _ = cKDTree(points).query(points, k=2)
+    return float(d[:, 1].min())
 
 
 def rescale(gs: GoalSet, arena: float) -> GoalSet:

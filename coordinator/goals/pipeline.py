@@ -21,8 +21,8 @@ from .colors import cell_colors, voronoi_cells
 from .cvt import K_D, K_M, binary_domain, density_domain, lloyd
 from .defaults import MAX_ITER, METHODS, RELAX, TOLERANCE
 from .image import BG_TOLERANCE, Foreground, foreground_mask, load_image, split_channels
-from .model import GoalError, GoalSet
-from .resize import auto_arena, check_feasible, normalised_spacing, to_arena
+from .model import GoalError, GoalSet, min_distance
+from .resize import auto_arena, check_feasible, to_arena
 from .sampling import KS_FACTOR, in_region, ks_distance, lattice_samples, pixel_centres, poisson_samples
 from .segment import Segmentation, segment, speck_area
 
@@ -191,10 +191,10 @@ def goals_from_prepared(
     if given:
         notes.append(f"initial samples of region(s) {', '.join(map(str, sorted(given)))} given by the caller")
     goals_px, goal_regions, history, ks_used = _lloyd_regions(prep, counts, given, options, notes)
-    seg, scale = prep.seg, prep.scale
+    seg = prep.seg
     cells = voronoi_cells(seg, goals_px, goal_regions)
     colors = cell_colors(prep.rgb, cells, len(goals_px), goals_px, seg.labels)
-    d_min = normalised_spacing(goals_px, scale)
+    d_min = min_distance(goals_px) / prep.scale  # in Q
     if options.arena is None:
         arena = auto_arena(d_min, options.robot_radius)
     else:

@@ -7,17 +7,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from .model import GoalError
-
-
-def normalised_spacing(goals_px: np.ndarray, scale: float) -> float:
-    """d_min: the smallest distance between two goals in Q (inf for fewer than two goals)."""
-    if len(goals_px) < 2:
-        return math.inf
-    d, _ = cKDTree(goals_px).query(goals_px, k=2)
-    return float(d[:, 1].min()) / scale
 
 
 def min_arena(d_min: float, robot_radius: float, conservative: bool = False) -> float:

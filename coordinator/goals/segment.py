@@ -132,7 +132,6 @@ def _interior_counts(comp: np.ndarray, n: int) -> np.ndarray:
 def _absorb_weak(comp: np.ndarray, weak: np.ndarray) -> tuple[np.ndarray, int]:
     """Relabel weak components into their strong neighbour with the longest shared border."""
     n = len(weak)
-    mapping = np.arange(n)
     absorbed = 0
     weak = weak.copy()
     for _ in range(64):
@@ -146,7 +145,7 @@ def _absorb_weak(comp: np.ndarray, weak: np.ndarray) -> tuple[np.ndarray, int]:
         order = np.lexsort((-cnt, ua))
         first = np.r_[True, ua[order][1:] != ua[order][:-1]]
         src, dst = ua[order][first], ub[order][first]
-        mapping[:] = np.arange(n)
+        mapping = np.arange(n)
         mapping[src] = dst
         comp = np.where(comp >= 0, mapping[np.maximum(comp, 0)], -1)
         weak[src] = False
