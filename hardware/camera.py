@@ -27,8 +27,7 @@ CAMERA_MOVED_PX = 3.0
 CORNER_REFINEMENT = cv2.aruco.CORNER_REFINE_CONTOUR
 MIN_REFERENCES = 4  # fewer floor points do not determine a homography
 # A stream that delivers no frame (or does not open) within this long has stalled and is opened again:
-# FFmpeg's own limit, 30 s, would hold the reading thread, and so close(), that long. At 10 Hz it is ten
-# frames missed; the robots stopped long before (their poses aged past the command timeout).
+# FFmpeg's own limit, 30 s, would hold the reading thread, and so close(), that long.
 STREAM_TIMEOUT = 1.0  # s
 CLOSE_WAIT = 2 * STREAM_TIMEOUT  # s: close() waits this long for the reading thread, at most
 
@@ -212,13 +211,12 @@ class ArucoTracker:
         poses: dict[int, MarkerPose] = {}
         robots = {m: c for m, c in markers.items() if m not in self.config.reference}
         if self.homography is not None and robots:
-            ids = list(robots)
-            floor = cv2.perspectiveTransform(np.array([robots[m] for m in ids]).reshape(-1, 1, 2), self.homography)
-            floor = floor.reshape(-1, 4, 2)
+            corners = np.array(list(robots.values())).reshape(-1, 1, 2)
+            floor = cv2.perspectiveTransform(corners, self.homography).reshape(-1, 4, 2)
             centre = floor.mean(axis=1)  # the floor is the marker's own plane: the corners' mean is its centre
             ahead = floor[:, 0] + floor[:, 1] - floor[:, 2] - floor[:, 3]  # centre -> middle of the top edge
             side = np.linalg.norm(floor - np.roll(floor, 1, axis=1), axis=2).mean(axis=1)
-            for k, marker in enumerate(ids):
+            for k, marker in enumerate(robots):
                 if abs(side[k] / self.config.marker_size - 1.0) <= SIDE_TOLERANCE:
                     theta = math.atan2(ahead[k, 1], ahead[k, 0])
                     poses[marker] = MarkerPose(marker, float(centre[k, 0]), float(centre[k, 1]), theta, t)
@@ -250,8 +248,7 @@ class ArucoTracker:
 
 
 def open_capture(source: int | str) -> cv2.VideoCapture:
-    """Open a camera device, video file or stream, or raise CameraError. A stream's opening and reads
-    give up after STREAM_TIMEOUT."""
+    """Open a camera device, video file or stream (giving up after STREAM_TIMEOUT), or raise CameraError."""
     if is_stream(source):
         ms = round(STREAM_TIMEOUT * 1000)
         timeouts = [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, ms, cv2.CAP_PROP_READ_TIMEOUT_MSEC, ms]
@@ -273,9 +270,8 @@ def is_file(source: int | str) -> bool:
 
 
 class CameraPoseSource(Started):
-    """Reads frames in a thread and hands out each robot's latest pose with its frame's time: a file's
-    frame rate from 0 (with `realtime`, played at that rate), or a device's or stream's `time.time()`
-    when read. `gate` judges a pose's stamp against that frame clock."""
+    """Reads frames in a thread and hands out each robot's latest pose, stamped with its frame's time (a file's:
+    from 0 at its frame rate, played at that rate if `realtime`; else `clock()` when read), as `gate` takes them."""
 
     def __init__(
         self,
@@ -331,8 +327,8 @@ class CameraPoseSource(Started):
             return self._frame
 
     def close(self) -> None:
-        """Stop reading; waits for a read under way at most CLOSE_WAIT (a device's driver may hold it
-        longer: the thread, left behind, releases the capture itself once its read returns)."""
+        """Stop reading; waits for a read under way at most CLOSE_WAIT (the thread, left behind, releases the
+        capture itself once its read returns)."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join(CLOSE_WAIT)

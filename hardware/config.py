@@ -1,8 +1,5 @@
-"""The hardware file: which robots a run drives (`[backend]`) and where their poses come from (`[poses]`).
-
-Each table names its `kind`; the kind's config class (found through an import string, so backends and pose
-sources written in other modules plug in here) validates the rest with `from_table(table, where)`. Robot ids
-are positions in the backend's list of robots. The file: docs/hardware.md."""
+"""The hardware file (docs/hardware.md): which robots a run drives (`[backend]`) and where their poses come
+from (`[poses]`), each table validated by its kind's config class, found through an import string."""
 
 from __future__ import annotations
 
@@ -41,9 +38,8 @@ def is_number(value: Any) -> bool:
 
 
 class FromTable:
-    """A config dataclass read from its table (``kind = KIND``): keys it does not know (a typo would otherwise
-    silently fall back to a default) and keys without a default that are missing are refused here, the values
-    by its ``__post_init__``, whose HardwareConfigError is given ``where`` in front."""
+    """A config dataclass read from its table (``kind = KIND``): unknown keys (a typo would silently fall back
+    to a default) and missing ones are refused here, the values by its ``__post_init__``."""
 
     KIND = ""
 
@@ -67,8 +63,7 @@ class FromTable:
 
 
 class Started:
-    """A backend, pose source or stand-in that runs from start() to close(): `with` starts it and
-    closes it however the block ends."""
+    """A backend, pose source or stand-in that runs from start() to close(), as `with` does."""
 
     def start(self) -> object:
         raise NotImplementedError

@@ -1,6 +1,4 @@
-"""GCtronic e-puck2 robots over Wi-Fi: one TCP connection per robot, the robot being the server.
-
-The 21-byte command packet and the robot's answers: docs/hardware.md ("What goes on the wire"). A robot
+"""GCtronic e-puck2 robots over Wi-Fi, one TCP connection per robot (the packets: docs/hardware.md). A robot
 keeps its last wheel speeds until told otherwise, so the backend stops every robot whose commands cease
 (the watchdog), on `stop_all()` and on `close()`."""
 
@@ -101,25 +99,19 @@ def motor_steps(sensors: bytes) -> tuple[int, int]:
     return struct.unpack_from("<hh", sensors, STEPS_OFFSET)
 
 
-class AnswerReader:
-    """Splits the robot's byte stream into answers (id, payload)."""
-
-    def __init__(self) -> None:
-        self._buffer = bytearray()
-
-    def feed(self, data: bytes) -> list[tuple[int, bytes]]:
-        self._buffer += data
-        answers = []
-        while self._buffer:
-            answer_id = self._buffer[0]
-            if answer_id not in ANSWER_SIZES:
-                raise ConnectionError(f"unknown answer id 0x{answer_id:02x}")
-            end = 1 + ANSWER_SIZES[answer_id]
-            if len(self._buffer) < end:
-                break
-            answers.append((answer_id, bytes(self._buffer[1:end])))
-            del self._buffer[:end]
-        return answers
+def take_answers(buffer: bytearray) -> list[tuple[int, bytes]]:
+    """The whole answers (id, payload) at the front of the robot's byte stream, taken off it."""
+    answers = []
+    while buffer:
+        answer_id = buffer[0]
+        if answer_id not in ANSWER_SIZES:
+            raise ConnectionError(f"unknown answer id 0x{answer_id:02x}")
+        end = 1 + ANSWER_SIZES[answer_id]
+        if len(buffer) < end:
+            break
+        answers.append((answer_id, bytes(buffer[1:end])))
+        del buffer[:end]
+    return answers
 
 
 def parse_address(address: Any) -> tuple[str, int]:
@@ -174,8 +166,7 @@ class Epuck2Config(FromTable):
         return [parse_address(a) for a in self.addresses]
 
     def stop_robots(self, settings: object = None) -> list[int]:
-        """Connect to every robot and stop it (`pixelswarm stop`); returns the robots not reached. ``settings``
-        (a bus's, for backends reached through one) is not needed: each robot is its own TCP server."""
+        """Connect to every robot and stop it (`pixelswarm stop`); returns the robots not reached."""
         return Epuck2Backend(self).close()
 
 
@@ -191,9 +182,8 @@ class RobotStats:
 
 
 class RobotLink:
-    """One robot's TCP connection: a task on the backend's event loop, so a slow or lost robot delays no other.
-    Everything here runs on the loop's thread. Its 16 attributes are one link's state (address, command
-    sequence, answers, backoff) that the task and the backend share; splitting them would split one protocol."""
+    """One robot's TCP connection: a task on the backend's event loop (its thread), so a slow or lost robot
+    delays no other. Its 16 attributes are one link's state; splitting them would split one protocol."""
 
     def __init__(self, robot_id: int, host: str, port: int, config: Epuck2Config) -> None:
         self.robot_id, self.host, self.port, self.config = robot_id, host, port, config
@@ -255,9 +245,8 @@ class RobotLink:
                     answered = self.stats.answered
                     self.stats.connected = self.stats.answered = False
                     writer.close()
-            # a robot that dropped: connect again at once; one out of reach, or something that listens there but
-            # is no e-puck2 (it closed or spoke another protocol), not at once, or the link would reconnect to it
-            # in a tight loop
+            # a robot that dropped: connect again at once; one out of reach, or something there that is no e-puck2
+            # (it closed or spoke another protocol), after the backoff, lest the link reconnect in a tight loop
             backoff = 0.0 if answered else self._next_backoff(backoff)
             await self._sleep_unless_urgent(backoff)
 
@@ -302,10 +291,11 @@ class RobotLink:
         self.stats.commands_sent += 1
 
     async def _read(self, reader: asyncio.StreamReader) -> None:
-        answers = AnswerReader()
+        stream = bytearray()
         try:
             while data := await reader.read(65536):
-                for answer_id, payload in answers.feed(data):
+                stream += data
+                for answer_id, payload in take_answers(stream):
                     if answer_id == SENSORS_ID:
                         self.sensors = payload
                     self._took_answer()
@@ -352,10 +342,8 @@ class RobotLink:
 
 
 class Epuck2Backend(Started):
-    """Drives e-puck2 robots over Wi-Fi; robot ids are positions in `config.addresses`.
-
-    One thread runs an asyncio event loop with one task per robot; the control loop's calls hand their work
-    to it and return at once (stop_all and close wait for the stops to leave)."""
+    """Drives e-puck2 robots over Wi-Fi (robot ids: positions in `config.addresses`) from one thread's event
+    loop; calls return at once, but stop_all and close wait for the stops to leave."""
 
     def __init__(self, config: Epuck2Config) -> None:
         self.config = config

@@ -1,9 +1,5 @@
-"""ROS 2 robots and motion capture, reached through rmw_zenoh (docs/ros2.md).
-
-`Ros2Backend` sends `geometry_msgs/Twist` on `<namespace>/cmd_vel` and an LED colour as
-`std_msgs/ColorRGBA` on `<namespace>/led`; `Ros2PoseSource` reads a motion-capture system's
-`geometry_msgs/PoseStamped` per robot. CDR and the RIHS01 type hashes come from rosbags' message
-definitions of the chosen ROS 2 distribution; the Zenoh side is transport.rmw_zenoh."""
+"""ROS 2 robots (Twist on cmd_vel, ColorRGBA on led) and motion capture (PoseStamped), reached through
+rmw_zenoh (docs/ros2.md). CDR and the RIHS01 type hashes come from rosbags' message definitions."""
 
 from __future__ import annotations
 
@@ -153,8 +149,7 @@ class Ros2BackendConfig(FromTable):
 
     def stop_robots(self, settings: ZenohSettings | None = None) -> list[int]:
         """A zero Twist to every robot through the router ``settings`` reaches (`pixelswarm stop`); returns the
-        robots whose cmd_vel nobody subscribed to (a put has no answer: a subscriber, the robot's driver, is
-        the most that can be confirmed)."""
+        robots whose cmd_vel nobody subscribed to (a put has no answer: a subscriber is all that can be told)."""
         if settings is None:
             raise HardwareConfigError("ROS 2 robots are reached through a router: give its endpoint (-e ENDPOINT)")
         with Ros2Backend(self, settings) as backend:
@@ -198,8 +193,7 @@ class Ros2PosesConfig(FromTable):
 
 
 class Ros2Node(Started):
-    """A ROS 2 node on a Zenoh session of its own, opened by start(), with maybe a thread (ended by
-    ``_halt``); close() closes all (safe to call twice)."""
+    """A ROS 2 node on a Zenoh session of its own, opened by start(), maybe with a thread that ``_halt`` ends."""
 
     NODE_NAME = ""
 
@@ -252,11 +246,9 @@ class Ros2Backend(Ros2Node):
         node = self._open(self.config.domain)
         twist_hash = self.messages.type_hash(TWIST)
         color_hash = self.messages.type_hash(COLOR_RGBA)
-        robots = range(len(self.config.namespaces))
-        self._cmd = [node.publisher(self.config.topic(i, self.config.cmd_topic), TWIST, twist_hash) for i in robots]
-        self._led = [
-            node.publisher(self.config.topic(i, self.config.led_topic), COLOR_RGBA, color_hash) for i in robots
-        ]
+        robots, config = range(len(self.config.namespaces)), self.config
+        self._cmd = [node.publisher(config.topic(i, config.cmd_topic), TWIST, twist_hash) for i in robots]
+        self._led = [node.publisher(config.topic(i, config.led_topic), COLOR_RGBA, color_hash) for i in robots]
         self._zero = self.messages.twist(0.0, 0.0)
         self._thread = threading.Thread(target=self._watch, name="ros2-watchdog", daemon=True)
         self._thread.start()
@@ -299,9 +291,8 @@ class Ros2Backend(Ros2Node):
         return [robot for robot, publisher in enumerate(self._cmd) if not publisher.heard]
 
     def stop_heard(self, repeats: int, within: float) -> list[int]:
-        """Zero Twists to every robot, ``repeats`` times a watchdog quarter apart, and on until each robot's
-        went out while a subscription on its cmd_vel topic was known, or ``within`` s passed; returns the
-        robots whose stop nobody was known to hear."""
+        """Zero Twists to every robot, ``repeats`` times a watchdog quarter apart, and on until each robot's went
+        out to a known subscriber or ``within`` s passed; returns the robots whose stop nobody was known to hear."""
         heard = np.zeros(len(self._cmd), bool)
         end = time.monotonic() + within
         for rounds in itertools.count(1):

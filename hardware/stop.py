@@ -9,8 +9,7 @@ from .config import HardwareConfig, need
 
 
 def stop_all(config: HardwareConfig, settings: ZenohSettings | None = None) -> list[int]:
-    """Connect to every robot of the file and send it a stop; returns the robot ids that were not reached.
-    ``settings``: the session to a router, for robots reached through one (ROS 2). A backend's config
-    stops its robots with ``stop_robots(settings)``."""
+    """Send every robot of the file a stop; returns the robot ids not reached. ``settings``: the session to
+    a router, for robots reached through one (ROS 2)."""
     need(hasattr(config.backend, "stop_robots"), f"{config.path} [backend]: kind {config.backend_kind!r} has no stop")
     return config.backend.stop_robots(settings)

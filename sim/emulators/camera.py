@@ -1,12 +1,8 @@
 """An overhead-camera emulator: ArUco markers on robots, seen by a tilted camera over the floor.
 
-Each robot is a white plate carrying its marker (id = robot id, top edge ahead), reference markers lie at
-known floor positions; markers are drawn supersampled (sub-pixel edges), then blurred and given seeded noise.
+    python -m sim.emulators.camera OUT_DIR --robots 14 --frames 60  # video.avi, truth.csv, hardware.toml
 
-    python -m sim.emulators.camera OUT_DIR --robots 14 --frames 60
-
-writes OUT_DIR/video.avi (lossless FFV1), truth.csv (t,id,x,y,theta,frame) and hardware.toml for
-`pixelswarm track`. Live, `CameraStream` serves frames as a network camera does (MJPEG over HTTP).
+What it draws, and `CameraStream` (the camera live, as MJPEG over HTTP): docs/camera.md.
 """
 
 from __future__ import annotations

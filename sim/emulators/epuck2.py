@@ -1,8 +1,5 @@
-"""Emulated e-puck2 robots on Wi-Fi: one TCP server per robot on 127.0.0.1, speaking the robot's protocol.
-
-Written from GCtronic's documentation, independently of hardware/epuck2.py so that each checks the other.
-Each robot parses the 21-byte command packets, answers as the robot does, keeps its last wheel speeds until
-told otherwise and moves as a differential-drive body. Tests read its true poses and received commands.
+"""Emulated e-puck2 robots on Wi-Fi, one TCP server per robot on 127.0.0.1 (docs/hardware.md), written from
+GCtronic's documentation independently of hardware/epuck2.py so that each checks the other.
 
     python -m sim.emulators.epuck2 --robots 4 --write-hardware hw.toml
 """
@@ -114,9 +111,8 @@ class EmulatedRobot:
             parts.append(bytes([ANSWER_IMAGE]) + bytes(IMAGE_LENGTH))  # a black image
         if command.request & 0x02:
             sensors = bytearray(SENSORS_LENGTH)  # only the motor steps are emulated; the rest read 0
-            for i, count in enumerate(self.steps):
-                wrapped = (round(count) + 2**15) % 2**16 - 2**15
-                sensors[STEPS_OFFSET + 2 * i : STEPS_OFFSET + 2 * i + 2] = wrapped.to_bytes(2, "little", signed=True)
+            wrapped = [(round(count) + 2**15) % 2**16 - 2**15 for count in self.steps]
+            struct.pack_into("<hh", sensors, STEPS_OFFSET, *wrapped)
             parts.append(bytes([ANSWER_SENSORS]) + bytes(sensors))
         return b"".join(parts) or bytes([ANSWER_EMPTY])
 
@@ -142,14 +138,9 @@ class Epuck2Emulator(Started):
             EmulatedRobot(pose=(float(x), float(y), float(t)), params=params, since=now) for x, y, t in poses
         ]
         self._lock = threading.Lock()
-        self._listeners: list[socket.socket] = []
-        try:
-            for port in ports:
-                self._listeners.append(socket.create_server((HOST, port)))
-        except OSError:
-            for listener in self._listeners:
-                listener.close()
-            raise
+        with contextlib.ExitStack() as opened:  # a port taken: the listeners opened before it are closed
+            self._listeners = [opened.enter_context(socket.create_server((HOST, port))) for port in ports]
+            opened.pop_all()
         self._addresses = [f"{HOST}:{listener.getsockname()[1]}" for listener in self._listeners]  # also once closed
         self._clients: dict[int, tuple[socket.socket, threading.Thread]] = {}  # robot -> connection, its reader
         self._closing = False

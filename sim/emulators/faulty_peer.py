@@ -94,10 +94,7 @@ def _put(data: bytes, at: int, packed: bytes) -> bytes:
 
 def _forward_u32(data: bytes, at: int, rng: random.Random) -> bytes | None:
     """The u32 at ``at`` moved forward by 1..FUTURE_MAX (not past 0xFFFFFFFE)."""
-    if len(data) < at + 4:
-        return None
-    value = _get_u32(data, at)
-    if value >= BEFORE_START - 1:
+    if len(data) < at + 4 or (value := _get_u32(data, at)) >= BEFORE_START - 1:
         return None
     return _put(data, at, _U32.pack(min(value + rng.randint(1, FUTURE_MAX), BEFORE_START - 1)))
 
@@ -361,12 +358,12 @@ class FaultyPeer:
             name = rng.choice(self.plan.damages)
             out, what = MALFORM[name](data, rng, kind), f"malformed:{name}"
         else:  # restart
-            out, what = _sealed(kind, self._restarted(key, data, now)), "restart"
+            out, what = _sealed(kind, self._restarted(data, now)), "restart"
         if out is None or out == data:
             return None
         return key, out, kind, what
 
-    def _restarted(self, key: str, data: bytes, now: float) -> bytes | None:
+    def _restarted(self, data: bytes, now: float) -> bytes | None:
         """The frame with its tick replaced by a restarted sender's (counting from 0 since its restart)."""
         if len(data) < _FRAME_FIXED:
             return None
@@ -476,9 +473,7 @@ def build_parser() -> OneLineParser:
         default=PeerPlan.rate,
         help=f"damaged copies a second (default {PeerPlan.rate:g})",
     )
-    parser.add_argument(
-        "--duration", type=positive_seconds, default=None, help="seconds of damage (default: until stopped)"
-    )
+    parser.add_argument("--duration", type=positive_seconds, help="seconds of damage (default: until stopped)")
     parser.add_argument(
         "--start-after",
         type=non_negative_seconds,
@@ -514,9 +509,7 @@ def build_parser() -> OneLineParser:
         help=ZENOH_HELP["--connect"],
     )
     parser.add_argument("--zenoh-config", metavar="FILE", help=ZENOH_HELP["--zenoh-config"])
-    parser.add_argument(
-        "--multicast-scouting", action="store_true", default=False, help=ZENOH_HELP["--multicast-scouting"]
-    )
+    parser.add_argument("--multicast-scouting", action="store_true", help=ZENOH_HELP["--multicast-scouting"])
     return parser
 
 

@@ -1,13 +1,7 @@
-"""A lab without robots: emulated e-puck2 robots at a scene's start layout, watched by emulated motion capture.
-
-The robots (sim/emulators/epuck2.py) are TCP servers on 127.0.0.1 that move as their commands say; the
-motion capture (sim/emulators/mocap.py) publishes their TRUE poses as geometry_msgs/PoseStamped over
-rmw_zenoh. A hardware file naming both lets `pixelswarm run SCENE --hardware FILE` drive them exactly as
-it would drive real robots. The lab also records the true poses and, when it exits, reports the contacts
-between the emulated bodies (discs of the scene's robot radius).
+"""A lab without robots (docs/hardware.md): emulated e-puck2 robots at a scene's start layout, their true poses
+on emulated motion capture, the contacts between their bodies reported on exit.
 
     python -m sim.emulators.lab --scene paper-sequence -m router -l tcp/127.0.0.1:7447 --write-hardware hw.toml
-    pixelswarm run paper-sequence --hardware hw.toml -e tcp/127.0.0.1:7447
 """
 
 from __future__ import annotations
@@ -118,7 +112,6 @@ class Lab(Started):
             "contacts": [vars(c) for c in self.contacts],
         }
 
-    # --- the recorder thread ---
     def _record(self) -> None:
         period = 1.0 / RECORD_RATE
         while not self._halt.wait(period):
@@ -139,7 +132,6 @@ class Lab(Started):
             self.contacts.append(self._open.pop(pair))
 
 
-# --- command line ---
 def open_lab(args: argparse.Namespace, settings: ZenohSettings, stop: threading.Event) -> Lab | None:
     """The lab, started; a client lab waits for its router (None if stopped while waiting)."""
     scene = load_scene(args.scene, robots=args.robots, seed=args.seed)

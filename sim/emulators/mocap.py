@@ -1,8 +1,6 @@
-"""A motion-capture system as ROS 2 sees it: PoseStamped per robot over rmw_zenoh, at a fixed rate.
+"""A motion-capture driver node as ROS 2 sees it: PoseStamped per robot over rmw_zenoh at a fixed rate.
 
-It stands in for the driver node of OptiTrack, Vicon or Qualisys. From a shell (robots on a circle):
-
-    python -m sim.emulators.mocap --robots 4 --rate 100 -e tcp/127.0.0.1:7447
+python -m sim.emulators.mocap --robots 4 --rate 100 -e tcp/127.0.0.1:7447
 """
 
 from __future__ import annotations
