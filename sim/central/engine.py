@@ -15,7 +15,7 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, NamedTuple, TextIO, TypedDict, Unpack
+from typing import Any, BinaryIO, NamedTuple, TextIO, TypedDict, Unpack
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -40,7 +40,7 @@ from sim.bodies.tracker import tracker_of, world_of
 from sim.central.link import InProcessLink
 from sim.central.stepclock import StepClock
 from sim.outputs.rundir import RunDir
-from sim.outputs.stream import ROWS, SCRATCH, OnDisk, TickRecorder, append_raw
+from sim.outputs.stream import ROWS, SCRATCH, OnDisk, TickRecorder
 from sim.outputs.write import RunOutcome, goal_set_arrays, write_run
 from sim.processes import handling_signals
 from transport.codec import START_TICK, Goals, State, as_sent, decode
@@ -145,6 +145,7 @@ AGREEMENT_ROWS = {"assignment_epoch": ((), np.int64), "assignment_instance": (()
 
 
 AGREED = {"agreement_positions": (2,), "agreement_penalties": ()}  # per agreement and robot, float64
+AGREEMENTS_BUFFER = 1 << 20  # bytes of a streamed agreement file held before they are written
 
 
 @dataclass
@@ -161,6 +162,7 @@ class Agreements:
     # held here unless streamed to ``directory``
     held: dict[str, list[np.ndarray]] = field(default_factory=lambda: {name: [] for name in AGREED})
     directory: Path | None = None
+    files: dict[str, BinaryIO] = field(default_factory=dict)  # streamed: the raw files, open until ``arrays``
     last: tuple[tuple[int, int], dict[str, np.ndarray]] | None = None  # the newest, which one of its key may replace
     solves: int = 0  # the optimal assignment's solves (its instances)
     instance: int = 0  # the agreement the robots' goals are from now (State.CARRIED: the warm start's, never agreed)
@@ -169,9 +171,8 @@ class Agreements:
     def stream_to(self, directory: Path | None) -> None:
         """Agreements from now on into raw files in ``directory`` (made by the run's TickRecorder); None: held."""
         self.directory = directory
-        if directory is not None:  # an agreement a tick, as large as a tick's poses
-            for name in AGREED:
-                (directory / f"{name}.raw").write_bytes(b"")
+        if directory is not None:  # an agreement a tick, as large as a tick's poses: buffered, not a write each
+            self.files = {name: open(directory / f"{name}.raw", "wb", buffering=AGREEMENTS_BUFFER) for name in AGREED}
 
     def agree(self, epoch: int, instance: int, robots: np.ndarray, position: np.ndarray, penalty: np.ndarray) -> None:
         """Agreement ``instance`` of goal set ``epoch``, the robots' goals from now: ``robots`` bid from
@@ -187,19 +188,21 @@ class Agreements:
     def _keep(self, key: tuple[int, int], rows: dict[str, np.ndarray]) -> None:
         self.keys.append(key)
         for name, row in rows.items():
-            if self.directory is not None:
-                append_raw(self.directory / f"{name}.raw", row)
+            if self.files:
+                self.files[name].write(row.data.cast("B"))
             else:
                 self.held[name].append(row)
 
     def arrays(self, step: np.ndarray) -> dict[str, Any]:
         """trajectory.npz's goal-set and agreement arrays (sim.outputs.recorder makes the same of the bus), by
         epoch and instance: the agreements as made, unless made out of that order (then read whole)."""
-        if not self.goal_sets:
-            return {}
         if self.last is not None:
             self._keep(*self.last)
             self.last = None
+        for file in self.files.values():
+            file.close()  # written out before OnDisk reads them
+        if not self.goal_sets:
+            return {}
         n, at = self.robots, {key: k for k, key in enumerate(self.keys)}  # the last of a key made twice
         order = [at[key] for key in sorted(at)]
         out = {"goal_set_epoch": np.asarray(step) + 1, "agreements": np.array(sorted(at), np.int64).reshape(-1, 2)}
