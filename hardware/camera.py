@@ -27,7 +27,8 @@ CAMERA_MOVED_PX = 3.0
 CORNER_REFINEMENT = cv2.aruco.CORNER_REFINE_CONTOUR
 MIN_REFERENCES = 4  # fewer floor points do not determine a homography
 # A stream that delivers no frame (or does not open) within this long has stalled and is opened again:
-# FFmpeg's own limit, 30 s, would hold the reading thread, and so close(), that long.
+# FFmpeg's own limit, 30 s, would hold the reading thread, and so close(), that long. Meanwhile the robots
+# have stopped: their poses aged past the command timeout.
 STREAM_TIMEOUT = 1.0  # s
 CLOSE_WAIT = 2 * STREAM_TIMEOUT  # s: close() waits this long for the reading thread, at most
 
