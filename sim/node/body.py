@@ -74,15 +74,16 @@ class Tally:
     """The run's statistics, per robot where the hardware report lists them."""
 
     n: int
-    missed_ticks: int = 0  # robot-ticks a live agent did not answer in time
     expired_commands: int = 0  # commands that arrived too late to drive anything
     stopped_ticks: int = 0  # robot-ticks in which a live robot was stopped for want of a valid command
     withheld_ticks: int = 0  # ticks whose poses the tracker withheld (an outage)
+    missed: np.ndarray = field(init=False)  # ticks a live robot's agent did not answer in time
     late: np.ndarray = field(init=False)  # commands older than one applied
     dropped: dict[str, np.ndarray] = field(init=False)
     stops: dict[str, np.ndarray] = field(init=False)
 
     def __post_init__(self) -> None:
+        self.missed = np.zeros(self.n, int)
         self.late = np.zeros(self.n, int)
         self.dropped = {reason: np.zeros(self.n, int) for reason in COMMAND_DROPS}
         self.stops = {reason: np.zeros(self.n, int) for reason in STOP_REASONS}
@@ -238,7 +239,7 @@ class BodyNode:
             stopped = max(stopped, self._watchdog(span))
             self._publish_contacts(self.backend.step(span))
         self.tally.stopped_ticks += stopped
-        self.tally.missed_ticks += int((self.live & (self.last_cmd_tick < self.tick)).sum())
+        self.tally.missed += self.live & (self.last_cmd_tick < self.tick)
         self.early = []  # a dead agent's commands are never applied later
         self.tick += 1
         self.check_control()
@@ -490,7 +491,8 @@ class BodyNode:
             "kind": "world-done",
             "reason": self.end_reason,
             "ticks": self.tick,
-            "missed_ticks": tally.missed_ticks,
+            "missed_ticks": int(tally.missed.sum()),
+            "missed_ticks_by_robot": tally.missed.tolist(),
             "late_commands": int(tally.late.sum()),
             "expired_commands": tally.expired_commands,
             "stopped_ticks": tally.stopped_ticks,

@@ -278,6 +278,7 @@ class HardwareBodies:
                     "robot": i,
                     "address": self.drive.where(i),
                     "commands_sent": int(self.sent[i]),
+                    "missed_ticks": int(tally.missed[i]),
                     "late_commands": int(tally.late[i]),
                     "dropped_commands": {reason: int(tally.dropped[reason][i]) for reason in COMMAND_DROPS},
                     "dropped_poses": {reason: poses.get(reason, 0) for reason in (*STAMP_DROPS, "two_sources")},

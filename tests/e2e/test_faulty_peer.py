@@ -309,7 +309,8 @@ def test_a_pose_forged_for_the_next_tick_makes_its_robot_stand_not_collide(tmp_p
     metrics, forger, _ = _circle_beside(tmp_path / "run", 3, 20, lambda at: NextTick(at, robot=3))
     check_no_contacts(metrics)
     assert forger.sent > 100 and metrics["dropped_messages"]["conflicting"] > 100
-    assert metrics["missed_ticks"] <= 5, "robot 3 answered the ticks it doubted (braking)"
+    # robot 3's own: a machine busy beside the run makes every robot miss a tick now and then
+    assert metrics["missed_ticks_by_robot"][3] <= 5, "robot 3 answered the ticks it doubted (braking)"
 
 
 @pytest.fixture(scope="module")

@@ -129,6 +129,8 @@ def test_a_crossing_through_emulated_robots_converges_without_contacts(tmp_path,
     robots = metrics["hardware"]["robots"]
     assert len(robots) == 4 and all(r["commands_sent"] > 0 and r["reconnects"] == 0 for r in robots)
     assert metrics["hardware"]["not_stopped_at_end"] == []
+    missed = [r["missed_ticks"] for r in robots]
+    assert missed == metrics["missed_ticks_by_robot"] and sum(missed) == metrics["missed_ticks"]
 
 
 def agent_of(run: subprocess.Popen, robot: int) -> psutil.Process | None:
