@@ -659,6 +659,7 @@ def _metrics(outcome: Outcome) -> dict[str, Any]:
         stopped_ticks=0,
         withheld_ticks=0,  # tracker outages need the distributed engine
         commanded_two_ways=[],  # no bus carries its commands
+        missed_ticks_by_robot=[0] * len(outcome.arrays["pose"][0]) if len(t) else [],  # each answers at once
         orca_fallbacks=outcome.fallbacks,
         poses_held=0,  # the tracker's poses are trusted: tracker glitches need the distributed engine
         subscriptions_renewed=0,

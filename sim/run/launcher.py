@@ -709,8 +709,7 @@ class Launcher:
                 k: int(stats.get(k, 0))
                 for k in ("late_commands", "expired_commands", "stopped_ticks", "withheld_ticks")
             },
-            commanded_two_ways=stats.get("commanded_two_ways", []),
-            missed_ticks_by_robot=stats.get("missed_ticks_by_robot", []),
+            **{k: stats.get(k, []) for k in ("commanded_two_ways", "missed_ticks_by_robot")},
             orca_fallbacks=int(sum(s.get("fallbacks", 0) for s in agent_stats)),
             poses_held=int(sum(s.get("poses_held", 0) for s in agent_stats)),
             subscriptions_renewed=int(sum(s.get("subscriptions_renewed", 0) for s in agent_stats)),
