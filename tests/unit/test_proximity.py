@@ -54,6 +54,24 @@ def test_the_same_neighbours_as_a_kd_tree(seed, n, side, reach, m, threads):
     np.testing.assert_array_equal(nearest_within(position, reach, m, threads), kd_tree_neighbours(position, reach, m))
 
 
+def test_a_search_shared_with_the_auction_thread_as_it_ends_gives_the_same_neighbours():
+    """The central engine's auction holds a hand of the crew while it settles, and works the rows left of a
+    search under way when it ends (agent.core.crew): whichever hands work which rows, the neighbours are
+    the kd-tree's. Searches run one after another while blocks settle, so blocks end mid-search."""
+    from agent.core.bidder import Participant
+
+    rng = np.random.default_rng(7)
+    position = rng.uniform(0.0, 25.0, (2000, 2))
+    expected = kd_tree_neighbours(position, 1.2, 16)
+    robots = list(range(300))
+    part = Participant(0, rng.uniform(0.0, 10.0, (300, 2)), robots, robots, 1e-3)
+    for _ in range(8):
+        part.settle_beside(rng.uniform(0.0, 10.0, (300, 2)))
+        for _ in range(8):  # a block takes a few searches' time
+            np.testing.assert_array_equal(nearest_within(position, 1.2, 16, threads=2), expected)
+        part.settled()
+
+
 def test_reach_is_strict_and_ties_go_to_the_lower_index():
     position = np.array([[0.0, 0.0], [1.0, 0.0], [-1.0, 0.0], [0.0, 2.0]])
     got = nearest_within(position, 1.0 + 1e-12, 3)
