@@ -309,8 +309,9 @@ def test_a_pose_forged_for_the_next_tick_makes_its_robot_stand_not_collide(tmp_p
     metrics, forger, _ = _circle_beside(tmp_path / "run", 3, 20, lambda at: NextTick(at, robot=3))
     check_no_contacts(metrics)
     assert forger.sent > 100 and metrics["dropped_messages"]["conflicting"] > 100
-    # robot 3's own: a machine busy beside the run makes every robot miss a tick now and then
-    assert metrics["missed_ticks_by_robot"][3] <= 5, "robot 3 answered the ticks it doubted (braking)"
+    # of its 200 ticks, robot 3 answered none it doubted before (61-91 missed); the race between the forger's
+    # pose and the world's costs it a few still, more on a busy machine (2-6 seen)
+    assert metrics["missed_ticks_by_robot"][3] <= 20, "robot 3 answered the ticks it doubted (braking)"
 
 
 @pytest.fixture(scope="module")
