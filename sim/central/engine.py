@@ -629,7 +629,10 @@ def run_central(
                 stop.interrupted = interrupted
             params = RobotParams.from_dict(scene.robot)
             how = RunOutcome(
-                outcome.wall_s, [asdict(c) for c in outcome.contacts], reach=reach, extra=_metrics(outcome)
+                outcome.wall_s,
+                [asdict(c) for c in outcome.contacts],
+                reach=reach,
+                extra=_metrics(outcome, scene.robots),
             )
             # as the distributed engine: an interrupted run's video is left out, what was recorded is written
             video = video and not interrupted
@@ -639,7 +642,7 @@ def run_central(
         raise
 
 
-def _metrics(outcome: Outcome) -> dict[str, Any]:
+def _metrics(outcome: Outcome, robots: int) -> dict[str, Any]:
     """metrics.json's keys beside the true record, as the distributed engine's launcher writes them, for a run
     in one process: no agent process or router, no message to drop or be late, each command applied at once."""
     t = outcome.arrays["t"]
@@ -659,7 +662,7 @@ def _metrics(outcome: Outcome) -> dict[str, Any]:
         stopped_ticks=0,
         withheld_ticks=0,  # tracker outages need the distributed engine
         commanded_two_ways=[],  # no bus carries its commands
-        missed_ticks_by_robot=[0] * len(outcome.arrays["pose"][0]) if len(t) else [],  # each answers at once
+        missed_ticks_by_robot=[0] * robots,  # each robot answers every tick at once
         orca_fallbacks=outcome.fallbacks,
         poses_held=0,  # the tracker's poses are trusted: tracker glitches need the distributed engine
         subscriptions_renewed=0,

@@ -29,6 +29,7 @@ def test_central_and_distributed_runs_of_an_image_write_the_same_keys_and_agreem
     assert set(m_distributed) - set(m_central) <= DISTRIBUTED_ONLY and set(m_central) <= set(m_distributed)
     assert m_central["engine"] == "central" and m_central["complete"] and m_central["converged"]
     assert m_central["agent_processes"] == 0 and m_central["crashes"] == [] and m_central["dropped_messages"] == {}
+    assert m_central["missed_ticks_by_robot"] == [0] * 6 and len(m_distributed["missed_ticks_by_robot"]) == 6
     assert m_central["stepping_wall_s"] > 0 and m_central["commands_applied"] == m_central["commands_sent"] > 0
     assert set(central) == set(distributed)
     # one seed, one run: the same goal sets, and each robot's goal from the same agreement of the same auction
