@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import shutil
 import sys
-from collections.abc import Iterator, Mapping
+import time
+from collections.abc import Callable, Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 
@@ -34,6 +35,7 @@ INCOMPLETE = "INCOMPLETE"  # the marker file of a run directory whose run did no
 
 # pixels times frames of display.mp4 above which it plays faster than real time (its cost grows with both)
 VIDEO_PIXEL_BUDGET = 6e9
+FRAMES_SAID_EVERY = 5.0  # s between progress lines while display.mp4 is written
 
 
 def write_trajectory(path: Path, arrays: dict[str, Any], radius: np.ndarray) -> Path:
@@ -135,8 +137,10 @@ def write_run(
     *,
     video: bool,
     plots: bool,
+    progress: TextIO | None = None,
 ) -> Path:
-    """Everything a run directory holds, from the true trajectory; returns the committed path."""
+    """Everything a run directory holds, from the true trajectory; returns the committed path. ``progress``
+    hears how the video comes along (the longest part of a large run's writing)."""
     radius = np.full(scene.robots, params.radius)
     t = arrays["t"]
     # trajectory.npz on a thread (deflate and the disk free the GIL) beside the metrics and drawings
@@ -153,7 +157,8 @@ def write_run(
 
             write_plots(run_dir.path, recording_of(scene, arrays, radius), clearance)
         if len(t) and video:
-            _write_display_video(run_dir, scene, arrays, radius, metrics.get("time_to_converge_s"))
+            said = _frames_said(progress, f"[{scene.name}] display.mp4")
+            _write_display_video(run_dir, scene, arrays, radius, metrics.get("time_to_converge_s"), said)
         trajectory.result()  # its error, if any, is the run's
     save_resolved(scene, run_dir.path, robot=params.to_dict())  # scene.json, goal_sets.npz
     shutil.rmtree(run_dir / SCRATCH, ignore_errors=True)  # a streamed recording's raw files (sim.outputs.stream)
@@ -186,11 +191,31 @@ def _run_metrics(
     return metrics
 
 
+def _frames_said(out: TextIO | None, what: str) -> Callable[[int, int], None] | None:
+    """A progress line for ``what`` every :data:`FRAMES_SAID_EVERY` s of writing, and one at its end."""
+    if out is None:
+        return None
+    last = time.monotonic()
+
+    def say(done: int, frames: int) -> None:
+        nonlocal last
+        if done == frames or time.monotonic() - last >= FRAMES_SAID_EVERY:
+            last = time.monotonic()
+            print(f"{what}: {done} of {frames} frames", file=out, flush=True)
+
+    return say
+
+
 def _write_display_video(
-    run_dir: RunDir, scene: Scene, arrays: dict[str, Any], radius: np.ndarray, formed: float | None
+    run_dir: RunDir,
+    scene: Scene,
+    arrays: dict[str, Any],
+    radius: np.ndarray,
+    formed: float | None,
+    progress: Callable[[int, int], None] | None,
 ) -> None:
     """display.mp4 at real time (or faster, :data:`VIDEO_PIXEL_BUDGET`), holding the final picture once the display
-    ``formed`` (s from the start; None: never). No encoder here: a warning."""
+    ``formed`` (s from the start; None: never), telling ``progress`` of its frames. No encoder here: a warning."""
     from sim.outputs.render import frame_indices, held_frames, video_size, write_video
 
     t = arrays["t"]
@@ -200,7 +225,7 @@ def _write_display_video(
     speed = 1.0 if over <= 1 else float(np.ceil(over))
     idx = held_frames(t, None if formed is None else float(t[0]) + formed, speed=speed)
     try:
-        shown = recording_of(scene, arrays, radius, idx)
-        write_video(run_dir / "display.mp4", shown, size_px=size, speed=None, max_frames=0)
+        frames = recording_of(scene, arrays, radius, idx)
+        write_video(run_dir / "display.mp4", frames, size_px=size, speed=None, max_frames=0, progress=progress)
     except RuntimeError as err:  # no encoder here: the run's data matter more than its video
         print(f"pixelswarm: warning: no display.mp4: {err}", file=sys.stderr)

@@ -670,8 +670,7 @@ class Launcher:
     # --- outputs ------------------------------------------------------------------------------
     def _write(self, rec: Recorder, end_reason: str, wall_s: float) -> Path:
         interrupted = self.end.interrupted
-        if interrupted:
-            end_reason = "interrupted"
+        end_reason = "interrupted" if interrupted else end_reason
         started = self.end.startup_failure is None
         arrays = rec.arrays()
         stats = self.world.stats
@@ -727,4 +726,5 @@ class Launcher:
         )
         outcome = RunOutcome(wall_s, stats.get("contacts", []), traffic, self.opt.reach, extra)
         video, plots = self.opt.video and not interrupted and started, self.opt.plots and started
-        return write_run(self.run_dir, self.scene, self.params, arrays, outcome, video=video, plots=plots)
+        run = (self.run_dir, self.scene, self.params, arrays, outcome)
+        return write_run(*run, video=video, plots=plots, progress=self.opt.progress)

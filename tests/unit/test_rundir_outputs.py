@@ -6,16 +6,17 @@ import datetime as dt
 import json
 import math
 import re
+import threading
 
 import cv2
 import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from sim.outputs import metrics
+from sim.outputs import metrics, render
 from sim.outputs.foxglove import QUANTUM, SceneUpdate, scene_update
 from sim.outputs.mcaplog import McapLog, mcap_channels, read_mcap
-from sim.outputs.render import Recording, _View, frame_indices, write_plots, write_video
+from sim.outputs.render import Recording, _drawn_ahead, _View, frame_indices, write_plots, write_video
 from sim.outputs.rundir import RunDir, default_run_path, dumps_json, json_safe, write_json
 from tests.conftest import METRIC_KEYS, run_pixelswarm
 from tests.support.outputs import contact_events, log_json, render_frame, write_npz
@@ -365,6 +366,37 @@ def test_write_video_frames(tmp_path):
         count += 1
     cap.release()
     assert n2 == count == 7
+
+
+def test_frames_drawn_ahead_of_the_encoder_come_in_order_each_told_once():
+    """The next frame is drawn on a thread while the encoder takes the last: the same frames, in order."""
+    drawn, told = [], []
+
+    def draw(k):
+        drawn.append(k)
+        return np.full((2, 2, 3), k, np.uint8)
+
+    frames = list(_drawn_ahead(draw, [4, 0, 7, 7, 2], lambda done, total: told.append((done, total))))
+    assert [int(f[0, 0, 0]) for f in frames] == drawn == [4, 0, 7, 7, 2]
+    assert told == [(1, 5), (2, 5), (3, 5), (4, 5), (5, 5)]
+
+
+def test_a_frame_that_cannot_be_drawn_fails_the_video_and_leaves_no_file_or_thread(tmp_path, monkeypatch):
+    t, pose, r, color, goal = _scene(T=25)
+    draw, calls = render._draw, []
+
+    def failing(*args):
+        calls.append(1)
+        if len(calls) == 10:
+            raise RuntimeError("no ink")
+        return draw(*args)
+
+    monkeypatch.setattr(render, "_draw", failing)
+    path = tmp_path / "display.mp4"
+    with pytest.raises(RuntimeError, match="no ink"):
+        write_video(path, Recording(t, pose, r, ARENA, goal=goal, color=color), size_px=160)
+    assert len(calls) == 10 and not path.exists()
+    assert not [th for th in threading.enumerate() if th.name.startswith("video-frames")]
 
 
 def test_write_plots(tmp_path):

@@ -51,6 +51,10 @@ def test_the_video_of_a_run_that_ends_on_convergence_holds_the_picture_three_sec
         stream = container.streams.video[0]
         assert stream.average_rate == FPS
         frames = [f.to_ndarray(format="bgr24").astype(int) for f in container.decode(stream)]
+    # the writing said, as the distributed engine's: the run's end, then the video's frames as they came
+    said = result.stderr.splitlines()
+    assert "[circle] run ended (converged); writing run" in said
+    assert f"[circle] display.mp4: {len(frames)} of {len(frames)} frames" in said
     formed = math.ceil(metrics["time_to_converge_s"] * FPS - 1e-6)  # frame k shows t = k / FPS
     after = frames[formed:]
     assert len(after) >= HOLD_S * FPS
