@@ -360,9 +360,12 @@ def unheard(const int64_t[:] robots, const double[:, :] position, const double[:
     cdef Keyed *rows = <Keyed *>malloc(max(s, 1) * sizeof(Keyed))
     if rows == NULL:
         raise MemoryError()
+    cdef bint ordered = True
     for i in range(s):
         rows[i].robot, rows[i].row = robots[i], i
-    qsort(rows, s, sizeof(Keyed), _by_robot)
+        ordered = ordered and (i == 0 or robots[i - 1] <= robots[i])
+    if not ordered:  # the central engine hears every robot in id order
+        qsort(rows, s, sizeof(Keyed), _by_robot)
     for i in range(b):
         lo, hi = 0, s  # the first row of the body's robot
         while lo < hi:

@@ -175,12 +175,17 @@ def test_the_bodies_a_robot_has_not_heard_are_found_among_a_thousand_in_any_orde
         expected.append(not near)
     got = unheard(robots, position, stamps, bodies, 2.0, EPUCK.stale_after, EPUCK.v_max, EPUCK.radius)
     assert got.tolist() == expected and 0 < sum(expected) < len(expected)
+    by_id = np.argsort(robots)  # the central engine's states come in id order: the same answer
+    args = (robots[by_id], position[by_id], stamps[by_id], bodies, 2.0, EPUCK.stale_after, EPUCK.v_max, EPUCK.radius)
+    assert unheard(*args).tolist() == expected
     # the bounds: a state exactly stale_after old, a body exactly as far as it could have driven; a second
     # state of robot 1 (the first row counts)
     edge = np.zeros(2, Poses.RECORD)
     edge["robot"], edge["x"] = [1, 2], [0.5, 0.0]
     heard = np.array([1, 2, 1]), np.array([[0.0, 0.0], [0.0, 0.0], [9.0, 9.0]]), np.array([1.0, 0.5, 1.0])
     assert unheard(*heard, edge, 1.0, 0.5, 1.0, 0.5).tolist() == [False, False]
+    in_order = np.array([1, 1, 2]), np.array([[0.0, 0.0], [9.0, 9.0], [0.0, 0.0]]), np.array([1.0, 1.0, 0.5])
+    assert unheard(*in_order, edge, 1.0, 0.5, 1.0, 0.5).tolist() == [False, False]
     nobody = np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(0)
     assert unheard(*nobody, edge, 1.0, 0.5, 1.0, 0.5).tolist() == [True, True]
 
