@@ -3,7 +3,9 @@ none); a robot without a finite position at a sample is ignored there."""
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -124,20 +126,20 @@ def assignment_over_optimum(pose: np.ndarray, goal: np.ndarray, assignment: np.n
     where that is not one goal per robot or there are more than OPTIMUM_UP_TO robots."""
     from scipy.optimize import linear_sum_assignment
 
-    out: list[float | None] = []
-    for k in np.unique(step):
-        first = int(np.flatnonzero(step == k)[0])
+    def over(first: int) -> float | None:
         a, xy, g = assignment[first], pose[first, :, :2], goal[first]
         one_goal_each = (a >= 0).all() and (a < len(g)).all() and len(np.unique(a)) == len(a)
         if len(a) > OPTIMUM_UP_TO or not one_goal_each or not np.isfinite(g).all():
-            out.append(None)
-            continue
+            return None
         goals = np.empty_like(g)
         goals[a] = g  # goal index -> where it is
         cost = ((xy[:, None, :] - goals[None]) ** 2).sum(-1)
         rows, cols = linear_sum_assignment(cost)
-        out.append(float(cost[np.arange(len(a)), a].sum() - cost[rows, cols].sum()))
-    return out
+        return float(cost[np.arange(len(a)), a].sum() - cost[rows, cols].sum())
+
+    firsts = [int(np.flatnonzero(step == k)[0]) for k in np.unique(step)]
+    with ThreadPoolExecutor(len(os.sched_getaffinity(0))) as solvers:  # the solver frees the GIL
+        return list(solvers.map(over, firsts))
 
 
 def path_lengths(pose: np.ndarray) -> np.ndarray:
