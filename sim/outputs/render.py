@@ -103,19 +103,6 @@ def _stamp(img: np.ndarray, centre: np.ndarray, r_px: np.ndarray, bgr: np.ndarra
         img[rows[inside], cols[inside]] = colour[inside]
 
 
-def _draw_stamped(
-    img: np.ndarray, view: _View, pose: np.ndarray, radius: np.ndarray, bgr: np.ndarray, goal: np.ndarray | None
-) -> None:
-    """Goal rims and robots' discs as stamps (:data:`STAMP_ABOVE`)."""
-    rpx = radius * view.scale
-    if goal is not None:
-        g = np.asarray(goal, dtype=float).reshape(-1, 2)
-        gok = np.isfinite(g).all(axis=1)
-        _stamp(img, view.px(g[gok]), rpx[gok], _dim(bgr).astype(np.uint8)[gok], ring=True)
-    ok = np.isfinite(pose[:, :2]).all(axis=1)
-    _stamp(img, view.px(pose[ok, :2]), rpx[ok], bgr[ok].astype(np.uint8))
-
-
 class _View:
     """World -> pixel transform for an arena, plus the static background."""
 
@@ -165,10 +152,12 @@ def _draw(
     color: np.ndarray | None,
     goal: np.ndarray | None,
 ) -> np.ndarray:
-    """The swarm on ``img`` in its LED colours (None: white), and the display time in the top-left corner."""
-    n = len(pose)
-    bgr = np.full((n, 3), 230, np.int64) if color is None else np.asarray(color).reshape(n, 3)[:, ::-1].astype(np.int64)
-    (_draw_stamped if n > STAMP_ABOVE else _draw_discs)(img, view, pose, radius, bgr, goal)
+    """The swarm on ``img`` in its LED colours (None: white) over its goals' rings (None: none, or drawn on
+    ``img`` already: :func:`_goal_rings`), and the display time in the top-left corner."""
+    bgr = _bgr(color, len(pose))
+    if goal is not None:
+        _goal_rings(img, view, radius, bgr, goal)
+    _robots(img, view, pose, radius, bgr)
     if time_s is not None and np.isfinite(time_s):
         fs = max(0.35, view.height / 1300)
         label = f"t = {time_s:7.2f} s"
@@ -179,26 +168,42 @@ def _draw(
     return img
 
 
+def _bgr(color: np.ndarray | None, n: int) -> np.ndarray:
+    """(N, 3) int64 BGR of the robots' LED colours (RGB; None: white)."""
+    if color is None:
+        return np.full((n, 3), 230, np.int64)
+    return np.asarray(color).reshape(n, 3)[:, ::-1].astype(np.int64)
+
+
 def _dim(bgr: np.ndarray) -> np.ndarray:
     """A goal's dim shade of its robot's colour."""
     return np.maximum(bgr * 0.45, 55)
 
 
-def _draw_discs(
-    img: np.ndarray, view: _View, pose: np.ndarray, radius: np.ndarray, bgr: np.ndarray, goal: np.ndarray | None
-) -> None:
-    """Each goal (NaN: none) as a dim one-pixel ring of its robot's size; each placed robot as a disc with a
-    rim and, where its heading is known, a tick toward its front (dark on a light disc, light on a dark one)."""
+def _goal_rings(img: np.ndarray, view: _View, radius: np.ndarray, bgr: np.ndarray, goal: np.ndarray) -> None:
+    """Each goal (NaN: none) as a dim one-pixel ring of its robot's size (stamped above :data:`STAMP_ABOVE`)."""
     rpx = radius * view.scale
-    r_fx = np.maximum(np.round(rpx * _ONE), _ONE).astype(np.int64)  # fixed-point radii, at least a pixel
-    g = np.full((len(bgr), 2), np.nan) if goal is None else np.asarray(goal, dtype=float).reshape(len(bgr), 2)
+    g = np.asarray(goal, dtype=float).reshape(len(bgr), 2)
     gok = np.isfinite(g).all(axis=1)
-    gfx, gcol = view.fixed(np.where(gok[:, None], g, 0.0)), _dim(bgr).astype(np.int64)
+    if len(bgr) > STAMP_ABOVE:
+        _stamp(img, view.px(g[gok]), rpx[gok], _dim(bgr).astype(np.uint8)[gok], ring=True)
+        return
+    r_fx = np.maximum(np.round(rpx * _ONE), _ONE).astype(np.int64).tolist()  # fixed-point radii, at least a pixel
+    gfx, gcol = view.fixed(np.where(gok[:, None], g, 0.0)).tolist(), _dim(bgr).astype(np.int64).tolist()
     for i in np.flatnonzero(gok).tolist():
-        centre = (int(gfx[i, 0]), int(gfx[i, 1]))
-        cv2.circle(img, centre, int(r_fx[i]), tuple(int(c) for c in gcol[i]), 1, cv2.LINE_AA, _SHIFT)
+        cv2.circle(img, tuple(gfx[i]), r_fx[i], tuple(gcol[i]), 1, cv2.LINE_AA, _SHIFT)
+
+
+def _robots(img: np.ndarray, view: _View, pose: np.ndarray, radius: np.ndarray, bgr: np.ndarray) -> None:
+    """Each placed robot as a disc with a rim and, where its heading is known, a tick toward its front (dark on a
+    light disc, light on a dark one); above :data:`STAMP_ABOVE`, a stamped disc alone."""
+    rpx = radius * view.scale
     xy = pose[:, :2]
     ok = np.isfinite(xy).all(axis=1)
+    if len(bgr) > STAMP_ABOVE:
+        _stamp(img, view.px(xy[ok]), rpx[ok], bgr[ok].astype(np.uint8))
+        return
+    r_fx = np.maximum(np.round(rpx * _ONE), _ONE).astype(np.int64)  # fixed-point radii, at least a pixel
     has_th = np.isfinite(pose[:, 2])
     th = np.where(has_th, pose[:, 2], 0.0)
     xy0 = np.where(ok[:, None], xy, 0.0)
@@ -274,11 +279,7 @@ def write_video(
         raise ValueError("write_video: no samples")
 
     view = _View(rec.arena, size_px)
-    bg = view.background(rec.obstacles)
-    at = lambda a, k: None if a is None else a[k]  # a tick's values, or none
-    radius = np.asarray(rec.radius)
-    draw = lambda k: _draw(bg.copy(), view, float(rec.t[k]), rec.pose[k], radius, at(rec.color, k), at(rec.goal, k))
-    frames = _drawn_ahead(draw, idx.tolist(), progress)
+    frames = _drawn_ahead(_painter(rec, view), idx.tolist(), progress)
     try:
         if fourcc is None:
             _encode_h264(path, frames, fps, view.width, view.height)
@@ -289,6 +290,28 @@ def write_video(
         path.unlink(missing_ok=True)  # a half-written video is worse than none
         raise
     return int(len(idx))
+
+
+def _painter(rec: Recording, view: _View) -> Callable[[int], np.ndarray]:
+    """Sample k of ``rec`` drawn as :func:`_draw` draws it, the goals' rings drawn once while they stand still
+    (as an image holds): the same pixels."""
+    bg = view.background(rec.obstacles)
+    at = lambda a, k: None if a is None else a[k]  # a tick's values, or none
+    radius = np.asarray(rec.radius)
+    rings: dict[bytes, np.ndarray] = {}  # the background with the last frame's goal rings, by goals and colours
+
+    def draw(k: int) -> np.ndarray:
+        goal, color = at(rec.goal, k), at(rec.color, k)
+        if goal is None:
+            return _draw(bg.copy(), view, float(rec.t[k]), rec.pose[k], radius, color, None)
+        key = np.asarray(goal).tobytes() + (b"" if color is None else np.asarray(color).tobytes())
+        if key not in rings:
+            rings.clear()
+            rings[key] = bg.copy()
+            _goal_rings(rings[key], view, radius, _bgr(color, len(radius)), goal)
+        return _draw(rings[key].copy(), view, float(rec.t[k]), rec.pose[k], radius, color, None)
+
+    return draw
 
 
 def _drawn_ahead(

@@ -16,7 +16,17 @@ from mcap.reader import make_reader
 from sim.outputs import metrics, render
 from sim.outputs.foxglove import QUANTUM, SceneUpdate, scene_update
 from sim.outputs.mcaplog import McapLog, mcap_channels, read_mcap
-from sim.outputs.render import Recording, _drawn_ahead, _View, frame_indices, write_plots, write_video
+from sim.outputs.render import (
+    STAMP_ABOVE,
+    Recording,
+    _draw,
+    _drawn_ahead,
+    _painter,
+    _View,
+    frame_indices,
+    write_plots,
+    write_video,
+)
 from sim.outputs.rundir import RunDir, default_run_path, dumps_json, json_safe, write_json
 from tests.conftest import METRIC_KEYS, run_pixelswarm
 from tests.support.outputs import contact_events, log_json, render_frame, write_npz
@@ -366,6 +376,21 @@ def test_write_video_frames(tmp_path):
         count += 1
     cap.release()
     assert n2 == count == 7
+
+
+@pytest.mark.parametrize("robots", [3, STAMP_ABOVE + 1], ids=["discs", "stamps"])
+def test_a_video_frame_is_the_swarm_drawn_whole_though_its_goal_rings_are_drawn_once(robots):
+    """The video's frames reuse the goals' rings while goals and colours stand still: every frame has the
+    pixels of the whole frame drawn anew, as the goals move on and the colours change."""
+    t, pose, r, color, goal = _scene(T=12, N=robots)
+    goal[6:] += 0.3  # the next image's goals
+    color[9:, 0] = (0, 0, 255)  # a robot's LED turns blue
+    rec = Recording(t, pose, r, ARENA, OBSTACLES, goal, color).checked()
+    view = _View(ARENA, 320)
+    draw = _painter(rec, view)
+    for k in [0, 1, 5, 6, 7, 9, 11, 3]:  # on, and back to goals drawn before
+        whole = _draw(view.background(OBSTACLES), view, t[k], rec.pose[k], rec.radius, color[k], goal[k])
+        assert np.array_equal(draw(k), whole), k
 
 
 def test_frames_drawn_ahead_of_the_encoder_come_in_order_each_told_once():
