@@ -12,7 +12,7 @@ from transport.codec import BEFORE_START, State
 from transport.keys import cells_of
 from transport.plausible import AHEAD, FUTURE, INCONSISTENT, stamp_agrees
 
-from .core.grid import nearest, neighbour_rows
+from .core.grid import nearest
 from .core.grid import unheard as bodies_unheard
 from .core.params import RobotParams
 from .core.step import NeighbourStates
@@ -196,7 +196,8 @@ def nearest_heard(
     max_neighbours: int,
     threads: int = 1,
 ) -> NeighbourStates:
-    """Padded neighbour arrays: the nearest heard states (ties by id), so every engine picks the same neighbours."""
+    """The nearest heard states (ties by id), so every engine picks the same neighbours: each robot's rows of
+    one table of them."""
     batch = len(robot_ids)
     if len(heard.ids) == 0:
         return NeighbourStates.empty(batch)
@@ -213,4 +214,4 @@ def nearest_heard(
     table = np.empty((len(heard.ids), 7))  # per state: x, y, vx, vy, radius, age, cooperative
     table[:, 0:2], table[:, 2:4], table[:, 4] = heard.position, heard.velocity, heard.radius
     table[:, 5], table[:, 6] = stamp - np.asarray(heard.stamp, float), heard.cooperative
-    return NeighbourStates(*neighbour_rows(idx, table))
+    return NeighbourStates(idx, table)

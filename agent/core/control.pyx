@@ -492,25 +492,23 @@ cdef class Work:
 
 
 cdef class Heard:
-    """What a batch heard: neighbours' states (B,M) as broadcast, with their ages, row-major."""
+    """What a batch heard: a table of states (S, 7: x, y, vx, vy, radius, age, cooperative) as broadcast,
+    and each robot's rows of it (B, M), nearest first, -1 where none."""
 
     cdef Py_ssize_t b, m
-    cdef const double[::1] position, velocity, radius, age
-    cdef const unsigned char[::1] valid, cooperative
+    cdef const int64_t[:, ::1] index
+    cdef const double[:, ::1] table
 
     def __init__(self, states):
-        """From agent.core.step.NeighbourStates (or anything with its six arrays)."""
-        valid = np.ascontiguousarray(states.valid, dtype=bool)
-        self.b, self.m = valid.shape
-        floats = [np.ascontiguousarray(x, dtype=float).reshape(-1) for x in (states.position, states.velocity, states.radius, states.age)]
-        if any(len(x) != k * valid.size for x, k in zip(floats, (2, 2, 1, 1))):
-            raise ValueError("neighbour states must be (B,M,2), (B,M,2), (B,M) and (B,M) arrays")
-        self.position, self.velocity, self.radius, self.age = floats
-        self.valid = valid.reshape(-1).view(np.uint8)
-        cooperative = np.asarray(states.cooperative, dtype=bool)
-        if cooperative.shape != valid.shape:  # one flag for all
-            cooperative = np.broadcast_to(cooperative, valid.shape)
-        self.cooperative = np.ascontiguousarray(cooperative).reshape(-1).view(np.uint8)
+        """From agent.core.step.NeighbourStates (or anything with its index and table)."""
+        index = np.ascontiguousarray(states.index, dtype=np.int64)
+        table = np.ascontiguousarray(states.table, dtype=float)
+        if index.ndim != 2 or table.ndim != 2 or table.shape[1] != 7:
+            raise ValueError("neighbour states: index (B,M) into a table (S,7)")
+        if index.size and index.max() >= len(table):
+            raise IndexError(f"neighbour states: row {index.max()} past the table's {len(table)}")
+        self.index, self.table = index, table
+        self.b, self.m = index.shape[0], index.shape[1]
 
     @property
     def batch(self):
@@ -541,20 +539,21 @@ cdef class Obstacles:
 cdef void _prepare(Config *s, Heard h, Py_ssize_t i, Scratch *w, double vmax) noexcept nogil:
     """Neighbours now from states ``age`` old: extrapolated by min(age, committed), grown by noise +
     h vmax for the rest h (``lead`` h: it most likely kept going); stale ones not extrapolated, grown
-    twice as much, avoided alone (c = 1). Invalid where flagged or not finite."""
+    twice as much, avoided alone (c = 1). Invalid where none or not finite."""
     cdef Py_ssize_t k, j
     cdef double x, y, u, v, r, age, horizon, shift
-    cdef bint ok, stale
+    cdef bint ok, stale, cooperative
     w.used = w.m
-    while w.used > 0 and not h.valid[i * h.m + w.used - 1]:
+    while w.used > 0 and h.index[i, w.used - 1] < 0:
         w.used -= 1
     for k in range(w.used):
-        j = i * h.m + k
-        x, y = h.position[2 * j], h.position[2 * j + 1]
-        u, v = h.velocity[2 * j], h.velocity[2 * j + 1]
-        r, age = h.radius[j], h.age[j]
+        j = h.index[i, k]
+        x, y, u, v, r, age, cooperative = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, True
+        if j >= 0:
+            x, y, u, v = h.table[j, 0], h.table[j, 1], h.table[j, 2], h.table[j, 3]
+            r, age, cooperative = h.table[j, 4], h.table[j, 5], h.table[j, 6] != 0.0
         age = age if age > 0.0 else 0.0
-        ok = h.valid[j] and isfinite(x) and isfinite(y) and isfinite(u) and isfinite(v) and isfinite(r) and isfinite(age)
+        ok = j >= 0 and isfinite(x) and isfinite(y) and isfinite(u) and isfinite(v) and isfinite(r) and isfinite(age)
         stale = age > s.timeout
         horizon = (s.timeout if stale else age) - s.committed
         horizon = horizon if horizon > 0.0 else 0.0
@@ -566,7 +565,7 @@ cdef void _prepare(Config *s, Heard h, Py_ssize_t i, Scratch *w, double vmax) no
         w.ng[k] = horizon * (2.0 if stale else 1.0) * vmax
         w.nr[k] = r + s.noise + w.ng[k]
         w.nlead[k] = horizon if not stale else 0.0
-        w.nc[k] = COOPERATING if h.cooperative[j] and not stale else NON_COOPERATING
+        w.nc[k] = COOPERATING if cooperative and not stale else NON_COOPERATING
         w.nok[k] = ok
 
 
@@ -582,11 +581,13 @@ cdef bint _unsure(Config *s, Heard h, Py_ssize_t i, Scratch *w, Robot *me) noexc
     cdef Py_ssize_t k
     cdef double ex, ey, age, reach
     for k in range(w.used):
-        age = h.age[i * h.m + k]
-        if not (w.nok[k] and age > s.timeout):
+        if not w.nok[k]:
+            continue
+        age = h.table[h.index[i, k], 5]
+        if not age > s.timeout:
             continue
         ex, ey = w.nx[k] - me.x, w.ny[k] - me.y
-        reach = _touch(s, me.radius, h.radius[i * h.m + k], age, me.vmax)
+        reach = _touch(s, me.radius, h.table[h.index[i, k], 4], age, me.vmax)
         if ex * ex + ey * ey < reach * reach:
             return True
     return False

@@ -13,16 +13,6 @@ def nearest(
     inclusive: bool = True,
     threads: int = 1,
 ) -> npt.NDArray[np.int64]: ...
-def neighbour_rows(
-    idx: npt.NDArray[np.int64], table: npt.NDArray[np.float64]
-) -> tuple[
-    npt.NDArray[np.float64],
-    npt.NDArray[np.float64],
-    npt.NDArray[np.float64],
-    npt.NDArray[np.float64],
-    npt.NDArray[np.bool_],
-    npt.NDArray[np.bool_],
-]: ...
 def unheard(
     robots: npt.NDArray[np.int64],
     position: npt.NDArray[np.float64],

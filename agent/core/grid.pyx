@@ -292,42 +292,6 @@ cdef void _query(Grid *g, Query *nb, double px, double py, int64_t own, const in
         scan(g, nb, key, c + low, c + high + 1)
 
 
-def neighbour_rows(const int64_t[:, ::1] idx, const double[:, ::1] table):
-    """`nearest`'s idx (Q, m) as padded neighbour arrays from table (N, 7: x, y, vx, vy, radius, age,
-    cooperative): position, velocity, radius, age, valid, cooperative (padding: radius 1, invalid)."""
-    cdef Py_ssize_t q = idx.shape[0], m = idx.shape[1], i, k, j, n = table.shape[0]
-    if table.shape[1] != 7:
-        raise ValueError("neighbour_rows: table (N, 7): x, y, vx, vy, radius, age, cooperative")
-    position_array, velocity_array = np.empty((q, m, 2)), np.empty((q, m, 2))
-    radius_array, age_array = np.empty((q, m)), np.empty((q, m))
-    valid_array, cooperative_array = np.empty((q, m), dtype=bool), np.empty((q, m), dtype=bool)
-    cdef double[:, :, ::1] position = position_array
-    cdef double[:, :, ::1] velocity = velocity_array
-    cdef double[:, ::1] radius = radius_array
-    cdef double[:, ::1] age = age_array
-    cdef unsigned char[:, ::1] valid = valid_array.view(np.uint8)
-    cdef unsigned char[:, ::1] cooperative = cooperative_array.view(np.uint8)
-    for i in range(q):  # every slot written once: a neighbour's state, or the padding past the last
-        for k in range(m):
-            j = idx[i, k]
-            if j >= n:
-                raise IndexError(f"neighbour_rows: index {j} past the table's {n} rows")
-            if j < 0:
-                break
-            position[i, k, 0], position[i, k, 1] = table[j, 0], table[j, 1]
-            velocity[i, k, 0], velocity[i, k, 1] = table[j, 2], table[j, 3]
-            radius[i, k] = table[j, 4]
-            age[i, k] = table[j, 5]
-            valid[i, k] = 1
-            cooperative[i, k] = table[j, 6] != 0.0
-        else:
-            continue
-        for k in range(k, m):
-            position[i, k, 0] = position[i, k, 1] = velocity[i, k, 0] = velocity[i, k, 1] = 0.0
-            radius[i, k], age[i, k], valid[i, k], cooperative[i, k] = 1.0, 0.0, 0, 1
-    return position_array, velocity_array, radius_array, age_array, valid_array, cooperative_array
-
-
 # ---------------------------------------------------------------- the tracker's bodies against the states heard
 
 

@@ -30,27 +30,48 @@ class Rows:
                 value[index] = getattr(other, name)
 
 
+STATE_COLUMNS = ("x", "y", "vx", "vy", "radius", "age", "cooperative")  # a heard state's row
+
+
 @dataclass
 class NeighbourStates(Rows):
-    """What a batch of B robots heard from up to M neighbours each (padded; ``valid`` marks real ones)."""
+    """What a batch of B robots heard: a table of S states, one row each (:data:`STATE_COLUMNS`: position
+    and collision-free velocity as broadcast, radius, seconds since stamped (message stamps, never a wall
+    clock), 1 where it runs the same ORCA, 0 a dynamic obstacle), and each robot's up to M of them."""
 
-    position: np.ndarray  # (B,M,2) as broadcast
-    velocity: np.ndarray  # (B,M,2) their collision-free velocity
-    radius: np.ndarray  # (B,M)
-    age: np.ndarray  # (B,M) seconds since the state was stamped (from message stamps, never a wall clock)
-    valid: np.ndarray  # (B,M) bool
-    cooperative: np.ndarray  # (B,M) bool: runs the same ORCA (False: a dynamic obstacle)
+    index: np.ndarray  # (B,M) int64: rows of ``table``, nearest first; -1 where none
+    table: np.ndarray  # (S,7)
+
+    def rows(self, index: np.ndarray | slice) -> NeighbourStates:
+        return NeighbourStates(self.index[index], self.table)
 
     @classmethod
     def empty(cls, batch: int, m: int = 0) -> NeighbourStates:
-        return cls(
-            np.zeros((batch, m, 2)),
-            np.zeros((batch, m, 2)),
-            np.ones((batch, m)),
-            np.zeros((batch, m)),
-            np.zeros((batch, m), bool),
-            np.ones((batch, m), bool),
-        )
+        return cls(np.full((batch, m), -1, np.int64), np.zeros((0, len(STATE_COLUMNS))))
+
+    @classmethod
+    def padded(cls, position, velocity, radius, age, valid, cooperative=True) -> NeighbourStates:
+        """From (B,M) arrays of a slot per neighbour (``valid``: a state heard there)."""
+        valid = np.asarray(valid, bool)
+        columns = [np.reshape(np.broadcast_to(a, valid.shape), -1) for a in (radius, age, cooperative)]
+        table = np.column_stack([np.reshape(position, (-1, 2)), np.reshape(velocity, (-1, 2)), *columns])
+        return cls(np.where(valid, np.arange(valid.size).reshape(valid.shape), -1), table.astype(float))
+
+    @property
+    def valid(self) -> np.ndarray:
+        return self.index >= 0
+
+    def column(self, name: str, padding: float = 0.0) -> np.ndarray:
+        """(B,M) one column of the states each robot heard (``padding`` where none)."""
+        values = self.table[np.maximum(self.index, 0), STATE_COLUMNS.index(name)] if len(self.table) else 0.0
+        return np.where(self.valid, values, padding)
+
+    # the same as (B,M) arrays, a slot per neighbour (padding: nowhere, radius 1, cooperative)
+    position = property(lambda self: np.stack([self.column("x"), self.column("y")], axis=-1))
+    velocity = property(lambda self: np.stack([self.column("vx"), self.column("vy")], axis=-1))
+    radius = property(lambda self: self.column("radius", padding=1.0))
+    age = property(lambda self: self.column("age"))
+    cooperative = property(lambda self: self.column("cooperative", padding=1.0) != 0.0)
 
 
 @dataclass

@@ -80,8 +80,8 @@ class InProcessLink:
         if not self.impaired:
             heard = with_bodies(cast(Heard, self.last), bodies, stamp, p)
             return nearest_heard(sensed.ids, sensed.position, stamp, heard, within, p.max_neighbours, self.threads)
-        out = NeighbourStates.empty(len(sensed.ids), p.max_neighbours)
-        t = self._template
+        index, t = NeighbourStates.empty(len(sensed.ids), p.max_neighbours).index, self._template
+        tables: list[np.ndarray] = []  # each robot's states heard, in the rows of ``index``
         for b, i in enumerate(np.asarray(sensed.ids).tolist()):
             known = np.isfinite(self.heard_stamp[i])
             heard = Heard(
@@ -94,10 +94,10 @@ class InProcessLink:
             )
             heard = with_bodies(heard, bodies, stamp, p)
             one = nearest_heard([i], sensed.position[b : b + 1], stamp, heard, within, p.max_neighbours)
-            k = one.position.shape[1]
-            for name in ("position", "velocity", "radius", "age", "valid", "cooperative"):
-                getattr(out, name)[b, :k] = getattr(one, name)[0]
-        return out
+            chosen = one.index[0][one.index[0] >= 0]  # the rows of its own table this robot heard
+            index[b, : len(chosen)] = np.arange(len(chosen)) + sum(map(len, tables))
+            tables.append(one.table[chosen])
+        return NeighbourStates(index, np.concatenate([np.zeros((0, 7)), *tables]))
 
     def _bodies(self, sensed: Sensed) -> np.ndarray:
         """Where the tracker sees the agents' robots (not the scripted movers), as the Poses records of its

@@ -125,7 +125,7 @@ def all_others(pos, vel, cooperative=True):
     n = len(pos)
     others = np.array([[j for j in range(n) if j != i] for i in range(n)]).reshape(n, n - 1)
     shape = others.shape
-    return NeighbourStates(
+    return NeighbourStates.padded(
         pos[others],
         vel[others],
         np.full(shape, EPUCK.radius),
@@ -215,7 +215,7 @@ def test_in_a_crowd_a_robot_makes_way_for_a_mover_that_will_not():
     velocity[2], velocity[5], velocity[7] = [0.01, -0.052], [0.1, -0.004], [-0.002, -0.002]
     mover = np.arange(len(others)) == 5
     shape = (1, len(others))
-    heard = NeighbourStates(
+    heard = NeighbourStates.padded(
         others[None],
         velocity[None],
         np.full(shape, params.radius),
@@ -233,7 +233,7 @@ def test_in_a_crowd_a_robot_makes_way_for_a_mover_that_will_not():
 
 def test_mirrored_polygon_drives_backwards_when_forward_is_infeasible():
     # a dynamic obstacle (c = 1) right ahead closing at 0.1 m/s: backing off faster than P_AHV allows
-    obstacle = NeighbourStates(
+    obstacle = NeighbourStates.padded(
         np.array([[[0.1 + 0.002, 0.0]]]), np.array([[[-0.1, 0.0]]]), np.array([[EPUCK.radius]]),
         np.zeros((1, 1)), np.ones((1, 1), bool), np.zeros((1, 1), bool),
     )  # fmt: skip
@@ -250,7 +250,7 @@ def test_a_differential_drive_robot_gets_bit_identical_results_alone_or_in_a_bat
     rng = np.random.default_rng(9)
     b, m = 64, 6
     pos = rng.uniform(0, 0.8, (b, 2))
-    heard = NeighbourStates(
+    heard = NeighbourStates.padded(
         pos[:, None] + rng.uniform(-0.2, 0.2, (b, m, 2)),
         rng.uniform(-0.1, 0.1, (b, m, 2)),
         np.full((b, m), EPUCK.radius),
@@ -262,6 +262,6 @@ def test_a_differential_drive_robot_gets_bit_identical_results_alone_or_in_a_bat
     full = nh_orca(*own, heard)
     assert full[2].any() and not full[2].all()
     for i in range(b):
-        one = nh_orca(*(a[i : i + 1] for a in own), NeighbourStates(*(x[i : i + 1] for x in vars(heard).values())))
+        one = nh_orca(*(a[i : i + 1] for a in own), heard.rows(slice(i, i + 1)))
         for a, c in zip(full, one):
             assert np.asarray(a)[i].tobytes() == np.asarray(c)[0].tobytes()

@@ -182,7 +182,7 @@ def test_neighbour_states_are_extrapolated_by_age_and_stale_ones_become_obstacle
     radius = np.full((1, 3), 0.05)
     age = np.array([[0.0, 0.2, 5.0]])
     core = Settings(replace(EPUCK, v_max=0.13), timeout=1.0, noise=0.002, committed=0.1)
-    heard = NeighbourStates(pos, vel, radius, age, np.ones((1, 3), bool), np.ones((1, 3), bool))
+    heard = NeighbourStates.padded(pos, vel, radius, age, np.ones((1, 3), bool), np.ones((1, 3), bool))
     position, _, grown, _, responsibility, _, _ = control.prepare_neighbours(core, heard)
     # fresh: extrapolated by the committed time only (0.1 of its 0.2 s); stale: last known position
     assert np.allclose(position[0, :, 0], [1.0, 2.01, 3.0])
@@ -190,7 +190,7 @@ def test_neighbour_states_are_extrapolated_by_age_and_stale_ones_become_obstacle
     # taken it since; stale (not extrapolated): x 2 max_speed, its velocity may have reversed
     assert np.allclose(grown[0], [0.052, 0.05 + 0.002 + 0.1 * 0.13, 0.05 + 0.002 + 0.9 * 0.26])
     assert np.array_equal(responsibility[0], [0.5, 0.5, 1.0])
-    nan = NeighbourStates(
+    nan = NeighbourStates.padded(
         np.full((1, 1, 2), np.nan), vel[:, :1], radius[:, :1], age[:, :1], np.ones((1, 1), bool), np.ones((1, 1), bool)
     )
     position, *_, valid = control.prepare_neighbours(core, nan)
@@ -206,7 +206,7 @@ def test_a_robot_stops_while_a_stale_neighbour_may_be_where_it_touches_it(kinema
     core = Settings(params)
 
     def step(neighbour_x, age):
-        heard = NeighbourStates(
+        heard = NeighbourStates.padded(
             np.array([[[neighbour_x, 0.1]]]), np.zeros((1, 1, 2)), np.full((1, 1), params.radius),
             np.array([[age]]), np.ones((1, 1), bool), np.ones((1, 1), bool),
         )  # fmt: skip
@@ -235,7 +235,7 @@ def test_a_robot_steps_bit_identically_alone_or_in_a_batch():
     rng = np.random.default_rng(11)
     b, m = 120, 8
     pos = rng.uniform(-2, 2, (b, 2))
-    heard = NeighbourStates(
+    heard = NeighbourStates.padded(
         pos[:, None] + rng.uniform(-0.8, 0.8, (b, m, 2)),
         rng.uniform(-0.5, 0.5, (b, m, 2)),
         np.full((b, m), 0.1),
@@ -252,12 +252,7 @@ def test_a_robot_steps_bit_identically_alone_or_in_a_batch():
     assert 10 < fb.sum() < b - 10
     for i in range(b):
         k = m if i % 2 else int(np.nonzero(heard.valid[i])[0].max(initial=0)) + 1  # less padding
-        one = NeighbourStates(
-            *(
-                getattr(heard, f)[i : i + 1, :k]
-                for f in ("position", "velocity", "radius", "age", "valid", "cooperative")
-            )
-        )
+        one = NeighbourStates(heard.index[i : i + 1, :k], heard.table)
         vi, _, fbi, _, _ = control.step(
             core, Batch(pos[i : i + 1], vel[i : i + 1], pref[i : i + 1], None, 0.1), one, walls
         )

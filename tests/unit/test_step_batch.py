@@ -18,15 +18,15 @@ def crowd(rng: np.random.Generator, b: int, m: int) -> tuple:
     position = rng.uniform(-0.8, 0.8, (b, 2))
     ang = rng.uniform(0, 2 * np.pi, (b, m))
     dist = rng.uniform(0.05, 0.5, (b, m))
-    nb = NeighbourStates(
-        position[:, None, :] + np.stack([dist * np.cos(ang), dist * np.sin(ang)], axis=-1),
+    at = position[:, None, :] + np.stack([dist * np.cos(ang), dist * np.sin(ang)], axis=-1)
+    vel, radius, age = (
         rng.normal(0, 0.06, (b, m, 2)),
         rng.uniform(0.03, 0.05, (b, m)),
         rng.choice([-0.05, 0.05, 0.2, 0.8], (b, m)),
-        rng.random((b, m)) < 0.85,
-        rng.random((b, m)) < 0.9,
     )
-    nb.position[~nb.valid & (rng.random((b, m)) < 0.5)] = np.nan
+    valid, cooperative = rng.random((b, m)) < 0.85, rng.random((b, m)) < 0.9
+    at[~valid & (rng.random((b, m)) < 0.5)] = np.nan
+    nb = NeighbourStates.padded(at, vel, radius, age, valid, cooperative)
     velocity = rng.normal(0, 0.05, (b, 2))
     velocity[rng.random(b) < 0.3] *= 0.01
     goal = rng.uniform(-1.5, 1.5, (b, 2))
