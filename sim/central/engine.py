@@ -636,8 +636,6 @@ def run_central(
             )
             # as the distributed engine: an interrupted run's video is left out, what was recorded is written
             video = video and not interrupted
-            if progress is not None:  # as the distributed engine's launcher says it
-                print(f"[{scene.name}] run ended ({outcome.end_reason}); writing {out.name}", file=progress, flush=True)
             return write_run(run_dir, scene, params, outcome.arrays, how, video=video, plots=plots, progress=progress)
     except BaseException:
         run_dir.abort()

@@ -82,6 +82,7 @@ class InProcessLink:
             return nearest_heard(sensed.ids, sensed.position, stamp, heard, within, p.max_neighbours, self.threads)
         index, t = NeighbourStates.empty(len(sensed.ids), p.max_neighbours).index, self._template
         tables: list[np.ndarray] = []  # each robot's states heard, in the rows of ``index``
+        rows = 0  # the rows of those tables so far
         for b, i in enumerate(np.asarray(sensed.ids).tolist()):
             known = np.isfinite(self.heard_stamp[i])
             heard = Heard(
@@ -95,8 +96,9 @@ class InProcessLink:
             heard = with_bodies(heard, bodies, stamp, p)
             one = nearest_heard([i], sensed.position[b : b + 1], stamp, heard, within, p.max_neighbours)
             chosen = one.index[0][one.index[0] >= 0]  # the rows of its own table this robot heard
-            index[b, : len(chosen)] = np.arange(len(chosen)) + sum(map(len, tables))
+            index[b, : len(chosen)] = np.arange(rows, rows + len(chosen))
             tables.append(one.table[chosen])
+            rows += len(chosen)
         return NeighbourStates(index, np.concatenate([np.zeros((0, 7)), *tables]))
 
     def _bodies(self, sensed: Sensed) -> np.ndarray:

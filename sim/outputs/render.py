@@ -298,18 +298,17 @@ def _painter(rec: Recording, view: _View) -> Callable[[int], np.ndarray]:
     bg = view.background(rec.obstacles)
     at = lambda a, k: None if a is None else a[k]  # a tick's values, or none
     radius = np.asarray(rec.radius)
-    rings: dict[bytes, np.ndarray] = {}  # the background with the last frame's goal rings, by goals and colours
+    under = (b"", bg)  # the last frame's goals and colours, and the background with their rings
 
     def draw(k: int) -> np.ndarray:
+        nonlocal under
         goal, color = at(rec.goal, k), at(rec.color, k)
-        if goal is None:
-            return _draw(bg.copy(), view, float(rec.t[k]), rec.pose[k], radius, color, None)
-        key = np.asarray(goal).tobytes() + (b"" if color is None else np.asarray(color).tobytes())
-        if key not in rings:
-            rings.clear()
-            rings[key] = bg.copy()
-            _goal_rings(rings[key], view, radius, _bgr(color, len(radius)), goal)
-        return _draw(rings[key].copy(), view, float(rec.t[k]), rec.pose[k], radius, color, None)
+        bgr = _bgr(color, len(radius))
+        key = b"" if goal is None else np.asarray(goal).tobytes() + bgr.tobytes()
+        if goal is not None and key != under[0]:  # goals stand still while an image holds: rings drawn once
+            under = (key, bg.copy())
+            _goal_rings(under[1], view, radius, bgr, goal)
+        return _draw(under[1].copy(), view, float(rec.t[k]), rec.pose[k], radius, color, None)
 
     return draw
 

@@ -140,7 +140,10 @@ def write_run(
     progress: TextIO | None = None,
 ) -> Path:
     """Everything a run directory holds, from the true trajectory; returns the committed path. ``progress``
-    hears how the video comes along (the longest part of a large run's writing)."""
+    hears that the writing began and how the video comes along (the longest part of a large run's writing)."""
+    if progress is not None:
+        end = outcome.extra.get("end_reason")
+        print(f"[{scene.name}] run ended ({end}); writing {run_dir.final_path.name}", file=progress, flush=True)
     radius = np.full(scene.robots, params.radius)
     t = arrays["t"]
     # trajectory.npz on a thread (deflate and the disk free the GIL) beside the metrics and drawings

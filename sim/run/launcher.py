@@ -686,7 +686,6 @@ class Launcher:
         lost = [
             e for e in rec.happened.liveliness if e["role"] == "agent" and not e["alive"] and e["wall_time"] < until
         ]
-        self._say(f"[{self.scene.name}] run ended ({end_reason}); writing {self.opt.out.name}", force=True)
         traffic = Traffic(
             rec.tally.counts, rec.tally.bytes, int(stats.get("missed_ticks", 0)), len(self.incidents.crashes)
         )
