@@ -179,7 +179,7 @@ cpdef double moved_bound(double made, double x0, double y0, double dx, double dy
     return moved + 1e-9 * (fabs(moved) + fabs(made) + fabs(grow) + fabs(lowest) + 1.0)  # room for rounding
 
 
-LEAF = 8  # goals per leaf of the goal tree
+LEAF = 16  # goals per leaf of the goal tree
 
 
 def goal_tree(goals, int leaf=LEAF):
