@@ -396,7 +396,8 @@ class Participant(Auction):
     def note_block_positions(self, robots: np.ndarray, position: np.ndarray) -> None:
         """The current block's first round heard: these robots' frozen positions, rounded as records carry them."""
         block = np.full((2, len(self.robots)), np.nan)  # x then y, by robot row
-        block[:, np.searchsorted(self.robots, robots)] = np.asarray(position, np.float32).T
+        rows = self.own_rows if robots is self.own_ids else np.searchsorted(self.robots, robots)
+        block[:, rows] = np.asarray(position, np.float32).T
         self.block_positions = [*self.block_positions[-1:], block]
 
     def _tilt_prices(self) -> None:

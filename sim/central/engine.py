@@ -408,7 +408,8 @@ class Central:
         image, goal_set, colors = a.assigned
         # most ticks the auction keeps every goal: the goals are the last ones (unless a pursuer's moved)
         made = (image, a.agreements.instance)
-        if self.made is None or self.made[0] != made or not np.array_equal(self.made[1], a.assignment):
+        same = self.made is not None and self.made[0][0] == image and np.array_equal(self.made[1], a.assignment)
+        if not same:
             if self.scene.steps:
                 has_goal = a.assignment >= 0
                 held.drive_to(np.flatnonzero(has_goal), image + 1, made[1], a.assignment[has_goal], goal_set, colors)
@@ -416,9 +417,10 @@ class Central:
             else:  # the scene's own goals, one per robot, as the agents hold them: no goal set, no auction
                 held.goal[:], held.color[:] = goal_set, colors
             self.made = (made, a.assignment.copy())
-        elif not self.movers.pursuers:
-            return held.targets(rows)
-        held.goal[:], held.color[:] = self.movers.goals(held.goal, held.color, self.measured)  # a pursuer's target
+        else:  # a new agreement that gives no robot another goal: only the instance they hold them from is new
+            self.hold_newest_agreement()
+        if not same or self.movers.pursuers:  # the movers' goals and colours over the goals just taken
+            held.goal[:], held.color[:] = self.movers.goals(held.goal, held.color, self.measured)
         return held.targets(rows)
 
     def hold_newest_agreement(self) -> None:
