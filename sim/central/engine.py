@@ -177,8 +177,11 @@ class Agreements:
     def agree(self, epoch: int, instance: int, robots: np.ndarray, position: np.ndarray, penalty: np.ndarray) -> None:
         """Agreement ``instance`` of goal set ``epoch``, the robots' goals from now: ``robots`` bid from
         ``position`` with ``penalty`` in force."""
-        positions, penalties = np.full((self.robots, 2), np.nan), np.full(self.robots, np.nan)
-        positions[robots], penalties[robots] = position, penalty
+        if len(robots) == self.robots:  # every robot, in id order (robots: sorted ids)
+            positions, penalties = np.array(position, float).reshape(-1, 2), np.array(penalty, float)
+        else:
+            positions, penalties = np.full((self.robots, 2), np.nan), np.full(self.robots, np.nan)
+            positions[robots], penalties[robots] = position, penalty
         key = (epoch, instance)
         if self.last is not None and self.last[0] != key:
             self._keep(*self.last)
@@ -509,7 +512,7 @@ def simulate(
         clock.lap("other")
         decision = loop.tick(robots, robots.sense(tick), seams)
         pose, goal = world.poses, decision.intent.goal
-        _record_tick(rec, view, (tick, t, k), robots, goal)
+        _record_tick(rec, view, (tick, t, k), robots, (pose, goal))
         clock.lap("record")
         if converged.held(t, _all_at_goals(robots, k == last_step, pose, goal)):
             end_reason = "converged"
@@ -561,16 +564,19 @@ def _keep_freed_memory() -> None:
     mallopt(-2, 16 << 20)  # M_TOP_PAD: the heap grows in steps that hold a tick's arrays
 
 
-def _record_tick(rec: TickRecorder, view: Any, when: tuple[int, float, int], robots: Central, goal: np.ndarray) -> None:
-    """This tick's row of the recording, and the live view's batch (sim.outputs.view.SwarmView)."""
-    (tick, t, k), world, held = when, robots.world, robots.held_goals
-    rows: tuple[np.ndarray, ...] = (world.poses, world.velocities, held.color, goal, robots.auction.assignment)
+def _record_tick(
+    rec: TickRecorder, view: Any, when: tuple[int, float, int], robots: Central, where: tuple[np.ndarray, np.ndarray]
+) -> None:
+    """This tick's row of the recording (``where``: the world's poses and the goals), and the live view's batch
+    (sim.outputs.view.SwarmView)."""
+    (tick, t, k), (pose, goal), held = when, where, robots.held_goals
+    rows: tuple[np.ndarray, ...] = (pose, robots.world.velocities, held.color, goal, robots.auction.assignment)
     if robots.scene.steps:  # which agreement each robot's goal is from (AGREEMENT_ROWS)
         robots.hold_newest_agreement()
         rows += (held.key[:, 0], held.instance)
     color = rec.record(tick, t, k, rows)["color"]  # this tick's colours, as recorded
     if view is not None:
-        view.tick(tick, t, world.poses, color, goal)
+        view.tick(tick, t, pose, color, goal)
 
 
 def _all_at_goals(robots: Central, last_image: bool, pose: np.ndarray, goal: np.ndarray) -> bool:
