@@ -46,7 +46,7 @@ class Tracker:
 
     def measure(self, poses: np.ndarray) -> np.ndarray:
         noise = self.rng.standard_normal(poses.shape)
-        out = poses.copy()
-        out[:, :2] += self.sigma_xy * noise[:, :2]
-        out[:, 2] = wrap_angle(out[:, 2] + self.sigma_theta * noise[:, 2])
+        noise *= (self.sigma_xy, self.sigma_xy, self.sigma_theta)
+        out = np.add(poses, noise, out=noise)
+        out[:, 2] = wrap_angle(out[:, 2])
         return out
