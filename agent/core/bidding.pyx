@@ -229,8 +229,10 @@ cdef class Bidders:
     # the cached ranking: best goal, its value (exact while its price is ``seen``), second-best bound
     cdef int64_t[::1] best
     cdef double[::1] value, second, seen
-    # K candidate goals per robot (-1: none), a bound of every other goal (+inf: no list), where made
+    # K candidate goals per robot (-1: none) and their costs c_ij this block, a bound of every other goal
+    # (+inf: no list), where made
     cdef int64_t[:, ::1] cand
+    cdef double[:, ::1] cand_cost
     cdef double[::1] bound, made_x, made_y, made_bound
     # the goal tree, per node a lower bound of its prices and a plane under them, and the least penalty
     cdef int64_t[::1] order, node_left, node_right, node_start, node_end, node_parent, leaf_of
@@ -279,6 +281,7 @@ cdef class Bidders:
         if candidates < 2:
             raise ValueError("a robot ranks at least 2 candidate goals")
         self.cand = np.full((k, candidates), -1, np.int64)
+        self.cand_cost = np.zeros((k, candidates))
         self.bound = np.full(k, INFINITY)
         self.made_x, self.made_y, self.made_bound = np.zeros(k), np.zeros(k), np.full(k, INFINITY)
         self.order, self.node_left, self.node_right, self.node_start, self.node_end, box = goal_tree(goals)
@@ -326,13 +329,25 @@ cdef class Bidders:
         self.px, self.py = np.ascontiguousarray(position[:, 0]), np.ascontiguousarray(position[:, 1])
 
     # --- ranking ------------------------------------------------------------------------------------
-    cdef inline double net_value(self, Py_ssize_t i, int64_t j) noexcept nogil:
-        """-c_ij - b_j: eq. 7 plus robot i's penalties, less the price."""
+    cdef inline double cost(self, Py_ssize_t i, int64_t j) noexcept nogil:
+        """c_ij: eq. 7 plus robot i's penalties."""
         cdef double dx = self.gx[j] - self.px[i], dy = self.gy[j] - self.py[i]
         cdef double c = dx * dx + dy * dy
         if self.has_penalty:
             c = c + self.penalty(i, j)
-        return -c - self.price[j]
+        return c
+
+    cdef inline double net_value(self, Py_ssize_t i, int64_t j) noexcept nogil:
+        """-c_ij - b_j."""
+        return -self.cost(i, j) - self.price[j]
+
+    cdef inline void cost_candidates(self, Py_ssize_t i) noexcept nogil:
+        """Robot i's candidates' costs, kept while the positions and penalties hold (a block, or its
+        phases until a penalty comes into force): a ranking then reads only their prices anew."""
+        cdef Py_ssize_t s
+        for s in range(self.cand.shape[1]):
+            if self.cand[i, s] >= 0:
+                self.cand_cost[i, s] = self.cost(i, self.cand[i, s])
 
     cdef inline double box_distance2(self, int64_t node, double x, double y) noexcept nogil:
         """The squared distance from (x, y) to the nearest point of the node's box."""
@@ -400,13 +415,15 @@ cdef class Bidders:
             j = self.cand[i, s]
             if j >= 0:
                 self.seeded[j] = self.seed_mark
-                self.into_top(j, self.net_value(i, j))
+                self.into_top(j, -self.cand_cost[i, s] - self.price[j])
         self.search(i, 0, self.node_bound(0, self.px[i], self.py[i]))
         r.first, r.best = self.top_goal[0], self.top_value[0]
         r.runner_up, r.second = self.top_goal[1], self.top_value[1]
         r.third_goal, r.third = self.top_goal[2], self.top_value[2]  # K >= 2: top holds three
         for s in range(kk):
-            self.cand[i, s] = self.top_goal[s]
+            self.cand[i, s] = j = self.top_goal[s]
+            if j >= 0:
+                self.cand_cost[i, s] = self.cost(i, j)
         self.bound[i] = self.made_bound[i] = self.top_value[kk]
         self.made_x[i], self.made_y[i] = self.px[i], self.py[i]
         return r
@@ -477,9 +494,11 @@ cdef class Bidders:
         they provably hold those goals, else rank_all."""
         cdef Ranking r = unranked()
         cdef Py_ssize_t s
+        cdef int64_t j
         for s in range(self.cand.shape[1]):
-            if self.cand[i, s] >= 0:
-                rank_in(&r, self.cand[i, s], self.net_value(i, self.cand[i, s]))
+            j = self.cand[i, s]
+            if j >= 0:
+                rank_in(&r, j, -self.cand_cost[i, s] - self.price[j])
         if (r.second if runner_up else r.best) > self.bound[i]:  # ties at the bound: ranked over every goal
             r.third = max(r.third, self.bound[i])
             if not runner_up:
@@ -539,6 +558,7 @@ cdef class Bidders:
             if self.bound[i] == INFINITY:
                 self.made_bound[i] = INFINITY  # no list: rank_all searches the goal tree
             none += self.made_bound[i] == INFINITY
+            self.cost_candidates(i)  # positions or penalties new: every ranking from here reads these
             self.remember(i, self.rank(i, False))
         return none
 
