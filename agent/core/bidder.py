@@ -57,6 +57,8 @@ def _hull_vertices(goals: np.ndarray, exact: bool = True) -> tuple[np.ndarray, n
 
 def frozen_positions(positions: Mapping[int, np.ndarray] | np.ndarray, own: list[int] | np.ndarray) -> np.ndarray:
     """The ``own`` robots' positions (K, 2) from a mapping robot -> (x, y) or rows by robot id."""
+    if isinstance(positions, np.ndarray) and len(own) == len(positions):  # own: sorted, distinct: every row
+        return np.array(positions, float).reshape(-1, 2)
     if isinstance(positions, np.ndarray):
         return np.asarray(positions, float)[np.asarray(own, np.int64)].reshape(-1, 2)
     return np.array([positions[r] for r in own], float).reshape(-1, 2)
@@ -98,7 +100,7 @@ class Auction:
         self.goals = np.asarray(goals, float)
         self.robots = np.array(sorted(int(r) for r in robots), np.int64)
         members = set(self.robots.tolist())
-        self.own = sorted(int(r) for r in own if r in members)
+        self.own = sorted({int(r) for r in own} & members)
         self.own_ids = np.array(self.own, np.int64)
         self.own_rows = np.searchsorted(self.robots, self.own_ids)  # own robots' rows among all robots
         self.schedule = epsilon_schedule(self.goals, eps)

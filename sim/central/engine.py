@@ -409,20 +409,21 @@ class Central:
         """The robots hold the goals the assignment gives them now (agent.held_goals, as the agents)."""
         a, held, rows = self.auction, self.held_goals, self.rows(sensed.ids)
         image, goal_set, colors = a.assigned
-        # most ticks the auction keeps every goal: the goals are the last ones (unless a pursuer's moved)
-        made = (image, a.agreements.instance)
-        same = self.made is not None and self.made[0][0] == image and np.array_equal(self.made[1], a.assignment)
-        if not same:
-            if self.scene.steps:
-                has_goal = a.assignment >= 0
-                held.drive_to(np.flatnonzero(has_goal), image + 1, made[1], a.assignment[has_goal], goal_set, colors)
-                held.idle(np.flatnonzero(~has_goal))
-            else:  # the scene's own goals, one per robot, as the agents hold them: no goal set, no auction
-                held.goal[:], held.color[:] = goal_set, colors
+        # most ticks the auction keeps every goal, and the rest it gives few robots: those alone take theirs
+        made, every = (image, a.agreements.instance), self.made is None or self.made[0][0] != image
+        moved = np.arange(len(a.assignment)) if every else np.flatnonzero(self.made[1] != a.assignment)
+        if moved.size and self.scene.steps:
+            index = a.assignment[moved]
+            held.drive_to(moved[index >= 0], image + 1, made[1], index[index >= 0], goal_set, colors)
+            held.idle(moved[index < 0])
+            held.instance[a.assignment >= 0] = made[1]  # the others hold theirs from this agreement too
+        elif moved.size:  # the scene's own goals, one per robot, as the agents hold them: no goal set, no auction
+            held.goal[:], held.color[:] = goal_set, colors
+        if moved.size:
             self.made = (made, a.assignment.copy())
         else:  # a new agreement that gives no robot another goal: only the instance they hold them from is new
             self.hold_newest_agreement()
-        if not same or self.movers.pursuers:  # the movers' goals and colours over the goals just taken
+        if moved.size or self.movers.pursuers:  # the movers' goals and colours over the goals just taken
             held.goal[:], held.color[:] = self.movers.goals(held.goal, held.color, self.measured)
         return held.targets(rows)
 
