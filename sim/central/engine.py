@@ -410,8 +410,11 @@ class Central:
         a, held, rows = self.auction, self.held_goals, self.rows(sensed.ids)
         image, goal_set, colors = a.assigned
         # most ticks the auction keeps every goal, and the rest it gives few robots: those alone take theirs
-        made, every = (image, a.agreements.instance), self.made is None or self.made[0][0] != image
-        moved = np.arange(len(a.assignment)) if every else np.flatnonzero(self.made[1] != a.assignment)
+        made, last = (image, a.agreements.instance), self.made
+        if last is None or last[0][0] != image:  # the first goals, or a new image's: every robot takes one
+            moved = np.arange(len(a.assignment))
+        else:
+            moved = np.flatnonzero(last[1] != a.assignment)
         if moved.size and self.scene.steps:
             index = a.assignment[moved]
             held.drive_to(moved[index >= 0], image + 1, made[1], index[index >= 0], goal_set, colors)
