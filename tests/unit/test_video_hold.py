@@ -50,7 +50,8 @@ def test_the_video_of_a_run_that_ends_on_convergence_holds_the_picture_three_sec
     with av.open(str(out / "display.mp4")) as container:
         stream = container.streams.video[0]
         assert stream.average_rate == FPS
-        frames = [f.to_ndarray(format="bgr24").astype(int) for f in container.decode(stream)]
+        # int16 holds a pixel's difference from another: every frame of the run in memory at once, not 4x that
+        frames = [f.to_ndarray(format="bgr24").astype(np.int16) for f in container.decode(stream)]
     # the writing said, as the distributed engine's: the run's end, then the video's frames as they came
     said = result.stderr.splitlines()
     assert "[circle] run ended (converged); writing run" in said
