@@ -516,7 +516,7 @@ def simulate(
         clock.lap("other")
         decision = loop.tick(robots, robots.sense(tick), seams)
         pose, goal = world.poses, decision.intent.goal
-        _record_tick(rec, view, (tick, t, k), robots, (pose, goal))
+        _record_tick(rec, view, (tick, t, k), robots, pose, goal)
         clock.lap("record")
         if converged.held(t, _all_at_goals(robots, k == last_step, pose, goal)):
             end_reason = "converged"
@@ -569,11 +569,11 @@ def _keep_freed_memory() -> None:
 
 
 def _record_tick(
-    rec: TickRecorder, view: Any, when: tuple[int, float, int], robots: Central, where: tuple[np.ndarray, np.ndarray]
+    rec: TickRecorder, view: Any, when: tuple[int, float, int], robots: Central, pose: np.ndarray, goal: np.ndarray
 ) -> None:
-    """This tick's row of the recording (``where``: the world's poses and the goals), and the live view's batch
+    """This tick's row of the recording (``pose``: the world's, as the tick read them), and the live view's batch
     (sim.outputs.view.SwarmView)."""
-    (tick, t, k), (pose, goal), held = when, where, robots.held_goals
+    (tick, t, k), held = when, robots.held_goals
     rows: tuple[np.ndarray, ...] = (pose, robots.world.velocities, held.color, goal, robots.auction.assignment)
     if robots.scene.steps:  # which agreement each robot's goal is from (AGREEMENT_ROWS)
         robots.hold_newest_agreement()
