@@ -31,7 +31,7 @@ from sim.outputs.recorder import Recorder
 from sim.outputs.rundir import RunDir
 from sim.outputs.ticklog import TICKS_FILE
 from sim.outputs.write import RunOutcome, write_run
-from sim.processes import handling_signals, stop_processes
+from sim.processes import handling_signals, start_session, stop_processes
 from sim.run.remote_agents import TAKEN, encode_remote_config
 from transport.bus import Bus
 from transport.codec import Event
@@ -199,12 +199,11 @@ class Launcher:
         zenoh_args = (client or self.client).to_args()
         with open(log, "a") as fh:  # a restarted service goes on in its log
             python = interpreter(len(robots)) if module == "agent" else [sys.executable]
-            proc = subprocess.Popen(
+            proc = start_session(
                 [*python, "-m", module, *args, "--exit-with-parent", *zenoh_args],
                 stdout=fh,
                 stderr=subprocess.STDOUT,
                 stdin=subprocess.DEVNULL,
-                start_new_session=True,
                 cwd=os.getcwd(),
             )
         child = Child(name, proc, robots, log, [module, *args], client)

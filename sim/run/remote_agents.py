@@ -19,7 +19,7 @@ from typing import Any
 
 from agent.runtime import HostConfig, interpreter
 from sim.args import add_seconds, check_endpoint, format_ids, parse_ids, positive_int, refuse_if, usage_errors
-from sim.processes import handling_signals, stop_processes
+from sim.processes import handling_signals, start_session, stop_processes
 from transport.bus import Bus, LivelinessWatch
 from transport.keys import Keys
 from transport.session import ZenohSettings
@@ -164,10 +164,7 @@ class Supervisor:
     def start(self, config: HostConfig, faults: str) -> None:
         cmd = [*interpreter(len(config.robots)), "-m", "agent", "--config", "-", "--exit-with-parent"]
         cmd += ["--faults", faults] if faults else []
-        # Its own session: a terminal's Ctrl-C reaches this command only, which passes it on.
-        proc = subprocess.Popen(
-            cmd + self.settings.to_args(), stdin=subprocess.PIPE, start_new_session=True, cwd=os.getcwd()
-        )
+        proc = start_session(cmd + self.settings.to_args(), stdin=subprocess.PIPE, cwd=os.getcwd())
         assert proc.stdin is not None
         proc.stdin.write(config.to_json().encode())
         proc.stdin.close()

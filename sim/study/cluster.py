@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from sim.args import UsageError
+from sim.processes import start_session
 
 CONNECT_TIMEOUT_S = 10
 STOP_POLL_S = 0.5
@@ -122,13 +123,8 @@ def run_task(run_id: str, args: list[str], out: str | None, stop_event: str, gra
     started = time.monotonic()
     log = tempfile.TemporaryFile(dir=base)
     try:
-        process = subprocess.Popen(
-            command,
-            stdout=log,
-            stderr=subprocess.STDOUT,
-            env=_child_env(),
-            start_new_session=True,
-            preexec_fn=_die_with_parent,
+        process = start_session(
+            command, stdout=log, stderr=subprocess.STDOUT, env=_child_env(), preexec_fn=_die_with_parent
         )
         while process.poll() is None:
             try:

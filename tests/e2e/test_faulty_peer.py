@@ -30,6 +30,7 @@ import pytest
 from coordinator.scene import load_scene
 from sim.bodies.tracker import world_of
 from sim.emulators.faulty_peer import main as peer_main
+from sim.processes import start_session
 from tests.conftest import REPO, descendants, pixelswarm_cmd, ticks_so_far, wait_for
 from tests.support.rival import FalseReports, NextTick, Rival
 from transport.plausible import CONFLICTING, FUTURE, INCONSISTENT, STALE
@@ -238,9 +239,7 @@ def test_a_peer_stopped_while_its_router_stalls_says_what_it_sent_at_once(tmp_pa
     port, out = free_port(), tmp_path / "run"
     flags = ("--robots", "4", "--clock", "realtime", "--duration", "60", "-l", f"tcp/127.0.0.1:{port}")
     command = pixelswarm_cmd("run", "circle", *flags, "--out", str(out), "--no-video", "--no-plots", "-q")
-    run = subprocess.Popen(
-        command, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
-    )
+    run = start_session(command, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     peer = None
     try:
         assert wait_for(lambda: run.poll() is not None or listening(port), 60), "the run's router never listened"

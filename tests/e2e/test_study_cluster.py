@@ -16,7 +16,7 @@ import psutil
 import pytest
 
 from sim.cli.main import main
-from sim.processes import stop_processes
+from sim.processes import start_session, stop_processes
 from tests.conftest import REPO, wait_for
 from tests.support.study import GRID, read_csv, study
 from transport.session import free_port, listening
@@ -44,9 +44,7 @@ class Cluster:
 
     def _start(self, name: str, command: list[str]) -> subprocess.Popen:
         log = open(self.logs / f"{name}.log", "w")  # noqa: SIM115 - closed with the process
-        return subprocess.Popen(
-            command, cwd=REPO, stdout=log, stderr=subprocess.STDOUT, start_new_session=True, env=self.env
-        )
+        return start_session(command, cwd=REPO, stdout=log, stderr=subprocess.STDOUT, env=self.env)
 
     def add_worker(self, root: Path, name: str) -> subprocess.Popen:
         command = [*WORKER, self.address, "--host", "127.0.0.1", "--nthreads", "1", "--no-nanny"]

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.emulators.lab import Lab
+from sim.processes import start_session
 from tests.conftest import REPO, pixelswarm_cmd
 
 SCENE = """name = "hw-crossing"
@@ -54,13 +55,8 @@ def start_run(
     """`pixelswarm run SCENE --hardware FILE` as its own process, a client of the router at ``endpoint``;
     ``own_group``: in a process group of its own, as a shell starts a command."""
     cmd = pixelswarm_cmd("run", str(scene), "--hardware", str(hw), "-e", endpoint)
-    run = subprocess.Popen(
-        [*cmd, "--out", str(tmp_path / "run"), "--no-video", "--no-plots", "-q"],
-        cwd=REPO,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=own_group,
-    )
+    cmd += ["--out", str(tmp_path / "run"), "--no-video", "--no-plots", "-q"]
+    run = (start_session if own_group else subprocess.Popen)(cmd, cwd=REPO, stderr=subprocess.PIPE, text=True)
     spawned.append(run)
     return run
 
