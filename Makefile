@@ -52,15 +52,14 @@ lint: $(TSTAMP)
 	$(LINT)
 	$(VENV)/bin/mypy
 
-# The whole suite: the in-process tests, then the end-to-end runs (marked slow): those marked serial one
-# at a time (on the wall clock, another run's CPU beside them makes robots late), and beside them the
-# lock-step ones on every core at the lowest priority (tests/support/end_to_end.py). Not one pass with
-# the in-process tests: their CPU beside the lock-step runs made those runs slower than the pass saved.
-# Three workers on two cores: a test that waits on its processes or the bus leaves a core idle that a
-# third worker takes.
+# The whole suite: the in-process tests, then the end-to-end runs (marked slow) on every core, then
+# those marked serial one at a time (on the wall clock, another run beside them makes robots late).
+# Not one pass of both: the in-process tests' CPU beside the lock-step runs made those runs slower
+# than the pass saved, and a viewer beside them missed its robots. Three workers on two cores: a test
+# that waits on its processes or the bus leaves a core idle that a third worker takes.
 test: test-fast
-	@echo "make: the end-to-end tests: the serial ones one at a time, the lock-step ones beside them at the lowest priority"
-	$(PY) -m tests.support.end_to_end
+	$(PY) -m pytest -q -m "slow and not serial" -n 3 --dist loadgroup --durations=10
+	$(PY) -m pytest -q -m "slow and serial" --durations=5
 
 # Everyday work: the suite without the end-to-end runs marked slow. --dist loadgroup: a module whose
 # costly module fixture its tests share runs on one worker (its xdist_group), which makes it once.
