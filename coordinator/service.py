@@ -91,14 +91,19 @@ class Roster:
     changed: float = 0.0  # wall time of the last change in the live robots
     ever: set[int] = field(default_factory=set)  # robots whose agent was ever alive
     lives: dict[int, str] = field(default_factory=dict)  # each robot's agent's last incarnation heard
-    restarted: set[int] = field(default_factory=set)  # robots whose agent was started again since the current epoch
+    restarted: set[int] = field(default_factory=set)  # robots that need a goal set to bid again (hear)
+    lockstep: bool = False  # the run's clock
 
     def hear(self, r: int, alive: bool, life: str) -> None:
         changed = (r in self.live) != alive  # not a copy of the set: thousands of agents say so at start
         (self.live.add if alive else self.live.discard)(r)
-        # a restarted agent bids only in sets published after it joined: it needs one, the live robots unchanged
+        # a restarted agent bids only in sets published after it joined: it needs one, the live robots unchanged.
+        # Lock-step, so does an agent heard dead and back in the same life (its link lost, its process stalled):
+        # the other hosts may have closed rounds without it, and a new set starts every host's auction again.
         if alive and self.lives.setdefault(r, life) != life:
             self.lives[r] = life
+            self.restarted.add(r)
+        elif alive and changed and self.lockstep and r in self.ever:
             self.restarted.add(r)
         if changed or r in self.restarted:
             self.changed = time.monotonic()
@@ -167,7 +172,7 @@ class Coordinator:
         self.epoch = 0
         period = RobotParams.from_dict(scene.robot).dt if scene.clock == "realtime" else None  # lock-step: no pace
         self.clock = ShowClock(plausible=Clock(period))
-        self.roster = Roster()
+        self.roster = Roster(lockstep=scene.clock == "lockstep")
         self.shown: tuple[int, frozenset[int]] | None = None  # (step, robots) of the current epoch
         self.pixels = frozenset(scene.pixel_robots)  # the robots that show the image
         self.bodies = DeadBodies()
@@ -237,7 +242,8 @@ class Coordinator:
         if len(bodies):
             goals = clear_of_bodies(goals, bodies, 2 * self.scene.radius + 0.05)  # room for its inflated radius
         before = self.current
-        # lock-step: a restarted agent has no last agreement to warm-start from, so nobody does
+        # lock-step: a restarted agent has no last agreement to warm-start from (a stalled one, maybe not the
+        # others'), so nobody does
         cold = self.scene.clock == "lockstep" and bool(self.roster.restarted & robots)
         self.epoch += 1
         self.shown = (step, robots)
