@@ -217,6 +217,18 @@ def agent_processes(pid: int) -> list[psutil.Process]:
     return out
 
 
+def agent_process(pid: int, index: int) -> psutil.Process:
+    """The agent process of a run (``pid``: its launcher) whose config file is the ``index``-th: the robot's
+    index where each robot has a process of its own, the host's with agents per process."""
+    for p in descendants(pid):
+        try:
+            if any(arg.endswith(f"agents-{index:04d}.json") for arg in p.cmdline()):
+                return p
+        except psutil.Error:
+            continue
+    raise AssertionError(f"no agent process with config {index}")
+
+
 def deafen(bus) -> None:
     """Make every subscription of a transport.bus.Bus deaf, as a link drop left some on a starved
     machine: still declared, hearing nothing (Bus.renew_if_due declares them again)."""

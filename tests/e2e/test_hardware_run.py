@@ -19,7 +19,6 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
-import psutil
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
@@ -35,7 +34,7 @@ from sim.emulators.lab import main as lab_main
 from sim.emulators.mocap import MocapEmulator
 from sim.node.hardware import POLL, STARTUP_TIMEOUT, TwistDrive, WheelDrive, hardware_node, wait_for_hardware
 from sim.node.hardware import main as hardware_main
-from tests.conftest import REPO, descendants, pixelswarm_cmd, reap, run_pixelswarm, wait_for
+from tests.conftest import REPO, agent_process, descendants, pixelswarm_cmd, reap, run_pixelswarm, wait_for
 from tests.support.hardware import GOALS, all_moving, moving_commands, scene_file, start_run
 from transport.bus import Bus
 from transport.codec import BEFORE_START, Command, Commands, Pose, Tick
@@ -133,16 +132,6 @@ def test_a_crossing_through_emulated_robots_converges_without_contacts(tmp_path,
     assert missed == metrics["missed_ticks_by_robot"] and sum(missed) == metrics["missed_ticks"]
 
 
-def agent_of(run: subprocess.Popen, robot: int) -> psutil.Process | None:
-    for p in descendants(run.pid):
-        try:
-            if any(arg.endswith(f"agents-{robot:04d}.json") for arg in p.cmdline()):
-                return p
-        except psutil.Error:
-            pass
-    return None
-
-
 @pytest.mark.slow
 @pytest.mark.serial
 def test_a_killed_agent_stops_its_robot_and_the_end_of_the_run_stops_all(tmp_path, spawned):
@@ -163,8 +152,7 @@ def test_a_killed_agent_stops_its_robot_and_the_end_of_the_run_stops_all(tmp_pat
         # Mid-run: the robot has been driving for a second.
         started = wait_for(lambda: len(moving_commands(lab.emulator.log(victim))) >= 10, 60)
         assert started, "the robot never moved"
-        agent = agent_of(run, victim)
-        assert agent is not None
+        agent = agent_process(run.pid, victim)
         killed_at = time.monotonic()
         agent.kill()
         time.sleep(1.0)

@@ -25,11 +25,10 @@ import time
 from pathlib import Path
 
 import numpy as np
-import psutil
 import pytest
 
 from sim.outputs.ticklog import TICKS_FILE, read_ticks
-from tests.conftest import REPO, descendants, start_run, wait_for, write_disk
+from tests.conftest import REPO, agent_process, start_run, wait_for, write_disk
 from tests.support.outputs import logged as mcap_logged
 
 ROBOTS = 10
@@ -45,18 +44,6 @@ def ticks_so_far(out: Path) -> int:
         return len(read_ticks(Path(str(out) + ".partial") / TICKS_FILE)["t"])
     except (OSError, ValueError):
         return 0
-
-
-def agent_of(proc: subprocess.Popen, robot: int) -> psutil.Process:
-    """The agent process of ``robot`` (one robot a process: its config file names it)."""
-    for p in descendants(proc.pid):
-        try:
-            cmd = p.cmdline()
-        except psutil.Error:
-            continue
-        if "agent" in cmd and any(arg.endswith(f"agents-{robot:04d}.json") for arg in cmd):
-            return p
-    raise AssertionError(f"no agent process of robot {robot}")
 
 
 def logged(path: Path, topics: set[str]) -> list[tuple[float, str, dict]]:
@@ -96,7 +83,7 @@ def restart_run(
     out = tmp_path / "run"
     proc = start_run(spawned, scene, out)
     assert wait_for(lambda: ticks_so_far(out) >= kill_after, timeout=120), proc.stderr.read() if proc.poll() else ""
-    victim = agent_of(proc, VICTIM)
+    victim = agent_process(proc.pid, VICTIM)
     command = victim.cmdline()
     killed_at = time.time()
     victim.send_signal(signal.SIGKILL)
@@ -163,17 +150,6 @@ def test_a_realtime_agent_killed_and_started_again_is_heard_within_a_second(tmp_
     assert_show_completed(traj)
 
 
-def host_of(proc: subprocess.Popen, host: int) -> psutil.Process:
-    """The agent host process ``host`` of a run with agents per process (its config file names it)."""
-    for p in descendants(proc.pid):
-        try:
-            if any(arg.endswith(f"agents-{host:04d}.json") for arg in p.cmdline()):
-                return p
-        except psutil.Error:
-            continue
-    raise AssertionError(f"no agent host {host}")
-
-
 STALL = 2.5  # s: past a link's lease (2 s; a process is heard dead after about 1.5 s of silence)
 
 
@@ -186,7 +162,7 @@ def test_a_lockstep_host_stalled_past_its_lease_is_heard_dead_and_back_and_the_s
     out = tmp_path / "run"
     proc = start_run(spawned, scene, out, "--agents-per-process", str(ROBOTS // 2))
     assert wait_for(lambda: ticks_so_far(out) >= 30, timeout=120), proc.stderr.read() if proc.poll() else ""
-    stalled = host_of(proc, 1)
+    stalled = agent_process(proc.pid, 1)  # the second host
     stalled.send_signal(signal.SIGSTOP)
     time.sleep(STALL)
     stalled.send_signal(signal.SIGCONT)
