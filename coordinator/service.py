@@ -93,6 +93,7 @@ class Roster:
     lives: dict[int, str] = field(default_factory=dict)  # each robot's agent's last incarnation heard
     restarted: set[int] = field(default_factory=set)  # robots that need a goal set to bid again (hear)
     lockstep: bool = False  # the run's clock
+    heard_dead: set[int] = field(default_factory=set)  # robots whose agent this coordinator heard die
 
     def hear(self, r: int, alive: bool, life: str) -> None:
         changed = (r in self.live) != alive  # not a copy of the set: thousands of agents say so at start
@@ -103,8 +104,9 @@ class Roster:
         if alive and self.lives.setdefault(r, life) != life:
             self.lives[r] = life
             self.restarted.add(r)
-        elif alive and changed and self.lockstep and r in self.ever:
+        elif alive and self.lockstep and r in self.heard_dead:
             self.restarted.add(r)
+        (self.heard_dead.discard if alive else self.heard_dead.add)(r)
         if changed or r in self.restarted:
             self.changed = time.monotonic()
         if alive:
