@@ -343,10 +343,10 @@ class GoalSetsHeard:
 
 class Departures:
     """Robots whose agent died: their bodies stand still (5.1.2). Who lock-step rounds wait for: a goal set that
-    lists its robots' lives (transport.codec.Lives) says, the same for every host, less those heard dead since it
-    was taken up (``left``: back in the same life, a host stalled past its lease, they come back inside blocks
-    the others went on with, and bid again in the next set, which the coordinator publishes for them); of one
-    that lists none, not those ``gone`` during it (they cannot rejoin its auction until the next)."""
+    lists its robots' lives (transport.codec.Lives) says, the same for every host; not those ``gone`` during it
+    (they cannot rejoin its auction until the next): of a set that lists lives, those heard dead in the life it
+    lists (back in it, a host stalled past its lease comes back inside blocks the others went on with; the
+    coordinator publishes the next set for it), of one that lists none, those dead when it came too."""
 
     def __init__(self, alive: LivelinessWatch) -> None:
         self.alive = alive
@@ -354,7 +354,6 @@ class Departures:
         self.life: dict[int, int] = {}  # each live robot's agent's life, as heard
         self.gone: set[int] = set()
         self.gone_since = 0  # the goal set ``gone`` is of
-        self.left: set[int] = set()  # heard dead since that goal set was taken up
         self.listed: dict[int, int] | None = None  # that goal set's robots' lives (None: it lists none)
         self._other_life: set[int] | None = None  # those listed robots heard in another life (None: to renew)
 
@@ -368,26 +367,26 @@ class Departures:
                     self.life[robot] = life_number(incarnation)
                 else:
                     self.life.pop(robot, None)
-                    self.gone.add(robot)
                     if self.listed is None or self.listed.get(robot, 0) in (0, life_number(incarnation)):
-                        self.left.add(robot)  # the life the set lists (an older one's death is no departure)
+                        self.gone.add(robot)  # an older life's death is no departure from the set
         return self.dead
 
     def not_bidding(self) -> set[int]:
-        """The robots the auction does not wait for: dead, or in another life than the goal set in force lists,
-        or heard dead since it was taken up (one that lists none: gone during it)."""
+        """The robots the auction does not wait for: dead, gone during the goal set in force, or in another life
+        than it lists."""
         dead = self.now()
         if self.listed is None:
             return dead | self.gone
         if self._other_life is None:  # rounds ask often: renewed only when liveliness or the set changed
             self._other_life = {r for r, life in self.listed.items() if life and self.life.get(r, life) != life}
-        return dead | self._other_life | self.left
+        return dead | self._other_life | self.gone
 
     def new_goal_set(self, goals: Goals) -> None:
         if goals.epoch != self.gone_since:  # a new goal set (the coordinator repeats the newest)
             # liveliness taken in first: an agent back before the set came is no departure from it
-            self.gone, self.gone_since, self.left = set(self.now()), goals.epoch, set()
-            self.listed, self._other_life = goals.listed_lives(), None
+            dead = set(self.now())
+            self.listed, self._other_life, self.gone_since = goals.listed_lives(), None, goals.epoch
+            self.gone = dead if self.listed is None else set()  # a set that lists lives says who takes part
 
 
 @dataclass

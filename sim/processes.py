@@ -12,7 +12,9 @@ from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
-AUTOGROUP_TRIES = 10  # 0.1 s apart: unprivileged, Linux takes one autogroup change in 0.1 s machine-wide
+# Unprivileged, Linux takes one autogroup change machine-wide per AUTOGROUP_RETRY_S: a busy moment is tried again
+AUTOGROUP_TRIES = 10
+AUTOGROUP_RETRY_S = 0.1  # the kernel's interval (HZ / 10)
 
 
 def start_session(command: list[str], **popen: Any) -> subprocess.Popen:
@@ -27,7 +29,7 @@ def start_session(command: list[str], **popen: Any) -> subprocess.Popen:
                 f.write(str(niceness))
             break
         except BlockingIOError:
-            time.sleep(0.1)
+            time.sleep(AUTOGROUP_RETRY_S)
         except OSError:
             break  # no autogroup (another system, or switched off): the nice it inherited is its priority
     return process
