@@ -343,10 +343,8 @@ class GoalSetsHeard:
 
 class Departures:
     """Robots whose agent died: their bodies stand still (5.1.2). Who lock-step rounds wait for: a goal set that
-    lists its robots' lives (transport.codec.Lives) says, the same for every host; not those ``gone`` during it
-    (they cannot rejoin its auction until the next): of a set that lists lives, those heard dead in the life it
-    lists (back in it, a host stalled past its lease comes back inside blocks the others went on with; the
-    coordinator publishes the next set for it), of one that lists none, those dead when it came too."""
+    lists its robots' lives (transport.codec.Lives) says, the same for every host; of one that lists none, not
+    those ``gone`` during it (they cannot rejoin its auction until the next)."""
 
     def __init__(self, alive: LivelinessWatch) -> None:
         self.alive = alive
@@ -367,26 +365,24 @@ class Departures:
                     self.life[robot] = life_number(incarnation)
                 else:
                     self.life.pop(robot, None)
-                    if self.listed is None or self.listed.get(robot, 0) in (0, life_number(incarnation)):
-                        self.gone.add(robot)  # an older life's death is no departure from the set
+                    self.gone.add(robot)
         return self.dead
 
     def not_bidding(self) -> set[int]:
-        """The robots the auction does not wait for: dead, gone during the goal set in force, or in another life
-        than it lists."""
+        """The robots the auction does not wait for: dead, or in another life than the goal set in force lists
+        (one that lists none: gone during it)."""
         dead = self.now()
         if self.listed is None:
             return dead | self.gone
         if self._other_life is None:  # rounds ask often: renewed only when liveliness or the set changed
             self._other_life = {r for r, life in self.listed.items() if life and self.life.get(r, life) != life}
-        return dead | self._other_life | self.gone
+        return dead | self._other_life
 
     def new_goal_set(self, goals: Goals) -> None:
         if goals.epoch != self.gone_since:  # a new goal set (the coordinator repeats the newest)
             # liveliness taken in first: an agent back before the set came is no departure from it
-            dead = set(self.now())
-            self.listed, self._other_life, self.gone_since = goals.listed_lives(), None, goals.epoch
-            self.gone = dead if self.listed is None else set()  # a set that lists lives says who takes part
+            self.gone, self.gone_since = set(self.now()), goals.epoch
+            self.listed, self._other_life = goals.listed_lives(), None
 
 
 @dataclass

@@ -316,6 +316,7 @@ LONGEST_FIRST = (
     "tests/e2e/test_image_display_distributed.py::test_hundred_holonomic_robots_in_agent_hosts",
     "tests/e2e/test_faults_recovery.py::test_a_tenth_of_the_agents_killed_at_once_and_the_rest_form_the_image_for_the_survivors",
     "tests/unit/test_animation.py::test_fourteen_agents_play_four_keyframes_of_the_story_over_zenoh",
+    "tests/e2e/test_restarts.py::test_a_lockstep_host_stalled_past_its_lease_is_heard_dead_and_back_and_the_show_completes",
 )
 
 
