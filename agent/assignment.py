@@ -58,6 +58,8 @@ class LockStepRounds:
     on_abandoned: OnAbandoned | None = None  # own robots whose block could not finish: they hold their positions
     dead: Callable[[], set[int]] = set  # robots not waited for: dead now, or not in the goal set's life (Departures)
     reach: float = math.inf  # m: a robot hears the auction only from robots this close (core.local_auction)
+    # a round of this epoch is not worth waiting for any more (AgentHost.round_moot); by default never
+    moot: Callable[[int], bool] = lambda epoch: False  # noqa: E731
 
 
 REAL_TIME = LockStepRounds()  # what a real-time auction takes of the rounds' settings: their defaults
@@ -72,6 +74,7 @@ class RoundExchange:
         self.bus, self.robots, self.sender, self.inbox, self.counts = bus, robots, robots[0], inbox, counts
         self.keeps = keeps
         self.dead: Callable[[], set[int]] = set  # robots not waited for (LockStepRounds.dead)
+        self.moot: Callable[[int], bool] = REAL_TIME.moot  # stop waiting in a round (LockStepRounds.moot)
         self.records: dict[tuple[int, int, int], dict[int, Any]] = {}  # round -> sender -> its message
         self.said: dict[tuple[int, int, int], tuple[Bid | Boards, float]] = {}  # our rounds' messages, when last sent
         self.said_block: tuple[int, int] | None = None  # (epoch, block) of the newest round in ``said``
@@ -109,6 +112,8 @@ class RoundExchange:
                     counted.add(sender)
                 if members <= said | self.dead():
                     return heard
+                if self.moot(key[0]):
+                    return None
                 now = time.monotonic()
                 if now - start >= ROUND_CAP:
                     return None
@@ -209,7 +214,7 @@ class AuctionLink:
         kind, key = (Boards, "boards") if math.isfinite(self.reach) else (Bid, "auction")
         inbox: Inbox[Any] = bus.subscribe(bus.keys.all_of(key), kind, pulled=self.lockstep)
         self.exchange = RoundExchange(bus, self.robots, inbox, self.counts, self._keeps)
-        self.exchange.dead = (lockstep or REAL_TIME).dead
+        self.exchange.dead, self.exchange.moot = (lockstep or REAL_TIME).dead, (lockstep or REAL_TIME).moot
         self.part: Participant | None = None
         self.local: LocalAuction | None = None  # the range-limited auction, in place of part
         self.goal_set: Goals | None = None

@@ -66,6 +66,7 @@ class HostClock:
         self.lateness = Lateness(host.params.dt, host.params.command_margin)  # real time: a pose's age acted on
         self.inbox: Inbox[Tick] | None = None  # the world's clock messages
         self.clock = Clock()  # the world's clock as heard
+        self.link_returns = 0  # of the host's bus, when the clock last started again (hear)
         self.silent: set[int] = set()  # lock-step: nearby robots that did not answer in time
         self.state_waits = 0
         self.hello_every = math.inf  # s between hellos (lock-step's start-up)
@@ -87,9 +88,18 @@ class HostClock:
         return newest if newest is None or self.inbox.fault is None else newest + AHEAD
 
     def hear(self) -> None:
-        """The world's clock messages heard since."""
+        """The world's clock messages heard since. Once our link to the router came back, the clock starts again
+        from the first tick heard: the ticks sent meanwhile are lost, and a lock-step world goes on without robots
+        heard dead, so the next may lie any number of ticks ahead (refused, it would wait for us in vain)."""
+        if self.host.bus.link_returns != self.link_returns:
+            self.link_returns = self.host.bus.link_returns
+            self.clock = Clock(self.clock.line.period)
         for _, clock in self.inbox.drain() if self.inbox is not None else ():
             self.on_clock(clock)
+
+    def begins_again_after(self, epoch: int) -> bool:
+        """A goal set after ``epoch`` is held that starts cold: every host begins its auction again from it."""
+        return False
 
     def on_clock(self, clock: Tick) -> str | None:
         """A clock message taken (None) or why not."""
@@ -210,6 +220,9 @@ class LockStep(HostClock):
             return False
         self.unnamed[goals.epoch] = goals
         return True
+
+    def begins_again_after(self, epoch: int) -> bool:
+        return any(e > epoch and goals.warm_start is None for e, goals in self.unnamed.items())
 
     def before_step(self, poses: list[Pose]) -> None:
         self.host.inbox.state.sim_time = max(p.stamp for p in poses)

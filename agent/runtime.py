@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from transport.bus import Bus, Inbox, KeepRobots, LivelinessWatch
-from transport.codec import BEFORE_START, Command, Commands, Event, Goals, Pose, State, life_number
+from transport.codec import BEFORE_START, BLOCK_ABANDONED, Command, Commands, Event, Goals, Pose, State, life_number
 from transport.keys import cell_of, cells_of, robots_ident
 from transport.plausible import CONFLICTING, FUTURE, INCONSISTENT, GoalSets, TickLine, stamp_agrees
 
@@ -431,8 +431,10 @@ class AgentHost:
         self.poses = PoseIntake(config, self.clock.pose_period)
         if math.isfinite(config.reach) and not config.lockstep:
             raise ValueError("a communication range needs the lock-step clock")
-        rounds = LockStepRounds(self._hold, self.inbox.departed.not_bidding, config.reach) if config.lockstep else None
-        self.auction = AuctionLink(bus, config.robots, p, self._on_agreed, self._positions, rounds)
+        rounds = LockStepRounds(self._hold, self.inbox.departed.not_bidding, config.reach, self.round_moot)
+        self.auction = AuctionLink(
+            bus, config.robots, p, self._on_agreed, self._positions, rounds if config.lockstep else None
+        )
         self.running = True
         self._renewal = SubscriptionRenewal(bus)
         segments = static_segments(config.arena, config.obstacles)
@@ -565,9 +567,22 @@ class AgentHost:
         self.held_goals.drive_to(self.robots.rows(goals), epoch, instance, index, positions, colors)
 
     def _hold(self, robots: list[int]) -> None:
-        """These robots' auction block was abandoned: they hold (another may have been agreed their goals)."""
+        """These robots' auction block was abandoned: they hold (another may have been agreed their goals). Unless
+        a goal set that begins every host's auction again is on its way, the coordinator hears of it: the hosts'
+        blocks may have parted for good (one gave up a block that others finished), and a new set joins them."""
         self.robots.bid_from = None
         self.held_goals.hold(self.robots.rows(robots))
+        epoch = self.auction.epoch
+        if not self.clock.begins_again_after(epoch):
+            said = Event({"kind": BLOCK_ABANDONED, "epoch": epoch, "robots": sorted(robots)})
+            self.bus.publish(self.bus.keys.stats(int(self.robots.ids.min())), said)
+
+    def round_moot(self, epoch: int) -> bool:
+        """Lock-step: a round of ``epoch`` is not worth waiting for any more: a goal set after it is held that begins
+        every host's auction again, at the tick that names it (a host stalled, or one gave a block up)."""
+        for _, goals in self.inbox.goals.drain():  # held, not taken up: the round goes on as it was
+            self.hear_goals(goals)
+        return self.clock.begins_again_after(epoch)
 
     def on_state(self, msg: State) -> None:
         if msg.tick == BEFORE_START:  # a hello (lock-step start-up), not a state to steer by

@@ -15,7 +15,20 @@ import numpy as np
 
 from agent.core.params import RobotParams
 from transport.bus import Bus, Inbox, KeepRobots
-from transport.codec import Correspondence, Goals, Lives, Motion, Pose, Tick, Timing, WarmStart, as_sent, life_number
+from transport.codec import (
+    BLOCK_ABANDONED,
+    Correspondence,
+    Event,
+    Goals,
+    Lives,
+    Motion,
+    Pose,
+    Tick,
+    Timing,
+    WarmStart,
+    as_sent,
+    life_number,
+)
 from transport.plausible import Clock
 from transport.session import TransportError, add_zenoh_args, settings_from_args
 
@@ -112,6 +125,15 @@ class Roster:
         if alive:
             self.ever.add(r)
 
+    def gave_up(self, robots: set[int]) -> None:
+        """Lock-step: a host gave up an auction block of the current set for these robots. The hosts' blocks may
+        have parted for good (one gave up a block that others finished): a new set, cold, begins every host's
+        auction again from one board, as after a restart."""
+        robots &= self.live
+        self.restarted |= robots
+        if robots:
+            self.changed = time.monotonic()
+
 
 @dataclass
 class ShowClock:
@@ -183,6 +205,10 @@ class Coordinator:
         if self.images:
             self.clock.ticks = bus.subscribe(bus.keys.clock, Tick)
             self.alive = bus.watch_alive("agent")
+        # lock-step: hosts that gave up an auction block (Roster.gave_up)
+        self.agent_events = (
+            bus.subscribe(bus.keys.agents_events, Event) if self.images and self.roster.lockstep else None
+        )
         bus.serve(bus.keys.all_of("goals"), self._answer)
         self.running = True
 
@@ -220,6 +246,8 @@ class Coordinator:
                 return False
             if (robots != self.shown[1] or restarted) and time.monotonic() - self.roster.changed < SETTLE_S:
                 return False
+            if self._would_replay(step, robots, t):
+                return False
         dead = list(self.roster.ever - self.roster.live)
         if not self.bodies.waited_for(dead, t):
             return False
@@ -235,6 +263,12 @@ class Coordinator:
                 if not alive:  # hear where its body stays, with every other dead robot's
                     self.bodies.watch(self.bus, np.array(sorted((self.roster.ever - self.roster.live) | {int(ident)})))
         self.bodies.hear()
+        for _, event in self.agent_events.drain() if self.agent_events is not None else ():
+            data = event.data
+            if data.get("kind") == BLOCK_ABANDONED and data.get("epoch") == self.epoch:
+                robots = data.get("robots")
+                if isinstance(robots, list):
+                    self.roster.gave_up({r for r in robots if isinstance(r, int)})
 
     def _publish(self, step: int, robots: frozenset[int], dead: list[int]) -> None:
         """The next epoch's goal set, clear of dead robots' bodies, warm-started from the last set."""
@@ -245,15 +279,19 @@ class Coordinator:
             goals = clear_of_bodies(goals, bodies, 2 * self.scene.radius + 0.05)  # room for its inflated radius
         before = self.current
         # lock-step: a restarted agent has no last agreement to warm-start from (a stalled one, maybe not the
-        # others'), so nobody does
-        cold = self.scene.clock == "lockstep" and bool(self.roster.restarted & robots)
+        # others'), so nobody does. But a step's set is taken up at the step's first tick, which the world may have
+        # sent before a robot was heard back (it went on without it), and that robot's host takes it up later: the
+        # step's set goes out as ever, and one more right after it, cold, named by a tick every host steps (it
+        # differs from the step's by its warm start: the same content under a new epoch is refused as a replay).
+        restarted = self.scene.clock == "lockstep" and bool(self.roster.restarted & robots)
+        cold = restarted and self.shown is not None and step == self.shown[0]
+        if not restarted or cold:
+            self.roster.restarted.clear()
         self.epoch += 1
         self.shown = (step, robots)
-        self.roster.restarted.clear()
         timing, motion = step_timing(self.scene, step, self.clock.t), step_motion(self.scene, step)
         self.current = Goals(self.epoch, 0, goals, colors, np.array(sorted(robots)), timing, motion)
-        # who takes part, in which life: every host reads the same, however its liveliness events come
-        self.current.lives = Lives(np.array([life_number(self.roster.lives.get(r, "")) for r in sorted(robots)]))
+        self.current.lives = self._lives(robots)
         if before is not None and not before.per_robot and len(before.positions) == len(goals):
             matched, prices = self._warm_start(as_sent(before.positions), goals)
             self.current.warm_start = None if cold else WarmStart(before.epoch, matched, prices)
@@ -263,6 +301,23 @@ class Coordinator:
             # the first set, from where the robots start: they drive at once while its auction spans ticks
             self.current.warm_start = WarmStart(0, *self._warm_start(self._starts(self.current.robots), goals))
         self.bus.publish(self.bus.keys.goals(self.epoch), self.current)
+
+    def _lives(self, robots: frozenset[int]) -> Lives:
+        """Who takes part, in which life: every host reads the same, however its liveliness events come."""
+        return Lives(np.array([life_number(self.roster.lives.get(r, "")) for r in sorted(robots)]))
+
+    def _would_replay(self, step: int, robots: frozenset[int], t: float) -> bool:
+        """The next set would be the current one under a new epoch (cold, of the same step, robots and lives, at
+        the same stamp), which every receiver refuses as a replay (transport.plausible.GoalSets): it waits a tick."""
+        current = self.current
+        return (
+            (step, robots) == self.shown
+            and current is not None
+            and current.warm_start is None
+            and t <= current.timing.stamp
+            and current.lives is not None
+            and np.array_equal(current.lives.life, self._lives(robots).life)
+        )
 
     def _rounds_bounded(self) -> bool:
         """Lock-step with rounds per tick bounded: an auction spans ticks, the robots need goals meanwhile."""

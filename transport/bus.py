@@ -382,7 +382,9 @@ class Sent:
 
 class Bus:
     """One participant's connection to the swarm: publish typed messages, subscribe to inboxes; what it
-    declared is kept with the link's state, as a renewal declares it all again."""
+    declared is kept with the link's state, as a renewal declares it all again. Its attributes past 15 are
+    that state's: whether the link to the router is lost, when to renew, and how often it came back (a host's
+    clock starts again) and was renewed."""
 
     def __init__(
         self,
@@ -407,6 +409,7 @@ class Bus:
         self._pulled: list[Inbox[Any]] = []
         self.session = open_session(settings)
         self.renewals = 0  # times the link to the router came back and every feed was declared again
+        self.link_returns = 0  # times the link to the router came back: what was sent meanwhile never reached us
         self._link_lost = False
         self._renew_at: float | None = None  # time.monotonic() at which to renew (renew_if_due)
         if settings.mode == "client":
@@ -546,6 +549,7 @@ class Bus:
             self._link_lost = True
         elif self._link_lost:
             self._link_lost = False
+            self.link_returns += 1
             self._renew_at = time.monotonic() + self.renew_delay
 
     @property

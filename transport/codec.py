@@ -845,6 +845,9 @@ class Event(Message):
         return dict(self.data)
 
 
+BLOCK_ABANDONED = "block-abandoned"  # an Event: a lock-step host gave up an auction block (epoch, robots)
+
+
 def _finite_float(text: str) -> float:
     """A JSON number (or NaN, Infinity) as a float; non-finite (1e999 too) is Malformed."""
     value = float(text)

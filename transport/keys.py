@@ -78,9 +78,14 @@ class Keys:
         self.truth, self.contact = f"{root}/sim/truth", f"{root}/sim/contact"
 
     def stats(self, robot: int) -> str:
-        """An agent host's statistics (an Event, kind 'event'), keyed by its first robot: the run's own events
-        (its end, the world's report) are the services', which a robot may not publish on a secured bus."""
+        """An agent host's events (its statistics; a lock-step block given up), keyed by its first robot: the run's
+        own events (its end, the world's report) are the services', which a robot may not publish on a secured bus."""
         return f"{self.event}/{robot}"
+
+    @property
+    def agents_events(self) -> str:
+        """Every agent host's events (stats)."""
+        return f"{self.event}/*"
 
     # tracker -> agent: every key of kind 'pose' carries a Poses frame
     def pose(self, robot: int) -> str:

@@ -71,7 +71,8 @@ def _service_grants(keys: Keys) -> dict[str, list[dict]]:
             "put": [keys.all_of("goals")],
             "serve": [keys.all_of("goals")],
             "query": [keys.run_goals],  # restarted mid-run: the newest goal set, from the launcher
-            "read": [keys.clock, keys.all_of("pose"), keys.poses],
+            # the agents' events: a lock-step host that gave up a block asks for a new goal set
+            "read": [keys.clock, keys.all_of("pose"), keys.poses, keys.agents_events],
         },
         "tracker": {"put": [keys.all_of("pose"), keys.poses], "read": [keys.clock]},
         # the simulated world is a simulation's tracker, and its scripted obstacles broadcast states like robots

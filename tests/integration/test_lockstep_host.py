@@ -21,12 +21,13 @@ import numpy as np
 import pytest
 import zenoh
 
+from agent import assignment
 from agent.clocks import HELLO_EVERY, HELLO_SWARM
 from agent.core.params import RobotParams
 from agent.runtime import AgentHost, HostConfig
 from tests.conftest import deafen, wait_for
 from tests.support.hosts import await_commands, run_host, stop_host, world_and_agent_buses
-from transport.codec import Goals, Pose, Poses, Tick, Timing
+from transport.codec import BLOCK_ABANDONED, Event, Goals, Pose, Poses, Tick, Timing
 
 DT = 0.1
 PARAMS = RobotParams(kinematics="holonomic")
@@ -149,4 +150,69 @@ def test_a_host_whose_link_came_back_declares_its_subscriptions_again_until_a_po
         assert wait_for(lambda: agent_bus.renewals == 2, timeout=10.0)
         tick(2)
         await_commands(commands, 2, {0})
+        stop_host(host, thread)
+
+
+def test_a_host_whose_link_came_back_answers_the_worlds_clock_however_far_it_went_on() -> None:
+    """A world in lock-step goes on without robots heard dead (a host stalled past its link's lease), and the
+    ticks it sent meanwhile never reached the host. Back, the host took the next tick for one from the future
+    (more than AHEAD past the newest it knew), refused it and its poses, and the world waited for it in vain."""
+    with world_and_agent_buses() as (world, agent_bus):
+        commands = world.commands_inbox()
+        host = AgentHost(agent_bus, HostConfig(robots=[0], params=PARAMS, lockstep=True))
+        thread = run_host(world, host, np.zeros((1, 3)))
+
+        def tick(k: int) -> None:
+            world.publish(world.keys.clock, Tick(k, k * DT, DT, 0))
+            world.publish(world.keys.pose(0), Poses.one(Pose(0, k, k * DT, 0.0, 0.0, 0.0)))
+            await_commands(commands, k, {0})
+
+        tick(0)
+        agent_bus._on_link(SimpleNamespace(kind=zenoh.SampleKind.DELETE))
+        agent_bus._on_link(SimpleNamespace(kind=zenoh.SampleKind.PUT))
+        tick(12)
+        tick(13)
+        assert not host.inbox.pose.drops and not host.clock.inbox.drops
+        stop_host(host, thread)
+
+
+def pair_set(epoch: int) -> Goals:
+    """Robots 0 and 1, two goals; cold (no warm start), as after a restart."""
+    return Goals(
+        epoch,
+        0,
+        np.array([[0.5, 0.0], [0.5, 0.1 * epoch]]),
+        np.zeros((2, 3), np.uint8),
+        np.array([0, 1]),
+        Timing(0, 0, 60),
+    )  # another set of goals each epoch: a copy under a new epoch is refused as replayed
+
+
+@pytest.mark.parametrize("ends", ["ROUND_CAP passes", "a cold set is held"])
+def test_a_host_that_gives_a_round_up_asks_for_a_new_set_unless_one_that_begins_again_is_held(
+    ends: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Robot 1's host never says a round (it stalled, or is in another block). A host gives the block up after
+    ROUND_CAP and tells the coordinator, which sends a new set, cold (coordinator.service.Roster.gave_up): the
+    hosts' blocks may have parted for good. Once a newer set that begins every host's auction again is held,
+    the round is moot: the host gives it up at once, and asks for nothing."""
+    monkeypatch.setattr(assignment, "ROUND_CAP", 1.0)
+    with world_and_agent_buses() as (world, agent_bus):
+        commands = world.commands_inbox()
+        said = world.subscribe(world.keys.agents_events, Event)
+        host = AgentHost(agent_bus, HostConfig(robots=[0], params=PARAMS, lockstep=True, steps=[0.0]))
+        thread = run_host(world, host, np.zeros((1, 3)))
+        world.publish(world.keys.goals(1), pair_set(1))
+        world.publish(world.keys.clock, Tick(0, 0.0, DT, 1))
+        world.publish(world.keys.pose(0), Poses.one(Pose(0, 0, 0.0, 0.0, 0.0, 0.0)))
+        assert wait_for(lambda: host.auction.exchange.waiting_for is not None, timeout=10.0)
+        if ends == "a cold set is held":
+            monkeypatch.setattr(assignment, "ROUND_CAP", 600.0)
+            world.publish(world.keys.goals(2), pair_set(2))
+        await_commands(commands, 0, {0})
+        assert host.auction.counts.abandoned == 1
+        time.sleep(0.3)
+        events = [e.data for _, e in said.drain() if e.data.get("kind") == BLOCK_ABANDONED]
+        assert events == ([{"kind": BLOCK_ABANDONED, "epoch": 1, "robots": [0]}] if ends == "ROUND_CAP passes" else [])
+        host.auction.stop()
         stop_host(host, thread)

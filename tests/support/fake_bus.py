@@ -19,10 +19,10 @@ class Bus:
 
     def __init__(self) -> None:
         self.keys = Keys()
-        self.clock, self.alive, self.published = Inbox(), Inbox(), []
+        self.clock, self.alive, self.events, self.published = Inbox(), Inbox(), Inbox(), []
 
     def subscribe(self, key: str, expected=None, only=None) -> Inbox:
-        return self.clock if key == self.keys.clock else Inbox()
+        return {self.keys.clock: self.clock, self.keys.agents_events: self.events}.get(key, Inbox())
 
     def watch_alive(self, role=None) -> Inbox:
         return self.alive
