@@ -14,6 +14,7 @@ the robots' commands.
 
 from __future__ import annotations
 
+import threading
 import time
 from types import SimpleNamespace
 
@@ -27,6 +28,7 @@ from agent.core.params import RobotParams
 from agent.runtime import AgentHost, HostConfig
 from tests.conftest import deafen, wait_for
 from tests.support.hosts import await_commands, run_host, stop_host, world_and_agent_buses
+from transport.bus import Bus, Inbox
 from transport.codec import BLOCK_ABANDONED, Event, Goals, Pose, Poses, Tick, Timing
 
 DT = 0.1
@@ -38,6 +40,12 @@ def goal_set(epoch: int, x: float) -> Goals:
     return Goals(epoch, 0, np.array([[x, 0.0]]), np.array([[255, 0, 0]], np.uint8), np.array([0]), Timing(0.0, 0, 60.0))
 
 
+def say_tick(world: Bus, k: int, named: int = 0) -> None:
+    """The world's tick k for robot 0: its clock message (naming goal set ``named``), then the robot's pose."""
+    world.publish(world.keys.clock, Tick(k, k * DT, DT, named))
+    world.publish(world.keys.pose(0), Poses.one(Pose(0, k, k * DT, 0.0, 0.0, 0.0)))
+
+
 def test_a_goal_set_heard_before_its_tick_waits_for_the_tick_that_names_it() -> None:
     with world_and_agent_buses() as (world, agent_bus):
         commands = world.commands_inbox()
@@ -45,8 +53,7 @@ def test_a_goal_set_heard_before_its_tick_waits_for_the_tick_that_names_it() -> 
         thread = run_host(world, host, np.zeros((1, 3)))
 
         def tick(k: int, named: int) -> None:
-            world.publish(world.keys.clock, Tick(k, k * DT, DT, named))
-            world.publish(world.keys.pose(0), Poses.one(Pose(0, k, k * DT, 0.0, 0.0, 0.0)))
+            say_tick(world, k, named)
             await_commands(commands, k, {0})
 
         world.publish(world.keys.goals(1), goal_set(1, 0.5))  # scene step 0's goal set
@@ -123,6 +130,22 @@ def test_a_host_of_many_robots_holds_as_many_subscriptions_as_a_host_of_two() ->
         assert len(agent_bus._subscriptions) - before >= 10  # robots alone: one pose key each
 
 
+def answered_tick_0(world: Bus, agent_bus: Bus) -> tuple[AgentHost, threading.Thread, Inbox]:
+    """A lock-step host of robot 0, started, that answered tick 0: it, its thread, and the commands' inbox."""
+    commands = world.commands_inbox()
+    host = AgentHost(agent_bus, HostConfig(robots=[0], params=PARAMS, lockstep=True))
+    thread = run_host(world, host, np.zeros((1, 3)))
+    say_tick(world, 0)
+    await_commands(commands, 0, {0})
+    return host, thread, commands
+
+
+def link_lost_and_back(bus: Bus) -> None:
+    """The bus's link to the router goes and comes back, as zenoh tells it."""
+    bus._on_link(SimpleNamespace(kind=zenoh.SampleKind.DELETE))
+    bus._on_link(SimpleNamespace(kind=zenoh.SampleKind.PUT))
+
+
 @pytest.mark.slow
 def test_a_host_whose_link_came_back_declares_its_subscriptions_again_until_a_pose_comes() -> None:
     """A client's subscriptions can go deaf when its link drops and returns on a starved machine
@@ -130,25 +153,14 @@ def test_a_host_whose_link_came_back_declares_its_subscriptions_again_until_a_po
     (one renewal left a few agents deaf). Here the link's events are told to the bus, and its
     subscriptions are made deaf under it, twice."""
     with world_and_agent_buses() as (world, agent_bus):
-        commands = world.commands_inbox()
-        host = AgentHost(agent_bus, HostConfig(robots=[0], params=PARAMS, lockstep=True))
-        thread = run_host(world, host, np.zeros((1, 3)))
-
-        def tick(k: int) -> None:
-            world.publish(world.keys.clock, Tick(k, k * DT, DT, 0))
-            world.publish(world.keys.pose(0), Poses.one(Pose(0, k, k * DT, 0.0, 0.0, 0.0)))
-
-        tick(0)
-        await_commands(commands, 0, {0})
-
+        host, thread, commands = answered_tick_0(world, agent_bus)
         deafen(agent_bus)
-        agent_bus._on_link(SimpleNamespace(kind=zenoh.SampleKind.DELETE))
-        agent_bus._on_link(SimpleNamespace(kind=zenoh.SampleKind.PUT))
+        link_lost_and_back(agent_bus)
         assert wait_for(lambda: agent_bus.renewals == 1, timeout=10.0)
         deafen(agent_bus)
-        tick(1)  # unheard
+        say_tick(world, 1)  # unheard
         assert wait_for(lambda: agent_bus.renewals == 2, timeout=10.0)
-        tick(2)
+        say_tick(world, 2)
         await_commands(commands, 2, {0})
         stop_host(host, thread)
 
@@ -158,20 +170,11 @@ def test_a_host_whose_link_came_back_answers_the_worlds_clock_however_far_it_wen
     ticks it sent meanwhile never reached the host. Back, the host took the next tick for one from the future
     (more than AHEAD past the newest it knew), refused it and its poses, and the world waited for it in vain."""
     with world_and_agent_buses() as (world, agent_bus):
-        commands = world.commands_inbox()
-        host = AgentHost(agent_bus, HostConfig(robots=[0], params=PARAMS, lockstep=True))
-        thread = run_host(world, host, np.zeros((1, 3)))
-
-        def tick(k: int) -> None:
-            world.publish(world.keys.clock, Tick(k, k * DT, DT, 0))
-            world.publish(world.keys.pose(0), Poses.one(Pose(0, k, k * DT, 0.0, 0.0, 0.0)))
+        host, thread, commands = answered_tick_0(world, agent_bus)
+        link_lost_and_back(agent_bus)
+        for k in (12, 13):
+            say_tick(world, k)
             await_commands(commands, k, {0})
-
-        tick(0)
-        agent_bus._on_link(SimpleNamespace(kind=zenoh.SampleKind.DELETE))
-        agent_bus._on_link(SimpleNamespace(kind=zenoh.SampleKind.PUT))
-        tick(12)
-        tick(13)
         assert not host.inbox.pose.drops and not host.clock.inbox.drops
         stop_host(host, thread)
 
@@ -203,8 +206,7 @@ def test_a_host_that_gives_a_round_up_asks_for_a_new_set_unless_one_that_begins_
         host = AgentHost(agent_bus, HostConfig(robots=[0], params=PARAMS, lockstep=True, steps=[0.0]))
         thread = run_host(world, host, np.zeros((1, 3)))
         world.publish(world.keys.goals(1), pair_set(1))
-        world.publish(world.keys.clock, Tick(0, 0.0, DT, 1))
-        world.publish(world.keys.pose(0), Poses.one(Pose(0, 0, 0.0, 0.0, 0.0, 0.0)))
+        say_tick(world, 0, named=1)
         assert wait_for(lambda: host.auction.exchange.waiting_for is not None, timeout=10.0)
         if ends == "a cold set is held":
             monkeypatch.setattr(assignment, "ROUND_CAP", 600.0)
