@@ -90,10 +90,12 @@ class HostClock:
     def hear(self) -> None:
         """The world's clock messages heard since. Once our link to the router came back, the clock starts again
         from the first tick heard: the ticks sent meanwhile are lost, and a lock-step world goes on without robots
-        heard dead, so the next may lie any number of ticks ahead (refused, it would wait for us in vain)."""
+        heard dead, so the next may lie any number of ticks ahead (refused, it would wait for us in vain). So do
+        the goal sets' epochs (GoalSets.rejoin)."""
         if self.host.bus.link_returns != self.link_returns:
             self.link_returns = self.host.bus.link_returns
             self.clock = Clock(self.clock.line.period)
+            self.host.goal_sets.believed.rejoin()
         for _, clock in self.inbox.drain() if self.inbox is not None else ():
             self.on_clock(clock)
 
@@ -267,6 +269,8 @@ class LockStep(HostClock):
             # waits for our command; a set it names began without us anyway (Lives, bid_from)
             self.hear()
             deadline = 0.0
+        self.hear()
+        host.hear_early_goals()
         while host.running and time.monotonic() < deadline:
             self.hear()
             has_step = due < 0 or any(

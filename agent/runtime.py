@@ -339,6 +339,9 @@ class GoalSetsHeard:
     by_epoch: dict[int, Goals] = field(default_factory=dict)
     newest_heard: int = 0
     bid_from: int = 0
+    # refused as from the future, heard again once the clock has gone on: a host back from a stall knows an old
+    # display time, and the coordinator repeats only its newest set, so one it missed would name no tick for it
+    early: list[Goals] = field(default_factory=list)
 
 
 class Departures:
@@ -481,16 +484,29 @@ class AgentHost:
     def hear_goals(self, goals: Goals) -> None:
         """A goal set heard (lock-step holds it until its tick: HostClock.holds). One whose epoch or stamp lies
         beyond what the robots know is refused: taken as the newest, it would shut out the coordinator's."""
+        why = self._believe(goals)
+        if why is not None:
+            self.inbox.goals.drops[why] += 1
+
+    def hear_early_goals(self) -> None:
+        """The goal sets refused as from the future, heard again (once the clock has gone on); counted once."""
+        early, self.goal_sets.early = self.goal_sets.early, []
+        for goals in early:
+            self._believe(goals)
+
+    def _believe(self, goals: Goals) -> str | None:
+        """Take a goal set in, or say why not (one from the future is kept to be heard again)."""
         now = self.clock.display_time()  # the newest display time known: the lock-step clock, else the newest pose
         if now is None:
             now = max((m.stamp for m in self.robots.known()), default=None)
         why = self.goal_sets.believed.admit(goals, now)
-        if why is not None:
-            self.inbox.goals.drops[why] += 1
-            return
-        self.goal_sets.newest_heard = max(self.goal_sets.newest_heard, goals.epoch)
-        if not self.clock.holds(goals):
-            self.on_goals(goals)
+        if why == FUTURE and all(goals.epoch != g.epoch for g in self.goal_sets.early):
+            self.goal_sets.early = [*self.goal_sets.early, goals][-GoalSets.KEPT :]
+        if why is None:
+            self.goal_sets.newest_heard = max(self.goal_sets.newest_heard, goals.epoch)
+            if not self.clock.holds(goals):
+                self.on_goals(goals)
+        return why
 
     def on_goals(self, goals: Goals) -> None:
         if not goals.per_robot:

@@ -61,6 +61,12 @@ class GoalSets:
         self._sent: dict[int, bytes] = {}  # epoch -> its goal set as first heard
         self._content: dict[bytes, int] = {}  # a goal set without its epoch -> its epoch
 
+    def rejoin(self) -> None:
+        """The receiver's link came back: the epochs published meanwhile never reached it, so it takes the next
+        it hears, however far ahead, as one that joins a run under way does (the coordinator repeats only its
+        newest set, and an epoch refused as too far ahead would be refused for good)."""
+        self.newest = None
+
     def admit(self, goals: Goals, now: float | None) -> str | None:
         """None to take the goal set, or why not. ``now``: the display time the receiver knows."""
         if (self.newest is not None and goals.epoch > self.newest + AHEAD) or (

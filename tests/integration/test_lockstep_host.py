@@ -218,3 +218,20 @@ def test_a_host_that_gives_a_round_up_asks_for_a_new_set_unless_one_that_begins_
         assert events == ([{"kind": BLOCK_ABANDONED, "epoch": 1, "robots": [0]}] if ends == "ROUND_CAP passes" else [])
         host.auction.stop()
         stop_host(host, thread)
+
+
+def test_a_goal_set_refused_as_from_the_future_is_heard_again_once_the_clock_has_gone_on() -> None:
+    """Back from a stall, a host knows an old display time: the coordinator's newest sets look as from the future
+    (stamped more than RESYNC beyond it), and the coordinator repeats only its newest. A set refused for good
+    left the tick that named it without its set, and the host took up another set than the other hosts."""
+    with world_and_agent_buses() as (world, agent_bus):
+        host, thread, commands = answered_tick_0(world, agent_bus)
+        early = Goals(1, 0, np.array([[0.5, 0.0]]), np.zeros((1, 3), np.uint8), np.array([0]), Timing(3.0, 0, 60.0))
+        world.publish(world.keys.goals(1), early)
+        time.sleep(0.3)  # heard at the next tick, at most 1.5 s of display time: refused
+        for k in range(1, 31):
+            say_tick(world, k, named=1 if k == 30 else 0)
+            await_commands(commands, k, {0})
+        assert 1 in host.goal_sets.by_epoch
+        assert dict(host.inbox.goals.drops) == {"future": 1}  # counted once, however often heard again
+        stop_host(host, thread)

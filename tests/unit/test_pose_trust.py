@@ -141,6 +141,19 @@ def test_a_receiver_that_starts_with_the_run_refuses_a_forged_first_epoch():
     assert joining.admit(forged, None) == FUTURE
 
 
+def test_a_receiver_whose_link_came_back_takes_the_next_epoch_however_far_ahead():
+    """The epochs published while a host's link was down never reached it, and the coordinator repeats only its
+    newest: refused as too far ahead, it was refused for good, and the host never took a goal set again."""
+    first = Goals(1, 0, np.array([[0.5, 0.5]]), np.zeros((1, 3), np.uint8), np.arange(1))
+    newest = dataclasses.replace(first, epoch=5, positions=np.array([[0.6, 0.5]]))
+    believed = GoalSets((0, 0, 1, 1), newest=0)
+    assert believed.admit(first, None) is None and believed.admit(newest, None) == FUTURE
+    believed.rejoin()
+    assert believed.admit(newest, None) is None and believed.newest == 5
+    assert believed.admit(dataclasses.replace(first, epoch=8), None) == FUTURE  # as far as AHEAD again, after it
+    assert believed.admit(dataclasses.replace(first, epoch=6), None) == "replayed"  # what it heard, it still knows
+
+
 def test_a_neighbour_state_from_the_future_is_refused_and_never_pushes_out_the_honest_ones():
     table = NeighbourTable(DT)
     table.advance(20)
