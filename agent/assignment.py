@@ -73,8 +73,7 @@ class RoundExchange:
     ) -> None:
         self.bus, self.robots, self.sender, self.inbox, self.counts = bus, robots, robots[0], inbox, counts
         self.keeps = keeps
-        self.dead: Callable[[], set[int]] = set  # robots not waited for (LockStepRounds.dead)
-        self.moot: Callable[[int], bool] = REAL_TIME.moot  # stop waiting in a round (LockStepRounds.moot)
+        self.rounds = REAL_TIME  # who is not waited for, and when a round is moot (AuctionLink's lockstep)
         self.records: dict[tuple[int, int, int], dict[int, Any]] = {}  # round -> sender -> its message
         self.said: dict[tuple[int, int, int], tuple[Bid | Boards, float]] = {}  # our rounds' messages, when last sent
         self.said_block: tuple[int, int] | None = None  # (epoch, block) of the newest round in ``said``
@@ -110,9 +109,9 @@ class RoundExchange:
                 for sender in heard.keys() - counted:  # a resent message names the same robots
                     said.update(robots_of(heard[sender]).tolist())
                     counted.add(sender)
-                if members <= said | self.dead():
+                if members <= said | self.rounds.dead():
                     return heard
-                if self.moot(key[0]):
+                if self.rounds.moot(key[0]):
                     return None
                 now = time.monotonic()
                 if now - start >= ROUND_CAP:
@@ -214,7 +213,7 @@ class AuctionLink:
         kind, key = (Boards, "boards") if math.isfinite(self.reach) else (Bid, "auction")
         inbox: Inbox[Any] = bus.subscribe(bus.keys.all_of(key), kind, pulled=self.lockstep)
         self.exchange = RoundExchange(bus, self.robots, inbox, self.counts, self._keeps)
-        self.exchange.dead, self.exchange.moot = (lockstep or REAL_TIME).dead, (lockstep or REAL_TIME).moot
+        self.exchange.rounds = lockstep or REAL_TIME
         self.part: Participant | None = None
         self.local: LocalAuction | None = None  # the range-limited auction, in place of part
         self.goal_set: Goals | None = None

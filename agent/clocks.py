@@ -267,10 +267,9 @@ class LockStep(HostClock):
         if tick <= self.joined_in:
             # a tick we joined in: its clock message may have gone out before we subscribed, and the world
             # waits for our command; a set it names began without us anyway (Lives, bid_from)
-            self.hear()
             deadline = 0.0
         self.hear()
-        host.hear_early_goals()
+        host.hear_early_goals()  # once the clock has gone on
         while host.running and time.monotonic() < deadline:
             self.hear()
             has_step = due < 0 or any(
