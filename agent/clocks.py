@@ -291,7 +291,10 @@ class LockStep(HostClock):
                 host.hear_goals(got[1])
         # no clock message in time, or missed (a world that names no goal set): take up all that was heard
         upto = self.named.get(tick, max(self.unnamed, default=0))
-        if due >= 0:
+        # the coordinator sends a step's set once it hears the step's first tick, so that tick cannot name it: every
+        # host takes it up there. A later tick names what the others took up; a host back from a stall that missed
+        # the step's set must not take a later one of the step there (named by a tick to come: the hosts would part)
+        if due >= 0 and stamp < host.config.steps[due] + host.params.dt - 1e-9:
             of_step = [e for e, g in {**host.goal_sets.by_epoch, **self.unnamed}.items() if g.timing.step >= due]
             upto = max(upto, min(of_step, default=0))
         self.named = {t: e for t, e in self.named.items() if t > tick}

@@ -179,6 +179,33 @@ def test_a_host_whose_link_came_back_answers_the_worlds_clock_however_far_it_wen
         stop_host(host, thread)
 
 
+def test_a_host_back_mid_step_takes_a_later_set_of_the_step_only_at_the_tick_that_names_it() -> None:
+    """A host stalled over a step's first tick misses the step's set, which every other host took up there. The
+    coordinator sends one more set of the step for its robots, which the world names a tick or two later. Taken
+    up at once as the step's set, it began this host's auction ticks before the others': each waited for the
+    other's rounds for ROUND_CAP."""
+    with world_and_agent_buses() as (world, agent_bus):
+        commands = world.commands_inbox()
+        host = AgentHost(agent_bus, HostConfig(robots=[0], params=PARAMS, lockstep=True, steps=[0.0, 1.0]))
+        thread = run_host(world, host, np.zeros((1, 3)))
+        world.publish(world.keys.goals(1), goal_set(1, 0.5))
+        say_tick(world, 0)
+        await_commands(commands, 0, {0})
+        link_lost_and_back(agent_bus)  # stalled over tick 10, step 1's first, and missed step 1's set (epoch 2)
+        again = Goals(
+            3, 0, np.array([[0.7, 0.0]]), np.zeros((1, 3), np.uint8), np.array([0]), Timing(1.0, 1, 60.0, 1.0)
+        )
+        world.publish(world.keys.goals(3), again)
+        time.sleep(0.3)
+        say_tick(world, 12, named=2)  # what the other hosts took up
+        await_commands(commands, 12, {0})
+        assert 3 not in host.goal_sets.by_epoch, "a later set of the step was taken up at a tick that did not name it"
+        say_tick(world, 13, named=3)
+        await_commands(commands, 13, {0})
+        assert 3 in host.goal_sets.by_epoch
+        stop_host(host, thread)
+
+
 def pair_set(epoch: int) -> Goals:
     """Robots 0 and 1, two goals; cold (no warm start), as after a restart."""
     return Goals(
