@@ -246,8 +246,6 @@ class Coordinator:
                 return False
             if (robots != self.shown[1] or restarted) and time.monotonic() - self.roster.changed < SETTLE_S:
                 return False
-            if self._would_replay(step, robots, t):
-                return False
         dead = list(self.roster.ever - self.roster.live)
         if not self.bodies.waited_for(dead, t):
             return False
@@ -287,9 +285,10 @@ class Coordinator:
         cold = restarted and self.shown is not None and step == self.shown[0]
         if not restarted or cold:
             self.roster.restarted.clear()
+        stamp = self._stamp(step, robots)
         self.epoch += 1
         self.shown = (step, robots)
-        timing, motion = step_timing(self.scene, step, self.clock.t), step_motion(self.scene, step)
+        timing, motion = step_timing(self.scene, step, stamp), step_motion(self.scene, step)
         self.current = Goals(self.epoch, 0, goals, colors, np.array(sorted(robots)), timing, motion)
         self.current.lives = self._lives(robots)
         if before is not None and not before.per_robot and len(before.positions) == len(goals):
@@ -306,18 +305,23 @@ class Coordinator:
         """Who takes part, in which life: every host reads the same, however its liveliness events come."""
         return Lives(np.array([life_number(self.roster.lives.get(r, "")) for r in sorted(robots)]))
 
-    def _would_replay(self, step: int, robots: frozenset[int], t: float) -> bool:
-        """The next set would be the current one under a new epoch (cold, of the same step, robots and lives, at
-        the same stamp), which every receiver refuses as a replay (transport.plausible.GoalSets): it waits a tick."""
-        current = self.current
-        return (
-            (step, robots) == self.shown
-            and current is not None
-            and current.warm_start is None
-            and t <= current.timing.stamp
-            and current.lives is not None
-            and np.array_equal(current.lives.life, self._lives(robots).life)
-        )
+    def _stamp(self, step: int, robots: frozenset[int]) -> float:
+        """The next set's stamp: the display time, or just past the current set's where the next would otherwise
+        be it under a new epoch (cold, of the same step, robots and lives, at the same stamp), which every
+        receiver refuses as a replay (transport.plausible.GoalSets); waiting a tick would stall a lock-step world
+        whose hosts wait for this set to leave a round they cannot finish."""
+        t, current = self.clock.t, self.current
+        assert t is not None
+        if (
+            current is None
+            or (step, robots) != self.shown
+            or current.warm_start is not None
+            or current.lives is None
+            or not np.array_equal(current.lives.life, self._lives(robots).life)
+            or t > current.timing.stamp
+        ):
+            return t
+        return float(np.nextafter(current.timing.stamp, np.inf))
 
     def _rounds_bounded(self) -> bool:
         """Lock-step with rounds per tick bounded: an auction spans ticks, the robots need goals meanwhile."""
