@@ -285,12 +285,13 @@ class Coordinator:
         cold = restarted and self.shown is not None and step == self.shown[0]
         if not restarted or cold:
             self.roster.restarted.clear()
-        stamp = self._stamp(step, robots)
+        stamp = self._stamp()
         self.epoch += 1
         self.shown = (step, robots)
         timing, motion = step_timing(self.scene, step, stamp), step_motion(self.scene, step)
         self.current = Goals(self.epoch, 0, goals, colors, np.array(sorted(robots)), timing, motion)
-        self.current.lives = self._lives(robots)
+        # who takes part, in which life: every host reads the same, however its liveliness events come
+        self.current.lives = Lives(np.array([life_number(self.roster.lives.get(r, "")) for r in sorted(robots)]))
         if before is not None and not before.per_robot and len(before.positions) == len(goals):
             matched, prices = self._warm_start(as_sent(before.positions), goals)
             self.current.warm_start = None if cold else WarmStart(before.epoch, matched, prices)
@@ -301,27 +302,14 @@ class Coordinator:
             self.current.warm_start = WarmStart(0, *self._warm_start(self._starts(self.current.robots), goals))
         self.bus.publish(self.bus.keys.goals(self.epoch), self.current)
 
-    def _lives(self, robots: frozenset[int]) -> Lives:
-        """Who takes part, in which life: every host reads the same, however its liveliness events come."""
-        return Lives(np.array([life_number(self.roster.lives.get(r, "")) for r in sorted(robots)]))
-
-    def _stamp(self, step: int, robots: frozenset[int]) -> float:
-        """The next set's stamp: the display time, or just past the current set's where the next would otherwise
-        be it under a new epoch (cold, of the same step, robots and lives, at the same stamp), which every
-        receiver refuses as a replay (transport.plausible.GoalSets); waiting a tick would stall a lock-step world
-        whose hosts wait for this set to leave a round they cannot finish."""
+    def _stamp(self) -> float:
+        """The next set's stamp: the display time, and always past the current set's. A set that is the current
+        one under a new epoch (a cold set again for the same robots, at the same tick) is refused as a replay
+        (transport.plausible.GoalSets); waiting a tick for a new stamp would stall a lock-step world whose hosts
+        wait for that set to leave a round they cannot finish."""
         t, current = self.clock.t, self.current
         assert t is not None
-        if (
-            current is None
-            or (step, robots) != self.shown
-            or current.warm_start is not None
-            or current.lives is None
-            or not np.array_equal(current.lives.life, self._lives(robots).life)
-            or t > current.timing.stamp
-        ):
-            return t
-        return float(np.nextafter(current.timing.stamp, np.inf))
+        return t if current is None or t > current.timing.stamp else float(np.nextafter(current.timing.stamp, np.inf))
 
     def _rounds_bounded(self) -> bool:
         """Lock-step with rounds per tick bounded: an auction spans ticks, the robots need goals meanwhile."""

@@ -237,9 +237,9 @@ class _FixedPart:
 
 @dataclass
 class Timing(_FixedPart):
-    """Part 2 of a goal set: when published (``stamp``, display time; just past the set in force for a copy of
-    it, which would be a replay: coordinator.service.Coordinator._stamp), the scene step shown, for how long
-    (``hold``, s), the display time it began (t = 0 of eq. 28) and an animation keyframe's K_f dt (eq. 27; 0: none)."""
+    """Part 2 of a goal set: when published (``stamp``, display time, past the set before's:
+    coordinator.service.Coordinator._stamp), the scene step shown, for how long (``hold``, s), the display
+    time it began (t = 0 of eq. 28) and an animation keyframe's K_f dt (eq. 27; 0: none)."""
 
     PART: ClassVar[int] = 2
     VERSION: ClassVar[int] = 1
