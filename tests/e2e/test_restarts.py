@@ -160,7 +160,9 @@ def test_a_lockstep_host_stalled_past_its_lease_is_heard_dead_and_back_and_the_s
     next tick however far ahead, and every host bids again from a new goal set. Before, the two hosts could
     part for good (the host refused the world's clock as one from the future, or took the new set up at
     another tick than the other host): every tick waited ROUND_CAP (30 s), and CI timed out."""
-    scene = write_disk(tmp_path, ROBOTS, "lockstep", 40.0, converge_hold=8.0)
+    # the world goes on without the stalled robots, as fast as the machine lets it: a fast world runs tens of
+    # seconds of display time meanwhile, so the show needs room to converge and hold (it ends once it has)
+    scene = write_disk(tmp_path, ROBOTS, "lockstep", 80.0, converge_hold=8.0)
     out = tmp_path / "run"
     proc = start_run(spawned, scene, out, "--agents-per-process", str(ROBOTS // 2))
     assert wait_for(lambda: ticks_so_far(out) >= 30, timeout=120), proc.stderr.read() if proc.poll() else ""
