@@ -118,8 +118,7 @@ def _reference(value: Any, dictionary_size: int, where: str) -> dict[int, tuple[
     written: dict[int, str] = {}  # marker id -> its key as written, to name both of two that collide
     for key, xy in value.items():
         text = str(key).strip()
-        if not (text.isascii() and text.isdigit()):
-            raise HardwareConfigError(f"{where}: marker id {key!r} is not a whole number")
+        need(text.isascii() and text.isdigit(), f"{where}: marker id {key!r} is not a whole number")
         marker = int(text)
         if marker in written:  # "46" and "046": one marker placed twice
             raise HardwareConfigError(f"{where}: marker ids {written[marker]!r} and {key!r} are both marker {marker}")

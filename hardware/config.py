@@ -132,8 +132,7 @@ def parse_table(table: Any, kinds: Mapping[str, str], where: str) -> Any:
     need(isinstance(table, dict), f"{where}: must be a table")
     need("kind" in table, f"{where}: missing key 'kind' (one of: {', '.join(sorted(kinds))})")
     kind = table["kind"]
-    if not isinstance(kind, str) or kind not in kinds:
-        raise HardwareConfigError(f"{where}: unknown kind {kind!r} (known: {', '.join(sorted(kinds))})")
+    need(isinstance(kind, str) and kind in kinds, f"{where}: unknown kind {kind!r} (known: {', '.join(sorted(kinds))})")
     return load_object(kinds[kind], kind, where).from_table(table, where)
 
 

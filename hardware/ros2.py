@@ -95,10 +95,8 @@ class Ros2Messages:
 
 def _check_domain(value: Any) -> None:
     # ROS_DOMAIN_ID spans 0-232 (the DDS port arithmetic's limit; rmw_zenoh keeps it).
-    need(
-        isinstance(value, int) and not isinstance(value, bool) and 0 <= value <= 232,
-        f"domain must be a whole number 0-232, not {value!r}",
-    )
+    whole = isinstance(value, int) and not isinstance(value, bool)
+    need(whole and 0 <= value <= 232, f"domain must be a whole number 0-232, not {value!r}")
 
 
 def _check_name(value: Any, key: str, what: str = "topic") -> None:
@@ -134,10 +132,8 @@ class Ros2BackendConfig(FromTable):
             need(not topic.startswith("/"), f"{key} is relative to each robot's namespace: no leading '/'")
         _check_domain(self.domain)
         need(self.distro in DISTROS, f"distro must be one of {', '.join(DISTROS)}, not {self.distro!r}")
-        need(
-            is_number(self.watchdog) and self.watchdog > 0,
-            f"watchdog must be a positive time in s, not {self.watchdog!r}",
-        )
+        watchdog = self.watchdog
+        need(is_number(watchdog) and watchdog > 0, f"watchdog must be a positive time in s, not {watchdog!r}")
 
     @property
     def robot_ids(self) -> list[int]:
