@@ -298,19 +298,16 @@ class RobotLink:
                 for answer_id, payload in take_answers(stream):
                     if answer_id == SENSORS_ID:
                         self.sensors = payload
-                    self._took_answer()
+                    # the robot answers each command in turn: the oldest unanswered one has arrived
+                    self.stats.answered = True
+                    if self._unanswered:
+                        self.answered_seq = max(self.answered_seq, self._unanswered.popleft())
                 async with self._answered:
                     self._answered.notify_all()
             raise ConnectionError("closed by the robot")
         except OSError as err:
             self._lost = err
             self._changed.set()
-
-    def _took_answer(self) -> None:
-        """The robot answers each command in turn: the oldest unanswered one has arrived."""
-        self.stats.answered = True
-        if self._unanswered:
-            self.answered_seq = max(self.answered_seq, self._unanswered.popleft())
 
     def _watchdog(self) -> None:
         due = self._watchdog_due()
@@ -334,11 +331,9 @@ class RobotLink:
         deadline = time.monotonic() + duration
         while not self.urgent and (left := deadline - time.monotonic()) > 0:
             self._changed.clear()
-            try:
+            with contextlib.suppress(TimeoutError):
                 async with asyncio.timeout(left):
                     await self._changed.wait()
-            except TimeoutError:
-                return
 
 
 class Epuck2Backend(Started):
