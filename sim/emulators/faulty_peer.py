@@ -151,10 +151,9 @@ def overwrite_count(data: bytes, rng: random.Random, kind: str = "") -> bytes | 
     if kind == "goals" and len(data) >= _GOALS_SET_AT + 9:
         places = (4, _GOALS_SET_AT + 5)  # the goal set part's length, its count of goals
     if kind in _RECORD_SIZE:
-        size = _RECORD_SIZE[kind]
         if len(data) < _FRAME_FIXED:
             return None
-        cut = rng.randint(1, size - 1)
+        cut = rng.randint(1, _RECORD_SIZE[kind] - 1)
         if rng.random() < 0.5 and len(data) - _FRAME_FIXED >= cut:
             return data[: len(data) - cut]
         return data + rng.randbytes(cut)

@@ -62,7 +62,6 @@ class MocapEmulator(Ros2Node):
         self._thread.start()
 
     def publish_once(self, t: float) -> None:
-        """Publish the poses of time ``t``."""
         rows = np.asarray(self.poses(t), float).reshape(-1, 3)
         stamp = self.clock()
         pose_hash = self.messages.type_hash(POSE_STAMPED)
