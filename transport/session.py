@@ -159,6 +159,7 @@ def open_session(settings: ZenohSettings) -> zenoh.Session:
 _SOURCE = re.compile(r"\s+at\s+\S+\.rs:\d+\.?")
 _OS_ERROR = re.compile(r"([^\[\]:]+?) \(os error \d+\)")  # the innermost cause: "Address already in use (os error 98)"
 _ENDPOINT_FORM = "an endpoint reads PROTOCOL/HOST:PORT, e.g. tcp/127.0.0.1:7447"
+_NO_ROUTER = "is a router running there? start one with `pixelswarm router`"
 _HINTS = (  # (what zenoh's text says, lower case; the hint for the user: {listen} the endpoint with another port)
     ("address already in use", "another process holds that port: choose another with -l {listen}"),
     ("cannot assign requested address", "no network interface of this machine has that address"),
@@ -166,7 +167,7 @@ _HINTS = (  # (what zenoh's text says, lower case; the hint for the user: {liste
     ("invalid", _ENDPOINT_FORM),
     ("must be of the form", _ENDPOINT_FORM),
     ("not supported", "use a protocol zenoh speaks, e.g. tcp/127.0.0.1:7447"),
-    ("unable to connect", "is a router running there? start one with `pixelswarm router`"),
+    ("unable to connect", _NO_ROUTER),
 )
 
 
@@ -185,19 +186,12 @@ def zenoh_reason(text: str, mode: str, endpoints: list[str] | None = None) -> tu
         reason = "nothing answered" + (" in time" if "timeout" in lower else "")
     else:
         reason = text.strip(" .")
-    default = (
-        "is the port already in use? choose another with -l {listen}"
-        if mode == "router"
-        else "is a router running there? start one with `pixelswarm router`"
-    )
+    default = "is the port already in use? choose another with -l {listen}" if mode == "router" else _NO_ROUTER
     hint = next((h for pattern, h in _HINTS if pattern in lower), default)
     tls = any(e.startswith("tls/") for e in endpoints or [])
     refused = any(w in lower for w in ("certificate", "trust anchor", "private key", "tls listener"))
-    if (
-        tls
-        and "address already in use" not in lower
-        and (refused or (mode != "router" and "unable to connect" in lower))
-    ):
+    refused_or_silent = refused or (mode != "router" and "unable to connect" in lower)
+    if tls and refused_or_silent and "address already in use" not in lower:
         # over TLS a refused certificate (expired, another authority's, damaged) looks like silence
         hint = "are the certificates of one folder, readable and not expired?"
         hint = hint if mode == "router" else f"is a router running there, and {hint}"
