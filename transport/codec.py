@@ -684,9 +684,8 @@ class Frame(Message):
         names = cls.RECORD.names or ()
         fields: Mapping[str, tuple] = cls.RECORD.fields or {}
         offsets = [fields[k][1] for k in cls._floats]
-        if any(fields[k][0] != np.dtype("<f4") for k in cls._floats) or offsets != list(
-            range(offsets[0], offsets[0] + 4 * len(offsets), 4)
-        ):
+        adjacent = offsets == list(range(offsets[0], offsets[0] + 4 * len(offsets), 4))
+        if not adjacent or any(fields[k][0] != np.dtype("<f4") for k in cls._floats):
             raise TypeError(f"{cls.__name__}: the float fields of a record must be adjacent float32")
         cls._float_block = (offsets[0], len(offsets))
         row = _row_struct(cls.RECORD).format[1:]
