@@ -150,9 +150,7 @@ class Keys:
         if not key.startswith(self.root + "/"):
             return ""
         parts = key[len(self.root) + 1 :].split("/")
-        if parts[0] == "sim" and len(parts) > 1:
-            return "sim/" + parts[1]
-        return parts[0]
+        return "/".join(parts[:2]) if parts[0] == "sim" else parts[0]
 
     @staticmethod
     @functools.lru_cache(maxsize=4096)  # a receiver hears the same few keys every tick
