@@ -77,17 +77,16 @@ def parse_faults(text: str) -> FaultPlan:
 
 def _check_setting(part: str, kind: str, name: str, has_value: bool) -> None:
     """A setting of a plan's entry: one of SETTINGS, with a value; else a ValueError naming the settings."""
-    if name in SETTINGS and has_value:
-        return
-    if name in SETTINGS:
-        raise ValueError(f"fault {part!r}: {name} needs a value, e.g. {kind}:{name}=0.1 (a plan reads {SHAPE})")
-    import difflib  # here: a robot's process loads it only to refuse a plan
+    if name not in SETTINGS:
+        import difflib  # here: a robot's process loads it only to refuse a plan
 
-    close = ALIASES.get(name) or next(iter(difflib.get_close_matches(name, SETTINGS, n=1)), None)
-    maybe = f"did you mean {close!r}? " if close else ""
-    raise ValueError(
-        f"fault {part!r}: no setting {name!r} ({maybe}settings: {', '.join(SETTINGS)}; a plan reads {SHAPE})"
-    )
+        close = ALIASES.get(name) or next(iter(difflib.get_close_matches(name, SETTINGS, n=1)), None)
+        maybe = f"did you mean {close!r}? " if close else ""
+        raise ValueError(
+            f"fault {part!r}: no setting {name!r} ({maybe}settings: {', '.join(SETTINGS)}; a plan reads {SHAPE})"
+        )
+    if not has_value:
+        raise ValueError(f"fault {part!r}: {name} needs a value, e.g. {kind}:{name}=0.1 (a plan reads {SHAPE})")
 
 
 def format_faults(plan: FaultPlan) -> str:
