@@ -69,9 +69,8 @@ class GoalSets:
 
     def admit(self, goals: Goals, now: float | None) -> str | None:
         """None to take the goal set, or why not. ``now``: the display time the receiver knows."""
-        if (self.newest is not None and goals.epoch > self.newest + AHEAD) or (
-            now is not None and goals.timing.stamp > now + RESYNC
-        ):
+        too_far = self.newest is not None and goals.epoch > self.newest + AHEAD
+        if too_far or (now is not None and goals.timing.stamp > now + RESYNC):
             return FUTURE
         if self.arena is not None and len(goals.positions):
             low, high = goals.positions.min(axis=0), goals.positions.max(axis=0)
