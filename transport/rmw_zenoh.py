@@ -51,8 +51,7 @@ def check_name(name: str, what: str = "topic") -> str:
     """A ROS 2 name (topic or namespace), relative or absolute; returned unchanged if valid."""
     if name in ("", "/") and what == "namespace":
         return name  # the root namespace
-    chunks = name.strip("/").split("/")
-    if not name or "//" in name or name.endswith("/") or not all(_NAME_CHUNK.match(c) for c in chunks):
+    if not all(_NAME_CHUNK.match(c) for c in name.removeprefix("/").split("/")):
         raise RosNameError(f"{what} {name!r} is not a ROS 2 name (letters, digits and '_', separated by '/')")
     return name
 
