@@ -58,9 +58,7 @@ def check_name(name: str, what: str = "topic") -> str:
 
 def qualified(topic: str, namespace: str = "/") -> str:
     """The fully qualified topic name: absolute names stay, relative ones go under the namespace."""
-    if topic.startswith("/"):
-        return topic
-    return f"{namespace.rstrip('/')}/{topic}"
+    return topic if topic.startswith("/") else f"{namespace.rstrip('/')}/{topic}"
 
 
 def topic_key(domain: int, topic: str, ros_type: str, type_hash: str) -> str:
