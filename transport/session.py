@@ -102,12 +102,8 @@ def _config_file(path: str) -> zenoh.Config:
         text = _plain(str(err))
         os_error = _OS_ERROR.search(text)
         said = re.search(r'msg: "(.+?)"|= (.+)$', text)  # the JSON5 parser's or the configuration's complaint
-        if os_error:
-            reason = os_error.group(1).strip().lower()
-        else:
-            reason = "not a zenoh JSON5 configuration" + (
-                f": {_shortened(said.group(1) or said.group(2))}" if said else ""
-            )
+        complaint = f": {_shortened(said.group(1) or said.group(2))}" if said else ""
+        reason = os_error.group(1).strip().lower() if os_error else f"not a zenoh JSON5 configuration{complaint}"
         raise TransportError(f"--zenoh-config {path}: {reason}") from None
 
 
