@@ -248,9 +248,8 @@ _ZENOH_SHOWN = {  # how the help shows a flag with a short form or an argument
 def add_zenoh_args(parser: argparse.ArgumentParser, default_mode: str = "client") -> None:
     """Zenoh-style flags: -m/--mode, -e/--connect, -l/--listen, --no-multicast-scouting."""
     group = parser.add_argument_group("zenoh")
-    group.add_argument(
-        "-m", "--mode", choices=MODES, default=default_mode, help=ZENOH_HELP["--mode"].format(default_mode=default_mode)
-    )
+    mode_help = ZENOH_HELP["--mode"].format(default_mode=default_mode)
+    group.add_argument("-m", "--mode", choices=MODES, default=default_mode, help=mode_help)
     group.add_argument("-e", "--connect", action="append", default=[], metavar="ENDPOINT", help=ZENOH_HELP["--connect"])
     group.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT", help=ZENOH_HELP["--listen"])
     for flag, action in (("--no-multicast-scouting", "store_false"), ("--multicast-scouting", "store_true")):
