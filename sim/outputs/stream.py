@@ -40,21 +40,11 @@ class OnDisk:
     def __getitem__(self, key: Any) -> np.ndarray:
         if 0 in self.shape:  # nothing recorded: an empty file cannot be mapped
             return np.empty(self.shape, self.dtype)[key]
-        mapped = np.memmap(self.path, self.dtype, "r", shape=self.shape)
-        piece = np.array(mapped[key])  # a copy: the map goes with ``mapped``
-        del mapped
-        return piece
+        return np.array(np.memmap(self.path, self.dtype, "r", shape=self.shape)[key])  # a copy: the map goes at once
 
     def __array__(self, dtype: Any = None, copy: bool | None = None) -> np.ndarray:
         whole = self[...]
         return whole if dtype is None else whole.astype(dtype, copy=False)
-
-
-def append_raw(path: Path, rows: np.ndarray) -> None:
-    """Rows appended to a raw file made before (``path.write_bytes(b"")``), as they lie: no copy. Appended,
-    never created: a run aborted meanwhile has removed the files, and none comes back."""
-    with open(os.open(path, os.O_WRONLY | os.O_APPEND), "wb") as out:
-        out.write(rows.data.cast("B"))
 
 
 class TickRecorder:
@@ -104,8 +94,11 @@ class TickRecorder:
         self.spare, self.written, self.filled = chunk, self.written + filled, 0
 
     def _write(self, rows: dict[str, np.ndarray], filled: int) -> None:
+        """The chunk appended to the files made in ``__init__``, as its rows lie (no copy). Appended, never
+        created: a run aborted meanwhile has removed the files, and none comes back."""
         for name, held in rows.items():
-            append_raw(self._path(name), held[:filled])
+            with open(os.open(self._path(name), os.O_WRONLY | os.O_APPEND), "wb") as out:
+                out.write(held[:filled].data.cast("B"))
 
     def _wait(self) -> None:
         if self.pending is not None:
