@@ -303,9 +303,9 @@ class DisplayLog:
             return
         known = radius[np.isfinite(radius)]
         r = float(np.median(known)) if len(known) else 0.05  # before any state: a typical robot's
-        update = goal_markers(int(wall * 1e9), g.positions, g.colors, GOAL_SIZE * 2 * r)
+        t_ns = int(wall * 1e9)
         channel = self._channel(GOALS_TOPIC, lambda: log.add_foxglove_channel(GOALS_TOPIC, SceneUpdate))
-        log.write_bytes(channel, int(wall * 1e9), update)
+        log.write_bytes(channel, t_ns, goal_markers(t_ns, g.positions, g.colors, GOAL_SIZE * 2 * r))
 
     def flush_now_and_then(self) -> None:
         """Flush the MCAP log every :data:`FLUSH_EVERY` of wall time."""
@@ -449,7 +449,10 @@ class Recorder:
         world.latest_tick = max(world.latest_tick, m.tick)
         if m.tick > 0:
             world.dt = m.stamp / m.tick  # the control period, as the world's clock counts it
-        self._take_early(m.tick)
+        # states heard before the truth of their tick, now a later tick's truth has come: by then the robot's own
+        # state of their tick was heard, if it was sent, and a copy of it is not taken
+        for key in sorted(k for k in world.early if k[0] < m.tick):
+            self._on_state(world.early.pop(key))
         self._append_row(m, wall)
         world.least_clearance = min(world.least_clearance, m.min_clearance)
         progress.check(m.stamp, m.pose, said, self.sets.newest)
@@ -460,13 +463,6 @@ class Recorder:
         since, ends = progress.converged_since, progress.ends
         if since is not None and ends is not None and ends(since, m.stamp):
             progress.ended_at = len(tr.t)  # the run ends with this tick, whenever the world hears of it
-
-    def _take_early(self, tick: int) -> None:
-        """States heard before the truth of their tick, once a later tick's truth has come: by then the
-        robot's own state of their tick was heard, if it was sent, and a copy of it is not taken."""
-        early = self.world.early
-        for key in sorted(k for k in early if k[0] < tick):
-            self._on_state(early.pop(key))
 
     def _append_row(self, m: Truth, wall: float) -> None:
         """A tick's row in the trajectory and the tick log: the truth, and a copy of what robots said."""
