@@ -51,9 +51,8 @@ def _timestamp(t_ns: int) -> Timestamp:
 
 def _head(stamp: Timestamp, entity: str, metadata: list[KeyValuePair] | None = None) -> bytes:
     """An entity's encoded head, without its primitives: it lasts until replaced."""
-    lifetime = Duration(sec=0, nsec=0)
     return SceneEntity(
-        timestamp=stamp, frame_id=DISPLAY_FRAME, id=entity, lifetime=lifetime, metadata=metadata
+        timestamp=stamp, frame_id=DISPLAY_FRAME, id=entity, lifetime=Duration(sec=0, nsec=0), metadata=metadata
     ).encode()
 
 
