@@ -4,6 +4,7 @@ back with mcap's own reader (:func:`read_mcap`, :func:`mcap_channels`)."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import struct
@@ -33,7 +34,7 @@ LOOPBACK = "127.0.0.1"
 _COMPRESSION = {"zstd": MCAPCompression.Zstd, "lz4": MCAPCompression.Lz4, "none": None, None: None}
 
 
-class McapLog:
+class McapLog(contextlib.AbstractContextManager["McapLog"]):
     """Append-only MCAP log, thread-safe; :meth:`close` writes the summary section Foxglove wants (an
     unclosed file is readable up to its last flushed chunk)."""
 
@@ -140,9 +141,6 @@ class McapLog:
                     channel.close()
                 if self._server is not None:
                     self._server.stop()
-
-    def __enter__(self) -> McapLog:
-        return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
         self.close()

@@ -125,7 +125,7 @@ def default_run_path(scene_name: str, *, root: str | os.PathLike = "runs", now: 
             k += 1
 
 
-class RunDir:
+class RunDir(contextlib.AbstractContextManager["RunDir"]):
     """An output directory that appears under its final name only when complete: leaving a ``with`` block
     commits it, an exception aborts it. FileExistsError if its final or partial directory exists."""
 
@@ -177,9 +177,6 @@ class RunDir:
             return
         self.state = "aborted"
         shutil.rmtree(self.partial_path, ignore_errors=True)
-
-    def __enter__(self) -> RunDir:
-        return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
         if exc_type is not None:
