@@ -64,17 +64,6 @@ def _rerun() -> Any:
     return rerun
 
 
-def _viewer() -> list[str]:
-    """Rerun's viewer binary from rerun-sdk's wheel (run directly: a wrapper's child would outlive it)."""
-    _rerun()  # rerun_cli comes in rerun-sdk's wheel
-    import rerun_cli
-
-    binary = Path(rerun_cli.__file__).parent / "rerun"
-    if not binary.is_file():
-        raise ViewUnavailable(f"rerun-sdk has no viewer binary at {binary}")
-    return [str(binary)]
-
-
 def _wait_listening(port: int, proc: subprocess.Popen, timeout: float = START_TIMEOUT) -> None:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -198,18 +187,15 @@ class SwarmView:
         self._static(arena, obstacles)
 
     def _open(self, sink: str | os.PathLike) -> None:
-        if sink in ("native", "web"):
-            self._serve(web=sink == "web")
+        """The recording to a file, or to Rerun's viewer (its own process) listening on 127.0.0.1."""
+        if sink not in ("native", "web"):
+            try:  # made here first: rerun's own failure is a traceback, and a warning on stderr besides
+                open(sink, "wb").close()
+            except OSError as err:
+                raise ViewUnavailable(f"cannot write {sink}: {err.strerror or err}") from None
+            self.rec.save(str(sink), default_blueprint=_layout())
             return
-        try:  # made here first: rerun's own failure is a traceback, and a warning on stderr besides
-            open(sink, "wb").close()
-        except OSError as err:
-            raise ViewUnavailable(f"cannot write {sink}: {err.strerror or err}") from None
-        self.rec.save(str(sink), default_blueprint=_layout())
-
-    def _serve(self, web: bool) -> None:
-        """Rerun's viewer (its own process) listening on 127.0.0.1; this recording streams to it."""
-        self.process, grpc, page, proxy = _start_viewer(web, "--expect-data-soon")
+        self.process, grpc, page, proxy = _start_viewer(sink == "web", "--expect-data-soon")
         _wait_listening(grpc, self.process)
         self.rec.connect_grpc(proxy, default_blueprint=_layout())
         if page is not None:
@@ -447,8 +433,14 @@ def _trajectory(run_dir: Path) -> dict[str, np.ndarray]:
 def _start_viewer(web: bool, *extra: str) -> tuple[subprocess.Popen, int, int | None, str]:
     """Rerun's viewer on 127.0.0.1: its process, gRPC port, page's port (``web``) and the proxy a recording
     streams to. The native window is the user's: it outlives us (its own session); the web server is ours."""
+    _rerun()  # rerun_cli comes in rerun-sdk's wheel
+    import rerun_cli
+
+    binary = Path(rerun_cli.__file__).parent / "rerun"  # run directly: a wrapper's child would outlive it
+    if not binary.is_file():
+        raise ViewUnavailable(f"rerun-sdk has no viewer binary at {binary}")
     grpc, page = free_port(LOOPBACK), free_port(LOOPBACK) if web else None
-    command = [*_viewer(), "--bind", LOOPBACK, "--port", str(grpc)]
+    command = [str(binary), "--bind", LOOPBACK, "--port", str(grpc)]
     command += [*(["--serve-web", "--web-viewer-port", str(page)] if web else []), *extra]
     process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=not web)
     return process, grpc, page, f"rerun+http://{LOOPBACK}:{grpc}/proxy"
