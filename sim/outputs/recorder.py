@@ -508,12 +508,11 @@ class Recorder:
             {(int(e), int(k)) for e, k in zip(epoch.ravel(), instance.ravel()) if e > 0 and k != State.CARRIED}
         )  # carried goals were never agreed
         heard = np.array([self.bids_from.of(key) for key in announced], float).reshape(len(announced), n, 3)
-        positions, penalties = heard[..., :2], heard[..., 2]
         return {
             "goal_set_epoch": np.array(tr.goal_set_epoch),
             "assignment_epoch": epoch,
             "assignment_instance": instance,
             "agreements": np.array(announced, np.int64).reshape(-1, 2),
-            "agreement_positions": positions,
-            "agreement_penalties": penalties,
+            "agreement_positions": heard[..., :2],
+            "agreement_penalties": heard[..., 2],
         } | goal_set_arrays(self.sets.by_epoch, n)
