@@ -220,11 +220,10 @@ class Convergence:
         """Converged: every live robot has a goal and is within tolerance of it (true position)."""
         if not self.agent_alive.any():
             return
-        if display_converged(pose, said.goal, said.assign_epoch, self.agent_alive, newest, self.tolerance):
-            if self.converged_since is None:
-                self.converged_since = t
-        else:
+        if not display_converged(pose, said.goal, said.assign_epoch, self.agent_alive, newest, self.tolerance):
             self.converged_since = None
+        elif self.converged_since is None:
+            self.converged_since = t
 
 
 class DisplayLog:
