@@ -438,11 +438,8 @@ class Recorder:
 
     def _on_truth(self, m: Truth, wall: float) -> None:
         """A tick of the world's truth: its row, the tick log, convergence, the scene, the live view."""
-        progress, world, said = self.progress, self.world, self.said
-        if m.count != self.n or progress.ended_at is not None:
-            return
-        tr = self.traj
-        if tr.t and m.stamp <= tr.t[-1]:
+        progress, world, said, tr = self.progress, self.world, self.said, self.traj
+        if m.count != self.n or progress.ended_at is not None or (tr.t and m.stamp <= tr.t[-1]):
             return
         world.row_of_tick[m.tick] = len(tr.t)
         world.latest_tick = max(world.latest_tick, m.tick)
