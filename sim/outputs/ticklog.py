@@ -57,6 +57,5 @@ def read_ticks(path: str | os.PathLike) -> dict[str, np.ndarray]:
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         raise ValueError(f"{path}: not a pixelswarm tick file")
     dtype = tick_dtype(int(header["robots"]))
-    whole = len(body) // dtype.itemsize
-    records = np.frombuffer(body[: whole * dtype.itemsize], dtype)
+    records = np.frombuffer(body, dtype, count=len(body) // dtype.itemsize)  # whole records only
     return {name: np.array(records[name]) for name in dtype.names or ()}
