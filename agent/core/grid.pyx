@@ -61,6 +61,8 @@ cdef int grid_build(Grid *g, const double[:, ::1] points, double width) except -
     cdef Py_ssize_t n = points.shape[0], i, c, cells
     cdef Box box = bounds(points)
     cdef double x0 = box.x0, x1 = box.x1, y0 = box.y0, y1 = box.y1
+    if not (isfinite(x1 - x0) and isfinite(y1 - y0)):  # no grid of cells spans them
+        raise ValueError("nearest: the points lie farther apart than a double holds")
     # a little wider, so two points within a width are never two cells apart by rounding
     cdef double cell = width * (1.0 + 1e-6) + 1e-12
     cdef double cap = max(CELLS_PER_POINT * n, 1024)

@@ -98,6 +98,17 @@ def test_a_point_off_the_map_is_nobody_s_neighbour(bad):
     assert other.tolist() == [-1, -1, -1] and np.isinf(apart).all()
 
 
+def test_points_farther_apart_than_a_double_holds_are_refused_not_written_past_the_grid():
+    """Two finite points whose difference overflows sized the grid to no number, as an infinite one did (a
+    segfault): the search, and the world's, refuse them in a line."""
+    position = np.array([[-1.7e308, 0.0], [1.7e308, 0.0]])
+    with pytest.raises(ValueError, match="farther apart than a double holds"):
+        nearest_within(position, 1.0, 1)
+    with pytest.raises(ValueError, match="farther apart than a double holds"):
+        nearest_other(position, 1.0)
+    assert nearest_within(position / 2, 1.0, 1).tolist() == [[-1], [-1]]  # their difference a double holds
+
+
 @pytest.mark.parametrize("seed", range(40))
 def test_the_documented_ranking_on_a_kd_tree_s_candidates(seed):
     """Random seeded sets, half of them on a lattice (ties everywhere, points exactly at reach),
