@@ -21,6 +21,9 @@ from .motion import check_keys, check_window, is_number, is_positive, one_of, po
 from .steps import Animation, FrameGoals, GoalSets, ImageStep, StepGoals, parse_animation, parse_step, scene_relative
 
 SCENE_DIR = Path(__file__).parent / "scenes"
+# m from the origin that an arena may reach: positions cross the bus as 32-bit floats (transport.codec), which
+# step at most a quarter of a millimetre within it, and twice as coarsely with each doubling beyond
+FARTHEST = 4096.0
 # each kind of [layout], [goals] and [[events]] table and the keys it takes besides kind: any other is a mistake
 LAYOUT_KEYS = {
     "circle": ("spacing", "radius"),
@@ -531,6 +534,12 @@ def _fit_arena(scene: Scene, spec: Any) -> None:
     """The scene's arena from its [arena] ("auto": round everything it shows), which its robots must fit."""
     scene.arena = _arena(spec, scene)
     xmin, ymin, xmax, ymax = scene.arena
+    farthest = max(abs(v) for v in scene.arena)
+    if farthest > FARTHEST:
+        raise GoalError(
+            f"the arena reaches {farthest:.6g} m from the origin, beyond {FARTHEST:g} m, where the bus's 32-bit "
+            "floats no longer place a robot to the millimetre; place the robots, goals and obstacles nearer (0, 0)"
+        )
     r = scene.radius
     xy = scene.poses[:, :2]
     outside = (xy[:, 0] - r < xmin) | (xy[:, 0] + r > xmax) | (xy[:, 1] - r < ymin) | (xy[:, 1] + r > ymax)
@@ -539,10 +548,11 @@ def _fit_arena(scene: Scene, spec: Any) -> None:
             f"{int(outside.sum())} of {scene.robots} robots do not fit in the "
             f"{xmax - xmin:.2f} x {ymax - ymin:.2f} m arena; enlarge [arena] size or use fewer robots"
         )
-    from scipy.spatial import cKDTree  # here only: the command line starts without SciPy
+    import shapely  # here only; SciPy's k-d tree would load SciPy into the start of every run
 
-    pairs = cKDTree(xy).query_pairs(2 * r, output_type="ndarray")
-    apart = np.hypot(*(xy[pairs[:, 0]] - xy[pairs[:, 1]]).T)
+    points = shapely.points(xy)
+    i, j = shapely.STRtree(points).query(points, predicate="dwithin", distance=2 * r)
+    apart = np.hypot(*(xy[i[i < j]] - xy[j[i < j]]).T)
     if (apart < 2 * r).any():
         raise GoalError(
             f"robots start overlapping (closest centres {float(apart.min()):.3f} m, "

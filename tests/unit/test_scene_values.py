@@ -119,6 +119,18 @@ def test_whole_numbers_and_zero_where_it_turns_a_feature_off_are_taken(key, valu
             'layout of kind "grid": unknown key(s) spacng (allowed: kind, spacing, cols',
         ),
         ({"layout": {"kind": "circle", "cols": 2}}, 'layout of kind "circle": unknown key(s) cols'),
+        # beyond 4096 m, 32-bit floats on the bus place a robot no closer than half a millimetre (a run of
+        # robots 10^30 m out hung; 10^200 m out was SciPy's overflow message)
+        (
+            {"layout": {"kind": "list", "poses": [[1e30, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0, 0]]}},
+            "the arena reaches 1e+30 m from the origin, beyond 4096 m, where the bus's 32-bit floats no longer place "
+            "a robot to the millimetre; place the robots, goals and obstacles nearer (0, 0)",
+        ),
+        ({"arena": {"size": [8200.0, 2.0]}}, "the arena reaches 4100 m from the origin, beyond 4096 m"),
+        (
+            {"goals": {"kind": "list", "positions": [[0.0, 0.0], [0.5, 0.0], [1.0, 0.0], [0.0, -5000.0]]}},
+            "the arena reaches 5000.28 m from the origin",
+        ),
         ({"goals": {"kind": "antipodal", "postions": []}}, 'goals of kind "antipodal": unknown key(s) postions'),
         ({"arena": {"size": [3.0, 3.0], "sise": 1}}, "arena: unknown key(s) sise (allowed: size)"),
         ({"end": {"converge_hol": 2.0}}, "[end]: unknown key(s) converge_hol (allowed: converge_hold)"),
@@ -141,6 +153,13 @@ def test_a_bad_scene_value_or_key_is_one_line_naming_it(data, message):
         scene_from_dict({"robots": 4, "layout": GRID, **data}, "s.toml")
     assert str(err.value).startswith("s.toml: ") and message in str(err.value), str(err.value)
     assert "\n" not in str(err.value)
+
+
+def test_an_arena_within_4096_m_of_the_origin_loads():
+    """The largest arena whose every position the bus's 32-bit floats hold to a quarter millimetre."""
+    poses = [[4090.0, 0.0, 0.0], [4090.0, 1.0, 0.0], [-4090.0, 0.0, 0.0], [0.0, -4090.0, 0.0]]
+    assert scene_from_dict({"robots": 4, "layout": {"kind": "list", "poses": poses}}, "s.toml").robots == 4
+    assert scene_from_dict({"robots": 4, "layout": GRID, "arena": {"size": [8192.0, 8192.0]}}, "s.toml").robots == 4
 
 
 def test_the_keys_a_scene_takes_still_load():
@@ -177,6 +196,7 @@ def test_the_keys_a_scene_takes_still_load():
         ("[layout]\ncols = 0\n", "layout cols must be a whole number >= 1, not 0"),
         ('[layout]\nkind = "grid"\nspacng = 0.3\n', 'layout of kind "grid": unknown key(s) spacng'),
         ("[[obstacles]]\nvertices = [[1, 1], [2, 2], [3, 3]]\n", "obstacles[0] vertices must outline a simple polygon"),
+        ('[layout]\nkind = "list"\nposes = [[0, 0, 0], [1, 0, 0], [1e30, 0, 0]]\n', "reaches 1e+30 m from the origin"),
     ],
 )
 def test_pixelswarm_run_refuses_a_bad_scene_value_in_one_line_and_writes_nothing(tmp_path, capsys, toml, message):
