@@ -48,6 +48,7 @@ from sim.outputs.rundir import PARTIAL_SUFFIX, default_run_path
 from sim.processes import stopped_by_signals
 from sim.run.remote_agents import add_agents_parser
 from sim.study.runner import add_study_parser
+from transport.codec import BEFORE_START
 from transport.faults import parse_faults
 from transport.security import SecurityError, check_folder, make_certificates, router_config
 from transport.session import (
@@ -333,7 +334,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     faults, reach = _faults_and_reach(args, scene)
     scene = _with_rounds_per_tick(args, scene, reach)
     with usage_errors(ValueError, prefix=f"{args.scene}: "):
-        RobotParams.from_dict(scene.robot)
+        params = RobotParams.from_dict(scene.robot)
+    ticks = scene.duration / params.dt  # each numbered on the bus in 32 bits, BEFORE_START the last number
+    refuse_if(
+        ticks >= BEFORE_START,
+        f"{args.scene}: {scene.duration:g} s at a control period dt of {params.dt:g} s is {ticks:.3g} ticks, more "
+        f"than the bus can number ({BEFORE_START - 1}); shorten the duration or lengthen dt",
+    )
     # what a run whose agents join from elsewhere cannot do
     refuse_if(args.agents_timeout is not None and not args.remote_agents, "--agents-timeout goes with --remote-agents")
     if args.remote_agents and (args.secure is not None or args.agents_connect):

@@ -197,6 +197,11 @@ def test_the_keys_a_scene_takes_still_load():
         ('[layout]\nkind = "grid"\nspacng = 0.3\n', 'layout of kind "grid": unknown key(s) spacng'),
         ("[[obstacles]]\nvertices = [[1, 1], [2, 2], [3, 3]]\n", "obstacles[0] vertices must outline a simple polygon"),
         ('[layout]\nkind = "list"\nposes = [[0, 0, 0], [1, 0, 0], [1e30, 0, 0]]\n', "reaches 1e+30 m from the origin"),
+        # 1e300 ticks: the run never ended
+        (
+            "[robot]\ndt = 1e-300\n",
+            "1 s at a control period dt of 1e-300 s is 1e+300 ticks, more than the bus can number",
+        ),
     ],
 )
 def test_pixelswarm_run_refuses_a_bad_scene_value_in_one_line_and_writes_nothing(tmp_path, capsys, toml, message):
