@@ -251,6 +251,8 @@ def _parse(data: dict[str, Any], source: str, overrides: Overrides) -> Scene:
         scene.goal_positions = scene_goals(scene.goals, scene.poses)
         _fit_arena(scene, data.get("arena", "auto"))  # image scenes: make_goal_sets
     _add_uncontrolled(scene, data)
+    if not steps:
+        _check_placed_inside(scene)
     return scene
 
 
@@ -268,6 +270,21 @@ def _add_uncontrolled(scene: Scene, data: dict[str, Any]) -> None:
     }
     for r in scene.scripted:
         scene.goal_positions[r] = np.nan  # a scripted robot follows its path, not a goal
+
+
+def _check_placed_inside(scene: Scene) -> None:
+    """Teleports and scripted movers keep their robot inside the arena: beyond it, it would drive into the wall
+    (or, far off, be a pose no agent believes: a lock-step world would wait for its command every tick)."""
+    x0, y0, x1, y1 = scene.arena
+    r = scene.radius
+    places = [(f"events[{k}] (teleport) pose", e["pose"][:2]) for k, e in enumerate(scene.events) if "pose" in e]
+    places += [(f"scripted robot {m}'s waypoint", w[1:]) for m, path in scene.scripted.items() for w in path]
+    for label, (x, y) in places:
+        if not (x0 + r <= x <= x1 - r and y0 + r <= y <= y1 - r):
+            raise GoalError(
+                f"{label} ({x:g}, {y:g}) puts the robot outside the {x1 - x0:.2f} x {y1 - y0:.2f} m arena "
+                f"[{x0:.2f}, {y0:.2f}] to [{x1:.2f}, {y1:.2f}]; move it inside or enlarge [arena] size"
+            )
 
 
 def _whole(value: Any, key: str, least: int) -> int:
@@ -332,6 +349,7 @@ def make_goal_sets(scene: Scene) -> Scene:
     scene.goal_set, scene.goal_colors = scene_goal_set(scene, 0, scene.robots)
     spec = scene.goal_plan.arena_spec
     _wrap(lambda: _fit_arena(scene, spec), scene.source)
+    _wrap(lambda: _check_placed_inside(scene), scene.source)
     return scene
 
 

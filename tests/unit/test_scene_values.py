@@ -127,6 +127,17 @@ def test_whole_numbers_and_zero_where_it_turns_a_feature_off_are_taken(key, valu
             "a robot to the millimetre; place the robots, goals and obstacles nearer (0, 0)",
         ),
         ({"arena": {"size": [8200.0, 2.0]}}, "the arena reaches 4100 m from the origin, beyond 4096 m"),
+        # beyond the arena a teleported or scripted robot drove into the wall (a contact), and a lock-step
+        # world waited every tick for the command of a robot whose pose its agent did not believe
+        (
+            {"events": [{"kind": "teleport", "t": 1.0, "robot": 1, "pose": [3.0, 0.0, 0.0]}]},
+            "events[0] (teleport) pose (3, 0) puts the robot outside the 0.76 x 0.76 m arena [-0.38, -0.38] to "
+            "[0.38, 0.38]; move it inside or enlarge [arena] size",
+        ),
+        (
+            {"scripted": [{"robot": 3, "waypoints": [[0.0, 0.0, 0.0], [5.0, 0.0, -2.0]]}]},
+            "scripted robot 3's waypoint (0, -2) puts the robot outside",
+        ),
         (
             {"goals": {"kind": "list", "positions": [[0.0, 0.0], [0.5, 0.0], [1.0, 0.0], [0.0, -5000.0]]}},
             "the arena reaches 5000.28 m from the origin",
