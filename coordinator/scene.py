@@ -277,7 +277,9 @@ def _check_placed_inside(scene: Scene) -> None:
     (or, far off, be a pose no agent believes: a lock-step world would wait for its command every tick)."""
     x0, y0, x1, y1 = scene.arena
     r = scene.radius
-    places = [(f"events[{k}] (teleport) pose", e["pose"][:2]) for k, e in enumerate(scene.events) if "pose" in e]
+    places = [
+        (f"events[{k}] (teleport) pose", e["pose"][:2]) for k, e in enumerate(scene.events) if e["kind"] == "teleport"
+    ]
     places += [(f"scripted robot {m}'s waypoint", w[1:]) for m, path in scene.scripted.items() for w in path]
     for label, (x, y) in places:
         if not (x0 + r <= x <= x1 - r and y0 + r <= y <= y1 - r):

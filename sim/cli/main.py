@@ -335,9 +335,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     scene = _with_rounds_per_tick(args, scene, reach)
     with usage_errors(ValueError, prefix=f"{args.scene}: "):
         params = RobotParams.from_dict(scene.robot)
-    ticks = scene.duration / params.dt  # each numbered on the bus in 32 bits, BEFORE_START the last number
+    ticks = scene.duration / params.dt  # each numbered on the bus in 32 bits, BEFORE_START the one number kept
     refuse_if(
-        ticks >= BEFORE_START,
+        ticks > BEFORE_START - 1,
         f"{args.scene}: {scene.duration:g} s at a control period dt of {params.dt:g} s is {ticks:.3g} ticks, more "
         f"than the bus can number ({BEFORE_START - 1}); shorten the duration or lengthen dt",
     )
