@@ -69,6 +69,8 @@ class HostClock:
         self.link_returns = 0  # of the host's bus, when the clock last started again (hear)
         self.silent: set[int] = set()  # lock-step: nearby robots that did not answer in time
         self.state_waits = 0
+        # lock-step waits that ran out, so the run went on in a way the machine's load chose: by what was waited for
+        self.gave_up: dict[str, int] = {"neighbour_states": 0, "goal_sets": 0}
         self.hello_every = math.inf  # s between hellos (lock-step's start-up)
 
     def greet(self, where: dict[int, Pose], timeout: float) -> None: ...  # before the robots say they are alive
@@ -252,6 +254,7 @@ class LockStep(HostClock):
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 self.silent.update(missing)
+                self.gave_up["neighbour_states"] += len(missing)
                 return
             self.state_waits += 1
             # short: a state the fault plan dropped counts as arrived (seen) but rings nothing
@@ -289,6 +292,8 @@ class LockStep(HostClock):
             got = host.inbox.goals.get(timeout=wait)
             if got is not None:
                 host.hear_goals(got[1])
+        else:  # the wait ran out (a tick we joined in waits for nothing)
+            self.gave_up["goal_sets"] += int(host.running and tick > self.joined_in)
         # no clock message in time, or missed (a world that names no goal set): take up all that was heard
         upto = self.named.get(tick, max(self.unnamed, default=0))
         # the coordinator sends a step's set once it hears the step's first tick, so that tick cannot name it: every

@@ -808,6 +808,7 @@ class AgentHost:
             "worst_lateness_s": round(self.clock.lateness.worst, 4),
             "mean_lateness_s": round(self.clock.lateness.mean, 4),
             "silent": sorted(self.clock.silent),
+            "lockstep_gave_up": self.clock.gave_up,
             "auction": self.auction.stats(),
         }
 

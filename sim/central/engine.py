@@ -39,6 +39,7 @@ from sim.bodies.movers import Movers
 from sim.bodies.tracker import tracker_of, world_of
 from sim.central.link import InProcessLink
 from sim.central.stepclock import StepClock
+from sim.outputs.metrics import lockstep_waits_given_up
 from sim.outputs.rundir import RunDir
 from sim.outputs.stream import ROWS, SCRATCH, OnDisk, TickRecorder
 from sim.outputs.write import RunOutcome, goal_set_arrays, write_run
@@ -678,6 +679,7 @@ def _metrics(outcome: Outcome, robots: int) -> dict[str, Any]:
         orca_fallbacks=outcome.fallbacks,
         poses_held=0,  # the tracker's poses are trusted: tracker glitches need the distributed engine
         subscriptions_renewed=0,
+        lockstep_waits_given_up=lockstep_waits_given_up([], {}),  # one process waits for nobody
         deadlock_penalties=outcome.penalties,
         dropped_messages={},
         crashes=[],

@@ -77,6 +77,7 @@ class Tally:
     expired_commands: int = 0  # commands that arrived too late to drive anything
     stopped_ticks: int = 0  # robot-ticks in which a live robot was stopped for want of a valid command
     withheld_ticks: int = 0  # ticks whose poses the tracker withheld (an outage)
+    goal_sets_not_awaited: int = 0  # lock-step ticks that went out past GOAL_SET_PATIENCE without their step's goal set
     missed: np.ndarray = field(init=False)  # ticks a live robot's agent did not answer in time
     late: np.ndarray = field(init=False)  # commands older than one applied
     dropped: dict[str, np.ndarray] = field(init=False)
@@ -126,7 +127,8 @@ class LockStep:
             node.hear_goals()
             # a goal set due and unheard: the coordinator works it out, and the tick waits for it, so that every
             # host takes it up at the same tick however slow the coordinator or the machine
-            at_work = time.monotonic() < goal_set_patience and node.awaits_goal_set(dies)
+            awaits = node.awaits_goal_set(dies)
+            at_work = awaits and time.monotonic() < goal_set_patience
             if any(map(intact, heard)) or at_work:  # a damaged copy is no agent at work
                 deadline = min(time.monotonic() + self.deadline, patience)
             node.update_liveness()
@@ -136,6 +138,7 @@ class LockStep:
                 node.publish_before_start()  # as before the first tick: the coordinator hears the dead bodies
                 told = time.monotonic()
             if (not waiting.any() or time.monotonic() >= deadline or node.withheld) and not dying and not at_work:
+                node.tally.goal_sets_not_awaited += int(awaits)
                 break
         yield node.dt
 
@@ -497,6 +500,7 @@ class BodyNode:
             "expired_commands": tally.expired_commands,
             "stopped_ticks": tally.stopped_ticks,
             "withheld_ticks": tally.withheld_ticks,
+            "goal_sets_not_awaited": tally.goal_sets_not_awaited,
             "commanded_two_ways": np.flatnonzero(tally.dropped[CONFLICTING]).tolist(),
             "commands_applied": backend.applied().astype(int).tolist(),
             "min_clearance": backend.min_clearance if math.isfinite(backend.min_clearance) else None,

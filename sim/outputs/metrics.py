@@ -326,3 +326,20 @@ def _closeness(record: TrueRecord, t: np.ndarray, pose: Any, robots: int, contac
         "contacts": int(contacts),
         "max_overlap_m": 0.0 if k is None else float(max(0.0, -min_clear)),
     }
+
+
+def reported(fields: Any, name: str) -> int:
+    """A count another process reported; a field it got wrong (anyone may publish on an open bus) counts as none."""
+    value = fields.get(name) if isinstance(fields, dict) else None
+    return value if type(value) is int and value > 0 else 0
+
+
+def lockstep_waits_given_up(agent_stats: list[dict[str, Any]], world: dict[str, Any]) -> dict[str, int]:
+    """Lock-step waits that ran out, by what was waited for: each let the machine's load, not the seed, shape
+    the run (a missed tick is one too, counted apart)."""
+    return {
+        "neighbour_states": sum(reported(s.get("lockstep_gave_up"), "neighbour_states") for s in agent_stats),
+        "goal_sets": sum(reported(s.get("lockstep_gave_up"), "goal_sets") for s in agent_stats),
+        "auction_rounds": sum(reported(s.get("auction"), "abandoned_blocks") for s in agent_stats),
+        "world_goal_sets": reported(world, "goal_sets_not_awaited"),
+    }

@@ -26,7 +26,7 @@ from coordinator.scene import Scene, count_due, events_of, take_due
 from sim.args import AGENTS_TIMEOUT, STARTUP_TIMEOUT, UsageError, format_ids
 from sim.node.body import TWO_WAYS
 from sim.node.hardware import ERROR as HARDWARE_ERROR
-from sim.outputs.metrics import Traffic
+from sim.outputs.metrics import Traffic, lockstep_waits_given_up, reported
 from sim.outputs.recorder import Recorder
 from sim.outputs.rundir import RunDir
 from sim.outputs.ticklog import TICKS_FILE
@@ -95,6 +95,22 @@ class Interrupted(Exception):
 def _robots(ids: list[int]) -> str:
     """'robot 3' or 'robots 0-2, 5', for messages."""
     return f"robot{'s' if len(ids) > 1 else ''} {format_ids(ids)}"
+
+
+def _agents_reported(agent_stats: list[dict[str, Any]], world: dict[str, Any], lockstep: bool) -> dict[str, Any]:
+    """The agents' counts for metrics.json; a lock-step run whose waits ran out says so in a line."""
+    given_up = lockstep_waits_given_up(agent_stats, world)
+    if lockstep and any(given_up.values()):
+        _warn(
+            f"pixelswarm: lock-step waits ran out ({', '.join(f'{k} {v}' for k, v in given_up.items() if v)}; "
+            "a loaded machine?): this run may differ from another run of its seed"
+        )
+    return {
+        **{k: sum(reported(s, k) for s in agent_stats) for k in ("poses_held", "subscriptions_renewed")},
+        "orca_fallbacks": sum(reported(s, "fallbacks") for s in agent_stats),
+        "lockstep_waits_given_up": given_up,
+        "deadlock_penalties": sum(reported(s.get("auction"), "deadlock_penalties") for s in agent_stats),
+    }
 
 
 def _warn(text: str) -> None:
@@ -707,10 +723,7 @@ class Launcher:
                 for k in ("late_commands", "expired_commands", "stopped_ticks", "withheld_ticks")
             },
             **{k: stats.get(k, []) for k in ("commanded_two_ways", "missed_ticks_by_robot")},
-            orca_fallbacks=int(sum(s.get("fallbacks", 0) for s in agent_stats)),
-            poses_held=int(sum(s.get("poses_held", 0) for s in agent_stats)),
-            subscriptions_renewed=int(sum(s.get("subscriptions_renewed", 0) for s in agent_stats)),
-            deadlock_penalties=int(sum((s.get("auction") or {}).get("deadlock_penalties", 0) for s in agent_stats)),
+            **_agents_reported(agent_stats, stats, self.scene.clock == "lockstep"),
             dropped_messages=dropped,
             crashes=self.incidents.crashes,
             restarts=self.incidents.restarts,

@@ -350,6 +350,8 @@ def test_forged_and_malformed_reports_on_the_bus_neither_end_nor_break_a_run(tmp
     assert forged["commands_applied"] > 500  # the forged report said 1 (the count varies: the end waits on the wall)
     assert forged["min_clearance_substep_m"] == alone["min_clearance_substep_m"] < 1.0
     assert forged["dropped_messages"].get("stale", 0) < 10**9
+    for counted in ("orca_fallbacks", "poses_held", "deadlock_penalties", "lockstep_waits_given_up"):
+        assert forged[counted] == alone[counted], counted
 
 
 @pytest.mark.parametrize(

@@ -16,8 +16,10 @@ from contextlib import contextmanager
 
 import numpy as np
 
+from agent import clocks
 from agent.runtime import AgentHost, HostConfig
 from coordinator.scene import Scene, scene_from_dict, scene_goal_set
+from sim.node import body
 from sim.node.body import BodyNode
 from sim.node.world import world_node
 from transport.bus import Bus
@@ -83,7 +85,8 @@ def host_loop(host: AgentHost, done: threading.Event) -> None:
         host.run()
 
 
-def test_the_world_waits_for_the_goal_set_of_a_step_due_at_its_tick() -> None:
+def run_with_a_late_coordinator() -> tuple[dict, AgentHost]:
+    """The world's statistics and the host, after the two steps' run."""
     scene = two_steps()
     assert scene.step_starts == [0.0, 0.5]
     router = loopback_router()
@@ -113,6 +116,22 @@ def test_the_world_waits_for_the_goal_set_of_a_step_due_at_its_tick() -> None:
             stats = node.stats()
     finally:
         session.close()
+    return stats, host
+
+
+def test_the_world_waits_for_the_goal_set_of_a_step_due_at_its_tick() -> None:
+    stats, host = run_with_a_late_coordinator()
     assert stats["reason"] == "duration" and stats["ticks"] == 10, stats
     assert set(host.goal_sets.by_epoch) == {1, 2}, "a goal set was not taken up"
     assert stats["missed_ticks"] == 0, stats
+    assert stats["goal_sets_not_awaited"] == 0 and host.stats()["lockstep_gave_up"]["goal_sets"] == 0
+
+
+def test_a_goal_set_waited_for_past_its_patience_is_counted_by_the_world_and_the_host(monkeypatch) -> None:
+    """Patience shorter than the coordinator is late: the world and the host go on without the step's goal set
+    (the run is the load's, not the seed's), and each says so in its statistics."""
+    monkeypatch.setattr(body, "GOAL_SET_PATIENCE", LATE / 3)
+    monkeypatch.setattr(clocks, "GOAL_SET_WAIT", LATE / 3)
+    stats, host = run_with_a_late_coordinator()
+    assert stats["reason"] == "duration" and stats["goal_sets_not_awaited"] == 2, stats  # each step's first tick
+    assert host.stats()["lockstep_gave_up"]["goal_sets"] >= 1

@@ -29,7 +29,7 @@ from agent.runtime import AgentHost, HostConfig
 from tests.conftest import deafen, wait_for
 from tests.support.hosts import await_commands, run_host, stop_host, world_and_agent_buses
 from transport.bus import Bus, Inbox
-from transport.codec import BLOCK_ABANDONED, Event, Goals, Pose, Poses, Tick, Timing
+from transport.codec import BLOCK_ABANDONED, Event, Goals, Pose, Poses, State, Tick, Timing
 
 DT = 0.1
 PARAMS = RobotParams(kinematics="holonomic")
@@ -262,3 +262,23 @@ def test_a_goal_set_refused_as_from_the_future_is_heard_again_once_the_clock_has
         assert 1 in host.goal_sets.by_epoch
         assert dict(host.inbox.goals.drops) == {"future": 1}  # counted once, however often heard again
         stop_host(host, thread)
+
+
+def test_a_host_counts_the_neighbours_it_stopped_waiting_for_once_each() -> None:
+    """A neighbour's state of the last tick that does not come within ``state_wait``: the host goes on without it
+    (the run is no longer its seed's alone) and says so in its statistics, once; silent, it is not waited for."""
+    with world_and_agent_buses() as (world, agent_bus):
+        commands = world.commands_inbox()
+        config = HostConfig(robots=[0], params=PARAMS, lockstep=True, state_wait=0.3)
+        host = AgentHost(agent_bus, config)
+        thread = run_host(world, host, np.zeros((1, 3)))
+        for k in range(5):  # tick 3 waits for its state of tick 2 in vain; tick 4 does not wait
+            if k < 2:  # robot 1, 0.5 m off, speaks at ticks 0 and 1 only
+                state = State(1, k, k * DT, 0.5, 0.0, 0.0, 0.0, PARAMS.radius, 0.0, 0.0, -1, 0, 0, 0)
+                world.publish_states(k, k * DT, [state], PARAMS.cell_size, None)
+                time.sleep(0.2)
+            say_tick(world, k)
+            await_commands(commands, k, {0})
+        gave_up = host.stats()["lockstep_gave_up"]
+        stop_host(host, thread)
+    assert gave_up == {"neighbour_states": 1, "goal_sets": 0}

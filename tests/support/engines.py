@@ -39,3 +39,13 @@ def picture_run(shared_runs, tmp_path, engine: str) -> tuple[dict, dict]:
     """A lock-step run of the picture's 30 robots in one engine, shared with test_sync_auction (the
     agent hosts' run is its quiet run)."""
     return shared_runs.run(picture(tmp_path), "--clock", "lockstep", *PICTURE_FLAGS, *ENGINES[engine])
+
+
+def assert_waited_for_everyone(metrics: dict, name: str = "") -> None:
+    """A lock-step run that waited for everything it waits for, so that it is its seed's run and no other: every
+    agent answered every tick, none was heard dead, and no wait ran out (what ran out, if one did)."""
+    given_up = {k: v for k, v in metrics["lockstep_waits_given_up"].items() if v}
+    assert metrics["missed_ticks"] == 0 and not given_up and not metrics["liveliness_lost"], (
+        f"{name}: a wait ran out (a loaded machine?): missed ticks {metrics['missed_ticks']}, "
+        f"given up {given_up}, heard dead {metrics['liveliness_lost']}"
+    )

@@ -111,6 +111,13 @@ class FalseReports(Peer):
         {"kind": "world-done", "reason": "x", "missed_ticks": "many", "contacts": 5, "commands_applied": "x"},
         {"kind": "stats", "role": "agent", "robots": 7, "dropped": {"a": "b"}},
         {"kind": "stats", "role": "agent", "robots": [0, "x"], "dropped": {"stale": 10**9}},
+        {"kind": "stats", "role": "agent", "robots": [0], "fallbacks": "x", "poses_held": [1], "auction": "x"},
+        {
+            "kind": "stats",
+            "role": "agent",
+            "robots": [1],
+            "lockstep_gave_up": {"goal_sets": -7, "neighbour_states": 1.5},
+        },
     )
 
     def __init__(self, endpoint: str) -> None:
