@@ -236,7 +236,7 @@ class LockStep(HostClock):
         host = self.host
         reach = host.params.state_reach
         deadline = time.monotonic() + host.config.state_wait
-        seen = host.inbox.state.seen or {}  # arrived, whatever an injected fault then did with it
+        seen = host.inbox.state.seen if host.inbox.state.seen is not None else {}  # arrived, whatever a fault did
         # the newest tick heard of a robot: an arrival claimed from beyond this tick proves nothing (damaged, forged)
         heard = lambda s: max(s.tick, _at_most(seen.get(s.robot, -1), tick))
         near = lambda s: np.min(np.hypot(position[:, 0] - s.x, position[:, 1] - s.y)) <= reach

@@ -269,10 +269,9 @@ def test_a_host_counts_the_neighbours_it_stopped_waiting_for_once_each() -> None
     (the run is no longer its seed's alone) and says so in its statistics, once; silent, it is not waited for."""
     with world_and_agent_buses() as (world, agent_bus):
         commands = world.commands_inbox()
-        config = HostConfig(robots=[0], params=PARAMS, lockstep=True, state_wait=0.3)
-        host = AgentHost(agent_bus, config)
+        host = AgentHost(agent_bus, HostConfig(robots=[0], params=PARAMS, lockstep=True, state_wait=0.3))
         thread = run_host(world, host, np.zeros((1, 3)))
-        for k in range(5):  # tick 3 waits for its state of tick 2 in vain; tick 4 does not wait
+        for k in range(5):  # tick 3 waits for robot 1's state of tick 2 in vain; tick 4 waits for nothing
             if k < 2:  # robot 1, 0.5 m off, speaks at ticks 0 and 1 only
                 state = State(1, k, k * DT, 0.5, 0.0, 0.0, 0.0, PARAMS.radius, 0.0, 0.0, -1, 0, 0, 0)
                 world.publish_states(k, k * DT, [state], PARAMS.cell_size, None)
