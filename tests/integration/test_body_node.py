@@ -17,7 +17,7 @@ from coordinator.scene import load_scene
 from hardware.config import load_hardware
 from hardware.poses import PoseSample
 from sim.emulators.epuck2 import Epuck2Emulator
-from sim.node.body import BodyNode
+from sim.node.body import BodyNode, Tally
 from sim.node.hardware import WheelDrive, hardware_node, wait_for_hardware
 from sim.node.world import world_node
 from tests.conftest import wait_for
@@ -168,7 +168,7 @@ class _SlowFirstAnswers:
         self.tick, self.live = tick, np.ones(2, bool)
         self.last_cmd_tick = np.full(2, tick - 1)
         self.answer_at = time.monotonic() + after
-        self.cmd_inbox = self
+        self.cmd_inbox, self.tally = self, Tally(2)
 
     def get(self, timeout: float) -> None:
         time.sleep(timeout)
@@ -292,6 +292,7 @@ def test_a_lockstep_tick_at_which_the_scene_kills_a_robot_waits_for_the_survivor
         node = _SurvivorsSetLate(tick, after=1.0)
         next(clock.spans(node))  # type: ignore[arg-type]
         assert (node.listed == {0}) == waited and (node.told > 0) == waited
+        assert node.tally.goal_sets_not_awaited == 0  # waited for in time: nothing given up
 
 
 def test_a_dead_agents_body_is_broadcast_as_a_standing_obstacle_where_the_tracker_sees_it():
