@@ -100,10 +100,11 @@ def _robots(ids: list[int]) -> str:
 def _agents_reported(agent_stats: list[dict[str, Any]], world: dict[str, Any], lockstep: bool) -> dict[str, Any]:
     """The agents' counts for metrics.json; a lock-step run whose waits ran out says so in a line."""
     given_up = lockstep_waits_given_up(agent_stats, world)
-    if lockstep and any(given_up.values()):
+    ran_out = {"missed_ticks": reported(world, "missed_ticks"), **given_up}
+    if lockstep and any(ran_out.values()):
         _warn(
-            f"pixelswarm: lock-step waits ran out ({', '.join(f'{k} {v}' for k, v in given_up.items() if v)}; "
-            "a loaded machine?): this run may differ from another run of its seed"
+            f"pixelswarm: lock-step waits ran out ({', '.join(f'{k} {v}' for k, v in ran_out.items() if v)}): "
+            "this run may differ from another run of its seed (a process stalled, or the machine was overloaded)"
         )
     return {
         **{k: sum(reported(s, k) for s in agent_stats) for k in ("poses_held", "subscriptions_renewed")},

@@ -177,6 +177,9 @@ def test_a_lockstep_host_stalled_past_its_lease_is_heard_dead_and_back_and_the_s
     assert m["contacts"] == 0 and m["end_reason"] == "converged"
     assert traj["goal_set_epochs"][-1] >= 2  # a new goal set for the robots heard dead and back
     assert_show_completed(traj)
+    # the world went on without the stalled robots: the run is not its seed's alone, and says so
+    assert m["missed_ticks"] + sum(m["lockstep_waits_given_up"].values()) > 0
+    assert "this run may differ from another run of its seed" in stderr, stderr[-3000:]
 
 
 @pytest.mark.parametrize("clock", ["realtime", "lockstep"])
