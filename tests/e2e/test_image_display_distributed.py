@@ -11,7 +11,7 @@ import pytest
 from tests.conftest import run_scene as run
 from tests.conftest import run_scenes
 from tests.support.assignment_quality import EPS_A, assert_agreements_valid
-from tests.support.engines import assert_waited_for_everyone
+from tests.support.engines import assert_same_trajectory, assert_waited_for_everyone
 from tests.support.formation import assert_every_hold_formed, why_not_formed
 
 
@@ -38,8 +38,7 @@ def test_the_paper_sequence_forms_every_image_in_agent_hosts_as_in_the_central_e
     goal = traj["assignment"][last]
     assert np.all(goal >= 0)
     assert np.array_equal(traj["color"][last], traj["goal_set_colors"][row][goal])
-    np.testing.assert_array_equal(traj["t"], central["t"])
-    assert np.abs(traj["pose"][..., :2] - central["pose"][..., :2]).max() <= 1e-9
+    assert_same_trajectory(traj, central, "hosts")
     assert (traj["assignment"] == central["assignment"]).all()
 
 

@@ -11,7 +11,15 @@ import pytest
 
 from sim.outputs.mcaplog import read_mcap
 from tests.conftest import PAPER_E_PUCKS, run_scenes
-from tests.support.engines import ENGINES, PICTURE_FLAGS, assert_waited_for_everyone, engine_run, picture, picture_run
+from tests.support.engines import (
+    ENGINES,
+    PICTURE_FLAGS,
+    assert_same_trajectory,
+    assert_waited_for_everyone,
+    engine_run,
+    picture,
+    picture_run,
+)
 
 
 # Only a parameter whose runs another test reads carries that run's xdist group (--dist loadgroup runs a
@@ -27,10 +35,7 @@ def test_central_and_distributed_runs_of_one_seed_are_the_same_run(shared_runs, 
     for name in ("a process per robot", "agent hosts"):
         metrics, traj = runs[name]
         assert_waited_for_everyone(metrics, name)  # every agent answered every tick
-        assert len(traj["t"]) == len(central["t"]), name
-        np.testing.assert_array_equal(traj["t"], central["t"])
-        gap = np.abs(traj["pose"][..., :2] - central["pose"][..., :2]).max()
-        assert gap <= 1e-9, f"{name}: positions differ by {gap} m"
+        assert_same_trajectory(traj, central, name)
         np.testing.assert_allclose(traj["goal"][-1], central["goal"][-1], rtol=0, atol=1e-9)
         assert metrics["time_to_converge_s"] == pytest.approx(m_central["time_to_converge_s"], abs=1e-9)
 
@@ -57,9 +62,7 @@ def assert_the_same_run(runs: dict[str, tuple[dict, dict]], central: dict) -> No
     assignment, and one-to-one at every tick."""
     for name, (metrics, traj) in runs.items():
         assert_waited_for_everyone(metrics, name)
-        np.testing.assert_array_equal(traj["t"], central["t"])
-        gap = np.abs(traj["pose"][..., :2] - central["pose"][..., :2]).max()
-        assert gap <= 1e-9, f"{name}: positions differ by {gap} m"
+        assert_same_trajectory(traj, central, name)
         np.testing.assert_array_equal(traj["assignment"], central["assignment"], err_msg=name)
         for k, row in enumerate(traj["assignment"]):
             assert len(np.unique(row[row >= 0])) == int((row >= 0).sum()), f"{name}: one goal, two robots, tick {k}"

@@ -49,3 +49,19 @@ def assert_waited_for_everyone(metrics: dict, name: str = "") -> None:
         f"{name}: a wait ran out (a loaded machine?): missed ticks {metrics['missed_ticks']}, "
         f"given up {given_up}, heard dead {metrics['liveliness_lost']}"
     )
+
+
+def assert_same_trajectory(traj: dict, reference: dict, name: str = "") -> None:
+    """The same ticks as ``reference`` and, to 1e-9 m, the same positions; else how long each run is and where
+    their positions part (the first tick, its robots), so that a failure says where to look."""
+    n = min(len(traj["t"]), len(reference["t"]))
+    apart = np.abs(traj["pose"][:n, :, :2] - reference["pose"][:n, :, :2]).max(axis=2)  # (tick, robot)
+    parted = np.flatnonzero(apart.max(axis=1) > 1e-9)
+    where = "nowhere in the ticks both have"
+    if len(parted):
+        robots = np.flatnonzero(apart[parted[0]] > 1e-9).tolist()
+        where = f"from t = {reference['t'][parted[0]]:.1f} s (robots {robots}), by up to {apart.max():.3g} m"
+    same_ticks = len(traj["t"]) == len(reference["t"]) and np.array_equal(traj["t"], reference["t"])
+    assert same_ticks and not len(parted), (
+        f"{name}: {len(traj['t'])} ticks against {len(reference['t'])}; the positions part {where}"
+    )
