@@ -45,8 +45,9 @@ CODEC_REASONS = {"truncated", "version", "kind", "checksum", "non-finite", "inva
 # and what a receiver refuses of the well formed (transport.plausible, transport.bus)
 REFUSED = {FUTURE, STALE, INCONSISTENT, "misaddressed", CONFLICTING}
 # a slower machine's ticks each take more of the peer's copies (its rate is per wall second), and the circle
-# forms later: 40 s, as bench_faults faulty-peer gives it (the run ends once it has formed)
-CIRCLE = ("circle", "--robots", "20", "--clock", "lockstep", "--seed", "3", "--duration", "40")
+# forms later: room for 60 s (the run ends once it has formed). Robots the peer made stand (two commands for
+# a tick) once held robot 3 behind two at their goals for 18 s, and the circle had not formed by 40 s
+CIRCLE = ("circle", "--robots", "20", "--clock", "lockstep", "--seed", "3", "--duration", "60")
 # s each image of the paper sequence is held here, not the shipped 30: in this seed's run the first two
 # form 8.1 and 9.4 s after they are shown (the central engine's run of it, the same run), so each is
 # still held for seconds under the peer once formed, and the change between them happens under it too
