@@ -127,8 +127,7 @@ class LockStep:
             node.hear_goals()
             # a goal set due and unheard: the coordinator works it out, and the tick waits for it, so that every
             # host takes it up at the same tick however slow the coordinator or the machine
-            awaits = node.awaits_goal_set(dies)
-            at_work = awaits and time.monotonic() < goal_set_patience
+            at_work = time.monotonic() < goal_set_patience and node.awaits_goal_set(dies)
             if any(map(intact, heard)) or at_work:  # a damaged copy is no agent at work
                 deadline = min(time.monotonic() + self.deadline, patience)
             node.update_liveness()
@@ -138,7 +137,7 @@ class LockStep:
                 node.publish_before_start()  # as before the first tick: the coordinator hears the dead bodies
                 told = time.monotonic()
             if (not waiting.any() or time.monotonic() >= deadline or node.withheld) and not dying and not at_work:
-                node.tally.goal_sets_not_awaited += int(awaits)
+                node.tally.goal_sets_not_awaited += int(node.awaits_goal_set(dies))  # still due: patience ran out
                 break
         yield node.dt
 
