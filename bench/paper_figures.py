@@ -852,7 +852,7 @@ def keyframes_main(argv: list[str] | None = None) -> int:
 
 # --- the carried assignment between keyframes (carry) -----------------------------------------
 CARRY_DOC = """Consecutive keyframes: bids to agree on frame f's goal set when the auction starts cold, from the
-previous frame's assignment carried over by the goals' correspondence (agent.core.bidder.carry,
+previous frame's assignment carried over by the goals' correspondence (agent.core.bidder.Participant.carry,
 prices zero), from that assignment with the previous prices carried too, or from the goal sets'
 own matching and its prices (coordinator.warm_start.goal_matching, sent with the goal set: what the agents do after an agreed
 frame).

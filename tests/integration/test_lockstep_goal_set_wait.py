@@ -2,7 +2,7 @@
 router on loopback: the world node and a lock-step agent host, with a coordinator that publishes each
 step's goal set only some seconds after it hears the step's first tick (as a loaded machine's did).
 
-The agents wait for that goal set before they answer the tick (agent.clocks.take_up_goal_sets). The
+The agents wait for that goal set before they answer the tick (agent.clocks.LockStep.take_up_goal_sets). The
 world's deadline used to run only from the last auction message, and there is none while the
 coordinator works out a goal set, so the world declared the tick missed: two CI runs of the story
 animation in agent hosts missed ticks 120-121, where its next keyframe begins.
