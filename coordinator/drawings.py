@@ -241,8 +241,9 @@ def person(arms_up: bool) -> list[Part]:
 
 
 def history_frames() -> list[list[Part]]:
-    """The History of the Universe's keyframes' parts, in play order; each of the first four chapters' last
-    picture is given twice, to be held still (robots reach a keyframe as the next begins, eq. 27)."""
+    """The History of the Universe's keyframes' parts, in play order; the last picture of the big bang, the
+    Earth, the sea and the dinosaur is given twice, to be held still (robots reach a keyframe as the next
+    begins, eq. 27)."""
     bang, earth = [big_bang(0.0), big_bang(1.0)], [planet_earth(0.22), planet_earth(0.44)]
     life = [sea((0.45, 0.7), None), sea((0.32, 0.72), (0.55, 0.62))]
     dino = [dinosaur(0.0), dinosaur(1.0)]

@@ -382,9 +382,9 @@ class Sent:
 
 class Bus:
     """One participant's connection to the swarm: publish typed messages, subscribe to inboxes; what it
-    declared is kept with the link's state, as a renewal declares it all again. Its attributes past 15 are
-    that state's: whether the link to the router is lost, when to renew, and how often it came back (a host's
-    clock starts again) and was renewed."""
+    declared is kept with the link's state, as a renewal declares it all again. It holds more than 15
+    attributes for that state: whether the link to the router is lost, when to renew, and how often it came back
+    (a host's clock starts again) and was renewed."""
 
     def __init__(
         self,

@@ -3,7 +3,8 @@
 Every message starts with a (kind, version) header; poses, states and commands travel as frames, a goal set
 as parts with their own headers. ``decode`` never raises: anything malformed is None, counted in a
 ``DropCounter``, so no peer can break a control loop. Kinds every host must hold to the bit end in a CRC-32;
-poses (judged by agent.pose_trust) and commands (checked against their tick) do not. See docs/protocol.md.
+poses (judged by agent.pose_trust), commands (checked against their tick) and clock ticks (bounded by
+the poses' ticks, agent.clocks) do not. See docs/protocol.md.
 """
 
 from __future__ import annotations
@@ -485,7 +486,7 @@ class AuctionRecord:
 
     FIELDS: ClassVar[list[tuple[str, str]]] = [("robot", "<u2"), ("goal", "<i4"), ("price", "<f8"), ("flags", "u1")]
     DTYPE: ClassVar[np.dtype] = np.dtype(FIELDS)
-    CONTENT: ClassVar[int] = 1  # the robot holds ``goal`` and no other goal is better by more than epsilon
+    CONTENT: ClassVar[int] = 1  # the robot holds ``goal``, no other better by more than the phase's slack
     RELEASED: ClassVar[int] = 2  # the robot gave ``goal`` up at ``price`` (it bids elsewhere)
     SETTLED: ClassVar[int] = 4  # lock-step rounds: content at the final phase's slack (agent.core.bidder)
 
@@ -712,7 +713,8 @@ class Frame(Message):
 
 @dataclass
 class Poses(Frame):
-    """Tracker -> agents: a tick's tracked poses, every robot's (agent hosts) or one's (a robot alone)."""
+    """Tracker -> agents: a tick's tracked poses, every robot's (agent hosts) or one's and the bodies near it
+    (a robot alone)."""
 
     KIND: ClassVar[int] = 10
     VIEW: ClassVar[type] = Pose

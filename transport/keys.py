@@ -47,7 +47,8 @@ CELLS = 2**30  # cells either side of 0 at most: a position beyond (a forged pos
 
 
 def cell_of(x: float, y: float, cell_size: float) -> tuple[int, int]:
-    """The spatial cell of a position: robots subscribe to the 3x3 cells around their own."""
+    """The spatial cell of a position: an agent subscribes to the 5x5 (real time) or
+    7x7 (lock-step) cells around each of its robots' (agent.runtime.CellSubscriptions)."""
     return _cell(x / cell_size), _cell(y / cell_size)
 
 

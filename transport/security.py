@@ -276,7 +276,7 @@ def make_certificates(
     """Write the folder (whole or not at all; a non-empty one replaced only with ``overwrite``); its path.
 
     ``connect``: the router endpoint (tls/HOST:PORT) in every configuration, HOST also named by the router
-    certificate; without it, no endpoint, and the certificate names only 127.0.0.1 and localhost.
+    certificate; without it, no endpoint, and the certificate names only 127.0.0.1, localhost and the router's role.
     """
     final = _folder_to_write(directory, robots, display, overwrite)
     hosts = [*LOOPBACK_NAMES, *([_tls_host(connect)] if connect else [])]

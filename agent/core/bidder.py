@@ -18,7 +18,7 @@ from .bidding import NO_OWNER, Bidders, Heard, board_digest
 # the auction record's flags (transport.codec.AuctionRecord); SETTLED: content at the final phase's slack
 CONTENT, RELEASED, SETTLED = AuctionRecord.CONTENT, AuctionRecord.RELEASED, AuctionRecord.SETTLED
 CANDIDATES = 16  # goals a robot ranks while no other can beat them (agent.core.bidding)
-ROUNDS_PER_ROBOT = 100  # settle_alone's bound on a phase's rounds, per robot (a phase's rounds grow with the robots)
+ROUNDS_PER_ROBOT = 100  # settle_alone's bound on a phase's rounds, per robot, and at least 100,000
 FIXED = 2.0**32  # _tilt_prices sums the robots' moves as whole multiples of 1 / FIXED m
 SMALL = 8  # members_only looks up the records of messages up to this size one by one (numpy costs more there)
 
@@ -340,7 +340,7 @@ class Participant(Auction):
     ) -> np.ndarray:
         """A host that owns every robot (the central engine): the next block on these positions, warm,
         bid to agreement by bid()'s rounds. Returns each own robot's goal; RuntimeError past
-        ROUNDS_PER_ROBOT rounds a robot in a phase."""
+        ROUNDS_PER_ROBOT rounds a robot (at least 100,000) in a phase."""
         block = self._block_to_settle(positions, candidates)  # first: it may make new bidders
         return self._adopt_settled(self._bidders.settle_block(*block))
 

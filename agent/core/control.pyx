@@ -22,7 +22,8 @@ cdef double NON_COOPERATING = 1.0  # toward a dynamic obstacle, or a robot whose
 cdef double PERTURBATION = 1e-4  # largest component of the symmetry-breaking perturbation (m/s)
 cdef double EPSILON = 1e-5  # two unit directions are parallel below this |det| (as RVO2)
 cdef Py_ssize_t ROWS_PER_CHUNK = 16  # rows a thread of the central engine's crew claims at a time
-cdef int N_VERTICES = 24  # P_AHV's vertices, denser ahead where its boundary turns fastest
+cdef int N_VERTICES = 24  # P_AHV's vertices: N_VERTICES - 1 spread denser ahead, where its boundary turns
+# fastest, then pi and the dent's two (vertex_angles)
 
 # radii 1 ppm larger in the safety and obstacle lines: rounding must not turn a closed gap into overlap
 cdef double BUFFER = 1.0 + 1e-6
@@ -604,8 +605,9 @@ def touch_reach(Settings settings, double radius, other, age):
 
 
 cdef int _hard_lines(Config *s, Scratch *w, Robot *me, Obstacles edges, Lines *extra, int n_extra) noexcept nogil:
-    """The lines every fallback keeps: obstacle edges, ``extra`` (P_AHV), the safety lines (horizon dt,
-    zero velocities, neighbours grown only up to our surface, else no common solution). Returns how many."""
+    """The lines every fallback keeps: obstacle edges, ``extra`` (P_AHV), the safety lines (horizon dt, our
+    velocity zero; a cooperating neighbour at rest, and only one within 2 dt v_max; a dynamic obstacle or a stale
+    robot at its velocity; neighbours grown only up to our surface, else no common solution). Returns how many."""
     cdef Lines *L = &w.L
     cdef double line[4]
     cdef double own = me.radius * BUFFER, r_obst = (me.radius + s.margin) * BUFFER

@@ -77,7 +77,7 @@ class RobotParams:
     @property
     def state_reach(self) -> float:
         """How far a robot whose state we miss may be and still become a neighbour by the next tick:
-        the neighbour distance plus what two robots close in three ticks plus the tracking noise."""
+        the neighbour distance plus three ticks of travel at v_max plus the tracking noise."""
         return self.neighbour_dist + 3 * self.v_max * self.dt + self.noise_bound
 
     @property

@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 
-# The parts of a control step, in the order the engine runs them.
+# The parts of a control step, in the order its tables list them.
 PARTS = ("tracker", "assignment", "preferred", "record", "neighbours", "control", "world", "other")
 
 

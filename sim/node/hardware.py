@@ -63,7 +63,7 @@ class BackendDrive:
 
 
 class WheelDrive(BackendDrive):
-    """e-puck2 robots take wheel speeds; the backend clips them to `max_wheel_speed`, set here to v_max."""
+    """e-puck2 robots take wheel speeds; the backend clips them to `max_wheel_speed`, here at most v_max."""
 
     def __init__(self, backend_config: Any, params: RobotParams) -> None:
         from hardware.epuck2 import Epuck2Backend
@@ -367,7 +367,8 @@ def load_run(args: argparse.Namespace) -> tuple[HardwareConfig, Scene]:
     scene = scene_of_args(args, robots=robots, clock="realtime")
     if scene.robots != robots:  # a run directory's scene
         raise HardwareError(f"the run's scene has {scene.robots} robots, the hardware file {robots}")
-    # a scripted or pursuing robot has no agent, so its real body would be on nobody's bus: others would drive into it
+    # a scripted robot has no agent, so its real body would be on nobody's bus (others would drive into it); a
+    # pursuer goes with it: the uncontrolled movers of paper Fig. 19 are the simulator's
     if scene.scripted or scene.pursuers or scene.events:
         what = "scripted or pursuing robots" if scene.scripted or scene.pursuers else "events (the simulator's)"
         raise HardwareError(f"scene {scene.name!r} has {what}, which real robots cannot run")

@@ -37,7 +37,7 @@ class SimulatedBodies:
         self.events = events_of(scene, "teleport")
         # the scene's tracker outages: display time windows [t, t + duration) in which no pose is sent
         self.outages = [(e["t"], e["t"] + e["duration"]) for e in scene.events if e["kind"] == "tracker-outage"]
-        # the scene's tracker glitches: display time -> [(robot, offset)] reported off for that tick
+        # the scene's tracker glitches: (display time, robot, offset), the robot reported off by it at that tick
         self.glitches = [(e["t"], e["robot"], e["offset"]) for e in scene.events if e["kind"] == "tracker-glitch"]
 
     @property
