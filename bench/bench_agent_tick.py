@@ -11,7 +11,7 @@ the end of the stepping (psutil memory_maps, by part: the compiled core, numpy, 
 
     python -m bench.bench_agent_tick [--before 2f61ee4] [--robots 10] [--duration 20] [--pairs 2]
     python -m bench.bench_agent_tick --robots 250 --agents-per-process 125   # hosts of 125 robots
-    python -m bench.bench_agent_tick --tick-alone [--pairs 5]   # one robot's tick in-process, no other process
+    python -m bench.bench_agent_tick --tick-alone [--pairs 2]   # one robot's tick in-process, no other process
 
 ``--tick-alone`` times AgentHost._step_tick alone, in a process of its own per tree and pair (a zenoh
 session on loopback with no peer; NEIGHBOURS neighbours' states heard each tick, and the tracker's

@@ -11,7 +11,7 @@ cases, then the central engine's settling of every robot in one process (``Parti
 a cold block, then warm blocks while the robots drive to their goals), timed in a fresh process of
 each tree (its first block includes any JIT compilation):
 
-    .venv/bin/python -m bench.bench_auction --before cf836e5 [--cases 14x1,100x1,1000x250] [--central 1000]
+    .venv/bin/python -m bench.bench_auction --before cf836e5 [--cases 14x1,50x1,100x1,1000x250] [--central 1000]
 
 With ``--cold SIZES`` instead: the auction's cold start by size (issue 43), the central engine's
 settling of a new image's goal set on a fresh board (``Participant.settle_alone``), paper-sequence-

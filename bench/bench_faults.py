@@ -2,7 +2,7 @@
 per name; each writes bench/results/<name>.md (faulty-peer prints its table):
 
     .venv/bin/python -m bench.bench_faults loss [--seeds 10]                 # lost and late states, no bus
-    .venv/bin/python -m bench.bench_faults impaired [--seeds 4 5 6]          # over the bus, with --faults
+    .venv/bin/python -m bench.bench_faults impaired [--seeds 4]              # over the bus, with --faults
     .venv/bin/python -m bench.bench_faults speed-limit                       # the speed limit within hearing
     .venv/bin/python -m bench.bench_faults faulty-peer [--scene circle ...]  # a damaging peer on the bus
     .venv/bin/python -m bench.bench_faults soak [--minutes 60]               # an hour in real time with loss
@@ -109,7 +109,7 @@ process per robot, with and without `--faults state:drop=0.2,delay=0.1,jitter=0.
 count in ticks, drawn per message: the same figures on any machine); per image, the time every
 robot took to come within 1 cm of its goal, impaired over clear.
 
-    .venv/bin/python -m bench.bench_faults impaired [--seeds 4 5 6]
+    .venv/bin/python -m bench.bench_faults impaired [--seeds 4]
 """
 
 
@@ -216,7 +216,7 @@ def speed_limit_main(argv: list[str] | None = None) -> int:
             "",
             "Circle of 20 holonomic robots (RVO2's Circle at display scale), central engine, lock-step, every "
             "state heard a tick late (InProcessLink late=1.0) and only within the range. The limit caps the "
-            "preferred velocity at (R - 2 r - noise) / (2 (age + 2 dt)); ended at: convergence or the 60 s cap.",
+            "preferred velocity and ORCA's at (R - 2 r - noise) / (2 (age + 2 dt)); ended at: convergence or the 60 s cap.",
         ],
     )
     return 0

@@ -405,7 +405,7 @@ TRACKER_DOC = """The overhead-camera tracker on one core: frames per second and 
 
 Rendered 1280x960 frames (sim.emulators.camera: a tilted camera over 2 x 1.5 m of floor, 5 cm
 DICT_4X4_50 markers, 14 robots wandering, four reference markers, Gaussian blur and pixel noise) are
-tracked by hardware.camera.ArucoTracker with each of OpenCV's corner refinements, and by the ArUco
+tracked by hardware.camera.ArucoTracker with OpenCV's corner refinements none, subpix and contour, and by the ArUco
 detection alone (no refinement, no poses) as the reference. All variants see each frame in turn, so
 they share the machine's load; cv2.setNumThreads(1) holds each to one core, and speed is read from the
 thread's CPU time (a shared machine's wall clock includes waiting for a core). Two conditions: the

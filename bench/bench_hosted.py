@@ -321,7 +321,7 @@ def animation_main(argv: list[str] | None = None) -> int:
 
 # --- lock-step engines beside the code before (sync) ------------------------------------------
 SYNC_DOC = """What the tick-synchronous auction (issue 21, docs/lockstep_auction.md) costs a lock-step run of a
-picture, side by side with the code before it: per engine (a process per robot, agent hosts of K),
+picture, side by side with the code before it: per engine (a process per robot, agent hosts of 5),
 runs of the same seed alternate between a checkout of the code before (``--before DIR``, e.g. made
 with `git worktree add DIR COMMIT`) and this one; each reports the wall time per tick, whether it
 is the central engine's run (poses to 1e-9 m and assignments, as `beside`), and the recorded ticks

@@ -1,4 +1,5 @@
-"""Run the maintained benchmarks one after the other (those that need no other checkout or hour).
+"""Run the maintained benchmarks one after the other (those that take less than an hour, and no checkout but
+the ones they make themselves).
 
 Each writes its results, with its command and date, to bench/results/<name>.md.
 
@@ -15,9 +16,9 @@ import sys
 
 from .common import REPO, RESULTS
 
-# Each a command line after `python -m`. Left out, as they compare with another checkout (--before)
-# or take an hour: bench_hosted sync and scenes, bench_faults faulty-peer and soak, paper_figures fig4
-# (it redraws a figure in docs/), bench_view.
+# Each a command line after `python -m`. Left out: those that need a checkout given by hand (--before DIR:
+# bench_hosted sync and scenes), take an hour (bench_faults soak), print only (bench_faults faulty-peer),
+# or time the live view (bench_view); and paper_figures fig4, which redraws a figure in docs/.
 BENCHES = [
     ["bench.bench_world"],
     ["bench.bench_goals"],
