@@ -678,7 +678,8 @@ cdef int _robot_lines(Config *s, Scratch *w, Robot *me, double horizon, int star
 cdef bint _orca(Config *s, Scratch *w, Robot *me, Obstacles edges, Lines *extra, int n_extra, bint full_only,
                 double *out) noexcept nogil:
     """Eq. 14 for one robot. Infeasible (True: a fallback): the horizon shrinks to dt (paper 5.3), then
-    least violation keeping the hard lines. ``full_only``: stop after the full horizon."""
+    least violation keeping the hard lines, as RVO2 does, where the paper stops the robot for the tick: the
+    hard lines already rule out a contact within dt. ``full_only``: stop after the full horizon."""
     cdef Target g = Target(me.tx, me.ty, me.vmax, False)
     cdef int n_hard = _hard_lines(s, w, me, edges, extra, n_extra)
     cdef int n = _robot_lines(s, w, me, s.tau, n_hard, False)

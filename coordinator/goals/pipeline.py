@@ -83,7 +83,9 @@ class GoalOptions:
             raise GoalError("the Lloyd settings need tol > 0, max_iter >= 1 and 1 <= relax <= 4")
 
 
-PAPER_OPTIONS = GoalOptions()  # the paper's settings: the default of every goal maker
+# the paper's settings, the default of every goal maker, but Lloyd steps over-relaxed (cvt.lloyd: the cost
+# never rises) and, past PAPER_SAMPLES_MAX goals in a region, a lattice start
+PAPER_OPTIONS = GoalOptions()
 
 
 def _shrink(rgb: np.ndarray, alpha: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None, str | None]:
