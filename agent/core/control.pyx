@@ -169,7 +169,10 @@ def perturbation(robot_ids, seed, tick=0, double magnitude=PERTURBATION):
 
 def preferred_velocities(Settings settings, robot_ids, position, velocity, goal, given, seed, tick, cap=None):
     """A batch's preferred velocities (B,2): eq. 9, or the finite rows of ``given``; within ``cap``;
-    turned 45 degrees right where the robot barely moves (a standoff becomes a roundabout); perturbed."""
+    turned 45 degrees right where the robot barely moves (a standoff becomes a roundabout); perturbed. A robot
+    starting from rest turns too, which sets a symmetric start circling before it can jam: without it, 6
+    e-pucks swapping across a circle jammed at its centre and had not arrived after 60 s
+    (tests/e2e/test_clocks_events_engines.py)."""
     cdef const double[:, ::1] p = np.ascontiguousarray(position, dtype=float)
     cdef const double[:, ::1] v = np.ascontiguousarray(velocity, dtype=float)
     cdef const double[:, ::1] g = np.ascontiguousarray(goal, dtype=float)
