@@ -340,7 +340,8 @@ def assert_usage_error(tmp_path: Path, message: str, *args: str) -> None:
     result = run_pixelswarm("run", *args, "--out", str(tmp_path / "r"), timeout=60)
     assert result.returncode == 2
     assert message in result.stderr and "Traceback" not in result.stderr
-    assert not (tmp_path / "r").exists()
+    assert len(result.stderr.strip().splitlines()) == 1, result.stderr
+    assert not (tmp_path / "r").exists() and not (tmp_path / "r.partial").exists()
 
 
 # What every metrics.json holds (docs/outputs.md), whatever the engine

@@ -256,9 +256,9 @@ def test_a_run_shows_in_foxglove_and_in_a_browser(tmp_path):
         assert [e["id"] for e in update["entities"]] == [f"robot/{i}" for i in range(4)]
         discs = [e["cylinders"][0] for e in update["entities"]]
         rgb = np.array([[d["color"][c] for c in "rgb"] for d in discs])
-        np.testing.assert_allclose(rgb * 255, traj["color"][k], atol=255 * QUANTUM / 2)  # to 1/16384 of full scale
+        np.testing.assert_allclose(rgb * 255, traj["color"][k], atol=255 * QUANTUM / 2)  # to 1/32768 of full scale
         centres = np.array([[d["pose"]["position"]["x"], d["pose"]["position"]["y"]] for d in discs])
-        np.testing.assert_allclose(centres, traj["pose"][k, :, :2], atol=QUANTUM / 2)  # to 0.06 mm
+        np.testing.assert_allclose(centres, traj["pose"][k, :, :2], atol=QUANTUM / 2)  # to 0.03 mm
         np.testing.assert_allclose([d["size"]["x"] for d in discs], 2 * traj["radius"], atol=QUANTUM)
 
     codec, frames = _decode(out / "display.mp4")

@@ -14,7 +14,7 @@ from sim.central.rvo import CentralOrca, Options
 RVO2_STEPS = 1727
 
 
-def test_scaled_circle_completes_within_rvo2_steps_without_any_overlap():
+def test_scaled_circle_completes_within_a_tenth_over_rvo2s_steps_without_any_overlap():
     n, radius = 64, 1.5
     angle = np.arange(n) * 2.0 * np.pi / n
     start = 51.2 * np.stack([np.cos(angle), np.sin(angle)], -1)

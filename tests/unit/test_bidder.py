@@ -1,5 +1,5 @@
 """The distributed auction's participant logic over an in-process network that loses, duplicates,
-delays and reorders messages (the zenoh runs are in test_auction_bus.py): every instance ends in one
+delays and reorders messages (the zenoh runs are in tests/integration/test_auction_link.py): every instance ends in one
 agreed, one-to-one assignment within N (epsilon + Delta C) of scipy's optimum."""
 
 from __future__ import annotations

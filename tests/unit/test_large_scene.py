@@ -33,7 +33,7 @@ def test_paper_sequence_at_scale_is_the_paper_sequence_with_that_many_robots(rob
     for k in range(len(big.steps)):
         goals, colors = scene_goal_set(big, k, big.robots)
         assert goals.shape == (robots, 2)
-        # every goal fits a robot (the conservative arena keeps them 4 r apart, CVT aside)
+        # every goal fits a robot: two robots' width apart (the conservative arena aims at 4 r, CVT aside)
         d, _ = cKDTree(goals).query(goals, k=2)
         assert d[:, 1].min() >= 2 * r
         own.append(auto_arena(d[:, 1].min() / k_r, r))  # the arena this image alone would ask for

@@ -136,7 +136,7 @@ def test_a_state_the_tracker_contradicts_or_a_robot_smaller_than_the_display_s_i
     robots (a forged radius of 0.1 mm let robots drive into it)."""
     table = NeighbourTable(0.1)
     table.update(_state(1, 0.3, 0.0, tick=10))  # honest: its body 1 cm on (0.1 s at most v_max, and noise)
-    table.update(_state(2, 0.0, 0.3, tick=10))  # its body 0.1 m away after 0.1 s: not where it says
+    table.update(_state(2, 0.0, 0.3, tick=10))  # its body 6.5 cm away after 0.1 s: not where it says
     table.update(dataclasses.replace(_state(3, -0.3, 0.0, tick=10), radius=1e-4))  # where it is, but tiny
     bodies = np.zeros(3, Poses.RECORD)
     bodies["robot"] = [1, 2, 3]
@@ -264,7 +264,7 @@ def test_a_robot_whose_agent_died_is_not_forgotten_outside_the_cells_heard():
 
 
 def test_a_silent_robot_is_forgotten_only_where_it_can_no_longer_touch_ours():
-    """Silent for 2 s, a neighbour may have come 0.26 m (v_max 0.13): one last heard that near a robot of
+    """Silent for 2 s, a neighbour may have come 0.29 m (2.2 s at v_max 0.13): one last heard that near a robot of
     ours is kept, so ORCA goes on seeing it (its robot stands), however long its states are lost; one
     farther, or silent briefly, is not; a dead robot's body is never forgotten."""
     params = dataclasses.replace(EPUCK, v_max=0.13)

@@ -14,7 +14,7 @@ from sim.outputs.write import FLOAT32_FROM, write_trajectory
 from tests.support.outputs import render_frame
 
 ARENA = (-39.88, -41.74, 39.88, 41.71)  # paper-sequence-10000's
-RADIUS = 0.037  # the e-puck's
+RADIUS = 0.037  # below the e-puck's 0.045 m: a smaller robot still shows as a disc
 
 
 def grid_of(n: int, spacing: float = 0.8) -> np.ndarray:

@@ -241,7 +241,7 @@ def test_close_pairs_finds_the_kd_tree_s_pairs(seed):
     overlap = (d[first_row:] < s).any(axis=0)
     want = {(int(a), int(b)): s[k] - d[first_row:, k] for k, (a, b) in enumerate(pairs) if overlap[k]}
     found = {(int(a), int(b)): depth for (a, b), depth in zip(got[3], got[4].T)}
-    assert set(want) <= set(found) and all(a < b for a, b in found)
+    assert set(want) == set(found) and all(a < b for a, b in found)
     for pair, depth in want.items():
         np.testing.assert_allclose(found[pair], depth, rtol=0, atol=1e-15)
     if len(pairs):

@@ -2,7 +2,7 @@
 our RVO2-shaped engine (sim.central.rvo.CentralOrca) on RVO2's own scenes.
 
 RVO2 computes in float32, we in float64: inputs are drawn as float32 values so both see the same
-numbers, and results agree to float32 rounding (measured: at most 2e-6). Where RVO2's program is
+numbers, and results agree to float32 rounding (measured: at most 2e-6; asserted below 1e-4). Where RVO2's program is
 infeasible both run the least-violation fallback; its optimum need not be unique (ties) and we start
 it from the optimum over the hard lines where RVO2 starts from its partial result, so there agreement
 is checked in the aggregate.

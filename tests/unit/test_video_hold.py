@@ -63,5 +63,5 @@ def test_the_video_of_a_run_that_ends_on_convergence_holds_the_picture_three_sec
     below = _View(scene.arena, 720).height // 20  # under the time label, which differs frame to frame
     moved = [int((np.abs(f[below:] - frames[-1][below:]).max(axis=-1) > 60).sum()) for f in frames]
     # pixels a robot covers in one frame and not in the last: the robots within tolerance of their
-    # goals (5 cm) still creep in, but far less than on their way
+    # goals (goal_tolerance, 1 cm) still creep in, but far less than on their way
     assert max(moved[formed:]) < max(moved) / 4
