@@ -216,7 +216,8 @@ def speed_limit_main(argv: list[str] | None = None) -> int:
             "",
             "Circle of 20 holonomic robots (RVO2's Circle at display scale), central engine, lock-step, every "
             "state heard a tick late (InProcessLink late=1.0) and only within the range. The limit caps the "
-            "preferred velocity and ORCA's at (R - 2 r - noise) / (2 (age + 2 dt)); ended at: convergence or the 60 s cap.",
+            "preferred velocity and ORCA's at (R - 2 r - noise) / (2 (age + 2 dt)); ended at: convergence or the "
+            "60 s cap.",
         ],
     )
     return 0

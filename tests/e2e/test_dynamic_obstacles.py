@@ -72,7 +72,8 @@ def test_the_movers_touch_no_robot_whatever_the_seed(tmp_path):
     """The seed moves every robot a little differently, and so where each stands when the movers come:
     the central engine's runs (the agents' own policy, in one process) have no contact. Robots boxed in
     by the disk used to shrink the movers' horizon with the rest: seeds 2, 3, 4 and 11 touched a mover,
-    up to 2.8 cm deep, and seed 12 passed it 0.2 mm apart (seeds 1-12 all clear now, 1.7 cm or more when this was written; asserted: above 0)."""
+    up to 2.8 cm deep, and seed 12 passed it 0.2 mm apart (seeds 1-12 all clear now, 1.7 cm or more when
+    this was written; asserted: above 0)."""
     seeds = (1, 2, 3, 4, 11, 12)
     runs = run_scenes(
         tmp_path, {f"seed{s}": ("dynamic-obstacles", "--engine", "central", "--seed", str(s)) for s in seeds}
