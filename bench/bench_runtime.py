@@ -1,14 +1,14 @@
 """Runtime benchmark (issues 2 and 25): agent processes at 10 Hz beside their floor, in one run.
 
-For each N: N agent processes of `pixelswarm run circle` in real time, then N bare zenoh processes
-doing a robot's messages per tick and nothing else (bench.floor_node: the floor), standing so that
-each hears nearly as many states per tick as an agent did; per process CPU, RSS and USS, the states
-heard per tick, the real-time factor, missed ticks, contacts and start-up; then the
-circle with every command delayed 0.15 s (``--faults cmd:delay=0.15``) at 20 processes (the least of
-``--sizes``), and (without --quick or --sizes) the lock-step rows and 1000 robots in 4 hosts. Each row
-waits for a quiet machine and writes how busy it was beside it: on a shared machine the figures are
-only as good as it was quiet. ``--repeat K`` runs the agents K times at each N (missed ticks vary from run to run), each
-run followed by a floor of its own (one thread), against which its CPU is set.
+For each N: N agent processes of `pixelswarm run circle` in real time, then N bare zenoh processes doing
+a robot's messages per tick and nothing else (bench.floor_node: the floor), standing so that each hears
+nearly as many states per tick as an agent did; per process CPU, RSS and USS, the states heard per tick,
+the real-time factor, missed ticks, contacts and start-up; then the circle with every command delayed
+0.15 s (``--faults cmd:delay=0.15``) at 20 processes (the least of ``--sizes``), and (without --quick or
+--sizes) the lock-step rows and 1000 robots in 4 hosts. Each row waits for a quiet machine and writes
+how busy it was beside it: on a shared machine the figures are only as good as it was quiet. ``--repeat
+K`` runs the agents K times at each N (missed ticks vary from run to run), each run followed by a floor
+of its own (one thread), against which its CPU is set.
 
 ``--startup``: only the start-up of 50 agent processes, from launching `pixelswarm run` to the
 world's first tick, the code at ``--before REV`` beside the code at ``--after REV`` (each a fresh
