@@ -53,12 +53,14 @@ lint: $(TSTAMP)
 	$(VENV)/bin/mypy
 
 # The whole suite: the in-process tests, then the end-to-end runs (marked slow) on every core, then
-# those marked serial one at a time (on the wall clock, another run beside them makes robots late).
+# the runs on the wall clock, where another run beside them makes robots late: the light ones (marked
+# wall_clock) two at a time, the emulated-hardware ones in one lane, and the busy ones (serial) alone.
 # Not one pass of both: the in-process tests' CPU beside the lock-step runs made those runs slower
 # than the pass saved, and a viewer beside them missed its robots. Three workers on two cores: a test
 # that waits on its processes or the bus leaves a core idle that a third worker takes.
 test: test-fast
-	$(PY) -m pytest -q -m "slow and not serial" -n 3 --dist loadgroup --durations=10
+	$(PY) -m pytest -q -m "slow and not serial and not wall_clock" -n 3 --dist loadgroup --durations=10
+	$(PY) -m pytest -q -m "slow and wall_clock" -n 2 --dist loadgroup --durations=5
 	$(PY) -m pytest -q -m "slow and serial" --durations=5
 
 # Everyday work: the suite without the end-to-end runs marked slow. --dist loadgroup: a module whose

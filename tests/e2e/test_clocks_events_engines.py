@@ -36,7 +36,7 @@ def run(tmp_path, toml, *args, name="run"):
 
 
 @pytest.mark.slow
-@pytest.mark.serial
+@pytest.mark.wall_clock
 def test_realtime_clock_follows_the_wall_clock(tmp_path):
     m, traj = run(tmp_path, SMALL.format(duration=5.0, clock="realtime", extra=""))
     assert len(traj["t"]) == 51 and traj["t"][-1] == pytest.approx(5.0)

@@ -87,7 +87,8 @@ def in_process(main, args: list[str], capsys) -> subprocess.CompletedProcess:
 
 
 @pytest.mark.slow
-@pytest.mark.serial
+@pytest.mark.wall_clock
+@pytest.mark.xdist_group("emulated-hardware")
 def test_a_crossing_through_emulated_robots_converges_without_contacts(tmp_path, spawned):
     scene = scene_file(tmp_path)
     lab, endpoint, hw, log = start_lab(tmp_path, scene, spawned)
@@ -133,7 +134,8 @@ def test_a_crossing_through_emulated_robots_converges_without_contacts(tmp_path,
 
 
 @pytest.mark.slow
-@pytest.mark.serial
+@pytest.mark.wall_clock
+@pytest.mark.xdist_group("emulated-hardware")
 def test_a_killed_agent_stops_its_robot_and_the_end_of_the_run_stops_all(tmp_path, spawned):
     scene_path = scene_file(tmp_path)
     router = loopback_router()
@@ -178,7 +180,8 @@ def test_a_killed_agent_stops_its_robot_and_the_end_of_the_run_stops_all(tmp_pat
 
 
 @pytest.mark.slow
-@pytest.mark.serial
+@pytest.mark.wall_clock
+@pytest.mark.xdist_group("emulated-hardware")
 def test_robots_stop_while_the_pose_source_is_down_and_the_display_completes_when_it_returns(tmp_path, spawned):
     """The motion capture stops mid-run (its session closes) and restarts 1.5 s later; the router stays up."""
     scene_path = scene_file(tmp_path)
@@ -405,7 +408,8 @@ def test_the_shipped_lab_file_names_the_paper_sequence_robots_on_the_labs_ports(
 
 # Its bounds are wall-clock (a timeout plus a period): alone on the machine, as a robot's node runs.
 @pytest.mark.slow
-@pytest.mark.serial
+@pytest.mark.wall_clock
+@pytest.mark.xdist_group("emulated-hardware")
 def test_the_hardware_node_stops_a_robot_whose_pose_is_lost_or_whose_commands_cease(tmp_path):
     """The node between real parts: emulated robots over TCP, motion capture over rmw_zenoh, and this test
     in the agents' place (liveliness tokens, a command per tick)."""

@@ -69,7 +69,8 @@ def newest(source: Ros2PoseSource, robot: int, received: int) -> PoseSample | No
 
 
 @pytest.mark.slow
-@pytest.mark.serial  # a restart is judged by arrival times on the wall clock: a busy test beside it made two stale
+@pytest.mark.wall_clock  # a restart is judged by arrival times on the wall clock: a busy test beside it made two stale
+@pytest.mark.xdist_group("emulated-hardware")
 def test_motion_capture_drops_a_replayed_and_a_future_pose_and_hears_a_restarted_system_at_once():
     router = loopback_router()
     client = client_of(router)
@@ -143,7 +144,8 @@ class AheadOnce(ArucoTracker):
 
 
 @pytest.mark.slow
-@pytest.mark.serial  # as the motion capture's above: frames held up over RESTART_AFTER by a busy test beside it
+@pytest.mark.wall_clock  # as the motion capture's above: frames held up over RESTART_AFTER by a busy test beside it
+@pytest.mark.xdist_group("emulated-hardware")
 def test_the_camera_drops_a_future_frame_and_takes_frames_again_after_its_clock_is_set_back():
     truth = np.array([[0.3, 0.1, 0.5], [-0.3, -0.1, -2.0]])
     offset = [0.0]  # s the frame clock is behind the wall clock
@@ -347,7 +349,8 @@ def test_a_late_braking_command_stops_its_robot_without_standing_it(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.serial
+@pytest.mark.wall_clock
+@pytest.mark.xdist_group("emulated-hardware")
 def test_a_restarted_tracker_is_heard_again_within_a_second_with_no_contact(tmp_path, spawned):
     """The lab's motion capture goes down mid-run and comes back with its clock set back 30 s (every
     stamp older than any taken before): the run takes it at once and the display completes."""
@@ -478,7 +481,8 @@ def path_length(path: np.ndarray) -> float:
 
 
 @pytest.mark.slow
-@pytest.mark.serial
+@pytest.mark.wall_clock
+@pytest.mark.xdist_group("emulated-hardware")
 def test_a_marker_swap_for_one_frame_makes_the_robots_brake_not_swerve(tmp_path, spawned):
     """A two-lane run on the emulated camera with one frame in which the two robots' markers are
     swapped (each robot's tracked pose jumps GAP = 0.5 m): no contact, neither robot's TRUE path

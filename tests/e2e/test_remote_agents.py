@@ -90,7 +90,7 @@ def test_agents_from_another_process_tree_form_the_picture(tmp_path, spawned):
 
 
 @pytest.mark.slow
-@pytest.mark.serial  # real time: the second commands must come while the run goes on
+@pytest.mark.wall_clock  # real time: the second commands must come while the run goes on
 def test_a_second_agents_command_for_robots_whose_agents_live_is_refused_and_the_run_goes_on(tmp_path, spawned):
     """Two agents for one robot would send two commands a tick, and the world would stop the robot: the run
     answers a robot's configuration query with 'taken' while its agent lives, and `pixelswarm agents` says so."""
@@ -139,7 +139,7 @@ AGENTS_WAIT = 10.0
 
 
 @pytest.mark.slow
-@pytest.mark.serial  # a wall-clock timeout: agents starting beside other runs may miss it
+@pytest.mark.wall_clock  # a wall-clock timeout: agents starting beside other runs may miss it
 def test_a_run_whose_agents_never_all_come_names_the_missing_robots(tmp_path, spawned):
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"

@@ -147,7 +147,7 @@ def test_lockstep_is_reproducible_and_hosts_match_processes(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.serial
+@pytest.mark.wall_clock
 def test_sigkill_of_an_agent(tmp_path, spawned):
     # 6 s of display: the kill lands a second or two in (a second after the victim is alive), and the
     # run goes on to its end for seconds after it

@@ -249,7 +249,7 @@ def _forge(folder: Path, endpoint: str, role: str, forged: np.ndarray, stop: thr
 
 
 @pytest.mark.slow
-@pytest.mark.serial
+@pytest.mark.wall_clock
 @pytest.mark.timeout(360)
 def test_a_secured_run_refuses_a_robots_and_the_observers_forged_goal_sets_while_a_viewer_watches(tmp_path, spawned):
     """`pixelswarm run --secure DIR` converges, every robot on its antipode, while two sessions forge a goal
