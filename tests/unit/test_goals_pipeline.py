@@ -13,7 +13,7 @@ from coordinator.goals import GoalError, GoalOptions, GoalSet, generate_goals, p
 from coordinator.goals.image import to_lab
 from coordinator.goals.resize import from_arena
 from tests.support import shape_truth
-from tests.support.goal_sets import GoalFamily, goal_family, goal_set_from_json
+from tests.support.goal_sets import goal_set_from_json
 
 SIZE = 160
 
@@ -186,20 +186,6 @@ def test_goal_set_json_round_trip():
     assert np.allclose(back.goals, gs.goals, atol=1e-6)
     assert np.array_equal(back.colors, gs.colors) and np.array_equal(back.regions, gs.regions)
     assert back.cost_history == gs.cost_history and back.params == gs.params
-
-
-def test_goal_family_adapts_to_the_number_of_robots():
-    fam = goal_family(shapes.draw("L", SIZE), [10, 20, 30], GoalOptions(seed=0))
-    assert fam.counts == [10, 20, 30]
-    assert all(len(fam.sets[r]) == r for r in fam.counts)
-    arenas = {fam.sets[r].arena for r in fam.counts}
-    assert len(arenas) == 1  # one display size for every set
-    assert all(fam.sets[r].min_spacing() >= 2 * 0.045 for r in fam.counts)
-    assert len(fam.for_robots(25)) == 20 and len(fam.for_robots(30)) == 30
-    with pytest.raises(GoalError):
-        fam.for_robots(5)
-    back = GoalFamily.from_json(fam.to_json())
-    assert back.counts == fam.counts and np.allclose(back.sets[20].goals, fam.sets[20].goals, atol=1e-6)
 
 
 def test_a_picture_with_few_pixels_a_goal_is_scaled_up_and_keeps_its_regions():

@@ -244,10 +244,13 @@ def test_time_to_converge():
     p3 = pose.copy()
     p3[40, 0, 0] = 0.8
     assert metrics.time_to_converge(t, p3, goal, tol) == pytest.approx(t[41])
-    # a new goal late in the run: converge to the new goal counts
+    # a new goal late in the run (robot 0's, 0.5 m back from k = 44): convergence waits for it
     g2 = goal.copy()
-    g2[45:, 0] = [1.0, 0.0]
-    assert metrics.time_to_converge(t, pose, g2, tol) == pytest.approx(t[30])
+    g2[44:, 0] = [0.5, 0.0]
+    assert metrics.time_to_converge(t, pose, g2, tol) is None  # robot 0 stays at its old goal
+    p4 = pose.copy()
+    p4[44:, 0, 0] = [0.8, 0.6, 0.5, 0.5, 0.5, 0.5]  # drives to the new one, there at k = 46
+    assert metrics.time_to_converge(t, p4, g2, tol) == pytest.approx(t[46])
     # no goals at all
     assert metrics.time_to_converge(t, pose, np.full((T, N, 2), np.nan), tol) is None
     # every goal gone at the end (robots that stand, waiting for a goal set): nothing is reached
