@@ -95,8 +95,8 @@ def test_the_auction_is_the_same_in_every_engine(tmp_path, shared_runs, scene, f
 @pytest.mark.parametrize(
     "scene, flags",
     [
-        ("picture", PICTURE_FLAGS),  # a cold start of many rounds, then warm blocks
-        ("story", STORY_FLAGS),  # into the second keyframe: its cold block spans ticks
+        ("picture", PICTURE_FLAGS),  # a cold start of many rounds, which still agrees within its tick
+        ("story", STORY_FLAGS),  # into the second keyframe: its warm blocks span ticks
     ],
 )
 def test_with_rounds_per_tick_bounded_blocks_span_ticks_and_every_engine_runs_the_same(
