@@ -330,9 +330,18 @@ def pytest_collection_modifyitems(config, items):
         grouped = item.__dict__.get("_nodeid")
         if NodeId is not None and isinstance(grouped, str) and grouped != item.nodeid:
             item._id = NodeId.parse(grouped)
+        _in_one_pass(item)
     rank = {nodeid: k for k, nodeid in enumerate(LONGEST_FIRST)}
     # stable: the rest keep their order (a node id without parameters, or loadgroup's @group)
     items.sort(key=lambda item: rank.get(item.nodeid.split("[")[0].split("@")[0], len(rank)))
+
+
+def _in_one_pass(item: pytest.Item) -> None:
+    """A wall-clock test is slow and either wall_clock or serial: else make test would run it in the fast
+    tier or the lock-step pass, beside other work, or in two passes (docs/testing.md)."""
+    wall = [name for name in ("wall_clock", "serial") if item.get_closest_marker(name)]
+    if wall and (len(wall) > 1 or not item.get_closest_marker("slow")):
+        raise pytest.UsageError(f"{item.nodeid}: mark a wall-clock test slow and one of wall_clock, serial")
 
 
 def assert_usage_error(tmp_path: Path, message: str, *args: str) -> None:
