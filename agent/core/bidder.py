@@ -19,7 +19,6 @@ from .bidding import NO_OWNER, Bidders, Heard, board_digest
 CONTENT, RELEASED, SETTLED = AuctionRecord.CONTENT, AuctionRecord.RELEASED, AuctionRecord.SETTLED
 CANDIDATES = 16  # goals a robot ranks while no other can beat them (agent.core.bidding)
 ROUNDS_PER_ROBOT = 100  # settle_alone's bound on a phase's rounds, per robot, and at least 100,000
-FIXED = 2.0**32  # _tilt_prices sums the robots' moves as whole multiples of 1 / FIXED m
 SMALL = 8  # members_only looks up the records of messages up to this size one by one (numpy costs more there)
 
 RECORD = Bid.RECORD  # one robot's word on one goal (goal -1: it holds none yet), as a Bid carries it
@@ -396,30 +395,20 @@ class Participant(Auction):
         self._freeze(first, positions, rank, tilt=True)
 
     def note_block_positions(self, robots: np.ndarray, position: np.ndarray) -> None:
-        """The current block's first round heard: these robots' frozen positions, rounded as records carry them."""
-        block = np.full((2, len(self.robots)), np.nan)  # x then y, by robot row
-        rows = self.own_rows if robots is self.own_ids else np.searchsorted(self.robots, robots)
-        block[:, rows] = np.asarray(position, np.float32).T
+        """The current block's first round heard: these robots' frozen positions, as records carry them."""
+        if robots is self.own_ids and len(self.own) == len(self.robots):  # every robot, by row
+            block = np.array(position, np.float32).reshape(-1, 2)
+        else:
+            block = np.full((len(self.robots), 2), np.nan, np.float32)  # NaN: not heard
+            block[self.own_rows if robots is self.own_ids else np.searchsorted(self.robots, robots)] = position
         self.block_positions = [*self.block_positions[-1:], block]
 
     def _tilt_prices(self) -> None:
         """Raise the prices by 2 d . g_j (less their least), d the robots' mean move between the last two
         blocks: a swarm that moves on as it moved shifts every robot's values so, and prices that follow
         spare the auction re-pricing goal by goal (docs/architecture.md, "Goal assignment"). Every host
-        computes it alike: from the records' positions, summed in fixed point, with no fused arithmetic."""
-        if len(self.block_positions) < 2:
-            return
-        before, last = self.block_positions
-        move = last - before
-        heard = ~np.isnan(move[0])  # in both blocks
-        if not heard.any():
-            return
-        # summed in whole units of 2^-32 m: the same bits on every host, whatever order its numpy adds in
-        dx, dy = np.rint(np.where(heard, move, 0.0) * FIXED).astype(np.int64).sum(axis=1) / (FIXED * heard.sum())
-        tilt = 2.0 * (self.goals[:, 0] * dx + self.goals[:, 1] * dy)
-        tilt -= tilt.min()
-        if tilt.any():
-            self.board.price += tilt  # in place: the compiled rounds hold the board's arrays
+        computes it alike, from the records' positions (Bidders.tilt_prices)."""
+        if len(self.block_positions) == 2 and self._bidders.tilt_prices(*self.block_positions):
             self.board.version += 1
 
     def round_records(self) -> np.ndarray:

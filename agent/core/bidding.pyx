@@ -6,7 +6,7 @@ round cheap (cached rankings, candidate goals, the goal tree): docs/architecture
 
 # cython: language_level=3
 
-from libc.math cimport INFINITY, NAN, fabs, sqrt
+from libc.math cimport INFINITY, NAN, fabs, isnan, rint, sqrt
 from libc.stdint cimport int32_t, int64_t, uint8_t, uint16_t, uint64_t
 from libc.string cimport memcpy
 from posix.time cimport CLOCK_MONOTONIC, clock_gettime, timespec
@@ -40,6 +40,7 @@ cdef uint8_t CONTENT = AuctionRecord.CONTENT, SETTLED = AuctionRecord.SETTLED
 # relative slack for a bid's rounding: a robot an ulp short of content with the goal it just won would
 # release it and bid again, feeding a price war at large warm prices
 cdef double ROUNDING = 1e-12
+cdef double FIXED = 2.0**32  # tilt_prices sums the robots' moves as whole multiples of 1 / FIXED m
 
 
 cdef enum Job:  # the state of settle_beside's thread
@@ -322,6 +323,31 @@ cdef class Bidders:
             if self.penalty_goal[a] == j:
                 return self.penalty_cost[a]
         return 0.0
+
+    def tilt_prices(self, const float[:, ::1] before, const float[:, ::1] last) -> bool:
+        """Raise the prices by 2 d . g_j less their least, d the robots' mean move from ``before`` to
+        ``last`` (positions by robot row, as the records carry them; NaN: not heard), summed in whole
+        units of 1 / FIXED m so that every host gets the same bits. True: a price changed."""
+        cdef int64_t sx = 0, sy = 0, heard = 0
+        cdef double dx, dy, least = INFINITY
+        cdef bint changed = False
+        cdef Py_ssize_t i, j
+        for i in range(last.shape[0]):
+            dx = <double>last[i, 0] - <double>before[i, 0]
+            if not isnan(dx):  # heard in both blocks
+                sx += <int64_t>rint(dx * FIXED)
+                sy += <int64_t>rint((<double>last[i, 1] - <double>before[i, 1]) * FIXED)
+                heard += 1
+        if heard == 0:
+            return False
+        dx, dy = sx / (FIXED * heard), sy / (FIXED * heard)
+        for j in range(self.g):
+            least = min(least, 2.0 * (self.gx[j] * dx + self.gy[j] * dy))
+        for j in range(self.g):
+            changed = changed or 2.0 * (self.gx[j] * dx + self.gy[j] * dy) != least
+        for j in range(self.g if changed else 0):
+            self.price[j] += 2.0 * (self.gx[j] * dx + self.gy[j] * dy) - least
+        return changed
 
     def freeze(self, position) -> None:
         """The robots' positions (K, 2) for the block."""
