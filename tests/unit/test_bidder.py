@@ -587,3 +587,27 @@ def test_a_swarm_that_moves_on_as_it_moved_needs_no_bid_to_re_price():
     np.testing.assert_allclose(part.board.price - price, tilt - tilt.min(), atol=1e-9)
     untilted.settle_alone(position + 2 * d)
     assert untilted.bids > 0
+
+
+def test_the_tilt_counts_only_the_robots_heard_in_both_blocks():
+    """d is the mean move of the robots whose first-round claims a host heard in both blocks (a lost claim
+    leaves its robot out); with none heard in both, the prices stay as they are."""
+    rng = np.random.default_rng(6)
+    n = 12
+    goals = rng.uniform(-2.0, 2.0, (n, 2))
+    first = rng.uniform(-3.0, 3.0, (n, 2))
+    second = first + rng.normal(0.0, 0.1, (n, 2))
+    for heard_first, heard_second, both in ((range(10), range(3, 12), range(3, 10)), (range(6), range(6, 12), [])):
+        part = Participant(1, goals, range(n), range(4), 1e-3, 5e-3)  # a host of 4 of the 12 robots
+        part.board.price[:] = rng.uniform(0.0, 1.0, n)
+        for heard, position in ((heard_first, first), (heard_second, second)):
+            robots = np.array(heard, np.int64)
+            part.note_block_positions(robots, position[robots])
+        price = part.board.price.copy()
+        part.begin_block(second)
+        rows = np.array(both, np.int64)
+        moved = second[rows].astype(np.float32).astype(float) - first[rows].astype(np.float32)
+        tilt = 2.0 * (goals @ moved.mean(axis=0)) if len(rows) else np.zeros(n)
+        np.testing.assert_allclose(part.board.price - price, tilt - tilt.min(), atol=1e-12)
+        if not len(rows):
+            assert (part.board.price == price).all()
