@@ -41,6 +41,9 @@ cdef uint8_t CONTENT = AuctionRecord.CONTENT, SETTLED = AuctionRecord.SETTLED
 # release it and bid again, feeding a price war at large warm prices
 cdef double ROUNDING = 1e-12
 cdef double FIXED = 2.0**32  # tilt_prices sums the robots' moves as whole multiples of 1 / FIXED m
+# the most a robot's move counts in tilt_prices (m): 65,536 robots' sum in fixed point stays within an int64,
+# whatever position a damaged record carries
+cdef double MOST_MOVE = 2.0**14
 
 
 cdef enum Job:  # the state of settle_beside's thread
@@ -326,17 +329,19 @@ cdef class Bidders:
 
     def tilt_prices(self, const float[:, ::1] before, const float[:, ::1] last) -> bool:
         """Raise the prices by 2 d . g_j less their least, d the robots' mean move from ``before`` to
-        ``last`` (positions by robot row, as the records carry them; NaN: not heard), summed in whole
-        units of 1 / FIXED m so that every host gets the same bits. True: a price changed."""
+        ``last`` (positions by robot row, as the records carry them; NaN: not heard), each within
+        MOST_MOVE, summed in whole units of 1 / FIXED m so that every host gets the same bits. True: a
+        price changed."""
         cdef int64_t sx = 0, sy = 0, heard = 0
         cdef double dx, dy, least = INFINITY
         cdef bint changed = False
         cdef Py_ssize_t i, j
         for i in range(last.shape[0]):
             dx = <double>last[i, 0] - <double>before[i, 0]
+            dy = <double>last[i, 1] - <double>before[i, 1]
             if not isnan(dx):  # heard in both blocks
-                sx += <int64_t>rint(dx * FIXED)
-                sy += <int64_t>rint((<double>last[i, 1] - <double>before[i, 1]) * FIXED)
+                sx += <int64_t>rint(min(max(dx, -MOST_MOVE), MOST_MOVE) * FIXED)
+                sy += <int64_t>rint(min(max(dy, -MOST_MOVE), MOST_MOVE) * FIXED)
                 heard += 1
         if heard == 0:
             return False

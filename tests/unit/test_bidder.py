@@ -611,3 +611,24 @@ def test_the_tilt_counts_only_the_robots_heard_in_both_blocks():
         np.testing.assert_allclose(part.board.price - price, tilt - tilt.min(), atol=1e-12)
         if not len(rows):
             assert (part.board.price == price).all()
+
+
+def test_a_damaged_position_moves_the_tilt_by_at_most_its_bound():
+    """A record can carry any finite float32 as its position: each robot's move counts toward d within
+    MOST_MOVE (2^14 m), so the fixed-point sum of even 65,536 robots stays an int64 and every host
+    gets the same, finite prices."""
+    rng = np.random.default_rng(7)
+    n = 4
+    goals = rng.uniform(-2.0, 2.0, (n, 2))
+    first = rng.uniform(-3.0, 3.0, (n, 2))
+    second = first + rng.normal(0.0, 0.1, (n, 2))
+    second[0] = np.finfo(np.float32).max, -np.finfo(np.float32).max  # robot 0's claim, damaged yet finite
+    part = Participant(1, goals, range(n), [], 1e-3, 5e-3)  # a host that hears every robot's claims
+    for position in (first, second):
+        part.note_block_positions(np.arange(n), position)
+    price = part.board.price.copy()
+    part.begin_block({})
+    moved = np.clip(second.astype(np.float32).astype(float) - first.astype(np.float32), -(2.0**14), 2.0**14)
+    tilt = 2.0 * (goals @ moved.mean(axis=0))
+    assert np.isfinite(part.board.price).all()
+    np.testing.assert_allclose(part.board.price - price, tilt - tilt.min(), rtol=1e-12, atol=1e-9)
