@@ -333,8 +333,7 @@ cdef class Bidders:
         MOST_MOVE, summed in whole units of 1 / FIXED m so that every host gets the same bits. True: a
         price changed."""
         cdef int64_t sx = 0, sy = 0, heard = 0
-        cdef double dx, dy, least = INFINITY
-        cdef bint changed = False
+        cdef double dx, dy, tilt, least = INFINITY, most = -INFINITY
         cdef Py_ssize_t i, j
         for i in range(last.shape[0]):
             dx = <double>last[i, 0] - <double>before[i, 0]
@@ -347,12 +346,13 @@ cdef class Bidders:
             return False
         dx, dy = sx / (FIXED * heard), sy / (FIXED * heard)
         for j in range(self.g):
-            least = min(least, 2.0 * (self.gx[j] * dx + self.gy[j] * dy))
+            tilt = 2.0 * (self.gx[j] * dx + self.gy[j] * dy)
+            least, most = min(least, tilt), max(most, tilt)
+        if not most > least:  # every goal raised alike: no price changes
+            return False
         for j in range(self.g):
-            changed = changed or 2.0 * (self.gx[j] * dx + self.gy[j] * dy) != least
-        for j in range(self.g if changed else 0):
             self.price[j] += 2.0 * (self.gx[j] * dx + self.gy[j] * dy) - least
-        return changed
+        return True
 
     def freeze(self, position) -> None:
         """The robots' positions (K, 2) for the block."""
