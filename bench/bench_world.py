@@ -137,7 +137,7 @@ def main() -> None:
 
 # Runs in the tree being measured (its own agent and sim): only what both sides of a comparison have.
 NEIGHBOUR_TIMINGS = r"""
-import json, sys, time
+import inspect, json, sys, time
 import numpy as np
 try:  # CentralOrca was agent.core.rvo before it moved to sim
     from sim.central.rvo import CentralOrca
@@ -192,8 +192,15 @@ for s in (14, 200):
     table = NeighbourTable(0.1)
     for r in range(1, s + 1):
         table.update(State(r, 1, 0.1, float(p[r, 0]), float(p[r, 1]), 0.0, 0.0, 0.045, 0.0, 0.0, -1, 0, 0, 0))
-    out[f"agent: one robot's gather among {s} states"] = timed(
-        lambda: table.gather([0], p[:1], 0.2, 2, 1.2, 16))
+    if "sensed" in inspect.signature(NeighbourTable.gather).parameters:  # what the robot senses, as one
+        from agent.core.params import RobotParams
+        from agent.loop import Sensed
+        one = Sensed(np.zeros(1, np.int64), p[:1], np.zeros(1), 2, 0.2, RobotParams(neighbour_dist=1.2,
+                     max_neighbours=16), np.zeros(1, bool))
+        gather = lambda: table.gather(one, 1.2, {}, None)
+    else:
+        gather = lambda: table.gather([0], p[:1], 0.2, 2, 1.2, 16)
+    out[f"agent: one robot's gather among {s} states"] = timed(gather)
 print(json.dumps(out))
 """
 

@@ -19,3 +19,12 @@ def test_a_benchmark_imports_and_says_how_to_run_it(name):
     assert f"python -m bench.{name}" in doc or f"bench/{name}.py" in doc, (
         f"bench/{name}.py: no command line in its docstring"
     )
+
+
+def test_the_neighbour_timings_run_on_this_tree():
+    """bench_world --neighbours runs its timings as a script, in a fresh process per tree: an API it calls that
+    changed shows only when the script runs (``gather`` took a Sensed long before anyone noticed)."""
+    from bench.bench_world import neighbour_timings
+
+    figures = neighbour_timings(REPO, 1)
+    assert len(figures) == 10 and all(ms > 0 for ms in figures.values()), figures
