@@ -92,7 +92,8 @@ def tick(robots: Robots, sensed: Sensed, seams: Seams) -> Decision:
     for b in np.flatnonzero(decision.deadlocked).tolist():  # paper 5.5.5: C_d on this goal for good
         epoch, goal = decision.intent.key[b].tolist()
         seams.auction.penalise(int(sensed.ids[b]), epoch, goal)
-    decision.memory.velocity[sensed.braking] = 0.0  # v_opt of a braking robot: it stands
+    braked = sensed.braking  # it stands: its v_opt is zero, yet it chose no standstill (its last choice stays)
+    decision.memory.velocity[braked], decision.memory.chosen[braked] = 0.0, memory.chosen[braked]
     robots.policy_memory.put(rows, decision.memory)
     seams.link.send(sensed, decision)
     return decision

@@ -44,6 +44,9 @@ class Memory(Rows):
     hold_for: np.ndarray  # (B,2) (epoch, goal index) the hold was started for
     blocked: np.ndarray  # (B,) consecutive blocked iterations (deadlock detection)
     latency: np.ndarray  # (B,) s: how old the freshest neighbour state was when last heard (heard_speed_limit)
+    # (B,2) v_cf as ORCA last chose it on a pose the robot trusted (agent.loop.tick keeps it through a brake):
+    # whether it barely moves (the standoff's turn right) reads this, so a brake on a tracker glitch is no standoff
+    chosen: np.ndarray
 
     @classmethod
     def new(cls, batch: int, latency: float = 0.0) -> Memory:
@@ -54,6 +57,7 @@ class Memory(Rows):
             hold_for,
             np.zeros(batch, np.int64),
             np.full(batch, latency),
+            np.zeros((batch, 2)),
         )
 
 
@@ -143,14 +147,14 @@ def act(
         latency = np.where(np.isfinite(freshest), np.maximum(freshest, 0.0), memory.latency)
         # for the preferred velocity and ORCA's (avoiding, it may choose one faster than the preferred)
         cap = heard_speed_limit(params, reach, latency)
-    own = OwnStates(robot_ids, position, heading, memory.velocity, intent.goal, intent.preferred, cap)
+    own = OwnStates(robot_ids, position, heading, memory.velocity, intent.goal, intent.preferred, cap, memory.chosen)
     res = control_step(params, own, neighbours, around)
     counts, deadlocked = memory.blocked, np.zeros(len(position), bool)
     if around.watch_deadlocks and params.deadlock_cost > 0:
         to_goal = np.where((intent.key[:, 1] >= 0)[:, None], intent.goal - position, np.nan)
         now = blocked(params, to_goal, res.pref_velocity, res.velocity)
         counts, deadlocked = count_blocked(counts, now, params.deadlock_iterations)
-    new_memory = Memory(res.velocity.copy(), intent.hold_left, intent.hold_for, counts, latency)
+    new_memory = Memory(res.velocity.copy(), intent.hold_left, intent.hold_for, counts, latency, res.velocity.copy())
     return Decision(intent, res, new_memory, deadlocked)
 
 

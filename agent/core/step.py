@@ -146,6 +146,7 @@ class OwnStates:
     # (B,2): finite rows replace eq. 9 (eq. 27's hold; a moving goal's feed-forward, eq. 28)
     preferred: np.ndarray | None = None
     speed_cap: np.ndarray | None = None  # (B,) m/s its preferred and new velocities keep within (None: v_max)
+    chosen: np.ndarray | None = None  # (B,2) whether it barely moves reads this (policy.Memory.chosen; None: velocity)
 
 
 def control_step(
@@ -153,8 +154,9 @@ def control_step(
 ) -> StepResult:
     """Paper 5.2-5.4 for a batch: preferred velocity (eq. 9), ORCA or NH-ORCA, controls."""
     core = settings_of(params)
+    moved = own.velocity if own.chosen is None else own.chosen
     pref = preferred_velocities(
-        core, own.ids, own.position, own.velocity, own.goal, own.preferred, around.seed, around.tick, own.speed_cap
+        core, own.ids, own.position, moved, own.goal, own.preferred, around.seed, around.tick, own.speed_cap
     )
     robots = Batch(own.position, own.velocity, pref, own.heading, params.radius, cap=own.speed_cap)
     v_cf, command, fallback, _, _ = step(core, robots, neighbours, around.segments, around.threads)

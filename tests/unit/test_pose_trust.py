@@ -363,3 +363,54 @@ def test_a_late_copy_of_a_pose_far_from_where_the_robot_drove_is_refused_without
         intake.drove(tick, [[0.0, 0.0]], [command(tick)])
     assert intake.take(at(21, 0.5), lambda: 21) == CONFLICTING  # tick 20's, again under tick 21
     assert not intake.doubts(at(22, 0.5))
+
+
+class _OneRobot:
+    """agent.loop's seams for one holonomic robot with a goal 1 m ahead, alone: nobody heard, no auction."""
+
+    def __init__(self) -> None:
+        from agent.core.params import EPUCK
+        from agent.core.policy import Memory
+
+        self.params = dataclasses.replace(EPUCK, kinematics="holonomic")
+        self.policy_memory, self.timing = Memory.new(1), {}
+
+    def rows(self, ids):
+        return slice(None)
+
+    def goals(self, sensed):
+        return np.array([[1.0, 0.0]]), np.array([[1, 0]])
+
+    def neighbours(self, sensed):
+        from agent.core.step import NeighbourStates
+
+        return NeighbourStates.empty(1)
+
+    def send(self, sensed, decision) -> None:
+        pass
+
+    active = False
+
+    def step(self, sensed) -> None:
+        pass
+
+    def settled_beside(self) -> bool:
+        return False
+
+
+def test_a_robot_braked_on_a_glitch_drives_on_toward_its_goal_not_turning_as_from_a_standoff():
+    """A brake stands the robot (its v_opt is zero), yet it is no standoff: once it trusts its pose again it heads
+    for its goal, where a robot that starts from rest turns right first (agent.core.control's standoff turn)."""
+    from agent.loop import Seams, Sensed, tick
+
+    robot = _OneRobot()
+    seams = Seams(robot, robot, None, seed=1)
+    for k, braking in enumerate([False, False, False, True, False]):
+        sensed = Sensed(np.array([0]), np.zeros((1, 2)), np.zeros(1), k, k * 0.1, robot.params, np.array([braking]))
+        decision = tick(robot, sensed, seams)
+        heading = math.degrees(math.atan2(*decision.step.pref_velocity[0][::-1]))
+        if k == 0:
+            assert heading == pytest.approx(-45.0, abs=0.1)  # from rest: the standoff turn
+        if k == 3:
+            assert np.all(robot.policy_memory.velocity == 0.0)  # braked: it stands
+    assert heading == pytest.approx(0.0, abs=0.1)  # after the brake: straight for its goal
