@@ -223,7 +223,8 @@ GLITCH_AT, GLITCH_ROBOT = 3.0, 1
 @pytest.mark.parametrize("kinematics", ["holonomic", "diffdrive"])
 def test_a_swapped_marker_on_the_simulated_tracker_brakes_the_robot_without_contact_or_detour(tmp_path, kinematics):
     """The world's tracker reports one robot 0.5 m off for one tick, on top of another robot: the
-    robot brakes for that tick, resumes, and its path is the path of the same run without the glitch."""
+    robot brakes for that tick, resumes as it was driving (no standoff turn: 10 mm off its path before),
+    and its path is the path of the same run without the glitch."""
     events = f'[[events]]\nkind = "tracker-glitch"\nt = {GLITCH_AT}\nrobot = {GLITCH_ROBOT}\noffset = [0.5, 0.0]'
     # the two at once: a lock-step run is the same run beside another, and its four agents wait on
     # each other's messages more than they compute
@@ -245,7 +246,7 @@ def test_a_swapped_marker_on_the_simulated_tracker_brakes_the_robot_without_cont
     path = glitched["pose"][:, GLITCH_ROBOT, :2]
     reference = clean["pose"][:, GLITCH_ROBOT, :2]
     off_path = np.min(np.hypot(*(path[:, None, :] - reference[None, :, :]).transpose(2, 0, 1)), axis=1)
-    assert off_path.max() < 0.02, f"a detour of {off_path.max():.3f} m"
+    assert off_path.max() < 0.007, f"a detour of {off_path.max():.4f} m"
 
 
 def test_a_pose_off_the_arena_is_refused_and_a_far_position_has_a_cell():
