@@ -223,7 +223,7 @@ GLITCH_AT, GLITCH_ROBOT = 3.0, 1
 @pytest.mark.parametrize("kinematics", ["holonomic", "diffdrive"])
 def test_a_swapped_marker_on_the_simulated_tracker_brakes_the_robot_without_contact_or_detour(tmp_path, kinematics):
     """The world's tracker reports one robot 0.5 m off for one tick, on top of another robot: the
-    robot brakes for that tick, resumes as it was driving (no standoff turn: 10 mm off its path before),
+    robot brakes for that tick, resumes as it was driving (a standoff turn would take it 10 mm off),
     and its path is the path of the same run without the glitch."""
     events = f'[[events]]\nkind = "tracker-glitch"\nt = {GLITCH_AT}\nrobot = {GLITCH_ROBOT}\noffset = [0.5, 0.0]'
     # the two at once: a lock-step run is the same run beside another, and its four agents wait on
