@@ -332,19 +332,38 @@ def unheard(const int64_t[:] robots, const double[:, :] position, const double[:
         ordered = ordered and (i == 0 or robots[i - 1] <= robots[i])
     if not ordered:  # the central engine hears every robot in id order
         qsort(rows, s, sizeof(Keyed), _by_robot)
+    lo = 0
     for i in range(b):
-        lo, hi = 0, s  # the first row of the body's robot
-        while lo < hi:
-            mid = (lo + hi) // 2
-            if rows[mid].robot < body[i]:
-                lo = mid + 1
-            else:
-                hi = mid
+        # the first row of the body's robot: a tracker's frame comes in id order, so most often a step on
+        # from the last body's, else a binary search
+        if i == 0 or body[i] < body[i - 1]:
+            lo = 0
+        hi = lo + 2
+        while lo < s and rows[lo].robot < body[i] and lo < hi:
+            lo += 1
+        if lo < s and rows[lo].robot < body[i]:
+            hi = s
+            while lo < hi:
+                mid = (lo + hi) // 2
+                if rows[mid].robot < body[i]:
+                    lo = mid + 1
+                else:
+                    hi = mid
         if lo == s or rows[lo].robot != body[i]:
             continue
         k = rows[lo].row
         age = stamp - stamps[k]
-        if age <= stale_after and hypot(bx[i] - position[k, 0], by[i] - position[k, 1]) <= v_max * max(age, 0.0) + radius:
+        if age <= stale_after and within(bx[i] - position[k, 0], by[i] - position[k, 1], v_max * max(age, 0.0) + radius):
             o[i] = 0
     free(rows)
     return out
+
+
+cdef inline bint within(double dx, double dy, double limit) noexcept nogil:
+    """hypot(dx, dy) <= limit, from the squares where they decide it beyond their rounding (hypot is slow)."""
+    cdef double d2 = dx * dx + dy * dy, l2 = limit * limit
+    if l2 >= 1e-200 and d2 <= l2 * (1.0 - 1e-9):
+        return True
+    if l2 >= 1e-200 and d2 >= l2 * (1.0 + 1e-9):
+        return False
+    return hypot(dx, dy) <= limit
