@@ -15,7 +15,7 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, BinaryIO, NamedTuple, TextIO, TypedDict, Unpack
+from typing import Any, NamedTuple, TextIO, TypedDict, Unpack
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -41,7 +41,7 @@ from sim.central.link import InProcessLink
 from sim.central.stepclock import StepClock
 from sim.outputs.metrics import lockstep_waits_given_up
 from sim.outputs.rundir import RunDir
-from sim.outputs.stream import ROWS, SCRATCH, OnDisk, TickRecorder
+from sim.outputs.stream import ROWS, SCRATCH, TickRecorder
 from sim.outputs.write import RunOutcome, goal_set_arrays, write_run
 from sim.processes import handling_signals
 from transport.codec import START_TICK, Goals, State, as_sent, decode
@@ -145,8 +145,8 @@ class Outcome(NamedTuple):
 AGREEMENT_ROWS = {"assignment_epoch": ((), np.int64), "assignment_instance": ((), np.int64)}
 
 
-AGREED = {"agreement_positions": (2,), "agreement_penalties": ()}  # per agreement and robot, float64
-AGREEMENTS_BUFFER = 1 << 20  # bytes of a streamed agreement file held before they are written
+# per agreement and robot (a TickRecorder's layout: an agreement streams as a tick's rows)
+AGREED = {"agreement_positions": ((2,), np.float64), "agreement_penalties": ((), np.float64)}
 
 
 @dataclass
@@ -162,18 +162,16 @@ class Agreements:
     # per agreement the positions each robot bid from (N,2) and the C_d in force on its goal (N,), NaN: none;
     # held here unless streamed to ``directory``
     held: dict[str, list[np.ndarray]] = field(default_factory=lambda: {name: [] for name in AGREED})
-    directory: Path | None = None
-    files: dict[str, BinaryIO] = field(default_factory=dict)  # streamed: the raw files, open until ``arrays``
+    stream: TickRecorder | None = None  # streamed: the rows of agreement k as those of a tick k
     last: tuple[tuple[int, int], dict[str, np.ndarray]] | None = None  # the newest, which one of its key may replace
     solves: int = 0  # the optimal assignment's solves (its instances)
     instance: int = 0  # the agreement the robots' goals are from now (State.CARRIED: the warm start's, never agreed)
     penalties: int = 0  # deadlock penalties charged in the auction (paper 5.5.5)
 
-    def stream_to(self, directory: Path | None) -> None:
-        """Agreements from now on into raw files in ``directory`` (made by the run's TickRecorder); None: held."""
-        self.directory = directory
-        if directory is not None:  # an agreement a tick, as large as a tick's poses: buffered, not a write each
-            self.files = {name: open(directory / f"{name}.raw", "wb", buffering=AGREEMENTS_BUFFER) for name in AGREED}
+    def stream_to(self, directory: Path | None, most: int) -> None:
+        """At most ``most`` agreements from now on into raw files in ``directory``, written a chunk at a time
+        on a thread as the ticks' rows are (an agreement a tick is as large as a tick's poses); None: held."""
+        self.stream = None if directory is None else TickRecorder(most, self.robots, directory, AGREED)
 
     def agree(self, epoch: int, instance: int, robots: np.ndarray, position: np.ndarray, penalty: np.ndarray) -> None:
         """Agreement ``instance`` of goal set ``epoch``, the robots' goals from now: ``robots`` bid from
@@ -191,11 +189,11 @@ class Agreements:
 
     def _keep(self, key: tuple[int, int], rows: dict[str, np.ndarray]) -> None:
         self.keys.append(key)
+        if self.stream is not None:
+            self.stream.record(len(self.keys) - 1, 0.0, 0, tuple(rows.values()))
+            return
         for name, row in rows.items():
-            if self.files:
-                self.files[name].write(row.data.cast("B"))
-            else:
-                self.held[name].append(row)
+            self.held[name].append(row)
 
     def arrays(self, step: np.ndarray) -> dict[str, Any]:
         """trajectory.npz's goal-set and agreement arrays (sim.outputs.recorder makes the same of the bus), by
@@ -203,19 +201,17 @@ class Agreements:
         if self.last is not None:
             self._keep(*self.last)
             self.last = None
-        for file in self.files.values():
-            file.close()  # written out before OnDisk reads them
+        streamed = None if self.stream is None else self.stream.arrays(len(self.keys))  # written out: OnDisk reads them
         if not self.goal_sets:
             return {}
         n, at = self.robots, {key: k for k, key in enumerate(self.keys)}  # the last of a key made twice
         order = [at[key] for key in sorted(at)]
         out = {"goal_set_epoch": np.asarray(step) + 1, "agreements": np.array(sorted(at), np.int64).reshape(-1, 2)}
-        for name, shape in AGREED.items():
-            made = (len(self.keys), n, *shape)
-            if self.directory is not None:
-                rows: Any = OnDisk(self.directory / f"{name}.raw", np.float64, made)
+        for name, (shape, _) in AGREED.items():
+            if streamed is not None:
+                rows: Any = streamed[name]
             else:
-                rows = np.array(self.held[name], float).reshape(made)
+                rows = np.array(self.held[name], float).reshape(len(self.keys), n, *shape)
             out[name] = rows if order == list(range(len(self.keys))) else np.asarray(rows)[order]
         return out | goal_set_arrays(self.goal_sets, n)
 
@@ -500,7 +496,7 @@ def simulate(
     events = sorted(scene.events, key=lambda e: e["t"])
     steps, last_step = round(scene.duration / params.dt), max(len(scene.steps) - 1, 0)
     rec = TickRecorder(steps + 1, scene.robots, scratch, ROWS | AGREEMENT_ROWS if scene.steps else ROWS)
-    auction.agreements.stream_to(scratch)
+    auction.agreements.stream_to(scratch, 2 * (steps + 1) + 1)  # a tick agrees once, or twice: a cold start, then beside
     converged = Convergence(scene.converge_hold if scene.ends_on_convergence else None)
     fallbacks, end_reason = 0, "duration"
     wall0 = last_say = time.time()

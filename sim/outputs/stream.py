@@ -75,7 +75,7 @@ class TickRecorder:
 
     def record(self, tick: int, t: float, step: int, rows: tuple[np.ndarray, ...]) -> dict[str, np.ndarray]:
         """Records a tick (in order from 0), its rows in the order of ``layout``; returns them as recorded."""
-        if self.directory is not None and self.filled == len(self.rows["pose"]):
+        if self.directory is not None and self.filled == len(next(iter(self.rows.values()))):  # the chunk is full
             self._append()
         self.t[tick], self.step[tick] = t, step
         at = self.filled if self.directory is not None else tick

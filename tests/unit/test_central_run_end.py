@@ -56,7 +56,7 @@ def test_agreements_streamed_to_a_directory_are_those_held_in_memory_by_epoch_an
     for streamed in (False, True):
         agreements = Agreements(3, goal_sets={1: Goals(1, 1, np.zeros((2, 2)), robots=np.array([0, 2]))})
         if streamed:
-            agreements.stream_to(tmp_path)
+            agreements.stream_to(tmp_path, len(made))
         for (epoch, instance), x in made:
             agreements.agree(epoch, instance, np.array([0, 2]), np.full((2, 2), x), np.array([x, 0.0]))
         arrays = agreements.arrays(np.zeros(4, np.int64))
