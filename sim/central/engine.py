@@ -496,7 +496,9 @@ def simulate(
     events = sorted(scene.events, key=lambda e: e["t"])
     steps, last_step = round(scene.duration / params.dt), max(len(scene.steps) - 1, 0)
     rec = TickRecorder(steps + 1, scene.robots, scratch, ROWS | AGREEMENT_ROWS if scene.steps else ROWS)
-    auction.agreements.stream_to(scratch, 2 * (steps + 1) + 1)  # a tick agrees once, or twice: a cold start, then beside
+    auction.agreements.stream_to(
+        scratch, 2 * (steps + 1) + 1
+    )  # a tick agrees once, or twice: a cold start, then beside
     converged = Convergence(scene.converge_hold if scene.ends_on_convergence else None)
     fallbacks, end_reason = 0, "duration"
     wall0 = last_say = time.time()
