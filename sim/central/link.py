@@ -104,9 +104,10 @@ class InProcessLink:
     def _bodies(self, sensed: Sensed) -> np.ndarray:
         """Where the tracker sees the agents' robots (not the scripted movers), as the Poses records of its
         frames: ``sensed`` holds every robot, rows by id."""
-        t = cast(Heard, self._template)
-        robots = t.ids[t.cooperative]
-        return Poses.records_of(robots, sensed.position[np.searchsorted(sensed.ids, robots)])
+        t = cast(Heard, self._template)  # rows by id too
+        if t.cooperative.all():  # no scripted mover
+            return Poses.records_of(t.ids, sensed.position)
+        return Poses.records_of(t.ids[t.cooperative], sensed.position[t.cooperative])
 
     @property
     def heard_on_time(self) -> float:
