@@ -168,9 +168,10 @@ class Agreements:
     instance: int = 0  # the agreement the robots' goals are from now (State.CARRIED: the warm start's, never agreed)
     penalties: int = 0  # deadlock penalties charged in the auction (paper 5.5.5)
 
-    def stream_to(self, directory: Path | None, most: int) -> None:
-        """At most ``most`` agreements from now on into raw files in ``directory``, written a chunk at a time
-        on a thread as the ticks' rows are (an agreement a tick is as large as a tick's poses); None: held."""
+    def stream_to(self, directory: Path | None, ticks: int) -> None:
+        """The agreements of ``ticks`` ticks from now on into raw files in ``directory``, written a chunk at a
+        time on a thread as the ticks' rows are (an agreement a tick is as large as a tick's poses); None: held."""
+        most = 2 * ticks + 1  # a tick agrees once, or twice: a cold start, then beside; and the last is kept at the end
         self.stream = None if directory is None else TickRecorder(most, self.robots, directory, AGREED)
 
     def agree(self, epoch: int, instance: int, robots: np.ndarray, position: np.ndarray, penalty: np.ndarray) -> None:
@@ -496,9 +497,7 @@ def simulate(
     events = sorted(scene.events, key=lambda e: e["t"])
     steps, last_step = round(scene.duration / params.dt), max(len(scene.steps) - 1, 0)
     rec = TickRecorder(steps + 1, scene.robots, scratch, ROWS | AGREEMENT_ROWS if scene.steps else ROWS)
-    auction.agreements.stream_to(
-        scratch, 2 * (steps + 1) + 1
-    )  # a tick agrees once, or twice: a cold start, then beside
+    auction.agreements.stream_to(scratch, steps + 1)
     converged = Convergence(scene.converge_hold if scene.ends_on_convergence else None)
     fallbacks, end_reason = 0, "duration"
     wall0 = last_say = time.time()

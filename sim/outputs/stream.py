@@ -14,7 +14,7 @@ import numpy as np
 FLOAT32_FROM = 3000
 PER_TICK = ("pose", "velocity", "goal")  # (T, N, ...) float arrays
 SCRATCH = ".ticks"  # in a partial run directory: the streamed recording's raw files
-CHUNK_BYTES = 1 << 21  # a chunk of ticks held before it is appended to the files (two are held, reused: few pages first touched)
+CHUNK_BYTES = 1 << 21  # a chunk of ticks held before it is appended to the files (two, reused soon)
 
 # the recorded arrays: each robot's shape and type of a tick (t and step: one per tick, held in memory)
 ROWS: dict[str, tuple[tuple[int, ...], Any]] = {
