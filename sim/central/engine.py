@@ -160,7 +160,7 @@ class Agreements:
     goal_sets: dict[int, Goals] = field(default_factory=dict)
     keys: list[tuple[int, int]] = field(default_factory=list)  # (epoch, instance) of each agreement, as made
     # per agreement the positions each robot bid from (N,2) and the C_d in force on its goal (N,), NaN: none;
-    # held here unless streamed to ``directory``
+    # held here unless streamed (``stream_to``)
     held: dict[str, list[np.ndarray]] = field(default_factory=lambda: {name: [] for name in AGREED})
     stream: TickRecorder | None = None  # streamed: the rows of agreement k as those of a tick k
     last: tuple[tuple[int, int], dict[str, np.ndarray]] | None = None  # the newest, which one of its key may replace
