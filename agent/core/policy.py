@@ -151,7 +151,8 @@ def act(
     res = control_step(params, own, neighbours, around)
     counts, deadlocked = memory.blocked, np.zeros(len(position), bool)
     if around.watch_deadlocks and params.deadlock_cost > 0:
-        to_goal = np.where((intent.key[:, 1] >= 0)[:, None], intent.goal - position, np.nan)
+        to_goal = intent.goal - position
+        to_goal[intent.key[:, 1] < 0] = np.nan  # a goal of no goal set (sent, not auctioned): no deadlock there
         now = blocked(params, to_goal, res.pref_velocity, res.velocity)
         counts, deadlocked = count_blocked(counts, now, params.deadlock_iterations)
     new_memory = Memory(res.velocity.copy(), intent.hold_left, intent.hold_for, counts, latency, res.velocity.copy())

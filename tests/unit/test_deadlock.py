@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
+import math
+
 import numpy as np
 
 from agent.core.control import blocked
@@ -17,6 +20,21 @@ def test_blocked_only_near_the_goal_and_not_on_it() -> None:
     to_goal = np.array([[0.005, 0.0], [0.1, 0.0], [1.0, 0.0], [np.nan, np.nan]])  # on it, near, far, no goal
     assert blocked(P, to_goal, pref, stuck).tolist() == [False, True, False, False]
     assert not blocked(P, to_goal, pref, pref).any()  # moving as it prefers: not blocked
+
+
+def test_a_robot_a_few_ulps_either_side_of_the_goal_tolerance_or_the_near_bound_is_judged_by_its_distance() -> None:
+    """Near its goal means goal_tolerance < hypot <= deadlock_near, as math.hypot has it, however close to either
+    bound, and for bounds too small to square (blocked reads squares first where they decide it)."""
+    rng = np.random.default_rng(5)
+    for tolerance, near in ((P.goal_tolerance, P.deadlock_near), (1e-170, 1e-160)):
+        params = dataclasses.replace(P, goal_tolerance=tolerance, deadlock_near=near)
+        lengths = [r * (1.0 + s) for r in (tolerance, near) for s in (-1e-10, -2e-16, 0.0, 2e-16, 1e-10)]
+        angles = rng.uniform(0, 2 * math.pi, len(lengths))
+        to_goal = np.column_stack([np.multiply(lengths, np.cos(angles)), np.multiply(lengths, np.sin(angles))])
+        expected = [tolerance < math.hypot(x, y) <= near for x, y in to_goal.tolist()]
+        pref, stuck = np.tile([1.0, 0.0], (len(lengths), 1)), np.zeros((len(lengths), 2))
+        assert blocked(params, to_goal, pref, stuck).tolist() == expected
+        assert 0 < sum(expected) < len(expected)
 
 
 def test_a_robot_slowed_by_a_crowd_but_making_headway_is_not_blocked() -> None:
