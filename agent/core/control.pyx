@@ -10,6 +10,7 @@ from libc.stdint cimport int64_t, uint64_t
 from libc.stdlib cimport free, malloc
 from libc.string cimport memset
 
+from agent.core.distance cimport against
 from agent.core.splitmix cimport splitmix64
 from agent.core.crew cimport MAX_HANDS, most_hands, share_rows
 
@@ -925,9 +926,8 @@ def blocked(params, to_goal, pref_velocity, velocity):
     out = np.zeros(b, bool)
     cdef unsigned char[::1] o = out.view(np.uint8)
     for i in range(b):
-        # most robots are far from their goal or on it: the squares tell, where rounding cannot change the answer
-        d = g[i, 0] * g[i, 0] + g[i, 1] * g[i, 1]
-        if near * near >= 1e-200 and d > near * near * (1.0 + 1e-9) or far_inside(d, tolerance):
+        d = g[i, 0] * g[i, 0] + g[i, 1] * g[i, 1]  # most robots are far from their goal or on it
+        if against(d, near) > 0 or against(d, tolerance) < 0:
             continue
         d = hypot(g[i, 0], g[i, 1])
         if not (isfinite(d) and d > tolerance and d <= near):
@@ -936,11 +936,6 @@ def blocked(params, to_goal, pref_velocity, velocity):
         headway = (v[i, 0] * g[i, 0] + v[i, 1] * g[i, 1]) / d
         o[i] = gap > speed and headway < speed
     return out
-
-
-cdef inline bint far_inside(double d2, double r) noexcept nogil:
-    """d2 (a squared distance) is well within r: hypot would say so too."""
-    return r * r >= 1e-200 and d2 <= r * r * (1.0 - 1e-9)
 
 
 def step_known(Settings settings, Batch robots, index, segments=None, out=None):

@@ -15,6 +15,7 @@ from libc.stdint cimport int64_t
 from libc.stdlib cimport calloc, free, malloc, qsort
 
 from agent.core.crew cimport most_hands, share_rows
+from agent.core.distance cimport against
 
 import numpy as np
 
@@ -360,10 +361,6 @@ def unheard(const int64_t[:] robots, const double[:, :] position, const double[:
 
 
 cdef inline bint within(double dx, double dy, double limit) noexcept nogil:
-    """hypot(dx, dy) <= limit, from the squares where they decide it beyond their rounding (hypot is slow)."""
-    cdef double d2 = dx * dx + dy * dy, l2 = limit * limit
-    if l2 >= 1e-200 and d2 <= l2 * (1.0 - 1e-9):
-        return True
-    if l2 >= 1e-200 and d2 >= l2 * (1.0 + 1e-9):
-        return False
-    return hypot(dx, dy) <= limit
+    """hypot(dx, dy) <= limit."""
+    cdef int side = against(dx * dx + dy * dy, limit)
+    return side < 0 if side else hypot(dx, dy) <= limit
