@@ -192,10 +192,11 @@ def test_the_bodies_a_robot_has_not_heard_are_found_among_a_thousand_in_any_orde
 
 def test_a_body_on_the_edge_of_where_its_robot_could_have_driven_is_judged_as_by_hypot():
     """unheard decides from squared distances only where rounding cannot change the answer: states a few ulps
-    either side of the bound, and distances and bounds too small to square, are judged as math.hypot judges them."""
+    either side of the bound, and distances and bounds too small or too large to square, are judged as math.hypot
+    judges them."""
     rng, body = np.random.default_rng(3), np.zeros(1, Poses.RECORD)  # robot 0's body at the origin
     cases = 0
-    for radius in (0.5, 1e-3, 1e-120, 1e-170, 0.0):  # v_max = 0: the bound is the radius
+    for radius in (0.5, 1e-3, 1e-120, 1e-170, 0.0, 1e160):  # v_max = 0: the bound is the radius
         for scale in (1.0 - 1e-15, 1.0 - 1e-10, 1.0, 1.0 + 1e-15, 1.0 + 1e-10, 1e-150, 3e-160):
             angle = rng.uniform(0, 2 * math.pi)
             length = radius * scale if radius else scale * 1e-160
@@ -203,7 +204,7 @@ def test_a_body_on_the_edge_of_where_its_robot_could_have_driven_is_judged_as_by
             heard = unheard(np.array([0]), state, np.array([1.0]), body, 1.0, 0.5, 0.0, radius)[0]
             assert heard == (not math.hypot(*state[0]) <= radius), (radius, scale)
             cases += 1
-    assert cases == 35
+    assert cases == 42
 
 
 def test_a_host_keeps_the_trackers_frames_near_the_tick_it_steps_whatever_else_comes():
