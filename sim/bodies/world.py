@@ -155,6 +155,7 @@ class World:
         self._watch = _ContactWatch(radius, arena, polygons)
         self._check_start = False
         self.last_substeps = 0  # number of substeps the last step() ran
+        self._substep_times: tuple[tuple[float, int], np.ndarray] = ((math.nan, 0), np.zeros(0))  # (dt, k), its times
         self._unchecked: tuple | None = None  # a step whose contacts are not yet detected (step(check=False))
         self._step_min_clearance = self._watch.detect(self._m.pos[None], np.zeros(1), 0.0, first_row=0)[1]
 
@@ -267,7 +268,9 @@ class World:
         before = self.check()
         k = max(1, math.ceil(dt / self.substep - 1e-9))
         h = dt / k
-        tk = np.linspace(0.0, dt, k + 1)  # substep times relative to the start of the step
+        if self._substep_times[0] != (dt, k):  # substep times relative to the start of the step (a step's as the last)
+            self._substep_times = ((dt, k), np.linspace(0.0, dt, k + 1))
+        tk = self._substep_times[1]
         m = self._m
         t0 = m.time
 
