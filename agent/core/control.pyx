@@ -842,8 +842,8 @@ cdef class Batch:
 
 cdef _per_robot(value, Py_ssize_t b):
     a = np.asarray(value, dtype=float)
-    if a.ndim == 1 and a.shape[0] == b and a.flags.c_contiguous:
-        return a  # already one per robot (a central engine's radii): no copy
+    if a.ndim == 1 and a.shape[0] == b:
+        return np.ascontiguousarray(a)  # already one per robot (a central engine's radii: no copy)
     return np.full(b, float(a)) if a.ndim == 0 else np.ascontiguousarray(np.broadcast_to(a.reshape(-1), (b,)))
 
 

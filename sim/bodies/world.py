@@ -169,7 +169,9 @@ class World:
     @property
     def poses(self) -> np.ndarray:
         """(N, 3) x, y, theta (theta in [-pi, pi)); a copy."""
-        return np.column_stack((self._m.pos, self._m.theta))
+        out = np.empty((self._n, 3))  # not column_stack, which costs four times as much
+        out[:, :2], out[:, 2] = self._m.pos, self._m.theta
+        return out
 
     velocities = _copy_of("vel", "(N, 2) world-frame velocity over the last substep (displacement / substep).")
     commands = _copy_of("cmd", "(N, 2) current commands after clipping to the limits.")
