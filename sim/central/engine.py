@@ -719,8 +719,8 @@ def _states(params, measured: np.ndarray, pose: np.ndarray, velocity: np.ndarray
     """What every robot broadcasts this tick: tracked position and collision-free velocity (a scripted
     mover: its true position and scripted velocity, as the world process sends them)."""
     n = len(measured)
-    cooperative = movers.cooperative
-    position = measured[:, :2] if cooperative.all() else np.where(cooperative[:, None], measured[:, :2], pose[:, :2])
+    position, scripted = measured[:, :2].copy(), ~movers.cooperative
+    position[scripted] = pose[scripted, :2]
     return Heard(
         np.arange(n),
         as_sent(position),

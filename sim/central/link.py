@@ -105,8 +105,6 @@ class InProcessLink:
         """Where the tracker sees the agents' robots (not the scripted movers), as the Poses records of its
         frames: ``sensed`` holds every robot, rows by id."""
         t = cast(Heard, self._template)  # rows by id too
-        if t.cooperative.all():  # no scripted mover
-            return Poses.records_of(t.ids, sensed.position)
         return Poses.records_of(t.ids[t.cooperative], sensed.position[t.cooperative])
 
     @property
