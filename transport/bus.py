@@ -205,17 +205,16 @@ class Inbox(Generic[T]):
         """A frame on a key naming one robot: that robot's record first, or refused as misaddressed (a
         damaged robot id would make it another robot's); those after it are the bodies the tracker sees
         near the robot (Bus.publish_poses), for ``bodies`` only."""
-        if (one := frame.views_alone(payload)) is not None:  # its record alone, in one struct call
-            tick, views, rest = *one, None
-        elif (got := decode(payload, frame, self.drops)) is not None:
-            tick, rest = got.tick, got.records[1:]
-            views = type(got)(tick, got.stamp, got.records[:1]).messages()  # the bodies need no view each
-        else:
+        first = frame.views_first(payload)  # its record in one struct call
+        if first is None:  # empty (no record of its robot), or malformed: decode counts why
+            if decode(payload, frame, self.drops) is not None:
+                self.drops[MISADDRESSED] += 1
             return None
-        if not views or views[0].robot != robot:
+        tick, views, rest = first
+        if views[0].robot != robot:
             self.drops[MISADDRESSED] += 1
             return None
-        if rest is not None and len(rest) and self.bodies is not None:
+        if rest is not None and self.bodies is not None:
             self.bodies(tick, rest)
         return tick, views if self.keep is None or self.keep.keeps(views[0]) else []
 

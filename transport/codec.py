@@ -649,18 +649,23 @@ class Frame(Message):
         if count == 1:  # a robot alone's: checked (the stamp too) in one struct call, cheaper than numpy
             if (why := cls._unsound_one(cls._one.unpack(body))) is not None:
                 raise Malformed(why)
-        else:
-            _finite(stamp)
-            # The record's float fields lie side by side: one strided view checks them all at once.
-            start, width = cls._float_block
-            strides = (cls.RECORD.itemsize, 4)
-            if count and not np.isfinite(np.ndarray((count, width), "<f4", body, size + start, strides)).all():
-                raise Malformed("non-finite")
+        elif not math.isfinite(stamp):
+            raise Malformed("non-finite")
         # its own writable bytes: cheaper than a copy of the structured array
         records = np.frombuffer(bytearray(body[size:]), cls.RECORD)
-        if count > 1 and not all(test(records[k]).all() for k, test in cls._rules):
-            raise Malformed("invalid")
+        if count > 1 and (why := cls._unsound(records)) is not None:
+            raise Malformed(why)
         return cls(tick, stamp, records)
+
+    @classmethod
+    def _unsound(cls, records: np.ndarray) -> str | None:
+        """Why these records are malformed, or None. Their float fields lie side by side: one strided
+        view checks them all at once."""
+        start, width = cls._float_block
+        floats = np.ndarray((len(records), width), "<f4", records.data, start, (cls.RECORD.itemsize, 4))
+        if not np.isfinite(floats).all():
+            return "non-finite"
+        return None if all(test(records[k]).all() for k, test in cls._rules) else "invalid"
 
     @classmethod
     def _unsound_one(cls, v: tuple) -> str | None:
@@ -698,17 +703,22 @@ class Frame(Message):
         cls._record_of = staticmethod(attrgetter(*names))
 
     @classmethod
-    def views_alone(cls, data: bytes) -> tuple[int, list] | None:
-        """(tick, [view]) of a well-formed message of one record, in one struct call (``_from``'s checks);
-        None for anything else (a longer frame, or anything wrong), for decode to read and count."""
-        if len(data) != cls._alone.size + (_CHECKSUM.size if cls.CHECKED else 0):
+    def views_first(cls, data: bytes) -> tuple[int, list, np.ndarray | None] | None:
+        """(tick, [view of its first record], the records after it, None for a frame of one) of a well-formed
+        frame, with ``_from``'s checks: the first record in one struct call, the rest in one numpy view. None
+        for anything else (an empty frame, or anything wrong), for decode to read and count."""
+        extra = len(data) - cls._alone.size - (_CHECKSUM.size if cls.CHECKED else 0)
+        if extra < 0 or extra % cls.RECORD.itemsize:
             return None
         if (cls.CHECKED and not intact(data)) or data[0] != cls.KIND or data[1] != VERSION:
             return None
         v = cls._one.unpack_from(data, _HEADER.size)
         if cls._unsound_one(v) is not None:
             return None
-        return v[0], [cls.VIEW(v[_ONE_RECORD_AT], v[0], v[1], *v[_ONE_RECORD_AT + 1 :])]
+        rest = np.frombuffer(data, cls.RECORD, extra // cls.RECORD.itemsize, cls._alone.size) if extra else None
+        if rest is not None and cls._unsound(rest) is not None:
+            return None
+        return v[0], [cls.VIEW(v[_ONE_RECORD_AT], v[0], v[1], *v[_ONE_RECORD_AT + 1 :])], rest
 
 
 @dataclass
@@ -915,8 +925,8 @@ def decode_views(
     data: bytes | memoryview, frame: type[Frame], drops: DropCounter | None = None, keep: RecordFilter | None = None
 ) -> tuple[int, list] | None:
     """A frame of this kind as (tick, one view per record it keeps); a frame of one in one struct call
-    (Frame.views_alone). None (and a counted drop) for anything malformed. Never raises."""
-    if isinstance(data, bytes) and (alone := frame.views_alone(data)) is not None:
-        return alone if keep is None or keep.keeps(alone[1][0]) else (alone[0], [])
+    (Frame.views_first). None (and a counted drop) for anything malformed. Never raises."""
+    if isinstance(data, bytes) and (first := frame.views_first(data)) is not None and first[2] is None:
+        return first[:2] if keep is None or keep.keeps(first[1][0]) else (first[0], [])
     got = decode(data, frame, drops)
     return None if got is None else (got.tick, got.messages(keep))

@@ -174,7 +174,7 @@ def test_a_frame_with_one_bad_record_is_dropped_whole():
 @settings(max_examples=200, deadline=None)
 @given(st.data())
 def test_an_inbox_reads_a_frame_as_views_exactly_as_the_frame_decodes(data):
-    """Inboxes read a frame of one with struct (Frame.views_alone), frames decode with numpy: the same views
+    """Inboxes read a frame of one with struct (Frame.views_first), frames decode with numpy: the same views
     and the same verdict on every record, good or bad, from one layout and one set of rules."""
     frame_kind = data.draw(st.sampled_from([Poses, States, Commands]))
     count = data.draw(st.integers(0, 3))
@@ -187,11 +187,16 @@ def test_an_inbox_reads_a_frame_as_views_exactly_as_the_frame_decodes(data):
     wire = with_checksum(wire) if frame_kind.CHECKED else wire  # the records' verdict, not the checksum's
     frame_drops, view_drops = DropCounter(), DropCounter()
     frame, views = decode(wire, frame_kind, frame_drops), decode_views(wire, frame_kind, view_drops)
+    first = frame_kind.views_first(wire)  # a robot's own key: its record, then the bodies near it
     assert frame_drops == view_drops
     if frame is None:
-        assert views is None
+        assert views is None and first is None
     else:
         assert views == (7, frame.messages())
+        assert (first is None) == (frame.count == 0)
+        if first is not None:
+            assert first[:2] == (7, frame.messages()[:1])
+            assert frame.records[1:].tobytes() == (b"" if first[2] is None else first[2].tobytes())
 
 
 @settings(max_examples=200, deadline=None)

@@ -11,7 +11,7 @@ is certain it is checked: a wrong version is `version`, a wrong kind `kind`, a N
 `non-finite`, a fixed-length message cut or extended `truncated`, a goal set or auction message
 mutated under the checksum of what was sent `checksum` (mutated and sealed anew, as a faulty sender
 would, it meets the same verdicts as any other kind). For the frames, ``decode_views``
-and the one-struct ``Frame.views_alone`` agree with ``decode`` on every input.
+and the one-struct ``Frame.views_first`` agree with ``decode`` on every input.
 
 A warning is an error here: a decoder that warns on what a peer sent raises where warnings are errors.
 
@@ -566,17 +566,24 @@ def _fuzz(kind: type[Message], c: Choices) -> None:
 
 
 def _views_agree(data: bytes, kind: type[Frame], frame: Message | None, drops: DropCounter) -> None:
-    """An inbox's reading (decode_views, Frame.views_alone for a frame of one) is the frame's."""
+    """An inbox's reading (decode_views, Frame.views_first for a robot's own key) is the frame's."""
     view_drops = DropCounter()
     views = decode_views(data, kind, view_drops)
-    alone = kind.views_alone(data)
+    first = kind.views_first(data)
     assert view_drops == drops, f"views dropped with {view_drops}, the frame with {drops}"
     if frame is None:
-        assert views is None and alone is None, f"views {views}, alone {alone} of a dropped frame"
-    else:
-        assert isinstance(frame, Frame)
-        assert views == (frame.tick, frame.messages())
-        assert alone == (views if frame.count == 1 else None), f"alone {alone}, views {views}"
+        assert views is None and first is None, f"views {views}, first {first} of a dropped frame"
+        return
+    assert isinstance(frame, Frame)
+    assert views == (frame.tick, frame.messages())
+    if frame.count == 0:
+        assert first is None, f"first {first} of an empty frame"
+        return
+    assert first is not None, "a sound frame's first record was refused"
+    tick, head, rest = first
+    assert (tick, head) == (frame.tick, frame.messages()[:1])
+    assert (rest is None) == (frame.count == 1)
+    assert rest is None or rest.tobytes() == frame.records[1:].tobytes()
 
 
 def test_the_layouts_fuzzed_are_the_codecs():
