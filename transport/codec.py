@@ -70,7 +70,14 @@ def _leading(layout: struct.Struct, body: memoryview, exact: bool = False) -> tu
 
 
 _FEW = 8  # records a message checks in Python rather than numpy, whose reductions cost more for a few
+_FEW_ROWS = 16  # a frame's records checked in one struct call rather than numpy (a robot's bodies near it)
 _ONE_RECORD_AT = 2  # in the body of a frame of one: tick, stamp, then the record
+
+
+@functools.cache  # per layout and count up to _FEW_ROWS
+def _rows_struct(row: str, count: int) -> struct.Struct:
+    """``count`` records of the packed layout ``row`` (struct's characters, no byte order) as one struct."""
+    return struct.Struct("<" + row * count)
 
 
 def _row_struct(item: np.dtype) -> struct.Struct:
@@ -659,8 +666,12 @@ class Frame(Message):
 
     @classmethod
     def _unsound(cls, records: np.ndarray) -> str | None:
-        """Why these records are malformed, or None. Their float fields lie side by side: one strided
-        view checks them all at once."""
+        """Why these records are malformed, or None. A few without rules: the sum of all their fields is
+        finite exactly when each float is. Else their float fields lie side by side: one strided view
+        checks them all at once."""
+        if len(records) <= _FEW_ROWS and not cls._rules:
+            fields = _rows_struct(cls._row_format, len(records)).unpack(records.data)
+            return None if math.isfinite(sum(fields)) else "non-finite"
         start, width = cls._float_block
         floats = np.ndarray((len(records), width), "<f4", records.data, start, (cls.RECORD.itemsize, 4))
         if not np.isfinite(floats).all():
@@ -679,6 +690,7 @@ class Frame(Message):
     _rules: ClassVar[tuple[tuple[str, Callable[[Any], Any]], ...]] = ()
     # Derived from RECORD once per kind (__init_subclass__):
     _float_block: ClassVar[tuple[int, int]]  # (byte offset in a record, count) of the float fields
+    _row_format: ClassVar[str]  # a record's struct characters, without byte order
     _alone: ClassVar[struct.Struct]  # a whole message of one record: header, tick, stamp, the record
     _one: ClassVar[struct.Struct]  # the body of a frame of one record: tick, stamp, the record
     _one_floats: ClassVar[slice]  # the record's float fields in what _one reads
@@ -694,7 +706,7 @@ class Frame(Message):
         if not adjacent or any(fields[k][0] != np.dtype("<f4") for k in cls._floats):
             raise TypeError(f"{cls.__name__}: the float fields of a record must be adjacent float32")
         cls._float_block = (offsets[0], len(offsets))
-        row = _row_struct(cls.RECORD).format[1:]
+        cls._row_format = row = _row_struct(cls.RECORD).format[1:]
         cls._alone = struct.Struct(_HEADER.format + cls._fixed.format[1:] + row)
         cls._one = struct.Struct(cls._fixed.format + row)
         first = _ONE_RECORD_AT + names.index(cls._floats[0])
