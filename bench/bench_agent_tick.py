@@ -316,7 +316,9 @@ def main() -> None:
         "after the run (a shared machine).",
     ]
     command = " ".join(["python -m bench.bench_agent_tick", *sys.argv[1:]])
-    write_results("agent_tick", "An agent process's CPU per tick, before and after (issue 25)", command, rows)
+    write_results(
+        f"agent_tick_{args.robots}", "An agent process's CPU per tick, before and after (issue 25)", command, rows
+    )
 
 
 def alone(old: Path, before_rev: str, pairs: int) -> None:
