@@ -136,9 +136,10 @@ class TrackedBodies:
         if tick == BEFORE_START:
             return
         by_tick = {**self._by_tick, tick: records}
-        if len(by_tick) > self.KEPT:  # one more than kept: the furthest goes (of two as far, the later)
+        if len(by_tick) > self.KEPT:  # one more than kept: the furthest, first or last, goes (of two as far, the later)
             near = tick if self._stepped is None else self._stepped
-            del by_tick[max(by_tick, key=lambda t: (abs(t - near), t))]
+            first, last = min(by_tick), max(by_tick)
+            del by_tick[first if near - first > last - near else last]
         self._by_tick = by_tick
 
     def at(self, tick: int) -> np.ndarray | None:

@@ -224,6 +224,19 @@ def test_a_host_keeps_the_trackers_frames_near_the_tick_it_steps_whatever_else_c
     assert len(bodies.at(11)) == 2 and len(bodies.at(10)) == 3 and bodies.at(10**6) is None
 
 
+def test_beyond_the_frames_kept_the_furthest_from_the_tick_stepped_goes_of_two_the_later():
+    rng = np.random.default_rng(4)
+    bodies, frame = TrackedBodies(), np.zeros(1, Poses.RECORD)
+    assert bodies.at(50) is None  # the tick the robots step
+    kept: set[int] = set()
+    for tick in rng.integers(30, 71, 400).tolist():  # ties on both sides of 50, repeats
+        kept.add(tick)
+        if len(kept) > TrackedBodies.KEPT:
+            kept.remove(max(kept, key=lambda t: (abs(t - 50), t)))
+        bodies.hear(tick, frame)
+        assert set(bodies._by_tick) == kept
+
+
 def test_bid_positions_of_a_batch_are_those_of_each_robot():
     rng = np.random.default_rng(5)
     position, goal, velocity = rng.uniform(-1, 1, (3, 40, 2))
