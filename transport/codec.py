@@ -666,9 +666,9 @@ class Frame(Message):
 
     @classmethod
     def _unsound(cls, records: np.ndarray) -> str | None:
-        """Why these records are malformed, or None. A few without rules: the sum of all their fields is
-        finite exactly when each float is. Else their float fields lie side by side: one strided view
-        checks them all at once."""
+        """Why these records are malformed, or None. A few without rules: the sum of all their fields
+        (float32 and integers: no overflow in a double) is finite exactly when each float is. Else their
+        float fields lie side by side: one strided view checks them all at once."""
         if len(records) <= _FEW_ROWS and not cls._rules:
             fields = _rows_struct(cls._row_format, len(records)).unpack(records.data)
             return None if math.isfinite(sum(fields)) else "non-finite"
