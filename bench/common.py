@@ -22,6 +22,20 @@ def machine() -> str:
     return f"{platform.machine()}, {psutil.cpu_count()} cores, Python {platform.python_version()}"
 
 
+def revision() -> str:
+    """The commit the current code is, and whether the code differs from it (results files aside)."""
+    git = ["git", "-C", str(REPO)]
+    try:
+        commit = subprocess.run([*git, "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True)
+        changed = subprocess.run(
+            [*git, "status", "--porcelain", "--untracked-files=no", "--", ".", ":!bench/results"],
+            capture_output=True, text=True, check=True,
+        )  # fmt: skip
+    except (OSError, subprocess.CalledProcessError):
+        return "an unknown commit (not a git checkout)"
+    return commit.stdout.strip() + (" with uncommitted changes" if changed.stdout.strip() else "")
+
+
 TRUTH = "/sim/truth"  # the world's truth channel in a run's log.mcap
 
 
@@ -153,7 +167,7 @@ def write_results(name: str, title: str, command: str, lines: list[str]) -> Path
         f"## {title}",
         "",
         f"Command: `{command}`",
-        f"Machine: {machine()}; measured {time.strftime('%Y-%m-%d', time.gmtime())}.",
+        f"Machine: {machine()}; measured {time.strftime('%Y-%m-%d', time.gmtime())}, the current code at {revision()}.",
         "",
         *lines,
         "",
