@@ -10,11 +10,14 @@ import functools
 import itertools
 import math
 import re
+from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import ArrayLike
 
 from .codec import MAX_ROBOTS
+
+if TYPE_CHECKING:  # numpy.typing stays out of a robot's process: annotations only
+    from numpy.typing import ArrayLike
 
 PREFIX = "px"
 _NAME = re.compile(r"^[A-Za-z0-9_\-]+$")

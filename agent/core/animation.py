@@ -6,8 +6,12 @@ arrival time is held, not the velocity, so a slowed robot catches up (docs/scene
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-from numpy.typing import ArrayLike
+
+if TYPE_CHECKING:  # numpy.typing stays out of a robot's process: annotations only
+    from numpy.typing import ArrayLike
 
 
 def synchronised_velocity(position: ArrayLike, goal: ArrayLike, v_max: float, k_f: ArrayLike, dt: float) -> np.ndarray:

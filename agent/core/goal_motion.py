@@ -9,11 +9,14 @@ t the display time since the step began (a scalar or one per row). Pure: arrays 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import ArrayLike
 
 from .control import preferred_velocity
+
+if TYPE_CHECKING:  # numpy.typing stays out of a robot's process: annotations only
+    from numpy.typing import ArrayLike
 
 
 @dataclass(frozen=True)

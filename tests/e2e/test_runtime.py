@@ -452,11 +452,11 @@ def test_the_agent_shares_one_malloc_arena_when_it_runs_one_robot(tmp_path, monk
 def test_a_robot_process_loads_no_module_a_robot_never_uses():
     """Each module is memory in every one of N robot processes: random serves injected faults,
     cProfile a profiled run, socket finding a router's port, importlib.util the launcher's choice of
-    interpreter, pathlib (with urllib.parse and ipaddress) nothing a robot needs, and numpy.ma nothing
-    of a robot's (np.unique loads it). A robot without them never loads them, however its cells move
+    interpreter, pathlib (with urllib.parse and ipaddress) nothing a robot needs, numpy.ma nothing
+    of a robot's (np.unique loads it), and numpy.typing annotations only. A robot without them never loads them, however its cells move
     or whichever robots its inbox keeps. (zlib it loads: it checks goal sets' and bids' checksums.)"""
     code = (
-        f"NOT_LOADED = {('random', 'cProfile', 'socket', 'importlib.util', 'pathlib', 'ipaddress', 'numpy.ma')!r}\n"
+        f"NOT_LOADED = {('random', 'cProfile', 'socket', 'importlib.util', 'pathlib', 'ipaddress', 'numpy.ma', 'numpy.typing')!r}\n"
         "import sys, numpy as np, zenoh, agent.__main__\n"
         "from agent.runtime import CellSubscriptions\n"
         "from transport.bus import KeepRobots\n"
