@@ -402,9 +402,10 @@ class BodyNode:
     def _publish_tick(self) -> None:
         t = self.tick * self.dt
         self.hear_goals()
-        self.bus.publish(self.bus.keys.clock, Tick(self.tick, t, self.dt, self.goal_epoch))
         self._publish_truth()
         measured = self.backend.measure(t)
+        # the clock just before the poses, which it bounds: both often leave in one batch to each agent
+        self.bus.publish(self.bus.keys.clock, Tick(self.tick, t, self.dt, self.goal_epoch))
         self.withheld = measured is None
         if measured is None:
             self.tally.withheld_ticks += 1
