@@ -314,11 +314,15 @@ def test_a_dead_agents_body_is_broadcast_as_a_standing_obstacle_where_the_tracke
                 if got is None:
                     continue
                 tick = got[1]
+                # the tick's commands wait until the world has heard the token go or come: lock-step ticks
+                # can outrun the liveliness news on a loaded machine, which made the ticks of the body vary
                 if tick.tick == 5:
                     tokens.pop(1).undeclare()
+                    wait_for(lambda: not node.live[1], 10.0, 0.005)
                 if tick.tick == 12:
                     tokens[1] = agent_bus.declare_alive("agent", 1)
-                for robot in tokens:
+                    wait_for(lambda: node.live[1], 10.0, 0.005)
+                for robot in sorted(tokens):  # robot 1 before 2: its command is in before the tick can end
                     cmd = Command(robot, tick.tick, tick.stamp, Command.HOLONOMIC, 0.0, 0.0, 0, 0, 0)
                     agent_bus.publish(agent_bus.keys.cmd(robot), Commands.one(cmd))
 
@@ -333,7 +337,7 @@ def test_a_dead_agents_body_is_broadcast_as_a_standing_obstacle_where_the_tracke
         heard = [s for _, s in states.drain()]
     assert {s.robot for s in heard} == {1}  # live robots speak for themselves (here: nobody does)
     ticks = sorted(s.tick for s in heard)
-    assert ticks == list(range(ticks[0], ticks[-1] + 1)) and 5 <= ticks[0] <= 7 and 12 <= ticks[-1] <= 14
+    assert ticks == list(range(6, 13))  # from the tick after the death is heard to the tick of the return
     for s in heard:
         assert (
             s.flags == State.DYNAMIC and s.vx == s.vy == 0.0 and s.radius == np.float32(node.params.radius)
