@@ -453,10 +453,12 @@ def test_a_robot_process_loads_no_module_a_robot_never_uses():
     """Each module is memory in every one of N robot processes: random serves injected faults,
     cProfile a profiled run, socket finding a router's port, importlib.util the launcher's choice of
     interpreter, pathlib (with urllib.parse and ipaddress) nothing a robot needs, numpy.ma nothing
-    of a robot's (np.unique loads it), and numpy.typing annotations only. A robot without them never loads them, however its cells move
-    or whichever robots its inbox keeps. (zlib it loads: it checks goal sets' and bids' checksums.)"""
+    of a robot's (np.unique loads it), and numpy.typing annotations only. A robot without them never
+    loads them, however its cells move or whichever robots its inbox keeps. (zlib it loads: it checks
+    goal sets' and bids' checksums.)"""
+    not_loaded = ("random", "cProfile", "socket", "importlib.util", "pathlib", "ipaddress", "numpy.ma", "numpy.typing")
     code = (
-        f"NOT_LOADED = {('random', 'cProfile', 'socket', 'importlib.util', 'pathlib', 'ipaddress', 'numpy.ma', 'numpy.typing')!r}\n"
+        f"NOT_LOADED = {not_loaded!r}\n"
         "import sys, numpy as np, zenoh, agent.__main__\n"
         "from agent.runtime import CellSubscriptions\n"
         "from transport.bus import KeepRobots\n"
